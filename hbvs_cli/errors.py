@@ -1,0 +1,94 @@
+"""The exceptions hbvs raises on purpose, and the exit code each one maps to.
+
+Every error a user can cause (a bad file, a degenerate target, a lost target) is an
+:class:`HbvsError`. The CLI prints its message as one line on stderr and exits with its
+``exit_code``; anything else that escapes is a bug and is reported as such.
+
+Exit codes
+----------
+==== =========================================================================
+0    success
+1    a ``report --fail-above`` threshold was exceeded, or the demo did not converge
+2    the command line is wrong (an unknown option, a bad value, clashing options)
+3    an input file is missing, unreadable or malformed
+4    the geometry is degenerate (too few points, collinear, a point at camera height...)
+5    the run was stopped: the target was lost for longer than ``--lost-timeout``
+130  interrupted by Ctrl-C (SIGINT); 143 by SIGTERM
+==== =========================================================================
+"""
+
+from __future__ import annotations
+
+
+class HbvsError(Exception):
+    """Base of every error hbvs raises on purpose; its message is meant for the user."""
+
+    exit_code: int = 3
+
+
+class UsageError(HbvsError):
+    """Options that cannot go together, or a value outside its range."""
+
+    exit_code = 2
+
+
+class InputError(HbvsError):
+    """A file or stream that is missing, unreadable or not what it should be."""
+
+    exit_code = 3
+
+
+class CalibrationError(InputError):
+    """A camera calibration file that is missing, malformed or inconsistent."""
+
+
+class RecordingError(InputError):
+    """An MCAP file that is malformed, truncated beyond use, or of the wrong kind."""
+
+
+class GeometryError(HbvsError):
+    """Input whose geometry admits no (unique) answer."""
+
+    exit_code = 4
+
+
+class NotEnoughPointsError(GeometryError):
+    """Fewer target points than the method needs."""
+
+
+class CollinearPointsError(GeometryError):
+    """Reference points that are (nearly) collinear, so the homography is not unique."""
+
+
+class PointAtCameraHeightError(GeometryError):
+    """A target point whose normalised height m_z is (nearly) zero: (18) divides by it."""
+
+
+class PointBehindCameraError(GeometryError):
+    """A point with non-positive depth, or a depth ratio that is not positive."""
+
+
+class NonFiniteInputError(GeometryError):
+    """NaN or infinity where numbers were expected."""
+
+
+class NoValidBranchError(GeometryError):
+    """A homography none of whose decompositions puts the plane in front of the camera."""
+
+
+class TargetLostError(HbvsError):
+    """The target stayed out of sight longer than the allowed timeout."""
+
+    exit_code = 5
+
+
+class ThresholdExceeded(HbvsError):
+    """A metric exceeded a bound given with ``--fail-above`` (or the demo did not converge)."""
+
+    exit_code = 1
+
+
+class Interrupted(HbvsError):
+    """The user interrupted the command (SIGINT or SIGTERM)."""
+
+    exit_code = 130
