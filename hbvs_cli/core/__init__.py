@@ -1,0 +1,18 @@
+"""The method of Chen et al. (IROS 2003), pure: numpy in, numpy out, no I/O, no printing.
+
+One concept per module:
+
+* :mod:`.frames`: rotations, planar poses, the paper <-> OpenCV axes (3)-(5)
+* :mod:`.camera`: intrinsics and pixels <-> normalised coordinates (9), (11)
+* :mod:`.homography`: the Euclidean homography, three-point (16)-(18) and projective
+* :mod:`.decomposition`: (theta, x_h, n*) with the right branch; the known-normal solver
+* :mod:`.estimation`: target pixels -> the controller's measurement, with outlier gating
+* :mod:`.controller`: errors (19), (27), the law (29)-(31), Lyapunov function (36)
+* :mod:`.trajectory`: the desired trajectory of Remark 1 (splines), condition (35)
+* :mod:`.depth`: initial depth estimates from (25) or a known target size
+* :mod:`.unicycle`: exact integration of the kinematics (21)
+* :mod:`.path`: teach-pendant command profiles and presets
+* :mod:`.world`: the simulated camera, wall and target
+* :mod:`.simulator`: the closed loop
+* :mod:`.metrics`: statistics and convergence measures of a run
+"""

@@ -1,0 +1,227 @@
+"""The pinhole camera: intrinsics, and pixels <-> the paper's normalised coordinates.
+
+The paper writes a normalised point as ``m = [1, m_y, m_z]^T`` (9) in its own axes (x forward,
+y left, z up) and relates it to pixels by ``p = A m`` (11). With the usual OpenCV/ROS
+intrinsic matrix ``K`` (x right, y down, z forward)::
+
+    [x_n, y_n, 1]^T = K^-1 [u, v, 1]^T     and     m = [1, -x_n, -y_n]^T
+
+(equations.md, "Frames and conventions").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import CalibrationError, NonFiniteInputError, PointBehindCameraError
+
+#: Distortion models hbvs understands (ROS names); ``plumb_bob`` is OpenCV's k1 k2 p1 p2 k3.
+SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "none", "")
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics with optional lens distortion.
+
+    Attributes
+    ----------
+    fx, fy : float
+        Focal lengths (px).
+    cx, cy : float
+        Principal point (px), OpenCV convention (centre of the top-left pixel is (0, 0)).
+    width, height : int
+        Image size (px).
+    distortion_model : str
+        ``"plumb_bob"`` (k1, k2, p1, p2, k3), ``"rational_polynomial"`` or ``"none"``.
+    distortion : tuple of float
+        The distortion coefficients in OpenCV order (empty for none).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion_model: str = "none"
+    distortion: tuple[float, ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        values = (self.fx, self.fy, self.cx, self.cy)
+        if not all(np.isfinite(v) for v in values):
+            raise CalibrationError("camera intrinsics contain NaN or infinity")
+        if self.fx <= 0 or self.fy <= 0:
+            raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.distortion_model not in SUPPORTED_DISTORTION_MODELS:
+            raise CalibrationError(
+                f"unsupported distortion model {self.distortion_model!r} "
+                f"(supported: plumb_bob, rational_polynomial, none)"
+            )
+        if not all(np.isfinite(v) for v in self.distortion):
+            raise CalibrationError("distortion coefficients contain NaN or infinity")
+
+    @property
+    def K(self) -> NDArray[np.float64]:
+        """The 3x3 intrinsic matrix (OpenCV axes)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        """True when any distortion coefficient is non-zero."""
+        return any(abs(v) > 0.0 for v in self.distortion)
+
+    @classmethod
+    def from_matrix(
+        cls,
+        K: ArrayLike,
+        width: int,
+        height: int,
+        distortion_model: str = "none",
+        distortion: ArrayLike = (),
+    ) -> "CameraIntrinsics":
+        """Build from a 3x3 matrix ``K`` (OpenCV axes, zero skew)."""
+        K = np.asarray(K, dtype=float)
+        if K.shape != (3, 3):
+            raise CalibrationError(f"the camera matrix must be 3x3, got shape {K.shape}")
+        if abs(K[0, 1]) > 1e-9 * max(1.0, abs(K[0, 0])):
+            raise CalibrationError("camera matrices with skew are not supported")
+        return cls(
+            fx=float(K[0, 0]),
+            fy=float(K[1, 1]),
+            cx=float(K[0, 2]),
+            cy=float(K[1, 2]),
+            width=int(width),
+            height=int(height),
+            distortion_model=distortion_model,
+            distortion=tuple(float(v) for v in np.ravel(distortion)),
+        )
+
+    def scaled(self, factor: float) -> "CameraIntrinsics":
+        """The same camera with images resized by ``factor`` (no distortion rescale needed)."""
+        return CameraIntrinsics(
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=(self.cx + 0.5) * factor - 0.5,
+            cy=(self.cy + 0.5) * factor - 0.5,
+            width=int(round(self.width * factor)),
+            height=int(round(self.height * factor)),
+            distortion_model=self.distortion_model,
+            distortion=self.distortion,
+        )
+
+
+#: The default simulated camera: 640x480, f = 500 px (a 65 deg horizontal field of view),
+#: principal point at the image centre, no distortion.
+DEFAULT_CAMERA = CameraIntrinsics(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480)
+
+
+def pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
+    """Pixels to the paper's normalised coordinates ``m = [1, m_y, m_z]`` (9), (11).
+
+    Lens distortion is not removed here: call :func:`undistort_pixels` first when the
+    camera has any.
+
+    Parameters
+    ----------
+    camera : CameraIntrinsics
+    pixels : array_like, shape (..., 2)
+        ``(u, v)`` in px.
+
+    Returns
+    -------
+    m : ndarray, shape (..., 3)
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    x_n = (pixels[..., 0] - camera.cx) / camera.fx
+    y_n = (pixels[..., 1] - camera.cy) / camera.fy
+    return np.stack([np.ones_like(x_n), -x_n, -y_n], axis=-1)
+
+
+def normalized_to_pixels(camera: CameraIntrinsics, m: ArrayLike) -> NDArray[np.float64]:
+    """The paper's normalised coordinates to pixels, the inverse of :func:`pixels_to_normalized`.
+
+    Parameters
+    ----------
+    m : array_like, shape (..., 3)
+        ``[1, m_y, m_z]`` (a first component other than 1 is divided out).
+
+    Returns
+    -------
+    pixels : ndarray, shape (..., 2)
+    """
+    m = np.asarray(m, dtype=float)
+    x_n = -m[..., 1] / m[..., 0]
+    y_n = -m[..., 2] / m[..., 0]
+    return np.stack([camera.fx * x_n + camera.cx, camera.fy * y_n + camera.cy], axis=-1)
+
+
+def normalize_points(points_camera: ArrayLike) -> NDArray[np.float64]:
+    """Euclidean points in F to normalised coordinates ``m = m_bar / x`` (9).
+
+    Parameters
+    ----------
+    points_camera : array_like, shape (..., N, 3)
+        Points in the paper's camera axes (m).
+
+    Raises
+    ------
+    PointBehindCameraError
+        If a point has non-positive depth x.
+    """
+    points_camera = np.asarray(points_camera, dtype=float)
+    if not np.all(np.isfinite(points_camera)):
+        raise NonFiniteInputError("point coordinates contain NaN or infinity")
+    depth = points_camera[..., 0]
+    if np.any(depth <= 1e-9):
+        raise PointBehindCameraError("a target point is behind (or on the plane of) the camera")
+    return points_camera / depth[..., None]
+
+
+def undistort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
+    """Remove lens distortion from measured pixels (OpenCV's iterative undistortion).
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+
+    Returns
+    -------
+    pixels : ndarray, shape (N, 2)
+        Ideal pinhole pixels under the same ``K``; the input itself when the camera has no
+        distortion.
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    if not camera.has_distortion or pixels.size == 0:
+        return pixels
+    import cv2  # lazy: keep the core importable without loading OpenCV
+
+    undistorted = cv2.undistortPoints(
+        pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K
+    )
+    return undistorted.reshape(pixels.shape)
+
+
+def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
+    """Apply lens distortion to ideal pinhole pixels (the forward model of the lens).
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    if not camera.has_distortion or pixels.size == 0:
+        return pixels
+    import cv2
+
+    x_n = (pixels[:, 0] - camera.cx) / camera.fx
+    y_n = (pixels[:, 1] - camera.cy) / camera.fy
+    object_points = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).reshape(-1, 1, 3)
+    projected, _ = cv2.projectPoints(
+        object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float)
+    )
+    return projected.reshape(pixels.shape)

@@ -1,0 +1,175 @@
+"""Frames, rotations and planar poses in the paper's conventions.
+
+Conventions (equations.md, "Frames and conventions"):
+
+* Robot/camera frame F: origin at the centre of the wheel axis, **x forward** (optical
+  axis), **y left**, **z up**. The robot moves in the x-y plane.
+* A planar robot pose is ``(x, y, phi)`` in a world frame W with z up: metres, metres,
+  radians.
+* F* is the reference snapshot with pose ``(x*, y*, phi*)``. Then (3)-(5)::
+
+      R     = Rz(theta),   theta = phi* - phi       (4), (5): theta_dot = -w_c
+      x_f   = Rz(phi)^T (p* - p)                    (3): origin of F* seen from F
+      m_i   = x_f + R m*_i                          (3)
+
+* OpenCV/ROS camera axes are x right, y down, z forward. The permutation ``P`` maps the
+  paper's axes to OpenCV's: ``v_cv = P v_paper``; a homography maps as ``H_cv = P H P^T``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Paper axes (x fwd, y left, z up) -> OpenCV camera axes (x right, y down, z fwd).
+PAPER_TO_OPENCV: NDArray[np.float64] = np.array(
+    [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
+)
+PAPER_TO_OPENCV.setflags(write=False)
+
+
+def rotation_z(theta: ArrayLike) -> NDArray[np.float64]:
+    """Right-handed rotation about z, the paper's R of (4).
+
+    Parameters
+    ----------
+    theta : array_like, shape (...)
+        Angle in radians.
+
+    Returns
+    -------
+    R : ndarray, shape (..., 3, 3)
+    """
+    theta = np.asarray(theta, dtype=float)
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros(theta.shape + (3, 3))
+    R[..., 0, 0] = c
+    R[..., 0, 1] = -s
+    R[..., 1, 0] = s
+    R[..., 1, 1] = c
+    R[..., 2, 2] = 1.0
+    return R
+
+
+def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
+    """Wrap angles to [-pi, pi).
+
+    Parameters
+    ----------
+    angle : array_like
+        Radians.
+    """
+    wrapped = (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+    return float(wrapped) if wrapped.ndim == 0 else wrapped
+
+
+def paper_to_opencv_homography(H: ArrayLike) -> NDArray[np.float64]:
+    """Express a homography given in the paper's axes in OpenCV camera axes.
+
+    Parameters
+    ----------
+    H : array_like, shape (..., 3, 3)
+
+    Returns
+    -------
+    H_cv : ndarray, shape (..., 3, 3)
+        ``P H P^T``.
+    """
+    return PAPER_TO_OPENCV @ np.asarray(H, dtype=float) @ PAPER_TO_OPENCV.T
+
+
+def opencv_to_paper_homography(H_cv: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of :func:`paper_to_opencv_homography`: ``P^T H_cv P``."""
+    return PAPER_TO_OPENCV.T @ np.asarray(H_cv, dtype=float) @ PAPER_TO_OPENCV
+
+
+def relative_planar_pose(
+    pose: ArrayLike, reference_pose: ArrayLike
+) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """Rotation angle and translation of F* seen from F, equations (3)-(5).
+
+    Parameters
+    ----------
+    pose : array_like, shape (..., 3)
+        Current robot pose ``(x, y, phi)`` in W (m, m, rad).
+    reference_pose : array_like, shape (3,) or (..., 3)
+        Pose of the reference frame F*.
+
+    Returns
+    -------
+    theta : float or ndarray, shape (...)
+        ``phi* - phi`` wrapped to [-pi, pi) (rad).
+    x_f : ndarray, shape (..., 3)
+        ``Rz(phi)^T (p* - p)``, the origin of F* in F (m); its z component is 0.
+    """
+    pose = np.asarray(pose, dtype=float)
+    reference_pose = np.asarray(reference_pose, dtype=float)
+    dx = reference_pose[..., 0] - pose[..., 0]
+    dy = reference_pose[..., 1] - pose[..., 1]
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    x_f = np.stack([c * dx + s * dy, -s * dx + c * dy, np.zeros_like(dx)], axis=-1)
+    theta = wrap_angle(reference_pose[..., 2] - pose[..., 2])
+    return theta, x_f
+
+
+def world_to_robot(points_world: ArrayLike, pose: ArrayLike, camera_height: float) -> NDArray[np.float64]:
+    """Coordinates of world points in the robot/camera frame F.
+
+    Parameters
+    ----------
+    points_world : array_like, shape (N, 3)
+        Points in W (m).
+    pose : array_like, shape (3,)
+        Robot pose ``(x, y, phi)`` (m, m, rad).
+    camera_height : float
+        Height of the optical centre above the floor (m); F's origin is there.
+
+    Returns
+    -------
+    points : ndarray, shape (N, 3)
+        ``Rz(phi)^T (P - p)`` with ``p = (x, y, camera_height)``.
+    """
+    points_world = np.asarray(points_world, dtype=float)
+    x, y, phi = (float(v) for v in np.asarray(pose, dtype=float))
+    c, s = np.cos(phi), np.sin(phi)
+    d = points_world - np.array([x, y, camera_height])
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=-1)
+
+
+def compose_planar_pose(base: ArrayLike, offset: ArrayLike) -> NDArray[np.float64]:
+    """Pose of ``offset`` (expressed in the frame of ``base``) in the world.
+
+    Parameters
+    ----------
+    base, offset : array_like, shape (3,)
+        ``(x, y, phi)`` (m, m, rad).
+    """
+    bx, by, bphi = (float(v) for v in np.asarray(base, dtype=float))
+    ox, oy, ophi = (float(v) for v in np.asarray(offset, dtype=float))
+    c, s = np.cos(bphi), np.sin(bphi)
+    return np.array([bx + c * ox - s * oy, by + s * ox + c * oy, bphi + ophi])
+
+
+def yaw_to_quaternion(phi: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion ``(x, y, z, w)`` of a rotation by ``phi`` about z.
+
+    Parameters
+    ----------
+    phi : array_like, shape (...)
+        Radians.
+
+    Returns
+    -------
+    q : ndarray, shape (..., 4)
+    """
+    half = 0.5 * np.asarray(phi, dtype=float)
+    zeros = np.zeros_like(half)
+    return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=-1)
+
+
+def quaternion_to_yaw(q: ArrayLike) -> NDArray[np.float64] | float:
+    """Yaw (rad) of a quaternion ``(x, y, z, w)``, the rotation about z."""
+    q = np.asarray(q, dtype=float)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return float(yaw) if np.ndim(yaw) == 0 else yaw

@@ -1,0 +1,340 @@
+"""The Euclidean homography between the reference view F* and a current view, (12)-(18).
+
+``m_i = alpha_i H m*_i`` with ``H = R + x_h n*^T`` (12) and depth ratios
+``alpha_i = x*_i / x_i``. For a robot moving in a plane the third row of H is exactly
+``[0, 0, 1]`` (15), which gives two routes:
+
+* the paper's three-point method (16)-(18): ``alpha_i = m_iz / m*_iz`` from row 3, then rows
+  1 and 2 are linear in H. Three points give a square system; more points, least squares.
+  No SVD and no scale normalisation: H comes out at its true Euclidean scale.
+* the projective route, for N >= 4 points: a normalised DLT (or RANSAC) homography, scaled
+  so its middle singular value is 1, with the sign that makes every depth ratio positive.
+
+All functions work on batches: points of shape ``(..., N, 3)`` against one reference set
+``(N, 3)``; the reference system is factored once, so a whole recording costs a few matrix
+products (this is what ``hbvs fit`` uses).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import (
+    CollinearPointsError,
+    NonFiniteInputError,
+    NotEnoughPointsError,
+    PointAtCameraHeightError,
+    PointBehindCameraError,
+)
+from .camera import CameraIntrinsics
+from .frames import opencv_to_paper_homography
+
+#: Smallest |m*_z| accepted: a point this close to the camera's height (0.06 deg of
+#: elevation, 5 mm at 5 m) makes alpha_i = m_iz / m*_iz (18) meaningless.
+MIN_REFERENCE_HEIGHT = 1e-3
+
+#: Smallest accepted ratio of the reference design matrix's singular values; below it the
+#: reference points are (nearly) collinear and (16)-(17) have no unique solution.
+MIN_REFERENCE_CONDITION = 1e-4
+
+
+@dataclass(frozen=True)
+class HomographyEstimate:
+    """A batch of Euclidean homographies and what came with them.
+
+    Attributes
+    ----------
+    H : ndarray, shape (..., 3, 3)
+        Euclidean homographies in the paper's axes (NaN where ``valid`` is False).
+    depth_ratios : ndarray, shape (..., N)
+        ``alpha_i = x*_i / x_i`` (NaN where not valid).
+    valid : ndarray of bool, shape (...)
+        False for frames with non-finite input or a non-positive depth ratio.
+    residual : ndarray, shape (...)
+        RMS transfer error of the points through H in normalised units (0 for 3 exact
+        points); a consistency measure for outlier gating.
+    """
+
+    H: NDArray[np.float64]
+    depth_ratios: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    residual: NDArray[np.float64]
+
+
+def validate_reference_points(
+    m_ref: ArrayLike, min_points: int = 3, check_height: bool = True
+) -> NDArray[np.float64]:
+    """Check reference points for the degenerate cases of (16)-(18) and return them.
+
+    Parameters
+    ----------
+    m_ref : array_like, shape (N, 3)
+        Normalised reference points ``m*_i = [1, m*_iy, m*_iz]``.
+    min_points : int
+        3 for the three-point method, 4 for the projective route.
+    check_height : bool
+        Reject points at the camera's height (only the three-point method divides by m*_z).
+
+    Raises
+    ------
+    NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
+    CollinearPointsError, PointBehindCameraError
+    """
+    m_ref = np.asarray(m_ref, dtype=float)
+    if m_ref.ndim != 2 or m_ref.shape[-1] != 3:
+        raise NotEnoughPointsError(f"reference points must have shape (N, 3), got {m_ref.shape}")
+    if m_ref.shape[0] < min_points:
+        raise NotEnoughPointsError(
+            f"need at least {min_points} target points, got {m_ref.shape[0]}"
+        )
+    if not np.all(np.isfinite(m_ref)):
+        raise NonFiniteInputError("reference points contain NaN or infinity")
+    if np.any(np.abs(m_ref[:, 0] - 1.0) > 1e-9):
+        raise PointBehindCameraError(
+            "reference points must be normalised as m = [1, m_y, m_z] (a point in front of the camera)"
+        )
+    if check_height:
+        low = np.flatnonzero(np.abs(m_ref[:, 2]) < MIN_REFERENCE_HEIGHT)
+        if low.size:
+            raise PointAtCameraHeightError(
+                f"target point {int(low[0])} lies at the camera's height (m*_z = {m_ref[low[0], 2]:.2e}); "
+                "equation (18) needs every point clearly above or below the camera"
+            )
+    singular = np.linalg.svd(m_ref, compute_uv=False)
+    if singular[-1] < MIN_REFERENCE_CONDITION * singular[0]:
+        raise CollinearPointsError(
+            "the reference target points are collinear (or nearly): a plane needs three points "
+            "that span a triangle"
+        )
+    return m_ref
+
+
+def depth_ratios(m: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
+    """Depth ratios ``alpha_i = m_iz / m*_iz`` from the third row of (12), equation (18).
+
+    Parameters
+    ----------
+    m : array_like, shape (..., N, 3)
+        Current normalised points.
+    m_ref : array_like, shape (N, 3)
+        Reference normalised points (validated, no point at the camera's height).
+
+    Returns
+    -------
+    alpha : ndarray, shape (..., N)
+    """
+    m = np.asarray(m, dtype=float)
+    m_ref = np.asarray(m_ref, dtype=float)
+    return m[..., 2] / m_ref[:, 2]
+
+
+def _check_batch_shapes(m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> None:
+    if m.shape[-2:] != m_ref.shape:
+        raise NotEnoughPointsError(
+            f"current points have shape {m.shape[-2:]} but the reference has {m_ref.shape}: "
+            "every reference point needs its current image"
+        )
+
+
+def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyEstimate:
+    """Euclidean homography by the paper's three-point method, (16)-(18).
+
+    With ``alpha_i`` from (18), rows 1 and 2 of (12) read
+    ``[1, m*_iy, m*_iz] . h_1 = 1 / alpha_i`` and ``[1, m*_iy, m*_iz] . h_2 = m_iy / alpha_i``;
+    three non-collinear points give one 3x3 solve per row, more points least squares. The
+    third row is ``[0, 0, 1]`` (15).
+
+    Parameters
+    ----------
+    m : array_like, shape (..., N, 3)
+        Current normalised points ``[1, m_y, m_z]``, N >= 3, in the order of ``m_ref``.
+    m_ref : array_like, shape (N, 3)
+        Reference normalised points ``m*_i``.
+
+    Returns
+    -------
+    HomographyEstimate
+        Frames with non-finite points or a non-positive depth ratio are marked invalid.
+
+    Raises
+    ------
+    NotEnoughPointsError, CollinearPointsError, PointAtCameraHeightError, NonFiniteInputError
+        For a degenerate reference (these concern every frame).
+    """
+    m_ref = validate_reference_points(m_ref, min_points=3)
+    m = np.asarray(m, dtype=float)
+    _check_batch_shapes(m, m_ref)
+    alpha = depth_ratios(m, m_ref)
+    finite = np.all(np.isfinite(m), axis=(-1, -2))
+    valid = finite & np.all(alpha > 0.0, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_alpha = 1.0 / alpha
+        rhs = np.stack([inv_alpha, m[..., 1] * inv_alpha], axis=-1)  # (..., N, 2)
+    # One pseudo-inverse of the reference design serves every frame and both rows.
+    design_pinv = np.linalg.pinv(m_ref)  # (3, N)
+    rows = np.einsum("kn,...nr->...rk", design_pinv, rhs)  # (..., 2, 3)
+    H = np.zeros(m.shape[:-2] + (3, 3))
+    H[..., :2, :] = rows
+    H[..., 2, 2] = 1.0
+    residual = _transfer_residual(H, m, m_ref)
+    H[~valid] = np.nan
+    alpha = np.where(valid[..., None], alpha, np.nan)
+    residual = np.where(valid, residual, np.nan)
+    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=residual)
+
+
+def estimate_euclidean_homography_single(m: ArrayLike, m_ref: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One frame of :func:`estimate_euclidean_homography`, raising on an invalid frame.
+
+    Returns
+    -------
+    H : ndarray, shape (3, 3)
+    alpha : ndarray, shape (N,)
+
+    Raises
+    ------
+    NonFiniteInputError
+        If a current point is NaN or infinite.
+    PointBehindCameraError
+        If a depth ratio is not positive (a point crossed the camera's horizon, i.e. it is
+        behind the camera or matched to the wrong reference point).
+    """
+    m = np.asarray(m, dtype=float)
+    if not np.all(np.isfinite(m)):
+        raise NonFiniteInputError("current image points contain NaN or infinity")
+    estimate = estimate_euclidean_homography(m, m_ref)
+    if not bool(estimate.valid):
+        raise PointBehindCameraError(
+            "a depth ratio alpha_i = m_iz / m*_iz is not positive: a point is on the other side "
+            "of the camera's horizon than in the reference image"
+        )
+    return estimate.H, estimate.depth_ratios
+
+
+def _normalizing_transform(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Hartley normalisation of the (y, z) coordinates of paper-axis points, batched."""
+    yz = points[..., 1:] / points[..., :1]
+    centre = yz.mean(axis=-2)  # (..., 2)
+    spread = np.sqrt(np.sum((yz - centre[..., None, :]) ** 2, axis=-1)).mean(axis=-1)
+    scale = np.sqrt(2.0) / np.maximum(spread, 1e-12)
+    T = np.zeros(points.shape[:-2] + (3, 3))
+    T[..., 0, 0] = 1.0
+    T[..., 1, 1] = scale
+    T[..., 2, 2] = scale
+    T[..., 1, 0] = -scale * centre[..., 0]
+    T[..., 2, 0] = -scale * centre[..., 1]
+    return T
+
+
+def scale_to_euclidean(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
+    """Fix the scale and sign of a projective homography in the paper's axes.
+
+    A Euclidean homography ``R + t n^T`` has middle singular value 1; its sign makes
+    ``(H m*_i)_x = 1 / alpha_i`` positive (equations.md, the projective route).
+
+    Parameters
+    ----------
+    H : array_like, shape (..., 3, 3)
+    m_ref : array_like, shape (N, 3)
+    """
+    H = np.asarray(H, dtype=float)
+    sigma = np.linalg.svd(H, compute_uv=False)
+    H = H / sigma[..., 1, None, None]
+    first = np.einsum("...k,nk->...n", H[..., 0, :], np.asarray(m_ref, dtype=float))
+    sign = np.where(np.sum(np.sign(first), axis=-1) >= 0, 1.0, -1.0)
+    return H * sign[..., None, None]
+
+
+def estimate_projective_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyEstimate:
+    """Euclidean homography by the projective route: normalised DLT, then scale and sign.
+
+    Does not assume planar motion, so it also serves as an independent check of the
+    three-point method.
+
+    Parameters
+    ----------
+    m : array_like, shape (..., N, 3)
+        Current normalised points, N >= 4.
+    m_ref : array_like, shape (N, 3)
+
+    Returns
+    -------
+    HomographyEstimate
+    """
+    m_ref = validate_reference_points(m_ref, min_points=4, check_height=False)
+    m = np.asarray(m, dtype=float)
+    _check_batch_shapes(m, m_ref)
+    finite = np.all(np.isfinite(m), axis=(-1, -2))
+    m_safe = np.where(finite[..., None, None], m, m_ref)
+    T_ref = _normalizing_transform(m_ref)
+    T_cur = _normalizing_transform(m_safe)
+    p = m_ref @ T_ref.T  # (N, 3)
+    q = np.einsum("...ij,...nj->...ni", T_cur, m_safe)  # (..., N, 3)
+    n_points = m_ref.shape[0]
+    A = np.zeros(m.shape[:-2] + (2 * n_points, 9))
+    a, b, c = q[..., 0], q[..., 1], q[..., 2]
+    # m x (H m*) = 0: b (h3.p) - c (h2.p) = 0 and c (h1.p) - a (h3.p) = 0.
+    A[..., 0::2, 3:6] = -c[..., None] * p
+    A[..., 0::2, 6:9] = b[..., None] * p
+    A[..., 1::2, 0:3] = c[..., None] * p
+    A[..., 1::2, 6:9] = -a[..., None] * p
+    _, _, vt = np.linalg.svd(A)
+    H_norm = vt[..., -1, :].reshape(m.shape[:-2] + (3, 3))
+    H = np.linalg.inv(T_cur) @ H_norm @ T_ref
+    H = scale_to_euclidean(H, m_ref)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        alpha = 1.0 / np.einsum("...k,nk->...n", H[..., 0, :], m_ref)
+    residual = _transfer_residual(H, m_safe, m_ref)
+    valid = finite & np.all(alpha > 0.0, axis=-1)
+    H[~valid] = np.nan
+    alpha = np.where(valid[..., None], alpha, np.nan)
+    residual = np.where(valid, residual, np.nan)
+    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=residual)
+
+
+def euclidean_from_pixel_homography(
+    G: ArrayLike, camera: CameraIntrinsics, m_ref: ArrayLike
+) -> NDArray[np.float64]:
+    """Map a pixel homography (e.g. from ``cv2.findHomography``) to the paper's H.
+
+    ``H_cv = K^-1 G K`` in OpenCV axes, ``H = P^T H_cv P`` in the paper's axes, then scaled
+    and signed by :func:`scale_to_euclidean`.
+
+    Parameters
+    ----------
+    G : array_like, shape (..., 3, 3)
+        Maps reference pixels to current pixels.
+    camera : CameraIntrinsics
+    m_ref : array_like, shape (N, 3)
+        Reference points used to fix the sign (every depth ratio positive).
+    """
+    K = camera.K
+    H_cv = np.linalg.inv(K) @ np.asarray(G, dtype=float) @ K
+    return scale_to_euclidean(opencv_to_paper_homography(H_cv), m_ref)
+
+
+def _transfer_residual(H: NDArray[np.float64], m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> NDArray[np.float64]:
+    """RMS distance (normalised units) between measured points and the reference points
+    transferred through H."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        predicted = transfer_points(H, m_ref)
+        return np.sqrt(np.mean((predicted[..., 1:] - m[..., 1:]) ** 2, axis=(-1, -2)))
+
+
+def transfer_points(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
+    """Predicted current points ``m_i = alpha_i H m*_i``, normalised to ``[1, m_y, m_z]``.
+
+    Parameters
+    ----------
+    H : array_like, shape (..., 3, 3)
+    m_ref : array_like, shape (N, 3)
+
+    Returns
+    -------
+    m : ndarray, shape (..., N, 3)
+    """
+    projected = np.einsum("...ij,nj->...ni", np.asarray(H, dtype=float), np.asarray(m_ref, dtype=float))
+    return projected / projected[..., :1]
