@@ -1,0 +1,262 @@
+"""The adaptive tracking controller of Chen et al., equations (19)-(31) and (36).
+
+Errors (19), (27)::
+
+    e1 = x_h1 - x_hd1,   e2 = x_h2 - x_hd2,   e3 = theta - theta_d,   ebar2 = e2 - x_hd1 e3
+
+Control law with the lateral gain k_2 (equations.md, "A lateral gain"; k_2 = 1 is exactly
+the paper's (29)-(30))::
+
+    w_c  = k_w e3 - theta_d_dot - k_2 x_hd1_dot ebar2                    (30)
+    v_c  = k_v e1 - k_2 ebar2 w_c + dhat (x_h2 w_c - x_hd1_dot)           (29)
+    dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot)                          (31)
+
+Lyapunov function (36), weighted by k_2::
+
+    V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma_1) (d* - dhat)^2
+
+whose derivative along the closed loop (32) is ``-k_v e1^2 - k_w e3^2`` (38).
+
+Every function accepts scalars or broadcastable arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import UsageError
+from .frames import wrap_angle
+
+#: Names of the two laws hbvs implements.
+LAW_PAPER = "paper"
+LAW_LATERAL_GAIN = "lateral-gain"
+LAWS = (LAW_PAPER, LAW_LATERAL_GAIN)
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """Gains of (29)-(31).
+
+    The defaults were tuned on the default scenario (target 6 m ahead, taught at
+    0.175 m/s, so |x_hd1_dot| ~ 0.029 1/s) with the whole vision pipeline in the loop:
+
+    * ``k_2 = 300`` makes the lateral mode ``s^2 + k_w s + k_2 x_hd1_dot^2`` (equations.md)
+      critically damped with ``k_w = 1``: ``k_2 ~ k_w^2 / (4 x_hd1_dot^2)``. For another
+      scene, rescale k_2 with that formula (``hbvs fit`` reports x_hd1_dot).
+    * ``k_v = 4`` gives e1 a time constant d*/k_v = 1.5 s.
+    * ``gamma = 2000``: the depth error decays at about ``gamma x_hd1_dot^2 / k_v``
+      ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within the first 10 s.
+
+    Attributes
+    ----------
+    k_v : float
+        Longitudinal gain (m/s), > 0: multiplies the dimensionless e1 in (29).
+    k_w : float
+        Heading gain (1/s), > 0.
+    gamma : float
+        Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), > 0.
+    k_2 : float
+        Lateral gain (equations.md); 1 is the paper's law exactly.
+    """
+
+    k_v: float = 4.0
+    k_w: float = 1.0
+    gamma: float = 2000.0
+    k_2: float = 300.0
+
+    def __post_init__(self) -> None:
+        for name in ("k_v", "k_w", "gamma", "k_2"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0.0:
+                raise UsageError(f"gain {name} must be a positive number, got {value}")
+
+    @property
+    def law(self) -> str:
+        """``"paper"`` when k_2 = 1, otherwise ``"lateral-gain"``."""
+        return LAW_PAPER if self.k_2 == 1.0 else LAW_LATERAL_GAIN
+
+    def as_dict(self) -> dict[str, float]:
+        """The gains as a plain dictionary (for files and reports)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    def with_law(self, law: str) -> "ControllerGains":
+        """These gains under a named law: ``"paper"`` forces k_2 = 1."""
+        if law == LAW_PAPER:
+            return replace(self, k_2=1.0)
+        if law == LAW_LATERAL_GAIN:
+            return self
+        raise UsageError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the camera gives at one instant: the decomposed homography of (12), (14).
+
+    Attributes
+    ----------
+    theta : float or ndarray
+        Rotation angle theta = phi* - phi (rad).
+    x_h1, x_h2 : float or ndarray
+        Scaled translation x_f / d* (dimensionless).
+    """
+
+    theta: float | NDArray[np.float64]
+    x_h1: float | NDArray[np.float64]
+    x_h2: float | NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DesiredState:
+    """The desired trajectory and its feed-forward derivatives at one instant (Remark 1).
+
+    Attributes
+    ----------
+    theta_d : float or ndarray
+        Desired rotation angle (rad), unwrapped along the trajectory.
+    x_hd1, x_hd2 : float or ndarray
+        Desired scaled translation (dimensionless).
+    theta_d_dot : float or ndarray
+        rad/s; equals -w_cd (5).
+    x_hd1_dot, x_hd2_dot : float or ndarray
+        1/s; (25).
+    """
+
+    theta_d: float | NDArray[np.float64]
+    x_hd1: float | NDArray[np.float64]
+    x_hd2: float | NDArray[np.float64]
+    theta_d_dot: float | NDArray[np.float64]
+    x_hd1_dot: float | NDArray[np.float64]
+    x_hd2_dot: float | NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TrackingErrors:
+    """The errors (19) and (27)."""
+
+    e1: float | NDArray[np.float64]
+    e2: float | NDArray[np.float64]
+    e3: float | NDArray[np.float64]
+    ebar2: float | NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One evaluation of the law: commands, the adaptation rate and the errors."""
+
+    v_c: float | NDArray[np.float64]
+    w_c: float | NDArray[np.float64]
+    dhat_dot: float | NDArray[np.float64]
+    errors: TrackingErrors
+
+
+def tracking_errors(measured: Measurement, desired: DesiredState) -> TrackingErrors:
+    """Errors (19) and the auxiliary error ebar2 (27).
+
+    e3 is wrapped to [-pi, pi) so that a trajectory crossing +-pi stays continuous.
+    """
+    e1 = np.subtract(measured.x_h1, desired.x_hd1)
+    e2 = np.subtract(measured.x_h2, desired.x_hd2)
+    e3 = wrap_angle(np.subtract(measured.theta, desired.theta_d))
+    ebar2 = e2 - np.multiply(desired.x_hd1, e3)
+    return TrackingErrors(e1=e1, e2=e2, e3=e3, ebar2=ebar2)
+
+
+def control_law(
+    measured: Measurement, desired: DesiredState, dhat: ArrayLike, gains: ControllerGains
+) -> ControlOutput:
+    """Commands (29)-(30) and the update law (31), with the lateral gain k_2.
+
+    Parameters
+    ----------
+    measured : Measurement
+    desired : DesiredState
+    dhat : float or array_like
+        Current depth estimate dhat (m).
+    gains : ControllerGains
+
+    Returns
+    -------
+    ControlOutput
+        ``v_c`` in m/s, ``w_c`` in rad/s, ``dhat_dot`` in m/s.
+    """
+    err = tracking_errors(measured, desired)
+    k2 = gains.k_2
+    w_c = gains.k_w * err.e3 - desired.theta_d_dot - k2 * np.multiply(desired.x_hd1_dot, err.ebar2)
+    coupling = np.multiply(measured.x_h2, w_c) - desired.x_hd1_dot
+    v_c = gains.k_v * err.e1 - k2 * err.ebar2 * w_c + np.multiply(dhat, coupling)
+    dhat_dot = gains.gamma * err.e1 * coupling
+    return ControlOutput(v_c=v_c, w_c=w_c, dhat_dot=dhat_dot, errors=err)
+
+
+def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: ControllerGains) -> NDArray[np.float64] | float:
+    """The Lyapunov function (36), weighted by k_2 (equations.md).
+
+    ``V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma) (d* - dhat)^2``.
+    Needs the true depth d* (m), so it is known only in simulation.
+    """
+    d_tilde = d_star - np.asarray(dhat, dtype=float)
+    value = (
+        0.5 * d_star * np.square(errors.e1)
+        + 0.5 * gains.k_2 * np.square(errors.ebar2)
+        + 0.5 * np.square(errors.e3)
+        + 0.5 / gains.gamma * np.square(d_tilde)
+    )
+    return float(value) if np.ndim(value) == 0 else value
+
+
+def closed_loop_error_rates(
+    errors: TrackingErrors,
+    d_tilde: float,
+    x_h2: float,
+    w_c: float,
+    x_hd1_dot: float,
+    d_star: float,
+    gains: ControllerGains,
+) -> tuple[float, float, float]:
+    """Right-hand side of the closed-loop error system (32), with the lateral gain.
+
+    Returns
+    -------
+    (e1_dot, ebar2_dot, e3_dot)
+        ``d* e1_dot = -k_v e1 + k_2 ebar2 w_c + d~ (x_h2 w_c - x_hd1_dot)``,
+        ``ebar2_dot = -(e1 w_c + x_hd1_dot e3)``,
+        ``e3_dot = -k_w e3 + k_2 x_hd1_dot ebar2``.
+    """
+    e1_dot = (-gains.k_v * errors.e1 + gains.k_2 * errors.ebar2 * w_c + d_tilde * (x_h2 * w_c - x_hd1_dot)) / d_star
+    ebar2_dot = -(errors.e1 * w_c + x_hd1_dot * errors.e3)
+    e3_dot = -gains.k_w * errors.e3 + gains.k_2 * x_hd1_dot * errors.ebar2
+    return float(e1_dot), float(ebar2_dot), float(e3_dot)
+
+
+class AdaptiveTrackingController:
+    """The controller with its one piece of state, the depth estimate dhat.
+
+    Each :meth:`step` evaluates (29)-(31) on a measurement and integrates the update law
+    over the control period (explicit Euler, exact for a held e1 and coupling). When the
+    target is lost, :meth:`hold` commands zero velocity and freezes the adaptation.
+
+    Parameters
+    ----------
+    gains : ControllerGains
+    dhat0 : float
+        Initial depth estimate dhat(0) (m), > 0.
+    """
+
+    def __init__(self, gains: ControllerGains, dhat0: float) -> None:
+        if not np.isfinite(dhat0) or dhat0 <= 0.0:
+            raise UsageError(f"the initial depth estimate dhat0 must be positive, got {dhat0}")
+        self.gains = gains
+        self.dhat = float(dhat0)
+
+    def step(self, measured: Measurement, desired: DesiredState, dt: float) -> ControlOutput:
+        """Commands for this instant; advances dhat by ``dt`` seconds."""
+        output = control_law(measured, desired, self.dhat, self.gains)
+        self.dhat += float(output.dhat_dot) * dt
+        return output
+
+    def hold(self) -> tuple[float, float]:
+        """Commands while the target is lost: stop, and leave dhat as it is."""
+        return 0.0, 0.0

@@ -1,0 +1,112 @@
+"""Where a good initial depth estimate dhat(0) can come from (equations.md, "Where d*...").
+
+d* is unobservable from images alone (scale), and the update law (31) learns it, but a poor
+dhat(0) slows convergence. Two honest sources:
+
+* the teach run's commands: by (25), ``v_cd = d* (x_hd2 w_cd - x_hd1_dot)`` at every taught
+  instant, a one-parameter least-squares problem (:func:`depth_from_taught_commands`);
+* a known metric size of the target: the reference points lie on the plane
+  ``n*^T m_bar*_i = d*`` (7), so ``m_bar*_i = d* m*_i / (n*^T m*_i)`` and every distance
+  between target points is proportional to d* (:func:`depth_from_target_size`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..errors import GeometryError
+
+
+@dataclass(frozen=True)
+class DepthEstimate:
+    """A depth estimate and how well it is determined.
+
+    Attributes
+    ----------
+    d_star : float
+        Estimated distance from F* to the target plane (m).
+    standard_error : float
+        1-sigma uncertainty of the least-squares estimate (m); NaN when not applicable.
+    source : str
+        ``"commands"`` or ``"target-size"``.
+    samples : int
+        Number of equations used.
+    """
+
+    d_star: float
+    standard_error: float
+    source: str
+    samples: int
+
+
+def depth_from_taught_commands(v_cd: ArrayLike, w_cd: ArrayLike, x_hd2: ArrayLike, x_hd1_dot: ArrayLike) -> DepthEstimate:
+    """Least-squares d* from (25): ``v_cd = d* (x_hd2 w_cd - x_hd1_dot)``.
+
+    Parameters
+    ----------
+    v_cd, w_cd : array_like, shape (K,)
+        Taught commands (m/s, rad/s) at the sample times.
+    x_hd2, x_hd1_dot : array_like, shape (K,)
+        The fitted desired signals at the same times (dimensionless, 1/s).
+
+    Raises
+    ------
+    GeometryError
+        When the taught path does not move (the regressor is zero).
+    """
+    v = np.asarray(v_cd, dtype=float)
+    regressor = np.asarray(x_hd2, dtype=float) * np.asarray(w_cd, dtype=float) - np.asarray(x_hd1_dot, dtype=float)
+    keep = np.isfinite(v) & np.isfinite(regressor)
+    v, regressor = v[keep], regressor[keep]
+    energy = float(regressor @ regressor)
+    if v.size < 2 or energy <= 1e-12 * max(v.size, 1):
+        raise GeometryError("the taught commands do not move the robot: d* cannot be estimated from them")
+    d_star = float(regressor @ v) / energy
+    residual = v - d_star * regressor
+    sigma2 = float(residual @ residual) / max(v.size - 1, 1)
+    if d_star <= 0.0:
+        raise GeometryError(
+            f"the taught commands give a negative depth ({d_star:.3g} m): do the recorded commands belong to these images?"
+        )
+    return DepthEstimate(d_star=d_star, standard_error=float(np.sqrt(sigma2 / energy)), source="commands", samples=int(v.size))
+
+
+def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int, int], distance_m: float) -> DepthEstimate:
+    """d* from the known metric distance between two target points.
+
+    Parameters
+    ----------
+    m_ref : array_like, shape (N, 3)
+        Reference normalised points.
+    normal : array_like, shape (3,)
+        Unit plane normal n* in F*.
+    pair : (int, int)
+        Indices of the two points whose distance is known.
+    distance_m : float
+        Their distance (m), > 0.
+    """
+    m_ref = np.asarray(m_ref, dtype=float)
+    normal = np.asarray(normal, dtype=float)
+    if not np.isfinite(distance_m) or distance_m <= 0.0:
+        raise GeometryError(f"the target size must be a positive length in metres, got {distance_m}")
+    g = m_ref @ normal
+    if np.any(g <= 0.0):
+        raise GeometryError("the plane normal puts a target point behind the reference camera")
+    unit_depth_points = m_ref / g[:, None]  # m_bar*_i / d*
+    i, j = pair
+    separation = float(np.linalg.norm(unit_depth_points[i] - unit_depth_points[j]))
+    if separation <= 1e-12:
+        raise GeometryError("the two points that define the target size coincide in the reference image")
+    return DepthEstimate(d_star=distance_m / separation, standard_error=float("nan"), source="target-size", samples=1)
+
+
+def farthest_pair(m_ref: ArrayLike, normal: ArrayLike) -> tuple[int, int]:
+    """The two target points farthest apart on the plane (the pair the target size names)."""
+    m_ref = np.asarray(m_ref, dtype=float)
+    points = m_ref / (m_ref @ np.asarray(normal, dtype=float))[:, None]
+    distance = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)
+    i, j = np.unravel_index(int(np.argmax(distance)), distance.shape)
+    return int(i), int(j)

@@ -1,0 +1,196 @@
+"""Teach-pendant command profiles: what the operator sends while teaching a path.
+
+A :class:`CommandProfile` is a sequence of (v, w) commands, each held from its start time
+until the next one starts (a robot driver holds the last command), ending at ``t_end``.
+Because every segment is an arc, the pose at any time is known exactly
+(:mod:`hbvs_cli.core.unicycle`), which makes the taught run's ground truth exact too.
+
+Built-in presets (:data:`PRESETS`) are defined for the default world (a target on a wall
+6 m ahead of the start pose, see :mod:`hbvs_cli.core.world`); each keeps the target in view
+and keeps x_hd1_dot away from zero, condition (35).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import InputError, UsageError
+from .unicycle import advance_unicycle, integrate_commands
+
+
+@dataclass(frozen=True)
+class CommandProfile:
+    """Piecewise-constant velocity commands.
+
+    Attributes
+    ----------
+    t : ndarray, shape (K,)
+        Start time of each command (s), strictly increasing, ``t[0] = 0``.
+    v : ndarray, shape (K,)
+        Linear velocity (m/s).
+    w : ndarray, shape (K,)
+        Angular velocity (rad/s).
+    t_end : float
+        End of the last command (s), > ``t[-1]``.
+    """
+
+    t: NDArray[np.float64]
+    v: NDArray[np.float64]
+    w: NDArray[np.float64]
+    t_end: float
+
+    def __post_init__(self) -> None:
+        t, v, w = (np.asarray(a, dtype=float) for a in (self.t, self.v, self.w))
+        if t.ndim != 1 or t.size == 0 or v.shape != t.shape or w.shape != t.shape:
+            raise InputError("a command profile needs equally long, non-empty t, v and w columns")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise InputError("the command profile contains NaN or infinity")
+        if np.any(np.diff(t) <= 0.0):
+            bad = int(np.flatnonzero(np.diff(t) <= 0.0)[0]) + 1
+            raise InputError(f"command times must increase strictly (row {bad + 1}: t={t[bad]:g} s)")
+        if not np.isfinite(self.t_end) or self.t_end <= t[-1]:
+            raise InputError("the command profile must end after its last command starts")
+        object.__setattr__(self, "t", t - t[0])
+        object.__setattr__(self, "v", v)
+        object.__setattr__(self, "w", w)
+        object.__setattr__(self, "t_end", float(self.t_end - t[0]))
+
+    @property
+    def duration(self) -> float:
+        """Length of the profile (s)."""
+        return self.t_end
+
+    def segment_index(self, t: ArrayLike) -> NDArray[np.intp]:
+        """Index of the command in force at each time (clamped to the profile)."""
+        return np.clip(np.searchsorted(self.t, np.asarray(t, dtype=float), side="right") - 1, 0, self.t.size - 1)
+
+    def commands_at(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(v, w) in force at times ``t``; zero after ``t_end``."""
+        t = np.asarray(t, dtype=float)
+        index = self.segment_index(t)
+        running = (t >= 0.0) & (t < self.t_end)
+        return np.where(running, self.v[index], 0.0), np.where(running, self.w[index], 0.0)
+
+    def segment_start_poses(self, start_pose: ArrayLike) -> NDArray[np.float64]:
+        """Exact pose at the start of every segment, shape (K + 1, 3) (the last at t_end)."""
+        dt = np.diff(np.append(self.t, self.t_end))
+        return integrate_commands(start_pose, self.v, self.w, dt)
+
+    def poses_at(self, t: ArrayLike, start_pose: ArrayLike, segment_starts: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Exact poses at times ``t`` (s), shape (..., 3); held after ``t_end``.
+
+        ``segment_starts`` (from :meth:`segment_start_poses` of the same start pose) saves
+        re-integrating the profile when poses are asked for one at a time.
+        """
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.t_end)
+        starts = self.segment_start_poses(start_pose) if segment_starts is None else segment_starts
+        index = self.segment_index(t)
+        return advance_unicycle(starts[index], self.v[index], self.w[index], t - self.t[index])
+
+
+def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, ArrayLike]], duration: float, rate: float) -> CommandProfile:
+    """A profile that samples smooth command functions at ``rate`` Hz, as a pendant does.
+
+    Parameters
+    ----------
+    function : callable
+        ``t -> (v(t), w(t))`` for an array of times.
+    duration : float
+        Seconds.
+    rate : float
+        Pendant update rate (Hz).
+    """
+    if duration <= 0 or rate <= 0:
+        raise UsageError("the duration and the rate of a command profile must be positive")
+    steps = max(1, int(round(duration * rate)))
+    t = np.arange(steps) / rate
+    v, w = function(t)
+    return CommandProfile(
+        t=t,
+        v=np.broadcast_to(np.asarray(v, dtype=float), t.shape).copy(),
+        w=np.broadcast_to(np.asarray(w, dtype=float), t.shape).copy(),
+        t_end=steps / rate,
+    )
+
+
+def _straight(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
+    return np.full_like(t, 0.175), np.zeros_like(t)
+
+
+def _s_curve(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
+    return np.full_like(t, 0.175), 0.06 * np.cos(2.0 * np.pi * t / 20.0)
+
+
+def _arc(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
+    return np.full_like(t, 0.175), np.full_like(t, -0.02)
+
+
+@dataclass(frozen=True)
+class PathPreset:
+    """A built-in taught path: commands, a start pose and a one-line description."""
+
+    name: str
+    description: str
+    commands: Callable[[NDArray[np.float64]], tuple[ArrayLike, ArrayLike]]
+    duration: float
+    start_pose: tuple[float, float, float]
+
+
+PRESETS: dict[str, PathPreset] = {
+    preset.name: preset
+    for preset in (
+        PathPreset(
+            "straight",
+            "straight approach toward the target at 0.175 m/s for 20 s (3.5 m)",
+            _straight,
+            20.0,
+            (0.0, 0.0, 0.0),
+        ),
+        PathPreset(
+            "s-curve",
+            "S-curve toward the target: 0.175 m/s, w = 0.06 cos(2 pi t / 20 s) rad/s (heading +-11 deg), 20 s",
+            _s_curve,
+            20.0,
+            (0.0, -0.1, 0.0),
+        ),
+        PathPreset(
+            "arc",
+            "arc toward the target: 0.175 m/s, w = -0.02 rad/s, 20 s, starting 0.8 m left, heading 12 deg left",
+            _arc,
+            20.0,
+            (0.0, 0.8, np.radians(12.0)),
+        ),
+    )
+}
+
+#: The default taught path.
+DEFAULT_PRESET = "s-curve"
+
+
+def preset_profile(name: str, rate: float, duration: float | None = None) -> tuple[CommandProfile, tuple[float, float, float]]:
+    """The command profile and start pose of a built-in path.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`PRESETS`.
+    rate : float
+        Pendant (and camera) rate (Hz).
+    duration : float, optional
+        Seconds; defaults to the preset's length.
+
+    Raises
+    ------
+    UsageError
+        For an unknown preset name.
+    """
+    try:
+        preset = PRESETS[name]
+    except KeyError:
+        raise UsageError(f"unknown path preset {name!r}: choose one of {', '.join(PRESETS)} or give a CSV file") from None
+    profile = sampled_profile(preset.commands, duration if duration is not None else preset.duration, rate)
+    return profile, preset.start_pose

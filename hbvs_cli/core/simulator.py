@@ -1,0 +1,175 @@
+"""The closed loop: sense, control, actuate, move; one camera frame at a time.
+
+Every control period ``dt`` the simulator asks a sensing function for a measurement of
+the current pose (exact points, noisy points or a whole rendered image run through a
+detector: the caller decides), the controller answers with (v_c, w_c), the actuator limits
+clip them, and the unicycle integrates them exactly while they are held for ``dt``
+(:mod:`hbvs_cli.core.unicycle`).
+
+When the sensing function reports the target lost, the robot is commanded to stop and the
+adaptation is frozen; it resumes when the target is back. When a frame is dropped (never
+arrives), the last command is held and the adaptation is frozen for that period.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import UsageError
+from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
+from .estimation import STATUS_DROPPED, STATUS_OK, Observation
+from .trajectory import DesiredTrajectory
+from .unicycle import integrate_unicycle
+
+
+@dataclass(frozen=True)
+class ActuatorLimits:
+    """Limits of the robot's drive; ``None`` means unlimited.
+
+    Attributes
+    ----------
+    max_v : float or None
+        |v| bound (m/s).
+    max_w : float or None
+        |w| bound (rad/s).
+    max_accel : float or None
+        Bound on the change of v per second (m/s^2); w's change is bounded by
+        ``max_accel`` rad/s^2 as well, a common simplification for differential drives.
+    """
+
+    max_v: float | None = None
+    max_w: float | None = None
+    max_accel: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("max_v", "max_w", "max_accel"):
+            value = getattr(self, name)
+            if value is not None and (not np.isfinite(value) or value <= 0.0):
+                raise UsageError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+
+    def apply(self, v: float, w: float, previous: tuple[float, float], dt: float) -> tuple[float, float, bool]:
+        """Clip a command; returns ``(v, w, saturated)``."""
+        v_out, w_out = float(v), float(w)
+        if self.max_accel is not None:
+            step = self.max_accel * dt
+            v_out = float(np.clip(v_out, previous[0] - step, previous[0] + step))
+            w_out = float(np.clip(w_out, previous[1] - step, previous[1] + step))
+        if self.max_v is not None:
+            v_out = float(np.clip(v_out, -self.max_v, self.max_v))
+        if self.max_w is not None:
+            w_out = float(np.clip(w_out, -self.max_w, self.max_w))
+        saturated = abs(v_out - v) > 1e-12 or abs(w_out - w) > 1e-12
+        return v_out, w_out, saturated
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What happened in one control period.
+
+    Attributes
+    ----------
+    t : float
+        Time of the measurement (s).
+    pose : ndarray, shape (3,)
+        True robot pose at ``t`` (m, m, rad).
+    observation : Observation
+        What the controller acted on (after any latency).
+    desired : DesiredState
+    output : ControlOutput or None
+        The law's evaluation (None when lost or dropped).
+    v_c, w_c : float
+        The command actually sent after limits (m/s, rad/s).
+    saturated : bool
+    dhat : float
+        Depth estimate used at this step (m), before its update.
+    """
+
+    t: float
+    pose: NDArray[np.float64]
+    observation: Observation
+    desired: DesiredState
+    output: ControlOutput | None
+    v_c: float
+    w_c: float
+    saturated: bool
+    dhat: float
+
+    @property
+    def measurement(self) -> Measurement | None:
+        return self.observation.measurement
+
+    @property
+    def lost(self) -> bool:
+        return self.observation.lost
+
+
+SenseFunction = Callable[[NDArray[np.float64], float], Observation]
+
+#: What the controller sees before the first (latency-delayed) frame arrives.
+_NOT_YET = Observation(None, status=STATUS_DROPPED)
+
+
+def run_closed_loop(
+    sense: SenseFunction,
+    trajectory: DesiredTrajectory,
+    controller: AdaptiveTrackingController,
+    start_pose: ArrayLike,
+    dt: float,
+    duration: float,
+    limits: ActuatorLimits | None = None,
+    latency_steps: int = 0,
+) -> Iterator[StepRecord]:
+    """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
+
+    Parameters
+    ----------
+    sense : callable
+        ``(pose, t) -> Observation``.
+    trajectory : DesiredTrajectory
+    controller : AdaptiveTrackingController
+        Its dhat is updated in place.
+    start_pose : array_like, shape (3,)
+    dt : float
+        Control period (s).
+    duration : float
+        Seconds to simulate.
+    limits : ActuatorLimits, optional
+    latency_steps : int
+        The controller acts on the observation taken this many periods earlier; before
+        the first one arrives it holds still.
+    """
+    if dt <= 0.0 or not np.isfinite(dt):
+        raise UsageError(f"the control period must be positive, got {dt}")
+    if latency_steps < 0:
+        raise UsageError("--latency must be zero or a positive number of frames")
+    limits = limits or ActuatorLimits()
+    pose = np.asarray(start_pose, dtype=float).copy()
+    steps = int(round(duration / dt))
+    pending: deque[Observation] = deque()
+    previous = (0.0, 0.0)
+    for k in range(steps):
+        t = k * dt
+        pending.append(sense(pose, t))
+        observation = pending.popleft() if len(pending) > latency_steps else _NOT_YET
+        desired = trajectory.evaluate(t)
+        dhat = controller.dhat
+        output = None
+        if observation.status == STATUS_OK:
+            output = controller.step(observation.measurement, desired, dt)
+            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
+        elif observation.status == STATUS_DROPPED:
+            v_cmd, w_cmd = previous
+        else:
+            v_cmd, w_cmd = controller.hold()
+        v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
+        yield StepRecord(
+            t=t, pose=pose.copy(), observation=observation, desired=desired, output=output,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat,
+        )
+        previous = (v_c, w_c)
+        pose = integrate_unicycle(pose, v_c, w_c, dt)

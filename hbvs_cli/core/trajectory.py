@@ -1,0 +1,377 @@
+"""The desired trajectory: smooth theta_d(t), x_hd(t) and their derivatives (Remark 1).
+
+Remark 1 of the paper asks for "sufficiently smooth functions" fitted to the signals
+decomposed from the taught images, so that the feed-forward terms x_hd1_dot and
+theta_d_dot of (29)-(31) are bounded and come without numerical differencing of noisy
+samples. :func:`fit_spline_trajectory` fits a cubic smoothing spline (twice continuously
+differentiable) to each of theta_d (unwrapped), x_hd1 and x_hd2, with the smoothing chosen
+by generalised cross-validation (scipy's ``make_smoothing_spline``) or given.
+
+Two trajectories implement the same interface (``t_start``, ``t_end``, ``evaluate``):
+
+* :class:`SplineTrajectory`, what ``hbvs fit`` produces and ``hbvs repeat`` tracks;
+* :class:`TaughtPathTrajectory`, the exact desired signals of a simulated taught run, the
+  ground truth that tests and ``report`` compare against.
+
+Outside ``[t_start, t_end]`` both hold their end values with zero derivatives: after the
+taught path ends, the robot is asked to stay at its last pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import InputError, UsageError
+from .controller import DesiredState
+from .path import CommandProfile
+from .frames import relative_planar_pose
+
+#: Names of the three fitted channels, in order.
+CHANNELS = ("theta_d", "x_hd1", "x_hd2")
+
+
+class DesiredTrajectory(Protocol):
+    """Anything that gives the desired state at a time."""
+
+    t_start: float
+    t_end: float
+
+    def evaluate(self, t: ArrayLike) -> DesiredState:  # pragma: no cover - protocol
+        ...
+
+
+@dataclass(frozen=True)
+class SplineChannel:
+    """One cubic B-spline channel and the smoothing it was fitted with.
+
+    Attributes
+    ----------
+    knots : ndarray, shape (K,)
+    coefficients : ndarray, shape (K - 4,)
+    smoothing : float
+        The penalty weight lambda of the fit (units: s^3, for time in seconds).
+    residual_rms : float
+        RMS difference between the spline and the samples it was fitted to.
+    """
+
+    knots: NDArray[np.float64]
+    coefficients: NDArray[np.float64]
+    smoothing: float
+    residual_rms: float
+
+    def spline(self) -> Any:
+        """The scipy BSpline (degree 3)."""
+        from scipy.interpolate import BSpline
+
+        return BSpline(self.knots, self.coefficients, 3, extrapolate=False)
+
+
+class SplineTrajectory:
+    """Desired signals as cubic splines of time (Remark 1).
+
+    Parameters
+    ----------
+    channels : dict
+        :class:`SplineChannel` for each of ``theta_d``, ``x_hd1``, ``x_hd2``.
+    t_start, t_end : float
+        Time span covered (s).
+    """
+
+    def __init__(self, channels: dict[str, SplineChannel], t_start: float, t_end: float) -> None:
+        missing = [c for c in CHANNELS if c not in channels]
+        if missing:
+            raise InputError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
+        if not (np.isfinite(t_start) and np.isfinite(t_end) and t_end > t_start):
+            raise InputError("the trajectory model's time span is empty or not finite")
+        self.channels = channels
+        self.t_start = float(t_start)
+        self.t_end = float(t_end)
+        self._splines = {name: channels[name].spline() for name in CHANNELS}
+        self._derivatives = {name: spline.derivative() for name, spline in self._splines.items()}
+
+    def evaluate(self, t: ArrayLike) -> DesiredState:
+        """Desired state at times ``t`` (s); held, with zero derivatives, outside the span."""
+        t = np.asarray(t, dtype=float)
+        inside = (t >= self.t_start) & (t <= self.t_end)
+        clamped = np.clip(t, self.t_start, self.t_end)
+        values = {name: self._splines[name](clamped) for name in CHANNELS}
+        rates = {name: np.where(inside, self._derivatives[name](clamped), 0.0) for name in CHANNELS}
+        return DesiredState(
+            theta_d=_scalar(values["theta_d"]),
+            x_hd1=_scalar(values["x_hd1"]),
+            x_hd2=_scalar(values["x_hd2"]),
+            theta_d_dot=_scalar(rates["theta_d"]),
+            x_hd1_dot=_scalar(rates["x_hd1"]),
+            x_hd2_dot=_scalar(rates["x_hd2"]),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready description: knots and coefficients of every channel."""
+        return {
+            "t_start": self.t_start,
+            "t_end": self.t_end,
+            "degree": 3,
+            "channels": {
+                name: {
+                    "knots": ch.knots.tolist(),
+                    "coefficients": ch.coefficients.tolist(),
+                    "smoothing": ch.smoothing,
+                    "residual_rms": ch.residual_rms,
+                }
+                for name, ch in self.channels.items()
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SplineTrajectory":
+        """Inverse of :meth:`to_dict`; raises :class:`InputError` when malformed."""
+        try:
+            if int(data.get("degree", 3)) != 3:
+                raise ValueError("only cubic splines are supported")
+            channels = {}
+            for name in CHANNELS:
+                raw = data["channels"][name]
+                knots = np.asarray(raw["knots"], dtype=float)
+                coefficients = np.asarray(raw["coefficients"], dtype=float)
+                if knots.ndim != 1 or coefficients.ndim != 1 or knots.size != coefficients.size + 4 or knots.size < 8:
+                    raise ValueError(f"channel {name}: {knots.size} knots do not fit {coefficients.size} coefficients")
+                if not (np.all(np.isfinite(knots)) and np.all(np.isfinite(coefficients))) or np.any(np.diff(knots) < 0):
+                    raise ValueError(f"channel {name}: knots must be finite and non-decreasing")
+                channels[name] = SplineChannel(
+                    knots=knots,
+                    coefficients=coefficients,
+                    smoothing=float(raw.get("smoothing", float("nan"))),
+                    residual_rms=float(raw.get("residual_rms", float("nan"))),
+                )
+            return cls(channels, float(data["t_start"]), float(data["t_end"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"malformed trajectory model: {exc}") from None
+
+
+class TimeScaledTrajectory:
+    """A trajectory played from ``start`` at ``speed`` times its taught pace.
+
+    ``evaluate(tau) = base.evaluate(start + speed * tau)`` with every derivative multiplied
+    by ``speed`` (chain rule), so the feed-forward terms stay consistent. Run time ``tau``
+    goes from 0 to ``(base.t_end - start) / speed``.
+    """
+
+    def __init__(self, base: DesiredTrajectory, speed: float = 1.0, start: float | None = None) -> None:
+        if not np.isfinite(speed) or speed <= 0.0:
+            raise UsageError(f"--speed must be a positive number, got {speed}")
+        self.base = base
+        self.speed = float(speed)
+        self.start = float(base.t_start if start is None else start)
+        self.t_start = 0.0
+        self.t_end = (base.t_end - self.start) / self.speed
+
+    def base_time(self, tau: ArrayLike) -> NDArray[np.float64]:
+        """The base trajectory's time at run time ``tau``."""
+        return self.start + self.speed * np.asarray(tau, dtype=float)
+
+    def evaluate(self, t: ArrayLike) -> DesiredState:
+        state = self.base.evaluate(self.base_time(t))
+        return DesiredState(
+            theta_d=state.theta_d,
+            x_hd1=state.x_hd1,
+            x_hd2=state.x_hd2,
+            theta_d_dot=np.multiply(state.theta_d_dot, self.speed),
+            x_hd1_dot=np.multiply(state.x_hd1_dot, self.speed),
+            x_hd2_dot=np.multiply(state.x_hd2_dot, self.speed),
+        )
+
+
+class TaughtPathTrajectory:
+    """The exact desired signals of a simulated taught run (the ground truth).
+
+    With the taught poses known exactly from the command profile,
+    ``theta_d = phi* - phi_d`` and ``x_hd = Rz(phi_d)^T (p* - p_d) / d*`` (3), (14); the
+    derivatives follow from (25): ``theta_d_dot = -w_cd``,
+    ``x_hd1_dot = -v_cd / d* + x_hd2 w_cd``, ``x_hd2_dot = -x_hd1 w_cd``.
+
+    Parameters
+    ----------
+    profile : CommandProfile
+    start_pose : array_like, shape (3,)
+        Pose at t = 0 (m, m, rad).
+    reference_pose : array_like, shape (3,)
+        Pose of F*.
+    d_star : float
+        Distance from F* to the target plane (m).
+    """
+
+    def __init__(self, profile: CommandProfile, start_pose: ArrayLike, reference_pose: ArrayLike, d_star: float) -> None:
+        self.profile = profile
+        self.start_pose = np.asarray(start_pose, dtype=float)
+        self.reference_pose = np.asarray(reference_pose, dtype=float)
+        self.d_star = float(d_star)
+        self.t_start = 0.0
+        self.t_end = profile.t_end
+        self._segment_starts = profile.segment_start_poses(self.start_pose)
+
+    def pose(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Taught robot pose at times ``t`` (held after the end)."""
+        return self.profile.poses_at(t, self.start_pose, self._segment_starts)
+
+    def evaluate(self, t: ArrayLike) -> DesiredState:
+        t = np.asarray(t, dtype=float)
+        poses = self.pose(t)
+        _, x_f = relative_planar_pose(poses, self.reference_pose)
+        # Unwrap relative to the reference so that theta_d is continuous along the path.
+        theta_d = self.reference_pose[2] - poses[..., 2]
+        x_hd1 = x_f[..., 0] / self.d_star
+        x_hd2 = x_f[..., 1] / self.d_star
+        v, w = self.profile.commands_at(t)
+        return DesiredState(
+            theta_d=_scalar(theta_d),
+            x_hd1=_scalar(x_hd1),
+            x_hd2=_scalar(x_hd2),
+            theta_d_dot=_scalar(-w),
+            x_hd1_dot=_scalar(-v / self.d_star + x_hd2 * w),
+            x_hd2_dot=_scalar(-x_hd1 * w),
+        )
+
+
+def _scalar(value: ArrayLike) -> Any:
+    array = np.asarray(value, dtype=float)
+    return float(array) if array.ndim == 0 else array
+
+
+def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
+    """A cubic smoothing spline and its penalty weight lambda.
+
+    With ``smoothing=None`` scipy chooses lambda by generalised cross-validation but does
+    not return it; the residual sum of squares grows monotonically with lambda, so the
+    lambda of the GCV fit is recovered by bisection on log(lambda) to report it.
+    """
+    from scipy.interpolate import make_smoothing_spline
+
+    if smoothing is not None:
+        return make_smoothing_spline(t, y, lam=smoothing), float(smoothing)
+    spline = make_smoothing_spline(t, y)
+    target = float(np.sum((spline(t) - y) ** 2))
+    low, high = -12.0, 8.0
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        rss = float(np.sum((make_smoothing_spline(t, y, lam=10.0**middle)(t) - y) ** 2))
+        if rss < target:
+            low = middle
+        else:
+            high = middle
+    return spline, float(10.0 ** (0.5 * (low + high)))
+
+
+#: Fewest samples a spline can be fitted to (scipy's smoothing spline needs 5).
+MIN_SAMPLES = 5
+
+
+def fit_spline_trajectory(
+    t: ArrayLike,
+    theta_d: ArrayLike,
+    x_hd1: ArrayLike,
+    x_hd2: ArrayLike,
+    smoothing: float | None = None,
+) -> SplineTrajectory:
+    """Fit the desired trajectory of Remark 1 to decomposed samples.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Sample times (s), strictly increasing; gaps (lost frames) are allowed and bridged
+        by the spline.
+    theta_d : array_like, shape (K,)
+        Desired rotation (rad); unwrapped here.
+    x_hd1, x_hd2 : array_like, shape (K,)
+        Desired scaled translation (dimensionless).
+    smoothing : float, optional
+        The penalty weight lambda for every channel; ``None`` chooses it per channel by
+        generalised cross-validation.
+
+    Returns
+    -------
+    SplineTrajectory
+    """
+    t = np.asarray(t, dtype=float)
+    samples = {
+        "theta_d": np.unwrap(np.asarray(theta_d, dtype=float)),
+        "x_hd1": np.asarray(x_hd1, dtype=float),
+        "x_hd2": np.asarray(x_hd2, dtype=float),
+    }
+    if t.ndim != 1 or t.size < MIN_SAMPLES:
+        raise InputError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
+    if np.any(np.diff(t) <= 0.0):
+        raise InputError("frame times must increase strictly")
+    if smoothing is not None and (not np.isfinite(smoothing) or smoothing < 0.0):
+        raise UsageError(f"--smoothing must be 'auto' or a non-negative number, got {smoothing}")
+    channels = {}
+    for name, y in samples.items():
+        if y.shape != t.shape or not np.all(np.isfinite(y)):
+            raise InputError(f"the {name} samples must be finite and as many as the times")
+        spline, lam = _smoothing_spline(t, y, smoothing)
+        residual = float(np.sqrt(np.mean((spline(t) - y) ** 2)))
+        channels[name] = SplineChannel(
+            knots=np.asarray(spline.t, dtype=float),
+            coefficients=np.asarray(spline.c, dtype=float),
+            smoothing=lam,
+            residual_rms=residual,
+        )
+    return SplineTrajectory(channels, float(t[0]), float(t[-1]))
+
+
+@dataclass(frozen=True)
+class FeedforwardCondition:
+    """How well a taught path satisfies condition (35): x_hd1_dot away from zero.
+
+    Attributes
+    ----------
+    min_abs_xhd1_dot : float
+        Minimum of |x_hd1_dot| along the path (1/s).
+    percentiles : dict
+        The 5th, 25th, 50th, 75th and 95th percentiles of |x_hd1_dot| (1/s).
+    stopped_fraction : float
+        Fraction of the path where |x_hd1_dot| < ``threshold``.
+    longest_stop_s : float
+        Longest stretch with |x_hd1_dot| < ``threshold`` (s).
+    threshold : float
+        The level below which the path counts as stopped (1/s).
+    """
+
+    min_abs_xhd1_dot: float
+    percentiles: dict[str, float]
+    stopped_fraction: float
+    longest_stop_s: float
+    threshold: float
+
+    @property
+    def path_stops(self) -> bool:
+        """True when the taught path stops somewhere: e2 cannot converge there."""
+        return self.stopped_fraction > 0.0
+
+
+#: Below this |x_hd1_dot| (1/s) the path counts as stopped: 1 cm/s at d* = 5 m.
+STOP_THRESHOLD = 0.002
+
+
+def feedforward_condition(trajectory: DesiredTrajectory, t: ArrayLike, threshold: float = STOP_THRESHOLD) -> FeedforwardCondition:
+    """Measure condition (35)/(44) of a trajectory on the sample times ``t``."""
+    t = np.asarray(t, dtype=float)
+    rate = np.abs(np.atleast_1d(trajectory.evaluate(t).x_hd1_dot))
+    stopped = rate < threshold
+    longest = 0.0
+    if np.any(stopped):
+        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
+        run = 0.0
+        for flag, step in zip(stopped, dt):
+            run = run + step if flag else 0.0
+            longest = max(longest, run)
+    return FeedforwardCondition(
+        min_abs_xhd1_dot=float(rate.min()),
+        percentiles={f"p{q}": float(np.percentile(rate, q)) for q in (5, 25, 50, 75, 95)},
+        stopped_fraction=float(np.mean(stopped)),
+        longest_stop_s=float(longest),
+        threshold=threshold,
+    )

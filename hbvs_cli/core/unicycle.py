@@ -1,0 +1,92 @@
+"""Unicycle kinematics of the wheeled mobile robot, integrated exactly.
+
+The robot moves with linear velocity v_c along its x axis and turns at w_c about z
+(Sec. II, (21)). For commands held constant over a step of length dt (what a robot driver
+does between two control updates), the motion is a circular arc, integrated here in
+closed form::
+
+    phi'  = phi + w dt
+    x'    = x + v dt cos(phi + w dt / 2) sinc(w dt / 2)
+    y'    = y + v dt sin(phi + w dt / 2) sinc(w dt / 2)
+
+with ``sinc(a) = sin(a) / a``, which is exact and stays accurate as w -> 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def advance_unicycle(pose: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
+    """Poses after holding ``(v, w)`` for ``dt`` seconds, exactly; broadcasts over batches.
+
+    Parameters
+    ----------
+    pose : array_like, shape (..., 3)
+        ``(x, y, phi)`` in the world (m, m, rad).
+    v : array_like, shape (...)
+        Linear velocity (m/s).
+    w : array_like, shape (...)
+        Angular velocity (rad/s).
+    dt : array_like, shape (...)
+        Duration (s), >= 0.
+
+    Returns
+    -------
+    pose : ndarray, shape (..., 3)
+    """
+    pose = np.asarray(pose, dtype=float)
+    turn = np.asarray(w, dtype=float) * dt
+    half = 0.5 * turn
+    chord = np.asarray(v, dtype=float) * dt * np.sinc(half / np.pi)
+    heading = pose[..., 2] + half
+    return np.stack(
+        [pose[..., 0] + chord * np.cos(heading), pose[..., 1] + chord * np.sin(heading), pose[..., 2] + turn],
+        axis=-1,
+    )
+
+
+def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> NDArray[np.float64]:
+    """Pose after holding ``(v, w)`` for ``dt`` seconds (one step of :func:`advance_unicycle`).
+
+    Parameters
+    ----------
+    pose : array_like, shape (3,)
+    v, w, dt : float
+        m/s, rad/s, s.
+    """
+    return advance_unicycle(pose, v, w, dt)
+
+
+def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
+    """Poses after each of a sequence of held commands, exactly and vectorised.
+
+    The heading at the start of every step is a cumulative sum, and each step's
+    displacement depends only on that heading, so no loop is needed.
+
+    Parameters
+    ----------
+    pose0 : array_like, shape (3,)
+    v, w : array_like, shape (K,)
+        Commands held over each step (m/s, rad/s).
+    dt : float or array_like, shape (K,)
+        Step durations (s).
+
+    Returns
+    -------
+    poses : ndarray, shape (K + 1, 3)
+        ``poses[0] = pose0``; ``poses[k + 1]`` is the pose after step k.
+    """
+    pose0 = np.asarray(pose0, dtype=float)
+    v = np.asarray(v, dtype=float)
+    w = np.asarray(w, dtype=float)
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), v.shape)
+    phi_start = pose0[2] + np.concatenate([[0.0], np.cumsum(w * dt)[:-1]])
+    origins = np.stack([np.zeros_like(phi_start), np.zeros_like(phi_start), phi_start], axis=-1)
+    steps = advance_unicycle(origins, v, w, dt)
+    poses = np.empty((v.size + 1, 3))
+    poses[0] = pose0
+    poses[1:, :2] = pose0[:2] + np.cumsum(steps[:, :2], axis=0)
+    poses[1:, 2] = steps[:, 2]
+    return poses

@@ -1,0 +1,352 @@
+"""The simulated world: a camera on a unicycle robot and a planar target on a wall.
+
+World frame W: x toward the wall, y left, z up (metres). The camera's optical centre is
+the origin of the robot frame F (the paper's camera "in hand", Sec. II) at height
+``camera_height`` above the floor. The target lies on a vertical wall ``x = wall_x``; its
+points are the dot centres (``dots``), the marker's four corners (``aruco``) or four points
+of a textured poster (``texture``). No target point may lie at the camera's height, (18).
+
+Everything a later stage needs to re-create the same world (and the same images) is in
+:meth:`World.to_dict`, which ``hbvs teach`` records in its MCAP file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import InputError, PointAtCameraHeightError, UsageError
+from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points
+from .frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
+
+TARGET_KINDS = ("dots", "aruco", "texture")
+
+
+@dataclass(frozen=True)
+class Poster:
+    """A flat rectangle on the wall carrying the target's picture.
+
+    Attributes
+    ----------
+    center : ndarray, shape (3,)
+        Centre in W (m).
+    width, height : float
+        Size (m).
+    right, down : ndarray, shape (3,)
+        Unit vectors in W along the poster's rows (left to right as seen from the robot)
+        and columns (top to bottom).
+    """
+
+    center: NDArray[np.float64]
+    width: float
+    height: float
+    right: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
+    down: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
+
+    def to_world(self, ab: ArrayLike) -> NDArray[np.float64]:
+        """Poster coordinates ``(a, b)`` (m from the top-left corner) to points in W."""
+        ab = np.asarray(ab, dtype=float)
+        top_left = self.center - 0.5 * self.width * self.right - 0.5 * self.height * self.down
+        return top_left + ab[..., :1] * self.right + ab[..., 1:2] * self.down
+
+
+@dataclass(frozen=True)
+class Target:
+    """The planar target: its kind, its points and the poster it is drawn on.
+
+    Attributes
+    ----------
+    kind : str
+        ``"dots"``, ``"aruco"`` or ``"texture"``.
+    points_poster : ndarray, shape (N, 2)
+        The target points in poster coordinates (m from the poster's top-left corner).
+    poster : Poster
+    dot_radius : float
+        Radius of each dot (m), for ``dots``.
+    marker_id : int
+        ArUco id, for ``aruco`` (dictionary :data:`ARUCO_DICTIONARY`).
+    texture : str
+        ``"builtin"`` or an image file name, for ``texture``.
+    """
+
+    kind: str
+    points_poster: NDArray[np.float64]
+    poster: Poster
+    dot_radius: float = 0.0
+    marker_id: int = 0
+    texture: str = "builtin"
+
+    @property
+    def points_world(self) -> NDArray[np.float64]:
+        """Target points in W, shape (N, 3)."""
+        return self.poster.to_world(self.points_poster)
+
+    @property
+    def size(self) -> float:
+        """Largest distance between two target points (m): the metric size of the target."""
+        p = self.points_world
+        return float(np.max(np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)))
+
+
+#: The ArUco dictionary of simulated markers (OpenCV's DICT_4X4_50).
+ARUCO_DICTIONARY = "DICT_4X4_50"
+
+
+@dataclass(frozen=True)
+class World:
+    """Camera, mounting and target: all a simulator needs to produce measurements.
+
+    Attributes
+    ----------
+    camera : CameraIntrinsics
+    camera_height : float
+        Height of the optical centre (m).
+    target : Target
+        On the wall ``x = wall_x``, the x of the poster's centre.
+    """
+
+    camera: CameraIntrinsics
+    camera_height: float
+    target: Target
+
+    def __post_init__(self) -> None:
+        poster = self.target.poster
+        if abs(poster.right[0]) > 1e-9 or abs(poster.down[0]) > 1e-9:
+            raise InputError("the poster must lie flat on the wall (its axes may not have an x component)")
+        heights = self.target.points_world[:, 2] - self.camera_height
+        low = np.flatnonzero(np.abs(heights) < 0.02)
+        if low.size:
+            raise PointAtCameraHeightError(
+                f"target point {int(low[0])} lies at the camera's height ({self.camera_height:.3f} m); "
+                "equation (18) needs every point at least 2 cm above or below it"
+            )
+
+    # -- geometry ---------------------------------------------------------------------
+    @property
+    def wall_x(self) -> float:
+        """The wall is the plane x = wall_x in W (m)."""
+        return float(self.target.poster.center[0])
+
+    @property
+    def wall_normal(self) -> NDArray[np.float64]:
+        """Unit normal of the wall in W, pointing from the robot's side into the wall."""
+        return np.array([1.0, 0.0, 0.0])
+
+    def points_in_camera(self, pose: ArrayLike) -> NDArray[np.float64]:
+        """Target points in F (paper axes), shape (N, 3) (m)."""
+        return world_to_robot(self.target.points_world, pose, self.camera_height)
+
+    def normalized_points(self, pose: ArrayLike) -> NDArray[np.float64]:
+        """Normalised image points ``m_i = [1, m_iy, m_iz]`` (9) seen from ``pose``."""
+        return normalize_points(self.points_in_camera(pose))
+
+    def pixels(self, pose: ArrayLike) -> NDArray[np.float64]:
+        """Ideal pinhole pixels of the target points from ``pose``, shape (N, 2)."""
+        m_bar = self.points_in_camera(pose)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.camera.cx - self.camera.fx * m_bar[:, 1] / m_bar[:, 0]
+            v = self.camera.cy - self.camera.fy * m_bar[:, 2] / m_bar[:, 0]
+        return np.stack([u, v], axis=-1)
+
+    def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
+        """True when every target point is in front of the camera and inside the image."""
+        if np.any(self.points_in_camera(pose)[:, 0] <= 0.05):
+            return False
+        px = self.pixels(pose)
+        return bool(
+            np.all(px[:, 0] >= margin_px)
+            and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
+            and np.all(px[:, 1] >= margin_px)
+            and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
+        )
+
+    def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """What F* sees: reference points m*_i, the plane normal n* in F* and the depth d*.
+
+        Returns
+        -------
+        m_ref : ndarray, shape (N, 3)
+        normal : ndarray, shape (3,)
+            Unit normal in F*, pointing from the camera toward the plane (7).
+        d_star : float
+            Distance from F* to the plane (m), ``n*^T m_bar*_i`` (7).
+        """
+        reference_pose = np.asarray(reference_pose, dtype=float)
+        m_ref = self.normalized_points(reference_pose)
+        phi = reference_pose[2]
+        c, s = np.cos(phi), np.sin(phi)
+        n_w = self.wall_normal
+        normal = np.array([c * n_w[0] + s * n_w[1], -s * n_w[0] + c * n_w[1], n_w[2]])
+        d_star = float(self.wall_x - reference_pose[0])
+        return m_ref, normal, d_star
+
+    def ground_truth(self, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+        """True (theta, x_h) of F relative to F*, (4), (14).
+
+        Returns
+        -------
+        theta : float or ndarray
+            rad.
+        x_h : ndarray, shape (..., 2)
+            ``x_f / d*`` (dimensionless).
+        """
+        theta, x_f = relative_planar_pose(pose, reference_pose)
+        d_star = float(self.wall_x - np.asarray(reference_pose, dtype=float)[0])
+        return theta, x_f[..., :2] / d_star
+
+    def poster_to_image_homography(self, pose: ArrayLike) -> NDArray[np.float64]:
+        """Homography from poster coordinates (m, top-left origin) to ideal pixels.
+
+        ``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: the plane-to-image homography
+        a renderer warps the poster with.
+        """
+        pose = np.asarray(pose, dtype=float)
+        poster = self.poster_basis()
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        to_robot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        origin = poster[:, 2] - np.array([pose[0], pose[1], self.camera_height])
+        columns = np.column_stack([poster[:, 0], poster[:, 1], origin])
+        return self.camera.K @ PAPER_TO_OPENCV @ to_robot @ columns
+
+    def poster_basis(self) -> NDArray[np.float64]:
+        """Columns: the poster's right and down unit vectors and its top-left corner, in W."""
+        poster = self.target.poster
+        top_left = poster.to_world(np.zeros(2))
+        return np.column_stack([poster.right, poster.down, top_left])
+
+    # -- serialisation ------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready description (the ``world`` record of a teach file)."""
+        cam = self.camera
+        target = self.target
+        return {
+            "camera": {
+                "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
+                "width": cam.width, "height": cam.height,
+                "distortion_model": cam.distortion_model, "distortion": list(cam.distortion),
+            },
+            "camera_height_m": self.camera_height,
+            "target": {
+                "kind": target.kind,
+                "points_poster_m": target.points_poster.tolist(),
+                "points_world_m": target.points_world.tolist(),
+                "dot_radius_m": target.dot_radius,
+                "marker_id": target.marker_id,
+                "aruco_dictionary": ARUCO_DICTIONARY,
+                "texture": target.texture,
+                "poster": {
+                    "center_m": target.poster.center.tolist(),
+                    "width_m": target.poster.width,
+                    "height_m": target.poster.height,
+                    "right": target.poster.right.tolist(),
+                    "down": target.poster.down.tolist(),
+                },
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "World":
+        """Inverse of :meth:`to_dict`; raises :class:`InputError` on a malformed description."""
+        try:
+            cam = data["camera"]
+            camera = CameraIntrinsics(
+                fx=float(cam["fx"]), fy=float(cam["fy"]), cx=float(cam["cx"]), cy=float(cam["cy"]),
+                width=int(cam["width"]), height=int(cam["height"]),
+                distortion_model=str(cam.get("distortion_model", "none")),
+                distortion=tuple(float(v) for v in cam.get("distortion", ())),
+            )
+            t = data["target"]
+            p = t["poster"]
+            poster = Poster(
+                center=_vector(p["center_m"], 3),
+                width=float(p["width_m"]),
+                height=float(p["height_m"]),
+                right=_vector(p["right"], 3),
+                down=_vector(p["down"], 3),
+            )
+            points = np.asarray(t["points_poster_m"], dtype=float)
+            if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 3 or not np.all(np.isfinite(points)):
+                raise ValueError("points_poster_m must be a list of at least 3 finite (a, b) pairs")
+            kind = str(t["kind"])
+            if kind not in TARGET_KINDS:
+                raise ValueError(f"unknown target kind {kind!r}")
+            target = Target(
+                kind=kind,
+                points_poster=points,
+                poster=poster,
+                dot_radius=float(t.get("dot_radius_m", 0.0)),
+                marker_id=int(t.get("marker_id", 0)),
+                texture=str(t.get("texture", "builtin")),
+            )
+            return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"malformed world description: {exc}") from None
+
+
+def _vector(values: Any, size: int) -> NDArray[np.float64]:
+    array = np.asarray(values, dtype=float)
+    if array.shape != (size,) or not np.all(np.isfinite(array)):
+        raise ValueError(f"expected {size} finite numbers, got {values!r}")
+    return array
+
+
+#: Default wall distance from the start of the taught path (m).
+DEFAULT_WALL_X = 6.0
+#: Default height of the camera's optical centre (m).
+DEFAULT_CAMERA_HEIGHT = 0.30
+
+
+def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", wall_x: float = DEFAULT_WALL_X) -> Target:
+    """The default target of each kind, centred on the wall in front of the start pose.
+
+    * ``dots``: ``dots`` black dots of radius 6 cm on a white 1.4 m x 1.0 m poster centred
+      0.9 m above the floor, in a scalene layout (no two at the same height, none at the
+      camera's 0.30 m);
+    * ``aruco``: a 0.6 m marker (DICT_4X4_50, id 7) on a 0.9 m x 0.9 m white poster;
+    * ``texture``: a 1.2 m x 0.9 m textured poster; its four target points are the corners
+      of a rectangle inset by 15 %.
+    """
+    if kind not in TARGET_KINDS:
+        raise UsageError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
+    center = np.array([wall_x, 0.0, 0.9])
+    if kind == "dots":
+        if dots < 3:
+            raise UsageError("a dot target needs at least 3 dots")
+        poster = Poster(center=center, width=1.4, height=1.0)
+        # A scalene base triangle, then extra dots on a ring, all off the camera's height.
+        base = [(0.20, 0.72), (1.22, 0.55), (0.64, 0.12)]
+        ring = [
+            (0.7 + 0.45 * np.cos(a), 0.5 + 0.32 * np.sin(a))
+            for a in np.linspace(0.3, 2 * np.pi + 0.3, max(dots - 3, 0), endpoint=False)
+        ]
+        points = np.array((base + ring)[:dots])
+        return Target(kind="dots", points_poster=points, poster=poster, dot_radius=0.06)
+    if kind == "aruco":
+        poster = Poster(center=center, width=0.9, height=0.9)
+        side, margin = 0.6, 0.15
+        # OpenCV's corner order: top-left, top-right, bottom-right, bottom-left.
+        points = np.array([[margin, margin], [margin + side, margin], [margin + side, margin + side], [margin, margin + side]])
+        return Target(kind="aruco", points_poster=points, poster=poster, marker_id=7)
+    poster = Poster(center=center, width=1.2, height=0.9)
+    inset_a, inset_b = 0.15 * 1.2, 0.15 * 0.9
+    points = np.array([[inset_a, inset_b], [1.2 - inset_a, inset_b], [1.2 - inset_a, 0.9 - inset_b], [inset_a, 0.9 - inset_b]])
+    return Target(kind="texture", points_poster=points, poster=poster, texture=texture)
+
+
+def default_world(
+    kind: str = "dots",
+    camera: CameraIntrinsics = DEFAULT_CAMERA,
+    dots: int = 3,
+    texture: str = "builtin",
+    wall_x: float = DEFAULT_WALL_X,
+) -> World:
+    """The default world: the default camera 0.30 m above the floor, the wall at x = 6 m."""
+    return World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=default_target(kind, dots, texture, wall_x))
+
+
+def with_camera(world: World, camera: CameraIntrinsics) -> World:
+    """The same world seen through another camera."""
+    return replace(world, camera=camera)
