@@ -1,0 +1,382 @@
+"""Dark dots on a light poster: sub-pixel blob centres with identity kept by tracking.
+
+Candidates are the connected components of an Otsu threshold (robust to exposure: it
+adapts to the frame's own gray levels) that are dot-like: big enough, compact, not
+elongated, not cut by the search window. Each centre is the intensity-weighted centroid of
+its blob, the weights being the darkness below the local paper level, so anti-aliased rim
+pixels count in proportion to their ink and the centre is sub-pixel accurate.
+
+Identity is *not* taken from the image layout but from the points' predicted positions:
+an optimal assignment (``scipy.optimize.linear_sum_assignment``) of candidates to
+predictions, gated by distance and by each dot's previous area. It therefore survives dots
+crossing or swapping order, and a spurious blob away from the predictions is never taken.
+Dots predicted to touch one another are not reported while they do (their merged blob's
+centroid would be neither's); the track carries them across.
+Only the very first detection (no prediction, no track) uses a canonical rule: the dots
+sorted by image row ``v``, then column ``u`` -- or, when re-acquiring a lost target, the
+assignment to its last known layout (:func:`~.detector.match_identity`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+from ..errors import UsageError
+from .detector import Detection, PointTrack, as_gray, check_prediction, match_identity
+
+#: Cost of a forbidden candidate-to-point pairing in the assignment.
+_FORBIDDEN = 1e12
+_DILATE_RIM = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+_DILATE_RING = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
+
+
+@dataclass(frozen=True)
+class Blobs:
+    """Dark connected components of one frame (or window).
+
+    Attributes
+    ----------
+    centres : ndarray, shape (M, 2)
+        Sub-pixel centres ``(u, v)`` in frame pixels; NaN for components not dot-like.
+    areas : ndarray, shape (M,)
+        Thresholded areas (px).
+    round : ndarray, shape (M,), bool
+        Dot-like: compact, not elongated, not cut by the window's edge.
+    touches_edge : ndarray, shape (M,), bool
+        The component reaches the edge of the searched window.
+    """
+
+    centres: NDArray[np.float64]
+    areas: NDArray[np.float64]
+    round: NDArray[np.bool_]
+    touches_edge: NDArray[np.bool_]
+
+    @property
+    def considered(self) -> int:
+        """Components large enough to be looked at."""
+        return int(self.areas.size)
+
+
+def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
+    """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined).
+
+    Otsu's split is computed after folding the brightest ``clip_fraction`` of pixels into
+    one bin, so that a small highlight (a reflection, a lamp) cannot become the bright class
+    and turn the whole paper "dark". While the dark class holds most pixels (a darker wall
+    around a small poster), it is split again, as long as the split has contrast: dots are
+    a small, dark minority, and a mostly-foreground binary image would also make the
+    labelling several times slower.
+
+    Returns
+    -------
+    threshold : int or None
+        Pixels ``<= threshold`` are dark; None when the two classes' means differ by less
+        than ``min_contrast`` gray levels (nothing stands out).
+    """
+    hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+    total = hist.sum()
+    top = int(np.searchsorted(np.cumsum(hist), (1.0 - clip_fraction) * total))
+    hist[top] += hist[top + 1 :].sum()
+    hist[top + 1 :] = 0.0
+    threshold = _otsu_split(hist, min_contrast)
+    for _ in range(2):
+        if threshold is None or hist[: threshold + 1].sum() <= 0.5 * total:
+            break
+        inner = _otsu_split(hist[: threshold + 1], min_contrast)
+        if inner is None:
+            break
+        threshold = inner
+    return threshold
+
+
+def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
+    """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
+    levels = np.arange(hist.size, dtype=np.float64)
+    weight0 = np.cumsum(hist)
+    mass0 = np.cumsum(hist * levels)
+    weight1 = weight0[-1] - weight0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean0 = mass0 / weight0
+        mean1 = (mass0[-1] - mass0) / weight1
+        between = weight0 * weight1 * (mean0 - mean1) ** 2
+    between[~np.isfinite(between)] = -1.0
+    threshold = int(np.argmax(between))
+    if between[threshold] <= 0 or mean1[threshold] - mean0[threshold] < min_contrast:
+        return None
+    return threshold
+
+
+def find_dark_blobs(
+    gray: NDArray[np.uint8],
+    window: tuple[int, int, int, int] | None = None,
+    min_area: int = 6,
+    max_area: float | None = None,
+    max_elongation: float = 1.8,
+    min_contrast: float = 20.0,
+) -> Blobs:
+    """Dark, dot-like blobs and their sub-pixel centres.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    window : (x0, y0, x1, y1), optional
+        Search only there (end-exclusive pixel bounds); the whole frame by default.
+    min_area : int
+        Components smaller than this (px) are noise and not even counted.
+    max_area : float, optional
+        Largest dot area (px); a quarter of the window by default.
+    max_elongation : float
+        Largest ratio of the blob's principal axes (1 for a disc; a disc seen 50 deg off
+        its normal gives ~1.55).
+    min_contrast : float
+        Gray-level contrast below which nothing is detected.
+
+    Returns
+    -------
+    Blobs
+    """
+    height, width = gray.shape
+    x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
+    sub = gray[y0:y1, x0:x1]
+    empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
+    if sub.size == 0:
+        return empty
+    threshold = otsu_threshold(sub, min_contrast)
+    if threshold is None:
+        return empty
+    _, binary = cv2.threshold(sub, threshold, 255, cv2.THRESH_BINARY_INV)
+    # BBDT: of OpenCV's labelling algorithms, the one that is fast on sparse foreground.
+    _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+        binary, 8, cv2.CV_32S, cv2.CCL_BBDT
+    )
+    if max_area is None:
+        max_area = 0.25 * sub.size
+    sub_h, sub_w = sub.shape
+    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    centres = np.full((keep.size, 2), np.nan)
+    areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
+    round_ = np.zeros(keep.size, dtype=bool)
+    touches = np.zeros(keep.size, dtype=bool)
+    for k, label in enumerate(keep):
+        bx, by, bw, bh, area = (int(s) for s in stats[label])
+        touches[k] = bx == 0 or by == 0 or bx + bw == sub_w or by + bh == sub_h
+        # Cheap bounding-box tests first: a disc (or a mildly oblique ellipse) fills ~pi/4
+        # of its box, and far more than 40 %.
+        if touches[k] or area > max_area or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
+            continue
+        centre, elongation = _blob_centre(sub, labels, label, (bx, by, bw, bh))
+        if elongation <= max_elongation and np.all(np.isfinite(centre)):
+            centres[k] = centre + (x0, y0)
+            round_[k] = True
+    return Blobs(centres, areas, round_, touches)
+
+
+def _blob_centre(
+    sub: NDArray[np.uint8], labels: NDArray[np.int32], label: int, box: tuple[int, int, int, int]
+) -> tuple[NDArray[np.float64], float]:
+    """Intensity-weighted centroid of one blob and its elongation.
+
+    The weights are ``max(paper - I, 0)`` over the blob grown by 2 px (the anti-aliased
+    rim); ``paper`` is the 75th percentile of a ring 2-4 px outside the blob, high enough to
+    ignore a neighbouring dark region that reaches into the ring.
+    """
+    bx, by, bw, bh = box
+    grow = 5
+    px0, py0 = max(bx - grow, 0), max(by - grow, 0)
+    px1, py1 = min(bx + bw + grow, sub.shape[1]), min(by + bh + grow, sub.shape[0])
+    mask = (labels[py0:py1, px0:px1] == label).astype(np.uint8)
+    moments = cv2.moments(mask, binaryImage=True)
+    # Principal second moments (eigenvalues of the 2x2 scatter matrix), in closed form.
+    half_sum = 0.5 * (moments["mu20"] + moments["mu02"])
+    half_gap = np.hypot(0.5 * (moments["mu20"] - moments["mu02"]), moments["mu11"])
+    minor = half_sum - half_gap
+    elongation = float(np.sqrt((half_sum + half_gap) / minor)) if minor > 0 else np.inf
+    rim = cv2.dilate(mask, _DILATE_RIM)
+    ring = cv2.dilate(mask, _DILATE_RING) & (1 - rim)
+    patch = sub[py0:py1, px0:px1].astype(np.float32)
+    ring_values = patch[ring.astype(bool)]
+    if ring_values.size == 0:
+        return np.full(2, np.nan), elongation
+    paper = float(np.partition(ring_values, (3 * ring_values.size) // 4)[(3 * ring_values.size) // 4])
+    weights = np.maximum(paper - patch, 0.0) * rim
+    total = float(weights.sum())
+    if total <= 0:
+        return np.full(2, np.nan), elongation
+    u = float(weights.sum(axis=0) @ np.arange(px0, px1)) / total
+    v = float(weights.sum(axis=1) @ np.arange(py0, py1)) / total
+    return np.array([u, v]), elongation
+
+
+class DotDetector:
+    """Detect and track ``n_points`` dark dots, keeping their identity.
+
+    Parameters
+    ----------
+    n_points : int
+        Number of dots (>= 3).
+    gate_px : float
+        A candidate farther than this from a dot's predicted position (px) cannot be that dot.
+    area_ratio : (float, float)
+        A candidate whose area is outside these multiples of a tracked dot's last area
+        cannot be that dot (e.g. two dots merged into one blob). Dots predicted to touch
+        each other are not reported at all while they do.
+    max_coast : int
+        Frames a dot is predicted through while unseen before it is dropped.
+    min_area, max_elongation, min_contrast
+        See :func:`find_dark_blobs`.
+
+    Attributes
+    ----------
+    last_blobs : Blobs or None
+        The candidates of the last call (diagnostics).
+    """
+
+    kind = "dots"
+
+    def __init__(
+        self,
+        n_points: int,
+        *,
+        gate_px: float = 20.0,
+        area_ratio: tuple[float, float] = (0.6, 1.6),
+        max_coast: int = 10,
+        min_area: int = 6,
+        max_elongation: float = 1.8,
+        min_contrast: float = 20.0,
+    ) -> None:
+        if int(n_points) < 3:
+            raise UsageError(f"a dot target needs at least 3 dots, got {n_points}")
+        if gate_px <= 0:
+            raise UsageError(f"the gate must be positive, got {gate_px} px")
+        self.n_points = int(n_points)
+        self.gate_px = float(gate_px)
+        self.area_ratio = (float(area_ratio[0]), float(area_ratio[1]))
+        self.min_area = int(min_area)
+        self.max_elongation = float(max_elongation)
+        self.min_contrast = float(min_contrast)
+        self._track = PointTrack(self.n_points, max_coast)
+        self._areas = np.full(self.n_points, np.nan)
+        self._layout: NDArray[np.float64] | None = None
+        self.last_blobs: Blobs | None = None
+
+    def reset(self) -> None:
+        """Forget the track, the dots' areas and their last known layout."""
+        self._track.reset()
+        self._areas[:] = np.nan
+        self._layout = None
+
+    def predict(self) -> NDArray[np.float64] | None:
+        """The track's prediction for the next frame, shape (N, 2), or None."""
+        return self._track.predict()
+
+    def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
+        """Find the dots; see :class:`~.detector.TargetDetector`.
+
+        With a prediction (given, or from the track) only a window around the predicted
+        dots is searched; without one, the whole frame.
+        """
+        gray = as_gray(image)
+        prediction = check_prediction(predicted, self.n_points)
+        if prediction is None:
+            prediction = self._track.predict()
+        if prediction is not None:
+            blobs = find_dark_blobs(
+                gray, self._window(gray.shape, prediction), self.min_area, None, self.max_elongation, self.min_contrast
+            )
+            pixels, areas = self._assign(blobs, prediction)
+            if not np.all(np.isfinite(pixels)) and not np.all(np.isfinite(prediction)):
+                # Some dots have no prediction left (unseen too long): they can only come
+                # back through a whole-frame acquisition matched to the last full layout.
+                everywhere = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
+                again, again_areas = self._acquire(everywhere)
+                if np.all(np.isfinite(again)):
+                    blobs, pixels, areas = everywhere, again, again_areas
+        else:
+            blobs = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
+            pixels, areas = self._acquire(blobs)
+        self.last_blobs = blobs
+        seen = np.all(np.isfinite(pixels), axis=1)
+        self._track.update(pixels)
+        self._areas[seen] = areas[seen]
+        found = bool(np.all(seen))
+        if found:
+            self._layout = pixels.copy()
+        n_seen = int(np.count_nonzero(seen))
+        return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
+
+    def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
+        """Search window: the predicted dots' box grown by the gate and a dot's size."""
+        known = prediction[np.all(np.isfinite(prediction), axis=1)]
+        areas = self._areas[np.isfinite(self._areas)]
+        radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
+        margin = self.gate_px + radius + 6.0
+        height, width = shape
+        x0 = int(max(np.floor(known[:, 0].min() - margin), 0))
+        y0 = int(max(np.floor(known[:, 1].min() - margin), 0))
+        x1 = int(min(np.ceil(known[:, 0].max() + margin) + 1, width))
+        y1 = int(min(np.ceil(known[:, 1].max() + margin) + 1, height))
+        return x0, y0, max(x1, x0), max(y1, y0)
+
+    def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Dots from candidates by gated minimum-cost assignment to the predictions."""
+        pixels = np.full((self.n_points, 2), np.nan)
+        areas = np.full(self.n_points, np.nan)
+        candidates = np.flatnonzero(blobs.round)
+        rows = np.flatnonzero(np.all(np.isfinite(prediction), axis=1))
+        if candidates.size == 0 or rows.size == 0:
+            return pixels, areas
+        centres = blobs.centres[candidates]
+        distance2 = np.sum((prediction[rows, None, :] - centres[None, :, :]) ** 2, axis=-1)
+        allowed = distance2 <= self.gate_px**2
+        expected = self._areas[rows]
+        has_area = np.isfinite(expected)
+        ratio = blobs.areas[candidates][None, :] / np.where(has_area, expected, 1.0)[:, None]
+        allowed &= ~has_area[:, None] | ((ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1]))
+        cost = np.where(allowed, distance2, _FORBIDDEN)
+        chosen_rows, chosen_cols = linear_sum_assignment(cost)
+        crowded = self._crowded(prediction[rows], expected)
+        for r, c in zip(chosen_rows, chosen_cols):
+            if allowed[r, c] and not crowded[r]:
+                pixels[rows[r]] = centres[c]
+                areas[rows[r]] = blobs.areas[candidates[c]]
+        return pixels, areas
+
+    @staticmethod
+    def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Dots predicted to touch another dot (closer than their radii plus 2 px).
+
+        Touching dots merge into one blob whose centroid is neither dot's: they are not
+        reported (the track predicts them through) until they are apart again.
+        """
+        radius = np.sqrt(np.where(np.isfinite(areas), areas, 0.0) / np.pi)
+        distance = np.linalg.norm(prediction[:, None, :] - prediction[None, :, :], axis=-1)
+        touching = distance < radius[:, None] + radius[None, :] + 2.0
+        np.fill_diagonal(touching, False)
+        return np.any(touching, axis=1)
+
+    def _acquire(self, blobs: Blobs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Dots without any prediction: exactly N dot-like blobs, in canonical order.
+
+        Blobs of an area far from the others' median are dropped first; if the count is
+        still not N, nothing is reported (a guessed identity would be worse than none).
+        """
+        pixels = np.full((self.n_points, 2), np.nan)
+        areas = np.full(self.n_points, np.nan)
+        candidates = np.flatnonzero(blobs.round)
+        if candidates.size > self.n_points:
+            median = np.median(blobs.areas[candidates])
+            ratio = blobs.areas[candidates] / median
+            candidates = candidates[(ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1])]
+        if candidates.size != self.n_points:
+            return pixels, areas
+        centres = blobs.centres[candidates]
+        if self._layout is not None:
+            order = match_identity(centres, self._layout)
+        else:
+            order = np.lexsort((centres[:, 0], centres[:, 1]))
+        return centres[order], blobs.areas[candidates][order]
