@@ -259,6 +259,56 @@ def estimate_common_normal(
     return best, max(0.0, min(1.0, margin))
 
 
+def refine_common_normal(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, valid: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Refine the plane normal by minimising the reprojection error of a whole sequence.
+
+    For a trial normal, :class:`KnownNormalSolver` gives every frame its best
+    (theta, x_h); the normal (two angles about ``normal``) minimises the sum of all frames'
+    squared reprojection errors (variable projection). Averaging the per-frame SVD normals
+    (:func:`estimate_common_normal`) is biased by noise through the decomposition; this
+    uses every point of every frame the way the model predicts them.
+
+    Parameters
+    ----------
+    m : array_like, shape (F, N, 3)
+        Normalised points of the sequence.
+    m_ref : array_like, shape (N, 3)
+    normal : array_like, shape (3,)
+        Starting normal (the branch is already chosen).
+    valid : array_like of bool, shape (F,), optional
+
+    Returns
+    -------
+    normal : ndarray, shape (3,)
+    """
+    from scipy.optimize import least_squares
+
+    m = np.asarray(m, dtype=float)
+    if valid is not None:
+        m = m[np.asarray(valid, dtype=bool)]
+    start = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    u = np.cross(start, [0.0, 0.0, 1.0])
+    u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
+    v = np.cross(start, u)
+
+    def trial(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+        candidate = start + angles[0] * u + angles[1] * v
+        return candidate / np.linalg.norm(candidate)
+
+    def residuals(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+        solver = KnownNormalSolver(m_ref, trial(angles))
+        motion = solver.solve(m)
+        params = np.concatenate([motion.theta[:, None], motion.x_h], axis=1)
+        return np.nan_to_num(solver._reprojection(params, m)[0]).ravel()
+
+    try:
+        solution = least_squares(residuals, np.zeros(2), x_scale=1e-2, max_nfev=60)
+    except GeometryError:
+        return start
+    refined = trial(solution.x)
+    return refined if np.all(m_ref @ refined > 0) else start
+
+
 def decompose_homography(
     H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR
 ) -> PlanarMotion:

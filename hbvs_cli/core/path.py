@@ -6,7 +6,7 @@ Because every segment is an arc, the pose at any time is known exactly
 (:mod:`hbvs_cli.core.unicycle`), which makes the taught run's ground truth exact too.
 
 Built-in presets (:data:`PRESETS`) are defined for the default world (a target on a wall
-6 m ahead of the start pose, see :mod:`hbvs_cli.core.world`); each keeps the target in view
+4 m ahead of the start pose, see :mod:`hbvs_cli.core.world`); each keeps the target in view
 and keeps x_hd1_dot away from zero, condition (35).
 """
 
@@ -118,15 +118,15 @@ def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, A
 
 
 def _straight(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.175), np.zeros_like(t)
+    return np.full_like(t, 0.1), np.zeros_like(t)
 
 
 def _s_curve(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.175), 0.06 * np.cos(2.0 * np.pi * t / 20.0)
+    return np.full_like(t, 0.1), 0.045 * np.cos(2.0 * np.pi * t / 20.0)
 
 
 def _arc(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.175), np.full_like(t, -0.02)
+    return np.full_like(t, 0.1), np.full_like(t, -0.012)
 
 
 @dataclass(frozen=True)
@@ -145,24 +145,24 @@ PRESETS: dict[str, PathPreset] = {
     for preset in (
         PathPreset(
             "straight",
-            "straight approach toward the target at 0.175 m/s for 20 s (3.5 m)",
+            "straight approach toward the target at 0.1 m/s for 20 s (4 m -> 2 m from it)",
             _straight,
             20.0,
             (0.0, 0.0, 0.0),
         ),
         PathPreset(
             "s-curve",
-            "S-curve toward the target: 0.175 m/s, w = 0.06 cos(2 pi t / 20 s) rad/s (heading +-11 deg), 20 s",
+            "S-curve toward the target: 0.1 m/s, w = 0.045 cos(2 pi t / 20 s) rad/s (heading +-8 deg), 20 s",
             _s_curve,
             20.0,
-            (0.0, -0.1, 0.0),
+            (0.0, -0.05, 0.0),
         ),
         PathPreset(
             "arc",
-            "arc toward the target: 0.175 m/s, w = -0.02 rad/s, 20 s, starting 0.8 m left, heading 12 deg left",
+            "arc toward the target: 0.1 m/s, w = -0.012 rad/s, 20 s, starting 0.35 m left, heading 8 deg left",
             _arc,
             20.0,
-            (0.0, 0.8, np.radians(12.0)),
+            (0.0, 0.35, np.radians(8.0)),
         ),
     )
 }

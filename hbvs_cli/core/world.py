@@ -294,45 +294,50 @@ def _vector(values: Any, size: int) -> NDArray[np.float64]:
 
 
 #: Default wall distance from the start of the taught path (m).
-DEFAULT_WALL_X = 6.0
+DEFAULT_WALL_X = 4.0
 #: Default height of the camera's optical centre (m).
 DEFAULT_CAMERA_HEIGHT = 0.30
 
 
+#: Dot centres as fractions of the dot poster's width and height (from its top-left
+#: corner). The first three form the scalene triangle of the default target; the others
+#: are added in order. On the 2.0 m x 0.9 m poster they are at least 0.3 m apart and none
+#: is level with the camera.
+DOT_LAYOUT: tuple[tuple[float, float], ...] = (
+    (0.06, 0.70), (0.94, 0.55), (0.47, 0.09), (0.82, 0.12), (0.24, 0.28),
+    (0.70, 0.80), (0.42, 0.55), (0.10, 0.06), (0.30, 0.88), (0.96, 0.90),
+)
+
 def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", wall_x: float = DEFAULT_WALL_X) -> Target:
     """The default target of each kind, centred on the wall in front of the start pose.
 
-    * ``dots``: ``dots`` black dots of radius 6 cm on a white 1.4 m x 1.0 m poster centred
-      0.9 m above the floor, in a scalene layout (no two at the same height, none at the
-      camera's 0.30 m);
+    * ``dots``: 3 to 10 black dots of radius 5 cm on a white 2.0 m x 0.9 m poster whose
+      centre is 0.75 m above the floor (:data:`DOT_LAYOUT`; no dot at the camera's 0.30 m);
     * ``aruco``: a 0.6 m marker (DICT_4X4_50, id 7) on a 0.9 m x 0.9 m white poster;
-    * ``texture``: a 1.2 m x 0.9 m textured poster; its four target points are the corners
-      of a rectangle inset by 15 %.
+    * ``texture``: a 1.8 m x 0.9 m textured poster; its four target points are the corners
+      of a rectangle inset by 10 %.
+
+    A wide target matters: the yaw/lateral-shift ambiguity of a small, distant target makes
+    theta sensitive to pixel noise in proportion to (distance / width)^2.
     """
     if kind not in TARGET_KINDS:
         raise UsageError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
-    center = np.array([wall_x, 0.0, 0.9])
+    center = np.array([wall_x, 0.0, 0.75])
     if kind == "dots":
-        if dots < 3:
-            raise UsageError("a dot target needs at least 3 dots")
-        poster = Poster(center=center, width=1.4, height=1.0)
-        # A scalene base triangle, then extra dots on a ring, all off the camera's height.
-        base = [(0.20, 0.72), (1.22, 0.55), (0.64, 0.12)]
-        ring = [
-            (0.7 + 0.45 * np.cos(a), 0.5 + 0.32 * np.sin(a))
-            for a in np.linspace(0.3, 2 * np.pi + 0.3, max(dots - 3, 0), endpoint=False)
-        ]
-        points = np.array((base + ring)[:dots])
-        return Target(kind="dots", points_poster=points, poster=poster, dot_radius=0.06)
+        if not 3 <= dots <= len(DOT_LAYOUT):
+            raise UsageError(f"a dot target has 3 to {len(DOT_LAYOUT)} dots, got {dots}")
+        poster = Poster(center=center, width=2.0, height=0.9)
+        points = np.array(DOT_LAYOUT[:dots]) * [poster.width, poster.height]
+        return Target(kind="dots", points_poster=points, poster=poster, dot_radius=0.05)
     if kind == "aruco":
         poster = Poster(center=center, width=0.9, height=0.9)
         side, margin = 0.6, 0.15
         # OpenCV's corner order: top-left, top-right, bottom-right, bottom-left.
         points = np.array([[margin, margin], [margin + side, margin], [margin + side, margin + side], [margin, margin + side]])
         return Target(kind="aruco", points_poster=points, poster=poster, marker_id=7)
-    poster = Poster(center=center, width=1.2, height=0.9)
-    inset_a, inset_b = 0.15 * 1.2, 0.15 * 0.9
-    points = np.array([[inset_a, inset_b], [1.2 - inset_a, inset_b], [1.2 - inset_a, 0.9 - inset_b], [inset_a, 0.9 - inset_b]])
+    poster = Poster(center=center, width=1.8, height=0.9)
+    inset_a, inset_b = 0.10 * poster.width, 0.10 * poster.height
+    points = np.array([[inset_a, inset_b], [poster.width - inset_a, inset_b], [poster.width - inset_a, poster.height - inset_b], [inset_a, poster.height - inset_b]])
     return Target(kind="texture", points_poster=points, poster=poster, texture=texture)
 
 
@@ -343,7 +348,7 @@ def default_world(
     texture: str = "builtin",
     wall_x: float = DEFAULT_WALL_X,
 ) -> World:
-    """The default world: the default camera 0.30 m above the floor, the wall at x = 6 m."""
+    """The default world: the default camera 0.30 m above the floor, the wall at x = 4 m."""
     return World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=default_target(kind, dots, texture, wall_x))
 
 

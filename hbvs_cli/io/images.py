@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import RecordingError, UsageError
+from ..errors import InputError, RecordingError, UsageError
 
 IMAGE_FORMATS = ("png", "jpeg")
 #: Largest decoded image accepted (pixels): 8K x 8K. A hostile header cannot make OpenCV
@@ -38,15 +38,21 @@ def image_size(data: bytes) -> tuple[int, int] | None:
 
 
 def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
-    """Decode PNG/JPEG bytes to an 8-bit grayscale array; :class:`RecordingError` if not an image."""
+    """Decode PNG/JPEG (any image OpenCV reads) to 8-bit gray; :class:`InputError` if it cannot.
+
+    OpenCV's grayscale decoding converts colour and 16-bit images to 8-bit gray itself.
+    """
     import cv2
 
     size = image_size(data)
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
-        raise RecordingError(f"{source}: an image declares {size[0]}x{size[1]} pixels, more than hbvs accepts")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+        raise InputError(f"{source}: an image declares {size[0]}x{size[1]} pixels, more than hbvs accepts")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+    except (cv2.error, SystemError):
+        image = None
     if image is None:
-        raise RecordingError(f"{source}: an image could not be decoded (not PNG/JPEG, or damaged)")
+        raise InputError(f"{source}: cannot be decoded as an image (corrupt, truncated or not an image)")
     return image
 
 

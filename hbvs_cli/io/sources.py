@@ -96,34 +96,10 @@ class FrameSource:
 
 # ----------------------------------------------------------------------------- helpers
 def to_gray8(image: np.ndarray, what: str) -> np.ndarray:
-    """Convert a decoded image to a contiguous ``uint8`` grayscale array.
+    """A decoded frame as contiguous 8-bit gray (see :func:`hbvs_cli.perception.detector.as_gray`)."""
+    from ..perception.detector import as_gray
 
-    Parameters
-    ----------
-    image : numpy.ndarray
-        ``(H, W)``, ``(H, W, 1)``, ``(H, W, 3)`` BGR or ``(H, W, 4)`` BGRA; ``uint8`` or
-        ``uint16`` (16-bit keeps its high byte).
-    what : str
-        How to name the image in error messages.
-
-    Raises
-    ------
-    InputError
-        For other shapes or pixel types.
-    """
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
-    elif image.dtype != np.uint8:
-        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    if image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    if image.ndim != 2 or image.shape[0] == 0 or image.shape[1] == 0:
-        raise InputError(f"{what}: unsupported image shape {image.shape}")
-    return np.ascontiguousarray(image)
+    return as_gray(image, what)
 
 
 def _sniff_format(data: bytes) -> str | None:
@@ -137,13 +113,9 @@ def _sniff_format(data: bytes) -> str | None:
 
 def _decode_image(data: bytes, what: str) -> np.ndarray:
     """Decode compressed image bytes to 8-bit gray, naming ``what`` on failure."""
-    try:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except (cv2.error, SystemError) as exc:
-        raise InputError(f"{what}: cannot be decoded as an image ({_cv_message(exc)})") from None
-    if image is None:
-        raise InputError(f"{what}: cannot be decoded as an image (corrupt, truncated or not an image)")
-    return to_gray8(image, what)
+    from .images import decode_image
+
+    return decode_image(data, what)
 
 
 def _cv_message(exc: BaseException) -> str:
