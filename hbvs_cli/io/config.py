@@ -1,0 +1,91 @@
+"""``--config FILE.toml``: controller gains, actuator limits and run settings.
+
+Example (``samples/gains.toml`` holds the defaults)::
+
+    law = "lateral-gain"     # or "paper"
+    [gains]
+    k_v = 4.0
+    k_w = 1.0
+    gamma = 2000.0
+    k_2 = 300.0
+    [limits]
+    max_v = 0.5
+    max_w = 0.6
+    [run]
+    lost_timeout = 3.0
+
+Options given on the command line override the file.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .text_files import read_small_text
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+MAX_CONFIG_BYTES = 1 * 2**20
+
+#: Allowed keys per table and their types.
+SCHEMA: dict[str, dict[str, type]] = {
+    "": {"law": str, "dhat0": float, "speed": float},
+    "gains": {"k_v": float, "k_w": float, "gamma": float, "k_2": float},
+    "limits": {"max_v": float, "max_w": float, "max_accel": float, "latency": int},
+    "run": {"lost_timeout": float, "rate": float, "perception": str, "pixel_noise": float, "offset": str},
+}
+
+
+def load_config(path: str | Path) -> dict[str, Any]:
+    """Read and validate a TOML config; returns flat ``{key: value}`` (e.g. ``k_v``, ``max_v``).
+
+    Raises
+    ------
+    InputError
+        Missing file, malformed TOML, an unknown key or a value of the wrong type.
+    """
+    path = Path(path)
+    text = read_small_text(path, MAX_CONFIG_BYTES, "a TOML file")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: malformed TOML ({exc})") from None
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            if key not in SCHEMA or key == "":
+                raise InputError(f"{path}: unknown table [{key}] (known: gains, limits, run)")
+            for inner, inner_value in value.items():
+                flat[inner] = _checked(path, key, inner, inner_value)
+        else:
+            flat[key] = _checked(path, "", key, value)
+    return flat
+
+
+def _checked(path: Path, table: str, key: str, value: Any) -> Any:
+    where = f"[{table}] {key}" if table else key
+    expected = SCHEMA[table].get(key)
+    if expected is None:
+        known = ", ".join(SCHEMA[table])
+        raise InputError(f"{path}: unknown key {where} (known here: {known})")
+    if expected is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{path}: {where} must be a number, got {value!r}")
+        value = float(value)
+        if math.isnan(value):
+            raise InputError(f"{path}: {where} is NaN")
+        return value
+    if expected is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{path}: {where} must be a whole number, got {value!r}")
+        return value
+    if not isinstance(value, str):
+        raise InputError(f"{path}: {where} must be a string, got {value!r}")
+    return value

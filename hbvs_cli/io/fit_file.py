@@ -1,0 +1,237 @@
+"""The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads.
+
+Topics:
+
+========================  ==============================  ====================================
+``/fit/model``            ``hbvs.FitModel``               the model (one message, at the end)
+``/desired/raw``          ``hbvs.DesiredSignal``          theta_d, x_hd per used frame
+``/desired/smooth``       ``hbvs.DesiredSignal``          the splines and their derivatives
+``/camera/image``         ``foxglove.CompressedImage``    the taught images (unless --no-images)
+``/camera/annotations``   ``foxglove.ImageAnnotations``   detected points on the taught images
+``/camera/calibration``   ``foxglove.CameraCalibration``  the camera
+``/reference/image``      ``foxglove.CompressedImage``    the reference frame F*
+``/detector/template``    ``foxglove.CompressedImage``    the image texture features come from
+========================  ==============================  ====================================
+
+Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..core.camera import CameraIntrinsics
+from ..core.trajectory import SplineTrajectory
+from ..core.world import World
+from ..errors import RecordingError
+from .images import image_bytes_from_message
+from .mcap_io import McapStream, read_metadata, time_message
+from .schemas import TOPICS
+
+FILE_KIND = "fit"
+MODEL_TOPIC = "/fit/model"
+REFERENCE_IMAGE_TOPIC = "/reference/image"
+TEMPLATE_IMAGE_TOPIC = "/detector/template"
+FORMAT_VERSION = 1
+
+
+def camera_to_dict(camera: CameraIntrinsics) -> dict[str, Any]:
+    return {
+        "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+        "width": camera.width, "height": camera.height,
+        "distortion_model": camera.distortion_model, "distortion": list(camera.distortion),
+    }
+
+
+def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
+    return CameraIntrinsics(
+        fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
+        width=int(data["width"]), height=int(data["height"]),
+        distortion_model=str(data.get("distortion_model", "none")),
+        distortion=tuple(float(v) for v in data.get("distortion", ())),
+    )
+
+
+@dataclass
+class TaughtPath:
+    """Ground truth of a simulated teach: per-frame poses and commands, and F*'s pose.
+
+    Commands were held between frames, so poses in between are exact
+    (:class:`~hbvs_cli.core.path.CommandProfile`).
+    """
+
+    t: np.ndarray
+    poses: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    reference_pose: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "t": self.t.tolist(), "poses": self.poses.tolist(), "v": self.v.tolist(), "w": self.w.tolist(),
+            "reference_pose": self.reference_pose.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "TaughtPath":
+        t = np.asarray(data["t"], dtype=float)
+        poses = np.asarray(data["poses"], dtype=float)
+        v = np.asarray(data["v"], dtype=float)
+        w = np.asarray(data["w"], dtype=float)
+        reference = np.asarray(data["reference_pose"], dtype=float)
+        if t.ndim != 1 or poses.shape != (t.size, 3) or v.shape != t.shape or w.shape != t.shape or reference.shape != (3,):
+            raise ValueError("taught_path arrays have inconsistent shapes")
+        if not all(np.all(np.isfinite(a)) for a in (t, poses, v, w, reference)):
+            raise ValueError("taught_path holds NaN or infinity")
+        return cls(t=t, poses=poses, v=v, w=w, reference_pose=reference)
+
+
+@dataclass
+class FitModel:
+    """Everything ``repeat`` needs to track the taught trajectory (and report on it)."""
+
+    target_kind: str
+    camera: CameraIntrinsics
+    reference_index: int
+    reference_t: float
+    reference_pixels: np.ndarray
+    m_ref: np.ndarray
+    normal: np.ndarray
+    normal_margin: float
+    trajectory: SplineTrajectory
+    dhat0: float
+    dhat0_source: str
+    depth: dict[str, Any]
+    frames: dict[str, Any]
+    condition35: dict[str, Any]
+    residual_px: dict[str, Any]
+    detector: dict[str, Any]
+    world: World | None = None
+    taught_path: TaughtPath | None = None
+    render: dict[str, Any] | None = None
+
+    def to_message(self, log_time_ns: int) -> dict[str, Any]:
+        return {
+            "format_version": FORMAT_VERSION,
+            "timestamp": time_message(log_time_ns),
+            "hbvs_version": __version__,
+            "target_kind": self.target_kind,
+            "camera": camera_to_dict(self.camera),
+            "reference": {
+                "index": self.reference_index,
+                "t": self.reference_t,
+                "pixels": self.reference_pixels.tolist(),
+                "m_ref": self.m_ref.tolist(),
+            },
+            "normal": self.normal.tolist(),
+            "normal_margin": self.normal_margin,
+            "trajectory": self.trajectory.to_dict(),
+            "dhat0": self.dhat0,
+            "dhat0_source": self.dhat0_source,
+            "depth": self.depth,
+            "frames": self.frames,
+            "condition35": self.condition35,
+            "residual_px": self.residual_px,
+            "detector": self.detector,
+            "world": self.world.to_dict() if self.world is not None else None,
+            "taught_path": self.taught_path.to_dict() if self.taught_path is not None else None,
+            "render": self.render,
+        }
+
+    @classmethod
+    def from_message(cls, message: dict[str, Any], source: str = "") -> "FitModel":
+        """Parse and validate a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed."""
+        from ..errors import HbvsError
+
+        try:
+            if int(message.get("format_version", -1)) != FORMAT_VERSION:
+                raise ValueError(f"unsupported model format_version {message.get('format_version')!r}")
+            reference = message["reference"]
+            m_ref = np.asarray(reference["m_ref"], dtype=float)
+            pixels = np.asarray(reference["pixels"], dtype=float)
+            normal = np.asarray(message["normal"], dtype=float)
+            if m_ref.ndim != 2 or m_ref.shape[1] != 3 or m_ref.shape[0] < 3 or pixels.shape != (m_ref.shape[0], 2):
+                raise ValueError("reference points must be N >= 3 rows of [1, m_y, m_z] with matching pixels")
+            if normal.shape != (3,) or not np.all(np.isfinite(normal)):
+                raise ValueError("normal must be 3 finite numbers")
+            dhat0 = float(message["dhat0"])
+            if not (np.isfinite(dhat0) and dhat0 > 0):
+                raise ValueError("dhat0 must be a positive number")
+            world = World.from_dict(message["world"]) if message.get("world") else None
+            taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
+            kind = str(message["target_kind"])
+            if kind not in ("dots", "aruco", "texture"):
+                raise ValueError(f"unknown target kind {kind!r}")
+            return cls(
+                target_kind=kind,
+                camera=camera_from_dict(message["camera"]),
+                reference_index=int(reference["index"]),
+                reference_t=float(reference["t"]),
+                reference_pixels=pixels,
+                m_ref=m_ref,
+                normal=normal,
+                normal_margin=float(message.get("normal_margin", float("nan")) or float("nan")),
+                trajectory=SplineTrajectory.from_dict(message["trajectory"]),
+                dhat0=dhat0,
+                dhat0_source=str(message.get("dhat0_source", "")),
+                depth=dict(message.get("depth") or {}),
+                frames=dict(message.get("frames") or {}),
+                condition35=dict(message.get("condition35") or {}),
+                residual_px=dict(message.get("residual_px") or {}),
+                detector=dict(message.get("detector") or {}),
+                world=world,
+                taught_path=taught,
+                render=dict(message["render"]) if isinstance(message.get("render"), dict) else None,
+            )
+        except HbvsError as exc:
+            raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
+
+
+@dataclass
+class FitFile:
+    """What ``repeat`` reads from a fit file: the model and its images."""
+
+    model: FitModel
+    reference_image: bytes | None
+    template_image: bytes | None
+    info: dict[str, Any]
+
+
+def read_fit_file(source: Any, name: str = "") -> FitFile:
+    """Read the model (and reference/template images) of a fit file or stream.
+
+    Raises
+    ------
+    RecordingError
+        Not a fit file, or no complete model in it.
+    """
+    topics = {MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC}
+    stream = McapStream(source, topics=topics, name=name)
+    model_message: dict[str, Any] | None = None
+    images: dict[str, bytes] = {}
+    for message in stream:
+        expected = TOPICS[FILE_KIND][message.topic]
+        if message.schema_name != expected:
+            raise RecordingError(f"{stream.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}")
+        if message.topic == MODEL_TOPIC:
+            model_message = message.json(stream.name)
+        else:
+            images[message.topic] = image_bytes_from_message(message.json(stream.name), stream.name)[0]
+    info = read_metadata(stream, "hbvs")
+    kind = info.get("file_kind")
+    if kind not in (None, FILE_KIND):
+        raise RecordingError(f"{stream.name}: this is a {kind!r} file; hbvs repeat reads the output of hbvs fit")
+    if model_message is None:
+        raise RecordingError(f"{stream.name}: no fit model in it (is it the output of hbvs fit, and complete?)")
+    return FitFile(
+        model=FitModel.from_message(model_message, stream.name),
+        reference_image=images.get(REFERENCE_IMAGE_TOPIC),
+        template_image=images.get(TEMPLATE_IMAGE_TOPIC),
+        info=info,
+    )

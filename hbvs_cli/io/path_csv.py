@@ -1,0 +1,80 @@
+"""Teach-pendant command files: CSV with the columns ``t,v,w`` (s, m/s, rad/s).
+
+Each row is a command held until the next row's time; the last one is held for the
+median row interval. Columns may come in any order; extra columns are ignored.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ..core.path import CommandProfile
+from ..errors import HbvsError, InputError
+from .text_files import read_small_text
+
+#: Largest CSV accepted (bytes): a day of commands at 100 Hz is ~200 MB; paths are small.
+MAX_CSV_BYTES = 64 * 2**20
+REQUIRED_COLUMNS = ("t", "v", "w")
+
+
+def load_command_profile(path: str | Path) -> CommandProfile:
+    """Read a teach-pendant CSV into a :class:`CommandProfile`.
+
+    Raises
+    ------
+    InputError
+        Missing file, bad header, non-numeric cell, fewer than 2 rows, non-monotonic time.
+    """
+    text = read_small_text(path, MAX_CSV_BYTES, "a CSV file with columns t,v,w")
+    return parse_command_csv(text, str(path))
+
+
+def parse_command_csv(text: str, name: str = "commands.csv") -> CommandProfile:
+    """Parse CSV text with a ``t,v,w`` header into a :class:`CommandProfile`."""
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise InputError(f"{name}: empty file; expected a header t,v,w") from None
+    except csv.Error as exc:
+        raise InputError(f"{name}: not a CSV file ({exc})") from None
+    columns = [h.strip().lower() for h in header]
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {','.join(columns)})")
+    index = [columns.index(c) for c in REQUIRED_COLUMNS]
+    rows = []
+    try:
+        for line_number, row in enumerate(reader, start=2):
+            if not row or all(not cell.strip() for cell in row):
+                continue
+            try:
+                rows.append([float(row[i]) for i in index])
+            except (ValueError, IndexError):
+                raise InputError(f"{name}:{line_number}: expected three numbers t,v,w, got {','.join(row)!r}") from None
+    except csv.Error as exc:
+        raise InputError(f"{name}: malformed CSV ({exc})") from None
+    if len(rows) < 2:
+        raise InputError(f"{name}: needs at least two command rows")
+    data = np.array(rows)
+    if not np.all(np.isfinite(data)):
+        raise InputError(f"{name}: contains NaN or infinity")
+    t = data[:, 0]
+    steps = np.diff(t)
+    if np.any(steps <= 0.0):
+        bad = int(np.flatnonzero(steps <= 0.0)[0])
+        raise InputError(f"{name}:{bad + 3}: time must increase strictly (t={t[bad + 1]:g} s after t={t[bad]:g} s)")
+    try:
+        return CommandProfile(t=t, v=data[:, 1], w=data[:, 2], t_end=float(t[-1] + np.median(steps)))
+    except HbvsError as exc:
+        raise InputError(f"{name}: {exc}") from None
+
+
+def save_command_profile(profile: CommandProfile, path: str | Path) -> None:
+    """Write a profile as a ``t,v,w`` CSV (the last row's hold time is implied)."""
+    lines = ["t,v,w"] + [f"{t:.6f},{v:.6f},{w:.6f}" for t, v, w in zip(profile.t, profile.v, profile.w)]
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -1,0 +1,151 @@
+"""The run file: what ``hbvs repeat`` writes and ``hbvs report`` reads.
+
+Topics:
+
+=======================  ==============================  ==========================================
+``/repeat/state``        ``hbvs.ControllerState``        every control step (errors, commands, dhat, V)
+``/repeat/cmd_vel``      ``hbvs.VelocityCommand``        the command sent (after actuator limits)
+``/repeat/events``       ``foxglove.Log``                target lost / back, saturation, faults, stop
+``/ground_truth/pose``   ``foxglove.PoseInFrame``        true robot pose (``--sim``)
+``/desired/pose``        ``foxglove.PoseInFrame``        taught pose at the same time (``--sim``)
+``/camera/image``        ``foxglove.CompressedImage``    camera images (``--record-images``)
+``/camera/annotations``  ``foxglove.ImageAnnotations``   detected (green) and desired (orange) points
+``/camera/calibration``  ``foxglove.CameraCalibration``  the camera
+=======================  ==============================  ==========================================
+
+Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay), ``law``,
+``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and
+``condition35`` (from the fit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import RecordingError
+from .mcap_io import McapStream, read_metadata
+from .messages import planar_pose_from_message
+from .schemas import TOPICS
+
+FILE_KIND = "run"
+STATE_TOPIC = "/repeat/state"
+COMMAND_TOPIC = "/repeat/cmd_vel"
+EVENTS_TOPIC = "/repeat/events"
+TRUE_POSE_TOPIC = "/ground_truth/pose"
+DESIRED_POSE_TOPIC = "/desired/pose"
+
+#: Per-step numeric fields of ``hbvs.ControllerState`` kept by :class:`RunData` (NaN for null).
+STATE_FIELDS = (
+    "t", "x_h1", "x_h2", "theta", "x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot",
+    "e1", "e2", "ebar2", "e3", "v_c", "w_c", "v_law", "w_law", "dhat", "residual", "V",
+)
+
+
+@dataclass
+class RunData:
+    """A whole run as arrays (one row per control step).
+
+    Attributes
+    ----------
+    name : str
+    info : dict
+        The ``hbvs`` metadata record (mode, law, gains, settings, d_true...).
+    state : dict of ndarray
+        :data:`STATE_FIELDS`, each shape (K,), NaN where the message had null.
+    saturated, lost : ndarray of bool, shape (K,)
+    lost_reason : list of str
+    true_pose, desired_pose : ndarray, shape (K, 3) or None
+        (x, y, phi) at the step times (``--sim`` runs).
+    events : list of (t, level, text)
+    truncated : bool
+        The file ended early (a crashed or killed run).
+    """
+
+    name: str
+    info: dict[str, Any]
+    state: dict[str, np.ndarray]
+    saturated: np.ndarray
+    lost: np.ndarray
+    lost_reason: list[str]
+    true_pose: np.ndarray | None
+    desired_pose: np.ndarray | None
+    events: list[tuple[float, int, str]] = field(default_factory=list)
+    truncated: bool = False
+
+    @property
+    def steps(self) -> int:
+        return int(self.state["t"].size)
+
+
+def _number(value: Any) -> float:
+    if value is None:
+        return float("nan")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"expected a number, got {value!r}")
+    return float(value)
+
+
+def read_run(source: Any, name: str = "") -> RunData:
+    """Read a run file (or ``-``) into :class:`RunData`.
+
+    Raises
+    ------
+    RecordingError
+        Not an MCAP file, not a run file, malformed messages, or no steps.
+    """
+    stream = McapStream(source, topics=set(TOPICS[FILE_KIND]), name=name)
+    columns: dict[str, list[float]] = {key: [] for key in STATE_FIELDS}
+    saturated: list[bool] = []
+    lost: list[bool] = []
+    reasons: list[str] = []
+    true_pose: dict[int, tuple[float, float, float]] = {}
+    desired_pose: dict[int, tuple[float, float, float]] = {}
+    step_times: list[int] = []
+    events: list[tuple[float, int, str]] = []
+    for message in stream:
+        expected = TOPICS[FILE_KIND][message.topic]
+        if message.schema_name != expected:
+            raise RecordingError(f"{stream.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}")
+        if message.topic == STATE_TOPIC:
+            data = message.json(stream.name)
+            try:
+                for key in STATE_FIELDS:
+                    columns[key].append(_number(data.get(key)))
+                saturated.append(bool(data["saturated"]))
+                lost.append(bool(data["target_lost"]))
+                reasons.append(str(data.get("lost_reason", "")))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise RecordingError(f"{stream.name}: malformed controller state message ({exc})") from None
+            step_times.append(message.log_time)
+        elif message.topic == TRUE_POSE_TOPIC:
+            true_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
+        elif message.topic == DESIRED_POSE_TOPIC:
+            desired_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
+        elif message.topic == EVENTS_TOPIC:
+            data = message.json(stream.name)
+            events.append((message.log_time * 1e-9, int(data.get("level", 0)), str(data.get("message", ""))))
+    info = read_metadata(stream, "hbvs")
+    if info.get("file_kind") != FILE_KIND:
+        kind = info.get("file_kind")
+        what = f"a {kind!r} file" if kind else "not an hbvs run file"
+        raise RecordingError(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat")
+    if not step_times:
+        raise RecordingError(f"{stream.name}: the run has no control steps")
+    state = {key: np.array(values) for key, values in columns.items()}
+
+    def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
+        if not poses:
+            return None
+        rows = [poses.get(t) for t in step_times]
+        if any(r is None for r in rows):
+            return None
+        return np.array(rows, dtype=float)
+
+    return RunData(
+        name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),
+        lost_reason=reasons, true_pose=aligned(true_pose), desired_pose=aligned(desired_pose),
+        events=events, truncated=stream.truncated,
+    )

@@ -1,0 +1,174 @@
+"""The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
+
+Topics (all JSON, Foxglove schemas where one exists):
+
+=====================  ===========================  =========================================
+``/camera/image``      ``foxglove.CompressedImage`` every frame (PNG or JPEG, base64)
+``/camera/calibration`` ``foxglove.CameraCalibration`` once, before the first frame
+``/teach/cmd_vel``     ``hbvs.VelocityCommand``     the taught command of each frame (sim, CSV)
+``/ground_truth/pose`` ``foxglove.PoseInFrame``     true robot pose of each frame (sim only)
+=====================  ===========================  =========================================
+
+Metadata records: ``hbvs`` (``file_kind = teach``, version, source, settings), and for a
+simulated teach ``hbvs.world`` (the world description, to re-create it in ``repeat``).
+Per frame, the command and the pose are written just before the image with the same log
+time, so a streaming reader has them when the image arrives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+from .. import __version__
+from ..core.camera import CameraIntrinsics
+from ..core.world import World
+from ..errors import RecordingError
+from .calibration import calibration_from_foxglove, calibration_to_foxglove
+from .images import compressed_image_message
+from .mcap_io import McapStream, McapWriter, read_metadata, time_message
+from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
+from .schemas import TOPICS
+
+FILE_KIND = "teach"
+IMAGE_TOPIC = "/camera/image"
+CALIBRATION_TOPIC = "/camera/calibration"
+COMMAND_TOPIC = "/teach/cmd_vel"
+POSE_TOPIC = "/ground_truth/pose"
+
+
+class TeachWriter:
+    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap_io.McapWriter`."""
+
+    def __init__(self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None) -> None:
+        self.writer = writer
+        writer.metadata("hbvs", {"file_kind": FILE_KIND, "hbvs_version": __version__, "source": source, "settings": settings})
+        if world is not None:
+            writer.metadata("hbvs.world", {"world": world.to_dict()})
+        self.frames = 0
+
+    def calibration(self, camera: CameraIntrinsics, log_time_ns: int = 0) -> None:
+        self.writer.write(
+            CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], log_time_ns,
+            calibration_to_foxglove(camera, CAMERA_FRAME, log_time_ns),
+        )
+
+    def frame(
+        self,
+        log_time_ns: int,
+        image_bytes: bytes,
+        image_format: str,
+        pose: tuple[float, float, float] | None = None,
+        camera_height: float = 0.0,
+        command: tuple[float, float] | None = None,
+    ) -> None:
+        """One frame: its command and true pose (when known), then the image."""
+        stamp = time_message(log_time_ns)
+        if command is not None:
+            self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
+        if pose is not None:
+            self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
+        self.writer.write(
+            IMAGE_TOPIC, TOPICS[FILE_KIND][IMAGE_TOPIC], log_time_ns,
+            compressed_image_message(stamp, CAMERA_FRAME, image_bytes, image_format),
+        )
+        self.frames += 1
+
+
+@dataclass(frozen=True)
+class TeachFrame:
+    """One frame of a teach recording.
+
+    Attributes
+    ----------
+    index : int
+        0-based frame number.
+    log_time_ns : int
+    t : float
+        Seconds since the first frame.
+    image_message : bytes
+        The ``foxglove.CompressedImage`` JSON, as stored (to copy it or decode it).
+    pose : (x, y, phi) or None
+        True robot pose (simulated recordings).
+    command : (v, w) or None
+        The taught command of this frame.
+    """
+
+    index: int
+    log_time_ns: int
+    t: float
+    image_message: bytes
+    pose: tuple[float, float, float] | None
+    command: tuple[float, float] | None
+
+
+@dataclass
+class TeachReader:
+    """Streams the frames of a teach recording (a file or ``-``) in constant memory.
+
+    ``camera``, ``world`` and ``info`` are filled as the records arrive; all of them come
+    before the first frame in files written by ``hbvs teach``.
+    """
+
+    source: Any
+    name: str = ""
+    camera: CameraIntrinsics | None = None
+    world: World | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+    stream: McapStream | None = None
+
+    def __post_init__(self) -> None:
+        self.stream = McapStream(self.source, topics=set(TOPICS[FILE_KIND]), name=self.name)
+        self.name = self.stream.name
+
+    def _check_kind(self) -> None:
+        if self.info:
+            return
+        info = read_metadata(self.stream, "hbvs")
+        if info:
+            kind = info.get("file_kind")
+            if kind != FILE_KIND:
+                raise RecordingError(f"{self.name}: this is a {kind!r} file; a teach recording (from hbvs teach) is expected")
+            self.info = info
+            world = read_metadata(self.stream, "hbvs.world").get("world")
+            if isinstance(world, dict):
+                self.world = World.from_dict(world)
+
+    def frames(self) -> Iterator[TeachFrame]:
+        """Yield frames in recording order."""
+        first_time: int | None = None
+        pending_pose: tuple[int, tuple[float, float, float]] | None = None
+        pending_command: tuple[int, tuple[float, float]] | None = None
+        index = 0
+        for message in self.stream:
+            self._check_kind()
+            expected = TOPICS[FILE_KIND].get(message.topic)
+            if expected is not None and message.schema_name != expected:
+                raise RecordingError(
+                    f"{self.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}"
+                )
+            if message.topic == CALIBRATION_TOPIC:
+                if self.camera is None:
+                    self.camera = calibration_from_foxglove(message.json(self.name))
+            elif message.topic == POSE_TOPIC:
+                pending_pose = (message.log_time, planar_pose_from_message(message.json(self.name), self.name))
+            elif message.topic == COMMAND_TOPIC:
+                pending_command = (message.log_time, velocity_from_message(message.json(self.name), self.name))
+            elif message.topic == IMAGE_TOPIC:
+                if first_time is None:
+                    first_time = message.log_time
+                pose = pending_pose[1] if pending_pose and pending_pose[0] == message.log_time else None
+                command = pending_command[1] if pending_command and pending_command[0] == message.log_time else None
+                yield TeachFrame(
+                    index=index, log_time_ns=message.log_time, t=(message.log_time - first_time) * 1e-9,
+                    image_message=message.data, pose=pose, command=command,
+                )
+                index += 1
+        self._check_kind()
+        if not self.info and self.stream.complete and index == 0:
+            raise RecordingError(f"{self.name}: no hbvs metadata and no images: not a teach recording")
+
+    @property
+    def truncated(self) -> bool:
+        """True when the file ended before its footer (a crashed recorder)."""
+        return bool(self.stream and self.stream.truncated)
