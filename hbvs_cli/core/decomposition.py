@@ -259,54 +259,80 @@ def estimate_common_normal(
     return best, max(0.0, min(1.0, margin))
 
 
-def refine_common_normal(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, valid: ArrayLike | None = None) -> NDArray[np.float64]:
-    """Refine the plane normal by minimising the reprojection error of a whole sequence.
+#: Frames used by :func:`refine_plane_and_reference` at most (evenly spaced): the plane
+#: and the reference points need no more, and long recordings stay fast.
+REFINEMENT_FRAMES = 1500
 
-    For a trial normal, :class:`KnownNormalSolver` gives every frame its best
-    (theta, x_h); the normal (two angles about ``normal``) minimises the sum of all frames'
-    squared reprojection errors (variable projection). Averaging the per-frame SVD normals
-    (:func:`estimate_common_normal`) is biased by noise through the decomposition; this
-    uses every point of every frame the way the model predicts them.
+
+def refine_plane_and_reference(
+    m: ArrayLike, reference_index: int, normal: ArrayLike, valid: ArrayLike | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Refine the plane normal n* and the reference points m*_i over a whole sequence.
+
+    Variable projection: for trial values of n* (two angles about ``normal``) and of the
+    reference points (their y and z), :class:`KnownNormalSolver` gives every frame its best
+    (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
+    error, plus the reference frame's own: F* is where the reference frame was taken, so
+    its motion is pinned at identity (this fixes the gauge).
+
+    Both parts matter. With the reference points held at their noisy measurement, the
+    normal bends to absorb their error (the cost is lower at the wrong normal); averaging
+    per-frame SVD normals is biased too.
 
     Parameters
     ----------
     m : array_like, shape (F, N, 3)
-        Normalised points of the sequence.
-    m_ref : array_like, shape (N, 3)
+        Normalised points of the sequence (``m[reference_index]`` is the reference frame).
+    reference_index : int
     normal : array_like, shape (3,)
-        Starting normal (the branch is already chosen).
+        Starting normal (its branch already chosen).
     valid : array_like of bool, shape (F,), optional
+        Frames to use besides the reference frame.
 
     Returns
     -------
     normal : ndarray, shape (3,)
+    m_ref : ndarray, shape (N, 3)
     """
     from scipy.optimize import least_squares
 
     m = np.asarray(m, dtype=float)
-    if valid is not None:
-        m = m[np.asarray(valid, dtype=bool)]
+    measured_ref = validate_reference_points(m[reference_index])
+    others = np.ones(m.shape[0], dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
+    others[reference_index] = False
+    frames = m[others]
+    if frames.shape[0] > REFINEMENT_FRAMES:
+        frames = frames[np.linspace(0, frames.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
     start = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
     u = np.cross(start, [0.0, 0.0, 1.0])
     u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
     v = np.cross(start, u)
+    n_points = measured_ref.shape[0]
 
-    def trial(angles: NDArray[np.float64]) -> NDArray[np.float64]:
-        candidate = start + angles[0] * u + angles[1] * v
-        return candidate / np.linalg.norm(candidate)
+    def unpack(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        trial_normal = start + p[0] * u + p[1] * v
+        trial_ref = measured_ref.copy()
+        trial_ref[:, 1:] += p[2:].reshape(n_points, 2)
+        return trial_normal / np.linalg.norm(trial_normal), trial_ref
 
-    def residuals(angles: NDArray[np.float64]) -> NDArray[np.float64]:
-        solver = KnownNormalSolver(m_ref, trial(angles))
-        motion = solver.solve(m)
+    def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        trial_normal, trial_ref = unpack(p)
+        solver = KnownNormalSolver(trial_ref, trial_normal)
+        motion = solver.solve(frames)
         params = np.concatenate([motion.theta[:, None], motion.x_h], axis=1)
-        return np.nan_to_num(solver._reprojection(params, m)[0]).ravel()
+        reprojection = np.nan_to_num(solver._reprojection(params, frames)[0]).ravel()
+        return np.concatenate([reprojection, (trial_ref[:, 1:] - measured_ref[:, 1:]).ravel()])
 
+    if frames.shape[0] == 0:
+        return start, measured_ref
     try:
-        solution = least_squares(residuals, np.zeros(2), x_scale=1e-2, max_nfev=60)
+        solution = least_squares(residuals, np.zeros(2 + 2 * n_points), x_scale=1e-3, max_nfev=100)
     except GeometryError:
-        return start
-    refined = trial(solution.x)
-    return refined if np.all(m_ref @ refined > 0) else start
+        return start, measured_ref
+    refined_normal, refined_ref = unpack(solution.x)
+    if np.any(refined_ref @ refined_normal <= 0.0):
+        return start, measured_ref
+    return refined_normal, refined_ref
 
 
 def decompose_homography(

@@ -4,8 +4,14 @@ Remark 1 of the paper asks for "sufficiently smooth functions" fitted to the sig
 decomposed from the taught images, so that the feed-forward terms x_hd1_dot and
 theta_d_dot of (29)-(31) are bounded and come without numerical differencing of noisy
 samples. :func:`fit_spline_trajectory` fits a cubic smoothing spline (twice continuously
-differentiable) to each of theta_d (unwrapped), x_hd1 and x_hd2, with the smoothing chosen
-by generalised cross-validation (scipy's ``make_smoothing_spline``) or given.
+differentiable) to theta_d (unwrapped) and to x_hd1, with the smoothing chosen by
+generalised cross-validation (scipy's ``make_smoothing_spline``) or given.
+
+x_hd2 is not fitted on its own: the taught camera moved as a unicycle, so by (25)
+``x_hd2_dot = -x_hd1 w_cd = x_hd1 theta_d_dot``, and x_hd2 is that product integrated
+exactly (a piecewise polynomial), plus one constant fitted to the samples. Independent
+splines would break this relation by a few per cent, and the proof of (38) needs it:
+the mismatch enters ebar2's derivative and, amplified by k_2, makes V rise.
 
 Two trajectories implement the same interface (``t_start``, ``t_end``, ``evaluate``):
 
@@ -30,8 +36,8 @@ from .controller import DesiredState
 from .path import CommandProfile
 from .frames import relative_planar_pose
 
-#: Names of the three fitted channels, in order.
-CHANNELS = ("theta_d", "x_hd1", "x_hd2")
+#: Names of the fitted spline channels; x_hd2 follows from them by (25).
+CHANNELS = ("theta_d", "x_hd1")
 
 
 class DesiredTrajectory(Protocol):
@@ -71,42 +77,62 @@ class SplineChannel:
 
 
 class SplineTrajectory:
-    """Desired signals as cubic splines of time (Remark 1).
+    """Desired signals as smooth functions of time (Remark 1), consistent with (25).
 
     Parameters
     ----------
     channels : dict
-        :class:`SplineChannel` for each of ``theta_d``, ``x_hd1``, ``x_hd2``.
+        :class:`SplineChannel` for ``theta_d`` and ``x_hd1``.
+    x_hd2_offset : float
+        x_hd2 at ``t_start``; x_hd2 then follows ``x_hd2_dot = x_hd1 theta_d_dot`` (25).
     t_start, t_end : float
         Time span covered (s).
+    x_hd2_residual_rms : float
+        RMS difference between the derived x_hd2 and its decomposed samples.
     """
 
-    def __init__(self, channels: dict[str, SplineChannel], t_start: float, t_end: float) -> None:
+    def __init__(
+        self,
+        channels: dict[str, SplineChannel],
+        x_hd2_offset: float,
+        t_start: float,
+        t_end: float,
+        x_hd2_residual_rms: float = float("nan"),
+    ) -> None:
         missing = [c for c in CHANNELS if c not in channels]
         if missing:
             raise InputError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
         if not (np.isfinite(t_start) and np.isfinite(t_end) and t_end > t_start):
             raise InputError("the trajectory model's time span is empty or not finite")
+        if not np.isfinite(x_hd2_offset):
+            raise InputError("the trajectory model's x_hd2 offset is not finite")
         self.channels = channels
         self.t_start = float(t_start)
         self.t_end = float(t_end)
+        self.x_hd2_offset = float(x_hd2_offset)
+        self.x_hd2_residual_rms = float(x_hd2_residual_rms)
         self._splines = {name: channels[name].spline() for name in CHANNELS}
         self._derivatives = {name: spline.derivative() for name, spline in self._splines.items()}
+        self._x_hd2_integral = _product_antiderivative(self._splines["x_hd1"], self._splines["theta_d"])
+        self._x_hd2_origin = float(self._x_hd2_integral(self.t_start))
 
     def evaluate(self, t: ArrayLike) -> DesiredState:
         """Desired state at times ``t`` (s); held, with zero derivatives, outside the span."""
         t = np.asarray(t, dtype=float)
         inside = (t >= self.t_start) & (t <= self.t_end)
         clamped = np.clip(t, self.t_start, self.t_end)
-        values = {name: self._splines[name](clamped) for name in CHANNELS}
-        rates = {name: np.where(inside, self._derivatives[name](clamped), 0.0) for name in CHANNELS}
+        theta_d = self._splines["theta_d"](clamped)
+        x_hd1 = self._splines["x_hd1"](clamped)
+        theta_d_dot = np.where(inside, self._derivatives["theta_d"](clamped), 0.0)
+        x_hd1_dot = np.where(inside, self._derivatives["x_hd1"](clamped), 0.0)
+        x_hd2 = self.x_hd2_offset + self._x_hd2_integral(clamped) - self._x_hd2_origin
         return DesiredState(
-            theta_d=_scalar(values["theta_d"]),
-            x_hd1=_scalar(values["x_hd1"]),
-            x_hd2=_scalar(values["x_hd2"]),
-            theta_d_dot=_scalar(rates["theta_d"]),
-            x_hd1_dot=_scalar(rates["x_hd1"]),
-            x_hd2_dot=_scalar(rates["x_hd2"]),
+            theta_d=_scalar(theta_d),
+            x_hd1=_scalar(x_hd1),
+            x_hd2=_scalar(x_hd2),
+            theta_d_dot=_scalar(theta_d_dot),
+            x_hd1_dot=_scalar(x_hd1_dot),
+            x_hd2_dot=_scalar(x_hd1 * theta_d_dot),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -124,6 +150,11 @@ class SplineTrajectory:
                 }
                 for name, ch in self.channels.items()
             },
+            "x_hd2": {
+                "derived_from": "(25): x_hd2_dot = x_hd1 theta_d_dot",
+                "value_at_t_start": self.x_hd2_offset,
+                "residual_rms": self.x_hd2_residual_rms,
+            },
         }
 
     @classmethod
@@ -133,6 +164,7 @@ class SplineTrajectory:
             if int(data.get("degree", 3)) != 3:
                 raise ValueError("only cubic splines are supported")
             channels = {}
+            knots_of = []
             for name in CHANNELS:
                 raw = data["channels"][name]
                 knots = np.asarray(raw["knots"], dtype=float)
@@ -141,15 +173,44 @@ class SplineTrajectory:
                     raise ValueError(f"channel {name}: {knots.size} knots do not fit {coefficients.size} coefficients")
                 if not (np.all(np.isfinite(knots)) and np.all(np.isfinite(coefficients))) or np.any(np.diff(knots) < 0):
                     raise ValueError(f"channel {name}: knots must be finite and non-decreasing")
+                knots_of.append(knots)
                 channels[name] = SplineChannel(
                     knots=knots,
                     coefficients=coefficients,
                     smoothing=float(raw.get("smoothing", float("nan"))),
                     residual_rms=float(raw.get("residual_rms", float("nan"))),
                 )
-            return cls(channels, float(data["t_start"]), float(data["t_end"]))
+            if knots_of[0].shape != knots_of[1].shape or not np.allclose(knots_of[0], knots_of[1]):
+                raise ValueError("theta_d and x_hd1 must share their knots")
+            x_hd2 = data["x_hd2"]
+            return cls(
+                channels,
+                float(x_hd2["value_at_t_start"]),
+                float(data["t_start"]),
+                float(data["t_end"]),
+                float(x_hd2.get("residual_rms", float("nan"))),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"malformed trajectory model: {exc}") from None
+
+
+def _product_antiderivative(spline: Any, other: Any) -> Any:
+    """Exact antiderivative of ``spline * other'`` for two splines on the same knots (a PPoly).
+
+    Used for x_hd2 = integral of x_hd1 theta_d_dot: a cubic times a quadratic is a quintic
+    on each knot interval, whose antiderivative scipy's PPoly computes exactly.
+    """
+    from scipy.interpolate import PPoly
+
+    first = PPoly.from_spline(spline)
+    second = PPoly.from_spline(other).derivative()
+    if first.x.shape != second.x.shape or not np.allclose(first.x, second.x):
+        raise InputError("the trajectory's splines do not share their knots")
+    product = np.zeros((first.c.shape[0] + second.c.shape[0] - 1, first.c.shape[1]))
+    for i in range(first.c.shape[0]):
+        for j in range(second.c.shape[0]):
+            product[i + j] += first.c[i] * second.c[j]
+    return PPoly(product, first.x).antiderivative()
 
 
 class TimeScaledTrajectory:
@@ -241,28 +302,38 @@ def _scalar(value: ArrayLike) -> Any:
     return float(array) if array.ndim == 0 else array
 
 
+def smoothing_penalty_of(spline: Any, t: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+    """The penalty weight lambda of a cubic smoothing spline fitted to ``(t, y)``.
+
+    The minimiser of ``sum (y_i - f(t_i))^2 + lambda int f''^2`` satisfies Reinsch's
+    equation ``y - f = lambda Q gamma`` (Green and Silverman, *Nonparametric Regression and
+    Generalized Linear Models*, 1994, Sec. 2.3), with ``gamma`` the spline's second
+    derivatives at the interior knots and ``Q`` the second-difference matrix of the knot
+    spacing; lambda is the least-squares ratio of the two sides.
+    """
+    residual = y - spline(t)
+    gamma = spline(t, 2)[1:-1]
+    h = np.diff(t)
+    q_gamma = np.zeros_like(t)
+    q_gamma[:-2] += gamma / h[:-1]
+    q_gamma[1:-1] -= gamma * (1.0 / h[:-1] + 1.0 / h[1:])
+    q_gamma[2:] += gamma / h[1:]
+    energy = float(q_gamma @ q_gamma)
+    return float(residual @ q_gamma) / energy if energy > 0.0 else 0.0
+
+
 def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
     """A cubic smoothing spline and its penalty weight lambda.
 
     With ``smoothing=None`` scipy chooses lambda by generalised cross-validation but does
-    not return it; the residual sum of squares grows monotonically with lambda, so the
-    lambda of the GCV fit is recovered by bisection on log(lambda) to report it.
+    not return it; :func:`smoothing_penalty_of` recovers it from the spline itself.
     """
     from scipy.interpolate import make_smoothing_spline
 
     if smoothing is not None:
         return make_smoothing_spline(t, y, lam=smoothing), float(smoothing)
     spline = make_smoothing_spline(t, y)
-    target = float(np.sum((spline(t) - y) ** 2))
-    low, high = -12.0, 8.0
-    for _ in range(40):
-        middle = 0.5 * (low + high)
-        rss = float(np.sum((make_smoothing_spline(t, y, lam=10.0**middle)(t) - y) ** 2))
-        if rss < target:
-            low = middle
-        else:
-            high = middle
-    return spline, float(10.0 ** (0.5 * (low + high)))
+    return spline, smoothing_penalty_of(spline, t, y)
 
 
 #: Fewest samples a spline can be fitted to (scipy's smoothing spline needs 5).
@@ -286,10 +357,11 @@ def fit_spline_trajectory(
     theta_d : array_like, shape (K,)
         Desired rotation (rad); unwrapped here.
     x_hd1, x_hd2 : array_like, shape (K,)
-        Desired scaled translation (dimensionless).
+        Desired scaled translation (dimensionless); x_hd2 only sets the constant of its
+        integral (25).
     smoothing : float, optional
-        The penalty weight lambda for every channel; ``None`` chooses it per channel by
-        generalised cross-validation.
+        The penalty weight lambda of the theta_d and x_hd1 splines; ``None`` chooses it per
+        channel by generalised cross-validation.
 
     Returns
     -------
@@ -299,8 +371,8 @@ def fit_spline_trajectory(
     samples = {
         "theta_d": np.unwrap(np.asarray(theta_d, dtype=float)),
         "x_hd1": np.asarray(x_hd1, dtype=float),
-        "x_hd2": np.asarray(x_hd2, dtype=float),
     }
+    x_hd2 = np.asarray(x_hd2, dtype=float)
     if t.ndim != 1 or t.size < MIN_SAMPLES:
         raise InputError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
     if np.any(np.diff(t) <= 0.0):
@@ -319,7 +391,14 @@ def fit_spline_trajectory(
             smoothing=lam,
             residual_rms=residual,
         )
-    return SplineTrajectory(channels, float(t[0]), float(t[-1]))
+    if x_hd2.shape != t.shape or not np.all(np.isfinite(x_hd2)):
+        raise InputError("the x_hd2 samples must be finite and as many as the times")
+    # x_hd2 by (25) from the two splines; its one free constant by least squares.
+    shape_only = SplineTrajectory(channels, 0.0, float(t[0]), float(t[-1]))
+    integrated = np.atleast_1d(shape_only.evaluate(t).x_hd2)
+    offset = float(np.mean(x_hd2 - integrated))
+    residual = float(np.sqrt(np.mean((x_hd2 - integrated - offset) ** 2)))
+    return SplineTrajectory(channels, offset, float(t[0]), float(t[-1]), residual)
 
 
 @dataclass(frozen=True)

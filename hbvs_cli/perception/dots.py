@@ -222,7 +222,7 @@ class DotDetector:
     gate_px : float
         A candidate farther than this from a dot's predicted position (px) cannot be that dot.
     area_ratio : (float, float)
-        A candidate whose area is outside these multiples of a tracked dot's last area
+        A candidate whose area is outside these multiples of a tracked dot's recent (averaged) area
         cannot be that dot (e.g. two dots merged into one blob). Dots predicted to touch
         each other are not reported at all while they do.
     max_coast : int
@@ -243,7 +243,7 @@ class DotDetector:
         n_points: int,
         *,
         gate_px: float = 20.0,
-        area_ratio: tuple[float, float] = (0.6, 1.6),
+        area_ratio: tuple[float, float] = (0.5, 2.0),
         max_coast: int = 10,
         min_area: int = 6,
         max_elongation: float = 1.8,
@@ -302,7 +302,11 @@ class DotDetector:
         self.last_blobs = blobs
         seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)
-        self._areas[seen] = areas[seen]
+        # A moving average: the thresholded area of a small dot jumps with the window's
+        # threshold; the last value alone would make the area gate reject real dots.
+        known = seen & np.isfinite(self._areas)
+        self._areas[known] = 0.7 * self._areas[known] + 0.3 * areas[known]
+        self._areas[seen & ~known] = areas[seen & ~known]
         found = bool(np.all(seen))
         if found:
             self._layout = pixels.copy()
