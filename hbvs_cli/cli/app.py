@@ -1,0 +1,275 @@
+"""The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
+
+This layer stays thin: every command imports its stage lazily (``hbvs --help`` must not
+load OpenCV, scipy or matplotlib) and turns :class:`~hbvs_cli.errors.HbvsError` into one
+line on stderr and the error's exit code. ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated, List, Optional
+
+import typer
+
+
+from .. import __version__
+from ..errors import HbvsError
+
+app = typer.Typer(
+    name="hbvs",
+    help=(
+        "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
+        "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
+        "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -"
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+OUTPUT_HELP = "Output MCAP file, or - for stdout (written as FILE.partial, renamed when complete)."
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"hbvs {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error.")] = False,
+) -> None:
+    """hbvs: teach, fit, repeat, report."""
+
+
+def _console(quiet: bool):
+    from ..stages.console import Console
+
+    return Console(quiet=quiet)
+
+
+# --------------------------------------------------------------------------- teach
+@app.command(rich_help_panel="Pipeline")
+def teach(
+    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "teach.mcap",
+    sim: Annotated[bool, typer.Option("--sim", help="Simulated robot and camera (the default source).")] = False,
+    video: Annotated[Optional[Path], typer.Option("--video", help="A video file (anything OpenCV reads).", rich_help_panel="Sources")] = None,
+    images: Annotated[Optional[str], typer.Option("--images", help="A folder of images or a glob; sorted naturally.", rich_help_panel="Sources")] = None,
+    camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
+    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap).", rich_help_panel="Sources")] = None,
+    topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
+    path: Annotated[str, typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).", rich_help_panel="Simulation")] = "s-curve",
+    offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
+    target: Annotated[str, typer.Option("--target", help="Target on the wall: dots, aruco or texture.", rich_help_panel="Simulation")] = "dots",
+    dots: Annotated[int, typer.Option("--dots", min=3, help="Number of dots of a dots target.", rich_help_panel="Simulation")] = 3,
+    texture: Annotated[Optional[Path], typer.Option("--texture", help="Poster image for --target texture (default: a built-in pattern).", rich_help_panel="Simulation")] = None,
+    calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
+    fps: Annotated[float, typer.Option("--fps", min=0.1, help="Frame rate (Hz): of the simulated camera, or the timestamps of --images.")] = 30.0,
+    duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated sensor noise.", rich_help_panel="Simulation")] = 0,
+    noise: Annotated[float, typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma).", rich_help_panel="Simulation")] = 2.0,
+    blur: Annotated[float, typer.Option("--blur", min=0.0, help="Gaussian blur sigma (px).", rich_help_panel="Simulation")] = 0.0,
+    exposure: Annotated[float, typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera.", rich_help_panel="Simulation")] = 1.0,
+    image_format: Annotated[str, typer.Option("--format", help="Encoding of stored images: png (lossless) or jpeg.")] = "png",
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
+) -> None:
+    """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
+    from ..stages.teach import TeachOptions, run_teach
+
+    run_teach(
+        TeachOptions(
+            output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
+            path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
+            duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
+        ),
+        _console(quiet),
+    )
+
+
+# --------------------------------------------------------------------------- fit
+@app.command(rich_help_panel="Pipeline")
+def fit(
+    input: Annotated[str, typer.Argument(help="Teach MCAP file, or - for stdin.")],
+    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "fit.mcap",
+    target: Annotated[str, typer.Option("--target", help="auto, dots, aruco or texture.")] = "auto",
+    reference: Annotated[str, typer.Option("--reference", help="The frame that is F*: first, last or a frame index.")] = "first",
+    smoothing: Annotated[str, typer.Option("--smoothing", help="Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).")] = "auto",
+    target_size: Annotated[Optional[float], typer.Option("--target-size", min=0.0, help="Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot distance (dots).")] = None,
+    max_gap: Annotated[float, typer.Option("--max-gap", min=0.0, help="Longest stretch (s) without the target that the spline may bridge.")] = 1.0,
+    max_lost: Annotated[float, typer.Option("--max-lost", min=0.0, max=1.0, help="Largest fraction of frames without the target before fit fails.")] = 0.3,
+    with_images: Annotated[bool, typer.Option("--with-images", help="Copy the taught images into the output, so it opens alone in Foxglove (by default open it together with the teach file).")] = False,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the robust (RANSAC) estimation.")] = 0,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
+) -> None:
+    """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
+    from ..stages.fit import FitOptions, run_fit
+
+    run_fit(
+        FitOptions(
+            input=input, output=output, target=target, reference=reference, smoothing=smoothing,
+            target_size=target_size, max_gap=max_gap, max_lost=max_lost, copy_images=with_images, seed=seed,
+        ),
+        _console(quiet),
+    )
+
+
+# --------------------------------------------------------------------------- repeat
+@app.command(rich_help_panel="Pipeline")
+def repeat(
+    input: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit), or - for stdin.")],
+    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "run.mcap",
+    sim: Annotated[bool, typer.Option("--sim", help="Closed loop with a simulated robot and camera.", rich_help_panel="Mode")] = False,
+    replay: Annotated[Optional[Path], typer.Option("--replay", help="Open loop: the frames of a teach recording are the live camera.", rich_help_panel="Mode")] = None,
+    offset: Annotated[str, typer.Option("--offset", help="Start pose offset DX,DY,DTHETA (m, m, deg) in the taught start frame: where the robot was put down by hand.", rich_help_panel="Simulation")] = "-0.1,0.05,2",
+    perception: Annotated[str, typer.Option("--perception", help="images (render and detect) or points (project and add --pixel-noise).", rich_help_panel="Simulation")] = "images",
+    pixel_noise: Annotated[float, typer.Option("--pixel-noise", min=0.0, help="Pixel noise (px, 1 sigma) for --perception points.", rich_help_panel="Simulation")] = 0.0,
+    rate: Annotated[Optional[float], typer.Option("--rate", min=0.1, help="Camera and control rate (Hz); default the taught rate.", rich_help_panel="Simulation")] = None,
+    depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
+    config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
+    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default) or paper (k_2 = 1, the paper's law exactly).", rich_help_panel="Controller")] = None,
+    kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
+    kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
+    gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default 2500.", rich_help_panel="Controller")] = None,
+    k2: Annotated[Optional[float], typer.Option("--k2", help="Lateral gain k_2 (see docs/method.md for how to scale it). Default 400.", rich_help_panel="Controller")] = None,
+    dhat0: Annotated[Optional[float], typer.Option("--dhat0", help="Initial depth estimate (m); default the fit's suggestion.", rich_help_panel="Controller")] = None,
+    speed: Annotated[Optional[float], typer.Option("--speed", help="Play the taught trajectory at this multiple of its pace.", rich_help_panel="Controller")] = None,
+    max_v: Annotated[Optional[float], typer.Option("--max-v", help="|v| limit (m/s); inf for none. Default 0.5.", rich_help_panel="Actuators")] = None,
+    max_w: Annotated[Optional[float], typer.Option("--max-w", help="|w| limit (rad/s); inf for none. Default 0.6.", rich_help_panel="Actuators")] = None,
+    max_accel: Annotated[Optional[float], typer.Option("--max-accel", help="Acceleration limit (m/s^2 and rad/s^2); inf for none (default).", rich_help_panel="Actuators")] = None,
+    latency: Annotated[Optional[int], typer.Option("--latency", min=0, help="Measurement latency in frames.", rich_help_panel="Actuators")] = None,
+    lost_timeout: Annotated[float, typer.Option("--lost-timeout", min=0.0, help="Stop the run after the target was lost this long (s).")] = 3.0,
+    cmd_out: Annotated[Optional[str], typer.Option("--cmd-out", help="Also write one JSON line per step (t, v, w) to FILE or - (stdout).")] = None,
+    record_images: Annotated[bool, typer.Option("--record-images", help="Store the camera images with detected and desired points.")] = False,
+    occlude: Annotated[Optional[List[str]], typer.Option("--occlude", help="Hide the target from START to END seconds (repeatable), e.g. 8:10.", rich_help_panel="Faults")] = None,
+    drop_rate: Annotated[float, typer.Option("--drop-rate", min=0.0, max=1.0, help="Fraction of camera frames dropped.", rich_help_panel="Faults")] = 0.0,
+    outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
+    exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
+) -> None:
+    """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
+    from ..stages.repeat import RepeatOptions, run_repeat
+
+    run_repeat(
+        RepeatOptions(
+            input=input, output=output, sim=sim, replay=replay, offset=offset, perception=perception,
+            pixel_noise=pixel_noise, rate=rate, depth=depth, seed=seed, config=config, law=law, kv=kv, kw=kw,
+            gamma=gamma, k2=k2, dhat0=dhat0, speed=speed, max_v=max_v, max_w=max_w, max_accel=max_accel,
+            latency=latency, lost_timeout=lost_timeout, cmd_out=cmd_out, record_images=record_images,
+            occlude=list(occlude or []), drop_rate=drop_rate, outlier_rate=outlier_rate, exposure_step=exposure_step,
+        ),
+        _console(quiet),
+    )
+
+
+# --------------------------------------------------------------------------- report
+@app.command(rich_help_panel="Pipeline")
+def report(
+    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat (- for one on stdin).")],
+    json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON object instead of a table.")] = False,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a figure (PNG) of errors, commands, dhat, V, paths.")] = None,
+    fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
+    export_tum: Annotated[Optional[Path], typer.Option("--export-tum", help="Write taught and repeated trajectories in TUM format into this folder.")] = None,
+    tolerance: Annotated[Optional[List[str]], typer.Option("--tolerance", help="Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.")] = None,
+) -> None:
+    """How well did the repeat follow the taught path, and did it converge?"""
+    from ..stages.report import ReportOptions, run_report
+
+    code = run_report(
+        ReportOptions(
+            runs=runs, json_output=json_output, plot=plot, fail_above=list(fail_above or []),
+            export_tum=export_tum, tolerance=list(tolerance or []),
+        ),
+        _console(False),
+    )
+    if code:
+        raise typer.Exit(code)
+
+
+# --------------------------------------------------------------------------- demo
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
+) -> None:
+    """Teach, fit, repeat under both laws and report: the whole method in one command."""
+    from ..stages.demo import run_demo
+
+    code = run_demo(out, _console(quiet))
+    if code:
+        raise typer.Exit(code)
+
+
+# --------------------------------------------------------------------------- entry point
+class _Terminated(BaseException):
+    """Raised from the SIGTERM handler so that cleanup (partial files) runs."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated()
+
+
+def _silence_stdout() -> None:
+    """After a broken pipe, point stdout at /dev/null so interpreter shutdown stays quiet."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: run the app and exit with the right code."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    try:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not in the main thread (e.g. embedded); SIGTERM keeps its default
+        pass
+    code = 0
+    try:
+        result = app(args=args, prog_name="hbvs", standalone_mode=False)
+        code = result if isinstance(result, int) else 0
+    except HbvsError as exc:
+        if debug:
+            raise
+        sys.stderr.write(f"hbvs: error: {exc}\n")
+        code = exc.exit_code
+    except typer.Abort:
+        sys.stderr.write("hbvs: interrupted\n")
+        code = 130
+    except typer.TyperException as exc:  # usage errors: the parser's own message and hint
+        show = getattr(exc, "show", None)
+        if show is not None:
+            show()
+        else:
+            sys.stderr.write(f"hbvs: error: {exc}\n")
+        code = int(getattr(exc, "exit_code", 2))
+    except KeyboardInterrupt:
+        sys.stderr.write("hbvs: interrupted\n")
+        code = 130
+    except _Terminated:
+        sys.stderr.write("hbvs: terminated\n")
+        code = 143
+    except BrokenPipeError:
+        _silence_stdout()
+        sys.stderr.write("hbvs: error: the output pipe was closed by the reader\n")
+        code = 141
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
+        if debug:
+            raise
+        sys.stderr.write(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)\n")
+        code = 70
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+    sys.exit(code)

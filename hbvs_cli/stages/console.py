@@ -1,0 +1,75 @@
+"""Messages and progress bars on stderr; stdout is reserved for data.
+
+A rich progress bar is shown only when stderr is a terminal and ``--quiet`` is not given,
+so pipelines and logs stay clean; warnings and the final summary lines are always printed
+(unless quiet).
+"""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from typing import Any, Iterator
+
+
+class Console:
+    """Where a stage reports to the user: stderr only.
+
+    Parameters
+    ----------
+    quiet : bool
+        Print nothing but warnings.
+    stream : text stream, optional
+        Defaults to ``sys.stderr`` (tests pass a buffer).
+    """
+
+    def __init__(self, quiet: bool = False, stream: Any = None) -> None:
+        from rich.console import Console as RichConsole
+
+        self.quiet = quiet
+        self.stream = stream if stream is not None else sys.stderr
+        self.rich = RichConsole(file=self.stream, stderr=stream is None, highlight=False, soft_wrap=True)
+
+    @property
+    def interactive(self) -> bool:
+        """True when progress bars make sense: a terminal on stderr and not quiet."""
+        return not self.quiet and self.rich.is_terminal
+
+    def info(self, message: str) -> None:
+        """A line of information (suppressed by --quiet)."""
+        if not self.quiet:
+            self.rich.print(message, markup=False)
+
+    def warn(self, message: str) -> None:
+        """A warning: always printed."""
+        self.rich.print(f"hbvs: warning: {message}", markup=False, style="yellow")
+
+    def print(self, renderable: Any) -> None:
+        """A rich renderable (a table, a panel) on stderr, unless quiet."""
+        if not self.quiet:
+            self.rich.print(renderable)
+
+    @contextmanager
+    def progress(self, description: str, total: float | None) -> Iterator["ProgressTask"]:
+        """A progress bar on stderr for a long task; silent when not interactive."""
+        if not self.interactive:
+            yield ProgressTask(None, None)
+            return
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+        with Progress(*columns, console=self.rich, transient=True) as progress:
+            task = progress.add_task(description, total=total)
+            yield ProgressTask(progress, task)
+
+
+class ProgressTask:
+    """Handle on one progress bar; does nothing when there is no bar."""
+
+    def __init__(self, progress: Any, task: Any) -> None:
+        self._progress = progress
+        self._task = task
+
+    def advance(self, amount: float = 1.0) -> None:
+        if self._progress is not None:
+            self._progress.advance(self._task, amount)

@@ -1,0 +1,62 @@
+"""``hbvs demo``: the whole method in one command, and a check of it.
+
+Teach the default scenario in simulation, fit it, repeat it in closed loop with the
+camera images rendered and detected in the loop, under both laws (the lateral-gain law,
+hbvs's default, and the paper's law, k_2 = 1), and report them side by side. Every file
+goes into one folder. The exit code is 0 only when the default law converged, by
+``report``'s verdict, so the demo is itself a test of the installation.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..errors import InputError
+from .console import Console
+
+#: The laws the demo compares; the first is the default whose convergence decides the exit code.
+DEMO_LAWS = ("lateral-gain", "paper")
+
+
+def run_demo(folder: Path, console: Console) -> int:
+    """Run the demo into ``folder``; 0 when the default law converged, else 1."""
+    from ..io.mcap_io import json_ready
+    from ..io.run_file import read_run
+    from ..tools.report_data import build_report
+    from ..tools.report_table import print_report_tables
+    from ..tools.plots import save_plot
+    from .fit import FitOptions, run_fit
+    from .repeat import RepeatOptions, run_repeat
+    from .teach import TeachOptions, run_teach
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    quiet = Console(quiet=True)
+    teach, fit = folder / "teach.mcap", folder / "fit.mcap"
+    console.info(f"demo 1/4: teach the default scenario in simulation -> {teach}")
+    run_teach(TeachOptions(output=str(teach)), quiet)
+    console.info(f"demo 2/4: fit the desired trajectory -> {fit}")
+    run_fit(FitOptions(input=str(teach), output=str(fit)), quiet)
+    runs = []
+    for law in DEMO_LAWS:
+        path = folder / f"run-{law}.mcap"
+        console.info(f"demo 3/4: repeat in closed loop, images in the loop, {law} law -> {path}")
+        run_repeat(RepeatOptions(input=str(fit), output=str(path), sim=True, law=law), quiet)
+        runs.append(read_run(path))
+    reports = [build_report(run) for run in runs]
+    report_json, plot = folder / "report.json", folder / "report.png"
+    report_json.write_text(json.dumps(json_ready({"runs": reports}), indent=2) + "\n", encoding="utf-8")
+    save_plot(runs, reports, plot)
+    console.info(f"demo 4/4: report -> {report_json}, {plot}")
+    import sys
+
+    print_report_tables(reports, sys.stdout)
+    default = reports[0]["verdict"]
+    if default["converged"]:
+        console.info(f"demo: the {DEMO_LAWS[0]} law converged; every file is in {folder}/")
+        return 0
+    console.warn(f"the {DEMO_LAWS[0]} law did not converge: " + "; ".join(r for r in default["reasons"] if r.startswith("fail")))
+    return 1

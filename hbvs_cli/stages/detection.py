@@ -1,0 +1,208 @@
+"""The target detector as ``fit`` and ``repeat`` use it: one set-up, used by both.
+
+``fit`` decides what to detect (from the recording's world, or from the first image) and
+records it in the model; ``repeat`` re-creates exactly the same detector from the model, so
+the live camera is measured the way the taught images were.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..core.camera import CameraIntrinsics
+from ..errors import InputError, RecordingError
+
+
+@dataclass(frozen=True)
+class DetectorSpec:
+    """What to detect and how to give its points an identity.
+
+    Attributes
+    ----------
+    kind : str
+        ``dots``, ``aruco`` or ``texture``.
+    n_points : int or None
+        Number of target points (None: count the dots in the first image).
+    marker_id : int or None
+        ArUco id (None: the first marker seen).
+    template_pixels : ndarray, shape (N, 2), or None
+        Texture: the target points in the template image (the first frame).
+    """
+
+    kind: str
+    n_points: int | None = None
+    marker_id: int | None = None
+    template_pixels: np.ndarray | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "n_points": self.n_points,
+            "marker_id": self.marker_id,
+            "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "DetectorSpec":
+        try:
+            template = data.get("template_pixels")
+            return cls(
+                kind=str(data["kind"]),
+                n_points=None if data.get("n_points") is None else int(data["n_points"]),
+                marker_id=None if data.get("marker_id") is None else int(data["marker_id"]),
+                template_pixels=None if template is None else np.asarray(template, dtype=float).reshape(-1, 2),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
+
+
+class TrackedDetector:
+    """Images in, target pixels out, in a fixed identity order (NaN rows when not found).
+
+    Parameters
+    ----------
+    spec : DetectorSpec
+    camera : CameraIntrinsics
+    seed : int
+        Seed of the robust estimation (texture), for identical results run to run.
+    template_image : ndarray, optional
+        Texture: the image the features come from (default: the first image detected).
+    initial_prediction : ndarray, shape (N, 2), optional
+        Where the points are expected in the first image (repeat: the taught first frame),
+        which also fixes their identity.
+    """
+
+    def __init__(
+        self,
+        spec: DetectorSpec,
+        camera: CameraIntrinsics,
+        seed: int = 0,
+        template_image: np.ndarray | None = None,
+        initial_prediction: np.ndarray | None = None,
+    ) -> None:
+        self.spec = spec
+        self.camera = camera
+        self.seed = seed
+        self.template_image = template_image
+        self.initial_prediction = None if initial_prediction is None else np.asarray(initial_prediction, dtype=float)
+        self._detector: Any = None
+
+    def _create(self, image: np.ndarray) -> None:
+        from ..perception.detector import make_detector
+
+        spec = self.spec
+        if spec.kind == "dots" and spec.n_points is None:
+            spec = DetectorSpec(kind="dots", n_points=count_dots(image))
+        if spec.kind == "aruco" and spec.marker_id is None:
+            spec = DetectorSpec(kind="aruco", n_points=4, marker_id=first_marker_id(image))
+        if spec.kind == "texture" and self.template_image is None:
+            self.template_image = image
+        self.spec = spec
+        self._detector = make_detector(
+            spec.kind,
+            n_points=int(spec.n_points or 4),
+            reference_image=self.template_image if spec.kind == "texture" else None,
+            reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
+            marker_id=spec.marker_id,
+            seed=self.seed,
+        )
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
+        first = self._detector is None
+        if first:
+            self._create(image)
+        if first and self.initial_prediction is not None:
+            detection = self._acquire(image, self.initial_prediction)
+        else:
+            detection = self._detector.detect(image, None)
+        if not detection.found:
+            return np.full((int(self.spec.n_points), 2), np.nan)
+        return np.asarray(detection.pixels, dtype=float)
+
+    def _acquire(self, image: np.ndarray, prediction: np.ndarray) -> Any:
+        """First detection against a prediction that may be far off (a robot put down by
+        hand): near the prediction if it is close, else anywhere in the image with the
+        identities matched to the prediction's layout."""
+        from ..perception.detector import match_identity
+
+        detection = self._detector.detect(image, prediction)
+        if detection.found:
+            return detection
+        self._detector.reset()
+        acquired = self._detector.detect(image, None)
+        if not acquired.found or acquired.pixels.shape != prediction.shape:
+            return acquired
+        ordered = acquired.pixels[match_identity(acquired.pixels, prediction)]
+        self._detector.reset()
+        return self._detector.detect(image, ordered)
+
+
+def choose_target_kind(image: np.ndarray) -> str:
+    """``--target auto`` on real footage: what the first image shows."""
+    from ..perception.detector import guess_target_kind
+
+    return guess_target_kind(image)
+
+
+def count_dots(image: np.ndarray) -> int:
+    """Number of dark round dots in an image (the size of a dots target seen for the first time)."""
+    from ..perception.dots import find_dark_blobs
+
+    blobs = find_dark_blobs(image)
+    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
+    if count < 3:
+        raise InputError(f"found {count} dots in the first image; a dots target needs at least 3 (or choose --target)")
+    return count
+
+
+def first_marker_id(image: np.ndarray) -> int:
+    """Id of the first DICT_4X4_50 marker in an image."""
+    from ..perception.aruco import marker_ids_in_view
+
+    ids = marker_ids_in_view(image)
+    if not ids:
+        raise InputError("no ArUco marker (DICT_4X4_50) in the first image")
+    return int(ids[0])
+
+
+def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+    """Four target points for a natural-feature target seen in ``image``.
+
+    The corners of the box holding the central 80 % of the image's features, in the order
+    TL, TR, BR, BL. Rows too close to the horizon (the principal point's row, where m_z ~ 0
+    and (18) breaks down) are pushed away from it.
+    """
+    import cv2
+
+    keypoints = cv2.ORB_create(nfeatures=1000).detect(image, None)
+    if len(keypoints) < 20:
+        raise InputError("too few natural features in the first image for a texture target")
+    points = np.array([k.pt for k in keypoints])
+    low = np.percentile(points, 10, axis=0)
+    high = np.percentile(points, 90, axis=0)
+    margin = 0.05 * camera.height
+    rows = []
+    for row in (low[1], high[1]):
+        if abs(row - camera.cy) < margin:
+            row = camera.cy + (margin if row >= camera.cy else -margin)
+        rows.append(row)
+    top, bottom = min(rows), max(rows)
+    return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
+
+
+def detector_from_model(model: Any, template_image_bytes: bytes | None, seed: int = 0) -> TrackedDetector:
+    """The fit's detector, re-created for repeat (same kind, identity and template)."""
+    from ..io.images import decode_image
+
+    spec = DetectorSpec.from_dict(model.detector)
+    template = None
+    if spec.kind == "texture":
+        if template_image_bytes is None:
+            raise RecordingError("the fit file lacks the texture template image (/detector/template)")
+        template = decode_image(template_image_bytes, "the fit's template image")
+    initial = model.detector.get("initial_pixels")
+    return TrackedDetector(spec, model.camera, seed=seed, template_image=template, initial_prediction=None if initial is None else np.asarray(initial, dtype=float))

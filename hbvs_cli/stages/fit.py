@@ -1,0 +1,454 @@
+"""``hbvs fit``: from a teach recording to the desired trajectory of Remark 1.
+
+Per frame: detect the target points (with a consistent identity), then, once every frame is
+in: the reference points m*_i of F*, the Euclidean homographies H_d (16)-(18), the plane
+normal n* common to the sequence, (theta_d, x_hd) by the known-normal solver, cubic
+smoothing splines of them (Remark 1), d* from the taught commands (25) or the target's size,
+and condition (35) along the path. Reads and writes streams: constant memory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ..core.camera import CameraIntrinsics, normalized_to_pixels, pixels_to_normalized, undistort_pixels
+from ..core.decomposition import KnownNormalSolver, estimate_common_normal, refine_plane_and_reference
+from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
+from ..core.estimation import DEFAULT_RESIDUAL_GATE
+from ..core.homography import estimate_euclidean_homography, validate_reference_points
+from ..core.trajectory import fit_spline_trajectory, feedforward_condition
+from ..errors import GeometryError, HbvsError, InputError, RecordingError, UsageError
+from .console import Console
+from .options import recorded_settings
+from .detection import DetectorSpec, TrackedDetector, choose_target_kind, texture_points_for_template
+
+#: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
+FALLBACK_DHAT0 = 2.0
+#: A normal-estimation margin below this means the path did not tell the branches apart.
+AMBIGUOUS_NORMAL_MARGIN = 1e-3
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Everything ``hbvs fit`` was asked to do (see ``hbvs fit --help``)."""
+
+    input: str
+    output: str = "fit.mcap"
+    target: str = "auto"
+    reference: str = "first"
+    smoothing: str = "auto"
+    target_size: float | None = None
+    max_gap: float = 1.0
+    max_lost: float = 0.3
+    copy_images: bool = False
+    seed: int = 0
+
+
+@dataclass
+class FitSummary:
+    frames_total: int
+    frames_used: int
+    output: str
+    model: Any
+
+
+def parse_smoothing(text: str) -> float | None:
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"--smoothing must be 'auto' or a number, got {text!r}") from None
+    if not np.isfinite(value) or value < 0:
+        raise UsageError(f"--smoothing must be 'auto' or a non-negative number, got {text!r}")
+    return value
+
+
+def resolve_reference(spec: str, frame_count: int) -> int:
+    """Frame index of ``--reference first|last|INDEX`` in a recording of ``frame_count`` frames."""
+    key = spec.strip().lower()
+    if key == "first":
+        return 0
+    if key == "last":
+        return frame_count - 1
+    try:
+        index = int(key)
+    except ValueError:
+        raise UsageError(f"--reference must be first, last or a frame index, got {spec!r}") from None
+    if not 0 <= index < frame_count:
+        raise UsageError(f"--reference {spec} is out of range: the recording has {frame_count} frames (0 to {frame_count - 1})")
+    return index
+
+
+class _FrameLog:
+    """Per-frame results kept in memory: a few numbers per frame, never images."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.log_time: list[int] = []
+        self.pixels: list[np.ndarray] = []
+        self.pose: list[Any] = []
+        self.command: list[Any] = []
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "t": np.array(self.t),
+            "log_time": np.array(self.log_time, dtype=np.int64),
+            "pixels": np.array(self.pixels),
+        }
+
+
+def run_fit(options: FitOptions, console: Console) -> FitSummary:
+    """Fit the desired trajectory of a teach recording; write the fit file."""
+    from ..io.fit_file import FitModel, TaughtPath
+    from ..io.images import compressed_image_message, decode_image, image_bytes_from_message
+    from ..io.mcap_io import open_output, time_message
+    from ..io.messages import CAMERA_FRAME, annotations_message
+    from ..io.schemas import TOPICS
+    from ..io.teach_file import TeachReader
+    from ..io.calibration import calibration_to_foxglove
+
+    smoothing = parse_smoothing(options.smoothing)
+    if options.target not in ("auto", "dots", "aruco", "texture"):
+        raise UsageError(f"--target must be auto, dots, aruco or texture, got {options.target!r}")
+    reader = TeachReader(options.input)
+    topics = TOPICS["fit"]
+    log = _FrameLog()
+    detector: TrackedDetector | None = None
+    template: bytes | None = None
+    reference_image: bytes | None = None
+    wanted_reference = options.reference.strip().lower()
+    with open_output(options.output) as writer:
+        writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
+        with console.progress("fit", None) as bar:
+            for frame in reader.frames():
+                camera = reader.camera
+                if camera is None:
+                    raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
+                data, image_format = image_bytes_from_message(_json(frame.image_message, reader.name), reader.name)
+                image = decode_image(data, reader.name)
+                if image.shape != (camera.height, camera.width):
+                    raise RecordingError(
+                        f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
+                    )
+                if detector is None:
+                    spec = _detector_spec(options, reader, image, camera, frame.pose)
+                    detector = TrackedDetector(spec, camera, seed=options.seed)
+                    template = data
+                    writer.write("/camera/calibration", topics["/camera/calibration"], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+                pixels = detector.detect(image)
+                log.t.append(frame.t)
+                log.log_time.append(frame.log_time_ns)
+                log.pixels.append(pixels)
+                log.pose.append(frame.pose)
+                log.command.append(frame.command)
+                if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
+                    reference_image = data
+                if options.copy_images:
+                    writer.write_encoded("/camera/image", topics["/camera/image"], frame.log_time_ns, frame.image_message)
+                # Same log time as the teach image: Foxglove overlays these on it when the
+                # teach and fit files are opened together.
+                writer.write(
+                    "/camera/annotations", topics["/camera/annotations"], frame.log_time_ns,
+                    annotations_message(time_message(frame.log_time_ns), pixels),
+                )
+                bar.advance()
+        if reader.truncated:
+            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {len(log.t)} complete frames")
+        if not log.t:
+            raise RecordingError(f"{reader.name}: no images in the recording")
+        assert detector is not None and reader.camera is not None
+        camera = reader.camera
+        arrays = log.arrays()
+        reference_index = resolve_reference(options.reference, len(log.t))
+        result = fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing, options, console, reader.name)
+        taught_path = _taught_path(log, reference_index) if all(p is not None for p in log.pose) else None
+        depth = _depth(result, log, detector.spec.kind, options, console)
+        model = FitModel(
+            target_kind=detector.spec.kind,
+            camera=camera,
+            reference_index=reference_index,
+            reference_t=float(arrays["t"][reference_index]),
+            reference_pixels=result["reference_pixels"],
+            m_ref=result["m_ref"],
+            normal=result["normal"],
+            normal_margin=result["normal_margin"],
+            trajectory=result["trajectory"],
+            dhat0=depth["dhat0"],
+            dhat0_source=depth["source"],
+            depth=depth["estimates"],
+            frames=result["frames"] | {"truncated_input": reader.truncated},
+            condition35=result["condition35"],
+            residual_px=result["residual_px"],
+            detector=detector.spec.to_dict() | {"initial_pixels": result["initial_pixels"].tolist()},
+            world=reader.world,
+            taught_path=taught_path,
+            render=_render_settings(reader),
+        )
+        _write_signals(writer, topics, arrays, result)
+        end_ns = int(arrays["log_time"][-1])
+        for topic, payload, k in (("/reference/image", reference_image, reference_index), ("/detector/template", template, 0)):
+            stamp = int(arrays["log_time"][k])
+            writer.write(topic, topics[topic], stamp, compressed_image_message(time_message(stamp), CAMERA_FRAME, payload, _format_of(payload)))
+        writer.write("/fit/model", topics["/fit/model"], end_ns, model.to_message(end_ns))
+    _print_summary(console, model, result, depth, options)
+    return FitSummary(frames_total=len(log.t), frames_used=int(result["frames"]["used"]), output=options.output, model=model)
+
+
+def _render_settings(reader: Any) -> dict[str, Any] | None:
+    """The simulated sensor of the teach (noise, blur, exposure), for repeat to reuse."""
+    settings = reader.info.get("settings") if reader.info else None
+    if reader.world is None or not isinstance(settings, dict):
+        return None
+    return {key: settings[key] for key in ("noise", "blur", "exposure") if key in settings}
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+def _json(data: bytes, name: str) -> dict[str, Any]:
+    import json
+
+    try:
+        value = json.loads(data)
+    except (ValueError, UnicodeDecodeError):
+        raise RecordingError(f"{name}: malformed image message") from None
+    if not isinstance(value, dict):
+        raise RecordingError(f"{name}: malformed image message")
+    return value
+
+
+def _format_of(data: bytes) -> str:
+    return "png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "jpeg"
+
+
+def _detector_spec(options: FitOptions, reader: Any, image: np.ndarray, camera: CameraIntrinsics, pose: Any) -> DetectorSpec:
+    """What to detect: the recording's world says it for a simulated teach, else the image."""
+    world = reader.world
+    kind = options.target
+    if kind == "auto":
+        kind = world.target.kind if world is not None else choose_target_kind(image)
+    if world is not None and world.target.kind != kind:
+        raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
+    if kind == "dots":
+        n_points = world.target.points_poster.shape[0] if world is not None else None
+        return DetectorSpec(kind="dots", n_points=n_points)
+    if kind == "aruco":
+        marker = world.target.marker_id if world is not None else None
+        return DetectorSpec(kind="aruco", n_points=4, marker_id=marker)
+    if world is not None and pose is not None:
+        # A simulated poster: its own four points, as seen in this first frame.
+        return DetectorSpec(kind="texture", n_points=4, template_pixels=world.pixels(np.asarray(pose)))
+    return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
+
+
+def fit_desired_trajectory(
+    t: np.ndarray,
+    pixels: np.ndarray,
+    reference_index: int,
+    camera: CameraIntrinsics,
+    smoothing: float | None,
+    options: FitOptions,
+    console: Console,
+    name: str,
+) -> dict[str, Any]:
+    """The numbers of the fit, from per-frame pixels (F, N, 2) with NaN where not found."""
+    found = np.all(np.isfinite(pixels), axis=(1, 2))
+    if not np.any(found):
+        raise InputError(f"{name}: the target was not found in any frame")
+    if not found[reference_index]:
+        raise InputError(
+            f"{name}: the target was not found in the reference frame {reference_index} (t = {t[reference_index]:.2f} s); choose another with --reference"
+        )
+    flat = pixels.reshape(-1, 2)
+    undistorted = np.full_like(flat, np.nan)
+    ok = np.all(np.isfinite(flat), axis=1)
+    undistorted[ok] = undistort_pixels(camera, flat[ok])
+    m = pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
+    m_ref = validate_reference_points(m[reference_index])
+    homographies = estimate_euclidean_homography(m, m_ref)
+    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=found & homographies.valid)
+    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=found & homographies.valid)
+    if margin < AMBIGUOUS_NORMAL_MARGIN:
+        console.warn(
+            "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
+            "assumed the target faces the reference camera"
+        )
+    solver = KnownNormalSolver(m_ref, normal)
+    motion = solver.solve(np.where(found[:, None, None], m, m_ref))
+    residual = np.where(found, motion.residual, np.nan)
+    gate = DEFAULT_RESIDUAL_GATE
+    used = found & motion.valid & (residual <= gate)
+    outliers = int(np.sum(found & ~used))
+    frames = _frame_stats(t, used, outliers, options, name)
+    span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
+    trajectory = fit_spline_trajectory(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1], smoothing)
+    condition = feedforward_condition(trajectory, t[span])
+    focal = 0.5 * (camera.fx + camera.fy)
+    return {
+        "m_ref": m_ref,
+        "reference_pixels": normalized_to_pixels(camera, m_ref),
+        "initial_pixels": pixels[int(np.flatnonzero(used)[0])],
+        "normal": normal,
+        "normal_margin": margin,
+        "trajectory": trajectory,
+        "used": used,
+        "theta": motion.theta,
+        "x_h": motion.x_h,
+        "residual": residual,
+        "frames": frames,
+        "condition": condition,
+        "condition35": {
+            "min_abs_xhd1_dot": condition.min_abs_xhd1_dot,
+            "percentiles": condition.percentiles,
+            "stopped_fraction": condition.stopped_fraction,
+            "longest_stop_s": condition.longest_stop_s,
+            "threshold": condition.threshold,
+        },
+        "residual_px": {
+            "rms": float(np.sqrt(np.nanmean(residual[used] ** 2)) * focal),
+            "max": float(np.nanmax(residual[used]) * focal),
+        },
+        "span": span,
+    }
+
+
+def _frame_stats(t: np.ndarray, used: np.ndarray, outliers: int, options: FitOptions, name: str) -> dict[str, Any]:
+    total = int(used.size)
+    n_used = int(used.sum())
+    if n_used < 5:
+        raise InputError(f"{name}: the target was found in only {n_used} of {total} frames; at least 5 are needed")
+    lost_fraction = 1.0 - n_used / total
+    gaps = []
+    indices = np.flatnonzero(used)
+    for before, after in zip(indices[:-1], indices[1:]):
+        if after - before > 1:
+            gaps.append((float(t[before]), float(t[after])))
+    longest = max((b - a for a, b in gaps), default=0.0)
+    if lost_fraction > options.max_lost:
+        raise InputError(
+            f"{name}: the target is missing from {100 * lost_fraction:.0f} % of the frames (more than --max-lost {100 * options.max_lost:.0f} %)"
+        )
+    if longest > options.max_gap:
+        a, b = max(gaps, key=lambda g: g[1] - g[0])
+        raise InputError(
+            f"{name}: the target is missing from t = {a:.2f} s to {b:.2f} s ({longest:.2f} s), longer than "
+            f"--max-gap {options.max_gap:g} s can bridge"
+        )
+    return {
+        "total": total,
+        "used": n_used,
+        "lost": total - n_used,
+        "outliers": outliers,
+        "lost_fraction": lost_fraction,
+        "gaps": gaps,
+        "longest_gap_s": longest,
+        "frame_interval_s": float(np.median(np.diff(t))) if t.size > 1 else None,
+        "trimmed_start": int(indices[0]),
+        "trimmed_end": int(total - 1 - indices[-1]),
+    }
+
+
+def _taught_path(log: _FrameLog, reference_index: int) -> Any:
+    from ..io.fit_file import TaughtPath
+
+    commands = np.array([c if c is not None else (np.nan, np.nan) for c in log.command], dtype=float)
+    poses = np.array(log.pose, dtype=float)
+    if not np.all(np.isfinite(commands)):
+        commands = np.zeros((len(log.t), 2))
+    return TaughtPath(t=np.array(log.t), poses=poses, v=commands[:, 0], w=commands[:, 1], reference_pose=poses[reference_index])
+
+
+def _depth(result: dict[str, Any], log: _FrameLog, kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
+    """d*: from the taught commands (25), or from --target-size; which one becomes dhat(0)."""
+    estimates: dict[str, Any] = {"commands": None, "target_size": None}
+    chosen: DepthEstimate | None = None
+    t = np.array(log.t)[result["span"]]
+    commands = [c for c in log.command[result["span"]]]
+    if commands and all(c is not None for c in commands):
+        v, w = np.array(commands, dtype=float).T
+        desired = result["trajectory"].evaluate(t)
+        try:
+            from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
+            estimates["commands"] = asdict(from_commands)
+            chosen = from_commands
+        except GeometryError as exc:
+            console.warn(f"no depth from the taught commands: {exc}")
+    if options.target_size is not None:
+        if kind == "texture":
+            raise UsageError("--target-size needs a dots or aruco target; a texture's points have no metric size")
+        # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest pair.
+        kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result["m_ref"], result["normal"])
+        from_size = depth_from_target_size(result["m_ref"], result["normal"], kind_pair, options.target_size)
+        estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
+        chosen = from_size
+    if chosen is None:
+        console.warn(
+            f"no taught commands and no --target-size: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
+            "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
+        )
+        return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
+    return {"dhat0": float(chosen.d_star), "source": chosen.source, "estimates": estimates}
+
+
+def _write_signals(writer: Any, topics: dict[str, str], arrays: dict[str, np.ndarray], result: dict[str, Any]) -> None:
+    from ..io.mcap_io import time_message
+
+    t = arrays["t"]
+    log_time = arrays["log_time"]
+    used = result["used"]
+    for k in np.flatnonzero(used):
+        writer.write("/desired/raw", topics["/desired/raw"], int(log_time[k]), {
+            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
+            "theta_d": float(result["theta"][k]), "x_hd1": float(result["x_h"][k, 0]), "x_hd2": float(result["x_h"][k, 1]),
+            "residual": float(result["residual"][k]),
+        })
+    span = result["span"]
+    desired = result["trajectory"].evaluate(t[span])
+    for j, k in enumerate(range(span.start, span.stop)):
+        writer.write("/desired/smooth", topics["/desired/smooth"], int(log_time[k]), {
+            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
+            "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
+            "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
+        })
+
+
+def _print_summary(console: Console, model: Any, result: dict[str, Any], depth: dict[str, Any], options: FitOptions) -> None:
+    from rich.table import Table
+
+    frames = model.frames
+    condition = result["condition"]
+    table = Table(title=f"hbvs fit: {options.input} -> {options.output}", show_header=True, header_style="bold")
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    table.add_row("frames used / total", f"{frames['used']} / {frames['total']}")
+    table.add_row("frames lost (not found / outliers)", f"{frames['lost']} ({frames['lost'] - frames['outliers']} / {frames['outliers']})")
+    table.add_row("longest gap bridged", f"{frames['longest_gap_s']:.2f} s")
+    table.add_row("target", f"{model.target_kind}, {model.m_ref.shape[0]} points")
+    table.add_row("reference frame F*", f"{model.reference_index} (t = {model.reference_t:.2f} s)")
+    table.add_row("residual (RMS / max)", f"{model.residual_px['rms']:.3f} / {model.residual_px['max']:.3f} px")
+    table.add_row("plane normal n* (in F*)", "[" + ", ".join(f"{v:+.3f}" for v in model.normal) + f"]  margin {model.normal_margin:.3f}")
+    lambdas = ", ".join(f"{name} {ch.smoothing:.3g}" for name, ch in model.trajectory.channels.items())
+    table.add_row("spline smoothing lambda (s^3)", lambdas + (" (GCV)" if options.smoothing == "auto" else ""))
+    table.add_row("x_hd2 from (25): residual RMS", f"{model.trajectory.x_hd2_residual_rms:.2e}")
+    table.add_row("condition (35): min |x_hd1_dot|", f"{condition.min_abs_xhd1_dot:.4f} 1/s")
+    table.add_row("|x_hd1_dot| p5 / median / p95", f"{condition.percentiles['p5']:.4f} / {condition.percentiles['p50']:.4f} / {condition.percentiles['p95']:.4f} 1/s")
+    estimates = depth["estimates"]
+    if estimates.get("commands"):
+        e = estimates["commands"]
+        table.add_row("d* from taught commands (25)", f"{e['d_star']:.3f} +- {e['standard_error']:.3f} m")
+    if estimates.get("target_size"):
+        table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
+    table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
+    console.print(table)
+    if condition.path_stops:
+        console.warn(
+            f"the taught path stops: |x_hd1_dot| < {condition.threshold:g} 1/s for {100 * condition.stopped_fraction:.0f} % of it "
+            f"(longest {condition.longest_stop_s:.1f} s). The lateral error e2 cannot converge there (condition (35))"
+        )

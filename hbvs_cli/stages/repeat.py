@@ -1,0 +1,451 @@
+"""``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31).
+
+``--sim``: closed loop. A simulated robot starts at the taught start pose plus ``--offset``;
+every frame the camera (rendered images through the same detector as ``fit``, or projected
+points with noise) gives a measurement, the controller answers, the unicycle moves.
+``--replay``: open loop. The frames of a recording are the live camera; the controller's
+errors and commands are computed and logged, and nothing moves.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from ..core.camera import normalized_to_pixels
+from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, LAWS, lyapunov
+from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
+from ..core.frames import compose_planar_pose, rotation_z
+from ..core.homography import transfer_points
+from ..core.path import CommandProfile
+from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
+from ..core.trajectory import TimeScaledTrajectory
+from ..errors import InputError, TargetLostError, UsageError
+from .console import Console
+from .options import parse_interval, parse_offset
+
+#: Default actuator limits of the simulated robot (a small indoor platform).
+DEFAULT_MAX_V = 0.5
+DEFAULT_MAX_W = 0.6
+
+
+@dataclass(frozen=True)
+class RepeatOptions:
+    """Everything ``hbvs repeat`` was asked to do (see ``hbvs repeat --help``)."""
+
+    input: str
+    output: str = "run.mcap"
+    sim: bool = False
+    replay: Path | None = None
+    offset: str = "-0.1,0.05,2"
+    perception: str = "images"
+    pixel_noise: float = 0.0
+    rate: float | None = None
+    depth: float | None = None
+    seed: int = 0
+    config: Path | None = None
+    law: str | None = None
+    kv: float | None = None
+    kw: float | None = None
+    gamma: float | None = None
+    k2: float | None = None
+    dhat0: float | None = None
+    speed: float | None = None
+    max_v: float | None = None
+    max_w: float | None = None
+    max_accel: float | None = None
+    latency: int | None = None
+    lost_timeout: float = 3.0
+    cmd_out: str | None = None
+    record_images: bool = False
+    occlude: list[str] = field(default_factory=list)
+    drop_rate: float = 0.0
+    outlier_rate: float = 0.0
+    exposure_step: str | None = None
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The resolved settings of a run: defaults, then the TOML config, then the options."""
+
+    gains: ControllerGains
+    law: str
+    dhat0: float
+    speed: float
+    limits: ActuatorLimits
+    latency: int
+    rate: float
+    perception: str
+    pixel_noise: float
+    offset: tuple[float, float, float]
+    lost_timeout: float
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["gains"] = self.gains.as_dict()
+        data["limits"] = {k: (v if v is not None else None) for k, v in asdict(self.limits).items()}
+        data["offset"] = {"dx_m": self.offset[0], "dy_m": self.offset[1], "dtheta_deg": math.degrees(self.offset[2])}
+        return data
+
+
+@dataclass
+class RepeatSummary:
+    steps: int
+    output: str
+    final_errors: dict[str, float]
+    dhat: float
+    stopped: bool
+
+
+def _limit(value: float | None, default: float | None) -> float | None:
+    """A limit option: None -> default; inf or 0 -> unlimited."""
+    if value is None:
+        return default
+    if math.isinf(value) or value == 0:
+        return None
+    if value < 0 or math.isnan(value):
+        raise UsageError(f"actuator limits must be positive (or inf for none), got {value}")
+    return value
+
+
+def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float) -> Settings:
+    """Defaults < ``--config`` < command-line options."""
+    config: dict[str, Any] = {}
+    if options.config is not None:
+        from ..io.config import load_config
+
+        config = load_config(options.config)
+
+    def pick(option_value: Any, key: str, default: Any) -> Any:
+        if option_value is not None:
+            return option_value
+        return config.get(key, default)
+
+    law = pick(options.law, "law", LAW_LATERAL_GAIN)
+    if law not in LAWS:
+        raise UsageError(f"--law must be one of {', '.join(LAWS)}, got {law!r}")
+    defaults = ControllerGains()
+    gains = ControllerGains(
+        k_v=pick(options.kv, "k_v", defaults.k_v),
+        k_w=pick(options.kw, "k_w", defaults.k_w),
+        gamma=pick(options.gamma, "gamma", defaults.gamma),
+        k_2=pick(options.k2, "k_2", defaults.k_2),
+    ).with_law(law)
+    dhat0 = float(pick(options.dhat0, "dhat0", dhat0_suggested))
+    if not (math.isfinite(dhat0) and dhat0 > 0):
+        raise UsageError(f"--dhat0 must be a positive depth in metres, got {dhat0}")
+    speed = float(pick(options.speed, "speed", 1.0))
+    rate = float(pick(options.rate, "rate", taught_rate))
+    if not (math.isfinite(rate) and rate > 0):
+        raise UsageError(f"--rate must be positive, got {rate}")
+    perception = options.perception if options.perception != "images" else str(config.get("perception", "images"))
+    if perception not in ("images", "points"):
+        raise UsageError(f"--perception must be images or points, got {perception!r}")
+    offset_text = options.offset if options.offset != RepeatOptions.offset else str(config.get("offset", options.offset))
+    latency = int(pick(options.latency, "latency", 0))
+    if latency < 0:
+        raise UsageError("--latency must be >= 0 frames")
+    return Settings(
+        gains=gains,
+        law=law,
+        dhat0=dhat0,
+        speed=speed,
+        limits=ActuatorLimits(
+            max_v=_limit(pick(options.max_v, "max_v", None), DEFAULT_MAX_V),
+            max_w=_limit(pick(options.max_w, "max_w", None), DEFAULT_MAX_W),
+            max_accel=_limit(pick(options.max_accel, "max_accel", None), None),
+        ),
+        latency=latency,
+        rate=rate,
+        perception=perception,
+        pixel_noise=float(options.pixel_noise if options.pixel_noise else config.get("pixel_noise", 0.0)),
+        offset=parse_offset(offset_text),
+        lost_timeout=float(options.lost_timeout if options.lost_timeout != RepeatOptions.lost_timeout else config.get("lost_timeout", options.lost_timeout)),
+    )
+
+
+def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
+    """Run the repeat phase as ``options`` say; write the run file."""
+    from ..io.fit_file import read_fit_file
+
+    if options.sim == (options.replay is not None):
+        raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
+    if options.cmd_out == "-" and options.output == "-":
+        raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
+    fit = read_fit_file(options.input)
+    model = fit.model
+    frame_interval = _taught_frame_interval(model)
+    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval)
+    if options.sim:
+        return _run_simulation(options, settings, fit, console)
+    return _run_replay(options, settings, fit, console)
+
+
+def _taught_frame_interval(model: Any) -> float:
+    if model.taught_path is not None and model.taught_path.t.size > 1:
+        return float(np.median(np.diff(model.taught_path.t)))
+    return float(model.frames.get("frame_interval_s") or (1.0 / 30.0))
+
+
+# ----------------------------------------------------------------------------- shared pieces
+class _RunLog:
+    """Writes the run file's per-step messages and the optional command stream."""
+
+    def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None) -> None:
+        from ..io.schemas import TOPICS
+
+        self.writer = writer
+        self.topics = TOPICS["run"]
+        self.settings = settings
+        self.model = model
+        self.d_true = d_true
+        self.cmd_stream = cmd_stream
+        self.lost_since: float | None = None
+        self.was_saturated = False
+        self.previous_status = "ok"
+
+    def event(self, t: float, level: int, text: str) -> None:
+        from ..io.mcap_io import seconds_to_ns, time_message
+        from ..io.messages import log_message
+
+        ns = seconds_to_ns(t)
+        self.writer.write("/repeat/events", self.topics["/repeat/events"], ns, log_message(time_message(ns), level, text))
+
+    def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
+        from ..io.mcap_io import seconds_to_ns, time_message
+        from ..io.messages import LOG_INFO, LOG_WARNING, velocity_message
+
+        t = record.t
+        ns = seconds_to_ns(t)
+        stamp = time_message(ns)
+        desired = record.desired
+        output = record.output
+        measurement = record.measurement
+        errors = output.errors if output is not None else None
+        V = None
+        if errors is not None and self.d_true is not None:
+            V = lyapunov(errors, record.dhat, self.d_true, self.settings.gains)
+        status = record.observation.status
+        if status != self.previous_status:
+            if record.lost and not self._was_lost():
+                self.event(t, LOG_WARNING, f"target lost ({status}): stopping, adaptation frozen")
+            elif not record.lost and self._was_lost():
+                self.event(t, LOG_INFO, "target back: tracking resumed")
+            self.previous_status = status
+        if record.saturated and not self.was_saturated:
+            self.event(t, LOG_INFO, "command saturated by the actuator limits")
+        self.was_saturated = record.saturated
+        message = {
+            "timestamp": stamp, "t": t,
+            "x_h1": measurement.x_h1 if measurement else None,
+            "x_h2": measurement.x_h2 if measurement else None,
+            "theta": measurement.theta if measurement else None,
+            "x_hd1": desired.x_hd1, "x_hd2": desired.x_hd2, "theta_d": desired.theta_d,
+            "x_hd1_dot": desired.x_hd1_dot, "x_hd2_dot": desired.x_hd2_dot, "theta_d_dot": desired.theta_d_dot,
+            "e1": errors.e1 if errors else None, "e2": errors.e2 if errors else None,
+            "ebar2": errors.ebar2 if errors else None, "e3": errors.e3 if errors else None,
+            "v_c": record.v_c, "w_c": record.w_c,
+            "v_law": float(output.v_c) if output is not None else v_law,
+            "w_law": float(output.w_c) if output is not None else w_law,
+            "saturated": bool(record.saturated),
+            "dhat": record.dhat,
+            "target_lost": bool(record.lost),
+            "lost_reason": status if record.lost else "",
+            "residual": record.observation.residual,
+            "V": V,
+        }
+        self.writer.write("/repeat/state", self.topics["/repeat/state"], ns, message)
+        self.writer.write("/repeat/cmd_vel", self.topics["/repeat/cmd_vel"], ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated))
+        if self.cmd_stream is not None:
+            self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
+            self.cmd_stream.flush()
+
+    def _was_lost(self) -> bool:
+        return self.previous_status not in ("ok", "dropped")
+
+
+def _open_cmd_stream(target: str | None) -> IO[str] | None:
+    if target is None:
+        return None
+    if target == "-":
+        return sys.stdout
+    try:
+        return open(target, "w", encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{target}: cannot write the command stream ({exc.strerror})") from None
+
+
+def desired_pixels(model: Any, desired: Any) -> np.ndarray:
+    """Where the target points should be in the image now: m_d = H_d m* (13)."""
+    H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
+    return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
+
+
+# ----------------------------------------------------------------------------- closed loop
+def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
+    from ..io.calibration import calibration_to_foxglove
+    from ..io.mcap_io import open_output, seconds_to_ns, time_message
+    from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
+    from .simworld import SimulatedCamera, simulation_world
+
+    model = fit.model
+    scene = simulation_world(model, fit.reference_image, options.depth, settings.speed)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    duration = trajectory.t_end - trajectory.t_start
+    dt = 1.0 / settings.rate
+    start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
+    if not scene.world.in_view(start_pose, margin_px=0.0):
+        raise UsageError("the target is not in view from the start pose; use a smaller --offset")
+    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
+    controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
+    cmd_stream = _open_cmd_stream(options.cmd_out)
+    stopped_at: float | None = None
+    records: list[StepRecord] = []
+    steps = int(round(duration / dt))
+    try:
+        with open_output(options.output) as writer:
+            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
+            writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
+            log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
+            lost_for = 0.0
+            with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
+                for record in run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, settings.limits, settings.latency):
+                    log.step(record)
+                    ns = seconds_to_ns(record.t)
+                    stamp = time_message(ns)
+                    taught = scene.taught_pose_at_run_time(record.t)
+                    writer.write("/ground_truth/pose", "foxglove.PoseInFrame", ns, pose_message(stamp, record.pose, scene.world.camera_height))
+                    writer.write("/desired/pose", "foxglove.PoseInFrame", ns, pose_message(stamp, taught, scene.world.camera_height))
+                    if options.record_images:
+                        camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
+                    records.append(record)
+                    bar.advance()
+                    lost_for = lost_for + dt if record.lost else 0.0
+                    if lost_for > settings.lost_timeout:
+                        stopped_at = record.t
+                        log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
+                        break
+    finally:
+        if cmd_stream is not None and cmd_stream is not sys.stdout:
+            cmd_stream.close()
+    summary = _summarise(records, controller, options.output, stopped_at is not None, scene)
+    _print_summary(console, summary, settings, scene.d_true)
+    if stopped_at is not None:
+        raise TargetLostError(
+            f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s); "
+            f"the run up to then is in {options.output}"
+        )
+    return summary
+
+
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None) -> dict[str, Any]:
+    from .. import __version__
+
+    model = fit.model
+    return {
+        "file_kind": "run",
+        "hbvs_version": __version__,
+        "mode": mode,
+        "law": settings.law,
+        "gains": settings.gains.as_dict(),
+        "settings": settings.as_dict() | {
+            "seed": options.seed, "input": str(options.input), "replay": str(options.replay) if options.replay else None,
+            "faults": {
+                "occlude": options.occlude, "drop_rate": options.drop_rate,
+                "outlier_rate": options.outlier_rate, "exposure_step": options.exposure_step,
+            },
+            "record_images": options.record_images,
+        },
+        "d_true": d_true,
+        "dhat0": settings.dhat0,
+        "target_kind": model.target_kind,
+        "condition35": model.condition35,
+        "fit_frames": model.frames,
+    }
+
+
+def _summarise(records: list[StepRecord], controller: AdaptiveTrackingController, output: str, stopped: bool, scene: Any = None) -> RepeatSummary:
+    final = next((r for r in reversed(records) if r.output is not None), None)
+    errors = {}
+    if final is not None:
+        e = final.output.errors
+        errors = {"e1": float(e.e1), "e2": float(e.e2), "e3_deg": math.degrees(float(e.e3))}
+    if scene is not None and records and scene.has_ground_truth:
+        last = records[-1]
+        taught = scene.taught_pose_at_run_time(last.t)
+        errors["position_m"] = float(np.hypot(*(last.pose[:2] - taught[:2])))
+        errors["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (last.pose[2] - taught[2])))))
+    return RepeatSummary(steps=len(records), output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
+
+
+def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
+    parts = [f"repeat: {summary.steps} steps ({settings.law})"]
+    e = summary.final_errors
+    if "e1" in e:
+        parts.append(f"final e1 {e['e1']:+.2e}, e2 {e['e2']:+.2e}, e3 {e['e3_deg']:+.3f} deg")
+    if "position_m" in e:
+        parts.append(f"position error {100 * e['position_m']:.2f} cm, heading {e['heading_deg']:+.3f} deg")
+    depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
+    parts.append(depth)
+    console.info("; ".join(parts) + f" -> {summary.output}")
+
+
+# ----------------------------------------------------------------------------- open loop
+def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
+    from ..core.simulator import StepRecord as Step
+    from ..io.calibration import calibration_to_foxglove
+    from ..io.images import decode_image, image_bytes_from_message
+    from ..io.mcap_io import open_output
+    from ..io.messages import CAMERA_FRAME
+    from ..io.teach_file import TeachReader
+    from .detection import detector_from_model
+
+    model = fit.model
+    reader = TeachReader(options.replay)
+    estimator = PlanarPoseEstimator(model.camera, model.m_ref, model.normal)
+    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
+    cmd_stream = _open_cmd_stream(options.cmd_out)
+    records: list[Step] = []
+    previous_t: float | None = None
+    try:
+        with open_output(options.output) as writer:
+            writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
+            writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
+            log = _RunLog(writer, settings, model, None, cmd_stream)
+            with console.progress("repeat (replay)", None) as bar:
+                for frame in reader.frames():
+                    camera = reader.camera
+                    if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
+                        raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
+                    data, _ = image_bytes_from_message(json.loads(frame.image_message), reader.name)
+                    image = decode_image(data, reader.name)
+                    pixels = detector.detect(image)
+                    observation = estimator.from_pixels(pixels)
+                    t = frame.t
+                    dt = t - previous_t if previous_t is not None else 0.0
+                    previous_t = t
+                    desired = trajectory.evaluate(t)
+                    dhat = controller.dhat
+                    output = controller.step(observation.measurement, desired, dt) if observation.status == "ok" else None
+                    v, w = (float(output.v_c), float(output.w_c)) if output is not None else controller.hold()
+                    record = Step(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
+                                  v_c=v, w_c=w, saturated=False, dhat=dhat)
+                    log.step(record)
+                    records.append(record)
+                    bar.advance()
+            if not records:
+                raise InputError(f"{reader.name}: no frames to replay")
+    finally:
+        if cmd_stream is not None and cmd_stream is not sys.stdout:
+            cmd_stream.close()
+    summary = _summarise(records, controller, options.output, False)
+    _print_summary(console, summary, settings, None)
+    return summary
