@@ -1,0 +1,261 @@
+"""Statistics and convergence measures of a run: numpy in, plain Python numbers out.
+
+Every function takes the step times ``t`` (s) and a per-step signal, and leaves out NaN
+samples: a step where the target was lost has no measured error, and averaging a guess
+into the statistics would hide the loss. Results are Python ``float`` (or ``None`` when
+the signal has no valid sample), ready for JSON.
+
+Definitions (docs/report.md cites them):
+
+* statistics of a signal, as evo computes them for trajectory errors: ``rmse``, ``mean``,
+  ``median``, ``std`` (population, ddof = 0), ``min``, ``max`` of the valid samples;
+* ``initial``: the first valid sample;
+* ``final``: the mean of ``|x|`` over the valid samples in the last
+  :data:`FINAL_WINDOW_FRACTION` (5 %) of the run's duration;
+* ``settling_time_s``: the first time (from the run's first step) after which every valid
+  sample stays within ``|x| <= tolerance`` until the end; ``None`` if the last valid
+  sample is outside the band (it never settles);
+* Lyapunov summary of V (36): ``initial``, ``final`` (the last valid value), ``ratio``
+  = final / initial, and ``increase_fraction``, the fraction of pairs of adjacent valid
+  steps in which V rose by more than :data:`V_INCREASE_RELATIVE` times V(0);
+* :func:`longest_true_run_s`: the longest stretch of consecutive flagged steps, in seconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Share of the run's duration, at its end, over which ``final`` averages |x|.
+FINAL_WINDOW_FRACTION = 0.05
+#: An increase of V smaller than this times V(0) is integration noise, not an increase.
+V_INCREASE_RELATIVE = 1e-9
+
+#: Names of the statistics :func:`error_summary` returns, in order.
+STATISTICS = ("rmse", "mean", "median", "std", "min", "max", "initial", "final", "settling_time_s")
+
+
+def _optional(value: float | np.floating | None) -> float | None:
+    """A JSON-ready number: ``None`` stays ``None``, NaN becomes ``None``."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def valid_samples(t: ArrayLike, x: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The times (s) and values of the finite samples of ``x``.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s).
+    x : array_like, shape (K,)
+        Signal, NaN where it is unknown (target lost).
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    keep = np.isfinite(x)
+    return t[keep], x[keep]
+
+
+def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
+    """``rmse, mean, median, std, min, max`` of the finite samples (units of ``x``).
+
+    ``std`` is the population standard deviation (ddof = 0), as in evo. Every value is
+    ``None`` when no sample is finite.
+    """
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return dict.fromkeys(("rmse", "mean", "median", "std", "min", "max"))
+    return {
+        "rmse": _optional(np.sqrt(np.mean(np.square(x)))),
+        "mean": _optional(np.mean(x)),
+        "median": _optional(np.median(x)),
+        "std": _optional(np.std(x)),
+        "min": _optional(np.min(x)),
+        "max": _optional(np.max(x)),
+    }
+
+
+def initial_value(x: ArrayLike) -> float | None:
+    """The first finite sample of ``x`` (its units), or ``None``."""
+    x = np.asarray(x, dtype=float)
+    finite = x[np.isfinite(x)]
+    return _optional(finite[0]) if finite.size else None
+
+
+def final_value(t: ArrayLike, x: ArrayLike, fraction: float = FINAL_WINDOW_FRACTION) -> float | None:
+    """Mean of ``|x|`` over the valid samples in the last ``fraction`` of the run's duration.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s); the window is ``t >= t[-1] - fraction (t[-1] - t[0])``, so it is
+        measured on the whole run, lost steps included.
+    x : array_like, shape (K,)
+        Signal (any unit); NaN samples are left out.
+    fraction : float
+        Share of the duration (0 < fraction <= 1).
+
+    Returns
+    -------
+    float or None
+        Units of ``x``; ``None`` when no valid sample lies in the window (the target was
+        lost at the end).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size == 0:
+        return None
+    start = t[-1] - fraction * (t[-1] - t[0])
+    tv, xv = valid_samples(t, x)
+    window = np.abs(xv[tv >= start])
+    return _optional(np.mean(window)) if window.size else None
+
+
+def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
+    """Time (s, from the run's first step) after which ``|x| <= tolerance`` until the end.
+
+    It is the time of the first valid sample that follows the last valid sample outside
+    the band (or of the first valid sample, if none is outside). ``None`` when the last
+    valid sample is outside the band, or there is no valid sample: it never settled.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s).
+    x : array_like, shape (K,)
+        Signal; NaN samples are left out.
+    tolerance : float
+        Half-width of the band, in the units of ``x``.
+    """
+    t = np.asarray(t, dtype=float)
+    tv, xv = valid_samples(t, x)
+    if xv.size == 0:
+        return None
+    outside = np.flatnonzero(np.abs(xv) > tolerance)
+    if outside.size == 0:
+        return _optional(tv[0] - t[0])
+    last = outside[-1]
+    if last == xv.size - 1:
+        return None
+    return _optional(tv[last + 1] - t[0])
+
+
+def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:
+    """Every statistic of :data:`STATISTICS` for one error signal.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s).
+    x : array_like, shape (K,)
+        Error signal (any unit; NaN where unknown).
+    tolerance : float
+        Settling band, units of ``x``.
+    """
+    summary = signal_statistics(x)
+    summary["initial"] = initial_value(x)
+    summary["final"] = final_value(t, x)
+    summary["settling_time_s"] = settling_time(t, x, tolerance)
+    return summary
+
+
+def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dict[str, float | None]:
+    """How the Lyapunov function (36) evolved.
+
+    Parameters
+    ----------
+    V : array_like, shape (K,)
+        V per step (units of (36)); NaN where unknown (lost target, or no ground-truth d*).
+    relative : float
+        An increase counts only when larger than ``relative * V(0)``.
+
+    Returns
+    -------
+    dict
+        ``initial`` (first valid V), ``final`` (last valid V), ``ratio`` (final / initial,
+        ``None`` when V(0) is 0) and ``increase_fraction`` (0..1, over pairs of adjacent
+        steps that both have V; ``None`` without such a pair). All ``None`` when V is
+        never known.
+    """
+    V = np.asarray(V, dtype=float)
+    finite = V[np.isfinite(V)]
+    if finite.size == 0:
+        return dict.fromkeys(("initial", "final", "ratio", "increase_fraction"))
+    initial, final = float(finite[0]), float(finite[-1])
+    # Pairs that straddle a lost stretch are skipped: across it the law did not run.
+    both = np.isfinite(V[:-1]) & np.isfinite(V[1:])
+    rises = np.diff(V)[both] > relative * initial
+    return {
+        "initial": _optional(initial),
+        "final": _optional(final),
+        "ratio": _optional(final / initial) if initial > 0 else None,
+        "increase_fraction": _optional(np.mean(rises)) if rises.size else None,
+    }
+
+
+def step_durations(t: ArrayLike) -> NDArray[np.float64]:
+    """How long each step lasts (s): to the next step, the last one as long as the median step.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Increasing step times (s).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.zeros(t.size)
+    return np.diff(t, append=t[-1] + np.median(np.diff(t)))
+
+
+def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
+    """Duration (s) of the longest stretch of consecutive ``True`` steps (0 if none).
+
+    Each step counts for :func:`step_durations`, so n flagged steps at rate f last n / f.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s).
+    flags : array_like of bool, shape (K,)
+    """
+    flags = np.asarray(flags, dtype=bool)
+    durations = step_durations(t)
+    longest = current = 0.0
+    for flagged, duration in zip(flags, durations):
+        current = current + duration if flagged else 0.0
+        longest = max(longest, current)
+    return float(longest)
+
+
+def rms(x: ArrayLike) -> float | None:
+    """Root mean square of the finite samples (units of ``x``), or ``None``."""
+    return signal_statistics(x)["rmse"]
+
+
+def _finite_abs(x: ArrayLike) -> NDArray[np.float64]:
+    x = np.abs(np.asarray(x, dtype=float))
+    return x[np.isfinite(x)]
+
+
+def peak_abs(x: ArrayLike) -> float | None:
+    """Largest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
+    magnitudes = _finite_abs(x)
+    return _optional(np.max(magnitudes)) if magnitudes.size else None
+
+
+def min_abs(x: ArrayLike) -> float | None:
+    """Smallest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
+    magnitudes = _finite_abs(x)
+    return _optional(np.min(magnitudes)) if magnitudes.size else None
+
+
+def sample_rate_hz(t: ArrayLike) -> float | None:
+    """Step rate (Hz): the inverse of the median step; ``None`` with fewer than two steps."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return None
+    step = float(np.median(np.diff(t)))
+    return 1.0 / step if step > 0 else None

@@ -1,0 +1,1 @@
+"""Presentation of results: report tables, JSON output, plots and trajectory export."""

@@ -1,0 +1,240 @@
+"""The human-readable report: rich tables on stdout.
+
+On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a test) they
+are plain text: no colour, no box characters, columns separated by at least two spaces and
+never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep final``).
+
+Every number is the JSON value (:mod:`.report_data`) to 4 significant digits, in the unit
+named in its row label. One run: a run table, an error matrix (one row per error, one
+column per statistic), a table of the other metrics and the verdict. Several runs: the same
+tables side by side, one column per run named by its law and file, with the error
+statistics one per row.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence, TextIO
+
+from ..core.metrics import STATISTICS
+from .report_data import IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
+
+#: Width of the plain-text output: wide enough never to wrap a row of a comparison.
+PLAIN_WIDTH = 1000
+#: What a missing (null) value shows.
+MISSING = "n/a"
+
+#: Each error signal's short name and unit (image errors are in units of d*: x_h = x_f / d*).
+ERROR_SIGNALS = {
+    "e1": ("e1", "d*"),
+    "e2": ("e2", "d*"),
+    "ebar2": ("ebar2", "d*"),
+    "e3": ("e3", "deg"),
+    "position_m": ("position", "m"),
+    "heading_deg": ("heading", "deg"),
+}
+#: Short name of each statistic; all are in the signal's unit except the settling time (s).
+STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
+
+
+#: Units of the gains of (29)-(31) and of the lateral gain.
+GAIN_UNITS = {"k_v": "m/s", "k_w": "1/s", "gamma": "m", "k_2": "-"}
+
+#: Rows of the metrics table: (label with unit, dotted key into a report).
+METRIC_ROWS: tuple[tuple[str, str], ...] = (
+    ("V initial", "lyapunov.initial"),
+    ("V final", "lyapunov.final"),
+    ("V final / V(0)", "lyapunov.ratio"),
+    ("V increase (fraction of steps)", "lyapunov.increase_fraction"),
+    ("dhat initial (m)", "depth.dhat_initial"),
+    ("dhat final (m)", "depth.dhat_final"),
+    ("d* true (m)", "depth.d_true"),
+    ("dhat relative error (-)", "depth.relative_error"),
+    ("v peak (m/s)", "commands.v_peak_mps"),
+    ("v rms (m/s)", "commands.v_rms_mps"),
+    ("w peak (rad/s)", "commands.w_peak_radps"),
+    ("w rms (rad/s)", "commands.w_rms_radps"),
+    ("saturated (fraction of steps)", "commands.saturated_fraction"),
+    ("target lost (frames)", "target.lost_frames"),
+    ("target lost (fraction of steps)", "target.lost_fraction"),
+    ("longest loss (s)", "target.longest_loss_s"),
+    ("min |x_hd1_dot| run (1/s)", "condition35.min_abs_xhd1_dot"),
+    ("min |x_hd1_dot| fit (1/s)", "condition35.fit_min_abs_xhd1_dot"),
+)
+
+#: Rows of the run table after the gains.
+RUN_ROWS: tuple[tuple[str, str], ...] = (
+    ("law", "run.law"),
+    ("mode", "run.source.mode"),
+    ("fit file", "run.source.fit_file"),
+    ("duration (s)", "run.duration_s"),
+    ("steps", "run.steps"),
+    ("rate (Hz)", "run.rate_hz"),
+    ("truncated", "run.truncated"),
+)
+
+
+def format_value(value: Any) -> str:
+    """A JSON value as a table cell: numbers to 4 significant digits, null as ``n/a``."""
+    if value is None:
+        return MISSING
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def lookup(report: Mapping[str, Any], key: str) -> Any:
+    """The value at a dotted key (``"depth.d_true"``), or ``None`` when a part is absent
+    (``pose_error`` of a run without ground truth, in a comparison)."""
+    try:
+        return resolve_key(report, key)
+    except MissingKey:
+        return None
+
+
+def run_label(report: Mapping[str, Any]) -> str:
+    """How a comparison names a run's column: its law and file name."""
+    law = report["run"].get("law") or report["run"]["source"].get("mode") or "?"
+    return f"{law} {Path(report['run']['name']).name}"
+
+
+# ----------------------------------------------------------------------------- tables
+def _table(headers: Sequence[str], plain: bool) -> Any:
+    """An empty table: first column left-aligned labels, the others right-aligned values."""
+    from rich import box
+    from rich.table import Table
+
+    table = Table(
+        box=None if plain else box.SIMPLE_HEAD, pad_edge=not plain, show_edge=not plain,
+        header_style=None if plain else "bold",
+    )
+    for index, header in enumerate(headers):
+        table.add_column(header, justify="left" if index == 0 else "right", no_wrap=plain)
+    return table
+
+
+def _rows_table(rows: Iterable[tuple[str, str]], reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
+    """One row per (label, dotted key), one column per run."""
+    table = _table(["quantity", *(run_label(r) for r in reports)], plain)
+    for label, key in rows:
+        table.add_row(label, *(format_value(lookup(r, key)) for r in reports))
+    return table
+
+
+def _run_rows(reports: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
+    """The run table's rows: file, the fixed rows, then every gain any run has."""
+    gains: dict[str, None] = {}
+    for report in reports:
+        gains.update(dict.fromkeys(report["run"]["gains"]))
+    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", f"run.gains.{name}") for name in gains]
+    return [("file", "run.name"), *RUN_ROWS, *gain_rows]
+
+
+def _statistic_unit(statistic: str, signal: str) -> str:
+    return "s" if statistic == "settling_time_s" else ERROR_SIGNALS[signal][1]
+
+
+def _error_matrix(section: Mapping[str, Any], names: Sequence[str], plain: bool) -> Any:
+    """One run's errors: a row per error signal (with its unit), a column per statistic."""
+    headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
+    table = _table(["error", *headers], plain)
+    for name in names:
+        short, unit = ERROR_SIGNALS[name]
+        table.add_row(f"{short} ({unit})", *(format_value(section[name][s]) for s in STATISTICS))
+    return table
+
+
+def _error_rows(section: str, names: Sequence[str]) -> list[tuple[str, str]]:
+    """Several runs' errors: a row per (signal, statistic), e.g. ``e1 final (d*)``."""
+    return [
+        (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", f"{section}.{name}.{s}")
+        for name in names for s in STATISTICS
+    ]
+
+
+def _natural_width(table: Any, console: Any) -> int:
+    """Columns a table needs to show every cell on one line."""
+    from rich.measure import Measurement
+
+    return Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum
+
+
+def _error_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tuple[str, Any]]:
+    """The image and pose error tables: a matrix for one run when it fits the width, else rows."""
+    plain = not console.is_terminal
+    sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
+    if any("pose_error" in r for r in reports):
+        sections.append(("pose_error", POSE_ERRORS, "pose error against the taught path at the same time (ground truth)"))
+    tables = []
+    for key, names, title in sections:
+        table = _error_matrix(reports[0][key], names, plain) if len(reports) == 1 else None
+        # A terminal narrower than the matrix would squeeze its numbers into ellipses.
+        if table is None or _natural_width(table, console) > console.width:
+            table = _rows_table(_error_rows(key, names), reports, plain)
+        tables.append((title, table))
+    return tables
+
+
+def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
+    """``converged`` then one row per check; failed checks in red on a terminal."""
+    from rich.text import Text
+
+    table = _table(["check", *(run_label(r) for r in reports)], plain)
+
+    def styled(text: str, good: bool) -> Text:
+        return Text(text, style="green" if good else "red")
+
+    table.add_row("converged", *(styled(format_value(r["verdict"]["converged"]), r["verdict"]["converged"]) for r in reports))
+    depth = max(len(r["verdict"]["reasons"]) for r in reports)
+    for index in range(depth):
+        cells = [r["verdict"]["reasons"][index] if index < len(r["verdict"]["reasons"]) else "" for r in reports]
+        table.add_row(f"check {index + 1}", *(styled(c, not c.startswith("fail")) for c in cells))
+    return table
+
+
+def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tuple[str, Any]]:
+    """Every table of the report with its title, in print order.
+
+    Parameters
+    ----------
+    reports : list of dict
+        Reports from :func:`hbvs_cli.tools.report_data.build_report`, one per run.
+    console : rich.console.Console
+        Where they will be printed: plain text (no box characters) unless it is a
+        terminal, whose width decides the error tables' layout.
+    """
+    plain = not console.is_terminal
+    return [
+        ("run", _rows_table(_run_rows(reports), reports, plain)),
+        *_error_tables(reports, console),
+        ("Lyapunov function (36), depth, commands, target, condition (35)", _rows_table(METRIC_ROWS, reports, plain)),
+        ("verdict (convergence rule: docs/report.md)", _verdict_table(reports, plain)),
+    ]
+
+
+def report_console(stream: TextIO) -> Any:
+    """A rich console on ``stream``: colour on a terminal; else no colour and never wrapped."""
+    from rich.console import Console
+
+    console = Console(file=stream, highlight=False, markup=False, emoji=False)
+    if console.is_terminal:
+        return console
+    return Console(file=stream, highlight=False, markup=False, emoji=False, color_system=None, width=PLAIN_WIDTH)
+
+
+def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) -> None:
+    """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
+    from rich.text import Text
+
+    console = report_console(stream)
+    plain = not console.is_terminal
+    # Titles are lines of their own: a rich table title wraps to the table's width.
+    for index, (title, table) in enumerate(report_tables(reports, console)):
+        if index:
+            console.print()
+        console.print(Text(title, style="" if plain else "bold cyan"))
+        console.print(table)
