@@ -80,3 +80,78 @@ def run_hbvs(*args: str, input: bytes | None = None, check: bool = False, timeou
         timeout=timeout,
         env=full_env,
     )
+
+
+# --------------------------------------------------------------------------- pipelines
+def quiet_console():
+    from hbvs_cli.stages.console import Console
+
+    return Console(quiet=True)
+
+
+def make_teach(output, **options):
+    """A teach recording (the default simulated scenario unless options say otherwise)."""
+    from hbvs_cli.stages.teach import TeachOptions, run_teach
+
+    run_teach(TeachOptions(output=str(output), **options), quiet_console())
+    return output
+
+
+def make_fit(teach_path, fit_path, **options):
+    from hbvs_cli.stages.fit import FitOptions, run_fit
+
+    return run_fit(FitOptions(input=str(teach_path), output=str(fit_path), **options), quiet_console())
+
+
+def make_run(fit_path, run_path, **options):
+    from hbvs_cli.stages.repeat import RepeatOptions, run_repeat
+
+    return run_repeat(RepeatOptions(input=str(fit_path), output=str(run_path), **options), quiet_console())
+
+
+def ground_truth_trajectory(model):
+    """The exact desired trajectory of a simulated teach (for comparisons with the fit)."""
+    from hbvs_cli.core.path import CommandProfile
+    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+
+    path = model.taught_path
+    interval = float(np.median(np.diff(path.t)))
+    profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
+    _, _, d_star = model.world.reference_geometry(path.reference_pose)
+    return TaughtPathTrajectory(profile, path.poses[0], path.reference_pose, d_star), d_star
+
+
+def fit_errors(model):
+    """RMS errors of a fitted trajectory against the truth, at the taught frame times."""
+    truth, d_star = ground_truth_trajectory(model)
+    t = model.taught_path.t
+    t = t[(t >= model.trajectory.t_start) & (t <= model.trajectory.t_end)]
+    fitted, exact = model.trajectory.evaluate(t), truth.evaluate(t - model.taught_path.t[0])
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    return {
+        "theta_deg": float(np.degrees(rms(fitted.theta_d - exact.theta_d))),
+        "x_hd1": rms(fitted.x_hd1 - exact.x_hd1),
+        "x_hd2": rms(fitted.x_hd2 - exact.x_hd2),
+        "x_hd1_dot_rel": rms(fitted.x_hd1_dot - exact.x_hd1_dot) / rms(exact.x_hd1_dot),
+        "d_star": d_star,
+    }
+
+
+@pytest.fixture(scope="session")
+def pipeline_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("pipeline")
+
+
+@pytest.fixture(scope="session")
+def default_teach(pipeline_dir):
+    """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz."""
+    return make_teach(pipeline_dir / "teach.mcap")
+
+
+@pytest.fixture(scope="session")
+def default_fit(default_teach, pipeline_dir):
+    from hbvs_cli.io.fit_file import read_fit_file
+
+    path = pipeline_dir / "fit.mcap"
+    make_fit(default_teach, path)
+    return path, read_fit_file(path).model

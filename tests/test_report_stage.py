@@ -1,0 +1,338 @@
+"""``hbvs report`` on real runs of ``hbvs repeat``: JSON, table, thresholds, plot, TUM (issue: report)."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hbvs_cli.core.metrics import STATISTICS
+from hbvs_cli.errors import TargetLostError, UsageError
+from hbvs_cli.io.run_file import read_run
+from hbvs_cli.stages.console import Console
+from hbvs_cli.tools.report_data import REPORT_KEYS, build_report
+
+from conftest import run_hbvs
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, Path]:
+    """An 8 s taught s-curve, its fit, and four repeats: both laws, a replay, a stopped run."""
+    from hbvs_cli.stages.fit import FitOptions, run_fit
+    from hbvs_cli.stages.repeat import RepeatOptions, run_repeat
+    from hbvs_cli.stages.teach import TeachOptions, run_teach
+
+    tmp = tmp_path_factory.mktemp("report")
+    quiet = Console(quiet=True)
+    paths = {name: tmp / f"{name}.mcap" for name in ("teach", "fit", "run", "paper", "replay", "stopped")}
+    run_teach(TeachOptions(output=str(paths["teach"]), duration=8.0), quiet)
+    run_fit(FitOptions(input=str(paths["teach"]), output=str(paths["fit"])), quiet)
+    fit = str(paths["fit"])
+    run_repeat(RepeatOptions(input=fit, output=str(paths["run"]), sim=True, perception="images"), quiet)
+    run_repeat(RepeatOptions(input=fit, output=str(paths["paper"]), sim=True, perception="images", law="paper"), quiet)
+    run_repeat(RepeatOptions(input=fit, output=str(paths["replay"]), replay=paths["teach"]), quiet)
+    with pytest.raises(TargetLostError):
+        run_repeat(RepeatOptions(input=fit, output=str(paths["stopped"]), sim=True, perception="images",
+                                 occlude=["1:4"], lost_timeout=0.5), quiet)
+    return paths
+
+
+def report_json(*args, input: bytes | None = None) -> dict:
+    result = run_hbvs("report", *map(str, args), "--json", input=input)
+    assert result.returncode == 0, result.stderr.decode()
+    return json.loads(result.stdout)
+
+
+def parse_tables(text: str) -> dict[str, list[list[str]]]:
+    """Plain-text tables: title line, header line, rows; cells split on 2+ spaces."""
+    tables: dict[str, list[list[str]]] = {}
+    for block in text.strip().split("\n\n"):
+        title, *lines = block.splitlines()
+        tables[title] = [re.split(r"\s{2,}", line.strip()) for line in lines]
+    return tables
+
+
+def as_number(cell: str) -> float | None:
+    return None if cell == "n/a" else float(cell)
+
+
+def close_to_shown(shown: float | None, value: float | None) -> bool:
+    """A cell (4 significant digits) agrees with the JSON value."""
+    if shown is None or value is None:
+        return shown is None and value is None
+    return math.isclose(shown, value, rel_tol=6e-4, abs_tol=1e-300)
+
+
+# ----------------------------------------------------------------------------- JSON
+def test_json_has_the_documented_structure(runs):
+    report = report_json(runs["run"])
+    assert tuple(report) == REPORT_KEYS
+    assert set(report["run"]) == {"name", "duration_s", "steps", "rate_hz", "law", "gains", "source", "truncated"}
+    assert report["run"]["law"] == "lateral-gain" and report["run"]["source"] == {"mode": "sim", "fit_file": str(runs["fit"])}
+    assert report["run"]["rate_hz"] == pytest.approx(30.0, rel=1e-6)
+    assert report["run"]["duration_s"] == pytest.approx((report["run"]["steps"] - 1) / 30.0, rel=1e-6)
+    assert set(report["run"]["gains"]) == {"k_v", "k_w", "gamma", "k_2"}
+    for section, names in (("errors", ("e1", "e2", "ebar2", "e3")), ("pose_error", ("position_m", "heading_deg"))):
+        assert tuple(report[section]) == names
+        for name in names:
+            assert tuple(report[section][name]) == STATISTICS
+    assert set(report["lyapunov"]) == {"initial", "final", "ratio", "increase_fraction"}
+    assert set(report["depth"]) == {"dhat_initial", "dhat_final", "d_true", "relative_error"}
+    assert set(report["commands"]) == {"v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", "saturated_fraction"}
+    assert set(report["target"]) == {"lost_frames", "lost_fraction", "longest_loss_s"}
+    assert set(report["condition35"]) == {"min_abs_xhd1_dot", "fit_min_abs_xhd1_dot"}
+    assert set(report["verdict"]) == {"converged", "reasons"}
+
+
+def test_json_values_agree_with_the_run(runs):
+    run = read_run(runs["run"])
+    report = report_json(runs["run"])
+    # The simulated start offset (repeat's default) is the initial pose error.
+    from hbvs_cli.stages.options import parse_offset
+    from hbvs_cli.stages.repeat import RepeatOptions
+
+    dx, dy, dtheta = parse_offset(RepeatOptions.offset)
+    assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), abs=1e-9)
+    assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), abs=1e-9)
+    assert report["depth"]["d_true"] == run.info["d_true"]
+    assert report["depth"]["dhat_initial"] == pytest.approx(run.info["dhat0"])
+    assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"])
+    e3 = np.degrees(run.state["e3"])
+    assert report["errors"]["e3"]["max"] == pytest.approx(np.nanmax(e3))
+    assert report["errors"]["e1"]["rmse"] == pytest.approx(np.sqrt(np.nanmean(run.state["e1"] ** 2)))
+    assert report["commands"]["v_peak_mps"] == pytest.approx(np.max(np.abs(run.state["v_c"])))
+    assert report["target"]["lost_frames"] == int(run.lost.sum())
+    assert report["condition35"]["fit_min_abs_xhd1_dot"] == run.info["condition35"]["min_abs_xhd1_dot"]
+    assert report["lyapunov"]["initial"] > report["lyapunov"]["final"] > 0
+    assert report["verdict"]["reasons"][0].startswith("pass: run finished")
+
+
+def test_replay_has_no_pose_error_no_V_and_never_converges(runs):
+    report = report_json(runs["replay"])
+    assert "pose_error" not in report
+    assert report["lyapunov"] == {"initial": None, "final": None, "ratio": None, "increase_fraction": None}
+    assert report["run"]["source"]["mode"] == "replay"
+    assert report["verdict"]["converged"] is False
+    assert report["verdict"]["reasons"][0].startswith("fail: open-loop replay")
+
+
+def test_a_run_stopped_for_a_lost_target_did_not_converge(runs):
+    report = report_json(runs["stopped"])
+    assert report["verdict"]["converged"] is False
+    assert any(r.startswith("fail: run stopped at t =") for r in report["verdict"]["reasons"])
+    assert report["target"]["longest_loss_s"] > 0.5
+
+
+# ----------------------------------------------------------------------------- table
+def test_plain_table_matches_the_json(runs):
+    result = run_hbvs("report", str(runs["run"]))
+    assert result.returncode == 0 and result.stderr == b""
+    text = result.stdout.decode()
+    assert "\x1b[" not in text and not set(text) & set("─━│┃┏┓└┘")
+    report = report_json(runs["run"])
+    tables = parse_tables(text)
+    errors = next(rows for title, rows in tables.items() if title.startswith("image errors"))
+    pose = next(rows for title, rows in tables.items() if title.startswith("pose error"))
+    assert errors[0] == ["error", *STATISTICS[:-1], "settling (s)"]
+    checked = 0
+    for rows, section, names in ((errors, "errors", ("e1", "e2", "ebar2", "e3")), (pose, "pose_error", ("position_m", "heading_deg"))):
+        labels = [row[0] for row in rows[1:]]
+        assert labels == {"errors": ["e1 (d*)", "e2 (d*)", "ebar2 (d*)", "e3 (deg)"], "pose_error": ["position (m)", "heading (deg)"]}[section]
+        for row, name in zip(rows[1:], names):
+            for cell, statistic in zip(row[1:], STATISTICS):
+                assert close_to_shown(as_number(cell), report[section][name][statistic]), (name, statistic, cell)
+                checked += 1
+    assert checked == 6 * 9
+    metrics = {row[0]: row[1] for row in next(rows for title, rows in tables.items() if title.startswith("Lyapunov"))[1:]}
+    for label, (section, key) in {
+        "V final / V(0)": ("lyapunov", "ratio"), "dhat final (m)": ("depth", "dhat_final"),
+        "v peak (m/s)": ("commands", "v_peak_mps"), "w rms (rad/s)": ("commands", "w_rms_radps"),
+        "longest loss (s)": ("target", "longest_loss_s"), "min |x_hd1_dot| run (1/s)": ("condition35", "min_abs_xhd1_dot"),
+    }.items():
+        assert close_to_shown(as_number(metrics[label]), report[section][key]), label
+    verdict = {row[0]: row[1] for row in next(rows for title, rows in tables.items() if title.startswith("verdict"))[1:]}
+    assert verdict["converged"] == ("yes" if report["verdict"]["converged"] else "no")
+    assert [verdict[f"check {i + 1}"] for i in range(len(report["verdict"]["reasons"]))] == report["verdict"]["reasons"]
+
+
+def test_comparison_prints_both_runs_side_by_side(runs):
+    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]))
+    assert result.returncode == 0
+    tables = parse_tables(result.stdout.decode())
+    assert tables["run"][0] == ["quantity", "lateral-gain run.mcap", "paper paper.mcap"]
+    both = report_json(runs["run"], runs["paper"])
+    assert list(both) == ["runs"] and [r["run"]["law"] for r in both["runs"]] == ["lateral-gain", "paper"]
+    errors = {row[0]: row[1:] for row in next(rows for title, rows in tables.items() if title.startswith("image errors"))}
+    for label, (name, statistic) in {"e1 final (d*)": ("e1", "final"), "e3 rmse (deg)": ("e3", "rmse"),
+                                      "ebar2 max (d*)": ("ebar2", "max")}.items():
+        for cell, report in zip(errors[label], both["runs"]):
+            assert close_to_shown(as_number(cell), report["errors"][name][statistic])
+    gains = {row[0]: row[1:] for row in tables["run"]}
+    assert gains["gain k_2 (-)"] == ["400", "1"]
+
+
+# ----------------------------------------------------------------------------- thresholds
+def test_fail_above_passes_fails_and_rejects_bad_keys(runs):
+    value = report_json(runs["run"])["pose_error"]["position_m"]["final"]
+    key = "pose_error.position_m.final"
+    above = run_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 1.01}")
+    assert above.returncode == 0 and above.stderr == b""
+    json.loads(above.stdout)
+    below = run_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 0.99}")
+    assert below.returncode == 1
+    json.loads(below.stdout)                                   # the report is still printed
+    lines = below.stderr.decode().strip().splitlines()
+    assert len(lines) == 1 and key in lines[0] and f"{value:.6g}" in lines[0] and f"{value * 0.99:g}" in lines[0]
+    for bad, message in (
+        ("pose_error.position_m.fnal=1", "no key 'fnal'"),
+        ("errors.e1=1", "names a group"),
+        ("errors.e1.final", "NAME=VALUE"),
+        ("errors.e1.final=abc", "NAME=VALUE"),
+    ):
+        result = run_hbvs("report", str(runs["run"]), "--fail-above", bad)
+        assert result.returncode == 2, bad
+        assert result.stdout == b""                            # checked before printing
+        stderr = result.stderr.decode().strip().splitlines()
+        assert len(stderr) == 1 and message in stderr[0] and stderr[0].startswith("hbvs: error:")
+
+
+def test_fail_above_on_null_or_absent_values_is_a_usage_error(runs):
+    null = run_hbvs("report", str(runs["replay"]), "--fail-above", "lyapunov.final=1")
+    assert null.returncode == 2 and b"null" in null.stderr
+    absent = run_hbvs("report", str(runs["replay"]), "--fail-above", "pose_error.position_m.final=1")
+    assert absent.returncode == 2 and b"no key 'pose_error'" in absent.stderr
+
+
+def test_fail_above_applies_to_every_run(runs):
+    reports = report_json(runs["run"], runs["paper"])["runs"]
+    finals = [r["errors"]["e3"]["final"] for r in reports]
+    bound = 0.5 * (min(finals) + max(finals))
+    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--fail-above", f"errors.e3.final={bound}")
+    assert result.returncode == 1
+    assert len(result.stderr.decode().strip().splitlines()) == 1
+
+
+def test_tolerance_option(runs):
+    loose = report_json(runs["run"], "--tolerance", "position_m=10", "--tolerance", "heading_deg=90")
+    assert loose["pose_error"]["position_m"]["settling_time_s"] is not None
+    assert any(r.startswith("pass: final position error") for r in loose["verdict"]["reasons"])
+    for bad in ("position=1", "e1=0", "e1"):
+        result = run_hbvs("report", str(runs["run"]), "--tolerance", bad)
+        assert result.returncode == 2 and result.stdout == b"", bad
+
+
+# ----------------------------------------------------------------------------- plot
+def png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
+    import matplotlib.image
+
+    path = tmp_path / "figure.png"
+    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--json", "--plot", str(path))
+    assert result.returncode == 0, result.stderr.decode()
+    json.loads(result.stdout)
+    assert png_size(path) == (1200, 1000)
+    image = matplotlib.image.imread(path)
+    assert image.shape[:2] == (1000, 1200)
+    assert float(np.std(image[..., :3])) > 0.05                # not a blank page
+
+
+def test_figure_axes_are_labelled_with_units(runs):
+    from hbvs_cli.tools.plots import plot_runs
+
+    loaded = [read_run(runs["run"]), read_run(runs["paper"])]
+    figure = plot_runs(loaded, [build_report(run) for run in loaded])
+    assert tuple(figure.get_size_inches()) == (12.0, 10.0) and figure.dpi == 100
+    labels = set()
+    for ax in figure.axes:
+        assert ax.get_lines(), ax.get_title()
+        for label in (ax.get_xlabel(), ax.get_ylabel()):
+            assert re.search(r"\(.+\)", label), (ax.get_title(), label)
+            labels.add(label)
+    assert {"time t (s)", "error (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)", "x (m)", "y (m)",
+            "position error (cm)"} <= labels
+    assert figure.axes[5].get_yscale() == "log"
+    assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper paper.mcap")
+
+
+def test_replay_figure_says_what_is_missing(runs):
+    from hbvs_cli.tools.plots import plot_runs
+
+    run = read_run(runs["replay"])
+    figure = plot_runs([run], [build_report(run)])
+    texts = {i: " ".join(t.get_text() for t in ax.texts) for i, ax in enumerate(figure.axes)}
+    assert "V unknown" in texts[5] and "no ground-truth poses" in texts[6] and "no ground-truth poses" in texts[7]
+    assert all(figure.axes[i].get_lines() for i in range(5))
+
+
+# ----------------------------------------------------------------------------- TUM
+def test_export_tum_parses_back_to_the_poses(runs, tmp_path):
+    result = run_hbvs("report", str(runs["run"]), "--json", "--export-tum", str(tmp_path / "tum"))
+    assert result.returncode == 0, result.stderr.decode()
+    run = read_run(runs["run"])
+    for suffix, poses in (("taught", run.desired_pose), ("repeated", run.true_pose)):
+        data = np.loadtxt(tmp_path / "tum" / f"run.{suffix}.tum", comments="#")
+        assert data.shape == (run.steps, 8)
+        np.testing.assert_allclose(data[:, 0], run.state["t"], atol=1e-9)
+        np.testing.assert_allclose(data[:, 1:3], poses[:, :2], atol=1e-9)
+        assert np.all(data[:, 3] == data[0, 3]) and data[0, 3] > 0     # the camera height
+        np.testing.assert_allclose(np.linalg.norm(data[:, 4:], axis=1), 1.0, atol=1e-8)
+        np.testing.assert_allclose(data[:, 4:6], 0.0)
+        yaw = 2.0 * np.arctan2(data[:, 6], data[:, 7])
+        np.testing.assert_allclose(np.angle(np.exp(1j * (yaw - poses[:, 2]))), 0.0, atol=1e-8)
+
+
+def test_export_tum_needs_ground_truth(runs, tmp_path):
+    result = run_hbvs("report", str(runs["replay"]), "--export-tum", str(tmp_path / "tum"))
+    assert result.returncode == 2 and b"ground-truth" in result.stderr and result.stdout == b""
+    assert not (tmp_path / "tum").exists()
+
+
+# ----------------------------------------------------------------------------- input
+def test_bad_input_exits_3_with_one_line(runs, tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    for path, message in ((runs["teach"], b"'teach' file"), (junk, b"not an MCAP file"), (tmp_path / "missing.mcap", b"no such file")):
+        result = run_hbvs("report", str(path))
+        assert result.returncode == 3, path
+        assert result.stdout == b""
+        lines = result.stderr.decode().strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("hbvs: error:") and message.decode() in lines[0]
+
+
+def test_stdin_is_read_once(runs, tmp_path):
+    data = runs["run"].read_bytes()
+    from_stdin = report_json("-", input=data)
+    from_file = report_json(runs["run"])
+    assert from_stdin["run"]["name"] == "stdin"
+    assert from_stdin["errors"] == from_file["errors"] and from_stdin["pose_error"] == from_file["pose_error"]
+    twice = run_hbvs("report", "-", "-", input=data)
+    assert twice.returncode == 2 and b"only once" in twice.stderr
+    # With --export-tum stdin is kept in memory, to read the camera height from it too.
+    exported = run_hbvs("report", "-", "--export-tum", str(tmp_path), input=data)
+    assert exported.returncode == 0, exported.stderr.decode()
+    assert np.loadtxt(tmp_path / "stdin.repeated.tum").shape == (from_file["run"]["steps"], 8)
+
+
+def test_run_report_in_process(runs, capsys):
+    from hbvs_cli.stages.report import ReportOptions, run_report
+
+    stderr = io.StringIO()
+    code = run_report(ReportOptions(runs=[str(runs["paper"])], json_output=True, fail_above=["commands.v_peak_mps=100"]),
+                      Console(stream=stderr))
+    assert code == 0 and stderr.getvalue() == ""
+    assert json.loads(capsys.readouterr().out)["run"]["law"] == "paper"
+    with pytest.raises(UsageError, match="at least one run"):
+        run_report(ReportOptions(runs=[]), Console(stream=stderr))

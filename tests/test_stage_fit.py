@@ -1,0 +1,262 @@
+"""``hbvs fit``: desired signals against the truth, gaps, condition (35), bad input."""
+
+from __future__ import annotations
+
+import io
+
+import cv2
+import numpy as np
+import pytest
+
+from hbvs_cli.errors import InputError, RecordingError, UsageError
+from hbvs_cli.io.fit_file import read_fit_file
+
+from conftest import fit_errors, make_fit, make_teach, quiet_console, run_hbvs
+
+#: Measured on the default scenario (3 dots, 4 m, 640x480, f = 500 px, 0.02 px detection
+#: noise): theta_d 0.0057 deg, x_hd1 1.8e-5, x_hd2 9.6e-5 RMS; x_hd1_dot within 0.17 %;
+#: d* from the taught commands within 0.1 %. Bounds: the issue's aims.
+DOTS_BOUNDS = {"theta_deg": 0.05, "x_hd1": 1e-3, "x_hd2": 1e-3, "x_hd1_dot_rel": 0.02}
+
+
+def test_dots_fit_agrees_with_the_truth(default_fit, capsys):
+    _, model = default_fit
+    errors = fit_errors(model)
+    with capsys.disabled():
+        print(f"\nfit (dots, default scenario): {errors}")
+    for key, bound in DOTS_BOUNDS.items():
+        assert errors[key] < bound, (key, errors[key])
+    # d* from the taught commands, (25): within 2 %.
+    assert model.dhat0_source == "commands"
+    assert abs(model.dhat0 - errors["d_star"]) < 0.02 * errors["d_star"]
+    # The plane normal of a vertical wall facing F*.
+    assert np.degrees(np.arccos(min(1.0, abs(model.normal @ [1.0, 0.0, 0.0])))) < 0.5
+    assert model.frames["used"] == 600 and model.frames["lost"] == 0
+
+
+#: Measured (the default path): ArUco theta 0.091 deg, x_hd 3.8e-4 / 1.5e-3; texture theta
+#: 0.034 deg, x_hd 5.9e-5 / 6.1e-4. A 0.6 m marker 4 m away is less well conditioned than
+#: the 2 m dot poster (yaw and lateral shift look alike: sensitivity ~ (distance / width)^2).
+@pytest.mark.parametrize("kind, bounds", [
+    ("aruco", {"theta_deg": 0.15, "x_hd1": 1e-3, "x_hd2": 2.5e-3, "x_hd1_dot_rel": 0.02}),
+    ("texture", {"theta_deg": 0.06, "x_hd1": 1e-3, "x_hd2": 1e-3, "x_hd1_dot_rel": 0.02}),
+])
+def test_other_targets_agree_with_the_truth(tmp_path, kind, bounds, capsys):
+    teach = make_teach(tmp_path / "teach.mcap", target=kind)
+    make_fit(teach, tmp_path / "fit.mcap")
+    model = read_fit_file(tmp_path / "fit.mcap").model
+    errors = fit_errors(model)
+    with capsys.disabled():
+        print(f"\nfit ({kind}): {errors}")
+    assert model.target_kind == kind
+    for key, bound in bounds.items():
+        assert errors[key] < bound, (key, errors[key])
+    assert abs(model.dhat0 - errors["d_star"]) < 0.02 * errors["d_star"]
+
+
+def test_fit_is_deterministic_and_streams_from_stdin(default_teach, default_fit, tmp_path):
+    from hbvs_cli.io.mcap_io import McapStream
+
+    again = tmp_path / "again.mcap"
+    make_fit(default_teach, again)
+    assert again.read_bytes() == default_fit[0].read_bytes()
+    result = run_hbvs("fit", "-", "-o", "-", "-q", input=default_teach.read_bytes())
+    assert result.returncode == 0, result.stderr
+    # The same model from a pipe (only the recorded input name differs: "-").
+    model_of = lambda source: [m.data for m in McapStream(source, topics={"/fit/model"})]  # noqa: E731
+    assert model_of(io.BytesIO(result.stdout)) == model_of(again)
+
+
+def test_the_summary_table_goes_to_stderr(default_teach, tmp_path):
+    result = run_hbvs("fit", str(default_teach), "-o", str(tmp_path / "f.mcap"))
+    text = result.stderr.decode()
+    assert result.returncode == 0 and result.stdout == b""
+    for words in ("frames used / total", "600 / 600", "d* from taught commands", "condition (35)", "lambda"):
+        assert words in text
+
+
+def copy_teach(source, target, image=lambda t, message: message):
+    """Copy a teach file through ``image(t, json_bytes) -> json_bytes or None`` (None drops it)."""
+    from hbvs_cli.io.mcap_io import McapStream, McapWriter, read_metadata
+
+    stream = McapStream(source)
+    with open(target, "wb") as handle:
+        writer = McapWriter(handle)
+        first = True
+        for message in stream:
+            if first:
+                for name in stream.metadata:
+                    writer.metadata(name, read_metadata(stream, name))
+                first = False
+            data = message.data
+            if message.topic == "/camera/image":
+                data = image(message.log_time * 1e-9, data)
+                if data is None:
+                    continue
+            writer.write_encoded(message.topic, message.schema_name, message.log_time, data)
+        writer.finish()
+
+
+def strip_frames(source, target, drop):
+    """Copy a teach file, leaving out the images of frames where drop(t) is True."""
+    copy_teach(source, target, lambda t, data: None if drop(t) else data)
+
+
+def _cover_target(source, target, covered):
+    """Copy a teach file, painting the target out of the images at times where covered(t)."""
+    import base64
+    import json
+
+    from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image
+
+    def paint(t, data):
+        if not covered(t):
+            return data
+        payload = json.loads(data)
+        image = decode_image(base64.b64decode(payload["data"]))
+        image[:260, :] = 150
+        return json.dumps(compressed_image_message(payload["timestamp"], payload["frame_id"], encode_image(image), "png")).encode()
+
+    copy_teach(source, target, paint)
+
+
+def test_a_stretch_without_the_target_is_bridged_and_reported(default_teach, tmp_path):
+    gappy = tmp_path / "gappy.mcap"
+    strip_frames(default_teach, gappy, lambda t: 8.0 <= t < 8.6)  # 18 frames missing
+    summary = make_fit(gappy, tmp_path / "fit.mcap")
+    model = summary.model
+    assert model.frames["total"] == 582 and model.frames["used"] == 582
+    # Detector blackout instead: frames present but the target covered.
+    blank = tmp_path / "blank.mcap"
+    _cover_target(default_teach, blank, lambda t: 12.0 <= t < 12.5)
+    model = make_fit(blank, tmp_path / "fit2.mcap").model
+    assert model.frames["lost"] == 15 and model.frames["longest_gap_s"] == pytest.approx(16 / 30, abs=1e-6)
+    errors = fit_errors(model)
+    assert errors["theta_deg"] < 0.1 and errors["x_hd2"] < 2e-3
+
+
+def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
+    csv = tmp_path / "stop.csv"
+    rows = ["t,v,w"] + [f"{k / 10:.1f},{0.1 if k < 50 else 0.0},0.0" for k in range(100)]
+    csv.write_text("\n".join(rows) + "\n")
+    teach = make_teach(tmp_path / "teach.mcap", path=str(csv))
+    result = run_hbvs("fit", str(teach), "-o", str(tmp_path / "fit.mcap"))
+    assert result.returncode == 0
+    warning = [line for line in result.stderr.decode().splitlines() if "warning" in line]
+    assert any("condition (35)" in line and "stops" in line for line in warning), result.stderr.decode()
+    model = read_fit_file(tmp_path / "fit.mcap").model
+    assert model.condition35["stopped_fraction"] > 0.3
+    assert model.condition35["min_abs_xhd1_dot"] < 0.002
+
+
+def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
+    """Teach from a video of the simulated drive (the truth is known), then fit."""
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.io.calibration import save_calibration_ros
+    from hbvs_cli.stages.teach import make_renderer
+
+    world = default_world()
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(world, 2.0, 0.0, 1.0)
+    rng = np.random.default_rng(1)
+    times = np.arange(600) / 30.0
+    video = tmp_path / "drive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, (640, 480), isColor=False)
+    assert writer.isOpened()
+    for t in times:
+        writer.write(renderer.render(profile.poses_at(t, start), rng))
+    writer.release()
+    calibration = tmp_path / "camera.yaml"
+    save_calibration_ros(DEFAULT_CAMERA, calibration)
+    teach = make_teach(tmp_path / "video.mcap", video=video, calibration=calibration)
+    make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
+    model = read_fit_file(tmp_path / "fit.mcap").model
+    m_ref, normal, d_star = world.reference_geometry(np.asarray(start))
+    truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
+    fitted = model.trajectory.evaluate(times)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert model.world is None and model.taught_path is None
+    assert np.degrees(rms(fitted.theta_d - truth.theta_d)) < 0.05
+    assert rms(fitted.x_hd1 - truth.x_hd1) < 1e-3 and rms(fitted.x_hd2 - truth.x_hd2) < 1e-3
+    # No commands in a video: d* from the target's metric size (--target-size).
+    assert model.dhat0_source == "target-size" and abs(model.dhat0 - d_star) < 0.02 * d_star
+
+
+def test_fit_of_a_ros2_bag_agrees_with_the_truth(tmp_path):
+    from test_stage_teach import write_bag
+
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.stages.teach import make_renderer
+
+    world = default_world()
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(world, 2.0, 0.0, 1.0)
+    rng = np.random.default_rng(2)
+    times = np.arange(600) * 0.033333333
+    write_bag(tmp_path / "bag", [renderer.render(profile.poses_at(t, start), rng) for t in times])
+    teach = make_teach(tmp_path / "bag.mcap", bag=tmp_path / "bag")
+    make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
+    model = read_fit_file(tmp_path / "fit.mcap").model
+    _, _, d_star = world.reference_geometry(np.asarray(start))
+    truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
+    fitted = model.trajectory.evaluate(times)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert np.degrees(rms(fitted.theta_d - truth.theta_d)) < 0.05
+    assert rms(fitted.x_hd1 - truth.x_hd1) < 1e-3 and rms(fitted.x_hd2 - truth.x_hd2) < 1e-3
+
+
+def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
+    not_mcap = tmp_path / "notes.txt"
+    not_mcap.write_text("not an mcap file\n")
+    truncated = tmp_path / "truncated.mcap"
+    truncated.write_bytes(default_teach.read_bytes()[:3000])
+    no_images = tmp_path / "noimages.mcap"
+    strip_frames(default_teach, no_images, lambda t: True)
+    from hbvs_cli.io.mcap_io import McapStream, McapWriter, read_metadata
+
+    no_calibration = tmp_path / "nocal.mcap"
+    stream = McapStream(default_teach, topics={"/camera/image"})
+    with open(no_calibration, "wb") as handle:
+        writer = McapWriter(handle)
+        for k, message in enumerate(stream):
+            if k == 0:
+                writer.metadata("hbvs", read_metadata(stream, "hbvs"))
+            writer.write_encoded(message.topic, message.schema_name, message.log_time, message.data)
+            if k > 20:
+                break
+        writer.finish()
+    never_found = tmp_path / "never.mcap"
+    _cover_target(default_teach, never_found, lambda t: True)
+    cases = [
+        ([str(not_mcap)], 3, "not"),
+        ([str(truncated)], 3, ""),
+        ([str(no_images)], 3, "no images"),
+        ([str(no_calibration)], 3, "calibration"),
+        ([str(never_found)], 3, "not found"),
+        ([str(default_teach), "--reference", "9999"], 2, "out of range"),
+        ([str(default_teach), "--smoothing", "lots"], 2, "smoothing"),
+        ([str(tmp_path / "missing.mcap")], 3, "no such file"),
+    ]
+    output = tmp_path / "out.mcap"
+    for args, code, words in cases:
+        result = run_hbvs("fit", *args, "-o", str(output), "-q")
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == code, (args, result.stderr)
+        assert len(lines) == 1 and lines[0].startswith("hbvs: error:") and words in lines[0], (args, lines)
+        assert not output.exists() and not (tmp_path / "out.mcap.partial").exists()
+
+
+def test_reference_last_and_index(default_teach, tmp_path):
+    last = make_fit(default_teach, tmp_path / "last.mcap", reference="last").model
+    middle = make_fit(default_teach, tmp_path / "mid.mcap", reference="300").model
+    assert last.reference_index == 599 and middle.reference_index == 300
+    # F* at the last frame is 2 m from the wall: d* follows.
+    assert abs(last.dhat0 - 2.0) < 0.04
+    for model in (last, middle):
+        errors = fit_errors(model)
+        assert errors["theta_deg"] < 0.05 and errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3

@@ -1,0 +1,290 @@
+"""``hbvs teach``: every source, the recording's contents, bad input (issue: teach)."""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import cv2
+import jsonschema
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from hbvs_cli.errors import HbvsError, InputError, UsageError
+from hbvs_cli.io.schemas import SCHEMAS, TOPICS
+from hbvs_cli.io.teach_file import TeachReader
+
+from conftest import SAMPLES, make_teach, quiet_console, run_hbvs
+
+
+def read_all(path):
+    """Every message through the official mcap reader: (topic, schema name, schema, decoded JSON)."""
+    with open(path, "rb") as handle:
+        reader = make_reader(handle)
+        out = [(c.topic, s.name, json.loads(s.data), json.loads(m.data)) for s, c, m in reader.iter_messages()]
+        metadata = {record.name: record.metadata for record in reader.iter_metadata()}
+    return out, metadata
+
+
+def test_sim_teach_records_images_truth_commands_and_world(default_teach):
+    messages, metadata = read_all(default_teach)
+    topics = {}
+    for topic, schema_name, _, _ in messages:
+        topics.setdefault(topic, set()).add(schema_name)
+    assert topics == {topic: {schema} for topic, schema in TOPICS["teach"].items()}
+    counts = {topic: sum(1 for m in messages if m[0] == topic) for topic in topics}
+    assert counts == {"/camera/image": 600, "/ground_truth/pose": 600, "/teach/cmd_vel": 600, "/camera/calibration": 1}
+    assert metadata["hbvs"]["file_kind"] == "teach"
+    world = json.loads(metadata["hbvs.world"]["world"])
+    assert world["target"]["kind"] == "dots" and len(world["target"]["points_world_m"]) == 3
+    settings = json.loads(metadata["hbvs"]["settings"])
+    assert settings["seed"] == 0 and settings["path_name"] == "s-curve"
+    # Images decode to the camera's size.
+    image_message = next(m[3] for m in messages if m[0] == "/camera/image")
+    image = cv2.imdecode(np.frombuffer(base64.b64decode(image_message["data"]), np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert image.shape == (480, 640)
+
+
+def test_every_message_validates_against_its_schema(default_teach):
+    """Each message validates against the JSON schema stored with it, and every schema
+    named foxglove.X is the Foxglove message format hbvs declares for X."""
+    messages, _ = read_all(default_teach)
+    validators = {}
+    for topic, schema_name, schema, message in messages:
+        assert schema == SCHEMAS[schema_name]
+        validator = validators.setdefault(schema_name, jsonschema.Draft202012Validator(schema))
+        validator.validate(message)
+    required = {
+        "foxglove.CompressedImage": {"timestamp", "frame_id", "data", "format"},
+        "foxglove.CameraCalibration": {"timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"},
+        "foxglove.PoseInFrame": {"timestamp", "frame_id", "pose"},
+    }
+    for name, fields in required.items():
+        assert set(SCHEMAS[name]["required"]) == fields
+
+
+def test_log_times_are_nanoseconds_at_the_frame_rate(default_teach):
+    with open(default_teach, "rb") as handle:
+        times = [m.log_time for _, c, m in make_reader(handle).iter_messages() if c.topic == "/camera/image"]
+    assert np.allclose(np.diff(times), 1e9 / 30, atol=1)
+
+
+@pytest.mark.parametrize("kind", ["aruco", "texture"])
+def test_other_target_kinds(tmp_path, kind):
+    path = make_teach(tmp_path / f"{kind}.mcap", target=kind, duration=1.0)
+    reader = TeachReader(path)
+    frames = list(reader.frames())
+    assert len(frames) == 30 and reader.world.target.kind == kind and all(f.pose is not None for f in frames)
+
+
+def test_teach_from_a_pendant_csv_and_a_calibration_file(tmp_path):
+    csv = tmp_path / "drive.csv"
+    csv.write_text("t,v,w\n0,0.1,0.0\n0.5,0.1,0.05\n1.0,0.1,0.0\n")
+    calibration = tmp_path / "camera.yaml"
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    save_calibration_ros(CameraIntrinsics(fx=420.0, fy=420.0, cx=319.5, cy=239.5, width=640, height=480), calibration)
+    path = make_teach(tmp_path / "csv.mcap", path=str(csv), calibration=calibration, fps=10.0)
+    reader = TeachReader(path)
+    frames = list(reader.frames())
+    assert len(frames) == 15  # 1.5 s: the last command is held for the median interval
+    assert reader.camera.fx == 420.0
+    assert [f.command for f in frames[:6]] == [(0.1, 0.0)] * 5 + [(0.1, 0.05)]
+    assert frames[-1].pose[0] == pytest.approx(0.1 * 1.4, abs=0.01)
+
+
+def test_same_seed_same_bytes(tmp_path):
+    a = make_teach(tmp_path / "a.mcap", duration=0.5, seed=4)
+    b = make_teach(tmp_path / "b.mcap", duration=0.5, seed=4)
+    c = make_teach(tmp_path / "c.mcap", duration=0.5, seed=5)
+    assert a.read_bytes() == b.read_bytes() != c.read_bytes()
+
+
+def rendered_frames(count: int = 12):
+    """Frames of the default scenario, rendered as a camera would record them."""
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.stages.teach import make_renderer
+
+    world = default_world()
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(world, 2.0, 0.0, 1.0)
+    rng = np.random.default_rng(0)
+    return [renderer.render(profile.poses_at(k / 30.0, start), rng) for k in range(count)]
+
+
+@pytest.fixture(scope="module")
+def calibration_file(tmp_path_factory):
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    path = tmp_path_factory.mktemp("cal") / "camera.yaml"
+    save_calibration_ros(DEFAULT_CAMERA, path)
+    return path
+
+
+def test_teach_from_video(tmp_path, calibration_file):
+    video = tmp_path / "drive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (640, 480), isColor=False)
+    for frame in rendered_frames():
+        writer.write(frame)
+    writer.release()
+    path = make_teach(tmp_path / "video.mcap", video=video, calibration=calibration_file)
+    reader = TeachReader(path)
+    frames = list(reader.frames())
+    assert len(frames) == 12 and frames[-1].t == pytest.approx(11 / 30, abs=1e-6)
+    assert reader.info["source"] == "video" and frames[0].pose is None
+
+
+def test_teach_from_an_image_folder(tmp_path, calibration_file):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, frame in enumerate(rendered_frames(11)):
+        cv2.imwrite(str(folder / f"frame{k}.png"), frame)  # frame2 must come before frame10
+    path = make_teach(tmp_path / "images.mcap", images=str(folder), calibration=calibration_file, fps=10.0)
+    frames = list(TeachReader(path).frames())
+    assert [round(f.t, 6) for f in frames] == [round(k / 10, 6) for k in range(11)]
+    original = cv2.imread(str(folder / "frame10.png"), cv2.IMREAD_GRAYSCALE)
+    stored = base64.b64decode(json.loads(frames[10].image_message)["data"])
+    assert np.array_equal(cv2.imdecode(np.frombuffer(stored, np.uint8), cv2.IMREAD_GRAYSCALE), original)
+
+
+class FakeCapture:
+    """A camera that delivers frames, then the user presses Ctrl-C."""
+
+    def __init__(self, frames, interrupt_after):
+        self.frames, self.count, self.interrupt_after = frames, 0, interrupt_after
+
+    def isOpened(self):
+        return True
+
+    def read(self):
+        if self.count == self.interrupt_after:
+            raise KeyboardInterrupt
+        frame = self.frames[self.count % len(self.frames)]
+        self.count += 1
+        return True, frame
+
+    def get(self, prop):
+        return 30.0
+
+    def set(self, *args):
+        return True
+
+    def release(self):
+        pass
+
+
+def test_live_camera_ctrl_c_leaves_a_valid_finished_recording(tmp_path, calibration_file, monkeypatch):
+    from hbvs_cli.io import sources
+    from hbvs_cli.stages import teach
+
+    frames = rendered_frames(4)
+    ticks = iter(np.arange(0, 100, 1 / 30))
+    monkeypatch.setattr(
+        teach, "_open_source",
+        lambda kind, options: sources.CameraSource(0, capture_factory=lambda index: FakeCapture(frames, 7), clock=lambda: next(ticks)),
+    )
+    path = make_teach(tmp_path / "camera.mcap", camera=0, calibration=calibration_file)
+    with open(path, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None  # finished: footer and summary written
+    assert len(list(TeachReader(path).frames())) == 7
+    assert not (tmp_path / "camera.mcap.partial").exists()
+
+
+def write_bag(directory: Path, frames, *, images=True, camera_info=True, second_topic=False):
+    """A ROS 2 bag in MCAP storage written by the independent rosbags library."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    CompressedImage = store.types["sensor_msgs/msg/CompressedImage"]
+    CameraInfo = store.types["sensor_msgs/msg/CameraInfo"]
+    RegionOfInterest = store.types["sensor_msgs/msg/RegionOfInterest"]
+    with Writer(directory, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        topics = (["/cam/image/compressed"] if images else []) + (["/other/image/compressed"] if second_topic else [])
+        image_connections = [writer.add_connection(topic, CompressedImage.__msgtype__, typestore=store) for topic in topics]
+        info_connection = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=store) if camera_info else None
+        for k, frame in enumerate(frames):
+            stamp_ns = 1_700_000_000_000_000_000 + k * 33_333_333
+            header = Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="cam")
+            data = cv2.imencode(".png", frame)[1].ravel()
+            for connection in image_connections:
+                writer.write(connection, stamp_ns, store.serialize_cdr(CompressedImage(header=header, format="png", data=data), CompressedImage.__msgtype__))
+            if info_connection is not None and k == 0:  # one CameraInfo is enough
+                K = DEFAULT_CAMERA.K.ravel()
+                info = CameraInfo(
+                    header=header, height=480, width=640, distortion_model="plumb_bob", d=np.zeros(5), k=K,
+                    r=np.eye(3).ravel(), p=np.hstack([DEFAULT_CAMERA.K, np.zeros((3, 1))]).ravel(),
+                    binning_x=0, binning_y=0, roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+                )
+                writer.write(info_connection, stamp_ns, store.serialize_cdr(info, CameraInfo.__msgtype__))
+
+
+def test_teach_from_a_ros2_bag_written_by_rosbags(tmp_path):
+    bag = tmp_path / "bag"
+    write_bag(bag, rendered_frames(9))
+    path = make_teach(tmp_path / "bag.mcap", bag=bag)  # intrinsics from the bag's CameraInfo
+    reader = TeachReader(path)
+    frames = list(reader.frames())
+    assert len(frames) == 9 and reader.camera.fx == 500.0
+    assert frames[-1].t == pytest.approx(8 * 0.033333333, abs=1e-6)
+
+
+def test_bad_input_one_line_nonzero_exit_no_output(tmp_path, calibration_file):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    one_frame = tmp_path / "one"
+    one_frame.mkdir()
+    cv2.imwrite(str(one_frame / "f0.png"), rendered_frames(1)[0])
+    bad_csv = tmp_path / "bad.csv"
+    bad_csv.write_text("time,speed\n0,1\n")
+    backwards = tmp_path / "backwards.csv"
+    backwards.write_text("t,v,w\n0,0.1,0\n1,0.1,0\n0.5,0.1,0\n")
+    garbage_calibration = tmp_path / "cal.yaml"
+    garbage_calibration.write_text("camera_matrix: [1, 2]\n")
+    no_image_bag = tmp_path / "noimage"
+    write_bag(no_image_bag, rendered_frames(2), images=False)
+    two_topic_bag = tmp_path / "twotopics"
+    write_bag(two_topic_bag, rendered_frames(2), second_topic=True)
+    cases = [
+        (["--video", str(tmp_path / "missing.avi"), "--calibration", str(calibration_file)], 3),
+        (["--images", str(empty), "--calibration", str(calibration_file)], 3),
+        (["--images", str(one_frame)], 2),  # no calibration
+        (["--bag", str(no_image_bag)], 3),
+        (["--bag", str(two_topic_bag)], 3),
+        (["--path", "zigzag"], 2),
+        (["--path", str(bad_csv)], 3),
+        (["--path", str(backwards)], 3),
+        (["--calibration", str(garbage_calibration)], 3),
+        (["--video", "x.avi", "--images", "y"], 2),
+    ]
+    output = tmp_path / "out.mcap"
+    for args, code in cases:
+        result = run_hbvs("teach", *args, "-o", str(output))
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == code, (args, result.stderr)
+        assert len(lines) == 1 and lines[0].startswith("hbvs: error:"), (args, lines)
+        assert "Traceback" not in result.stderr.decode()
+        assert not output.exists() and not (tmp_path / "out.mcap.partial").exists()
+
+
+def test_sample_recording_and_calibration_are_small_and_readable():
+    teach = SAMPLES / "teach.mcap"
+    assert teach.stat().st_size < 2 * 2**20
+    reader = TeachReader(teach)
+    frames = list(reader.frames())
+    assert len(frames) >= 30 and reader.world is not None
+    from hbvs_cli.io.calibration import load_calibration
+
+    camera = load_calibration(SAMPLES / "camera.yaml")
+    assert (camera.width, camera.height, camera.fx) == (320, 240, 250.0)
+    assert reader.camera == camera  # the sample recording was made with the sample calibration
