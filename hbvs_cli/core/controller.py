@@ -159,10 +159,11 @@ def tracking_errors(measured: Measurement, desired: DesiredState) -> TrackingErr
 
     e3 is wrapped to [-pi, pi) so that a trajectory crossing +-pi stays continuous.
     """
-    e1 = np.subtract(measured.x_h1, desired.x_hd1)
-    e2 = np.subtract(measured.x_h2, desired.x_hd2)
-    e3 = wrap_angle(np.subtract(measured.theta, desired.theta_d))
-    ebar2 = e2 - np.multiply(desired.x_hd1, e3)
+    # Plain operators: floats stay floats (the closed loop), arrays broadcast (batches).
+    e1 = measured.x_h1 - desired.x_hd1
+    e2 = measured.x_h2 - desired.x_hd2
+    e3 = wrap_angle(measured.theta - desired.theta_d)
+    ebar2 = e2 - desired.x_hd1 * e3
     return TrackingErrors(e1=e1, e2=e2, e3=e3, ebar2=ebar2)
 
 
@@ -186,9 +187,9 @@ def control_law(
     """
     err = tracking_errors(measured, desired)
     k2 = gains.k_2
-    w_c = gains.k_w * err.e3 - desired.theta_d_dot - k2 * np.multiply(desired.x_hd1_dot, err.ebar2)
-    coupling = np.multiply(measured.x_h2, w_c) - desired.x_hd1_dot
-    v_c = gains.k_v * err.e1 - k2 * err.ebar2 * w_c + np.multiply(dhat, coupling)
+    w_c = gains.k_w * err.e3 - desired.theta_d_dot - k2 * desired.x_hd1_dot * err.ebar2
+    coupling = measured.x_h2 * w_c - desired.x_hd1_dot
+    v_c = gains.k_v * err.e1 - k2 * err.ebar2 * w_c + dhat * coupling
     dhat_dot = gains.gamma * err.e1 * coupling
     return ControlOutput(v_c=v_c, w_c=w_c, dhat_dot=dhat_dot, errors=err)
 
@@ -199,12 +200,12 @@ def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: Cont
     ``V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma) (d* - dhat)^2``.
     Needs the true depth d* (m), so it is known only in simulation.
     """
-    d_tilde = d_star - np.asarray(dhat, dtype=float)
+    d_tilde = d_star - dhat
     value = (
-        0.5 * d_star * np.square(errors.e1)
-        + 0.5 * gains.k_2 * np.square(errors.ebar2)
-        + 0.5 * np.square(errors.e3)
-        + 0.5 / gains.gamma * np.square(d_tilde)
+        0.5 * d_star * errors.e1 * errors.e1
+        + 0.5 * gains.k_2 * errors.ebar2 * errors.ebar2
+        + 0.5 * errors.e3 * errors.e3
+        + 0.5 / gains.gamma * d_tilde * d_tilde
     )
     return float(value) if np.ndim(value) == 0 else value
 

@@ -105,19 +105,23 @@ class PlanarPoseEstimator:
         pixels = np.asarray(pixels, dtype=float)
         if pixels.shape != (self.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
             return Observation(None, status=STATUS_MISSING, pixels=pixels if pixels.ndim == 2 else None)
-        observation = self.from_normalized(self.normalize(pixels))
-        return Observation(observation.measurement, observation.residual, observation.status, pixels)
+        if self.camera.has_distortion:
+            pixels = undistort_pixels(self.camera, pixels)
+        camera = self.camera
+        # (11) in plain floats: one frame of a few points is faster without numpy.
+        m_y = [(camera.cx - u) / camera.fx for u in pixels[:, 0].tolist()]
+        m_z = [(camera.cy - v) / camera.fy for v in pixels[:, 1].tolist()]
+        return self._observe(self.solver.solve_one(m_y, m_z), pixels)
 
     def from_normalized(self, m: ArrayLike) -> Observation:
         """Estimate from normalised points of shape (N, 3)."""
-        motion = self.solve(m)
-        residual = float(motion.residual)
-        if not bool(motion.valid):
-            return Observation(None, residual, STATUS_INVALID)
-        if residual > self.residual_gate:
-            return Observation(None, residual, STATUS_OUTLIER)
-        return Observation(
-            Measurement(theta=float(motion.theta), x_h1=float(motion.x_h[0]), x_h2=float(motion.x_h[1])),
-            residual,
-            STATUS_OK,
-        )
+        m = np.asarray(m, dtype=float)
+        return self._observe(self.solver.solve_one((m[:, 1] / m[:, 0]).tolist(), (m[:, 2] / m[:, 0]).tolist()), None)
+
+    def _observe(self, solution: tuple[float, float, float, float] | None, pixels: NDArray[np.float64] | None) -> Observation:
+        if solution is None:
+            return Observation(None, status=STATUS_INVALID, pixels=pixels)
+        theta, x_h1, x_h2, residual = solution
+        if not residual <= self.residual_gate:
+            return Observation(None, residual, STATUS_OUTLIER, pixels)
+        return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, STATUS_OK, pixels)

@@ -18,6 +18,8 @@ Conventions (equations.md, "Frames and conventions"):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -59,6 +61,8 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     angle : array_like
         Radians.
     """
+    if isinstance(angle, float):  # the closed loop's scalar case, without numpy's overhead
+        return (angle + math.pi) % (2.0 * math.pi) - math.pi
     wrapped = (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
     return float(wrapped) if wrapped.ndim == 0 else wrapped
 

@@ -148,15 +148,20 @@ def run_closed_loop(
     if latency_steps < 0:
         raise UsageError("--latency must be zero or a positive number of frames")
     limits = limits or ActuatorLimits()
-    pose = np.asarray(start_pose, dtype=float).copy()
+    pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
     steps = int(round(duration / dt))
+    # The control instants are known in advance: evaluate the desired trajectory at all of
+    # them at once (vectorised) instead of once per step.
+    times = np.arange(steps) * dt
+    schedule = trajectory.evaluate(times)
+    columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
     pending: deque[Observation] = deque()
     previous = (0.0, 0.0)
     for k in range(steps):
         t = k * dt
-        pending.append(sense(pose, t))
+        pending.append(sense(np.array(pose), t))
         observation = pending.popleft() if len(pending) > latency_steps else _NOT_YET
-        desired = trajectory.evaluate(t)
+        desired = DesiredState(*(column[k] for column in columns))
         dhat = controller.dhat
         output = None
         if observation.status == STATUS_OK:
@@ -168,8 +173,11 @@ def run_closed_loop(
             v_cmd, w_cmd = controller.hold()
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
         yield StepRecord(
-            t=t, pose=pose.copy(), observation=observation, desired=desired, output=output,
+            t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
             v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat,
         )
         previous = (v_c, w_c)
         pose = integrate_unicycle(pose, v_c, w_c, dt)
+
+
+_DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")

@@ -14,6 +14,8 @@ with ``sinc(a) = sin(a) / a``, which is exact and stays accurate as w -> 0.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -47,16 +49,25 @@ def advance_unicycle(pose: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike)
     )
 
 
-def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> NDArray[np.float64]:
-    """Pose after holding ``(v, w)`` for ``dt`` seconds (one step of :func:`advance_unicycle`).
+def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> tuple[float, float, float]:
+    """Pose after holding ``(v, w)`` for ``dt`` seconds: :func:`advance_unicycle` for one
+    pose, in plain floats (the closed loop calls it every control period).
 
     Parameters
     ----------
-    pose : array_like, shape (3,)
+    pose : sequence of 3 floats
     v, w, dt : float
         m/s, rad/s, s.
+
+    Returns
+    -------
+    (x, y, phi)
     """
-    return advance_unicycle(pose, v, w, dt)
+    x, y, phi = pose
+    half = 0.5 * w * dt
+    chord = v * dt * (math.sin(half) / half if abs(half) > 1e-12 else 1.0 - half * half / 6.0)
+    heading = phi + half
+    return x + chord * math.cos(heading), y + chord * math.sin(heading), phi + w * dt
 
 
 def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
