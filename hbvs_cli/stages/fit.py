@@ -24,6 +24,7 @@ from ..errors import GeometryError, HbvsError, InputError, RecordingError, Usage
 from .console import Console
 from .options import recorded_settings
 from .detection import DetectorSpec, TrackedDetector, choose_target_kind, texture_points_for_template
+from .frames import decoded_frames
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -104,7 +105,7 @@ class _FrameLog:
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
     from ..io.fit_file import FitModel, TaughtPath
-    from ..io.images import compressed_image_message, decode_image, image_bytes_from_message
+    from ..io.images import compressed_image_message
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.schemas import TOPICS
@@ -124,12 +125,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", None) as bar:
-            for frame in reader.frames():
+            for frame, data, image in decoded_frames(reader.frames(), reader.name):
                 camera = reader.camera
                 if camera is None:
                     raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
-                data, image_format = image_bytes_from_message(_json(frame.image_message, reader.name), reader.name)
-                image = decode_image(data, reader.name)
                 if image.shape != (camera.height, camera.width):
                     raise RecordingError(
                         f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
@@ -212,18 +211,6 @@ def _version() -> str:
     return __version__
 
 
-def _json(data: bytes, name: str) -> dict[str, Any]:
-    import json
-
-    try:
-        value = json.loads(data)
-    except (ValueError, UnicodeDecodeError):
-        raise RecordingError(f"{name}: malformed image message") from None
-    if not isinstance(value, dict):
-        raise RecordingError(f"{name}: malformed image message")
-    return value
-
-
 def _format_of(data: bytes) -> str:
     return "png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "jpeg"
 
@@ -288,7 +275,7 @@ def fit_desired_trajectory(
     outliers = int(np.sum(found & ~used))
     frames = _frame_stats(t, used, outliers, options, name)
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
-    trajectory = fit_spline_trajectory(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1], smoothing)
+    trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
     condition = feedforward_condition(trajectory, t[span])
     focal = 0.5 * (camera.fx + camera.fy)
     return {
@@ -317,6 +304,23 @@ def fit_desired_trajectory(
         },
         "span": span,
     }
+
+
+#: Samples the splines are fitted to at most: longer recordings are averaged in equal
+#: groups of consecutive frames first (30 Hz is far above a taught path's bandwidth, and
+#: the cost of generalised cross-validation grows with the sample count).
+MAX_SPLINE_SAMPLES = 3000
+
+
+def _binned(t: np.ndarray, *signals: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(t, *signals)`` averaged in groups of consecutive samples, at most MAX_SPLINE_SAMPLES."""
+    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
+    if group <= 1:
+        return (t, *signals)
+    usable = t.size // group * group
+    mean = lambda x: x[:usable].reshape(-1, group).mean(axis=1)  # noqa: E731
+    # theta_d is averaged unwrapped, so that a crossing of +-pi does not average to 0.
+    return (mean(t), *(mean(np.unwrap(x) if k == 0 else x) for k, x in enumerate(signals)))
 
 
 def _frame_stats(t: np.ndarray, used: np.ndarray, outliers: int, options: FitOptions, name: str) -> dict[str, Any]:

@@ -254,17 +254,27 @@ class _RunLog:
             "v_law": float(output.v_c) if output is not None else v_law,
             "w_law": float(output.w_c) if output is not None else w_law,
             "saturated": bool(record.saturated),
-            "dhat": record.dhat,
+            "dhat": float(record.dhat),
             "target_lost": bool(record.lost),
             "lost_reason": status if record.lost else "",
-            "residual": record.observation.residual,
+            "residual": float(record.observation.residual),
             "V": V,
         }
-        self.writer.write("/repeat/state", self.topics["/repeat/state"], ns, message)
-        self.writer.write("/repeat/cmd_vel", self.topics["/repeat/cmd_vel"], ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated))
+        self.write_flat("/repeat/state", ns, message)
+        self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated))
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
+
+    def write_flat(self, topic: str, ns: int, message: dict[str, Any]) -> None:
+        """Write a message whose values are plain numbers, strings, bools, None or small
+        dicts of them: encoded directly, without the general JSON cleaning pass (this
+        runs several times per control period)."""
+        for key, value in message.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                message[key] = None
+        data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
+        self.writer.write_encoded(topic, self.topics[topic], ns, data)
 
     def _was_lost(self) -> bool:
         return self.previous_status not in ("ok", "dropped")
@@ -306,25 +316,28 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
     cmd_stream = _open_cmd_stream(options.cmd_out)
     stopped_at: float | None = None
-    records: list[StepRecord] = []
     steps = int(round(duration / dt))
+    # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
+    taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
+    tally = _Tally()
     try:
         with open_output(options.output) as writer:
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
+            height = scene.world.camera_height
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
-                for record in run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, settings.limits, settings.latency):
+                loop = run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, settings.limits, settings.latency)
+                for k, record in enumerate(loop):
                     log.step(record)
                     ns = seconds_to_ns(record.t)
                     stamp = time_message(ns)
-                    taught = scene.taught_pose_at_run_time(record.t)
-                    writer.write("/ground_truth/pose", "foxglove.PoseInFrame", ns, pose_message(stamp, record.pose, scene.world.camera_height))
-                    writer.write("/desired/pose", "foxglove.PoseInFrame", ns, pose_message(stamp, taught, scene.world.camera_height))
+                    log.write_flat("/ground_truth/pose", ns, pose_message(stamp, record.pose, height))
+                    log.write_flat("/desired/pose", ns, pose_message(stamp, taught_poses[k], height))
                     if options.record_images:
                         camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
-                    records.append(record)
+                    tally.add(record, taught_poses[k])
                     bar.advance()
                     lost_for = lost_for + dt if record.lost else 0.0
                     if lost_for > settings.lost_timeout:
@@ -334,7 +347,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     finally:
         if cmd_stream is not None and cmd_stream is not sys.stdout:
             cmd_stream.close()
-    summary = _summarise(records, controller, options.output, stopped_at is not None, scene)
+    summary = tally.summary(controller, options.output, stopped_at is not None)
     _print_summary(console, summary, settings, scene.d_true)
     if stopped_at is not None:
         raise TargetLostError(
@@ -342,6 +355,32 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
             f"the run up to then is in {options.output}"
         )
     return summary
+
+
+class _Tally:
+    """What the one-line summary needs, kept as the run goes (not every step in memory)."""
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.last_output: Any = None
+        self.last_pose: Any = None
+        self.last_taught: Any = None
+
+    def add(self, record: StepRecord, taught: Any = None) -> None:
+        self.steps += 1
+        if record.output is not None:
+            self.last_output = record.output
+        self.last_pose, self.last_taught = record.pose, taught
+
+    def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
+        errors: dict[str, float] = {}
+        if self.last_output is not None:
+            e = self.last_output.errors
+            errors = {"e1": float(e.e1), "e2": float(e.e2), "e3_deg": math.degrees(float(e.e3))}
+        if self.last_taught is not None:
+            errors["position_m"] = float(np.hypot(*(np.asarray(self.last_pose[:2]) - np.asarray(self.last_taught[:2]))))
+            errors["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (self.last_pose[2] - self.last_taught[2])))))
+        return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None) -> dict[str, Any]:
@@ -370,20 +409,6 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: An
     }
 
 
-def _summarise(records: list[StepRecord], controller: AdaptiveTrackingController, output: str, stopped: bool, scene: Any = None) -> RepeatSummary:
-    final = next((r for r in reversed(records) if r.output is not None), None)
-    errors = {}
-    if final is not None:
-        e = final.output.errors
-        errors = {"e1": float(e.e1), "e2": float(e.e2), "e3_deg": math.degrees(float(e.e3))}
-    if scene is not None and records and scene.has_ground_truth:
-        last = records[-1]
-        taught = scene.taught_pose_at_run_time(last.t)
-        errors["position_m"] = float(np.hypot(*(last.pose[:2] - taught[:2])))
-        errors["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (last.pose[2] - taught[2])))))
-    return RepeatSummary(steps=len(records), output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
-
-
 def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
     e = summary.final_errors
@@ -400,11 +425,11 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
 def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..core.simulator import StepRecord as Step
     from ..io.calibration import calibration_to_foxglove
-    from ..io.images import decode_image, image_bytes_from_message
     from ..io.mcap_io import open_output
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
     from .detection import detector_from_model
+    from .frames import decoded_frames
 
     model = fit.model
     reader = TeachReader(options.replay)
@@ -413,7 +438,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
     cmd_stream = _open_cmd_stream(options.cmd_out)
-    records: list[Step] = []
+    tally = _Tally()
     previous_t: float | None = None
     try:
         with open_output(options.output) as writer:
@@ -421,12 +446,10 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
-                for frame in reader.frames():
+                for frame, _, image in decoded_frames(reader.frames(), reader.name):
                     camera = reader.camera
                     if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
                         raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
-                    data, _ = image_bytes_from_message(json.loads(frame.image_message), reader.name)
-                    image = decode_image(data, reader.name)
                     pixels = detector.detect(image)
                     observation = estimator.from_pixels(pixels)
                     t = frame.t
@@ -439,13 +462,13 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     record = Step(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
                                   v_c=v, w_c=w, saturated=False, dhat=dhat)
                     log.step(record)
-                    records.append(record)
+                    tally.add(record)
                     bar.advance()
-            if not records:
+            if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
     finally:
         if cmd_stream is not None and cmd_stream is not sys.stdout:
             cmd_stream.close()
-    summary = _summarise(records, controller, options.output, False)
+    summary = tally.summary(controller, options.output, False)
     _print_summary(console, summary, settings, None)
     return summary

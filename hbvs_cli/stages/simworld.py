@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from numpy.typing import ArrayLike
+
 import numpy as np
 
 from ..core.camera import distort_pixels, pixels_to_normalized
@@ -50,19 +52,26 @@ class Scene:
     poster_image: np.ndarray | None = None
     run_start: float = 0.0
     run_speed: float = 1.0
+    _segment_starts: np.ndarray | None = None
 
-    def taught_pose(self, t: float) -> np.ndarray:
-        """The taught robot pose at taught time ``t`` (s), in W."""
+    def taught_pose(self, t: ArrayLike) -> np.ndarray:
+        """The taught robot pose at taught times ``t`` (s), in W, shape (..., 3)."""
+        t = np.asarray(t, dtype=float)
         if self.taught_profile is not None:
-            return self.taught_profile.poses_at(t - self.taught_t0, self.taught_start)
+            if self._segment_starts is None:
+                self._segment_starts = self.taught_profile.segment_start_poses(self.taught_start)
+            return self.taught_profile.poses_at(t - self.taught_t0, self.taught_start, self._segment_starts)
+        # Real footage: the fit's trajectory at the assumed depth, (3) and (14) inverted.
         desired = self.spline.evaluate(t)
-        phi = self.reference_pose[2] - float(desired.theta_d)
-        x_f = self.d_true * np.array([float(desired.x_hd1), float(desired.x_hd2)])
-        c, s = math.cos(phi), math.sin(phi)
-        return np.array([self.reference_pose[0] - (c * x_f[0] - s * x_f[1]), self.reference_pose[1] - (s * x_f[0] + c * x_f[1]), phi])
+        phi = self.reference_pose[2] - np.asarray(desired.theta_d)
+        x1 = self.d_true * np.asarray(desired.x_hd1)
+        x2 = self.d_true * np.asarray(desired.x_hd2)
+        c, s = np.cos(phi), np.sin(phi)
+        return np.stack([self.reference_pose[0] - (c * x1 - s * x2), self.reference_pose[1] - (s * x1 + c * x2), phi], axis=-1)
 
-    def taught_pose_at_run_time(self, tau: float) -> np.ndarray:
-        return self.taught_pose(self.run_start + self.run_speed * tau)
+    def taught_pose_at_run_time(self, tau: ArrayLike) -> np.ndarray:
+        """The taught pose at repeat time ``tau`` (s): the trajectory may be time-scaled."""
+        return self.taught_pose(self.run_start + self.run_speed * np.asarray(tau, dtype=float))
 
 
 def simulation_world(model: Any, reference_image: bytes | None, depth: float | None, speed: float = 1.0) -> Scene:
@@ -177,6 +186,8 @@ class SimulatedCamera:
         self.perception = settings.perception
         self.estimator = PlanarPoseEstimator(model.camera, model.m_ref, model.normal)
         self.identity = world_point_identity(scene, model)
+        self._points = scene.world.target.points_world[self.identity]
+        self._camera_height = scene.world.camera_height
         self.noise_rng = np.random.default_rng(options.seed)
         self.fault_rng = np.random.default_rng([options.seed, 1])
         self.occlusions = [parse_interval(text, "--occlude") for text in options.occlude]
@@ -204,9 +215,12 @@ class SimulatedCamera:
 
     def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
         world = self.scene.world
-        if self._occluded(t) or not world.in_view(pose, margin_px=0.0):
+        if self._occluded(t):
             return Observation(None, status=STATUS_OCCLUDED)
-        pixels = distort_pixels(world.camera, world.pixels(pose)[self.identity])
+        pixels = self._project(pose)
+        if pixels is None:
+            return Observation(None, status=STATUS_OCCLUDED)
+        pixels = distort_pixels(world.camera, pixels)
         if self.settings.pixel_noise > 0:
             pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
         if outlier:
@@ -226,6 +240,22 @@ class SimulatedCamera:
         self.last_image = image
         pixels = self.detector.detect(image)
         return self.estimator.from_pixels(pixels)
+
+    def _project(self, pose: np.ndarray) -> np.ndarray | None:
+        """Pixels of the target points (in the fit's identity order) seen from ``pose``, or
+        None when one is behind the camera or outside the image: the points perception's
+        projection, done with precomputed arrays because it runs every control period."""
+        camera = self.scene.world.camera
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        d = self._points - (pose[0], pose[1], self._camera_height)
+        depth = c * d[:, 0] + s * d[:, 1]
+        if depth.min() <= 0.05:
+            return None
+        u = camera.cx - camera.fx * (-s * d[:, 0] + c * d[:, 1]) / depth
+        v = camera.cy - camera.fy * d[:, 2] / depth
+        if u.min() < 0 or v.min() < 0 or u.max() > camera.width - 1 or v.max() > camera.height - 1:
+            return None
+        return np.stack([u, v], axis=-1)
 
     def settings_exposure(self, t: float) -> float | None:
         if self.exposure_step is None:

@@ -1,0 +1,45 @@
+"""Taught frames decoded ahead of use, in a worker thread, with bounded memory.
+
+Decoding a PNG or JPEG is most of what reading a recording costs, and OpenCV's decoder
+releases the GIL: decoding the next frames in a second thread while the current one is
+detected keeps both cores busy. At most ``depth`` decoded frames wait at any time.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Iterator
+
+import numpy as np
+
+from ..errors import RecordingError
+
+
+def decode_frame(frame: Any, name: str) -> tuple[bytes, np.ndarray]:
+    """The compressed bytes and the gray image of a teach frame's image message."""
+    from ..io.images import decode_image, image_bytes_from_message
+
+    try:
+        message = json.loads(frame.image_message)
+    except (ValueError, UnicodeDecodeError):
+        raise RecordingError(f"{name}: malformed image message in frame {frame.index}") from None
+    if not isinstance(message, dict):
+        raise RecordingError(f"{name}: malformed image message in frame {frame.index}")
+    data, _ = image_bytes_from_message(message, name)
+    return data, decode_image(data, name)
+
+
+def decoded_frames(frames: Iterator[Any], name: str, depth: int = 4) -> Iterator[tuple[Any, bytes, np.ndarray]]:
+    """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
+        pending: deque[tuple[Any, Any]] = deque()
+        for frame in frames:
+            pending.append((frame, pool.submit(decode_frame, frame, name)))
+            if len(pending) > depth:
+                ready, future = pending.popleft()
+                yield (ready, *future.result())
+        while pending:
+            ready, future = pending.popleft()
+            yield (ready, *future.result())
