@@ -233,7 +233,10 @@ def estimate_common_normal(
         mask &= np.asarray(valid, dtype=bool)
     if not np.any(mask):
         raise NoValidBranchError("no frame has a usable homography to estimate the plane normal from")
-    candidates = homography_candidates(H[mask])
+    usable = H[mask]
+    if usable.shape[0] > REFINEMENT_FRAMES:  # the normal needs no more frames; memory stays flat
+        usable = usable[np.linspace(0, usable.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
+    candidates = homography_candidates(usable)
     front = _front_mask(candidates, m_ref)
     weight = np.where(np.any(front, axis=-1), candidates.strength, 0.0)
     if not np.any(weight > PURE_ROTATION_TOLERANCE):
@@ -451,6 +454,9 @@ class KnownNormalSolver:
         self._pinv_rows = [[float(v) for v in row] for row in self._pinv]
 
     # -- batches ----------------------------------------------------------------------------
+    #: Frames solved at once: bounds the temporaries of a long recording.
+    BLOCK = 4096
+
     def solve(self, m: ArrayLike) -> PlanarMotion:
         """Solve for points of shape (..., N, 3) in the reference's order.
 
@@ -460,8 +466,20 @@ class KnownNormalSolver:
             ``valid`` is False for frames with non-finite points or a non-positive depth
             ratio; ``residual`` is the RMS reprojection error (normalised units).
         """
-        m_ref = self.m_ref
         m = np.asarray(m, dtype=float)
+        if m.ndim == 3 and m.shape[0] > self.BLOCK:
+            parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
+            return PlanarMotion(
+                theta=np.concatenate([p.theta for p in parts]),
+                x_h=np.concatenate([p.x_h for p in parts]),
+                normal=np.broadcast_to(self.normal, (m.shape[0], 3)),
+                valid=np.concatenate([p.valid for p in parts]),
+                residual=np.concatenate([p.residual for p in parts]),
+            )
+        return self._solve_block(m)
+
+    def _solve_block(self, m: NDArray[np.float64]) -> PlanarMotion:
+        m_ref = self.m_ref
         if m.shape[-2:] != m_ref.shape:
             raise GeometryError(
                 f"current points have shape {m.shape[-2:]} but the reference has {m_ref.shape}"

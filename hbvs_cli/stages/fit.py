@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core.camera import CameraIntrinsics, normalized_to_pixels, pixels_to_normalized, undistort_pixels
-from ..core.decomposition import KnownNormalSolver, estimate_common_normal, refine_plane_and_reference
+from ..core.decomposition import REFINEMENT_FRAMES, KnownNormalSolver, estimate_common_normal, refine_plane_and_reference
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.estimation import DEFAULT_RESIDUAL_GATE
 from ..core.homography import estimate_euclidean_homography, validate_reference_points
@@ -85,20 +85,36 @@ def resolve_reference(spec: str, frame_count: int) -> int:
 
 
 class _FrameLog:
-    """Per-frame results kept in memory: a few numbers per frame, never images."""
+    """Per-frame results kept in memory: a few numbers per frame, in growing numpy buffers
+    (Python objects per frame would cost kilobytes over a long recording), never images."""
 
-    def __init__(self) -> None:
-        self.t: list[float] = []
-        self.log_time: list[int] = []
-        self.pixels: list[np.ndarray] = []
-        self.pose: list[Any] = []
-        self.command: list[Any] = []
+    def __init__(self, n_points: int) -> None:
+        self._width = 1 + 2 * n_points + 3 + 2  # t, pixels, pose, command
+        self._rows = np.empty((1024, self._width))
+        self._log_times = np.empty(1024, dtype=np.int64)  # exact integers, apart
+        self.count = 0
+        self.n_points = n_points
+
+    def add(self, t: float, log_time_ns: int, pixels: np.ndarray, pose: Any, command: Any) -> None:
+        if self.count == self._rows.shape[0]:
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+            self._log_times = np.concatenate([self._log_times, np.empty_like(self._log_times)])
+        row = self._rows[self.count]
+        row[0] = t
+        self._log_times[self.count] = log_time_ns
+        row[1 : 1 + 2 * self.n_points] = np.ravel(pixels)
+        row[-5:-2] = pose if pose is not None else np.nan
+        row[-2:] = command if command is not None else np.nan
+        self.count += 1
 
     def arrays(self) -> dict[str, np.ndarray]:
+        rows = self._rows[: self.count]
         return {
-            "t": np.array(self.t),
-            "log_time": np.array(self.log_time, dtype=np.int64),
-            "pixels": np.array(self.pixels),
+            "t": rows[:, 0].copy(),
+            "log_time": self._log_times[: self.count].copy(),
+            "pixels": rows[:, 1 : 1 + 2 * self.n_points].reshape(self.count, self.n_points, 2).copy(),
+            "pose": rows[:, -5:-2].copy(),
+            "command": rows[:, -2:].copy(),
         }
 
 
@@ -117,7 +133,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         raise UsageError(f"--target must be auto, dots, aruco or texture, got {options.target!r}")
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
-    log = _FrameLog()
+    log: _FrameLog | None = None
     detector: TrackedDetector | None = None
     template: bytes | None = None
     reference_image: bytes | None = None
@@ -139,11 +155,9 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                     template = data
                     writer.write("/camera/calibration", topics["/camera/calibration"], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 pixels = detector.detect(image)
-                log.t.append(frame.t)
-                log.log_time.append(frame.log_time_ns)
-                log.pixels.append(pixels)
-                log.pose.append(frame.pose)
-                log.command.append(frame.command)
+                if log is None:
+                    log = _FrameLog(pixels.shape[0])
+                log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
                 if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
                     reference_image = data
                 if options.copy_images:
@@ -156,16 +170,16 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                 )
                 bar.advance()
         if reader.truncated:
-            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {len(log.t)} complete frames")
-        if not log.t:
+            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count if log else 0} complete frames")
+        if log is None or log.count == 0:
             raise RecordingError(f"{reader.name}: no images in the recording")
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()
-        reference_index = resolve_reference(options.reference, len(log.t))
+        reference_index = resolve_reference(options.reference, log.count)
         result = fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing, options, console, reader.name)
-        taught_path = _taught_path(log, reference_index) if all(p is not None for p in log.pose) else None
-        depth = _depth(result, log, detector.spec.kind, options, console)
+        taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
+        depth = _depth(result, arrays, detector.spec.kind, options, console)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -194,7 +208,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             writer.write(topic, topics[topic], stamp, compressed_image_message(time_message(stamp), CAMERA_FRAME, payload, _format_of(payload)))
         writer.write("/fit/model", topics["/fit/model"], end_ns, model.to_message(end_ns))
     _print_summary(console, model, result, depth, options)
-    return FitSummary(frames_total=len(log.t), frames_used=int(result["frames"]["used"]), output=options.output, model=model)
+    return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
@@ -259,9 +273,15 @@ def fit_desired_trajectory(
     undistorted[ok] = undistort_pixels(camera, flat[ok])
     m = pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
     m_ref = validate_reference_points(m[reference_index])
-    homographies = estimate_euclidean_homography(m, m_ref)
-    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=found & homographies.valid)
-    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=found & homographies.valid)
+    # The normal needs a sample of frames, not all of them: memory stays flat however long
+    # the recording (the frames are spread evenly over it).
+    sample = np.flatnonzero(found)
+    sample = sample[np.linspace(0, sample.size - 1, min(sample.size, REFINEMENT_FRAMES)).astype(int)]
+    homographies = estimate_euclidean_homography(m[sample], m_ref)
+    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid)
+    usable = np.zeros_like(found)
+    usable[sample[homographies.valid]] = True
+    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable)
     if margin < AMBIGUOUS_NORMAL_MARGIN:
         console.warn(
             "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
@@ -359,24 +379,24 @@ def _frame_stats(t: np.ndarray, used: np.ndarray, outliers: int, options: FitOpt
     }
 
 
-def _taught_path(log: _FrameLog, reference_index: int) -> Any:
+def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     from ..io.fit_file import TaughtPath
 
-    commands = np.array([c if c is not None else (np.nan, np.nan) for c in log.command], dtype=float)
-    poses = np.array(log.pose, dtype=float)
+    commands = arrays["command"]
     if not np.all(np.isfinite(commands)):
-        commands = np.zeros((len(log.t), 2))
-    return TaughtPath(t=np.array(log.t), poses=poses, v=commands[:, 0], w=commands[:, 1], reference_pose=poses[reference_index])
+        commands = np.zeros_like(commands)
+    poses = arrays["pose"]
+    return TaughtPath(t=arrays["t"], poses=poses, v=commands[:, 0], w=commands[:, 1], reference_pose=poses[reference_index])
 
 
-def _depth(result: dict[str, Any], log: _FrameLog, kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
+def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size; which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
-    t = np.array(log.t)[result["span"]]
-    commands = [c for c in log.command[result["span"]]]
-    if commands and all(c is not None for c in commands):
-        v, w = np.array(commands, dtype=float).T
+    t = arrays["t"][result["span"]]
+    commands = arrays["command"][result["span"]]
+    if commands.size and np.all(np.isfinite(commands)):
+        v, w = commands.T
         desired = result["trajectory"].evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)

@@ -261,18 +261,19 @@ class _RunLog:
             "V": V,
         }
         self.write_flat("/repeat/state", ns, message)
-        self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated))
+        self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
 
-    def write_flat(self, topic: str, ns: int, message: dict[str, Any]) -> None:
+    def write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
         """Write a message whose values are plain numbers, strings, bools, None or small
         dicts of them: encoded directly, without the general JSON cleaning pass (this
-        runs several times per control period)."""
-        for key, value in message.items():
-            if isinstance(value, float) and not math.isfinite(value):
-                message[key] = None
+        runs several times per control period). ``clean=False`` when no value can be NaN."""
+        if clean:
+            for key, value in message.items():
+                if isinstance(value, float) and not math.isfinite(value):
+                    message[key] = None
         data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
         self.writer.write_encoded(topic, self.topics[topic], ns, data)
 
@@ -298,25 +299,63 @@ def desired_pixels(model: Any, desired: Any) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- closed loop
-def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output, seconds_to_ns, time_message
-    from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
+@dataclass
+class Simulation:
+    """Everything a closed-loop run needs, set up and ready to step."""
+
+    scene: Any
+    camera: Any
+    trajectory: TimeScaledTrajectory
+    controller: AdaptiveTrackingController
+    start_pose: np.ndarray
+    dt: float
+    duration: float
+    settings: Settings
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    def run(self) -> Any:
+        """The closed loop's step records (a generator): sense, control, limits, move."""
+        return run_closed_loop(
+            self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
+            self.settings.limits, self.settings.latency,
+        )
+
+
+def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> Simulation:
+    """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
     from .simworld import SimulatedCamera, simulation_world
 
     model = fit.model
     scene = simulation_world(model, fit.reference_image, options.depth, settings.speed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
-    duration = trajectory.t_end - trajectory.t_start
-    dt = 1.0 / settings.rate
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
-    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
-    controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
+    return Simulation(
+        scene=scene,
+        camera=SimulatedCamera(scene, model, settings, options, fit.template_image),
+        trajectory=trajectory,
+        controller=AdaptiveTrackingController(settings.gains, settings.dhat0),
+        start_pose=start_pose,
+        dt=1.0 / settings.rate,
+        duration=trajectory.t_end - trajectory.t_start,
+        settings=settings,
+    )
+
+
+def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
+    from ..io.calibration import calibration_to_foxglove
+    from ..io.mcap_io import open_output, seconds_to_ns, time_message
+    from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
+
+    model = fit.model
+    simulation = prepare_simulation(options, settings, fit)
+    scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
     cmd_stream = _open_cmd_stream(options.cmd_out)
     stopped_at: float | None = None
-    steps = int(round(duration / dt))
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
@@ -328,13 +367,12 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
             lost_for = 0.0
             height = scene.world.camera_height
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
-                loop = run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, settings.limits, settings.latency)
-                for k, record in enumerate(loop):
+                for k, record in enumerate(simulation.run()):
                     log.step(record)
                     ns = seconds_to_ns(record.t)
                     stamp = time_message(ns)
-                    log.write_flat("/ground_truth/pose", ns, pose_message(stamp, record.pose, height))
-                    log.write_flat("/desired/pose", ns, pose_message(stamp, taught_poses[k], height))
+                    log.write_flat("/ground_truth/pose", ns, pose_message(stamp, record.pose, height), clean=False)
+                    log.write_flat("/desired/pose", ns, pose_message(stamp, taught_poses[k], height), clean=False)
                     if options.record_images:
                         camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
                     tally.add(record, taught_poses[k])
