@@ -1,0 +1,1 @@
+"""hbvs benchmarks (not part of the installed package): ``python -m bench``."""

@@ -1,0 +1,393 @@
+"""hbvs benchmarks: speed and memory as ratios of things measured side by side.
+
+Run ``python -m bench`` (about 6 minutes on 2 cores) or ``python -m bench --quick``
+(under a minute, smaller inputs). Every figure is a ratio of two measurements taken in the
+same run, interleaved, with the median over repeats, so a noisy machine moves both sides.
+The table is printed and written to ``bench/RESULTS.md`` with the machine, the date and the
+library versions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "RESULTS.md"
+
+
+@dataclass
+class Figure:
+    """One benchmark figure against its target."""
+
+    name: str
+    measured: float
+    target: str
+    passed: bool
+    detail: str
+    command: str
+
+
+def median_time(function: Callable[[], object], repeats: int) -> float:
+    """Median wall time of ``function()`` over ``repeats`` calls (s)."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def interleaved(a: Callable[[], object], b: Callable[[], object], repeats: int) -> tuple[float, float]:
+    """Medians of two timed functions run alternately (ABAB...), so load hits both alike."""
+    ta, tb = [], []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        a()
+        ta.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        b()
+        tb.append(time.perf_counter() - start)
+    return statistics.median(ta), statistics.median(tb)
+
+
+# --------------------------------------------------------------------------- 1. estimation
+def estimation_inputs(frames: int, seed: int = 0):
+    """Noisy 4-point correspondences of the ArUco target from random poses (0.1 px noise)."""
+    from hbvs_cli.core.world import default_world
+
+    world = default_world("aruco")
+    reference = np.zeros(3)
+    m_ref, normal, _ = world.reference_geometry(reference)
+    rng = np.random.default_rng(seed)
+    poses = np.column_stack([rng.uniform(0.0, 1.5, frames), rng.uniform(-0.2, 0.2, frames), rng.uniform(-0.1, 0.1, frames)])
+    pixels = np.array([world.pixels(p) for p in poses]) + rng.normal(0.0, 0.1, (frames, 4, 2))
+    truth = np.array([world.ground_truth(p, reference)[0] for p in poses])
+    return world, world.pixels(reference), m_ref, normal, pixels, truth
+
+
+def opencv_route(world, reference_pixels, normal):
+    """cv2.findHomography on the 4 points, cv2.decomposeHomographyMat, then the branch with
+    the plane in front of F* and the normal closest to the known one; theta in paper axes."""
+    import cv2
+
+    from hbvs_cli.core.frames import PAPER_TO_OPENCV
+
+    K = world.camera.K
+    normal_cv = PAPER_TO_OPENCV @ normal
+    rays = np.column_stack([(reference_pixels - K[:2, 2]) / K[0, 0], np.ones(len(reference_pixels))])
+
+    def estimate(pixels):
+        G, _ = cv2.findHomography(reference_pixels, pixels, 0)
+        _, rotations, translations, normals = cv2.decomposeHomographyMat(G, K)
+        best, score = None, -2.0
+        for R, T, N in zip(rotations, translations, normals):
+            N = N.ravel()
+            if np.all(rays @ N > 0) and N @ normal_cv > score:
+                best, score = (R, T), N @ normal_cv
+        if best is None:
+            return float("nan")
+        R = PAPER_TO_OPENCV.T @ best[0] @ PAPER_TO_OPENCV
+        return float(np.arctan2(R[1, 0], R[0, 0]))
+
+    return estimate
+
+
+def bench_estimation(quick: bool) -> list[Figure]:
+    import cv2
+
+    from hbvs_cli.core.camera import pixels_to_normalized
+    from hbvs_cli.core.decomposition import KnownNormalSolver
+    from hbvs_cli.core.estimation import PlanarPoseEstimator
+
+    cv2.setNumThreads(1)
+    world, reference_pixels, m_ref, normal, pixels, truth = estimation_inputs(10_000)
+    estimator = PlanarPoseEstimator(world.camera, m_ref, normal)
+    cv_estimate = opencv_route(world, reference_pixels, normal)
+    sample = pixels[:300]
+    repeats = 5 if quick else 15
+    t_hbvs, t_cv = interleaved(
+        lambda: [estimator.from_pixels(p) for p in sample], lambda: [cv_estimate(p) for p in sample], repeats
+    )
+    per_hbvs, per_cv = t_hbvs / len(sample), t_cv / len(sample)
+    solver = KnownNormalSolver(m_ref, normal)
+    t_batch = median_time(lambda: solver.solve(pixels_to_normalized(world.camera, pixels)), 3 if quick else 7)
+    per_batch = t_batch / len(pixels)
+    theta_hbvs = np.array([estimator.from_pixels(p).measurement.theta for p in sample])
+    theta_cv = np.array([cv_estimate(p) for p in sample])
+    rms = lambda x: float(np.degrees(np.sqrt(np.nanmean(np.square(x)))))  # noqa: E731
+    accuracy = f"theta RMS error vs truth: hbvs {rms(theta_hbvs - truth[:300]):.3f} deg, OpenCV route {rms(theta_cv - truth[:300]):.3f} deg"
+    return [
+        Figure(
+            "1a. single-frame estimation, hbvs / OpenCV route (time ratio)", per_hbvs / per_cv, "<= 1.0",
+            per_hbvs / per_cv <= 1.0,
+            f"hbvs {per_hbvs * 1e6:.1f} us, OpenCV {per_cv * 1e6:.1f} us per frame (4 points, 0.1 px noise); {accuracy}",
+            "python -m bench (estimation)",
+        ),
+        Figure(
+            "1b. batched estimation over 10 000 frames, speed-up per frame vs the OpenCV loop", per_cv / per_batch, ">= 20x",
+            per_cv / per_batch >= 20.0,
+            f"hbvs batched {per_batch * 1e6:.2f} us per frame (what fit uses), OpenCV loop {per_cv * 1e6:.1f} us",
+            "python -m bench (estimation)",
+        ),
+    ]
+
+
+# --------------------------------------------------------------------------- helpers for the stages
+def run_cli(*args: str, cwd: Path, one_core: bool = False) -> tuple[float, int]:
+    """Run ``python -m hbvs_cli ARGS``; return (wall time in s, peak resident memory in KiB)."""
+    environment = dict(os.environ, MPLBACKEND="Agg", OMP_NUM_THREADS="1")
+    preexec = (lambda: os.sched_setaffinity(0, {0})) if one_core and hasattr(os, "sched_setaffinity") else None
+    command = [sys.executable, "-c", _MEASURE, *args]
+    start = time.perf_counter()
+    result = subprocess.run(command, cwd=cwd, env=environment, capture_output=True, text=True, preexec_fn=preexec)
+    wall = time.perf_counter() - start
+    if result.returncode != 0:
+        raise RuntimeError(f"hbvs {' '.join(args)} failed: {result.stderr.strip()}")
+    return wall, int(result.stdout.strip().splitlines()[-1])
+
+
+#: Runs the CLI in-process and prints the process's own peak RSS (KiB) last.
+_MEASURE = (
+    "import sys, resource\n"
+    "from hbvs_cli.cli.app import main\n"
+    "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    code = e.code\n"
+    "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+    "sys.exit(code)\n"
+)
+
+
+def write_pendant(path: Path, seconds: float, rate: float = 10.0) -> None:
+    """A slow S-curve of ``seconds``: 2 m toward the target whatever the length (keeps it in view)."""
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    v = np.full_like(t, 2.0 / seconds)
+    w = 0.045 * (20.0 / seconds) * np.cos(2 * np.pi * t / seconds)
+    path.write_text("t,v,w\n" + "\n".join(f"{a:.4f},{b:.6f},{c:.6f}" for a, b, c in zip(t, v, w)) + "\n")
+
+
+# --------------------------------------------------------------------------- 2. closed loop
+#: Steps the closed loop in a process pinned to one core; prints steps and loop seconds.
+_LOOP = (
+    "import os, sys, time, json\n"
+    "os.sched_setaffinity(0, {0}) if hasattr(os, 'sched_setaffinity') else None\n"
+    "import cv2; cv2.setNumThreads(1)\n"
+    "from hbvs_cli.io.fit_file import read_fit_file\n"
+    "from hbvs_cli.stages.repeat import RepeatOptions, resolve_settings, prepare_simulation\n"
+    "fit = read_fit_file(sys.argv[1])\n"
+    "options = RepeatOptions(input=sys.argv[1], sim=True, perception=sys.argv[2], speed=float(sys.argv[3]))\n"
+    "settings = resolve_settings(options, fit.model.dhat0, 30.0)\n"
+    "simulation = prepare_simulation(options, settings, fit)\n"
+    "start = time.perf_counter()\n"
+    "steps = sum(1 for _ in simulation.run())\n"
+    "print(json.dumps([steps, time.perf_counter() - start]))\n"
+)
+
+
+def bench_closed_loop(work: Path, quick: bool) -> list[Figure]:
+    teach, fit = work / "loop_teach.mcap", work / "loop_fit.mcap"
+    run_cli("teach", "--duration", "20", "-o", str(teach), "-q", cwd=work)
+    run_cli("fit", str(teach), "-o", str(fit), "-q", cwd=work)
+    environment = dict(os.environ, OMP_NUM_THREADS="1")
+    figures = []
+    # --speed stretches the 20 s path: more control steps at 30 Hz for a steadier figure.
+    for perception, speed, target in (("points", 0.05 if not quick else 0.2, 300.0), ("images", 0.25 if not quick else 1.0, 10.0)):
+        loops = []
+        for _ in range(1 if quick else 3):
+            result = subprocess.run([sys.executable, "-c", _LOOP, str(fit), perception, str(speed)],
+                                    capture_output=True, text=True, check=True, env=environment)
+            steps, seconds = json.loads(result.stdout.strip().splitlines()[-1])
+            loops.append(seconds)
+        loop = statistics.median(loops)
+        multiple = steps / 30.0 / loop
+        # The whole command as a user runs it, with the run file written, for reference.
+        wall, _ = run_cli("repeat", str(fit), "--sim", "--perception", perception, "--speed", str(speed),
+                          "-o", str(work / f"loop_{perception}.mcap"), "-q", cwd=work, one_core=True)
+        base, _ = run_cli("repeat", str(fit), "--sim", "--perception", perception, "--speed", "1000", "-o",
+                          str(work / "loop_one.mcap"), "-q", cwd=work, one_core=True)
+        whole = steps / 30.0 / max(wall - base, 1e-9)
+        figures.append(Figure(
+            f"2{'a' if perception == 'points' else 'b'}. closed loop, --perception {perception}: simulated / wall time at 30 Hz",
+            multiple, f">= {target:g}x", multiple >= target,
+            f"{steps} steps in {loop:.2f} s on one core ({loop / steps * 1e6:.0f} us per step: "
+            f"{'project' if perception == 'points' else 'render, detect'}, estimate, control, move); "
+            f"the whole hbvs repeat command, writing its run file (4 MCAP messages a step): {whole:.0f}x",
+            f"hbvs repeat fit.mcap --sim --perception {perception} --speed {speed} (pinned to one core)",
+        ))
+    return figures
+
+
+# --------------------------------------------------------------------------- 3. fit throughput
+def decode_only(teach: Path) -> int:
+    """Read and decode every image of a teach file, nothing else: the floor for fit."""
+    from hbvs_cli.io.teach_file import TeachReader
+    from hbvs_cli.stages.frames import decode_frame
+
+    count = 0
+    reader = TeachReader(teach)
+    for frame in reader.frames():
+        decode_frame(frame, reader.name)
+        count += 1
+    return count
+
+
+def bench_fit_throughput(work: Path, quick: bool) -> Figure:
+    frames = 600 if quick else 3000
+    pendant = work / "fit_pendant.csv"
+    write_pendant(pendant, frames / 30.0)
+    teach = work / "fit_teach.mcap"
+    run_cli("teach", "--path", str(pendant), "-o", str(teach), "-q", cwd=work)
+    code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
+    decode_walls, fit_walls = [], []
+    for _ in range(1 if quick else 3):
+        start = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], check=True, cwd=work)
+        decode_walls.append(time.perf_counter() - start)
+        wall, _ = run_cli("fit", str(teach), "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
+        fit_walls.append(wall)
+    decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
+    ratio = decode_wall / fit_wall
+    return Figure(
+        f"3. hbvs fit throughput / decode-only throughput ({frames} frames)", ratio, ">= 0.6", ratio >= 0.6,
+        f"decode only {frames / decode_wall:.0f} frames/s, fit {frames / fit_wall:.0f} frames/s (PNG 640x480; both whole "
+        "processes; fit decodes in a second thread)",
+        "hbvs fit teach.mcap -o fit.mcap vs. reading and decoding the same images",
+    )
+
+
+# --------------------------------------------------------------------------- 4. memory
+def bench_memory(work: Path, quick: bool) -> list[Figure]:
+    small, large = (1000, 10000) if quick else (3000, 30000)
+    camera = work / "small_camera.yaml"
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    # Half resolution (the sample camera) keeps a 30 000-frame recording to a few hundred MB.
+    save_calibration_ros(CameraIntrinsics(fx=250.0, fy=250.0, cx=159.5, cy=119.5, width=320, height=240), camera)
+    peaks: dict[str, dict[int, int]] = {"fit": {}, "repeat": {}}
+    for frames in (small, large):
+        pendant = work / f"mem_{frames}.csv"
+        write_pendant(pendant, frames / 30.0)
+        teach, fit = work / f"mem_{frames}_teach.mcap", work / f"mem_{frames}_fit.mcap"
+        run_cli("teach", "--path", str(pendant), "--calibration", str(camera), "--format", "jpeg", "-o", str(teach), "-q", cwd=work)
+        _, peaks["fit"][frames] = run_cli("fit", str(teach), "-o", str(fit), "-q", "--max-lost", "1", "--max-gap", "1000", cwd=work)
+        _, peaks["repeat"][frames] = run_cli("repeat", str(fit), "--sim", "--perception", "points", "--offset", "0,0,0",
+                                             "-o", str(work / f"mem_{frames}_run.mcap"), "-q", cwd=work)
+    figures = []
+    for stage in ("fit", "repeat"):
+        ratio = peaks[stage][large] / peaks[stage][small]
+        figures.append(Figure(
+            f"4{'a' if stage == 'fit' else 'b'}. peak memory of {stage}, {large} frames / {small} frames", ratio, "<= 1.2",
+            ratio <= 1.2, f"{peaks[stage][small] / 1024:.0f} MiB vs {peaks[stage][large] / 1024:.0f} MiB (ru_maxrss)",
+            f"hbvs {stage} on a {small}- and a {large}-frame recording (320x240 JPEG)",
+        ))
+    return figures
+
+
+# --------------------------------------------------------------------------- 5. start-up
+def bench_startup(quick: bool) -> Figure:
+    repeats = 5 if quick else 15
+
+    def bare() -> None:
+        subprocess.run([sys.executable, "-c", "pass"], check=True)
+
+    def help_() -> None:
+        subprocess.run([sys.executable, "-m", "hbvs_cli", "--help"], check=True, capture_output=True)
+
+    t_bare, t_help = interleaved(bare, help_, repeats)
+    extra = t_help - t_bare
+    return Figure(
+        "5. start-up: hbvs --help minus the bare interpreter (s)", extra, "<= 0.25", extra <= 0.25,
+        f"hbvs --help {t_help * 1000:.0f} ms, python -c pass {t_bare * 1000:.0f} ms", "python -m hbvs_cli --help",
+    )
+
+
+# --------------------------------------------------------------------------- report
+def machine() -> dict[str, str]:
+    import cv2
+    import scipy
+
+    model = platform.processor() or "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": model,
+        "cores": str(os.cpu_count()),
+        "date": datetime.date.today().isoformat(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "opencv": cv2.__version__,
+        "scipy": scipy.__version__,
+    }
+
+
+def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seconds: float) -> str:
+    lines = [
+        "# hbvs benchmark results",
+        "",
+        f"Produced by `python -m bench{' --quick' if quick else ''}` in {seconds:.0f} s on {info['date']}.",
+        f"Machine: {info['cpu']}, {info['cores']} cores; Python {info['python']}, numpy {info['numpy']}, "
+        f"OpenCV {info['opencv']}, scipy {info['scipy']}.",
+        "",
+        "Every figure is a ratio of two measurements taken side by side in the same run "
+        "(medians over repeats, interleaved), so that a busy machine moves both sides.",
+        "",
+        "| figure | measured | target | met | detail | command |",
+        "|---|---:|---|---|---|---|",
+    ]
+    for f in figures:
+        lines.append(f"| {f.name} | {f.measured:.3g} | {f.target} | {'yes' if f.passed else 'NO'} | {f.detail} | `{f.command}` |")
+    history = HERE / "HISTORY.md"
+    if history.exists():
+        lines += ["", history.read_text().strip()]
+    text = "\n".join(lines) + "\n"
+    RESULTS.write_text(text)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller inputs, under a minute")
+    parser.add_argument("--only", nargs="*", default=None, help="run only these figures (1 2 3 4 5)")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    wanted = set(args.only or ["1", "2", "3", "4", "5"])
+    figures: list[Figure] = []
+    with tempfile.TemporaryDirectory(prefix="hbvs-bench-") as folder:
+        work = Path(folder)
+        if "5" in wanted:
+            figures.append(bench_startup(args.quick))
+        if "1" in wanted:
+            figures += bench_estimation(args.quick)
+        if "2" in wanted:
+            figures += bench_closed_loop(work, args.quick)
+        if "3" in wanted:
+            figures.append(bench_fit_throughput(work, args.quick))
+        if "4" in wanted:
+            figures += bench_memory(work, args.quick)
+    seconds = time.perf_counter() - start
+    text = write_results(figures, machine(), args.quick, seconds)
+    print(text)
+    return 0 if all(f.passed for f in figures) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
