@@ -11,7 +11,7 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated, List, Optional
+from typing import Annotated, Any, List, Optional
 
 import typer
 
@@ -213,8 +213,79 @@ class _Terminated(BaseException):
     """Raised from the SIGTERM handler so that cleanup (partial files) runs."""
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
-    raise _Terminated()
+class _Interrupted(KeyboardInterrupt):
+    """Raised from the SIGINT handler: a KeyboardInterrupt to every ``except`` clause.
+
+    CPython notes a KeyboardInterrupt of exactly that type escaping code it runs through
+    some of its C entry points, and then ends the process by SIGINT (exit status -2,
+    whatever sys.exit said) even when the exception was handled afterwards: Ctrl-C during
+    a stage's imports did that in one run out of five. A subclass does not trip the check.
+    """
+
+
+#: Exit code and message of each signal that stops hbvs.
+_STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
+#: The first stop signal received, if any.
+_received: int | None = None
+#: True when a stop signal's exception was raised inside a finaliser and dropped there.
+_swallowed = False
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    """Stop the command by raising (KeyboardInterrupt for SIGINT, _Terminated for SIGTERM).
+
+    An exception unwinds through the stages, so ``open_output`` removes its partial file
+    and a previous output stays as it was. Further signals are ignored from here on: the
+    cleanup that this starts must not be interrupted in turn.
+    """
+    global _received
+    _ignore_stop_signals()
+    _received = signum
+    if signum == signal.SIGINT:
+        raise _Interrupted
+    raise _Terminated
+
+
+def _ignore_stop_signals() -> None:
+    for signum in _STOP_SIGNALS:
+        try:
+            signal.signal(signum, signal.SIG_IGN)
+        except ValueError:  # not in the main thread (e.g. embedded)
+            pass
+
+
+def _on_unraisable(unraisable: Any) -> None:
+    """Keep quiet about a stop signal that landed inside a finaliser.
+
+    Python runs ``__del__`` methods and closing generators where an exception cannot
+    propagate, so it prints and drops it; the command then runs to its end, and
+    :func:`main` reports the stop instead of a traceback.
+    """
+    global _swallowed
+    if isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
+        _swallowed = True
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def _install_signal_handlers() -> None:
+    sys.unraisablehook = _on_unraisable
+    for signum in _STOP_SIGNALS:
+        try:
+            signal.signal(signum, _on_signal)
+        except ValueError:  # not in the main thread: the signals keep their defaults
+            pass
+
+
+def _stopped(signum: int) -> int:
+    """Report a stop signal on stderr (one line) and return its exit code."""
+    code, what = _STOP_SIGNALS[signum]
+    try:
+        sys.stderr.write(f"hbvs: {what}\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    return code
 
 
 def _silence_stdout() -> None:
@@ -226,50 +297,65 @@ def _silence_stdout() -> None:
         pass
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point: run the app and exit with the right code."""
-    args = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in args
-    try:
-        signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # not in the main thread (e.g. embedded); SIGTERM keeps its default
-        pass
-    code = 0
+def _run(args: list[str], debug: bool) -> int:
+    """Run the app; every error but a stop signal becomes its message and exit code."""
     try:
         result = app(args=args, prog_name="hbvs", standalone_mode=False)
-        code = result if isinstance(result, int) else 0
+        return result if isinstance(result, int) else 0
     except HbvsError as exc:
         if debug:
             raise
         sys.stderr.write(f"hbvs: error: {exc}\n")
-        code = exc.exit_code
+        return exc.exit_code
     except typer.Abort:
         sys.stderr.write("hbvs: interrupted\n")
-        code = 130
+        return 130
     except typer.TyperException as exc:  # usage errors: the parser's own message and hint
         show = getattr(exc, "show", None)
         if show is not None:
             show()
         else:
             sys.stderr.write(f"hbvs: error: {exc}\n")
-        code = int(getattr(exc, "exit_code", 2))
-    except KeyboardInterrupt:
-        sys.stderr.write("hbvs: interrupted\n")
-        code = 130
-    except _Terminated:
-        sys.stderr.write("hbvs: terminated\n")
-        code = 143
+        return int(getattr(exc, "exit_code", 2))
     except BrokenPipeError:
         _silence_stdout()
         sys.stderr.write("hbvs: error: the output pipe was closed by the reader\n")
-        code = 141
+        return 141
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
         if debug:
             raise
         sys.stderr.write(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)\n")
-        code = 70
+        return 70
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: run the app and exit with the right code.
+
+    SIGINT and SIGTERM stop a command with exit code 130 and 143 and one line on stderr
+    (partial outputs removed). Once the command is over, both signals are ignored until
+    the process exits, so that a late signal cannot turn a finished run into a traceback:
+    this function is meant to end the process (it always raises SystemExit).
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    _install_signal_handlers()
+    try:
+        try:
+            code = _run(args, debug)
+        finally:
+            _ignore_stop_signals()
+    except KeyboardInterrupt:
+        code = _stopped(signal.SIGINT)
+    except _Terminated:
+        code = _stopped(signal.SIGTERM)
+    else:
+        # typer turns a KeyboardInterrupt into exit code 130 without a word.
+        if _received is not None and (_swallowed or (_received == signal.SIGINT and code == 130)):
+            code = _stopped(_received)
     try:
         sys.stdout.flush()
     except BrokenPipeError:
         _silence_stdout()
+    except (OSError, ValueError):
+        pass
     sys.exit(code)

@@ -7,7 +7,9 @@ people get wrong):
   {rows, cols, data}``...), and also the flat ``k:``/``d:`` lists of a dumped
   ``sensor_msgs/CameraInfo``;
 * OpenCV ``FileStorage`` files (YAML with ``!!opencv-matrix`` tags, JSON with
-  ``"type_id": "opencv-matrix"``, XML), read with :class:`cv2.FileStorage`;
+  ``"type_id": "opencv-matrix"``, XML), parsed with :class:`cv2.FileStorage` and their
+  matrices read field by field (``FileNode.mat()`` corrupts OpenCV's heap on a malformed
+  matrix);
 * plain JSON such as ``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}``.
 
 Key names are matched without regard to case, ``_`` or ``-``, so ``camera_matrix``,
@@ -22,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,6 +34,7 @@ import yaml
 
 from ..core.camera import CameraIntrinsics
 from ..errors import CalibrationError, InputError
+from .images import MAX_IMAGE_PIXELS
 
 __all__ = [
     "MAX_CALIBRATION_BYTES",
@@ -262,7 +266,7 @@ def _opencv_message(exc: BaseException) -> str:
 
 
 def _opencv_node_value(node: Any, what: str, depth: int = 0) -> Any:
-    """A FileNode as a Python value: matrices via ``FileNode.mat()``, never by hand."""
+    """A FileNode as a Python value; matrices through :func:`_opencv_matrix`."""
     if node.empty() or node.isNone():
         return None
     if node.isInt():
@@ -274,18 +278,53 @@ def _opencv_node_value(node: Any, what: str, depth: int = 0) -> Any:
     if node.isSeq():
         if depth > 2:
             raise CalibrationError(f"{what} is nested too deeply")
+        if node.size() > _MAX_NUMBERS:
+            raise CalibrationError(f"{what} has far more numbers than a calibration holds")
         return [_opencv_node_value(node.at(i), what, depth + 1) for i in range(node.size())]
     if node.isMap():
-        import cv2
-
-        try:
-            matrix = node.mat()
-        except (cv2.error, SystemError) as exc:
-            raise CalibrationError(f"{what} is not a valid OpenCV matrix: {_opencv_message(exc)}") from None
-        if matrix is None:
-            raise CalibrationError(f"{what} is a mapping, expected a matrix or a list of numbers")
-        return np.asarray(matrix, dtype=float)
+        return _opencv_matrix(node, what)
     return None
+
+
+#: The element type of an ``opencv-matrix``: channels (optional) and a type letter.
+_OPENCV_ELEMENT_TYPE = re.compile(r"([1-9][0-9]?)?([ucwsifdh])")
+
+
+def _opencv_matrix(node: Any, what: str) -> np.ndarray:
+    """An ``opencv-matrix`` (rows, cols, dt, data) or ``opencv-nd-matrix`` (sizes, dt,
+    data) mapping, read and checked field by field, as a flat array.
+
+    ``FileNode.mat()`` is not used: OpenCV corrupts its heap on a matrix without rows or
+    cols (it raises, and the process aborts later with a double free), so no matrix is
+    handed to OpenCV's reader at all.
+    """
+    if node.getNode("data").empty():
+        raise CalibrationError(f"{what} is a mapping, expected a matrix or a list of numbers")
+    sizes = node.getNode("sizes")
+    if sizes.isSeq() and 1 <= sizes.size() <= 4:
+        dimensions = [_opencv_count(sizes.at(i), f"{what} sizes") for i in range(sizes.size())]
+    else:
+        dimensions = [_opencv_count(node.getNode(key), f"{what} {key}") for key in ("rows", "cols")]
+    element = node.getNode("dt")
+    match = _OPENCV_ELEMENT_TYPE.fullmatch(element.string() if element.isString() else "")
+    if match is None:
+        raise CalibrationError(f"{what} is not a valid OpenCV matrix: no valid element type (dt)")
+    count = math.prod(dimensions) * int(match.group(1) or 1)
+    data = node.getNode("data")
+    if not data.isSeq() or count > _MAX_NUMBERS or data.size() != count:
+        size = data.size() if data.isSeq() else 0
+        raise CalibrationError(f"{what} is not a valid OpenCV matrix: it declares {count} numbers and holds {size}")
+    values = [data.at(i) for i in range(count)]
+    if not all(value.isInt() or value.isReal() for value in values):
+        raise CalibrationError(f"{what} is not a valid OpenCV matrix: its data must be numbers")
+    return np.array([value.real() for value in values], dtype=float)
+
+
+def _opencv_count(node: Any, what: str) -> int:
+    """A matrix dimension: a whole number from 1 to _MAX_NUMBERS."""
+    if not node.isInt() or not 1 <= node.real() <= _MAX_NUMBERS:
+        raise CalibrationError(f"{what} must be a whole number from 1 to {_MAX_NUMBERS}")
+    return int(node.real())
 
 
 def _normalise_key(key: Any) -> str:
@@ -407,6 +446,10 @@ def _build_intrinsics(
     if zero_10 != 0 or zero_20 != 0 or zero_21 != 0 or one != 1:
         raise CalibrationError(
             f"{name}: {k_key} is not an intrinsic matrix: expected the form [fx 0 cx; 0 fy cy; 0 0 1]"
+        )
+    if width * height > MAX_IMAGE_PIXELS:
+        raise CalibrationError(
+            f"{name}: a {width}x{height} image has more pixels than hbvs reads ({MAX_IMAGE_PIXELS} at most)"
         )
     if not (0.0 <= cx <= width and 0.0 <= cy <= height):
         raise CalibrationError(
@@ -695,6 +738,8 @@ def calibration_from_foxglove(
         raw_d = []
     if not isinstance(raw_d, Sequence) or isinstance(raw_d, (str, bytes)):
         raise CalibrationError(f"{source}: D must be a list of numbers, found {_kind_of(raw_d)}")
+    if len(raw_d) > _MAX_NUMBERS:
+        raise CalibrationError(f"{source}: D has far more numbers than a calibration holds")
     coefficients = [_number(v, f"{source}: D") for v in raw_d]
     model = msg.get("distortion_model", "")
     if model is not None and not isinstance(model, str):

@@ -57,6 +57,10 @@ def load_config(path: str | Path) -> dict[str, Any]:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: malformed TOML ({exc})") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise InputError(f"{path}: malformed TOML (nested too deeply)") from None
+    except ValueError as exc:  # an integer literal past Python's conversion limit
+        raise InputError(f"{path}: malformed TOML ({str(exc)[:80]})") from None
     flat: dict[str, Any] = {}
     for key, value in data.items():
         if isinstance(value, dict):
@@ -74,18 +78,29 @@ def _checked(path: Path, table: str, key: str, value: Any) -> Any:
     expected = SCHEMA[table].get(key)
     if expected is None:
         known = ", ".join(SCHEMA[table])
-        raise InputError(f"{path}: unknown key {where} (known here: {known})")
+        raise InputError(f"{path}: unknown key {_short(where)} (known here: {known})")
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{path}: {where} must be a number, got {value!r}")
-        value = float(value)
+            raise InputError(f"{path}: {where} must be a number, got {_short(value)}")
+        try:
+            value = float(value)
+        except OverflowError:  # an integer literal beyond float range
+            raise InputError(f"{path}: {where} is out of range") from None
         if math.isnan(value):
             raise InputError(f"{path}: {where} is NaN")
         return value
     if expected is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{path}: {where} must be a whole number, got {value!r}")
+            raise InputError(f"{path}: {where} must be a whole number, got {_short(value)}")
+        if not -(2**63) <= value < 2**63:  # TOML integers are 64-bit; tomllib does not check
+            raise InputError(f"{path}: {where} is out of range")
         return value
     if not isinstance(value, str):
-        raise InputError(f"{path}: {where} must be a string, got {value!r}")
+        raise InputError(f"{path}: {where} must be a string, got {_short(value)}")
     return value
+
+
+def _short(value: Any) -> str:
+    """A value for a one-line message, cut to a readable length."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

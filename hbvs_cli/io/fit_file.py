@@ -18,6 +18,7 @@ Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,10 +28,12 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.trajectory import SplineTrajectory
 from ..core.world import World
-from ..errors import RecordingError
+from ..errors import HbvsError, RecordingError
+from .calibration import intrinsics_from_values
 from .images import image_bytes_from_message
 from .mcap_io import McapStream, read_metadata, time_message
 from .schemas import TOPICS
+from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
 
 FILE_KIND = "fit"
 MODEL_TOPIC = "/fit/model"
@@ -48,12 +51,48 @@ def camera_to_dict(camera: CameraIntrinsics) -> dict[str, Any]:
 
 
 def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
-    return CameraIntrinsics(
-        fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
-        width=int(data["width"]), height=int(data["height"]),
-        distortion_model=str(data.get("distortion_model", "none")),
-        distortion=tuple(float(v) for v in data.get("distortion", ())),
+    """The inverse of :func:`camera_to_dict`, with the checks of a calibration file.
+
+    Raises
+    ------
+    CalibrationError
+        Values that are not a valid camera (or an image larger than hbvs reads).
+    """
+    K = [data["fx"], 0.0, data["cx"], 0.0, data["fy"], data["cy"], 0.0, 0.0, 1.0]
+    return intrinsics_from_values(
+        K, data["width"], data["height"], str(data.get("distortion_model", "none")), data.get("distortion", ()), "camera",
     )
+
+
+def _positive_number(value: Any, what: str, optional: bool = False) -> float | None:
+    """``value`` as a finite positive float (None allowed when ``optional``); ValueError otherwise."""
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < math.inf:
+        raise ValueError(f"{what} must be a positive number, got {value!r}")
+    return float(value)
+
+
+def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
+    """The recorded detector description, checked for what repeat reads from it."""
+    if not isinstance(detector, dict):
+        raise ValueError("detector must be a mapping")
+    if detector.get("kind", kind) != kind:
+        raise ValueError(f"detector kind {detector.get('kind')!r} differs from the target kind {kind!r}")
+    for key in ("n_points", "marker_id"):
+        value = detector.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000):
+            raise ValueError(f"detector {key} must be a small whole number, got {value!r}")
+    for key in ("template_pixels", "initial_pixels"):
+        value = detector.get(key)
+        if value is None:
+            continue
+        array = np.asarray(value, dtype=float)
+        if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] > MAX_TARGET_POINTS:
+            raise ValueError(f"detector {key} must be rows of (u, v) pixels")
+        if key == "initial_pixels" and array.shape[0] != points:
+            raise ValueError(f"detector initial_pixels has {array.shape[0]} points, the reference {points}")
+    return dict(detector)
 
 
 @dataclass
@@ -144,28 +183,42 @@ class FitModel:
 
     @classmethod
     def from_message(cls, message: dict[str, Any], source: str = "") -> "FitModel":
-        """Parse and validate a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed."""
-        from ..errors import HbvsError
+        """Parse and validate a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed.
 
+        Everything ``repeat`` later uses is checked here, so that a damaged or hostile
+        model fails with one clear message rather than deep inside the simulation: the
+        camera as a calibration, the world as :func:`~.teach_file.world_from_description`,
+        finite reference points (at most :data:`~.teach_file.MAX_TARGET_POINTS`), a
+        non-zero normal, a positive dhat0 and frame interval, the detector and render
+        settings.
+        """
         try:
-            if int(message.get("format_version", -1)) != FORMAT_VERSION:
+            if message.get("format_version") != FORMAT_VERSION:
                 raise ValueError(f"unsupported model format_version {message.get('format_version')!r}")
             reference = message["reference"]
             m_ref = np.asarray(reference["m_ref"], dtype=float)
             pixels = np.asarray(reference["pixels"], dtype=float)
             normal = np.asarray(message["normal"], dtype=float)
-            if m_ref.ndim != 2 or m_ref.shape[1] != 3 or m_ref.shape[0] < 3 or pixels.shape != (m_ref.shape[0], 2):
-                raise ValueError("reference points must be N >= 3 rows of [1, m_y, m_z] with matching pixels")
-            if normal.shape != (3,) or not np.all(np.isfinite(normal)):
-                raise ValueError("normal must be 3 finite numbers")
-            dhat0 = float(message["dhat0"])
-            if not (np.isfinite(dhat0) and dhat0 > 0):
-                raise ValueError("dhat0 must be a positive number")
-            world = World.from_dict(message["world"]) if message.get("world") else None
-            taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
+            if m_ref.ndim != 2 or m_ref.shape[1] != 3 or not 3 <= m_ref.shape[0] <= MAX_TARGET_POINTS or pixels.shape != (m_ref.shape[0], 2):
+                raise ValueError(
+                    f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels"
+                )
+            if not (np.all(np.isfinite(m_ref)) and np.all(np.isfinite(pixels))):
+                raise ValueError("reference points hold NaN or infinity")
+            if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
+                raise ValueError("normal must be 3 finite numbers, not all zero")
+            dhat0 = _positive_number(message["dhat0"], "dhat0")
             kind = str(message["target_kind"])
             if kind not in ("dots", "aruco", "texture"):
                 raise ValueError(f"unknown target kind {kind!r}")
+            world = world_from_description(message["world"], source) if message.get("world") else None
+            taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
+            frames = dict(message.get("frames") or {})
+            _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
+            render = message.get("render")
+            if render is not None and render_settings_problem(render) is not None:
+                raise ValueError(f"render: {render_settings_problem(render)}")
+            margin = message.get("normal_margin")
             return cls(
                 target_kind=kind,
                 camera=camera_from_dict(message["camera"]),
@@ -174,22 +227,22 @@ class FitModel:
                 reference_pixels=pixels,
                 m_ref=m_ref,
                 normal=normal,
-                normal_margin=float(message.get("normal_margin", float("nan")) or float("nan")),
+                normal_margin=float(margin) if margin is not None else float("nan"),
                 trajectory=SplineTrajectory.from_dict(message["trajectory"]),
                 dhat0=dhat0,
                 dhat0_source=str(message.get("dhat0_source", "")),
                 depth=dict(message.get("depth") or {}),
-                frames=dict(message.get("frames") or {}),
+                frames=frames,
                 condition35=dict(message.get("condition35") or {}),
                 residual_px=dict(message.get("residual_px") or {}),
-                detector=dict(message.get("detector") or {}),
+                detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
                 world=world,
                 taught_path=taught,
-                render=dict(message["render"]) if isinstance(message.get("render"), dict) else None,
+                render=dict(render) if render is not None else None,
             )
         except HbvsError as exc:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except PARSE_ERRORS as exc:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import zlib
 from typing import Any
 
 import numpy as np
@@ -32,11 +33,75 @@ def encode_image(image: NDArray[np.uint8], image_format: str = "png", jpeg_quali
     return buffer.tobytes()
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Most pixels a byte of compressed data can hold, by the file's first two bytes. Deflate
+#: expands at most 1032:1 and a 1-bit PNG packs 8 pixels a byte; a JPEG spends a few bits
+#: at least on every 8x8 block, even with progressive end-of-band runs.
+_MAX_PIXELS_PER_BYTE = {b"\x89P": 8 * 1100, b"\xff\xd8": 1 << 14}
+#: JPEG start-of-frame markers, which carry the image size (C4, C8 and CC are not frames).
+_JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+#: JPEG markers that stand alone, without a length field.
+_JPEG_BARE_MARKERS = frozenset(range(0xD0, 0xDA)) | {0x01}
+
+
 def image_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) read from a PNG or JPEG header without decoding, when available."""
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24:
+    """(width, height) read from a PNG, JPEG or BMP header without decoding, when available.
+
+    Decoders allocate the whole image from these numbers before reading any pixel, so a
+    few hostile bytes could ask for gigabytes; other formats rely on OpenCV's own cap.
+    """
+    if data[:8] == _PNG_SIGNATURE and len(data) >= 24:
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    if data[:2] == b"BM" and len(data) >= 26:
+        width = int.from_bytes(data[18:22], "little", signed=True)
+        height = int.from_bytes(data[22:26], "little", signed=True)
+        return abs(width), abs(height)  # a negative height means rows stored top-down
     return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """The size in a JPEG's start-of-frame segment (walking the segments before it)."""
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            return None
+        marker = data[offset + 1]
+        if marker == 0xFF:  # fill byte
+            offset += 1
+            continue
+        if marker in _JPEG_BARE_MARKERS:
+            offset += 2
+            continue
+        if marker in _JPEG_FRAME_MARKERS:
+            if offset + 9 > len(data):
+                return None
+            return int.from_bytes(data[offset + 7:offset + 9], "big"), int.from_bytes(data[offset + 5:offset + 7], "big")
+        if marker == 0xDA:  # scan data before any frame header: let the decoder refuse it
+            return None
+        offset += 2 + int.from_bytes(data[offset + 2:offset + 4], "big")
+    return None
+
+
+def _png_problem(data: bytes) -> str | None:
+    """What is wrong with a PNG's chunk structure (lengths, CRCs, the end chunk), if anything.
+
+    OpenCV's PNG reader trusts chunk lengths: a damaged one declaring gigabytes costs
+    seconds and as much memory before the decode fails, so PNGs are walked here first.
+    """
+    offset = len(_PNG_SIGNATURE)
+    while offset + 12 <= len(data):
+        length = int.from_bytes(data[offset:offset + 4], "big")
+        end = offset + 12 + length
+        if end > len(data):
+            return f"a {data[offset + 4:offset + 8]!r} chunk runs past the end of the data"
+        if zlib.crc32(data[offset + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            return f"a {data[offset + 4:offset + 8]!r} chunk fails its CRC check"
+        if data[offset + 4:offset + 8] == b"IEND":
+            return None
+        offset = end
+    return "the data ends before the PNG's end chunk"
 
 
 def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
@@ -49,6 +114,17 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
     size = image_size(data)
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise InputError(f"{source}: an image declares {size[0]}x{size[1]} pixels, more than hbvs accepts")
+    density = _MAX_PIXELS_PER_BYTE.get(data[:2])
+    if size is not None and density is not None and size[0] * size[1] > density * len(data):
+        # Decoders allocate and walk every declared row even when the data runs out, so
+        # a few damaged bytes would cost seconds and megabytes before failing anyway.
+        raise InputError(
+            f"{source}: cannot be decoded as an image ({len(data)} bytes cannot hold the "
+            f"{size[0]}x{size[1]} pixels its header declares: corrupt or truncated)"
+        )
+    problem = _png_problem(data) if data[:8] == _PNG_SIGNATURE else None
+    if problem is not None:
+        raise InputError(f"{source}: cannot be decoded as an image ({problem}: corrupt or truncated)")
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     except (cv2.error, SystemError):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+from array import array
 from pathlib import Path
 
 import numpy as np
@@ -45,33 +46,47 @@ def parse_command_csv(text: str, name: str = "commands.csv") -> CommandProfile:
     columns = [h.strip().lower() for h in header]
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if missing:
-        raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {','.join(columns)})")
+        raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {_short(','.join(columns))})")
     index = [columns.index(c) for c in REQUIRED_COLUMNS]
-    rows = []
+    # Packed doubles, not a list per row: a 64 MiB file of short rows is ten million
+    # rows, which as Python lists would take gigabytes.
+    values = [array("d") for _ in REQUIRED_COLUMNS]
+    lines = array("q")
     try:
         for line_number, row in enumerate(reader, start=2):
             if not row or all(not cell.strip() for cell in row):
                 continue
             try:
-                rows.append([float(row[i]) for i in index])
+                numbers = [float(row[i]) for i in index]
             except (ValueError, IndexError):
-                raise InputError(f"{name}:{line_number}: expected three numbers t,v,w, got {','.join(row)!r}") from None
+                raise InputError(f"{name}:{line_number}: expected three numbers t,v,w, got {_short(','.join(row))}") from None
+            for column, number in zip(values, numbers):
+                column.append(number)
+            lines.append(line_number)
     except csv.Error as exc:
         raise InputError(f"{name}: malformed CSV ({exc})") from None
-    if len(rows) < 2:
+    if len(lines) < 2:
         raise InputError(f"{name}: needs at least two command rows")
-    data = np.array(rows)
-    if not np.all(np.isfinite(data)):
+    t, v, w = (np.frombuffer(column, dtype=float).copy() for column in values)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
         raise InputError(f"{name}: contains NaN or infinity")
-    t = data[:, 0]
     steps = np.diff(t)
     if np.any(steps <= 0.0):
         bad = int(np.flatnonzero(steps <= 0.0)[0])
-        raise InputError(f"{name}:{bad + 3}: time must increase strictly (t={t[bad + 1]:g} s after t={t[bad]:g} s)")
+        raise InputError(f"{name}:{lines[bad + 1]}: time must increase strictly (t={t[bad + 1]:g} s after t={t[bad]:g} s)")
+    t_end = float(t[-1]) + float(np.median(steps))  # Python floats overflow to inf quietly
+    if not np.isfinite(t_end):
+        raise InputError(f"{name}: the times are too large")
     try:
-        return CommandProfile(t=t, v=data[:, 1], w=data[:, 2], t_end=float(t[-1] + np.median(steps)))
+        return CommandProfile(t=t, v=v, w=w, t_end=t_end)
     except HbvsError as exc:
         raise InputError(f"{name}: {exc}") from None
+
+
+def _short(text: str) -> str:
+    """A cell or row for a one-line message, cut to a readable length."""
+    text = repr(text)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def save_command_profile(profile: CommandProfile, path: str | Path) -> None:

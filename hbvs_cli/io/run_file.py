@@ -20,6 +20,7 @@ Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,12 +81,45 @@ class RunData:
         return int(self.state["t"].size)
 
 
+#: Metadata entries ``hbvs report`` reads, and the types they must have when present.
+INFO_TYPES: dict[str, tuple[type, ...]] = {
+    "mode": (str,), "law": (str,), "settings": (dict,), "gains": (dict,), "condition35": (dict,),
+    "d_true": (int, float), "dhat0": (int, float), "fit_frames": (dict,),
+}
+
+
 def _number(value: Any) -> float:
     if value is None:
         return float("nan")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"expected a number, got {value!r}")
     return float(value)
+
+
+def _check_info(info: dict[str, Any], name: str) -> None:
+    """Refuse metadata whose entries have types ``hbvs report`` cannot use, or that holds
+    NaN or infinity (hbvs writes those as null; the report's JSON cannot hold them)."""
+    for key, types in INFO_TYPES.items():
+        value = info.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, types)):
+            raise RecordingError(f"{name}: malformed hbvs metadata: {key} = {str(value)[:60]!r}")
+    pending = list(info.values())
+    while pending:
+        value = pending.pop()
+        if isinstance(value, dict):
+            pending.extend(value.values())
+        elif isinstance(value, list):
+            pending.extend(value)
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity")
+
+
+def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[float, int, str]:
+    """(t, level, text) of a ``foxglove.Log`` message."""
+    level = data.get("level", 0)
+    if isinstance(level, bool) or not isinstance(level, int):
+        raise RecordingError(f"{name}: malformed event message (level {str(level)[:40]!r} is not a whole number)")
+    return log_time * 1e-9, level, str(data.get("message", ""))
 
 
 def read_run(source: Any, name: str = "") -> RunData:
@@ -125,16 +159,18 @@ def read_run(source: Any, name: str = "") -> RunData:
         elif message.topic == DESIRED_POSE_TOPIC:
             desired_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
         elif message.topic == EVENTS_TOPIC:
-            data = message.json(stream.name)
-            events.append((message.log_time * 1e-9, int(data.get("level", 0)), str(data.get("message", ""))))
+            events.append(_event(message.json(stream.name), message.log_time, stream.name))
     info = read_metadata(stream, "hbvs")
     if info.get("file_kind") != FILE_KIND:
         kind = info.get("file_kind")
         what = f"a {kind!r} file" if kind else "not an hbvs run file"
         raise RecordingError(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat")
+    _check_info(info, stream.name)
     if not step_times:
         raise RecordingError(f"{stream.name}: the run has no control steps")
     state = {key: np.array(values) for key, values in columns.items()}
+    if not np.all(np.isfinite(state["t"])) or np.any(np.diff(state["t"]) < 0):
+        raise RecordingError(f"{stream.name}: the step times are missing, not finite or go backwards")
 
     def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
         if not poses:

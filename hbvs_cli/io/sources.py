@@ -14,6 +14,7 @@ change from frame to frame as a per-frame stretch would).
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import re
@@ -28,8 +29,9 @@ import numpy as np
 import yaml
 
 from ..core.camera import CameraIntrinsics
-from ..errors import CalibrationError, HbvsError, InputError, UsageError
+from ..errors import CalibrationError, HbvsError, InputError, RecordingError, UsageError
 from .calibration import intrinsics_from_values
+from .mcap_io import ChannelSummary, McapMessage, McapStream, read_summary
 
 __all__ = [
     "SourceFrame",
@@ -527,11 +529,22 @@ class _Topic:
     count: int | None
 
 
+#: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
+_MAX_SCHEMA_BYTES = 1 << 20
+#: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
+#: element by element in Python, so a huge one would take seconds for nothing.
+_MAX_CAMERA_INFO_BYTES = 1 << 16
+
+
 @contextlib.contextmanager
 def _bag_errors(name: str) -> Iterator[None]:
-    """Turn whatever the MCAP reader or decoder raises on a damaged file into InputError."""
+    """Turn what the MCAP reader or the CDR decoder raises on a damaged file into one
+    InputError that says so."""
     try:
         yield
+    except RecordingError as exc:
+        detail = str(exc).removeprefix(f"{name}: ")
+        raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from None
     except HbvsError:
         raise
     except Exception as exc:
@@ -541,11 +554,46 @@ def _bag_errors(name: str) -> Iterator[None]:
         raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from exc
 
 
-def _make_reader(stream: Any) -> Any:
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+def _require_complete(stream: McapStream, name: str) -> None:
+    """A bag file that ends early or turns unreadable is refused, as a damaged input
+    (raised as a RecordingError, which :func:`_bag_errors` words for bags)."""
+    if stream.truncated:
+        raise RecordingError(f"{name}: {stream.stop_reason}")
 
-    return make_reader(stream, decoder_factories=[DecoderFactory()])
+
+class _Ros2Decoders:
+    """CDR decoders from mcap-ros2-support, one per distinct schema, built on first use."""
+
+    def __init__(self) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
+        self._factory = DecoderFactory()
+        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
+
+    def decode(self, message: McapMessage, what: str) -> Any:
+        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
+        decoder = self._decoders.get(key)
+        if decoder is None:
+            from mcap.records import Schema
+
+            if len(message.schema_data) > _MAX_SCHEMA_BYTES:
+                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
+            # The factory caches decoders by schema id: every distinct schema gets its own.
+            schema = Schema(
+                id=len(self._decoders) + 1, name=message.schema_name,
+                encoding=message.schema_encoding, data=message.schema_data,
+            )
+            # The vendored ROS parser prints its own complaint about a bad definition on
+            # stderr before raising; the exception says it already, in hbvs's one line.
+            with contextlib.redirect_stderr(io.StringIO()):
+                decoder = self._factory.decoder_for(message.message_encoding, schema)
+            if decoder is None:
+                raise InputError(
+                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
+                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                )
+            self._decoders[key] = decoder
+        return decoder(message.data)
 
 
 class BagSource(FrameSource):
@@ -585,8 +633,13 @@ class BagSource(FrameSource):
     -----
     ``t`` comes from ``header.stamp`` relative to the first frame; a frame with a zero
     stamp (drivers that do not fill it) falls back to the message log time. Frames are
-    yielded in log-time order, so a driver whose stamps go backwards gives a ``t`` that
-    does too.
+    yielded in the order the bag stores them (the order rosbag2 received them), so a
+    driver whose stamps go backwards gives a ``t`` that does too.
+
+    Files are read through :class:`~hbvs_cli.io.mcap_io.McapStream` (and
+    :func:`~hbvs_cli.io.mcap_io.read_summary` for the topic list), with its caps on record,
+    chunk and declaration sizes; message definitions above 1 MiB and CameraInfo messages
+    above 64 KiB are not decoded. A bag file cut short is refused rather than read in part.
     """
 
     kind = "ros2_bag"
@@ -594,6 +647,7 @@ class BagSource(FrameSource):
     def __init__(self, path: str | os.PathLike[str], topic: str | None = None) -> None:
         self.path = str(path)
         self.files = _bag_files(Path(path), self.path)
+        self._decoders = _Ros2Decoders()
         topics = self._scan()
         self.topic, self._topic = self._choose(topics, topic)
         self.camera = None
@@ -617,28 +671,25 @@ class BagSource(FrameSource):
                 known.count = None
 
         for file in self.files:
-            with open(file, "rb") as stream, _bag_errors(str(file)):
-                reader = _make_reader(stream)
-                summary = reader.get_summary()
-                if summary is not None and summary.channels:
-                    counts = summary.statistics.channel_message_counts if summary.statistics else None
-                    for channel_id, channel in summary.channels.items():
-                        schema = summary.schemas.get(channel.schema_id)
-                        type_name = _ros2_type(schema.name) if schema is not None else ""
-                        count = counts.get(channel_id, 0) if counts is not None else None
-                        add(channel.topic, type_name, channel.message_encoding, count)
-                else:
-                    # No summary (a recorder killed before finishing it): stream the
-                    # records once; messages are counted, not kept.
-                    seen: dict[int, int] = {}
-                    channels: dict[int, Any] = {}
-                    for schema, channel, _message in reader.iter_messages(log_time_order=False):
-                        seen[channel.id] = seen.get(channel.id, 0) + 1
-                        channels[channel.id] = (channel, schema)
-                    for channel_id, (channel, schema) in channels.items():
-                        type_name = _ros2_type(schema.name) if schema is not None else ""
-                        add(channel.topic, type_name, channel.message_encoding, seen[channel_id])
+            with _bag_errors(str(file)):
+                listed = read_summary(file, str(file))
+                if listed is None:
+                    listed = self._stream_channels(file)
+            for channel in listed:
+                add(channel.topic, _ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
         return topics
+
+    @staticmethod
+    def _stream_channels(file: Path) -> list[ChannelSummary]:
+        """Channels and message counts from one pass over a file without a summary (a
+        recorder killed before writing it); messages are counted, not kept."""
+        stream = McapStream(file, name=str(file))
+        counts: dict[tuple[str, str, str, str], int] = {}
+        for message in stream:
+            key = (message.topic, message.schema_name, message.schema_encoding, message.message_encoding)
+            counts[key] = counts.get(key, 0) + 1
+        _require_complete(stream, str(file))
+        return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
 
     def _choose(self, topics: dict[str, _Topic], topic: str | None) -> tuple[str, _Topic]:
         images = sorted(
@@ -682,37 +733,45 @@ class BagSource(FrameSource):
         return best if shared(best) > 0 else None
 
     def _read_camera_info(self, topic: str) -> tuple[CameraIntrinsics | None, str | None]:
-        """The first CameraInfo message, reading only that channel's data."""
+        """The first CameraInfo message, reading only up to it."""
         source = f"{self.path} {topic}"
         for file in self.files:
-            with open(file, "rb") as stream, _bag_errors(str(file)):
-                reader = _make_reader(stream)
-                messages = reader.iter_decoded_messages(topics=[topic])
+            stream = McapStream(file, topics={topic}, name=str(file))
+            messages = iter(stream)
+            with _bag_errors(str(file)):
                 try:
                     first = next(messages, None)
                 finally:
                     messages.close()
-            if first is None:
-                continue
-            info = first.decoded_message
-            k = [float(v) for v in info.k]
-            if not any(k):
-                return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
-            if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
-                return None, f"{source}: binning is not supported; give a calibration for the binned images"
-            roi = getattr(info, "roi", None)
-            if roi is not None and int(getattr(roi, "width", 0)) > 0:
-                return None, (
-                    f"{source}: a region of interest is not supported; give a calibration for the cropped images"
-                )
+                if first is None:
+                    _require_complete(stream, str(file))
+                    continue
+                if len(first.data) > _MAX_CAMERA_INFO_BYTES:
+                    return None, f"{source}: a CameraInfo message of {len(first.data)} bytes is not one hbvs can use"
+                info = self._decoders.decode(first, source)
             try:
-                camera = intrinsics_from_values(
-                    k, info.width, info.height, info.distortion_model, list(info.d), source
-                )
-            except CalibrationError as exc:
-                return None, str(exc)
-            return camera, None
+                return self._camera_from_info(info, source)
+            except (AttributeError, TypeError, ValueError, OverflowError) as exc:
+                return None, f"{source}: malformed CameraInfo ({exc})"
         return None, f"{source}: the topic has no messages"
+
+    @staticmethod
+    def _camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+        k = [float(v) for v in info.k]
+        if not any(k):
+            return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
+        if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
+            return None, f"{source}: binning is not supported; give a calibration for the binned images"
+        roi = getattr(info, "roi", None)
+        if roi is not None and int(getattr(roi, "width", 0)) > 0:
+            return None, (
+                f"{source}: a region of interest is not supported; give a calibration for the cropped images"
+            )
+        try:
+            camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
+        except CalibrationError as exc:
+            return None, str(exc)
+        return camera, None
 
     # -- frames
     def __iter__(self) -> Iterator[SourceFrame]:
@@ -722,25 +781,27 @@ class BagSource(FrameSource):
         size: tuple[int, int] | None = None
         index = 0
         for file in self.files:
-            with open(file, "rb") as stream, _bag_errors(str(file)):
-                reader = _make_reader(stream)
-                for _schema, _channel, message, decoded in reader.iter_decoded_messages(topics=[self.topic]):
+            stream = McapStream(file, topics={self.topic}, name=str(file))
+            with _bag_errors(str(file)):
+                for message in stream:
                     what = f"{self.path} {self.topic} message {index}"
+                    decoded = self._decoders.decode(message, what)
                     image, encoded, fmt = self._convert(decoded, what)
                     size = _same_size(size, image, what)
                     stamp = getattr(decoded, "header", None)
                     stamp_ns = (int(stamp.stamp.sec) * _NS + int(stamp.stamp.nanosec)) if stamp is not None else 0
                     if first_ns is None:
                         use_stamp = stamp_ns != 0
-                        stamp_minus_log = stamp_ns - int(message.log_time) if use_stamp else 0
-                        first_ns = stamp_ns if use_stamp else int(message.log_time)
+                        stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
+                        first_ns = stamp_ns if use_stamp else message.log_time
                     if use_stamp and stamp_ns != 0:
                         ns = stamp_ns
                     else:
                         # Same clock as the first frame: shift the log time onto the stamps.
-                        ns = int(message.log_time) + stamp_minus_log
+                        ns = message.log_time + stamp_minus_log
                     yield SourceFrame(t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt)
                     index += 1
+                _require_complete(stream, str(file))
         if index == 0:
             raise InputError(f"{self.path}: topic {self.topic} has no messages")
 

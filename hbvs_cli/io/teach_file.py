@@ -17,16 +17,19 @@ time, so a streaming reader has them when the image arrives.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Iterator
+
+import numpy as np
 
 from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.world import World
-from ..errors import RecordingError
-from .calibration import calibration_from_foxglove, calibration_to_foxglove
+from ..errors import HbvsError, RecordingError
+from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .images import compressed_image_message
-from .mcap_io import McapStream, McapWriter, read_metadata, time_message
+from .mcap_io import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .schemas import TOPICS
 
@@ -35,6 +38,74 @@ IMAGE_TOPIC = "/camera/image"
 CALIBRATION_TOPIC = "/camera/calibration"
 COMMAND_TOPIC = "/teach/cmd_vel"
 POSE_TOPIC = "/ground_truth/pose"
+
+#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
+#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
+MAX_POSTER_SIDE_M = 10.0
+#: Most target points accepted from a file (dot posters have up to 10, the others 4).
+MAX_TARGET_POINTS = 64
+#: The settings of a simulated teach that repeat reuses to render the same sensor.
+RENDER_SETTINGS = ("noise", "blur", "exposure")
+
+#: What a malformed description can raise while it is parsed (outside HbvsError).
+PARSE_ERRORS = (LookupError, TypeError, ValueError, AttributeError, ArithmeticError)
+
+
+def world_from_description(data: Any, source: str) -> World:
+    """A :class:`World` from its recorded description, checked so that rendering it is safe.
+
+    Beyond :meth:`World.from_dict`: the camera passes the calibration checks (image size
+    capped), the poster is at most :data:`MAX_POSTER_SIDE_M` a side with unit, orthogonal
+    axes, the camera height and dot radius are finite, and there are at most
+    :data:`MAX_TARGET_POINTS` points.
+
+    Raises
+    ------
+    RecordingError
+        The description is malformed or outside those bounds.
+    """
+    try:
+        world = World.from_dict(data)
+    except HbvsError as exc:  # World says "malformed world description: ..." itself
+        raise RecordingError(f"{source}: {exc}") from None
+    except PARSE_ERRORS as exc:
+        raise RecordingError(f"{source}: malformed world description ({exc})") from None
+    camera = world.camera
+    try:
+        intrinsics_from_values(camera.K, camera.width, camera.height, camera.distortion_model, camera.distortion, "camera")
+    except HbvsError as exc:
+        raise RecordingError(f"{source}: the world's {exc}") from None
+    target = world.target
+    poster = target.poster
+    axes = np.array([poster.right, poster.down])
+    problems = [
+        (not math.isfinite(world.camera_height), "the camera height is not finite"),
+        (not (0.0 < poster.width <= MAX_POSTER_SIDE_M and 0.0 < poster.height <= MAX_POSTER_SIDE_M),
+         f"the poster must measure more than 0 and at most {MAX_POSTER_SIDE_M:g} m a side"),
+        (not np.allclose(axes @ axes.T, np.eye(2), atol=1e-6), "the poster's axes are not orthogonal unit vectors"),
+        (not (math.isfinite(target.dot_radius) and 0.0 <= target.dot_radius <= max(poster.width, poster.height)),
+         "the dot radius is not a size on the poster"),
+        (target.points_poster.shape[0] > MAX_TARGET_POINTS, f"more than {MAX_TARGET_POINTS} target points"),
+    ]
+    for failed, reason in problems:
+        if failed:
+            raise RecordingError(f"{source}: malformed world description ({reason})")
+    return world
+
+
+def render_settings_problem(settings: Any) -> str | None:
+    """Why recorded sensor settings (noise, blur, exposure) are unusable, or None when fine."""
+    if not isinstance(settings, dict):
+        return "the settings are not a mapping"
+    for key in RENDER_SETTINGS:
+        value = settings.get(key)
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+            return f"the setting {key} = {str(value)[:40]!r} is not a finite non-negative number"
+    if settings.get("exposure") == 0:
+        return "the exposure setting is zero"
+    return None
 
 
 class TeachWriter:
@@ -87,7 +158,9 @@ class TeachFrame:
     t : float
         Seconds since the first frame.
     image_message : bytes
-        The ``foxglove.CompressedImage`` JSON, as stored (to copy it or decode it).
+        The ``foxglove.CompressedImage`` JSON, as stored (to copy it or decode it); its
+        size, number of values and nesting are within the caps of
+        :func:`~hbvs_cli.io.mcap_io.check_json_limits`, so decoding it is safe.
     pose : (x, y, phi) or None
         True robot pose (simulated recordings).
     command : (v, w) or None
@@ -107,7 +180,17 @@ class TeachReader:
     """Streams the frames of a teach recording (a file or ``-``) in constant memory.
 
     ``camera``, ``world`` and ``info`` are filled as the records arrive; all of them come
-    before the first frame in files written by ``hbvs teach``.
+    before the first frame in files written by ``hbvs teach``. A recording cut short (a
+    crashed recorder) yields its frames up to the last complete one, then sets
+    :attr:`truncated`.
+
+    Raises
+    ------
+    InputError
+        (:class:`~hbvs_cli.errors.RecordingError`, :class:`~hbvs_cli.errors.CalibrationError`)
+        while iterating, for anything malformed: not an MCAP file, not a teach recording,
+        a topic with the wrong schema, a message that is not a valid JSON object of its
+        kind, a world description outside :func:`world_from_description`'s bounds.
     """
 
     source: Any
@@ -128,11 +211,16 @@ class TeachReader:
         if info:
             kind = info.get("file_kind")
             if kind != FILE_KIND:
-                raise RecordingError(f"{self.name}: this is a {kind!r} file; a teach recording (from hbvs teach) is expected")
+                what = f"a {kind!r} file" if isinstance(kind, str) else "a file whose hbvs metadata names no file kind"
+                raise RecordingError(f"{self.name}: this is {what}; a teach recording (from hbvs teach) is expected")
+            settings = info.get("settings")
+            problem = None if settings is None else render_settings_problem(settings)
+            if problem is not None:
+                raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
             self.info = info
             world = read_metadata(self.stream, "hbvs.world").get("world")
-            if isinstance(world, dict):
-                self.world = World.from_dict(world)
+            if world is not None:
+                self.world = world_from_description(world, self.name)
 
     def frames(self) -> Iterator[TeachFrame]:
         """Yield frames in recording order."""
@@ -155,6 +243,11 @@ class TeachReader:
             elif message.topic == COMMAND_TOPIC:
                 pending_command = (message.log_time, velocity_from_message(message.json(self.name), self.name))
             elif message.topic == IMAGE_TOPIC:
+                # Callers decode image_message themselves (in a worker thread, ahead of
+                # use); the caps are checked here so that any JSON they get is bounded.
+                if message.message_encoding != "json":
+                    raise RecordingError(f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding!r}, expected JSON")
+                check_json_limits(message.data, f"{self.name}: image message")
                 if first_time is None:
                     first_time = message.log_time
                 pose = pending_pose[1] if pending_pose and pending_pose[0] == message.log_time else None
