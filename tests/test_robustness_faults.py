@@ -1,0 +1,156 @@
+"""Faults in the loop, with numbers: occlusion, dropped frames, outliers, latency, an
+exposure step and saturation, on the default scenario (``default_fit``), seed 0.
+
+Final errors are computed as ``hbvs report`` does (``pose_error.*.final``): the mean of
+|error| over the last 5 % of the run, from ``read_run(...).true_pose`` and
+``desired_pose``. Measured on the default scenario (position cm / heading deg):
+
+=====================  ===========  ======================================================
+run                    final error  notes
+=====================  ===========  ======================================================
+clean, images          0.033 / 0.005
+occluded 8-10 s        0.038 / 0.034  60 frames lost; last sample 0.047 cm / 0.024 deg
+5 % outliers, images   0.279 / 0.074  8.5x / 16x the clean run: one spurious dot at
+                                      t = 19.4 s passes the residual gate (see below)
+exposure x0.5 at 10 s  0.049 / 0.008  no frame lost
+clean, points          0.035 / 0.004
+10 % dropped, points   0.057 / 0.005  1.6x / 1.05x the clean run
+latency 2 frames       0.60 / 0.18
+max_v 0.15 m/s         0.086 / 0.030  29 % of the commands saturated
+=====================  ===========  ======================================================
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import make_run, run_hbvs
+
+SEED = 0
+RUNS = {
+    "clean_images": {},
+    "occluded": {"occlude": ["8:10"]},
+    "outliers": {"outlier_rate": 0.05},
+    "exposure": {"exposure_step": "10:0.5"},
+    "clean_points": {"perception": "points"},
+    "dropped": {"perception": "points", "drop_rate": 0.1},
+    "latency": {"perception": "points", "latency": 2},
+    "saturated": {"perception": "points", "max_v": 0.15},
+}
+
+
+@pytest.fixture(scope="module")
+def runs(default_fit, tmp_path_factory):
+    """Every run above, read back, with its ``hbvs report --json`` (one report call)."""
+    from hbvs_cli.io.run_file import read_run
+
+    folder = tmp_path_factory.mktemp("faults")
+    paths = {name: folder / f"{name}.mcap" for name in RUNS}
+    for name, options in RUNS.items():
+        make_run(default_fit[0], paths[name], sim=True, seed=SEED, **options)
+    result = run_hbvs("report", "--json", *(str(path) for path in paths.values()))
+    assert result.returncode == 0, result.stderr
+    reports = json.loads(result.stdout)["runs"]
+    return {name: (read_run(path), report) for (name, path), report in zip(paths.items(), reports)}
+
+
+def pose_errors(run) -> tuple[np.ndarray, np.ndarray]:
+    """Position (cm) and |heading| (deg) error against the taught pose, per step."""
+    difference = run.true_pose - run.desired_pose
+    heading = np.degrees(np.abs(np.angle(np.exp(1j * difference[:, 2]))))
+    return 100.0 * np.hypot(difference[:, 0], difference[:, 1]), heading
+
+
+def final_errors(run) -> tuple[float, float]:
+    """Mean position (cm) and heading (deg) error over the last 5 % of the run."""
+    t = run.state["t"]
+    window = t >= t[-1] - 0.05 * (t[-1] - t[0])
+    position, heading = pose_errors(run)
+    return float(position[window].mean()), float(heading[window].mean())
+
+
+def test_occlusion_stops_safely_then_resumes_and_converges(runs):
+    run, report = runs["occluded"]
+    t = run.state["t"]
+    lost = run.lost
+    # Lost exactly while the target is covered: 2 s at 30 Hz.
+    assert np.all(lost == ((t >= 8.0) & (t < 10.0)))
+    assert int(lost.sum()) == 60 == report["target"]["lost_frames"]
+    # While lost: zero velocity, adaptation frozen (dhat does not move).
+    assert np.all(run.state["v_c"][lost] == 0.0) and np.all(run.state["w_c"][lost] == 0.0)
+    dhat = run.state["dhat"][lost]
+    assert np.all(dhat == dhat[0])
+    texts = [text for _, _, text in run.events]
+    assert any(text.startswith("target lost (") for text in texts)  # "(missing)": no dots seen
+    assert any(text.startswith("target back") for text in texts)
+    # Resumed: moving again right after, and converged by the end.
+    assert np.any(run.state["v_c"][(t >= 10.0) & (t < 10.5)] != 0.0)
+    position, heading = pose_errors(run)
+    assert position[-1] < 1.0 and heading[-1] < 0.2  # last sample: 0.047 cm, 0.024 deg
+    assert final_errors(run)[0] < 1.0 and final_errors(run)[1] < 0.2
+    assert report["verdict"]["converged"], report["verdict"]
+
+
+def test_dropped_frames_cost_at_most_twice_the_clean_error(runs):
+    clean, dropped = final_errors(runs["clean_points"][0]), final_errors(runs["dropped"][0])
+    # Measured: 0.057 cm / 0.0045 deg against 0.035 cm / 0.0043 deg clean.
+    assert dropped[0] <= 2.0 * clean[0] and dropped[1] <= 2.0 * clean[1], (dropped, clean)
+    run, report = runs["dropped"]
+    # A dropped frame holds the last command: it is not a lost target.
+    assert report["target"]["lost_frames"] == 0 == int(run.lost.sum())
+    assert report["verdict"]["converged"], report["verdict"]
+
+
+def test_outliers_are_survived_and_the_run_converges(runs):
+    run, report = runs["outliers"]
+    position, heading = final_errors(run)
+    assert position < 1.0 and heading < 0.2  # measured 0.279 cm, 0.074 deg
+    assert report["verdict"]["converged"], report["verdict"]
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "core: a spurious dot at t = 19.4 s passes the residual gate (core/estimation.py "
+    "DEFAULT_RESIDUAL_GATE = 0.004, 2 px, while clean residuals stay below 5e-5), and a rejected "
+    "frame stops the robot for a period (core/simulator.py holds only STATUS_DROPPED): 8.5x / 16x "
+    "the clean final error. With a gate of 5e-4 and rejected frames held like dropped ones it is "
+    "0.021 cm against 0.023 cm clean. Remove this marker once core is fixed."))
+def test_outliers_cost_at_most_twice_the_clean_error(runs):
+    clean, outliers = final_errors(runs["clean_images"][0]), final_errors(runs["outliers"][0])
+    assert outliers[0] <= 2.0 * clean[0] and outliers[1] <= 2.0 * clean[1], (outliers, clean)
+
+
+def test_latency_is_recorded_and_the_loop_waits_for_its_first_frame(runs):
+    run, report = runs["latency"]
+    assert run.info["settings"]["latency"] == 2
+    # Nothing to act on before the first delayed frame arrives: no measurement, no motion.
+    assert np.all(np.isnan(run.state["x_h1"][:2])) and np.all(run.state["v_c"][:2] == 0.0)
+    assert not np.isnan(run.state["x_h1"][2])
+    position, heading = final_errors(run)
+    assert position < 1.0 and heading < 0.2  # measured 0.60 cm, 0.18 deg: latency costs
+    assert report["target"]["lost_frames"] == 0
+
+
+def test_exposure_step_is_recorded_and_the_detector_copes(runs):
+    run, report = runs["exposure"]
+    assert run.info["settings"]["faults"]["exposure_step"] == "10:0.5"
+    assert report["target"]["lost_frames"] == int(run.lost.sum()) == 0
+    assert report["verdict"]["converged"], report["verdict"]
+
+
+def test_saturation_is_flagged_logged_and_counted(runs):
+    run, report = runs["saturated"]
+    assert np.all(np.abs(run.state["v_c"]) <= 0.15 + 1e-12)
+    fraction = float(np.mean(run.saturated))
+    assert 0.0 < fraction == pytest.approx(report["commands"]["saturated_fraction"])  # measured 0.287
+    assert any("saturated" in text for _, _, text in run.events)
+    assert report["commands"]["v_peak_mps"] == pytest.approx(0.15)
+    assert report["verdict"]["converged"], report["verdict"]
+
+
+def test_the_report_counts_lost_frames_and_saturation_of_every_run(runs):
+    for name, (run, report) in runs.items():
+        assert report["target"]["lost_frames"] == int(run.lost.sum()), name
+        assert report["commands"]["saturated_fraction"] == pytest.approx(float(np.mean(run.saturated))), name

@@ -1,0 +1,180 @@
+"""SIGINT and SIGTERM at random moments of ``teach``, ``fit`` and ``repeat``.
+
+Each command runs as a user runs it (``python -m hbvs_cli``) and gets a signal after a
+seeded random delay. Afterwards the output is either absent, or (when a file was there
+before) exactly the bytes it had, or a finished MCAP that the official ``mcap`` reader
+accepts whole; never anything else. No ``.partial`` file is left, the exit code is 130
+(SIGINT) or 143 (SIGTERM), and stderr holds one line and no traceback. A signal that
+arrives after the command has finished changes nothing (exit 0 with a valid file).
+
+Delays count from the moment hbvs's ``main()`` has installed its signal handlers (seen
+in ``/proc/PID/status``): before that, in the first ~60 ms of the process, the interpreter
+is still starting and importing the command line module, Python's own defaults apply,
+and nothing has been written.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from conftest import make_fit, make_teach
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux's /proc")
+
+#: Seed of the delays.
+SEED = 20031027
+#: Bytes of an output file that exists before the command runs.
+PRECIOUS = b"a good output from an earlier run, which a broken file must never replace\n"
+SIGNAL_CODES = {signal.SIGINT: (130, "hbvs: interrupted"), signal.SIGTERM: (143, "hbvs: terminated")}
+
+
+@dataclass
+class Outcome:
+    returncode: int
+    stderr: str
+    stdout: bytes
+    delay: float
+
+
+def handles_sigterm(pid: int) -> bool:
+    """Whether the process has a SIGTERM handler: hbvs's main() has started."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = next((line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), "0")
+    return bool(int(caught, 16) >> (signal.SIGTERM - 1) & 1)
+
+
+def start(args: list[str]) -> subprocess.Popen:
+    """``python -m hbvs_cli ARGS``, returned once hbvs's signal handlers are in place."""
+    env = dict(os.environ, MPLBACKEND="Agg")
+    process = subprocess.Popen([sys.executable, "-m", "hbvs_cli", *args], stdin=subprocess.DEVNULL,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    deadline = time.monotonic() + 30.0
+    while not handles_sigterm(process.pid) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    return process
+
+
+def run_and_signal(args: list[str], signum: int, delay: float) -> Outcome:
+    """Start ``python -m hbvs_cli ARGS``, send ``signum`` ``delay`` s after hbvs started
+    handling signals, wait for it to end."""
+    process = start(args)
+    time.sleep(delay)
+    if process.poll() is None:
+        process.send_signal(signum)
+    stdout, stderr = process.communicate(timeout=120)
+    return Outcome(process.returncode, stderr.decode(errors="replace"), stdout, delay)
+
+
+def assert_valid_mcap(path: Path) -> None:
+    """The official reader finds a summary and every message it counts."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, f"{path}: no summary"
+        read = sum(1 for _ in reader.iter_messages())
+    assert read == summary.statistics.message_count > 0, f"{path}: {read} messages read of {summary.statistics.message_count}"
+
+
+def stop_lines(stderr: str) -> list[str]:
+    """What stderr says besides the warnings a stage printed before the signal came (a
+    short s-curve does not tell the homography branches apart, and fit says so)."""
+    return [line for line in stderr.strip().splitlines() if not line.startswith("hbvs: warning:")]
+
+
+def check_outcome(outcome: Outcome, signum: int, output: Path, had_file: bool) -> bool:
+    """Assert what an interrupted (or finished) run may leave; True if it was interrupted."""
+    assert "Traceback" not in outcome.stderr, outcome.stderr
+    assert not Path(str(output) + ".partial").exists(), f"a .partial file was left (delay {outcome.delay:.2f} s)"
+    code, line = SIGNAL_CODES[signum]
+    if outcome.returncode == 0:  # the signal came after the command had finished
+        assert_valid_mcap(output)
+        return False
+    assert outcome.returncode == code, (outcome.returncode, outcome.stderr, outcome.delay)
+    assert stop_lines(outcome.stderr) == [line], outcome.stderr
+    if output.exists() and not (had_file and output.read_bytes() == PRECIOUS):
+        # Only a complete file is ever renamed into place (the signal came after that).
+        assert_valid_mcap(output)
+    return True
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A 6 s teach and its fit: each command below runs for one to two seconds."""
+    folder = tmp_path_factory.mktemp("interrupt_inputs")
+    teach = make_teach(folder / "teach.mcap", duration=6.0)
+    make_fit(teach, folder / "fit.mcap")
+    return {"teach": teach, "fit": folder / "fit.mcap"}
+
+
+COMMANDS = {
+    "teach": lambda inputs, out: ["teach", "--duration", "6", "-q", "-o", str(out)],
+    "fit": lambda inputs, out: ["fit", str(inputs["teach"]), "-q", "-o", str(out)],
+    "repeat": lambda inputs, out: ["repeat", str(inputs["fit"]), "--sim", "--rate", "60", "-q", "-o", str(out)],
+}
+
+
+def test_signals_at_random_moments_leave_no_broken_output(inputs, tmp_path):
+    rng = random.Random(SEED)
+    runs = []
+    for command in COMMANDS:
+        for signum in SIGNAL_CODES:
+            for attempt in range(2):
+                output = tmp_path / f"{command}-{signum.name}-{attempt}.mcap"
+                had_file = attempt == 1
+                if had_file:
+                    output.write_bytes(PRECIOUS)
+                runs.append((COMMANDS[command](inputs, output), signum, rng.uniform(0.0, 1.2), output, had_file))
+    # Two at a time (CI has two cores); each run is its own process.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        outcomes = list(pool.map(lambda run: run_and_signal(*run[:3]), runs))
+    interrupted = [check_outcome(outcome, run[1], run[3], run[4]) for outcome, run in zip(outcomes, runs)]
+    # Most signals land while the command runs (a fast machine may finish a few first).
+    assert sum(interrupted) >= len(runs) // 2, [(o.returncode, round(o.delay, 2)) for o in outcomes]
+
+
+@pytest.mark.parametrize("signum", list(SIGNAL_CODES), ids=lambda s: s.name)
+def test_a_signal_while_writing_to_stdout_prints_no_traceback(inputs, signum):
+    """The signal comes once the MCAP stream is flowing (two teach chunks have arrived)."""
+    process = start(["teach", "--duration", "6", "-q", "-o", "-"])
+    received = bytearray()
+    while len(received) < 2 * 512 * 1024:
+        data = process.stdout.read1(65536)
+        if not data:
+            break
+        received += data
+    process.send_signal(signum)
+    rest, stderr = process.communicate(timeout=60)
+    code, line = SIGNAL_CODES[signum]
+    assert process.returncode == code, (process.returncode, stderr)
+    assert stop_lines(stderr.decode()) == [line], stderr
+    # What reached the pipe is the start of an MCAP file, cut where the signal came.
+    assert bytes(received + rest).startswith(b"\x89MCAP0\r\n")
+
+
+def test_a_second_signal_during_cleanup_is_ignored(inputs, tmp_path):
+    """Ctrl-C twice in quick succession: still one clean stop, no partial file."""
+    output = tmp_path / "twice.mcap"
+    process = start(["fit", str(inputs["teach"]), "-o", str(output)])
+    time.sleep(0.8)
+    process.send_signal(signal.SIGINT)
+    time.sleep(0.002)
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130 and stop_lines(stderr.decode()) == ["hbvs: interrupted"], stderr
+    assert not output.exists() and not Path(str(output) + ".partial").exists()
