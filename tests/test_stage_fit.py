@@ -235,7 +235,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
     cases = [
         ([str(not_mcap)], 3, "not"),
         ([str(truncated)], 3, ""),
-        ([str(no_images)], 3, "no images"),
+        ([str(no_images)], 3, "no complete image"),
         ([str(no_calibration)], 3, "calibration"),
         ([str(never_found)], 3, "not found"),
         ([str(default_teach), "--reference", "9999"], 2, "out of range"),

@@ -8,7 +8,9 @@ clip them, and the unicycle integrates them exactly while they are held for ``dt
 
 When the sensing function reports the target lost, the robot is commanded to stop and the
 adaptation is frozen; it resumes when the target is back. When a frame is dropped (never
-arrives), the last command is held and the adaptation is frozen for that period.
+arrives), or a few in a row are rejected as outliers, the last command is held and the
+adaptation is frozen for those periods: stopping for one bad frame would only make the
+robot lag its trajectory.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
-from .estimation import STATUS_DROPPED, STATUS_OK, Observation
+from .estimation import STATUS_DROPPED, STATUS_OK, STATUS_OUTLIER, Observation
 from .trajectory import DesiredTrajectory
 from .unicycle import integrate_unicycle
 
@@ -110,6 +112,9 @@ class StepRecord:
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]
 
+#: Consecutive outlier frames through which the last command is held before stopping.
+MAX_HELD_OUTLIERS = 3
+
 #: What the controller sees before the first (latency-delayed) frame arrives.
 _NOT_YET = Observation(None, status=STATUS_DROPPED)
 
@@ -157,6 +162,7 @@ def run_closed_loop(
     columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
     pending: deque[Observation] = deque()
     previous = (0.0, 0.0)
+    rejected_in_a_row = 0
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
@@ -164,10 +170,11 @@ def run_closed_loop(
         desired = DesiredState(*(column[k] for column in columns))
         dhat = controller.dhat
         output = None
+        rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
         if observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif observation.status == STATUS_DROPPED:
+        elif observation.status == STATUS_DROPPED or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS:
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()

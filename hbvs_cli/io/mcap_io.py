@@ -250,112 +250,35 @@ def _remove_quietly(path: Path) -> None:
 #: The eight bytes that open (and close) every MCAP file.
 MAGIC = b"\x89MCAP0\r\n"
 
-# Opcodes of the MCAP records the reader acts on; every other record is skipped whole.
-_OP_INVALID = 0x00
-_OP_FOOTER = 0x02
-_OP_SCHEMA = 0x03
-_OP_CHANNEL = 0x04
-_OP_MESSAGE = 0x05
-_OP_CHUNK = 0x06
-_OP_STATISTICS = 0x0B
-_OP_METADATA = 0x0C
-
-#: Bytes of the unsigned integers of MCAP records, by struct code.
-_INTEGER_SIZES = {"H": 2, "I": 4, "Q": 8}
-#: Opcode and length in front of every record.
-_RECORD_HEAD = struct.Struct("<BQ")
-#: Channel id, sequence, log time and publish time in front of a message's data.
-_MESSAGE_HEAD = struct.Struct("<HIQQ")
-#: A footer record (opcode, length, summary start, summary offset start, CRC) and the magic.
-_FOOTER_TAIL = struct.Struct("<BQQQI8s")
+class _FieldTooLarge(Exception):
+    """A record asked to read a field larger than any record hbvs accepts."""
 
 
-class _Damaged(Exception):
-    """The data stops making sense here; what was read before it is kept."""
+class _CappedInput:
+    """The input the mcap library reads from, refusing any single read above the cap.
 
-
-@dataclass(frozen=True)
-class _Schema:
-    name: str
-    encoding: str
-    data: bytes
-
-
-@dataclass(frozen=True)
-class _Channel:
-    topic: str
-    message_encoding: str
-    schema_id: int
-
-
-class _Fields:
-    """Reads the fields of one record in order, never past the record's end.
-
-    The mcap library's parsers read inner lengths (a chunk's data, a metadata map, a
-    string) straight from the file, so a record could declare 100 bytes and then ask for
-    a terabyte; here every length is checked against the record it sits in.
+    The library's record parsers read inner fields with the lengths the file declares
+    (a chunk's data, a metadata map, a string), so a record could declare 100 bytes and
+    then ask for a terabyte. Every read goes through here and is refused beyond
+    :data:`MAX_RECORD_BYTES`; short reads from pipes are completed.
     """
 
-    __slots__ = ("_data", "_offset", "_what")
+    def __init__(self, raw: BinaryIO) -> None:
+        self._raw = raw
 
-    def __init__(self, data: bytes | memoryview, what: str) -> None:
-        self._data = memoryview(data)
-        self._offset = 0
-        self._what = what
+    def read(self, size: int = -1) -> bytes:
+        if size is None or size < 0 or size > MAX_RECORD_BYTES:
+            raise _FieldTooLarge(f"a field declares {size} bytes, more than any record hbvs accepts")
+        return _read_up_to(self._raw, size)
 
-    def _take(self, size: int) -> memoryview:
-        end = self._offset + size
-        if end > len(self._data):
-            raise _Damaged(f"a {self._what} record is shorter than its fields declare")
-        view = self._data[self._offset:end]
-        self._offset = end
-        return view
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._raw.seek(offset, whence)
 
-    def number(self, code: str) -> int:
-        """One little-endian unsigned integer: ``"H"``, ``"I"`` or ``"Q"``."""
-        return int.from_bytes(self._take(_INTEGER_SIZES[code]), "little")
-
-    def blob(self, code: str) -> memoryview:
-        """Bytes prefixed with their length (a ``code`` integer)."""
-        return self._take(self.number(code))
-
-    def string(self) -> str:
-        try:
-            return str(self.blob("I"), "utf-8")
-        except UnicodeDecodeError:
-            raise _Damaged(f"a {self._what} record holds a string that is not UTF-8") from None
-
-    def string_map(self) -> dict[str, str]:
-        """A map of strings prefixed with its length in bytes."""
-        length = self.number("I")
-        end = self._offset + length
-        if end > len(self._data):
-            raise _Damaged(f"a {self._what} record is shorter than its map declares")
-        values: dict[str, str] = {}
-        while self._offset < end:
-            key = self.string()
-            values[key] = self.string()
-        if self._offset != end:
-            raise _Damaged(f"a map in a {self._what} record overruns its declared length")
-        return values
+    def tell(self) -> int:
+        return self._raw.tell()
 
 
-def _framed_records(data: bytes | memoryview, where: str) -> Iterator[tuple[int, memoryview]]:
-    """``(opcode, body)`` of the records packed in a chunk or a summary section."""
-    view = memoryview(data)
-    offset = 0
-    while offset < len(view):
-        if offset + _RECORD_HEAD.size > len(view):
-            raise _Damaged(f"{where} ends in the middle of a record")
-        opcode, length = _RECORD_HEAD.unpack_from(view, offset)
-        start = offset + _RECORD_HEAD.size
-        if opcode == _OP_INVALID or start + length > len(view):
-            raise _Damaged(f"a record in {where} has a damaged opcode or length")
-        yield opcode, view[start:start + length]
-        offset = start + length
-
-
-def _read_up_to(stream: BinaryIO, size: int) -> bytes:
+def _read_up_to(stream: Any, size: int) -> bytes:
     """``size`` bytes, or fewer when the stream ends (pipes may return short reads)."""
     data = stream.read(size)
     if data is None or len(data) == size or not data:
@@ -380,16 +303,16 @@ class _Declarations:
 
     def __init__(self, name: str) -> None:
         self.name = name
-        self.schemas: dict[int, _Schema] = {}
-        self.channels: dict[int, _Channel] = {}
-        self._sizes: dict[tuple[int, Any], int] = {}
+        self.schemas: dict[int, Any] = {}
+        self.channels: dict[int, Any] = {}
+        self._sizes: dict[tuple[str, Any], int] = {}
         self._bytes = 0
 
     @property
     def empty(self) -> bool:
         return not self.schemas and not self.channels
 
-    def charge(self, key: tuple[int, Any], size: int) -> None:
+    def charge(self, key: tuple[str, Any], size: int) -> None:
         """Account ``size`` bytes to ``key`` (replacing what it held before)."""
         self._bytes += size - self._sizes.get(key, 0)
         self._sizes[key] = size
@@ -399,27 +322,21 @@ class _Declarations:
                 "hbvs accepts; not a recording hbvs can read"
             )
 
-    def add(self, opcode: int, body: memoryview) -> None:
-        """Keep a schema or channel record (anything else is ignored)."""
-        if opcode == _OP_SCHEMA:
-            fields = _Fields(body, "schema")
-            schema_id = fields.number("H")
-            schema = _Schema(name=fields.string(), encoding=fields.string(), data=bytes(fields.blob("I")))
-            self._store(self.schemas, schema_id, schema, opcode, len(body), MAX_SCHEMAS, "schemas")
-        elif opcode == _OP_CHANNEL:
-            fields = _Fields(body, "channel")
-            channel_id, schema_id = fields.number("H"), fields.number("H")
-            channel = _Channel(topic=fields.string(), message_encoding=fields.string(), schema_id=schema_id)
-            fields.string_map()  # validated, not needed
-            self._store(self.channels, channel_id, channel, opcode, len(body), MAX_CHANNELS, "channels")
+    def add_schema(self, schema: Any) -> None:
+        size = len(schema.name) + len(schema.encoding) + len(schema.data)
+        self._store(self.schemas, schema.id, schema, "schema", size, MAX_SCHEMAS, "schemas")
 
-    def _store(self, table: dict[int, Any], key: int, value: Any, opcode: int, size: int, limit: int, what: str) -> None:
+    def add_channel(self, channel: Any) -> None:
+        size = len(channel.topic) + len(channel.message_encoding) + sum(len(k) + len(v) for k, v in channel.metadata.items())
+        self._store(self.channels, channel.id, channel, "channel", size, MAX_CHANNELS, "channels")
+
+    def _store(self, table: dict[int, Any], key: int, value: Any, kind: str, size: int, limit: int, what: str) -> None:
         if key not in table and len(table) >= limit:
             raise RecordingError(f"{self.name}: declares more than {limit} {what}; not a recording hbvs can read")
-        self.charge((opcode, key), size)
+        self.charge((kind, key), size)
         table[key] = value
 
-    def channel_of(self, channel_id: int) -> tuple[_Channel, _Schema | None]:
+    def channel_of(self, channel_id: int) -> tuple[Any, Any]:
         channel = self.channels.get(channel_id)
         if channel is None:
             raise RecordingError(f"{self.name}: a message refers to channel {channel_id}, which was never declared")
@@ -530,31 +447,66 @@ class McapStream:
         return self.source, False
 
     def __iter__(self) -> Iterator[McapMessage]:
+        from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
+        from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
         stream, owned = self._open()
         declarations = _Declarations(self.name)
+        # The mcap library parses the records; chunks are left to us (emit_chunks) so that
+        # they are decompressed under the cap before the library splits them.
+        reader = StreamReader(
+            _CappedInput(stream), skip_magic=False, emit_chunks=True, validate_crcs=True,
+            record_size_limit=MAX_RECORD_BYTES,
+        )
+        records = reader.records
+        damage = (McapError, _FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, KeyError)
         try:
-            magic = _read_up_to(stream, len(MAGIC))
-            if magic != MAGIC:
-                raise RecordingError(f"{self.name}: not an MCAP file" + ("" if magic else " (it is empty)"))
             while True:
                 try:
-                    opcode, body = self._next_record(stream)
-                    if opcode == _OP_FOOTER:
+                    record = next(records)
+                    inner = self._chunk_records(record, breakup_chunk) if isinstance(record, Chunk) else [record]
+                    for item in inner:
+                        if isinstance(item, Message):
+                            yield from self._message(item, declarations)
+                        elif isinstance(item, Schema):
+                            declarations.add_schema(item)
+                        elif isinstance(item, Channel):
+                            declarations.add_channel(item)
+                    if isinstance(record, Metadata):
+                        declarations.charge(("metadata", record.name), len(record.name) + sum(len(k) + len(v) for k, v in record.metadata.items()))
+                        self.metadata[record.name] = dict(record.metadata)
+                    elif isinstance(record, Footer):
                         self.complete = True
                         return
-                    if opcode == _OP_CHUNK:
-                        for inner_opcode, inner in _framed_records(self._chunk_data(body), "a chunk"):
-                            yield from self._record(inner_opcode, inner, declarations)
-                    elif opcode == _OP_METADATA:
-                        self._metadata(body, declarations)
-                    else:
-                        yield from self._record(opcode, body, declarations)
+                except StopIteration:
+                    self.complete = True
+                    return
+                except RecordLengthLimitExceeded as exc:
+                    raise RecordingError(
+                        f"{self.name}: a record declares more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs accepts ({_short(exc)})"
+                    ) from None
+                except InvalidMagic:
+                    if self.messages == 0 and declarations.empty:
+                        raise RecordingError(f"{self.name}: not an MCAP file") from None
+                    self._stop("the file's closing magic is damaged")
+                    return
+                except (EndOfFile, EOFError):
+                    if self.messages == 0 and declarations.empty and not self.metadata:
+                        raise RecordingError(f"{self.name}: not an MCAP file, or empty") from None
+                    # What a crashed writer leaves: keep everything up to here.
+                    self._stop("the file ends before its footer")
+                    return
                 except _Damaged as exc:
                     if self.messages == 0 and declarations.empty:
                         raise RecordingError(f"{self.name}: not a readable MCAP file ({exc})") from None
-                    # Damage after good data is what a crashed writer leaves: keep what was read.
-                    self.truncated = True
-                    self.stop_reason = str(exc)
+                    self._stop(str(exc))
+                    return
+                except damage as exc:
+                    if self.messages == 0 and declarations.empty:
+                        raise RecordingError(f"{self.name}: not a readable MCAP file ({_short(exc)})") from None
+                    # Damage after good data: keep what was read, as for a crashed writer.
+                    self._stop(f"damaged data ({_short(exc)})")
                     return
         except OSError as exc:
             raise InputError(f"{self.name}: cannot read ({exc.strerror or exc})") from None
@@ -562,30 +514,12 @@ class McapStream:
             if owned:
                 stream.close()
 
-    def _next_record(self, stream: BinaryIO) -> tuple[int, bytes]:
-        head = _read_up_to(stream, _RECORD_HEAD.size)
-        if len(head) < _RECORD_HEAD.size:
-            raise _Damaged("the file ends before its footer" if not head else "the file ends in the middle of a record")
-        opcode, length = _RECORD_HEAD.unpack(head)
-        if opcode == _OP_INVALID:
-            raise _Damaged("a record has the invalid opcode 0")
-        if length > MAX_RECORD_BYTES:
-            raise RecordingError(
-                f"{self.name}: a record declares {length} bytes, more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs accepts"
-            )
-        body = _read_up_to(stream, length)
-        if len(body) < length:
-            raise _Damaged("the file ends in the middle of a record")
-        return opcode, body
+    def _stop(self, reason: str) -> None:
+        self.truncated = True
+        self.stop_reason = reason
 
-    def _record(self, opcode: int, body: memoryview | bytes, declarations: _Declarations) -> Iterator[McapMessage]:
-        if opcode != _OP_MESSAGE:
-            declarations.add(opcode, memoryview(body))
-            return
-        if len(body) < _MESSAGE_HEAD.size:
-            raise _Damaged("a message record is shorter than its header")
-        channel_id, _sequence, log_time, _publish_time = _MESSAGE_HEAD.unpack_from(body)
-        channel, schema = declarations.channel_of(channel_id)
+    def _message(self, record: Any, declarations: _Declarations) -> Iterator[McapMessage]:
+        channel, schema = declarations.channel_of(record.channel_id)
         if self.topics is not None and channel.topic not in self.topics:
             return
         self.messages += 1
@@ -593,42 +527,40 @@ class McapStream:
             topic=channel.topic,
             schema_name=schema.name if schema else "",
             schema_encoding=schema.encoding if schema else "",
-            schema_data=schema.data if schema else b"",
+            schema_data=bytes(schema.data) if schema else b"",
             message_encoding=channel.message_encoding,
-            log_time=int(log_time),
-            data=bytes(body[_MESSAGE_HEAD.size:]),
+            log_time=int(record.log_time),
+            data=bytes(record.data),
         )
 
-    def _metadata(self, body: bytes, declarations: _Declarations) -> None:
-        fields = _Fields(body, "metadata")
-        name = fields.string()
-        values = fields.string_map()
-        declarations.charge((_OP_METADATA, name), len(body))
-        self.metadata[name] = values
+    def _chunk_records(self, chunk: Any, breakup_chunk: Any) -> list[Any]:
+        """The records of a chunk, decompressed under the size cap, CRC-checked, then split
+        by the mcap library."""
+        from mcap.records import Chunk
 
-    def _chunk_data(self, body: bytes) -> bytes:
-        """The records of a chunk, decompressed under the size cap and checked."""
-        fields = _Fields(body, "chunk")
-        fields.number("Q")  # message start time
-        fields.number("Q")  # message end time
-        declared = fields.number("Q")
-        crc = fields.number("I")
-        compression = fields.string()
-        records = fields.blob("Q")
+        declared = chunk.uncompressed_size
         if declared > MAX_CHUNK_BYTES:
             raise RecordingError(
                 f"{self.name}: a chunk declares {declared} bytes uncompressed, "
                 f"more than the {MAX_CHUNK_BYTES // 2**20} MiB hbvs accepts"
             )
         try:
-            data = _decompress_capped(compression, records, declared, self.name)
+            data = _decompress_capped(chunk.compression, chunk.data, declared, self.name)
         except _DECOMPRESSION_ERRORS:
             raise _Damaged("a chunk cannot be decompressed") from None
         if len(data) != declared:
             raise _Damaged(f"a chunk holds {len(data)} bytes, not the {declared} it declares")
-        if crc and zlib.crc32(data) != crc:
+        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
             raise _Damaged("a chunk fails its CRC check")
-        return data
+        plain = Chunk(
+            compression="", data=data, message_start_time=chunk.message_start_time,
+            message_end_time=chunk.message_end_time, uncompressed_crc=0, uncompressed_size=len(data),
+        )
+        return breakup_chunk(plain, validate_crc=False)
+
+
+class _Damaged(Exception):
+    """The data stops making sense here; what was read before it is kept."""
 
 
 #: What damaged compressed data raises: zstandard.ZstdError and lz4's RuntimeError among them.
@@ -682,7 +614,8 @@ class ChannelSummary:
 def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
     """The channels listed in the summary section of an MCAP file, read under the caps.
 
-    Only the footer and the summary section are read, so this is cheap on a large file.
+    Only the footer and the summary section are read (by the mcap library's seeking
+    reader, through the same capped input), so this is cheap on a large file.
 
     Returns
     -------
@@ -697,35 +630,25 @@ def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSu
     RecordingError
         The summary declares more than the caps allow.
     """
+    from mcap.exceptions import McapError
+    from mcap.reader import SeekingReader
+
     name = name or str(path)
     declarations = _Declarations(name)
-    counts: dict[int, int] | None = None
     try:
         with open(path, "rb") as stream:
-            size = stream.seek(0, os.SEEK_END)
-            footer_at = size - _FOOTER_TAIL.size
-            if footer_at < len(MAGIC):
-                return None
-            stream.seek(footer_at)
-            opcode, length, start, _offsets, _crc, magic = _FOOTER_TAIL.unpack(_read_up_to(stream, _FOOTER_TAIL.size))
-            if opcode != _OP_FOOTER or length != _FOOTER_TAIL.size - _RECORD_HEAD.size - len(MAGIC) or magic != MAGIC:
-                return None
-            if start == 0 or not len(MAGIC) <= start <= footer_at or footer_at - start > MAX_RECORD_BYTES:
-                return None
-            stream.seek(start)
-            section = _read_up_to(stream, footer_at - start)
+            summary = SeekingReader(_CappedInput(stream), record_size_limit=MAX_RECORD_BYTES).get_summary()
     except OSError as exc:
         raise InputError(f"{name}: cannot read ({exc.strerror or exc})") from None
-    try:
-        for opcode, body in _framed_records(section, "the summary section"):
-            if opcode == _OP_STATISTICS:
-                counts = _channel_message_counts(body)
-            else:
-                declarations.add(opcode, body)
-    except _Damaged:
+    except (McapError, _FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, EOFError, KeyError):
         return None
-    if not declarations.channels:
+    if summary is None or not summary.channels:
         return None
+    for schema in summary.schemas.values():
+        declarations.add_schema(schema)
+    for channel in summary.channels.values():
+        declarations.add_channel(channel)
+    counts = dict(summary.statistics.channel_message_counts) if summary.statistics is not None else None
     listed = []
     for channel_id, channel in declarations.channels.items():
         schema = declarations.schemas.get(channel.schema_id)
@@ -737,18 +660,6 @@ def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSu
             message_count=counts.get(channel_id, 0) if counts is not None else None,
         ))
     return listed
-
-
-def _channel_message_counts(body: memoryview) -> dict[int, int]:
-    """Messages per channel id, from a statistics record."""
-    fields = _Fields(body, "statistics")
-    for code in "QHIIIIQQ":  # message, schema, channel, attachment, metadata, chunk counts; times
-        fields.number(code)
-    packed = fields.blob("I")
-    entry = struct.Struct("<HQ")
-    if len(packed) % entry.size:
-        raise _Damaged("a statistics record has a damaged channel count map")
-    return {channel: count for channel, count in entry.iter_unpack(packed)}
 
 
 # ----------------------------------------------------------------------------- JSON

@@ -194,6 +194,27 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
     return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
 
 
+#: The outlier gate is this many times the largest residual of the taught frames ...
+RESIDUAL_GATE_FACTOR = 10.0
+#: ... and never tighter than this (px): the noise of one frame can exceed the taught fit's.
+MIN_RESIDUAL_GATE_PX = 0.25
+
+
+def estimator_from_model(model: Any) -> Any:
+    """The per-frame estimator of repeat, with an outlier gate that fits the fit's data.
+
+    Clean frames of the taught run have residuals of a few hundredths of a pixel; a wrong
+    point (a spurious blob, a swapped identity) gives tenths or more. A gate at ten times
+    the taught maximum rejects those and keeps the noise.
+    """
+    from ..core.estimation import PlanarPoseEstimator
+
+    taught = float(model.residual_px.get("max", float("nan")))
+    gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
+    focal = 0.5 * (model.camera.fx + model.camera.fy)
+    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / focal)
+
+
 def detector_from_model(model: Any, template_image_bytes: bytes | None, seed: int = 0) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and template)."""
     from ..io.images import decode_image

@@ -169,10 +169,11 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                     annotations_message(time_message(frame.log_time_ns), pixels),
                 )
                 bar.advance()
-        if reader.truncated:
-            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count if log else 0} complete frames")
         if log is None or log.count == 0:
-            raise RecordingError(f"{reader.name}: no images in the recording")
+            cut = " (it ends before its end record: a crashed recorder?)" if reader.truncated else ""
+            raise RecordingError(f"{reader.name}: no complete image in the recording{cut}")
+        if reader.truncated:
+            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()

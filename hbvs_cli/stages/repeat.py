@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, LAWS, lyapunov
-from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
+from ..core.estimation import STATUS_OCCLUDED, Observation, dropped
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.path import CommandProfile
@@ -466,12 +466,12 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     from ..io.mcap_io import open_output
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
-    from .detection import detector_from_model
+    from .detection import detector_from_model, estimator_from_model
     from .frames import decoded_frames
 
     model = fit.model
     reader = TeachReader(options.replay)
-    estimator = PlanarPoseEstimator(model.camera, model.m_ref, model.normal)
+    estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit.template_image, seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     controller = AdaptiveTrackingController(settings.gains, settings.dhat0)

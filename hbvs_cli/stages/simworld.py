@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 import numpy as np
 
 from ..core.camera import distort_pixels, pixels_to_normalized
-from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
+from ..core.estimation import STATUS_OCCLUDED, Observation, dropped
 from ..core.frames import rotation_z
 from ..core.path import CommandProfile
 from ..core.world import Poster, Target, World
@@ -177,14 +177,14 @@ class SimulatedCamera:
     """
 
     def __init__(self, scene: Scene, model: Any, settings: Any, options: Any, template_image: bytes | None) -> None:
-        from .detection import detector_from_model
+        from .detection import detector_from_model, estimator_from_model
         from .options import parse_interval
 
         self.scene = scene
         self.model = model
         self.settings = settings
         self.perception = settings.perception
-        self.estimator = PlanarPoseEstimator(model.camera, model.m_ref, model.normal)
+        self.estimator = estimator_from_model(model)
         self.identity = world_point_identity(scene, model)
         self._points = scene.world.target.points_world[self.identity]
         self._camera_height = scene.world.camera_height

@@ -228,28 +228,24 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
             iterator: Iterator[Any] = iter(source)
-            while True:
-                try:
-                    frame = next(iterator)
-                except StopIteration:
-                    break
-                except KeyboardInterrupt:
-                    if kind != "camera":
-                        raise
-                    # Ctrl-C is how a live recording ends: keep what was recorded.
-                    interrupted = True
-                    break
-                if options.duration is not None and frame.t > options.duration:
-                    break
-                _check_frame_size(frame.image, camera, source)
-                if frame.encoded is not None and frame.format in ("png", "jpeg"):
-                    data, image_format = frame.encoded, frame.format
-                else:
-                    data, image_format = encode_image(frame.image, options.image_format), options.image_format
-                teach.frame(seconds_to_ns(frame.t), data, image_format)
-                frames += 1
-                last_t = frame.t
-                bar.advance()
+            try:
+                for frame in iterator:
+                    if options.duration is not None and frame.t > options.duration:
+                        break
+                    _check_frame_size(frame.image, camera, source)
+                    if frame.encoded is not None and frame.format in ("png", "jpeg"):
+                        data, image_format = frame.encoded, frame.format
+                    else:
+                        data, image_format = encode_image(frame.image, options.image_format), options.image_format
+                    teach.frame(seconds_to_ns(frame.t), data, image_format)
+                    frames += 1
+                    last_t = frame.t
+                    bar.advance()
+            except KeyboardInterrupt:
+                if kind != "camera":
+                    raise
+                # Ctrl-C is how a live recording ends, wherever it lands: keep what was recorded.
+                interrupted = True
         if frames == 0:
             raise InputError(f"{source.describe().get('path', kind)}: no frames could be read")
     note = " (stopped by Ctrl-C)" if interrupted else ""
