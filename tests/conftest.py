@@ -118,7 +118,7 @@ def ground_truth_trajectory(model):
     interval = float(np.median(np.diff(path.t)))
     profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
     _, _, d_star = model.world.reference_geometry(path.reference_pose)
-    return TaughtPathTrajectory(profile, path.poses[0], path.reference_pose, d_star), d_star
+    return TaughtPathTrajectory(profile, path.start_pose, path.reference_pose, d_star), d_star
 
 
 def fit_errors(model):

@@ -18,6 +18,9 @@ Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
 
 from __future__ import annotations
 
+import base64
+import binascii
+
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -97,36 +100,58 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
 
 @dataclass
 class TaughtPath:
-    """Ground truth of a simulated teach: per-frame poses and commands, and F*'s pose.
+    """Ground truth of a simulated teach: per-frame commands, the start pose and F*'s pose.
 
-    Commands were held between frames, so poses in between are exact
-    (:class:`~hbvs_cli.core.path.CommandProfile`).
+    The commands were held between frames, so the taught pose at any time follows
+    exactly from them and the start pose (:class:`~hbvs_cli.core.path.CommandProfile`).
+    The per-frame arrays are stored as base64 float64: a long recording would otherwise
+    make the model a list of JSON numbers several times its size in memory.
     """
 
     t: np.ndarray
-    poses: np.ndarray
     v: np.ndarray
     w: np.ndarray
+    start_pose: np.ndarray
     reference_pose: np.ndarray
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "t": self.t.tolist(), "poses": self.poses.tolist(), "v": self.v.tolist(), "w": self.w.tolist(),
+            "encoding": "float64-le-base64",
+            "t": _pack(self.t), "v": _pack(self.v), "w": _pack(self.w),
+            "start_pose": self.start_pose.tolist(),
             "reference_pose": self.reference_pose.tolist(),
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "TaughtPath":
-        t = np.asarray(data["t"], dtype=float)
-        poses = np.asarray(data["poses"], dtype=float)
-        v = np.asarray(data["v"], dtype=float)
-        w = np.asarray(data["w"], dtype=float)
+        if data.get("encoding") != "float64-le-base64":
+            raise ValueError("taught_path: unknown array encoding")
+        t, v, w = (_unpack(data[key], f"taught_path.{key}") for key in ("t", "v", "w"))
+        start = np.asarray(data["start_pose"], dtype=float)
         reference = np.asarray(data["reference_pose"], dtype=float)
-        if t.ndim != 1 or poses.shape != (t.size, 3) or v.shape != t.shape or w.shape != t.shape or reference.shape != (3,):
+        if t.size < 2 or v.shape != t.shape or w.shape != t.shape or start.shape != (3,) or reference.shape != (3,):
             raise ValueError("taught_path arrays have inconsistent shapes")
-        if not all(np.all(np.isfinite(a)) for a in (t, poses, v, w, reference)):
+        if not all(np.all(np.isfinite(a)) for a in (t, v, w, start, reference)):
             raise ValueError("taught_path holds NaN or infinity")
-        return cls(t=t, poses=poses, v=v, w=w, reference_pose=reference)
+        if np.any(np.diff(t) <= 0.0):
+            raise ValueError("taught_path times must increase strictly")
+        return cls(t=t, v=v, w=w, start_pose=start, reference_pose=reference)
+
+
+def _pack(array: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(array, dtype="<f8").tobytes()).decode("ascii")
+
+
+def _unpack(text: Any, what: str) -> np.ndarray:
+    if not isinstance(text, str):
+        raise ValueError(f"{what} must be a base64 string")
+    try:
+        raw = base64.b64decode(text, validate=True)
+    except (ValueError, binascii.Error):
+        raise ValueError(f"{what} is not valid base64") from None
+    if len(raw) % 8:
+        raise ValueError(f"{what} does not hold whole float64 numbers")
+    return np.frombuffer(raw, dtype="<f8").astype(float)
 
 
 @dataclass

@@ -387,7 +387,7 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     if not np.all(np.isfinite(commands)):
         commands = np.zeros_like(commands)
     poses = arrays["pose"]
-    return TaughtPath(t=arrays["t"], poses=poses, v=commands[:, 0], w=commands[:, 1], reference_pose=poses[reference_index])
+    return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
 def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console) -> dict[str, Any]:

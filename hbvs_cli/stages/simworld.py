@@ -86,7 +86,7 @@ def simulation_world(model: Any, reference_image: bytes | None, depth: float | N
             raise UsageError("--depth is for a teach from real footage; this fit came from a simulated teach and knows its world")
         return Scene(
             world=model.world, d_true=d_true, reference_pose=path.reference_pose, has_ground_truth=True,
-            taught_profile=profile, taught_start=path.poses[0], taught_t0=float(path.t[0]),
+            taught_profile=profile, taught_start=path.start_pose, taught_t0=float(path.t[0]),
             run_start=start, run_speed=speed,
         )
     if depth is None:
