@@ -48,6 +48,7 @@ from hypothesis import strategies as st
 
 from conftest import make_fit, make_run, make_teach
 from hbvs_cli.errors import HbvsError
+from hbvs_cli.io.mcap_io import McapMessage as Message
 
 #: Wall-clock bound of one case (a typical one takes a few milliseconds).
 CASE_SECONDS = 5.0
@@ -58,17 +59,6 @@ LONG_FACTOR = 20
 
 
 # ----------------------------------------------------------------------------- inputs
-@dataclass(frozen=True)
-class Message:
-    topic: str
-    schema_name: str
-    schema_encoding: str
-    schema_data: bytes
-    message_encoding: str
-    log_time: int
-    data: bytes
-
-
 @dataclass(frozen=True)
 class Recording:
     """An MCAP file taken apart: its messages in order, and its metadata."""

@@ -290,13 +290,10 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         Not a fit file, or no complete model in it.
     """
     topics = {MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC}
-    stream = McapStream(source, topics=topics, name=name)
+    stream = McapStream(source, topics=topics, schemas=TOPICS[FILE_KIND], name=name)
     model_message: dict[str, Any] | None = None
     images: dict[str, bytes] = {}
     for message in stream:
-        expected = TOPICS[FILE_KIND][message.topic]
-        if message.schema_name != expected:
-            raise RecordingError(f"{stream.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}")
         if message.topic == MODEL_TOPIC:
             model_message = message.json(stream.name)
         else:

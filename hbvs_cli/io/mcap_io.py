@@ -390,6 +390,9 @@ class McapStream:
         ``"-"`` reads stdin.
     topics : set of str, optional
         Only these topics are yielded (others are still parsed, as they share chunks).
+    schemas : dict of str to str, optional
+        Topic to the schema name its messages must have. Only these topics are yielded
+        (with ``topics``, only those in both), and a message under another schema is refused.
     name : str
         How to name the source in error messages.
 
@@ -415,12 +418,13 @@ class McapStream:
         Not an MCAP file; damaged before any schema or channel; a record or chunk larger
         than :data:`MAX_RECORD_BYTES` / :data:`MAX_CHUNK_BYTES`; more schemas, channels or
         declared bytes than the caps; a message on an undeclared channel; an unsupported
-        chunk compression.
+        chunk compression; a message whose schema is not the one ``schemas`` expects.
     """
 
     source: Any
     topics: set[str] | None = None
     name: str = ""
+    schemas: dict[str, str] | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: bool = False
     messages: int = 0
@@ -522,6 +526,13 @@ class McapStream:
         channel, schema = declarations.channel_of(record.channel_id)
         if self.topics is not None and channel.topic not in self.topics:
             return
+        if self.schemas is not None:
+            expected = self.schemas.get(channel.topic)
+            if expected is None:
+                return
+            found = schema.name if schema else ""
+            if found != expected:
+                raise RecordingError(f"{self.name}: topic {channel.topic} has schema {found!r}, expected {expected!r}")
         self.messages += 1
         yield McapMessage(
             topic=channel.topic,

@@ -130,7 +130,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     RecordingError
         Not an MCAP file, not a run file, malformed messages, or no steps.
     """
-    stream = McapStream(source, topics=set(TOPICS[FILE_KIND]), name=name)
+    stream = McapStream(source, schemas=TOPICS[FILE_KIND], name=name)
     columns: dict[str, list[float]] = {key: [] for key in STATE_FIELDS}
     saturated: list[bool] = []
     lost: list[bool] = []
@@ -140,9 +140,6 @@ def read_run(source: Any, name: str = "") -> RunData:
     step_times: list[int] = []
     events: list[tuple[float, int, str]] = []
     for message in stream:
-        expected = TOPICS[FILE_KIND][message.topic]
-        if message.schema_name != expected:
-            raise RecordingError(f"{stream.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}")
         if message.topic == STATE_TOPIC:
             data = message.json(stream.name)
             try:

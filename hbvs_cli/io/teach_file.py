@@ -201,7 +201,7 @@ class TeachReader:
     stream: McapStream | None = None
 
     def __post_init__(self) -> None:
-        self.stream = McapStream(self.source, topics=set(TOPICS[FILE_KIND]), name=self.name)
+        self.stream = McapStream(self.source, schemas=TOPICS[FILE_KIND], name=self.name)
         self.name = self.stream.name
 
     def _check_kind(self) -> None:
@@ -230,11 +230,6 @@ class TeachReader:
         index = 0
         for message in self.stream:
             self._check_kind()
-            expected = TOPICS[FILE_KIND].get(message.topic)
-            if expected is not None and message.schema_name != expected:
-                raise RecordingError(
-                    f"{self.name}: topic {message.topic} has schema {message.schema_name!r}, expected {expected!r}"
-                )
             if message.topic == CALIBRATION_TOPIC:
                 if self.camera is None:
                     self.camera = calibration_from_foxglove(message.json(self.name))
