@@ -97,6 +97,37 @@ def make_teach(output, **options):
     return output
 
 
+def teach_from_rendered_video(folder, seed: int, frames: int = 600):
+    """Teach from a lossless video of the simulated s-curve drive (the truth is known).
+
+    Returns the teach path, the world, the command profile, the start pose and the frame times.
+    """
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.io.calibration import save_calibration_ros
+    from hbvs_cli.stages.teach import make_renderer
+
+    world = default_world()
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(world, 2.0, 0.0, 1.0)
+    rng = np.random.default_rng(seed)
+    times = np.arange(frames) / 30.0
+    video = Path(folder) / "drive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0,
+                             (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height), isColor=False)
+    assert writer.isOpened()
+    for t in times:
+        writer.write(renderer.render(profile.poses_at(t, start), rng))
+    writer.release()
+    calibration = Path(folder) / "camera.yaml"
+    save_calibration_ros(DEFAULT_CAMERA, calibration)
+    teach = make_teach(Path(folder) / "video.mcap", video=video, calibration=calibration)
+    return teach, world, profile, start, times
+
+
 def make_fit(teach_path, fit_path, **options):
     from hbvs_cli.stages.fit import FitOptions, run_fit
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbvs_cli.core.camera import DEFAULT_CAMERA, normalized_to_pixels, pixels_to_normalized
+from hbvs_cli.core.camera import DEFAULT_CAMERA, pixels_to_normalized
 from hbvs_cli.core.decomposition import (
     KnownNormalSolver,
     decompose_homography,

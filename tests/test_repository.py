@@ -7,7 +7,6 @@ import re
 import numpy as np
 import subprocess
 import sys
-import time
 
 from conftest import REPO, SAMPLES, run_hbvs
 

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import io
 
-import cv2
 import numpy as np
 import pytest
 
-from hbvs_cli.errors import InputError, RecordingError, UsageError
 from hbvs_cli.io.fit_file import read_fit_file
 
-from conftest import fit_errors, make_fit, make_teach, quiet_console, run_hbvs
+from conftest import fit_errors, make_fit, make_teach, run_hbvs, teach_from_rendered_video
 
 #: Measured on the default scenario (3 dots, 4 m, 640x480, f = 500 px, 0.02 px detection
 #: noise): theta_d 0.0057 deg, x_hd1 1.8e-5, x_hd2 9.6e-5 RMS; x_hd1_dot within 0.17 %;
@@ -151,27 +149,9 @@ def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
 
 def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
     """Teach from a video of the simulated drive (the truth is known), then fit."""
-    from hbvs_cli.core.camera import DEFAULT_CAMERA
-    from hbvs_cli.core.path import preset_profile
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
-    from hbvs_cli.core.world import default_world
-    from hbvs_cli.io.calibration import save_calibration_ros
-    from hbvs_cli.stages.teach import make_renderer
 
-    world = default_world()
-    profile, start = preset_profile("s-curve", 30)
-    renderer = make_renderer(world, 2.0, 0.0, 1.0)
-    rng = np.random.default_rng(1)
-    times = np.arange(600) / 30.0
-    video = tmp_path / "drive.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, (640, 480), isColor=False)
-    assert writer.isOpened()
-    for t in times:
-        writer.write(renderer.render(profile.poses_at(t, start), rng))
-    writer.release()
-    calibration = tmp_path / "camera.yaml"
-    save_calibration_ros(DEFAULT_CAMERA, calibration)
-    teach = make_teach(tmp_path / "video.mcap", video=video, calibration=calibration)
+    teach, world, profile, start, times = teach_from_rendered_video(tmp_path, seed=1)
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
     m_ref, normal, d_star = world.reference_geometry(np.asarray(start))

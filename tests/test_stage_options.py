@@ -16,7 +16,7 @@ from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.mcap_io import McapStream
 from hbvs_cli.io.run_file import read_run
 
-from conftest import fit_errors, make_fit, make_run, make_teach, run_hbvs
+from conftest import fit_errors, make_fit, make_run, make_teach, run_hbvs, teach_from_rendered_video
 
 
 @pytest.mark.parametrize("kind", TARGET_KINDS)
@@ -107,22 +107,7 @@ def test_record_images_stores_images_with_detected_and_desired_points(default_fi
 
 def test_sim_after_real_footage_needs_and_uses_an_assumed_depth(tmp_path):
     """A teach from a video has no world: repeat --sim builds one at --depth D."""
-    from hbvs_cli.core.camera import DEFAULT_CAMERA
-    from hbvs_cli.io.calibration import save_calibration_ros
-    from hbvs_cli.stages.teach import make_renderer
-
-    world = default_world()
-    profile, start = preset_profile("s-curve", 30)
-    renderer = make_renderer(world, 2.0, 0.0, 1.0)
-    rng = np.random.default_rng(8)
-    video = tmp_path / "drive.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, (640, 480), isColor=False)
-    for t in np.arange(600) / 30.0:
-        writer.write(renderer.render(profile.poses_at(t, start), rng))
-    writer.release()
-    calibration = tmp_path / "camera.yaml"
-    save_calibration_ros(DEFAULT_CAMERA, calibration)
-    teach = make_teach(tmp_path / "video.mcap", video=video, calibration=calibration)
+    teach, world, *_ = teach_from_rendered_video(tmp_path, seed=8)
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     result = run_hbvs("repeat", str(tmp_path / "fit.mcap"), "--sim", "-o", str(tmp_path / "run.mcap"), "-q")
     assert result.returncode == 2 and b"--depth" in result.stderr

@@ -11,7 +11,7 @@ import pytest
 from hbvs_cli.errors import TargetLostError
 from hbvs_cli.io.run_file import read_run
 
-from conftest import make_fit, make_run, make_teach, run_hbvs
+from conftest import make_run, make_teach, run_hbvs
 
 
 def pose_errors(run):

@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from hbvs_cli.errors import HbvsError, InputError, UsageError
 from hbvs_cli.io.schemas import SCHEMAS, TOPICS
 from hbvs_cli.io.teach_file import TeachReader
 
-from conftest import SAMPLES, make_teach, quiet_console, run_hbvs
+from conftest import SAMPLES, make_teach, run_hbvs
 
 
 def read_all(path):

@@ -20,7 +20,7 @@ from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_t
 from ..core.estimation import DEFAULT_RESIDUAL_GATE
 from ..core.homography import estimate_euclidean_homography, validate_reference_points
 from ..core.trajectory import fit_spline_trajectory, feedforward_condition
-from ..errors import GeometryError, HbvsError, InputError, RecordingError, UsageError
+from ..errors import GeometryError, InputError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
 from .detection import DetectorSpec, TrackedDetector, choose_target_kind, texture_points_for_template
@@ -120,7 +120,7 @@ class _FrameLog:
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
-    from ..io.fit_file import FitModel, TaughtPath
+    from ..io.fit_file import FitModel
     from ..io.images import compressed_image_message
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -20,15 +20,13 @@ import numpy as np
 
 from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, LAWS, lyapunov
-from ..core.estimation import STATUS_OCCLUDED, Observation, dropped
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
-from ..core.path import CommandProfile
 from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
 from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, TargetLostError, UsageError
 from .console import Console
-from .options import parse_interval, parse_offset
+from .options import parse_offset
 
 #: Default actuator limits of the simulated robot (a small indoor platform).
 DEFAULT_MAX_V = 0.5
