@@ -80,15 +80,3 @@ class TargetLostError(HbvsError):
     """The target stayed out of sight longer than the allowed timeout."""
 
     exit_code = 5
-
-
-class ThresholdExceeded(HbvsError):
-    """A metric exceeded a bound given with ``--fail-above`` (or the demo did not converge)."""
-
-    exit_code = 1
-
-
-class Interrupted(HbvsError):
-    """The user interrupted the command (SIGINT or SIGTERM)."""
-
-    exit_code = 130

@@ -10,6 +10,8 @@ from hbvs_cli.core.controller import (
     AdaptiveTrackingController,
     ControllerGains,
     Measurement,
+    TrackingErrors,
+    closed_loop_error_rates,
     control_law,
     lyapunov,
 )
@@ -133,14 +135,9 @@ def test_closed_loop_agrees_with_fine_integration_of_32(law_run):
         desired = trajectory.evaluate(t)
         x_h2 = ebar2 + desired.x_hd1 * e3 + desired.x_hd2
         w_c = gains.k_w * e3 - desired.theta_d_dot - gains.k_2 * desired.x_hd1_dot * ebar2
-        coupling = x_h2 * w_c - desired.x_hd1_dot
-        d_tilde = d_star - dhat
-        return [
-            (-gains.k_v * e1 + gains.k_2 * ebar2 * w_c + d_tilde * coupling) / d_star,
-            -(e1 * w_c + desired.x_hd1_dot * e3),
-            -gains.k_w * e3 + gains.k_2 * desired.x_hd1_dot * ebar2,
-            gains.gamma * e1 * coupling,
-        ]
+        errors = TrackingErrors(e1=e1, e2=ebar2 + desired.x_hd1 * e3, e3=e3, ebar2=ebar2)
+        rates = closed_loop_error_rates(errors, d_star - dhat, x_h2, w_c, desired.x_hd1_dot, d_star, gains)
+        return [*rates, gains.gamma * e1 * (x_h2 * w_c - desired.x_hd1_dot)]
 
     times = np.array([r.t for r in records])
     solution = solve_ivp(
@@ -153,6 +150,32 @@ def test_closed_loop_agrees_with_fine_integration_of_32(law_run):
     deviation = np.max(np.abs(simulated - solution.y.T), axis=0) / scale
     # Agreement within 0.5 % of each signal's range: the simulator holds commands for 1 ms.
     assert np.all(deviation < 5e-3), f"{law}: relative deviation {deviation}"
+
+
+@pytest.mark.parametrize("k_2", [1.0, 400.0])
+def test_the_law_closes_the_loop_32_and_v_dot_is_38(k_2):
+    """At random states, the law (29)-(31) put into the open loop (23)-(28) gives the
+    closed loop (32), and V (36) decreases at exactly -k_v e1^2 - k_w e3^2 (38)."""
+    from hbvs_cli.core.controller import DesiredState
+
+    gains = ControllerGains(k_v=4.0, k_w=1.0, gamma=2500.0, k_2=k_2)
+    rng = np.random.default_rng(38)
+    for _ in range(200):
+        d_star, dhat = rng.uniform(1.0, 6.0, 2)
+        measured = Measurement(*rng.uniform(-0.5, 0.5, 3))
+        desired = DesiredState(*rng.uniform(-0.5, 0.5, 6))
+        out = control_law(measured, desired, dhat, gains)
+        err = out.errors
+        open_loop = (
+            (-out.v_c + d_star * (measured.x_h2 * out.w_c - desired.x_hd1_dot)) / d_star,  # (26)
+            -(err.e1 * out.w_c + desired.x_hd1_dot * err.e3),  # (28)
+            -(out.w_c + desired.theta_d_dot),  # theta_dot = -w_c
+        )
+        closed_loop = closed_loop_error_rates(err, d_star - dhat, measured.x_h2, out.w_c, desired.x_hd1_dot, d_star, gains)
+        np.testing.assert_allclose(closed_loop, open_loop, rtol=1e-9, atol=1e-12)
+        e1_dot, ebar2_dot, e3_dot = closed_loop
+        v_dot = d_star * err.e1 * e1_dot + k_2 * err.ebar2 * ebar2_dot + err.e3 * e3_dot - (d_star - dhat) * out.dhat_dot / gains.gamma
+        assert v_dot == pytest.approx(-gains.k_v * err.e1**2 - gains.k_w * err.e3**2, rel=1e-9, abs=1e-12)
 
 
 def test_dhat_learns_depth_from_a_fifth_of_it():

@@ -75,32 +75,6 @@ class CameraIntrinsics:
         """True when any distortion coefficient is non-zero."""
         return any(abs(v) > 0.0 for v in self.distortion)
 
-    @classmethod
-    def from_matrix(
-        cls,
-        K: ArrayLike,
-        width: int,
-        height: int,
-        distortion_model: str = "none",
-        distortion: ArrayLike = (),
-    ) -> "CameraIntrinsics":
-        """Build from a 3x3 matrix ``K`` (OpenCV axes, zero skew)."""
-        K = np.asarray(K, dtype=float)
-        if K.shape != (3, 3):
-            raise CalibrationError(f"the camera matrix must be 3x3, got shape {K.shape}")
-        if abs(K[0, 1]) > 1e-9 * max(1.0, abs(K[0, 0])):
-            raise CalibrationError("camera matrices with skew are not supported")
-        return cls(
-            fx=float(K[0, 0]),
-            fy=float(K[1, 1]),
-            cx=float(K[0, 2]),
-            cy=float(K[1, 2]),
-            width=int(width),
-            height=int(height),
-            distortion_model=distortion_model,
-            distortion=tuple(float(v) for v in np.ravel(distortion)),
-        )
-
     def scaled(self, factor: float) -> "CameraIntrinsics":
         """The same camera with images resized by ``factor`` (no distortion rescale needed)."""
         return CameraIntrinsics(

@@ -8,6 +8,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..core.frames import quaternion_to_yaw, yaw_to_quaternion
 from ..errors import RecordingError
 
 WORLD_FRAME = "world"
@@ -20,12 +21,13 @@ LOG_INFO, LOG_WARNING, LOG_ERROR = 2, 3, 4
 def pose_message(timestamp: dict[str, int], pose: Sequence[float], height: float = 0.0, frame_id: str = WORLD_FRAME) -> dict[str, Any]:
     """A ``foxglove.PoseInFrame`` of a planar pose (x, y, phi) at ``height`` (m)."""
     x, y, phi = (float(v) for v in pose)
+    qx, qy, qz, qw = (float(v) for v in yaw_to_quaternion(phi))
     return {
         "timestamp": timestamp,
         "frame_id": frame_id,
         "pose": {
             "position": {"x": x, "y": y, "z": float(height)},
-            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(0.5 * phi), "w": math.cos(0.5 * phi)},
+            "orientation": {"x": qx, "y": qy, "z": qz, "w": qw},
         },
     }
 
@@ -36,11 +38,10 @@ def planar_pose_from_message(message: dict[str, Any], source: str = "") -> tuple
         position = message["pose"]["position"]
         q = message["pose"]["orientation"]
         x, y = float(position["x"]), float(position["y"])
-        qx, qy, qz, qw = (float(q[k]) for k in ("x", "y", "z", "w"))
+        quaternion = [float(q[k]) for k in ("x", "y", "z", "w")]
     except (KeyError, TypeError, ValueError):
         raise RecordingError(f"{source}: malformed pose message") from None
-    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    values = (x, y, yaw)
+    values = (x, y, float(quaternion_to_yaw(quaternion)))
     if not all(math.isfinite(v) for v in values):
         raise RecordingError(f"{source}: a pose message holds NaN or infinity")
     return values

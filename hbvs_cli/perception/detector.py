@@ -44,11 +44,6 @@ class Detection:
     candidates: int
     rejected: int
 
-    @property
-    def n_found(self) -> int:
-        """Number of points found (finite rows)."""
-        return int(np.count_nonzero(np.all(np.isfinite(self.pixels), axis=1)))
-
 
 @runtime_checkable
 class TargetDetector(Protocol):
