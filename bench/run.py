@@ -1,6 +1,6 @@
 """hbvs benchmarks: speed and memory as ratios of things measured side by side.
 
-Run ``python -m bench`` (about 6 minutes on 2 cores) or ``python -m bench --quick``
+Run ``python -m bench`` (about 4 minutes on 2 cores) or ``python -m bench --quick``
 (under a minute, smaller inputs). Every figure is a ratio of two measurements taken in the
 same run, interleaved, with the median over repeats, so a noisy machine moves both sides.
 The table is printed and written to ``bench/RESULTS.md`` with the machine, the date and the
