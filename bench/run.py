@@ -269,7 +269,7 @@ def bench_fit_throughput(work: Path, quick: bool) -> Figure:
 
 # --------------------------------------------------------------------------- 4. memory
 def bench_memory(work: Path, quick: bool) -> list[Figure]:
-    small, large = (1000, 10000) if quick else (3000, 30000)
+    small, large = (500, 5000) if quick else (3000, 30000)
     camera = work / "small_camera.yaml"
     from hbvs_cli.core.camera import CameraIntrinsics
     from hbvs_cli.io.calibration import save_calibration_ros
