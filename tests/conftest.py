@@ -97,17 +97,14 @@ def make_teach(output, **options):
     return output
 
 
-def teach_from_rendered_video(folder, seed: int, frames: int = 600):
-    """Teach from a lossless video of the simulated s-curve drive (the truth is known).
+def rendered_s_curve(seed: int, frames: int = 600):
+    """The simulated s-curve drive rendered as camera images (the truth is known).
 
-    Returns the teach path, the world, the command profile, the start pose and the frame times.
+    Returns the world, the command profile, the start pose, the frame times and a
+    generator of the grayscale frames.
     """
-    import cv2
-
-    from hbvs_cli.core.camera import DEFAULT_CAMERA
     from hbvs_cli.core.path import preset_profile
     from hbvs_cli.core.world import default_world
-    from hbvs_cli.io.calibration import save_calibration_ros
     from hbvs_cli.stages.teach import make_renderer
 
     world = default_world()
@@ -115,12 +112,44 @@ def teach_from_rendered_video(folder, seed: int, frames: int = 600):
     renderer = make_renderer(world, 2.0, 0.0, 1.0)
     rng = np.random.default_rng(seed)
     times = np.arange(frames) / 30.0
+    images = (renderer.render(profile.poses_at(t, start), rng) for t in times)
+    return world, profile, start, times, images
+
+
+def errors_against_drive(model, world, profile, start, times):
+    """RMS errors of a fit against the exact desired trajectory of a rendered drive:
+    theta_d (deg), x_hd1, x_hd2 (units of d*), and d* itself."""
+    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+
+    _, _, d_star = world.reference_geometry(np.asarray(start))
+    truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
+    fitted = model.trajectory.evaluate(times)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    return {
+        "theta_deg": float(np.degrees(rms(fitted.theta_d - truth.theta_d))),
+        "x_hd1": rms(fitted.x_hd1 - truth.x_hd1),
+        "x_hd2": rms(fitted.x_hd2 - truth.x_hd2),
+        "d_star": d_star,
+    }
+
+
+def teach_from_rendered_video(folder, seed: int, frames: int = 600):
+    """Teach from a lossless video of :func:`rendered_s_curve`.
+
+    Returns the teach path, the world, the command profile, the start pose and the frame times.
+    """
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    world, profile, start, times, images = rendered_s_curve(seed, frames)
     video = Path(folder) / "drive.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0,
                              (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height), isColor=False)
     assert writer.isOpened()
-    for t in times:
-        writer.write(renderer.render(profile.poses_at(t, start), rng))
+    for image in images:
+        writer.write(image)
     writer.release()
     calibration = Path(folder) / "camera.yaml"
     save_calibration_ros(DEFAULT_CAMERA, calibration)

@@ -9,7 +9,15 @@ import pytest
 
 from hbvs_cli.io.fit_file import read_fit_file
 
-from conftest import fit_errors, make_fit, make_teach, run_hbvs, teach_from_rendered_video
+from conftest import (
+    errors_against_drive,
+    fit_errors,
+    make_fit,
+    make_teach,
+    rendered_s_curve,
+    run_hbvs,
+    teach_from_rendered_video,
+)
 
 #: Measured on the default scenario (3 dots, 4 m, 640x480, f = 500 px, 0.02 px detection
 #: noise): theta_d 0.0057 deg, x_hd1 1.8e-5, x_hd2 4.1e-5 RMS; x_hd1_dot within 0.17 %;
@@ -149,45 +157,29 @@ def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
 
 def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
     """Teach from a video of the simulated drive (the truth is known), then fit."""
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
-
     teach, world, profile, start, times = teach_from_rendered_video(tmp_path, seed=1)
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
-    m_ref, normal, d_star = world.reference_geometry(np.asarray(start))
-    truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
-    fitted = model.trajectory.evaluate(times)
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    errors = errors_against_drive(model, world, profile, start, times)
     assert model.world is None and model.taught_path is None
-    assert np.degrees(rms(fitted.theta_d - truth.theta_d)) < 0.05
-    assert rms(fitted.x_hd1 - truth.x_hd1) < 1e-3 and rms(fitted.x_hd2 - truth.x_hd2) < 1e-3
+    assert errors["theta_deg"] < 0.05
+    assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
     # No commands in a video: d* from the target's metric size (--target-size).
+    d_star = errors["d_star"]
     assert model.dhat0_source == "target-size" and abs(model.dhat0 - d_star) < 0.02 * d_star
 
 
 def test_fit_of_a_ros2_bag_agrees_with_the_truth(tmp_path):
     from test_stage_teach import write_bag
 
-    from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
-    from hbvs_cli.core.world import default_world
-    from hbvs_cli.stages.teach import make_renderer
-
-    world = default_world()
-    profile, start = preset_profile("s-curve", 30)
-    renderer = make_renderer(world, 2.0, 0.0, 1.0)
-    rng = np.random.default_rng(2)
-    times = np.arange(600) * 0.033333333
-    write_bag(tmp_path / "bag", [renderer.render(profile.poses_at(t, start), rng) for t in times])
+    world, profile, start, times, images = rendered_s_curve(seed=2)
+    write_bag(tmp_path / "bag", list(images))
     teach = make_teach(tmp_path / "bag.mcap", bag=tmp_path / "bag")
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
-    _, _, d_star = world.reference_geometry(np.asarray(start))
-    truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
-    fitted = model.trajectory.evaluate(times)
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
-    assert np.degrees(rms(fitted.theta_d - truth.theta_d)) < 0.05
-    assert rms(fitted.x_hd1 - truth.x_hd1) < 1e-3 and rms(fitted.x_hd2 - truth.x_hd2) < 1e-3
+    errors = errors_against_drive(model, world, profile, start, times)
+    assert errors["theta_deg"] < 0.05
+    assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
 
 
 def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
