@@ -293,12 +293,14 @@ def _header(ns: int) -> object:
 
 
 def _camera_info(camera: CameraIntrinsics | None, ns: int) -> object:
+    """A CameraInfo of ``camera``, or an uncalibrated one (all zeros) for None."""
     k = camera.K.ravel() if camera is not None else np.zeros(9)
-    d = np.array(camera.distortion if camera is not None else [0.0] * 5)
+    d = np.array(camera.distortion if camera is not None and camera.distortion else [0.0] * 5)
     p = np.zeros(12) if camera is None else np.array(
         [camera.fx, 0, camera.cx, 0, 0, camera.fy, camera.cy, 0, 0, 0, 1, 0], float)
+    height, width = (HEIGHT, WIDTH) if camera is None else (camera.height, camera.width)
     return CameraInfo(
-        header=_header(ns), height=HEIGHT, width=WIDTH, distortion_model="plumb_bob", d=d, k=k,
+        header=_header(ns), height=height, width=width, distortion_model="plumb_bob", d=d, k=k,
         r=np.eye(3).ravel(), p=p, binning_x=0, binning_y=0,
         roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
     )

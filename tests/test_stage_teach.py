@@ -198,34 +198,23 @@ def test_live_camera_ctrl_c_leaves_a_valid_finished_recording(tmp_path, calibrat
 def write_bag(directory: Path, frames, *, images=True, camera_info=True, second_topic=False):
     """A ROS 2 bag in MCAP storage written by the independent rosbags library."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
+    from test_io_sources import TYPES, CompressedImage, CameraInfo, _camera_info, _header
 
     from hbvs_cli.core.camera import DEFAULT_CAMERA
 
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    Header = store.types["std_msgs/msg/Header"]
-    Time = store.types["builtin_interfaces/msg/Time"]
-    CompressedImage = store.types["sensor_msgs/msg/CompressedImage"]
-    CameraInfo = store.types["sensor_msgs/msg/CameraInfo"]
-    RegionOfInterest = store.types["sensor_msgs/msg/RegionOfInterest"]
     with Writer(directory, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
         topics = (["/cam/image/compressed"] if images else []) + (["/other/image/compressed"] if second_topic else [])
-        image_connections = [writer.add_connection(topic, CompressedImage.__msgtype__, typestore=store) for topic in topics]
-        info_connection = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=store) if camera_info else None
+        image_connections = [writer.add_connection(topic, CompressedImage.__msgtype__, typestore=TYPES) for topic in topics]
+        info_connection = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=TYPES) if camera_info else None
         for k, frame in enumerate(frames):
             stamp_ns = 1_700_000_000_000_000_000 + k * 33_333_333
-            header = Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="cam")
             data = cv2.imencode(".png", frame)[1].ravel()
             for connection in image_connections:
-                writer.write(connection, stamp_ns, store.serialize_cdr(CompressedImage(header=header, format="png", data=data), CompressedImage.__msgtype__))
+                message = CompressedImage(header=_header(stamp_ns), format="png", data=data)
+                writer.write(connection, stamp_ns, TYPES.serialize_cdr(message, CompressedImage.__msgtype__))
             if info_connection is not None and k == 0:  # one CameraInfo is enough
-                K = DEFAULT_CAMERA.K.ravel()
-                info = CameraInfo(
-                    header=header, height=480, width=640, distortion_model="plumb_bob", d=np.zeros(5), k=K,
-                    r=np.eye(3).ravel(), p=np.hstack([DEFAULT_CAMERA.K, np.zeros((3, 1))]).ravel(),
-                    binning_x=0, binning_y=0, roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-                )
-                writer.write(info_connection, stamp_ns, store.serialize_cdr(info, CameraInfo.__msgtype__))
+                info = _camera_info(DEFAULT_CAMERA, stamp_ns)
+                writer.write(info_connection, stamp_ns, TYPES.serialize_cdr(info, CameraInfo.__msgtype__))
 
 
 def test_teach_from_a_ros2_bag_written_by_rosbags(tmp_path):
