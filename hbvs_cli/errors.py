@@ -13,7 +13,10 @@ Exit codes
 3    an input file is missing, unreadable or malformed
 4    the geometry is degenerate (too few points, collinear, a point at camera height...)
 5    the run was stopped: the target was lost for longer than ``--lost-timeout``
+6    an output could not be written (disk full, I/O error, stdout closed); nothing was replaced
+7    a size limit was reached (the message names the limit and the option that raises it)
 130  interrupted by Ctrl-C (SIGINT); 143 by SIGTERM
+141  the reader of the output pipe went away (``hbvs ... | head``)
 ==== =========================================================================
 """
 
@@ -80,3 +83,25 @@ class TargetLostError(HbvsError):
     """The target stayed out of sight longer than the allowed timeout."""
 
     exit_code = 5
+
+
+class TruncatedInputError(InputError):
+    """An input ended before its end record, and its result would replace an existing file."""
+
+
+class OutputError(HbvsError):
+    """An output that could not be written: a full disk, an I/O error, a closed stdout."""
+
+    exit_code = 6
+
+
+class LimitExceededError(HbvsError):
+    """A size that would turn into memory or time beyond a limit (``hbvs --limit`` raises it)."""
+
+    exit_code = 7
+
+
+class PipeClosedError(HbvsError):
+    """The reader of stdout closed the pipe (exit 141, as a shell reports SIGPIPE)."""
+
+    exit_code = 141

@@ -7,6 +7,7 @@ line on stderr and the error's exit code. ``--debug`` shows the traceback instea
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import sys
@@ -46,8 +47,13 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error.")] = False,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help="Raise a size limit: steps, messages, chunk-messages, input-bytes (see docs/robustness.md); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
+    if limit:
+        from ..io.limits import set_limits
+
+        set_limits(list(limit))
 
 
 def _console(quiet: bool):
@@ -280,11 +286,7 @@ def _install_signal_handlers() -> None:
 def _stopped(signum: int) -> int:
     """Report a stop signal on stderr (one line) and return its exit code."""
     code, what = _STOP_SIGNALS[signum]
-    try:
-        sys.stderr.write(f"hbvs: {what}\n")
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
+    _say(f"hbvs: {what}")
     return code
 
 
@@ -293,8 +295,56 @@ def _silence_stdout() -> None:
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError):
+    except (OSError, ValueError, AttributeError):
         pass
+
+
+#: Device and inode of stdout when hbvs started.
+_stdout_at_start: tuple[int, int] | None = None
+
+
+def _stdout_identity() -> tuple[int, int] | None:
+    try:
+        status = os.fstat(1)
+    except OSError:
+        return None
+    return status.st_dev, status.st_ino
+
+
+def _stdout_became_devnull() -> bool:
+    try:
+        devnull = os.stat(os.devnull)
+    except OSError:
+        return False
+    now = _stdout_identity()
+    return now == (devnull.st_dev, devnull.st_ino) and now != _stdout_at_start
+
+
+def _say(line: str) -> None:
+    """One line on stderr; a closed or broken stderr is no reason for a traceback."""
+    try:
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def _pipe_closed() -> int:
+    _silence_stdout()
+    _say("hbvs: error: stdout: the reader closed the pipe")
+    return 141
+
+
+#: errno values that mean "the output could not be written" (exit 6).
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF, errno.EROFS}
+
+
+def _usage_line(exc: Any) -> str:
+    """A click usage error as one line: the message, and where to get help."""
+    message = " ".join(str(exc.format_message()).split())
+    ctx = getattr(exc, "ctx", None)
+    command = ctx.command_path if ctx is not None else "hbvs"
+    return f"hbvs: error: {message} (see '{command} --help')"
 
 
 def _run(args: list[str], debug: bool) -> int:
@@ -305,27 +355,114 @@ def _run(args: list[str], debug: bool) -> int:
     except HbvsError as exc:
         if debug:
             raise
-        sys.stderr.write(f"hbvs: error: {exc}\n")
+        if exc.exit_code == 141:
+            return _pipe_closed()
+        _say(f"hbvs: error: {exc}")
         return exc.exit_code
     except typer.Abort:
-        sys.stderr.write("hbvs: interrupted\n")
+        _say("hbvs: interrupted")
         return 130
-    except typer.TyperException as exc:  # usage errors: the parser's own message and hint
-        show = getattr(exc, "show", None)
-        if show is not None:
-            show()
+    except typer.TyperException as exc:  # usage errors (typer's vendored click)
+        if type(exc).__name__ == "NoArgsIsHelpError":  # `hbvs` alone: the help is what was asked for
+            exc.show()
+            return int(getattr(exc, "exit_code", 2))
+        if hasattr(exc, "format_message"):
+            _say(_usage_line(exc))
         else:
-            sys.stderr.write(f"hbvs: error: {exc}\n")
+            _say("hbvs: error: " + " ".join(str(exc).split()))
         return int(getattr(exc, "exit_code", 2))
+    except SystemExit as exc:
+        # typer (and rich, printing help) answer a broken pipe with exit status 1, after
+        # wrapping stdout (typer) or pointing it at /dev/null (rich).
+        if exc.code == 1 and (type(sys.stdout).__name__ == "PacifyFlushWrapper" or _stdout_became_devnull()):
+            return _pipe_closed()
+        raise
     except BrokenPipeError:
-        _silence_stdout()
-        sys.stderr.write("hbvs: error: the output pipe was closed by the reader\n")
-        return 141
+        return _pipe_closed()
+    except MemoryError:
+        if debug:
+            raise
+        _say("hbvs: error: out of memory (a limit is set too high for this machine? see hbvs --limit)")
+        return 7
+    except OSError as exc:
+        if debug:
+            raise
+        if exc.errno == errno.EPIPE:
+            return _pipe_closed()
+        if exc.errno in _WRITE_ERRNOS:
+            where = f"{exc.filename}: " if exc.filename else ""
+            _say(f"hbvs: error: {where}cannot write ({exc.strerror})")
+            return 6
+        _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
+        return 70
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
         if debug:
             raise
-        sys.stderr.write(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)\n")
+        text = " ".join(str(exc).split())[:300]
+        _say(f"hbvs: internal error: {type(exc).__name__}: {text} (run with --debug for the traceback, and please report it)")
         return 70
+
+
+class _ClosedStdout:
+    """What sys.stdout is when hbvs was started with stdout closed: writing is an error."""
+
+    encoding = "utf-8"
+
+    def _closed(self, *args: Any) -> Any:
+        from ..errors import OutputError
+
+        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+
+    write = _closed
+
+    @property
+    def buffer(self) -> Any:
+        return self._closed()
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+    def fileno(self) -> int:
+        return 1
+
+
+def _prepare_stdio(debug: bool) -> None:
+    """Closed stdio, native logging and warnings, before any command runs.
+
+    A closed descriptor 0, 1 or 2 gets /dev/null (so no file hbvs opens takes its number)
+    and writing to a closed stdout is an error. Unless ``--debug``: descriptor 2 goes to
+    /dev/null for native code (libpng, OpenCV, the ROS message parser print there on
+    their own), Python's stderr keeps the terminal on a copy of it, and warnings (numpy's
+    RuntimeWarnings among them) are not shown: hbvs reports problems in its own words.
+    """
+    from ..io.output_target import guard_stdio, stdio_closed
+
+    global _stdout_at_start
+    guard_stdio()
+    _stdout_at_start = _stdout_identity()
+    if sys.stdout is None or stdio_closed(1):
+        sys.stdout = _ClosedStdout()  # type: ignore[assignment]
+    if sys.stderr is None or stdio_closed(2):
+        sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
+    if debug:
+        return
+    import warnings
+
+    warnings.simplefilter("ignore")
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
+    try:
+        sys.stderr.flush()
+        copy = os.dup(2)
+        terminal = os.fdopen(copy, "w", encoding=getattr(sys.stderr, "encoding", None) or "utf-8", errors="backslashreplace", buffering=1)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 2)
+        os.close(devnull)
+        sys.stderr = terminal
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -338,6 +475,7 @@ def main(argv: list[str] | None = None) -> None:
     """
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
+    _prepare_stdio(debug)
     _install_signal_handlers()
     try:
         try:
@@ -355,7 +493,10 @@ def main(argv: list[str] | None = None) -> None:
     try:
         sys.stdout.flush()
     except BrokenPipeError:
-        _silence_stdout()
-    except (OSError, ValueError):
+        if code == 0:
+            code = _pipe_closed()
+        else:
+            _silence_stdout()
+    except (OSError, ValueError, AttributeError):
         pass
     sys.exit(code)

@@ -6,8 +6,9 @@ record, because hbvs promises more than that library's readers give:
 * **Streaming both ways**: every stage reads a file or stdin (``-``) front to back in
   constant memory, and writes a file or stdout. The mcap ``Writer`` calls ``tell()``, which
   a pipe does not have, so stdout is wrapped in :class:`CountingStream`.
-* **Atomic output**: a file is written as ``FILE.partial`` and renamed over ``FILE`` only
-  when it is finished; a failed or interrupted command leaves any previous ``FILE``
+* **Atomic output**: a file is written as ``FILE.<pid>-<random>.partial`` and renamed over
+  ``FILE`` only when it is finished (:mod:`hbvs_cli.io.output_target` decides how every
+  output is written); a failed or interrupted command leaves any previous ``FILE``
   untouched and removes the partial file. After a hard crash (power loss, SIGKILL), the
   ``.partial`` file holds every chunk flushed so far and is itself readable.
 * **Hostile input**: every declared length (a record, a field inside a record, a chunk
@@ -180,6 +181,10 @@ class McapWriter:
         }
         self._writer.add_metadata(name, encoded)
 
+    def input_ended_early(self, name: str, allow: bool) -> None:
+        """An input of this output ended before its end record: see
+        :meth:`hbvs_cli.io.output_target.OutputSink.input_ended_early` (set by :func:`open_output`)."""
+
     def flush(self) -> None:
         """Finish the chunk in progress and push it to the stream (crash safety)."""
         self._writer.flush()
@@ -193,57 +198,31 @@ class McapWriter:
 
 
 def partial_path(target: Path) -> Path:
-    """Where an output file is written until it is complete."""
-    return target.with_name(target.name + ".partial")
+    """A fresh name under which an output file is written until it is complete
+    (unique to the process: see :mod:`hbvs_cli.io.output_target`)."""
+    from .output_target import partial_name_of
+
+    return partial_name_of(Path(target))
 
 
 @contextmanager
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on a file (atomically) or on stdout (``"-"``).
+    """An :class:`McapWriter` on an output opened by :func:`~hbvs_cli.io.output_target.open_output_stream`.
 
-    On success the file is complete and renamed into place; if the body raises (an
-    error, KeyboardInterrupt, or the exception the CLI raises on SIGTERM), the partial
-    file is removed and an existing output is left as it was. Only a hard crash, which
-    runs no code, leaves the partial file behind.
+    A file is written under a partial name unique to the process and renamed into place
+    when complete (a symbolic link's target is replaced); a device or FIFO is written in
+    place; ``-`` is stdout. If the body raises (an error, KeyboardInterrupt, or the
+    exception the CLI raises on SIGTERM), the partial file is removed and an existing
+    output is left as it was. Only a hard crash, which runs no code, leaves the partial
+    file behind. A stage whose input ended early calls ``writer.input_ended_early``.
     """
-    if str(target) == "-":
-        stream = CountingStream(stdout if stdout is not None else sys.stdout.buffer)
-        writer = McapWriter(stream, chunk_size=chunk_size)
+    from .output_target import open_output_stream
+
+    with open_output_stream(target, "output", stdout=stdout) as sink:
+        writer = McapWriter(sink.stream, chunk_size=chunk_size)
+        writer.input_ended_early = sink.input_ended_early
         yield writer
         writer.finish()
-        return
-    path = Path(target)
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory; give a file name for the output")
-    if not path.parent.exists():
-        raise InputError(f"{path}: the folder {path.parent} does not exist")
-    temporary = partial_path(path)
-    try:
-        handle = open(temporary, "wb")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
-    except BaseException:
-        # A signal can land after open() created the file but before `handle` was bound.
-        _remove_quietly(temporary)
-        raise
-    try:
-        with handle:
-            writer = McapWriter(handle, chunk_size=chunk_size)
-            yield writer
-            writer.finish()
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        _remove_quietly(temporary)
-        raise
-
-
-def _remove_quietly(path: Path) -> None:
-    try:
-        path.unlink()
-    except OSError:
-        pass
 
 
 # ----------------------------------------------------------------------------- reading
@@ -430,6 +409,8 @@ class McapStream:
     messages: int = 0
     complete: bool = False
     stop_reason: str = ""
+    _messages_read: int = field(default=0, repr=False)
+    _bytes_read: int = field(default=0, repr=False)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -469,6 +450,10 @@ class McapStream:
             while True:
                 try:
                     record = next(records)
+                    if isinstance(record, Message):
+                        self._count_message()
+                    if not isinstance(record, Chunk):
+                        self._count_bytes(_record_size(record))
                     inner = self._chunk_records(record, breakup_chunk) if isinstance(record, Chunk) else [record]
                     for item in inner:
                         if isinstance(item, Message):
@@ -544,11 +529,9 @@ class McapStream:
             data=bytes(record.data),
         )
 
-    def _chunk_records(self, chunk: Any, breakup_chunk: Any) -> list[Any]:
+    def _chunk_records(self, chunk: Any, breakup_chunk: Any) -> Iterator[Any]:
         """The records of a chunk, decompressed under the size cap, CRC-checked, then split
-        by the mcap library."""
-        from mcap.records import Chunk
-
+        one at a time (:meth:`_chunk_items`)."""
         declared = chunk.uncompressed_size
         if declared > MAX_CHUNK_BYTES:
             raise RecordingError(
@@ -563,11 +546,62 @@ class McapStream:
             raise _Damaged(f"a chunk holds {len(data)} bytes, not the {declared} it declares")
         if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
             raise _Damaged("a chunk fails its CRC check")
-        plain = Chunk(
-            compression="", data=data, message_start_time=chunk.message_start_time,
-            message_end_time=chunk.message_end_time, uncompressed_crc=0, uncompressed_size=len(data),
-        )
-        return breakup_chunk(plain, validate_crc=False)
+        self._count_bytes(len(data))
+        return self._chunk_items(data)
+
+    def _chunk_items(self, data: bytes) -> Iterator[Any]:
+        """The schema, channel and message records of a decompressed chunk, parsed one at a
+        time by the mcap library's record parsers (its ``breakup_chunk`` builds them all as
+        one list: a 1 MB chunk of 4 million empty messages took 0.9 GB), and counted
+        against the ``chunk-messages`` and ``messages`` limits."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Channel, Message, Schema
+
+        from . import limits
+
+        stream = ReadDataStream(io.BytesIO(data))
+        length_of_data = len(data)
+        in_chunk = 0
+        chunk_limit = limits.current("chunk-messages")
+        while stream.count < length_of_data:
+            opcode = stream.read1()
+            length = stream.read8()
+            if opcode == Opcode.MESSAGE:
+                in_chunk += 1
+                if in_chunk > chunk_limit:
+                    raise limits.exceeded("chunk-messages", None, f"{self.name}: a chunk's number of messages")
+                self._count_message()
+                yield Message.read(stream, length)
+            elif opcode == Opcode.CHANNEL:
+                yield Channel.read(stream)
+            elif opcode == Opcode.SCHEMA:
+                yield Schema.read(stream)
+            else:
+                if length > length_of_data:
+                    raise _Damaged("a record inside a chunk is longer than the chunk")
+                stream.read(length)
+
+    def _count_message(self) -> None:
+        from . import limits
+
+        self._messages_read += 1
+        if self._messages_read > limits.current("messages"):
+            raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
+
+    def _count_bytes(self, size: int) -> None:
+        from . import limits
+
+        self._bytes_read += size
+        if self._bytes_read > limits.current("input-bytes"):
+            raise limits.exceeded("input-bytes", None, f"{self.name}: the data (after decompression)")
+
+
+def _record_size(record: Any) -> int:
+    """Bytes a record outside a chunk holds (its data, or 64 for one without): for the
+    ``input-bytes`` limit."""
+    data = getattr(record, "data", None)
+    return len(data) if isinstance(data, (bytes, bytearray, memoryview)) else 64
 
 
 class _Damaged(Exception):

@@ -1,0 +1,119 @@
+"""Limits on every size that turns into memory or time, and the one option that raises them.
+
+A small file or an option can ask for a lot: a fit file whose trajectory lasts 3e5 s makes
+``repeat --sim`` step millions of times (and allocate per step); a 1 MB MCAP chunk can hold
+4 million empty messages. Each such size is checked against a limit *before* anything is
+allocated, and the error names the limit and how to raise it::
+
+    hbvs --limit steps=5e6 repeat fit.mcap --sim
+
+========================= ============ ======================================================
+name                      default      what it bounds
+========================= ============ ======================================================
+``steps``                 1 000 000    control steps of one ``repeat --sim`` run (duration
+                                       over ``--speed`` times ``--rate``), and frames of a
+                                       simulated ``teach`` (``--duration`` times ``--fps``)
+``messages``              4 194 304    messages read from one MCAP file or stream
+``chunk-messages``        262 144      messages in one MCAP chunk
+``input-bytes``           64 GiB       bytes read from one MCAP file or stream, after
+                                       decompression
+========================= ============ ======================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import LimitExceededError, UsageError
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One limit: its name (as ``--limit NAME=N`` takes it), default and unit."""
+
+    name: str
+    default: int
+    unit: str
+
+
+LIMITS: dict[str, Limit] = {
+    limit.name: limit
+    for limit in (
+        Limit("steps", 1_000_000, "steps"),
+        Limit("messages", 2**22, "messages"),
+        Limit("chunk-messages", 2**18, "messages"),
+        Limit("input-bytes", 64 * 2**30, "bytes"),
+    )
+}
+
+_values: dict[str, int] = {name: limit.default for name, limit in LIMITS.items()}
+
+
+def current(name: str) -> int:
+    """The value of limit ``name`` in this process."""
+    return _values[name]
+
+
+def set_limits(items: list[str]) -> None:
+    """Apply ``--limit NAME=N`` options (N may be written 5e6).
+
+    Raises
+    ------
+    UsageError
+        An unknown name, or N not a positive whole number.
+    """
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip().lower()
+        if not sep or name not in LIMITS:
+            raise UsageError(f"--limit {item!r}: expected NAME=N with NAME one of {', '.join(LIMITS)}")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value >= 1 and value <= 2**62):
+            raise UsageError(f"--limit {name}: expected a positive whole number, got {text!r}")
+        _values[name] = int(value)
+
+
+def reset() -> None:
+    """Back to the defaults (tests)."""
+    _values.update({name: limit.default for name, limit in LIMITS.items()})
+
+
+def exceeded(name: str, amount: float | None, what: str) -> LimitExceededError:
+    """The error for ``what`` going beyond limit ``name`` (``amount``: how far, when known)."""
+    limit = LIMITS[name]
+    needed = ""
+    if amount is not None:
+        needed = f" ({amount:.4g} {limit.unit})" if isinstance(amount, float) else f" ({amount} {limit.unit})"
+    return LimitExceededError(
+        f"{what}{needed} exceeds the {name} limit of {_values[name]} {limit.unit}; "
+        f"raise it with: hbvs --limit {name}=N ..."
+    )
+
+
+def check(name: str, amount: float, what: str) -> None:
+    """Raise :func:`exceeded` when ``amount`` (NaN and infinity included) is above limit ``name``."""
+    if not (amount <= _values[name]):
+        raise exceeded(name, amount, what)
+
+
+def step_count(duration_s: float, rate_hz: float, what: str) -> int:
+    """The number of steps of ``duration_s`` seconds at ``rate_hz``, checked against ``steps``.
+
+    Raises
+    ------
+    UsageError
+        A duration or rate that is not a finite positive number.
+    LimitExceededError
+        More steps than the ``steps`` limit.
+    """
+    if not (math.isfinite(duration_s) and duration_s >= 0):
+        raise UsageError(f"{what}: the duration must be a finite number of seconds, got {duration_s}")
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise UsageError(f"{what}: the rate must be a finite positive number of Hz, got {rate_hz}")
+    steps = duration_s * rate_hz
+    check("steps", steps, what)
+    return int(round(steps))

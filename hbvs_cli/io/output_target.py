@@ -1,0 +1,446 @@
+"""Where and how every output of hbvs is written: the one place that decides it.
+
+Every file hbvs writes (``-o``, ``--cmd-out``, ``--plot``, ``--export-tum``) is opened by
+:func:`open_output_stream`, so that what a user points hbvs at is never lost:
+
+* ``-`` is stdout, written as a stream.
+* A regular file, or a path that does not exist yet, is written beside its final name
+  under a partial name unique to the process (``NAME.<pid>-<random>.partial``, created with
+  ``O_EXCL``), flushed, fsynced and renamed over the final name only when complete. Two
+  runs writing the same path never share a partial file: the last one to finish wins,
+  whole, and neither can leave a corrupt file. An error or a signal removes the partial
+  file and leaves an earlier output as it was. The permissions of a file that is replaced
+  are kept.
+* A symbolic link is followed: its target is replaced atomically, the link stays.
+* A device, a FIFO or any other file that is not regular (``/dev/null``, a named pipe
+  someone reads) is written in place, streaming, never replaced by a regular file.
+* Write errors (a full disk, an I/O error, stdout closed) become
+  :class:`~hbvs_cli.errors.OutputError` (exit 6); a reader that closed the pipe becomes
+  :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
+
+:func:`refuse_overwriting_inputs` is called by every stage before it opens anything: an
+output that is the same file as one of its inputs (same device and inode once symbolic
+links are resolved; also stdout redirected into an input), or the final file of an input
+that is a ``.partial`` (a recording being recovered), is refused with exit code 2.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import secrets
+import stat
+import sys
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, Iterator, Sequence
+
+from ..errors import InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
+
+#: Suffix of every file that is still being written.
+PARTIAL_SUFFIX = ".partial"
+#: ``NAME.partial`` (older hbvs, and the documented crash-recovery name) or
+#: ``NAME.<pid>-<hex>.partial``: what a partial file of ``NAME`` is called.
+_PARTIAL_NAME = re.compile(r"^(?P<final>.+?)(?:\.\d+-[0-9a-f]+)?\.partial$")
+
+
+# ----------------------------------------------------------------------------- targets
+@dataclass(frozen=True)
+class OutputTarget:
+    """An output as hbvs will write it.
+
+    Attributes
+    ----------
+    spec : str
+        As the user gave it.
+    kind : str
+        ``"stdout"``, ``"file"`` (a regular file or a new path: written atomically) or
+        ``"stream"`` (a device, FIFO or socket: written in place).
+    path : Path or None
+        The file finally written: symbolic links resolved. None for stdout.
+    existed : bool
+        A file was there already (for ``"file"``: a regular file that would be replaced).
+    """
+
+    spec: str
+    kind: str
+    path: Path | None
+    existed: bool
+
+
+def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> OutputTarget:
+    """Decide how ``spec`` is written (nothing is opened or created).
+
+    Raises
+    ------
+    InputError
+        A directory, or a folder that does not exist (exit 3, as before).
+    """
+    text = os.fspath(spec)
+    if text == "-":
+        return OutputTarget(text, "stdout", None, True)
+    given = Path(text)
+    # realpath follows every symbolic link, also a dangling one (whose target is then new).
+    path = Path(os.path.realpath(given))
+    try:
+        status = os.stat(path)
+    except FileNotFoundError:
+        if not path.parent.is_dir():
+            raise InputError(f"{given}: the folder {path.parent} does not exist") from None
+        return OutputTarget(text, "file", path, False)
+    except OSError as exc:
+        raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None
+    if stat.S_ISDIR(status.st_mode):
+        raise InputError(f"{given}: is a directory; give a file name for the {what}")
+    if stat.S_ISREG(status.st_mode):
+        return OutputTarget(text, "file", path, True)
+    return OutputTarget(text, "stream", path, True)
+
+
+def partial_name_of(final: Path) -> Path:
+    """A fresh partial name beside ``final``, unique to this process and call."""
+    return final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+
+
+def final_name_of_partial(path: Path) -> Path | None:
+    """The file a partial file belongs to (``a.mcap.partial`` -> ``a.mcap``), else None."""
+    match = _PARTIAL_NAME.match(path.name)
+    return path.with_name(match.group("final")) if match else None
+
+
+# ----------------------------------------------------------------------------- same file
+def _identity(path: str) -> tuple[int, int] | None:
+    try:
+        status = os.stat(path)
+    except OSError:
+        return None
+    return status.st_dev, status.st_ino
+
+
+def _stdout_identity() -> tuple[int, int] | None:
+    try:
+        status = os.fstat(1)
+    except OSError:
+        return None
+    return (status.st_dev, status.st_ino) if stat.S_ISREG(status.st_mode) else None
+
+
+def refuse_overwriting_inputs(
+    outputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
+    inputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
+) -> None:
+    """Refuse, before anything is opened, an output that would destroy an input or another output.
+
+    Parameters
+    ----------
+    outputs, inputs : sequence of (label, path or None)
+        Labels name the option in messages (``"-o"``, ``"--cmd-out"``, ``"input"``);
+        None entries are skipped; ``-`` is stdin or stdout.
+
+    Raises
+    ------
+    UsageError
+        An output is the same file as an input (device and inode, symbolic links
+        resolved; stdout redirected into an input counts), the final file of an input
+        that is a ``.partial`` file, or the same file as another output (exit 2).
+    """
+    known: dict[tuple[int, int], str] = {}
+    recovering: dict[Path, str] = {}
+    for label, spec in inputs:
+        if spec is None or os.fspath(spec) == "-":
+            continue
+        text = os.fspath(spec)
+        identity = _identity(text)
+        if identity is not None:
+            known.setdefault(identity, f"the {label} {text}")
+        final = final_name_of_partial(Path(os.path.realpath(text)))
+        if final is not None:
+            recovering[final] = f"the {label} {text}"
+    written: dict[Any, str] = {}
+    for label, spec in outputs:
+        if spec is None:
+            continue
+        text = os.fspath(spec)
+        if text == "-":
+            identity = _stdout_identity()
+            key: Any = ("stdout",)
+        else:
+            identity = _identity(text)
+            key = identity or Path(os.path.realpath(text))
+        if identity is not None and identity in known:
+            where = "stdout" if text == "-" else f"{label} {text}"
+            raise UsageError(f"{where} is the same file as {known[identity]}: hbvs would overwrite its own input; write to another file")
+        if text != "-":
+            real = Path(os.path.realpath(text))
+            if real in recovering:
+                raise UsageError(
+                    f"{label} {text} is the file that {recovering[real]} (a partial file of an interrupted run) "
+                    "belongs to; write the result to another name"
+                )
+        if key in written:
+            raise UsageError(f"{label} {text} and {written[key]} are the same file; give them different names")
+        written[key] = f"{label} {text}"
+
+
+# ----------------------------------------------------------------------------- writing
+def _write_error(exc: OSError, what: str) -> Exception:
+    """The error hbvs reports for an OSError while writing ``what``."""
+    if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
+        return PipeClosedError(f"{what}: the reader closed the pipe")
+    if exc.errno == errno.EBADF:
+        return OutputError(f"{what}: the stream is closed")
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        reason = "no space left on the device; nothing was replaced" if what != "stdout" else "no space left on the device"
+    return OutputError(f"{what}: cannot write ({reason})")
+
+
+class GuardedStream:
+    """A binary write stream that reports OS errors as hbvs errors and counts bytes.
+
+    ``tell()`` answers from the count (a pipe or a device cannot seek; the mcap writer
+    asks). Closing it never closes stdout.
+    """
+
+    def __init__(self, raw: IO[bytes], what: str, owned: bool) -> None:
+        self.closed = False
+        self._raw = raw
+        self._what = what
+        self._owned = owned
+        self._count = 0
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data).cast("B")
+        try:
+            self._raw.write(view)
+        except OSError as exc:
+            raise _write_error(exc, self._what) from None
+        except ValueError:  # the underlying stream was closed (stdout closed by a library)
+            raise OutputError(f"{self._what}: the stream is closed") from None
+        self._count += len(view)
+        return len(view)
+
+    def tell(self) -> int:
+        return self._count
+
+    def flush(self) -> None:
+        try:
+            self._raw.flush()
+        except OSError as exc:
+            raise _write_error(exc, self._what) from None
+        except ValueError:
+            raise OutputError(f"{self._what}: the stream is closed") from None
+
+    def fileno(self) -> int:
+        return self._raw.fileno()
+
+    def __enter__(self) -> "GuardedStream":
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.flush()
+        finally:
+            if self._owned:
+                try:
+                    self._raw.close()
+                except OSError as exc:
+                    raise _write_error(exc, self._what) from None
+
+
+class OutputSink:
+    """What :func:`open_output_stream` yields: the stream, and how the output may be committed.
+
+    Attributes
+    ----------
+    stream : GuardedStream
+    target : OutputTarget
+    """
+
+    def __init__(self, stream: GuardedStream, target: OutputTarget) -> None:
+        self.stream = stream
+        self.target = target
+        self._truncated_input: str | None = None
+        self._allow_truncated = False
+
+    def input_ended_early(self, name: str, allow: bool) -> None:
+        """Record that an input ended before its end record (its writer died upstream).
+
+        Such a run does not replace an existing regular file unless ``allow``
+        (``--allow-truncated``); a new file, a device, a FIFO or stdout is still written.
+        """
+        self._truncated_input = name
+        self._allow_truncated = allow
+
+    def check_commit(self) -> None:
+        """Raise :class:`TruncatedInputError` when the output must not replace what is there."""
+        target = self.target
+        if self._truncated_input and not self._allow_truncated and target.kind == "file" and target.path is not None and target.path.exists():
+            raise TruncatedInputError(
+                f"{self._truncated_input} ended before its end record (the writer upstream stopped?), so its "
+                f"result did not replace the existing {target.spec}; pass --allow-truncated to replace it"
+            )
+
+
+def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
+    if stdout is not None:
+        return stdout
+    if sys.stdout is None or stdio_closed(1):
+        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+    return sys.stdout.buffer
+
+
+@contextmanager
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
+    """Open an output as described in this module's docstring; commit it when the body succeeds.
+
+    Parameters
+    ----------
+    spec : str or path
+        ``-`` for stdout.
+    what : str
+        What is written, for messages (``"output"``, ``"command stream"``, ``"figure"``).
+    stdout : binary stream, optional
+        Instead of ``sys.stdout.buffer`` (tests).
+
+    Yields
+    ------
+    OutputSink
+        Write to ``sink.stream``.
+    """
+    target = resolve_output(spec, what)
+    label = "stdout" if target.kind == "stdout" else os.fspath(spec)
+    if target.kind == "stdout":
+        sink = OutputSink(GuardedStream(_stdout_binary(stdout), "stdout", owned=False), target)
+        yield sink
+        sink.stream.flush()
+        return
+    assert target.path is not None
+    if target.kind == "stream":
+        try:
+            # No O_CREAT, no O_TRUNC: a device or FIFO is written as it is, never replaced.
+            fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0))
+        except OSError as exc:
+            raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
+        sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)
+        with sink.stream:
+            yield sink
+            sink.stream.flush()
+        return
+    yield from _atomic_file(target, label, what)
+
+
+def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[OutputSink]:
+    assert target.path is not None
+    final = target.path
+    mode = None
+    if target.existed:
+        try:
+            mode = stat.S_IMODE(os.stat(final).st_mode)
+        except OSError:
+            mode = None
+    temporary = partial_name_of(final)
+    try:
+        fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+    except OSError as exc:
+        raise InputError(f"{label}: cannot write ({exc.strerror})") from None
+    except BaseException:
+        # A signal can land after the file was created but before `fd` was bound.
+        _remove_quietly(temporary)
+        raise
+    try:
+        handle = os.fdopen(fd, "wb")
+        sink = OutputSink(GuardedStream(handle, label, owned=True), target)
+        with sink.stream:
+            yield sink
+            sink.check_commit()
+            sink.stream.flush()
+            try:
+                if mode is not None:
+                    os.fchmod(handle.fileno(), mode)
+                os.fsync(handle.fileno())
+            except OSError as exc:
+                raise _write_error(exc, label) from None
+        try:
+            os.replace(temporary, final)
+        except OSError as exc:
+            raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
+    except BaseException:
+        _remove_quietly(temporary)
+        raise
+
+
+def _remove_quietly(path: Path) -> None:
+    try:
+        path.unlink()
+    except OSError:
+        pass
+
+
+class _TextOutput:
+    """UTF-8 text on a :class:`GuardedStream` (JSON lines: write and flush are all it needs)."""
+
+    def __init__(self, stream: GuardedStream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        self._stream.write(text.encode("utf-8"))
+        return len(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+
+@contextmanager
+def open_text_output(spec: str | os.PathLike[str] | None, what: str) -> Iterator[Any]:
+    """A UTF-8 text stream on :func:`open_output_stream` (None yields None): for JSON lines."""
+    if spec is None:
+        yield None
+        return
+    with open_output_stream(spec, what) as sink:
+        yield _TextOutput(sink.stream)
+
+
+def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> None:
+    """Write ``data`` whole to ``spec`` with :func:`open_output_stream`."""
+    with open_output_stream(spec, what) as sink:
+        sink.stream.write(data)
+
+
+# ----------------------------------------------------------------------------- stdio
+#: Standard file descriptors found closed when hbvs started (see :func:`guard_stdio`).
+_closed_stdio: set[int] = set()
+
+
+def guard_stdio() -> None:
+    """Occupy closed standard descriptors with ``/dev/null`` and remember them.
+
+    A process started with stdout closed (``>&-``) would otherwise give descriptor 1 to the
+    next file it opens, and anything written to "stdout" would land in that file.
+    """
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            try:
+                opened = os.open(os.devnull, os.O_RDWR)
+            except OSError:
+                continue
+            if opened != fd:
+                os.dup2(opened, fd)
+                os.close(opened)
+            _closed_stdio.add(fd)
+
+
+def stdio_closed(fd: int) -> bool:
+    """Whether standard descriptor ``fd`` was closed when hbvs started."""
+    return fd in _closed_stdio
+
