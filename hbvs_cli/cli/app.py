@@ -34,7 +34,7 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-OUTPUT_HELP = "Output MCAP file, or - for stdout (written as FILE.partial, renamed when complete)."
+OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
 
 
 def _version(value: bool) -> None:
@@ -80,9 +80,9 @@ def teach(
     calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
     fps: Annotated[float, typer.Option("--fps", min=0.1, help="Frame rate (Hz): of the simulated camera, or the timestamps of --images.")] = 30.0,
     duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated sensor noise.", rich_help_panel="Simulation")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated sensor noise.", rich_help_panel="Simulation")] = 0,
     noise: Annotated[float, typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma).", rich_help_panel="Simulation")] = 2.0,
-    blur: Annotated[float, typer.Option("--blur", min=0.0, help="Gaussian blur sigma (px).", rich_help_panel="Simulation")] = 0.0,
+    blur: Annotated[float, typer.Option("--blur", min=0.0, max=100.0, help="Gaussian blur sigma (px).", rich_help_panel="Simulation")] = 0.0,
     exposure: Annotated[float, typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera.", rich_help_panel="Simulation")] = 1.0,
     image_format: Annotated[str, typer.Option("--format", help="Encoding of stored images: png (lossless) or jpeg.")] = "png",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
@@ -112,7 +112,8 @@ def fit(
     max_gap: Annotated[float, typer.Option("--max-gap", min=0.0, help="Longest stretch (s) without the target that the spline may bridge.")] = 1.0,
     max_lost: Annotated[float, typer.Option("--max-lost", min=0.0, max=1.0, help="Largest fraction of frames without the target before fit fails.")] = 0.3,
     with_images: Annotated[bool, typer.Option("--with-images", help="Copy the taught images into the output, so it opens alone in Foxglove (by default open it together with the teach file).")] = False,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the robust (RANSAC) estimation.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the robust (RANSAC) estimation.")] = 0,
+    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when the input ended early (no end record: the writer upstream died).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
     """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
@@ -122,6 +123,7 @@ def fit(
         FitOptions(
             input=input, output=output, target=target, reference=reference, smoothing=smoothing,
             target_size=target_size, max_gap=max_gap, max_lost=max_lost, copy_images=with_images, seed=seed,
+            allow_truncated=allow_truncated,
         ),
         _console(quiet),
     )
@@ -139,7 +141,7 @@ def repeat(
     pixel_noise: Annotated[float, typer.Option("--pixel-noise", min=0.0, help="Pixel noise (px, 1 sigma) for --perception points.", rich_help_panel="Simulation")] = 0.0,
     rate: Annotated[Optional[float], typer.Option("--rate", min=0.1, help="Camera and control rate (Hz); default the taught rate.", rich_help_panel="Simulation")] = None,
     depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
     config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
     law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default) or paper (k_2 = 1, the paper's law exactly).", rich_help_panel="Controller")] = None,
     kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
@@ -159,6 +161,7 @@ def repeat(
     drop_rate: Annotated[float, typer.Option("--drop-rate", min=0.0, max=1.0, help="Fraction of camera frames dropped.", rich_help_panel="Faults")] = 0.0,
     outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
     exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
+    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when an input ended early (no end record).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
     """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
@@ -171,6 +174,7 @@ def repeat(
             gamma=gamma, k2=k2, dhat0=dhat0, speed=speed, max_v=max_v, max_w=max_w, max_accel=max_accel,
             latency=latency, lost_timeout=lost_timeout, cmd_out=cmd_out, record_images=record_images,
             occlude=list(occlude or []), drop_rate=drop_rate, outlier_rate=outlier_rate, exposure_step=exposure_step,
+            allow_truncated=allow_truncated,
         ),
         _console(quiet),
     )
@@ -390,8 +394,8 @@ def _run(args: list[str], debug: bool) -> int:
         if exc.errno == errno.EPIPE:
             return _pipe_closed()
         if exc.errno in _WRITE_ERRNOS:
-            where = f"{exc.filename}: " if exc.filename else ""
-            _say(f"hbvs: error: {where}cannot write ({exc.strerror})")
+            where = exc.filename or "the output"
+            _say(f"hbvs: error: {where}: cannot write ({exc.strerror})")
             return 6
         _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
         return 70

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import base64
 import binascii
-
+import json
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -271,6 +271,27 @@ class FitModel:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
 
 
+def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dict[str, Any]:
+    """The model's message, after checking that :meth:`FitModel.from_message` (what
+    ``repeat`` reads) accepts it as it will be stored (JSON: NaN and infinity become null).
+
+    Raises
+    ------
+    RecordingError
+        The fit produced a model repeat would refuse (e.g. an infinite dhat0 from a
+        teach recording with speeds of 1e308): nothing is written.
+    """
+    from .mcap_io import encode_json
+
+    message = model.to_message(log_time_ns)
+    try:
+        FitModel.from_message(json.loads(encode_json(message)), source)
+    except RecordingError as exc:
+        text = str(exc).split("the fit model is malformed: ", 1)[-1]
+        raise RecordingError(f"{source}: the recording gives a fit model that repeat could not use ({text}); nothing was written") from None
+    return message
+
+
 @dataclass
 class FitFile:
     """What ``repeat`` reads from a fit file: the model and its images."""
@@ -279,6 +300,7 @@ class FitFile:
     reference_image: bytes | None
     template_image: bytes | None
     info: dict[str, Any]
+    truncated: bool = False
 
 
 def read_fit_file(source: Any, name: str = "") -> FitFile:
@@ -309,4 +331,5 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         reference_image=images.get(REFERENCE_IMAGE_TOPIC),
         template_image=images.get(TEMPLATE_IMAGE_TOPIC),
         info=info,
+        truncated=stream.truncated,
     )

@@ -185,16 +185,18 @@ def refuse_overwriting_inputs(
 
 
 # ----------------------------------------------------------------------------- writing
-def _write_error(exc: OSError, what: str) -> Exception:
-    """The error hbvs reports for an OSError while writing ``what``."""
+def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
+    """The error hbvs reports for an OSError while writing ``what`` (``atomic``: a file
+    written beside its final name, so whatever was there is kept)."""
+    kept = "; an earlier file of that name is left as it was" if atomic else ""
     if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
         return PipeClosedError(f"{what}: the reader closed the pipe")
     if exc.errno == errno.EBADF:
         return OutputError(f"{what}: the stream is closed")
     reason = exc.strerror or str(exc) or type(exc).__name__
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        reason = "no space left on the device; nothing was replaced" if what != "stdout" else "no space left on the device"
-    return OutputError(f"{what}: cannot write ({reason})")
+        reason = "no space left on the device"
+    return OutputError(f"{what}: cannot write ({reason}){kept}")
 
 
 class GuardedStream:
@@ -204,8 +206,9 @@ class GuardedStream:
     asks). Closing it never closes stdout.
     """
 
-    def __init__(self, raw: IO[bytes], what: str, owned: bool) -> None:
+    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False) -> None:
         self.closed = False
+        self._atomic = atomic
         self._raw = raw
         self._what = what
         self._owned = owned
@@ -216,7 +219,7 @@ class GuardedStream:
         try:
             self._raw.write(view)
         except OSError as exc:
-            raise _write_error(exc, self._what) from None
+            raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
         self._count += len(view)
@@ -229,7 +232,7 @@ class GuardedStream:
         try:
             self._raw.flush()
         except OSError as exc:
-            raise _write_error(exc, self._what) from None
+            raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:
             raise OutputError(f"{self._what}: the stream is closed") from None
 
@@ -253,7 +256,7 @@ class GuardedStream:
                 try:
                     self._raw.close()
                 except OSError as exc:
-                    raise _write_error(exc, self._what) from None
+                    raise _write_error(exc, self._what, self._atomic) from None
 
 
 class OutputSink:
@@ -358,7 +361,7 @@ def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[Output
         raise
     try:
         handle = os.fdopen(fd, "wb")
-        sink = OutputSink(GuardedStream(handle, label, owned=True), target)
+        sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=True), target)
         with sink.stream:
             yield sink
             sink.check_commit()
@@ -368,7 +371,7 @@ def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[Output
                     os.fchmod(handle.fileno(), mode)
                 os.fsync(handle.fileno())
             except OSError as exc:
-                raise _write_error(exc, label) from None
+                raise _write_error(exc, label, atomic=True) from None
         try:
             os.replace(temporary, final)
         except OSError as exc:

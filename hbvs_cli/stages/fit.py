@@ -9,6 +9,7 @@ and condition (35) along the path. Reads and writes streams: constant memory.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -46,6 +47,7 @@ class FitOptions:
     max_lost: float = 0.3
     copy_images: bool = False
     seed: int = 0
+    allow_truncated: bool = False
 
 
 @dataclass
@@ -56,6 +58,11 @@ class FitSummary:
     model: Any
 
 
+#: Largest spline penalty accepted (s^3): far beyond a straight line already, and below
+#: the overflow of the penalised system (1e308 made scipy's solver fail).
+MAX_SMOOTHING = 1e12
+
+
 def parse_smoothing(text: str) -> float | None:
     if text.strip().lower() == "auto":
         return None
@@ -63,8 +70,8 @@ def parse_smoothing(text: str) -> float | None:
         value = float(text)
     except ValueError:
         raise UsageError(f"--smoothing must be 'auto' or a number, got {text!r}") from None
-    if not np.isfinite(value) or value < 0:
-        raise UsageError(f"--smoothing must be 'auto' or a non-negative number, got {text!r}")
+    if not np.isfinite(value) or value < 0 or value > MAX_SMOOTHING:
+        raise UsageError(f"--smoothing must be 'auto' or a number from 0 to {MAX_SMOOTHING:g}, got {text!r}")
     return value
 
 
@@ -120,7 +127,7 @@ class _FrameLog:
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
-    from ..io.fit_file import FitModel
+    from ..io.fit_file import FitModel, checked_model_message
     from ..io.images import compressed_image_message
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
@@ -128,9 +135,14 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
 
+    from ..io.output_target import refuse_overwriting_inputs
+
     smoothing = parse_smoothing(options.smoothing)
     if options.target not in ("auto", "dots", "aruco", "texture"):
         raise UsageError(f"--target must be auto, dots, aruco or texture, got {options.target!r}")
+    if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
+        raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
+    refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
     log: _FrameLog | None = None
@@ -174,6 +186,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             raise RecordingError(f"{reader.name}: no complete image in the recording{cut}")
         if reader.truncated:
             console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
+            writer.input_ended_early(reader.name, options.allow_truncated)
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()
@@ -207,7 +220,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         for topic, payload, k in (("/reference/image", reference_image, reference_index), ("/detector/template", template, 0)):
             stamp = int(arrays["log_time"][k])
             writer.write(topic, topics[topic], stamp, compressed_image_message(time_message(stamp), CAMERA_FRAME, payload, _format_of(payload)))
-        writer.write("/fit/model", topics["/fit/model"], end_ns, model.to_message(end_ns))
+        writer.write("/fit/model", topics["/fit/model"], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)
 

@@ -66,6 +66,7 @@ class RepeatOptions:
     drop_rate: float = 0.0
     outlier_rate: float = 0.0
     exposure_step: str | None = None
+    allow_truncated: bool = False
 
 
 @dataclass(frozen=True)
@@ -176,6 +177,12 @@ def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
         raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
+    from ..io.output_target import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs(
+        [("-o", options.output), ("--cmd-out", options.cmd_out)],
+        [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
+    )
     fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
@@ -279,15 +286,19 @@ class _RunLog:
         return self.previous_status not in ("ok", "dropped")
 
 
-def _open_cmd_stream(target: str | None) -> IO[str] | None:
-    if target is None:
-        return None
-    if target == "-":
-        return sys.stdout
-    try:
-        return open(target, "w", encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"{target}: cannot write the command stream ({exc.strerror})") from None
+def _open_cmd_stream(target: str | None) -> Any:
+    """The ``--cmd-out`` stream: written like every output (atomically for a file)."""
+    from ..io.output_target import open_text_output
+
+    return open_text_output(target, "command stream")
+
+
+def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, replay: Any = None) -> None:
+    """Keep an existing output when an input ended early (unless --allow-truncated)."""
+    if getattr(fit, "truncated", False):
+        writer.input_ended_early("stdin" if options.input == "-" else str(options.input), options.allow_truncated)
+    if replay is not None and replay.truncated:
+        writer.input_ended_early(replay.name, options.allow_truncated)
 
 
 def desired_pixels(model: Any, desired: Any) -> np.ndarray:
@@ -326,7 +337,15 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
     from .simworld import SimulatedCamera, simulation_world
 
+    from ..io.limits import step_count
+
     model = fit.model
+    if not (math.isfinite(settings.speed) and settings.speed > 0):
+        raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
+    step_count(
+        (model.trajectory.t_end - model.trajectory.t_start) / settings.speed, settings.rate,
+        "the run (the taught duration over --speed, times --rate)",
+    )
     scene = simulation_world(model, fit.reference_image, options.depth, settings.speed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
@@ -352,13 +371,13 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
-    cmd_stream = _open_cmd_stream(options.cmd_out)
     stopped_at: float | None = None
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    try:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
+            _note_truncated(writer, options, fit)
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
@@ -380,9 +399,6 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
                         stopped_at = record.t
                         log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
                         break
-    finally:
-        if cmd_stream is not None and cmd_stream is not sys.stdout:
-            cmd_stream.close()
     summary = tally.summary(controller, options.output, stopped_at is not None)
     _print_summary(console, summary, settings, scene.d_true)
     if stopped_at is not None:
@@ -473,10 +489,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     detector = detector_from_model(model, fit.template_image, seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
-    cmd_stream = _open_cmd_stream(options.cmd_out)
     tally = _Tally()
     previous_t: float | None = None
-    try:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
             writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
@@ -502,9 +517,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     bar.advance()
             if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
-    finally:
-        if cmd_stream is not None and cmd_stream is not sys.stdout:
-            cmd_stream.close()
+            _note_truncated(writer, options, fit, reader)
     summary = tally.summary(controller, options.output, False)
     _print_summary(console, summary, settings, None)
     return summary

@@ -167,20 +167,26 @@ def run_report(options: ReportOptions, console: Console) -> int:
     """
     from ..tools.report_data import build_report
 
+    from ..io.output_target import refuse_overwriting_inputs
+
     tolerances = parse_tolerances(options.tolerance)
     bounds = parse_bounds(options.fail_above)
+    inputs = [("run", text) for text in options.runs]
     if options.plot is not None:
         from ..tools.plots import check_plot_path
 
         check_plot_path(options.plot)
+        refuse_overwriting_inputs([("--plot", options.plot)], inputs)
     loaded = read_runs(options.runs, need_height=options.export_tum is not None)
     runs = [run for run, _ in loaded]
     reports = [build_report(run, tolerances) for run in runs]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
-        from ..tools.tum import check_exportable
+        from ..tools.tum import check_exportable, tum_paths
 
         check_exportable(runs, options.export_tum)
+        tum_files = [("--export-tum", path) for run in runs for path in tum_paths(run, options.export_tum)]
+        refuse_overwriting_inputs([("--plot", options.plot), *tum_files], inputs)
     print_reports(reports, options.json_output)
     if options.plot is not None:
         from ..tools.plots import save_plot

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -71,8 +73,19 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     """Record the taught run described by ``options`` into ``options.output``."""
     from ..io.images import IMAGE_FORMATS
 
+    from ..io.output_target import refuse_overwriting_inputs
+
     if options.image_format not in IMAGE_FORMATS:
         raise UsageError(f"--format must be png or jpeg, got {options.image_format!r}")
+    for name, value in (("--fps", options.fps), ("--duration", options.duration), ("--noise", options.noise), ("--exposure", options.exposure)):
+        if value is not None and not math.isfinite(value):
+            raise UsageError(f"{name} must be a finite number, got {value}")
+    path_file = options.path if options.path not in PRESETS else None
+    refuse_overwriting_inputs(
+        [("-o", options.output)],
+        [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
+         ("--calibration", options.calibration), ("--path", path_file)],
+    )
     kind = options.source_kind()
     if kind == "sim":
         return _teach_simulated(options, console)
@@ -141,6 +154,7 @@ def make_renderer(world: World, noise: float, blur: float, exposure: float) -> A
 
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     from ..io.images import encode_image
+    from ..io.limits import step_count
     from ..io.mcap_io import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
 
@@ -155,6 +169,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
         # A second drive by hand never starts exactly where the first did.
         start_pose = tuple(compose_planar_pose(start_pose, parse_offset(options.offset)))
     duration = profile.duration if options.duration is None else min(options.duration, profile.duration)
+    step_count(duration, options.fps, "the simulated teach (its duration times --fps)")
     frame_count = max(int(np.floor(duration * options.fps + 1e-9)), 1)
     times = np.arange(frame_count) / options.fps
     poses = profile.poses_at(times, start_pose)

@@ -250,9 +250,13 @@ def save_plot(runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], pat
     InputError
         The file cannot be written.
     """
+    import io
+
+    from ..io.output_target import write_output_bytes
+
     figure = plot_runs(runs, reports)
-    try:
-        figure.savefig(path, dpi=FIGURE_DPI)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+    # Drawn in memory, then written like every output (atomically; a device in place).
+    image = io.BytesIO()
+    figure.savefig(image, dpi=FIGURE_DPI, format=Path(path).suffix.lower().lstrip(".") or "png")
+    write_output_bytes(path, image.getvalue(), "figure")
     return figure

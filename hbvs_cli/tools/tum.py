@@ -120,6 +120,8 @@ def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Pat
     InputError
         The folder cannot be created or written.
     """
+    from ..io.output_target import write_output_bytes
+
     require_ground_truth(run)
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -129,8 +131,5 @@ def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Pat
     t = run.state["t"]
     for path, poses in zip(paths, (run.desired_pose, run.true_pose)):
         text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *tum_lines(t, poses, height_m)]) + "\n"
-        try:
-            path.write_text(text, encoding="utf-8")
-        except OSError as exc:
-            raise InputError(f"{path}: cannot write ({exc.strerror})") from None
+        write_output_bytes(path, text.encode("utf-8"), "TUM trajectory")
     return paths
