@@ -50,6 +50,11 @@ class DesiredTrajectory(Protocol):
         ...
 
 
+#: Largest spline coefficient accepted when a trajectory is read: theta_d is in radians and
+#: x_hd1 in units of d*, so a real fit stays far below; 1e308 made every command infinite.
+MAX_SPLINE_COEFFICIENT = 1e6
+
+
 @dataclass(frozen=True)
 class SplineChannel:
     """One cubic B-spline channel and the smoothing it was fitted with.
@@ -173,6 +178,8 @@ class SplineTrajectory:
                     raise ValueError(f"channel {name}: {knots.size} knots do not fit {coefficients.size} coefficients")
                 if not (np.all(np.isfinite(knots)) and np.all(np.isfinite(coefficients))) or np.any(np.diff(knots) < 0):
                     raise ValueError(f"channel {name}: knots must be finite and non-decreasing")
+                if np.any(np.abs(coefficients) > MAX_SPLINE_COEFFICIENT):
+                    raise ValueError(f"channel {name}: coefficients beyond +-{MAX_SPLINE_COEFFICIENT:g} (radians, or units of d*)")
                 knots_of.append(knots)
                 channels[name] = SplineChannel(
                     knots=knots,

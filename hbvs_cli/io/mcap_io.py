@@ -56,6 +56,9 @@ MAX_JSON_BYTES = 64 * 2**20
 MAX_JSON_ITEMS = 2**21
 #: Deepest nesting of JSON arrays and objects decoded; hbvs writes at most six levels.
 MAX_JSON_DEPTH = 64
+#: Latest message log time hbvs accepts: times are kept as signed 64-bit nanoseconds
+#: (MCAP allows unsigned ones, up to 2^64 - 1).
+MAX_LOG_TIME_NS = 2**63 - 1
 #: Profile string in the MCAP header of every file hbvs writes.
 PROFILE = ""
 
@@ -518,6 +521,11 @@ class McapStream:
             found = schema.name if schema else ""
             if found != expected:
                 raise RecordingError(f"{self.name}: topic {channel.topic} has schema {found!r}, expected {expected!r}")
+        if record.log_time > MAX_LOG_TIME_NS:
+            raise RecordingError(
+                f"{self.name}: a message on {channel.topic} is stamped {record.log_time} ns, later than hbvs handles "
+                f"({MAX_LOG_TIME_NS} ns, in the year 2262)"
+            )
         self.messages += 1
         yield McapMessage(
             topic=channel.topic,

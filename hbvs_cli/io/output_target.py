@@ -279,9 +279,15 @@ class OutputSink:
 
         Such a run does not replace an existing regular file unless ``allow``
         (``--allow-truncated``); a new file, a device, a FIFO or stdout is still written.
+
+        Raises
+        ------
+        TruncatedInputError
+            At once, when the output is an existing regular file and not ``allow``.
         """
         self._truncated_input = name
         self._allow_truncated = allow
+        self.check_commit()  # fail now, before the work, when the output is there already
 
     def check_commit(self) -> None:
         """Raise :class:`TruncatedInputError` when the output must not replace what is there."""

@@ -185,8 +185,8 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             cut = " (it ends before its end record: a crashed recorder?)" if reader.truncated else ""
             raise RecordingError(f"{reader.name}: no complete image in the recording{cut}")
         if reader.truncated:
-            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
             writer.input_ended_early(reader.name, options.allow_truncated)
+            console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()

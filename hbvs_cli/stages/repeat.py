@@ -293,12 +293,16 @@ def _open_cmd_stream(target: str | None) -> Any:
     return open_text_output(target, "command stream")
 
 
-def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, replay: Any = None) -> None:
-    """Keep an existing output when an input ended early (unless --allow-truncated)."""
+def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, console: Console, replay: Any = None) -> None:
+    """Keep an existing output when an input ended early (unless --allow-truncated); warn."""
+    names = []
     if getattr(fit, "truncated", False):
-        writer.input_ended_early("stdin" if options.input == "-" else str(options.input), options.allow_truncated)
+        names.append("stdin" if options.input == "-" else str(options.input))
     if replay is not None and replay.truncated:
-        writer.input_ended_early(replay.name, options.allow_truncated)
+        names.append(replay.name)
+    for name in names:
+        writer.input_ended_early(name, options.allow_truncated)
+        console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
 
 
 def desired_pixels(model: Any, desired: Any) -> np.ndarray:
@@ -377,7 +381,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     tally = _Tally()
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
-            _note_truncated(writer, options, fit)
+            _note_truncated(writer, options, fit, console)
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
@@ -517,7 +521,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     bar.advance()
             if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
-            _note_truncated(writer, options, fit, reader)
+            _note_truncated(writer, options, fit, console, reader)
     summary = tally.summary(controller, options.output, False)
     _print_summary(console, summary, settings, None)
     return summary
