@@ -161,6 +161,9 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     if options.calibration is None and options.fps <= 0:
         raise UsageError("--fps must be positive")
     world = simulated_world(options)
+    if options.path in PRESETS:  # a preset is sampled at --fps: bound it before sampling
+        planned = options.duration if options.duration is not None else PRESETS[options.path].duration
+        step_count(planned, options.fps, "the simulated teach (its duration times --fps)")
     profile, start_pose, path_name = resolve_path(options.path, options.fps, options.duration)
     if options.offset is not None:
         from ..core.frames import compose_planar_pose
