@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
@@ -18,8 +19,10 @@ import typer
 
 from .. import __version__
 from ..errors import HbvsError
+from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 
 app = typer.Typer(
+    cls=HbvsGroup,
     name="hbvs",
     help=(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
@@ -45,7 +48,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
-    debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
 
@@ -66,19 +69,20 @@ def teach(
     camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
     bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap).", rich_help_panel="Sources")] = None,
     topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
-    path: Annotated[str, typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).", rich_help_panel="Simulation")] = "s-curve",
+    path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
     offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
-    target: Annotated[str, typer.Option("--target", help="Target on the wall: dots, aruco or texture.", rich_help_panel="Simulation")] = "dots",
-    dots: Annotated[int, typer.Option("--dots", min=3, help="Number of dots of a dots target.", rich_help_panel="Simulation")] = 3,
+    target: Annotated[Optional[str], typer.Option("--target", help="Target on the wall: dots, aruco or texture. Default dots.", rich_help_panel="Simulation")] = None,
+    dots: Annotated[Optional[int], typer.Option("--dots", min=3, help="Number of dots of a dots target. Default 3.", rich_help_panel="Simulation")] = None,
     texture: Annotated[Optional[Path], typer.Option("--texture", help="Poster image for --target texture (default: a built-in pattern).", rich_help_panel="Simulation")] = None,
     calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
-    fps: Annotated[float, typer.Option("--fps", min=0.1, help="Frame rate (Hz): of the simulated camera, or the timestamps of --images.")] = 30.0,
+    fps: Annotated[Optional[float], typer.Option("--fps", min=0.1, help="Frame rate (Hz) of the simulated camera or of --images (default 30); for --video, replaces the container's rate.")] = None,
     duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated sensor noise.", rich_help_panel="Simulation")] = 0,
-    noise: Annotated[float, typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma).", rich_help_panel="Simulation")] = 2.0,
-    blur: Annotated[float, typer.Option("--blur", min=0.0, help="Gaussian blur sigma (px).", rich_help_panel="Simulation")] = 0.0,
-    exposure: Annotated[float, typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera.", rich_help_panel="Simulation")] = 1.0,
-    image_format: Annotated[str, typer.Option("--format", help="Encoding of stored images: png (lossless) or jpeg.")] = "png",
+    seed: Annotated[Optional[int], typer.Option("--seed", help="Seed of the simulated sensor noise. Default 0.", rich_help_panel="Simulation")] = None,
+    noise: Annotated[Optional[float], typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma). Default 2.", rich_help_panel="Simulation")] = None,
+    blur: Annotated[Optional[float], typer.Option("--blur", min=0.0, help="Gaussian blur sigma (px). Default 0.", rich_help_panel="Simulation")] = None,
+    exposure: Annotated[Optional[float], typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera. Default 1.", rich_help_panel="Simulation")] = None,
+    image_format: Annotated[str, typer.Option("--format", help="Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.")] = "auto",
+    jpeg_quality: Annotated[int, typer.Option("--quality", min=1, max=100, help="JPEG quality of the frames hbvs compresses.")] = 90,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
 ) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
@@ -89,6 +93,7 @@ def teach(
             output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
             path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
             duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
+            jpeg_quality=jpeg_quality,
         ),
         _console(quiet),
     )
@@ -197,13 +202,14 @@ def report(
 # --------------------------------------------------------------------------- demo
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),
+    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),
+    out: Annotated[Optional[Path], typer.Option("--out", hidden=True, help="Old name of --output.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
     from ..stages.demo import run_demo
 
-    code = run_demo(out, _console(quiet))
+    code = run_demo(out if out is not None else output, _console(quiet))
     if code:
         raise typer.Exit(code)
 
@@ -304,16 +310,17 @@ def _run(args: list[str], debug: bool) -> int:
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
         if debug:
-            raise
+            traceback.print_exc()
         sys.stderr.write(f"hbvs: error: {exc}\n")
         return exc.exit_code
     except typer.Abort:
         sys.stderr.write("hbvs: interrupted\n")
         return 130
-    except typer.TyperException as exc:  # usage errors: the parser's own message and hint
-        show = getattr(exc, "show", None)
-        if show is not None:
-            show()
+    except typer.TyperException as exc:  # usage errors: one line, with where to find help
+        if debug:
+            traceback.print_exc()
+        if hasattr(exc, "format_message"):
+            sys.stderr.write((unquoted_glob_hint(args) or one_line_usage_error(exc)) + "\n")
         else:
             sys.stderr.write(f"hbvs: error: {exc}\n")
         return int(getattr(exc, "exit_code", 2))
@@ -323,7 +330,8 @@ def _run(args: list[str], debug: bool) -> int:
         return 141
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
         if debug:
-            raise
+            traceback.print_exc()
+            return 70
         sys.stderr.write(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)\n")
         return 70
 
@@ -336,8 +344,8 @@ def main(argv: list[str] | None = None) -> None:
     the process exits, so that a late signal cannot turn a finished run into a traceback:
     this function is meant to end the process (it always raises SystemExit).
     """
-    args = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in args
+    # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
+    args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _install_signal_handlers()
     try:
         try:
