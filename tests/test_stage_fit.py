@@ -95,6 +95,8 @@ def copy_teach(source, target, image=lambda t, message: message):
                     writer.metadata(name, read_metadata(stream, name))
                 first = False
             data = message.data
+            if message.message_encoding != "json":  # protobuf images: keep their encoding
+                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
             if message.topic == "/camera/image":
                 data = image(message.log_time * 1e-9, data)
                 if data is None:
@@ -110,18 +112,15 @@ def strip_frames(source, target, drop):
 
 def _cover_target(source, target, covered):
     """Copy a teach file, painting the target out of the images at times where covered(t)."""
-    import base64
-    import json
-
-    from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image
+    from hbvs_cli.io.images import decode_image, encode_compressed_image, encode_image, read_compressed_image
 
     def paint(t, data):
         if not covered(t):
             return data
-        payload = json.loads(data)
-        image = decode_image(base64.b64decode(payload["data"]))
+        stored = read_compressed_image("protobuf", data)
+        image = decode_image(stored.data)
         image[:260, :] = 150
-        return json.dumps(compressed_image_message(payload["timestamp"], payload["frame_id"], encode_image(image), "png")).encode()
+        return encode_compressed_image(stored.stamp_ns, encode_image(image), "png")
 
     copy_teach(source, target, paint)
 
@@ -198,6 +197,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
         for k, message in enumerate(stream):
             if k == 0:
                 writer.metadata("hbvs", read_metadata(stream, "hbvs"))
+                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
             writer.write_encoded(message.topic, message.schema_name, message.log_time, message.data)
             if k > 20:
                 break

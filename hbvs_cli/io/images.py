@@ -234,12 +234,22 @@ def write_compressed_image(writer: Any, topic: str, log_time_ns: int, data: byte
     ``writer`` is an :class:`~hbvs_cli.io.mcap_io.McapWriter`; the message's timestamp is
     the log time.
     """
+    declare_image_channel(writer, topic)
+    writer.write_encoded(topic, IMAGE_SCHEMA, log_time_ns, encode_compressed_image(log_time_ns, data, image_format, frame_id))
+
+
+def declare_image_channel(writer: Any, topic: str) -> None:
+    """Declare ``topic`` on ``writer`` as protobuf ``foxglove.CompressedImage`` (once)."""
+    writer.declare_channel(topic, IMAGE_SCHEMA, "protobuf", _image_schema(), "protobuf")
+
+
+def encode_compressed_image(stamp_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> bytes:
+    """The protobuf bytes of a ``foxglove.CompressedImage``."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-    writer.declare_channel(topic, IMAGE_SCHEMA, "protobuf", _image_schema(), "protobuf")
     message = CompressedImage(frame_id=frame_id, data=bytes(data), format=image_format)
-    message.timestamp.FromNanoseconds(max(int(log_time_ns), 0))
-    writer.write_encoded(topic, IMAGE_SCHEMA, log_time_ns, message.SerializeToString())
+    message.timestamp.FromNanoseconds(max(int(stamp_ns), 0))
+    return message.SerializeToString()
 
 
 def read_compressed_image(message_encoding: str, data: bytes, source: str = "") -> StoredImage:
