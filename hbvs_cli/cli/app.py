@@ -19,6 +19,7 @@ import typer
 
 from .. import __version__
 from ..errors import HbvsError
+from ..io.shipped import shipped_path
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 
 app = typer.Typer(
@@ -27,7 +28,9 @@ app = typer.Typer(
     help=(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
-        "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -"
+        "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
+        f"Method and metrics: {shipped_path('docs/method.md')}, {shipped_path('docs/report.md')}. "
+        f"Default gains: {shipped_path('samples/gains.toml')}."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -144,7 +147,7 @@ def repeat(
     kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
     kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
     gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default 2500.", rich_help_panel="Controller")] = None,
-    k2: Annotated[Optional[float], typer.Option("--k2", help="Lateral gain k_2 (see docs/method.md for how to scale it). Default 400.", rich_help_panel="Controller")] = None,
+    k2: Annotated[Optional[float], typer.Option("--k2", help=f"Lateral gain k_2 (see {shipped_path('docs/method.md')} for how to scale it). Default 400.", rich_help_panel="Controller")] = None,
     dhat0: Annotated[Optional[float], typer.Option("--dhat0", help="Initial depth estimate (m); default the fit's suggestion.", rich_help_panel="Controller")] = None,
     speed: Annotated[Optional[float], typer.Option("--speed", help="Play the taught trajectory at this multiple of its pace.", rich_help_panel="Controller")] = None,
     max_v: Annotated[Optional[float], typer.Option("--max-v", help="|v| limit (m/s); inf for none. Default 0.5.", rich_help_panel="Actuators")] = None,
