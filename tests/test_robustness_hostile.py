@@ -192,12 +192,16 @@ def test_unknown_schema_names_on_known_topics_are_refused(tmp_path):
             read(source)
 
 
-def test_a_teach_image_that_is_not_json_is_refused():
+def test_a_teach_image_that_is_not_protobuf_or_json_is_refused():
     from hbvs_cli.io.teach_file import TeachReader
 
     source = mcap(schema(1, "foxglove.CompressedImage") + channel(1, 1, "/camera/image", "cdr"), message(1, b"\x00"))
-    with pytest.raises(RecordingError, match="expected JSON"):
+    with pytest.raises(RecordingError, match="expected protobuf or JSON"):
         list(TeachReader(source).frames())
+    garbage = mcap(schema(1, "foxglove.CompressedImage") + channel(1, 1, "/camera/image", "protobuf"), message(1, b"\x0a\xff\xff\xff\xff\x0f"))
+    frame = next(TeachReader(garbage).frames())
+    with pytest.raises(RecordingError, match="not a protobuf foxglove.CompressedImage"):
+        frame.stored_image("garbage")
 
 
 def world_description(**changes) -> dict:

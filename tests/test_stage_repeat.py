@@ -53,8 +53,8 @@ def test_exact_points_at_500_hz_lyapunov_never_increases(default_fit, tmp_path, 
 
 #: Measured on the default scenario (s-curve, 3 dots, images rendered and detected in the
 #: loop, default offset 0.1 m back, 0.05 m left, 2 deg), final 5 % of the run:
-#:   lateral-gain law: position 0.033 cm, heading 0.005 deg
-#:   paper law (k_2 = 1): position 5.7 cm, heading 0.027 deg (its lateral error decays at
+#:   lateral-gain law: position 0.040 cm, heading 0.007 deg (taught frames stored as JPEG 90)
+#:   paper law (k_2 = 1): position 5.7 cm, heading 0.028 deg (its lateral error decays at
 #:   a rate of order x_hd1_dot^2 / k_w ~ 6e-4 1/s: the 20 s path is far too short)
 LATERAL_GAIN_BOUNDS = (0.01, 0.2)  # m, deg: the issue's aim
 PAPER_BOUNDS = (0.08, 0.2)
@@ -219,3 +219,15 @@ def test_bad_input(default_teach, default_fit, tmp_path):
         assert result.returncode == code, (args, result.stderr)
         assert len(lines) == 1 and lines[0].startswith("hbvs: error:") and words in lines[0], (args, lines)
         assert not output.exists()
+
+
+def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
+    """What the README says of V (36) with images in the loop: the sensor noise makes it
+    rise on many steps (measured 42 % and 44 %), while over the run it falls by a factor
+    of 4e5 (lateral gain) and 19 (paper)."""
+    from hbvs_cli.tools.report_data import build_report
+
+    for law, run in image_runs.items():
+        lyapunov = build_report(run)["lyapunov"]
+        assert 0.3 < lyapunov["increase_fraction"] < 0.55, (law, lyapunov)
+        assert lyapunov["ratio"] < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)

@@ -19,10 +19,24 @@ from conftest import SAMPLES, make_teach, run_hbvs
 
 
 def read_all(path):
-    """Every message through the official mcap reader: (topic, schema name, schema, decoded JSON)."""
+    """Every message through the official mcap reader and Foxglove's protobuf decoder:
+    (topic, schema name, JSON schema or None, message as a dict: images as
+    {"timestamp", "frame_id", "data" (bytes), "format"})."""
+    from mcap_protobuf.decoder import DecoderFactory
+
+    out = []
+    factory = DecoderFactory()
     with open(path, "rb") as handle:
         reader = make_reader(handle)
-        out = [(c.topic, s.name, json.loads(s.data), json.loads(m.data)) for s, c, m in reader.iter_messages()]
+        for schema, channel, message in reader.iter_messages():
+            if channel.message_encoding == "json":
+                out.append((channel.topic, schema.name, json.loads(schema.data), json.loads(message.data)))
+            else:
+                assert (channel.message_encoding, schema.encoding) == ("protobuf", "protobuf")
+                decoded = factory.decoder_for(channel.message_encoding, schema)(message.data)
+                stamp = {"sec": decoded.timestamp.seconds, "nsec": decoded.timestamp.nanos}
+                fields = {"timestamp": stamp, "frame_id": decoded.frame_id, "data": decoded.data, "format": decoded.format}
+                out.append((channel.topic, schema.name, None, fields))
         metadata = {record.name: record.metadata for record in reader.iter_metadata()}
     return out, metadata
 
@@ -40,18 +54,24 @@ def test_sim_teach_records_images_truth_commands_and_world(default_teach):
     assert world["target"]["kind"] == "dots" and len(world["target"]["points_world_m"]) == 3
     settings = json.loads(metadata["hbvs"]["settings"])
     assert settings["seed"] == 0 and settings["path_name"] == "s-curve"
-    # Images decode to the camera's size.
+    # Images are one-channel JPEGs (the default, at the stated quality) of the camera's size.
     image_message = next(m[3] for m in messages if m[0] == "/camera/image")
-    image = cv2.imdecode(np.frombuffer(base64.b64decode(image_message["data"]), np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert image_message["format"] == "jpeg" and image_message["frame_id"] == "camera"
+    image = cv2.imdecode(np.frombuffer(image_message["data"], np.uint8), cv2.IMREAD_UNCHANGED)
     assert image.shape == (480, 640)
+    assert settings["image_format"] == "auto" and settings["jpeg_quality"] == 90
 
 
 def test_every_message_validates_against_its_schema(default_teach):
-    """Each message validates against the JSON schema stored with it, and every schema
-    named foxglove.X is the Foxglove message format hbvs declares for X."""
+    """Each JSON message validates against the JSON schema stored with it, every schema
+    named foxglove.X is the Foxglove message format hbvs declares for X, and the protobuf
+    images carry the fields of the JSON schema of foxglove.CompressedImage."""
     messages, _ = read_all(default_teach)
     validators = {}
     for topic, schema_name, schema, message in messages:
+        if schema is None:  # protobuf: validate its fields against the JSON form
+            schema = SCHEMAS[schema_name]
+            message = message | {"data": base64.b64encode(message["data"]).decode()}
         assert schema == SCHEMAS[schema_name]
         validator = validators.setdefault(schema_name, jsonschema.Draft202012Validator(schema))
         validator.validate(message)
@@ -146,9 +166,8 @@ def test_teach_from_an_image_folder(tmp_path, calibration_file):
     path = make_teach(tmp_path / "images.mcap", images=str(folder), calibration=calibration_file, fps=10.0)
     frames = list(TeachReader(path).frames())
     assert [round(f.t, 6) for f in frames] == [round(k / 10, 6) for k in range(11)]
-    original = cv2.imread(str(folder / "frame10.png"), cv2.IMREAD_GRAYSCALE)
-    stored = base64.b64decode(json.loads(frames[10].image_message)["data"])
-    assert np.array_equal(cv2.imdecode(np.frombuffer(stored, np.uint8), cv2.IMREAD_GRAYSCALE), original)
+    # A gray PNG is stored as it is: the same bytes.
+    assert frames[10].stored_image().data == (folder / "frame10.png").read_bytes()
 
 
 class FakeCapture:

@@ -11,6 +11,7 @@ import errno
 import os
 import signal
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
@@ -19,13 +20,18 @@ import typer
 
 from .. import __version__
 from ..errors import HbvsError
+from ..io.shipped import shipped_path
+from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 
 app = typer.Typer(
+    cls=HbvsGroup,
     name="hbvs",
     help=(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
-        "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -"
+        "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
+        f"Method and metrics: {shipped_path('docs/method.md')}, {shipped_path('docs/report.md')}. "
+        f"Default gains: {shipped_path('samples/gains.toml')}."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -46,7 +52,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
-    debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
     limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help="Raise a size limit: steps, messages, chunk-messages, input-bytes (see docs/robustness.md); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
@@ -72,19 +78,20 @@ def teach(
     camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
     bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap).", rich_help_panel="Sources")] = None,
     topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
-    path: Annotated[str, typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).", rich_help_panel="Simulation")] = "s-curve",
+    path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
     offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
-    target: Annotated[str, typer.Option("--target", help="Target on the wall: dots, aruco or texture.", rich_help_panel="Simulation")] = "dots",
-    dots: Annotated[int, typer.Option("--dots", min=3, help="Number of dots of a dots target.", rich_help_panel="Simulation")] = 3,
+    target: Annotated[Optional[str], typer.Option("--target", help="Target on the wall: dots, aruco or texture. Default dots.", rich_help_panel="Simulation")] = None,
+    dots: Annotated[Optional[int], typer.Option("--dots", min=3, help="Number of dots of a dots target. Default 3.", rich_help_panel="Simulation")] = None,
     texture: Annotated[Optional[Path], typer.Option("--texture", help="Poster image for --target texture (default: a built-in pattern).", rich_help_panel="Simulation")] = None,
     calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
-    fps: Annotated[float, typer.Option("--fps", min=0.1, help="Frame rate (Hz): of the simulated camera, or the timestamps of --images.")] = 30.0,
+    fps: Annotated[Optional[float], typer.Option("--fps", min=0.1, help="Frame rate (Hz) of the simulated camera or of --images (default 30); for --video, replaces the container's rate.")] = None,
     duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated sensor noise.", rich_help_panel="Simulation")] = 0,
-    noise: Annotated[float, typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma).", rich_help_panel="Simulation")] = 2.0,
-    blur: Annotated[float, typer.Option("--blur", min=0.0, max=100.0, help="Gaussian blur sigma (px).", rich_help_panel="Simulation")] = 0.0,
-    exposure: Annotated[float, typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera.", rich_help_panel="Simulation")] = 1.0,
-    image_format: Annotated[str, typer.Option("--format", help="Encoding of stored images: png (lossless) or jpeg.")] = "png",
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of the simulated sensor noise. Default 0.", rich_help_panel="Simulation")] = None,
+    noise: Annotated[Optional[float], typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma). Default 2.", rich_help_panel="Simulation")] = None,
+    blur: Annotated[Optional[float], typer.Option("--blur", min=0.0, max=100.0, help="Gaussian blur sigma (px). Default 0.", rich_help_panel="Simulation")] = None,
+    exposure: Annotated[Optional[float], typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera. Default 1.", rich_help_panel="Simulation")] = None,
+    image_format: Annotated[str, typer.Option("--format", help="Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.")] = "auto",
+    jpeg_quality: Annotated[int, typer.Option("--quality", min=1, max=100, help="JPEG quality of the frames hbvs compresses.")] = 90,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
 ) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
@@ -95,6 +102,7 @@ def teach(
             output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
             path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
             duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
+            jpeg_quality=jpeg_quality,
         ),
         _console(quiet),
     )
@@ -147,7 +155,7 @@ def repeat(
     kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
     kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
     gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default 2500.", rich_help_panel="Controller")] = None,
-    k2: Annotated[Optional[float], typer.Option("--k2", help="Lateral gain k_2 (see docs/method.md for how to scale it). Default 400.", rich_help_panel="Controller")] = None,
+    k2: Annotated[Optional[float], typer.Option("--k2", help=f"Lateral gain k_2 (see {shipped_path('docs/method.md')} for how to scale it). Default 400.", rich_help_panel="Controller")] = None,
     dhat0: Annotated[Optional[float], typer.Option("--dhat0", help="Initial depth estimate (m); default the fit's suggestion.", rich_help_panel="Controller")] = None,
     speed: Annotated[Optional[float], typer.Option("--speed", help="Play the taught trajectory at this multiple of its pace.", rich_help_panel="Controller")] = None,
     max_v: Annotated[Optional[float], typer.Option("--max-v", help="|v| limit (m/s); inf for none. Default 0.5.", rich_help_panel="Actuators")] = None,
@@ -207,13 +215,14 @@ def report(
 # --------------------------------------------------------------------------- demo
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),
+    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),
+    out: Annotated[Optional[Path], typer.Option("--out", hidden=True, help="Old name of --output.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
     from ..stages.demo import run_demo
 
-    code = run_demo(out, _console(quiet))
+    code = run_demo(out if out is not None else output, _console(quiet))
     if code:
         raise typer.Exit(code)
 
@@ -343,14 +352,6 @@ def _pipe_closed() -> int:
 _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF, errno.EROFS}
 
 
-def _usage_line(exc: Any) -> str:
-    """A click usage error as one line: the message, and where to get help."""
-    message = " ".join(str(exc.format_message()).split())
-    ctx = getattr(exc, "ctx", None)
-    command = ctx.command_path if ctx is not None else "hbvs"
-    return f"hbvs: error: {message} (see '{command} --help')"
-
-
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
     try:
@@ -358,7 +359,7 @@ def _run(args: list[str], debug: bool) -> int:
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
         if debug:
-            raise
+            traceback.print_exc()
         if exc.exit_code == 141:
             return _pipe_closed()
         _say(f"hbvs: error: {exc}")
@@ -366,12 +367,14 @@ def _run(args: list[str], debug: bool) -> int:
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130
-    except typer.TyperException as exc:  # usage errors (typer's vendored click)
+    except typer.TyperException as exc:  # usage errors (typer's vendored click): one line, with where to find help
         if type(exc).__name__ == "NoArgsIsHelpError":  # `hbvs` alone: the help is what was asked for
             exc.show()
             return int(getattr(exc, "exit_code", 2))
+        if debug:
+            traceback.print_exc()
         if hasattr(exc, "format_message"):
-            _say(_usage_line(exc))
+            _say(unquoted_glob_hint(args) or one_line_usage_error(exc))
         else:
             _say("hbvs: error: " + " ".join(str(exc).split()))
         return int(getattr(exc, "exit_code", 2))
@@ -385,12 +388,12 @@ def _run(args: list[str], debug: bool) -> int:
         return _pipe_closed()
     except MemoryError:
         if debug:
-            raise
+            traceback.print_exc()
         _say("hbvs: error: out of memory (a limit is set too high for this machine? see hbvs --limit)")
         return 7
     except OSError as exc:
         if debug:
-            raise
+            traceback.print_exc()
         if exc.errno == errno.EPIPE:
             return _pipe_closed()
         if exc.errno in _WRITE_ERRNOS:
@@ -401,7 +404,8 @@ def _run(args: list[str], debug: bool) -> int:
         return 70
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
         if debug:
-            raise
+            traceback.print_exc()
+            return 70
         text = " ".join(str(exc).split())[:300]
         _say(f"hbvs: internal error: {type(exc).__name__}: {text} (run with --debug for the traceback, and please report it)")
         return 70
@@ -477,8 +481,8 @@ def main(argv: list[str] | None = None) -> None:
     the process exits, so that a late signal cannot turn a finished run into a traceback:
     this function is meant to end the process (it always raises SystemExit).
     """
-    args = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in args
+    # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
+    args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _prepare_stdio(debug)
     _install_signal_handlers()
     try:

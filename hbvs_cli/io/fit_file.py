@@ -33,7 +33,7 @@ from ..core.trajectory import SplineTrajectory
 from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
-from .images import image_bytes_from_message
+from .images import read_compressed_image
 from .mcap_io import McapStream, read_metadata, time_message
 from .schemas import TOPICS
 from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
@@ -319,7 +319,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         if message.topic == MODEL_TOPIC:
             model_message = message.json(stream.name)
         else:
-            images[message.topic] = image_bytes_from_message(message.json(stream.name), stream.name)[0]
+            images[message.topic] = read_compressed_image(message.message_encoding, message.data, stream.name).data
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):

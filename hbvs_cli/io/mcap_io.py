@@ -49,7 +49,7 @@ MAX_SCHEMAS = 4096
 MAX_CHANNELS = 4096
 #: Bytes that the schemas, channels and metadata of one file may hold in total.
 MAX_DECLARED_BYTES = 64 * 2**20
-#: Largest JSON message decoded (images travel in it base64-encoded).
+#: Largest JSON message decoded (images in older files travel in it base64-encoded).
 MAX_JSON_BYTES = 64 * 2**20
 #: Most values (counted as commas, colons and brackets) in one JSON document. Each becomes
 #: a Python object of tens of bytes, so this bounds memory where the byte cap cannot.
@@ -163,12 +163,27 @@ class McapWriter:
         self._channels[topic] = channel_id
         return channel_id
 
+    def declare_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> None:
+        """Register a channel whose messages are not JSON (e.g. protobuf images), once per topic.
+
+        Later :meth:`write_encoded` calls on ``topic`` use it; the caller encodes the messages.
+        """
+        if topic in self._channels:
+            return
+        key = f"{schema_name}\0{schema_encoding}"
+        if key not in self._schemas:
+            self._schemas[key] = self._writer.register_schema(name=schema_name, encoding=schema_encoding, data=schema_data)
+        self._channels[topic] = self._writer.register_channel(
+            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[key]
+        )
+
     def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
         """Write one message, JSON-encoded."""
         self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
 
     def write_encoded(self, topic: str, schema_name: str, log_time_ns: int, data: bytes) -> None:
-        """Write one message whose JSON bytes are already encoded (e.g. copied from input)."""
+        """Write one message whose bytes are already encoded (JSON copied from input, or in
+        the encoding of a channel given to :meth:`declare_channel`)."""
         channel_id = self._channel(topic, schema_name)
         self._writer.add_message(
             channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns),

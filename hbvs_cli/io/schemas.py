@@ -2,9 +2,10 @@
 
 Foxglove schemas (``foxglove.*``) follow the documented Foxglove message formats field for
 field, so the files open in Foxglove with images, annotations, poses and plots. The
-``hbvs.*`` schemas are ours. All messages use the ``json`` message encoding and the
-``jsonschema`` schema encoding; times are ``{"sec", "nsec"}`` and MCAP log times are in
-nanoseconds.
+``hbvs.*`` schemas are ours. Messages use the ``json`` message encoding and the
+``jsonschema`` schema encoding, but for images: hbvs writes ``foxglove.CompressedImage`` in
+Foxglove's protobuf encoding (:mod:`.images`), and reads the JSON form below from older
+files. Times are ``{"sec", "nsec"}`` and MCAP log times are in nanoseconds.
 
 The topics of each file kind are listed in :data:`TOPICS` (and in the README).
 """

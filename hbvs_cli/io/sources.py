@@ -510,6 +510,23 @@ _COMPRESSED = "sensor_msgs/msg/CompressedImage"
 _RAW = "sensor_msgs/msg/Image"
 _CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _IMAGE_TYPES = (_COMPRESSED, _RAW)
+#: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
+#: in the protobuf and JSON encodings.
+_FOXGLOVE_IMAGE = "foxglove.CompressedImage"
+_FOXGLOVE_CALIBRATION = "foxglove.CameraCalibration"
+_FOXGLOVE_ENCODINGS = ("protobuf", "json")
+
+
+def _is_image_topic(topic: _Topic) -> bool:
+    if topic.type == _FOXGLOVE_IMAGE:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
+
+
+def _is_calibration_topic(topic: _Topic) -> bool:
+    if topic.type == _FOXGLOVE_CALIBRATION:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type == _CAMERA_INFO
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Bytes per pixel of the raw encodings hbvs converts.
 _RAW_ENCODINGS = {"mono8": 1, "mono16": 2, "rgb8": 3, "bgr8": 3}
@@ -692,22 +709,20 @@ class BagSource(FrameSource):
         return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
 
     def _choose(self, topics: dict[str, _Topic], topic: str | None) -> tuple[str, _Topic]:
-        images = sorted(
-            (t for t in topics.values() if t.type in _IMAGE_TYPES and t.encoding == "cdr"),
-            key=lambda t: t.name,
-        )
+        images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
         if topic is not None:
             chosen = topics.get(topic)
             if chosen is None:
                 listed = ", ".join(t.name for t in images) or "none"
                 raise InputError(f"{self.path}: no topic {topic!r} in the bag (image topics: {listed})")
-            if chosen.type not in _IMAGE_TYPES:
+            if chosen.type not in (*_IMAGE_TYPES, _FOXGLOVE_IMAGE):
                 raise InputError(
                     f"{self.path}: topic {topic} carries {chosen.type or 'an unknown type'}, "
-                    "not sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage"
+                    "not sensor_msgs/msg/Image, sensor_msgs/msg/CompressedImage or foxglove.CompressedImage"
                 )
-            if chosen.encoding != "cdr":
-                raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected cdr")
+            if not _is_image_topic(chosen):
+                expected = "protobuf or json" if chosen.type == _FOXGLOVE_IMAGE else "cdr"
+                raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
             return topic, chosen
         # Recorders create channels for subscribed topics that never published: skip them.
         candidates = [t for t in images if t.count is None or t.count > 0] or images
@@ -719,7 +734,7 @@ class BagSource(FrameSource):
         return candidates[0].name, candidates[0]
 
     def _camera_info_topic(self, topics: dict[str, _Topic]) -> str | None:
-        infos = sorted(t.name for t in topics.values() if t.type == _CAMERA_INFO and t.count != 0)
+        infos = sorted(t.name for t in topics.values() if _is_calibration_topic(t) and t.count != 0)
         if len(infos) <= 1:
             return infos[0] if infos else None
 
@@ -748,6 +763,8 @@ class BagSource(FrameSource):
                     continue
                 if len(first.data) > _MAX_CAMERA_INFO_BYTES:
                     return None, f"{source}: a CameraInfo message of {len(first.data)} bytes is not one hbvs can use"
+                if first.schema_name == _FOXGLOVE_CALIBRATION:
+                    return _camera_from_foxglove(first, source)
                 info = self._decoders.decode(first, source)
             try:
                 return self._camera_from_info(info, source)
@@ -785,11 +802,14 @@ class BagSource(FrameSource):
             with _bag_errors(str(file)):
                 for message in stream:
                     what = f"{self.path} {self.topic} message {index}"
-                    decoded = self._decoders.decode(message, what)
-                    image, encoded, fmt = self._convert(decoded, what)
+                    if self._topic.type == _FOXGLOVE_IMAGE:
+                        image, encoded, fmt, stamp_ns = _foxglove_frame(message, what)
+                    else:
+                        decoded = self._decoders.decode(message, what)
+                        image, encoded, fmt = self._convert(decoded, what)
+                        stamp = getattr(decoded, "header", None)
+                        stamp_ns = (int(stamp.stamp.sec) * _NS + int(stamp.stamp.nanosec)) if stamp is not None else 0
                     size = _same_size(size, image, what)
-                    stamp = getattr(decoded, "header", None)
-                    stamp_ns = (int(stamp.stamp.sec) * _NS + int(stamp.stamp.nanosec)) if stamp is not None else 0
                     if first_ns is None:
                         use_stamp = stamp_ns != 0
                         stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
@@ -826,6 +846,43 @@ class BagSource(FrameSource):
             "camera_info_topic": self.camera_info_topic,
             "camera_info_problem": self.camera_problem,
         }
+
+
+def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int]:
+    """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
+    from .images import read_compressed_image
+
+    stored = read_compressed_image(message.message_encoding, message.data, what)
+    image = _decode_image(stored.data, f"{what} (format {stored.format!r})")
+    fmt = _sniff_format(stored.data)
+    return image, (stored.data if fmt else None), fmt, stored.stamp_ns
+
+
+def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+    """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
+    from .calibration import calibration_from_foxglove
+    from .mcap_io import decode_json
+
+    if message.message_encoding == "json":
+        fields = decode_json(message.data, source)
+    else:
+        from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+        from google.protobuf.message import DecodeError
+
+        try:
+            calibration = CameraCalibration.FromString(message.data)
+        except (DecodeError, ValueError, RuntimeError):
+            return None, f"{source}: malformed foxglove.CameraCalibration"
+        fields = {
+            "width": calibration.width, "height": calibration.height, "distortion_model": calibration.distortion_model,
+            "D": list(calibration.D), "K": list(calibration.K), "R": list(calibration.R), "P": list(calibration.P),
+        }
+    if isinstance(fields, dict) and not any(fields.get("K") or []):
+        return None, f"{source}: K is all zeros (an uncalibrated camera)"
+    try:
+        return calibration_from_foxglove(fields, source), None
+    except CalibrationError as exc:
+        return None, str(exc)
 
 
 def _raw_to_gray8(msg: Any, what: str) -> np.ndarray:

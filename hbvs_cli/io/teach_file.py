@@ -1,9 +1,10 @@
 """The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
 
-Topics (all JSON, Foxglove schemas where one exists):
+Topics (Foxglove schemas where one exists; JSON but for the images):
 
 =====================  ===========================  =========================================
-``/camera/image``      ``foxglove.CompressedImage`` every frame (PNG or JPEG, base64)
+``/camera/image``      ``foxglove.CompressedImage`` every frame, 8-bit gray JPEG or PNG, in
+                                                    protobuf (JSON with base64 is read too)
 ``/camera/calibration`` ``foxglove.CameraCalibration`` once, before the first frame
 ``/teach/cmd_vel``     ``hbvs.VelocityCommand``     the taught command of each frame (sim, CSV)
 ``/ground_truth/pose`` ``foxglove.PoseInFrame``     true robot pose of each frame (sim only)
@@ -28,7 +29,7 @@ from ..core.camera import CameraIntrinsics
 from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
-from .images import compressed_image_message
+from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
 from .mcap_io import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .schemas import TOPICS
@@ -139,10 +140,7 @@ class TeachWriter:
             self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
         if pose is not None:
             self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
-        self.writer.write(
-            IMAGE_TOPIC, TOPICS[FILE_KIND][IMAGE_TOPIC], log_time_ns,
-            compressed_image_message(stamp, CAMERA_FRAME, image_bytes, image_format),
-        )
+        write_compressed_image(self.writer, IMAGE_TOPIC, log_time_ns, image_bytes, image_format, CAMERA_FRAME)
         self.frames += 1
 
 
@@ -158,13 +156,15 @@ class TeachFrame:
     t : float
         Seconds since the first frame.
     image_message : bytes
-        The ``foxglove.CompressedImage`` JSON, as stored (to copy it or decode it); its
-        size, number of values and nesting are within the caps of
+        The ``foxglove.CompressedImage`` as stored, in ``image_encoding``; read it with
+        :meth:`stored_image`. JSON is within the caps of
         :func:`~hbvs_cli.io.mcap_io.check_json_limits`, so decoding it is safe.
     pose : (x, y, phi) or None
         True robot pose (simulated recordings).
     command : (v, w) or None
         The taught command of this frame.
+    image_encoding : str
+        ``protobuf`` (what hbvs writes) or ``json`` (base64: older files).
     """
 
     index: int
@@ -173,6 +173,11 @@ class TeachFrame:
     image_message: bytes
     pose: tuple[float, float, float] | None
     command: tuple[float, float] | None
+    image_encoding: str = "protobuf"
+
+    def stored_image(self, source: str = "") -> StoredImage:
+        """The compressed image bytes and format of this frame."""
+        return read_compressed_image(self.image_encoding, self.image_message, source)
 
 
 @dataclass
@@ -240,9 +245,12 @@ class TeachReader:
             elif message.topic == IMAGE_TOPIC:
                 # Callers decode image_message themselves (in a worker thread, ahead of
                 # use); the caps are checked here so that any JSON they get is bounded.
-                if message.message_encoding != "json":
-                    raise RecordingError(f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding!r}, expected JSON")
-                check_json_limits(message.data, f"{self.name}: image message")
+                if message.message_encoding not in IMAGE_ENCODINGS:
+                    raise RecordingError(
+                        f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding[:40]!r}, expected protobuf or JSON"
+                    )
+                if message.message_encoding == "json":
+                    check_json_limits(message.data, f"{self.name}: image message")
                 if first_time is None:
                     first_time = message.log_time
                 pose = pending_pose[1] if pending_pose and pending_pose[0] == message.log_time else None
@@ -250,6 +258,7 @@ class TeachReader:
                 yield TeachFrame(
                     index=index, log_time_ns=message.log_time, t=(message.log_time - first_time) * 1e-9,
                     image_message=message.data, pose=pose, command=command,
+                    image_encoding=message.message_encoding,
                 )
                 index += 1
         self._check_kind()

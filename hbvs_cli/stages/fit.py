@@ -128,7 +128,7 @@ class _FrameLog:
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
     from ..io.fit_file import FitModel, checked_model_message
-    from ..io.images import compressed_image_message
+    from ..io.images import write_compressed_image
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.schemas import TOPICS
@@ -173,7 +173,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                 if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
                     reference_image = data
                 if options.copy_images:
-                    writer.write_encoded("/camera/image", topics["/camera/image"], frame.log_time_ns, frame.image_message)
+                    write_compressed_image(writer, "/camera/image", frame.log_time_ns, data, _format_of(data), CAMERA_FRAME)
                 # Same log time as the teach image: Foxglove overlays these on it when the
                 # teach and fit files are opened together.
                 writer.write(
@@ -219,7 +219,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in (("/reference/image", reference_image, reference_index), ("/detector/template", template, 0)):
             stamp = int(arrays["log_time"][k])
-            writer.write(topic, topics[topic], stamp, compressed_image_message(time_message(stamp), CAMERA_FRAME, payload, _format_of(payload)))
+            write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
         writer.write("/fit/model", topics["/fit/model"], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)

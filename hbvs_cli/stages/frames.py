@@ -7,27 +7,18 @@ detected keeps both cores busy. At most ``depth`` decoded frames wait at any tim
 
 from __future__ import annotations
 
-import json
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Iterator
 
 import numpy as np
 
-from ..errors import RecordingError
-
 
 def decode_frame(frame: Any, name: str) -> tuple[bytes, np.ndarray]:
     """The compressed bytes and the gray image of a teach frame's image message."""
-    from ..io.images import decode_image, image_bytes_from_message
+    from ..io.images import decode_image
 
-    try:
-        message = json.loads(frame.image_message)
-    except (ValueError, UnicodeDecodeError):
-        raise RecordingError(f"{name}: malformed image message in frame {frame.index}") from None
-    if not isinstance(message, dict):
-        raise RecordingError(f"{name}: malformed image message in frame {frame.index}")
-    data, _ = image_bytes_from_message(message, name)
+    data = frame.stored_image(f"{name} frame {frame.index}").data
     return data, decode_image(data, name)
 
 

@@ -296,7 +296,7 @@ class SimulatedCamera:
 
     def write_image(self, writer: Any, ns: int, record: Any, desired_px: np.ndarray) -> None:
         """Store this step's camera image with detected and desired points (``--record-images``)."""
-        from ..io.images import compressed_image_message, encode_image
+        from ..io.images import bytes_to_store, write_compressed_image
         from ..io.mcap_io import time_message
         from ..io.messages import CAMERA_FRAME, annotations_message
         from ..io.schemas import TOPICS
@@ -306,7 +306,7 @@ class SimulatedCamera:
             image = self.renderer.render(record.pose, np.random.default_rng(0))
         stamp = time_message(ns)
         topics = TOPICS["run"]
-        writer.write("/camera/image", topics["/camera/image"], ns, compressed_image_message(stamp, CAMERA_FRAME, encode_image(image, "png"), "png"))
+        write_compressed_image(writer, "/camera/image", ns, *bytes_to_store(image), CAMERA_FRAME)
         label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
         writer.write("/camera/annotations", topics["/camera/annotations"], ns, annotations_message(stamp, record.observation.pixels, desired_px, label))
 

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import math
-
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -18,6 +17,16 @@ from .console import Console
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
+#: Options that describe the simulated robot and camera, and their defaults (None in
+#: :class:`TeachOptions` means "not given"). A recorded source refuses them.
+SIMULATION_DEFAULTS: dict[str, Any] = {
+    "path": DEFAULT_PRESET, "offset": None, "target": "dots", "dots": 3, "texture": None,
+    "seed": 0, "noise": 2.0, "blur": 0.0, "exposure": 1.0,
+}
+#: Frame rate of the simulated camera and of an image folder when --fps is not given (Hz).
+DEFAULT_FPS = 30.0
+#: Options of each recorded source recorded in its metadata (beside the source's own description).
+SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality")
 
 
 @dataclass(frozen=True)
@@ -31,19 +40,20 @@ class TeachOptions:
     camera: int | None = None
     bag: Path | None = None
     topic: str | None = None
-    path: str = DEFAULT_PRESET
+    path: str | None = None
     offset: str | None = None
-    target: str = "dots"
-    dots: int = 3
+    target: str | None = None
+    dots: int | None = None
     texture: Path | None = None
     calibration: Path | None = None
-    fps: float = 30.0
+    fps: float | None = None
     duration: float | None = None
-    seed: int = 0
-    noise: float = 2.0
-    blur: float = 0.0
-    exposure: float = 1.0
-    image_format: str = "png"
+    seed: int | None = None
+    noise: float | None = None
+    blur: float | None = None
+    exposure: float | None = None
+    image_format: str = "auto"
+    jpeg_quality: int = 90
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
@@ -54,11 +64,30 @@ class TeachOptions:
             raise UsageError(f"give exactly one source, got {', '.join('--' + g for g in given)}")
         return given[0] if given else "sim"
 
+    def simulation_options_given(self) -> list[str]:
+        """The simulation options that were given (not None), as ``--name``."""
+        return [f"--{name}" for name in SIMULATION_DEFAULTS if getattr(self, name) is not None]
+
+    def for_simulation(self) -> TeachOptions:
+        """These options with the simulation's defaults filled in where none was given."""
+        missing = {name: value for name, value in SIMULATION_DEFAULTS.items() if getattr(self, name) is None}
+        return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
+
     def settings(self) -> dict[str, Any]:
-        """The options as recorded in the teach file's metadata."""
+        """The options as recorded in the teach file's metadata.
+
+        A simulated teach records every option; a recorded source only those that apply
+        to it (no simulator settings such as noise or the path).
+        """
         from .options import recorded_settings
 
-        return recorded_settings(self)
+        recorded = recorded_settings(self)
+        kind = self.source_kind()
+        if kind == "sim":
+            return recorded
+        names = {field.name for field in fields(self)}
+        keep = {kind, *SOURCE_SETTINGS} | ({"topic"} if kind == "bag" else set())
+        return {key: value for key, value in recorded.items() if key in keep and key in names}
 
 
 @dataclass(frozen=True)
@@ -71,12 +100,14 @@ class TeachSummary:
 
 def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     """Record the taught run described by ``options`` into ``options.output``."""
-    from ..io.images import IMAGE_FORMATS
+    from ..io.images import STORE_FORMATS
 
     from ..io.output_target import refuse_overwriting_inputs
 
-    if options.image_format not in IMAGE_FORMATS:
-        raise UsageError(f"--format must be png or jpeg, got {options.image_format!r}")
+    if options.image_format not in STORE_FORMATS:
+        raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
+    if not 1 <= options.jpeg_quality <= 100:
+        raise UsageError(f"--quality must be 1 to 100, got {options.jpeg_quality}")
     for name, value in (("--fps", options.fps), ("--duration", options.duration), ("--noise", options.noise), ("--exposure", options.exposure)):
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
@@ -88,7 +119,7 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     )
     kind = options.source_kind()
     if kind == "sim":
-        return _teach_simulated(options, console)
+        return _teach_simulated(options.for_simulation(), console)
     return _teach_from_source(kind, options, console)
 
 
@@ -153,7 +184,7 @@ def make_renderer(world: World, noise: float, blur: float, exposure: float) -> A
 
 
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import encode_image
+    from ..io.images import bytes_to_store
     from ..io.limits import step_count
     from ..io.mcap_io import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
@@ -197,8 +228,9 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
+                data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
-                    seconds_to_ns(t), encode_image(image, options.image_format), options.image_format,
+                    seconds_to_ns(t), data, image_format,
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()
@@ -217,21 +249,26 @@ def _open_source(kind: str, options: TeachOptions) -> Any:
     from ..io import sources
 
     if kind == "video":
-        return sources.VideoSource(options.video, fps=None)
+        return sources.VideoSource(options.video, fps=options.fps)
     if kind == "images":
-        return sources.ImageFolderSource(options.images, fps=options.fps)
+        return sources.ImageFolderSource(options.images, fps=DEFAULT_FPS if options.fps is None else options.fps)
     if kind == "camera":
         return sources.CameraSource(options.camera, duration=options.duration)
     return sources.BagSource(options.bag, topic=options.topic)
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import encode_image
+    from ..io.images import bytes_to_store
     from ..io.mcap_io import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
 
-    if options.target != "dots" or options.path != DEFAULT_PRESET or options.texture is not None or options.offset is not None:
-        raise UsageError("--path, --offset, --target and --texture describe a simulated teach; they do not go with a recorded source")
+    given = options.simulation_options_given()
+    if given:
+        verb = "describes" if len(given) == 1 else "describe"
+        raise UsageError(f"{', '.join(given)} {verb} the simulated robot and camera, not --{kind}: leave {'it' if len(given) == 1 else 'them'} out")
+    if options.fps is not None and kind in ("camera", "bag"):
+        clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps"
+        raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:
@@ -248,13 +285,12 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
             iterator: Iterator[Any] = iter(source)
             try:
                 for frame in iterator:
-                    if options.duration is not None and frame.t > options.duration:
+                    # Frames at t = 0, 1/fps, ... strictly before the end: 5 s at 30 fps is 150.
+                    if options.duration is not None and frame.t >= options.duration - 1e-9:
                         break
                     _check_frame_size(frame.image, camera, source)
-                    if frame.encoded is not None and frame.format in ("png", "jpeg"):
-                        data, image_format = frame.encoded, frame.format
-                    else:
-                        data, image_format = encode_image(frame.image, options.image_format), options.image_format
+                    encoded = frame.encoded if frame.format in ("png", "jpeg") else None
+                    data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality)
                     teach.frame(seconds_to_ns(frame.t), data, image_format)
                     frames += 1
                     last_t = frame.t
