@@ -206,7 +206,9 @@ class _RunLog:
         self.cmd_stream = cmd_stream
         self.lost_since: float | None = None
         self.was_saturated = False
-        self.previous_status = "ok"
+        self.was_lost = False
+        self.was_dropped = False
+        self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
         from ..io.mcap_io import seconds_to_ns, time_message
@@ -229,13 +231,18 @@ class _RunLog:
         V = None
         if errors is not None and self.d_true is not None:
             V = lyapunov(errors, record.dhat, self.d_true, self.settings.gains)
-        status = record.observation.status
-        if status != self.previous_status:
-            if record.lost and not self._was_lost():
-                self.event(t, LOG_WARNING, f"target lost ({status}): stopping, adaptation frozen")
-            elif not record.lost and self._was_lost():
-                self.event(t, LOG_INFO, "target back: tracking resumed")
-            self.previous_status = status
+        # A dropped frame says nothing about the target: the lost state and its reason are
+        # those of the last frame that arrived (record.lost already keeps them).
+        if not record.dropped:
+            self.lost_reason = record.observation.status if record.lost else ""
+        if record.lost and not self.was_lost:
+            self.event(t, LOG_WARNING, f"target lost ({self.lost_reason}): stopping, adaptation frozen")
+        elif not record.lost and self.was_lost:
+            self.event(t, LOG_INFO, "target back: tracking resumed")
+        self.was_lost = record.lost
+        if record.dropped and not self.was_dropped:
+            self.event(t, LOG_INFO, "camera frame dropped: " + ("target still lost" if record.lost else "holding the last command"))
+        self.was_dropped = record.dropped
         if record.saturated and not self.was_saturated:
             self.event(t, LOG_INFO, "command saturated by the actuator limits")
         self.was_saturated = record.saturated
@@ -254,7 +261,8 @@ class _RunLog:
             "saturated": bool(record.saturated),
             "dhat": float(record.dhat),
             "target_lost": bool(record.lost),
-            "lost_reason": status if record.lost else "",
+            "lost_reason": self.lost_reason if record.lost else "",
+            "frame_dropped": bool(record.dropped),
             "residual": float(record.observation.residual),
             "V": V,
         }
@@ -274,9 +282,6 @@ class _RunLog:
                     message[key] = None
         data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
         self.writer.write_encoded(topic, self.topics[topic], ns, data)
-
-    def _was_lost(self) -> bool:
-        return self.previous_status not in ("ok", "dropped")
 
 
 def _open_cmd_stream(target: str | None) -> IO[str] | None:
@@ -359,7 +364,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     tally = _Tally()
     try:
         with open_output(options.output) as writer:
-            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
+            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
@@ -419,7 +424,7 @@ class _Tally:
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
-def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None) -> dict[str, Any]:
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None, scene: Any = None) -> dict[str, Any]:
     from .. import __version__
 
     model = fit.model
@@ -442,6 +447,17 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: An
         "target_kind": model.target_kind,
         "condition35": model.condition35,
         "fit_frames": model.frames,
+    } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
+
+
+def _top_view(world: Any) -> dict[str, Any]:
+    """The wall and the target seen from above (m, world frame), for the report's top view."""
+    poster = world.target.poster
+    ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
+    return {
+        "wall_x": float(world.wall_x),
+        "poster_y": [float(end[1]) for end in ends],
+        "target_xy": [[float(x), float(y)] for x, y in world.target.points_world[:, :2]],
     }
 
 

@@ -31,6 +31,11 @@ class ReportOptions:
     fail_above: list[str] = field(default_factory=list)
     export_tum: Path | None = None
     tolerance: list[str] = field(default_factory=list)
+    require_converged: bool = False
+    labels: list[str] = field(default_factory=list)
+    dpi: float | None = None
+    size: str | None = None
+    panels: str | None = None
 
 
 @dataclass(frozen=True)
@@ -99,6 +104,36 @@ def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound
     return messages
 
 
+def not_converged(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One message per run that did not converge, naming its failed checks (``--require-converged``)."""
+    messages = []
+    for report in reports:
+        verdict = report["verdict"]
+        if not verdict["converged"]:
+            failed = [text.removeprefix("fail: ") for text in verdict["checks"].values() if text.startswith("fail")]
+            messages.append(f"{report['run']['name']}: {'; '.join(failed)}")
+    return messages
+
+
+def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
+    """``--label`` is given once per run, in the runs' order, or not at all.
+
+    Raises
+    ------
+    UsageError
+        A different number of labels than runs, or an empty label.
+    """
+    if labels and len(labels) != len(runs):
+        raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
+    if any(not label.strip() for label in labels):
+        raise UsageError("--label: a label cannot be empty")
+
+
+def labels_or_none(labels: Sequence[str], count: int) -> list[str | None]:
+    """Each run's ``--label``, or ``None`` (the report names it by its law and file)."""
+    return list(labels) if labels else [None] * count
+
+
 # ----------------------------------------------------------------------------- reading
 def _source(text: str, keep_stdin: bool) -> Any:
     """What :func:`read_run` reads: a path, ``-``, or stdin buffered (to read it twice)."""
@@ -155,7 +190,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
     Returns
     -------
     int
-        0, or 1 when a ``--fail-above`` bound was exceeded (one line on stderr per excess).
+        0, or 1 when a ``--fail-above`` bound was exceeded or, with
+        ``--require-converged``, a run did not converge (one line on stderr for each).
 
     Raises
     ------
@@ -169,13 +205,18 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
     tolerances = parse_tolerances(options.tolerance)
     bounds = parse_bounds(options.fail_above)
+    check_labels(options.labels, options.runs)
+    style = None
     if options.plot is not None:
-        from ..tools.plots import check_plot_path
+        from ..tools.figure_style import check_plot_path, figure_style
 
         check_plot_path(options.plot)
+        style = figure_style(options.dpi, options.size, options.panels)
+    elif options.dpi is not None or options.size is not None or options.panels is not None:
+        raise UsageError("--dpi, --size and --panels shape the figure: give --plot FILE too")
     loaded = read_runs(options.runs, need_height=options.export_tum is not None)
     runs = [run for run, _ in loaded]
-    reports = [build_report(run, tolerances) for run in runs]
+    reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
         from ..tools.tum import check_exportable
@@ -185,7 +226,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     if options.plot is not None:
         from ..tools.plots import save_plot
 
-        save_plot(runs, reports, options.plot)
+        save_plot(runs, reports, options.plot, style, tolerances)
         console.info(f"report: figure written to {options.plot}")
     if options.export_tum is not None:
         from ..tools.tum import write_tum
@@ -195,4 +236,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
     for message in excesses:
         console.warn(f"threshold exceeded: {message}")
-    return 1 if excesses else 0
+    unconverged = not_converged(reports) if options.require_converged else []
+    for message in unconverged:
+        console.warn(f"not converged: {message}")
+    return 1 if excesses or unconverged else 0
