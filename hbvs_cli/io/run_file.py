@@ -93,6 +93,14 @@ INFO_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
+class NotARunFile(RecordingError):
+    """A readable hbvs file of another kind (``kind``: ``"fit"``, ``"teach"``, or None)."""
+
+    def __init__(self, message: str, kind: str | None) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
 def _number(value: Any) -> float:
     if value is None:
         return float("nan")
@@ -168,7 +176,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     if info.get("file_kind") != FILE_KIND:
         kind = info.get("file_kind")
         what = f"a {kind!r} file" if kind else "not an hbvs run file"
-        raise RecordingError(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat")
+        raise NotARunFile(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat", kind if isinstance(kind, str) else None)
     _check_info(info, stream.name)
     if not step_times:
         raise RecordingError(f"{stream.name}: the run has no control steps")

@@ -399,28 +399,37 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
 
 
 class _Tally:
-    """What the one-line summary needs, kept as the run goes (not every step in memory)."""
+    """What the one-line summary needs, kept as the run goes: a few numbers per step.
+
+    Its "final" errors are the report's: the mean of |error| over the last 5 % of the run
+    (:func:`hbvs_cli.core.metrics.final_value`), so repeat and report agree on the word.
+    """
 
     def __init__(self) -> None:
         self.steps = 0
-        self.last_output: Any = None
-        self.last_pose: Any = None
-        self.last_taught: Any = None
+        self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
     def add(self, record: StepRecord, taught: Any = None) -> None:
         self.steps += 1
-        if record.output is not None:
-            self.last_output = record.output
-        self.last_pose, self.last_taught = record.pose, taught
+        errors = record.output.errors if record.output is not None else None
+        values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
+        if errors is not None:
+            values.update(e1=float(errors.e1), e2=float(errors.e2), e3_deg=math.degrees(float(errors.e3)))
+        if taught is not None:
+            values["position_m"] = math.hypot(record.pose[0] - taught[0], record.pose[1] - taught[1])
+            values["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (record.pose[2] - taught[2])))))
+        for name, value in values.items():
+            self.series[name].append(float(value))
 
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
+        from ..core.metrics import final_value
+
+        t = self.series["t"]
         errors: dict[str, float] = {}
-        if self.last_output is not None:
-            e = self.last_output.errors
-            errors = {"e1": float(e.e1), "e2": float(e.e2), "e3_deg": math.degrees(float(e.e3))}
-        if self.last_taught is not None:
-            errors["position_m"] = float(np.hypot(*(np.asarray(self.last_pose[:2]) - np.asarray(self.last_taught[:2]))))
-            errors["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (self.last_pose[2] - self.last_taught[2])))))
+        for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
+            final = final_value(t, self.series[name]) if t else None
+            if final is not None:
+                errors[name] = final
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
@@ -464,10 +473,13 @@ def _top_view(world: Any) -> dict[str, Any]:
 def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
     e = summary.final_errors
+    final = []
     if "e1" in e:
-        parts.append(f"final e1 {e['e1']:+.2e}, e2 {e['e2']:+.2e}, e3 {e['e3_deg']:+.3f} deg")
+        final.append(f"|e1| {e['e1']:.3g}, |e2| {e['e2']:.3g}, |e3| {e['e3_deg']:.3g} deg")
     if "position_m" in e:
-        parts.append(f"position error {100 * e['position_m']:.2f} cm, heading {e['heading_deg']:+.3f} deg")
+        final.append(f"position {100 * e['position_m']:.3g} cm, |heading| {e['heading_deg']:.3g} deg")
+    if final:
+        parts.append("final (mean over the last 5 %, as in hbvs report): " + ", ".join(final))
     depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
     parts.append(depth)
     console.info("; ".join(parts) + f" -> {summary.output}")

@@ -253,3 +253,32 @@ def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) ->
             console.print()
         console.print(Text(title, style="" if plain else "bold cyan"))
         console.print(table)
+
+
+#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.tools.fit_plot.fit_summary`).
+FIT_ROWS: tuple[tuple[str, str], ...] = (
+    ("frames with a raw sample", "frames_raw"),
+    ("frames on the spline", "frames_smooth"),
+    ("theta_d raw - smooth, rms (deg)", "raw_minus_smooth.theta_d_deg.rms"),
+    ("theta_d raw - smooth, max |.| (deg)", "raw_minus_smooth.theta_d_deg.max_abs"),
+    ("x_hd1 raw - smooth, rms (d*)", "raw_minus_smooth.x_hd1.rms"),
+    ("x_hd1 raw - smooth, max |.| (d*)", "raw_minus_smooth.x_hd1.max_abs"),
+    ("x_hd2 raw - (25), rms (d*)", "raw_minus_smooth.x_hd2.rms"),
+    ("x_hd2 raw - (25), max |.| (d*)", "raw_minus_smooth.x_hd2.max_abs"),
+    ("min |x_hd1_dot| (1/s), condition (35)", "x_hd1_dot.min_abs"),
+    ("max |x_hd1_dot| (1/s)", "x_hd1_dot.max_abs"),
+    ("raw finite difference - x_hd1_dot, rms (1/s)", "x_hd1_dot.raw_difference_rms"),
+)
+
+
+def print_fit_table(summary: Mapping[str, Any], stream: TextIO) -> None:
+    """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream``."""
+    from rich.text import Text
+
+    console = report_console(stream)
+    plain = not console.is_terminal
+    table = _table(["quantity", Path(str(summary["file"])).name], plain)
+    for label, key in FIT_ROWS:
+        table.add_row(label, format_value(lookup(summary, key)))
+    console.print(Text("desired trajectory (Remark 1): raw homography decomposition against the splines", style="" if plain else "bold cyan"))
+    console.print(table)
