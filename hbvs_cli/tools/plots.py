@@ -50,8 +50,9 @@ from .figure_style import (
 from .report_data import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
 from .report_table import run_labels
 
-#: Most points one run draws in one panel; longer runs are shown as bin means.
-MAX_POINTS_PER_RUN = 1500
+#: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
+#: 200 dpi); longer runs are shown as bin means.
+MAX_POINTS_PER_RUN = 600
 #: Seconds between two heading arrows in the top view.
 HEADING_EVERY_S = 2.0
 #: Height (in) of a row of time panels, of the top view, and of the legend.

@@ -1,4 +1,4 @@
-"""``hbvs report`` as a CI gate, and the bookkeeping behind it (issue 18, "the report as a gate").
+"""``hbvs report`` for a paper and for CI (issue 18): the figures, and the report as a gate.
 
 One 8 s taught s-curve and its fit; repeats with projected points (cheap): the default
 law, the paper's law, a 7 s occlusion with 10 % dropped frames (not stopped, to measure the
@@ -20,6 +20,7 @@ import pytest
 from hbvs_cli.errors import TargetLostError
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console, ProgressTask
+from hbvs_cli.tools.figure_style import PALETTE
 
 from conftest import run_hbvs
 
@@ -203,3 +204,182 @@ def test_fit_file_report_and_misuse(runs, tmp_path):
         misuse = run_hbvs("report", str(fit), *bad)
         assert misuse.returncode == 2 and misuse.stdout == b"", bad
         assert len(misuse.stderr.decode().strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------------- figures
+def _figure(runs, names, labels=None, **style):
+    from hbvs_cli.tools.figure_style import FigureStyle
+    from hbvs_cli.tools.plots import plot_runs
+    from hbvs_cli.tools.report_data import build_report
+
+    loaded = [read_run(runs["paths"][name]) for name in names]
+    reports = [build_report(run, None, label) for run, label in zip(loaded, labels or [None] * len(loaded))]
+    return plot_runs(loaded, reports, FigureStyle(**style)), loaded
+
+
+def _axes(figure) -> dict:
+    return {ax.get_label(): ax for ax in figure.axes if ax.get_label()}
+
+
+def _horizontal_levels(ax) -> set[float]:
+    """The y of every horizontal guide line (axhline) of an axes."""
+    levels = set()
+    for line in ax.get_lines():
+        y = np.asarray(line.get_ydata(), dtype=float)
+        if y.size == 2 and y[0] == y[1] and list(line.get_xdata()) == [0, 1]:
+            levels.add(round(float(y[0]), 9))
+    return levels
+
+
+def test_run_figure_panels_titles_units_and_legend(runs):
+    from hbvs_cli.tools.plots import PANEL_NAMES
+
+    figure, _ = _figure(runs, ("run", "paper", "faults"), labels=["lateral gain", "paper law", "faults"])
+    axes = _axes(figure)
+    assert set(PANEL_NAMES) - {"top"} <= set(axes) and {"top_scene", "top_paths"} <= set(axes)
+    # Titles in words, with the equation number; axis labels with units.
+    for name, words in {"e1": ("Longitudinal", "(19)"), "ebar2": ("Lateral", "(27)"), "e2": ("Lateral", "(19)"),
+                        "e3": ("Rotation", "(19)"), "v": ("Linear velocity", "(29)"), "w": ("Angular velocity", "(30)"),
+                        "dhat": ("Depth estimate", "(31)"), "V": ("Lyapunov function", "(36)"),
+                        "position": ("Position error",), "heading": ("Heading error",)}.items():
+        title = axes[name].get_title(loc="left")
+        assert all(word in title for word in words), (name, title)
+        assert axes[name].get_xlabel() == "time t (s)"
+        assert re.search(r"\((cm|deg|m|m/s|rad/s|units of d\*|-)\)$", axes[name].get_ylabel()), axes[name].get_ylabel()
+        assert axes[name].get_lines(), name
+    assert axes["V"].get_ylabel() == "V / V(0) (-)" and axes["V"].get_yscale() == "log"
+    assert axes["position"].get_yscale() == "log" and axes["heading"].get_yscale() == "log"
+    legend = [text.get_text() for text in figure.legends[0].get_texts()]
+    assert legend[:3] == ["lateral gain (not converged)", "paper law (not converged)", "faults (not converged)"]
+    assert not any(".mcap" in text for text in legend)
+    assert {"taught / true", "tolerance", "actuator limit", "target lost"} <= set(legend)
+    # Paper size: 7 in wide (two columns), raster at 200 dpi, fonts of 7-9 pt.
+    assert figure.get_size_inches()[0] == 7.0 and figure.dpi == 200
+    assert 7.0 <= axes["e1"].title.get_fontsize() <= 9.0 and 7.0 <= axes["e1"].xaxis.label.get_fontsize() <= 9.0
+
+
+def test_tolerance_lines_and_actuator_limits(runs):
+    figure, _ = _figure(runs, ("run",))
+    axes = _axes(figure)
+    assert 1.0 in _horizontal_levels(axes["position"])                  # 1 cm
+    assert 0.2 in _horizontal_levels(axes["heading"])                   # 0.2 deg
+    assert {-0.2, 0.2} <= _horizontal_levels(axes["e3"])
+    assert {-0.0025, 0.0025} <= _horizontal_levels(axes["e1"])
+    assert {-0.5, 0.5} <= _horizontal_levels(axes["v"])                 # repeat's default limits
+    assert {-0.6, 0.6} <= _horizontal_levels(axes["w"])
+    assert 4.0 in {round(level, 3) for level in _horizontal_levels(axes["dhat"])}   # the true d*
+
+
+def test_lost_stretches_are_shaded_and_break_the_lines_but_drops_do_not(runs):
+    figure, (run,) = _figure(runs, ("faults",))
+    axes = _axes(figure)
+    for name in ("e1", "ebar2", "e3", "V"):
+        ax = axes[name]
+        spans = [patch.get_extents() for patch in ax.patches]
+        assert len(ax.patches) == 1, name                                  # one shaded loss
+        line = ax.get_lines()[0]
+        t, y = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
+        during = (t > OCCLUSION[0] + 0.05) & (t < OCCLUSION[1] - 0.05)
+        assert not np.isfinite(y[during]).any(), name                   # nothing drawn across the loss
+        gaps = np.flatnonzero(np.diff(np.isnan(y).astype(int)) == 1)
+        assert gaps.size == 1, name                                      # broken once: drops are joined
+        assert spans
+    # Dropped frames outside the loss: the e1 line is continuous there (no NaN between samples).
+    line = axes["e1"].get_lines()[0]
+    t, y = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
+    def outside(times):
+        return (times < OCCLUSION[0] - 0.05) | (times > OCCLUSION[1] + 0.1)
+
+    assert outside(t).sum() > 10 and np.isfinite(y[outside(t)]).all()
+    assert run.dropped[outside(run.state["t"])].sum() >= 2               # there were drops to join
+
+
+def test_top_view_shows_wall_target_heading_and_the_taught_path_on_top(runs):
+    figure, (run,) = _figure(runs, ("run",))
+    axes = _axes(figure)
+    scene = axes["top_scene"]
+    wall_x = run.info["top_view"]["wall_x"]
+    assert wall_x == pytest.approx(4.0, abs=0.2)
+    verticals = [line for line in scene.get_lines() if np.allclose(line.get_xdata(), wall_x)]
+    assert len(verticals) >= 3                                           # wall, poster, target points
+    assert any(len(line.get_xdata()) == 3 for line in verticals)       # the three dots
+    from matplotlib.quiver import Quiver
+
+    arrows = [c for c in scene.collections if isinstance(c, Quiver)]
+    assert len(arrows) == 1 and arrows[0].N == math.ceil(run.state["t"][-1] / 2.0)   # one every 2 s
+    for ax in (scene, axes["top_paths"]):
+        lines = ax.get_lines()
+        taught = [line for line in lines if line.get_color() == "black" and line.get_linestyle() != "-"]
+        repeated = [line for line in lines if line.get_color() in PALETTE and line.get_linestyle() == "-"]
+        assert taught and repeated
+        assert min(line.get_zorder() for line in taught) > max(line.get_zorder() for line in repeated)
+
+
+def test_a_dense_noisy_run_is_thinned_for_display():
+    from hbvs_cli.tools.plots import MAX_POINTS_PER_RUN, display_series
+
+    rng = np.random.default_rng(18)
+    t = np.arange(200 * 20) / 200.0                                     # 20 s at 200 Hz
+    x = np.exp(-t / 3.0) + rng.normal(0.0, 0.05, t.size)
+    lost = (t >= 8.0) & (t < 10.0)
+    x[lost] = np.nan
+    x[rng.random(t.size) < 0.1] = np.nan                                 # dropped frames: NaN, not lost
+    shown_t, shown_x = display_series(t, x, lost)
+    assert shown_t.size <= MAX_POINTS_PER_RUN < t.size
+    gap = (shown_t > 8.05) & (shown_t < 9.95)
+    assert gap.any() and not np.isfinite(shown_x[gap]).any()             # the loss stays a break
+    assert np.isfinite(shown_x[~gap & ((shown_t < 7.95) | (shown_t > 10.05))]).all()   # drops are joined
+    residual = shown_x - np.exp(-shown_t / 3.0)
+    assert np.nanstd(residual) < 0.5 * 0.05                              # bin means: the noise is tamed
+    sparse_t, sparse_x = display_series(t[::10], x[::10], lost[::10])    # a 20 Hz run is drawn as it is
+    assert sparse_t.size == np.count_nonzero(np.isfinite(x[::10]) | lost[::10])
+
+
+def test_figure_options_and_formats(runs, tmp_path):
+    from hbvs_cli.tools.figure_style import parse_size
+
+    run = str(runs["paths"]["run"])
+    png = tmp_path / "one-column.png"
+    result = run_hbvs("report", run, "--plot", str(png), "--size", "3.5x6", "--dpi", "100", "--json")
+    assert result.returncode == 0, result.stderr.decode()
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and tuple(int.from_bytes(data[o:o + 4], "big") for o in (16, 20)) == (350, 600)
+    for suffix, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
+        path = tmp_path / f"figure{suffix}"
+        result = run_hbvs("report", run, str(runs["paths"]["paper"]), "--plot", str(path), "--label", "a", "--label", "b")
+        assert result.returncode == 0, result.stderr.decode()
+        assert path.read_bytes()[:len(magic)] == magic
+    assert b"Lyapunov function" in (tmp_path / "figure.svg").read_bytes()     # text stays text
+    figure, _ = _figure(runs, ("run",), panels=("position", "heading", "top"))
+    assert set(_axes(figure)) == {"position", "heading", "top", "top_scene", "top_paths"}
+    for bad, message in ((["--plot", str(tmp_path / "x.png"), "--panels", "position,bogus"], "unknown panel"),
+                         (["--plot", str(tmp_path / "x.png"), "--size", "huge"], "WIDTHxHEIGHT"),
+                         (["--dpi", "300"], "give --plot"),
+                         (["--label", "only-one", str(runs["paths"]["paper"])], "one per run")):
+        result = run_hbvs("report", run, *bad)
+        assert result.returncode == 2 and result.stdout == b"", bad
+        lines = result.stderr.decode().strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (bad, lines)
+    assert parse_size("7x4.5") == (7.0, 4.5)
+    help_text = run_hbvs("report", "--help").stdout.decode()
+    assert ".pdf" in help_text and ".svg" in help_text and "--require-converged" in help_text
+
+
+def test_fit_figure_panels(runs, tmp_path):
+    from hbvs_cli.tools.fit_plot import FIT_PANELS, plot_fit, read_fit_signals
+
+    signals = read_fit_signals(runs["paths"]["fit"])
+    figure = plot_fit(signals)
+    axes = _axes(figure)
+    assert tuple(name for name in axes) == FIT_PANELS
+    for name in ("theta_d", "x_hd1", "x_hd2"):
+        raw_points, smooth_line = axes[name].get_lines()[:2]
+        assert len(raw_points.get_xdata()) == signals.raw["t"].size == 240
+        assert [t.get_text() for t in axes[name].get_legend().get_texts()][0].startswith("raw")
+    assert "(25)" in axes["x_hd2"].get_legend().get_texts()[1].get_text()
+    assert "Remark 1" in axes["theta_d"].get_title(loc="left") and "(35)" in axes["x_hd1_dot"].get_title(loc="left")
+    assert axes["theta_d"].get_ylabel().endswith("(deg)") and axes["x_hd1_dot"].get_ylabel().endswith("(1/s)")
+    path = tmp_path / "fit.png"
+    result = run_hbvs("report", str(runs["paths"]["fit"]), "--plot", str(path), "--panels", "theta_d,x_hd1_dot")
+    assert result.returncode == 0, result.stderr.decode()
+    assert path.stat().st_size > 10_000
