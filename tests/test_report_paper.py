@@ -333,6 +333,16 @@ def test_a_dense_noisy_run_is_thinned_for_display():
     assert np.nanstd(residual) < 0.5 * 0.05                              # bin means: the noise is tamed
     sparse_t, sparse_x = display_series(t[::10], x[::10], lost[::10])    # a 20 Hz run is drawn as it is
     assert sparse_t.size == np.count_nonzero(np.isfinite(x[::10]) | lost[::10])
+    # Overlaid, the dense run is drawn thinner and under the sparse one, whatever the order given.
+    from types import SimpleNamespace
+
+    from hbvs_cli.tools.plots import _line_styles
+
+    dense, sparse = (SimpleNamespace(steps=ts.size, state={"t": ts}) for ts in (t, t[::10]))
+    styles = _line_styles([dense, sparse], ["C0", "C1"])
+    assert styles["C0"]["zorder"] < styles["C1"]["zorder"] and styles["C0"]["lw"] < styles["C1"]["lw"]
+    styles = _line_styles([sparse, dense], ["C0", "C1"])
+    assert styles["C1"]["zorder"] < styles["C0"]["zorder"]
 
 
 def test_figure_options_and_formats(runs, tmp_path):

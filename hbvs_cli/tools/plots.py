@@ -28,7 +28,7 @@ run has (a replay has no poses and no V) says so in its middle.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -53,6 +53,8 @@ from .report_table import run_labels
 #: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
 #: 200 dpi); longer runs are shown as bin means.
 MAX_POINTS_PER_RUN = 600
+#: Shortest loss (s) that is shaded.
+MIN_SHADED_LOSS_S = 0.1
 #: Seconds between two heading arrows in the top view.
 HEADING_EVERY_S = 2.0
 #: Height (in) of a row of time panels, of the top view, and of the legend.
@@ -70,6 +72,7 @@ class PanelContext:
     runs: Sequence[RunData]
     colors: Sequence[str]
     tolerances: Mapping[str, float]
+    line_styles: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- series
@@ -87,8 +90,9 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
         Steps where the target was lost: there the line breaks. ``None``: the signal is
         defined through losses (the commands), so only its NaNs are skipped.
     max_points : int
-        Beyond this many samples, the signal is shown as means over equal time bins (a bin
-        that holds a lost step stays NaN, so breaks survive).
+        Beyond this many samples, the signal is shown as means over equal time bins of its
+        measured samples (a bin with none stays NaN, so losses longer than a bin still
+        break the line).
 
     Returns
     -------
@@ -106,12 +110,15 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
     edges = np.linspace(t[0], t[-1], max_points + 1)
     index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max_points - 1)
     counts = np.bincount(index, minlength=max_points)
-    sums = np.bincount(index, weights=np.where(breaks, 0.0, x), minlength=max_points)
-    broken = np.bincount(index, weights=breaks.astype(float), minlength=max_points) > 0
+    seen = ~breaks
+    sums = np.bincount(index, weights=np.where(seen, x, 0.0), minlength=max_points)
+    valid = np.bincount(index, weights=seen.astype(float), minlength=max_points)
     centres = 0.5 * (edges[:-1] + edges[1:])
     with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / counts
-    means[broken] = np.nan
+        means = sums / valid
+    # A bin without a single measurement breaks the line (a loss longer than a bin); a
+    # bin with some keeps their mean, so isolated rejected frames do not erase the run.
+    means[valid == 0] = np.nan
     filled = counts > 0
     return centres[filled], means[filled]
 
@@ -131,9 +138,13 @@ def lost_intervals(t: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]
 
 
 def _shade_losses(ax: Any, context: PanelContext) -> None:
+    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter
+    ones, e.g. single rejected frames, only break the line: hundreds of hairline spans
+    would tint the whole panel)."""
     for run, color in zip(context.runs, context.colors):
         for start, end in lost_intervals(run.state["t"], run.lost):
-            ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
+            if end - start >= MIN_SHADED_LOSS_S:
+                ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
 
 
 def _say_absent(ax: Any, message: str) -> None:
@@ -163,9 +174,21 @@ def _band(ax: Any, tolerance: float, signed: bool) -> None:
         ax.axhline(level, color=GUIDE_COLOR, ls=":", lw=0.9, zorder=1)
 
 
-def _line(ax: Any, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None, **style: Any) -> None:
+def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None) -> None:
     shown_t, shown_x = display_series(t, x, lost)
-    ax.plot(shown_t, shown_x, color=color, lw=style.pop("lw", 1.0), alpha=0.9, **style)
+    ax.plot(shown_t, shown_x, color=color, alpha=0.9, **context.line_styles.get(color, {}))
+
+
+def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Each run's line width and stacking: the denser a run (steps per second), the lower
+    and thinner it is drawn, so a noisy 200 Hz run stays under a 30 Hz one."""
+    density = [run.steps / max(float(run.state["t"][-1] - run.state["t"][0]), 1e-9) for run in runs]
+    slowest = min(density)
+    order = np.argsort(np.argsort([-d for d in density], kind="stable"), kind="stable")
+    return {
+        color: {"zorder": 2.0 + 0.1 * float(rank), "lw": 1.0 if d <= 2.0 * slowest else 0.7}
+        for color, rank, d in zip(colors, order, density)
+    }
 
 
 # ----------------------------------------------------------------------------- panels
@@ -183,7 +206,7 @@ def _pose_panel(ax: Any, context: PanelContext, key: str, title: str, ylabel: st
         magnitude = np.abs(scale * pose_error_signals(run)[key])
         # A log axis cannot show an exact zero: the first step of a run started on the path.
         magnitude[magnitude <= 0] = np.nan
-        _line(ax, run.state["t"], magnitude, color, None)
+        _line(ax, context, run.state["t"], magnitude, color, None)
     _shade_losses(ax, context)
     _band(ax, scale * context.tolerances[key], signed=False)
     ax.set_yscale("log")
@@ -202,7 +225,7 @@ def _heading_panel(ax: Any, context: PanelContext) -> None:
 def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
-            _line(ax, run.state["t"], image_error_signal(run, name), color, run.lost)
+            _line(ax, context, run.state["t"], image_error_signal(run, name), color, run.lost)
         _shade_losses(ax, context)
         _band(ax, context.tolerances[name], signed=True)
         _time_axes(ax, title, ylabel)
@@ -219,7 +242,7 @@ def _limit(run: RunData, key: str) -> float | None:
 def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
-            _line(ax, run.state["t"], run.state[key], color, None)
+            _line(ax, context, run.state["t"], run.state[key], color, None)
         _shade_losses(ax, context)
         for limit in sorted({value for value in (_limit(run, limit_key) for run in context.runs) if value is not None}):
             for level in (-limit, limit):
@@ -245,7 +268,7 @@ def _has_d_true(run: RunData) -> bool:
 
 def _depth_panel(ax: Any, context: PanelContext) -> None:
     for run, color in zip(context.runs, context.colors):
-        _line(ax, run.state["t"], run.state["dhat"], color, None)
+        _line(ax, context, run.state["t"], run.state["dhat"], color, None)
     for d_true in _distinct([np.array(float(run.info["d_true"])) for run in context.runs if _has_d_true(run)]):
         ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
     _shade_losses(ax, context)
@@ -275,7 +298,7 @@ def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
         _say_absent(ax, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
         return
     for run, color in with_V:
-        _line(ax, run.state["t"], _normalised_V(run), color, run.lost)
+        _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
     _shade_losses(ax, context)
     ax.set_yscale("log")
     _time_axes(ax, title, "V / V(0) (-)")
@@ -326,7 +349,9 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
         _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
         return
     ax.set_axis_off()
-    scene_box, zoom_box = ax.get_subplotspec().subgridspec(1, 2, width_ratios=[1.0, 1.25], wspace=0.08)
+    one_column = ax.get_subplotspec().get_gridspec().ncols == 1
+    boxes = ax.get_subplotspec().subgridspec(2, 1) if one_column else ax.get_subplotspec().subgridspec(1, 2, width_ratios=[1.0, 1.25])
+    scene_box, zoom_box = boxes[0], boxes[1]
     figure = ax.figure
     scene = figure.add_subplot(scene_box, label="top_scene")
     zoom = figure.add_subplot(zoom_box, label="top_paths")
@@ -352,8 +377,8 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
         ax.plot([geometry["wall_x"]] * 2, [y_low, y_high], color=TAUGHT_COLOR, lw=3.0, solid_capstyle="butt", zorder=2)
         ax.plot(geometry["target_xy"][:, 0], geometry["target_xy"][:, 1], ls="none", marker="o", ms=3.5,
                 mfc="white", mec=TAUGHT_COLOR, zorder=6)
-        ax.annotate("wall with\nposter and\ntarget points", (geometry["wall_x"], 0.5 * (y_low + y_high)), xytext=(-8, 0),
-                    textcoords="offset points", ha="right", va="center", fontsize=6.5, color="0.3")
+        ax.annotate("wall, target", (geometry["wall_x"], y_high + 0.4), xytext=(-4, 0),
+                    textcoords="offset points", ha="right", va="top", fontsize=6.5, color="0.3")
         low = np.minimum(low, [geometry["wall_x"], y_low - 0.4])
         high = np.maximum(high, [geometry["wall_x"], y_high + 0.4])
     span = float(np.max(high - low)) or 1.0
@@ -395,7 +420,8 @@ def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, flo
     columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
     time_panels = [name for name in panels if name != "top"]
     rows = math.ceil(len(time_panels) / columns)
-    height = rows * ROW_HEIGHT_IN + ("top" in panels) * TOP_VIEW_HEIGHT_IN + LEGEND_HEIGHT_IN
+    top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
+    height = rows * ROW_HEIGHT_IN + ("top" in panels) * top_height + LEGEND_HEIGHT_IN
     return (style.size_in or (width, height)), columns
 
 
@@ -442,13 +468,14 @@ def plot_runs(
 
     style = style or FigureStyle()
     panels = list(style.panels or PANEL_NAMES)
-    context = PanelContext(runs, run_colors(len(runs)), {**DEFAULT_TOLERANCES, **(tolerances or {})})
+    colors = run_colors(len(runs))
+    context = PanelContext(runs, colors, {**DEFAULT_TOLERANCES, **(tolerances or {})}, _line_styles(runs, colors))
     size, columns = _layout(panels, style)
     with matplotlib.rc_context(paper_rc()):
         figure = new_figure(size, style.dpi)
         time_panels = [name for name in panels if name != "top"]
         rows = math.ceil(len(time_panels) / columns)
-        ratios = [ROW_HEIGHT_IN] * rows + ([TOP_VIEW_HEIGHT_IN] if "top" in panels else [])
+        ratios = [ROW_HEIGHT_IN] * rows + ([TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)] if "top" in panels else [])
         grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
         slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
         if "top" in panels:
