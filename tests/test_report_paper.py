@@ -393,3 +393,34 @@ def test_fit_figure_panels(runs, tmp_path):
     result = run_hbvs("report", str(runs["paths"]["fit"]), "--plot", str(path), "--panels", "theta_d,x_hd1_dot")
     assert result.returncode == 0, result.stderr.decode()
     assert path.stat().st_size > 10_000
+
+
+def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
+    """Scripted frames through the closed loop: a drop inside a loss is lost and stopped; a
+    drop while tracking (or after one rejected frame) holds the last command."""
+    from hbvs_cli.core.controller import AdaptiveTrackingController, ControllerGains
+    from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
+    from hbvs_cli.core.path import sampled_profile
+    from hbvs_cli.core.simulator import run_closed_loop
+    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+    from hbvs_cli.core.world import default_world
+
+    world = default_world("dots")
+    profile = sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), 2.0, 30.0)
+    start = np.array([0.0, -0.05, 0.0])
+    m_ref, normal, d_star = world.reference_geometry(start)
+    estimator = PlanarPoseEstimator(world.camera, m_ref, normal)
+    script = ["ok", "ok", "occluded", "dropped", "dropped", "occluded", "ok", "dropped", "ok", "outlier", "dropped", "ok"]
+
+    def sense(pose, t):
+        status = script[int(round(t * 30.0))]
+        return estimator.from_normalized(world.normalized_points(pose)) if status == "ok" else Observation(None, status=status)
+
+    records = list(run_closed_loop(sense, TaughtPathTrajectory(profile, start, start, d_star),
+                                   AdaptiveTrackingController(ControllerGains(), d_star), start, 1.0 / 30.0, len(script) / 30.0))
+    assert [r.lost for r in records] == [False, False, True, True, True, True, False, False, False, True, True, False]
+    assert [r.dropped for r in records] == [s == "dropped" for s in script]
+    for k in (2, 3, 4, 5):
+        assert (records[k].v_c, records[k].w_c) == (0.0, 0.0)                        # stopped while lost
+    assert (records[7].v_c, records[7].w_c) == (records[6].v_c, records[6].w_c) != (0.0, 0.0)   # held
+    assert (records[10].v_c, records[10].w_c) == (records[8].v_c, records[8].w_c) != (0.0, 0.0)  # outlier, drop: held

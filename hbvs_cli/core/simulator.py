@@ -183,13 +183,15 @@ def run_closed_loop(
         desired = DesiredState(*(column[k] for column in columns))
         dhat = controller.dhat
         output = None
-        rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
+        # A dropped frame changes neither the lost state nor the run of rejected frames:
+        # both describe the frames that arrived.
         if observation.status != STATUS_DROPPED:
+            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
             target_lost = observation.lost
         if observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif (observation.status == STATUS_DROPPED and not target_lost) or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS:
+        elif 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == STATUS_DROPPED and not target_lost):
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()
