@@ -103,8 +103,9 @@ def test_json_values_agree_with_the_run(runs):
     from hbvs_cli.stages.repeat import RepeatOptions
 
     dx, dy, dtheta = parse_offset(RepeatOptions.offset)
-    assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), abs=1e-9)
-    assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), abs=1e-9)
+    # (to the report's 7 significant digits)
+    assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), rel=1e-6)
+    assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)
     assert report["depth"]["d_true"] == pytest.approx(run.info["d_true"], rel=1e-6)
     assert report["depth"]["dhat_initial"] == pytest.approx(run.info["dhat0"])
     assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"])
@@ -247,9 +248,10 @@ def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
     result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--json", "--plot", str(path))
     assert result.returncode == 0, result.stderr.decode()
     json.loads(result.stdout)
-    assert png_size(path) == (1200, 1000)
+    width, height = png_size(path)
+    assert width == 1400 and 1800 <= height <= 2200                # 7 in wide at 200 dpi, all panels
     image = matplotlib.image.imread(path)
-    assert image.shape[:2] == (1000, 1200)
+    assert image.shape[:2] == (height, width)
     assert float(np.std(image[..., :3])) > 0.05                # not a blank page
 
 
@@ -258,17 +260,20 @@ def test_figure_axes_are_labelled_with_units(runs):
 
     loaded = [read_run(runs["run"]), read_run(runs["paper"])]
     figure = plot_runs(loaded, [build_report(run) for run in loaded])
-    assert tuple(figure.get_size_inches()) == (12.0, 10.0) and figure.dpi == 100
+    assert figure.get_size_inches()[0] == 7.0 and figure.dpi == 200
     labels = set()
     for ax in figure.axes:
-        assert ax.get_lines(), ax.get_title()
+        if ax.get_label() == "top":                            # the frame of the two top views
+            continue
+        assert ax.get_lines(), ax.get_title(loc="left")
         for label in (ax.get_xlabel(), ax.get_ylabel()):
-            assert re.search(r"\(.+\)", label), (ax.get_title(), label)
+            assert re.search(r"\(.+\)", label), (ax.get_title(loc="left"), label)
             labels.add(label)
-    assert {"time t (s)", "error (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)", "x (m)", "y (m)",
-            "position error (cm)"} <= labels
-    assert figure.axes[5].get_yscale() == "log"
-    assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper paper.mcap")
+    assert {"time t (s)", "e1 (units of d*)", "ebar2 (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)",
+            "x (m)", "y (m)", "position error (cm)", "|heading error| (deg)", "V / V(0) (-)"} <= labels
+    axes = {ax.get_label(): ax for ax in figure.axes}
+    assert axes["V"].get_yscale() == "log"
+    assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper (")
 
 
 def test_replay_figure_says_what_is_missing(runs):
@@ -276,9 +281,10 @@ def test_replay_figure_says_what_is_missing(runs):
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])
-    texts = {i: " ".join(t.get_text() for t in ax.texts) for i, ax in enumerate(figure.axes)}
-    assert "V unknown" in texts[5] and "no ground-truth poses" in texts[6] and "no ground-truth poses" in texts[7]
-    assert all(figure.axes[i].get_lines() for i in range(5))
+    axes = {ax.get_label(): ax for ax in figure.axes}
+    texts = {name: " ".join(t.get_text() for t in ax.texts) for name, ax in axes.items()}
+    assert "V unknown" in texts["V"] and "no ground-truth poses" in texts["top"] and "no ground-truth poses" in texts["position"]
+    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
 
 
 # ----------------------------------------------------------------------------- TUM

@@ -40,12 +40,10 @@ from .figure_style import (
     ONE_COLUMN_BELOW_IN,
     TAUGHT_COLOR,
     FigureStyle,
-    check_plot_path,  # noqa: F401 - the report stage checks --plot through this module
     new_figure,
     paper_rc,
     run_colors,
     save_figure,
-    supported_formats,  # noqa: F401
 )
 from .report_data import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
 from .report_table import run_labels

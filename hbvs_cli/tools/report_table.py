@@ -7,7 +7,7 @@ never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
 Every number is the JSON value (:mod:`.report_data`) to 4 significant digits, in the unit
 named in its row label. One run: a run table, an error matrix (one row per error, one
 column per statistic), a table of the other metrics and the verdict. Several runs: the same
-tables side by side, one column per run named by its law and file, with the error
+tables side by side, one column per run named by its label (--label, else its law), with the error
 statistics one per row.
 """
 
