@@ -205,7 +205,7 @@ def test_report_of_a_synthetic_run():
     report = build_report(synthetic_run(), {})
     assert tuple(report) == REPORT_KEYS
     assert report["run"] == {
-        "name": "synthetic.mcap", "duration_s": pytest.approx(9.99), "steps": N, "rate_hz": pytest.approx(100.0),
+        "name": "synthetic.mcap", "label": "paper", "duration_s": pytest.approx(9.99), "steps": N, "rate_hz": pytest.approx(100.0),
         "law": "paper", "gains": {"k_v": 4.0, "k_w": 1.0, "gamma": 2500.0, "k_2": 1.0},
         "source": {"mode": "sim", "fit_file": "fit.mcap"}, "truncated": False,
     }
@@ -226,7 +226,8 @@ def test_report_of_a_synthetic_run():
                                   "w_peak_radps": pytest.approx(0.05),
                                   "w_rms_radps": pytest.approx(0.05 * math.sqrt(np.mean(np.cos(np.arange(N) * DT) ** 2))),
                                   "saturated_fraction": pytest.approx(0.1)}
-    assert report["target"] == {"lost_frames": 50, "lost_fraction": pytest.approx(0.05), "longest_loss_s": pytest.approx(0.5)}
+    assert report["target"] == {"lost_frames": 50, "lost_fraction": pytest.approx(0.05), "longest_loss_s": pytest.approx(0.5),
+                                "dropped_frames": 0, "dropped_fraction": 0.0}
     assert report["condition35"]["min_abs_xhd1_dot"] == pytest.approx(0.01, abs=1e-6)      # at sin t = -1
     assert report["condition35"]["fit_min_abs_xhd1_dot"] == 0.0123
     # Converged: finished, position 0.03 exp(-9.5 / 1.5) m << 1 cm, heading 1.15 deg > 0.2 deg: no.
@@ -240,6 +241,7 @@ def test_tolerances_change_the_verdict_and_the_settling_times():
     assert loose["verdict"]["converged"] is True
     final_cm = 3.0 * geometric(R, 950, N) / 50
     assert loose["verdict"]["reasons"] == [
+        "pass: closed loop (sim)",
         "pass: run finished (9.99 s, 1000 steps)",
         f"pass: final position error {final_cm:.3g} cm <= 1 cm",
         "pass: final |heading error| 1.15 deg <= 2 deg",
@@ -257,14 +259,14 @@ def test_replay_stopped_and_truncated_runs_never_converge():
     assert replay["lyapunov"] == {"initial": None, "final": None, "ratio": None, "increase_fraction": None}
     assert replay["depth"]["d_true"] is None and replay["depth"]["relative_error"] is None
     assert replay["verdict"]["converged"] is False
-    assert replay["verdict"]["reasons"][0] == "fail: open-loop replay: nothing moved, so it cannot have converged"
+    assert replay["verdict"]["checks"]["closed_loop"] == "fail: open-loop replay: nothing moved, so it cannot have converged"
     # Without ground truth the image errors are checked: e1, e2 but not ebar2, and e3.
     checked = [r.split(":")[1].split()[1] for r in replay["verdict"]["reasons"] if "final" in r]
     assert checked == ["|e1|", "|e2|", "|e3|"]
     assert replay["verdict"]["reasons"][-1].startswith("skip: V unknown")
     stopped = build_report(synthetic_run(events=[(4.0, 4, "target lost for more than 3 s: run stopped")]), {"heading_deg": 2.0})
     assert stopped["verdict"]["converged"] is False
-    assert stopped["verdict"]["reasons"][0] == "fail: run stopped at t = 4.00 s (target lost for more than 3 s: run stopped)"
+    assert stopped["verdict"]["checks"]["finished"] == "fail: run stopped at t = 4.00 s (target lost for more than 3 s: run stopped)"
     truncated = build_report(synthetic_run(truncated=True), {"heading_deg": 2.0})
     assert truncated["verdict"]["converged"] is False and truncated["run"]["truncated"] is True
 

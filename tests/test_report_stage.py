@@ -75,9 +75,10 @@ def close_to_shown(shown: float | None, value: float | None) -> bool:
 def test_json_has_the_documented_structure(runs):
     report = report_json(runs["run"])
     assert tuple(report) == REPORT_KEYS
-    assert set(report["run"]) == {"name", "duration_s", "steps", "rate_hz", "law", "gains", "source", "truncated"}
+    assert set(report["run"]) == {"name", "label", "duration_s", "steps", "rate_hz", "law", "gains", "source", "truncated"}
+    assert report["run"]["label"] == "lateral-gain"
     assert report["run"]["law"] == "lateral-gain" and report["run"]["source"] == {"mode": "sim", "fit_file": str(runs["fit"])}
-    assert report["run"]["rate_hz"] == pytest.approx(30.0, rel=1e-6)
+    assert report["run"]["rate_hz"] == 30.0                  # rounded: not 30.0000003
     assert report["run"]["duration_s"] == pytest.approx((report["run"]["steps"] - 1) / 30.0, rel=1e-6)
     assert set(report["run"]["gains"]) == {"k_v", "k_w", "gamma", "k_2"}
     for section, names in (("errors", ("e1", "e2", "ebar2", "e3")), ("pose_error", ("position_m", "heading_deg"))):
@@ -87,9 +88,11 @@ def test_json_has_the_documented_structure(runs):
     assert set(report["lyapunov"]) == {"initial", "final", "ratio", "increase_fraction"}
     assert set(report["depth"]) == {"dhat_initial", "dhat_final", "d_true", "relative_error"}
     assert set(report["commands"]) == {"v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", "saturated_fraction"}
-    assert set(report["target"]) == {"lost_frames", "lost_fraction", "longest_loss_s"}
+    assert set(report["target"]) == {"lost_frames", "lost_fraction", "longest_loss_s", "dropped_frames", "dropped_fraction"}
     assert set(report["condition35"]) == {"min_abs_xhd1_dot", "fit_min_abs_xhd1_dot"}
-    assert set(report["verdict"]) == {"converged", "reasons"}
+    assert set(report["verdict"]) == {"converged", "checks", "reasons"}
+    assert list(report["verdict"]["checks"]) == ["closed_loop", "finished", "final_position", "final_heading", "lyapunov"]
+    assert list(report["verdict"]["checks"].values()) == report["verdict"]["reasons"]
 
 
 def test_json_values_agree_with_the_run(runs):
@@ -100,9 +103,10 @@ def test_json_values_agree_with_the_run(runs):
     from hbvs_cli.stages.repeat import RepeatOptions
 
     dx, dy, dtheta = parse_offset(RepeatOptions.offset)
-    assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), abs=1e-9)
-    assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), abs=1e-9)
-    assert report["depth"]["d_true"] == run.info["d_true"]
+    # (to the report's 7 significant digits)
+    assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), rel=1e-6)
+    assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)
+    assert report["depth"]["d_true"] == pytest.approx(run.info["d_true"], rel=1e-6)
     assert report["depth"]["dhat_initial"] == pytest.approx(run.info["dhat0"])
     assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"])
     e3 = np.degrees(run.state["e3"])
@@ -110,9 +114,9 @@ def test_json_values_agree_with_the_run(runs):
     assert report["errors"]["e1"]["rmse"] == pytest.approx(np.sqrt(np.nanmean(run.state["e1"] ** 2)))
     assert report["commands"]["v_peak_mps"] == pytest.approx(np.max(np.abs(run.state["v_c"])))
     assert report["target"]["lost_frames"] == int(run.lost.sum())
-    assert report["condition35"]["fit_min_abs_xhd1_dot"] == run.info["condition35"]["min_abs_xhd1_dot"]
+    assert report["condition35"]["fit_min_abs_xhd1_dot"] == pytest.approx(run.info["condition35"]["min_abs_xhd1_dot"], rel=1e-6)
     assert report["lyapunov"]["initial"] > report["lyapunov"]["final"] > 0
-    assert report["verdict"]["reasons"][0].startswith("pass: run finished")
+    assert report["verdict"]["checks"]["finished"].startswith("pass: run finished")
 
 
 def test_replay_has_no_pose_error_no_V_and_never_converges(runs):
@@ -121,7 +125,7 @@ def test_replay_has_no_pose_error_no_V_and_never_converges(runs):
     assert report["lyapunov"] == {"initial": None, "final": None, "ratio": None, "increase_fraction": None}
     assert report["run"]["source"]["mode"] == "replay"
     assert report["verdict"]["converged"] is False
-    assert report["verdict"]["reasons"][0].startswith("fail: open-loop replay")
+    assert report["verdict"]["checks"]["closed_loop"].startswith("fail: open-loop replay")
 
 
 def test_a_run_stopped_for_a_lost_target_did_not_converge(runs):
@@ -160,14 +164,15 @@ def test_plain_table_matches_the_json(runs):
         assert close_to_shown(as_number(metrics[label]), report[section][key]), label
     verdict = {row[0]: row[1] for row in next(rows for title, rows in tables.items() if title.startswith("verdict"))[1:]}
     assert verdict["converged"] == ("yes" if report["verdict"]["converged"] else "no")
-    assert [verdict[f"check {i + 1}"] for i in range(len(report["verdict"]["reasons"]))] == report["verdict"]["reasons"]
+    assert [verdict[label] for label in ("closed loop", "finished", "final position error", "final heading error", "V fell (36)")] \
+        == report["verdict"]["reasons"]
 
 
 def test_comparison_prints_both_runs_side_by_side(runs):
     result = run_hbvs("report", str(runs["run"]), str(runs["paper"]))
     assert result.returncode == 0
     tables = parse_tables(result.stdout.decode())
-    assert tables["run"][0] == ["quantity", "lateral-gain run.mcap", "paper paper.mcap"]
+    assert tables["run"][0] == ["quantity", "lateral-gain", "paper"]
     both = report_json(runs["run"], runs["paper"])
     assert list(both) == ["runs"] and [r["run"]["law"] for r in both["runs"]] == ["lateral-gain", "paper"]
     errors = {row[0]: row[1:] for row in next(rows for title, rows in tables.items() if title.startswith("image errors"))}
@@ -243,9 +248,10 @@ def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
     result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--json", "--plot", str(path))
     assert result.returncode == 0, result.stderr.decode()
     json.loads(result.stdout)
-    assert png_size(path) == (1200, 1000)
+    width, height = png_size(path)
+    assert width == 1400 and 1800 <= height <= 2200                # 7 in wide at 200 dpi, all panels
     image = matplotlib.image.imread(path)
-    assert image.shape[:2] == (1000, 1200)
+    assert image.shape[:2] == (height, width)
     assert float(np.std(image[..., :3])) > 0.05                # not a blank page
 
 
@@ -254,17 +260,20 @@ def test_figure_axes_are_labelled_with_units(runs):
 
     loaded = [read_run(runs["run"]), read_run(runs["paper"])]
     figure = plot_runs(loaded, [build_report(run) for run in loaded])
-    assert tuple(figure.get_size_inches()) == (12.0, 10.0) and figure.dpi == 100
+    assert figure.get_size_inches()[0] == 7.0 and figure.dpi == 200
     labels = set()
     for ax in figure.axes:
-        assert ax.get_lines(), ax.get_title()
+        if ax.get_label() == "top":                            # the frame of the two top views
+            continue
+        assert ax.get_lines(), ax.get_title(loc="left")
         for label in (ax.get_xlabel(), ax.get_ylabel()):
-            assert re.search(r"\(.+\)", label), (ax.get_title(), label)
+            assert re.search(r"\(.+\)", label), (ax.get_title(loc="left"), label)
             labels.add(label)
-    assert {"time t (s)", "error (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)", "x (m)", "y (m)",
-            "position error (cm)"} <= labels
-    assert figure.axes[5].get_yscale() == "log"
-    assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper paper.mcap")
+    assert {"time t (s)", "e1 (units of d*)", "ebar2 (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)",
+            "x (m)", "y (m)", "position error (cm)", "|heading error| (deg)", "V / V(0) (-)"} <= labels
+    axes = {ax.get_label(): ax for ax in figure.axes}
+    assert axes["V"].get_yscale() == "log"
+    assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper (")
 
 
 def test_replay_figure_says_what_is_missing(runs):
@@ -272,9 +281,10 @@ def test_replay_figure_says_what_is_missing(runs):
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])
-    texts = {i: " ".join(t.get_text() for t in ax.texts) for i, ax in enumerate(figure.axes)}
-    assert "V unknown" in texts[5] and "no ground-truth poses" in texts[6] and "no ground-truth poses" in texts[7]
-    assert all(figure.axes[i].get_lines() for i in range(5))
+    axes = {ax.get_label(): ax for ax in figure.axes}
+    texts = {name: " ".join(t.get_text() for t in ax.texts) for name, ax in axes.items()}
+    assert "V unknown" in texts["V"] and "no ground-truth poses" in texts["top"] and "no ground-truth poses" in texts["position"]
+    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
 
 
 # ----------------------------------------------------------------------------- TUM

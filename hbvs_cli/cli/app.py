@@ -191,12 +191,17 @@ def repeat(
 # --------------------------------------------------------------------------- report
 @app.command(rich_help_panel="Pipeline")
 def report(
-    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat (- for one on stdin).")],
+    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat, or one fit file from hbvs fit (- for one on stdin).")],
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON object instead of a table.")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a figure (PNG) of errors, commands, dhat, V, paths.")] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a figure; the suffix picks the format: .pdf or .svg (vector, for papers), .png (raster). A fit file gives the fit figure (Remark 1).", rich_help_panel="Figure")] = None,
     fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
     export_tum: Annotated[Optional[Path], typer.Option("--export-tum", help="Write taught and repeated trajectories in TUM format into this folder.")] = None,
     tolerance: Annotated[Optional[List[str]], typer.Option("--tolerance", help="Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.")] = None,
+    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI.")] = False,
+    label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
+    dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
+    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches, e.g. 3.5x5 for one column, 7x6 for two (default 7 wide).", rich_help_panel="Figure")] = None,
+    panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
     from ..stages.report import ReportOptions, run_report
@@ -204,7 +209,8 @@ def report(
     code = run_report(
         ReportOptions(
             runs=runs, json_output=json_output, plot=plot, fail_above=list(fail_above or []),
-            export_tum=export_tum, tolerance=list(tolerance or []),
+            export_tum=export_tum, tolerance=list(tolerance or []), require_converged=require_converged,
+            labels=list(label or []), dpi=dpi, size=size, panels=panels,
         ),
         _console(False),
     )

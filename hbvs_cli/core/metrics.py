@@ -23,6 +23,9 @@ Definitions (docs/report.md cites them):
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -259,3 +262,25 @@ def sample_rate_hz(t: ArrayLike) -> float | None:
         return None
     step = float(np.median(np.diff(t)))
     return 1.0 / step if step > 0 else None
+
+
+def round_significant(value: Any, digits: int) -> Any:
+    """``value`` with every float rounded to ``digits`` significant digits.
+
+    Dicts, lists and tuples are walked (and rebuilt: the input is not changed); bools,
+    ints, strings, ``None`` and non-finite floats are kept as they are.
+
+    Parameters
+    ----------
+    value : any
+        A JSON-like value.
+    digits : int
+        Significant digits (>= 1).
+    """
+    if isinstance(value, dict):
+        return {key: round_significant(item, digits) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(round_significant(item, digits) for item in value)
+    if isinstance(value, float) and math.isfinite(value) and value != 0.0:
+        return round(value, digits - 1 - math.floor(math.log10(abs(value))))
+    return value

@@ -10,7 +10,9 @@ When the sensing function reports the target lost, the robot is commanded to sto
 adaptation is frozen; it resumes when the target is back. When a frame is dropped (never
 arrives), or a few in a row are rejected as outliers, the last command is held and the
 adaptation is frozen for those periods: stopping for one bad frame would only make the
-robot lag its trajectory.
+robot lag its trajectory. A dropped frame carries no news about the target, so it keeps
+the lost state of the last frame that arrived: a drop during an occlusion is still lost
+time (the lost timeout keeps counting), never a "target back".
 """
 
 from __future__ import annotations
@@ -89,6 +91,10 @@ class StepRecord:
     saturated : bool
     dhat : float
         Depth estimate used at this step (m), before its update.
+    target_lost : bool or None
+        Whether the target counts as lost at this step: the last frame that arrived did
+        not show it (a dropped frame keeps the state before it). ``None``: the
+        observation's own ``lost``.
     """
 
     t: float
@@ -100,6 +106,7 @@ class StepRecord:
     w_c: float
     saturated: bool
     dhat: float
+    target_lost: bool | None = None
 
     @property
     def measurement(self) -> Measurement | None:
@@ -107,7 +114,12 @@ class StepRecord:
 
     @property
     def lost(self) -> bool:
-        return self.observation.lost
+        return self.observation.lost if self.target_lost is None else self.target_lost
+
+    @property
+    def dropped(self) -> bool:
+        """The camera frame of this step was dropped (not: still on its way, with latency)."""
+        return self.observation.status == STATUS_DROPPED and self.observation is not _NOT_YET
 
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]
@@ -163,6 +175,7 @@ def run_closed_loop(
     pending: deque[Observation] = deque()
     previous = (0.0, 0.0)
     rejected_in_a_row = 0
+    target_lost = False
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
@@ -170,18 +183,22 @@ def run_closed_loop(
         desired = DesiredState(*(column[k] for column in columns))
         dhat = controller.dhat
         output = None
-        rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
+        # A dropped frame changes neither the lost state nor the run of rejected frames:
+        # both describe the frames that arrived.
+        if observation.status != STATUS_DROPPED:
+            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
+            target_lost = observation.lost
         if observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif observation.status == STATUS_DROPPED or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS:
+        elif 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == STATUS_DROPPED and not target_lost):
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
         yield StepRecord(
             t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost,
         )
         previous = (v_c, w_c)
         pose = integrate_unicycle(pose, v_c, w_c, dt)

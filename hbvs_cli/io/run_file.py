@@ -57,12 +57,16 @@ class RunData:
     state : dict of ndarray
         :data:`STATE_FIELDS`, each shape (K,), NaN where the message had null.
     saturated, lost : ndarray of bool, shape (K,)
+        ``lost`` holds through dropped frames: it is the state of the last frame that arrived.
     lost_reason : list of str
     true_pose, desired_pose : ndarray, shape (K, 3) or None
         (x, y, phi) at the step times (``--sim`` runs).
     events : list of (t, level, text)
     truncated : bool
         The file ended early (a crashed or killed run).
+    dropped : ndarray of bool, shape (K,), or None
+        Steps whose camera frame was dropped (``frame_dropped``; all False in files
+        written before hbvs recorded it). ``None`` when not given (a run built in memory).
     """
 
     name: str
@@ -75,6 +79,7 @@ class RunData:
     desired_pose: np.ndarray | None
     events: list[tuple[float, int, str]] = field(default_factory=list)
     truncated: bool = False
+    dropped: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -86,6 +91,14 @@ INFO_TYPES: dict[str, tuple[type, ...]] = {
     "mode": (str,), "law": (str,), "settings": (dict,), "gains": (dict,), "condition35": (dict,),
     "d_true": (int, float), "dhat0": (int, float), "fit_frames": (dict,),
 }
+
+
+class NotARunFile(RecordingError):
+    """A readable hbvs file of another kind (``kind``: ``"fit"``, ``"teach"``, or None)."""
+
+    def __init__(self, message: str, kind: str | None) -> None:
+        super().__init__(message)
+        self.kind = kind
 
 
 def _number(value: Any) -> float:
@@ -135,6 +148,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     saturated: list[bool] = []
     lost: list[bool] = []
     reasons: list[str] = []
+    dropped: list[bool] = []
     true_pose: dict[int, tuple[float, float, float]] = {}
     desired_pose: dict[int, tuple[float, float, float]] = {}
     step_times: list[int] = []
@@ -148,6 +162,7 @@ def read_run(source: Any, name: str = "") -> RunData:
                 saturated.append(bool(data["saturated"]))
                 lost.append(bool(data["target_lost"]))
                 reasons.append(str(data.get("lost_reason", "")))
+                dropped.append(bool(data.get("frame_dropped", False)))
             except (KeyError, TypeError, ValueError) as exc:
                 raise RecordingError(f"{stream.name}: malformed controller state message ({exc})") from None
             step_times.append(message.log_time)
@@ -161,7 +176,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     if info.get("file_kind") != FILE_KIND:
         kind = info.get("file_kind")
         what = f"a {kind!r} file" if kind else "not an hbvs run file"
-        raise RecordingError(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat")
+        raise NotARunFile(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat", kind if isinstance(kind, str) else None)
     _check_info(info, stream.name)
     if not step_times:
         raise RecordingError(f"{stream.name}: the run has no control steps")
@@ -180,5 +195,5 @@ def read_run(source: Any, name: str = "") -> RunData:
     return RunData(
         name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),
         lost_reason=reasons, true_pose=aligned(true_pose), desired_pose=aligned(desired_pose),
-        events=events, truncated=stream.truncated,
+        events=events, truncated=stream.truncated, dropped=np.array(dropped, dtype=bool),
     )

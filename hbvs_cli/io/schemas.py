@@ -260,6 +260,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "dhat": _NUMBER,
             "target_lost": {"type": "boolean"},
             "lost_reason": {"type": "string"},
+            "frame_dropped": {"type": "boolean"},
             "residual": _NUMBER_OR_NULL,
             "V": _NUMBER_OR_NULL,
         },

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_t
 from ..core.estimation import DEFAULT_RESIDUAL_GATE
 from ..core.homography import estimate_euclidean_homography, validate_reference_points
 from ..core.trajectory import fit_spline_trajectory, feedforward_condition
-from ..errors import GeometryError, InputError, RecordingError, UsageError
+from ..errors import GeometryError, HbvsError, InputError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
 from .detection import DetectorSpec, TrackedDetector, choose_target_kind, texture_points_for_template
@@ -125,6 +126,25 @@ class _FrameLog:
         }
 
 
+def recorded_frame_count(source: str) -> int | None:
+    """How many images a teach file holds, from its MCAP summary (the progress bar's total).
+
+    ``None`` for stdin, or a file without a usable summary (a crashed recorder): the
+    frames are then counted as they come. Reading the summary never fails the fit.
+    """
+    from ..io.mcap_io import read_summary
+    from ..io.teach_file import IMAGE_TOPIC
+
+    if source == "-" or not Path(source).is_file():
+        return None
+    try:
+        channels = read_summary(source)
+    except HbvsError:
+        return None
+    counts = [channel.message_count for channel in channels or [] if channel.topic == IMAGE_TOPIC]
+    return counts[0] if counts and counts[0] else None
+
+
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
     from ..io.fit_file import FitModel, checked_model_message
@@ -152,7 +172,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     wanted_reference = options.reference.strip().lower()
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
-        with console.progress("fit", None) as bar:
+        with console.progress("fit", recorded_frame_count(options.input)) as bar:
             for frame, data, image in decoded_frames(reader.frames(), reader.name):
                 camera = reader.camera
                 if camera is None:

@@ -213,7 +213,9 @@ class _RunLog:
         self.cmd_stream = cmd_stream
         self.lost_since: float | None = None
         self.was_saturated = False
-        self.previous_status = "ok"
+        self.was_lost = False
+        self.was_dropped = False
+        self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
         from ..io.mcap_io import seconds_to_ns, time_message
@@ -236,13 +238,18 @@ class _RunLog:
         V = None
         if errors is not None and self.d_true is not None:
             V = lyapunov(errors, record.dhat, self.d_true, self.settings.gains)
-        status = record.observation.status
-        if status != self.previous_status:
-            if record.lost and not self._was_lost():
-                self.event(t, LOG_WARNING, f"target lost ({status}): stopping, adaptation frozen")
-            elif not record.lost and self._was_lost():
-                self.event(t, LOG_INFO, "target back: tracking resumed")
-            self.previous_status = status
+        # A dropped frame says nothing about the target: the lost state and its reason are
+        # those of the last frame that arrived (record.lost already keeps them).
+        if not record.dropped:
+            self.lost_reason = record.observation.status if record.lost else ""
+        if record.lost and not self.was_lost:
+            self.event(t, LOG_WARNING, f"target lost ({self.lost_reason}): stopping, adaptation frozen")
+        elif not record.lost and self.was_lost:
+            self.event(t, LOG_INFO, "target back: tracking resumed")
+        self.was_lost = record.lost
+        if record.dropped and not self.was_dropped:
+            self.event(t, LOG_INFO, "camera frame dropped: " + ("target still lost" if record.lost else "holding the last command"))
+        self.was_dropped = record.dropped
         if record.saturated and not self.was_saturated:
             self.event(t, LOG_INFO, "command saturated by the actuator limits")
         self.was_saturated = record.saturated
@@ -261,7 +268,8 @@ class _RunLog:
             "saturated": bool(record.saturated),
             "dhat": float(record.dhat),
             "target_lost": bool(record.lost),
-            "lost_reason": status if record.lost else "",
+            "lost_reason": self.lost_reason if record.lost else "",
+            "frame_dropped": bool(record.dropped),
             "residual": float(record.observation.residual),
             "V": V,
         }
@@ -281,9 +289,6 @@ class _RunLog:
                     message[key] = None
         data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
         self.writer.write_encoded(topic, self.topics[topic], ns, data)
-
-    def _was_lost(self) -> bool:
-        return self.previous_status not in ("ok", "dropped")
 
 
 def _open_cmd_stream(target: str | None) -> Any:
@@ -382,7 +387,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
             _note_truncated(writer, options, fit, console)
-            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true))
+            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
             writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
@@ -414,32 +419,41 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
 
 
 class _Tally:
-    """What the one-line summary needs, kept as the run goes (not every step in memory)."""
+    """What the one-line summary needs, kept as the run goes: a few numbers per step.
+
+    Its "final" errors are the report's: the mean of |error| over the last 5 % of the run
+    (:func:`hbvs_cli.core.metrics.final_value`), so repeat and report agree on the word.
+    """
 
     def __init__(self) -> None:
         self.steps = 0
-        self.last_output: Any = None
-        self.last_pose: Any = None
-        self.last_taught: Any = None
+        self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
     def add(self, record: StepRecord, taught: Any = None) -> None:
         self.steps += 1
-        if record.output is not None:
-            self.last_output = record.output
-        self.last_pose, self.last_taught = record.pose, taught
+        errors = record.output.errors if record.output is not None else None
+        values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
+        if errors is not None:
+            values.update(e1=float(errors.e1), e2=float(errors.e2), e3_deg=math.degrees(float(errors.e3)))
+        if taught is not None:
+            values["position_m"] = math.hypot(record.pose[0] - taught[0], record.pose[1] - taught[1])
+            values["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (record.pose[2] - taught[2])))))
+        for name, value in values.items():
+            self.series[name].append(float(value))
 
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
+        from ..core.metrics import final_value
+
+        t = self.series["t"]
         errors: dict[str, float] = {}
-        if self.last_output is not None:
-            e = self.last_output.errors
-            errors = {"e1": float(e.e1), "e2": float(e.e2), "e3_deg": math.degrees(float(e.e3))}
-        if self.last_taught is not None:
-            errors["position_m"] = float(np.hypot(*(np.asarray(self.last_pose[:2]) - np.asarray(self.last_taught[:2]))))
-            errors["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (self.last_pose[2] - self.last_taught[2])))))
+        for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
+            final = final_value(t, self.series[name]) if t else None
+            if final is not None:
+                errors[name] = final
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
-def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None) -> dict[str, Any]:
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None, scene: Any = None) -> dict[str, Any]:
     from .. import __version__
 
     model = fit.model
@@ -462,16 +476,30 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: An
         "target_kind": model.target_kind,
         "condition35": model.condition35,
         "fit_frames": model.frames,
+    } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
+
+
+def _top_view(world: Any) -> dict[str, Any]:
+    """The wall and the target seen from above (m, world frame), for the report's top view."""
+    poster = world.target.poster
+    ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
+    return {
+        "wall_x": float(world.wall_x),
+        "poster_y": [float(end[1]) for end in ends],
+        "target_xy": [[float(x), float(y)] for x, y in world.target.points_world[:, :2]],
     }
 
 
 def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
     e = summary.final_errors
+    final = []
     if "e1" in e:
-        parts.append(f"final e1 {e['e1']:+.2e}, e2 {e['e2']:+.2e}, e3 {e['e3_deg']:+.3f} deg")
+        final.append(f"|e1| {e['e1']:.3g}, |e2| {e['e2']:.3g}, |e3| {e['e3_deg']:.3g} deg")
     if "position_m" in e:
-        parts.append(f"position error {100 * e['position_m']:.2f} cm, heading {e['heading_deg']:+.3f} deg")
+        final.append(f"position {100 * e['position_m']:.3g} cm, |heading| {e['heading_deg']:.3g} deg")
+    if final:
+        parts.append("final (mean over the last 5 %, as in hbvs report): " + ", ".join(final))
     depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
     parts.append(depth)
     console.info("; ".join(parts) + f" -> {summary.output}")

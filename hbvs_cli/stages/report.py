@@ -31,6 +31,11 @@ class ReportOptions:
     fail_above: list[str] = field(default_factory=list)
     export_tum: Path | None = None
     tolerance: list[str] = field(default_factory=list)
+    require_converged: bool = False
+    labels: list[str] = field(default_factory=list)
+    dpi: float | None = None
+    size: str | None = None
+    panels: str | None = None
 
 
 @dataclass(frozen=True)
@@ -99,6 +104,36 @@ def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound
     return messages
 
 
+def not_converged(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One message per run that did not converge, naming its failed checks (``--require-converged``)."""
+    messages = []
+    for report in reports:
+        verdict = report["verdict"]
+        if not verdict["converged"]:
+            failed = [text.removeprefix("fail: ") for text in verdict["checks"].values() if text.startswith("fail")]
+            messages.append(f"{report['run']['name']}: {'; '.join(failed)}")
+    return messages
+
+
+def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
+    """``--label`` is given once per run, in the runs' order, or not at all.
+
+    Raises
+    ------
+    UsageError
+        A different number of labels than runs, or an empty label.
+    """
+    if labels and len(labels) != len(runs):
+        raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
+    if any(not label.strip() for label in labels):
+        raise UsageError("--label: a label cannot be empty")
+
+
+def labels_or_none(labels: Sequence[str], count: int) -> list[str | None]:
+    """Each run's ``--label``, or ``None`` (the report names it by its law and file)."""
+    return list(labels) if labels else [None] * count
+
+
 # ----------------------------------------------------------------------------- reading
 def _source(text: str, keep_stdin: bool) -> Any:
     """What :func:`read_run` reads: a path, ``-``, or stdin buffered (to read it twice)."""
@@ -110,23 +145,36 @@ def _source(text: str, keep_stdin: bool) -> Any:
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
     """Every run, with its camera height (m) when ``need_height`` (for TUM files).
 
+    A fit file (for the fit figure) comes back as its
+    :class:`~hbvs_cli.tools.fit_plot.FitSignals`, with no height.
+
     Raises
     ------
     UsageError
         No run, or ``-`` given more than once (stdin can be read only once).
     """
-    from ..io.run_file import read_run
+    from ..io.run_file import NotARunFile, read_run
+    from ..tools.fit_plot import read_fit_signals
     from ..tools.tum import camera_height_m
 
     if not sources:
         raise UsageError("give at least one run file (or - for stdin)")
     if list(sources).count("-") > 1:
         raise UsageError("- (stdin) can be given only once")
-    loaded = []
+    loaded: list[tuple[Any, float | None]] = []
     for text in sources:
         name = "stdin" if text == "-" else text
-        source = _source(text, need_height)
-        run = read_run(source, name=name)
+        # stdin is kept in memory: it may have to be read twice (a fit file, TUM heights).
+        source = _source(text, True)
+        try:
+            run = read_run(source, name=name)
+        except NotARunFile as other:
+            if other.kind != "fit":
+                raise
+            if isinstance(source, io.BytesIO):
+                source.seek(0)
+            loaded.append((read_fit_signals(source, name), None))
+            continue
         height = None
         if need_height and run.true_pose is not None:
             if isinstance(source, io.BytesIO):
@@ -134,6 +182,35 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
             height = camera_height_m(source, name)
         loaded.append((run, height))
     return loaded
+
+
+def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
+    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its figure.
+
+    Raises
+    ------
+    UsageError
+        An option that applies to runs only.
+    """
+    from ..tools.figure_style import figure_style
+    from ..tools.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
+    from ..tools.report_table import print_fit_table
+
+    for given, flag in ((options.fail_above, "--fail-above"), (options.require_converged, "--require-converged"),
+                        (options.export_tum, "--export-tum"), (options.tolerance, "--tolerance"), (options.labels, "--label")):
+        if given:
+            raise UsageError(f"{flag} applies to run files; {fit.name} is a fit file")
+    style = figure_style(options.dpi, options.size, options.panels, FIT_PANELS) if options.plot is not None else None
+    summary = fit_summary(fit)
+    if options.json_output:
+        sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    else:
+        print_fit_table(summary, sys.stdout)
+    sys.stdout.flush()
+    if options.plot is not None:
+        save_fit_plot(fit, options.plot, style)
+        console.info(f"report: fit figure written to {options.plot}")
+    return 0
 
 
 # ----------------------------------------------------------------------------- output
@@ -155,7 +232,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
     Returns
     -------
     int
-        0, or 1 when a ``--fail-above`` bound was exceeded (one line on stderr per excess).
+        0, or 1 when a ``--fail-above`` bound was exceeded or, with
+        ``--require-converged``, a run did not converge (one line on stderr for each).
 
     Raises
     ------
@@ -165,6 +243,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
     InputError, RecordingError
         A missing or unreadable file, or not a run file (exit code 3).
     """
+    from ..tools.fit_plot import FIT_PANELS, FitSignals
+    from ..tools.plots import PANEL_NAMES
     from ..tools.report_data import build_report
 
     from ..io.output_target import refuse_overwriting_inputs
@@ -172,14 +252,27 @@ def run_report(options: ReportOptions, console: Console) -> int:
     tolerances = parse_tolerances(options.tolerance)
     bounds = parse_bounds(options.fail_above)
     inputs = [("run", text) for text in options.runs]
+    check_labels(options.labels, options.runs)
+    style = None
     if options.plot is not None:
-        from ..tools.plots import check_plot_path
+        from ..tools.figure_style import check_plot_path, figure_style
 
         check_plot_path(options.plot)
         refuse_overwriting_inputs([("--plot", options.plot)], inputs)
+        # Checked against either figure's panels now, against the right one's below.
+        style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
+    elif options.dpi is not None or options.size is not None or options.panels is not None:
+        raise UsageError("--dpi, --size and --panels shape the figure: give --plot FILE too")
     loaded = read_runs(options.runs, need_height=options.export_tum is not None)
+    fits = [item for item, _ in loaded if isinstance(item, FitSignals)]
+    if fits:
+        if len(loaded) > 1:
+            raise UsageError("give run files, or one fit file (for the fit figure), not both or several fits")
+        return run_fit_report(fits[0], options, console)
     runs = [run for run, _ in loaded]
-    reports = [build_report(run, tolerances) for run in runs]
+    if options.plot is not None:
+        style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES)
+    reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
         from ..tools.tum import check_exportable, tum_paths
@@ -191,7 +284,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     if options.plot is not None:
         from ..tools.plots import save_plot
 
-        save_plot(runs, reports, options.plot)
+        save_plot(runs, reports, options.plot, style, tolerances)
         console.info(f"report: figure written to {options.plot}")
     if options.export_tum is not None:
         from ..tools.tum import write_tum
@@ -201,4 +294,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
     for message in excesses:
         console.warn(f"threshold exceeded: {message}")
-    return 1 if excesses else 0
+    unconverged = not_converged(reports) if options.require_converged else []
+    for message in unconverged:
+        console.warn(f"not converged: {message}")
+    return 1 if excesses or unconverged else 0

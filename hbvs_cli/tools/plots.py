@@ -1,112 +1,253 @@
 """``--plot``: one figure of a run (or several, overlaid) fit for a paper.
 
-Eight panels on a 4 x 2 grid, 12 x 10 in at 100 dpi (1200 x 1000 px):
+Panels (``--panels`` chooses and orders them; default all, in this order):
 
-* e1 and ebar2 (units of d*), e3 (deg) against time: (19), (27);
-* the commands v_c (m/s) and w_c (rad/s) sent to the robot;
-* the depth estimate dhat (m), with the true d* dashed when known;
-* the Lyapunov function V (36) on a log scale (simulation only);
-* the top view of the taught (dashed) and repeated (solid) paths (m, equal aspect);
-* the position error against the taught path at the same time (cm).
+=============  ===========================================================================
+``position``   position error against the taught pose at the same time (cm, log), 1 cm line
+``heading``    \\|heading error\\| against the taught pose (deg, log), 0.2 deg line
+``e1``         longitudinal image error e1 (19) (units of d*), +-tolerance
+``ebar2``      lateral image error ebar2 (27), +-tolerance
+``e2``         lateral image error e2 (19), +-tolerance
+``e3``         rotation error e3 (19) (deg), +-0.2 deg
+``v``, ``w``   commands v_c (29) (m/s) and w_c (30) (rad/s), with the actuator limits
+``dhat``       depth estimate dhat (31) (m), with the true d*
+``V``          Lyapunov function (36) as V / V(0) (dimensionless, log)
+``top``        top view: wall and target, taught (dashed, on top) and repeated paths, the
+               robot's heading every few seconds (m, equal aspect; full width)
+=============  ===========================================================================
 
-Each run has one colour throughout; the figure legend names the runs by law and file.
-A panel whose data no run has (a replay has no poses and no V) says so in its middle.
-matplotlib is imported here only, with the Agg backend: no display is ever needed.
+Conventions: one colour per run (Okabe-Ito); the figure legend names runs by their
+labels (``--label``, else the law) and verdicts. Stretches where the target was lost are
+shaded in the run's colour and the error lines break across them (nothing is drawn that
+was not measured); a dropped frame inside tracking is skipped, so the line joins its
+neighbours. Each run is drawn with at most :data:`MAX_POINTS_PER_RUN` points per panel
+(bin means), so a noisy 200 Hz run does not paint over a 30 Hz one. A panel whose data no
+run has (a replay has no poses and no V) says so in its middle.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError, UsageError
 from ..io.run_file import RunData
-from .report_data import image_error_signal, pose_error_signals
-from .report_table import run_label
+from .figure_style import (
+    DEFAULT_WIDTH_IN,
+    ONE_COLUMN_BELOW_IN,
+    TAUGHT_COLOR,
+    FigureStyle,
+    new_figure,
+    paper_rc,
+    run_colors,
+    save_figure,
+)
+from .report_data import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .report_table import run_labels
 
-#: Figure size (in) and resolution (dpi): 1200 x 1000 px.
-FIGURE_SIZE_IN = (12.0, 10.0)
-FIGURE_DPI = 100
+#: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
+#: 200 dpi); longer runs are shown as bin means.
+MAX_POINTS_PER_RUN = 600
+#: Shortest loss (s) that is shaded.
+MIN_SHADED_LOSS_S = 0.1
+#: Seconds between two heading arrows in the top view.
+HEADING_EVERY_S = 2.0
+#: Height (in) of a row of time panels, of the top view, and of the legend.
+ROW_HEIGHT_IN = 1.45
+TOP_VIEW_HEIGHT_IN = 2.3
+LEGEND_HEIGHT_IN = 0.55
+#: Colour of tolerance lines and actuator limits.
+GUIDE_COLOR = "0.35"
 
 
-def _figure() -> tuple[Any, Any]:
-    """A figure on the Agg canvas (no pyplot: no global state, no display) and its 4 x 2 axes."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+@dataclass
+class PanelContext:
+    """What every panel painter gets: the runs, their colours, the tolerances."""
 
-    figure = Figure(figsize=FIGURE_SIZE_IN, dpi=FIGURE_DPI, layout="constrained")
-    FigureCanvasAgg(figure)
-    axes = figure.subplots(4, 2)
-    return figure, axes
-
-
-def supported_formats() -> set[str]:
-    """File suffixes (without the dot) the Agg canvas can write: png, pdf, svg..."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    return set(FigureCanvasAgg.get_supported_filetypes())
+    runs: Sequence[RunData]
+    colors: Sequence[str]
+    tolerances: Mapping[str, float]
+    line_styles: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
-def check_plot_path(path: Path) -> None:
-    """Fail early, before any work, on a figure path that cannot be written.
+# ----------------------------------------------------------------------------- series
+def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_points: int = MAX_POINTS_PER_RUN) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a signal as drawn: broken (NaN) across lost stretches, joined across
+    dropped frames, and at most ``max_points`` of them.
 
-    Raises
-    ------
-    UsageError
-        A suffix matplotlib cannot write.
-    InputError
-        The folder does not exist.
+    Parameters
+    ----------
+    t : ndarray, shape (K,)
+        Step times (s).
+    x : ndarray, shape (K,)
+        The signal; NaN where it has no value (lost target, dropped frame).
+    lost : ndarray of bool, shape (K,), or None
+        Steps where the target was lost: there the line breaks. ``None``: the signal is
+        defined through losses (the commands), so only its NaNs are skipped.
+    max_points : int
+        Beyond this many samples, the signal is shown as means over equal time bins of its
+        measured samples (a bin with none stays NaN, so losses longer than a bin still
+        break the line).
+
+    Returns
+    -------
+    t, x : ndarray
     """
-    suffix = path.suffix.lower().lstrip(".")
-    formats = supported_formats()
-    if suffix not in formats:
-        raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .png (or {', '.join(sorted(formats - {'png'}))})")
-    if not path.parent.exists():
-        raise InputError(f"--plot {path}: the folder {path.parent} does not exist")
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float).copy()
+    breaks = np.zeros(t.size, dtype=bool) if lost is None else np.asarray(lost, dtype=bool)
+    x[breaks] = np.nan
+    # A NaN that is not a loss (a dropped frame) is skipped: the line joins across it.
+    keep = np.isfinite(x) | breaks
+    t, x, breaks = t[keep], x[keep], breaks[keep]
+    if t.size <= max_points or t.size < 2:
+        return t, x
+    edges = np.linspace(t[0], t[-1], max_points + 1)
+    index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max_points - 1)
+    counts = np.bincount(index, minlength=max_points)
+    seen = ~breaks
+    sums = np.bincount(index, weights=np.where(seen, x, 0.0), minlength=max_points)
+    valid = np.bincount(index, weights=seen.astype(float), minlength=max_points)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = sums / valid
+    # A bin without a single measurement breaks the line (a loss longer than a bin); a
+    # bin with some keeps their mean, so isolated rejected frames do not erase the run.
+    means[valid == 0] = np.nan
+    filled = counts > 0
+    return centres[filled], means[filled]
+
+
+def lost_intervals(t: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]:
+    """(start, end) times (s) of each stretch of lost steps; a step lasts until the next."""
+    from ..core.metrics import step_durations
+
+    t = np.asarray(t, dtype=float)
+    lost = np.asarray(lost, dtype=bool)
+    if not lost.any():
+        return []
+    ends = t + step_durations(t)
+    edges = np.diff(np.concatenate([[0], lost.astype(int), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [(float(t[a]), float(ends[b])) for a, b in zip(starts, stops)]
+
+
+def _shade_losses(ax: Any, context: PanelContext) -> None:
+    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter
+    ones, e.g. single rejected frames, only break the line: hundreds of hairline spans
+    would tint the whole panel)."""
+    for run, color in zip(context.runs, context.colors):
+        for start, end in lost_intervals(run.state["t"], run.lost):
+            if end - start >= MIN_SHADED_LOSS_S:
+                ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
 
 
 def _say_absent(ax: Any, message: str) -> None:
     """Mark a panel with no data: a message in its middle, no ticks."""
-    ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", fontsize=11, color="0.35", wrap=True)
+    ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
     ax.set_xticks([])
     ax.set_yticks([])
+    ax.grid(False)
 
 
-def _time_panel(ax: Any, title: str, ylabel: str) -> None:
-    ax.set_title(title, fontsize=11)
+def _note_missing(ax: Any, runs: Sequence[RunData], has_data: Callable[[RunData], bool]) -> None:
+    """When only some runs have the panel's data, name the others under the title."""
+    missing = [Path(run.name).name for run in runs if not has_data(run)]
+    if missing:
+        ax.set_title(f"{ax.get_title()}\n(no data: {', '.join(missing)})")
+
+
+def _time_axes(ax: Any, title: str, ylabel: str) -> None:
+    ax.set_title(title)
     ax.set_xlabel("time t (s)")
     ax.set_ylabel(ylabel)
-    ax.grid(True, alpha=0.3)
 
 
-def _plot_errors(ax_e: Any, ax_e3: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    for run, color in zip(runs, colors):
-        t = run.state["t"]
-        ax_e.plot(t, image_error_signal(run, "e1"), color=color, lw=1.4)
-        ax_e.plot(t, image_error_signal(run, "ebar2"), color=color, lw=1.4, ls="--")
-        ax_e3.plot(t, image_error_signal(run, "e3"), color=color, lw=1.4)
-    _time_panel(ax_e, "translation errors e1 (19), ebar2 (27)", "error (units of d*)")
-    _time_panel(ax_e3, "rotation error e3 (19)", "e3 (deg)")
-    _style_legend(ax_e, {"e1": "-", "ebar2": "--"})
+def _band(ax: Any, tolerance: float, signed: bool) -> None:
+    """The tolerance: dotted lines at +-tolerance (or +tolerance for a magnitude)."""
+    for level in ((-tolerance, tolerance) if signed else (tolerance,)):
+        ax.axhline(level, color=GUIDE_COLOR, ls=":", lw=0.9, zorder=1)
 
 
-def _style_legend(ax: Any, styles: Mapping[str, str]) -> None:
-    """A legend of line styles (the colours name runs, in the figure legend)."""
-    from matplotlib.lines import Line2D
-
-    handles = [Line2D([], [], color="0.2", ls=style, lw=1.4, label=label) for label, style in styles.items()]
-    ax.legend(handles=handles, loc="best", fontsize=9, framealpha=0.8)
+def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None) -> None:
+    shown_t, shown_x = display_series(t, x, lost)
+    ax.plot(shown_t, shown_x, color=color, alpha=0.9, **context.line_styles.get(color, {}))
 
 
-def _plot_commands(ax_v: Any, ax_w: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    for run, color in zip(runs, colors):
-        t = run.state["t"]
-        ax_v.plot(t, run.state["v_c"], color=color, lw=1.4)
-        ax_w.plot(t, run.state["w_c"], color=color, lw=1.4)
-    _time_panel(ax_v, "linear velocity command v_c (29)", "v_c (m/s)")
-    _time_panel(ax_w, "angular velocity command w_c (30)", "w_c (rad/s)")
+def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Each run's line width and stacking: the denser a run (steps per second), the lower
+    and thinner it is drawn, so a noisy 200 Hz run stays under a 30 Hz one."""
+    density = [run.steps / max(float(run.state["t"][-1] - run.state["t"][0]), 1e-9) for run in runs]
+    slowest = min(density)
+    order = np.argsort(np.argsort([-d for d in density], kind="stable"), kind="stable")
+    return {
+        color: {"zorder": 2.0 + 0.1 * float(rank), "lw": 1.0 if d <= 2.0 * slowest else 0.7}
+        for color, rank, d in zip(colors, order, density)
+    }
+
+
+# ----------------------------------------------------------------------------- panels
+def _has_poses(run: RunData) -> bool:
+    return run.true_pose is not None and run.desired_pose is not None
+
+
+def _pose_panel(ax: Any, context: PanelContext, key: str, title: str, ylabel: str, scale: float) -> None:
+    with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
+    ax.set_title(title)
+    if not with_poses:
+        _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
+        return
+    for run, color in with_poses:
+        magnitude = np.abs(scale * pose_error_signals(run)[key])
+        # A log axis cannot show an exact zero: the first step of a run started on the path.
+        magnitude[magnitude <= 0] = np.nan
+        _line(ax, context, run.state["t"], magnitude, color, None)
+    _shade_losses(ax, context)
+    _band(ax, scale * context.tolerances[key], signed=False)
+    ax.set_yscale("log")
+    _time_axes(ax, title, ylabel)
+    _note_missing(ax, context.runs, _has_poses)
+
+
+def _position_panel(ax: Any, context: PanelContext) -> None:
+    _pose_panel(ax, context, "position_m", "Position error against the taught pose", "position error (cm)", 100.0)
+
+
+def _heading_panel(ax: Any, context: PanelContext) -> None:
+    _pose_panel(ax, context, "heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0)
+
+
+def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
+    def paint(ax: Any, context: PanelContext) -> None:
+        for run, color in zip(context.runs, context.colors):
+            _line(ax, context, run.state["t"], image_error_signal(run, name), color, run.lost)
+        _shade_losses(ax, context)
+        _band(ax, context.tolerances[name], signed=True)
+        _time_axes(ax, title, ylabel)
+
+    return paint
+
+
+def _limit(run: RunData, key: str) -> float | None:
+    limits = (run.info.get("settings") or {}).get("limits") or {}
+    value = limits.get(key) if isinstance(limits, Mapping) else None
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0 else None
+
+
+def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
+    def paint(ax: Any, context: PanelContext) -> None:
+        for run, color in zip(context.runs, context.colors):
+            _line(ax, context, run.state["t"], run.state[key], color, None)
+        _shade_losses(ax, context)
+        for limit in sorted({value for value in (_limit(run, limit_key) for run in context.runs) if value is not None}):
+            for level in (-limit, limit):
+                ax.axhline(level, color=GUIDE_COLOR, ls="--", lw=0.8, zorder=1)
+        _time_axes(ax, title, ylabel)
+
+    return paint
 
 
 def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -118,131 +259,242 @@ def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
     return kept
 
 
-def _note_missing(ax: Any, runs: Sequence[RunData], has_data: Callable[[RunData], bool]) -> None:
-    """When only some runs have the panel's data, name the others in the title (not over the data)."""
-    missing = [Path(run.name).name for run in runs if not has_data(run)]
-    if missing:
-        ax.set_title(f"{ax.get_title()}\n(no data: {', '.join(missing)})", fontsize=11)
-
-
 def _has_d_true(run: RunData) -> bool:
-    return isinstance(run.info.get("d_true"), (int, float))
+    value = run.info.get("d_true")
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _plot_depth(ax: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    for run, color in zip(runs, colors):
-        ax.plot(run.state["t"], run.state["dhat"], color=color, lw=1.4)
-    truths = _distinct([np.array(float(run.info["d_true"])) for run in runs if _has_d_true(run)])
-    for d_true in truths:
-        ax.axhline(float(d_true), color="k", ls="--", lw=1.2)
-    _time_panel(ax, "depth estimate dhat (31)", "depth (m)")
-    _style_legend(ax, {"dhat": "-", "true d*": "--"} if truths else {"dhat": "-"})
+def _depth_panel(ax: Any, context: PanelContext) -> None:
+    for run, color in zip(context.runs, context.colors):
+        _line(ax, context, run.state["t"], run.state["dhat"], color, None)
+    for d_true in _distinct([np.array(float(run.info["d_true"])) for run in context.runs if _has_d_true(run)]):
+        ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
+    _shade_losses(ax, context)
+    _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
 
 
-def _positive_V(run: RunData) -> np.ndarray:
-    """Steps with a V a log axis can show (known and > 0)."""
+def _normalised_V(run: RunData) -> np.ndarray:
+    """V / V(0) (dimensionless), NaN where V is unknown or not positive."""
     V = run.state["V"]
-    return np.isfinite(V) & (V > 0)
+    finite = V[np.isfinite(V)]
+    if finite.size == 0 or finite[0] <= 0:
+        return np.full(V.size, np.nan)
+    ratio = V / finite[0]
+    ratio[~(ratio > 0)] = np.nan
+    return ratio
 
 
 def _has_V(run: RunData) -> bool:
-    return bool(_positive_V(run).any())
+    return bool(np.isfinite(_normalised_V(run)).any())
 
 
-def _plot_lyapunov(ax: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    with_V = [(run, color) for run, color in zip(runs, colors) if _has_V(run)]
+def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
+    title = "Lyapunov function V (36), relative to V(0)"
+    with_V = [(run, color) for run, color in zip(context.runs, context.colors) if _has_V(run)]
     if not with_V:
+        ax.set_title(title)
         _say_absent(ax, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
-        ax.set_title("Lyapunov function V (36)", fontsize=11)
         return
     for run, color in with_V:
-        keep = _positive_V(run)
-        ax.plot(run.state["t"][keep], run.state["V"][keep], color=color, lw=1.4)
+        _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
+    _shade_losses(ax, context)
     ax.set_yscale("log")
-    _time_panel(ax, "Lyapunov function V (36)", "V (units of (36), log scale)")
-    _note_missing(ax, runs, _has_V)
+    _time_axes(ax, title, "V / V(0) (-)")
+    _note_missing(ax, context.runs, _has_V)
 
 
-def _has_poses(run: RunData) -> bool:
-    return run.true_pose is not None and run.desired_pose is not None
+def _top_view_geometry(run: RunData) -> dict[str, Any] | None:
+    """The wall and target of a run's metadata (``top_view``), checked; None if absent."""
+    data = run.info.get("top_view")
+    if not isinstance(data, Mapping):
+        return None
+    try:
+        wall_x = float(data["wall_x"])
+        poster_y = np.asarray(data["poster_y"], dtype=float).reshape(2)
+        target = np.asarray(data["target_xy"], dtype=float).reshape(-1, 2)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (np.isfinite(wall_x) and np.all(np.isfinite(poster_y)) and np.all(np.isfinite(target)) and 0 < target.shape[0] <= 64):
+        return None
+    return {"wall_x": wall_x, "poster_y": poster_y, "target_xy": target}
 
 
-def _plot_top_view(ax: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    ax.set_title("top view: taught (black, dashed) and repeated paths", fontsize=11)
-    with_poses = [(run, color) for run, color in zip(runs, colors) if _has_poses(run)]
+def _heading_arrows(ax: Any, pose: np.ndarray, t: np.ndarray, color: str, length: float) -> None:
+    """The robot's heading as arrows, one every :data:`HEADING_EVERY_S` seconds."""
+    marks = np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, HEADING_EVERY_S))
+    marks = marks[marks < t.size]
+    ax.quiver(
+        pose[marks, 0], pose[marks, 1], length * np.cos(pose[marks, 2]), length * np.sin(pose[marks, 2]),
+        color=color, angles="xy", scale_units="xy", scale=1.0, width=0.004, headwidth=4, headlength=5, zorder=4,
+    )
+
+
+def _draw_paths(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
+    for run, color in with_poses:
+        ax.plot(run.true_pose[:, 0], run.true_pose[:, 1], color=color, lw=1.2, zorder=2)
+        ax.plot(*run.true_pose[0, :2], marker="o", color=color, ms=3.5, zorder=4)
+    # The taught path on top of the repeated ones: a converged run hides under it otherwise.
+    for taught in _distinct([run.desired_pose for run, _ in with_poses]):
+        ax.plot(taught[:, 0], taught[:, 1], color=TAUGHT_COLOR, ls=(0, (4, 3)), lw=1.0, zorder=5)
+
+
+def _top_view_panel(ax: Any, context: PanelContext) -> None:
+    """The scene from above at one scale (left) and the paths with the lateral axis
+    stretched (right): at the scale of the wall, centimetres of deviation cannot be seen."""
+    with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
+        ax.set_title("Top view")
         _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
         return
-    for taught in _distinct([run.desired_pose for run, _ in with_poses]):
-        ax.plot(taught[:, 0], taught[:, 1], color="k", ls="--", lw=1.2)
+    ax.set_axis_off()
+    one_column = ax.get_subplotspec().get_gridspec().ncols == 1
+    boxes = ax.get_subplotspec().subgridspec(2, 1) if one_column else ax.get_subplotspec().subgridspec(1, 2, width_ratios=[1.0, 1.25])
+    scene_box, zoom_box = boxes[0], boxes[1]
+    figure = ax.figure
+    scene = figure.add_subplot(scene_box, label="top_scene")
+    zoom = figure.add_subplot(zoom_box, label="top_paths")
+    _scene_view(scene, with_poses)
+    _draw_paths(zoom, with_poses)
+    zoom.set_title("Paths, y stretched: taught (dashed), repeated")
+    zoom.set_xlabel("x (m)")
+    zoom.set_ylabel("y (m)")
+    for axes in (scene, zoom):
+        _note_missing(axes, context.runs, _has_poses)
+
+
+def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
+    ax.set_title(f"Top view to scale; arrows: heading every {HEADING_EVERY_S:g} s")
+    _draw_paths(ax, with_poses)
+    paths = np.concatenate([np.concatenate([run.true_pose[:, :2], run.desired_pose[:, :2]]) for run, _ in with_poses])
+    low, high = paths.min(axis=0), paths.max(axis=0)
+    geometries = [g for g in (_top_view_geometry(run) for run, _ in with_poses) if g is not None]
+    if geometries:
+        geometry = geometries[0]
+        y_low, y_high = sorted(geometry["poster_y"])
+        ax.plot([geometry["wall_x"]] * 2, [y_low - 0.4, y_high + 0.4], color="0.6", lw=2.0, solid_capstyle="butt", zorder=1)
+        ax.plot([geometry["wall_x"]] * 2, [y_low, y_high], color=TAUGHT_COLOR, lw=3.0, solid_capstyle="butt", zorder=2)
+        ax.plot(geometry["target_xy"][:, 0], geometry["target_xy"][:, 1], ls="none", marker="o", ms=3.5,
+                mfc="white", mec=TAUGHT_COLOR, zorder=6)
+        ax.annotate("wall, target", (geometry["wall_x"], y_high + 0.4), xytext=(-4, 0),
+                    textcoords="offset points", ha="right", va="top", fontsize=6.5, color="0.3")
+        low = np.minimum(low, [geometry["wall_x"], y_low - 0.4])
+        high = np.maximum(high, [geometry["wall_x"], y_high + 0.4])
+    span = float(np.max(high - low)) or 1.0
     for run, color in with_poses:
-        ax.plot(run.true_pose[:, 0], run.true_pose[:, 1], color=color, lw=1.6)
-        ax.plot(*run.true_pose[0, :2], marker="o", color=color, ms=5)
+        _heading_arrows(ax, run.true_pose, run.state["t"], color, 0.08 * span)
+    ax.margins(0.06)
+    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    _style_legend(ax, {"taught": "--", "repeated (o: start)": "-"})
-    _note_missing(ax, runs, _has_poses)
 
 
-def _plot_position_error(ax: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
-    with_poses = [(run, color) for run, color in zip(runs, colors) if _has_poses(run)]
-    if not with_poses:
-        _say_absent(ax, "no ground-truth poses:\nno position error")
-        ax.set_title("position error", fontsize=11)
-        return
-    for run, color in with_poses:
-        ax.plot(run.state["t"], 100.0 * pose_error_signals(run)["position_m"], color=color, lw=1.4)
-    _time_panel(ax, "position error against the taught path", "position error (cm)")
-    ax.set_ylim(bottom=0.0)
-    _note_missing(ax, runs, _has_poses)
+#: Every panel of the run figure: name -> painter, in the default order.
+PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
+    "position": _position_panel,
+    "heading": _heading_panel,
+    "e1": _image_error_panel("e1", r"Longitudinal image error $e_1$ (19)", "e1 (units of d*)"),
+    "ebar2": _image_error_panel("ebar2", r"Lateral image error $\bar{e}_2$ (27)", "ebar2 (units of d*)"),
+    "e2": _image_error_panel("e2", r"Lateral image error $e_2$ (19)", "e2 (units of d*)"),
+    "e3": _image_error_panel("e3", r"Rotation error $e_3$ (19)", "e3 (deg)"),
+    "v": _command_panel("v_c", "max_v", r"Linear velocity command $v_c$ (29)", "v_c (m/s)"),
+    "w": _command_panel("w_c", "max_w", r"Angular velocity command $\omega_c$ (30)", "w_c (rad/s)"),
+    "dhat": _depth_panel,
+    "V": _lyapunov_panel,
+    "top": _top_view_panel,
+}
+PANEL_NAMES = tuple(PANELS)
 
 
-#: Panel painters in grid order: each takes its axes, the runs and their colours.
-_PANELS: tuple[tuple[tuple[int, ...], Callable[..., None]], ...] = (
-    ((0, 1), _plot_errors),
-    ((2, 3), _plot_commands),
-    ((4,), _plot_depth),
-    ((5,), _plot_lyapunov),
-    ((6,), _plot_top_view),
-    ((7,), _plot_position_error),
-)
-
-
+# ----------------------------------------------------------------------------- figure
 def _status(report: Mapping[str, Any]) -> str:
     if report["run"]["source"].get("mode") == "replay":
         return "open-loop replay"
     return "converged" if report["verdict"]["converged"] else "not converged"
 
 
-def plot_runs(runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]]) -> Any:
+def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
+    """Figure size (in) and number of columns for these panels."""
+    width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
+    columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
+    time_panels = [name for name in panels if name != "top"]
+    rows = math.ceil(len(time_panels) / columns)
+    top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
+    height = rows * ROW_HEIGHT_IN + ("top" in panels) * top_height + LEGEND_HEIGHT_IN
+    return (style.size_in or (width, height)), columns
+
+
+def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list[Any] = [
+        Line2D([], [], color=color, lw=2.0, label=f"{label} ({_status(report)})")
+        for color, label, report in zip(colors, run_labels(reports), reports)
+    ]
+    if "top" in panels or "dhat" in panels:
+        handles.append(Line2D([], [], color=TAUGHT_COLOR, ls=(0, (4, 3)), lw=1.1, label="taught / true"))
+    handles.append(Line2D([], [], color=GUIDE_COLOR, ls=":", lw=0.9, label="tolerance"))
+    if "v" in panels or "w" in panels:
+        handles.append(Line2D([], [], color=GUIDE_COLOR, ls="--", lw=0.8, label="actuator limit"))
+    handles.append(Patch(color="0.5", alpha=0.3, lw=0, label="target lost"))
+    return handles
+
+
+def plot_runs(
+    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], style: FigureStyle | None = None,
+    tolerances: Mapping[str, float] | None = None,
+) -> Any:
     """The figure of one or several runs (overlaid, one colour per run).
 
     Parameters
     ----------
     runs : list of RunData
     reports : list of dict
-        Their reports (for the runs' names and verdicts in the legend).
+        Their reports (labels and verdicts for the legend).
+    style : FigureStyle, optional
+        Size, resolution and panels (default: every panel, 7 in wide, 200 dpi).
+    tolerances : dict, optional
+        The report's tolerances (:data:`~hbvs_cli.tools.report_data.DEFAULT_TOLERANCES`
+        units), drawn as dotted lines.
 
     Returns
     -------
     matplotlib.figure.Figure
-        12 x 10 in at 100 dpi, not yet saved.
+        Not yet saved. Each panel's axes is labelled with its panel name (``ax.get_label()``).
     """
-    figure, axes = _figure()
-    flat = axes.ravel()
-    colors = [f"C{index % 10}" for index in range(len(runs))]
-    for indices, paint in _PANELS:
-        paint(*(flat[i] for i in indices), runs, colors)
-    from matplotlib.lines import Line2D
+    import matplotlib
 
-    handles = [Line2D([], [], color=color, lw=2.0, label=f"{run_label(report)} ({_status(report)})") for color, report in zip(colors, reports)]
-    figure.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 3), fontsize=10, frameon=False)
+    style = style or FigureStyle()
+    panels = list(style.panels or PANEL_NAMES)
+    colors = run_colors(len(runs))
+    context = PanelContext(runs, colors, {**DEFAULT_TOLERANCES, **(tolerances or {})}, _line_styles(runs, colors))
+    size, columns = _layout(panels, style)
+    with matplotlib.rc_context(paper_rc()):
+        figure = new_figure(size, style.dpi)
+        time_panels = [name for name in panels if name != "top"]
+        rows = math.ceil(len(time_panels) / columns)
+        ratios = [ROW_HEIGHT_IN] * rows + ([TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)] if "top" in panels else [])
+        grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
+        slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
+        if "top" in panels:
+            slots["top"] = grid[rows, :]
+        start = min(float(run.state["t"][0]) for run in runs)
+        end = max(float(run.state["t"][-1]) for run in runs)
+        for name in panels:
+            ax = figure.add_subplot(slots[name])
+            ax.set_label(name)
+            PANELS[name](ax, context)
+            if name != "top" and ax.get_lines() and end > start:
+                ax.set_xlim(start, end)         # one time axis for every panel
+        handles = _legend_handles(reports, context.colors, panels)
+        figure.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 4 if columns > 1 else 2))
     return figure
 
 
-def save_plot(runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], path: Path) -> Any:
+def save_plot(
+    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], path: Path, style: FigureStyle | None = None,
+    tolerances: Mapping[str, float] | None = None,
+) -> Any:
     """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.
 
     Raises
@@ -250,13 +502,7 @@ def save_plot(runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], pat
     InputError
         The file cannot be written.
     """
-    import io
-
-    from ..io.output_target import write_output_bytes
-
-    figure = plot_runs(runs, reports)
-    # Drawn in memory, then written like every output (atomically; a device in place).
-    image = io.BytesIO()
-    figure.savefig(image, dpi=FIGURE_DPI, format=Path(path).suffix.lower().lstrip(".") or "png")
-    write_output_bytes(path, image.getvalue(), "figure")
+    style = style or FigureStyle()
+    figure = plot_runs(runs, reports, style, tolerances)
+    save_figure(figure, path, style.dpi)
     return figure

@@ -30,6 +30,7 @@ import numpy as np
 from ..core.frames import wrap_angle
 from ..core.metrics import (
     error_summary,
+    round_significant,
     longest_true_run_s,
     lyapunov_summary,
     min_abs,
@@ -51,6 +52,9 @@ DEFAULT_TOLERANCES: dict[str, float] = {
     "ebar2": 0.0025,
     "e3": 0.2,
 }
+#: Significant digits of every number in a report: float noise such as a rate of
+#: 30.0000003 Hz (1 / a median step of float times) is not a measurement.
+REPORT_DIGITS = 7
 #: V must end below this fraction of V(0) for a run to count as converged.
 V_RATIO_BOUND = 0.5
 #: The image errors of (19) and (27), in report order; e3 is reported in degrees.
@@ -59,6 +63,15 @@ IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 POSE_ERRORS = ("position_m", "heading_deg")
 #: Top-level keys of a report, in order.
 REPORT_KEYS = ("run", "errors", "pose_error", "lyapunov", "depth", "commands", "target", "condition35", "verdict")
+
+#: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
+CHECK_NAMES = (
+    "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
+)
+#: The check of each final error.
+_FINAL_CHECK_NAMES = {
+    "position_m": "final_position", "heading_deg": "final_heading", "e1": "final_e1", "e2": "final_e2", "e3": "final_e3",
+}
 
 #: How a verdict line names each final error: (label, scale to the shown unit, unit).
 _FINAL_CHECKS: dict[str, tuple[str, float, str]] = {
@@ -155,10 +168,18 @@ def _duration_s(run: RunData) -> float:
 
 
 # ----------------------------------------------------------------------------- sections
-def _run_section(run: RunData) -> dict[str, Any]:
+def default_label(run: RunData) -> str:
+    """How a run is named without ``--label``: its law (``replay`` for an open-loop replay)."""
+    if run.info.get("mode") == "replay":
+        return "replay"
+    return str(run.info.get("law") or run.info.get("mode") or "run")
+
+
+def _run_section(run: RunData, label: str | None) -> dict[str, Any]:
     settings = run.info.get("settings") or {}
     return {
         "name": run.name,
+        "label": label if label is not None else default_label(run),
         "duration_s": _duration_s(run),
         "steps": run.steps,
         "rate_hz": sample_rate_hz(run.state["t"]),
@@ -209,10 +230,15 @@ def _command_section(run: RunData) -> dict[str, Any]:
 
 
 def _target_section(run: RunData) -> dict[str, Any]:
+    # A dropped frame inside a loss is still lost time (run.lost holds through drops),
+    # so the longest loss spans drops; dropped frames are also counted on their own.
+    dropped = run.dropped if run.dropped is not None else np.zeros(run.steps, dtype=bool)
     return {
         "lost_frames": int(np.count_nonzero(run.lost)),
         "lost_fraction": float(np.mean(run.lost)),
         "longest_loss_s": longest_true_run_s(run.state["t"], run.lost),
+        "dropped_frames": int(np.count_nonzero(dropped)),
+        "dropped_fraction": float(np.mean(dropped)),
     }
 
 
@@ -275,20 +301,28 @@ def verdict(run: RunData, report: Mapping[str, Any], tolerances: Mapping[str, fl
     Returns
     -------
     dict
-        ``converged`` (bool) and ``reasons``: one ``pass:``/``fail:``/``skip:`` line per check.
+        ``converged`` (bool); ``checks``: check name (:data:`CHECK_NAMES`) -> its line,
+        ``pass: ...``, ``fail: ...`` or ``skip: ...``; ``reasons``: the same lines as a list.
     """
-    checks: list[tuple[bool | None, str]] = []
+    checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
-        checks.append(_check(False, "open-loop replay: nothing moved, so it cannot have converged"))
-    checks.append(_finished_check(run))
+        checks["closed_loop"] = _check(False, "open-loop replay: nothing moved, so it cannot have converged")
+    else:
+        checks["closed_loop"] = _check(True, f"closed loop ({run.info.get('mode') or 'unknown mode'})")
+    checks["finished"] = _finished_check(run)
     errors, names = (report["pose_error"], POSE_ERRORS) if "pose_error" in report else (report["errors"], ("e1", "e2", "e3"))
-    checks.extend(_final_error_check(name, errors[name]["final"], tolerances[name]) for name in names)
-    checks.append(_lyapunov_check(report["lyapunov"]))
-    return {"converged": all(passed is not False for passed, _ in checks), "reasons": [text for _, text in checks]}
+    for name in names:
+        checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, errors[name]["final"], tolerances[name])
+    checks["lyapunov"] = _lyapunov_check(report["lyapunov"])
+    return {
+        "converged": all(passed is not False for passed, _ in checks.values()),
+        "checks": {name: text for name, (_, text) in checks.items()},
+        "reasons": [text for _, text in checks.values()],
+    }
 
 
 # ----------------------------------------------------------------------------- report
-def build_report(run: RunData, tolerances: Mapping[str, float] | None = None) -> dict[str, Any]:
+def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> dict[str, Any]:
     """Every metric of one run, as JSON-ready values (see docs/report.md for units).
 
     Parameters
@@ -298,16 +332,20 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None) ->
     tolerances : dict, optional
         Overrides of :data:`DEFAULT_TOLERANCES` (names ``e1, e2, ebar2, e3, position_m,
         heading_deg``).
+    label : str, optional
+        The run's name in tables and legends (``--label``); default :func:`default_label`.
 
     Returns
     -------
     dict
         Keys :data:`REPORT_KEYS` in that order; ``pose_error`` only when the run has
-        ground truth. Unknown values are ``None``.
+        ground truth. Unknown values are ``None``; every number is rounded to
+        :data:`REPORT_DIGITS` significant digits, so JSON, table and ``--fail-above`` see
+        one value.
     """
     tolerances = resolve_tolerances(tolerances)
     sections: dict[str, Callable[[], Any]] = {
-        "run": lambda: _run_section(run),
+        "run": lambda: _run_section(run, label),
         "errors": lambda: _error_section(run, tolerances),
         "pose_error": lambda: _pose_section(run, tolerances),
         "lyapunov": lambda: lyapunov_summary(run.state["V"]),
@@ -321,5 +359,6 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None) ->
         value = section()
         if value is not None:
             report[key] = value
+    report = round_significant(report, REPORT_DIGITS)
     report["verdict"] = verdict(run, report, tolerances)
     return report

@@ -7,7 +7,7 @@ never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
 Every number is the JSON value (:mod:`.report_data`) to 4 significant digits, in the unit
 named in its row label. One run: a run table, an error matrix (one row per error, one
 column per statistic), a table of the other metrics and the verdict. Several runs: the same
-tables side by side, one column per run named by its law and file, with the error
+tables side by side, one column per run named by its label (--label, else its law), with the error
 statistics one per row.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence, TextIO
 
 from ..core.metrics import STATISTICS
-from .report_data import IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
+from .report_data import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
 
 #: Width of the plain-text output: wide enough never to wrap a row of a comparison.
 PLAIN_WIDTH = 1000
@@ -58,9 +58,18 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("target lost (frames)", "target.lost_frames"),
     ("target lost (fraction of steps)", "target.lost_fraction"),
     ("longest loss (s)", "target.longest_loss_s"),
+    ("dropped frames", "target.dropped_frames"),
+    ("dropped (fraction of steps)", "target.dropped_fraction"),
     ("min |x_hd1_dot| run (1/s)", "condition35.min_abs_xhd1_dot"),
     ("min |x_hd1_dot| fit (1/s)", "condition35.fit_min_abs_xhd1_dot"),
 )
+
+#: Row label of each verdict check (``verdict.checks``).
+CHECK_LABELS = {
+    "closed_loop": "closed loop", "finished": "finished", "final_position": "final position error",
+    "final_heading": "final heading error", "final_e1": "final e1", "final_e2": "final e2", "final_e3": "final e3",
+    "lyapunov": "V fell (36)",
+}
 
 #: Rows of the run table after the gains.
 RUN_ROWS: tuple[tuple[str, str], ...] = (
@@ -96,10 +105,14 @@ def lookup(report: Mapping[str, Any], key: str) -> Any:
         return None
 
 
-def run_label(report: Mapping[str, Any]) -> str:
-    """How a comparison names a run's column: its law and file name."""
-    law = report["run"].get("law") or report["run"]["source"].get("mode") or "?"
-    return f"{law} {Path(report['run']['name']).name}"
+def run_labels(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+    """How tables and legends name the runs: their labels (``--label``, else the law);
+    a label two runs share is followed by the run's file name, e.g. ``paper (b.mcap)``."""
+    labels = [str(report["run"].get("label") or "run") for report in reports]
+    return [
+        f"{label} ({Path(report['run']['name']).name})" if labels.count(label) > 1 else label
+        for label, report in zip(labels, reports)
+    ]
 
 
 # ----------------------------------------------------------------------------- tables
@@ -119,7 +132,7 @@ def _table(headers: Sequence[str], plain: bool) -> Any:
 
 def _rows_table(rows: Iterable[tuple[str, str]], reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
     """One row per (label, dotted key), one column per run."""
-    table = _table(["quantity", *(run_label(r) for r in reports)], plain)
+    table = _table(["quantity", *run_labels(reports)], plain)
     for label, key in rows:
         table.add_row(label, *(format_value(lookup(r, key)) for r in reports))
     return table
@@ -131,7 +144,7 @@ def _run_rows(reports: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
     for report in reports:
         gains.update(dict.fromkeys(report["run"]["gains"]))
     gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", f"run.gains.{name}") for name in gains]
-    return [("file", "run.name"), *RUN_ROWS, *gain_rows]
+    return [("file", "run.name"), ("label", "run.label"), *RUN_ROWS, *gain_rows]
 
 
 def _statistic_unit(statistic: str, signal: str) -> str:
@@ -183,16 +196,18 @@ def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
     """``converged`` then one row per check; failed checks in red on a terminal."""
     from rich.text import Text
 
-    table = _table(["check", *(run_label(r) for r in reports)], plain)
+    table = _table(["check", *run_labels(reports)], plain)
 
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")
 
     table.add_row("converged", *(styled(format_value(r["verdict"]["converged"]), r["verdict"]["converged"]) for r in reports))
-    depth = max(len(r["verdict"]["reasons"]) for r in reports)
-    for index in range(depth):
-        cells = [r["verdict"]["reasons"][index] if index < len(r["verdict"]["reasons"]) else "" for r in reports]
-        table.add_row(f"check {index + 1}", *(styled(c, not c.startswith("fail")) for c in cells))
+    # One row per named check: a replay's image-error checks and a simulated run's pose
+    # checks land in rows of their own, and a check a run does not have shows n/a.
+    for name in CHECK_NAMES:
+        cells = [r["verdict"]["checks"].get(name, MISSING) for r in reports]
+        if any(cell != MISSING for cell in cells):
+            table.add_row(CHECK_LABELS[name], *(styled(c, not c.startswith("fail")) for c in cells))
     return table
 
 
@@ -238,3 +253,32 @@ def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) ->
             console.print()
         console.print(Text(title, style="" if plain else "bold cyan"))
         console.print(table)
+
+
+#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.tools.fit_plot.fit_summary`).
+FIT_ROWS: tuple[tuple[str, str], ...] = (
+    ("frames with a raw sample", "frames_raw"),
+    ("frames on the spline", "frames_smooth"),
+    ("theta_d raw - smooth, rms (deg)", "raw_minus_smooth.theta_d_deg.rms"),
+    ("theta_d raw - smooth, max |.| (deg)", "raw_minus_smooth.theta_d_deg.max_abs"),
+    ("x_hd1 raw - smooth, rms (d*)", "raw_minus_smooth.x_hd1.rms"),
+    ("x_hd1 raw - smooth, max |.| (d*)", "raw_minus_smooth.x_hd1.max_abs"),
+    ("x_hd2 raw - (25), rms (d*)", "raw_minus_smooth.x_hd2.rms"),
+    ("x_hd2 raw - (25), max |.| (d*)", "raw_minus_smooth.x_hd2.max_abs"),
+    ("min |x_hd1_dot| (1/s), condition (35)", "x_hd1_dot.min_abs"),
+    ("max |x_hd1_dot| (1/s)", "x_hd1_dot.max_abs"),
+    ("raw finite difference - x_hd1_dot, rms (1/s)", "x_hd1_dot.raw_difference_rms"),
+)
+
+
+def print_fit_table(summary: Mapping[str, Any], stream: TextIO) -> None:
+    """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream``."""
+    from rich.text import Text
+
+    console = report_console(stream)
+    plain = not console.is_terminal
+    table = _table(["quantity", Path(str(summary["file"])).name], plain)
+    for label, key in FIT_ROWS:
+        table.add_row(label, format_value(lookup(summary, key)))
+    console.print(Text("desired trajectory (Remark 1): raw homography decomposition against the splines", style="" if plain else "bold cyan"))
+    console.print(table)

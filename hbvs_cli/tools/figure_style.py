@@ -1,0 +1,207 @@
+"""The look shared by every hbvs figure: paper-sized, readable, colour-blind safe.
+
+One style serves the run figure (:mod:`.plots`) and the fit figure (:mod:`.fit_plot`):
+
+* sizes in inches for a two-column paper (7 in wide by default; ``--size 3.5x6`` for one
+  column), fonts of 7-9 pt, so that text printed at 100 % is as large as the paper's;
+* the Okabe-Ito palette (Okabe and Ito, "Color Universal Design", 2008), distinguishable
+  with every common colour-vision deficiency; the taught path is black and dashed;
+* vector output (PDF, SVG) keeps its text as text (TrueType in PDF, ``<text>`` in SVG);
+  raster output (PNG) is at ``--dpi`` (200 by default).
+
+:func:`figure_style` turns ``--dpi``, ``--size`` and ``--panels`` into a
+:class:`FigureStyle`; :func:`paper_rc` is the matplotlib ``rcParams`` of the style.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+from ..errors import InputError, UsageError
+
+#: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
+#: The taught path / desired signal, and the truth: black.
+TAUGHT_COLOR = "black"
+#: Raster resolution (dots per inch) unless ``--dpi`` says otherwise.
+DEFAULT_DPI = 200.0
+#: Width (in) unless ``--size`` says otherwise: a two-column figure of a paper.
+DEFAULT_WIDTH_IN = 7.0
+#: Below this width (in) panels are stacked in one column.
+ONE_COLUMN_BELOW_IN = 4.5
+#: The figure may be neither smaller nor larger than this (in), either way.
+SIZE_RANGE_IN = (1.5, 40.0)
+
+
+@dataclass(frozen=True)
+class FigureStyle:
+    """How to draw a figure: resolution, size and which panels.
+
+    Attributes
+    ----------
+    dpi : float
+        Raster resolution (PNG); vector formats ignore it.
+    size_in : tuple of float or None
+        (width, height) in inches; ``None``: 7 in wide, as tall as the panels need.
+    panels : tuple of str or None
+        Panel names in drawing order; ``None``: every panel of the figure.
+    """
+
+    dpi: float = DEFAULT_DPI
+    size_in: tuple[float, float] | None = None
+    panels: tuple[str, ...] | None = None
+
+
+def parse_size(text: str) -> tuple[float, float]:
+    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
+
+    Raises
+    ------
+    UsageError
+        Not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
+    """
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
+    if not match:
+        raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x5 (one column) or 7x6")
+    width, height = float(match.group(1)), float(match.group(2))
+    low, high = SIZE_RANGE_IN
+    if not (low <= width <= high and low <= height <= high):
+        raise UsageError(f"--size {text!r}: each side must be between {low:g} and {high:g} inches")
+    return width, height
+
+
+def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
+    """``"position,heading,top"`` -> the panel names, checked against ``known``.
+
+    Raises
+    ------
+    UsageError
+        An empty list, an unknown name or a name given twice.
+    """
+    names = [name.strip() for name in (text or "").split(",") if name.strip()]
+    if not names:
+        raise UsageError(f"--panels: name at least one panel ({', '.join(known)})")
+    unknown = [name for name in names if name not in known]
+    if unknown:
+        raise UsageError(f"--panels: unknown panel {unknown[0]!r}; use some of {', '.join(known)}")
+    if len(set(names)) != len(names):
+        raise UsageError("--panels: a panel is named twice")
+    return tuple(names)
+
+
+def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str] | None = None) -> FigureStyle:
+    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (checked).
+
+    ``known_panels`` defaults to the run figure's panels.
+
+    Raises
+    ------
+    UsageError
+        A resolution that is not a positive number, or a bad size or panel list.
+    """
+    if known_panels is None:
+        from .plots import PANEL_NAMES
+
+        known_panels = PANEL_NAMES
+    if dpi is not None and not (math.isfinite(dpi) and dpi > 0):
+        raise UsageError(f"--dpi must be a positive number, got {dpi}")
+    return FigureStyle(
+        dpi=float(dpi) if dpi is not None else DEFAULT_DPI,
+        size_in=parse_size(size) if size is not None else None,
+        panels=parse_panels(panels, known_panels) if panels is not None else None,
+    )
+
+
+def paper_rc() -> dict[str, Any]:
+    """matplotlib rcParams of the paper style (fonts in points, thin lines, the palette)."""
+    from cycler import cycler
+
+    return {
+        "font.size": 8.0,
+        "axes.titlesize": 8.5,
+        "axes.labelsize": 8.0,
+        "xtick.labelsize": 7.0,
+        "ytick.labelsize": 7.0,
+        "legend.fontsize": 7.5,
+        "figure.titlesize": 9.5,
+        "lines.linewidth": 1.0,
+        "axes.linewidth": 0.6,
+        "xtick.major.width": 0.6,
+        "ytick.major.width": 0.6,
+        "grid.linewidth": 0.4,
+        "grid.alpha": 0.35,
+        "axes.grid": True,
+        "axes.prop_cycle": cycler(color=list(PALETTE)),
+        "axes.titlelocation": "left",
+        "legend.frameon": False,
+        "pdf.fonttype": 42,
+        "ps.fonttype": 42,
+        "svg.fonttype": "none",
+        "mathtext.default": "regular",
+    }
+
+
+def run_colors(count: int) -> list[str]:
+    """One palette colour per run (cycling after seven)."""
+    return [PALETTE[index % len(PALETTE)] for index in range(count)]
+
+
+def new_figure(size_in: tuple[float, float], dpi: float) -> Any:
+    """A figure on the Agg canvas (no pyplot: no global state, no display needed)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=size_in, dpi=dpi, layout="constrained")
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def supported_formats() -> set[str]:
+    """File suffixes (without the dot) the Agg canvas can write: png, pdf, svg..."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    return set(FigureCanvasAgg.get_supported_filetypes())
+
+
+def check_plot_path(path: Path) -> None:
+    """Fail early, before any work, on a figure path that cannot be written.
+
+    Raises
+    ------
+    UsageError
+        A suffix matplotlib cannot write.
+    InputError
+        The folder does not exist.
+    """
+    suffix = path.suffix.lower().lstrip(".")
+    formats = supported_formats()
+    if suffix not in formats:
+        others = ", ".join(sorted(formats - {"pdf", "svg", "png"}))
+        raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .pdf or .svg (vector) or .png (or {others})")
+    if not path.parent.exists():
+        raise InputError(f"--plot {path}: the folder {path.parent} does not exist")
+
+
+def save_figure(figure: Any, path: Path, dpi: float) -> None:
+    """Write ``figure`` to ``path`` (format from the suffix), under the paper style.
+
+    Raises
+    ------
+    InputError
+        The file cannot be written.
+    """
+    import io
+
+    import matplotlib
+
+    from ..io.output_target import write_output_bytes
+
+    # Drawn in memory, then written like every output (atomically; a device in place).
+    image = io.BytesIO()
+    with matplotlib.rc_context(paper_rc()):
+        figure.savefig(image, dpi=dpi, format=Path(path).suffix.lower().lstrip(".") or "png")
+    write_output_bytes(path, image.getvalue(), "figure")
