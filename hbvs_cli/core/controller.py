@@ -254,10 +254,12 @@ class AdaptiveTrackingController:
         self.gains = gains
         self.dhat = float(dhat0)
 
-    def step(self, measured: Measurement, desired: DesiredState, dt: float) -> ControlOutput:
-        """Commands for this instant; advances dhat by ``dt`` seconds."""
+    def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
+        """Commands for this instant; advances dhat by ``dt`` seconds unless ``adapt`` is
+        False (the state is a prediction through a frame that gave no measurement)."""
         output = control_law(measured, desired, self.dhat, self.gains)
-        self.dhat += float(output.dhat_dot) * dt
+        if adapt:
+            self.dhat += float(output.dhat_dot) * dt
         return output
 
     def hold(self) -> tuple[float, float]:

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import UsageError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import STATUS_DROPPED, STATUS_OK, STATUS_OUTLIER, Observation
+from .state_filter import GATED, FilterEstimate, ServoStateFilter
 from .trajectory import DesiredTrajectory
 from .unicycle import integrate_unicycle
 
@@ -89,6 +90,9 @@ class StepRecord:
     saturated : bool
     dhat : float
         Depth estimate used at this step (m), before its update.
+    estimate : FilterEstimate or None
+        The state filter's estimate the law acted on (None without a filter, or before
+        its first measurement).
     """
 
     t: float
@@ -100,6 +104,7 @@ class StepRecord:
     w_c: float
     saturated: bool
     dhat: float
+    estimate: FilterEstimate | None = None
 
     @property
     def measurement(self) -> Measurement | None:
@@ -128,6 +133,7 @@ def run_closed_loop(
     duration: float,
     limits: ActuatorLimits | None = None,
     latency_steps: int = 0,
+    state_filter: ServoStateFilter | None = None,
 ) -> Iterator[StepRecord]:
     """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
 
@@ -147,6 +153,12 @@ def run_closed_loop(
     latency_steps : int
         The controller acts on the observation taken this many periods earlier; before
         the first one arrives it holds still.
+    state_filter : ServoStateFilter, optional
+        When given, the law acts on its estimate (docs/method.md, "State filter"): each
+        frame is fused at the time it was taken, the estimate is carried over the commands
+        sent since (latency), and through dropped frames and rejected ones the law runs on
+        the prediction with the adaptation frozen. Without it the law acts on each raw
+        measurement, as in the paper.
     """
     if dt <= 0.0 or not np.isfinite(dt):
         raise UsageError(f"the control period must be positive, got {dt}")
@@ -163,6 +175,8 @@ def run_closed_loop(
     pending: deque[Observation] = deque()
     previous = (0.0, 0.0)
     rejected_in_a_row = 0
+    # Commands sent since the frame being fused was taken (latency_steps of them).
+    unseen_commands: deque[tuple[float, float]] = deque()
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
@@ -171,19 +185,36 @@ def run_closed_loop(
         dhat = controller.dhat
         output = None
         rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
-        if observation.status == STATUS_OK:
+        coasting = observation.status == STATUS_DROPPED or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS
+        estimate = None
+        if state_filter is not None:
+            fresh = False
+            if observation.status == STATUS_OK:
+                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != GATED
+                coasting = coasting or not fresh
+            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+        if estimate is not None and (fresh or coasting):
+            output = controller.step(estimate.measurement, desired, dt, adapt=fresh)
+            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
+        elif state_filter is None and observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif observation.status == STATUS_DROPPED or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS:
+        elif coasting:
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
         yield StepRecord(
             t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, estimate=estimate,
         )
         previous = (v_c, w_c)
+        if state_filter is not None:
+            # The filter's state is at the time its last frame was taken: it moves on with
+            # the command sent then, and the later ones wait (latency).
+            unseen_commands.append(previous)
+            if len(unseen_commands) > latency_steps:
+                state_filter.predict(*unseen_commands.popleft(), dt, controller.dhat)
         pose = integrate_unicycle(pose, v_c, w_c, dt)
 
 

@@ -23,6 +23,7 @@ from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_L
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
+from ..core.state_filter import FILTER_EKF, FILTERS
 from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, TargetLostError, UsageError
 from .console import Console
@@ -66,6 +67,7 @@ class RepeatOptions:
     drop_rate: float = 0.0
     outlier_rate: float = 0.0
     exposure_step: str | None = None
+    state_filter: str | None = None
 
 
 @dataclass(frozen=True)
@@ -83,6 +85,7 @@ class Settings:
     pixel_noise: float
     offset: tuple[float, float, float]
     lost_timeout: float
+    state_filter: str = FILTER_EKF
 
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -149,6 +152,9 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     latency = int(pick(options.latency, "latency", 0))
     if latency < 0:
         raise UsageError("--latency must be >= 0 frames")
+    state_filter = str(pick(options.state_filter, "filter", FILTER_EKF))
+    if state_filter not in FILTERS:
+        raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     return Settings(
         gains=gains,
         law=law,
@@ -165,6 +171,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         pixel_noise=float(options.pixel_noise if options.pixel_noise else config.get("pixel_noise", 0.0)),
         offset=parse_offset(offset_text),
         lost_timeout=float(options.lost_timeout if options.lost_timeout != RepeatOptions.lost_timeout else config.get("lost_timeout", options.lost_timeout)),
+        state_filter=state_filter,
     )
 
 
@@ -309,6 +316,7 @@ class Simulation:
     dt: float
     duration: float
     settings: Settings
+    state_filter: Any = None
 
     @property
     def steps(self) -> int:
@@ -318,7 +326,7 @@ class Simulation:
         """The closed loop's step records (a generator): sense, control, limits, move."""
         return run_closed_loop(
             self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
-            self.settings.limits, self.settings.latency,
+            self.settings.limits, self.settings.latency, self.state_filter,
         )
 
 
@@ -332,16 +340,51 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
+    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
+    state_filter = make_state_filter(settings, model)
+    if state_filter is not None:
+        # The filter tests each residual against the noise it learns; the fixed gate set
+        # from the taught images (a few tenths of a pixel) only has to catch gross errors.
+        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
     return Simulation(
         scene=scene,
-        camera=SimulatedCamera(scene, model, settings, options, fit.template_image),
+        camera=camera,
         trajectory=trajectory,
         controller=AdaptiveTrackingController(settings.gains, settings.dhat0),
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
         settings=settings,
+        state_filter=state_filter,
     )
+
+
+#: With the state filter on, the fixed residual gate only catches gross errors (px).
+COARSE_RESIDUAL_GATE_PX = 3.0
+
+
+def _focal(model: Any) -> float:
+    return 0.5 * (model.camera.fx + model.camera.fy)
+
+
+def make_state_filter(settings: Settings, model: Any) -> Any:
+    """The state filter ``--filter`` asks for (None for ``none``), its noise started from
+    the fit's residual on the taught images (docs/method.md, "State filter")."""
+    if settings.state_filter != FILTER_EKF:
+        return None
+    from ..core.state_filter import ServoStateFilter
+
+    return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
+
+
+def detector_noise(model: Any) -> float:
+    """Per-coordinate noise of the fit's detector on the taught images (normalised units),
+    from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
+    residual_px = float((model.residual_px or {}).get("rms", float("nan")))
+    if not math.isfinite(residual_px):
+        return 0.0
+    points = model.m_ref.shape[0]
+    return residual_px / _focal(model) * math.sqrt(2.0 * points / max(2.0 * points - 3.0, 1.0))
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
