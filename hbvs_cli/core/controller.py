@@ -262,6 +262,14 @@ class AdaptiveTrackingController:
             self.dhat += float(output.dhat_dot) * dt
         return output
 
+    def feedforward(self, desired: DesiredState) -> tuple[float, float]:
+        """The taught commands (25) at the current dhat: (29)-(30) with every error zero,
+        ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``. Sent while the state
+        filter settles, so that the robot starts with the trajectory instead of jolting
+        after a wait."""
+        w_c = -float(desired.theta_d_dot)
+        return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
+
     def hold(self) -> tuple[float, float]:
         """Commands while the target is lost: stop, and leave dhat as it is."""
         return 0.0, 0.0

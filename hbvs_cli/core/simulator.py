@@ -193,7 +193,15 @@ def run_closed_loop(
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != GATED
                 coasting = coasting or not fresh
             estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
-        if estimate is not None and (fresh or coasting):
+        if estimate is not None and not state_filter.settled:
+            # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
+            # time, from the taught commands (25), while the first frames are averaged.
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
+            v_ff, w_ff = controller.feedforward(desired)
+            share = state_filter.settling_fraction
+            v_cmd = v_ff + share * (float(output.v_c) - v_ff)
+            w_cmd = w_ff + share * (float(output.w_c) - w_ff)
+        elif estimate is not None and (fresh or coasting):
             output = controller.step(estimate.measurement, desired, dt, adapt=fresh)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
         elif state_filter is None and observation.status == STATUS_OK:

@@ -74,6 +74,17 @@ class FilterSettings:
         Rejections in a row after which the filter restarts from the measurement.
     noise_time_constant : float
         Time constant of the running estimate of the detector's noise (s).
+    settle_time : float
+        Seconds of frames the filter fuses before its estimate is handed to the law: the
+        first frame alone is as noisy as the raw measurement, and the robot holds still
+        while a few more average it down.
+    fade_time : float
+        Seconds over which the law's feedback is then faded in (the commands go from the
+        taught ones (25) to those of (29)-(30)).
+    settle_noise : float
+        Measurement noise (normalised units; 4e-4 is 0.2 px at f = 500 px) from which
+        the whole settle and fade times apply; a cleaner camera needs them shorter, in
+        proportion to the noise variance.
     residual_quantile : float
         A frame whose residual is beyond this quantile of its chi^2 distribution, under
         the noise learnt so far, is rejected before it is fused.
@@ -90,6 +101,9 @@ class FilterSettings:
     noise_time_constant: float = 0.5
     min_noise: float = 1e-4
     residual_quantile: float = 0.999
+    settle_time: float = 0.3
+    fade_time: float = 0.5
+    settle_noise: float = 4e-4
 
     def __post_init__(self) -> None:
         for name in ("speed_noise", "turn_noise", "depth_uncertainty", "noise_time_constant", "min_noise", "gate"):
@@ -235,10 +249,30 @@ class ServoStateFilter:
         self.covariance: NDArray[np.float64] | None = None
         self.rejected_in_a_row = 0
         self.last_outcome = "predicted"
+        self.fused_time = 0.0
 
     @property
     def started(self) -> bool:
         return self.state is not None
+
+    @property
+    def settled(self) -> bool:
+        """True once the filter has fused ``settle_time`` seconds of frames."""
+        return self.state is not None and self.fused_time >= sum(self._settle_times()) - 1e-9
+
+    def _settle_times(self) -> tuple[float, float]:
+        """Settle and fade times, shrunk by (noise / settle_noise)^2 for a clean camera:
+        the number of frames needed to average the noise down scales so."""
+        scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
+        return self.settings.settle_time * scale, self.settings.fade_time * scale
+
+    @property
+    def settling_fraction(self) -> float:
+        """How far the filter is through its settling time, 0 to 1."""
+        settle, fade = self._settle_times()
+        if self.fused_time < settle:
+            return 0.0
+        return 1.0 if fade <= 0.0 else min(1.0, (self.fused_time - settle) / fade)
 
     @property
     def noise(self) -> float:
@@ -323,6 +357,7 @@ class ServoStateFilter:
         gain_times_p = self.covariance @ np.linalg.solve(innovation_covariance, self.covariance)
         self.covariance = self.covariance - gain_times_p
         self.covariance = 0.5 * (self.covariance + self.covariance.T)
+        self.fused_time += dt
         self.last_outcome = FUSED
         return FUSED
 
@@ -351,6 +386,7 @@ class ServoStateFilter:
                 self.noise_variance = sample
         self.state, self.covariance = z, covariance
         self.rejected_in_a_row = 0
+        self.fused_time = dt
         self.last_outcome = STARTED
         return STARTED
 
