@@ -115,7 +115,8 @@ def _limit(value: float | None, default: float | None) -> float | None:
     return value
 
 
-def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float) -> Settings:
+def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
+                     suggested_gains: ControllerGains | None = None) -> Settings:
     """Defaults < ``--config`` < command-line options."""
     config: dict[str, Any] = {}
     if options.config is not None:
@@ -131,7 +132,8 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     law = pick(options.law, "law", LAW_LATERAL_GAIN)
     if law not in LAWS:
         raise UsageError(f"--law must be one of {', '.join(LAWS)}, got {law!r}")
-    defaults = ControllerGains()
+    # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
+    defaults = suggested_gains if suggested_gains is not None else ControllerGains()
     gains = ControllerGains(
         k_v=pick(options.kv, "k_v", defaults.k_v),
         k_w=pick(options.kw, "k_w", defaults.k_w),
@@ -186,7 +188,7 @@ def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
     fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
-    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval)
+    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)
@@ -265,11 +267,27 @@ class _RunLog:
             "residual": float(record.observation.residual),
             "V": V,
         }
+        message.update(self._filter_fields(record))
         self.write_flat("/repeat/state", ns, message)
         self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
+
+    def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
+        """The state filter's estimate and standard deviation (what the law acted on)."""
+        estimate = record.estimate
+        if estimate is None:
+            return {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
+                    "theta_std": None, "x_h1_std": None, "x_h2_std": None, "noise_px": None}
+        state = estimate.measurement
+        std = estimate.std.tolist()
+        return {
+            "filter": estimate.outcome,
+            "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
+            "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
+            "noise_px": estimate.noise * _focal(self.model),
+        }
 
     def write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
         """Write a message whose values are plain numbers, strings, bools, None or small
@@ -380,11 +398,12 @@ def make_state_filter(settings: Settings, model: Any) -> Any:
 def detector_noise(model: Any) -> float:
     """Per-coordinate noise of the fit's detector on the taught images (normalised units),
     from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
+    from ..core.gains import noise_from_residual
+
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
-    points = model.m_ref.shape[0]
-    return residual_px / _focal(model) * math.sqrt(2.0 * points / max(2.0 * points - 3.0, 1.0))
+    return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:

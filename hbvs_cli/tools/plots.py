@@ -101,10 +101,27 @@ def _style_legend(ax: Any, styles: Mapping[str, str]) -> None:
 
 
 def _plot_commands(ax_v: Any, ax_w: Any, runs: Sequence[RunData], colors: Sequence[Any]) -> None:
+    from ..core.metrics import taught_commands
+
+    drawn: set[tuple[str, float]] = set()
     for run, color in zip(runs, colors):
         t = run.state["t"]
         ax_v.plot(t, run.state["v_c"], color=color, lw=1.4)
         ax_w.plot(t, run.state["w_c"], color=color, lw=1.4)
+        d_true = run.info.get("d_true")
+        dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+        depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
+        v_d, w_d = taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
+        ax_v.plot(t, v_d, color=color, lw=1.0, ls=":")
+        ax_w.plot(t, w_d, color=color, lw=1.0, ls=":")
+        limits = ((run.info.get("settings") or {}).get("limits")) or {}
+        for ax, name in ((ax_v, "max_v"), (ax_w, "max_w")):
+            bound = limits.get(name)
+            if isinstance(bound, (int, float)) and bound > 0 and (name, float(bound)) not in drawn:
+                drawn.add((name, float(bound)))
+                for sign in (-1.0, 1.0):
+                    ax.axhline(sign * bound, color="0.4", lw=1.0, ls="--")
+    _style_legend(ax_v, {"sent": "-", "taught (25)": ":", "limit": "--"})
     _time_panel(ax_v, "linear velocity command v_c (29)", "v_c (m/s)")
     _time_panel(ax_w, "angular velocity command w_c (30)", "w_c (rad/s)")
 
