@@ -11,6 +11,10 @@ adaptation is frozen; it resumes when the target is back. When a frame is droppe
 arrives), or a few in a row are rejected as outliers, the last command is held and the
 adaptation is frozen for those periods: stopping for one bad frame would only make the
 robot lag its trajectory.
+
+With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
+through frames that give no measurement (dropped, occluded, rejected) on its prediction for
+as long as the prediction's standard deviation stays small; only then does the robot stop.
 """
 
 from __future__ import annotations
@@ -187,12 +191,14 @@ def run_closed_loop(
         rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
         coasting = observation.status == STATUS_DROPPED or 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS
         estimate = None
+        fresh = predicted = False
         if state_filter is not None:
-            fresh = False
             if observation.status == STATUS_OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != GATED
-                coasting = coasting or not fresh
             estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+            # No usable frame (dropped, occluded, rejected): the law acts on the
+            # prediction while it is trusted, with the adaptation frozen.
+            predicted = not fresh and state_filter.trusted(estimate)
         if estimate is not None and not state_filter.settled:
             # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
             # time, from the taught commands (25), while the first frames are averaged.
@@ -201,7 +207,7 @@ def run_closed_loop(
             share = state_filter.settling_fraction
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
-        elif estimate is not None and (fresh or coasting):
+        elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=fresh)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
         elif state_filter is None and observation.status == STATUS_OK:

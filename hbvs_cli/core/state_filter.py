@@ -85,6 +85,10 @@ class FilterSettings:
         Measurement noise (normalised units; 4e-4 is 0.2 px at f = 500 px) from which
         the whole settle and fade times apply; a cleaner camera needs them shorter, in
         proportion to the noise variance.
+    coast_theta_std, coast_x_h_std : float
+        While the target is not seen (occluded, not found, rejected) the law keeps acting
+        on the prediction as long as its standard deviations stay within these (rad,
+        units of d*: 0.005 is 2 cm at 4 m); beyond them the robot stops.
     residual_quantile : float
         A frame whose residual is beyond this quantile of its chi^2 distribution, under
         the noise learnt so far, is rejected before it is fused.
@@ -101,6 +105,8 @@ class FilterSettings:
     noise_time_constant: float = 0.5
     min_noise: float = 1e-4
     residual_quantile: float = 0.999
+    coast_theta_std: float = math.radians(0.5)
+    coast_x_h_std: float = 0.005
     settle_time: float = 0.3
     fade_time: float = 0.5
     settle_noise: float = 4e-4
@@ -265,6 +271,13 @@ class ServoStateFilter:
         the number of frames needed to average the noise down scales so."""
         scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
         return self.settings.settle_time * scale, self.settings.fade_time * scale
+
+    def trusted(self, estimate: FilterEstimate | None) -> bool:
+        """Whether a prediction is good enough to act on without a frame."""
+        if estimate is None or not self.settled:
+            return False
+        std = estimate.std
+        return bool(std[0] <= self.settings.coast_theta_std and max(std[1], std[2]) <= self.settings.coast_x_h_std)
 
     @property
     def settling_fraction(self) -> float:

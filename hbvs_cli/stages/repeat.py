@@ -241,7 +241,8 @@ class _RunLog:
         status = record.observation.status
         if status != self.previous_status:
             if record.lost and not self._was_lost():
-                self.event(t, LOG_WARNING, f"target lost ({status}): stopping, adaptation frozen")
+                action = "driving on the state filter's prediction" if output is not None else "stopping"
+                self.event(t, LOG_WARNING, f"target lost ({status}): {action}, adaptation frozen")
             elif not record.lost and self._was_lost():
                 self.event(t, LOG_INFO, "target back: tracking resumed")
             self.previous_status = status
