@@ -28,7 +28,8 @@ def final_mean(values, fraction=0.05):
 
 @pytest.mark.parametrize("law", ["lateral-gain", "paper"])
 def test_exact_points_at_500_hz_lyapunov_never_increases(default_fit, tmp_path, law):
-    """--perception points --pixel-noise 0, no actuator limits: V (36) is non-increasing and
+    """--perception points --pixel-noise 0, no actuator limits, --filter none (the law on
+    each raw measurement, the paper exactly): V (36) is non-increasing and
     e1, e3 (and e2, for the lateral-gain law) go to zero on the moving default path.
 
     The desired trajectory satisfies (25) exactly (x_hd2 is integrated from x_hd1 and
@@ -40,7 +41,7 @@ def test_exact_points_at_500_hz_lyapunov_never_increases(default_fit, tmp_path, 
     fit_path, model = default_fit
     run_path = tmp_path / "run.mcap"
     make_run(fit_path, run_path, sim=True, perception="points", pixel_noise=0.0, rate=500.0,
-             max_v=math.inf, max_w=math.inf, law=law)
+             max_v=math.inf, max_w=math.inf, law=law, state_filter="none")
     run = read_run(run_path)
     V = run.state["V"]
     assert np.all(np.isfinite(V)) and run.steps == int(round(model.trajectory.t_end * 500.0))

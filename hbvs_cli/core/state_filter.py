@@ -225,6 +225,62 @@ def wrap(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
+# --------------------------------------------------------------------------- 3x3 algebra
+# The filter runs every control period; a 3x3 in plain floats costs a fraction of numpy's
+# per-call overhead. A symmetric matrix is the 6-tuple (a00, a01, a02, a11, a12, a22).
+Sym3 = tuple[float, float, float, float, float, float]
+Vec3 = tuple[float, float, float]
+
+
+def _sym_inverse(a: Sym3) -> Sym3:
+    """Inverse of a symmetric 3x3 (cofactors); ZeroDivisionError when singular."""
+    a00, a01, a02, a11, a12, a22 = a
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if not det > 0.0:
+        raise ZeroDivisionError("not positive definite")
+    inv = 1.0 / det
+    return (c00 * inv, c01 * inv, c02 * inv, (a00 * a22 - a02 * a02) * inv, (a01 * a02 - a00 * a12) * inv,
+            (a00 * a11 - a01 * a01) * inv)
+
+
+def _sym_times(a: Sym3, v: Vec3) -> Vec3:
+    a00, a01, a02, a11, a12, a22 = a
+    return (a00 * v[0] + a01 * v[1] + a02 * v[2], a01 * v[0] + a11 * v[1] + a12 * v[2], a02 * v[0] + a12 * v[1] + a22 * v[2])
+
+
+def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
+    a00, a01, a02, a11, a12, a22 = a
+    return np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
+
+
+def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
+    """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
+    theta, x1, x2 = state
+    c, s = math.cos(theta), math.sin(theta)
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for yr, zr, gi in zip(y_ref, z_ref, g):
+        q0 = c - s * yr + x1 * gi
+        q1 = s + c * yr + x2 * gi
+        dq0 = -s - c * yr
+        inv = 1.0 / q0
+        inv2 = inv * inv
+        jy_t = ((c - s * yr) * q0 - q1 * dq0) * inv2
+        jy_1 = -q1 * gi * inv2
+        jy_2 = gi * inv
+        jz_t = -zr * dq0 * inv2
+        jz_1 = -zr * gi * inv2
+        a00 += jy_t * jy_t + jz_t * jz_t
+        a01 += jy_t * jy_1 + jz_t * jz_1
+        a02 += jy_t * jy_2
+        a11 += jy_1 * jy_1 + jz_1 * jz_1
+        a12 += jy_1 * jy_2
+        a22 += jy_2 * jy_2
+    return a00, a01, a02, a11, a12, a22
+
+
 class ServoStateFilter:
     """Extended Kalman filter on (theta, x_h1, x_h2) (module docstring; docs/method.md).
 
@@ -247,30 +303,32 @@ class ServoStateFilter:
         if not (math.isfinite(noise) and noise >= 0.0):
             raise UsageError(f"the initial measurement noise must be a non-negative number, got {noise}")
         points = self.m_ref.shape[0]
+        self._y_ref = self.m_ref[:, 1].tolist()
+        self._z_ref = self.m_ref[:, 2].tolist()
+        self._g = (self.m_ref @ self.normal).tolist()
         # E[r^2] = sigma^2 (2N - 3) / (2N): three parameters are fitted to 2N coordinates.
         self._residual_to_variance = 2.0 * points / max(2.0 * points - 3.0, 1.0)
         self._residual_gate = chi2_quantile(self.settings.residual_quantile, max(2 * points - 3, 1)) / max(2 * points - 3, 1)
         self.noise_variance = max(noise, self.settings.min_noise) ** 2
-        self.state: NDArray[np.float64] | None = None
-        self.covariance: NDArray[np.float64] | None = None
+        self._state: Vec3 | None = None
+        self._covariance: Sym3 | None = None
         self.rejected_in_a_row = 0
         self.last_outcome = "predicted"
         self.fused_time = 0.0
 
     @property
-    def started(self) -> bool:
-        return self.state is not None
+    def state(self) -> NDArray[np.float64] | None:
+        """(theta, x_h1, x_h2) at the time of the last fused frame, or None before the first."""
+        return None if self._state is None else np.array(self._state)
 
     @property
-    def settled(self) -> bool:
-        """True once the filter has fused ``settle_time`` seconds of frames."""
-        return self.state is not None and self.fused_time >= sum(self._settle_times()) - 1e-9
+    def covariance(self) -> NDArray[np.float64] | None:
+        """Its covariance, shape (3, 3)."""
+        return None if self._covariance is None else _sym_to_array(self._covariance)
 
-    def _settle_times(self) -> tuple[float, float]:
-        """Settle and fade times, shrunk by (noise / settle_noise)^2 for a clean camera:
-        the number of frames needed to average the noise down scales so."""
-        scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
-        return self.settings.settle_time * scale, self.settings.fade_time * scale
+    @property
+    def started(self) -> bool:
+        return self._state is not None
 
     def trusted(self, estimate: FilterEstimate | None) -> bool:
         """Whether a prediction is good enough to act on without a frame."""
@@ -281,11 +339,22 @@ class ServoStateFilter:
 
     @property
     def settling_fraction(self) -> float:
-        """How far the filter is through its settling time, 0 to 1."""
+        """How far the law's feedback is faded in, 0 to 1 (see ``FilterSettings``)."""
         settle, fade = self._settle_times()
         if self.fused_time < settle:
             return 0.0
         return 1.0 if fade <= 0.0 else min(1.0, (self.fused_time - settle) / fade)
+
+    @property
+    def settled(self) -> bool:
+        """True once the filter has fused its settle and fade times of frames."""
+        return self._state is not None and self.fused_time >= sum(self._settle_times()) - 1e-9
+
+    def _settle_times(self) -> tuple[float, float]:
+        """Settle and fade times, shrunk by (noise / settle_noise)^2 for a clean camera:
+        the number of frames needed to average the noise down scales so."""
+        scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
+        return self.settings.settle_time * scale, self.settings.fade_time * scale
 
     @property
     def noise(self) -> float:
@@ -295,36 +364,42 @@ class ServoStateFilter:
     # ------------------------------------------------------------------ prediction
     def predict(self, v: float, w: float, dt: float, depth: float) -> None:
         """Advance the estimate over a command (v, w) held for dt, at depth dhat (m)."""
-        if self.state is None:
+        if self._state is None:
             return
-        self.state, self.covariance = self._predicted(self.state, self.covariance, v, w, dt, depth)
+        self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt, depth)
 
-    def _predicted(
-        self, state: NDArray[np.float64], covariance: NDArray[np.float64], v: float, w: float, dt: float, depth: float
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _predicted(self, state: Vec3, covariance: Sym3, v: float, w: float, dt: float, depth: float) -> tuple[Vec3, Sym3]:
+        """(5), (23) over one held command, and ``F P F^T + Q`` with ``F = diag(1, Rz(-w dt))``."""
         settings = self.settings
-        new_state = np.array(predict_state(state, v, w, dt, depth))
+        x1, x2 = state[1], state[2]
+        new_state = predict_state(state, v, w, dt, depth)
         dphi = w * dt
         c, s = math.cos(dphi), math.sin(dphi)
-        transition = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
-        x1, x2 = float(state[1]), float(state[2])
-        # White velocity errors of spectral density q: their integral over dt has variance q dt.
-        g_v = np.array([0.0, -1.0 / depth, 0.0])
-        g_w = np.array([-1.0, x2, -x1])
-        depth_term = (v * dt * settings.depth_uncertainty / depth) ** 2
-        process = (
-            np.outer(g_v, g_v) * (settings.speed_noise**2 * dt)
-            + np.outer(g_w, g_w) * (settings.turn_noise**2 * dt)
+        p00, p01, p02, p11, p12, p22 = covariance
+        cc, ss, cs = c * c, s * s, c * s
+        # White velocity errors of spectral density q enter through g_v = [0, -1/d, 0] and
+        # g_w = [-1, x_h2, -x_h1]; their integral over dt has variance q dt.
+        qv = settings.speed_noise**2 * dt / (depth * depth) + (v * dt * settings.depth_uncertainty / depth) ** 2
+        qw = settings.turn_noise**2 * dt
+        return new_state, (
+            p00 + qw,
+            c * p01 + s * p02 - qw * x2,
+            -s * p01 + c * p02 + qw * x1,
+            cc * p11 + 2.0 * cs * p12 + ss * p22 + qv + qw * x2 * x2,
+            -cs * p11 + (cc - ss) * p12 + cs * p22 - qw * x1 * x2,
+            ss * p11 - 2.0 * cs * p12 + cc * p22 + qw * x1 * x1,
         )
-        process[1, 1] += depth_term
-        return new_state, transition @ covariance @ transition.T + process
 
     def extrapolate(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """The estimate carried over commands already sent but not yet seen by the camera
-        (latency), without changing the filter."""
-        if self.state is None:
+        """The estimate and its covariance carried over commands already sent but not yet
+        seen by the camera (latency), without changing the filter."""
+        carried = self._carried(commands, dt, depth)
+        return None if carried is None else (np.array(carried[0]), _sym_to_array(carried[1]))
+
+    def _carried(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[Vec3, Sym3] | None:
+        if self._state is None:
             return None
-        state, covariance = self.state, self.covariance
+        state, covariance = self._state, self._covariance
         for v, w in commands:
             state, covariance = self._predicted(state, covariance, v, w, dt, depth)
         return state, covariance
@@ -342,62 +417,75 @@ class ServoStateFilter:
         dt : float
             Time since the previous frame (s), for the running noise estimate.
         """
-        if math.isfinite(residual) and self.state is not None:
+        if math.isfinite(residual) and self._state is not None:
             # The residual alone tells a wrong point: r^2 2N / sigma^2 ~ chi^2(2N - 3).
             ratio = residual * residual * self._residual_to_variance / self.noise_variance
             if ratio > self._residual_gate:
                 return self._reject(measured, residual, dt)
             # Learnt before the innovation gate: a noisier camera must not look like outliers.
             self._learn_noise(residual, dt)
-        z = np.array([float(measured.theta), float(measured.x_h1), float(measured.x_h2)])
-        information = measurement_information(self.m_ref, self.normal, z)
+        z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
         try:
-            measurement_covariance = self.noise_variance * np.linalg.inv(information)
-        except np.linalg.LinAlgError:
+            inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+        except ZeroDivisionError:
             self.last_outcome = GATED
             return GATED
-        if self.state is None:
+        variance = self.noise_variance
+        measurement_covariance = tuple(variance * value for value in inverse_information)
+        if self._state is None:
             return self._start(z, measurement_covariance, residual, dt)
-        innovation = z - self.state
-        innovation[0] = wrap(innovation[0])
-        innovation_covariance = self.covariance + measurement_covariance
-        weighted = np.linalg.solve(innovation_covariance, innovation)
-        if float(innovation @ weighted) > self.settings.gate:
+        state, p = self._state, self._covariance
+        innovation = (wrap(z[0] - state[0]), z[1] - state[1], z[2] - state[2])
+        try:
+            s_inverse = _sym_inverse(tuple(a + b for a, b in zip(p, measurement_covariance)))
+        except ZeroDivisionError:
+            return self._reject(measured, residual, dt, z, measurement_covariance)
+        weighted = _sym_times(s_inverse, innovation)
+        if innovation[0] * weighted[0] + innovation[1] * weighted[1] + innovation[2] * weighted[2] > self.settings.gate:
             return self._reject(measured, residual, dt, z, measurement_covariance)
         self.rejected_in_a_row = 0
-        self.state = self.state + self.covariance @ weighted
-        # Joseph-free form is enough: P - P S^-1 P stays symmetric positive for a 3x3.
-        gain_times_p = self.covariance @ np.linalg.solve(innovation_covariance, self.covariance)
-        self.covariance = self.covariance - gain_times_p
-        self.covariance = 0.5 * (self.covariance + self.covariance.T)
+        step = _sym_times(p, weighted)
+        self._state = (state[0] + step[0], state[1] + step[1], state[2] + step[2])
+        # P - P S^-1 P, column by column of P (symmetric by construction).
+        p_full = ((p[0], p[1], p[2]), (p[1], p[3], p[4]), (p[2], p[4], p[5]))
+        columns = [_sym_times(s_inverse, column) for column in p_full]  # S^-1 P, column j
+        reduction = [[sum(p_full[i][k] * columns[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+        self._covariance = (
+            p[0] - reduction[0][0], p[1] - 0.5 * (reduction[0][1] + reduction[1][0]), p[2] - 0.5 * (reduction[0][2] + reduction[2][0]),
+            p[3] - reduction[1][1], p[4] - 0.5 * (reduction[1][2] + reduction[2][1]), p[5] - reduction[2][2],
+        )
         self.fused_time += dt
         self.last_outcome = FUSED
         return FUSED
 
-    def _reject(self, measured: Measurement, residual: float, dt: float, z: NDArray[np.float64] | None = None,
-                covariance: NDArray[np.float64] | None = None) -> str:
+    def _reject(self, measured: Measurement, residual: float, dt: float, z: Vec3 | None = None,
+                covariance: Sym3 | None = None) -> str:
         """An outlier; after ``reset_after`` in a row the filter restarts from this frame."""
         self.rejected_in_a_row += 1
         if self.rejected_in_a_row >= self.settings.reset_after:
             # The camera, not the detector, changed (or the filter diverged): start over,
             # noise included.
-            self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2) if math.isfinite(residual) else self.noise_variance
-            if z is None:
-                z = np.array([float(measured.theta), float(measured.x_h1), float(measured.x_h2)])
-                covariance = self.noise_variance * np.linalg.inv(measurement_information(self.m_ref, self.normal, z))
-            return self._start(z, covariance, residual, dt)
+            if math.isfinite(residual):
+                self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
+            z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+            try:
+                inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+            except ZeroDivisionError:
+                self.last_outcome = GATED
+                return GATED
+            return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
         self.last_outcome = GATED
         return GATED
 
-    def _start(self, z: NDArray[np.float64], covariance: NDArray[np.float64], residual: float, dt: float) -> str:
-        if self.state is None and math.isfinite(residual):
+    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> str:
+        if self._state is None and math.isfinite(residual):
             # The first frame's own residual beats a prior from other images (the taught
             # ones may have been cleaner than this camera).
             sample = residual * residual * self._residual_to_variance
             if sample > self.noise_variance:
-                covariance = covariance * (sample / self.noise_variance)
+                covariance = tuple(value * (sample / self.noise_variance) for value in covariance)
                 self.noise_variance = sample
-        self.state, self.covariance = z, covariance
+        self._state, self._covariance = z, covariance
         self.rejected_in_a_row = 0
         self.fused_time = dt
         self.last_outcome = STARTED
@@ -414,14 +502,14 @@ class ServoStateFilter:
     # ------------------------------------------------------------------ output
     def estimate(self, commands: list[tuple[float, float]], dt: float, depth: float, command: tuple[float, float]) -> FilterEstimate | None:
         """The estimate now: carried over ``commands`` sent since the last frame was taken
-        (latency), with the derivative (5), (23) under ``command``."""
-        carried = self.extrapolate(commands, dt, depth)
+        (latency), with its derivative (5), (23) under ``command`` (the last one sent)."""
+        carried = self._carried(commands, dt, depth)
         if carried is None:
             return None
-        state, covariance = carried
+        state, p = carried
         return FilterEstimate(
-            measurement=Measurement(theta=float(state[0]), x_h1=float(state[1]), x_h2=float(state[2])),
-            std=np.sqrt(np.maximum(np.diag(covariance), 0.0)),
+            measurement=Measurement(theta=state[0], x_h1=state[1], x_h2=state[2]),
+            std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[3], 0.0)), math.sqrt(max(p[5], 0.0)))),
             rate=state_rate(state, command[0], command[1], depth),
             noise=self.noise,
             outcome=self.last_outcome,
