@@ -259,8 +259,12 @@ class AdaptiveTrackingController:
         False (the state is a prediction through a frame that gave no measurement)."""
         output = control_law(measured, desired, self.dhat, self.gains)
         if adapt:
-            self.dhat += float(output.dhat_dot) * dt
+            self.adapt(output, dt)
         return output
+
+    def adapt(self, output: ControlOutput, dt: float) -> None:
+        """Integrate the update law (31) of one evaluation over ``dt`` seconds."""
+        self.dhat += float(output.dhat_dot) * dt
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
         """The taught commands (25) at the current dhat: (29)-(30) with every error zero,

@@ -208,7 +208,7 @@ def run_closed_loop(
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
         elif fresh or predicted:
-            output = controller.step(estimate.measurement, desired, dt, adapt=fresh)
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
         elif state_filter is None and observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
@@ -218,6 +218,9 @@ def run_closed_loop(
         else:
             v_cmd, w_cmd = controller.hold()
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
+        if fresh and output is not None and state_filter.settled and not saturated:
+            # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
+            controller.adapt(output, dt)
         yield StepRecord(
             t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
             v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, estimate=estimate,

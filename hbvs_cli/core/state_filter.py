@@ -107,8 +107,8 @@ class FilterSettings:
     residual_quantile: float = 0.999
     coast_theta_std: float = math.radians(0.5)
     coast_x_h_std: float = 0.005
-    settle_time: float = 0.3
-    fade_time: float = 0.5
+    settle_time: float = 0.5
+    fade_time: float = 1.5
     settle_noise: float = 4e-4
 
     def __post_init__(self) -> None:
