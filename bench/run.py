@@ -187,8 +187,8 @@ _LOOP = (
     "from hbvs_cli.io.fit_file import read_fit_file\n"
     "from hbvs_cli.stages.repeat import RepeatOptions, resolve_settings, prepare_simulation\n"
     "fit = read_fit_file(sys.argv[1])\n"
-    "options = RepeatOptions(input=sys.argv[1], sim=True, perception=sys.argv[2], speed=float(sys.argv[3]))\n"
-    "settings = resolve_settings(options, fit.model.dhat0, 30.0)\n"
+    "options = RepeatOptions(input=sys.argv[1], sim=True, perception=sys.argv[2], speed=float(sys.argv[3]), state_filter=sys.argv[4])\n"
+    "settings = resolve_settings(options, fit.model.dhat0, 30.0, fit.model.suggested_gains())\n"
     "simulation = prepare_simulation(options, settings, fit)\n"
     "start = time.perf_counter()\n"
     "steps = sum(1 for _ in simulation.run())\n"
@@ -203,14 +203,20 @@ def bench_closed_loop(work: Path, quick: bool) -> list[Figure]:
     environment = dict(os.environ, OMP_NUM_THREADS="1")
     figures = []
     # --speed stretches the 20 s path: more control steps at 30 Hz for a steadier figure.
+    unfiltered_loop = None
     for perception, speed, target in (("points", 0.05 if not quick else 0.2, 300.0), ("images", 0.25 if not quick else 1.0, 10.0)):
-        loops = []
+        loops, plain_loops = [], []
         for _ in range(1 if quick else 3):
-            result = subprocess.run([sys.executable, "-c", _LOOP, str(fit), perception, str(speed)],
-                                    capture_output=True, text=True, check=True, env=environment)
-            steps, seconds = json.loads(result.stdout.strip().splitlines()[-1])
-            loops.append(seconds)
+            for state_filter, times in (("ekf", loops), ("none", plain_loops)):
+                if state_filter == "none" and perception != "points":
+                    continue
+                result = subprocess.run([sys.executable, "-c", _LOOP, str(fit), perception, str(speed), state_filter],
+                                        capture_output=True, text=True, check=True, env=environment)
+                steps, seconds = json.loads(result.stdout.strip().splitlines()[-1])
+                times.append(seconds)
         loop = statistics.median(loops)
+        if plain_loops:
+            unfiltered_loop = statistics.median(plain_loops)
         multiple = steps / 30.0 / loop
         # The whole command as a user runs it, with the run file written, for reference.
         wall, _ = run_cli("repeat", str(fit), "--sim", "--perception", perception, "--speed", str(speed),
@@ -226,6 +232,15 @@ def bench_closed_loop(work: Path, quick: bool) -> list[Figure]:
             f"the whole hbvs repeat command, writing its run file (4 MCAP messages a step): {whole:.0f}x",
             f"hbvs repeat fit.mcap --sim --perception {perception} --speed {speed} (pinned to one core)",
         ))
+        if perception == "points" and unfiltered_loop is not None:
+            figures.append(Figure(
+                "2c. state filter: its share of a closed-loop step, --perception points (us per step)",
+                (loop - unfiltered_loop) / steps * 1e6, "< 55 us (300x real time at 30 Hz needs the whole step < 111 us)",
+                (loop - unfiltered_loop) / steps * 1e6 < 55.0,
+                f"{loop / steps * 1e6:.0f} us per step with --filter ekf, {unfiltered_loop / steps * 1e6:.0f} us with --filter none "
+                f"(fuse, carry over latency, predict; the soft start and the estimate's std included)",
+                f"hbvs repeat fit.mcap --sim --perception points --speed {speed} --filter ekf|none (pinned to one core)",
+            ))
     return figures
 
 

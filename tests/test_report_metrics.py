@@ -222,10 +222,21 @@ def test_report_of_a_synthetic_run():
     assert report["lyapunov"]["increase_fraction"] == 0.0
     assert report["depth"] == {"dhat_initial": 3.0, "dhat_final": pytest.approx(3.9), "d_true": 4.0,
                                "relative_error": pytest.approx(0.025)}
+    t = np.arange(N) * DT
+    dw_dt = np.diff(0.05 * np.cos(t)) / DT
+    # The taught commands (25) at d* = 4 m: w_d = 0, v_d = 4 (0.02 + 0.01 sin t).
+    dv_d_dt = np.diff(4.0 * (0.02 + 0.01 * np.sin(t))) / DT
     assert report["commands"] == {"v_peak_mps": pytest.approx(0.1), "v_rms_mps": pytest.approx(0.1),
                                   "w_peak_radps": pytest.approx(0.05),
-                                  "w_rms_radps": pytest.approx(0.05 * math.sqrt(np.mean(np.cos(np.arange(N) * DT) ** 2))),
-                                  "saturated_fraction": pytest.approx(0.1)}
+                                  "w_rms_radps": pytest.approx(0.05 * math.sqrt(np.mean(np.cos(t) ** 2))),
+                                  "saturated_fraction": pytest.approx(0.1),
+                                  "v_tv_per_s": 0.0, "w_tv_per_s": pytest.approx(np.sum(np.abs(np.diff(0.05 * np.cos(t)))) / 9.99),
+                                  "dv_dt_rms_mps2": 0.0, "dw_dt_rms_radps2": pytest.approx(np.sqrt(np.mean(dw_dt**2))),
+                                  "at_limit_fraction": 0.0,
+                                  "limits": {"max_v": None, "max_w": None, "max_accel": None},
+                                  "taught": {"v_tv_per_s": pytest.approx(np.sum(np.abs(np.diff(4.0 * 0.01 * np.sin(t)))) / 9.99),
+                                             "w_tv_per_s": 0.0, "dv_dt_rms_mps2": pytest.approx(np.sqrt(np.mean(dv_d_dt**2))),
+                                             "dw_dt_rms_radps2": 0.0}}
     assert report["target"] == {"lost_frames": 50, "lost_fraction": pytest.approx(0.05), "longest_loss_s": pytest.approx(0.5),
                                 "dropped_frames": 0, "dropped_fraction": 0.0}
     assert report["condition35"]["min_abs_xhd1_dot"] == pytest.approx(0.01, abs=1e-6)      # at sin t = -1
@@ -246,6 +257,8 @@ def test_tolerances_change_the_verdict_and_the_settling_times():
         f"pass: final position error {final_cm:.3g} cm <= 1 cm",
         "pass: final |heading error| 1.15 deg <= 2 deg",
         f"pass: V final / V(0) = {(R ** (N - 1)) ** 2:.3g} < 0.5",
+        f"pass: commands smooth: RMS dv/dt 0 <= {10 * loose['commands']['taught']['dv_dt_rms_mps2'] + 1:.3g} m/s^2, "
+        f"RMS dw/dt {loose['commands']['dw_dt_rms_radps2']:.3g} <= 1 rad/s^2",
     ]
     assert loose["pose_error"]["heading_deg"]["settling_time_s"] == 0.0
     tight = build_report(synthetic_run(), {"position_m": 1e-6, "heading_deg": 2.0})
@@ -263,7 +276,8 @@ def test_replay_stopped_and_truncated_runs_never_converge():
     # Without ground truth the image errors are checked: e1, e2 but not ebar2, and e3.
     checked = [r.split(":")[1].split()[1] for r in replay["verdict"]["reasons"] if "final" in r]
     assert checked == ["|e1|", "|e2|", "|e3|"]
-    assert replay["verdict"]["reasons"][-1].startswith("skip: V unknown")
+    assert replay["verdict"]["reasons"][-2].startswith("skip: V unknown")
+    assert replay["verdict"]["reasons"][-1].startswith("pass: commands smooth")
     stopped = build_report(synthetic_run(events=[(4.0, 4, "target lost for more than 3 s: run stopped")]), {"heading_deg": 2.0})
     assert stopped["verdict"]["converged"] is False
     assert stopped["verdict"]["checks"]["finished"] == "fail: run stopped at t = 4.00 s (target lost for more than 3 s: run stopped)"
@@ -280,3 +294,19 @@ def test_default_tolerances_and_bad_overrides():
     for bad in (0.0, -1.0, math.inf, math.nan):
         with pytest.raises(UsageError, match="positive"):
             resolve_tolerances({"e1": bad})
+
+
+def test_chattering_commands_fail_the_verdict_and_limits_are_counted():
+    """Rule 5 (docs/report.md): v switching between +-0.5 m/s every step, as the paper's
+    law did at 200 Hz with 0.2 px of noise, fails however small the errors; the fraction
+    of steps at a limit counts |v| at max_v."""
+    run = synthetic_run()
+    run.state["v_c"] = 0.5 * np.where(np.arange(N) % 2 == 0, 1.0, -1.0)
+    run.info["settings"]["limits"] = {"max_v": 0.5, "max_w": 0.6, "max_accel": None}
+    report = build_report(run, {"heading_deg": 2.0})
+    commands = report["commands"]
+    assert commands["dv_dt_rms_mps2"] == pytest.approx(1.0 / DT)              # 100 m/s^2
+    assert commands["v_tv_per_s"] == pytest.approx(1.0 * (N - 1) / 9.99)
+    assert commands["at_limit_fraction"] == 1.0
+    assert report["verdict"]["converged"] is False
+    assert report["verdict"]["reasons"][-1].startswith("fail: commands chatter: RMS dv/dt 100 > 1.29 m/s^2")

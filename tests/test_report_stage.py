@@ -87,7 +87,9 @@ def test_json_has_the_documented_structure(runs):
             assert tuple(report[section][name]) == STATISTICS
     assert set(report["lyapunov"]) == {"initial", "final", "ratio", "increase_fraction"}
     assert set(report["depth"]) == {"dhat_initial", "dhat_final", "d_true", "relative_error"}
-    assert set(report["commands"]) == {"v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", "saturated_fraction"}
+    assert set(report["commands"]) == {"v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", "saturated_fraction",
+                                       "v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2", "at_limit_fraction",
+                                       "limits", "taught"}
     assert set(report["target"]) == {"lost_frames", "lost_fraction", "longest_loss_s", "dropped_frames", "dropped_fraction"}
     assert set(report["condition35"]) == {"min_abs_xhd1_dot", "fit_min_abs_xhd1_dot"}
     assert set(report["verdict"]) == {"converged", "checks", "reasons"}

@@ -28,7 +28,8 @@ def final_mean(values, fraction=0.05):
 
 @pytest.mark.parametrize("law", ["lateral-gain", "paper"])
 def test_exact_points_at_500_hz_lyapunov_never_increases(default_fit, tmp_path, law):
-    """--perception points --pixel-noise 0, no actuator limits: V (36) is non-increasing and
+    """--perception points --pixel-noise 0, no actuator limits, --filter none (the law on
+    each raw measurement, the paper exactly): V (36) is non-increasing and
     e1, e3 (and e2, for the lateral-gain law) go to zero on the moving default path.
 
     The desired trajectory satisfies (25) exactly (x_hd2 is integrated from x_hd1 and
@@ -40,7 +41,7 @@ def test_exact_points_at_500_hz_lyapunov_never_increases(default_fit, tmp_path, 
     fit_path, model = default_fit
     run_path = tmp_path / "run.mcap"
     make_run(fit_path, run_path, sim=True, perception="points", pixel_noise=0.0, rate=500.0,
-             max_v=math.inf, max_w=math.inf, law=law)
+             max_v=math.inf, max_w=math.inf, law=law, state_filter="none", gamma=2500.0)
     run = read_run(run_path)
     V = run.state["V"]
     assert np.all(np.isfinite(V)) and run.steps == int(round(model.trajectory.t_end * 500.0))
@@ -91,7 +92,9 @@ def test_depth_is_learnt_from_a_fifth_of_it(default_fit, tmp_path):
     run = read_run(tmp_path / "run.mcap")
     d_true = run.info["d_true"]
     assert run.state["dhat"][0] == pytest.approx(0.8)
-    assert abs(run.state["dhat"][-1] - d_true) < 0.03 * d_true
+    # The fit's gamma (971, designed for 0.5 px of detector noise; docs/method.md) learns
+    # d* at about 0.15 1/s: from d*/5 it ends about 4 % low (0.3 % with gamma 2500).
+    assert abs(run.state["dhat"][-1] - d_true) < 0.05 * d_true
     position, heading = pose_errors(run)
     assert final_mean(position) < 0.01 and final_mean(heading) < 0.2
 
@@ -130,8 +133,10 @@ def test_replay_of_a_displaced_drive_gives_the_displacement_back(default_fit, tm
 
 
 def test_target_lost_for_a_stretch_stops_resumes_and_converges(default_fit, tmp_path):
+    """Without the state filter the robot stops while the target is hidden (with it, it
+    drives on the prediction: tests/test_robustness_faults.py)."""
     fit_path, _ = default_fit
-    make_run(fit_path, tmp_path / "run.mcap", sim=True, occlude=["6:7"])
+    make_run(fit_path, tmp_path / "run.mcap", sim=True, occlude=["6:7"], state_filter="none")
     run = read_run(tmp_path / "run.mcap")
     t = run.state["t"]
     lost = run.lost
@@ -183,12 +188,13 @@ def test_command_stream_on_stdout_for_a_robot_driver(default_fit, tmp_path):
 def test_config_file_speed_and_limits(default_fit, tmp_path):
     from conftest import SAMPLES
 
-    fit_path, _ = default_fit
+    fit_path, model = default_fit
     config = tmp_path / "gains.toml"
     config.write_text('law = "paper"\n[gains]\nk_v = 3.0\n[limits]\nmax_v = 0.3\n')
     make_run(fit_path, tmp_path / "run.mcap", sim=True, perception="points", config=config, kw=1.5, speed=2.0)
     run = read_run(tmp_path / "run.mcap")
-    assert run.info["law"] == "paper" and run.info["gains"] == {"k_v": 3.0, "k_w": 1.5, "gamma": 2500.0, "k_2": 1.0}
+    # gamma is not in the config: the fit's suggestion (core/gains.py).
+    assert run.info["law"] == "paper" and run.info["gains"] == {"k_v": 3.0, "k_w": 1.5, "gamma": pytest.approx(model.gains["gamma"]), "k_2": 1.0}
     assert run.state["t"][-1] == pytest.approx(9.95, abs=0.05)  # the 20 s path at twice the pace
     assert np.abs(run.state["v_c"]).max() <= 0.3 + 1e-12
     # The feed-forward is scaled with the pace: x_hd1_dot doubles.

@@ -254,11 +254,25 @@ class AdaptiveTrackingController:
         self.gains = gains
         self.dhat = float(dhat0)
 
-    def step(self, measured: Measurement, desired: DesiredState, dt: float) -> ControlOutput:
-        """Commands for this instant; advances dhat by ``dt`` seconds."""
+    def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
+        """Commands for this instant; advances dhat by ``dt`` seconds unless ``adapt`` is
+        False (the state is a prediction through a frame that gave no measurement)."""
         output = control_law(measured, desired, self.dhat, self.gains)
-        self.dhat += float(output.dhat_dot) * dt
+        if adapt:
+            self.adapt(output, dt)
         return output
+
+    def adapt(self, output: ControlOutput, dt: float) -> None:
+        """Integrate the update law (31) of one evaluation over ``dt`` seconds."""
+        self.dhat += float(output.dhat_dot) * dt
+
+    def feedforward(self, desired: DesiredState) -> tuple[float, float]:
+        """The taught commands (25) at the current dhat: (29)-(30) with every error zero,
+        ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``. Sent while the state
+        filter settles, so that the robot starts with the trajectory instead of jolting
+        after a wait."""
+        w_c = -float(desired.theta_d_dot)
+        return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
 
     def hold(self) -> tuple[float, float]:
         """Commands while the target is lost: stop, and leave dhat as it is."""

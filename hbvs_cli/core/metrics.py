@@ -284,3 +284,67 @@ def round_significant(value: Any, digits: int) -> Any:
     if isinstance(value, float) and math.isfinite(value) and value != 0.0:
         return round(value, digits - 1 - math.floor(math.log10(abs(value))))
     return value
+
+
+def command_smoothness(
+    t: ArrayLike,
+    v: ArrayLike,
+    w: ArrayLike,
+    max_v: float | None = None,
+    max_w: float | None = None,
+    max_accel: float | None = None,
+) -> dict[str, float | None]:
+    """How smooth a command stream is (docs/report.md, ``commands``).
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Step times (s).
+    v, w : array_like, shape (K,)
+        Commands (m/s, rad/s); NaN samples are left out.
+    max_v, max_w, max_accel : float or None
+        The actuator limits (m/s, rad/s, m/s^2 and rad/s^2); None when unlimited.
+
+    Returns
+    -------
+    dict
+        ``v_tv_per_s`` (m/s per s) and ``w_tv_per_s`` (rad/s per s): the total variation
+        ``sum |v[k+1] - v[k]|`` divided by the duration; ``dv_dt_rms_mps2`` (m/s^2) and
+        ``dw_dt_rms_radps2`` (rad/s^2): the RMS of the step-to-step rates of change;
+        ``at_limit_fraction``: the fraction of steps with |v| or |w| at its bound, or a
+        change at the acceleration bound (within 0.1 %). None when there are fewer than
+        two samples.
+    """
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(v, dtype=float)
+    w = np.asarray(w, dtype=float)
+    keep = np.isfinite(t) & np.isfinite(v) & np.isfinite(w)
+    t, v, w = t[keep], v[keep], w[keep]
+    names = ("v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2", "at_limit_fraction")
+    if t.size < 2 or not t[-1] > t[0]:
+        return dict.fromkeys(names)
+    dt = np.diff(t)
+    dv, dw = np.diff(v), np.diff(w)
+    duration = float(t[-1] - t[0])
+    positive = dt > 0
+    at_limit = np.zeros(t.size, dtype=bool)
+    for signal, bound in ((v, max_v), (w, max_w)):
+        if bound is not None:
+            at_limit |= np.abs(signal) >= bound * (1.0 - 1e-3)
+    if max_accel is not None:
+        step = max_accel * np.where(positive, dt, np.inf)
+        at_limit[1:] |= (np.abs(dv) >= step * (1.0 - 1e-3)) | (np.abs(dw) >= step * (1.0 - 1e-3))
+    return {
+        "v_tv_per_s": float(np.sum(np.abs(dv)) / duration),
+        "w_tv_per_s": float(np.sum(np.abs(dw)) / duration),
+        "dv_dt_rms_mps2": float(np.sqrt(np.mean(np.square(dv[positive] / dt[positive])))) if positive.any() else None,
+        "dw_dt_rms_radps2": float(np.sqrt(np.mean(np.square(dw[positive] / dt[positive])))) if positive.any() else None,
+        "at_limit_fraction": float(np.mean(at_limit)),
+    }
+
+
+def taught_commands(x_hd2: ArrayLike, x_hd1_dot: ArrayLike, theta_d_dot: ArrayLike, depth: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The commands of the desired trajectory (25): ``w_d = -theta_d_dot``,
+    ``v_d = d* (x_hd2 w_d - x_hd1_dot)`` (m/s, rad/s), at depth ``depth`` (m)."""
+    w_d = -np.asarray(theta_d_dot, dtype=float)
+    return depth * (np.asarray(x_hd2, dtype=float) * w_d - np.asarray(x_hd1_dot, dtype=float)), w_d

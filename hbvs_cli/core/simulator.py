@@ -13,6 +13,10 @@ adaptation is frozen for those periods: stopping for one bad frame would only ma
 robot lag its trajectory. A dropped frame carries no news about the target, so it keeps
 the lost state of the last frame that arrived: a drop during an occlusion is still lost
 time (the lost timeout keeps counting), never a "target back".
+
+With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
+through frames that give no measurement (dropped, occluded, rejected) on its prediction for
+as long as the prediction's standard deviation stays small; only then does the robot stop.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import UsageError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import STATUS_DROPPED, STATUS_OK, STATUS_OUTLIER, Observation
+from .state_filter import GATED, FilterEstimate, ServoStateFilter
 from .trajectory import DesiredTrajectory
 from .unicycle import integrate_unicycle
 
@@ -95,6 +100,9 @@ class StepRecord:
         Whether the target counts as lost at this step: the last frame that arrived did
         not show it (a dropped frame keeps the state before it). ``None``: the
         observation's own ``lost``.
+    estimate : FilterEstimate or None
+        The state filter's estimate the law acted on (None without a filter, or before
+        its first measurement).
     """
 
     t: float
@@ -107,6 +115,7 @@ class StepRecord:
     saturated: bool
     dhat: float
     target_lost: bool | None = None
+    estimate: FilterEstimate | None = None
 
     @property
     def measurement(self) -> Measurement | None:
@@ -140,6 +149,7 @@ def run_closed_loop(
     duration: float,
     limits: ActuatorLimits | None = None,
     latency_steps: int = 0,
+    state_filter: ServoStateFilter | None = None,
 ) -> Iterator[StepRecord]:
     """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
 
@@ -159,6 +169,12 @@ def run_closed_loop(
     latency_steps : int
         The controller acts on the observation taken this many periods earlier; before
         the first one arrives it holds still.
+    state_filter : ServoStateFilter, optional
+        When given, the law acts on its estimate (docs/method.md, "State filter"): each
+        frame is fused at the time it was taken, the estimate is carried over the commands
+        sent since (latency), and through dropped frames and rejected ones the law runs on
+        the prediction with the adaptation frozen. Without it the law acts on each raw
+        measurement, as in the paper.
     """
     if dt <= 0.0 or not np.isfinite(dt):
         raise UsageError(f"the control period must be positive, got {dt}")
@@ -176,6 +192,8 @@ def run_closed_loop(
     previous = (0.0, 0.0)
     rejected_in_a_row = 0
     target_lost = False
+    # Commands sent since the frame being fused was taken (latency_steps of them).
+    unseen_commands: deque[tuple[float, float]] = deque()
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
@@ -188,19 +206,49 @@ def run_closed_loop(
         if observation.status != STATUS_DROPPED:
             rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
             target_lost = observation.lost
-        if observation.status == STATUS_OK:
+        coasting = 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == STATUS_DROPPED and not target_lost)
+        estimate = None
+        fresh = predicted = False
+        if state_filter is not None:
+            if observation.status == STATUS_OK:
+                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != GATED
+            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+            # No usable frame (dropped, occluded, rejected): the law acts on the
+            # prediction while it is trusted, with the adaptation frozen.
+            predicted = not fresh and state_filter.trusted(estimate)
+        if estimate is not None and not state_filter.settled:
+            # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
+            # time, from the taught commands (25), while the first frames are averaged.
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
+            v_ff, w_ff = controller.feedforward(desired)
+            share = state_filter.settling_fraction
+            v_cmd = v_ff + share * (float(output.v_c) - v_ff)
+            w_cmd = w_ff + share * (float(output.w_c) - w_ff)
+        elif fresh or predicted:
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
+            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
+        elif state_filter is None and observation.status == STATUS_OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == STATUS_DROPPED and not target_lost):
+        elif coasting:
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
+        if fresh and output is not None and state_filter.settled and not saturated:
+            # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
+            controller.adapt(output, dt)
         yield StepRecord(
             t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost, estimate=estimate,
         )
         previous = (v_c, w_c)
+        if state_filter is not None:
+            # The filter's state is at the time its last frame was taken: it moves on with
+            # the command sent then, and the later ones wait (latency).
+            unseen_commands.append(previous)
+            if len(unseen_commands) > latency_steps:
+                state_filter.predict(*unseen_commands.popleft(), dt, controller.dhat)
         pose = integrate_unicycle(pose, v_c, w_c, dt)
 
 

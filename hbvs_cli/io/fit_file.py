@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import __version__
 from ..core.camera import CameraIntrinsics
+from ..core.controller import ControllerGains
 from ..core.trajectory import SplineTrajectory
 from ..core.world import World
 from ..errors import HbvsError, RecordingError
@@ -177,6 +178,13 @@ class FitModel:
     world: World | None = None
     taught_path: TaughtPath | None = None
     render: dict[str, Any] | None = None
+    gains: dict[str, Any] | None = None
+
+    def suggested_gains(self) -> ControllerGains | None:
+        """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
+        if not self.gains:
+            return None
+        return ControllerGains(**{k: float(self.gains[k]) for k in ("k_v", "k_w", "gamma", "k_2")})
 
     def to_message(self, log_time_ns: int) -> dict[str, Any]:
         return {
@@ -204,6 +212,7 @@ class FitModel:
             "world": self.world.to_dict() if self.world is not None else None,
             "taught_path": self.taught_path.to_dict() if self.taught_path is not None else None,
             "render": self.render,
+            "gains": self.gains,
         }
 
     @classmethod
@@ -244,6 +253,11 @@ class FitModel:
             if render is not None and render_settings_problem(render) is not None:
                 raise ValueError(f"render: {render_settings_problem(render)}")
             margin = message.get("normal_margin")
+            gains = message.get("gains")
+            if gains is not None:
+                if not isinstance(gains, dict):
+                    raise ValueError("gains must be an object")
+                ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in ("k_v", "k_w", "gamma", "k_2")})
             return cls(
                 target_kind=kind,
                 camera=camera_from_dict(message["camera"]),
@@ -264,6 +278,7 @@ class FitModel:
                 world=world,
                 taught_path=taught,
                 render=dict(render) if render is not None else None,
+                gains=dict(gains) if gains is not None else None,
             )
         except HbvsError as exc:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None

@@ -42,6 +42,8 @@ DESIRED_POSE_TOPIC = "/desired/pose"
 STATE_FIELDS = (
     "t", "x_h1", "x_h2", "theta", "x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot",
     "e1", "e2", "ebar2", "e3", "v_c", "w_c", "v_law", "w_law", "dhat", "residual", "V",
+    # The state filter's estimate and std (NaN without a filter, or in an older file).
+    "theta_est", "x_h1_est", "x_h2_est", "theta_std", "x_h1_std", "x_h2_std", "noise_px",
 )
 
 

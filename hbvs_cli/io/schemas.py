@@ -237,6 +237,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "detector": {"type": "object"},
             "residual_px": {"type": "object"},
             "render": {"type": ["object", "null"], "description": "sensor model of a simulated teach"},
+            "gains": {"type": ["object", "null"], "description": "gains suggested from x_hd1_dot and the detector's noise (k_v, k_w, gamma, k_2 and the rule's inputs)"},
         },
         "required": [
             "format_version", "timestamp", "target_kind", "camera", "reference", "normal",
@@ -263,6 +264,10 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "frame_dropped": {"type": "boolean"},
             "residual": _NUMBER_OR_NULL,
             "V": _NUMBER_OR_NULL,
+            "theta_est": _NUMBER_OR_NULL, "x_h1_est": _NUMBER_OR_NULL, "x_h2_est": _NUMBER_OR_NULL,
+            "theta_std": _NUMBER_OR_NULL, "x_h1_std": _NUMBER_OR_NULL, "x_h2_std": _NUMBER_OR_NULL,
+            "noise_px": _NUMBER_OR_NULL,
+            "filter": {"type": "string", "description": "what the state filter did: fused, gated, started, predicted, or empty without a filter"},
         },
         "required": [
             "timestamp", "t", "x_h1", "x_h2", "theta", "x_hd1", "x_hd2", "theta_d",

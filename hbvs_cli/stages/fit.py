@@ -234,6 +234,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             world=reader.world,
             taught_path=taught_path,
             render=_render_settings(reader),
+            gains=_suggested_gains(result, camera),
         )
         _write_signals(writer, topics, arrays, result)
         end_ns = int(arrays["log_time"][-1])
@@ -243,6 +244,16 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         writer.write("/fit/model", topics["/fit/model"], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)
+
+
+def _suggested_gains(result: dict[str, Any], camera: CameraIntrinsics) -> dict[str, Any]:
+    """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
+    (core/gains.py, docs/method.md "Choosing the gains")."""
+    from ..core.gains import noise_from_residual, suggest_gains
+
+    noise_px = noise_from_residual(result["residual_px"]["rms"], result["m_ref"].shape[0])
+    focal = 0.5 * (camera.fx + camera.fy)
+    return suggest_gains(result["condition35"]["percentiles"]["p50"], noise_px, result["m_ref"], result["normal"], focal).as_dict()
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
@@ -504,6 +515,11 @@ def _print_summary(console: Console, model: Any, result: dict[str, Any], depth: 
     if estimates.get("target_size"):
         table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
+    g = model.gains
+    table.add_row(
+        "suggested k_v, k_w, k_2, gamma",
+        f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px)",
+    )
     console.print(table)
     if condition.path_stops:
         console.warn(

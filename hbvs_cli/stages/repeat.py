@@ -23,6 +23,7 @@ from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_L
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
+from ..core.state_filter import FILTER_EKF, FILTERS
 from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, TargetLostError, UsageError
 from .console import Console
@@ -67,6 +68,7 @@ class RepeatOptions:
     outlier_rate: float = 0.0
     exposure_step: str | None = None
     allow_truncated: bool = False
+    state_filter: str | None = None
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,7 @@ class Settings:
     pixel_noise: float
     offset: tuple[float, float, float]
     lost_timeout: float
+    state_filter: str = FILTER_EKF
 
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -113,7 +116,8 @@ def _limit(value: float | None, default: float | None) -> float | None:
     return value
 
 
-def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float) -> Settings:
+def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
+                     suggested_gains: ControllerGains | None = None) -> Settings:
     """Defaults < ``--config`` < command-line options."""
     config: dict[str, Any] = {}
     if options.config is not None:
@@ -129,7 +133,8 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     law = pick(options.law, "law", LAW_LATERAL_GAIN)
     if law not in LAWS:
         raise UsageError(f"--law must be one of {', '.join(LAWS)}, got {law!r}")
-    defaults = ControllerGains()
+    # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
+    defaults = suggested_gains if suggested_gains is not None else ControllerGains()
     gains = ControllerGains(
         k_v=pick(options.kv, "k_v", defaults.k_v),
         k_w=pick(options.kw, "k_w", defaults.k_w),
@@ -150,6 +155,9 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     latency = int(pick(options.latency, "latency", 0))
     if latency < 0:
         raise UsageError("--latency must be >= 0 frames")
+    state_filter = str(pick(options.state_filter, "filter", FILTER_EKF))
+    if state_filter not in FILTERS:
+        raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     return Settings(
         gains=gains,
         law=law,
@@ -166,6 +174,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         pixel_noise=float(options.pixel_noise if options.pixel_noise else config.get("pixel_noise", 0.0)),
         offset=parse_offset(offset_text),
         lost_timeout=float(options.lost_timeout if options.lost_timeout != RepeatOptions.lost_timeout else config.get("lost_timeout", options.lost_timeout)),
+        state_filter=state_filter,
     )
 
 
@@ -186,7 +195,7 @@ def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
     fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
-    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval)
+    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)
@@ -243,7 +252,8 @@ class _RunLog:
         if not record.dropped:
             self.lost_reason = record.observation.status if record.lost else ""
         if record.lost and not self.was_lost:
-            self.event(t, LOG_WARNING, f"target lost ({self.lost_reason}): stopping, adaptation frozen")
+            action = "driving on the state filter's prediction" if output is not None else "stopping"
+            self.event(t, LOG_WARNING, f"target lost ({self.lost_reason}): {action}, adaptation frozen")
         elif not record.lost and self.was_lost:
             self.event(t, LOG_INFO, "target back: tracking resumed")
         self.was_lost = record.lost
@@ -273,11 +283,27 @@ class _RunLog:
             "residual": float(record.observation.residual),
             "V": V,
         }
+        message.update(self._filter_fields(record))
         self.write_flat("/repeat/state", ns, message)
         self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
+
+    def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
+        """The state filter's estimate and standard deviation (what the law acted on)."""
+        estimate = record.estimate
+        if estimate is None:
+            return {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
+                    "theta_std": None, "x_h1_std": None, "x_h2_std": None, "noise_px": None}
+        state = estimate.measurement
+        std = estimate.std.tolist()
+        return {
+            "filter": estimate.outcome,
+            "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
+            "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
+            "noise_px": estimate.noise * _focal(self.model),
+        }
 
     def write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
         """Write a message whose values are plain numbers, strings, bools, None or small
@@ -329,6 +355,7 @@ class Simulation:
     dt: float
     duration: float
     settings: Settings
+    state_filter: Any = None
 
     @property
     def steps(self) -> int:
@@ -338,7 +365,7 @@ class Simulation:
         """The closed loop's step records (a generator): sense, control, limits, move."""
         return run_closed_loop(
             self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
-            self.settings.limits, self.settings.latency,
+            self.settings.limits, self.settings.latency, self.state_filter,
         )
 
 
@@ -360,16 +387,52 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
+    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
+    state_filter = make_state_filter(settings, model)
+    if state_filter is not None:
+        # The filter tests each residual against the noise it learns; the fixed gate set
+        # from the taught images (a few tenths of a pixel) only has to catch gross errors.
+        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
     return Simulation(
         scene=scene,
-        camera=SimulatedCamera(scene, model, settings, options, fit.template_image),
+        camera=camera,
         trajectory=trajectory,
         controller=AdaptiveTrackingController(settings.gains, settings.dhat0),
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
         settings=settings,
+        state_filter=state_filter,
     )
+
+
+#: With the state filter on, the fixed residual gate only catches gross errors (px).
+COARSE_RESIDUAL_GATE_PX = 3.0
+
+
+def _focal(model: Any) -> float:
+    return 0.5 * (model.camera.fx + model.camera.fy)
+
+
+def make_state_filter(settings: Settings, model: Any) -> Any:
+    """The state filter ``--filter`` asks for (None for ``none``), its noise started from
+    the fit's residual on the taught images (docs/method.md, "State filter")."""
+    if settings.state_filter != FILTER_EKF:
+        return None
+    from ..core.state_filter import ServoStateFilter
+
+    return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
+
+
+def detector_noise(model: Any) -> float:
+    """Per-coordinate noise of the fit's detector on the taught images (normalised units),
+    from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
+    from ..core.gains import noise_from_residual
+
+    residual_px = float((model.residual_px or {}).get("rms", float("nan")))
+    if not math.isfinite(residual_px):
+        return 0.0
+    return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:

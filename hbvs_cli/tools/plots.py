@@ -241,6 +241,10 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
+            # The taught commands (25), dotted: what a smooth run's commands should look like.
+            taught = _taught_commands(run)[0 if key == "v_c" else 1]
+            shown_t, shown_x = display_series(run.state["t"], taught, None)
+            ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)
         _shade_losses(ax, context)
         for limit in sorted({value for value in (_limit(run, limit_key) for run in context.runs) if value is not None}):
             for level in (-limit, limit):
@@ -248,6 +252,16 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
         _time_axes(ax, title, ylabel)
 
     return paint
+
+
+def _taught_commands(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The taught commands (25) along the run, at the true d* (or the final dhat)."""
+    from ..core.metrics import taught_commands
+
+    d_true = run.info.get("d_true")
+    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+    depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
+    return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
 def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:

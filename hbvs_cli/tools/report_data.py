@@ -14,7 +14,11 @@ converged when every one of these holds:
    tolerance: the pose errors ``position_m`` and ``heading_deg`` when the run has ground
    truth, otherwise the image errors ``e1``, ``e2`` and ``e3``;
 4. the Lyapunov function fell, ``V_final / V(0) <`` :data:`V_RATIO_BOUND`, when V is known
-   (it needs the true d*, so a real or replayed run skips this check).
+   (it needs the true d*, so a real or replayed run skips this check);
+5. the commands are smooth: the RMS of dv/dt is at most :data:`SMOOTHNESS_FACTOR` times
+   that of the taught commands (25) plus :data:`SMOOTHNESS_FLOOR_V` m/s^2, and the same
+   for w with :data:`SMOOTHNESS_FLOOR_W` rad/s^2 (a chattering robot has not converged,
+   whatever its mean error).
 
 The same tolerances (:data:`DEFAULT_TOLERANCES`, overridable with ``--tolerance``) are
 the bands of the settling times.
@@ -29,6 +33,7 @@ import numpy as np
 
 from ..core.frames import wrap_angle
 from ..core.metrics import (
+    command_smoothness,
     error_summary,
     round_significant,
     longest_true_run_s,
@@ -37,6 +42,7 @@ from ..core.metrics import (
     peak_abs,
     rms,
     sample_rate_hz,
+    taught_commands,
 )
 from ..errors import UsageError
 from ..io.messages import LOG_ERROR
@@ -57,6 +63,11 @@ DEFAULT_TOLERANCES: dict[str, float] = {
 REPORT_DIGITS = 7
 #: V must end below this fraction of V(0) for a run to count as converged.
 V_RATIO_BOUND = 0.5
+#: Command smoothness (rule 5): the RMS of dv/dt (dw/dt) may be at most this many times
+#: the taught commands' plus a floor, in m/s^2 (rad/s^2), for the start's correction.
+SMOOTHNESS_FACTOR = 10.0
+SMOOTHNESS_FLOOR_V = 1.0
+SMOOTHNESS_FLOOR_W = 1.0
 #: The image errors of (19) and (27), in report order; e3 is reported in degrees.
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
@@ -67,6 +78,7 @@ REPORT_KEYS = ("run", "errors", "pose_error", "lyapunov", "depth", "commands", "
 #: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
 CHECK_NAMES = (
     "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
+    "smoothness",
 )
 #: The check of each final error.
 _FINAL_CHECK_NAMES = {
@@ -218,14 +230,29 @@ def _depth_section(run: RunData) -> dict[str, Any]:
     }
 
 
+def _limits(run: RunData) -> dict[str, float | None]:
+    limits = ((run.info.get("settings") or {}).get("limits")) or {}
+    return {name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
+            for name in ("max_v", "max_w", "max_accel")}
+
+
 def _command_section(run: RunData) -> dict[str, Any]:
-    v, w = run.state["v_c"], run.state["w_c"]
+    v, w, t = run.state["v_c"], run.state["w_c"], run.state["t"]
+    limits = _limits(run)
+    d_true = run.info.get("d_true")
+    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+    depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
+    v_d, w_d = taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
+    taught = command_smoothness(t, v_d, w_d)
     return {
         "v_peak_mps": peak_abs(v),
         "v_rms_mps": rms(v),
         "w_peak_radps": peak_abs(w),
         "w_rms_radps": rms(w),
         "saturated_fraction": float(np.mean(run.saturated)),
+        **command_smoothness(t, v, w, **limits),
+        "limits": limits,
+        "taught": {key: taught[key] for key in ("v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2")},
     }
 
 
@@ -287,6 +314,27 @@ def _lyapunov_check(lyapunov: Mapping[str, Any]) -> tuple[bool | None, str]:
     return _check(fell, f"V final / V(0) = {ratio:.3g} {'<' if fell else '>='} {V_RATIO_BOUND:g}")
 
 
+def smoothness_bound(taught_rms: float | None, floor: float) -> float:
+    """The largest RMS rate of change of a command that is not chatter (docs/report.md):
+    :data:`SMOOTHNESS_FACTOR` times the taught commands' plus an allowance ``floor`` for
+    correcting the start offset."""
+    return SMOOTHNESS_FACTOR * (taught_rms or 0.0) + floor
+
+
+def _smoothness_check(commands: Mapping[str, Any]) -> tuple[bool | None, str]:
+    taught = commands.get("taught") or {}
+    parts, passed = [], True
+    for key, floor, unit in (("dv_dt_rms_mps2", SMOOTHNESS_FLOOR_V, "m/s^2"), ("dw_dt_rms_radps2", SMOOTHNESS_FLOOR_W, "rad/s^2")):
+        value = commands.get(key)
+        if value is None:
+            return _check(None, "command smoothness unknown (fewer than two steps): not checked")
+        bound = smoothness_bound(taught.get(key), floor)
+        within = value <= bound
+        passed = passed and within
+        parts.append(f"RMS d{key[1]}/dt {value:.3g} {'<=' if within else '>'} {bound:.3g} {unit}")
+    return _check(passed, "commands smooth: " + ", ".join(parts) if passed else "commands chatter: " + ", ".join(parts))
+
+
 def verdict(run: RunData, report: Mapping[str, Any], tolerances: Mapping[str, float]) -> dict[str, Any]:
     """Whether the run converged, by the rule of this module's docstring, and why.
 
@@ -314,6 +362,7 @@ def verdict(run: RunData, report: Mapping[str, Any], tolerances: Mapping[str, fl
     for name in names:
         checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, errors[name]["final"], tolerances[name])
     checks["lyapunov"] = _lyapunov_check(report["lyapunov"])
+    checks["smoothness"] = _smoothness_check(report["commands"])
     return {
         "converged": all(passed is not False for passed, _ in checks.values()),
         "checks": {name: text for name, (_, text) in checks.items()},

@@ -55,6 +55,13 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("w peak (rad/s)", "commands.w_peak_radps"),
     ("w rms (rad/s)", "commands.w_rms_radps"),
     ("saturated (fraction of steps)", "commands.saturated_fraction"),
+    ("at a limit (fraction of steps)", "commands.at_limit_fraction"),
+    ("v total variation (m/s per s)", "commands.v_tv_per_s"),
+    ("w total variation (rad/s per s)", "commands.w_tv_per_s"),
+    ("RMS dv/dt (m/s^2)", "commands.dv_dt_rms_mps2"),
+    ("RMS dw/dt (rad/s^2)", "commands.dw_dt_rms_radps2"),
+    ("taught RMS dv/dt (m/s^2)", "commands.taught.dv_dt_rms_mps2"),
+    ("taught RMS dw/dt (rad/s^2)", "commands.taught.dw_dt_rms_radps2"),
     ("target lost (frames)", "target.lost_frames"),
     ("target lost (fraction of steps)", "target.lost_fraction"),
     ("longest loss (s)", "target.longest_loss_s"),
@@ -68,7 +75,7 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
 CHECK_LABELS = {
     "closed_loop": "closed loop", "finished": "finished", "final_position": "final position error",
     "final_heading": "final heading error", "final_e1": "final e1", "final_e2": "final e2", "final_e3": "final e3",
-    "lyapunov": "V fell (36)",
+    "lyapunov": "V fell (36)", "smoothness": "commands smooth",
 }
 
 #: Rows of the run table after the gains.

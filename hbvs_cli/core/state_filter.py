@@ -1,0 +1,516 @@
+"""A Kalman filter on the servo state (theta, x_h1, x_h2), between the camera and the law.
+
+The paper feeds the law (29)-(31) the raw decomposition of every frame. With a real
+detector (0.2-1 px of noise) the lateral gain k_2 multiplies that noise into the commands,
+and the robot chatters or loses its target (docs/method.md, "State filter"). This module
+keeps an estimate of the state that the law acts on:
+
+* **Prediction** with the kinematics (5), (23), integrated exactly for a command (v, w)
+  held over ``dt`` (the robot moves on an arc) and the current depth estimate dhat::
+
+      theta' = theta - w dt
+      x_h'   = Rz(-w dt) (x_h - [dx, dy] / dhat)
+
+  where ``[dx, dy]`` is the arc's displacement in the robot's frame at the start of the
+  step. The process noise is a white velocity error on v and w (what the wheels did not
+  do), plus the effect of the depth error on x_h1.
+* **Correction** with the frame's measurement (theta, x_h1, x_h2) as the known-normal
+  solver returns it, with the covariance the image points give it: ``sigma^2 (J^T J)^-1``,
+  where J is the Jacobian of the N normalised image points with respect to the state and
+  sigma the per-coordinate noise of the detector. This is the Gauss-Newton linearisation
+  of a correction with the 2N image coordinates themselves, at the cost of a 3x3 update.
+* **Noise from the detector's residuals.** The known-normal solve leaves a residual r
+  (RMS over 2N coordinates) whose expectation is ``sigma^2 (2N - 3) / (2N)``; sigma^2 is
+  the exponentially weighted mean of ``r^2 2N / (2N - 3)`` over the accepted frames, starting
+  from the fit's residual.
+* **Outliers** are gated by the squared Mahalanobis distance of the innovation (3 degrees
+  of freedom); after ``reset_after`` rejections in a row the filter restarts from the
+  measurement (the world moved, not the detector).
+
+Every function here is pure; :class:`ServoStateFilter` holds the estimate and its covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import UsageError
+from .controller import Measurement
+
+#: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
+FILTER_NONE = "none"
+FILTER_EKF = "ekf"
+FILTERS = (FILTER_NONE, FILTER_EKF)
+
+#: chi^2 with 3 degrees of freedom at 99.9 %: an innovation farther than this is an outlier.
+CHI2_3DOF_999 = 16.266
+
+#: Outcomes of :meth:`ServoStateFilter.correct`.
+FUSED = "fused"
+GATED = "gated"
+STARTED = "started"
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Tuning of :class:`ServoStateFilter`.
+
+    Attributes
+    ----------
+    speed_noise : float
+        Spectral density of the error between the commanded and the executed v,
+        m/s/sqrt(Hz): over one second the position drifts by about this much (m).
+    turn_noise : float
+        The same for w, rad/s/sqrt(Hz).
+    depth_uncertainty : float
+        Relative error of dhat assumed when predicting x_h1 (dimensionless).
+    gate : float
+        Squared Mahalanobis distance beyond which a measurement is rejected.
+    reset_after : int
+        Rejections in a row after which the filter restarts from the measurement.
+    noise_time_constant : float
+        Time constant of the running estimate of the detector's noise (s).
+    settle_time : float
+        Seconds of frames the filter fuses before its estimate is handed to the law: the
+        first frame alone is as noisy as the raw measurement, and the robot holds still
+        while a few more average it down.
+    fade_time : float
+        Seconds over which the law's feedback is then faded in (the commands go from the
+        taught ones (25) to those of (29)-(30)).
+    settle_noise : float
+        Measurement noise (normalised units; 4e-4 is 0.2 px at f = 500 px) from which
+        the whole settle and fade times apply; a cleaner camera needs them shorter, in
+        proportion to the noise variance.
+    coast_theta_std, coast_x_h_std : float
+        While the target is not seen (occluded, not found, rejected) the law keeps acting
+        on the prediction as long as its standard deviations stay within these (rad,
+        units of d*: 0.005 is 2 cm at 4 m); beyond them the robot stops.
+    residual_quantile : float
+        A frame whose residual is beyond this quantile of its chi^2 distribution, under
+        the noise learnt so far, is rejected before it is fused.
+    min_noise : float
+        Floor of the measurement noise, in normalised image units (1e-4 is 0.05 px at
+        f = 500 px): no detector is better, and the filter must not trust it more.
+    """
+
+    speed_noise: float = 0.001
+    turn_noise: float = 0.0003
+    depth_uncertainty: float = 0.3
+    gate: float = CHI2_3DOF_999
+    reset_after: int = 5
+    noise_time_constant: float = 0.5
+    min_noise: float = 1e-4
+    residual_quantile: float = 0.999
+    coast_theta_std: float = math.radians(0.5)
+    coast_x_h_std: float = 0.005
+    settle_time: float = 0.5
+    fade_time: float = 1.5
+    settle_noise: float = 4e-4
+
+    def __post_init__(self) -> None:
+        for name in ("speed_noise", "turn_noise", "depth_uncertainty", "noise_time_constant", "min_noise", "gate"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise UsageError(f"filter setting {name} must be a non-negative number, got {value}")
+        if self.reset_after < 1:
+            raise UsageError("filter setting reset_after must be at least 1")
+
+
+@dataclass(frozen=True)
+class FilterEstimate:
+    """The filter's state at one instant.
+
+    Attributes
+    ----------
+    measurement : Measurement
+        The estimate of (theta, x_h1, x_h2) (rad, dimensionless), what the law acts on.
+    std : ndarray, shape (3,)
+        Standard deviations of theta (rad), x_h1, x_h2.
+    rate : ndarray, shape (3,)
+        Its time derivative (rad/s, 1/s, 1/s) from (5), (23) with the command being sent:
+        the derivative consistent with the estimate.
+    noise : float
+        Current estimate of the detector's per-coordinate noise (normalised units).
+    outcome : str
+        What the last frame did: ``"fused"``, ``"gated"`` (rejected as an outlier),
+        ``"started"``, or ``"predicted"`` (no frame).
+    """
+
+    measurement: Measurement
+    std: NDArray[np.float64]
+    rate: NDArray[np.float64]
+    noise: float
+    outcome: str
+
+
+def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:
+    """Displacement (dx, dy, dphi) of a unicycle holding (v, w) for dt, in its start frame (21)."""
+    dphi = w * dt
+    if abs(dphi) < 1e-6:
+        # Second-order series of sin(dphi)/w and (1 - cos(dphi))/w.
+        return v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi, dphi
+    return v * math.sin(dphi) / w, v * (1.0 - math.cos(dphi)) / w, dphi
+
+
+def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float) -> tuple[float, float, float]:
+    """The servo state after holding (v, w) for dt: (5), (23) integrated exactly.
+
+    Parameters
+    ----------
+    state : array_like, shape (3,)
+        (theta, x_h1, x_h2) now.
+    v, w : float
+        Command held over the step (m/s, rad/s).
+    dt : float
+        Step (s).
+    depth : float
+        d* or its estimate (m), > 0.
+    """
+    theta, x1, x2 = (float(s) for s in state)
+    dx, dy, dphi = arc_displacement(v, w, dt)
+    c, s = math.cos(dphi), math.sin(dphi)
+    a, b = x1 - dx / depth, x2 - dy / depth
+    return theta - dphi, c * a + s * b, -s * a + c * b
+
+
+def state_rate(state: ArrayLike, v: float, w: float, depth: float) -> NDArray[np.float64]:
+    """(theta_dot, x_h1_dot, x_h2_dot) from (5), (23): ``-w``, ``x_h2 w - v / d*``, ``-x_h1 w``."""
+    _, x1, x2 = (float(s) for s in state)
+    return np.array([-w, x2 * w - v / depth, -x1 * w])
+
+
+def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float64], state: ArrayLike) -> NDArray[np.float64]:
+    """``J^T J`` of the N normalised image points with respect to (theta, x_h1, x_h2).
+
+    Each point is ``m_i = [1, q1 / q0, m*_iz / q0]`` with ``q0 = c - s m*_iy + x_h1 g_i``,
+    ``q1 = s + c m*_iy + x_h2 g_i`` and ``g_i = n*^T m*_i`` (docs/method.md, known-normal
+    solver). Divided by the per-coordinate noise variance this is the information a frame
+    carries about the state.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    theta, x1, x2 = (float(s) for s in state)
+    y_ref, z_ref = m_ref[:, 1], m_ref[:, 2]
+    g = m_ref @ normal
+    c, s = math.cos(theta), math.sin(theta)
+    q0 = c - s * y_ref + x1 * g
+    q1 = s + c * y_ref + x2 * g
+    dq0 = -s - c * y_ref
+    dq1 = c - s * y_ref
+    inv = 1.0 / q0
+    inv2 = inv * inv
+    zeros = np.zeros_like(g)
+    jacobian = np.concatenate([
+        np.stack([(dq1 * q0 - q1 * dq0) * inv2, -q1 * g * inv2, g * inv], axis=1),
+        np.stack([-z_ref * dq0 * inv2, -z_ref * g * inv2, zeros], axis=1),
+    ])
+    return jacobian.T @ jacobian
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The ``probability`` quantile of chi^2 with ``dof`` degrees of freedom."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(probability, dof))
+
+
+def wrap(angle: float) -> float:
+    """An angle in [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# --------------------------------------------------------------------------- 3x3 algebra
+# The filter runs every control period; a 3x3 in plain floats costs a fraction of numpy's
+# per-call overhead. A symmetric matrix is the 6-tuple (a00, a01, a02, a11, a12, a22).
+Sym3 = tuple[float, float, float, float, float, float]
+Vec3 = tuple[float, float, float]
+
+
+def _sym_inverse(a: Sym3) -> Sym3:
+    """Inverse of a symmetric 3x3 (cofactors); ZeroDivisionError when singular."""
+    a00, a01, a02, a11, a12, a22 = a
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if not det > 0.0:
+        raise ZeroDivisionError("not positive definite")
+    inv = 1.0 / det
+    return (c00 * inv, c01 * inv, c02 * inv, (a00 * a22 - a02 * a02) * inv, (a01 * a02 - a00 * a12) * inv,
+            (a00 * a11 - a01 * a01) * inv)
+
+
+def _sym_times(a: Sym3, v: Vec3) -> Vec3:
+    a00, a01, a02, a11, a12, a22 = a
+    return (a00 * v[0] + a01 * v[1] + a02 * v[2], a01 * v[0] + a11 * v[1] + a12 * v[2], a02 * v[0] + a12 * v[1] + a22 * v[2])
+
+
+def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
+    a00, a01, a02, a11, a12, a22 = a
+    return np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
+
+
+def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
+    """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
+    theta, x1, x2 = state
+    c, s = math.cos(theta), math.sin(theta)
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for yr, zr, gi in zip(y_ref, z_ref, g):
+        q0 = c - s * yr + x1 * gi
+        q1 = s + c * yr + x2 * gi
+        dq0 = -s - c * yr
+        inv = 1.0 / q0
+        inv2 = inv * inv
+        jy_t = ((c - s * yr) * q0 - q1 * dq0) * inv2
+        jy_1 = -q1 * gi * inv2
+        jy_2 = gi * inv
+        jz_t = -zr * dq0 * inv2
+        jz_1 = -zr * gi * inv2
+        a00 += jy_t * jy_t + jz_t * jz_t
+        a01 += jy_t * jy_1 + jz_t * jz_1
+        a02 += jy_t * jy_2
+        a11 += jy_1 * jy_1 + jz_1 * jz_1
+        a12 += jy_1 * jy_2
+        a22 += jy_2 * jy_2
+    return a00, a01, a02, a11, a12, a22
+
+
+class ServoStateFilter:
+    """Extended Kalman filter on (theta, x_h1, x_h2) (module docstring; docs/method.md).
+
+    Parameters
+    ----------
+    m_ref : array_like, shape (N, 3)
+        Reference normalised points m*_i.
+    normal : array_like, shape (3,)
+        Plane normal n* in F*.
+    noise : float
+        Initial per-coordinate noise of the detector, in normalised image units (pixels
+        divided by the focal length); the residuals refine it as the run goes.
+    settings : FilterSettings, optional
+    """
+
+    def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, settings: FilterSettings | None = None) -> None:
+        self.m_ref = np.asarray(m_ref, dtype=float)
+        self.normal = np.asarray(normal, dtype=float)
+        self.settings = settings or FilterSettings()
+        if not (math.isfinite(noise) and noise >= 0.0):
+            raise UsageError(f"the initial measurement noise must be a non-negative number, got {noise}")
+        points = self.m_ref.shape[0]
+        self._y_ref = self.m_ref[:, 1].tolist()
+        self._z_ref = self.m_ref[:, 2].tolist()
+        self._g = (self.m_ref @ self.normal).tolist()
+        # E[r^2] = sigma^2 (2N - 3) / (2N): three parameters are fitted to 2N coordinates.
+        self._residual_to_variance = 2.0 * points / max(2.0 * points - 3.0, 1.0)
+        self._residual_gate = chi2_quantile(self.settings.residual_quantile, max(2 * points - 3, 1)) / max(2 * points - 3, 1)
+        self.noise_variance = max(noise, self.settings.min_noise) ** 2
+        self._state: Vec3 | None = None
+        self._covariance: Sym3 | None = None
+        self.rejected_in_a_row = 0
+        self.last_outcome = "predicted"
+        self.fused_time = 0.0
+
+    @property
+    def state(self) -> NDArray[np.float64] | None:
+        """(theta, x_h1, x_h2) at the time of the last fused frame, or None before the first."""
+        return None if self._state is None else np.array(self._state)
+
+    @property
+    def covariance(self) -> NDArray[np.float64] | None:
+        """Its covariance, shape (3, 3)."""
+        return None if self._covariance is None else _sym_to_array(self._covariance)
+
+    @property
+    def started(self) -> bool:
+        return self._state is not None
+
+    def trusted(self, estimate: FilterEstimate | None) -> bool:
+        """Whether a prediction is good enough to act on without a frame."""
+        if estimate is None or not self.settled:
+            return False
+        std = estimate.std
+        return bool(std[0] <= self.settings.coast_theta_std and max(std[1], std[2]) <= self.settings.coast_x_h_std)
+
+    @property
+    def settling_fraction(self) -> float:
+        """How far the law's feedback is faded in, 0 to 1 (see ``FilterSettings``)."""
+        settle, fade = self._settle_times()
+        if self.fused_time < settle:
+            return 0.0
+        return 1.0 if fade <= 0.0 else min(1.0, (self.fused_time - settle) / fade)
+
+    @property
+    def settled(self) -> bool:
+        """True once the filter has fused its settle and fade times of frames."""
+        return self._state is not None and self.fused_time >= sum(self._settle_times()) - 1e-9
+
+    def _settle_times(self) -> tuple[float, float]:
+        """Settle and fade times, shrunk by (noise / settle_noise)^2 for a clean camera:
+        the number of frames needed to average the noise down scales so."""
+        scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
+        return self.settings.settle_time * scale, self.settings.fade_time * scale
+
+    @property
+    def noise(self) -> float:
+        """Current per-coordinate measurement noise (normalised units)."""
+        return math.sqrt(self.noise_variance)
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, v: float, w: float, dt: float, depth: float) -> None:
+        """Advance the estimate over a command (v, w) held for dt, at depth dhat (m)."""
+        if self._state is None:
+            return
+        self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt, depth)
+
+    def _predicted(self, state: Vec3, covariance: Sym3, v: float, w: float, dt: float, depth: float) -> tuple[Vec3, Sym3]:
+        """(5), (23) over one held command, and ``F P F^T + Q`` with ``F = diag(1, Rz(-w dt))``."""
+        settings = self.settings
+        x1, x2 = state[1], state[2]
+        new_state = predict_state(state, v, w, dt, depth)
+        dphi = w * dt
+        c, s = math.cos(dphi), math.sin(dphi)
+        p00, p01, p02, p11, p12, p22 = covariance
+        cc, ss, cs = c * c, s * s, c * s
+        # White velocity errors of spectral density q enter through g_v = [0, -1/d, 0] and
+        # g_w = [-1, x_h2, -x_h1]; their integral over dt has variance q dt.
+        qv = settings.speed_noise**2 * dt / (depth * depth) + (v * dt * settings.depth_uncertainty / depth) ** 2
+        qw = settings.turn_noise**2 * dt
+        return new_state, (
+            p00 + qw,
+            c * p01 + s * p02 - qw * x2,
+            -s * p01 + c * p02 + qw * x1,
+            cc * p11 + 2.0 * cs * p12 + ss * p22 + qv + qw * x2 * x2,
+            -cs * p11 + (cc - ss) * p12 + cs * p22 - qw * x1 * x2,
+            ss * p11 - 2.0 * cs * p12 + cc * p22 + qw * x1 * x1,
+        )
+
+    def extrapolate(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The estimate and its covariance carried over commands already sent but not yet
+        seen by the camera (latency), without changing the filter."""
+        carried = self._carried(commands, dt, depth)
+        return None if carried is None else (np.array(carried[0]), _sym_to_array(carried[1]))
+
+    def _carried(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[Vec3, Sym3] | None:
+        if self._state is None:
+            return None
+        state, covariance = self._state, self._covariance
+        for v, w in commands:
+            state, covariance = self._predicted(state, covariance, v, w, dt, depth)
+        return state, covariance
+
+    # ------------------------------------------------------------------ correction
+    def correct(self, measured: Measurement, residual: float, dt: float) -> str:
+        """Fuse one frame's measurement; returns ``"fused"``, ``"gated"`` or ``"started"``.
+
+        Parameters
+        ----------
+        measured : Measurement
+            The known-normal solver's (theta, x_h1, x_h2) of this frame.
+        residual : float
+            Its RMS residual over the 2N point coordinates (normalised units).
+        dt : float
+            Time since the previous frame (s), for the running noise estimate.
+        """
+        if math.isfinite(residual) and self._state is not None:
+            # The residual alone tells a wrong point: r^2 2N / sigma^2 ~ chi^2(2N - 3).
+            ratio = residual * residual * self._residual_to_variance / self.noise_variance
+            if ratio > self._residual_gate:
+                return self._reject(measured, residual, dt)
+            # Learnt before the innovation gate: a noisier camera must not look like outliers.
+            self._learn_noise(residual, dt)
+        z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+        try:
+            inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+        except ZeroDivisionError:
+            self.last_outcome = GATED
+            return GATED
+        variance = self.noise_variance
+        measurement_covariance = tuple(variance * value for value in inverse_information)
+        if self._state is None:
+            return self._start(z, measurement_covariance, residual, dt)
+        state, p = self._state, self._covariance
+        innovation = (wrap(z[0] - state[0]), z[1] - state[1], z[2] - state[2])
+        try:
+            s_inverse = _sym_inverse(tuple(a + b for a, b in zip(p, measurement_covariance)))
+        except ZeroDivisionError:
+            return self._reject(measured, residual, dt, z, measurement_covariance)
+        weighted = _sym_times(s_inverse, innovation)
+        if innovation[0] * weighted[0] + innovation[1] * weighted[1] + innovation[2] * weighted[2] > self.settings.gate:
+            return self._reject(measured, residual, dt, z, measurement_covariance)
+        self.rejected_in_a_row = 0
+        step = _sym_times(p, weighted)
+        self._state = (state[0] + step[0], state[1] + step[1], state[2] + step[2])
+        # P - P S^-1 P, column by column of P (symmetric by construction).
+        p_full = ((p[0], p[1], p[2]), (p[1], p[3], p[4]), (p[2], p[4], p[5]))
+        columns = [_sym_times(s_inverse, column) for column in p_full]  # S^-1 P, column j
+        reduction = [[sum(p_full[i][k] * columns[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+        self._covariance = (
+            p[0] - reduction[0][0], p[1] - 0.5 * (reduction[0][1] + reduction[1][0]), p[2] - 0.5 * (reduction[0][2] + reduction[2][0]),
+            p[3] - reduction[1][1], p[4] - 0.5 * (reduction[1][2] + reduction[2][1]), p[5] - reduction[2][2],
+        )
+        self.fused_time += dt
+        self.last_outcome = FUSED
+        return FUSED
+
+    def _reject(self, measured: Measurement, residual: float, dt: float, z: Vec3 | None = None,
+                covariance: Sym3 | None = None) -> str:
+        """An outlier; after ``reset_after`` in a row the filter restarts from this frame."""
+        self.rejected_in_a_row += 1
+        if self.rejected_in_a_row >= self.settings.reset_after:
+            # The camera, not the detector, changed (or the filter diverged): start over,
+            # noise included.
+            if math.isfinite(residual):
+                self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
+            z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+            try:
+                inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+            except ZeroDivisionError:
+                self.last_outcome = GATED
+                return GATED
+            return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
+        self.last_outcome = GATED
+        return GATED
+
+    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> str:
+        if self._state is None and math.isfinite(residual):
+            # The first frame's own residual beats a prior from other images (the taught
+            # ones may have been cleaner than this camera).
+            sample = residual * residual * self._residual_to_variance
+            if sample > self.noise_variance:
+                covariance = tuple(value * (sample / self.noise_variance) for value in covariance)
+                self.noise_variance = sample
+        self._state, self._covariance = z, covariance
+        self.rejected_in_a_row = 0
+        self.fused_time = dt
+        self.last_outcome = STARTED
+        return STARTED
+
+    def _learn_noise(self, residual: float, dt: float) -> None:
+        if not math.isfinite(residual):
+            return
+        weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
+        sample = residual * residual * self._residual_to_variance
+        self.noise_variance += weight * (sample - self.noise_variance)
+        self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
+
+    # ------------------------------------------------------------------ output
+    def estimate(self, commands: list[tuple[float, float]], dt: float, depth: float, command: tuple[float, float]) -> FilterEstimate | None:
+        """The estimate now: carried over ``commands`` sent since the last frame was taken
+        (latency), with its derivative (5), (23) under ``command`` (the last one sent)."""
+        carried = self._carried(commands, dt, depth)
+        if carried is None:
+            return None
+        state, p = carried
+        return FilterEstimate(
+            measurement=Measurement(theta=state[0], x_h1=state[1], x_h2=state[2]),
+            std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[3], 0.0)), math.sqrt(max(p[5], 0.0)))),
+            rate=state_rate(state, command[0], command[1], depth),
+            noise=self.noise,
+            outcome=self.last_outcome,
+        )
