@@ -35,6 +35,21 @@ _DILATE_RIM = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 _DILATE_RING = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
 
 
+#: Dot polarities: ink on paper, or lights on a dark ground.
+POLARITIES = ("dark", "light")
+
+
+def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
+    """The gray image in which the dots are dark: the frame itself, or its negative for light dots.
+
+    A colour frame (BGR) becomes gray by the channel that separates the dots from their
+    ground best is not known before the dots are: its luminance is used, as the teach file
+    stores it (see :func:`~.detector.as_gray`).
+    """
+    gray = as_gray(image)
+    return cv2.bitwise_not(gray) if polarity == "light" else gray
+
+
 @dataclass(frozen=True)
 class Blobs:
     """Dark connected components of one frame (or window).
@@ -229,6 +244,9 @@ class DotDetector:
         Frames a dot is predicted through while unseen before it is dropped.
     min_area, max_elongation, min_contrast
         See :func:`find_dark_blobs`.
+    polarity : str
+        ``"dark"`` dots on a lighter ground (ink on paper) or ``"light"`` dots on a darker
+        one (LEDs, retro-reflectors): light dots are found as the dark dots of the negative.
 
     Attributes
     ----------
@@ -248,7 +266,11 @@ class DotDetector:
         min_area: int = 6,
         max_elongation: float = 1.8,
         min_contrast: float = 20.0,
+        polarity: str = "dark",
     ) -> None:
+        if polarity not in POLARITIES:
+            raise UsageError(f"dot polarity must be one of {', '.join(POLARITIES)}, got {polarity!r}")
+        self.polarity = polarity
         if int(n_points) < 3:
             raise UsageError(f"a dot target needs at least 3 dots, got {n_points}")
         if gate_px <= 0:
@@ -280,7 +302,7 @@ class DotDetector:
         With a prediction (given, or from the track) only a window around the predicted
         dots is searched; without one, the whole frame.
         """
-        gray = as_gray(image)
+        gray = dot_contrast(image, self.polarity)
         prediction = check_prediction(predicted, self.n_points)
         if prediction is None:
             prediction = self._track.predict()
@@ -289,11 +311,13 @@ class DotDetector:
                 gray, self._window(gray.shape, prediction), self.min_area, None, self.max_elongation, self.min_contrast
             )
             pixels, areas = self._assign(blobs, prediction)
-            if not np.all(np.isfinite(pixels)) and not np.all(np.isfinite(prediction)):
-                # Some dots have no prediction left (unseen too long): they can only come
-                # back through a whole-frame acquisition matched to the last full layout.
+            if not np.all(np.isfinite(pixels)):
+                # Some dots were not where predicted (a fast turn, a dropped frame, a dot
+                # unseen too long): a whole-frame acquisition, its identities matched to the
+                # prediction's layout (or the last full layout), brings them back.
                 everywhere = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
-                again, again_areas = self._acquire(everywhere)
+                layout = prediction if np.all(np.isfinite(prediction)) else None
+                again, again_areas = self._acquire(everywhere, layout)
                 if np.all(np.isfinite(again)):
                     blobs, pixels, areas = everywhere, again, again_areas
         else:
@@ -363,7 +387,7 @@ class DotDetector:
         np.fill_diagonal(touching, False)
         return np.any(touching, axis=1)
 
-    def _acquire(self, blobs: Blobs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Dots without any prediction: exactly N dot-like blobs, in canonical order.
 
         Blobs of an area far from the others' median are dropped first; if the count is
@@ -379,8 +403,9 @@ class DotDetector:
         if candidates.size != self.n_points:
             return pixels, areas
         centres = blobs.centres[candidates]
-        if self._layout is not None:
-            order = match_identity(centres, self._layout)
+        layout = layout if layout is not None else self._layout
+        if layout is not None:
+            order = match_identity(centres, layout)
         else:
             order = np.lexsort((centres[:, 0], centres[:, 1]))
         return centres[order], blobs.areas[candidates][order]
