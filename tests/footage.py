@@ -227,7 +227,7 @@ class FootageMaker:
             canvas = np.mean([self._warp(pose_of_time(t + fx.exposure_s * o)).astype(np.float32) for o in offsets], axis=0)
         else:
             canvas = self._warp(pose_of_time(t)).astype(np.float32)
-        distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR)
+        distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         ss = fx.supersample
         frame = cv2.resize(distorted, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA) if ss > 1 else distorted
         if fx.optical_blur > 0:

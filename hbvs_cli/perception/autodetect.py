@@ -6,7 +6,7 @@ The kinds are tried from the most specific evidence to the least:
    predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
    the same ids in most of the first frames;
 2. **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
-   number (3-10) of round blobs of similar size, making up most of the blob-like structure,
+   number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
    in most of the first frames;
 3. **texture** -- natural features of the first frame, matched (robust homography) in most
    of the following first frames.
@@ -107,8 +107,10 @@ def count_round_dots(image: NDArray[np.uint8], polarity: str) -> tuple[int, bool
     round_areas = blobs.areas[blobs.round]
     if round_areas.size < 3:
         return int(round_areas.size), False
+    from .dots import ACQUIRE_AREA_RATIO
+
     median = np.median(round_areas)
-    similar = int(np.count_nonzero((round_areas > median / 3) & (round_areas < median * 3)))
+    similar = int(np.count_nonzero((round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)))
     interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
     return similar, similar >= 3 and similar >= 0.75 * interior
 
@@ -128,7 +130,7 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
         n_dots, frames = tally.most_common(1)[0]
         if _majority(frames, len(images)):
             before = " (no dark dots)" if kind == "light" and polarity is None else ""
-            reason = f"{n_dots} {kind} round dots of similar size in {frames} of the first {len(images)} frames{before}"
+            reason = f"{n_dots} {kind} round dots of comparable size in {frames} of the first {len(images)} frames{before}"
             return TargetChoice("dots", reason, {"polarity": kind, "n_points": n_dots})
     return None
 

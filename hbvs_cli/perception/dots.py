@@ -39,15 +39,39 @@ _DILATE_RING = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
 POLARITIES = ("dark", "light")
 
 
-def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
-    """The gray image in which the dots are dark: the frame itself, or its negative for light dots.
+#: On first sight, dots may differ in area by this factor from their median (radii 3 to 8 cm
+#: on one poster); tracking then follows each dot's own area.
+ACQUIRE_AREA_RATIO = 9.0
 
-    A colour frame (BGR) becomes gray by the channel that separates the dots from their
-    ground best is not known before the dots are: its luminance is used, as the teach file
-    stores it (see :func:`~.detector.as_gray`).
+#: Largest dot radius (px) the background estimate leaves out of the background.
+MAX_DOT_RADIUS_PX = 80
+
+
+def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark", max_radius: int = MAX_DOT_RADIUS_PX) -> NDArray[np.uint8]:
+    """The frame with the dots dark on an even, white ground.
+
+    Light dots are first turned dark (the negative). The ground's own brightness -- uneven
+    lighting, vignetting, exposure drift -- is then divided out: the background is a
+    morphological closing wider than the largest dot (which removes every dark feature up to
+    ``max_radius`` px and keeps the ground), computed at a quarter of the resolution (the
+    ground varies slowly) and scaled back up. What remains is each pixel's darkness relative
+    to its surroundings, so one threshold serves a dot in the bright middle of the frame and
+    one in a dim corner, and a small dot is not drowned by the gradient across the wall.
+
+    Colour frames go through luminance (:func:`~.detector.as_gray`), as the teach file
+    stores them.
     """
     gray = as_gray(image)
-    return cv2.bitwise_not(gray) if polarity == "light" else gray
+    if polarity == "light":
+        gray = cv2.bitwise_not(gray)
+    height, width = gray.shape
+    small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
+    size = 2 * (max_radius // 4) + 5
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
+    ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
+    ground = cv2.resize(ground, (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    flat = 255.0 * gray.astype(np.float32) / np.maximum(ground, 1.0)
+    return np.clip(flat, 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -399,7 +423,7 @@ class DotDetector:
         if candidates.size > self.n_points:
             median = np.median(blobs.areas[candidates])
             ratio = blobs.areas[candidates] / median
-            candidates = candidates[(ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1])]
+            candidates = candidates[(ratio >= 1.0 / ACQUIRE_AREA_RATIO) & (ratio <= ACQUIRE_AREA_RATIO)]
         if candidates.size != self.n_points:
             return pixels, areas
         centres = blobs.centres[candidates]
