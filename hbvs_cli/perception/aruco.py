@@ -289,8 +289,12 @@ def refine_marker_corners(
     walk = np.tile([-1.0, 1.0], 4)
     outward = (orientation * walk)[:, None] * np.column_stack([along[:, 1], -along[:, 0]])
     # Inside, stay within the black border cell (1/cells of a side).
-    half = min(4.0, 0.6 * float(sides.min()) / cells)
     step = 0.5
+    # A whole number of steps: the edge formula below integrates from -half to +half exactly
+    # (an odd half would leave the last step out and bias every edge by up to a step).
+    half = step * np.floor(min(4.0, 0.6 * float(sides.min()) / cells) / step)
+    if half < 1.0:
+        return corners.copy()
     steps = np.arange(-half, half + 1e-9, step)
     distances = np.arange(3.0, min(0.4 * float(sides.min()), 30.0) + 1e-9, 1.0)
     centres = starts[:, None, :] + distances[None, :, None] * along[:, None, :]
