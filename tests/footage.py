@@ -188,11 +188,11 @@ class FootageMaker:
         ss = effects.supersample
         # The ideal (undistorted) supersampled canvas has a margin so that a barrel-distorted
         # frame's corners, which look farther out, still land on it.
-        self.margin = 40 * ss
+        self.margin = 40 * ss if any(camera.distortion) else 0
         self.canvas = (camera.width * ss + 2 * self.margin, camera.height * ss + 2 * self.margin)
         offset = self.margin + (ss - 1) / 2.0
         self.K_canvas = np.array([[ss, 0, offset], [0, ss, offset], [0, 0, 1.0]]) @ camera.K
-        self._map = self._distortion_map()
+        self._map = self._distortion_map() if any(camera.distortion) else None
         height, width = camera.height, camera.width
         y, x = np.mgrid[0:height, 0:width].astype(np.float32)
         r2 = ((x - camera.cx) ** 2 + (y - camera.cy) ** 2) / (camera.cx**2 + camera.cy**2)
@@ -227,7 +227,10 @@ class FootageMaker:
             canvas = np.mean([self._warp(pose_of_time(t + fx.exposure_s * o)).astype(np.float32) for o in offsets], axis=0)
         else:
             canvas = self._warp(pose_of_time(t)).astype(np.float32)
-        distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if any(self.camera.distortion):
+            distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        else:
+            distorted = canvas  # the map is the identity
         ss = fx.supersample
         frame = cv2.resize(distorted, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA) if ss > 1 else distorted
         if fx.optical_blur > 0:

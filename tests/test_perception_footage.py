@@ -66,8 +66,10 @@ def test_dot_targets_fit_within_the_issue_bounds(fitted, name, capsys):
         assert row["errors"][key] <= bound, (name, key, row["errors"][key])
 
 
-#: Measured on this footage (a single 0.4 m marker, 3-5.8 m away): see the README's limits.
-MARKER_BOUNDS = {"theta_deg": 8.0, "normal_deg": 10.0}
+#: Measured on this footage (a single 0.4 m marker, 3-5.8 m away): theta_d 1.07 deg (ArUco
+#: 6x6) and 1.32 deg (AprilTag) RMS, n* off by 3.9 and 3.8 deg. NOT the issue's 0.35 deg and
+#: 0.5 deg: the README's limits say so. These bounds guard against regressions only.
+MARKER_BOUNDS = {"theta_deg": 2.0, "x_hd1": 5e-3, "normal_deg": 6.0}
 
 
 @pytest.mark.parametrize("name, dictionary, marker_id", [("aruco_6x6", "DICT_6X6_50", 23), ("apriltag_36h11", "DICT_APRILTAG_36h11", 5)])
@@ -99,8 +101,10 @@ def test_marker_options_pin_the_dictionary_and_id(fitted, tmp_path):
     assert result.returncode == 2 and "unknown marker dictionary" in result.stderr.decode()
 
 
-#: Measured on this footage (a 1.8 m photograph): see the README's limits.
-PHOTO_BOUNDS = {"theta_deg": 4.0, "normal_deg": 10.0}
+#: Measured on this footage (a 1.8 m photograph, 3-5.8 m away): theta_d 1.77 deg RMS, x_hd1
+#: 1.9e-3, n* off by 5.3 deg. NOT the issue's 0.1 deg and 0.5 deg: the README's limits say so.
+#: These bounds guard against regressions only.
+PHOTO_BOUNDS = {"theta_deg": 3.0, "x_hd1": 4e-3, "normal_deg": 8.0}
 
 
 def test_photograph_poster_is_picked_as_texture(fitted, capsys):
