@@ -258,12 +258,13 @@ def decode_only(teach: Path) -> int:
     return count
 
 
-def bench_fit_throughput(work: Path, quick: bool) -> Figure:
+def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figure:
+    """fit against decode-only on the same recording, for one target kind."""
     frames = 600 if quick else 3000
     pendant = work / "fit_pendant.csv"
     write_pendant(pendant, frames / 30.0)
-    teach = work / "fit_teach.mcap"
-    run_cli("teach", "--path", str(pendant), "-o", str(teach), "-q", cwd=work)
+    teach = work / f"fit_teach_{target}.mcap"
+    run_cli("teach", "--path", str(pendant), "--target", target, "-o", str(teach), "-q", cwd=work)
     code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
     decode_walls, fit_walls = [], []
     for _ in range(1 if quick else 3):
@@ -274,11 +275,12 @@ def bench_fit_throughput(work: Path, quick: bool) -> Figure:
         fit_walls.append(wall)
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
     ratio = decode_wall / fit_wall
+    label = {"dots": "3", "aruco": "3b", "texture": "3c"}[target]
     return Figure(
-        f"3. hbvs fit throughput / decode-only throughput ({frames} frames)", ratio, ">= 0.6", ratio >= 0.6,
+        f"{label}. hbvs fit throughput / decode-only throughput, {target} target ({frames} frames)", ratio, ">= 0.6", ratio >= 0.6,
         f"decode only {frames / decode_wall:.0f} frames/s, fit {frames / fit_wall:.0f} frames/s (PNG 640x480; both whole "
         "processes; fit decodes in a second thread)",
-        "hbvs fit teach.mcap -o fit.mcap vs. reading and decoding the same images",
+        f"hbvs fit teach.mcap -o fit.mcap vs. reading and decoding the same images (teach --target {target})",
     )
 
 
@@ -394,7 +396,7 @@ def main(argv: list[str] | None = None) -> int:
         if "2" in wanted:
             figures += bench_closed_loop(work, args.quick)
         if "3" in wanted:
-            figures.append(bench_fit_throughput(work, args.quick))
+            figures += [bench_fit_throughput(work, args.quick, target) for target in ("dots", "aruco", "texture")]
         if "4" in wanted:
             figures += bench_memory(work, args.quick)
     seconds = time.perf_counter() - start

@@ -121,6 +121,8 @@ def fit(
     max_lost: Annotated[float, typer.Option("--max-lost", min=0.0, max=1.0, help="Largest fraction of frames without the target before fit fails.")] = 0.3,
     with_images: Annotated[bool, typer.Option("--with-images", help="Copy the taught images into the output, so it opens alone in Foxglove (by default open it together with the teach file).")] = False,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the robust (RANSAC) estimation.")] = 0,
+    marker_dict: Annotated[Optional[str], typer.Option("--marker-dict", help="Marker dictionary, e.g. DICT_6X6_250 or DICT_APRILTAG_36h11 (default with --target auto: every one is scanned).")] = None,
+    marker_id: Annotated[Optional[int], typer.Option("--marker-id", min=0, help="The marker to use (default: every marker seen consistently, all corners as points).")] = None,
     allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when the input ended early (no end record: the writer upstream died).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
@@ -131,7 +133,7 @@ def fit(
         FitOptions(
             input=input, output=output, target=target, reference=reference, smoothing=smoothing,
             target_size=target_size, max_gap=max_gap, max_lost=max_lost, copy_images=with_images, seed=seed,
-            allow_truncated=allow_truncated,
+            allow_truncated=allow_truncated, marker_dict=marker_dict, marker_id=marker_id,
         ),
         _console(quiet),
     )

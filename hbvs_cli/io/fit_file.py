@@ -85,8 +85,15 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
         raise ValueError(f"detector kind {detector.get('kind')!r} differs from the target kind {kind!r}")
     for key in ("n_points", "marker_id"):
         value = detector.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1100):
             raise ValueError(f"detector {key} must be a small whole number, got {value!r}")
+    ids = detector.get("marker_ids")
+    if ids is not None and (not isinstance(ids, list) or len(ids) > MAX_TARGET_POINTS // 4
+                            or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= 1100 for i in ids)):
+        raise ValueError(f"detector marker_ids must be a list of small whole numbers, got {ids!r}")
+    for key in ("marker_dict", "polarity"):
+        if detector.get(key) is not None and not isinstance(detector.get(key), str):
+            raise ValueError(f"detector {key} must be text")
     for key in ("template_pixels", "initial_pixels"):
         value = detector.get(key)
         if value is None:

@@ -1,7 +1,8 @@
-"""One ArUco marker (DICT_4X4_50): its four outer corners, sub-pixel refined.
+"""Square fiducial markers: every predefined ArUco dictionary and AprilTag family of OpenCV.
 
-The target's points are the marker's outer corners in OpenCV's order (top-left, top-right,
-bottom-right, bottom-left of the marker as printed), which the marker's code makes
+The target's points are the outer corners of one or several markers, each marker's corners
+in OpenCV's order (top-left, top-right, bottom-right, bottom-left of the marker as printed)
+and the markers in the order of their ids as given. A marker's code makes its corners
 unambiguous: no tracking is needed for identity, only to narrow the search.
 
 OpenCV's corner refinements are biased on a marker's outer corners (``cornerSubPix``, made
@@ -11,9 +12,17 @@ OpenCV's detection, each corner is therefore re-measured from its two edges
 many short profiles across them, a line is fitted to each edge near the corner, and the
 corner is the lines' intersection. Fitting only the stretch of edge near each corner keeps
 the lens's bending of long edges out of it.
+
+Dictionaries: OpenCV's predefined dictionaries of one family are prefixes of each other
+(DICT_4X4_50 is the first 50 markers of DICT_4X4_1000), so :func:`scan_markers` searches
+each family once, with its largest dictionary, and names the smallest dictionary that
+holds the ids it saw.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -22,12 +31,53 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .detector import Detection, PointTrack, as_gray, check_prediction
 
-#: Number of markers in DICT_4X4_50.
-_DICTIONARY_SIZE = 50
+#: The default dictionary (hbvs's simulated marker).
+DEFAULT_DICTIONARY = "DICT_4X4_50"
+
+#: Every predefined dictionary, by family, smallest first; the families in the order
+#: :func:`scan_markers` tries them (AprilTag 16h5 last: its short code decodes noise most easily).
+MARKER_FAMILIES: dict[str, tuple[str, ...]] = {
+    "4x4": ("DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000"),
+    "5x5": ("DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000"),
+    "6x6": ("DICT_6X6_50", "DICT_6X6_100", "DICT_6X6_250", "DICT_6X6_1000"),
+    "7x7": ("DICT_7X7_50", "DICT_7X7_100", "DICT_7X7_250", "DICT_7X7_1000"),
+    "original": ("DICT_ARUCO_ORIGINAL",),
+    "mip_36h12": ("DICT_ARUCO_MIP_36h12",),
+    "apriltag_36h11": ("DICT_APRILTAG_36h11",),
+    "apriltag_36h10": ("DICT_APRILTAG_36h10",),
+    "apriltag_25h9": ("DICT_APRILTAG_25h9",),
+    "apriltag_16h5": ("DICT_APRILTAG_16h5",),
+}
+#: Every dictionary name hbvs accepts (``--marker-dict``), in scanning order.
+MARKER_DICTIONARIES: tuple[str, ...] = tuple(name for family in MARKER_FAMILIES.values() for name in family)
 
 
-def _dictionary() -> cv2.aruco.Dictionary:
-    return cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+def dictionary_name(name: str) -> str:
+    """The canonical name of a predefined dictionary, from a user's spelling.
+
+    Accepts ``DICT_6X6_250``, ``6x6_250``, ``apriltag_36h11``, ``DICT_APRILTAG_36H11`` ...
+    (case and the ``DICT_`` prefix do not matter).
+
+    Raises
+    ------
+    UsageError
+        For a name that is not one of OpenCV's predefined dictionaries.
+    """
+    key = str(name).strip().upper()
+    key = key if key.startswith("DICT_") else "DICT_" + key
+    for candidate in MARKER_DICTIONARIES:
+        if candidate.upper() == key:
+            return candidate
+    raise UsageError(f"unknown marker dictionary {name!r}: choose one of {', '.join(MARKER_DICTIONARIES)}")
+
+
+def dictionary_size(name: str) -> int:
+    """Number of markers in a predefined dictionary."""
+    return int(_dictionary(name).bytesList.shape[0])
+
+
+def _dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary_name(name)))
 
 
 def _parameters(refinement: int) -> cv2.aruco.DetectorParameters:
@@ -39,23 +89,71 @@ def _parameters(refinement: int) -> cv2.aruco.DetectorParameters:
     return parameters
 
 
-def marker_ids_in_view(gray: NDArray[np.uint8]) -> list[int]:
-    """Ids of the DICT_4X4_50 markers detected in a gray frame (no corner refinement)."""
-    detector = cv2.aruco.ArucoDetector(_dictionary(), _parameters(cv2.aruco.CORNER_REFINE_NONE))
-    _, ids, _ = detector.detectMarkers(gray)
+def marker_ids_in_view(gray: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIONARY) -> list[int]:
+    """Ids of the markers of ``dictionary`` detected in a gray frame (no corner refinement)."""
+    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
+    _, ids, _ = detector.detectMarkers(as_gray(gray))
     return [] if ids is None else [int(i) for i in np.ravel(ids)]
 
 
+@dataclass(frozen=True)
+class MarkerSighting:
+    """Markers of one dictionary found in a frame.
+
+    Attributes
+    ----------
+    dictionary : str
+        The smallest predefined dictionary of the family that holds every id seen.
+    ids : tuple of int
+        The distinct ids seen, ascending.
+    smallest_side_px : float
+        Side of the smallest marker seen (px): tiny markers are the likeliest false decodes.
+    """
+
+    dictionary: str
+    ids: tuple[int, ...]
+    smallest_side_px: float
+
+
+def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None) -> list[MarkerSighting]:
+    """Every family of markers seen in a frame, the family with the most markers first.
+
+    Each family is searched once with its largest dictionary (the smaller ones are its
+    prefixes). Markers whose id is seen twice are kept (the same marker printed twice
+    still gives a dictionary and id).
+    """
+    gray = as_gray(image)
+    parameters = _parameters(cv2.aruco.CORNER_REFINE_NONE)
+    sightings = []
+    for family in families or MARKER_FAMILIES:
+        names = MARKER_FAMILIES[family]
+        detector = cv2.aruco.ArucoDetector(_dictionary(names[-1]), parameters)
+        corners, ids, _ = detector.detectMarkers(gray)
+        if ids is None or len(ids) == 0:
+            continue
+        seen = sorted({int(i) for i in np.ravel(ids)})
+        name = next(n for n in names if dictionary_size(n) > seen[-1])
+        sides = [float(np.min(np.linalg.norm(np.roll(c.reshape(4, 2), -1, axis=0) - c.reshape(4, 2), axis=1))) for c in corners]
+        sightings.append(MarkerSighting(name, tuple(seen), min(sides)))
+    sightings.sort(key=lambda s: -len(s.ids))
+    return sightings
+
+
 class ArucoMarkerDetector:
-    """Detect one DICT_4X4_50 marker and report its 4 corners.
+    """Detect one or several markers of a dictionary and report their corners.
 
     Parameters
     ----------
     marker_id : int, optional
         The marker to report; None accepts whichever single marker is in view (and reports
-        nothing when several are).
+        nothing when several are). Ignored when ``marker_ids`` is given.
     refinement : int
         ``cv2.aruco.CORNER_REFINE_*``; sub-pixel (``cornerSubPix``) by default.
+    dictionary : str
+        A predefined dictionary (:data:`MARKER_DICTIONARIES`); DICT_4X4_50 by default.
+    marker_ids : sequence of int, optional
+        Several markers on the wall: the target's points are their 4 corners each, in this
+        order; a frame counts as found when every one of them is seen.
 
     Attributes
     ----------
@@ -64,13 +162,26 @@ class ArucoMarkerDetector:
     """
 
     kind = "aruco"
-    n_points = 4
 
-    def __init__(self, marker_id: int | None = None, refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX) -> None:
-        if marker_id is not None and not 0 <= int(marker_id) < _DICTIONARY_SIZE:
-            raise UsageError(f"ArUco id {marker_id} is not in DICT_4X4_50 (0-49)")
-        self.marker_id = None if marker_id is None else int(marker_id)
-        self._detector = cv2.aruco.ArucoDetector(_dictionary(), _parameters(refinement))
+    def __init__(
+        self,
+        marker_id: int | None = None,
+        refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX,
+        dictionary: str = DEFAULT_DICTIONARY,
+        marker_ids: Sequence[int] | None = None,
+    ) -> None:
+        self.dictionary = dictionary_name(dictionary)
+        size = dictionary_size(self.dictionary)
+        wanted = [int(i) for i in marker_ids] if marker_ids else ([] if marker_id is None else [int(marker_id)])
+        for ident in wanted:
+            if not 0 <= ident < size:
+                raise UsageError(f"marker id {ident} is not in {self.dictionary} (0-{size - 1})")
+        if len(set(wanted)) != len(wanted):
+            raise UsageError(f"marker ids must differ, got {wanted}")
+        self.marker_ids = tuple(wanted)
+        self.marker_id = wanted[0] if len(wanted) == 1 else None
+        self.n_points = 4 * max(len(wanted), 1)
+        self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
         self._track = PointTrack(self.n_points, max_coast=5)
         self.last_id: int | None = None
 
@@ -99,7 +210,7 @@ class ArucoMarkerDetector:
         if result is None:
             result, more = self._search(gray, None)
             considered = max(considered, more)
-        pixels = np.full((4, 2), np.nan) if result is None else result
+        pixels = np.full((self.n_points, 2), np.nan) if result is None else result
         self._track.update(pixels)
         found = result is not None
         return Detection(pixels=pixels, found=found, candidates=considered, rejected=considered - int(found))
@@ -116,23 +227,28 @@ class ArucoMarkerDetector:
         if ids is None:
             return None, considered
         ids = np.ravel(ids)
-        if self.marker_id is None:
+        if not self.marker_ids:
             if len(ids) != 1:
                 return None, considered
-            pick = 0
+            picks = [0]
         else:
-            matches = np.flatnonzero(ids == self.marker_id)
-            if matches.size == 0:
-                return None, considered
-            # Several copies of the id: report the largest (the nearest, usually the target).
-            areas = [abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]
-            pick = int(matches[int(np.argmax(areas))])
-        self.last_id = int(ids[pick])
-        refined = refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64))
-        return refined + (x0, y0), considered
+            picks = []
+            for ident in self.marker_ids:
+                matches = np.flatnonzero(ids == ident)
+                if matches.size == 0:
+                    return None, considered
+                # Several copies of the id: report the largest (the nearest, usually the target).
+                areas = [abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]
+                picks.append(int(matches[int(np.argmax(areas))]))
+        self.last_id = int(ids[picks[0]])
+        cells = self._detector.getDictionary().markerSize + 2
+        refined = [refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells) for pick in picks]
+        return np.concatenate(refined) + (x0, y0), considered
 
 
-def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 1.5) -> NDArray[np.float64]:
+def refine_marker_corners(
+    gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 1.5, cells: int = 6
+) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges.
 
     For each corner, short profiles across each of its two edges are sampled (bilinear
@@ -150,6 +266,10 @@ def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64],
         Approximate outer corners (px), in order around the marker.
     max_shift : float
         A corner that would move farther than this (px) is left as it was.
+    cells : int
+        Cells across the marker, its black border included (the dictionary's bits + 2): the
+        profiles reach inside no farther than 60 % of the border cell, so the code's white
+        cells next to it do not brighten the ink level (which would push the edge outward).
 
     Returns
     -------
@@ -168,9 +288,13 @@ def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     orientation = 1.0 if _signed_area(corners) >= 0 else -1.0
     walk = np.tile([-1.0, 1.0], 4)
     outward = (orientation * walk)[:, None] * np.column_stack([along[:, 1], -along[:, 0]])
-    # Inside, stay within the black border cell (1/6 of a side).
-    half = min(4.0, 0.1 * float(sides.min()))
+    # Inside, stay within the black border cell (1/cells of a side).
     step = 0.5
+    # A whole number of steps: the edge formula below integrates from -half to +half exactly
+    # (an odd half would leave the last step out and bias every edge by up to a step).
+    half = step * np.floor(min(4.0, 0.6 * float(sides.min()) / cells) / step)
+    if half < 1.0:
+        return corners.copy()
     steps = np.arange(-half, half + 1e-9, step)
     distances = np.arange(3.0, min(0.4 * float(sides.min()), 30.0) + 1e-9, 1.0)
     centres = starts[:, None, :] + distances[None, :, None] * along[:, None, :]

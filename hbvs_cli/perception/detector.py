@@ -12,7 +12,7 @@ Pixels follow OpenCV's convention (centre of the top-left pixel at (0, 0)) and a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, Sequence, runtime_checkable
 
 import cv2
 import numpy as np
@@ -229,6 +229,9 @@ def make_detector(
     reference_pixels: ArrayLike | None = None,
     marker_id: int | None = None,
     seed: int = 0,
+    marker_dict: str | None = None,
+    marker_ids: Sequence[int] | None = None,
+    polarity: str | None = None,
 ) -> TargetDetector:
     """A detector for ``kind`` (``"dots"``, ``"aruco"`` or ``"texture"``).
 
@@ -242,9 +245,15 @@ def make_detector(
     reference_pixels : array_like, shape (N, 2), optional
         For ``texture`` (required): the target points in ``reference_image`` (px).
     marker_id : int, optional
-        For ``aruco``: the marker to report; None accepts the only DICT_4X4_50 marker in view.
+        For ``aruco``: the marker to report; None accepts the only marker in view.
     seed : int
         Seed of the robust estimators' random sampling (``texture``).
+    marker_dict : str, optional
+        For ``aruco``: the dictionary (DICT_4X4_50 by default).
+    marker_ids : sequence of int, optional
+        For ``aruco``: several markers, 4 corners each (``n_points`` = 4 per marker).
+    polarity : str, optional
+        For ``dots``: ``"dark"`` (default) or ``"light"`` dots.
 
     Raises
     ------
@@ -254,13 +263,14 @@ def make_detector(
     if kind == "dots":
         from .dots import DotDetector  # imported here: those modules import this one
 
-        return DotDetector(n_points)
+        return DotDetector(n_points, polarity=polarity or "dark")
     if kind == "aruco":
-        from .aruco import ArucoMarkerDetector
+        from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector
 
-        if n_points != 4:
-            raise UsageError(f"an ArUco target has 4 points (its corners), not {n_points}")
-        return ArucoMarkerDetector(marker_id)
+        markers = ArucoMarkerDetector(marker_id, dictionary=marker_dict or DEFAULT_DICTIONARY, marker_ids=marker_ids)
+        if n_points != markers.n_points:
+            raise UsageError(f"a target of {len(markers.marker_ids) or 1} marker(s) has {markers.n_points} points (their corners), not {n_points}")
+        return markers
     if kind == "texture":
         from .texture import TextureDetector
 

@@ -35,6 +35,45 @@ _DILATE_RIM = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 _DILATE_RING = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
 
 
+#: Dot polarities: ink on paper, or lights on a dark ground.
+POLARITIES = ("dark", "light")
+
+
+#: On first sight, dots may differ in area by this factor from their median (radii 3 to 8 cm
+#: on one poster); tracking then follows each dot's own area.
+ACQUIRE_AREA_RATIO = 9.0
+
+#: Largest dot radius (px) the background estimate leaves out of the background.
+MAX_DOT_RADIUS_PX = 80
+
+
+def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark", max_radius: int = MAX_DOT_RADIUS_PX) -> NDArray[np.uint8]:
+    """The frame with the dots dark on an even, white ground.
+
+    Light dots are first turned dark (the negative). The ground's own brightness -- uneven
+    lighting, vignetting, exposure drift -- is then divided out: the background is a
+    morphological closing wider than the largest dot (which removes every dark feature up to
+    ``max_radius`` px and keeps the ground), computed at a quarter of the resolution (the
+    ground varies slowly) and scaled back up. What remains is each pixel's darkness relative
+    to its surroundings, so one threshold serves a dot in the bright middle of the frame and
+    one in a dim corner, and a small dot is not drowned by the gradient across the wall.
+
+    Colour frames go through luminance (:func:`~.detector.as_gray`), as the teach file
+    stores them.
+    """
+    gray = as_gray(image)
+    if polarity == "light":
+        gray = cv2.bitwise_not(gray)
+    height, width = gray.shape
+    small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
+    size = 2 * (max_radius // 4) + 5
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
+    ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
+    ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR)
+    # 255 * gray / ground, rounded and saturated to 8 bits (OpenCV's vectorised division).
+    return cv2.divide(gray, ground, scale=255.0)
+
+
 @dataclass(frozen=True)
 class Blobs:
     """Dark connected components of one frame (or window).
@@ -229,6 +268,9 @@ class DotDetector:
         Frames a dot is predicted through while unseen before it is dropped.
     min_area, max_elongation, min_contrast
         See :func:`find_dark_blobs`.
+    polarity : str
+        ``"dark"`` dots on a lighter ground (ink on paper) or ``"light"`` dots on a darker
+        one (LEDs, retro-reflectors): light dots are found as the dark dots of the negative.
 
     Attributes
     ----------
@@ -248,7 +290,11 @@ class DotDetector:
         min_area: int = 6,
         max_elongation: float = 1.8,
         min_contrast: float = 20.0,
+        polarity: str = "dark",
     ) -> None:
+        if polarity not in POLARITIES:
+            raise UsageError(f"dot polarity must be one of {', '.join(POLARITIES)}, got {polarity!r}")
+        self.polarity = polarity
         if int(n_points) < 3:
             raise UsageError(f"a dot target needs at least 3 dots, got {n_points}")
         if gate_px <= 0:
@@ -280,7 +326,7 @@ class DotDetector:
         With a prediction (given, or from the track) only a window around the predicted
         dots is searched; without one, the whole frame.
         """
-        gray = as_gray(image)
+        gray = dot_contrast(image, self.polarity)
         prediction = check_prediction(predicted, self.n_points)
         if prediction is None:
             prediction = self._track.predict()
@@ -289,11 +335,13 @@ class DotDetector:
                 gray, self._window(gray.shape, prediction), self.min_area, None, self.max_elongation, self.min_contrast
             )
             pixels, areas = self._assign(blobs, prediction)
-            if not np.all(np.isfinite(pixels)) and not np.all(np.isfinite(prediction)):
-                # Some dots have no prediction left (unseen too long): they can only come
-                # back through a whole-frame acquisition matched to the last full layout.
+            if not np.all(np.isfinite(pixels)):
+                # Some dots were not where predicted (a fast turn, a dropped frame, a dot
+                # unseen too long): a whole-frame acquisition, its identities matched to the
+                # prediction's layout (or the last full layout), brings them back.
                 everywhere = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
-                again, again_areas = self._acquire(everywhere)
+                layout = prediction if np.all(np.isfinite(prediction)) else None
+                again, again_areas = self._acquire(everywhere, layout)
                 if np.all(np.isfinite(again)):
                     blobs, pixels, areas = everywhere, again, again_areas
         else:
@@ -363,7 +411,7 @@ class DotDetector:
         np.fill_diagonal(touching, False)
         return np.any(touching, axis=1)
 
-    def _acquire(self, blobs: Blobs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Dots without any prediction: exactly N dot-like blobs, in canonical order.
 
         Blobs of an area far from the others' median are dropped first; if the count is
@@ -375,12 +423,13 @@ class DotDetector:
         if candidates.size > self.n_points:
             median = np.median(blobs.areas[candidates])
             ratio = blobs.areas[candidates] / median
-            candidates = candidates[(ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1])]
+            candidates = candidates[(ratio >= 1.0 / ACQUIRE_AREA_RATIO) & (ratio <= ACQUIRE_AREA_RATIO)]
         if candidates.size != self.n_points:
             return pixels, areas
         centres = blobs.centres[candidates]
-        if self._layout is not None:
-            order = match_identity(centres, self._layout)
+        layout = layout if layout is not None else self._layout
+        if layout is not None:
+            order = match_identity(centres, layout)
         else:
             order = np.lexsort((centres[:, 0], centres[:, 1]))
         return centres[order], blobs.areas[candidates][order]

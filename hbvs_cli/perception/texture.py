@@ -70,6 +70,8 @@ class TextureDetector:
         Inlier threshold of the robust fit (px).
     refine : bool
         Polish acquired homographies by intensity-based (Lucas-Kanade) correspondences.
+    align : bool
+        Then polish every homography by aligning the whole reference region (ECC, :mod:`.ecc`).
 
     Attributes
     ----------
@@ -92,6 +94,7 @@ class TextureDetector:
         min_inliers: int = 15,
         reprojection_px: float = 2.0,
         refine: bool = True,
+        align: bool = True,
     ) -> None:
         self.reference = as_gray(reference_image)
         points = np.asarray(reference_pixels, dtype=np.float64)
@@ -120,6 +123,11 @@ class TextureDetector:
         corners = cv2.goodFeaturesToTrack(self.reference, maxCorners=250, qualityLevel=0.01, minDistance=8)
         self._polish_points = np.empty((0, 2), np.float32) if corners is None else corners.reshape(-1, 2)
         self._track = PointTrack(self.n_points, max_coast=5)
+        self.align = bool(align)
+        # The reference's region of the target (its points' box) is what ECC aligns.
+        low = np.clip(np.floor(points.min(axis=0)).astype(int), 0, None)
+        high = np.minimum(np.ceil(points.max(axis=0)).astype(int) + 1, self.reference.shape[::-1])
+        self._align_template = (int(low[0]), int(low[1]), np.ascontiguousarray(self.reference[low[1]:high[1], low[0]:high[0]]))
         self.homography: NDArray[np.float64] | None = None
         self.inliers = 0
 
@@ -151,10 +159,31 @@ class TextureDetector:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
+        if result.found and result.homography is not None and self.align:
+            result = self._align(gray, result)
         self._track.update(result.pixels)
         self.homography = result.homography
         self.inliers = result.inliers
         return result
+
+    def _align(self, gray: NDArray[np.uint8], result: TextureDetection) -> TextureDetection:
+        """Polish the homography by aligning the whole reference picture with the frame (ECC).
+
+        LK on a few hundred corners leaves a few tenths of a pixel; the alignment uses every
+        pixel of the target's region of the reference. Kept only when it converges near the
+        LK result.
+        """
+        from .ecc import refine_homography
+
+        x0, y0, template = self._align_template
+        to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
+        points = self.reference_pixels - (x0, y0)
+        refined = refine_homography(template, gray, result.homography @ to_crop, points)
+        if refined is None:
+            return result
+        homography = refined @ np.linalg.inv(to_crop)
+        homography /= homography[2, 2]
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""

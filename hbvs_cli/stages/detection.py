@@ -30,12 +30,21 @@ class DetectorSpec:
         ArUco id (None: the first marker seen).
     template_pixels : ndarray, shape (N, 2), or None
         Texture: the target points in the template image (the first frame).
+    marker_dict : str or None
+        Markers: the predefined dictionary (None: DICT_4X4_50).
+    marker_ids : tuple of int or None
+        Markers: several markers, 4 corners each, in this order (None: ``marker_id`` alone).
+    polarity : str or None
+        Dots: ``dark`` or ``light`` (None: dark).
     """
 
     kind: str
     n_points: int | None = None
     marker_id: int | None = None
     template_pixels: np.ndarray | None = None
+    marker_dict: str | None = None
+    marker_ids: tuple[int, ...] | None = None
+    polarity: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -43,6 +52,9 @@ class DetectorSpec:
             "n_points": self.n_points,
             "marker_id": self.marker_id,
             "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
+            "marker_dict": self.marker_dict,
+            "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
+            "polarity": self.polarity,
         }
 
     @classmethod
@@ -54,6 +66,9 @@ class DetectorSpec:
                 n_points=None if data.get("n_points") is None else int(data["n_points"]),
                 marker_id=None if data.get("marker_id") is None else int(data["marker_id"]),
                 template_pixels=None if template is None else np.asarray(template, dtype=float).reshape(-1, 2),
+                marker_dict=None if data.get("marker_dict") is None else str(data["marker_dict"]),
+                marker_ids=None if data.get("marker_ids") is None else tuple(int(i) for i in data["marker_ids"]),
+                polarity=None if data.get("polarity") is None else str(data["polarity"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
@@ -93,11 +108,16 @@ class TrackedDetector:
     def _create(self, image: np.ndarray) -> None:
         from ..perception.detector import make_detector
 
+        from dataclasses import replace
+
         spec = self.spec
         if spec.kind == "dots" and spec.n_points is None:
-            spec = DetectorSpec(kind="dots", n_points=count_dots(image))
-        if spec.kind == "aruco" and spec.marker_id is None:
-            spec = DetectorSpec(kind="aruco", n_points=4, marker_id=first_marker_id(image))
+            spec = replace(spec, n_points=count_dots(image, spec.polarity or "dark"))
+        if spec.kind == "aruco" and spec.marker_id is None and not spec.marker_ids:
+            spec = replace(spec, n_points=4, marker_id=first_marker_id(image, spec.marker_dict))
+        if spec.kind == "aruco":
+            ids = spec.marker_ids or ((spec.marker_id,) if spec.marker_id is not None else ())
+            spec = replace(spec, n_points=4 * max(len(ids), 1))
         if spec.kind == "texture" and self.template_image is None:
             self.template_image = image
         self.spec = spec
@@ -108,6 +128,9 @@ class TrackedDetector:
             reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
             marker_id=spec.marker_id,
             seed=self.seed,
+            marker_dict=spec.marker_dict,
+            marker_ids=spec.marker_ids,
+            polarity=spec.polarity,
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:
@@ -141,31 +164,40 @@ class TrackedDetector:
         return self._detector.detect(image, ordered)
 
 
+def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> Any:
+    """``--target auto`` on real footage: what the first images show (a
+    :class:`~hbvs_cli.perception.autodetect.TargetChoice`, which says why)."""
+    from ..perception.autodetect import choose_target as choose
+
+    return choose(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
+
+
 def choose_target_kind(image: np.ndarray) -> str:
-    """``--target auto`` on real footage: what the first image shows."""
+    """The kind ``--target auto`` picks from one image (see :func:`choose_target`)."""
     from ..perception.detector import guess_target_kind
 
     return guess_target_kind(image)
 
 
-def count_dots(image: np.ndarray) -> int:
-    """Number of dark round dots in an image (the size of a dots target seen for the first time)."""
-    from ..perception.dots import find_dark_blobs
+def count_dots(image: np.ndarray, polarity: str = "dark") -> int:
+    """Number of round dots in an image (the size of a dots target seen for the first time)."""
+    from ..perception.dots import dot_contrast, find_dark_blobs
 
-    blobs = find_dark_blobs(image)
+    blobs = find_dark_blobs(dot_contrast(image, polarity))
     count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
     if count < 3:
-        raise InputError(f"found {count} dots in the first image; a dots target needs at least 3 (or choose --target)")
+        raise InputError(f"found {count} {polarity} dots in the first image; a dots target needs at least 3 (or choose --target)")
     return count
 
 
-def first_marker_id(image: np.ndarray) -> int:
-    """Id of the first DICT_4X4_50 marker in an image."""
-    from ..perception.aruco import marker_ids_in_view
+def first_marker_id(image: np.ndarray, dictionary: str | None = None) -> int:
+    """Id of the first marker of ``dictionary`` (DICT_4X4_50 by default) in an image."""
+    from ..perception.aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 
-    ids = marker_ids_in_view(image)
+    name = dictionary or DEFAULT_DICTIONARY
+    ids = marker_ids_in_view(image, name)
     if not ids:
-        raise InputError("no ArUco marker (DICT_4X4_50) in the first image")
+        raise InputError(f"no marker of {name} in the first image (choose the dictionary with --marker-dict)")
     return int(ids[0])
 
 

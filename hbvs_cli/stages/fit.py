@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from itertools import chain, islice
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ from ..core.trajectory import fit_spline_trajectory, feedforward_condition
 from ..errors import GeometryError, HbvsError, InputError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
-from .detection import DetectorSpec, TrackedDetector, choose_target_kind, texture_points_for_template
+from .detection import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
 from .frames import decoded_frames
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
@@ -49,6 +50,8 @@ class FitOptions:
     copy_images: bool = False
     seed: int = 0
     allow_truncated: bool = False
+    marker_dict: str | None = None
+    marker_id: int | None = None
 
 
 @dataclass
@@ -162,6 +165,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         raise UsageError(f"--target must be auto, dots, aruco or texture, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
+    _check_marker_options(options)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
@@ -173,7 +177,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            for frame, data, image in decoded_frames(reader.frames(), reader.name):
+            frames = decoded_frames(reader.frames(), reader.name)
+            # --target auto judges the first few frames together: peek at them, then go on.
+            first = list(islice(frames, AUTO_FRAMES))
+            for frame, data, image in chain(first, frames):
                 camera = reader.camera
                 if camera is None:
                     raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
@@ -182,7 +189,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                         f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
                     )
                 if detector is None:
-                    spec = _detector_spec(options, reader, image, camera, frame.pose)
+                    spec = _detector_spec(options, reader, [im for _, _, im in first] or [image], camera, frame.pose, console)
                     detector = TrackedDetector(spec, camera, seed=options.seed)
                     template = data
                     writer.write("/camera/calibration", topics["/camera/calibration"], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
@@ -274,20 +281,74 @@ def _format_of(data: bytes) -> str:
     return "png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "jpeg"
 
 
-def _detector_spec(options: FitOptions, reader: Any, image: np.ndarray, camera: CameraIntrinsics, pose: Any) -> DetectorSpec:
-    """What to detect: the recording's world says it for a simulated teach, else the image."""
+#: Frames ``--target auto`` looks at before it picks a kind.
+AUTO_FRAMES = 5
+
+
+def _check_marker_options(options: FitOptions) -> None:
+    """--marker-dict/--marker-id: a known dictionary, an id in it, and not with dots or texture."""
+    if options.marker_dict is None and options.marker_id is None:
+        return
+    if options.target not in ("auto", "aruco"):
+        raise UsageError(f"--marker-dict and --marker-id are for markers, not --target {options.target}")
+    from ..perception.aruco import DEFAULT_DICTIONARY, dictionary_name, dictionary_size
+
+    name = dictionary_name(options.marker_dict or DEFAULT_DICTIONARY)
+    if options.marker_id is not None and not 0 <= options.marker_id < dictionary_size(name):
+        raise UsageError(f"--marker-id {options.marker_id} is not in {name} (0-{dictionary_size(name) - 1})")
+
+
+def _detector_spec(
+    options: FitOptions, reader: Any, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console
+) -> DetectorSpec:
+    """What to detect: the recording's world says it for a simulated teach, else the images
+    (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
     world = reader.world
+    image = images[0]
     kind = options.target
-    if kind == "auto":
-        kind = world.target.kind if world is not None else choose_target_kind(image)
+    choice = None
+    pinned_marker = options.marker_dict is not None or options.marker_id is not None
+    if kind == "auto" and world is None:
+        if pinned_marker:
+            kind = "aruco"
+        else:
+            choice = choose_target(images, camera, seed=options.seed)
+            kind = choice.kind
+            console.info(f"--target auto picked {kind}: {choice.reason}")
+    elif kind == "auto":
+        kind = world.target.kind
     if world is not None and world.target.kind != kind:
         raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
+    details = choice.details if choice is not None else {}
+    if kind == "dots" and world is None and not details:
+        from ..perception.autodetect import find_dots
+
+        found = find_dots(images)
+        details = found.details if found is not None else {}
     if kind == "dots":
-        n_points = world.target.points_poster.shape[0] if world is not None else None
-        return DetectorSpec(kind="dots", n_points=n_points)
+        n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
+        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"))
     if kind == "aruco":
-        marker = world.target.marker_id if world is not None else None
-        return DetectorSpec(kind="aruco", n_points=4, marker_id=marker)
+        if world is not None:
+            return DetectorSpec(kind="aruco", n_points=4, marker_id=world.target.marker_id)
+        if options.marker_id is not None:
+            from ..perception.aruco import DEFAULT_DICTIONARY
+
+            return DetectorSpec(kind="aruco", n_points=4, marker_id=options.marker_id, marker_dict=options.marker_dict or DEFAULT_DICTIONARY)
+        if "marker_ids" not in details:
+            from ..perception.autodetect import find_markers
+
+            found = find_markers(images, options.marker_dict)
+            if found is None:
+                raise InputError(
+                    f"no marker of {options.marker_dict or 'any ArUco/AprilTag dictionary'} found consistently in the first "
+                    f"{len(images)} frames (choose --marker-dict NAME, or another --target)"
+                )
+            console.info(f"markers: {found.reason}")
+            details = found.details
+        ids = tuple(details["marker_ids"])
+        return DetectorSpec(kind="aruco", n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None,
+                            marker_dict=details["marker_dict"], marker_ids=ids)
     if world is not None and pose is not None:
         # A simulated poster: its own four points, as seen in this first frame.
         return DetectorSpec(kind="texture", n_points=4, template_pixels=world.pixels(np.asarray(pose)))

@@ -1,0 +1,212 @@
+"""``--target auto``: which target a recording shows, judged on its first frames.
+
+The kinds are tried from the most specific evidence to the least:
+
+1. **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
+   predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
+   the same ids in most of the first frames;
+2. **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
+   number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
+   in most of the first frames;
+3. **texture** -- natural features of the first frame, matched (robust homography) in most
+   of the following first frames.
+
+The first kind that passes wins, and :class:`TargetChoice` says why in one sentence (what
+was found, in how many frames, and what was ruled out before), so that a wrong pick is
+impossible to miss. When none passes, :class:`~hbvs_cli.errors.InputError` names every kind
+tried.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from .detector import as_gray
+
+#: Dots targets have this many dots at most (and 3 at least).
+MAX_DOTS = 10
+#: Markers smaller than this (px) in every frame are not trusted as a decoded code.
+MIN_MARKER_SIDE_PX = 8.0
+
+
+@dataclass(frozen=True)
+class TargetChoice:
+    """What ``--target auto`` picked.
+
+    Attributes
+    ----------
+    kind : str
+        ``dots``, ``aruco`` or ``texture``.
+    reason : str
+        One sentence for stderr: what was found, how consistently, what was ruled out.
+    details : dict
+        ``polarity`` and ``n_points`` (dots); ``marker_dict`` and ``marker_ids`` (aruco).
+    """
+
+    kind: str
+    reason: str
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def _majority(count: int, frames: int) -> bool:
+    return count >= max(1, (frames + 1) // 2) and count >= min(frames, 2)
+
+
+def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None) -> TargetChoice | None:
+    """Markers decoded consistently in ``images`` (one dictionary family), or None."""
+    from .aruco import MARKER_FAMILIES, dictionary_name, scan_markers
+
+    families = None
+    if dictionary is not None:
+        wanted = dictionary_name(dictionary)
+        families = [name for name, members in MARKER_FAMILIES.items() if wanted in members]
+    votes: Counter[str] = Counter()
+    ids_seen: dict[str, Counter[int]] = {}
+    for image in images:
+        for sighting in scan_markers(image, families):
+            if sighting.smallest_side_px < MIN_MARKER_SIDE_PX:
+                continue
+            family = next(name for name, members in MARKER_FAMILIES.items() if sighting.dictionary in members)
+            votes[family] += 1
+            ids_seen.setdefault(family, Counter()).update(sighting.ids)
+    if not votes:
+        return None
+    family, count = votes.most_common(1)[0]
+    if not _majority(count, len(images)):
+        return None
+    ids = sorted(i for i, n in ids_seen[family].items() if _majority(n, len(images)))
+    if not ids:
+        return None
+    names = MARKER_FAMILIES[family]
+    from .aruco import dictionary_size
+
+    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in names if dictionary_size(n) > ids[-1])
+    others = [f for f in votes if f != family]
+    also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
+    which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
+    reason = f"markers: {name} {which} decoded in {count} of the first {len(images)} frames{also}"
+    return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids})
+
+
+def count_round_dots(image: NDArray[np.uint8], polarity: str) -> tuple[int, bool]:
+    """Round blobs of similar size in one frame, and whether they make up most of its blob-like structure.
+
+    A textured picture has many dark shapes that are not round; a dots target's dots are
+    most of what is compact and interior (components cut by the frame's edge, e.g. the
+    wall or a door frame, are not counted).
+    """
+    from .dots import dot_contrast, find_dark_blobs
+
+    blobs = find_dark_blobs(dot_contrast(image, polarity))
+    round_areas = blobs.areas[blobs.round]
+    if round_areas.size < 3:
+        return int(round_areas.size), False
+    from .dots import ACQUIRE_AREA_RATIO
+
+    median = np.median(round_areas)
+    similar = int(np.count_nonzero((round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)))
+    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
+    return similar, similar >= 3 and similar >= 0.75 * interior
+
+
+def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) -> TargetChoice | None:
+    """The same number of dots (3-10) in most of ``images``, dark ones first, or None."""
+    tried = []
+    for kind in (polarity,) if polarity else ("dark", "light"):
+        counts = []
+        for image in images:
+            count, dominant = count_round_dots(image, kind)
+            counts.append(count if dominant and 3 <= count <= MAX_DOTS else 0)
+        tally = Counter(c for c in counts if c)
+        tried.append(kind)
+        if not tally:
+            continue
+        n_dots, frames = tally.most_common(1)[0]
+        if _majority(frames, len(images)):
+            before = " (no dark dots)" if kind == "light" and polarity is None else ""
+            reason = f"{n_dots} {kind} round dots of comparable size in {frames} of the first {len(images)} frames{before}"
+            return TargetChoice("dots", reason, {"polarity": kind, "n_points": n_dots})
+    return None
+
+
+def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[np.float64], seed: int = 0) -> TargetChoice | None:
+    """The first frame's natural features matched in most of the following frames, or None."""
+    from .texture import TextureDetector
+
+    if len(images) < 2:
+        return TargetChoice("texture", "textured picture (a single frame: not checked against others)")
+    detector = TextureDetector(images[0], template_pixels, seed=seed)
+    found = 0
+    inliers = []
+    for image in images[1:]:
+        detector.reset()
+        detection = detector.detect(image, None)
+        found += int(detection.found)
+        if detection.found:
+            inliers.append(detection.inliers)
+    if not _majority(found, len(images) - 1):
+        return None
+    reason = (
+        f"textured picture: the first frame's features matched in {found} of the next {len(images) - 1} frames "
+        f"(median {int(np.median(inliers))} inliers)"
+    )
+    return TargetChoice("texture", reason)
+
+
+def choose_target(
+    images: Sequence[NDArray[np.uint8]],
+    template_pixels_of: Any,
+    *,
+    marker_dict: str | None = None,
+    seed: int = 0,
+) -> TargetChoice:
+    """Pick the target kind from the first frames of a recording.
+
+    Parameters
+    ----------
+    images : sequence of ndarray
+        The first few frames (gray or BGR uint8).
+    template_pixels_of : callable
+        ``template_pixels_of(first_image) -> (4, 2) pixels``: where a texture target's
+        points would be (or raises :class:`InputError` when the image has too few features).
+    marker_dict : str, optional
+        Only this dictionary is scanned (``--marker-dict``).
+    seed : int
+
+    Raises
+    ------
+    InputError
+        When no kind is found consistently; the message names every kind tried.
+    """
+    grays = [as_gray(image) for image in images]
+    ruled_out = []
+    markers = find_markers(grays, marker_dict)
+    if markers is not None:
+        return markers
+    ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
+    if marker_dict is None:
+        dots = find_dots(grays)
+        if dots is not None:
+            return _with_ruled_out(dots, ruled_out)
+        ruled_out.append("dots (3-10 round dark or light blobs)")
+        try:
+            texture = find_texture(grays, template_pixels_of(grays[0]), seed)
+        except InputError:
+            texture = None
+        if texture is not None:
+            return _with_ruled_out(texture, ruled_out)
+        ruled_out.append("texture (natural features matched from frame to frame)")
+    raise InputError(
+        f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
+        "Choose one with --target dots|aruco|texture (and --marker-dict NAME, --marker-id N for markers)"
+    )
+
+
+def _with_ruled_out(choice: TargetChoice, ruled_out: list[str]) -> TargetChoice:
+    return TargetChoice(choice.kind, f"{choice.reason}; no {' and no '.join(ruled_out)}", choice.details)

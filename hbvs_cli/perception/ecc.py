@@ -1,0 +1,77 @@
+"""Homography refinement by intensity alignment (OpenCV's ECC), shared by the marker and
+texture detectors.
+
+A few corners or feature matches give a homography to a few tenths of a pixel; aligning a
+template's *every pixel* with the frame (the enhanced correlation coefficient of Evangelidis
+and Psarakis, ``cv2.findTransformECC``, invariant to the frame's gain and offset) brings it
+to a few hundredths, because every edge of the picture -- a marker's code cells, a
+photograph's detail -- contributes. The alignment starts from the detector's homography and
+is accepted only when it converges near it.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+#: ECC iterations and the step (template pixels) at which it stops.
+ECC_ITERATIONS = 15
+ECC_EPSILON = 1e-3
+#: An alignment that moves the target's points farther than this (px) from the start is rejected.
+MAX_CORRECTION_PX = 3.0
+
+
+def refine_homography(
+    template: NDArray[np.uint8],
+    frame: NDArray[np.uint8],
+    homography: NDArray[np.float64],
+    check_points: NDArray[np.float64],
+    blur: int = 3,
+) -> NDArray[np.float64] | None:
+    """The template -> frame homography, refined by ECC alignment.
+
+    Parameters
+    ----------
+    template : ndarray, shape (h, w), uint8
+        What the target looks like (a marker's ideal image, a crop of the reference).
+    frame : ndarray, shape (H, W), uint8
+    homography : ndarray, shape (3, 3)
+        Template pixels -> frame pixels, to a pixel or so.
+    check_points : ndarray, shape (N, 2)
+        Template pixels of the target's points: the refined homography may not move them
+        more than :data:`MAX_CORRECTION_PX` from where ``homography`` puts them.
+    blur : int
+        Gaussian filter size ECC applies to both images (odd).
+
+    Returns
+    -------
+    ndarray, shape (3, 3), or None
+        None when ECC did not converge or wandered off.
+    """
+    height, width = frame.shape
+    start = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+    # Work on the frame's region around the target: ECC warps the whole input each step.
+    low = np.floor(start.min(axis=0) - 8).astype(int)
+    high = np.ceil(start.max(axis=0) + 8).astype(int)
+    x0, y0 = max(int(low[0]), 0), max(int(low[1]), 0)
+    x1, y1 = min(int(high[0]), width), min(int(high[1]), height)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+    warp = (shift @ homography).astype(np.float32)
+    warp /= warp[2, 2]
+    crop = np.ascontiguousarray(frame[y0:y1, x0:x1])
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ECC_ITERATIONS, ECC_EPSILON)
+    try:
+        _, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, blur)
+    except cv2.error:
+        return None
+    refined = np.linalg.inv(shift) @ warp.astype(np.float64)
+    if not np.all(np.isfinite(refined)) or abs(refined[2, 2]) < 1e-12:
+        return None
+    refined /= refined[2, 2]
+    moved = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), refined).reshape(-1, 2)
+    if not np.all(np.isfinite(moved)) or np.max(np.linalg.norm(moved - start, axis=1)) > MAX_CORRECTION_PX:
+        return None
+    return refined

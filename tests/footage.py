@@ -1,0 +1,456 @@
+"""An independent footage maker: teach videos that hbvs's own renderer did not draw.
+
+Nothing here imports ``hbvs_cli``: only numpy, OpenCV and scikit-image. A *wall image*
+(BGR, with the target drawn on it and the wall's lighting baked in) is warped into each
+frame by the plane-to-image homography with ``cv2.warpPerspective`` at ``supersample``
+times the resolution; then the lens distortion (plumb_bob, by an inverse map), motion blur
+(the average of the warps at several poses across the exposure), the box filter down to
+the sensor's pixels, vignetting, exposure drift, Gaussian noise and JPEG (the video is
+MJPG). The robot drives a unicycle path of its own (not one of hbvs's presets). Written
+out: ``drive.avi``, ``camera.yaml`` (ROS ``camera_info``) and ``truth.npz`` (times, poses,
+the true n* and d*).
+
+Conventions are those of the paper as hbvs documents them (README, "Conventions"):
+robot frame x forward, y left, z up; theta = phi* - phi; x_h = Rz(phi)^T (p* - p) / d*;
+n* is the wall's unit normal in F*, pointing from the camera to the wall.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+
+# --------------------------------------------------------------------------- camera
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera with plumb_bob distortion, ``camera_height`` m above the floor."""
+
+    width: int = 640
+    height: int = 480
+    fx: float = 505.0
+    fy: float = 502.0
+    cx: float = 323.5
+    cy: float = 238.0
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    camera_height: float = 0.30
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def write_ros_yaml(self, path: Path) -> Path:
+        """The ROS camera calibrator's ``camera_info`` YAML, written by hand (no hbvs code)."""
+        k = self.K.ravel().tolist()
+        p = [self.fx, 0.0, self.cx, 0.0, 0.0, self.fy, self.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        fmt = lambda values: "[" + ", ".join(repr(float(v)) for v in values) + "]"  # noqa: E731
+        path.write_text(
+            f"image_width: {self.width}\nimage_height: {self.height}\ncamera_name: footage\n"
+            f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {fmt(k)}\n"
+            f"distortion_model: plumb_bob\n"
+            f"distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: {fmt(self.distortion)}\n"
+            f"rectification_matrix:\n  rows: 3\n  cols: 3\n  data: {fmt(np.eye(3).ravel())}\n"
+            f"projection_matrix:\n  rows: 3\n  cols: 4\n  data: {fmt(p)}\n"
+        )
+        return path
+
+
+# --------------------------------------------------------------------------- wall
+@dataclass
+class Wall:
+    """A vertical wall with a picture on it.
+
+    Attributes
+    ----------
+    image : ndarray, shape (H, W, 3), uint8
+        What the wall looks like (BGR), lighting included.
+    metres_per_px : float
+    centre : (x, y, z)
+        World position of the image's centre (m).
+    yaw : float
+        Direction of the wall's normal (toward the camera side is ``-normal``), rad from
+        the world x axis.
+    points : ndarray, shape (N, 2)
+        Wall-image pixels of the target's points (dots' centres, marker corners), for tests.
+    """
+
+    image: np.ndarray
+    metres_per_px: float
+    centre: tuple[float, float, float]
+    yaw: float
+    points: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal in the world, pointing away from the camera (into the wall)."""
+        return np.array([np.cos(self.yaw), np.sin(self.yaw), 0.0])
+
+    @property
+    def along(self) -> np.ndarray:
+        """The image's column direction (to the right as seen by a camera facing the wall)."""
+        return np.array([np.sin(self.yaw), -np.cos(self.yaw), 0.0])
+
+    def wall_to_world(self) -> np.ndarray:
+        """3x3 map from homogeneous wall-image pixels (col, row, 1) to world points (affine, 4x3 without the last row)."""
+        h, w = self.image.shape[:2]
+        s = self.metres_per_px
+        up = np.array([0.0, 0.0, 1.0])
+        origin = np.asarray(self.centre) - s * (w - 1) / 2 * self.along + s * (h - 1) / 2 * up
+        return np.column_stack([s * self.along, -s * up, origin])  # (3, 3): world = M @ [c, r, 1]
+
+
+def camera_rotation(phi: float) -> np.ndarray:
+    """World -> OpenCV camera rotation for a robot heading ``phi`` (camera looks forward)."""
+    forward = np.array([np.cos(phi), np.sin(phi), 0.0])
+    left = np.array([-np.sin(phi), np.cos(phi), 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    return np.vstack([-left, -up, forward])
+
+
+def wall_homography(wall: Wall, camera: Camera, pose: np.ndarray, K: np.ndarray | None = None) -> np.ndarray:
+    """Wall-image pixels -> ideal (undistorted) image pixels for a robot at ``pose`` (x, y, phi)."""
+    R = camera_rotation(pose[2])
+    centre = np.array([pose[0], pose[1], camera.camera_height])
+    M = wall.wall_to_world()
+    cam = R @ M
+    cam[:, 2] -= R @ centre
+    return (camera.K if K is None else K) @ cam
+
+
+# --------------------------------------------------------------------------- path
+def unicycle_poses(times: np.ndarray, start: tuple[float, float, float], v, w, substeps: int = 50) -> np.ndarray:
+    """Exact-enough unicycle poses (x, y, phi) at ``times`` for commands v(t), w(t) (midpoint rule, fine steps)."""
+    poses = np.empty((len(times), 3))
+    state = np.array(start, dtype=float)
+    t_now = float(times[0])
+    poses[0] = state
+    for k in range(1, len(times)):
+        dt = (times[k] - t_now) / substeps
+        for _ in range(substeps):
+            tm = t_now + 0.5 * dt
+            phi_mid = state[2] + 0.5 * dt * w(tm)
+            state = state + dt * np.array([v(tm) * np.cos(phi_mid), v(tm) * np.sin(phi_mid), w(tm)])
+            t_now += dt
+        poses[k] = state
+    return poses
+
+
+@dataclass(frozen=True)
+class Drive:
+    """A drive toward the wall: a gentle weave that is none of hbvs's presets."""
+
+    duration: float = 12.0
+    fps: float = 5.0
+    start: tuple[float, float, float] = (0.0, 0.15, 0.05)
+    speed: float = 0.24
+    weave: float = 0.10  # rad/s amplitude of w
+    period: float = 9.0
+
+    def times(self) -> np.ndarray:
+        return np.arange(int(round(self.duration * self.fps))) / self.fps
+
+    def v(self, t: float) -> float:
+        return self.speed * (1.0 - 0.15 * np.cos(2 * np.pi * t / self.duration))
+
+    def w(self, t: float) -> float:
+        return -self.weave * np.sin(2 * np.pi * t / self.period + 0.4)
+
+    def poses(self, times: np.ndarray) -> np.ndarray:
+        return unicycle_poses(times, self.start, self.v, self.w)
+
+
+# --------------------------------------------------------------------------- rendering
+@dataclass(frozen=True)
+class Effects:
+    """What the sensor and the optics do to the picture."""
+
+    supersample: int = 2
+    exposure_s: float = 0.0  # motion blur: the pose moves during this time
+    blur_samples: int = 1
+    optical_blur: float = 0.5  # Gaussian sigma (px) of the lens
+    vignetting: float = 0.25  # relative fall-off at the frame's corners
+    exposure_drift: float = 0.1  # gain varies by +-this over the drive
+    noise: float = 2.0  # gray levels
+    jpeg_quality: int = 90
+
+
+class FootageMaker:
+    """Render frames of a wall from robot poses, and write the teach video."""
+
+    def __init__(self, wall: Wall, camera: Camera, effects: Effects = Effects(), seed: int = 0) -> None:
+        # The wall is printed at 2 mm per pixel and seen from afar at 5-10 wall pixels per
+        # frame pixel: warping (bilinear, no area filter) would alias its sharp edges into
+        # a jitter of a tenth of a pixel that no camera has. A blur of 1.5 wall pixels (3
+        # mm, a few hundredths of a frame pixel) band-limits it first.
+        self.wall = Wall(cv2.GaussianBlur(wall.image, (0, 0), 1.5), wall.metres_per_px, wall.centre, wall.yaw, wall.points)
+        self.camera = camera
+        self.effects = effects
+        self.rng = np.random.default_rng(seed)
+        ss = effects.supersample
+        # The ideal (undistorted) supersampled canvas has a margin so that a barrel-distorted
+        # frame's corners, which look farther out, still land on it.
+        self.margin = 40 * ss if any(camera.distortion) else 0
+        self.canvas = (camera.width * ss + 2 * self.margin, camera.height * ss + 2 * self.margin)
+        offset = self.margin + (ss - 1) / 2.0
+        self.K_canvas = np.array([[ss, 0, offset], [0, ss, offset], [0, 0, 1.0]]) @ camera.K
+        self._map = self._distortion_map() if any(camera.distortion) else None
+        height, width = camera.height, camera.width
+        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+        r2 = ((x - camera.cx) ** 2 + (y - camera.cy) ** 2) / (camera.cx**2 + camera.cy**2)
+        self._vignette = (1.0 - effects.vignetting * r2).astype(np.float32)
+
+    def _distortion_map(self):
+        """For every supersample of the distorted frame: where it comes from on the ideal canvas."""
+        cam, ss = self.camera, self.effects.supersample
+        u = (np.arange(cam.width * ss) + 0.5) / ss - 0.5
+        v = (np.arange(cam.height * ss) + 0.5) / ss - 0.5
+        grid = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 1, 2)
+        if any(cam.distortion):
+            ideal = cv2.undistortPoints(
+                grid, cam.K, np.asarray(cam.distortion), R=None, P=cam.K,
+                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6),
+            ).reshape(-1, 2)
+        else:
+            ideal = grid.reshape(-1, 2)
+        canvas = (ideal + 0.5) * ss - 0.5 + self.margin
+        shape = (cam.height * ss, cam.width * ss)
+        return canvas[:, 0].reshape(shape).astype(np.float32), canvas[:, 1].reshape(shape).astype(np.float32)
+
+    def _warp(self, pose: np.ndarray) -> np.ndarray:
+        H = wall_homography(self.wall, self.camera, pose, self.K_canvas)
+        return cv2.warpPerspective(self.wall.image, H, self.canvas, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def render(self, pose_of_time, t: float, gain: float = 1.0) -> np.ndarray:
+        """The BGR frame (uint8) at time ``t``; ``pose_of_time(t)`` gives (x, y, phi)."""
+        fx = self.effects
+        if fx.blur_samples > 1 and fx.exposure_s > 0:
+            offsets = (np.arange(fx.blur_samples) + 0.5) / fx.blur_samples - 0.5
+            canvas = np.mean([self._warp(pose_of_time(t + fx.exposure_s * o)).astype(np.float32) for o in offsets], axis=0)
+        else:
+            canvas = self._warp(pose_of_time(t)).astype(np.float32)
+        if any(self.camera.distortion):
+            distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        else:
+            distorted = canvas  # the map is the identity
+        ss = fx.supersample
+        frame = cv2.resize(distorted, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA) if ss > 1 else distorted
+        if fx.optical_blur > 0:
+            frame = cv2.GaussianBlur(frame, (0, 0), fx.optical_blur)
+        frame = frame * (gain * self._vignette)[:, :, None]
+        frame = frame + self.rng.normal(0.0, fx.noise, frame.shape).astype(np.float32)
+        return np.clip(np.rint(frame), 0, 255).astype(np.uint8)
+
+    def write(self, folder: Path, drive: Drive) -> dict:
+        """Render the drive into ``folder``: drive.avi (MJPG), camera.yaml, truth.npz."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        times = drive.times()
+        fine = np.linspace(times[0] - 0.5, times[-1] + 0.5, int((times[-1] - times[0] + 1.0) * 200) + 1)
+        fine_poses = _poses_from(drive, fine)
+        pose_of_time = lambda t: np.array([np.interp(t, fine, fine_poses[:, k]) for k in range(3)])  # noqa: E731
+        poses = np.array([pose_of_time(t) for t in times])
+        video = folder / "drive.avi"
+        writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), drive.fps, (self.camera.width, self.camera.height), True)
+        assert writer.isOpened(), "OpenCV cannot write MJPG video"
+        writer.set(cv2.VIDEOWRITER_PROP_QUALITY, self.effects.jpeg_quality)
+        for k, t in enumerate(times):
+            gain = 1.0 + self.effects.exposure_drift * np.sin(2 * np.pi * k / max(len(times) - 1, 1))
+            writer.write(self.render(pose_of_time, t, gain))
+        writer.release()
+        self.camera.write_ros_yaml(folder / "camera.yaml")
+        truth = self.truth(times, poses)
+        np.savez(folder / "truth.npz", **truth)
+        return {"video": video, "calibration": folder / "camera.yaml", **truth}
+
+    def truth(self, times: np.ndarray, poses: np.ndarray, reference: int = 0) -> dict:
+        """theta_d, x_hd (F, 2), n* and d* for F* = frame ``reference``."""
+        ref = poses[reference]
+        phi_ref = ref[2]
+        forward = np.array([np.cos(phi_ref), np.sin(phi_ref), 0.0])
+        left = np.array([-np.sin(phi_ref), np.cos(phi_ref), 0.0])
+        normal_world = self.wall.normal
+        camera_ref = np.array([ref[0], ref[1], self.camera.camera_height])
+        d_star = float((np.asarray(self.wall.centre) - camera_ref) @ normal_world)
+        normal = np.array([forward @ normal_world, left @ normal_world, 0.0])
+        theta = ref[2] - poses[:, 2]
+        delta = ref[:2] - poses[:, :2]
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        x_f = np.column_stack([c * delta[:, 0] + s * delta[:, 1], -s * delta[:, 0] + c * delta[:, 1]])
+        return {"t": times, "poses": poses, "theta_d": theta, "x_hd": x_f / d_star, "normal": normal, "d_star": d_star}
+
+
+def _poses_from(drive: Drive, fine: np.ndarray) -> np.ndarray:
+    """Poses on a fine grid that extends half a second before the start (motion blur needs it)."""
+    # Integrate from the drive's start forward, and backward for the times before it.
+    after = fine >= 0.0
+    forward = unicycle_poses(np.concatenate([[0.0], fine[after]]), drive.start, drive.v, drive.w, substeps=4)[1:]
+    before_times = fine[~after][::-1]
+    if before_times.size:
+        back = unicycle_poses(np.concatenate([[0.0], -before_times]), drive.start, lambda t: -drive.v(-t), lambda t: -drive.w(-t), substeps=4)[1:]
+        back = back[::-1]
+    else:
+        back = np.empty((0, 3))
+    return np.concatenate([back, forward])
+
+
+# --------------------------------------------------------------------------- walls
+WALL_MPP = 0.002  # 2 mm per wall-image pixel
+
+
+def _canvas(width_m: float, height_m: float, colour) -> np.ndarray:
+    w, h = int(round(width_m / WALL_MPP)), int(round(height_m / WALL_MPP))
+    image = np.empty((h, w, 3), np.uint8)
+    image[:] = colour
+    return image
+
+
+def _lighting(image: np.ndarray, left: float, right: float, top: float = 1.0, bottom: float = 1.0) -> np.ndarray:
+    """A light gradient across the wall (left to right, top to bottom)."""
+    h, w = image.shape[:2]
+    gain = np.linspace(left, right, w)[None, :] * np.linspace(top, bottom, h)[:, None]
+    return np.clip(image * gain[:, :, None], 0, 255).astype(np.uint8)
+
+
+def _disc(image: np.ndarray, centre_m, radius_m: float, colour, wall_h_m: float) -> np.ndarray:
+    """Draw an anti-aliased disc; returns its centre in wall pixels (col, row)."""
+    shift = 4
+    col = centre_m[0] / WALL_MPP
+    row = (wall_h_m - centre_m[1]) / WALL_MPP
+    cv2.circle(image, (int(round(col * 2**shift)), int(round(row * 2**shift))), int(round(radius_m / WALL_MPP * 2**shift)),
+               tuple(int(c) for c in colour), -1, cv2.LINE_AA, shift)
+    return np.array([col, row])
+
+
+def dots_wall(kind: str) -> Wall:
+    """The dot walls of the issue's table.
+
+    * ``bright``: three bright dots (LEDs, retro-reflectors) on a dark wall;
+    * ``red``: four red dots on a light wall, a dark door frame beside them;
+    * ``black5``: five black dots of 3-8 cm on a beige poster, with a picture frame nearby.
+    Dots are placed in wall metres (x from the wall image's left edge, z above the floor).
+    """
+    width, height = 3.2, 1.8
+    if kind == "bright":
+        image = _canvas(width, height, (38, 40, 42))
+        layout = [((0.75, 1.05), 0.05), ((2.45, 0.95), 0.05), ((1.55, 0.52), 0.05)]
+        colour = (235, 240, 245)
+        # A dim, round-ish lamp reflection well away from the target (a distractor of the wrong size).
+        cv2.rectangle(image, (60, 60), (180, 110), (70, 70, 70), -1)
+    elif kind == "red":
+        image = _canvas(width, height, (196, 200, 204))
+        layout = [((0.65, 1.08), 0.045), ((2.35, 1.12), 0.045), ((2.25, 0.55), 0.045), ((0.85, 0.50), 0.045)]
+        colour = (40, 45, 200)
+        # A dark door frame to the right of the dots, reaching the floor.
+        x0 = int(2.75 / WALL_MPP)
+        cv2.rectangle(image, (x0, 100), (x0 + 40, image.shape[0] - 1), (40, 50, 60), -1)
+        cv2.rectangle(image, (x0 + 40, 100), (image.shape[1] - 1, 140), (40, 50, 60), -1)
+    elif kind == "black5":
+        image = _canvas(width, height, (150, 160, 165))  # painted wall
+        poster = (slice(int(0.55 / WALL_MPP), int(1.45 / WALL_MPP)), slice(int(0.25 / WALL_MPP), int(2.75 / WALL_MPP)))
+        image[poster] = (170, 210, 230)  # beige poster
+        layout = [((0.45, 1.10), 0.03), ((2.45, 1.15), 0.04), ((1.40, 0.85), 0.05), ((2.30, 0.50), 0.08), ((0.60, 0.45), 0.06)]
+        colour = (25, 25, 25)
+        # A dark picture frame (a thin rectangle) to the right of the poster.
+        cv2.rectangle(image, (int(2.85 / WALL_MPP), 300), (int(3.1 / WALL_MPP), 600), (30, 30, 30), 8)
+    else:
+        raise ValueError(kind)
+    points = np.array([_disc(image, centre, radius, colour, height) for centre, radius in layout])
+    image = _lighting(image, 0.8, 1.1, 1.05, 0.9)
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=points)
+
+
+ARUCO_DICTIONARIES = ("DICT_6X6_250", "DICT_APRILTAG_36h11")
+
+
+def marker_wall(dictionary: str, marker_id: int, side_m: float = 0.4, extra: list[tuple[str, int, float, tuple[float, float]]] | None = None) -> Wall:
+    """A marker of ``side_m`` metres (with its white quiet zone) on a painted wall, centred 1.0 m high."""
+    width, height = 2.4, 1.6
+    image = _canvas(width, height, (175, 185, 190))
+    points = []
+
+    def place(name, ident, side, centre):
+        px = int(round(side / WALL_MPP))
+        dictionary_ = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+        marker = cv2.aruco.generateImageMarker(dictionary_, ident, px)
+        quiet = px // 6
+        col0 = int(round(centre[0] / WALL_MPP - px / 2))
+        row0 = int(round((height - centre[1]) / WALL_MPP - px / 2))
+        image[row0 - quiet:row0 + px + quiet, col0 - quiet:col0 + px + quiet] = 250
+        image[row0:row0 + px, col0:col0 + px] = marker[:, :, None]
+        # Corners of the marker as printed, TL, TR, BR, BL (pixel edges: -0.5).
+        return np.array([[col0 - 0.5, row0 - 0.5], [col0 + px - 0.5, row0 - 0.5], [col0 + px - 0.5, row0 + px - 0.5], [col0 - 0.5, row0 + px - 0.5]])
+
+    points.append(place(dictionary, marker_id, side_m, (1.2, 0.85)))
+    for name, ident, side, centre in extra or []:
+        points.append(place(name, ident, side, centre))
+    image = _lighting(image, 0.85, 1.05)
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.concatenate(points))
+
+
+def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
+    """A real photograph from ``skimage.data`` printed ``poster_width_m`` wide on a painted wall."""
+    from skimage import data
+
+    photo = getattr(data, name)()
+    if photo.ndim == 2:
+        photo = np.repeat(photo[:, :, None], 3, axis=2)
+    photo = cv2.cvtColor(photo[:, :, :3], cv2.COLOR_RGB2BGR)
+    px_w = int(round(poster_width_m / WALL_MPP))
+    px_h = int(round(px_w * photo.shape[0] / photo.shape[1]))
+    poster = cv2.resize(photo, (px_w, px_h), interpolation=cv2.INTER_CUBIC)
+    width, height = poster_width_m + 1.0, max(1.9, px_h * WALL_MPP + 0.5)
+    image = _canvas(width, height, (160, 176, 186))
+    row0 = int(round((height - 0.95) / WALL_MPP - px_h / 2))
+    col0 = int(round((image.shape[1] - px_w) / 2))
+    image[row0:row0 + px_h, col0:col0 + px_w] = poster
+    image = _lighting(image, 0.85, 1.08)
+    corners = np.array([[col0, row0], [col0 + px_w, row0], [col0 + px_w, row0 + px_h], [col0, row0 + px_h]], float) - 0.5
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=corners)
+
+
+# --------------------------------------------------------------------------- cases
+def case(name: str) -> tuple[Wall, Camera, Effects]:
+    """The issue's table, row by row: the wall, the camera and the sensor's effects."""
+    plain = Camera()
+    if name == "bright_dots":
+        return dots_wall("bright"), plain, Effects(noise=2.5)
+    if name == "red_dots":
+        return dots_wall("red"), plain, Effects()
+    if name == "black_dots_distorted":
+        camera = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
+        return dots_wall("black5"), camera, Effects(exposure_s=0.06, blur_samples=3, jpeg_quality=85)
+    if name == "aruco_6x6":
+        return marker_wall("DICT_6X6_250", 23), plain, Effects()
+    if name == "apriltag_36h11":
+        return marker_wall("DICT_APRILTAG_36h11", 5), plain, Effects()
+    if name == "photo":
+        return photo_wall("coffee", 1.8), plain, Effects()
+    raise ValueError(name)
+
+
+CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
+EXPECTED_KIND = {"bright_dots": "dots", "red_dots": "dots", "black_dots_distorted": "dots",
+                 "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}
+
+
+def make_footage(name: str, folder: Path, drive: Drive = Drive(), seed: int = 7) -> dict:
+    wall, camera, effects = case(name)
+    return FootageMaker(wall, camera, effects, seed=seed).write(Path(folder), drive)
+
+
+def errors_against_truth(model, truth: dict) -> dict:
+    """RMS errors of a fit (hbvs FitModel, read by the caller) against the footage's truth."""
+    t = np.asarray(truth["t"])
+    keep = (t >= model.trajectory.t_start) & (t <= model.trajectory.t_end)
+    fitted = model.trajectory.evaluate(t[keep])
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    normal = np.asarray(model.normal, float)
+    return {
+        "theta_deg": float(np.degrees(rms(fitted.theta_d - truth["theta_d"][keep]))),
+        "x_hd1": rms(fitted.x_hd1 - truth["x_hd"][keep, 0]),
+        "x_hd2": rms(fitted.x_hd2 - truth["x_hd"][keep, 1]),
+        "normal_deg": float(np.degrees(np.arccos(np.clip(normal @ truth["normal"] / np.linalg.norm(normal), -1, 1)))),
+    }
