@@ -135,7 +135,7 @@ def repeat(
     depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
     config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
-    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default) or paper (k_2 = 1, the paper's law exactly).", rich_help_panel="Controller")] = None,
+    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default), paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive (gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).", rich_help_panel="Controller")] = None,
     kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
     kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
     gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default 2500.", rich_help_panel="Controller")] = None,

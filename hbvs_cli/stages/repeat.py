@@ -19,7 +19,8 @@ from typing import IO, Any
 import numpy as np
 
 from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, LAWS, lyapunov
+from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, lyapunov
+from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
@@ -126,15 +127,15 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         return config.get(key, default)
 
     law = pick(options.law, "law", LAW_LATERAL_GAIN)
-    if law not in LAWS:
-        raise UsageError(f"--law must be one of {', '.join(LAWS)}, got {law!r}")
+    if law not in ALL_LAWS:
+        raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     defaults = ControllerGains()
-    gains = ControllerGains(
+    gains = gains_for_law(ControllerGains(
         k_v=pick(options.kv, "k_v", defaults.k_v),
         k_w=pick(options.kw, "k_w", defaults.k_w),
         gamma=pick(options.gamma, "gamma", defaults.gamma),
         k_2=pick(options.k2, "k_2", defaults.k_2),
-    ).with_law(law)
+    ), law)
     dhat0 = float(pick(options.dhat0, "dhat0", dhat0_suggested))
     if not (math.isfinite(dhat0) and dhat0 > 0):
         raise UsageError(f"--dhat0 must be a positive depth in metres, got {dhat0}")
@@ -168,15 +169,20 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     )
 
 
-def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
-    """Run the repeat phase as ``options`` say; write the run file."""
+def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> RepeatSummary:
+    """Run the repeat phase as ``options`` say; write the run file.
+
+    ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
+    for thousands of runs); by default it is read here.
+    """
     from ..io.fit_file import read_fit_file
 
     if options.sim == (options.replay is not None):
         raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
-    fit = read_fit_file(options.input)
+    if fit is None:
+        fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
     settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval)
@@ -336,7 +342,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
         scene=scene,
         camera=SimulatedCamera(scene, model, settings, options, fit.template_image),
         trajectory=trajectory,
-        controller=AdaptiveTrackingController(settings.gains, settings.dhat0),
+        controller=make_controller(settings.law, settings.gains, settings.dhat0),
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
@@ -472,7 +478,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit.template_image, seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
-    controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
     cmd_stream = _open_cmd_stream(options.cmd_out)
     tally = _Tally()
     previous_t: float | None = None
