@@ -148,8 +148,10 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
 
             try:
                 done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}")
-            finally:
-                table.flush()
+            except BaseException:
+                # Ctrl-C, SIGTERM or an error: keep every finished row; the same command resumes.
+                table.close()
+                raise
         elapsed = time.monotonic() - started
         console.info(f"sweep: {done} runs in {elapsed:.1f} s ({done / max(elapsed, 1e-9):.2f} runs/s on {workers} workers), {failures} failed")
     finish(options, table, console)

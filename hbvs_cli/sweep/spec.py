@@ -199,7 +199,8 @@ def _grid_axis(name: str, low: float, high: float, count: int, where: str) -> Ax
     values = np.linspace(low, high, count) if count > 1 else np.array([low])
     if PARAMETERS[name].kind == "int":
         return _list_axis(name, sorted({int(round(v)) for v in values}), where)
-    return _list_axis(name, [float(v) for v in values], where)
+    # 12 significant digits: 0.05, not linspace's 0.05000000000000002, in tables and commands.
+    return _list_axis(name, [float(f"{v:.12g}") for v in values], where)
 
 
 def _range_axis(name: str, low: float, high: float, where: str) -> Axis:

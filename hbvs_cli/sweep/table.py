@@ -173,15 +173,24 @@ class ResultsTable:
         self._last_flush = time.monotonic()
         if not self._buffer:
             return
-        table = pa.Table.from_pylist(self._buffer, schema=self.schema)
+        # Taken out first: a stop signal landing in here must not make a second flush
+        # write these rows again (a lost row is only re-run on resume).
+        rows, self._buffer = self._buffer, []
+        table = pa.Table.from_pylist(rows, schema=self.schema)
         path = self.folder / PARTS / f"part-{self._part:06d}.parquet"
-        _replace(path, lambda p: pq.write_table(table, p))
         self._part += 1
+        _replace(path, lambda p: pq.write_table(table, p))
         with open(self.folder / CSV, "ab") as handle:
             handle.write(_csv_bytes(table, False))
             handle.flush()
             os.fsync(handle.fileno())
-        self._buffer.clear()
+
+    def close(self) -> None:
+        """After an interruption: write the waiting rows, and make the CSV hold exactly the
+        Parquet rows (the signal may have cut a flush between the two)."""
+        self.flush()
+        done = read_rows(self.folder)
+        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(done.cast(self.schema), True)))
 
     def finish(self) -> Any:
         """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index."""
