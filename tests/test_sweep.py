@@ -157,17 +157,25 @@ def test_killed_and_resumed_gives_the_same_table(uninterrupted, spec_file, tmp_p
     assert comparable(table(resumed)) == comparable(table(folder))
 
 
-def test_another_spec_is_refused_in_the_same_folder(uninterrupted):
+def test_another_spec_is_refused_in_the_same_folder(uninterrupted, capsys):
+    from hbvs_cli.cli.app import _run
+
     folder, _ = uninterrupted
-    result = run_hbvs("sweep", str(FIT), "--vary", "offset_y=0,0.1", "-o", str(folder), "-q")
-    assert result.returncode == 2 and b"another sweep" in result.stderr and result.stderr.count(b"\n") == 1
+    before = (folder / "runs.parquet").read_bytes()
+    assert _run(["sweep", str(FIT), "--vary", "offset_y=0,0.1", "-o", str(folder), "-q"], debug=False) == 2
+    error = capsys.readouterr().err
+    assert "another sweep" in error and error.count("\n") == 1
+    assert (folder / "runs.parquet").read_bytes() == before
 
 
-def test_report_prints_the_summary_again(uninterrupted):
+def test_report_prints_the_summary_again(uninterrupted, capsys):
+    from hbvs_cli.cli.app import _run
+
     folder, summary = uninterrupted
     again = run_hbvs("report", str(folder), "--json", check=True)
     assert json.loads(again.stdout) == summary
-    text = run_hbvs("report", str(folder), check=True).stdout.decode()
+    assert _run(["report", str(folder)], debug=False) == 0
+    text = capsys.readouterr().out
     assert "by offset_y" in text and "kanayama" in text and "95 % CI (Wilson)" in text
 
 

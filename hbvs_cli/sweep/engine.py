@@ -51,8 +51,12 @@ def default_workers() -> int:
 
 
 @contextmanager
-def dask_client(scheduler: str | None, cluster: str | None, workers: int | None) -> Iterator[Any]:
+def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
+                allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS) -> Iterator[Any]:
     """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
+
+    ``allowed_worker_deaths``: how often a run is rescheduled after its worker died (a
+    cluster started here; a running scheduler keeps its own configuration).
 
     Raises
     ------
@@ -67,7 +71,10 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None)
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_WORKER_DEATHS}):
+    # worker-saturation 1: a worker holds only the run it is running, so a run that kills
+    # its worker takes no queued innocent run down with it (each costs ~1 ms of idle time).
+    with dask.config.set({"distributed.scheduler.allowed-failures": allowed_worker_deaths,
+                          "distributed.scheduler.worker-saturation": 1.0}):
         started = None
         try:
             if scheduler is not None:
