@@ -192,7 +192,7 @@ class _progress:
 
             self.bar = Progress(
                 TextColumn("sweep"), BarColumn(), MofNCompleteColumn(), TextColumn("runs, {task.fields[failed]} failed"),
-                TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=self.console.rich, transient=True,
+                TextColumn("elapsed"), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=self.console.rich, transient=True,
             )
             self.bar.__enter__()
             self.task = self.bar.add_task("sweep", total=self.total, failed=0)
