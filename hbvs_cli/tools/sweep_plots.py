@@ -1,7 +1,8 @@
 """Figures of a sweep, for a paper: convergence map, CDFs per law, error against parameters.
 
-* ``convergence_map.png``: the convergence rate over the first two numeric swept
-  parameters (their grid values, or ``BINS`` bins of a sampled range), one panel per law;
+* ``convergence_map.png``: the convergence rate over each pair of the first three numeric
+  swept parameters (their grid values, or ``BINS`` bins of a sampled range; the other
+  parameters pooled), one row per pair, one column per law;
 * ``final_error_cdf.png``: the empirical CDFs of the final position and heading errors,
   one curve per law;
 * ``final_error_vs_parameters.png``: the final position error of every run against each
@@ -17,6 +18,8 @@ import numpy as np
 from .sweep_summary import SweepData
 
 FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameters.png")
+#: The convergence map shows every pair of the first this many numeric swept parameters.
+MAP_PARAMETERS = 3
 
 
 def _laws(data: SweepData) -> list[tuple[str, np.ndarray]]:
@@ -42,27 +45,29 @@ def save_sweep_plots(folder: Path) -> list[Path]:
     reported = data.columns["status"] != "failed"
     laws = _laws(data)
     numeric = _numeric(data)
-    if len(numeric) >= 2:
-        x_name, y_name = numeric[:2]
-        x_groups, y_groups = data.groups(x_name), data.groups(y_name)
-        figure, axes = plt.subplots(1, len(laws), figsize=(4.2 * len(laws) + 1, 3.8), squeeze=False, constrained_layout=True)
+    pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
+    if pairs:
+        figure, axes = plt.subplots(len(pairs), len(laws), figsize=(4.2 * len(laws) + 1, 3.6 * len(pairs)), squeeze=False,
+                                    constrained_layout=True)
         image = None
-        for axis, (law, law_mask) in zip(axes[0], laws):
-            rate = np.full((len(y_groups), len(x_groups)), np.nan)
-            for i, (_, _, y_mask) in enumerate(y_groups):
-                for j, (_, _, x_mask) in enumerate(x_groups):
-                    cell = law_mask & x_mask & y_mask & reported
-                    if cell.any():
-                        rate[i, j] = data.columns["converged"][cell].mean()
-            image = axis.imshow(rate, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis")
-            axis.set_xticks(range(len(x_groups)), [g[0] for g in x_groups], rotation=60, fontsize=7)
-            axis.set_yticks(range(len(y_groups)), [g[0] for g in y_groups], fontsize=7)
-            axis.set_xlabel(x_name)
-            axis.set_ylabel(y_name)
-            axis.set_title(law)
-        figure.colorbar(image, ax=axes[0].tolist(), label="convergence rate")
+        for row, (x_name, y_name) in enumerate(pairs):
+            x_groups, y_groups = data.groups(x_name), data.groups(y_name)
+            for axis, (law, law_mask) in zip(axes[row], laws):
+                rate = np.full((len(y_groups), len(x_groups)), np.nan)
+                for i, (_, _, y_mask) in enumerate(y_groups):
+                    for j, (_, _, x_mask) in enumerate(x_groups):
+                        cell = law_mask & x_mask & y_mask & reported
+                        if cell.any():
+                            rate[i, j] = data.columns["converged"][cell].mean()
+                image = axis.imshow(rate, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis")
+                axis.set_xticks(range(len(x_groups)), [g[0] for g in x_groups], rotation=60, fontsize=7)
+                axis.set_yticks(range(len(y_groups)), [g[0] for g in y_groups], fontsize=7)
+                axis.set_xlabel(x_name)
+                axis.set_ylabel(y_name)
+                axis.set_title(law)
+        figure.colorbar(image, ax=axes.ravel().tolist(), label="convergence rate")
         path = Path(folder) / FILES[0]
-        figure.savefig(path, dpi=120)
+        figure.savefig(path, dpi=110)
         plt.close(figure)
         written.append(path)
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
