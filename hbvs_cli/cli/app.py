@@ -153,7 +153,7 @@ def repeat(
     depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
     config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
-    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default) or paper (k_2 = 1, the paper's law exactly).", rich_help_panel="Controller")] = None,
+    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default), paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive (gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).", rich_help_panel="Controller")] = None,
     kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
     kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
     gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default the fit's suggestion (from x_hd1_dot and the detector's noise).", rich_help_panel="Controller")] = None,
@@ -194,7 +194,7 @@ def repeat(
 # --------------------------------------------------------------------------- report
 @app.command(rich_help_panel="Pipeline")
 def report(
-    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat, or one fit file from hbvs fit (- for one on stdin).")],
+    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat, or one fit file from hbvs fit (- for one on stdin), or the results folder of hbvs sweep.")],
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON object instead of a table.")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a figure; the suffix picks the format: .pdf or .svg (vector, for papers), .png (raster). A fit file gives the fit figure (Remark 1).", rich_help_panel="Figure")] = None,
     fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
@@ -219,6 +219,39 @@ def report(
     )
     if code:
         raise typer.Exit(code)
+
+
+# --------------------------------------------------------------------------- sweep
+@app.command(rich_help_panel="Studies")
+def sweep(
+    fit: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.")] = Path("sweep-results"),
+    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples, [vary], [fixed] (README, hbvs sweep).")] = None,
+    vary: Annotated[Optional[List[str]], typer.Option("--vary", help="NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.")] = None,
+    fixed: Annotated[Optional[List[str]], typer.Option("--set", help="NAME=VALUE held for every run, e.g. perception=points; repeatable.")] = None,
+    repeats: Annotated[Optional[int], typer.Option("--repeats", min=1, help="Runs per point, each with its own seed. Default 1.")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence([seed, i]). Default 0.")] = None,
+    sampling: Annotated[Optional[str], typer.Option("--sampling", help="grid (default), or sobol, halton, lhs (scipy.stats.qmc), random for ranges.")] = None,
+    samples: Annotated[Optional[int], typer.Option("--samples", min=1, help="Samples of the ranges (not grid). Default 64.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
+    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs[sweep-cluster]').", rich_help_panel="Engine")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
+    keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",
+    json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON instead of tables.")] = False,
+    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Draw the summary figures into the results folder.")] = True,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
+) -> None:
+    """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
+    from ..stages.sweep import SweepOptions, run_sweep
+
+    run_sweep(
+        SweepOptions(
+            fit=fit, output=output, spec=spec, vary=list(vary or []), fixed=list(fixed or []), repeats=repeats, seed=seed,
+            sampling=sampling, samples=samples, scheduler=scheduler, cluster=cluster, workers=workers, keep_runs=keep_runs,
+            json_output=json_output, plots=plots,
+        ),
+        _console(quiet),
+    )
 
 
 # --------------------------------------------------------------------------- demo

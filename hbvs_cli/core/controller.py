@@ -59,7 +59,8 @@ class ControllerGains:
     k_w : float
         Heading gain (1/s), > 0.
     gamma : float
-        Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), > 0.
+        Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), >= 0
+        (0: no adaptation, the non-adaptive baseline of core/laws.py).
     k_2 : float
         Lateral gain (equations.md); 1 is the paper's law exactly.
     """
@@ -72,7 +73,8 @@ class ControllerGains:
     def __post_init__(self) -> None:
         for name in ("k_v", "k_w", "gamma", "k_2"):
             value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0.0:
+            # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
+            if not np.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
                 raise UsageError(f"gain {name} must be a positive number, got {value}")
 
     @property
@@ -198,15 +200,17 @@ def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: Cont
     """The Lyapunov function (36), weighted by k_2 (equations.md).
 
     ``V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma) (d* - dhat)^2``.
-    Needs the true depth d* (m), so it is known only in simulation.
+    Needs the true depth d* (m), so it is known only in simulation. Without adaptation
+    (gamma = 0, dhat constant) the depth term is left out.
     """
     d_tilde = d_star - dhat
     value = (
         0.5 * d_star * errors.e1 * errors.e1
         + 0.5 * gains.k_2 * errors.ebar2 * errors.ebar2
         + 0.5 * errors.e3 * errors.e3
-        + 0.5 / gains.gamma * d_tilde * d_tilde
     )
+    if gains.gamma > 0.0:
+        value = value + 0.5 / gains.gamma * d_tilde * d_tilde
     return float(value) if np.ndim(value) == 0 else value
 
 

@@ -19,7 +19,8 @@ from typing import IO, Any
 import numpy as np
 
 from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, LAWS, lyapunov
+from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, lyapunov
+from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
@@ -131,16 +132,16 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         return config.get(key, default)
 
     law = pick(options.law, "law", LAW_LATERAL_GAIN)
-    if law not in LAWS:
-        raise UsageError(f"--law must be one of {', '.join(LAWS)}, got {law!r}")
+    if law not in ALL_LAWS:
+        raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else ControllerGains()
-    gains = ControllerGains(
+    gains = gains_for_law(ControllerGains(
         k_v=pick(options.kv, "k_v", defaults.k_v),
         k_w=pick(options.kw, "k_w", defaults.k_w),
         gamma=pick(options.gamma, "gamma", defaults.gamma),
         k_2=pick(options.k2, "k_2", defaults.k_2),
-    ).with_law(law)
+    ), law)
     dhat0 = float(pick(options.dhat0, "dhat0", dhat0_suggested))
     if not (math.isfinite(dhat0) and dhat0 > 0):
         raise UsageError(f"--dhat0 must be a positive depth in metres, got {dhat0}")
@@ -178,8 +179,12 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     )
 
 
-def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
-    """Run the repeat phase as ``options`` say; write the run file."""
+def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> RepeatSummary:
+    """Run the repeat phase as ``options`` say; write the run file.
+
+    ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
+    for thousands of runs); by default it is read here.
+    """
     from ..io.fit_file import read_fit_file
 
     if options.sim == (options.replay is not None):
@@ -192,7 +197,8 @@ def run_repeat(options: RepeatOptions, console: Console) -> RepeatSummary:
         [("-o", options.output), ("--cmd-out", options.cmd_out)],
         [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
     )
-    fit = read_fit_file(options.input)
+    if fit is None:
+        fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
     settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
@@ -397,7 +403,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
         scene=scene,
         camera=camera,
         trajectory=trajectory,
-        controller=AdaptiveTrackingController(settings.gains, settings.dhat0),
+        controller=make_controller(settings.law, settings.gains, settings.dhat0),
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
@@ -583,7 +589,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit.template_image, seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
-    controller = AdaptiveTrackingController(settings.gains, settings.dhat0)
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
     with _open_cmd_stream(options.cmd_out) as cmd_stream:

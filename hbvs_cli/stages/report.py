@@ -249,6 +249,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
     from ..io.output_target import refuse_overwriting_inputs
 
+    if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
+        return _report_sweep(options)
     tolerances = parse_tolerances(options.tolerance)
     bounds = parse_bounds(options.fail_above)
     inputs = [("run", text) for text in options.runs]
@@ -298,3 +300,22 @@ def run_report(options: ReportOptions, console: Console) -> int:
     for message in unconverged:
         console.warn(f"not converged: {message}")
     return 1 if excesses or unconverged else 0
+
+
+def _report_sweep(options: ReportOptions) -> int:
+    """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
+    from ..tools.sweep_summary import print_summary, print_summary_json, summarize
+
+    if options.plot or options.fail_above or options.export_tum or options.tolerance:
+        raise UsageError("a sweep's results folder takes only --json (its figures are in the folder)")
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        raise UsageError("reading a sweep's table needs pyarrow: pip install 'hbvs[sweep]'") from None
+    summary = summarize(Path(options.runs[0]))
+    if options.json_output:
+        print_summary_json(summary, sys.stdout)
+    else:
+        print_summary(summary, sys.stdout)
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,131 @@
+"""Every control law ``hbvs repeat --law`` knows, and the baselines to compare (31) against.
+
+* ``lateral-gain`` (default) and ``paper`` (k_2 = 1): the adaptive law (29)-(31) of
+  :mod:`hbvs_cli.core.controller`.
+* ``non-adaptive``: the same law (29)-(30) with gamma_1 = 0, so dhat stays at dhat(0) for
+  the whole run (docs/method.md, "Baselines"). It shows what the update law (31) buys.
+* ``kanayama``: the classical kinematic tracking law of Y. Kanayama, Y. Kimura,
+  F. Miyazaki, T. Noguchi, "A stable tracking control method for an autonomous mobile
+  robot", IEEE ICRA 1990, on the planar pose reconstructed from the homography with a
+  fixed depth estimate dhat (docs/method.md, "Baselines").
+
+Every controller here has the interface the closed loop uses (:func:`~hbvs_cli.core.simulator.run_closed_loop`):
+a ``dhat`` attribute, ``step(measured, desired, dt) -> ControlOutput`` and ``hold()``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import UsageError
+from .controller import (
+    LAW_LATERAL_GAIN,
+    LAW_PAPER,
+    AdaptiveTrackingController,
+    ControlOutput,
+    ControllerGains,
+    DesiredState,
+    Measurement,
+    tracking_errors,
+)
+
+LAW_NON_ADAPTIVE = "non-adaptive"
+LAW_KANAYAMA = "kanayama"
+#: Every law ``--law`` accepts, the default first.
+ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
+
+
+@dataclass(frozen=True)
+class KanayamaGains:
+    """Gains of Kanayama et al. (1990), in their units.
+
+    The defaults are the paper's own example (K_x = 10 1/s, K_y = 64 1/m^2, K_theta = 16 1/m,
+    so that K_theta = 2 sqrt(K_y): the linearised lateral error is critically damped). At
+    the default taught speed of 0.1 m/s the lateral mode then decays at
+    ``v_r sqrt(K_y)`` = 0.8 1/s, close to the lateral-gain law's k_w / 2.
+    """
+
+    k_x: float = 10.0
+    k_y: float = 64.0
+    k_theta: float = 16.0
+
+
+def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
+    """The gains a law runs with, as recorded in the run file.
+
+    ``paper`` forces k_2 = 1; ``non-adaptive`` and ``kanayama`` do not adapt, so their
+    gamma_1 is 0 (which also drops the depth term of V (36) in the report).
+
+    Raises
+    ------
+    UsageError
+        An unknown law.
+    """
+    if law in (LAW_PAPER, LAW_LATERAL_GAIN):
+        return gains.with_law(law)
+    if law in (LAW_NON_ADAPTIVE, LAW_KANAYAMA):
+        return replace(gains, gamma=0.0)
+    raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
+
+
+def make_controller(law: str, gains: ControllerGains, dhat0: float):
+    """The controller of ``law`` with the gains of :func:`gains_for_law` and dhat(0) (m)."""
+    gains = gains_for_law(gains, law)
+    if law == LAW_KANAYAMA:
+        return KanayamaController(dhat0)
+    # gamma_1 = 0 makes (31) zero: the non-adaptive law is the adaptive one, frozen.
+    return AdaptiveTrackingController(gains, dhat0)
+
+
+def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, dhat: float) -> tuple[float, float, float]:
+    """Kanayama's error posture ``(e_x, e_y, e_theta)`` from the homography with a fixed depth.
+
+    With ``x_f = dhat x_h`` the origin of F* seen from the robot (3), (14) and
+    ``theta = phi* - phi`` (4), the desired pose seen from the robot is
+    ``e_xy = dhat (x_h - Rz(e3) x_hd)`` (m) and ``e_theta = e3 = theta - theta_d`` (rad)
+    (docs/method.md, "Baselines").
+    """
+    e3 = float(tracking_errors(measured, desired).e3)
+    c, s = math.cos(e3), math.sin(e3)
+    x_hd1, x_hd2 = float(desired.x_hd1), float(desired.x_hd2)
+    e_x = dhat * (float(measured.x_h1) - (c * x_hd1 - s * x_hd2))
+    e_y = dhat * (float(measured.x_h2) - (s * x_hd1 + c * x_hd2))
+    return e_x, e_y, e3
+
+
+class KanayamaController:
+    """Kanayama et al. (1990) on the pose reconstructed at a fixed depth estimate.
+
+    The reference velocities come from the desired trajectory: ``w_r = -theta_d_dot`` (5)
+    and ``v_r = dhat (x_hd2 w_r - x_hd1_dot)`` (25). The law is
+    ``v = v_r cos e_theta + K_x e_x`` and ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``.
+
+    Parameters
+    ----------
+    dhat : float
+        The fixed depth estimate (m), > 0: dhat(0) of the run.
+    gains : KanayamaGains, optional
+    """
+
+    def __init__(self, dhat: float, gains: KanayamaGains | None = None) -> None:
+        if not np.isfinite(dhat) or dhat <= 0.0:
+            raise UsageError(f"the depth estimate dhat0 must be positive, got {dhat}")
+        self.dhat = float(dhat)
+        self.gains = gains or KanayamaGains()
+
+    def step(self, measured: Measurement, desired: DesiredState, dt: float) -> ControlOutput:
+        """Commands for this instant (``dt`` is unused: nothing adapts)."""
+        e_x, e_y, e_theta = reconstructed_tracking_error(measured, desired, self.dhat)
+        w_r = -float(desired.theta_d_dot)
+        v_r = self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot))
+        g = self.gains
+        v = v_r * math.cos(e_theta) + g.k_x * e_x
+        w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
+        return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
+
+    def hold(self) -> tuple[float, float]:
+        """Commands while the target is lost: stop."""
+        return 0.0, 0.0

@@ -1,0 +1,207 @@
+"""``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask.
+
+Plans the runs of a spec (:mod:`hbvs_cli.sweep.spec`), runs each one as ``hbvs repeat
+--sim`` + ``hbvs report --json`` (:func:`hbvs_cli.sweep.runner.execute_run`) on a Dask
+cluster (:mod:`hbvs_cli.sweep.engine`), writes the rows as they finish
+(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.tools.sweep_summary`)
+and draws the figures (:mod:`hbvs_cli.tools.sweep_plots`). Interrupted, the same command
+resumes: the runs already in the table are skipped.
+
+Like ``demo``, this stage drives the others (``repeat`` and ``report``) through their
+callables; it copies none of their code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError, UsageError
+from .console import Console
+
+
+@dataclass(frozen=True)
+class SweepOptions:
+    """Everything ``hbvs sweep`` was asked to do (see ``hbvs sweep --help``)."""
+
+    fit: str
+    output: Path = Path("sweep-results")
+    spec: Path | None = None
+    vary: list[str] = field(default_factory=list)
+    fixed: list[str] = field(default_factory=list)
+    repeats: int | None = None
+    seed: int | None = None
+    sampling: str | None = None
+    samples: int | None = None
+    scheduler: str | None = None
+    cluster: str | None = None
+    workers: int | None = None
+    keep_runs: str = "failed"
+    json_output: bool = False
+    plots: bool = True
+    in_flight: int | None = None
+
+
+def _true_depth(fit: Any) -> float | None:
+    """d* of the fit's simulated world (None for a fit of real footage)."""
+    from .simworld import simulation_world
+
+    try:
+        return float(simulation_world(fit.model, None, None).d_true)
+    except UsageError:
+        return None
+
+
+class SweepTasks:
+    """The runs still to do, made lazily from their indices (flat memory)."""
+
+    def __init__(self, plan: Any, fit_path: str, d_true: float | None, folder: Path, keep: str, done: set[int]) -> None:
+        self.plan, self.fit_path, self.d_true, self.folder, self.keep, self.done = plan, fit_path, d_true, folder, keep, done
+
+    def task(self, index: int) -> Any:
+        from ..sweep.runner import RunTask
+        from ..sweep.spec import repeat_arguments, repeat_command
+
+        run = self.plan.run(index)
+        arguments = repeat_arguments(run.values, run.seed, self.d_true)
+        keep_path = None if self.keep == "none" else str(self.folder / "runs" / f"run-{index:06d}.mcap")
+        return RunTask(
+            fit_path=self.fit_path, index=index, point=run.point, repeat=run.repeat, seed=run.seed, values=run.values,
+            arguments=arguments, command=repeat_command(self.fit_path, arguments, f"run-{index:06d}.mcap"),
+            keep_path=keep_path, keep=self.keep,
+        )
+
+    def __iter__(self):
+        return (self.task(i) for i in range(self.plan.runs) if i not in self.done)
+
+    def remaining(self) -> int:
+        return self.plan.runs - len(self.done)
+
+
+def prepare(options: SweepOptions) -> tuple[Any, Any, Any, SweepTasks]:
+    """Check the options, plan the runs, open the results table (nothing runs yet).
+
+    Returns ``(plan, spec, table, tasks)``.
+    """
+    from ..io.fit_file import read_fit_file
+    from ..sweep.engine import require_engine
+    from ..sweep.runner import KEEP_CHOICES
+    from ..sweep.spec import PARAMETERS, SweepPlan, build_spec, file_digest, load_spec_file
+    from ..sweep.table import ResultsTable, row_schema
+
+    require_engine()
+    if options.keep_runs not in KEEP_CHOICES:
+        raise UsageError(f"--keep-runs must be one of {', '.join(KEEP_CHOICES)}, got {options.keep_runs!r}")
+    if options.fit == "-":
+        raise UsageError("hbvs sweep needs the fit as a file (every worker reads it), not - (stdin)")
+    fit_path = Path(options.fit)
+    if not fit_path.is_file():
+        raise InputError(f"{fit_path}: no such fit file")
+    spec = build_spec(
+        load_spec_file(options.spec) if options.spec is not None else None,
+        options.vary, options.fixed, options.repeats, options.seed, options.sampling, options.samples,
+    )
+    plan = SweepPlan(spec)
+    fit_text = str(fit_path.resolve())
+    fit = read_fit_file(fit_text)
+    d_true = _true_depth(fit)
+    if ("dhat0_factor" in plan.swept or "dhat0_factor" in spec.fixed) and d_true is None:
+        raise UsageError("dhat0_factor needs the true d*, which only a fit of a simulated teach has; sweep dhat0 (m) instead")
+    parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
+    schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})
+    fingerprint = {"spec": spec.as_dict(), "fit": fit_text, "fit_sha256": file_digest(fit_path)}
+    description = {"runs": plan.runs, "points": plan.points, "d_true": d_true}
+    table = ResultsTable(Path(options.output), schema, fingerprint, description)
+    tasks = SweepTasks(plan, fit_text, d_true, Path(options.output), options.keep_runs, table.done)
+    return plan, spec, table, tasks
+
+
+def run_sweep(options: SweepOptions, console: Console) -> int:
+    """Run (or resume) a sweep, then print its summary; returns the exit code (0)."""
+    from ..sweep.engine import dask_client, default_workers, run_tasks
+    from ..sweep.runner import execute_run
+    from ..sweep.table import failed_row
+
+    plan, spec, table, tasks = prepare(options)
+    remaining = tasks.remaining()
+    console.info(
+        f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
+        f"{', '.join(plan.swept)}; {plan.runs - remaining} already done -> {options.output}/"
+    )
+    if remaining:
+        key = hashlib.sha256(tasks.fit_path.encode() + repr(spec.as_dict()).encode()).hexdigest()[:12]
+        failures = 0
+        started = time.monotonic()
+        with dask_client(options.scheduler, options.cluster, options.workers) as client, _progress(console, remaining) as progress:
+            workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
+            in_flight = options.in_flight or max(4 * workers, 8)
+
+            def on_row(row: dict[str, Any]) -> None:
+                nonlocal failures
+                table.append(row)
+                failures += row["status"] == "failed"
+                progress(failures)
+
+            try:
+                done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}")
+            except BaseException:
+                # Ctrl-C, SIGTERM or an error: keep every finished row; the same command resumes.
+                table.close()
+                raise
+        elapsed = time.monotonic() - started
+        console.info(f"sweep: {done} runs in {elapsed:.1f} s ({done / max(elapsed, 1e-9):.2f} runs/s on {workers} workers), {failures} failed")
+    finish(options, table, console)
+    return 0
+
+
+def finish(options: SweepOptions, table: Any, console: Console) -> None:
+    """Merge the table, print the summary (stdout), draw the figures."""
+    from ..tools.sweep_summary import print_summary, print_summary_json, summarize
+
+    merged = table.finish()
+    summary = summarize(Path(options.output))
+    if options.json_output:
+        print_summary_json(summary, sys.stdout)
+    else:
+        print_summary(summary, sys.stdout)
+    sys.stdout.flush()
+    if options.plots and merged.num_rows:
+        from ..tools.sweep_plots import save_sweep_plots
+
+        for path in save_sweep_plots(Path(options.output)):
+            console.info(f"sweep: figure {path}")
+    failed = summary["runs"]["failed"]
+    if failed:
+        console.warn(f"{failed} runs failed; their error is in the error column of {options.output}/runs.csv")
+
+
+class _progress:
+    """A rich progress bar on stderr (runs done, failures, time left); silent off a terminal."""
+
+    def __init__(self, console: Console, total: int) -> None:
+        self.console, self.total = console, total
+        self.bar: Any = None
+
+    def __enter__(self) -> Any:
+        if self.console.interactive:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+            self.bar = Progress(
+                TextColumn("sweep"), BarColumn(), MofNCompleteColumn(), TextColumn("runs, {task.fields[failed]} failed"),
+                TextColumn("elapsed"), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=self.console.rich, transient=True,
+            )
+            self.bar.__enter__()
+            self.task = self.bar.add_task("sweep", total=self.total, failed=0)
+        return self.advance
+
+    def advance(self, failures: int) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, advance=1, failed=failures)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*exc)

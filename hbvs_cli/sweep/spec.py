@@ -1,0 +1,475 @@
+"""What a sweep runs: the parameters, the design (grid or scipy.stats.qmc samples), the seeds.
+
+A sweep is a list of *points* (one value for every swept parameter) each run ``repeats``
+times. Run ``i`` is point ``i // repeats``, repeat ``i % repeats``; its seed is drawn from
+``numpy.random.SeedSequence([sweep seed, i])``, so any run can be made again alone, with
+``hbvs repeat`` and the options :func:`repeat_command` prints, byte-identical.
+
+Nothing here holds one object per run: :meth:`SweepPlan.run` builds a run's settings from
+its index, so a plan of 100 000 runs costs the memory of its design matrix only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shlex
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from ..core.laws import ALL_LAWS
+from ..errors import InputError, UsageError
+
+#: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
+SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A parameter a sweep can vary or fix.
+
+    Attributes
+    ----------
+    name : str
+    kind : str
+        ``float``, ``int`` or ``choice``.
+    unit : str
+    help : str
+    choices : tuple of str
+        The allowed values of a ``choice``.
+    minimum : float
+        The smallest allowed value of a number.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    help: str
+    choices: tuple[str, ...] = ()
+    minimum: float = -math.inf
+
+
+#: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
+PARAMETERS: dict[str, Parameter] = {
+    p.name: p
+    for p in (
+        Parameter("offset_x", "float", "m", "start offset along the taught start heading (--offset DX)"),
+        Parameter("offset_y", "float", "m", "start offset to the left (--offset DY)"),
+        Parameter("offset_theta", "float", "deg", "start heading offset (--offset DTHETA)"),
+        Parameter("dhat0", "float", "m", "initial depth estimate (--dhat0)", minimum=0.0),
+        Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)", minimum=0.0),
+        Parameter("pixel_noise", "float", "px", "pixel noise, 1 sigma (--pixel-noise)", minimum=0.0),
+        Parameter("kv", "float", "m/s", "gain k_v (--kv)", minimum=0.0),
+        Parameter("kw", "float", "1/s", "gain k_w (--kw)", minimum=0.0),
+        Parameter("gamma", "float", "", "adaptation gain gamma_1 (--gamma)", minimum=0.0),
+        Parameter("k2", "float", "", "lateral gain k_2 (--k2)", minimum=0.0),
+        Parameter("law", "choice", "", "control law (--law)", choices=ALL_LAWS),
+        Parameter("drop_rate", "float", "", "fraction of dropped frames (--drop-rate)", minimum=0.0),
+        Parameter("outlier_rate", "float", "", "fraction of frames with an outlier (--outlier-rate)", minimum=0.0),
+        Parameter("occlusion_start", "float", "s", "start of an occlusion window (--occlude START:END)", minimum=0.0),
+        Parameter("occlusion_length", "float", "s", "length of the occlusion window; 0 for none", minimum=0.0),
+        Parameter("latency", "int", "frames", "measurement latency (--latency)", minimum=0.0),
+        Parameter("perception", "choice", "", "points (projected, --pixel-noise) or images (rendered and detected)", choices=("points", "images")),
+        Parameter("rate", "float", "Hz", "camera and control rate (--rate)", minimum=0.0),
+        Parameter("speed", "float", "", "pace of the taught trajectory (--speed)", minimum=0.0),
+        Parameter("lost_timeout", "float", "s", "stop after the target was lost this long (--lost-timeout)", minimum=0.0),
+    )
+}
+#: The start offset ``hbvs repeat`` uses when none is given: -0.1 m, 0.05 m, 2 deg.
+DEFAULT_OFFSET = (-0.1, 0.05, 2.0)
+#: The occlusion window starts here when only its length is swept.
+DEFAULT_OCCLUSION_START = 8.0
+
+
+@dataclass(frozen=True)
+class Axis:
+    """How one parameter varies: a list of values, or a range to sample."""
+
+    name: str
+    values: tuple[Any, ...] = ()
+    low: float | None = None
+    high: float | None = None
+
+    @property
+    def is_range(self) -> bool:
+        return not self.values
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"values": list(self.values)} if self.values else {"range": [self.low, self.high]}
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A whole sweep, as the spec file and the options say."""
+
+    axes: tuple[Axis, ...]
+    fixed: Mapping[str, Any] = field(default_factory=dict)
+    sampling: str = "grid"
+    samples: int = 64
+    repeats: int = 1
+    seed: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "vary": {axis.name: axis.as_dict() for axis in self.axes},
+            "fixed": dict(self.fixed),
+            "sampling": self.sampling,
+            "samples": self.samples if self.sampling != "grid" else None,
+            "repeats": self.repeats,
+            "seed": self.seed,
+        }
+
+
+# ----------------------------------------------------------------------------- parsing
+def _check_value(name: str, value: Any, where: str) -> Any:
+    """A parameter value of the right type and range (numbers as float or int)."""
+    parameter = PARAMETERS[name]
+    if parameter.kind == "choice":
+        if not isinstance(value, str) or value not in parameter.choices:
+            raise UsageError(f"{where}: {name} must be one of {', '.join(parameter.choices)}, got {value!r}")
+        return value
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise UsageError(f"{where}: {name} must be a number ({parameter.unit or 'dimensionless'}), got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise UsageError(f"{where}: {name} must be a finite number, got {value!r}")
+    if value < parameter.minimum:
+        raise UsageError(f"{where}: {name} must be >= {parameter.minimum:g}, got {value!r}")
+    if parameter.kind == "int":
+        if float(value) != int(value):
+            raise UsageError(f"{where}: {name} must be a whole number, got {value!r}")
+        return int(value)
+    return float(value)
+
+
+def _known(name: str, where: str) -> None:
+    if name not in PARAMETERS:
+        raise UsageError(f"{where}: unknown parameter {name!r}; choose from {', '.join(PARAMETERS)}")
+
+
+def parse_vary(text: str) -> Axis:
+    """``--vary NAME=LO:HI:N`` (N values, ends included), ``NAME=LO:HI`` (a range to sample)
+    or ``NAME=A,B,C`` (a list).
+
+    Raises
+    ------
+    UsageError
+        No ``=``, an unknown name, or values of the wrong type.
+    """
+    name, sep, rest = text.partition("=")
+    name = name.strip()
+    where = f"--vary {text}"
+    if not sep or not rest.strip():
+        raise UsageError(f"--vary must be NAME=LO:HI:N, NAME=LO:HI or NAME=A,B,C, got {text!r}")
+    _known(name, where)
+    if ":" in rest:
+        parts = rest.split(":")
+        if len(parts) not in (2, 3) or PARAMETERS[name].kind == "choice":
+            raise UsageError(f"{where}: a range is LO:HI:N (a grid) or LO:HI (sampled), for a number")
+        low, high = (_check_value(name, p, where) for p in parts[:2])
+        if len(parts) == 2:
+            return _range_axis(name, low, high, where)
+        try:
+            count = int(parts[2])
+        except ValueError:
+            count = 0
+        if count < 1:
+            raise UsageError(f"{where}: N must be a whole number >= 1, got {parts[2]!r}")
+        return _grid_axis(name, low, high, count, where)
+    return _list_axis(name, [p.strip() for p in rest.split(",")], where)
+
+
+def _list_axis(name: str, values: Sequence[Any], where: str) -> Axis:
+    checked = tuple(_check_value(name, v, where) for v in values)
+    if not checked:
+        raise UsageError(f"{where}: no values")
+    if len(set(checked)) != len(checked):
+        raise UsageError(f"{where}: a value is listed twice")
+    return Axis(name, values=checked)
+
+
+def _grid_axis(name: str, low: float, high: float, count: int, where: str) -> Axis:
+    values = np.linspace(low, high, count) if count > 1 else np.array([low])
+    if PARAMETERS[name].kind == "int":
+        return _list_axis(name, sorted({int(round(v)) for v in values}), where)
+    # 12 significant digits: 0.05, not linspace's 0.05000000000000002, in tables and commands.
+    return _list_axis(name, [float(f"{v:.12g}") for v in values], where)
+
+
+def _range_axis(name: str, low: float, high: float, where: str) -> Axis:
+    if not high > low:
+        raise UsageError(f"{where}: a range needs LO < HI")
+    return Axis(name, low=float(low), high=float(high))
+
+
+def _axis_from_toml(name: str, value: Any) -> Axis:
+    where = f"spec [vary] {name}"
+    _known(name, where)
+    if isinstance(value, list):
+        return _list_axis(name, value, where)
+    if isinstance(value, dict):
+        unknown = set(value) - {"from", "to", "steps"}
+        if unknown or "from" not in value or "to" not in value:
+            raise UsageError(f"{where}: write a list of values, or {{from = LO, to = HI}} (sampled) with steps = N for a grid")
+        low, high = _check_value(name, value["from"], where), _check_value(name, value["to"], where)
+        if "steps" in value:
+            steps = value["steps"]
+            if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+                raise UsageError(f"{where}: steps must be a whole number >= 1")
+            return _grid_axis(name, low, high, steps, where)
+        return _range_axis(name, low, high, where)
+    return _list_axis(name, [value], where)
+
+
+def load_spec_file(path: Path) -> dict[str, Any]:
+    """The TOML spec as a dictionary (see docs and :func:`build_spec`)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        with open(path, "rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the sweep spec ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not a valid TOML sweep spec ({exc})") from None
+    unknown = set(data) - {"seed", "repeats", "sampling", "samples", "vary", "fixed"}
+    if unknown:
+        raise UsageError(f"{path}: unknown keys {', '.join(sorted(unknown))}; a spec has seed, repeats, sampling, samples, [vary], [fixed]")
+    return data
+
+
+def build_spec(
+    file_data: Mapping[str, Any] | None,
+    vary: Sequence[str] = (),
+    fixed: Sequence[str] = (),
+    repeats: int | None = None,
+    seed: int | None = None,
+    sampling: str | None = None,
+    samples: int | None = None,
+) -> SweepSpec:
+    """The spec file's contents overridden by the options (``--vary`` replaces an axis of
+    the same name, ``--set NAME=VALUE`` a fixed value).
+
+    Raises
+    ------
+    UsageError
+        Unknown parameters, a parameter both varied and fixed, ranges on a grid, a
+        sampling method that is not known, nothing to run.
+    """
+    data = dict(file_data or {})
+    axes: dict[str, Axis] = {}
+    vary_table = data.get("vary", {})
+    if not isinstance(vary_table, dict):
+        raise UsageError("spec: [vary] must be a table")
+    for name, value in vary_table.items():
+        axes[name] = _axis_from_toml(name, value)
+    for text in vary:
+        axis = parse_vary(text)
+        axes[axis.name] = axis
+    fixed_values: dict[str, Any] = {}
+    fixed_table = data.get("fixed", {})
+    if not isinstance(fixed_table, dict):
+        raise UsageError("spec: [fixed] must be a table")
+    for name, value in fixed_table.items():
+        _known(name, "spec [fixed]")
+        fixed_values[name] = _check_value(name, value, "spec [fixed]")
+    for text in fixed:
+        name, sep, value = text.partition("=")
+        name = name.strip()
+        if not sep:
+            raise UsageError(f"--set must be NAME=VALUE, got {text!r}")
+        _known(name, f"--set {text}")
+        fixed_values[name] = _check_value(name, value.strip(), f"--set {text}")
+        axes.pop(name, None)
+    for name in list(fixed_values):
+        if name in axes:
+            raise UsageError(f"{name} is both varied and fixed; keep one")
+    if "dhat0" in axes and "dhat0_factor" in axes or ("dhat0" in fixed_values and "dhat0_factor" in fixed_values):
+        raise UsageError("give dhat0 or dhat0_factor, not both")
+    method = sampling if sampling is not None else data.get("sampling", "grid")
+    if method not in SAMPLING_METHODS:
+        raise UsageError(f"sampling must be one of {', '.join(SAMPLING_METHODS)}, got {method!r}")
+    count = samples if samples is not None else data.get("samples", 64)
+    repeat_count = repeats if repeats is not None else data.get("repeats", 1)
+    sweep_seed = seed if seed is not None else data.get("seed", 0)
+    for label, value, low in (("samples", count, 1), ("repeats", repeat_count, 1), ("seed", sweep_seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise UsageError(f"{label} must be a whole number >= {low}, got {value!r}")
+    ordered = tuple(axes.values())
+    if method == "grid":
+        ranged = [a.name for a in ordered if a.is_range]
+        if ranged:
+            raise UsageError(
+                f"a grid needs values for {', '.join(ranged)}: give LO:HI:N (or steps = N), or sample the range with --sampling sobol"
+            )
+    if not ordered:
+        raise UsageError("nothing varies: give --vary NAME=... or a spec with a [vary] table (--repeats alone: --vary law=lateral-gain)")
+    return SweepSpec(axes=ordered, fixed=fixed_values, sampling=method, samples=count, repeats=repeat_count, seed=sweep_seed)
+
+
+# ----------------------------------------------------------------------------- the plan
+def _qmc_unit_samples(method: str, dimensions: int, count: int, seed: int) -> np.ndarray:
+    """``count`` points in [0, 1)^dimensions, seeded."""
+    rng = np.random.default_rng(seed)
+    if method == "random":
+        return rng.random((count, dimensions))
+    from scipy.stats import qmc
+
+    engine_class = {"sobol": qmc.Sobol, "halton": qmc.Halton, "lhs": qmc.LatinHypercube}[method]
+    try:
+        engine = engine_class(dimensions, rng=rng)
+    except TypeError:  # scipy < 1.15 calls it seed
+        engine = engine_class(dimensions, seed=rng)
+    with warnings.catch_warnings():
+        # Sobol's balance wants a power of two; any count is still a valid sample.
+        warnings.simplefilter("ignore", UserWarning)
+        return engine.random(count)
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """One run of a sweep: its index, point, repeat, seed and every parameter value."""
+
+    index: int
+    point: int
+    repeat: int
+    seed: int
+    values: dict[str, Any]
+
+
+def run_seed(sweep_seed: int, index: int) -> int:
+    """The seed of run ``index`` (a 32-bit integer ``hbvs repeat --seed`` takes)."""
+    return int(np.random.SeedSequence([sweep_seed, index]).generate_state(1, dtype=np.uint32)[0])
+
+
+class SweepPlan:
+    """The runs of a spec, made one at a time from their index.
+
+    Parameters
+    ----------
+    spec : SweepSpec
+    """
+
+    def __init__(self, spec: SweepSpec) -> None:
+        self.spec = spec
+        self.listed = [a for a in spec.axes if not a.is_range]
+        self.ranged = [a for a in spec.axes if a.is_range]
+        self._list_sizes = [len(a.values) for a in self.listed]
+        self._combinations = int(np.prod(self._list_sizes)) if self.listed else 1
+        if self.ranged:
+            unit = _qmc_unit_samples(spec.sampling, len(self.ranged), spec.samples, spec.seed)
+            low = np.array([a.low for a in self.ranged])
+            high = np.array([a.high for a in self.ranged])
+            self._samples = low + unit * (high - low)
+            self._sample_count = spec.samples
+        else:
+            self._samples = np.zeros((1, 0))
+            self._sample_count = 1
+
+    @property
+    def points(self) -> int:
+        """Number of distinct parameter points (each run ``repeats`` times)."""
+        return self._combinations * self._sample_count
+
+    @property
+    def runs(self) -> int:
+        return self.points * self.spec.repeats
+
+    @property
+    def swept(self) -> list[str]:
+        """The swept parameters, in the spec's order."""
+        return [a.name for a in self.spec.axes]
+
+    def point_values(self, point: int) -> dict[str, Any]:
+        """The swept values of a point: the listed values vary slowest, the samples fastest
+        (so every law of a ``law`` list meets the same sampled points: paired comparisons)."""
+        combination, sample = divmod(point, self._sample_count)
+        values: dict[str, Any] = {}
+        if self.listed:
+            for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes)):
+                values[axis.name] = axis.values[int(position)]
+        for axis, value in zip(self.ranged, self._samples[sample]):
+            values[axis.name] = int(round(value)) if PARAMETERS[axis.name].kind == "int" else float(value)
+        return {name: values[name] for name in self.swept}
+
+    def run(self, index: int) -> RunSettings:
+        if not 0 <= index < self.runs:
+            raise IndexError(index)
+        point, repeat = divmod(index, self.spec.repeats)
+        values = dict(self.spec.fixed) | self.point_values(point)
+        return RunSettings(index=index, point=point, repeat=repeat, seed=run_seed(self.spec.seed, index), values=values)
+
+    def __iter__(self) -> Iterator[RunSettings]:
+        return (self.run(i) for i in range(self.runs))
+
+
+# ----------------------------------------------------------------------------- to hbvs repeat
+def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None) -> dict[str, Any]:
+    """The ``RepeatOptions`` fields (besides input and output) of a run's values.
+
+    Numbers are passed as their shortest exact text (``repr``), the same the printed
+    command gives, so the run and its re-make read identical options.
+    """
+    options: dict[str, Any] = {"sim": True, "seed": int(seed)}
+    if any(k in values for k in ("offset_x", "offset_y", "offset_theta")):
+        offset = [values.get(k, d) for k, d in zip(("offset_x", "offset_y", "offset_theta"), DEFAULT_OFFSET)]
+        options["offset"] = ",".join(repr(float(v)) for v in offset)
+    if "dhat0" in values:
+        options["dhat0"] = float(values["dhat0"])
+    elif "dhat0_factor" in values:
+        if d_true is None:
+            raise UsageError("dhat0_factor needs the true d*: the fit must come from a simulated teach (or use dhat0)")
+        options["dhat0"] = float(values["dhat0_factor"]) * d_true
+    if values.get("occlusion_length", 0) > 0:
+        start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
+        options["occlude"] = [f"{start!r}:{start + float(values['occlusion_length'])!r}"]
+    for name in ("pixel_noise", "kv", "kw", "gamma", "k2", "law", "drop_rate", "outlier_rate", "latency", "perception", "rate", "speed", "lost_timeout"):
+        if name in values:
+            options[name] = values[name]
+    return options
+
+
+#: RepeatOptions field -> its ``hbvs repeat`` option.
+_OPTION_NAMES = {
+    "offset": "--offset", "dhat0": "--dhat0", "occlude": "--occlude", "pixel_noise": "--pixel-noise", "kv": "--kv",
+    "kw": "--kw", "gamma": "--gamma", "k2": "--k2", "law": "--law", "drop_rate": "--drop-rate",
+    "outlier_rate": "--outlier-rate", "latency": "--latency", "perception": "--perception", "rate": "--rate",
+    "speed": "--speed", "lost_timeout": "--lost-timeout", "seed": "--seed",
+}
+
+
+def repeat_command(fit_path: str, arguments: Mapping[str, Any], output: str = "run.mcap") -> str:
+    """The ``hbvs repeat`` command line that makes the same run file, byte for byte."""
+    words = ["hbvs", "repeat", fit_path, "--sim"]
+    for key, value in arguments.items():
+        if key == "sim":
+            continue
+        option = _OPTION_NAMES[key]
+        for item in value if isinstance(value, list) else [value]:
+            text = repr(item) if isinstance(item, float) else str(item)
+            words.append(f"{option}={text}")
+    words += ["-o", output]
+    return " ".join(shlex.quote(w) for w in words)
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file (the fit a sweep ran on, to refuse resuming on another)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def spec_fingerprint(spec: SweepSpec, fit_path: str, fit_digest: str) -> str:
+    """A stable text of everything that decides the runs and their results."""
+    return json.dumps({"spec": spec.as_dict(), "fit": fit_path, "fit_sha256": fit_digest}, sort_keys=True)

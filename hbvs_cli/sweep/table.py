@@ -1,0 +1,216 @@
+"""The results table of a sweep: written as runs finish, valid after any interruption.
+
+Layout of the results folder::
+
+    sweep.json        the spec, the fit and its SHA-256 (a resume must match it)
+    parts/            part-NNNNNN.parquet, one per flush while the sweep runs
+    runs.parquet      the whole table, sorted by run index (written when the sweep ends)
+    runs.csv          the same rows as CSV: appended at every flush, rewritten sorted at the end
+    runs/             run files kept by --keep-runs
+
+Every Parquet file is written as ``NAME.partial`` and renamed when complete, so a part is
+either whole or absent. The CSV gets whole lines appended; a line torn by a kill is
+dropped when the sweep resumes, which rewrites the CSV from the Parquet rows. A resume
+skips every run index already in ``runs.parquet`` or a part.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from ..errors import InputError, UsageError
+
+SPEC_FILE = "sweep.json"
+PARTS = "parts"
+PARQUET = "runs.parquet"
+CSV = "runs.csv"
+RUNS = "runs"
+
+
+def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
+    """The Arrow schema of a row: indices, the parameters, status, the report's metrics."""
+    import pyarrow as pa
+
+    from .runner import BOOLEAN_METRICS, INTEGER_METRICS, METRICS
+
+    arrow = {"float": pa.float64(), "int": pa.int64(), "choice": pa.string()}
+    fields = [pa.field(n, pa.int64()) for n in ("index", "point", "repeat", "seed")]
+    fields += [pa.field(name, arrow[kinds[name]]) for name in parameters]
+    fields += [pa.field("status", pa.string()), pa.field("error", pa.string())]
+    for column in METRICS:
+        kind = pa.bool_() if column in BOOLEAN_METRICS else pa.int64() if column in INTEGER_METRICS else pa.float64()
+        fields.append(pa.field(column, kind))
+    fields += [pa.field("run_time_s", pa.float64()), pa.field("run_file", pa.string()), pa.field("command", pa.string())]
+    return pa.schema(fields)
+
+
+def _replace(path: Path, write: Any) -> None:
+    """Write ``path`` through ``path.partial`` and a rename."""
+    partial = path.with_name(path.name + ".partial")
+    write(partial)
+    os.replace(partial, path)
+
+
+def _csv_bytes(table: Any, header: bool) -> bytes:
+    import pyarrow.csv as pacsv
+
+    buffer = io.BytesIO()
+    pacsv.write_csv(table, buffer, write_options=pacsv.WriteOptions(include_header=header))
+    return buffer.getvalue()
+
+
+def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
+    """Every row written so far (``runs.parquet`` and the parts), one per run index, sorted.
+
+    Raises
+    ------
+    InputError
+        Not a sweep's results folder.
+    """
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    folder = Path(folder)
+    if not (folder / SPEC_FILE).is_file():
+        raise InputError(f"{folder}: not the results folder of hbvs sweep (no {SPEC_FILE})")
+    wanted = None if columns is None else list(dict.fromkeys(["index", *columns]))
+    pieces = []
+    files = ([folder / PARQUET] if (folder / PARQUET).is_file() else []) + sorted((folder / PARTS).glob("part-*.parquet"))
+    for path in files:
+        try:
+            pieces.append(pq.read_table(path, columns=wanted))
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(f"{path}: unreadable results ({exc})") from None
+    if not pieces:
+        schema = json.loads((folder / SPEC_FILE).read_text())["schema"]
+        return pa.schema([pa.field(n, pa.type_for_alias(t)) for n, t in schema.items()]).empty_table() if wanted is None else \
+            pa.table({n: pa.array([], pa.type_for_alias(schema[n])) for n in wanted})
+    table = pa.concat_tables(pieces, promote_options="default")
+    table = table.take(pc.sort_indices(table, [("index", "ascending")]))
+    # A part written again after a kill during the final merge repeats some indices.
+    index = table.column("index").to_numpy()
+    if index.size > 1:
+        import numpy as np
+
+        keep = np.concatenate([[True], index[1:] != index[:-1]])
+        if not keep.all():
+            table = table.filter(pa.array(keep))
+    return table
+
+
+class ResultsTable:
+    """Appends rows as runs finish; see the module docstring for the files.
+
+    Parameters
+    ----------
+    folder : Path
+    schema : pyarrow.Schema
+    fingerprint : dict
+        What decides the runs (spec, fit, digest); a folder with another one is refused.
+    flush_rows, flush_seconds :
+        Write a part when this many rows wait, or this long after the last part.
+    """
+
+    def __init__(self, folder: Path, schema: Any, fingerprint: Mapping[str, Any], description: Mapping[str, Any] | None = None,
+                 flush_rows: int = 256, flush_seconds: float = 2.0) -> None:
+        self.folder = Path(folder)
+        self.schema = schema
+        self.flush_rows = flush_rows
+        self.flush_seconds = flush_seconds
+        self._buffer: list[dict[str, Any]] = []
+        self._last_flush = time.monotonic()
+        self._open(dict(fingerprint), dict(description or {}))
+        self._part = 1 + max((int(p.stem.split("-")[1]) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
+
+    def _open(self, fingerprint: dict[str, Any], description: dict[str, Any]) -> None:
+        if self.folder.exists() and not self.folder.is_dir():
+            raise UsageError(f"{self.folder}: exists and is not a folder")
+        spec_path = self.folder / SPEC_FILE
+        if spec_path.is_file():
+            try:
+                recorded = json.loads(spec_path.read_text())
+            except (OSError, ValueError) as exc:
+                raise InputError(f"{spec_path}: unreadable ({exc})") from None
+            if recorded.get("fingerprint") != fingerprint:
+                raise UsageError(
+                    f"{self.folder} holds the results of another sweep (different spec, seed or fit); "
+                    "give another -o folder, or the same command to resume that one"
+                )
+        elif self.folder.exists() and any(self.folder.iterdir()):
+            raise UsageError(f"{self.folder}: exists, is not empty and holds no sweep; give a new or empty folder")
+        (self.folder / PARTS).mkdir(parents=True, exist_ok=True)
+        if not spec_path.is_file():
+            document = {"fingerprint": fingerprint, **description, "schema": {f.name: str(f.type) for f in self.schema}}
+            _replace(spec_path, lambda p: p.write_text(json.dumps(document, indent=2) + "\n"))
+        for stray in self.folder.rglob("*.partial"):
+            stray.unlink()
+        # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
+        done = read_rows(self.folder)
+        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(done.cast(self.schema) if done.num_rows else self.schema.empty_table(), True)))
+        self._done = set(done.column("index").to_pylist())
+
+    @property
+    def done(self) -> set[int]:
+        """Run indices with a row (read when the table was opened)."""
+        return self._done
+
+    def append(self, row: Mapping[str, Any]) -> None:
+        self._buffer.append(dict(row))
+        if len(self._buffer) >= self.flush_rows or time.monotonic() - self._last_flush >= self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the waiting rows: a new Parquet part, and the same lines onto the CSV."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        self._last_flush = time.monotonic()
+        if not self._buffer:
+            return
+        # Taken out first: a stop signal landing in here must not make a second flush
+        # write these rows again (a lost row is only re-run on resume).
+        rows, self._buffer = self._buffer, []
+        table = pa.Table.from_pylist(rows, schema=self.schema)
+        path = self.folder / PARTS / f"part-{self._part:06d}.parquet"
+        self._part += 1
+        _replace(path, lambda p: pq.write_table(table, p))
+        with open(self.folder / CSV, "ab") as handle:
+            handle.write(_csv_bytes(table, False))
+            handle.flush()
+            os.fsync(handle.fileno())
+
+    def close(self) -> None:
+        """After an interruption: write the waiting rows, and make the CSV hold exactly the
+        Parquet rows (the signal may have cut a flush between the two)."""
+        self.flush()
+        done = read_rows(self.folder)
+        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(done.cast(self.schema), True)))
+
+    def finish(self) -> Any:
+        """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index."""
+        import pyarrow.parquet as pq
+
+        self.flush()
+        table = read_rows(self.folder).cast(self.schema)
+        _replace(self.folder / PARQUET, lambda p: pq.write_table(table, p))
+        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(table, True)))
+        for part in (self.folder / PARTS).glob("part-*.parquet"):
+            part.unlink()
+        return table
+
+
+def failed_row(task: Any, error: str) -> dict[str, Any]:
+    """The row of a run whose worker could not give one (it died too often)."""
+    from .runner import STATUS_FAILED, empty_metrics
+
+    return {
+        "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed, **task.values,
+        "status": STATUS_FAILED, "error": error, **empty_metrics(), "run_time_s": None, "run_file": None,
+        "command": task.command,
+    }

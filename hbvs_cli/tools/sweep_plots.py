@@ -1,0 +1,114 @@
+"""Figures of a sweep, for a paper: convergence map, CDFs per law, error against parameters.
+
+* ``convergence_map.png``: the convergence rate over each pair of the first three numeric
+  swept parameters (their grid values, or ``BINS`` bins of a sampled range; the other
+  parameters pooled), one row per pair, one column per law;
+* ``final_error_cdf.png``: the empirical CDFs of the final position and heading errors,
+  one curve per law;
+* ``final_error_vs_parameters.png``: the final position error of every run against each
+  numeric swept parameter (log scale), one colour per law, with the median per group.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .sweep_summary import SweepData
+
+FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameters.png")
+#: The convergence map shows every pair of the first this many numeric swept parameters.
+MAP_PARAMETERS = 3
+
+
+def _laws(data: SweepData) -> list[tuple[str, np.ndarray]]:
+    if data.law is None:
+        return [("all runs", np.ones(data.rows, dtype=bool))]
+    return [(str(v), data.law == v) for v in dict.fromkeys(data.law.tolist())]
+
+
+def _numeric(data: SweepData) -> list[str]:
+    return [n for n in data.swept if n != "law" and data.columns[n].dtype != object]
+
+
+def save_sweep_plots(folder: Path) -> list[Path]:
+    """Write the figures into ``folder``; returns the paths written (the map needs two
+    numeric swept parameters, the scatter one)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = SweepData(folder)
+    written = []
+    reported = data.columns["status"] != "failed"
+    laws = _laws(data)
+    numeric = _numeric(data)
+    pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
+    if pairs:
+        figure, axes = plt.subplots(len(pairs), len(laws), figsize=(4.2 * len(laws) + 1, 3.6 * len(pairs)), squeeze=False,
+                                    constrained_layout=True)
+        image = None
+        for row, (x_name, y_name) in enumerate(pairs):
+            x_groups, y_groups = data.groups(x_name), data.groups(y_name)
+            for axis, (law, law_mask) in zip(axes[row], laws):
+                rate = np.full((len(y_groups), len(x_groups)), np.nan)
+                for i, (_, _, y_mask) in enumerate(y_groups):
+                    for j, (_, _, x_mask) in enumerate(x_groups):
+                        cell = law_mask & x_mask & y_mask & reported
+                        if cell.any():
+                            rate[i, j] = data.columns["converged"][cell].mean()
+                image = axis.imshow(rate, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis")
+                axis.set_xticks(range(len(x_groups)), [g[0] for g in x_groups], rotation=60, fontsize=7)
+                axis.set_yticks(range(len(y_groups)), [g[0] for g in y_groups], fontsize=7)
+                axis.set_xlabel(x_name)
+                axis.set_ylabel(y_name)
+                axis.set_title(law)
+        figure.colorbar(image, ax=axes.ravel().tolist(), label="convergence rate")
+        path = Path(folder) / FILES[0]
+        figure.savefig(path, dpi=110)
+        plt.close(figure)
+        written.append(path)
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
+    for law, law_mask in laws:
+        for axis, column, scale in ((axes[0], "final_position_m", 100.0), (axes[1], "final_heading_deg", 1.0)):
+            values = np.sort(data.columns[column][law_mask & reported])
+            values = values[np.isfinite(values)] * scale
+            if values.size:
+                axis.step(values, np.arange(1, values.size + 1) / values.size, where="post", label=law)
+    for axis, label in ((axes[0], "final position error (cm)"), (axes[1], "final heading error (deg)")):
+        axis.set_xscale("log")
+        axis.set_xlabel(label)
+        axis.set_ylabel("fraction of runs")
+        axis.grid(True, alpha=0.3)
+        axis.legend(fontsize=8)
+    path = Path(folder) / FILES[1]
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    written.append(path)
+    if numeric:
+        figure, axes = plt.subplots(1, len(numeric), figsize=(4.2 * len(numeric), 3.6), squeeze=False, constrained_layout=True)
+        for axis, name in zip(axes[0], numeric):
+            for index, (law, law_mask) in enumerate(laws):
+                mask = law_mask & reported
+                colour = f"C{index}"
+                axis.scatter(data.columns[name][mask], 100 * data.columns["final_position_m"][mask], s=4, alpha=0.35, color=colour, label=law)
+                centres, medians = [], []
+                for _, centre, group in data.groups(name):
+                    values = data.columns["final_position_m"][group & mask]
+                    values = values[np.isfinite(values)]
+                    if values.size:
+                        centres.append(centre)
+                        medians.append(100 * np.median(values))
+                axis.plot(centres, medians, color=colour, linewidth=1.5)
+            axis.set_yscale("log")
+            axis.set_xlabel(name)
+            axis.set_ylabel("final position error (cm)")
+            axis.grid(True, alpha=0.3)
+        axes[0][0].legend(fontsize=8, markerscale=3)
+        path = Path(folder) / FILES[2]
+        figure.savefig(path, dpi=120)
+        plt.close(figure)
+        written.append(path)
+    return written

@@ -1,0 +1,220 @@
+"""The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles.
+
+Groups: every law (when the law is swept or fixed), and for every other swept parameter its
+values (a grid) or ``BINS`` equal-width bins of its range (sampled), crossed with the law.
+For each group: runs, failed runs (no report; left out of the rate), converged runs, the
+convergence rate and its Wilson 95 % interval, and the median and 95th percentile of the
+final position error (m), the final heading error (deg) and the settling time (s: the
+later of the position and heading settling times; runs that never settled are left out of
+its quantiles and counted in ``unsettled``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence, TextIO
+
+import numpy as np
+
+#: Bins of a sampled (not gridded) parameter in the summary and the plots.
+BINS = 8
+#: Values of a gridded parameter beyond which it is binned like a sampled one.
+MAX_GROUPS = 24
+#: Coverage of the convergence-rate interval.
+CONFIDENCE = 0.95
+
+
+def wilson_interval(converged: int, runs: int) -> tuple[float | None, float | None]:
+    """Wilson score interval of a proportion (scipy's ``binomtest``), None for no runs."""
+    if runs == 0:
+        return None, None
+    from scipy.stats import binomtest
+
+    interval = binomtest(converged, runs).proportion_ci(confidence_level=CONFIDENCE, method="wilson")
+    return float(interval.low), float(interval.high)
+
+
+def _quantiles(values: np.ndarray) -> dict[str, float | None]:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return {"median": None, "p95": None}
+    return {"median": float(np.median(finite)), "p95": float(np.percentile(finite, 95))}
+
+
+class SweepData:
+    """The columns the summary needs, as numpy arrays, with the sweep's description."""
+
+    def __init__(self, folder: Path) -> None:
+        from ..sweep.table import SPEC_FILE, read_rows
+
+        self.folder = Path(folder)
+        info = json.loads((self.folder / SPEC_FILE).read_text())
+        spec = info["fingerprint"]["spec"]
+        self.vary: dict[str, Any] = spec["vary"]
+        self.fixed: dict[str, Any] = spec["fixed"]
+        self.total_runs: int = int(info.get("runs", 0))
+        self.swept = list(self.vary)
+        wanted = ["status", "converged", "final_position_m", "final_heading_deg", "settling_time_position_s",
+                  "settling_time_heading_s", *self.swept]
+        if "law" in self.fixed and "law" not in wanted:
+            wanted.append("law")
+        table = read_rows(self.folder, wanted)
+        self.rows = table.num_rows
+        self.columns: dict[str, np.ndarray] = {}
+        for name in wanted:
+            if name not in table.column_names:
+                continue
+            column = table.column(name)
+            if column.type == "string":
+                self.columns[name] = np.array(column.to_pylist(), dtype=object)
+            elif column.type == "bool":
+                self.columns[name] = np.array([bool(v) for v in column.to_pylist()])
+            else:
+                self.columns[name] = column.to_numpy(zero_copy_only=False).astype(float)
+        settle = np.fmax(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
+        unsettled = np.isnan(self.columns["settling_time_position_s"]) | np.isnan(self.columns["settling_time_heading_s"])
+        self.columns["settling_time_s"] = np.where(unsettled, np.nan, settle)
+        self.law = self.columns.get("law")
+        if self.law is None and "law" in self.fixed:
+            self.law = np.full(self.rows, self.fixed["law"], dtype=object)
+
+    def groups(self, name: str) -> list[tuple[str, Any, np.ndarray]]:
+        """``(label, value, mask)`` per value or bin of a swept parameter."""
+        values = self.columns[name]
+        axis = self.vary[name]
+        if values.dtype == object:
+            listed = axis.get("values") or sorted(set(values))
+            return [(str(v), v, values == v) for v in listed]
+        listed = axis.get("values")
+        if listed is not None and len(listed) <= MAX_GROUPS:
+            return [(f"{v:g}", float(v), np.isclose(values, v, rtol=0, atol=1e-12)) for v in listed]
+        low, high = (axis["range"] if listed is None else (min(listed), max(listed)))
+        edges = np.linspace(low, high, BINS + 1)
+        which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, BINS - 1)
+        return [(f"[{edges[b]:.4g}, {edges[b + 1]:.4g}{']' if b == BINS - 1 else ')'}", float(0.5 * (edges[b] + edges[b + 1])), which == b)
+                for b in range(BINS)]
+
+
+def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
+    """The statistics of one group of rows (see the module docstring)."""
+    status = data.columns["status"][mask]
+    reported = status != "failed"
+    converged = data.columns["converged"][mask] & reported
+    runs, n_converged = int(reported.sum()), int(converged.sum())
+    low, high = wilson_interval(n_converged, runs)
+    settle = data.columns["settling_time_s"][mask][reported]
+    return {
+        "runs": int(mask.sum()),
+        "failed": int((~reported).sum()),
+        "converged": n_converged,
+        "rate": n_converged / runs if runs else None,
+        "rate_ci95": [low, high],
+        "final_position_m": _quantiles(data.columns["final_position_m"][mask][reported]),
+        "final_heading_deg": _quantiles(data.columns["final_heading_deg"][mask][reported]),
+        "settling_time_s": _quantiles(settle) | {"unsettled": int(np.isnan(settle).sum())},
+    }
+
+
+def summarize(folder: Path) -> dict[str, Any]:
+    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
+    data = SweepData(folder)
+    everything = np.ones(data.rows, dtype=bool)
+    laws = [(str(v), v, data.law == v) for v in dict.fromkeys(data.law.tolist())] if data.law is not None else [("all", None, everything)]
+    summary: dict[str, Any] = {
+        "folder": str(folder),
+        "runs": {"planned": data.total_runs, "done": data.rows,
+                 "failed": int((data.columns["status"] == "failed").sum()),
+                 "stopped": int((data.columns["status"] == "stopped").sum())},
+        "swept": data.swept,
+        "fixed": data.fixed,
+        "overall": group_stats(data, everything),
+        "by_law": [{"law": label} | group_stats(data, mask) for label, _, mask in laws] if data.law is not None else [],
+        "by_parameter": {},
+    }
+    for name in data.swept:
+        if name == "law":
+            continue
+        rows = []
+        for law_label, _, law_mask in laws:
+            for label, value, mask in data.groups(name):
+                entry = {"value": label, "center": value}
+                if data.law is not None:
+                    entry["law"] = law_label
+                rows.append(entry | group_stats(data, mask & law_mask))
+        summary["by_parameter"][name] = rows
+    return summary
+
+
+def _format(value: Any, digits: int = 4) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "n/a"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
+    low, high = stats["rate_ci95"]
+    rate = "n/a" if stats["rate"] is None else f"{100 * stats['rate']:.1f} %"
+    interval = "n/a" if low is None else f"[{100 * low:.1f}, {100 * high:.1f}]"
+    position = stats["final_position_m"]
+    heading = stats["final_heading_deg"]
+    settle = stats["settling_time_s"]
+    return [
+        str(stats["runs"]), str(stats["failed"]), rate, interval,
+        _format(None if position["median"] is None else 100 * position["median"]),
+        _format(None if position["p95"] is None else 100 * position["p95"]),
+        _format(heading["median"]), _format(heading["p95"]),
+        _format(settle["median"]), _format(settle["p95"]),
+    ]
+
+
+STAT_HEADERS = ["runs", "failed", "converged", "95 % CI (Wilson)", "pos. median (cm)", "pos. p95 (cm)",
+                "head. median (deg)", "head. p95 (deg)", "settle median (s)", "settle p95 (s)"]
+
+
+def _table(headers: Sequence[str], plain: bool) -> Any:
+    from rich import box
+    from rich.table import Table
+
+    table = Table(box=None if plain else box.SIMPLE_HEAD, pad_edge=not plain, show_edge=not plain,
+                  header_style=None if plain else "bold")
+    for index, header in enumerate(headers):
+        table.add_column(header, justify="left" if index == 0 else "right", no_wrap=plain)
+    return table
+
+
+def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
+    """The summary as tables on ``stream``: rich on a terminal, plain text otherwise."""
+    from rich.text import Text
+
+    from .report_table import report_console
+
+    console = report_console(stream)
+    plain = not console.is_terminal
+    runs = summary["runs"]
+    console.print(Text(
+        f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
+        f"{runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}",
+        style="" if plain else "bold cyan"))
+    groups = summary["by_law"] or [{"law": "all"} | summary["overall"]]
+    table = _table(["law", *STAT_HEADERS], plain)
+    for entry in groups:
+        table.add_row(entry["law"], *_stat_cells(entry))
+    console.print(table)
+    for name, rows in summary["by_parameter"].items():
+        console.print()
+        console.print(Text(f"by {name}", style="" if plain else "bold cyan"))
+        with_law = bool(rows) and "law" in rows[0]
+        table = _table([name, *(["law"] if with_law else []), *STAT_HEADERS], plain)
+        for entry in rows:
+            table.add_row(entry["value"], *([entry["law"]] if with_law else []), *_stat_cells(entry))
+        console.print(table)
+    console.print()
+    console.print(Text("converged: hbvs report's verdict (docs/report.md); failed runs have no report and are not in the rate"))
+
+
+def print_summary_json(summary: Mapping[str, Any], stream: TextIO) -> None:
+    stream.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")

@@ -1,0 +1,194 @@
+"""``hbvs sweep`` end to end, on a real Dask LocalCluster of 2 worker processes over TCP.
+
+A 40-run sweep (points perception, 0.2 px of noise, 4 laws x 5 lateral offsets x 2
+repeats) on the sample fit: every row is present; every row is what ``hbvs repeat`` with the
+printed options and ``hbvs report --json`` give (the run file byte for byte, the metrics
+value for value); a sweep killed with SIGTERM keeps valid rows and, run again, ends with
+the same table as the uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from contextlib import redirect_stdout
+
+import numpy as np
+import pytest
+
+from conftest import SAMPLES, run_hbvs
+
+pytest.importorskip("distributed")
+pytest.importorskip("pyarrow")
+
+FIT = SAMPLES / "fit.mcap"
+SPEC = """
+seed = 15
+repeats = 2
+[fixed]
+perception = "points"
+pixel_noise = 0.2
+[vary]
+law = ["lateral-gain", "paper", "non-adaptive", "kanayama"]
+offset_y = {from = -0.1, to = 0.1, steps = 5}
+"""
+RUNS = 40
+#: Columns that depend on where and when a sweep ran, not on what it computed.
+CIRCUMSTANTIAL = ("run_time_s", "run_file")
+
+
+def sweep_command(spec, folder, *extra):
+    return [sys.executable, "-m", "hbvs_cli", "sweep", str(FIT), "--spec", str(spec), "-o", str(folder), "--workers", "2", "--quiet", *extra]
+
+
+@pytest.fixture(scope="module")
+def spec_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("spec") / "sweep.toml"
+    path.write_text(SPEC)
+    return path
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(spec_file, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sweep") / "results"
+    result = subprocess.run(sweep_command(spec_file, folder, "--keep-runs", "all", "--json"), capture_output=True, timeout=600)
+    assert result.returncode == 0, result.stderr.decode()
+    return folder, json.loads(result.stdout)
+
+
+def table(folder):
+    import pyarrow.parquet as pq
+
+    return pq.read_table(folder / "runs.parquet").to_pylist()
+
+
+def test_every_row_is_present_in_parquet_and_csv(uninterrupted):
+    folder, summary = uninterrupted
+    rows = table(folder)
+    assert [r["index"] for r in rows] == list(range(RUNS))
+    assert all((r["status"], r["error"] is None) in (("ok", True), ("stopped", False)) for r in rows)
+    # Every (law, offset) point twice, with distinct seeds.
+    points = {(r["law"], r["offset_y"]) for r in rows}
+    assert len(points) == 20 and len({r["seed"] for r in rows}) == RUNS
+    with open(folder / "runs.csv", newline="") as handle:
+        csv_rows = list(csv.DictReader(handle))
+    assert [int(r["index"]) for r in csv_rows] == list(range(RUNS))
+    for row, text in zip(rows, csv_rows):
+        if row["final_position_m"] is not None:
+            assert float(text["final_position_m"]) == pytest.approx(row["final_position_m"], rel=1e-12)
+    # The summary counts them all; the figures were drawn.
+    assert summary["runs"]["done"] == RUNS and summary["overall"]["runs"] == RUNS
+    assert {entry["law"] for entry in summary["by_law"]} == {"lateral-gain", "paper", "non-adaptive", "kanayama"}
+    assert sum(e["runs"] for e in summary["by_parameter"]["offset_y"]) == RUNS
+    for name in ("final_error_cdf.png", "final_error_vs_parameters.png"):
+        assert (folder / name).stat().st_size > 10_000
+
+
+def test_each_row_is_hbvs_repeat_with_the_printed_options_and_hbvs_report(uninterrupted, tmp_path):
+    """Every run re-made alone from its printed command: the same bytes, the same metrics."""
+    from hbvs_cli.cli.app import _run
+    from hbvs_cli.sweep.runner import METRICS
+    from hbvs_cli.tools.report_data import resolve_key
+
+    folder, _ = uninterrupted
+    for row in table(folder):
+        words = shlex.split(row["command"])
+        assert words[:2] == ["hbvs", "repeat"] and f"--seed={row['seed']}" in words
+        remade = tmp_path / f"run-{row['index']}.mcap"
+        args = words[1:-1] + [str(remade), "--quiet"]
+        code = _run(args, debug=False)
+        assert code == (5 if row["status"] == "stopped" else 0)
+        assert remade.read_bytes() == (folder / "runs" / f"run-{row['index']:06d}.mcap").read_bytes()
+        out = io.StringIO()
+        with redirect_stdout(out):
+            assert _run(["report", str(remade), "--json"], debug=False) == 0
+        report = json.loads(out.getvalue())
+        for column, key in METRICS.items():
+            assert row[column] == resolve_key(report, key), (row["index"], column)
+
+
+def test_a_row_re_made_by_the_hbvs_commands_in_a_shell(uninterrupted, tmp_path):
+    """The same as a user at a shell: the printed command, then hbvs report --json."""
+    from hbvs_cli.sweep.runner import METRICS
+    from hbvs_cli.tools.report_data import resolve_key
+
+    folder, _ = uninterrupted
+    row = table(folder)[27]
+    words = shlex.split(row["command"])
+    remade = tmp_path / "remade.mcap"
+    assert run_hbvs(*words[1:-1], str(remade), "-q").returncode == (5 if row["status"] == "stopped" else 0)
+    assert remade.read_bytes() == (folder / "runs" / "run-000027.mcap").read_bytes()
+    report = json.loads(run_hbvs("report", str(remade), "--json", check=True).stdout)
+    assert {c: row[c] for c in METRICS} == {c: resolve_key(report, k) for c, k in METRICS.items()}
+
+
+def test_killed_and_resumed_gives_the_same_table(uninterrupted, spec_file, tmp_path):
+    from hbvs_cli.sweep.table import read_rows
+
+    folder, _ = uninterrupted
+    resumed = tmp_path / "resumed"
+    process = subprocess.Popen(sweep_command(spec_file, resumed, "--keep-runs", "none", "--no-plots"), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 300
+    while not (resumed / "parts" / "part-000002.parquet").exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 143, stderr.decode()
+    partial = read_rows(resumed).to_pylist()
+    assert 0 < len(partial) < RUNS, "the sweep was not interrupted midway"
+    with open(resumed / "runs.csv", newline="") as handle:
+        assert len(list(csv.DictReader(handle))) == len(partial)
+    # The same command again: skips the done runs, finishes the rest.
+    command = [word for word in sweep_command(spec_file, resumed, "--keep-runs", "none", "--no-plots", "--json") if word != "--quiet"]
+    result = subprocess.run(command, capture_output=True, timeout=600)
+    assert result.returncode == 0, result.stderr.decode()
+    assert f"; {len(partial)} already done" in result.stderr.decode()
+    assert f"sweep: {RUNS - len(partial)} runs in" in result.stderr.decode()
+
+    def comparable(rows):
+        return [{k: v for k, v in r.items() if k not in CIRCUMSTANTIAL} for r in rows]
+
+    assert comparable(table(resumed)) == comparable(table(folder))
+
+
+def test_another_spec_is_refused_in_the_same_folder(uninterrupted, capsys):
+    from hbvs_cli.cli.app import _run
+
+    folder, _ = uninterrupted
+    before = (folder / "runs.parquet").read_bytes()
+    assert _run(["sweep", str(FIT), "--vary", "offset_y=0,0.1", "-o", str(folder), "-q"], debug=False) == 2
+    error = capsys.readouterr().err
+    assert "another sweep" in error and error.count("\n") == 1
+    assert (folder / "runs.parquet").read_bytes() == before
+
+
+def test_report_prints_the_summary_again(uninterrupted, capsys):
+    from hbvs_cli.cli.app import _run
+
+    folder, summary = uninterrupted
+    again = run_hbvs("report", str(folder), "--json", check=True)
+    assert json.loads(again.stdout) == summary
+    assert _run(["report", str(folder)], debug=False) == 0
+    text = capsys.readouterr().out
+    assert "by offset_y" in text and "kanayama" in text and "95 % CI (Wilson)" in text
+
+
+def test_summary_rates_are_the_verdicts_of_the_rows(uninterrupted):
+    from hbvs_cli.tools.sweep_summary import wilson_interval
+
+    folder, summary = uninterrupted
+    rows = table(folder)
+    for entry in summary["by_law"]:
+        mine = [r for r in rows if r["law"] == entry["law"]]
+        converged = sum(bool(r["converged"]) for r in mine)
+        assert entry["converged"] == converged and entry["runs"] == len(mine)
+        assert entry["rate_ci95"] == list(wilson_interval(converged, len(mine)))
+        finals = np.array([r["final_position_m"] for r in mine], dtype=float)
+        assert entry["final_position_m"]["median"] == pytest.approx(np.median(finals), rel=1e-12)
+        assert entry["final_position_m"]["p95"] == pytest.approx(np.percentile(finals, 95), rel=1e-12)
