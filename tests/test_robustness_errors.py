@@ -60,14 +60,19 @@ def rewrite(source: Path, target: Path, change) -> None:
     from hbvs_cli.io.mcap_io import McapStream, McapWriter
 
     stream = McapStream(source)
-    messages = [(m.topic, m.schema_name, m.log_time, json.loads(m.data)) for m in stream]
+    messages = list(stream)
     with open(target, "wb") as handle:
         writer = McapWriter(handle)
         for name, values in stream.metadata.items():
             writer._writer.add_metadata(name, dict(values))
-        for topic, schema_name, log_time, payload in messages:
-            log_time, payload = change(topic, log_time, payload)
-            writer.write_encoded(topic, schema_name, log_time, json.dumps(payload).encode())
+        for m in messages:
+            if m.message_encoding != "json":  # images (protobuf): copied as they are, retimed
+                writer.declare_channel(m.topic, m.schema_name, m.schema_encoding, m.schema_data, m.message_encoding)
+                log_time, _ = change(m.topic, m.log_time, None)
+                writer.write_encoded(m.topic, m.schema_name, log_time, m.data)
+                continue
+            log_time, payload = change(m.topic, m.log_time, json.loads(m.data))
+            writer.write_encoded(m.topic, m.schema_name, log_time, json.dumps(payload).encode())
         writer.finish()
 
 
