@@ -146,8 +146,8 @@ def test_a_comparison_names_its_checks(runs):
     assert rows["final e1"][0] == "n/a" and rows["final e1"][1].startswith(("pass:", "fail:"))
     assert rows["V fell (36)"][1].startswith("skip:")
     both, _ = report_json(runs["paths"]["run"], runs["paths"]["replay"])
-    assert list(both["runs"][0]["verdict"]["checks"]) == ["closed_loop", "finished", "final_position", "final_heading", "lyapunov"]
-    assert list(both["runs"][1]["verdict"]["checks"]) == ["closed_loop", "finished", "final_e1", "final_e2", "final_e3", "lyapunov"]
+    assert list(both["runs"][0]["verdict"]["checks"]) == ["closed_loop", "finished", "final_position", "final_heading", "lyapunov", "smoothness"]
+    assert list(both["runs"][1]["verdict"]["checks"]) == ["closed_loop", "finished", "final_e1", "final_e2", "final_e3", "lyapunov", "smoothness"]
 
 
 def _significant_digits(literal: str) -> int:

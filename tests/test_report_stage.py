@@ -93,7 +93,7 @@ def test_json_has_the_documented_structure(runs):
     assert set(report["target"]) == {"lost_frames", "lost_fraction", "longest_loss_s", "dropped_frames", "dropped_fraction"}
     assert set(report["condition35"]) == {"min_abs_xhd1_dot", "fit_min_abs_xhd1_dot"}
     assert set(report["verdict"]) == {"converged", "checks", "reasons"}
-    assert list(report["verdict"]["checks"]) == ["closed_loop", "finished", "final_position", "final_heading", "lyapunov"]
+    assert list(report["verdict"]["checks"]) == ["closed_loop", "finished", "final_position", "final_heading", "lyapunov", "smoothness"]
     assert list(report["verdict"]["checks"].values()) == report["verdict"]["reasons"]
 
 
@@ -166,7 +166,7 @@ def test_plain_table_matches_the_json(runs):
         assert close_to_shown(as_number(metrics[label]), report[section][key]), label
     verdict = {row[0]: row[1] for row in next(rows for title, rows in tables.items() if title.startswith("verdict"))[1:]}
     assert verdict["converged"] == ("yes" if report["verdict"]["converged"] else "no")
-    assert [verdict[label] for label in ("closed loop", "finished", "final position error", "final heading error", "V fell (36)")] \
+    assert [verdict[label] for label in ("closed loop", "finished", "final position error", "final heading error", "V fell (36)", "commands smooth")] \
         == report["verdict"]["reasons"]
 
 
