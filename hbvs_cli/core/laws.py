@@ -10,7 +10,8 @@
   fixed depth estimate dhat (docs/method.md, "Baselines").
 
 Every controller here has the interface the closed loop uses (:func:`~hbvs_cli.core.simulator.run_closed_loop`):
-a ``dhat`` attribute, ``step(measured, desired, dt) -> ControlOutput`` and ``hold()``.
+a ``dhat`` attribute, ``step(measured, desired, dt, adapt=True) -> ControlOutput``,
+``adapt(output, dt)``, ``feedforward(desired)`` and ``hold()``.
 """
 
 from __future__ import annotations
@@ -116,15 +117,22 @@ class KanayamaController:
         self.dhat = float(dhat)
         self.gains = gains or KanayamaGains()
 
-    def step(self, measured: Measurement, desired: DesiredState, dt: float) -> ControlOutput:
-        """Commands for this instant (``dt`` is unused: nothing adapts)."""
+    def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
+        """Commands for this instant (``dt`` and ``adapt`` are unused: nothing adapts)."""
         e_x, e_y, e_theta = reconstructed_tracking_error(measured, desired, self.dhat)
-        w_r = -float(desired.theta_d_dot)
-        v_r = self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot))
+        v_r, w_r = self.feedforward(desired)
         g = self.gains
         v = v_r * math.cos(e_theta) + g.k_x * e_x
         w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
         return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
+
+    def adapt(self, output: ControlOutput, dt: float) -> None:
+        """Nothing to learn: the depth estimate stays fixed."""
+
+    def feedforward(self, desired: DesiredState) -> tuple[float, float]:
+        """The reference commands (25): ``w_r = -theta_d_dot``, ``v_r = dhat (x_hd2 w_r - x_hd1_dot)``."""
+        w_r = -float(desired.theta_d_dot)
+        return self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot)), w_r
 
     def hold(self) -> tuple[float, float]:
         """Commands while the target is lost: stop."""
