@@ -189,6 +189,14 @@ def test_a_fifo_command_stream_is_written_in_place(work):
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
 
 
+def test_dev_stdout_is_written_in_place_not_replaced(work):
+    """``-o /dev/stdout`` (a symbolic link to the process's own descriptor 1, here a pipe)."""
+    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "/dev/stdout", "-q")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == (work / "r.mcap").read_bytes()
+    assert os.path.islink("/dev/stdout")
+
+
 # ----------------------------------------------------------------------------- --cmd-out
 def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work):
     (work / "cmd.jsonl").write_bytes(PRECIOUS)
