@@ -189,6 +189,14 @@ def test_a_fifo_command_stream_is_written_in_place(work):
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
 
 
+def test_dev_stdout_is_written_in_place_not_replaced(work):
+    """``-o /dev/stdout`` (a symbolic link to the process's own descriptor 1, here a pipe)."""
+    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "/dev/stdout", "-q")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == (work / "r.mcap").read_bytes()
+    assert os.path.islink("/dev/stdout")
+
+
 # ----------------------------------------------------------------------------- --cmd-out
 def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work):
     (work / "cmd.jsonl").write_bytes(PRECIOUS)
@@ -226,10 +234,56 @@ def test_a_truncated_stdin_does_not_replace_an_existing_output(work):
 def test_a_truncated_fit_on_stdin_leaves_the_earlier_run(work):
     data = (work / "f.mcap").read_bytes()
     before = snapshot(work)
-    result = hbvs(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[: len(data) // 2])
-    assert result.returncode == 3
-    one_line(result)
+    # Cut in the summary: the model is complete, the end record missing.
+    refused = hbvs(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[:-100])
+    assert refused.returncode == 3
+    assert "--allow-truncated" in one_line(refused)
+    # Cut in half: no model at all.
+    half = hbvs(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[: len(data) // 2])
+    assert half.returncode == 3
+    one_line(half)
     assert snapshot(work) == before
+
+
+def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
+    """ENOSPC while writing (no root needed): exit code 6, the earlier file kept, no partial."""
+    import errno
+
+    from hbvs_cli.errors import OutputError
+    from hbvs_cli.io import output_target
+    from hbvs_cli.io.mcap_io import open_output
+
+    class FillsUp:
+        """A file that takes ``room`` bytes, then fails as a full disk does."""
+
+        def __init__(self, raw, room: int) -> None:
+            self.raw, self.room = raw, room
+
+        def write(self, data):
+            self.room -= len(data)
+            if self.room < 0:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return self.raw.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.raw, name)
+
+    def write_some(target, **kwargs):
+        with open_output(target, chunk_size=64, **kwargs) as writer:
+            for k in range(100):
+                writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": 0.0, "w": 0.0})
+
+    with pytest.raises(OutputError) as stdout_full:
+        write_some("-", stdout=FillsUp(open(os.devnull, "wb"), 0))
+    assert stdout_full.value.exit_code == 6 and "stdout: cannot write (no space left on the device)" in str(stdout_full.value)
+    target = tmp_path / "out.mcap"
+    target.write_bytes(PRECIOUS)
+    real_fdopen = os.fdopen
+    monkeypatch.setattr(output_target.os, "fdopen", lambda fd, *a, **k: FillsUp(real_fdopen(fd, *a, **k), 1000))
+    with pytest.raises(OutputError) as disk_full:
+        write_some(target)
+    assert disk_full.value.exit_code == 6 and "an earlier file of that name is left as it was" in str(disk_full.value)
+    assert target.read_bytes() == PRECIOUS and sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap"]
 
 
 # ----------------------------------------------------------------------------- concurrent runs

@@ -483,10 +483,11 @@ def _prepare_stdio(debug: bool) -> None:
     """Closed stdio, native logging and warnings, before any command runs.
 
     A closed descriptor 0, 1 or 2 gets /dev/null (so no file hbvs opens takes its number)
-    and writing to a closed stdout is an error. Unless ``--debug``: descriptor 2 goes to
-    /dev/null for native code (libpng, OpenCV, the ROS message parser print there on
-    their own), Python's stderr keeps the terminal on a copy of it, and warnings (numpy's
-    RuntimeWarnings among them) are not shown: hbvs reports problems in its own words.
+    and writing to a closed stdout is an error. Unless ``--debug``: descriptor 2 goes to a
+    temporary file for native code (libpng, OpenCV, the ROS message parser print there on
+    their own; :mod:`hbvs_cli.io.native_log` quotes it in our messages), Python's stderr
+    keeps the terminal on a copy of it, and warnings (numpy's RuntimeWarnings among them)
+    are not shown: hbvs reports problems in its own words.
     """
     from ..io.output_target import guard_stdio, stdio_closed
 
@@ -502,17 +503,9 @@ def _prepare_stdio(debug: bool) -> None:
     import warnings
 
     warnings.simplefilter("ignore")
-    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
-    try:
-        sys.stderr.flush()
-        copy = os.dup(2)
-        terminal = os.fdopen(copy, "w", encoding=getattr(sys.stderr, "encoding", None) or "utf-8", errors="backslashreplace", buffering=1)
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, 2)
-        os.close(devnull)
-        sys.stderr = terminal
-    except (OSError, ValueError, AttributeError):
-        pass
+    from ..io.native_log import capture
+
+    capture()
 
 
 def main(argv: list[str] | None = None) -> None:

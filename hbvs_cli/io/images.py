@@ -156,12 +156,16 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
     problem = _png_problem(data) if data[:8] == _PNG_SIGNATURE else None
     if problem is not None:
         raise InputError(f"{source}: cannot be decoded as an image ({problem}: corrupt or truncated)")
+    from .native_log import mark, said_since
+
+    before = mark()
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     except (cv2.error, SystemError):
         image = None
     if image is None:
-        raise InputError(f"{source}: cannot be decoded as an image (corrupt, truncated or not an image)")
+        said = said_since(before)
+        raise InputError(f"{source}: cannot be decoded as an image ({said + ': ' if said else ''}corrupt, truncated or not an image)")
     return image
 
 

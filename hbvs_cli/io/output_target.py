@@ -82,11 +82,11 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     if text == "-":
         return OutputTarget(text, "stdout", None, True)
     given = Path(text)
-    # realpath follows every symbolic link, also a dangling one (whose target is then new).
-    path = Path(os.path.realpath(given))
     try:
-        status = os.stat(path)
+        status = os.stat(given)  # follows every symbolic link, /dev/stdout's magic one too
     except FileNotFoundError:
+        # A new file, or a dangling symbolic link whose target will be created.
+        path = Path(os.path.realpath(given))
         if not path.parent.is_dir():
             raise InputError(f"{given}: the folder {path.parent} does not exist") from None
         return OutputTarget(text, "file", path, False)
@@ -94,9 +94,13 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
         raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None
     if stat.S_ISDIR(status.st_mode):
         raise InputError(f"{given}: is a directory; give a file name for the {what}")
-    if stat.S_ISREG(status.st_mode):
+    path = Path(os.path.realpath(given))
+    # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor, not a place to
+    # put a new file: they are written in place, whatever they lead to.
+    through_proc = path.parts[1:2] == ("proc",)
+    if stat.S_ISREG(status.st_mode) and not through_proc:
         return OutputTarget(text, "file", path, True)
-    return OutputTarget(text, "stream", path, True)
+    return OutputTarget(text, "stream", given, True)
 
 
 def partial_name_of(final: Path) -> Path:
@@ -335,8 +339,10 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
     assert target.path is not None
     if target.kind == "stream":
         try:
-            # No O_CREAT, no O_TRUNC: a device or FIFO is written as it is, never replaced.
-            fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0))
+            # No O_CREAT: a device or FIFO is written as it is, never replaced (a regular
+            # file reached through /proc/self/fd is truncated, as a shell's > would).
+            regular = stat.S_ISREG(os.stat(target.path).st_mode)
+            fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
         except OSError as exc:
             raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
         sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)

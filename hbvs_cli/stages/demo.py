@@ -48,7 +48,9 @@ def run_demo(folder: Path, console: Console) -> int:
         runs.append(read_run(path))
     reports = [build_report(run) for run in runs]
     report_json, plot = folder / "report.json", folder / "report.png"
-    report_json.write_text(json.dumps(json_ready({"runs": reports}), indent=2) + "\n", encoding="utf-8")
+    from ..io.output_target import write_output_bytes
+
+    write_output_bytes(report_json, (json.dumps(json_ready({"runs": reports}), indent=2) + "\n").encode("utf-8"), "report")
     save_plot(runs, reports, plot)
     console.info(f"demo 4/4: report -> {report_json}, {plot}")
     import sys

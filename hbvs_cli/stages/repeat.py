@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -377,9 +376,8 @@ class Simulation:
 
 def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> Simulation:
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
-    from .simworld import SimulatedCamera, simulation_world
-
     from ..io.limits import step_count
+    from .simworld import SimulatedCamera, simulation_world
 
     model = fit.model
     if not (math.isfinite(settings.speed) and settings.speed > 0):
