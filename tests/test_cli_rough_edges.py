@@ -117,6 +117,9 @@ def test_an_unquoted_images_glob_is_explained(hbvs, tmp_path):
     assert "--images got 40 file names" in lines[0] and f"--images '{folder}/*.png'" in lines[0]
     assert "frame039" not in lines[0]  # not a list of 600 names
     assert not (tmp_path / "t.mcap").exists()
+    # Any other stray arguments: still one line, of bounded length.
+    code, _, err = hbvs("teach", "-o", str(tmp_path / "t.mcap"), *[f"stray{k}" for k in range(500)])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and len(err) < 400 and "unexpected extra" in err
 
 
 @pytest.fixture(scope="module")
