@@ -264,7 +264,7 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     pendant = work / "fit_pendant.csv"
     write_pendant(pendant, frames / 30.0)
     teach = work / f"fit_teach_{target}.mcap"
-    run_cli("teach", "--path", str(pendant), "--target", target, "-o", str(teach), "-q", cwd=work)
+    run_cli("teach", "--path", str(pendant), "--target", target, "--format", "png", "-o", str(teach), "-q", cwd=work)
     code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
     decode_walls, fit_walls = [], []
     for _ in range(1 if quick else 3):

@@ -17,14 +17,39 @@ from conftest import make_teach, run_hbvs
 COMMANDS = ("teach", "fit", "repeat", "report", "demo")
 
 
-def help_text(*command: str) -> str:
-    result = run_hbvs(*command, "--help", env={"COLUMNS": "200", "TERM": "dumb"})
-    assert result.returncode == 0, result.stderr
-    return result.stdout.decode()
+@pytest.fixture
+def hbvs(capsys, monkeypatch):
+    """Run the command line in this process (as ``main`` does, without its signal
+    handlers): returns (exit code, stdout, stderr)."""
+    from hbvs_cli.cli.app import _run
+
+    monkeypatch.setenv("COLUMNS", "200")
+    monkeypatch.setenv("TERM", "dumb")
+
+    def run(*args: str) -> tuple[int, str, str]:
+        capsys.readouterr()
+        try:
+            code = _run(list(args), debug=False)
+        except SystemExit as stop:  # --help and --version end with typer's Exit
+            code = stop.code or 0
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return run
+
+
+@pytest.fixture
+def help_text(hbvs):
+    def text(*command: str) -> str:
+        code, out, err = hbvs(*command, "--help")
+        assert code == 0, err
+        return out
+
+    return text
 
 
 @pytest.mark.parametrize("command", [(), *[(c,) for c in COMMANDS]])
-def test_help_shows_value_kinds_not_python_types(command):
+def test_help_shows_value_kinds_not_python_types(help_text, command):
     text = help_text(*command)
     for python_label in ("<bool>", "<str>", "<int>", "<float", "<path>", "list[", "{input}", "{runs}"):
         assert python_label not in text, (command, python_label)
@@ -34,7 +59,7 @@ def test_help_shows_value_kinds_not_python_types(command):
             assert not re.search(r"\b(TEXT|INTEGER|NUMBER|PATH)\b", line), line
 
 
-def test_help_labels_values_and_arguments():
+def test_help_labels_values_and_arguments(help_text):
     teach, fit, report = help_text("teach"), help_text("fit"), help_text("report")
     assert re.search(r"--fps\s+NUMBER", teach) and re.search(r"--camera\s+INTEGER", teach)
     assert re.search(r"--calibration\s+PATH", teach) and re.search(r"--output\s+-o\s+TEXT", teach)
@@ -54,7 +79,7 @@ def test_debug_works_after_the_command_and_keeps_the_exit_code(tmp_path):
         assert result.stderr.decode().strip().splitlines()[-1] == plain.stderr.decode().strip()
 
 
-def test_demo_takes_o_output_and_still_the_old_out():
+def test_demo_takes_o_output_and_still_the_old_out(help_text):
     text = help_text("demo")
     assert re.search(r"--output\s+-o\s+PATH", text) and "--out " not in text
     from hbvs_cli.cli.app import app
@@ -72,26 +97,29 @@ def test_demo_takes_o_output_and_still_the_old_out():
     (("teach", "--bogus"), "--bogus"),
     (("fit",), "INPUT"),
 ])
-def test_usage_errors_are_one_line(args, words):
-    result = run_hbvs(*args)
-    lines = result.stderr.decode().strip().splitlines()
-    assert result.returncode == 2 and len(lines) == 1, lines
+def test_usage_errors_are_one_line(hbvs, args, words):
+    code, _, err = hbvs(*args)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, lines
     assert lines[0].startswith("hbvs: error: ") and words in lines[0] and "-h" in lines[0]
 
 
-def test_an_unquoted_images_glob_is_explained(tmp_path):
+def test_an_unquoted_images_glob_is_explained(hbvs, tmp_path):
     folder = tmp_path / "frames"
     folder.mkdir()
     files = []
     for k in range(40):
         files.append(folder / f"frame{k:03d}.png")
         cv2.imwrite(str(files[-1]), np.zeros((8, 8), np.uint8))
-    result = run_hbvs("teach", "--images", *map(str, files), "-o", str(tmp_path / "t.mcap"))
-    lines = result.stderr.decode().strip().splitlines()
-    assert result.returncode == 2 and len(lines) == 1
+    code, _, err = hbvs("teach", "--images", *map(str, files), "-o", str(tmp_path / "t.mcap"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1
     assert "--images got 40 file names" in lines[0] and f"--images '{folder}/*.png'" in lines[0]
     assert "frame039" not in lines[0]  # not a list of 600 names
     assert not (tmp_path / "t.mcap").exists()
+    # Any other stray arguments: still one line, of bounded length.
+    code, _, err = hbvs("teach", "-o", str(tmp_path / "t.mcap"), *[f"stray{k}" for k in range(500)])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and len(err) < 400 and "unexpected extra" in err
 
 
 @pytest.fixture(scope="module")
@@ -137,16 +165,16 @@ def test_video_metadata_records_no_simulator_settings_and_jpeg_quality(video, tm
     (("--noise", "5"), "--noise describes the simulated robot and camera"),
     (("--path", "arc", "--seed", "3"), "--path, --seed describe"),
 ])
-def test_simulation_options_are_refused_with_a_recorded_source(video, tmp_path, extra, words):
+def test_simulation_options_are_refused_with_a_recorded_source(hbvs, video, tmp_path, extra, words):
     path, calibration = video
-    result = run_hbvs("teach", "--video", str(path), "--calibration", str(calibration), *extra, "-o", str(tmp_path / "t.mcap"))
-    assert result.returncode == 2 and words in result.stderr.decode()
+    code, _, err = hbvs("teach", "--video", str(path), "--calibration", str(calibration), *extra, "-o", str(tmp_path / "t.mcap"))
+    assert code == 2 and words in err
     assert not (tmp_path / "t.mcap").exists()
 
 
-def test_fps_is_refused_where_the_source_has_its_own_clock(tmp_path):
-    result = run_hbvs("teach", "--bag", str(tmp_path / "x.mcap"), "--fps", "15", "-o", str(tmp_path / "t.mcap"))
-    assert result.returncode == 2 and "--fps does not go with --bag" in result.stderr.decode()
+def test_fps_is_refused_where_the_source_has_its_own_clock(hbvs, tmp_path):
+    code, _, err = hbvs("teach", "--bag", str(tmp_path / "x.mcap"), "--fps", "15", "-o", str(tmp_path / "t.mcap"))
+    assert code == 2 and "--fps does not go with --bag" in err
 
 
 def test_duration_gives_duration_times_rate_frames(video, tmp_path):

@@ -138,3 +138,30 @@ def test_teach_bag_reads_foxglove_image_files(tmp_path, encoding):
     assert np.allclose([t for _, t in after], [t for _, t in before], atol=1e-6)
     assert reader.camera == original.camera
     assert reader.info["source"] == "bag" and "noise" not in reader.info["settings"]
+
+
+def test_teach_bag_reads_another_tools_protobuf_foxglove_recording(tmp_path):
+    """A recording written by mcap-protobuf-support with Foxglove's protobuf schemas (as the
+    Foxglove SDK writes them): images with their own stamps, and a protobuf CameraCalibration."""
+    from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from mcap_protobuf.writer import Writer
+
+    recording = tmp_path / "foxglove.mcap"
+    jpegs = [cv2.imencode(".jpg", noisy_frame(k), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for k in range(4)]
+    with open(recording, "wb") as handle:
+        writer = Writer(handle)
+        calibration = CameraCalibration(frame_id="cam", width=160, height=120, distortion_model="plumb_bob",
+                                         D=[0.0] * 5, K=[100, 0, 79.5, 0, 100, 59.5, 0, 0, 1],
+                                         R=[1, 0, 0, 0, 1, 0, 0, 0, 1], P=[100, 0, 79.5, 0, 0, 100, 59.5, 0, 0, 0, 1, 0])
+        writer.write_message("/cam/calibration", calibration, log_time=0, publish_time=0)
+        for k, jpeg in enumerate(jpegs):
+            image = CompressedImage(frame_id="cam", data=jpeg, format="jpeg")
+            image.timestamp.FromNanoseconds(5_000_000_000 + k * 50_000_000)  # 20 Hz from t = 5 s
+            writer.write_message("/cam/image", image, log_time=k, publish_time=k)
+        writer.finish()
+    reader = TeachReader(make_teach(tmp_path / "teach.mcap", bag=recording))
+    frames = list(reader.frames())
+    assert [frame.stored_image().data for frame in frames] == jpegs
+    assert np.allclose([frame.t for frame in frames], [0.0, 0.05, 0.1, 0.15])
+    assert (reader.camera.fx, reader.camera.cx, reader.camera.width) == (100.0, 79.5, 160)

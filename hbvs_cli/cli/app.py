@@ -76,7 +76,7 @@ def teach(
     video: Annotated[Optional[Path], typer.Option("--video", help="A video file (anything OpenCV reads).", rich_help_panel="Sources")] = None,
     images: Annotated[Optional[str], typer.Option("--images", help="A folder of images or a glob; sorted naturally.", rich_help_panel="Sources")] = None,
     camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
-    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap).", rich_help_panel="Sources")] = None,
+    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", rich_help_panel="Sources")] = None,
     topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
     path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
     offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,

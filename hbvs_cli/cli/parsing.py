@@ -15,8 +15,8 @@ from typer.core import TyperArgument, TyperGroup
 
 #: Labels of option values by the Python type behind them (click's words).
 _LABELS = {int: "INTEGER", float: "NUMBER", str: "TEXT", Path: "PATH"}
-#: File extensions that an unquoted ``--images`` glob expands to.
-_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: Longest usage message shown (an expanded glob can make click list thousands of names).
+_MAX_MESSAGE = 300
 
 
 def value_label(param: Any) -> str:
@@ -93,6 +93,8 @@ def split_debug(args: list[str]) -> tuple[list[str], bool]:
 def one_line_usage_error(exc: Any) -> str:
     """A click usage error as one line: the problem and where to find help."""
     message = " ".join(exc.format_message().split())
+    if len(message) > _MAX_MESSAGE:
+        message = message[:_MAX_MESSAGE] + "..."
     ctx = getattr(exc, "ctx", None)
     where = f" (see '{ctx.command_path} -h')" if ctx is not None else " (see 'hbvs -h')"
     return f"hbvs: error: {message}{where}"
@@ -101,8 +103,8 @@ def one_line_usage_error(exc: Any) -> str:
 def unquoted_glob_hint(args: list[str]) -> str | None:
     """The message for ``teach --images dir/*.png`` that the shell expanded, or None.
 
-    ``--images`` takes one value; when several image file names follow it, the shell
-    expanded a pattern before hbvs saw it.
+    ``--images`` takes one value; when several names follow it, the shell expanded a
+    pattern before hbvs saw it.
     """
     if "teach" not in args:
         return None
@@ -113,7 +115,7 @@ def unquoted_glob_hint(args: list[str]) -> str | None:
             names = [arg.split("=", 1)[1], *_names_after(args[index + 1:])]
         else:
             continue
-        if len(names) >= 2 and all(Path(n).suffix.lower() in _IMAGE_SUFFIXES for n in names):
+        if len(names) >= 2:
             return (
                 f"hbvs: error: --images got {len(names)} file names: the shell expanded the pattern "
                 f"before hbvs saw it; quote it, e.g. --images '{_pattern_of(names)}'"
