@@ -5,19 +5,22 @@ Final errors are computed as ``hbvs report`` does (``pose_error.*.final``): the 
 |error| over the last 5 % of the run, from ``read_run(...).true_pose`` and
 ``desired_pose``. Measured on the default scenario (position cm / heading deg):
 
-=====================  ===========  ======================================================
-run                    final error  notes
-=====================  ===========  ======================================================
-clean, images          0.033 / 0.005
-occluded 8-10 s        0.038 / 0.034  60 frames lost; last sample 0.047 cm / 0.024 deg
-5 % outliers, images   0.033 / 0.0045 as the clean run: the residual gate rejects the
-                                      spurious dots and the loop holds its command; 1 frame lost
-exposure x0.5 at 10 s  0.049 / 0.008  no frame lost
-clean, points          0.035 / 0.004
-10 % dropped, points   0.057 / 0.005  1.6x / 1.05x the clean run
-latency 2 frames       0.60 / 0.18
-max_v 0.15 m/s         0.086 / 0.030  29 % of the commands saturated
-=====================  ===========  ======================================================
+With the state filter and the fit's gains (issue 17):
+
+=====================  ============  =====================================================
+run                    final error   notes
+=====================  ============  =====================================================
+clean, images          0.068 / 0.002
+occluded 8-10 s        0.117 / 0.003  60 frames lost; the law drives on the filter's
+                                      prediction meanwhile (it used to stop: 0.038 / 0.034)
+5 % outliers, images   0.068 / 0.002  as the clean run; no frame lost
+exposure x0.5 at 10 s  0.068 / 0.002  no frame lost
+clean, points          0.070 / 0.004
+10 % dropped, points   0.065 / 0.004  0.9x / 1.05x the clean run
+latency 2 frames       0.071 / 0.003  the filter carries each frame over the 2 commands
+                                      sent since (0.60 / 0.18 before)
+max_v 0.15 m/s         0.24 / 0.021   21 % of the commands saturated; (31) paused meanwhile
+=====================  ============  =====================================================
 """
 
 from __future__ import annotations
