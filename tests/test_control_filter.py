@@ -8,13 +8,14 @@ of |error| over the last 5 % of each run against the taught pose at the same tim
 
 Measured with this code (seeds 0-9, 30 Hz, default gains from the fit: k_2 401, gamma 971):
 
-===========  ==================  ==================  =====================  ========
-noise (px)   final position      final heading       RMS dv/dt (m/s^2)      lost
-===========  ==================  ==================  =====================  ========
-0 (none)     see test            see test            0.202 (filter none)    0
-0.5          mean 0.25 cm        mean 0.08 deg       mean 0.33, max 0.40     0
-1.0          mean 0.60 cm        mean 0.15 deg       mean 0.56               0
-===========  ==================  ==================  =====================  ========
+===========  ========================  ========================  =========================  ====
+noise (px)   final position            final heading             RMS dv/dt (m/s^2)          lost
+===========  ========================  ========================  =========================  ====
+0            0.202 m/s^2 for the paper's loop (``--filter none``): the smoothness baseline
+0.5          mean 0.52 cm (max 0.86)   mean 0.087 deg (max 0.19) mean 0.23, max 0.35        0
+1.0          mean 0.86 cm              mean 0.18 deg             mean 0.41                  0
+0.2, 200 Hz  RMS dv/dt 0.14 with the filter, 0.20 on exact points, 38.8 before (verdict fails)
+===========  ========================  ========================  =========================  ====
 
 The exact figures are printed by the tests (``pytest -s``) and asserted below.
 """
@@ -186,9 +187,10 @@ def test_half_a_pixel_at_30_hz_converges_smoothly_on_every_seed(clean_half_pixel
               f"heading {mean(runs, 'heading_deg'):.3f} deg, RMS dv/dt {np.mean(rms_dv(runs)):.3f} (max {max(rms_dv(runs)):.3f}) "
               f"vs noise-free {noise_free['smoothness']['dv_dt_rms_mps2']:.3f} m/s^2")
     assert all(run["lost"] == 0 for run in runs)
-    assert all(run["position_cm"] < 1.0 and run["heading_deg"] < 0.25 for run in runs)  # every run converges
+    assert all(run["position_cm"] < 1.0 and run["heading_deg"] < 0.2 for run in runs)  # every run converges
     assert mean(runs, "position_cm") < 1.0 and mean(runs, "heading_deg") < 0.2
-    # Measured 0.25 cm, 0.08 deg; RMS dv/dt mean 0.33 m/s^2 against 0.20 without noise.
+    # Measured 0.52 cm (max 0.86), 0.087 deg (max 0.19); RMS dv/dt at most 0.35 m/s^2
+    # against 0.20 on exact points without the filter.
     assert max(rms_dv(runs)) < 2.0 * noise_free["smoothness"]["dv_dt_rms_mps2"]
 
 
@@ -203,7 +205,7 @@ def test_one_pixel_at_30_hz(fit_path, noise_free, capsys):
 
 def test_exact_measurements_the_filter_costs_under_ten_percent(fit_path, noise_free):
     filtered = closed_loop(fit_path, perception="points", pixel_noise=0.0)
-    # Measured: 0.057 cm / 0.003 deg filtered, 0.056 cm / 0.004 deg unfiltered.
+    # Measured: 0.070 cm / 0.0035 deg filtered, 0.078 cm / 0.0049 deg unfiltered.
     assert filtered["position_cm"] <= 1.10 * noise_free["position_cm"]
     assert filtered["heading_deg"] <= 1.10 * noise_free["heading_deg"]
 

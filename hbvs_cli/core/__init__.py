@@ -8,6 +8,8 @@ One concept per module:
 * :mod:`.decomposition`: (theta, x_h, n*) with the right branch; the known-normal solver
 * :mod:`.estimation`: target pixels -> the controller's measurement, with outlier gating
 * :mod:`.controller`: errors (19), (27), the law (29)-(31), Lyapunov function (36)
+* :mod:`.state_filter`: the Kalman filter on (theta, x_h) between the camera and the law
+* :mod:`.gains`: gains from x_hd1_dot and the detector's noise
 * :mod:`.trajectory`: the desired trajectory of Remark 1 (splines), condition (35)
 * :mod:`.depth`: initial depth estimates from (25) or a known target size
 * :mod:`.unicycle`: exact integration of the kinematics (21)

@@ -40,6 +40,9 @@ LAWS = (LAW_PAPER, LAW_LATERAL_GAIN)
 class ControllerGains:
     """Gains of (29)-(31).
 
+    These defaults are the clean-camera gains, used when a fit file carries no suggestion;
+    ``hbvs fit`` suggests gains from its own data (:mod:`.gains`), and ``repeat`` uses those.
+
     The defaults were tuned on the default scenario (target 4 m ahead, taught at 0.1 m/s,
     so |x_hd1_dot| ~ 0.025 1/s) with the whole vision pipeline in the loop, and follow
     two rules that carry over to other scenes (``hbvs fit`` reports x_hd1_dot):

@@ -3,6 +3,7 @@
 Example (``samples/gains.toml`` holds the defaults)::
 
     law = "lateral-gain"     # or "paper"
+    filter = "ekf"           # or "none": the state filter of docs/method.md
     [gains]
     k_v = 4.0
     k_w = 1.0
@@ -36,7 +37,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 
 #: Allowed keys per table and their types.
 SCHEMA: dict[str, dict[str, type]] = {
-    "": {"law": str, "dhat0": float, "speed": float},
+    "": {"law": str, "dhat0": float, "speed": float, "filter": str},
     "gains": {"k_v": float, "k_w": float, "gamma": float, "k_2": float},
     "limits": {"max_v": float, "max_w": float, "max_accel": float, "latency": int},
     "run": {"lost_timeout": float, "rate": float, "perception": str, "pixel_noise": float, "offset": str},
