@@ -325,7 +325,6 @@ class DotDetector:
         self._track = PointTrack(self.n_points, max_coast)
         self._areas = np.full(self.n_points, np.nan)
         self._layout: NDArray[np.float64] | None = None
-        self._flatten = False
         self.last_blobs: Blobs | None = None
 
     def reset(self) -> None:
@@ -333,7 +332,6 @@ class DotDetector:
         self._track.reset()
         self._areas[:] = np.nan
         self._layout = None
-        self._flatten = False
 
     def predict(self) -> NDArray[np.float64] | None:
         """The track's prediction for the next frame, shape (N, 2), or None."""
@@ -377,20 +375,10 @@ class DotDetector:
         return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
 
     def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        """Candidates in ``window`` and the dots ``pick`` makes of them.
-
-        The frame as it is first (fast, and exact on an evenly lit ground); with its ground
-        divided out (:func:`flatten_ground`) when that misses a dot. Once the flattened
-        search was needed, it is used from then on: the ground is uneven.
-        """
-        attempts = (True,) if self._flatten else (False, True)
-        for flatten in attempts:
-            blobs = find_dark_blobs(gray, window, self.min_area, None, self.max_elongation, self.min_contrast, flatten)
-            pixels, areas = pick(blobs)
-            if np.all(np.isfinite(pixels)):
-                self._flatten = self._flatten or flatten
-                break
-        return blobs, (pixels, areas)
+        """Candidates in ``window`` (its ground divided out, :func:`flatten_ground`) and the
+        dots ``pick`` makes of them."""
+        blobs = find_dark_blobs(gray, window, self.min_area, None, self.max_elongation, self.min_contrast, True)
+        return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
         """Search window: the predicted dots' box grown by the gate and a dot's size."""
