@@ -141,6 +141,22 @@ def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fra
     return threshold
 
 
+def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float) -> int | None:
+    """Threshold of a flattened window (ground at 255): Otsu's, or half-way from the ground
+    to the darkest (3x3-averaged) level if that is higher.
+
+    Otsu needs the dots to be a fair share of the pixels; a few dots of 2-3 px radius are
+    not, and only the half-way level finds them (it is also the level a blurred disc's rim
+    crosses at its true radius).
+    """
+    darkest = float(cv2.blur(levels, (3, 3)).min())
+    if 255.0 - darkest < min_contrast:
+        return None
+    halfway = int(0.5 * (255.0 + darkest))
+    otsu = otsu_threshold(levels, min_contrast)
+    return halfway if otsu is None else max(otsu, halfway)
+
+
 def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
     """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
     levels = np.arange(hist.size, dtype=np.float64)
@@ -200,9 +216,10 @@ def find_dark_blobs(
     if flatten:
         sub = flatten_ground(np.ascontiguousarray(sub))
         levels = np.clip(sub + 0.5, 0, 255).astype(np.uint8)
+        threshold = _flat_threshold(levels, min_contrast)
     else:
         levels = sub
-    threshold = otsu_threshold(levels, min_contrast)
+        threshold = otsu_threshold(levels, min_contrast)
     if threshold is None:
         return empty
     _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)
