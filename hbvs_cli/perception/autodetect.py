@@ -101,9 +101,9 @@ def count_round_dots(image: NDArray[np.uint8], polarity: str) -> tuple[int, bool
     most of what is compact and interior (components cut by the frame's edge, e.g. the
     wall or a door frame, are not counted).
     """
-    from .dots import dot_contrast, find_dark_blobs
+    from .dots import dark_image, find_dark_blobs
 
-    blobs = find_dark_blobs(dot_contrast(image, polarity))
+    blobs = find_dark_blobs(dark_image(image, polarity), flatten=True)
     round_areas = blobs.areas[blobs.round]
     if round_areas.size < 3:
         return int(round_areas.size), False

@@ -47,31 +47,39 @@ ACQUIRE_AREA_RATIO = 9.0
 MAX_DOT_RADIUS_PX = 80
 
 
-def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark", max_radius: int = MAX_DOT_RADIUS_PX) -> NDArray[np.uint8]:
-    """The frame with the dots dark on an even, white ground.
-
-    Light dots are first turned dark (the negative). The ground's own brightness -- uneven
-    lighting, vignetting, exposure drift -- is then divided out: the background is a
-    morphological closing wider than the largest dot (which removes every dark feature up to
-    ``max_radius`` px and keeps the ground), computed at a quarter of the resolution (the
-    ground varies slowly) and scaled back up. What remains is each pixel's darkness relative
-    to its surroundings, so one threshold serves a dot in the bright middle of the frame and
-    one in a dim corner, and a small dot is not drowned by the gradient across the wall.
-
-    Colour frames go through luminance (:func:`~.detector.as_gray`), as the teach file
-    stores them.
-    """
+def dark_image(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
+    """The gray frame in which the dots are dark: the frame itself, or its negative for light
+    dots (exact: no rescaling, so the centroids keep the frame's precision). Colour frames
+    go through luminance (:func:`~.detector.as_gray`), as the teach file stores them."""
     gray = as_gray(image)
-    if polarity == "light":
-        gray = cv2.bitwise_not(gray)
+    return cv2.bitwise_not(gray) if polarity == "light" else gray
+
+
+def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX) -> NDArray[np.float32]:
+    """``gray`` with its ground's brightness divided out (float32, the ground at 255).
+
+    Uneven lighting, vignetting and exposure drift vary slowly across the wall; the
+    background is a morphological closing wider than the largest dot (which removes every
+    dark feature up to ``max_radius`` px and keeps the ground), computed at a quarter of the
+    resolution and scaled back up. Divided by it, each pixel becomes its darkness relative to
+    its surroundings, so one threshold serves a dot in the bright middle of the frame and one
+    in a dim corner, a small dot is not drowned by the gradient across the wall, and a
+    gradient across a dot does not pull its centroid. Float, not rounded to 8 bits: the
+    centroids are measured on it.
+    """
     height, width = gray.shape
     small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
     size = 2 * (max_radius // 4) + 5
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
     ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
     ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR)
-    # 255 * gray / ground, rounded and saturated to 8 bits (OpenCV's vectorised division).
-    return cv2.divide(gray, ground, scale=255.0)
+    return cv2.divide(gray.astype(np.float32), ground.astype(np.float32), scale=255.0)
+
+
+def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
+    """The frame with the dots dark on an even, white ground, in 8 bits (:func:`dark_image`,
+    then :func:`flatten_ground`)."""
+    return np.clip(np.rint(flatten_ground(dark_image(image, polarity))), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -133,6 +141,22 @@ def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fra
     return threshold
 
 
+def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float) -> int | None:
+    """Threshold of a flattened window (ground at 255): Otsu's, or half-way from the ground
+    to the darkest (3x3-averaged) level if that is higher.
+
+    Otsu needs the dots to be a fair share of the pixels; a few dots of 2-3 px radius are
+    not, and only the half-way level finds them (it is also the level a blurred disc's rim
+    crosses at its true radius).
+    """
+    darkest = float(cv2.blur(levels, (3, 3)).min())
+    if 255.0 - darkest < min_contrast:
+        return None
+    halfway = int(0.5 * (255.0 + darkest))
+    otsu = otsu_threshold(levels, min_contrast)
+    return halfway if otsu is None else max(otsu, halfway)
+
+
 def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
     """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
     levels = np.arange(hist.size, dtype=np.float64)
@@ -157,6 +181,7 @@ def find_dark_blobs(
     max_area: float | None = None,
     max_elongation: float = 1.8,
     min_contrast: float = 20.0,
+    flatten: bool = False,
 ) -> Blobs:
     """Dark, dot-like blobs and their sub-pixel centres.
 
@@ -174,6 +199,9 @@ def find_dark_blobs(
         its normal gives ~1.55).
     min_contrast : float
         Gray-level contrast below which nothing is detected.
+    flatten : bool
+        Divide the window's ground out first (:func:`flatten_ground`), for uneven lighting;
+        thresholds and centres are then taken on the flattened window.
 
     Returns
     -------
@@ -185,10 +213,16 @@ def find_dark_blobs(
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     if sub.size == 0:
         return empty
-    threshold = otsu_threshold(sub, min_contrast)
+    if flatten:
+        sub = flatten_ground(np.ascontiguousarray(sub))
+        levels = np.clip(sub + 0.5, 0, 255).astype(np.uint8)
+        threshold = _flat_threshold(levels, min_contrast)
+    else:
+        levels = sub
+        threshold = otsu_threshold(levels, min_contrast)
     if threshold is None:
         return empty
-    _, binary = cv2.threshold(sub, threshold, 255, cv2.THRESH_BINARY_INV)
+    _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)
     # BBDT: of OpenCV's labelling algorithms, the one that is fast on sparse foreground.
     _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
         binary, 8, cv2.CV_32S, cv2.CCL_BBDT
@@ -326,27 +360,23 @@ class DotDetector:
         With a prediction (given, or from the track) only a window around the predicted
         dots is searched; without one, the whole frame.
         """
-        gray = dot_contrast(image, self.polarity)
+        gray = dark_image(image, self.polarity)
         prediction = check_prediction(predicted, self.n_points)
         if prediction is None:
             prediction = self._track.predict()
         if prediction is not None:
-            blobs = find_dark_blobs(
-                gray, self._window(gray.shape, prediction), self.min_area, None, self.max_elongation, self.min_contrast
-            )
-            pixels, areas = self._assign(blobs, prediction)
+            window = self._window(gray.shape, prediction)
+            blobs, (pixels, areas) = self._search(gray, window, lambda found: self._assign(found, prediction))
             if not np.all(np.isfinite(pixels)):
                 # Some dots were not where predicted (a fast turn, a dropped frame, a dot
                 # unseen too long): a whole-frame acquisition, its identities matched to the
                 # prediction's layout (or the last full layout), brings them back.
-                everywhere = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
                 layout = prediction if np.all(np.isfinite(prediction)) else None
-                again, again_areas = self._acquire(everywhere, layout)
+                everywhere, (again, again_areas) = self._search(gray, None, lambda found: self._acquire(found, layout))
                 if np.all(np.isfinite(again)):
                     blobs, pixels, areas = everywhere, again, again_areas
         else:
-            blobs = find_dark_blobs(gray, None, self.min_area, None, self.max_elongation, self.min_contrast)
-            pixels, areas = self._acquire(blobs)
+            blobs, (pixels, areas) = self._search(gray, None, self._acquire)
         self.last_blobs = blobs
         seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)
@@ -360,6 +390,12 @@ class DotDetector:
             self._layout = pixels.copy()
         n_seen = int(np.count_nonzero(seen))
         return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
+
+    def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """Candidates in ``window`` (its ground divided out, :func:`flatten_ground`) and the
+        dots ``pick`` makes of them."""
+        blobs = find_dark_blobs(gray, window, self.min_area, None, self.max_elongation, self.min_contrast, True)
+        return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
         """Search window: the predicted dots' box grown by the gate and a dot's size."""

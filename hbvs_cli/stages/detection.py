@@ -181,9 +181,9 @@ def choose_target_kind(image: np.ndarray) -> str:
 
 def count_dots(image: np.ndarray, polarity: str = "dark") -> int:
     """Number of round dots in an image (the size of a dots target seen for the first time)."""
-    from ..perception.dots import dot_contrast, find_dark_blobs
+    from ..perception.dots import dark_image, find_dark_blobs
 
-    blobs = find_dark_blobs(dot_contrast(image, polarity))
+    blobs = find_dark_blobs(dark_image(image, polarity), flatten=True)
     count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
     if count < 3:
         raise InputError(f"found {count} {polarity} dots in the first image; a dots target needs at least 3 (or choose --target)")
