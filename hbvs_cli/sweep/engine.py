@@ -91,7 +91,7 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
             else:
                 started = LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                    protocol="tcp://", host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                    protocol="tcp://", host="127.0.0.1", dashboard_address=":0", silence_logs=logging.ERROR,
                 )
                 client = Client(started)
             try:
