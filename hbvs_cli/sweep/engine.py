@@ -73,8 +73,11 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError(f"--workers must be >= 1, got {workers}")
     # worker-saturation 1: a worker holds only the run it is running, so a run that kills
     # its worker takes no queued innocent run down with it (each costs ~1 ms of idle time).
+    # The workers' statistical profiler (for the dashboard, which hbvs does not open) keeps
+    # up to 1000 profile trees per worker: tens of MB that grew with the sweep's length.
     with dask.config.set({"distributed.scheduler.allowed-failures": allowed_worker_deaths,
-                          "distributed.scheduler.worker-saturation": 1.0}):
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.worker.profile.enabled": False}):
         started = None
         try:
             if scheduler is not None:
@@ -88,7 +91,7 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
             else:
                 started = LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                    protocol="tcp://", host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                    protocol="tcp://", host="127.0.0.1", dashboard_address=":0", silence_logs=logging.ERROR,
                 )
                 client = Client(started)
             try:

@@ -64,6 +64,15 @@ def _csv_bytes(table: Any, header: bool) -> bytes:
     return buffer.getvalue()
 
 
+def _write_csv(table: Any, path: Path) -> None:
+    """The whole table as CSV, written batch by batch (no second copy of it in memory)."""
+    import pyarrow.csv as pacsv
+
+    with pacsv.CSVWriter(str(path), table.schema) as writer:
+        for batch in table.to_batches(max_chunksize=4096):
+            writer.write_batch(batch)
+
+
 def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
     """Every row written so far (``runs.parquet`` and the parts), one per run index, sorted.
 
@@ -152,7 +161,7 @@ class ResultsTable:
             stray.unlink()
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
         done = read_rows(self.folder)
-        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(done.cast(self.schema) if done.num_rows else self.schema.empty_table(), True)))
+        _replace(self.folder / CSV, lambda p: _write_csv(done.cast(self.schema) if done.num_rows else self.schema.empty_table(), p))
         self._done = set(done.column("index").to_pylist())
 
     @property
@@ -190,7 +199,7 @@ class ResultsTable:
         Parquet rows (the signal may have cut a flush between the two)."""
         self.flush()
         done = read_rows(self.folder)
-        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(done.cast(self.schema), True)))
+        _replace(self.folder / CSV, lambda p: _write_csv(done.cast(self.schema), p))
 
     def finish(self) -> Any:
         """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index."""
@@ -199,7 +208,7 @@ class ResultsTable:
         self.flush()
         table = read_rows(self.folder).cast(self.schema)
         _replace(self.folder / PARQUET, lambda p: pq.write_table(table, p))
-        _replace(self.folder / CSV, lambda p: p.write_bytes(_csv_bytes(table, True)))
+        _replace(self.folder / CSV, lambda p: _write_csv(table, p))
         for part in (self.folder / PARTS).glob("part-*.parquet"):
             part.unlink()
         return table
