@@ -110,7 +110,8 @@ def test_json_values_agree_with_the_run(runs):
     assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)
     assert report["depth"]["d_true"] == pytest.approx(run.info["d_true"], rel=1e-6)
     assert report["depth"]["dhat_initial"] == pytest.approx(run.info["dhat0"])
-    assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"])
+    # The report's numbers carry 7 significant digits: compare at that precision.
+    assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"], rel=1e-5)
     e3 = np.degrees(run.state["e3"])
     assert report["errors"]["e3"]["max"] == pytest.approx(np.nanmax(e3))
     assert report["errors"]["e1"]["rmse"] == pytest.approx(np.sqrt(np.nanmean(run.state["e1"] ** 2)))
@@ -183,7 +184,9 @@ def test_comparison_prints_both_runs_side_by_side(runs):
         for cell, report in zip(errors[label], both["runs"]):
             assert close_to_shown(as_number(cell), report["errors"][name][statistic])
     gains = {row[0]: row[1:] for row in tables["run"]}
-    assert gains["gain k_2 (-)"] == ["400", "1"]
+    # k_2 from the fit's rule k_w^2 / (4 x_hd1_dot^2) (about 400 here); the paper's law forces 1.
+    assert close_to_shown(as_number(gains["gain k_2 (-)"][0]), both["runs"][0]["run"]["gains"]["k_2"])
+    assert 390 < both["runs"][0]["run"]["gains"]["k_2"] < 410 and gains["gain k_2 (-)"][1] == "1"
 
 
 # ----------------------------------------------------------------------------- thresholds
