@@ -485,9 +485,14 @@ class ServoStateFilter:
             if sample > self.noise_variance:
                 covariance = tuple(value * (sample / self.noise_variance) for value in covariance)
                 self.noise_variance = sample
+        # A restart keeps the time already fused: the law's feedback and (31) stay on. A
+        # prediction that keeps disagreeing with the camera is often a wrong dhat (the
+        # prediction moves x_h at v / dhat); only adapting dhat on the restarted estimate
+        # can correct it, and a new soft start would freeze (31) again.
+        restarted = self._state is not None
         self._state, self._covariance = z, covariance
         self.rejected_in_a_row = 0
-        self.fused_time = dt
+        self.fused_time = self.fused_time + dt if restarted else dt
         self.last_outcome = STARTED
         return STARTED
 
