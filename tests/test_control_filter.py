@@ -244,3 +244,15 @@ def test_200_hz_at_a_fifth_of_a_pixel_is_smooth_and_the_old_loop_fails_the_verdi
     assert old["commands"]["dv_dt_rms_mps2"] > 20.0
     assert old["verdict"]["converged"] is False
     assert any(reason.startswith("fail: commands chatter") for reason in old["verdict"]["reasons"])
+
+
+def test_a_depth_three_times_too_large_is_learnt_not_frozen(fit_path):
+    """dhat(0) = 3 d*: the filter's predictions (at v / dhat) disagree with the camera and
+    it restarts; a restart must not begin a new soft start, or (31) never adapts. Measured:
+    before the fix dhat stayed at 12.000 m and the target was lost at 8 s; now the run
+    keeps the target and dhat falls to about 6 m in 20 s (d* = 4 m)."""
+    run = closed_loop(fit_path, perception="points", pixel_noise=0.2, dhat0=12.0)
+    records = run["records"]
+    assert records[-1].t > 19.0 and run["lost"] == 0
+    assert 4.0 < records[-1].dhat < 8.0
+    assert run["position_cm"] < 10.0
