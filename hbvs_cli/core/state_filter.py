@@ -424,12 +424,11 @@ class ServoStateFilter:
                 return self._reject(measured, residual, dt)
             # Learnt before the innovation gate: a noisier camera must not look like outliers.
             self._learn_noise(residual, dt)
-        z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
-        try:
-            inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
-        except ZeroDivisionError:
+        observed = self._observed(measured)
+        if observed is None:
             self.last_outcome = GATED
             return GATED
+        z, inverse_information = observed
         variance = self.noise_variance
         measurement_covariance = tuple(variance * value for value in inverse_information)
         if self._state is None:
@@ -439,10 +438,10 @@ class ServoStateFilter:
         try:
             s_inverse = _sym_inverse(tuple(a + b for a, b in zip(p, measurement_covariance)))
         except ZeroDivisionError:
-            return self._reject(measured, residual, dt, z, measurement_covariance)
+            return self._reject(measured, residual, dt, observed)
         weighted = _sym_times(s_inverse, innovation)
         if innovation[0] * weighted[0] + innovation[1] * weighted[1] + innovation[2] * weighted[2] > self.settings.gate:
-            return self._reject(measured, residual, dt, z, measurement_covariance)
+            return self._reject(measured, residual, dt, observed)
         self.rejected_in_a_row = 0
         step = _sym_times(p, weighted)
         self._state = (state[0] + step[0], state[1] + step[1], state[2] + step[2])
@@ -458,21 +457,30 @@ class ServoStateFilter:
         self.last_outcome = FUSED
         return FUSED
 
-    def _reject(self, measured: Measurement, residual: float, dt: float, z: Vec3 | None = None,
-                covariance: Sym3 | None = None) -> str:
-        """An outlier; after ``reset_after`` in a row the filter restarts from this frame."""
+    def _observed(self, measured: Measurement) -> tuple[Vec3, Sym3] | None:
+        """The measurement as a state, and the inverse of its points' information (per unit
+        noise variance); None when the points do not determine the state."""
+        z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+        try:
+            return z, _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+        except ZeroDivisionError:
+            return None
+
+    def _reject(self, measured: Measurement, residual: float, dt: float,
+                observed: tuple[Vec3, Sym3] | None = None) -> str:
+        """An outlier; after ``reset_after`` in a row the filter restarts from this frame
+        (``observed``: :meth:`_observed` of it, when already computed)."""
         self.rejected_in_a_row += 1
         if self.rejected_in_a_row >= self.settings.reset_after:
             # The camera, not the detector, changed (or the filter diverged): start over,
             # noise included.
             if math.isfinite(residual):
                 self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
-            z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
-            try:
-                inverse_information = _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
-            except ZeroDivisionError:
+            observed = observed or self._observed(measured)
+            if observed is None:
                 self.last_outcome = GATED
                 return GATED
+            z, inverse_information = observed
             return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
         self.last_outcome = GATED
         return GATED
