@@ -178,3 +178,23 @@ def test_a_second_signal_during_cleanup_is_ignored(inputs, tmp_path):
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 130 and stop_lines(stderr.decode()) == ["hbvs: interrupted"], stderr
     assert not output.exists() and not list(output.parent.glob(output.name + "*.partial"))
+
+
+@pytest.mark.parametrize("signum", list(SIGNAL_CODES))
+def test_a_signal_wrapped_by_native_code_is_reported_as_the_stop(monkeypatch, capsys, signum):
+    """A SIGTERM that lands in a C extension's initialisation comes back as ImportError
+    ("initialization failed"); it is still the stop, not an internal error (exit 70)."""
+    from hbvs_cli.cli import app as cli_app
+
+    def wrapped_by_native_code(*args, **kwargs):
+        monkeypatch.setattr(cli_app, "_received", signum)
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(cli_app, "app", wrapped_by_native_code)
+    monkeypatch.setattr(cli_app, "_install_signal_handlers", lambda: None)
+    monkeypatch.setattr(cli_app, "_prepare_stdio", lambda debug: None)
+    with pytest.raises(SystemExit) as stop:
+        cli_app.main(["fit", "t.mcap"])
+    code, line = SIGNAL_CODES[signum]
+    assert stop.value.code == code
+    assert capsys.readouterr().err.strip().splitlines() == [line]

@@ -338,6 +338,19 @@ def _install_signal_handlers() -> None:
             pass
 
 
+def _raise_if_stopping() -> None:
+    """Re-raise a stop signal that some code turned into another exception.
+
+    A signal landing inside a C extension's module initialisation comes back as
+    ``ImportError: initialization failed``; other native code may wrap it too. Once a stop
+    signal has arrived, any failure is its consequence and is reported as the stop.
+    """
+    if _received == signal.SIGINT:
+        raise _Interrupted
+    if _received is not None:
+        raise _Terminated
+
+
 def _stopped(signum: int) -> int:
     """Report a stop signal on stderr (one line) and return its exit code."""
     code, what = _STOP_SIGNALS[signum]
@@ -400,6 +413,7 @@ def _run(args: list[str], debug: bool) -> int:
         result = app(args=args, prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
+        _raise_if_stopping()
         if debug:
             traceback.print_exc()
         if exc.exit_code == 141:
@@ -434,6 +448,7 @@ def _run(args: list[str], debug: bool) -> int:
         _say("hbvs: error: out of memory (a limit is set too high for this machine? see hbvs --limit)")
         return 7
     except OSError as exc:
+        _raise_if_stopping()
         if debug:
             traceback.print_exc()
         if exc.errno == errno.EPIPE:
@@ -445,6 +460,7 @@ def _run(args: list[str], debug: bool) -> int:
         _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
         return 70
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
+        _raise_if_stopping()
         if debug:
             traceback.print_exc()
             return 70
