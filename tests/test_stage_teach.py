@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from hbvs_cli.io.schemas import SCHEMAS, TOPICS
+from hbvs_cli.io.schemas import SCHEMAS
+from hbvs_cli.io.topics import TOPICS
 from hbvs_cli.io.teach_file import TeachReader
 
 from conftest import SAMPLES, make_teach, run_hbvs

@@ -36,13 +36,10 @@ from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
 from .mcap_io import McapStream, read_metadata, time_message
-from .schemas import TOPICS
+from .topics import MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
 
 FILE_KIND = "fit"
-MODEL_TOPIC = "/fit/model"
-REFERENCE_IMAGE_TOPIC = "/reference/image"
-TEMPLATE_IMAGE_TOPIC = "/detector/template"
 FORMAT_VERSION = 1
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError, RecordingError, UsageError
+from .topics import COMPRESSED_IMAGE_SCHEMA
 
 IMAGE_FORMATS = ("png", "jpeg")
 #: ``--format`` choices: ``auto`` keeps what a source has and compresses the rest as JPEG.
@@ -35,7 +36,7 @@ STORE_FORMATS = ("auto", *IMAGE_FORMATS)
 #: 0.013 deg of the truth (0.006 deg from PNG; tests/test_image_storage.py measures both).
 DEFAULT_JPEG_QUALITY = 90
 #: The schema every image topic of hbvs carries.
-IMAGE_SCHEMA = "foxglove.CompressedImage"
+IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA
 #: Message encodings read on image topics: what hbvs writes, and base64 JSON (older files).
 IMAGE_ENCODINGS = ("protobuf", "json")
 #: Largest decoded image accepted (pixels): 8K x 8K. A hostile header cannot make OpenCV

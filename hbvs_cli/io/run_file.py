@@ -29,14 +29,9 @@ import numpy as np
 from ..errors import RecordingError
 from .mcap_io import McapStream, read_metadata
 from .messages import planar_pose_from_message
-from .schemas import TOPICS
+from .topics import COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
 
 FILE_KIND = "run"
-STATE_TOPIC = "/repeat/state"
-COMMAND_TOPIC = "/repeat/cmd_vel"
-EVENTS_TOPIC = "/repeat/events"
-TRUE_POSE_TOPIC = "/ground_truth/pose"
-DESIRED_POSE_TOPIC = "/desired/pose"
 
 #: Per-step numeric fields of ``hbvs.ControllerState`` kept by :class:`RunData` (NaN for null).
 STATE_FIELDS = (

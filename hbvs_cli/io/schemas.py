@@ -7,12 +7,17 @@ field, so the files open in Foxglove with images, annotations, poses and plots. 
 Foxglove's protobuf encoding (:mod:`.images`), and reads the JSON form below from older
 files. Times are ``{"sec", "nsec"}`` and MCAP log times are in nanoseconds.
 
-The topics of each file kind are listed in :data:`TOPICS` (and in the README).
+The topics of each file kind are listed in :mod:`.topics` (and in the README).
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+from .topics import (
+    CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA,
+    IMAGE_ANNOTATIONS_SCHEMA, LOG_SCHEMA, POSE_IN_FRAME_SCHEMA, VELOCITY_COMMAND_SCHEMA,
+)
 
 _TIME = {
     "type": "object",
@@ -63,8 +68,8 @@ def _number_array(length: int | None = None) -> dict[str, Any]:
 
 
 FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
-    "foxglove.CompressedImage": {
-        "title": "foxglove.CompressedImage",
+    COMPRESSED_IMAGE_SCHEMA: {
+        "title": COMPRESSED_IMAGE_SCHEMA,
         "description": "A compressed image",
         "type": "object",
         "properties": {
@@ -75,8 +80,8 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["timestamp", "frame_id", "data", "format"],
     },
-    "foxglove.CameraCalibration": {
-        "title": "foxglove.CameraCalibration",
+    CAMERA_CALIBRATION_SCHEMA: {
+        "title": CAMERA_CALIBRATION_SCHEMA,
         "description": "Camera calibration parameters",
         "type": "object",
         "properties": {
@@ -92,8 +97,8 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"],
     },
-    "foxglove.PoseInFrame": {
-        "title": "foxglove.PoseInFrame",
+    POSE_IN_FRAME_SCHEMA: {
+        "title": POSE_IN_FRAME_SCHEMA,
         "description": "A timestamped pose for an object or reference frame in 3D space",
         "type": "object",
         "properties": {
@@ -108,8 +113,8 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["timestamp", "frame_id", "pose"],
     },
-    "foxglove.ImageAnnotations": {
-        "title": "foxglove.ImageAnnotations",
+    IMAGE_ANNOTATIONS_SCHEMA: {
+        "title": IMAGE_ANNOTATIONS_SCHEMA,
         "description": "Array of annotations for a 2D image",
         "type": "object",
         "properties": {
@@ -168,8 +173,8 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["circles", "points", "texts"],
     },
-    "foxglove.Log": {
-        "title": "foxglove.Log",
+    LOG_SCHEMA: {
+        "title": LOG_SCHEMA,
         "description": "A log message",
         "type": "object",
         "properties": {
@@ -185,8 +190,8 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
 }
 
 HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
-    "hbvs.VelocityCommand": {
-        "title": "hbvs.VelocityCommand",
+    VELOCITY_COMMAND_SCHEMA: {
+        "title": VELOCITY_COMMAND_SCHEMA,
         "description": "A unicycle velocity command: v along the robot's x axis, w about z",
         "type": "object",
         "properties": {
@@ -197,8 +202,8 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["timestamp", "v", "w"],
     },
-    "hbvs.DesiredSignal": {
-        "title": "hbvs.DesiredSignal",
+    DESIRED_SIGNAL_SCHEMA: {
+        "title": DESIRED_SIGNAL_SCHEMA,
         "description": "Desired signals of Remark 1: decomposed (raw) or smoothed by splines",
         "type": "object",
         "properties": {
@@ -214,8 +219,8 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         "required": ["timestamp", "t", "theta_d", "x_hd1", "x_hd2"],
     },
-    "hbvs.FitModel": {
-        "title": "hbvs.FitModel",
+    FIT_MODEL_SCHEMA: {
+        "title": FIT_MODEL_SCHEMA,
         "description": "The fitted desired trajectory and everything repeat needs to track it",
         "type": "object",
         "properties": {
@@ -244,8 +249,8 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "trajectory", "dhat0", "dhat0_source", "frames", "condition35",
         ],
     },
-    "hbvs.ControllerState": {
-        "title": "hbvs.ControllerState",
+    CONTROLLER_STATE_SCHEMA: {
+        "title": CONTROLLER_STATE_SCHEMA,
         "description": "One control step of the adaptive tracking controller (29)-(31)",
         "type": "object",
         "properties": {
@@ -279,33 +284,3 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
 
 #: Every schema hbvs can write or read, by name.
 SCHEMAS: dict[str, dict[str, Any]] = {**FOXGLOVE_SCHEMAS, **HBVS_SCHEMAS}
-
-#: Topics of each file kind: topic -> schema name.
-TOPICS: dict[str, dict[str, str]] = {
-    "teach": {
-        "/camera/image": "foxglove.CompressedImage",
-        "/camera/calibration": "foxglove.CameraCalibration",
-        "/teach/cmd_vel": "hbvs.VelocityCommand",
-        "/ground_truth/pose": "foxglove.PoseInFrame",
-    },
-    "fit": {
-        "/fit/model": "hbvs.FitModel",
-        "/desired/raw": "hbvs.DesiredSignal",
-        "/desired/smooth": "hbvs.DesiredSignal",
-        "/camera/image": "foxglove.CompressedImage",
-        "/camera/annotations": "foxglove.ImageAnnotations",
-        "/camera/calibration": "foxglove.CameraCalibration",
-        "/reference/image": "foxglove.CompressedImage",
-        "/detector/template": "foxglove.CompressedImage",
-    },
-    "run": {
-        "/repeat/state": "hbvs.ControllerState",
-        "/repeat/cmd_vel": "hbvs.VelocityCommand",
-        "/repeat/events": "foxglove.Log",
-        "/ground_truth/pose": "foxglove.PoseInFrame",
-        "/desired/pose": "foxglove.PoseInFrame",
-        "/camera/image": "foxglove.CompressedImage",
-        "/camera/annotations": "foxglove.ImageAnnotations",
-        "/camera/calibration": "foxglove.CameraCalibration",
-    },
-}

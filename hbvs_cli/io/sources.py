@@ -32,6 +32,7 @@ from ..core.camera import CameraIntrinsics
 from ..errors import CalibrationError, HbvsError, InputError, RecordingError, UsageError
 from .calibration import intrinsics_from_values
 from .mcap_io import ChannelSummary, McapMessage, McapStream, read_summary
+from .topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
 
 __all__ = [
     "SourceFrame",
@@ -512,8 +513,8 @@ _CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _IMAGE_TYPES = (_COMPRESSED, _RAW)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
 #: in the protobuf and JSON encodings.
-_FOXGLOVE_IMAGE = "foxglove.CompressedImage"
-_FOXGLOVE_CALIBRATION = "foxglove.CameraCalibration"
+_FOXGLOVE_IMAGE = COMPRESSED_IMAGE_SCHEMA
+_FOXGLOVE_CALIBRATION = CAMERA_CALIBRATION_SCHEMA
 _FOXGLOVE_ENCODINGS = ("protobuf", "json")
 
 

@@ -32,13 +32,11 @@ from .calibration import calibration_from_foxglove, calibration_to_foxglove, int
 from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
 from .mcap_io import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
-from .schemas import TOPICS
+from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
+from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
+from .topics import TRUE_POSE_TOPIC as POSE_TOPIC
 
 FILE_KIND = "teach"
-IMAGE_TOPIC = "/camera/image"
-CALIBRATION_TOPIC = "/camera/calibration"
-COMMAND_TOPIC = "/teach/cmd_vel"
-POSE_TOPIC = "/ground_truth/pose"
 
 #: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
 #: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
@@ -116,7 +114,7 @@ class TeachWriter:
         self.writer = writer
         writer.metadata("hbvs", {"file_kind": FILE_KIND, "hbvs_version": __version__, "source": source, "settings": settings})
         if world is not None:
-            writer.metadata("hbvs.world", {"world": world.to_dict()})
+            writer.metadata(WORLD_METADATA, {"world": world.to_dict()})
         self.frames = 0
 
     def calibration(self, camera: CameraIntrinsics, log_time_ns: int = 0) -> None:
@@ -223,7 +221,7 @@ class TeachReader:
             if problem is not None:
                 raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
             self.info = info
-            world = read_metadata(self.stream, "hbvs.world").get("world")
+            world = read_metadata(self.stream, WORLD_METADATA).get("world")
             if world is not None:
                 self.world = world_from_description(world, self.name)
 

@@ -28,6 +28,7 @@ from .console import Console
 from .options import recorded_settings
 from .detection import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
 from .frames import decoded_frames
+from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -154,7 +155,6 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.images import write_compressed_image
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
-    from ..io.schemas import TOPICS
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
 
@@ -192,7 +192,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                     spec = _detector_spec(options, reader, [im for _, _, im in first] or [image], camera, frame.pose, console)
                     detector = TrackedDetector(spec, camera, seed=options.seed)
                     template = data
-                    writer.write("/camera/calibration", topics["/camera/calibration"], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+                    writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 pixels = detector.detect(image)
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
@@ -200,11 +200,11 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
                 if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
                     reference_image = data
                 if options.copy_images:
-                    write_compressed_image(writer, "/camera/image", frame.log_time_ns, data, _format_of(data), CAMERA_FRAME)
+                    write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, _format_of(data), CAMERA_FRAME)
                 # Same log time as the teach image: Foxglove overlays these on it when the
                 # teach and fit files are opened together.
                 writer.write(
-                    "/camera/annotations", topics["/camera/annotations"], frame.log_time_ns,
+                    ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], frame.log_time_ns,
                     annotations_message(time_message(frame.log_time_ns), pixels),
                 )
                 bar.advance()
@@ -245,10 +245,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         )
         _write_signals(writer, topics, arrays, result)
         end_ns = int(arrays["log_time"][-1])
-        for topic, payload, k in (("/reference/image", reference_image, reference_index), ("/detector/template", template, 0)):
+        for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
-        writer.write("/fit/model", topics["/fit/model"], end_ns, checked_model_message(model, end_ns, reader.name))
+        writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)
 
@@ -534,7 +534,7 @@ def _write_signals(writer: Any, topics: dict[str, str], arrays: dict[str, np.nda
     log_time = arrays["log_time"]
     used = result["used"]
     for k in np.flatnonzero(used):
-        writer.write("/desired/raw", topics["/desired/raw"], int(log_time[k]), {
+        writer.write(RAW_DESIRED_TOPIC, topics[RAW_DESIRED_TOPIC], int(log_time[k]), {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(result["theta"][k]), "x_hd1": float(result["x_h"][k, 0]), "x_hd2": float(result["x_h"][k, 1]),
             "residual": float(result["residual"][k]),
@@ -542,7 +542,7 @@ def _write_signals(writer: Any, topics: dict[str, str], arrays: dict[str, np.nda
     span = result["span"]
     desired = result["trajectory"].evaluate(t[span])
     for j, k in enumerate(range(span.start, span.stop)):
-        writer.write("/desired/smooth", topics["/desired/smooth"], int(log_time[k]), {
+        writer.write(SMOOTH_DESIRED_TOPIC, topics[SMOOTH_DESIRED_TOPIC], int(log_time[k]), {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
             "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),

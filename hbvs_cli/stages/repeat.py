@@ -28,6 +28,7 @@ from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, TargetLostError, UsageError
 from .console import Console
 from .options import parse_offset
+from ..io.topics import CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
 
 #: Default actuator limits of the simulated robot (a small indoor platform).
 DEFAULT_MAX_V = 0.5
@@ -217,7 +218,6 @@ class _RunLog:
     """Writes the run file's per-step messages and the optional command stream."""
 
     def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None) -> None:
-        from ..io.schemas import TOPICS
 
         self.writer = writer
         self.topics = TOPICS["run"]
@@ -236,7 +236,7 @@ class _RunLog:
         from ..io.messages import log_message
 
         ns = seconds_to_ns(t)
-        self.writer.write("/repeat/events", self.topics["/repeat/events"], ns, log_message(time_message(ns), level, text))
+        self.writer.write(EVENTS_TOPIC, self.topics[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
 
     def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
         from ..io.mcap_io import seconds_to_ns, time_message
@@ -289,8 +289,8 @@ class _RunLog:
             "V": V,
         }
         message.update(self._filter_fields(record))
-        self.write_flat("/repeat/state", ns, message)
-        self.write_flat("/repeat/cmd_vel", ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
+        self.write_flat(STATE_TOPIC, ns, message)
+        self.write_flat(COMMAND_TOPIC, ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
@@ -455,7 +455,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
         with open_output(options.output) as writer:
             _note_truncated(writer, options, fit, console)
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
-            writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
+            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
             height = scene.world.camera_height
@@ -464,8 +464,8 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
                     log.step(record)
                     ns = seconds_to_ns(record.t)
                     stamp = time_message(ns)
-                    log.write_flat("/ground_truth/pose", ns, pose_message(stamp, record.pose, height), clean=False)
-                    log.write_flat("/desired/pose", ns, pose_message(stamp, taught_poses[k], height), clean=False)
+                    log.write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, record.pose, height), clean=False)
+                    log.write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, taught_poses[k], height), clean=False)
                     if options.record_images:
                         camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
                     tally.add(record, taught_poses[k])
@@ -593,7 +593,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
             writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
-            writer.write("/camera/calibration", "foxglove.CameraCalibration", 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
+            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
                 for frame, _, image in decoded_frames(reader.frames(), reader.name):

@@ -23,6 +23,7 @@ from ..core.frames import rotation_z
 from ..core.path import CommandProfile
 from ..core.world import Poster, Target, World
 from ..errors import UsageError
+from ..io.topics import ANNOTATIONS_TOPIC, IMAGE_TOPIC, TOPICS
 
 
 @dataclass
@@ -299,16 +300,15 @@ class SimulatedCamera:
         from ..io.images import bytes_to_store, write_compressed_image
         from ..io.mcap_io import time_message
         from ..io.messages import CAMERA_FRAME, annotations_message
-        from ..io.schemas import TOPICS
 
         image = self.last_image
         if image is None or self.perception != "images":
             image = self.renderer.render(record.pose, np.random.default_rng(0))
         stamp = time_message(ns)
         topics = TOPICS["run"]
-        write_compressed_image(writer, "/camera/image", ns, *bytes_to_store(image), CAMERA_FRAME)
+        write_compressed_image(writer, IMAGE_TOPIC, ns, *bytes_to_store(image), CAMERA_FRAME)
         label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
-        writer.write("/camera/annotations", topics["/camera/annotations"], ns, annotations_message(stamp, record.observation.pixels, desired_px, label))
+        writer.write(ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], ns, annotations_message(stamp, record.observation.pixels, desired_px, label))
 
 
 def world_point_identity(scene: Scene, model: Any) -> np.ndarray:

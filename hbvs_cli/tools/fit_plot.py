@@ -26,11 +26,11 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import RecordingError
+from ..io.topics import MODEL_TOPIC, TOPICS
+from ..io.topics import RAW_DESIRED_TOPIC as RAW_TOPIC
+from ..io.topics import SMOOTH_DESIRED_TOPIC as SMOOTH_TOPIC
 from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, new_figure, paper_rc, save_figure
 
-RAW_TOPIC = "/desired/raw"
-SMOOTH_TOPIC = "/desired/smooth"
-MODEL_TOPIC = "/fit/model"
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
 SMOOTH_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
@@ -70,7 +70,6 @@ def read_fit_signals(source: Any, name: str = "") -> FitSignals:
         Not a fit file, or one without desired signals.
     """
     from ..io.mcap_io import McapStream, read_metadata
-    from ..io.schemas import TOPICS
 
     stream = McapStream(source, topics={RAW_TOPIC, SMOOTH_TOPIC, MODEL_TOPIC}, schemas=TOPICS["fit"], name=name)
     messages: dict[str, list[dict[str, Any]]] = {RAW_TOPIC: [], SMOOTH_TOPIC: []}
