@@ -156,3 +156,48 @@ def test_each_baseline_tracks_with_the_true_depth(tmp_path, law):
     assert report["pose_error"]["position_m"]["final"] < 0.01
     assert report["pose_error"]["heading_deg"]["final"] < 0.5
     assert report["lyapunov"]["ratio"] < 0.01
+
+
+def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tmp_path, monkeypatch):
+    """Parts in completion order, a part written twice (a kill during a merge) and an earlier
+    runs.parquet merge into one sorted table, whatever the window."""
+    import random
+
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    from hbvs_cli.sweep import table as results
+
+    schema = pa.schema([pa.field("index", pa.int64()), pa.field("value", pa.float64()), pa.field("status", pa.string())])
+    rng = random.Random(7)
+    order = list(range(300))
+    # Runs finish out of order, but near their submission (a bounded number in flight).
+    for start in range(0, 300, 20):
+        block = order[start:start + 20]
+        rng.shuffle(block)
+        order[start:start + 20] = block
+    folder = tmp_path / "sweep"
+    first = results.ResultsTable(folder, schema, {"spec": 1}, flush_rows=16, flush_seconds=1e9)
+    for index in order[:150]:
+        first.append({"index": index, "value": index / 10, "status": "ok"})
+    assert first.finish() == 150
+    monkeypatch.setattr(results, "MERGE_WINDOW", 37)
+    second = results.ResultsTable(folder, schema, {"spec": 1}, flush_rows=16, flush_seconds=1e9)
+    assert second.done == set(order[:150])
+    for index in order[150:]:
+        second.append({"index": index, "value": index / 10, "status": "ok"})
+    second.flush()
+    # The same rows once more, as after a kill between the merge and the parts' removal.
+    repeated = folder / results.PARTS / "part-999999.parquet"
+    pq.write_table(pa.Table.from_pylist([{"index": i, "value": i / 10, "status": "ok"} for i in order[140:180]], schema=schema), repeated)
+    windows = list(results.merged_windows(folder, schema, window=37))
+    assert max(w.num_rows for w in windows) <= 37
+    assert second.finish() == 300
+    merged = pq.read_table(folder / results.PARQUET)
+    assert merged.column("index").to_pylist() == list(range(300))
+    assert merged.column("value").to_pylist() == [i / 10 for i in range(300)]
+    assert pq.ParquetFile(folder / results.PARQUET).metadata.num_row_groups > 1
+    csv = pacsv.read_csv(folder / results.CSV)
+    assert csv.column("index").to_pylist() == list(range(300))
+    assert not list((folder / results.PARTS).glob("*.parquet")) and not list(folder.rglob("*.partial"))

@@ -162,14 +162,14 @@ def finish(options: SweepOptions, table: Any, console: Console) -> None:
     """Merge the table, print the summary (stdout), draw the figures."""
     from ..tools.sweep_summary import print_summary, print_summary_json, summarize
 
-    merged = table.finish()
+    rows = table.finish()
     summary = summarize(Path(options.output))
     if options.json_output:
         print_summary_json(summary, sys.stdout)
     else:
         print_summary(summary, sys.stdout)
     sys.stdout.flush()
-    if options.plots and merged.num_rows:
+    if options.plots and rows:
         from ..tools.sweep_plots import save_sweep_plots
 
         for path in save_sweep_plots(Path(options.output)):

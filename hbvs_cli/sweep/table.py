@@ -21,7 +21,7 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 from ..errors import InputError, UsageError
 
@@ -64,13 +64,101 @@ def _csv_bytes(table: Any, header: bool) -> bytes:
     return buffer.getvalue()
 
 
-def _write_csv(table: Any, path: Path) -> None:
-    """The whole table as CSV, written batch by batch (no second copy of it in memory)."""
-    import pyarrow.csv as pacsv
+#: Run indices per window of the streamed merge: the rows in memory at once.
+MERGE_WINDOW = 1024
 
-    with pacsv.CSVWriter(str(path), table.schema) as writer:
-        for batch in table.to_batches(max_chunksize=4096):
-            writer.write_batch(batch)
+
+def _result_files(folder: Path) -> list[Path]:
+    return ([folder / PARQUET] if (folder / PARQUET).is_file() else []) + sorted((folder / PARTS).glob("part-*.parquet"))
+
+
+def _read_table(path: Path, **options: Any) -> Any:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        return pq.read_table(path, **options)
+    except (OSError, pa.ArrowException) as exc:
+        raise InputError(f"{path}: unreadable results ({exc})") from None
+
+
+def _sorted_unique(table: Any) -> Any:
+    """``table`` sorted by run index, one row per index (a part written again after a kill
+    during the final merge repeats some)."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    table = table.take(pc.sort_indices(table, [("index", "ascending")]))
+    index = table.column("index").to_numpy()
+    if index.size > 1:
+        keep = np.concatenate([[True], index[1:] != index[:-1]])
+        if not keep.all():
+            table = table.filter(pa.array(keep))
+    return table
+
+
+def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iterator[Any]:
+    """The rows of ``runs.parquet`` and the parts, sorted by run index, in tables of at most
+    ``window`` consecutive indices.
+
+    Only one window's rows are in memory at a time (plus every file's index column), so
+    the merge of a 100 000-run sweep takes the memory of a few thousand rows. A part holds
+    the runs that finished together, so its indices are close and it is read for one or two
+    windows; ``runs.parquet`` is sorted and written in row groups of one window, which the
+    reader's statistics skip.
+    """
+    window = window or MERGE_WINDOW
+    spans = []
+    for path in _result_files(folder):
+        index = _read_table(path, columns=["index"]).column("index").to_numpy()
+        if index.size:
+            spans.append((path, int(index.min()), int(index.max())))
+    if not spans:
+        return
+    low = min(span[1] for span in spans)
+    high = max(span[2] for span in spans)
+    for start in range(low, high + 1, window):
+        stop = start + window
+        pieces = [
+            _read_table(path, filters=[("index", ">=", start), ("index", "<", stop)]).cast(schema)
+            for path, first, last in spans if first < stop and last >= start
+        ]
+        if pieces:
+            import pyarrow as pa
+
+            table = _sorted_unique(pa.concat_tables(pieces))
+            if table.num_rows:
+                yield table
+
+
+def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> int:
+    """Stream the merged rows into ``csv`` (and ``parquet`` when given); returns the row count."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    rows = 0
+    parquet_writer = pq.ParquetWriter(str(parquet), schema) if parquet is not None else None
+    try:
+        with pacsv.CSVWriter(str(csv), schema) as csv_writer:
+            for table in merged_windows(folder, schema):
+                rows += table.num_rows
+                if parquet_writer is not None:
+                    parquet_writer.write_table(table, row_group_size=MERGE_WINDOW)
+                for batch in table.to_batches(max_chunksize=MERGE_WINDOW):
+                    csv_writer.write_batch(batch)
+    finally:
+        if parquet_writer is not None:
+            parquet_writer.close()
+    return rows
+
+
+def done_indices(folder: Path) -> set[int]:
+    """Run indices with a row in ``runs.parquet`` or a part (only the index column is read)."""
+    done: set[int] = set()
+    for path in _result_files(folder):
+        done.update(_read_table(path, columns=["index"]).column("index").to_pylist())
+    return done
 
 
 def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
@@ -82,35 +170,17 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
         Not a sweep's results folder.
     """
     import pyarrow as pa
-    import pyarrow.compute as pc
-    import pyarrow.parquet as pq
 
     folder = Path(folder)
     if not (folder / SPEC_FILE).is_file():
         raise InputError(f"{folder}: not the results folder of hbvs sweep (no {SPEC_FILE})")
     wanted = None if columns is None else list(dict.fromkeys(["index", *columns]))
-    pieces = []
-    files = ([folder / PARQUET] if (folder / PARQUET).is_file() else []) + sorted((folder / PARTS).glob("part-*.parquet"))
-    for path in files:
-        try:
-            pieces.append(pq.read_table(path, columns=wanted))
-        except (OSError, pa.ArrowException) as exc:
-            raise InputError(f"{path}: unreadable results ({exc})") from None
+    pieces = [_read_table(path, columns=wanted) for path in _result_files(folder)]
     if not pieces:
         schema = json.loads((folder / SPEC_FILE).read_text())["schema"]
         return pa.schema([pa.field(n, pa.type_for_alias(t)) for n, t in schema.items()]).empty_table() if wanted is None else \
             pa.table({n: pa.array([], pa.type_for_alias(schema[n])) for n in wanted})
-    table = pa.concat_tables(pieces, promote_options="default")
-    table = table.take(pc.sort_indices(table, [("index", "ascending")]))
-    # A part written again after a kill during the final merge repeats some indices.
-    index = table.column("index").to_numpy()
-    if index.size > 1:
-        import numpy as np
-
-        keep = np.concatenate([[True], index[1:] != index[:-1]])
-        if not keep.all():
-            table = table.filter(pa.array(keep))
-    return table
+    return _sorted_unique(pa.concat_tables(pieces, promote_options="default"))
 
 
 class ResultsTable:
@@ -160,9 +230,8 @@ class ResultsTable:
         for stray in self.folder.rglob("*.partial"):
             stray.unlink()
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
-        done = read_rows(self.folder)
-        _replace(self.folder / CSV, lambda p: _write_csv(done.cast(self.schema) if done.num_rows else self.schema.empty_table(), p))
-        self._done = set(done.column("index").to_pylist())
+        _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
+        self._done = done_indices(self.folder)
 
     @property
     def done(self) -> set[int]:
@@ -198,20 +267,21 @@ class ResultsTable:
         """After an interruption: write the waiting rows, and make the CSV hold exactly the
         Parquet rows (the signal may have cut a flush between the two)."""
         self.flush()
-        done = read_rows(self.folder)
-        _replace(self.folder / CSV, lambda p: _write_csv(done.cast(self.schema), p))
+        _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
 
-    def finish(self) -> Any:
-        """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index."""
-        import pyarrow.parquet as pq
-
+    def finish(self) -> int:
+        """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index, in a
+        streamed merge (:func:`merged_windows`); returns the number of rows."""
         self.flush()
-        table = read_rows(self.folder).cast(self.schema)
-        _replace(self.folder / PARQUET, lambda p: pq.write_table(table, p))
-        _replace(self.folder / CSV, lambda p: _write_csv(table, p))
+        merged = self.folder / (PARQUET + ".merged.partial")
+        csv_partial = self.folder / (CSV + ".partial")
+        rows = write_merged(self.folder, self.schema, merged, csv_partial)
+        # The merged file replaces runs.parquet only now: until here the rows were read from it.
+        os.replace(merged, self.folder / PARQUET)
+        os.replace(csv_partial, self.folder / CSV)
         for part in (self.folder / PARTS).glob("part-*.parquet"):
             part.unlink()
-        return table
+        return rows
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:
