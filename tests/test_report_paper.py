@@ -22,7 +22,7 @@ from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console, ProgressTask
 from hbvs_cli.tools.figure_style import PALETTE
 
-from conftest import run_hbvs
+from conftest import call_hbvs, run_hbvs
 
 #: The occlusion (s) and the drop rate of the fault runs.
 OCCLUSION = (0.5, 7.5)
@@ -71,7 +71,7 @@ def runs(tmp_path_factory) -> dict:
 
 
 def report_json(*args) -> tuple[dict, object]:
-    result = run_hbvs("report", *map(str, args), "--json")
+    result = call_hbvs("report", *map(str, args), "--json")
     return json.loads(result.stdout), result
 
 
@@ -117,25 +117,25 @@ def test_a_long_occlusion_with_dropped_frames_still_stops_the_run(runs):
 def test_require_converged_sets_the_exit_code(runs):
     run = runs["paths"]["run"]
     loose = ["--tolerance", "position_m=0.05", "--tolerance", "heading_deg=0.5"]
-    passed = run_hbvs("report", str(run), "--json", "--require-converged", *loose)
+    passed = call_hbvs("report", str(run), "--json", "--require-converged", *loose)
     assert passed.returncode == 0 and passed.stderr == b""
     assert json.loads(passed.stdout)["verdict"]["converged"] is True
     # The case: a tight tolerance turns the verdict to "no", and now the exit code too.
-    tight = run_hbvs("report", str(run), "--json", "--require-converged", "--tolerance", "position_m=0.0001")
+    tight = call_hbvs("report", str(run), "--json", "--require-converged", "--tolerance", "position_m=0.0001")
     assert tight.returncode == 1
     assert json.loads(tight.stdout)["verdict"]["converged"] is False              # the report is still printed
     lines = tight.stderr.decode().strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("hbvs: warning: not converged:") and "final position error" in lines[0]
-    without = run_hbvs("report", str(run), "--json", "--tolerance", "position_m=0.0001")
+    without = call_hbvs("report", str(run), "--json", "--tolerance", "position_m=0.0001")
     assert without.returncode == 0                                                 # only when asked
-    several = run_hbvs("report", str(run), str(runs["paths"]["faults"]), "--require-converged", *loose)
+    several = call_hbvs("report", str(run), str(runs["paths"]["faults"]), "--require-converged", *loose)
     assert several.returncode == 1
     lines = several.stderr.decode().strip().splitlines()
     assert len(lines) == 1 and "faults.mcap" in lines[0]
 
 
 def test_a_comparison_names_its_checks(runs):
-    result = run_hbvs("report", str(runs["paths"]["run"]), str(runs["paths"]["replay"]))
+    result = call_hbvs("report", str(runs["paths"]["run"]), str(runs["paths"]["replay"]))
     assert result.returncode == 0
     block = next(b for b in result.stdout.decode().split("\n\n") if b.startswith("verdict"))
     rows = {re.split(r"\s{2,}", line.strip())[0]: re.split(r"\s{2,}", line.strip())[1:] for line in block.splitlines()[1:]}
@@ -156,7 +156,7 @@ def _significant_digits(literal: str) -> int:
 
 
 def test_json_numbers_are_rounded(runs):
-    result = run_hbvs("report", str(runs["paths"]["run"]), str(runs["paths"]["faults"]), "--json")
+    result = call_hbvs("report", str(runs["paths"]["run"]), str(runs["paths"]["faults"]), "--json")
     text = result.stdout.decode()
     floats = re.findall(r"(?<![\w.])-?\d+\.\d+(?:[eE][-+]?\d+)?", text)
     assert len(floats) > 50
@@ -201,7 +201,7 @@ def test_fit_file_report_and_misuse(runs, tmp_path):
     run = read_run(runs["paths"]["run"])
     assert summary["x_hd1_dot"]["min_abs"] == pytest.approx(run.info["condition35"]["min_abs_xhd1_dot"], rel=1e-3)
     for bad in (["--require-converged"], ["--fail-above", "frames_raw=1"], [str(runs["paths"]["run"])]):
-        misuse = run_hbvs("report", str(fit), *bad)
+        misuse = call_hbvs("report", str(fit), *bad)
         assert misuse.returncode == 2 and misuse.stdout == b"", bad
         assert len(misuse.stderr.decode().strip().splitlines()) == 1
 
@@ -350,13 +350,13 @@ def test_figure_options_and_formats(runs, tmp_path):
 
     run = str(runs["paths"]["run"])
     png = tmp_path / "one-column.png"
-    result = run_hbvs("report", run, "--plot", str(png), "--size", "3.5x6", "--dpi", "100", "--json")
+    result = call_hbvs("report", run, "--plot", str(png), "--size", "3.5x6", "--dpi", "100", "--json")
     assert result.returncode == 0, result.stderr.decode()
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and tuple(int.from_bytes(data[o:o + 4], "big") for o in (16, 20)) == (350, 600)
     for suffix, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
         path = tmp_path / f"figure{suffix}"
-        result = run_hbvs("report", run, str(runs["paths"]["paper"]), "--plot", str(path), "--label", "a", "--label", "b")
+        result = call_hbvs("report", run, str(runs["paths"]["paper"]), "--plot", str(path), "--label", "a", "--label", "b")
         assert result.returncode == 0, result.stderr.decode()
         assert path.read_bytes()[:len(magic)] == magic
     assert b"Lyapunov function" in (tmp_path / "figure.svg").read_bytes()     # text stays text
@@ -366,12 +366,12 @@ def test_figure_options_and_formats(runs, tmp_path):
                          (["--plot", str(tmp_path / "x.png"), "--size", "huge"], "WIDTHxHEIGHT"),
                          (["--dpi", "300"], "give --plot"),
                          (["--label", "only-one", str(runs["paths"]["paper"])], "one per run")):
-        result = run_hbvs("report", run, *bad)
+        result = call_hbvs("report", run, *bad)
         assert result.returncode == 2 and result.stdout == b"", bad
         lines = result.stderr.decode().strip().splitlines()
         assert len(lines) == 1 and message in lines[0], (bad, lines)
     assert parse_size("7x4.5") == (7.0, 4.5)
-    help_text = run_hbvs("report", "--help").stdout.decode()
+    help_text = call_hbvs("report", "--help").stdout.decode()
     assert ".pdf" in help_text and ".svg" in help_text and "--require-converged" in help_text
 
 
@@ -390,7 +390,7 @@ def test_fit_figure_panels(runs, tmp_path):
     assert "Remark 1" in axes["theta_d"].get_title(loc="left") and "(35)" in axes["x_hd1_dot"].get_title(loc="left")
     assert axes["theta_d"].get_ylabel().endswith("(deg)") and axes["x_hd1_dot"].get_ylabel().endswith("(1/s)")
     path = tmp_path / "fit.png"
-    result = run_hbvs("report", str(runs["paths"]["fit"]), "--plot", str(path), "--panels", "theta_d,x_hd1_dot")
+    result = call_hbvs("report", str(runs["paths"]["fit"]), "--plot", str(path), "--panels", "theta_d,x_hd1_dot")
     assert result.returncode == 0, result.stderr.decode()
     assert path.stat().st_size > 10_000
 

@@ -18,7 +18,7 @@ from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
 from hbvs_cli.tools.report_data import REPORT_KEYS, build_report
 
-from conftest import run_hbvs
+from conftest import call_hbvs, run_hbvs
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -140,7 +140,7 @@ def test_a_run_stopped_for_a_lost_target_did_not_converge(runs):
 
 # ----------------------------------------------------------------------------- table
 def test_plain_table_matches_the_json(runs):
-    result = run_hbvs("report", str(runs["run"]))
+    result = call_hbvs("report", str(runs["run"]))
     assert result.returncode == 0 and result.stderr == b""
     text = result.stdout.decode()
     assert "\x1b[" not in text and not set(text) & set("─━│┃┏┓└┘")
@@ -172,7 +172,7 @@ def test_plain_table_matches_the_json(runs):
 
 
 def test_comparison_prints_both_runs_side_by_side(runs):
-    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]))
+    result = call_hbvs("report", str(runs["run"]), str(runs["paper"]))
     assert result.returncode == 0
     tables = parse_tables(result.stdout.decode())
     assert tables["run"][0] == ["quantity", "lateral-gain", "paper"]
@@ -193,10 +193,10 @@ def test_comparison_prints_both_runs_side_by_side(runs):
 def test_fail_above_passes_fails_and_rejects_bad_keys(runs):
     value = report_json(runs["run"])["pose_error"]["position_m"]["final"]
     key = "pose_error.position_m.final"
-    above = run_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 1.01}")
+    above = call_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 1.01}")
     assert above.returncode == 0 and above.stderr == b""
     json.loads(above.stdout)
-    below = run_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 0.99}")
+    below = call_hbvs("report", str(runs["run"]), "--json", "--fail-above", f"{key}={value * 0.99}")
     assert below.returncode == 1
     json.loads(below.stdout)                                   # the report is still printed
     lines = below.stderr.decode().strip().splitlines()
@@ -207,7 +207,7 @@ def test_fail_above_passes_fails_and_rejects_bad_keys(runs):
         ("errors.e1.final", "NAME=VALUE"),
         ("errors.e1.final=abc", "NAME=VALUE"),
     ):
-        result = run_hbvs("report", str(runs["run"]), "--fail-above", bad)
+        result = call_hbvs("report", str(runs["run"]), "--fail-above", bad)
         assert result.returncode == 2, bad
         assert result.stdout == b""                            # checked before printing
         stderr = result.stderr.decode().strip().splitlines()
@@ -215,9 +215,9 @@ def test_fail_above_passes_fails_and_rejects_bad_keys(runs):
 
 
 def test_fail_above_on_null_or_absent_values_is_a_usage_error(runs):
-    null = run_hbvs("report", str(runs["replay"]), "--fail-above", "lyapunov.final=1")
+    null = call_hbvs("report", str(runs["replay"]), "--fail-above", "lyapunov.final=1")
     assert null.returncode == 2 and b"null" in null.stderr
-    absent = run_hbvs("report", str(runs["replay"]), "--fail-above", "pose_error.position_m.final=1")
+    absent = call_hbvs("report", str(runs["replay"]), "--fail-above", "pose_error.position_m.final=1")
     assert absent.returncode == 2 and b"no key 'pose_error'" in absent.stderr
 
 
@@ -225,7 +225,7 @@ def test_fail_above_applies_to_every_run(runs):
     reports = report_json(runs["run"], runs["paper"])["runs"]
     finals = [r["errors"]["e3"]["final"] for r in reports]
     bound = 0.5 * (min(finals) + max(finals))
-    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--fail-above", f"errors.e3.final={bound}")
+    result = call_hbvs("report", str(runs["run"]), str(runs["paper"]), "--fail-above", f"errors.e3.final={bound}")
     assert result.returncode == 1
     assert len(result.stderr.decode().strip().splitlines()) == 1
 
@@ -235,7 +235,7 @@ def test_tolerance_option(runs):
     assert loose["pose_error"]["position_m"]["settling_time_s"] is not None
     assert any(r.startswith("pass: final position error") for r in loose["verdict"]["reasons"])
     for bad in ("position=1", "e1=0", "e1"):
-        result = run_hbvs("report", str(runs["run"]), "--tolerance", bad)
+        result = call_hbvs("report", str(runs["run"]), "--tolerance", bad)
         assert result.returncode == 2 and result.stdout == b"", bad
 
 
@@ -250,7 +250,7 @@ def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
     import matplotlib.image
 
     path = tmp_path / "figure.png"
-    result = run_hbvs("report", str(runs["run"]), str(runs["paper"]), "--json", "--plot", str(path))
+    result = call_hbvs("report", str(runs["run"]), str(runs["paper"]), "--json", "--plot", str(path))
     assert result.returncode == 0, result.stderr.decode()
     json.loads(result.stdout)
     width, height = png_size(path)
@@ -294,7 +294,7 @@ def test_replay_figure_says_what_is_missing(runs):
 
 # ----------------------------------------------------------------------------- TUM
 def test_export_tum_parses_back_to_the_poses(runs, tmp_path):
-    result = run_hbvs("report", str(runs["run"]), "--json", "--export-tum", str(tmp_path / "tum"))
+    result = call_hbvs("report", str(runs["run"]), "--json", "--export-tum", str(tmp_path / "tum"))
     assert result.returncode == 0, result.stderr.decode()
     run = read_run(runs["run"])
     for suffix, poses in (("taught", run.desired_pose), ("repeated", run.true_pose)):
@@ -310,7 +310,7 @@ def test_export_tum_parses_back_to_the_poses(runs, tmp_path):
 
 
 def test_export_tum_needs_ground_truth(runs, tmp_path):
-    result = run_hbvs("report", str(runs["replay"]), "--export-tum", str(tmp_path / "tum"))
+    result = call_hbvs("report", str(runs["replay"]), "--export-tum", str(tmp_path / "tum"))
     assert result.returncode == 2 and b"ground-truth" in result.stderr and result.stdout == b""
     assert not (tmp_path / "tum").exists()
 
@@ -320,7 +320,7 @@ def test_bad_input_exits_3_with_one_line(runs, tmp_path):
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
     for path, message in ((runs["teach"], b"'teach' file"), (junk, b"not an MCAP file"), (tmp_path / "missing.mcap", b"no such file")):
-        result = run_hbvs("report", str(path))
+        result = call_hbvs("report", str(path))
         assert result.returncode == 3, path
         assert result.stdout == b""
         lines = result.stderr.decode().strip().splitlines()
