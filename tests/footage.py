@@ -422,6 +422,9 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
     if name == "black_dots_distorted":
         camera = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
         return dots_wall("black5"), camera, Effects(exposure_s=0.06, blur_samples=3, jpeg_quality=85)
+    if name == "noisy_dots":
+        # Low light at high gain: 20 gray levels of sensor noise, then MJPG.
+        return dots_wall("black5"), plain, Effects(noise=20.0)
     if name == "aruco_6x6":
         return marker_wall("DICT_6X6_250", 23), plain, Effects()
     if name == "apriltag_36h11":
@@ -432,7 +435,7 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
 
 
 CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
-EXPECTED_KIND = {"bright_dots": "dots", "red_dots": "dots", "black_dots_distorted": "dots",
+EXPECTED_KIND = {"noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "black_dots_distorted": "dots",
                  "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}
 
 

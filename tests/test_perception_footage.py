@@ -59,14 +59,21 @@ def fitted(tmp_path_factory):
 
 
 
-@pytest.mark.parametrize("name", ["bright_dots", "red_dots", "black_dots_distorted"])
+#: Black dots under 20 gray levels of sensor noise (low light at high gain), beyond the
+#: issue's rows: before the detector smoothed noisy windows, --target auto picked texture
+#: and the target was missing from 57 % of the frames. Measured: theta_d 0.149 deg,
+#: x_hd1 2.4e-4, n* 0.66 deg.
+NOISY_DOT_BOUNDS = {"theta_deg": 0.2, "x_hd1": 2e-3, "normal_deg": 1.0}
+
+
+@pytest.mark.parametrize("name", ["bright_dots", "red_dots", "black_dots_distorted", "noisy_dots"])
 def test_dot_targets_fit_within_the_issue_bounds(fitted, name, capsys):
     row = fitted(name)
     with capsys.disabled():
         print(f"\n{name}: {row['errors']}")
     assert row["model"].target_kind == "dots"
     assert "--target auto picked dots" in row["stderr"]
-    for key, bound in DOT_BOUNDS.items():
+    for key, bound in (NOISY_DOT_BOUNDS if name == "noisy_dots" else DOT_BOUNDS).items():
         assert row["errors"][key] <= bound, (name, key, row["errors"][key])
 
 
