@@ -6,13 +6,9 @@ import numpy as np
 import pytest
 
 from hbvs_cli.core.camera import DEFAULT_CAMERA, pixels_to_normalized
-from hbvs_cli.core.decomposition import (
-    KnownNormalSolver,
-    decompose_homography,
-    decompose_homography_single,
-    estimate_common_normal,
-    homography_candidates,
-)
+from hbvs_cli.core.decomposition import decompose_homography, decompose_homography_single, homography_candidates
+from hbvs_cli.core.known_normal import KnownNormalSolver
+from hbvs_cli.core.plane import estimate_common_normal
 from hbvs_cli.core.frames import rotation_z
 from hbvs_cli.core.homography import estimate_euclidean_homography
 from hbvs_cli.errors import GeometryError, NoValidBranchError

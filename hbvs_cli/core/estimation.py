@@ -2,7 +2,7 @@
 
 Once the reference points m*_i and the plane normal n* are known (``hbvs fit`` estimates
 them from the teach run), every frame is handled the same way: undistort, normalise (11),
-solve the known-normal linear system (:func:`~hbvs_cli.core.decomposition.KnownNormalSolver`)
+solve the known-normal linear system (:class:`~hbvs_cli.core.known_normal.KnownNormalSolver`)
 and reject the frame when its residual shows that the points do not fit one plane seen
 under planar motion (an outlier, a swapped identity, a wrong detection).
 """
@@ -16,7 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .camera import CameraIntrinsics, pixels_to_normalized, undistort_pixels
 from .controller import Measurement
-from .decomposition import KnownNormalSolver, PlanarMotion
+from .decomposition import PlanarMotion
+from .known_normal import KnownNormalSolver
 
 #: Default gate on the known-normal residual (normalised units): 0.004 is 2 px at f = 500,
 #: far above what 0.5 px of noise gives, far below what one swapped or spurious point gives.

@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
 from .controller import Measurement
+from .known_normal import point_jacobian
 
 #: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
 FILTER_NONE = "none"
@@ -196,19 +197,11 @@ def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float
     ndarray, shape (3, 3)
     """
     theta, x1, x2 = (float(s) for s in state)
-    y_ref, z_ref = m_ref[:, 1], m_ref[:, 2]
     g = m_ref @ normal
-    c, s = math.cos(theta), math.sin(theta)
-    q0 = c - s * y_ref + x1 * g
-    q1 = s + c * y_ref + x2 * g
-    dq0 = -s - c * y_ref
-    dq1 = c - s * y_ref
-    inv = 1.0 / q0
-    inv2 = inv * inv
-    zeros = np.zeros_like(g)
+    _, _, _, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(math.cos(theta), math.sin(theta), m_ref[:, 1], m_ref[:, 2], g, x1, x2)
     jacobian = np.concatenate([
-        np.stack([(dq1 * q0 - q1 * dq0) * inv2, -q1 * g * inv2, g * inv], axis=1),
-        np.stack([-z_ref * dq0 * inv2, -z_ref * g * inv2, zeros], axis=1),
+        np.stack([jy_t, jy_1, jy_2], axis=1),
+        np.stack([jz_t, jz_1, np.zeros_like(g)], axis=1),
     ])
     return jacobian.T @ jacobian
 
@@ -262,16 +255,7 @@ def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], 
     c, s = math.cos(theta), math.sin(theta)
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
     for yr, zr, gi in zip(y_ref, z_ref, g):
-        q0 = c - s * yr + x1 * gi
-        q1 = s + c * yr + x2 * gi
-        dq0 = -s - c * yr
-        inv = 1.0 / q0
-        inv2 = inv * inv
-        jy_t = ((c - s * yr) * q0 - q1 * dq0) * inv2
-        jy_1 = -q1 * gi * inv2
-        jy_2 = gi * inv
-        jz_t = -zr * dq0 * inv2
-        jz_1 = -zr * gi * inv2
+        _, _, _, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(c, s, yr, zr, gi, x1, x2)
         a00 += jy_t * jy_t + jz_t * jz_t
         a01 += jy_t * jy_1 + jz_t * jz_1
         a02 += jy_t * jy_2

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from ..core.camera import CameraIntrinsics, normalized_to_pixels, pixels_to_normalized, undistort_pixels
-from ..core.decomposition import REFINEMENT_FRAMES, KnownNormalSolver, estimate_common_normal, refine_plane_and_reference
+from ..core.known_normal import KnownNormalSolver
+from ..core.plane import REFINEMENT_FRAMES, estimate_common_normal, refine_plane_and_reference
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.estimation import DEFAULT_RESIDUAL_GATE
 from ..core.homography import estimate_euclidean_homography, validate_reference_points
