@@ -10,11 +10,12 @@ under planar motion (an outlier, a swapped identity, a wrong detection).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .camera import CameraIntrinsics, pixels_to_normalized, undistort_pixels
+from .camera import CameraIntrinsics, measured_pixels_to_normalized, pixels_to_normalized_floats, undistort_pixels
 from .controller import Measurement
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
@@ -22,6 +23,12 @@ from .known_normal import KnownNormalSolver
 #: Default gate on the known-normal residual (normalised units): 0.004 is 2 px at f = 500,
 #: far above what 0.5 px of noise gives, far below what one swapped or spurious point gives.
 DEFAULT_RESIDUAL_GATE = 0.004
+
+
+def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> Any:
+    """True where a known-normal residual (normalised units; float or array) passes the
+    outlier gate; NaN (not solved) never does."""
+    return residual <= gate
 
 
 #: Observation statuses: a measurement, a frame that never arrived, or why there is none.
@@ -90,10 +97,7 @@ class PlanarPoseEstimator:
 
     def normalize(self, pixels: ArrayLike) -> NDArray[np.float64]:
         """Undistorted, normalised points ``[1, m_y, m_z]`` of pixels, shape (N, 3)."""
-        pixels = np.asarray(pixels, dtype=float)
-        if np.all(np.isfinite(pixels)):
-            pixels = undistort_pixels(self.camera, pixels)
-        return pixels_to_normalized(self.camera, pixels)
+        return measured_pixels_to_normalized(self.camera, pixels)
 
     def solve(self, m: ArrayLike) -> PlanarMotion:
         """Batch solve for normalised points of shape (..., N, 3)."""
@@ -108,11 +112,7 @@ class PlanarPoseEstimator:
             return Observation(None, status=STATUS_MISSING, pixels=pixels if pixels.ndim == 2 else None)
         if self.camera.has_distortion:
             pixels = undistort_pixels(self.camera, pixels)
-        camera = self.camera
-        # (11) in plain floats: one frame of a few points is faster without numpy.
-        m_y = [(camera.cx - u) / camera.fx for u in pixels[:, 0].tolist()]
-        m_z = [(camera.cy - v) / camera.fy for v in pixels[:, 1].tolist()]
-        return self._observe(self.solver.solve_one(m_y, m_z), pixels)
+        return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
 
     def from_normalized(self, m: ArrayLike) -> Observation:
         """Estimate from normalised points of shape (N, 3)."""
@@ -123,6 +123,6 @@ class PlanarPoseEstimator:
         if solution is None:
             return Observation(None, status=STATUS_INVALID, pixels=pixels)
         theta, x_h1, x_h2, residual = solution
-        if not residual <= self.residual_gate:
+        if not within_residual_gate(residual, self.residual_gate):
             return Observation(None, residual, STATUS_OUTLIER, pixels)
         return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, STATUS_OK, pixels)

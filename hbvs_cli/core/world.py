@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, PointAtCameraHeightError, UsageError
-from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points
+from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points, normalized_to_pixels
 from .frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
@@ -145,11 +145,8 @@ class World:
 
     def pixels(self, pose: ArrayLike) -> NDArray[np.float64]:
         """Ideal pinhole pixels of the target points from ``pose``, shape (N, 2)."""
-        m_bar = self.points_in_camera(pose)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = self.camera.cx - self.camera.fx * m_bar[:, 1] / m_bar[:, 0]
-            v = self.camera.cy - self.camera.fy * m_bar[:, 2] / m_bar[:, 0]
-        return np.stack([u, v], axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a point in the camera's plane
+            return normalized_to_pixels(self.camera, self.points_in_camera(pose))
 
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
         """True when every target point is in front of the camera and inside the image."""
