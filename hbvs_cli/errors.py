@@ -2,7 +2,10 @@
 
 Every error a user can cause (a bad file, a degenerate target, a lost target) is an
 :class:`HbvsError`. The CLI prints its message as one line on stderr and exits with its
-``exit_code``; anything else that escapes is a bug and is reported as such.
+exit code; anything else that escapes is a bug and is reported as such. The errors of the
+I/O edge and the stages carry their ``exit_code``; the pure core raises domain errors
+(:class:`DomainError`: a bad value, malformed or too little data, degenerate geometry),
+which the CLI maps (``hbvs_cli/cli/exit_codes.py``) to the code of the same kind below.
 
 Exit codes
 ----------

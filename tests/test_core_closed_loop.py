@@ -203,15 +203,15 @@ def test_control_law_matches_hand_computation():
 
 
 def test_gains_and_laws_are_validated():
-    from hbvs_cli.errors import UsageError
+    from hbvs_cli.errors import InvalidValueError
 
     assert ControllerGains().with_law("paper").k_2 == 1.0
     assert ControllerGains().with_law("paper").law == "paper"
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         ControllerGains(k_v=-1.0)
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         ControllerGains().with_law("pid")
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         AdaptiveTrackingController(ControllerGains(), dhat0=0.0)
 
 

@@ -27,7 +27,8 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
+from ..errors import InvalidValueError
+from .depth import check_depth
 from .frames import wrap_angle
 
 #: Names of the two laws hbvs implements.
@@ -78,7 +79,7 @@ class ControllerGains:
             value = getattr(self, name)
             # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
             if not np.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
-                raise UsageError(f"gain {name} must be a positive number, got {value}")
+                raise InvalidValueError(f"gain {name} must be a positive number, got {value}")
 
     @property
     def law(self) -> str:
@@ -95,7 +96,7 @@ class ControllerGains:
             return replace(self, k_2=1.0)
         if law == LAW_LATERAL_GAIN:
             return self
-        raise UsageError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
+        raise InvalidValueError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
 
 
 @dataclass(frozen=True)
@@ -256,10 +257,8 @@ class AdaptiveTrackingController:
     """
 
     def __init__(self, gains: ControllerGains, dhat0: float) -> None:
-        if not np.isfinite(dhat0) or dhat0 <= 0.0:
-            raise UsageError(f"the initial depth estimate dhat0 must be positive, got {dhat0}")
         self.gains = gains
-        self.dhat = float(dhat0)
+        self.dhat = check_depth(dhat0, "the initial depth estimate dhat0")
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
         """Commands for this instant; advances dhat by ``dt`` seconds unless ``adapt`` is

@@ -25,7 +25,7 @@ from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
 from .plane import REFINEMENT_FRAMES, estimate_common_normal, refine_plane_and_reference
-from .trajectory import FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
+from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A normal-estimation margin below this means the path did not tell the branches apart.
 AMBIGUOUS_NORMAL_MARGIN = 1e-3
@@ -41,9 +41,6 @@ AMBIGUOUS_NORMAL_WARNING = (
 #: the cost of generalised cross-validation grows with the sample count).
 MAX_SPLINE_SAMPLES = 3000
 
-#: Frames with the target in them that a fit needs at least.
-MIN_USED_FRAMES = 5
-
 #: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
 #: fit file older than the interval it records): 30 Hz, the rate ``teach`` records at.
 DEFAULT_FRAME_INTERVAL = 1.0 / 30.0
@@ -55,9 +52,14 @@ def frame_interval(t: ArrayLike) -> float | None:
     return float(np.median(np.diff(t))) if t.size > 1 else None
 
 
-def taught_frame_interval(interval: float | None) -> float:
-    """The taught run's frame interval (s): the one recorded, else :data:`DEFAULT_FRAME_INTERVAL`."""
-    return float(interval or DEFAULT_FRAME_INTERVAL)
+def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = None) -> float:
+    """The taught run's frame interval (s): from its frame times ``t`` when there are two or
+    more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
+    :data:`DEFAULT_FRAME_INTERVAL`."""
+    interval = frame_interval(t) if t is not None else None
+    if interval is not None:
+        return interval
+    return float(recorded or DEFAULT_FRAME_INTERVAL)
 
 
 @dataclass(frozen=True)
@@ -214,7 +216,7 @@ def fit_desired_trajectory(
     ------
     InsufficientDataError
         The target is in no frame, not in the reference frame, in fewer than
-        :data:`MIN_USED_FRAMES` frames, or missing from more than ``max_lost`` of them or
+        :data:`MIN_SAMPLES` frames, or missing from more than ``max_lost`` of them or
         for longer than ``max_gap``; ``facts`` holds the numbers.
     GeometryError
         Degenerate reference points.
@@ -288,9 +290,9 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
     """Which frames are used, and whether they are enough (see :func:`fit_desired_trajectory`)."""
     total = int(used.size)
     n_used = int(used.sum())
-    if n_used < MIN_USED_FRAMES:
+    if n_used < MIN_SAMPLES:
         raise InsufficientDataError(
-            f"the target was found in only {n_used} of {total} frames; at least {MIN_USED_FRAMES} are needed",
+            f"the target was found in only {n_used} of {total} frames; at least {MIN_SAMPLES} are needed",
             reason="too_few", used=n_used, total=total,
         )
     lost_fraction = 1.0 - n_used / total

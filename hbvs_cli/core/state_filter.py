@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
+from ..errors import InvalidValueError
 from .controller import Measurement
 from .known_normal import point_jacobian
 
@@ -116,9 +116,9 @@ class FilterSettings:
         for name in ("speed_noise", "turn_noise", "depth_uncertainty", "noise_time_constant", "min_noise", "gate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
-                raise UsageError(f"filter setting {name} must be a non-negative number, got {value}")
+                raise InvalidValueError(f"filter setting {name} must be a non-negative number, got {value}")
         if self.reset_after < 1:
-            raise UsageError("filter setting reset_after must be at least 1")
+            raise InvalidValueError("filter setting reset_after must be at least 1")
 
 
 @dataclass(frozen=True)
@@ -285,7 +285,7 @@ class ServoStateFilter:
         self.normal = np.asarray(normal, dtype=float)
         self.settings = settings or FilterSettings()
         if not (math.isfinite(noise) and noise >= 0.0):
-            raise UsageError(f"the initial measurement noise must be a non-negative number, got {noise}")
+            raise InvalidValueError(f"the initial measurement noise must be a non-negative number, got {noise}")
         points = self.m_ref.shape[0]
         self._y_ref = self.m_ref[:, 1].tolist()
         self._z_ref = self.m_ref[:, 2].tolist()
