@@ -10,6 +10,7 @@ under planar motion (an outlier, a swapped identity, a wrong detection).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -31,13 +32,36 @@ def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> 
     return residual <= gate
 
 
-#: Observation statuses: a measurement, a frame that never arrived, or why there is none.
-STATUS_OK = "ok"
-STATUS_DROPPED = "dropped"
-STATUS_MISSING = "missing"
-STATUS_INVALID = "invalid"
-STATUS_OUTLIER = "outlier"
-STATUS_OCCLUDED = "occluded"
+class ObservationStatus(str, Enum):
+    """What a camera frame gave: a measurement, nothing (the frame never arrived), or why
+    the target was lost. The values are the words run files record (``lost_reason``)."""
+
+    OK = "ok"
+    #: No frame arrived: the last command is held; the target is not lost.
+    DROPPED = "dropped"
+    #: The target was not detected.
+    MISSING = "missing"
+    #: No physical solution (a depth ratio that is not positive).
+    INVALID = "invalid"
+    #: Inconsistent with one plane under planar motion (beyond the residual gate).
+    OUTLIER = "outlier"
+    #: Something stood between the camera and the target.
+    OCCLUDED = "occluded"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+#: The statuses by their old names.
+STATUS_OK = ObservationStatus.OK
+STATUS_DROPPED = ObservationStatus.DROPPED
+STATUS_MISSING = ObservationStatus.MISSING
+STATUS_INVALID = ObservationStatus.INVALID
+STATUS_OUTLIER = ObservationStatus.OUTLIER
+STATUS_OCCLUDED = ObservationStatus.OCCLUDED
 
 
 @dataclass(frozen=True)
@@ -47,20 +71,20 @@ class Observation:
     Attributes
     ----------
     measurement : Measurement or None
-        Set when ``status == "ok"``.
+        Set when ``status`` is ``OK``.
     residual : float
         RMS residual of the known-normal solve (normalised units; NaN if not solved).
-    status : str
-        ``"ok"``; ``"dropped"`` (no frame arrived: the last command is held); or why the
-        target is lost: ``"missing"`` (not detected), ``"invalid"`` (no physical solution),
-        ``"outlier"`` (inconsistent with one plane under planar motion), ``"occluded"``.
+    status : ObservationStatus
+        ``OK``; ``DROPPED`` (no frame arrived: the last command is held); or why the
+        target is lost: ``MISSING`` (not detected), ``INVALID`` (no physical solution),
+        ``OUTLIER`` (inconsistent with one plane under planar motion), ``OCCLUDED``.
     pixels : ndarray, shape (N, 2), or None
         The detected target pixels, when there were any (for image annotations).
     """
 
     measurement: Measurement | None
     residual: float = float("nan")
-    status: str = STATUS_OK
+    status: ObservationStatus = ObservationStatus.OK
     pixels: NDArray[np.float64] | None = None
 
     @property

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -50,10 +51,29 @@ FILTERS = (FILTER_NONE, FILTER_EKF)
 #: chi^2 with 3 degrees of freedom at 99.9 %: an innovation farther than this is an outlier.
 CHI2_3DOF_999 = 16.266
 
-#: Outcomes of :meth:`ServoStateFilter.correct`.
-FUSED = "fused"
-GATED = "gated"
-STARTED = "started"
+class FilterOutcome(str, Enum):
+    """What the state filter did with a frame; the values are the words run files record
+    (``filter``)."""
+
+    FUSED = "fused"
+    #: Rejected as an outlier.
+    GATED = "gated"
+    #: (Re)started from the frame's measurement.
+    STARTED = "started"
+    #: No frame: the estimate is a prediction.
+    PREDICTED = "predicted"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+#: The outcomes of :meth:`ServoStateFilter.correct` by their old names.
+FUSED = FilterOutcome.FUSED
+GATED = FilterOutcome.GATED
+STARTED = FilterOutcome.STARTED
 
 
 @dataclass(frozen=True)
@@ -136,16 +156,16 @@ class FilterEstimate:
         the derivative consistent with the estimate.
     noise : float
         Current estimate of the detector's per-coordinate noise (normalised units).
-    outcome : str
-        What the last frame did: ``"fused"``, ``"gated"`` (rejected as an outlier),
-        ``"started"``, or ``"predicted"`` (no frame).
+    outcome : FilterOutcome
+        What the last frame did: fused, gated (rejected as an outlier), started, or
+        predicted (no frame).
     """
 
     measurement: Measurement
     std: NDArray[np.float64]
     rate: NDArray[np.float64]
     noise: float
-    outcome: str
+    outcome: FilterOutcome
 
 
 def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:
@@ -297,7 +317,7 @@ class ServoStateFilter:
         self._state: Vec3 | None = None
         self._covariance: Sym3 | None = None
         self.rejected_in_a_row = 0
-        self.last_outcome = "predicted"
+        self.last_outcome = FilterOutcome.PREDICTED
         self.fused_time = 0.0
 
     @property
@@ -389,8 +409,8 @@ class ServoStateFilter:
         return state, covariance
 
     # ------------------------------------------------------------------ correction
-    def correct(self, measured: Measurement, residual: float, dt: float) -> str:
-        """Fuse one frame's measurement; returns ``"fused"``, ``"gated"`` or ``"started"``.
+    def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
+        """Fuse one frame's measurement; returns FUSED, GATED or STARTED.
 
         Parameters
         ----------
@@ -451,7 +471,7 @@ class ServoStateFilter:
             return None
 
     def _reject(self, measured: Measurement, residual: float, dt: float,
-                observed: tuple[Vec3, Sym3] | None = None) -> str:
+                observed: tuple[Vec3, Sym3] | None = None) -> FilterOutcome:
         """An outlier; after ``reset_after`` in a row the filter restarts from this frame
         (``observed``: :meth:`_observed` of it, when already computed)."""
         self.rejected_in_a_row += 1
@@ -469,7 +489,7 @@ class ServoStateFilter:
         self.last_outcome = GATED
         return GATED
 
-    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> str:
+    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> FilterOutcome:
         if self._state is None and math.isfinite(residual):
             # The first frame's own residual beats a prior from other images (the taught
             # ones may have been cleaner than this camera).
