@@ -118,7 +118,7 @@ def test_errors_converge_and_dhat_stays_bounded(law_run):
         assert abs(np.degrees(wrap_angle(final.pose[2] - taught[2]))) < 0.02
     else:
         # The paper's law (k_2 = 1) corrects the lateral error only at a rate of order
-        # x_hd1_dot^2 / k_w (equations.md), far slower than 20 s here; what (36) does
+        # x_hd1_dot^2 / k_w (docs/method.md), far slower than 20 s here; what (36) does
         # guarantee on any horizon is |ebar2(t)| <= sqrt(2 V(0) / k_2).
         ebar2 = np.array([r.output.errors.ebar2 for r in records])
         V0 = lyapunov(records[0].output.errors, records[0].dhat, d_star, gains)

@@ -6,7 +6,7 @@ intrinsic matrix ``K`` (x right, y down, z forward)::
 
     [x_n, y_n, 1]^T = K^-1 [u, v, 1]^T     and     m = [1, -x_n, -y_n]^T
 
-(equations.md, "Frames and conventions").
+(docs/method.md, "Frames (1)-(5), (9)-(11)").
 """
 
 from __future__ import annotations
