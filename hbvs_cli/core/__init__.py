@@ -19,4 +19,6 @@ One concept per module:
 * :mod:`.world`: the simulated camera, wall and target
 * :mod:`.simulator`: the closed loop
 * :mod:`.metrics`: statistics and convergence measures of a run
+* :mod:`.desired`: the fit of a taught run, pixels in, the desired trajectory out
+* :mod:`.labels`: enumerations that files record as words
 """

@@ -10,7 +10,6 @@ under planar motion (an outlier, a swapped identity, a wrong detection).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -20,6 +19,7 @@ from .camera import CameraIntrinsics, measured_pixels_to_normalized, pixels_to_n
 from .controller import Measurement
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
+from .labels import Label
 
 #: Default gate on the known-normal residual (normalised units): 0.004 is 2 px at f = 500,
 #: far above what 0.5 px of noise gives, far below what one swapped or spurious point gives.
@@ -32,7 +32,7 @@ def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> 
     return residual <= gate
 
 
-class ObservationStatus(str, Enum):
+class ObservationStatus(Label):
     """What a camera frame gave: a measurement, nothing (the frame never arrived), or why
     the target was lost. The values are the words run files record (``lost_reason``)."""
 
@@ -47,12 +47,6 @@ class ObservationStatus(str, Enum):
     OUTLIER = "outlier"
     #: Something stood between the camera and the target.
     OCCLUDED = "occluded"
-
-    def __str__(self) -> str:
-        return self.value
-
-    def __format__(self, spec: str) -> str:
-        return format(self.value, spec)
 
 
 #: The statuses by their old names.

@@ -59,6 +59,52 @@ def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> 
     return q0, q1, inv, (dq1 * q0 - q1 * dq0) * inv2, -q1 * g * inv2, g * inv, -z * dq0 * inv2, -z * g * inv2
 
 
+def normal_equations(c: float, s: float, y_ref: Sequence[float], z_ref: Sequence[float], g: Sequence[float],
+                     x1: float, x2: float, m_y: Sequence[float] | None = None, m_z: Sequence[float] | None = None
+                     ) -> tuple[tuple[float, float, float, float, float, float], tuple[float, float, float]]:
+    """``J^T J`` and ``J^T r`` of one frame's points, in plain floats (a few points, every
+    control period: faster without numpy).
+
+    J is :func:`point_jacobian` of every point with respect to (theta, x_h1, x_h2), r the
+    predicted minus the measured ``(m_y, m_z)``.
+
+    Parameters
+    ----------
+    c, s : float
+        cos theta, sin theta.
+    y_ref, z_ref, g : sequences of float, length N
+        m*_iy, m*_iz and ``n*^T m*_i``.
+    x1, x2 : float
+        x_h1, x_h2.
+    m_y, m_z : sequences of float, length N, optional
+        The measured points; without them ``J^T r`` is meaningless (the state filter needs
+        only ``J^T J``).
+
+    Returns
+    -------
+    information : (a11, a12, a13, a22, a23, a33)
+        The symmetric ``J^T J``.
+    gradient : (b1, b2, b3)
+        ``J^T r``.
+    """
+    a11 = a12 = a13 = a22 = a23 = a33 = b1 = b2 = b3 = 0.0
+    measured = zip(m_y, m_z) if m_y is not None and m_z is not None else zip(y_ref, z_ref)
+    for (my, mz), yr, zr, gi in zip(measured, y_ref, z_ref, g):
+        q0, q1, inv, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(c, s, yr, zr, gi, x1, x2)
+        r_y = q1 * inv - my
+        r_z = zr * inv - mz
+        a11 += jy_t * jy_t + jz_t * jz_t
+        a12 += jy_t * jy_1 + jz_t * jz_1
+        a13 += jy_t * jy_2
+        a22 += jy_1 * jy_1 + jz_1 * jz_1
+        a23 += jy_1 * jy_2
+        a33 += jy_2 * jy_2
+        b1 += jy_t * r_y + jz_t * r_z
+        b2 += jy_1 * r_y + jz_1 * r_z
+        b3 += jy_2 * r_y
+    return (a11, a12, a13, a22, a23, a33), (b1, b2, b3)
+
+
 def known_normal_design(m_ref: ArrayLike, normal: ArrayLike) -> NDArray[np.float64]:
     """The (2N, 4) design matrix of the known-normal solver for one reference.
 
@@ -269,23 +315,9 @@ class KnownNormalSolver:
         theta = math.atan2(s, c)
         cost = _cost_one(theta, x1, x2, m_y, m_z, y_ref, z_ref, g)
         for _ in range(self.refine_steps):
-            cs, sn = math.cos(theta), math.sin(theta)
-            a11 = a12 = a13 = a22 = a23 = a33 = b1 = b2 = b3 = 0.0
-            for my, mz, yr, zr, gi in zip(m_y, m_z, y_ref, z_ref, g):
-                q0, q1, inv, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(cs, sn, yr, zr, gi, x1, x2)
-                r_y = q1 * inv - my
-                r_z = zr * inv - mz
-                a11 += jy_t * jy_t + jz_t * jz_t
-                a12 += jy_t * jy_1 + jz_t * jz_1
-                a13 += jy_t * jy_2
-                a22 += jy_1 * jy_1 + jz_1 * jz_1
-                a23 += jy_1 * jy_2
-                a33 += jy_2 * jy_2
-                b1 += jy_t * r_y + jz_t * r_z
-                b2 += jy_1 * r_y + jz_1 * r_z
-                b3 += jy_2 * r_y
+            information, gradient = normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2, m_y, m_z)
             try:
-                step = _solve_symmetric3(a11, a12, a13, a22, a23, a33, b1, b2, b3)
+                step = _solve_symmetric3(*information, *gradient)
             except ZeroDivisionError:
                 break
             trial = (theta - step[0], x1 - step[1], x2 - step[2])

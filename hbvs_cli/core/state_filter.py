@@ -34,14 +34,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError
 from .controller import Measurement
-from .known_normal import point_jacobian
+from .known_normal import normal_equations, point_jacobian
+from .labels import Label
 
 #: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
 FILTER_NONE = "none"
@@ -51,7 +51,7 @@ FILTERS = (FILTER_NONE, FILTER_EKF)
 #: chi^2 with 3 degrees of freedom at 99.9 %: an innovation farther than this is an outlier.
 CHI2_3DOF_999 = 16.266
 
-class FilterOutcome(str, Enum):
+class FilterOutcome(Label):
     """What the state filter did with a frame; the values are the words run files record
     (``filter``)."""
 
@@ -62,12 +62,6 @@ class FilterOutcome(str, Enum):
     STARTED = "started"
     #: No frame: the estimate is a prediction.
     PREDICTED = "predicted"
-
-    def __str__(self) -> str:
-        return self.value
-
-    def __format__(self, spec: str) -> str:
-        return format(self.value, spec)
 
 
 #: The outcomes of :meth:`ServoStateFilter.correct` by their old names.
@@ -272,17 +266,7 @@ def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
 def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
     """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
     theta, x1, x2 = state
-    c, s = math.cos(theta), math.sin(theta)
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for yr, zr, gi in zip(y_ref, z_ref, g):
-        _, _, _, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(c, s, yr, zr, gi, x1, x2)
-        a00 += jy_t * jy_t + jz_t * jz_t
-        a01 += jy_t * jy_1 + jz_t * jz_1
-        a02 += jy_t * jy_2
-        a11 += jy_1 * jy_1 + jz_1 * jz_1
-        a12 += jy_1 * jy_2
-        a22 += jy_2 * jy_2
-    return a00, a01, a02, a11, a12, a22
+    return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
 
 
 class ServoStateFilter:
