@@ -19,10 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import numpy as np
-
 from ..errors import InvalidValueError
-from .depth import check_depth
 from .controller import (
     LAW_LATERAL_GAIN,
     LAW_PAPER,
@@ -33,6 +30,7 @@ from .controller import (
     Measurement,
     tracking_errors,
 )
+from .depth import check_depth
 
 LAW_NON_ADAPTIVE = "non-adaptive"
 LAW_KANAYAMA = "kanayama"
