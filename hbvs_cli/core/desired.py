@@ -14,7 +14,7 @@ should hear about (an ambiguous normal) is part of the result.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,7 +24,7 @@ from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import REFINEMENT_FRAMES, estimate_common_normal, refine_plane_and_reference
+from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A normal-estimation margin below this means the path did not tell the branches apart.
@@ -186,6 +186,7 @@ def fit_desired_trajectory(
     max_lost: float,
     max_gap: float,
     warn: Callable[[str], None] | None = None,
+    shapes: Sequence[KnownShape] = (),
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -207,6 +208,10 @@ def fit_desired_trajectory(
     warn : callable, optional
         Told, as it happens, what a user should know (the motion did not tell the
         homography branches apart: :attr:`DesiredFit.normal_ambiguous`).
+    shapes : sequence of KnownShape, optional
+        Parts of the target whose shape is known up to a similarity (each marker's
+        square, :data:`~.plane.UNIT_SQUARE`); they pin n* where the motion does not
+        (:func:`~.plane.refine_plane_and_reference`).
 
     Returns
     -------
@@ -241,7 +246,7 @@ def fit_desired_trajectory(
     normal, margin = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid)
     usable = np.zeros_like(found)
     usable[sample[homographies.valid]] = True
-    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable)
+    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
     if margin < AMBIGUOUS_NORMAL_MARGIN and warn is not None:
         warn(AMBIGUOUS_NORMAL_WARNING)
     solver = KnownNormalSolver(m_ref, normal)

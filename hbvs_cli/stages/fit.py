@@ -20,6 +20,7 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
+from ..core.plane import UNIT_SQUARE
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
@@ -213,7 +214,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         camera = reader.camera
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
         depth = _depth(result, arrays, detector.spec.kind, options, console)
         model = FitModel(
@@ -249,12 +250,14 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
-    stderr, and too little data said in the options' words."""
+    stderr, and too little data said in the options' words. Markers are squares: each
+    marker's four corners (in OpenCV's order) are a known shape."""
+    shapes = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn)
+                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
