@@ -70,3 +70,30 @@ def test_users_see_the_same_exit_code_and_line(tmp_path, default_fit, arguments,
     assert result.returncode == code
     assert result.stderr.strip().splitlines()[-1] == message
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_fit_words_too_little_data_as_before():
+    """core/desired.py says what is missing; stages/fit.py says it in the options' words, the
+    messages users saw when the algorithm lived in the stage."""
+    from hbvs_cli.core.desired import frame_stats
+    from hbvs_cli.stages.fit import FitOptions, _insufficient_data_message
+
+    options = FitOptions(input="teach.mcap", max_lost=0.3, max_gap=1.0)
+    t = np.arange(100) / 10.0
+    index = np.arange(100)
+    cases = []
+    for used in (index < 4, index % 2 == 0, (index < 30) | (index >= 47)):
+        with pytest.raises(errors.InsufficientDataError) as info:
+            frame_stats(t, used, 0, options.max_lost, options.max_gap)
+        cases.append(_insufficient_data_message(info.value, options))
+    assert cases == [
+        "the target was found in only 4 of 100 frames; at least 5 are needed",
+        "the target is missing from 50 % of the frames (more than --max-lost 30 %)",
+        "the target is missing from t = 2.90 s to 4.70 s (1.80 s), longer than --max-gap 1 s can bridge",
+    ]
+    pixels = np.full((8, 3, 2), 100.0)
+    pixels[2] = np.nan
+    with pytest.raises(errors.InsufficientDataError) as info:
+        fit_desired_trajectory(np.arange(8) / 10.0, pixels, 2, DEFAULT_CAMERA, None, max_lost=0.3, max_gap=1.0)
+    assert _insufficient_data_message(info.value, options) == (
+        "the target was not found in the reference frame 2 (t = 0.20 s); choose another with --reference")
