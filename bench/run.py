@@ -110,7 +110,7 @@ def bench_estimation(quick: bool) -> list[Figure]:
     import cv2
 
     from hbvs_cli.core.camera import pixels_to_normalized
-    from hbvs_cli.core.decomposition import KnownNormalSolver
+    from hbvs_cli.core.known_normal import KnownNormalSolver
     from hbvs_cli.core.estimation import PlanarPoseEstimator
 
     cv2.setNumThreads(1)

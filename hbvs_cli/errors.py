@@ -2,7 +2,10 @@
 
 Every error a user can cause (a bad file, a degenerate target, a lost target) is an
 :class:`HbvsError`. The CLI prints its message as one line on stderr and exits with its
-``exit_code``; anything else that escapes is a bug and is reported as such.
+exit code; anything else that escapes is a bug and is reported as such. The errors of the
+I/O edge and the stages carry their ``exit_code``; the pure core raises domain errors
+(:class:`DomainError`: a bad value, malformed or too little data, degenerate geometry),
+which the CLI maps (``hbvs_cli/cli/exit_codes.py``) to the code of the same kind below.
 
 Exit codes
 ----------
@@ -21,6 +24,8 @@ Exit codes
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 
 class HbvsError(Exception):
@@ -49,7 +54,40 @@ class RecordingError(InputError):
     """An MCAP file that is malformed, truncated beyond use, or of the wrong kind."""
 
 
-class GeometryError(HbvsError):
+class DomainError(HbvsError):
+    """An error of the method itself, raised by the pure core (``hbvs_cli/core``).
+
+    It says what is wrong with the numbers, not which option or file they came from; the
+    CLI maps each kind to its exit code (:func:`hbvs_cli.cli.exit_codes.exit_code_of`) and
+    a stage may add which input it was.
+    """
+
+
+class InvalidValueError(DomainError):
+    """A value outside its domain: a gain or a depth that is not positive, an unknown name."""
+
+
+class MalformedDataError(DomainError):
+    """Data that are not what the method needs: command times that do not increase, a
+    trajectory model without a channel, a world description that does not parse."""
+
+
+class InsufficientDataError(DomainError):
+    """Too little usable data: a target found in too few frames, or missing for too long.
+
+    Attributes
+    ----------
+    facts : dict
+        The numbers behind the message (which frame, what fraction), for a stage to word
+        its own message with.
+    """
+
+    def __init__(self, message: str, **facts: Any) -> None:
+        super().__init__(message)
+        self.facts = facts
+
+
+class GeometryError(DomainError):
     """Input whose geometry admits no (unique) answer."""
 
     exit_code = 4

@@ -118,7 +118,7 @@ def test_errors_converge_and_dhat_stays_bounded(law_run):
         assert abs(np.degrees(wrap_angle(final.pose[2] - taught[2]))) < 0.02
     else:
         # The paper's law (k_2 = 1) corrects the lateral error only at a rate of order
-        # x_hd1_dot^2 / k_w (equations.md), far slower than 20 s here; what (36) does
+        # x_hd1_dot^2 / k_w (docs/method.md), far slower than 20 s here; what (36) does
         # guarantee on any horizon is |ebar2(t)| <= sqrt(2 V(0) / k_2).
         ebar2 = np.array([r.output.errors.ebar2 for r in records])
         V0 = lyapunov(records[0].output.errors, records[0].dhat, d_star, gains)
@@ -203,15 +203,15 @@ def test_control_law_matches_hand_computation():
 
 
 def test_gains_and_laws_are_validated():
-    from hbvs_cli.errors import UsageError
+    from hbvs_cli.errors import InvalidValueError
 
     assert ControllerGains().with_law("paper").k_2 == 1.0
     assert ControllerGains().with_law("paper").law == "paper"
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         ControllerGains(k_v=-1.0)
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         ControllerGains().with_law("pid")
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         AdaptiveTrackingController(ControllerGains(), dhat0=0.0)
 
 

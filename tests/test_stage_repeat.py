@@ -82,7 +82,7 @@ def test_default_scenario_with_images_converges_under_both_laws(image_runs, caps
             print(f"\nrepeat (images in the loop, {law}): final position error {100 * p:.3f} cm, heading {h:.3f} deg")
     assert results["lateral-gain"][0] < LATERAL_GAIN_BOUNDS[0] and results["lateral-gain"][1] < LATERAL_GAIN_BOUNDS[1]
     assert results["paper"][0] < PAPER_BOUNDS[0] and results["paper"][1] < PAPER_BOUNDS[1]
-    # The lateral gain does what equations.md says: far better lateral convergence.
+    # The lateral gain does what docs/method.md says: far better lateral convergence.
     assert results["lateral-gain"][0] < 0.1 * results["paper"][0]
 
 

@@ -9,7 +9,7 @@ import shlex
 import numpy as np
 import pytest
 
-from hbvs_cli.errors import UsageError
+from hbvs_cli.errors import InvalidValueError, UsageError
 from hbvs_cli.sweep.spec import SweepPlan, build_spec, parse_vary, repeat_arguments, repeat_command, run_seed
 
 
@@ -137,7 +137,7 @@ def test_baselines_hold_their_depth_and_drop_the_depth_term_of_v():
     errors = TrackingErrors(e1=0.01, e2=0.02, e3=0.03, ebar2=0.025)
     frozen = gains_for_law(ControllerGains(), "non-adaptive")
     assert lyapunov(errors, 2.5, 4.0, frozen) == pytest.approx(0.5 * 4 * 1e-4 + 0.5 * 400 * 0.025**2 + 0.5 * 9e-4, rel=1e-12)
-    with pytest.raises(UsageError):
+    with pytest.raises(InvalidValueError):
         ControllerGains(k_v=0.0)
 
 

@@ -21,6 +21,7 @@ import typer
 from .. import __version__
 from ..errors import HbvsError
 from ..io.shipped import shipped_path
+from .exit_codes import exit_code_of
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 
 app = typer.Typer(
@@ -419,7 +420,7 @@ def _run(args: list[str], debug: bool) -> int:
         if exc.exit_code == 141:
             return _pipe_closed()
         _say(f"hbvs: error: {exc}")
-        return exc.exit_code
+        return exit_code_of(exc)
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130

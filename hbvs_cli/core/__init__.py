@@ -5,7 +5,9 @@ One concept per module:
 * :mod:`.frames`: rotations, planar poses, the paper <-> OpenCV axes (3)-(5)
 * :mod:`.camera`: intrinsics and pixels <-> normalised coordinates (9), (11)
 * :mod:`.homography`: the Euclidean homography, three-point (16)-(18) and projective
-* :mod:`.decomposition`: (theta, x_h, n*) with the right branch; the known-normal solver
+* :mod:`.decomposition`: the four decompositions of H into (theta, x_h, n*), and the right branch
+* :mod:`.plane`: the plane normal n* common to a sequence, refined with the reference points
+* :mod:`.known_normal`: (theta, x_h) from the points once n* is known; the point Jacobian
 * :mod:`.estimation`: target pixels -> the controller's measurement, with outlier gating
 * :mod:`.controller`: errors (19), (27), the law (29)-(31), Lyapunov function (36)
 * :mod:`.state_filter`: the Kalman filter on (theta, x_h) between the camera and the law
@@ -17,4 +19,6 @@ One concept per module:
 * :mod:`.world`: the simulated camera, wall and target
 * :mod:`.simulator`: the closed loop
 * :mod:`.metrics`: statistics and convergence measures of a run
+* :mod:`.desired`: the fit of a taught run, pixels in, the desired trajectory out
+* :mod:`.labels`: enumerations that files record as words
 """

@@ -6,7 +6,7 @@ intrinsic matrix ``K`` (x right, y down, z forward)::
 
     [x_n, y_n, 1]^T = K^-1 [u, v, 1]^T     and     m = [1, -x_n, -y_n]^T
 
-(equations.md, "Frames and conventions").
+(docs/method.md, "Frames (1)-(5), (9)-(11)").
 """
 
 from __future__ import annotations
@@ -117,21 +117,24 @@ def pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray
 
 
 def normalized_to_pixels(camera: CameraIntrinsics, m: ArrayLike) -> NDArray[np.float64]:
-    """The paper's normalised coordinates to pixels, the inverse of :func:`pixels_to_normalized`.
+    """The paper's normalised coordinates to pixels, the inverse of :func:`pixels_to_normalized`:
+    the pinhole projection (9), (11).
 
     Parameters
     ----------
     m : array_like, shape (..., 3)
-        ``[1, m_y, m_z]`` (a first component other than 1 is divided out).
+        ``[1, m_y, m_z]``, or points in F in the paper's axes (m): the first component
+        is divided out.
 
     Returns
     -------
     pixels : ndarray, shape (..., 2)
+        Ideal pinhole pixels (no distortion).
     """
     m = np.asarray(m, dtype=float)
-    x_n = -m[..., 1] / m[..., 0]
-    y_n = -m[..., 2] / m[..., 0]
-    return np.stack([camera.fx * x_n + camera.cx, camera.fy * y_n + camera.cy], axis=-1)
+    u = camera.cx - camera.fx * m[..., 1] / m[..., 0]
+    v = camera.cy - camera.fy * m[..., 2] / m[..., 0]
+    return np.stack([u, v], axis=-1)
 
 
 def normalize_points(points_camera: ArrayLike) -> NDArray[np.float64]:
@@ -199,3 +202,31 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
         object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float)
     )
     return projected.reshape(pixels.shape)
+
+
+def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
+    """Measured pixels to normalised coordinates (9), (11), lens distortion removed first.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (..., 2)
+        NaN where a point was not found (it stays NaN).
+
+    Returns
+    -------
+    m : ndarray, shape (..., 3)
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    flat = pixels.reshape(-1, 2)
+    undistorted = np.full_like(flat, np.nan)
+    found = np.all(np.isfinite(flat), axis=1)
+    undistorted[found] = undistort_pixels(camera, flat[found])
+    return pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
+
+
+def pixels_to_normalized_floats(camera: CameraIntrinsics, pixels: NDArray[np.float64]) -> tuple[list[float], list[float]]:
+    """:func:`pixels_to_normalized` of one frame's few points, as plain floats ``(m_y, m_z)``:
+    a handful of points is faster without numpy (the closed loop does it every period)."""
+    m_y = [(camera.cx - u) / camera.fx for u in pixels[:, 0].tolist()]
+    m_z = [(camera.cy - v) / camera.fy for v in pixels[:, 1].tolist()]
+    return m_y, m_z

@@ -4,7 +4,7 @@ Errors (19), (27)::
 
     e1 = x_h1 - x_hd1,   e2 = x_h2 - x_hd2,   e3 = theta - theta_d,   ebar2 = e2 - x_hd1 e3
 
-Control law with the lateral gain k_2 (equations.md, "A lateral gain"; k_2 = 1 is exactly
+Control law with the lateral gain k_2 (docs/method.md, "Control"; k_2 = 1 is exactly
 the paper's (29)-(30))::
 
     w_c  = k_w e3 - theta_d_dot - k_2 x_hd1_dot ebar2                    (30)
@@ -27,7 +27,8 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
+from ..errors import InvalidValueError
+from .depth import check_depth
 from .frames import wrap_angle
 
 #: Names of the two laws hbvs implements.
@@ -48,7 +49,7 @@ class ControllerGains:
     two rules that carry over to other scenes (``hbvs fit`` reports x_hd1_dot):
 
     * ``k_2 = k_w^2 / (4 x_hd1_dot^2) = 400`` makes the lateral mode
-      ``s^2 + k_w s + k_2 x_hd1_dot^2`` (equations.md) critically damped, at about k_w/2;
+      ``s^2 + k_w s + k_2 x_hd1_dot^2`` (docs/method.md, "Choosing the gains") critically damped, at about k_w/2;
     * ``gamma ~ 0.4 k_v / x_hd1_dot^2 = 2500``: near the path the depth error decays at
       about ``gamma x_hd1_dot^2 / k_v`` ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within the
       first 10 s;
@@ -65,7 +66,7 @@ class ControllerGains:
         Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), >= 0
         (0: no adaptation, the non-adaptive baseline of core/laws.py).
     k_2 : float
-        Lateral gain (equations.md); 1 is the paper's law exactly.
+        Lateral gain (docs/method.md, "Control"); 1 is the paper's law exactly.
     """
 
     k_v: float = 4.0
@@ -78,7 +79,7 @@ class ControllerGains:
             value = getattr(self, name)
             # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
             if not np.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
-                raise UsageError(f"gain {name} must be a positive number, got {value}")
+                raise InvalidValueError(f"gain {name} must be a positive number, got {value}")
 
     @property
     def law(self) -> str:
@@ -95,7 +96,7 @@ class ControllerGains:
             return replace(self, k_2=1.0)
         if law == LAW_LATERAL_GAIN:
             return self
-        raise UsageError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
+        raise InvalidValueError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
 
 
 @dataclass(frozen=True)
@@ -200,7 +201,7 @@ def control_law(
 
 
 def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: ControllerGains) -> NDArray[np.float64] | float:
-    """The Lyapunov function (36), weighted by k_2 (equations.md).
+    """The Lyapunov function (36), weighted by k_2 (docs/method.md, "Control").
 
     ``V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma) (d* - dhat)^2``.
     Needs the true depth d* (m), so it is known only in simulation. Without adaptation
@@ -256,10 +257,8 @@ class AdaptiveTrackingController:
     """
 
     def __init__(self, gains: ControllerGains, dhat0: float) -> None:
-        if not np.isfinite(dhat0) or dhat0 <= 0.0:
-            raise UsageError(f"the initial depth estimate dhat0 must be positive, got {dhat0}")
         self.gains = gains
-        self.dhat = float(dhat0)
+        self.dhat = check_depth(dhat0, "the initial depth estimate dhat0")
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
         """Commands for this instant; advances dhat by ``dt`` seconds unless ``adapt`` is

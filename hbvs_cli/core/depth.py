@@ -1,4 +1,4 @@
-"""Where a good initial depth estimate dhat(0) can come from (equations.md, "Where d*...").
+"""Where a good initial depth estimate dhat(0) can come from (docs/method.md, "Depth d*").
 
 d* is unobservable from images alone (scale), and the update law (31) learns it, but a poor
 dhat(0) slows convergence. Two honest sources:
@@ -12,12 +12,26 @@ dhat(0) slows convergence. Two honest sources:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import GeometryError
+from ..errors import GeometryError, InvalidValueError
+
+
+def check_depth(value: float, name: str) -> float:
+    """``value`` as a depth d* or dhat (m): finite and positive, the one rule for all of them.
+
+    Raises
+    ------
+    InvalidValueError
+        "NAME must be a positive depth in metres, got VALUE".
+    """
+    if not (math.isfinite(value) and value > 0.0):
+        raise InvalidValueError(f"{name} must be a positive depth in metres, got {value}")
+    return float(value)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Once the reference points m*_i and the plane normal n* are known (``hbvs fit`` estimates
 them from the teach run), every frame is handled the same way: undistort, normalise (11),
-solve the known-normal linear system (:func:`~hbvs_cli.core.decomposition.KnownNormalSolver`)
+solve the known-normal linear system (:class:`~hbvs_cli.core.known_normal.KnownNormalSolver`)
 and reject the frame when its residual shows that the points do not fit one plane seen
 under planar motion (an outlier, a swapped identity, a wrong detection).
 """
@@ -10,26 +10,52 @@ under planar motion (an outlier, a swapped identity, a wrong detection).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .camera import CameraIntrinsics, pixels_to_normalized, undistort_pixels
+from .camera import CameraIntrinsics, measured_pixels_to_normalized, pixels_to_normalized_floats, undistort_pixels
 from .controller import Measurement
-from .decomposition import KnownNormalSolver, PlanarMotion
+from .decomposition import PlanarMotion
+from .known_normal import KnownNormalSolver
+from .labels import Label
 
 #: Default gate on the known-normal residual (normalised units): 0.004 is 2 px at f = 500,
 #: far above what 0.5 px of noise gives, far below what one swapped or spurious point gives.
 DEFAULT_RESIDUAL_GATE = 0.004
 
 
-#: Observation statuses: a measurement, a frame that never arrived, or why there is none.
-STATUS_OK = "ok"
-STATUS_DROPPED = "dropped"
-STATUS_MISSING = "missing"
-STATUS_INVALID = "invalid"
-STATUS_OUTLIER = "outlier"
-STATUS_OCCLUDED = "occluded"
+def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> Any:
+    """True where a known-normal residual (normalised units; float or array) passes the
+    outlier gate; NaN (not solved) never does."""
+    return residual <= gate
+
+
+class ObservationStatus(Label):
+    """What a camera frame gave: a measurement, nothing (the frame never arrived), or why
+    the target was lost. The values are the words run files record (``lost_reason``)."""
+
+    OK = "ok"
+    #: No frame arrived: the last command is held; the target is not lost.
+    DROPPED = "dropped"
+    #: The target was not detected.
+    MISSING = "missing"
+    #: No physical solution (a depth ratio that is not positive).
+    INVALID = "invalid"
+    #: Inconsistent with one plane under planar motion (beyond the residual gate).
+    OUTLIER = "outlier"
+    #: Something stood between the camera and the target.
+    OCCLUDED = "occluded"
+
+
+#: The statuses by their old names.
+STATUS_OK = ObservationStatus.OK
+STATUS_DROPPED = ObservationStatus.DROPPED
+STATUS_MISSING = ObservationStatus.MISSING
+STATUS_INVALID = ObservationStatus.INVALID
+STATUS_OUTLIER = ObservationStatus.OUTLIER
+STATUS_OCCLUDED = ObservationStatus.OCCLUDED
 
 
 @dataclass(frozen=True)
@@ -39,20 +65,20 @@ class Observation:
     Attributes
     ----------
     measurement : Measurement or None
-        Set when ``status == "ok"``.
+        Set when ``status`` is ``OK``.
     residual : float
         RMS residual of the known-normal solve (normalised units; NaN if not solved).
-    status : str
-        ``"ok"``; ``"dropped"`` (no frame arrived: the last command is held); or why the
-        target is lost: ``"missing"`` (not detected), ``"invalid"`` (no physical solution),
-        ``"outlier"`` (inconsistent with one plane under planar motion), ``"occluded"``.
+    status : ObservationStatus
+        ``OK``; ``DROPPED`` (no frame arrived: the last command is held); or why the
+        target is lost: ``MISSING`` (not detected), ``INVALID`` (no physical solution),
+        ``OUTLIER`` (inconsistent with one plane under planar motion), ``OCCLUDED``.
     pixels : ndarray, shape (N, 2), or None
         The detected target pixels, when there were any (for image annotations).
     """
 
     measurement: Measurement | None
     residual: float = float("nan")
-    status: str = STATUS_OK
+    status: ObservationStatus = ObservationStatus.OK
     pixels: NDArray[np.float64] | None = None
 
     @property
@@ -89,10 +115,7 @@ class PlanarPoseEstimator:
 
     def normalize(self, pixels: ArrayLike) -> NDArray[np.float64]:
         """Undistorted, normalised points ``[1, m_y, m_z]`` of pixels, shape (N, 3)."""
-        pixels = np.asarray(pixels, dtype=float)
-        if np.all(np.isfinite(pixels)):
-            pixels = undistort_pixels(self.camera, pixels)
-        return pixels_to_normalized(self.camera, pixels)
+        return measured_pixels_to_normalized(self.camera, pixels)
 
     def solve(self, m: ArrayLike) -> PlanarMotion:
         """Batch solve for normalised points of shape (..., N, 3)."""
@@ -107,11 +130,7 @@ class PlanarPoseEstimator:
             return Observation(None, status=STATUS_MISSING, pixels=pixels if pixels.ndim == 2 else None)
         if self.camera.has_distortion:
             pixels = undistort_pixels(self.camera, pixels)
-        camera = self.camera
-        # (11) in plain floats: one frame of a few points is faster without numpy.
-        m_y = [(camera.cx - u) / camera.fx for u in pixels[:, 0].tolist()]
-        m_z = [(camera.cy - v) / camera.fy for v in pixels[:, 1].tolist()]
-        return self._observe(self.solver.solve_one(m_y, m_z), pixels)
+        return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
 
     def from_normalized(self, m: ArrayLike) -> Observation:
         """Estimate from normalised points of shape (N, 3)."""
@@ -122,6 +141,6 @@ class PlanarPoseEstimator:
         if solution is None:
             return Observation(None, status=STATUS_INVALID, pixels=pixels)
         theta, x_h1, x_h2, residual = solution
-        if not residual <= self.residual_gate:
+        if not within_residual_gate(residual, self.residual_gate):
             return Observation(None, residual, STATUS_OUTLIER, pixels)
         return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, STATUS_OK, pixels)

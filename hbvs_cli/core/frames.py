@@ -1,6 +1,6 @@
 """Frames, rotations and planar poses in the paper's conventions.
 
-Conventions (equations.md, "Frames and conventions"):
+Conventions (docs/method.md, "Frames (1)-(5), (9)-(11)"):
 
 * Robot/camera frame F: origin at the centre of the wheel axis, **x forward** (optical
   axis), **y left**, **z up**. The robot moves in the x-y plane.

@@ -233,7 +233,7 @@ def scale_to_euclidean(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
     """Fix the scale and sign of a projective homography in the paper's axes.
 
     A Euclidean homography ``R + t n^T`` has middle singular value 1; its sign makes
-    ``(H m*_i)_x = 1 / alpha_i`` positive (equations.md, the projective route).
+    ``(H m*_i)_x = 1 / alpha_i`` positive (docs/method.md, "Euclidean homography", the projective route).
 
     Parameters
     ----------

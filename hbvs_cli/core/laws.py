@@ -19,9 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import numpy as np
-
-from ..errors import UsageError
+from ..errors import InvalidValueError
 from .controller import (
     LAW_LATERAL_GAIN,
     LAW_PAPER,
@@ -32,6 +30,7 @@ from .controller import (
     Measurement,
     tracking_errors,
 )
+from .depth import check_depth
 
 LAW_NON_ADAPTIVE = "non-adaptive"
 LAW_KANAYAMA = "kanayama"
@@ -62,14 +61,14 @@ def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
 
     Raises
     ------
-    UsageError
+    InvalidValueError
         An unknown law.
     """
     if law in (LAW_PAPER, LAW_LATERAL_GAIN):
         return gains.with_law(law)
     if law in (LAW_NON_ADAPTIVE, LAW_KANAYAMA):
         return replace(gains, gamma=0.0)
-    raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
+    raise InvalidValueError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
 
 
 def make_controller(law: str, gains: ControllerGains, dhat0: float):
@@ -112,9 +111,7 @@ class KanayamaController:
     """
 
     def __init__(self, dhat: float, gains: KanayamaGains | None = None) -> None:
-        if not np.isfinite(dhat) or dhat <= 0.0:
-            raise UsageError(f"the depth estimate dhat0 must be positive, got {dhat}")
-        self.dhat = float(dhat)
+        self.dhat = check_depth(dhat, "the depth estimate dhat0")
         self.gains = gains or KanayamaGains()
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:

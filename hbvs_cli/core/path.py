@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InputError, UsageError
+from ..errors import InvalidValueError, MalformedDataError
 from .unicycle import advance_unicycle, integrate_commands
 
 
@@ -46,14 +46,14 @@ class CommandProfile:
     def __post_init__(self) -> None:
         t, v, w = (np.asarray(a, dtype=float) for a in (self.t, self.v, self.w))
         if t.ndim != 1 or t.size == 0 or v.shape != t.shape or w.shape != t.shape:
-            raise InputError("a command profile needs equally long, non-empty t, v and w columns")
+            raise MalformedDataError("a command profile needs equally long, non-empty t, v and w columns")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
-            raise InputError("the command profile contains NaN or infinity")
+            raise MalformedDataError("the command profile contains NaN or infinity")
         if np.any(np.diff(t) <= 0.0):
             bad = int(np.flatnonzero(np.diff(t) <= 0.0)[0]) + 1
-            raise InputError(f"command times must increase strictly (row {bad + 1}: t={t[bad]:g} s)")
+            raise MalformedDataError(f"command times must increase strictly (row {bad + 1}: t={t[bad]:g} s)")
         if not np.isfinite(self.t_end) or self.t_end <= t[-1]:
-            raise InputError("the command profile must end after its last command starts")
+            raise MalformedDataError("the command profile must end after its last command starts")
         object.__setattr__(self, "t", t - t[0])
         object.__setattr__(self, "v", v)
         object.__setattr__(self, "w", w)
@@ -105,7 +105,7 @@ def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, A
         Pendant update rate (Hz).
     """
     if duration <= 0 or rate <= 0:
-        raise UsageError("the duration and the rate of a command profile must be positive")
+        raise InvalidValueError("the duration and the rate of a command profile must be positive")
     steps = max(1, int(round(duration * rate)))
     t = np.arange(steps) / rate
     v, w = function(t)
@@ -185,12 +185,12 @@ def preset_profile(name: str, rate: float, duration: float | None = None) -> tup
 
     Raises
     ------
-    UsageError
+    InvalidValueError
         For an unknown preset name.
     """
     try:
         preset = PRESETS[name]
     except KeyError:
-        raise UsageError(f"unknown path preset {name!r}: choose one of {', '.join(PRESETS)} or give a CSV file") from None
+        raise InvalidValueError(f"unknown path preset {name!r}: choose one of {', '.join(PRESETS)} or give a CSV file") from None
     profile = sampled_profile(preset.commands, duration if duration is not None else preset.duration, rate)
     return profile, preset.start_pose

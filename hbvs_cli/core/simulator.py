@@ -28,7 +28,7 @@ from typing import Callable, Iterator
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
+from ..errors import InvalidValueError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import STATUS_DROPPED, STATUS_OK, STATUS_OUTLIER, Observation
 from .state_filter import GATED, FilterEstimate, ServoStateFilter
@@ -59,7 +59,7 @@ class ActuatorLimits:
         for name in ("max_v", "max_w", "max_accel"):
             value = getattr(self, name)
             if value is not None and (not np.isfinite(value) or value <= 0.0):
-                raise UsageError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+                raise InvalidValueError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
 
     def apply(self, v: float, w: float, previous: tuple[float, float], dt: float) -> tuple[float, float, bool]:
         """Clip a command; returns ``(v, w, saturated)``."""
@@ -177,9 +177,9 @@ def run_closed_loop(
         measurement, as in the paper.
     """
     if dt <= 0.0 or not np.isfinite(dt):
-        raise UsageError(f"the control period must be positive, got {dt}")
+        raise InvalidValueError(f"the control period must be positive, got {dt}")
     if latency_steps < 0:
-        raise UsageError("--latency must be zero or a positive number of frames")
+        raise InvalidValueError("--latency must be zero or a positive number of frames")
     limits = limits or ActuatorLimits()
     pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
     steps = int(round(duration / dt))

@@ -38,8 +38,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
+from ..errors import InvalidValueError
 from .controller import Measurement
+from .known_normal import normal_equations, point_jacobian
+from .labels import Label
 
 #: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
 FILTER_NONE = "none"
@@ -49,10 +51,23 @@ FILTERS = (FILTER_NONE, FILTER_EKF)
 #: chi^2 with 3 degrees of freedom at 99.9 %: an innovation farther than this is an outlier.
 CHI2_3DOF_999 = 16.266
 
-#: Outcomes of :meth:`ServoStateFilter.correct`.
-FUSED = "fused"
-GATED = "gated"
-STARTED = "started"
+class FilterOutcome(Label):
+    """What the state filter did with a frame; the values are the words run files record
+    (``filter``)."""
+
+    FUSED = "fused"
+    #: Rejected as an outlier.
+    GATED = "gated"
+    #: (Re)started from the frame's measurement.
+    STARTED = "started"
+    #: No frame: the estimate is a prediction.
+    PREDICTED = "predicted"
+
+
+#: The outcomes of :meth:`ServoStateFilter.correct` by their old names.
+FUSED = FilterOutcome.FUSED
+GATED = FilterOutcome.GATED
+STARTED = FilterOutcome.STARTED
 
 
 @dataclass(frozen=True)
@@ -115,9 +130,9 @@ class FilterSettings:
         for name in ("speed_noise", "turn_noise", "depth_uncertainty", "noise_time_constant", "min_noise", "gate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
-                raise UsageError(f"filter setting {name} must be a non-negative number, got {value}")
+                raise InvalidValueError(f"filter setting {name} must be a non-negative number, got {value}")
         if self.reset_after < 1:
-            raise UsageError("filter setting reset_after must be at least 1")
+            raise InvalidValueError("filter setting reset_after must be at least 1")
 
 
 @dataclass(frozen=True)
@@ -135,16 +150,16 @@ class FilterEstimate:
         the derivative consistent with the estimate.
     noise : float
         Current estimate of the detector's per-coordinate noise (normalised units).
-    outcome : str
-        What the last frame did: ``"fused"``, ``"gated"`` (rejected as an outlier),
-        ``"started"``, or ``"predicted"`` (no frame).
+    outcome : FilterOutcome
+        What the last frame did: fused, gated (rejected as an outlier), started, or
+        predicted (no frame).
     """
 
     measurement: Measurement
     std: NDArray[np.float64]
     rate: NDArray[np.float64]
     noise: float
-    outcome: str
+    outcome: FilterOutcome
 
 
 def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:
@@ -196,19 +211,11 @@ def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float
     ndarray, shape (3, 3)
     """
     theta, x1, x2 = (float(s) for s in state)
-    y_ref, z_ref = m_ref[:, 1], m_ref[:, 2]
     g = m_ref @ normal
-    c, s = math.cos(theta), math.sin(theta)
-    q0 = c - s * y_ref + x1 * g
-    q1 = s + c * y_ref + x2 * g
-    dq0 = -s - c * y_ref
-    dq1 = c - s * y_ref
-    inv = 1.0 / q0
-    inv2 = inv * inv
-    zeros = np.zeros_like(g)
+    _, _, _, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(math.cos(theta), math.sin(theta), m_ref[:, 1], m_ref[:, 2], g, x1, x2)
     jacobian = np.concatenate([
-        np.stack([(dq1 * q0 - q1 * dq0) * inv2, -q1 * g * inv2, g * inv], axis=1),
-        np.stack([-z_ref * dq0 * inv2, -z_ref * g * inv2, zeros], axis=1),
+        np.stack([jy_t, jy_1, jy_2], axis=1),
+        np.stack([jz_t, jz_1, np.zeros_like(g)], axis=1),
     ])
     return jacobian.T @ jacobian
 
@@ -259,26 +266,7 @@ def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
 def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
     """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
     theta, x1, x2 = state
-    c, s = math.cos(theta), math.sin(theta)
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for yr, zr, gi in zip(y_ref, z_ref, g):
-        q0 = c - s * yr + x1 * gi
-        q1 = s + c * yr + x2 * gi
-        dq0 = -s - c * yr
-        inv = 1.0 / q0
-        inv2 = inv * inv
-        jy_t = ((c - s * yr) * q0 - q1 * dq0) * inv2
-        jy_1 = -q1 * gi * inv2
-        jy_2 = gi * inv
-        jz_t = -zr * dq0 * inv2
-        jz_1 = -zr * gi * inv2
-        a00 += jy_t * jy_t + jz_t * jz_t
-        a01 += jy_t * jy_1 + jz_t * jz_1
-        a02 += jy_t * jy_2
-        a11 += jy_1 * jy_1 + jz_1 * jz_1
-        a12 += jy_1 * jy_2
-        a22 += jy_2 * jy_2
-    return a00, a01, a02, a11, a12, a22
+    return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
 
 
 class ServoStateFilter:
@@ -301,7 +289,7 @@ class ServoStateFilter:
         self.normal = np.asarray(normal, dtype=float)
         self.settings = settings or FilterSettings()
         if not (math.isfinite(noise) and noise >= 0.0):
-            raise UsageError(f"the initial measurement noise must be a non-negative number, got {noise}")
+            raise InvalidValueError(f"the initial measurement noise must be a non-negative number, got {noise}")
         points = self.m_ref.shape[0]
         self._y_ref = self.m_ref[:, 1].tolist()
         self._z_ref = self.m_ref[:, 2].tolist()
@@ -313,7 +301,7 @@ class ServoStateFilter:
         self._state: Vec3 | None = None
         self._covariance: Sym3 | None = None
         self.rejected_in_a_row = 0
-        self.last_outcome = "predicted"
+        self.last_outcome = FilterOutcome.PREDICTED
         self.fused_time = 0.0
 
     @property
@@ -405,8 +393,8 @@ class ServoStateFilter:
         return state, covariance
 
     # ------------------------------------------------------------------ correction
-    def correct(self, measured: Measurement, residual: float, dt: float) -> str:
-        """Fuse one frame's measurement; returns ``"fused"``, ``"gated"`` or ``"started"``.
+    def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
+        """Fuse one frame's measurement; returns FUSED, GATED or STARTED.
 
         Parameters
         ----------
@@ -467,7 +455,7 @@ class ServoStateFilter:
             return None
 
     def _reject(self, measured: Measurement, residual: float, dt: float,
-                observed: tuple[Vec3, Sym3] | None = None) -> str:
+                observed: tuple[Vec3, Sym3] | None = None) -> FilterOutcome:
         """An outlier; after ``reset_after`` in a row the filter restarts from this frame
         (``observed``: :meth:`_observed` of it, when already computed)."""
         self.rejected_in_a_row += 1
@@ -485,7 +473,7 @@ class ServoStateFilter:
         self.last_outcome = GATED
         return GATED
 
-    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> str:
+    def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> FilterOutcome:
         if self._state is None and math.isfinite(residual):
             # The first frame's own residual beats a prior from other images (the taught
             # ones may have been cleaner than this camera).

@@ -31,7 +31,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InputError, UsageError
+from ..errors import InsufficientDataError, InvalidValueError, MalformedDataError
 from .controller import DesiredState
 from .path import CommandProfile
 from .frames import relative_planar_pose
@@ -106,11 +106,11 @@ class SplineTrajectory:
     ) -> None:
         missing = [c for c in CHANNELS if c not in channels]
         if missing:
-            raise InputError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
+            raise MalformedDataError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
         if not (np.isfinite(t_start) and np.isfinite(t_end) and t_end > t_start):
-            raise InputError("the trajectory model's time span is empty or not finite")
+            raise MalformedDataError("the trajectory model's time span is empty or not finite")
         if not np.isfinite(x_hd2_offset):
-            raise InputError("the trajectory model's x_hd2 offset is not finite")
+            raise MalformedDataError("the trajectory model's x_hd2 offset is not finite")
         self.channels = channels
         self.t_start = float(t_start)
         self.t_end = float(t_end)
@@ -164,7 +164,7 @@ class SplineTrajectory:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "SplineTrajectory":
-        """Inverse of :meth:`to_dict`; raises :class:`InputError` when malformed."""
+        """Inverse of :meth:`to_dict`; raises :class:`MalformedDataError` when malformed."""
         try:
             if int(data.get("degree", 3)) != 3:
                 raise ValueError("only cubic splines are supported")
@@ -198,7 +198,7 @@ class SplineTrajectory:
                 float(x_hd2.get("residual_rms", float("nan"))),
             )
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"malformed trajectory model: {exc}") from None
+            raise MalformedDataError(f"malformed trajectory model: {exc}") from None
 
 
 def _product_antiderivative(spline: Any, other: Any) -> Any:
@@ -212,7 +212,7 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
     first = PPoly.from_spline(spline)
     second = PPoly.from_spline(other).derivative()
     if first.x.shape != second.x.shape or not np.allclose(first.x, second.x):
-        raise InputError("the trajectory's splines do not share their knots")
+        raise MalformedDataError("the trajectory's splines do not share their knots")
     product = np.zeros((first.c.shape[0] + second.c.shape[0] - 1, first.c.shape[1]))
     for i in range(first.c.shape[0]):
         for j in range(second.c.shape[0]):
@@ -230,7 +230,7 @@ class TimeScaledTrajectory:
 
     def __init__(self, base: DesiredTrajectory, speed: float = 1.0, start: float | None = None) -> None:
         if not np.isfinite(speed) or speed <= 0.0:
-            raise UsageError(f"--speed must be a positive number, got {speed}")
+            raise InvalidValueError(f"--speed must be a positive number, got {speed}")
         self.base = base
         self.speed = float(speed)
         self.start = float(base.t_start if start is None else start)
@@ -381,15 +381,15 @@ def fit_spline_trajectory(
     }
     x_hd2 = np.asarray(x_hd2, dtype=float)
     if t.ndim != 1 or t.size < MIN_SAMPLES:
-        raise InputError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
+        raise InsufficientDataError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
     if np.any(np.diff(t) <= 0.0):
-        raise InputError("frame times must increase strictly")
+        raise MalformedDataError("frame times must increase strictly")
     if smoothing is not None and (not np.isfinite(smoothing) or smoothing < 0.0):
-        raise UsageError(f"--smoothing must be 'auto' or a non-negative number, got {smoothing}")
+        raise InvalidValueError(f"--smoothing must be 'auto' or a non-negative number, got {smoothing}")
     channels = {}
     for name, y in samples.items():
         if y.shape != t.shape or not np.all(np.isfinite(y)):
-            raise InputError(f"the {name} samples must be finite and as many as the times")
+            raise MalformedDataError(f"the {name} samples must be finite and as many as the times")
         spline, lam = _smoothing_spline(t, y, smoothing)
         residual = float(np.sqrt(np.mean((spline(t) - y) ** 2)))
         channels[name] = SplineChannel(
@@ -399,7 +399,7 @@ def fit_spline_trajectory(
             residual_rms=residual,
         )
     if x_hd2.shape != t.shape or not np.all(np.isfinite(x_hd2)):
-        raise InputError("the x_hd2 samples must be finite and as many as the times")
+        raise MalformedDataError("the x_hd2 samples must be finite and as many as the times")
     # x_hd2 by (25) from the two splines; its one free constant by least squares.
     shape_only = SplineTrajectory(channels, 0.0, float(t[0]), float(t[-1]))
     integrated = np.atleast_1d(shape_only.evaluate(t).x_hd2)

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InputError, PointAtCameraHeightError, UsageError
-from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points
+from ..errors import InvalidValueError, MalformedDataError, PointAtCameraHeightError
+from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points, normalized_to_pixels
 from .frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
@@ -115,7 +115,7 @@ class World:
     def __post_init__(self) -> None:
         poster = self.target.poster
         if abs(poster.right[0]) > 1e-9 or abs(poster.down[0]) > 1e-9:
-            raise InputError("the poster must lie flat on the wall (its axes may not have an x component)")
+            raise MalformedDataError("the poster must lie flat on the wall (its axes may not have an x component)")
         heights = self.target.points_world[:, 2] - self.camera_height
         low = np.flatnonzero(np.abs(heights) < 0.02)
         if low.size:
@@ -145,11 +145,8 @@ class World:
 
     def pixels(self, pose: ArrayLike) -> NDArray[np.float64]:
         """Ideal pinhole pixels of the target points from ``pose``, shape (N, 2)."""
-        m_bar = self.points_in_camera(pose)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = self.camera.cx - self.camera.fx * m_bar[:, 1] / m_bar[:, 0]
-            v = self.camera.cy - self.camera.fy * m_bar[:, 2] / m_bar[:, 0]
-        return np.stack([u, v], axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a point in the camera's plane
+            return normalized_to_pixels(self.camera, self.points_in_camera(pose))
 
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
         """True when every target point is in front of the camera and inside the image."""
@@ -249,7 +246,7 @@ class World:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "World":
-        """Inverse of :meth:`to_dict`; raises :class:`InputError` on a malformed description."""
+        """Inverse of :meth:`to_dict`; raises :class:`MalformedDataError` on a malformed description."""
         try:
             cam = data["camera"]
             camera = CameraIntrinsics(
@@ -283,7 +280,7 @@ class World:
             )
             return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"malformed world description: {exc}") from None
+            raise MalformedDataError(f"malformed world description: {exc}") from None
 
 
 def _vector(values: Any, size: int) -> NDArray[np.float64]:
@@ -321,11 +318,11 @@ def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", 
     theta sensitive to pixel noise in proportion to (distance / width)^2.
     """
     if kind not in TARGET_KINDS:
-        raise UsageError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
+        raise InvalidValueError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
     center = np.array([wall_x, 0.0, 0.75])
     if kind == "dots":
         if not 3 <= dots <= len(DOT_LAYOUT):
-            raise UsageError(f"a dot target has 3 to {len(DOT_LAYOUT)} dots, got {dots}")
+            raise InvalidValueError(f"a dot target has 3 to {len(DOT_LAYOUT)} dots, got {dots}")
         poster = Poster(center=center, width=2.0, height=0.9)
         points = np.array(DOT_LAYOUT[:dots]) * [poster.width, poster.height]
         return Target(kind="dots", points_poster=points, poster=poster, dot_radius=0.05)

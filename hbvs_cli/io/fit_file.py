@@ -30,13 +30,14 @@ import numpy as np
 from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.controller import ControllerGains
+from ..core.desired import DesiredFit
 from ..core.trajectory import SplineTrajectory
 from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
 from .mcap_io import McapStream, read_metadata, time_message
-from .topics import MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
+from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
 
 FILE_KIND = "fit"
@@ -352,3 +353,35 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         info=info,
         truncated=stream.truncated,
     )
+
+
+def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
+    """Write a fit's desired signals: ``/desired/raw`` (theta_d, x_hd and the residual of
+    every used frame) and ``/desired/smooth`` (the splines and their derivatives over the
+    used span), each at its frame's log time.
+
+    Parameters
+    ----------
+    writer
+        An open MCAP writer (``write(topic, schema, log_time_ns, message)``).
+    t : ndarray, shape (F,)
+        Frame times (s).
+    log_time : ndarray of int, shape (F,)
+        The frames' log times (ns).
+    fit : DesiredFit
+    """
+    schemas = TOPICS[FILE_KIND]
+    for k in np.flatnonzero(fit.used):
+        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), {
+            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
+            "theta_d": float(fit.theta[k]), "x_hd1": float(fit.x_h[k, 0]), "x_hd2": float(fit.x_h[k, 1]),
+            "residual": float(fit.residual[k]),
+        })
+    span = fit.span
+    desired = fit.trajectory.evaluate(t[span])
+    for j, k in enumerate(range(span.start, span.stop)):
+        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), {
+            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
+            "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
+            "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
+        })

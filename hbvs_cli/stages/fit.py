@@ -17,23 +17,19 @@ from typing import Any
 
 import numpy as np
 
-from ..core.camera import CameraIntrinsics, normalized_to_pixels, pixels_to_normalized, undistort_pixels
-from ..core.decomposition import REFINEMENT_FRAMES, KnownNormalSolver, estimate_common_normal, refine_plane_and_reference
+from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
-from ..core.estimation import DEFAULT_RESIDUAL_GATE
-from ..core.homography import estimate_euclidean_homography, validate_reference_points
-from ..core.trajectory import fit_spline_trajectory, feedforward_condition
-from ..errors import GeometryError, HbvsError, InputError, RecordingError, UsageError
+from ..core.desired import DesiredFit, fit_desired_trajectory
+from ..core.plane import UNIT_SQUARE
+from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
 from .detection import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
 from .frames import decoded_frames
-from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
+from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
-#: A normal-estimation margin below this means the path did not tell the branches apart.
-AMBIGUOUS_NORMAL_MARGIN = 1e-3
 
 
 @dataclass(frozen=True)
@@ -151,7 +147,7 @@ def recorded_frame_count(source: str) -> int | None:
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
-    from ..io.fit_file import FitModel, checked_model_message
+    from ..io.fit_file import FitModel, checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
     from ..io.mcap_io import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
@@ -218,7 +214,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         camera = reader.camera
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
-        result = fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing, options, console, reader.name)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
         depth = _depth(result, arrays, detector.spec.kind, options, console)
         model = FitModel(
@@ -226,41 +222,68 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             camera=camera,
             reference_index=reference_index,
             reference_t=float(arrays["t"][reference_index]),
-            reference_pixels=result["reference_pixels"],
-            m_ref=result["m_ref"],
-            normal=result["normal"],
-            normal_margin=result["normal_margin"],
-            trajectory=result["trajectory"],
+            reference_pixels=result.reference_pixels,
+            m_ref=result.m_ref,
+            normal=result.normal,
+            normal_margin=result.normal_margin,
+            trajectory=result.trajectory,
             dhat0=depth["dhat0"],
             dhat0_source=depth["source"],
             depth=depth["estimates"],
-            frames=result["frames"] | {"truncated_input": reader.truncated},
-            condition35=result["condition35"],
-            residual_px=result["residual_px"],
-            detector=detector.spec.to_dict() | {"initial_pixels": result["initial_pixels"].tolist()},
+            frames=result.frames.as_dict() | {"truncated_input": reader.truncated},
+            condition35=result.condition35,
+            residual_px=result.residual_px.as_dict(),
+            detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
             world=reader.world,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
         )
-        _write_signals(writer, topics, arrays, result)
+        write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
-    return FitSummary(frames_total=log.count, frames_used=int(result["frames"]["used"]), output=options.output, model=model)
+    return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
 
 
-def _suggested_gains(result: dict[str, Any], camera: CameraIntrinsics) -> dict[str, Any]:
+def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
+    """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
+    stderr, and too little data said in the options' words. Markers are squares: each
+    marker's four corners (in OpenCV's order) are a known shape."""
+    shapes = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
+    try:
+        return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
+                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
+    except InsufficientDataError as exc:
+        raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
+
+
+def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
+    facts = exc.facts
+    reason = facts.get("reason")
+    if reason == "not_in_reference":
+        return f"{exc}; choose another with --reference"
+    if reason == "lost":
+        return (f"the target is missing from {100 * facts['lost_fraction']:.0f} % of the frames "
+                f"(more than --max-lost {100 * options.max_lost:.0f} %)")
+    if reason == "gap":
+        return (f"the target is missing from t = {facts['start']:.2f} s to {facts['end']:.2f} s ({facts['longest']:.2f} s), longer than "
+                f"--max-gap {options.max_gap:g} s can bridge")
+    return str(exc)
+
+
+def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, Any]:
     """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
     (core/gains.py, docs/method.md "Choosing the gains")."""
     from ..core.gains import noise_from_residual, suggest_gains
 
-    noise_px = noise_from_residual(result["residual_px"]["rms"], result["m_ref"].shape[0])
+    noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
     focal = 0.5 * (camera.fx + camera.fy)
-    return suggest_gains(result["condition35"]["percentiles"]["p50"], noise_px, result["m_ref"], result["normal"], focal).as_dict()
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, focal).as_dict()
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
@@ -355,136 +378,6 @@ def _detector_spec(
     return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
 
 
-def fit_desired_trajectory(
-    t: np.ndarray,
-    pixels: np.ndarray,
-    reference_index: int,
-    camera: CameraIntrinsics,
-    smoothing: float | None,
-    options: FitOptions,
-    console: Console,
-    name: str,
-) -> dict[str, Any]:
-    """The numbers of the fit, from per-frame pixels (F, N, 2) with NaN where not found."""
-    found = np.all(np.isfinite(pixels), axis=(1, 2))
-    if not np.any(found):
-        raise InputError(f"{name}: the target was not found in any frame")
-    if not found[reference_index]:
-        raise InputError(
-            f"{name}: the target was not found in the reference frame {reference_index} (t = {t[reference_index]:.2f} s); choose another with --reference"
-        )
-    flat = pixels.reshape(-1, 2)
-    undistorted = np.full_like(flat, np.nan)
-    ok = np.all(np.isfinite(flat), axis=1)
-    undistorted[ok] = undistort_pixels(camera, flat[ok])
-    m = pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
-    m_ref = validate_reference_points(m[reference_index])
-    # The normal needs a sample of frames, not all of them: memory stays flat however long
-    # the recording (the frames are spread evenly over it).
-    sample = np.flatnonzero(found)
-    sample = sample[np.linspace(0, sample.size - 1, min(sample.size, REFINEMENT_FRAMES)).astype(int)]
-    homographies = estimate_euclidean_homography(m[sample], m_ref)
-    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid)
-    usable = np.zeros_like(found)
-    usable[sample[homographies.valid]] = True
-    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable)
-    if margin < AMBIGUOUS_NORMAL_MARGIN:
-        console.warn(
-            "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
-            "assumed the target faces the reference camera"
-        )
-    solver = KnownNormalSolver(m_ref, normal)
-    motion = solver.solve(np.where(found[:, None, None], m, m_ref))
-    residual = np.where(found, motion.residual, np.nan)
-    gate = DEFAULT_RESIDUAL_GATE
-    used = found & motion.valid & (residual <= gate)
-    outliers = int(np.sum(found & ~used))
-    frames = _frame_stats(t, used, outliers, options, name)
-    span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
-    trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
-    condition = feedforward_condition(trajectory, t[span])
-    focal = 0.5 * (camera.fx + camera.fy)
-    return {
-        "m_ref": m_ref,
-        "reference_pixels": normalized_to_pixels(camera, m_ref),
-        "initial_pixels": pixels[int(np.flatnonzero(used)[0])],
-        "normal": normal,
-        "normal_margin": margin,
-        "trajectory": trajectory,
-        "used": used,
-        "theta": motion.theta,
-        "x_h": motion.x_h,
-        "residual": residual,
-        "frames": frames,
-        "condition": condition,
-        "condition35": {
-            "min_abs_xhd1_dot": condition.min_abs_xhd1_dot,
-            "percentiles": condition.percentiles,
-            "stopped_fraction": condition.stopped_fraction,
-            "longest_stop_s": condition.longest_stop_s,
-            "threshold": condition.threshold,
-        },
-        "residual_px": {
-            "rms": float(np.sqrt(np.nanmean(residual[used] ** 2)) * focal),
-            "max": float(np.nanmax(residual[used]) * focal),
-        },
-        "span": span,
-    }
-
-
-#: Samples the splines are fitted to at most: longer recordings are averaged in equal
-#: groups of consecutive frames first (30 Hz is far above a taught path's bandwidth, and
-#: the cost of generalised cross-validation grows with the sample count).
-MAX_SPLINE_SAMPLES = 3000
-
-
-def _binned(t: np.ndarray, *signals: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``(t, *signals)`` averaged in groups of consecutive samples, at most MAX_SPLINE_SAMPLES."""
-    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
-    if group <= 1:
-        return (t, *signals)
-    usable = t.size // group * group
-    mean = lambda x: x[:usable].reshape(-1, group).mean(axis=1)  # noqa: E731
-    # theta_d is averaged unwrapped, so that a crossing of +-pi does not average to 0.
-    return (mean(t), *(mean(np.unwrap(x) if k == 0 else x) for k, x in enumerate(signals)))
-
-
-def _frame_stats(t: np.ndarray, used: np.ndarray, outliers: int, options: FitOptions, name: str) -> dict[str, Any]:
-    total = int(used.size)
-    n_used = int(used.sum())
-    if n_used < 5:
-        raise InputError(f"{name}: the target was found in only {n_used} of {total} frames; at least 5 are needed")
-    lost_fraction = 1.0 - n_used / total
-    gaps = []
-    indices = np.flatnonzero(used)
-    for before, after in zip(indices[:-1], indices[1:]):
-        if after - before > 1:
-            gaps.append((float(t[before]), float(t[after])))
-    longest = max((b - a for a, b in gaps), default=0.0)
-    if lost_fraction > options.max_lost:
-        raise InputError(
-            f"{name}: the target is missing from {100 * lost_fraction:.0f} % of the frames (more than --max-lost {100 * options.max_lost:.0f} %)"
-        )
-    if longest > options.max_gap:
-        a, b = max(gaps, key=lambda g: g[1] - g[0])
-        raise InputError(
-            f"{name}: the target is missing from t = {a:.2f} s to {b:.2f} s ({longest:.2f} s), longer than "
-            f"--max-gap {options.max_gap:g} s can bridge"
-        )
-    return {
-        "total": total,
-        "used": n_used,
-        "lost": total - n_used,
-        "outliers": outliers,
-        "lost_fraction": lost_fraction,
-        "gaps": gaps,
-        "longest_gap_s": longest,
-        "frame_interval_s": float(np.median(np.diff(t))) if t.size > 1 else None,
-        "trimmed_start": int(indices[0]),
-        "trimmed_end": int(total - 1 - indices[-1]),
-    }
-
-
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     from ..io.fit_file import TaughtPath
 
@@ -495,15 +388,15 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
-def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
+def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size; which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
-    t = arrays["t"][result["span"]]
-    commands = arrays["command"][result["span"]]
+    t = arrays["t"][result.span]
+    commands = arrays["command"][result.span]
     if commands.size and np.all(np.isfinite(commands)):
         v, w = commands.T
-        desired = result["trajectory"].evaluate(t)
+        desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
             estimates["commands"] = asdict(from_commands)
@@ -514,8 +407,8 @@ def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, opt
         if kind == "texture":
             raise UsageError("--target-size needs a dots or aruco target; a texture's points have no metric size")
         # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest pair.
-        kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result["m_ref"], result["normal"])
-        from_size = depth_from_target_size(result["m_ref"], result["normal"], kind_pair, options.target_size)
+        kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
+        from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, options.target_size)
         estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
     if chosen is None:
@@ -527,33 +420,11 @@ def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, opt
     return {"dhat0": float(chosen.d_star), "source": chosen.source, "estimates": estimates}
 
 
-def _write_signals(writer: Any, topics: dict[str, str], arrays: dict[str, np.ndarray], result: dict[str, Any]) -> None:
-    from ..io.mcap_io import time_message
-
-    t = arrays["t"]
-    log_time = arrays["log_time"]
-    used = result["used"]
-    for k in np.flatnonzero(used):
-        writer.write(RAW_DESIRED_TOPIC, topics[RAW_DESIRED_TOPIC], int(log_time[k]), {
-            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
-            "theta_d": float(result["theta"][k]), "x_hd1": float(result["x_h"][k, 0]), "x_hd2": float(result["x_h"][k, 1]),
-            "residual": float(result["residual"][k]),
-        })
-    span = result["span"]
-    desired = result["trajectory"].evaluate(t[span])
-    for j, k in enumerate(range(span.start, span.stop)):
-        writer.write(SMOOTH_DESIRED_TOPIC, topics[SMOOTH_DESIRED_TOPIC], int(log_time[k]), {
-            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
-            "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
-            "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
-        })
-
-
-def _print_summary(console: Console, model: Any, result: dict[str, Any], depth: dict[str, Any], options: FitOptions) -> None:
+def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict[str, Any], options: FitOptions) -> None:
     from rich.table import Table
 
     frames = model.frames
-    condition = result["condition"]
+    condition = result.condition
     table = Table(title=f"hbvs fit: {options.input} -> {options.output}", show_header=True, header_style="bold")
     table.add_column("quantity")
     table.add_column("value", justify="right")

@@ -18,6 +18,8 @@ from typing import IO, Any
 import numpy as np
 
 from ..core.camera import normalized_to_pixels
+from ..core.depth import check_depth
+from ..core.desired import taught_frame_interval
 from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, lyapunov
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.frames import compose_planar_pose, rotation_z
@@ -142,9 +144,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         gamma=pick(options.gamma, "gamma", defaults.gamma),
         k_2=pick(options.k2, "k_2", defaults.k_2),
     ), law)
-    dhat0 = float(pick(options.dhat0, "dhat0", dhat0_suggested))
-    if not (math.isfinite(dhat0) and dhat0 > 0):
-        raise UsageError(f"--dhat0 must be a positive depth in metres, got {dhat0}")
+    dhat0 = check_depth(float(pick(options.dhat0, "dhat0", dhat0_suggested)), "--dhat0")
     speed = float(pick(options.speed, "speed", 1.0))
     rate = float(pick(options.rate, "rate", taught_rate))
     if not (math.isfinite(rate) and rate > 0):
@@ -208,9 +208,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> Rep
 
 
 def _taught_frame_interval(model: Any) -> float:
-    if model.taught_path is not None and model.taught_path.t.size > 1:
-        return float(np.median(np.diff(model.taught_path.t)))
-    return float(model.frames.get("frame_interval_s") or (1.0 / 30.0))
+    return taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
 
 
 # ----------------------------------------------------------------------------- shared pieces

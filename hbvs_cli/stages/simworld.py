@@ -20,6 +20,7 @@ import numpy as np
 from ..core.camera import distort_pixels, pixels_to_normalized
 from ..core.estimation import STATUS_OCCLUDED, Observation, dropped
 from ..core.frames import rotation_z
+from ..core.desired import taught_frame_interval
 from ..core.path import CommandProfile
 from ..core.world import Poster, Target, World
 from ..errors import UsageError
@@ -81,7 +82,7 @@ def simulation_world(model: Any, reference_image: bytes | None, depth: float | N
     if model.world is not None and model.taught_path is not None:
         path = model.taught_path
         _, _, d_true = model.world.reference_geometry(path.reference_pose)
-        interval = float(np.median(np.diff(path.t))) if path.t.size > 1 else 1.0 / 30.0
+        interval = taught_frame_interval(path.t)
         profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
         if depth is not None:
             raise UsageError("--depth is for a teach from real footage; this fit came from a simulated teach and knows its world")

@@ -1,0 +1,332 @@
+"""The desired trajectory of Remark 1 from the target pixels of a taught run: the fit.
+
+Given every frame's target pixels (NaN where the target was not found) and the frame chosen
+as F*: undistort and normalise them (9), (11); the Euclidean homographies H_d (16)-(18) of a
+sample of frames; the plane normal n* common to the sequence and its refinement together
+with the reference points m*_i (:mod:`.plane`); (theta_d, x_hd) of every frame by the
+known-normal solver (:mod:`.known_normal`), frames whose residual shows an outlier gated
+out (:func:`.estimation.within_residual_gate`); cubic smoothing splines of what is left
+(:mod:`.trajectory`, Remark 1) and condition (35) along the path (docs/method.md, "Desired
+trajectory"). Plain arrays in, a :class:`DesiredFit` out; nothing is printed: what a user
+should hear about (an ambiguous normal) is part of the result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import InsufficientDataError
+from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
+from .estimation import within_residual_gate
+from .homography import estimate_euclidean_homography, validate_reference_points
+from .known_normal import KnownNormalSolver
+from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
+from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
+
+#: A normal-estimation margin below this means the path did not tell the branches apart.
+AMBIGUOUS_NORMAL_MARGIN = 1e-3
+
+#: What :func:`fit_desired_trajectory` says when the margin is below it.
+AMBIGUOUS_NORMAL_WARNING = (
+    "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
+    "assumed the target faces the reference camera"
+)
+
+#: Samples the splines are fitted to at most: longer recordings are averaged in equal
+#: groups of consecutive frames first (30 Hz is far above a taught path's bandwidth, and
+#: the cost of generalised cross-validation grows with the sample count).
+MAX_SPLINE_SAMPLES = 3000
+
+#: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
+#: fit file older than the interval it records): 30 Hz, the rate ``teach`` records at.
+DEFAULT_FRAME_INTERVAL = 1.0 / 30.0
+
+
+def frame_interval(t: ArrayLike) -> float | None:
+    """The median interval between frame times (s), or None for fewer than two frames."""
+    t = np.asarray(t, dtype=float)
+    return float(np.median(np.diff(t))) if t.size > 1 else None
+
+
+def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = None) -> float:
+    """The taught run's frame interval (s): from its frame times ``t`` when there are two or
+    more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
+    :data:`DEFAULT_FRAME_INTERVAL`."""
+    interval = frame_interval(t) if t is not None else None
+    if interval is not None:
+        return interval
+    return float(recorded or DEFAULT_FRAME_INTERVAL)
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """Which frames of a taught run the fit used.
+
+    Attributes
+    ----------
+    total, used, lost, outliers : int
+        Frames in all; used; not used (not found, or gated out); gated out as outliers.
+    lost_fraction : float
+        ``lost / total``.
+    gaps : list of (float, float)
+        ``(t_before, t_after)`` (s) of every stretch of frames not used.
+    longest_gap_s : float
+        The longest of them (s), 0 without any.
+    frame_interval_s : float or None
+        Median interval between frames (s); None for one frame.
+    trimmed_start, trimmed_end : int
+        Frames not used before the first used one and after the last.
+    """
+
+    total: int
+    used: int
+    lost: int
+    outliers: int
+    lost_fraction: float
+    gaps: list[tuple[float, float]]
+    longest_gap_s: float
+    frame_interval_s: float | None
+    trimmed_start: int
+    trimmed_end: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields by name (the ``frames`` record of a fit file)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PixelResidual:
+    """The known-normal residual of the used frames, in pixels (RMS over frames, and max)."""
+
+    rms: float
+    max: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"rms": self.rms, "max": self.max}
+
+
+@dataclass(frozen=True)
+class DesiredFit:
+    """What the fit of a taught run gives.
+
+    Attributes
+    ----------
+    m_ref : ndarray, shape (N, 3)
+        Reference points m*_i of F* (refined together with n*).
+    reference_pixels : ndarray, shape (N, 2)
+        The same as ideal pinhole pixels (no distortion).
+    initial_pixels : ndarray, shape (N, 2)
+        The measured pixels of the first used frame.
+    normal : ndarray, shape (3,)
+        Plane normal n* in F* (unit).
+    normal_margin : float
+        How clearly the sequence chose the normal's branch, in [0, 1] (see
+        :func:`~.plane.estimate_common_normal`).
+    trajectory : SplineTrajectory
+        The desired trajectory (Remark 1).
+    used : ndarray of bool, shape (F,)
+        Frames whose (theta_d, x_hd) the splines were fitted to.
+    theta, residual : ndarray, shape (F,)
+        theta_d (rad) and the known-normal residual (normalised units) of every frame (NaN
+        where not solved).
+    x_h : ndarray, shape (F, 2)
+        x_hd of every frame.
+    frames : FrameStats
+    condition : FeedforwardCondition
+        Condition (35) along the used span.
+    residual_px : PixelResidual
+    span : slice
+        From the first used frame to the last.
+    """
+
+    m_ref: NDArray[np.float64]
+    reference_pixels: NDArray[np.float64]
+    initial_pixels: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    normal_margin: float
+    trajectory: SplineTrajectory
+    used: NDArray[np.bool_]
+    theta: NDArray[np.float64]
+    x_h: NDArray[np.float64]
+    residual: NDArray[np.float64]
+    frames: FrameStats
+    condition: FeedforwardCondition
+    residual_px: PixelResidual
+    span: slice
+
+    @property
+    def normal_ambiguous(self) -> bool:
+        """True when the taught motion did not tell the two homography branches apart (e.g.
+        a straight drive): n* is then the prior, "the target faces F*"."""
+        return self.normal_margin < AMBIGUOUS_NORMAL_MARGIN
+
+    @property
+    def condition35(self) -> dict[str, Any]:
+        """Condition (35) as a record (the ``condition35`` of a fit file)."""
+        condition = self.condition
+        return {
+            "min_abs_xhd1_dot": condition.min_abs_xhd1_dot,
+            "percentiles": condition.percentiles,
+            "stopped_fraction": condition.stopped_fraction,
+            "longest_stop_s": condition.longest_stop_s,
+            "threshold": condition.threshold,
+        }
+
+
+def fit_desired_trajectory(
+    t: ArrayLike,
+    pixels: ArrayLike,
+    reference_index: int,
+    camera: CameraIntrinsics,
+    smoothing: float | None,
+    max_lost: float,
+    max_gap: float,
+    warn: Callable[[str], None] | None = None,
+    shapes: Sequence[KnownShape] = (),
+) -> DesiredFit:
+    """The desired trajectory of a taught run from its per-frame target pixels.
+
+    Parameters
+    ----------
+    t : array_like, shape (F,)
+        Frame times (s), increasing.
+    pixels : array_like, shape (F, N, 2)
+        Measured target pixels in a consistent order; NaN where the target was not found.
+    reference_index : int
+        The frame taken as F*.
+    camera : CameraIntrinsics
+    smoothing : float or None
+        Spline smoothing lambda (s^3); None chooses it by generalised cross-validation.
+    max_lost : float
+        Largest fraction of frames that may go unused.
+    max_gap : float
+        Longest stretch without a used frame that the splines may bridge (s).
+    warn : callable, optional
+        Told, as it happens, what a user should know (the motion did not tell the
+        homography branches apart: :attr:`DesiredFit.normal_ambiguous`).
+    shapes : sequence of KnownShape, optional
+        Parts of the target whose shape is known up to a similarity (each marker's
+        square, :data:`~.plane.UNIT_SQUARE`); they pin n* where the motion does not
+        (:func:`~.plane.refine_plane_and_reference`).
+
+    Returns
+    -------
+    DesiredFit
+
+    Raises
+    ------
+    InsufficientDataError
+        The target is in no frame, not in the reference frame, in fewer than
+        :data:`MIN_SAMPLES` frames, or missing from more than ``max_lost`` of them or
+        for longer than ``max_gap``; ``facts`` holds the numbers.
+    GeometryError
+        Degenerate reference points.
+    """
+    t = np.asarray(t, dtype=float)
+    pixels = np.asarray(pixels, dtype=float)
+    found = np.all(np.isfinite(pixels), axis=(1, 2))
+    if not np.any(found):
+        raise InsufficientDataError("the target was not found in any frame", reason="not_found")
+    if not found[reference_index]:
+        raise InsufficientDataError(
+            f"the target was not found in the reference frame {reference_index} (t = {t[reference_index]:.2f} s)",
+            reason="not_in_reference", index=reference_index, t=float(t[reference_index]),
+        )
+    m = measured_pixels_to_normalized(camera, pixels)
+    m_ref = validate_reference_points(m[reference_index])
+    # The normal needs a sample of frames, not all of them: memory stays flat however long
+    # the recording (the frames are spread evenly over it).
+    sample = np.flatnonzero(found)
+    sample = sample[np.linspace(0, sample.size - 1, min(sample.size, REFINEMENT_FRAMES)).astype(int)]
+    homographies = estimate_euclidean_homography(m[sample], m_ref)
+    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid)
+    usable = np.zeros_like(found)
+    usable[sample[homographies.valid]] = True
+    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
+    if margin < AMBIGUOUS_NORMAL_MARGIN and warn is not None:
+        warn(AMBIGUOUS_NORMAL_WARNING)
+    solver = KnownNormalSolver(m_ref, normal)
+    motion = solver.solve(np.where(found[:, None, None], m, m_ref))
+    residual = np.where(found, motion.residual, np.nan)
+    used = found & motion.valid & within_residual_gate(residual)
+    outliers = int(np.sum(found & ~used))
+    frames = frame_stats(t, used, outliers, max_lost, max_gap)
+    span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
+    trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
+    condition = feedforward_condition(trajectory, t[span])
+    focal = 0.5 * (camera.fx + camera.fy)
+    return DesiredFit(
+        m_ref=m_ref,
+        reference_pixels=normalized_to_pixels(camera, m_ref),
+        initial_pixels=pixels[int(np.flatnonzero(used)[0])],
+        normal=normal,
+        normal_margin=margin,
+        trajectory=trajectory,
+        used=used,
+        theta=motion.theta,
+        x_h=motion.x_h,
+        residual=residual,
+        frames=frames,
+        condition=condition,
+        residual_px=PixelResidual(
+            rms=float(np.sqrt(np.nanmean(residual[used] ** 2)) * focal),
+            max=float(np.nanmax(residual[used]) * focal),
+        ),
+        span=span,
+    )
+
+
+def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+    """``(t, *signals)`` averaged in groups of consecutive samples, at most MAX_SPLINE_SAMPLES."""
+    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
+    if group <= 1:
+        return (t, *signals)
+    usable = t.size // group * group
+    mean = lambda x: x[:usable].reshape(-1, group).mean(axis=1)  # noqa: E731
+    # theta_d is averaged unwrapped, so that a crossing of +-pi does not average to 0.
+    return (mean(t), *(mean(np.unwrap(x) if k == 0 else x) for k, x in enumerate(signals)))
+
+
+def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, max_lost: float, max_gap: float) -> FrameStats:
+    """Which frames are used, and whether they are enough (see :func:`fit_desired_trajectory`)."""
+    total = int(used.size)
+    n_used = int(used.sum())
+    if n_used < MIN_SAMPLES:
+        raise InsufficientDataError(
+            f"the target was found in only {n_used} of {total} frames; at least {MIN_SAMPLES} are needed",
+            reason="too_few", used=n_used, total=total,
+        )
+    lost_fraction = 1.0 - n_used / total
+    gaps = []
+    indices = np.flatnonzero(used)
+    for before, after in zip(indices[:-1], indices[1:]):
+        if after - before > 1:
+            gaps.append((float(t[before]), float(t[after])))
+    longest = max((b - a for a, b in gaps), default=0.0)
+    if lost_fraction > max_lost:
+        raise InsufficientDataError(
+            f"the target is missing from {100 * lost_fraction:.0f} % of the frames (more than {100 * max_lost:.0f} %)",
+            reason="lost", lost_fraction=lost_fraction, max_lost=max_lost,
+        )
+    if longest > max_gap:
+        a, b = max(gaps, key=lambda g: g[1] - g[0])
+        raise InsufficientDataError(
+            f"the target is missing from t = {a:.2f} s to {b:.2f} s ({longest:.2f} s), longer than {max_gap:g} s",
+            reason="gap", start=a, end=b, longest=longest, max_gap=max_gap,
+        )
+    return FrameStats(
+        total=total,
+        used=n_used,
+        lost=total - n_used,
+        outliers=outliers,
+        lost_fraction=lost_fraction,
+        gaps=gaps,
+        longest_gap_s=longest,
+        frame_interval_s=frame_interval(t),
+        trimmed_start=int(indices[0]),
+        trimmed_end=int(total - 1 - indices[-1]),
+    )
