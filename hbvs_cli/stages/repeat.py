@@ -22,12 +22,14 @@ from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_L
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
-from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
+from ..core.simulator import ActuatorLimits, StepRecord
 from ..core.state_filter import FILTER_EKF, FILTERS
 from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, TargetLostError, UsageError
 from .console import Console
-from .options import parse_offset
+from .options import parse_interval, parse_offset, parse_time_and_factor
+from ..perception.tracked import detector_from_model, estimator_from_model
+from ..sim import CameraSettings, SimulatedCamera, Simulation, simulation_world
 from ..io.topics import CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
 
 #: Default actuator limits of the simulated robot (a small indoor platform).
@@ -348,36 +350,9 @@ def desired_pixels(model: Any, desired: Any) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- closed loop
-@dataclass
-class Simulation:
-    """Everything a closed-loop run needs, set up and ready to step."""
-
-    scene: Any
-    camera: Any
-    trajectory: TimeScaledTrajectory
-    controller: AdaptiveTrackingController
-    start_pose: np.ndarray
-    dt: float
-    duration: float
-    settings: Settings
-    state_filter: Any = None
-
-    @property
-    def steps(self) -> int:
-        return int(round(self.duration / self.dt))
-
-    def run(self) -> Any:
-        """The closed loop's step records (a generator): sense, control, limits, move."""
-        return run_closed_loop(
-            self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
-            self.settings.limits, self.settings.latency, self.state_filter,
-        )
-
-
 def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> Simulation:
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
     from ..io.limits import step_count
-    from .simworld import SimulatedCamera, simulation_world
 
     model = fit.model
     if not (math.isfinite(settings.speed) and settings.speed > 0):
@@ -391,7 +366,14 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
-    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
+    sensor = CameraSettings(
+        perception=settings.perception, pixel_noise=settings.pixel_noise, seed=options.seed,
+        occlusions=tuple(parse_interval(text, "--occlude") for text in options.occlude),
+        drop_rate=options.drop_rate, outlier_rate=options.outlier_rate,
+        exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
+        record_images=options.record_images,
+    )
+    camera = SimulatedCamera(scene, model, sensor, fit.template_image)
     state_filter = make_state_filter(settings, model)
     if state_filter is not None:
         # The filter tests each residual against the noise it learns; the fixed gate set
@@ -405,7 +387,8 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
-        settings=settings,
+        limits=settings.limits,
+        latency=settings.latency,
         state_filter=state_filter,
     )
 
@@ -579,7 +562,6 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     from ..io.mcap_io import open_output
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
-    from .detection import detector_from_model, estimator_from_model
     from .frames import decoded_frames
 
     model = fit.model

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError, UsageError
+from ..sim.scene import simulation_world
 from .console import Console
 
 
@@ -48,8 +49,6 @@ class SweepOptions:
 
 def _true_depth(fit: Any) -> float | None:
     """d* of the fit's simulated world (None for a fit of real footage)."""
-    from .simworld import simulation_world
-
     try:
         return float(simulation_world(fit.model, None, None).d_true)
     except UsageError:

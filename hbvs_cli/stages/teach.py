@@ -13,6 +13,7 @@ from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics
 from ..core.path import DEFAULT_PRESET, PRESETS, CommandProfile, preset_profile
 from ..core.world import World, default_world
 from ..errors import InputError, UsageError
+from ..sim.render import make_renderer
 from .console import Console
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
@@ -157,30 +158,6 @@ def simulated_world(options: TeachOptions) -> World:
     elif options.texture is not None:
         raise UsageError("--texture goes with --target texture")
     return default_world(options.target, camera=camera, dots=options.dots, texture=texture)
-
-
-def load_texture(world: World) -> np.ndarray | None:
-    """The poster image of a texture target (None for the built-in pattern)."""
-    if world.target.kind != "texture" or world.target.texture == "builtin":
-        return None
-    import cv2
-
-    path = Path(world.target.texture)
-    if not path.is_file():
-        raise InputError(f"{path}: texture image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(f"{path}: not an image OpenCV can read")
-    return image
-
-
-def make_renderer(world: World, noise: float, blur: float, exposure: float) -> Any:
-    """The scene renderer of a world (shared by teach and repeat so both see alike)."""
-    from ..perception.poster import PosterRaster
-    from ..perception.render import RenderSettings, SceneRenderer
-
-    raster = PosterRaster.from_target(world.target, texture=load_texture(world))
-    return SceneRenderer(world, raster, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure))
 
 
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
