@@ -17,13 +17,8 @@ import numpy as np
 from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
 from ..core.frames import world_to_robot
-from ..core.simulator import StepRecord
 from ..core.world import World
 from ..io.fit_file import FitModel
-from ..io.images import bytes_to_store, write_compressed_image
-from ..io.mcap_io import McapWriter, time_message
-from ..io.messages import CAMERA_FRAME, annotations_message
-from ..io.topics import ANNOTATIONS_TOPIC, IMAGE_TOPIC, TOPICS
 from ..perception.tracked import TrackedDetector, detector_from_model, estimator_from_model
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
@@ -177,16 +172,13 @@ class SimulatedCamera:
         value = 30 if world.target.kind == "dots" else 250
         cv2.circle(image, (int(round(centre[0] * 16)), int(round(centre[1] * 16))), int(round(radius * 16)), value, -1, cv2.LINE_AA, 4)
 
-    def write_image(self, writer: McapWriter, ns: int, record: StepRecord, desired_px: np.ndarray) -> None:
-        """Store this step's camera image with detected and desired points (``--record-images``)."""
+    def image_of(self, pose: np.ndarray) -> np.ndarray:
+        """The camera image of this step (``--record-images``): the one just measured, or a
+        noiseless-seeded render at ``pose`` when perception did not render one."""
         image = self.last_image
         if image is None or self.perception != "images":
-            image = self.renderer.render(record.pose, np.random.default_rng(0))
-        stamp = time_message(ns)
-        topics = TOPICS["run"]
-        write_compressed_image(writer, IMAGE_TOPIC, ns, *bytes_to_store(image), CAMERA_FRAME)
-        label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
-        writer.write(ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], ns, annotations_message(stamp, record.observation.pixels, desired_px, label))
+            image = self.renderer.render(pose, np.random.default_rng(0))
+        return image
 
 
 def _to_camera(world: World, pose: np.ndarray, point: np.ndarray) -> np.ndarray:

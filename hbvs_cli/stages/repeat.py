@@ -13,24 +13,37 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ContextManager
 
 import numpy as np
 
+from .. import __version__
 from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, lyapunov
-from ..core.laws import ALL_LAWS, gains_for_law, make_controller
+from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, LAW_LATERAL_GAIN, lyapunov
 from ..core.frames import compose_planar_pose, rotation_z
+from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
+from ..core.laws import ALL_LAWS, gains_for_law, make_controller
+from ..core.metrics import final_value
 from ..core.simulator import ActuatorLimits, StepRecord
-from ..core.state_filter import FILTER_EKF, FILTERS
+from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
+from ..core.world import World
 from ..errors import InputError, TargetLostError, UsageError
-from .console import Console
-from .options import parse_interval, parse_offset, parse_time_and_factor
+from ..io.config import load_config
+from ..io.fit_file import FitFile, FitModel, read_fit_file
+from ..io.images import bytes_to_store
+from ..io.limits import step_count
+from ..io.mcap_io import McapWriter, open_output
+from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.output_target import open_text_output, refuse_overwriting_inputs
+from ..io.run_file import RunWriter
+from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
-from ..sim import CameraSettings, SimulatedCamera, Simulation, simulation_world
-from ..io.topics import CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
+from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from .console import Console
+from .frames import decoded_frames
+from .options import parse_interval, parse_offset, parse_time_and_factor
 
 #: Default actuator limits of the simulated robot (a small indoor platform).
 DEFAULT_MAX_V = 0.5
@@ -124,8 +137,6 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     """Defaults < ``--config`` < command-line options."""
     config: dict[str, Any] = {}
     if options.config is not None:
-        from ..io.config import load_config
-
         config = load_config(options.config)
 
     def pick(option_value: Any, key: str, default: Any) -> Any:
@@ -181,20 +192,16 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     )
 
 
-def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> RepeatSummary:
+def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = None) -> RepeatSummary:
     """Run the repeat phase as ``options`` say; write the run file.
 
     ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
     for thousands of runs); by default it is read here.
     """
-    from ..io.fit_file import read_fit_file
-
     if options.sim == (options.replay is not None):
         raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
-    from ..io.output_target import refuse_overwriting_inputs
-
     refuse_overwriting_inputs(
         [("-o", options.output), ("--cmd-out", options.cmd_out)],
         [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
@@ -209,44 +216,34 @@ def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> Rep
     return _run_replay(options, settings, fit, console)
 
 
-def _taught_frame_interval(model: Any) -> float:
+def _taught_frame_interval(model: FitModel) -> float:
     if model.taught_path is not None and model.taught_path.t.size > 1:
         return float(np.median(np.diff(model.taught_path.t)))
     return float(model.frames.get("frame_interval_s") or (1.0 / 30.0))
 
 
 # ----------------------------------------------------------------------------- shared pieces
-class _RunLog:
-    """Writes the run file's per-step messages and the optional command stream."""
+class _StepLog:
+    """Turns each step record into the run file's messages (:class:`RunWriter`) and the
+    optional command stream, and notes the changes worth an event (target lost or back,
+    a dropped frame, saturation)."""
 
-    def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None) -> None:
-
-        self.writer = writer
-        self.topics = TOPICS["run"]
+    def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
+        self.run = run
         self.settings = settings
         self.model = model
         self.d_true = d_true
         self.cmd_stream = cmd_stream
-        self.lost_since: float | None = None
         self.was_saturated = False
         self.was_lost = False
         self.was_dropped = False
         self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
-        from ..io.messages import log_message
-
-        ns = seconds_to_ns(t)
-        self.writer.write(EVENTS_TOPIC, self.topics[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
+        self.run.event(t, level, text)
 
     def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
-        from ..io.messages import LOG_INFO, LOG_WARNING, velocity_message
-
         t = record.t
-        ns = seconds_to_ns(t)
-        stamp = time_message(ns)
         desired = record.desired
         output = record.output
         measurement = record.measurement
@@ -270,8 +267,7 @@ class _RunLog:
         if record.saturated and not self.was_saturated:
             self.event(t, LOG_INFO, "command saturated by the actuator limits")
         self.was_saturated = record.saturated
-        message = {
-            "timestamp": stamp, "t": t,
+        values = {
             "x_h1": measurement.x_h1 if measurement else None,
             "x_h2": measurement.x_h2 if measurement else None,
             "theta": measurement.theta if measurement else None,
@@ -290,9 +286,9 @@ class _RunLog:
             "residual": float(record.observation.residual),
             "V": V,
         }
-        message.update(self._filter_fields(record))
-        self.write_flat(STATE_TOPIC, ns, message)
-        self.write_flat(COMMAND_TOPIC, ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
+        values.update(self._filter_fields(record))
+        self.run.state(t, values)
+        self.run.command(t, record.v_c, record.w_c, record.saturated)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
@@ -312,26 +308,13 @@ class _RunLog:
             "noise_px": estimate.noise * _focal(self.model),
         }
 
-    def write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
-        """Write a message whose values are plain numbers, strings, bools, None or small
-        dicts of them: encoded directly, without the general JSON cleaning pass (this
-        runs several times per control period). ``clean=False`` when no value can be NaN."""
-        if clean:
-            for key, value in message.items():
-                if isinstance(value, float) and not math.isfinite(value):
-                    message[key] = None
-        data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
-        self.writer.write_encoded(topic, self.topics[topic], ns, data)
 
-
-def _open_cmd_stream(target: str | None) -> Any:
+def _open_cmd_stream(target: str | None) -> ContextManager[IO[str] | None]:
     """The ``--cmd-out`` stream: written like every output (atomically for a file)."""
-    from ..io.output_target import open_text_output
-
     return open_text_output(target, "command stream")
 
 
-def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, console: Console, replay: Any = None) -> None:
+def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
     """Keep an existing output when an input ended early (unless --allow-truncated); warn."""
     names = []
     if getattr(fit, "truncated", False):
@@ -343,17 +326,15 @@ def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, console: Cons
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
 
 
-def desired_pixels(model: Any, desired: Any) -> np.ndarray:
+def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
     """Where the target points should be in the image now: m_d = H_d m* (13)."""
     H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
     return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
 # ----------------------------------------------------------------------------- closed loop
-def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> Simulation:
+def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
-    from ..io.limits import step_count
-
     model = fit.model
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
@@ -397,36 +378,28 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def _focal(model: Any) -> float:
+def _focal(model: FitModel) -> float:
     return 0.5 * (model.camera.fx + model.camera.fy)
 
 
-def make_state_filter(settings: Settings, model: Any) -> Any:
+def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
-    from ..core.state_filter import ServoStateFilter
-
     return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
 
 
-def detector_noise(model: Any) -> float:
+def detector_noise(model: FitModel) -> float:
     """Per-coordinate noise of the fit's detector on the taught images (normalised units),
     from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
-    from ..core.gains import noise_from_residual
-
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
     return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
 
 
-def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output, seconds_to_ns, time_message
-    from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
-
+def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
@@ -437,20 +410,18 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
             _note_truncated(writer, options, fit, console)
-            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
-            log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
+            run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera)
+            log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
             height = scene.world.camera_height
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
                 for k, record in enumerate(simulation.run()):
                     log.step(record)
-                    ns = seconds_to_ns(record.t)
-                    stamp = time_message(ns)
-                    log.write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, record.pose, height), clean=False)
-                    log.write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, taught_poses[k], height), clean=False)
+                    run.poses(record.t, record.pose, taught_poses[k], height)
                     if options.record_images:
-                        camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
+                        label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
+                        run.image(record.t, *bytes_to_store(camera.image_of(record.pose)), record.observation.pixels,
+                                  desired_pixels(model, record.desired), label)
                     tally.add(record, taught_poses[k])
                     bar.advance()
                     lost_for = lost_for + dt if record.lost else 0.0
@@ -479,7 +450,7 @@ class _Tally:
         self.steps = 0
         self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
-    def add(self, record: StepRecord, taught: Any = None) -> None:
+    def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
         self.steps += 1
         errors = record.output.errors if record.output is not None else None
         values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
@@ -492,8 +463,6 @@ class _Tally:
             self.series[name].append(float(value))
 
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
-        from ..core.metrics import final_value
-
         t = self.series["t"]
         errors: dict[str, float] = {}
         for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
@@ -503,9 +472,7 @@ class _Tally:
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
-def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None, scene: Any = None) -> dict[str, Any]:
-    from .. import __version__
-
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
     model = fit.model
     return {
         "file_kind": "run",
@@ -529,7 +496,7 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: An
     } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 
 
-def _top_view(world: Any) -> dict[str, Any]:
+def _top_view(world: World) -> dict[str, Any]:
     """The wall and the target seen from above (m, world frame), for the report's top view."""
     poster = world.target.poster
     ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
@@ -556,14 +523,7 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
 
 
 # ----------------------------------------------------------------------------- open loop
-def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    from ..core.simulator import StepRecord as Step
-    from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output
-    from ..io.messages import CAMERA_FRAME
-    from ..io.teach_file import TeachReader
-    from .frames import decoded_frames
-
+def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
@@ -574,9 +534,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     previous_t: float | None = None
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
-            writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
-            log = _RunLog(writer, settings, model, None, cmd_stream)
+            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera)
+            log = _StepLog(run, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
                 for frame, _, image in decoded_frames(reader.frames(), reader.name):
                     camera = reader.camera
@@ -591,7 +550,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     dhat = controller.dhat
                     output = controller.step(observation.measurement, desired, dt) if observation.status == "ok" else None
                     v, w = (float(output.v_c), float(output.w_c)) if output is not None else controller.hold()
-                    record = Step(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
+                    record = StepRecord(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
                                   v_c=v, w_c=w, saturated=False, dhat=dhat)
                     log.step(record)
                     tally.add(record)
