@@ -102,9 +102,9 @@ def test_json_values_agree_with_the_run(runs):
     report = report_json(runs["run"])
     # The simulated start offset (repeat's default) is the initial pose error.
     from hbvs_cli.stages.options import parse_offset
-    from hbvs_cli.stages.repeat import RepeatOptions
+    from hbvs_cli.stages.settings import DEFAULT_OFFSET
 
-    dx, dy, dtheta = parse_offset(RepeatOptions.offset)
+    dx, dy, dtheta = parse_offset(DEFAULT_OFFSET)
     # (to the report's 7 significant digits)
     assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), rel=1e-6)
     assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)

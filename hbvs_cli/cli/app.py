@@ -8,6 +8,7 @@ line on stderr and the error's exit code. ``--debug`` shows the traceback instea
 from __future__ import annotations
 
 import errno
+import inspect
 import os
 import signal
 import sys
@@ -21,7 +22,9 @@ import typer
 from .. import __version__
 from ..errors import HbvsError
 from ..io.shipped import shipped_path
+from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, RepeatOptions, options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
+from .signature import with_settings
 
 app = typer.Typer(
     cls=HbvsGroup,
@@ -40,7 +43,11 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
+#: ``-q`` of repeat.
+QUIET = inspect.Parameter(
+    "quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
+    annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")],
+)
 
 
 def _version(value: bool) -> None:
@@ -141,54 +148,13 @@ def fit(
 
 # --------------------------------------------------------------------------- repeat
 @app.command(rich_help_panel="Pipeline")
-def repeat(
-    input: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit), or - for stdin.")],
-    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "run.mcap",
-    sim: Annotated[bool, typer.Option("--sim", help="Closed loop with a simulated robot and camera.", rich_help_panel="Mode")] = False,
-    replay: Annotated[Optional[Path], typer.Option("--replay", help="Open loop: the frames of a teach recording are the live camera.", rich_help_panel="Mode")] = None,
-    offset: Annotated[str, typer.Option("--offset", help="Start pose offset DX,DY,DTHETA (m, m, deg) in the taught start frame: where the robot was put down by hand.", rich_help_panel="Simulation")] = "-0.1,0.05,2",
-    perception: Annotated[str, typer.Option("--perception", help="images (render and detect) or points (project and add --pixel-noise).", rich_help_panel="Simulation")] = "images",
-    pixel_noise: Annotated[float, typer.Option("--pixel-noise", min=0.0, help="Pixel noise (px, 1 sigma) for --perception points.", rich_help_panel="Simulation")] = 0.0,
-    rate: Annotated[Optional[float], typer.Option("--rate", min=0.1, help="Camera and control rate (Hz); default the taught rate.", rich_help_panel="Simulation")] = None,
-    depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
-    config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
-    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default), paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive (gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).", rich_help_panel="Controller")] = None,
-    kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
-    kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
-    gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default the fit's suggestion (from x_hd1_dot and the detector's noise).", rich_help_panel="Controller")] = None,
-    k2: Annotated[Optional[float], typer.Option("--k2", help=f"Lateral gain k_2. Default the fit's suggestion, k_w^2 / (4 x_hd1_dot^2) (see {shipped_path('docs/method.md')}).", rich_help_panel="Controller")] = None,
-    state_filter: Annotated[Optional[str], typer.Option("--filter", help="State filter between the camera and the law: ekf (default) or none (the raw measurement, the paper exactly).", rich_help_panel="Controller")] = None,
-    dhat0: Annotated[Optional[float], typer.Option("--dhat0", help="Initial depth estimate (m); default the fit's suggestion.", rich_help_panel="Controller")] = None,
-    speed: Annotated[Optional[float], typer.Option("--speed", help="Play the taught trajectory at this multiple of its pace.", rich_help_panel="Controller")] = None,
-    max_v: Annotated[Optional[float], typer.Option("--max-v", help="|v| limit (m/s); inf for none. Default 0.5.", rich_help_panel="Actuators")] = None,
-    max_w: Annotated[Optional[float], typer.Option("--max-w", help="|w| limit (rad/s); inf for none. Default 0.6.", rich_help_panel="Actuators")] = None,
-    max_accel: Annotated[Optional[float], typer.Option("--max-accel", help="Acceleration limit (m/s^2 and rad/s^2); inf for none (default).", rich_help_panel="Actuators")] = None,
-    latency: Annotated[Optional[int], typer.Option("--latency", min=0, help="Measurement latency in frames.", rich_help_panel="Actuators")] = None,
-    lost_timeout: Annotated[float, typer.Option("--lost-timeout", min=0.0, help="Stop the run after the target was lost this long (s).")] = 3.0,
-    cmd_out: Annotated[Optional[str], typer.Option("--cmd-out", help="Also write one JSON line per step (t, v, w) to FILE or - (stdout).")] = None,
-    record_images: Annotated[bool, typer.Option("--record-images", help="Store the camera images with detected and desired points.")] = False,
-    occlude: Annotated[Optional[List[str]], typer.Option("--occlude", help="Hide the target from START to END seconds (repeatable), e.g. 8:10.", rich_help_panel="Faults")] = None,
-    drop_rate: Annotated[float, typer.Option("--drop-rate", min=0.0, max=1.0, help="Fraction of camera frames dropped.", rich_help_panel="Faults")] = 0.0,
-    outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
-    exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
-    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when an input ended early (no end record).")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
-) -> None:
+@with_settings(REPEAT_SETTINGS, QUIET)
+def repeat(**values: Any) -> None:
     """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
-    from ..stages.repeat import RepeatOptions, run_repeat
+    from ..stages.repeat import run_repeat
 
-    run_repeat(
-        RepeatOptions(
-            input=input, output=output, sim=sim, replay=replay, offset=offset, perception=perception,
-            pixel_noise=pixel_noise, rate=rate, depth=depth, seed=seed, config=config, law=law, kv=kv, kw=kw,
-            gamma=gamma, k2=k2, dhat0=dhat0, speed=speed, max_v=max_v, max_w=max_w, max_accel=max_accel,
-            latency=latency, lost_timeout=lost_timeout, cmd_out=cmd_out, record_images=record_images,
-            occlude=list(occlude or []), drop_rate=drop_rate, outlier_rate=outlier_rate, exposure_step=exposure_step,
-            allow_truncated=allow_truncated, state_filter=state_filter,
-        ),
-        _console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- report

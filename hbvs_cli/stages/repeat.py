@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import IO, Any, ContextManager
 
 import numpy as np
 
 from .. import __version__
 from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, LAW_LATERAL_GAIN, lyapunov
+from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
@@ -44,48 +43,7 @@ from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation
 from .console import Console
 from .frames import decoded_frames
 from .options import parse_interval, parse_offset, parse_time_and_factor
-
-#: Default actuator limits of the simulated robot (a small indoor platform).
-DEFAULT_MAX_V = 0.5
-DEFAULT_MAX_W = 0.6
-
-
-@dataclass(frozen=True)
-class RepeatOptions:
-    """Everything ``hbvs repeat`` was asked to do (see ``hbvs repeat --help``)."""
-
-    input: str
-    output: str = "run.mcap"
-    sim: bool = False
-    replay: Path | None = None
-    offset: str = "-0.1,0.05,2"
-    perception: str = "images"
-    pixel_noise: float = 0.0
-    rate: float | None = None
-    depth: float | None = None
-    seed: int = 0
-    config: Path | None = None
-    law: str | None = None
-    kv: float | None = None
-    kw: float | None = None
-    gamma: float | None = None
-    k2: float | None = None
-    dhat0: float | None = None
-    speed: float | None = None
-    max_v: float | None = None
-    max_w: float | None = None
-    max_accel: float | None = None
-    latency: int | None = None
-    lost_timeout: float = 3.0
-    cmd_out: str | None = None
-    record_images: bool = False
-    occlude: list[str] = field(default_factory=list)
-    drop_rate: float = 0.0
-    outlier_rate: float = 0.0
-    exposure_step: str | None = None
-    allow_truncated: bool = False
-    state_filter: str | None = None
-
+from .settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 
 @dataclass(frozen=True)
 class Settings:
@@ -134,42 +92,39 @@ def _limit(value: float | None, default: float | None) -> float | None:
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
                      suggested_gains: ControllerGains | None = None) -> Settings:
-    """Defaults < ``--config`` < command-line options."""
-    config: dict[str, Any] = {}
-    if options.config is not None:
-        config = load_config(options.config)
+    """Defaults < ``--config`` < command-line options (:mod:`.settings`: an option that was
+    not given is None, so any value given wins, even one equal to the default)."""
+    config: dict[str, Any] = load_config(options.config) if options.config is not None else {}
 
-    def pick(option_value: Any, key: str, default: Any) -> Any:
-        if option_value is not None:
-            return option_value
-        return config.get(key, default)
+    def pick(name: str, fallback: Any = None) -> Any:
+        return REPEAT[name].resolve(getattr(options, name), config, fallback)
 
-    law = pick(options.law, "law", LAW_LATERAL_GAIN)
+    law = pick("law")
     if law not in ALL_LAWS:
         raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
-    defaults = suggested_gains if suggested_gains is not None else ControllerGains()
+    defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(
-        k_v=pick(options.kv, "k_v", defaults.k_v),
-        k_w=pick(options.kw, "k_w", defaults.k_w),
-        gamma=pick(options.gamma, "gamma", defaults.gamma),
-        k_2=pick(options.k2, "k_2", defaults.k_2),
+        k_v=pick("kv", defaults.k_v),
+        k_w=pick("kw", defaults.k_w),
+        gamma=pick("gamma", defaults.gamma),
+        k_2=pick("k2", defaults.k_2),
     ), law)
-    dhat0 = float(pick(options.dhat0, "dhat0", dhat0_suggested))
+    dhat0 = float(pick("dhat0", dhat0_suggested))
     if not (math.isfinite(dhat0) and dhat0 > 0):
         raise UsageError(f"--dhat0 must be a positive depth in metres, got {dhat0}")
-    speed = float(pick(options.speed, "speed", 1.0))
-    rate = float(pick(options.rate, "rate", taught_rate))
+    speed = float(pick("speed"))
+    rate = float(pick("rate", taught_rate))
     if not (math.isfinite(rate) and rate > 0):
         raise UsageError(f"--rate must be positive, got {rate}")
-    perception = options.perception if options.perception != "images" else str(config.get("perception", "images"))
+    perception = str(pick("perception"))
     if perception not in ("images", "points"):
         raise UsageError(f"--perception must be images or points, got {perception!r}")
-    offset_text = options.offset if options.offset != RepeatOptions.offset else str(config.get("offset", options.offset))
-    latency = int(pick(options.latency, "latency", 0))
+    offset_text = str(pick("offset"))
+    latency = int(pick("latency"))
     if latency < 0:
         raise UsageError("--latency must be >= 0 frames")
-    state_filter = str(pick(options.state_filter, "filter", FILTER_EKF))
+    state_filter = str(pick("state_filter"))
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     return Settings(
@@ -178,16 +133,16 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         dhat0=dhat0,
         speed=speed,
         limits=ActuatorLimits(
-            max_v=_limit(pick(options.max_v, "max_v", None), DEFAULT_MAX_V),
-            max_w=_limit(pick(options.max_w, "max_w", None), DEFAULT_MAX_W),
-            max_accel=_limit(pick(options.max_accel, "max_accel", None), None),
+            max_v=_limit(pick("max_v"), DEFAULT_MAX_V),
+            max_w=_limit(pick("max_w"), DEFAULT_MAX_W),
+            max_accel=_limit(pick("max_accel"), None),
         ),
         latency=latency,
         rate=rate,
         perception=perception,
-        pixel_noise=float(options.pixel_noise if options.pixel_noise else config.get("pixel_noise", 0.0)),
+        pixel_noise=float(pick("pixel_noise")),
         offset=parse_offset(offset_text),
-        lost_timeout=float(options.lost_timeout if options.lost_timeout != RepeatOptions.lost_timeout else config.get("lost_timeout", options.lost_timeout)),
+        lost_timeout=float(pick("lost_timeout")),
         state_filter=state_filter,
     )
 
