@@ -1,8 +1,10 @@
 """The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
 
-This layer stays thin: every command imports its stage lazily (``hbvs --help`` must not
-load OpenCV, scipy or matplotlib) and turns :class:`~hbvs_cli.errors.HbvsError` into one
-line on stderr and the error's exit code. ``--debug`` shows the traceback instead.
+This layer stays thin: it turns :class:`~hbvs_cli.errors.HbvsError` into one line on
+stderr and the error's exit code (``--debug`` shows the traceback instead). Each command
+imports its stage inside the command, the only lazy imports here: ``hbvs --help`` must not
+load OpenCV, scipy, matplotlib or mcap (tests/test_repository.py checks). The options of
+``repeat`` come from its settings table (:mod:`hbvs_cli.stages.settings`).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import os
 import signal
 import sys
 import traceback
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
@@ -20,8 +23,12 @@ import typer
 
 
 from .. import __version__
-from ..errors import HbvsError
+from ..errors import HbvsError, OutputError
+from ..io.limits import set_limits
+from ..io.native_log import capture
+from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_path
+from ..stages.console import Console
 from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, RepeatOptions, options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
@@ -64,14 +71,10 @@ def _root(
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
-        from ..io.limits import set_limits
-
         set_limits(list(limit))
 
 
-def _console(quiet: bool):
-    from ..stages.console import Console
-
+def _console(quiet: bool) -> Console:
     return Console(quiet=quiet)
 
 
@@ -102,7 +105,7 @@ def teach(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
 ) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
-    from ..stages.teach import TeachOptions, run_teach
+    from ..stages.teach import TeachOptions, run_teach  # lazy: start-up time (see above)
 
     run_teach(
         TeachOptions(
@@ -134,7 +137,7 @@ def fit(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
     """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    from ..stages.fit import FitOptions, run_fit
+    from ..stages.fit import FitOptions, run_fit  # lazy: start-up time (see above)
 
     run_fit(
         FitOptions(
@@ -151,7 +154,7 @@ def fit(
 @with_settings(REPEAT_SETTINGS, QUIET)
 def repeat(**values: Any) -> None:
     """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
-    from ..stages.repeat import run_repeat
+    from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
     run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
@@ -173,7 +176,7 @@ def report(
     panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
-    from ..stages.report import ReportOptions, run_report
+    from ..stages.report import ReportOptions, run_report  # lazy: start-up time (see above)
 
     code = run_report(
         ReportOptions(
@@ -208,7 +211,7 @@ def sweep(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
 ) -> None:
     """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    from ..stages.sweep import SweepOptions, run_sweep
+    from ..stages.sweep import SweepOptions, run_sweep  # lazy: start-up time (see above)
 
     run_sweep(
         SweepOptions(
@@ -228,7 +231,7 @@ def demo(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
-    from ..stages.demo import run_demo
+    from ..stages.demo import run_demo  # lazy: start-up time (see above)
 
     code = run_demo(out if out is not None else output, _console(quiet))
     if code:
@@ -441,8 +444,6 @@ class _ClosedStdout:
     encoding = "utf-8"
 
     def _closed(self, *args: Any) -> Any:
-        from ..errors import OutputError
-
         raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
 
     write = _closed
@@ -471,8 +472,6 @@ def _prepare_stdio(debug: bool) -> None:
     keeps the terminal on a copy of it, and warnings (numpy's RuntimeWarnings among them)
     are not shown: hbvs reports problems in its own words.
     """
-    from ..io.output_target import guard_stdio, stdio_closed
-
     global _stdout_at_start
     guard_stdio()
     _stdout_at_start = _stdout_identity()
@@ -482,11 +481,7 @@ def _prepare_stdio(debug: bool) -> None:
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
     if debug:
         return
-    import warnings
-
     warnings.simplefilter("ignore")
-    from ..io.native_log import capture
-
     capture()
 
 

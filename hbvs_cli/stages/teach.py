@@ -10,11 +10,21 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics
+from ..core.frames import compose_planar_pose
 from ..core.path import DEFAULT_PRESET, PRESETS, CommandProfile, preset_profile
 from ..core.world import World, default_world
 from ..errors import InputError, UsageError
+from ..io import sources
+from ..io.calibration import load_calibration
+from ..io.images import STORE_FORMATS, bytes_to_store
+from ..io.limits import step_count
+from ..io.mcap_io import open_output, seconds_to_ns
+from ..io.output_target import refuse_overwriting_inputs
+from ..io.path_csv import load_command_profile
+from ..io.teach_file import TeachWriter
 from ..sim.render import make_renderer
 from .console import Console
+from .options import parse_offset, recorded_settings
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
@@ -80,8 +90,6 @@ class TeachOptions:
         A simulated teach records every option; a recorded source only those that apply
         to it (no simulator settings such as noise or the path).
         """
-        from .options import recorded_settings
-
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
@@ -101,10 +109,6 @@ class TeachSummary:
 
 def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     """Record the taught run described by ``options`` into ``options.output``."""
-    from ..io.images import STORE_FORMATS
-
-    from ..io.output_target import refuse_overwriting_inputs
-
     if options.image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
     if not 1 <= options.jpeg_quality <= 100:
@@ -132,8 +136,6 @@ def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[Command
         return profile, start, spec
     candidate = Path(spec)
     if candidate.suffix.lower() == ".csv" or candidate.exists():
-        from ..io.path_csv import load_command_profile
-
         profile = load_command_profile(candidate)
         if duration is not None and duration < profile.t_end:
             profile = _cut_profile(profile, duration)
@@ -161,11 +163,6 @@ def simulated_world(options: TeachOptions) -> World:
 
 
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import bytes_to_store
-    from ..io.limits import step_count
-    from ..io.mcap_io import open_output, seconds_to_ns
-    from ..io.teach_file import TeachWriter
-
     if options.calibration is None and options.fps <= 0:
         raise UsageError("--fps must be positive")
     world = simulated_world(options)
@@ -174,9 +171,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
         step_count(planned, options.fps, "the simulated teach (its duration times --fps)")
     profile, start_pose, path_name = resolve_path(options.path, options.fps, options.duration)
     if options.offset is not None:
-        from ..core.frames import compose_planar_pose
-        from .options import parse_offset
-
         # A second drive by hand never starts exactly where the first did.
         start_pose = tuple(compose_planar_pose(start_pose, parse_offset(options.offset)))
     duration = profile.duration if options.duration is None else min(options.duration, profile.duration)
@@ -217,14 +211,10 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
 
 # ----------------------------------------------------------------------------- real sources
 def _load_camera(path: Path) -> CameraIntrinsics:
-    from ..io.calibration import load_calibration
-
     return load_calibration(path)
 
 
-def _open_source(kind: str, options: TeachOptions) -> Any:
-    from ..io import sources
-
+def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
     if kind == "video":
         return sources.VideoSource(options.video, fps=options.fps)
     if kind == "images":
@@ -235,10 +225,6 @@ def _open_source(kind: str, options: TeachOptions) -> Any:
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import bytes_to_store
-    from ..io.mcap_io import open_output, seconds_to_ns
-    from ..io.teach_file import TeachWriter
-
     given = options.simulation_options_given()
     if given:
         verb = "describes" if len(given) == 1 else "describe"
@@ -259,7 +245,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
         teach.calibration(camera)
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
-            iterator: Iterator[Any] = iter(source)
+            iterator: Iterator[sources.SourceFrame] = iter(source)
             try:
                 for frame in iterator:
                     # Frames at t = 0, 1/fps, ... strictly before the end: 5 s at 30 fps is 150.
@@ -284,7 +270,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
     return TeachSummary(frames=frames, duration_s=last_t, output=options.output, source=kind)
 
 
-def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: Any) -> None:
+def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: sources.FrameSource) -> None:
     height, width = image.shape[:2]
     if (width, height) != (camera.width, camera.height):
         raise InputError(
