@@ -16,7 +16,7 @@ from hbvs_cli.core.metrics import STATISTICS
 from hbvs_cli.errors import TargetLostError, UsageError
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
-from hbvs_cli.tools.report_data import REPORT_KEYS, build_report
+from hbvs_cli.report.build import REPORT_KEYS, build_report
 
 from conftest import run_hbvs
 
@@ -261,7 +261,7 @@ def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
 
 
 def test_figure_axes_are_labelled_with_units(runs):
-    from hbvs_cli.tools.plots import plot_runs
+    from hbvs_cli.report.plots import plot_runs
 
     loaded = [read_run(runs["run"]), read_run(runs["paper"])]
     figure = plot_runs(loaded, [build_report(run) for run in loaded])
@@ -282,7 +282,7 @@ def test_figure_axes_are_labelled_with_units(runs):
 
 
 def test_replay_figure_says_what_is_missing(runs):
-    from hbvs_cli.tools.plots import plot_runs
+    from hbvs_cli.report.plots import plot_runs
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])

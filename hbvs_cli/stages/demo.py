@@ -17,9 +17,9 @@ from ..errors import InputError
 from ..io.mcap_io import json_ready
 from ..io.output_target import write_output_bytes
 from ..io.run_file import read_run
-from ..tools.plots import save_plot
-from ..tools.report_data import build_report
-from ..tools.report_table import print_report_tables
+from ..report.plots import save_plot
+from ..report.build import build_report
+from ..report.table import print_report_tables
 from .console import Console
 from .fit import FitOptions, run_fit
 from .repeat import RepeatOptions, run_repeat

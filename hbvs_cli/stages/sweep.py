@@ -3,8 +3,8 @@
 Plans the runs of a spec (:mod:`hbvs_cli.sweep.spec`), runs each one as ``hbvs repeat
 --sim`` + ``hbvs report --json`` (:func:`hbvs_cli.sweep.runner.execute_run`) on a Dask
 cluster (:mod:`hbvs_cli.sweep.engine`), writes the rows as they finish
-(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.tools.sweep_summary`)
-and draws the figures (:mod:`hbvs_cli.tools.sweep_plots`). Interrupted, the same command
+(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.report.sweep_summary`)
+and draws the figures (:mod:`hbvs_cli.report.sweep_plots`). Interrupted, the same command
 resumes: the runs already in the table are skipped.
 
 Like ``demo``, this stage drives the others (``repeat`` and ``report``) through their
@@ -29,8 +29,8 @@ from ..sweep.engine import dask_client, default_workers, require_engine, run_tas
 from ..sweep.runner import KEEP_CHOICES, RunTask, execute_run
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..sweep.table import ResultsTable, failed_row, row_schema
-from ..tools.sweep_plots import save_sweep_plots
-from ..tools.sweep_summary import print_summary, print_summary_json, summarize
+from ..report.sweep_plots import save_sweep_plots
+from ..report.sweep_summary import print_summary, print_summary_json, summarize
 from .console import Console
 
 
