@@ -15,8 +15,10 @@ from hbvs_cli.io.config import SCHEMA, load_config
 from hbvs_cli.stages import repeat as repeat_stage
 from hbvs_cli.stages.repeat import resolve_settings
 from hbvs_cli.stages.settings import (
-    DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, RepeatOptions,
+    DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, SIMULATION_DEFAULTS,
+    TEACH_SETTINGS, RepeatOptions,
 )
+from hbvs_cli.stages.teach import TeachOptions
 
 from conftest import REPO
 
@@ -120,3 +122,14 @@ def test_the_sample_gains_file_holds_the_code_defaults():
         expected = defaults[key] if key in defaults else setting.fallback
         assert value == expected, key
     assert {"k_v", "k_w", "gamma", "k_2", "law", "max_v", "max_w", "lost_timeout"} <= set(sample)
+
+
+def test_teach_options_come_from_their_table_too():
+    command = typer.main.get_command(app).commands["teach"]
+    helps = {param.name: param.help for param in command.params}
+    assert set(helps) - {"quiet"} == {f.name for f in dataclasses.fields(TeachOptions)} == {s.name for s in TEACH_SETTINGS}
+    # The simulation's defaults are the table's, and --help shows them.
+    assert SIMULATION_DEFAULTS == {"path": "s-curve", "offset": None, "target": "dots", "dots": 3, "texture": None,
+                                   "seed": 0, "noise": 2.0, "blur": 0.0, "exposure": 1.0}
+    assert TeachOptions().for_simulation().noise == SIMULATION_DEFAULTS["noise"]
+    assert helps["noise"].endswith("Default 2.") and helps["path"].endswith("Default s-curve.") and helps["dots"].endswith("Default 3.")

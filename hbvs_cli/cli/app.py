@@ -29,7 +29,7 @@ from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_path
 from ..stages.console import Console
-from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, RepeatOptions, options_from_command_line
+from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 
@@ -50,11 +50,12 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-#: ``-q`` of repeat.
+#: ``-q`` of repeat, and of teach.
 QUIET = inspect.Parameter(
     "quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
     annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")],
 )
+QUIET_MESSAGES = QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")])
 
 
 def _version(value: bool) -> None:
@@ -80,42 +81,13 @@ def _console(quiet: bool) -> Console:
 
 # --------------------------------------------------------------------------- teach
 @app.command(rich_help_panel="Pipeline")
-def teach(
-    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "teach.mcap",
-    sim: Annotated[bool, typer.Option("--sim", help="Simulated robot and camera (the default source).")] = False,
-    video: Annotated[Optional[Path], typer.Option("--video", help="A video file (anything OpenCV reads).", rich_help_panel="Sources")] = None,
-    images: Annotated[Optional[str], typer.Option("--images", help="A folder of images or a glob; sorted naturally.", rich_help_panel="Sources")] = None,
-    camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
-    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", rich_help_panel="Sources")] = None,
-    topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
-    path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
-    offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
-    target: Annotated[Optional[str], typer.Option("--target", help="Target on the wall: dots, aruco or texture. Default dots.", rich_help_panel="Simulation")] = None,
-    dots: Annotated[Optional[int], typer.Option("--dots", min=3, help="Number of dots of a dots target. Default 3.", rich_help_panel="Simulation")] = None,
-    texture: Annotated[Optional[Path], typer.Option("--texture", help="Poster image for --target texture (default: a built-in pattern).", rich_help_panel="Simulation")] = None,
-    calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
-    fps: Annotated[Optional[float], typer.Option("--fps", min=0.1, help="Frame rate (Hz) of the simulated camera or of --images (default 30); for --video, replaces the container's rate.")] = None,
-    duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of the simulated sensor noise. Default 0.", rich_help_panel="Simulation")] = None,
-    noise: Annotated[Optional[float], typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma). Default 2.", rich_help_panel="Simulation")] = None,
-    blur: Annotated[Optional[float], typer.Option("--blur", min=0.0, max=100.0, help="Gaussian blur sigma (px). Default 0.", rich_help_panel="Simulation")] = None,
-    exposure: Annotated[Optional[float], typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera. Default 1.", rich_help_panel="Simulation")] = None,
-    image_format: Annotated[str, typer.Option("--format", help="Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.")] = "auto",
-    jpeg_quality: Annotated[int, typer.Option("--quality", min=1, max=100, help="JPEG quality of the frames hbvs compresses.")] = 90,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
-) -> None:
+@with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
+def teach(**values: Any) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
     from ..stages.teach import TeachOptions, run_teach  # lazy: start-up time (see above)
 
-    run_teach(
-        TeachOptions(
-            output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
-            path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
-            duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
-            jpeg_quality=jpeg_quality,
-        ),
-        _console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_teach(options_from_command_line(TeachOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- fit

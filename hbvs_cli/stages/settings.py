@@ -1,8 +1,10 @@
-"""The options of ``hbvs repeat``, declared once: name, type, default, help, config key.
+"""The options of ``hbvs teach`` and ``hbvs repeat``, declared once: name, type, default,
+help, config key.
 
-:data:`REPEAT_SETTINGS` is the one table. From it come the typer signature of the command
-(:mod:`hbvs_cli.cli.signature`), the :class:`RepeatOptions` dataclass the stage takes, the
-``--config`` key of each option, and the defaults shown in ``--help``.
+:data:`TEACH_SETTINGS` and :data:`REPEAT_SETTINGS` are the tables. From each come the typer
+signature of the command (:mod:`hbvs_cli.cli.signature`), the options dataclass the stage
+takes (:class:`RepeatOptions`; ``TeachOptions`` adds its methods in the stage), the
+``--config`` key of each repeat option, and the defaults shown in ``--help``.
 
 Precedence: built-in default < ``--config`` file < the command line. An option that a
 config file may set holds None until it is given, so an explicit value always wins, even
@@ -18,6 +20,7 @@ from pathlib import Path
 from typing import Any, Mapping, Optional
 
 from ..core.controller import LAW_LATERAL_GAIN, ControllerGains
+from ..core.path import DEFAULT_PRESET
 from ..core.state_filter import FILTER_EKF
 from ..io.shipped import shipped_path
 
@@ -85,7 +88,7 @@ class Setting:
         """The default as ``--help`` shows it (None: nothing to show)."""
         if self.shown is not None:
             return self.shown
-        value = self.fallback if self.config is not None else self.default
+        value = self.fallback if self.default is None else self.default
         if value is None or value is False or self.argument or self.repeatable:
             return None
         return _shown(value)
@@ -104,6 +107,45 @@ def _shown(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:g}"
     return str(value)
+
+
+#: Frame rate of the simulated camera and of an image folder when --fps is not given (Hz).
+DEFAULT_FPS = 30.0
+
+TEACH_SETTINGS: tuple[Setting, ...] = (
+    Setting("output", str, OUTPUT_HELP, default="teach.mcap", flags=("-o", "--output")),
+    Setting("sim", bool, "Simulated robot and camera (the default source).", default=False),
+    Setting("video", Path, "A video file (anything OpenCV reads).", panel="Sources"),
+    Setting("images", str, "A folder of images or a glob; sorted naturally.", panel="Sources"),
+    Setting("camera", int, "A live camera by index; --duration or Ctrl-C ends it.", panel="Sources"),
+    Setting("bag", Path, "A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage "
+            "(e.g. a teach file).", panel="Sources"),
+    Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
+    Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
+            fallback=DEFAULT_PRESET, panel="Simulation"),
+    Setting("offset", str, "Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.",
+            panel="Simulation"),
+    Setting("target", str, "Target on the wall: dots, aruco or texture.", fallback="dots", panel="Simulation"),
+    Setting("dots", int, "Number of dots of a dots target.", fallback=3, panel="Simulation", bounds={"min": 3}),
+    Setting("texture", Path, "Poster image for --target texture.", shown="a built-in pattern", panel="Simulation"),
+    Setting("calibration", Path, "Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera."),
+    Setting("fps", float, "Frame rate (Hz) of the simulated camera or of --images; for --video, replaces the container's rate.",
+            shown=f"{DEFAULT_FPS:g} (simulation, --images)", bounds={"min": 0.1}),
+    Setting("duration", float, "Seconds to record.", shown="the whole path or source", bounds={"min": 0.0}),
+    Setting("seed", int, "Seed of the simulated sensor noise.", fallback=0, panel="Simulation", bounds={"min": 0}),
+    Setting("noise", float, "Sensor noise, gray levels (1 sigma).", fallback=2.0, panel="Simulation", bounds={"min": 0.0}),
+    Setting("blur", float, "Gaussian blur sigma (px).", fallback=0.0, panel="Simulation", bounds={"min": 0.0, "max": 100.0}),
+    Setting("exposure", float, "Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05}),
+    Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) "
+            "and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.",
+            default="auto", flags=("--format",)),
+    Setting("jpeg_quality", int, "JPEG quality of the frames hbvs compresses.", default=90, flags=("--quality",),
+            bounds={"min": 1, "max": 100}),
+)
+
+#: Options that describe the simulated robot and camera, and their defaults (None in the
+#: options means "not given"). A recorded source refuses them.
+SIMULATION_DEFAULTS: dict[str, Any] = {s.name: s.fallback for s in TEACH_SETTINGS if s.panel == "Simulation"}
 
 
 #: The default start offset of ``repeat --sim`` (m, m, deg): where the robot was put down by hand.
@@ -196,3 +238,7 @@ def options_from_command_line(cls: type, values: Mapping[str, Any]) -> Any:
 
 def _is_list(cls: type, name: str) -> bool:
     return any(f.name == name and f.default_factory is list for f in fields(cls))
+
+
+#: The fields of ``hbvs teach``'s options (the stage's ``TeachOptions`` adds its methods).
+TeachFields = options_class("TeachFields", TEACH_SETTINGS, "Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``).")

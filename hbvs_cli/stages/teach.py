@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics
 from ..core.frames import compose_planar_pose
-from ..core.path import DEFAULT_PRESET, PRESETS, CommandProfile, preset_profile
+from ..core.path import PRESETS, CommandProfile, preset_profile
 from ..core.world import World, default_world
 from ..errors import InputError, UsageError
 from ..io import sources
@@ -25,46 +25,17 @@ from ..io.teach_file import TeachWriter
 from ..sim.render import make_renderer
 from .console import Console
 from .options import parse_offset, recorded_settings
+from .settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
-#: Options that describe the simulated robot and camera, and their defaults (None in
-#: :class:`TeachOptions` means "not given"). A recorded source refuses them.
-SIMULATION_DEFAULTS: dict[str, Any] = {
-    "path": DEFAULT_PRESET, "offset": None, "target": "dots", "dots": 3, "texture": None,
-    "seed": 0, "noise": 2.0, "blur": 0.0, "exposure": 1.0,
-}
-#: Frame rate of the simulated camera and of an image folder when --fps is not given (Hz).
-DEFAULT_FPS = 30.0
 #: Options of each recorded source recorded in its metadata (beside the source's own description).
 SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality")
 
 
-@dataclass(frozen=True)
-class TeachOptions:
-    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``)."""
-
-    output: str = "teach.mcap"
-    sim: bool = False
-    video: Path | None = None
-    images: str | None = None
-    camera: int | None = None
-    bag: Path | None = None
-    topic: str | None = None
-    path: str | None = None
-    offset: str | None = None
-    target: str | None = None
-    dots: int | None = None
-    texture: Path | None = None
-    calibration: Path | None = None
-    fps: float | None = None
-    duration: float | None = None
-    seed: int | None = None
-    noise: float | None = None
-    blur: float | None = None
-    exposure: float | None = None
-    image_format: str = "auto"
-    jpeg_quality: int = 90
+class TeachOptions(TeachFields):
+    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``); its fields are
+    :data:`~hbvs_cli.stages.settings.TEACH_SETTINGS`."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
