@@ -125,7 +125,7 @@ def rendered_s_curve(seed: int, frames: int = 600):
     """
     from hbvs_cli.core.path import preset_profile
     from hbvs_cli.core.world import default_world
-    from hbvs_cli.stages.teach import make_renderer
+    from hbvs_cli.sim.render import make_renderer
 
     world = default_world()
     profile, start = preset_profile("s-curve", 30)

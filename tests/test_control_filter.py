@@ -228,7 +228,7 @@ def test_200_hz_at_a_fifth_of_a_pixel_is_smooth_and_the_old_loop_fails_the_verdi
     from conftest import make_run
 
     from hbvs_cli.io.run_file import read_run
-    from hbvs_cli.tools.report_data import build_report
+    from hbvs_cli.report.build import build_report
 
     common = dict(sim=True, perception="points", pixel_noise=0.2, rate=200.0)
     make_run(fit_path, tmp_path / "new.mcap", **common)

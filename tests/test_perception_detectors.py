@@ -15,8 +15,6 @@ from hbvs_cli.perception import (
     ArucoMarkerDetector,
     Detection,
     DotDetector,
-    RenderSettings,
-    SceneRenderer,
     TargetDetector,
     TextureDetection,
     TextureDetector,
@@ -24,7 +22,8 @@ from hbvs_cli.perception import (
     make_detector,
     match_identity,
 )
-from hbvs_cli.perception.detector import PointTrack
+from hbvs_cli.perception.base import PointTrack
+from hbvs_cli.sim import RenderSettings, SceneRenderer
 
 
 def path_poses(count: int, seed: int) -> np.ndarray:

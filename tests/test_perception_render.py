@@ -11,8 +11,9 @@ from hbvs_cli.core.camera import CameraIntrinsics, distort_pixels
 from hbvs_cli.core.path import preset_profile
 from hbvs_cli.core.world import default_world, with_camera
 from hbvs_cli.errors import InputError, UsageError
-from hbvs_cli.perception import DotDetector, PosterRaster, RenderSettings, SceneRenderer
-from hbvs_cli.perception.poster import INK_BLACK, PAPER_WHITE, build_pyramid
+from hbvs_cli.perception import DotDetector
+from hbvs_cli.sim import PosterRaster, RenderSettings, SceneRenderer
+from hbvs_cli.sim.poster import INK_BLACK, PAPER_WHITE, build_pyramid
 
 POSE = np.array([1.0, 0.05, 0.08])
 

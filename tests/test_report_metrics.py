@@ -22,7 +22,7 @@ from hbvs_cli.core.metrics import (
 )
 from hbvs_cli.errors import UsageError
 from hbvs_cli.io.run_file import STATE_FIELDS, RunData
-from hbvs_cli.tools.report_data import DEFAULT_TOLERANCES, REPORT_KEYS, build_report, resolve_tolerances
+from hbvs_cli.report.build import DEFAULT_TOLERANCES, REPORT_KEYS, build_report, resolve_tolerances
 
 RATE_HZ = 100.0
 DT = 1.0 / RATE_HZ

@@ -20,7 +20,7 @@ import pytest
 from hbvs_cli.errors import TargetLostError
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console, ProgressTask
-from hbvs_cli.tools.figure_style import PALETTE
+from hbvs_cli.report.figure_style import PALETTE
 
 from conftest import call_hbvs, run_hbvs
 
@@ -208,9 +208,9 @@ def test_fit_file_report_and_misuse(runs, tmp_path):
 
 # ----------------------------------------------------------------------------- figures
 def _figure(runs, names, labels=None, **style):
-    from hbvs_cli.tools.figure_style import FigureStyle
-    from hbvs_cli.tools.plots import plot_runs
-    from hbvs_cli.tools.report_data import build_report
+    from hbvs_cli.report.figure_style import FigureStyle
+    from hbvs_cli.report.plots import plot_runs
+    from hbvs_cli.report.build import build_report
 
     loaded = [read_run(runs["paths"][name]) for name in names]
     reports = [build_report(run, None, label) for run, label in zip(loaded, labels or [None] * len(loaded))]
@@ -232,7 +232,7 @@ def _horizontal_levels(ax) -> set[float]:
 
 
 def test_run_figure_panels_titles_units_and_legend(runs):
-    from hbvs_cli.tools.plots import PANEL_NAMES
+    from hbvs_cli.report.plots import PANEL_NAMES
 
     figure, _ = _figure(runs, ("run", "paper", "faults"), labels=["lateral gain", "paper law", "faults"])
     axes = _axes(figure)
@@ -316,7 +316,7 @@ def test_top_view_shows_wall_target_heading_and_the_taught_path_on_top(runs):
 
 
 def test_a_dense_noisy_run_is_thinned_for_display():
-    from hbvs_cli.tools.plots import MAX_POINTS_PER_RUN, display_series
+    from hbvs_cli.report.plots import MAX_POINTS_PER_RUN, display_series
 
     rng = np.random.default_rng(18)
     t = np.arange(200 * 20) / 200.0                                     # 20 s at 200 Hz
@@ -336,7 +336,7 @@ def test_a_dense_noisy_run_is_thinned_for_display():
     # Overlaid, the dense run is drawn thinner and under the sparse one, whatever the order given.
     from types import SimpleNamespace
 
-    from hbvs_cli.tools.plots import _line_styles
+    from hbvs_cli.report.plots import _line_styles
 
     dense, sparse = (SimpleNamespace(steps=ts.size, state={"t": ts}) for ts in (t, t[::10]))
     styles = _line_styles([dense, sparse], ["C0", "C1"])
@@ -346,7 +346,7 @@ def test_a_dense_noisy_run_is_thinned_for_display():
 
 
 def test_figure_options_and_formats(runs, tmp_path):
-    from hbvs_cli.tools.figure_style import parse_size
+    from hbvs_cli.report.figure_style import parse_size
 
     run = str(runs["paths"]["run"])
     png = tmp_path / "one-column.png"
@@ -376,7 +376,7 @@ def test_figure_options_and_formats(runs, tmp_path):
 
 
 def test_fit_figure_panels(runs, tmp_path):
-    from hbvs_cli.tools.fit_plot import FIT_PANELS, plot_fit, read_fit_signals
+    from hbvs_cli.report.fit_plot import FIT_PANELS, plot_fit, read_fit_signals
 
     signals = read_fit_signals(runs["paths"]["fit"])
     figure = plot_fit(signals)

@@ -16,7 +16,7 @@ from hbvs_cli.core.metrics import STATISTICS
 from hbvs_cli.errors import TargetLostError, UsageError
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
-from hbvs_cli.tools.report_data import REPORT_KEYS, build_report
+from hbvs_cli.report.build import REPORT_KEYS, build_report
 
 from conftest import call_hbvs, run_hbvs
 
@@ -102,9 +102,9 @@ def test_json_values_agree_with_the_run(runs):
     report = report_json(runs["run"])
     # The simulated start offset (repeat's default) is the initial pose error.
     from hbvs_cli.stages.options import parse_offset
-    from hbvs_cli.stages.repeat import RepeatOptions
+    from hbvs_cli.stages.settings import DEFAULT_OFFSET
 
-    dx, dy, dtheta = parse_offset(RepeatOptions.offset)
+    dx, dy, dtheta = parse_offset(DEFAULT_OFFSET)
     # (to the report's 7 significant digits)
     assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), rel=1e-6)
     assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)
@@ -261,7 +261,7 @@ def test_plot_writes_a_png_of_the_stated_size(runs, tmp_path):
 
 
 def test_figure_axes_are_labelled_with_units(runs):
-    from hbvs_cli.tools.plots import plot_runs
+    from hbvs_cli.report.plots import plot_runs
 
     loaded = [read_run(runs["run"]), read_run(runs["paper"])]
     figure = plot_runs(loaded, [build_report(run) for run in loaded])
@@ -282,7 +282,7 @@ def test_figure_axes_are_labelled_with_units(runs):
 
 
 def test_replay_figure_says_what_is_missing(runs):
-    from hbvs_cli.tools.plots import plot_runs
+    from hbvs_cli.report.plots import plot_runs
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])

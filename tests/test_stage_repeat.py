@@ -233,7 +233,7 @@ def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
     rise on some steps (measured 12 % under the lateral-gain law and 10 % under the paper's,
     with the state filter on; 42 % and 44 % without it), while over the run it falls by a
     factor of 3e5 (lateral gain) and 17 (paper)."""
-    from hbvs_cli.tools.report_data import build_report
+    from hbvs_cli.report.build import build_report
 
     for law, run in image_runs.items():
         lyapunov = build_report(run)["lyapunov"]

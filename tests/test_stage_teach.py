@@ -127,7 +127,7 @@ def rendered_frames(count: int = 12):
     """Frames of the default scenario, rendered as a camera would record them."""
     from hbvs_cli.core.path import preset_profile
     from hbvs_cli.core.world import default_world
-    from hbvs_cli.stages.teach import make_renderer
+    from hbvs_cli.sim.render import make_renderer
 
     world = default_world()
     profile, start = preset_profile("s-curve", 30)

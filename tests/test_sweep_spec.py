@@ -77,7 +77,7 @@ def test_the_printed_command_holds_exactly_the_options_of_the_run():
 
 
 def test_wilson_interval_matches_the_formula():
-    from hbvs_cli.tools.sweep_summary import wilson_interval
+    from hbvs_cli.report.sweep_summary import wilson_interval
 
     for k, n in ((0, 10), (7, 10), (40, 40), (123, 400)):
         p, z = k / n, 1.959963984540054
@@ -147,7 +147,7 @@ def test_each_baseline_tracks_with_the_true_depth(tmp_path, law):
     path of the sample (within 1 cm and 0.5 deg; the sample's 320 px camera limits heading)."""
     from conftest import SAMPLES, make_run
     from hbvs_cli.io.run_file import read_run
-    from hbvs_cli.tools.report_data import build_report
+    from hbvs_cli.report.build import build_report
 
     make_run(SAMPLES / "fit.mcap", tmp_path / "run.mcap", sim=True, perception="points", rate=30.0, law=law, dhat0=4.0)
     report = build_report(read_run(tmp_path / "run.mcap"))

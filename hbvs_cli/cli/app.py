@@ -1,17 +1,21 @@
 """The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
 
-This layer stays thin: every command imports its stage lazily (``hbvs --help`` must not
-load OpenCV, scipy or matplotlib) and turns :class:`~hbvs_cli.errors.HbvsError` into one
-line on stderr and the error's exit code. ``--debug`` shows the traceback instead.
+This layer stays thin: it turns :class:`~hbvs_cli.errors.HbvsError` into one line on
+stderr and the error's exit code (``--debug`` shows the traceback instead). Each command
+imports its stage inside the command, the only lazy imports here: ``hbvs --help`` must not
+load OpenCV, scipy, matplotlib or mcap (tests/test_repository.py checks). The options of
+``repeat`` come from its settings table (:mod:`hbvs_cli.stages.settings`).
 """
 
 from __future__ import annotations
 
 import errno
+import inspect
 import os
 import signal
 import sys
 import traceback
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
@@ -19,10 +23,16 @@ import typer
 
 
 from .. import __version__
-from ..errors import HbvsError
+from ..errors import HbvsError, OutputError
+from ..io.limits import set_limits
+from ..io.native_log import capture
+from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_path
 from .exit_codes import exit_code_of
+from ..stages.console import Console
+from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
+from .signature import with_settings
 
 app = typer.Typer(
     cls=HbvsGroup,
@@ -41,7 +51,12 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
+#: ``-q`` of repeat, and of teach.
+QUIET = inspect.Parameter(
+    "quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
+    annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")],
+)
+QUIET_MESSAGES = QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")])
 
 
 def _version(value: bool) -> None:
@@ -58,55 +73,22 @@ def _root(
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
-        from ..io.limits import set_limits
-
         set_limits(list(limit))
 
 
-def _console(quiet: bool):
-    from ..stages.console import Console
-
+def _console(quiet: bool) -> Console:
     return Console(quiet=quiet)
 
 
 # --------------------------------------------------------------------------- teach
 @app.command(rich_help_panel="Pipeline")
-def teach(
-    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "teach.mcap",
-    sim: Annotated[bool, typer.Option("--sim", help="Simulated robot and camera (the default source).")] = False,
-    video: Annotated[Optional[Path], typer.Option("--video", help="A video file (anything OpenCV reads).", rich_help_panel="Sources")] = None,
-    images: Annotated[Optional[str], typer.Option("--images", help="A folder of images or a glob; sorted naturally.", rich_help_panel="Sources")] = None,
-    camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
-    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", rich_help_panel="Sources")] = None,
-    topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
-    path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
-    offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
-    target: Annotated[Optional[str], typer.Option("--target", help="Target on the wall: dots, aruco or texture. Default dots.", rich_help_panel="Simulation")] = None,
-    dots: Annotated[Optional[int], typer.Option("--dots", min=3, help="Number of dots of a dots target. Default 3.", rich_help_panel="Simulation")] = None,
-    texture: Annotated[Optional[Path], typer.Option("--texture", help="Poster image for --target texture (default: a built-in pattern).", rich_help_panel="Simulation")] = None,
-    calibration: Annotated[Optional[Path], typer.Option("--calibration", help="Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera.")] = None,
-    fps: Annotated[Optional[float], typer.Option("--fps", min=0.1, help="Frame rate (Hz) of the simulated camera or of --images (default 30); for --video, replaces the container's rate.")] = None,
-    duration: Annotated[Optional[float], typer.Option("--duration", min=0.0, help="Seconds to record (default: the whole path or source).")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of the simulated sensor noise. Default 0.", rich_help_panel="Simulation")] = None,
-    noise: Annotated[Optional[float], typer.Option("--noise", min=0.0, help="Sensor noise, gray levels (1 sigma). Default 2.", rich_help_panel="Simulation")] = None,
-    blur: Annotated[Optional[float], typer.Option("--blur", min=0.0, max=100.0, help="Gaussian blur sigma (px). Default 0.", rich_help_panel="Simulation")] = None,
-    exposure: Annotated[Optional[float], typer.Option("--exposure", min=0.05, help="Exposure gain of the simulated camera. Default 1.", rich_help_panel="Simulation")] = None,
-    image_format: Annotated[str, typer.Option("--format", help="Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.")] = "auto",
-    jpeg_quality: Annotated[int, typer.Option("--quality", min=1, max=100, help="JPEG quality of the frames hbvs compresses.")] = 90,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
-) -> None:
+@with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
+def teach(**values: Any) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
-    from ..stages.teach import TeachOptions, run_teach
+    from ..stages.teach import TeachOptions, run_teach  # lazy: start-up time (see above)
 
-    run_teach(
-        TeachOptions(
-            output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
-            path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
-            duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
-            jpeg_quality=jpeg_quality,
-        ),
-        _console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_teach(options_from_command_line(TeachOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- fit
@@ -128,7 +110,7 @@ def fit(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
     """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    from ..stages.fit import FitOptions, run_fit
+    from ..stages.fit import FitOptions, run_fit  # lazy: start-up time (see above)
 
     run_fit(
         FitOptions(
@@ -142,54 +124,13 @@ def fit(
 
 # --------------------------------------------------------------------------- repeat
 @app.command(rich_help_panel="Pipeline")
-def repeat(
-    input: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit), or - for stdin.")],
-    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "run.mcap",
-    sim: Annotated[bool, typer.Option("--sim", help="Closed loop with a simulated robot and camera.", rich_help_panel="Mode")] = False,
-    replay: Annotated[Optional[Path], typer.Option("--replay", help="Open loop: the frames of a teach recording are the live camera.", rich_help_panel="Mode")] = None,
-    offset: Annotated[str, typer.Option("--offset", help="Start pose offset DX,DY,DTHETA (m, m, deg) in the taught start frame: where the robot was put down by hand.", rich_help_panel="Simulation")] = "-0.1,0.05,2",
-    perception: Annotated[str, typer.Option("--perception", help="images (render and detect) or points (project and add --pixel-noise).", rich_help_panel="Simulation")] = "images",
-    pixel_noise: Annotated[float, typer.Option("--pixel-noise", min=0.0, help="Pixel noise (px, 1 sigma) for --perception points.", rich_help_panel="Simulation")] = 0.0,
-    rate: Annotated[Optional[float], typer.Option("--rate", min=0.1, help="Camera and control rate (Hz); default the taught rate.", rich_help_panel="Simulation")] = None,
-    depth: Annotated[Optional[float], typer.Option("--depth", min=0.0, help="Assumed d* (m) to build a world when the teach came from real footage.", rich_help_panel="Simulation")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the simulated noise and faults.", rich_help_panel="Simulation")] = 0,
-    config: Annotated[Optional[Path], typer.Option("--config", help="TOML file with gains and limits (options given here win).", rich_help_panel="Controller")] = None,
-    law: Annotated[Optional[str], typer.Option("--law", help="lateral-gain (default), paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive (gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).", rich_help_panel="Controller")] = None,
-    kv: Annotated[Optional[float], typer.Option("--kv", help="k_v (m/s) of (29). Default 4.", rich_help_panel="Controller")] = None,
-    kw: Annotated[Optional[float], typer.Option("--kw", help="k_w (1/s) of (30). Default 1.", rich_help_panel="Controller")] = None,
-    gamma: Annotated[Optional[float], typer.Option("--gamma", help="gamma_1 of the update law (31). Default the fit's suggestion (from x_hd1_dot and the detector's noise).", rich_help_panel="Controller")] = None,
-    k2: Annotated[Optional[float], typer.Option("--k2", help=f"Lateral gain k_2. Default the fit's suggestion, k_w^2 / (4 x_hd1_dot^2) (see {shipped_path('docs/method.md')}).", rich_help_panel="Controller")] = None,
-    state_filter: Annotated[Optional[str], typer.Option("--filter", help="State filter between the camera and the law: ekf (default) or none (the raw measurement, the paper exactly).", rich_help_panel="Controller")] = None,
-    dhat0: Annotated[Optional[float], typer.Option("--dhat0", help="Initial depth estimate (m); default the fit's suggestion.", rich_help_panel="Controller")] = None,
-    speed: Annotated[Optional[float], typer.Option("--speed", help="Play the taught trajectory at this multiple of its pace.", rich_help_panel="Controller")] = None,
-    max_v: Annotated[Optional[float], typer.Option("--max-v", help="|v| limit (m/s); inf for none. Default 0.5.", rich_help_panel="Actuators")] = None,
-    max_w: Annotated[Optional[float], typer.Option("--max-w", help="|w| limit (rad/s); inf for none. Default 0.6.", rich_help_panel="Actuators")] = None,
-    max_accel: Annotated[Optional[float], typer.Option("--max-accel", help="Acceleration limit (m/s^2 and rad/s^2); inf for none (default).", rich_help_panel="Actuators")] = None,
-    latency: Annotated[Optional[int], typer.Option("--latency", min=0, help="Measurement latency in frames.", rich_help_panel="Actuators")] = None,
-    lost_timeout: Annotated[float, typer.Option("--lost-timeout", min=0.0, help="Stop the run after the target was lost this long (s).")] = 3.0,
-    cmd_out: Annotated[Optional[str], typer.Option("--cmd-out", help="Also write one JSON line per step (t, v, w) to FILE or - (stdout).")] = None,
-    record_images: Annotated[bool, typer.Option("--record-images", help="Store the camera images with detected and desired points.")] = False,
-    occlude: Annotated[Optional[List[str]], typer.Option("--occlude", help="Hide the target from START to END seconds (repeatable), e.g. 8:10.", rich_help_panel="Faults")] = None,
-    drop_rate: Annotated[float, typer.Option("--drop-rate", min=0.0, max=1.0, help="Fraction of camera frames dropped.", rich_help_panel="Faults")] = 0.0,
-    outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
-    exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
-    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when an input ended early (no end record).")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
-) -> None:
+@with_settings(REPEAT_SETTINGS, QUIET)
+def repeat(**values: Any) -> None:
     """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
-    from ..stages.repeat import RepeatOptions, run_repeat
+    from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
 
-    run_repeat(
-        RepeatOptions(
-            input=input, output=output, sim=sim, replay=replay, offset=offset, perception=perception,
-            pixel_noise=pixel_noise, rate=rate, depth=depth, seed=seed, config=config, law=law, kv=kv, kw=kw,
-            gamma=gamma, k2=k2, dhat0=dhat0, speed=speed, max_v=max_v, max_w=max_w, max_accel=max_accel,
-            latency=latency, lost_timeout=lost_timeout, cmd_out=cmd_out, record_images=record_images,
-            occlude=list(occlude or []), drop_rate=drop_rate, outlier_rate=outlier_rate, exposure_step=exposure_step,
-            allow_truncated=allow_truncated, state_filter=state_filter,
-        ),
-        _console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- report
@@ -208,7 +149,7 @@ def report(
     panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
-    from ..stages.report import ReportOptions, run_report
+    from ..stages.report import ReportOptions, run_report  # lazy: start-up time (see above)
 
     code = run_report(
         ReportOptions(
@@ -243,7 +184,7 @@ def sweep(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
 ) -> None:
     """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    from ..stages.sweep import SweepOptions, run_sweep
+    from ..stages.sweep import SweepOptions, run_sweep  # lazy: start-up time (see above)
 
     run_sweep(
         SweepOptions(
@@ -263,7 +204,7 @@ def demo(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
-    from ..stages.demo import run_demo
+    from ..stages.demo import run_demo  # lazy: start-up time (see above)
 
     code = run_demo(out if out is not None else output, _console(quiet))
     if code:
@@ -476,8 +417,6 @@ class _ClosedStdout:
     encoding = "utf-8"
 
     def _closed(self, *args: Any) -> Any:
-        from ..errors import OutputError
-
         raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
 
     write = _closed
@@ -506,8 +445,6 @@ def _prepare_stdio(debug: bool) -> None:
     keeps the terminal on a copy of it, and warnings (numpy's RuntimeWarnings among them)
     are not shown: hbvs reports problems in its own words.
     """
-    from ..io.output_target import guard_stdio, stdio_closed
-
     global _stdout_at_start
     guard_stdio()
     _stdout_at_start = _stdout_identity()
@@ -517,11 +454,7 @@ def _prepare_stdio(debug: bool) -> None:
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
     if debug:
         return
-    import warnings
-
     warnings.simplefilter("ignore")
-    from ..io.native_log import capture
-
     capture()
 
 

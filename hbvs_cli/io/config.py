@@ -1,22 +1,11 @@
 """``--config FILE.toml``: controller gains, actuator limits and run settings.
 
-Example (``samples/gains.toml`` holds the defaults)::
+The tables and keys are :data:`SCHEMA` (top level: ``law``, ``filter``, ``dhat0``,
+``speed``; ``[gains]``, ``[limits]``, ``[run]``). ``samples/gains.toml`` is an example that
+holds the defaults; the defaults themselves are written once, in the code
+(:mod:`hbvs_cli.stages.settings`), and a test checks that the sample agrees with them.
 
-    law = "lateral-gain"     # or "paper"
-    filter = "ekf"           # or "none": the state filter of docs/method.md
-    [gains]
-    k_v = 4.0
-    k_w = 1.0
-    gamma = 2000.0
-    k_2 = 300.0
-    [limits]
-    max_v = 0.5
-    max_w = 0.6
-    [run]
-    lost_timeout = 3.0
-
-Options given on the command line override the file.
-"""
+Options given on the command line override the file."""
 
 from __future__ import annotations
 

@@ -20,18 +20,27 @@ Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay)
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
+from ..core.camera import CameraIntrinsics
 from ..errors import RecordingError
-from .mcap_io import McapStream, read_metadata
-from .messages import planar_pose_from_message
-from .topics import COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
+from .calibration import calibration_to_foxglove
+from .images import write_compressed_image
+from .mcap_io import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
+from .messages import CAMERA_FRAME, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
+from .topics import (
+    ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC, TOPICS,
+    TRUE_POSE_TOPIC,
+)
 
 FILE_KIND = "run"
+#: Schema of each topic of a run file.
+RUN_SCHEMAS = TOPICS[FILE_KIND]
 
 #: Per-step numeric fields of ``hbvs.ControllerState`` kept by :class:`RunData` (NaN for null).
 STATE_FIELDS = (
@@ -194,3 +203,70 @@ def read_run(source: Any, name: str = "") -> RunData:
         lost_reason=reasons, true_pose=aligned(true_pose), desired_pose=aligned(desired_pose),
         events=events, truncated=stream.truncated, dropped=np.array(dropped, dtype=bool),
     )
+
+
+# ----------------------------------------------------------------------------- writing
+class RunWriter:
+    """Writes a run file through an :class:`~hbvs_cli.io.mcap_io.McapWriter`, from plain values.
+
+    The ``hbvs`` metadata record is written first, then the camera's calibration; every
+    other message is stamped with its time ``t`` (s) as log time and timestamp.
+
+    Parameters
+    ----------
+    writer : McapWriter
+    info : dict
+        The ``hbvs`` metadata record (``file_kind`` = ``run``, mode, law, gains, settings...).
+    camera : CameraIntrinsics
+    """
+
+    def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics) -> None:
+        self.writer = writer
+        writer.metadata("hbvs", info)
+        writer.write(CALIBRATION_TOPIC, RUN_SCHEMAS[CALIBRATION_TOPIC], 0, calibration_to_foxglove(camera, CAMERA_FRAME, 0))
+
+    def event(self, t: float, level: int, text: str) -> None:
+        """A ``foxglove.Log`` line on the events topic (``level``: one of messages.LOG_*)."""
+        ns = seconds_to_ns(t)
+        self.writer.write(EVENTS_TOPIC, RUN_SCHEMAS[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
+
+    def state(self, t: float, values: dict[str, Any]) -> None:
+        """One ``hbvs.ControllerState``: ``t`` and ``values`` (numbers, strings, bools or None;
+        a NaN or infinite number is written as null), in that order."""
+        ns = seconds_to_ns(t)
+        message = {"timestamp": time_message(ns), "t": t}
+        message.update(values)
+        self._write_flat(STATE_TOPIC, ns, message)
+
+    def command(self, t: float, v: float, w: float, saturated: bool) -> None:
+        """The command sent (m/s, rad/s), after the actuator limits."""
+        ns = seconds_to_ns(t)
+        self._write_flat(COMMAND_TOPIC, ns, velocity_message(time_message(ns), v, w, saturated), clean=False)
+
+    def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
+        """The true robot pose and the taught pose at ``t``: ``(x, y, phi)`` (m, m, rad), the
+        camera ``height`` (m) above the floor."""
+        ns = seconds_to_ns(t)
+        stamp = time_message(ns)
+        self._write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, true_pose, height), clean=False)
+        self._write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, desired_pose, height), clean=False)
+
+    def image(self, t: float, data: bytes, image_format: str, detected: np.ndarray | None, desired: np.ndarray | None,
+              label: str) -> None:
+        """A camera image (encoded ``data``) and its annotations: detected and desired pixels."""
+        ns = seconds_to_ns(t)
+        write_compressed_image(self.writer, IMAGE_TOPIC, ns, data, image_format, CAMERA_FRAME)
+        self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns,
+                          annotations_message(time_message(ns), detected, desired, label))
+
+    def _write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
+        """Write a message whose values are plain numbers, strings, bools, None or small
+        dicts of them: encoded directly, without the general JSON cleaning pass (this
+        runs several times per control period). ``clean=False`` when no value can be NaN."""
+        if clean:
+            for key, value in message.items():
+                if isinstance(value, float) and not math.isfinite(value):
+                    message[key] = None
+        data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
+        self.writer.write_encoded(topic, RUN_SCHEMAS[topic], ns, data)
+

@@ -1,34 +1,38 @@
-"""Perception: synthetic camera frames of the target, and detectors of its points.
+"""Perception: detectors of the target's points in camera frames.
 
-* :mod:`.poster` -- the target's picture as a raster with an anti-aliasing pyramid;
-* :mod:`.render` -- camera frames of the poster from a robot pose (exposure, blur, noise,
-  lens distortion);
-* :mod:`.detector` -- the detector interface (:class:`Detection`, :class:`TargetDetector`,
-  :func:`make_detector`, :func:`guess_target_kind`, :func:`match_identity`);
-* :mod:`.dots`, :mod:`.aruco`, :mod:`.texture` -- one detector per target kind.
+* :mod:`.base` -- what every detector shares (:class:`Detection`, :class:`TargetDetector`,
+  :class:`PointTrack`, :func:`match_identity`);
+* :mod:`.dots`, :mod:`.aruco`, :mod:`.texture` -- one detector per target kind;
+* :mod:`.detector` -- the factory (:func:`make_detector`) and :func:`guess_target_kind`;
+* :mod:`.autodetect` -- ``--target auto``: which target the first frames show;
+* :mod:`.tracked` -- the detector as ``fit`` and ``repeat`` use it (:class:`TrackedDetector`,
+  re-created from a fit model).
+
+Synthetic frames (poster, renderer) are in :mod:`hbvs_cli.sim`.
 
 Images are numpy arrays (gray uint8, OpenCV pixel convention: the centre of the top-left
 pixel is (0, 0)); nothing here reads or writes files.
 """
 
 from .aruco import ArucoMarkerDetector, refine_marker_corners
-from .detector import Detection, PointTrack, TargetDetector, guess_target_kind, make_detector, match_identity
+from .base import Detection, PointTrack, TargetDetector, match_identity
+from .detector import guess_target_kind, make_detector
 from .dots import DotDetector, find_dark_blobs
-from .poster import PosterRaster
-from .render import RenderSettings, SceneRenderer
 from .texture import TextureDetection, TextureDetector
+from .tracked import DetectorSpec, TrackedDetector, detector_from_model, estimator_from_model
 
 __all__ = [
     "ArucoMarkerDetector",
     "Detection",
+    "DetectorSpec",
     "DotDetector",
     "PointTrack",
-    "PosterRaster",
-    "RenderSettings",
-    "SceneRenderer",
     "TargetDetector",
     "TextureDetection",
     "TextureDetector",
+    "TrackedDetector",
+    "detector_from_model",
+    "estimator_from_model",
     "find_dark_blobs",
     "guess_target_kind",
     "make_detector",

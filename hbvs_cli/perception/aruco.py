@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import UsageError
-from .detector import Detection, PointTrack, as_gray, check_prediction
+from .base import Detection, PointTrack, as_gray, check_prediction
 
 #: The default dictionary (hbvs's simulated marker).
 DEFAULT_DICTIONARY = "DICT_4X4_50"

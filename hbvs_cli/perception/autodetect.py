@@ -27,7 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from .detector import as_gray
+from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, scan_markers
+from .base import as_gray
+from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
+from .texture import TextureDetector
 
 #: Dots targets have this many dots at most (and 3 at least).
 MAX_DOTS = 10
@@ -60,8 +63,6 @@ def _majority(count: int, frames: int) -> bool:
 
 def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None) -> TargetChoice | None:
     """Markers decoded consistently in ``images`` (one dictionary family), or None."""
-    from .aruco import MARKER_FAMILIES, dictionary_name, scan_markers
-
     families = None
     if dictionary is not None:
         wanted = dictionary_name(dictionary)
@@ -84,8 +85,6 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     if not ids:
         return None
     names = MARKER_FAMILIES[family]
-    from .aruco import dictionary_size
-
     name = dictionary_name(dictionary) if dictionary is not None else next(n for n in names if dictionary_size(n) > ids[-1])
     others = [f for f in votes if f != family]
     also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
@@ -101,14 +100,10 @@ def count_round_dots(image: NDArray[np.uint8], polarity: str) -> tuple[int, bool
     most of what is compact and interior (components cut by the frame's edge, e.g. the
     wall or a door frame, are not counted).
     """
-    from .dots import dark_image, find_dark_blobs
-
     blobs = find_dark_blobs(dark_image(image, polarity), flatten=True)
     round_areas = blobs.areas[blobs.round]
     if round_areas.size < 3:
         return int(round_areas.size), False
-    from .dots import ACQUIRE_AREA_RATIO
-
     median = np.median(round_areas)
     similar = int(np.count_nonzero((round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)))
     interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
@@ -137,8 +132,6 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
 
 def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[np.float64], seed: int = 0) -> TargetChoice | None:
     """The first frame's natural features matched in most of the following frames, or None."""
-    from .texture import TextureDetector
-
     if len(images) < 2:
         return TargetChoice("texture", "textured picture (a single frame: not checked against others)")
     detector = TextureDetector(images[0], template_pixels, seed=seed)

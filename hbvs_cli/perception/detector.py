@@ -1,224 +1,27 @@
-"""The detector interface: what every target detector returns and how one is chosen.
+"""Choosing a detector: :func:`make_detector` for a target kind, and
+:func:`guess_target_kind` for a frame.
 
-A detector turns a camera frame into the pixels of the target's N points **in the target's
-point order** (their identity), which is what the homography estimation needs. All
-detectors share :class:`Detection`, the :class:`TargetDetector` protocol, the
-constant-velocity :class:`PointTrack` they predict with, and :func:`make_detector`.
-Pixels follow OpenCV's convention (centre of the top-left pixel at (0, 0)) and are the
-*measured*, i.e. distorted, pixels: undistort them with
-:func:`hbvs_cli.core.camera.undistort_pixels` before using them geometrically.
+The shared types (:class:`Detection`, :class:`TargetDetector`, :class:`PointTrack`,
+:func:`match_identity`) live in :mod:`.base`; they are re-exported here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Sequence
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linear_sum_assignment
 
-from ..errors import InputError, UsageError
+from ..errors import UsageError
+from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
+from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
+from .dots import DotDetector, find_dark_blobs
+from .texture import TextureDetector
 
-
-@dataclass(frozen=True)
-class Detection:
-    """The target points found in one frame.
-
-    Attributes
-    ----------
-    pixels : ndarray, shape (N, 2), float64
-        ``(u, v)`` of each target point (px), in the target's point order; NaN rows for
-        points not found.
-    found : bool
-        True when all N points were found and accepted.
-    candidates : int
-        Blobs, markers or feature matches considered (diagnostics).
-    rejected : int
-        Candidates rejected as outliers.
-    """
-
-    pixels: NDArray[np.float64]
-    found: bool
-    candidates: int
-    rejected: int
-
-
-@runtime_checkable
-class TargetDetector(Protocol):
-    """What the pipeline needs from a detector of any target kind."""
-
-    kind: str
-    n_points: int
-
-    def reset(self) -> None:
-        """Forget the tracking state (the next frame is searched as if it were the first)."""
-
-    def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the target points in ``image``.
-
-        Parameters
-        ----------
-        image : ndarray, shape (H, W) or (H, W, 3), uint8
-            Gray or BGR frame.
-        predicted : ndarray, shape (N, 2), optional
-            Where the points are expected (px, in point order); NaN rows are unknown. When
-            omitted the detector predicts from its own track.
-        """
-        ...
-
-
-class PointTrack:
-    """Constant-velocity prediction of N image points from their past measurements.
-
-    Each point keeps its last measured position, its velocity (px per frame) and the number
-    of frames since it was last measured; a point unseen for more than ``max_coast`` frames
-    is dropped, and the track becomes inactive once every point is dropped.
-
-    Parameters
-    ----------
-    n_points : int
-    max_coast : int
-        Frames a point is predicted through without a measurement.
-    """
-
-    def __init__(self, n_points: int, max_coast: int = 10) -> None:
-        self.n_points = int(n_points)
-        self.max_coast = int(max_coast)
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget everything."""
-        self._last = np.full((self.n_points, 2), np.nan)
-        self._velocity = np.zeros((self.n_points, 2))
-        self._since = np.zeros(self.n_points, dtype=np.int64)
-
-    @property
-    def active(self) -> bool:
-        """True while at least one point is tracked."""
-        return bool(np.any(self._alive()))
-
-    def _alive(self) -> NDArray[np.bool_]:
-        return np.all(np.isfinite(self._last), axis=1) & (self._since <= self.max_coast)
-
-    def predict(self) -> NDArray[np.float64] | None:
-        """Expected positions in the next frame, shape (N, 2) (NaN rows for dropped points),
-        or None when the track is inactive."""
-        alive = self._alive()
-        if not np.any(alive):
-            return None
-        predicted = self._last + self._velocity * (self._since + 1)[:, None]
-        predicted[~alive] = np.nan
-        return predicted
-
-    def update(self, measured: NDArray[np.float64]) -> None:
-        """Record one frame's measurements, shape (N, 2) (NaN rows for points not seen)."""
-        seen = np.all(np.isfinite(measured), axis=1)
-        self._since += 1
-        known = seen & np.all(np.isfinite(self._last), axis=1) & (self._since <= self.max_coast + 1)
-        self._velocity[known] = (measured[known] - self._last[known]) / self._since[known][:, None]
-        self._velocity[seen & ~known] = 0.0
-        self._last[seen] = measured[seen]
-        self._since[seen] = 0
-        if not self.active:
-            self.reset()
-
-
-def as_gray(image: ArrayLike, what: str = "the camera frame") -> NDArray[np.uint8]:
-    """An image as a contiguous gray uint8 array, shape (H, W).
-
-    Accepts gray, single-channel, BGR or BGRA arrays of 8 or 16 bits; 16-bit data keeps
-    its high byte (a fixed scale, so brightness does not change from frame to frame).
-
-    Parameters
-    ----------
-    image : array_like
-    what : str
-        How to name the image in error messages.
-
-    Raises
-    ------
-    InputError
-        For anything that is not such an image.
-    """
-    if not isinstance(image, np.ndarray) or image.size == 0:
-        raise InputError(f"{what}: empty or not an image array")
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
-    elif image.dtype != np.uint8:
-        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    elif image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    elif image.ndim != 2:
-        raise InputError(f"{what}: unsupported image shape {image.shape}")
-    return np.ascontiguousarray(image)
-
-
-def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
-    """``predicted`` as an (N, 2) float array (NaN rows allowed), or None.
-
-    Raises
-    ------
-    UsageError
-        If it has the wrong shape or contains infinities.
-    """
-    if predicted is None:
-        return None
-    array = np.asarray(predicted, dtype=np.float64)
-    if array.shape != (n_points, 2):
-        raise UsageError(f"a prediction needs shape ({n_points}, 2), got {array.shape}")
-    if np.any(np.isinf(array)):
-        raise UsageError("a prediction may contain NaN rows but no infinities")
-    if not np.any(np.all(np.isfinite(array), axis=1)):
-        return None
-    return array
-
-
-def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = True) -> NDArray[np.intp]:
-    """The permutation that puts detected points in the order of reference points.
-
-    Solves the assignment of minimum total squared distance
-    (``scipy.optimize.linear_sum_assignment``). With ``normalize`` both point sets are
-    first centred and scaled to unit RMS radius, so that a target seen from another place
-    (shifted, nearer or farther) still matches its reference layout.
-
-    Parameters
-    ----------
-    detected : array_like, shape (N, 2)
-        Points in an arbitrary order (px); all finite.
-    reference : array_like, shape (N, 2)
-        The same points in the target's order (px), e.g. from a reference frame.
-    normalize : bool
-
-    Returns
-    -------
-    permutation : ndarray, shape (N,), int
-        ``detected[permutation]`` is in reference order.
-    """
-    detected = np.asarray(detected, dtype=np.float64)
-    reference = np.asarray(reference, dtype=np.float64)
-    if detected.shape != reference.shape or detected.ndim != 2 or detected.shape[1] != 2:
-        raise UsageError(f"cannot match {detected.shape} points against {reference.shape} reference points")
-    if not (np.all(np.isfinite(detected)) and np.all(np.isfinite(reference))):
-        raise UsageError("points to match must be finite")
-    if normalize:
-        detected, reference = _normalized(detected), _normalized(reference)
-    cost = np.sum((reference[:, None, :] - detected[None, :, :]) ** 2, axis=-1)
-    rows, cols = linear_sum_assignment(cost)
-    permutation = np.empty(len(reference), dtype=np.intp)
-    permutation[rows] = cols
-    return permutation
-
-
-def _normalized(points: NDArray[np.float64]) -> NDArray[np.float64]:
-    centred = points - points.mean(axis=0)
-    spread = np.sqrt(np.mean(np.sum(centred**2, axis=1)))
-    return centred / spread if spread > 0 else centred
+__all__ = [
+    "Detection", "PointTrack", "TargetDetector", "as_gray", "check_prediction", "guess_target_kind",
+    "make_detector", "match_identity",
+]
 
 
 def make_detector(
@@ -261,19 +64,13 @@ def make_detector(
         For an unknown kind or inconsistent arguments.
     """
     if kind == "dots":
-        from .dots import DotDetector  # imported here: those modules import this one
-
         return DotDetector(n_points, polarity=polarity or "dark")
     if kind == "aruco":
-        from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector
-
         markers = ArucoMarkerDetector(marker_id, dictionary=marker_dict or DEFAULT_DICTIONARY, marker_ids=marker_ids)
         if n_points != markers.n_points:
             raise UsageError(f"a target of {len(markers.marker_ids) or 1} marker(s) has {markers.n_points} points (their corners), not {n_points}")
         return markers
     if kind == "texture":
-        from .texture import TextureDetector
-
         if reference_image is None or reference_pixels is None:
             raise UsageError("a texture detector needs a reference image and the target's pixels in it")
         detector = TextureDetector(reference_image, reference_pixels, seed=seed)
@@ -294,9 +91,6 @@ def guess_target_kind(image: NDArray[np.uint8]) -> str:
     ----------
     image : ndarray, shape (H, W) or (H, W, 3), uint8
     """
-    from .aruco import marker_ids_in_view
-    from .dots import find_dark_blobs
-
     gray = as_gray(image)
     if marker_ids_in_view(gray):
         return "aruco"

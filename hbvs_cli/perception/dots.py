@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from ..errors import UsageError
-from .detector import Detection, PointTrack, as_gray, check_prediction, match_identity
+from .base import Detection, PointTrack, as_gray, check_prediction, match_identity
 
 #: Cost of a forbidden candidate-to-point pairing in the assignment.
 _FORBIDDEN = 1e12

@@ -29,7 +29,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
-from .detector import Detection, PointTrack, as_gray, check_prediction
+from .base import Detection, PointTrack, as_gray, check_prediction
+from .ecc import refine_homography
 
 
 @dataclass(frozen=True)
@@ -173,8 +174,6 @@ class TextureDetector:
         pixel of the target's region of the reference. Kept only when it converges near the
         LK result.
         """
-        from .ecc import refine_homography
-
         x0, y0, template = self._align_template
         to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
         points = self.reference_pixels - (x0, y0)

@@ -10,10 +10,20 @@ goes into one folder. The exit code is 0 only when the default law converged, by
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.mcap_io import json_ready
+from ..io.output_target import write_output_bytes
+from ..io.run_file import read_run
+from ..report.plots import save_plot
+from ..report.build import build_report
+from ..report.table import print_report_tables
 from .console import Console
+from .fit import FitOptions, run_fit
+from .repeat import RepeatOptions, run_repeat
+from .teach import TeachOptions, run_teach
 
 #: The laws the demo compares; the first is the default whose convergence decides the exit code.
 DEMO_LAWS = ("lateral-gain", "paper")
@@ -21,15 +31,6 @@ DEMO_LAWS = ("lateral-gain", "paper")
 
 def run_demo(folder: Path, console: Console) -> int:
     """Run the demo into ``folder``; 0 when the default law converged, else 1."""
-    from ..io.mcap_io import json_ready
-    from ..io.run_file import read_run
-    from ..tools.report_data import build_report
-    from ..tools.report_table import print_report_tables
-    from ..tools.plots import save_plot
-    from .fit import FitOptions, run_fit
-    from .repeat import RepeatOptions, run_repeat
-    from .teach import TeachOptions, run_teach
-
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder")
@@ -48,13 +49,9 @@ def run_demo(folder: Path, console: Console) -> int:
         runs.append(read_run(path))
     reports = [build_report(run) for run in runs]
     report_json, plot = folder / "report.json", folder / "report.png"
-    from ..io.output_target import write_output_bytes
-
     write_output_bytes(report_json, (json.dumps(json_ready({"runs": reports}), indent=2) + "\n").encode("utf-8"), "report")
     save_plot(runs, reports, plot)
     console.info(f"demo 4/4: report -> {report_json}, {plot}")
-    import sys
-
     print_report_tables(reports, sys.stdout)
     default = reports[0]["verdict"]
     if default["converged"]:

@@ -24,7 +24,7 @@ from ..core.plane import UNIT_SQUARE
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
-from .detection import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
+from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
 from .frames import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 

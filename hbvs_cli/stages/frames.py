@@ -8,24 +8,25 @@ detected keeps both cores busy. At most ``depth`` decoded frames wait at any tim
 from __future__ import annotations
 
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Iterator
 
 import numpy as np
 
+from ..io.images import decode_image
+from ..io.teach_file import TeachFrame
 
-def decode_frame(frame: Any, name: str) -> tuple[bytes, np.ndarray]:
+
+def decode_frame(frame: TeachFrame, name: str) -> tuple[bytes, np.ndarray]:
     """The compressed bytes and the gray image of a teach frame's image message."""
-    from ..io.images import decode_image
-
     data = frame.stored_image(f"{name} frame {frame.index}").data
     return data, decode_image(data, name)
 
 
-def decoded_frames(frames: Iterator[Any], name: str, depth: int = 4) -> Iterator[tuple[Any, bytes, np.ndarray]]:
+def decoded_frames(frames: Iterator[TeachFrame], name: str, depth: int = 4) -> Iterator[tuple[TeachFrame, bytes, np.ndarray]]:
     """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead."""
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
-        pending: deque[tuple[Any, Any]] = deque()
+        pending: deque[tuple[TeachFrame, Future[tuple[bytes, np.ndarray]]]] = deque()
         for frame in frames:
             pending.append((frame, pool.submit(decode_frame, frame, name)))
             if len(pending) > depth:

@@ -11,68 +11,41 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import IO, Any
+from dataclasses import asdict, dataclass
+from typing import IO, Any, ContextManager
 
 import numpy as np
 
+from .. import __version__
 from ..core.camera import normalized_to_pixels
+from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
 from ..core.desired import taught_frame_interval
-from ..core.controller import AdaptiveTrackingController, ControllerGains, LAW_LATERAL_GAIN, lyapunov
-from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.frames import compose_planar_pose, rotation_z
+from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
-from ..core.simulator import ActuatorLimits, StepRecord, run_closed_loop
-from ..core.state_filter import FILTER_EKF, FILTERS
+from ..core.laws import ALL_LAWS, gains_for_law, make_controller
+from ..core.metrics import final_value
+from ..core.simulator import ActuatorLimits, StepRecord
+from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
+from ..core.world import World
 from ..errors import InputError, TargetLostError, UsageError
+from ..io.config import load_config
+from ..io.fit_file import FitFile, FitModel, read_fit_file
+from ..io.images import bytes_to_store
+from ..io.limits import step_count
+from ..io.mcap_io import McapWriter, open_output
+from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.output_target import open_text_output, refuse_overwriting_inputs
+from ..io.run_file import RunWriter
+from ..io.teach_file import TeachReader
+from ..perception.tracked import detector_from_model, estimator_from_model
+from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from .console import Console
-from .options import parse_offset
-from ..io.topics import CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
-
-#: Default actuator limits of the simulated robot (a small indoor platform).
-DEFAULT_MAX_V = 0.5
-DEFAULT_MAX_W = 0.6
-
-
-@dataclass(frozen=True)
-class RepeatOptions:
-    """Everything ``hbvs repeat`` was asked to do (see ``hbvs repeat --help``)."""
-
-    input: str
-    output: str = "run.mcap"
-    sim: bool = False
-    replay: Path | None = None
-    offset: str = "-0.1,0.05,2"
-    perception: str = "images"
-    pixel_noise: float = 0.0
-    rate: float | None = None
-    depth: float | None = None
-    seed: int = 0
-    config: Path | None = None
-    law: str | None = None
-    kv: float | None = None
-    kw: float | None = None
-    gamma: float | None = None
-    k2: float | None = None
-    dhat0: float | None = None
-    speed: float | None = None
-    max_v: float | None = None
-    max_w: float | None = None
-    max_accel: float | None = None
-    latency: int | None = None
-    lost_timeout: float = 3.0
-    cmd_out: str | None = None
-    record_images: bool = False
-    occlude: list[str] = field(default_factory=list)
-    drop_rate: float = 0.0
-    outlier_rate: float = 0.0
-    exposure_step: str | None = None
-    allow_truncated: bool = False
-    state_filter: str | None = None
-
+from .frames import decoded_frames
+from .options import parse_interval, parse_offset, parse_time_and_factor
+from .settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 
 @dataclass(frozen=True)
 class Settings:
@@ -121,42 +94,37 @@ def _limit(value: float | None, default: float | None) -> float | None:
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
                      suggested_gains: ControllerGains | None = None) -> Settings:
-    """Defaults < ``--config`` < command-line options."""
-    config: dict[str, Any] = {}
-    if options.config is not None:
-        from ..io.config import load_config
+    """Defaults < ``--config`` < command-line options (:mod:`.settings`: an option that was
+    not given is None, so any value given wins, even one equal to the default)."""
+    config: dict[str, Any] = load_config(options.config) if options.config is not None else {}
 
-        config = load_config(options.config)
+    def pick(name: str, fallback: Any = None) -> Any:
+        return REPEAT[name].resolve(getattr(options, name), config, fallback)
 
-    def pick(option_value: Any, key: str, default: Any) -> Any:
-        if option_value is not None:
-            return option_value
-        return config.get(key, default)
-
-    law = pick(options.law, "law", LAW_LATERAL_GAIN)
+    law = pick("law")
     if law not in ALL_LAWS:
         raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
-    defaults = suggested_gains if suggested_gains is not None else ControllerGains()
+    defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(
-        k_v=pick(options.kv, "k_v", defaults.k_v),
-        k_w=pick(options.kw, "k_w", defaults.k_w),
-        gamma=pick(options.gamma, "gamma", defaults.gamma),
-        k_2=pick(options.k2, "k_2", defaults.k_2),
+        k_v=pick("kv", defaults.k_v),
+        k_w=pick("kw", defaults.k_w),
+        gamma=pick("gamma", defaults.gamma),
+        k_2=pick("k2", defaults.k_2),
     ), law)
-    dhat0 = check_depth(float(pick(options.dhat0, "dhat0", dhat0_suggested)), "--dhat0")
-    speed = float(pick(options.speed, "speed", 1.0))
-    rate = float(pick(options.rate, "rate", taught_rate))
+    dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
+    speed = float(pick("speed"))
+    rate = float(pick("rate", taught_rate))
     if not (math.isfinite(rate) and rate > 0):
         raise UsageError(f"--rate must be positive, got {rate}")
-    perception = options.perception if options.perception != "images" else str(config.get("perception", "images"))
+    perception = str(pick("perception"))
     if perception not in ("images", "points"):
         raise UsageError(f"--perception must be images or points, got {perception!r}")
-    offset_text = options.offset if options.offset != RepeatOptions.offset else str(config.get("offset", options.offset))
-    latency = int(pick(options.latency, "latency", 0))
+    offset_text = str(pick("offset"))
+    latency = int(pick("latency"))
     if latency < 0:
         raise UsageError("--latency must be >= 0 frames")
-    state_filter = str(pick(options.state_filter, "filter", FILTER_EKF))
+    state_filter = str(pick("state_filter"))
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     return Settings(
@@ -165,34 +133,30 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         dhat0=dhat0,
         speed=speed,
         limits=ActuatorLimits(
-            max_v=_limit(pick(options.max_v, "max_v", None), DEFAULT_MAX_V),
-            max_w=_limit(pick(options.max_w, "max_w", None), DEFAULT_MAX_W),
-            max_accel=_limit(pick(options.max_accel, "max_accel", None), None),
+            max_v=_limit(pick("max_v"), DEFAULT_MAX_V),
+            max_w=_limit(pick("max_w"), DEFAULT_MAX_W),
+            max_accel=_limit(pick("max_accel"), None),
         ),
         latency=latency,
         rate=rate,
         perception=perception,
-        pixel_noise=float(options.pixel_noise if options.pixel_noise else config.get("pixel_noise", 0.0)),
+        pixel_noise=float(pick("pixel_noise")),
         offset=parse_offset(offset_text),
-        lost_timeout=float(options.lost_timeout if options.lost_timeout != RepeatOptions.lost_timeout else config.get("lost_timeout", options.lost_timeout)),
+        lost_timeout=float(pick("lost_timeout")),
         state_filter=state_filter,
     )
 
 
-def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> RepeatSummary:
+def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = None) -> RepeatSummary:
     """Run the repeat phase as ``options`` say; write the run file.
 
     ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
     for thousands of runs); by default it is read here.
     """
-    from ..io.fit_file import read_fit_file
-
     if options.sim == (options.replay is not None):
         raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
-    from ..io.output_target import refuse_overwriting_inputs
-
     refuse_overwriting_inputs(
         [("-o", options.output), ("--cmd-out", options.cmd_out)],
         [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
@@ -207,42 +171,32 @@ def run_repeat(options: RepeatOptions, console: Console, fit: Any = None) -> Rep
     return _run_replay(options, settings, fit, console)
 
 
-def _taught_frame_interval(model: Any) -> float:
+def _taught_frame_interval(model: FitModel) -> float:
     return taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
 
 
 # ----------------------------------------------------------------------------- shared pieces
-class _RunLog:
-    """Writes the run file's per-step messages and the optional command stream."""
+class _StepLog:
+    """Turns each step record into the run file's messages (:class:`RunWriter`) and the
+    optional command stream, and notes the changes worth an event (target lost or back,
+    a dropped frame, saturation)."""
 
-    def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None) -> None:
-
-        self.writer = writer
-        self.topics = TOPICS["run"]
+    def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
+        self.run = run
         self.settings = settings
         self.model = model
         self.d_true = d_true
         self.cmd_stream = cmd_stream
-        self.lost_since: float | None = None
         self.was_saturated = False
         self.was_lost = False
         self.was_dropped = False
         self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
-        from ..io.messages import log_message
-
-        ns = seconds_to_ns(t)
-        self.writer.write(EVENTS_TOPIC, self.topics[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
+        self.run.event(t, level, text)
 
     def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
-        from ..io.messages import LOG_INFO, LOG_WARNING, velocity_message
-
         t = record.t
-        ns = seconds_to_ns(t)
-        stamp = time_message(ns)
         desired = record.desired
         output = record.output
         measurement = record.measurement
@@ -266,8 +220,7 @@ class _RunLog:
         if record.saturated and not self.was_saturated:
             self.event(t, LOG_INFO, "command saturated by the actuator limits")
         self.was_saturated = record.saturated
-        message = {
-            "timestamp": stamp, "t": t,
+        values = {
             "x_h1": measurement.x_h1 if measurement else None,
             "x_h2": measurement.x_h2 if measurement else None,
             "theta": measurement.theta if measurement else None,
@@ -286,9 +239,9 @@ class _RunLog:
             "residual": float(record.observation.residual),
             "V": V,
         }
-        message.update(self._filter_fields(record))
-        self.write_flat(STATE_TOPIC, ns, message)
-        self.write_flat(COMMAND_TOPIC, ns, velocity_message(stamp, record.v_c, record.w_c, record.saturated), clean=False)
+        values.update(self._filter_fields(record))
+        self.run.state(t, values)
+        self.run.command(t, record.v_c, record.w_c, record.saturated)
         if self.cmd_stream is not None:
             self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
             self.cmd_stream.flush()
@@ -308,26 +261,13 @@ class _RunLog:
             "noise_px": estimate.noise * _focal(self.model),
         }
 
-    def write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
-        """Write a message whose values are plain numbers, strings, bools, None or small
-        dicts of them: encoded directly, without the general JSON cleaning pass (this
-        runs several times per control period). ``clean=False`` when no value can be NaN."""
-        if clean:
-            for key, value in message.items():
-                if isinstance(value, float) and not math.isfinite(value):
-                    message[key] = None
-        data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode("utf-8")
-        self.writer.write_encoded(topic, self.topics[topic], ns, data)
 
-
-def _open_cmd_stream(target: str | None) -> Any:
+def _open_cmd_stream(target: str | None) -> ContextManager[IO[str] | None]:
     """The ``--cmd-out`` stream: written like every output (atomically for a file)."""
-    from ..io.output_target import open_text_output
-
     return open_text_output(target, "command stream")
 
 
-def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, console: Console, replay: Any = None) -> None:
+def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
     """Keep an existing output when an input ended early (unless --allow-truncated); warn."""
     names = []
     if getattr(fit, "truncated", False):
@@ -339,44 +279,15 @@ def _note_truncated(writer: Any, options: RepeatOptions, fit: Any, console: Cons
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
 
 
-def desired_pixels(model: Any, desired: Any) -> np.ndarray:
+def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
     """Where the target points should be in the image now: m_d = H_d m* (13)."""
     H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
     return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
 # ----------------------------------------------------------------------------- closed loop
-@dataclass
-class Simulation:
-    """Everything a closed-loop run needs, set up and ready to step."""
-
-    scene: Any
-    camera: Any
-    trajectory: TimeScaledTrajectory
-    controller: AdaptiveTrackingController
-    start_pose: np.ndarray
-    dt: float
-    duration: float
-    settings: Settings
-    state_filter: Any = None
-
-    @property
-    def steps(self) -> int:
-        return int(round(self.duration / self.dt))
-
-    def run(self) -> Any:
-        """The closed loop's step records (a generator): sense, control, limits, move."""
-        return run_closed_loop(
-            self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
-            self.settings.limits, self.settings.latency, self.state_filter,
-        )
-
-
-def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> Simulation:
+def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
-    from ..io.limits import step_count
-    from .simworld import SimulatedCamera, simulation_world
-
     model = fit.model
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
@@ -389,7 +300,14 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
-    camera = SimulatedCamera(scene, model, settings, options, fit.template_image)
+    sensor = CameraSettings(
+        perception=settings.perception, pixel_noise=settings.pixel_noise, seed=options.seed,
+        occlusions=tuple(parse_interval(text, "--occlude") for text in options.occlude),
+        drop_rate=options.drop_rate, outlier_rate=options.outlier_rate,
+        exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
+        record_images=options.record_images,
+    )
+    camera = SimulatedCamera(scene, model, sensor, fit.template_image)
     state_filter = make_state_filter(settings, model)
     if state_filter is not None:
         # The filter tests each residual against the noise it learns; the fixed gate set
@@ -403,7 +321,8 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
         start_pose=start_pose,
         dt=1.0 / settings.rate,
         duration=trajectory.t_end - trajectory.t_start,
-        settings=settings,
+        limits=settings.limits,
+        latency=settings.latency,
         state_filter=state_filter,
     )
 
@@ -412,36 +331,28 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: Any) -> 
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def _focal(model: Any) -> float:
+def _focal(model: FitModel) -> float:
     return 0.5 * (model.camera.fx + model.camera.fy)
 
 
-def make_state_filter(settings: Settings, model: Any) -> Any:
+def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
-    from ..core.state_filter import ServoStateFilter
-
     return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
 
 
-def detector_noise(model: Any) -> float:
+def detector_noise(model: FitModel) -> float:
     """Per-coordinate noise of the fit's detector on the taught images (normalised units),
     from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
-    from ..core.gains import noise_from_residual
-
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
     return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
 
 
-def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output, seconds_to_ns, time_message
-    from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
-
+def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
@@ -452,20 +363,18 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
             _note_truncated(writer, options, fit, console)
-            writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
-            log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
+            run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera)
+            log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
             height = scene.world.camera_height
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
                 for k, record in enumerate(simulation.run()):
                     log.step(record)
-                    ns = seconds_to_ns(record.t)
-                    stamp = time_message(ns)
-                    log.write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, record.pose, height), clean=False)
-                    log.write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, taught_poses[k], height), clean=False)
+                    run.poses(record.t, record.pose, taught_poses[k], height)
                     if options.record_images:
-                        camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
+                        label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
+                        run.image(record.t, *bytes_to_store(camera.image_of(record.pose)), record.observation.pixels,
+                                  desired_pixels(model, record.desired), label)
                     tally.add(record, taught_poses[k])
                     bar.advance()
                     lost_for = lost_for + dt if record.lost else 0.0
@@ -494,7 +403,7 @@ class _Tally:
         self.steps = 0
         self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
-    def add(self, record: StepRecord, taught: Any = None) -> None:
+    def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
         self.steps += 1
         errors = record.output.errors if record.output is not None else None
         values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
@@ -507,8 +416,6 @@ class _Tally:
             self.series[name].append(float(value))
 
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
-        from ..core.metrics import final_value
-
         t = self.series["t"]
         errors: dict[str, float] = {}
         for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
@@ -518,9 +425,7 @@ class _Tally:
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
-def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Any, d_true: float | None, scene: Any = None) -> dict[str, Any]:
-    from .. import __version__
-
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
     model = fit.model
     return {
         "file_kind": "run",
@@ -544,7 +449,7 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: An
     } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 
 
-def _top_view(world: Any) -> dict[str, Any]:
+def _top_view(world: World) -> dict[str, Any]:
     """The wall and the target seen from above (m, world frame), for the report's top view."""
     poster = world.target.poster
     ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
@@ -571,15 +476,7 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
 
 
 # ----------------------------------------------------------------------------- open loop
-def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    from ..core.simulator import StepRecord as Step
-    from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output
-    from ..io.messages import CAMERA_FRAME
-    from ..io.teach_file import TeachReader
-    from .detection import detector_from_model, estimator_from_model
-    from .frames import decoded_frames
-
+def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
@@ -590,9 +487,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     previous_t: float | None = None
     with _open_cmd_stream(options.cmd_out) as cmd_stream:
         with open_output(options.output) as writer:
-            writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
-            log = _RunLog(writer, settings, model, None, cmd_stream)
+            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera)
+            log = _StepLog(run, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
                 for frame, _, image in decoded_frames(reader.frames(), reader.name):
                     camera = reader.camera
@@ -607,7 +503,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     dhat = controller.dhat
                     output = controller.step(observation.measurement, desired, dt) if observation.status == "ok" else None
                     v, w = (float(output.v_c), float(output.w_c)) if output is not None else controller.hold()
-                    record = Step(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
+                    record = StepRecord(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
                                   v_c=v, w_c=w, saturated=False, dhat=dhat)
                     log.step(record)
                     tally.add(record)

@@ -1,7 +1,7 @@
 """``hbvs report``: how well did the repeat follow the taught path, and did it converge?
 
 Reads one or more run files (``-`` reads stdin, at most once), builds each run's report
-(:func:`hbvs_cli.tools.report_data.build_report`), prints the table or the JSON on stdout
+(:func:`hbvs_cli.report.build.build_report`), prints the table or the JSON on stdout
 (and nothing else there), writes the figure and the TUM files when asked, and finally
 checks the ``--fail-above`` bounds. Every option is checked before anything is printed, so
 a mistyped key fails with exit code 2 and no half-written output.
@@ -49,7 +49,7 @@ class Bound:
 # ----------------------------------------------------------------------------- options
 def parse_tolerances(items: Sequence[str]) -> dict[str, float]:
     """``--tolerance NAME=VALUE`` options -> the full tolerance table (defaults for the rest)."""
-    from ..tools.report_data import resolve_tolerances
+    from ..report.build import resolve_tolerances
 
     return resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in items))
 
@@ -68,7 +68,7 @@ def metric_value(report: Mapping[str, Any], key: str) -> float:
         The key does not exist in this report, names a group rather than a number, or its
         value is null for this run (e.g. ``lyapunov.final`` of a replay).
     """
-    from ..tools.report_data import MissingKey, resolve_key
+    from ..report.build import MissingKey, resolve_key
 
     try:
         value = resolve_key(report, key)
@@ -146,7 +146,7 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
     """Every run, with its camera height (m) when ``need_height`` (for TUM files).
 
     A fit file (for the fit figure) comes back as its
-    :class:`~hbvs_cli.tools.fit_plot.FitSignals`, with no height.
+    :class:`~hbvs_cli.report.fit_plot.FitSignals`, with no height.
 
     Raises
     ------
@@ -154,8 +154,8 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
         No run, or ``-`` given more than once (stdin can be read only once).
     """
     from ..io.run_file import NotARunFile, read_run
-    from ..tools.fit_plot import read_fit_signals
-    from ..tools.tum import camera_height_m
+    from ..report.fit_plot import read_fit_signals
+    from ..report.tum import camera_height_m
 
     if not sources:
         raise UsageError("give at least one run file (or - for stdin)")
@@ -192,9 +192,9 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     UsageError
         An option that applies to runs only.
     """
-    from ..tools.figure_style import figure_style
-    from ..tools.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
-    from ..tools.report_table import print_fit_table
+    from ..report.figure_style import figure_style
+    from ..report.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
+    from ..report.table import print_fit_table
 
     for given, flag in ((options.fail_above, "--fail-above"), (options.require_converged, "--require-converged"),
                         (options.export_tum, "--export-tum"), (options.tolerance, "--tolerance"), (options.labels, "--label")):
@@ -220,7 +220,7 @@ def print_reports(reports: Sequence[Mapping[str, Any]], json_output: bool) -> No
         document = reports[0] if len(reports) == 1 else {"runs": list(reports)}
         sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
     else:
-        from ..tools.report_table import print_report_tables
+        from ..report.table import print_report_tables
 
         print_report_tables(reports, sys.stdout)
     sys.stdout.flush()
@@ -243,9 +243,9 @@ def run_report(options: ReportOptions, console: Console) -> int:
     InputError, RecordingError
         A missing or unreadable file, or not a run file (exit code 3).
     """
-    from ..tools.fit_plot import FIT_PANELS, FitSignals
-    from ..tools.plots import PANEL_NAMES
-    from ..tools.report_data import build_report
+    from ..report.fit_plot import FIT_PANELS, FitSignals
+    from ..report.plots import PANEL_NAMES
+    from ..report.build import build_report
 
     from ..io.output_target import refuse_overwriting_inputs
 
@@ -257,7 +257,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     check_labels(options.labels, options.runs)
     style = None
     if options.plot is not None:
-        from ..tools.figure_style import check_plot_path, figure_style
+        from ..report.figure_style import check_plot_path, figure_style
 
         check_plot_path(options.plot)
         refuse_overwriting_inputs([("--plot", options.plot)], inputs)
@@ -277,19 +277,19 @@ def run_report(options: ReportOptions, console: Console) -> int:
     reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
-        from ..tools.tum import check_exportable, tum_paths
+        from ..report.tum import check_exportable, tum_paths
 
         check_exportable(runs, options.export_tum)
         tum_files = [("--export-tum", path) for run in runs for path in tum_paths(run, options.export_tum)]
         refuse_overwriting_inputs([("--plot", options.plot), *tum_files], inputs)
     print_reports(reports, options.json_output)
     if options.plot is not None:
-        from ..tools.plots import save_plot
+        from ..report.plots import save_plot
 
         save_plot(runs, reports, options.plot, style, tolerances)
         console.info(f"report: figure written to {options.plot}")
     if options.export_tum is not None:
-        from ..tools.tum import write_tum
+        from ..report.tum import write_tum
 
         for run, height in loaded:
             taught, repeated = write_tum(run, options.export_tum, height if height is not None else 0.0)
@@ -304,7 +304,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
 def _report_sweep(options: ReportOptions) -> int:
     """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
-    from ..tools.sweep_summary import print_summary, print_summary_json, summarize
+    from ..report.sweep_summary import print_summary, print_summary_json, summarize
 
     if options.plot or options.fail_above or options.export_tum or options.tolerance:
         raise UsageError("a sweep's results folder takes only --json (its figures are in the folder)")

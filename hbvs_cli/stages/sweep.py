@@ -3,8 +3,8 @@
 Plans the runs of a spec (:mod:`hbvs_cli.sweep.spec`), runs each one as ``hbvs repeat
 --sim`` + ``hbvs report --json`` (:func:`hbvs_cli.sweep.runner.execute_run`) on a Dask
 cluster (:mod:`hbvs_cli.sweep.engine`), writes the rows as they finish
-(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.tools.sweep_summary`)
-and draws the figures (:mod:`hbvs_cli.tools.sweep_plots`). Interrupted, the same command
+(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.report.sweep_summary`)
+and draws the figures (:mod:`hbvs_cli.report.sweep_plots`). Interrupted, the same command
 resumes: the runs already in the table are skipped.
 
 Like ``demo``, this stage drives the others (``repeat`` and ``report``) through their
@@ -20,7 +20,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
 from ..errors import InputError, UsageError
+from ..io.fit_file import FitFile, read_fit_file
+from ..sim.scene import simulation_world
+from ..sweep.engine import dask_client, default_workers, require_engine, run_tasks
+from ..sweep.runner import KEEP_CHOICES, RunTask, execute_run
+from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
+from ..sweep.table import ResultsTable, failed_row, row_schema
+from ..report.sweep_plots import save_sweep_plots
+from ..report.sweep_summary import print_summary, print_summary_json, summarize
 from .console import Console
 
 
@@ -46,10 +56,8 @@ class SweepOptions:
     in_flight: int | None = None
 
 
-def _true_depth(fit: Any) -> float | None:
+def _true_depth(fit: FitFile) -> float | None:
     """d* of the fit's simulated world (None for a fit of real footage)."""
-    from .simworld import simulation_world
-
     try:
         return float(simulation_world(fit.model, None, None).d_true)
     except UsageError:
@@ -59,13 +67,10 @@ def _true_depth(fit: Any) -> float | None:
 class SweepTasks:
     """The runs still to do, made lazily from their indices (flat memory)."""
 
-    def __init__(self, plan: Any, fit_path: str, d_true: float | None, folder: Path, keep: str, done: set[int]) -> None:
+    def __init__(self, plan: SweepPlan, fit_path: str, d_true: float | None, folder: Path, keep: str, done: set[int]) -> None:
         self.plan, self.fit_path, self.d_true, self.folder, self.keep, self.done = plan, fit_path, d_true, folder, keep, done
 
-    def task(self, index: int) -> Any:
-        from ..sweep.runner import RunTask
-        from ..sweep.spec import repeat_arguments, repeat_command
-
+    def task(self, index: int) -> RunTask:
         run = self.plan.run(index)
         arguments = repeat_arguments(run.values, run.seed, self.d_true)
         keep_path = None if self.keep == "none" else str(self.folder / "runs" / f"run-{index:06d}.mcap")
@@ -82,17 +87,11 @@ class SweepTasks:
         return self.plan.runs - len(self.done)
 
 
-def prepare(options: SweepOptions) -> tuple[Any, Any, Any, SweepTasks]:
+def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, SweepTasks]:
     """Check the options, plan the runs, open the results table (nothing runs yet).
 
     Returns ``(plan, spec, table, tasks)``.
     """
-    from ..io.fit_file import read_fit_file
-    from ..sweep.engine import require_engine
-    from ..sweep.runner import KEEP_CHOICES
-    from ..sweep.spec import PARAMETERS, SweepPlan, build_spec, file_digest, load_spec_file
-    from ..sweep.table import ResultsTable, row_schema
-
     require_engine()
     if options.keep_runs not in KEEP_CHOICES:
         raise UsageError(f"--keep-runs must be one of {', '.join(KEEP_CHOICES)}, got {options.keep_runs!r}")
@@ -122,10 +121,6 @@ def prepare(options: SweepOptions) -> tuple[Any, Any, Any, SweepTasks]:
 
 def run_sweep(options: SweepOptions, console: Console) -> int:
     """Run (or resume) a sweep, then print its summary; returns the exit code (0)."""
-    from ..sweep.engine import dask_client, default_workers, run_tasks
-    from ..sweep.runner import execute_run
-    from ..sweep.table import failed_row
-
     plan, spec, table, tasks = prepare(options)
     remaining = tasks.remaining()
     console.info(
@@ -158,10 +153,8 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
     return 0
 
 
-def finish(options: SweepOptions, table: Any, console: Console) -> None:
+def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None:
     """Merge the table, print the summary (stdout), draw the figures."""
-    from ..tools.sweep_summary import print_summary, print_summary_json, summarize
-
     rows = table.finish()
     summary = summarize(Path(options.output))
     if options.json_output:
@@ -170,8 +163,6 @@ def finish(options: SweepOptions, table: Any, console: Console) -> None:
         print_summary(summary, sys.stdout)
     sys.stdout.flush()
     if options.plots and rows:
-        from ..tools.sweep_plots import save_sweep_plots
-
         for path in save_sweep_plots(Path(options.output)):
             console.info(f"sweep: figure {path}")
     failed = summary["runs"]["failed"]
@@ -188,8 +179,6 @@ class _progress:
 
     def __enter__(self) -> Any:
         if self.console.interactive:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
             self.bar = Progress(
                 TextColumn("sweep"), BarColumn(), MofNCompleteColumn(), TextColumn("runs, {task.fields[failed]} failed"),
                 TextColumn("elapsed"), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=self.console.rich, transient=True,

@@ -10,50 +10,32 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics
-from ..core.path import DEFAULT_PRESET, PRESETS, CommandProfile, preset_profile
+from ..core.frames import compose_planar_pose
+from ..core.path import PRESETS, CommandProfile, preset_profile
 from ..core.world import World, default_world
 from ..errors import InputError, UsageError
+from ..io import sources
+from ..io.calibration import load_calibration
+from ..io.images import STORE_FORMATS, bytes_to_store
+from ..io.limits import step_count
+from ..io.mcap_io import open_output, seconds_to_ns
+from ..io.output_target import refuse_overwriting_inputs
+from ..io.path_csv import load_command_profile
+from ..io.teach_file import TeachWriter
+from ..sim.render import make_renderer
 from .console import Console
+from .options import parse_offset, recorded_settings
+from .settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
-#: Options that describe the simulated robot and camera, and their defaults (None in
-#: :class:`TeachOptions` means "not given"). A recorded source refuses them.
-SIMULATION_DEFAULTS: dict[str, Any] = {
-    "path": DEFAULT_PRESET, "offset": None, "target": "dots", "dots": 3, "texture": None,
-    "seed": 0, "noise": 2.0, "blur": 0.0, "exposure": 1.0,
-}
-#: Frame rate of the simulated camera and of an image folder when --fps is not given (Hz).
-DEFAULT_FPS = 30.0
 #: Options of each recorded source recorded in its metadata (beside the source's own description).
 SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality")
 
 
-@dataclass(frozen=True)
-class TeachOptions:
-    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``)."""
-
-    output: str = "teach.mcap"
-    sim: bool = False
-    video: Path | None = None
-    images: str | None = None
-    camera: int | None = None
-    bag: Path | None = None
-    topic: str | None = None
-    path: str | None = None
-    offset: str | None = None
-    target: str | None = None
-    dots: int | None = None
-    texture: Path | None = None
-    calibration: Path | None = None
-    fps: float | None = None
-    duration: float | None = None
-    seed: int | None = None
-    noise: float | None = None
-    blur: float | None = None
-    exposure: float | None = None
-    image_format: str = "auto"
-    jpeg_quality: int = 90
+class TeachOptions(TeachFields):
+    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``); its fields are
+    :data:`~hbvs_cli.stages.settings.TEACH_SETTINGS`."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
@@ -79,8 +61,6 @@ class TeachOptions:
         A simulated teach records every option; a recorded source only those that apply
         to it (no simulator settings such as noise or the path).
         """
-        from .options import recorded_settings
-
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
@@ -100,10 +80,6 @@ class TeachSummary:
 
 def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     """Record the taught run described by ``options`` into ``options.output``."""
-    from ..io.images import STORE_FORMATS
-
-    from ..io.output_target import refuse_overwriting_inputs
-
     if options.image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
     if not 1 <= options.jpeg_quality <= 100:
@@ -131,8 +107,6 @@ def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[Command
         return profile, start, spec
     candidate = Path(spec)
     if candidate.suffix.lower() == ".csv" or candidate.exists():
-        from ..io.path_csv import load_command_profile
-
         profile = load_command_profile(candidate)
         if duration is not None and duration < profile.t_end:
             profile = _cut_profile(profile, duration)
@@ -159,36 +133,7 @@ def simulated_world(options: TeachOptions) -> World:
     return default_world(options.target, camera=camera, dots=options.dots, texture=texture)
 
 
-def load_texture(world: World) -> np.ndarray | None:
-    """The poster image of a texture target (None for the built-in pattern)."""
-    if world.target.kind != "texture" or world.target.texture == "builtin":
-        return None
-    import cv2
-
-    path = Path(world.target.texture)
-    if not path.is_file():
-        raise InputError(f"{path}: texture image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(f"{path}: not an image OpenCV can read")
-    return image
-
-
-def make_renderer(world: World, noise: float, blur: float, exposure: float) -> Any:
-    """The scene renderer of a world (shared by teach and repeat so both see alike)."""
-    from ..perception.poster import PosterRaster
-    from ..perception.render import RenderSettings, SceneRenderer
-
-    raster = PosterRaster.from_target(world.target, texture=load_texture(world))
-    return SceneRenderer(world, raster, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure))
-
-
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import bytes_to_store
-    from ..io.limits import step_count
-    from ..io.mcap_io import open_output, seconds_to_ns
-    from ..io.teach_file import TeachWriter
-
     if options.calibration is None and options.fps <= 0:
         raise UsageError("--fps must be positive")
     world = simulated_world(options)
@@ -197,9 +142,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
         step_count(planned, options.fps, "the simulated teach (its duration times --fps)")
     profile, start_pose, path_name = resolve_path(options.path, options.fps, options.duration)
     if options.offset is not None:
-        from ..core.frames import compose_planar_pose
-        from .options import parse_offset
-
         # A second drive by hand never starts exactly where the first did.
         start_pose = tuple(compose_planar_pose(start_pose, parse_offset(options.offset)))
     duration = profile.duration if options.duration is None else min(options.duration, profile.duration)
@@ -240,14 +182,10 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
 
 # ----------------------------------------------------------------------------- real sources
 def _load_camera(path: Path) -> CameraIntrinsics:
-    from ..io.calibration import load_calibration
-
     return load_calibration(path)
 
 
-def _open_source(kind: str, options: TeachOptions) -> Any:
-    from ..io import sources
-
+def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
     if kind == "video":
         return sources.VideoSource(options.video, fps=options.fps)
     if kind == "images":
@@ -258,10 +196,6 @@ def _open_source(kind: str, options: TeachOptions) -> Any:
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
-    from ..io.images import bytes_to_store
-    from ..io.mcap_io import open_output, seconds_to_ns
-    from ..io.teach_file import TeachWriter
-
     given = options.simulation_options_given()
     if given:
         verb = "describes" if len(given) == 1 else "describe"
@@ -282,7 +216,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
         teach.calibration(camera)
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
-            iterator: Iterator[Any] = iter(source)
+            iterator: Iterator[sources.SourceFrame] = iter(source)
             try:
                 for frame in iterator:
                     # Frames at t = 0, 1/fps, ... strictly before the end: 5 s at 30 fps is 150.
@@ -307,7 +241,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
     return TeachSummary(frames=frames, duration_s=last_t, output=options.output, source=kind)
 
 
-def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: Any) -> None:
+def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: sources.FrameSource) -> None:
     height, width = image.shape[:2]
     if (width, height) != (camera.width, camera.height):
         raise InputError(

@@ -2,7 +2,7 @@
 
 A run is ``hbvs repeat --sim`` (:func:`hbvs_cli.stages.repeat.run_repeat`, the same closed
 loop, writing the same run file) followed by ``hbvs report --json``
-(:func:`hbvs_cli.tools.report_data.build_report` on :func:`hbvs_cli.io.run_file.read_run`),
+(:func:`hbvs_cli.report.build.build_report` on :func:`hbvs_cli.io.run_file.read_run`),
 and its row is a set of that report's values picked by dotted key (:data:`METRICS`). No
 part of the loop or of the metrics is copied here, so whatever those stages compute, the
 sweep's rows say.
@@ -108,7 +108,7 @@ def _fit(path: str) -> Any:
 
 def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
     """The :data:`METRICS` of a report (None where the report has no such value)."""
-    from ..tools.report_data import MissingKey, resolve_key
+    from ..report.build import MissingKey, resolve_key
 
     row: dict[str, Any] = {}
     for column, key in METRICS.items():
@@ -138,7 +138,7 @@ def execute_run(task: RunTask) -> dict[str, Any]:
     from ..io.run_file import read_run
     from ..stages.console import Console
     from ..stages.repeat import RepeatOptions, run_repeat
-    from ..tools.report_data import build_report
+    from ..report.build import build_report
 
     started = time.perf_counter()
     folder = tempfile.mkdtemp(prefix="hbvs-sweep-")

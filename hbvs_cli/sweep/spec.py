@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
+from ..stages.settings import REPEAT
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
@@ -80,8 +81,8 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("lost_timeout", "float", "s", "stop after the target was lost this long (--lost-timeout)", minimum=0.0),
     )
 }
-#: The start offset ``hbvs repeat`` uses when none is given: -0.1 m, 0.05 m, 2 deg.
-DEFAULT_OFFSET = (-0.1, 0.05, 2.0)
+#: The start offset ``hbvs repeat`` uses when none is given (m, m, deg).
+DEFAULT_OFFSET = tuple(float(v) for v in REPEAT["offset"].fallback.split(","))
 #: The occlusion window starts here when only its length is swept.
 DEFAULT_OCCLUSION_START = 8.0
 
@@ -438,22 +439,13 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
     return options
 
 
-#: RepeatOptions field -> its ``hbvs repeat`` option.
-_OPTION_NAMES = {
-    "offset": "--offset", "dhat0": "--dhat0", "occlude": "--occlude", "pixel_noise": "--pixel-noise", "kv": "--kv",
-    "kw": "--kw", "gamma": "--gamma", "k2": "--k2", "law": "--law", "drop_rate": "--drop-rate",
-    "outlier_rate": "--outlier-rate", "latency": "--latency", "perception": "--perception", "rate": "--rate",
-    "speed": "--speed", "lost_timeout": "--lost-timeout", "seed": "--seed",
-}
-
-
 def repeat_command(fit_path: str, arguments: Mapping[str, Any], output: str = "run.mcap") -> str:
     """The ``hbvs repeat`` command line that makes the same run file, byte for byte."""
     words = ["hbvs", "repeat", fit_path, "--sim"]
     for key, value in arguments.items():
         if key == "sim":
             continue
-        option = _OPTION_NAMES[key]
+        option = REPEAT[key].option_names[-1]
         for item in value if isinstance(value, list) else [value]:
             text = repr(item) if isinstance(item, float) else str(item)
             words.append(f"{option}={text}")

@@ -7,13 +7,23 @@ the live camera is measured the way the taught images were.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from ..core.camera import CameraIntrinsics
+from ..core.estimation import PlanarPoseEstimator
 from ..errors import InputError, RecordingError
+from ..io.fit_file import FitModel
+from ..io.images import decode_image
+from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
+from .autodetect import TargetChoice
+from .autodetect import choose_target as choose
+from .base import Detection, TargetDetector, match_identity
+from .detector import guess_target_kind, make_detector
+from .dots import dark_image, find_dark_blobs
 
 
 @dataclass(frozen=True)
@@ -103,13 +113,9 @@ class TrackedDetector:
         self.seed = seed
         self.template_image = template_image
         self.initial_prediction = None if initial_prediction is None else np.asarray(initial_prediction, dtype=float)
-        self._detector: Any = None
+        self._detector: TargetDetector | None = None
 
     def _create(self, image: np.ndarray) -> None:
-        from ..perception.detector import make_detector
-
-        from dataclasses import replace
-
         spec = self.spec
         if spec.kind == "dots" and spec.n_points is None:
             spec = replace(spec, n_points=count_dots(image, spec.polarity or "dark"))
@@ -146,12 +152,10 @@ class TrackedDetector:
             return np.full((int(self.spec.n_points), 2), np.nan)
         return np.asarray(detection.pixels, dtype=float)
 
-    def _acquire(self, image: np.ndarray, prediction: np.ndarray) -> Any:
+    def _acquire(self, image: np.ndarray, prediction: np.ndarray) -> Detection:
         """First detection against a prediction that may be far off (a robot put down by
         hand): near the prediction if it is close, else anywhere in the image with the
         identities matched to the prediction's layout."""
-        from ..perception.detector import match_identity
-
         detection = self._detector.detect(image, prediction)
         if detection.found:
             return detection
@@ -164,25 +168,19 @@ class TrackedDetector:
         return self._detector.detect(image, ordered)
 
 
-def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> Any:
+def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> TargetChoice:
     """``--target auto`` on real footage: what the first images show (a
     :class:`~hbvs_cli.perception.autodetect.TargetChoice`, which says why)."""
-    from ..perception.autodetect import choose_target as choose
-
     return choose(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
 
 
 def choose_target_kind(image: np.ndarray) -> str:
     """The kind ``--target auto`` picks from one image (see :func:`choose_target`)."""
-    from ..perception.detector import guess_target_kind
-
     return guess_target_kind(image)
 
 
 def count_dots(image: np.ndarray, polarity: str = "dark") -> int:
     """Number of round dots in an image (the size of a dots target seen for the first time)."""
-    from ..perception.dots import dark_image, find_dark_blobs
-
     blobs = find_dark_blobs(dark_image(image, polarity), flatten=True)
     count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
     if count < 3:
@@ -192,8 +190,6 @@ def count_dots(image: np.ndarray, polarity: str = "dark") -> int:
 
 def first_marker_id(image: np.ndarray, dictionary: str | None = None) -> int:
     """Id of the first marker of ``dictionary`` (DICT_4X4_50 by default) in an image."""
-    from ..perception.aruco import DEFAULT_DICTIONARY, marker_ids_in_view
-
     name = dictionary or DEFAULT_DICTIONARY
     ids = marker_ids_in_view(image, name)
     if not ids:
@@ -208,8 +204,6 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
     TL, TR, BR, BL. Rows too close to the horizon (the principal point's row, where m_z ~ 0
     and (18) breaks down) are pushed away from it.
     """
-    import cv2
-
     keypoints = cv2.ORB_create(nfeatures=1000).detect(image, None)
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
@@ -232,25 +226,21 @@ RESIDUAL_GATE_FACTOR = 10.0
 MIN_RESIDUAL_GATE_PX = 0.25
 
 
-def estimator_from_model(model: Any) -> Any:
+def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """The per-frame estimator of repeat, with an outlier gate that fits the fit's data.
 
     Clean frames of the taught run have residuals of a few hundredths of a pixel; a wrong
     point (a spurious blob, a swapped identity) gives tenths or more. A gate at ten times
     the taught maximum rejects those and keeps the noise.
     """
-    from ..core.estimation import PlanarPoseEstimator
-
     taught = float(model.residual_px.get("max", float("nan")))
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
     focal = 0.5 * (model.camera.fx + model.camera.fy)
     return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / focal)
 
 
-def detector_from_model(model: Any, template_image_bytes: bytes | None, seed: int = 0) -> TrackedDetector:
+def detector_from_model(model: FitModel, template_image_bytes: bytes | None, seed: int = 0) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and template)."""
-    from ..io.images import decode_image
-
     spec = DetectorSpec.from_dict(model.detector)
     template = None
     if spec.kind == "texture":

@@ -190,7 +190,7 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
     """The summary as tables on ``stream``: rich on a terminal, plain text otherwise."""
     from rich.text import Text
 
-    from .report_table import report_console
+    from .table import report_console
 
     console = report_console(stream)
     plain = not console.is_terminal

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ..core.world import Target
 from ..errors import InputError, UsageError
+from ..perception.base import as_gray
 
 #: Gray level of the poster's paper.
 PAPER_WHITE = 230
@@ -276,8 +277,6 @@ def _draw_aruco(size: tuple[int, int], corners: NDArray[np.float64], marker_id: 
 
 def _fit_texture(texture: NDArray, size: tuple[int, int]) -> NDArray[np.uint8]:
     """A caller-supplied image converted to gray uint8 and stretched to ``size`` (H, W)."""
-    from .detector import as_gray
-
     image = as_gray(texture, "the texture image")
     if min(image.shape) < 8:
         raise InputError(f"the texture image is too small ({image.shape[1]}x{image.shape[0]} px)")

@@ -4,7 +4,7 @@ On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a
 are plain text: no colour, no box characters, columns separated by at least two spaces and
 never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep final``).
 
-Every number is the JSON value (:mod:`.report_data`) to 4 significant digits, in the unit
+Every number is the JSON value (:mod:`.build`) to 4 significant digits, in the unit
 named in its row label. One run: a run table, an error matrix (one row per error, one
 column per statistic), a table of the other metrics and the verdict. Several runs: the same
 tables side by side, one column per run named by its label (--label, else its law), with the error
@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence, TextIO
 
 from ..core.metrics import STATISTICS
-from .report_data import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
+from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
 
 #: Width of the plain-text output: wide enough never to wrap a row of a comparison.
 PLAIN_WIDTH = 1000
@@ -224,7 +224,7 @@ def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tu
     Parameters
     ----------
     reports : list of dict
-        Reports from :func:`hbvs_cli.tools.report_data.build_report`, one per run.
+        Reports from :func:`hbvs_cli.report.build.build_report`, one per run.
     console : rich.console.Console
         Where they will be printed: plain text (no box characters) unless it is a
         terminal, whose width decides the error tables' layout.
@@ -262,7 +262,7 @@ def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) ->
         console.print(table)
 
 
-#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.tools.fit_plot.fit_summary`).
+#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.report.fit_plot.fit_summary`).
 FIT_ROWS: tuple[tuple[str, str], ...] = (
     ("frames with a raw sample", "frames_raw"),
     ("frames on the spline", "frames_smooth"),

@@ -45,8 +45,8 @@ from .figure_style import (
     run_colors,
     save_figure,
 )
-from .report_data import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
-from .report_table import run_labels
+from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .table import run_labels
 
 #: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
 #: 200 dpi); longer runs are shown as bin means.
@@ -468,7 +468,7 @@ def plot_runs(
     style : FigureStyle, optional
         Size, resolution and panels (default: every panel, 7 in wide, 200 dpi).
     tolerances : dict, optional
-        The report's tolerances (:data:`~hbvs_cli.tools.report_data.DEFAULT_TOLERANCES`
+        The report's tolerances (:data:`~hbvs_cli.report.build.DEFAULT_TOLERANCES`
         units), drawn as dotted lines.
 
     Returns

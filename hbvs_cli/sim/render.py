@@ -15,6 +15,7 @@ Pixel convention: OpenCV's, as in :meth:`World.pixels`: the centre of the top-le
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,7 +24,7 @@ from scipy.special import ndtri
 
 from ..core.camera import CameraIntrinsics, distort_pixels
 from ..core.world import World
-from ..errors import UsageError
+from ..errors import InputError, UsageError
 from .poster import PosterRaster
 
 #: Poster corners closer to the camera plane than this (m) trigger the exact (slow) path
@@ -300,3 +301,22 @@ def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
     ideal = cv2.undistortPoints(real, camera.K, coefficients, P=camera.K, criteria=criteria)
     return ideal.reshape(camera.height, camera.width, 2).astype(np.float32)
+
+
+def load_texture(world: World) -> NDArray[np.uint8] | None:
+    """The poster image of a texture target (None for the built-in pattern)."""
+    if world.target.kind != "texture" or world.target.texture == "builtin":
+        return None
+    path = Path(world.target.texture)
+    if not path.is_file():
+        raise InputError(f"{path}: texture image not found")
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(f"{path}: not an image OpenCV can read")
+    return image
+
+
+def make_renderer(world: World, noise: float, blur: float, exposure: float) -> SceneRenderer:
+    """The scene renderer of a world (shared by teach and repeat so both see alike)."""
+    raster = PosterRaster.from_target(world.target, texture=load_texture(world))
+    return SceneRenderer(world, raster, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure))

@@ -1,0 +1,48 @@
+"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.stages.settings`).
+
+The command function takes ``**values``; its ``__signature__`` lists one annotated
+parameter per setting, which is what typer reads to build the click command.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Annotated, Any, Callable, List, Optional
+
+import typer
+
+from ..stages.settings import Setting
+
+
+def typer_parameter(setting: Setting) -> inspect.Parameter:
+    """The annotated parameter typer makes ``setting``'s option (or argument) from."""
+    kind: Any = setting.type
+    if setting.argument:
+        return inspect.Parameter(setting.name, inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                                 annotation=Annotated[kind, typer.Argument(help=setting.help)])
+    # An option that holds None until given (a config file may set it) words its default in
+    # the help; the others show their value as typer does.
+    shown = setting.shown_default if setting.default is None else None
+    option = typer.Option(
+        *setting.option_names, help=setting.help + (f" Default {shown}." if shown is not None else ""),
+        rich_help_panel=setting.panel, show_default=setting.default is not None, **dict(setting.bounds),
+    )
+    if setting.repeatable:
+        kind = Optional[List[kind]]
+    elif setting.default is None:
+        kind = Optional[kind]
+    return inspect.Parameter(setting.name, inspect.Parameter.KEYWORD_ONLY, default=setting.default,
+                             annotation=Annotated[kind, option])
+
+
+def with_settings(settings: tuple[Setting, ...], *extra: inspect.Parameter) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Give a ``**values`` command function the parameters of ``settings`` (then ``extra``)."""
+
+    def decorate(function: Callable[..., Any]) -> Callable[..., Any]:
+        parameters = [typer_parameter(s) for s in settings if s.argument]
+        parameters += [typer_parameter(s) for s in settings if not s.argument]
+        parameters += [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in extra]
+        function.__signature__ = inspect.Signature(parameters, return_annotation=None)  # type: ignore[attr-defined]
+        return function
+
+    return decorate

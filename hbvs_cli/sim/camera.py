@@ -1,0 +1,185 @@
+"""The camera of ``repeat --sim``: one measurement per control period, with the faults asked for.
+
+``images`` perception renders the scene (:mod:`.render`) and runs the fit's detector
+(:mod:`hbvs_cli.perception.tracked`) on it, as ``fit`` measured the taught images;
+``points`` perception projects the target points through the pinhole model of
+:mod:`hbvs_cli.core` and adds pixel noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..core.camera import distort_pixels, normalized_to_pixels
+from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
+from ..core.frames import world_to_robot
+from ..core.world import World
+from ..io.fit_file import FitModel
+from ..perception.tracked import TrackedDetector, detector_from_model, estimator_from_model
+from .render import SceneRenderer
+from .scene import Scene, renderer_for, world_point_identity
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """What the simulated camera measures and which faults it suffers.
+
+    Attributes
+    ----------
+    perception : str
+        ``images`` (render and detect) or ``points`` (project and add noise).
+    pixel_noise : float
+        Noise added to projected points (px, 1 sigma; ``points`` only).
+    seed : int
+        Seed of the sensor noise (and, with 1 appended, of the faults).
+    occlusions : tuple of (float, float)
+        Intervals ``[start, end)`` (s) when the target is covered.
+    drop_rate, outlier_rate : float
+        Fractions of frames dropped and of frames with a spurious blob or a wrong point.
+    exposure_step : (float, float) or None
+        ``(t, gain)``: the exposure gain from time ``t`` (s) on.
+    record_images : bool
+        Images are wanted for the run file (rendered even with ``points`` perception).
+    """
+
+    perception: str
+    pixel_noise: float = 0.0
+    seed: int = 0
+    occlusions: tuple[tuple[float, float], ...] = ()
+    drop_rate: float = 0.0
+    outlier_rate: float = 0.0
+    exposure_step: tuple[float, float] | None = None
+    record_images: bool = False
+
+
+class SimulatedCamera:
+    """The repeat's camera: a measurement per frame, with the faults asked for.
+
+    ``perception="images"`` renders the scene and runs the fit's detector on it;
+    ``perception="points"`` projects the target points and adds pixel noise. Faults:
+    occlusion intervals (the target is covered), dropped frames, outliers (a spurious dot
+    or a wrong point), a sudden exposure change.
+    """
+
+    def __init__(self, scene: Scene, model: FitModel, settings: CameraSettings, template_image: bytes | None) -> None:
+        self.scene = scene
+        self.model = model
+        self.pixel_noise = settings.pixel_noise
+        self.perception = settings.perception
+        self.estimator: PlanarPoseEstimator = estimator_from_model(model)
+        self.identity = world_point_identity(scene, model)
+        self.noise_rng = np.random.default_rng(settings.seed)
+        self.fault_rng = np.random.default_rng([settings.seed, 1])
+        self.occlusions = list(settings.occlusions)
+        self.drop_rate = settings.drop_rate
+        self.outlier_rate = settings.outlier_rate
+        self.exposure_step = settings.exposure_step
+        self.last_image: np.ndarray | None = None
+        self.renderer: SceneRenderer | None = None
+        self.detector: TrackedDetector | None = None
+        if self.perception == "images" or settings.record_images:
+            self.renderer = renderer_for(scene, model)
+        if self.perception == "images":
+            self.detector = detector_from_model(model, template_image, seed=settings.seed)
+
+    def _occluded(self, t: float) -> bool:
+        return any(start <= t < end for start, end in self.occlusions)
+
+    def observe(self, pose: np.ndarray, t: float) -> Observation:
+        if self.drop_rate > 0 and self.fault_rng.random() < self.drop_rate:
+            return dropped()
+        outlier = self.outlier_rate > 0 and self.fault_rng.random() < self.outlier_rate
+        if self.perception == "points":
+            return self._observe_points(pose, t, outlier)
+        return self._observe_image(pose, t, outlier)
+
+    def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
+        world = self.scene.world
+        if self._occluded(t):
+            return Observation(None, status=STATUS_OCCLUDED)
+        pixels = self._project(pose)
+        if pixels is None:
+            return Observation(None, status=STATUS_OCCLUDED)
+        pixels = distort_pixels(world.camera, pixels)
+        if self.pixel_noise > 0:
+            pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
+        if outlier:
+            # A wrong detection: one point displaced by 5 to 20 px.
+            index = int(self.fault_rng.integers(pixels.shape[0]))
+            angle = self.fault_rng.uniform(0.0, 2.0 * math.pi)
+            pixels[index] += self.fault_rng.uniform(5.0, 20.0) * np.array([math.cos(angle), math.sin(angle)])
+        return self.estimator.from_pixels(pixels)
+
+    def _observe_image(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
+        gain = self.settings_exposure(t)
+        image = self.renderer.render(pose, self.noise_rng, exposure_gain=gain)
+        if self._occluded(t):
+            self._cover_target(image, pose)
+        if outlier:
+            self._add_spurious_blob(image, pose)
+        self.last_image = image
+        pixels = self.detector.detect(image)
+        return self.estimator.from_pixels(pixels)
+
+    def _project(self, pose: np.ndarray) -> np.ndarray | None:
+        """Pixels of the target points (in the fit's identity order) seen from ``pose``, or
+        None when one is behind the camera or outside the image."""
+        world = self.scene.world
+        camera = world.camera
+        if world.points_in_camera(pose)[:, 0].min() <= 0.05:
+            return None
+        pixels = world.pixels(pose)[self.identity]
+        u, v = pixels[:, 0], pixels[:, 1]
+        if u.min() < 0 or v.min() < 0 or u.max() > camera.width - 1 or v.max() > camera.height - 1:
+            return None
+        return pixels
+
+    def settings_exposure(self, t: float) -> float | None:
+        if self.exposure_step is None:
+            return None
+        at, gain = self.exposure_step
+        return gain if t >= at else None
+
+    def _target_box(self, pose: np.ndarray, pad: float) -> tuple[int, int, int, int]:
+        world = self.scene.world
+        corners = world.target.poster.to_world(np.array([[0, 0], [world.target.poster.width, 0],
+                                                         [world.target.poster.width, world.target.poster.height],
+                                                         [0, world.target.poster.height]]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px = normalized_to_pixels(world.camera, world_to_robot(corners, pose, world.camera_height))
+        u0, v0 = np.floor(px.min(axis=0) - pad).astype(int)
+        u1, v1 = np.ceil(px.max(axis=0) + pad).astype(int)
+        return max(u0, 0), max(v0, 0), min(u1, world.camera.width), min(v1, world.camera.height)
+
+    def _cover_target(self, image: np.ndarray, pose: np.ndarray) -> None:
+        """An occluder (a person walking by) in front of the whole poster."""
+        u0, v0, u1, v1 = self._target_box(pose, pad=4.0)
+        if u1 > u0 and v1 > v0:
+            image[v0:v1, u0:u1] = 90
+
+    def _add_spurious_blob(self, image: np.ndarray, pose: np.ndarray) -> None:
+        """A dark blob (for dots: a fake dot) or a bright one near the target."""
+        world = self.scene.world
+        px = world.pixels(pose)
+        spread = max(float(np.ptp(px[:, 0])), float(np.ptp(px[:, 1])), 20.0)
+        centre = px.mean(axis=0) + self.fault_rng.uniform(-0.8, 0.8, 2) * spread
+        distance = float(np.mean(_to_camera(world, pose, world.target.points_world.mean(axis=0))[0:1]))
+        radius = max(2.0, world.camera.fx * max(world.target.dot_radius, 0.03) / max(distance, 0.1))
+        value = 30 if world.target.kind == "dots" else 250
+        cv2.circle(image, (int(round(centre[0] * 16)), int(round(centre[1] * 16))), int(round(radius * 16)), value, -1, cv2.LINE_AA, 4)
+
+    def image_of(self, pose: np.ndarray) -> np.ndarray:
+        """The camera image of this step (``--record-images``): the one just measured, or a
+        noiseless-seeded render at ``pose`` when perception did not render one."""
+        image = self.last_image
+        if image is None or self.perception != "images":
+            image = self.renderer.render(pose, np.random.default_rng(0))
+        return image
+
+
+def _to_camera(world: World, pose: np.ndarray, point: np.ndarray) -> np.ndarray:
+    return world_to_robot(np.asarray(point, dtype=float)[None, :], pose, world.camera_height)[0]

@@ -1,0 +1,194 @@
+"""The simulated world of ``repeat --sim``: the scene, its true depth and the taught pose.
+
+After a simulated teach the fit file carries the world and the taught path, so the repeat
+sees exactly the world that was taught, and the taught pose at any time is known exactly.
+After a teach from real footage there is no world: one consistent with the reference image
+is built instead, at an assumed depth ``--depth D`` (a vertical wall D metres from F*,
+papered with the reference image, the target points where the reference image shows them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
+
+from ..core.camera import pixels_to_normalized, undistort_pixels
+from ..core.frames import rotation_z
+from ..core.desired import taught_frame_interval
+from ..core.path import CommandProfile
+from ..core.trajectory import SplineTrajectory
+from ..core.world import Poster, Target, World
+from ..errors import UsageError
+from ..io.fit_file import FitModel
+from ..io.images import decode_image
+from .poster import PosterRaster, build_pyramid
+from .render import RenderSettings, SceneRenderer, make_renderer
+
+
+@dataclass
+class Scene:
+    """A world to simulate, its true depth d*, and the taught pose at any taught time.
+
+    Attributes
+    ----------
+    world : World
+    d_true : float
+        True distance from F* to the target plane (m).
+    reference_pose : ndarray, shape (3,)
+    has_ground_truth : bool
+        True when the taught poses are the simulated teach's own (not reconstructed).
+    poster_image : ndarray or None
+        The picture on the wall when it is not the target's own drawing (real footage).
+    """
+
+    world: World
+    d_true: float
+    reference_pose: np.ndarray
+    has_ground_truth: bool
+    taught_profile: CommandProfile | None = None
+    taught_start: np.ndarray | None = None
+    taught_t0: float = 0.0
+    spline: SplineTrajectory | None = None
+    poster_image: np.ndarray | None = None
+    run_start: float = 0.0
+    run_speed: float = 1.0
+    _segment_starts: np.ndarray | None = None
+
+    def taught_pose(self, t: ArrayLike) -> np.ndarray:
+        """The taught robot pose at taught times ``t`` (s), in W, shape (..., 3)."""
+        t = np.asarray(t, dtype=float)
+        if self.taught_profile is not None:
+            if self._segment_starts is None:
+                self._segment_starts = self.taught_profile.segment_start_poses(self.taught_start)
+            return self.taught_profile.poses_at(t - self.taught_t0, self.taught_start, self._segment_starts)
+        # Real footage: the fit's trajectory at the assumed depth, (3) and (14) inverted.
+        desired = self.spline.evaluate(t)
+        phi = self.reference_pose[2] - np.asarray(desired.theta_d)
+        x1 = self.d_true * np.asarray(desired.x_hd1)
+        x2 = self.d_true * np.asarray(desired.x_hd2)
+        c, s = np.cos(phi), np.sin(phi)
+        return np.stack([self.reference_pose[0] - (c * x1 - s * x2), self.reference_pose[1] - (s * x1 + c * x2), phi], axis=-1)
+
+    def taught_pose_at_run_time(self, tau: ArrayLike) -> np.ndarray:
+        """The taught pose at repeat time ``tau`` (s): the trajectory may be time-scaled."""
+        return self.taught_pose(self.run_start + self.run_speed * np.asarray(tau, dtype=float))
+
+
+def simulation_world(model: FitModel, reference_image: bytes | None, depth: float | None, speed: float = 1.0) -> Scene:
+    """The scene of ``repeat --sim`` for a fit model (see the module docstring)."""
+    start = model.trajectory.t_start
+    if model.world is not None and model.taught_path is not None:
+        path = model.taught_path
+        _, _, d_true = model.world.reference_geometry(path.reference_pose)
+        interval = taught_frame_interval(path.t)
+        profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
+        if depth is not None:
+            raise UsageError("--depth is for a teach from real footage; this fit came from a simulated teach and knows its world")
+        return Scene(
+            world=model.world, d_true=d_true, reference_pose=path.reference_pose, has_ground_truth=True,
+            taught_profile=profile, taught_start=path.start_pose, taught_t0=float(path.t[0]),
+            run_start=start, run_speed=speed,
+        )
+    if depth is None:
+        raise UsageError(
+            "this fit came from real footage, so there is no simulated world: give --depth D, the assumed distance (m) "
+            "from the reference camera to the target, to build one"
+        )
+    if not (math.isfinite(depth) and depth > 0):
+        raise UsageError(f"--depth must be a positive distance in metres, got {depth}")
+    if reference_image is None:
+        raise UsageError("the fit file has no reference image to build a world from")
+    image = decode_image(reference_image, "the fit's reference image")
+    world, poster_image, reference_pose = world_from_reference(model, image, depth)
+    return Scene(
+        world=world, d_true=float(depth), reference_pose=reference_pose, has_ground_truth=False,
+        spline=model.trajectory, poster_image=poster_image, run_start=start, run_speed=speed,
+    )
+
+
+#: Height given to the camera of a world built from real footage (any value works: only
+#: heights relative to the camera matter).
+BUILT_CAMERA_HEIGHT = 1.0
+
+
+def world_from_reference(model: FitModel, image: np.ndarray, depth: float) -> tuple[World, np.ndarray, np.ndarray]:
+    """A vertical wall ``depth`` metres ahead of F* (at the world origin), papered with the
+    reference image as F* saw it, and the target points where F* saw them.
+
+    Returns the world, the poster's picture and the pose of F* in it.
+    """
+    normal = np.asarray(model.normal, dtype=float)
+    horizontal = np.array([normal[0], normal[1], 0.0])
+    if np.linalg.norm(horizontal) < 0.5:
+        raise UsageError("the fitted target plane is nearly horizontal; a wall cannot be built for it")
+    # Turn F* so that the wall's normal is the world's +x: F* sits at the origin with yaw
+    # psi, so a direction v in F* is Rz(psi) v in the world.
+    psi = -math.atan2(horizontal[1], horizontal[0])
+    n_world = rotation_z(psi) @ (horizontal / np.linalg.norm(horizontal))
+    assert abs(n_world[1]) < 1e-9
+    camera = model.camera
+
+    def to_wall(pixels: np.ndarray) -> np.ndarray:
+        """World points on the wall x = depth seen at these reference pixels."""
+        m = pixels_to_normalized(camera, undistort_pixels(camera, np.asarray(pixels, dtype=float)))
+        rays = (rotation_z(psi) @ m.T).T
+        if np.any(rays[:, 0] <= 1e-3):
+            raise UsageError("part of the reference image looks away from the wall; cannot build a world")
+        points = rays * (depth / rays[:, :1])
+        points[:, 2] += BUILT_CAMERA_HEIGHT
+        return points
+
+    h, w = image.shape[:2]
+    corners = to_wall(np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
+    y_left, y_right = corners[:, 1].max(), corners[:, 1].min()
+    z_top, z_bottom = corners[:, 2].max(), corners[:, 2].min()
+    width, height = y_left - y_right, z_top - z_bottom
+    poster = Poster(center=np.array([depth, 0.5 * (y_left + y_right), 0.5 * (z_top + z_bottom)]), width=width, height=height)
+    points_world = to_wall(model.reference_pixels)
+    points_poster = np.stack([y_left - points_world[:, 1], z_top - points_world[:, 2]], axis=-1)
+    target = Target(kind=model.target_kind, points_poster=points_poster, poster=poster, texture="reference image")
+    world = World(camera=camera, camera_height=BUILT_CAMERA_HEIGHT, target=target)
+    # Paint the poster: every poster pixel looks up the reference image pixel that sees it.
+    ppm = min(640.0, 4000.0 / max(width, height))
+    size = (int(round(width * ppm)), int(round(height * ppm)))
+    reference_pose = np.array([0.0, 0.0, psi])
+    poster_to_image = world.poster_to_image_homography(reference_pose)
+    metres_from_pixels = np.array([[1.0 / ppm, 0.0, 0.5 / ppm], [0.0, 1.0 / ppm, 0.5 / ppm], [0.0, 0.0, 1.0]])
+    painted = cv2.warpPerspective(
+        image, poster_to_image @ metres_from_pixels, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT, borderValue=128,
+    )
+    return world, painted, reference_pose
+
+
+def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
+    """Order of the world's target points that matches the fit's point identity.
+
+    The fit numbers the points as its detector first saw them; the world lists them in its
+    own order. Matching where F* sees each world point to the fit's reference pixels
+    gives the permutation once.
+    """
+    seen = scene.world.pixels(scene.reference_pose)
+    cost = np.linalg.norm(np.asarray(model.reference_pixels)[:, None, :] - seen[None, :, :], axis=-1)
+    rows, columns = linear_sum_assignment(cost)
+    order = np.empty(len(rows), dtype=int)
+    order[rows] = columns
+    return order
+
+
+def renderer_for(scene: Scene, model: FitModel) -> SceneRenderer:
+    """The camera of the scene, with the teach's sensor (noise, blur, exposure) as the fit recorded it."""
+    # The same sensor as the teach (noise, blur, exposure), as the fit recorded it.
+    render = model.render or {}
+    noise = float(render.get("noise", 2.0))
+    if scene.poster_image is None:
+        return make_renderer(scene.world, noise, float(render.get("blur", 0.0)), float(render.get("exposure", 1.0)))
+    poster = scene.world.target.poster
+    raster = PosterRaster(kind=scene.world.target.kind, ppm=scene.poster_image.shape[1] / poster.width,
+                          levels=build_pyramid(scene.poster_image), width=poster.width, height=poster.height)
+    return SceneRenderer(scene.world, raster, RenderSettings(noise_std=noise))

@@ -1,0 +1,244 @@
+"""The options of ``hbvs teach`` and ``hbvs repeat``, declared once: name, type, default,
+help, config key.
+
+:data:`TEACH_SETTINGS` and :data:`REPEAT_SETTINGS` are the tables. From each come the typer
+signature of the command (:mod:`hbvs_cli.cli.signature`), the options dataclass the stage
+takes (:class:`RepeatOptions`; ``TeachOptions`` adds its methods in the stage), the
+``--config`` key of each repeat option, and the defaults shown in ``--help``.
+
+Precedence: built-in default < ``--config`` file < the command line. An option that a
+config file may set holds None until it is given, so an explicit value always wins, even
+one equal to the default (``--offset -0.1,0.05,2``) or a false one (``--pixel-noise 0``).
+
+Kept light (no OpenCV, scipy, MCAP or typer): ``hbvs --help`` builds its commands from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, make_dataclass
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+from ..core.controller import LAW_LATERAL_GAIN, ControllerGains
+from ..core.path import DEFAULT_PRESET
+from ..core.state_filter import FILTER_EKF
+from ..io.shipped import shipped_path
+
+OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
+
+#: What a defaults table says about a value that the fit file, not the table, decides.
+FROM_THE_FIT = "the fit's suggestion"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One option of a stage.
+
+    Attributes
+    ----------
+    name : str
+        The field of the stage's options and the parameter of the typer command.
+    type : type
+        The value's Python type as the command line parses it (``str``, ``float``, ``int``,
+        ``bool``, ``Path``); ``repeatable`` options hold a list of it.
+    help : str
+        What it does, without its default (``--help`` shows the default from ``default``
+        or ``fallback``).
+    default : object
+        What the stage's options hold when it is not given (None: "not given").
+    fallback : object
+        The value used when neither the option nor a ``--config`` file gives one (options
+        with a ``config`` key; None when the stage decides, e.g. from the fit).
+    shown : str or None
+        The default as ``--help`` words it when the value alone would not say it (it
+        depends on the fit, or None means "no limit").
+    config : str or None
+        Its key in a ``--config`` TOML file (:mod:`hbvs_cli.io.config`).
+    flags : tuple of str
+        Its option names (default ``--name-with-dashes``).
+    panel : str or None
+        Its section in ``--help``.
+    argument : bool
+        A positional argument (required) instead of an option.
+    repeatable : bool
+        May be given several times (a list).
+    bounds : mapping
+        ``min`` and ``max`` checked by the command line.
+    """
+
+    name: str
+    type: type
+    help: str
+    default: Any = None
+    fallback: Any = None
+    shown: str | None = None
+    config: str | None = None
+    flags: tuple[str, ...] = ()
+    panel: str | None = None
+    argument: bool = False
+    repeatable: bool = False
+    bounds: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return self.flags or ("--" + self.name.replace("_", "-"),)
+
+    @property
+    def shown_default(self) -> str | None:
+        """The default as ``--help`` shows it (None: nothing to show)."""
+        if self.shown is not None:
+            return self.shown
+        value = self.fallback if self.default is None else self.default
+        if value is None or value is False or self.argument or self.repeatable:
+            return None
+        return _shown(value)
+
+    def resolve(self, given: Any, config: Mapping[str, Any], fallback: Any = None) -> Any:
+        """The value in force: the option if given, else the config's, else the fallback
+        (``fallback`` replaces this setting's own, e.g. with the fit's suggestion)."""
+        if given is not None:
+            return given
+        if self.config is not None and self.config in config:
+            return config[self.config]
+        return self.fallback if fallback is None else fallback
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+#: Frame rate of the simulated camera and of an image folder when --fps is not given (Hz).
+DEFAULT_FPS = 30.0
+
+TEACH_SETTINGS: tuple[Setting, ...] = (
+    Setting("output", str, OUTPUT_HELP, default="teach.mcap", flags=("-o", "--output")),
+    Setting("sim", bool, "Simulated robot and camera (the default source).", default=False),
+    Setting("video", Path, "A video file (anything OpenCV reads).", panel="Sources"),
+    Setting("images", str, "A folder of images or a glob; sorted naturally.", panel="Sources"),
+    Setting("camera", int, "A live camera by index; --duration or Ctrl-C ends it.", panel="Sources"),
+    Setting("bag", Path, "A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage "
+            "(e.g. a teach file).", panel="Sources"),
+    Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
+    Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
+            fallback=DEFAULT_PRESET, panel="Simulation"),
+    Setting("offset", str, "Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.",
+            panel="Simulation"),
+    Setting("target", str, "Target on the wall: dots, aruco or texture.", fallback="dots", panel="Simulation"),
+    Setting("dots", int, "Number of dots of a dots target.", fallback=3, panel="Simulation", bounds={"min": 3}),
+    Setting("texture", Path, "Poster image for --target texture.", shown="a built-in pattern", panel="Simulation"),
+    Setting("calibration", Path, "Camera calibration: ROS camera_info YAML or OpenCV YAML/JSON. Required for video, images and camera."),
+    Setting("fps", float, "Frame rate (Hz) of the simulated camera or of --images; for --video, replaces the container's rate.",
+            shown=f"{DEFAULT_FPS:g} (simulation, --images)", bounds={"min": 0.1}),
+    Setting("duration", float, "Seconds to record.", shown="the whole path or source", bounds={"min": 0.0}),
+    Setting("seed", int, "Seed of the simulated sensor noise.", fallback=0, panel="Simulation", bounds={"min": 0}),
+    Setting("noise", float, "Sensor noise, gray levels (1 sigma).", fallback=2.0, panel="Simulation", bounds={"min": 0.0}),
+    Setting("blur", float, "Gaussian blur sigma (px).", fallback=0.0, panel="Simulation", bounds={"min": 0.0, "max": 100.0}),
+    Setting("exposure", float, "Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05}),
+    Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) "
+            "and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.",
+            default="auto", flags=("--format",)),
+    Setting("jpeg_quality", int, "JPEG quality of the frames hbvs compresses.", default=90, flags=("--quality",),
+            bounds={"min": 1, "max": 100}),
+)
+
+#: Options that describe the simulated robot and camera, and their defaults (None in the
+#: options means "not given"). A recorded source refuses them.
+SIMULATION_DEFAULTS: dict[str, Any] = {s.name: s.fallback for s in TEACH_SETTINGS if s.panel == "Simulation"}
+
+
+#: The default start offset of ``repeat --sim`` (m, m, deg): where the robot was put down by hand.
+DEFAULT_OFFSET = "-0.1,0.05,2"
+#: Default actuator limits of the simulated robot (m/s, rad/s): a small indoor platform.
+DEFAULT_MAX_V = 0.5
+DEFAULT_MAX_W = 0.6
+#: Seconds without the target before a run is stopped.
+DEFAULT_LOST_TIMEOUT = 3.0
+#: Gains without a fit's suggestion (core's defaults; samples/gains.toml lists the same).
+DEFAULT_GAINS = ControllerGains()
+
+REPEAT_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "Fit MCAP file (from hbvs fit), or - for stdin.", argument=True),
+    Setting("output", str, OUTPUT_HELP, default="run.mcap", flags=("-o", "--output")),
+    Setting("sim", bool, "Closed loop with a simulated robot and camera.", default=False, panel="Mode"),
+    Setting("replay", Path, "Open loop: the frames of a teach recording are the live camera.", panel="Mode"),
+    Setting("offset", str, "Start pose offset DX,DY,DTHETA (m, m, deg) in the taught start frame: where the robot was put down by hand.",
+            fallback=DEFAULT_OFFSET, config="offset", panel="Simulation"),
+    Setting("perception", str, "images (render and detect) or points (project and add --pixel-noise).",
+            fallback="images", config="perception", panel="Simulation"),
+    Setting("pixel_noise", float, "Pixel noise (px, 1 sigma) for --perception points.",
+            fallback=0.0, config="pixel_noise", panel="Simulation", bounds={"min": 0.0}),
+    Setting("rate", float, "Camera and control rate (Hz).", shown="the taught rate", config="rate", panel="Simulation",
+            bounds={"min": 0.1}),
+    Setting("depth", float, "Assumed d* (m) to build a world when the teach came from real footage.", panel="Simulation",
+            bounds={"min": 0.0}),
+    Setting("seed", int, "Seed of the simulated noise and faults.", default=0, panel="Simulation", bounds={"min": 0}),
+    Setting("config", Path, "TOML file with gains and limits (options given here win).", panel="Controller"),
+    Setting("law", str, "lateral-gain, paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive "
+            "(gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).",
+            fallback=LAW_LATERAL_GAIN, config="law", panel="Controller"),
+    Setting("kv", float, "k_v (m/s) of (29).", shown=_shown(DEFAULT_GAINS.k_v), config="k_v", panel="Controller"),
+    Setting("kw", float, "k_w (1/s) of (30).", shown=_shown(DEFAULT_GAINS.k_w), config="k_w", panel="Controller"),
+    Setting("gamma", float, "gamma_1 of the update law (31) (from x_hd1_dot and the detector's noise).",
+            shown=FROM_THE_FIT, config="gamma", panel="Controller"),
+    Setting("k2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_path('docs/method.md')}).",
+            shown=FROM_THE_FIT, config="k_2", panel="Controller"),
+    Setting("dhat0", float, "Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller"),
+    Setting("speed", float, "Play the taught trajectory at this multiple of its pace.", fallback=1.0, config="speed", panel="Controller"),
+    Setting("max_v", float, "|v| limit (m/s); inf for none.", fallback=DEFAULT_MAX_V, config="max_v", panel="Actuators"),
+    Setting("max_w", float, "|w| limit (rad/s); inf for none.", fallback=DEFAULT_MAX_W, config="max_w", panel="Actuators"),
+    Setting("max_accel", float, "Acceleration limit (m/s^2 and rad/s^2); inf for none.", shown="inf", config="max_accel",
+            panel="Actuators"),
+    Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators", bounds={"min": 0}),
+    Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",
+            fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0}),
+    Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE or - (stdout)."),
+    Setting("record_images", bool, "Store the camera images with detected and desired points.", default=False),
+    Setting("occlude", str, "Hide the target from START to END seconds (repeatable), e.g. 8:10.", panel="Faults", repeatable=True),
+    Setting("drop_rate", float, "Fraction of camera frames dropped.", default=0.0, panel="Faults", bounds={"min": 0.0, "max": 1.0}),
+    Setting("outlier_rate", float, "Fraction of frames with a spurious blob (dots) or wrong matches.", default=0.0, panel="Faults",
+            bounds={"min": 0.0, "max": 1.0}),
+    Setting("exposure_step", str, "Sudden exposure change T:GAIN (s, gain factor).", panel="Faults"),
+    Setting("allow_truncated", bool, "Replace an existing output even when an input ended early (no end record).", default=False),
+    Setting("state_filter", str, "State filter between the camera and the law: ekf or none (the raw measurement, the paper exactly).",
+            fallback=FILTER_EKF, config="filter", flags=("--filter",), panel="Controller"),
+)
+
+#: The settings by name.
+REPEAT = {setting.name: setting for setting in REPEAT_SETTINGS}
+
+
+def options_class(name: str, settings: tuple[Setting, ...], doc: str) -> type:
+    """A frozen dataclass with one field per setting (in order; the arguments first)."""
+    specs: list[tuple[str, Any, Any]] = []
+    for setting in sorted(settings, key=lambda s: not s.argument):
+        kind: Any = setting.type
+        if setting.repeatable:
+            specs.append((setting.name, list[kind], field(default_factory=list)))
+        elif setting.argument:
+            specs.append((setting.name, kind))  # type: ignore[arg-type]
+        else:
+            specs.append((setting.name, kind if setting.default is not None else Optional[kind], field(default=setting.default)))
+    cls = make_dataclass(name, specs, frozen=True)
+    cls.__module__ = __name__  # pickled by name (sweep workers): it lives here
+    cls.__doc__ = doc
+    return cls
+
+
+RepeatOptions = options_class("RepeatOptions", REPEAT_SETTINGS, "Everything ``hbvs repeat`` was asked to do (see ``hbvs repeat --help``).")
+
+
+def options_from_command_line(cls: type, values: Mapping[str, Any]) -> Any:
+    """The options dataclass from the values typer parsed (an absent repeatable option is None there)."""
+    names = {f.name for f in fields(cls)}
+    return cls(**{key: (list(value or []) if isinstance(value, (list, tuple)) or value is None and _is_list(cls, key) else value)
+                  for key, value in values.items() if key in names})
+
+
+def _is_list(cls: type, name: str) -> bool:
+    return any(f.name == name and f.default_factory is list for f in fields(cls))
+
+
+#: The fields of ``hbvs teach``'s options (the stage's ``TeachOptions`` adds its methods).
+TeachFields = options_class("TeachFields", TEACH_SETTINGS, "Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``).")

@@ -1,1 +1,0 @@
-"""Presentation of results: report tables, JSON output, plots and trajectory export."""

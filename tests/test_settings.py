@@ -1,0 +1,135 @@
+"""The repeat options are declared once (stages/settings.py): the command line, the
+options dataclass, the config merge and the help all come from that table."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import typer
+
+from hbvs_cli.cli.app import app
+from hbvs_cli.core.controller import ControllerGains
+from hbvs_cli.io.config import SCHEMA, load_config
+from hbvs_cli.stages import repeat as repeat_stage
+from hbvs_cli.stages.repeat import resolve_settings
+from hbvs_cli.stages.settings import (
+    DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, SIMULATION_DEFAULTS,
+    TEACH_SETTINGS, RepeatOptions,
+)
+from hbvs_cli.stages.teach import TeachOptions
+
+from conftest import REPO
+
+#: A config file that sets every option the two precedence bugs were about.
+CONFIG = """
+[run]
+offset = "0.3,-0.2,5"
+pixel_noise = 0.7
+lost_timeout = 9.0
+perception = "points"
+"""
+
+
+def parsed_options(monkeypatch, *args: str) -> RepeatOptions:
+    """The RepeatOptions the command line hands to the stage (the stage itself not run)."""
+    seen = []
+    monkeypatch.setattr(repeat_stage, "run_repeat", lambda options, console: seen.append(options))
+    app(args=["repeat", "fit.mcap", "--sim", "-q", *args], prog_name="hbvs", standalone_mode=False)
+    return seen[0]
+
+
+def resolved(options: RepeatOptions):
+    return resolve_settings(options, dhat0_suggested=4.0, taught_rate=30.0)
+
+
+@pytest.fixture
+def config_file(tmp_path):
+    path = tmp_path / "config.toml"
+    path.write_text(CONFIG)
+    return path
+
+
+def test_an_explicit_offset_equal_to_the_default_beats_the_config(monkeypatch, config_file):
+    options = parsed_options(monkeypatch, "--config", str(config_file), "--offset", DEFAULT_OFFSET)
+    assert options.offset == DEFAULT_OFFSET
+    dx, dy, dtheta = resolved(options).offset
+    assert (dx, dy, math.degrees(dtheta)) == pytest.approx((-0.1, 0.05, 2.0), abs=1e-12)
+    # Not given: the config's (it lost to the default text before only when given).
+    dx, dy, dtheta = resolved(parsed_options(monkeypatch, "--config", str(config_file))).offset
+    assert (dx, dy, math.degrees(dtheta)) == pytest.approx((0.3, -0.2, 5.0), abs=1e-12)
+
+
+def test_pixel_noise_zero_beats_the_config(monkeypatch, config_file):
+    options = parsed_options(monkeypatch, "--config", str(config_file), "--pixel-noise", "0")
+    assert options.pixel_noise == 0.0
+    assert resolved(options).pixel_noise == 0.0
+    assert resolved(parsed_options(monkeypatch, "--config", str(config_file))).pixel_noise == 0.7
+
+
+def test_every_option_equal_to_its_default_beats_the_config(monkeypatch, config_file):
+    """The same bug class for the other options the config may set: given, they win."""
+    settings = resolved(parsed_options(
+        monkeypatch, "--config", str(config_file), "--lost-timeout", "3", "--perception", "images",
+    ))
+    assert settings.lost_timeout == DEFAULT_LOST_TIMEOUT and settings.perception == "images"
+    settings = resolved(parsed_options(monkeypatch, "--config", str(config_file)))
+    assert settings.lost_timeout == 9.0 and settings.perception == "points"
+
+
+def test_without_options_or_config_the_defaults_hold(monkeypatch):
+    settings = resolved(parsed_options(monkeypatch))
+    gains = ControllerGains()
+    assert (settings.gains.k_v, settings.gains.k_w, settings.gains.gamma, settings.gains.k_2) == (gains.k_v, gains.k_w, gains.gamma, gains.k_2)
+    assert settings.limits.max_v == DEFAULT_MAX_V and settings.limits.max_w == DEFAULT_MAX_W and settings.limits.max_accel is None
+    assert settings.lost_timeout == DEFAULT_LOST_TIMEOUT and settings.perception == "images" and settings.pixel_noise == 0.0
+    assert settings.rate == 30.0 and settings.dhat0 == 4.0 and settings.speed == 1.0 and settings.latency == 0
+
+
+def test_the_options_dataclass_and_the_command_line_have_the_same_fields():
+    command = typer.main.get_command(app).commands["repeat"]
+    cli_names = {param.name for param in command.params} - {"quiet"}
+    assert cli_names == {f.name for f in dataclasses.fields(RepeatOptions)} == set(REPEAT)
+
+
+def test_help_shows_the_defaults_of_the_one_table():
+    command = typer.main.get_command(app).commands["repeat"]
+    helps = {param.name: param.help for param in command.params}
+    assert f"Default {DEFAULT_OFFSET}." in helps["offset"]
+    assert f"Default {DEFAULT_MAX_V:g}." in helps["max_v"] and f"Default {ControllerGains().k_v:g}." in helps["kv"]
+    for setting in REPEAT_SETTINGS:
+        if setting.config is not None:
+            assert helps[setting.name].endswith(f"Default {setting.shown_default}."), setting.name
+
+
+def test_every_config_key_is_one_option_of_the_same_type():
+    keys = {key: kind for table in SCHEMA.values() for key, kind in table.items()}
+    by_key = {setting.config: setting for setting in REPEAT_SETTINGS if setting.config is not None}
+    assert set(by_key) == set(keys)
+    for key, setting in by_key.items():
+        assert setting.type is keys[key], key
+
+
+def test_the_sample_gains_file_holds_the_code_defaults():
+    """samples/gains.toml once drifted from the code (gamma 2000 and k_2 300 in one place,
+    2500 and 400 in another): it must say what the code does."""
+    sample = load_config(REPO / "samples" / "gains.toml")
+    gains = ControllerGains()
+    defaults = {"k_v": gains.k_v, "k_w": gains.k_w, "gamma": gains.gamma, "k_2": gains.k_2}
+    for key, value in sample.items():
+        setting = next(s for s in REPEAT_SETTINGS if s.config == key)
+        expected = defaults[key] if key in defaults else setting.fallback
+        assert value == expected, key
+    assert {"k_v", "k_w", "gamma", "k_2", "law", "max_v", "max_w", "lost_timeout"} <= set(sample)
+
+
+def test_teach_options_come_from_their_table_too():
+    command = typer.main.get_command(app).commands["teach"]
+    helps = {param.name: param.help for param in command.params}
+    assert set(helps) - {"quiet"} == {f.name for f in dataclasses.fields(TeachOptions)} == {s.name for s in TEACH_SETTINGS}
+    # The simulation's defaults are the table's, and --help shows them.
+    assert SIMULATION_DEFAULTS == {"path": "s-curve", "offset": None, "target": "dots", "dots": 3, "texture": None,
+                                   "seed": 0, "noise": 2.0, "blur": 0.0, "exposure": 1.0}
+    assert TeachOptions().for_simulation().noise == SIMULATION_DEFAULTS["noise"]
+    assert helps["noise"].endswith("Default 2.") and helps["path"].endswith("Default s-curve.") and helps["dots"].endswith("Default 3.")
