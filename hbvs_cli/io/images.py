@@ -236,7 +236,7 @@ def _image_schema() -> bytes:
 def write_compressed_image(writer: Any, topic: str, log_time_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> None:
     """Write one ``foxglove.CompressedImage`` (protobuf: the bytes as they are) at ``log_time_ns``.
 
-    ``writer`` is an :class:`~hbvs_cli.io.mcap_io.McapWriter`; the message's timestamp is
+    ``writer`` is an :class:`~hbvs_cli.io.mcap.McapWriter`; the message's timestamp is
     the log time.
     """
     declare_image_channel(writer, topic)
@@ -276,7 +276,7 @@ def read_compressed_image(message_encoding: str, data: bytes, source: str = "") 
         stamp = message.timestamp.seconds * 1_000_000_000 + message.timestamp.nanos
         return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(int(stamp), 0))
     if message_encoding == "json":
-        from .mcap_io import decode_json
+        from .mcap import decode_json
 
         value = decode_json(data, f"{source}: image message")
         if not isinstance(value, dict):

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import RecordingError
-from .mcap_io import McapStream, read_metadata
+from .mcap import McapStream, read_metadata
 from .messages import planar_pose_from_message
 from .topics import COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, STATE_TOPIC, TOPICS, TRUE_POSE_TOPIC
 

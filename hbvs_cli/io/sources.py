@@ -31,7 +31,7 @@ import yaml
 from ..core.camera import CameraIntrinsics
 from ..errors import CalibrationError, HbvsError, InputError, RecordingError, UsageError
 from .calibration import intrinsics_from_values
-from .mcap_io import ChannelSummary, McapMessage, McapStream, read_summary
+from .mcap import ChannelSummary, McapMessage, McapStream, read_summary
 from .topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
 
 __all__ = [
@@ -654,8 +654,8 @@ class BagSource(FrameSource):
     yielded in the order the bag stores them (the order rosbag2 received them), so a
     driver whose stamps go backwards gives a ``t`` that does too.
 
-    Files are read through :class:`~hbvs_cli.io.mcap_io.McapStream` (and
-    :func:`~hbvs_cli.io.mcap_io.read_summary` for the topic list), with its caps on record,
+    Files are read through :class:`~hbvs_cli.io.mcap.McapStream` (and
+    :func:`~hbvs_cli.io.mcap.read_summary` for the topic list), with its caps on record,
     chunk and declaration sizes; message definitions above 1 MiB and CameraInfo messages
     above 64 KiB are not decoded. A bag file cut short is refused rather than read in part.
     """
@@ -862,7 +862,7 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
     """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
     from .calibration import calibration_from_foxglove
-    from .mcap_io import decode_json
+    from .mcap import decode_json
 
     if message.message_encoding == "json":
         fields = decode_json(message.data, source)

@@ -30,7 +30,7 @@ from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
-from .mcap_io import McapStream, McapWriter, check_json_limits, read_metadata, time_message
+from .mcap import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
 from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
@@ -108,7 +108,7 @@ def render_settings_problem(settings: Any) -> str | None:
 
 
 class TeachWriter:
-    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap_io.McapWriter`."""
+    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`."""
 
     def __init__(self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None) -> None:
         self.writer = writer
@@ -156,7 +156,7 @@ class TeachFrame:
     image_message : bytes
         The ``foxglove.CompressedImage`` as stored, in ``image_encoding``; read it with
         :meth:`stored_image`. JSON is within the caps of
-        :func:`~hbvs_cli.io.mcap_io.check_json_limits`, so decoding it is safe.
+        :func:`~hbvs_cli.io.mcap.check_json_limits`, so decoding it is safe.
     pose : (x, y, phi) or None
         True robot pose (simulated recordings).
     command : (v, w) or None

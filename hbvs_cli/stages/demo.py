@@ -21,7 +21,7 @@ DEMO_LAWS = ("lateral-gain", "paper")
 
 def run_demo(folder: Path, console: Console) -> int:
     """Run the demo into ``folder``; 0 when the default law converged, else 1."""
-    from ..io.mcap_io import json_ready
+    from ..io.mcap import json_ready
     from ..io.run_file import read_run
     from ..tools.report_data import build_report
     from ..tools.report_table import print_report_tables

@@ -136,7 +136,7 @@ def recorded_frame_count(source: str) -> int | None:
     ``None`` for stdin, or a file without a usable summary (a crashed recorder): the
     frames are then counted as they come. Reading the summary never fails the fit.
     """
-    from ..io.mcap_io import read_summary
+    from ..io.mcap import read_summary
     from ..io.teach_file import IMAGE_TOPIC
 
     if source == "-" or not Path(source).is_file():
@@ -153,7 +153,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
     from ..io.fit_file import FitModel, checked_model_message
     from ..io.images import write_compressed_image
-    from ..io.mcap_io import open_output, time_message
+    from ..io.mcap import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
@@ -528,7 +528,7 @@ def _depth(result: dict[str, Any], arrays: dict[str, np.ndarray], kind: str, opt
 
 
 def _write_signals(writer: Any, topics: dict[str, str], arrays: dict[str, np.ndarray], result: dict[str, Any]) -> None:
-    from ..io.mcap_io import time_message
+    from ..io.mcap import time_message
 
     t = arrays["t"]
     log_time = arrays["log_time"]

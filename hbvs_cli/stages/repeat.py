@@ -232,14 +232,14 @@ class _RunLog:
         self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
+        from ..io.mcap import seconds_to_ns, time_message
         from ..io.messages import log_message
 
         ns = seconds_to_ns(t)
         self.writer.write(EVENTS_TOPIC, self.topics[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
 
     def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
-        from ..io.mcap_io import seconds_to_ns, time_message
+        from ..io.mcap import seconds_to_ns, time_message
         from ..io.messages import LOG_INFO, LOG_WARNING, velocity_message
 
         t = record.t
@@ -441,7 +441,7 @@ def detector_noise(model: Any) -> float:
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output, seconds_to_ns, time_message
+    from ..io.mcap import open_output, seconds_to_ns, time_message
     from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
 
     model = fit.model
@@ -576,7 +576,7 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
 def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..core.simulator import StepRecord as Step
     from ..io.calibration import calibration_to_foxglove
-    from ..io.mcap_io import open_output
+    from ..io.mcap import open_output
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
     from .detection import detector_from_model, estimator_from_model

@@ -298,7 +298,7 @@ class SimulatedCamera:
     def write_image(self, writer: Any, ns: int, record: Any, desired_px: np.ndarray) -> None:
         """Store this step's camera image with detected and desired points (``--record-images``)."""
         from ..io.images import bytes_to_store, write_compressed_image
-        from ..io.mcap_io import time_message
+        from ..io.mcap import time_message
         from ..io.messages import CAMERA_FRAME, annotations_message
 
         image = self.last_image

@@ -186,7 +186,7 @@ def make_renderer(world: World, noise: float, blur: float, exposure: float) -> A
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     from ..io.images import bytes_to_store
     from ..io.limits import step_count
-    from ..io.mcap_io import open_output, seconds_to_ns
+    from ..io.mcap import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
 
     if options.calibration is None and options.fps <= 0:
@@ -259,7 +259,7 @@ def _open_source(kind: str, options: TeachOptions) -> Any:
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
     from ..io.images import bytes_to_store
-    from ..io.mcap_io import open_output, seconds_to_ns
+    from ..io.mcap import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
 
     given = options.simulation_options_given()
