@@ -278,7 +278,9 @@ def _version() -> str:
 
 
 def _format_of(data: bytes) -> str:
-    return "png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "jpeg"
+    from ..io.images import PNG_SIGNATURE
+
+    return "png" if data[:8] == PNG_SIGNATURE else "jpeg"
 
 
 #: Frames ``--target auto`` looks at before it picks a kind.

@@ -1,24 +1,10 @@
-"""Frame sources for ``hbvs teach``: video files, image folders, live cameras, ROS 2 bags.
-
-Every source is an iterable of :class:`SourceFrame` (8-bit grayscale image plus a time
-in seconds from the first frame) produced lazily, one frame at a time, so a long video
-or bag never sits in memory. Each source also offers :meth:`FrameSource.describe` for
-the recording's metadata and a ``camera`` attribute holding intrinsics found in the
-source itself (only bags carry them, in a ``CameraInfo`` topic).
-
-Conversion to 8 bits is the same everywhere: colour goes through ``cv2.cvtColor`` and
-16-bit data keeps its high byte (a fixed scale, so the brightness of a scene does not
-change from frame to frame as a per-frame stretch would).
-"""
+"""Images from a ROS 2 bag."""
 
 from __future__ import annotations
 
 import contextlib
 import io
-import math
 import os
-import re
-import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,485 +14,15 @@ import cv2
 import numpy as np
 import yaml
 
-from ..core.camera import CameraIntrinsics
-from ..errors import CalibrationError, HbvsError, InputError, RecordingError, UsageError
-from .calibration import intrinsics_from_values
-from .mcap import ChannelSummary, McapMessage, McapStream, read_summary
-from .topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
+from ...core.camera import CameraIntrinsics
+from ...errors import CalibrationError, HbvsError, InputError, RecordingError
+from ..calibration import intrinsics_from_values
+from ..images import decode_image, sniff_format
+from ..mcap import MAGIC, ChannelSummary, McapMessage, McapStream, read_summary
+from ..topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
+from .base import _NS, FrameSource, SourceFrame, _natural_key, _same_size
 
-__all__ = [
-    "SourceFrame",
-    "FrameSource",
-    "VideoSource",
-    "ImageFolderSource",
-    "CameraSource",
-    "BagSource",
-    "IMAGE_EXTENSIONS",
-    "to_gray8",
-]
 
-#: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-
-_NS = 1_000_000_000
-
-
-@dataclass(frozen=True)
-class SourceFrame:
-    """One frame from a source.
-
-    Attributes
-    ----------
-    t : float
-        Seconds from the first frame of the source.
-    image : numpy.ndarray
-        ``uint8`` grayscale image, shape ``(H, W)``.
-    encoded : bytes or None
-        The original compressed bytes when the source already had them (a JPEG/PNG file,
-        a ``CompressedImage`` in a bag), so a recording can store them without
-        re-encoding; None otherwise.
-    format : str or None
-        ``"jpeg"`` or ``"png"`` when ``encoded`` is set.
-    """
-
-    t: float
-    image: np.ndarray
-    encoded: bytes | None = None
-    format: str | None = None
-
-
-class FrameSource:
-    """Base of the frame sources: iterate it for :class:`SourceFrame` objects.
-
-    Attributes
-    ----------
-    kind : str
-        Short name of the source type, as in :meth:`describe`.
-    camera : CameraIntrinsics or None
-        Intrinsics found in the source itself, None when it has none.
-    """
-
-    kind: str = "source"
-    camera: CameraIntrinsics | None = None
-
-    def __iter__(self) -> Iterator[SourceFrame]:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def describe(self) -> dict[str, Any]:  # pragma: no cover - abstract
-        """JSON-ready description for the recording's metadata."""
-        raise NotImplementedError
-
-
-# ----------------------------------------------------------------------------- helpers
-def to_gray8(image: np.ndarray, what: str) -> np.ndarray:
-    """A decoded frame as contiguous 8-bit gray (see :func:`hbvs_cli.perception.detector.as_gray`)."""
-    from ..perception.detector import as_gray
-
-    return as_gray(image, what)
-
-
-def _sniff_format(data: bytes) -> str | None:
-    """"jpeg" or "png" from the magic bytes (names and ROS format strings may lie)."""
-    if data.startswith(b"\xff\xd8\xff"):
-        return "jpeg"
-    if data.startswith(b"\x89PNG\r\n\x1a\n"):
-        return "png"
-    return None
-
-
-def _decode_image(data: bytes, what: str) -> np.ndarray:
-    """Decode compressed image bytes to 8-bit gray, naming ``what`` on failure."""
-    from .images import decode_image
-
-    return decode_image(data, what)
-
-
-def _cv_message(exc: BaseException) -> str:
-    cause = exc.__cause__ if exc.__cause__ is not None else exc
-    message = " ".join(str(cause).split())
-    return message.split("error: ", 1)[1] if "error: " in message else message
-
-
-def _natural_key(text: str) -> tuple[Any, ...]:
-    """Sort key that orders embedded numbers by value: frame2 before frame10."""
-    # re.split with a capturing group alternates text, number, text...: the types line up
-    # position by position, so the part tuples of two names always compare; the name
-    # itself breaks ties ("a01" vs "a1").
-    parts = re.split(r"(\d+)", text)
-    return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)), text
-
-
-def _check_rate(value: float | None, what: str) -> float | None:
-    if value is None:
-        return None
-    try:
-        rate = float(value)
-    except (TypeError, ValueError):
-        raise UsageError(f"{what} must be a number, got {value!r}") from None
-    if not math.isfinite(rate) or rate <= 0:
-        raise UsageError(f"{what} must be a positive number, got {value!r}")
-    return rate
-
-
-def _same_size(size: tuple[int, int] | None, image: np.ndarray, what: str) -> tuple[int, int]:
-    """The size of the first frame; later frames of another size are refused."""
-    current = (int(image.shape[1]), int(image.shape[0]))
-    if size is not None and current != size:
-        raise InputError(
-            f"{what}: image is {current[0]}x{current[1]} but earlier frames are {size[0]}x{size[1]}; "
-            "all frames must have the same size"
-        )
-    return current
-
-
-# ----------------------------------------------------------------------------- video
-class VideoSource(FrameSource):
-    """Frames of a video file (anything ``cv2.VideoCapture`` reads).
-
-    Parameters
-    ----------
-    path : str or path-like
-        The video. URLs (``rtsp://...``) and OpenCV image-sequence patterns
-        (``img_%04d.png``) are passed to OpenCV unchecked.
-    fps : float, optional
-        Frame rate to assume instead of the one the container declares.
-
-    Raises
-    ------
-    InputError
-        If the file is missing, cannot be opened, or no frame can be decoded.
-    UsageError
-        If ``fps`` is not a positive number.
-
-    Notes
-    -----
-    ``t`` is ``index / fps`` with the ``fps`` override, else with the container's frame
-    rate, else (a container without a usable rate) from ``CAP_PROP_POS_MSEC``.
-    """
-
-    kind = "video"
-
-    def __init__(self, path: str | os.PathLike[str], fps: float | None = None) -> None:
-        self.path = str(path)
-        self.fps_override = _check_rate(fps, "--fps")
-        self.camera = None
-        passthrough = "://" in self.path or "%" in self.path
-        if not passthrough:
-            file = Path(path)
-            if not file.exists():
-                raise InputError(f"{self.path}: no such file")
-            if file.is_dir():
-                raise InputError(
-                    f"{self.path}: is a directory, expected a video file (use an image folder source for images)"
-                )
-        capture = self._open()
-        try:
-            self._container_fps = self._property(capture, cv2.CAP_PROP_FPS)
-            count = self._property(capture, cv2.CAP_PROP_FRAME_COUNT)
-            self.frame_count = int(count) if count is not None else None
-            ok, frame = self._read(capture)
-            if not ok:
-                raise InputError(f"no frames could be decoded from {self.path}")
-            self.width, self.height = int(frame.shape[1]), int(frame.shape[0])
-        finally:
-            capture.release()
-
-    @property
-    def fps(self) -> float | None:
-        """The rate used for timestamps, None when they come from the container's clock."""
-        if self.fps_override is not None:
-            return self.fps_override
-        if self._container_fps is not None and self._container_fps < 1000.0:
-            # Containers without a real rate report 0, or their time base (e.g. 90000).
-            return self._container_fps
-        return None
-
-    def _open(self) -> Any:
-        try:
-            capture = cv2.VideoCapture(self.path)
-        except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: cannot open the video ({_cv_message(exc)})") from None
-        if not capture.isOpened():
-            capture.release()
-            raise InputError(
-                f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)"
-            )
-        return capture
-
-    def _read(self, capture: Any) -> tuple[bool, np.ndarray | None]:
-        try:
-            ok, frame = capture.read()
-        except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: error while decoding the video ({_cv_message(exc)})") from None
-        if not ok or frame is None or frame.size == 0:
-            return False, None
-        return True, frame
-
-    @staticmethod
-    def _property(capture: Any, prop: int) -> float | None:
-        value = capture.get(prop)
-        return float(value) if value is not None and math.isfinite(value) and value > 0 else None
-
-    def __iter__(self) -> Iterator[SourceFrame]:
-        capture = self._open()
-        try:
-            fps = self.fps
-            first_msec: float | None = None
-            index = 0
-            while True:
-                ok, frame = self._read(capture)
-                if not ok:
-                    break
-                if fps is not None:
-                    t = index / fps
-                else:
-                    msec = float(capture.get(cv2.CAP_PROP_POS_MSEC))
-                    first_msec = msec if first_msec is None else first_msec
-                    t = (msec - first_msec) / 1000.0
-                yield SourceFrame(t=t, image=to_gray8(frame, f"{self.path} frame {index}"))
-                index += 1
-            if index == 0:
-                raise InputError(f"no frames could be decoded from {self.path}")
-        finally:
-            capture.release()
-
-    def describe(self) -> dict[str, Any]:
-        """Kind, path, frame count (the container's estimate), fps and image size."""
-        return {
-            "kind": self.kind,
-            "path": self.path,
-            "frame_count": self.frame_count,
-            "fps": self.fps,
-            "width": self.width,
-            "height": self.height,
-            "timestamps": "fps override" if self.fps_override is not None
-            else "frame rate" if self.fps is not None else "container clock",
-        }
-
-
-# ----------------------------------------------------------------------------- images
-class ImageFolderSource(FrameSource):
-    """Image files from a folder or a glob pattern, in natural order, at a fixed rate.
-
-    Parameters
-    ----------
-    dir_or_glob : str or path-like
-        A folder (every ``.png .jpg .jpeg .bmp .tif .tiff`` file in it, not recursive),
-        a glob pattern such as ``"run1/*.jpg"`` (``**`` recurses), or a single image.
-    fps : float
-        The frame rate: frame ``i`` has ``t = i / fps``.
-
-    Raises
-    ------
-    InputError
-        If the folder does not exist, or no image file is found. An image that cannot be
-        read raises InputError naming it when iteration reaches it.
-    UsageError
-        If ``fps`` is not a positive number.
-    """
-
-    kind = "images"
-
-    def __init__(self, dir_or_glob: str | os.PathLike[str], fps: float) -> None:
-        self.path = str(dir_or_glob)
-        rate = _check_rate(fps, "--fps")
-        if rate is None:
-            raise UsageError("an image folder needs a frame rate (--fps)")
-        self.fps = rate
-        self.camera = None
-        self.files = self._find(self.path)
-
-    @staticmethod
-    def _find(spec: str) -> list[Path]:
-        def wanted(p: Path) -> bool:
-            return p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()
-
-        path = Path(spec)
-        extensions = " ".join(IMAGE_EXTENSIONS)
-        if path.is_dir():
-            try:
-                files = [p for p in path.iterdir() if wanted(p)]
-            except OSError as exc:
-                raise InputError(f"{spec}: cannot list the folder ({exc.strerror or exc})") from None
-            if not files:
-                raise InputError(f"{spec}: no images ({extensions}) in this folder")
-            return sorted(files, key=lambda p: _natural_key(p.name))
-        if any(c in spec for c in "*?["):
-            import glob
-
-            files = [Path(p) for p in glob.glob(spec, recursive=True) if wanted(Path(p))]
-            if not files:
-                raise InputError(f"{spec}: no image files ({extensions}) match this pattern")
-            return sorted(files, key=lambda p: _natural_key(str(p)))
-        if path.is_file():
-            if path.suffix.lower() not in IMAGE_EXTENSIONS:
-                raise InputError(f"{spec}: not an image file ({extensions}); expected a folder or a glob")
-            return [path]
-        raise InputError(f"{spec}: no such folder")
-
-    def __iter__(self) -> Iterator[SourceFrame]:
-        size: tuple[int, int] | None = None
-        for index, file in enumerate(self.files):
-            try:
-                data = file.read_bytes()
-            except OSError as exc:
-                raise InputError(f"{file}: cannot read the image ({exc.strerror or exc})") from None
-            image = _decode_image(data, str(file))
-            size = _same_size(size, image, str(file))
-            fmt = _sniff_format(data)
-            yield SourceFrame(t=index / self.fps, image=image, encoded=data if fmt else None, format=fmt)
-
-    def describe(self) -> dict[str, Any]:
-        """Kind, path, frame count, fps and the first and last file."""
-        return {
-            "kind": self.kind,
-            "path": self.path,
-            "frame_count": len(self.files),
-            "fps": self.fps,
-            "first": str(self.files[0]),
-            "last": str(self.files[-1]),
-        }
-
-
-# ----------------------------------------------------------------------------- camera
-class CameraSource(FrameSource):
-    """A live camera, timestamped with ``clock`` from the first frame.
-
-    The device is opened by the constructor (so a missing camera is reported before
-    anything is recorded) and released when iteration ends, when the consumer stops
-    iterating (``close()`` on the generator, e.g. on Ctrl-C), or by :meth:`close`.
-
-    Parameters
-    ----------
-    index : int or str
-        The device index (``0``) or a device path/URL for OpenCV.
-    duration : float, optional
-        Stop once a frame arrives ``duration`` seconds or more after the first one
-        (that frame is not yielded). None: until the consumer stops.
-    capture_factory : callable
-        ``capture_factory(index)`` returns an object with ``isOpened()``, ``read()``,
-        ``get(prop)`` and ``release()``, like ``cv2.VideoCapture``; injectable for tests.
-    clock : callable
-        Monotonic seconds; injectable for tests.
-    max_failed_reads : int
-        Consecutive failed reads tolerated (cameras drop the odd frame, some fail the
-        first reads while starting) before giving up.
-
-    Raises
-    ------
-    InputError
-        If the device cannot be opened; during iteration, if it delivers no frame or
-        stops delivering frames.
-    UsageError
-        If ``duration`` is not a positive number.
-    """
-
-    kind = "camera"
-
-    def __init__(
-        self,
-        index: int | str,
-        duration: float | None = None,
-        capture_factory: Callable[[Any], Any] = cv2.VideoCapture,
-        clock: Callable[[], float] = time.monotonic,
-        max_failed_reads: int = 5,
-    ) -> None:
-        self.index = index
-        self.duration = _check_rate(duration, "--duration")
-        self.camera = None
-        self._factory = capture_factory
-        self._clock = clock
-        self.max_failed_reads = int(max_failed_reads)
-        self._capture: Any = self._open()
-        self.fps = self._property(self._capture, cv2.CAP_PROP_FPS)
-        width = self._property(self._capture, cv2.CAP_PROP_FRAME_WIDTH)
-        height = self._property(self._capture, cv2.CAP_PROP_FRAME_HEIGHT)
-        self.width = int(width) if width else None
-        self.height = int(height) if height else None
-
-    def _open(self) -> Any:
-        try:
-            capture = self._factory(self.index)
-        except (cv2.error, SystemError, OSError) as exc:
-            raise InputError(f"camera {self.index}: cannot open the device ({_cv_message(exc)})") from None
-        if capture is None or not capture.isOpened():
-            if capture is not None:
-                capture.release()
-            raise InputError(
-                f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)"
-            )
-        return capture
-
-    @staticmethod
-    def _property(capture: Any, prop: int) -> float | None:
-        get = getattr(capture, "get", None)
-        if get is None:
-            return None
-        try:
-            value = float(get(prop))
-        except (cv2.error, SystemError, TypeError, ValueError):
-            return None
-        return value if math.isfinite(value) and value > 0 else None
-
-    def close(self) -> None:
-        """Release the device if it is still held (it is after construction)."""
-        if self._capture is not None:
-            self._capture.release()
-            self._capture = None
-
-    def __enter__(self) -> CameraSource:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __iter__(self) -> Iterator[SourceFrame]:
-        # Take over the capture opened by the constructor; a second iteration reopens.
-        capture = self._capture if self._capture is not None else self._open()
-        self._capture = None
-        try:
-            first: float | None = None
-            count = 0
-            failures = 0
-            while True:
-                try:
-                    ok, frame = capture.read()
-                except (cv2.error, SystemError) as exc:
-                    raise InputError(f"camera {self.index}: read failed ({_cv_message(exc)})") from None
-                now = float(self._clock())
-                if not ok or frame is None or getattr(frame, "size", 0) == 0:
-                    failures += 1
-                    if failures > self.max_failed_reads:
-                        if count == 0:
-                            raise InputError(f"camera {self.index}: the device opened but delivered no frames")
-                        raise InputError(f"camera {self.index}: stopped delivering frames after {count} frames")
-                    continue
-                failures = 0
-                if first is None:
-                    first = now
-                t = now - first
-                if self.duration is not None and t >= self.duration:
-                    return
-                yield SourceFrame(t=t, image=to_gray8(np.asarray(frame), f"camera {self.index}"))
-                count += 1
-        finally:
-            capture.release()
-
-    def describe(self) -> dict[str, Any]:
-        """Kind, device, fps reported by the driver, requested duration, image size."""
-        return {
-            "kind": self.kind,
-            "path": None,
-            "device": self.index,
-            "frame_count": None,
-            "fps": self.fps,
-            "duration": self.duration,
-            "width": self.width,
-            "height": self.height,
-        }
-
-
-# ----------------------------------------------------------------------------- ROS 2 bag
 _COMPRESSED = "sensor_msgs/msg/CompressedImage"
 _RAW = "sensor_msgs/msg/Image"
 _CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
@@ -528,7 +44,6 @@ def _is_calibration_topic(topic: _Topic) -> bool:
     if topic.type == _FOXGLOVE_CALIBRATION:
         return topic.encoding in _FOXGLOVE_ENCODINGS
     return topic.type == _CAMERA_INFO
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Bytes per pixel of the raw encodings hbvs converts.
 _RAW_ENCODINGS = {"mono8": 1, "mono16": 2, "rgb8": 3, "bgr8": 3}
 
@@ -829,8 +344,8 @@ class BagSource(FrameSource):
     def _convert(self, msg: Any, what: str) -> tuple[np.ndarray, bytes | None, str | None]:
         if self._topic.type == _COMPRESSED:
             data = msg.data if isinstance(msg.data, bytes) else bytes(msg.data)
-            image = _decode_image(data, f"{what} (format {msg.format!r})")
-            fmt = _sniff_format(data)
+            image = decode_image(data, f"{what} (format {msg.format!r})")
+            fmt = sniff_format(data)
             return image, (data if fmt else None), fmt
         return _raw_to_gray8(msg, what), None, None
 
@@ -851,18 +366,18 @@ class BagSource(FrameSource):
 
 def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int]:
     """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
-    from .images import read_compressed_image
+    from ..images import read_compressed_image
 
     stored = read_compressed_image(message.message_encoding, message.data, what)
-    image = _decode_image(stored.data, f"{what} (format {stored.format!r})")
-    fmt = _sniff_format(stored.data)
+    image = decode_image(stored.data, f"{what} (format {stored.format!r})")
+    fmt = sniff_format(stored.data)
     return image, (stored.data if fmt else None), fmt, stored.stamp_ns
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
     """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
-    from .calibration import calibration_from_foxglove
-    from .mcap import decode_json
+    from ..calibration import calibration_from_foxglove
+    from ..mcap import decode_json
 
     if message.message_encoding == "json":
         fields = decode_json(message.data, source)
@@ -937,10 +452,10 @@ def _bag_files(path: Path, name: str) -> list[Path]:
         raise InputError(f"{name}: no such file or directory")
     try:
         with path.open("rb") as stream:
-            magic = stream.read(len(_MCAP_MAGIC))
+            magic = stream.read(len(MAGIC))
     except OSError as exc:
         raise InputError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
-    if magic != _MCAP_MAGIC:
+    if magic != MAGIC:
         raise InputError(f"{name}: not an MCAP file (expected a ROS 2 bag folder or its .mcap file)")
     return [path]
 
