@@ -76,8 +76,9 @@ def teach(
     video: Annotated[Optional[Path], typer.Option("--video", help="A video file (anything OpenCV reads).", rich_help_panel="Sources")] = None,
     images: Annotated[Optional[str], typer.Option("--images", help="A folder of images or a glob; sorted naturally.", rich_help_panel="Sources")] = None,
     camera: Annotated[Optional[int], typer.Option("--camera", help="A live camera by index; --duration or Ctrl-C ends it.", rich_help_panel="Sources")] = None,
-    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", rich_help_panel="Sources")] = None,
+    bag: Annotated[Optional[Path], typer.Option("--bag", help="A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one .mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", rich_help_panel="Sources")] = None,
     topic: Annotated[Optional[str], typer.Option("--topic", help="Image topic of the bag (automatic when there is one).", rich_help_panel="Sources")] = None,
+    cmd_topic: Annotated[Optional[str], typer.Option("--cmd-topic", help="The bag's command topic (geometry_msgs Twist or TwistStamped, or nav_msgs Odometry), recorded as the taught (v, w); automatic when there is one.", rich_help_panel="Sources")] = None,
     path: Annotated[Optional[str], typer.Option("--path", help="Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s). Default s-curve.", rich_help_panel="Simulation")] = None,
     offset: Annotated[Optional[str], typer.Option("--offset", help="Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.", rich_help_panel="Simulation")] = None,
     target: Annotated[Optional[str], typer.Option("--target", help="Target on the wall: dots, aruco or texture. Default dots.", rich_help_panel="Simulation")] = None,
@@ -99,7 +100,7 @@ def teach(
 
     run_teach(
         TeachOptions(
-            output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic,
+            output=output, sim=sim, video=video, images=images, camera=camera, bag=bag, topic=topic, cmd_topic=cmd_topic,
             path=path, offset=offset, target=target, dots=dots, texture=texture, calibration=calibration, fps=fps,
             duration=duration, seed=seed, noise=noise, blur=blur, exposure=exposure, image_format=image_format,
             jpeg_quality=jpeg_quality,

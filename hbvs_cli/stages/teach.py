@@ -40,6 +40,7 @@ class TeachOptions:
     camera: int | None = None
     bag: Path | None = None
     topic: str | None = None
+    cmd_topic: str | None = None
     path: str | None = None
     offset: str | None = None
     target: str | None = None
@@ -84,9 +85,9 @@ class TeachOptions:
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            return recorded
+            return {key: value for key, value in recorded.items() if key != "cmd_topic"}
         names = {field.name for field in fields(self)}
-        keep = {kind, *SOURCE_SETTINGS} | ({"topic"} if kind == "bag" else set())
+        keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set())
         return {key: value for key, value in recorded.items() if key in keep and key in names}
 
 
@@ -239,10 +240,15 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
 
 
 # ----------------------------------------------------------------------------- real sources
-def _load_camera(path: Path) -> CameraIntrinsics:
+def _load_camera(path: Path, source: Any = None, console: Console | None = None) -> CameraIntrinsics:
     from ..io.calibration import load_calibration
 
-    return load_calibration(path)
+    notes: list[str] = []
+    camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
+    for note in notes:
+        if console is not None:
+            console.warn(note)
+    return camera
 
 
 def _open_source(kind: str, options: TeachOptions) -> Any:
@@ -254,7 +260,7 @@ def _open_source(kind: str, options: TeachOptions) -> Any:
         return sources.ImageFolderSource(options.images, fps=DEFAULT_FPS if options.fps is None else options.fps)
     if kind == "camera":
         return sources.CameraSource(options.camera, duration=options.duration)
-    return sources.BagSource(options.bag, topic=options.topic)
+    return sources.BagSource(options.bag, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
@@ -269,17 +275,21 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
     if options.fps is not None and kind in ("camera", "bag"):
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
+    if options.cmd_topic is not None and kind != "bag":
+        raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     source = _open_source(kind, options)
-    camera = _load_camera(options.calibration) if options.calibration is not None else getattr(source, "camera", None)
+    camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:
-        hint = " (the bag has no CameraInfo topic)" if kind == "bag" else ""
+        problem = getattr(source, "camera_problem", None)
+        hint = f" ({problem})" if problem else " (the bag has no CameraInfo topic)" if kind == "bag" else ""
         raise UsageError(f"--calibration FILE is required for --{kind}{hint}")
     frames = 0
     last_t = 0.0
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
-        teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()})
-        teach.calibration(camera)
+        teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
+        # A bag's frames keep its stamps, so the recording lines up with the bag.
+        teach.calibration(camera, getattr(source, "time_base_ns", 0))
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
             iterator: Iterator[Any] = iter(source)
@@ -291,7 +301,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
                     _check_frame_size(frame.image, camera, source)
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality)
-                    teach.frame(seconds_to_ns(frame.t), data, image_format)
+                    log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
+                    teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
                     last_t = frame.t
                     bar.advance()

@@ -10,6 +10,7 @@ people get wrong):
   ``"type_id": "opencv-matrix"``, XML), parsed with :class:`cv2.FileStorage` and their
   matrices read field by field (``FileNode.mat()`` corrupts OpenCV's heap on a malformed
   matrix);
+* Kalibr ``camchain.yaml`` (``cam0``: pinhole with radtan, equidistant or no distortion);
 * plain JSON such as ``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}``.
 
 Key names are matched without regard to case, ``_`` or ``-``, so ``camera_matrix``,
@@ -19,7 +20,7 @@ Every problem a user can cause raises :class:`~hbvs_cli.errors.CalibrationError`
 one-line message that starts with the file name.
 
 The package's rooms: :mod:`.load` (:func:`load_calibration`, format detection), one module
-per format (:mod:`.ros`, :mod:`.opencv`, :mod:`.plain_json`), :mod:`.mapping` (keys to
+per format (:mod:`.ros`, :mod:`.opencv`, :mod:`.plain_json`, :mod:`.kalibr`), :mod:`.mapping` (keys to
 intrinsics), :mod:`.validate` (the checks every format passes) and :mod:`.foxglove`.
 Every public name is re-exported here.
 """

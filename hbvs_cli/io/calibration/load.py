@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
+from .kalibr import intrinsics_from_kalibr, is_kalibr
 from .mapping import _intrinsics_from_mapping
 from .opencv import _read_opencv_storage
 from .plain_json import _read_json
@@ -17,13 +18,20 @@ from .ros import _read_yaml
 MAX_CALIBRATION_BYTES = 1 << 20
 
 
-def load_calibration(path: str | os.PathLike[str]) -> CameraIntrinsics:
-    """Read camera intrinsics from a ROS, OpenCV or JSON calibration file.
+def load_calibration(
+    path: str | os.PathLike[str], image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
+    """Read camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file.
 
     Parameters
     ----------
     path : str or path-like
         The calibration file. Its format is detected from its content.
+    image_size : (width, height), optional
+        The size of the images the calibration is for, used when the file gives none.
+    notes : list, optional
+        Receives what the reader assumed and the user should hear (a 4-coefficient file
+        without a distortion model, read as plumb_bob).
 
     Returns
     -------
@@ -40,10 +48,12 @@ def load_calibration(path: str | os.PathLike[str]) -> CameraIntrinsics:
     """
     name = str(path)
     data = _read_capped(Path(path), name)
-    return parse_calibration(data, name)
+    return parse_calibration(data, name, image_size, notes)
 
 
-def parse_calibration(data: bytes | str, name: str = "calibration") -> CameraIntrinsics:
+def parse_calibration(
+    data: bytes | str, name: str = "calibration", image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
     """Parse the content of a calibration file (see :func:`load_calibration`).
 
     Parameters
@@ -81,7 +91,9 @@ def parse_calibration(data: bytes | str, name: str = "calibration") -> CameraInt
         mapping = _read_json(text, name)
     else:
         mapping = _read_yaml(text, name)
-    return _intrinsics_from_mapping(mapping, name)
+    if is_kalibr(mapping):
+        return intrinsics_from_kalibr(mapping, name, image_size)
+    return _intrinsics_from_mapping(mapping, name, image_size, notes)
 
 
 def _read_capped(path: Path, name: str) -> bytes:

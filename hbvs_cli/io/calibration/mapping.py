@@ -43,7 +43,11 @@ def _lookup(mapping: Mapping[str, Any], aliases: Sequence[str]) -> tuple[str, An
     return None
 
 
-def _intrinsics_from_mapping(mapping: Mapping[str, Any], name: str) -> CameraIntrinsics:
+def _intrinsics_from_mapping(
+    mapping: Mapping[str, Any], name: str, image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
+    """Intrinsics from a calibration's keys; ``image_size`` (width, height) stands in for a
+    file that gives none (an OpenCV calibration often leaves it out)."""
     found = _lookup(mapping, _K_KEYS)
     if found is None:
         raise CalibrationError(f"{name}: no camera_matrix (or K) found; is this a camera calibration file?")
@@ -60,6 +64,8 @@ def _intrinsics_from_mapping(mapping: Mapping[str, Any], name: str) -> CameraInt
         if len(pair) != 2:
             raise CalibrationError(f"{name}: {size[0]} has {len(pair)} numbers, expected 2 (width, height)")
         width, height = (size[0] + "[0]", pair[0]), (size[0] + "[1]", pair[1])
+    if width is None and height is None and image_size is not None:
+        width, height = ("the images' width", image_size[0]), ("the images' height", image_size[1])
     if width is None:
         raise CalibrationError(f"{name}: no image_width (or width) found")
     if height is None:
@@ -77,4 +83,4 @@ def _intrinsics_from_mapping(mapping: Mapping[str, Any], name: str) -> CameraInt
     model: Any = found_model[1] if found_model is not None else None
     if model is not None and not isinstance(model, str):
         raise CalibrationError(f"{name}: distortion_model must be a string, got {_kind_of(model)}")
-    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key)
+    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes)

@@ -17,7 +17,11 @@ from ..images import MAX_IMAGE_PIXELS
 _MAX_IMAGE_SIDE = 1 << 15
 
 
-_MODEL_SIZES = {"plumb_bob": 5, "rational_polynomial": 8}
+_MODEL_SIZES = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
+#: Other names of the fisheye model: Kalibr's and OpenCV's ``equidistant`` is ROS's
+#: ``equidistant`` (camera_calibration's fisheye), ``kannala_brandt`` elsewhere (ROS's
+#: ``fisheye`` in older tools); all four coefficients k1..k4 of ``cv2.fisheye``.
+_MODEL_ALIASES = {"kannala_brandt": "equidistant", "fisheye": "equidistant", "kannala-brandt": "equidistant"}
 
 #: More numbers than any calibration matrix holds. YAML aliases let a small file describe
 #: a huge nested list; counting before flattening keeps that from exhausting memory.
@@ -95,8 +99,12 @@ def _build_intrinsics(
     name: str,
     k_key: str = "camera_matrix",
     d_key: str = "distortion_coefficients",
+    notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics."""
+    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics.
+
+    ``notes`` (when given) receives what the reader assumed and the user should know (a
+    4-coefficient file without a model read as plumb_bob)."""
     if not all(math.isfinite(v) for v in K):
         raise CalibrationError(f"{name}: {k_key} contains NaN or infinity")
     if not all(math.isfinite(v) for v in coefficients):
@@ -118,7 +126,7 @@ def _build_intrinsics(
         raise CalibrationError(
             f"{name}: principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image"
         )
-    resolved_model, distortion = _resolve_distortion(model, list(coefficients), name, d_key)
+    resolved_model, distortion = _resolve_distortion(model, list(coefficients), name, d_key, notes)
     try:
         return CameraIntrinsics(
             fx=float(fx),
@@ -135,7 +143,7 @@ def _build_intrinsics(
 
 
 def _resolve_distortion(
-    model: str | None, coefficients: list[float], name: str, d_key: str
+    model: str | None, coefficients: list[float], name: str, d_key: str, notes: list[str] | None = None
 ) -> tuple[str, tuple[float, ...]]:
     """A supported (model, coefficients) pair, inferring the model from the count if absent.
 
@@ -144,6 +152,7 @@ def _resolve_distortion(
     are dropped.
     """
     requested = (model or "").strip().lower()
+    requested = _MODEL_ALIASES.get(requested, requested)
     n = len(coefficients)
     if requested in ("", "none"):
         if not any(coefficients):
@@ -152,6 +161,11 @@ def _resolve_distortion(
             raise CalibrationError(f"{name}: distortion_model is 'none' but {d_key} are not all zero")
         if n in (4, 5):
             requested = "plumb_bob"
+            if n == 4 and notes is not None:
+                notes.append(
+                    f"{name}: 4 distortion coefficients and no distortion_model: read as plumb_bob (k1 k2 p1 p2); "
+                    "if this is a fisheye calibration (cv2.fisheye), add distortion_model: equidistant to the file"
+                )
         elif n in (8, 12, 14):
             requested = "rational_polynomial" if any(coefficients[5:]) else "plumb_bob"
         else:
@@ -160,7 +174,8 @@ def _resolve_distortion(
             )
     if requested not in _MODEL_SIZES:
         raise CalibrationError(
-            f"{name}: unsupported distortion model {requested!r} (hbvs supports plumb_bob, rational_polynomial, none)"
+            f"{name}: unsupported distortion model {requested!r} (hbvs supports plumb_bob, rational_polynomial, "
+            "equidistant (fisheye, also kannala_brandt), none)"
         )
     expected = _MODEL_SIZES[requested]
     if n == 0 or not any(coefficients):

@@ -33,12 +33,19 @@ class SourceFrame:
         re-encoding; None otherwise.
     format : str or None
         ``"jpeg"`` or ``"png"`` when ``encoded`` is set.
+    stamp_ns : int or None
+        The frame's stamp on the source's own clock (ns; a bag's ``header.stamp``), when
+        the source has one: ``t`` is this minus the first frame's stamp.
+    command : (v, w) or None
+        The operator's command at this frame (m/s, rad/s), when the source recorded it.
     """
 
     t: float
     image: np.ndarray
     encoded: bytes | None = None
     format: str | None = None
+    stamp_ns: int | None = None
+    command: tuple[float, float] | None = None
 
 
 class FrameSource:
@@ -61,6 +68,13 @@ class FrameSource:
     def describe(self) -> dict[str, Any]:  # pragma: no cover - abstract
         """JSON-ready description for the recording's metadata."""
         raise NotImplementedError
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        """(width, height) of the frames when known before iterating (for a calibration
+        file that gives no size), else None."""
+        width, height = getattr(self, "width", None), getattr(self, "height", None)
+        return (int(width), int(height)) if width and height else None
 
 
 

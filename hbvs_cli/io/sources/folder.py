@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import InputError, UsageError
-from ..images import decode_image, sniff_format
+from ..images import decode_image, image_size, sniff_format
 from .base import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
 
 #: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
@@ -73,6 +73,15 @@ class ImageFolderSource(FrameSource):
                 raise InputError(f"{spec}: not an image file ({extensions}); expected a folder or a glob")
             return [path]
         raise InputError(f"{spec}: no such folder")
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        """(width, height) of the first image, from its header."""
+        try:
+            with self.files[0].open("rb") as stream:
+                return image_size(stream.read(1 << 16))
+        except OSError:
+            return None
 
     def __iter__(self) -> Iterator[SourceFrame]:
         size: tuple[int, int] | None = None

@@ -1,145 +1,91 @@
-"""Images from a ROS 2 bag."""
+"""Images, intrinsics and the operator's commands from a ROS 2 bag (``hbvs teach --bag``).
+
+The storage is read by :mod:`.bag_storage` (``rosbags``' AnyReader for a bag folder, hbvs's
+capped MCAP reader for a lone ``.mcap`` file); this module picks the topics and turns
+messages into frames: images through :mod:`.ros_images`, the first ``CameraInfo`` into
+intrinsics, and the taught commands (``geometry_msgs/msg/Twist`` or ``TwistStamped``, else
+``nav_msgs/msg/Odometry``) into the (v, w) of each frame.
+"""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-import yaml
 
 from ...core.camera import CameraIntrinsics
-from ...errors import CalibrationError, HbvsError, InputError, RecordingError
+from ...errors import CalibrationError, InputError, UsageError
 from ..calibration import intrinsics_from_values
 from ..images import decode_image, sniff_format
-from ..mcap import MAGIC, ChannelSummary, McapMessage, McapStream, read_summary
-from ..topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
-from .base import _NS, FrameSource, SourceFrame, _natural_key, _same_size
+from ..mcap import McapMessage
+from ..topics import (
+    CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
+    ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
+)
+from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
+from .base import _NS, FrameSource, SourceFrame, _same_size
+from .ros_images import compressed_to_gray8, raw_to_gray8
 
-
-_COMPRESSED = "sensor_msgs/msg/CompressedImage"
-_RAW = "sensor_msgs/msg/Image"
-_CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-_IMAGE_TYPES = (_COMPRESSED, _RAW)
+_IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
 #: in the protobuf and JSON encodings.
-_FOXGLOVE_IMAGE = COMPRESSED_IMAGE_SCHEMA
-_FOXGLOVE_CALIBRATION = CAMERA_CALIBRATION_SCHEMA
 _FOXGLOVE_ENCODINGS = ("protobuf", "json")
-
-
-def _is_image_topic(topic: _Topic) -> bool:
-    if topic.type == _FOXGLOVE_IMAGE:
-        return topic.encoding in _FOXGLOVE_ENCODINGS
-    return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
-
-
-def _is_calibration_topic(topic: _Topic) -> bool:
-    if topic.type == _FOXGLOVE_CALIBRATION:
-        return topic.encoding in _FOXGLOVE_ENCODINGS
-    return topic.type == _CAMERA_INFO
-#: Bytes per pixel of the raw encodings hbvs converts.
-_RAW_ENCODINGS = {"mono8": 1, "mono16": 2, "rgb8": 3, "bgr8": 3}
-
-
-def _ros2_type(name: str) -> str:
-    """``pkg/Type`` (ROS 1 style, as some converters write) to ``pkg/msg/Type``."""
-    parts = name.split("/")
-    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
-
-
-@dataclass
-class _Topic:
-    name: str
-    type: str
-    encoding: str
-    count: int | None
-
-
-#: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
-_MAX_SCHEMA_BYTES = 1 << 20
+#: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
+_COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
 #: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
 #: element by element in Python, so a huge one would take seconds for nothing.
 _MAX_CAMERA_INFO_BYTES = 1 << 16
 
 
-@contextlib.contextmanager
-def _bag_errors(name: str) -> Iterator[None]:
-    """Turn what the MCAP reader or the CDR decoder raises on a damaged file into one
-    InputError that says so."""
-    try:
-        yield
-    except RecordingError as exc:
-        detail = str(exc).removeprefix(f"{name}: ")
-        raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from None
-    except HbvsError:
-        raise
-    except Exception as exc:
-        detail = " ".join(str(exc).split())
-        kind = type(exc).__name__
-        detail = kind if not detail or detail == kind else f"{kind}: {detail[:200]}"
-        raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from exc
+def _is_image_topic(topic: BagTopic) -> bool:
+    if topic.type == COMPRESSED_IMAGE_SCHEMA:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
 
 
-def _require_complete(stream: McapStream, name: str) -> None:
-    """A bag file that ends early or turns unreadable is refused, as a damaged input
-    (raised as a RecordingError, which :func:`_bag_errors` words for bags)."""
-    if stream.truncated:
-        raise RecordingError(f"{name}: {stream.stop_reason}")
+def _is_calibration_topic(topic: BagTopic) -> bool:
+    if topic.type == CAMERA_CALIBRATION_SCHEMA:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type == ROS_CAMERA_INFO_SCHEMA
 
 
-class _Ros2Decoders:
-    """CDR decoders from mcap-ros2-support, one per distinct schema, built on first use."""
+def _stamp_ns(message: Any) -> int:
+    """``header.stamp`` in ns, 0 when the message has no header (or the driver left it zero)."""
+    header = getattr(message, "header", None)
+    return int(header.stamp.sec) * _NS + int(header.stamp.nanosec) if header is not None else 0
 
-    def __init__(self) -> None:
-        from mcap_ros2.decoder import DecoderFactory
 
-        self._factory = DecoderFactory()
-        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
-
-    def decode(self, message: McapMessage, what: str) -> Any:
-        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
-        decoder = self._decoders.get(key)
-        if decoder is None:
-            from mcap.records import Schema
-
-            if len(message.schema_data) > _MAX_SCHEMA_BYTES:
-                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
-            # The factory caches decoders by schema id: every distinct schema gets its own.
-            schema = Schema(
-                id=len(self._decoders) + 1, name=message.schema_name,
-                encoding=message.schema_encoding, data=message.schema_data,
-            )
-            # The vendored ROS parser prints its own complaint about a bad definition on
-            # stderr before raising; the exception says it already, in hbvs's one line.
-            with contextlib.redirect_stderr(io.StringIO()):
-                decoder = self._factory.decoder_for(message.message_encoding, schema)
-            if decoder is None:
-                raise InputError(
-                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
-                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
-                )
-            self._decoders[key] = decoder
-        return decoder(message.data)
+def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
+    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and
+    ``angular.z`` (rad/s), the unicycle's forward and turning speeds."""
+    if message_type == ROS_TWIST_STAMPED_SCHEMA:
+        twist = message.twist
+    elif message_type == ROS_ODOMETRY_SCHEMA:
+        twist = message.twist.twist
+    else:
+        twist = message
+    return float(twist.linear.x), float(twist.angular.z)
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag in MCAP storage, decoded with mcap-ros2-support.
+    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and commands.
 
     Parameters
     ----------
     path : str or path-like
-        A bag folder (``metadata.yaml`` and its ``.mcap`` files, read in the order
-        metadata.yaml lists them), its ``metadata.yaml``, or a single ``.mcap`` file.
+        A bag folder (``metadata.yaml`` and its ``.db3``/``.mcap`` files, compressed or
+        not, split or not), its ``metadata.yaml``, or a single ``.mcap`` file.
     topic : str, optional
         The image topic (``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``).
         None picks the only image topic that has messages.
+    cmd_topic : str, optional
+        The topic of the operator's commands (``geometry_msgs/msg/Twist``,
+        ``TwistStamped`` or ``nav_msgs/msg/Odometry``). None: the only Twist or
+        TwistStamped topic with messages, else the only Odometry topic, else none.
 
     Attributes
     ----------
@@ -151,93 +97,71 @@ class BagSource(FrameSource):
         there is none, or when it is unusable, with the reason in ``camera_problem``.
     camera_problem : str or None
         Why a CameraInfo topic present in the bag gave no intrinsics (all-zero K of an
-        uncalibrated driver, invalid values, binning/ROI). Not an error: the user may
-        give a calibration file instead.
+        uncalibrated driver, a distortion model hbvs does not know, binning/ROI). Not an
+        error: the user may give a calibration file instead.
+    cmd_topic, cmd_type : str or None
+        Where the taught commands come from; each frame's ``command`` is the last
+        command at or before its stamp ((0, 0) before the first one: a robot without a
+        command stands still).
+    time_base_ns : int
+        The stamp of the first frame (ns, on the bag's clock); frame ``t`` counts from it.
+    frame_id : str or None
+        ``header.frame_id`` of the first image.
 
     Raises
     ------
     InputError
-        If the path is not an MCAP bag, the file is damaged, there is no image topic, or
-        several and ``topic`` is None, or ``topic`` is not an image topic of the bag.
-        During iteration: an image that cannot be decoded, an unsupported raw encoding,
-        frames that change size, a topic without messages.
+        The path is not a bag, the bag is damaged, there is no image topic, ``topic`` or
+        ``cmd_topic`` is not one of the bag's topics of the right type. During iteration:
+        an image that cannot be decoded, an unsupported raw encoding, frames that change
+        size, a topic without messages.
+    UsageError
+        Several image topics (or several command topics named by type) and no choice.
 
     Notes
     -----
     ``t`` comes from ``header.stamp`` relative to the first frame; a frame with a zero
-    stamp (drivers that do not fill it) falls back to the message log time. Frames are
-    yielded in the order the bag stores them (the order rosbag2 received them), so a
+    stamp (drivers that do not fill it) falls back to the message log time, shifted onto
+    the stamps' clock. Frames are yielded in the order of the bag's log times, so a
     driver whose stamps go backwards gives a ``t`` that does too.
-
-    Files are read through :class:`~hbvs_cli.io.mcap.McapStream` (and
-    :func:`~hbvs_cli.io.mcap.read_summary` for the topic list), with its caps on record,
-    chunk and declaration sizes; message definitions above 1 MiB and CameraInfo messages
-    above 64 KiB are not decoded. A bag file cut short is refused rather than read in part.
     """
 
     kind = "ros2_bag"
 
-    def __init__(self, path: str | os.PathLike[str], topic: str | None = None) -> None:
+    def __init__(self, path: str | os.PathLike[str], topic: str | None = None, cmd_topic: str | None = None) -> None:
         self.path = str(path)
-        self.files = _bag_files(Path(path), self.path)
-        self._decoders = _Ros2Decoders()
-        topics = self._scan()
+        self._bag: RosbagsBag | McapFileBag = open_bag(Path(path), self.path)
+        topics = self._bag.topics
         self.topic, self._topic = self._choose(topics, topic)
+        self.cmd_topic, self.cmd_type = self._choose_commands(topics, cmd_topic)
         self.camera = None
         self.camera_problem: str | None = None
         self.camera_info_topic = self._camera_info_topic(topics)
         if self.camera_info_topic is not None:
             self.camera, self.camera_problem = self._read_camera_info(self.camera_info_topic)
+        self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
+        self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
+
+    @property
+    def files(self) -> list[Path]:
+        """The bag's files."""
+        return [Path(p) for p in bag_files_description(self._bag)]
 
     # -- discovery
-    def _scan(self) -> dict[str, _Topic]:
-        """Topics of every file, from the summary section (or one streaming pass without)."""
-        topics: dict[str, _Topic] = {}
-
-        def add(name: str, type_name: str, encoding: str, count: int | None) -> None:
-            known = topics.get(name)
-            if known is None:
-                topics[name] = _Topic(name, type_name, encoding, count)
-            elif known.count is not None and count is not None:
-                known.count += count
-            else:
-                known.count = None
-
-        for file in self.files:
-            with _bag_errors(str(file)):
-                listed = read_summary(file, str(file))
-                if listed is None:
-                    listed = self._stream_channels(file)
-            for channel in listed:
-                add(channel.topic, _ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
-        return topics
-
-    @staticmethod
-    def _stream_channels(file: Path) -> list[ChannelSummary]:
-        """Channels and message counts from one pass over a file without a summary (a
-        recorder killed before writing it); messages are counted, not kept."""
-        stream = McapStream(file, name=str(file))
-        counts: dict[tuple[str, str, str, str], int] = {}
-        for message in stream:
-            key = (message.topic, message.schema_name, message.schema_encoding, message.message_encoding)
-            counts[key] = counts.get(key, 0) + 1
-        _require_complete(stream, str(file))
-        return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
-
-    def _choose(self, topics: dict[str, _Topic], topic: str | None) -> tuple[str, _Topic]:
+    def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
         images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
         if topic is not None:
             chosen = topics.get(topic)
             if chosen is None:
                 listed = ", ".join(t.name for t in images) or "none"
                 raise InputError(f"{self.path}: no topic {topic!r} in the bag (image topics: {listed})")
-            if chosen.type not in (*_IMAGE_TYPES, _FOXGLOVE_IMAGE):
+            if chosen.type not in (*_IMAGE_TYPES, COMPRESSED_IMAGE_SCHEMA):
                 raise InputError(
                     f"{self.path}: topic {topic} carries {chosen.type or 'an unknown type'}, "
-                    "not sensor_msgs/msg/Image, sensor_msgs/msg/CompressedImage or foxglove.CompressedImage"
+                    f"not {ROS_IMAGE_SCHEMA}, {ROS_COMPRESSED_IMAGE_SCHEMA} or {COMPRESSED_IMAGE_SCHEMA}"
                 )
             if not _is_image_topic(chosen):
-                expected = "protobuf or json" if chosen.type == _FOXGLOVE_IMAGE else "cdr"
+                expected = "protobuf or json" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
                 raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
             return topic, chosen
         # Recorders create channels for subscribed topics that never published: skip them.
@@ -246,10 +170,35 @@ class BagSource(FrameSource):
             raise InputError(f"no image topic in {self.path}")
         if len(candidates) > 1:
             listed = ", ".join(f"{t.name} ({t.type.rsplit('/', 1)[-1]})" for t in candidates)
-            raise InputError(f"{self.path}: several image topics: {listed}; choose one with --topic")
+            raise UsageError(f"{self.path}: several image topics: {listed}; choose one with --topic")
         return candidates[0].name, candidates[0]
 
-    def _camera_info_topic(self, topics: dict[str, _Topic]) -> str | None:
+    def _choose_commands(self, topics: dict[str, BagTopic], cmd_topic: str | None) -> tuple[str | None, str | None]:
+        accepted = (*_COMMAND_TYPES, ROS_ODOMETRY_SCHEMA)
+        if cmd_topic is not None:
+            chosen = topics.get(cmd_topic)
+            if chosen is None:
+                listed = ", ".join(sorted(t.name for t in topics.values() if t.type in accepted)) or "none"
+                raise InputError(f"{self.path}: no topic {cmd_topic!r} in the bag (command topics: {listed})")
+            if chosen.type not in accepted or chosen.encoding != "cdr":
+                raise InputError(
+                    f"{self.path}: topic {cmd_topic} carries {chosen.type or 'an unknown type'}, "
+                    f"not {', '.join(accepted)}"
+                )
+            return cmd_topic, chosen.type
+        for types in (_COMMAND_TYPES, (ROS_ODOMETRY_SCHEMA,)):
+            found = sorted(
+                (t for t in topics.values() if t.type in types and t.encoding == "cdr" and t.count != 0),
+                key=lambda t: t.name,
+            )
+            if len(found) == 1:
+                return found[0].name, found[0].type
+            if len(found) > 1:
+                listed = ", ".join(t.name for t in found)
+                raise UsageError(f"{self.path}: several command topics: {listed}; choose one with --cmd-topic")
+        return None, None
+
+    def _camera_info_topic(self, topics: dict[str, BagTopic]) -> str | None:
         infos = sorted(t.name for t in topics.values() if _is_calibration_topic(t) and t.count != 0)
         if len(infos) <= 1:
             return infos[0] if infos else None
@@ -266,27 +215,22 @@ class BagSource(FrameSource):
     def _read_camera_info(self, topic: str) -> tuple[CameraIntrinsics | None, str | None]:
         """The first CameraInfo message, reading only up to it."""
         source = f"{self.path} {topic}"
-        for file in self.files:
-            stream = McapStream(file, topics={topic}, name=str(file))
-            messages = iter(stream)
-            with _bag_errors(str(file)):
-                try:
-                    first = next(messages, None)
-                finally:
-                    messages.close()
-                if first is None:
-                    _require_complete(stream, str(file))
-                    continue
-                if len(first.data) > _MAX_CAMERA_INFO_BYTES:
-                    return None, f"{source}: a CameraInfo message of {len(first.data)} bytes is not one hbvs can use"
-                if first.schema_name == _FOXGLOVE_CALIBRATION:
-                    return _camera_from_foxglove(first, source)
-                info = self._decoders.decode(first, source)
-            try:
-                return self._camera_from_info(info, source)
-            except (AttributeError, TypeError, ValueError, OverflowError) as exc:
-                return None, f"{source}: malformed CameraInfo ({exc})"
-        return None, f"{source}: the topic has no messages"
+        messages = self._bag.messages({topic})
+        try:
+            first = next(messages, None)
+        finally:
+            messages.close()
+        if first is None:
+            return None, f"{source}: the topic has no messages"
+        if first.size > _MAX_CAMERA_INFO_BYTES:
+            return None, f"{source}: a CameraInfo message of {first.size} bytes is not one hbvs can use"
+        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:
+            return _camera_from_foxglove(first.mcap, source)
+        try:
+            info = first.decode(source)
+            return self._camera_from_info(info, source)
+        except (AttributeError, TypeError, ValueError, OverflowError) as exc:
+            return None, f"{source}: malformed CameraInfo ({exc})"
 
     @staticmethod
     def _camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
@@ -306,51 +250,96 @@ class BagSource(FrameSource):
             return None, str(exc)
         return camera, None
 
+    def _first_frame(self) -> tuple[int, str | None, str, np.ndarray | None]:
+        """The first frame's stamp (ns), frame_id, which clock stamps the frames, and its
+        image (None for a topic without messages, which iteration reports)."""
+        messages = self._bag.messages({self.topic})
+        try:
+            first = next(messages, None)
+        finally:
+            messages.close()
+        if first is None:
+            return 0, None, "header", None
+        image, _, _, stamp_ns, frame_id = self._frame(first, f"{self.path} {self.topic} message 0")
+        if stamp_ns == 0:
+            return first.log_time, frame_id, "log time", image
+        return stamp_ns, frame_id, "header", image
+
     # -- frames
+    def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
+        """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
+        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
+            image, encoded, fmt, stamp_ns = _foxglove_frame(message.mcap, what)
+            return image, encoded, fmt, stamp_ns, None
+        decoded = message.decode(what)
+        try:
+            if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
+                image, encoded, fmt = compressed_to_gray8(decoded, what)
+            else:
+                image, encoded, fmt = raw_to_gray8(decoded, what), None, None
+            header = getattr(decoded, "header", None)
+            frame_id = str(header.frame_id) if header is not None and header.frame_id else None
+            return image, encoded, fmt, _stamp_ns(decoded), frame_id
+        except (AttributeError, TypeError, ValueError, OverflowError) as exc:
+            # A message definition that does not match the type's name (a damaged or
+            # hand-made bag): the fields hbvs reads are not there.
+            raise InputError(f"{what}: malformed {self._topic.type} message ({exc})") from None
+
     def __iter__(self) -> Iterator[SourceFrame]:
         first_ns: int | None = None
         use_stamp = True
         stamp_minus_log = 0
         size: tuple[int, int] | None = None
         index = 0
-        for file in self.files:
-            stream = McapStream(file, topics={self.topic}, name=str(file))
-            with _bag_errors(str(file)):
-                for message in stream:
-                    what = f"{self.path} {self.topic} message {index}"
-                    if self._topic.type == _FOXGLOVE_IMAGE:
-                        image, encoded, fmt, stamp_ns = _foxglove_frame(message, what)
-                    else:
-                        decoded = self._decoders.decode(message, what)
-                        image, encoded, fmt = self._convert(decoded, what)
-                        stamp = getattr(decoded, "header", None)
-                        stamp_ns = (int(stamp.stamp.sec) * _NS + int(stamp.stamp.nanosec)) if stamp is not None else 0
-                    size = _same_size(size, image, what)
-                    if first_ns is None:
-                        use_stamp = stamp_ns != 0
-                        stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
-                        first_ns = stamp_ns if use_stamp else message.log_time
-                    if use_stamp and stamp_ns != 0:
-                        ns = stamp_ns
-                    else:
-                        # Same clock as the first frame: shift the log time onto the stamps.
-                        ns = message.log_time + stamp_minus_log
-                    yield SourceFrame(t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt)
-                    index += 1
-                _require_complete(stream, str(file))
+        # Commands are stamped on the images' clock, then held: each frame takes the last
+        # command at or before its stamp.
+        pending: deque[tuple[int, int, tuple[float, float]]] = deque()  # (stamp or 0, log time, (v, w))
+        command: tuple[float, float] | None = (0.0, 0.0) if self.cmd_topic is not None else None
+        wanted = {self.topic} | ({self.cmd_topic} if self.cmd_topic is not None else set())
+        try:
+            for message in self._bag.messages(wanted):
+                if message.topic != self.topic:
+                    what = f"{self.path} {message.topic}"
+                    decoded = message.decode(what)
+                    try:
+                        velocity = velocity_of(decoded, self.cmd_type or "")
+                    except (AttributeError, TypeError, ValueError) as exc:
+                        raise InputError(f"{what}: malformed {self.cmd_type} message ({exc})") from None
+                    if not all(np.isfinite(velocity)):
+                        raise InputError(f"{what}: a command that is not a finite number ({velocity})")
+                    pending.append((_stamp_ns(decoded), message.log_time, velocity))
+                    continue
+                what = f"{self.path} {self.topic} message {index}"
+                image, encoded, fmt, stamp_ns, _ = self._frame(message, what)
+                size = _same_size(size, image, what)
+                if first_ns is None:
+                    use_stamp = stamp_ns != 0
+                    stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
+                    first_ns = stamp_ns if use_stamp else message.log_time
+                if use_stamp and stamp_ns != 0:
+                    ns = stamp_ns
+                else:
+                    # Same clock as the first frame: shift the log time onto the stamps.
+                    ns = message.log_time + stamp_minus_log
+                # A Twist has no stamp: its log time, shifted onto the images' clock.
+                while pending and (pending[0][0] or pending[0][1] + stamp_minus_log) <= ns:
+                    command = pending.popleft()[2]
+                yield SourceFrame(
+                    t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command,
+                )
+                index += 1
+        finally:
+            self._bag.close()  # reopened by a later iteration
         if index == 0:
             raise InputError(f"{self.path}: topic {self.topic} has no messages")
 
-    def _convert(self, msg: Any, what: str) -> tuple[np.ndarray, bytes | None, str | None]:
-        if self._topic.type == _COMPRESSED:
-            data = msg.data if isinstance(msg.data, bytes) else bytes(msg.data)
-            image = decode_image(data, f"{what} (format {msg.format!r})")
-            fmt = sniff_format(data)
-            return image, (data if fmt else None), fmt
-        return _raw_to_gray8(msg, what), None, None
+    def close(self) -> None:
+        """Close the bag (iteration closes it at its end too)."""
+        self._bag.close()
 
     def describe(self) -> dict[str, Any]:
-        """Kind, path, topic, message type, frame count, CameraInfo topic and problem."""
+        """Kind, path, topic, message type, frame count, CameraInfo topic and problem, the
+        bag's storage, its first stamp (the recording's time base), frame_id and commands."""
         return {
             "kind": self.kind,
             "path": self.path,
@@ -361,6 +350,12 @@ class BagSource(FrameSource):
             "fps": None,
             "camera_info_topic": self.camera_info_topic,
             "camera_info_problem": self.camera_problem,
+            "storage": self._bag.storage,
+            "time_base_ns": self.time_base_ns,
+            "timestamps": self.stamps,
+            "frame_id": self.frame_id,
+            "cmd_topic": self.cmd_topic,
+            "cmd_type": self.cmd_type,
         }
 
 
@@ -399,82 +394,3 @@ def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntr
         return calibration_from_foxglove(fields, source), None
     except CalibrationError as exc:
         return None, str(exc)
-
-
-def _raw_to_gray8(msg: Any, what: str) -> np.ndarray:
-    """A ``sensor_msgs/msg/Image`` (mono8, mono16, rgb8, bgr8) as 8-bit gray."""
-    encoding = str(msg.encoding)
-    bpp = _RAW_ENCODINGS.get(encoding.lower())
-    if bpp is None:
-        raise InputError(
-            f"{what}: unsupported image encoding {encoding!r} (hbvs reads mono8, mono16, rgb8, bgr8)"
-        )
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if height <= 0 or width <= 0:
-        raise InputError(f"{what}: empty image ({width}x{height})")
-    if step < width * bpp:
-        raise InputError(f"{what}: step {step} is shorter than a row of {width} {encoding} pixels")
-    data = np.frombuffer(msg.data if isinstance(msg.data, bytes) else bytes(msg.data), dtype=np.uint8)
-    if data.size < step * height:
-        raise InputError(f"{what}: {data.size} bytes of data, expected {step * height} ({height} rows of {step})")
-    # Rows may be padded to `step` bytes: drop the padding before reinterpreting.
-    rows = np.ascontiguousarray(data[: step * height].reshape(height, step)[:, : width * bpp])
-    kind = encoding.lower()
-    if kind == "mono8":
-        return rows.copy()
-    if kind == "mono16":
-        values = rows.view(">u2" if msg.is_bigendian else "<u2").reshape(height, width)
-        return (values >> 8).astype(np.uint8)
-    pixels = rows.reshape(height, width, 3)
-    return cv2.cvtColor(pixels, cv2.COLOR_RGB2GRAY if kind == "rgb8" else cv2.COLOR_BGR2GRAY)
-
-
-def _bag_files(path: Path, name: str) -> list[Path]:
-    """The .mcap files of a bag folder (metadata.yaml order), or the one file given."""
-    if path.name == "metadata.yaml" and path.is_file():
-        path = path.parent
-    if path.is_dir():
-        try:
-            found = [p for p in path.iterdir() if p.suffix == ".mcap" and p.is_file()]
-            has_sqlite = any(p.suffix == ".db3" for p in path.iterdir())
-        except OSError as exc:
-            raise InputError(f"{name}: cannot list the folder ({exc.strerror or exc})") from None
-        if not found:
-            if has_sqlite:
-                raise InputError(
-                    f"{name}: this ROS 2 bag uses SQLite storage (.db3); hbvs reads MCAP bags "
-                    "(convert it with `ros2 bag convert`)"
-                )
-            raise InputError(f"{name}: no .mcap file in this folder; expected a ROS 2 bag in MCAP storage")
-        ordered = _metadata_order(path, found)
-        return ordered if ordered is not None else sorted(found, key=lambda p: _natural_key(p.name))
-    if not path.exists():
-        raise InputError(f"{name}: no such file or directory")
-    try:
-        with path.open("rb") as stream:
-            magic = stream.read(len(MAGIC))
-    except OSError as exc:
-        raise InputError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
-    if magic != MAGIC:
-        raise InputError(f"{name}: not an MCAP file (expected a ROS 2 bag folder or its .mcap file)")
-    return [path]
-
-
-def _metadata_order(folder: Path, found: Sequence[Path]) -> list[Path] | None:
-    """The files in metadata.yaml's ``relative_file_paths`` order, None if unusable.
-
-    The metadata is only a hint for the order of split bags: anything odd about it
-    (missing, huge, malformed, naming other files) falls back to natural order.
-    """
-    metadata = folder / "metadata.yaml"
-    try:
-        if not metadata.is_file() or metadata.stat().st_size > 1 << 20:
-            return None
-        document = yaml.safe_load(metadata.read_text(encoding="utf-8"))
-        listed = document["rosbag2_bagfile_information"]["relative_file_paths"]
-        ordered = [folder / Path(str(p)).name for p in listed]
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError, ValueError):
-        return None
-    if sorted(ordered) != sorted(found):
-        return None
-    return ordered
