@@ -119,6 +119,8 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
          ("--calibration", options.calibration), ("--path", path_file)],
     )
     kind = options.source_kind()
+    if options.cmd_topic is not None and kind != "bag":
+        raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     if kind == "sim":
         return _teach_simulated(options.for_simulation(), console)
     return _teach_from_source(kind, options, console)
@@ -275,8 +277,6 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
     if options.fps is not None and kind in ("camera", "bag"):
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
-    if options.cmd_topic is not None and kind != "bag":
-        raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:
