@@ -285,3 +285,18 @@ def test_refusals_exit_with_the_right_code_and_one_line(drive, tmp_path):
         assert len(lines) == 1 and lines[0].startswith("hbvs: error:"), (args, lines)
         assert all(word in lines[0] for word in words), (args, lines)
         assert not output.exists()
+
+
+def test_damaged_bag_folders_are_input_errors_naming_the_bag(drive, tmp_path):
+    from hbvs_cli.errors import InputError
+
+    cut = write_bag(tmp_path / "cut", drive, frames=slice(0, 3))
+    storage = next(cut.glob("*.mcap"))
+    storage.write_bytes(storage.read_bytes()[:2000])
+    garbage = write_bag(tmp_path / "garbage", drive, storage=StoragePlugin.SQLITE3, frames=slice(0, 3))
+    next(garbage.glob("*.db3")).write_bytes(b"\0" * 4096)
+    missing = write_bag(tmp_path / "missing", drive, frames=slice(0, 3))
+    next(missing.glob("*.mcap")).unlink()
+    for bag in (cut, garbage, missing):
+        with pytest.raises(InputError, match=rf"{bag.name}: cannot read the bag \("):
+            list(BagSource(bag))
