@@ -126,3 +126,15 @@ def test_a_bag_camera_info_with_a_fisheye_model_is_used(tmp_path):
     source = BagSource(bag)
     assert source.camera_problem is None
     assert source.camera.distortion_model == "equidistant" and source.camera.distortion == FISHEYE_D
+
+
+def test_the_renderer_draws_a_fisheye_lens_as_distort_pixels_says():
+    """``teach --sim --calibration fisheye.yaml`` renders through cv2.fisheye too."""
+    from hbvs_cli.perception.render import _inverse_distortion_map
+
+    camera = CameraIntrinsics(fx=300.0, fy=300.0, cx=160.0, cy=120.0, width=320, height=240,
+                              distortion_model="equidistant", distortion=FISHEYE_D)
+    ideal = _inverse_distortion_map(camera).reshape(-1, 2).astype(float)
+    u, v = np.meshgrid(np.arange(320.0), np.arange(240.0))
+    # The map is stored as float32: 3e-5 px resolution at these coordinates.
+    assert np.abs(distort_pixels(camera, ideal) - np.column_stack([u.ravel(), v.ravel()])).max() < 1e-4

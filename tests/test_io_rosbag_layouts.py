@@ -19,26 +19,19 @@ import pytest
 import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-from rosbags.typesys import Stores, get_typestore
 
 from conftest import errors_against_drive, make_fit, make_teach, rendered_s_curve, run_hbvs
+from test_io_sources import TYPES, CameraInfo, CompressedImage, Header, Image, RegionOfInterest, Time
 
 from hbvs_cli.core.camera import DEFAULT_CAMERA
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.sources import BagSource
 from hbvs_cli.io.teach_file import TeachReader
 
-TYPES = get_typestore(Stores.ROS2_HUMBLE)
-Image = TYPES.types["sensor_msgs/msg/Image"]
-CompressedImage = TYPES.types["sensor_msgs/msg/CompressedImage"]
-CameraInfo = TYPES.types["sensor_msgs/msg/CameraInfo"]
-Header = TYPES.types["std_msgs/msg/Header"]
-Time = TYPES.types["builtin_interfaces/msg/Time"]
 Twist = TYPES.types["geometry_msgs/msg/Twist"]
 TwistStamped = TYPES.types["geometry_msgs/msg/TwistStamped"]
 Vector3 = TYPES.types["geometry_msgs/msg/Vector3"]
 Odometry = TYPES.types["nav_msgs/msg/Odometry"]
-RegionOfInterest = TYPES.types["sensor_msgs/msg/RegionOfInterest"]
 
 #: 6 s of the s-curve at 30 fps: d* from (25) within 0.07 % (measured), and lean enough for the suite.
 FRAMES = 180
