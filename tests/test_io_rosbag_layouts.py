@@ -307,3 +307,32 @@ def test_damaged_bag_folders_are_input_errors_naming_the_bag(drive, tmp_path):
     for bag in (cut, garbage, missing):
         with pytest.raises(InputError, match=rf"{bag.name}: cannot read the bag \("):
             list(BagSource(bag))
+
+
+def test_command_topic_choice(drive, tmp_path):
+    """Two Twist topics: no guess (exit 2 naming both) until --cmd-topic picks one; a topic
+    of another type is refused; Odometry is not used when a Twist topic exists."""
+    from hbvs_cli.errors import InputError, UsageError
+    from hbvs_cli.io.sources import open_source
+
+    bag = tmp_path / "two_commands"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        image = writer.add_connection("/cam/image/compressed", CompressedImage.__msgtype__, typestore=TYPES)
+        teleop = writer.add_connection("/teleop/cmd_vel", Twist.__msgtype__, typestore=TYPES)
+        nav = writer.add_connection("/nav/cmd_vel", Twist.__msgtype__, typestore=TYPES)
+        odom = writer.add_connection("/odom", Odometry.__msgtype__, typestore=TYPES)
+        for k in range(3):
+            ns = STAMP0 + k * PERIOD_NS
+            for connection, speed in ((teleop, 0.1), (nav, 0.2)):
+                twist = Twist(linear=Vector3(x=speed * (k + 1), y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=0.0))
+                writer.write(connection, ns, TYPES.serialize_cdr(twist, Twist.__msgtype__))
+            writer.write(odom, ns, TYPES.serialize_cdr(_odometry(ns, twist), Odometry.__msgtype__))
+            data = cv2.imencode(".png", drive[4][k])[1].ravel()
+            writer.write(image, ns + 1, TYPES.serialize_cdr(
+                CompressedImage(header=_header(ns), format="png", data=data), CompressedImage.__msgtype__))
+    with pytest.raises(UsageError, match="several command topics: /nav/cmd_vel, /teleop/cmd_vel; choose one with --cmd-topic"):
+        open_source("bag", bag)
+    source = open_source("bag", bag, cmd_topic="/teleop/cmd_vel")
+    assert [f.command for f in source] == [(0.1, 0.0), (0.2, 0.0), pytest.approx((0.3, 0.0))]
+    with pytest.raises(InputError, match="topic /cam/image/compressed carries sensor_msgs/msg/CompressedImage, not"):
+        open_source("bag", bag, cmd_topic="/cam/image/compressed")

@@ -254,15 +254,11 @@ def _load_camera(path: Path, source: Any = None, console: Console | None = None)
 
 
 def _open_source(kind: str, options: TeachOptions) -> Any:
-    from ..io import sources
+    from ..io.sources import open_source
 
-    if kind == "video":
-        return sources.VideoSource(options.video, fps=options.fps)
-    if kind == "images":
-        return sources.ImageFolderSource(options.images, fps=DEFAULT_FPS if options.fps is None else options.fps)
-    if kind == "camera":
-        return sources.CameraSource(options.camera, duration=options.duration)
-    return sources.BagSource(options.bag, topic=options.topic, cmd_topic=options.cmd_topic)
+    spec = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
+    fps = DEFAULT_FPS if kind == "images" and options.fps is None else options.fps
+    return open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:

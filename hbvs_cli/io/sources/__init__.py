@@ -11,7 +11,8 @@ Conversion to 8 bits is the same everywhere: colour goes through ``cv2.cvtColor`
 change from frame to frame as a per-frame stretch would).
 
 One module per kind of source: :mod:`.base` (:class:`SourceFrame`, :class:`FrameSource`),
-:mod:`.video`, :mod:`.folder`, :mod:`.camera` and :mod:`.rosbag`; every public name is
+:mod:`.video`, :mod:`.folder`, :mod:`.camera`, :mod:`.rosbag` (with :mod:`.bag_storage` and
+:mod:`.ros_images`) and :func:`open_source` in :mod:`.factory`; every public name is
 re-exported here.
 """
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 from .base import FrameSource, SourceFrame, to_gray8
 from .camera import CameraSource
+from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource
@@ -32,4 +34,6 @@ __all__ = [
     "BagSource",
     "IMAGE_EXTENSIONS",
     "to_gray8",
+    "open_source",
+    "SOURCE_KINDS",
 ]
