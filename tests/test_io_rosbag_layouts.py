@@ -221,7 +221,12 @@ def test_every_storage_layout_gives_the_same_teach_frames(drive, reference, tmp_
     writer = write_split_bag if layout == "split-mcap" else write_bag
     bag = writer(tmp_path / layout.replace("-", "_"), drive, **LAYOUTS[layout])
     teach = make_teach(tmp_path / "teach.mcap", bag=bag)
-    assert _teach_frames(teach) == _teach_frames(reference[1])
+    reader = TeachReader(teach)
+    assert [(f.log_time_ns, f.image_message, f.command) for f in reader.frames()] == _teach_frames(reference[1])
+    storage = reader.info["settings"]["source"]["storage"]
+    expected = {"sqlite": ("sqlite3", 1, "none"), "split-mcap": ("mcap", 2, "none"),
+                "file-compressed": ("mcap", 1, "file zstd"), "message-compressed-sqlite": ("sqlite3", 1, "message zstd")}
+    assert (storage["storage"], storage["files"], storage["compression"]) == expected[layout]
 
 
 def test_a_message_compressed_sqlite_bag_fits_as_the_mcap_bag(drive, reference, tmp_path):

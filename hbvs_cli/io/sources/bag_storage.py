@@ -130,11 +130,9 @@ def _rosbags_errors(name: str) -> Iterator[None]:
         raise InputError(f"{name}: cannot read the bag ({detail[:300]})") from None
 
 
-def _typestore_for(folder: Path, name: str) -> Any:
-    """The type store of the distro named in metadata.yaml (Humble when none is named): for
-    bags that carry no message definitions."""
-    from rosbags.typesys import Stores, get_typestore
-
+def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
+    when malformed (rosbags then says what is wrong with it when it opens the bag)."""
     metadata = folder / "metadata.yaml"
     try:
         size = metadata.stat().st_size
@@ -143,12 +141,20 @@ def _typestore_for(folder: Path, name: str) -> Any:
     if size > MAX_METADATA_BYTES:
         raise InputError(f"{name}: metadata.yaml is {size} bytes, more than the {MAX_METADATA_BYTES} hbvs reads")
     try:
-        document = yaml.safe_load(metadata.read_text(encoding="utf-8"))
-        distro = str(document["rosbag2_bagfile_information"].get("ros_distro") or "humble")
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError, AttributeError):
-        distro = "humble"  # rosbags reports a malformed metadata.yaml itself when it opens the bag
+        information = yaml.safe_load(metadata.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError):
+        return {}
+    return information if isinstance(information, dict) else {}
+
+
+def _typestore_for(information: dict[str, Any]) -> Any:
+    """The type store of the distro named in metadata.yaml (Humble when none is named): for
+    bags that carry no message definitions."""
+    from rosbags.typesys import Stores, get_typestore
+
+    distro = str(information.get("ros_distro") or "humble").strip().lower()
     try:
-        store = Stores(f"ros2_{distro.strip().lower()}")
+        store = Stores(f"ros2_{distro}")
     except ValueError:
         store = Stores.LATEST
     return get_typestore(store)
@@ -165,8 +171,9 @@ class RosbagsBag:
 
         self.name = name
         self.folder = folder
+        information = _bag_metadata(folder, name)
         with _rosbags_errors(name):
-            self._reader = AnyReader([folder], default_typestore=_typestore_for(folder, name))
+            self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
             self._reader.open()
         self._open = True
         self.topics: dict[str, BagTopic] = {}
@@ -178,15 +185,15 @@ class RosbagsBag:
                 self.topics[connection.topic] = BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount)
             else:
                 known.count = (known.count or 0) + connection.msgcount
-        storage = self._reader.readers[0].metadata if hasattr(self._reader.readers[0], "metadata") else {}
+        files = information.get("relative_file_paths")
         self.storage = {
             "reader": "rosbags",
-            "storage": str(storage.get("storage_identifier", "")) if isinstance(storage, dict) else "",
-            "files": len(getattr(self._reader.readers[0], "paths", []) or []),
-            "compression": (
-                f"{storage.get('compression_mode', '') or 'none'} {storage.get('compression_format', '')}".strip()
-                if isinstance(storage, dict) else ""
-            ),
+            "storage": str(information.get("storage_identifier", "")),
+            "files": len(files) if isinstance(files, list) else None,
+            "compression": " ".join(
+                str(information.get(key) or "") for key in ("compression_mode", "compression_format")
+            ).strip() or "none",
+            "ros_distro": str(information.get("ros_distro", "")),
         }
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:
