@@ -35,7 +35,7 @@ def _old_layout_copy(source: Path, target: Path, colour_pngs: list[Path] | None 
     stored then); otherwise each frame is re-encoded as the gray PNG hbvs wrote then.
     """
     from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image, read_compressed_image
-    from hbvs_cli.io.mcap_io import McapStream, McapWriter, read_metadata, time_message
+    from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata, time_message
 
     stream = McapStream(source)
     with open(target, "wb") as handle:
@@ -63,7 +63,7 @@ def _old_layout_copy(source: Path, target: Path, colour_pngs: list[Path] | None 
 def _image_bytes(path: Path) -> tuple[int, int]:
     """(frames, bytes of the images they hold) of any hbvs file's /camera/image topic."""
     from hbvs_cli.io.images import read_compressed_image
-    from hbvs_cli.io.mcap_io import McapStream
+    from hbvs_cli.io.mcap import McapStream
 
     count = total = 0
     for message in McapStream(path, topics={"/camera/image"}):

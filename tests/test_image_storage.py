@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.io.images import bytes_to_store, encode_image, is_gray8_png, read_compressed_image
-from hbvs_cli.io.mcap_io import McapStream
+from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.teach_file import TeachReader
 
 from conftest import SAMPLES, make_teach

@@ -272,7 +272,7 @@ BAD_FILES = {
     "zero_width": (_yaml_with(image_width=0), "positive"),
     "fractional_height": (_yaml_with(image_height=479.5), "whole number"),
     "huge_width": (_yaml_with(image_width=10**9), "implausibly large"),
-    "unsupported_model": (_yaml_with(distortion_model="equidistant",
+    "unsupported_model": (_yaml_with(distortion_model="double_sphere",
                                      distortion_coefficients=_matrix([0.1, 0.2, 0.3, 0.4], 1, 4)),
                           "unsupported distortion"),
     "wrong_coefficient_count": (_yaml_with(distortion_model="plumb_bob",
@@ -363,7 +363,7 @@ def test_foxglove_round_trip_through_json(camera):
         ({"height": -480}, "positive"),
         ({"D": {"a": 1}}, "D must be a list"),
         ({"distortion_model": 5}, "distortion_model must be a string"),
-        ({"distortion_model": "kannala_brandt", "D": [0.1, 0.2, 0.3, 0.4]}, "unsupported distortion"),
+        ({"distortion_model": "double_sphere", "D": [0.1, 0.2, 0.3, 0.4]}, "unsupported distortion"),
         ({"K": [500.0, 0, 320, 0, float("nan"), 240, 0, 0, 1]}, "NaN or infinity"),
     ],
 )

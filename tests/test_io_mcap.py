@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.errors import InputError, RecordingError
-from hbvs_cli.io.mcap_io import MAX_CHUNK_BYTES, CountingStream, McapStream, McapWriter, encode_json, json_ready, open_output, read_metadata
+from hbvs_cli.io.mcap import MAX_CHUNK_BYTES, CountingStream, McapStream, McapWriter, encode_json, json_ready, open_output, read_metadata
 
 
 def write_sample(stream, messages: int = 50, chunk_size: int = 1024, metadata: bool = True) -> list[dict]:

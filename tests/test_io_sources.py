@@ -405,16 +405,17 @@ def test_bag_raw_images(tmp_path, encoding):
     assert source.camera == BAG_CAMERA
 
 
-def test_bag_unsupported_raw_encoding(tmp_path):
-    bag = write_bag(tmp_path / "yuv", {"/cam/image_raw": "yuv422"}, n_frames=1)
-    with pytest.raises(InputError, match=r"/cam/image_raw message 0: unsupported image encoding 'yuv422'"):
+@pytest.mark.parametrize("encoding", ["32FC1", "nonsense"])
+def test_bag_unsupported_raw_encoding(tmp_path, encoding):
+    bag = write_bag(tmp_path / "float", {"/cam/image_raw": encoding}, n_frames=1)
+    with pytest.raises(InputError, match=rf"/cam/image_raw message 0: unsupported image encoding '{encoding}'"):
         list(BagSource(bag))
 
 
 def test_bag_with_two_image_topics_needs_a_topic(tmp_path):
     bag = write_bag(tmp_path / "two", {"/cam/image_raw": "mono8", "/cam/image/compressed": "png",
                                        "/cam/camera_info": "info"}, n_frames=2)
-    with pytest.raises(InputError) as info:
+    with pytest.raises(UsageError) as info:  # a choice the user has to make: exit 2
         BagSource(bag)
     message = str(info.value)
     assert "/cam/image_raw" in message and "/cam/image/compressed" in message and "--topic" in message
@@ -469,11 +470,11 @@ def test_bag_path_errors(tmp_path):
     sqlite_bag = tmp_path / "sqlite_bag"
     sqlite_bag.mkdir()
     (sqlite_bag / "sqlite_bag_0.db3").write_bytes(b"SQLite format 3\x00")
-    with pytest.raises(InputError, match="SQLite storage"):
+    with pytest.raises(InputError, match="SQLite storage.*needs its metadata.yaml"):
         BagSource(sqlite_bag)
     empty = tmp_path / "empty_dir"
     empty.mkdir()
-    with pytest.raises(InputError, match=r"no \.mcap file"):
+    with pytest.raises(InputError, match=r"no \.mcap file and no metadata.yaml"):
         BagSource(empty)
 
 

@@ -22,7 +22,7 @@ from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console, ProgressTask
 from hbvs_cli.report.figure_style import PALETTE
 
-from conftest import call_hbvs, run_hbvs
+from conftest import call_hbvs
 
 #: The occlusion (s) and the drop rate of the fault runs.
 OCCLUSION = (0.5, 7.5)

@@ -58,7 +58,7 @@ def work(files, tmp_path):
 # ----------------------------------------------------------------------------- hostile files
 def rewrite(source: Path, target: Path, change) -> None:
     """Copy an hbvs MCAP file, passing every message through ``change(topic, log_time, msg)``."""
-    from hbvs_cli.io.mcap_io import McapStream, McapWriter
+    from hbvs_cli.io.mcap import McapStream, McapWriter
 
     stream = McapStream(source)
     messages = list(stream)

@@ -48,7 +48,7 @@ from hypothesis import strategies as st
 
 from conftest import make_fit, make_run, make_teach
 from hbvs_cli.errors import HbvsError
-from hbvs_cli.io.mcap_io import McapMessage as Message
+from hbvs_cli.io.mcap import McapMessage as Message
 
 #: Wall-clock bound of one case (a typical one takes a few milliseconds).
 CASE_SECONDS = 5.0

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.errors import CalibrationError, InputError, RecordingError
-from hbvs_cli.io.mcap_io import (
+from hbvs_cli.io.mcap import (
     MAX_CHANNELS, MAX_JSON_DEPTH, MAX_JSON_ITEMS, MAX_SCHEMAS, McapStream, decode_json, encode_json, read_metadata,
 )
 

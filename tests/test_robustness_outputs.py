@@ -85,7 +85,7 @@ def valid_mcap(path: Path) -> int:
 
 
 def commands_in(run: Path) -> int:
-    from hbvs_cli.io.mcap_io import McapStream
+    from hbvs_cli.io.mcap import McapStream
 
     return sum(1 for _ in McapStream(run, topics={"/repeat/cmd_vel"}))
 
@@ -251,7 +251,7 @@ def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
 
     from hbvs_cli.errors import OutputError
     from hbvs_cli.io import output_target
-    from hbvs_cli.io.mcap_io import open_output
+    from hbvs_cli.io.mcap import open_output
 
     class FillsUp:
         """A file that takes ``room`` bytes, then fails as a full disk does."""
@@ -289,7 +289,7 @@ def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------- concurrent runs
 WRITER = r"""
 import sys, time
-from hbvs_cli.io.mcap_io import open_output
+from hbvs_cli.io.mcap import open_output
 target, ident, fail = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "fail"
 with open_output(target, chunk_size=4096) as writer:
     for k in range(400):
@@ -311,7 +311,7 @@ def writers_round(folder: Path, second_fails: bool) -> tuple[set[float], int]:
     ]
     codes = [p.wait(60) for p in processes]
     assert codes == [0, 3 if second_fails else 0]
-    from hbvs_cli.io.mcap_io import McapStream
+    from hbvs_cli.io.mcap import McapStream
 
     stream = McapStream(target)
     values = [json.loads(m.data) for m in stream]

@@ -8,7 +8,7 @@ import numpy as np
 
 from hbvs_cli.core.camera import DEFAULT_CAMERA
 from hbvs_cli.io.images import bytes_to_store
-from hbvs_cli.io.mcap_io import McapStream, open_output
+from hbvs_cli.io.mcap import McapStream, open_output
 from hbvs_cli.io.messages import LOG_WARNING
 from hbvs_cli.io.run_file import STATE_FIELDS, RunWriter, read_run
 from hbvs_cli.io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC

@@ -64,7 +64,7 @@ def test_other_targets_agree_with_the_truth(tmp_path, kind, bounds, capsys):
 
 
 def test_fit_is_deterministic_and_streams_from_stdin(default_teach, default_fit, tmp_path):
-    from hbvs_cli.io.mcap_io import McapStream
+    from hbvs_cli.io.mcap import McapStream
 
     again = tmp_path / "again.mcap"
     make_fit(default_teach, again)
@@ -86,7 +86,7 @@ def test_the_summary_table_goes_to_stderr(default_teach, tmp_path):
 
 def copy_teach(source, target, image=lambda t, message: message):
     """Copy a teach file through ``image(t, json_bytes) -> json_bytes or None`` (None drops it)."""
-    from hbvs_cli.io.mcap_io import McapStream, McapWriter, read_metadata
+    from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
     stream = McapStream(source)
     with open(target, "wb") as handle:
@@ -191,7 +191,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
     truncated.write_bytes(default_teach.read_bytes()[:3000])
     no_images = tmp_path / "noimages.mcap"
     strip_frames(default_teach, no_images, lambda t: True)
-    from hbvs_cli.io.mcap_io import McapStream, McapWriter, read_metadata
+    from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
     no_calibration = tmp_path / "nocal.mcap"
     stream = McapStream(default_teach, topics={"/camera/image"})

@@ -12,7 +12,7 @@ from hbvs_cli.core.path import PRESETS, preset_profile
 from hbvs_cli.core.world import TARGET_KINDS, default_world
 from hbvs_cli.errors import InputError, UsageError
 from hbvs_cli.io.fit_file import read_fit_file
-from hbvs_cli.io.mcap_io import McapStream
+from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.run_file import read_run
 
 from conftest import fit_errors, make_fit, make_run, make_teach, run_hbvs, teach_from_rendered_video

@@ -18,8 +18,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import CalibrationError, NonFiniteInputError, PointBehindCameraError
 
-#: Distortion models hbvs understands (ROS names); ``plumb_bob`` is OpenCV's k1 k2 p1 p2 k3.
-SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "none", "")
+#: Distortion models hbvs understands (ROS names); ``plumb_bob`` is OpenCV's k1 k2 p1 p2 k3,
+#: ``equidistant`` the fisheye model k1 k2 k3 k4 of ``cv2.fisheye`` (Kannala-Brandt).
+SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "none", "")
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ class CameraIntrinsics:
         if self.distortion_model not in SUPPORTED_DISTORTION_MODELS:
             raise CalibrationError(
                 f"unsupported distortion model {self.distortion_model!r} "
-                f"(supported: plumb_bob, rational_polynomial, none)"
+                f"(supported: plumb_bob, rational_polynomial, equidistant, none)"
             )
         if not all(np.isfinite(v) for v in self.distortion):
             raise CalibrationError("distortion coefficients contain NaN or infinity")
@@ -177,6 +178,11 @@ def undistort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.
         return pixels
     import cv2  # lazy: keep the core importable without loading OpenCV
 
+    if camera.distortion_model == "equidistant":
+        undistorted = cv2.fisheye.undistortPoints(
+            pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K
+        )
+        return undistorted.reshape(pixels.shape)
     undistorted = cv2.undistortPoints(
         pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K
     )
@@ -197,6 +203,10 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
 
     x_n = (pixels[:, 0] - camera.cx) / camera.fx
     y_n = (pixels[:, 1] - camera.cy) / camera.fy
+    if camera.distortion_model == "equidistant":
+        normalized = np.stack([x_n, y_n], axis=-1).reshape(-1, 1, 2)
+        distorted = cv2.fisheye.distortPoints(normalized, camera.K, np.asarray(camera.distortion, dtype=float))
+        return distorted.reshape(pixels.shape)
     object_points = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).reshape(-1, 1, 3)
     projected, _ = cv2.projectPoints(
         object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float)

@@ -36,7 +36,7 @@ from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
-from .mcap_io import McapStream, read_metadata, time_message
+from .mcap import McapStream, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
 
@@ -301,7 +301,7 @@ def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dic
         The fit produced a model repeat would refuse (e.g. an infinite dhat0 from a
         teach recording with speeds of 1e308): nothing is written.
     """
-    from .mcap_io import encode_json
+    from .mcap import encode_json
 
     message = model.to_message(log_time_ns)
     try:

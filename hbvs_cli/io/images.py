@@ -65,11 +65,14 @@ def encode_image(image: NDArray[np.uint8], image_format: str = "png", jpeg_quali
     return buffer.tobytes()
 
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The eight bytes that open every PNG file (the one place hbvs spells them).
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The three bytes that open every JPEG file.
+JPEG_SIGNATURE = b"\xff\xd8\xff"
 #: Most pixels a byte of compressed data can hold, by the file's first two bytes. Deflate
 #: expands at most 1032:1 and a 1-bit PNG packs 8 pixels a byte; a JPEG spends a few bits
 #: at least on every 8x8 block, even with progressive end-of-band runs.
-_MAX_PIXELS_PER_BYTE = {b"\x89P": 8 * 1100, b"\xff\xd8": 1 << 14}
+_MAX_PIXELS_PER_BYTE = {PNG_SIGNATURE[:2]: 8 * 1100, JPEG_SIGNATURE[:2]: 1 << 14}
 #: JPEG start-of-frame markers, which carry the image size (C4, C8 and CC are not frames).
 _JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: JPEG markers that stand alone, without a length field.
@@ -82,9 +85,9 @@ def image_size(data: bytes) -> tuple[int, int] | None:
     Decoders allocate the whole image from these numbers before reading any pixel, so a
     few hostile bytes could ask for gigabytes; other formats rely on OpenCV's own cap.
     """
-    if data[:8] == _PNG_SIGNATURE and len(data) >= 24:
+    if data[:8] == PNG_SIGNATURE and len(data) >= 24:
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    if data[:2] == b"\xff\xd8":
+    if data[:2] == JPEG_SIGNATURE[:2]:
         return _jpeg_size(data)
     if data[:2] == b"BM" and len(data) >= 26:
         width = int.from_bytes(data[18:22], "little", signed=True)
@@ -122,7 +125,7 @@ def _png_problem(data: bytes) -> str | None:
     OpenCV's PNG reader trusts chunk lengths: a damaged one declaring gigabytes costs
     seconds and as much memory before the decode fails, so PNGs are walked here first.
     """
-    offset = len(_PNG_SIGNATURE)
+    offset = len(PNG_SIGNATURE)
     while offset + 12 <= len(data):
         length = int.from_bytes(data[offset:offset + 4], "big")
         end = offset + 12 + length
@@ -154,7 +157,7 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
             f"{source}: cannot be decoded as an image ({len(data)} bytes cannot hold the "
             f"{size[0]}x{size[1]} pixels its header declares: corrupt or truncated)"
         )
-    problem = _png_problem(data) if data[:8] == _PNG_SIGNATURE else None
+    problem = _png_problem(data) if data[:8] == PNG_SIGNATURE else None
     if problem is not None:
         raise InputError(f"{source}: cannot be decoded as an image ({problem}: corrupt or truncated)")
     from .native_log import mark, said_since
@@ -172,7 +175,53 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
 
 def is_gray8_png(data: bytes) -> bool:
     """True for a PNG of 8-bit gray pixels (colour type 0, bit depth 8), read from its header."""
-    return data[:8] == _PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 0
+    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 0
+
+
+def sniff_format(data: bytes) -> str | None:
+    """"jpeg" or "png" from the magic bytes (file names and ROS format strings may lie), else None."""
+    if data.startswith(JPEG_SIGNATURE):
+        return "jpeg"
+    if data.startswith(PNG_SIGNATURE):
+        return "png"
+    return None
+
+
+def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
+    """An image as a contiguous gray uint8 array, shape (H, W).
+
+    Accepts gray, single-channel, BGR or BGRA arrays of 8 or 16 bits; 16-bit data keeps
+    its high byte (a fixed scale, so brightness does not change from frame to frame).
+    Every frame source and every detector converts through here.
+
+    Parameters
+    ----------
+    image : array_like
+    what : str
+        How to name the image in error messages.
+
+    Raises
+    ------
+    InputError
+        For anything that is not such an image.
+    """
+    import cv2
+
+    if not isinstance(image, np.ndarray) or image.size == 0:
+        raise InputError(f"{what}: empty or not an image array")
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    elif image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    elif image.ndim != 2:
+        raise InputError(f"{what}: unsupported image shape {image.shape}")
+    return np.ascontiguousarray(image)
 
 
 def bytes_to_store(
@@ -236,7 +285,7 @@ def _image_schema() -> bytes:
 def write_compressed_image(writer: Any, topic: str, log_time_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> None:
     """Write one ``foxglove.CompressedImage`` (protobuf: the bytes as they are) at ``log_time_ns``.
 
-    ``writer`` is an :class:`~hbvs_cli.io.mcap_io.McapWriter`; the message's timestamp is
+    ``writer`` is an :class:`~hbvs_cli.io.mcap.McapWriter`; the message's timestamp is
     the log time.
     """
     declare_image_channel(writer, topic)
@@ -276,7 +325,7 @@ def read_compressed_image(message_encoding: str, data: bytes, source: str = "") 
         stamp = message.timestamp.seconds * 1_000_000_000 + message.timestamp.nanos
         return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(int(stamp), 0))
     if message_encoding == "json":
-        from .mcap_io import decode_json
+        from .mcap import decode_json
 
         value = decode_json(data, f"{source}: image message")
         if not isinstance(value, dict):

@@ -31,7 +31,7 @@ from ..core.camera import CameraIntrinsics
 from ..errors import RecordingError
 from .calibration import calibration_to_foxglove
 from .images import write_compressed_image
-from .mcap_io import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
+from .mcap import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
 from .messages import CAMERA_FRAME, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
 from .topics import (
     ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC, TOPICS,
@@ -207,7 +207,7 @@ def read_run(source: Any, name: str = "") -> RunData:
 
 # ----------------------------------------------------------------------------- writing
 class RunWriter:
-    """Writes a run file through an :class:`~hbvs_cli.io.mcap_io.McapWriter`, from plain values.
+    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values.
 
     The ``hbvs`` metadata record is written first, then the camera's calibration; every
     other message is stamped with its time ``t`` (s) as log time and timestamp.

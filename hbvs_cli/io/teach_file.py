@@ -30,7 +30,7 @@ from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
-from .mcap_io import McapStream, McapWriter, check_json_limits, read_metadata, time_message
+from .mcap import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
 from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
@@ -108,10 +108,14 @@ def render_settings_problem(settings: Any) -> str | None:
 
 
 class TeachWriter:
-    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap_io.McapWriter`."""
+    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`."""
 
-    def __init__(self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None) -> None:
+    def __init__(
+        self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None, frame_id: str | None = None,
+    ) -> None:
         self.writer = writer
+        #: The camera's frame of reference: a bag's own frame_id, else hbvs's camera frame.
+        self.frame_id = frame_id or CAMERA_FRAME
         writer.metadata("hbvs", {"file_kind": FILE_KIND, "hbvs_version": __version__, "source": source, "settings": settings})
         if world is not None:
             writer.metadata(WORLD_METADATA, {"world": world.to_dict()})
@@ -120,7 +124,7 @@ class TeachWriter:
     def calibration(self, camera: CameraIntrinsics, log_time_ns: int = 0) -> None:
         self.writer.write(
             CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], log_time_ns,
-            calibration_to_foxglove(camera, CAMERA_FRAME, log_time_ns),
+            calibration_to_foxglove(camera, self.frame_id, log_time_ns),
         )
 
     def frame(
@@ -138,7 +142,7 @@ class TeachWriter:
             self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
         if pose is not None:
             self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
-        write_compressed_image(self.writer, IMAGE_TOPIC, log_time_ns, image_bytes, image_format, CAMERA_FRAME)
+        write_compressed_image(self.writer, IMAGE_TOPIC, log_time_ns, image_bytes, image_format, self.frame_id)
         self.frames += 1
 
 
@@ -156,7 +160,7 @@ class TeachFrame:
     image_message : bytes
         The ``foxglove.CompressedImage`` as stored, in ``image_encoding``; read it with
         :meth:`stored_image`. JSON is within the caps of
-        :func:`~hbvs_cli.io.mcap_io.check_json_limits`, so decoding it is safe.
+        :func:`~hbvs_cli.io.mcap.check_json_limits`, so decoding it is safe.
     pose : (x, y, phi) or None
         True robot pose (simulated recordings).
     command : (v, w) or None

@@ -77,3 +77,12 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
     },
 }
+
+# ----------------------------------------------------------------------------- ROS 2 message types
+# The ROS 2 types hbvs reads from bags (``teach --bag``).
+ROS_IMAGE_SCHEMA = "sensor_msgs/msg/Image"
+ROS_COMPRESSED_IMAGE_SCHEMA = "sensor_msgs/msg/CompressedImage"
+ROS_CAMERA_INFO_SCHEMA = "sensor_msgs/msg/CameraInfo"
+ROS_TWIST_SCHEMA = "geometry_msgs/msg/Twist"
+ROS_TWIST_STAMPED_SCHEMA = "geometry_msgs/msg/TwistStamped"
+ROS_ODOMETRY_SCHEMA = "nav_msgs/msg/Odometry"

@@ -17,12 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
-from ..errors import InputError, UsageError
+from ..errors import UsageError
+from ..io.images import as_gray  # noqa: F401 - re-exported: the detectors take it from here
 
 
 @dataclass(frozen=True)
@@ -126,40 +126,6 @@ class PointTrack:
         self._since[seen] = 0
         if not self.active:
             self.reset()
-
-
-def as_gray(image: ArrayLike, what: str = "the camera frame") -> NDArray[np.uint8]:
-    """An image as a contiguous gray uint8 array, shape (H, W).
-
-    Accepts gray, single-channel, BGR or BGRA arrays of 8 or 16 bits; 16-bit data keeps
-    its high byte (a fixed scale, so brightness does not change from frame to frame).
-
-    Parameters
-    ----------
-    image : array_like
-    what : str
-        How to name the image in error messages.
-
-    Raises
-    ------
-    InputError
-        For anything that is not such an image.
-    """
-    if not isinstance(image, np.ndarray) or image.size == 0:
-        raise InputError(f"{what}: empty or not an image array")
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
-    elif image.dtype != np.uint8:
-        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    elif image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    elif image.ndim != 2:
-        raise InputError(f"{what}: unsupported image shape {image.shape}")
-    return np.ascontiguousarray(image)
 
 
 def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:

@@ -69,7 +69,7 @@ def read_fit_signals(source: Any, name: str = "") -> FitSignals:
     RecordingError
         Not a fit file, or one without desired signals.
     """
-    from ..io.mcap_io import McapStream, read_metadata
+    from ..io.mcap import McapStream, read_metadata
 
     stream = McapStream(source, topics={RAW_TOPIC, SMOOTH_TOPIC, MODEL_TOPIC}, schemas=TOPICS["fit"], name=name)
     messages: dict[str, list[dict[str, Any]]] = {RAW_TOPIC: [], SMOOTH_TOPIC: []}

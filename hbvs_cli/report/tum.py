@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.frames import yaw_to_quaternion
 from ..errors import InputError, RecordingError, UsageError
-from ..io.mcap_io import McapStream
+from ..io.mcap import McapStream
 from ..io.run_file import TRUE_POSE_TOPIC, RunData
 
 #: Suffixes of the two files written per run.

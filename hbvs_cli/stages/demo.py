@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ..io.mcap_io import json_ready
+from ..io.mcap import json_ready
 from ..io.output_target import write_output_bytes
 from ..io.run_file import read_run
 from ..report.plots import save_plot

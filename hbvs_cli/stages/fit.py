@@ -132,7 +132,7 @@ def recorded_frame_count(source: str) -> int | None:
     ``None`` for stdin, or a file without a usable summary (a crashed recorder): the
     frames are then counted as they come. Reading the summary never fails the fit.
     """
-    from ..io.mcap_io import read_summary
+    from ..io.mcap import read_summary
     from ..io.teach_file import IMAGE_TOPIC
 
     if source == "-" or not Path(source).is_file():
@@ -149,7 +149,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
     from ..io.fit_file import FitModel, checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
-    from ..io.mcap_io import open_output, time_message
+    from ..io.mcap import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
@@ -301,7 +301,9 @@ def _version() -> str:
 
 
 def _format_of(data: bytes) -> str:
-    return "png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "jpeg"
+    from ..io.images import PNG_SIGNATURE
+
+    return "png" if data[:8] == PNG_SIGNATURE else "jpeg"
 
 
 #: Frames ``--target auto`` looks at before it picks a kind.

@@ -35,7 +35,7 @@ from ..io.config import load_config
 from ..io.fit_file import FitFile, FitModel, read_fit_file
 from ..io.images import bytes_to_store
 from ..io.limits import step_count
-from ..io.mcap_io import McapWriter, open_output
+from ..io.mcap import McapWriter, open_output
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter

@@ -118,9 +118,11 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
     Setting("video", Path, "A video file (anything OpenCV reads).", panel="Sources"),
     Setting("images", str, "A folder of images or a glob; sorted naturally.", panel="Sources"),
     Setting("camera", int, "A live camera by index; --duration or Ctrl-C ends it.", panel="Sources"),
-    Setting("bag", Path, "A ROS 2 bag in MCAP storage (folder or .mcap), or an MCAP file of foxglove.CompressedImage "
-            "(e.g. a teach file).", panel="Sources"),
+    Setting("bag", Path, "A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one "
+            ".mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", panel="Sources"),
     Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
+    Setting("cmd_topic", str, "The bag's command topic (geometry_msgs Twist or TwistStamped, or nav_msgs Odometry), "
+            "recorded as the taught (v, w); automatic when there is one.", panel="Sources"),
     Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
             fallback=DEFAULT_PRESET, panel="Simulation"),
     Setting("offset", str, "Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.",

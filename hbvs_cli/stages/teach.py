@@ -18,7 +18,7 @@ from ..io import sources
 from ..io.calibration import load_calibration
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
-from ..io.mcap_io import open_output, seconds_to_ns
+from ..io.mcap import open_output, seconds_to_ns
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.teach_file import TeachWriter
@@ -64,9 +64,9 @@ class TeachOptions(TeachFields):
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            return recorded
+            return {key: value for key, value in recorded.items() if key != "cmd_topic"}
         names = {field.name for field in fields(self)}
-        keep = {kind, *SOURCE_SETTINGS} | ({"topic"} if kind == "bag" else set())
+        keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set())
         return {key: value for key, value in recorded.items() if key in keep and key in names}
 
 
@@ -94,6 +94,8 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
          ("--calibration", options.calibration), ("--path", path_file)],
     )
     kind = options.source_kind()
+    if options.cmd_topic is not None and kind != "bag":
+        raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     if kind == "sim":
         return _teach_simulated(options.for_simulation(), console)
     return _teach_from_source(kind, options, console)
@@ -181,18 +183,19 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
 
 
 # ----------------------------------------------------------------------------- real sources
-def _load_camera(path: Path) -> CameraIntrinsics:
-    return load_calibration(path)
+def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
+    notes: list[str] = []
+    camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
+    for note in notes:
+        if console is not None:
+            console.warn(note)
+    return camera
 
 
 def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
-    if kind == "video":
-        return sources.VideoSource(options.video, fps=options.fps)
-    if kind == "images":
-        return sources.ImageFolderSource(options.images, fps=DEFAULT_FPS if options.fps is None else options.fps)
-    if kind == "camera":
-        return sources.CameraSource(options.camera, duration=options.duration)
-    return sources.BagSource(options.bag, topic=options.topic)
+    spec = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
+    fps = DEFAULT_FPS if kind == "images" and options.fps is None else options.fps
+    return sources.open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
@@ -204,16 +207,18 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
     source = _open_source(kind, options)
-    camera = _load_camera(options.calibration) if options.calibration is not None else getattr(source, "camera", None)
+    camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:
-        hint = " (the bag has no CameraInfo topic)" if kind == "bag" else ""
+        problem = getattr(source, "camera_problem", None)
+        hint = f" ({problem})" if problem else " (the bag has no CameraInfo topic)" if kind == "bag" else ""
         raise UsageError(f"--calibration FILE is required for --{kind}{hint}")
     frames = 0
     last_t = 0.0
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
-        teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()})
-        teach.calibration(camera)
+        teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
+        # A bag's frames keep its stamps, so the recording lines up with the bag.
+        teach.calibration(camera, getattr(source, "time_base_ns", 0))
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
@@ -225,7 +230,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
                     _check_frame_size(frame.image, camera, source)
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality)
-                    teach.frame(seconds_to_ns(frame.t), data, image_format)
+                    log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
+                    teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
                     last_t = frame.t
                     bar.advance()

@@ -1,251 +1,21 @@
-"""Reading and writing MCAP files safely: capped, streaming, atomic.
-
-MCAP framing on the write side is the ``mcap`` library's; reading is done here, record by
-record, because hbvs promises more than that library's readers give:
-
-* **Streaming both ways**: every stage reads a file or stdin (``-``) front to back in
-  constant memory, and writes a file or stdout. The mcap ``Writer`` calls ``tell()``, which
-  a pipe does not have, so stdout is wrapped in :class:`CountingStream`.
-* **Atomic output**: a file is written as ``FILE.<pid>-<random>.partial`` and renamed over
-  ``FILE`` only when it is finished (:mod:`hbvs_cli.io.output_target` decides how every
-  output is written); a failed or interrupted command leaves any previous ``FILE``
-  untouched and removes the partial file. After a hard crash (power loss, SIGKILL), the
-  ``.partial`` file holds every chunk flushed so far and is itself readable.
-* **Hostile input**: every declared length (a record, a field inside a record, a chunk
-  before and after decompression) is checked against what contains it and against caps
-  before anything is allocated; the number of schemas and channels and the bytes they and
-  the metadata hold are capped; JSON is decoded under caps on size, number of values and
-  nesting (:func:`decode_json`); nothing is ever unpickled or evaluated: messages are JSON
-  (or CDR decoded by mcap-ros2-support).
-* **Truncated files** (a crashed recorder: no summary, no footer, half a chunk) are read up
-  to the last complete record; :attr:`McapStream.truncated` tells the caller.
-"""
+"""Reading MCAP files record by record under caps, streaming, with truncated files read up to their last complete record."""
 
 from __future__ import annotations
 
 import io
 import json
-import math
 import os
-import re
 import struct
 import sys
 import zlib
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, BinaryIO, Iterator
+from typing import Any, BinaryIO, Iterator
 
-from ..errors import InputError, RecordingError
-from .schemas import SCHEMAS
+from ...errors import InputError, RecordingError
+from .caps import MAX_CHANNELS, MAX_CHUNK_BYTES, MAX_DECLARED_BYTES, MAX_LOG_TIME_NS, MAX_RECORD_BYTES, MAX_SCHEMAS
+from .json_codec import _bounded_int, _short, check_json_limits, decode_json
 
-#: Largest MCAP record hbvs reads (a chunk, an attachment, an uncompressed image...).
-MAX_RECORD_BYTES = 64 * 2**20
-#: Largest decompressed chunk hbvs accepts.
-MAX_CHUNK_BYTES = 128 * 2**20
-#: Most schemas, and most channels, one file may declare (MCAP ids are 16-bit; a real
-#: recording has tens of topics).
-MAX_SCHEMAS = 4096
-MAX_CHANNELS = 4096
-#: Bytes that the schemas, channels and metadata of one file may hold in total.
-MAX_DECLARED_BYTES = 64 * 2**20
-#: Largest JSON message decoded (images in older files travel in it base64-encoded).
-MAX_JSON_BYTES = 64 * 2**20
-#: Most values (counted as commas, colons and brackets) in one JSON document. Each becomes
-#: a Python object of tens of bytes, so this bounds memory where the byte cap cannot.
-MAX_JSON_ITEMS = 2**21
-#: Deepest nesting of JSON arrays and objects decoded; hbvs writes at most six levels.
-MAX_JSON_DEPTH = 64
-#: Latest message log time hbvs accepts: times are kept as signed 64-bit nanoseconds
-#: (MCAP allows unsigned ones, up to 2^64 - 1).
-MAX_LOG_TIME_NS = 2**63 - 1
-#: Profile string in the MCAP header of every file hbvs writes.
-PROFILE = ""
-
-NANOSECONDS = 1_000_000_000
-
-
-# ----------------------------------------------------------------------------- helpers
-def seconds_to_ns(t: float) -> int:
-    """Seconds (>= 0) to integer nanoseconds, rounded."""
-    return int(round(float(t) * NANOSECONDS))
-
-
-def time_message(ns: int) -> dict[str, int]:
-    """The ``{"sec", "nsec"}`` time of Foxglove messages from nanoseconds."""
-    ns = max(int(ns), 0)
-    return {"sec": ns // NANOSECONDS, "nsec": ns % NANOSECONDS}
-
-
-def json_ready(value: Any) -> Any:
-    """A copy of ``value`` that ``json.dumps`` accepts: numpy to Python, NaN/inf to None."""
-    if isinstance(value, dict):
-        return {str(k): json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(v) for v in value]
-    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
-        return json_ready(value.tolist())
-    if isinstance(value, bool) or value is None or isinstance(value, (str, int)):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    return number if math.isfinite(number) else None
-
-
-def encode_json(message: dict[str, Any]) -> bytes:
-    """Deterministic compact JSON bytes of a message."""
-    return json.dumps(json_ready(message), separators=(",", ":"), allow_nan=False).encode("utf-8")
-
-
-# ----------------------------------------------------------------------------- writing
-class CountingStream:
-    """A write-only wrapper that answers ``tell()`` by counting bytes: for pipes.
-
-    The mcap ``Writer`` records chunk offsets with ``tell()``; stdout cannot seek.
-    """
-
-    def __init__(self, stream: IO[bytes]) -> None:
-        self._stream = stream
-        self._count = 0
-
-    def write(self, data: bytes) -> int:
-        self._stream.write(data)
-        self._count += len(data)
-        return len(data)
-
-    def tell(self) -> int:
-        return self._count
-
-    def flush(self) -> None:
-        self._stream.flush()
-
-
-class McapWriter:
-    """Writes one hbvs MCAP file: JSON messages on topics with registered schemas.
-
-    Parameters
-    ----------
-    stream : binary stream with ``write``, ``tell`` and ``flush``
-    chunk_size : int
-        Bytes per chunk; each finished chunk is flushed to the stream, so a crash loses
-        at most the chunk in progress.
-    """
-
-    def __init__(self, stream: Any, chunk_size: int = 1024 * 1024) -> None:
-        from mcap.writer import CompressionType, Writer
-
-        from .. import __version__
-
-        self._stream = stream
-        self._writer = Writer(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        self._writer.start(profile=PROFILE, library=f"hbvs {__version__}")
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
-        self._sequence = 0
-        self._chunk_size = chunk_size
-        self._finished = False
-
-    def _channel(self, topic: str, schema_name: str) -> int:
-        if topic in self._channels:
-            return self._channels[topic]
-        if schema_name not in self._schemas:
-            schema = SCHEMAS[schema_name]
-            self._schemas[schema_name] = self._writer.register_schema(
-                name=schema_name, encoding="jsonschema", data=json.dumps(schema, separators=(",", ":")).encode()
-            )
-        channel_id = self._writer.register_channel(
-            topic=topic, message_encoding="json", schema_id=self._schemas[schema_name]
-        )
-        self._channels[topic] = channel_id
-        return channel_id
-
-    def declare_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> None:
-        """Register a channel whose messages are not JSON (e.g. protobuf images), once per topic.
-
-        Later :meth:`write_encoded` calls on ``topic`` use it; the caller encodes the messages.
-        """
-        if topic in self._channels:
-            return
-        key = f"{schema_name}\0{schema_encoding}"
-        if key not in self._schemas:
-            self._schemas[key] = self._writer.register_schema(name=schema_name, encoding=schema_encoding, data=schema_data)
-        self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[key]
-        )
-
-    def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
-        """Write one message, JSON-encoded."""
-        self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
-
-    def write_encoded(self, topic: str, schema_name: str, log_time_ns: int, data: bytes) -> None:
-        """Write one message whose bytes are already encoded (JSON copied from input, or in
-        the encoding of a channel given to :meth:`declare_channel`)."""
-        channel_id = self._channel(topic, schema_name)
-        self._writer.add_message(
-            channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns),
-            data=data, sequence=self._sequence,
-        )
-        self._sequence += 1
-
-    def metadata(self, name: str, values: dict[str, Any]) -> None:
-        """A metadata record; values are stored as strings (dicts and lists as JSON)."""
-        encoded = {
-            str(k): v if isinstance(v, str) else json.dumps(json_ready(v), separators=(",", ":"))
-            for k, v in values.items()
-        }
-        self._writer.add_metadata(name, encoded)
-
-    def input_ended_early(self, name: str, allow: bool) -> None:
-        """An input of this output ended before its end record: see
-        :meth:`hbvs_cli.io.output_target.OutputSink.input_ended_early` (set by :func:`open_output`)."""
-
-    def flush(self) -> None:
-        """Finish the chunk in progress and push it to the stream (crash safety)."""
-        self._writer.flush()
-
-    def finish(self) -> None:
-        """Write the summary and footer; the file is complete afterwards."""
-        if not self._finished:
-            self._writer.finish()
-            self._stream.flush()
-            self._finished = True
-
-
-def partial_path(target: Path) -> Path:
-    """A fresh name under which an output file is written until it is complete
-    (unique to the process: see :mod:`hbvs_cli.io.output_target`)."""
-    from .output_target import partial_name_of
-
-    return partial_name_of(Path(target))
-
-
-@contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on an output opened by :func:`~hbvs_cli.io.output_target.open_output_stream`.
-
-    A file is written under a partial name unique to the process and renamed into place
-    when complete (a symbolic link's target is replaced); a device or FIFO is written in
-    place; ``-`` is stdout. If the body raises (an error, KeyboardInterrupt, or the
-    exception the CLI raises on SIGTERM), the partial file is removed and an existing
-    output is left as it was. Only a hard crash, which runs no code, leaves the partial
-    file behind. A stage whose input ended early calls ``writer.input_ended_early``.
-    """
-    from .output_target import open_output_stream
-
-    with open_output_stream(target, "output", stdout=stdout) as sink:
-        writer = McapWriter(sink.stream, chunk_size=chunk_size)
-        writer.input_ended_early = sink.input_ended_early
-        yield writer
-        writer.finish()
-
-
-# ----------------------------------------------------------------------------- reading
-#: The eight bytes that open (and close) every MCAP file.
-MAGIC = b"\x89MCAP0\r\n"
 
 class _FieldTooLarge(Exception):
     """A record asked to read a field larger than any record hbvs accepts."""
@@ -581,7 +351,7 @@ class McapStream:
         from mcap.opcode import Opcode
         from mcap.records import Channel, Message, Schema
 
-        from . import limits
+        from .. import limits
 
         stream = ReadDataStream(io.BytesIO(data))
         length_of_data = len(data)
@@ -606,14 +376,14 @@ class McapStream:
                 stream.read(length)
 
     def _count_message(self) -> None:
-        from . import limits
+        from .. import limits
 
         self._messages_read += 1
         if self._messages_read > limits.current("messages"):
             raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
 
     def _count_bytes(self, size: int) -> None:
-        from . import limits
+        from .. import limits
 
         self._bytes_read += size
         if self._bytes_read > limits.current("input-bytes"):
@@ -658,140 +428,6 @@ def _decompress_capped(compression: str, data: bytes | memoryview, declared: int
 
         return lz4.frame.LZ4FrameDecompressor().decompress(bytes(data), max_length=limit)
     raise RecordingError(f"{name}: unsupported chunk compression {compression[:40]!r}")
-
-
-# ----------------------------------------------------------------------------- summary
-@dataclass(frozen=True)
-class ChannelSummary:
-    """One channel as an MCAP file's summary section lists it.
-
-    Attributes
-    ----------
-    topic, schema_name, schema_encoding, message_encoding : str
-    message_count : int or None
-        From the statistics record; None when the file has none.
-    """
-
-    topic: str
-    schema_name: str
-    schema_encoding: str
-    message_encoding: str
-    message_count: int | None
-
-
-def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
-    """The channels listed in the summary section of an MCAP file, read under the caps.
-
-    Only the footer and the summary section are read (by the mcap library's seeking
-    reader, through the same capped input), so this is cheap on a large file.
-
-    Returns
-    -------
-    list of ChannelSummary, or None
-        None when the file has no usable summary (a crashed writer never wrote one, or it
-        is damaged): stream the file with :class:`McapStream` instead.
-
-    Raises
-    ------
-    InputError
-        The file cannot be read.
-    RecordingError
-        The summary declares more than the caps allow.
-    """
-    from mcap.exceptions import McapError
-    from mcap.reader import SeekingReader
-
-    name = name or str(path)
-    declarations = _Declarations(name)
-    try:
-        with open(path, "rb") as stream:
-            summary = SeekingReader(_CappedInput(stream), record_size_limit=MAX_RECORD_BYTES).get_summary()
-    except OSError as exc:
-        raise InputError(f"{name}: cannot read ({exc.strerror or exc})") from None
-    except (McapError, _FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, EOFError, KeyError):
-        return None
-    if summary is None or not summary.channels:
-        return None
-    for schema in summary.schemas.values():
-        declarations.add_schema(schema)
-    for channel in summary.channels.values():
-        declarations.add_channel(channel)
-    counts = dict(summary.statistics.channel_message_counts) if summary.statistics is not None else None
-    listed = []
-    for channel_id, channel in declarations.channels.items():
-        schema = declarations.schemas.get(channel.schema_id)
-        listed.append(ChannelSummary(
-            topic=channel.topic,
-            schema_name=schema.name if schema else "",
-            schema_encoding=schema.encoding if schema else "",
-            message_encoding=channel.message_encoding,
-            message_count=counts.get(channel_id, 0) if counts is not None else None,
-        ))
-    return listed
-
-
-# ----------------------------------------------------------------------------- JSON
-#: Every byte but the brackets, commas and colons that give JSON its structure.
-_NOT_JSON_STRUCTURE = bytes(sorted(set(range(256)) - set(b"[]{},:")))
-#: A JSON string literal (escapes included), to blank out before counting brackets.
-_JSON_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
-
-
-def check_json_limits(data: bytes | str, what: str) -> None:
-    """Refuse JSON whose size, number of values or nesting could exhaust memory or the stack.
-
-    Counting structural bytes takes one pass (base64 image data holds none), and the
-    nesting is only measured when there are enough brackets to exceed the cap.
-
-    Raises
-    ------
-    RecordingError
-        More than :data:`MAX_JSON_BYTES`, :data:`MAX_JSON_ITEMS` values or
-        :data:`MAX_JSON_DEPTH` levels.
-    """
-    raw = data.encode("utf-8", "surrogatepass") if isinstance(data, str) else data
-    if len(raw) > MAX_JSON_BYTES:
-        raise RecordingError(f"{what}: {len(raw)} bytes of JSON, more than the {MAX_JSON_BYTES // 2**20} MiB hbvs accepts")
-    structure = raw.translate(None, _NOT_JSON_STRUCTURE)
-    containers = structure.count(b"[") + structure.count(b"{")
-    if len(structure) > MAX_JSON_ITEMS:
-        raise RecordingError(f"{what}: JSON with more than {MAX_JSON_ITEMS} values, more than hbvs accepts")
-    if containers > MAX_JSON_DEPTH and _json_depth(raw) > MAX_JSON_DEPTH:
-        raise RecordingError(f"{what}: JSON nested more than {MAX_JSON_DEPTH} levels deep")
-
-
-def _json_depth(raw: bytes) -> int:
-    """The deepest nesting of arrays and objects (brackets inside strings do not count)."""
-    import numpy as np
-
-    steps = np.zeros(256, dtype=np.int8)
-    steps[[ord("["), ord("{")]] = 1
-    steps[[ord("]"), ord("}")]] = -1
-    marks = steps[np.frombuffer(_JSON_STRING.sub(b'""', raw), dtype=np.uint8)]
-    marks = marks[marks != 0]
-    return int(np.cumsum(marks, dtype=np.int64).max()) if marks.size else 0
-
-
-def _bounded_int(text: str) -> int:
-    # Every number hbvs reads becomes a float somewhere; an integer literal beyond float
-    # range would raise OverflowError far from the file that held it.
-    if len(text.lstrip("-")) > 308:
-        raise ValueError("an integer literal with more than 308 digits")
-    return int(text)
-
-
-def decode_json(data: bytes | str, what: str) -> Any:
-    """JSON text to Python values under :func:`check_json_limits`; :class:`RecordingError` if malformed."""
-    check_json_limits(data, what)
-    try:
-        return json.loads(data, parse_int=_bounded_int)
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
-        raise RecordingError(f"{what}: malformed JSON ({_short(exc)})") from None
-
-
-def _short(exc: BaseException) -> str:
-    text = str(exc).strip() or type(exc).__name__
-    return text.splitlines()[0][:120]
 
 
 def read_metadata(stream: McapStream, name: str) -> dict[str, Any]:

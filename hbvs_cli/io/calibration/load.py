@@ -1,0 +1,124 @@
+"""Reading a calibration file of any supported format, recognised by its content."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ...core.camera import CameraIntrinsics
+from ...errors import CalibrationError
+from .kalibr import intrinsics_from_kalibr, is_kalibr
+from .mapping import _intrinsics_from_mapping
+from .opencv import _read_opencv_storage
+from .plain_json import _read_json
+from .ros import _read_yaml
+
+#: Calibration files are a few hundred bytes; anything above this is refused unread, so a
+#: hostile or mistaken file (a video passed as --calibration) cannot exhaust memory.
+MAX_CALIBRATION_BYTES = 1 << 20
+
+
+def load_calibration(
+    path: str | os.PathLike[str], image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
+    """Read camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The calibration file. Its format is detected from its content.
+    image_size : (width, height), optional
+        The size of the images the calibration is for, used when the file gives none.
+    notes : list, optional
+        Receives what the reader assumed and the user should hear (a 4-coefficient file
+        without a distortion model, read as plumb_bob).
+
+    Returns
+    -------
+    CameraIntrinsics
+        Validated intrinsics. All-zero distortion coefficients become the ``"none"``
+        model with no coefficients, so "no distortion" has a single representation.
+
+    Raises
+    ------
+    CalibrationError
+        If the file is missing, a directory, larger than :data:`MAX_CALIBRATION_BYTES`,
+        not UTF-8 text, malformed, lacks a camera matrix or image size, or holds values
+        that are not a valid zero-skew pinhole camera.
+    """
+    name = str(path)
+    data = _read_capped(Path(path), name)
+    return parse_calibration(data, name, image_size, notes)
+
+
+def parse_calibration(
+    data: bytes | str, name: str = "calibration", image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
+    """Parse the content of a calibration file (see :func:`load_calibration`).
+
+    Parameters
+    ----------
+    data : bytes or str
+        The file content.
+    name : str
+        How to name the source in error messages (usually the file name).
+
+    Returns the intrinsics and raises :class:`CalibrationError` as :func:`load_calibration`.
+    """
+    if isinstance(data, bytes):
+        if len(data) > MAX_CALIBRATION_BYTES:
+            raise CalibrationError(f"{name}: larger than {MAX_CALIBRATION_BYTES} bytes, not a calibration file")
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise CalibrationError(
+                f"{name}: not UTF-8 text (invalid byte at offset {exc.start}); expected a YAML or JSON calibration file"
+            ) from None
+    else:
+        text = data
+    text = text.removeprefix("\ufeff")  # editors on Windows add a byte-order mark
+    if "\x00" in text:
+        raise CalibrationError(f"{name}: contains NUL bytes; expected a YAML or JSON calibration file")
+    head = text.lstrip()
+    if not head:
+        raise CalibrationError(f"{name}: the file is empty")
+
+    if head.startswith("%YAML:") or "opencv-matrix" in text or head.startswith("<"):
+        # "%YAML:1.0" is not even valid YAML for PyYAML, and the opencv-matrix tags need
+        # OpenCV's own reader; XML can only be OpenCV's too.
+        mapping = _read_opencv_storage(text, name)
+    elif head.startswith("{") or head.startswith("["):
+        mapping = _read_json(text, name)
+    else:
+        mapping = _read_yaml(text, name)
+    if is_kalibr(mapping):
+        return intrinsics_from_kalibr(mapping, name, image_size)
+    return _intrinsics_from_mapping(mapping, name, image_size, notes)
+
+
+def _read_capped(path: Path, name: str) -> bytes:
+    """The bytes of ``path``, refusing missing files, directories and oversized files."""
+    try:
+        if path.is_dir():
+            raise CalibrationError(f"{name}: is a directory, expected a calibration file")
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise CalibrationError(f"{name}: no such file") from None
+    except OSError as exc:
+        raise CalibrationError(f"{name}: cannot access the file ({exc.strerror or exc})") from None
+    if size > MAX_CALIBRATION_BYTES:
+        raise CalibrationError(
+            f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
+        )
+    try:
+        with path.open("rb") as stream:
+            # Read one byte past the cap: the size seen by stat() means nothing for pipes
+            # and device files, and the file may grow between stat() and open().
+            data = stream.read(MAX_CALIBRATION_BYTES + 1)
+    except OSError as exc:
+        raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
+    if len(data) > MAX_CALIBRATION_BYTES:
+        raise CalibrationError(
+            f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
+        )
+    return data

@@ -1,0 +1,86 @@
+"""A calibration read as a mapping of keys (ROS YAML, plain JSON, OpenCV FileStorage) to intrinsics.
+
+Key names are matched without regard to case, ``_`` or ``-``, so ``camera_matrix``,
+``cameraMatrix`` and ``Camera_Matrix`` are the same key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from ...core.camera import CameraIntrinsics
+from ...errors import CalibrationError
+from .validate import _build_intrinsics, _image_side, _kind_of, _normalise_key, _numbers
+
+# Aliases, normalised by _normalise_key, in order of preference.
+_K_KEYS = ("cameramatrix", "k", "intrinsicmatrix", "intrinsics")
+_D_KEYS = ("distortioncoefficients", "d", "distcoeffs", "distcoeff", "distortion")
+_WIDTH_KEYS = ("imagewidth", "width")
+_HEIGHT_KEYS = ("imageheight", "height")
+_SIZE_KEYS = ("imagesize",)
+_MODEL_KEYS = ("distortionmodel",)
+_ALL_KEYS = frozenset(_K_KEYS + _D_KEYS + _WIDTH_KEYS + _HEIGHT_KEYS + _SIZE_KEYS + _MODEL_KEYS)
+
+
+def _require_mapping(document: Any, name: str) -> Mapping[str, Any]:
+    if not isinstance(document, Mapping):
+        raise CalibrationError(
+            f"{name}: expected a mapping of calibration keys (camera_matrix, image_width, ...), "
+            f"found {_kind_of(document)}"
+        )
+    return document
+
+
+def _lookup(mapping: Mapping[str, Any], aliases: Sequence[str]) -> tuple[str, Any] | None:
+    """The first entry whose normalised key is one of ``aliases`` (in their order)."""
+    normalised: dict[str, tuple[str, Any]] = {}
+    for key, value in mapping.items():
+        normalised.setdefault(_normalise_key(key), (str(key), value))
+    for alias in aliases:
+        if alias in normalised:
+            return normalised[alias]
+    return None
+
+
+def _intrinsics_from_mapping(
+    mapping: Mapping[str, Any], name: str, image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
+) -> CameraIntrinsics:
+    """Intrinsics from a calibration's keys; ``image_size`` (width, height) stands in for a
+    file that gives none (an OpenCV calibration often leaves it out)."""
+    found = _lookup(mapping, _K_KEYS)
+    if found is None:
+        raise CalibrationError(f"{name}: no camera_matrix (or K) found; is this a camera calibration file?")
+    k_key, k_value = found
+    K = _numbers(k_value, f"{name}: {k_key}")
+    if len(K) != 9:
+        raise CalibrationError(f"{name}: {k_key} has {len(K)} numbers, expected 9")
+
+    width = _lookup(mapping, _WIDTH_KEYS)
+    height = _lookup(mapping, _HEIGHT_KEYS)
+    size = _lookup(mapping, _SIZE_KEYS)
+    if (width is None or height is None) and size is not None:
+        pair = _numbers(size[1], f"{name}: {size[0]}")
+        if len(pair) != 2:
+            raise CalibrationError(f"{name}: {size[0]} has {len(pair)} numbers, expected 2 (width, height)")
+        width, height = (size[0] + "[0]", pair[0]), (size[0] + "[1]", pair[1])
+    if width is None and height is None and image_size is not None:
+        width, height = ("the images' width", image_size[0]), ("the images' height", image_size[1])
+    if width is None:
+        raise CalibrationError(f"{name}: no image_width (or width) found")
+    if height is None:
+        raise CalibrationError(f"{name}: no image_height (or height) found")
+    w = _image_side(width[1], f"{name}: {width[0]}")
+    h = _image_side(height[1], f"{name}: {height[0]}")
+
+    found_d = _lookup(mapping, _D_KEYS)
+    coefficients: list[float] = []
+    d_key = "distortion_coefficients"
+    if found_d is not None and found_d[1] is not None:
+        d_key = found_d[0]
+        coefficients = _numbers(found_d[1], f"{name}: {d_key}")
+    found_model = _lookup(mapping, _MODEL_KEYS)
+    model: Any = found_model[1] if found_model is not None else None
+    if model is not None and not isinstance(model, str):
+        raise CalibrationError(f"{name}: distortion_model must be a string, got {_kind_of(model)}")
+    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes)

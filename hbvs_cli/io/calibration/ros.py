@@ -1,0 +1,99 @@
+"""ROS ``camera_info`` YAML: read (as the ROS camera calibrator or ``ros2 topic echo`` write it) and written."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ...core.camera import CameraIntrinsics
+from ...errors import CalibrationError, InputError
+from .mapping import _require_mapping
+from .validate import _one_line
+
+
+def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
+    try:
+        # safe_load_all: `ros2 topic echo` output ends with a "---" separator, which
+        # safe_load rejects as a second document. The first non-empty document is used.
+        document = next((doc for doc in yaml.safe_load_all(text) if doc is not None), None)
+    except yaml.MarkedYAMLError as exc:
+        where = f" at line {exc.problem_mark.line + 1}" if exc.problem_mark is not None else ""
+        raise CalibrationError(f"{name}: malformed YAML{where}: {_one_line(exc.problem or exc)}") from None
+    except RecursionError:
+        raise CalibrationError(f"{name}: malformed YAML: nested too deeply") from None
+    except (yaml.YAMLError, ValueError) as exc:
+        raise CalibrationError(f"{name}: malformed YAML: {_one_line(exc)}") from None
+    if document is None:
+        raise CalibrationError(f"{name}: the YAML document is empty")
+    return _require_mapping(document, name)
+
+
+def _ros_distortion(camera: CameraIntrinsics) -> tuple[str, list[float]]:
+    """ROS/Foxglove name and coefficients; "none" becomes plumb_bob with zeros.
+
+    ROS tools (image_geometry, camera_info_manager) know no "none" model, while a
+    zero plumb_bob is understood everywhere and loads back as "none".
+    """
+    if camera.distortion_model in ("none", "") or not camera.distortion:
+        return "plumb_bob", [0.0] * 5
+    return camera.distortion_model, [float(v) for v in camera.distortion]
+
+
+def _projection(camera: CameraIntrinsics) -> list[float]:
+    return [camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
+_IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+
+
+def save_calibration_ros(
+    camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs"
+) -> Path:
+    """Write ``camera`` as the ROS ``camera_info`` YAML of the ROS camera calibrator.
+
+    The rectification is the identity and the projection ``[K | 0]`` (a monocular
+    camera). Floats are written with their shortest exact representation, so
+    :func:`load_calibration` returns the same values.
+
+    Parameters
+    ----------
+    camera : CameraIntrinsics
+    path : str or path-like
+        Destination; overwritten if it exists.
+    camera_name : str
+        The ``camera_name`` field.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        If the file cannot be written.
+    """
+    model, coefficients = _ros_distortion(camera)
+    document = {
+        "image_width": int(camera.width),
+        "image_height": int(camera.height),
+        "camera_name": str(camera_name),
+        "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in camera.K.ravel()]},
+        "distortion_model": model,
+        "distortion_coefficients": {"rows": 1, "cols": len(coefficients), "data": coefficients},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": list(_IDENTITY)},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in _projection(camera)]},
+    }
+    # PyYAML writes floats with repr() (plus ".0" before an exponent), which is exact and
+    # reads back as a float; flow style keeps each matrix on one line like the ROS tools.
+    text = yaml.safe_dump(document, default_flow_style=None, sort_keys=False, width=4096)
+    target = Path(path)
+    try:
+        target.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write the calibration ({exc.strerror or exc})") from None
+    return target

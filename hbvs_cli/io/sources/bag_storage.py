@@ -1,0 +1,366 @@
+"""The storage side of a ROS 2 bag: which topics it has and its messages, decoded on demand.
+
+Two readers stand behind :class:`~hbvs_cli.io.sources.rosbag.BagSource`:
+
+* :class:`RosbagsBag`, for a bag folder (``metadata.yaml`` beside its files, as ``ros2 bag
+  record`` writes it): ``rosbags``' ``AnyReader`` reads SQLite (``.db3``) and MCAP storage,
+  split bags, file- and message-compressed bags, and decodes CDR with the type store built
+  from the bag's own message definitions, or, for a bag without them (SQLite bags before
+  Iron), the type store of the bag's ``ros_distro`` (Humble when the metadata names none).
+* :class:`McapFileBag`, for a single ``.mcap`` file given by itself (or a folder of them
+  without ``metadata.yaml``): read by hbvs's capped :class:`~hbvs_cli.io.mcap.McapStream`,
+  which also reads files that are not ROS bags at all (``foxglove.CompressedImage`` and
+  ``foxglove.CameraCalibration`` in protobuf or JSON: hbvs's own files, Foxglove
+  recordings), files without a summary section, and refuses a damaged one.
+
+hbvs's caps hold for both: a message above :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` is
+refused before it is decoded, message definitions above 1 MiB are not parsed, the
+``messages`` limit (``--limit``) counts every message read, and ``metadata.yaml`` above
+1 MiB is refused unread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ...errors import HbvsError, InputError, RecordingError
+from .. import limits
+from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
+from .base import _natural_key
+
+#: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
+MAX_SCHEMA_BYTES = 1 << 20
+#: Largest metadata.yaml read (a real one is a few KB, even for a bag of hundreds of topics).
+MAX_METADATA_BYTES = 1 << 20
+
+
+@dataclass
+class BagTopic:
+    """A topic of a bag: its name, message type (``pkg/msg/Type``), encoding and count."""
+
+    name: str
+    type: str
+    encoding: str
+    count: int | None
+
+
+@dataclass
+class BagMessage:
+    """One message: topic, log time (ns), size, and how to decode it.
+
+    ``mcap`` is the raw MCAP message for the files :class:`McapFileBag` reads (the
+    Foxglove schemas are decoded from it, not through ``decode``).
+    """
+
+    topic: str
+    log_time: int
+    size: int
+    decode: Callable[[str], Any]
+    mcap: McapMessage | None = None
+
+
+def ros2_type(name: str) -> str:
+    """``pkg/Type`` (ROS 1 style, as some converters write) to ``pkg/msg/Type``."""
+    parts = name.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
+
+
+def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
+    """The reader for ``path``: a bag folder (or its ``metadata.yaml``), or ``.mcap`` file(s).
+
+    Raises
+    ------
+    InputError
+        No such path, not a bag, or a bag that cannot be opened.
+    """
+    if path.name == "metadata.yaml" and path.is_file():
+        path = path.parent
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return RosbagsBag(path, name)
+        try:
+            found = [p for p in path.iterdir() if p.suffix == ".mcap" and p.is_file()]
+            has_sqlite = any(p.suffix == ".db3" for p in path.iterdir())
+        except OSError as exc:
+            raise InputError(f"{name}: cannot list the folder ({exc.strerror or exc})") from None
+        if not found:
+            if has_sqlite:
+                raise InputError(
+                    f"{name}: a ROS 2 bag in SQLite storage (.db3) needs its metadata.yaml beside it "
+                    "(rosbag2 writes one; restore it with `ros2 bag reindex`)"
+                )
+            raise InputError(f"{name}: no .mcap file and no metadata.yaml in this folder; expected a ROS 2 bag")
+        return McapFileBag(sorted(found, key=lambda p: _natural_key(p.name)), name)
+    if not path.exists():
+        raise InputError(f"{name}: no such file or directory")
+    if path.suffix == ".db3" or (path.suffix in (".zstd", ".lz4") and (path.parent / "metadata.yaml").is_file()):
+        if (path.parent / "metadata.yaml").is_file():
+            return RosbagsBag(path.parent, name)
+        raise InputError(f"{name}: a SQLite bag file is read with its folder and metadata.yaml; give the bag folder")
+    try:
+        with path.open("rb") as stream:
+            magic = stream.read(len(MAGIC))
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
+    if magic != MAGIC:
+        raise InputError(f"{name}: not an MCAP file (expected a ROS 2 bag folder or its .mcap file)")
+    return McapFileBag([path], name)
+
+
+# ----------------------------------------------------------------------------- rosbags
+@contextlib.contextmanager
+def _rosbags_errors(name: str) -> Iterator[None]:
+    """What rosbags raises on a bag it cannot read, as one InputError naming the bag."""
+    try:
+        yield
+    except HbvsError:
+        raise
+    except MemoryError:
+        raise InputError(f"{name}: cannot read the bag (it asks for more memory than there is)") from None
+    except Exception as exc:
+        detail = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{name}: cannot read the bag ({detail[:300]})") from None
+
+
+def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
+    when malformed (rosbags then says what is wrong with it when it opens the bag)."""
+    metadata = folder / "metadata.yaml"
+    try:
+        size = metadata.stat().st_size
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read metadata.yaml ({exc.strerror or exc})") from None
+    if size > MAX_METADATA_BYTES:
+        raise InputError(f"{name}: metadata.yaml is {size} bytes, more than the {MAX_METADATA_BYTES} hbvs reads")
+    try:
+        information = yaml.safe_load(metadata.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError):
+        return {}
+    return information if isinstance(information, dict) else {}
+
+
+def _typestore_for(information: dict[str, Any]) -> Any:
+    """The type store of the distro named in metadata.yaml (Humble when none is named): for
+    bags that carry no message definitions."""
+    from rosbags.typesys import Stores, get_typestore
+
+    distro = str(information.get("ros_distro") or "humble").strip().lower()
+    try:
+        store = Stores(f"ros2_{distro}")
+    except ValueError:
+        store = Stores.LATEST
+    return get_typestore(store)
+
+
+class RosbagsBag:
+    """A ROS 2 bag folder read with ``rosbags``' ``AnyReader`` (see the module's notes).
+
+    The reader stays open from construction to :meth:`close`.
+    """
+
+    def __init__(self, folder: Path, name: str) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.name = name
+        self.folder = folder
+        information = _bag_metadata(folder, name)
+        with _rosbags_errors(name):
+            self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
+            self._reader.open()
+        self._open = True
+        self.topics: dict[str, BagTopic] = {}
+        for connection in self._reader.connections:
+            if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
+                raise InputError(f"{name}: the message definition of {connection.topic} is more than hbvs parses")
+            known = self.topics.get(connection.topic)
+            if known is None:
+                self.topics[connection.topic] = BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount)
+            else:
+                known.count = (known.count or 0) + connection.msgcount
+        files = information.get("relative_file_paths")
+        self.storage = {
+            "reader": "rosbags",
+            "storage": str(information.get("storage_identifier", "")),
+            "files": len(files) if isinstance(files, list) else None,
+            "compression": " ".join(
+                str(information.get(key) or "") for key in ("compression_mode", "compression_format")
+            ).strip() or "none",
+            "ros_distro": str(information.get("ros_distro", "")),
+        }
+
+    def messages(self, topics: set[str]) -> Iterator[BagMessage]:
+        """The messages of ``topics`` in log-time order."""
+        if not self._open:
+            with _rosbags_errors(self.name):
+                self._reader.open()
+            self._open = True
+        connections = [c for c in self._reader.connections if c.topic in topics]
+        counted = limits.current("messages")
+        read = 0
+        with _rosbags_errors(self.name):
+            for connection, log_time, raw in self._reader.messages(connections=connections):
+                read += 1
+                if read > counted:
+                    raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
+                if len(raw) > MAX_RECORD_BYTES:
+                    raise InputError(
+                        f"{self.name}: a {connection.topic} message of {len(raw)} bytes, more than the "
+                        f"{MAX_RECORD_BYTES // 2**20} MiB hbvs reads"
+                    )
+                yield BagMessage(connection.topic, int(log_time), len(raw), self._decoder(raw, connection.msgtype))
+
+    def _decoder(self, raw: bytes, msgtype: str) -> Callable[[str], Any]:
+        def decode(what: str) -> Any:
+            try:
+                return self._reader.deserialize(raw, msgtype)
+            except Exception as exc:  # a damaged CDR payload
+                detail = " ".join(str(exc).split()) or type(exc).__name__
+                raise InputError(f"{what}: cannot decode the {msgtype} message ({detail[:200]})") from None
+
+        return decode
+
+    def close(self) -> None:
+        if self._open:
+            self._open = False
+            self._reader.close()
+
+
+# ----------------------------------------------------------------------------- MCAP files
+@contextlib.contextmanager
+def mcap_bag_errors(name: str) -> Iterator[None]:
+    """Turn what the MCAP reader or the CDR decoder raises on a damaged file into one
+    InputError that says so."""
+    try:
+        yield
+    except RecordingError as exc:
+        detail = str(exc).removeprefix(f"{name}: ")
+        raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from None
+    except HbvsError:
+        raise
+    except Exception as exc:
+        detail = " ".join(str(exc).split())
+        kind = type(exc).__name__
+        detail = kind if not detail or detail == kind else f"{kind}: {detail[:200]}"
+        raise InputError(f"{name}: cannot read the bag, the MCAP file is damaged or truncated ({detail})") from exc
+
+
+def _require_complete(stream: McapStream, name: str) -> None:
+    """A bag file that ends early or turns unreadable is refused, as a damaged input
+    (raised as a RecordingError, which :func:`mcap_bag_errors` words for bags)."""
+    if stream.truncated:
+        raise RecordingError(f"{name}: {stream.stop_reason}")
+
+
+class _Ros2Decoders:
+    """CDR decoders from mcap-ros2-support, one per distinct schema, built on first use."""
+
+    def __init__(self) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
+        self._factory = DecoderFactory()
+        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
+
+    def decode(self, message: McapMessage, what: str) -> Any:
+        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
+        decoder = self._decoders.get(key)
+        if decoder is None:
+            from mcap.records import Schema
+
+            if len(message.schema_data) > MAX_SCHEMA_BYTES:
+                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
+            # The factory caches decoders by schema id: every distinct schema gets its own.
+            schema = Schema(
+                id=len(self._decoders) + 1, name=message.schema_name,
+                encoding=message.schema_encoding, data=message.schema_data,
+            )
+            # The vendored ROS parser prints its own complaint about a bad definition on
+            # stderr before raising; the exception says it already, in hbvs's one line.
+            with contextlib.redirect_stderr(io.StringIO()):
+                decoder = self._factory.decoder_for(message.message_encoding, schema)
+            if decoder is None:
+                raise InputError(
+                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
+                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                )
+            self._decoders[key] = decoder
+        return decoder(message.data)
+
+
+class McapFileBag:
+    """``.mcap`` file(s) read with hbvs's capped MCAP reader and mcap-ros2-support's CDR decoders."""
+
+    def __init__(self, files: Sequence[Path], name: str) -> None:
+        self.name = name
+        self.files = list(files)
+        self._decoders = _Ros2Decoders()
+        self.topics = self._scan()
+        self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
+
+    def _scan(self) -> dict[str, BagTopic]:
+        """Topics of every file, from the summary section (or one streaming pass without)."""
+        topics: dict[str, BagTopic] = {}
+        for file in self.files:
+            with mcap_bag_errors(str(file)):
+                listed = read_summary(file, str(file))
+                if listed is None:
+                    listed = self._stream_channels(file)
+            for channel in listed:
+                known = topics.get(channel.topic)
+                count = channel.message_count
+                if known is None:
+                    topics[channel.topic] = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, count)
+                elif known.count is not None and count is not None:
+                    known.count += count
+                else:
+                    known.count = None
+        return topics
+
+    @staticmethod
+    def _stream_channels(file: Path) -> list[ChannelSummary]:
+        """Channels and message counts from one pass over a file without a summary (a
+        recorder killed before writing it); messages are counted, not kept."""
+        stream = McapStream(file, name=str(file))
+        counts: dict[tuple[str, str, str, str], int] = {}
+        for message in stream:
+            key = (message.topic, message.schema_name, message.schema_encoding, message.message_encoding)
+            counts[key] = counts.get(key, 0) + 1
+        _require_complete(stream, str(file))
+        return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
+
+    def messages(self, topics: set[str]) -> Iterator[BagMessage]:
+        """The messages of ``topics``, file after file, in the order each file stores them."""
+        for file in self.files:
+            stream = McapStream(file, topics=topics, name=str(file))
+            messages = iter(stream)
+            try:
+                with mcap_bag_errors(str(file)):
+                    for message in messages:
+                        yield BagMessage(message.topic, message.log_time, len(message.data), self._decoder(message, str(file)), message)
+                    _require_complete(stream, str(file))
+            finally:
+                messages.close()
+
+    def _decoder(self, message: McapMessage, file: str) -> Callable[[str], Any]:
+        def decode(what: str) -> Any:
+            with mcap_bag_errors(file):
+                return self._decoders.decode(message, what)
+
+        return decode
+
+    def close(self) -> None:
+        """Nothing stays open between reads."""
+
+
+def bag_files_description(bag: RosbagsBag | McapFileBag) -> list[str]:
+    """The files of the bag, for the recording's metadata."""
+    if isinstance(bag, McapFileBag):
+        return [str(f) for f in bag.files]
+    return [os.fspath(p) for p in sorted(bag.folder.iterdir()) if p.is_file()]

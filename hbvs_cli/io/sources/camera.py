@@ -1,0 +1,152 @@
+"""A live camera."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ...errors import InputError
+from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_gray8
+
+
+class CameraSource(FrameSource):
+    """A live camera, timestamped with ``clock`` from the first frame.
+
+    The device is opened by the constructor (so a missing camera is reported before
+    anything is recorded) and released when iteration ends, when the consumer stops
+    iterating (``close()`` on the generator, e.g. on Ctrl-C), or by :meth:`close`.
+
+    Parameters
+    ----------
+    index : int or str
+        The device index (``0``) or a device path/URL for OpenCV.
+    duration : float, optional
+        Stop once a frame arrives ``duration`` seconds or more after the first one
+        (that frame is not yielded). None: until the consumer stops.
+    capture_factory : callable
+        ``capture_factory(index)`` returns an object with ``isOpened()``, ``read()``,
+        ``get(prop)`` and ``release()``, like ``cv2.VideoCapture``; injectable for tests.
+    clock : callable
+        Monotonic seconds; injectable for tests.
+    max_failed_reads : int
+        Consecutive failed reads tolerated (cameras drop the odd frame, some fail the
+        first reads while starting) before giving up.
+
+    Raises
+    ------
+    InputError
+        If the device cannot be opened; during iteration, if it delivers no frame or
+        stops delivering frames.
+    UsageError
+        If ``duration`` is not a positive number.
+    """
+
+    kind = "camera"
+
+    def __init__(
+        self,
+        index: int | str,
+        duration: float | None = None,
+        capture_factory: Callable[[Any], Any] = cv2.VideoCapture,
+        clock: Callable[[], float] = time.monotonic,
+        max_failed_reads: int = 5,
+    ) -> None:
+        self.index = index
+        self.duration = _check_rate(duration, "--duration")
+        self.camera = None
+        self._factory = capture_factory
+        self._clock = clock
+        self.max_failed_reads = int(max_failed_reads)
+        self._capture: Any = self._open()
+        self.fps = self._property(self._capture, cv2.CAP_PROP_FPS)
+        width = self._property(self._capture, cv2.CAP_PROP_FRAME_WIDTH)
+        height = self._property(self._capture, cv2.CAP_PROP_FRAME_HEIGHT)
+        self.width = int(width) if width else None
+        self.height = int(height) if height else None
+
+    def _open(self) -> Any:
+        try:
+            capture = self._factory(self.index)
+        except (cv2.error, SystemError, OSError) as exc:
+            raise InputError(f"camera {self.index}: cannot open the device ({_cv_message(exc)})") from None
+        if capture is None or not capture.isOpened():
+            if capture is not None:
+                capture.release()
+            raise InputError(
+                f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)"
+            )
+        return capture
+
+    @staticmethod
+    def _property(capture: Any, prop: int) -> float | None:
+        get = getattr(capture, "get", None)
+        if get is None:
+            return None
+        try:
+            value = float(get(prop))
+        except (cv2.error, SystemError, TypeError, ValueError):
+            return None
+        return value if math.isfinite(value) and value > 0 else None
+
+    def close(self) -> None:
+        """Release the device if it is still held (it is after construction)."""
+        if self._capture is not None:
+            self._capture.release()
+            self._capture = None
+
+    def __enter__(self) -> CameraSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[SourceFrame]:
+        # Take over the capture opened by the constructor; a second iteration reopens.
+        capture = self._capture if self._capture is not None else self._open()
+        self._capture = None
+        try:
+            first: float | None = None
+            count = 0
+            failures = 0
+            while True:
+                try:
+                    ok, frame = capture.read()
+                except (cv2.error, SystemError) as exc:
+                    raise InputError(f"camera {self.index}: read failed ({_cv_message(exc)})") from None
+                now = float(self._clock())
+                if not ok or frame is None or getattr(frame, "size", 0) == 0:
+                    failures += 1
+                    if failures > self.max_failed_reads:
+                        if count == 0:
+                            raise InputError(f"camera {self.index}: the device opened but delivered no frames")
+                        raise InputError(f"camera {self.index}: stopped delivering frames after {count} frames")
+                    continue
+                failures = 0
+                if first is None:
+                    first = now
+                t = now - first
+                if self.duration is not None and t >= self.duration:
+                    return
+                yield SourceFrame(t=t, image=to_gray8(np.asarray(frame), f"camera {self.index}"))
+                count += 1
+        finally:
+            capture.release()
+
+    def describe(self) -> dict[str, Any]:
+        """Kind, device, fps reported by the driver, requested duration, image size."""
+        return {
+            "kind": self.kind,
+            "path": None,
+            "device": self.index,
+            "frame_count": None,
+            "fps": self.fps,
+            "duration": self.duration,
+            "width": self.width,
+            "height": self.height,
+        }
+

@@ -1,0 +1,396 @@
+"""Images, intrinsics and the operator's commands from a ROS 2 bag (``hbvs teach --bag``).
+
+The storage is read by :mod:`.bag_storage` (``rosbags``' AnyReader for a bag folder, hbvs's
+capped MCAP reader for a lone ``.mcap`` file); this module picks the topics and turns
+messages into frames: images through :mod:`.ros_images`, the first ``CameraInfo`` into
+intrinsics, and the taught commands (``geometry_msgs/msg/Twist`` or ``TwistStamped``, else
+``nav_msgs/msg/Odometry``) into the (v, w) of each frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.camera import CameraIntrinsics
+from ...errors import CalibrationError, InputError, UsageError
+from ..calibration import intrinsics_from_values
+from ..images import decode_image, sniff_format
+from ..mcap import McapMessage
+from ..topics import (
+    CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
+    ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
+)
+from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
+from .base import _NS, FrameSource, SourceFrame, _same_size
+from .ros_images import compressed_to_gray8, raw_to_gray8
+
+_IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
+#: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
+#: in the protobuf and JSON encodings.
+_FOXGLOVE_ENCODINGS = ("protobuf", "json")
+#: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
+_COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
+#: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
+#: element by element in Python, so a huge one would take seconds for nothing.
+_MAX_CAMERA_INFO_BYTES = 1 << 16
+
+
+def _is_image_topic(topic: BagTopic) -> bool:
+    if topic.type == COMPRESSED_IMAGE_SCHEMA:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
+
+
+def _is_calibration_topic(topic: BagTopic) -> bool:
+    if topic.type == CAMERA_CALIBRATION_SCHEMA:
+        return topic.encoding in _FOXGLOVE_ENCODINGS
+    return topic.type == ROS_CAMERA_INFO_SCHEMA
+
+
+def _stamp_ns(message: Any) -> int:
+    """``header.stamp`` in ns, 0 when the message has no header (or the driver left it zero)."""
+    header = getattr(message, "header", None)
+    return int(header.stamp.sec) * _NS + int(header.stamp.nanosec) if header is not None else 0
+
+
+def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
+    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and
+    ``angular.z`` (rad/s), the unicycle's forward and turning speeds."""
+    if message_type == ROS_TWIST_STAMPED_SCHEMA:
+        twist = message.twist
+    elif message_type == ROS_ODOMETRY_SCHEMA:
+        twist = message.twist.twist
+    else:
+        twist = message
+    return float(twist.linear.x), float(twist.angular.z)
+
+
+class BagSource(FrameSource):
+    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and commands.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A bag folder (``metadata.yaml`` and its ``.db3``/``.mcap`` files, compressed or
+        not, split or not), its ``metadata.yaml``, or a single ``.mcap`` file.
+    topic : str, optional
+        The image topic (``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``).
+        None picks the only image topic that has messages.
+    cmd_topic : str, optional
+        The topic of the operator's commands (``geometry_msgs/msg/Twist``,
+        ``TwistStamped`` or ``nav_msgs/msg/Odometry``). None: the only Twist or
+        TwistStamped topic with messages, else the only Odometry topic, else none.
+
+    Attributes
+    ----------
+    topic : str
+        The image topic read.
+    camera : CameraIntrinsics or None
+        From the first message of the ``sensor_msgs/msg/CameraInfo`` topic that belongs
+        to the image topic (the one in the same namespace, or the only one). None when
+        there is none, or when it is unusable, with the reason in ``camera_problem``.
+    camera_problem : str or None
+        Why a CameraInfo topic present in the bag gave no intrinsics (all-zero K of an
+        uncalibrated driver, a distortion model hbvs does not know, binning/ROI). Not an
+        error: the user may give a calibration file instead.
+    cmd_topic, cmd_type : str or None
+        Where the taught commands come from; each frame's ``command`` is the last
+        command at or before its stamp ((0, 0) before the first one: a robot without a
+        command stands still).
+    time_base_ns : int
+        The stamp of the first frame (ns, on the bag's clock); frame ``t`` counts from it.
+    frame_id : str or None
+        ``header.frame_id`` of the first image.
+
+    Raises
+    ------
+    InputError
+        The path is not a bag, the bag is damaged, there is no image topic, ``topic`` or
+        ``cmd_topic`` is not one of the bag's topics of the right type. During iteration:
+        an image that cannot be decoded, an unsupported raw encoding, frames that change
+        size, a topic without messages.
+    UsageError
+        Several image topics (or several command topics named by type) and no choice.
+
+    Notes
+    -----
+    ``t`` comes from ``header.stamp`` relative to the first frame; a frame with a zero
+    stamp (drivers that do not fill it) falls back to the message log time, shifted onto
+    the stamps' clock. Frames are yielded in the order of the bag's log times, so a
+    driver whose stamps go backwards gives a ``t`` that does too.
+    """
+
+    kind = "ros2_bag"
+
+    def __init__(self, path: str | os.PathLike[str], topic: str | None = None, cmd_topic: str | None = None) -> None:
+        self.path = str(path)
+        self._bag: RosbagsBag | McapFileBag = open_bag(Path(path), self.path)
+        topics = self._bag.topics
+        self.topic, self._topic = self._choose(topics, topic)
+        self.cmd_topic, self.cmd_type = self._choose_commands(topics, cmd_topic)
+        self.camera = None
+        self.camera_problem: str | None = None
+        self.camera_info_topic = self._camera_info_topic(topics)
+        if self.camera_info_topic is not None:
+            self.camera, self.camera_problem = self._read_camera_info(self.camera_info_topic)
+        self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
+        self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
+
+    @property
+    def files(self) -> list[Path]:
+        """The bag's files."""
+        return [Path(p) for p in bag_files_description(self._bag)]
+
+    # -- discovery
+    def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
+        images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
+        if topic is not None:
+            chosen = topics.get(topic)
+            if chosen is None:
+                listed = ", ".join(t.name for t in images) or "none"
+                raise InputError(f"{self.path}: no topic {topic!r} in the bag (image topics: {listed})")
+            if chosen.type not in (*_IMAGE_TYPES, COMPRESSED_IMAGE_SCHEMA):
+                raise InputError(
+                    f"{self.path}: topic {topic} carries {chosen.type or 'an unknown type'}, "
+                    f"not {ROS_IMAGE_SCHEMA}, {ROS_COMPRESSED_IMAGE_SCHEMA} or {COMPRESSED_IMAGE_SCHEMA}"
+                )
+            if not _is_image_topic(chosen):
+                expected = "protobuf or json" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
+                raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
+            return topic, chosen
+        # Recorders create channels for subscribed topics that never published: skip them.
+        candidates = [t for t in images if t.count is None or t.count > 0] or images
+        if not candidates:
+            raise InputError(f"no image topic in {self.path}")
+        if len(candidates) > 1:
+            listed = ", ".join(f"{t.name} ({t.type.rsplit('/', 1)[-1]})" for t in candidates)
+            raise UsageError(f"{self.path}: several image topics: {listed}; choose one with --topic")
+        return candidates[0].name, candidates[0]
+
+    def _choose_commands(self, topics: dict[str, BagTopic], cmd_topic: str | None) -> tuple[str | None, str | None]:
+        accepted = (*_COMMAND_TYPES, ROS_ODOMETRY_SCHEMA)
+        if cmd_topic is not None:
+            chosen = topics.get(cmd_topic)
+            if chosen is None:
+                listed = ", ".join(sorted(t.name for t in topics.values() if t.type in accepted)) or "none"
+                raise InputError(f"{self.path}: no topic {cmd_topic!r} in the bag (command topics: {listed})")
+            if chosen.type not in accepted or chosen.encoding != "cdr":
+                raise InputError(
+                    f"{self.path}: topic {cmd_topic} carries {chosen.type or 'an unknown type'}, "
+                    f"not {', '.join(accepted)}"
+                )
+            return cmd_topic, chosen.type
+        for types in (_COMMAND_TYPES, (ROS_ODOMETRY_SCHEMA,)):
+            found = sorted(
+                (t for t in topics.values() if t.type in types and t.encoding == "cdr" and t.count != 0),
+                key=lambda t: t.name,
+            )
+            if len(found) == 1:
+                return found[0].name, found[0].type
+            if len(found) > 1:
+                listed = ", ".join(t.name for t in found)
+                raise UsageError(f"{self.path}: several command topics: {listed}; choose one with --cmd-topic")
+        return None, None
+
+    def _camera_info_topic(self, topics: dict[str, BagTopic]) -> str | None:
+        infos = sorted(t.name for t in topics.values() if _is_calibration_topic(t) and t.count != 0)
+        if len(infos) <= 1:
+            return infos[0] if infos else None
+
+        # Several cameras: take the CameraInfo whose namespace is the longest prefix of
+        # the image topic (/front/camera_info for /front/image_raw/compressed).
+        def shared(info: str) -> int:
+            namespace = info.rsplit("/", 1)[0] + "/"
+            return len(namespace) if self.topic.startswith(namespace) else -1
+
+        best = max(infos, key=shared)
+        return best if shared(best) > 0 else None
+
+    def _read_camera_info(self, topic: str) -> tuple[CameraIntrinsics | None, str | None]:
+        """The first CameraInfo message, reading only up to it."""
+        source = f"{self.path} {topic}"
+        messages = self._bag.messages({topic})
+        try:
+            first = next(messages, None)
+        finally:
+            messages.close()
+        if first is None:
+            return None, f"{source}: the topic has no messages"
+        if first.size > _MAX_CAMERA_INFO_BYTES:
+            return None, f"{source}: a CameraInfo message of {first.size} bytes is not one hbvs can use"
+        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:
+            return _camera_from_foxglove(first.mcap, source)
+        try:
+            info = first.decode(source)
+            return self._camera_from_info(info, source)
+        except (AttributeError, TypeError, ValueError, OverflowError) as exc:
+            return None, f"{source}: malformed CameraInfo ({exc})"
+
+    @staticmethod
+    def _camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+        k = [float(v) for v in info.k]
+        if not any(k):
+            return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
+        if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
+            return None, f"{source}: binning is not supported; give a calibration for the binned images"
+        roi = getattr(info, "roi", None)
+        if roi is not None and int(getattr(roi, "width", 0)) > 0:
+            return None, (
+                f"{source}: a region of interest is not supported; give a calibration for the cropped images"
+            )
+        try:
+            camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
+        except CalibrationError as exc:
+            return None, str(exc)
+        return camera, None
+
+    def _first_frame(self) -> tuple[int, str | None, str, np.ndarray | None]:
+        """The first frame's stamp (ns), frame_id, which clock stamps the frames, and its
+        image (None for a topic without messages, which iteration reports)."""
+        messages = self._bag.messages({self.topic})
+        try:
+            first = next(messages, None)
+        finally:
+            messages.close()
+        if first is None:
+            return 0, None, "header", None
+        image, _, _, stamp_ns, frame_id = self._frame(first, f"{self.path} {self.topic} message 0")
+        if stamp_ns == 0:
+            return first.log_time, frame_id, "log time", image
+        return stamp_ns, frame_id, "header", image
+
+    # -- frames
+    def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
+        """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
+        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
+            image, encoded, fmt, stamp_ns = _foxglove_frame(message.mcap, what)
+            return image, encoded, fmt, stamp_ns, None
+        decoded = message.decode(what)
+        try:
+            if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
+                image, encoded, fmt = compressed_to_gray8(decoded, what)
+            else:
+                image, encoded, fmt = raw_to_gray8(decoded, what), None, None
+            header = getattr(decoded, "header", None)
+            frame_id = str(header.frame_id) if header is not None and header.frame_id else None
+            return image, encoded, fmt, _stamp_ns(decoded), frame_id
+        except (AttributeError, TypeError, ValueError, OverflowError) as exc:
+            # A message definition that does not match the type's name (a damaged or
+            # hand-made bag): the fields hbvs reads are not there.
+            raise InputError(f"{what}: malformed {self._topic.type} message ({exc})") from None
+
+    def __iter__(self) -> Iterator[SourceFrame]:
+        first_ns: int | None = None
+        use_stamp = True
+        stamp_minus_log = 0
+        size: tuple[int, int] | None = None
+        index = 0
+        # Commands are stamped on the images' clock, then held: each frame takes the last
+        # command at or before its stamp.
+        pending: deque[tuple[int, int, tuple[float, float]]] = deque()  # (stamp or 0, log time, (v, w))
+        command: tuple[float, float] | None = (0.0, 0.0) if self.cmd_topic is not None else None
+        wanted = {self.topic} | ({self.cmd_topic} if self.cmd_topic is not None else set())
+        try:
+            for message in self._bag.messages(wanted):
+                if message.topic != self.topic:
+                    what = f"{self.path} {message.topic}"
+                    decoded = message.decode(what)
+                    try:
+                        velocity = velocity_of(decoded, self.cmd_type or "")
+                    except (AttributeError, TypeError, ValueError) as exc:
+                        raise InputError(f"{what}: malformed {self.cmd_type} message ({exc})") from None
+                    if not all(np.isfinite(velocity)):
+                        raise InputError(f"{what}: a command that is not a finite number ({velocity})")
+                    pending.append((_stamp_ns(decoded), message.log_time, velocity))
+                    continue
+                what = f"{self.path} {self.topic} message {index}"
+                image, encoded, fmt, stamp_ns, _ = self._frame(message, what)
+                size = _same_size(size, image, what)
+                if first_ns is None:
+                    use_stamp = stamp_ns != 0
+                    stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
+                    first_ns = stamp_ns if use_stamp else message.log_time
+                if use_stamp and stamp_ns != 0:
+                    ns = stamp_ns
+                else:
+                    # Same clock as the first frame: shift the log time onto the stamps.
+                    ns = message.log_time + stamp_minus_log
+                # A Twist has no stamp: its log time, shifted onto the images' clock.
+                while pending and (pending[0][0] or pending[0][1] + stamp_minus_log) <= ns:
+                    command = pending.popleft()[2]
+                yield SourceFrame(
+                    t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command,
+                )
+                index += 1
+        finally:
+            self._bag.close()  # reopened by a later iteration
+        if index == 0:
+            raise InputError(f"{self.path}: topic {self.topic} has no messages")
+
+    def close(self) -> None:
+        """Close the bag (iteration closes it at its end too)."""
+        self._bag.close()
+
+    def describe(self) -> dict[str, Any]:
+        """Kind, path, topic, message type, frame count, CameraInfo topic and problem, the
+        bag's storage, its first stamp (the recording's time base), frame_id and commands."""
+        return {
+            "kind": self.kind,
+            "path": self.path,
+            "files": [str(f) for f in self.files],
+            "topic": self.topic,
+            "message_type": self._topic.type,
+            "frame_count": self._topic.count,
+            "fps": None,
+            "camera_info_topic": self.camera_info_topic,
+            "camera_info_problem": self.camera_problem,
+            "storage": self._bag.storage,
+            "time_base_ns": self.time_base_ns,
+            "timestamps": self.stamps,
+            "frame_id": self.frame_id,
+            "cmd_topic": self.cmd_topic,
+            "cmd_type": self.cmd_type,
+        }
+
+
+def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int]:
+    """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
+    from ..images import read_compressed_image
+
+    stored = read_compressed_image(message.message_encoding, message.data, what)
+    image = decode_image(stored.data, f"{what} (format {stored.format!r})")
+    fmt = sniff_format(stored.data)
+    return image, (stored.data if fmt else None), fmt, stored.stamp_ns
+
+
+def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+    """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
+    from ..calibration import calibration_from_foxglove
+    from ..mcap import decode_json
+
+    if message.message_encoding == "json":
+        fields = decode_json(message.data, source)
+    else:
+        from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+        from google.protobuf.message import DecodeError
+
+        try:
+            calibration = CameraCalibration.FromString(message.data)
+        except (DecodeError, ValueError, RuntimeError):
+            return None, f"{source}: malformed foxglove.CameraCalibration"
+        fields = {
+            "width": calibration.width, "height": calibration.height, "distortion_model": calibration.distortion_model,
+            "D": list(calibration.D), "K": list(calibration.K), "R": list(calibration.R), "P": list(calibration.P),
+        }
+    if isinstance(fields, dict) and not any(fields.get("K") or []):
+        return None, f"{source}: K is all zeros (an uncalibrated camera)"
+    try:
+        return calibration_from_foxglove(fields, source), None
+    except CalibrationError as exc:
+        return None, str(exc)

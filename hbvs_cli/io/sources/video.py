@@ -1,0 +1,140 @@
+"""Frames of a video file."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ...errors import InputError
+from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_gray8
+
+
+class VideoSource(FrameSource):
+    """Frames of a video file (anything ``cv2.VideoCapture`` reads).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The video. URLs (``rtsp://...``) and OpenCV image-sequence patterns
+        (``img_%04d.png``) are passed to OpenCV unchecked.
+    fps : float, optional
+        Frame rate to assume instead of the one the container declares.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, cannot be opened, or no frame can be decoded.
+    UsageError
+        If ``fps`` is not a positive number.
+
+    Notes
+    -----
+    ``t`` is ``index / fps`` with the ``fps`` override, else with the container's frame
+    rate, else (a container without a usable rate) from ``CAP_PROP_POS_MSEC``.
+    """
+
+    kind = "video"
+
+    def __init__(self, path: str | os.PathLike[str], fps: float | None = None) -> None:
+        self.path = str(path)
+        self.fps_override = _check_rate(fps, "--fps")
+        self.camera = None
+        passthrough = "://" in self.path or "%" in self.path
+        if not passthrough:
+            file = Path(path)
+            if not file.exists():
+                raise InputError(f"{self.path}: no such file")
+            if file.is_dir():
+                raise InputError(
+                    f"{self.path}: is a directory, expected a video file (use an image folder source for images)"
+                )
+        capture = self._open()
+        try:
+            self._container_fps = self._property(capture, cv2.CAP_PROP_FPS)
+            count = self._property(capture, cv2.CAP_PROP_FRAME_COUNT)
+            self.frame_count = int(count) if count is not None else None
+            ok, frame = self._read(capture)
+            if not ok:
+                raise InputError(f"no frames could be decoded from {self.path}")
+            self.width, self.height = int(frame.shape[1]), int(frame.shape[0])
+        finally:
+            capture.release()
+
+    @property
+    def fps(self) -> float | None:
+        """The rate used for timestamps, None when they come from the container's clock."""
+        if self.fps_override is not None:
+            return self.fps_override
+        if self._container_fps is not None and self._container_fps < 1000.0:
+            # Containers without a real rate report 0, or their time base (e.g. 90000).
+            return self._container_fps
+        return None
+
+    def _open(self) -> Any:
+        try:
+            capture = cv2.VideoCapture(self.path)
+        except (cv2.error, SystemError) as exc:
+            raise InputError(f"{self.path}: cannot open the video ({_cv_message(exc)})") from None
+        if not capture.isOpened():
+            capture.release()
+            raise InputError(
+                f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)"
+            )
+        return capture
+
+    def _read(self, capture: Any) -> tuple[bool, np.ndarray | None]:
+        try:
+            ok, frame = capture.read()
+        except (cv2.error, SystemError) as exc:
+            raise InputError(f"{self.path}: error while decoding the video ({_cv_message(exc)})") from None
+        if not ok or frame is None or frame.size == 0:
+            return False, None
+        return True, frame
+
+    @staticmethod
+    def _property(capture: Any, prop: int) -> float | None:
+        value = capture.get(prop)
+        return float(value) if value is not None and math.isfinite(value) and value > 0 else None
+
+    def __iter__(self) -> Iterator[SourceFrame]:
+        capture = self._open()
+        try:
+            fps = self.fps
+            first_msec: float | None = None
+            index = 0
+            while True:
+                ok, frame = self._read(capture)
+                if not ok:
+                    break
+                if fps is not None:
+                    t = index / fps
+                else:
+                    msec = float(capture.get(cv2.CAP_PROP_POS_MSEC))
+                    first_msec = msec if first_msec is None else first_msec
+                    t = (msec - first_msec) / 1000.0
+                yield SourceFrame(t=t, image=to_gray8(frame, f"{self.path} frame {index}"))
+                index += 1
+            if index == 0:
+                raise InputError(f"no frames could be decoded from {self.path}")
+        finally:
+            capture.release()
+
+    def describe(self) -> dict[str, Any]:
+        """Kind, path, frame count (the container's estimate), fps and image size."""
+        return {
+            "kind": self.kind,
+            "path": self.path,
+            "frame_count": self.frame_count,
+            "fps": self.fps,
+            "width": self.width,
+            "height": self.height,
+            "timestamps": "fps override" if self.fps_override is not None
+            else "frame rate" if self.fps is not None else "container clock",
+        }
+
