@@ -20,9 +20,6 @@ PACKAGE = REPO / "hbvs_cli"
 ABOVE_IO = ("perception", "sim", "report", "sweep", "stages", "cli", "tools")
 #: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them.
 STAGE_HELPERS = ("console", "options", "settings", "frames")
-#: Imports that break a rule today and are being moved (issue 13); the list only shrinks.
-KNOWN_VIOLATIONS = {
-}
 
 
 def module_name(path: Path) -> str:
@@ -87,10 +84,7 @@ def violations() -> list[str]:
 
 
 def test_the_import_rules_hold():
-    broken = {line.split(" (")[0]: line for line in violations()}
-    assert sorted(line for key, line in broken.items() if key not in KNOWN_VIOLATIONS) == []
-    # A move that fixes one of the known cases takes it off the list.
-    assert sorted(KNOWN_VIOLATIONS - set(broken)) == []
+    assert violations() == []
 
 
 def test_the_rule_reader_sees_relative_and_function_level_imports(tmp_path, monkeypatch):
