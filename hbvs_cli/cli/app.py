@@ -221,6 +221,19 @@ def report(
         raise typer.Exit(code)
 
 
+# --------------------------------------------------------------------------- export
+@app.command(rich_help_panel="Pipeline")
+def export(
+    input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
+    output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
+) -> None:
+    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo (pip install 'hbvs[ros]')."""
+    from ..stages.export import ExportOptions, run_export
+
+    run_export(ExportOptions(input=input, output=output), _console(quiet))
+
+
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 def sweep(

@@ -32,7 +32,7 @@ from ..core.camera import CameraIntrinsics
 from ..errors import CalibrationError, HbvsError, InputError, RecordingError, UsageError
 from .calibration import intrinsics_from_values
 from .mcap_io import ChannelSummary, McapMessage, McapStream, read_summary
-from .topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA
+from .topics import CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA
 
 __all__ = [
     "SourceFrame",
@@ -507,9 +507,9 @@ class CameraSource(FrameSource):
 
 
 # ----------------------------------------------------------------------------- ROS 2 bag
-_COMPRESSED = "sensor_msgs/msg/CompressedImage"
+_COMPRESSED = ROS_COMPRESSED_IMAGE_SCHEMA
 _RAW = "sensor_msgs/msg/Image"
-_CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+_CAMERA_INFO = ROS_CAMERA_INFO_SCHEMA
 _IMAGE_TYPES = (_COMPRESSED, _RAW)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
 #: in the protobuf and JSON encodings.

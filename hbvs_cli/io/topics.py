@@ -77,3 +77,32 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
     },
 }
+
+# ----------------------------------------------------------------------------- Foxglove 3D scene
+FRAME_TRANSFORM_SCHEMA = "foxglove.FrameTransform"
+SCENE_UPDATE_SCHEMA = "foxglove.SceneUpdate"
+#: world -> base_link (the robot, every pose) and base_link -> camera_optical (once).
+TRANSFORM_TOPIC = "/tf"
+#: The target and the taught path drawn in Foxglove's 3D panel.
+SCENE_TOPIC = "/scene"
+
+# ----------------------------------------------------------------------------- ROS 2 export
+# ``hbvs export`` writes a ROS 2 bag (MCAP storage, CDR) with these topics and types.
+ROS_TWIST_SCHEMA = "geometry_msgs/msg/Twist"
+ROS_POSE_STAMPED_SCHEMA = "geometry_msgs/msg/PoseStamped"
+ROS_PATH_SCHEMA = "nav_msgs/msg/Path"
+ROS_COMPRESSED_IMAGE_SCHEMA = "sensor_msgs/msg/CompressedImage"
+ROS_CAMERA_INFO_SCHEMA = "sensor_msgs/msg/CameraInfo"
+ROS_TF_SCHEMA = "tf2_msgs/msg/TFMessage"
+#: The command sent (run) or taught (teach).
+ROS_CMD_VEL_TOPIC = "/cmd_vel"
+#: The true pose (simulation) and the taught pose at the same time (runs).
+ROS_TRUE_POSE_TOPIC = TRUE_POSE_TOPIC
+ROS_DESIRED_POSE_TOPIC = DESIRED_POSE_TOPIC
+#: The taught path, whole, once.
+ROS_TAUGHT_PATH_TOPIC = "/taught_path"
+ROS_IMAGE_TOPIC = "/camera/image/compressed"
+ROS_CAMERA_INFO_TOPIC = "/camera/camera_info"
+ROS_REFERENCE_IMAGE_TOPIC = "/reference/image/compressed"
+ROS_TF_TOPIC = TRANSFORM_TOPIC
+ROS_TF_STATIC_TOPIC = "/tf_static"
