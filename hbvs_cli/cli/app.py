@@ -173,6 +173,8 @@ def repeat(
     outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
     exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
     allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when an input ended early (no end record).")] = False,
+    live: Annotated[Optional[int], typer.Option("--live", is_flag=False, flag_value=8765, metavar="[PORT]", help="Serve the run to the Foxglove app while it runs (ws://127.0.0.1:PORT, default 8765; pip install 'hbvs[live]'). The run file is unchanged.", rich_help_panel="Live view")] = None,
+    live_speed: Annotated[float, typer.Option("--live-speed", min=0.0, help="With --live: pace the run at this multiple of real time (0: as fast as it goes).", rich_help_panel="Live view")] = 1.0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
     """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
@@ -185,7 +187,7 @@ def repeat(
             gamma=gamma, k2=k2, dhat0=dhat0, speed=speed, max_v=max_v, max_w=max_w, max_accel=max_accel,
             latency=latency, lost_timeout=lost_timeout, cmd_out=cmd_out, record_images=record_images,
             occlude=list(occlude or []), drop_rate=drop_rate, outlier_rate=outlier_rate, exposure_step=exposure_step,
-            allow_truncated=allow_truncated, state_filter=state_filter,
+            allow_truncated=allow_truncated, state_filter=state_filter, live=live, live_speed=live_speed,
         ),
         _console(quiet),
     )

@@ -22,9 +22,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-WORLD_FRAME = "world"
+from .messages import CAMERA_FRAME as OPTICAL_FRAME
+from .messages import WORLD_FRAME
+from .topics import FRAME_TRANSFORM_SCHEMA, SCENE_TOPIC, SCENE_UPDATE_SCHEMA, TRANSFORM_TOPIC
+
 BASE_FRAME = "base_link"
-OPTICAL_FRAME = "camera_optical"
 
 #: Rotation of ``camera_optical`` in ``base_link`` (x, y, z, w): its columns are the optical
 #: axes in the robot's frame, x_opt = -y, y_opt = -z, z_opt = +x.
@@ -121,3 +123,32 @@ def scene_update(timestamp: dict[str, int], world: Any = None, taught_poses: np.
     if taught_poses is not None and len(taught_poses) > 1:
         entities.append(path_entity(timestamp, taught_poses))
     return {"deletions": [], "entities": entities}
+
+
+class SceneWriter:
+    """Writes the 3D topics of one hbvs file through an :class:`~hbvs_cli.io.mcap_io.McapWriter`.
+
+    :meth:`start` once (the camera on the robot, the target, the taught path), then
+    :meth:`pose` at every true pose. Call sites stay a line each.
+    """
+
+    def __init__(self, writer: Any) -> None:
+        self.writer = writer
+        self.started = False
+
+    def start(self, ns: int, camera_height: float, world: Any = None, taught_poses: np.ndarray | None = None) -> None:
+        """``base_link -> camera_optical`` and the scene (target, taught path), at ``ns``."""
+        from .mcap_io import time_message
+
+        stamp = time_message(ns)
+        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, camera_transform(stamp, camera_height))
+        scene = scene_update(stamp, world, taught_poses)
+        if scene["entities"]:
+            self.writer.write(SCENE_TOPIC, SCENE_UPDATE_SCHEMA, ns, scene)
+        self.started = True
+
+    def pose(self, ns: int, pose: Sequence[float]) -> None:
+        """``world -> base_link`` of the planar pose (x, y, phi) at ``ns``."""
+        from .mcap_io import time_message
+
+        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot_transform(time_message(ns), pose))

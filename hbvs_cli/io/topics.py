@@ -48,6 +48,14 @@ EVENTS_TOPIC = "/repeat/events"
 #: The taught pose the robot should be at (simulated runs).
 DESIRED_POSE_TOPIC = "/desired/pose"
 
+# ----------------------------------------------------------------------------- Foxglove 3D scene
+FRAME_TRANSFORM_SCHEMA = "foxglove.FrameTransform"
+SCENE_UPDATE_SCHEMA = "foxglove.SceneUpdate"
+#: world -> base_link (the robot, every pose) and base_link -> camera_optical (once).
+TRANSFORM_TOPIC = "/tf"
+#: The target and the taught path drawn in Foxglove's 3D panel.
+SCENE_TOPIC = "/scene"
+
 #: Topics of each file kind: topic -> schema name.
 TOPICS: dict[str, dict[str, str]] = {
     "teach": {
@@ -55,6 +63,8 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
         TEACH_COMMAND_TOPIC: VELOCITY_COMMAND_SCHEMA,
         TRUE_POSE_TOPIC: POSE_IN_FRAME_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
     "fit": {
         MODEL_TOPIC: FIT_MODEL_SCHEMA,
@@ -65,6 +75,8 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
         REFERENCE_IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
         TEMPLATE_IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
     "run": {
         STATE_TOPIC: CONTROLLER_STATE_SCHEMA,
@@ -75,16 +87,10 @@ TOPICS: dict[str, dict[str, str]] = {
         IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
         ANNOTATIONS_TOPIC: IMAGE_ANNOTATIONS_SCHEMA,
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
 }
-
-# ----------------------------------------------------------------------------- Foxglove 3D scene
-FRAME_TRANSFORM_SCHEMA = "foxglove.FrameTransform"
-SCENE_UPDATE_SCHEMA = "foxglove.SceneUpdate"
-#: world -> base_link (the robot, every pose) and base_link -> camera_optical (once).
-TRANSFORM_TOPIC = "/tf"
-#: The target and the taught path drawn in Foxglove's 3D panel.
-SCENE_TOPIC = "/scene"
 
 # ----------------------------------------------------------------------------- ROS 2 export
 # ``hbvs export`` writes a ROS 2 bag (MCAP storage, CDR) with these topics and types.

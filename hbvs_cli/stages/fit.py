@@ -244,6 +244,11 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             gains=_suggested_gains(result, camera),
         )
         _write_signals(writer, topics, arrays, result)
+        if taught_path is not None:  # the 3D scene: the target and the taught path
+            from ..io.foxglove_scene import SceneWriter
+
+            height = reader.world.camera_height if reader.world is not None else 0.0
+            SceneWriter(writer).start(int(arrays["log_time"][0]), height, reader.world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])

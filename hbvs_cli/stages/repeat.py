@@ -70,6 +70,8 @@ class RepeatOptions:
     exposure_step: str | None = None
     allow_truncated: bool = False
     state_filter: str | None = None
+    live: int | None = None
+    live_speed: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -441,6 +443,8 @@ def detector_noise(model: Any) -> float:
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..io.calibration import calibration_to_foxglove
+    from ..io.foxglove_scene import SceneWriter
+    from ..io.live_view import live_writer
     from ..io.mcap_io import open_output, seconds_to_ns, time_message
     from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
 
@@ -451,14 +455,17 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream:
-        with open_output(options.output) as writer:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+        with open_output(options.output) as file_writer:
+            writer = live(file_writer)  # the same messages to --live, if asked
             _note_truncated(writer, options, fit, console)
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
             writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
             height = scene.world.camera_height
+            scene_3d = SceneWriter(writer)
+            scene_3d.start(0, height, scene.world, np.array(taught_poses))
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
                 for k, record in enumerate(simulation.run()):
                     log.step(record)
@@ -466,6 +473,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
                     stamp = time_message(ns)
                     log.write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, record.pose, height), clean=False)
                     log.write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, taught_poses[k], height), clean=False)
+                    scene_3d.pose(ns, record.pose)
                     if options.record_images:
                         camera.write_image(writer, ns, record, desired_pixels(model, record.desired))
                     tally.add(record, taught_poses[k])
@@ -576,6 +584,7 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
 def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..core.simulator import StepRecord as Step
     from ..io.calibration import calibration_to_foxglove
+    from ..io.live_view import live_writer
     from ..io.mcap_io import open_output
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
@@ -590,8 +599,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
-    with _open_cmd_stream(options.cmd_out) as cmd_stream:
-        with open_output(options.output) as writer:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+        with open_output(options.output) as file_writer:
+            writer = live(file_writer)  # the same messages to --live, if asked
             writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
             writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, None, cmd_stream)
