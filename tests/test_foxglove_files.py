@@ -169,3 +169,37 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
         expected = model.world.pixels(np.array([position["x"], position["y"], phi]))
         worst = max(worst, float(np.max(np.abs(projected - expected))))
     assert worst < 1e-6  # pixels
+
+
+def test_the_shipped_layout_is_generated_and_names_only_what_run_files_hold():
+    from conftest import REPO
+
+    layout = json.loads((REPO / "docs" / "foxglove-layout.json").read_text())
+    panels = layout["configById"]
+    assert sorted(p.split("!")[0] for p in panels) == ["3D", "Image", "Plot", "Plot", "RosOut"]
+    run_topics = topics.TOPICS["run"]
+    state_fields = set(SCHEMAS[topics.CONTROLLER_STATE_SCHEMA]["properties"])
+    plotted = []
+    for panel_id, config in panels.items():
+        for series in config.get("paths", []):
+            topic, field = series["value"].rsplit(".", 1)
+            assert topic == topics.STATE_TOPIC and field in state_fields
+            plotted.append(field)
+        mode = config.get("imageMode", {})
+        for topic in [config.get("topicToRender"), mode.get("imageTopic"), mode.get("calibrationTopic"),
+                      *mode.get("annotations", {}), *config.get("topics", {})]:
+            assert topic is None or topic in run_topics, (panel_id, topic)
+    assert sorted(plotted) == ["dhat", "e1", "e3", "ebar2"]
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
+    # The file is what docs/make_foxglove_layout.py writes with the installed Foxglove SDK.
+    pytest.importorskip("foxglove.layouts")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_foxglove_layout", REPO / "docs" / "make_foxglove_layout.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.layout_text() == (REPO / "docs" / "foxglove-layout.json").read_text()

@@ -124,12 +124,12 @@ def _check_info(info: dict[str, Any], name: str) -> None:
             raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity")
 
 
-def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[float, int, str]:
-    """(t, level, text) of a ``foxglove.Log`` message."""
+def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[int, int, str]:
+    """(log time, level, text) of a ``foxglove.Log`` message."""
     level = data.get("level", 0)
     if isinstance(level, bool) or not isinstance(level, int):
         raise RecordingError(f"{name}: malformed event message (level {str(level)[:40]!r} is not a whole number)")
-    return log_time * 1e-9, level, str(data.get("message", ""))
+    return log_time, level, str(data.get("message", ""))
 
 
 def read_run(source: Any, name: str = "") -> RunData:
@@ -149,7 +149,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     true_pose: dict[int, tuple[float, float, float]] = {}
     desired_pose: dict[int, tuple[float, float, float]] = {}
     step_times: list[int] = []
-    events: list[tuple[float, int, str]] = []
+    events: list[tuple[int, int, str]] = []
     for message in stream:
         if message.topic == STATE_TOPIC:
             data = message.json(stream.name)
@@ -180,6 +180,10 @@ def read_run(source: Any, name: str = "") -> RunData:
     state = {key: np.array(values) for key, values in columns.items()}
     if not np.all(np.isfinite(state["t"])) or np.any(np.diff(state["t"]) < 0):
         raise RecordingError(f"{stream.name}: the step times are missing, not finite or go backwards")
+    # Log times count from the file's time base (a fixed epoch, or a replayed recording's
+    # stamps): events are placed on the steps' clock, t = 0 at the base.
+    base_ns = step_times[0] - int(round(state["t"][0] * 1e9))
+    events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
     def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
         if not poses:

@@ -219,9 +219,10 @@ def _taught_frame_interval(model: Any) -> float:
 class _RunLog:
     """Writes the run file's per-step messages and the optional command stream."""
 
-    def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None) -> None:
+    def __init__(self, writer: Any, settings: Settings, model: Any, d_true: float | None, cmd_stream: IO[str] | None, base_ns: int = 0) -> None:
 
         self.writer = writer
+        self.base_ns = base_ns  # log time of t = 0 (io/foxglove_scene.py: SIMULATION_EPOCH_NS)
         self.topics = TOPICS["run"]
         self.settings = settings
         self.model = model
@@ -237,7 +238,7 @@ class _RunLog:
         from ..io.mcap_io import seconds_to_ns, time_message
         from ..io.messages import log_message
 
-        ns = seconds_to_ns(t)
+        ns = self.base_ns + seconds_to_ns(t)
         self.writer.write(EVENTS_TOPIC, self.topics[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
 
     def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
@@ -245,7 +246,7 @@ class _RunLog:
         from ..io.messages import LOG_INFO, LOG_WARNING, velocity_message
 
         t = record.t
-        ns = seconds_to_ns(t)
+        ns = self.base_ns + seconds_to_ns(t)
         stamp = time_message(ns)
         desired = record.desired
         output = record.output
@@ -443,7 +444,7 @@ def detector_noise(model: Any) -> float:
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
     from ..io.calibration import calibration_to_foxglove
-    from ..io.foxglove_scene import SceneWriter
+    from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
     from ..io.live_view import live_writer
     from ..io.mcap_io import open_output, seconds_to_ns, time_message
     from ..io.messages import CAMERA_FRAME, LOG_ERROR, pose_message
@@ -460,16 +461,16 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: Any, consol
             writer = live(file_writer)  # the same messages to --live, if asked
             _note_truncated(writer, options, fit, console)
             writer.metadata("hbvs", _run_metadata("sim", options, settings, fit, scene.d_true, scene))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
-            log = _RunLog(writer, settings, model, scene.d_true, cmd_stream)
+            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, SIMULATION_EPOCH_NS, calibration_to_foxglove(model.camera, CAMERA_FRAME, SIMULATION_EPOCH_NS))
+            log = _RunLog(writer, settings, model, scene.d_true, cmd_stream, SIMULATION_EPOCH_NS)
             lost_for = 0.0
             height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
-            scene_3d.start(0, height, scene.world, np.array(taught_poses))
+            scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
                 for k, record in enumerate(simulation.run()):
                     log.step(record)
-                    ns = seconds_to_ns(record.t)
+                    ns = SIMULATION_EPOCH_NS + seconds_to_ns(record.t)
                     stamp = time_message(ns)
                     log.write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, record.pose, height), clean=False)
                     log.write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, taught_poses[k], height), clean=False)
@@ -585,7 +586,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
     from ..core.simulator import StepRecord as Step
     from ..io.calibration import calibration_to_foxglove
     from ..io.live_view import live_writer
-    from ..io.mcap_io import open_output
+    from ..io.mcap_io import open_output, seconds_to_ns
     from ..io.messages import CAMERA_FRAME
     from ..io.teach_file import TeachReader
     from .detection import detector_from_model, estimator_from_model
@@ -603,7 +604,6 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --live, if asked
             writer.metadata("hbvs", _run_metadata("replay", options, settings, fit, None))
-            writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, 0, calibration_to_foxglove(model.camera, CAMERA_FRAME, 0))
             log = _RunLog(writer, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
                 for frame, _, image in decoded_frames(reader.frames(), reader.name):
@@ -613,6 +613,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: Any, console: C
                     pixels = detector.detect(image)
                     observation = estimator.from_pixels(pixels)
                     t = frame.t
+                    if previous_t is None:  # the replay keeps the recording's stamps
+                        log.base_ns = frame.log_time_ns - seconds_to_ns(t)
+                        writer.write(CALIBRATION_TOPIC, CAMERA_CALIBRATION_SCHEMA, log.base_ns, calibration_to_foxglove(model.camera, CAMERA_FRAME, log.base_ns))
                     dt = t - previous_t if previous_t is not None else 0.0
                     previous_t = t
                     desired = trajectory.evaluate(t)

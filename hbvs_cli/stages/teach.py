@@ -186,6 +186,7 @@ def make_renderer(world: World, noise: float, blur: float, exposure: float) -> A
 def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     from ..io.images import bytes_to_store
     from ..io.limits import step_count
+    from ..io.foxglove_scene import SIMULATION_EPOCH_NS
     from ..io.mcap_io import open_output, seconds_to_ns
     from ..io.teach_file import TeachWriter
 
@@ -224,13 +225,13 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     }
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, "sim", settings, world)
-        teach.calibration(world.camera)
+        teach.calibration(world.camera, SIMULATION_EPOCH_NS)
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
-                    seconds_to_ns(t), data, image_format,
+                    SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()
