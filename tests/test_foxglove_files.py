@@ -203,3 +203,29 @@ def test_the_shipped_layout_is_generated_and_names_only_what_run_files_hold():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     assert module.layout_text() == (REPO / "docs" / "foxglove-layout.json").read_text()
+
+
+def test_stamps_start_at_the_documented_epoch_and_line_up_across_files(files, tmp_path):
+    from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS
+    from hbvs_cli.io.run_file import read_run
+
+    assert SIMULATION_EPOCH_NS == 1_067_212_800_000_000_000  # 2003-10-27 00:00:00 UTC
+    times = {kind: {} for kind in files}
+    for kind, path in files.items():
+        for _, channel, message in read_all(path):
+            times[kind].setdefault(channel.topic, []).append(message.log_time)
+    assert min(times["teach"][topics.IMAGE_TOPIC]) == SIMULATION_EPOCH_NS
+    assert min(min(t) for t in times["run"].values()) == SIMULATION_EPOCH_NS
+    # The fit's annotations and images carry the teach images' stamps (Foxglove overlays them).
+    assert times["fit"][topics.ANNOTATIONS_TOPIC] == times["teach"][topics.IMAGE_TOPIC] == times["fit"][topics.IMAGE_TOPIC]
+    # Message stamps are the log times (2003, not 1970).
+    for _, channel, message in read_all(files["run"]):
+        if channel.topic == topics.STATE_TOPIC:
+            stamp = json.loads(message.data)["timestamp"]
+            assert stamp["sec"] * 10**9 + stamp["nsec"] == message.log_time
+    # A replay keeps the stamps of the recording it replays; the report's clock still starts at 0.
+    replay = tmp_path / "replay.mcap"
+    make_run(files["fit"], replay, replay=files["teach"])
+    state_times = [m.log_time for _, c, m in read_all(replay) if c.topic == topics.STATE_TOPIC]
+    assert state_times == times["teach"][topics.IMAGE_TOPIC]
+    assert read_run(replay).state["t"][0] == 0.0
