@@ -70,8 +70,11 @@ def test_run_exports_commands_poses_path_and_tf(sim_run, tmp_path):
         topics.ROS_CMD_VEL_TOPIC: K, topics.ROS_TRUE_POSE_TOPIC: K, topics.ROS_DESIRED_POSE_TOPIC: K,
         topics.ROS_TAUGHT_PATH_TOPIC: 1, topics.ROS_TF_TOPIC: K, topics.ROS_TF_STATIC_TOPIC: 1,
     }
-    # Original stamps: bag time = header stamp = the run's step time, to the nanosecond.
-    step_ns = np.round(run.state["t"] * 1e9).astype(np.int64)
+    # Original stamps: bag time = header stamp = the run file's log time, to the nanosecond.
+    from hbvs_cli.io.mcap_io import McapStream
+
+    step_ns = np.array([m.log_time for m in McapStream(sim_run, topics={topics.STATE_TOPIC})], dtype=np.int64)
+    assert step_ns.size == K
     for topic in (topics.ROS_TRUE_POSE_TOPIC, topics.ROS_DESIRED_POSE_TOPIC):
         assert [t for t, _ in bagged[topic]] == step_ns.tolist()
         assert [stamp_ns(m.header) for _, m in bagged[topic]] == step_ns.tolist()
