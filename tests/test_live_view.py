@@ -102,6 +102,12 @@ def test_live_view_serves_the_run_files_channels_and_messages(tmp_path):
     plain = tmp_path / "plain.mcap"
     make_run(FIT, plain, sim=True, perception="points", pixel_noise=0.3)
     assert plain.read_bytes() == live_run.read_bytes()
+    # -o - with --live: stdout carries the same bytes, nothing else.
+    piped = subprocess.run(
+        [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", "-", "--live", str(free_port()), "--live-speed", "0", "-q"],
+        capture_output=True, timeout=120, env=env,
+    )
+    assert piped.returncode == 0 and piped.stdout == plain.read_bytes()
 
 
 def test_live_view_says_what_is_wrong_in_one_line(tmp_path):
@@ -127,3 +133,12 @@ def test_without_the_sdk_the_error_says_what_to_install(monkeypatch):
             pass
     with live_writer(None) as wrap:  # without --live the writer is the file's own
         assert wrap(wrap) is wrap
+
+
+def test_live_without_a_port_means_foxgloves_default():
+    from hbvs_cli.cli.app import _live_port_given
+
+    assert _live_port_given(["repeat", "f.mcap", "--live", "--live-speed", "0"]) == ["repeat", "f.mcap", "--live", "8765", "--live-speed", "0"]
+    assert _live_port_given(["repeat", "f.mcap", "--live"]) == ["repeat", "f.mcap", "--live", "8765"]
+    assert _live_port_given(["repeat", "f.mcap", "--live", "9000"]) == ["repeat", "f.mcap", "--live", "9000"]
+    assert _live_port_given(["report", "run.mcap"]) == ["report", "run.mcap"]

@@ -173,7 +173,7 @@ def repeat(
     outlier_rate: Annotated[float, typer.Option("--outlier-rate", min=0.0, max=1.0, help="Fraction of frames with a spurious blob (dots) or wrong matches.", rich_help_panel="Faults")] = 0.0,
     exposure_step: Annotated[Optional[str], typer.Option("--exposure-step", help="Sudden exposure change T:GAIN (s, gain factor).", rich_help_panel="Faults")] = None,
     allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when an input ended early (no end record).")] = False,
-    live: Annotated[Optional[int], typer.Option("--live", is_flag=False, flag_value=8765, metavar="[PORT]", help="Serve the run to the Foxglove app while it runs (ws://127.0.0.1:PORT, default 8765; pip install 'hbvs[live]'). The run file is unchanged.", rich_help_panel="Live view")] = None,
+    live: Annotated[Optional[int], typer.Option("--live", metavar="[PORT]", help="Serve the run to the Foxglove app while it runs (ws://127.0.0.1:PORT, default 8765; pip install 'hbvs\\[live]'). The run file is unchanged.", rich_help_panel="Live view")] = None,
     live_speed: Annotated[float, typer.Option("--live-speed", min=0.0, help="With --live: pace the run at this multiple of real time (0: as fast as it goes).", rich_help_panel="Live view")] = 1.0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
 ) -> None:
@@ -230,7 +230,7 @@ def export(
     output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
 ) -> None:
-    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo (pip install 'hbvs[ros]')."""
+    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo (pip install 'hbvs\\[ros]')."""
     from ..stages.export import ExportOptions, run_export
 
     run_export(ExportOptions(input=input, output=output), _console(quiet))
@@ -422,10 +422,26 @@ def _pipe_closed() -> int:
 _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF, errno.EROFS}
 
 
+def _live_port_given(args: list[str]) -> list[str]:
+    """``--live`` without a port means Foxglove's default (typer has no option with an optional value)."""
+    if "--live" not in args:
+        return args
+    from ..io.live_view import DEFAULT_PORT
+
+    args = list(args)
+    for index, token in enumerate(args):
+        if token == "--":
+            break
+        if token == "--live" and not (index + 1 < len(args) and args[index + 1].isdigit()):
+            args.insert(index + 1, str(DEFAULT_PORT))
+            break
+    return args
+
+
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
     try:
-        result = app(args=args, prog_name="hbvs", standalone_mode=False)
+        result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
         _raise_if_stopping()
