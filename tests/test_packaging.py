@@ -28,7 +28,7 @@ def shipped_files() -> set[str]:
     config = setuptools_config()
     files = set()
     for package, patterns in config["package-data"].items():
-        folder = REPO / config["package-dir"][package]
+        folder = REPO / config["package-dir"].get(package, package.replace(".", "/"))
         for path in folder.iterdir():
             if any(fnmatch.fnmatch(path.name, pattern) for pattern in patterns):
                 files.add(str(path.relative_to(REPO)))

@@ -39,7 +39,9 @@ def files(tmp_path_factory):
     make_teach(folder / "t.mcap", duration=2.0)
     make_fit(folder / "t.mcap", folder / "f.mcap")
     assert hbvs(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
-    rewrite(folder / "t.mcap", folder / "late.mcap", lambda topic, t, m: (t + 2**64 - 10**10, m))
+    from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
+
+    rewrite(folder / "t.mcap", folder / "late.mcap", lambda topic, t, m: (t - SIMULATION_EPOCH_NS + 2**64 - 10**10, m))
     rewrite(folder / "t.mcap", folder / "fast.mcap", set_speed)
     rewrite(folder / "f.mcap", folder / "huge-spline.mcap", huge_coefficients)
     rewrite(folder / "f.mcap", folder / "long.mcap", long_trajectory)

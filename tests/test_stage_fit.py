@@ -86,6 +86,7 @@ def test_the_summary_table_goes_to_stderr(default_teach, tmp_path):
 
 def copy_teach(source, target, image=lambda t, message: message):
     """Copy a teach file through ``image(t, json_bytes) -> json_bytes or None`` (None drops it)."""
+    from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
     from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
     stream = McapStream(source)
@@ -101,7 +102,7 @@ def copy_teach(source, target, image=lambda t, message: message):
             if message.message_encoding != "json":  # protobuf images: keep their encoding
                 writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
             if message.topic == "/camera/image":
-                data = image(message.log_time * 1e-9, data)
+                data = image((message.log_time - SIMULATION_EPOCH_NS) * 1e-9, data)  # s from the start
                 if data is None:
                     continue
             writer.write_encoded(message.topic, message.schema_name, message.log_time, data)

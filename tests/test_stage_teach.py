@@ -49,7 +49,8 @@ def test_sim_teach_records_images_truth_commands_and_world(default_teach):
         topics.setdefault(topic, set()).add(schema_name)
     assert topics == {topic: {schema} for topic, schema in TOPICS["teach"].items()}
     counts = {topic: sum(1 for m in messages if m[0] == topic) for topic in topics}
-    assert counts == {"/camera/image": 600, "/ground_truth/pose": 600, "/teach/cmd_vel": 600, "/camera/calibration": 1}
+    # The 3D scene: world -> base_link per frame, base_link -> camera_optical once, the target once.
+    assert counts == {"/camera/image": 600, "/ground_truth/pose": 600, "/teach/cmd_vel": 600, "/camera/calibration": 1, "/tf": 601, "/scene": 1}
     assert metadata["hbvs"]["file_kind"] == "teach"
     world = json.loads(metadata["hbvs.world"]["world"])
     assert world["target"]["kind"] == "dots" and len(world["target"]["points_world_m"]) == 3
@@ -57,7 +58,7 @@ def test_sim_teach_records_images_truth_commands_and_world(default_teach):
     assert settings["seed"] == 0 and settings["path_name"] == "s-curve"
     # Images are one-channel JPEGs (the default, at the stated quality) of the camera's size.
     image_message = next(m[3] for m in messages if m[0] == "/camera/image")
-    assert image_message["format"] == "jpeg" and image_message["frame_id"] == "camera"
+    assert image_message["format"] == "jpeg" and image_message["frame_id"] == "camera_optical"
     image = cv2.imdecode(np.frombuffer(image_message["data"], np.uint8), cv2.IMREAD_UNCHANGED)
     assert image.shape == (480, 640)
     assert settings["image_format"] == "auto" and settings["jpeg_quality"] == 90

@@ -163,6 +163,19 @@ def report(
         raise typer.Exit(code)
 
 
+# --------------------------------------------------------------------------- export
+@app.command(rich_help_panel="Pipeline")
+def export(
+    input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
+    output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
+) -> None:
+    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo (pip install 'hbvs\\[ros]')."""
+    from ..stages.export import ExportOptions, run_export
+
+    run_export(ExportOptions(input=input, output=output), _console(quiet))
+
+
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 def sweep(
@@ -349,10 +362,26 @@ def _pipe_closed() -> int:
 _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF, errno.EROFS}
 
 
+def _live_port_given(args: list[str]) -> list[str]:
+    """``--live`` without a port means Foxglove's default (typer has no option with an optional value)."""
+    if "--live" not in args:
+        return args
+    from ..io.live_view import DEFAULT_PORT
+
+    args = list(args)
+    for index, token in enumerate(args):
+        if token == "--":
+            break
+        if token == "--live" and not (index + 1 < len(args) and args[index + 1].isdigit()):
+            args.insert(index + 1, str(DEFAULT_PORT))
+            break
+    return args
+
+
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
     try:
-        result = app(args=args, prog_name="hbvs", standalone_mode=False)
+        result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
         _raise_if_stopping()

@@ -12,7 +12,9 @@ from ..core.frames import quaternion_to_yaw, yaw_to_quaternion
 from ..errors import RecordingError
 
 WORLD_FRAME = "world"
-CAMERA_FRAME = "camera"
+#: The camera's frame in the optical convention Foxglove's CameraCalibration and ROS's
+#: CameraInfo expect (z forward, x right, y down); see :mod:`.foxglove_scene`.
+CAMERA_FRAME = "camera_optical"
 
 #: foxglove.Log levels.
 LOG_INFO, LOG_WARNING, LOG_ERROR = 2, 3, 4

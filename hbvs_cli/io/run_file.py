@@ -133,12 +133,12 @@ def _check_info(info: dict[str, Any], name: str) -> None:
             raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity")
 
 
-def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[float, int, str]:
-    """(t, level, text) of a ``foxglove.Log`` message."""
+def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[int, int, str]:
+    """(log time, level, text) of a ``foxglove.Log`` message."""
     level = data.get("level", 0)
     if isinstance(level, bool) or not isinstance(level, int):
         raise RecordingError(f"{name}: malformed event message (level {str(level)[:40]!r} is not a whole number)")
-    return log_time * 1e-9, level, str(data.get("message", ""))
+    return log_time, level, str(data.get("message", ""))
 
 
 def read_run(source: Any, name: str = "") -> RunData:
@@ -158,7 +158,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     true_pose: dict[int, tuple[float, float, float]] = {}
     desired_pose: dict[int, tuple[float, float, float]] = {}
     step_times: list[int] = []
-    events: list[tuple[float, int, str]] = []
+    events: list[tuple[int, int, str]] = []
     for message in stream:
         if message.topic == STATE_TOPIC:
             data = message.json(stream.name)
@@ -189,6 +189,10 @@ def read_run(source: Any, name: str = "") -> RunData:
     state = {key: np.array(values) for key, values in columns.items()}
     if not np.all(np.isfinite(state["t"])) or np.any(np.diff(state["t"]) < 0):
         raise RecordingError(f"{stream.name}: the step times are missing, not finite or go backwards")
+    # Log times count from the file's time base (a fixed epoch, or a replayed recording's
+    # stamps): events are placed on the steps' clock, t = 0 at the base.
+    base_ns = step_times[0] - int(round(state["t"][0] * 1e9))
+    events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
     def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
         if not poses:
@@ -209,8 +213,9 @@ def read_run(source: Any, name: str = "") -> RunData:
 class RunWriter:
     """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values.
 
-    The ``hbvs`` metadata record is written first, then the camera's calibration; every
-    other message is stamped with its time ``t`` (s) as log time and timestamp.
+    The ``hbvs`` metadata record is written first, then the camera's calibration at the log
+    time of ``t = 0``; every other message is stamped with ``base_ns`` plus its time ``t``
+    (s), as log time and timestamp.
 
     Parameters
     ----------
@@ -218,35 +223,57 @@ class RunWriter:
     info : dict
         The ``hbvs`` metadata record (``file_kind`` = ``run``, mode, law, gains, settings...).
     camera : CameraIntrinsics
+    base_ns : int or None
+        Log time (ns) of ``t = 0``: a simulated run's fixed epoch
+        (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`). None when it is known
+        only with the first frame (a replay keeps its recording's stamps): call
+        :meth:`start` then.
     """
 
-    def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics) -> None:
+    def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics, base_ns: int | None = 0) -> None:
         self.writer = writer
+        self.camera = camera
+        self.base_ns = 0
+        self._started = False
         writer.metadata("hbvs", info)
-        writer.write(CALIBRATION_TOPIC, RUN_SCHEMAS[CALIBRATION_TOPIC], 0, calibration_to_foxglove(camera, CAMERA_FRAME, 0))
+        if base_ns is not None:
+            self.start(base_ns)
+
+    def start(self, base_ns: int) -> None:
+        """Set the log time of ``t = 0`` and write the calibration there (once)."""
+        if self._started:
+            return
+        self.base_ns = int(base_ns)
+        self._started = True
+        self.writer.write(CALIBRATION_TOPIC, RUN_SCHEMAS[CALIBRATION_TOPIC], self.base_ns,
+                          calibration_to_foxglove(self.camera, CAMERA_FRAME, self.base_ns))
+
+    def log_time_ns(self, t: float) -> int:
+        """The log time (ns) of run time ``t`` (s)."""
+        return self.base_ns + seconds_to_ns(t)
 
     def event(self, t: float, level: int, text: str) -> None:
         """A ``foxglove.Log`` line on the events topic (``level``: one of messages.LOG_*)."""
-        ns = seconds_to_ns(t)
+        ns = self.log_time_ns(t)
         self.writer.write(EVENTS_TOPIC, RUN_SCHEMAS[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
 
     def state(self, t: float, values: dict[str, Any]) -> None:
         """One ``hbvs.ControllerState``: ``t`` and ``values`` (numbers, strings, bools or None;
         a NaN or infinite number is written as null), in that order."""
-        ns = seconds_to_ns(t)
+        ns = self.log_time_ns(t)
         message = {"timestamp": time_message(ns), "t": t}
         message.update(values)
         self._write_flat(STATE_TOPIC, ns, message)
 
     def command(self, t: float, v: float, w: float, saturated: bool) -> None:
         """The command sent (m/s, rad/s), after the actuator limits."""
-        ns = seconds_to_ns(t)
+        ns = self.log_time_ns(t)
         self._write_flat(COMMAND_TOPIC, ns, velocity_message(time_message(ns), v, w, saturated), clean=False)
 
     def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
         """The true robot pose and the taught pose at ``t``: ``(x, y, phi)`` (m, m, rad), the
         camera ``height`` (m) above the floor."""
-        ns = seconds_to_ns(t)
+        ns = self.log_time_ns(t)
         stamp = time_message(ns)
         self._write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, true_pose, height), clean=False)
         self._write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, desired_pose, height), clean=False)
@@ -254,7 +281,7 @@ class RunWriter:
     def image(self, t: float, data: bytes, image_format: str, detected: np.ndarray | None, desired: np.ndarray | None,
               label: str) -> None:
         """A camera image (encoded ``data``) and its annotations: detected and desired pixels."""
-        ns = seconds_to_ns(t)
+        ns = self.log_time_ns(t)
         write_compressed_image(self.writer, IMAGE_TOPIC, ns, data, image_format, CAMERA_FRAME)
         self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns,
                           annotations_message(time_message(ns), detected, desired, label))

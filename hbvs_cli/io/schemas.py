@@ -1,7 +1,8 @@
 """JSON schemas of every message hbvs writes, and the topics they go on.
 
-Foxglove schemas (``foxglove.*``) follow the documented Foxglove message formats field for
-field, so the files open in Foxglove with images, annotations, poses and plots. The
+Foxglove schemas (``foxglove.*``) are Foxglove's own, vendored unchanged from the
+``@foxglove/schemas`` package (``foxglove_schemas.json`` names its version and source), so
+the files open in Foxglove with images, annotations, poses, plots and the 3D scene. The
 ``hbvs.*`` schemas are ours. Messages use the ``json`` message encoding and the
 ``jsonschema`` schema encoding, but for images: hbvs writes ``foxglove.CompressedImage`` in
 Foxglove's protobuf encoding (:mod:`.images`), and reads the JSON form below from older
@@ -14,10 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .topics import (
-    CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA,
-    IMAGE_ANNOTATIONS_SCHEMA, LOG_SCHEMA, POSE_IN_FRAME_SCHEMA, VELOCITY_COMMAND_SCHEMA,
-)
+from .topics import CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA, VELOCITY_COMMAND_SCHEMA
 
 _TIME = {
     "type": "object",
@@ -30,34 +28,6 @@ _TIME = {
 }
 _NUMBER = {"type": "number"}
 _NUMBER_OR_NULL = {"type": ["number", "null"]}
-_POINT2 = {"title": "foxglove.Point2", "type": "object", "properties": {"x": _NUMBER, "y": _NUMBER}, "required": ["x", "y"]}
-_COLOR = {
-    "title": "foxglove.Color",
-    "type": "object",
-    "properties": {"r": _NUMBER, "g": _NUMBER, "b": _NUMBER, "a": _NUMBER},
-    "required": ["r", "g", "b", "a"],
-}
-_KEY_VALUES = {
-    "type": "array",
-    "items": {
-        "title": "foxglove.KeyValuePair",
-        "type": "object",
-        "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-        "required": ["key", "value"],
-    },
-}
-_VECTOR3 = {
-    "title": "foxglove.Vector3",
-    "type": "object",
-    "properties": {"x": _NUMBER, "y": _NUMBER, "z": _NUMBER},
-    "required": ["x", "y", "z"],
-}
-_QUATERNION = {
-    "title": "foxglove.Quaternion",
-    "type": "object",
-    "properties": {"x": _NUMBER, "y": _NUMBER, "z": _NUMBER, "w": _NUMBER},
-    "required": ["x", "y", "z", "w"],
-}
 
 
 def _number_array(length: int | None = None) -> dict[str, Any]:
@@ -67,127 +37,19 @@ def _number_array(length: int | None = None) -> dict[str, Any]:
     return schema
 
 
-FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
-    COMPRESSED_IMAGE_SCHEMA: {
-        "title": COMPRESSED_IMAGE_SCHEMA,
-        "description": "A compressed image",
-        "type": "object",
-        "properties": {
-            "timestamp": _TIME,
-            "frame_id": {"type": "string"},
-            "data": {"type": "string", "contentEncoding": "base64"},
-            "format": {"type": "string", "enum": ["jpeg", "png", "webp", "avif"]},
-        },
-        "required": ["timestamp", "frame_id", "data", "format"],
-    },
-    CAMERA_CALIBRATION_SCHEMA: {
-        "title": CAMERA_CALIBRATION_SCHEMA,
-        "description": "Camera calibration parameters",
-        "type": "object",
-        "properties": {
-            "timestamp": _TIME,
-            "frame_id": {"type": "string"},
-            "width": {"type": "integer", "minimum": 0},
-            "height": {"type": "integer", "minimum": 0},
-            "distortion_model": {"type": "string"},
-            "D": _number_array(),
-            "K": _number_array(9),
-            "R": _number_array(9),
-            "P": _number_array(12),
-        },
-        "required": ["timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"],
-    },
-    POSE_IN_FRAME_SCHEMA: {
-        "title": POSE_IN_FRAME_SCHEMA,
-        "description": "A timestamped pose for an object or reference frame in 3D space",
-        "type": "object",
-        "properties": {
-            "timestamp": _TIME,
-            "frame_id": {"type": "string"},
-            "pose": {
-                "title": "foxglove.Pose",
-                "type": "object",
-                "properties": {"position": _VECTOR3, "orientation": _QUATERNION},
-                "required": ["position", "orientation"],
-            },
-        },
-        "required": ["timestamp", "frame_id", "pose"],
-    },
-    IMAGE_ANNOTATIONS_SCHEMA: {
-        "title": IMAGE_ANNOTATIONS_SCHEMA,
-        "description": "Array of annotations for a 2D image",
-        "type": "object",
-        "properties": {
-            "circles": {
-                "type": "array",
-                "items": {
-                    "title": "foxglove.CircleAnnotation",
-                    "type": "object",
-                    "properties": {
-                        "timestamp": _TIME,
-                        "position": _POINT2,
-                        "diameter": _NUMBER,
-                        "thickness": _NUMBER,
-                        "fill_color": _COLOR,
-                        "outline_color": _COLOR,
-                        "metadata": _KEY_VALUES,
-                    },
-                    "required": ["timestamp", "position", "diameter", "thickness", "fill_color", "outline_color", "metadata"],
-                },
-            },
-            "points": {
-                "type": "array",
-                "items": {
-                    "title": "foxglove.PointsAnnotation",
-                    "type": "object",
-                    "properties": {
-                        "timestamp": _TIME,
-                        "type": {"type": "integer", "enum": [0, 1, 2, 3, 4]},
-                        "points": {"type": "array", "items": _POINT2},
-                        "outline_color": _COLOR,
-                        "outline_colors": {"type": "array", "items": _COLOR},
-                        "fill_color": _COLOR,
-                        "thickness": _NUMBER,
-                        "metadata": _KEY_VALUES,
-                    },
-                    "required": ["timestamp", "type", "points", "outline_color", "outline_colors", "fill_color", "thickness", "metadata"],
-                },
-            },
-            "texts": {
-                "type": "array",
-                "items": {
-                    "title": "foxglove.TextAnnotation",
-                    "type": "object",
-                    "properties": {
-                        "timestamp": _TIME,
-                        "position": _POINT2,
-                        "text": {"type": "string"},
-                        "font_size": _NUMBER,
-                        "text_color": _COLOR,
-                        "background_color": _COLOR,
-                        "metadata": _KEY_VALUES,
-                    },
-                    "required": ["timestamp", "position", "text", "font_size", "text_color", "background_color", "metadata"],
-                },
-            },
-        },
-        "required": ["circles", "points", "texts"],
-    },
-    LOG_SCHEMA: {
-        "title": LOG_SCHEMA,
-        "description": "A log message",
-        "type": "object",
-        "properties": {
-            "timestamp": _TIME,
-            "level": {"type": "integer", "enum": [0, 1, 2, 3, 4, 5]},
-            "message": {"type": "string"},
-            "name": {"type": "string"},
-            "file": {"type": "string"},
-            "line": {"type": "integer", "minimum": 0},
-        },
-        "required": ["timestamp", "level", "message", "name", "file", "line"],
-    },
-}
+def _official_foxglove_schemas() -> dict[str, dict[str, Any]]:
+    """The Foxglove JSON schemas as Foxglove publishes them, vendored unchanged in
+    ``foxglove_schemas.json`` with their package, version and checksum (see its header)."""
+    import json
+    from pathlib import Path
+
+    vendored = json.loads((Path(__file__).with_name("foxglove_schemas.json")).read_text(encoding="utf-8"))
+    return vendored["schemas"]
+
+
+#: Foxglove's own JSON schemas (``@foxglove/schemas``, generated by foxglove-sdk) of every
+#: ``foxglove.*`` message hbvs writes: what Foxglove parses them with.
+FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = _official_foxglove_schemas()
 
 HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
     VELOCITY_COMMAND_SCHEMA: {

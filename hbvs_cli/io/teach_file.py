@@ -29,6 +29,7 @@ from ..core.camera import CameraIntrinsics
 from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
+from .foxglove_scene import SceneWriter
 from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
 from .mcap import McapStream, McapWriter, check_json_limits, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
@@ -120,6 +121,8 @@ class TeachWriter:
         if world is not None:
             writer.metadata(WORLD_METADATA, {"world": world.to_dict()})
         self.frames = 0
+        self.world = world
+        self.scene = SceneWriter(writer)
 
     def calibration(self, camera: CameraIntrinsics, log_time_ns: int = 0) -> None:
         self.writer.write(
@@ -142,6 +145,9 @@ class TeachWriter:
             self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
         if pose is not None:
             self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
+            if not self.scene.started:
+                self.scene.start(log_time_ns, camera_height, self.world)
+            self.scene.pose(log_time_ns, pose)
         write_compressed_image(self.writer, IMAGE_TOPIC, log_time_ns, image_bytes, image_format, self.frame_id)
         self.frames += 1
 

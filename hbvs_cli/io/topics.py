@@ -48,6 +48,14 @@ EVENTS_TOPIC = "/repeat/events"
 #: The taught pose the robot should be at (simulated runs).
 DESIRED_POSE_TOPIC = "/desired/pose"
 
+# ----------------------------------------------------------------------------- Foxglove 3D scene
+FRAME_TRANSFORM_SCHEMA = "foxglove.FrameTransform"
+SCENE_UPDATE_SCHEMA = "foxglove.SceneUpdate"
+#: world -> base_link (the robot, every pose) and base_link -> camera_optical (once).
+TRANSFORM_TOPIC = "/tf"
+#: The target and the taught path drawn in Foxglove's 3D panel.
+SCENE_TOPIC = "/scene"
+
 #: Topics of each file kind: topic -> schema name.
 TOPICS: dict[str, dict[str, str]] = {
     "teach": {
@@ -55,6 +63,8 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
         TEACH_COMMAND_TOPIC: VELOCITY_COMMAND_SCHEMA,
         TRUE_POSE_TOPIC: POSE_IN_FRAME_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
     "fit": {
         MODEL_TOPIC: FIT_MODEL_SCHEMA,
@@ -65,6 +75,8 @@ TOPICS: dict[str, dict[str, str]] = {
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
         REFERENCE_IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
         TEMPLATE_IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
     "run": {
         STATE_TOPIC: CONTROLLER_STATE_SCHEMA,
@@ -75,14 +87,34 @@ TOPICS: dict[str, dict[str, str]] = {
         IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
         ANNOTATIONS_TOPIC: IMAGE_ANNOTATIONS_SCHEMA,
         CALIBRATION_TOPIC: CAMERA_CALIBRATION_SCHEMA,
+        TRANSFORM_TOPIC: FRAME_TRANSFORM_SCHEMA,
+        SCENE_TOPIC: SCENE_UPDATE_SCHEMA,
     },
 }
 
 # ----------------------------------------------------------------------------- ROS 2 message types
-# The ROS 2 types hbvs reads from bags (``teach --bag``).
+# The ROS 2 types hbvs reads from bags (``teach --bag``) and writes (``hbvs export``).
 ROS_IMAGE_SCHEMA = "sensor_msgs/msg/Image"
 ROS_COMPRESSED_IMAGE_SCHEMA = "sensor_msgs/msg/CompressedImage"
 ROS_CAMERA_INFO_SCHEMA = "sensor_msgs/msg/CameraInfo"
 ROS_TWIST_SCHEMA = "geometry_msgs/msg/Twist"
 ROS_TWIST_STAMPED_SCHEMA = "geometry_msgs/msg/TwistStamped"
 ROS_ODOMETRY_SCHEMA = "nav_msgs/msg/Odometry"
+ROS_POSE_STAMPED_SCHEMA = "geometry_msgs/msg/PoseStamped"
+ROS_PATH_SCHEMA = "nav_msgs/msg/Path"
+ROS_TF_SCHEMA = "tf2_msgs/msg/TFMessage"
+
+# ----------------------------------------------------------------------------- ROS 2 export
+# ``hbvs export`` writes a ROS 2 bag (MCAP storage, CDR) with these topics.
+#: The command sent (run) or taught (teach).
+ROS_CMD_VEL_TOPIC = "/cmd_vel"
+#: The true pose (simulation) and the taught pose at the same time (runs).
+ROS_TRUE_POSE_TOPIC = TRUE_POSE_TOPIC
+ROS_DESIRED_POSE_TOPIC = DESIRED_POSE_TOPIC
+#: The taught path, whole, once.
+ROS_TAUGHT_PATH_TOPIC = "/taught_path"
+ROS_IMAGE_TOPIC = "/camera/image/compressed"
+ROS_CAMERA_INFO_TOPIC = "/camera/camera_info"
+ROS_REFERENCE_IMAGE_TOPIC = "/reference/image/compressed"
+ROS_TF_TOPIC = TRANSFORM_TOPIC
+ROS_TF_STATIC_TOPIC = "/tf_static"

@@ -27,6 +27,7 @@ from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
 from .frames import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
+from ..io.foxglove_scene import SceneWriter
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -240,6 +241,9 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
             gains=_suggested_gains(result, camera),
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
+        if taught_path is not None:  # the 3D scene: the target and the taught path
+            height = reader.world.camera_height if reader.world is not None else 0.0
+            SceneWriter(writer).start(int(arrays["log_time"][0]), height, reader.world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])

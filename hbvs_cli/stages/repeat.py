@@ -33,9 +33,11 @@ from ..core.world import World
 from ..errors import InputError, TargetLostError, UsageError
 from ..io.config import load_config
 from ..io.fit_file import FitFile, FitModel, read_fit_file
+from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
 from ..io.images import bytes_to_store
 from ..io.limits import step_count
-from ..io.mcap import McapWriter, open_output
+from ..io.live_view import live_writer
+from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
@@ -360,17 +362,21 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream:
-        with open_output(options.output) as writer:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+        with open_output(options.output) as file_writer:
+            writer = live(file_writer)  # the same messages to --live, if asked
             _note_truncated(writer, options, fit, console)
-            run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera)
+            run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
             lost_for = 0.0
             height = scene.world.camera_height
+            scene_3d = SceneWriter(writer)
+            scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
             with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
                 for k, record in enumerate(simulation.run()):
                     log.step(record)
                     run.poses(record.t, record.pose, taught_poses[k], height)
+                    scene_3d.pose(run.log_time_ns(record.t), record.pose)
                     if options.record_images:
                         label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
                         run.image(record.t, *bytes_to_store(camera.image_of(record.pose)), record.observation.pixels,
@@ -485,9 +491,11 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
-    with _open_cmd_stream(options.cmd_out) as cmd_stream:
-        with open_output(options.output) as writer:
-            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera)
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+        with open_output(options.output) as file_writer:
+            writer = live(file_writer)  # the same messages to --live, if asked
+            # The replay keeps the recording's stamps: t = 0 is known with the first frame.
+            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
                 for frame, _, image in decoded_frames(reader.frames(), reader.name):
@@ -497,6 +505,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
                     pixels = detector.detect(image)
                     observation = estimator.from_pixels(pixels)
                     t = frame.t
+                    if previous_t is None:
+                        run.start(frame.log_time_ns - seconds_to_ns(t))
                     dt = t - previous_t if previous_t is not None else 0.0
                     previous_t = t
                     desired = trajectory.evaluate(t)

@@ -205,6 +205,10 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("allow_truncated", bool, "Replace an existing output even when an input ended early (no end record).", default=False),
     Setting("state_filter", str, "State filter between the camera and the law: ekf or none (the raw measurement, the paper exactly).",
             fallback=FILTER_EKF, config="filter", flags=("--filter",), panel="Controller"),
+    Setting("live", int, "Serve the run to the Foxglove app while it runs on ws://127.0.0.1:PORT (8765 when --live comes "
+            "without a port; pip install 'hbvs\\[live]'). The run file is unchanged.", panel="Live view"),
+    Setting("live_speed", float, "With --live: pace the run at this multiple of real time (0: as fast as it goes).",
+            default=1.0, panel="Live view", bounds={"min": 0.0}),
 )
 
 #: The settings by name.

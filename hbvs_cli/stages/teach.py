@@ -16,6 +16,7 @@ from ..core.world import World, default_world
 from ..errors import InputError, UsageError
 from ..io import sources
 from ..io.calibration import load_calibration
+from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
 from ..io.mcap import open_output, seconds_to_ns
@@ -168,13 +169,13 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
     }
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, "sim", settings, world)
-        teach.calibration(world.camera)
+        teach.calibration(world.camera, SIMULATION_EPOCH_NS)
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
-                    seconds_to_ns(t), data, image_format,
+                    SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()

@@ -1,0 +1,141 @@
+"""``hbvs repeat --live [PORT]``: the run served to the Foxglove app while it runs.
+
+The official Foxglove SDK (``foxglove-sdk``, ``pip install 'hbvs[live]'``) runs a WebSocket
+server (Foxglove's ``foxglove.websocket.v1`` protocol) on localhost. :class:`LiveMirror`
+sits in front of the run file's :class:`~hbvs_cli.io.mcap_io.McapWriter`: every message
+written to the file is also logged, with the same bytes, topic, schema (name, encoding and
+data), message encoding and log time, on an SDK channel. The file and ``-o -`` are written
+exactly as without ``--live``. In Foxglove: "Open connection", Foxglove WebSocket,
+``ws://localhost:PORT``.
+
+A simulated run is paced to ``--live-speed`` times real time (default 1, 0 for as fast as it
+goes), so that it can be watched.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator
+
+from ..errors import UsageError
+from .schemas import SCHEMAS
+
+#: Foxglove's default WebSocket port (what the app proposes).
+DEFAULT_PORT = 8765
+INSTALL_HINT = "--live needs the Foxglove SDK: pip install 'hbvs[live]'"
+
+
+def _sdk() -> Any:
+    try:
+        import foxglove
+    except ImportError:
+        raise UsageError(INSTALL_HINT) from None
+    return foxglove
+
+
+class LiveMirror:
+    """An McapWriter look-alike that writes through to ``writer`` and logs to a live server.
+
+    Parameters
+    ----------
+    writer : McapWriter
+        The run file's writer (anything with its methods).
+    context : foxglove.Context
+        The SDK context the server was started on; channels are created in it.
+    speed : float
+        Pace: a message at log time ``t`` is sent no earlier than ``t / speed`` seconds of
+        wall time after the first one (0: no pacing).
+    """
+
+    def __init__(self, writer: Any, context: Any, speed: float = 1.0) -> None:
+        self._writer = writer
+        self._context = context
+        self._speed = float(speed)
+        self._channels: dict[str, Any] = {}
+        self._start: tuple[float, int] | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        # metadata, flush, finish, input_ended_early...: the file's business only.
+        return getattr(self._writer, name)
+
+    def _channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> Any:
+        channel = self._channels.get(topic)
+        if channel is None:
+            foxglove = _sdk()
+            schema = foxglove.Schema(name=schema_name, encoding=schema_encoding, data=schema_data)
+            channel = foxglove.Channel(topic, schema=schema, message_encoding=message_encoding, context=self._context)
+            self._channels[topic] = channel
+        return channel
+
+    def declare_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> None:
+        self._writer.declare_channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
+        self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
+
+    def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
+        from .mcap_io import encode_json
+
+        self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
+
+    def write_encoded(self, topic: str, schema_name: str, log_time_ns: int, data: bytes) -> None:
+        self._writer.write_encoded(topic, schema_name, log_time_ns, data)
+        channel = self._channels.get(topic)
+        if channel is None:
+            # A JSON channel: the schema bytes the file holds (McapWriter._channel).
+            schema_data = json.dumps(SCHEMAS[schema_name], separators=(",", ":")).encode()
+            channel = self._channel(topic, schema_name, "jsonschema", schema_data, "json")
+        self._pace(int(log_time_ns))
+        channel.log(bytes(data), log_time=int(log_time_ns))
+
+    def _pace(self, log_time_ns: int) -> None:
+        if self._speed <= 0:
+            return
+        now = time.monotonic()
+        if self._start is None:
+            self._start = (now, log_time_ns)
+            return
+        due = self._start[0] + (log_time_ns - self._start[1]) * 1e-9 / self._speed
+        if due > now:
+            time.sleep(due - now)
+
+
+@contextmanager
+def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Iterator[Any]:
+    """Start the SDK's WebSocket server on ``host:port``; yield a function that wraps a writer
+    in a :class:`LiveMirror`; stop the server afterwards.
+
+    Raises
+    ------
+    UsageError
+        The SDK is missing, the port is out of range, the speed negative, or the server
+        cannot listen (the port is taken).
+    """
+    foxglove = _sdk()
+    if not 0 <= int(port) <= 65535:
+        raise UsageError(f"--live: the port must be 0-65535, got {port}")
+    if not speed >= 0:
+        raise UsageError(f"--live-speed must be >= 0 (0: as fast as it goes), got {speed}")
+    context = foxglove.Context()
+    try:
+        server = foxglove.start_server(name="hbvs repeat", host=host, port=int(port), context=context)
+    except Exception as exc:  # the SDK raises its own error types for a port in use
+        raise UsageError(f"--live: cannot serve on {host}:{port} ({str(exc).splitlines()[0][:120]})") from None
+    try:
+        yield server, (lambda writer: LiveMirror(writer, context, speed))
+    finally:
+        server.stop()
+
+
+@contextmanager
+def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> Iterator[Any]:
+    """A function that wraps the run file's writer: itself without ``--live`` (``port``
+    None), else in a :class:`LiveMirror` of a server started here; ``announce`` gets the
+    line that says where to connect."""
+    if port is None:
+        yield lambda writer: writer
+        return
+    with live_server(port, speed) as (server, wrap):
+        if announce is not None:
+            announce(f"live view: connect Foxglove to ws://127.0.0.1:{server.port} (Open connection, Foxglove WebSocket)")
+        yield wrap

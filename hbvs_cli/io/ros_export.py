@@ -1,0 +1,325 @@
+"""``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR), written with
+the ``rosbags`` library (``pip install 'hbvs[ros]'``).
+
+=============================== ================================= =================================================
+bag topic                       type                              from
+=============================== ================================= =================================================
+``/cmd_vel``                    ``geometry_msgs/msg/Twist``       the command sent (run) or taught (teach)
+``/ground_truth/pose``          ``geometry_msgs/msg/PoseStamped`` the true pose (simulation), frame ``world``
+``/desired/pose``               ``geometry_msgs/msg/PoseStamped`` the taught pose at the same time (simulated runs)
+``/taught_path``                ``nav_msgs/msg/Path``             the whole taught path, once, at its last pose's
+                                                                  time (teach: the true poses; run: the taught
+                                                                  poses; fit: integrated from the taught commands)
+``/tf``                         ``tf2_msgs/msg/TFMessage``        ``world -> base_link`` at every true pose
+``/tf_static``                  ``tf2_msgs/msg/TFMessage``        ``base_link -> camera_optical`` (once)
+``/camera/image/compressed``    ``sensor_msgs/msg/CompressedImage`` every image, bytes as stored, frame ``camera_optical``
+``/camera/camera_info``         ``sensor_msgs/msg/CameraInfo``    with every image (same stamp)
+``/reference/image/compressed`` ``sensor_msgs/msg/CompressedImage`` F* (fit files)
+=============================== ================================= =================================================
+
+Every message keeps its original stamp (header and bag time are the hbvs log time, in ns).
+Poses are copied as recorded, with the camera's height as z, so that ``evo_ape bag2`` on
+the two pose topics gives what ``hbvs report`` gives (and ``--export-tum``). ``base_link``
+is on the floor under the camera; ``camera_optical`` is the camera at its height, in the
+optical convention (z forward along the robot's x, x right, y down).
+
+The bag is a folder. It is written beside its name as ``NAME.<pid>-<random>.partial/NAME``
+and moved into place only when complete, so a failed export leaves nothing, and an
+existing bag of that name is replaced whole; a folder that is not a ROS 2 bag is never
+replaced.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from ..errors import InputError, RecordingError, UsageError
+from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
+from .mcap_io import McapStream, read_metadata
+from .topics import (
+    CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC,
+    ROS_CAMERA_INFO_SCHEMA, ROS_CAMERA_INFO_TOPIC, ROS_CMD_VEL_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_DESIRED_POSE_TOPIC,
+    ROS_IMAGE_TOPIC, ROS_PATH_SCHEMA, ROS_POSE_STAMPED_SCHEMA, ROS_REFERENCE_IMAGE_TOPIC, ROS_TAUGHT_PATH_TOPIC,
+    ROS_TF_SCHEMA, ROS_TF_STATIC_TOPIC, ROS_TF_TOPIC, ROS_TRUE_POSE_TOPIC, ROS_TWIST_SCHEMA, TEACH_COMMAND_TOPIC, TOPICS,
+    TRUE_POSE_TOPIC,
+)
+
+#: rosbag2 metadata version written (read by Iron and later; rosbags reads every version).
+BAG_VERSION = 8
+#: The file holding a ROS 2 bag's description: what tells a bag folder from any folder.
+BAG_METADATA = "metadata.yaml"
+
+INSTALL_HINT = "hbvs export needs the rosbags library: pip install 'hbvs[ros]'"
+
+
+@dataclass
+class ExportSummary:
+    """What was written: the bag folder, the file kind, and messages per bag topic."""
+
+    output: Path
+    kind: str
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def _rosbags() -> tuple[Any, Any, Any]:
+    try:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise UsageError(INSTALL_HINT) from None
+    return Writer, StoragePlugin, get_typestore(Stores.ROS2_HUMBLE)
+
+
+# ----------------------------------------------------------------------------- output folder
+def check_bag_target(spec: str) -> Path:
+    """The folder ``hbvs export -o`` will write, checked before anything is read.
+
+    Raises
+    ------
+    UsageError
+        ``-`` (a bag is a folder), or an existing file or folder that is not a ROS 2 bag.
+    InputError
+        The parent folder does not exist.
+    """
+    if spec == "-":
+        raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
+    final = Path(os.path.realpath(spec))
+    if not final.parent.is_dir():
+        raise InputError(f"{spec}: the folder {final.parent} does not exist")
+    if final.exists() or final.is_symlink():
+        if not final.is_dir():
+            raise UsageError(f"{spec}: exists and is not a ROS 2 bag folder; give a new folder name")
+        if any(final.iterdir()) and not (final / BAG_METADATA).is_file():
+            raise UsageError(f"{spec}: is a folder that is not a ROS 2 bag (no {BAG_METADATA}); it is kept, give a new folder name")
+    return final
+
+
+@contextmanager
+def _atomic_folder(final: Path) -> Iterator[Path]:
+    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds."""
+    work = final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
+    try:
+        work.mkdir()
+    except OSError as exc:
+        raise InputError(f"{final}: cannot write the bag ({exc.strerror})") from None
+    try:
+        yield work / final.name
+        if final.exists():
+            os.replace(final, work / "replaced")
+        os.replace(work / final.name, final)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------- messages
+class _Messages:
+    """Builds the ROS 2 messages with one type store."""
+
+    def __init__(self, typestore: Any) -> None:
+        self.typestore = typestore
+        self.types = typestore.types
+
+    def stamp(self, ns: int) -> Any:
+        sec, nanosec = divmod(max(int(ns), 0), 1_000_000_000)
+        return self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+    def header(self, ns: int, frame_id: str) -> Any:
+        return self.types["std_msgs/msg/Header"](stamp=self.stamp(ns), frame_id=frame_id)
+
+    def vector(self, x: float, y: float, z: float) -> Any:
+        return self.types["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
+
+    def quaternion(self, q: Any) -> Any:
+        x, y, z, w = (float(v) for v in q)
+        return self.types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+    def twist(self, v: float, w: float) -> Any:
+        return self.types[ROS_TWIST_SCHEMA](linear=self.vector(v, 0.0, 0.0), angular=self.vector(0.0, 0.0, w))
+
+    def pose_stamped(self, ns: int, position: Any, orientation: Any) -> Any:
+        x, y, z = (float(v) for v in position)
+        pose = self.types["geometry_msgs/msg/Pose"](
+            position=self.types["geometry_msgs/msg/Point"](x=x, y=y, z=z), orientation=self.quaternion(orientation),
+        )
+        return self.types[ROS_POSE_STAMPED_SCHEMA](header=self.header(ns, WORLD_FRAME), pose=pose)
+
+    def path(self, poses: list[Any]) -> Any:
+        ns = poses[-1].header.stamp.sec * 1_000_000_000 + poses[-1].header.stamp.nanosec
+        return self.types[ROS_PATH_SCHEMA](header=self.header(ns, WORLD_FRAME), poses=poses)
+
+    def transform(self, ns: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
+        transform = self.types["geometry_msgs/msg/Transform"](translation=self.vector(*translation), rotation=self.quaternion(rotation))
+        return self.types["geometry_msgs/msg/TransformStamped"](header=self.header(ns, parent), child_frame_id=child, transform=transform)
+
+    def tf(self, transforms: list[Any]) -> Any:
+        return self.types[ROS_TF_SCHEMA](transforms=transforms)
+
+    def compressed_image(self, ns: int, data: bytes, image_format: str) -> Any:
+        return self.types[ROS_COMPRESSED_IMAGE_SCHEMA](
+            header=self.header(ns, OPTICAL_FRAME), format=image_format, data=np.frombuffer(data, dtype=np.uint8),
+        )
+
+    def camera_info(self, ns: int, calibration: dict[str, Any]) -> Any:
+        roi = self.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        return self.types[ROS_CAMERA_INFO_SCHEMA](
+            header=self.header(ns, OPTICAL_FRAME), height=int(calibration["height"]), width=int(calibration["width"]),
+            distortion_model=str(calibration["distortion_model"]), d=np.array(calibration["D"], dtype=np.float64),
+            k=np.array(calibration["K"], dtype=np.float64), r=np.array(calibration["R"], dtype=np.float64),
+            p=np.array(calibration["P"], dtype=np.float64), binning_x=0, binning_y=0, roi=roi,
+        )
+
+
+def _pose_fields(message: dict[str, Any], source: str) -> tuple[list[float], list[float]]:
+    """Position and orientation of a ``foxglove.PoseInFrame``, as recorded (3D)."""
+    try:
+        position = [float(message["pose"]["position"][k]) for k in ("x", "y", "z")]
+        orientation = [float(message["pose"]["orientation"][k]) for k in ("x", "y", "z", "w")]
+    except (KeyError, TypeError, ValueError):
+        raise RecordingError(f"{source}: malformed pose message") from None
+    if not np.all(np.isfinite(position + orientation)):
+        raise RecordingError(f"{source}: a pose message holds NaN or infinity")
+    return position, orientation
+
+
+# ----------------------------------------------------------------------------- export
+class _BagWriter:
+    """A rosbags writer with one connection per topic, opened on first use, and counts."""
+
+    def __init__(self, writer: Any, typestore: Any) -> None:
+        self.writer = writer
+        self.typestore = typestore
+        self.connections: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+
+    def write(self, topic: str, msgtype: str, ns: int, message: Any) -> None:
+        if topic not in self.connections:
+            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+        self.writer.write(self.connections[topic], int(ns), bytes(self.typestore.serialize_cdr(message, msgtype)))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+
+def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
+    """Write the teach, fit or run file ``source`` as a ROS 2 bag folder ``output``.
+
+    Parameters
+    ----------
+    source : str, path or binary stream
+        An hbvs MCAP file (``-``: stdin).
+    output : str
+        The bag folder to write (see the module's notes on how it is replaced).
+
+    Raises
+    ------
+    UsageError
+        rosbags is missing; ``output`` is ``-`` or a file or folder that is not a bag.
+    RecordingError
+        Not an hbvs file, or malformed messages.
+    """
+    Writer, StoragePlugin, typestore = _rosbags()
+    final = check_bag_target(output)
+    build = _Messages(typestore)
+    stream = McapStream(source, name=name)
+    kind: str | None = None
+    camera_calibration: dict[str, Any] | None = None
+    path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
+    path_poses: list[Any] = []
+    camera_height: float | None = None
+    with _atomic_folder(final) as bag_path:
+        writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        bag = _BagWriter(writer, typestore)
+        try:
+            for message in stream:
+                if kind is None:
+                    kind = _file_kind(stream)
+                expected = TOPICS[kind].get(message.topic)
+                if expected is None:
+                    continue
+                if message.schema_name != expected:
+                    raise RecordingError(f"{stream.name}: {message.topic} holds {message.schema_name[:60]!r}, expected {expected}")
+                ns = message.log_time
+                if message.topic in (COMMAND_TOPIC, TEACH_COMMAND_TOPIC):
+                    from .messages import velocity_from_message
+
+                    v, w = velocity_from_message(message.json(stream.name), stream.name)
+                    bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, build.twist(v, w))
+                elif message.topic in (TRUE_POSE_TOPIC, DESIRED_POSE_TOPIC):
+                    position, orientation = _pose_fields(message.json(stream.name), stream.name)
+                    pose = build.pose_stamped(ns, position, orientation)
+                    topic = ROS_TRUE_POSE_TOPIC if message.topic == TRUE_POSE_TOPIC else ROS_DESIRED_POSE_TOPIC
+                    bag.write(topic, ROS_POSE_STAMPED_SCHEMA, ns, pose)
+                    if path_topic.get(kind) == message.topic:
+                        path_poses.append(pose)
+                    if message.topic == TRUE_POSE_TOPIC:
+                        if camera_height is None:
+                            camera_height = position[2]
+                            bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
+                                ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION)]))
+                        bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
+                            ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation)]))
+                elif message.topic == CALIBRATION_TOPIC:
+                    camera_calibration = message.json(stream.name)
+                elif message.topic in (IMAGE_TOPIC, REFERENCE_IMAGE_TOPIC):
+                    from .images import read_compressed_image
+
+                    image = read_compressed_image(message.message_encoding, message.data, stream.name)
+                    if message.topic == REFERENCE_IMAGE_TOPIC:
+                        bag.write(ROS_REFERENCE_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
+                        continue
+                    bag.write(ROS_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
+                    if camera_calibration is not None:
+                        bag.write(ROS_CAMERA_INFO_TOPIC, ROS_CAMERA_INFO_SCHEMA, ns, build.camera_info(ns, camera_calibration))
+                elif message.topic == MODEL_TOPIC:
+                    path_poses = _fit_taught_path(message.json(stream.name), stream.name, build)
+            if kind is None:
+                kind = _file_kind(stream)
+            if path_poses:
+                path = build.path(path_poses)
+                bag.write(ROS_TAUGHT_PATH_TOPIC, ROS_PATH_SCHEMA, _stamp_ns(path.header.stamp), path)
+        finally:
+            writer.close()
+        if not bag.counts:
+            raise RecordingError(f"{stream.name}: nothing to export (no commands, poses or images in this {kind} file)")
+    return ExportSummary(output=final, kind=kind, counts=bag.counts)
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _file_kind(stream: McapStream) -> str:
+    kind = read_metadata(stream, "hbvs").get("file_kind")
+    if kind not in TOPICS:
+        raise RecordingError(f"{stream.name}: not an hbvs teach, fit or run file (no hbvs metadata naming its kind)")
+    return str(kind)
+
+
+def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Messages) -> list[Any]:
+    """The taught path of a fit file (a simulated teach): the poses at the taught frames,
+    integrated exactly from the taught commands (:class:`~hbvs_cli.core.path.CommandProfile`)."""
+    from ..core.frames import yaw_to_quaternion
+    from ..core.path import CommandProfile
+    from .fit_file import FitModel
+    from .mcap_io import seconds_to_ns
+
+    model = FitModel.from_message(model_message, source)
+    taught = model.taught_path
+    if taught is None:
+        return []
+    step = float(np.median(np.diff(taught.t)))
+    profile = CommandProfile(t=taught.t, v=taught.v, w=taught.w, t_end=float(taught.t[-1] + step))
+    poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
+    height = float(model.world.camera_height) if model.world is not None else 0.0
+    quaternions = yaw_to_quaternion(poses[:, 2])
+    return [
+        build.pose_stamped(seconds_to_ns(t), (x, y, height), q)
+        for t, (x, y, _), q in zip(taught.t, poses, quaternions)
+    ]

@@ -1,0 +1,28 @@
+"""``hbvs export``: a teach, fit or run file as a ROS 2 bag (see :mod:`hbvs_cli.io.ros_export`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .console import Console
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """What ``hbvs export`` was asked to do (see ``hbvs export --help``)."""
+
+    input: str
+    output: str
+
+
+def run_export(options: ExportOptions, console: Console) -> dict[str, int]:
+    """Write the bag; say on stderr what went into it. Returns the messages per bag topic."""
+    from ..io.output_target import refuse_overwriting_inputs
+    from ..io.ros_export import check_bag_target, export_ros2_bag
+
+    refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
+    check_bag_target(options.output)
+    summary = export_ros2_bag(options.input, options.output)
+    topics = ", ".join(f"{topic} {count}" for topic, count in sorted(summary.counts.items()))
+    console.info(f"export: {summary.kind} file -> ROS 2 bag {summary.output} ({topics})")
+    return summary.counts
