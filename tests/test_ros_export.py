@@ -71,7 +71,7 @@ def test_run_exports_commands_poses_path_and_tf(sim_run, tmp_path):
         topics.ROS_TAUGHT_PATH_TOPIC: 1, topics.ROS_TF_TOPIC: K, topics.ROS_TF_STATIC_TOPIC: 1,
     }
     # Original stamps: bag time = header stamp = the run file's log time, to the nanosecond.
-    from hbvs_cli.io.mcap_io import McapStream
+    from hbvs_cli.io.mcap import McapStream
 
     step_ns = np.array([m.log_time for m in McapStream(sim_run, topics={topics.STATE_TOPIC})], dtype=np.int64)
     assert step_ns.size == K

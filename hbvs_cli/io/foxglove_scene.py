@@ -126,7 +126,7 @@ def scene_update(timestamp: dict[str, int], world: Any = None, taught_poses: np.
 
 
 class SceneWriter:
-    """Writes the 3D topics of one hbvs file through an :class:`~hbvs_cli.io.mcap_io.McapWriter`.
+    """Writes the 3D topics of one hbvs file through an :class:`~hbvs_cli.io.mcap.McapWriter`.
 
     :meth:`start` once (the camera on the robot, the target, the taught path), then
     :meth:`pose` at every true pose. Call sites stay a line each.
@@ -138,7 +138,7 @@ class SceneWriter:
 
     def start(self, ns: int, camera_height: float, world: Any = None, taught_poses: np.ndarray | None = None) -> None:
         """``base_link -> camera_optical`` and the scene (target, taught path), at ``ns``."""
-        from .mcap_io import time_message
+        from .mcap import time_message
 
         stamp = time_message(ns)
         self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, camera_transform(stamp, camera_height))
@@ -149,7 +149,7 @@ class SceneWriter:
 
     def pose(self, ns: int, pose: Sequence[float]) -> None:
         """``world -> base_link`` of the planar pose (x, y, phi) at ``ns``."""
-        from .mcap_io import time_message
+        from .mcap import time_message
 
         self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot_transform(time_message(ns), pose))
 

@@ -2,7 +2,7 @@
 
 The official Foxglove SDK (``foxglove-sdk``, ``pip install 'hbvs[live]'``) runs a WebSocket
 server (Foxglove's ``foxglove.websocket.v1`` protocol) on localhost. :class:`LiveMirror`
-sits in front of the run file's :class:`~hbvs_cli.io.mcap_io.McapWriter`: every message
+sits in front of the run file's :class:`~hbvs_cli.io.mcap.McapWriter`: every message
 written to the file is also logged, with the same bytes, topic, schema (name, encoding and
 data), message encoding and log time, on an SDK channel. The file and ``-o -`` are written
 exactly as without ``--live``. In Foxglove: "Open connection", Foxglove WebSocket,
@@ -74,7 +74,7 @@ class LiveMirror:
         self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
 
     def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
-        from .mcap_io import encode_json
+        from .mcap import encode_json
 
         self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
 

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import InputError, RecordingError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
-from .mcap_io import McapStream, read_metadata
+from .mcap import McapStream, read_metadata
 from .topics import (
     CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC,
     ROS_CAMERA_INFO_SCHEMA, ROS_CAMERA_INFO_TOPIC, ROS_CMD_VEL_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_DESIRED_POSE_TOPIC,
@@ -308,7 +308,7 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     from ..core.frames import yaw_to_quaternion
     from ..core.path import CommandProfile
     from .fit_file import FitModel
-    from .mcap_io import seconds_to_ns
+    from .mcap import seconds_to_ns
 
     model = FitModel.from_message(model_message, source)
     taught = model.taught_path
