@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError, MalformedDataError
+from .control_settings import DEFAULT_PRESET  # noqa: F401 - re-exported
 from .unicycle import advance_unicycle, integrate_commands
 
 
@@ -167,8 +168,6 @@ PRESETS: dict[str, PathPreset] = {
     )
 }
 
-#: The default taught path.
-DEFAULT_PRESET = "s-curve"
 
 
 def preset_profile(name: str, rate: float, duration: float | None = None) -> tuple[CommandProfile, tuple[float, float, float]]:

@@ -39,14 +39,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError
+from .control_settings import FILTER_EKF, FILTER_NONE, FILTERS  # noqa: F401 - re-exported
 from .controller import Measurement
 from .known_normal import normal_equations, point_jacobian
 from .labels import Label
 
-#: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
-FILTER_NONE = "none"
-FILTER_EKF = "ekf"
-FILTERS = (FILTER_NONE, FILTER_EKF)
 
 #: chi^2 with 3 degrees of freedom at 99.9 %: an innovation farther than this is an outlier.
 CHI2_3DOF_999 = 16.266

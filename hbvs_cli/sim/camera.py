@@ -130,9 +130,12 @@ class SimulatedCamera:
         None when one is behind the camera or outside the image."""
         world = self.scene.world
         camera = world.camera
-        if world.points_in_camera(pose)[:, 0].min() <= 0.05:
+        # The points in F once (this runs every control period): the depth test and the
+        # projection (9), (11) share them.
+        points = world.points_in_camera(pose)
+        if points[:, 0].min() <= 0.05:
             return None
-        pixels = world.pixels(pose)[self.identity]
+        pixels = normalized_to_pixels(camera, points[self.identity])
         u, v = pixels[:, 0], pixels[:, 1]
         if u.min() < 0 or v.min() < 0 or u.max() > camera.width - 1 or v.max() > camera.height - 1:
             return None

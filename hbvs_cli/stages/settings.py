@@ -19,9 +19,7 @@ from dataclasses import dataclass, field, fields, make_dataclass
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-from ..core.controller import LAW_LATERAL_GAIN, ControllerGains
-from ..core.path import DEFAULT_PRESET
-from ..core.state_filter import FILTER_EKF
+from ..core.control_settings import DEFAULT_PRESET, FILTER_EKF, LAW_LATERAL_GAIN, ControllerGains
 from ..io.shipped import shipped_path
 
 OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."

@@ -1,0 +1,90 @@
+"""What a user sets of the method, by name: the control laws and their gains (29)-(31),
+the state filters, the default taught path.
+
+Plain Python, no numpy: the command line shows these defaults in ``--help`` without
+loading the numerical stack (``hbvs --help`` starts in a few tens of milliseconds; see
+``bench/``). :mod:`.controller`, :mod:`.state_filter` and :mod:`.path` re-export them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+
+from ..errors import InvalidValueError
+
+#: Names of the two laws hbvs implements.
+LAW_PAPER = "paper"
+LAW_LATERAL_GAIN = "lateral-gain"
+LAWS = (LAW_PAPER, LAW_LATERAL_GAIN)
+
+
+#: Names of the filters ``repeat --filter`` offers: none is the paper exactly.
+FILTER_NONE = "none"
+FILTER_EKF = "ekf"
+FILTERS = (FILTER_NONE, FILTER_EKF)
+
+#: The default taught path (one of :data:`~hbvs_cli.core.path.PRESETS`).
+DEFAULT_PRESET = "s-curve"
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """Gains of (29)-(31).
+
+    These defaults are the clean-camera gains, used when a fit file carries no suggestion;
+    ``hbvs fit`` suggests gains from its own data (:mod:`.gains`), and ``repeat`` uses those.
+
+    The defaults were tuned on the default scenario (target 4 m ahead, taught at 0.1 m/s,
+    so |x_hd1_dot| ~ 0.025 1/s) with the whole vision pipeline in the loop, and follow
+    two rules that carry over to other scenes (``hbvs fit`` reports x_hd1_dot):
+
+    * ``k_2 = k_w^2 / (4 x_hd1_dot^2) = 400`` makes the lateral mode
+      ``s^2 + k_w s + k_2 x_hd1_dot^2`` (docs/method.md, "Choosing the gains") critically damped, at about k_w/2;
+    * ``gamma ~ 0.4 k_v / x_hd1_dot^2 = 2500``: near the path the depth error decays at
+      about ``gamma x_hd1_dot^2 / k_v`` ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within the
+      first 10 s;
+    * ``k_v = 4`` gives e1 a time constant d*/k_v = 1 s; ``k_w = 1`` a heading time constant
+      of 1 s.
+
+    Attributes
+    ----------
+    k_v : float
+        Longitudinal gain (m/s), > 0: multiplies the dimensionless e1 in (29).
+    k_w : float
+        Heading gain (1/s), > 0.
+    gamma : float
+        Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), >= 0
+        (0: no adaptation, the non-adaptive baseline of core/laws.py).
+    k_2 : float
+        Lateral gain (docs/method.md, "Control"); 1 is the paper's law exactly.
+    """
+
+    k_v: float = 4.0
+    k_w: float = 1.0
+    gamma: float = 2500.0
+    k_2: float = 400.0
+
+    def __post_init__(self) -> None:
+        for name in ("k_v", "k_w", "gamma", "k_2"):
+            value = getattr(self, name)
+            # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
+            if not math.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
+                raise InvalidValueError(f"gain {name} must be a positive number, got {value}")
+
+    @property
+    def law(self) -> str:
+        """``"paper"`` when k_2 = 1, otherwise ``"lateral-gain"``."""
+        return LAW_PAPER if self.k_2 == 1.0 else LAW_LATERAL_GAIN
+
+    def as_dict(self) -> dict[str, float]:
+        """The gains as a plain dictionary (for files and reports)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    def with_law(self, law: str) -> "ControllerGains":
+        """These gains under a named law: ``"paper"`` forces k_2 = 1."""
+        if law == LAW_PAPER:
+            return replace(self, k_2=1.0)
+        if law == LAW_LATERAL_GAIN:
+            return self
+        raise InvalidValueError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
