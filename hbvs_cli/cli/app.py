@@ -170,7 +170,7 @@ def export(
     output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
 ) -> None:
-    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo (pip install 'hbvs\\[ros]')."""
+    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
     from ..stages.export import ExportOptions, run_export
 
     run_export(ExportOptions(input=input, output=output), _console(quiet))

@@ -1,5 +1,5 @@
 """``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR), written with
-the ``rosbags`` library (``pip install 'hbvs[ros]'``).
+the ``rosbags`` library (a dependency of hbvs: it also reads bags for ``teach --bag``).
 
 =============================== ================================= =================================================
 bag topic                       type                              from
@@ -57,9 +57,6 @@ BAG_VERSION = 8
 #: The file holding a ROS 2 bag's description: what tells a bag folder from any folder.
 BAG_METADATA = "metadata.yaml"
 
-INSTALL_HINT = "hbvs export needs the rosbags library: pip install 'hbvs[ros]'"
-
-
 @dataclass
 class ExportSummary:
     """What was written: the bag folder, the file kind, and messages per bag topic."""
@@ -70,11 +67,10 @@ class ExportSummary:
 
 
 def _rosbags() -> tuple[Any, Any, Any]:
-    try:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise UsageError(INSTALL_HINT) from None
+    # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
     return Writer, StoragePlugin, get_typestore(Stores.ROS2_HUMBLE)
 
 
