@@ -179,14 +179,3 @@ def test_export_is_atomic_and_refuses_what_it_must_not_replace(sim_run, tmp_path
     result = run_hbvs("export", str(junk), "-o", str(tmp_path / "new_bag"))
     assert result.returncode == 3 and not (tmp_path / "new_bag").exists()
     assert not list(tmp_path.glob("*.partial"))
-
-
-def test_without_rosbags_the_error_says_what_to_install(monkeypatch, sim_run, tmp_path):
-    from hbvs_cli.errors import UsageError
-    from hbvs_cli.io import ros_export
-
-    for name in ("rosbags", "rosbags.rosbag2", "rosbags.typesys"):
-        monkeypatch.setitem(__import__("sys").modules, name, None)
-    with pytest.raises(UsageError, match=r"pip install 'hbvs\[ros\]'"):
-        ros_export.export_ros2_bag(sim_run, str(tmp_path / "bag"))
-    assert not (tmp_path / "bag").exists()
