@@ -15,7 +15,7 @@ from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.run_file import read_run
 
-from conftest import fit_errors, make_fit, make_run, make_teach, run_hbvs, teach_from_rendered_video
+from conftest import call_hbvs, fit_errors, make_fit, make_run, make_teach, run_hbvs, teach_from_rendered_video
 
 
 @pytest.mark.parametrize("kind", TARGET_KINDS)
@@ -84,11 +84,11 @@ def test_too_much_missing_fails_with_a_clear_message(default_teach, tmp_path):
 
     half = tmp_path / "half.mcap"
     _cover_target(default_teach, half, lambda t: int(t * 30) % 2 == 1)  # every other frame, keeping frame 0
-    result = run_hbvs("fit", str(half), "-o", str(tmp_path / "f.mcap"), "-q")
+    result = call_hbvs("fit", str(half), "-o", str(tmp_path / "f.mcap"), "-q")
     assert result.returncode == 3
     assert b"missing from 50 % of the frames" in result.stderr and b"--max-lost" in result.stderr
     assert not (tmp_path / "f.mcap").exists()
-    assert run_hbvs("fit", str(half), "-o", str(tmp_path / "f.mcap"), "-q", "--max-lost", "0.6").returncode == 0
+    assert call_hbvs("fit", str(half), "-o", str(tmp_path / "f.mcap"), "-q", "--max-lost", "0.6").returncode == 0
 
 
 def test_record_images_stores_images_with_detected_and_desired_points(default_fit, tmp_path):
