@@ -2,7 +2,9 @@
 
 Each video comes from ``tests/footage.py`` (its own warp, distortion, blur, noise,
 vignetting, exposure drift and MJPG compression; no hbvs code), with a ROS camera_info YAML
-and the true poses. Every row goes through the command line as a user would:
+and the true poses. Every row goes through hbvs's command line (in this process, through
+``conftest.call_hbvs``; the bare wall without a target as separate processes, as a user
+runs them, where the one-line error is checked):
 ``hbvs teach --video ... --calibration ...`` then ``hbvs fit ...`` with ``--target auto``;
 the fitted (theta_d, x_hd) and n* are compared with the truth.
 """
@@ -17,7 +19,7 @@ import pytest
 from hbvs_cli.io.fit_file import read_fit_file
 
 import footage
-from conftest import run_hbvs
+from conftest import call_hbvs, run_hbvs
 
 #: A short drive (60 frames at 5 Hz): 5.8 m to about 3 m from the wall (a 2x change of scale),
 #: heading weaving by about +-15 deg.
@@ -32,10 +34,10 @@ DOT_BOUNDS = {"theta_deg": 0.1, "x_hd1": 2e-3, "normal_deg": 0.5}
 def _teach_and_fit(folder, name, *fit_args):
     made = footage.make_footage(name, folder, DRIVE)
     teach = folder / "teach.mcap"
-    result = run_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q")
+    result = call_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q")
     assert result.returncode == 0, result.stderr.decode()
     fit = folder / "fit.mcap"
-    result = run_hbvs("fit", str(teach), "-o", str(fit), *fit_args)
+    result = call_hbvs("fit", str(teach), "-o", str(fit), *fit_args)
     return made, teach, fit, result
 
 
@@ -103,16 +105,16 @@ def test_markers_auto_finds_dictionary_and_id(fitted, name, dictionary, marker_i
 def test_marker_options_pin_the_dictionary_and_id(fitted, tmp_path):
     row = fitted("aruco_6x6")
     fit = tmp_path / "pinned.mcap"
-    result = run_hbvs("fit", str(row["teach"]), "-o", str(fit), "--marker-dict", "DICT_6X6_250", "--marker-id", "23", "-q")
+    result = call_hbvs("fit", str(row["teach"]), "-o", str(fit), "--marker-dict", "DICT_6X6_250", "--marker-id", "23", "-q")
     assert result.returncode == 0, result.stderr.decode()
     detector = read_fit_file(fit).model.detector
     assert detector["marker_dict"] == "DICT_6X6_250" and detector["marker_id"] == 23
     # A dictionary that is not on the wall: one line, no file.
-    result = run_hbvs("fit", str(row["teach"]), "-o", str(tmp_path / "no.mcap"), "--marker-dict", "DICT_4X4_50")
+    result = call_hbvs("fit", str(row["teach"]), "-o", str(tmp_path / "no.mcap"), "--marker-dict", "DICT_4X4_50")
     lines = result.stderr.decode().strip().splitlines()
     assert result.returncode != 0 and "DICT_4X4_50" in lines[-1] and "Traceback" not in result.stderr.decode()
     assert not (tmp_path / "no.mcap").exists()
-    result = run_hbvs("fit", str(row["teach"]), "-o", str(tmp_path / "no.mcap"), "--marker-dict", "DICT_9X9")
+    result = call_hbvs("fit", str(row["teach"]), "-o", str(tmp_path / "no.mcap"), "--marker-dict", "DICT_9X9")
     assert result.returncode == 2 and "unknown marker dictionary" in result.stderr.decode()
 
 
@@ -135,9 +137,9 @@ def test_photograph_poster_is_picked_as_texture(fitted, capsys):
 def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path):
     row = fitted("red_dots")
     run = tmp_path / "replay.mcap"
-    result = run_hbvs("repeat", str(row["fit"]), "--replay", str(row["teach"]), "-o", str(run), "-q")
+    result = call_hbvs("repeat", str(row["fit"]), "--replay", str(row["teach"]), "-o", str(run), "-q")
     assert result.returncode == 0, result.stderr.decode()
-    report = run_hbvs("report", str(run), "--json")
+    report = call_hbvs("report", str(run), "--json")
     assert report.returncode == 0, report.stderr.decode()
     errors = json.loads(report.stdout)["errors"]
     # The taught frames measured again, against the splines fitted to them: what is left is
