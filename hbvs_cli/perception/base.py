@@ -19,7 +19,6 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linear_sum_assignment
 
 from ..errors import UsageError
 from ..io.images import as_gray  # noqa: F401 - re-exported: the detectors take it from here
@@ -148,6 +147,18 @@ def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.f
     return array
 
 
+def optimal_assignment(cost: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Rows and columns of the assignment of least total ``cost`` (the Hungarian method,
+    ``scipy.optimize.linear_sum_assignment``); a rectangular cost assigns the smaller side.
+
+    scipy.optimize is imported here, not at the top: it takes about 0.35 s, which every
+    ``hbvs`` command that loads perception would otherwise pay at start-up.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment(cost)
+
+
 def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = True) -> NDArray[np.intp]:
     """The permutation that puts detected points in the order of reference points.
 
@@ -178,7 +189,7 @@ def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = 
     if normalize:
         detected, reference = _normalized(detected), _normalized(reference)
     cost = np.sum((reference[:, None, :] - detected[None, :, :]) ** 2, axis=-1)
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = optimal_assignment(cost)
     permutation = np.empty(len(reference), dtype=np.intp)
     permutation[rows] = cols
     return permutation

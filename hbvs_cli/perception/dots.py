@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
 
 from ..errors import UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, match_identity
+from .base import Detection, PointTrack, as_gray, check_prediction, match_identity, optimal_assignment
 
 #: Cost of a forbidden candidate-to-point pairing in the assignment.
 _FORBIDDEN = 1e12
@@ -468,7 +467,7 @@ class DotDetector:
         ratio = blobs.areas[candidates][None, :] / np.where(has_area, expected, 1.0)[:, None]
         allowed &= ~has_area[:, None] | ((ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1]))
         cost = np.where(allowed, distance2, _FORBIDDEN)
-        chosen_rows, chosen_cols = linear_sum_assignment(cost)
+        chosen_rows, chosen_cols = optimal_assignment(cost)
         crowded = self._crowded(prediction[rows], expected)
         for r, c in zip(chosen_rows, chosen_cols):
             if allowed[r, c] and not crowded[r]:

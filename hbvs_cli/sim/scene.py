@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linear_sum_assignment
 
 from ..core.camera import pixels_to_normalized, undistort_pixels
 from ..core.frames import rotation_z
@@ -26,6 +25,7 @@ from ..core.world import Poster, Target, World
 from ..errors import UsageError
 from ..io.fit_file import FitModel
 from ..io.images import decode_image
+from ..perception.base import optimal_assignment
 from .poster import PosterRaster, build_pyramid
 from .render import RenderSettings, SceneRenderer, make_renderer
 
@@ -175,7 +175,7 @@ def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
     """
     seen = scene.world.pixels(scene.reference_pose)
     cost = np.linalg.norm(np.asarray(model.reference_pixels)[:, None, :] - seen[None, :, :], axis=-1)
-    rows, columns = linear_sum_assignment(cost)
+    rows, columns = optimal_assignment(cost)
     order = np.empty(len(rows), dtype=int)
     order[rows] = columns
     return order
