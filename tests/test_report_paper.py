@@ -12,7 +12,6 @@ import json
 import math
 import re
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 import pytest

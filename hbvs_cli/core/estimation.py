@@ -49,15 +49,6 @@ class ObservationStatus(Label):
     OCCLUDED = "occluded"
 
 
-#: The statuses by their old names.
-STATUS_OK = ObservationStatus.OK
-STATUS_DROPPED = ObservationStatus.DROPPED
-STATUS_MISSING = ObservationStatus.MISSING
-STATUS_INVALID = ObservationStatus.INVALID
-STATUS_OUTLIER = ObservationStatus.OUTLIER
-STATUS_OCCLUDED = ObservationStatus.OCCLUDED
-
-
 @dataclass(frozen=True)
 class Observation:
     """What one camera frame gave the controller.
@@ -84,12 +75,12 @@ class Observation:
     @property
     def lost(self) -> bool:
         """True when the target was not seen (a dropped frame is not a lost target)."""
-        return self.status not in (STATUS_OK, STATUS_DROPPED)
+        return self.status not in (ObservationStatus.OK, ObservationStatus.DROPPED)
 
 
 def dropped() -> Observation:
     """A frame that never arrived."""
-    return Observation(None, status=STATUS_DROPPED)
+    return Observation(None, status=ObservationStatus.DROPPED)
 
 
 class PlanarPoseEstimator:
@@ -124,10 +115,10 @@ class PlanarPoseEstimator:
     def from_pixels(self, pixels: ArrayLike | None) -> Observation:
         """Estimate from pixels of shape (N, 2) in the reference order (NaN = not seen)."""
         if pixels is None:
-            return Observation(None, status=STATUS_MISSING)
+            return Observation(None, status=ObservationStatus.MISSING)
         pixels = np.asarray(pixels, dtype=float)
         if pixels.shape != (self.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
-            return Observation(None, status=STATUS_MISSING, pixels=pixels if pixels.ndim == 2 else None)
+            return Observation(None, status=ObservationStatus.MISSING, pixels=pixels if pixels.ndim == 2 else None)
         if self.camera.has_distortion:
             pixels = undistort_pixels(self.camera, pixels)
         return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
@@ -139,8 +130,8 @@ class PlanarPoseEstimator:
 
     def _observe(self, solution: tuple[float, float, float, float] | None, pixels: NDArray[np.float64] | None) -> Observation:
         if solution is None:
-            return Observation(None, status=STATUS_INVALID, pixels=pixels)
+            return Observation(None, status=ObservationStatus.INVALID, pixels=pixels)
         theta, x_h1, x_h2, residual = solution
         if not within_residual_gate(residual, self.residual_gate):
-            return Observation(None, residual, STATUS_OUTLIER, pixels)
-        return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, STATUS_OK, pixels)
+            return Observation(None, residual, ObservationStatus.OUTLIER, pixels)
+        return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, ObservationStatus.OK, pixels)

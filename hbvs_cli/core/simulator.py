@@ -30,8 +30,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
-from .estimation import STATUS_DROPPED, STATUS_OK, STATUS_OUTLIER, Observation
-from .state_filter import GATED, FilterEstimate, ServoStateFilter
+from .estimation import Observation, ObservationStatus
+from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from .trajectory import DesiredTrajectory
 from .unicycle import integrate_unicycle
 
@@ -128,7 +128,7 @@ class StepRecord:
     @property
     def dropped(self) -> bool:
         """The camera frame of this step was dropped (not: still on its way, with latency)."""
-        return self.observation.status == STATUS_DROPPED and self.observation is not _NOT_YET
+        return self.observation.status == ObservationStatus.DROPPED and self.observation is not _NOT_YET
 
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]
@@ -137,7 +137,7 @@ SenseFunction = Callable[[NDArray[np.float64], float], Observation]
 MAX_HELD_OUTLIERS = 3
 
 #: What the controller sees before the first (latency-delayed) frame arrives.
-_NOT_YET = Observation(None, status=STATUS_DROPPED)
+_NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
 
 
 def run_closed_loop(
@@ -203,15 +203,15 @@ def run_closed_loop(
         output = None
         # A dropped frame changes neither the lost state nor the run of rejected frames:
         # both describe the frames that arrived.
-        if observation.status != STATUS_DROPPED:
-            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == STATUS_OUTLIER else 0
+        if observation.status != ObservationStatus.DROPPED:
+            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
             target_lost = observation.lost
-        coasting = 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == STATUS_DROPPED and not target_lost)
+        coasting = 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == ObservationStatus.DROPPED and not target_lost)
         estimate = None
         fresh = predicted = False
         if state_filter is not None:
-            if observation.status == STATUS_OK:
-                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != GATED
+            if observation.status == ObservationStatus.OK:
+                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
             estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
             # No usable frame (dropped, occluded, rejected): the law acts on the
             # prediction while it is trusted, with the adaptation frozen.
@@ -227,7 +227,7 @@ def run_closed_loop(
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif state_filter is None and observation.status == STATUS_OK:
+        elif state_filter is None and observation.status == ObservationStatus.OK:
             output = controller.step(observation.measurement, desired, dt)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
         elif coasting:

@@ -61,10 +61,6 @@ class FilterOutcome(Label):
     PREDICTED = "predicted"
 
 
-#: The outcomes of :meth:`ServoStateFilter.correct` by their old names.
-FUSED = FilterOutcome.FUSED
-GATED = FilterOutcome.GATED
-STARTED = FilterOutcome.STARTED
 
 
 @dataclass(frozen=True)
@@ -411,8 +407,8 @@ class ServoStateFilter:
             self._learn_noise(residual, dt)
         observed = self._observed(measured)
         if observed is None:
-            self.last_outcome = GATED
-            return GATED
+            self.last_outcome = FilterOutcome.GATED
+            return FilterOutcome.GATED
         z, inverse_information = observed
         variance = self.noise_variance
         measurement_covariance = tuple(variance * value for value in inverse_information)
@@ -439,8 +435,8 @@ class ServoStateFilter:
             p[3] - reduction[1][1], p[4] - 0.5 * (reduction[1][2] + reduction[2][1]), p[5] - reduction[2][2],
         )
         self.fused_time += dt
-        self.last_outcome = FUSED
-        return FUSED
+        self.last_outcome = FilterOutcome.FUSED
+        return FilterOutcome.FUSED
 
     def _observed(self, measured: Measurement) -> tuple[Vec3, Sym3] | None:
         """The measurement as a state, and the inverse of its points' information (per unit
@@ -463,12 +459,12 @@ class ServoStateFilter:
                 self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
             observed = observed or self._observed(measured)
             if observed is None:
-                self.last_outcome = GATED
-                return GATED
+                self.last_outcome = FilterOutcome.GATED
+                return FilterOutcome.GATED
             z, inverse_information = observed
             return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
-        self.last_outcome = GATED
-        return GATED
+        self.last_outcome = FilterOutcome.GATED
+        return FilterOutcome.GATED
 
     def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> FilterOutcome:
         if self._state is None and math.isfinite(residual):
@@ -486,8 +482,8 @@ class ServoStateFilter:
         self._state, self._covariance = z, covariance
         self.rejected_in_a_row = 0
         self.fused_time = self.fused_time + dt if restarted else dt
-        self.last_outcome = STARTED
-        return STARTED
+        self.last_outcome = FilterOutcome.STARTED
+        return FilterOutcome.STARTED
 
     def _learn_noise(self, residual: float, dt: float) -> None:
         if not math.isfinite(residual):

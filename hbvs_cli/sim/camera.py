@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..core.camera import distort_pixels, normalized_to_pixels
-from ..core.estimation import STATUS_OCCLUDED, Observation, PlanarPoseEstimator, dropped
+from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.frames import world_to_robot
 from ..core.world import World
 from ..io.fit_file import FitModel
@@ -100,10 +100,10 @@ class SimulatedCamera:
     def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
         world = self.scene.world
         if self._occluded(t):
-            return Observation(None, status=STATUS_OCCLUDED)
+            return Observation(None, status=ObservationStatus.OCCLUDED)
         pixels = self._project(pose)
         if pixels is None:
-            return Observation(None, status=STATUS_OCCLUDED)
+            return Observation(None, status=ObservationStatus.OCCLUDED)
         pixels = distort_pixels(world.camera, pixels)
         if self.pixel_noise > 0:
             pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
