@@ -45,7 +45,7 @@ MAX_POSTER_SIDE_M = 10.0
 #: Most target points accepted from a file (dot posters have up to 10, the others 4).
 MAX_TARGET_POINTS = 64
 #: The settings of a simulated teach that repeat reuses to render the same sensor.
-RENDER_SETTINGS = ("noise", "blur", "exposure")
+RENDER_SETTINGS = ("noise", "blur", "exposure", "noise_grain")
 
 #: What a malformed description can raise while it is parsed (outside HbvsError).
 PARSE_ERRORS = (LookupError, TypeError, ValueError, AttributeError, ArithmeticError)
@@ -94,7 +94,7 @@ def world_from_description(data: Any, source: str) -> World:
 
 
 def render_settings_problem(settings: Any) -> str | None:
-    """Why recorded sensor settings (noise, blur, exposure) are unusable, or None when fine."""
+    """Why recorded sensor settings (:data:`RENDER_SETTINGS`) are unusable, or None when fine."""
     if not isinstance(settings, dict):
         return "the settings are not a mapping"
     for key in RENDER_SETTINGS:

@@ -4,8 +4,10 @@ The image model, in order: the poster's picture (a :class:`~.poster.PosterRaster
 chosen so that its pixels are about camera-pixel sized, i.e. pre-filtered against aliasing)
 is projected through the pinhole homography of :meth:`World.poster_to_image_homography`
 onto a uniform wall; the lens distortion of the camera, if any, moves it; optional Gaussian
-blur (optics, focus); then the sensor: ``gain * irradiance + offset`` plus white Gaussian
-noise, rounded and clipped to 8 bits.
+blur (optics, focus); then the sensor: ``gain * irradiance + offset`` plus Gaussian noise,
+rounded and clipped to 8 bits. The noise is white by default; with a grain it is correlated
+over a few pixels, as a camera's own processing (demosaicing, denoising, compression) leaves
+it, and then moves a dot's centroid far more than white noise of the same level does.
 
 Pixel convention: OpenCV's, as in :meth:`World.pixels`: the centre of the top-left pixel is
 (0, 0), so a target point rendered here is found by a detector at ``World.pixels(pose)``
@@ -33,6 +35,8 @@ _NEAR_DEPTH = 1e-3
 #: Extra camera pixels around the poster's projected outline rendered with it, so that the
 #: bilinear fringe and the blur are complete.
 _ROI_PAD = 2
+#: Largest correlation length of the sensor noise (px): beyond it the "noise" is shading.
+MAX_NOISE_GRAIN_PX = 20.0
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,10 @@ class RenderSettings:
         Added after the gain (gray levels): a black level or a brightness change.
     background : float
         Gray level of the wall around the poster, before exposure (0-255).
+    noise_grain : float
+        Correlation length of the sensor noise: the standard deviation (camera px) of the
+        Gaussian that smooths white noise before it is scaled back to ``noise_std``; 0 for
+        white noise.
     """
 
     noise_std: float = 2.0
@@ -58,9 +66,10 @@ class RenderSettings:
     exposure_gain: float = 1.0
     exposure_offset: float = 0.0
     background: float = 150.0
+    noise_grain: float = 0.0
 
     def __post_init__(self) -> None:
-        values = (self.noise_std, self.blur_sigma, self.exposure_gain, self.exposure_offset, self.background)
+        values = (self.noise_std, self.blur_sigma, self.exposure_gain, self.exposure_offset, self.background, self.noise_grain)
         if not all(np.isfinite(v) for v in values):
             raise UsageError("render settings must be finite numbers")
         if self.noise_std < 0:
@@ -69,6 +78,8 @@ class RenderSettings:
             raise UsageError(f"the blur sigma must be >= 0, got {self.blur_sigma}")
         if self.exposure_gain < 0:
             raise UsageError(f"the exposure gain must be >= 0, got {self.exposure_gain}")
+        if not 0 <= self.noise_grain <= MAX_NOISE_GRAIN_PX:
+            raise UsageError(f"the noise grain must be within 0-{MAX_NOISE_GRAIN_PX:g} px, got {self.noise_grain}")
         if not 0 <= self.background <= 255:
             raise UsageError(f"the wall's gray level must be within 0-255, got {self.background}")
 
@@ -114,6 +125,7 @@ class SceneRenderer:
         self._background = int(round(self.settings.background))
         self._wall = np.full(self._size, self._background, dtype=np.uint8)
         self._noise = np.zeros(self._size, dtype=np.float32)
+        self._grain_kernel = _grain_kernel(self.settings.noise_grain) if self.settings.noise_grain > 0 else None
         # Ideal (undistorted) pixel coordinates seen by each real pixel: the lens's inverse map.
         self._ideal_map = _inverse_distortion_map(camera) if camera.has_distortion else None
 
@@ -146,6 +158,8 @@ class SceneRenderer:
         if self.settings.noise_std > 0:
             uniform = np.frombuffer(rng.bytes(2 * scene.size), dtype=np.uint16).reshape(self._size)
             np.take(_gaussian_table(), uniform, out=self._noise)
+            if self._grain_kernel is not None:
+                cv2.sepFilter2D(self._noise, -1, self._grain_kernel, self._grain_kernel, dst=self._noise, borderType=cv2.BORDER_REFLECT)
         # One pass: gain * scene + noise_std * noise + offset, rounded and saturated to uint8.
         return cv2.addWeighted(
             self._noise, float(self.settings.noise_std), scene, gain, float(self.settings.exposure_offset), dtype=cv2.CV_8U
@@ -321,7 +335,17 @@ def load_texture(world: World) -> NDArray[np.uint8] | None:
     return image
 
 
-def make_renderer(world: World, noise: float, blur: float, exposure: float) -> SceneRenderer:
+def make_renderer(world: World, noise: float, blur: float, exposure: float, grain: float = 0.0) -> SceneRenderer:
     """The scene renderer of a world (shared by teach and repeat so both see alike)."""
     raster = PosterRaster.from_target(world.target, texture=load_texture(world))
-    return SceneRenderer(world, raster, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure))
+    return SceneRenderer(world, raster, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure, noise_grain=grain))
+
+
+def _grain_kernel(grain: float) -> NDArray[np.float32]:
+    """The 1D Gaussian (sigma ``grain`` px, 4 sigma each side) that correlates the noise,
+    scaled so that white noise of unit variance keeps unit variance after both passes
+    (the variance of the smoothed field is the sum of the 2D kernel's squares, which for a
+    separable kernel is ``(sum k^2)^2``)."""
+    radius = max(int(np.ceil(4.0 * grain)), 1)
+    kernel = cv2.getGaussianKernel(2 * radius + 1, grain, cv2.CV_64F).ravel()
+    return (kernel / np.sqrt(np.sum(kernel**2))).astype(np.float32)

@@ -182,13 +182,13 @@ def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
 
 
 def renderer_for(scene: Scene, model: FitModel) -> SceneRenderer:
-    """The camera of the scene, with the teach's sensor (noise, blur, exposure) as the fit recorded it."""
-    # The same sensor as the teach (noise, blur, exposure), as the fit recorded it.
+    """The camera of the scene, with the teach's sensor (noise, its grain, blur, exposure) as the fit recorded it."""
     render = model.render or {}
     noise = float(render.get("noise", 2.0))
+    grain = float(render.get("noise_grain", 0.0))
     if scene.poster_image is None:
-        return make_renderer(scene.world, noise, float(render.get("blur", 0.0)), float(render.get("exposure", 1.0)))
+        return make_renderer(scene.world, noise, float(render.get("blur", 0.0)), float(render.get("exposure", 1.0)), grain)
     poster = scene.world.target.poster
     raster = PosterRaster(kind=scene.world.target.kind, ppm=scene.poster_image.shape[1] / poster.width,
                           levels=build_pyramid(scene.poster_image), width=poster.width, height=poster.height)
-    return SceneRenderer(scene.world, raster, RenderSettings(noise_std=noise))
+    return SceneRenderer(scene.world, raster, RenderSettings(noise_std=noise, noise_grain=grain))

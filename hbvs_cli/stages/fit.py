@@ -291,11 +291,13 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, 
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
-    """The simulated sensor of the teach (noise, blur, exposure), for repeat to reuse."""
+    """The simulated sensor of the teach (:data:`~hbvs_cli.io.teach_file.RENDER_SETTINGS`), for repeat to reuse."""
+    from ..io.teach_file import RENDER_SETTINGS
+
     settings = reader.info.get("settings") if reader.info else None
     if reader.world is None or not isinstance(settings, dict):
         return None
-    return {key: settings[key] for key in ("noise", "blur", "exposure") if key in settings}
+    return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
 
 
 def _version() -> str:

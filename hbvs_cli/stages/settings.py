@@ -135,6 +135,9 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
     Setting("seed", int, "Seed of the simulated sensor noise.", fallback=0, panel="Simulation", bounds={"min": 0}),
     Setting("noise", float, "Sensor noise, gray levels (1 sigma).", fallback=2.0, panel="Simulation", bounds={"min": 0.0}),
     Setting("blur", float, "Gaussian blur sigma (px).", fallback=0.0, panel="Simulation", bounds={"min": 0.0, "max": 100.0}),
+    Setting("noise_grain", float, "Correlation length of the sensor noise (px, Gaussian sigma), as a camera's demosaicing, "
+            "denoising and compression leave it; 0 for white noise.", fallback=0.0, panel="Simulation",
+            bounds={"min": 0.0, "max": 20.0}),
     Setting("exposure", float, "Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05}),
     Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) "
             "and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.",

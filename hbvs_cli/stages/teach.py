@@ -49,7 +49,7 @@ class TeachOptions(TeachFields):
 
     def simulation_options_given(self) -> list[str]:
         """The simulation options that were given (not None), as ``--name``."""
-        return [f"--{name}" for name in SIMULATION_DEFAULTS if getattr(self, name) is not None]
+        return [f"--{name.replace('_', '-')}" for name in SIMULATION_DEFAULTS if getattr(self, name) is not None]
 
     def for_simulation(self) -> TeachOptions:
         """These options with the simulation's defaults filled in where none was given."""
@@ -159,7 +159,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
             f"the target leaves the camera's view for {len(out_of_view)} of {frame_count} frames "
             f"(first at t = {out_of_view[0]:.2f} s); fit will leave those frames out"
         )
-    renderer = make_renderer(world, options.noise, options.blur, options.exposure)
+    renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
     settings = options.settings() | {
         "path_name": path_name,

@@ -1,0 +1,131 @@
+"""The closed loop with rendered images under the harshest image noise the detector follows
+(issue 17).
+
+The issue asks for rendered images whose blur and sensor noise put the detector's error at
+1 px. With the default target (three 5 cm dots, 4 m away, 640x480) image noise cannot get
+there: the dot detector keeps its points to about 0.2 px until the noise or the blur is so
+strong that it loses the dots. ``test_image_noise_cannot_reach_one_pixel`` (a campaign)
+measures that over white and correlated sensor noise, blur and JPEG compression; the
+other tests run the loop at the harshest setting it follows: 15 gray levels of sensor noise
+correlated over 2 px (as a camera's demosaicing and denoising leave it), blur 1 px.
+
+Measured on this machine: detector error 0.17 px RMS per axis against the projected truth
+(the default images: 0.012 px), the fit's residual 0.13 px; the loop, seeds 0-1, ends
+within 0.14 / 0.27 cm and 0.10 / 0.055 deg.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import make_fit, make_teach
+from test_control_filter import closed_loop
+
+#: The harshest image noise the loop follows: sensor noise (gray levels), its grain (px), blur (px).
+HARSH = {"noise": 15.0, "noise_grain": 2.0, "blur": 1.0}
+
+
+def detection_errors(noise: float, grain: float, blur: float, jpeg_quality: int = 100, frames: int = 120):
+    """Per-axis detection errors (px) of the tracked dot detector against the projected truth,
+    on rendered frames of the taught s-curve, and the fraction of frames where it lost the dots."""
+    import cv2
+    from scipy.optimize import linear_sum_assignment
+
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.perception.dots import DotDetector
+    from hbvs_cli.sim.render import make_renderer
+
+    world = default_world()
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(world, noise, blur, 1.0, grain)
+    rng = np.random.default_rng(7)
+    detector = DotDetector(len(world.target.points_world))
+    errors, lost = [], 0
+    for t in np.linspace(0.0, 19.9, frames):
+        pose = profile.poses_at(t, start)
+        image = renderer.render(pose, rng)
+        if jpeg_quality < 100:
+            image = cv2.imdecode(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])[1], cv2.IMREAD_GRAYSCALE)
+        found = detector.detect(image)
+        if not found.found:
+            lost += 1
+            continue
+        truth = world.pixels(pose)
+        rows, columns = linear_sum_assignment(np.linalg.norm(found.pixels[:, None] - truth[None], axis=2))
+        errors.append(found.pixels[rows] - truth[columns])
+    return np.concatenate(errors) if errors else np.empty((0, 2)), lost / frames
+
+
+@pytest.fixture(scope="module")
+def harsh_fit(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("image-noise")
+    teach = make_teach(folder / "teach.mcap", **HARSH)
+    make_fit(teach, folder / "fit.mcap")
+    return folder / "fit.mcap"
+
+
+def test_the_harsh_setting_raises_the_detectors_error_tenfold():
+    default, _ = detection_errors(2.0, 0.0, 0.0, frames=40)
+    harsh, lost = detection_errors(HARSH["noise"], HARSH["noise_grain"], HARSH["blur"], frames=40)
+    default_rms, harsh_rms = float(np.sqrt(np.mean(default**2))), float(np.sqrt(np.mean(harsh**2)))
+    assert default_rms < 0.03 and lost == 0
+    assert 0.12 < harsh_rms < 0.3 and harsh_rms > 8 * default_rms, (default_rms, harsh_rms)
+
+
+def test_the_fit_measures_the_raised_noise(harsh_fit):
+    from hbvs_cli.io.fit_file import read_fit_file
+
+    model = read_fit_file(str(harsh_fit)).model
+    assert model.render["noise_grain"] == HARSH["noise_grain"]  # repeat renders the same sensor
+    assert 0.08 < model.residual_px["rms"] < 0.3, model.residual_px
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rendered_images_under_harsh_noise_converge(harsh_fit, seed):
+    run = closed_loop(harsh_fit, perception="images", seed=seed)
+    steps = len(run["records"])
+    assert run["position_cm"] < 1.0 and run["heading_deg"] < 0.2, (run["position_cm"], run["heading_deg"])
+    assert run["lost"] <= 0.01 * steps
+    assert run["smoothness"]["dv_dt_rms_mps2"] < 0.5
+
+
+def skip_unless_campaign(request):
+    if "campaign" not in (request.config.option.markexpr or ""):
+        pytest.skip("runs with: pytest -m campaign tests/test_control_image_noise.py")
+
+
+@pytest.mark.campaign
+def test_rendered_images_under_harsh_noise_ten_seeds(harsh_fit, request):
+    """About 2 minutes."""
+    skip_unless_campaign(request)
+    runs = [closed_loop(harsh_fit, perception="images", seed=seed) for seed in range(10)]
+    position = [run["position_cm"] for run in runs]
+    heading = [run["heading_deg"] for run in runs]
+    print(f"\nimages, harsh noise, seeds 0-9: position mean {np.mean(position):.3f} max {max(position):.3f} cm, "
+          f"heading mean {np.mean(heading):.3f} max {max(heading):.3f} deg, lost {[run['lost'] for run in runs]}, "
+          f"RMS dv/dt {[round(run['smoothness']['dv_dt_rms_mps2'], 3) for run in runs]}")
+    assert np.mean(position) < 1.0 and np.mean(heading) < 0.2, (position, heading)
+    assert max(position) < 2.0 and max(heading) < 0.4
+
+
+#: Image noise raised every way hbvs's renderer can (gray levels, grain px, blur px, JPEG quality).
+DEGRADATIONS = [(30, 0, 0, 100), (40, 0, 0, 100), (15, 2, 1, 100), (20, 2, 1, 100), (10, 4, 1, 100),
+                (2, 0, 3, 5), (30, 0, 2, 5), (10, 2, 1, 10)]
+
+
+@pytest.mark.campaign
+def test_image_noise_cannot_reach_one_pixel(request):
+    """Wherever the detector still follows the dots (lost in under 10 % of frames), its error
+    stays far below 1 px: the 1 px level of issue 17 is out of image noise's reach."""
+    skip_unless_campaign(request)
+    followed = []
+    for noise, grain, blur, quality in DEGRADATIONS:
+        errors, lost = detection_errors(noise, grain, blur, quality)
+        rms = float(np.sqrt(np.mean(errors**2))) if len(errors) else float("nan")
+        print(f"\nnoise {noise} grain {grain} blur {blur} jpeg {quality}: lost {lost:.0%}, error {rms:.3f} px RMS per axis")
+        if lost < 0.1:
+            followed.append(rms)
+            assert rms < 0.35, (noise, grain, blur, quality, rms)
+    assert len(followed) >= 4
