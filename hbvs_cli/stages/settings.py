@@ -170,7 +170,8 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
             fallback=DEFAULT_OFFSET, config="offset", panel="Simulation"),
     Setting("perception", str, "images (render and detect) or points (project and add --pixel-noise).",
             fallback="images", config="perception", panel="Simulation"),
-    Setting("pixel_noise", float, "Pixel noise (px, 1 sigma) for --perception points.",
+    Setting("pixel_noise", float, "Pixel noise (px, 1 sigma) added to the measured points: the projected ones "
+            "(--perception points) or the detector's (images).",
             fallback=0.0, config="pixel_noise", panel="Simulation", bounds={"min": 0.0}),
     Setting("rate", float, "Camera and control rate (Hz).", shown="the taught rate", config="rate", panel="Simulation",
             bounds={"min": 0.1}),
