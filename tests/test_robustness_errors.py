@@ -108,14 +108,32 @@ def message_bomb(messages: int, chunks: int) -> bytes:
 
 
 # ----------------------------------------------------------------------------- measured runs
+#: Runs a command as its own child and writes "exit-code peak-kB" to a file. Linux keeps a
+#: process's peak memory across exec, and a child forked from pytest starts at pytest's
+#: size (hundreds of MB in a long session): forked from this small launcher instead, the
+#: command's peak is its own.
+LAUNCHER = """
+import os, sys
+report, command = sys.argv[1], sys.argv[2:]
+pid = os.fork()
+if pid == 0:
+    os.execv(command[0], command)
+_, status, usage = os.wait4(pid, 0)
+with open(report, "w") as handle:
+    handle.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
+"""
+
+
 def measured(folder: Path, *args: str) -> tuple[int, str, float]:
     """Run ``hbvs ARGS``; exit code, stderr and the peak resident memory in MB (wait4)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
+    report = folder / "peak.txt"
     with open(folder / "stderr.txt", "wb") as err:
-        process = subprocess.Popen([sys.executable, "-m", "hbvs_cli", *args], cwd=folder, stdout=subprocess.DEVNULL, stderr=err, env=env)
-        _, status, usage = os.wait4(process.pid, 0)
-    process.returncode = os.waitstatus_to_exitcode(status)
-    return process.returncode, (folder / "stderr.txt").read_text(), usage.ru_maxrss / 1024
+        subprocess.run([sys.executable, "-c", LAUNCHER, str(report), sys.executable, "-m", "hbvs_cli", *args],
+                       cwd=folder, stdout=subprocess.DEVNULL, stderr=err, env=env, check=True, timeout=600)
+    code, peak_kb = (int(word) for word in report.read_text().split())
+    report.unlink()
+    return code, (folder / "stderr.txt").read_text(), peak_kb / 1024
 
 
 LIMIT_CASES = {
