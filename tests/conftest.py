@@ -6,8 +6,13 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
+# As the command line does (cli/app.py): OpenBLAS's own threads spin-wait for work and, on
+# two cores that xdist's workers already fill, made a 9600 x 10 SVD take 160 ms instead of
+# 4 ms. Set before numpy is first imported; the children the tests start inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLES = REPO / "samples"
