@@ -183,17 +183,24 @@ class TextureDetector:
         if prediction is None:
             prediction = self._track.predict()
         result = None
+        aligned = False
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
                 result = self._follow(gray, guess)
+                if result is None and self.align:
+                    # Too few reference corners agree (a picture with little texture, e.g.
+                    # mostly sky): the whole region's alignment from the prediction, which
+                    # is nearer than a fresh acquisition.
+                    result = self._aligned_from(gray, guess)
+                    aligned = result is not None
             if result is None:
                 window = _window(gray.shape, prediction)
                 if window is not None:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and self.align:
+        if result.found and result.homography is not None and self.align and not aligned:
             result = self._align(gray, result)
         self._track.update(result.pixels)
         self.homography = result.homography
@@ -204,31 +211,49 @@ class TextureDetector:
         """Polish the homography by aligning the whole reference picture with the frame (ECC).
 
         LK on a few hundred corners leaves a few tenths of a pixel; the alignment uses every
-        pixel of the target's region of the reference. Then the frame's vignetting relative
-        to the reference (:class:`Vignetting`) is estimated, the template shaded by it and
-        aligned again. Kept only when it converges near the LK result.
+        pixel of the target's region of the reference (:meth:`_aligned_homography`). Kept
+        only when it converges near the LK result.
+        """
+        homography = self._aligned_homography(gray, result.homography)
+        if homography is None:
+            return result
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+
+    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64]) -> TextureDetection | None:
+        """The target found by aligning the reference region from ``guess`` alone; None when
+        the alignment does not converge near it, or the result folds the target."""
+        homography = self._aligned_homography(gray, guess)
+        if homography is None or not _plausible(homography, self.reference_pixels, gray.shape):
+            return None
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0)
+
+    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """``homography`` (reference -> frame) refined by ECC on the target's region, or None.
+
+        Both images smoothed alike (:func:`_matched_blur`); then the frame's vignetting
+        relative to the reference (:class:`Vignetting`) is estimated, the template shaded by
+        it and aligned again.
         """
         x0, y0, template = self._align_template
         to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
         points = self.reference_pixels - (x0, y0)
-        template_sigma, frame_sigma = _matched_blur(result.homography, self.reference_pixels)
+        template_sigma, frame_sigma = _matched_blur(homography, self.reference_pixels)
         if template_sigma > ALIGN_BLUR_SIGMA:  # the frame sees the target smaller than the reference
             template = self._template(template_sigma)
-        region = _smoothed_region(gray, _transfer(result.homography, self.reference_pixels), frame_sigma)
+        region = _smoothed_region(gray, _transfer(homography, self.reference_pixels), frame_sigma)
         if region is None:
-            return result
+            return None
         (fx0, fy0), frame = region
         to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
-        refined = refine_homography(template, frame, to_frame @ result.homography @ to_crop, points, blur=1)
+        refined = refine_homography(template, frame, to_frame @ homography @ to_crop, points, blur=1)
         if refined is None:
-            return result
+            return None
         shaded = self._vignetting.shade(template, frame, refined, (fx0, fy0))
         if shaded is not None:
             again = refine_homography(shaded, frame, refined, points, blur=1)
             refined = refined if again is None else again
-        homography = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
-        homography /= homography[2, 2]
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+        aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
+        return aligned / aligned[2, 2]
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""
