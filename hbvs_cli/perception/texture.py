@@ -52,6 +52,8 @@ ALIGN_BLUR_SIGMA = 0.8
 CAMERA_BLUR_SIGMA = 0.5
 #: The pooled vignetting fall-off ``a`` (per squared half-diagonal) is kept within this range.
 VIGNETTING_RANGE = (-0.5, 0.9)
+#: Fewer template pixels in the frame than this tell nothing about the vignetting.
+MIN_SHADING_PIXELS = 64
 
 
 @dataclass(frozen=True)
@@ -389,15 +391,20 @@ class Vignetting:
         in_frame = cv2.perspectiveTransform(self._grid.reshape(-1, 1, 2), homography).reshape(height, width, 2) + offset
         r2_frame = self._radius2(in_frame)
         ok = np.isfinite(warped)
-        shading = (self._r2_reference - r2_frame)[ok] * template[ok]
-        design = np.column_stack([template[ok], np.ones(shading.size)]).astype(np.float64)
-        if shading.size > 3 * 16:
-            coefficients, *_ = np.linalg.lstsq(np.column_stack([design, shading]), warped[ok].astype(np.float64), rcond=None)
+        if np.count_nonzero(ok) > MIN_SHADING_PIXELS:
+            brightness = template[ok].astype(np.float64)
+            shading = (self._r2_reference - r2_frame)[ok] * brightness
+            design = np.stack([brightness, np.ones_like(brightness), shading])
+            gram = design @ design.T
+            try:
+                coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
+                # The information on a: the shading term's part that gain and offset do not explain.
+                unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
+            except np.linalg.LinAlgError:
+                coefficients, unexplained = np.zeros(3), 0.0
             gain, slope = coefficients[0], coefficients[2]
-            # The information on a: the shading term's part that gain and offset do not explain.
-            explained = design @ np.linalg.lstsq(design, shading, rcond=None)[0]
-            weight = float(np.sum((shading - explained) ** 2)) * gain**2
-            if gain > 0 and np.isfinite(slope) and weight > 0:
+            weight = float(unexplained) * gain**2
+            if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
                 self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
                 self._weight += weight
         a = self.falloff
