@@ -139,8 +139,8 @@ def test_photograph_poster_is_picked_as_texture(fitted, capsys):
 
 @pytest.mark.parametrize("name", ["red_dots", "photo"])
 def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path, name):
-    """Measured: red dots e3 (theta) RMS 0.035 deg, e1 8.9e-5; the photograph 0.014 deg, e1 6.9e-5 (its
-    detector starts afresh, the vignetting unknown until the target moves)."""
+    """Measured: red dots e3 (theta) RMS 0.035 deg, e1 8.9e-5; the photograph 0.014 deg,
+    e1 6.9e-5 (its detector starts afresh, the vignetting unknown until the target moves)."""
     row = fitted(name)
     run = tmp_path / "replay.mcap"
     result = call_hbvs("repeat", str(row["fit"]), "--replay", str(row["teach"]), "-o", str(run), "-q")
