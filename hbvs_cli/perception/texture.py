@@ -16,7 +16,7 @@ carried across by it:
 ORB keypoints sit on the pixel grid of their pyramid level (a few tenths of a pixel of
 error), so an acquired homography is also polished by one Lucas-Kanade step.
 
-Every homography is then aligned on the whole target region (ECC, :mod:`.ecc`), with two
+Every homography is then aligned on the whole target region (ECC, :mod:`.ecc`), with three
 things that matter at a few hundredths of a pixel, where yaw and the plane normal are
 decided (measured on independent footage, tests/test_perception_footage.py):
 
@@ -27,7 +27,14 @@ decided (measured on independent footage, tests/test_perception_footage.py):
   moves in the frame, looks to an intensity alignment like a shift and a foreshortening
   (the frame's yaw was 0.28 deg RMS off for it). The fall-off ``1 - a r^2`` about the image
   centre is estimated from the frames (pooled: it is the camera's) and the template is
-  shaded as each frame sees it before the second alignment.
+  shaded as each frame sees it before the second alignment;
+* the resolution: a frame that sees the target 2x larger than the reference is sharper
+  than the template, and a sharp picture matched to a blurred one comes out at a biased
+  scale (the plane normal tilted 0.3-0.4 deg); the frame (or the template, when the
+  target shrinks) is smoothed so that both have the same blur in template pixels.
+
+When following fails (too few reference corners agree, a picture with little texture), the
+alignment is tried from the track's prediction before a fresh acquisition.
 
 Determinism: ORB and brute-force matching are deterministic and ``cv2.setRNGSeed(seed)``
 is called before every robust fit, so the same frames give the same results run to run.
@@ -349,7 +356,8 @@ class Vignetting:
     reference's: one parameter ``a`` a frame at a time by linear least squares (frame ~
     gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset, the frame warped
     onto the template), pooled by each frame's information (near the reference's place in
-    the image a frame tells nothing). ``r`` is in units of the image's half-diagonal.
+    the image a frame tells nothing). ``r`` is in units of the image's half-diagonal. The
+    reference is taken to be a frame of the same camera, as ``fit`` and ``repeat`` make it.
 
     Parameters
     ----------
