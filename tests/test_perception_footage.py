@@ -16,6 +16,7 @@ import json
 import numpy as np
 import pytest
 
+from hbvs_cli.core.desired import AMBIGUOUS_NORMAL_MARGIN
 from hbvs_cli.io.fit_file import read_fit_file
 
 import footage
@@ -118,10 +119,13 @@ def test_marker_options_pin_the_dictionary_and_id(fitted, tmp_path):
     assert result.returncode == 2 and "unknown marker dictionary" in result.stderr.decode()
 
 
-#: Measured on this footage (a 1.8 m photograph, 3-5.8 m away): theta_d 0.31 deg RMS, x_hd1
-#: 8.9e-4, n* off by 0.82 deg. x_hd1 meets the issue's 2e-3; theta_d (0.1 deg) and n* (0.5
-#: deg) do NOT: the README's limits say so.
-PHOTO_BOUNDS = {"theta_deg": 0.4, "x_hd1": 2e-3, "normal_deg": 1.0}
+#: The issue's bounds for a photograph at least 1 m wide seen from 2-6 m. Measured on this
+#: footage (a 1.8 m photograph, 3-5.8 m away): theta_d 0.048 deg RMS, x_hd1 7.5e-5, n* 0.10
+#: deg off (before the texture alignment was smoothed before the cut, at matched resolution
+#: and with the lens's vignetting modelled: 0.28 deg, 7.6e-4, 0.89 deg). Other footage of
+#: the same kind, not asserted: coffee with noise seeds 1 and 2, 0.047 and 0.036 deg;
+#: skimage astronaut 0.020 deg, chelsea 0.041 deg (n* 0.05-0.23 deg).
+PHOTO_BOUNDS = {"theta_deg": 0.1, "x_hd1": 2e-3, "normal_deg": 0.5}
 
 
 def test_photograph_poster_is_picked_as_texture(fitted, capsys):
@@ -132,10 +136,18 @@ def test_photograph_poster_is_picked_as_texture(fitted, capsys):
     assert "--target auto picked texture" in row["stderr"] and "no markers" in row["stderr"] and "no dots" in row["stderr"]
     for key, bound in PHOTO_BOUNDS.items():
         assert row["errors"][key] <= bound, ("photo", key, row["errors"][key])
+    # The weave tells the two homography branches apart (margin 0.008 measured; the true
+    # points give 0.009): before, the homographies' errors hid it (margin 0.000, and fit
+    # warned that it fell back to "the target faces F*").
+    assert row["model"].normal_margin >= AMBIGUOUS_NORMAL_MARGIN, row["model"].normal_margin
+    assert "homography branches" not in row["stderr"]
 
 
-def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path):
-    row = fitted("red_dots")
+@pytest.mark.parametrize("name", ["red_dots", "photo"])
+def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path, name):
+    """Measured: red dots e3 (theta) RMS 0.035 deg, e1 8.9e-5; the photograph 0.014 deg,
+    e1 6.9e-5 (its detector starts afresh, the vignetting unknown until the target moves)."""
+    row = fitted(name)
     run = tmp_path / "replay.mcap"
     result = call_hbvs("repeat", str(row["fit"]), "--replay", str(row["teach"]), "-o", str(run), "-q")
     assert result.returncode == 0, result.stderr.decode()

@@ -16,6 +16,26 @@ carried across by it:
 ORB keypoints sit on the pixel grid of their pyramid level (a few tenths of a pixel of
 error), so an acquired homography is also polished by one Lucas-Kanade step.
 
+Every homography is then aligned on the whole target region (ECC, :mod:`.ecc`), with three
+things that matter at a few hundredths of a pixel, where yaw and the plane normal are
+decided (measured on independent footage, tests/test_perception_footage.py):
+
+* both images are smoothed *before* the template is cut out of the reference (ECC's own
+  filter, applied to the cut-out, smooths its border against the reflected edge: the
+  reference frame itself was found 0.06 px off its own image);
+* the lens's vignetting: a brightness ramp across the target, which changes as the target
+  moves in the frame, looks to an intensity alignment like a shift and a foreshortening
+  (the frame's yaw was 0.28 deg RMS off for it). The fall-off ``1 - a r^2`` about the image
+  centre is estimated from the frames (pooled: it is the camera's) and the template is
+  shaded as each frame sees it before the second alignment;
+* the resolution: a frame that sees the target 2x larger than the reference is sharper
+  than the template, and a sharp picture matched to a blurred one comes out at a biased
+  scale (the plane normal tilted 0.3-0.4 deg); the frame (or the template, when the
+  target shrinks) is smoothed so that both have the same blur in template pixels.
+
+When following fails (too few reference corners agree, a picture with little texture), the
+alignment is tried from the track's prediction before a fresh acquisition.
+
 Determinism: ORB and brute-force matching are deterministic and ``cv2.setRNGSeed(seed)``
 is called before every robust fit, so the same frames give the same results run to run.
 """
@@ -31,6 +51,16 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction
 from .ecc import refine_homography
+
+#: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
+ALIGN_BLUR_SIGMA = 0.8
+#: The camera's own blur (px, optics and pixel together), assumed when matching the
+#: template's resolution with a frame that sees the target larger or smaller.
+CAMERA_BLUR_SIGMA = 0.5
+#: The pooled vignetting fall-off ``a`` (per squared half-diagonal) is kept within this range.
+VIGNETTING_RANGE = (-0.5, 0.9)
+#: Fewer template pixels in the frame than this tell nothing about the vignetting.
+MIN_SHADING_PIXELS = 64
 
 
 @dataclass(frozen=True)
@@ -128,9 +158,21 @@ class TextureDetector:
         # The reference's region of the target (its points' box) is what ECC aligns.
         low = np.clip(np.floor(points.min(axis=0)).astype(int), 0, None)
         high = np.minimum(np.ceil(points.max(axis=0)).astype(int) + 1, self.reference.shape[::-1])
-        self._align_template = (int(low[0]), int(low[1]), np.ascontiguousarray(self.reference[low[1]:high[1], low[0]:high[0]]))
+        self._align_box = (int(low[0]), int(low[1]), int(high[0]), int(high[1]))
+        self._align_template = (int(low[0]), int(low[1]), self._template(ALIGN_BLUR_SIGMA))
+        self._vignetting = Vignetting(self.reference.shape, self._align_template)
         self.homography: NDArray[np.float64] | None = None
         self.inliers = 0
+
+    def _template(self, sigma: float) -> NDArray[np.float32]:
+        """The reference's target region smoothed by ``sigma`` px (smoothed with a margin,
+        then cut: its border is the picture's, not a reflection of the cut)."""
+        x0, y0, x1, y1 = self._align_box
+        margin = int(np.ceil(4 * sigma)) + 1
+        height, width = self.reference.shape
+        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
+        smoothed = _smoothed(self.reference[cy0:min(y1 + margin, height), cx0:min(x1 + margin, width)], sigma)
+        return np.ascontiguousarray(smoothed[y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0])
 
     def reset(self) -> None:
         """Forget the track."""
@@ -150,17 +192,24 @@ class TextureDetector:
         if prediction is None:
             prediction = self._track.predict()
         result = None
+        aligned = False
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
                 result = self._follow(gray, guess)
+                if result is None and self.align:
+                    # Too few reference corners agree (a picture with little texture, e.g.
+                    # mostly sky): the whole region's alignment from the prediction, which
+                    # is nearer than a fresh acquisition.
+                    result = self._aligned_from(gray, guess)
+                    aligned = result is not None
             if result is None:
                 window = _window(gray.shape, prediction)
                 if window is not None:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and self.align:
+        if result.found and result.homography is not None and self.align and not aligned:
             result = self._align(gray, result)
         self._track.update(result.pixels)
         self.homography = result.homography
@@ -171,18 +220,49 @@ class TextureDetector:
         """Polish the homography by aligning the whole reference picture with the frame (ECC).
 
         LK on a few hundred corners leaves a few tenths of a pixel; the alignment uses every
-        pixel of the target's region of the reference. Kept only when it converges near the
-        LK result.
+        pixel of the target's region of the reference (:meth:`_aligned_homography`). Kept
+        only when it converges near the LK result.
+        """
+        homography = self._aligned_homography(gray, result.homography)
+        if homography is None:
+            return result
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+
+    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64]) -> TextureDetection | None:
+        """The target found by aligning the reference region from ``guess`` alone; None when
+        the alignment does not converge near it, or the result folds the target."""
+        homography = self._aligned_homography(gray, guess)
+        if homography is None or not _plausible(homography, self.reference_pixels, gray.shape):
+            return None
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0)
+
+    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """``homography`` (reference -> frame) refined by ECC on the target's region, or None.
+
+        Both images smoothed alike (:func:`_matched_blur`); then the frame's vignetting
+        relative to the reference (:class:`Vignetting`) is estimated, the template shaded by
+        it and aligned again.
         """
         x0, y0, template = self._align_template
         to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
         points = self.reference_pixels - (x0, y0)
-        refined = refine_homography(template, gray, result.homography @ to_crop, points)
+        template_sigma, frame_sigma = _matched_blur(homography, self.reference_pixels)
+        if template_sigma > ALIGN_BLUR_SIGMA:  # the frame sees the target smaller than the reference
+            template = self._template(template_sigma)
+        region = _smoothed_region(gray, _transfer(homography, self.reference_pixels), frame_sigma)
+        if region is None:
+            return None
+        (fx0, fy0), frame = region
+        to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
+        refined = refine_homography(template, frame, to_frame @ homography @ to_crop, points, blur=1)
         if refined is None:
-            return result
-        homography = refined @ np.linalg.inv(to_crop)
-        homography /= homography[2, 2]
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+            return None
+        shaded = self._vignetting.shade(template, frame, refined, (fx0, fy0))
+        if shaded is not None:
+            again = refine_homography(shaded, frame, refined, points, blur=1)
+            refined = refined if again is None else again
+        aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
+        return aligned / aligned[2, 2]
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""
@@ -267,6 +347,117 @@ class TextureDetector:
             return None
         pixels = _transfer(refined, self.reference_pixels)
         return TextureDetection(pixels, True, tracked, tracked - inliers, refined, inliers)
+
+
+class Vignetting:
+    """The lens's fall-off of brightness, ``1 - a r^2`` about the image centre, pooled over frames.
+
+    A frame sees the target at brightness ``V(x_frame) / V(x_reference)`` times the
+    reference's: one parameter ``a`` a frame at a time by linear least squares (frame ~
+    gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset, the frame warped
+    onto the template), pooled by each frame's information (near the reference's place in
+    the image a frame tells nothing). ``r`` is in units of the image's half-diagonal. The
+    reference is taken to be a frame of the same camera, as ``fit`` and ``repeat`` make it.
+
+    Parameters
+    ----------
+    shape : (height, width)
+        The images' size.
+    template : (x0, y0, ndarray of shape (h, w))
+        The template and its place in the reference image.
+    """
+
+    def __init__(self, shape: tuple[int, int], template: tuple[int, int, NDArray[np.float32]]) -> None:
+        height, width = shape
+        self.centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+        self.scale = 0.25 * (width**2 + height**2)
+        x0, y0, image = template
+        rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]].astype(np.float64)
+        self._grid = np.stack([cols, rows], axis=-1)
+        self._r2_reference = self._radius2(self._grid + (x0, y0))
+        self._weighted_sum = 0.0
+        self._weight = 0.0
+
+    @property
+    def falloff(self) -> float:
+        """The pooled ``a`` (0 before any frame told it)."""
+        return self._weighted_sum / self._weight if self._weight > 0 else 0.0
+
+    def _radius2(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.sum((pixels - self.centre) ** 2, axis=-1) / self.scale
+
+    def shade(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
+              offset: tuple[int, int]) -> NDArray[np.float32] | None:
+        """The template as the frame's vignetting shades it (after pooling this frame's estimate).
+
+        ``homography`` maps template pixels to ``frame`` pixels, ``frame`` being cut out of
+        the whole frame at ``offset``. None when no frame has told the fall-off yet.
+        """
+        height, width = template.shape
+        warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        in_frame = cv2.perspectiveTransform(self._grid.reshape(-1, 1, 2), homography).reshape(height, width, 2) + offset
+        r2_frame = self._radius2(in_frame)
+        ok = np.isfinite(warped)
+        if np.count_nonzero(ok) > MIN_SHADING_PIXELS:
+            brightness = template[ok].astype(np.float64)
+            shading = (self._r2_reference - r2_frame)[ok] * brightness
+            design = np.stack([brightness, np.ones_like(brightness), shading])
+            gram = design @ design.T
+            try:
+                coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
+                # The information on a: the shading term's part that gain and offset do not explain.
+                unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
+            except np.linalg.LinAlgError:
+                coefficients, unexplained = np.zeros(3), 0.0
+            gain, slope = coefficients[0], coefficients[2]
+            weight = float(unexplained) * gain**2
+            if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
+                self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
+                self._weight += weight
+        a = self.falloff
+        if a == 0.0:
+            return None
+        return (template * ((1.0 - a * r2_frame) / (1.0 - a * self._r2_reference))).astype(np.float32)
+
+
+def _smoothed(image: NDArray[np.uint8], sigma: float = ALIGN_BLUR_SIGMA) -> NDArray[np.float32]:
+    """The image as the alignment sees it (float32, smoothed by ``sigma`` px)."""
+    return cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma)
+
+
+def _matched_blur(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64]) -> tuple[float, float]:
+    """Smoothing (px) of the template and of the frame that give both the same blur in the
+    template's pixels, the frame seeing the target ``s`` times larger (the homography's
+    local scale at the target's centre): a sharper frame matched to a blurrier template
+    biases the fitted scale (a blob looks larger blurred)."""
+    centre = reference_pixels.mean(axis=0)
+    h = homography / homography[2, 2]
+    w = h[2, 0] * centre[0] + h[2, 1] * centre[1] + 1.0
+    u = (h[0, 0] * centre[0] + h[0, 1] * centre[1] + h[0, 2]) / w
+    v = (h[1, 0] * centre[0] + h[1, 1] * centre[1] + h[1, 2]) / w
+    jacobian = np.array([[h[0, 0] - u * h[2, 0], h[0, 1] - u * h[2, 1]], [h[1, 0] - v * h[2, 0], h[1, 1] - v * h[2, 1]]]) / w
+    scale = float(np.sqrt(abs(np.linalg.det(jacobian))))
+    total = CAMERA_BLUR_SIGMA**2 + ALIGN_BLUR_SIGMA**2  # the template's blur (its own pixels), squared
+    if scale >= 1.0:
+        return ALIGN_BLUR_SIGMA, float(np.sqrt(max(scale**2 * total - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2)))
+    return float(np.sqrt(max(total / scale**2 - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2))), ALIGN_BLUR_SIGMA
+
+
+def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma: float = ALIGN_BLUR_SIGMA,
+                     margin: int = 16) -> tuple[tuple[int, int], NDArray[np.float32]] | None:
+    """The frame around ``points`` (their box and ``margin`` px), smoothed; None when empty.
+
+    The region is cut before smoothing with a margin wider than the filter, so that what
+    ECC sees near the target is the smoothed frame, not its cut edge."""
+    height, width = gray.shape
+    if not np.all(np.isfinite(points)):
+        return None
+    x0, y0 = np.maximum(np.floor(points.min(axis=0)).astype(int) - margin, 0)
+    x1, y1 = np.minimum(np.ceil(points.max(axis=0)).astype(int) + margin + 1, (width, height))
+    if x1 - x0 < 2 * margin or y1 - y0 < 2 * margin:
+        return None
+    return (int(x0), int(y0)), _smoothed(gray[y0:y1, x0:x1], sigma)
 
 
 def _transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
