@@ -184,7 +184,7 @@ def choose_target(
         return markers
     ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
     if marker_dict is None:
-        dots = find_dots(grays)
+        dots = find_dots(images)  # in colour: dots may differ from their wall in hue alone
         if dots is not None:
             return _with_ruled_out(dots, ruled_out)
         ruled_out.append("dots (3-10 round dark or light blobs)")

@@ -48,9 +48,20 @@ MAX_DOT_RADIUS_PX = 80
 
 
 def dark_image(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
-    """The gray frame in which the dots are dark: the frame itself, or its negative for light
-    dots (exact: no rescaling, so the centroids keep the frame's precision). Colour frames
-    go through luminance (:func:`~.detector.as_gray`), as the teach file stores them."""
+    """The one-channel frame in which the dots are dark: the frame itself, or its negative for
+    light dots (exact: no rescaling, so the centroids keep the frame's precision).
+
+    A colour (BGR) frame gives its darkest channel at each pixel for dark dots (its
+    brightest, negated, for light ones): a saturated red dot on a neutral grey wall of the
+    same luminance is invisible in gray but dark in green and blue, while black ink on white
+    paper and white lights on a dark wall stand out as they do in gray (a neutral pixel's
+    channels are its gray level).
+    """
+    if isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8:
+        blue, green, red = cv2.split(image)[:3]
+        if polarity == "light":
+            return cv2.bitwise_not(cv2.max(cv2.max(blue, green), red))
+        return cv2.min(cv2.min(blue, green), red)
     gray = as_gray(image)
     return cv2.bitwise_not(gray) if polarity == "light" else gray
 

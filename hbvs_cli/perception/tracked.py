@@ -21,7 +21,7 @@ from ..io.images import decode_image
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import TargetChoice
 from .autodetect import choose_target as choose
-from .base import Detection, TargetDetector, match_identity
+from .base import Detection, TargetDetector, as_gray, match_identity
 from .detector import guess_target_kind, make_detector
 from .dots import dark_image, find_dark_blobs
 
@@ -204,7 +204,7 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
     TL, TR, BR, BL. Rows too close to the horizon (the principal point's row, where m_z ~ 0
     and (18) breaks down) are pushed away from it.
     """
-    keypoints = cv2.ORB_create(nfeatures=1000).detect(image, None)
+    keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
     points = np.array([k.pt for k in keypoints])
