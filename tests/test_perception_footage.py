@@ -68,7 +68,7 @@ def fitted(tmp_path_factory):
 NOISY_DOT_BOUNDS = {"theta_deg": 0.2, "x_hd1": 2e-3, "normal_deg": 1.0}
 
 
-@pytest.mark.parametrize("name", ["bright_dots", "red_dots", "black_dots_distorted", "noisy_dots"])
+@pytest.mark.parametrize("name", ["bright_dots", "red_dots", "red_on_grey", "black_dots_distorted", "noisy_dots"])
 def test_dot_targets_fit_within_the_issue_bounds(fitted, name, capsys):
     row = fitted(name)
     with capsys.disabled():

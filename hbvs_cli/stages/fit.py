@@ -175,8 +175,9 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
             # Colour while the target is not known (the dots of --target auto may differ from
-            # their wall in hue alone), then only for dots: the other detectors use luminance.
-            frames = decoded_frames(reader.frames(), reader.name, colour=lambda: detector is None or detector.spec.kind == "dots")
+            # their wall in hue alone), then only for dots seen in colour: everything else
+            # is measured on luminance, which decodes faster.
+            frames = decoded_frames(reader.frames(), reader.name, colour=lambda: detector is None or detector.spec.contrast == "colour")
             # --target auto judges the first few frames together: peek at them, then go on.
             first = list(islice(frames, AUTO_FRAMES))
             for frame, data, image in chain(first, frames):
@@ -360,7 +361,7 @@ def _detector_spec(
         details = found.details if found is not None else {}
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
-        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"))
+        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
     if kind == "aruco":
         if world is not None:
             return DetectorSpec(kind="aruco", n_points=4, marker_id=world.target.marker_id)
