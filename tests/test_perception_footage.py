@@ -156,8 +156,11 @@ def test_photograph_poster_is_picked_as_texture(fitted, capsys):
         assert row["errors"][key] <= bound, ("photo", key, row["errors"][key])
 
 
-def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path):
-    row = fitted("red_dots")
+@pytest.mark.parametrize("name", ["red_dots", "red_on_grey"])
+def test_replay_of_the_same_footage_agrees_with_the_fit(fitted, tmp_path, name):
+    """red_on_grey: the replay decodes and detects in colour too. Measured: e3 RMS 0.096
+    deg, e1 3.0e-4 (red_dots: 0.035 deg, 8.9e-5)."""
+    row = fitted(name)
     run = tmp_path / "replay.mcap"
     result = call_hbvs("repeat", str(row["fit"]), "--replay", str(row["teach"]), "-o", str(run), "-q")
     assert result.returncode == 0, result.stderr.decode()
