@@ -2,7 +2,7 @@
 
 What is stored: frames are 8 bits a channel, in colour when the source has colour (BGR, three
 channels) and one gray channel when it has not (the simulator, a mono camera, a colour
-container whose three channels are equal): the dot detector sees a red dot on a grey wall
+container whose channels are within :data:`NEUTRAL_SPREAD` levels): the dot detector sees a red dot on a grey wall
 of the same brightness only in colour. A source that is already compressed keeps its bytes
 (JPEG as it is, an 8-bit gray or colour PNG as it is; a 16-bit, palette or alpha PNG, or a
 colour PNG of gray content, becomes an 8-bit PNG of the decoded image, still lossless);

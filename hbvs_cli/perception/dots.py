@@ -4,7 +4,9 @@ Candidates are the connected components of an Otsu threshold (robust to exposure
 adapts to the frame's own gray levels) that are dot-like: big enough, compact, not
 elongated, not cut by the search window. Each centre is the intensity-weighted centroid of
 its blob, the weights being the darkness below the local paper level, so anti-aliased rim
-pixels count in proportion to their ink and the centre is sub-pixel accurate.
+pixels count in proportion to their ink and the centre is sub-pixel accurate. The frame is
+searched in gray, or, for dots that differ from their wall in hue alone, on a colour
+channel (:func:`dark_image`); light dots are the dark dots of the negative.
 
 Identity is *not* taken from the image layout but from the points' predicted positions:
 an optimal assignment (``scipy.optimize.linear_sum_assignment``) of candidates to
