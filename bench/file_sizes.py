@@ -5,8 +5,9 @@ The same frames are stored in both layouts in one run:
 
 * before: every frame a PNG, base64 inside a JSON ``foxglove.CompressedImage`` (a colour
   PNG kept as it came);
-* now: one gray channel, JPEG at quality 90 for frames hbvs compresses, PNG files and bag
-  images kept (colour PNG as gray PNG), bytes in a protobuf ``foxglove.CompressedImage``.
+* now: one gray channel (colour only for sources with colour, which this does not measure),
+  JPEG at quality 90 for frames hbvs compresses, PNG files and bag images kept (a colour PNG
+  of gray content as gray PNG), bytes in a protobuf ``foxglove.CompressedImage``.
 
 Figures: bytes per frame against the bytes of the image it holds (goal <= 1.1x), the
 default 20 s teach against before (goal <= 0.25), and the fit's accuracy against the

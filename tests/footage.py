@@ -324,12 +324,25 @@ def _disc(image: np.ndarray, centre_m, radius_m: float, colour, wall_h_m: float)
     return np.array([col, row])
 
 
+def luma601(bgr) -> float:
+    """Rec.601 luma of a BGR colour (0.299 R + 0.587 G + 0.114 B)."""
+    blue, green, red = (float(c) for c in bgr)
+    return 0.299 * red + 0.587 * green + 0.114 * blue
+
+
+#: The wall and dot colours (BGR) of the ``red_on_grey`` row: a neutral grey and a saturated
+#: red whose Rec.601 luma is within 1 level of it (111 and 110.8).
+RED_ON_GREY = ((111, 111, 111), (60, 60, 230))
+
+
 def dots_wall(kind: str) -> Wall:
     """The dot walls of the issue's table.
 
     * ``bright``: three bright dots (LEDs, retro-reflectors) on a dark wall;
     * ``red``: four red dots on a light wall, a dark door frame beside them;
-    * ``black5``: five black dots of 3-8 cm on a beige poster, with a picture frame nearby.
+    * ``black5``: five black dots of 3-8 cm on a beige poster, with a picture frame nearby;
+    * ``red_on_grey``: four saturated red dots on a neutral grey of the same luma, a door
+      frame, a picture frame and a darker notice board nearby.
     Dots are placed in wall metres (x from the wall image's left edge, z above the floor).
     """
     width, height = 3.2, 1.8
@@ -347,6 +360,20 @@ def dots_wall(kind: str) -> Wall:
         x0 = int(2.75 / WALL_MPP)
         cv2.rectangle(image, (x0, 100), (x0 + 40, image.shape[0] - 1), (40, 50, 60), -1)
         cv2.rectangle(image, (x0 + 40, 100), (image.shape[1] - 1, 140), (40, 50, 60), -1)
+    elif kind == "red_on_grey":
+        # Saturated red dots on a neutral grey of the same Rec.601 luma (RED_ON_GREY): in gray
+        # the dots vanish; only colour tells them from the wall.
+        grey, red = RED_ON_GREY
+        image = _canvas(width, height, grey)
+        layout = [((0.60, 1.12), 0.05), ((2.40, 1.06), 0.05), ((2.20, 0.50), 0.05), ((0.90, 0.55), 0.05), ((1.50, 0.75), 0.05)]
+        colour = red
+        # Distractors: a dark door frame reaching the floor on the right, a dark picture
+        # frame on the left, and a darker grey notice board between the dots.
+        x0 = int(2.75 / WALL_MPP)
+        cv2.rectangle(image, (x0, 100), (x0 + 40, image.shape[0] - 1), (40, 50, 60), -1)
+        cv2.rectangle(image, (x0 + 40, 100), (image.shape[1] - 1, 140), (40, 50, 60), -1)
+        cv2.rectangle(image, (20, 150), (170, 420), (35, 35, 35), 8)
+        cv2.rectangle(image, (int(1.3 / WALL_MPP), int(0.55 / WALL_MPP)), (int(1.7 / WALL_MPP), int(0.85 / WALL_MPP)), (80, 80, 80), -1)
     elif kind == "black5":
         image = _canvas(width, height, (150, 160, 165))  # painted wall
         poster = (slice(int(0.55 / WALL_MPP), int(1.45 / WALL_MPP)), slice(int(0.25 / WALL_MPP), int(2.75 / WALL_MPP)))
@@ -419,6 +446,8 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
         return dots_wall("bright"), plain, Effects(noise=2.5)
     if name == "red_dots":
         return dots_wall("red"), plain, Effects()
+    if name == "red_on_grey":
+        return dots_wall("red_on_grey"), plain, Effects()
     if name == "black_dots_distorted":
         camera = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
         return dots_wall("black5"), camera, Effects(exposure_s=0.06, blur_samples=3, jpeg_quality=85)
@@ -435,7 +464,7 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
 
 
 CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
-EXPECTED_KIND = {"noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "black_dots_distorted": "dots",
+EXPECTED_KIND = {"noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "red_on_grey": "dots", "black_dots_distorted": "dots",
                  "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}
 
 

@@ -2,9 +2,9 @@
 
 Before issue 18 a simulated 20 s teach (600 frames, the default) was 80 916 159 bytes:
 3-byte-per-pixel PNG-sized frames, each base64-encoded inside a JSON message. Now frames
-are one gray channel, JPEG at quality 90 when hbvs compresses them, and the bytes sit in a
-protobuf ``foxglove.CompressedImage`` as they are. ``python -m bench.file_sizes`` measures
-the same figures on every source.
+are one gray channel (in colour when the source has colour), JPEG at quality 90 when hbvs
+compresses them, and the bytes sit in a protobuf ``foxglove.CompressedImage`` as they are.
+``python -m bench.file_sizes`` measures the same figures on every source.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from hbvs_cli.io.images import bytes_to_store, encode_image, is_gray8_png, read_
 from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.teach_file import TeachReader
 
-from conftest import SAMPLES, make_teach
+from conftest import SAMPLES, make_teach, rendered_s_curve
 
 #: The default 20 s simulated teach before issue 18 (bytes), measured on commit 72a80c9.
 TEACH_BYTES_BEFORE = 80_916_159
@@ -90,9 +90,88 @@ def test_what_each_source_stores():
     # --format png: lossless for those too; --format jpeg re-encodes a PNG source.
     assert bytes_to_store(gray, image_format="png")[1] == "png"
     assert bytes_to_store(gray, gray_png, "png", image_format="jpeg")[1] == "jpeg"
+    # Colour: a colour PNG and a colour JPEG are kept byte for byte, a frame without bytes
+    # becomes a colour JPEG; --gray stores one channel, encoding a colour JPEG again.
+    red = colour.copy()
+    red[50:70, 70:90] = (40, 40, 220)
+    red_png = cv2.imencode(".png", red)[1].tobytes()
+    red_jpeg = cv2.imencode(".jpg", red)[1].tobytes()
+    assert bytes_to_store(red, red_png, "png") == (red_png, "png")
+    assert bytes_to_store(red, red_jpeg, "jpeg") == (red_jpeg, "jpeg")
+    assert cv2.imdecode(np.frombuffer(bytes_to_store(red)[0], np.uint8), cv2.IMREAD_UNCHANGED).shape == red.shape
+    for encoded, fmt in ((red_png, "png"), (red_jpeg, "jpeg"), (None, None)):
+        data, _ = bytes_to_store(red, encoded, fmt, gray=True)
+        assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED).ndim == 2
 
 
-def test_an_image_folder_of_colour_pngs_is_stored_as_gray(tmp_path):
+def test_a_simulated_teach_stores_the_gray_jpeg_it_stored_before(default_teach):
+    """Colour changed nothing for gray sources: the default teach's frames are the JPEG of
+    the rendered gray frame, encoded as before colour (quality 90, optimised Huffman tables),
+    and its metadata has no --gray (the simulator's frames are gray anyway)."""
+    _, _, _, _, images = rendered_s_curve(0, frames=3)
+    reader = TeachReader(default_teach)
+    for frame, image in zip(reader.frames(), images):
+        before = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90, cv2.IMWRITE_JPEG_OPTIMIZE, 1])[1].tobytes()
+        assert frame.stored_image().data == before
+    assert "gray" not in reader.info["settings"]
+
+
+def _drive_video(path, colour: bool, frames: int = 6):
+    """A small MJPG video of dots on a wall: red dots on grey (colour), or gray dots on gray."""
+    rng = np.random.default_rng(5)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (160, 120), True)
+    for k in range(frames):
+        image = np.full((120, 160, 3), 111, np.uint8)
+        for centre in ((40 + k, 40), (120 + k, 45), (80 + k, 90)):
+            cv2.circle(image, centre, 8, (60, 60, 230) if colour else (60, 60, 60), -1, cv2.LINE_AA)
+        noisy = np.clip(image + rng.normal(0, 2.0, image.shape), 0, 255).astype(np.uint8)
+        writer.write(noisy if colour else cv2.cvtColor(cv2.cvtColor(noisy, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR))
+    writer.release()
+    return path
+
+
+def test_a_colour_video_is_stored_in_colour_a_gray_one_in_gray(tmp_path):
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    calibration = tmp_path / "camera.yaml"
+    save_calibration_ros(CameraIntrinsics(fx=100.0, fy=100.0, cx=79.5, cy=59.5, width=160, height=120), calibration)
+    channels, sizes = {}, {}
+    for name, colour, gray in (("colour", True, False), ("gray", False, False), ("forced", True, True)):
+        video = _drive_video(tmp_path / f"{name}.avi", colour)
+        path = make_teach(tmp_path / f"{name}.mcap", video=video, calibration=calibration, gray=gray)
+        reader = TeachReader(path)
+        stored = [frame.stored_image() for frame in reader.frames()]
+        decoded = [cv2.imdecode(np.frombuffer(s.data, np.uint8), cv2.IMREAD_UNCHANGED) for s in stored]
+        channels[name] = {1 if image.ndim == 2 else image.shape[2] for image in decoded}
+        sizes[name] = sum(len(s.data) for s in stored)
+        assert all(s.format == "jpeg" for s in stored) and len(stored) == 6
+        assert reader.info["settings"]["gray"] is gray
+    # A gray video in OpenCV's colour MJPG container (channels 2 levels apart) is gray.
+    assert channels == {"colour": {3}, "gray": {1}, "forced": {1}}
+    assert sizes["forced"] < sizes["colour"]
+    print(f"\ncolour video: {sizes['colour']} bytes of JPEG in colour, {sizes['forced']} with --gray")
+
+
+def test_an_image_folder_of_colour_pngs_is_kept_as_it_is(tmp_path):
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    files = []
+    for k in range(3):
+        image = cv2.merge([noisy_frame(k), noisy_frame(k + 10), noisy_frame(k + 20)])  # colour noise
+        files.append(folder / f"f{k}.png")
+        cv2.imwrite(str(files[-1]), image)
+    calibration = tmp_path / "camera.yaml"
+    save_calibration_ros(CameraIntrinsics(fx=100.0, fy=100.0, cx=79.5, cy=59.5, width=160, height=120), calibration)
+    path = make_teach(tmp_path / "images.mcap", images=str(folder), calibration=calibration)
+    stored = [frame.stored_image().data for frame in TeachReader(path).frames()]
+    assert stored == [file.read_bytes() for file in files]
+
+
+def test_an_image_folder_of_colour_pngs_of_gray_content_is_stored_as_gray(tmp_path):
     from hbvs_cli.core.camera import CameraIntrinsics
     from hbvs_cli.io.calibration import save_calibration_ros
 

@@ -89,7 +89,7 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
     if ids is not None and (not isinstance(ids, list) or len(ids) > MAX_TARGET_POINTS // 4
                             or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= 1100 for i in ids)):
         raise ValueError(f"detector marker_ids must be a list of small whole numbers, got {ids!r}")
-    for key in ("marker_dict", "polarity"):
+    for key in ("marker_dict", "polarity", "contrast"):
         if detector.get(key) is not None and not isinstance(detector.get(key), str):
             raise ValueError(f"detector {key} must be text")
     for key in ("template_pixels", "initial_pixels"):

@@ -1,10 +1,14 @@
 """Image bytes <-> arrays, and the ``foxglove.CompressedImage`` message around them.
 
-What is stored: frames are 8-bit gray (hbvs uses nothing else), one channel. A source that
-is already compressed keeps its bytes (JPEG as it is, a gray PNG as it is; a colour or
-16-bit PNG becomes a gray PNG, still lossless); frames that hbvs compresses itself (the
-simulator, a video, a live camera, raw bag images) become JPEG at a stated quality
-(:data:`DEFAULT_JPEG_QUALITY`) unless PNG is asked for.
+What is stored: frames are 8 bits a channel, in colour when the source has colour (BGR, three
+channels) and one gray channel when it has not (the simulator, a mono camera, a colour
+container whose channels are within :data:`NEUTRAL_SPREAD` levels): the dot detector sees a red dot on a grey wall
+of the same brightness only in colour. A source that is already compressed keeps its bytes
+(JPEG as it is, an 8-bit gray or colour PNG as it is; a 16-bit, palette or alpha PNG, or a
+colour PNG of gray content, becomes an 8-bit PNG of the decoded image, still lossless);
+frames that hbvs compresses itself (the simulator, a video, a live camera, raw bag images)
+become JPEG at a stated quality (:data:`DEFAULT_JPEG_QUALITY`) unless PNG is asked for.
+``teach --gray`` stores every frame as one gray channel, as hbvs did before.
 
 How it is stored: ``foxglove.CompressedImage`` in Foxglove's protobuf encoding (the
 ``foxglove-schemas-protobuf`` classes, schema from ``mcap-protobuf-support``), so the
@@ -39,21 +43,26 @@ DEFAULT_JPEG_QUALITY = 90
 IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA
 #: Message encodings read on image topics: what hbvs writes, and base64 JSON (older files).
 IMAGE_ENCODINGS = ("protobuf", "json")
+#: Largest difference between a pixel's channels (levels) in a frame taken as gray: OpenCV's
+#: own MJPG writer turns a gray frame into channels 2 levels apart (its colour conversion's
+#: rounding); a colour camera's noise alone spreads them wider.
+NEUTRAL_SPREAD = 3
 #: Largest decoded image accepted (pixels): 8K x 8K. A hostile header cannot make OpenCV
 #: allocate more than this.
 MAX_IMAGE_PIXELS = 8192 * 8192
 
 
 def encode_image(image: NDArray[np.uint8], image_format: str = "png", jpeg_quality: int = DEFAULT_JPEG_QUALITY) -> bytes:
-    """Compress an 8-bit image to PNG (lossless) or JPEG; colour is stored as one gray channel."""
+    """Compress an 8-bit gray (H, W) or BGR (H, W, 3) image to PNG (lossless) or JPEG, keeping
+    its channels (BGRA loses its alpha)."""
     import cv2
 
     if image_format not in IMAGE_FORMATS:
         raise UsageError(f"unknown image format {image_format!r}: choose png or jpeg")
     if not 1 <= int(jpeg_quality) <= 100:
         raise UsageError(f"the JPEG quality must be 1 to 100, got {jpeg_quality}")
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     # Sensor noise defeats LZ matching: Huffman-only PNG is both smaller and faster here.
     png = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
     # Optimised Huffman tables: a few per cent smaller at the same quality.
@@ -139,10 +148,14 @@ def _png_problem(data: bytes) -> str | None:
     return "the data ends before the PNG's end chunk"
 
 
-def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
-    """Decode PNG/JPEG (any image OpenCV reads) to 8-bit gray; :class:`InputError` if it cannot.
+def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray[np.uint8]:
+    """Decode PNG/JPEG (any image OpenCV reads) to 8 bits; :class:`InputError` if it cannot.
 
-    OpenCV's grayscale decoding converts colour and 16-bit images to 8-bit gray itself.
+    Gray (H, W) by default: OpenCV's grayscale decoding converts colour and 16-bit images to
+    8-bit gray itself, and a colour JPEG's luminance is decoded without its chroma (the
+    cheapest decode). With ``colour``, a colour image is decoded to BGR (H, W, 3) (alpha
+    dropped, 16 bits to their high byte) and a gray one to (H, W), at the same cost as
+    without: only colour pays for its chroma.
     """
     import cv2
 
@@ -164,7 +177,8 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
 
     before = mark()
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+        mode = cv2.IMREAD_ANYCOLOR if colour else cv2.IMREAD_GRAYSCALE
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), mode) if data else None
     except (cv2.error, SystemError):
         image = None
     if image is None:
@@ -176,6 +190,11 @@ def decode_image(data: bytes, source: str = "") -> NDArray[np.uint8]:
 def is_gray8_png(data: bytes) -> bool:
     """True for a PNG of 8-bit gray pixels (colour type 0, bit depth 8), read from its header."""
     return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 0
+
+
+def is_rgb8_png(data: bytes) -> bool:
+    """True for a PNG of 8-bit RGB pixels (colour type 2, bit depth 8, no alpha, no palette)."""
+    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 2
 
 
 def sniff_format(data: bytes) -> str | None:
@@ -224,32 +243,76 @@ def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
     return np.ascontiguousarray(image)
 
 
+def as_image8(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
+    """An image as contiguous uint8, keeping its colour: gray (H, W) or BGR (H, W, 3).
+
+    Accepts what :func:`as_gray` accepts. BGRA loses its alpha, 16 bits keep their high
+    byte, and a colour image whose channels nowhere differ by more than
+    :data:`NEUTRAL_SPREAD` levels (a gray video in a colour container, a mono camera
+    delivering BGR) becomes its gray (:func:`as_gray`): it has no colour to keep, and one
+    channel costs less to decode and to store.
+
+    Raises
+    ------
+    InputError
+        For anything that is not such an image.
+    """
+    import cv2
+
+    if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] not in (3, 4):
+        return as_gray(image, what)
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+    if image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    blue, green, red = cv2.split(image)
+    spread = cv2.subtract(cv2.max(cv2.max(blue, green), red), cv2.min(cv2.min(blue, green), red))
+    if int(spread.max()) <= NEUTRAL_SPREAD:
+        return as_gray(image, what)
+    return np.ascontiguousarray(image)
+
+
 def bytes_to_store(
     image: NDArray[np.uint8],
     encoded: bytes | None = None,
     encoded_format: str | None = None,
     image_format: str = "auto",
     jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+    gray: bool = False,
 ) -> tuple[bytes, str]:
     """The bytes and format a recording stores for one frame.
 
     Parameters
     ----------
-    image : (H, W) uint8
-        The frame, decoded to gray.
+    image : (H, W) or (H, W, 3) uint8
+        The frame as the source decoded it: gray, or BGR when it has colour
+        (:func:`as_image8`).
     encoded, encoded_format : bytes and "png"/"jpeg", optional
         What the source had, when it was compressed already.
     image_format : str
-        ``auto``: a JPEG is kept as it is, a gray 8-bit PNG too, another PNG is stored as a
-        gray PNG, and a frame without bytes becomes a JPEG at ``jpeg_quality``.
+        ``auto``: a JPEG is kept as it is, an 8-bit PNG of the image's channels too (gray
+        for a gray image, RGB for a colour one), another PNG is stored as the image's
+        8-bit PNG, and a frame without bytes becomes a JPEG at ``jpeg_quality``.
         ``png`` or ``jpeg``: that format (bytes already in it are kept as above).
+    gray : bool
+        Store one gray channel whatever the source has (``teach --gray``): a colour image
+        is reduced to its luminance and encoded again (a colour JPEG too, at
+        ``jpeg_quality``).
     """
     if image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {image_format!r}")
+    colour = image.ndim == 3
+    if gray and colour:
+        image, colour = as_gray(image), False
+        if encoded_format == "jpeg":
+            encoded = None  # a colour JPEG: its luminance is encoded again
     if encoded is not None and encoded_format == "jpeg" and image_format in ("auto", "jpeg"):
         return encoded, "jpeg"
     if encoded is not None and encoded_format == "png" and image_format in ("auto", "png"):
-        return (encoded if is_gray8_png(encoded) else encode_image(image, "png")), "png"
+        kept = is_rgb8_png(encoded) if colour else is_gray8_png(encoded)
+        return (encoded if kept else encode_image(image, "png")), "png"
     chosen = "jpeg" if image_format == "auto" and encoded is None else image_format
     chosen = "png" if chosen == "auto" else chosen
     return encode_image(image, chosen, jpeg_quality), chosen

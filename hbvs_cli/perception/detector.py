@@ -35,6 +35,7 @@ def make_detector(
     marker_dict: str | None = None,
     marker_ids: Sequence[int] | None = None,
     polarity: str | None = None,
+    contrast: str | None = None,
 ) -> TargetDetector:
     """A detector for ``kind`` (``"dots"``, ``"aruco"`` or ``"texture"``).
 
@@ -57,6 +58,8 @@ def make_detector(
         For ``aruco``: several markers, 4 corners each (``n_points`` = 4 per marker).
     polarity : str, optional
         For ``dots``: ``"dark"`` (default) or ``"light"`` dots.
+    contrast : str, optional
+        For ``dots``: ``"gray"`` (default) or ``"colour"`` (see :func:`~.dots.dark_image`).
 
     Raises
     ------
@@ -64,7 +67,7 @@ def make_detector(
         For an unknown kind or inconsistent arguments.
     """
     if kind == "dots":
-        return DotDetector(n_points, polarity=polarity or "dark")
+        return DotDetector(n_points, polarity=polarity or "dark", contrast=contrast or "gray")
     if kind == "aruco":
         markers = ArucoMarkerDetector(marker_id, dictionary=marker_dict or DEFAULT_DICTIONARY, marker_ids=marker_ids)
         if n_points != markers.n_points:

@@ -21,7 +21,7 @@ from ..io.images import decode_image
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import TargetChoice
 from .autodetect import choose_target as choose
-from .base import Detection, TargetDetector, match_identity
+from .base import Detection, TargetDetector, as_gray, match_identity
 from .detector import guess_target_kind, make_detector
 from .dots import dark_image, find_dark_blobs
 
@@ -46,6 +46,9 @@ class DetectorSpec:
         Markers: several markers, 4 corners each, in this order (None: ``marker_id`` alone).
     polarity : str or None
         Dots: ``dark`` or ``light`` (None: dark).
+    contrast : str or None
+        Dots: ``gray`` or ``colour`` (None: gray; recorded only when colour, so that fits
+        of gray dots keep their bytes).
     """
 
     kind: str
@@ -55,8 +58,10 @@ class DetectorSpec:
     marker_dict: str | None = None
     marker_ids: tuple[int, ...] | None = None
     polarity: str | None = None
+    contrast: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
         return {
             "kind": self.kind,
             "n_points": self.n_points,
@@ -65,7 +70,7 @@ class DetectorSpec:
             "marker_dict": self.marker_dict,
             "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
             "polarity": self.polarity,
-        }
+        } | colour
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "DetectorSpec":
@@ -79,6 +84,7 @@ class DetectorSpec:
                 marker_dict=None if data.get("marker_dict") is None else str(data["marker_dict"]),
                 marker_ids=None if data.get("marker_ids") is None else tuple(int(i) for i in data["marker_ids"]),
                 polarity=None if data.get("polarity") is None else str(data["polarity"]),
+                contrast=None if data.get("contrast") is None else str(data["contrast"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
@@ -118,7 +124,7 @@ class TrackedDetector:
     def _create(self, image: np.ndarray) -> None:
         spec = self.spec
         if spec.kind == "dots" and spec.n_points is None:
-            spec = replace(spec, n_points=count_dots(image, spec.polarity or "dark"))
+            spec = replace(spec, n_points=count_dots(image, spec.polarity or "dark", spec.contrast or "gray"))
         if spec.kind == "aruco" and spec.marker_id is None and not spec.marker_ids:
             spec = replace(spec, n_points=4, marker_id=first_marker_id(image, spec.marker_dict))
         if spec.kind == "aruco":
@@ -137,6 +143,7 @@ class TrackedDetector:
             marker_dict=spec.marker_dict,
             marker_ids=spec.marker_ids,
             polarity=spec.polarity,
+            contrast=spec.contrast,
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:
@@ -179,9 +186,9 @@ def choose_target_kind(image: np.ndarray) -> str:
     return guess_target_kind(image)
 
 
-def count_dots(image: np.ndarray, polarity: str = "dark") -> int:
+def count_dots(image: np.ndarray, polarity: str = "dark", contrast: str = "gray") -> int:
     """Number of round dots in an image (the size of a dots target seen for the first time)."""
-    blobs = find_dark_blobs(dark_image(image, polarity), flatten=True)
+    blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
     count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
     if count < 3:
         raise InputError(f"found {count} {polarity} dots in the first image; a dots target needs at least 3 (or choose --target)")
@@ -211,7 +218,7 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
     0.12 deg off, 94 % 0.05 deg and 0.10 deg (tests/test_perception_footage.py). Rows too close to the horizon (the principal point's row, where m_z ~ 0
     and (18) breaks down) are pushed away from it.
     """
-    keypoints = cv2.ORB_create(nfeatures=1000).detect(image, None)
+    keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
     points = np.array([k.pt for k in keypoints])

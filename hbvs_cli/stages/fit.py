@@ -174,14 +174,17 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            frames = decoded_frames(reader.frames(), reader.name)
+            # Colour while the target is not known (the dots of --target auto may differ from
+            # their wall in hue alone), then only for dots seen in colour: everything else
+            # is measured on luminance, which decodes faster.
+            frames = decoded_frames(reader.frames(), reader.name, colour=lambda: detector is None or detector.spec.contrast == "colour")
             # --target auto judges the first few frames together: peek at them, then go on.
             first = list(islice(frames, AUTO_FRAMES))
             for frame, data, image in chain(first, frames):
                 camera = reader.camera
                 if camera is None:
                     raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
-                if image.shape != (camera.height, camera.width):
+                if image.shape[:2] != (camera.height, camera.width):
                     raise RecordingError(
                         f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
                     )
@@ -358,7 +361,7 @@ def _detector_spec(
         details = found.details if found is not None else {}
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
-        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"))
+        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
     if kind == "aruco":
         if world is not None:
             return DetectorSpec(kind="aruco", n_points=4, marker_id=world.target.marker_id)

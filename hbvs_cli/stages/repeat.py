@@ -498,7 +498,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
-                for frame, _, image in decoded_frames(reader.frames(), reader.name):
+                keep_colour = detector.spec.contrast == "colour"  # only dots seen in colour use it
+                for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: keep_colour):
                     camera = reader.camera
                     if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
                         raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")

@@ -139,9 +139,12 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
             "denoising and compression leave it; 0 for white noise.", fallback=0.0, panel="Simulation",
             bounds={"min": 0.0, "max": 20.0}),
     Setting("exposure", float, "Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05}),
-    Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are (colour PNG as gray PNG) "
+    Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are "
             "and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.",
             default="auto", flags=("--format",)),
+    Setting("gray", bool, "Store one gray channel even from a colour source (12-20 % smaller; colour JPEGs are "
+            "encoded again at --quality); the dot detector then sees luminance only, not a dot that differs in hue. "
+            "Colour sources are stored in colour by default; the simulator's frames are gray anyway.", default=False),
     Setting("jpeg_quality", int, "JPEG quality of the frames hbvs compresses.", default=90, flags=("--quality",),
             bounds={"min": 1, "max": 100}),
 )

@@ -31,7 +31,7 @@ from .settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
 #: Options of each recorded source recorded in its metadata (beside the source's own description).
-SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality")
+SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality", "gray")
 
 
 class TeachOptions(TeachFields):
@@ -65,7 +65,9 @@ class TeachOptions(TeachFields):
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            return {key: value for key, value in recorded.items() if key != "cmd_topic"}
+            # The simulator's frames are gray whatever --gray says: a simulated teach's
+            # metadata (and bytes) stay as they were before colour.
+            return {key: value for key, value in recorded.items() if key not in ("cmd_topic", "gray")}
         names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set())
         return {key: value for key, value in recorded.items() if key in keep and key in names}
@@ -230,7 +232,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
                         break
                     _check_frame_size(frame.image, camera, source)
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
-                    data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality)
+                    data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
                     teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1

@@ -18,7 +18,7 @@ re-exported here.
 
 from __future__ import annotations
 
-from .base import FrameSource, SourceFrame, to_gray8
+from .base import FrameSource, SourceFrame, to_image8
 from .camera import CameraSource
 from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
@@ -33,7 +33,7 @@ __all__ = [
     "CameraSource",
     "BagSource",
     "IMAGE_EXTENSIONS",
-    "to_gray8",
+    "to_image8",
     "open_source",
     "SOURCE_KINDS",
 ]

@@ -12,7 +12,7 @@ import numpy as np
 
 from ...core.camera import CameraIntrinsics
 from ...errors import InputError, UsageError
-from ..images import as_gray
+from ..images import as_image8
 
 _NS = 1_000_000_000
 
@@ -26,7 +26,8 @@ class SourceFrame:
     t : float
         Seconds from the first frame of the source.
     image : numpy.ndarray
-        ``uint8`` grayscale image, shape ``(H, W)``.
+        ``uint8`` image: gray, shape ``(H, W)``, or BGR, shape ``(H, W, 3)``, when the
+        source has colour (:func:`hbvs_cli.io.images.as_image8`).
     encoded : bytes or None
         The original compressed bytes when the source already had them (a JPEG/PNG file,
         a ``CompressedImage`` in a bag), so a recording can store them without
@@ -79,9 +80,10 @@ class FrameSource:
 
 
 # ----------------------------------------------------------------------------- helpers
-def to_gray8(image: np.ndarray, what: str) -> np.ndarray:
-    """A decoded frame as contiguous 8-bit gray (see :func:`hbvs_cli.io.images.as_gray`)."""
-    return as_gray(image, what)
+def to_image8(image: np.ndarray, what: str) -> np.ndarray:
+    """A decoded frame as contiguous 8 bits, gray or BGR as it has colour or not (see
+    :func:`hbvs_cli.io.images.as_image8`)."""
+    return as_image8(image, what)
 
 
 def _cv_message(exc: BaseException) -> str:

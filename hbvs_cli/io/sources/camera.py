@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_gray8
+from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
 
 
 class CameraSource(FrameSource):
@@ -132,7 +132,7 @@ class CameraSource(FrameSource):
                 t = now - first
                 if self.duration is not None and t >= self.duration:
                     return
-                yield SourceFrame(t=t, image=to_gray8(np.asarray(frame), f"camera {self.index}"))
+                yield SourceFrame(t=t, image=to_image8(np.asarray(frame), f"camera {self.index}"))
                 count += 1
         finally:
             capture.release()

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import InputError, UsageError
-from ..images import decode_image, image_size, sniff_format
+from ..images import as_image8, decode_image, image_size, sniff_format
 from .base import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
 
 #: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
@@ -90,7 +90,7 @@ class ImageFolderSource(FrameSource):
                 data = file.read_bytes()
             except OSError as exc:
                 raise InputError(f"{file}: cannot read the image ({exc.strerror or exc})") from None
-            image = decode_image(data, str(file))
+            image = as_image8(decode_image(data, str(file), colour=True), str(file))
             size = _same_size(size, image, str(file))
             fmt = sniff_format(data)
             yield SourceFrame(t=index / self.fps, image=image, encoded=data if fmt else None, format=fmt)

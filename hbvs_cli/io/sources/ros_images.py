@@ -1,11 +1,12 @@
-"""ROS 2 image messages to 8-bit gray: raw encodings through rosbags-image, compressed ones
-through :func:`hbvs_cli.io.images.decode_image`.
+"""ROS 2 image messages to 8-bit gray or BGR (as they have colour or not): raw encodings
+through rosbags-image, compressed ones through :func:`hbvs_cli.io.images.decode_image`.
 
 Raw ``sensor_msgs/msg/Image`` encodings are read by ``rosbags-image`` (mono, rgb/bgr,
 rgba/bgra, yuv422 (UYVY) and yuv422_yuy2 (YUYV), bayer_* in 8 and 16 bits, and the
 generic ``8UC1``/``16UC1``). hbvs checks the row stride itself first (rosbags-image
-assumes rows without padding), then converts 8-bit data straight to gray and 16-bit data
-to gray keeping the high byte, as every other source does (:func:`~hbvs_cli.io.images.as_gray`).
+assumes rows without padding), then converts mono data as it is and colour data (rgb, bgr,
+yuv, bayer) to BGR, 16 bits keeping their high byte, as every other source does
+(:func:`~hbvs_cli.io.images.as_image8`: three equal channels become gray).
 """
 
 from __future__ import annotations
@@ -16,19 +17,19 @@ from typing import Any
 import numpy as np
 
 from ...errors import InputError
-from ..images import as_gray, decode_image, sniff_format
+from ..images import as_image8, decode_image, sniff_format
 
 
-def compressed_to_gray8(msg: Any, what: str) -> tuple[np.ndarray, bytes | None, str | None]:
-    """Image, its original bytes (when JPEG or PNG) and their format, of a ``CompressedImage``."""
+def compressed_to_image8(msg: Any, what: str) -> tuple[np.ndarray, bytes | None, str | None]:
+    """Image (gray or BGR), its original bytes (when JPEG or PNG) and their format, of a ``CompressedImage``."""
     data = msg.data if isinstance(msg.data, bytes) else bytes(msg.data)
-    image = decode_image(data, f"{what} (format {msg.format!r})")
+    image = as_image8(decode_image(data, f"{what} (format {msg.format!r})", colour=True), what)
     fmt = sniff_format(data)
     return image, (data if fmt else None), fmt
 
 
-def raw_to_gray8(msg: Any, what: str) -> np.ndarray:
-    """A ``sensor_msgs/msg/Image`` in any encoding rosbags-image reads, as 8-bit gray.
+def raw_to_image8(msg: Any, what: str) -> np.ndarray:
+    """A ``sensor_msgs/msg/Image`` in any encoding rosbags-image reads, as 8-bit gray or BGR.
 
     Raises
     ------
@@ -68,9 +69,13 @@ def raw_to_gray8(msg: Any, what: str) -> np.ndarray:
         if channels == 1 and not encoding.startswith("bayer"):
             image = message_to_cvimage(unpadded)  # mono8/mono16/8UC1/16UC1: no colour to remove
         elif depth == 8:
-            image = message_to_cvimage(unpadded, "mono8")
+            image = message_to_cvimage(unpadded, "bgr8")
         else:
             image = message_to_cvimage(unpadded, "bgr16")  # then the high byte, as for mono16
+        result = as_image8(np.asarray(image), what)
+        if result.ndim == 2 and channels > 1 and depth == 8:
+            # No colour in it: the encoding's own luminance (a yuv image's Y, exactly).
+            result = as_image8(np.asarray(message_to_cvimage(unpadded, "mono8")), what)
     except (ImageError, ValueError, TypeError, cv2.error) as exc:
         raise InputError(f"{what}: cannot convert the {encoding!r} image ({exc})") from None
-    return as_gray(np.asarray(image), what)
+    return result

@@ -20,7 +20,7 @@ import numpy as np
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError, UsageError
 from ..calibration import intrinsics_from_values
-from ..images import decode_image, sniff_format
+from ..images import as_image8, decode_image, sniff_format
 from ..mcap import McapMessage
 from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
@@ -28,7 +28,7 @@ from ..topics import (
 )
 from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
 from .base import _NS, FrameSource, SourceFrame, _same_size
-from .ros_images import compressed_to_gray8, raw_to_gray8
+from .ros_images import compressed_to_image8, raw_to_image8
 
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
@@ -274,9 +274,9 @@ class BagSource(FrameSource):
         decoded = message.decode(what)
         try:
             if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
-                image, encoded, fmt = compressed_to_gray8(decoded, what)
+                image, encoded, fmt = compressed_to_image8(decoded, what)
             else:
-                image, encoded, fmt = raw_to_gray8(decoded, what), None, None
+                image, encoded, fmt = raw_to_image8(decoded, what), None, None
             header = getattr(decoded, "header", None)
             frame_id = str(header.frame_id) if header is not None and header.frame_id else None
             return image, encoded, fmt, _stamp_ns(decoded), frame_id
@@ -364,7 +364,7 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
     from ..images import read_compressed_image
 
     stored = read_compressed_image(message.message_encoding, message.data, what)
-    image = decode_image(stored.data, f"{what} (format {stored.format!r})")
+    image = as_image8(decode_image(stored.data, f"{what} (format {stored.format!r})", colour=True), what)
     fmt = sniff_format(stored.data)
     return image, (stored.data if fmt else None), fmt, stored.stamp_ns
 
