@@ -211,11 +211,11 @@ def refine_plane_and_reference(
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         trial_normal, trial_ref = unpack(p)
         solver = KnownNormalSolver(trial_ref, trial_normal)
-        reprojection = np.nan_to_num(solver.reprojection_residuals(solver.solve(frames), frames)).ravel()
+        motion = solver.solve(frames)
+        reprojection = np.nan_to_num(solver.reprojection_residuals(motion, frames)).ravel()
         if not shapes:
             return np.concatenate([reprojection, (trial_ref[:, 1:] - measured_ref[:, 1:]).ravel()])
         # Every frame sees the shape too, under its own normal Rz(theta) n*.
-        motion = solver.solve(frames)
         c, s = np.cos(motion.theta), np.sin(motion.theta)
         normals = np.stack([c * trial_normal[0] - s * trial_normal[1], s * trial_normal[0] + c * trial_normal[1],
                             np.full_like(c, trial_normal[2])], axis=-1)
