@@ -266,22 +266,36 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     teach = work / f"fit_teach_{target}.mcap"
     run_cli("teach", "--path", str(pendant), "--target", target, "--format", "png", "-o", str(teach), "-q", cwd=work)
     code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
-    decode_walls, fit_walls = [], []
+    decode_walls, fit_walls, decode_cpus, fit_cpus = [], [], [], []
     for _ in range(1 if quick else 3):
+        # CPU seconds too (every thread of the child): on a busy machine the wall ratio of a
+        # two-thread process to a one-thread one tends to their CPU ratio, not to what a
+        # quiet machine shows; the CPU figures tell which it was.
+        cpu = _children_cpu()
         start = time.perf_counter()
         subprocess.run([sys.executable, "-c", code], check=True, cwd=work)
         decode_walls.append(time.perf_counter() - start)
+        decode_cpus.append(_children_cpu() - cpu)
+        cpu = _children_cpu()
         wall, _ = run_cli("fit", str(teach), "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
         fit_walls.append(wall)
+        fit_cpus.append(_children_cpu() - cpu)
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
     ratio = decode_wall / fit_wall
     label = {"dots": "3", "aruco": "3b", "texture": "3c"}[target]
     return Figure(
         f"{label}. hbvs fit throughput / decode-only throughput, {target} target ({frames} frames)", ratio, ">= 0.6", ratio >= 0.6,
         f"decode only {frames / decode_wall:.0f} frames/s, fit {frames / fit_wall:.0f} frames/s (PNG 640x480; both whole "
-        "processes; fit decodes in a second thread)",
+        f"processes; fit decodes in a second thread); CPU {statistics.median(decode_cpus):.2f} s vs "
+        f"{statistics.median(fit_cpus):.2f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
         f"hbvs fit teach.mcap -o fit.mcap vs. reading and decoding the same images (teach --target {target})",
     )
+
+
+def _children_cpu() -> float:
+    """User + system CPU seconds of every child process waited for so far."""
+    times = os.times()
+    return times.children_user + times.children_system
 
 
 # --------------------------------------------------------------------------- 4. memory

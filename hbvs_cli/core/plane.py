@@ -141,15 +141,44 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
         q_mean = q.mean(axis=-2, keepdims=True)
         lc = layout - layout.mean(axis=0)
         qc = np.nan_to_num(q - q_mean)
-        u, sigma, vt = np.linalg.svd(np.einsum("ki,...kj->...ij", lc, qc))
-        rotation = u @ vt
-        scale = sigma.sum(axis=-1) / max(float(np.sum(lc * lc)), 1e-300)
+        rotation, singular_sum = _procrustes_2d(np.einsum("ki,...kj->...ij", lc, qc))
+        scale = singular_sum / max(float(np.sum(lc * lc)), 1e-300)
         fitted = q_mean + scale[..., None, None] * np.einsum("ki,...ij->...kj", lc, rotation)
         world = normal[..., None, :] + fitted[..., :1] * e1[..., None, :] + fitted[..., 1:] * e2[..., None, :]
         with np.errstate(divide="ignore", invalid="ignore"):
             projected = world / world[..., :1]
         residuals.append((projected[..., 1:] - points[..., 1:]).reshape(m.shape[:-2] + (-1,)))
     return np.concatenate(residuals, axis=-1) if residuals else np.zeros(m.shape[:-2] + (0,))
+
+
+def _procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The orthogonal polar factor ``U V^T`` of 2x2 matrices and their singular values' sum.
+
+    In closed form (a batched SVD of many 2x2 matrices cost a third of
+    :func:`shape_residuals`): with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
+    ``F = |(a - d, b + c)|``, the singular values are ``(E + F) / 2`` and ``|E - F| / 2``
+    (so they sum to ``max(E, F)``), and ``E^2 - F^2 = 4 det M``: a rotation by
+    ``atan2(c - b, a + d)`` when ``E >= F``, else a reflection.
+
+    Parameters
+    ----------
+    M : ndarray, shape (..., 2, 2)
+
+    Returns
+    -------
+    factor : ndarray, shape (..., 2, 2)
+    singular_sum : ndarray, shape (...)
+    """
+    a, b, c, d = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1]
+    E, F = np.hypot(a + d, c - b), np.hypot(a - d, b + c)
+    proper = E >= F
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cos = np.where(proper, (a + d) / E, (a - d) / F)
+        sin = np.where(proper, (c - b) / E, (b + c) / F)
+    # Rotation [[cos, -sin], [sin, cos]] or reflection [[cos, sin], [sin, -cos]].
+    sign = np.where(proper, 1.0, -1.0)
+    factor = np.stack([np.stack([cos, -sign * sin], axis=-1), np.stack([sin, sign * cos], axis=-1)], axis=-2)
+    return factor, np.maximum(E, F)
 
 
 def refine_plane_and_reference(
@@ -211,11 +240,11 @@ def refine_plane_and_reference(
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         trial_normal, trial_ref = unpack(p)
         solver = KnownNormalSolver(trial_ref, trial_normal)
-        reprojection = np.nan_to_num(solver.reprojection_residuals(solver.solve(frames), frames)).ravel()
+        motion = solver.solve(frames)
+        reprojection = np.nan_to_num(solver.reprojection_residuals(motion, frames)).ravel()
         if not shapes:
             return np.concatenate([reprojection, (trial_ref[:, 1:] - measured_ref[:, 1:]).ravel()])
         # Every frame sees the shape too, under its own normal Rz(theta) n*.
-        motion = solver.solve(frames)
         c, s = np.cos(motion.theta), np.sin(motion.theta)
         normals = np.stack([c * trial_normal[0] - s * trial_normal[1], s * trial_normal[0] + c * trial_normal[1],
                             np.full_like(c, trial_normal[2])], axis=-1)

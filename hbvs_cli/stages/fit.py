@@ -174,6 +174,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
+            _import_fitting_libraries_meanwhile()
             # Colour while the target is not known (the dots of --target auto may differ from
             # their wall in hue alone), then only for dots seen in colour: everything else
             # is measured on luminance, which decodes faster.
@@ -254,6 +255,26 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
+
+
+def _import_fitting_libraries_meanwhile() -> None:
+    """Import what the fit after the frame loop needs (scipy's least squares and splines,
+    0.3 s of CPU) in a thread, while the frames are detected.
+
+    The loop's detectors and decoder spend most of their time in OpenCV, without the GIL,
+    so the import overlaps them instead of following them. Python's import locks make the
+    later imports wait for this one to finish. A failure here is left for them to report.
+    """
+    import threading
+
+    def work() -> None:
+        try:
+            import scipy.interpolate  # noqa: F401
+            import scipy.optimize  # noqa: F401
+        except Exception:  # noqa: BLE001 - the real import, later, reports it
+            pass
+
+    threading.Thread(target=work, name="hbvs-import", daemon=False).start()
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
