@@ -56,14 +56,36 @@ def _cpu_seconds(process) -> float:
     return times.user + times.system
 
 
+def _run_all(tasks: list) -> float:
+    """In a plain process: the runs one after the other; returns their CPU time (s)."""
+    from hbvs_cli.sweep.runner import execute_run
+
+    cpu = time.process_time()
+    for task in tasks:
+        execute_run(task)
+    return time.process_time() - cpu
+
+
+def _warm(task, seconds: float) -> None:
+    from hbvs_cli.sweep.runner import execute_run
+
+    execute_run(task)
+    time.sleep(seconds)  # so that the pool's other process takes the other warm-up
+
+
 def throughput(runs: int, rounds: int) -> dict:
     """S1 and S2: the engine on 2 workers against a serial loop, the same runs.
 
     ``rounds`` times in turn: the serial loop, then the sweep (one cluster for all rounds),
     so that both sides of a round meet the same load from other work on the machine. Wall
     times and CPU times (``psutil``: this process, which holds the scheduler, the nannies
-    and the results table; and each worker process) are kept per round.
+    and the results table; and each worker process) are kept per round. Each round also
+    runs the two halves of the runs in two plain processes side by side (no engine): the
+    most any engine could give on this machine, where two busy cores slow each other.
     """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
     import psutil
 
     from hbvs_cli.stages.sweep import prepare
@@ -80,12 +102,16 @@ def throughput(runs: int, rounds: int) -> dict:
         task_list = list(tasks)
         execute_run(task_list[0])  # warm: imports, the fit read once
         me = psutil.Process()
+        halves = [task_list[0::2], task_list[1::2]]
+        pool = ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"))
+        list(pool.map(_warm, task_list[:2], [1.0, 1.0]))
         cluster_started = time.perf_counter()
-        with dask_client(None, None, 2) as client:
+        with pool, dask_client(None, None, 2) as client:
             client.wait_for_workers(2)
             result["startup_s"] = time.perf_counter() - cluster_started
             client.run(lambda: execute_run(task_list[0]) and None)  # warm, as the serial side
-            workers = [p for p in me.children(recursive=True) if "--multiprocessing-fork" in " ".join(p.cmdline())]
+            plain = set(pool._processes)  # the pool's two plain processes
+            workers = [p for p in me.children(recursive=True) if "--multiprocessing-fork" in " ".join(p.cmdline()) and p.pid not in plain]
             assert len(workers) == 2, workers
             for number in range(rounds):
                 load = os.getloadavg()[0]
@@ -93,6 +119,9 @@ def throughput(runs: int, rounds: int) -> dict:
                 started = time.perf_counter()
                 serial_rows = [execute_run(task) for task in task_list]
                 serial, serial_cpu = time.perf_counter() - started, time.process_time() - cpu
+                started = time.perf_counter()
+                pair_cpu = sum(pool.map(_run_all, halves))
+                pair = time.perf_counter() - started
                 rows: list[dict] = []
 
                 def on_row(row: dict) -> None:
@@ -111,7 +140,8 @@ def throughput(runs: int, rounds: int) -> dict:
                 same = [comparable(r) for r in serial_rows] == [comparable(r) for r in sorted(rows, key=lambda r: r["index"])]
                 result["rounds"].append({
                     "load": load, "load_after": os.getloadavg()[0], "serial_s": serial, "parallel_s": wall,
-                    "speedup": serial / wall, "serial_cpu_s": serial_cpu, "driver_cpu_s": driver_cpu,
+                    "speedup": serial / wall, "pair_s": pair, "pair_speedup": serial / pair, "pair_cpu_s": pair_cpu,
+                    "pair_cpu_speedup": 2 * serial_cpu / pair_cpu, "serial_cpu_s": serial_cpu, "driver_cpu_s": driver_cpu,
                     "worker_cpu_s": sum(worker_cpu), "cpu_speedup": serial_cpu / ((driver_cpu + sum(worker_cpu)) / 2),
                     "own_s": own, "serial_own_s": sum(r["run_time_s"] for r in serial_rows),
                     "overhead": (2 * wall - own) / own, "rows_identical": same,
@@ -185,7 +215,9 @@ def main(argv: list[str] | None = None) -> int:
         speedup, cpu_speedup = _median(r["speedup"] for r in rounds), _median(r["cpu_speedup"] for r in rounds)
         overhead = _median(r["overhead"] for r in rounds)
         per_run = {key: 1000 * _median(r[key] for r in rounds) / t["runs"]
-                   for key in ("serial_s", "serial_cpu_s", "own_s", "worker_cpu_s", "driver_cpu_s")}
+                   for key in ("serial_s", "serial_cpu_s", "own_s", "worker_cpu_s", "driver_cpu_s", "pair_cpu_s")}
+        pair_speedup, pair_cpu_speedup = _median(r["pair_speedup"] for r in rounds), _median(r["pair_cpu_speedup"] for r in rounds)
+        pair_rounds = "; ".join(f"{r['pair_speedup']:.2f}x ({r['pair_cpu_speedup']:.2f}x in CPU time)" for r in rounds)
         cpu_rounds = ", ".join(f"{r['cpu_speedup']:.2f}x" for r in rounds)
         overhead_rounds = ", ".join(f"{100 * r['overhead']:.1f} %" for r in rounds)
         each = "; ".join(f"{r['speedup']:.2f}x (serial {r['serial_s']:.1f} s, sweep {r['parallel_s']:.1f} s, load {r['load']:.1f}-{r['load_after']:.1f})"
@@ -200,6 +232,12 @@ def main(argv: list[str] | None = None) -> int:
             f"{'yes' if cpu_speedup >= 1.7 else 'no'} | per run: serial {per_run['serial_cpu_s']:.1f} ms CPU; sweep "
             f"{per_run['worker_cpu_s']:.1f} ms in the workers + {per_run['driver_cpu_s']:.1f} ms in the driving process "
             f"(scheduler, nannies, table); rounds {cpu_rounds} |"
+        )
+        lines.append(
+            f"| S1 ceiling: the same runs in two plain processes side by side, no engine | {pair_speedup:.2f}x | - | - | "
+            f"{pair_cpu_speedup:.2f}x in CPU time (a run takes {per_run['pair_cpu_s']:.1f} ms of CPU when both cores are busy, "
+            f"{per_run['serial_cpu_s']:.1f} ms alone); rounds {pair_rounds}; the engine reaches {speedup / pair_speedup:.0%} "
+            f"of it in wall time, {cpu_speedup / pair_cpu_speedup:.0%} in CPU time |"
         )
         lines.append(
             f"| S2. engine overhead per run (2 x wall - run time) / run time, median | {100 * overhead:.1f} % | <= 10 % | "

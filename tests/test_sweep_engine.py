@@ -72,25 +72,27 @@ def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path
         assert len(Path(f"{attempts}-0").read_text().split()) == 1
 
 
-def test_batches_hold_half_a_second_of_runs_and_shrink_to_single_runs_at_the_end():
-    from hbvs_cli.sweep.engine import BATCH_SECONDS, MAX_BATCH, BatchSizer
+def test_batches_hold_a_second_of_cpu_time_and_shrink_to_single_runs_at_the_end():
+    from hbvs_cli.sweep.engine import BATCH_CPU_SECONDS, BATCH_WALL_SECONDS, MAX_BATCH, BatchSizer
 
     sizer = BatchSizer(total=1000, workers=2)
     assert sizer.next_size() == 1  # no run time known yet
     sizer.take(8)
-    sizer.observe(8, 8 * 0.1)  # 100 ms a run
-    assert sizer.next_size() == round(BATCH_SECONDS / 0.1) == 5
+    sizer.observe(8, 8 * 0.3, 8 * 0.1)  # 100 ms of CPU a run, 300 ms of wall time (a loaded machine)
+    assert sizer.next_size() == int(BATCH_CPU_SECONDS / 0.1) == 10
     sizer.take(1000 - 8 - 30)  # 30 left: at most 30 / (2 x 2 workers) = 7 a batch
-    sizer.observe(100, 100 * 0.001)  # the mean run time falls to 8 ms: 60 a batch, but for the end
     assert sizer.next_size() == 7
     sizer.take(27)  # 3 left: single runs, so both workers finish together
     assert sizer.next_size() == 1
     short = BatchSizer(total=None, workers=2)
-    short.observe(100, 100 * 0.001)  # 1 ms runs: at most MAX_BATCH a batch
+    short.observe(100, 100 * 0.001, 100 * 0.001)  # 1 ms runs: at most MAX_BATCH a batch
     assert short.next_size() == MAX_BATCH
-    unknown = BatchSizer(total=None, workers=2)
-    unknown.observe(4, 4 * 2.0)  # 2 s runs: one a batch
-    assert unknown.next_size() == 1
+    waiting = BatchSizer(total=None, workers=2)
+    waiting.observe(10, 10 * 1.0, 10 * 0.001)  # runs that wait 1 s and compute little
+    assert waiting.next_size() == int(BATCH_WALL_SECONDS / 1.0) == 5
+    long = BatchSizer(total=None, workers=2)
+    long.observe(4, 4 * 2.0, 4 * 2.0)  # 2 s runs: one a batch
+    assert long.next_size() == 1
 
 
 def test_without_dask_the_error_names_the_extra(tmp_path):

@@ -7,8 +7,8 @@
 * ``--cluster slurm|pbs``: workers submitted as batch jobs through dask-jobqueue (the queue,
   account and walltime come from dask's jobqueue configuration file).
 
-Runs travel to the workers in batches of several runs (:class:`BatchSizer`: about half a
-second of work each, single runs at the end), and never more than ``in_flight`` batches
+Runs travel to the workers in batches of several runs (:class:`BatchSizer`: about a
+second of CPU time each, single runs at the start and the end), and never more than ``in_flight`` batches
 exist: a new one is submitted as one finishes, so memory stays flat however many runs a
 sweep has. A worker that dies has its batch rescheduled by the Dask scheduler (up to
 ``distributed.scheduler.allowed-failures`` times); a batch that keeps killing workers is
@@ -136,45 +136,59 @@ def _jobqueue_cluster(kind: str, jobs: int) -> Any:
     return cluster
 
 
-#: A batch of runs aims at this much work on its worker (s): long enough that the
-#: scheduler's per-task work (a few ms in the driving process and the worker's event loop,
-#: taken from the runs on a 2-core machine) is paid once per many runs; short enough that
-#: rows reach the table every fraction of a second and the sweep's end stays balanced.
-BATCH_SECONDS = 0.5
+#: A batch of runs aims at this much CPU time on its worker (s): long enough that the
+#: scheduler's per-task work (milliseconds of CPU in the driving process and in the
+#: worker's event loop, taken from the runs on a 2-core machine) is paid once per many
+#: runs; short enough that rows reach the table often and a killed batch costs little.
+#: CPU time, not wall time: on a loaded machine a run's wall time grows, its CPU time and
+#: the per-task work hardly do.
+BATCH_CPU_SECONDS = 1.0
+#: ... and at most this much wall time (runs that wait rather than compute).
+BATCH_WALL_SECONDS = 5.0
 #: Most runs in one batch (short runs: a lost batch re-runs at most this many).
 MAX_BATCH = 64
 
 
-def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any]) -> tuple[list[dict[str, Any]], float]:
-    """On a worker: ``function(task)`` for each task in turn; returns the rows and the
-    batch's own wall time (s), from which the driver sizes the next batches."""
-    started = time.perf_counter()
+def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any]) -> tuple[list[dict[str, Any]], float, float]:
+    """On a worker: ``function(task)`` for each task in turn.
+
+    Returns the rows, the batch's wall time and its CPU time (s; the worker process's, so
+    a worker with several threads over-counts, which only makes batches smaller), from
+    which the driver sizes the next batches.
+    """
+    wall, cpu = time.perf_counter(), time.process_time()
     rows = [function(task) for task in tasks]
-    return rows, time.perf_counter() - started
+    return rows, time.perf_counter() - wall, time.process_time() - cpu
 
 
 class BatchSizer:
     """How many runs the next batch gets.
 
     Until a batch has come back a batch is one run; then as many runs as take about
-    :data:`BATCH_SECONDS` at the mean time per run so far (1 to :data:`MAX_BATCH`). When
-    the number of runs left is known, a batch is never more than ``left / (2 x workers)``
-    (guided self-scheduling), so the last batches are single runs and the workers finish
-    together.
+    :data:`BATCH_CPU_SECONDS` of CPU time (and at most :data:`BATCH_WALL_SECONDS` of wall
+    time) at the mean per run so far, 1 to :data:`MAX_BATCH`. When the number of runs left
+    is known, a batch is never more than ``left / (2 x workers)`` (guided self-scheduling),
+    so the last batches are single runs and the workers finish together.
     """
 
     def __init__(self, total: int | None, workers: int) -> None:
         self.left, self.workers = total, max(1, workers)
-        self.runs, self.seconds = 0, 0.0
+        self.runs, self.wall, self.cpu = 0, 0.0, 0.0
 
-    def observe(self, runs: int, seconds: float) -> None:
+    def observe(self, runs: int, wall: float, cpu: float) -> None:
         self.runs += runs
-        self.seconds += seconds
+        self.wall += wall
+        self.cpu += cpu
 
     def next_size(self) -> int:
         size = 1
-        if self.runs and self.seconds > 0:
-            size = int(min(MAX_BATCH, max(1, round(BATCH_SECONDS * self.runs / self.seconds))))
+        if self.runs:
+            fits = [MAX_BATCH]
+            if self.cpu > 0:
+                fits.append(BATCH_CPU_SECONDS * self.runs / self.cpu)
+            if self.wall > 0:
+                fits.append(BATCH_WALL_SECONDS * self.runs / self.wall)
+            size = max(1, int(min(fits)))
         if self.left is not None:
             size = max(1, min(size, self.left // (2 * self.workers)))
         return size
@@ -249,8 +263,8 @@ def run_tasks(
             error = result[1] if isinstance(result, tuple) else result
             rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
         else:
-            rows, seconds = result
-            sizer.observe(len(rows), seconds)
+            rows, wall, cpu = result
+            sizer.observe(len(rows), wall, cpu)
         for row in rows:
             on_row(row)
             produced += 1
