@@ -136,7 +136,8 @@ def test_killed_and_resumed_gives_the_same_table(uninterrupted, spec_file, tmp_p
     process = subprocess.Popen(sweep_command(spec_file, resumed, "--keep-runs", "none", "--no-plots"), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 300
     # The first part is written with the first finished run (the cluster's start-up is
-    # longer than the flush interval); 39 runs are left then.
+    # longer than the flush interval, and the first batches are single runs); 39 runs are
+    # left then.
     while not (resumed / "parts" / "part-000001.parquet").exists() and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
     process.send_signal(signal.SIGTERM)

@@ -1,4 +1,4 @@
-"""The sweep engine on a real LocalCluster: bounded batches, dead workers, a missing Dask."""
+"""The sweep engine on a real LocalCluster: bounded batches of runs, dead workers, a missing Dask."""
 
 from __future__ import annotations
 
@@ -28,8 +28,11 @@ def crash_once(task: Task) -> dict:
 
 
 def crash_always(task: Task) -> dict:
-    if task.index == 1:
+    """Task 3 kills its worker every time; the others note each attempt in a file."""
+    if task.index == 3:
         os._exit(1)
+    with open(f"{task.marker}-{task.index}", "a") as attempts:
+        attempts.write(f"{os.getpid()}\n")
     return {"index": task.index, "pid": os.getpid(), "status": "ok"}
 
 
@@ -57,10 +60,39 @@ def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path
         # other tasks before it died).
         assert next(r["pid"] for r in rows if r["index"] == 3) != int(Path(marker).read_text())
         rows.clear()
-        produced = run_tasks(client, (Task(i, marker) for i in range(3)), crash_always, rows.append, on_lost, in_flight=2, key_prefix="test-always")
-        assert produced == 3 and [i for i, _ in lost] == [1]
+        # One batch at a time: task 0 alone (no run time known yet), then 1-5 in one batch,
+        # which task 3 kills twice; the batch is split and 1, 2, 4, 5 give their rows.
+        attempts = str(tmp_path / "attempt")
+        produced = run_tasks(client, (Task(i, attempts) for i in range(6)), crash_always, rows.append, on_lost, in_flight=1, key_prefix="test-always")
+        assert produced == 6 and [i for i, _ in lost] == [3]
         assert "KilledWorker" in lost[0][1]
-        assert {r["index"]: r["status"] for r in rows} == {0: "ok", 1: "failed", 2: "ok"}
+        assert {r["index"]: r["status"] for r in rows} == {0: "ok", 1: "ok", 2: "ok", 3: "failed", 4: "ok", 5: "ok"}
+        # Task 1 ran twice in the batch that task 3 killed twice, then once alone.
+        assert len(Path(f"{attempts}-1").read_text().split()) == 3
+        assert len(Path(f"{attempts}-0").read_text().split()) == 1
+
+
+def test_batches_hold_a_second_of_cpu_time_and_shrink_to_single_runs_at_the_end():
+    from hbvs_cli.sweep.engine import BATCH_CPU_SECONDS, BATCH_WALL_SECONDS, MAX_BATCH, BatchSizer
+
+    sizer = BatchSizer(total=1000, workers=2)
+    assert sizer.next_size() == 1  # no run time known yet
+    sizer.take(8)
+    sizer.observe(8, 8 * 0.3, 8 * 0.1)  # 100 ms of CPU a run, 300 ms of wall time (a loaded machine)
+    assert sizer.next_size() == int(BATCH_CPU_SECONDS / 0.1) == 10
+    sizer.take(1000 - 8 - 30)  # 30 left: at most 30 / (2 x 2 workers) = 7 a batch
+    assert sizer.next_size() == 7
+    sizer.take(27)  # 3 left: single runs, so both workers finish together
+    assert sizer.next_size() == 1
+    short = BatchSizer(total=None, workers=2)
+    short.observe(100, 100 * 0.001, 100 * 0.001)  # 1 ms runs: at most MAX_BATCH a batch
+    assert short.next_size() == MAX_BATCH
+    waiting = BatchSizer(total=None, workers=2)
+    waiting.observe(10, 10 * 1.0, 10 * 0.001)  # runs that wait 1 s and compute little
+    assert waiting.next_size() == int(BATCH_WALL_SECONDS / 1.0) == 5
+    long = BatchSizer(total=None, workers=2)
+    long.observe(4, 4 * 2.0, 4 * 2.0)  # 2 s runs: one a batch
+    assert long.next_size() == 1
 
 
 def test_without_dask_the_error_names_the_extra(tmp_path):

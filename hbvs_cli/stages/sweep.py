@@ -142,7 +142,7 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
                 progress(failures)
 
             try:
-                done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}")
+                done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}", total=remaining)
             except BaseException:
                 # Ctrl-C, SIGTERM or an error: keep every finished row; the same command resumes.
                 table.close()

@@ -7,19 +7,24 @@
 * ``--cluster slurm|pbs``: workers submitted as batch jobs through dask-jobqueue (the queue,
   account and walltime come from dask's jobqueue configuration file).
 
-Runs are submitted in bounded batches: never more than ``in_flight`` futures exist, a new
-one is submitted as one finishes, so memory stays flat however many runs a sweep has. A
-worker that dies has its runs rescheduled by the Dask scheduler (up to
-``distributed.scheduler.allowed-failures`` times); a run that keeps killing workers is
-recorded as failed with the error, like any run that raises.
+Runs travel to the workers in batches of several runs (:class:`BatchSizer`: about a
+second of CPU time each, single runs at the start and the end), and never more than ``in_flight`` batches
+exist: a new one is submitted as one finishes, so memory stays flat however many runs a
+sweep has. A worker that dies has its batch rescheduled by the Dask scheduler (up to
+``distributed.scheduler.allowed-failures`` times); a batch that keeps killing workers is
+split and its runs are run alone, and the run that kills its worker is recorded as failed
+with the error, like any run that raises.
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import os
+import time
+from collections import deque
 from contextlib import contextmanager
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from ..errors import UsageError
 
@@ -71,14 +76,21 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    # worker-saturation 1: a worker holds only the run it is running, so a run that kills
-    # its worker takes no queued innocent run down with it (each costs ~1 ms of idle time).
+    # worker-saturation 1: a worker holds only the batch it is running, so a run that kills
+    # its worker takes no queued innocent batch down with it (each costs ~1 ms of idle time).
     # The workers' statistical profiler (for the dashboard, which hbvs does not open) keeps
     # up to 1000 profile trees per worker: tens of MB that grew with the sweep's length.
     # The event loop's 20 ms latency tick and the 100 ms memory monitor wake each worker's
     # main thread, which then takes the interpreter lock from the run: a run took 91 ms on
     # a worker against 81 ms in a plain process, 86 ms with these once a second.
-    with dask.config.set({"distributed.scheduler.allowed-failures": allowed_worker_deaths,
+    # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which makes glibc hand freed
+    # heap back to the system at every free of 64 KiB: each run then took ~490 page faults
+    # and 2 ms of system time more than in a plain process (11 faults, 0.1 ms); the runs
+    # hold no memory between them, so the glibc default (dynamic threshold) is kept.
+    spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+                     if name != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,
+                          "distributed.scheduler.allowed-failures": allowed_worker_deaths,
                           "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.worker.profile.enabled": False,
                           "distributed.admin.tick.interval": "1s",
@@ -124,6 +136,68 @@ def _jobqueue_cluster(kind: str, jobs: int) -> Any:
     return cluster
 
 
+#: A batch of runs aims at this much CPU time on its worker (s): long enough that the
+#: scheduler's per-task work (milliseconds of CPU in the driving process and in the
+#: worker's event loop, taken from the runs on a 2-core machine) is paid once per many
+#: runs; short enough that rows reach the table often and a killed batch costs little.
+#: CPU time, not wall time: on a loaded machine a run's wall time grows, its CPU time and
+#: the per-task work hardly do.
+BATCH_CPU_SECONDS = 1.0
+#: ... and at most this much wall time (runs that wait rather than compute).
+BATCH_WALL_SECONDS = 5.0
+#: Most runs in one batch (short runs: a lost batch re-runs at most this many).
+MAX_BATCH = 64
+
+
+def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any]) -> tuple[list[dict[str, Any]], float, float]:
+    """On a worker: ``function(task)`` for each task in turn.
+
+    Returns the rows, the batch's wall time and its CPU time (s; the worker process's, so
+    a worker with several threads over-counts, which only makes batches smaller), from
+    which the driver sizes the next batches.
+    """
+    wall, cpu = time.perf_counter(), time.process_time()
+    rows = [function(task) for task in tasks]
+    return rows, time.perf_counter() - wall, time.process_time() - cpu
+
+
+class BatchSizer:
+    """How many runs the next batch gets.
+
+    Until a batch has come back a batch is one run; then as many runs as take about
+    :data:`BATCH_CPU_SECONDS` of CPU time (and at most :data:`BATCH_WALL_SECONDS` of wall
+    time) at the mean per run so far, 1 to :data:`MAX_BATCH`. When the number of runs left
+    is known, a batch is never more than ``left / (2 x workers)`` (guided self-scheduling),
+    so the last batches are single runs and the workers finish together.
+    """
+
+    def __init__(self, total: int | None, workers: int) -> None:
+        self.left, self.workers = total, max(1, workers)
+        self.runs, self.wall, self.cpu = 0, 0.0, 0.0
+
+    def observe(self, runs: int, wall: float, cpu: float) -> None:
+        self.runs += runs
+        self.wall += wall
+        self.cpu += cpu
+
+    def next_size(self) -> int:
+        size = 1
+        if self.runs:
+            fits = [MAX_BATCH]
+            if self.cpu > 0:
+                fits.append(BATCH_CPU_SECONDS * self.runs / self.cpu)
+            if self.wall > 0:
+                fits.append(BATCH_WALL_SECONDS * self.runs / self.wall)
+            size = max(1, int(min(fits)))
+        if self.left is not None:
+            size = max(1, min(size, self.left // (2 * self.workers)))
+        return size
+
+    def take(self, size: int) -> None:
+        if self.left is not None:
+            self.left = max(0, self.left - size)
+
+
 def run_tasks(
     client: Any,
     tasks: Iterable[Any],
@@ -132,25 +206,41 @@ def run_tasks(
     on_lost: Callable[[Any, str], dict[str, Any]],
     in_flight: int,
     key_prefix: str,
+    total: int | None = None,
 ) -> int:
     """Run ``function(task)`` for every task on the cluster; ``on_row`` gets each row as it
-    finishes (in completion order). At most ``in_flight`` runs are submitted at a time.
+    comes back (in completion order). Tasks travel in batches (:class:`BatchSizer`); at most
+    ``in_flight`` batches are submitted at a time. ``total``: the number of tasks, when
+    known (it keeps the last batches small).
 
-    Returns the number of rows produced. A task whose future fails (its worker died too
-    often, or the function raised despite catching everything) gets ``on_lost(task, error)``.
+    Returns the number of rows produced. A batch whose future fails (its worker died too
+    often, or the function raised despite catching everything) is split and each of its
+    tasks submitted alone, so only the task that failed gets ``on_lost(task, error)``;
+    the others give their rows.
     """
     from distributed import as_completed
 
     pending = iter(tasks)
-    waiting: dict[str, Any] = {}
-    completed = as_completed()
+    alone: deque[Any] = deque()  # tasks of a failed batch, each to be run by itself
+    waiting: dict[str, list[Any]] = {}
+    # The results are fetched by the client's event loop as the futures finish (no
+    # second round trip from this thread per future).
+    completed = as_completed(with_results=True, raise_errors=False)
+    workers = len(client.scheduler_info().get("workers", {}))
+    sizer = BatchSizer(total, workers or 1)
 
     def submit_next() -> bool:
-        task = next(pending, None)
-        if task is None:
-            return False
-        future = client.submit(function, task, key=f"{key_prefix}-{task.index}", pure=False, retries=0)
-        waiting[future.key] = task
+        if alone:
+            batch = [alone.popleft()]
+            key = f"{key_prefix}-{batch[0].index}-alone"
+        else:
+            batch = list(itertools.islice(pending, sizer.next_size()))
+            if not batch:
+                return False
+            sizer.take(len(batch))
+            key = f"{key_prefix}-{batch[0].index}" + (f"+{len(batch) - 1}" if len(batch) > 1 else "")
+        future = client.submit(run_batch, function, batch, key=key, pure=False, retries=0)
+        waiting[future.key] = batch
         completed.add(future)
         return True
 
@@ -158,14 +248,25 @@ def run_tasks(
         if not submit_next():
             break
     produced = 0
-    for future in completed:
-        task = waiting.pop(future.key)
-        try:
-            row = future.result()
-        except Exception as exc:  # noqa: BLE001 - KilledWorker and the like: record, go on
-            row = on_lost(task, f"{type(exc).__name__}: {exc}")
+    for future, result in completed:
+        batch = waiting.pop(future.key)
+        failed = future.status != "finished"
         future.release()
-        on_row(row)
-        produced += 1
+        if failed and len(batch) > 1:
+            # One of them may kill its worker every time: run each alone, so that one
+            # alone is recorded as failed.
+            alone.extend(batch)
+            for _ in batch:
+                submit_next()
+            continue
+        if failed:  # KilledWorker and the like: record, go on
+            error = result[1] if isinstance(result, tuple) else result
+            rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
+        else:
+            rows, wall, cpu = result
+            sizer.observe(len(rows), wall, cpu)
+        for row in rows:
+            on_row(row)
+            produced += 1
         submit_next()
     return produced
