@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction
+from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
 
 #: The default dictionary (hbvs's simulated marker).
 DEFAULT_DICTIONARY = "DICT_4X4_50"
@@ -322,7 +322,7 @@ def _refine_corners_once(
     along = edges / np.sqrt(np.add.reduce(edges * edges, axis=1))[:, None]
     # Outward normal: a quarter turn of the edge direction, the sign set by the polygon's
     # orientation and by whether the edge is walked forward or backward around it.
-    orientation = 1.0 if _signed_area(corners) >= 0 else -1.0
+    orientation = 1.0 if signed_polygon_area(corners) >= 0 else -1.0
     outward = (orientation * _WALK)[:, None] * np.stack([along[:, 1], -along[:, 0]], axis=1)
     # Inside, stay within the black border cell (1/cells of a side).
     step = 0.5
@@ -377,11 +377,6 @@ def _refine_corners_once(
 #: edges is walked in (backward to the previous corner, forward to the next).
 _NEXT = [1, 2, 3, 0]
 _WALK = np.array([-1.0, 1.0] * 4)
-
-
-def _signed_area(polygon: NDArray[np.float64]) -> float:
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.dot(x, y[_NEXT]) - np.dot(x[_NEXT], y))
 
 
 def _bilinear(gray: NDArray[np.uint8], points: NDArray[np.float64]) -> NDArray[np.float64] | None:

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction
+from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
 from .ecc import refine_homography
 
 #: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
@@ -476,22 +476,14 @@ def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.flo
     mapped = h[:, :2] / h[:, 2:]
     if not np.all(np.isfinite(mapped)):
         return False
-    before = _polygon_area(reference_pixels)
-    after = _polygon_area(mapped)
+    before = signed_polygon_area(reference_pixels)
+    after = signed_polygon_area(mapped)
     if before == 0 or np.sign(after) != np.sign(before):
         return False
     scale = abs(after / before)
     height, width = shape
     diagonal = np.hypot(width, height)
     return 1e-3 < scale < 1e3 and np.all(np.abs(mapped) < 10 * diagonal)
-
-
-def _polygon_area(points: NDArray[np.float64]) -> float:
-    x, y = points[:, 0], points[:, 1]
-    # Shoelace with each vertex's successor (what np.roll(-1) gives, at a tenth of its cost:
-    # this runs twice per frame).
-    x_next, y_next = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))
-    return 0.5 * float(np.dot(x, y_next) - np.dot(x_next, y))
 
 
 def _window(shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int] | None:
