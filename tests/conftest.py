@@ -255,6 +255,21 @@ HEAVY_FILES = {
 }
 
 
+def pytest_configure(config):
+    """Compile hbvs_cli's bytecode once, before the workers start.
+
+    The suite starts about two hundred ``hbvs`` processes. Where PYTHONDONTWRITEBYTECODE is
+    set (as on our CI machines) an editable install never caches its bytecode, and each of
+    them compiled the modules it imports again: 0.2 s of CPU of the 0.8 s a short command
+    costs. Python still reads bytecode that exists, so writing it once here is enough.
+    """
+    if hasattr(config, "workerinput"):
+        return
+    import compileall
+
+    compileall.compile_dir(REPO / "hbvs_cli", quiet=2)
+
+
 def pytest_collection_modifyitems(session, config, items):
     """Heaviest files first (a stable sort: the tests of a file keep their order)."""
     items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))
