@@ -107,6 +107,20 @@ def call_hbvs(*args: str):
     return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
+# --------------------------------------------------------------------------- campaigns
+#: Parametrizes a test over its extent: ``"suite"``, the part the default suite runs, and
+#: ``"campaign"``, the whole of it, marked ``campaign`` so that ``pytest -m campaign``
+#: selects it (see :func:`campaign_extent`).
+SUITE_OR_CAMPAIGN = pytest.mark.parametrize("extent", ["suite", pytest.param("campaign", marks=pytest.mark.campaign)])
+
+
+def campaign_extent(request, extent: str) -> bool:
+    """True for the whole campaign; skips it unless ``-m campaign`` asked for it."""
+    if extent == "campaign" and "campaign" not in (request.config.option.markexpr or ""):
+        pytest.skip(f"runs with: pytest -m campaign {request.node.path.relative_to(REPO)}")
+    return extent == "campaign"
+
+
 # --------------------------------------------------------------------------- pipelines
 def quiet_console():
     from hbvs_cli.stages.console import Console
@@ -231,6 +245,13 @@ def pipeline_dir(tmp_path_factory):
 def default_teach(pipeline_dir):
     """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz."""
     return make_teach(pipeline_dir / "teach.mcap")
+
+
+@pytest.fixture(scope="session")
+def short_teach(pipeline_dir):
+    """The default scenario's first 6 s (180 frames): for tests of options and bad input,
+    which need a real recording but not the whole drive's accuracy."""
+    return make_teach(pipeline_dir / "teach-6s.mcap", duration=6.0)
 
 
 @pytest.fixture(scope="session")

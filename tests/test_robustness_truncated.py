@@ -17,7 +17,7 @@ import struct
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 
-from conftest import run_hbvs
+from conftest import SUITE_OR_CAMPAIGN, campaign_extent, run_hbvs
 
 SEED = 20031027
 CUTS = 10
@@ -75,11 +75,12 @@ def fit_prefix(teach: bytes, cut: int, folder) -> tuple[int, int, str, object]:
     return cut, result.returncode, result.stderr.decode(), model
 
 
-def test_a_teach_cut_anywhere_fits_from_its_complete_prefix(default_teach, tmp_path, request):
+@SUITE_OR_CAMPAIGN
+def test_a_teach_cut_anywhere_fits_from_its_complete_prefix(default_teach, tmp_path, request, extent):
     teach = default_teach.read_bytes()
     rng = random.Random(SEED)
     cuts = sorted(rng.randrange(len(teach) // 5, len(teach)) for _ in range(CUTS))
-    if "campaign" not in (request.config.option.markexpr or ""):
+    if not campaign_extent(request, extent):
         # The default suite fits 4 of the 10 prefixes, spread over the file (the shortest,
         # two in between, the longest); ``pytest -m campaign`` fits all 10.
         cuts = [cuts[0], cuts[3], cuts[6], cuts[-1]]

@@ -186,17 +186,17 @@ def test_fit_of_a_ros2_bag_agrees_with_the_truth(tmp_path):
     assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
 
 
-def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
+def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
     not_mcap = tmp_path / "notes.txt"
     not_mcap.write_text("not an mcap file\n")
     truncated = tmp_path / "truncated.mcap"
-    truncated.write_bytes(default_teach.read_bytes()[:3000])
+    truncated.write_bytes(short_teach.read_bytes()[:3000])
     no_images = tmp_path / "noimages.mcap"
-    strip_frames(default_teach, no_images, lambda t: True)
+    strip_frames(short_teach, no_images, lambda t: True)
     from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
     no_calibration = tmp_path / "nocal.mcap"
-    stream = McapStream(default_teach, topics={"/camera/image"})
+    stream = McapStream(short_teach, topics={"/camera/image"})
     with open(no_calibration, "wb") as handle:
         writer = McapWriter(handle)
         for k, message in enumerate(stream):
@@ -208,15 +208,15 @@ def test_bad_input_one_line_nonzero_exit_no_output(default_teach, tmp_path):
                 break
         writer.finish()
     never_found = tmp_path / "never.mcap"
-    _cover_target(default_teach, never_found, lambda t: True)
+    _cover_target(short_teach, never_found, lambda t: True)
     cases = [
         ([str(not_mcap)], 3, "not"),
         ([str(truncated)], 3, ""),
         ([str(no_images)], 3, "no complete image"),
         ([str(no_calibration)], 3, "calibration"),
         ([str(never_found)], 3, "not found"),
-        ([str(default_teach), "--reference", "9999"], 2, "out of range"),
-        ([str(default_teach), "--smoothing", "lots"], 2, "smoothing"),
+        ([str(short_teach), "--reference", "9999"], 2, "out of range"),
+        ([str(short_teach), "--smoothing", "lots"], 2, "smoothing"),
         ([str(tmp_path / "missing.mcap")], 3, "no such file"),
     ]
     output = tmp_path / "out.mcap"

@@ -72,18 +72,18 @@ def test_lens_distortion_is_honoured(tmp_path):
     assert errors["theta_deg"] < 0.05 and errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
 
 
-def test_a_given_smoothing_is_used_and_recorded(default_teach, tmp_path):
-    model = make_fit(default_teach, tmp_path / "fit.mcap", smoothing="0.5").model
+def test_a_given_smoothing_is_used_and_recorded(short_teach, tmp_path):
+    model = make_fit(short_teach, tmp_path / "fit.mcap", smoothing="0.5").model
     assert [ch.smoothing for ch in model.trajectory.channels.values()] == [0.5, 0.5]
-    rough = make_fit(default_teach, tmp_path / "rough.mcap", smoothing="0").model  # interpolates
+    rough = make_fit(short_teach, tmp_path / "rough.mcap", smoothing="0").model  # interpolates
     assert rough.trajectory.channels["theta_d"].residual_rms < 1e-9 < model.trajectory.channels["theta_d"].residual_rms
 
 
-def test_too_much_missing_fails_with_a_clear_message(default_teach, tmp_path):
+def test_too_much_missing_fails_with_a_clear_message(short_teach, tmp_path):
     from test_stage_fit import _cover_target
 
     half = tmp_path / "half.mcap"
-    _cover_target(default_teach, half, lambda t: int(t * 30) % 2 == 1)  # every other frame, keeping frame 0
+    _cover_target(short_teach, half, lambda t: int(t * 30) % 2 == 1)  # every other frame, keeping frame 0
     result = call_hbvs("fit", str(half), "-o", str(tmp_path / "f.mcap"), "-q")
     assert result.returncode == 3
     assert b"missing from 50 % of the frames" in result.stderr and b"--max-lost" in result.stderr
