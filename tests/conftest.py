@@ -10,6 +10,11 @@ from pathlib import Path
 # two cores that xdist's workers already fill, made a 9600 x 10 SVD take 160 ms instead of
 # 4 ms. Set before numpy is first imported; the children the tests start inherit it.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# Where PYTHONDONTWRITEBYTECODE is set (as on our CI machines) pytest rewrote the asserts of
+# every test module again in each worker, 2 s of CPU each time; this process may cache
+# them (and hbvs_cli's bytecode, see pytest_configure). The hbvs processes the tests start
+# keep the variable: they read the bytecode written here and write none.
+sys.dont_write_bytecode = False
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

@@ -228,7 +228,11 @@ class FootageMaker:
         fx = self.effects
         if fx.blur_samples > 1 and fx.exposure_s > 0:
             offsets = (np.arange(fx.blur_samples) + 0.5) / fx.blur_samples - 0.5
-            canvas = np.mean([self._warp(pose_of_time(t + fx.exposure_s * o)).astype(np.float32) for o in offsets], axis=0)
+            # Summed in place: np.mean of a list first copies the frames into one array.
+            canvas = self._warp(pose_of_time(t + fx.exposure_s * offsets[0])).astype(np.float32)
+            for o in offsets[1:]:
+                canvas += self._warp(pose_of_time(t + fx.exposure_s * o))
+            canvas *= np.float32(1.0 / fx.blur_samples)
         else:
             canvas = self._warp(pose_of_time(t)).astype(np.float32)
         if any(self.camera.distortion):
