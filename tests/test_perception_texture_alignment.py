@@ -45,7 +45,7 @@ def _errors(model_vignetting: bool) -> tuple[list[float], float]:
     reference_pixels = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), reference_h).reshape(-1, 2)
     detector = TextureDetector(_frame(picture, reference_h, rng), reference_pixels, seed=0)
     if not model_vignetting:
-        detector._vignetting.shade = lambda *args: None
+        detector._vignetting.shaded = lambda *args: None
     errors = []
     for k in range(1, 13):
         # Across the frame to the right and 1.5x larger, turning a little.

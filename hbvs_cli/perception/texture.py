@@ -61,6 +61,10 @@ CAMERA_BLUR_SIGMA = 0.5
 VIGNETTING_RANGE = (-0.5, 0.9)
 #: Fewer template pixels in the frame than this tell nothing about the vignetting.
 MIN_SHADING_PIXELS = 64
+#: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
+POOL_FRAMES = 32
+#: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
+POOL_INTERVAL = 8
 
 
 @dataclass(frozen=True)
@@ -239,9 +243,10 @@ class TextureDetector:
     def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """``homography`` (reference -> frame) refined by ECC on the target's region, or None.
 
-        Both images smoothed alike (:func:`_matched_blur`); then the frame's vignetting
-        relative to the reference (:class:`Vignetting`) is estimated, the template shaded by
-        it and aligned again.
+        Both images smoothed alike (:func:`_matched_blur`). On a frame that reads the
+        vignetting (:meth:`Vignetting.wants`), the frame's vignetting relative to the reference
+        is estimated from a first alignment, the template shaded by it and aligned again; on
+        the others, the template is shaded by the pooled vignetting and aligned once.
         """
         x0, y0, template = self._align_template
         to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
@@ -254,13 +259,26 @@ class TextureDetector:
             return None
         (fx0, fy0), frame = region
         to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
-        refined = refine_homography(template, frame, to_frame @ homography @ to_crop, points, blur=1)
-        if refined is None:
-            return None
-        shaded = self._vignetting.shade(template, frame, refined, (fx0, fy0))
-        if shaded is not None:
-            again = refine_homography(shaded, frame, refined, points, blur=1)
-            refined = refined if again is None else again
+        to_whole = homography @ to_crop
+        start = to_frame @ to_whole
+        if self._vignetting.wants():
+            # Aligned as the reference looks, the frame tells the vignetting; then again
+            # against the template shaded by it.
+            refined = refine_homography(template, frame, start, points, blur=1)
+            if refined is None:
+                return None
+            self._vignetting.pool(template, frame, refined, (fx0, fy0))
+            shaded = self._vignetting.shaded(template, to_whole)
+            if shaded is not None:
+                again = refine_homography(shaded, frame, refined, points, blur=1)
+                refined = refined if again is None else again
+        else:
+            # One alignment, against the template shaded by the pooled vignetting.
+            self._vignetting.skip()
+            shaded = self._vignetting.shaded(template, to_whole)
+            refined = refine_homography(template if shaded is None else shaded, frame, start, points, blur=1)
+            if refined is None:
+                return None
         aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
         return aligned / aligned[2, 2]
 
@@ -358,9 +376,14 @@ class Vignetting:
     A frame sees the target at brightness ``V(x_frame) / V(x_reference)`` times the
     reference's: one parameter ``a`` a frame at a time by linear least squares (frame ~
     gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset, the frame warped
-    onto the template), pooled by each frame's information (near the reference's place in
-    the image a frame tells nothing). ``r`` is in units of the image's half-diagonal. The
-    reference is taken to be a frame of the same camera, as ``fit`` and ``repeat`` make it.
+    onto the template by its homography), pooled by each frame's information (near the
+    reference's place in the image a frame tells nothing). ``r`` is in units of the image's
+    half-diagonal. The reference is taken to be a frame of the same camera, as ``fit`` and
+    ``repeat`` make it.
+
+    The fall-off is the camera's: once a few dozen frames have told it, it is read again only
+    every :data:`POOL_INTERVAL`-th frame (:meth:`wants`), and the other frames are aligned
+    once, against the template shaded with the pooled value (:meth:`shaded`).
 
     Parameters
     ----------
@@ -375,53 +398,82 @@ class Vignetting:
         self.centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
         self.scale = 0.25 * (width**2 + height**2)
         x0, y0, image = template
-        rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]].astype(np.float64)
-        self._grid = np.stack([cols, rows], axis=-1)
-        self._r2_reference = self._radius2(self._grid + (x0, y0))
+        # The template's pixel columns and rows, broadcastable against each other.
+        self._cols = np.arange(image.shape[1], dtype=np.float64)[None, :]
+        self._rows = np.arange(image.shape[0], dtype=np.float64)[:, None]
+        self._r2_reference = self._radius2(self._cols + x0, self._rows + y0)
         self._weighted_sum = 0.0
         self._weight = 0.0
+        self._frames = 0
 
     @property
     def falloff(self) -> float:
         """The pooled ``a`` (0 before any frame told it)."""
         return self._weighted_sum / self._weight if self._weight > 0 else 0.0
 
-    def _radius2(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.sum((pixels - self.centre) ** 2, axis=-1) / self.scale
+    def wants(self) -> bool:
+        """Whether the next aligned frame should add its estimate to the pool: each of the
+        first :data:`POOL_FRAMES`, then one in :data:`POOL_INTERVAL`."""
+        return self._frames < POOL_FRAMES or (self._frames - POOL_FRAMES) % POOL_INTERVAL == 0
 
-    def shade(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
-              offset: tuple[int, int]) -> NDArray[np.float32] | None:
-        """The template as the frame's vignetting shades it (after pooling this frame's estimate).
+    def skip(self) -> None:
+        """Count an aligned frame that did not add to the pool (see :meth:`wants`)."""
+        self._frames += 1
 
-        ``homography`` maps template pixels to ``frame`` pixels, ``frame`` being cut out of
-        the whole frame at ``offset``. None when no frame has told the fall-off yet.
+    def _radius2(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        return ((x - self.centre[0]) ** 2 + (y - self.centre[1]) ** 2) / self.scale
+
+    def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->
+        whole-frame pixels)."""
+        h, cols, rows = homography, self._cols, self._rows
+        w = h[2, 0] * cols + (h[2, 1] * rows + h[2, 2])
+        u = (h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])) / w
+        v = (h[1, 0] * cols + (h[1, 1] * rows + h[1, 2])) / w
+        return self._radius2(u, v)
+
+    def shaded(self, template: NDArray[np.float32], homography: NDArray[np.float64]) -> NDArray[np.float32] | None:
+        """The template as a frame's vignetting shades it, with the pooled fall-off; None
+        while no frame has told it.
+
+        ``homography`` maps template pixels to whole-frame pixels (to a pixel or so is
+        enough: the shading varies over hundreds of pixels).
         """
-        height, width = template.shape
-        warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-        in_frame = cv2.perspectiveTransform(self._grid.reshape(-1, 1, 2), homography).reshape(height, width, 2) + offset
-        r2_frame = self._radius2(in_frame)
-        ok = np.isfinite(warped)
-        if np.count_nonzero(ok) > MIN_SHADING_PIXELS:
-            brightness = template[ok].astype(np.float64)
-            shading = (self._r2_reference - r2_frame)[ok] * brightness
-            design = np.stack([brightness, np.ones_like(brightness), shading])
-            gram = design @ design.T
-            try:
-                coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
-                # The information on a: the shading term's part that gain and offset do not explain.
-                unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
-            except np.linalg.LinAlgError:
-                coefficients, unexplained = np.zeros(3), 0.0
-            gain, slope = coefficients[0], coefficients[2]
-            weight = float(unexplained) * gain**2
-            if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
-                self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
-                self._weight += weight
         a = self.falloff
         if a == 0.0:
             return None
-        return (template * ((1.0 - a * r2_frame) / (1.0 - a * self._r2_reference))).astype(np.float32)
+        return (template * ((1.0 - a * self._r2_frame(homography)) / (1.0 - a * self._r2_reference))).astype(np.float32)
+
+    def pool(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
+             offset: tuple[int, int]) -> None:
+        """Add a frame's estimate of the fall-off to the pool.
+
+        ``template`` is the unshaded template, aligned with ``frame`` (cut out of the whole
+        frame at ``offset``) by ``homography`` (template pixels -> ``frame`` pixels).
+        """
+        self._frames += 1
+        height, width = template.shape
+        warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        ok = np.isfinite(warped)
+        if np.count_nonzero(ok) <= MIN_SHADING_PIXELS:
+            return
+        to_whole = np.array([[1.0, 0.0, offset[0]], [0.0, 1.0, offset[1]], [0.0, 0.0, 1.0]]) @ homography
+        brightness = template[ok].astype(np.float64)
+        shading = (self._r2_reference - self._r2_frame(to_whole))[ok] * brightness
+        design = np.stack([brightness, np.ones_like(brightness), shading])
+        gram = design @ design.T
+        try:
+            coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
+            # The information on a: the shading term's part that gain and offset do not explain.
+            unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
+        except np.linalg.LinAlgError:
+            return
+        gain, slope = coefficients[0], coefficients[2]
+        weight = float(unexplained) * gain**2
+        if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
+            self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
+            self._weight += weight
 
 
 def _smoothed(image: NDArray[np.uint8], sigma: float = ALIGN_BLUR_SIGMA) -> NDArray[np.float32]:
