@@ -8,10 +8,12 @@ carried across by it:
   image (a frame showing the poster, or the poster's picture) are matched in the frame
   with Lowe's ratio test on Hamming distances;
 * **following** (a prediction of the points exists): the prediction defines a homography;
-  the reference warped by it nearly coincides with the frame, and pyramidal Lucas-Kanade
-  measures sub-pixel displacements of the reference's corners between the two. This is
-  several times faster than matching descriptors, and being always relative to the
-  reference it does not drift.
+  the reference warped by it nearly coincides with the frame. Near the prediction (a
+  tracked target) the whole-region alignment below converges from it directly and is kept
+  when the aligned images correlate well (:data:`FOLLOW_CORRELATION`); otherwise pyramidal
+  Lucas-Kanade measures sub-pixel displacements of the reference's corners between the
+  two (it reaches some 20 px) before the alignment. Both are several times faster than
+  matching descriptors, and being always relative to the reference they do not drift.
 
 ORB keypoints sit on the pixel grid of their pyramid level (a few tenths of a pixel of
 error), so an acquired homography is also polished by one Lucas-Kanade step.
@@ -27,14 +29,17 @@ decided (measured on independent footage, tests/test_perception_footage.py):
   moves in the frame, looks to an intensity alignment like a shift and a foreshortening
   (the frame's yaw was 0.28 deg RMS off for it). The fall-off ``1 - a r^2`` about the image
   centre is estimated from the frames (pooled: it is the camera's) and the template is
-  shaded as each frame sees it before the second alignment;
+  shaded as each frame sees it (the first frames, and then one in :data:`POOL_INTERVAL`,
+  are aligned twice: plainly, to read the fall-off, then shaded; the others once, shaded
+  with the pooled fall-off);
 * the resolution: a frame that sees the target 2x larger than the reference is sharper
   than the template, and a sharp picture matched to a blurred one comes out at a biased
   scale (the plane normal tilted 0.3-0.4 deg); the frame (or the template, when the
   target shrinks) is smoothed so that both have the same blur in template pixels.
 
-When following fails (too few reference corners agree, a picture with little texture), the
-alignment is tried from the track's prediction before a fresh acquisition.
+When following fails both ways (a poor correlation, too few reference corners agree: a
+picture with little texture), the alignment from the prediction is accepted without the
+correlation bound before a fresh acquisition is tried.
 
 Determinism: ORB and brute-force matching are deterministic and ``cv2.setRNGSeed(seed)``
 is called before every robust fit, so the same frames give the same results run to run.
@@ -50,7 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
-from .ecc import refine_homography
+from .ecc import align_homography
 
 #: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
 ALIGN_BLUR_SIGMA = 0.8
@@ -61,6 +66,10 @@ CAMERA_BLUR_SIGMA = 0.5
 VIGNETTING_RANGE = (-0.5, 0.9)
 #: Fewer template pixels in the frame than this tell nothing about the vignetting.
 MIN_SHADING_PIXELS = 64
+#: Following from a prediction by the alignment alone is accepted when the aligned template and
+#: frame correlate at least this well (measured: 0.992-0.9999 on the benchmark's and the
+#: photographs' footage); below, Lucas-Kanade follows first, as from a farther prediction.
+FOLLOW_CORRELATION = 0.9
 #: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
 POOL_FRAMES = 32
 #: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
@@ -77,11 +86,15 @@ class TextureDetection(Detection):
         Reference image pixels -> frame pixels (None when nothing was fitted).
     inliers : int
         Correspondences consistent with the homography (feature matches when acquiring,
-        Lucas-Kanade points when following).
+        Lucas-Kanade points when following; 0 when followed by the alignment alone).
+    correlation : float
+        How well the reference region and the frame match once aligned (ECC's correlation
+        coefficient, 1 for images equal up to gain and offset); NaN when not aligned.
     """
 
     homography: NDArray[np.float64] | None = None
     inliers: int = 0
+    correlation: float = float("nan")
 
 
 class TextureDetector:
@@ -200,11 +213,18 @@ class TextureDetector:
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
-                result = self._follow(gray, guess)
+                if self.align:
+                    # The whole region's alignment straight from the prediction: near it (a
+                    # tracked target) it converges, and is all that is needed; checked by
+                    # its correlation. Farther off, Lucas-Kanade first.
+                    result = self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION)
+                    aligned = result is not None
+                if result is None:
+                    result = self._follow(gray, guess)
                 if result is None and self.align:
-                    # Too few reference corners agree (a picture with little texture, e.g.
-                    # mostly sky): the whole region's alignment from the prediction, which
-                    # is nearer than a fresh acquisition.
+                    # Too few reference corners agree either (a picture with little texture,
+                    # e.g. mostly sky, correlates weakly): the alignment from the prediction
+                    # without the bound, which is nearer than a fresh acquisition.
                     result = self._aligned_from(gray, guess)
                     aligned = result is not None
             if result is None:
@@ -227,21 +247,26 @@ class TextureDetector:
         pixel of the target's region of the reference (:meth:`_aligned_homography`). Kept
         only when it converges near the LK result.
         """
-        homography = self._aligned_homography(gray, result.homography)
+        homography, correlation = self._aligned_homography(gray, result.homography)
         if homography is None:
             return result
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
+                                result.inliers, correlation)
 
-    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64]) -> TextureDetection | None:
+    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64],
+                      min_correlation: float | None = None) -> TextureDetection | None:
         """The target found by aligning the reference region from ``guess`` alone; None when
-        the alignment does not converge near it, or the result folds the target."""
-        homography = self._aligned_homography(gray, guess)
+        the alignment does not converge near it (or matches worse than ``min_correlation``),
+        or the result folds the target."""
+        homography, correlation = self._aligned_homography(gray, guess, min_correlation)
         if homography is None or not _plausible(homography, self.reference_pixels, gray.shape):
             return None
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0)
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0, correlation)
 
-    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """``homography`` (reference -> frame) refined by ECC on the target's region, or None.
+    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64],
+                            min_correlation: float | None = None) -> tuple[NDArray[np.float64] | None, float]:
+        """``homography`` (reference -> frame) refined by ECC on the target's region (None
+        when that fails, or correlates below ``min_correlation``), and the correlation.
 
         Both images smoothed alike (:func:`_matched_blur`). On a frame that reads the
         vignetting (:meth:`Vignetting.wants`), the frame's vignetting relative to the reference
@@ -256,7 +281,7 @@ class TextureDetector:
             template = self._template(template_sigma)
         region = _smoothed_region(gray, _transfer(homography, self.reference_pixels), frame_sigma)
         if region is None:
-            return None
+            return None, float("nan")
         (fx0, fy0), frame = region
         to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
         to_whole = homography @ to_crop
@@ -264,23 +289,25 @@ class TextureDetector:
         if self._vignetting.wants():
             # Aligned as the reference looks, the frame tells the vignetting; then again
             # against the template shaded by it.
-            refined = refine_homography(template, frame, start, points, blur=1)
+            refined, correlation = align_homography(template, frame, start, points, 1, min_correlation)
             if refined is None:
-                return None
+                return None, correlation
             self._vignetting.pool(template, frame, refined, (fx0, fy0))
             shaded = self._vignetting.shaded(template, to_whole)
             if shaded is not None:
-                again = refine_homography(shaded, frame, refined, points, blur=1)
-                refined = refined if again is None else again
+                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+                if again is not None:
+                    refined, correlation = again, again_correlation
         else:
             # One alignment, against the template shaded by the pooled vignetting.
             self._vignetting.skip()
             shaded = self._vignetting.shaded(template, to_whole)
-            refined = refine_homography(template if shaded is None else shaded, frame, start, points, blur=1)
+            refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, 1,
+                                                    min_correlation)
             if refined is None:
-                return None
+                return None, correlation
         aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
-        return aligned / aligned[2, 2]
+        return aligned / aligned[2, 2], correlation
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""
