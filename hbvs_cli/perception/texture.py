@@ -314,7 +314,11 @@ class TextureDetector:
         known = np.all(np.isfinite(prediction), axis=1)
         if np.count_nonzero(known) < 4:
             return None
-        guess, _ = cv2.findHomography(self.reference_pixels[known], prediction[known], 0)
+        if np.count_nonzero(known) == 4:
+            # Four points fix the homography: the direct solve, several times cheaper.
+            guess = cv2.getPerspectiveTransform(self.reference_pixels[known].astype(np.float32), prediction[known].astype(np.float32))
+        else:
+            guess, _ = cv2.findHomography(self.reference_pixels[known], prediction[known], 0)
         if guess is None or not _plausible(guess, self.reference_pixels, (10**4, 10**4)):
             return None
         return guess
@@ -426,9 +430,10 @@ class Vignetting:
         self.scale = 0.25 * (width**2 + height**2)
         x0, y0, image = template
         # The template's pixel columns and rows, broadcastable against each other.
-        self._cols = np.arange(image.shape[1], dtype=np.float64)[None, :]
-        self._rows = np.arange(image.shape[0], dtype=np.float64)[:, None]
-        self._r2_reference = self._radius2(self._cols + x0, self._rows + y0)
+        self._cols = np.arange(image.shape[1], dtype=np.float32)[None, :]
+        self._rows = np.arange(image.shape[0], dtype=np.float32)[:, None]
+        self._r2_reference = self._r2_frame(np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]]))
+        self._reference_shading: tuple[float, NDArray[np.float32]] = (0.0, np.ones_like(self._r2_reference))
         self._weighted_sum = 0.0
         self._weight = 0.0
         self._frames = 0
@@ -447,17 +452,23 @@ class Vignetting:
         """Count an aligned frame that did not add to the pool (see :meth:`wants`)."""
         self._frames += 1
 
-    def _radius2(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
-        return ((x - self.centre[0]) ** 2 + (y - self.centre[1]) ** 2) / self.scale
-
-    def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float32]:
         """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->
-        whole-frame pixels)."""
-        h, cols, rows = homography, self._cols, self._rows
+        whole-frame pixels), shape (h, w), float32."""
+        # About the image centre: r^2 = (x^2 + y^2) / (w^2 scale), x, y and w affine in the
+        # template's columns and rows (each one broadcast sum).
+        h = (np.array([[1.0, 0.0, -self.centre[0]], [0.0, 1.0, -self.centre[1]], [0.0, 0.0, 1.0]]) @ homography).astype(np.float32)
+        cols, rows = self._cols, self._rows
+        x = h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])
+        y = h[1, 0] * cols + (h[1, 1] * rows + h[1, 2])
         w = h[2, 0] * cols + (h[2, 1] * rows + h[2, 2])
-        u = (h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])) / w
-        v = (h[1, 0] * cols + (h[1, 1] * rows + h[1, 2])) / w
-        return self._radius2(u, v)
+        x *= x
+        y *= y
+        x += y
+        w *= w
+        w *= np.float32(self.scale)
+        x /= w
+        return x
 
     def shaded(self, template: NDArray[np.float32], homography: NDArray[np.float64]) -> NDArray[np.float32] | None:
         """The template as a frame's vignetting shades it, with the pooled fall-off; None
@@ -469,7 +480,14 @@ class Vignetting:
         a = self.falloff
         if a == 0.0:
             return None
-        return (template * ((1.0 - a * self._r2_frame(homography)) / (1.0 - a * self._r2_reference))).astype(np.float32)
+        if self._reference_shading[0] != a:
+            self._reference_shading = (a, (1.0 / (1.0 - a * self._r2_reference)).astype(np.float32))
+        shading = self._r2_frame(homography)
+        shading *= np.float32(-a)
+        shading += np.float32(1.0)
+        shading *= self._reference_shading[1]
+        shading *= template
+        return shading
 
     def pool(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
              offset: tuple[int, int]) -> None:
