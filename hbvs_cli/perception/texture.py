@@ -293,7 +293,7 @@ class TextureDetector:
             if refined is None:
                 return None, correlation
             self._vignetting.pool(template, frame, refined, (fx0, fy0))
-            shaded = self._vignetting.shaded(template, to_whole)
+            shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
             if shaded is not None:
                 again, again_correlation = align_homography(shaded, frame, refined, points, 1)
                 if again is not None:
