@@ -73,7 +73,7 @@ FOLLOW_CORRELATION = 0.9
 #: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
 POOL_FRAMES = 32
 #: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
-POOL_INTERVAL = 8
+POOL_INTERVAL = 32
 
 
 @dataclass(frozen=True)
