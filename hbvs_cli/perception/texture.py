@@ -70,6 +70,10 @@ MIN_SHADING_PIXELS = 64
 #: frame correlate at least this well (measured: 0.992-0.9999 on the benchmark's and the
 #: photographs' footage); below, Lucas-Kanade follows first, as from a farther prediction.
 FOLLOW_CORRELATION = 0.9
+#: When a frame's alignment moved the target's points farther than this (px) from where it
+#: started, where the template's shading was placed, it is aligned again with the shading
+#: placed where it ended (a prediction far off; a tracked one is within a few tenths).
+SHADING_PLACEMENT_PX = 0.5
 #: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
 POOL_FRAMES = 32
 #: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
@@ -306,6 +310,12 @@ class TextureDetector:
                                                     min_correlation)
             if refined is None:
                 return None, correlation
+            if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
+                # The start was off: the shading was placed there; again, placed where aligned.
+                shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
+                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+                if again is not None:
+                    refined, correlation = again, again_correlation
         aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
         return aligned / aligned[2, 2], correlation
 
@@ -558,6 +568,11 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
     if x1 - x0 < 2 * margin or y1 - y0 < 2 * margin:
         return None
     return (int(x0), int(y0)), _smoothed(gray[y0:y1, x0:x1], sigma)
+
+
+def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], points: NDArray[np.float64]) -> float:
+    """How far (px, the largest) two homographies put ``points`` apart."""
+    return float(np.max(np.linalg.norm(_transfer(after, points) - _transfer(before, points), axis=1)))
 
 
 def _transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
