@@ -22,6 +22,7 @@ from hbvs_cli.perception import (
     match_identity,
 )
 from hbvs_cli.perception.base import PointTrack
+from hbvs_cli.perception.texture import FOLLOW_CORRELATION
 from hbvs_cli.sim import RenderSettings, SceneRenderer
 
 
@@ -99,7 +100,8 @@ def test_texture_points_along_the_path(rendered):
     errors = []
     for pose, image in frames:
         detection = detector.detect(image)
-        assert detection.found and detection.inliers >= 15
+        # Found by enough agreeing correspondences, or (following) by an alignment that matches.
+        assert detection.found and (detection.inliers >= 15 or detection.correlation >= FOLLOW_CORRELATION)
         errors.append(detection.pixels - world.pixels(pose))
     rms = np.sqrt(np.mean(np.sum(np.concatenate(errors) ** 2, axis=1)))
     # Measured: RMS 0.02-0.05 px (ORB + MAGSAC alone: 0.2 px); the requirement is 0.5 px.

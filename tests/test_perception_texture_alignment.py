@@ -45,7 +45,7 @@ def _errors(model_vignetting: bool) -> tuple[list[float], float]:
     reference_pixels = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), reference_h).reshape(-1, 2)
     detector = TextureDetector(_frame(picture, reference_h, rng), reference_pixels, seed=0)
     if not model_vignetting:
-        detector._vignetting.shade = lambda *args: None
+        detector._vignetting.shaded = lambda *args: None
     errors = []
     for k in range(1, 13):
         # Across the frame to the right and 1.5x larger, turning a little.
@@ -58,8 +58,9 @@ def _errors(model_vignetting: bool) -> tuple[list[float], float]:
 
 
 def test_vignetting_is_estimated_and_the_points_stay_within_hundredths_of_a_pixel():
-    # Measured: fall-off 0.313; the last 4 frames within 0.006 px, 0.024 px when the
-    # template is not shaded by the vignetting.
+    # Measured: fall-off 0.313; the last 4 frames within 0.007 px, 0.032 px when the
+    # template is not shaded by the vignetting (0.024 px when every frame was aligned from
+    # Lucas-Kanade's result).
     errors, falloff = _errors(model_vignetting=True)
     assert abs(falloff - FALLOFF) < 0.03, falloff
     assert max(errors) < 0.03, np.round(errors, 3)

@@ -29,7 +29,20 @@ def refine_homography(
     check_points: NDArray[np.float64],
     blur: int = 3,
 ) -> NDArray[np.float64] | None:
-    """The template -> frame homography, refined by ECC alignment.
+    """The template -> frame homography, refined by ECC alignment; see :func:`align_homography`
+    (this is its homography alone)."""
+    return align_homography(template, frame, homography, check_points, blur)[0]
+
+
+def align_homography(
+    template: NDArray[np.uint8],
+    frame: NDArray[np.uint8],
+    homography: NDArray[np.float64],
+    check_points: NDArray[np.float64],
+    blur: int = 3,
+    min_correlation: float | None = None,
+) -> tuple[NDArray[np.float64] | None, float]:
+    """The template -> frame homography refined by ECC alignment, and how well they match.
 
     Parameters
     ----------
@@ -43,11 +56,16 @@ def refine_homography(
         more than :data:`MAX_CORRECTION_PX` from where ``homography`` puts them.
     blur : int
         Gaussian filter size ECC applies to both images (odd).
+    min_correlation : float, optional
+        Reject an alignment whose correlation coefficient ends below this.
 
     Returns
     -------
-    ndarray, shape (3, 3), or None
-        None when ECC did not converge or wandered off.
+    homography : ndarray, shape (3, 3), or None
+        None when ECC did not converge, wandered off or (``min_correlation``) matches too poorly.
+    correlation : float
+        ECC's criterion at the end, the correlation coefficient of the aligned images (1 for
+        images equal up to gain and offset); NaN when ECC failed.
     """
     height, width = frame.shape
     start = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
@@ -57,21 +75,24 @@ def refine_homography(
     x0, y0 = max(int(low[0]), 0), max(int(low[1]), 0)
     x1, y1 = min(int(high[0]), width), min(int(high[1]), height)
     if x1 - x0 < 8 or y1 - y0 < 8:
-        return None
+        return None, float("nan")
     shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
     warp = (shift @ homography).astype(np.float32)
     warp /= warp[2, 2]
     crop = np.ascontiguousarray(frame[y0:y1, x0:x1])
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ECC_ITERATIONS, ECC_EPSILON)
     try:
-        _, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, blur)
+        correlation, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, blur)
     except cv2.error:
-        return None
+        return None, float("nan")
+    correlation = float(correlation)
+    if min_correlation is not None and not correlation >= min_correlation:
+        return None, correlation
     refined = np.linalg.inv(shift) @ warp.astype(np.float64)
     if not np.all(np.isfinite(refined)) or abs(refined[2, 2]) < 1e-12:
-        return None
+        return None, correlation
     refined /= refined[2, 2]
     moved = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), refined).reshape(-1, 2)
     if not np.all(np.isfinite(moved)) or np.max(np.linalg.norm(moved - start, axis=1)) > MAX_CORRECTION_PX:
-        return None
-    return refined
+        return None, correlation
+    return refined, correlation

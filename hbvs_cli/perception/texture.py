@@ -8,10 +8,12 @@ carried across by it:
   image (a frame showing the poster, or the poster's picture) are matched in the frame
   with Lowe's ratio test on Hamming distances;
 * **following** (a prediction of the points exists): the prediction defines a homography;
-  the reference warped by it nearly coincides with the frame, and pyramidal Lucas-Kanade
-  measures sub-pixel displacements of the reference's corners between the two. This is
-  several times faster than matching descriptors, and being always relative to the
-  reference it does not drift.
+  the reference warped by it nearly coincides with the frame. Near the prediction (a
+  tracked target) the whole-region alignment below converges from it directly and is kept
+  when the aligned images correlate well (:data:`FOLLOW_CORRELATION`); otherwise pyramidal
+  Lucas-Kanade measures sub-pixel displacements of the reference's corners between the
+  two (it reaches some 20 px) before the alignment. Both are several times faster than
+  matching descriptors, and being always relative to the reference they do not drift.
 
 ORB keypoints sit on the pixel grid of their pyramid level (a few tenths of a pixel of
 error), so an acquired homography is also polished by one Lucas-Kanade step.
@@ -27,14 +29,17 @@ decided (measured on independent footage, tests/test_perception_footage.py):
   moves in the frame, looks to an intensity alignment like a shift and a foreshortening
   (the frame's yaw was 0.28 deg RMS off for it). The fall-off ``1 - a r^2`` about the image
   centre is estimated from the frames (pooled: it is the camera's) and the template is
-  shaded as each frame sees it before the second alignment;
+  shaded as each frame sees it (the first frames, and then one in :data:`POOL_INTERVAL`,
+  are aligned twice: plainly, to read the fall-off, then shaded; the others once, shaded
+  with the pooled fall-off);
 * the resolution: a frame that sees the target 2x larger than the reference is sharper
   than the template, and a sharp picture matched to a blurred one comes out at a biased
   scale (the plane normal tilted 0.3-0.4 deg); the frame (or the template, when the
   target shrinks) is smoothed so that both have the same blur in template pixels.
 
-When following fails (too few reference corners agree, a picture with little texture), the
-alignment is tried from the track's prediction before a fresh acquisition.
+When following fails both ways (a poor correlation, too few reference corners agree: a
+picture with little texture), the alignment from the prediction is accepted without the
+correlation bound before a fresh acquisition is tried.
 
 Determinism: ORB and brute-force matching are deterministic and ``cv2.setRNGSeed(seed)``
 is called before every robust fit, so the same frames give the same results run to run.
@@ -50,7 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
-from .ecc import refine_homography
+from .ecc import align_homography
 
 #: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
 ALIGN_BLUR_SIGMA = 0.8
@@ -61,6 +66,18 @@ CAMERA_BLUR_SIGMA = 0.5
 VIGNETTING_RANGE = (-0.5, 0.9)
 #: Fewer template pixels in the frame than this tell nothing about the vignetting.
 MIN_SHADING_PIXELS = 64
+#: Following from a prediction by the alignment alone is accepted when the aligned template and
+#: frame correlate at least this well (measured: 0.992-0.9999 on the benchmark's and the
+#: photographs' footage); below, Lucas-Kanade follows first, as from a farther prediction.
+FOLLOW_CORRELATION = 0.9
+#: When a frame's alignment moved the target's points farther than this (px) from where it
+#: started, where the template's shading was placed, it is aligned again with the shading
+#: placed where it ended (a prediction far off; a tracked one is within a few tenths).
+SHADING_PLACEMENT_PX = 0.5
+#: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
+POOL_FRAMES = 32
+#: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
+POOL_INTERVAL = 32
 
 
 @dataclass(frozen=True)
@@ -73,11 +90,15 @@ class TextureDetection(Detection):
         Reference image pixels -> frame pixels (None when nothing was fitted).
     inliers : int
         Correspondences consistent with the homography (feature matches when acquiring,
-        Lucas-Kanade points when following).
+        Lucas-Kanade points when following; 0 when followed by the alignment alone).
+    correlation : float
+        How well the reference region and the frame match once aligned (ECC's correlation
+        coefficient, 1 for images equal up to gain and offset); NaN when not aligned.
     """
 
     homography: NDArray[np.float64] | None = None
     inliers: int = 0
+    correlation: float = float("nan")
 
 
 class TextureDetector:
@@ -196,11 +217,18 @@ class TextureDetector:
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
-                result = self._follow(gray, guess)
+                if self.align:
+                    # The whole region's alignment straight from the prediction: near it (a
+                    # tracked target) it converges, and is all that is needed; checked by
+                    # its correlation. Farther off, Lucas-Kanade first.
+                    result = self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION)
+                    aligned = result is not None
+                if result is None:
+                    result = self._follow(gray, guess)
                 if result is None and self.align:
-                    # Too few reference corners agree (a picture with little texture, e.g.
-                    # mostly sky): the whole region's alignment from the prediction, which
-                    # is nearer than a fresh acquisition.
+                    # Too few reference corners agree either (a picture with little texture,
+                    # e.g. mostly sky, correlates weakly): the alignment from the prediction
+                    # without the bound, which is nearer than a fresh acquisition.
                     result = self._aligned_from(gray, guess)
                     aligned = result is not None
             if result is None:
@@ -223,25 +251,31 @@ class TextureDetector:
         pixel of the target's region of the reference (:meth:`_aligned_homography`). Kept
         only when it converges near the LK result.
         """
-        homography = self._aligned_homography(gray, result.homography)
+        homography, correlation = self._aligned_homography(gray, result.homography)
         if homography is None:
             return result
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography, result.inliers)
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
+                                result.inliers, correlation)
 
-    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64]) -> TextureDetection | None:
+    def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64],
+                      min_correlation: float | None = None) -> TextureDetection | None:
         """The target found by aligning the reference region from ``guess`` alone; None when
-        the alignment does not converge near it, or the result folds the target."""
-        homography = self._aligned_homography(gray, guess)
+        the alignment does not converge near it (or matches worse than ``min_correlation``),
+        or the result folds the target."""
+        homography, correlation = self._aligned_homography(gray, guess, min_correlation)
         if homography is None or not _plausible(homography, self.reference_pixels, gray.shape):
             return None
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0)
+        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0, correlation)
 
-    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """``homography`` (reference -> frame) refined by ECC on the target's region, or None.
+    def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64],
+                            min_correlation: float | None = None) -> tuple[NDArray[np.float64] | None, float]:
+        """``homography`` (reference -> frame) refined by ECC on the target's region (None
+        when that fails, or correlates below ``min_correlation``), and the correlation.
 
-        Both images smoothed alike (:func:`_matched_blur`); then the frame's vignetting
-        relative to the reference (:class:`Vignetting`) is estimated, the template shaded by
-        it and aligned again.
+        Both images smoothed alike (:func:`_matched_blur`). On a frame that reads the
+        vignetting (:meth:`Vignetting.wants`), the frame's vignetting relative to the reference
+        is estimated from a first alignment, the template shaded by it and aligned again; on
+        the others, the template is shaded by the pooled vignetting and aligned once.
         """
         x0, y0, template = self._align_template
         to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
@@ -251,25 +285,50 @@ class TextureDetector:
             template = self._template(template_sigma)
         region = _smoothed_region(gray, _transfer(homography, self.reference_pixels), frame_sigma)
         if region is None:
-            return None
+            return None, float("nan")
         (fx0, fy0), frame = region
         to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
-        refined = refine_homography(template, frame, to_frame @ homography @ to_crop, points, blur=1)
-        if refined is None:
-            return None
-        shaded = self._vignetting.shade(template, frame, refined, (fx0, fy0))
-        if shaded is not None:
-            again = refine_homography(shaded, frame, refined, points, blur=1)
-            refined = refined if again is None else again
+        to_whole = homography @ to_crop
+        start = to_frame @ to_whole
+        if self._vignetting.wants():
+            # Aligned as the reference looks, the frame tells the vignetting; then again
+            # against the template shaded by it.
+            refined, correlation = align_homography(template, frame, start, points, 1, min_correlation)
+            if refined is None:
+                return None, correlation
+            self._vignetting.pool(template, frame, refined, (fx0, fy0))
+            shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
+            if shaded is not None:
+                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+                if again is not None:
+                    refined, correlation = again, again_correlation
+        else:
+            # One alignment, against the template shaded by the pooled vignetting.
+            self._vignetting.skip()
+            shaded = self._vignetting.shaded(template, to_whole)
+            refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, 1,
+                                                    min_correlation)
+            if refined is None:
+                return None, correlation
+            if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
+                # The start was off: the shading was placed there; again, placed where aligned.
+                shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
+                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+                if again is not None:
+                    refined, correlation = again, again_correlation
         aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
-        return aligned / aligned[2, 2]
+        return aligned / aligned[2, 2], correlation
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""
         known = np.all(np.isfinite(prediction), axis=1)
         if np.count_nonzero(known) < 4:
             return None
-        guess, _ = cv2.findHomography(self.reference_pixels[known], prediction[known], 0)
+        if np.count_nonzero(known) == 4:
+            # Four points fix the homography: the direct solve, several times cheaper.
+            guess = cv2.getPerspectiveTransform(self.reference_pixels[known].astype(np.float32), prediction[known].astype(np.float32))
+        else:
+            guess, _ = cv2.findHomography(self.reference_pixels[known], prediction[known], 0)
         if guess is None or not _plausible(guess, self.reference_pixels, (10**4, 10**4)):
             return None
         return guess
@@ -358,9 +417,14 @@ class Vignetting:
     A frame sees the target at brightness ``V(x_frame) / V(x_reference)`` times the
     reference's: one parameter ``a`` a frame at a time by linear least squares (frame ~
     gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset, the frame warped
-    onto the template), pooled by each frame's information (near the reference's place in
-    the image a frame tells nothing). ``r`` is in units of the image's half-diagonal. The
-    reference is taken to be a frame of the same camera, as ``fit`` and ``repeat`` make it.
+    onto the template by its homography), pooled by each frame's information (near the
+    reference's place in the image a frame tells nothing). ``r`` is in units of the image's
+    half-diagonal. The reference is taken to be a frame of the same camera, as ``fit`` and
+    ``repeat`` make it.
+
+    The fall-off is the camera's: once a few dozen frames have told it, it is read again only
+    every :data:`POOL_INTERVAL`-th frame (:meth:`wants`), and the other frames are aligned
+    once, against the template shaded with the pooled value (:meth:`shaded`).
 
     Parameters
     ----------
@@ -375,53 +439,96 @@ class Vignetting:
         self.centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
         self.scale = 0.25 * (width**2 + height**2)
         x0, y0, image = template
-        rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]].astype(np.float64)
-        self._grid = np.stack([cols, rows], axis=-1)
-        self._r2_reference = self._radius2(self._grid + (x0, y0))
+        # The template's pixel columns and rows, broadcastable against each other.
+        self._cols = np.arange(image.shape[1], dtype=np.float32)[None, :]
+        self._rows = np.arange(image.shape[0], dtype=np.float32)[:, None]
+        self._r2_reference = self._r2_frame(np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]]))
+        self._reference_shading: tuple[float, NDArray[np.float32]] = (0.0, np.ones_like(self._r2_reference))
         self._weighted_sum = 0.0
         self._weight = 0.0
+        self._frames = 0
 
     @property
     def falloff(self) -> float:
         """The pooled ``a`` (0 before any frame told it)."""
         return self._weighted_sum / self._weight if self._weight > 0 else 0.0
 
-    def _radius2(self, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.sum((pixels - self.centre) ** 2, axis=-1) / self.scale
+    def wants(self) -> bool:
+        """Whether the next aligned frame should add its estimate to the pool: each of the
+        first :data:`POOL_FRAMES`, then one in :data:`POOL_INTERVAL`."""
+        return self._frames < POOL_FRAMES or (self._frames - POOL_FRAMES) % POOL_INTERVAL == 0
 
-    def shade(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
-              offset: tuple[int, int]) -> NDArray[np.float32] | None:
-        """The template as the frame's vignetting shades it (after pooling this frame's estimate).
+    def skip(self) -> None:
+        """Count an aligned frame that did not add to the pool (see :meth:`wants`)."""
+        self._frames += 1
 
-        ``homography`` maps template pixels to ``frame`` pixels, ``frame`` being cut out of
-        the whole frame at ``offset``. None when no frame has told the fall-off yet.
+    def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float32]:
+        """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->
+        whole-frame pixels), shape (h, w), float32."""
+        # About the image centre: r^2 = (x^2 + y^2) / (w^2 scale), x, y and w affine in the
+        # template's columns and rows (each one broadcast sum).
+        h = (np.array([[1.0, 0.0, -self.centre[0]], [0.0, 1.0, -self.centre[1]], [0.0, 0.0, 1.0]]) @ homography).astype(np.float32)
+        cols, rows = self._cols, self._rows
+        x = h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])
+        y = h[1, 0] * cols + (h[1, 1] * rows + h[1, 2])
+        w = h[2, 0] * cols + (h[2, 1] * rows + h[2, 2])
+        x *= x
+        y *= y
+        x += y
+        w *= w
+        w *= np.float32(self.scale)
+        x /= w
+        return x
+
+    def shaded(self, template: NDArray[np.float32], homography: NDArray[np.float64]) -> NDArray[np.float32] | None:
+        """The template as a frame's vignetting shades it, with the pooled fall-off; None
+        while no frame has told it.
+
+        ``homography`` maps template pixels to whole-frame pixels (to a pixel or so is
+        enough: the shading varies over hundreds of pixels).
         """
-        height, width = template.shape
-        warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-        in_frame = cv2.perspectiveTransform(self._grid.reshape(-1, 1, 2), homography).reshape(height, width, 2) + offset
-        r2_frame = self._radius2(in_frame)
-        ok = np.isfinite(warped)
-        if np.count_nonzero(ok) > MIN_SHADING_PIXELS:
-            brightness = template[ok].astype(np.float64)
-            shading = (self._r2_reference - r2_frame)[ok] * brightness
-            design = np.stack([brightness, np.ones_like(brightness), shading])
-            gram = design @ design.T
-            try:
-                coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
-                # The information on a: the shading term's part that gain and offset do not explain.
-                unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
-            except np.linalg.LinAlgError:
-                coefficients, unexplained = np.zeros(3), 0.0
-            gain, slope = coefficients[0], coefficients[2]
-            weight = float(unexplained) * gain**2
-            if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
-                self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
-                self._weight += weight
         a = self.falloff
         if a == 0.0:
             return None
-        return (template * ((1.0 - a * r2_frame) / (1.0 - a * self._r2_reference))).astype(np.float32)
+        if self._reference_shading[0] != a:
+            self._reference_shading = (a, (1.0 / (1.0 - a * self._r2_reference)).astype(np.float32))
+        shading = self._r2_frame(homography)
+        shading *= np.float32(-a)
+        shading += np.float32(1.0)
+        shading *= self._reference_shading[1]
+        shading *= template
+        return shading
+
+    def pool(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
+             offset: tuple[int, int]) -> None:
+        """Add a frame's estimate of the fall-off to the pool.
+
+        ``template`` is the unshaded template, aligned with ``frame`` (cut out of the whole
+        frame at ``offset``) by ``homography`` (template pixels -> ``frame`` pixels).
+        """
+        self._frames += 1
+        height, width = template.shape
+        warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        ok = np.isfinite(warped)
+        if np.count_nonzero(ok) <= MIN_SHADING_PIXELS:
+            return
+        to_whole = np.array([[1.0, 0.0, offset[0]], [0.0, 1.0, offset[1]], [0.0, 0.0, 1.0]]) @ homography
+        brightness = template[ok].astype(np.float64)
+        shading = (self._r2_reference - self._r2_frame(to_whole))[ok] * brightness
+        design = np.stack([brightness, np.ones_like(brightness), shading])
+        gram = design @ design.T
+        try:
+            coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
+            # The information on a: the shading term's part that gain and offset do not explain.
+            unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
+        except np.linalg.LinAlgError:
+            return
+        gain, slope = coefficients[0], coefficients[2]
+        weight = float(unexplained) * gain**2
+        if gain > 0 and np.isfinite(slope) and np.isfinite(weight) and weight > 0:
+            self._weighted_sum += weight * float(np.clip(slope / gain, *VIGNETTING_RANGE))
+            self._weight += weight
 
 
 def _smoothed(image: NDArray[np.uint8], sigma: float = ALIGN_BLUR_SIGMA) -> NDArray[np.float32]:
@@ -461,6 +568,11 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
     if x1 - x0 < 2 * margin or y1 - y0 < 2 * margin:
         return None
     return (int(x0), int(y0)), _smoothed(gray[y0:y1, x0:x1], sigma)
+
+
+def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], points: NDArray[np.float64]) -> float:
+    """How far (px, the largest) two homographies put ``points`` apart."""
+    return float(np.max(np.linalg.norm(_transfer(after, points) - _transfer(before, points), axis=1)))
 
 
 def _transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
