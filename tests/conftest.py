@@ -246,28 +246,49 @@ def fit_errors(model):
 
 @pytest.fixture(scope="session")
 def pipeline_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("pipeline")
+    """A folder every xdist worker of this session shares (the workers' base folders sit
+    side by side in it), for the recordings below: built once by whichever worker needs
+    one first, read by all."""
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-pipeline"
+    folder.mkdir(exist_ok=True)
+    return folder
+
+
+def shared_recording(folder: Path, name: str, build) -> Path:
+    """``folder / name``, made by ``build(path)`` unless another worker made it already.
+
+    The stages write through a partial file renamed into place, so a path that exists is
+    complete; the lock makes a second worker wait for the first instead of building too.
+    """
+    import fcntl
+
+    path = folder / name
+    with open(folder / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not path.exists():
+            build(path)
+    return path
 
 
 @pytest.fixture(scope="session")
 def default_teach(pipeline_dir):
     """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz."""
-    return make_teach(pipeline_dir / "teach.mcap")
+    return shared_recording(pipeline_dir, "teach.mcap", make_teach)
 
 
 @pytest.fixture(scope="session")
 def short_teach(pipeline_dir):
     """The default scenario's first 6 s (180 frames): for tests of options and bad input,
     which need a real recording but not the whole drive's accuracy."""
-    return make_teach(pipeline_dir / "teach-6s.mcap", duration=6.0)
+    return shared_recording(pipeline_dir, "teach-6s.mcap", lambda path: make_teach(path, duration=6.0))
 
 
 @pytest.fixture(scope="session")
 def default_fit(default_teach, pipeline_dir):
     from hbvs_cli.io.fit_file import read_fit_file
 
-    path = pipeline_dir / "fit.mcap"
-    make_fit(default_teach, path)
+    path = shared_recording(pipeline_dir, "fit.mcap", lambda path: make_fit(default_teach, path))
     return path, read_fit_file(path).model
 
 
