@@ -10,10 +10,11 @@ and condition (35) along the path. Reads and writes streams: constant memory.
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from itertools import chain, islice
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -148,6 +149,33 @@ def recorded_frame_count(source: str) -> int | None:
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
+    with _one_opencv_thread():
+        return _run_fit(options, console)
+
+
+@contextmanager
+def _one_opencv_thread() -> Iterator[None]:
+    """OpenCV's own thread pool off (one thread) while fitting, restored after.
+
+    fit already keeps two cores busy: the frame loop on the main thread, and the images
+    decoded in a second thread (:func:`~.frames.decoded_frames`). OpenCV's pool threads
+    (the detectors' thresholds, filters and labelling on 640x480 frames or windows of
+    them) could only take cores from those two, and spin while they wait for work; with
+    one thread each call runs where it is made. Per-frame detection costs the same main
+    thread CPU either way (aruco 1.30-1.38 against 1.32-1.33 ms, dots 1.21-1.22 against
+    1.15-1.19 ms at load 6; a quiet machine gives the pool's threads a core to spin on).
+    """
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.fit_file import FitModel, checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
     from ..io.mcap import open_output, time_message
