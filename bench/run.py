@@ -433,6 +433,15 @@ def previous_results() -> tuple[list[str], dict[str, str]]:
     return preamble, rows
 
 
+def _measured_again_within(line: str, only: list[str]) -> bool:
+    """Whether ``line`` is the note of an earlier partial run whose figures are all in ``only``."""
+    prefix, marker = "Figures ", " (all their rows) were measured again"
+    if not (line.startswith(prefix) and marker in line):
+        return False
+    figures = line[len(prefix):line.index(marker)].split(", ")
+    return set(figures) <= set(only)
+
+
 def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seconds: float, only: list[str] | None = None) -> str:
     header = [
         "# hbvs benchmark results",
@@ -451,6 +460,8 @@ def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seco
         # again (on a quiet machine, say) without losing the others.
         preamble, kept = previous_results()
         if preamble:
+            # An earlier partial run of the same figures (or fewer) is replaced, not repeated.
+            preamble = [line for line in preamble if not _measured_again_within(line, only)]
             while preamble and not preamble[-1].strip():
                 preamble.pop()
             header = preamble + [

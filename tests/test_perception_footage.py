@@ -104,9 +104,9 @@ def test_red_dots_on_grey_of_the_same_luminance_are_seen_in_colour_only(fitted):
 
 #: The issue's bounds for a single marker of 0.4 m, here 3-5.8 m away (about 35 to 70 px
 #: wide). Measured with each marker's square joining the estimate of n* (core/plane.py) and
-#: the corners' edge refinement iterated until it settles (perception/aruco.py): ArUco 6x6
-#: theta_d 0.100 deg RMS, x_hd1 2.2e-4, n* 0.06 deg; AprilTag 36h11 0.123 deg, 2.8e-4, n*
-#: 0.13 deg. Before that iteration the AprilTag gave 1.28 deg, 2.0e-3, n* 1.24 deg: OpenCV's
+#: the corners' edge refinement iterated until it settles (perception/aruco.py), frames
+#: stored in colour: ArUco 6x6 theta_d 0.108 deg RMS, x_hd1 2.4e-4, n* 0.07 deg; AprilTag
+#: 36h11 0.103 deg, 2.6e-4, n* 0.11 deg. Before that iteration the AprilTag gave 1.28 deg, 2.0e-3, n* 1.24 deg: OpenCV's
 #: corners were up to 1.6 px off, one refinement pass from there left F*'s corners 0.10 px
 #: RMS off, and moves over 1.5 px were refused (the ArUco, 0.28 deg, 4.5e-4, n* 0.29 deg).
 MARKER_BOUNDS = {"aruco_6x6": {"theta_deg": 0.35, "x_hd1": 5e-3, "normal_deg": 0.5},
