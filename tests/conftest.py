@@ -292,16 +292,17 @@ def default_fit(default_teach, pipeline_dir):
     return path, read_fit_file(path).model
 
 
-#: CPU seconds of the heaviest test files, measured one test at a time (a serial run on
-#: this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
+#: CPU seconds of the heaviest test files (their own and their children's, measured test by
+#: test in a quiet run of the suite on this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
 #: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
 #: running alone at the end made the suite ~14 s longer than its work divided by two.
 HEAVY_FILES = {
-    "test_stage_fit.py": 60, "test_robustness_errors.py": 39, "test_sweep.py": 34, "test_stage_repeat.py": 30,
-    "test_perception_footage.py": 29, "test_end_to_end.py": 26, "test_stage_options.py": 26,
-    "test_robustness_outputs.py": 25, "test_control_image_noise.py": 14, "test_core_closed_loop.py": 16,
-    "test_io_rosbag_layouts.py": 15, "test_report_stage.py": 14, "test_control_filter.py": 14,
-    "test_robustness_interrupts.py": 14, "test_robustness_fuzz.py": 14, "test_robustness_faults.py": 12,
+    "test_robustness_errors.py": 47, "test_stage_fit.py": 40, "test_sweep.py": 34, "test_stage_repeat.py": 31,
+    "test_perception_footage.py": 30, "test_robustness_outputs.py": 28, "test_end_to_end.py": 24,
+    "test_robustness_fuzz.py": 17, "test_stage_options.py": 16, "test_io_rosbag_layouts.py": 15,
+    "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
+    "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 8,
+    "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6,
 }
 
 

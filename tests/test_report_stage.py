@@ -46,7 +46,10 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 
 def report_json(*args, input: bytes | None = None) -> dict:
-    result = run_hbvs("report", *map(str, args), "--json", input=input)
+    """``hbvs report ARGS --json``, parsed: in this process, or as a process reading ``input``
+    on its stdin."""
+    words = ["report", *map(str, args), "--json"]
+    result = run_hbvs(*words, input=input) if input is not None else call_hbvs(*words)
     assert result.returncode == 0, result.stderr.decode()
     return json.loads(result.stdout)
 

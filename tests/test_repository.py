@@ -8,7 +8,7 @@ import numpy as np
 import subprocess
 import sys
 
-from conftest import REPO, SAMPLES, run_hbvs
+from conftest import REPO, SAMPLES, call_hbvs, run_hbvs
 
 
 def readme_commands() -> list[str]:
@@ -40,7 +40,7 @@ def test_help_and_version():
     version = run_hbvs("--version")
     assert version.returncode == 0 and version.stdout.decode().startswith("hbvs 0.")
     for command in ("teach", "fit", "repeat", "report", "demo"):
-        assert run_hbvs(command, "--help").returncode == 0
+        assert call_hbvs(command, "--help").returncode == 0
 
 
 def test_help_does_not_import_heavy_libraries():

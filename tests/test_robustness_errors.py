@@ -3,7 +3,8 @@
 Through the command line, as a user runs it: a reader that closes the pipe (141), stdout
 or stderr closed, a full disk and devices (6; only as root, in a private mount namespace
 on a tmpfs, never the real ``/dev``), option values and file contents that used to end in
-"internal error" (70), native logging and numpy warnings, typer's usage errors, and the
+"internal error" (70; all but the first of these in this process, through the same
+parsing and mapping of errors), native logging and numpy warnings, typer's usage errors, and the
 size limits (7), whose peak memory is measured with ``resource`` (``os.wait4``) and must
 stay under 300 MB.
 """
@@ -24,7 +25,7 @@ from pathlib import Path
 import pytest
 import zstandard
 
-from conftest import REPO, make_fit, make_teach
+from conftest import REPO, call_hbvs, make_fit, make_teach
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
 from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
 
@@ -211,10 +212,17 @@ def error_line(result) -> str:
 
 
 @pytest.mark.parametrize("case", list(VALUE_CASES))
-def test_values_that_were_internal_errors_are_one_line_with_their_code(work, case):
+def test_values_that_were_internal_errors_are_one_line_with_their_code(work, case, monkeypatch):
     args, code = VALUE_CASES[case]
     before = snapshot(work)
-    result = hbvs(work, *args, "-q") if args[0] in ("teach", "fit", "repeat") else hbvs(work, *args)
+    args = [*args, "-q"] if args[0] in ("teach", "fit", "repeat") else list(args)
+    # The first case as a user runs it; the others in this process, through the same
+    # parsing and mapping of errors to exit codes (a new process costs half a second).
+    if case == next(iter(VALUE_CASES)):
+        result = hbvs(work, *args)
+    else:
+        monkeypatch.chdir(work)
+        result = call_hbvs(*args)
     assert result.returncode == code, result.stderr
     line = error_line(result)
     assert "internal error" not in line

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO, make_run, run_hbvs
+from conftest import REPO, call_hbvs, make_run, run_hbvs
 
 pytest.importorskip("rosbags")
 
@@ -101,7 +101,7 @@ def test_run_exports_commands_poses_path_and_tf(sim_run, tmp_path):
 def test_ape_of_the_exported_poses_agrees_with_the_report(sim_run, tmp_path):
     """evo_ape's measure (translation, no alignment) on the bag = the report's position rmse."""
     bag = tmp_path / "bag"
-    assert run_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
+    assert call_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
     bagged = read_bag(bag)
     repeated = {stamp_ns(m.header): m.pose.position for _, m in bagged[topics.ROS_TRUE_POSE_TOPIC]}
     taught = {stamp_ns(m.header): m.pose.position for _, m in bagged[topics.ROS_DESIRED_POSE_TOPIC]}
@@ -109,7 +109,7 @@ def test_ape_of_the_exported_poses_agrees_with_the_report(sim_run, tmp_path):
     assert len(common) == len(repeated) == len(taught)
     d = np.array([[repeated[t].x - taught[t].x, repeated[t].y - taught[t].y, repeated[t].z - taught[t].z] for t in common])
     ape_rmse = float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
-    report = json.loads(run_hbvs("report", str(sim_run), "--json", check=True).stdout)
+    report = json.loads(call_hbvs("report", str(sim_run), "--json").stdout)
     report_rmse = report["pose_error"]["position_m"]["rmse"]
     assert ape_rmse > 0.001
     assert abs(ape_rmse - report_rmse) <= 0.02 * report_rmse
@@ -121,7 +121,7 @@ def test_teach_with_images_exports_images_camera_info_and_the_taught_path(tmp_pa
     from hbvs_cli.io.teach_file import TeachReader
 
     bag = tmp_path / "teach_bag"
-    assert run_hbvs("export", str(SAMPLES / "teach.mcap"), "-o", str(bag), "-q").returncode == 0
+    assert call_hbvs("export", str(SAMPLES / "teach.mcap"), "-o", str(bag), "-q").returncode == 0
     reader = TeachReader(SAMPLES / "teach.mcap")
     frames = [(f.log_time_ns, f.stored_image().data, f.command) for f in reader.frames()]
     bagged = read_bag(bag)
@@ -145,7 +145,7 @@ def test_fit_exports_the_reference_image_and_the_integrated_taught_path(tmp_path
     from hbvs_cli.io.teach_file import TeachReader
 
     bag = tmp_path / "fit_bag"
-    assert run_hbvs("export", str(SAMPLES / "fit.mcap"), "-o", str(bag), "-q").returncode == 0
+    assert call_hbvs("export", str(SAMPLES / "fit.mcap"), "-o", str(bag), "-q").returncode == 0
     bagged = read_bag(bag)
     fit = read_fit_file(SAMPLES / "fit.mcap")
     assert bytes(bagged[topics.ROS_REFERENCE_IMAGE_TOPIC][0][1].data) == fit.reference_image
@@ -159,23 +159,23 @@ def test_fit_exports_the_reference_image_and_the_integrated_taught_path(tmp_path
 
 def test_export_is_atomic_and_refuses_what_it_must_not_replace(sim_run, tmp_path):
     bag = tmp_path / "bag"
-    assert run_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
+    assert call_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
     first = (bag / "metadata.yaml").read_bytes()
     # An existing bag is replaced whole, and the same input gives the same bag.
-    assert run_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
+    assert call_hbvs("export", str(sim_run), "-o", str(bag)).returncode == 0
     assert (bag / "metadata.yaml").read_bytes() == first and len(list(bag.iterdir())) == 2
     # A folder that is not a bag, a file, stdout: refused with one line, exit 2, kept.
     keep = tmp_path / "photos"
     keep.mkdir()
     (keep / "a.jpg").write_bytes(b"x")
     for target in (str(keep), str(sim_run), "-"):
-        result = run_hbvs("export", str(sim_run), "-o", target)
+        result = call_hbvs("export", str(sim_run), "-o", target)
         assert result.returncode == 2, result.stderr
         assert len(result.stderr.decode().strip().splitlines()) == 1
     assert (keep / "a.jpg").read_bytes() == b"x"
     # A file that is not an hbvs file: exit 3, nothing left behind.
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not mcap")
-    result = run_hbvs("export", str(junk), "-o", str(tmp_path / "new_bag"))
+    result = call_hbvs("export", str(junk), "-o", str(tmp_path / "new_bag"))
     assert result.returncode == 3 and not (tmp_path / "new_bag").exists()
     assert not list(tmp_path.glob("*.partial"))

@@ -229,7 +229,8 @@ def write_bag(directory: Path, frames, *, images=True, camera_info=True, second_
         info_connection = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=TYPES) if camera_info else None
         for k, frame in enumerate(frames):
             stamp_ns = 1_700_000_000_000_000_000 + k * 33_333_333
-            data = cv2.imencode(".png", frame)[1].ravel()
+            # Fastest lossless PNG: the same pixels, a third of the default level's CPU.
+            data = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].ravel()
             for connection in image_connections:
                 message = CompressedImage(header=_header(stamp_ns), format="png", data=data)
                 writer.write(connection, stamp_ns, TYPES.serialize_cdr(message, CompressedImage.__msgtype__))
