@@ -202,7 +202,6 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            _import_fitting_libraries_meanwhile()
             # Colour while the target is not known (the dots of --target auto may differ from
             # their wall in hue alone), then only for dots seen in colour: everything else
             # is measured on luminance, which decodes faster.
@@ -285,31 +284,16 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
 
 
-def _import_fitting_libraries_meanwhile() -> None:
-    """Import what the fit after the frame loop needs (scipy's least squares and splines,
-    0.3 s of CPU) in a thread, while the frames are detected.
-
-    The loop's detectors and decoder spend most of their time in OpenCV, without the GIL,
-    so the import overlaps them instead of following them. Python's import locks make the
-    later imports wait for this one to finish. A failure here is left for them to report.
-    """
-    import threading
-
-    def work() -> None:
-        try:
-            import scipy.interpolate  # noqa: F401
-            import scipy.optimize  # noqa: F401
-        except Exception:  # noqa: BLE001 - the real import, later, reports it
-            pass
-
-    threading.Thread(target=work, name="hbvs-import", daemon=False).start()
-
-
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
          options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
-    marker's four corners (in OpenCV's order) are a known shape."""
+    marker's four corners (in OpenCV's order) are a known shape.
+
+    scipy's modules are imported here, by the main thread, not ahead in a second thread
+    during the frame loop (0.3 s sooner): a stop signal that lands inside an import can
+    leave an import lock held, and the two threads then waited for each other forever
+    (3 hangs in about 300 SIGTERMs at random moments, two fits at a time)."""
     shapes = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
