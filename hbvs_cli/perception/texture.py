@@ -297,11 +297,7 @@ class TextureDetector:
             if refined is None:
                 return None, correlation
             self._vignetting.pool(template, frame, refined, (fx0, fy0))
-            shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
-            if shaded is not None:
-                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
-                if again is not None:
-                    refined, correlation = again, again_correlation
+            refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
         else:
             # One alignment, against the template shaded by the pooled vignetting.
             self._vignetting.skip()
@@ -312,12 +308,21 @@ class TextureDetector:
                 return None, correlation
             if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
                 # The start was off: the shading was placed there; again, placed where aligned.
-                shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
-                again, again_correlation = align_homography(shaded, frame, refined, points, 1)
-                if again is not None:
-                    refined, correlation = again, again_correlation
+                refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
         aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
         return aligned / aligned[2, 2], correlation
+
+    def _aligned_shaded(self, template: NDArray[np.float32], frame: NDArray[np.float32], refined: NDArray[np.float64],
+                        correlation: float, to_frame: NDArray[np.float64], points: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], float]:
+        """``refined`` (template -> ``frame`` pixels) aligned again against the template shaded
+        by the pooled vignetting where ``refined`` places it, with its correlation; the given
+        pair when there is no fall-off yet or that alignment fails."""
+        shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
+        if shaded is None:
+            return refined, correlation
+        again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+        return (refined, correlation) if again is None else (again, again_correlation)
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The homography that sends the reference pixels onto the predicted ones."""
