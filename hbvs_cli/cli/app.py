@@ -181,7 +181,7 @@ def export(
 def sweep(
     fit: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.")] = Path("sweep-results"),
-    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (README, hbvs sweep).")] = None,
+    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (docs/sweeps.md).")] = None,
     vary: Annotated[Optional[List[str]], typer.Option("--vary", help="NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.")] = None,
     fixed: Annotated[Optional[List[str]], typer.Option("--set", help="NAME=VALUE held for every run, e.g. perception=points; repeatable.")] = None,
     repeats: Annotated[Optional[int], typer.Option("--repeats", min=1, help="Runs per point, each with its own seed. Default 1.")] = None,
