@@ -176,6 +176,18 @@ def export(
     run_export(ExportOptions(input=input, output=output), _console(quiet))
 
 
+# --------------------------------------------------------------------------- info
+@app.command(rich_help_panel="Files")
+def info(
+    input: Annotated[str, typer.Argument(help="An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.")],
+    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the text.")] = False,
+) -> None:
+    """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
+    from ..stages.info import InfoOptions, run_info
+
+    run_info(InfoOptions(input=input, json_output=json_output), _console(False))
+
+
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 def sweep(
