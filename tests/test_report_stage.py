@@ -284,15 +284,21 @@ def test_figure_axes_are_labelled_with_units(runs):
     assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper (")
 
 
-def test_replay_figure_says_what_is_missing(runs):
-    from hbvs_cli.report.plots import plot_runs
+def test_replay_figure_leaves_out_what_it_has_no_data_for(runs):
+    """A replay has no ground-truth poses and no V: by default those panels are left out;
+    named with --panels, each says in its middle what is missing."""
+    from hbvs_cli.report.figure_style import FigureStyle
+    from hbvs_cli.report.plots import PANEL_NAMES, plot_runs
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])
     axes = {ax.get_label(): ax for ax in figure.axes}
+    assert set(axes) == set(PANEL_NAMES) - {"position", "heading", "top", "V"}
+    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
+    figure = plot_runs([run], [build_report(run)], FigureStyle(panels=("position", "V", "top", "e1")))
+    axes = {ax.get_label(): ax for ax in figure.axes}
     texts = {name: " ".join(t.get_text() for t in ax.texts) for name, ax in axes.items()}
     assert "V unknown" in texts["V"] and "no ground-truth poses" in texts["top"] and "no ground-truth poses" in texts["position"]
-    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
 
 
 # ----------------------------------------------------------------------------- TUM

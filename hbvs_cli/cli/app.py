@@ -145,7 +145,7 @@ def report(
     require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI.")] = False,
     label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
     dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
-    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches, e.g. 3.5x5 for one column, 7x6 for two (default 7 wide).", rich_help_panel="Figure")] = None,
+    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with --panels position,heading,v,w,top.", rich_help_panel="Figure")] = None,
     panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
