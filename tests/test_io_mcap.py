@@ -9,7 +9,7 @@ import struct
 import numpy as np
 import pytest
 
-from hbvs_cli.errors import InputError, RecordingError
+from hbvs_cli.errors import InputError, OutputError, RecordingError
 from hbvs_cli.io.mcap import MAX_CHUNK_BYTES, CountingStream, McapStream, McapWriter, encode_json, json_ready, open_output, read_metadata
 
 
@@ -89,7 +89,7 @@ def test_atomic_output_keeps_the_old_file_when_the_writer_fails(tmp_path):
 
 
 def test_output_errors_are_clear(tmp_path):
-    with pytest.raises(InputError, match="does not exist"):
+    with pytest.raises(OutputError, match="does not exist"):   # exit 6: an output that cannot be written
         with open_output(tmp_path / "missing" / "x.mcap"):
             pass
     with pytest.raises(InputError, match="directory"):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, OutputError, UsageError
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -174,8 +174,8 @@ def check_plot_path(path: Path) -> None:
     ------
     UsageError
         A suffix matplotlib cannot write.
-    InputError
-        The folder does not exist.
+    OutputError
+        The folder does not exist (exit 6).
     """
     suffix = path.suffix.lower().lstrip(".")
     formats = supported_formats()
@@ -183,7 +183,7 @@ def check_plot_path(path: Path) -> None:
         others = ", ".join(sorted(formats - {"pdf", "svg", "png"}))
         raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .pdf or .svg (vector) or .png (or {others})")
     if not path.parent.exists():
-        raise InputError(f"--plot {path}: the folder {path.parent} does not exist")
+        raise OutputError(f"--plot {path}: the folder {path.parent} does not exist")
 
 
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
