@@ -1,5 +1,5 @@
-"""The rough edges a new user hit (issue 18): help labels, --debug, demo -o, one-line usage
-errors, an unquoted glob, options that do not apply to a source, frame counts."""
+"""Using the command line: help labels, --debug, demo -o, one-line usage errors, an unquoted
+glob, options that do not apply to a source, frame counts, outputs in a missing folder."""
 
 from __future__ import annotations
 
