@@ -71,6 +71,10 @@ def test_stdin_and_a_file_cut_off_by_a_crash(short_teach):
 
 
 def test_what_is_not_an_mcap_file_exits_3(tmp_path):
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "bag" / "bag_0.mcap").write_bytes(b"")
+    folder = call_hbvs("info", str(tmp_path / "bag"))
+    assert folder.returncode == 3 and b"give its storage file" in folder.stderr and b"bag_0.mcap" in folder.stderr
     (tmp_path / "notes.txt").write_text("not a recording\n")
     for path in (tmp_path / "notes.txt", tmp_path / "missing.mcap"):
         result = call_hbvs("info", str(path))

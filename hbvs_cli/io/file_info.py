@@ -9,9 +9,12 @@ crash behave as in every other reader.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+from ..errors import InputError
 from .mcap.reader import McapStream, read_metadata
 from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, STATE_TOPIC
 
@@ -105,6 +108,10 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
     RecordingError
         Not an MCAP file, or damaged before any message (see :class:`McapStream`).
     """
+    if isinstance(source, (str, os.PathLike)) and str(source) != "-" and Path(source).is_dir():
+        storage = sorted(Path(source).glob("*.mcap"))
+        hint = f": give its storage file, e.g. {storage[0]}" if storage else ""
+        raise InputError(f"{source}: is a folder, expected an MCAP file{hint}")
     stream = McapStream(source, name=name)
     topics: dict[str, TopicInfo] = {}
     target = None
