@@ -619,9 +619,15 @@ def machine() -> dict[str, str]:
     }
 
 
+def figure_id(name: str) -> str:
+    """A figure's id, what its name starts with up to the first ". " (``2a'``, ``3c``): rows
+    are replaced by id, so a figure whose title changed replaces its earlier row."""
+    return name.split(". ", 1)[0]
+
+
 def previous_results() -> tuple[list[str], dict[str, str]]:
-    """The text above the table and the figure rows (by name, in order) of the RESULTS.md
-    written before."""
+    """The text above the table and the figure rows (by figure id, in order) of the
+    RESULTS.md written before."""
     if not RESULTS.exists():
         return [], {}
     preamble: list[str] = []
@@ -631,7 +637,7 @@ def previous_results() -> tuple[list[str], dict[str, str]]:
         if line.startswith("| figure | measured |"):
             in_table = True
         elif in_table and line.startswith("| ") and not line.startswith("|---"):
-            rows[line[2:].split(" | ", 1)[0]] = line
+            rows[figure_id(line[2:].split(" | ", 1)[0])] = line
         elif in_table and not line.strip():
             break
         elif not in_table:
@@ -660,7 +666,7 @@ def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seco
         "(medians over repeats, interleaved), so that a busy machine moves both sides.",
         "",
     ]
-    rows = {f.name: f"| {f.name} | {f.measured:.3g} | {f.target} | {'yes' if f.passed else 'NO'} | {f.detail} | `{f.command}` |" for f in figures}
+    rows = {figure_id(f.name): f"| {f.name} | {f.measured:.3g} | {f.target} | {'yes' if f.passed else 'NO'} | {f.detail} | `{f.command}` |" for f in figures}
     if only:
         # A partial run keeps what it did not measure, so that one figure can be measured
         # again (on a quiet machine, say) without losing the others.
