@@ -95,7 +95,7 @@ class SimulatedCamera:
         if self.perception == "images" or settings.record_images:
             self.renderer = renderer_for(scene, model)
         if self.perception == "images":
-            self.detector = detector_from_model(model, template_image, seed=settings.seed)
+            self.detector = detector_from_model(model, template_image, seed=settings.seed, windowed=True)
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.occlusions)
