@@ -694,24 +694,34 @@ def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seco
 
 #: The figure groups ``--only`` selects, each measured by one function.
 GROUPS = ("5", "1", "2a", "2b", "3", "3b", "3c", "4", "6")
+#: Figures measured by another figure's group (in the same runs).
+MEASURED_WITH = {"1a": "1", "1b": "1", "2a'": "2a", "2c": "2a", "2d": "2b", "2e": "2b", "4a": "4", "4b": "4",
+                 "6a": "6", "6b": "6", "6c": "6", "6d": "6"}
 
 
 def selected(only: list[str] | None) -> list[str]:
-    """The groups of :data:`GROUPS` that ``--only`` IDs select: an id selects the groups it
-    names or prefixes (``2`` selects 2a and 2b, ``3`` selects 3, 3b and 3c)."""
+    """The groups of :data:`GROUPS` that ``--only`` IDs select: an id selects the group it
+    names, the group that measures it (``2c`` is measured with 2a), or the groups it
+    prefixes (``2`` selects 2a and 2b, ``3`` selects 3, 3b and 3c)."""
     if not only:
         return list(GROUPS)
-    unknown = [i for i in only if not any(g == i or g.startswith(i) for g in GROUPS)]
-    if unknown:
-        raise SystemExit(f"python -m bench: unknown figure id(s) {' '.join(unknown)}; choose from {' '.join(GROUPS)}")
-    return [g for g in GROUPS if any(g == i or (g.startswith(i) and not g[len(i):].isdigit()) for i in only)]
+    wanted = set()
+    for figure in only:
+        found = {g for g in GROUPS if g == figure or (g.startswith(figure) and not g[len(figure):].isdigit())}
+        if figure in MEASURED_WITH:
+            found.add(MEASURED_WITH[figure])
+        if not found:
+            raise SystemExit(f"python -m bench: unknown figure id {figure}; choose from {' '.join(GROUPS + tuple(MEASURED_WITH))}")
+        wanted |= found
+    return [g for g in GROUPS if g in wanted]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller inputs, under a minute")
     parser.add_argument("--only", nargs="*", default=None,
-                        help=f"run only these figures ({' '.join(GROUPS)}; 2 = 2a 2b, 3 = 3 3b 3c); the other rows of RESULTS.md are kept")
+                        help=f"run only these figures ({' '.join(GROUPS)}; 2 = 2a 2b, 3 = 3 3b 3c; 2c is measured with 2a, "
+                             "2d and 2e with 2b); the other rows of RESULTS.md are kept")
     args = parser.parse_args(argv)
     start = time.perf_counter()
     wanted = selected(args.only)
