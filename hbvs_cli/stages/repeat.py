@@ -362,9 +362,9 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --live, if asked
+            writer = live(file_writer)  # the same messages to --foxglove, if asked
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
@@ -491,9 +491,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --live, if asked
+            writer = live(file_writer)  # the same messages to --foxglove, if asked
             # The replay keeps the recording's stamps: t = 0 is known with the first frame.
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
