@@ -11,7 +11,6 @@ Messages, names and QoS: :mod:`hbvs_cli.io.ros2_dds`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,33 +18,12 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..errors import InputError
 from . import ros2_dds as dds
+from .live_frame import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
 from .sources.rosbag import BagSource
 
 #: Whole seconds to wait for a topic's publisher (and a CameraInfo) before giving up.
 DISCOVERY_TIMEOUT_S = 10.0
-
-
-@dataclass
-class LiveFrame:
-    """One camera frame as it arrived.
-
-    Attributes
-    ----------
-    image : ndarray, shape (H, W) or (H, W, 3), uint8
-        Gray or BGR.
-    stamp : float
-        The frame's header stamp (s), or its arrival time when the stamp is zero.
-    arrival : float
-        ``time.monotonic()`` when hbvs took it (s).
-    skipped : int
-        Frames that arrived since the previous one handed out and were dropped for this one.
-    """
-
-    image: np.ndarray
-    stamp: float
-    arrival: float
-    skipped: int
 
 
 def image_message_type(topic: str) -> type:
@@ -104,7 +82,7 @@ class LatestImage:
         arrival = time.monotonic()
         message = samples[-1]
         image = decode_image_message(message, self.topic)
-        stamp = dds.seconds_of(message.header.stamp)
+        stamp = dds.seconds_of(message.header.stamp) or time.time()  # a driver that leaves it zero
         return LiveFrame(image=image, stamp=stamp, arrival=arrival, skipped=len(samples) - 1)
 
     @staticmethod

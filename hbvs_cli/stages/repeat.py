@@ -155,19 +155,24 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
     for thousands of runs); by default it is read here.
     """
-    if options.sim == (options.replay is not None):
-        raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
+    if int(options.sim) + int(options.replay is not None) + int(options.live) != 1:
+        raise UsageError("choose one mode: --live (closed loop with a robot), --sim (closed loop, simulated) or --replay FILE "
+                         "(open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
     refuse_overwriting_inputs(
         [("-o", options.output), ("--cmd-out", options.cmd_out)],
-        [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
+        [("input", options.input), ("--replay", options.replay), ("--config", options.config), ("--calibration", options.calibration)],
     )
     if fit is None:
         fit = read_fit_file(options.input)
     model = fit.model
     frame_interval = _taught_frame_interval(model)
     settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
+    if options.live:
+        from .live import run_live  # the robot's loop (and its optional DDS) only when asked
+
+        return run_live(options, settings, fit, console)
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)

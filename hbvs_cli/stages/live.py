@@ -1,0 +1,321 @@
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md).
+
+Every camera frame that arrives is measured by the fit's detector and estimator, and
+decided by the same per-frame step as ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`:
+state filter, law, actuator limits, adaptation); the command goes out at once, to a ROS 2
+topic (``--ros2-cmd``) and/or as JSON lines (``--cmd-out``). Only the newest frame is
+measured: frames that arrived while the previous one was processed are dropped and counted.
+
+Safety, on every way out: zero commands (several, on the reliable topic) when the
+trajectory ends, when the target is lost (at once; the run stops after ``--lost-timeout``,
+exit 5), when no frame came for ``--stale-timeout``, and on Ctrl-C, SIGTERM, a closed output
+or any error. The first non-zero command goes out only once the target has been seen near
+its taught start view in :data:`START_FRAMES` frames in a row; a robot that is not there
+is told how far off it seems (exit 8). ``--dry-run`` does everything but publishes zeros.
+
+Run time ``t`` is the frame's stamp minus the first tracked frame's; the run file has, per
+step, the controller's state as in ``--sim`` and the loop's timing on ``/repeat/timing``
+(frame stamp, latency from the frame's arrival to the command's publication, frame
+interval, frames dropped).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from contextlib import ExitStack
+from typing import IO, Any, Callable
+
+import numpy as np
+
+from ..core.simulator import ServoStep
+from ..core.trajectory import TimeScaledTrajectory
+from ..errors import InputError, NotAtStartError, TargetLostError, UsageError
+from ..io.calibration import load_calibration
+from ..io.mcap import open_output
+from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.output_target import open_text_output
+from ..io.run_file import RunWriter
+from ..io.topics import ROS_CMD_VEL_TOPIC
+from ..core.laws import make_controller
+from ..perception.tracked import detector_from_model, estimator_from_model
+from .console import Console
+from .repeat import (
+    COARSE_RESIDUAL_GATE_PX, RepeatSummary, Settings, _focal, _print_summary, _run_metadata, _StepLog, _Tally,
+    make_state_filter,
+)
+from .settings import RepeatOptions
+
+#: Consecutive frames with the target seen near its taught start view before the first
+#: non-zero command.
+START_FRAMES = 5
+#: How far from the taught start a live run may begin: the distance (m, at the fit's
+#: depth estimate) and heading (deg) between the view and the taught start's view. The
+#: default --offset of --sim is 0.11 m and 2 deg; these are about 3 and 7 times that.
+START_TOLERANCE_M = 0.3
+START_TOLERANCE_DEG = 15.0
+#: Zero commands sent at each stop (a reliable topic delivers each; more than one in case
+#: a subscriber joined late or the robot's driver drops one).
+ZERO_REPEATS = 3
+#: A frame is "late" when its interval exceeds this many control periods.
+LATE_FACTOR = 1.5
+#: Largest relative difference between the given calibration and the fit's camera.
+CALIBRATION_TOLERANCE = 0.02
+
+
+class CommandOut:
+    """Where commands go: a ROS 2 topic and/or a JSON-lines stream; zero on :meth:`stop`."""
+
+    def __init__(self, publish: Callable[[float, float], None] | None, stream: IO[str] | None, dry_run: bool) -> None:
+        self._publish = publish
+        self._stream = stream
+        self.dry_run = dry_run
+        self.sent = 0
+
+    def send(self, t: float, v: float, w: float) -> None:
+        if self.dry_run:
+            v, w = 0.0, 0.0
+        if self._publish is not None:
+            self._publish(v, w)
+        if self._stream is not None:
+            self._stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
+            self._stream.flush()
+        self.sent += 1
+
+    def stop(self, t: float) -> None:
+        """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
+        for _ in range(ZERO_REPEATS):
+            if self._publish is not None:
+                try:
+                    self._publish(0.0, 0.0)
+                except Exception:  # noqa: BLE001 - stopping must reach every output it can
+                    pass
+        if self._stream is not None:
+            try:
+                self._stream.write(json.dumps({"t": round(t, 9), "v": 0.0, "w": 0.0}) + "\n")
+                self._stream.flush()
+            except (OSError, ValueError):
+                pass
+
+
+def check_live_options(options: RepeatOptions) -> None:
+    if (options.camera is None) == (options.ros2_image is None):
+        raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
+    if options.camera is not None and options.calibration is None:
+        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
+    if options.cmd_type not in ("twist", "twist-stamped"):
+        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {options.cmd_type!r}")
+    for name in ("occlude", "drop_rate", "outlier_rate", "exposure_step", "record_images", "depth"):
+        value = getattr(options, name)
+        if value not in (None, False, 0.0, []):
+            raise UsageError(f"--{name.replace('_', '-')} is for --sim; a live run's faults are real")
+
+
+def command_topic(options: RepeatOptions) -> str | None:
+    """The ROS 2 command topic: --ros2-cmd, else /cmd_vel unless only --cmd-out was given."""
+    if options.ros2_cmd is not None:
+        return options.ros2_cmd
+    if options.cmd_out is not None and options.ros2_image is None:
+        return None
+    return ROS_CMD_VEL_TOPIC
+
+
+def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
+    """The live camera must be the fit's: same size, intrinsics within 2 %."""
+    if (camera.width, camera.height) != (fit_camera.width, fit_camera.height):
+        raise InputError(f"{what}: {camera.width}x{camera.height}, the fit's camera is {fit_camera.width}x{fit_camera.height}")
+    for name in ("fx", "fy", "cx", "cy"):
+        live, taught = float(getattr(camera, name)), float(getattr(fit_camera, name))
+        if abs(live - taught) > CALIBRATION_TOLERANCE * max(abs(taught), 1.0):
+            raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
+
+
+def run_live(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
+    """Drive a robot along the fitted trajectory (see the module docstring)."""
+    check_live_options(options)
+    model = fit.model
+    topic = command_topic(options)
+    if topic is None and options.cmd_out is None:
+        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
+    estimator = estimator_from_model(model)
+    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    state_filter = make_state_filter(settings, model)
+    if state_filter is not None:
+        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
+    servo = ServoStep(controller, settings.limits, 0, state_filter)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    duration = trajectory.t_end - trajectory.t_start
+    period = 1.0 / settings.rate
+    tally = _Tally()
+    outcome: dict[str, Any] = {}
+    with ExitStack() as stack:
+        node = None
+        if options.ros2_image is not None or topic is not None:
+            from ..io import ros2_dds as dds  # lazy: an optional extra
+
+            node = dds.Ros2Node()
+        publish = None
+        if topic is not None:
+            from ..io.ros2_live import CommandPublisher
+
+            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+            publish = publisher.publish
+        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
+        out = CommandOut(publish, cmd_stream, options.dry_run)
+        try:
+            out.stop(0.0)  # whatever the robot did before, it starts from rest
+            source, camera = _open_source(options, node, stack)
+            check_camera(camera, model.camera, "the live camera's calibration")
+            writer = stack.enter_context(open_output(options.output))
+            info = _run_metadata("live", options, settings, fit, None) | {"live": {
+                "source": options.camera if options.camera is not None else options.ros2_image,
+                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
+                "stale_timeout_s": options.stale_timeout,
+            }}
+            run = RunWriter(writer, info, model.camera, base_ns=None)
+            log = _StepLog(run, settings, model, None, None)
+            console.info(f"repeat --live: waiting for the target near its taught start ({START_FRAMES} frames in a row)")
+            _wait_for_start(source, detector, estimator, trajectory, settings, options, out, model)
+            console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
+            _loop(source, detector, estimator, trajectory, servo, out, run, log, tally, options, settings,
+                  model, duration, period, outcome)
+        finally:
+            out.stop(outcome.get("t", 0.0))
+    summary = tally.summary(controller, options.output, "stopped" in outcome)
+    _print_summary(console, summary, settings, None)
+    if "stopped" in outcome:
+        raise TargetLostError(outcome["stopped"] + f"; the run up to then is in {options.output}")
+    return summary
+
+
+def _open_source(options: RepeatOptions, node: Any, stack: ExitStack) -> tuple[Any, Any]:
+    """The frame source and the camera's intrinsics."""
+    if options.camera is not None:
+        from ..io.sources.live_camera import LatestCameraFrame
+
+        camera = load_calibration(options.calibration)
+        return stack.enter_context(LatestCameraFrame(options.camera)), camera
+    from ..io import ros2_dds as dds
+    from ..io.ros2_live import LatestImage, wait_camera_info
+
+    source = LatestImage(node, options.ros2_image)
+    if options.calibration is not None:
+        camera = load_calibration(options.calibration)
+    else:
+        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image))
+    return source, camera
+
+
+def _measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
+    image = frame.image
+    height, width = image.shape[:2]
+    if (width, height) != (model.camera.width, model.camera.height):
+        raise InputError(f"a live frame is {width}x{height}, the fit's camera {model.camera.width}x{model.camera.height}")
+    return estimator.from_pixels(detector.detect(image))
+
+
+def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any, settings: Settings,
+                    options: RepeatOptions, out: CommandOut, model: Any) -> None:
+    """Hold still until the target is seen near its taught start view in START_FRAMES frames
+    in a row; a robot seen elsewhere that many times is told how far off it is."""
+    desired = trajectory.evaluate(0.0)
+    near = far = 0
+    waited_since = time.monotonic()
+    while near < START_FRAMES:
+        frame = source.latest(options.stale_timeout)
+        if frame is None:
+            if time.monotonic() - waited_since > settings.lost_timeout:
+                raise TargetLostError(f"no camera frame for {settings.lost_timeout:g} s (--lost-timeout) before the start")
+            continue
+        waited_since = time.monotonic()
+        observation = _measure(frame, detector, estimator, model)
+        out.send(0.0, 0.0, 0.0)
+        if observation.status != "ok" or observation.measurement is None:
+            near = far = 0
+            continue
+        m = observation.measurement
+        distance = math.hypot(float(m.x_h1) - float(desired.x_hd1), float(m.x_h2) - float(desired.x_hd2)) * settings.dhat0
+        heading = math.degrees(abs(math.remainder(float(m.theta) - float(desired.theta_d), 2 * math.pi)))
+        if distance <= START_TOLERANCE_M and heading <= START_TOLERANCE_DEG:
+            near, far = near + 1, 0
+        else:
+            near, far = 0, far + 1
+            if far >= START_FRAMES:
+                raise NotAtStartError(
+                    f"the robot seems {distance:.2f} m and {heading:.1f} deg from the taught start (at most "
+                    f"{START_TOLERANCE_M:g} m and {START_TOLERANCE_DEG:g} deg); put it there and start again"
+                )
+
+
+def _loop(source: Any, detector: Any, estimator: Any, trajectory: Any, servo: ServoStep, out: CommandOut,
+          run: RunWriter, log: _StepLog, tally: _Tally, options: RepeatOptions, settings: Settings, model: Any,
+          duration: float, period: float, outcome: dict[str, Any]) -> None:
+    first_stamp: float | None = None
+    previous_stamp: float | None = None
+    last_arrival = time.monotonic()
+    stale = False
+    lost_for = 0.0
+    nan_pose = np.full(3, np.nan)
+    while True:
+        wait = options.stale_timeout - (time.monotonic() - last_arrival)
+        frame = source.latest(wait) if wait > 0 else None
+        if frame is None:
+            silent = time.monotonic() - last_arrival
+            if silent < options.stale_timeout:
+                continue
+            t = outcome.get("t", 0.0)
+            if not stale:
+                out.stop(t)
+                servo.previous = (0.0, 0.0)
+                run.event(t, LOG_WARNING, f"no camera frame for {options.stale_timeout:g} s (--stale-timeout): stopped")
+                stale = True
+            if silent > settings.lost_timeout or getattr(source, "ended", False):
+                outcome["stopped"] = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
+                run.event(t, LOG_ERROR, outcome["stopped"] + ": run stopped")
+                return
+            time.sleep(0.001)
+            continue
+        if stale:
+            run.event(outcome.get("t", 0.0), LOG_INFO, "camera frames back")
+            stale = False
+        last_arrival = frame.arrival
+        if first_stamp is None:
+            first_stamp = frame.stamp
+            run.start(int(round(first_stamp * 1e9)))
+        t = frame.stamp - first_stamp
+        if previous_stamp is not None and frame.stamp <= previous_stamp:
+            continue  # out of order (a camera's clock stepped): wait for a newer one
+        if t >= duration:
+            outcome["t"] = t
+            run.event(t, LOG_INFO, "end of the taught trajectory: stopped")
+            return
+        interval = frame.stamp - previous_stamp if previous_stamp is not None else None
+        # The command is held until the next frame: about one frame interval.
+        dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
+        observation = _measure(frame, detector, estimator, model)
+        record = servo.decide(t, nan_pose, observation, trajectory.evaluate(t), dt)
+        v, w = record.v_c, record.w_c
+        if record.lost:
+            # On a robot a lost target stops it at once (the simulator may coast on the filter).
+            v, w = 0.0, 0.0
+            servo.previous = (0.0, 0.0)
+        out.send(t, v, w)
+        latency = time.monotonic() - frame.arrival
+        servo.sent(dt)
+        previous_stamp = frame.stamp
+        outcome["t"] = t
+        if (v, w) != (record.v_c, record.w_c):
+            from dataclasses import replace
+
+            record = replace(record, v_c=v, w_c=w)
+        log.step(record)
+        run.timing(t, frame.stamp, latency, interval, frame.skipped,
+                   interval is not None and interval > LATE_FACTOR * period, options.dry_run)
+        tally.add(record)
+        lost_for = lost_for + dt if record.lost else 0.0
+        if lost_for > settings.lost_timeout:
+            outcome["stopped"] = f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {t:.2f} s)"
+            run.event(t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
+            return
