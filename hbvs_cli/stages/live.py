@@ -166,7 +166,7 @@ def run_live(options: RepeatOptions, settings: Settings, fit: Any, console: Cons
         out = CommandOut(publish, cmd_stream, options.dry_run)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
-            source, camera = _open_source(options, node, stack)
+            source, camera = _open_source(options, node, stack, max(settings.lost_timeout, 1.0))
             check_camera(camera, model.camera, "the live camera's calibration")
             writer = stack.enter_context(open_output(options.output))
             info = _run_metadata("live", options, settings, fit, None) | {"live": {
@@ -190,8 +190,9 @@ def run_live(options: RepeatOptions, settings: Settings, fit: Any, console: Cons
     return summary
 
 
-def _open_source(options: RepeatOptions, node: Any, stack: ExitStack) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics."""
+def _open_source(options: RepeatOptions, node: Any, stack: ExitStack, timeout_s: float) -> tuple[Any, Any]:
+    """The frame source and the camera's intrinsics (a ROS 2 camera's publisher and CameraInfo
+    awaited up to ``timeout_s``)."""
     if options.camera is not None:
         from ..io.sources.live_camera import LatestCameraFrame
 
@@ -200,11 +201,11 @@ def _open_source(options: RepeatOptions, node: Any, stack: ExitStack) -> tuple[A
     from ..io import ros2_dds as dds
     from ..io.ros2_live import LatestImage, wait_camera_info
 
-    source = LatestImage(node, options.ros2_image)
+    source = LatestImage(node, options.ros2_image, timeout_s)
     if options.calibration is not None:
         camera = load_calibration(options.calibration)
     else:
-        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image))
+        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
     return source, camera
 
 
@@ -219,10 +220,11 @@ def _measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
 def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any, settings: Settings,
                     options: RepeatOptions, out: CommandOut, model: Any) -> None:
     """Hold still until the target is seen near its taught start view in START_FRAMES frames
-    in a row; a robot seen elsewhere that many times is told how far off it is."""
+    in a row; a robot seen elsewhere that many times is told how far off it is, one that
+    does not see the target for --lost-timeout that it does not."""
     desired = trajectory.evaluate(0.0)
     near = far = 0
-    waited_since = time.monotonic()
+    waited_since = seen_at = time.monotonic()
     while near < START_FRAMES:
         frame = source.latest(options.stale_timeout)
         if frame is None:
@@ -234,7 +236,13 @@ def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any,
         out.send(0.0, 0.0, 0.0)
         if observation.status != "ok" or observation.measurement is None:
             near = far = 0
+            if time.monotonic() - seen_at > settings.lost_timeout:
+                raise NotAtStartError(
+                    f"the target is not in view ({observation.status} for {settings.lost_timeout:g} s, --lost-timeout): "
+                    "the robot is not at the taught start, or its camera sees something else"
+                )
             continue
+        seen_at = time.monotonic()
         m = observation.measurement
         distance = math.hypot(float(m.x_h1) - float(desired.x_hd1), float(m.x_h2) - float(desired.x_hd2)) * settings.dhat0
         heading = math.degrees(abs(math.remainder(float(m.theta) - float(desired.theta_d), 2 * math.pi)))

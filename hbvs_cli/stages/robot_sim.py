@@ -29,7 +29,7 @@ from ..io.output_target import open_text_output
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
-from .options import parse_offset
+from .options import parse_interval, parse_offset
 from .repeat import _taught_frame_interval
 from .settings import RobotSimOptions
 
@@ -80,53 +80,61 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary
         f"robot-sim: {camera.width}x{camera.height} at {rate:g} Hz on {image_topic}, commands from {options.cmd_topic} "
         f"(ROS_DOMAIN_ID {dds.domain_id()})"
     )
+    occlusions = [parse_interval(text, "--occlude") for text in options.occlude]
     frames = received = 0
+    interrupted = False
     command = (0.0, 0.0)
     period = 1.0 / rate
     with open_text_output(options.poses_out, "pose stream") as poses_out:
         start = last = time.monotonic()
-        while options.duration is None or last - start < options.duration:
-            next_frame = start + frames * period
-            # Until the next frame is due: apply each command from the moment it arrives.
-            while True:
+        try:
+            while options.duration is None or last - start < options.duration:
+                next_frame = start + frames * period
+                # Until the next frame is due: apply each command from the moment it arrives.
+                while True:
+                    now = time.monotonic()
+                    for sample in commands.take(N=32):
+                        if not hasattr(sample, "linear") and not hasattr(sample, "twist"):
+                            continue  # a publisher going away
+                        twist = sample.twist if stamped else sample
+                        pose = integrate_unicycle(pose, command[0], command[1], now - last)
+                        last = now
+                        command = (float(twist.linear.x), float(twist.angular.z))
+                        received += 1
+                    if now >= next_frame:
+                        break
+                    time.sleep(min(0.002, next_frame - now))
                 now = time.monotonic()
-                for sample in commands.take(N=32):
-                    if not hasattr(sample, "linear") and not hasattr(sample, "twist"):
-                        continue  # a publisher going away
-                    twist = sample.twist if stamped else sample
-                    pose = integrate_unicycle(pose, command[0], command[1], now - last)
-                    last = now
-                    command = (float(twist.linear.x), float(twist.angular.z))
-                    received += 1
-                if now >= next_frame:
-                    break
-                time.sleep(min(0.002, next_frame - now))
-            now = time.monotonic()
-            pose = integrate_unicycle(pose, command[0], command[1], now - last)
-            last = now
-            stamp = dds.stamp_of(time.time())
-            header = dds.Header(stamp=stamp, frame_id="camera_optical")
-            image = renderer.render(np.array(pose), rng)
-            if options.image_format == "jpeg":
-                image_writer.write(dds.CompressedImage(header=header, format="jpeg", data=encode_image(image, "jpeg")))
-            else:
-                colour = image.ndim == 3
-                image_writer.write(dds.Image(
-                    header=header, height=image.shape[0], width=image.shape[1], encoding="bgr8" if colour else "mono8",
-                    step=image.shape[1] * (3 if colour else 1), data=np.ascontiguousarray(image).tobytes(),
+                pose = integrate_unicycle(pose, command[0], command[1], now - last)
+                last = now
+                stamp = dds.stamp_of(time.time())
+                header = dds.Header(stamp=stamp, frame_id="camera_optical")
+                image = renderer.render(np.array(pose), rng)
+                occluded = any(begin <= now - start < end for begin, end in occlusions)
+                if occluded:
+                    image[...] = int(np.mean(image))  # nothing to see: the target is covered
+                if options.image_format == "jpeg":
+                    image_writer.write(dds.CompressedImage(header=header, format="jpeg", data=encode_image(image, "jpeg")))
+                else:
+                    colour = image.ndim == 3
+                    image_writer.write(dds.Image(
+                        header=header, height=image.shape[0], width=image.shape[1], encoding="bgr8" if colour else "mono8",
+                        step=image.shape[1] * (3 if colour else 1), data=np.ascontiguousarray(image).tobytes(),
+                    ))
+                info.header = header
+                info_writer.write(info)
+                x, y, phi = pose
+                pose_writer.write(dds.PoseStamped(
+                    header=dds.Header(stamp=stamp, frame_id="world"),
+                    pose=dds.Pose(position=dds.Point(x=x, y=y), orientation=dds.Quaternion(z=math.sin(phi / 2), w=math.cos(phi / 2))),
                 ))
-            info.header = header
-            info_writer.write(info)
-            x, y, phi = pose
-            pose_writer.write(dds.PoseStamped(
-                header=dds.Header(stamp=stamp, frame_id="world"),
-                pose=dds.Pose(position=dds.Point(x=x, y=y), orientation=dds.Quaternion(z=math.sin(phi / 2), w=math.cos(phi / 2))),
-            ))
-            if poses_out is not None:
-                poses_out.write(json.dumps({"stamp": dds.seconds_of(stamp), "x": x, "y": y, "phi": phi,
-                                            "v": command[0], "w": command[1]}) + "\n")
-                poses_out.flush()
-            frames += 1
-    console.info(f"robot-sim: {frames} frames, {received} commands; final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, "
+                if poses_out is not None:
+                    poses_out.write(json.dumps({"stamp": dds.seconds_of(stamp), "x": x, "y": y, "phi": phi,
+                                                "v": command[0], "w": command[1], "occluded": occluded}) + "\n")
+                    poses_out.flush()
+                frames += 1
+        except KeyboardInterrupt:
+            interrupted = True  # Ctrl-C is how a stand-in ends: keep its poses
+    console.info(f"robot-sim: {frames} frames, {received} commands{' (stopped by Ctrl-C)' if interrupted else ''}; final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, "
                  f"phi {math.degrees(pose[2]):.2f} deg")
     return RobotSimSummary(frames=frames, commands=received, final_pose=pose)

@@ -290,5 +290,7 @@ ROBOT_SIM_SETTINGS: tuple[Setting, ...] = (
     Setting("cmd_topic", str, "Command topic (geometry_msgs/msg/Twist or TwistStamped, as --cmd-type).", default=ROS_CMD_VEL_TOPIC),
     Setting("cmd_type", str, "twist or twist-stamped.", default="twist"),
     Setting("poses_out", str, "Also write the true pose of every frame as JSON lines (stamp, x, y, phi) to FILE or -."),
+    Setting("occlude", str, "Hide the target from START to END seconds after the start (a blank frame), e.g. 3:5.",
+            repeatable=True),
 )
 RobotSimOptions = options_class("RobotSimOptions", ROBOT_SIM_SETTINGS, "Everything ``hbvs robot-sim`` was asked to do.")
