@@ -1,4 +1,5 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md).
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md); the loop and
+its stops, wired by :func:`hbvs_cli.stages.repeat._run_live`.
 
 Every camera frame that arrives is measured by the fit's detector and estimator, and
 decided by the same per-frame step as ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`:
@@ -30,21 +31,11 @@ from typing import IO, Any, Callable
 import numpy as np
 
 from ..core.simulator import ServoStep
-from ..core.trajectory import TimeScaledTrajectory
 from ..errors import InputError, NotAtStartError, TargetLostError, UsageError
 from ..io.calibration import load_calibration
-from ..io.mcap import open_output
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
-from ..io.output_target import open_text_output
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
-from ..core.laws import make_controller
-from ..perception.tracked import detector_from_model, estimator_from_model
-from .console import Console
-from .repeat import (
-    COARSE_RESIDUAL_GATE_PX, RepeatSummary, Settings, _focal, _print_summary, _run_metadata, _StepLog, _Tally,
-    make_state_filter,
-)
 from .settings import RepeatOptions
 
 #: Consecutive frames with the target seen near its taught start view before the first
@@ -131,66 +122,7 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
             raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
 
 
-def run_live(options: RepeatOptions, settings: Settings, fit: Any, console: Console) -> RepeatSummary:
-    """Drive a robot along the fitted trajectory (see the module docstring)."""
-    check_live_options(options)
-    model = fit.model
-    topic = command_topic(options)
-    if topic is None and options.cmd_out is None:
-        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
-    estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit.template_image, seed=options.seed)
-    state_filter = make_state_filter(settings, model)
-    if state_filter is not None:
-        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
-    controller = make_controller(settings.law, settings.gains, settings.dhat0)
-    servo = ServoStep(controller, settings.limits, 0, state_filter)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
-    duration = trajectory.t_end - trajectory.t_start
-    period = 1.0 / settings.rate
-    tally = _Tally()
-    outcome: dict[str, Any] = {}
-    with ExitStack() as stack:
-        node = None
-        if options.ros2_image is not None or topic is not None:
-            from ..io import ros2_dds as dds  # lazy: an optional extra
-
-            node = dds.Ros2Node()
-        publish = None
-        if topic is not None:
-            from ..io.ros2_live import CommandPublisher
-
-            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
-            publish = publisher.publish
-        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
-        out = CommandOut(publish, cmd_stream, options.dry_run)
-        try:
-            out.stop(0.0)  # whatever the robot did before, it starts from rest
-            source, camera = _open_source(options, node, stack, max(settings.lost_timeout, 1.0))
-            check_camera(camera, model.camera, "the live camera's calibration")
-            writer = stack.enter_context(open_output(options.output))
-            info = _run_metadata("live", options, settings, fit, None) | {"live": {
-                "source": options.camera if options.camera is not None else options.ros2_image,
-                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
-                "stale_timeout_s": options.stale_timeout,
-            }}
-            run = RunWriter(writer, info, model.camera, base_ns=None)
-            log = _StepLog(run, settings, model, None, None)
-            console.info(f"repeat --live: waiting for the target near its taught start ({START_FRAMES} frames in a row)")
-            _wait_for_start(source, detector, estimator, trajectory, settings, options, out, model)
-            console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
-            _loop(source, detector, estimator, trajectory, servo, out, run, log, tally, options, settings,
-                  model, duration, period, outcome)
-        finally:
-            out.stop(outcome.get("t", 0.0))
-    summary = tally.summary(controller, options.output, "stopped" in outcome)
-    _print_summary(console, summary, settings, None)
-    if "stopped" in outcome:
-        raise TargetLostError(outcome["stopped"] + f"; the run up to then is in {options.output}")
-    return summary
-
-
-def _open_source(options: RepeatOptions, node: Any, stack: ExitStack, timeout_s: float) -> tuple[Any, Any]:
+def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, timeout_s: float) -> tuple[Any, Any]:
     """The frame source and the camera's intrinsics (a ROS 2 camera's publisher and CameraInfo
     awaited up to ``timeout_s``)."""
     if options.camera is not None:
@@ -209,7 +141,7 @@ def _open_source(options: RepeatOptions, node: Any, stack: ExitStack, timeout_s:
     return source, camera
 
 
-def _measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
+def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
     image = frame.image
     height, width = image.shape[:2]
     if (width, height) != (model.camera.width, model.camera.height):
@@ -217,7 +149,7 @@ def _measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
     return estimator.from_pixels(detector.detect(image))
 
 
-def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any, settings: Settings,
+def wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any, settings: Any,
                     options: RepeatOptions, out: CommandOut, model: Any) -> None:
     """Hold still until the target is seen near its taught start view in START_FRAMES frames
     in a row; a robot seen elsewhere that many times is told how far off it is, one that
@@ -232,7 +164,7 @@ def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any,
                 raise TargetLostError(f"no camera frame for {settings.lost_timeout:g} s (--lost-timeout) before the start")
             continue
         waited_since = time.monotonic()
-        observation = _measure(frame, detector, estimator, model)
+        observation = measure(frame, detector, estimator, model)
         out.send(0.0, 0.0, 0.0)
         if observation.status != "ok" or observation.measurement is None:
             near = far = 0
@@ -257,8 +189,8 @@ def _wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any,
                 )
 
 
-def _loop(source: Any, detector: Any, estimator: Any, trajectory: Any, servo: ServoStep, out: CommandOut,
-          run: RunWriter, log: _StepLog, tally: _Tally, options: RepeatOptions, settings: Settings, model: Any,
+def live_loop(source: Any, detector: Any, estimator: Any, trajectory: Any, servo: ServoStep, out: CommandOut,
+          run: RunWriter, log: Any, tally: Any, options: RepeatOptions, settings: Any, model: Any,
           duration: float, period: float, outcome: dict[str, Any]) -> None:
     first_stamp: float | None = None
     previous_stamp: float | None = None
@@ -302,7 +234,7 @@ def _loop(source: Any, detector: Any, estimator: Any, trajectory: Any, servo: Se
         interval = frame.stamp - previous_stamp if previous_stamp is not None else None
         # The command is held until the next frame: about one frame interval.
         dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
-        observation = _measure(frame, detector, estimator, model)
+        observation = measure(frame, detector, estimator, model)
         record = servo.decide(t, nan_pose, observation, trajectory.evaluate(t), dt)
         v, w = record.v_c, record.w_c
         if record.lost:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from typing import IO, Any, ContextManager
 
@@ -26,7 +27,7 @@ from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
-from ..core.simulator import ActuatorLimits, StepRecord
+from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..core.world import World
@@ -44,6 +45,7 @@ from ..io.run_file import RunWriter
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from . import live
 from .console import Console
 from .frames import decoded_frames
 from .options import parse_interval, parse_offset, parse_time_and_factor
@@ -170,9 +172,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     frame_interval = _taught_frame_interval(model)
     settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
     if options.live:
-        from .live import run_live  # the robot's loop (and its optional DDS) only when asked
-
-        return run_live(options, settings, fit, console)
+        return _run_live(options, settings, fit, console)
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)
@@ -529,4 +529,65 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             _note_truncated(writer, options, fit, console, reader)
     summary = tally.summary(controller, options.output, False)
     _print_summary(console, summary, settings, None)
+    return summary
+
+
+# ----------------------------------------------------------------------------- a robot
+def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
+    """``--live``: drive a robot along the fitted trajectory, every frame through the same
+    :class:`~hbvs_cli.core.simulator.ServoStep` as ``--sim`` (:mod:`.live`: the loop and its stops)."""
+    live.check_live_options(options)
+    model = fit.model
+    topic = live.command_topic(options)
+    if topic is None and options.cmd_out is None:
+        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
+    estimator = estimator_from_model(model)
+    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    state_filter = make_state_filter(settings, model)
+    if state_filter is not None:
+        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
+    servo = ServoStep(controller, settings.limits, 0, state_filter)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    duration = trajectory.t_end - trajectory.t_start
+    period = 1.0 / settings.rate
+    tally = _Tally()
+    outcome: dict[str, Any] = {}
+    with ExitStack() as stack:
+        node = None
+        if options.ros2_image is not None or topic is not None:
+            from ..io import ros2_dds as dds  # lazy: an optional extra
+
+            node = dds.Ros2Node()
+        publish = None
+        if topic is not None:
+            from ..io.ros2_live import CommandPublisher
+
+            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+            publish = publisher.publish
+        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
+        out = live.CommandOut(publish, cmd_stream, options.dry_run)
+        try:
+            out.stop(0.0)  # whatever the robot did before, it starts from rest
+            source, camera = live.open_live_source(options, node, stack, max(settings.lost_timeout, 1.0))
+            live.check_camera(camera, model.camera, "the live camera's calibration")
+            writer = stack.enter_context(open_output(options.output))
+            info = _run_metadata("live", options, settings, fit, None) | {"live": {
+                "source": options.camera if options.camera is not None else options.ros2_image,
+                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
+                "stale_timeout_s": options.stale_timeout,
+            }}
+            run = RunWriter(writer, info, model.camera, base_ns=None)
+            log = _StepLog(run, settings, model, None, None)
+            console.info(f"repeat --live: waiting for the target near its taught start ({live.START_FRAMES} frames in a row)")
+            live.wait_for_start(source, detector, estimator, trajectory, settings, options, out, model)
+            console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
+            live.live_loop(source, detector, estimator, trajectory, servo, out, run, log, tally, options, settings,
+                  model, duration, period, outcome)
+        finally:
+            out.stop(outcome.get("t", 0.0))
+    summary = tally.summary(controller, options.output, "stopped" in outcome)
+    _print_summary(console, summary, settings, None)
+    if "stopped" in outcome:
+        raise TargetLostError(outcome["stopped"] + f"; the run up to then is in {options.output}")
     return summary

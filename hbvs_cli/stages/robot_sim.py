@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.desired import taught_frame_interval
 from ..core.frames import compose_planar_pose
 from ..core.unicycle import integrate_unicycle
 from ..errors import UsageError
@@ -30,7 +31,6 @@ from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
 from .options import parse_interval, parse_offset
-from .repeat import _taught_frame_interval
 from .settings import RobotSimOptions
 
 
@@ -53,7 +53,8 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary
 
     fit = read_fit_file(options.input)
     model = fit.model
-    rate = float(options.rate) if options.rate is not None else 1.0 / _taught_frame_interval(model)
+    taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
+    rate = float(options.rate) if options.rate is not None else 1.0 / taught
     scene = simulation_world(model, fit.reference_image, options.depth)
     renderer = renderer_for(scene, model)
     rng = np.random.default_rng(options.seed)

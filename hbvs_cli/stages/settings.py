@@ -120,6 +120,11 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
     Setting("bag", Path, "A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one "
             ".mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", panel="Sources"),
     Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
+    Setting("ros2_image", str, "A running ROS 2 camera: its sensor_msgs/msg/Image topic (.../compressed for CompressedImage), "
+            "CameraInfo from the sibling camera_info topic; --duration or Ctrl-C ends it (pip install 'hbvs\\[ros2]').",
+            panel="Sources"),
+    Setting("ros2_cmd", str, "With --ros2-image: the operator's geometry_msgs/msg/Twist topic, recorded as the taught commands.",
+            panel="Sources"),
     Setting("cmd_topic", str, "The bag's command topic (geometry_msgs Twist or TwistStamped, or nav_msgs Odometry), "
             "recorded as the taught (v, w); automatic when there is one.", panel="Sources"),
     Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
