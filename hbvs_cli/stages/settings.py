@@ -208,7 +208,8 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators", bounds={"min": 0}),
     Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",
             fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0}),
-    Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE or - (stdout)."),
+    Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE, FIFO or - (stdout): with --live the commands "
+            "sent to the robot, as they go (for a driver); with --sim and --replay a log (unpaced)."),
     Setting("record_images", bool, "Store the camera images with detected and desired points.", default=False),
     Setting("occlude", str, "Hide the target from START to END seconds (repeatable), e.g. 8:10.", panel="Faults", repeatable=True),
     Setting("drop_rate", float, "Fraction of camera frames dropped.", default=0.0, panel="Faults", bounds={"min": 0.0, "max": 1.0}),
