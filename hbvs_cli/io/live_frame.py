@@ -18,7 +18,9 @@ class LiveFrame:
     stamp : float
         The frame's header stamp (s), or its arrival time when the stamp is zero.
     arrival : float
-        ``time.monotonic()`` when hbvs took it (s).
+        When it arrived, on ``time.monotonic()``'s clock (s): a ROS 2 frame's DDS publication
+        time when the camera is on this host's clock, else when hbvs took it; a camera
+        frame's capture.
     skipped : int
         Frames that arrived since the previous one handed out and were dropped for this one.
     """

@@ -79,8 +79,8 @@ class LatestImage:
             samples = self._valid(self.reader.take(N=64))
         if not samples:
             return None
-        arrival = time.monotonic()
         message = samples[-1]
+        arrival = _arrival(message)
         image = decode_image_message(message, self.topic)
         stamp = dds.seconds_of(message.header.stamp) or time.time()  # a driver that leaves it zero
         return LiveFrame(image=image, stamp=stamp, arrival=arrival, skipped=len(samples) - 1)
@@ -89,6 +89,25 @@ class LatestImage:
     def _valid(samples: list[Any]) -> list[Any]:
         # A publisher going away shows up as an "invalid sample" (no data): not a frame.
         return [sample for sample in samples if hasattr(sample, "header")]
+
+
+#: Largest plausible transport delay (s): a publication time further back than this (or in
+#: the future) is on another host's clock, which says nothing about the arrival here.
+_SAME_CLOCK_S = 1.0
+
+
+def _arrival(message: Any) -> float:
+    """When the frame arrived (``time.monotonic()``): the camera's DDS publication time when
+    its clock is plainly this host's (the frame may have waited in the reader while the
+    previous one was processed, and that wait counts), else now, when hbvs took it."""
+    now, wall = time.monotonic(), time.time()
+    info = getattr(message, "sample_info", None)
+    source_ns = getattr(info, "source_timestamp", None)
+    if isinstance(source_ns, int) and source_ns > 0:
+        waited = wall - source_ns * 1e-9
+        if 0.0 <= waited < _SAME_CLOCK_S:
+            return now - waited
+    return now
 
 
 def decode_image_message(message: Any, topic: str) -> np.ndarray:
