@@ -350,3 +350,40 @@ def test_live_options_are_checked_first(tmp_path):
         result = call_hbvs("repeat", str(FIT), *options, "-o", str(tmp_path / "r.mcap"))
         stderr = result.stderr.decode()
         assert result.returncode == 2 and len(stderr.strip().splitlines()) == 1 and words in stderr, (options, stderr)
+
+
+TELEOP = textwrap.dedent("""
+    import time
+    from hbvs_cli.io import ros2_dds as dds
+    node = dds.Ros2Node()
+    writer = node.publisher("/cmd_vel", dds.Twist, dds.command_qos())
+    while True:
+        writer.write(dds.Twist(linear=dds.Vector3(x=0.1), angular=dds.Vector3(z=0.02)))
+        time.sleep(0.05)
+""")
+
+
+@pytest.mark.campaign
+def test_teach_records_a_running_ros2_camera_and_the_operators_commands(tmp_path, request):
+    """teach --ros2-image --ros2-cmd: the stand-in driven by a teleop process, 3 s."""
+    skip_unless_campaign(request)
+    from hbvs_cli.io.teach_file import TeachReader
+
+    env = dds_env()
+    robot, _ = robot_sim(env, tmp_path)
+    teleop = subprocess.Popen([sys.executable, "-c", TELEOP], env=env)
+    teach = tmp_path / "teach.mcap"
+    try:
+        result = subprocess.run([*HBVS, "teach", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "/cmd_vel", "--duration", "3",
+                                 "-o", str(teach), "-q"], capture_output=True, text=True, env=env, timeout=120)
+    finally:
+        stop(teleop, robot)
+    assert result.returncode == 0, result.stderr
+    reader = TeachReader(str(teach))
+    frames = list(reader.frames())
+    assert 20 <= len(frames) <= 31 and frames[-1].t < 3.0
+    assert reader.camera.width == 320 and reader.camera.fx == 250.0
+    assert all(frame.command == (0.1, 0.02) for frame in frames[5:])
+    assert reader.info["settings"]["ros2_image"] == "/camera/image_raw"
+    fitted = subprocess.run([*HBVS, "fit", str(teach), "-o", str(tmp_path / "fit.mcap"), "-q"], capture_output=True, text=True, timeout=300)
+    assert fitted.returncode == 0, fitted.stderr
