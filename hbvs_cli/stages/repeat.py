@@ -571,7 +571,9 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
             source, camera = live.open_live_source(options, node, stack, max(settings.lost_timeout, 1.0))
             live.check_camera(camera, model.camera, "the live camera's calibration")
-            writer = stack.enter_context(open_output(options.output))
+            # --foxglove: the run served as it is written (already real time: no pacing).
+            view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
+            writer = view(stack.enter_context(open_output(options.output)))
             info = _run_metadata("live", options, settings, fit, None) | {"live": {
                 "source": options.camera if options.camera is not None else options.ros2_image,
                 "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
