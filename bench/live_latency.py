@@ -51,7 +51,7 @@ def measure(target: str, folder: Path, speed: float) -> dict[str, float]:
     teach, fit, run = folder / f"teach-{target}.mcap", folder / f"fit-{target}.mcap", folder / f"live-{target}.mcap"
     _run([*HBVS, "teach", "--target", target, "--calibration", str(calibration), "--fps", "30", "-o", str(teach), "-q"])
     _run([*HBVS, "fit", str(teach), "-o", str(fit), "-q"])
-    env = dict(os.environ, CYCLONEDDS_URI=loopback_config(), ROS_DOMAIN_ID=str(200 + os.getpid() % 30))
+    env = dict(os.environ, CYCLONEDDS_URI=loopback_config(), ROS_DOMAIN_ID=str(224 + os.getpid() % 8))
     robot = subprocess.Popen([*HBVS, "robot-sim", str(fit), "--ros2", "--rate", "30", "-q"], env=env)
     try:
         _run([*HBVS, "repeat", str(fit), "--live", "--ros2-image", "/camera/image_raw", "--speed", str(speed), "-o", str(run), "-q"], env)
@@ -73,6 +73,7 @@ def main() -> None:
     parser.add_argument("--targets", default="dots,texture,aruco")
     args = parser.parse_args()
     rows = []
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as folder:
         for target in args.targets.split(","):
             figures = measure(target, Path(folder), args.speed)
@@ -83,7 +84,8 @@ def main() -> None:
         "",
         f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}; `python -m bench.live_latency --speed {args.speed:g}`. "
-        "The stand-in camera (`robot-sim`) runs on the same cores.",
+        "The stand-in camera (`robot-sim`) runs on the same cores; load average "
+        f"{load_before:.1f} before, {os.getloadavg()[0]:.1f} after (a busy machine inflates the tail: measure on a quiet one).",
         "",
         "| target | frames | p50 (ms) | p99 (ms) | max (ms) | aim p99 < 15 ms | dropped | late |",
         "|---|---|---|---|---|---|---|---|",

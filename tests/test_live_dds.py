@@ -106,12 +106,12 @@ def test_names_qos_and_domain(monkeypatch):
 
 def test_two_processes_talk_over_loopback(tmp_path):
     """A command published by one process arrives in another, on lo only."""
-    env = dict(os.environ, CYCLONEDDS_URI=dds.loopback_config(), ROS_DOMAIN_ID=str(150 + os.getpid() % 50))
+    env = dict(os.environ, CYCLONEDDS_URI=dds.loopback_config(), ROS_DOMAIN_ID=str(221 + os.getpid() % 10))
     listener = subprocess.Popen([sys.executable, "-c", textwrap.dedent("""
         import time
         from hbvs_cli.io import ros2_dds as dds
         node = dds.Ros2Node()
-        reader = node.subscriber("/cmd_vel", dds.Twist, dds.command_qos())
+        reader = node.subscriber("/hbvs_test/talk", dds.Twist, dds.command_qos())
         got, deadline = [], time.monotonic() + 20
         while len(got) < 5 and time.monotonic() < deadline:
             got += [s.linear.x for s in reader.take(N=10) if hasattr(s, "linear")]
@@ -122,7 +122,7 @@ def test_two_processes_talk_over_loopback(tmp_path):
         import time
         from hbvs_cli.io import ros2_dds as dds
         node = dds.Ros2Node()
-        writer = node.publisher("/cmd_vel", dds.Twist, dds.command_qos())
+        writer = node.publisher("/hbvs_test/talk", dds.Twist, dds.command_qos())
         deadline = time.monotonic() + 20
         while writer.get_publication_matched_status().current_count == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
