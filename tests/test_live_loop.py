@@ -104,8 +104,8 @@ def robot_sim(env, tmp_path, *options, duration=40.0):
     return process, poses
 
 
-def repeat_live(env, tmp_path, *options):
-    return subprocess.Popen([*HBVS, "repeat", str(FIT), "--live", "--ros2-image", "/camera/image_raw", "-o", str(tmp_path / "live.mcap"), "-q", *options],
+def repeat_live(env, tmp_path, *options, topic="/camera/image_raw"):
+    return subprocess.Popen([*HBVS, "repeat", str(FIT), "--live", "--ros2-image", topic, "-o", str(tmp_path / "live.mcap"), "-q", *options],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
@@ -149,11 +149,12 @@ def sim_final_errors(tmp_path, speed: float) -> tuple[float, float]:
     return report["pose_error"]["position_m"]["final"], abs(report["pose_error"]["heading_deg"]["final"])
 
 
-def converge_like_sim(tmp_path, speed: float) -> dict:
+def converge_like_sim(tmp_path, speed: float, jpeg: bool = False) -> dict:
     env = dict(dds_env())
     listener = Listener(env)
-    robot, poses = robot_sim(env, tmp_path, duration=20.0 / speed + 60.0)  # ended by Ctrl-C once the run is over
-    live = repeat_live(env, tmp_path, "--speed", str(speed))
+    # Ended by Ctrl-C once the run is over.
+    robot, poses = robot_sim(env, tmp_path, *(["--image-format", "jpeg"] if jpeg else []), duration=20.0 / speed + 60.0)
+    live = repeat_live(env, tmp_path, "--speed", str(speed), topic="/camera/image_raw" + ("/compressed" if jpeg else ""))
     try:
         _, err = live.communicate(timeout=120)
         assert live.returncode == 0, err
@@ -189,6 +190,13 @@ def test_live_loop_converges_like_sim_whole_trajectory(tmp_path, request):
     commands = result["commands"]
     last_moving = max(k for k, c in enumerate(commands) if (c["v"], c["w"]) != (0.0, 0.0))
     assert commands[last_moving + 1]["wall"] - commands[last_moving]["wall"] <= FRAME_INTERVAL + 0.05
+
+
+@pytest.mark.campaign
+def test_live_loop_on_compressed_images_converges_like_sim(tmp_path, request):
+    """sensor_msgs/msg/CompressedImage (JPEG) on /camera/image_raw/compressed, at twice the pace."""
+    skip_unless_campaign(request)
+    converge_like_sim(tmp_path, 2.0, jpeg=True)
 
 
 def _zero_after(commands, cause_wall: float) -> float:
