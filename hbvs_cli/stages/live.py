@@ -26,6 +26,7 @@ import json
 import math
 import time
 from contextlib import ExitStack
+from dataclasses import dataclass, replace
 from typing import IO, Any, Callable
 
 import numpy as np
@@ -142,6 +143,7 @@ def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, timeou
 
 
 def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
+    """The observation of one live frame (the fit's detector and estimator)."""
     image = frame.image
     height, width = image.shape[:2]
     if (width, height) != (model.camera.width, model.camera.height):
@@ -149,113 +151,172 @@ def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
     return estimator.from_pixels(detector.detect(image))
 
 
-def wait_for_start(source: Any, detector: Any, estimator: Any, trajectory: Any, settings: Any,
-                    options: RepeatOptions, out: CommandOut, model: Any) -> None:
-    """Hold still until the target is seen near its taught start view in START_FRAMES frames
-    in a row; a robot seen elsewhere that many times is told how far off it is, one that
-    does not see the target for --lost-timeout that it does not."""
-    desired = trajectory.evaluate(0.0)
-    near = far = 0
-    waited_since = seen_at = time.monotonic()
-    while near < START_FRAMES:
-        frame = source.latest(options.stale_timeout)
-        if frame is None:
-            if time.monotonic() - waited_since > settings.lost_timeout:
-                raise TargetLostError(f"no camera frame for {settings.lost_timeout:g} s (--lost-timeout) before the start")
-            continue
-        waited_since = time.monotonic()
-        observation = measure(frame, detector, estimator, model)
-        out.send(0.0, 0.0, 0.0)
-        if observation.status != "ok" or observation.measurement is None:
-            near = far = 0
-            if time.monotonic() - seen_at > settings.lost_timeout:
-                raise NotAtStartError(
-                    f"the target is not in view ({observation.status} for {settings.lost_timeout:g} s, --lost-timeout): "
-                    "the robot is not at the taught start, or its camera sees something else"
-                )
-            continue
-        seen_at = time.monotonic()
-        m = observation.measurement
-        distance = math.hypot(float(m.x_h1) - float(desired.x_hd1), float(m.x_h2) - float(desired.x_hd2)) * settings.dhat0
-        heading = math.degrees(abs(math.remainder(float(m.theta) - float(desired.theta_d), 2 * math.pi)))
-        if distance <= START_TOLERANCE_M and heading <= START_TOLERANCE_DEG:
-            near, far = near + 1, 0
-        else:
-            near, far = 0, far + 1
-            if far >= START_FRAMES:
-                raise NotAtStartError(
-                    f"the robot seems {distance:.2f} m and {heading:.1f} deg from the taught start (at most "
-                    f"{START_TOLERANCE_M:g} m and {START_TOLERANCE_DEG:g} deg); put it there and start again"
-                )
+@dataclass
+class LiveLoop:
+    """The loop of ``repeat --live``: frames in, commands out, the run file written.
 
+    Attributes
+    ----------
+    source : LatestImage or LatestCameraFrame
+        ``latest(timeout_s) -> LiveFrame | None``.
+    detector, estimator
+        The fit's (:mod:`hbvs_cli.perception.tracked`).
+    model : FitModel
+    trajectory : TimeScaledTrajectory
+        The desired signals over run time (s).
+    servo : ServoStep
+        The per-frame decision, as in ``--sim``.
+    out : CommandOut
+    run : RunWriter
+    log, tally
+        repeat's step log (the run file's messages) and summary.
+    options : RepeatOptions
+    settings
+        repeat's resolved settings (``lost_timeout``, ``dhat0``, ``rate``).
+    """
 
-def live_loop(source: Any, detector: Any, estimator: Any, trajectory: Any, servo: ServoStep, out: CommandOut,
-          run: RunWriter, log: Any, tally: Any, options: RepeatOptions, settings: Any, model: Any,
-          duration: float, period: float, outcome: dict[str, Any]) -> None:
-    first_stamp: float | None = None
-    previous_stamp: float | None = None
-    last_arrival = time.monotonic()
-    stale = False
-    lost_for = 0.0
-    nan_pose = np.full(3, np.nan)
-    while True:
-        wait = options.stale_timeout - (time.monotonic() - last_arrival)
-        frame = source.latest(wait) if wait > 0 else None
-        if frame is None:
-            silent = time.monotonic() - last_arrival
-            if silent < options.stale_timeout:
+    source: Any
+    detector: Any
+    estimator: Any
+    model: Any
+    trajectory: Any
+    servo: ServoStep
+    out: CommandOut
+    run: RunWriter
+    log: Any
+    tally: Any
+    options: RepeatOptions
+    settings: Any
+    #: Run time of the last step (s).
+    t: float = 0.0
+    #: Why the run stopped early (None: it ended with the trajectory).
+    stopped: str | None = None
+
+    def wait_for_start(self) -> None:
+        """Hold still until the target is seen near its taught start view in START_FRAMES
+        frames in a row; a robot seen elsewhere that many times is told how far off it is,
+        one that does not see the target for --lost-timeout that it does not.
+
+        Raises
+        ------
+        NotAtStartError
+            The robot is not at the taught start.
+        TargetLostError
+            No frame for --lost-timeout.
+        """
+        desired = self.trajectory.evaluate(0.0)
+        lost_timeout = self.settings.lost_timeout
+        near = far = 0
+        waited_since = seen_at = time.monotonic()
+        while near < START_FRAMES:
+            frame = self.source.latest(self.options.stale_timeout)
+            if frame is None:
+                if time.monotonic() - waited_since > lost_timeout:
+                    raise TargetLostError(f"no camera frame for {lost_timeout:g} s (--lost-timeout) before the start")
                 continue
-            t = outcome.get("t", 0.0)
-            if not stale:
-                out.stop(t)
-                servo.previous = (0.0, 0.0)
-                run.event(t, LOG_WARNING, f"no camera frame for {options.stale_timeout:g} s (--stale-timeout): stopped")
-                stale = True
-            if silent > settings.lost_timeout or getattr(source, "ended", False):
-                outcome["stopped"] = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
-                run.event(t, LOG_ERROR, outcome["stopped"] + ": run stopped")
+            waited_since = time.monotonic()
+            observation = measure(frame, self.detector, self.estimator, self.model)
+            self.out.send(0.0, 0.0, 0.0)
+            if observation.status != "ok" or observation.measurement is None:
+                near = far = 0
+                if time.monotonic() - seen_at > lost_timeout:
+                    raise NotAtStartError(
+                        f"the target is not in view ({observation.status} for {lost_timeout:g} s, --lost-timeout): "
+                        "the robot is not at the taught start, or its camera sees something else"
+                    )
+                continue
+            seen_at = time.monotonic()
+            m = observation.measurement
+            # x_h is x_f / d* (21): at the fit's depth estimate, metres.
+            distance = math.hypot(float(m.x_h1) - float(desired.x_hd1), float(m.x_h2) - float(desired.x_hd2)) * self.settings.dhat0
+            heading = math.degrees(abs(math.remainder(float(m.theta) - float(desired.theta_d), 2 * math.pi)))
+            if distance <= START_TOLERANCE_M and heading <= START_TOLERANCE_DEG:
+                near, far = near + 1, 0
+            else:
+                near, far = 0, far + 1
+                if far >= START_FRAMES:
+                    raise NotAtStartError(
+                        f"the robot seems {distance:.2f} m and {heading:.1f} deg from the taught start (at most "
+                        f"{START_TOLERANCE_M:g} m and {START_TOLERANCE_DEG:g} deg); put it there and start again"
+                    )
+
+    def drive(self) -> None:
+        """Until the trajectory ends, or the target or the camera is gone for --lost-timeout
+        (then :attr:`stopped` says why): each newest frame measured, decided, sent."""
+        period = 1.0 / self.settings.rate
+        duration = self.trajectory.t_end - self.trajectory.t_start
+        first_stamp: float | None = None
+        previous_stamp: float | None = None
+        last_arrival = time.monotonic()
+        lost_for = 0.0
+        while True:
+            frame = self._next_frame(last_arrival)
+            if frame is None:
+                return  # the camera is gone (self.stopped says so)
+            last_arrival = frame.arrival
+            if first_stamp is None:
+                first_stamp = frame.stamp
+                self.run.start(int(round(first_stamp * 1e9)))
+            if previous_stamp is not None and frame.stamp <= previous_stamp:
+                continue  # out of order (a camera's clock stepped): wait for a newer one
+            t = frame.stamp - first_stamp
+            if t >= duration:
+                self.t = t
+                self.run.event(t, LOG_INFO, "end of the taught trajectory: stopped")
                 return
-            time.sleep(0.001)
-            continue
-        if stale:
-            run.event(outcome.get("t", 0.0), LOG_INFO, "camera frames back")
-            stale = False
-        last_arrival = frame.arrival
-        if first_stamp is None:
-            first_stamp = frame.stamp
-            run.start(int(round(first_stamp * 1e9)))
-        t = frame.stamp - first_stamp
-        if previous_stamp is not None and frame.stamp <= previous_stamp:
-            continue  # out of order (a camera's clock stepped): wait for a newer one
-        if t >= duration:
-            outcome["t"] = t
-            run.event(t, LOG_INFO, "end of the taught trajectory: stopped")
-            return
-        interval = frame.stamp - previous_stamp if previous_stamp is not None else None
-        # The command is held until the next frame: about one frame interval.
-        dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
-        observation = measure(frame, detector, estimator, model)
-        record = servo.decide(t, nan_pose, observation, trajectory.evaluate(t), dt)
-        v, w = record.v_c, record.w_c
+            interval = frame.stamp - previous_stamp if previous_stamp is not None else None
+            # The command is held until the next frame: about one frame interval.
+            dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
+            latency, record = self._step(frame, t, dt)
+            previous_stamp, self.t = frame.stamp, t
+            self.log.step(record)
+            self.run.timing(t, frame.stamp, latency, interval, frame.skipped,
+                            interval is not None and interval > LATE_FACTOR * period, self.options.dry_run)
+            self.tally.add(record)
+            lost_for = lost_for + dt if record.lost else 0.0
+            if lost_for > self.settings.lost_timeout:
+                self.stopped = f"the target was lost for more than --lost-timeout {self.settings.lost_timeout:g} s (at t = {t:.2f} s)"
+                self.run.event(t, LOG_ERROR, f"target lost for more than {self.settings.lost_timeout:g} s: run stopped")
+                return
+
+    def _step(self, frame: Any, t: float, dt: float) -> tuple[float, Any]:
+        """Measure, decide (:meth:`ServoStep.decide`), send; the latency (s) and the step's record."""
+        observation = measure(frame, self.detector, self.estimator, self.model)
+        record = self.servo.decide(t, _NO_POSE, observation, self.trajectory.evaluate(t), dt)
         if record.lost:
             # On a robot a lost target stops it at once (the simulator may coast on the filter).
-            v, w = 0.0, 0.0
-            servo.previous = (0.0, 0.0)
-        out.send(t, v, w)
+            record = replace(record, v_c=0.0, w_c=0.0)
+            self.servo.previous = (0.0, 0.0)
+        self.out.send(t, record.v_c, record.w_c)
         latency = time.monotonic() - frame.arrival
-        servo.sent(dt)
-        previous_stamp = frame.stamp
-        outcome["t"] = t
-        if (v, w) != (record.v_c, record.w_c):
-            from dataclasses import replace
+        self.servo.sent(dt)
+        return latency, record
 
-            record = replace(record, v_c=v, w_c=w)
-        log.step(record)
-        run.timing(t, frame.stamp, latency, interval, frame.skipped,
-                   interval is not None and interval > LATE_FACTOR * period, options.dry_run)
-        tally.add(record)
-        lost_for = lost_for + dt if record.lost else 0.0
-        if lost_for > settings.lost_timeout:
-            outcome["stopped"] = f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {t:.2f} s)"
-            run.event(t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
-            return
+    def _next_frame(self, last_arrival: float) -> Any:
+        """The next frame; zero commands once none came for --stale-timeout; None (and
+        :attr:`stopped` set) when none came for --lost-timeout or the source ended."""
+        stale = False
+        while True:
+            wait = self.options.stale_timeout - (time.monotonic() - last_arrival)
+            frame = self.source.latest(wait) if wait > 0 else None
+            if frame is not None:
+                if stale:
+                    self.run.event(self.t, LOG_INFO, "camera frames back")
+                return frame
+            silent = time.monotonic() - last_arrival
+            if silent < self.options.stale_timeout:
+                continue
+            if not stale:
+                self.out.stop(self.t)
+                self.servo.previous = (0.0, 0.0)
+                self.run.event(self.t, LOG_WARNING, f"no camera frame for {self.options.stale_timeout:g} s (--stale-timeout): stopped")
+                stale = True
+            if silent > self.settings.lost_timeout or getattr(self.source, "ended", False):
+                self.stopped = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
+                self.run.event(self.t, LOG_ERROR, self.stopped + ": run stopped")
+                return None
+            time.sleep(0.001)
+
+
+#: A live run has no ground truth: the pose recorded with each step.
+_NO_POSE = np.full(3, np.nan)

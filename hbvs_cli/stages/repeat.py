@@ -549,10 +549,8 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     servo = ServoStep(controller, settings.limits, 0, state_filter)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
-    duration = trajectory.t_end - trajectory.t_start
-    period = 1.0 / settings.rate
     tally = _Tally()
-    outcome: dict[str, Any] = {}
+    loop: live.LiveLoop | None = None
     with ExitStack() as stack:
         node = None
         if options.ros2_image is not None or topic is not None:
@@ -581,15 +579,15 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, None)
+            loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings)
             console.info(f"repeat --live: waiting for the target near its taught start ({live.START_FRAMES} frames in a row)")
-            live.wait_for_start(source, detector, estimator, trajectory, settings, options, out, model)
+            loop.wait_for_start()
             console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
-            live.live_loop(source, detector, estimator, trajectory, servo, out, run, log, tally, options, settings,
-                  model, duration, period, outcome)
+            loop.drive()
         finally:
-            out.stop(outcome.get("t", 0.0))
-    summary = tally.summary(controller, options.output, "stopped" in outcome)
+            out.stop(loop.t if loop is not None else 0.0)
+    summary = tally.summary(controller, options.output, loop.stopped is not None)
     _print_summary(console, summary, settings, None)
-    if "stopped" in outcome:
-        raise TargetLostError(outcome["stopped"] + f"; the run up to then is in {options.output}")
+    if loop.stopped is not None:
+        raise TargetLostError(loop.stopped + f"; the run up to then is in {options.output}")
     return summary
