@@ -395,3 +395,35 @@ def test_teach_records_a_running_ros2_camera_and_the_operators_commands(tmp_path
     assert reader.info["settings"]["ros2_image"] == "/camera/image_raw"
     fitted = subprocess.run([*HBVS, "fit", str(teach), "-o", str(tmp_path / "fit.mcap"), "-q"], capture_output=True, text=True, timeout=300)
     assert fitted.returncode == 0, fitted.stderr
+
+
+@pytest.mark.campaign
+def test_without_ros_mjpeg_camera_and_json_commands_converge_like_sim(tmp_path, request):
+    """robot-sim --mjpeg PORT --cmd-in FIFO and repeat --live --camera URL --cmd-out FIFO: no DDS."""
+    skip_unless_campaign(request)
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    fifo = tmp_path / "commands"
+    os.mkfifo(fifo)
+    poses = tmp_path / "poses.jsonl"
+    env = dict(os.environ)
+    robot = subprocess.Popen([*HBVS, "robot-sim", str(FIT), "--mjpeg", str(port), "--cmd-in", str(fifo), "--duration", "80",
+                              "--poses-out", str(poses), "-q"], env=env)
+    live = subprocess.Popen([*HBVS, "repeat", str(FIT), "--live", "--camera", f"http://127.0.0.1:{port}/", "--calibration",
+                             str(REPO / "samples" / "camera.yaml"), "--cmd-out", str(fifo), "--speed", "2",
+                             "-o", str(tmp_path / "live.mcap"), "-q"], stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        _, err = live.communicate(timeout=120)
+        assert live.returncode == 0, err
+    finally:
+        stop(live, robot)
+    position, heading = live_final_errors(tmp_path / "live.mcap", poses, 2.0)
+    sim_position, sim_heading = sim_final_errors(tmp_path, 2.0)
+    print(f"without ROS: live final {100 * position:.3f} cm, {heading:.3f} deg; sim {100 * sim_position:.3f} cm, {sim_heading:.3f} deg")
+    assert position <= 2 * sim_position + 0.005
+    assert heading <= 2 * sim_heading + math.degrees(0.005 / 4.0)
+    last = json.loads(poses.read_text().splitlines()[-1])
+    assert (last["v"], last["w"]) == (0.0, 0.0)

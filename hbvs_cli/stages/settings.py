@@ -282,7 +282,10 @@ TeachFields = options_class("TeachFields", TEACH_SETTINGS, "Everything ``hbvs te
 #: ``hbvs robot-sim``: a stand-in robot in its own process, over ROS 2 (docs/robot.md).
 ROBOT_SIM_SETTINGS: tuple[Setting, ...] = (
     Setting("input", str, "Fit MCAP file (from hbvs fit): its taught world is rendered.", argument=True),
-    Setting("ros2", bool, "Speak ROS 2 over DDS (the only transport today; pip install 'hbvs\\[ros2]').", default=False),
+    Setting("ros2", bool, "Speak ROS 2 over DDS (pip install 'hbvs\\[ros2]').", default=False),
+    Setting("mjpeg", int, "Without ROS: serve the camera as MJPEG on http://127.0.0.1:PORT/ (repeat --live --camera URL).",
+            bounds={"min": 1, "max": 65535}),
+    Setting("cmd_in", str, "Without ROS: the commands as JSON lines {\"v\", \"w\"} (repeat --cmd-out) from FILE, FIFO or -."),
     Setting("offset", str, "Start pose offset DX,DY,DTHETA (m, m, deg) from the taught start, as repeat --sim.",
             default=DEFAULT_OFFSET),
     Setting("rate", float, "Camera rate (Hz).", shown="the taught rate", bounds={"min": 0.1}),
