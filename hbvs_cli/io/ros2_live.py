@@ -22,7 +22,7 @@ from .live_frame import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
 from .sources.rosbag import BagSource
 
-#: Whole seconds to wait for a topic's publisher (and a CameraInfo) before giving up.
+#: Seconds to wait for a camera topic's publisher and its CameraInfo (a node may still be starting).
 DISCOVERY_TIMEOUT_S = 10.0
 
 

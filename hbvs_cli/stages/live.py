@@ -123,17 +123,19 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
             raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
 
 
-def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, timeout_s: float) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics (a ROS 2 camera's publisher and CameraInfo
-    awaited up to ``timeout_s``)."""
+def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
+    """The frame source and the camera's intrinsics. A ROS 2 camera's publisher and
+    CameraInfo are awaited for the discovery time, or ``lost_timeout`` (s) if longer: a
+    camera node may still be starting."""
     if options.camera is not None:
         from ..io.sources.live_camera import LatestCameraFrame
 
         camera = load_calibration(options.calibration)
         return stack.enter_context(LatestCameraFrame(options.camera)), camera
     from ..io import ros2_dds as dds
-    from ..io.ros2_live import LatestImage, wait_camera_info
+    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
 
+    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
     source = LatestImage(node, options.ros2_image, timeout_s)
     if options.calibration is not None:
         camera = load_calibration(options.calibration)

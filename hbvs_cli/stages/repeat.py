@@ -567,7 +567,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         out = live.CommandOut(publish, cmd_stream, options.dry_run)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
-            source, camera = live.open_live_source(options, node, stack, max(settings.lost_timeout, 1.0))
+            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
             live.check_camera(camera, model.camera, "the live camera's calibration")
             # --foxglove: the run served as it is written (already real time: no pacing).
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))

@@ -15,10 +15,6 @@ from typing import Any
 from ...errors import InputError
 from .base import FrameSource, SourceFrame
 
-#: Seconds to wait for the camera's publisher and its CameraInfo.
-WAIT_S = 10.0
-
-
 class Ros2TopicSource(FrameSource):
     """Frames of a ROS 2 image topic, with the commands of a Twist topic.
 
@@ -36,18 +32,18 @@ class Ros2TopicSource(FrameSource):
 
     def __init__(self, topic: str, cmd_topic: str | None = None, duration: float | None = None) -> None:
         from .. import ros2_dds as dds
-        from ..ros2_live import LatestImage, wait_camera_info
+        from ..ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
 
         self.topic = topic
         self.cmd_topic = cmd_topic
         self.duration = duration
         self.dropped = 0
         node = dds.Ros2Node()
-        self._images = LatestImage(node, topic, WAIT_S)
+        self._images = LatestImage(node, topic, DISCOVERY_TIMEOUT_S)
         self.camera = None
         self.camera_problem: str | None = None
         try:
-            self.camera = wait_camera_info(node, dds.camera_info_topic(topic), WAIT_S)
+            self.camera = wait_camera_info(node, dds.camera_info_topic(topic), DISCOVERY_TIMEOUT_S)
         except InputError as exc:
             self.camera_problem = str(exc)
         self._commands = node.subscriber(cmd_topic, dds.Twist, dds.command_qos()) if cmd_topic else None
