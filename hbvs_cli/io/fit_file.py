@@ -184,6 +184,7 @@ class FitModel:
     taught_path: TaughtPath | None = None
     render: dict[str, Any] | None = None
     gains: dict[str, Any] | None = None
+    uncertainty: dict[str, Any] | None = None
 
     def suggested_gains(self) -> ControllerGains | None:
         """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
@@ -218,6 +219,7 @@ class FitModel:
             "taught_path": self.taught_path.to_dict() if self.taught_path is not None else None,
             "render": self.render,
             "gains": self.gains,
+            "uncertainty": self.uncertainty,
         }
 
     @classmethod
@@ -284,6 +286,7 @@ class FitModel:
                 taught_path=taught,
                 render=dict(render) if render is not None else None,
                 gains=dict(gains) if gains is not None else None,
+                uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
             )
         except HbvsError as exc:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
@@ -371,17 +374,24 @@ def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit:
     fit : DesiredFit
     """
     schemas = TOPICS[FILE_KIND]
+    uncertainty = fit.uncertainty
     for k in np.flatnonzero(fit.used):
-        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), {
+        raw = {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(fit.theta[k]), "x_hd1": float(fit.x_h[k, 0]), "x_hd2": float(fit.x_h[k, 1]),
             "residual": float(fit.residual[k]),
-        })
+        }
+        if uncertainty is not None:
+            raw |= {"theta_d_sigma": float(uncertainty.theta_sigma[k]), "x_hd1_sigma": float(uncertainty.x_h1_sigma[k])}
+        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), raw)
     span = fit.span
     desired = fit.trajectory.evaluate(t[span])
     for j, k in enumerate(range(span.start, span.stop)):
-        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), {
+        smooth = {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
             "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
-        })
+        }
+        if uncertainty is not None:
+            smooth |= {"theta_d_sigma": float(uncertainty.smooth_theta_sigma[j]), "x_hd1_sigma": float(uncertainty.smooth_x_h1_sigma[j])}
+        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), smooth)

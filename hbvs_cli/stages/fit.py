@@ -270,6 +270,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
+            uncertainty=result.uncertainty.as_dict() if result.uncertainty is not None else None,
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
@@ -479,6 +480,13 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     table.add_row("reference frame F*", f"{model.reference_index} (t = {model.reference_t:.2f} s)")
     table.add_row("residual (RMS / max)", f"{model.residual_px['rms']:.3f} / {model.residual_px['max']:.3f} px")
     table.add_row("plane normal n* (in F*)", "[" + ", ".join(f"{v:+.3f}" for v in model.normal) + f"]  margin {model.normal_margin:.3f}")
+    if model.uncertainty is not None:
+        u = model.uncertainty
+        table.add_row("n* uncertainty (1 sigma)", f"{u['normal_sigma_deg']:.2f} deg (point noise {u['point_noise_px']:.3f} px)")
+        if u.get("theta_d_sigma_deg"):
+            table.add_row("theta_d / x_hd1 sigma (median, max)",
+                          f"{u['theta_d_sigma_deg']['median']:.3f}, {u['theta_d_sigma_deg']['max']:.3f} deg / "
+                          f"{u['x_hd1_sigma']['median']:.1e}, {u['x_hd1_sigma']['max']:.1e}")
     lambdas = ", ".join(f"{name} {ch.smoothing:.3g}" for name, ch in model.trajectory.channels.items())
     table.add_row("spline smoothing lambda (s^3)", lambdas + (" (GCV)" if options.smoothing == "auto" else ""))
     table.add_row("x_hd2 from (25): residual RMS", f"{model.trajectory.x_hd2_residual_rms:.2e}")
