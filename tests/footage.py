@@ -602,13 +602,15 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
         points = centre_ref + d * n + ab[:, :1] * e1 + ab[:, 1:] * e2
         all_poses = np.asarray(poses, float).copy()
         all_poses[others] = x[2 + 2 * len(world):].reshape(-1, 3)
-        out = []
-        for k in frames:
-            pose = all_poses[k]
-            R = camera_rotation(pose[2])
-            q = (points - np.array([pose[0], pose[1], camera.camera_height])) @ R.T
-            out.append(np.column_stack([camera.fx * q[:, 0] / q[:, 2], camera.fy * q[:, 1] / q[:, 2]]))
-        return np.concatenate(out).ravel()
+        chosen = all_poses[frames]
+        c, s = np.cos(chosen[:, 2]), np.sin(chosen[:, 2])
+        # camera_rotation's rows (right, down, forward) for every frame at once.
+        right = np.stack([s, -c, np.zeros_like(c)], axis=-1)
+        down = np.broadcast_to([0.0, 0.0, -1.0], right.shape)
+        forward = np.stack([c, s, np.zeros_like(c)], axis=-1)
+        offset = points[None] - np.column_stack([chosen[:, :2], np.full(len(chosen), camera.camera_height)])[:, None]
+        q = [np.einsum("fk,fnk->fn", axis, offset) for axis in (right, down, forward)]
+        return np.stack([camera.fx * q[0] / q[2], camera.fy * q[1] / q[2]], axis=-1).ravel()
 
     h = 1e-6
     J = np.empty((pixels(x0).size, x0.size))
