@@ -93,8 +93,8 @@ def test_joint_estimate_recovers_exact_geometry_from_a_wrong_start():
     assert np.allclose(joint.motion[:, 0], poses[0, 2] - poses[1:, 2], atol=1e-7)
 
 
-#: What the suite measures (red dots, 4 points, 6 noise draws of 0.1 px): theta_d 0.42 deg
-#: RMS, 0.95x the bound; 94 % of frames inside the 95 % interval; sigma/RMS 0.9.
+#: What the suite measures (red dots, 4 points, 6 noise draws of 0.1 px): theta_d 0.38 deg
+#: RMS, 0.86x the bound; 100 % of frames inside the 95 % interval; sigma/RMS 1.02.
 @SUITE_OR_CAMPAIGN
 def test_theta_d_near_the_bound_and_the_interval_calibrated(request, extent, capsys):
     """hbvs's theta_d within 1.5x of the Cramer-Rao bound, the true value inside the

@@ -229,3 +229,73 @@ def test_no_target_names_the_kinds_tried(tmp_path):
     for words in ("markers", "dots", "texture", "--target", "--marker-dict"):
         assert words in lines[0]
     assert "Traceback" not in text and not (tmp_path / "fit.mcap").exists()
+
+
+# --------------------------------------------------------------------------- issue 24
+def _theta_against_truth_and_bound(row: dict, name: str) -> dict:
+    """A fitted row's smoothed theta_d against its truth, its own reported sigma (the
+    smooth topic's ``theta_d_sigma``) and the footage maker's Cramer-Rao bound at the
+    point noise the fit measured."""
+    from hbvs_cli.report.fit_plot import read_fit_signals
+
+    truth, model = row["truth"], row["model"]
+    smooth = read_fit_signals(row["fit"]).smooth
+    keep = np.isin(np.round(truth["t"], 6), np.round(smooth["t"], 6))
+    error = smooth["theta_d"] - truth["theta_d"][keep]
+    sigma = smooth["theta_d_sigma"]
+    wall, camera, _ = footage.case(name)
+    bound = footage.cramer_rao_bound(wall, camera, truth["poses"], model.uncertainty["point_noise_px"], frames=np.flatnonzero(keep))
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    return {"theta_rms_deg": np.degrees(rms(error)), "bound_deg": np.degrees(rms(bound["theta_sigma"][1:])),
+            "ratio_to_bound": rms(error) / rms(bound["theta_sigma"][1:]), "coverage": float(np.mean(np.abs(error) <= 1.96 * sigma)),
+            "sigma_over_rms": rms(sigma) / rms(error), "normal_sigma_deg": model.uncertainty["normal_sigma_deg"]}
+
+
+def test_small_apriltag_far_reference_reports_an_honest_uncertainty(fitted, capsys):
+    """The issue's hardest marker row: a 25 cm AprilTag, about 30 px wide in F*, the
+    farthest frame. No estimator pins n* well from this drive; hbvs's theta_d is near the
+    bound and its reported sigma is the size of its error. Measured (noise seed 7): theta_d
+    0.44 deg RMS, 1.32x the Cramer-Rao bound at the measured 0.021 px; reported sigma 0.67x
+    the RMS error; 85 % of frames inside the 95 % interval; n* 0.41 deg off (sigma 0.29 deg).
+    The campaign below measures the calibration over many noise draws."""
+    row = fitted("small_apriltag")
+    figures = _theta_against_truth_and_bound(row, "small_apriltag")
+    with capsys.disabled():
+        print(f"\nsmall_apriltag: {row['errors']} {figures}")
+    assert row["model"].target_kind == "aruco"
+    assert figures["ratio_to_bound"] <= 1.5, figures
+    assert 0.5 <= figures["sigma_over_rms"] <= 2.0, figures
+    assert figures["coverage"] >= 0.75, figures
+    uncertainty = row["model"].uncertainty
+    assert row["errors"]["normal_deg"] <= 3.0 * uncertainty["normal_sigma_deg"], (row["errors"], uncertainty)
+
+
+@pytest.mark.campaign
+@pytest.mark.parametrize("name", ["small_apriltag", "red_dots", "dots_sizes_3x"])
+def test_rendered_footage_calibration_campaign(tmp_path, name, capsys):
+    """Over 12 noise draws of the same rendered scene: theta_d within 1.5x of the bound, the
+    95 % interval covering at least 90 % of frames, and sigma within 2x of the RMS error
+    (figures in bench/ and the report of issue 24)."""
+    from hbvs_cli.report.fit_plot import read_fit_signals
+
+    errors, sigmas, bounds = [], [], []
+    for seed in range(12):
+        folder = tmp_path / f"seed{seed}"
+        made = footage.FootageMaker(*footage.case(name), seed=seed).write(folder, DRIVE)
+        teach, fit = folder / "teach.mcap", folder / "fit.mcap"
+        assert call_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q").returncode == 0
+        assert call_hbvs("fit", str(teach), "-o", str(fit), "-q").returncode == 0
+        model = read_fit_file(fit).model
+        smooth = read_fit_signals(fit).smooth
+        keep = np.isin(np.round(made["t"], 6), np.round(smooth["t"], 6))
+        errors.append(smooth["theta_d"] - made["theta_d"][keep])
+        sigmas.append(smooth["theta_d_sigma"])
+        wall, camera, _ = footage.case(name)
+        bounds.append(footage.cramer_rao_bound(wall, camera, made["poses"], model.uncertainty["point_noise_px"], frames=np.flatnonzero(keep))["theta_sigma"][1:])
+    error, sigma, bound = (np.concatenate(x) for x in (errors, sigmas, bounds))
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    figures = {"theta_rms_deg": np.degrees(rms(error)), "ratio_to_bound": rms(error) / rms(bound),
+               "coverage": float(np.mean(np.abs(error) <= 1.96 * sigma)), "sigma_over_rms": rms(sigma) / rms(error)}
+    with capsys.disabled():
+        print(f"\n{name} rendered, 12 draws: {figures}")
+    assert figures["ratio_to_bound"] <= 1.5 and figures["coverage"] >= 0.9 and 0.5 <= figures["sigma_over_rms"] <= 2.0, figures
