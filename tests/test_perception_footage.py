@@ -23,7 +23,7 @@ from hbvs_cli.io.teach_file import TeachReader
 from hbvs_cli.perception.autodetect import find_dots
 
 import footage
-from conftest import call_hbvs, run_hbvs
+from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent, run_hbvs
 
 #: A short drive (60 frames at 5 Hz): 5.8 m to about 3 m from the wall (a 2x change of scale),
 #: heading weaving by about +-15 deg.
@@ -299,3 +299,77 @@ def test_rendered_footage_calibration_campaign(tmp_path, name, capsys):
     with capsys.disabled():
         print(f"\n{name} rendered, 12 draws: {figures}")
     assert figures["ratio_to_bound"] <= 1.5 and figures["coverage"] >= 0.9 and 0.5 <= figures["sigma_over_rms"] <= 2.0, figures
+
+
+def _write_bag_of(directory, frames, fps: float, camera: footage.Camera) -> None:
+    """The frames as a ROS 2 bag (MCAP storage, PNG CompressedImage, the footage's own
+    CameraInfo), written by the independent rosbags library, stamped at ``fps``."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from test_io_sources import TYPES, CameraInfo, CompressedImage, RegionOfInterest, _header
+
+    with Writer(directory, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        images = writer.add_connection("/cam/image/compressed", CompressedImage.__msgtype__, typestore=TYPES)
+        infos = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=TYPES)
+        for k, frame in enumerate(frames):
+            stamp_ns = 1_700_000_000_000_000_000 + int(round(k * 1e9 / fps))
+            if k == 0:
+                info = CameraInfo(
+                    header=_header(stamp_ns), height=camera.height, width=camera.width, distortion_model="plumb_bob",
+                    d=np.array(camera.distortion, float), k=camera.K.ravel(), r=np.eye(3).ravel(),
+                    p=np.array([camera.fx, 0, camera.cx, 0, 0, camera.fy, camera.cy, 0, 0, 0, 1, 0], float),
+                    binning_x=0, binning_y=0, roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+                writer.write(infos, stamp_ns, TYPES.serialize_cdr(info, CameraInfo.__msgtype__))
+            data = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].ravel()
+            writer.write(images, stamp_ns, TYPES.serialize_cdr(CompressedImage(header=_header(stamp_ns), format="png", data=data),
+                                                               CompressedImage.__msgtype__))
+
+
+@SUITE_OR_CAMPAIGN
+def test_the_same_frames_as_video_images_and_bag_give_the_same_fit(fitted, tmp_path, capsys, request, extent):
+    """The issue's last row: the LED footage (three bright dots) as its MJPG video, as a ROS
+    2 bag of the video's decoded frames (PNG) and (the campaign) as a folder of them. n* and
+    theta_d agree within the fits' reported uncertainty. Measured: the bag and the folder
+    agree with each other exactly, and with the video (whose frames teach stores as JPEG
+    again) to n* 0.16 deg (combined sigma 0.17 deg) and theta_d 0.036 deg at most."""
+    from hbvs_cli.report.fit_plot import read_fit_signals
+
+    row = fitted("bright_dots")
+    capture = cv2.VideoCapture(str(row["truth"]["video"]))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    capture.release()
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, frame in enumerate(frames):
+        cv2.imwrite(str(folder / f"frame{k:03d}.png"), frame)
+    _write_bag_of(tmp_path / "bag", frames, DRIVE.fps, footage.case("bright_dots")[1])
+    calibration = str(row["truth"]["calibration"])
+    sources = {"bag": ("--bag", str(tmp_path / "bag"))}
+    if campaign_extent(request, extent):
+        sources["images"] = ("--images", str(folder), "--fps", str(DRIVE.fps), "--calibration", calibration)
+    fits = {"video": row["fit"]}
+    for name, source in sources.items():
+        teach, fit = tmp_path / f"{name}.mcap", tmp_path / f"{name}-fit.mcap"
+        result = call_hbvs("teach", *source, "-o", str(teach), "-q")
+        assert result.returncode == 0, result.stderr.decode()
+        result = call_hbvs("fit", str(teach), "-o", str(fit), "-q")
+        assert result.returncode == 0, result.stderr.decode()
+        fits[name] = fit
+    models = {name: read_fit_file(fit).model for name, fit in fits.items()}
+    smooth = {name: read_fit_signals(fit).smooth for name, fit in fits.items()}
+    video = models["video"]
+    for name in sources:
+        model = models[name]
+        assert model.target_kind == "dots" and model.frames["used"] == video.frames["used"]
+        apart = np.degrees(np.arccos(np.clip(model.normal @ video.normal, -1.0, 1.0)))
+        sigma = np.hypot(model.uncertainty["normal_sigma_deg"], video.uncertainty["normal_sigma_deg"])
+        theta_apart = np.degrees(np.max(np.abs(smooth[name]["theta_d"] - smooth["video"]["theta_d"])))
+        with capsys.disabled():
+            print(f"\n{name} vs video: n* {apart:.4f} deg apart (combined sigma {sigma:.3f}), theta_d {theta_apart:.4f} deg at most")
+        assert apart <= 2.0 * sigma
+        assert np.all(np.abs(smooth[name]["theta_d"] - smooth["video"]["theta_d"])
+                      <= 2.0 * np.hypot(smooth[name]["theta_d_sigma"], smooth["video"]["theta_d_sigma"]))
