@@ -92,6 +92,10 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
     for key in ("marker_dict", "polarity", "contrast"):
         if detector.get(key) is not None and not isinstance(detector.get(key), str):
             raise ValueError(f"detector {key} must be text")
+    board = detector.get("board")
+    if board is not None and (not isinstance(board, list) or len(board) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and 3 <= n <= 100 for n in board)
+                              or board[0] * board[1] != points):
+        raise ValueError(f"detector board must be [corners per row, rows] of the {points} points, got {board!r}")
     for key in ("template_pixels", "initial_pixels"):
         value = detector.get(key)
         if value is None:
@@ -250,7 +254,7 @@ class FitModel:
                 raise ValueError("normal must be 3 finite numbers, not all zero")
             dhat0 = _positive_number(message["dhat0"], "dhat0")
             kind = str(message["target_kind"])
-            if kind not in ("dots", "aruco", "texture"):
+            if kind not in ("dots", "aruco", "chessboard", "texture"):
                 raise ValueError(f"unknown target kind {kind!r}")
             world = world_from_description(message["world"], source) if message.get("world") else None
             taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
