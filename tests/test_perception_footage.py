@@ -255,8 +255,8 @@ def test_small_apriltag_far_reference_reports_an_honest_uncertainty(fitted, caps
     """The issue's hardest marker row: a 25 cm AprilTag, about 30 px wide in F*, the
     farthest frame. No estimator pins n* well from this drive; hbvs's theta_d is near the
     bound and its reported sigma is the size of its error. Measured (noise seed 7): theta_d
-    0.44 deg RMS, 1.32x the Cramer-Rao bound at the measured 0.021 px; reported sigma 0.67x
-    the RMS error; 85 % of frames inside the 95 % interval; n* 0.41 deg off (sigma 0.29 deg).
+    0.44 deg RMS, 1.29x the Cramer-Rao bound at the measured 0.022 px; reported sigma 0.68x
+    the RMS error; 87 % of frames inside the 95 % interval; n* 0.41 deg off (sigma 0.29 deg).
     The campaign below measures the calibration over many noise draws."""
     row = fitted("small_apriltag")
     figures = _theta_against_truth_and_bound(row, "small_apriltag")
