@@ -17,7 +17,7 @@ n* is the wall's unit normal in F*, pointing from the camera to the wall.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -386,6 +386,17 @@ def dots_wall(kind: str) -> Wall:
         colour = (25, 25, 25)
         # A dark picture frame (a thin rectangle) to the right of the poster.
         cv2.rectangle(image, (int(2.85 / WALL_MPP), 300), (int(3.1 / WALL_MPP), 600), (30, 30, 30), 8)
+    elif kind == "low_contrast":
+        # Dark-grey dots 25 gray levels below a mid-grey wall (before the lighting and the
+        # sensor noise): a dim room, a cheap print.
+        image = _canvas(width, height, (128, 128, 128))
+        layout = [((0.55, 1.10), 0.05), ((2.40, 1.12), 0.05), ((2.25, 0.50), 0.05), ((0.80, 0.48), 0.05), ((1.50, 0.80), 0.05)]
+        colour = (103, 103, 103)
+    elif kind == "sizes3x":
+        # Black dots whose radii differ 3x (3 to 9 cm) on a white poster.
+        image = _canvas(width, height, (225, 228, 230))
+        layout = [((0.50, 1.10), 0.03), ((2.45, 1.15), 0.09), ((1.45, 0.85), 0.05), ((2.30, 0.45), 0.04), ((0.65, 0.45), 0.07)]
+        colour = (30, 30, 30)
     else:
         raise ValueError(kind)
     points = np.array([_disc(image, centre, radius, colour, height) for centre, radius in layout])
@@ -419,6 +430,26 @@ def marker_wall(dictionary: str, marker_id: int, side_m: float = 0.4, extra: lis
         points.append(place(name, ident, side, centre))
     image = _lighting(image, 0.85, 1.05)
     return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.concatenate(points))
+
+
+def chessboard_wall(inner: tuple[int, int] = (7, 5), square_m: float = 0.06) -> Wall:
+    """A printed chessboard of ``inner`` = (columns, rows) inner corners and ``square_m``
+    squares (with a white margin of one square) on a painted wall, centred 1.0 m high.
+    ``points`` are the inner corners, row by row from the top left (wall pixels)."""
+    width, height = 2.4, 1.6
+    image = _canvas(width, height, (175, 185, 190))
+    px = int(round(square_m / WALL_MPP))
+    columns, rows = inner[0] + 1, inner[1] + 1
+    col0 = int(round(1.2 / WALL_MPP - columns * px / 2))
+    row0 = int(round((height - 1.0) / WALL_MPP - rows * px / 2))
+    image[row0 - px:row0 + (rows + 1) * px, col0 - px:col0 + (columns + 1) * px] = 245
+    for r in range(rows):
+        for c in range(columns):
+            if (r + c) % 2 == 0:
+                image[row0 + r * px:row0 + (r + 1) * px, col0 + c * px:col0 + (c + 1) * px] = 20
+    corners = [[col0 + c * px - 0.5, row0 + r * px - 0.5] for r in range(1, rows) for c in range(1, columns)]
+    image = _lighting(image, 0.85, 1.05)
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(corners, float))
 
 
 def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
@@ -464,11 +495,32 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
         return marker_wall("DICT_APRILTAG_36h11", 5), plain, Effects()
     if name == "photo":
         return photo_wall("coffee", 1.8), plain, Effects()
+    if name == "small_apriltag":
+        # A 25 cm AprilTag, the start 4.3 m from it: about 30 px wide in F*, the farthest frame.
+        wall = marker_wall("DICT_APRILTAG_36h11", 5, side_m=0.25)
+        return replace(wall, centre=(4.3, *wall.centre[1:])), plain, Effects()
+    if name == "chessboard":
+        return chessboard_wall(), plain, Effects()
+    if name == "low_contrast_dots":
+        return dots_wall("low_contrast"), plain, Effects(noise=3.0)
+    if name == "dots_sizes_3x":
+        return dots_wall("sizes3x"), plain, Effects()
     raise ValueError(name)
 
 
+@dataclass(frozen=True)
+class CurvingDrive(Drive):
+    """A drive whose turn rate ramps up then decays (a curve, then a straight approach)."""
+
+    turn: float = 0.12  # rad/s at its peak
+
+    def w(self, t: float) -> float:
+        return self.turn * np.sin(np.pi * min(t / self.duration, 1.0)) ** 2 * (1.0 if t < 0.6 * self.duration else -0.6)
+
+
 CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
-EXPECTED_KIND = {"noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "red_on_grey": "dots", "black_dots_distorted": "dots",
+EXPECTED_KIND = {"small_apriltag": "aruco", "chessboard": "chessboard", "low_contrast_dots": "dots", "dots_sizes_3x": "dots",
+                 "noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "red_on_grey": "dots", "black_dots_distorted": "dots",
                  "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}
 
 
@@ -490,3 +542,84 @@ def errors_against_truth(model, truth: dict) -> dict:
         "x_hd2": rms(fitted.x_hd2 - truth["x_hd"][keep, 1]),
         "normal_deg": float(np.degrees(np.arccos(np.clip(normal @ truth["normal"] / np.linalg.norm(normal), -1, 1)))),
     }
+
+
+# --------------------------------------------------------------------------- the bound
+def wall_points_world(wall: Wall) -> np.ndarray:
+    """The target's points (``wall.points``) in the world (m), shape (N, 3)."""
+    M = wall.wall_to_world()
+    return (M @ np.column_stack([wall.points, np.ones(len(wall.points))]).T).T
+
+
+def ideal_pixels(wall: Wall, camera: Camera, poses: np.ndarray) -> np.ndarray:
+    """Every target point's ideal (pinhole, undistorted) pixel in every frame, shape (F, N, 2)."""
+    world = wall_points_world(wall)
+    out = np.empty((len(poses), len(world), 2))
+    for k, pose in enumerate(np.asarray(poses, float)):
+        q = (world - np.array([pose[0], pose[1], camera.camera_height])) @ camera_rotation(pose[2]).T
+        out[k] = np.column_stack([camera.fx * q[:, 0] / q[:, 2] + camera.cx, camera.fy * q[:, 1] / q[:, 2] + camera.cy])
+    return out
+
+
+def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: float, reference: int = 0,
+                     frames: np.ndarray | None = None) -> dict:
+    """The Cramer-Rao bound of the joint estimate at the footage's true geometry.
+
+    Unknowns: the wall's normal (yaw and tilt), every target point's two coordinates in the
+    wall's plane, and every frame's planar pose (x, y, phi) but F*'s (fixed: the gauge),
+    with the distance from F* to the wall fixed (the scale). Measurements: every point's
+    ideal pixel in every frame, with independent Gaussian noise of ``noise_px`` per
+    coordinate. The Fisher information is ``J^T J / noise^2`` with J the projections'
+    Jacobian at the truth (central differences); its inverse bounds the covariance of any
+    unbiased estimate. Written here from the footage's own geometry (no hbvs code).
+
+    Returns
+    -------
+    dict
+        ``theta_sigma`` (rad, per frame of ``frames``; 0 for F*) and ``normal_sigma`` (rad).
+    """
+    frames = np.arange(len(poses)) if frames is None else np.asarray(frames)
+    world = wall_points_world(wall)
+    ref = np.asarray(poses[reference], float)
+    d = float((np.asarray(wall.centre) - np.array([ref[0], ref[1], camera.camera_height])) @ wall.normal)
+    base_yaw = wall.yaw
+
+    def plane(yaw: float, tilt: float):
+        n = np.array([np.cos(yaw) * np.cos(tilt), np.sin(yaw) * np.cos(tilt), np.sin(tilt)])
+        e1 = np.cross(n, [0.0, 0.0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        return n, e1, np.cross(n, e1)
+
+    centre_ref = np.array([ref[0], ref[1], camera.camera_height])
+    n0, e10, e20 = plane(base_yaw, 0.0)
+    coords = np.column_stack([(world - centre_ref) @ e10, (world - centre_ref) @ e20])
+    others = [k for k in frames if k != reference]
+    x0 = np.concatenate([[base_yaw, 0.0], coords.ravel(), np.asarray(poses)[others].ravel()])
+
+    def pixels(x: np.ndarray) -> np.ndarray:
+        n, e1, e2 = plane(x[0], x[1])
+        ab = x[2:2 + 2 * len(world)].reshape(-1, 2)
+        points = centre_ref + d * n + ab[:, :1] * e1 + ab[:, 1:] * e2
+        all_poses = np.asarray(poses, float).copy()
+        all_poses[others] = x[2 + 2 * len(world):].reshape(-1, 3)
+        chosen = all_poses[frames]
+        c, s = np.cos(chosen[:, 2]), np.sin(chosen[:, 2])
+        # camera_rotation's rows (right, down, forward) for every frame at once.
+        right = np.stack([s, -c, np.zeros_like(c)], axis=-1)
+        down = np.broadcast_to([0.0, 0.0, -1.0], right.shape)
+        forward = np.stack([c, s, np.zeros_like(c)], axis=-1)
+        offset = points[None] - np.column_stack([chosen[:, :2], np.full(len(chosen), camera.camera_height)])[:, None]
+        q = [np.einsum("fk,fnk->fn", axis, offset) for axis in (right, down, forward)]
+        return np.stack([camera.fx * q[0] / q[2], camera.fy * q[1] / q[2]], axis=-1).ravel()
+
+    h = 1e-6
+    J = np.empty((pixels(x0).size, x0.size))
+    for j in range(x0.size):
+        step = np.zeros_like(x0)
+        step[j] = h
+        J[:, j] = (pixels(x0 + step) - pixels(x0 - step)) / (2 * h)
+    covariance = np.linalg.inv(J.T @ J) * noise_px**2
+    phi_sigma = np.sqrt(np.diag(covariance)[2 + 2 * len(world):].reshape(-1, 3)[:, 2])
+    theta_sigma = np.zeros(len(frames))
+    theta_sigma[[i for i, k in enumerate(frames) if k != reference]] = phi_sigma
+    return {"theta_sigma": theta_sigma, "normal_sigma": float(np.sqrt(covariance[0, 0] + covariance[1, 1]))}

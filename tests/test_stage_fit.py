@@ -245,3 +245,29 @@ def test_reference_last_and_index(default_teach, tmp_path):
     for model in (last, middle):
         errors = fit_errors(model)
         assert errors["theta_deg"] < 0.05 and errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
+
+
+def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp_path):
+    """The fit file holds n*'s sigma and the splines' (model.uncertainty, theta_d_sigma and
+    x_hd1_sigma on /desired/raw and /desired/smooth); the default scenario's actual theta_d
+    error lies inside the reported 95 % interval. A model without the new record (an older
+    fit file) still reads, and its figure has no band."""
+    import json
+
+    from hbvs_cli.io.fit_file import FitModel
+    from hbvs_cli.report.fit_plot import plot_fit, read_fit_signals
+
+    path, model = default_fit
+    uncertainty = model.uncertainty
+    assert set(uncertainty) == {"normal_sigma_deg", "point_noise_px", "theta_d_sigma_deg", "x_hd1_sigma"}
+    assert 0.0 < uncertainty["normal_sigma_deg"] < 0.5 and 0.0 < uncertainty["point_noise_px"] < 0.5
+    signals = read_fit_signals(path)
+    assert {"theta_d_sigma", "x_hd1_sigma"} <= set(signals.smooth)
+    errors = fit_errors(model)
+    assert np.radians(errors["theta_deg"]) <= 1.96 * float(np.max(signals.smooth["theta_d_sigma"]))
+    older = json.loads(json.dumps(model.to_message(0)))
+    del older["uncertainty"]
+    assert FitModel.from_message(older, "older").uncertainty is None
+    for key in ("theta_d_sigma", "x_hd1_sigma"):
+        signals.smooth.pop(key)
+    plot_fit(signals)  # no band, no error

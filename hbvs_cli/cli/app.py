@@ -99,10 +99,10 @@ def teach(**values: Any) -> None:
 def fit(
     input: Annotated[str, typer.Argument(help="Teach MCAP file, or - for stdin.")],
     output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "fit.mcap",
-    target: Annotated[str, typer.Option("--target", help="auto, dots, aruco or texture.")] = "auto",
+    target: Annotated[str, typer.Option("--target", help="auto, dots, aruco, chessboard or texture.")] = "auto",
     reference: Annotated[str, typer.Option("--reference", help="The frame that is F*: first, last or a frame index.")] = "first",
     smoothing: Annotated[str, typer.Option("--smoothing", help="Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).")] = "auto",
-    target_size: Annotated[Optional[float], typer.Option("--target-size", min=0.0, help="Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot distance (dots).")] = None,
+    target_size: Annotated[Optional[float], typer.Option("--target-size", min=0.0, help="Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot distance (dots) or the square (chessboard).")] = None,
     max_gap: Annotated[float, typer.Option("--max-gap", min=0.0, help="Longest stretch (s) without the target that the spline may bridge.")] = 1.0,
     max_lost: Annotated[float, typer.Option("--max-lost", min=0.0, max=1.0, help="Largest fraction of frames without the target before fit fails.")] = 0.3,
     with_images: Annotated[bool, typer.Option("--with-images", help="Copy the taught images into the output, so it opens alone in Foxglove (by default open it together with the teach file).")] = False,

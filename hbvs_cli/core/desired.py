@@ -24,6 +24,7 @@ from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
+from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -35,6 +36,26 @@ AMBIGUOUS_NORMAL_WARNING = (
     "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
     "assumed the target faces the reference camera"
 )
+
+#: n* uncertain by more than this (deg, one standard deviation) is said in one line.
+UNCERTAIN_NORMAL_DEG = 0.5
+
+#: What :func:`fit_desired_trajectory` says then (``{sigma}``: n*'s sigma in degrees).
+UNCERTAIN_NORMAL_WARNING = (
+    "the drive leaves the plane normal n* uncertain by {sigma:.1f} deg (1 sigma), and theta_d inherits it as a bias; "
+    "what would pin it: the target's known geometry (--target-size), a drive that curves more or comes closer, "
+    "or another reference frame (--reference last: the close end of the drive)"
+)
+
+#: Below this branch margin (and above AMBIGUOUS_NORMAL_MARGIN, where the facing prior
+#: decides) the joint estimate is also run from the other branch's normal.
+BRANCH_CHECK_MARGIN = 0.05
+#: ... on this many frames at most (the branches' costs differ by far more than their noise).
+BRANCH_CHECK_FRAMES = 200
+
+#: Random probes that carry each frame's own noise through the (linear) smoothing spline:
+#: the smoothed variance is estimated to about 1/sqrt(32) (18 %), its root to 9 %.
+NOISE_PROBES = 64
 
 #: Samples the splines are fitted to at most: longer recordings are averaged in equal
 #: groups of consecutive frames first (30 Hz is far above a taught path's bandwidth, and
@@ -110,6 +131,43 @@ class PixelResidual:
 
 
 @dataclass(frozen=True)
+class FitUncertainty:
+    """How uncertain the fit is, from the joint estimate's covariance (:mod:`.bundle`).
+
+    Attributes
+    ----------
+    normal_sigma_deg : float
+        One standard deviation of n*'s direction (deg).
+    point_noise_px : float
+        The point noise the reprojection errors show (px, per coordinate).
+    theta_sigma, x_h1_sigma : ndarray, shape (F,)
+        One standard deviation of each frame's theta_d (rad) and x_hd1 (NaN where not
+        used), including what the frame inherits from n* and the reference points.
+    smooth_theta_sigma, smooth_x_h1_sigma : ndarray, shape (S,)
+        The same of the splines at the frames of the used span (the frame's own noise
+        averaged by the spline; the inherited part, common to neighbouring frames, is not).
+    """
+
+    normal_sigma_deg: float
+    point_noise_px: float
+    theta_sigma: NDArray[np.float64]
+    x_h1_sigma: NDArray[np.float64]
+    smooth_theta_sigma: NDArray[np.float64]
+    smooth_x_h1_sigma: NDArray[np.float64]
+
+    def as_dict(self) -> dict[str, Any]:
+        """A summary (the ``uncertainty`` record of a fit file): n*'s sigma and the spline
+        sigmas' median and maximum (theta_d in degrees)."""
+        summary = lambda x: {"median": float(np.median(x)), "max": float(np.max(x))} if x.size else None  # noqa: E731
+        return {
+            "normal_sigma_deg": self.normal_sigma_deg,
+            "point_noise_px": self.point_noise_px,
+            "theta_d_sigma_deg": summary(np.degrees(self.smooth_theta_sigma)),
+            "x_hd1_sigma": summary(self.smooth_x_h1_sigma),
+        }
+
+
+@dataclass(frozen=True)
 class DesiredFit:
     """What the fit of a taught run gives.
 
@@ -141,6 +199,8 @@ class DesiredFit:
     residual_px : PixelResidual
     span : slice
         From the first used frame to the last.
+    uncertainty : FitUncertainty or None
+        The estimate's uncertainty (None when it could not be computed).
     """
 
     m_ref: NDArray[np.float64]
@@ -157,6 +217,7 @@ class DesiredFit:
     condition: FeedforwardCondition
     residual_px: PixelResidual
     span: slice
+    uncertainty: "FitUncertainty | None" = None
 
     @property
     def normal_ambiguous(self) -> bool:
@@ -243,12 +304,29 @@ def fit_desired_trajectory(
     sample = np.flatnonzero(found)
     sample = sample[np.linspace(0, sample.size - 1, min(sample.size, REFINEMENT_FRAMES)).astype(int)]
     homographies = estimate_euclidean_homography(m[sample], m_ref)
-    normal, margin = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid)
+    normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid, with_rival=True)
     usable = np.zeros_like(found)
     usable[sample[homographies.valid]] = True
     normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
     if margin < AMBIGUOUS_NORMAL_MARGIN and warn is not None:
         warn(AMBIGUOUS_NORMAL_WARNING)
+    # The joint estimate of n*, the reference points and every sampled frame's pose, from
+    # the variable-projection estimate (robust: a frame with an outlier point counts less).
+    others = sample[(sample != reference_index) & usable[sample]]
+    start_solver = KnownNormalSolver(m_ref, normal)
+    noise = measured_point_noise(start_solver.reprojection_residuals(start_solver.solve(m[others]), m[others])) if others.size else 0.0
+    if rival is not None and AMBIGUOUS_NORMAL_MARGIN <= margin < BRANCH_CHECK_MARGIN:
+        # The homographies' vote between the two branches was close: the joint estimate
+        # from each branch on a few evenly spread frames, and the one that explains the
+        # points better wins (4 of 60 noise draws of a curving drive had voted for a
+        # normal 27 deg off).
+        few = others[np.linspace(0, others.size - 1, min(others.size, BRANCH_CHECK_FRAMES)).astype(int)]
+        ours = estimate_plane_jointly(m[few], m_ref, normal, m[reference_index], noise, shapes=shapes)
+        theirs = estimate_plane_jointly(m[few], m[reference_index], rival, m[reference_index], noise, shapes=shapes)
+        if np.isfinite(theirs.cost) and (not np.isfinite(ours.cost) or theirs.cost < ours.cost):
+            normal, m_ref = theirs.normal, theirs.m_ref
+    joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
+    normal, m_ref = joint.normal, joint.m_ref
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
     residual = np.where(found, motion.residual, np.nan)
@@ -259,6 +337,14 @@ def fit_desired_trajectory(
     trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
     condition = feedforward_condition(trajectory, t[span])
     focal = 0.5 * (camera.fx + camera.fy)
+    uncertainty = None
+    if others.size:
+        stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
+        covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
+                                      frames=m[used], frames_motion=stacked(used))
+        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
+        if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG and warn is not None:
+            warn(UNCERTAIN_NORMAL_WARNING.format(sigma=uncertainty.normal_sigma_deg))
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
@@ -277,7 +363,58 @@ def fit_desired_trajectory(
             max=float(np.nanmax(residual[used]) * focal),
         ),
         span=span,
+        uncertainty=uncertainty,
     )
+
+
+def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
+                     trajectory: SplineTrajectory, focal: float) -> FitUncertainty:
+    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance.
+
+    A frame's error is its own (independent between frames) plus what it inherits from the
+    globals' error (common to all frames). The spline is linear in its samples: the
+    inherited part is carried through it exactly (along the few directions of the globals'
+    covariance that hold its variance), the own part by :data:`NOISE_PROBES` random probes
+    of the same variance (seeded: the same fit gives the same numbers).
+    """
+    from scipy.interpolate import make_smoothing_spline
+
+    sigma = covariance.frame_sigma()
+    theta_sigma = np.full(t.shape, np.nan)
+    x_h1_sigma = np.full(t.shape, np.nan)
+    theta_sigma[used], x_h1_sigma[used] = sigma[:, 0], sigma[:, 1]
+    values, vectors = np.linalg.eigh(covariance.shared)
+    keep = values > 1e-6 * max(float(values.max()), 1e-300)
+    directions = vectors[:, keep] * np.sqrt(values[keep])  # (G, r): shared = directions directions^T
+    rng = np.random.default_rng(0)
+    probes = rng.choice([-1.0, 1.0], size=(int(used.sum()), NOISE_PROBES))
+    smoothed = []
+    for index, channel in ((0, "theta_d"), (1, "x_hd1")):
+        inherited = covariance.sensitivity[:, index, :] @ directions
+        own = probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]
+        columns = np.column_stack([inherited, own])
+        binned_t, binned = _binned_columns(t[used], columns)
+        spline = make_smoothing_spline(binned_t, binned, lam=trajectory.channels[channel].smoothing)
+        at = spline(t[span])
+        variance = np.sum(at[:, : inherited.shape[1]] ** 2, axis=1) + np.mean(at[:, inherited.shape[1]:] ** 2, axis=1)
+        smoothed.append(np.sqrt(variance))
+    return FitUncertainty(
+        normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
+        point_noise_px=float(covariance.noise * focal),
+        theta_sigma=theta_sigma,
+        x_h1_sigma=x_h1_sigma,
+        smooth_theta_sigma=smoothed[0],
+        smooth_x_h1_sigma=smoothed[1],
+    )
+
+
+def _binned_columns(t: NDArray[np.float64], columns: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(t, columns)`` (K, C) averaged in groups as :func:`_binned` averages the splines' samples."""
+    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
+    if group <= 1:
+        return t, columns
+    usable = t.size // group * group
+    return t[:usable].reshape(-1, group).mean(axis=1), columns[:usable].reshape(-1, group, columns.shape[1]).mean(axis=1)
 
 
 def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:

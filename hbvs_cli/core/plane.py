@@ -29,7 +29,8 @@ def estimate_common_normal(
     m_ref: ArrayLike,
     valid: ArrayLike | None = None,
     prior: ArrayLike = FACING_PRIOR,
-) -> tuple[NDArray[np.float64], float]:
+    with_rival: bool = False,
+) -> tuple[NDArray[np.float64], float] | tuple[NDArray[np.float64], float, NDArray[np.float64] | None]:
     """The plane normal n* shared by a sequence of homographies.
 
     The true normal is the same in every frame, the spurious candidate's moves with the
@@ -45,6 +46,8 @@ def estimate_common_normal(
         Frames to use.
     prior : array_like, shape (3,)
         Used to break a tie, and returned when no frame has a usable translation.
+    with_rival : bool
+        Also return the best rival proposal (the other branch's normal, or None).
 
     Returns
     -------
@@ -69,7 +72,7 @@ def estimate_common_normal(
     front = front_facing(candidates, m_ref)
     weight = np.where(np.any(front, axis=-1), candidates.strength, 0.0)
     if not np.any(weight > PURE_ROTATION_TOLERANCE):
-        return prior, 0.0
+        return (prior, 0.0, None) if with_rival else (prior, 0.0)
     normals = np.nan_to_num(candidates.normals)
     # Proposals: the front normals of the few best-conditioned frames, and the prior.
     best_frames = np.argsort(weight)[::-1][: min(5, weight.size)]
@@ -82,14 +85,18 @@ def estimate_common_normal(
     scores = scores + 1e-9 * (proposals_arr @ prior)  # prefer the prior on an exact tie
     order = np.argsort(scores)[::-1]
     best = proposals_arr[order[0]]
-    rivals = [scores[i] for i in order[1:] if float(proposals_arr[i] @ best) < np.cos(np.radians(5.0))]
+    rival_indices = [i for i in order[1:] if float(proposals_arr[i] @ best) < np.cos(np.radians(5.0))]
+    rivals = [scores[i] for i in rival_indices]
     margin = float(scores[order[0]] - max(rivals)) if rivals else 1.0
+    rival = proposals_arr[rival_indices[0]] if rival_indices else None
     for _ in range(3):
         index, ok = select_branch(candidates, m_ref, best)
         chosen = take_branch(normals, index)
         w = np.where(ok, weight, 0.0) ** 2
         refined = (chosen * w[:, None]).sum(axis=0)
         best = refined / np.linalg.norm(refined)
+    if with_rival:
+        return best, max(0.0, min(1.0, margin)), rival
     return best, max(0.0, min(1.0, margin))
 
 

@@ -92,6 +92,10 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
     for key in ("marker_dict", "polarity", "contrast"):
         if detector.get(key) is not None and not isinstance(detector.get(key), str):
             raise ValueError(f"detector {key} must be text")
+    board = detector.get("board")
+    if board is not None and (not isinstance(board, list) or len(board) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and 3 <= n <= 100 for n in board)
+                              or board[0] * board[1] != points):
+        raise ValueError(f"detector board must be [corners per row, rows] of the {points} points, got {board!r}")
     for key in ("template_pixels", "initial_pixels"):
         value = detector.get(key)
         if value is None:
@@ -184,6 +188,7 @@ class FitModel:
     taught_path: TaughtPath | None = None
     render: dict[str, Any] | None = None
     gains: dict[str, Any] | None = None
+    uncertainty: dict[str, Any] | None = None
 
     def suggested_gains(self) -> ControllerGains | None:
         """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
@@ -218,6 +223,7 @@ class FitModel:
             "taught_path": self.taught_path.to_dict() if self.taught_path is not None else None,
             "render": self.render,
             "gains": self.gains,
+            "uncertainty": self.uncertainty,
         }
 
     @classmethod
@@ -248,7 +254,7 @@ class FitModel:
                 raise ValueError("normal must be 3 finite numbers, not all zero")
             dhat0 = _positive_number(message["dhat0"], "dhat0")
             kind = str(message["target_kind"])
-            if kind not in ("dots", "aruco", "texture"):
+            if kind not in ("dots", "aruco", "chessboard", "texture"):
                 raise ValueError(f"unknown target kind {kind!r}")
             world = world_from_description(message["world"], source) if message.get("world") else None
             taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
@@ -284,6 +290,7 @@ class FitModel:
                 taught_path=taught,
                 render=dict(render) if render is not None else None,
                 gains=dict(gains) if gains is not None else None,
+                uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
             )
         except HbvsError as exc:
             raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
@@ -371,17 +378,24 @@ def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit:
     fit : DesiredFit
     """
     schemas = TOPICS[FILE_KIND]
+    uncertainty = fit.uncertainty
     for k in np.flatnonzero(fit.used):
-        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), {
+        raw = {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(fit.theta[k]), "x_hd1": float(fit.x_h[k, 0]), "x_hd2": float(fit.x_h[k, 1]),
             "residual": float(fit.residual[k]),
-        })
+        }
+        if uncertainty is not None:
+            raw |= {"theta_d_sigma": float(uncertainty.theta_sigma[k]), "x_hd1_sigma": float(uncertainty.x_h1_sigma[k])}
+        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), raw)
     span = fit.span
     desired = fit.trajectory.evaluate(t[span])
     for j, k in enumerate(range(span.start, span.stop)):
-        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), {
+        smooth = {
             "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
             "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
             "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
-        })
+        }
+        if uncertainty is not None:
+            smooth |= {"theta_d_sigma": float(uncertainty.smooth_theta_sigma[j]), "x_hd1_sigma": float(uncertainty.smooth_x_h1_sigma[j])}
+        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), smooth)

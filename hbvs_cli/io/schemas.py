@@ -78,6 +78,8 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "x_hd1_dot": {**_NUMBER_OR_NULL, "description": "1/s (smooth only)"},
             "x_hd2_dot": {**_NUMBER_OR_NULL, "description": "1/s (smooth only)"},
             "residual": {**_NUMBER_OR_NULL, "description": "RMS equation residual of the frame (raw only)"},
+            "theta_d_sigma": {**_NUMBER_OR_NULL, "description": "one standard deviation of theta_d (rad): the frame's own noise and what it inherits from n* and the reference points (raw), carried through the spline (smooth); absent in older files"},
+            "x_hd1_sigma": {**_NUMBER_OR_NULL, "description": "one standard deviation of x_hd1 (-), as theta_d_sigma"},
         },
         "required": ["timestamp", "t", "theta_d", "x_hd1", "x_hd2"],
     },
@@ -88,7 +90,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "format_version": {"type": "integer", "const": 1},
             "timestamp": _TIME,
-            "target_kind": {"type": "string", "enum": ["dots", "aruco", "texture"]},
+            "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "texture"]},
             "camera": {"type": "object"},
             "reference": {"type": "object"},
             "normal": _number_array(3),
@@ -105,6 +107,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "residual_px": {"type": "object"},
             "render": {"type": ["object", "null"], "description": "sensor model of a simulated teach"},
             "gains": {"type": ["object", "null"], "description": "gains suggested from x_hd1_dot and the detector's noise (k_v, k_w, gamma, k_2 and the rule's inputs)"},
+            "uncertainty": {"type": ["object", "null"], "description": "the joint estimate's uncertainty: normal_sigma_deg (n*, 1 sigma), point_noise_px, theta_d_sigma_deg and x_hd1_sigma (median and max of the splines' sigma); absent in older files"},
         },
         "required": [
             "format_version", "timestamp", "target_kind", "camera", "reference", "normal",

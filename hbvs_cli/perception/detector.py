@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
 from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
+from .chessboard import ChessboardDetector
 from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
 from .dot_windows import WindowedDotDetector
 from .dots import DotDetector, find_dark_blobs
@@ -38,8 +39,9 @@ def make_detector(
     polarity: str | None = None,
     contrast: str | None = None,
     windowed: bool = False,
+    board: tuple[int, int] | None = None,
 ) -> TargetDetector:
-    """A detector for ``kind`` (``"dots"``, ``"aruco"`` or ``"texture"``).
+    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"`` or ``"texture"``).
 
     Parameters
     ----------
@@ -65,6 +67,8 @@ def make_detector(
     windowed : bool
         For ``dots``: follow each tracked dot in its own small window
         (:class:`~.dot_windows.WindowedDotDetector`) rather than in their common box.
+    board : (int, int), optional
+        For ``chessboard`` (required): inner corners per row and rows of them.
 
     Raises
     ------
@@ -86,7 +90,11 @@ def make_detector(
         if detector.n_points != n_points:
             raise UsageError(f"{detector.n_points} reference pixels given for a {n_points}-point target")
         return detector
-    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, texture")
+    if kind == "chessboard":
+        if board is None or board[0] * board[1] != n_points:
+            raise UsageError(f"a chessboard target needs its pattern of inner corners ({n_points} points), got {board!r}")
+        return ChessboardDetector(board)
+    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, texture")
 
 
 def guess_target_kind(image: NDArray[np.uint8]) -> str:

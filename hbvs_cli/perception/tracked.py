@@ -50,6 +50,8 @@ class DetectorSpec:
     contrast : str or None
         Dots: ``gray`` or ``colour`` (None: gray; recorded only when colour, so that fits
         of gray dots keep their bytes).
+    board : (int, int) or None
+        Chessboard: inner corners per row and rows of them (recorded only for a chessboard).
     """
 
     kind: str
@@ -60,9 +62,11 @@ class DetectorSpec:
     marker_ids: tuple[int, ...] | None = None
     polarity: str | None = None
     contrast: str | None = None
+    board: tuple[int, int] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
+        colour |= {"board": [int(n) for n in self.board]} if self.board is not None else {}
         return {
             "kind": self.kind,
             "n_points": self.n_points,
@@ -86,8 +90,9 @@ class DetectorSpec:
                 marker_ids=None if data.get("marker_ids") is None else tuple(int(i) for i in data["marker_ids"]),
                 polarity=None if data.get("polarity") is None else str(data["polarity"]),
                 contrast=None if data.get("contrast") is None else str(data["contrast"]),
+                board=None if data.get("board") is None else (int(data["board"][0]), int(data["board"][1])),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
 
 
@@ -152,6 +157,7 @@ class TrackedDetector:
             polarity=spec.polarity,
             contrast=spec.contrast,
             windowed=self.windowed,
+            board=spec.board,
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:

@@ -34,6 +34,9 @@ from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, new_figure, paper_
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
 SMOOTH_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
+#: The splines' standard deviations (``hbvs fit`` writes them since the joint estimate of
+#: n*; older fit files have none, and their figure has no band).
+SIGMA_FIELDS = ("theta_d_sigma", "x_hd1_sigma")
 #: Panels of the fit figure, in order: each signal and its raw - smooth difference, then
 #: the feed-forward derivative.
 FIT_PANELS = ("theta_d", "theta_d_residual", "x_hd1", "x_hd1_residual", "x_hd2", "x_hd2_residual", "x_hd1_dot")
@@ -86,6 +89,9 @@ def read_fit_signals(source: Any, name: str = "") -> FitSignals:
         raise RecordingError(f"{stream.name}: no desired signals in it (is it the output of hbvs fit, and complete?)")
     raw = {key: _column(messages[RAW_TOPIC], key, stream.name, RAW_TOPIC) for key in RAW_FIELDS}
     smooth = {key: _column(messages[SMOOTH_TOPIC], key, stream.name, SMOOTH_TOPIC) for key in SMOOTH_FIELDS}
+    for key in SIGMA_FIELDS:
+        if all(message.get(key) is not None for message in messages[SMOOTH_TOPIC]):
+            smooth[key] = _column(messages[SMOOTH_TOPIC], key, stream.name, SMOOTH_TOPIC)
     for signals, topic in ((raw, RAW_TOPIC), (smooth, SMOOTH_TOPIC)):
         if not all(np.all(np.isfinite(v)) for v in signals.values()) or np.any(np.diff(signals["t"]) <= 0):
             raise RecordingError(f"{stream.name}: {topic} holds values that are not finite or times that do not increase")
@@ -192,6 +198,10 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                 title, ylabel, key, scale, how = signal_panels[name]
                 ax.plot(raw["t"], scale * raw[key], ls="none", marker="o", ms=1.6, mew=0, color="0.55", label="raw: one homography per frame")
                 ax.plot(smooth["t"], scale * smooth[key], color=PALETTE[0], lw=1.2, label=how)
+                if f"{key}_sigma" in smooth:
+                    band = 1.96 * scale * smooth[f"{key}_sigma"]
+                    ax.fill_between(smooth["t"], scale * smooth[key] - band, scale * smooth[key] + band, color=PALETTE[0],
+                                    alpha=0.2, lw=0, label="95 % interval (n*, reference points, noise)")
                 ax.set_title(title)
                 ax.set_ylabel(ylabel)
                 ax.legend(loc="best", fontsize=6.5, handlelength=1.5, markerscale=2.5)

@@ -22,6 +22,7 @@ from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE
+from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from .console import Console
 from .options import recorded_settings
@@ -186,8 +187,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
-    if options.target not in ("auto", "dots", "aruco", "texture"):
-        raise UsageError(f"--target must be auto, dots, aruco or texture, got {options.target!r}")
+    if options.target not in ("auto", "dots", "aruco", "chessboard", "texture"):
+        raise UsageError(f"--target must be auto, dots, aruco, chessboard or texture, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
@@ -248,7 +249,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         reference_index = resolve_reference(options.reference, log.count)
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console)
+        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -270,6 +271,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
+            uncertainty=result.uncertainty.as_dict() if result.uncertainty is not None else None,
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
@@ -294,7 +296,9 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     during the frame loop (0.3 s sooner): a stop signal that lands inside an import can
     leave an import lock held, and the two threads then waited for each other forever
     (3 hangs in about 300 SIGTERMs at random moments, two fits at a time)."""
-    shapes = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
+    shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
+    if spec.kind == "chessboard" and spec.board is not None:
+        shapes = [(range(spec.n_points), board_layout(spec.board))]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                       max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
@@ -395,6 +399,16 @@ def _detector_spec(
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
         return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
+    if kind == "chessboard":
+        board = details.get("board")
+        if board is None:
+            from ..perception.autodetect import find_chessboard
+
+            found = find_chessboard(images)
+            if found is None:
+                raise InputError(f"no chessboard found consistently in the first {len(images)} frames (or choose another --target)")
+            board = found.details["board"]
+        return DetectorSpec(kind="chessboard", n_points=int(board[0] * board[1]), board=(int(board[0]), int(board[1])))
     if kind == "aruco":
         if world is not None:
             return DetectorSpec(kind="aruco", n_points=4, marker_id=world.target.marker_id)
@@ -432,8 +446,10 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
-def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console) -> dict[str, Any]:
-    """d*: from the taught commands (25), or from --target-size; which one becomes dhat(0)."""
+def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
+           board: tuple[int, int] | None = None) -> dict[str, Any]:
+    """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
+    ``board`` its inner corners per row and rows); which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
@@ -450,9 +466,16 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
     if options.target_size is not None:
         if kind == "texture":
             raise UsageError("--target-size needs a dots or aruco target; a texture's points have no metric size")
-        # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest pair.
-        kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
-        from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, options.target_size)
+        # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest
+        # pair. A chessboard: its first and last inner corners, a diagonal of whole squares.
+        size = options.target_size
+        if kind == "chessboard":
+            columns, rows = board or (result.m_ref.shape[0], 1)
+            kind_pair = (0, columns * rows - 1)
+            size = options.target_size * math.hypot(columns - 1, rows - 1)
+        else:
+            kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
+        from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
         estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
     if chosen is None:
@@ -479,6 +502,13 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     table.add_row("reference frame F*", f"{model.reference_index} (t = {model.reference_t:.2f} s)")
     table.add_row("residual (RMS / max)", f"{model.residual_px['rms']:.3f} / {model.residual_px['max']:.3f} px")
     table.add_row("plane normal n* (in F*)", "[" + ", ".join(f"{v:+.3f}" for v in model.normal) + f"]  margin {model.normal_margin:.3f}")
+    if model.uncertainty is not None:
+        u = model.uncertainty
+        table.add_row("n* uncertainty (1 sigma)", f"{u['normal_sigma_deg']:.2f} deg (point noise {u['point_noise_px']:.3f} px)")
+        if u.get("theta_d_sigma_deg"):
+            table.add_row("theta_d / x_hd1 sigma (median, max)",
+                          f"{u['theta_d_sigma_deg']['median']:.3f}, {u['theta_d_sigma_deg']['max']:.3f} deg / "
+                          f"{u['x_hd1_sigma']['median']:.1e}, {u['x_hd1_sigma']['max']:.1e}")
     lambdas = ", ".join(f"{name} {ch.smoothing:.3g}" for name, ch in model.trajectory.channels.items())
     table.add_row("spline smoothing lambda (s^3)", lambdas + (" (GCV)" if options.smoothing == "auto" else ""))
     table.add_row("x_hd2 from (25): residual RMS", f"{model.trajectory.x_hd2_residual_rms:.2e}")

@@ -1,0 +1,437 @@
+"""n*, the reference points and every frame's planar pose at once: the joint estimate.
+
+The far reference frame F* alone pins the plane normal n* poorly (a small target seen
+from afar is foreshortened by a fraction of a pixel); the close frames of the drive pin it
+well. :func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the
+reference points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` together
+by maximum likelihood on the reprojection error of every point in every frame (12),
+``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
+block-arrow sparsity given to scipy's trust-region solver.
+
+:func:`frame_blocks` gives the same problem's Jacobian as blocks (every frame's own 3
+columns, and the global columns) and :func:`joint_covariance` the estimate's covariance
+from them (``sigma^2 (J^T J)^-1`` by the Schur complement on the global unknowns), with
+``sigma`` the measured point noise: how uncertain n* is, and every frame's
+``(theta, x_h)`` including what it inherits from n* and the reference points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .homography import validate_reference_points
+from .known_normal import KnownNormalSolver
+from .plane import KnownShape, shape_residuals
+
+#: Finite-difference step of the covariance's Jacobian (normalised units and radians).
+DIFFERENCE_STEP = 1e-6
+
+#: The robust loss's scale, in measured point noise: residuals beyond it count less.
+ROBUST_SCALE = 3.0
+
+#: Residuals beyond this many robust spreads are left out of the measured point noise.
+OUTLIER_SPREADS = 4.0
+
+#: The joint estimate stops when a step lowers the cost by less than this fraction of it:
+#: the cost is about (number of residuals) x noise^2 / 2, so 1e-5 of it is far below what
+#: one noise draw changes (a flat valley along n*'s yaw otherwise takes the solver dozens
+#: of steps of no consequence).
+COST_TOLERANCE = 1e-5
+
+#: Iterations of the joint estimate at most (it starts from the variable-projection estimate).
+MAX_EVALUATIONS = 60
+
+
+@dataclass(frozen=True)
+class PlaneGeometry:
+    """The global unknowns of the joint estimate, around a base normal.
+
+    Attributes
+    ----------
+    base : ndarray, shape (3,)
+        The unit normal the two angles are measured from.
+    u, v : ndarray, shape (3,)
+        Unit directions perpendicular to ``base`` (``u`` horizontal).
+    measured_ref : ndarray, shape (N, 3)
+        The reference points as measured in F* (the y, z unknowns are offsets from them).
+    """
+
+    base: NDArray[np.float64]
+    u: NDArray[np.float64]
+    v: NDArray[np.float64]
+    measured_ref: NDArray[np.float64]
+
+    @classmethod
+    def around(cls, normal: ArrayLike, measured_ref: ArrayLike) -> "PlaneGeometry":
+        base = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+        u = np.cross(base, [0.0, 0.0, 1.0])
+        u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
+        return cls(base, u, np.cross(base, u), np.asarray(measured_ref, dtype=float))
+
+    @property
+    def size(self) -> int:
+        """Number of global unknowns: 2 + 2N."""
+        return 2 + 2 * self.measured_ref.shape[0]
+
+    def unpack(self, p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(normal (3,), m_ref (N, 3)) of global unknowns ``p`` (shape (2 + 2N,))."""
+        normal = self.base + p[0] * self.u + p[1] * self.v
+        ref = self.measured_ref.copy()
+        ref[:, 1:] += p[2:].reshape(-1, 2)
+        return normal / np.linalg.norm(normal), ref
+
+    def pack(self, normal: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
+        """The global unknowns of ``normal`` (on the base's side) and ``m_ref``."""
+        normal = np.asarray(normal, dtype=float)
+        normal = normal / (normal @ self.base)
+        offsets = (np.asarray(m_ref, dtype=float)[:, 1:] - self.measured_ref[:, 1:]).ravel()
+        return np.concatenate([[normal @ self.u, normal @ self.v], offsets])
+
+
+def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Predicted ``(m_y, m_z)`` of every reference point in every frame (12).
+
+    Parameters
+    ----------
+    normal : ndarray, shape (3,)
+    m_ref : ndarray, shape (N, 3)
+    motion : ndarray, shape (K, 3)
+        (theta, x_h1, x_h2) per frame.
+
+    Returns
+    -------
+    ndarray, shape (K, N, 2)
+    """
+    g = m_ref @ normal
+    c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
+    q0 = c - s * m_ref[:, 1] + motion[:, 1:2] * g
+    q1 = s + c * m_ref[:, 1] + motion[:, 2:3] * g
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.stack([q1 / q0, m_ref[:, 2] / q0], axis=-1)
+
+
+def _frame_residuals(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
+                     m: NDArray[np.float64], shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """Each frame's residuals (K, R): reprojection errors, then its known shapes' residuals."""
+    reprojection = (projected_points(normal, m_ref, motion) - m[..., 1:]).reshape(m.shape[0], -1)
+    if not shapes:
+        return reprojection
+    c, s = np.cos(motion[:, 0]), np.sin(motion[:, 0])
+    # Every frame sees the shape under its own normal Rz(theta) n*.
+    normals = np.stack([c * normal[0] - s * normal[1], s * normal[0] + c * normal[1], np.full_like(c, normal[2])], axis=-1)
+    return np.concatenate([reprojection, shape_residuals(normals, m, shapes)], axis=-1)
+
+
+def _reference_residuals(normal: NDArray[np.float64], m_ref: NDArray[np.float64], measured_ref: NDArray[np.float64],
+                         shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """F*'s residuals: its points (its pose is the identity: the gauge), then its shapes'."""
+    points = (m_ref[:, 1:] - measured_ref[:, 1:]).ravel()
+    if not shapes:
+        return points
+    return np.concatenate([points, shape_residuals(normal, m_ref, shapes)])
+
+
+@dataclass(frozen=True)
+class JointEstimate:
+    """What :func:`estimate_plane_jointly` gives.
+
+    Attributes
+    ----------
+    normal : ndarray, shape (3,)
+    m_ref : ndarray, shape (N, 3)
+    motion : ndarray, shape (K, 3)
+        (theta, x_h1, x_h2) of the frames estimated with them.
+    cost : float
+        Half the sum of squared residuals at the solution (normalised units).
+    """
+
+    normal: NDArray[np.float64]
+    m_ref: NDArray[np.float64]
+    motion: NDArray[np.float64]
+    cost: float
+
+
+def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, measured_ref: ArrayLike,
+                           noise: float, shapes: Sequence[KnownShape] = ()) -> JointEstimate:
+    """n*, the reference points and every frame's pose by maximum likelihood, jointly.
+
+    Parameters
+    ----------
+    m : array_like, shape (K, N, 3)
+        Normalised points of the frames besides F* (every point found).
+    m_ref : array_like, shape (N, 3)
+        Starting reference points.
+    normal : array_like, shape (3,)
+        Starting unit normal (its branch chosen).
+    measured_ref : array_like, shape (N, 3)
+        The reference points as measured in F*.
+    noise : float
+        The point noise (normalised units): the robust loss's scale is
+        :data:`ROBUST_SCALE` times it.
+    shapes : sequence of KnownShape, optional
+        Parts of the target known up to a similarity (:func:`~.plane.shape_residuals`).
+
+    Returns
+    -------
+    JointEstimate
+        The start when the solver fails or puts the target behind F*.
+    """
+    from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
+    from scipy.sparse import lil_matrix
+
+    m = np.asarray(m, dtype=float)
+    measured_ref = validate_reference_points(measured_ref)
+    start_ref = np.asarray(m_ref, dtype=float)
+    geometry = PlaneGeometry.around(normal, measured_ref)
+    start_motion = _motion(KnownNormalSolver(start_ref, geometry.base).solve(m))
+    frames, n_global = m.shape[0], geometry.size
+    start = JointEstimate(geometry.base, start_ref, start_motion, float("nan"))
+    if frames == 0:
+        return start
+    per_frame = _frame_residuals(geometry.base, start_ref, start_motion, m, shapes).shape[1]
+    reference_rows = _reference_residuals(geometry.base, start_ref, measured_ref, shapes).size
+
+    def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        trial_normal, trial_ref = geometry.unpack(p[:n_global])
+        motion = p[n_global:].reshape(frames, 3)
+        return np.nan_to_num(np.concatenate([
+            _frame_residuals(trial_normal, trial_ref, motion, m, shapes).ravel(),
+            _reference_residuals(trial_normal, trial_ref, measured_ref, shapes),
+        ]), nan=1.0, posinf=1.0, neginf=-1.0)
+
+    # Block-arrow sparsity: a frame's rows depend on the globals and on its own 3 unknowns.
+    sparsity = lil_matrix((frames * per_frame + reference_rows, n_global + 3 * frames), dtype=np.int8)
+    sparsity[:, :n_global] = 1
+    for k in range(frames):
+        sparsity[k * per_frame:(k + 1) * per_frame, n_global + 3 * k:n_global + 3 * k + 3] = 1
+    x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
+    # Plain least squares first: from a start far off every residual looks like an outlier
+    # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
+    # frame with a wrong point counts less.
+    try:
+        solution = least_squares(residuals, x0, jac_sparsity=sparsity.tocsr(), method="trf", x_scale="jac",
+                                 ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
+        solution = least_squares(residuals, solution.x, jac_sparsity=sparsity.tocsr(), method="trf", loss="huber",
+                                 f_scale=ROBUST_SCALE * max(noise, 1e-9), x_scale="jac", ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
+    except (ValueError, np.linalg.LinAlgError):
+        return start
+    solved_normal, solved_ref = geometry.unpack(solution.x[:n_global])
+    if np.any(solved_ref @ solved_normal <= 0.0) or not np.all(np.isfinite(solution.x)):
+        return start
+    return JointEstimate(solved_normal, solved_ref, solution.x[n_global:].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)))
+
+
+def _motion(motion: object) -> NDArray[np.float64]:
+    """(K, 3) (theta, x_h1, x_h2) of a :class:`~.decomposition.PlanarMotion` (0 where not solved)."""
+    return np.nan_to_num(np.column_stack([motion.theta, motion.x_h]))  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class FrameBlocks:
+    """The joint estimate's Jacobian as blocks, around a solution.
+
+    Attributes
+    ----------
+    own : ndarray, shape (K, R, 3)
+        Each frame's residuals by its own (theta, x_h1, x_h2).
+    shared : ndarray, shape (K, R, G)
+        The same residuals by the G global unknowns (:class:`PlaneGeometry` around the
+        solution's normal).
+    reference : ndarray, shape (R0, G)
+        F*'s residuals by the global unknowns.
+    residuals : ndarray, shape (K, R)
+        The frames' residuals at the solution.
+    reprojection_rows : int
+        The first ``2N`` of each frame's R rows are reprojection errors (the rest are
+        shape residuals).
+    """
+
+    own: NDArray[np.float64]
+    shared: NDArray[np.float64]
+    reference: NDArray[np.float64]
+    residuals: NDArray[np.float64]
+    reprojection_rows: int
+
+
+def frame_blocks(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
+                 shapes: Sequence[KnownShape] = ()) -> FrameBlocks:
+    """The Jacobian blocks of the joint estimate at ``(normal, m_ref, motion)``, by central
+    differences: one perturbation per column group (the 3 own columns of every frame at
+    once, then each global), all frames vectorised.
+
+    Parameters
+    ----------
+    m : array_like, shape (K, N, 3)
+    m_ref : array_like, shape (N, 3)
+    normal : array_like, shape (3,)
+    motion : array_like, shape (K, 3)
+    shapes : sequence of KnownShape, optional
+
+    Returns
+    -------
+    FrameBlocks
+    """
+    m = np.asarray(m, dtype=float)
+    m_ref = np.asarray(m_ref, dtype=float)
+    motion = np.asarray(motion, dtype=float)
+    geometry = PlaneGeometry.around(normal, m_ref)
+    h = DIFFERENCE_STEP
+    at = _frame_residuals(geometry.base, m_ref, motion, m, shapes)
+    own = np.empty(at.shape + (3,))
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = h
+        own[..., j] = (_frame_residuals(geometry.base, m_ref, motion + step, m, shapes)
+                       - _frame_residuals(geometry.base, m_ref, motion - step, m, shapes)) / (2 * h)
+    shared = np.empty(at.shape + (geometry.size,))
+    reference_at = _reference_residuals(geometry.base, m_ref, m_ref, shapes)
+    reference = np.empty((reference_at.size, geometry.size))
+    for j in range(geometry.size):
+        step = np.zeros(geometry.size)
+        step[j] = h
+        plus, minus = geometry.unpack(step), geometry.unpack(-step)
+        shared[..., j] = (_frame_residuals(*plus, motion, m, shapes) - _frame_residuals(*minus, motion, m, shapes)) / (2 * h)
+        reference[:, j] = (_reference_residuals(*plus, m_ref, shapes) - _reference_residuals(*minus, m_ref, shapes)) / (2 * h)
+    return FrameBlocks(np.nan_to_num(own), np.nan_to_num(shared), reference, at, 2 * m_ref.shape[0])
+
+
+def measured_point_noise(residuals: ArrayLike) -> float:
+    """The point noise (normalised units, per coordinate) that reprojection errors show.
+
+    The root mean square of the residuals within :data:`OUTLIER_SPREADS` robust spreads
+    (the median absolute residual, as a Gaussian's sigma) of zero, corrected for the 3
+    unknowns every frame fits to its own ``2N`` coordinates: with three points, half of
+    the noise is absorbed by the frame's pose and the residuals alone would show too
+    little. (The median alone, on residuals of unequal leverage, read 10 % low.)
+
+    Parameters
+    ----------
+    residuals : array_like, shape (K, 2N)
+        Every frame's reprojection errors at the joint estimate.
+    """
+    r = np.asarray(residuals, dtype=float)
+    rows = r.shape[1]
+    r = r[np.all(np.isfinite(r), axis=1)]
+    if r.size == 0:
+        return float("nan")
+    spread = 1.4826 * float(np.median(np.abs(r)))
+    inliers = r[np.abs(r) <= OUTLIER_SPREADS * spread]
+    if inliers.size == 0:
+        return spread * float(np.sqrt(rows / max(rows - 3, 1)))
+    return float(np.sqrt(np.mean(inliers**2))) * float(np.sqrt(rows / max(rows - 3, 1)))
+
+
+@dataclass(frozen=True)
+class JointCovariance:
+    """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
+
+    Attributes
+    ----------
+    shared : ndarray, shape (G, G)
+        Of the global unknowns (n*'s two angles about the solution, rad, then the
+        reference points' offsets).
+    own : ndarray, shape (K, 3, 3)
+        Of each frame's (theta, x_h1, x_h2) were the globals exact.
+    sensitivity : ndarray, shape (K, 3, G)
+        How each frame's estimate moves with an error of the globals: the frame's full
+        covariance is ``own + sensitivity shared sensitivity^T``.
+    noise : float
+        The point noise used (normalised units).
+    """
+
+    shared: NDArray[np.float64]
+    own: NDArray[np.float64]
+    sensitivity: NDArray[np.float64]
+    noise: float
+
+    @property
+    def normal_sigma(self) -> float:
+        """The angle (rad) of n*'s error: the root of the trace of its 2x2 covariance."""
+        return float(np.sqrt(max(np.trace(self.shared[:2, :2]), 0.0)))
+
+    def frame_sigma(self) -> NDArray[np.float64]:
+        """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3)."""
+        inherited = np.einsum("kag,gh,kah->ka", self.sensitivity, self.shared, self.sensitivity)
+        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited, 0.0))
+
+
+#: Frames whose Jacobian blocks are held at once: memory stays bounded for many points.
+BLOCK_FRAMES = 256
+
+
+def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
+                     noise: float | None = None, shapes: Sequence[KnownShape] = (),
+                     frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None) -> JointCovariance:
+    """``noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
+
+    ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
+    their coupling ``B_k``. The globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1
+    B_k)^-1``; a frame's own part ``noise^2 D_k^-1``, and its sensitivity to the globals
+    ``-D_k^-1 B_k``. The blocks (:func:`frame_blocks`) are built :data:`BLOCK_FRAMES`
+    frames at a time.
+
+    Parameters
+    ----------
+    estimated : array_like, shape (K, N, 3)
+        The frames (besides F*) the globals were estimated from.
+    m_ref, normal : array_like
+        The solution's reference points (N, 3) and normal (3,).
+    motion : array_like, shape (K, 3)
+        The solution's (theta, x_h1, x_h2) of ``estimated``.
+    noise : float, optional
+        Point noise (normalised units); by default :func:`measured_point_noise` of the
+        estimated frames.
+    shapes : sequence of KnownShape, optional
+    frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
+        Frames to give the own covariance and sensitivity of (default: ``estimated``),
+        e.g. every frame of a recording whose globals came from a sample of it.
+
+    Returns
+    -------
+    JointCovariance
+    """
+    estimated = np.asarray(estimated, dtype=float)
+    motion = np.asarray(motion, dtype=float)
+    shared_info = None
+    residuals = []
+    for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
+        blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
+        own_info, coupling = _frame_information(blocks)
+        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, _stable_inverse(own_info), coupling)
+        shared_info = blocks.reference.T @ blocks.reference + part if shared_info is None else shared_info + part
+        residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
+    if noise is None:
+        noise = measured_point_noise(np.concatenate(residuals))
+    shared = noise**2 * np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    if frames is None:
+        frames, frames_motion = estimated, motion
+    frames = np.asarray(frames, dtype=float)
+    frames_motion = np.asarray(frames_motion, dtype=float)
+    own_parts, sensitivity_parts = [], []
+    for k in range(0, frames.shape[0], BLOCK_FRAMES):
+        blocks = frame_blocks(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
+        own_info, coupling = _frame_information(blocks)
+        inverse_own = _stable_inverse(own_info)
+        own_parts.append(noise**2 * inverse_own)
+        sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
+    size = shared.shape[0]
+    return JointCovariance(
+        shared=shared,
+        own=np.concatenate(own_parts) if own_parts else np.zeros((0, 3, 3)),
+        sensitivity=np.concatenate(sensitivity_parts) if sensitivity_parts else np.zeros((0, 3, size)),
+        noise=float(noise),
+    )
+
+
+def _frame_information(blocks: FrameBlocks) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per frame ``D_k = J_k^T J_k`` (K, 3, 3) and ``B_k = J_k^T J_kg`` (K, 3, G)."""
+    return (np.einsum("kra,krb->kab", blocks.own, blocks.own), np.einsum("kra,krg->kag", blocks.own, blocks.shared))
+
+
+def _stable_inverse(matrices: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverses of symmetric 3x3 blocks (a pseudo-inverse where one is singular)."""
+    return np.linalg.pinv(matrices, rcond=1e-12, hermitian=True)

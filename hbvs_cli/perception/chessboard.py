@@ -1,0 +1,211 @@
+"""A printed chessboard as the target: its inner corners, in a fixed order.
+
+The first frame (and any frame where tracking is lost) is searched by OpenCV's
+``findChessboardCornersSB`` (the sector-based detector, sub-pixel accurate); the board's
+size need not be known: :func:`find_board` lets OpenCV find the largest board
+(``CALIB_CB_LARGER``) and reports its pattern. In the frames that follow, every corner is
+refined from where the track predicts it (``cornerSubPix``, a tenth of a millisecond per
+corner where the full search costs about 100 ms per frame) and the refined corners must
+fit one homography of the board's grid; a frame where they do not is searched again.
+
+The corners' order is row by row as OpenCV gives it in the first detection; a later search
+(the board's 180 deg symmetry can flip OpenCV's order) is put back in the track's order.
+The board's grid is a shape known up to a similarity (:func:`board_layout`): the fit uses
+it to pin the plane normal n*.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .base import Detection, PointTrack, as_gray, check_prediction
+
+#: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
+#: board's square as seen, and its bounds (px). On 5 px squares (6 cm at 5.8 m): half-size
+#: 3 px measured the corners to 0.058 px RMS, 2 px to 0.073 px, 4 px reached the neighbouring
+#: corners (1.1 px); OpenCV's sector-based search alone, 0.105 px.
+REFINE_WINDOW_SQUARES = 0.6
+REFINE_WINDOW_PX = (2, 8)
+#: A tracked frame's corners must fit the board's homography to this RMS (px).
+GRID_FIT_PX = 0.35
+#: A tracked corner may lie this far (px) from its prediction at most: from farther, the
+#: refinement on small squares can settle on the grid but off the corners (2 px, seen on
+#: 5 px squares at 5 frames per second); the frame is then searched again.
+MAX_TRACKED_MOVE_PX = 1.5
+#: A refined corner, refined again from RESTART_OFFSET_PX away, must come back to within
+#: SETTLED_PX (px).
+RESTART_OFFSET_PX = (0.7, -0.7)
+SETTLED_PX = 0.1
+#: A board needs at least this many inner corners along each side.
+MIN_SIDE = 3
+
+
+@dataclass(frozen=True)
+class Board:
+    """A chessboard found in an image.
+
+    Attributes
+    ----------
+    pattern : (int, int)
+        Inner corners per row and rows of them (OpenCV's ``patternSize``).
+    corners : ndarray, shape (columns * rows, 2)
+        Row by row (px).
+    """
+
+    pattern: tuple[int, int]
+    corners: NDArray[np.float64]
+
+
+def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
+    """The chessboard in ``image`` by ``findChessboardCornersSB``, or None.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3), uint8
+    pattern : (int, int), optional
+        Inner corners per row and rows; without it the largest board of at least 3x3 is
+        found and its pattern reported.
+    """
+    gray = as_gray(image)
+    flags = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+    if pattern is None:
+        found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (MIN_SIDE, MIN_SIDE), flags | cv2.CALIB_CB_LARGER)
+        if not found or corners is None or meta is None:
+            return None
+        rows, columns = meta.shape[:2]
+        return Board((int(columns), int(rows)), corners.reshape(-1, 2).astype(np.float64))
+    found, corners = cv2.findChessboardCornersSB(gray, tuple(pattern), flags=flags)
+    if not found or corners is None:
+        return None
+    return Board((int(pattern[0]), int(pattern[1])), corners.reshape(-1, 2).astype(np.float64))
+
+
+def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
+    """The inner corners' grid coordinates (in squares), row by row: shape (columns * rows, 2)."""
+    columns, rows = pattern
+    return np.array([[c, r] for r in range(rows) for c in range(columns)], dtype=np.float64)
+
+
+class ChessboardDetector:
+    """A chessboard's inner corners, tracked from frame to frame.
+
+    Parameters
+    ----------
+    pattern : (int, int)
+        Inner corners per row and rows of them.
+    """
+
+    kind = "chessboard"
+
+    def __init__(self, pattern: tuple[int, int]) -> None:
+        self.pattern = (int(pattern[0]), int(pattern[1]))
+        self.n_points = self.pattern[0] * self.pattern[1]
+        self._layout = board_layout(self.pattern).astype(np.float32)
+        self._track = PointTrack(self.n_points, max_coast=2)
+        self._streak = 0  # frames found in a row: the track's velocity is known from 2 on
+
+    def reset(self) -> None:
+        self._track.reset()
+        self._streak = 0
+
+    def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
+        gray = as_gray(image)
+        given = check_prediction(predicted, self.n_points)
+        prediction = given if given is not None else self._track.predict()
+        # Refined from the track's prediction only once its velocity is known: from a
+        # prediction a board's motion off, the refinement can settle on the grid but off
+        # the corners (seen on 5 px squares at 5 frames per second). Else searched.
+        trusted = given is not None or self._streak >= 2
+        usable = prediction is not None and np.all(np.isfinite(prediction))
+        corners = self._refined(gray, prediction) if trusted and usable else None
+        searched = corners is None
+        if searched:
+            board = find_board(gray, self.pattern)
+            corners = None if board is None else board.corners
+            if corners is not None and usable:
+                corners = self._in_track_order(corners, prediction)
+            if corners is not None:  # the search's corners refined as a tracked frame's are
+                corners = self._refined(gray, corners)
+        if corners is None:
+            self._track.update(np.full((self.n_points, 2), np.nan))
+            self._streak = 0
+            return Detection(np.full((self.n_points, 2), np.nan), False, int(searched), 0)
+        self._track.update(corners)
+        self._streak += 1
+        return Detection(corners, True, self.n_points, 0)
+
+    def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A search's corners in the track's order: of the grid's four orderings (its rows
+        and its columns each forward or reversed; OpenCV may start from any corner of a
+        board with a symmetric pattern), the one closest to the prediction as a whole. Per
+        point nearest assignment shifted the grid by a square when the board had moved
+        more than half a square from the prediction."""
+        columns, rows = self.pattern
+        grid = np.arange(self.n_points).reshape(rows, columns)
+        orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
+        distances = [float(np.sum((corners[order.ravel()] - prediction) ** 2)) for order in orders]
+        return corners[orders[int(np.argmin(distances))].ravel()]
+
+    def _refined(self, gray: NDArray[np.uint8], prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Every corner refined from its prediction, or None when they do not fit the grid."""
+        height, width = gray.shape
+        grid = prediction.reshape(self.pattern[1], self.pattern[0], 2)
+        square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=-1)))
+        window = int(np.clip(min(np.floor(REFINE_WINDOW_SQUARES * square), square - 2.0), *REFINE_WINDOW_PX))
+        margin = window + 2
+        if np.any(prediction < margin) or np.any(prediction[:, 0] > width - 1 - margin) or np.any(prediction[:, 1] > height - 1 - margin):
+            return None
+        corners = prediction.astype(np.float32).reshape(-1, 1, 2).copy()
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+        cv2.cornerSubPix(gray, corners, (window, window), (-1, -1), criteria)
+        settled = corners + np.float32(RESTART_OFFSET_PX)
+        cv2.cornerSubPix(gray, settled, (window, window), (-1, -1), criteria)
+        corners = corners.reshape(-1, 2).astype(np.float64)
+        # A corner draws the refinement from all around: started again a little off, it
+        # must come back. From a prediction a few pixels off the refinement can stop on
+        # the grid but off the corners (found: 2 px off on 5 px squares).
+        if np.max(np.linalg.norm(corners - prediction, axis=1)) > MAX_TRACKED_MOVE_PX or np.max(np.linalg.norm(settled.reshape(-1, 2) - corners, axis=1)) > SETTLED_PX:
+            return None
+        H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
+        if H is None:
+            return None
+        fitted = cv2.perspectiveTransform(self._layout.reshape(-1, 1, 2), H).reshape(-1, 2)
+        if float(np.sqrt(np.mean(np.sum((fitted - corners) ** 2, axis=1)))) > GRID_FIT_PX:
+            return None
+        if not _crossings(gray, corners, self.pattern):
+            return None
+        return corners
+
+
+#: A corner is where two dark and two light squares meet: along one diagonal the image is
+#: dark on both sides, along the other light, by at least this fraction of the board's
+#: local contrast. The centres of the squares (where ``cornerSubPix`` also settles, and
+#: which also make a grid) are one colour all round.
+MIN_CROSSING_CONTRAST = 0.3
+
+
+def _crossings(gray: NDArray[np.uint8], corners: NDArray[np.float64], pattern: tuple[int, int]) -> bool:
+    """True when every corner is a crossing of two dark and two light squares."""
+    grid = corners.reshape(pattern[1], pattern[0], 2)
+    along = np.gradient(grid, axis=1)  # one square along a row, at every corner
+    across = np.gradient(grid, axis=0) if pattern[1] > 1 else np.stack([-along[..., 1], along[..., 0]], axis=-1)
+    height, width = gray.shape
+
+    def sample(points: NDArray[np.float64]) -> NDArray[np.float64]:
+        cols = np.clip(np.rint(points[..., 0]), 0, width - 1).astype(int)
+        rows = np.clip(np.rint(points[..., 1]), 0, height - 1).astype(int)
+        return gray[rows, cols].astype(np.float64)
+
+    first = 0.3 * (along + across)
+    second = 0.3 * (along - across)
+    levels = np.stack([sample(grid + first), sample(grid - first), sample(grid + second), sample(grid - second)])
+    contrast = np.maximum(levels.max(axis=0) - levels.min(axis=0), 1.0)
+    one, other = 0.5 * (levels[0] + levels[1]), 0.5 * (levels[2] + levels[3])
+    # Opposite squares alike (a board's outer corner, two squares and the white margin, is not).
+    alike = (np.abs(levels[0] - levels[1]) <= MIN_CROSSING_CONTRAST * contrast) & (np.abs(levels[2] - levels[3]) <= MIN_CROSSING_CONTRAST * contrast)
+    crossing = alike & (np.abs(one - other) >= (1.0 - MIN_CROSSING_CONTRAST) * contrast) & (contrast >= 10.0)
+    return bool(np.all(crossing))
