@@ -21,4 +21,6 @@ One concept per module:
 * :mod:`.metrics`: statistics and convergence measures of a run
 * :mod:`.desired`: the fit of a taught run, pixels in, the desired trajectory out
 * :mod:`.labels`: enumerations that files record as words
+* :mod:`.grayscale`: camera frames as gray arrays (what detectors and the renderer take)
+* :mod:`.assignment`: the assignment of least total cost (point identity)
 """

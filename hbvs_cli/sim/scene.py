@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..core.assignment import optimal_assignment
 from ..core.camera import pixels_to_normalized, undistort_pixels
 from ..core.frames import rotation_z
 from ..core.desired import taught_frame_interval
@@ -25,7 +26,6 @@ from ..core.world import Poster, Target, World
 from ..errors import UsageError
 from ..io.fit_file import FitModel
 from ..io.images import decode_image
-from ..perception.base import optimal_assignment
 from .poster import PosterRaster, build_pyramid
 from .render import RenderSettings, SceneRenderer, make_renderer
 
