@@ -15,9 +15,8 @@ import numpy as np
 
 from ..core.camera import CameraIntrinsics
 from ..core.estimation import PlanarPoseEstimator
+from ..core.fit_model import FitModel
 from ..errors import InputError, RecordingError
-from ..io.fit_file import FitModel
-from ..io.images import decode_image
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import TargetChoice
 from .autodetect import choose_target as choose
@@ -248,13 +247,17 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / focal)
 
 
-def detector_from_model(model: FitModel, template_image_bytes: bytes | None, seed: int = 0) -> TrackedDetector:
-    """The fit's detector, re-created for repeat (same kind, identity and template)."""
+def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0) -> TrackedDetector:
+    """The fit's detector, re-created for repeat (same kind, identity and template).
+
+    ``template_image`` is the fit's decoded template image: texture targets need it, the
+    others ignore it.
+    """
     spec = DetectorSpec.from_dict(model.detector)
     template = None
     if spec.kind == "texture":
-        if template_image_bytes is None:
+        if template_image is None:
             raise RecordingError("the fit file lacks the texture template image (/detector/template)")
-        template = decode_image(template_image_bytes, "the fit's template image")
+        template = template_image
     initial = model.detector.get("initial_pixels")
     return TrackedDetector(spec, model.camera, seed=seed, template_image=template, initial_prediction=None if initial is None else np.asarray(initial, dtype=float))

@@ -13,16 +13,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
 
 from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
+from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
 from ..core.world import World
-from ..io.fit_file import FitModel
-from ..perception.tracked import TrackedDetector, detector_from_model, estimator_from_model
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
 
@@ -60,6 +60,14 @@ class CameraSettings:
     record_images: bool = False
 
 
+class PointDetector(Protocol):
+    """What the camera runs on a rendered frame (the fit's detector, made by the stage:
+    :func:`hbvs_cli.perception.tracked.detector_from_model`)."""
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
+
+
 class SimulatedCamera:
     """The repeat's camera: a measurement per frame, with the faults asked for.
 
@@ -69,12 +77,14 @@ class SimulatedCamera:
     or a wrong point), a sudden exposure change.
     """
 
-    def __init__(self, scene: Scene, model: FitModel, settings: CameraSettings, template_image: bytes | None) -> None:
+    def __init__(
+        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: PointDetector | None,
+    ) -> None:
         self.scene = scene
         self.model = model
         self.pixel_noise = settings.pixel_noise
         self.perception = settings.perception
-        self.estimator: PlanarPoseEstimator = estimator_from_model(model)
+        self.estimator = estimator
         self.identity = world_point_identity(scene, model)
         self.noise_rng = np.random.default_rng(settings.seed)
         self.fault_rng = np.random.default_rng([settings.seed, 1])
@@ -84,11 +94,9 @@ class SimulatedCamera:
         self.exposure_step = settings.exposure_step
         self.last_image: np.ndarray | None = None
         self.renderer: SceneRenderer | None = None
-        self.detector: TrackedDetector | None = None
+        self.detector = detector if self.perception == "images" else None
         if self.perception == "images" or settings.record_images:
             self.renderer = renderer_for(scene, model)
-        if self.perception == "images":
-            self.detector = detector_from_model(model, template_image, seed=settings.seed)
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.occlusions)

@@ -176,7 +176,8 @@ def _one_opencv_thread() -> Iterator[None]:
 
 
 def _run_fit(options: FitOptions, console: Console) -> FitSummary:
-    from ..io.fit_file import FitModel, checked_model_message, write_desired_signals
+    from ..core.fit_model import FitModel
+    from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
     from ..io.mcap import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
@@ -423,7 +424,7 @@ def _detector_spec(
 
 
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
-    from ..io.fit_file import TaughtPath
+    from ..core.fit_model import TaughtPath
 
     commands = arrays["command"]
     if not np.all(np.isfinite(commands)):

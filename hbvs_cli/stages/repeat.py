@@ -21,6 +21,7 @@ from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
 from ..core.desired import taught_frame_interval
+from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
@@ -32,9 +33,9 @@ from ..core.trajectory import TimeScaledTrajectory
 from ..core.world import World
 from ..errors import InputError, TargetLostError, UsageError
 from ..io.config import load_config
-from ..io.fit_file import FitFile, FitModel, read_fit_file
+from ..io.fit_file import FitFile, read_fit_file
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
-from ..io.images import bytes_to_store
+from ..io.images import bytes_to_store, decode_image
 from ..io.limits import step_count
 from ..io.live_view import live_writer
 from ..io.mcap import McapWriter, open_output, seconds_to_ns
@@ -44,6 +45,7 @@ from ..io.run_file import RunWriter
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from ..sim.scene import knows_its_world
 from .console import Console
 from .frames import decoded_frames
 from .options import parse_interval, parse_offset, parse_time_and_factor
@@ -288,6 +290,20 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- closed loop
+def _reference_image(fit: FitFile) -> np.ndarray | None:
+    """The fit's reference image, decoded when the simulation builds its world from it."""
+    if fit.reference_image is None or knows_its_world(fit.model):
+        return None
+    return decode_image(fit.reference_image, "the fit's reference image")
+
+
+def _template_image(fit: FitFile) -> np.ndarray | None:
+    """The fit's template image, decoded for a texture target (the others have none)."""
+    if fit.template_image is None or fit.model.detector.get("kind") != "texture":
+        return None
+    return decode_image(fit.template_image, "the fit's template image")
+
+
 def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
     model = fit.model
@@ -297,7 +313,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         (model.trajectory.t_end - model.trajectory.t_start) / settings.speed, settings.rate,
         "the run (the taught duration over --speed, times --rate)",
     )
-    scene = simulation_world(model, fit.reference_image, options.depth, settings.speed)
+    scene = simulation_world(model, _reference_image(fit), options.depth, settings.speed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
@@ -309,7 +325,8 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
         record_images=options.record_images,
     )
-    camera = SimulatedCamera(scene, model, sensor, fit.template_image)
+    detector = detector_from_model(model, _template_image(fit), seed=options.seed) if settings.perception == "images" else None
+    camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model)
     if state_filter is not None:
         # The filter tests each residual against the noise it learns; the fixed gate set
@@ -486,7 +503,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     model = fit.model
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    detector = detector_from_model(model, _template_image(fit), seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
