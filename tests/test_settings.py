@@ -1,4 +1,4 @@
-"""The repeat options are declared once (stages/settings.py): the command line, the
+"""The repeat options are declared once (io/settings.py): the command line, the
 options dataclass, the config merge and the help all come from that table."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from hbvs_cli.core.controller import ControllerGains
 from hbvs_cli.io.config import SCHEMA, load_config
 from hbvs_cli.stages import repeat as repeat_stage
 from hbvs_cli.stages.repeat import resolve_settings
-from hbvs_cli.stages.settings import (
+from hbvs_cli.io.settings import (
     DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, SIMULATION_DEFAULTS,
     TEACH_SETTINGS, RepeatOptions,
 )

@@ -4,7 +4,7 @@ This layer stays thin: it turns :class:`~hbvs_cli.errors.HbvsError` into one lin
 stderr and the error's exit code (``--debug`` shows the traceback instead). Each command
 imports its stage inside the command, the only lazy imports here: ``hbvs --help`` must not
 load OpenCV, scipy, matplotlib or mcap (tests/test_repository.py checks). The options of
-``repeat`` come from its settings table (:mod:`hbvs_cli.stages.settings`).
+``repeat`` come from its settings table (:mod:`hbvs_cli.io.settings`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
-from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
+from ..io.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 

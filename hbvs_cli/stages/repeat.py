@@ -42,6 +42,7 @@ from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
+from ..io.settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
@@ -49,7 +50,6 @@ from ..sim.scene import knows_its_world
 from .console import Console
 from .frames import decoded_frames
 from .options import parse_interval, parse_offset, parse_time_and_factor
-from .settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 
 @dataclass(frozen=True)
 class Settings:

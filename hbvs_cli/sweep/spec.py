@@ -24,7 +24,7 @@ import numpy as np
 
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
-from ..stages.settings import REPEAT
+from ..io.settings import REPEAT
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
