@@ -167,7 +167,7 @@ def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tm
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    from hbvs_cli.sweep import table as results
+    from hbvs_cli.io import sweep_table as results
 
     schema = pa.schema([pa.field("index", pa.int64()), pa.field("value", pa.float64()), pa.field("status", pa.string())])
     rng = random.Random(7)
