@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InputError
+from ..errors import NotAnImageError
 
 
 def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
@@ -25,17 +25,17 @@ def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
 
     Raises
     ------
-    InputError
+    NotAnImageError
         For anything that is not such an image.
     """
     import cv2
 
     if not isinstance(image, np.ndarray) or image.size == 0:
-        raise InputError(f"{what}: empty or not an image array")
+        raise NotAnImageError(f"{what}: empty or not an image array")
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     elif image.dtype != np.uint8:
-        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+        raise NotAnImageError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     elif image.ndim == 3 and image.shape[2] == 3:
@@ -43,5 +43,5 @@ def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
     elif image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
     elif image.ndim != 2:
-        raise InputError(f"{what}: unsupported image shape {image.shape}")
+        raise NotAnImageError(f"{what}: unsupported image shape {image.shape}")
     return np.ascontiguousarray(image)
