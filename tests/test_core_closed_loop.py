@@ -209,7 +209,6 @@ def test_gains_and_laws_are_validated():
     from hbvs_cli.errors import InvalidValueError
 
     assert ControllerGains().with_law("paper").k_2 == 1.0
-    assert ControllerGains().with_law("paper").law == "paper"
     with pytest.raises(InvalidValueError):
         ControllerGains(k_v=-1.0)
     with pytest.raises(InvalidValueError):

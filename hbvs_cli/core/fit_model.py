@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .camera import CameraIntrinsics
-from .controller import ControllerGains
+from .control_settings import GAIN_NAMES, ControllerGains
 from .trajectory import SplineTrajectory
 from .world import World
 
@@ -58,4 +58,4 @@ class FitModel:
         """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
         if not self.gains:
             return None
-        return ControllerGains(**{k: float(self.gains[k]) for k in ("k_v", "k_w", "gamma", "k_2")})
+        return ControllerGains(**{k: float(self.gains[k]) for k in GAIN_NAMES})

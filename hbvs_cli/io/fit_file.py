@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import __version__
 from ..core.camera import CameraIntrinsics
-from ..core.controller import ControllerGains
+from ..core.control_settings import GAIN_NAMES, ControllerGains
 from ..core.desired import DesiredFit
 from ..core.fit_model import FitModel, TaughtPath
 from ..core.trajectory import SplineTrajectory
@@ -219,7 +219,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         if gains is not None:
             if not isinstance(gains, dict):
                 raise ValueError("gains must be an object")
-            ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in ("k_v", "k_w", "gamma", "k_2")})
+            ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in GAIN_NAMES})
         return FitModel(
             target_kind=kind,
             camera=camera_from_dict(message["camera"]),

@@ -243,8 +243,7 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """
     taught = float(model.residual_px.get("max", float("nan")))
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
-    focal = 0.5 * (model.camera.fx + model.camera.fy)
-    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / focal)
+    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
 
 
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0) -> TrackedDetector:

@@ -23,6 +23,7 @@ from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_t
 from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
+from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
@@ -32,25 +33,6 @@ from ..io.foxglove_scene import SceneWriter
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """Everything ``hbvs fit`` was asked to do (see ``hbvs fit --help``)."""
-
-    input: str
-    output: str = "fit.mcap"
-    target: str = "auto"
-    reference: str = "first"
-    smoothing: str = "auto"
-    target_size: float | None = None
-    max_gap: float = 1.0
-    max_lost: float = 0.3
-    copy_images: bool = False
-    seed: int = 0
-    allow_truncated: bool = False
-    marker_dict: str | None = None
-    marker_id: int | None = None
 
 
 @dataclass
@@ -323,8 +305,7 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, 
     from ..core.gains import noise_from_residual, suggest_gains
 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
-    focal = 0.5 * (camera.fx + camera.fy)
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, focal).as_dict()
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal).as_dict()
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:

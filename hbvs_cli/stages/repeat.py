@@ -262,7 +262,7 @@ class _StepLog:
             "filter": estimate.outcome,
             "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
             "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
-            "noise_px": estimate.noise * _focal(self.model),
+            "noise_px": estimate.noise * self.model.camera.mean_focal,
         }
 
 
@@ -331,7 +331,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     if state_filter is not None:
         # The filter tests each residual against the noise it learns; the fixed gate set
         # from the taught images (a few tenths of a pixel) only has to catch gross errors.
-        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     return Simulation(
         scene=scene,
         camera=camera,
@@ -350,10 +350,6 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def _focal(model: FitModel) -> float:
-    return 0.5 * (model.camera.fx + model.camera.fy)
-
-
 def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
@@ -368,7 +364,7 @@ def detector_noise(model: FitModel) -> float:
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
-    return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
+    return noise_from_residual(residual_px, model.m_ref.shape[0]) / model.camera.mean_focal
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:

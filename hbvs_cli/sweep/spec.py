@@ -22,6 +22,7 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from ..core.control_settings import GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
 from ..io.settings import REPEAT
@@ -65,9 +66,9 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("dhat0", "float", "m", "initial depth estimate (--dhat0)", minimum=0.0),
         Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)", minimum=0.0),
         Parameter("pixel_noise", "float", "px", "pixel noise, 1 sigma (--pixel-noise)", minimum=0.0),
-        Parameter("kv", "float", "m/s", "gain k_v (--kv)", minimum=0.0),
-        Parameter("kw", "float", "1/s", "gain k_w (--kw)", minimum=0.0),
-        Parameter("gamma", "float", "", "adaptation gain gamma_1 (--gamma)", minimum=0.0),
+        Parameter("kv", "float", GAIN_UNITS["k_v"], "gain k_v (--kv)", minimum=0.0),
+        Parameter("kw", "float", GAIN_UNITS["k_w"], "gain k_w (--kw)", minimum=0.0),
+        Parameter("gamma", "float", GAIN_UNITS["gamma"], "adaptation gain gamma_1 (--gamma)", minimum=0.0),
         Parameter("k2", "float", "", "lateral gain k_2 (--k2)", minimum=0.0),
         Parameter("law", "choice", "", "control law (--law)", choices=ALL_LAWS),
         Parameter("drop_rate", "float", "", "fraction of dropped frames (--drop-rate)", minimum=0.0),
