@@ -46,7 +46,7 @@ METRICS: dict[str, str] = {
     "final_e3_deg": "errors.e3.final",
     "v_ratio": "lyapunov.ratio",
     "v_increase_fraction": "lyapunov.increase_fraction",
-    "dhat_initial_m": "depth.dhat_initial",
+    "dhat0_m": "depth.dhat0",
     "dhat_final_m": "depth.dhat_final",
     "d_true_m": "depth.d_true",
     "dhat_relative_error": "depth.relative_error",

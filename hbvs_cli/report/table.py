@@ -44,7 +44,7 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("V final", "lyapunov.final"),
     ("V final / V(0)", "lyapunov.ratio"),
     ("V increase (fraction of steps)", "lyapunov.increase_fraction"),
-    ("dhat initial (m)", "depth.dhat_initial"),
+    ("dhat0 (m)", "depth.dhat0"),
     ("dhat final (m)", "depth.dhat_final"),
     ("d* true (m)", "depth.d_true"),
     ("dhat relative error (-)", "depth.relative_error"),
