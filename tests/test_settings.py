@@ -97,7 +97,7 @@ def test_help_shows_the_defaults_of_the_one_table():
     command = typer.main.get_command(app).commands["repeat"]
     helps = {param.name: param.help for param in command.params}
     assert f"Default {DEFAULT_OFFSET}." in helps["offset"]
-    assert f"Default {DEFAULT_MAX_V:g}." in helps["max_v"] and f"Default {ControllerGains().k_v:g}." in helps["kv"]
+    assert f"Default {DEFAULT_MAX_V:g}." in helps["max_v"] and f"Default {ControllerGains().k_v:g}." in helps["k_v"]
     for setting in REPEAT_SETTINGS:
         if setting.config is not None:
             assert helps[setting.name].endswith(f"Default {setting.shown_default}."), setting.name

@@ -55,7 +55,7 @@ def test_options_and_spec_errors_are_usage_errors():
     with pytest.raises(UsageError, match="grid needs values"):
         build_spec(None, ["offset_y=-0.3:0.3"])
     with pytest.raises(UsageError, match="both varied and fixed"):
-        build_spec({"vary": {"kv": [1, 2]}, "fixed": {"kv": 3}})
+        build_spec({"vary": {"k_v": [1, 2]}, "fixed": {"k_v": 3}})
     with pytest.raises(UsageError, match="nothing varies"):
         build_spec(None, [], ["perception=points"])
 

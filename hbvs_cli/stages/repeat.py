@@ -111,10 +111,10 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(
-        k_v=pick("kv", defaults.k_v),
-        k_w=pick("kw", defaults.k_w),
+        k_v=pick("k_v", defaults.k_v),
+        k_w=pick("k_w", defaults.k_w),
         gamma=pick("gamma", defaults.gamma),
-        k_2=pick("k2", defaults.k_2),
+        k_2=pick("k_2", defaults.k_2),
     ), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
     speed = float(pick("speed"))
