@@ -31,8 +31,9 @@ LAYERS: dict[str, int] = {
     "cli": 5,
     "__main__": 6,
 }
-#: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them.
-STAGE_HELPERS = ("console", "options", "frames")
+#: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them
+#: (``live``: the loop of ``repeat --live``).
+STAGE_HELPERS = ("console", "options", "frames", "live")
 #: Modules of ``stages`` that run other stages: ``demo`` (the whole pipeline) and
 #: ``sweep_run`` (one run of a sweep: repeat, then report).
 STAGE_RUNNERS = ("demo", "sweep_run")

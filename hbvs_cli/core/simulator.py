@@ -1,19 +1,33 @@
-"""One control period of the closed loop, as the loop (:func:`hbvs_cli.sim.closed_loop.run_closed_loop`)
-and a live robot share it: the actuator limits the commands pass through, the record of a
-step, and how many rejected frames the last command is held through.
+"""One control period of the closed loop: what the simulated loop
+(:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and a live robot share. :class:`ServoStep`
+decides each frame's command (filter, law, limits, adaptation); :class:`ActuatorLimits` are
+the limits it passes through; :class:`StepRecord` is what one step did.
+
+When a frame reports the target lost, the robot is commanded to stop and the adaptation is
+frozen; it resumes when the target is back. When a frame is dropped (never arrives), or a
+few in a row are rejected as outliers, the last command is held and the adaptation is frozen
+for those periods: stopping for one bad frame would only make the robot lag its trajectory.
+A dropped frame carries no news about the target, so it keeps the lost state of the last
+frame that arrived: a drop during an occlusion is still lost time (the lost timeout keeps
+counting), never a "target back".
+
+With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
+through frames that give no measurement (dropped, occluded, rejected) on its prediction for
+as long as the prediction's standard deviation stays small; only then does the robot stop.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidValueError
-from .controller import ControlOutput, DesiredState, Measurement
+from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
-from .state_filter import FilterEstimate
+from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 
 
 @dataclass(frozen=True)
@@ -116,3 +130,97 @@ MAX_HELD_OUTLIERS = 3
 
 #: What the controller sees before the first (latency-delayed) frame arrives.
 NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
+
+
+class ServoStep:
+    """One camera frame's decision: filter, law, limits, adaptation (the loop's body).
+
+    The simulator (:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and the live loop on a robot
+    (:mod:`hbvs_cli.stages.live`) both call :meth:`decide` with each frame's observation and
+    then :meth:`sent` once the command is out, so that they act identically on the same
+    frames.
+
+    Parameters
+    ----------
+    controller : AdaptiveTrackingController
+        Its dhat is updated in place.
+    limits : ActuatorLimits
+    latency_steps : int
+        Frames between taking a frame and acting on it (the filter carries its estimate
+        over the commands sent since).
+    state_filter : ServoStateFilter or None
+    """
+
+    def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
+                 state_filter: ServoStateFilter | None = None) -> None:
+        self.controller = controller
+        self.limits = limits
+        self.latency_steps = latency_steps
+        self.state_filter = state_filter
+        #: The last command sent (m/s, rad/s).
+        self.previous = (0.0, 0.0)
+        self.rejected_in_a_row = 0
+        self.target_lost = False
+        # Commands sent since the frame being fused was taken (latency_steps of them).
+        self.unseen_commands: deque[tuple[float, float]] = deque()
+
+    def decide(self, t: float, pose: NDArray[np.float64], observation: Observation, desired: DesiredState, dt: float) -> StepRecord:
+        """The command for ``observation`` (taken at ``t``, s) while ``desired`` is wanted.
+
+        ``dt`` (s) is the control period: the time the command will be held. ``pose`` is
+        only recorded (the true pose in simulation, NaN on a robot).
+        """
+        controller, state_filter, previous = self.controller, self.state_filter, self.previous
+        dhat = controller.dhat
+        output = None
+        # A dropped frame changes neither the lost state nor the run of rejected frames:
+        # both describe the frames that arrived.
+        if observation.status != ObservationStatus.DROPPED:
+            self.rejected_in_a_row = self.rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
+            self.target_lost = observation.lost
+        coasting = 0 < self.rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == ObservationStatus.DROPPED and not self.target_lost)
+        estimate = None
+        fresh = predicted = False
+        if state_filter is not None:
+            if observation.status == ObservationStatus.OK:
+                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
+            estimate = state_filter.estimate(list(self.unseen_commands), dt, dhat, previous)
+            # No usable frame (dropped, occluded, rejected): the law acts on the
+            # prediction while it is trusted, with the adaptation frozen.
+            predicted = not fresh and state_filter.trusted(estimate)
+        if estimate is not None and not state_filter.settled:
+            # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
+            # time, from the taught commands (25), while the first frames are averaged.
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
+            v_ff, w_ff = controller.feedforward(desired)
+            share = state_filter.settling_fraction
+            v_cmd = v_ff + share * (float(output.v_c) - v_ff)
+            w_cmd = w_ff + share * (float(output.w_c) - w_ff)
+        elif fresh or predicted:
+            output = controller.step(estimate.measurement, desired, dt, adapt=False)
+            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
+        elif state_filter is None and observation.status == ObservationStatus.OK:
+            output = controller.step(observation.measurement, desired, dt)
+            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
+        elif coasting:
+            v_cmd, w_cmd = previous
+        else:
+            v_cmd, w_cmd = controller.hold()
+        v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
+        if fresh and output is not None and state_filter.settled and not saturated:
+            # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
+            controller.adapt(output, dt)
+        self.previous = (v_c, w_c)
+        return StepRecord(
+            t=t, pose=pose, observation=observation, desired=desired, output=output,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=self.target_lost, estimate=estimate,
+        )
+
+    def sent(self, dt: float) -> None:
+        """The last decided command was sent and is held for ``dt`` (s): the filter moves on."""
+        if self.state_filter is not None:
+            # The filter's state is at the time its last frame was taken: it moves on with
+            # the command sent then, and the later ones wait (latency).
+            self.unseen_commands.append(self.previous)
+            if len(self.unseen_commands) > self.latency_steps:
+                self.state_filter.predict(*self.unseen_commands.popleft(), dt, self.controller.dhat)

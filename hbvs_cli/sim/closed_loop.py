@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.controller import AdaptiveTrackingController, DesiredState
-from ..core.estimation import Observation, ObservationStatus
-from ..core.simulator import MAX_HELD_OUTLIERS, NOT_YET, ActuatorLimits, StepRecord
-from ..core.state_filter import FilterOutcome, ServoStateFilter
+from ..core.estimation import Observation
+from ..core.simulator import NOT_YET, ActuatorLimits, ServoStep, StepRecord
+from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
 from ..core.unicycle import integrate_unicycle
 from ..errors import InvalidValueError
@@ -93,67 +93,16 @@ def run_closed_loop(
     schedule = trajectory.evaluate(times)
     columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
     pending: deque[Observation] = deque()
-    previous = (0.0, 0.0)
-    rejected_in_a_row = 0
-    target_lost = False
-    # Commands sent since the frame being fused was taken (latency_steps of them).
-    unseen_commands: deque[tuple[float, float]] = deque()
+    servo = ServoStep(controller, limits, latency_steps, state_filter)
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
         observation = pending.popleft() if len(pending) > latency_steps else NOT_YET
         desired = DesiredState(*(column[k] for column in columns))
-        dhat = controller.dhat
-        output = None
-        # A dropped frame changes neither the lost state nor the run of rejected frames:
-        # both describe the frames that arrived.
-        if observation.status != ObservationStatus.DROPPED:
-            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
-            target_lost = observation.lost
-        coasting = 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == ObservationStatus.DROPPED and not target_lost)
-        estimate = None
-        fresh = predicted = False
-        if state_filter is not None:
-            if observation.status == ObservationStatus.OK:
-                fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
-            # No usable frame (dropped, occluded, rejected): the law acts on the
-            # prediction while it is trusted, with the adaptation frozen.
-            predicted = not fresh and state_filter.trusted(estimate)
-        if estimate is not None and not state_filter.settled:
-            # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
-            # time, from the taught commands (25), while the first frames are averaged.
-            output = controller.step(estimate.measurement, desired, dt, adapt=False)
-            v_ff, w_ff = controller.feedforward(desired)
-            share = state_filter.settling_fraction
-            v_cmd = v_ff + share * (float(output.v_c) - v_ff)
-            w_cmd = w_ff + share * (float(output.w_c) - w_ff)
-        elif fresh or predicted:
-            output = controller.step(estimate.measurement, desired, dt, adapt=False)
-            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif state_filter is None and observation.status == ObservationStatus.OK:
-            output = controller.step(observation.measurement, desired, dt)
-            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif coasting:
-            v_cmd, w_cmd = previous
-        else:
-            v_cmd, w_cmd = controller.hold()
-        v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
-        if fresh and output is not None and state_filter.settled and not saturated:
-            # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
-            controller.adapt(output, dt)
-        yield StepRecord(
-            t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost, estimate=estimate,
-        )
-        previous = (v_c, w_c)
-        if state_filter is not None:
-            # The filter's state is at the time its last frame was taken: it moves on with
-            # the command sent then, and the later ones wait (latency).
-            unseen_commands.append(previous)
-            if len(unseen_commands) > latency_steps:
-                state_filter.predict(*unseen_commands.popleft(), dt, controller.dhat)
-        pose = integrate_unicycle(pose, v_c, w_c, dt)
+        record = servo.decide(t, np.array(pose), observation, desired, dt)
+        yield record
+        servo.sent(dt)
+        pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
 
 
 _DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
