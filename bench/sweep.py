@@ -5,7 +5,7 @@ Figures (targets from issue 15):
 * **S1 throughput**: the same runs (``hbvs repeat --sim --perception points`` on the
   sample fit, 20 s at 10 Hz, 0.2 px noise, four laws x lateral offsets) through
   ``hbvs sweep``'s engine on a LocalCluster of 2 single-threaded worker processes, against
-  a serial loop of :func:`hbvs_cli.sweep.runner.execute_run` in this process; target
+  a serial loop of :func:`hbvs_cli.stages.sweep_run.execute_run` in this process; target
   >= 1.7x. Both sides are warm (imports done and the fit read) before the clock starts;
   the cluster's start-up is reported separately (a fixed cost, not a per-run one).
 * **S2 engine overhead per run**: ``(workers x wall - sum of the runs' own times) /
@@ -58,7 +58,7 @@ def _cpu_seconds(process) -> float:
 
 def _run_all(tasks: list) -> float:
     """In a plain process: the runs one after the other; returns their CPU time (s)."""
-    from hbvs_cli.sweep.runner import execute_run
+    from hbvs_cli.stages.sweep_run import execute_run
 
     cpu = time.process_time()
     for task in tasks:
@@ -67,7 +67,7 @@ def _run_all(tasks: list) -> float:
 
 
 def _warm(task, seconds: float) -> None:
-    from hbvs_cli.sweep.runner import execute_run
+    from hbvs_cli.stages.sweep_run import execute_run
 
     execute_run(task)
     time.sleep(seconds)  # so that the pool's other process takes the other warm-up
@@ -90,8 +90,8 @@ def throughput(runs: int, rounds: int) -> dict:
 
     from hbvs_cli.stages.sweep import prepare
     from hbvs_cli.sweep.engine import dask_client, run_tasks
-    from hbvs_cli.sweep.runner import execute_run
-    from hbvs_cli.sweep.table import failed_row
+    from hbvs_cli.stages.sweep_run import execute_run
+    from hbvs_cli.io.sweep_table import failed_row
 
     def comparable(row: dict) -> dict:
         return {k: v for k, v in row.items() if k != "run_time_s"}

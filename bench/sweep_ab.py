@@ -35,8 +35,8 @@ def main() -> None:
     from bench.sweep import _options
     from hbvs_cli.stages.sweep import prepare
     from hbvs_cli.sweep.engine import dask_client, run_tasks
-    from hbvs_cli.sweep.runner import execute_run
-    from hbvs_cli.sweep.table import failed_row
+    from hbvs_cli.stages.sweep_run import execute_run
+    from hbvs_cli.io.sweep_table import failed_row
 
     assert hbvs_cli.__file__.startswith(root), f"hbvs_cli imported from {hbvs_cli.__file__}, not {root}"
     with tempfile.TemporaryDirectory() as scratch:

@@ -74,6 +74,11 @@ class MalformedDataError(DomainError):
     trajectory model without a channel, a world description that does not parse."""
 
 
+class NotAnImageError(MalformedDataError, InputError):
+    """An array that is not an image hbvs reads (empty, or of another pixel type or shape):
+    raised by the core (:func:`hbvs_cli.core.grayscale.as_gray`) and a bad input to a stage."""
+
+
 class InsufficientDataError(DomainError):
     """Too little usable data: a target found in too few frames, or missing for too long.
 

@@ -125,7 +125,7 @@ def live_final_errors(run_path: Path, poses_path: Path, speed: float) -> tuple[f
     """The final position (m) and heading (deg) errors of a live run, from the stand-in's
     true poses against the taught pose at the same run time (as hbvs report's final)."""
     fit = read_fit_file(FIT)
-    scene = simulation_world(fit.model, fit.reference_image, None, speed)
+    scene = simulation_world(fit.model, None, None, speed)
     run = read_run(run_path)
     stamp0, end = run.timing["frame_stamp"][0], run.timing["t"][-1]
     poses = [json.loads(line) for line in poses_path.read_text().splitlines()]

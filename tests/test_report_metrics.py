@@ -220,7 +220,7 @@ def test_report_of_a_synthetic_run():
     assert heading["mean"] == pytest.approx(math.degrees(0.02)) and heading["final"] == pytest.approx(math.degrees(0.02))
     assert report["lyapunov"]["ratio"] == pytest.approx((R ** (N - 1)) ** 2)
     assert report["lyapunov"]["increase_fraction"] == 0.0
-    assert report["depth"] == {"dhat_initial": 3.0, "dhat_final": pytest.approx(3.9), "d_true": 4.0,
+    assert report["depth"] == {"dhat0": 3.0, "dhat_final": pytest.approx(3.9), "d_true": 4.0,
                                "relative_error": pytest.approx(0.025)}
     t = np.arange(N) * DT
     dw_dt = np.diff(0.05 * np.cos(t)) / DT

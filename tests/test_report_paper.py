@@ -410,7 +410,7 @@ def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
     from hbvs_cli.core.controller import AdaptiveTrackingController, ControllerGains
     from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
     from hbvs_cli.core.path import sampled_profile
-    from hbvs_cli.core.simulator import run_closed_loop
+    from hbvs_cli.sim.closed_loop import run_closed_loop
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.core.world import default_world
 

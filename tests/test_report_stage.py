@@ -89,7 +89,7 @@ def test_json_has_the_documented_structure(runs):
         for name in names:
             assert tuple(report[section][name]) == STATISTICS
     assert set(report["lyapunov"]) == {"initial", "final", "ratio", "increase_fraction"}
-    assert set(report["depth"]) == {"dhat_initial", "dhat_final", "d_true", "relative_error"}
+    assert set(report["depth"]) == {"dhat0", "dhat_final", "d_true", "relative_error"}
     assert set(report["commands"]) == {"v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", "saturated_fraction",
                                        "v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2", "at_limit_fraction",
                                        "limits", "taught"}
@@ -105,14 +105,14 @@ def test_json_values_agree_with_the_run(runs):
     report = report_json(runs["run"])
     # The simulated start offset (repeat's default) is the initial pose error.
     from hbvs_cli.stages.options import parse_offset
-    from hbvs_cli.stages.settings import DEFAULT_OFFSET
+    from hbvs_cli.io.settings import DEFAULT_OFFSET
 
     dx, dy, dtheta = parse_offset(DEFAULT_OFFSET)
     # (to the report's 7 significant digits)
     assert report["pose_error"]["position_m"]["initial"] == pytest.approx(math.hypot(dx, dy), rel=1e-6)
     assert report["pose_error"]["heading_deg"]["initial"] == pytest.approx(math.degrees(dtheta), rel=1e-6)
     assert report["depth"]["d_true"] == pytest.approx(run.info["d_true"], rel=1e-6)
-    assert report["depth"]["dhat_initial"] == pytest.approx(run.info["dhat0"])
+    assert report["depth"]["dhat0"] == pytest.approx(run.info["dhat0"])
     # The report's numbers carry 7 significant digits: compare at that precision.
     assert report["depth"]["relative_error"] == pytest.approx(abs(report["depth"]["dhat_final"] - run.info["d_true"]) / run.info["d_true"], rel=1e-5)
     e3 = np.degrees(run.state["e3"])

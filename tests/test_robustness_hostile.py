@@ -255,12 +255,12 @@ def small_fit_model(tmp_path_factory):
     (lambda m: m.update(trajectory={"channels": []}), "malformed"),
 ])
 def test_fit_models_are_validated_where_repeat_would_trip(small_fit_model, change, error):
-    from hbvs_cli.io.fit_file import FitModel
+    from hbvs_cli.io.fit_file import model_from_message, model_message
 
-    message = json.loads(encode_json(small_fit_model.to_message(0)))
+    message = json.loads(encode_json(model_message(small_fit_model, 0)))
     change(message)
     with pytest.raises(RecordingError, match=error):
-        FitModel.from_message(message, "fit.mcap")
+        model_from_message(message, "fit.mcap")
 
 
 def test_run_files_with_mistyped_events_or_metadata_are_refused():

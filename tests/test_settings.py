@@ -1,4 +1,4 @@
-"""The repeat options are declared once (stages/settings.py): the command line, the
+"""The repeat options are declared once (io/settings.py): the command line, the
 options dataclass, the config merge and the help all come from that table."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from hbvs_cli.core.controller import ControllerGains
 from hbvs_cli.io.config import SCHEMA, load_config
 from hbvs_cli.stages import repeat as repeat_stage
 from hbvs_cli.stages.repeat import resolve_settings
-from hbvs_cli.stages.settings import (
+from hbvs_cli.io.settings import (
     DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, SIMULATION_DEFAULTS,
     TEACH_SETTINGS, RepeatOptions,
 )
@@ -97,7 +97,7 @@ def test_help_shows_the_defaults_of_the_one_table():
     command = typer.main.get_command(app).commands["repeat"]
     helps = {param.name: param.help for param in command.params}
     assert f"Default {DEFAULT_OFFSET}." in helps["offset"]
-    assert f"Default {DEFAULT_MAX_V:g}." in helps["max_v"] and f"Default {ControllerGains().k_v:g}." in helps["kv"]
+    assert f"Default {DEFAULT_MAX_V:g}." in helps["max_v"] and f"Default {ControllerGains().k_v:g}." in helps["k_v"]
     for setting in REPEAT_SETTINGS:
         if setting.config is not None:
             assert helps[setting.name].endswith(f"Default {setting.shown_default}."), setting.name

@@ -191,7 +191,7 @@ def test_config_file_speed_and_limits(default_fit, tmp_path):
     fit_path, model = default_fit
     config = tmp_path / "gains.toml"
     config.write_text('law = "paper"\n[gains]\nk_v = 3.0\n[limits]\nmax_v = 0.3\n')
-    make_run(fit_path, tmp_path / "run.mcap", sim=True, perception="points", config=config, kw=1.5, speed=2.0)
+    make_run(fit_path, tmp_path / "run.mcap", sim=True, perception="points", config=config, k_w=1.5, speed=2.0)
     run = read_run(tmp_path / "run.mcap")
     # gamma is not in the config: the fit's suggestion (core/gains.py).
     assert run.info["law"] == "paper" and run.info["gains"] == {"k_v": 3.0, "k_w": 1.5, "gamma": pytest.approx(model.gains["gamma"]), "k_2": 1.0}

@@ -93,7 +93,7 @@ def test_every_row_is_present_in_parquet_and_csv(uninterrupted):
 def test_each_row_is_hbvs_repeat_with_the_printed_options_and_hbvs_report(uninterrupted, tmp_path):
     """Every run re-made alone from its printed command: the same bytes, the same metrics."""
     from hbvs_cli.cli.app import _run
-    from hbvs_cli.sweep.runner import METRICS
+    from hbvs_cli.io.sweep_table import METRICS
     from hbvs_cli.report.build import resolve_key
 
     folder, _ = uninterrupted
@@ -115,7 +115,7 @@ def test_each_row_is_hbvs_repeat_with_the_printed_options_and_hbvs_report(uninte
 
 def test_a_row_re_made_by_the_hbvs_commands_in_a_shell(uninterrupted, tmp_path):
     """The same as a user at a shell: the printed command, then hbvs report --json."""
-    from hbvs_cli.sweep.runner import METRICS
+    from hbvs_cli.io.sweep_table import METRICS
     from hbvs_cli.report.build import resolve_key
 
     folder, _ = uninterrupted
@@ -129,7 +129,7 @@ def test_a_row_re_made_by_the_hbvs_commands_in_a_shell(uninterrupted, tmp_path):
 
 
 def test_killed_and_resumed_gives_the_same_table(uninterrupted, spec_file, tmp_path):
-    from hbvs_cli.sweep.table import read_rows
+    from hbvs_cli.io.sweep_table import read_rows
 
     folder, _ = uninterrupted
     resumed = tmp_path / "resumed"

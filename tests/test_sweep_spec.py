@@ -55,7 +55,7 @@ def test_options_and_spec_errors_are_usage_errors():
     with pytest.raises(UsageError, match="grid needs values"):
         build_spec(None, ["offset_y=-0.3:0.3"])
     with pytest.raises(UsageError, match="both varied and fixed"):
-        build_spec({"vary": {"kv": [1, 2]}, "fixed": {"kv": 3}})
+        build_spec({"vary": {"k_v": [1, 2]}, "fixed": {"k_v": 3}})
     with pytest.raises(UsageError, match="nothing varies"):
         build_spec(None, [], ["perception=points"])
 
@@ -167,7 +167,7 @@ def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tm
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    from hbvs_cli.sweep import table as results
+    from hbvs_cli.io import sweep_table as results
 
     schema = pa.schema([pa.field("index", pa.int64()), pa.field("value", pa.float64()), pa.field("status", pa.string())])
     rng = random.Random(7)

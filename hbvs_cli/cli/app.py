@@ -4,7 +4,7 @@ This layer stays thin: it turns :class:`~hbvs_cli.errors.HbvsError` into one lin
 stderr and the error's exit code (``--debug`` shows the traceback instead). Each command
 imports its stage inside the command, the only lazy imports here: ``hbvs --help`` must not
 load OpenCV, scipy, matplotlib or mcap (tests/test_repository.py checks). The options of
-``repeat`` come from its settings table (:mod:`hbvs_cli.stages.settings`).
+``repeat`` come from its settings table (:mod:`hbvs_cli.io.settings`).
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
-from ..stages.settings import (
-    OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, RepeatOptions, RobotSimOptions, options_from_command_line,
+from ..io.settings import (
+    FIT_SETTINGS, OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
+    options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
@@ -96,33 +97,13 @@ def teach(**values: Any) -> None:
 
 # --------------------------------------------------------------------------- fit
 @app.command(rich_help_panel="Pipeline")
-def fit(
-    input: Annotated[str, typer.Argument(help="Teach MCAP file, or - for stdin.")],
-    output: Annotated[str, typer.Option("-o", "--output", help=OUTPUT_HELP)] = "fit.mcap",
-    target: Annotated[str, typer.Option("--target", help="auto, dots, aruco, chessboard or texture.")] = "auto",
-    reference: Annotated[str, typer.Option("--reference", help="The frame that is F*: first, last or a frame index.")] = "first",
-    smoothing: Annotated[str, typer.Option("--smoothing", help="Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).")] = "auto",
-    target_size: Annotated[Optional[float], typer.Option("--target-size", min=0.0, help="Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot distance (dots) or the square (chessboard).")] = None,
-    max_gap: Annotated[float, typer.Option("--max-gap", min=0.0, help="Longest stretch (s) without the target that the spline may bridge.")] = 1.0,
-    max_lost: Annotated[float, typer.Option("--max-lost", min=0.0, max=1.0, help="Largest fraction of frames without the target before fit fails.")] = 0.3,
-    with_images: Annotated[bool, typer.Option("--with-images", help="Copy the taught images into the output, so it opens alone in Foxglove (by default open it together with the teach file).")] = False,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the robust (RANSAC) estimation.")] = 0,
-    marker_dict: Annotated[Optional[str], typer.Option("--marker-dict", help="Marker dictionary, e.g. DICT_6X6_250 or DICT_APRILTAG_36h11 (default with --target auto: every one is scanned).")] = None,
-    marker_id: Annotated[Optional[int], typer.Option("--marker-id", min=0, help="The marker to use (default: every marker seen consistently, all corners as points).")] = None,
-    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing output even when the input ended early (no end record: the writer upstream died).")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")] = False,
-) -> None:
+@with_settings(FIT_SETTINGS, QUIET)
+def fit(**values: Any) -> None:
     """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    from ..stages.fit import FitOptions, run_fit  # lazy: start-up time (see above)
+    from ..stages.fit import run_fit  # lazy: start-up time (see above)
 
-    run_fit(
-        FitOptions(
-            input=input, output=output, target=target, reference=reference, smoothing=smoothing,
-            target_size=target_size, max_gap=max_gap, max_lost=max_lost, copy_images=with_images, seed=seed,
-            allow_truncated=allow_truncated, marker_dict=marker_dict, marker_id=marker_id,
-        ),
-        _console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_fit(options_from_command_line(FitOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- repeat

@@ -1,4 +1,4 @@
-"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.stages.settings`).
+"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.io.settings`).
 
 The command function takes ``**values``; its ``__signature__`` lists one annotated
 parameter per setting, which is what typer reads to build the click command.
@@ -11,7 +11,7 @@ from typing import Annotated, Any, Callable, List, Optional
 
 import typer
 
-from ..stages.settings import Setting
+from ..io.settings import Setting
 
 
 def typer_parameter(setting: Setting) -> inspect.Parameter:

@@ -16,9 +16,12 @@ One concept per module:
 * :mod:`.depth`: initial depth estimates from (25) or a known target size
 * :mod:`.unicycle`: exact integration of the kinematics (21)
 * :mod:`.path`: teach-pendant command profiles and presets
-* :mod:`.world`: the simulated camera, wall and target
-* :mod:`.simulator`: the closed loop
+* :mod:`.world`: the scene teach and fit files describe: camera, wall and target
+* :mod:`.simulator`: one control period: actuator limits, the step record
+* :mod:`.fit_model`: what a fit hands to repeat
 * :mod:`.metrics`: statistics and convergence measures of a run
 * :mod:`.desired`: the fit of a taught run, pixels in, the desired trajectory out
 * :mod:`.labels`: enumerations that files record as words
+* :mod:`.grayscale`: camera frames as gray arrays (what detectors and the renderer take)
+* :mod:`.assignment`: the assignment of least total cost (point identity)
 """

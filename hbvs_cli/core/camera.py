@@ -72,6 +72,12 @@ class CameraIntrinsics:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def mean_focal(self) -> float:
+        """The mean focal length ``(fx + fy) / 2`` (px): pixels per unit of normalised
+        coordinates, which turns a residual or a noise between the two."""
+        return 0.5 * (self.fx + self.fy)
+
+    @property
     def has_distortion(self) -> bool:
         """True when any distortion coefficient is non-zero."""
         return any(abs(v) > 0.0 for v in self.distortion)

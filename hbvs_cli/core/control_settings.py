@@ -9,7 +9,7 @@ loading the numerical stack (``hbvs --help`` starts in a few tens of millisecond
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 from ..errors import InvalidValueError
 
@@ -54,7 +54,7 @@ class ControllerGains:
     k_w : float
         Heading gain (1/s), > 0.
     gamma : float
-        Adaptation gain gamma_1 of (31) (m/s per unit of e1 (x_h2 w_c - x_hd1_dot)), >= 0
+        Adaptation gain gamma_1 of (31) (m: dhat_dot in m/s over e1 (x_h2 w_c - x_hd1_dot) in 1/s), >= 0
         (0: no adaptation, the non-adaptive baseline of core/laws.py).
     k_2 : float
         Lateral gain (docs/method.md, "Control"); 1 is the paper's law exactly.
@@ -66,16 +66,11 @@ class ControllerGains:
     k_2: float = 400.0
 
     def __post_init__(self) -> None:
-        for name in ("k_v", "k_w", "gamma", "k_2"):
+        for name in GAIN_NAMES:
             value = getattr(self, name)
             # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
             if not math.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
                 raise InvalidValueError(f"gain {name} must be a positive number, got {value}")
-
-    @property
-    def law(self) -> str:
-        """``"paper"`` when k_2 = 1, otherwise ``"lateral-gain"``."""
-        return LAW_PAPER if self.k_2 == 1.0 else LAW_LATERAL_GAIN
 
     def as_dict(self) -> dict[str, float]:
         """The gains as a plain dictionary (for files and reports)."""
@@ -88,3 +83,9 @@ class ControllerGains:
         if law == LAW_LATERAL_GAIN:
             return self
         raise InvalidValueError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
+
+
+#: The gains' names, as files, reports and ``--config`` spell them.
+GAIN_NAMES = tuple(field.name for field in fields(ControllerGains))
+#: Their units: e1, ebar2 and e3 are dimensionless in (29)-(31), so gamma_1 is in m.
+GAIN_UNITS = {"k_v": "m/s", "k_w": "1/s", "gamma": "m", "k_2": "-"}

@@ -336,7 +336,7 @@ def fit_desired_trajectory(
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
     trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
     condition = feedforward_condition(trajectory, t[span])
-    focal = 0.5 * (camera.fx + camera.fy)
+    focal = camera.mean_focal
     uncertainty = None
     if others.size:
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731

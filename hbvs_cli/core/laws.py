@@ -9,7 +9,7 @@
   robot", IEEE ICRA 1990, on the planar pose reconstructed from the homography with a
   fixed depth estimate dhat (docs/method.md, "Baselines").
 
-Every controller here has the interface the closed loop uses (:func:`~hbvs_cli.core.simulator.run_closed_loop`):
+Every controller here has the interface the closed loop uses (:func:`~hbvs_cli.sim.closed_loop.run_closed_loop`):
 a ``dhat`` attribute, ``step(measured, desired, dt, adapt=True) -> ControlOutput``,
 ``adapt(output, dt)``, ``feedforward(desired)`` and ``hold()``.
 """

@@ -1,18 +1,15 @@
-"""The closed loop: sense, control, actuate, move; one camera frame at a time.
+"""One control period of the closed loop: what the simulated loop
+(:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and a live robot share. :class:`ServoStep`
+decides each frame's command (filter, law, limits, adaptation); :class:`ActuatorLimits` are
+the limits it passes through; :class:`StepRecord` is what one step did.
 
-Every control period ``dt`` the simulator asks a sensing function for a measurement of
-the current pose (exact points, noisy points or a whole rendered image run through a
-detector: the caller decides), the controller answers with (v_c, w_c), the actuator limits
-clip them, and the unicycle integrates them exactly while they are held for ``dt``
-(:mod:`hbvs_cli.core.unicycle`).
-
-When the sensing function reports the target lost, the robot is commanded to stop and the
-adaptation is frozen; it resumes when the target is back. When a frame is dropped (never
-arrives), or a few in a row are rejected as outliers, the last command is held and the
-adaptation is frozen for those periods: stopping for one bad frame would only make the
-robot lag its trajectory. A dropped frame carries no news about the target, so it keeps
-the lost state of the last frame that arrived: a drop during an occlusion is still lost
-time (the lost timeout keeps counting), never a "target back".
+When a frame reports the target lost, the robot is commanded to stop and the adaptation is
+frozen; it resumes when the target is back. When a frame is dropped (never arrives), or a
+few in a row are rejected as outliers, the last command is held and the adaptation is frozen
+for those periods: stopping for one bad frame would only make the robot lag its trajectory.
+A dropped frame carries no news about the target, so it keeps the lost state of the last
+frame that arrived: a drop during an occlusion is still lost time (the lost timeout keeps
+counting), never a "target back".
 
 With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
 through frames that give no measurement (dropped, occluded, rejected) on its prediction for
@@ -23,17 +20,14 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ..errors import InvalidValueError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
 from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
-from .trajectory import DesiredTrajectory
-from .unicycle import integrate_unicycle
 
 
 @dataclass(frozen=True)
@@ -128,83 +122,20 @@ class StepRecord:
     @property
     def dropped(self) -> bool:
         """The camera frame of this step was dropped (not: still on its way, with latency)."""
-        return self.observation.status == ObservationStatus.DROPPED and self.observation is not _NOT_YET
+        return self.observation.status == ObservationStatus.DROPPED and self.observation is not NOT_YET
 
-
-SenseFunction = Callable[[NDArray[np.float64], float], Observation]
 
 #: Consecutive outlier frames through which the last command is held before stopping.
 MAX_HELD_OUTLIERS = 3
 
 #: What the controller sees before the first (latency-delayed) frame arrives.
-_NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
-
-
-def run_closed_loop(
-    sense: SenseFunction,
-    trajectory: DesiredTrajectory,
-    controller: AdaptiveTrackingController,
-    start_pose: ArrayLike,
-    dt: float,
-    duration: float,
-    limits: ActuatorLimits | None = None,
-    latency_steps: int = 0,
-    state_filter: ServoStateFilter | None = None,
-) -> Iterator[StepRecord]:
-    """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
-
-    Parameters
-    ----------
-    sense : callable
-        ``(pose, t) -> Observation``.
-    trajectory : DesiredTrajectory
-    controller : AdaptiveTrackingController
-        Its dhat is updated in place.
-    start_pose : array_like, shape (3,)
-    dt : float
-        Control period (s).
-    duration : float
-        Seconds to simulate.
-    limits : ActuatorLimits, optional
-    latency_steps : int
-        The controller acts on the observation taken this many periods earlier; before
-        the first one arrives it holds still.
-    state_filter : ServoStateFilter, optional
-        When given, the law acts on its estimate (docs/method.md, "State filter"): each
-        frame is fused at the time it was taken, the estimate is carried over the commands
-        sent since (latency), and through dropped frames and rejected ones the law runs on
-        the prediction with the adaptation frozen. Without it the law acts on each raw
-        measurement, as in the paper.
-    """
-    if dt <= 0.0 or not np.isfinite(dt):
-        raise InvalidValueError(f"the control period must be positive, got {dt}")
-    if latency_steps < 0:
-        raise InvalidValueError("--latency must be zero or a positive number of frames")
-    limits = limits or ActuatorLimits()
-    pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
-    steps = int(round(duration / dt))
-    # The control instants are known in advance: evaluate the desired trajectory at all of
-    # them at once (vectorised) instead of once per step.
-    times = np.arange(steps) * dt
-    schedule = trajectory.evaluate(times)
-    columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
-    pending: deque[Observation] = deque()
-    servo = ServoStep(controller, limits, latency_steps, state_filter)
-    for k in range(steps):
-        t = k * dt
-        pending.append(sense(np.array(pose), t))
-        observation = pending.popleft() if len(pending) > latency_steps else _NOT_YET
-        desired = DesiredState(*(column[k] for column in columns))
-        record = servo.decide(t, np.array(pose), observation, desired, dt)
-        yield record
-        servo.sent(dt)
-        pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
+NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
 
 
 class ServoStep:
     """One camera frame's decision: filter, law, limits, adaptation (the loop's body).
 
-    The simulator (:func:`run_closed_loop`) and the live loop on a robot
+    The simulator (:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and the live loop on a robot
     (:mod:`hbvs_cli.stages.live`) both call :meth:`decide` with each frame's observation and
     then :meth:`sent` once the command is out, so that they act identically on the same
     frames.
@@ -293,6 +224,3 @@ class ServoStep:
             self.unseen_commands.append(self.previous)
             if len(self.unseen_commands) > self.latency_steps:
                 self.state_filter.predict(*self.unseen_commands.popleft(), dt, self.controller.dhat)
-
-
-_DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")

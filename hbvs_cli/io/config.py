@@ -3,7 +3,7 @@
 The tables and keys are :data:`SCHEMA` (top level: ``law``, ``filter``, ``dhat0``,
 ``speed``; ``[gains]``, ``[limits]``, ``[run]``). ``samples/gains.toml`` is an example that
 holds the defaults; the defaults themselves are written once, in the code
-(:mod:`hbvs_cli.stages.settings`), and a test checks that the sample agrees with them.
+(:mod:`hbvs_cli.io.settings`), and a test checks that the sample agrees with them.
 
 Options given on the command line override the file."""
 

@@ -29,10 +29,10 @@ import numpy as np
 
 from .. import __version__
 from ..core.camera import CameraIntrinsics
-from ..core.controller import ControllerGains
+from ..core.control_settings import GAIN_NAMES, ControllerGains
 from ..core.desired import DesiredFit
+from ..core.fit_model import FitModel, TaughtPath
 from ..core.trajectory import SplineTrajectory
-from ..core.world import World
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
@@ -108,44 +108,31 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
     return dict(detector)
 
 
-@dataclass
-class TaughtPath:
-    """Ground truth of a simulated teach: per-frame commands, the start pose and F*'s pose.
+def taught_path_to_dict(path: TaughtPath) -> dict[str, Any]:
+    """The ``taught_path`` object of a fit model: per-frame arrays as base64 float64 (a long
+    recording would otherwise be a list of JSON numbers several times its size in memory)."""
+    return {
+        "encoding": "float64-le-base64",
+        "t": _pack(path.t), "v": _pack(path.v), "w": _pack(path.w),
+        "start_pose": path.start_pose.tolist(),
+        "reference_pose": path.reference_pose.tolist(),
+    }
 
-    The commands were held between frames, so the taught pose at any time follows
-    exactly from them and the start pose (:class:`~hbvs_cli.core.path.CommandProfile`).
-    The per-frame arrays are stored as base64 float64: a long recording would otherwise
-    make the model a list of JSON numbers several times its size in memory.
-    """
 
-    t: np.ndarray
-    v: np.ndarray
-    w: np.ndarray
-    start_pose: np.ndarray
-    reference_pose: np.ndarray
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "encoding": "float64-le-base64",
-            "t": _pack(self.t), "v": _pack(self.v), "w": _pack(self.w),
-            "start_pose": self.start_pose.tolist(),
-            "reference_pose": self.reference_pose.tolist(),
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "TaughtPath":
-        if data.get("encoding") != "float64-le-base64":
-            raise ValueError("taught_path: unknown array encoding")
-        t, v, w = (_unpack(data[key], f"taught_path.{key}") for key in ("t", "v", "w"))
-        start = np.asarray(data["start_pose"], dtype=float)
-        reference = np.asarray(data["reference_pose"], dtype=float)
-        if t.size < 2 or v.shape != t.shape or w.shape != t.shape or start.shape != (3,) or reference.shape != (3,):
-            raise ValueError("taught_path arrays have inconsistent shapes")
-        if not all(np.all(np.isfinite(a)) for a in (t, v, w, start, reference)):
-            raise ValueError("taught_path holds NaN or infinity")
-        if np.any(np.diff(t) <= 0.0):
-            raise ValueError("taught_path times must increase strictly")
-        return cls(t=t, v=v, w=w, start_pose=start, reference_pose=reference)
+def taught_path_from_dict(data: dict[str, Any]) -> TaughtPath:
+    """Inverse of :func:`taught_path_to_dict`; ValueError when malformed."""
+    if data.get("encoding") != "float64-le-base64":
+        raise ValueError("taught_path: unknown array encoding")
+    t, v, w = (_unpack(data[key], f"taught_path.{key}") for key in ("t", "v", "w"))
+    start = np.asarray(data["start_pose"], dtype=float)
+    reference = np.asarray(data["reference_pose"], dtype=float)
+    if t.size < 2 or v.shape != t.shape or w.shape != t.shape or start.shape != (3,) or reference.shape != (3,):
+        raise ValueError("taught_path arrays have inconsistent shapes")
+    if not all(np.all(np.isfinite(a)) for a in (t, v, w, start, reference)):
+        raise ValueError("taught_path holds NaN or infinity")
+    if np.any(np.diff(t) <= 0.0):
+        raise ValueError("taught_path times must increase strictly")
+    return TaughtPath(t=t, v=v, w=w, start_pose=start, reference_pose=reference)
 
 
 def _pack(array: np.ndarray) -> str:
@@ -164,142 +151,111 @@ def _unpack(text: Any, what: str) -> np.ndarray:
     return np.frombuffer(raw, dtype="<f8").astype(float)
 
 
-@dataclass
-class FitModel:
-    """Everything ``repeat`` needs to track the taught trajectory (and report on it)."""
+def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
+    """The ``hbvs.FitModel`` message of a model, stamped ``log_time_ns``."""
+    return {
+        "format_version": FORMAT_VERSION,
+        "timestamp": time_message(log_time_ns),
+        "hbvs_version": __version__,
+        "target_kind": model.target_kind,
+        "camera": camera_to_dict(model.camera),
+        "reference": {
+            "index": model.reference_index,
+            "t": model.reference_t,
+            "pixels": model.reference_pixels.tolist(),
+            "m_ref": model.m_ref.tolist(),
+        },
+        "normal": model.normal.tolist(),
+        "normal_margin": model.normal_margin,
+        "trajectory": model.trajectory.to_dict(),
+        "dhat0": model.dhat0,
+        "dhat0_source": model.dhat0_source,
+        "depth": model.depth,
+        "frames": model.frames,
+        "condition35": model.condition35,
+        "residual_px": model.residual_px,
+        "detector": model.detector,
+        "world": model.world.to_dict() if model.world is not None else None,
+        "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
+        "render": model.render,
+        "gains": model.gains,
+        "uncertainty": model.uncertainty,
+    }
 
-    target_kind: str
-    camera: CameraIntrinsics
-    reference_index: int
-    reference_t: float
-    reference_pixels: np.ndarray
-    m_ref: np.ndarray
-    normal: np.ndarray
-    normal_margin: float
-    trajectory: SplineTrajectory
-    dhat0: float
-    dhat0_source: str
-    depth: dict[str, Any]
-    frames: dict[str, Any]
-    condition35: dict[str, Any]
-    residual_px: dict[str, Any]
-    detector: dict[str, Any]
-    world: World | None = None
-    taught_path: TaughtPath | None = None
-    render: dict[str, Any] | None = None
-    gains: dict[str, Any] | None = None
-    uncertainty: dict[str, Any] | None = None
 
-    def suggested_gains(self) -> ControllerGains | None:
-        """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
-        if not self.gains:
-            return None
-        return ControllerGains(**{k: float(self.gains[k]) for k in ("k_v", "k_w", "gamma", "k_2")})
+def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
+    """The model of a ``hbvs.FitModel`` message, validated; :class:`RecordingError` when malformed.
 
-    def to_message(self, log_time_ns: int) -> dict[str, Any]:
-        return {
-            "format_version": FORMAT_VERSION,
-            "timestamp": time_message(log_time_ns),
-            "hbvs_version": __version__,
-            "target_kind": self.target_kind,
-            "camera": camera_to_dict(self.camera),
-            "reference": {
-                "index": self.reference_index,
-                "t": self.reference_t,
-                "pixels": self.reference_pixels.tolist(),
-                "m_ref": self.m_ref.tolist(),
-            },
-            "normal": self.normal.tolist(),
-            "normal_margin": self.normal_margin,
-            "trajectory": self.trajectory.to_dict(),
-            "dhat0": self.dhat0,
-            "dhat0_source": self.dhat0_source,
-            "depth": self.depth,
-            "frames": self.frames,
-            "condition35": self.condition35,
-            "residual_px": self.residual_px,
-            "detector": self.detector,
-            "world": self.world.to_dict() if self.world is not None else None,
-            "taught_path": self.taught_path.to_dict() if self.taught_path is not None else None,
-            "render": self.render,
-            "gains": self.gains,
-            "uncertainty": self.uncertainty,
-        }
-
-    @classmethod
-    def from_message(cls, message: dict[str, Any], source: str = "") -> "FitModel":
-        """Parse and validate a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed.
-
-        Everything ``repeat`` later uses is checked here, so that a damaged or hostile
-        model fails with one clear message rather than deep inside the simulation: the
-        camera as a calibration, the world as :func:`~.teach_file.world_from_description`,
-        finite reference points (at most :data:`~.teach_file.MAX_TARGET_POINTS`), a
-        non-zero normal, a positive dhat0 and frame interval, the detector and render
-        settings.
-        """
-        try:
-            if message.get("format_version") != FORMAT_VERSION:
-                raise ValueError(f"unsupported model format_version {message.get('format_version')!r}")
-            reference = message["reference"]
-            m_ref = np.asarray(reference["m_ref"], dtype=float)
-            pixels = np.asarray(reference["pixels"], dtype=float)
-            normal = np.asarray(message["normal"], dtype=float)
-            if m_ref.ndim != 2 or m_ref.shape[1] != 3 or not 3 <= m_ref.shape[0] <= MAX_TARGET_POINTS or pixels.shape != (m_ref.shape[0], 2):
-                raise ValueError(
-                    f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels"
-                )
-            if not (np.all(np.isfinite(m_ref)) and np.all(np.isfinite(pixels))):
-                raise ValueError("reference points hold NaN or infinity")
-            if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
-                raise ValueError("normal must be 3 finite numbers, not all zero")
-            dhat0 = _positive_number(message["dhat0"], "dhat0")
-            kind = str(message["target_kind"])
-            if kind not in ("dots", "aruco", "chessboard", "texture"):
-                raise ValueError(f"unknown target kind {kind!r}")
-            world = world_from_description(message["world"], source) if message.get("world") else None
-            taught = TaughtPath.from_dict(message["taught_path"]) if message.get("taught_path") else None
-            frames = dict(message.get("frames") or {})
-            _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
-            render = message.get("render")
-            if render is not None and render_settings_problem(render) is not None:
-                raise ValueError(f"render: {render_settings_problem(render)}")
-            margin = message.get("normal_margin")
-            gains = message.get("gains")
-            if gains is not None:
-                if not isinstance(gains, dict):
-                    raise ValueError("gains must be an object")
-                ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in ("k_v", "k_w", "gamma", "k_2")})
-            return cls(
-                target_kind=kind,
-                camera=camera_from_dict(message["camera"]),
-                reference_index=int(reference["index"]),
-                reference_t=float(reference["t"]),
-                reference_pixels=pixels,
-                m_ref=m_ref,
-                normal=normal,
-                normal_margin=float(margin) if margin is not None else float("nan"),
-                trajectory=SplineTrajectory.from_dict(message["trajectory"]),
-                dhat0=dhat0,
-                dhat0_source=str(message.get("dhat0_source", "")),
-                depth=dict(message.get("depth") or {}),
-                frames=frames,
-                condition35=dict(message.get("condition35") or {}),
-                residual_px=dict(message.get("residual_px") or {}),
-                detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
-                world=world,
-                taught_path=taught,
-                render=dict(render) if render is not None else None,
-                gains=dict(gains) if gains is not None else None,
-                uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
+    Everything ``repeat`` later uses is checked here, so that a damaged or hostile
+    model fails with one clear message rather than deep inside the simulation: the
+    camera as a calibration, the world as :func:`~.teach_file.world_from_description`,
+    finite reference points (at most :data:`~.teach_file.MAX_TARGET_POINTS`), a
+    non-zero normal, a positive dhat0 and frame interval, the detector and render
+    settings.
+    """
+    try:
+        if message.get("format_version") != FORMAT_VERSION:
+            raise ValueError(f"unsupported model format_version {message.get('format_version')!r}")
+        reference = message["reference"]
+        m_ref = np.asarray(reference["m_ref"], dtype=float)
+        pixels = np.asarray(reference["pixels"], dtype=float)
+        normal = np.asarray(message["normal"], dtype=float)
+        if m_ref.ndim != 2 or m_ref.shape[1] != 3 or not 3 <= m_ref.shape[0] <= MAX_TARGET_POINTS or pixels.shape != (m_ref.shape[0], 2):
+            raise ValueError(
+                f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels"
             )
-        except HbvsError as exc:
-            raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
-        except PARSE_ERRORS as exc:
-            raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
+        if not (np.all(np.isfinite(m_ref)) and np.all(np.isfinite(pixels))):
+            raise ValueError("reference points hold NaN or infinity")
+        if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
+            raise ValueError("normal must be 3 finite numbers, not all zero")
+        dhat0 = _positive_number(message["dhat0"], "dhat0")
+        kind = str(message["target_kind"])
+        if kind not in ("dots", "aruco", "chessboard", "texture"):
+            raise ValueError(f"unknown target kind {kind!r}")
+        world = world_from_description(message["world"], source) if message.get("world") else None
+        taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None
+        frames = dict(message.get("frames") or {})
+        _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
+        render = message.get("render")
+        if render is not None and render_settings_problem(render) is not None:
+            raise ValueError(f"render: {render_settings_problem(render)}")
+        margin = message.get("normal_margin")
+        gains = message.get("gains")
+        if gains is not None:
+            if not isinstance(gains, dict):
+                raise ValueError("gains must be an object")
+            ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in GAIN_NAMES})
+        return FitModel(
+            target_kind=kind,
+            camera=camera_from_dict(message["camera"]),
+            reference_index=int(reference["index"]),
+            reference_t=float(reference["t"]),
+            reference_pixels=pixels,
+            m_ref=m_ref,
+            normal=normal,
+            normal_margin=float(margin) if margin is not None else float("nan"),
+            trajectory=SplineTrajectory.from_dict(message["trajectory"]),
+            dhat0=dhat0,
+            dhat0_source=str(message.get("dhat0_source", "")),
+            depth=dict(message.get("depth") or {}),
+            frames=frames,
+            condition35=dict(message.get("condition35") or {}),
+            residual_px=dict(message.get("residual_px") or {}),
+            detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
+            world=world,
+            taught_path=taught,
+            render=dict(render) if render is not None else None,
+            gains=dict(gains) if gains is not None else None,
+            uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
+        )
+    except HbvsError as exc:
+        raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
+    except PARSE_ERRORS as exc:
+        raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
 
 
 def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dict[str, Any]:
-    """The model's message, after checking that :meth:`FitModel.from_message` (what
+    """The model's message, after checking that :func:`model_from_message` (what
     ``repeat`` reads) accepts it as it will be stored (JSON: NaN and infinity become null).
 
     Raises
@@ -310,9 +266,9 @@ def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dic
     """
     from .mcap import encode_json
 
-    message = model.to_message(log_time_ns)
+    message = model_message(model, log_time_ns)
     try:
-        FitModel.from_message(json.loads(encode_json(message)), source)
+        model_from_message(json.loads(encode_json(message)), source)
     except RecordingError as exc:
         text = str(exc).split("the fit model is malformed: ", 1)[-1]
         raise RecordingError(f"{source}: the recording gives a fit model that repeat could not use ({text}); nothing was written") from None
@@ -354,7 +310,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
     if model_message is None:
         raise RecordingError(f"{stream.name}: no fit model in it (is it the output of hbvs fit, and complete?)")
     return FitFile(
-        model=FitModel.from_message(model_message, stream.name),
+        model=model_from_message(model_message, stream.name),
         reference_image=images.get(REFERENCE_IMAGE_TOPIC),
         template_image=images.get(TEMPLATE_IMAGE_TOPIC),
         info=info,

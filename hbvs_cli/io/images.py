@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.grayscale import as_gray
 from ..errors import InputError, RecordingError, UsageError
 from .topics import COMPRESSED_IMAGE_SCHEMA
 
@@ -203,43 +204,6 @@ def sniff_format(data: bytes) -> str | None:
     if data.startswith(PNG_SIGNATURE):
         return "png"
     return None
-
-
-def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
-    """An image as a contiguous gray uint8 array, shape (H, W).
-
-    Accepts gray, single-channel, BGR or BGRA arrays of 8 or 16 bits; 16-bit data keeps
-    its high byte (a fixed scale, so brightness does not change from frame to frame).
-    Every frame source and every detector converts through here.
-
-    Parameters
-    ----------
-    image : array_like
-    what : str
-        How to name the image in error messages.
-
-    Raises
-    ------
-    InputError
-        For anything that is not such an image.
-    """
-    import cv2
-
-    if not isinstance(image, np.ndarray) or image.size == 0:
-        raise InputError(f"{what}: empty or not an image array")
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
-    elif image.dtype != np.uint8:
-        raise InputError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    elif image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    elif image.ndim != 2:
-        raise InputError(f"{what}: unsupported image shape {image.shape}")
-    return np.ascontiguousarray(image)
 
 
 def as_image8(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:

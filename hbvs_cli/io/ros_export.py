@@ -303,10 +303,10 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     integrated exactly from the taught commands (:class:`~hbvs_cli.core.path.CommandProfile`)."""
     from ..core.frames import yaw_to_quaternion
     from ..core.path import CommandProfile
-    from .fit_file import FitModel
+    from .fit_file import model_from_message
     from .mcap import seconds_to_ns
 
-    model = FitModel.from_message(model_message, source)
+    model = model_from_message(model_message, source)
     taught = model.taught_path
     if taught is None:
         return []

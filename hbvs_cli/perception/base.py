@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
-from ..io.images import as_gray  # noqa: F401 - re-exported: the detectors take it from here
+from ..core.assignment import optimal_assignment  # noqa: F401 - re-exported: the detectors take it from here
+from ..core.grayscale import as_gray  # noqa: F401 - re-exported: the detectors take it from here
 
 
 @dataclass(frozen=True)
@@ -158,18 +159,6 @@ def signed_polygon_area(points: ArrayLike) -> float:
     x, y = points[:, 0], points[:, 1]
     x_next, y_next = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))
     return 0.5 * float(np.dot(x, y_next) - np.dot(x_next, y))
-
-
-def optimal_assignment(cost: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Rows and columns of the assignment of least total ``cost`` (the Hungarian method,
-    ``scipy.optimize.linear_sum_assignment``); a rectangular cost assigns the smaller side.
-
-    scipy.optimize is imported here, not at the top: it takes about 0.35 s, which every
-    ``hbvs`` command that loads perception would otherwise pay at start-up.
-    """
-    from scipy.optimize import linear_sum_assignment
-
-    return linear_sum_assignment(cost)
 
 
 def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = True) -> NDArray[np.intp]:

@@ -15,9 +15,8 @@ import numpy as np
 
 from ..core.camera import CameraIntrinsics
 from ..core.estimation import PlanarPoseEstimator
+from ..core.fit_model import FitModel
 from ..errors import InputError, RecordingError
-from ..io.fit_file import FitModel
-from ..io.images import decode_image
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import TargetChoice
 from .autodetect import choose_target as choose
@@ -274,24 +273,24 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """
     taught = float(model.residual_px.get("max", float("nan")))
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
-    focal = 0.5 * (model.camera.fx + model.camera.fy)
-    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / focal)
+    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
 
 
-def detector_from_model(model: FitModel, template_image_bytes: bytes | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
+def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and template).
 
-    ``windowed``: dots followed each in its own window (see :class:`TrackedDetector`), as
-    the simulated camera does; on real footage the common box measured better (the red
-    dots of tests/footage.py: theta_d 0.049 against 0.084 deg RMS when fit used windows),
-    so replays keep it.
+    ``template_image`` is the fit's decoded template image: texture targets need it, the
+    others ignore it. ``windowed``: dots followed each in its own window (see
+    :class:`TrackedDetector`), as the simulated camera does; on real footage the common box
+    measured better (the red dots of tests/footage.py: theta_d 0.049 against 0.084 deg RMS
+    when fit used windows), so replays keep it.
     """
     spec = DetectorSpec.from_dict(model.detector)
     template = None
     if spec.kind == "texture":
-        if template_image_bytes is None:
+        if template_image is None:
             raise RecordingError("the fit file lacks the texture template image (/detector/template)")
-        template = decode_image(template_image_bytes, "the fit's template image")
+        template = template_image
     initial = model.detector.get("initial_pixels")
     return TrackedDetector(spec, model.camera, seed=seed, template_image=template,
                            initial_prediction=None if initial is None else np.asarray(initial, dtype=float), windowed=windowed)

@@ -223,7 +223,7 @@ def _depth_section(run: RunData) -> dict[str, Any]:
     dhat_final = float(finite[-1]) if finite.size else None
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
     return {
-        "dhat_initial": float(finite[0]) if finite.size else None,
+        "dhat0": float(finite[0]) if finite.size else None,
         "dhat_final": dhat_final,
         "d_true": d_true,
         "relative_error": relative,

@@ -93,20 +93,15 @@ def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
     return tuple(names)
 
 
-def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str] | None = None) -> FigureStyle:
-    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (checked).
-
-    ``known_panels`` defaults to the run figure's panels.
+def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str]) -> FigureStyle:
+    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (checked);
+    ``--panels`` names some of ``known_panels``.
 
     Raises
     ------
     UsageError
         A resolution that is not a positive number, or a bad size or panel list.
     """
-    if known_panels is None:
-        from .plots import PANEL_NAMES
-
-        known_panels = PANEL_NAMES
     if dpi is not None and not (math.isfinite(dpi) and dpi > 0):
         raise UsageError(f"--dpi must be a positive number, got {dpi}")
     return FigureStyle(

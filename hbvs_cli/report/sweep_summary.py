@@ -47,7 +47,7 @@ class SweepData:
     """The columns the summary needs, as numpy arrays, with the sweep's description."""
 
     def __init__(self, folder: Path) -> None:
-        from ..sweep.table import SPEC_FILE, read_rows
+        from ..io.sweep_table import SPEC_FILE, read_rows
 
         self.folder = Path(folder)
         info = json.loads((self.folder / SPEC_FILE).read_text())

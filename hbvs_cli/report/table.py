@@ -17,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence, TextIO
 
+from ..core.control_settings import GAIN_UNITS
 from ..core.metrics import STATISTICS
 from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
 
@@ -37,17 +38,13 @@ ERROR_SIGNALS = {
 #: Short name of each statistic; all are in the signal's unit except the settling time (s).
 STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
 
-
-#: Units of the gains of (29)-(31) and of the lateral gain.
-GAIN_UNITS = {"k_v": "m/s", "k_w": "1/s", "gamma": "m", "k_2": "-"}
-
 #: Rows of the metrics table: (label with unit, dotted key into a report).
 METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("V initial", "lyapunov.initial"),
     ("V final", "lyapunov.final"),
     ("V final / V(0)", "lyapunov.ratio"),
     ("V increase (fraction of steps)", "lyapunov.increase_fraction"),
-    ("dhat initial (m)", "depth.dhat_initial"),
+    ("dhat0 (m)", "depth.dhat0"),
     ("dhat final (m)", "depth.dhat_final"),
     ("d* true (m)", "depth.d_true"),
     ("dhat relative error (-)", "depth.relative_error"),

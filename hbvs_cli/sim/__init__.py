@@ -7,7 +7,7 @@
   an assumed depth, with the taught pose at any time;
 * :mod:`.camera` -- the repeat's simulated camera (rendered images or projected points)
   with its faults;
-* :mod:`.closed_loop` -- a closed-loop run set up and ready to step.
+* :mod:`.closed_loop` -- the simulated closed loop (sense, step, move) and a run set up for it.
 
 Nothing here reads or writes MCAP files; the stages do.
 """

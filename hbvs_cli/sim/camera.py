@@ -13,16 +13,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
 
 from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
+from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
 from ..core.world import World
-from ..io.fit_file import FitModel
-from ..perception.tracked import TrackedDetector, detector_from_model, estimator_from_model
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
 
@@ -60,6 +60,24 @@ class CameraSettings:
     record_images: bool = False
 
 
+#: An image window ``(x0, y0, x1, y1)`` (px, end exclusive).
+Window = tuple[int, int, int, int]
+
+
+class PointDetector(Protocol):
+    """What the camera runs on a rendered frame: the fit's detector, made by the stage
+    (:func:`hbvs_cli.perception.tracked.detector_from_model` with ``windowed=True``)."""
+
+    def detect(self, image: np.ndarray) -> np.ndarray:
+        """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
+
+    def search_windows(self) -> list[Window] | None:
+        """The windows the next detection needs, or None for the whole frame."""
+
+    def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None:
+        """Pixels (N, 2) found in ``windows`` of ``image``, or None: then :meth:`detect`."""
+
+
 class SimulatedCamera:
     """The repeat's camera: a measurement per frame, with the faults asked for.
 
@@ -69,12 +87,14 @@ class SimulatedCamera:
     or a wrong point), a sudden exposure change.
     """
 
-    def __init__(self, scene: Scene, model: FitModel, settings: CameraSettings, template_image: bytes | None) -> None:
+    def __init__(
+        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: PointDetector | None,
+    ) -> None:
         self.scene = scene
         self.model = model
         self.pixel_noise = settings.pixel_noise
         self.perception = settings.perception
-        self.estimator: PlanarPoseEstimator = estimator_from_model(model)
+        self.estimator = estimator
         self.identity = world_point_identity(scene, model)
         # What projecting the points each control period needs, as plain floats.
         self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
@@ -91,11 +111,9 @@ class SimulatedCamera:
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
         self.renderer: SceneRenderer | None = None
-        self.detector: TrackedDetector | None = None
+        self.detector = detector if self.perception == "images" else None
         if self.perception == "images" or settings.record_images:
             self.renderer = renderer_for(scene, model)
-        if self.perception == "images":
-            self.detector = detector_from_model(model, template_image, seed=settings.seed, windowed=True)
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.occlusions)

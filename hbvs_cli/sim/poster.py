@@ -28,9 +28,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.grayscale import as_gray
 from ..core.world import Target
 from ..errors import InputError, UsageError
-from ..perception.base import as_gray
 
 #: Gray level of the poster's paper.
 PAPER_WHITE = 230

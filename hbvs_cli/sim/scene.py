@@ -16,16 +16,15 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..core.assignment import optimal_assignment
 from ..core.camera import pixels_to_normalized, undistort_pixels
 from ..core.frames import rotation_z
 from ..core.desired import taught_frame_interval
+from ..core.fit_model import FitModel
 from ..core.path import CommandProfile
 from ..core.trajectory import SplineTrajectory
 from ..core.world import Poster, Target, World
 from ..errors import UsageError
-from ..io.fit_file import FitModel
-from ..io.images import decode_image
-from ..perception.base import optimal_assignment
 from .poster import PosterRaster, build_pyramid
 from .render import RenderSettings, SceneRenderer, make_renderer
 
@@ -79,10 +78,17 @@ class Scene:
         return self.taught_pose(self.run_start + self.run_speed * np.asarray(tau, dtype=float))
 
 
-def simulation_world(model: FitModel, reference_image: bytes | None, depth: float | None, speed: float = 1.0) -> Scene:
-    """The scene of ``repeat --sim`` for a fit model (see the module docstring)."""
+def knows_its_world(model: FitModel) -> bool:
+    """True for a fit of a simulated teach (its world recorded), False for real footage,
+    whose world :func:`simulation_world` builds from the reference image."""
+    return model.world is not None and model.taught_path is not None
+
+
+def simulation_world(model: FitModel, reference_image: NDArray | None, depth: float | None, speed: float = 1.0) -> Scene:
+    """The scene of ``repeat --sim`` for a fit model (see the module docstring); the
+    decoded reference image is needed only when the model does not know its world."""
     start = model.trajectory.t_start
-    if model.world is not None and model.taught_path is not None:
+    if knows_its_world(model):
         path = model.taught_path
         _, _, d_true = model.world.reference_geometry(path.reference_pose)
         interval = taught_frame_interval(path.t)
@@ -103,8 +109,7 @@ def simulation_world(model: FitModel, reference_image: bytes | None, depth: floa
         raise UsageError(f"--depth must be a positive distance in metres, got {depth}")
     if reference_image is None:
         raise UsageError("the fit file has no reference image to build a world from")
-    image = decode_image(reference_image, "the fit's reference image")
-    world, poster_image, reference_pose = world_from_reference(model, image, depth)
+    world, poster_image, reference_pose = world_from_reference(model, reference_image, depth)
     return Scene(
         world=world, d_true=float(depth), reference_pose=reference_pose, has_ground_truth=False,
         spline=model.trajectory, poster_image=poster_image, run_start=start, run_speed=speed,

@@ -24,6 +24,7 @@ from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
+from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
@@ -33,25 +34,6 @@ from ..io.foxglove_scene import SceneWriter
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """Everything ``hbvs fit`` was asked to do (see ``hbvs fit --help``)."""
-
-    input: str
-    output: str = "fit.mcap"
-    target: str = "auto"
-    reference: str = "first"
-    smoothing: str = "auto"
-    target_size: float | None = None
-    max_gap: float = 1.0
-    max_lost: float = 0.3
-    copy_images: bool = False
-    seed: int = 0
-    allow_truncated: bool = False
-    marker_dict: str | None = None
-    marker_id: int | None = None
 
 
 @dataclass
@@ -177,7 +159,8 @@ def _one_opencv_thread() -> Iterator[None]:
 
 
 def _run_fit(options: FitOptions, console: Console) -> FitSummary:
-    from ..io.fit_file import FitModel, checked_model_message, write_desired_signals
+    from ..core.fit_model import FitModel
+    from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
     from ..io.mcap import open_output, time_message
     from ..io.messages import CAMERA_FRAME, annotations_message
@@ -326,8 +309,7 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, 
     from ..core.gains import noise_from_residual, suggest_gains
 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
-    focal = 0.5 * (camera.fx + camera.fy)
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, focal).as_dict()
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal).as_dict()
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
@@ -437,7 +419,7 @@ def _detector_spec(
 
 
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
-    from ..io.fit_file import TaughtPath
+    from ..core.fit_model import TaughtPath
 
     commands = arrays["command"]
     if not np.all(np.isfinite(commands)):

@@ -8,6 +8,9 @@ Colour is decoded only where a detector uses it: the dot detector finds a dot th
 from its wall in hue alone (:func:`hbvs_cli.perception.dots.dark_image`); every other
 detector works on luminance, and a colour JPEG's luminance alone decodes in about two
 thirds of the time (1.4 against 2.1 ms for 640x480). A gray frame costs the same either way.
+
+The fit's reference and template images are decoded here too, for the simulation and the
+detector of repeat (:func:`fit_reference_image`, :func:`fit_template_image`).
 """
 
 from __future__ import annotations
@@ -18,8 +21,10 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..io.fit_file import FitFile
 from ..io.images import decode_image
 from ..io.teach_file import TeachFrame
+from ..sim.scene import knows_its_world
 
 
 def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[bytes, np.ndarray]:
@@ -47,3 +52,17 @@ def decoded_frames(
         while pending:
             ready, future = pending.popleft()
             yield (ready, *future.result())
+
+
+def fit_reference_image(fit: FitFile) -> np.ndarray | None:
+    """The fit's reference image, decoded when the simulation builds its world from it."""
+    if fit.reference_image is None or knows_its_world(fit.model):
+        return None
+    return decode_image(fit.reference_image, "the fit's reference image")
+
+
+def fit_template_image(fit: FitFile) -> np.ndarray | None:
+    """The fit's template image, decoded for a texture target (the others have none)."""
+    if fit.template_image is None or fit.model.detector.get("kind") != "texture":
+        return None
+    return decode_image(fit.template_image, "the fit's template image")

@@ -37,7 +37,7 @@ from ..io.calibration import load_calibration
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
-from .settings import RepeatOptions
+from ..io.settings import RepeatOptions
 
 #: Consecutive frames with the target seen near its taught start view before the first
 #: non-zero command.

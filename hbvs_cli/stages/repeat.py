@@ -22,6 +22,7 @@ from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
 from ..core.desired import taught_frame_interval
+from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
@@ -33,7 +34,7 @@ from ..core.trajectory import TimeScaledTrajectory
 from ..core.world import World
 from ..errors import InputError, TargetLostError, UsageError
 from ..io.config import load_config
-from ..io.fit_file import FitFile, FitModel, read_fit_file
+from ..io.fit_file import FitFile, read_fit_file
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
 from ..io.images import bytes_to_store
 from ..io.limits import step_count
@@ -42,14 +43,14 @@ from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
+from ..io.settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
 from .console import Console
-from .frames import decoded_frames
+from .frames import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
-from .settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
 
 @dataclass(frozen=True)
 class Settings:
@@ -111,10 +112,10 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(
-        k_v=pick("kv", defaults.k_v),
-        k_w=pick("kw", defaults.k_w),
+        k_v=pick("k_v", defaults.k_v),
+        k_w=pick("k_w", defaults.k_w),
         gamma=pick("gamma", defaults.gamma),
-        k_2=pick("k2", defaults.k_2),
+        k_2=pick("k_2", defaults.k_2),
     ), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
     speed = float(pick("speed"))
@@ -265,7 +266,7 @@ class _StepLog:
             "filter": estimate.outcome,
             "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
             "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
-            "noise_px": estimate.noise * _focal(self.model),
+            "noise_px": estimate.noise * self.model.camera.mean_focal,
         }
 
 
@@ -302,7 +303,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         (model.trajectory.t_end - model.trajectory.t_start) / settings.speed, settings.rate,
         "the run (the taught duration over --speed, times --rate)",
     )
-    scene = simulation_world(model, fit.reference_image, options.depth, settings.speed)
+    scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
@@ -314,12 +315,13 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
         record_images=options.record_images,
     )
-    camera = SimulatedCamera(scene, model, sensor, fit.template_image)
+    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
+    camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model)
     if state_filter is not None:
         # The filter tests each residual against the noise it learns; the fixed gate set
         # from the taught images (a few tenths of a pixel) only has to catch gross errors.
-        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     return Simulation(
         scene=scene,
         camera=camera,
@@ -338,10 +340,6 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def _focal(model: FitModel) -> float:
-    return 0.5 * (model.camera.fx + model.camera.fy)
-
-
 def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
@@ -356,7 +354,7 @@ def detector_noise(model: FitModel) -> float:
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
-    return noise_from_residual(residual_px, model.m_ref.shape[0]) / _focal(model)
+    return noise_from_residual(residual_px, model.m_ref.shape[0]) / model.camera.mean_focal
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -491,7 +489,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     model = fit.model
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
@@ -542,10 +540,10 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     if topic is None and options.cmd_out is None:
         raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
     estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     state_filter = make_state_filter(settings, model)
     if state_filter is not None:
-        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     servo = ServoStep(controller, settings.limits, 0, state_filter)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)

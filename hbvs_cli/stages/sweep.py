@@ -1,9 +1,9 @@
 """``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask.
 
 Plans the runs of a spec (:mod:`hbvs_cli.sweep.spec`), runs each one as ``hbvs repeat
---sim`` + ``hbvs report --json`` (:func:`hbvs_cli.sweep.runner.execute_run`) on a Dask
+--sim`` + ``hbvs report --json`` (:func:`hbvs_cli.stages.sweep_run.execute_run`) on a Dask
 cluster (:mod:`hbvs_cli.sweep.engine`), writes the rows as they finish
-(:mod:`hbvs_cli.sweep.table`), and prints the summary (:mod:`hbvs_cli.report.sweep_summary`)
+(:mod:`hbvs_cli.io.sweep_table`), and prints the summary (:mod:`hbvs_cli.report.sweep_summary`)
 and draws the figures (:mod:`hbvs_cli.report.sweep_plots`). Interrupted, the same command
 resumes: the runs already in the table are skipped.
 
@@ -24,14 +24,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ..errors import InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
+from ..io.sweep_table import ResultsTable, failed_row, row_schema
 from ..sim.scene import simulation_world
 from ..sweep.engine import dask_client, default_workers, require_engine, run_tasks
-from ..sweep.runner import KEEP_CHOICES, RunTask, execute_run
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
-from ..sweep.table import ResultsTable, failed_row, row_schema
 from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, print_summary_json, summarize
 from .console import Console
+from .sweep_run import KEEP_CHOICES, RunTask, execute_run
 
 
 @dataclass(frozen=True)

@@ -22,11 +22,11 @@ from ..io.limits import step_count
 from ..io.mcap import open_output, seconds_to_ns
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
+from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..sim.render import make_renderer
 from .console import Console
 from .options import parse_offset, recorded_settings
-from .settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 
 #: Flush a teach file's chunk at least this often: a crash loses at most this much.
 TEACH_CHUNK_BYTES = 512 * 1024
@@ -36,7 +36,7 @@ SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quali
 
 class TeachOptions(TeachFields):
     """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``); its fields are
-    :data:`~hbvs_cli.stages.settings.TEACH_SETTINGS`."""
+    :data:`~hbvs_cli.io.settings.TEACH_SETTINGS`."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""

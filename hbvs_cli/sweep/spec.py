@@ -22,9 +22,10 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from ..core.control_settings import GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
-from ..stages.settings import REPEAT
+from ..io.settings import REPEAT
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
@@ -65,10 +66,10 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("dhat0", "float", "m", "initial depth estimate (--dhat0)", minimum=0.0),
         Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)", minimum=0.0),
         Parameter("pixel_noise", "float", "px", "pixel noise, 1 sigma (--pixel-noise)", minimum=0.0),
-        Parameter("kv", "float", "m/s", "gain k_v (--kv)", minimum=0.0),
-        Parameter("kw", "float", "1/s", "gain k_w (--kw)", minimum=0.0),
-        Parameter("gamma", "float", "", "adaptation gain gamma_1 (--gamma)", minimum=0.0),
-        Parameter("k2", "float", "", "lateral gain k_2 (--k2)", minimum=0.0),
+        Parameter("k_v", "float", GAIN_UNITS["k_v"], "gain k_v (--kv)", minimum=0.0),
+        Parameter("k_w", "float", GAIN_UNITS["k_w"], "gain k_w (--kw)", minimum=0.0),
+        Parameter("gamma", "float", GAIN_UNITS["gamma"], "adaptation gain gamma_1 (--gamma)", minimum=0.0),
+        Parameter("k_2", "float", "", "lateral gain k_2 (--k2)", minimum=0.0),
         Parameter("law", "choice", "", "control law (--law)", choices=ALL_LAWS),
         Parameter("drop_rate", "float", "", "fraction of dropped frames (--drop-rate)", minimum=0.0),
         Parameter("outlier_rate", "float", "", "fraction of frames with an outlier (--outlier-rate)", minimum=0.0),
@@ -433,7 +434,7 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
     if values.get("occlusion_length", 0) > 0:
         start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
         options["occlude"] = [f"{start!r}:{start + float(values['occlusion_length'])!r}"]
-    for name in ("pixel_noise", "kv", "kw", "gamma", "k2", "law", "drop_rate", "outlier_rate", "latency", "perception", "rate", "speed", "lost_timeout"):
+    for name in ("pixel_noise", "k_v", "k_w", "gamma", "k_2", "law", "drop_rate", "outlier_rate", "latency", "perception", "rate", "speed", "lost_timeout"):
         if name in values:
             options[name] = values[name]
     return options

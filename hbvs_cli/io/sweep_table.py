@@ -31,12 +31,53 @@ PARQUET = "runs.parquet"
 CSV = "runs.csv"
 RUNS = "runs"
 
+#: Row column -> the dotted key of ``hbvs report --json`` it holds.
+METRICS: dict[str, str] = {
+    "converged": "verdict.converged",
+    "final_position_m": "pose_error.position_m.final",
+    "final_heading_deg": "pose_error.heading_deg.final",
+    "settling_time_position_s": "pose_error.position_m.settling_time_s",
+    "settling_time_heading_s": "pose_error.heading_deg.settling_time_s",
+    "rmse_position_m": "pose_error.position_m.rmse",
+    "rmse_heading_deg": "pose_error.heading_deg.rmse",
+    "final_e1": "errors.e1.final",
+    "final_e2": "errors.e2.final",
+    "final_ebar2": "errors.ebar2.final",
+    "final_e3_deg": "errors.e3.final",
+    "v_ratio": "lyapunov.ratio",
+    "v_increase_fraction": "lyapunov.increase_fraction",
+    "dhat0_m": "depth.dhat0",
+    "dhat_final_m": "depth.dhat_final",
+    "d_true_m": "depth.d_true",
+    "dhat_relative_error": "depth.relative_error",
+    "lost_fraction": "target.lost_fraction",
+    "saturated_fraction": "commands.saturated_fraction",
+    "v_peak_mps": "commands.v_peak_mps",
+    "w_peak_radps": "commands.w_peak_radps",
+    "dv_dt_rms_mps2": "commands.dv_dt_rms_mps2",
+    "dw_dt_rms_radps2": "commands.dw_dt_rms_radps2",
+    "at_limit_fraction": "commands.at_limit_fraction",
+    "dropped_fraction": "target.dropped_fraction",
+    "duration_s": "run.duration_s",
+    "steps": "run.steps",
+    "truncated": "run.truncated",
+}
+#: Metric columns that are booleans or whole numbers (the rest are floats).
+BOOLEAN_METRICS = ("converged", "truncated")
+INTEGER_METRICS = ("steps",)
+
+#: What became of a run: reported; reported after ``repeat`` stopped it for a lost
+#: target (it did not converge); or failed before a report existed (``error`` says why).
+STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
+
+
+def empty_metrics() -> dict[str, Any]:
+    return {column: None for column in METRICS}
+
 
 def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
     """The Arrow schema of a row: indices, the parameters, status, the report's metrics."""
     import pyarrow as pa
-
-    from .runner import BOOLEAN_METRICS, INTEGER_METRICS, METRICS
 
     arrow = {"float": pa.float64(), "int": pa.int64(), "choice": pa.string()}
     fields = [pa.field(n, pa.int64()) for n in ("index", "point", "repeat", "seed")]
@@ -286,8 +327,6 @@ class ResultsTable:
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:
     """The row of a run whose worker could not give one (it died too often)."""
-    from .runner import STATUS_FAILED, empty_metrics
-
     return {
         "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed, **task.values,
         "status": STATUS_FAILED, "error": error, **empty_metrics(), "run_time_s": None, "run_file": None,

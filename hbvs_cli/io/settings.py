@@ -1,4 +1,4 @@
-"""The options of ``hbvs teach`` and ``hbvs repeat``, declared once: name, type, default,
+"""The options of ``hbvs teach``, ``hbvs fit`` and ``hbvs repeat``, declared once: name, type, default,
 help, config key.
 
 :data:`TEACH_SETTINGS` and :data:`REPEAT_SETTINGS` are the tables. From each come the typer
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, fields, make_dataclass
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-from ..core.control_settings import DEFAULT_PRESET, FILTER_EKF, LAW_LATERAL_GAIN, ControllerGains
+from ..core.control_settings import DEFAULT_PRESET, FILTER_EKF, GAIN_UNITS, LAW_LATERAL_GAIN, ControllerGains
 from ..io.shipped import shipped_name
 from ..io.topics import ROS_CMD_VEL_TOPIC, ROS_LIVE_IMAGE_TOPIC
 
@@ -163,6 +163,28 @@ SIMULATION_DEFAULTS: dict[str, Any] = {s.name: s.fallback for s in TEACH_SETTING
 #: The default start offset of ``repeat --sim`` (m, m, deg): where the robot was put down by hand.
 DEFAULT_OFFSET = "-0.1,0.05,2"
 #: Default actuator limits of the simulated robot (m/s, rad/s): a small indoor platform.
+FIT_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "Teach MCAP file, or - for stdin.", argument=True),
+    Setting("output", str, OUTPUT_HELP, default="fit.mcap", flags=("-o", "--output")),
+    Setting("target", str, "auto, dots, aruco, chessboard or texture.", default="auto"),
+    Setting("reference", str, "The frame that is F*: first, last or a frame index.", default="first"),
+    Setting("smoothing", str, "Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).", default="auto"),
+    Setting("target_size", float, "Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot "
+            "distance (dots) or the square (chessboard).", bounds={"min": 0.0}),
+    Setting("max_gap", float, "Longest stretch (s) without the target that the spline may bridge.", default=1.0, bounds={"min": 0.0}),
+    Setting("max_lost", float, "Largest fraction of frames without the target before fit fails.", default=0.3,
+            bounds={"min": 0.0, "max": 1.0}),
+    Setting("copy_images", bool, "Copy the taught images into the output, so it opens alone in Foxglove (by default open it "
+            "together with the teach file).", default=False, flags=("--with-images",)),
+    Setting("seed", int, "Seed of the robust (RANSAC) estimation.", default=0, bounds={"min": 0}),
+    Setting("allow_truncated", bool, "Replace an existing output even when the input ended early (no end record: the writer "
+            "upstream died).", default=False),
+    Setting("marker_dict", str, "Marker dictionary, e.g. DICT_6X6_250 or DICT_APRILTAG_36h11 (default with --target auto: "
+            "every one is scanned)."),
+    Setting("marker_id", int, "The marker to use (default: every marker seen consistently, all corners as points).",
+            bounds={"min": 0}),
+)
+
 DEFAULT_MAX_V = 0.5
 DEFAULT_MAX_W = 0.6
 #: Seconds without the target before a run is stopped.
@@ -193,12 +215,14 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("law", str, "lateral-gain, paper (k_2 = 1, the paper's law exactly), or a baseline: non-adaptive "
             "(gamma = 0, dhat fixed at dhat0) or kanayama (Kanayama et al. 1990 on the pose at depth dhat0).",
             fallback=LAW_LATERAL_GAIN, config="law", panel="Controller"),
-    Setting("kv", float, "k_v (m/s) of (29).", shown=_shown(DEFAULT_GAINS.k_v), config="k_v", panel="Controller"),
-    Setting("kw", float, "k_w (1/s) of (30).", shown=_shown(DEFAULT_GAINS.k_w), config="k_w", panel="Controller"),
-    Setting("gamma", float, "gamma_1 of the update law (31) (from x_hd1_dot and the detector's noise).",
+    Setting("k_v", float, f"k_v ({GAIN_UNITS['k_v']}) of (29).", shown=_shown(DEFAULT_GAINS.k_v), config="k_v", flags=("--kv",),
+            panel="Controller"),
+    Setting("k_w", float, f"k_w ({GAIN_UNITS['k_w']}) of (30).", shown=_shown(DEFAULT_GAINS.k_w), config="k_w", flags=("--kw",),
+            panel="Controller"),
+    Setting("gamma", float, f"gamma_1 ({GAIN_UNITS['gamma']}) of the update law (31) (from x_hd1_dot and the detector's noise).",
             shown=FROM_THE_FIT, config="gamma", panel="Controller"),
-    Setting("k2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_name('docs/method.md')}).",
-            shown=FROM_THE_FIT, config="k_2", panel="Controller"),
+    Setting("k_2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_name('docs/method.md')}).",
+            shown=FROM_THE_FIT, config="k_2", flags=("--k2",), panel="Controller"),
     Setting("dhat0", float, "Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller"),
     Setting("speed", float, "Play the taught trajectory at this multiple of its pace.", fallback=1.0, config="speed", panel="Controller"),
     Setting("max_v", float, "|v| limit (m/s); inf for none.", fallback=DEFAULT_MAX_V, config="max_v", panel="Actuators"),
@@ -261,6 +285,7 @@ def options_class(name: str, settings: tuple[Setting, ...], doc: str) -> type:
     return cls
 
 
+FitOptions = options_class("FitOptions", FIT_SETTINGS, "Everything ``hbvs fit`` was asked to do (see ``hbvs fit --help``).")
 RepeatOptions = options_class("RepeatOptions", REPEAT_SETTINGS, "Everything ``hbvs repeat`` was asked to do (see ``hbvs repeat --help``).")
 
 

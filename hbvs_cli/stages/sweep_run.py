@@ -3,7 +3,8 @@
 A run is ``hbvs repeat --sim`` (:func:`hbvs_cli.stages.repeat.run_repeat`, the same closed
 loop, writing the same run file) followed by ``hbvs report --json``
 (:func:`hbvs_cli.report.build.build_report` on :func:`hbvs_cli.io.run_file.read_run`),
-and its row is a set of that report's values picked by dotted key (:data:`METRICS`). No
+and its row is a set of that report's values picked by dotted key
+(:data:`~hbvs_cli.io.sweep_table.METRICS`). No
 part of the loop or of the metrics is copied here, so whatever those stages compute, the
 sweep's rows say.
 """
@@ -19,44 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-#: Row column -> the dotted key of ``hbvs report --json`` it holds.
-METRICS: dict[str, str] = {
-    "converged": "verdict.converged",
-    "final_position_m": "pose_error.position_m.final",
-    "final_heading_deg": "pose_error.heading_deg.final",
-    "settling_time_position_s": "pose_error.position_m.settling_time_s",
-    "settling_time_heading_s": "pose_error.heading_deg.settling_time_s",
-    "rmse_position_m": "pose_error.position_m.rmse",
-    "rmse_heading_deg": "pose_error.heading_deg.rmse",
-    "final_e1": "errors.e1.final",
-    "final_e2": "errors.e2.final",
-    "final_ebar2": "errors.ebar2.final",
-    "final_e3_deg": "errors.e3.final",
-    "v_ratio": "lyapunov.ratio",
-    "v_increase_fraction": "lyapunov.increase_fraction",
-    "dhat_initial_m": "depth.dhat_initial",
-    "dhat_final_m": "depth.dhat_final",
-    "d_true_m": "depth.d_true",
-    "dhat_relative_error": "depth.relative_error",
-    "lost_fraction": "target.lost_fraction",
-    "saturated_fraction": "commands.saturated_fraction",
-    "v_peak_mps": "commands.v_peak_mps",
-    "w_peak_radps": "commands.w_peak_radps",
-    "dv_dt_rms_mps2": "commands.dv_dt_rms_mps2",
-    "dw_dt_rms_radps2": "commands.dw_dt_rms_radps2",
-    "at_limit_fraction": "commands.at_limit_fraction",
-    "dropped_fraction": "target.dropped_fraction",
-    "duration_s": "run.duration_s",
-    "steps": "run.steps",
-    "truncated": "run.truncated",
-}
-#: Metric columns that are booleans or whole numbers (the rest are floats).
-BOOLEAN_METRICS = ("converged", "truncated")
-INTEGER_METRICS = ("steps",)
+from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, empty_metrics
 
-#: What became of a run: reported; reported after ``repeat`` stopped it for a lost
-#: target (it did not converge); or failed before a report existed (``error`` says why).
-STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
 KEEP_CHOICES = ("failed", "all", "none")
 
 
@@ -120,10 +85,6 @@ def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
-def empty_metrics() -> dict[str, Any]:
-    return {column: None for column in METRICS}
-
-
 def execute_run(task: RunTask) -> dict[str, Any]:
     """Make one run and its report; never raises for a run that fails (the row says why).
 
@@ -136,9 +97,9 @@ def execute_run(task: RunTask) -> dict[str, Any]:
     """
     from ..errors import HbvsError, TargetLostError
     from ..io.run_file import read_run
-    from ..stages.console import Console
-    from ..stages.repeat import RepeatOptions, run_repeat
     from ..report.build import build_report
+    from .console import Console
+    from .repeat import RepeatOptions, run_repeat
 
     started = time.perf_counter()
     folder = tempfile.mkdtemp(prefix="hbvs-sweep-")

@@ -1,0 +1,63 @@
+"""What a fit hands to repeat: the model of the taught run (its fields; io/fit_file.py
+stores and reads it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .camera import CameraIntrinsics
+from .control_settings import GAIN_NAMES, ControllerGains
+from .trajectory import SplineTrajectory
+from .world import World
+
+
+@dataclass
+class TaughtPath:
+    """Ground truth of a simulated teach: per-frame commands, the start pose and F*'s pose.
+
+    The commands were held between frames, so the taught pose at any time follows
+    exactly from them and the start pose (:class:`~hbvs_cli.core.path.CommandProfile`).
+    """
+
+    t: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    start_pose: np.ndarray
+    reference_pose: np.ndarray
+
+
+@dataclass
+class FitModel:
+    """Everything ``repeat`` needs to track the taught trajectory (and report on it)."""
+
+    target_kind: str
+    camera: CameraIntrinsics
+    reference_index: int
+    reference_t: float
+    reference_pixels: np.ndarray
+    m_ref: np.ndarray
+    normal: np.ndarray
+    normal_margin: float
+    trajectory: SplineTrajectory
+    dhat0: float
+    dhat0_source: str
+    depth: dict[str, Any]
+    frames: dict[str, Any]
+    condition35: dict[str, Any]
+    residual_px: dict[str, Any]
+    detector: dict[str, Any]
+    world: World | None = None
+    taught_path: TaughtPath | None = None
+    render: dict[str, Any] | None = None
+    gains: dict[str, Any] | None = None
+    #: The joint estimate's uncertainty (sigma of n*, theta_d, x_hd1; docs/uncertainty.md), or None in an older fit file.
+    uncertainty: dict[str, Any] | None = None
+
+    def suggested_gains(self) -> ControllerGains | None:
+        """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
+        if not self.gains:
+            return None
+        return ControllerGains(**{k: float(self.gains[k]) for k in GAIN_NAMES})
