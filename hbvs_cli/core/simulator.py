@@ -17,6 +17,8 @@ time (the lost timeout keeps counting), never a "target back".
 With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
 through frames that give no measurement (dropped, occluded, rejected) on its prediction for
 as long as the prediction's standard deviation stays small; only then does the robot stop.
+The filter also measures the depth from the motion, and the update law (31) is then the
+composite one of :meth:`~hbvs_cli.core.controller.AdaptiveTrackingController.adapt`.
 """
 
 from __future__ import annotations
@@ -194,6 +196,9 @@ def run_closed_loop(
     target_lost = False
     # Commands sent since the frame being fused was taken (latency_steps of them).
     unseen_commands: deque[tuple[float, float]] = deque()
+    if state_filter is not None:
+        # The filter starts its depth from dhat(0), and the motion measures it from there.
+        state_filter.expect_depth(controller.dhat)
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
@@ -212,7 +217,7 @@ def run_closed_loop(
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+            estimate = state_filter.estimate(list(unseen_commands), dt, previous)
             # No usable frame (dropped, occluded, rejected): the law acts on the
             # prediction while it is trusted, with the adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
@@ -224,6 +229,10 @@ def run_closed_loop(
             share = state_filter.settling_fraction
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
+            if fresh:
+                # (31) waits for the law's feedback, but the depth the motion measures
+                # already sets the pace of the taught commands (docs/method.md).
+                controller.follow_depth((estimate.depth, estimate.depth_pull), dt)
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
@@ -237,7 +246,9 @@ def run_closed_loop(
         v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
-            controller.adapt(output, dt)
+            # With the filter's depth: the composite law of docs/method.md ("The depth in
+            # the filter"), (31) plus a pull towards the depth the motion measured.
+            controller.adapt(output, dt, (estimate.depth, estimate.depth_pull))
         yield StepRecord(
             t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
             v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost, estimate=estimate,
@@ -248,7 +259,7 @@ def run_closed_loop(
             # the command sent then, and the later ones wait (latency).
             unseen_commands.append(previous)
             if len(unseen_commands) > latency_steps:
-                state_filter.predict(*unseen_commands.popleft(), dt, controller.dhat)
+                state_filter.predict(*unseen_commands.popleft(), dt)
         pose = integrate_unicycle(pose, v_c, w_c, dt)
 
 
