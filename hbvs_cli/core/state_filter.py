@@ -117,8 +117,8 @@ class FilterSettings:
         f = 500 px): no detector is better, and the filter must not trust it more.
     """
 
-    speed_noise: float = 0.001
-    turn_noise: float = 0.0003
+    speed_noise: float = 0.0005
+    turn_noise: float = 0.00015
     depth_prior: float = 1.0
     depth_trust: float = 0.05
     depth_pull_rate: float = 1.0
@@ -129,8 +129,8 @@ class FilterSettings:
     residual_quantile: float = 0.999
     coast_theta_std: float = math.radians(0.5)
     coast_x_h_std: float = 0.005
-    settle_time: float = 0.5
-    fade_time: float = 1.5
+    settle_time: float = 1.0
+    fade_time: float = 2.0
     settle_noise: float = 4e-4
 
     def __post_init__(self) -> None:
@@ -415,9 +415,12 @@ class ServoStateFilter:
         return math.sqrt(self.noise_variance)
 
     # ------------------------------------------------------------------ prediction
-    def predict(self, v: float, w: float, dt: float) -> None:
-        """Advance the estimate over a command (v, w) held for dt."""
+    def predict(self, v: float, w: float, dt: float, depth: float | None = None) -> None:
+        """Advance the estimate over a command (v, w) held for dt, at the filter's own depth
+        (``depth``, dhat (m), only seeds it before the first frame: :meth:`expect_depth`)."""
         if self._state is None:
+            if depth is not None:
+                self.expect_depth(depth)
             return
         self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt)
 
@@ -624,9 +627,14 @@ class ServoStateFilter:
         trust = self.settings.depth_trust
         return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
 
-    def estimate(self, commands: list[tuple[float, float]], dt: float, command: tuple[float, float]) -> FilterEstimate | None:
+    def estimate(self, commands: list[tuple[float, float]], dt: float, depth: float | None,
+                 command: tuple[float, float]) -> FilterEstimate | None:
         """The estimate now: carried over ``commands`` sent since the last frame was taken
-        (latency), with its derivative (5), (23) under ``command`` (the last one sent)."""
+        (latency), at the filter's own depth, with its derivative (5), (23) under ``command``
+        (the last one sent). ``depth`` (dhat, m) only seeds the filter's depth before its
+        first frame (:meth:`expect_depth`)."""
+        if self._state is None and depth is not None:
+            self.expect_depth(depth)
         carried = self._carried(commands, dt)
         if carried is None:
             return None
