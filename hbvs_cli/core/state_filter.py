@@ -430,8 +430,13 @@ class ServoStateFilter:
         ``(f13, f23) = -Rz(-w dt) [dx, dy]`` is how the step's x_h moves with rho."""
         settings = self.settings
         theta, x1, x2, rho = state
-        dx, dy, dphi = arc_displacement(v, w, dt)
+        # arc_displacement fused with the rotation: one cos and one sin per step.
+        dphi = w * dt
         c, s = math.cos(dphi), math.sin(dphi)
+        if abs(dphi) < 1e-6:
+            dx, dy = v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi
+        else:
+            dx, dy = v * s / w, v * (1.0 - c) / w
         a, b = x1 - dx * rho, x2 - dy * rho
         f13, f23 = -(c * dx + s * dy), s * dx - c * dy
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = covariance
@@ -633,18 +638,19 @@ class ServoStateFilter:
         (latency), at the filter's own depth, with its derivative (5), (23) under ``command``
         (the last one sent). ``depth`` (dhat, m) only seeds the filter's depth before its
         first frame (:meth:`expect_depth`)."""
-        if self._state is None and depth is not None:
-            self.expect_depth(depth)
-        carried = self._carried(commands, dt)
-        if carried is None:
+        if self._state is None:
+            if depth is not None:
+                self.expect_depth(depth)
             return None
-        state, p = carried
-        depth = 1.0 / state[3]
+        state, p = self._carried(commands, dt) if commands else (self._state, self._covariance)
+        theta, x1, x2, rho = state
+        depth = 1.0 / rho
+        v, w = command
         return FilterEstimate(
-            measurement=Measurement(theta=state[0], x_h1=state[1], x_h2=state[2]),
+            measurement=Measurement(theta=theta, x_h1=x1, x_h2=x2),
             std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[4], 0.0)), math.sqrt(max(p[7], 0.0)))),
-            rate=state_rate(state[:3], command[0], command[1], depth),
-            noise=self.noise,
+            rate=np.array((-w, x2 * w - v / depth, -x1 * w)),  # state_rate, (5), (23)
+            noise=math.sqrt(self.noise_variance),
             outcome=self.last_outcome,
             depth=depth,
             depth_std=math.sqrt(max(p[9], 0.0)) * depth * depth,
