@@ -217,7 +217,7 @@ def run_closed_loop(
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+            estimate = state_filter.estimate(unseen_commands, dt, dhat, previous)
             # No usable frame (dropped, occluded, rejected): the law acts on the
             # prediction while it is trusted, with the adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)

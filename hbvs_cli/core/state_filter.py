@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Collection
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -632,7 +633,7 @@ class ServoStateFilter:
         trust = self.settings.depth_trust
         return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
 
-    def estimate(self, commands: list[tuple[float, float]], dt: float, depth: float | None,
+    def estimate(self, commands: Collection[tuple[float, float]], dt: float, depth: float | None,
                  command: tuple[float, float]) -> FilterEstimate | None:
         """The estimate now: carried over ``commands`` sent since the last frame was taken
         (latency), at the filter's own depth, with its derivative (5), (23) under ``command``
