@@ -27,10 +27,12 @@ from ..errors import HbvsError, OutputError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
-from ..io.shipped import shipped_path
+from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
-from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
+from ..stages.settings import (
+    OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, RepeatOptions, RobotSimOptions, options_from_command_line,
+)
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 
@@ -41,8 +43,9 @@ app = typer.Typer(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
         "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
-        f"Method and metrics: {shipped_path('docs/method.md')}, {shipped_path('docs/report.md')}. "
-        f"Default gains: {shipped_path('samples/gains.toml')}."
+        f"Method and metrics: {shipped_name('docs/method.md')}, {shipped_name('docs/report.md')}. "
+        f"Default gains: {shipped_name('samples/gains.toml')}. "
+        f"These docs/ and samples/ files are installed in {shipped_root()}."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -69,7 +72,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -126,11 +129,22 @@ def fit(
 @app.command(rich_help_panel="Pipeline")
 @with_settings(REPEAT_SETTINGS, QUIET)
 def repeat(**values: Any) -> None:
-    """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
+    """Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."""
     from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
     run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
+
+
+# --------------------------------------------------------------------------- robot-sim
+@app.command("robot-sim", rich_help_panel="Studies")
+@with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
+def robot_sim(**values: Any) -> None:
+    """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
+    from ..stages.robot_sim import run_robot_sim  # lazy: start-up time (see above)
+
+    quiet = values.pop("quiet")
+    run_robot_sim(options_from_command_line(RobotSimOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- report
@@ -145,7 +159,7 @@ def report(
     require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI.")] = False,
     label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
     dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
-    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches, e.g. 3.5x5 for one column, 7x6 for two (default 7 wide).", rich_help_panel="Figure")] = None,
+    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with --panels position,heading,v,w,top.", rich_help_panel="Figure")] = None,
     panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
@@ -176,20 +190,32 @@ def export(
     run_export(ExportOptions(input=input, output=output), _console(quiet))
 
 
+# --------------------------------------------------------------------------- info
+@app.command(rich_help_panel="Files")
+def info(
+    input: Annotated[str, typer.Argument(help="An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.")],
+    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the text.")] = False,
+) -> None:
+    """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
+    from ..stages.info import InfoOptions, run_info
+
+    run_info(InfoOptions(input=input, json_output=json_output), _console(False))
+
+
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 def sweep(
     fit: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.")] = Path("sweep-results"),
-    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (README, hbvs sweep).")] = None,
+    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (docs/sweeps.md).")] = None,
     vary: Annotated[Optional[List[str]], typer.Option("--vary", help="NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.")] = None,
     fixed: Annotated[Optional[List[str]], typer.Option("--set", help="NAME=VALUE held for every run, e.g. perception=points; repeatable.")] = None,
     repeats: Annotated[Optional[int], typer.Option("--repeats", min=1, help="Runs per point, each with its own seed. Default 1.")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence([seed, i]). Default 0.")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence(\\[seed, i]). Default 0.")] = None,
     sampling: Annotated[Optional[str], typer.Option("--sampling", help="grid (default), or sobol, halton, lhs (scipy.stats.qmc), random for ranges.")] = None,
     samples: Annotated[Optional[int], typer.Option("--samples", min=1, help="Samples of the ranges (not grid). Default 64.")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
-    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs[sweep-cluster]').", rich_help_panel="Engine")] = None,
+    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs\\[sweep-cluster]').", rich_help_panel="Engine")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
     keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON instead of tables.")] = False,
@@ -363,8 +389,8 @@ _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF
 
 
 def _live_port_given(args: list[str]) -> list[str]:
-    """``--live`` without a port means Foxglove's default (typer has no option with an optional value)."""
-    if "--live" not in args:
+    """``--foxglove`` without a port means Foxglove's default (typer has no option with an optional value)."""
+    if "--foxglove" not in args:
         return args
     from ..io.live_view import DEFAULT_PORT
 
@@ -372,14 +398,31 @@ def _live_port_given(args: list[str]) -> list[str]:
     for index, token in enumerate(args):
         if token == "--":
             break
-        if token == "--live" and not (index + 1 < len(args) and args[index + 1].isdigit()):
+        if token == "--foxglove" and not (index + 1 < len(args) and args[index + 1].isdigit()):
             args.insert(index + 1, str(DEFAULT_PORT))
             break
     return args
 
 
+def _old_live_view_spelling(args: list[str]) -> str | None:
+    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling
+    (``--live`` alone now drives a robot)."""
+    for index, token in enumerate(args):
+        if token == "--":
+            break
+        if token == "--live-speed" or token.startswith("--live-speed="):
+            return "hbvs: error: --live-speed is now --foxglove-speed (--live drives a robot; the Foxglove view is --foxglove [PORT])"
+        if token == "--live" and index + 1 < len(args) and args[index + 1].isdigit():
+            return f"hbvs: error: the Foxglove view is now --foxglove {args[index + 1]} (--live drives a robot: docs/robot.md)"
+    return None
+
+
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
+    hint = _old_live_view_spelling(args)
+    if hint is not None:
+        _say(hint)
+        return 2
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0

@@ -41,7 +41,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..errors import InputError, RecordingError, UsageError
+from ..errors import InputError, OutputError, RecordingError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .mcap import McapStream, read_metadata
 from .topics import (
@@ -82,14 +82,14 @@ def check_bag_target(spec: str) -> Path:
     ------
     UsageError
         ``-`` (a bag is a folder), or an existing file or folder that is not a ROS 2 bag.
-    InputError
-        The parent folder does not exist.
+    OutputError
+        The parent folder does not exist (exit 6).
     """
     if spec == "-":
         raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
     final = Path(os.path.realpath(spec))
     if not final.parent.is_dir():
-        raise InputError(f"{spec}: the folder {final.parent} does not exist")
+        raise OutputError(f"{spec}: the folder {final.parent} does not exist")
     if final.exists() or final.is_symlink():
         if not final.is_dir():
             raise UsageError(f"{spec}: exists and is not a ROS 2 bag folder; give a new folder name")

@@ -2,7 +2,8 @@
 
 On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a test) they
 are plain text: no colour, no box characters, columns separated by at least two spaces and
-never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep final``).
+the numbers never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
+final``); the verdict's sentences wrap to the reader's width (:func:`reading_width`).
 
 Every number is the JSON value (:mod:`.build`) to 4 significant digits, in the unit
 named in its row label. One run: a run table, an error matrix (one row per error, one
@@ -72,6 +73,18 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("dropped (fraction of steps)", "target.dropped_fraction"),
     ("min |x_hd1_dot| run (1/s)", "condition35.min_abs_xhd1_dot"),
     ("min |x_hd1_dot| fit (1/s)", "condition35.fit_min_abs_xhd1_dot"),
+)
+
+#: Rows of a live run's loop timing (``repeat --live``): shown when a run has them.
+TIMING_ROWS: tuple[tuple[str, str], ...] = (
+    ("latency p50 (ms)", "timing.latency_p50_ms"),
+    ("latency p95 (ms)", "timing.latency_p95_ms"),
+    ("latency p99 (ms)", "timing.latency_p99_ms"),
+    ("latency max (ms)", "timing.latency_max_ms"),
+    ("frame interval p50 (ms)", "timing.frame_interval_p50_ms"),
+    ("frame interval max (ms)", "timing.frame_interval_max_ms"),
+    ("frames dropped", "timing.frames_dropped"),
+    ("frames late", "timing.frames_late"),
 )
 
 #: Row label of each verdict check (``verdict.checks``).
@@ -207,6 +220,9 @@ def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
     from rich.text import Text
 
     table = _table(["check", *run_labels(reports)], plain)
+    # The checks are sentences: left-aligned, and wrapped to the width they are printed in.
+    for column in table.columns[1:]:
+        column.justify, column.no_wrap = "left", False
 
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")
@@ -237,6 +253,8 @@ def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tu
         ("run", _rows_table(_run_rows(reports), reports, plain)),
         *_error_tables(reports, console),
         ("Lyapunov function (36), depth, commands, target, condition (35)", _rows_table(METRIC_ROWS, reports, plain)),
+        *([("live loop: frame-to-command latency, frames dropped or late", _rows_table(TIMING_ROWS, reports, plain))]
+          if any("timing" in report for report in reports) else []),
         ("verdict (convergence rule: docs/report.md)", _verdict_table(reports, plain)),
     ]
 
@@ -257,12 +275,28 @@ def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) ->
 
     console = report_console(stream)
     plain = not console.is_terminal
+    tables = report_tables(reports, console)
     # Titles are lines of their own: a rich table title wraps to the table's width.
-    for index, (title, table) in enumerate(report_tables(reports, console)):
+    for index, (title, table) in enumerate(tables):
         if index:
             console.print()
         console.print(Text(title, style="" if plain else "bold cyan"))
-        console.print(table)
+        # The verdict's sentences wrap to the terminal even through a pipe (hbvs report | less);
+        # the numbers' rows are never wrapped, so that they grep.
+        console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
+
+
+def reading_width() -> int:
+    """Columns of the terminal the user reads in: $COLUMNS, else stderr's terminal, else 100."""
+    import os
+
+    columns = os.environ.get("COLUMNS", "")
+    if columns.isdigit() and int(columns) > 0:
+        return int(columns)
+    try:
+        return os.get_terminal_size(2).columns
+    except OSError:
+        return 100
 
 
 #: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.report.fit_plot.fit_summary`).
