@@ -16,6 +16,12 @@ start and dhat(0), or to twice the smoothness baseline of issue 17 (the paper's 
 exact points from the default start, no filter, 0.20 m/s^2) where that is larger: a start on the path
 is so calm without noise (0.03 m/s^2) that the noise floor of the soft start's first seconds
 (0.1-0.25 m/s^2) is several times it. Both ratios are printed (``pytest -s``).
+
+Measured (campaign): points, 154 of 162 runs converged (95.1 %; 26, 25, 26, 26, 24, 27 of
+27 per depth), none stopped, dhat 3.966-4.045 m at the end, worst final position 0.79 cm
+(the 8 others fail on heading, 0.20-0.31 deg), RMS dv/dt at most 1.16 times its bound (within
+2x of the same start's noise-free run in 80 % of runs); images, 6 of 6, dhat 3.994-4.004 m,
+at most 0.60 times the bound.
 """
 
 from __future__ import annotations
