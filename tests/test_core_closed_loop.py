@@ -181,6 +181,35 @@ def test_the_law_closes_the_loop_32_and_v_dot_is_38(k_2):
         assert v_dot == pytest.approx(-gains.k_v * err.e1**2 - gains.k_w * err.e3**2, rel=1e-9, abs=1e-12)
 
 
+def test_the_composite_law_adds_minus_kappa_over_gamma_d_tilde_squared_to_v_dot():
+    """The update law with the state filter's depth d_f (docs/method.md, "The depth in the
+    filter"): dhat_dot = (31) + kappa (d_f - dhat). Integrated by ``adapt`` over a short
+    step, it changes V (36) at -k_v e1^2 - k_w e3^2 - (kappa / gamma) d~^2 when d_f = d*."""
+    from hbvs_cli.core.controller import DesiredState
+
+    gains = ControllerGains(k_v=4.0, k_w=1.0, gamma=971.0, k_2=401.0)
+    rng = np.random.default_rng(25)
+    dt = 1e-7
+    for _ in range(100):
+        d_star, dhat, kappa = *rng.uniform(1.0, 16.0, 2), rng.uniform(0.0, 1.0)
+        measured = Measurement(*rng.uniform(-0.5, 0.5, 3))
+        desired = DesiredState(*rng.uniform(-0.5, 0.5, 6))
+        controller = AdaptiveTrackingController(gains, dhat)
+        out = controller.step(measured, desired, dt, adapt=False)
+        controller.adapt(out, dt, (d_star, kappa))
+        dhat_dot = (controller.dhat - dhat) / dt
+        assert dhat_dot == pytest.approx(float(out.dhat_dot) + kappa * (d_star - dhat), rel=1e-6, abs=1e-9)
+        err = out.errors
+        e1_dot, ebar2_dot, e3_dot = closed_loop_error_rates(err, d_star - dhat, measured.x_h2, out.w_c, desired.x_hd1_dot, d_star, gains)
+        v_dot = d_star * err.e1 * e1_dot + gains.k_2 * err.ebar2 * ebar2_dot + err.e3 * e3_dot - (d_star - dhat) * dhat_dot / gains.gamma
+        expected = -gains.k_v * err.e1**2 - gains.k_w * err.e3**2 - kappa / gains.gamma * (d_star - dhat) ** 2
+        assert v_dot == pytest.approx(expected, rel=1e-5, abs=1e-9)
+        # The non-adaptive baseline (gamma = 0) ignores the filter's depth: dhat stays dhat(0).
+        frozen = AdaptiveTrackingController(ControllerGains(gamma=0.0), dhat)
+        frozen.adapt(control_law(measured, desired, dhat, frozen.gains), 0.1, (d_star, kappa))
+        assert frozen.dhat == dhat
+
+
 def test_dhat_learns_depth_from_a_fifth_of_it():
     records, _, d_star, controller = closed_loop_run(ControllerGains(), dhat0_factor=0.2)
     assert abs(controller.dhat - d_star) < 0.02 * d_star

@@ -220,8 +220,13 @@ def test_report_of_a_synthetic_run():
     assert heading["mean"] == pytest.approx(math.degrees(0.02)) and heading["final"] == pytest.approx(math.degrees(0.02))
     assert report["lyapunov"]["ratio"] == pytest.approx((R ** (N - 1)) ** 2)
     assert report["lyapunov"]["increase_fraction"] == 0.0
+    # dhat rises 0.09 m/s from 3 m: within 10 % of d* = 4 m (3.6 m) from t = 6.66 s on, and
+    # still moving at the end (2.25 % of d* per second).
     assert report["depth"] == {"dhat0": 3.0, "dhat_final": pytest.approx(3.9), "d_true": 4.0,
-                               "relative_error": pytest.approx(0.025)}
+                               "relative_error": pytest.approx(0.025), "learning_reference": "d_true",
+                               "learning_time_s": pytest.approx(6.66, abs=0.011), "end_rate_per_s": pytest.approx(0.9 / 9.99 / 4.0, rel=1e-6),
+                               "still_moving": True, "warning": report["depth"]["warning"]}
+    assert report["depth"]["warning"].startswith("dhat is still moving at the end of the run (+2.3 % per second)")
     t = np.arange(N) * DT
     dw_dt = np.diff(0.05 * np.cos(t)) / DT
     # The taught commands (25) at d* = 4 m: w_d = 0, v_d = 4 (0.02 + 0.01 sin t).

@@ -200,9 +200,29 @@ class AdaptiveTrackingController:
             self.adapt(output, dt)
         return output
 
-    def adapt(self, output: ControlOutput, dt: float) -> None:
-        """Integrate the update law (31) of one evaluation over ``dt`` seconds."""
-        self.dhat += float(output.dhat_dot) * dt
+    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
+        """Integrate the update law (31) of one evaluation over ``dt`` seconds.
+
+        ``depth_reference`` is ``(d_f, kappa)``: a depth measured independently (m; the
+        state filter's, from the motion) and the rate (1/s) at which to trust it. The law is
+        then the composite ``dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot) + kappa (d_f - dhat)``
+        (docs/method.md, "The depth in the filter"): along (32) it adds
+        ``-(kappa / gamma_1) d~ (d_f - dhat)`` to V_dot (38), which is ``-(kappa / gamma_1) d~^2``
+        when d_f = d*. Without adaptation (gamma_1 = 0, the non-adaptive baseline) dhat stays.
+        """
+        rate = float(output.dhat_dot)
+        if depth_reference is not None and self.gains.gamma > 0.0:
+            depth, pull = depth_reference
+            rate += pull * (depth - self.dhat)
+        self.dhat += rate * dt
+
+    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
+        """Only the composite term of :meth:`adapt` over ``dt``: while the state filter
+        settles, (31) is frozen (its errors are not yet those of the law) but the depth the
+        motion measures already sets the pace of the taught commands (25)."""
+        if self.gains.gamma > 0.0:
+            depth, pull = depth_reference
+            self.dhat += pull * (depth - self.dhat) * dt
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
         """The taught commands (25) at the current dhat: (29)-(30) with every error zero,

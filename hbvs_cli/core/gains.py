@@ -40,6 +40,16 @@ SIGMA_E1_REFERENCE = 0.002
 DEPTH_RATE = 0.4
 DEFAULT_K_V = 4.0
 DEFAULT_K_W = 1.0
+#: The range of dhat(0) / d* the suggested gains are good for, with the state filter that
+#: measures the depth from the motion (docs/method.md, "The depth in the filter"): the
+#: campaign of tests/test_control_depth.py converges from every start in it at 0.5 px.
+DHAT0_RANGE = (0.25, 4.0)
+
+
+def dhat0_range_text() -> str:
+    """The range :data:`DHAT0_RANGE` in words, as ``fit`` prints it next to the gains."""
+    low, high = DHAT0_RANGE
+    return f"dhat(0) from d*/{1.0 / low:g} to {high:g} d*"
 
 
 @dataclass(frozen=True)

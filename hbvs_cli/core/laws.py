@@ -123,7 +123,10 @@ class KanayamaController:
         w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
         return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
 
-    def adapt(self, output: ControlOutput, dt: float) -> None:
+    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
+        """Nothing to learn: the depth estimate stays fixed."""
+
+    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
         """Nothing to learn: the depth estimate stays fixed."""
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:

@@ -14,6 +14,8 @@ counting), never a "target back".
 With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
 through frames that give no measurement (dropped, occluded, rejected) on its prediction for
 as long as the prediction's standard deviation stays small; only then does the robot stop.
+The filter also measures the depth from the motion, and the update law (31) is then the
+composite one of :meth:`~hbvs_cli.core.controller.AdaptiveTrackingController.adapt`.
 """
 
 from __future__ import annotations
@@ -163,6 +165,9 @@ class ServoStep:
         self.target_lost = False
         # Commands sent since the frame being fused was taken (latency_steps of them).
         self.unseen_commands: deque[tuple[float, float]] = deque()
+        if state_filter is not None:
+            # The filter starts its depth from dhat(0), and the motion measures it from there.
+            state_filter.expect_depth(controller.dhat)
 
     def decide(self, t: float, pose: NDArray[np.float64], observation: Observation, desired: DesiredState, dt: float) -> StepRecord:
         """The command for ``observation`` (taken at ``t``, s) while ``desired`` is wanted.
@@ -184,7 +189,7 @@ class ServoStep:
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(list(self.unseen_commands), dt, dhat, previous)
+            estimate = state_filter.estimate(self.unseen_commands, dt, dhat, previous)
             # No usable frame (dropped, occluded, rejected): the law acts on the
             # prediction while it is trusted, with the adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
@@ -196,6 +201,10 @@ class ServoStep:
             share = state_filter.settling_fraction
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
+            if fresh:
+                # (31) waits for the law's feedback, but the depth the motion measures
+                # already sets the pace of the taught commands (docs/method.md).
+                controller.follow_depth((estimate.depth, estimate.depth_pull), dt)
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
@@ -209,7 +218,9 @@ class ServoStep:
         v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
-            controller.adapt(output, dt)
+            # With the filter's depth: the composite law of docs/method.md ("The depth in
+            # the filter"), (31) plus a pull towards the depth the motion measured.
+            controller.adapt(output, dt, (estimate.depth, estimate.depth_pull))
         self.previous = (v_c, w_c)
         return StepRecord(
             t=t, pose=pose, observation=observation, desired=desired, output=output,
@@ -223,4 +234,4 @@ class ServoStep:
             # the command sent then, and the later ones wait (latency).
             self.unseen_commands.append(self.previous)
             if len(self.unseen_commands) > self.latency_steps:
-                self.state_filter.predict(*self.unseen_commands.popleft(), dt, self.controller.dhat)
+                self.state_filter.predict(*self.unseen_commands.popleft(), dt)

@@ -1,4 +1,5 @@
-"""A Kalman filter on the servo state (theta, x_h1, x_h2), between the camera and the law.
+"""A Kalman filter on the servo state (theta, x_h1, x_h2) and the inverse depth 1/d*, between
+the camera and the law.
 
 The paper feeds the law (29)-(31) the raw decomposition of every frame. With a real
 detector (0.2-1 px of noise) the lateral gain k_2 multiplies that noise into the commands,
@@ -6,14 +7,17 @@ and the robot chatters or loses its target (docs/method.md, "State filter"). Thi
 keeps an estimate of the state that the law acts on:
 
 * **Prediction** with the kinematics (5), (23), integrated exactly for a command (v, w)
-  held over ``dt`` (the robot moves on an arc) and the current depth estimate dhat::
+  held over ``dt`` (the robot moves on an arc)::
 
       theta' = theta - w dt
-      x_h'   = Rz(-w dt) (x_h - [dx, dy] / dhat)
+      x_h'   = Rz(-w dt) (x_h - [dx, dy] rho)
+      rho'   = rho
 
   where ``[dx, dy]`` is the arc's displacement in the robot's frame at the start of the
-  step. The process noise is a white velocity error on v and w (what the wheels did not
-  do), plus the effect of the depth error on x_h1.
+  step and ``rho = 1/d*`` is a state of the filter: the prediction is linear in it, so the
+  motion the camera sees for a known command measures the depth (docs/method.md, "The
+  depth in the filter"). The process noise is a white velocity error on v and w (what the
+  wheels did not do).
 * **Correction** with the frame's measurement (theta, x_h1, x_h2) as the known-normal
   solver returns it, with the covariance the image points give it: ``sigma^2 (J^T J)^-1``,
   where J is the Jacobian of the N normalised image points with respect to the state and
@@ -25,7 +29,7 @@ keeps an estimate of the state that the law acts on:
   from the fit's residual.
 * **Outliers** are gated by the squared Mahalanobis distance of the innovation (3 degrees
   of freedom); after ``reset_after`` rejections in a row the filter restarts from the
-  measurement (the world moved, not the detector).
+  measurement (the world moved, not the detector), keeping what it learnt of the depth.
 
 Every function here is pure; :class:`ServoStateFilter` holds the estimate and its covariance.
 """
@@ -34,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Collection
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -74,8 +79,16 @@ class FilterSettings:
         m/s/sqrt(Hz): over one second the position drifts by about this much (m).
     turn_noise : float
         The same for w, rad/s/sqrt(Hz).
-    depth_uncertainty : float
-        Relative error of dhat assumed when predicting x_h1 (dimensionless).
+    depth_prior : float
+        Relative standard deviation of the inverse depth 1/dhat(0) the filter starts from
+        (dimensionless): 1 admits a dhat(0) from a quarter of d* (0.75 sigma) to four times
+        it (3 sigma); the motion then measures 1/d* within a few percent in a second.
+    depth_trust : float
+        Relative standard deviation of the filter's depth at which the law's depth estimate
+        is pulled towards it at half :attr:`depth_pull_rate` (dimensionless).
+    depth_pull_rate : float
+        Rate (1/s) at which the update law moves dhat towards the filter's depth once that
+        is well measured (docs/method.md, "The depth in the filter").
     gate : float
         Squared Mahalanobis distance beyond which a measurement is rejected.
     reset_after : int
@@ -105,9 +118,11 @@ class FilterSettings:
         f = 500 px): no detector is better, and the filter must not trust it more.
     """
 
-    speed_noise: float = 0.001
-    turn_noise: float = 0.0003
-    depth_uncertainty: float = 0.3
+    speed_noise: float = 0.0005
+    turn_noise: float = 0.00015
+    depth_prior: float = 1.0
+    depth_trust: float = 0.05
+    depth_pull_rate: float = 1.0
     gate: float = CHI2_3DOF_999
     reset_after: int = 5
     noise_time_constant: float = 0.5
@@ -115,12 +130,13 @@ class FilterSettings:
     residual_quantile: float = 0.999
     coast_theta_std: float = math.radians(0.5)
     coast_x_h_std: float = 0.005
-    settle_time: float = 0.5
-    fade_time: float = 1.5
+    settle_time: float = 1.0
+    fade_time: float = 2.0
     settle_noise: float = 4e-4
 
     def __post_init__(self) -> None:
-        for name in ("speed_noise", "turn_noise", "depth_uncertainty", "noise_time_constant", "min_noise", "gate"):
+        for name in ("speed_noise", "turn_noise", "depth_prior", "depth_trust", "depth_pull_rate", "noise_time_constant",
+                     "min_noise", "gate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise InvalidValueError(f"filter setting {name} must be a non-negative number, got {value}")
@@ -139,13 +155,21 @@ class FilterEstimate:
     std : ndarray, shape (3,)
         Standard deviations of theta (rad), x_h1, x_h2.
     rate : ndarray, shape (3,)
-        Its time derivative (rad/s, 1/s, 1/s) from (5), (23) with the command being sent:
-        the derivative consistent with the estimate.
+        Its time derivative (rad/s, 1/s, 1/s) from (5), (23) with the command being sent
+        and the filter's depth: the derivative consistent with the estimate.
     noise : float
         Current estimate of the detector's per-coordinate noise (normalised units).
     outcome : FilterOutcome
         What the last frame did: fused, gated (rejected as an outlier), started, or
         predicted (no frame).
+    depth : float
+        The filter's depth d* = 1 / rho (m), as the motion measured it.
+    depth_std : float
+        Its standard deviation (m).
+    depth_pull : float
+        The rate (1/s) at which the update law may pull dhat towards :attr:`depth`:
+        ``depth_pull_rate / (1 + (relative std / depth_trust)^2)``, 0 while the depth is
+        still a guess.
     """
 
     measurement: Measurement
@@ -153,6 +177,9 @@ class FilterEstimate:
     rate: NDArray[np.float64]
     noise: float
     outcome: FilterOutcome
+    depth: float = math.nan
+    depth_std: float = math.nan
+    depth_pull: float = 0.0
 
 
 def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:
@@ -225,11 +252,15 @@ def wrap(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
-# --------------------------------------------------------------------------- 3x3 algebra
-# The filter runs every control period; a 3x3 in plain floats costs a fraction of numpy's
-# per-call overhead. A symmetric matrix is the 6-tuple (a00, a01, a02, a11, a12, a22).
+# --------------------------------------------------------------------------- small algebra
+# The filter runs every control period; in plain floats a 4-state update costs a fraction
+# of numpy's per-call overhead. A symmetric 3x3 is the 6-tuple (a00, a01, a02, a11, a12,
+# a22); the filter's 4x4 covariance of (theta, x_h1, x_h2, rho) the 10-tuple (p00, p01, p02,
+# p03, p11, p12, p13, p22, p23, p33).
 Sym3 = tuple[float, float, float, float, float, float]
+Sym4 = tuple[float, float, float, float, float, float, float, float, float, float]
 Vec3 = tuple[float, float, float]
+State = tuple[float, float, float, float]
 
 
 def _sym_inverse(a: Sym3) -> Sym3:
@@ -256,14 +287,24 @@ def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
     return np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
 
 
+def _sym4_to_array(p: Sym4) -> NDArray[np.float64]:
+    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
+    return np.array([[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23], [p03, p13, p23, p33]])
+
+
 def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
     """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
     theta, x1, x2 = state
     return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
 
 
+#: The filter's inverse depth stays within this factor of its prior either way: a bound
+#: the motion never reaches, that keeps 1/rho finite whatever a wild frame does.
+INVERSE_DEPTH_RANGE = 100.0
+
+
 class ServoStateFilter:
-    """Extended Kalman filter on (theta, x_h1, x_h2) (module docstring; docs/method.md).
+    """Extended Kalman filter on (theta, x_h1, x_h2, 1/d*) (module docstring; docs/method.md).
 
     Parameters
     ----------
@@ -275,9 +316,13 @@ class ServoStateFilter:
         Initial per-coordinate noise of the detector, in normalised image units (pixels
         divided by the focal length); the residuals refine it as the run goes.
     settings : FilterSettings, optional
+    depth : float, optional
+        The depth guess (m) the filter starts from, dhat(0); :meth:`expect_depth` sets it
+        later (before the first frame).
     """
 
-    def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, settings: FilterSettings | None = None) -> None:
+    def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, settings: FilterSettings | None = None,
+                 depth: float | None = None) -> None:
         self.m_ref = np.asarray(m_ref, dtype=float)
         self.normal = np.asarray(normal, dtype=float)
         self.settings = settings or FilterSettings()
@@ -291,21 +336,49 @@ class ServoStateFilter:
         self._residual_to_variance = 2.0 * points / max(2.0 * points - 3.0, 1.0)
         self._residual_gate = chi2_quantile(self.settings.residual_quantile, max(2 * points - 3, 1)) / max(2 * points - 3, 1)
         self.noise_variance = max(noise, self.settings.min_noise) ** 2
-        self._state: Vec3 | None = None
-        self._covariance: Sym3 | None = None
+        self._state: State | None = None
+        self._covariance: Sym4 | None = None
+        self._rho_prior = math.nan
+        self._rho_range = (0.0, math.inf)
+        if depth is not None:
+            self.expect_depth(depth)
         self.rejected_in_a_row = 0
         self.last_outcome = FilterOutcome.PREDICTED
         self.fused_time = 0.0
 
+    def expect_depth(self, depth: float) -> None:
+        """Start the filter's inverse depth at ``1 / depth`` (m), with the relative standard
+        deviation ``depth_prior``; only before the first frame."""
+        if self._state is not None:
+            return
+        if not (math.isfinite(depth) and depth > 0.0):
+            raise InvalidValueError(f"the filter's depth guess must be a positive depth in metres, got {depth}")
+        self._rho_prior = 1.0 / depth
+        self._rho_range = (self._rho_prior / INVERSE_DEPTH_RANGE, self._rho_prior * INVERSE_DEPTH_RANGE)
+
     @property
     def state(self) -> NDArray[np.float64] | None:
         """(theta, x_h1, x_h2) at the time of the last fused frame, or None before the first."""
-        return None if self._state is None else np.array(self._state)
+        return None if self._state is None else np.array(self._state[:3])
 
     @property
     def covariance(self) -> NDArray[np.float64] | None:
         """Its covariance, shape (3, 3)."""
-        return None if self._covariance is None else _sym_to_array(self._covariance)
+        return None if self._covariance is None else _sym4_to_array(self._covariance)[:3, :3]
+
+    @property
+    def depth(self) -> float:
+        """The filter's depth 1 / rho (m); NaN before a depth is expected."""
+        rho = self._rho_prior if self._state is None else self._state[3]
+        return 1.0 / rho if rho > 0.0 else math.nan
+
+    @property
+    def depth_std(self) -> float:
+        """Standard deviation of :attr:`depth` (m), to first order: ``std(rho) / rho^2``."""
+        if self._state is None:
+            return self.settings.depth_prior * self.depth
+        rho = self._state[3]
+        return math.sqrt(max(self._covariance[9], 0.0)) / (rho * rho)
 
     @property
     def started(self) -> bool:
@@ -343,46 +416,68 @@ class ServoStateFilter:
         return math.sqrt(self.noise_variance)
 
     # ------------------------------------------------------------------ prediction
-    def predict(self, v: float, w: float, dt: float, depth: float) -> None:
-        """Advance the estimate over a command (v, w) held for dt, at depth dhat (m)."""
+    def predict(self, v: float, w: float, dt: float, depth: float | None = None) -> None:
+        """Advance the estimate over a command (v, w) held for dt, at the filter's own depth
+        (``depth``, dhat (m), only seeds it before the first frame: :meth:`expect_depth`)."""
         if self._state is None:
+            if depth is not None:
+                self.expect_depth(depth)
             return
-        self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt, depth)
+        self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt)
 
-    def _predicted(self, state: Vec3, covariance: Sym3, v: float, w: float, dt: float, depth: float) -> tuple[Vec3, Sym3]:
-        """(5), (23) over one held command, and ``F P F^T + Q`` with ``F = diag(1, Rz(-w dt))``."""
+    def _predicted(self, state: State, covariance: Sym4, v: float, w: float, dt: float) -> tuple[State, Sym4]:
+        """(5), (23) over one held command, and ``F P F^T + Q`` with the Jacobian
+        ``F = [[1, 0, 0, 0], [0, c, s, f13], [0, -s, c, f23], [0, 0, 0, 1]]``, where
+        ``(f13, f23) = -Rz(-w dt) [dx, dy]`` is how the step's x_h moves with rho."""
         settings = self.settings
-        x1, x2 = state[1], state[2]
-        new_state = predict_state(state, v, w, dt, depth)
+        theta, x1, x2, rho = state
+        # arc_displacement fused with the rotation: one cos and one sin per step.
         dphi = w * dt
         c, s = math.cos(dphi), math.sin(dphi)
-        p00, p01, p02, p11, p12, p22 = covariance
-        cc, ss, cs = c * c, s * s, c * s
-        # White velocity errors of spectral density q enter through g_v = [0, -1/d, 0] and
-        # g_w = [-1, x_h2, -x_h1]; their integral over dt has variance q dt.
-        qv = settings.speed_noise**2 * dt / (depth * depth) + (v * dt * settings.depth_uncertainty / depth) ** 2
+        if abs(dphi) < 1e-6:
+            dx, dy = v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi
+        else:
+            dx, dy = v * s / w, v * (1.0 - c) / w
+        a, b = x1 - dx * rho, x2 - dy * rho
+        f13, f23 = -(c * dx + s * dy), s * dx - c * dy
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = covariance
+        # Rows 1 and 2 of F P (row 0 and 3 are P's own).
+        m10 = c * p01 + s * p02 + f13 * p03
+        m11 = c * p11 + s * p12 + f13 * p13
+        m12 = c * p12 + s * p22 + f13 * p23
+        m13 = c * p13 + s * p23 + f13 * p33
+        m21 = -s * p11 + c * p12 + f23 * p13
+        m22 = -s * p12 + c * p22 + f23 * p23
+        m23 = -s * p13 + c * p23 + f23 * p33
+        # White velocity errors of spectral density q enter through g_v = [0, -rho, 0, 0]
+        # and g_w = [-1, x_h2, -x_h1, 0]; their integral over dt has variance q dt.
+        qv = settings.speed_noise**2 * dt * rho * rho
         qw = settings.turn_noise**2 * dt
-        return new_state, (
+        return (theta - dphi, c * a + s * b, -s * a + c * b, rho), (
             p00 + qw,
-            c * p01 + s * p02 - qw * x2,
-            -s * p01 + c * p02 + qw * x1,
-            cc * p11 + 2.0 * cs * p12 + ss * p22 + qv + qw * x2 * x2,
-            -cs * p11 + (cc - ss) * p12 + cs * p22 - qw * x1 * x2,
-            ss * p11 - 2.0 * cs * p12 + cc * p22 + qw * x1 * x1,
+            m10 - qw * x2,
+            -s * p01 + c * p02 + f23 * p03 + qw * x1,
+            p03,
+            c * m11 + s * m12 + f13 * m13 + qv + qw * x2 * x2,
+            -s * m11 + c * m12 + f23 * m13 - qw * x1 * x2,
+            m13,
+            -s * m21 + c * m22 + f23 * m23 + qw * x1 * x1,
+            m23,
+            p33,
         )
 
-    def extrapolate(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """The estimate and its covariance carried over commands already sent but not yet
-        seen by the camera (latency), without changing the filter."""
-        carried = self._carried(commands, dt, depth)
-        return None if carried is None else (np.array(carried[0]), _sym_to_array(carried[1]))
+    def extrapolate(self, commands: list[tuple[float, float]], dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The estimate and its covariance (theta, x_h1, x_h2) carried over commands already
+        sent but not yet seen by the camera (latency), without changing the filter."""
+        carried = self._carried(commands, dt)
+        return None if carried is None else (np.array(carried[0][:3]), _sym4_to_array(carried[1])[:3, :3])
 
-    def _carried(self, commands: list[tuple[float, float]], dt: float, depth: float) -> tuple[Vec3, Sym3] | None:
+    def _carried(self, commands: list[tuple[float, float]], dt: float) -> tuple[State, Sym4] | None:
         if self._state is None:
             return None
         state, covariance = self._state, self._covariance
         for v, w in commands:
-            state, covariance = self._predicted(state, covariance, v, w, dt, depth)
+            state, covariance = self._predicted(state, covariance, v, w, dt)
         return state, covariance
 
     # ------------------------------------------------------------------ correction
@@ -411,28 +506,56 @@ class ServoStateFilter:
             return FilterOutcome.GATED
         z, inverse_information = observed
         variance = self.noise_variance
-        measurement_covariance = tuple(variance * value for value in inverse_information)
+        r00, r01, r02, r11, r12, r22 = (variance * value for value in inverse_information)
         if self._state is None:
-            return self._start(z, measurement_covariance, residual, dt)
-        state, p = self._state, self._covariance
-        innovation = (wrap(z[0] - state[0]), z[1] - state[1], z[2] - state[2])
+            return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
+        theta, x1, x2, rho = self._state
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._covariance
+        n0, n1, n2 = wrap(z[0] - theta), z[1] - x1, z[2] - x2
         try:
-            s_inverse = _sym_inverse(tuple(a + b for a, b in zip(p, measurement_covariance)))
+            s00, s01, s02, s11, s12, s22 = _sym_inverse((p00 + r00, p01 + r01, p02 + r02, p11 + r11, p12 + r12, p22 + r22))
         except ZeroDivisionError:
             return self._reject(measured, residual, dt, observed)
-        weighted = _sym_times(s_inverse, innovation)
-        if innovation[0] * weighted[0] + innovation[1] * weighted[1] + innovation[2] * weighted[2] > self.settings.gate:
+        # S^-1 nu, and the squared Mahalanobis distance nu^T S^-1 nu.
+        w0 = s00 * n0 + s01 * n1 + s02 * n2
+        w1 = s01 * n0 + s11 * n1 + s12 * n2
+        w2 = s02 * n0 + s12 * n1 + s22 * n2
+        if n0 * w0 + n1 * w1 + n2 * w2 > self.settings.gate:
             return self._reject(measured, residual, dt, observed)
         self.rejected_in_a_row = 0
-        step = _sym_times(p, weighted)
-        self._state = (state[0] + step[0], state[1] + step[1], state[2] + step[2])
-        # P - P S^-1 P, column by column of P (symmetric by construction).
-        p_full = ((p[0], p[1], p[2]), (p[1], p[3], p[4]), (p[2], p[4], p[5]))
-        columns = [_sym_times(s_inverse, column) for column in p_full]  # S^-1 P, column j
-        reduction = [[sum(p_full[i][k] * columns[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+        # The measurement sees the first three states: K = P[:, :3] S^-1, x += K nu and
+        # P -= P[:, :3] S^-1 P[:3, :]. Column j of P[:3, :] is (p0j, p1j, p2j); u_j = S^-1 of it.
+        u00 = s00 * p00 + s01 * p01 + s02 * p02
+        u01 = s01 * p00 + s11 * p01 + s12 * p02
+        u02 = s02 * p00 + s12 * p01 + s22 * p02
+        u10 = s00 * p01 + s01 * p11 + s02 * p12
+        u11 = s01 * p01 + s11 * p11 + s12 * p12
+        u12 = s02 * p01 + s12 * p11 + s22 * p12
+        u20 = s00 * p02 + s01 * p12 + s02 * p22
+        u21 = s01 * p02 + s11 * p12 + s12 * p22
+        u22 = s02 * p02 + s12 * p12 + s22 * p22
+        u30 = s00 * p03 + s01 * p13 + s02 * p23
+        u31 = s01 * p03 + s11 * p13 + s12 * p23
+        u32 = s02 * p03 + s12 * p13 + s22 * p23
+        low, high = self._rho_range
+        rho_new = rho + p03 * w0 + p13 * w1 + p23 * w2
+        self._state = (
+            theta + p00 * w0 + p01 * w1 + p02 * w2,
+            x1 + p01 * w0 + p11 * w1 + p12 * w2,
+            x2 + p02 * w0 + p12 * w1 + p22 * w2,
+            min(max(rho_new, low), high),
+        )
         self._covariance = (
-            p[0] - reduction[0][0], p[1] - 0.5 * (reduction[0][1] + reduction[1][0]), p[2] - 0.5 * (reduction[0][2] + reduction[2][0]),
-            p[3] - reduction[1][1], p[4] - 0.5 * (reduction[1][2] + reduction[2][1]), p[5] - reduction[2][2],
+            p00 - (p00 * u00 + p01 * u01 + p02 * u02),
+            p01 - (p00 * u10 + p01 * u11 + p02 * u12),
+            p02 - (p00 * u20 + p01 * u21 + p02 * u22),
+            p03 - (p00 * u30 + p01 * u31 + p02 * u32),
+            p11 - (p01 * u10 + p11 * u11 + p12 * u12),
+            p12 - (p01 * u20 + p11 * u21 + p12 * u22),
+            p13 - (p01 * u30 + p11 * u31 + p12 * u32),
+            p22 - (p02 * u20 + p12 * u21 + p22 * u22),
+            p23 - (p02 * u30 + p12 * u31 + p22 * u32),
+            p33 - (p03 * u30 + p13 * u31 + p23 * u32),
         )
         self.fused_time += dt
         self.last_outcome = FilterOutcome.FUSED
@@ -474,12 +597,18 @@ class ServoStateFilter:
             if sample > self.noise_variance:
                 covariance = tuple(value * (sample / self.noise_variance) for value in covariance)
                 self.noise_variance = sample
-        # A restart keeps the time already fused: the law's feedback and (31) stay on. A
-        # prediction that keeps disagreeing with the camera is often a wrong dhat (the
-        # prediction moves x_h at v / dhat); only adapting dhat on the restarted estimate
-        # can correct it, and a new soft start would freeze (31) again.
+        # A restart keeps the time already fused (the law's feedback and (31) stay on) and
+        # what the motion has measured of the depth: only the pose starts over.
         restarted = self._state is not None
-        self._state, self._covariance = z, covariance
+        if restarted:
+            rho, rho_variance = self._state[3], self._covariance[9]
+        else:
+            if not math.isfinite(self._rho_prior):
+                raise InvalidValueError("the state filter needs a depth guess before its first frame (expect_depth)")
+            rho, rho_variance = self._rho_prior, (self.settings.depth_prior * self._rho_prior) ** 2
+        c00, c01, c02, c11, c12, c22 = covariance
+        self._state = (z[0], z[1], z[2], rho)
+        self._covariance = (c00, c01, c02, 0.0, c11, c12, 0.0, c22, 0.0, rho_variance)
         self.rejected_in_a_row = 0
         self.fused_time = self.fused_time + dt if restarted else dt
         self.last_outcome = FilterOutcome.STARTED
@@ -494,17 +623,37 @@ class ServoStateFilter:
         self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
 
     # ------------------------------------------------------------------ output
-    def estimate(self, commands: list[tuple[float, float]], dt: float, depth: float, command: tuple[float, float]) -> FilterEstimate | None:
+    def depth_pull(self) -> float:
+        """The rate (1/s) at which the update law may pull dhat towards :attr:`depth`:
+        ``depth_pull_rate / (1 + (relative std / depth_trust)^2)``."""
+        if self._state is None or self.settings.depth_pull_rate <= 0.0:
+            return 0.0
+        rho = self._state[3]
+        relative = math.sqrt(max(self._covariance[9], 0.0)) / rho
+        trust = self.settings.depth_trust
+        return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
+
+    def estimate(self, commands: Collection[tuple[float, float]], dt: float, depth: float | None,
+                 command: tuple[float, float]) -> FilterEstimate | None:
         """The estimate now: carried over ``commands`` sent since the last frame was taken
-        (latency), with its derivative (5), (23) under ``command`` (the last one sent)."""
-        carried = self._carried(commands, dt, depth)
-        if carried is None:
+        (latency), at the filter's own depth, with its derivative (5), (23) under ``command``
+        (the last one sent). ``depth`` (dhat, m) only seeds the filter's depth before its
+        first frame (:meth:`expect_depth`)."""
+        if self._state is None:
+            if depth is not None:
+                self.expect_depth(depth)
             return None
-        state, p = carried
+        state, p = self._carried(commands, dt) if commands else (self._state, self._covariance)
+        theta, x1, x2, rho = state
+        depth = 1.0 / rho
+        v, w = command
         return FilterEstimate(
-            measurement=Measurement(theta=state[0], x_h1=state[1], x_h2=state[2]),
-            std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[3], 0.0)), math.sqrt(max(p[5], 0.0)))),
-            rate=state_rate(state, command[0], command[1], depth),
-            noise=self.noise,
+            measurement=Measurement(theta=theta, x_h1=x1, x_h2=x2),
+            std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[4], 0.0)), math.sqrt(max(p[7], 0.0)))),
+            rate=np.array((-w, x2 * w - v / depth, -x1 * w)),  # state_rate, (5), (23)
+            noise=math.sqrt(self.noise_variance),
             outcome=self.last_outcome,
+            depth=depth,
+            depth_std=math.sqrt(max(p[9], 0.0)) * depth * depth,
+            depth_pull=self.depth_pull(),
         )

@@ -215,6 +215,54 @@ def _pose_section(run: RunData, tolerances: Mapping[str, float]) -> dict[str, An
     return {name: error_summary(t, signals[name], tolerances[name]) for name in POSE_ERRORS}
 
 
+#: dhat has learnt the depth once it stays within this fraction of d* (of its final value
+#: without ground truth).
+DEPTH_LEARNT_BAND = 0.10
+#: The window at the end of a run over which dhat's drift is measured (fraction of the run).
+DEPTH_END_WINDOW = 0.10
+#: dhat is still moving at the end when it drifts faster than this (fraction of its
+#: reference per second) over that window: a 20 s run would then move it by 10 % more.
+DEPTH_MOVING_RATE = 0.005
+
+
+def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[float | None, float | None]:
+    """How dhat learnt the depth: the time it came within :data:`DEPTH_LEARNT_BAND` of
+    ``reference`` for good, and its drift at the end.
+
+    Parameters
+    ----------
+    t, dhat : ndarray, shape (K,)
+        Times (s) and the depth estimate (m); NaN where not logged.
+    reference : float
+        d* (m), or dhat's final value without ground truth.
+
+    Returns
+    -------
+    learning_time_s : float or None
+        Seconds from the start after which |dhat - reference| <= band * reference at every
+        later step; None when it never does.
+    end_rate_per_s : float or None
+        The least-squares slope of dhat over the last :data:`DEPTH_END_WINDOW` of the run,
+        as a fraction of ``reference`` per second; None with fewer than 3 samples there.
+    """
+    keep = np.isfinite(dhat)
+    t, dhat = t[keep], dhat[keep]
+    if t.size == 0 or not (math.isfinite(reference) and reference > 0.0):
+        return None, None
+    outside = np.flatnonzero(np.abs(dhat - reference) > DEPTH_LEARNT_BAND * reference)
+    if outside.size == 0:
+        learning = 0.0
+    elif outside[-1] + 1 < t.size:
+        learning = float(t[outside[-1] + 1] - t[0])
+    else:
+        learning = None
+    end = t >= t[-1] - DEPTH_END_WINDOW * (t[-1] - t[0])
+    rate = None
+    if np.count_nonzero(end) >= 3 and np.ptp(t[end]) > 0.0:
+        rate = float(np.polyfit(t[end], dhat[end], 1)[0]) / reference
+    return learning, rate
+
+
 def _depth_section(run: RunData) -> dict[str, Any]:
     dhat = run.state["dhat"]
     finite = dhat[np.isfinite(dhat)]
@@ -222,11 +270,21 @@ def _depth_section(run: RunData) -> dict[str, Any]:
     d_true = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
     dhat_final = float(finite[-1]) if finite.size else None
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
+    reference = d_true if d_true is not None else dhat_final
+    learning, rate = depth_learning(run.state["t"], dhat, reference) if reference is not None else (None, None)
+    moving = rate is not None and abs(rate) > DEPTH_MOVING_RATE
     return {
         "dhat0": float(finite[0]) if finite.size else None,
         "dhat_final": dhat_final,
         "d_true": d_true,
         "relative_error": relative,
+        "learning_reference": None if reference is None else ("d_true" if d_true is not None else "dhat_final"),
+        "learning_time_s": learning,
+        "end_rate_per_s": rate,
+        "still_moving": moving,
+        "warning": (f"dhat is still moving at the end of the run ({100.0 * rate:+.2g} % per second): "
+                    "the depth is not learnt yet; a longer run, a better --dhat0 or a larger --gamma would help")
+        if moving else None,
     }
 
 

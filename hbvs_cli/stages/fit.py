@@ -503,10 +503,12 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     if estimates.get("target_size"):
         table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
+    from ..core.gains import dhat0_range_text
+
     g = model.gains
     table.add_row(
         "suggested k_v, k_w, k_2, gamma",
-        f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px)",
+        f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px, {dhat0_range_text()})",
     )
     console.print(table)
     if condition.path_stops:
