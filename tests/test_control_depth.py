@@ -43,7 +43,7 @@ SUBSET = ((0.25, 0.1, -5.0), (4.0, -0.1, 5.0))
 
 def run_row(fit_path, *, dhat0_factor, offset_y=0.05, offset_theta=2.0, seed=0, pixel_noise=0.5, perception="points", **options):
     """One ``repeat --sim`` and its report, as a sweep row (verdict, errors, dhat, smoothness)."""
-    from hbvs_cli.sweep.runner import RunTask, execute_run
+    from hbvs_cli.stages.sweep_run import RunTask, execute_run
 
     arguments = dict(sim=True, perception=perception, pixel_noise=pixel_noise, seed=seed,
                      dhat0=dhat0_factor * D_STAR, offset=f"-0.1,{offset_y},{offset_theta}", **options)
