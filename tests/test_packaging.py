@@ -59,6 +59,6 @@ def test_help_names_files_that_exist():
     assert root, text
     text += run_hbvs("repeat", "--help", env={"COLUMNS": "400"}).stdout.decode()
     names = set(re.findall(r"((?:docs|samples)/[\w.-]+\.(?:md|toml))", text))
-    assert names == {"docs/method.md", "docs/report.md", "samples/gains.toml", "docs/robustness.md"}
+    assert names == {"docs/method.md", "docs/report.md", "samples/gains.toml", "docs/robustness.md", "docs/robot.md"}
     assert all((Path(root.group(1)) / name).is_file() for name in names), (root.group(1), names)
     assert "site-packages" not in text and str(REPO) not in text.replace(root.group(1), "")
