@@ -69,7 +69,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, sweep-runs (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -142,7 +142,7 @@ def report(
     fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
     export_tum: Annotated[Optional[Path], typer.Option("--export-tum", help="Write taught and repeated trajectories in TUM format into this folder.")] = None,
     tolerance: Annotated[Optional[List[str]], typer.Option("--tolerance", help="Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.")] = None,
-    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI.")] = False,
+    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI. For a sweep's folder: unless every planned run converged (failed, stopped and missing runs count as not converged).")] = False,
     label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
     dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
     size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches, e.g. 3.5x5 for one column, 7x6 for two (default 7 wide).", rich_help_panel="Figure")] = None,
@@ -464,6 +464,30 @@ class _ClosedStdout:
         return 1
 
 
+class _ClosedStdin:
+    """What sys.stdin is when hbvs was started with stdin closed (``<&-``): reading "-" is
+    an input error (exit 3), not a crash."""
+
+    encoding = "utf-8"
+
+    def _closed(self, *args: Any) -> Any:
+        from ..errors import InputError
+
+        raise InputError("stdin: it is closed; give the input as a file instead of -")
+
+    read = readline = _closed
+
+    @property
+    def buffer(self) -> Any:
+        return self._closed()
+
+    def isatty(self) -> bool:
+        return False
+
+    def fileno(self) -> int:
+        return self._closed()
+
+
 def _prepare_stdio(debug: bool) -> None:
     """Closed stdio, native logging and warnings, before any command runs.
 
@@ -475,8 +499,11 @@ def _prepare_stdio(debug: bool) -> None:
     are not shown: hbvs reports problems in its own words.
     """
     global _stdout_at_start
+    stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
     _stdout_at_start = _stdout_identity()
+    if stdin_closed:
+        sys.stdin = _ClosedStdin()  # type: ignore[assignment]
     if sys.stdout is None or stdio_closed(1):
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
     if sys.stderr is None or stdio_closed(2):

@@ -17,6 +17,9 @@ name                      default      what it bounds
 ``chunk-messages``        262 144      messages in one MCAP chunk
 ``input-bytes``           64 GiB       bytes read from one MCAP file or stream, after
                                        decompression
+``sweep-runs``            1 000 000    runs of one ``hbvs sweep`` (values of a grid axis,
+                                       samples, and their product times the repeats),
+                                       checked before the plan is built
 ========================= ============ ======================================================
 """
 
@@ -44,6 +47,7 @@ LIMITS: dict[str, Limit] = {
         Limit("messages", 2**22, "messages"),
         Limit("chunk-messages", 2**18, "messages"),
         Limit("input-bytes", 64 * 2**30, "bytes"),
+        Limit("sweep-runs", 1_000_000, "runs"),
     )
 }
 

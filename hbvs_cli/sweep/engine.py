@@ -103,6 +103,8 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                     client = Client(scheduler, timeout="20s")
                 except (OSError, TimeoutError) as exc:
                     raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                except (ValueError, TypeError) as exc:  # not an address: "missing port number", an unknown protocol
+                    raise UsageError(f"--scheduler {scheduler!r}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
             elif cluster is not None:
                 started = _jobqueue_cluster(cluster, workers or 1)
                 client = Client(started)
