@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,8 @@ def crash_always(task: Task) -> dict:
     """Task 3 kills its worker every time; the others note each attempt in a file."""
     if task.index == 3:
         os._exit(1)
+    if task.index == 1 and "slow" in task.marker:
+        time.sleep(0.5)  # a slow healthy run, on the cluster while task 3 kills workers
     with open(f"{task.marker}-{task.index}", "a") as attempts:
         attempts.write(f"{os.getpid()}\n")
     return {"index": task.index, "pid": os.getpid(), "status": "ok"}
@@ -70,6 +73,13 @@ def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path
         # Task 1 ran twice in the batch that task 3 killed twice, then once alone.
         assert len(Path(f"{attempts}-1").read_text().split()) == 3
         assert len(Path(f"{attempts}-0").read_text().split()) == 1
+        # Several runs in flight, task 1 slow: whatever the timing, only the run that kills
+        # its worker with the cluster to itself is recorded (the rule counts deaths, not time).
+        rows.clear(), lost.clear()
+        slow = str(tmp_path / "slow")
+        produced = run_tasks(client, (Task(i, slow) for i in range(6)), crash_always, rows.append, on_lost, in_flight=4, key_prefix="test-slow")
+        assert produced == 6 and [i for i, _ in lost] == [3]
+        assert {r["index"]: r["status"] for r in rows} == {0: "ok", 1: "ok", 2: "ok", 3: "failed", 4: "ok", 5: "ok"}
 
 
 def test_batches_hold_a_second_of_cpu_time_and_shrink_to_single_runs_at_the_end():

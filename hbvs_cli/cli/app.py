@@ -191,6 +191,7 @@ def sweep(
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
     cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs[sweep-cluster]').", rich_help_panel="Engine")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
+    dashboard: Annotated[Optional[str], typer.Option("--dashboard", metavar="[HOST:]PORT", help="Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on HOST:PORT (0.0.0.0 only if you name it).", rich_help_panel="Engine")] = None,
     keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON instead of tables.")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Draw the summary figures into the results folder.")] = True,
@@ -203,7 +204,7 @@ def sweep(
         SweepOptions(
             fit=fit, output=output, spec=spec, vary=list(vary or []), fixed=list(fixed or []), repeats=repeats, seed=seed,
             sampling=sampling, samples=samples, scheduler=scheduler, cluster=cluster, workers=workers, keep_runs=keep_runs,
-            json_output=json_output, plots=plots,
+            json_output=json_output, plots=plots, dashboard=dashboard,
         ),
         _console(quiet),
     )

@@ -25,7 +25,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
 from ..sim.scene import simulation_world
-from ..sweep.engine import dask_client, default_workers, require_engine, run_tasks
+from ..sweep.engine import dashboard_address, dask_client, default_workers, require_engine, run_tasks
 from ..sweep.runner import KEEP_CHOICES, RunTask, check_arguments, execute_run
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..sweep.table import ResultsTable, failed_row, row_schema
@@ -54,6 +54,7 @@ class SweepOptions:
     json_output: bool = False
     plots: bool = True
     in_flight: int | None = None
+    dashboard: str | None = None
 
 
 def _true_depth(fit: FitFile) -> float | None:
@@ -93,6 +94,9 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     Returns ``(plan, spec, table, tasks)``.
     """
     require_engine()
+    dashboard_address(options.dashboard)
+    if options.dashboard is not None and (options.scheduler is not None or options.cluster is not None):
+        raise UsageError("--dashboard is for the local cluster; a running scheduler or --cluster has its own")
     if options.keep_runs not in KEEP_CHOICES:
         raise UsageError(f"--keep-runs must be one of {', '.join(KEEP_CHOICES)}, got {options.keep_runs!r}")
     if options.fit == "-":
@@ -165,7 +169,11 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
         key = hashlib.sha256(tasks.fit_path.encode() + repr(spec.as_dict()).encode()).hexdigest()[:12]
         failures = 0
         started = time.monotonic()
-        with dask_client(options.scheduler, options.cluster, options.workers) as client, _progress(console, remaining) as progress:
+        dashboard = dashboard_address(options.dashboard)
+        with dask_client(options.scheduler, options.cluster, options.workers, dashboard=dashboard) as client, \
+                _progress(console, remaining) as progress:
+            if dashboard is not None:
+                console.info(f"sweep: Dask dashboard at {client.dashboard_link} (no authentication: anyone who reaches it sees the workers)")
             workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
             in_flight = options.in_flight or max(4 * workers, 8)
 

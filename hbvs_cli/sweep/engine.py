@@ -12,8 +12,9 @@ second of CPU time each, single runs at the start and the end), and never more t
 exist: a new one is submitted as one finishes, so memory stays flat however many runs a
 sweep has. A worker that dies has its batch rescheduled by the Dask scheduler (up to
 ``distributed.scheduler.allowed-failures`` times); a batch that keeps killing workers is
-split and its runs are run alone, and the run that kills its worker is recorded as failed
-with the error, like any run that raises.
+split and its runs are run alone, a run that fails alone is run once more with the
+cluster to itself, and only a run that kills its worker then is recorded as failed with the
+error, like any run that raises.
 """
 
 from __future__ import annotations
@@ -55,13 +56,39 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: The scheduler's HTTP routes without ``--dashboard``: its health check alone (no pages of
+#: worker logs, local paths or tasks, no proxy), on a random port of the loopback interface.
+HEALTH_ONLY = ["distributed.http.health"]
+
+
+def dashboard_address(text: str | None) -> str | None:
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``; ``HOST:PORT`` as given
+    (another interface only when asked for by name). None: no dashboard.
+
+    Raises
+    ------
+    UsageError
+        Not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
+    """
+    if text is None:
+        return None
+    host, sep, port = text.strip().rpartition(":")
+    if not sep:
+        host = "127.0.0.1"
+    if not port.isdigit() or int(port) > 65535 or not host or any(c.isspace() or c in "/@" for c in host):
+        raise UsageError(f"--dashboard must be PORT or HOST:PORT (e.g. 8787 or 127.0.0.1:8787), got {text!r}")
+    return f"{host}:{int(port)}"
+
+
 @contextmanager
 def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
-                allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS) -> Iterator[Any]:
+                allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
     """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
 
     ``allowed_worker_deaths``: how often a run is rescheduled after its worker died (a
     cluster started here; a running scheduler keeps its own configuration).
+    ``dashboard``: the address of Dask's dashboard (:func:`dashboard_address`) for a local
+    cluster; None (the default) serves none (the dashboard has no authentication).
 
     Raises
     ------
@@ -95,7 +122,8 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.worker.profile.enabled": False,
                           "distributed.admin.tick.interval": "1s",
                           "distributed.admin.system-monitor.interval": "1s",
-                          "distributed.worker.memory.monitor-interval": "1s"}):
+                          "distributed.worker.memory.monitor-interval": "1s",
+                          **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
         try:
             if scheduler is not None:
@@ -111,7 +139,8 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
             else:
                 started = LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                    protocol="tcp://", host="127.0.0.1", dashboard_address=":0", silence_logs=logging.ERROR,
+                    protocol="tcp://", host="127.0.0.1", dashboard_address=dashboard or "127.0.0.1:0",
+                    scheduler_kwargs={"dashboard": dashboard is not None}, silence_logs=logging.ERROR,
                 )
                 client = Client(started)
             try:
@@ -217,58 +246,74 @@ def run_tasks(
 
     Returns the number of rows produced. A batch whose future fails (its worker died too
     often, or the function raised despite catching everything) is split and each of its
-    tasks submitted alone, so only the task that failed gets ``on_lost(task, error)``;
-    the others give their rows.
+    tasks submitted alone. A task that fails alone is run once more in isolation (nothing
+    else in flight, so no other task can have killed the worker); only a task that fails
+    then gets ``on_lost(task, error)``. The rule counts worker deaths, never time: a slow
+    run is never taken for a killer.
     """
     from distributed import as_completed
 
     pending = iter(tasks)
     alone: deque[Any] = deque()  # tasks of a failed batch, each to be run by itself
-    waiting: dict[str, list[Any]] = {}
+    suspects: deque[Any] = deque()  # tasks that failed alone, to be run once more in isolation
+    waiting: dict[str, tuple[list[Any], bool]] = {}  # future key -> (its tasks, run in isolation)
     # The results are fetched by the client's event loop as the futures finish (no
     # second round trip from this thread per future).
     completed = as_completed(with_results=True, raise_errors=False)
     workers = len(client.scheduler_info().get("workers", {}))
     sizer = BatchSizer(total, workers or 1)
 
-    def submit_next() -> bool:
-        if alone:
-            batch = [alone.popleft()]
-            key = f"{key_prefix}-{batch[0].index}-alone"
-        else:
-            batch = list(itertools.islice(pending, sizer.next_size()))
-            if not batch:
-                return False
-            sizer.take(len(batch))
-            key = f"{key_prefix}-{batch[0].index}" + (f"+{len(batch) - 1}" if len(batch) > 1 else "")
+    def submit(batch: list[Any], key: str, isolated: bool = False) -> None:
         future = client.submit(run_batch, function, batch, key=key, pure=False, retries=0)
-        waiting[future.key] = batch
+        waiting[future.key] = (batch, isolated)
         completed.add(future)
+
+    def submit_next() -> bool:
+        if suspects:
+            # A suspect runs with nothing else on the cluster: if a worker dies then, it is
+            # the suspect's doing, whatever the timing (a slow run beside a killer is not).
+            if waiting:
+                return False
+            task = suspects.popleft()
+            submit([task], f"{key_prefix}-{task.index}-isolated", isolated=True)
+            return True
+        if alone:
+            task = alone.popleft()
+            submit([task], f"{key_prefix}-{task.index}-alone")
+            return True
+        batch = list(itertools.islice(pending, sizer.next_size()))
+        if not batch:
+            return False
+        sizer.take(len(batch))
+        submit(batch, f"{key_prefix}-{batch[0].index}" + (f"+{len(batch) - 1}" if len(batch) > 1 else ""))
         return True
 
-    for _ in range(max(1, in_flight)):
-        if not submit_next():
-            break
+    def fill() -> None:
+        while len(waiting) < max(1, in_flight) and submit_next():
+            pass
+
+    fill()
     produced = 0
     for future, result in completed:
-        batch = waiting.pop(future.key)
+        batch, isolated = waiting.pop(future.key)
         failed = future.status != "finished"
         future.release()
         if failed and len(batch) > 1:
-            # One of them may kill its worker every time: run each alone, so that one
-            # alone is recorded as failed.
+            # One of them may kill its worker every time: run each alone.
             alone.extend(batch)
-            for _ in batch:
-                submit_next()
-            continue
-        if failed:  # KilledWorker and the like: record, go on
-            error = result[1] if isinstance(result, tuple) else result
-            rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
+        elif failed and not isolated:
+            # Alone, but other runs were on the cluster when its worker died: try it once
+            # more in isolation before calling it a killer.
+            suspects.append(batch[0])
         else:
-            rows, wall, cpu = result
-            sizer.observe(len(rows), wall, cpu)
-        for row in rows:
-            on_row(row)
-            produced += 1
-        submit_next()
+            if failed:  # killed its worker again with the cluster to itself: record, go on
+                error = result[1] if isinstance(result, tuple) else result
+                rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
+            else:
+                rows, wall, cpu = result
+                sizer.observe(len(rows), wall, cpu)
+            for row in rows:
+                on_row(row)
+                produced += 1
+        fill()
     return produced
