@@ -168,12 +168,13 @@ def report(
 def export(
     input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
     output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
+    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing bag even when the input ended early (no end record: the writer upstream died).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
 ) -> None:
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
     from ..stages.export import ExportOptions, run_export
 
-    run_export(ExportOptions(input=input, output=output), _console(quiet))
+    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), _console(quiet))
 
 
 # --------------------------------------------------------------------------- sweep

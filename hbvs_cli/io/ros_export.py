@@ -25,8 +25,14 @@ optical convention (z forward along the robot's x, x right, y down).
 
 The bag is a folder. It is written beside its name as ``NAME.<pid>-<random>.partial/NAME``
 and moved into place only when complete, so a failed export leaves nothing, and an
-existing bag of that name is replaced whole; a folder that is not a ROS 2 bag is never
-replaced.
+existing bag of that name is replaced whole. Only a bag hbvs wrote is ever replaced: its
+metadata.yaml is a rosbag2 description carrying hbvs's mark (``custom_data``), and the folder
+holds nothing but that file and the bag files it lists; any other folder is kept and the
+export refused. One export writes a bag at a time (an advisory lock on the hidden file
+``.NAME.hbvs-lock`` beside it; a second export stops with exit 6). A partial folder whose
+process is dead (a SIGKILL) is removed by the next export of the same name. An input that
+ended early (no end record) does not replace an existing bag unless ``--allow-truncated``,
+as for ``fit`` (exit 3).
 """
 
 from __future__ import annotations
@@ -56,6 +62,10 @@ from .topics import (
 BAG_VERSION = 8
 #: The file holding a ROS 2 bag's description: what tells a bag folder from any folder.
 BAG_METADATA = "metadata.yaml"
+#: The ``custom_data`` entry that marks a bag hbvs wrote (the only kind export replaces).
+HBVS_MARK = ("hbvs_export", "1")
+#: Largest metadata.yaml read when deciding whether a folder is a bag hbvs wrote.
+MAX_METADATA_BYTES = 1 << 20
 
 @dataclass
 class ExportSummary:
@@ -64,6 +74,7 @@ class ExportSummary:
     output: Path
     kind: str
     counts: dict[str, int] = field(default_factory=dict)
+    truncated: bool = False
 
 
 def _rosbags() -> tuple[Any, Any, Any]:
@@ -75,13 +86,14 @@ def _rosbags() -> tuple[Any, Any, Any]:
 
 
 # ----------------------------------------------------------------------------- output folder
-def check_bag_target(spec: str) -> Path:
+def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
     """The folder ``hbvs export -o`` will write, checked before anything is read.
 
     Raises
     ------
     UsageError
-        ``-`` (a bag is a folder), or an existing file or folder that is not a ROS 2 bag.
+        ``-`` (a bag is a folder), an existing file or folder that is not a bag hbvs wrote
+        (:func:`written_by_hbvs`), or one of ``inputs`` stored inside it.
     InputError
         The parent folder does not exist.
     """
@@ -90,17 +102,48 @@ def check_bag_target(spec: str) -> Path:
     final = Path(os.path.realpath(spec))
     if not final.parent.is_dir():
         raise InputError(f"{spec}: the folder {final.parent} does not exist")
+    for source in inputs:
+        if source != "-" and Path(os.path.realpath(source)).is_relative_to(final):
+            raise UsageError(f"{source}: is inside the bag {spec} that the export would replace; copy it elsewhere first")
     if final.exists() or final.is_symlink():
         if not final.is_dir():
             raise UsageError(f"{spec}: exists and is not a ROS 2 bag folder; give a new folder name")
-        if any(final.iterdir()) and not (final / BAG_METADATA).is_file():
-            raise UsageError(f"{spec}: is a folder that is not a ROS 2 bag (no {BAG_METADATA}); it is kept, give a new folder name")
+        if any(final.iterdir()) and not written_by_hbvs(final):
+            raise UsageError(f"{spec}: is a folder that is not a ROS 2 bag written by hbvs export; it is kept, give a new folder name")
     return final
+
+
+def written_by_hbvs(folder: Path) -> bool:
+    """True when ``folder`` is a bag ``hbvs export`` wrote: a rosbag2 ``metadata.yaml`` with
+    hbvs's mark in ``custom_data``, and no file but it and the bag files it lists (so that
+    replacing it deletes nothing else)."""
+    from .limits import load_yaml_documents
+
+    metadata = folder / BAG_METADATA
+    try:
+        if not metadata.is_file() or metadata.stat().st_size > MAX_METADATA_BYTES:
+            return False
+        documents = load_yaml_documents(metadata.read_text(encoding="utf-8"), str(metadata))
+    except Exception:  # noqa: BLE001 - unreadable, malformed or an alias bomb: not ours
+        return False
+    information = documents[0].get("rosbag2_bagfile_information") if documents and isinstance(documents[0], dict) else None
+    if not isinstance(information, dict):
+        return False
+    custom = information.get("custom_data")
+    files = information.get("relative_file_paths")
+    if not (isinstance(custom, dict) and str(custom.get(HBVS_MARK[0])) == HBVS_MARK[1] and isinstance(files, list)):
+        return False
+    listed = {BAG_METADATA, *(str(f) for f in files)}
+    return all(entry.name in listed and entry.is_file() and not entry.is_symlink() for entry in folder.iterdir())
 
 
 @contextmanager
 def _atomic_folder(final: Path) -> Iterator[Path]:
-    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds."""
+    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds.
+
+    Called with the bag's lock held (:func:`export_ros2_bag`), so nobody else moves
+    ``final`` meanwhile.
+    """
     work = final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
     try:
         work.mkdir()
@@ -202,7 +245,7 @@ class _BagWriter:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
 
-def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
+def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` as a ROS 2 bag folder ``output``.
 
     Parameters
@@ -212,15 +255,34 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
     output : str
         The bag folder to write (see the module's notes on how it is replaced).
 
+    allow_truncated : bool
+        Replace an existing bag even when ``source`` ended before its end record.
+
     Raises
     ------
     UsageError
         rosbags is missing; ``output`` is ``-`` or a file or folder that is not a bag.
+    OutputError
+        Another process is writing the same bag (exit 6).
     RecordingError
         Not an hbvs file, or malformed messages.
+    TruncatedInputError
+        ``source`` ended early and a bag is there already (exit 3).
     """
-    Writer, StoragePlugin, typestore = _rosbags()
+    from .output_target import FolderLock, remove_stale_partials
+
     final = check_bag_target(output)
+    with FolderLock(final.with_name(f".{final.name}.hbvs-lock"), f"the bag {output}"):
+        # Under the lock: what an export killed by SIGKILL left (its process is dead).
+        remove_stale_partials(final.parent.glob(f"{final.name}.*.partial"))
+        check_bag_target(output)  # again: another export may have finished meanwhile
+        return _export(source, final, name, allow_truncated)
+
+
+def _export(source: Any, final: Path, name: str, allow_truncated: bool) -> ExportSummary:
+    from ..errors import TruncatedInputError
+
+    Writer, StoragePlugin, typestore = _rosbags()
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
@@ -230,6 +292,7 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
     camera_height: float | None = None
     with _atomic_folder(final) as bag_path:
         writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        writer.set_custom_data(*HBVS_MARK)
         writer.open()
         bag = _BagWriter(writer, typestore)
         try:
@@ -284,7 +347,12 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
             writer.close()
         if not bag.counts:
             raise RecordingError(f"{stream.name}: nothing to export (no commands, poses or images in this {kind} file)")
-    return ExportSummary(output=final, kind=kind, counts=bag.counts)
+        if stream.truncated and final.exists() and not allow_truncated:
+            raise TruncatedInputError(
+                f"{stream.name} ended before its end record (the writer upstream stopped?), so its bag did not "
+                f"replace the existing {final}; pass --allow-truncated to replace it"
+            )
+    return ExportSummary(output=final, kind=kind, counts=bag.counts, truncated=stream.truncated)
 
 
 def _stamp_ns(stamp: Any) -> int:

@@ -141,10 +141,49 @@ def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
     if size > MAX_METADATA_BYTES:
         raise InputError(f"{name}: metadata.yaml is {size} bytes, more than the {MAX_METADATA_BYTES} hbvs reads")
     try:
-        information = yaml.safe_load(metadata.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        # Aliases expanded under a limit (an alias bomb in ros_distro is refused here, before
+        # rosbags or a message shows the value).
+        documents = limits.load_yaml_documents(metadata.read_text(encoding="utf-8"), f"{name}: metadata.yaml")
+        information = documents[0]["rosbag2_bagfile_information"] if documents else None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError):
         return {}
-    return information if isinstance(information, dict) else {}
+    if not isinstance(information, dict):
+        return {}
+    check_metadata(information, name)
+    return information
+
+
+def check_metadata(information: dict[str, Any], name: str) -> None:
+    """The counts and names of metadata.yaml that rosbags and hbvs use, of the right types.
+
+    Raises
+    ------
+    InputError
+        ``message_count: many`` and the like, a ``ros_distro`` that is not a short name.
+    """
+    def counts(where: str, value: Any) -> None:
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
+
+    counts("message_count", information.get("message_count"))
+    for key in ("topics_with_message_count", "files", "relative_file_paths"):
+        if information.get(key) is not None and not isinstance(information.get(key), list):
+            raise InputError(f"{name}: metadata.yaml: {key} must be a list, got {_shown(information.get(key))}")
+    for entry in information.get("topics_with_message_count") or []:
+        counts("topics_with_message_count[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
+    for entry in information.get("files") or []:
+        counts("files[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
+    distro = information.get("ros_distro")
+    if distro is not None and not (isinstance(distro, str) and len(distro) <= 64):
+        raise InputError(f"{name}: metadata.yaml: ros_distro must be a distribution's name, got {_shown(distro)}")
+
+
+def _shown(value: Any) -> str:
+    """A value of a file in a message: its type and at most 40 characters (never the whole)."""
+    if isinstance(value, (str, int, float)) and not isinstance(value, bool):
+        text = repr(value)
+        return text if len(text) <= 40 else text[:40] + "..."
+    return f"a {type(value).__name__}"
 
 
 def _typestore_for(information: dict[str, Any]) -> Any:
