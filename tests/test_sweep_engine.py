@@ -39,6 +39,10 @@ def crash_always(task: Task) -> dict:
     return {"index": task.index, "pid": os.getpid(), "status": "ok"}
 
 
+def _allow_no_worker_death(dask_scheduler=None) -> None:
+    dask_scheduler.allowed_failures = 0
+
+
 def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path):
     import cloudpickle
     import dask
@@ -76,6 +80,8 @@ def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path
         # Several runs in flight, task 1 slow: whatever the timing, only the run that kills
         # its worker with the cluster to itself is recorded (the rule counts deaths, not time).
         rows.clear(), lost.clear()
+        # One death makes a KilledWorker here: the rule, not the scheduler's count, is tested.
+        client.run_on_scheduler(_allow_no_worker_death)
         slow = str(tmp_path / "slow")
         produced = run_tasks(client, (Task(i, slow) for i in range(6)), crash_always, rows.append, on_lost, in_flight=4, key_prefix="test-slow")
         assert produced == 6 and [i for i, _ in lost] == [3]

@@ -269,6 +269,8 @@ def run_tasks(
         completed.add(future)
 
     def submit_next() -> bool:
+        if any(isolated for _, isolated in waiting.values()):
+            return False  # nothing joins a run that has the cluster to itself
         if suspects:
             # A suspect runs with nothing else on the cluster: if a worker dies then, it is
             # the suspect's doing, whatever the timing (a slow run beside a killer is not).
@@ -279,7 +281,8 @@ def run_tasks(
             return True
         if alone:
             task = alone.popleft()
-            submit([task], f"{key_prefix}-{task.index}-alone")
+            # Alone on an idle cluster it is isolated already (one batch in flight at a time).
+            submit([task], f"{key_prefix}-{task.index}-alone", isolated=not waiting)
             return True
         batch = list(itertools.islice(pending, sizer.next_size()))
         if not batch:
