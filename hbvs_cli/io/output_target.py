@@ -154,6 +154,21 @@ def remove_stale_partials(paths: Any) -> list[Path]:
     return removed
 
 
+@contextmanager
+def directory_lock(folder: Path) -> Iterator[None]:
+    """Hold an advisory lock on ``folder`` itself (``flock`` on the directory: no file is
+    created) for a short critical section, waiting for another holder; a stop signal
+    interrupts the wait."""
+    import fcntl
+
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
 class FolderLock:
     """One writer at a time for an output folder: an advisory lock (``fcntl.flock``) on a
     lock file, held until :meth:`release` or the process ends (a SIGKILL releases it too).

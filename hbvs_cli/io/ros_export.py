@@ -28,9 +28,10 @@ and moved into place only when complete, so a failed export leaves nothing, and 
 existing bag of that name is replaced whole. Only a bag hbvs wrote is ever replaced: its
 metadata.yaml is a rosbag2 description carrying hbvs's mark (``custom_data``), and the folder
 holds nothing but that file and the bag files it lists; any other folder is kept and the
-export refused. One export writes a bag at a time (an advisory lock on the hidden file
-``.NAME.hbvs-lock`` beside it; a second export stops with exit 6). A partial folder whose
-process is dead (a SIGKILL) is removed by the next export of the same name. An input that
+export refused. Exports to one bag at once each write their own partial folder and put it
+in place under an advisory lock on the parent folder (``flock``, no file created), checking
+the target again there: the last to finish wins, whole. A partial folder whose process is
+dead (a SIGKILL) is removed by the next export of the same name. An input that
 ended early (no end record) does not replace an existing bag unless ``--allow-truncated``,
 as for ``fit`` (exit 3).
 """
@@ -138,12 +139,14 @@ def written_by_hbvs(folder: Path) -> bool:
 
 
 @contextmanager
-def _atomic_folder(final: Path) -> Iterator[Path]:
+def _atomic_folder(final: Path, before_swap: Any) -> Iterator[Path]:
     """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds.
 
-    Called with the bag's lock held (:func:`export_ros2_bag`), so nobody else moves
-    ``final`` meanwhile.
+    The move happens under the parent folder's lock, after ``before_swap()`` (which may
+    refuse) has checked ``final`` again: no other export moves it meanwhile.
     """
+    from .output_target import directory_lock
+
     work = final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
     try:
         work.mkdir()
@@ -151,9 +154,11 @@ def _atomic_folder(final: Path) -> Iterator[Path]:
         raise InputError(f"{final}: cannot write the bag ({exc.strerror})") from None
     try:
         yield work / final.name
-        if final.exists():
-            os.replace(final, work / "replaced")
-        os.replace(work / final.name, final)
+        with directory_lock(final.parent):
+            before_swap()
+            if final.exists() or final.is_symlink():
+                os.replace(final, work / "replaced")
+            os.replace(work / final.name, final)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -262,24 +267,21 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
     ------
     UsageError
         rosbags is missing; ``output`` is ``-`` or a file or folder that is not a bag.
-    OutputError
-        Another process is writing the same bag (exit 6).
     RecordingError
         Not an hbvs file, or malformed messages.
     TruncatedInputError
         ``source`` ended early and a bag is there already (exit 3).
     """
-    from .output_target import FolderLock, remove_stale_partials
+    from .output_target import directory_lock, remove_stale_partials
 
     final = check_bag_target(output)
-    with FolderLock(final.with_name(f".{final.name}.hbvs-lock"), f"the bag {output}"):
-        # Under the lock: what an export killed by SIGKILL left (its process is dead).
+    with directory_lock(final.parent):
+        # What an export killed by SIGKILL left (its process is dead); nobody else's.
         remove_stale_partials(final.parent.glob(f"{final.name}.*.partial"))
-        check_bag_target(output)  # again: another export may have finished meanwhile
-        return _export(source, final, name, allow_truncated)
+    return _export(source, final, output, name, allow_truncated)
 
 
-def _export(source: Any, final: Path, name: str, allow_truncated: bool) -> ExportSummary:
+def _export(source: Any, final: Path, output: str, name: str, allow_truncated: bool) -> ExportSummary:
     from ..errors import TruncatedInputError
 
     Writer, StoragePlugin, typestore = _rosbags()
@@ -290,7 +292,15 @@ def _export(source: Any, final: Path, name: str, allow_truncated: bool) -> Expor
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
     camera_height: float | None = None
-    with _atomic_folder(final) as bag_path:
+    def before_swap() -> None:
+        check_bag_target(output)  # again: another export (or someone) may have put a folder there
+        if stream.truncated and final.exists() and not allow_truncated:
+            raise TruncatedInputError(
+                f"{stream.name} ended before its end record (the writer upstream stopped?), so its bag did not "
+                f"replace the existing {final}; pass --allow-truncated to replace it"
+            )
+
+    with _atomic_folder(final, before_swap) as bag_path:
         writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
         writer.set_custom_data(*HBVS_MARK)
         writer.open()
@@ -347,11 +357,6 @@ def _export(source: Any, final: Path, name: str, allow_truncated: bool) -> Expor
             writer.close()
         if not bag.counts:
             raise RecordingError(f"{stream.name}: nothing to export (no commands, poses or images in this {kind} file)")
-        if stream.truncated and final.exists() and not allow_truncated:
-            raise TruncatedInputError(
-                f"{stream.name} ended before its end record (the writer upstream stopped?), so its bag did not "
-                f"replace the existing {final}; pass --allow-truncated to replace it"
-            )
     return ExportSummary(output=final, kind=kind, counts=bag.counts, truncated=stream.truncated)
 
 

@@ -25,7 +25,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
 from ..sim.scene import simulation_world
-from ..sweep.engine import dashboard_address, dask_client, default_workers, require_engine, run_tasks
+from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
 from ..sweep.runner import KEEP_CHOICES, RunTask, check_arguments, execute_run
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..sweep.table import ResultsTable, failed_row, row_schema
@@ -94,6 +94,7 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     Returns ``(plan, spec, table, tasks)``.
     """
     require_engine()
+    check_scheduler_address(options.scheduler)
     dashboard_address(options.dashboard)
     if options.dashboard is not None and (options.scheduler is not None or options.cluster is not None):
         raise UsageError("--dashboard is for the local cluster; a running scheduler or --cluster has its own")

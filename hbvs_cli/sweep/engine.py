@@ -80,6 +80,29 @@ def dashboard_address(text: str | None) -> str | None:
     return f"{host}:{int(port)}"
 
 
+def check_scheduler_address(address: str | None) -> None:
+    """Refuse a ``--scheduler`` that is no Dask address, before anything is written.
+
+    Raises
+    ------
+    UsageError
+        An unknown scheme, or a host and port that do not parse.
+    """
+    if address is None:
+        return
+    from distributed.comm.addressing import get_address_host_port, parse_address
+    from distributed.comm.registry import backends
+
+    try:
+        scheme, _ = parse_address(address, strict=False)
+        if scheme not in backends:
+            raise ValueError(f"unknown scheme {scheme!r}; known: {', '.join(sorted(backends))}")
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            get_address_host_port(address)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"--scheduler {address!r}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
+
+
 @contextmanager
 def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                 allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
