@@ -632,3 +632,55 @@ def _run_in_child(arguments: list[str], stdin_closed: bool, cwd: Path) -> tuple[
         child.returncode = os.waitstatus_to_exitcode(status)
         errors.seek(0)
         return child.returncode, errors.read().decode(errors="replace"), usage.ru_maxrss * 1024
+
+
+def zstd_of_zeros(megabytes: int) -> bytes:
+    """A zstd frame of ``megabytes`` MiB of zeros, a few KB long (made in 1 MiB steps)."""
+    zstd = pytest.importorskip("backports.zstd") if sys.version_info < (3, 14) else pytest.importorskip("compression.zstd")
+    compressor = zstd.ZstdCompressor()
+    block = bytes(1 << 20)
+    return b"".join([compressor.compress(block) for _ in range(megabytes)] + [compressor.flush()])
+
+
+def compressed_bag(folder: Path, mode: str) -> Path:
+    """A one-image ROS 2 bag, message-compressed (SQLite) or file-compressed (MCAP)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    message = types["sensor_msgs/msg/CompressedImage"](
+        header=types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="c"),
+        format="jpeg", data=np.frombuffer(b"\xff\xd8" * 10, dtype=np.uint8))
+    plugin = StoragePlugin.SQLITE3 if mode == "message" else StoragePlugin.MCAP
+    writer = Writer(folder, version=8, storage_plugin=plugin)
+    writer.set_compression(CompressionMode.MESSAGE if mode == "message" else CompressionMode.FILE, CompressionFormat.ZSTD)
+    writer.open()
+    connection = writer.add_connection("/camera/image/compressed", "sensor_msgs/msg/CompressedImage", typestore=store)
+    writer.write(connection, 0, store.serialize_cdr(message, "sensor_msgs/msg/CompressedImage"))
+    writer.close()
+    return folder
+
+
+def test_a_message_compressed_bag_bomb_stops_at_the_message_cap(tmp_path):
+    import sqlite3
+
+    bag = compressed_bag(tmp_path / "bag", "message")
+    database = next(bag.glob("*.db3"))
+    with sqlite3.connect(database) as connection:
+        connection.execute("update messages set data = ?", (zstd_of_zeros(100),))  # 100 MiB in ~4 KB
+    assert database.stat().st_size < 1 << 20
+    result = call_hbvs("teach", "--bag", str(bag), "-o", str(tmp_path / "t.mcap"), "-q")
+    assert result.returncode == 3 and "expands to more than the 64 MiB" in one_line(result)
+
+
+def test_a_file_compressed_bag_bomb_stops_at_the_decompressed_bytes_limit(tmp_path, monkeypatch):
+    bag = compressed_bag(tmp_path / "bag", "file")
+    next(bag.glob("*.zstd")).write_bytes(zstd_of_zeros(40))
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    result = run_hbvs("--limit", "decompressed-bytes=1e7", "teach", "--bag", str(bag), "-o", str(tmp_path / "t.mcap"), "-q",
+                      env={"TMPDIR": str(scratch)})
+    assert result.returncode == 7 and "decompressed-bytes limit" in one_line(result)
+    assert list(scratch.iterdir()) == []  # the decompressed file went with the error

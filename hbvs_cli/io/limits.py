@@ -17,6 +17,8 @@ name                      default      what it bounds
 ``chunk-messages``        262 144      messages in one MCAP chunk
 ``input-bytes``           64 GiB       bytes read from one MCAP file or stream, after
                                        decompression
+``decompressed-bytes``    1 GiB        bytes one file of a file-compressed ROS 2 bag
+                                       expands to (in TMPDIR), streamed and counted
 ``sweep-runs``            1 000 000    runs of one ``hbvs sweep`` (values of a grid axis,
                                        samples, and their product times the repeats),
                                        checked before the plan is built
@@ -48,6 +50,7 @@ LIMITS: dict[str, Limit] = {
         Limit("messages", 2**22, "messages"),
         Limit("chunk-messages", 2**18, "messages"),
         Limit("input-bytes", 64 * 2**30, "bytes"),
+        Limit("decompressed-bytes", 2**30, "bytes"),
         Limit("sweep-runs", 1_000_000, "runs"),
     )
 }

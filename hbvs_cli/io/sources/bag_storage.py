@@ -199,6 +199,71 @@ def _typestore_for(information: dict[str, Any]) -> Any:
     return get_typestore(store)
 
 
+class _CappedZstd:
+    """The ``zstd`` module as rosbags' reader uses it, decompressing under caps.
+
+    rosbags decompresses a message-compressed bag's messages whole (a 56 KB ``.db3`` asked
+    for 1.2 GB) and a file-compressed bag's files into TMPDIR (a 61 KB bag wrote 700 MB):
+    here a message stops at :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` + 1 bytes of output
+    and a file at the ``decompressed-bytes`` limit, both streamed, before anything more is
+    allocated or written.
+    """
+
+    def __init__(self, module: Any) -> None:
+        self._module = module
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._module, name)
+
+    def decompress(self, data: bytes) -> bytes:
+        decompressor = self._module.ZstdDecompressor()
+        output = decompressor.decompress(data, max_length=MAX_RECORD_BYTES + 1)
+        if len(output) > MAX_RECORD_BYTES:
+            raise InputError(f"a compressed message expands to more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs reads")
+        return output
+
+    def open(self, file: Any, mode: str = "rb", *args: Any, **kwargs: Any) -> Any:
+        return _CappedReader(self._module.open(file, mode, *args, **kwargs))
+
+
+class _CappedReader(io.RawIOBase):
+    """A decompressing file that raises once more than ``decompressed-bytes`` came out."""
+
+    def __init__(self, inner: Any) -> None:
+        super().__init__()
+        self._inner = inner
+        self._read = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        count = self._inner.readinto(buffer)
+        self._read += count or 0
+        if self._read > limits.current("decompressed-bytes"):
+            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+        return count
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._inner.read(size if size is not None and size >= 0 else 1 << 20)
+        self._read += len(data)
+        if self._read > limits.current("decompressed-bytes"):
+            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+        return data
+
+    def close(self) -> None:
+        self._inner.close()
+        super().close()
+
+
+def _cap_rosbags_decompression() -> None:
+    """Give rosbags' reader the capped ``zstd`` (once per process)."""
+    from rosbags.rosbag2 import reader
+
+    if not isinstance(reader.zstd, _CappedZstd):
+        reader.zstd = _CappedZstd(reader.zstd)
+
+
 class RosbagsBag:
     """A ROS 2 bag folder read with ``rosbags``' ``AnyReader`` (see the module's notes).
 
@@ -211,6 +276,7 @@ class RosbagsBag:
         self.name = name
         self.folder = folder
         information = _bag_metadata(folder, name)
+        _cap_rosbags_decompression()
         with _rosbags_errors(name):
             self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
             self._reader.open()
