@@ -208,6 +208,26 @@ def test_a_second_sweep_into_a_locked_folder_stops_with_one_line_and_exit_6(smal
     assert digest_tree(folder) == before
 
 
+@pytest.mark.campaign
+def test_two_sweeps_started_together_into_one_folder_leave_one_whole_table(request, tmp_path):
+    campaign_extent(request, "campaign")
+    import pyarrow.parquet as pq
+
+    for round_ in range(3):
+        folder = tmp_path / f"results-{round_}"
+        command = [*HBVS, "sweep", str(FIT), "--vary", "offset_y=-0.1:0.1:4", "--set", "perception=points", "-o", str(folder),
+                   "--workers", "1", "--no-plots", "--quiet"]
+        children = [subprocess.Popen(command, stderr=subprocess.PIPE) for _ in range(2)]
+        outcomes = sorted((child.wait(timeout=600), child.stderr.read().decode()) for child in children)
+        # One ran; the other stopped at the lock (or, started after the first ended, found it done).
+        assert outcomes[0][0] == 0 and outcomes[1][0] in (0, 6), outcomes
+        if outcomes[1][0] == 6:
+            assert "another hbvs process" in outcomes[1][1]
+        table = pq.read_table(folder / "runs.parquet")
+        assert table.column("index").to_pylist() == [0, 1, 2, 3]
+        assert [p.name for p in folder.rglob("*.partial")] == []
+
+
 def test_a_sweep_removes_only_the_partial_files_of_dead_processes(small_sweep, tmp_path):
     folder = copy_of(small_sweep, tmp_path)
     stale = folder / f"runs.csv.{dead_pid()}-0badc0de.partial"
