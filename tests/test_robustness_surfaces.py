@@ -261,7 +261,7 @@ def test_a_part_never_replaces_another(tmp_path):
         table.release()
 
 
-@pytest.mark.parametrize("content", ["[1, 2, 3]", "{}", '{"fingerprint": 1}', "not json"])
+@pytest.mark.parametrize("content", ["[1, 2, 3]", "{}", '{"fingerprint": 1}', "not json", "null"])
 def test_a_broken_sweep_json_is_an_input_error(small_sweep, tmp_path, content):
     folder = copy_of(small_sweep, tmp_path)
     (folder / "sweep.json").write_text(content)

@@ -86,7 +86,7 @@ def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
     spec = fingerprint.get("spec") if isinstance(fingerprint, dict) else None
     schema = document.get("schema") if isinstance(document, dict) else None
     spec_ok = isinstance(spec, dict) and isinstance(spec.get("vary"), dict) and isinstance(spec.get("fixed"), dict)
-    if not ((spec_ok or not need_spec) and "fingerprint" in document
+    if not (isinstance(document, dict) and (spec_ok or not need_spec) and "fingerprint" in document
             and isinstance(schema, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in schema.items())
             and isinstance(document.get("runs", 0), int)):
         raise InputError(f"{path}: not the description hbvs sweep writes (fingerprint, spec, schema)")
