@@ -23,7 +23,7 @@ import typer
 
 
 from .. import __version__
-from ..errors import HbvsError, OutputError
+from ..errors import HbvsError, InputError, OutputError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
@@ -69,7 +69,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, sweep-runs (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -473,8 +473,6 @@ class _ClosedStdin:
     encoding = "utf-8"
 
     def _closed(self, *args: Any) -> Any:
-        from ..errors import InputError
-
         raise InputError("stdin: it is closed; give the input as a file instead of -")
 
     read = readline = _closed
