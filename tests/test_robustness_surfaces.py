@@ -510,9 +510,16 @@ def test_yaml_aliases_are_counted_without_being_expanded():
 
 
 # ----------------------------------------------------------------------------- 8. closed stdin
-@pytest.mark.parametrize("arguments", [["fit", "-", "-o", "f.mcap"], ["repeat", "-", "--sim", "-o", "r.mcap"],
-                                       ["report", "-"], ["export", "-", "-o", "bag"]])
-def test_a_stage_started_with_stdin_closed_says_so(tmp_path, arguments):
+@pytest.mark.parametrize("arguments", [
+    ["fit", "-", "-o", "f.mcap"],
+    pytest.param(["repeat", "-", "--sim", "-o", "r.mcap"], marks=pytest.mark.campaign),
+    pytest.param(["report", "-"], marks=pytest.mark.campaign),
+    ["export", "-", "-o", "bag"],
+])
+def test_a_stage_started_with_stdin_closed_says_so(request, tmp_path, arguments):
+    # One process each (a second of CPU): fit and export in the suite, all four with -m campaign.
+    if request.node.get_closest_marker("campaign"):
+        campaign_extent(request, "campaign")
     result = subprocess.run([*HBVS, *arguments], cwd=tmp_path, capture_output=True, timeout=120,
                             preexec_fn=lambda: os.close(0))
     assert result.returncode == 3
@@ -614,7 +621,7 @@ def test_adversarial_campaign_over_the_new_surfaces(request, extent, tmp_path, s
     """>= 100 seeded attempts (sweep, export, live view, bag and calibration inputs): no exit
     70, no file lost or corrupted, peak memory under 300 MB for inputs under 1 MB."""
     full = campaign_extent(request, extent)
-    count = 110 if full else 3
+    count = 110 if full else 2
     rng = np.random.default_rng(2026_11_26)
     attempts = _hostile_attempts(rng, tmp_path, count, small_sweep, exported)
     peaks, codes = [], {}
