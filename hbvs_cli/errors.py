@@ -16,7 +16,8 @@ Exit codes
 3    an input file is missing, unreadable or malformed
 4    the geometry is degenerate (too few points, collinear, a point at camera height...)
 5    the run was stopped: the target was lost for longer than ``--lost-timeout``
-6    an output could not be written (disk full, I/O error, stdout closed); nothing was replaced
+6    an output could not be written (its folder does not exist, disk full, I/O error, stdout
+     closed); nothing was replaced
 7    a size limit was reached (the message names the limit and the option that raises it)
 130  interrupted by Ctrl-C (SIGINT); 143 by SIGTERM
 141  the reader of the output pipe went away (``hbvs ... | head``)

@@ -302,7 +302,7 @@ HEAVY_FILES = {
     "test_robustness_fuzz.py": 17, "test_stage_options.py": 16, "test_io_rosbag_layouts.py": 15,
     "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
     "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 8,
-    "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6,
+    "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6, "test_walkthrough.py": 13,
 }
 
 

@@ -10,7 +10,7 @@ MJPG). The robot drives a unicycle path of its own (not one of hbvs's presets). 
 out: ``drive.avi``, ``camera.yaml`` (ROS ``camera_info``) and ``truth.npz`` (times, poses,
 the true n* and d*).
 
-Conventions are those of the paper as hbvs documents them (README, "Conventions"):
+Conventions are those of the paper as hbvs documents them (docs/conventions.md):
 robot frame x forward, y left, z up; theta = phi* - phi; x_h = Rz(phi)^T (p* - p) / d*;
 n* is the wall's unit normal in F*, pointing from the camera to the wall.
 """

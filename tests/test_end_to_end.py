@@ -66,7 +66,7 @@ def test_demo_into_a_temporary_folder(tmp_path):
     assert lateral["run"]["law"] == "lateral-gain" and paper["run"]["law"] == "paper"
     assert lateral["verdict"]["converged"] is True
     assert lateral["pose_error"]["position_m"]["final"] < 0.01 and lateral["pose_error"]["heading_deg"]["final"] < 0.2
-    # The paper's law is still converging laterally after 20 s (see README).
+    # The paper's law is still converging laterally after 20 s (see docs/results.md).
     assert paper["pose_error"]["position_m"]["final"] > 5 * lateral["pose_error"]["position_m"]["final"]
     table = result.stdout.decode()
     assert "lateral-gain" in table and "paper" in table and "converged" in table

@@ -44,16 +44,21 @@ def test_every_subpackage_is_listed():
 def test_the_files_that_help_and_messages_name_are_shipped():
     named = set()
     for source in (REPO / "hbvs_cli").rglob("*.py"):
-        named |= set(re.findall(r"shipped_path\(['\"]([^'\"]+)['\"]\)", source.read_text()))
+        named |= set(re.findall(r"shipped_(?:path|name)\(['\"]([^'\"]+)['\"]\)", source.read_text()))
     named |= {"docs/report.md"}  # the report's verdict table names it
     assert {"docs/method.md", "docs/report.md", "samples/gains.toml"} <= named
     assert named <= shipped_files()
 
 
 def test_help_names_files_that_exist():
-    text = run_hbvs("--help", env={"COLUMNS": "400"}).stdout.decode()
-    paths = re.findall(r"(/\S+\.(?:md|toml))", text)
-    assert len(paths) == 4  # method.md, report.md, gains.toml (the root help), robustness.md (--limit)
+    """Help names shipped files by short names (docs/method.md) and says once where they are."""
     from pathlib import Path
 
-    assert all(Path(p).is_file() for p in paths), paths
+    text = run_hbvs("--help", env={"COLUMNS": "400"}).stdout.decode()
+    root = re.search(r"installed in (/\S+?)\.?\s*│?\n", text)
+    assert root, text
+    text += run_hbvs("repeat", "--help", env={"COLUMNS": "400"}).stdout.decode()
+    names = set(re.findall(r"((?:docs|samples)/[\w.-]+\.(?:md|toml))", text))
+    assert names == {"docs/method.md", "docs/report.md", "samples/gains.toml", "docs/robustness.md"}
+    assert all((Path(root.group(1)) / name).is_file() for name in names), (root.group(1), names)
+    assert "site-packages" not in text and str(REPO) not in text.replace(root.group(1), "")

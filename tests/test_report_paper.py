@@ -349,10 +349,20 @@ def test_figure_options_and_formats(runs, tmp_path):
 
     run = str(runs["paths"]["run"])
     png = tmp_path / "one-column.png"
-    result = call_hbvs("report", run, "--plot", str(png), "--size", "3.5x6", "--dpi", "100", "--json")
+    one_column = ("--size", "3.5x8", "--panels", "position,heading,v,w,top", "--dpi", "100")
+    result = call_hbvs("report", run, "--plot", str(png), *one_column, "--json")
     assert result.returncode == 0, result.stderr.decode()
     data = png.read_bytes()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n" and tuple(int.from_bytes(data[o:o + 4], "big") for o in (16, 20)) == (350, 600)
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and tuple(int.from_bytes(data[o:o + 4], "big") for o in (16, 20)) == (350, 800)
+    # Every panel in 3.5x8 would overlap its labels: refused, with the least height that fits.
+    short = call_hbvs("report", run, "--plot", str(tmp_path / "short.png"), "--size", "3.5x8")
+    assert short.returncode == 2 and b"give at least 3.5x14" in short.stderr and not (tmp_path / "short.png").exists()
+    assert not short.stdout
+    # Stacked in one column, the time panels share one time axis, labelled under the last.
+    figure, _ = _figure(runs, ("run",), size_in=(3.5, 8.0), panels=("position", "heading", "v", "w", "top"))
+    axes = _axes(figure)
+    assert axes["w"].get_xlabel() == "time t (s)" and axes["position"].get_xlabel() == ""
+    assert not any(label.get_visible() for label in axes["position"].get_xticklabels())
     for suffix, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
         path = tmp_path / f"figure{suffix}"
         result = call_hbvs("report", run, str(runs["paths"]["paper"]), "--plot", str(path), "--label", "a", "--label", "b")

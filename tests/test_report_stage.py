@@ -142,7 +142,8 @@ def test_a_run_stopped_for_a_lost_target_did_not_converge(runs):
 
 
 # ----------------------------------------------------------------------------- table
-def test_plain_table_matches_the_json(runs):
+def test_plain_table_matches_the_json(runs, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "1000")   # the verdict's sentences on one line each
     result = call_hbvs("report", str(runs["run"]))
     assert result.returncode == 0 and result.stderr == b""
     text = result.stdout.decode()
@@ -172,6 +173,19 @@ def test_plain_table_matches_the_json(runs):
     assert verdict["converged"] == ("yes" if report["verdict"]["converged"] else "no")
     assert [verdict[label] for label in ("closed loop", "finished", "final position error", "final heading error", "V fell (36)", "commands smooth")] \
         == report["verdict"]["reasons"]
+
+
+def test_the_verdict_fits_the_terminal(runs, monkeypatch):
+    """The verdict's sentences wrap to the reader's width ($COLUMNS, else stderr's terminal),
+    even through a pipe; the numbers' tables do not wrap."""
+    monkeypatch.setenv("COLUMNS", "80")
+    text = call_hbvs("report", str(runs["run"]), str(runs["paper"])).stdout.decode()
+    verdict = text[text.index("verdict ("):].splitlines()[1:]
+    assert len(verdict) > 8 and max(len(line.rstrip()) for line in verdict) <= 80
+    words = " ".join(verdict).split()
+    report = report_json(runs["paper"])
+    for reason in report["verdict"]["reasons"]:
+        assert all(word in words for word in reason.split()), reason
 
 
 def test_comparison_prints_both_runs_side_by_side(runs):
@@ -284,15 +298,21 @@ def test_figure_axes_are_labelled_with_units(runs):
     assert [t.get_text() for t in figure.legends[0].get_texts()][1].startswith("paper (")
 
 
-def test_replay_figure_says_what_is_missing(runs):
-    from hbvs_cli.report.plots import plot_runs
+def test_replay_figure_leaves_out_what_it_has_no_data_for(runs):
+    """A replay has no ground-truth poses and no V: by default those panels are left out;
+    named with --panels, each says in its middle what is missing."""
+    from hbvs_cli.report.figure_style import FigureStyle
+    from hbvs_cli.report.plots import PANEL_NAMES, plot_runs
 
     run = read_run(runs["replay"])
     figure = plot_runs([run], [build_report(run)])
     axes = {ax.get_label(): ax for ax in figure.axes}
+    assert set(axes) == set(PANEL_NAMES) - {"position", "heading", "top", "V"}
+    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
+    figure = plot_runs([run], [build_report(run)], FigureStyle(panels=("position", "V", "top", "e1")))
+    axes = {ax.get_label(): ax for ax in figure.axes}
     texts = {name: " ".join(t.get_text() for t in ax.texts) for name, ax in axes.items()}
     assert "V unknown" in texts["V"] and "no ground-truth poses" in texts["top"] and "no ground-truth poses" in texts["position"]
-    assert all(axes[name].get_lines() for name in ("e1", "ebar2", "e2", "e3", "v", "w", "dhat"))
 
 
 # ----------------------------------------------------------------------------- TUM

@@ -86,3 +86,26 @@ def test_the_sample_fit_repeats_and_converges(tmp_path):
     run = read_run(tmp_path / "run.mcap")
     final = np.hypot(*(run.true_pose[-1, :2] - run.desired_pose[-1, :2]))
     assert final < 0.01
+
+
+def test_help_shows_its_brackets():
+    """The help is rich markup (rich_markup_mode="rich"), where [word] is a style tag that
+    disappears: every bracket of a help text is escaped, so that the help shows what the
+    text says (SeedSequence([seed, i]), pip install 'hbvs[sweep-cluster]')."""
+    import re
+
+    import typer.main
+    from rich.text import Text
+
+    from hbvs_cli.cli.app import app
+
+    group = typer.main.get_command(app)
+    checked = 0
+    for command in group.commands.values():
+        for parameter in command.params:
+            help_text = getattr(parameter, "help", None) or ""
+            shown = Text.from_markup(help_text).plain
+            for bracketed in re.findall(r"\[[^\]]*\]", help_text.replace("\\[", "[")):
+                assert bracketed in shown, (command.name, parameter.name, help_text)
+                checked += 1
+    assert checked >= 2

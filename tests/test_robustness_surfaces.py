@@ -286,7 +286,7 @@ def test_a_results_table_of_another_sweep_is_an_input_error(small_sweep, tmp_pat
 def test_an_output_folder_that_is_a_dangling_link_is_refused(tmp_path):
     (tmp_path / "results").symlink_to(tmp_path / "missing" / "results")
     result = call_hbvs("sweep", str(FIT), "--vary", "kv=0.5,1", "-o", str(tmp_path / "results"))
-    assert result.returncode == 2 and "does not exist" in one_line(result)
+    assert result.returncode == 6 and "does not exist" in one_line(result)
 
 
 @pytest.mark.parametrize("address", ["not a url", "foo://x:1", "tcp://:"])

@@ -229,7 +229,7 @@ def test_bad_input(default_teach, default_fit, tmp_path):
 
 
 def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
-    """What the README says of V (36) with images in the loop: the sensor noise makes it
+    """What docs/results.md says of V (36) with images in the loop: the sensor noise makes it
     rise on some steps (measured 12 % under the lateral-gain law and 10 % under the paper's,
     with the state filter on; 42 % and 44 % without it), while over the run it falls by a
     factor of 3e5 (lateral gain) and 17 (paper)."""

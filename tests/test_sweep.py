@@ -86,7 +86,7 @@ def test_every_row_is_present_in_parquet_and_csv(uninterrupted):
     assert summary["runs"]["done"] == RUNS and summary["overall"]["runs"] == RUNS
     assert {entry["law"] for entry in summary["by_law"]} == {"lateral-gain", "paper", "non-adaptive", "kanayama"}
     assert sum(e["runs"] for e in summary["by_parameter"]["offset_y"]) == RUNS
-    for name in ("final_error_cdf.png", "final_error_vs_parameters.png"):
+    for name in ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameters.png"):
         assert (folder / name).stat().st_size > 10_000
 
 

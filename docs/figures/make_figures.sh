@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerate the figures in docs/figures/ (the README shows them):
+# Regenerate the figures in docs/figures/ (docs/results.md shows them):
 #   demo.png    the demo's two repeats (the default scenario, both laws): hbvs report --plot
 #   fit.png     the demo's fit: raw against smoothed desired signals (Remark 1)
 #   faults.png  the default law with the target hidden from 8 to 10 s and 10 % dropped frames

@@ -27,7 +27,7 @@ from ..errors import HbvsError, InputError, OutputError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
-from ..io.shipped import shipped_path
+from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
@@ -41,8 +41,9 @@ app = typer.Typer(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
         "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
-        f"Method and metrics: {shipped_path('docs/method.md')}, {shipped_path('docs/report.md')}. "
-        f"Default gains: {shipped_path('samples/gains.toml')}."
+        f"Method and metrics: {shipped_name('docs/method.md')}, {shipped_name('docs/report.md')}. "
+        f"Default gains: {shipped_name('samples/gains.toml')}. "
+        f"These docs/ and samples/ files are installed in {shipped_root()}."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -69,7 +70,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_path('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -145,7 +146,7 @@ def report(
     require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI. For a sweep's folder: unless every planned run converged (failed, stopped and missing runs count as not converged).")] = False,
     label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
     dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
-    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches, e.g. 3.5x5 for one column, 7x6 for two (default 7 wide).", rich_help_panel="Figure")] = None,
+    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with --panels position,heading,v,w,top.", rich_help_panel="Figure")] = None,
     panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
 ) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
@@ -177,20 +178,32 @@ def export(
     run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), _console(quiet))
 
 
+# --------------------------------------------------------------------------- info
+@app.command(rich_help_panel="Files")
+def info(
+    input: Annotated[str, typer.Argument(help="An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.")],
+    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the text.")] = False,
+) -> None:
+    """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
+    from ..stages.info import InfoOptions, run_info
+
+    run_info(InfoOptions(input=input, json_output=json_output), _console(False))
+
+
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 def sweep(
     fit: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.")] = Path("sweep-results"),
-    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (README, hbvs sweep).")] = None,
+    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (docs/sweeps.md).")] = None,
     vary: Annotated[Optional[List[str]], typer.Option("--vary", help="NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.")] = None,
     fixed: Annotated[Optional[List[str]], typer.Option("--set", help="NAME=VALUE held for every run, e.g. perception=points; repeatable.")] = None,
     repeats: Annotated[Optional[int], typer.Option("--repeats", min=1, help="Runs per point, each with its own seed. Default 1.")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence([seed, i]). Default 0.")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence(\\[seed, i]). Default 0.")] = None,
     sampling: Annotated[Optional[str], typer.Option("--sampling", help="grid (default), or sobol, halton, lhs (scipy.stats.qmc), random for ranges.")] = None,
     samples: Annotated[Optional[int], typer.Option("--samples", min=1, help="Samples of the ranges (not grid). Default 64.")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
-    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs[sweep-cluster]').", rich_help_panel="Engine")] = None,
+    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs\\[sweep-cluster]').", rich_help_panel="Engine")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
     dashboard: Annotated[Optional[str], typer.Option("--dashboard", metavar="[HOST:]PORT", help="Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on HOST:PORT (0.0.0.0 only if you name it).", rich_help_panel="Engine")] = None,
     keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",

@@ -314,8 +314,8 @@ def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing:
     """A cubic smoothing spline and its penalty weight lambda.
 
     With ``smoothing=None`` lambda is the one scipy's generalised cross-validation picks,
-    found by :func:`~.gcv.gcv_smoothing` (the same criterion and search, 15-20x faster
-    than scipy's own loops); the spline is scipy's, with that lambda.
+    found by :func:`~.gcv.gcv_smoothing` (the same criterion and search, in Reinsch's banded
+    form instead of scipy's per-sample loops); the spline is scipy's, with that lambda.
     """
     from scipy.interpolate import make_smoothing_spline
 

@@ -8,13 +8,13 @@ of the same brightness only in colour. A source that is already compressed keeps
 colour PNG of gray content, becomes an 8-bit PNG of the decoded image, still lossless);
 frames that hbvs compresses itself (the simulator, a video, a live camera, raw bag images)
 become JPEG at a stated quality (:data:`DEFAULT_JPEG_QUALITY`) unless PNG is asked for.
-``teach --gray`` stores every frame as one gray channel, as hbvs did before.
+``teach --gray`` stores every frame as one gray channel.
 
 How it is stored: ``foxglove.CompressedImage`` in Foxglove's protobuf encoding (the
 ``foxglove-schemas-protobuf`` classes, schema from ``mcap-protobuf-support``), so the
 image bytes sit in the file as they are, a few dozen bytes of framing around them, and
-Foxglove, ``mcap cat`` and any protobuf reader open them. Files written before, with the
-JSON encoding (image bytes in base64), are still read.
+Foxglove, ``mcap cat`` and any protobuf reader open them. Images in the JSON encoding
+(bytes in base64) are read too.
 """
 
 from __future__ import annotations
@@ -35,9 +35,8 @@ from .topics import COMPRESSED_IMAGE_SCHEMA
 IMAGE_FORMATS = ("png", "jpeg")
 #: ``--format`` choices: ``auto`` keeps what a source has and compresses the rest as JPEG.
 STORE_FORMATS = ("auto", *IMAGE_FORMATS)
-#: JPEG quality of the frames hbvs compresses itself. At 90 a noisy 640x480 frame of the
-#: default scene is about 31 KB against 133 KB as PNG, and the fitted theta_d stays within
-#: 0.013 deg of the truth (0.006 deg from PNG; tests/test_image_storage.py measures both).
+#: JPEG quality of the frames hbvs compresses itself: a fraction of PNG's size for a fit
+#: almost as accurate (tests/test_image_storage.py and bench/FILE_SIZES.md measure both).
 DEFAULT_JPEG_QUALITY = 90
 #: The schema every image topic of hbvs carries.
 IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA

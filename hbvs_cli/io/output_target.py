@@ -76,7 +76,9 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     Raises
     ------
     InputError
-        A directory, or a folder that does not exist (exit 3, as before).
+        A directory (exit 3).
+    OutputError
+        A folder that does not exist: the output cannot be written there (exit 6).
     """
     text = os.fspath(spec)
     if text == "-":
@@ -88,7 +90,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
         # A new file, or a dangling symbolic link whose target will be created.
         path = Path(os.path.realpath(given))
         if not path.parent.is_dir():
-            raise InputError(f"{given}: the folder {path.parent} does not exist") from None
+            raise OutputError(f"{given}: the folder {path.parent} does not exist") from None
         return OutputTarget(text, "file", path, False)
     except OSError as exc:
         raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None

@@ -48,7 +48,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..errors import InputError, RecordingError, UsageError
+from ..errors import InputError, OutputError, RecordingError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .mcap import McapStream, read_metadata
 from .topics import (
@@ -95,14 +95,14 @@ def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
     UsageError
         ``-`` (a bag is a folder), an existing file or folder that is not a bag hbvs wrote
         (:func:`written_by_hbvs`), or one of ``inputs`` stored inside it.
-    InputError
-        The parent folder does not exist.
+    OutputError
+        The parent folder does not exist (exit 6).
     """
     if spec == "-":
         raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
     final = Path(os.path.realpath(spec))
     if not final.parent.is_dir():
-        raise InputError(f"{spec}: the folder {final.parent} does not exist")
+        raise OutputError(f"{spec}: the folder {final.parent} does not exist")
     for source in inputs:
         if source != "-" and Path(os.path.realpath(source)).is_relative_to(final):
             raise UsageError(f"{source}: is inside the bag {spec} that the export would replace; copy it elsewhere first")

@@ -8,7 +8,7 @@ the files open in Foxglove with images, annotations, poses, plots and the 3D sce
 Foxglove's protobuf encoding (:mod:`.images`), and reads the JSON form below from older
 files. Times are ``{"sec", "nsec"}`` and MCAP log times are in nanoseconds.
 
-The topics of each file kind are listed in :mod:`.topics` (and in the README).
+The topics of each file kind are listed in :mod:`.topics` (and in docs/files.md).
 """
 
 from __future__ import annotations

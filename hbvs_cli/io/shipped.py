@@ -22,3 +22,16 @@ def shipped_path(relative: str) -> Path:
         if candidate.is_file():
             return candidate
     return _PACKAGE / relative
+
+
+def shipped_root() -> Path:
+    """The folder that holds the installed ``docs/`` and ``samples/`` (the wheel's package
+    folder, or a checkout's root)."""
+    path = shipped_path("docs/method.md")
+    return path.parent.parent
+
+
+def shipped_name(relative: str) -> str:
+    """How help texts name a shipped file: ``docs/method.md``, short enough for 80 columns;
+    the root help says once where these names are (:func:`shipped_root`)."""
+    return relative

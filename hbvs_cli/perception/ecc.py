@@ -22,18 +22,6 @@ ECC_EPSILON = 1e-3
 MAX_CORRECTION_PX = 3.0
 
 
-def refine_homography(
-    template: NDArray[np.uint8],
-    frame: NDArray[np.uint8],
-    homography: NDArray[np.float64],
-    check_points: NDArray[np.float64],
-    blur: int = 3,
-) -> NDArray[np.float64] | None:
-    """The template -> frame homography, refined by ECC alignment; see :func:`align_homography`
-    (this is its homography alone)."""
-    return align_homography(template, frame, homography, check_points, blur)[0]
-
-
 def align_homography(
     template: NDArray[np.uint8],
     frame: NDArray[np.uint8],

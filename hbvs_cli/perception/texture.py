@@ -1,48 +1,15 @@
 """A textured poster: natural features matched to a reference view, then a homography.
 
-Two ways to find the reference -> frame homography, both ending in a robust fit
-(``cv2.findHomography`` with ``USAC_MAGSAC``); the target points are the reference pixels
-carried across by it:
-
-* **acquisition** (no prediction, or following failed): ORB features of the reference
-  image (a frame showing the poster, or the poster's picture) are matched in the frame
-  with Lowe's ratio test on Hamming distances;
-* **following** (a prediction of the points exists): the prediction defines a homography;
-  the reference warped by it nearly coincides with the frame. Near the prediction (a
-  tracked target) the whole-region alignment below converges from it directly and is kept
-  when the aligned images correlate well (:data:`FOLLOW_CORRELATION`); otherwise pyramidal
-  Lucas-Kanade measures sub-pixel displacements of the reference's corners between the
-  two (it reaches some 20 px) before the alignment. Both are several times faster than
-  matching descriptors, and being always relative to the reference they do not drift.
-
-ORB keypoints sit on the pixel grid of their pyramid level (a few tenths of a pixel of
-error), so an acquired homography is also polished by one Lucas-Kanade step.
-
-Every homography is then aligned on the whole target region (ECC, :mod:`.ecc`), with three
-things that matter at a few hundredths of a pixel, where yaw and the plane normal are
-decided (measured on independent footage, tests/test_perception_footage.py):
-
-* both images are smoothed *before* the template is cut out of the reference (ECC's own
-  filter, applied to the cut-out, smooths its border against the reflected edge: the
-  reference frame itself was found 0.06 px off its own image);
-* the lens's vignetting: a brightness ramp across the target, which changes as the target
-  moves in the frame, looks to an intensity alignment like a shift and a foreshortening
-  (the frame's yaw was 0.28 deg RMS off for it). The fall-off ``1 - a r^2`` about the image
-  centre is estimated from the frames (pooled: it is the camera's) and the template is
-  shaded as each frame sees it (the first frames, and then one in :data:`POOL_INTERVAL`,
-  are aligned twice: plainly, to read the fall-off, then shaded; the others once, shaded
-  with the pooled fall-off);
-* the resolution: a frame that sees the target 2x larger than the reference is sharper
-  than the template, and a sharp picture matched to a blurred one comes out at a biased
-  scale (the plane normal tilted 0.3-0.4 deg); the frame (or the template, when the
-  target shrinks) is smoothed so that both have the same blur in template pixels.
-
-When following fails both ways (a poor correlation, too few reference corners agree: a
-picture with little texture), the alignment from the prediction is accepted without the
-correlation bound before a fresh acquisition is tried.
-
-Determinism: ORB and brute-force matching are deterministic and ``cv2.setRNGSeed(seed)``
-is called before every robust fit, so the same frames give the same results run to run.
+Acquisition matches ORB features of the reference in the frame (Lowe's ratio test);
+following starts from the predicted points (ECC alignment straight from the prediction,
+else pyramidal Lucas-Kanade on the reference's corners), which is faster and, always
+relative to the reference, does not drift. Both end in a seeded ``USAC_MAGSAC`` fit.
+The homography is then aligned on the whole target region (:mod:`.ecc`): at a few
+hundredths of a pixel, where yaw and the plane normal are decided, the images are smoothed
+before the template is cut, the template is shaded by the lens's vignetting (``1 - a r^2``,
+pooled over the frames) and the sharper image is blurred to the other's resolution, since
+each of these otherwise reads as a shift or a tilt. The same frames and seed give the same
+result.
 """
 
 from __future__ import annotations

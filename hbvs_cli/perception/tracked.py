@@ -22,7 +22,7 @@ from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import TargetChoice
 from .autodetect import choose_target as choose
 from .base import Detection, TargetDetector, as_gray, match_identity
-from .detector import guess_target_kind, make_detector
+from .detector import make_detector
 from .dots import dark_image, find_dark_blobs
 
 
@@ -179,11 +179,6 @@ def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dic
     """``--target auto`` on real footage: what the first images show (a
     :class:`~hbvs_cli.perception.autodetect.TargetChoice`, which says why)."""
     return choose(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
-
-
-def choose_target_kind(image: np.ndarray) -> str:
-    """The kind ``--target auto`` picks from one image (see :func:`choose_target`)."""
-    return guess_target_kind(image)
 
 
 def count_dots(image: np.ndarray, polarity: str = "dark", contrast: str = "gray") -> int:

@@ -4,7 +4,7 @@
 key and unit): ``run``, ``errors``, ``pose_error`` (only with ground truth), ``lyapunov``,
 ``depth``, ``commands``, ``target``, ``condition35``, ``verdict``.
 
-Convergence rule (:func:`verdict`; docs/report.md and the README cite it here). A run has
+Convergence rule (:func:`verdict`; docs/report.md and docs/commands.md cite it here). A run has
 converged when every one of these holds:
 
 1. it was a closed-loop run: an open-loop replay (``mode = replay``) never converged,

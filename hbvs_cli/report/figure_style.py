@@ -2,8 +2,8 @@
 
 One style serves the run figure (:mod:`.plots`) and the fit figure (:mod:`.fit_plot`):
 
-* sizes in inches for a two-column paper (7 in wide by default; ``--size 3.5x6`` for one
-  column), fonts of 7-9 pt, so that text printed at 100 % is as large as the paper's;
+* sizes in inches for a two-column paper (7 in wide by default; ``--size 3.5x8 --panels
+  position,heading,v,w,top`` for one column), fonts of 7-9 pt, so that text printed at 100 % is as large as the paper's;
 * the Okabe-Ito palette (Okabe and Ito, "Color Universal Design", 2008), distinguishable
   with every common colour-vision deficiency; the taught path is black and dashed;
 * vector output (PDF, SVG) keeps its text as text (TrueType in PDF, ``<text>`` in SVG);
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, OutputError, UsageError
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -66,7 +66,7 @@ def parse_size(text: str) -> tuple[float, float]:
     """
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
-        raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x5 (one column) or 7x6")
+        raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x8 (one column) or 7x9")
     width, height = float(match.group(1)), float(match.group(2))
     low, high = SIZE_RANGE_IN
     if not (low <= width <= high and low <= height <= high):
@@ -174,8 +174,8 @@ def check_plot_path(path: Path) -> None:
     ------
     UsageError
         A suffix matplotlib cannot write.
-    InputError
-        The folder does not exist.
+    OutputError
+        The folder does not exist (exit 6).
     """
     suffix = path.suffix.lower().lstrip(".")
     formats = supported_formats()
@@ -183,7 +183,7 @@ def check_plot_path(path: Path) -> None:
         others = ", ".join(sorted(formats - {"pdf", "svg", "png"}))
         raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .pdf or .svg (vector) or .png (or {others})")
     if not path.parent.exists():
-        raise InputError(f"--plot {path}: the folder {path.parent} does not exist")
+        raise OutputError(f"--plot {path}: the folder {path.parent} does not exist")
 
 
 def save_figure(figure: Any, path: Path, dpi: float) -> None:

@@ -22,7 +22,7 @@ shaded in the run's colour and the error lines break across them (nothing is dra
 was not measured); a dropped frame inside tracking is skipped, so the line joins its
 neighbours. Each run is drawn with at most :data:`MAX_POINTS_PER_RUN` points per panel
 (bin means), so a noisy 200 Hz run does not paint over a 30 Hz one. A panel whose data no
-run has (a replay has no poses and no V) says so in its middle.
+run has is left out, unless ``--panels`` names it: then it says so in its middle.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..errors import UsageError
 from ..io.run_file import RunData
 from .figure_style import (
     DEFAULT_WIDTH_IN,
@@ -59,6 +60,9 @@ HEADING_EVERY_S = 2.0
 ROW_HEIGHT_IN = 1.45
 TOP_VIEW_HEIGHT_IN = 2.3
 LEGEND_HEIGHT_IN = 0.55
+#: The least share of their natural height (ROW_HEIGHT_IN, TOP_VIEW_HEIGHT_IN) that ``--size``
+#: may leave the panels: below it, the labels of stacked panels overlap.
+MIN_SCALE = 0.7
 #: Colour of tolerance lines and actuator limits.
 GUIDE_COLOR = "0.35"
 
@@ -426,15 +430,54 @@ def _status(report: Mapping[str, Any]) -> str:
     return "converged" if report["verdict"]["converged"] else "not converged"
 
 
+def _content_height(panels: Sequence[str], columns: int) -> float:
+    """Height (in) the panels take at their natural size, without the legend."""
+    rows = math.ceil(len([name for name in panels if name != "top"]) / columns)
+    top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
+    return rows * ROW_HEIGHT_IN + ("top" in panels) * top_height
+
+
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
-    """Figure size (in) and number of columns for these panels."""
+    """Figure size (in) and number of columns for these panels.
+
+    Raises
+    ------
+    UsageError
+        ``--size`` leaves the panels less than :data:`MIN_SCALE` of their natural height:
+        their axis labels would overlap (the message gives the least height that fits).
+    """
     width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
     columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
-    time_panels = [name for name in panels if name != "top"]
-    rows = math.ceil(len(time_panels) / columns)
-    top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
-    height = rows * ROW_HEIGHT_IN + ("top" in panels) * top_height + LEGEND_HEIGHT_IN
-    return (style.size_in or (width, height)), columns
+    content = _content_height(panels, columns)
+    if style.size_in is None:
+        return (width, content + LEGEND_HEIGHT_IN), columns
+    least = MIN_SCALE * content + LEGEND_HEIGHT_IN
+    if style.size_in[1] < least:
+        need = math.ceil(least * 2.0) / 2.0
+        raise UsageError(
+            f"--size {width:g}x{style.size_in[1]:g} is too short for {len(panels)} panels in "
+            f"{'one column' if columns == 1 else 'two columns'}: give at least {width:g}x{need:g}, or fewer --panels"
+            + (" (e.g. --size 3.5x8 --panels position,heading,v,w,top)" if columns == 1 else "")
+        )
+    return style.size_in, columns
+
+
+def figure_panels(runs: Sequence[RunData], style: FigureStyle) -> list[str]:
+    """The panels drawn: those of ``--panels``; by default every panel for which a run has
+    data (a replay has no ground-truth poses and no V: those panels are left out)."""
+    if style.panels is not None:
+        return list(style.panels)
+    absent = set()
+    if not any(_has_poses(run) for run in runs):
+        absent |= {"position", "heading", "top"}
+    if not any(_has_V(run) for run in runs):
+        absent.add("V")
+    return [name for name in PANEL_NAMES if name not in absent]
+
+
+def check_figure_size(runs: Sequence[RunData], style: FigureStyle) -> None:
+    """Refuse a ``--size`` the panels of these runs do not fit in (see :func:`_layout`)."""
+    _layout(figure_panels(runs, style), style)
 
 
 def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
@@ -479,7 +522,7 @@ def plot_runs(
     import matplotlib
 
     style = style or FigureStyle()
-    panels = list(style.panels or PANEL_NAMES)
+    panels = figure_panels(runs, style)
     colors = run_colors(len(runs))
     context = PanelContext(runs, colors, {**DEFAULT_TOLERANCES, **(tolerances or {})}, _line_styles(runs, colors))
     size, columns = _layout(panels, style)
@@ -500,6 +543,11 @@ def plot_runs(
             PANELS[name](ax, context)
             if name != "top" and ax.get_lines() and end > start:
                 ax.set_xlim(start, end)         # one time axis for every panel
+            if columns == 1 and name != "top" and name != time_panels[-1] and ax.get_lines():
+                # Stacked in one column, the panels share one time axis: its ticks and label
+                # are drawn once, under the last, and the rows keep their height for the data.
+                ax.tick_params(labelbottom=False)
+                ax.set_xlabel("")
         handles = _legend_handles(reports, context.colors, panels)
         figure.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 4 if columns > 1 else 2))
     return figure

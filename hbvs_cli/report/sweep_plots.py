@@ -2,7 +2,8 @@
 
 * ``convergence_map.png``: the convergence rate over each pair of the first three numeric
   swept parameters (their grid values, or ``BINS`` bins of a sampled range; the other
-  parameters pooled), one row per pair, one column per law;
+  parameters pooled), one row per pair, one column per law; with one numeric parameter,
+  the rate against it, one line per law with its Wilson 95 % interval;
 * ``final_error_cdf.png``: the empirical CDFs of the final position and heading errors,
   one curve per law;
 * ``final_error_vs_parameters.png``: the final position error of every run against each
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .sweep_summary import SweepData
+from .sweep_summary import SweepData, wilson_interval
 
 FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameters.png")
 #: The convergence map shows every pair of the first this many numeric swept parameters.
@@ -32,9 +33,36 @@ def _numeric(data: SweepData) -> list[str]:
     return [n for n in data.swept if n != "law" and data.columns[n].dtype != object]
 
 
+def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarray, path: Path) -> Path:
+    """The map of a single numeric parameter: the convergence rate per value (or bin), one
+    line per law, with its Wilson 95 % interval."""
+    figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
+    for index, (law, law_mask) in enumerate(laws):
+        centres, rates, low, high = [], [], [], []
+        for _, centre, group in data.groups(name):
+            cell = law_mask & group & reported
+            if cell.any():
+                converged = int(data.columns["converged"][cell].sum())
+                lower, upper = wilson_interval(converged, int(cell.sum()))
+                centres.append(centre)
+                rates.append(converged / cell.sum())
+                low.append(lower)
+                high.append(upper)
+        axis.plot(centres, rates, marker="o", ms=3, color=f"C{index}", label=law)
+        axis.fill_between(centres, low, high, color=f"C{index}", alpha=0.12, lw=0)
+    axis.set_ylim(-0.02, 1.02)
+    axis.set_xlabel(name)
+    axis.set_ylabel("convergence rate (Wilson 95 %)")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize=8)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
 def save_sweep_plots(folder: Path) -> list[Path]:
-    """Write the figures into ``folder``; returns the paths written (the map needs two
-    numeric swept parameters, the scatter one)."""
+    """Write the figures into ``folder``; returns the paths written (the map and the scatter
+    need a numeric swept parameter; with one, the map is a curve of the rate)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -70,6 +98,8 @@ def save_sweep_plots(folder: Path) -> list[Path]:
         figure.savefig(path, dpi=110)
         plt.close(figure)
         written.append(path)
+    elif numeric:
+        written.append(_convergence_curve(plt, data, numeric[0], laws, reported, Path(folder) / FILES[0]))
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
     for law, law_mask in laws:
         for axis, column, scale in ((axes[0], "final_position_m", 100.0), (axes[1], "final_heading_deg", 1.0)):

@@ -2,7 +2,8 @@
 
 On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a test) they
 are plain text: no colour, no box characters, columns separated by at least two spaces and
-never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep final``).
+the numbers never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
+final``); the verdict's sentences wrap to the reader's width (:func:`reading_width`).
 
 Every number is the JSON value (:mod:`.build`) to 4 significant digits, in the unit
 named in its row label. One run: a run table, an error matrix (one row per error, one
@@ -204,6 +205,9 @@ def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
     from rich.text import Text
 
     table = _table(["check", *run_labels(reports)], plain)
+    # The checks are sentences: left-aligned, and wrapped to the width they are printed in.
+    for column in table.columns[1:]:
+        column.justify, column.no_wrap = "left", False
 
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")
@@ -254,12 +258,28 @@ def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) ->
 
     console = report_console(stream)
     plain = not console.is_terminal
+    tables = report_tables(reports, console)
     # Titles are lines of their own: a rich table title wraps to the table's width.
-    for index, (title, table) in enumerate(report_tables(reports, console)):
+    for index, (title, table) in enumerate(tables):
         if index:
             console.print()
         console.print(Text(title, style="" if plain else "bold cyan"))
-        console.print(table)
+        # The verdict's sentences wrap to the terminal even through a pipe (hbvs report | less);
+        # the numbers' rows are never wrapped, so that they grep.
+        console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
+
+
+def reading_width() -> int:
+    """Columns of the terminal the user reads in: $COLUMNS, else stderr's terminal, else 100."""
+    import os
+
+    columns = os.environ.get("COLUMNS", "")
+    if columns.isdigit() and int(columns) > 0:
+        return int(columns)
+    try:
+        return os.get_terminal_size(2).columns
+    except OSError:
+        return 100
 
 
 #: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.report.fit_plot.fit_summary`).

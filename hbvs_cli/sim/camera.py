@@ -6,7 +6,7 @@
 :mod:`hbvs_cli.core` and adds pixel noise. Pixel noise is also added to the points the
 detector found in a rendered image: image noise alone moves the dots' centres by at most
 about 0.2 px before the detector loses them, and a real detector's 0.5-1 px comes from
-what a renderer does not model (README, "Under measurement noise").
+what a renderer does not model (docs/results.md, "Under measurement noise").
 """
 
 from __future__ import annotations

@@ -273,7 +273,10 @@ def run_report(options: ReportOptions, console: Console) -> int:
         return run_fit_report(fits[0], options, console)
     runs = [run for run, _ in loaded]
     if options.plot is not None:
+        from ..report.plots import check_figure_size
+
         style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES)
+        check_figure_size(runs, style)
     reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Mapping, Optional
 
 from ..core.control_settings import DEFAULT_PRESET, FILTER_EKF, LAW_LATERAL_GAIN, ControllerGains
-from ..io.shipped import shipped_path
+from ..io.shipped import shipped_name
 
 OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
 
@@ -205,7 +205,7 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("kw", float, "k_w (1/s) of (30).", shown=_shown(DEFAULT_GAINS.k_w), config="k_w", panel="Controller"),
     Setting("gamma", float, "gamma_1 of the update law (31) (from x_hd1_dot and the detector's noise).",
             shown=FROM_THE_FIT, config="gamma", panel="Controller"),
-    Setting("k2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_path('docs/method.md')}).",
+    Setting("k2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_name('docs/method.md')}).",
             shown=FROM_THE_FIT, config="k_2", panel="Controller"),
     Setting("dhat0", float, "Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller",
             bounds={"min": MIN_DEPTH, "max": MAX_DEPTH}),

@@ -65,9 +65,10 @@ class TeachOptions(TeachFields):
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            # The simulator's frames are gray whatever --gray says: a simulated teach's
-            # metadata (and bytes) stay as they were before colour.
-            return {key: value for key, value in recorded.items() if key not in ("cmd_topic", "gray")}
+            # The simulator's frames are gray whatever --gray says, so --gray is not recorded.
+            # The simulator is the default source: "sim" is true with or without --sim.
+            simulated = {key: value for key, value in recorded.items() if key not in ("cmd_topic", "gray")}
+            return {**simulated, "sim": True}
         names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set())
         return {key: value for key, value in recorded.items() if key in keep and key in names}

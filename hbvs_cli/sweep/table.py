@@ -282,12 +282,13 @@ class ResultsTable:
         self._part = 1 + max((_part_number(p) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
 
     def _open(self, fingerprint: dict[str, Any], description: dict[str, Any]) -> None:
+        # An output that cannot be made is exit 6, as for every -o.
         if self.folder.is_symlink() and not self.folder.exists():
-            raise UsageError(f"{self.folder}: a symbolic link to {os.readlink(self.folder)}, which does not exist; give a folder")
+            raise OutputError(f"{self.folder}: a symbolic link to {os.readlink(self.folder)}, which does not exist; give a folder")
         if self.folder.exists() and not self.folder.is_dir():
             raise UsageError(f"{self.folder}: exists and is not a folder")
         if not self.folder.parent.is_dir():
-            raise UsageError(f"{self.folder}: the folder {self.folder.parent} does not exist")
+            raise OutputError(f"{self.folder}: the folder {self.folder.parent} does not exist")
         spec_path = self.folder / SPEC_FILE
         if not spec_path.is_file() and self.folder.exists() and any(p.name != LOCK for p in self.folder.iterdir()):
             raise UsageError(f"{self.folder}: exists, is not empty and holds no sweep; give a new or empty folder")

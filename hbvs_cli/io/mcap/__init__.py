@@ -5,7 +5,8 @@ record, because hbvs promises more than that library's readers give:
 
 * **Streaming both ways**: every stage reads a file or stdin (``-``) front to back in
   constant memory, and writes a file or stdout. The mcap ``Writer`` calls ``tell()``, which
-  a pipe does not have, so stdout is wrapped in :class:`CountingStream`.
+  a pipe does not have, so every output stream answers it by counting bytes
+  (:class:`~hbvs_cli.io.output_target.GuardedStream`).
 * **Atomic output**: a file is written as ``FILE.<pid>-<random>.partial`` and renamed over
   ``FILE`` only when it is finished (:mod:`hbvs_cli.io.output_target` decides how every
   output is written); a failed or interrupted command leaves any previous ``FILE``
@@ -35,12 +36,12 @@ from .caps import (
 from .json_codec import check_json_limits, decode_json, encode_json, json_ready, seconds_to_ns, time_message
 from .reader import McapMessage, McapStream, read_metadata
 from .summary import ChannelSummary, read_summary
-from .writer import CountingStream, McapWriter, open_output, partial_path
+from .writer import McapWriter, open_output
 
 __all__ = [
     "MAGIC", "MAX_CHANNELS", "MAX_CHUNK_BYTES", "MAX_DECLARED_BYTES", "MAX_JSON_BYTES", "MAX_JSON_DEPTH",
     "MAX_JSON_ITEMS", "MAX_LOG_TIME_NS", "MAX_RECORD_BYTES", "MAX_SCHEMAS", "NANOSECONDS", "PROFILE",
     "check_json_limits", "decode_json", "encode_json", "json_ready", "seconds_to_ns", "time_message",
     "McapMessage", "McapStream", "read_metadata", "ChannelSummary", "read_summary",
-    "CountingStream", "McapWriter", "open_output", "partial_path",
+    "McapWriter", "open_output",
 ]

@@ -345,7 +345,7 @@ class McapStream:
     def _chunk_items(self, data: bytes) -> Iterator[Any]:
         """The schema, channel and message records of a decompressed chunk, parsed one at a
         time by the mcap library's record parsers (its ``breakup_chunk`` builds them all as
-        one list: a 1 MB chunk of 4 million empty messages took 0.9 GB), and counted
+        one list, which a small chunk of millions of empty messages turns into gigabytes), and counted
         against the ``chunk-messages`` and ``messages`` limits."""
         from mcap.data_stream import ReadDataStream
         from mcap.opcode import Opcode

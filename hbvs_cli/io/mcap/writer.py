@@ -5,34 +5,11 @@ from __future__ import annotations
 import json
 import os
 from contextlib import contextmanager
-from pathlib import Path
 from typing import IO, Any, Iterator
 
 from ..schemas import SCHEMAS
 from .caps import PROFILE
 from .json_codec import encode_json, json_ready
-
-
-class CountingStream:
-    """A write-only wrapper that answers ``tell()`` by counting bytes: for pipes.
-
-    The mcap ``Writer`` records chunk offsets with ``tell()``; stdout cannot seek.
-    """
-
-    def __init__(self, stream: IO[bytes]) -> None:
-        self._stream = stream
-        self._count = 0
-
-    def write(self, data: bytes) -> int:
-        self._stream.write(data)
-        self._count += len(data)
-        return len(data)
-
-    def tell(self) -> int:
-        return self._count
-
-    def flush(self) -> None:
-        self._stream.flush()
 
 
 class McapWriter:
@@ -124,14 +101,6 @@ class McapWriter:
             self._writer.finish()
             self._stream.flush()
             self._finished = True
-
-
-def partial_path(target: Path) -> Path:
-    """A fresh name under which an output file is written until it is complete
-    (unique to the process: see :mod:`hbvs_cli.io.output_target`)."""
-    from ..output_target import partial_name_of
-
-    return partial_name_of(Path(target))
 
 
 @contextmanager

@@ -1,5 +1,5 @@
-"""The rough edges a new user hit (issue 18): help labels, --debug, demo -o, one-line usage
-errors, an unquoted glob, options that do not apply to a source, frame counts."""
+"""Using the command line: help labels, --debug, demo -o, one-line usage errors, an unquoted
+glob, options that do not apply to a source, frame counts, outputs in a missing folder."""
 
 from __future__ import annotations
 
@@ -192,4 +192,21 @@ def test_sim_metadata_still_records_every_setting(tmp_path):
     settings = reader.info["settings"]
     assert settings["noise"] == 1.5 and settings["blur"] == 0.0 and settings["fps"] == 30.0
     assert settings["path"] == "s-curve" and settings["target"] == "dots" and settings["seed"] == 0
+    assert settings["sim"] is True  # the default source is the simulator, --sim or not
     assert json.dumps(settings)  # JSON-ready
+
+
+@pytest.mark.parametrize("args", [
+    ("teach", "--duration", "0.1", "-o", "{missing}/t.mcap"),
+    ("report", "{fit}", "--plot", "{missing}/fit.png"),
+    ("export", "{fit}", "-o", "{missing}/bag"),
+], ids=["teach -o", "report --plot", "export -o"])
+def test_an_output_in_a_missing_folder_exits_6(tmp_path, args):
+    """An output that cannot be written is exit 6, not 3 (which is for inputs)."""
+    from conftest import SAMPLES, call_hbvs
+
+    values = {"missing": str(tmp_path / "no-such-folder"), "fit": str(SAMPLES / "fit.mcap")}
+    result = call_hbvs(*(arg.format(**values) for arg in args))
+    assert result.returncode == 6, result.stderr
+    assert result.stderr.decode().count("\n") == 1 and b"does not exist" in result.stderr
+    assert not (tmp_path / "no-such-folder").exists()

@@ -1,4 +1,4 @@
-"""What the core's restructuring (issue 13) promises: one point Jacobian, typed statuses, one
+"""Functions the core shares instead of copying: one point Jacobian, typed statuses, one
 projection, one frame interval, one depth check."""
 
 from __future__ import annotations

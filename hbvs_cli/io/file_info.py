@@ -1,0 +1,145 @@
+"""What an MCAP file holds, read in one pass: its kind, time span, settings and topics.
+
+The reading behind ``hbvs info`` (what ``mcap info`` and ``ros2 bag info`` give, plus what
+hbvs's own metadata says). Any MCAP file is listed; an hbvs teach, fit or run file also
+gives its frames, its target and the settings that made it. The file is streamed with
+:class:`~hbvs_cli.io.mcap.reader.McapStream`, so stdin, size caps and files cut off by a
+crash behave as in every other reader.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .mcap.reader import McapStream, read_metadata
+from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, STATE_TOPIC
+
+#: The topic with one message per frame (teach, fit) or per control step (run).
+FRAME_TOPICS = {"teach": IMAGE_TOPIC, "fit": RAW_DESIRED_TOPIC, "run": STATE_TOPIC}
+
+
+@dataclass
+class TopicInfo:
+    """One topic: its schema, encodings, message count and first and last log times (ns)."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    message_encoding: str
+    messages: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+
+
+@dataclass
+class FileInfo:
+    """What :func:`read_file_info` found.
+
+    Attributes
+    ----------
+    name : str
+        The file's name (``stdin`` for ``-``).
+    kind : str or None
+        ``teach``, ``fit`` or ``run``; None for an MCAP file hbvs did not write.
+    version : str or None
+        The hbvs version that wrote it.
+    metadata : dict
+        The ``hbvs`` metadata record, values decoded from JSON.
+    metadata_names : list of str
+        Every metadata record's name.
+    topics : list of TopicInfo
+        In the order their first message appears.
+    complete : bool
+        The file ends with its footer (False: cut off, read up to the last complete record).
+    stop_reason : str
+        Why reading stopped early, when not complete.
+    target : str or None
+        The target kind (dots, aruco, texture) when the file says it.
+    """
+
+    name: str
+    kind: str | None = None
+    version: str | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    metadata_names: list[str] = field(default_factory=list)
+    topics: list[TopicInfo] = field(default_factory=list)
+    complete: bool = True
+    stop_reason: str = ""
+    target: str | None = None
+
+    @property
+    def messages(self) -> int:
+        return sum(topic.messages for topic in self.topics)
+
+    @property
+    def start_ns(self) -> int | None:
+        return min((t.first_ns for t in self.topics if t.messages), default=None)
+
+    @property
+    def end_ns(self) -> int | None:
+        return max((t.last_ns for t in self.topics if t.messages), default=None)
+
+    @property
+    def duration_s(self) -> float:
+        if self.start_ns is None or self.end_ns is None:
+            return 0.0
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    @property
+    def frames(self) -> int | None:
+        """Frames (teach, fit) or control steps (run); None for a file hbvs did not write."""
+        topic = FRAME_TOPICS.get(self.kind or "")
+        if topic is None:
+            return None
+        return next((t.messages for t in self.topics if t.topic == topic), 0)
+
+
+def read_file_info(source: Any, name: str = "") -> FileInfo:
+    """Read an MCAP file (a path, ``"-"`` for stdin, or a binary stream) through to its end.
+
+    Raises
+    ------
+    InputError
+        The file is missing or unreadable.
+    RecordingError
+        Not an MCAP file, or damaged before any message (see :class:`McapStream`).
+    """
+    if isinstance(source, (str, os.PathLike)) and str(source) != "-" and Path(source).is_dir():
+        storage = sorted(Path(source).glob("*.mcap"))
+        hint = f": give its storage file, e.g. {storage[0]}" if storage else ""
+        raise InputError(f"{source}: is a folder, expected an MCAP file{hint}")
+    stream = McapStream(source, name=name)
+    topics: dict[str, TopicInfo] = {}
+    target = None
+    for message in stream:
+        info = topics.get(message.topic)
+        if info is None:
+            info = topics[message.topic] = TopicInfo(
+                message.topic, message.schema_name, message.schema_encoding, message.message_encoding,
+                first_ns=message.log_time, last_ns=message.log_time,
+            )
+        info.messages += 1
+        info.first_ns = min(info.first_ns, message.log_time)
+        info.last_ns = max(info.last_ns, message.log_time)
+        if message.topic == MODEL_TOPIC and target is None and message.message_encoding == "json":
+            target = message.json(stream.name).get("target_kind")
+    metadata = read_metadata(stream, "hbvs")
+    kind = metadata.get("file_kind")
+    settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
+    if target is None:
+        target = metadata.get("target_kind") or (settings.get("target") if kind == "teach" and metadata.get("source") == "sim" else None)
+    return FileInfo(
+        name=stream.name,
+        kind=kind if kind in FRAME_TOPICS else None,
+        version=metadata.get("hbvs_version"),
+        metadata=metadata,
+        metadata_names=sorted(stream.metadata),
+        topics=list(topics.values()),
+        complete=not stream.truncated,
+        stop_reason=stream.stop_reason,
+        target=target if isinstance(target, str) else None,
+    )

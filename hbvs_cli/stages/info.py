@@ -1,0 +1,116 @@
+"""``hbvs info``: what a teach, fit or run file holds (see :mod:`hbvs_cli.io.file_info`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import textwrap
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any, TextIO
+
+from .console import Console
+
+
+@dataclass(frozen=True)
+class InfoOptions:
+    """What ``hbvs info`` was asked to do (see ``hbvs info --help``)."""
+
+    input: str
+    json_output: bool = False
+
+
+def info_document(info: Any) -> dict[str, Any]:
+    """The file's description as one JSON-ready object (the keys of ``hbvs info --json``)."""
+    return {
+        "file": info.name,
+        "kind": info.kind,
+        "hbvs_version": info.version,
+        "complete": info.complete,
+        "stop_reason": info.stop_reason or None,
+        "start_ns": info.start_ns,
+        "end_ns": info.end_ns,
+        "duration_s": round(info.duration_s, 9),
+        "frames": info.frames,
+        "messages": info.messages,
+        "target": info.target,
+        "settings": info.metadata.get("settings"),
+        "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
+        "metadata_records": info.metadata_names,
+        "topics": [
+            {
+                "topic": topic.topic, "messages": topic.messages, "schema": topic.schema_name,
+                "schema_encoding": topic.schema_encoding, "message_encoding": topic.message_encoding,
+            }
+            for topic in info.topics
+        ],
+    }
+
+
+def _stamp(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    when = datetime.fromtimestamp(ns // 1_000_000_000, tz=timezone.utc).replace(microsecond=(ns % 1_000_000_000) // 1000)
+    return when.isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _value(value: Any) -> str:
+    return value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
+
+
+def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
+    """The description as aligned lines, wrapped to ``width`` columns."""
+    kind = document["kind"] or "not an hbvs file"
+    if document["hbvs_version"]:
+        kind += f" (hbvs {document['hbvs_version']})"
+    rows = [
+        ("file", document["file"]),
+        ("kind", kind),
+        ("complete", "yes" if document["complete"] else f"no: {document['stop_reason']}"),
+        ("duration", f"{document['duration_s']:.3f} s"),
+        ("start", _stamp(document["start_ns"])),
+        ("end", _stamp(document["end_ns"])),
+        ("messages", str(document["messages"])),
+    ]
+    if document["frames"] is not None:
+        rows.append(("steps" if document["kind"] == "run" else "frames", str(document["frames"])))
+    if document["target"]:
+        rows.append(("target", document["target"]))
+    for key in ("source", "mode", "law", "input"):
+        if key in document["metadata"]:
+            rows.append((key, _value(document["metadata"][key])))
+    settings = document["settings"] or {}
+    shown = [f"{key}={_value(value)}" for key, value in settings.items() if value is not None and value is not False]
+    if shown:
+        rows.append(("settings", " ".join(shown)))
+    label_width = max(len(label) for label, _ in rows) + 2
+    for label, text in rows:
+        lines = textwrap.wrap(text, max(20, width - label_width), break_on_hyphens=False) or [""]
+        out.write(f"{label:<{label_width}}{lines[0]}\n")
+        for line in lines[1:]:
+            out.write(" " * label_width + line + "\n")
+    topics = document["topics"]
+    out.write(f"topics{' ' * (label_width - 6)}{len(topics)}\n")
+    name_width = max((len(t["topic"]) for t in topics), default=0)
+    count_width = max((len(str(t["messages"])) for t in topics), default=0)
+    for topic in topics:
+        out.write(
+            f"  {topic['topic']:<{name_width}}  {topic['messages']:>{count_width}} msgs  "
+            f"{topic['schema'] or '(no schema)'} [{topic['schema_encoding'] or topic['message_encoding']}]\n"
+        )
+
+
+def run_info(options: InfoOptions, console: Console) -> None:
+    """Read the file and print its description on stdout (text or ``--json``)."""
+    from ..io.file_info import read_file_info
+
+    info = read_file_info(options.input)
+    if not info.complete:
+        console.warn(f"{info.name}: read up to {info.stop_reason.split(' (')[0]}; the rest is lost")
+    document = info_document(info)
+    if options.json_output:
+        sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+    else:
+        print_info(document, sys.stdout, width=shutil.get_terminal_size((100, 24)).columns)
+    sys.stdout.flush()

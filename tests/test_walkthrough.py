@@ -1,0 +1,83 @@
+"""docs/walkthrough.md: every ``hbvs`` command of the page runs, in order, on two rendered
+videos (a taught drive and a second one started 10 cm further back and 5 cm to the side),
+and the calibration files it describes are read alike."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+
+import numpy as np
+import pytest
+
+from conftest import REPO, call_hbvs
+
+PAGE = REPO / "docs" / "walkthrough.md"
+#: Seconds of each drive (the page's commands do not depend on it).
+DRIVE_S = 8.0
+
+
+def page_commands() -> list[list[str]]:
+    """The ``hbvs`` command lines of the page's bash blocks, in order, as argument lists."""
+    blocks = re.findall(r"```bash\n(.*?)```", PAGE.read_text(), flags=re.S)
+    lines = [line.split("#")[0].strip() for block in blocks for line in block.splitlines()]
+    return [shlex.split(line)[1:] for line in lines if line.startswith("hbvs ")]
+
+
+def render_drive(path, start_offset, seed):
+    """An MJPG video of the default s-curve drive, started ``start_offset`` (m, m, rad) away."""
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.core.path import preset_profile
+    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.render import make_renderer
+
+    profile, start = preset_profile("s-curve", 30)
+    renderer = make_renderer(default_world(), 2.0, 0.0, 1.0)
+    rng = np.random.default_rng(seed)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0,
+                             (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height), isColor=False)
+    assert writer.isOpened()
+    for t in np.arange(int(DRIVE_S * 30)) / 30.0:
+        writer.write(renderer.render(profile.poses_at(t, np.asarray(start) + start_offset), rng))
+    writer.release()
+
+
+def write_calibrations(folder):
+    """The default camera as the ROS camera calibrator and as OpenCV's sample write it."""
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    save_calibration_ros(DEFAULT_CAMERA, folder / "camera.yaml")
+    camera = DEFAULT_CAMERA
+    K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
+    storage = cv2.FileStorage(str(folder / "camera.yml"), cv2.FILE_STORAGE_WRITE)
+    storage.write("image_width", camera.width)
+    storage.write("image_height", camera.height)
+    storage.write("camera_matrix", K)
+    storage.write("distortion_coefficients", np.zeros((1, 5)))
+    storage.release()
+
+
+def test_every_command_of_the_walkthrough_runs(tmp_path, monkeypatch):
+    from hbvs_cli.io.calibration import load_calibration
+
+    commands = page_commands()
+    assert [c[0] for c in commands] == ["teach", "info", "fit", "report", "teach", "repeat", "report", "repeat", "report"]
+    render_drive(tmp_path / "drive.avi", np.zeros(3), seed=1)
+    render_drive(tmp_path / "drive2.avi", np.array([-0.1, 0.05, 0.0]), seed=2)
+    write_calibrations(tmp_path)
+    assert load_calibration(tmp_path / "camera.yml") == load_calibration(tmp_path / "camera.yaml")
+    monkeypatch.chdir(tmp_path)
+    for args in commands:
+        result = call_hbvs(*args)
+        assert result.returncode == 0, (args, result.stderr.decode())
+    # What the page says of the replay: the second drive's offset, e1 about 0.1 / 4 at the start.
+    replay = json.loads(call_hbvs("report", "replay.mcap", "--json").stdout)
+    assert replay["errors"]["e1"]["initial"] == pytest.approx(0.025, abs=0.005)
+    assert not replay["verdict"]["converged"] and "pose_error" not in replay
+    assert (tmp_path / "fit.png").stat().st_size > 10_000 and (tmp_path / "replay.png").stat().st_size > 10_000
