@@ -103,6 +103,12 @@ class _DyingCluster:
         self.futures.append(future)
         self.submitted.append(future.key)
 
+    def has_ready(self):
+        return bool(self.futures)
+
+    def is_empty(self):
+        return not self.futures
+
     def __iter__(self):
         return self
 
@@ -146,6 +152,28 @@ def test_only_the_run_that_kills_its_worker_with_the_cluster_to_itself_is_record
                          key_prefix="fake", total=12)
     assert produced == 12 and lost == [3]
     assert {r["index"]: r["status"] for r in rows} == {i: "failed" if i == 3 else "ok" for i in range(12)}
+
+
+class _NoWorkers(_FakeClient):
+    def scheduler_info(self):
+        return {"workers": {}}
+
+
+class _NeverDone(_DyingCluster):
+    def has_ready(self):
+        return False
+
+
+def test_a_cluster_left_without_workers_stops_the_sweep_instead_of_waiting_forever(monkeypatch):
+    import distributed
+
+    from hbvs_cli.errors import OutputError
+    from hbvs_cli.sweep.engine import run_tasks
+
+    monkeypatch.setattr(distributed, "as_completed", lambda **kw: _NeverDone(**kw))
+    with pytest.raises(OutputError, match="no worker for 0.3 s.*the same command resumes"):
+        run_tasks(_NoWorkers(), (Task(i, "") for i in range(3)), _ok, [].append, None, in_flight=2, key_prefix="none",
+                  no_worker_seconds=0.3)
 
 
 def test_batches_hold_a_second_of_cpu_time_and_shrink_to_single_runs_at_the_end():

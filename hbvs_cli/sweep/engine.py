@@ -27,7 +27,7 @@ from collections import deque
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-from ..errors import UsageError
+from ..errors import OutputError, UsageError
 
 #: Installing the engine: named by every error about a missing piece.
 INSTALL_HINT = "pip install 'hbvs[sweep]'"
@@ -252,6 +252,39 @@ class BatchSizer:
             self.left = max(0, self.left - size)
 
 
+#: Longest time a sweep waits on a cluster without a single worker (s) before it stops
+#: (workers that died and were not restarted, e.g. a nanny that gave up under load):
+#: the finished rows are kept and the same command resumes. Without it the sweep waited
+#: forever for runs that no worker would take.
+NO_WORKER_SECONDS = 120.0
+
+
+def _finished(completed: Any, client: Any, no_worker_seconds: float) -> Iterator[Any]:
+    """``(future, result)`` as ``completed`` gives them, watching that the cluster still
+    has a worker while futures wait (the client's cached scheduler information: no round
+    trip). The waits are short sleeps, which SIGINT and SIGTERM interrupt."""
+    without_workers: float | None = None
+    while True:
+        if completed.has_ready() or completed.is_empty():
+            try:
+                yield next(completed)
+            except StopIteration:
+                return
+            without_workers = None
+            continue
+        time.sleep(0.1)
+        if client.scheduler_info().get("workers"):
+            without_workers = None
+            continue
+        now = time.monotonic()
+        without_workers = without_workers if without_workers is not None else now
+        if now - without_workers > no_worker_seconds:
+            raise OutputError(
+                f"the Dask cluster has had no worker for {no_worker_seconds:g} s (its workers died and were not restarted); "
+                "the finished rows are kept: the same command resumes"
+            )
+
+
 def run_tasks(
     client: Any,
     tasks: Iterable[Any],
@@ -261,6 +294,7 @@ def run_tasks(
     in_flight: int,
     key_prefix: str,
     total: int | None = None,
+    no_worker_seconds: float = NO_WORKER_SECONDS,
 ) -> int:
     """Run ``function(task)`` for every task on the cluster; ``on_row`` gets each row as it
     comes back (in completion order). Tasks travel in batches (:class:`BatchSizer`); at most
@@ -320,7 +354,7 @@ def run_tasks(
 
     fill()
     produced = 0
-    for future, result in completed:
+    for future, result in _finished(completed, client, no_worker_seconds):
         batch, isolated = waiting.pop(future.key)
         failed = future.status != "finished"
         future.release()
