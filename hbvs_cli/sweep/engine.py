@@ -146,6 +146,10 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.admin.tick.interval": "1s",
                           "distributed.admin.system-monitor.interval": "1s",
                           "distributed.worker.memory.monitor-interval": "1s",
+                          # A worker restarted after a death registers with the scheduler
+                          # within this: 30 s was too short on a 2-core machine at load 20
+                          # (the worker gave up, its nanny stopped, the cluster had none).
+                          "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
         try:
