@@ -80,11 +80,18 @@ class _FakeFuture:
         pass
 
 
+#: Keys of the fake batches that started (what run_batch sets on the scheduler).
+_STARTED: set = set()
+
+
 class _FakeClient:
     """Runs batches in submission order; see :class:`_DyingCluster`."""
 
     def scheduler_info(self):
         return {"workers": {"a": {}, "b": {}}}
+
+    def get_metadata(self, key, default):
+        return key in _STARTED or default
 
     def submit(self, function, *args, key, pure, retries):
         return _FakeFuture(key, args[1])
@@ -98,6 +105,9 @@ class _DyingCluster:
 
     def __init__(self, with_results, raise_errors):
         self.futures, self.submitted = [], []
+
+    def dies_before_start(self, future):
+        return False
 
     def add(self, future):
         self.futures.append(future)
@@ -118,6 +128,12 @@ class _DyingCluster:
         if not self.futures:
             raise StopIteration
         future = self.futures.pop(0)
+        if self.dies_before_start(future):
+            future.status = "error"
+            error = RuntimeError("KilledWorker: its workers died before it started")
+            return future, (type(error), error, None)
+        if any(task.index == 3 for task in future.batch):
+            _STARTED.add(future.key)
         if future.doomed or any(task.index == 3 for task in future.batch):
             for other in self.futures:
                 other.doomed = True
@@ -152,6 +168,33 @@ def test_only_the_run_that_kills_its_worker_with_the_cluster_to_itself_is_record
                          key_prefix="fake", total=12)
     assert produced == 12 and lost == [3]
     assert {r["index"]: r["status"] for r in rows} == {i: "failed" if i == 3 else "ok" for i in range(12)}
+
+
+class _RestartingWorkers(_DyingCluster):
+    """Also: task 4's first two runs alone meet workers that die while being restarted,
+    before it starts (what Dask counted against a healthy run at load 20)."""
+
+    def dies_before_start(self, future):
+        return [task.index for task in future.batch] == [4] and len(_keys_of_4(self.submitted)) <= 2
+
+
+def _keys_of_4(keys):
+    return [key for key in keys if key == "fake-4" or key.startswith("fake-4-")]
+
+
+def test_a_run_whose_workers_die_before_it_starts_is_run_again_not_recorded(monkeypatch):
+    import distributed
+
+    from hbvs_cli.sweep.engine import run_tasks
+
+    clusters = []
+    monkeypatch.setattr(distributed, "as_completed", lambda **kw: clusters.append(_RestartingWorkers(**kw)) or clusters[-1])
+    rows, lost = [], []
+    produced = run_tasks(_FakeClient(), (Task(i, "") for i in range(8)), _ok, rows.append,
+                         lambda task, error: lost.append(task.index) or {"index": task.index, "status": "failed"},
+                         in_flight=1, key_prefix="fake", total=8)
+    assert produced == 8 and lost == [3]
+    assert len(_keys_of_4(clusters[0].submitted)) == 3  # twice its workers died before it started, then it ran
 
 
 class _NoWorkers(_FakeClient):

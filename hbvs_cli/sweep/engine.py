@@ -207,13 +207,22 @@ BATCH_WALL_SECONDS = 5.0
 MAX_BATCH = 64
 
 
-def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any]) -> tuple[list[dict[str, Any]], float, float]:
+def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
+              started: str | None = None) -> tuple[list[dict[str, Any]], float, float]:
     """On a worker: ``function(task)`` for each task in turn.
+
+    ``started``: a scheduler metadata key set (a round trip, so it is there before the
+    run begins) when a run with the cluster to itself starts: a worker death before it is
+    not the run's doing (:func:`run_tasks`).
 
     Returns the rows, the batch's wall time and its CPU time (s; the worker process's, so
     a worker with several threads over-counts, which only makes batches smaller), from
     which the driver sizes the next batches.
     """
+    if started is not None:
+        from distributed import get_client
+
+        get_client().set_metadata(started, True)
     wall, cpu = time.perf_counter(), time.process_time()
     rows = [function(task) for task in tasks]
     return rows, time.perf_counter() - wall, time.process_time() - cpu
@@ -256,6 +265,9 @@ class BatchSizer:
             self.left = max(0, self.left - size)
 
 
+#: Isolated attempts of a run whose workers keep dying before it starts, before it is
+#: recorded as failed anyway (with Dask's error).
+MAX_UNSTARTED_ATTEMPTS = 5
 #: Longest time a sweep waits on a cluster without a single worker (s) before it stops
 #: (workers that died and were not restarted, e.g. a nanny that gave up under load):
 #: the finished rows are kept and the same command resumes. Without it the sweep waited
@@ -309,8 +321,10 @@ def run_tasks(
     often, or the function raised despite catching everything) is split and each of its
     tasks submitted alone. A task that fails alone is run once more in isolation (nothing
     else in flight, so no other task can have killed the worker); only a task that fails
-    then gets ``on_lost(task, error)``. The rule counts worker deaths, never time: a slow
-    run is never taken for a killer.
+    then, after it started (it says so on the scheduler as it starts), gets
+    ``on_lost(task, error)``; one whose workers died before it started is run again. The
+    rule counts worker deaths during the run, never time: a slow run is never taken for a
+    killer.
     """
     from distributed import as_completed
 
@@ -324,8 +338,14 @@ def run_tasks(
     workers = len(client.scheduler_info().get("workers", {}))
     sizer = BatchSizer(total, workers or 1)
 
+    attempts: dict[int, int] = {}  # isolated attempts per task index
+
     def submit(batch: list[Any], key: str, isolated: bool = False) -> None:
-        future = client.submit(run_batch, function, batch, key=key, pure=False, retries=0)
+        if isolated:
+            index = batch[0].index
+            attempts[index] = attempts.get(index, 0) + 1
+            key = f"{key}{attempts[index]}"
+        future = client.submit(run_batch, function, batch, key if isolated else None, key=key, pure=False, retries=0)
         waiting[future.key] = (batch, isolated)
         completed.add(future)
 
@@ -369,6 +389,10 @@ def run_tasks(
             # Alone, but other runs were on the cluster when its worker died: try it once
             # more in isolation before calling it a killer.
             suspects.append(batch[0])
+        elif failed and not client.get_metadata(future.key, False) and attempts[batch[0].index] < MAX_UNSTARTED_ATTEMPTS:
+            # Its workers died before it started (Dask counts a worker that dies while it
+            # is being restarted against the task waiting for it): not its doing.
+            suspects.appendleft(batch[0])
         else:
             if failed:  # killed its worker again with the cluster to itself: record, go on
                 error = result[1] if isinstance(result, tuple) else result
