@@ -5,7 +5,7 @@ a ``layout`` tree of splits).
 
     python docs/make_foxglove_layout.py        (needs pip install 'hbvs[live]')
 
-The layout shows a run file (or ``hbvs repeat --live``): the camera image with the detected
+The layout shows a run file (or ``hbvs repeat --foxglove``): the camera image with the detected
 (green) and desired (orange) points, the 3D scene (world, robot, camera, target, taught
 path, true and taught poses), plots of e1, ebar2, e3 and dhat, and the event log. Topic
 names come from hbvs_cli/io/topics.py.

@@ -19,6 +19,7 @@ Exit codes
 6    an output could not be written (its folder does not exist, disk full, I/O error, stdout
      closed); nothing was replaced
 7    a size limit was reached (the message names the limit and the option that raises it)
+8    ``repeat --live`` did not start: the robot is not near the taught start (the message says how far)
 130  interrupted by Ctrl-C (SIGINT); 143 by SIGTERM
 141  the reader of the output pipe went away (``hbvs ... | head``)
 ==== =========================================================================
@@ -116,6 +117,12 @@ class NonFiniteInputError(GeometryError):
 
 class NoValidBranchError(GeometryError):
     """A homography none of whose decompositions puts the plane in front of the camera."""
+
+
+class NotAtStartError(HbvsError):
+    """A live run's robot does not see the target as it was seen at the taught start."""
+
+    exit_code = 8
 
 
 class TargetLostError(HbvsError):

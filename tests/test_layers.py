@@ -19,7 +19,7 @@ PACKAGE = REPO / "hbvs_cli"
 #: Subpackages io must never reach.
 ABOVE_IO = ("perception", "sim", "report", "sweep", "stages", "cli", "tools")
 #: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them.
-STAGE_HELPERS = ("console", "options", "settings", "frames")
+STAGE_HELPERS = ("console", "options", "settings", "frames", "live")  # live: the loop of repeat --live
 
 
 def module_name(path: Path) -> str:

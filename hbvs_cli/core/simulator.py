@@ -189,30 +189,71 @@ def run_closed_loop(
     schedule = trajectory.evaluate(times)
     columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
     pending: deque[Observation] = deque()
-    previous = (0.0, 0.0)
-    rejected_in_a_row = 0
-    target_lost = False
-    # Commands sent since the frame being fused was taken (latency_steps of them).
-    unseen_commands: deque[tuple[float, float]] = deque()
+    servo = ServoStep(controller, limits, latency_steps, state_filter)
     for k in range(steps):
         t = k * dt
         pending.append(sense(np.array(pose), t))
         observation = pending.popleft() if len(pending) > latency_steps else _NOT_YET
         desired = DesiredState(*(column[k] for column in columns))
+        record = servo.decide(t, np.array(pose), observation, desired, dt)
+        yield record
+        servo.sent(dt)
+        pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
+
+
+class ServoStep:
+    """One camera frame's decision: filter, law, limits, adaptation (the loop's body).
+
+    The simulator (:func:`run_closed_loop`) and the live loop on a robot
+    (:mod:`hbvs_cli.stages.live`) both call :meth:`decide` with each frame's observation and
+    then :meth:`sent` once the command is out, so that they act identically on the same
+    frames.
+
+    Parameters
+    ----------
+    controller : AdaptiveTrackingController
+        Its dhat is updated in place.
+    limits : ActuatorLimits
+    latency_steps : int
+        Frames between taking a frame and acting on it (the filter carries its estimate
+        over the commands sent since).
+    state_filter : ServoStateFilter or None
+    """
+
+    def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
+                 state_filter: ServoStateFilter | None = None) -> None:
+        self.controller = controller
+        self.limits = limits
+        self.latency_steps = latency_steps
+        self.state_filter = state_filter
+        #: The last command sent (m/s, rad/s).
+        self.previous = (0.0, 0.0)
+        self.rejected_in_a_row = 0
+        self.target_lost = False
+        # Commands sent since the frame being fused was taken (latency_steps of them).
+        self.unseen_commands: deque[tuple[float, float]] = deque()
+
+    def decide(self, t: float, pose: NDArray[np.float64], observation: Observation, desired: DesiredState, dt: float) -> StepRecord:
+        """The command for ``observation`` (taken at ``t``, s) while ``desired`` is wanted.
+
+        ``dt`` (s) is the control period: the time the command will be held. ``pose`` is
+        only recorded (the true pose in simulation, NaN on a robot).
+        """
+        controller, state_filter, previous = self.controller, self.state_filter, self.previous
         dhat = controller.dhat
         output = None
         # A dropped frame changes neither the lost state nor the run of rejected frames:
         # both describe the frames that arrived.
         if observation.status != ObservationStatus.DROPPED:
-            rejected_in_a_row = rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
-            target_lost = observation.lost
-        coasting = 0 < rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == ObservationStatus.DROPPED and not target_lost)
+            self.rejected_in_a_row = self.rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
+            self.target_lost = observation.lost
+        coasting = 0 < self.rejected_in_a_row <= MAX_HELD_OUTLIERS or (observation.status == ObservationStatus.DROPPED and not self.target_lost)
         estimate = None
         fresh = predicted = False
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(list(unseen_commands), dt, dhat, previous)
+            estimate = state_filter.estimate(list(self.unseen_commands), dt, dhat, previous)
             # No usable frame (dropped, occluded, rejected): the law acts on the
             # prediction while it is trusted, with the adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
@@ -234,22 +275,24 @@ def run_closed_loop(
             v_cmd, w_cmd = previous
         else:
             v_cmd, w_cmd = controller.hold()
-        v_c, w_c, saturated = limits.apply(v_cmd, w_cmd, previous, dt)
+        v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
             controller.adapt(output, dt)
-        yield StepRecord(
-            t=t, pose=np.array(pose), observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=target_lost, estimate=estimate,
+        self.previous = (v_c, w_c)
+        return StepRecord(
+            t=t, pose=pose, observation=observation, desired=desired, output=output,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=self.target_lost, estimate=estimate,
         )
-        previous = (v_c, w_c)
-        if state_filter is not None:
+
+    def sent(self, dt: float) -> None:
+        """The last decided command was sent and is held for ``dt`` (s): the filter moves on."""
+        if self.state_filter is not None:
             # The filter's state is at the time its last frame was taken: it moves on with
             # the command sent then, and the later ones wait (latency).
-            unseen_commands.append(previous)
-            if len(unseen_commands) > latency_steps:
-                state_filter.predict(*unseen_commands.popleft(), dt, controller.dhat)
-        pose = integrate_unicycle(pose, v_c, w_c, dt)
+            self.unseen_commands.append(self.previous)
+            if len(self.unseen_commands) > self.latency_steps:
+                self.state_filter.predict(*self.unseen_commands.popleft(), dt, self.controller.dhat)
 
 
 _DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")

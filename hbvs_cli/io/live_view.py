@@ -118,7 +118,7 @@ def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Itera
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--live: the port must be 0-65535, got {port}")
     if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
-        raise UsageError(f"--live-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
+        raise UsageError(f"--foxglove-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
     context = foxglove.Context()
     try:
         server = foxglove.start_server(name="hbvs repeat", host=host, port=int(port), context=context)

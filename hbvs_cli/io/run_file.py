@@ -11,6 +11,7 @@ Topics:
 ``/camera/image``        ``foxglove.CompressedImage``    camera images (``--record-images``)
 ``/camera/annotations``  ``foxglove.ImageAnnotations``   detected (green) and desired (orange) points
 ``/camera/calibration``  ``foxglove.CameraCalibration``  the camera
+``/repeat/timing``       ``hbvs.LoopTiming``             per step of ``--live``: frame stamp, latency, interval, dropped
 =======================  ==============================  ==========================================
 
 Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay), ``law``,
@@ -34,8 +35,8 @@ from .images import write_compressed_image
 from .mcap import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
 from .messages import CAMERA_FRAME, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
 from .topics import (
-    ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC, TOPICS,
-    TRUE_POSE_TOPIC,
+    ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC, TIMING_TOPIC,
+    TOPICS, TRUE_POSE_TOPIC,
 )
 
 FILE_KIND = "run"
@@ -49,6 +50,10 @@ STATE_FIELDS = (
     # The state filter's estimate and std (NaN without a filter, or in an older file).
     "theta_est", "x_h1_est", "x_h2_est", "theta_std", "x_h1_std", "x_h2_std", "noise_px",
 )
+
+
+#: Per-step fields of ``hbvs.LoopTiming`` (live runs) kept by :class:`RunData`.
+TIMING_FIELDS = ("t", "frame_stamp", "latency_s", "frame_interval_s", "dropped", "late")
 
 
 @dataclass
@@ -73,6 +78,9 @@ class RunData:
     dropped : ndarray of bool, shape (K,), or None
         Steps whose camera frame was dropped (``frame_dropped``; all False in files
         written before hbvs recorded it). ``None`` when not given (a run built in memory).
+    timing : dict of ndarray or None
+        A live run's per-step timing (:data:`TIMING_FIELDS`, each shape (T,)); None for
+        simulated and replayed runs.
     """
 
     name: str
@@ -86,6 +94,7 @@ class RunData:
     events: list[tuple[float, int, str]] = field(default_factory=list)
     truncated: bool = False
     dropped: np.ndarray | None = None
+    timing: dict[str, np.ndarray] | None = None
 
     @property
     def steps(self) -> int:
@@ -159,6 +168,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     desired_pose: dict[int, tuple[float, float, float]] = {}
     step_times: list[int] = []
     events: list[tuple[int, int, str]] = []
+    timing: dict[str, list[float]] = {key: [] for key in TIMING_FIELDS}
     for message in stream:
         if message.topic == STATE_TOPIC:
             data = message.json(stream.name)
@@ -178,6 +188,14 @@ def read_run(source: Any, name: str = "") -> RunData:
             desired_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
         elif message.topic == EVENTS_TOPIC:
             events.append(_event(message.json(stream.name), message.log_time, stream.name))
+        elif message.topic == TIMING_TOPIC:
+            data = message.json(stream.name)
+            try:
+                for key in TIMING_FIELDS:
+                    value = data.get(key)
+                    timing[key].append(float(value) if isinstance(value, bool) else _number(value))
+            except (TypeError, ValueError) as exc:
+                raise RecordingError(f"{stream.name}: malformed loop timing message ({exc})") from None
     info = read_metadata(stream, "hbvs")
     if info.get("file_kind") != FILE_KIND:
         kind = info.get("file_kind")
@@ -206,6 +224,7 @@ def read_run(source: Any, name: str = "") -> RunData:
         name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),
         lost_reason=reasons, true_pose=aligned(true_pose), desired_pose=aligned(desired_pose),
         events=events, truncated=stream.truncated, dropped=np.array(dropped, dtype=bool),
+        timing={key: np.array(values, dtype=float) for key, values in timing.items()} if timing["t"] else None,
     )
 
 
@@ -269,6 +288,15 @@ class RunWriter:
         """The command sent (m/s, rad/s), after the actuator limits."""
         ns = self.log_time_ns(t)
         self._write_flat(COMMAND_TOPIC, ns, velocity_message(time_message(ns), v, w, saturated), clean=False)
+
+    def timing(self, t: float, frame_stamp: float, latency_s: float, frame_interval_s: float | None, dropped: int,
+               late: bool, dry_run: bool) -> None:
+        """One step's timing in a live run (``hbvs.LoopTiming``; times in s)."""
+        ns = self.log_time_ns(t)
+        self._write_flat(TIMING_TOPIC, ns, {
+            "timestamp": time_message(ns), "t": t, "frame_stamp": frame_stamp, "latency_s": latency_s,
+            "frame_interval_s": frame_interval_s, "dropped": int(dropped), "late": bool(late), "dry_run": bool(dry_run),
+        })
 
     def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
         """The true robot pose and the taught pose at ``t``: ``(x, y, phi)`` (m, m, rad), the

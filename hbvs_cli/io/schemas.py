@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .topics import CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA, VELOCITY_COMMAND_SCHEMA
+from .topics import CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA, LOOP_TIMING_SCHEMA, VELOCITY_COMMAND_SCHEMA
 
 _TIME = {
     "type": "object",
@@ -141,6 +141,22 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "x_hd1_dot", "x_hd2_dot", "theta_d_dot", "e1", "e2", "ebar2", "e3",
             "v_c", "w_c", "saturated", "dhat", "target_lost", "V",
         ],
+    },
+    LOOP_TIMING_SCHEMA: {
+        "title": LOOP_TIMING_SCHEMA,
+        "description": "Timing of one step of a live run (repeat --live): the frame, the latency, the frames dropped",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "t": {**_NUMBER, "description": "run time of the step (s): the frame's stamp from the run's first frame"},
+            "frame_stamp": {**_NUMBER, "description": "the frame's header stamp, or its capture time for a camera (s)"},
+            "latency_s": {**_NUMBER, "description": "from the frame's arrival to the command's publication (s)"},
+            "frame_interval_s": {**_NUMBER_OR_NULL, "description": "stamp difference to the previous frame measured (s)"},
+            "dropped": {"type": "integer", "description": "frames that arrived while the previous one was processed, dropped for this one"},
+            "late": {"type": "boolean", "description": "the frame interval exceeded 1.5 control periods"},
+            "dry_run": {"type": "boolean", "description": "zero was published instead of the command (--dry-run)"},
+        },
+        "required": ["timestamp", "t", "frame_stamp", "latency_s", "dropped"],
     },
 }
 

@@ -18,6 +18,7 @@ VELOCITY_COMMAND_SCHEMA = "hbvs.VelocityCommand"
 DESIRED_SIGNAL_SCHEMA = "hbvs.DesiredSignal"
 FIT_MODEL_SCHEMA = "hbvs.FitModel"
 CONTROLLER_STATE_SCHEMA = "hbvs.ControllerState"
+LOOP_TIMING_SCHEMA = "hbvs.LoopTiming"
 
 #: MCAP metadata record holding the simulated world of a teach file.
 WORLD_METADATA = "hbvs.world"
@@ -47,6 +48,10 @@ COMMAND_TOPIC = "/repeat/cmd_vel"
 EVENTS_TOPIC = "/repeat/events"
 #: The taught pose the robot should be at (simulated runs).
 DESIRED_POSE_TOPIC = "/desired/pose"
+#: Per step of a live run (``repeat --live``): the frame's stamp, the latency from its
+#: arrival to the command's publication, the frame interval, frames dropped since the last
+#: step (``hbvs.LoopTiming``). Not in simulated or replayed runs.
+TIMING_TOPIC = "/repeat/timing"
 
 # ----------------------------------------------------------------------------- Foxglove 3D scene
 FRAME_TRANSFORM_SCHEMA = "foxglove.FrameTransform"
@@ -82,6 +87,7 @@ TOPICS: dict[str, dict[str, str]] = {
         STATE_TOPIC: CONTROLLER_STATE_SCHEMA,
         COMMAND_TOPIC: VELOCITY_COMMAND_SCHEMA,
         EVENTS_TOPIC: LOG_SCHEMA,
+        TIMING_TOPIC: LOOP_TIMING_SCHEMA,
         TRUE_POSE_TOPIC: POSE_IN_FRAME_SCHEMA,
         DESIRED_POSE_TOPIC: POSE_IN_FRAME_SCHEMA,
         IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,
@@ -118,3 +124,10 @@ ROS_CAMERA_INFO_TOPIC = "/camera/camera_info"
 ROS_REFERENCE_IMAGE_TOPIC = "/reference/image/compressed"
 ROS_TF_TOPIC = TRANSFORM_TOPIC
 ROS_TF_STATIC_TOPIC = "/tf_static"
+
+# ----------------------------------------------------------------------------- live robot (ROS 2 over DDS)
+# ``repeat --live`` and ``robot-sim --ros2`` (DDS topic ``rt/<name>``: :mod:`hbvs_cli.io.ros2_dds`).
+#: The camera of a robot (sensor_msgs Image; ``/compressed`` beside it for CompressedImage),
+#: its CameraInfo on the sibling ``camera_info`` topic (ROS_CAMERA_INFO_TOPIC), the commands
+#: on ROS_CMD_VEL_TOPIC and the stand-in robot's true pose on ROS_TRUE_POSE_TOPIC.
+ROS_LIVE_IMAGE_TOPIC = "/camera/image_raw"

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import UsageError
 from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
 from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
+from .dot_windows import WindowedDotDetector
 from .dots import DotDetector, find_dark_blobs
 from .texture import TextureDetector
 
@@ -36,6 +37,7 @@ def make_detector(
     marker_ids: Sequence[int] | None = None,
     polarity: str | None = None,
     contrast: str | None = None,
+    windowed: bool = False,
 ) -> TargetDetector:
     """A detector for ``kind`` (``"dots"``, ``"aruco"`` or ``"texture"``).
 
@@ -60,6 +62,9 @@ def make_detector(
         For ``dots``: ``"dark"`` (default) or ``"light"`` dots.
     contrast : str, optional
         For ``dots``: ``"gray"`` (default) or ``"colour"`` (see :func:`~.dots.dark_image`).
+    windowed : bool
+        For ``dots``: follow each tracked dot in its own small window
+        (:class:`~.dot_windows.WindowedDotDetector`) rather than in their common box.
 
     Raises
     ------
@@ -67,7 +72,8 @@ def make_detector(
         For an unknown kind or inconsistent arguments.
     """
     if kind == "dots":
-        return DotDetector(n_points, polarity=polarity or "dark", contrast=contrast or "gray")
+        dots = WindowedDotDetector if windowed else DotDetector
+        return dots(n_points, polarity=polarity or "dark", contrast=contrast or "gray")
     if kind == "aruco":
         markers = ArucoMarkerDetector(marker_id, dictionary=marker_dict or DEFAULT_DICTIONARY, marker_ids=marker_ids)
         if n_points != markers.n_points:

@@ -98,10 +98,15 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX)
     height, width = gray.shape
     small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
     size = 2 * (max_radius // 4) + 5
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
-    ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
-    ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR)
-    return cv2.divide(gray.astype(np.float32), ground.astype(np.float32), scale=255.0)
+    if max(small.shape) <= size // 2 + 1:
+        # A window the kernel spans from every pixel (a tracked dot's): its closing is its
+        # maximum everywhere, which is all the morphology and the resize would compute.
+        ground = np.full(gray.shape, max(float(small.max()), 1.0), dtype=np.float32)
+    else:
+        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
+        ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
+        ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
 
 
 def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
@@ -192,7 +197,15 @@ def ground_noise(flat: NDArray[np.float32]) -> float:
     rows = np.asarray(flat, dtype=np.float32)[::4]
     if rows.shape[1] < 2:
         return 0.0
-    return float(1.4826 / math.sqrt(2.0) * np.median(np.abs(np.diff(rows, axis=1))))
+    steps = np.abs(rows[:, 1:] - rows[:, :-1]).ravel()
+    # np.median's own steps (partition, then the mean of the middle one or two), without
+    # its generic wrapper: this runs on every searched window.
+    half = steps.size // 2
+    if steps.size % 2:
+        median = np.partition(steps, half)[half]
+    else:
+        median = np.mean(np.partition(steps, (half - 1, half))[half - 1 : half + 1])
+    return float(1.4826 / math.sqrt(2.0) * median)
 
 
 def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float = 0.0, noisy: bool = False) -> int | None:
@@ -335,13 +348,13 @@ def _blob_centre(
     moments = cv2.moments(mask, binaryImage=True)
     # Principal second moments (eigenvalues of the 2x2 scatter matrix), in closed form.
     half_sum = 0.5 * (moments["mu20"] + moments["mu02"])
-    half_gap = np.hypot(0.5 * (moments["mu20"] - moments["mu02"]), moments["mu11"])
+    half_gap = math.hypot(0.5 * (moments["mu20"] - moments["mu02"]), moments["mu11"])
     minor = half_sum - half_gap
-    elongation = float(np.sqrt((half_sum + half_gap) / minor)) if minor > 0 else np.inf
+    elongation = math.sqrt((half_sum + half_gap) / minor) if minor > 0 else np.inf
     rim = cv2.dilate(mask, _DILATE_RIM)
     ring = cv2.dilate(mask, _DILATE_RING) & (1 - rim)
-    patch = sub[py0:py1, px0:px1].astype(np.float32)
-    ring_values = patch[ring.astype(bool)]
+    patch = np.asarray(sub[py0:py1, px0:px1], dtype=np.float32)
+    ring_values = patch[ring.view(bool)]
     if ring_values.size == 0:
         return np.full(2, np.nan), elongation
     paper = float(np.partition(ring_values, (3 * ring_values.size) // 4)[(3 * ring_values.size) // 4])
@@ -452,6 +465,10 @@ class DotDetector:
                     blobs, pixels, areas = everywhere, again, again_areas
         else:
             blobs, (pixels, areas) = self._search(gray, None, self._acquire)
+        return self._record(blobs, pixels, areas)
+
+    def _record(self, blobs: Blobs, pixels: NDArray[np.float64], areas: NDArray[np.float64]) -> Detection:
+        """Update the track, the dots' areas and their layout with one frame's dots."""
         self.last_blobs = blobs
         seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)

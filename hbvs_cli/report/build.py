@@ -269,6 +269,28 @@ def _target_section(run: RunData) -> dict[str, Any]:
     }
 
 
+#: Percentiles of the frame-to-command latency in a live run's report.
+LATENCY_PERCENTILES = (50, 95, 99)
+
+
+def timing_section(run: RunData) -> dict[str, Any] | None:
+    """A live run's loop timing (``repeat --live``; None for other runs): the latency from a
+    frame's arrival to its command's publication (ms), the frame interval, and the frames
+    dropped (arrived while another was processed) or late (interval over 1.5 periods)."""
+    timing = run.timing
+    if timing is None or timing["t"].size == 0:
+        return None
+    latency_ms = 1e3 * timing["latency_s"]
+    intervals = timing["frame_interval_s"][np.isfinite(timing["frame_interval_s"])]
+    section: dict[str, Any] = {f"latency_p{q}_ms": float(np.percentile(latency_ms, q)) for q in LATENCY_PERCENTILES}
+    section["latency_max_ms"] = float(np.max(latency_ms))
+    section["frame_interval_p50_ms"] = float(1e3 * np.median(intervals)) if intervals.size else None
+    section["frame_interval_max_ms"] = float(1e3 * np.max(intervals)) if intervals.size else None
+    section["frames_dropped"] = int(np.nansum(timing["dropped"]))
+    section["frames_late"] = int(np.nansum(timing["late"]))
+    return section
+
+
 def _condition35_section(run: RunData) -> dict[str, Any]:
     fitted = (run.info.get("condition35") or {}).get("min_abs_xhd1_dot")
     return {
@@ -388,7 +410,7 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
     -------
     dict
         Keys :data:`REPORT_KEYS` in that order; ``pose_error`` only when the run has
-        ground truth. Unknown values are ``None``; every number is rounded to
+        ground truth; ``timing`` (before ``verdict``) only for a live run. Unknown values are ``None``; every number is rounded to
         :data:`REPORT_DIGITS` significant digits, so JSON, table and ``--fail-above`` see
         one value.
     """
@@ -402,6 +424,7 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
         "commands": lambda: _command_section(run),
         "target": lambda: _target_section(run),
         "condition35": lambda: _condition35_section(run),
+        "timing": lambda: timing_section(run),
     }
     report: dict[str, Any] = {}
     for key, section in sections.items():

@@ -72,6 +72,18 @@ METRIC_ROWS: tuple[tuple[str, str], ...] = (
     ("min |x_hd1_dot| fit (1/s)", "condition35.fit_min_abs_xhd1_dot"),
 )
 
+#: Rows of a live run's loop timing (``repeat --live``): shown when a run has them.
+TIMING_ROWS: tuple[tuple[str, str], ...] = (
+    ("latency p50 (ms)", "timing.latency_p50_ms"),
+    ("latency p95 (ms)", "timing.latency_p95_ms"),
+    ("latency p99 (ms)", "timing.latency_p99_ms"),
+    ("latency max (ms)", "timing.latency_max_ms"),
+    ("frame interval p50 (ms)", "timing.frame_interval_p50_ms"),
+    ("frame interval max (ms)", "timing.frame_interval_max_ms"),
+    ("frames dropped", "timing.frames_dropped"),
+    ("frames late", "timing.frames_late"),
+)
+
 #: Row label of each verdict check (``verdict.checks``).
 CHECK_LABELS = {
     "closed_loop": "closed loop", "finished": "finished", "final_position": "final position error",
@@ -238,6 +250,8 @@ def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tu
         ("run", _rows_table(_run_rows(reports), reports, plain)),
         *_error_tables(reports, console),
         ("Lyapunov function (36), depth, commands, target, condition (35)", _rows_table(METRIC_ROWS, reports, plain)),
+        *([("live loop: frame-to-command latency, frames dropped or late", _rows_table(TIMING_ROWS, reports, plain))]
+          if any("timing" in report for report in reports) else []),
         ("verdict (convergence rule: docs/report.md)", _verdict_table(reports, plain)),
     ]
 

@@ -76,19 +76,26 @@ class SimulatedCamera:
         self.perception = settings.perception
         self.estimator: PlanarPoseEstimator = estimator_from_model(model)
         self.identity = world_point_identity(scene, model)
+        # What projecting the points each control period needs, as plain floats.
+        self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
+        self._identity = [int(i) for i in self.identity]
+        self._camera_height = float(scene.world.camera_height)
         self.noise_rng = np.random.default_rng(settings.seed)
         self.fault_rng = np.random.default_rng([settings.seed, 1])
         self.occlusions = list(settings.occlusions)
         self.drop_rate = settings.drop_rate
         self.outlier_rate = settings.outlier_rate
         self.exposure_step = settings.exposure_step
+        self.record_images = settings.record_images
+        #: Noise of a stored image's pixels outside the measured windows.
+        self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
         self.renderer: SceneRenderer | None = None
         self.detector: TrackedDetector | None = None
         if self.perception == "images" or settings.record_images:
             self.renderer = renderer_for(scene, model)
         if self.perception == "images":
-            self.detector = detector_from_model(model, template_image, seed=settings.seed)
+            self.detector = detector_from_model(model, template_image, seed=settings.seed, windowed=True)
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.occlusions)
@@ -120,32 +127,68 @@ class SimulatedCamera:
 
     def _observe_image(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
         gain = self.settings_exposure(t)
-        image = self.renderer.render(pose, self.noise_rng, exposure_gain=gain)
-        if self._occluded(t):
-            self._cover_target(image, pose)
-        if outlier:
-            self._add_spurious_blob(image, pose)
+        blob = self._spurious_blob(pose) if outlier else None
+        # Dots followed by their track are looked for in small windows: only those are
+        # rendered. When some dot is not there (or nothing is tracked), the whole frame.
+        windows = self.detector.search_windows()
+        pixels = None
+        if windows is not None:
+            image = self._frame(self.renderer.render_windows(pose, self.noise_rng, windows, exposure_gain=gain), pose, t, blob)
+            pixels = self.detector.detect_in_windows(image, windows)
+        if pixels is None:
+            image = self._frame(self.renderer.render(pose, self.noise_rng, exposure_gain=gain), pose, t, blob)
+            pixels = self.detector.detect(image)
+        elif self.record_images:
+            # The stored image: the windows measured, in a whole frame whose other pixels
+            # draw their noise from a stream of their own (the run does not depend on it).
+            whole = self._frame(self.renderer.render(pose, self.image_rng, exposure_gain=gain), pose, t, blob)
+            for x0, y0, x1, y1 in windows:
+                whole[y0:y1, x0:x1] = image[y0:y1, x0:x1]
+            image = whole
         self.last_image = image
-        pixels = self.detector.detect(image)
         if self.pixel_noise > 0:
             # NaN rows (points not found) stay NaN.
             pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
         return self.estimator.from_pixels(pixels)
 
+    def _frame(self, image: np.ndarray, pose: np.ndarray, t: float, blob: tuple[tuple[int, int], int, int] | None) -> np.ndarray:
+        """``image`` with this frame's faults drawn in: the occluder, the spurious blob."""
+        if self._occluded(t):
+            self._cover_target(image, pose)
+        if blob is not None:
+            centre, radius, value = blob
+            cv2.circle(image, centre, radius, value, -1, cv2.LINE_AA, 4)
+        return image
+
     def _project(self, pose: np.ndarray) -> np.ndarray | None:
         """Pixels of the target points (in the fit's identity order) seen from ``pose``, or
-        None when one is behind the camera or outside the image."""
-        world = self.scene.world
-        camera = world.camera
-        # The points in F once (this runs every control period): the depth test and the
-        # projection (9), (11) share them.
-        points = world.points_in_camera(pose)
-        if points[:, 0].min() <= 0.05:
-            return None
-        pixels = normalized_to_pixels(camera, points[self.identity])
-        u, v = pixels[:, 0], pixels[:, 1]
-        if u.min() < 0 or v.min() < 0 or u.max() > camera.width - 1 or v.max() > camera.height - 1:
-            return None
+        None when one is behind the camera or outside the image.
+
+        The points in F, ``Rz(phi)^T (P - p)`` (:func:`~hbvs_cli.core.frames.world_to_robot`),
+        and their pinhole pixels (9), (11) (:func:`~hbvs_cli.core.camera.normalized_to_pixels`),
+        in plain floats with the same operations in the same order (the same numbers): a
+        few points, every control period, are faster without numpy's per-call cost.
+        """
+        camera = self.scene.world.camera
+        x, y, phi = (float(v) for v in pose)
+        c, s = np.cos(phi), np.sin(phi)
+        height = self._camera_height
+        in_camera = []
+        for px, py, pz in self._points_world:
+            dx, dy = px - x, py - y
+            forward = c * dx + s * dy
+            if forward <= 0.05:
+                return None
+            in_camera.append((forward, -s * dx + c * dy, pz - height))
+        pixels = np.empty((len(self.identity), 2))
+        width, rows = camera.width - 1, camera.height - 1
+        for row, index in enumerate(self._identity):
+            forward, left, up = in_camera[index]
+            u = camera.cx - camera.fx * left / forward
+            v = camera.cy - camera.fy * up / forward
+            if u < 0 or v < 0 or u > width or v > rows:
+                return None
+            pixels[row, 0], pixels[row, 1] = u, v
         return pixels
 
     def settings_exposure(self, t: float) -> float | None:
@@ -171,8 +214,9 @@ class SimulatedCamera:
         if u1 > u0 and v1 > v0:
             image[v0:v1, u0:u1] = 90
 
-    def _add_spurious_blob(self, image: np.ndarray, pose: np.ndarray) -> None:
-        """A dark blob (for dots: a fake dot) or a bright one near the target."""
+    def _spurious_blob(self, pose: np.ndarray) -> tuple[tuple[int, int], int, int]:
+        """A dark blob (for dots: a fake dot) or a bright one near the target: its centre and
+        radius (1/16 px, as ``cv2.circle`` takes them with 4 fractional bits) and gray level."""
         world = self.scene.world
         px = world.pixels(pose)
         spread = max(float(np.ptp(px[:, 0])), float(np.ptp(px[:, 1])), 20.0)
@@ -180,7 +224,7 @@ class SimulatedCamera:
         distance = float(np.mean(_to_camera(world, pose, world.target.points_world.mean(axis=0))[0:1]))
         radius = max(2.0, world.camera.fx * max(world.target.dot_radius, 0.03) / max(distance, 0.1))
         value = 30 if world.target.kind == "dots" else 250
-        cv2.circle(image, (int(round(centre[0] * 16)), int(round(centre[1] * 16))), int(round(radius * 16)), value, -1, cv2.LINE_AA, 4)
+        return (int(round(centre[0] * 16)), int(round(centre[1] * 16))), int(round(radius * 16)), value
 
     def image_of(self, pose: np.ndarray) -> np.ndarray:
         """The camera image of this step (``--record-images``): the one just measured, or a

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -35,6 +36,8 @@ _NEAR_DEPTH = 1e-3
 #: Extra camera pixels around the poster's projected outline rendered with it, so that the
 #: bilinear fringe and the blur are complete.
 _ROI_PAD = 2
+#: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
+Window = tuple[int, int, int, int]
 #: Largest correlation length of the sensor noise (px): beyond it the "noise" is shading.
 MAX_NOISE_GRAIN_PX = 20.0
 
@@ -128,6 +131,7 @@ class SceneRenderer:
         self._grain_kernel = _grain_kernel(self.settings.noise_grain) if self.settings.noise_grain > 0 else None
         # Ideal (undistorted) pixel coordinates seen by each real pixel: the lens's inverse map.
         self._ideal_map = _inverse_distortion_map(camera) if camera.has_distortion else None
+        self._outlines: dict[int, NDArray[np.float64]] = {}
 
     @property
     def camera(self) -> CameraIntrinsics:
@@ -151,9 +155,7 @@ class SceneRenderer:
         -------
         image : ndarray, shape (height, width), uint8
         """
-        gain = self.settings.exposure_gain if exposure_gain is None else float(exposure_gain)
-        if not np.isfinite(gain) or gain < 0:
-            raise UsageError(f"the exposure gain must be a finite number >= 0, got {exposure_gain}")
+        gain = self._gain(exposure_gain)
         scene = self.render_scene(pose)
         if self.settings.noise_std > 0:
             uniform = np.frombuffer(rng.bytes(2 * scene.size), dtype=np.uint16).reshape(self._size)
@@ -167,16 +169,9 @@ class SceneRenderer:
 
     def render_scene(self, pose: ArrayLike) -> NDArray[np.uint8]:
         """The noiseless, unexposed scene (poster on the wall, lens, blur), shape (height, width), uint8."""
-        pose = np.asarray(pose, dtype=float)
-        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
-            raise UsageError(f"a pose is three finite numbers (x, y, phi), got {pose!r}")
-        poster_to_image = self.world.poster_to_image_homography(pose)
-        level = self.level_for(poster_to_image)
-        level_to_image = poster_to_image @ self.raster.level_to_poster(level)
-        picture = self.raster.levels[level]
+        view = self._view(pose)
+        poster_to_image, level_to_image, picture, outline, depth = view
         frame = self._wall.copy()
-        outline = self._outline(level)
-        depth = np.column_stack([outline, np.ones(len(outline))]) @ poster_to_image[2]
         if np.all(depth <= _NEAR_DEPTH):
             return frame
         pad = _ROI_PAD + int(np.ceil(3.0 * self.settings.blur_sigma))
@@ -207,6 +202,131 @@ class SceneRenderer:
         frame[y0:y1, x0:x1] = patch
         return frame
 
+    def render_windows(
+        self, pose: ArrayLike, rng: np.random.Generator, windows: Sequence[Window], exposure_gain: float | None = None
+    ) -> NDArray[np.uint8]:
+        """A camera frame rendered only inside ``windows``: what a detector that reads only
+        those windows needs, at a fraction of a whole frame's cost.
+
+        Each window's pixels follow the image model of :meth:`render` (the same scene, blur
+        and exposure; sensor noise of the same statistics, drawn for the window's pixels
+        only, so the generator's stream differs from a whole frame's). Pixels outside every
+        window are the exposed wall without noise, and must not be measured.
+
+        Parameters
+        ----------
+        pose : array_like, shape (3,)
+            Robot pose ``(x, y, phi)`` (m, m, rad).
+        rng : numpy.random.Generator
+            Source of the sensor noise.
+        windows : sequence of (x0, y0, x1, y1)
+            End-exclusive pixel bounds; they should not overlap (a pixel in two windows is
+            drawn twice, the later one kept).
+        exposure_gain : float, optional
+            As in :meth:`render`.
+
+        Returns
+        -------
+        image : ndarray, shape (height, width), uint8
+        """
+        gain = self._gain(exposure_gain)
+        settings = self.settings
+        wall = float(np.clip(np.rint(gain * self._background + settings.exposure_offset), 0, 255))
+        frame = np.full(self._size, wall, dtype=np.uint8)
+        regions = [r for r in (_clipped(w, self._size) for w in windows) if r[0] < r[2] and r[1] < r[3]]
+        if not regions:
+            return frame
+        view = self._view(pose)
+        poster_box = self._poster_box(view)
+        if settings.noise_std > 0:
+            noises = self._noise_in(rng, regions)
+        else:
+            noises = [np.zeros((y1 - y0, x1 - x0), dtype=np.float32) for x0, y0, x1, y1 in regions]
+        for (x0, y0, x1, y1), noise in zip(regions, noises):
+            scene = self._scene_in(view, poster_box, (x0, y0, x1, y1))
+            cv2.addWeighted(noise, float(settings.noise_std), scene, gain, float(settings.exposure_offset),
+                            dst=frame[y0:y1, x0:x1], dtype=cv2.CV_8U)
+        return frame
+
+    def _gain(self, exposure_gain: float | None) -> float:
+        """The exposure gain of a frame: ``exposure_gain`` if given (checked), else the settings'."""
+        gain = self.settings.exposure_gain if exposure_gain is None else float(exposure_gain)
+        if not np.isfinite(gain) or gain < 0:
+            raise UsageError(f"the exposure gain must be a finite number >= 0, got {exposure_gain}")
+        return gain
+
+    def _view(self, pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]:
+        """What a frame from ``pose`` samples: the poster-to-image and level-to-image
+        homographies, the pyramid level's picture, its outline (poster m) and the outline's
+        depth factors (the homography's third row applied to it)."""
+        pose = np.asarray(pose, dtype=float)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise UsageError(f"a pose is three finite numbers (x, y, phi), got {pose!r}")
+        poster_to_image = self.world.poster_to_image_homography(pose)
+        level = self.level_for(poster_to_image)
+        level_to_image = poster_to_image @ self.raster.level_to_poster(level)
+        outline = self._outline(level)
+        depth = np.column_stack([outline, np.ones(len(outline))]) @ poster_to_image[2]
+        return poster_to_image, level_to_image, self.raster.levels[level], outline, depth
+
+    def _poster_box(self, view: tuple) -> Window | None:
+        """The pixels the poster can cover in a frame of ``view`` (its bilinear fringe
+        included; the whole image when unsure), or None when it covers none."""
+        poster_to_image, _, _, outline, depth = view
+        if np.all(depth <= _NEAR_DEPTH):
+            return None
+        if np.any(depth <= _NEAR_DEPTH):
+            return (0, 0, self._size[1], self._size[0])
+        ideal = _apply(poster_to_image, outline)
+        if self._ideal_map is None:
+            return _bounding_window(ideal, _ROI_PAD, self._size)
+        if _near_image(ideal, self._size):
+            return _bounding_window(distort_pixels(self.camera, ideal), _ROI_PAD, self._size)
+        return (0, 0, self._size[1], self._size[0])
+
+    def _scene_in(self, view: tuple, poster_box: Window | None, window: Window) -> NDArray[np.uint8]:
+        """The noiseless, unexposed scene inside ``window`` (within the image), equal to
+        that window of :meth:`render_scene`'s frame up to the rounding of the sampling."""
+        _, level_to_image, picture, _, depth = view
+        x0, y0, x1, y1 = window
+        # Blurring a window needs the scene `pad` pixels around it (the kernel's reach).
+        pad = int(np.ceil(3.0 * self.settings.blur_sigma))
+        grown = _clipped((x0 - pad, y0 - pad, x1 + pad, y1 + pad), self._size)
+        gx0, gy0, gx1, gy1 = grown
+        if poster_box is None or not _overlap(poster_box, grown):
+            return self._wall[y0:y1, x0:x1]
+        if np.any(depth <= _NEAR_DEPTH):
+            patch = self._sample_masked(picture, level_to_image, grown)
+        elif self._ideal_map is None:
+            patch = self._warp(picture, level_to_image, grown)
+        else:
+            patch = self._remap(picture, level_to_image, grown)
+        if self.settings.blur_sigma > 0:
+            # At the window's inner edges the replicated border is wrong, but only within
+            # `pad` of them, outside the window; at the image's edges it is render_scene's.
+            patch = cv2.GaussianBlur(patch, (0, 0), self.settings.blur_sigma, borderType=cv2.BORDER_REPLICATE)
+        return patch[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
+
+    def _noise_in(self, rng: np.random.Generator, windows: list[Window]) -> list[NDArray[np.float32]]:
+        """Unit-variance sensor noise for each window's pixels (float32), correlated by the
+        grain as in :meth:`render`: drawn over the window grown by the grain kernel's
+        reach, so that each window pixel sees a whole kernel of white noise (reflected at
+        the image's edges, as a whole frame's is). One draw from ``rng`` for all windows."""
+        reach = 0 if self._grain_kernel is None else len(self._grain_kernel) // 2
+        grown = [_clipped((x0 - reach, y0 - reach, x1 + reach, y1 + reach), self._size) for x0, y0, x1, y1 in windows]
+        sizes = [(gy1 - gy0) * (gx1 - gx0) for gx0, gy0, gx1, gy1 in grown]
+        uniform = np.frombuffer(rng.bytes(2 * sum(sizes)), dtype=np.uint16)
+        white = _gaussian_table().take(uniform)
+        noises = []
+        offset = 0
+        for (x0, y0, x1, y1), (gx0, gy0, gx1, gy1), size in zip(windows, grown, sizes):
+            noise = white[offset : offset + size].reshape(gy1 - gy0, gx1 - gx0)
+            offset += size
+            if self._grain_kernel is not None:
+                noise = cv2.sepFilter2D(noise, -1, self._grain_kernel, self._grain_kernel, borderType=cv2.BORDER_REFLECT)
+            noises.append(noise[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0])
+        return noises
+
     def level_for(self, poster_to_image: NDArray[np.float64]) -> int:
         """Pyramid level for a poster-to-image homography: judged at the target's centroid.
 
@@ -223,10 +343,17 @@ class SceneRenderer:
 
     # -- sampling ----------------------------------------------------------------------
     def _outline(self, level: int) -> NDArray[np.float64]:
-        """Points along the edge of the level's picture, in poster metres, shape (4 K, 2).
+        """Points along the edge of the level's picture, in poster metres, shape (4 K, 2)
+        (made once per level).
 
         Several points per side, because with lens distortion straight edges bow outward.
         """
+        outline = self._outlines.get(level)
+        if outline is None:
+            outline = self._outlines[level] = self._make_outline(level)
+        return outline
+
+    def _make_outline(self, level: int) -> NDArray[np.float64]:
         height, width = self.raster.levels[level].shape
         to_poster = self.raster.level_to_poster(level)
         # The picture's outer edges are half a level pixel beyond the first and last centres.
@@ -280,6 +407,18 @@ class SceneRenderer:
 def _apply(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
     h = np.column_stack([points, np.ones(len(points))]) @ homography.T
     return h[:, :2] / h[:, 2:]
+
+
+def _clipped(window: Window, size: tuple[int, int]) -> Window:
+    """``window`` ``(x0, y0, x1, y1)`` clipped to an image of ``size`` (height, width)."""
+    height, width = size
+    x0, y0, x1, y1 = window
+    return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
+
+
+def _overlap(a: Window, b: Window) -> bool:
+    """True when two end-exclusive windows share a pixel."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from typing import IO, Any, ContextManager
 
@@ -26,7 +27,7 @@ from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
-from ..core.simulator import ActuatorLimits, StepRecord
+from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..core.world import World
@@ -44,6 +45,7 @@ from ..io.run_file import RunWriter
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from . import live
 from .console import Console
 from .frames import decoded_frames
 from .options import parse_interval, parse_offset, parse_time_and_factor
@@ -163,17 +165,20 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
     for thousands of runs); by default it is read here.
     """
-    if options.sim == (options.replay is not None):
-        raise UsageError("choose one mode: --sim (closed loop, simulated) or --replay FILE (open loop on a recording)")
+    if int(options.sim) + int(options.replay is not None) + int(options.live) != 1:
+        raise UsageError("choose one mode: --live (closed loop with a robot), --sim (closed loop, simulated) or --replay FILE "
+                         "(open loop on a recording)")
     if options.cmd_out == "-" and options.output == "-":
         raise UsageError("--cmd-out - and -o - would both write to stdout; send one of them to a file")
     refuse_overwriting_inputs(
         [("-o", options.output), ("--cmd-out", options.cmd_out)],
-        [("input", options.input), ("--replay", options.replay), ("--config", options.config)],
+        [("input", options.input), ("--replay", options.replay), ("--config", options.config), ("--calibration", options.calibration)],
     )
     if fit is None:
         fit = read_fit_file(options.input)
     settings = settings_for(options, fit.model)
+    if options.live:
+        return _run_live(options, settings, fit, console)
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)
@@ -388,9 +393,9 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --live, if asked
+            writer = live(file_writer)  # the same messages to --foxglove, if asked
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
@@ -518,9 +523,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     tally = _Tally()
     previous_t: float | None = None
     previous_command = (0.0, 0.0)
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.live, options.live_speed, console.info) as live:
+    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --live, if asked
+            writer = live(file_writer)  # the same messages to --foxglove, if asked
             # The replay keeps the recording's stamps: t = 0 is known with the first frame.
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
@@ -554,4 +559,65 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             _note_truncated(writer, options, fit, console, reader)
     summary = tally.summary(controller, options.output, False)
     _print_summary(console, summary, settings, None)
+    return summary
+
+
+# ----------------------------------------------------------------------------- a robot
+def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
+    """``--live``: drive a robot along the fitted trajectory, every frame through the same
+    :class:`~hbvs_cli.core.simulator.ServoStep` as ``--sim`` (:mod:`.live`: the loop and its stops)."""
+    live.check_live_options(options)
+    model = fit.model
+    topic = live.command_topic(options)
+    if topic is None and options.cmd_out is None:
+        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
+    estimator = estimator_from_model(model)
+    detector = detector_from_model(model, fit.template_image, seed=options.seed)
+    state_filter = make_state_filter(settings, model)
+    if state_filter is not None:
+        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / _focal(model))
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
+    servo = ServoStep(controller, settings.limits, 0, state_filter)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    tally = _Tally()
+    loop: live.LiveLoop | None = None
+    with ExitStack() as stack:
+        node = None
+        if options.ros2_image is not None or topic is not None:
+            from ..io import ros2_dds as dds  # lazy: an optional extra
+
+            node = dds.Ros2Node()
+        publish = None
+        if topic is not None:
+            from ..io.ros2_live import CommandPublisher
+
+            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+            publish = publisher.publish
+        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
+        out = live.CommandOut(publish, cmd_stream, options.dry_run)
+        try:
+            out.stop(0.0)  # whatever the robot did before, it starts from rest
+            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
+            live.check_camera(camera, model.camera, "the live camera's calibration")
+            # --foxglove: the run served as it is written (already real time: no pacing).
+            view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
+            writer = view(stack.enter_context(open_output(options.output)))
+            info = _run_metadata("live", options, settings, fit, None) | {"live": {
+                "source": options.camera if options.camera is not None else options.ros2_image,
+                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
+                "stale_timeout_s": options.stale_timeout,
+            }}
+            run = RunWriter(writer, info, model.camera, base_ns=None)
+            log = _StepLog(run, settings, model, None, None)
+            loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings)
+            console.info(f"repeat --live: waiting for the target near its taught start ({live.START_FRAMES} frames in a row)")
+            loop.wait_for_start()
+            console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
+            loop.drive()
+        finally:
+            out.stop(loop.t if loop is not None else 0.0)
+    summary = tally.summary(controller, options.output, loop.stopped is not None)
+    _print_summary(console, summary, settings, None)
+    if loop.stopped is not None:
+        raise TargetLostError(loop.stopped + f"; the run up to then is in {options.output}")
     return summary

@@ -21,6 +21,7 @@ from typing import Any, Mapping, Optional
 
 from ..core.control_settings import DEFAULT_PRESET, FILTER_EKF, LAW_LATERAL_GAIN, ControllerGains
 from ..io.shipped import shipped_name
+from ..io.topics import ROS_CMD_VEL_TOPIC, ROS_LIVE_IMAGE_TOPIC
 
 OUTPUT_HELP = "Output MCAP file, or - for stdout (a file is written beside it and renamed when complete; a device or FIFO is written in place)."
 
@@ -130,6 +131,11 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
     Setting("bag", Path, "A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one "
             ".mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", panel="Sources"),
     Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
+    Setting("ros2_image", str, "A running ROS 2 camera: its sensor_msgs/msg/Image topic (.../compressed for CompressedImage), "
+            "CameraInfo from the sibling camera_info topic; --duration or Ctrl-C ends it (pip install 'hbvs\\[ros2]').",
+            panel="Sources"),
+    Setting("ros2_cmd", str, "With --ros2-image: the operator's geometry_msgs/msg/Twist topic, recorded as the taught commands.",
+            panel="Sources"),
     Setting("cmd_topic", str, "The bag's command topic (geometry_msgs Twist or TwistStamped, or nav_msgs Odometry), "
             "recorded as the taught (v, w); automatic when there is one.", panel="Sources"),
     Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
@@ -177,6 +183,8 @@ DEFAULT_LOST_TIMEOUT = 3.0
 MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
 #: Longest measurement latency (frames): more than any run has steps at the default limit.
 MAX_LATENCY_FRAMES = 1_000_000
+#: Seconds without a camera frame before a live run commands zero (a stalled camera or link).
+DEFAULT_STALE_TIMEOUT = 0.3
 #: Gains without a fit's suggestion (core's defaults; samples/gains.toml lists the same).
 DEFAULT_GAINS = ControllerGains()
 
@@ -218,7 +226,8 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
             bounds={"min": 0, "max": MAX_LATENCY_FRAMES}),
     Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",
             fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0}),
-    Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE or - (stdout)."),
+    Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE, FIFO or - (stdout): with --live the commands "
+            "sent to the robot, as they go (for a driver); with --sim and --replay a log (unpaced)."),
     Setting("record_images", bool, "Store the camera images with detected and desired points.", default=False),
     Setting("occlude", str, "Hide the target from START to END seconds (repeatable), e.g. 8:10.", panel="Faults", repeatable=True),
     Setting("drop_rate", float, "Fraction of camera frames dropped.", default=0.0, panel="Faults", bounds={"min": 0.0, "max": 1.0}),
@@ -228,10 +237,25 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("allow_truncated", bool, "Replace an existing output even when an input ended early (no end record).", default=False),
     Setting("state_filter", str, "State filter between the camera and the law: ekf or none (the raw measurement, the paper exactly).",
             fallback=FILTER_EKF, config="filter", flags=("--filter",), panel="Controller"),
-    Setting("live", int, "Serve the run to the Foxglove app while it runs on ws://127.0.0.1:PORT (8765 when --live comes "
+    Setting("foxglove", int, "Serve the run to the Foxglove app while it runs on ws://127.0.0.1:PORT (8765 when --foxglove comes "
             "without a port; pip install 'hbvs\\[live]'). The run file is unchanged.", panel="Live view"),
-    Setting("live_speed", float, "With --live: pace the run at this multiple of real time (0: as fast as it goes).",
+    Setting("foxglove_speed", float, "With --foxglove: pace the run at this multiple of real time (0: as fast as it goes).",
             default=1.0, panel="Live view", bounds={"min": 0.0}),
+    # --live: a real robot, a ROS 2 system or any simulator (docs/robot.md).
+    Setting("live", bool, "Closed loop with a robot: every camera frame measured, a command sent at once (docs/robot.md).",
+            default=False, panel="Mode"),
+    Setting("camera", str, "With --live: frames from OpenCV (an index, /dev/videoN, an RTSP/HTTP URL, or a video file "
+            "played at its own rate); give --calibration.", panel="Live robot"),
+    Setting("ros2_image", str, "With --live: frames from this ROS 2 topic (sensor_msgs/msg/Image or CompressedImage; the "
+            "calibration from its sibling camera_info topic unless --calibration).", panel="Live robot"),
+    Setting("calibration", Path, "With --live: the camera's calibration (ROS camera_info YAML or OpenCV YAML/JSON).", panel="Live robot"),
+    Setting("ros2_cmd", str, "With --live: publish geometry_msgs/msg/Twist commands on this ROS 2 topic (reliable QoS). "
+            f"Default {ROS_CMD_VEL_TOPIC} unless only --cmd-out is given.", panel="Live robot"),
+    Setting("cmd_type", str, "With --ros2-cmd: twist or twist-stamped.", default="twist", panel="Live robot"),
+    Setting("stale_timeout", float, "With --live: send zero commands when no frame came for this long (s).",
+            default=DEFAULT_STALE_TIMEOUT, panel="Live robot", bounds={"min": 0.01}),
+    Setting("dry_run", bool, "With --live: measure and compute everything, but publish zero commands.", default=False,
+            panel="Live robot"),
 )
 
 #: The settings by name.
@@ -271,3 +295,29 @@ def _is_list(cls: type, name: str) -> bool:
 
 #: The fields of ``hbvs teach``'s options (the stage's ``TeachOptions`` adds its methods).
 TeachFields = options_class("TeachFields", TEACH_SETTINGS, "Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``).")
+
+
+#: ``hbvs robot-sim``: a stand-in robot in its own process, over ROS 2 (docs/robot.md).
+ROBOT_SIM_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "Fit MCAP file (from hbvs fit): its taught world is rendered.", argument=True),
+    Setting("ros2", bool, "Speak ROS 2 over DDS (pip install 'hbvs\\[ros2]').", default=False),
+    Setting("mjpeg", int, "Without ROS: serve the camera as MJPEG on http://127.0.0.1:PORT/ (repeat --live --camera URL).",
+            bounds={"min": 1, "max": 65535}),
+    Setting("cmd_in", str, "Without ROS: the commands as JSON lines {\"v\", \"w\"} (repeat --cmd-out) from FILE, FIFO or -."),
+    Setting("offset", str, "Start pose offset DX,DY,DTHETA (m, m, deg) from the taught start, as repeat --sim.",
+            default=DEFAULT_OFFSET),
+    Setting("rate", float, "Camera rate (Hz).", shown="the taught rate", bounds={"min": 0.1}),
+    Setting("depth", float, "Assumed d* (m) to build a world when the teach came from real footage.", bounds={"min": 0.0}),
+    Setting("seed", int, "Seed of the sensor noise.", default=0, bounds={"min": 0}),
+    Setting("duration", float, "Seconds to run (default: until Ctrl-C or SIGTERM).", bounds={"min": 0.0}),
+    Setting("image_topic", str, "Camera topic (sensor_msgs/msg/Image; CameraInfo on the sibling camera_info topic).",
+            default=ROS_LIVE_IMAGE_TOPIC),
+    Setting("image_format", str, "raw (sensor_msgs/msg/Image) or jpeg (CompressedImage on IMAGE_TOPIC/compressed).",
+            default="raw"),
+    Setting("cmd_topic", str, "Command topic (geometry_msgs/msg/Twist or TwistStamped, as --cmd-type).", default=ROS_CMD_VEL_TOPIC),
+    Setting("cmd_type", str, "twist or twist-stamped.", default="twist"),
+    Setting("poses_out", str, "Also write the true pose of every frame as JSON lines (stamp, x, y, phi) to FILE or -."),
+    Setting("occlude", str, "Hide the target from START to END seconds after the start (a blank frame), e.g. 3:5.",
+            repeatable=True),
+)
+RobotSimOptions = options_class("RobotSimOptions", ROBOT_SIM_SETTINGS, "Everything ``hbvs robot-sim`` was asked to do.")

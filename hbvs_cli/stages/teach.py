@@ -40,7 +40,8 @@ class TeachOptions(TeachFields):
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
-        given = [name for name, value in (("video", self.video), ("images", self.images), ("camera", self.camera), ("bag", self.bag)) if value is not None]
+        given = [name for name, value in (("video", self.video), ("images", self.images), ("camera", self.camera), ("bag", self.bag),
+                                          ("ros2", self.ros2_image)) if value is not None]
         if self.sim:
             given.insert(0, "sim")
         if len(given) > 1:
@@ -67,10 +68,12 @@ class TeachOptions(TeachFields):
         if kind == "sim":
             # The simulator's frames are gray whatever --gray says, so --gray is not recorded.
             # The simulator is the default source: "sim" is true with or without --sim.
-            simulated = {key: value for key, value in recorded.items() if key not in ("cmd_topic", "gray")}
+            simulated = {key: value for key, value in recorded.items()
+                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd")}
             return {**simulated, "sim": True}
         names = {field.name for field in fields(self)}
-        keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set())
+        keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
+            {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
         return {key: value for key, value in recorded.items() if key in keep and key in names}
 
 
@@ -100,6 +103,8 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     kind = options.source_kind()
     if options.cmd_topic is not None and kind != "bag":
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
+    if options.ros2_cmd is not None and kind != "ros2":
+        raise UsageError(f"--ros2-cmd goes with --ros2-image, not --{kind}")
     if kind == "sim":
         return _teach_simulated(options.for_simulation(), console)
     return _teach_from_source(kind, options, console)
@@ -197,6 +202,10 @@ def _load_camera(path: Path, source: sources.FrameSource | None = None, console:
 
 
 def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
+    if kind == "ros2":
+        from ..io.sources.ros2_topic import Ros2TopicSource  # lazy: an optional extra
+
+        return Ros2TopicSource(options.ros2_image, options.ros2_cmd, options.duration)
     spec = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
     fps = DEFAULT_FPS if kind == "images" and options.fps is None else options.fps
     return sources.open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
@@ -207,8 +216,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
     if given:
         verb = "describes" if len(given) == 1 else "describe"
         raise UsageError(f"{', '.join(given)} {verb} the simulated robot and camera, not --{kind}: leave {'it' if len(given) == 1 else 'them'} out")
-    if options.fps is not None and kind in ("camera", "bag"):
-        clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps"
+    if options.fps is not None and kind in ("camera", "bag", "ros2"):
+        clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps" if kind == "bag" else "their header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
@@ -240,7 +249,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
                     last_t = frame.t
                     bar.advance()
             except KeyboardInterrupt:
-                if kind != "camera":
+                if kind not in ("camera", "ros2"):
                     raise
                 # Ctrl-C is how a live recording ends, wherever it lands: keep what was recorded.
                 interrupted = True

@@ -1,0 +1,183 @@
+"""The live robot's ROS 2 endpoints: the newest camera frame in, velocity commands out.
+
+:class:`LatestImage` subscribes to a ``sensor_msgs/msg/Image`` or ``CompressedImage`` topic
+(whichever its publisher sends, found by DDS discovery) with the sensor-data QoS and hands
+out only the newest frame: the frames that arrived while the previous one was processed are
+taken too, and counted as dropped, never queued. :class:`CommandPublisher` sends
+``geometry_msgs/msg/Twist`` (or ``TwistStamped``) with ROS 2's default QoS (reliable).
+Messages, names and QoS: :mod:`hbvs_cli.io.ros2_dds`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from ..core.camera import CameraIntrinsics
+from ..errors import InputError
+from . import ros2_dds as dds
+from .live_frame import LiveFrame
+from .sources.ros_images import compressed_to_image8, raw_to_image8
+from .sources.rosbag import BagSource
+
+#: Seconds to wait for a camera topic's publisher and its CameraInfo (a node may still be starting).
+DISCOVERY_TIMEOUT_S = 10.0
+
+
+def image_message_type(topic: str) -> type:
+    """The message type of an image topic, by image_transport's naming: ``.../compressed`` is
+    a ``CompressedImage``, anything else an ``Image``. (Cyclone's Python binding cannot read
+    the discovery topics reliably, so the publisher's type is not looked up.)"""
+    return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
+
+
+def _ros_name(message_type: type) -> str:
+    return next(name for name, kind in dds.MESSAGE_TYPES.items() if kind is message_type)
+
+
+class LatestImage:
+    """The newest frame of an image topic.
+
+    Parameters
+    ----------
+    node : Ros2Node
+    topic : str
+        The ROS 2 image topic (``/camera/image_raw``, ``/camera/image_raw/compressed``).
+    discovery_timeout_s : float
+        How long to wait for its publisher.
+    """
+
+    def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
+        from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
+
+        self.topic = topic
+        self.message_type = image_message_type(topic)
+        self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
+        self._waitset = WaitSet(node.participant)
+        self._waitset.attach(ReadCondition(self.reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+        self._wait_for_publisher(discovery_timeout_s)
+
+    def _wait_for_publisher(self, timeout_s: float) -> None:
+        """Wait until a publisher of this type matches (a publisher of another type never does)."""
+        deadline = time.monotonic() + timeout_s
+        while self.reader.get_subscription_matched_status().current_count == 0:
+            if time.monotonic() > deadline:
+                raise InputError(
+                    f"{self.topic}: no {_ros_name(self.message_type)} publisher within {timeout_s:g} s (ROS_DOMAIN_ID "
+                    f"{dds.domain_id()}): the camera is not running, is on another network or domain, or publishes another "
+                    "type (CompressedImage topics end in /compressed)"
+                )
+            time.sleep(0.02)
+
+    def latest(self, timeout_s: float) -> LiveFrame | None:
+        """The newest frame, waiting up to ``timeout_s`` for one; None when none came."""
+        samples = self._valid(self.reader.take(N=64))
+        if not samples:
+            self._waitset.wait(int(max(timeout_s, 0.0) * 1e9))
+            samples = self._valid(self.reader.take(N=64))
+        if not samples:
+            return None
+        message = samples[-1]
+        arrival = _arrival(message)
+        image = decode_image_message(message, self.topic)
+        stamp = dds.seconds_of(message.header.stamp) or time.time()  # a driver that leaves it zero
+        return LiveFrame(image=image, stamp=stamp, arrival=arrival, skipped=len(samples) - 1)
+
+    @staticmethod
+    def _valid(samples: list[Any]) -> list[Any]:
+        # A publisher going away shows up as an "invalid sample" (no data): not a frame.
+        return [sample for sample in samples if hasattr(sample, "header")]
+
+
+#: Largest plausible transport delay (s): a publication time further back than this (or in
+#: the future) is on another host's clock, which says nothing about the arrival here.
+_SAME_CLOCK_S = 1.0
+
+
+def _arrival(message: Any) -> float:
+    """When the frame arrived (``time.monotonic()``): the camera's DDS publication time when
+    its clock is plainly this host's (the frame may have waited in the reader while the
+    previous one was processed, and that wait counts), else now, when hbvs took it."""
+    now, wall = time.monotonic(), time.time()
+    info = getattr(message, "sample_info", None)
+    source_ns = getattr(info, "source_timestamp", None)
+    if isinstance(source_ns, int) and source_ns > 0:
+        waited = wall - source_ns * 1e-9
+        if 0.0 <= waited < _SAME_CLOCK_S:
+            return now - waited
+    return now
+
+
+def decode_image_message(message: Any, topic: str) -> np.ndarray:
+    """A ``sensor_msgs`` Image or CompressedImage as 8-bit gray or BGR.
+
+    Raises
+    ------
+    InputError
+        An encoding hbvs does not read, or data that do not match the size.
+    """
+    if isinstance(message, dds.CompressedImage):
+        return compressed_to_image8(message, topic)[0]
+    if message.encoding == "mono8" and message.step == message.width:
+        # The common case, without a conversion: the data are the image.
+        data = np.frombuffer(message.data, dtype=np.uint8)
+        if data.size != message.width * message.height:
+            raise InputError(f"{topic}: {data.size} bytes of data, expected {message.width * message.height} ({message.height} rows of {message.width})")
+        return data.reshape(message.height, message.width)
+    return raw_to_image8(message, topic)
+
+
+def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVERY_TIMEOUT_S) -> CameraIntrinsics:
+    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``.
+
+    Raises
+    ------
+    InputError
+        None within ``timeout_s``, or one hbvs cannot use (all-zero K, binning, a ROI).
+    """
+    from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
+
+    # Best effort: matches the camera's CameraInfo whether it is published reliably or not.
+    reader = node.subscriber(topic, dds.CameraInfo, dds.sensor_qos())
+    waitset = WaitSet(node.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    deadline = time.monotonic() + timeout_s
+    while True:
+        infos = [sample for sample in reader.take(N=8) if hasattr(sample, "header")]
+        if infos:
+            camera, problem = BagSource._camera_from_info(infos[-1], topic)
+            if camera is None:
+                raise InputError(problem or f"{topic}: unusable CameraInfo")
+            return camera
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise InputError(f"{topic}: no CameraInfo within {timeout_s:g} s; give the calibration with --calibration")
+        waitset.wait(int(left * 1e9))
+
+
+class CommandPublisher:
+    """Velocity commands on a ROS 2 topic (reliable, keep last 10).
+
+    Parameters
+    ----------
+    node : Ros2Node
+    topic : str
+    stamped : bool
+        ``geometry_msgs/msg/TwistStamped`` (frame ``base_link``) instead of ``Twist``.
+    """
+
+    def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
+        self.topic = topic
+        self.stamped = stamped
+        self.writer = node.publisher(topic, dds.TwistStamped if stamped else dds.Twist, dds.command_qos())
+
+    def publish(self, v: float, w: float, stamp: float | None = None) -> None:
+        """Send ``(v, w)`` (m/s, rad/s), stamped ``stamp`` (s; now when None) if stamped."""
+        twist = dds.Twist(linear=dds.Vector3(x=float(v)), angular=dds.Vector3(z=float(w)))
+        if self.stamped:
+            header = dds.Header(stamp=dds.stamp_of(time.time() if stamp is None else stamp), frame_id="base_link")
+            self.writer.write(dds.TwistStamped(header=header, twist=twist))
+        else:
+            self.writer.write(twist)

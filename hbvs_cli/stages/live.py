@@ -1,0 +1,324 @@
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md); the loop and
+its stops, wired by :func:`hbvs_cli.stages.repeat._run_live`.
+
+Every camera frame that arrives is measured by the fit's detector and estimator, and
+decided by the same per-frame step as ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`:
+state filter, law, actuator limits, adaptation); the command goes out at once, to a ROS 2
+topic (``--ros2-cmd``) and/or as JSON lines (``--cmd-out``). Only the newest frame is
+measured: frames that arrived while the previous one was processed are dropped and counted.
+
+Safety, on every way out: zero commands (several, on the reliable topic) when the
+trajectory ends, when the target is lost (at once; the run stops after ``--lost-timeout``,
+exit 5), when no frame came for ``--stale-timeout``, and on Ctrl-C, SIGTERM, a closed output
+or any error. The first non-zero command goes out only once the target has been seen near
+its taught start view in :data:`START_FRAMES` frames in a row; a robot that is not there
+is told how far off it seems (exit 8). ``--dry-run`` does everything but publishes zeros.
+
+Run time ``t`` is the frame's stamp minus the first tracked frame's; the run file has, per
+step, the controller's state as in ``--sim`` and the loop's timing on ``/repeat/timing``
+(frame stamp, latency from the frame's arrival to the command's publication, frame
+interval, frames dropped).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, replace
+from typing import IO, Any, Callable
+
+import numpy as np
+
+from ..core.simulator import ServoStep
+from ..errors import InputError, NotAtStartError, TargetLostError, UsageError
+from ..io.calibration import load_calibration
+from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.run_file import RunWriter
+from ..io.topics import ROS_CMD_VEL_TOPIC
+from .settings import RepeatOptions
+
+#: Consecutive frames with the target seen near its taught start view before the first
+#: non-zero command.
+START_FRAMES = 5
+#: How far from the taught start a live run may begin: the distance (m, at the fit's
+#: depth estimate) and heading (deg) between the view and the taught start's view. The
+#: default --offset of --sim is 0.11 m and 2 deg; these are about 3 and 7 times that.
+START_TOLERANCE_M = 0.3
+START_TOLERANCE_DEG = 15.0
+#: Zero commands sent at each stop (a reliable topic delivers each; more than one in case
+#: a subscriber joined late or the robot's driver drops one).
+ZERO_REPEATS = 3
+#: A frame is "late" when its interval exceeds this many control periods.
+LATE_FACTOR = 1.5
+#: Largest relative difference between the given calibration and the fit's camera.
+CALIBRATION_TOLERANCE = 0.02
+
+
+class CommandOut:
+    """Where commands go: a ROS 2 topic and/or a JSON-lines stream; zero on :meth:`stop`."""
+
+    def __init__(self, publish: Callable[[float, float], None] | None, stream: IO[str] | None, dry_run: bool) -> None:
+        self._publish = publish
+        self._stream = stream
+        self.dry_run = dry_run
+        self.sent = 0
+
+    def send(self, t: float, v: float, w: float) -> None:
+        if self.dry_run:
+            v, w = 0.0, 0.0
+        if self._publish is not None:
+            self._publish(v, w)
+        if self._stream is not None:
+            self._stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
+            self._stream.flush()
+        self.sent += 1
+
+    def stop(self, t: float) -> None:
+        """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
+        for _ in range(ZERO_REPEATS):
+            if self._publish is not None:
+                try:
+                    self._publish(0.0, 0.0)
+                except Exception:  # noqa: BLE001 - stopping must reach every output it can
+                    pass
+        if self._stream is not None:
+            try:
+                self._stream.write(json.dumps({"t": round(t, 9), "v": 0.0, "w": 0.0}) + "\n")
+                self._stream.flush()
+            except (OSError, ValueError):
+                pass
+
+
+def check_live_options(options: RepeatOptions) -> None:
+    if (options.camera is None) == (options.ros2_image is None):
+        raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
+    if options.camera is not None and options.calibration is None:
+        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
+    if options.cmd_type not in ("twist", "twist-stamped"):
+        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {options.cmd_type!r}")
+    for name in ("occlude", "drop_rate", "outlier_rate", "exposure_step", "record_images", "depth"):
+        value = getattr(options, name)
+        if value not in (None, False, 0.0, []):
+            raise UsageError(f"--{name.replace('_', '-')} is for --sim; a live run's faults are real")
+
+
+def command_topic(options: RepeatOptions) -> str | None:
+    """The ROS 2 command topic: --ros2-cmd, else /cmd_vel unless only --cmd-out was given."""
+    if options.ros2_cmd is not None:
+        return options.ros2_cmd
+    if options.cmd_out is not None and options.ros2_image is None:
+        return None
+    return ROS_CMD_VEL_TOPIC
+
+
+def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
+    """The live camera must be the fit's: same size, intrinsics within 2 %."""
+    if (camera.width, camera.height) != (fit_camera.width, fit_camera.height):
+        raise InputError(f"{what}: {camera.width}x{camera.height}, the fit's camera is {fit_camera.width}x{fit_camera.height}")
+    for name in ("fx", "fy", "cx", "cy"):
+        live, taught = float(getattr(camera, name)), float(getattr(fit_camera, name))
+        if abs(live - taught) > CALIBRATION_TOLERANCE * max(abs(taught), 1.0):
+            raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
+
+
+def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
+    """The frame source and the camera's intrinsics. A ROS 2 camera's publisher and
+    CameraInfo are awaited for the discovery time, or ``lost_timeout`` (s) if longer: a
+    camera node may still be starting."""
+    if options.camera is not None:
+        from ..io.sources.live_camera import LatestCameraFrame
+
+        camera = load_calibration(options.calibration)
+        return stack.enter_context(LatestCameraFrame(options.camera)), camera
+    from ..io import ros2_dds as dds
+    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
+
+    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
+    source = LatestImage(node, options.ros2_image, timeout_s)
+    if options.calibration is not None:
+        camera = load_calibration(options.calibration)
+    else:
+        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
+    return source, camera
+
+
+def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
+    """The observation of one live frame (the fit's detector and estimator)."""
+    image = frame.image
+    height, width = image.shape[:2]
+    if (width, height) != (model.camera.width, model.camera.height):
+        raise InputError(f"a live frame is {width}x{height}, the fit's camera {model.camera.width}x{model.camera.height}")
+    return estimator.from_pixels(detector.detect(image))
+
+
+@dataclass
+class LiveLoop:
+    """The loop of ``repeat --live``: frames in, commands out, the run file written.
+
+    Attributes
+    ----------
+    source : LatestImage or LatestCameraFrame
+        ``latest(timeout_s) -> LiveFrame | None``.
+    detector, estimator
+        The fit's (:mod:`hbvs_cli.perception.tracked`).
+    model : FitModel
+    trajectory : TimeScaledTrajectory
+        The desired signals over run time (s).
+    servo : ServoStep
+        The per-frame decision, as in ``--sim``.
+    out : CommandOut
+    run : RunWriter
+    log, tally
+        repeat's step log (the run file's messages) and summary.
+    options : RepeatOptions
+    settings
+        repeat's resolved settings (``lost_timeout``, ``dhat0``, ``rate``).
+    """
+
+    source: Any
+    detector: Any
+    estimator: Any
+    model: Any
+    trajectory: Any
+    servo: ServoStep
+    out: CommandOut
+    run: RunWriter
+    log: Any
+    tally: Any
+    options: RepeatOptions
+    settings: Any
+    #: Run time of the last step (s).
+    t: float = 0.0
+    #: Why the run stopped early (None: it ended with the trajectory).
+    stopped: str | None = None
+
+    def wait_for_start(self) -> None:
+        """Hold still until the target is seen near its taught start view in START_FRAMES
+        frames in a row; a robot seen elsewhere that many times is told how far off it is,
+        one that does not see the target for --lost-timeout that it does not.
+
+        Raises
+        ------
+        NotAtStartError
+            The robot is not at the taught start.
+        TargetLostError
+            No frame for --lost-timeout.
+        """
+        desired = self.trajectory.evaluate(0.0)
+        lost_timeout = self.settings.lost_timeout
+        near = far = 0
+        waited_since = seen_at = time.monotonic()
+        while near < START_FRAMES:
+            frame = self.source.latest(self.options.stale_timeout)
+            if frame is None:
+                if time.monotonic() - waited_since > lost_timeout:
+                    raise TargetLostError(f"no camera frame for {lost_timeout:g} s (--lost-timeout) before the start")
+                continue
+            waited_since = time.monotonic()
+            observation = measure(frame, self.detector, self.estimator, self.model)
+            self.out.send(0.0, 0.0, 0.0)
+            if observation.status != "ok" or observation.measurement is None:
+                near = far = 0
+                if time.monotonic() - seen_at > lost_timeout:
+                    raise NotAtStartError(
+                        f"the target is not in view ({observation.status} for {lost_timeout:g} s, --lost-timeout): "
+                        "the robot is not at the taught start, or its camera sees something else"
+                    )
+                continue
+            seen_at = time.monotonic()
+            m = observation.measurement
+            # x_h is x_f / d* (21): at the fit's depth estimate, metres.
+            distance = math.hypot(float(m.x_h1) - float(desired.x_hd1), float(m.x_h2) - float(desired.x_hd2)) * self.settings.dhat0
+            heading = math.degrees(abs(math.remainder(float(m.theta) - float(desired.theta_d), 2 * math.pi)))
+            if distance <= START_TOLERANCE_M and heading <= START_TOLERANCE_DEG:
+                near, far = near + 1, 0
+            else:
+                near, far = 0, far + 1
+                if far >= START_FRAMES:
+                    raise NotAtStartError(
+                        f"the robot seems {distance:.2f} m and {heading:.1f} deg from the taught start (at most "
+                        f"{START_TOLERANCE_M:g} m and {START_TOLERANCE_DEG:g} deg); put it there and start again"
+                    )
+
+    def drive(self) -> None:
+        """Until the trajectory ends, or the target or the camera is gone for --lost-timeout
+        (then :attr:`stopped` says why): each newest frame measured, decided, sent."""
+        period = 1.0 / self.settings.rate
+        duration = self.trajectory.t_end - self.trajectory.t_start
+        first_stamp: float | None = None
+        previous_stamp: float | None = None
+        last_arrival = time.monotonic()
+        lost_for = 0.0
+        while True:
+            frame = self._next_frame(last_arrival)
+            if frame is None:
+                return  # the camera is gone (self.stopped says so)
+            last_arrival = frame.arrival
+            if first_stamp is None:
+                first_stamp = frame.stamp
+                self.run.start(int(round(first_stamp * 1e9)))
+            if previous_stamp is not None and frame.stamp <= previous_stamp:
+                continue  # out of order (a camera's clock stepped): wait for a newer one
+            t = frame.stamp - first_stamp
+            if t >= duration:
+                self.t = t
+                self.run.event(t, LOG_INFO, "end of the taught trajectory: stopped")
+                return
+            interval = frame.stamp - previous_stamp if previous_stamp is not None else None
+            # The command is held until the next frame: about one frame interval.
+            dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
+            latency, record = self._step(frame, t, dt)
+            previous_stamp, self.t = frame.stamp, t
+            self.log.step(record)
+            self.run.timing(t, frame.stamp, latency, interval, frame.skipped,
+                            interval is not None and interval > LATE_FACTOR * period, self.options.dry_run)
+            self.tally.add(record)
+            lost_for = lost_for + dt if record.lost else 0.0
+            if lost_for > self.settings.lost_timeout:
+                self.stopped = f"the target was lost for more than --lost-timeout {self.settings.lost_timeout:g} s (at t = {t:.2f} s)"
+                self.run.event(t, LOG_ERROR, f"target lost for more than {self.settings.lost_timeout:g} s: run stopped")
+                return
+
+    def _step(self, frame: Any, t: float, dt: float) -> tuple[float, Any]:
+        """Measure, decide (:meth:`ServoStep.decide`), send; the latency (s) and the step's record."""
+        observation = measure(frame, self.detector, self.estimator, self.model)
+        record = self.servo.decide(t, _NO_POSE, observation, self.trajectory.evaluate(t), dt)
+        if record.lost:
+            # On a robot a lost target stops it at once (the simulator may coast on the filter).
+            record = replace(record, v_c=0.0, w_c=0.0)
+            self.servo.previous = (0.0, 0.0)
+        self.out.send(t, record.v_c, record.w_c)
+        latency = time.monotonic() - frame.arrival
+        self.servo.sent(dt)
+        return latency, record
+
+    def _next_frame(self, last_arrival: float) -> Any:
+        """The next frame; zero commands once none came for --stale-timeout; None (and
+        :attr:`stopped` set) when none came for --lost-timeout or the source ended."""
+        stale = False
+        while True:
+            wait = self.options.stale_timeout - (time.monotonic() - last_arrival)
+            frame = self.source.latest(wait) if wait > 0 else None
+            if frame is not None:
+                if stale:
+                    self.run.event(self.t, LOG_INFO, "camera frames back")
+                return frame
+            silent = time.monotonic() - last_arrival
+            if silent < self.options.stale_timeout:
+                continue
+            if not stale:
+                self.out.stop(self.t)
+                self.servo.previous = (0.0, 0.0)
+                self.run.event(self.t, LOG_WARNING, f"no camera frame for {self.options.stale_timeout:g} s (--stale-timeout): stopped")
+                stale = True
+            if silent > self.settings.lost_timeout or getattr(self.source, "ended", False):
+                self.stopped = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
+                self.run.event(self.t, LOG_ERROR, self.stopped + ": run stopped")
+                return None
+            time.sleep(0.001)
+
+
+#: A live run has no ground truth: the pose recorded with each step.
+_NO_POSE = np.full(3, np.nan)

@@ -1,0 +1,232 @@
+"""``hbvs robot-sim FIT --ros2`` (or ``--mjpeg PORT --cmd-in FILE``): a stand-in robot in its
+own process.
+
+It is what ``repeat --sim`` simulates, split off as a robot on the network: it starts at
+the taught start plus ``--offset`` in the fit's taught world (:func:`hbvs_cli.sim.simulation_world`),
+integrates the unicycle in real time under the latest velocity command it received,
+and renders the camera with the same renderer as ``repeat --sim`` at ``--rate``.
+
+``--ros2``: commands from ``/cmd_vel``; the camera published as a ROS 2 camera does:
+``sensor_msgs/msg/Image`` (or a JPEG ``CompressedImage``) with sensor-data QoS,
+``CameraInfo`` on the sibling ``camera_info`` topic, and the true pose as
+``geometry_msgs/msg/PoseStamped`` on ``/ground_truth/pose``; stamps are the wall clock (as
+ROS 2 drivers stamp). Without ROS: ``--mjpeg PORT`` serves the camera as an MJPEG stream on
+``http://127.0.0.1:PORT/`` (``repeat --live --camera URL``) and ``--cmd-in FILE|FIFO|-``
+reads the commands as the JSON lines ``repeat --cmd-out`` writes.
+
+Users try ``repeat --live`` against it before a robot; the tests run the live loop across
+processes with it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import IO, Any
+
+import numpy as np
+
+from ..core.desired import taught_frame_interval
+from ..core.frames import compose_planar_pose
+from ..core.unicycle import integrate_unicycle
+from ..errors import InputError, UsageError
+from ..io.fit_file import read_fit_file
+from ..io.images import encode_image
+from ..io.output_target import open_text_output
+from ..io.topics import ROS_TRUE_POSE_TOPIC
+from ..sim.scene import renderer_for, simulation_world
+from .console import Console
+from .options import parse_interval, parse_offset
+from .settings import RobotSimOptions
+
+
+@dataclass
+class RobotSimSummary:
+    frames: int
+    commands: int
+    final_pose: tuple[float, float, float]
+
+
+class _Ros2Robot:
+    """Commands from a ROS 2 Twist topic; camera, CameraInfo and true pose published."""
+
+    def __init__(self, options: RobotSimOptions, camera: Any) -> None:
+        from ..io import ros2_dds as dds  # lazy: an optional extra
+
+        self.dds = dds
+        self.jpeg = options.image_format == "jpeg"
+        self.info = dds.CameraInfo(
+            header=dds.Header(frame_id="camera_optical"), height=camera.height, width=camera.width,
+            distortion_model="plumb_bob", d=[0.0] * 5,
+            k=[camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0],
+            r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p=[camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        )
+        node = dds.Ros2Node()
+        image_topic = options.image_topic + ("/compressed" if self.jpeg else "")
+        self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.sensor_qos())
+        self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.sensor_qos())
+        self.pose_writer = node.publisher(ROS_TRUE_POSE_TOPIC, dds.PoseStamped, dds.command_qos())
+        self.stamped = options.cmd_type == "twist-stamped"
+        self.commands = node.subscriber(options.cmd_topic, dds.TwistStamped if self.stamped else dds.Twist, dds.command_qos())
+        self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()})"
+
+    def take_commands(self) -> list[tuple[float, float]]:
+        received = []
+        for sample in self.commands.take(N=32):
+            if not hasattr(sample, "linear") and not hasattr(sample, "twist"):
+                continue  # a publisher going away
+            twist = sample.twist if self.stamped else sample
+            received.append((float(twist.linear.x), float(twist.angular.z)))
+        return received
+
+    def publish(self, image: np.ndarray, stamp_s: float, pose: tuple[float, float, float]) -> None:
+        dds = self.dds
+        stamp = dds.stamp_of(stamp_s)
+        header = dds.Header(stamp=stamp, frame_id="camera_optical")
+        if self.jpeg:
+            self.image_writer.write(dds.CompressedImage(header=header, format="jpeg", data=encode_image(image, "jpeg")))
+        else:
+            colour = image.ndim == 3
+            self.image_writer.write(dds.Image(
+                header=header, height=image.shape[0], width=image.shape[1], encoding="bgr8" if colour else "mono8",
+                step=image.shape[1] * (3 if colour else 1), data=np.ascontiguousarray(image).tobytes(),
+            ))
+        self.info.header = header
+        self.info_writer.write(self.info)
+        x, y, phi = pose
+        self.pose_writer.write(dds.PoseStamped(
+            header=dds.Header(stamp=stamp, frame_id="world"),
+            pose=dds.Pose(position=dds.Point(x=x, y=y), orientation=dds.Quaternion(z=math.sin(phi / 2), w=math.cos(phi / 2))),
+        ))
+
+    def close(self) -> None:
+        pass
+
+
+class _PlainRobot:
+    """Without ROS: the camera as MJPEG over HTTP on 127.0.0.1, commands as JSON lines."""
+
+    def __init__(self, options: RobotSimOptions) -> None:
+        from ..io.mjpeg_server import MjpegServer
+
+        self._source = options.cmd_in
+        self._lock = threading.Lock()
+        self._received: list[tuple[float, float]] = []
+        self._problem: str | None = None
+        self._server = MjpegServer(options.mjpeg)
+        # The commands are opened by the reader: a FIFO's open waits for its writer, and the
+        # camera must be served meanwhile (the writer looks at it first).
+        self._reader = threading.Thread(target=self._read, name="hbvs-cmd-in", daemon=True)
+        self._reader.start()
+        self.description = f"http://127.0.0.1:{options.mjpeg}/ (MJPEG), commands from {options.cmd_in}"
+
+    def _read(self) -> None:
+        try:
+            stream: IO[str] = sys.stdin if self._source == "-" else open(self._source, encoding="utf-8")  # noqa: SIM115
+        except OSError as exc:
+            with self._lock:
+                self._problem = f"--cmd-in {self._source}: {exc.strerror}"
+            return
+        for number, line in enumerate(stream, 1):
+            if not line.strip():
+                continue
+            try:
+                data = json.loads(line)
+                command = (float(data["v"]), float(data["w"]))
+            except (ValueError, KeyError, TypeError):
+                with self._lock:
+                    self._problem = f"--cmd-in line {number}: not a command (a JSON object with v and w): {line.strip()[:80]!r}"
+                return
+            with self._lock:
+                self._received.append(command)
+
+    def take_commands(self) -> list[tuple[float, float]]:
+        with self._lock:
+            if self._problem is not None:
+                raise InputError(self._problem)
+            received, self._received = self._received, []
+        return received
+
+    def publish(self, image: np.ndarray, stamp_s: float, pose: tuple[float, float, float]) -> None:
+        self._server.publish(encode_image(image, "jpeg"))
+
+    def close(self) -> None:
+        self._server.close()
+
+
+def _transport(options: RobotSimOptions, camera: Any) -> Any:
+    plain = options.mjpeg is not None or options.cmd_in is not None
+    if options.ros2 == plain:
+        raise UsageError("robot-sim needs one transport: --ros2 (ROS 2 topics over DDS), or --mjpeg PORT with --cmd-in FILE")
+    if plain and (options.mjpeg is None or options.cmd_in is None):
+        raise UsageError("--mjpeg PORT and --cmd-in FILE go together (the camera out, the commands in)")
+    return _Ros2Robot(options, camera) if options.ros2 else _PlainRobot(options)
+
+
+def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary:
+    """Run the stand-in robot until ``--duration`` or a stop signal."""
+    if options.image_format not in ("raw", "jpeg"):
+        raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
+    if options.cmd_type not in ("twist", "twist-stamped"):
+        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {options.cmd_type!r}")
+    fit = read_fit_file(options.input)
+    model = fit.model
+    taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
+    rate = float(options.rate) if options.rate is not None else 1.0 / taught
+    scene = simulation_world(model, fit.reference_image, options.depth)
+    renderer = renderer_for(scene, model)
+    rng = np.random.default_rng(options.seed)
+    pose = tuple(float(v) for v in compose_planar_pose(scene.taught_pose_at_run_time(0.0), parse_offset(options.offset)))
+    camera = model.camera
+    if camera.distortion_model != "none" and any(camera.distortion):
+        raise UsageError("robot-sim renders an undistorted camera; this fit's camera has lens distortion")
+    occlusions = [parse_interval(text, "--occlude") for text in options.occlude]
+    robot = _transport(options, camera)
+    console.info(f"robot-sim: {camera.width}x{camera.height} at {rate:g} Hz on {robot.description}")
+    frames = received = 0
+    interrupted = False
+    command = (0.0, 0.0)
+    period = 1.0 / rate
+    try:
+        with open_text_output(options.poses_out, "pose stream") as poses_out:
+            start = last = time.monotonic()
+            try:
+                while options.duration is None or last - start < options.duration:
+                    next_frame = start + frames * period
+                    # Until the next frame is due: apply each command from the moment it arrives.
+                    while True:
+                        now = time.monotonic()
+                        for new in robot.take_commands():
+                            pose = integrate_unicycle(pose, command[0], command[1], now - last)
+                            last, command = now, new
+                            received += 1
+                        if now >= next_frame:
+                            break
+                        time.sleep(min(0.002, next_frame - now))
+                    now = time.monotonic()
+                    pose = integrate_unicycle(pose, command[0], command[1], now - last)
+                    last = now
+                    stamp = time.time()
+                    image = renderer.render(np.array(pose), rng)
+                    occluded = any(begin <= now - start < end for begin, end in occlusions)
+                    if occluded:
+                        image[...] = int(np.mean(image))  # nothing to see: the target is covered
+                    robot.publish(image, stamp, pose)
+                    if poses_out is not None:
+                        x, y, phi = pose
+                        poses_out.write(json.dumps({"stamp": stamp, "x": x, "y": y, "phi": phi,
+                                                    "v": command[0], "w": command[1], "occluded": occluded}) + "\n")
+                        poses_out.flush()
+                    frames += 1
+            except KeyboardInterrupt:
+                interrupted = True  # Ctrl-C is how a stand-in ends: keep its poses
+    finally:
+        robot.close()
+    console.info(f"robot-sim: {frames} frames, {received} commands{' (stopped by Ctrl-C)' if interrupted else ''}; "
+                 f"final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, phi {math.degrees(pose[2]):.2f} deg")
+    return RobotSimSummary(frames=frames, commands=received, final_pose=pose)
