@@ -72,6 +72,153 @@ def test_a_dead_worker_has_its_run_retried_and_a_killer_run_is_recorded(tmp_path
         assert len(Path(f"{attempts}-0").read_text().split()) == 1
 
 
+class _FakeFuture:
+    def __init__(self, key, batch):
+        self.key, self.batch, self.status, self.doomed = key, batch, "pending", False
+
+    def release(self):
+        pass
+
+
+#: Keys of the fake batches that started (what run_batch sets on the scheduler).
+_STARTED: set = set()
+
+
+class _FakeClient:
+    """Runs batches in submission order; see :class:`_DyingCluster`."""
+
+    def scheduler_info(self):
+        return {"workers": {"a": {}, "b": {}}}
+
+    def get_metadata(self, key, default):
+        return key in _STARTED or default
+
+    def submit(self, function, *args, key, pure, retries):
+        return _FakeFuture(key, args[1])
+
+
+class _DyingCluster:
+    """``as_completed`` of a cluster where a batch holding task 3 kills its worker, and
+    every other batch in flight at that moment is lost with it (the worst case of runs that
+    shared the dying worker or its queued results): what made a healthy run look like a
+    killer when the rule depended on who happened to be running."""
+
+    def __init__(self, with_results, raise_errors):
+        self.futures, self.submitted = [], []
+
+    def dies_before_start(self, future):
+        return False
+
+    def add(self, future):
+        self.futures.append(future)
+        self.submitted.append(future.key)
+
+    def has_ready(self):
+        return bool(self.futures)
+
+    def is_empty(self):
+        return not self.futures
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        from hbvs_cli.sweep.engine import run_batch
+
+        if not self.futures:
+            raise StopIteration
+        future = self.futures.pop(0)
+        if self.dies_before_start(future):
+            future.status = "error"
+            error = RuntimeError("KilledWorker: its workers died before it started")
+            return future, (type(error), error, None)
+        if any(task.index == 3 for task in future.batch):
+            _STARTED.add(future.key)
+        if future.doomed or any(task.index == 3 for task in future.batch):
+            for other in self.futures:
+                other.doomed = True
+            future.status = "error"
+            error = RuntimeError("KilledWorker: a worker died running it")
+            return future, (type(error), error, None)
+        future.status = "finished"
+        return future, run_batch(_ok, future.batch)
+
+
+def _ok(task):
+    return {"index": task.index, "status": "ok"}
+
+
+@pytest.mark.parametrize("in_flight", [1, 2, 4, 8])
+def test_only_the_run_that_kills_its_worker_with_the_cluster_to_itself_is_recorded(monkeypatch, in_flight):
+    """The rule is deterministic: runs lost beside a killer are run again, and a run is
+    recorded as lost only after it failed while nothing else was in flight."""
+    import distributed
+
+    from hbvs_cli.sweep.engine import run_tasks
+
+    clusters = []
+    monkeypatch.setattr(distributed, "as_completed", lambda **kw: clusters.append(_DyingCluster(**kw)) or clusters[-1])
+    rows, lost = [], []
+
+    def on_lost(task, error):
+        lost.append(task.index)
+        return {"index": task.index, "status": "failed"}
+
+    produced = run_tasks(_FakeClient(), (Task(i, "") for i in range(12)), _ok, rows.append, on_lost, in_flight=in_flight,
+                         key_prefix="fake", total=12)
+    assert produced == 12 and lost == [3]
+    assert {r["index"]: r["status"] for r in rows} == {i: "failed" if i == 3 else "ok" for i in range(12)}
+
+
+class _RestartingWorkers(_DyingCluster):
+    """Also: task 4's first two runs alone meet workers that die while being restarted,
+    before it starts (what Dask counted against a healthy run at load 20)."""
+
+    def dies_before_start(self, future):
+        return [task.index for task in future.batch] == [4] and len(_keys_of_4(self.submitted)) <= 2
+
+
+def _keys_of_4(keys):
+    return [key for key in keys if key == "fake-4" or key.startswith("fake-4-")]
+
+
+def test_a_run_whose_workers_die_before_it_starts_is_run_again_not_recorded(monkeypatch):
+    import distributed
+
+    from hbvs_cli.sweep.engine import run_tasks
+
+    clusters = []
+    monkeypatch.setattr(distributed, "as_completed", lambda **kw: clusters.append(_RestartingWorkers(**kw)) or clusters[-1])
+    rows, lost = [], []
+    produced = run_tasks(_FakeClient(), (Task(i, "") for i in range(8)), _ok, rows.append,
+                         lambda task, error: lost.append(task.index) or {"index": task.index, "status": "failed"},
+                         in_flight=1, key_prefix="fake", total=8)
+    assert produced == 8 and lost == [3]
+    assert len(_keys_of_4(clusters[0].submitted)) == 3  # twice its workers died before it started, then it ran
+
+
+class _NoWorkers(_FakeClient):
+    def scheduler_info(self):
+        return {"workers": {}}
+
+
+class _NeverDone(_DyingCluster):
+    def has_ready(self):
+        return False
+
+
+def test_a_cluster_left_without_workers_stops_the_sweep_instead_of_waiting_forever(monkeypatch):
+    import distributed
+
+    from hbvs_cli.errors import OutputError
+    from hbvs_cli.sweep.engine import run_tasks
+
+    monkeypatch.setattr(distributed, "as_completed", lambda **kw: _NeverDone(**kw))
+    with pytest.raises(OutputError, match="no worker for 0.3 s.*the same command resumes"):
+        run_tasks(_NoWorkers(), (Task(i, "") for i in range(3)), _ok, [].append, None, in_flight=2, key_prefix="none",
+                  no_worker_seconds=0.3)
+
+
 def test_batches_hold_a_second_of_cpu_time_and_shrink_to_single_runs_at_the_end():
     from hbvs_cli.sweep.engine import BATCH_CPU_SECONDS, BATCH_WALL_SECONDS, MAX_BATCH, BatchSizer
 

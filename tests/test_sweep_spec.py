@@ -182,6 +182,7 @@ def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tm
     for index in order[:150]:
         first.append({"index": index, "value": index / 10, "status": "ok"})
     assert first.finish() == 150
+    first.release()  # as the sweep does when it ends: the folder's lock
     monkeypatch.setattr(results, "MERGE_WINDOW", 37)
     second = results.ResultsTable(folder, schema, {"spec": 1}, flush_rows=16, flush_seconds=1e9)
     assert second.done == set(order[:150])

@@ -23,7 +23,7 @@ import typer
 
 
 from .. import __version__
-from ..errors import HbvsError, OutputError
+from ..errors import HbvsError, InputError, OutputError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
@@ -73,7 +73,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -137,7 +137,7 @@ def report(
     fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
     export_tum: Annotated[Optional[Path], typer.Option("--export-tum", help="Write taught and repeated trajectories in TUM format into this folder.")] = None,
     tolerance: Annotated[Optional[List[str]], typer.Option("--tolerance", help="Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.")] = None,
-    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI.")] = False,
+    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI. For a sweep's folder: unless every planned run converged (failed, stopped and missing runs count as not converged).")] = False,
     label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
     dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
     size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with --panels position,heading,v,w,top.", rich_help_panel="Figure")] = None,
@@ -163,12 +163,13 @@ def report(
 def export(
     input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
     output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
+    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing bag even when the input ended early (no end record: the writer upstream died).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
 ) -> None:
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
     from ..stages.export import ExportOptions, run_export
 
-    run_export(ExportOptions(input=input, output=output), _console(quiet))
+    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), _console(quiet))
 
 
 # --------------------------------------------------------------------------- info
@@ -198,6 +199,7 @@ def sweep(
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
     cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs\\[sweep-cluster]').", rich_help_panel="Engine")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
+    dashboard: Annotated[Optional[str], typer.Option("--dashboard", metavar="[HOST:]PORT", help="Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on HOST:PORT (0.0.0.0 only if you name it).", rich_help_panel="Engine")] = None,
     keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON instead of tables.")] = False,
     plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Draw the summary figures into the results folder.")] = True,
@@ -210,7 +212,7 @@ def sweep(
         SweepOptions(
             fit=fit, output=output, spec=spec, vary=list(vary or []), fixed=list(fixed or []), repeats=repeats, seed=seed,
             sampling=sampling, samples=samples, scheduler=scheduler, cluster=cluster, workers=workers, keep_runs=keep_runs,
-            json_output=json_output, plots=plots,
+            json_output=json_output, plots=plots, dashboard=dashboard,
         ),
         _console(quiet),
     )
@@ -488,6 +490,28 @@ class _ClosedStdout:
         return 1
 
 
+class _ClosedStdin:
+    """What sys.stdin is when hbvs was started with stdin closed (``<&-``): reading "-" is
+    an input error (exit 3), not a crash."""
+
+    encoding = "utf-8"
+
+    def _closed(self, *args: Any) -> Any:
+        raise InputError("stdin: it is closed; give the input as a file instead of -")
+
+    read = readline = _closed
+
+    @property
+    def buffer(self) -> Any:
+        return self._closed()
+
+    def isatty(self) -> bool:
+        return False
+
+    def fileno(self) -> int:
+        return self._closed()
+
+
 def _prepare_stdio(debug: bool) -> None:
     """Closed stdio, native logging and warnings, before any command runs.
 
@@ -499,8 +523,11 @@ def _prepare_stdio(debug: bool) -> None:
     are not shown: hbvs reports problems in its own words.
     """
     global _stdout_at_start
+    stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
     _stdout_at_start = _stdout_identity()
+    if stdin_closed:
+        sys.stdin = _ClosedStdin()  # type: ignore[assignment]
     if sys.stdout is None or stdio_closed(1):
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
     if sys.stderr is None or stdio_closed(2):

@@ -17,6 +17,11 @@ name                      default      what it bounds
 ``chunk-messages``        262 144      messages in one MCAP chunk
 ``input-bytes``           64 GiB       bytes read from one MCAP file or stream, after
                                        decompression
+``decompressed-bytes``    1 GiB        bytes one file of a file-compressed ROS 2 bag
+                                       expands to (in TMPDIR), streamed and counted
+``sweep-runs``            1 000 000    runs of one ``hbvs sweep`` (values of a grid axis,
+                                       samples, and their product times the repeats),
+                                       checked before the plan is built
 ========================= ============ ======================================================
 """
 
@@ -24,8 +29,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
-from ..errors import LimitExceededError, UsageError
+from ..errors import HbvsError, InputError, LimitExceededError, UsageError
 
 
 @dataclass(frozen=True)
@@ -44,6 +50,8 @@ LIMITS: dict[str, Limit] = {
         Limit("messages", 2**22, "messages"),
         Limit("chunk-messages", 2**18, "messages"),
         Limit("input-bytes", 64 * 2**30, "bytes"),
+        Limit("decompressed-bytes", 2**30, "bytes"),
+        Limit("sweep-runs", 1_000_000, "runs"),
     )
 }
 
@@ -117,3 +125,80 @@ def step_count(duration_s: float, rate_hz: float, what: str) -> int:
     steps = duration_s * rate_hz
     check("steps", steps, what)
     return int(round(steps))
+
+
+#: Nodes a YAML document may have once its aliases are expanded: a calibration file has a
+#: few dozen, a bag's metadata.yaml a few thousand. Aliases make a small file a huge value
+#: ("billion laughs"): 1.4 KB of nested aliases cost 2.2 GB once printed.
+MAX_YAML_NODES = 200_000
+
+
+def _expanded_nodes(root: Any, budget: int) -> int:
+    """Nodes of a composed YAML node with every alias expanded, counted without expanding
+    (each distinct node once, memoised); stops above ``budget``. A node that contains
+    itself counts as unbounded."""
+    import yaml
+
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if key in sizes:
+            continue
+        children: list[Any] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [item for pair in node.value for item in pair]
+        if done:
+            active.discard(key)
+            sizes[key] = min(budget + 1, 1 + sum(sizes[id(child)] for child in children))
+            continue
+        if key in active:
+            return budget + 1  # an alias to itself: infinite once expanded
+        active.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in active:
+                return budget + 1
+            if id(child) not in sizes:
+                stack.append((child, False))
+    return sizes[id(root)]
+
+
+def load_yaml_documents(text: str, name: str, max_nodes: int = MAX_YAML_NODES, error: type[HbvsError] = InputError) -> list[Any]:
+    """Every document of a YAML text (safe types only), refused when its aliases expand to
+    more than ``max_nodes`` nodes, before anything is built, printed or ``repr()``-ed.
+
+    Raises
+    ------
+    error (InputError by default)
+        Aliases that expand beyond ``max_nodes`` (or refer to themselves): a hostile or
+        broken file, not a size to raise; the message names the top-level key.
+    yaml.YAMLError
+        Malformed YAML (the caller words it).
+    """
+    import yaml
+
+    loader = yaml.SafeLoader(text)
+    try:
+        documents = []
+        while loader.check_node():
+            node = loader.get_node()
+            if node is None:
+                continue
+            if _expanded_nodes(node, max_nodes) > max_nodes:
+                where = ""
+                if isinstance(node, yaml.MappingNode):
+                    keys = [k for k, v in node.value if _expanded_nodes(v, max_nodes) > max_nodes // 2]
+                    if keys and isinstance(keys[0], yaml.ScalarNode):
+                        where = f" in {str(keys[0].value)[:40]}"
+                raise error(
+                    f"{name}: its YAML aliases{where} expand to more than {max_nodes} values (an alias bomb?); hbvs reads it no further"
+                )
+            documents.append(loader.construct_document(node))
+        return documents
+    finally:
+        loader.dispose()

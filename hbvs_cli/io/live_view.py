@@ -25,6 +25,9 @@ from .schemas import SCHEMAS
 #: Foxglove's default WebSocket port (what the app proposes).
 DEFAULT_PORT = 8765
 INSTALL_HINT = "--live needs the Foxglove SDK: pip install 'hbvs[live]'"
+#: Paces a live view may have (times real time): slower than 1/1000 a run of seconds would
+#: take hours (and the sleeps overflow the clock); faster than 1e6 is no pacing at all.
+MIN_SPEED, MAX_SPEED = 1e-3, 1e6
 
 
 def _sdk() -> Any:
@@ -114,8 +117,8 @@ def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Itera
     foxglove = _sdk()
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--live: the port must be 0-65535, got {port}")
-    if not speed >= 0:
-        raise UsageError(f"--live-speed must be >= 0 (0: as fast as it goes), got {speed}")
+    if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
+        raise UsageError(f"--foxglove-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
     context = foxglove.Context()
     try:
         server = foxglove.start_server(name="hbvs repeat", host=host, port=int(port), context=context)
@@ -124,7 +127,34 @@ def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Itera
     try:
         yield server, (lambda writer: LiveMirror(writer, context, speed))
     finally:
-        server.stop()
+        stop_within(server.stop, STOP_SECONDS)
+
+
+#: Longest wait for the server to stop (s). A client that subscribed and stopped reading
+#: can hold the SDK's stop forever; the run file is complete by then, so hbvs goes on.
+STOP_SECONDS = 1.0
+
+
+def stop_within(stop: Any, seconds: float) -> bool:
+    """Call ``stop()`` on a daemon thread and wait at most ``seconds`` for it.
+
+    The wait is a timed join, which SIGINT and SIGTERM interrupt (their handlers raise),
+    unlike the SDK's own blocking stop. Returns True when ``stop`` returned in time; when it
+    did not, the thread is left behind (a daemon thread does not keep the process alive).
+    """
+    import threading
+
+    thread = threading.Thread(target=_quietly, args=(stop,), name="hbvs-live-stop", daemon=True)
+    thread.start()
+    thread.join(seconds)
+    return not thread.is_alive()
+
+
+def _quietly(function: Any) -> None:
+    try:
+        function()
+    except Exception:  # noqa: BLE001 - a server that fails to stop cleanly is stopped enough
+        pass
 
 
 @contextmanager

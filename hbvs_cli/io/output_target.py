@@ -116,6 +116,118 @@ def final_name_of_partial(path: Path) -> Path | None:
     return path.with_name(match.group("final")) if match else None
 
 
+_OWNED_PARTIAL = re.compile(r"^.+\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
+
+
+def stale_partial(path: Path) -> bool:
+    """True when ``path`` is a partial file or folder of hbvs (``NAME.<pid>-<hex>.partial``)
+    whose process is gone (killed with SIGKILL, or the machine stopped): nobody will finish
+    it, and removing it loses nothing. A partial of a living process, or any other name
+    (``NAME.partial`` is someone's crash-recovery input), is not stale."""
+    match = _OWNED_PARTIAL.match(path.name)
+    if match is None:
+        return False
+    pid = int(match.group("pid"))
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except (PermissionError, OverflowError, OSError):
+        return False  # alive under another user, or not a pid this system has: keep it
+    return False
+
+
+def remove_stale_partials(paths: Any) -> list[Path]:
+    """Remove the stale partial files and folders (:func:`stale_partial`) among ``paths``."""
+    import shutil
+
+    removed = []
+    for path in paths:
+        path = Path(path)
+        if not stale_partial(path):
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            _remove_quietly(path)
+        removed.append(path)
+    return removed
+
+
+@contextmanager
+def directory_lock(folder: Path) -> Iterator[None]:
+    """Hold an advisory lock on ``folder`` itself (``flock`` on the directory: no file is
+    created) for a short critical section, waiting for another holder; a stop signal
+    interrupts the wait."""
+    import fcntl
+
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+class FolderLock:
+    """One writer at a time for an output folder: an advisory lock (``fcntl.flock``) on a
+    lock file, held until :meth:`release` or the process ends (a SIGKILL releases it too).
+
+    Parameters
+    ----------
+    lock_path : Path
+        The lock file (created if missing, never deleted: deleting it would let a third
+        process lock a new file while the second still holds the old one).
+    what : str
+        The output, for the message.
+
+    Raises
+    ------
+    OutputError
+        Another process holds the lock (exit 6): its pid is named.
+    """
+
+    def __init__(self, lock_path: Path, what: str) -> None:
+        import fcntl
+
+        self.path = Path(lock_path)
+        try:
+            self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot create the lock of {what} ({exc.strerror})") from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = self._holder()
+            os.close(self._fd)
+            self._fd = None
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                by = f" (pid {holder})" if holder else ""
+                raise OutputError(f"{what} is being written by another hbvs process{by}; wait for it to end, or give another output") from None
+            raise OutputError(f"{self.path}: cannot lock {what} ({exc.strerror})") from None
+        os.ftruncate(self._fd, 0)
+        os.write(self._fd, f"{os.getpid()}\n".encode())
+
+    def _holder(self) -> str:
+        try:
+            return os.pread(self._fd, 32, 0).decode("ascii", "replace").strip() if self._fd is not None else ""
+        except OSError:
+            return ""
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor drops the lock
+            self._fd = None
+
+    def __enter__(self) -> "FolderLock":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.release()
+
+
 # ----------------------------------------------------------------------------- same file
 def _identity(path: str) -> tuple[int, int] | None:
     try:

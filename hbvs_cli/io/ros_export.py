@@ -25,8 +25,15 @@ optical convention (z forward along the robot's x, x right, y down).
 
 The bag is a folder. It is written beside its name as ``NAME.<pid>-<random>.partial/NAME``
 and moved into place only when complete, so a failed export leaves nothing, and an
-existing bag of that name is replaced whole; a folder that is not a ROS 2 bag is never
-replaced.
+existing bag of that name is replaced whole. Only a bag hbvs wrote is ever replaced: its
+metadata.yaml is a rosbag2 description carrying hbvs's mark (``custom_data``), and the folder
+holds nothing but that file and the bag files it lists; any other folder is kept and the
+export refused. Exports to one bag at once each write their own partial folder and put it
+in place under an advisory lock on the parent folder (``flock``, no file created), checking
+the target again there: the last to finish wins, whole. A partial folder whose process is
+dead (a SIGKILL) is removed by the next export of the same name. An input that
+ended early (no end record) does not replace an existing bag unless ``--allow-truncated``,
+as for ``fit`` (exit 3).
 """
 
 from __future__ import annotations
@@ -56,6 +63,10 @@ from .topics import (
 BAG_VERSION = 8
 #: The file holding a ROS 2 bag's description: what tells a bag folder from any folder.
 BAG_METADATA = "metadata.yaml"
+#: The ``custom_data`` entry that marks a bag hbvs wrote (the only kind export replaces).
+HBVS_MARK = ("hbvs_export", "1")
+#: Largest metadata.yaml read when deciding whether a folder is a bag hbvs wrote.
+MAX_METADATA_BYTES = 1 << 20
 
 @dataclass
 class ExportSummary:
@@ -64,6 +75,7 @@ class ExportSummary:
     output: Path
     kind: str
     counts: dict[str, int] = field(default_factory=dict)
+    truncated: bool = False
 
 
 def _rosbags() -> tuple[Any, Any, Any]:
@@ -75,13 +87,14 @@ def _rosbags() -> tuple[Any, Any, Any]:
 
 
 # ----------------------------------------------------------------------------- output folder
-def check_bag_target(spec: str) -> Path:
+def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
     """The folder ``hbvs export -o`` will write, checked before anything is read.
 
     Raises
     ------
     UsageError
-        ``-`` (a bag is a folder), or an existing file or folder that is not a ROS 2 bag.
+        ``-`` (a bag is a folder), an existing file or folder that is not a bag hbvs wrote
+        (:func:`written_by_hbvs`), or one of ``inputs`` stored inside it.
     OutputError
         The parent folder does not exist (exit 6).
     """
@@ -90,17 +103,50 @@ def check_bag_target(spec: str) -> Path:
     final = Path(os.path.realpath(spec))
     if not final.parent.is_dir():
         raise OutputError(f"{spec}: the folder {final.parent} does not exist")
+    for source in inputs:
+        if source != "-" and Path(os.path.realpath(source)).is_relative_to(final):
+            raise UsageError(f"{source}: is inside the bag {spec} that the export would replace; copy it elsewhere first")
     if final.exists() or final.is_symlink():
         if not final.is_dir():
             raise UsageError(f"{spec}: exists and is not a ROS 2 bag folder; give a new folder name")
-        if any(final.iterdir()) and not (final / BAG_METADATA).is_file():
-            raise UsageError(f"{spec}: is a folder that is not a ROS 2 bag (no {BAG_METADATA}); it is kept, give a new folder name")
+        if any(final.iterdir()) and not written_by_hbvs(final):
+            raise UsageError(f"{spec}: is a folder that is not a ROS 2 bag written by hbvs export; it is kept, give a new folder name")
     return final
 
 
+def written_by_hbvs(folder: Path) -> bool:
+    """True when ``folder`` is a bag ``hbvs export`` wrote: a rosbag2 ``metadata.yaml`` with
+    hbvs's mark in ``custom_data``, and no file but it and the bag files it lists (so that
+    replacing it deletes nothing else)."""
+    from .limits import load_yaml_documents
+
+    metadata = folder / BAG_METADATA
+    try:
+        if not metadata.is_file() or metadata.stat().st_size > MAX_METADATA_BYTES:
+            return False
+        documents = load_yaml_documents(metadata.read_text(encoding="utf-8"), str(metadata))
+    except Exception:  # noqa: BLE001 - unreadable, malformed or an alias bomb: not ours
+        return False
+    information = documents[0].get("rosbag2_bagfile_information") if documents and isinstance(documents[0], dict) else None
+    if not isinstance(information, dict):
+        return False
+    custom = information.get("custom_data")
+    files = information.get("relative_file_paths")
+    if not (isinstance(custom, dict) and str(custom.get(HBVS_MARK[0])) == HBVS_MARK[1] and isinstance(files, list)):
+        return False
+    listed = {BAG_METADATA, *(str(f) for f in files)}
+    return all(entry.name in listed and entry.is_file() and not entry.is_symlink() for entry in folder.iterdir())
+
+
 @contextmanager
-def _atomic_folder(final: Path) -> Iterator[Path]:
-    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds."""
+def _atomic_folder(final: Path, before_swap: Any) -> Iterator[Path]:
+    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds.
+
+    The move happens under the parent folder's lock, after ``before_swap()`` (which may
+    refuse) has checked ``final`` again: no other export moves it meanwhile.
+    """
+    from .output_target import directory_lock
+
     work = final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
     try:
         work.mkdir()
@@ -108,9 +154,11 @@ def _atomic_folder(final: Path) -> Iterator[Path]:
         raise InputError(f"{final}: cannot write the bag ({exc.strerror})") from None
     try:
         yield work / final.name
-        if final.exists():
-            os.replace(final, work / "replaced")
-        os.replace(work / final.name, final)
+        with directory_lock(final.parent):
+            before_swap()
+            if final.exists() or final.is_symlink():
+                os.replace(final, work / "replaced")
+            os.replace(work / final.name, final)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -202,7 +250,7 @@ class _BagWriter:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
 
-def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
+def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` as a ROS 2 bag folder ``output``.
 
     Parameters
@@ -212,15 +260,31 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
     output : str
         The bag folder to write (see the module's notes on how it is replaced).
 
+    allow_truncated : bool
+        Replace an existing bag even when ``source`` ended before its end record.
+
     Raises
     ------
     UsageError
         rosbags is missing; ``output`` is ``-`` or a file or folder that is not a bag.
     RecordingError
         Not an hbvs file, or malformed messages.
+    TruncatedInputError
+        ``source`` ended early and a bag is there already (exit 3).
     """
-    Writer, StoragePlugin, typestore = _rosbags()
+    from .output_target import directory_lock, remove_stale_partials
+
     final = check_bag_target(output)
+    with directory_lock(final.parent):
+        # What an export killed by SIGKILL left (its process is dead); nobody else's.
+        remove_stale_partials(final.parent.glob(f"{final.name}.*.partial"))
+    return _export(source, final, output, name, allow_truncated)
+
+
+def _export(source: Any, final: Path, output: str, name: str, allow_truncated: bool) -> ExportSummary:
+    from ..errors import TruncatedInputError
+
+    Writer, StoragePlugin, typestore = _rosbags()
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
@@ -228,8 +292,17 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
     camera_height: float | None = None
-    with _atomic_folder(final) as bag_path:
+    def before_swap() -> None:
+        check_bag_target(output)  # again: another export (or someone) may have put a folder there
+        if stream.truncated and final.exists() and not allow_truncated:
+            raise TruncatedInputError(
+                f"{stream.name} ended before its end record (the writer upstream stopped?), so its bag did not "
+                f"replace the existing {final}; pass --allow-truncated to replace it"
+            )
+
+    with _atomic_folder(final, before_swap) as bag_path:
         writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        writer.set_custom_data(*HBVS_MARK)
         writer.open()
         bag = _BagWriter(writer, typestore)
         try:
@@ -284,7 +357,7 @@ def export_ros2_bag(source: Any, output: str, name: str = "") -> ExportSummary:
             writer.close()
         if not bag.counts:
             raise RecordingError(f"{stream.name}: nothing to export (no commands, poses or images in this {kind} file)")
-    return ExportSummary(output=final, kind=kind, counts=bag.counts)
+    return ExportSummary(output=final, kind=kind, counts=bag.counts, truncated=stream.truncated)
 
 
 def _stamp_ns(stamp: Any) -> int:

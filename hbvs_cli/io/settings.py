@@ -92,6 +92,17 @@ class Setting:
             return None
         return _shown(value)
 
+    def bound_violation(self, value: float) -> str | None:
+        """Why ``value`` is outside :attr:`bounds`, in the words the command line uses for
+        this option (``hbvs sweep`` refuses a value with the same message), or None."""
+        low, high = self.bounds.get("min"), self.bounds.get("max")
+        option = self.option_names[-1]
+        if low is not None and not value >= low:
+            return f"Invalid value for '{option}': Input should be greater than or equal to {_shown(low)}"
+        if high is not None and not value <= high:
+            return f"Invalid value for '{option}': Input should be less than or equal to {_shown(high)}"
+        return None
+
     def resolve(self, given: Any, config: Mapping[str, Any], fallback: Any = None) -> Any:
         """The value in force: the option if given, else the config's, else the fallback
         (``fallback`` replaces this setting's own, e.g. with the fit's suggestion)."""
@@ -189,6 +200,11 @@ DEFAULT_MAX_V = 0.5
 DEFAULT_MAX_W = 0.6
 #: Seconds without the target before a run is stopped.
 DEFAULT_LOST_TIMEOUT = 3.0
+#: Depths an initial estimate may take (m): below a millimetre the state filter's variances
+#: (which divide by the depth squared) underflow; beyond a kilometre no target is seen.
+MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
+#: Longest measurement latency (frames): more than any run has steps at the default limit.
+MAX_LATENCY_FRAMES = 1_000_000
 #: Seconds without a camera frame before a live run commands zero (a stalled camera or link).
 DEFAULT_STALE_TIMEOUT = 0.3
 #: Gains without a fit's suggestion (core's defaults; samples/gains.toml lists the same).
@@ -223,13 +239,15 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
             shown=FROM_THE_FIT, config="gamma", panel="Controller"),
     Setting("k_2", float, f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_name('docs/method.md')}).",
             shown=FROM_THE_FIT, config="k_2", flags=("--k2",), panel="Controller"),
-    Setting("dhat0", float, "Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller"),
+    Setting("dhat0", float, "Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller",
+            bounds={"min": MIN_DEPTH, "max": MAX_DEPTH}),
     Setting("speed", float, "Play the taught trajectory at this multiple of its pace.", fallback=1.0, config="speed", panel="Controller"),
     Setting("max_v", float, "|v| limit (m/s); inf for none.", fallback=DEFAULT_MAX_V, config="max_v", panel="Actuators"),
     Setting("max_w", float, "|w| limit (rad/s); inf for none.", fallback=DEFAULT_MAX_W, config="max_w", panel="Actuators"),
     Setting("max_accel", float, "Acceleration limit (m/s^2 and rad/s^2); inf for none.", shown="inf", config="max_accel",
             panel="Actuators"),
-    Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators", bounds={"min": 0}),
+    Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators",
+            bounds={"min": 0, "max": MAX_LATENCY_FRAMES}),
     Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",
             fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0}),
     Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE, FIFO or - (stdout): with --live the commands "

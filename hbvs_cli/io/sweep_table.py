@@ -8,8 +8,12 @@ Layout of the results folder::
     runs.csv          the same rows as CSV: appended at every flush, rewritten sorted at the end
     runs/             run files kept by --keep-runs
 
-Every Parquet file is written as ``NAME.partial`` and renamed when complete, so a part is
-either whole or absent. The CSV gets whole lines appended; a line torn by a kill is
+One process writes a folder at a time: a second ``hbvs sweep`` into it stops with one line
+and exit 6 (an advisory lock on ``.hbvs-sweep.lock``, released when the first ends, even by
+SIGKILL). Every file is written under a name unique to its process
+(``NAME.<pid>-<hex>.partial``) and renamed when complete, so a part is either whole or
+absent; a part never replaces another (it is linked in place, and takes the next number if
+its name is taken). A start removes only partial files whose process is dead. The CSV gets whole lines appended; a line torn by a kill is
 dropped when the sweep resumes, which rewrites the CSV from the Parquet rows. A resume
 skips every run index already in ``runs.parquet`` or a part.
 """
@@ -23,13 +27,15 @@ import time
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, OutputError, UsageError
+from ..io.output_target import FolderLock, partial_name_of, remove_stale_partials
 
 SPEC_FILE = "sweep.json"
 PARTS = "parts"
 PARQUET = "runs.parquet"
 CSV = "runs.csv"
 RUNS = "runs"
+LOCK = ".hbvs-sweep.lock"
 
 #: Row column -> the dotted key of ``hbvs report --json`` it holds.
 METRICS: dict[str, str] = {
@@ -91,10 +97,48 @@ def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
 
 
 def _replace(path: Path, write: Any) -> None:
-    """Write ``path`` through ``path.partial`` and a rename."""
-    partial = path.with_name(path.name + ".partial")
-    write(partial)
-    os.replace(partial, path)
+    """Write ``path`` through a partial file of this process and a rename."""
+    partial = partial_name_of(path)
+    try:
+        write(partial)
+        os.replace(partial, path)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+
+
+def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
+    """``sweep.json`` of a results folder, checked to be what ``hbvs sweep`` writes
+    (``need_spec``: with the spec's ``vary`` and ``fixed`` tables, which a summary reads).
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, or not a sweep's description (exit 3).
+    """
+    path = Path(folder) / SPEC_FILE
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{folder}: not the results folder of hbvs sweep (no {SPEC_FILE})") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable ({exc})") from None
+    fingerprint = document.get("fingerprint") if isinstance(document, dict) else None
+    spec = fingerprint.get("spec") if isinstance(fingerprint, dict) else None
+    schema = document.get("schema") if isinstance(document, dict) else None
+    spec_ok = isinstance(spec, dict) and isinstance(spec.get("vary"), dict) and isinstance(spec.get("fixed"), dict)
+    if not (isinstance(document, dict) and (spec_ok or not need_spec) and "fingerprint" in document
+            and isinstance(schema, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in schema.items())
+            and isinstance(document.get("runs", 0), int)):
+        raise InputError(f"{path}: not the description hbvs sweep writes (fingerprint, spec, schema)")
+    return document
+
+
+def _check_columns(path: Path, table: Any, schema: Any) -> None:
+    """Refuse a table whose columns are not the sweep's (another sweep's rows)."""
+    if schema is not None and set(table.column_names) - set(schema.names):
+        raise InputError(f"{path}: holds the rows of another sweep (columns {', '.join(sorted(set(table.column_names) - set(schema.names)))} "
+                         "are not this sweep's); move it away or give another -o folder")
 
 
 def _csv_bytes(table: Any, header: bool) -> bytes:
@@ -162,7 +206,7 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
     for start in range(low, high + 1, window):
         stop = start + window
         pieces = [
-            _read_table(path, filters=[("index", ">=", start), ("index", "<", stop)]).cast(schema)
+            _cast(path, _read_table(path, filters=[("index", ">=", start), ("index", "<", stop)]), schema)
             for path, first, last in spans if first < stop and last >= start
         ]
         if pieces:
@@ -171,6 +215,16 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
             table = _sorted_unique(pa.concat_tables(pieces))
             if table.num_rows:
                 yield table
+
+
+def _cast(path: Path, table: Any, schema: Any) -> Any:
+    import pyarrow as pa
+
+    _check_columns(path, table, schema)
+    try:
+        return table.cast(schema)
+    except (pa.ArrowException, ValueError) as exc:
+        raise InputError(f"{path}: holds the rows of another sweep ({' '.join(str(exc).split())[:200]})") from None
 
 
 def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> int:
@@ -213,15 +267,30 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
     import pyarrow as pa
 
     folder = Path(folder)
-    if not (folder / SPEC_FILE).is_file():
-        raise InputError(f"{folder}: not the results folder of hbvs sweep (no {SPEC_FILE})")
-    wanted = None if columns is None else list(dict.fromkeys(["index", *columns]))
-    pieces = [_read_table(path, columns=wanted) for path in _result_files(folder)]
+    described = read_description(folder, need_spec=False)["schema"]
+    try:
+        schema = pa.schema([pa.field(n, pa.type_for_alias(t)) for n, t in described.items()])
+    except (ValueError, pa.ArrowException) as exc:
+        raise InputError(f"{folder / SPEC_FILE}: not the description hbvs sweep writes ({exc})") from None
+    wanted = None if columns is None else [n for n in dict.fromkeys(["index", *columns]) if n in schema.names]
+    pieces = []
+    for path in _result_files(folder):
+        whole = _read_table(path, columns=None if wanted is None else [n for n in wanted if n in pq_names(path)])
+        pieces.append(_cast(path, whole, schema if wanted is None else pa.schema([schema.field(n) for n in wanted])))
     if not pieces:
-        schema = json.loads((folder / SPEC_FILE).read_text())["schema"]
-        return pa.schema([pa.field(n, pa.type_for_alias(t)) for n, t in schema.items()]).empty_table() if wanted is None else \
-            pa.table({n: pa.array([], pa.type_for_alias(schema[n])) for n in wanted})
-    return _sorted_unique(pa.concat_tables(pieces, promote_options="default"))
+        return schema.empty_table() if wanted is None else pa.schema([schema.field(n) for n in wanted]).empty_table()
+    return _sorted_unique(pa.concat_tables(pieces))
+
+
+def pq_names(path: Path) -> list[str]:
+    """The column names of a Parquet file (its schema only is read)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        return pq.read_schema(path).names
+    except (OSError, pa.ArrowException) as exc:
+        raise InputError(f"{path}: unreadable results ({exc})") from None
 
 
 class ResultsTable:
@@ -245,34 +314,55 @@ class ResultsTable:
         self.flush_seconds = flush_seconds
         self._buffer: list[dict[str, Any]] = []
         self._last_flush = time.monotonic()
-        self._open(dict(fingerprint), dict(description or {}))
-        self._part = 1 + max((int(p.stem.split("-")[1]) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
+        self._lock: FolderLock | None = None
+        try:
+            self._open(dict(fingerprint), dict(description or {}))
+        except BaseException:
+            self.release()
+            raise
+        self._part = 1 + max((_part_number(p) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
 
     def _open(self, fingerprint: dict[str, Any], description: dict[str, Any]) -> None:
+        # An output that cannot be made is exit 6, as for every -o.
+        if self.folder.is_symlink() and not self.folder.exists():
+            raise OutputError(f"{self.folder}: a symbolic link to {os.readlink(self.folder)}, which does not exist; give a folder")
         if self.folder.exists() and not self.folder.is_dir():
             raise UsageError(f"{self.folder}: exists and is not a folder")
+        if not self.folder.parent.is_dir():
+            raise OutputError(f"{self.folder}: the folder {self.folder.parent} does not exist")
         spec_path = self.folder / SPEC_FILE
+        if not spec_path.is_file() and self.folder.exists() and any(p.name != LOCK for p in self.folder.iterdir()):
+            raise UsageError(f"{self.folder}: exists, is not empty and holds no sweep; give a new or empty folder")
+        try:
+            self.folder.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"{self.folder}: cannot create the results folder ({exc.strerror})") from None
+        # From here on this process is the folder's one writer (checked again under the lock:
+        # another sweep may have started it meanwhile).
+        self._lock = FolderLock(self.folder / LOCK, f"{self.folder}/ (a sweep's results)")
         if spec_path.is_file():
-            try:
-                recorded = json.loads(spec_path.read_text())
-            except (OSError, ValueError) as exc:
-                raise InputError(f"{spec_path}: unreadable ({exc})") from None
-            if recorded.get("fingerprint") != fingerprint:
+            if read_description(self.folder, need_spec=False).get("fingerprint") != fingerprint:
                 raise UsageError(
                     f"{self.folder} holds the results of another sweep (different spec, seed or fit); "
                     "give another -o folder, or the same command to resume that one"
                 )
-        elif self.folder.exists() and any(self.folder.iterdir()):
+        elif any(p.name not in (LOCK, PARTS) for p in self.folder.iterdir()):
             raise UsageError(f"{self.folder}: exists, is not empty and holds no sweep; give a new or empty folder")
-        (self.folder / PARTS).mkdir(parents=True, exist_ok=True)
+        (self.folder / PARTS).mkdir(exist_ok=True)
         if not spec_path.is_file():
             document = {"fingerprint": fingerprint, **description, "schema": {f.name: str(f.type) for f in self.schema}}
             _replace(spec_path, lambda p: p.write_text(json.dumps(document, indent=2) + "\n"))
-        for stray in self.folder.rglob("*.partial"):
-            stray.unlink()
+        # Partial files of a sweep that was killed (its process is gone); nobody else's.
+        remove_stale_partials(self.folder.rglob("*.partial"))
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
         _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
         self._done = done_indices(self.folder)
+
+    def release(self) -> None:
+        """Let another process write the folder (also done when this one ends)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     @property
     def done(self) -> set[int]:
@@ -296,9 +386,20 @@ class ResultsTable:
         # write these rows again (a lost row is only re-run on resume).
         rows, self._buffer = self._buffer, []
         table = pa.Table.from_pylist(rows, schema=self.schema)
-        path = self.folder / PARTS / f"part-{self._part:06d}.parquet"
-        self._part += 1
-        _replace(path, lambda p: pq.write_table(table, p))
+        partial = partial_name_of(self.folder / PARTS / "part.parquet")
+        try:
+            pq.write_table(table, partial)
+            # Linked, not renamed, into place: a link never replaces a part that is there.
+            while True:
+                path = self.folder / PARTS / f"part-{self._part:06d}.parquet"
+                self._part += 1
+                try:
+                    os.link(partial, path)
+                    break
+                except FileExistsError:
+                    continue
+        finally:
+            partial.unlink(missing_ok=True)
         with open(self.folder / CSV, "ab") as handle:
             handle.write(_csv_bytes(table, False))
             handle.flush()
@@ -314,15 +415,26 @@ class ResultsTable:
         """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index, in a
         streamed merge (:func:`merged_windows`); returns the number of rows."""
         self.flush()
-        merged = self.folder / (PARQUET + ".merged.partial")
-        csv_partial = self.folder / (CSV + ".partial")
-        rows = write_merged(self.folder, self.schema, merged, csv_partial)
-        # The merged file replaces runs.parquet only now: until here the rows were read from it.
-        os.replace(merged, self.folder / PARQUET)
-        os.replace(csv_partial, self.folder / CSV)
+        merged = partial_name_of(self.folder / PARQUET)
+        csv_partial = partial_name_of(self.folder / CSV)
+        try:
+            rows = write_merged(self.folder, self.schema, merged, csv_partial)
+            # The merged file replaces runs.parquet only now: until here the rows were read from it.
+            os.replace(merged, self.folder / PARQUET)
+            os.replace(csv_partial, self.folder / CSV)
+        finally:
+            merged.unlink(missing_ok=True)
+            csv_partial.unlink(missing_ok=True)
         for part in (self.folder / PARTS).glob("part-*.parquet"):
             part.unlink()
         return rows
+
+
+def _part_number(path: Path) -> int:
+    try:
+        return int(path.stem.split("-")[1])
+    except (IndexError, ValueError):
+        return 0
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:

@@ -47,10 +47,10 @@ class SweepData:
     """The columns the summary needs, as numpy arrays, with the sweep's description."""
 
     def __init__(self, folder: Path) -> None:
-        from ..io.sweep_table import SPEC_FILE, read_rows
+        from ..io.sweep_table import read_description, read_rows
 
         self.folder = Path(folder)
-        info = json.loads((self.folder / SPEC_FILE).read_text())
+        info = read_description(self.folder)
         spec = info["fingerprint"]["spec"]
         self.vary: dict[str, Any] = spec["vary"]
         self.fixed: dict[str, Any] = spec["fixed"]

@@ -13,6 +13,7 @@ class ExportOptions:
 
     input: str
     output: str
+    allow_truncated: bool = False
 
 
 def run_export(options: ExportOptions, console: Console) -> dict[str, int]:
@@ -21,8 +22,10 @@ def run_export(options: ExportOptions, console: Console) -> dict[str, int]:
     from ..io.ros_export import check_bag_target, export_ros2_bag
 
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
-    check_bag_target(options.output)
-    summary = export_ros2_bag(options.input, options.output)
+    check_bag_target(options.output, (options.input,))
+    summary = export_ros2_bag(options.input, options.output, allow_truncated=options.allow_truncated)
     topics = ", ".join(f"{topic} {count}" for topic, count in sorted(summary.counts.items()))
+    if summary.truncated:
+        console.warn(f"{options.input} ended before its end record: the bag holds what was there")
     console.info(f"export: {summary.kind} file -> ROS 2 bag {summary.output} ({topics})")
     return summary.counts

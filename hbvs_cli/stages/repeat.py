@@ -86,15 +86,16 @@ class RepeatSummary:
     stopped: bool
 
 
-def _limit(value: float | None, default: float | None) -> float | None:
-    """A limit option: None -> default; inf or 0 -> unlimited."""
+def _limit(value: float | None, default: float | None, option: str) -> float | None:
+    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (a limit of
+    0 would mean "stand still", which is no run at all, and it once meant "no limit")."""
     if value is None:
         return default
-    if math.isinf(value) or value == 0:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+        raise UsageError(f"{option} must be positive (m/s, rad/s, m/s^2), or inf for no limit; got {value!r}")
+    if math.isinf(value):
         return None
-    if value < 0 or math.isnan(value):
-        raise UsageError(f"actuator limits must be positive (or inf for none), got {value}")
-    return value
+    return float(value)
 
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
@@ -104,7 +105,14 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     config: dict[str, Any] = load_config(options.config) if options.config is not None else {}
 
     def pick(name: str, fallback: Any = None) -> Any:
-        return REPEAT[name].resolve(getattr(options, name), config, fallback)
+        # The bounds the command line checks, checked again here for values from a config
+        # file or from hbvs sweep (which call this without the command line).
+        value = REPEAT[name].resolve(getattr(options, name), config, fallback)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            violation = REPEAT[name].bound_violation(value)
+            if violation is not None:
+                raise UsageError(violation)
+        return value
 
     law = pick("law")
     if law not in ALL_LAWS:
@@ -138,9 +146,9 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         dhat0=dhat0,
         speed=speed,
         limits=ActuatorLimits(
-            max_v=_limit(pick("max_v"), DEFAULT_MAX_V),
-            max_w=_limit(pick("max_w"), DEFAULT_MAX_W),
-            max_accel=_limit(pick("max_accel"), None),
+            max_v=_limit(pick("max_v"), DEFAULT_MAX_V, "--max-v"),
+            max_w=_limit(pick("max_w"), DEFAULT_MAX_W, "--max-w"),
+            max_accel=_limit(pick("max_accel"), None, "--max-accel"),
         ),
         latency=latency,
         rate=rate,
@@ -169,14 +177,18 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     )
     if fit is None:
         fit = read_fit_file(options.input)
-    model = fit.model
-    frame_interval = _taught_frame_interval(model)
-    settings = resolve_settings(options, model.dhat0, 1.0 / frame_interval, model.suggested_gains())
+    settings = settings_for(options, fit.model)
     if options.live:
         return _run_live(options, settings, fit, console)
     if options.sim:
         return _run_simulation(options, settings, fit, console)
     return _run_replay(options, settings, fit, console)
+
+
+def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
+    """The settings of a run of ``model`` as ``options`` ask (:func:`resolve_settings` with
+    the fit's suggestions and taught rate)."""
+    return resolve_settings(options, model.dhat0, 1.0 / _taught_frame_interval(model), model.suggested_gains())
 
 
 def _taught_frame_interval(model: FitModel) -> float:
@@ -294,15 +306,29 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- closed loop
-def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
-    """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
-    model = fit.model
+def check_simulation_settings(settings: Settings, model: FitModel) -> None:
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes
+    them before running anything).
+
+    Raises
+    ------
+    UsageError
+        A pace that is not a finite positive number.
+    LimitExceededError
+        More steps than the ``steps`` limit.
+    """
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
         (model.trajectory.t_end - model.trajectory.t_start) / settings.speed, settings.rate,
         "the run (the taught duration over --speed, times --rate)",
     )
+
+
+def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
+    """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
+    model = fit.model
+    check_simulation_settings(settings, model)
     scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
@@ -494,6 +520,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
+    previous_command = (0.0, 0.0)
     with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --foxglove, if asked
@@ -517,8 +544,11 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
                     dhat = controller.dhat
                     output = controller.step(observation.measurement, desired, dt) if observation.status == "ok" else None
                     v, w = (float(output.v_c), float(output.w_c)) if output is not None else controller.hold()
+                    # The commands a robot would be sent: through the same actuator limits as --sim.
+                    v, w, saturated = settings.limits.apply(v, w, previous_command, dt)
+                    previous_command = (v, w)
                     record = StepRecord(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
-                                  v_c=v, w_c=w, saturated=False, dhat=dhat)
+                                  v_c=v, w_c=w, saturated=saturated, dhat=dhat)
                     log.step(record)
                     tally.add(record)
                     bar.advance()

@@ -250,7 +250,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     from ..io.output_target import refuse_overwriting_inputs
 
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
-        return _report_sweep(options)
+        return _report_sweep(options, console)
     tolerances = parse_tolerances(options.tolerance)
     bounds = parse_bounds(options.fail_above)
     inputs = [("run", text) for text in options.runs]
@@ -305,7 +305,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     return 1 if excesses or unconverged else 0
 
 
-def _report_sweep(options: ReportOptions) -> int:
+def _report_sweep(options: ReportOptions, console: Console) -> int:
     """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
     from ..report.sweep_summary import print_summary, print_summary_json, summarize
 
@@ -315,10 +315,23 @@ def _report_sweep(options: ReportOptions) -> int:
         import pyarrow  # noqa: F401
     except ImportError:
         raise UsageError("reading a sweep's table needs pyarrow: pip install 'hbvs[sweep]'") from None
+    check_labels(options.labels, options.runs)
     summary = summarize(Path(options.runs[0]))
+    if options.labels:
+        # The sweep's name in the heading (the folder stays in the JSON's "folder").
+        summary = summary | {"label": options.labels[0]}
     if options.json_output:
         print_summary_json(summary, sys.stdout)
     else:
-        print_summary(summary, sys.stdout)
+        print_summary(summary | {"folder": summary.get("label", summary["folder"])}, sys.stdout)
     sys.stdout.flush()
+    if options.require_converged:
+        runs = summary["runs"]
+        converged = summary["overall"]["converged"]
+        # Every planned run must have converged: a failed, stopped, unconverged or missing
+        # run fails the gate (and a sweep with no run at all does).
+        if runs["planned"] == 0 or converged < runs["planned"]:
+            console.warn(f"not converged: {runs['planned'] - converged} of {runs['planned']} runs of the sweep "
+                         f"({runs['failed']} failed, {runs['stopped']} stopped, {runs['planned'] - runs['done']} not run)")
+            return 1
     return 0

@@ -22,16 +22,16 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from ..errors import InputError, UsageError
+from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
 from ..io.sweep_table import ResultsTable, failed_row, row_schema
 from ..sim.scene import simulation_world
-from ..sweep.engine import dask_client, default_workers, require_engine, run_tasks
+from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, print_summary_json, summarize
 from .console import Console
-from .sweep_run import KEEP_CHOICES, RunTask, execute_run
+from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,7 @@ class SweepOptions:
     json_output: bool = False
     plots: bool = True
     in_flight: int | None = None
+    dashboard: str | None = None
 
 
 def _true_depth(fit: FitFile) -> float | None:
@@ -93,6 +94,10 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     Returns ``(plan, spec, table, tasks)``.
     """
     require_engine()
+    check_scheduler_address(options.scheduler)
+    dashboard_address(options.dashboard)
+    if options.dashboard is not None and (options.scheduler is not None or options.cluster is not None):
+        raise UsageError("--dashboard is for the local cluster; a running scheduler or --cluster has its own")
     if options.keep_runs not in KEEP_CHOICES:
         raise UsageError(f"--keep-runs must be one of {', '.join(KEEP_CHOICES)}, got {options.keep_runs!r}")
     if options.fit == "-":
@@ -110,18 +115,52 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     d_true = _true_depth(fit)
     if ("dhat0_factor" in plan.swept or "dhat0_factor" in spec.fixed) and d_true is None:
         raise UsageError("dhat0_factor needs the true d*, which only a fit of a simulated teach has; sweep dhat0 (m) instead")
+    _check_values(spec, fit, fit_text, d_true)
     parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
     schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})
     fingerprint = {"spec": spec.as_dict(), "fit": fit_text, "fit_sha256": file_digest(fit_path)}
     description = {"runs": plan.runs, "points": plan.points, "d_true": d_true}
     table = ResultsTable(Path(options.output), schema, fingerprint, description)
-    tasks = SweepTasks(plan, fit_text, d_true, Path(options.output), options.keep_runs, table.done)
+    # Absolute: the workers (on other machines with --scheduler) keep run files there.
+    tasks = SweepTasks(plan, fit_text, d_true, Path(options.output).absolute(), options.keep_runs, table.done)
     return plan, spec, table, tasks
+
+
+def _check_values(spec: SweepSpec, fit: FitFile, fit_path: str, d_true: float | None) -> None:
+    """Refuse before running what ``hbvs repeat`` would refuse for some run, with its message.
+
+    Each axis's extreme values (every value of a choice) are checked with the fixed values:
+    the bounds and checks of ``repeat`` are intervals, so the values between pass too.
+    """
+    base = dict(spec.fixed)
+    candidates = [("", base)]
+    for axis in spec.axes:
+        if axis.is_range:
+            values: tuple[Any, ...] = (axis.low, axis.high)
+        elif PARAMETERS[axis.name].kind == "choice":
+            values = axis.values
+        else:
+            values = (min(axis.values), max(axis.values))
+        candidates += [(f"{axis.name}={value!r}: ", base | {axis.name: value}) for value in values]
+    for where, values in candidates:
+        try:
+            check_arguments(fit, fit_path, repeat_arguments(values, 0, d_true))
+        except HbvsError as exc:
+            exc.args = (f"{where}{exc}",)  # the same error (and exit code), saying which value
+            raise
 
 
 def run_sweep(options: SweepOptions, console: Console) -> int:
     """Run (or resume) a sweep, then print its summary; returns the exit code (0)."""
     plan, spec, table, tasks = prepare(options)
+    try:
+        return _run_prepared(options, plan, spec, table, tasks, console)
+    finally:
+        table.release()
+
+
+def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table: ResultsTable, tasks: SweepTasks,
+                  console: Console) -> int:
     remaining = tasks.remaining()
     console.info(
         f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
@@ -131,7 +170,11 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
         key = hashlib.sha256(tasks.fit_path.encode() + repr(spec.as_dict()).encode()).hexdigest()[:12]
         failures = 0
         started = time.monotonic()
-        with dask_client(options.scheduler, options.cluster, options.workers) as client, _progress(console, remaining) as progress:
+        dashboard = dashboard_address(options.dashboard)
+        with dask_client(options.scheduler, options.cluster, options.workers, dashboard=dashboard) as client, \
+                _progress(console, remaining) as progress:
+            if dashboard is not None:
+                console.info(f"sweep: Dask dashboard at {client.dashboard_link} (no authentication: anyone who reaches it sees the workers)")
             workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
             in_flight = options.in_flight or max(4 * workers, 8)
 

@@ -71,6 +71,18 @@ def _fit(path: str) -> Any:
     return _FITS[path]
 
 
+def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> None:
+    """Raise what ``hbvs repeat`` would raise for a run with ``arguments`` before it starts
+    (its own checks, so a value it refuses the sweep refuses with the same message)."""
+    from ..stages.repeat import RepeatOptions, check_simulation_settings, settings_for
+    from ..stages.options import parse_interval
+
+    options = RepeatOptions(input=fit_path, output="-", **arguments)
+    check_simulation_settings(settings_for(options, fit.model), fit.model)
+    for window in options.occlude:
+        parse_interval(window, "--occlude")
+
+
 def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
     """The :data:`METRICS` of a report (None where the report has no such value)."""
     from ..report.build import MissingKey, resolve_key
@@ -83,6 +95,26 @@ def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
             value = None
         row[column] = value
     return row
+
+
+def keep_file(source: str, destination: str) -> None:
+    """Put the run file ``source`` at ``destination`` whole or not at all, also across file
+    systems (the workers' temporary folder and the results folder): copied to a partial
+    file beside ``destination``, fsynced, renamed; a failure (a full disk) removes it."""
+    from ..io.output_target import partial_name_of
+
+    final = Path(destination)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    partial = partial_name_of(final)
+    try:
+        with open(source, "rb") as reader, open(partial, "xb") as writer:
+            shutil.copyfileobj(reader, writer, 1 << 20)
+            writer.flush()
+            os.fsync(writer.fileno())
+        os.replace(partial, final)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
@@ -103,26 +135,30 @@ def execute_run(task: RunTask) -> dict[str, Any]:
 
     started = time.perf_counter()
     folder = tempfile.mkdtemp(prefix="hbvs-sweep-")
-    run_path = os.path.join(folder, "run.mcap")
-    status, error, metrics = STATUS_OK, None, empty_metrics()
     try:
-        options = RepeatOptions(input=task.fit_path, output=run_path, **task.arguments)
+        run_path = os.path.join(folder, "run.mcap")
+        status, error, metrics = STATUS_OK, None, empty_metrics()
         try:
-            run_repeat(options, Console(quiet=True), fit=_fit(task.fit_path))
-        except TargetLostError as exc:
-            status, error = STATUS_STOPPED, str(exc).split(";")[0]
-        metrics = report_row(build_report(read_run(run_path)))
-    except HbvsError as exc:
-        status, error = STATUS_FAILED, f"{type(exc).__name__}: {exc}"
-    except Exception as exc:  # noqa: BLE001 - one bad run must not stop a sweep
-        status, error = STATUS_FAILED, "".join(traceback.format_exception_only(type(exc), exc)).strip()
-    kept = None
-    keep = task.keep_path is not None and (task.keep == "all" or (task.keep == "failed" and status != STATUS_OK))
-    if keep and os.path.exists(run_path):
-        Path(task.keep_path).parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(run_path, task.keep_path)
-        kept = task.keep_path
-    shutil.rmtree(folder, ignore_errors=True)
+            options = RepeatOptions(input=task.fit_path, output=run_path, **task.arguments)
+            try:
+                run_repeat(options, Console(quiet=True), fit=_fit(task.fit_path))
+            except TargetLostError as exc:
+                status, error = STATUS_STOPPED, str(exc).split(";")[0]
+            metrics = report_row(build_report(read_run(run_path)))
+        except HbvsError as exc:
+            status, error = STATUS_FAILED, f"{type(exc).__name__}: {exc}"
+        except Exception as exc:  # noqa: BLE001 - one bad run must not stop a sweep
+            status, error = STATUS_FAILED, "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        kept = None
+        keep = task.keep_path is not None and (task.keep == "all" or (task.keep == "failed" and status != STATUS_OK))
+        if keep and os.path.exists(run_path):
+            try:
+                keep_file(run_path, task.keep_path)
+                kept = task.keep_path
+            except OSError as exc:
+                error = (error + "; " if error else "") + f"run file not kept ({exc.strerror or exc})"
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
     return {
         "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed,
         **task.values, "status": status, "error": error, **metrics,

@@ -12,8 +12,9 @@ second of CPU time each, single runs at the start and the end), and never more t
 exist: a new one is submitted as one finishes, so memory stays flat however many runs a
 sweep has. A worker that dies has its batch rescheduled by the Dask scheduler (up to
 ``distributed.scheduler.allowed-failures`` times); a batch that keeps killing workers is
-split and its runs are run alone, and the run that kills its worker is recorded as failed
-with the error, like any run that raises.
+split and its runs are run alone, a run that fails alone is run once more with the
+cluster to itself, and only a run that kills its worker then is recorded as failed with the
+error, like any run that raises.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from collections import deque
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-from ..errors import UsageError
+from ..errors import OutputError, UsageError
 
 #: Installing the engine: named by every error about a missing piece.
 INSTALL_HINT = "pip install 'hbvs[sweep]'"
@@ -55,13 +56,62 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: The scheduler's HTTP routes without ``--dashboard``: its health check alone (no pages of
+#: worker logs, local paths or tasks, no proxy), on a random port of the loopback interface.
+HEALTH_ONLY = ["distributed.http.health"]
+
+
+def dashboard_address(text: str | None) -> str | None:
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``; ``HOST:PORT`` as given
+    (another interface only when asked for by name). None: no dashboard.
+
+    Raises
+    ------
+    UsageError
+        Not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
+    """
+    if text is None:
+        return None
+    host, sep, port = text.strip().rpartition(":")
+    if not sep:
+        host = "127.0.0.1"
+    if not port.isdigit() or int(port) > 65535 or not host or any(c.isspace() or c in "/@" for c in host):
+        raise UsageError(f"--dashboard must be PORT or HOST:PORT (e.g. 8787 or 127.0.0.1:8787), got {text!r}")
+    return f"{host}:{int(port)}"
+
+
+def check_scheduler_address(address: str | None) -> None:
+    """Refuse a ``--scheduler`` that is no Dask address, before anything is written.
+
+    Raises
+    ------
+    UsageError
+        An unknown scheme, or a host and port that do not parse.
+    """
+    if address is None:
+        return
+    from distributed.comm.addressing import get_address_host_port, parse_address
+    from distributed.comm.registry import backends
+
+    try:
+        scheme, _ = parse_address(address, strict=False)
+        if scheme not in backends:
+            raise ValueError(f"unknown scheme {scheme!r}; known: {', '.join(sorted(backends))}")
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            get_address_host_port(address)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"--scheduler {address!r}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
+
+
 @contextmanager
 def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
-                allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS) -> Iterator[Any]:
+                allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
     """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
 
     ``allowed_worker_deaths``: how often a run is rescheduled after its worker died (a
     cluster started here; a running scheduler keeps its own configuration).
+    ``dashboard``: the address of Dask's dashboard (:func:`dashboard_address`) for a local
+    cluster; None (the default) serves none (the dashboard has no authentication).
 
     Raises
     ------
@@ -95,7 +145,12 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.worker.profile.enabled": False,
                           "distributed.admin.tick.interval": "1s",
                           "distributed.admin.system-monitor.interval": "1s",
-                          "distributed.worker.memory.monitor-interval": "1s"}):
+                          "distributed.worker.memory.monitor-interval": "1s",
+                          # A worker restarted after a death registers with the scheduler
+                          # within this: 30 s was too short on a 2-core machine at load 20
+                          # (the worker gave up, its nanny stopped, the cluster had none).
+                          "distributed.comm.timeouts.connect": "120s",
+                          **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
         try:
             if scheduler is not None:
@@ -103,13 +158,16 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                     client = Client(scheduler, timeout="20s")
                 except (OSError, TimeoutError) as exc:
                     raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                except (ValueError, TypeError) as exc:  # not an address: "missing port number", an unknown protocol
+                    raise UsageError(f"--scheduler {scheduler!r}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
             elif cluster is not None:
                 started = _jobqueue_cluster(cluster, workers or 1)
                 client = Client(started)
             else:
                 started = LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                    protocol="tcp://", host="127.0.0.1", dashboard_address=":0", silence_logs=logging.ERROR,
+                    protocol="tcp://", host="127.0.0.1", dashboard_address=dashboard or "127.0.0.1:0",
+                    scheduler_kwargs={"dashboard": dashboard is not None}, silence_logs=logging.ERROR,
                 )
                 client = Client(started)
             try:
@@ -149,13 +207,22 @@ BATCH_WALL_SECONDS = 5.0
 MAX_BATCH = 64
 
 
-def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any]) -> tuple[list[dict[str, Any]], float, float]:
+def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
+              started: str | None = None) -> tuple[list[dict[str, Any]], float, float]:
     """On a worker: ``function(task)`` for each task in turn.
+
+    ``started``: a scheduler metadata key set (a round trip, so it is there before the
+    run begins) when a run with the cluster to itself starts: a worker death before it is
+    not the run's doing (:func:`run_tasks`).
 
     Returns the rows, the batch's wall time and its CPU time (s; the worker process's, so
     a worker with several threads over-counts, which only makes batches smaller), from
     which the driver sizes the next batches.
     """
+    if started is not None:
+        from distributed import get_client
+
+        get_client().set_metadata(started, True)
     wall, cpu = time.perf_counter(), time.process_time()
     rows = [function(task) for task in tasks]
     return rows, time.perf_counter() - wall, time.process_time() - cpu
@@ -198,6 +265,42 @@ class BatchSizer:
             self.left = max(0, self.left - size)
 
 
+#: Isolated attempts of a run whose workers keep dying before it starts, before it is
+#: recorded as failed anyway (with Dask's error).
+MAX_UNSTARTED_ATTEMPTS = 5
+#: Longest time a sweep waits on a cluster without a single worker (s) before it stops
+#: (workers that died and were not restarted, e.g. a nanny that gave up under load):
+#: the finished rows are kept and the same command resumes. Without it the sweep waited
+#: forever for runs that no worker would take.
+NO_WORKER_SECONDS = 120.0
+
+
+def _finished(completed: Any, client: Any, no_worker_seconds: float) -> Iterator[Any]:
+    """``(future, result)`` as ``completed`` gives them, watching that the cluster still
+    has a worker while futures wait (the client's cached scheduler information: no round
+    trip). The waits are short sleeps, which SIGINT and SIGTERM interrupt."""
+    without_workers: float | None = None
+    while True:
+        if completed.has_ready() or completed.is_empty():
+            try:
+                yield next(completed)
+            except StopIteration:
+                return
+            without_workers = None
+            continue
+        time.sleep(0.1)
+        if client.scheduler_info().get("workers"):
+            without_workers = None
+            continue
+        now = time.monotonic()
+        without_workers = without_workers if without_workers is not None else now
+        if now - without_workers > no_worker_seconds:
+            raise OutputError(
+                f"the Dask cluster has had no worker for {no_worker_seconds:g} s (its workers died and were not restarted); "
+                "the finished rows are kept: the same command resumes"
+            )
+
+
 def run_tasks(
     client: Any,
     tasks: Iterable[Any],
@@ -207,6 +310,7 @@ def run_tasks(
     in_flight: int,
     key_prefix: str,
     total: int | None = None,
+    no_worker_seconds: float = NO_WORKER_SECONDS,
 ) -> int:
     """Run ``function(task)`` for every task on the cluster; ``on_row`` gets each row as it
     comes back (in completion order). Tasks travel in batches (:class:`BatchSizer`); at most
@@ -215,58 +319,89 @@ def run_tasks(
 
     Returns the number of rows produced. A batch whose future fails (its worker died too
     often, or the function raised despite catching everything) is split and each of its
-    tasks submitted alone, so only the task that failed gets ``on_lost(task, error)``;
-    the others give their rows.
+    tasks submitted alone. A task that fails alone is run once more in isolation (nothing
+    else in flight, so no other task can have killed the worker); only a task that fails
+    then, after it started (it says so on the scheduler as it starts), gets
+    ``on_lost(task, error)``; one whose workers died before it started is run again. The
+    rule counts worker deaths during the run, never time: a slow run is never taken for a
+    killer.
     """
     from distributed import as_completed
 
     pending = iter(tasks)
     alone: deque[Any] = deque()  # tasks of a failed batch, each to be run by itself
-    waiting: dict[str, list[Any]] = {}
+    suspects: deque[Any] = deque()  # tasks that failed alone, to be run once more in isolation
+    waiting: dict[str, tuple[list[Any], bool]] = {}  # future key -> (its tasks, run in isolation)
     # The results are fetched by the client's event loop as the futures finish (no
     # second round trip from this thread per future).
     completed = as_completed(with_results=True, raise_errors=False)
     workers = len(client.scheduler_info().get("workers", {}))
     sizer = BatchSizer(total, workers or 1)
 
-    def submit_next() -> bool:
-        if alone:
-            batch = [alone.popleft()]
-            key = f"{key_prefix}-{batch[0].index}-alone"
-        else:
-            batch = list(itertools.islice(pending, sizer.next_size()))
-            if not batch:
-                return False
-            sizer.take(len(batch))
-            key = f"{key_prefix}-{batch[0].index}" + (f"+{len(batch) - 1}" if len(batch) > 1 else "")
-        future = client.submit(run_batch, function, batch, key=key, pure=False, retries=0)
-        waiting[future.key] = batch
+    attempts: dict[int, int] = {}  # isolated attempts per task index
+
+    def submit(batch: list[Any], key: str, isolated: bool = False) -> None:
+        if isolated:
+            index = batch[0].index
+            attempts[index] = attempts.get(index, 0) + 1
+            key = f"{key}{attempts[index]}"
+        future = client.submit(run_batch, function, batch, key if isolated else None, key=key, pure=False, retries=0)
+        waiting[future.key] = (batch, isolated)
         completed.add(future)
+
+    def submit_next() -> bool:
+        if any(isolated for _, isolated in waiting.values()):
+            return False  # nothing joins a run that has the cluster to itself
+        if suspects:
+            # A suspect runs with nothing else on the cluster: if a worker dies then, it is
+            # the suspect's doing, whatever the timing (a slow run beside a killer is not).
+            if waiting:
+                return False
+            task = suspects.popleft()
+            submit([task], f"{key_prefix}-{task.index}-isolated", isolated=True)
+            return True
+        if alone:
+            task = alone.popleft()
+            # Alone on an idle cluster it is isolated already (one batch in flight at a time).
+            submit([task], f"{key_prefix}-{task.index}-alone", isolated=not waiting)
+            return True
+        batch = list(itertools.islice(pending, sizer.next_size()))
+        if not batch:
+            return False
+        sizer.take(len(batch))
+        submit(batch, f"{key_prefix}-{batch[0].index}" + (f"+{len(batch) - 1}" if len(batch) > 1 else ""))
         return True
 
-    for _ in range(max(1, in_flight)):
-        if not submit_next():
-            break
+    def fill() -> None:
+        while len(waiting) < max(1, in_flight) and submit_next():
+            pass
+
+    fill()
     produced = 0
-    for future, result in completed:
-        batch = waiting.pop(future.key)
+    for future, result in _finished(completed, client, no_worker_seconds):
+        batch, isolated = waiting.pop(future.key)
         failed = future.status != "finished"
         future.release()
         if failed and len(batch) > 1:
-            # One of them may kill its worker every time: run each alone, so that one
-            # alone is recorded as failed.
+            # One of them may kill its worker every time: run each alone.
             alone.extend(batch)
-            for _ in batch:
-                submit_next()
-            continue
-        if failed:  # KilledWorker and the like: record, go on
-            error = result[1] if isinstance(result, tuple) else result
-            rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
+        elif failed and not isolated:
+            # Alone, but other runs were on the cluster when its worker died: try it once
+            # more in isolation before calling it a killer.
+            suspects.append(batch[0])
+        elif failed and not client.get_metadata(future.key, False) and attempts[batch[0].index] < MAX_UNSTARTED_ATTEMPTS:
+            # Its workers died before it started (Dask counts a worker that dies while it
+            # is being restarted against the task waiting for it): not its doing.
+            suspects.appendleft(batch[0])
         else:
-            rows, wall, cpu = result
-            sizer.observe(len(rows), wall, cpu)
-        for row in rows:
-            on_row(row)
-            produced += 1
-        submit_next()
+            if failed:  # killed its worker again with the cluster to itself: record, go on
+                error = result[1] if isinstance(result, tuple) else result
+                rows = [on_lost(batch[0], f"{type(error).__name__}: {error}")]
+            else:
+                rows, wall, cpu = result
+                sizer.observe(len(rows), wall, cpu)
+            for row in rows:
+                on_row(row)
+                produced += 1
+        fill()
     return produced

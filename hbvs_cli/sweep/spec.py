@@ -25,6 +25,7 @@ import numpy as np
 from ..core.control_settings import GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
+from ..io.limits import check as check_limit
 from ..io.settings import REPEAT
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
@@ -42,18 +43,42 @@ class Parameter:
         ``float``, ``int`` or ``choice``.
     unit : str
     help : str
+    setting : str or None
+        The ``hbvs repeat`` option it sets (:data:`hbvs_cli.io.settings.REPEAT`), whose
+        bounds it has: a value ``repeat`` refuses, the sweep refuses with the same message.
     choices : tuple of str
         The allowed values of a ``choice``.
-    minimum : float
-        The smallest allowed value of a number.
+    own_bounds : mapping
+        ``min`` and ``max`` of a parameter that is no one ``repeat`` option (the occlusion
+        window, dhat0 as a multiple of d*).
     """
 
     name: str
     kind: str
     unit: str
     help: str
+    setting: str | None = None
     choices: tuple[str, ...] = ()
-    minimum: float = -math.inf
+    own_bounds: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def bounds(self) -> Mapping[str, float]:
+        return REPEAT[self.setting].bounds if self.setting is not None else self.own_bounds
+
+    def bound_violation(self, value: float) -> str | None:
+        """Why ``value`` is out of bounds (``repeat``'s words for its options), or None."""
+        if self.setting is not None:
+            return REPEAT[self.setting].bound_violation(value)
+        low, high = self.own_bounds.get("min", -math.inf), self.own_bounds.get("max", math.inf)
+        if not low <= value <= high:
+            return f"{self.name} must be within [{low:g}, {high:g}], got {value!r}"
+        return None
+
+
+def _repeat_parameter(name: str, kind: str, unit: str, choices: tuple[str, ...] = ()) -> Parameter:
+    """A parameter that is the ``hbvs repeat`` option of the same name (its help and bounds)."""
+    setting = REPEAT[name]
+    return Parameter(name, kind, unit, f"{setting.help} ({setting.option_names[-1]})", setting=name, choices=choices)
 
 
 #: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
@@ -63,23 +88,24 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("offset_x", "float", "m", "start offset along the taught start heading (--offset DX)"),
         Parameter("offset_y", "float", "m", "start offset to the left (--offset DY)"),
         Parameter("offset_theta", "float", "deg", "start heading offset (--offset DTHETA)"),
-        Parameter("dhat0", "float", "m", "initial depth estimate (--dhat0)", minimum=0.0),
-        Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)", minimum=0.0),
-        Parameter("pixel_noise", "float", "px", "pixel noise, 1 sigma (--pixel-noise)", minimum=0.0),
-        Parameter("k_v", "float", GAIN_UNITS["k_v"], "gain k_v (--kv)", minimum=0.0),
-        Parameter("k_w", "float", GAIN_UNITS["k_w"], "gain k_w (--kw)", minimum=0.0),
-        Parameter("gamma", "float", GAIN_UNITS["gamma"], "adaptation gain gamma_1 (--gamma)", minimum=0.0),
-        Parameter("k_2", "float", "", "lateral gain k_2 (--k2)", minimum=0.0),
-        Parameter("law", "choice", "", "control law (--law)", choices=ALL_LAWS),
-        Parameter("drop_rate", "float", "", "fraction of dropped frames (--drop-rate)", minimum=0.0),
-        Parameter("outlier_rate", "float", "", "fraction of frames with an outlier (--outlier-rate)", minimum=0.0),
-        Parameter("occlusion_start", "float", "s", "start of an occlusion window (--occlude START:END)", minimum=0.0),
-        Parameter("occlusion_length", "float", "s", "length of the occlusion window; 0 for none", minimum=0.0),
-        Parameter("latency", "int", "frames", "measurement latency (--latency)", minimum=0.0),
-        Parameter("perception", "choice", "", "points (projected, --pixel-noise) or images (rendered and detected)", choices=("points", "images")),
-        Parameter("rate", "float", "Hz", "camera and control rate (--rate)", minimum=0.0),
-        Parameter("speed", "float", "", "pace of the taught trajectory (--speed)", minimum=0.0),
-        Parameter("lost_timeout", "float", "s", "stop after the target was lost this long (--lost-timeout)", minimum=0.0),
+        _repeat_parameter("dhat0", "float", "m"),
+        Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)",
+                  own_bounds={"min": 0.0}),
+        _repeat_parameter("pixel_noise", "float", "px"),
+        _repeat_parameter("k_v", "float", GAIN_UNITS["k_v"]),
+        _repeat_parameter("k_w", "float", GAIN_UNITS["k_w"]),
+        _repeat_parameter("gamma", "float", GAIN_UNITS["gamma"]),
+        _repeat_parameter("k_2", "float", ""),
+        _repeat_parameter("law", "choice", "", choices=ALL_LAWS),
+        _repeat_parameter("drop_rate", "float", ""),
+        _repeat_parameter("outlier_rate", "float", ""),
+        Parameter("occlusion_start", "float", "s", "start of an occlusion window (--occlude START:END)", own_bounds={"min": 0.0}),
+        Parameter("occlusion_length", "float", "s", "length of the occlusion window; 0 for none", own_bounds={"min": 0.0}),
+        _repeat_parameter("latency", "int", "frames"),
+        _repeat_parameter("perception", "choice", "", choices=("points", "images")),
+        _repeat_parameter("rate", "float", "Hz"),
+        _repeat_parameter("speed", "float", ""),
+        _repeat_parameter("lost_timeout", "float", "s"),
     )
 }
 #: The start offset ``hbvs repeat`` uses when none is given (m, m, deg).
@@ -142,8 +168,9 @@ def _check_value(name: str, value: Any, where: str) -> Any:
             raise UsageError(f"{where}: {name} must be a number ({parameter.unit or 'dimensionless'}), got {value!r}") from None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise UsageError(f"{where}: {name} must be a finite number, got {value!r}")
-    if value < parameter.minimum:
-        raise UsageError(f"{where}: {name} must be >= {parameter.minimum:g}, got {value!r}")
+    violation = parameter.bound_violation(value)
+    if violation is not None:
+        raise UsageError(f"{where}: {violation}")
     if parameter.kind == "int":
         if float(value) != int(value):
             raise UsageError(f"{where}: {name} must be a whole number, got {value!r}")
@@ -198,6 +225,7 @@ def _list_axis(name: str, values: Sequence[Any], where: str) -> Axis:
 
 
 def _grid_axis(name: str, low: float, high: float, count: int, where: str) -> Axis:
+    check_limit("sweep-runs", count, f"{where}: the grid's values")
     values = np.linspace(low, high, count) if count > 1 else np.array([low])
     if PARAMETERS[name].kind == "int":
         return _list_axis(name, sorted({int(round(v)) for v in values}), where)
@@ -307,6 +335,7 @@ def build_spec(
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise UsageError(f"{label} must be a whole number >= {low}, got {value!r}")
     ordered = tuple(axes.values())
+    _check_size(ordered, method, count, repeat_count)
     if method == "grid":
         ranged = [a.name for a in ordered if a.is_range]
         if ranged:
@@ -316,6 +345,18 @@ def build_spec(
     if not ordered:
         raise UsageError("nothing varies: give --vary NAME=... or a spec with a [vary] table (--repeats alone: --vary law=lateral-gain)")
     return SweepSpec(axes=ordered, fixed=fixed_values, sampling=method, samples=count, repeats=repeat_count, seed=sweep_seed)
+
+
+def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -> None:
+    """Refuse a sweep of more runs than the ``sweep-runs`` limit, before anything is
+    allocated (the design matrix holds one row per sample)."""
+    if method != "grid" and any(axis.is_range for axis in axes):
+        check_limit("sweep-runs", samples, "--samples")
+    check_limit("sweep-runs", repeats, "--repeats")
+    runs = repeats * (samples if method != "grid" and any(axis.is_range for axis in axes) else 1)
+    for axis in axes:
+        runs *= max(1, len(axis.values))
+    check_limit("sweep-runs", runs, "the sweep (points x samples x repeats)")
 
 
 # ----------------------------------------------------------------------------- the plan

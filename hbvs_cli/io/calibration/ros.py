@@ -11,6 +11,7 @@ import yaml
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError
+from ..limits import load_yaml_documents
 from .mapping import _require_mapping
 from .validate import _one_line
 
@@ -19,7 +20,8 @@ def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
     try:
         # safe_load_all: `ros2 topic echo` output ends with a "---" separator, which
         # safe_load rejects as a second document. The first non-empty document is used.
-        document = next((doc for doc in yaml.safe_load_all(text) if doc is not None), None)
+        # Aliases are expanded under a limit before any value is built or shown.
+        document = next((doc for doc in load_yaml_documents(text, name, error=CalibrationError) if doc is not None), None)
     except yaml.MarkedYAMLError as exc:
         where = f" at line {exc.problem_mark.line + 1}" if exc.problem_mark is not None else ""
         raise CalibrationError(f"{name}: malformed YAML{where}: {_one_line(exc.problem or exc)}") from None

@@ -141,10 +141,49 @@ def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
     if size > MAX_METADATA_BYTES:
         raise InputError(f"{name}: metadata.yaml is {size} bytes, more than the {MAX_METADATA_BYTES} hbvs reads")
     try:
-        information = yaml.safe_load(metadata.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        # Aliases expanded under a limit (an alias bomb in ros_distro is refused here, before
+        # rosbags or a message shows the value).
+        documents = limits.load_yaml_documents(metadata.read_text(encoding="utf-8"), f"{name}: metadata.yaml")
+        information = documents[0]["rosbag2_bagfile_information"] if documents else None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError):
         return {}
-    return information if isinstance(information, dict) else {}
+    if not isinstance(information, dict):
+        return {}
+    check_metadata(information, name)
+    return information
+
+
+def check_metadata(information: dict[str, Any], name: str) -> None:
+    """The counts and names of metadata.yaml that rosbags and hbvs use, of the right types.
+
+    Raises
+    ------
+    InputError
+        ``message_count: many`` and the like, a ``ros_distro`` that is not a short name.
+    """
+    def counts(where: str, value: Any) -> None:
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
+
+    counts("message_count", information.get("message_count"))
+    for key in ("topics_with_message_count", "files", "relative_file_paths"):
+        if information.get(key) is not None and not isinstance(information.get(key), list):
+            raise InputError(f"{name}: metadata.yaml: {key} must be a list, got {_shown(information.get(key))}")
+    for entry in information.get("topics_with_message_count") or []:
+        counts("topics_with_message_count[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
+    for entry in information.get("files") or []:
+        counts("files[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
+    distro = information.get("ros_distro")
+    if distro is not None and not (isinstance(distro, str) and len(distro) <= 64):
+        raise InputError(f"{name}: metadata.yaml: ros_distro must be a distribution's name, got {_shown(distro)}")
+
+
+def _shown(value: Any) -> str:
+    """A value of a file in a message: its type and at most 40 characters (never the whole)."""
+    if isinstance(value, (str, int, float)) and not isinstance(value, bool):
+        text = repr(value)
+        return text if len(text) <= 40 else text[:40] + "..."
+    return f"a {type(value).__name__}"
 
 
 def _typestore_for(information: dict[str, Any]) -> Any:
@@ -160,6 +199,71 @@ def _typestore_for(information: dict[str, Any]) -> Any:
     return get_typestore(store)
 
 
+class _CappedZstd:
+    """The ``zstd`` module as rosbags' reader uses it, decompressing under caps.
+
+    rosbags decompresses a message-compressed bag's messages whole (a 56 KB ``.db3`` asked
+    for 1.2 GB) and a file-compressed bag's files into TMPDIR (a 61 KB bag wrote 700 MB):
+    here a message stops at :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` + 1 bytes of output
+    and a file at the ``decompressed-bytes`` limit, both streamed, before anything more is
+    allocated or written.
+    """
+
+    def __init__(self, module: Any) -> None:
+        self._module = module
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._module, name)
+
+    def decompress(self, data: bytes) -> bytes:
+        decompressor = self._module.ZstdDecompressor()
+        output = decompressor.decompress(data, max_length=MAX_RECORD_BYTES + 1)
+        if len(output) > MAX_RECORD_BYTES:
+            raise InputError(f"a compressed message expands to more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs reads")
+        return output
+
+    def open(self, file: Any, mode: str = "rb", *args: Any, **kwargs: Any) -> Any:
+        return _CappedReader(self._module.open(file, mode, *args, **kwargs))
+
+
+class _CappedReader(io.RawIOBase):
+    """A decompressing file that raises once more than ``decompressed-bytes`` came out."""
+
+    def __init__(self, inner: Any) -> None:
+        super().__init__()
+        self._inner = inner
+        self._read = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        count = self._inner.readinto(buffer)
+        self._read += count or 0
+        if self._read > limits.current("decompressed-bytes"):
+            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+        return count
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._inner.read(size if size is not None and size >= 0 else 1 << 20)
+        self._read += len(data)
+        if self._read > limits.current("decompressed-bytes"):
+            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+        return data
+
+    def close(self) -> None:
+        self._inner.close()
+        super().close()
+
+
+def _cap_rosbags_decompression() -> None:
+    """Give rosbags' reader the capped ``zstd`` (once per process)."""
+    from rosbags.rosbag2 import reader
+
+    if not isinstance(reader.zstd, _CappedZstd):
+        reader.zstd = _CappedZstd(reader.zstd)
+
+
 class RosbagsBag:
     """A ROS 2 bag folder read with ``rosbags``' ``AnyReader`` (see the module's notes).
 
@@ -172,6 +276,7 @@ class RosbagsBag:
         self.name = name
         self.folder = folder
         information = _bag_metadata(folder, name)
+        _cap_rosbags_decompression()
         with _rosbags_errors(name):
             self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
             self._reader.open()
