@@ -557,7 +557,7 @@ def _hostile_attempts(rng: np.random.Generator, folder: Path, count: int, sweep_
         elif kind == "spec":
             spec = work / "spec.toml"
             spec.write_text(pick(rng, [
-                "[vary]\nkv = {from = 0.1, to = 1.0, steps = 1000000000}\n",
+                "[vary]\nk_v = {from = 0.1, to = 1.0, steps = 1000000000}\n",
                 "samples = 1000000000\nsampling = 'sobol'\n[vary]\nkv = {from = 0.1, to = 1.0}\n",
                 "[vary]\nrate = [0.01, 1e300]\n", "[vary]\nlatency = [1e19]\n", "vary = 3\n", "[fixed]\nmax_v = 0\n",
                 "repeats = 1e9\n[vary]\nkv=[1]\n", "= broken toml",
