@@ -1,14 +1,14 @@
-"""``hbvs repeat --live [PORT]``: the run served to the Foxglove app while it runs.
+"""``hbvs repeat --foxglove [PORT]``: the run served to the Foxglove app while it runs.
 
 The official Foxglove SDK (``foxglove-sdk``, ``pip install 'hbvs[live]'``) runs a WebSocket
 server (Foxglove's ``foxglove.websocket.v1`` protocol) on localhost. :class:`LiveMirror`
 sits in front of the run file's :class:`~hbvs_cli.io.mcap.McapWriter`: every message
 written to the file is also logged, with the same bytes, topic, schema (name, encoding and
 data), message encoding and log time, on an SDK channel. The file and ``-o -`` are written
-exactly as without ``--live``. In Foxglove: "Open connection", Foxglove WebSocket,
+exactly as without ``--foxglove``. In Foxglove: "Open connection", Foxglove WebSocket,
 ``ws://localhost:PORT``.
 
-A simulated run is paced to ``--live-speed`` times real time (default 1, 0 for as fast as it
+A simulated run is paced to ``--foxglove-speed`` times real time (default 1, 0 for as fast as it
 goes), so that it can be watched.
 """
 
@@ -24,7 +24,7 @@ from .schemas import SCHEMAS
 
 #: Foxglove's default WebSocket port (what the app proposes).
 DEFAULT_PORT = 8765
-INSTALL_HINT = "--live needs the Foxglove SDK: pip install 'hbvs[live]'"
+INSTALL_HINT = "--foxglove needs the Foxglove SDK: pip install 'hbvs[live]'"
 #: Paces a live view may have (times real time): slower than 1/1000 a run of seconds would
 #: take hours (and the sleeps overflow the clock); faster than 1e6 is no pacing at all.
 MIN_SPEED, MAX_SPEED = 1e-3, 1e6
@@ -116,14 +116,14 @@ def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Itera
     """
     foxglove = _sdk()
     if not 0 <= int(port) <= 65535:
-        raise UsageError(f"--live: the port must be 0-65535, got {port}")
+        raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
     if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
         raise UsageError(f"--foxglove-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
     context = foxglove.Context()
     try:
         server = foxglove.start_server(name="hbvs repeat", host=host, port=int(port), context=context)
     except Exception as exc:  # the SDK raises its own error types for a port in use
-        raise UsageError(f"--live: cannot serve on {host}:{port} ({str(exc).splitlines()[0][:120]})") from None
+        raise UsageError(f"--foxglove: cannot serve on {host}:{port} ({str(exc).splitlines()[0][:120]})") from None
     try:
         yield server, (lambda writer: LiveMirror(writer, context, speed))
     finally:
