@@ -62,7 +62,8 @@ def test_domain_errors_from_the_core():
 
 @pytest.mark.parametrize("arguments, code, message", [
     (["teach", "--dots", "11"], 2, "hbvs: error: a dot target has 3 to 10 dots, got 11"),
-    (["repeat", "{fit}", "--sim", "--dhat0", "-1"], 2, "hbvs: error: --dhat0 must be a positive depth in metres, got -1.0"),
+    (["repeat", "{fit}", "--sim", "--dhat0", "-1"], 2,
+     "hbvs: error: Invalid value for '--dhat0': Input should be greater than or equal to 0.001 (see 'hbvs repeat -h')"),
 ])
 def test_users_see_the_same_exit_code_and_line(tmp_path, default_fit, arguments, code, message):
     arguments = [a.format(fit=default_fit[0]) for a in arguments] + ["-o", str(tmp_path / "out.mcap")]
