@@ -13,8 +13,10 @@ images), which brings the measured points to 1.0 px.
 
 Measured on this machine: detector error 0.19 px RMS per axis against the projected truth
 (the default images: 0.012 px), the fit's residual 0.13 px. Seeds 0-9, mean final error:
-0.19 cm / 0.13 deg (worst 0.29 cm / 0.21 deg); with the added 1 px, 0.44 cm / 0.20 deg
-(worst 0.71 cm / 0.33 deg), at most 3 frames without the target.
+0.33 cm / 0.13 deg (worst 0.44 cm / 0.20 deg); with the added 1 px, 0.68 cm / 0.19 deg
+(worst 1.33 cm / 0.56 deg), no frame without the target (``pytest -s -n 0 -m campaign``).
+Before the windowed detection and the depth in the filter: 0.19 cm / 0.13 deg (worst 0.29 /
+0.21) and 0.44 cm / 0.20 deg (worst 0.71 / 0.33): the position got worse (issues 25, 28).
 """
 
 from __future__ import annotations
