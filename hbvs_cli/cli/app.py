@@ -118,7 +118,7 @@ def repeat(**values: Any) -> None:
 
 
 # --------------------------------------------------------------------------- robot-sim
-@app.command("robot-sim", rich_help_panel="Studies")
+@app.command("robot-sim", rich_help_panel="Robot")
 @with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
 def robot_sim(**values: Any) -> None:
     """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
