@@ -324,3 +324,38 @@ def pytest_configure(config):
 def pytest_collection_modifyitems(session, config, items):
     """Heaviest files first (a stable sort: the tests of a file keep their order)."""
     items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))
+
+
+# --------------------------------------------------------------------------- peak memory
+#: Runs a command as its own child and writes "exit-code peak-kB" to a file. Linux keeps a
+#: process's peak memory across exec, and a child forked from pytest starts at pytest's
+#: size (hundreds of MB in a long session): forked from this small launcher instead, the
+#: command's peak is its own. With "1" as its second argument the child's stdin is closed.
+PEAK_LAUNCHER = """
+import os, sys
+report, close_stdin, command = sys.argv[1], sys.argv[2] == "1", sys.argv[3:]
+pid = os.fork()
+if pid == 0:
+    if close_stdin:
+        os.close(0)
+    os.execv(command[0], command)
+_, status, usage = os.wait4(pid, 0)
+with open(report, "w") as handle:
+    handle.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
+"""
+
+
+def run_with_peak_memory(command: list[str], cwd, stderr, env: dict, close_stdin: bool = False,
+                         timeout: float = 600) -> tuple[int, int]:
+    """Run ``command`` (its first item an executable's path) from :data:`PEAK_LAUNCHER`;
+    its exit code and its own peak resident memory (bytes, from wait4). ``stderr`` is an
+    open file the command writes its stderr to."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        report = Path(folder) / "peak.txt"
+        subprocess.run([sys.executable, "-c", PEAK_LAUNCHER, str(report), "1" if close_stdin else "0", *command],
+                       cwd=cwd, stdout=subprocess.DEVNULL, stderr=stderr, env=env, check=True, timeout=timeout)
+        code, peak_kb = (int(word) for word in report.read_text().split())
+    return code, peak_kb * 1024

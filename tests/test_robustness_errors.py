@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 import zstandard
 
-from conftest import REPO, call_hbvs, make_fit, make_teach
+from conftest import REPO, call_hbvs, make_fit, make_teach, run_with_peak_memory
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
 from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
 
@@ -109,32 +109,12 @@ def message_bomb(messages: int, chunks: int) -> bytes:
 
 
 # ----------------------------------------------------------------------------- measured runs
-#: Runs a command as its own child and writes "exit-code peak-kB" to a file. Linux keeps a
-#: process's peak memory across exec, and a child forked from pytest starts at pytest's
-#: size (hundreds of MB in a long session): forked from this small launcher instead, the
-#: command's peak is its own.
-LAUNCHER = """
-import os, sys
-report, command = sys.argv[1], sys.argv[2:]
-pid = os.fork()
-if pid == 0:
-    os.execv(command[0], command)
-_, status, usage = os.wait4(pid, 0)
-with open(report, "w") as handle:
-    handle.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
-"""
-
-
 def measured(folder: Path, *args: str) -> tuple[int, str, float]:
     """Run ``hbvs ARGS``; exit code, stderr and the peak resident memory in MB (wait4)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    report = folder / "peak.txt"
     with open(folder / "stderr.txt", "wb") as err:
-        subprocess.run([sys.executable, "-c", LAUNCHER, str(report), sys.executable, "-m", "hbvs_cli", *args],
-                       cwd=folder, stdout=subprocess.DEVNULL, stderr=err, env=env, check=True, timeout=600)
-    code, peak_kb = (int(word) for word in report.read_text().split())
-    report.unlink()
-    return code, (folder / "stderr.txt").read_text(), peak_kb / 1024
+        code, peak = run_with_peak_memory([sys.executable, "-m", "hbvs_cli", *args], folder, err, env)
+    return code, (folder / "stderr.txt").read_text(), peak / 2**20
 
 
 LIMIT_CASES = {

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SAMPLES, SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent, run_hbvs
+from conftest import SAMPLES, SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent, run_hbvs, run_with_peak_memory
 
 FIT = SAMPLES / "fit.mcap"
 TEACH = SAMPLES / "teach.mcap"
@@ -643,22 +643,14 @@ def test_adversarial_campaign_over_the_new_surfaces(request, extent, tmp_path, s
 
 
 def _run_in_child(arguments: list[str], stdin_closed: bool, cwd: Path) -> tuple[int, str, int]:
-    """Run hbvs in a child and return its exit code, stderr and peak RSS (bytes, from wait4)."""
+    """Run hbvs in a child and return its exit code, stderr and its own peak RSS (bytes)."""
     import tempfile
 
     with tempfile.TemporaryFile() as errors:
-        child = subprocess.Popen([*HBVS, *arguments], cwd=cwd, stdout=subprocess.DEVNULL, stderr=errors,
-                                 preexec_fn=(lambda: os.close(0)) if stdin_closed else None,
-                                 env=dict(os.environ, MPLBACKEND="Agg"))
-        timer = threading.Timer(300, child.kill)
-        timer.start()
-        try:
-            _, status, usage = os.wait4(child.pid, 0)
-        finally:
-            timer.cancel()
-        child.returncode = os.waitstatus_to_exitcode(status)
+        code, peak = run_with_peak_memory([*HBVS, *arguments], cwd, errors, dict(os.environ, MPLBACKEND="Agg"),
+                                          close_stdin=stdin_closed, timeout=300)
         errors.seek(0)
-        return child.returncode, errors.read().decode(errors="replace"), usage.ru_maxrss * 1024
+        return code, errors.read().decode(errors="replace"), peak
 
 
 def zstd_of_zeros(megabytes: int) -> bytes:
