@@ -63,3 +63,39 @@ def test_a_video_file_drives_the_loop_and_ends_on_zero(tmp_path):
     sent = [c["v"] for c in moving]
     np.testing.assert_allclose(run.state["v_c"][run.state["v_c"] != 0][: len(sent)], sent)
     assert run.timing is not None and run.timing["t"].size == run.steps and run.info["mode"] == "live"
+
+
+def test_a_camera_that_comes_back_after_going_stale_is_driven_from_again():
+    """Frames stop for longer than --stale-timeout (zero commands, once), then come back
+    before --lost-timeout: the loop takes the next frame instead of stopping the run."""
+    import time
+    from types import SimpleNamespace
+
+    from hbvs_cli.stages.live import LiveLoop
+
+    class GapSource:
+        """No frame until ``back_at`` (monotonic s), then one."""
+
+        def __init__(self, back_at: float) -> None:
+            self.back_at, self.served = back_at, False
+
+        def latest(self, timeout_s: float):
+            time.sleep(max(0.0, min(timeout_s, self.back_at - time.monotonic())))
+            if time.monotonic() >= self.back_at and not self.served:
+                self.served = True
+                return SimpleNamespace(arrival=time.monotonic())
+            return None
+
+    stops, events = [], []
+    loop = LiveLoop.__new__(LiveLoop)
+    loop.t, loop.stopped = 0.0, None
+    loop.source = GapSource(time.monotonic() + 0.5)
+    loop.options = SimpleNamespace(stale_timeout=0.1)
+    loop.settings = SimpleNamespace(lost_timeout=3.0)
+    loop.out = SimpleNamespace(stop=stops.append)
+    loop.servo = SimpleNamespace(previous=(0.3, 0.1))
+    loop.run = SimpleNamespace(event=lambda t, level, text: events.append(text))
+    frame = loop._next_frame(time.monotonic())
+    assert frame is not None and loop.stopped is None
+    assert len(stops) == 1 and loop.servo.previous == (0.0, 0.0)
+    assert any("--stale-timeout" in text for text in events) and events[-1] == "camera frames back"

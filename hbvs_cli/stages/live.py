@@ -52,6 +52,8 @@ START_TOLERANCE_DEG = 15.0
 ZERO_REPEATS = 3
 #: A frame is "late" when its interval exceeds this many control periods.
 LATE_FACTOR = 1.5
+#: How long (s) a stale camera is polled at a time while the robot stands still.
+STALE_POLL_S = 0.01
 #: Largest relative difference between the given calibration and the fit's camera.
 CALIBRATION_TOLERANCE = 0.02
 
@@ -300,7 +302,9 @@ class LiveLoop:
         stale = False
         while True:
             wait = self.options.stale_timeout - (time.monotonic() - last_arrival)
-            frame = self.source.latest(wait) if wait > 0 else None
+            # Once stale, the source is still polled (briefly), so that a camera that comes
+            # back is driven from again rather than timed out.
+            frame = self.source.latest(wait if wait > 0 else STALE_POLL_S)
             if frame is not None:
                 if stale:
                     self.run.event(self.t, LOG_INFO, "camera frames back")
@@ -317,7 +321,6 @@ class LiveLoop:
                 self.stopped = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
                 self.run.event(self.t, LOG_ERROR, self.stopped + ": run stopped")
                 return None
-            time.sleep(0.001)
 
 
 #: A live run has no ground truth: the pose recorded with each step.
