@@ -274,6 +274,16 @@ def test_a_lost_target_stops_at_once_and_the_run_after_the_lost_timeout(tmp_path
     run = read_run(tmp_path / "live.mcap")
     assert run.lost[-1] and np.all(run.state["v_c"][run.lost] == 0.0)
 
+def assert_refused_with_only_zeros(live, err: str, listener, code: int, words: str, tmp_path: Path) -> None:
+    """``repeat --live`` ended with ``code`` and one line saying ``words``, the listener on
+    the command topic heard only zeros, and no run file was left."""
+    commands = listener.commands()
+    lines = err.strip().splitlines()
+    assert live.returncode == code and len(lines) == 1 and words in lines[0], err
+    assert commands and all((c["v"], c["w"]) == (0.0, 0.0) for c in commands)
+    assert not (tmp_path / "live.mcap").exists()
+
+
 
 @pytest.mark.campaign
 @pytest.mark.parametrize("offset, words", [("-0.45,0.05,2", "from the taught start"), ("0.5,0.3,15", "the target is not in view")])
@@ -287,11 +297,7 @@ def test_a_robot_away_from_the_start_never_moves(tmp_path, offset, words, reques
         _, err = live.communicate(timeout=60)
     finally:
         stop(live, robot)
-    commands = listener.commands()
-    lines = err.strip().splitlines()
-    assert live.returncode == 8 and len(lines) == 1 and words in lines[0], err
-    assert commands and all((c["v"], c["w"]) == (0.0, 0.0) for c in commands)
-    assert not (tmp_path / "live.mcap").exists()
+    assert_refused_with_only_zeros(live, err, listener, 8, words, tmp_path)
 
 
 PUBLISHER = textwrap.dedent("""
@@ -328,11 +334,7 @@ def test_bad_input_is_one_line_exit_3_and_only_zeros(tmp_path, width, height, en
         _, err = live.communicate(timeout=60)
     finally:
         stop(live, camera)
-    commands = listener.commands()
-    lines = err.strip().splitlines()
-    assert live.returncode == 3 and len(lines) == 1 and words in lines[0], err
-    assert commands and all((c["v"], c["w"]) == (0.0, 0.0) for c in commands)
-    assert not (tmp_path / "live.mcap").exists()
+    assert_refused_with_only_zeros(live, err, listener, 3, words, tmp_path)
 
 
 @pytest.mark.campaign
