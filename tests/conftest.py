@@ -292,6 +292,24 @@ def default_fit(default_teach, pipeline_dir):
     return path, read_fit_file(path).model
 
 
+@pytest.fixture(scope="session")
+def video_fit(pipeline_dir):
+    """A teach from a lossless video of :func:`rendered_s_curve` (seed 1, 600 frames) and
+    its fit at the target's metric size, with the drive's truth: (teach path, fit path,
+    world, command profile, start pose, frame times)."""
+
+    def teach(path):
+        folder = pipeline_dir / "video-build"
+        folder.mkdir(exist_ok=True)
+        teach_from_rendered_video(folder, seed=1)[0].rename(path)
+
+    world, profile, start, times, _ = rendered_s_curve(1)
+    teach_path = shared_recording(pipeline_dir, "video-teach.mcap", teach)
+    fit_path = shared_recording(pipeline_dir, "video-fit.mcap",
+                                lambda path: make_fit(teach_path, path, target_size=world.target.size))
+    return teach_path, fit_path, world, profile, start, times
+
+
 #: CPU seconds of the heaviest test files (their own and their children's, measured test by
 #: test in a quiet run of the suite on this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
 #: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
