@@ -237,6 +237,6 @@ def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
     from hbvs_cli.report.build import build_report
 
     for law, run in image_runs.items():
-        lyapunov = build_report(run)["lyapunov"]
-        assert 0.05 < lyapunov["increase_fraction"] < 0.3, (law, lyapunov)
-        assert lyapunov["ratio"] < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)
+        lyapunov = build_report(run).lyapunov
+        assert 0.05 < lyapunov.increase_fraction < 0.3, (law, lyapunov)
+        assert lyapunov.ratio < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)
