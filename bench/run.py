@@ -410,7 +410,7 @@ def bench_images_loop(work: Path, quick: bool) -> list[Figure]:
 def decode_only(teach: Path) -> int:
     """Read and decode every image of a teach file, nothing else: the floor for fit."""
     from hbvs_cli.io.teach_file import TeachReader
-    from hbvs_cli.stages.frames import decode_frame
+    from hbvs_cli.stages.frame_decoding import decode_frame
 
     count = 0
     reader = TeachReader(teach)

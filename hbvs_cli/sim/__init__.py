@@ -12,7 +12,7 @@
 Nothing here reads or writes MCAP files; the stages do.
 """
 
-from .camera import CameraSettings, SimulatedCamera
+from .simulated_camera import CameraSettings, SimulatedCamera
 from .closed_loop import Simulation
 from .poster import PosterRaster, build_pyramid
 from .render import RenderSettings, SceneRenderer, load_texture, make_renderer

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from itertools import chain, islice
 from pathlib import Path
 from typing import Any, Iterator
@@ -28,7 +28,7 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
-from .frames import decoded_frames
+from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
 
@@ -141,7 +141,7 @@ def _one_opencv_thread() -> Iterator[None]:
     """OpenCV's own thread pool off (one thread) while fitting, restored after.
 
     fit already keeps two cores busy: the frame loop on the main thread, and the images
-    decoded in a second thread (:func:`~.frames.decoded_frames`). OpenCV's pool threads
+    decoded in a second thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads
     (the detectors' thresholds, filters and labelling on 640x480 frames or windows of
     them) could only take cores from those two, and spin while they wait for work; with
     one thread each call runs where it is made. Per-frame detection costs the same main
@@ -428,6 +428,13 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
+def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
+    """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
+    candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
+    return {"dhat0": estimate.d_star, "standard_error": estimate.standard_error, "source": estimate.source,
+            "samples": estimate.samples}
+
+
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
            board: tuple[int, int] | None = None) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
@@ -441,7 +448,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
-            estimates["commands"] = asdict(from_commands)
+            estimates["commands"] = _estimate_record(from_commands)
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
@@ -458,7 +465,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         else:
             kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
         from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
-        estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
+        estimates["target_size"] = _estimate_record(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
     if chosen is None:
         console.warn(
@@ -499,9 +506,9 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     estimates = depth["estimates"]
     if estimates.get("commands"):
         e = estimates["commands"]
-        table.add_row("d* from taught commands (25)", f"{e['d_star']:.3f} +- {e['standard_error']:.3f} m")
+        table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
     if estimates.get("target_size"):
-        table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
+        table.add_row("d* from target size", f"{estimates['target_size']['dhat0']:.3f} m")
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
     from ..core.gains import dhat0_range_text
 

@@ -49,7 +49,7 @@ from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
 from .console import Console
-from .frames import decoded_frames, fit_reference_image, fit_template_image
+from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from ..io.output_target import open_text_output
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
-from .frames import fit_reference_image
+from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset
 from ..io.settings import RobotSimOptions
 
