@@ -31,7 +31,7 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
-    FIT_SETTINGS, OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
+    FIT_SETTINGS, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
     options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint

@@ -82,19 +82,6 @@ class CameraIntrinsics:
         """True when any distortion coefficient is non-zero."""
         return any(abs(v) > 0.0 for v in self.distortion)
 
-    def scaled(self, factor: float) -> "CameraIntrinsics":
-        """The same camera with images resized by ``factor`` (no distortion rescale needed)."""
-        return CameraIntrinsics(
-            fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=(self.cx + 0.5) * factor - 0.5,
-            cy=(self.cy + 0.5) * factor - 0.5,
-            width=int(round(self.width * factor)),
-            height=int(round(self.height * factor)),
-            distortion_model=self.distortion_model,
-            distortion=self.distortion,
-        )
-
 
 #: The default simulated camera: 640x480, f = 500 px (a 65 deg horizontal field of view),
 #: principal point at the image centre, no distortion.

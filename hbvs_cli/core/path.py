@@ -19,7 +19,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError, MalformedDataError
-from .control_settings import DEFAULT_PRESET  # noqa: F401 - re-exported
 from .unicycle import advance_unicycle, integrate_commands
 
 

@@ -24,7 +24,7 @@ the bands of the settling times.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
@@ -32,7 +32,6 @@ from ..core.frames import wrap_angle
 from ..core.metrics import (
     command_smoothness,
     error_summary,
-    round_significant,
     longest_true_run_s,
     lyapunov_summary,
     min_abs,

@@ -39,8 +39,6 @@ class Scene:
     d_true : float
         True distance from F* to the target plane (m).
     reference_pose : ndarray, shape (3,)
-    has_ground_truth : bool
-        True when the taught poses are the simulated teach's own (not reconstructed).
     poster_image : ndarray or None
         The picture on the wall when it is not the target's own drawing (real footage).
     """
@@ -48,7 +46,6 @@ class Scene:
     world: World
     d_true: float
     reference_pose: np.ndarray
-    has_ground_truth: bool
     taught_profile: CommandProfile | None = None
     taught_start: np.ndarray | None = None
     taught_t0: float = 0.0
@@ -96,7 +93,7 @@ def simulation_world(model: FitModel, reference_image: NDArray | None, depth: fl
         if depth is not None:
             raise UsageError("--depth is for a teach from real footage; this fit came from a simulated teach and knows its world")
         return Scene(
-            world=model.world, d_true=d_true, reference_pose=path.reference_pose, has_ground_truth=True,
+            world=model.world, d_true=d_true, reference_pose=path.reference_pose,
             taught_profile=profile, taught_start=path.start_pose, taught_t0=float(path.t[0]),
             run_start=start, run_speed=speed,
         )
@@ -111,7 +108,7 @@ def simulation_world(model: FitModel, reference_image: NDArray | None, depth: fl
         raise UsageError("the fit file has no reference image to build a world from")
     world, poster_image, reference_pose = world_from_reference(model, reference_image, depth)
     return Scene(
-        world=world, d_true=float(depth), reference_pose=reference_pose, has_ground_truth=False,
+        world=world, d_true=float(depth), reference_pose=reference_pose,
         spline=model.trajectory, poster_image=poster_image, run_start=start, run_speed=speed,
     )
 

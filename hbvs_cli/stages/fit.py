@@ -38,8 +38,6 @@ FALLBACK_DHAT0 = 2.0
 
 @dataclass
 class FitSummary:
-    frames_total: int
-    frames_used: int
     output: str
     model: Any
 
@@ -266,7 +264,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
-    return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
+    return FitSummary(output=options.output, model=model)
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
