@@ -31,7 +31,7 @@ from hbvs_cli.core.controller import Measurement
 from hbvs_cli.core.metrics import command_smoothness
 from hbvs_cli.core.state_filter import FilterOutcome, ServoStateFilter, predict_state
 from hbvs_cli.core.unicycle import integrate_unicycle
-from hbvs_cli.core.world import default_world
+from hbvs_cli.sim.world import default_world
 
 FUSED, GATED, STARTED = FilterOutcome.FUSED, FilterOutcome.GATED, FilterOutcome.STARTED
 

@@ -100,7 +100,7 @@ NOISE_XH_RMS_BOUND = 0.016
 
 def test_theta_error_with_half_pixel_noise(rng, capsys):
     """0.5 px Gaussian noise, 640x480, f = 500 px, a 2 m dot target 3-6 m away."""
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world("dots", dots=6)
     errors_theta, errors_xh = [], []
@@ -131,7 +131,7 @@ def test_a_known_square_pins_the_normal_of_a_small_distant_marker():
     tests/test_perception_footage.py, 0.4 m ArUco marker: 4.6 deg -> 0.29 deg)."""
     from hbvs_cli.core.camera import pixels_to_normalized
     from hbvs_cli.core.plane import UNIT_SQUARE, refine_plane_and_reference, shape_residuals
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world("aruco", wall_x=5.5)
     t = np.linspace(0.0, 1.0, 40)

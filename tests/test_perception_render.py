@@ -7,7 +7,7 @@ import pytest
 
 from hbvs_cli.core.camera import CameraIntrinsics, distort_pixels
 from hbvs_cli.core.path import preset_profile
-from hbvs_cli.core.world import default_world, with_camera
+from hbvs_cli.sim.world import default_world, with_camera
 from hbvs_cli.errors import InputError, UsageError
 from hbvs_cli.perception import DotDetector
 from hbvs_cli.sim import PosterRaster, RenderSettings, SceneRenderer

@@ -118,9 +118,10 @@ def test_replay_of_a_displaced_drive_gives_the_displacement_back(default_fit, tm
     make_run(fit_path, tmp_path / "replay.mcap", replay=displaced)
     run = read_run(tmp_path / "replay.mcap")
     from hbvs_cli.io.teach_file import TeachReader
+    from hbvs_cli.sim.world import World
 
     truth = np.array([f.pose for f in TeachReader(displaced).frames()])
-    world, reference_pose = model.world, model.taught_path.reference_pose
+    world, reference_pose = World.from_dict(model.world_description), model.taught_path.reference_pose
     theta, x_h = world.ground_truth(truth, reference_pose)
     desired = model.trajectory.evaluate(run.state["t"])
     expected = {"e1": x_h[:, 0] - desired.x_hd1, "e2": x_h[:, 1] - desired.x_hd2, "e3": theta - desired.theta_d}

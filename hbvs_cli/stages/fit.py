@@ -31,6 +31,7 @@ from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, t
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
+from ..sim.world import World, world_from_description
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -248,7 +249,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             condition35=result.condition35,
             residual_px=result.residual_px.as_dict(),
             detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
-            world=reader.world,
+            world_description=reader.world_description,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
@@ -256,8 +257,9 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
-            height = reader.world.camera_height if reader.world is not None else 0.0
-            SceneWriter(writer).start(int(arrays["log_time"][0]), height, reader.world, arrays["pose"])
+            world = _teach_world(reader)
+            height = world.camera_height if world is not None else 0.0
+            SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
@@ -315,9 +317,16 @@ def _render_settings(reader: Any) -> dict[str, Any] | None:
     from ..io.teach_file import RENDER_SETTINGS
 
     settings = reader.info.get("settings") if reader.info else None
-    if reader.world is None or not isinstance(settings, dict):
+    if reader.world_description is None or not isinstance(settings, dict):
         return None
     return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
+
+
+def _teach_world(reader: Any) -> World | None:
+    """The simulated world of a teach recording, checked (None for real footage)."""
+    if reader.world_description is None:
+        return None
+    return world_from_description(reader.world_description, reader.name)
 
 
 def _version() -> str:
@@ -354,7 +363,7 @@ def _detector_spec(
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
     (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    world = reader.world
+    world = _teach_world(reader)
     image = images[0]
     kind = options.target
     choice = None
