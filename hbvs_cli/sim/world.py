@@ -12,7 +12,7 @@ Everything a later stage needs to re-create the same world (and the same images)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import math
@@ -386,8 +386,3 @@ def default_world(
 ) -> World:
     """The default world: the default camera 0.30 m above the floor, the wall at x = 4 m."""
     return World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=default_target(kind, dots, texture, wall_x))
-
-
-def with_camera(world: World, camera: CameraIntrinsics) -> World:
-    """The same world seen through another camera."""
-    return replace(world, camera=camera)
