@@ -139,13 +139,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 def _one_opencv_thread() -> Iterator[None]:
     """OpenCV's own thread pool off (one thread) while fitting, restored after.
 
-    fit already keeps two cores busy: the frame loop on the main thread, and the images
-    decoded in a second thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads
-    (the detectors' thresholds, filters and labelling on 640x480 frames or windows of
-    them) could only take cores from those two, and spin while they wait for work; with
-    one thread each call runs where it is made. Per-frame detection costs the same main
-    thread CPU either way (aruco 1.30-1.38 against 1.32-1.33 ms, dots 1.21-1.22 against
-    1.15-1.19 ms at load 6; a quiet machine gives the pool's threads a core to spin on).
+    fit already keeps two cores busy: the frame loop, and the images decoded in a second
+    thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads could only take
+    cores from those two and spin while they wait; with one thread each call runs where it
+    is made, at the same cost per frame (bench/).
     """
     import cv2
 
