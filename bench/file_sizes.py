@@ -78,6 +78,7 @@ def _fit_theta_error(teach: Path, folder: Path) -> tuple[float, float]:
     from hbvs_cli.core.path import CommandProfile
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.io.fit_file import read_fit_file
+    from hbvs_cli.sim.world import World
     from hbvs_cli.stages.console import Console
     from hbvs_cli.stages.fit import FitOptions, run_fit
 
@@ -87,7 +88,7 @@ def _fit_theta_error(teach: Path, folder: Path) -> tuple[float, float]:
     path = model.taught_path
     interval = float(np.median(np.diff(path.t)))
     profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
-    _, _, d_star = model.world.reference_geometry(path.reference_pose)
+    _, _, d_star = World.from_dict(model.world_description).reference_geometry(path.reference_pose)
     truth = TaughtPathTrajectory(profile, path.start_pose, path.reference_pose, d_star)
     t = path.t[(path.t >= model.trajectory.t_start) & (path.t <= model.trajectory.t_end)]
     fitted, exact = model.trajectory.evaluate(t), truth.evaluate(t - path.t[0])

@@ -125,10 +125,10 @@ def test_the_report_says_how_dhat_learnt(fit_path, tmp_path):
     common = dict(sim=True, perception="points", pixel_noise=0.5, dhat0=4 * D_STAR)
     make_run(fit_path, tmp_path / "new.mcap", **common)
     make_run(fit_path, tmp_path / "paper.mcap", law="paper", state_filter="none", **common)
-    new, paper = (build_report(read_run(tmp_path / f"{name}.mcap"))["depth"] for name in ("new", "paper"))
+    new, paper = (build_report(read_run(tmp_path / f"{name}.mcap")).depth for name in ("new", "paper"))
     # Measured: within 10 % after 4.2 s, drift at the end 0.09 % per second.
-    assert new["learning_reference"] == "d_true" and 1.0 < new["learning_time_s"] < 8.0
-    assert new["still_moving"] is False and new["warning"] is None
+    assert new.learning_reference == "d_true" and 1.0 < new.learning_time_s < 8.0
+    assert new.still_moving is False and new.warning is None
     # Measured: 16 m -> 9.2 m, falling 3.7 % of d* per second at the end.
-    assert paper["learning_time_s"] is None and paper["still_moving"] is True
-    assert paper["end_rate_per_s"] < -0.01 and "still moving" in paper["warning"]
+    assert paper.learning_time_s is None and paper.still_moving is True
+    assert paper.end_rate_per_s < -0.01 and "still moving" in paper.warning

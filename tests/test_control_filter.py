@@ -31,7 +31,7 @@ from hbvs_cli.core.controller import Measurement
 from hbvs_cli.core.metrics import command_smoothness
 from hbvs_cli.core.state_filter import FilterOutcome, ServoStateFilter, predict_state
 from hbvs_cli.core.unicycle import integrate_unicycle
-from hbvs_cli.core.world import default_world
+from hbvs_cli.sim.world import default_world
 
 FUSED, GATED, STARTED = FilterOutcome.FUSED, FilterOutcome.GATED, FilterOutcome.STARTED
 
@@ -242,14 +242,14 @@ def test_200_hz_at_a_fifth_of_a_pixel_is_smooth_and_the_old_loop_fails_the_verdi
     make_run(fit_path, tmp_path / "exact.mcap", sim=True, perception="points", rate=200.0, state_filter="none")
     new, old, exact = (build_report(read_run(tmp_path / f"{name}.mcap")) for name in ("new", "old", "exact"))
     with capsys.disabled():
-        print(f"\n0.2 px at 200 Hz: RMS dv/dt {new['commands']['dv_dt_rms_mps2']:.3f} (filter) vs "
-              f"{old['commands']['dv_dt_rms_mps2']:.1f} (before) vs {exact['commands']['dv_dt_rms_mps2']:.3f} m/s^2 (exact points)")
-    assert new["verdict"]["converged"] is True
-    assert new["commands"]["dv_dt_rms_mps2"] < 2.0 * exact["commands"]["dv_dt_rms_mps2"]
+        print(f"\n0.2 px at 200 Hz: RMS dv/dt {new.commands.dv_dt_rms_mps2:.3f} (filter) vs "
+              f"{old.commands.dv_dt_rms_mps2:.1f} (before) vs {exact.commands.dv_dt_rms_mps2:.3f} m/s^2 (exact points)")
+    assert new.verdict.converged is True
+    assert new.commands.dv_dt_rms_mps2 < 2.0 * exact.commands.dv_dt_rms_mps2
     # The old loop chattered (v between the limits; measured about 40 m/s^2) and now fails.
-    assert old["commands"]["dv_dt_rms_mps2"] > 20.0
-    assert old["verdict"]["converged"] is False
-    assert any(reason.startswith("fail: commands chatter") for reason in old["verdict"]["reasons"])
+    assert old.commands.dv_dt_rms_mps2 > 20.0
+    assert old.verdict.converged is False
+    assert any(reason.startswith("fail: commands chatter") for reason in old.verdict.reasons)
 
 
 def test_a_depth_three_times_too_large_is_learnt_not_frozen(fit_path):

@@ -38,7 +38,7 @@ def detection_errors(noise: float, grain: float, blur: float, jpeg_quality: int 
     from scipy.optimize import linear_sum_assignment
 
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.perception.dots import DotDetector
     from hbvs_cli.sim.render import make_renderer
 

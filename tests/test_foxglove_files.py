@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from conftest import make_fit, make_run, make_teach
 from hbvs_cli.io import topics
 from hbvs_cli.io.schemas import FOXGLOVE_SCHEMAS, SCHEMAS
+from hbvs_cli.sim.world import World
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +139,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
     # Optical convention: z forward = the robot's x, x right = -y, y down = -z.
     assert np.allclose(optical.apply([[0, 0, 1], [1, 0, 0], [0, 1, 0]]), [[1, 0, 0], [0, -1, 0], [0, 0, -1]], atol=1e-15)
     height = camera[0]["translation"]["z"]
-    assert height == pytest.approx(model.world.camera_height)
+    assert height == pytest.approx(World.from_dict(model.world_description).camera_height)
     poses = [m for _, m in by_topic[topics.TRUE_POSE_TOPIC]]
     assert len(robot) == len(poses)
     for (stamp, transform), pose in zip(robot, poses):
@@ -152,7 +153,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
     path = next(e for e in scene["entities"] if e["id"] == "taught_path")
     assert target["frame_id"] == "world" and len(path["lines"][0]["points"]) == len(poses)
     points_world = np.array([[s["pose"]["position"][k] for k in "xyz"] for s in target["spheres"]])
-    assert np.array_equal(points_world, model.world.target.points_world)
+    assert np.array_equal(points_world, World.from_dict(model.world_description).target.points_world)
     calibration = by_topic[topics.CALIBRATION_TOPIC][0][1]
     assert calibration["frame_id"] == "camera_optical"
     K = np.array(calibration["K"]).reshape(3, 3)
@@ -166,7 +167,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
         projected = (K @ (in_optical / in_optical[:, 2:3]).T).T[:, :2]
         position, q = pose["pose"]["position"], pose["pose"]["orientation"]
         phi = 2 * np.arctan2(q["z"], q["w"])
-        expected = model.world.pixels(np.array([position["x"], position["y"], phi]))
+        expected = World.from_dict(model.world_description).pixels(np.array([position["x"], position["y"], phi]))
         worst = max(worst, float(np.max(np.abs(projected - expected))))
     assert worst < 1e-6  # pixels
 

@@ -415,7 +415,7 @@ def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
     from hbvs_cli.core.path import sampled_profile
     from hbvs_cli.sim.closed_loop import run_closed_loop
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world("dots")
     profile = sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), 2.0, 30.0)

@@ -216,7 +216,7 @@ def inputs(tmp_path_factory) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- readers under test
 def read_teach(data: bytes) -> None:
     """What ``hbvs fit`` does with a teach file, up to the detector: every frame and image."""
-    from hbvs_cli.stages.frames import decode_frame
+    from hbvs_cli.stages.frame_decoding import decode_frame
     from hbvs_cli.io.teach_file import TeachReader
 
     reader = TeachReader(io.BytesIO(data), name="teach.mcap")

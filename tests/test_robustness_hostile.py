@@ -205,7 +205,7 @@ def test_a_teach_image_that_is_not_protobuf_or_json_is_refused():
 
 
 def world_description(**changes) -> dict:
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world().to_dict()
     for path, value in changes.items():
@@ -227,10 +227,12 @@ def world_description(**changes) -> dict:
     ({"camera": "not a camera"}, "malformed world"),
 ])
 def test_world_descriptions_are_bounded_before_anything_renders_them(changes, error):
-    from hbvs_cli.io.teach_file import world_from_description
+    """io checks what it uses (camera, height) as it reads; sim the rest as it builds the world."""
+    from hbvs_cli.io.teach_file import world_description as checked_description
+    from hbvs_cli.sim.world import world_from_description
 
     with pytest.raises(RecordingError, match=error):
-        world_from_description(world_description(**changes), "teach.mcap")
+        world_from_description(checked_description(world_description(**changes), "teach.mcap"), "teach.mcap")
 
 
 @pytest.fixture(scope="module")

@@ -172,7 +172,7 @@ def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
     errors = errors_against_drive(model, world, profile, start, times)
-    assert model.world is None and model.taught_path is None
+    assert model.world_description is None and model.taught_path is None
     assert errors["theta_deg"] < 0.05
     assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
     # No commands in a video: d* from the target's metric size (--target-size).

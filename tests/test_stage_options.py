@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.core.path import PRESETS, preset_profile
-from hbvs_cli.core.world import TARGET_KINDS, default_world
+from hbvs_cli.sim.world import TARGET_KINDS, default_world
 from hbvs_cli.errors import InputError, UsageError
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.mcap import McapStream
@@ -44,7 +44,7 @@ def test_teach_with_a_poster_image(tmp_path):
     teach = make_teach(tmp_path / "teach.mcap", target="texture", texture=poster, duration=4.0)
     make_fit(teach, tmp_path / "fit.mcap")
     model = read_fit_file(tmp_path / "fit.mcap").model
-    assert model.target_kind == "texture" and model.world.target.texture == str(poster)
+    assert model.target_kind == "texture" and model.world_description["target"]["texture"] == str(poster)
     assert model.frames["used"] == model.frames["total"] == 120
     with pytest.raises(InputError, match="not found"):
         make_teach(tmp_path / "x.mcap", target="texture", texture=tmp_path / "missing.png", duration=1.0)

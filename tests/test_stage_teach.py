@@ -97,7 +97,7 @@ def test_other_target_kinds(tmp_path, kind):
     path = make_teach(tmp_path / f"{kind}.mcap", target=kind, duration=1.0)
     reader = TeachReader(path)
     frames = list(reader.frames())
-    assert len(frames) == 30 and reader.world.target.kind == kind and all(f.pose is not None for f in frames)
+    assert len(frames) == 30 and reader.world_description["target"]["kind"] == kind and all(f.pose is not None for f in frames)
 
 
 def test_teach_from_a_pendant_csv_and_a_calibration_file(tmp_path):
@@ -127,7 +127,7 @@ def test_same_seed_same_bytes(tmp_path):
 def rendered_frames(count: int = 12):
     """Frames of the default scenario, rendered as a camera would record them."""
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.sim.render import make_renderer
 
     world = default_world()
@@ -294,7 +294,7 @@ def test_sample_recording_and_calibration_are_small_and_readable():
     assert teach.stat().st_size < 2 * 2**20
     reader = TeachReader(teach)
     frames = list(reader.frames())
-    assert len(frames) >= 30 and reader.world is not None
+    assert len(frames) >= 30 and reader.world_description is not None
     from hbvs_cli.io.calibration import load_calibration
 
     camera = load_calibration(SAMPLES / "camera.yaml")

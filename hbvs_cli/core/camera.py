@@ -12,6 +12,7 @@ intrinsic matrix ``K`` (x right, y down, z forward)::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -82,18 +83,25 @@ class CameraIntrinsics:
         """True when any distortion coefficient is non-zero."""
         return any(abs(v) > 0.0 for v in self.distortion)
 
-    def scaled(self, factor: float) -> "CameraIntrinsics":
-        """The same camera with images resized by ``factor`` (no distortion rescale needed)."""
-        return CameraIntrinsics(
-            fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=(self.cx + 0.5) * factor - 0.5,
-            cy=(self.cy + 0.5) * factor - 0.5,
-            width=int(round(self.width * factor)),
-            height=int(round(self.height * factor)),
-            distortion_model=self.distortion_model,
-            distortion=self.distortion,
-        )
+
+def camera_description(camera: CameraIntrinsics) -> dict[str, Any]:
+    """A JSON-ready description of a camera (the ``camera`` of a world description)."""
+    return {
+        "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+        "width": camera.width, "height": camera.height,
+        "distortion_model": camera.distortion_model, "distortion": list(camera.distortion),
+    }
+
+
+def camera_from_description(data: Any) -> CameraIntrinsics:
+    """Inverse of :func:`camera_description`; raises KeyError, TypeError or ValueError on a
+    malformed description, :class:`~hbvs_cli.errors.CalibrationError` on bad values."""
+    return CameraIntrinsics(
+        fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
+        width=int(data["width"]), height=int(data["height"]),
+        distortion_model=str(data.get("distortion_model", "none")),
+        distortion=tuple(float(v) for v in data.get("distortion", ())),
+    )
 
 
 #: The default simulated camera: 640x480, f = 500 px (a 65 deg horizontal field of view),

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import NoValidBranchError, NonFiniteInputError
+from ..errors import NonFiniteInputError
 
 #: Default prior for the plane normal in F*: the target faces the reference camera.
 FACING_PRIOR = np.array([1.0, 0.0, 0.0])
@@ -223,15 +223,3 @@ def decompose_homography(
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
-
-
-def decompose_homography_single(
-    H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR
-) -> PlanarMotion:
-    """One homography; raises :class:`NoValidBranchError` when no branch is physical."""
-    motion = decompose_homography(H, m_ref, reference_normal)
-    if not bool(motion.valid):
-        raise NoValidBranchError(
-            "no decomposition of the homography puts the target plane in front of the camera"
-        )
-    return motion

@@ -220,12 +220,6 @@ class DesiredFit:
     uncertainty: "FitUncertainty | None" = None
 
     @property
-    def normal_ambiguous(self) -> bool:
-        """True when the taught motion did not tell the two homography branches apart (e.g.
-        a straight drive): n* is then the prior, "the target faces F*"."""
-        return self.normal_margin < AMBIGUOUS_NORMAL_MARGIN
-
-    @property
     def condition35(self) -> dict[str, Any]:
         """Condition (35) as a record (the ``condition35`` of a fit file)."""
         condition = self.condition
@@ -268,7 +262,7 @@ def fit_desired_trajectory(
         Longest stretch without a used frame that the splines may bridge (s).
     warn : callable, optional
         Told, as it happens, what a user should know (the motion did not tell the
-        homography branches apart: :attr:`DesiredFit.normal_ambiguous`).
+        homography branches apart: ``normal_margin`` below :data:`AMBIGUOUS_NORMAL_MARGIN`).
     shapes : sequence of KnownShape, optional
         Parts of the target whose shape is known up to a similarity (each marker's
         square, :data:`~.plane.UNIT_SQUARE`); they pin n* where the motion does not

@@ -2,14 +2,12 @@
 
 scipy's ``make_smoothing_spline(x, y)`` (lam=None) picks lambda by minimising the GCV
 criterion with ``minimize_scalar(bounds=(0, n), method="bounded")``, but evaluates the
-criterion with Python loops over every sample (about 30 ms per trial for 3000 samples,
-40 trials per channel: 2.2-3 s of ``hbvs fit``'s serial time after its frame loop on a
-3000-frame recording). :func:`gcv_smoothing` minimises the same criterion with the same
-minimiser, bounds and tolerance, and evaluates it in Reinsch's form (Green and Silverman,
-*Nonparametric Regression and Generalized Linear Models*, 1994, Sec. 2.3 and 3.3):
-banded matrices and LAPACK's banded Cholesky factor, and one Python loop of a few float
-operations per sample for the trace (about 3 ms per trial). The spline itself is still
-scipy's, fitted with the lambda found here.
+criterion with Python loops over every sample, slowly (bench/ measures it).
+:func:`gcv_smoothing` minimises the same criterion with the same minimiser, bounds and
+tolerance, and evaluates it in Reinsch's form (Green and Silverman, *Nonparametric
+Regression and Generalized Linear Models*, 1994, Sec. 2.3 and 3.3): banded matrices and
+LAPACK's banded Cholesky factor. The spline itself is still scipy's, fitted with the
+lambda found here.
 
 The criterion, for unit weights, samples ``y`` at ``t`` and fitted values ``f``::
 

@@ -186,34 +186,6 @@ def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyE
     return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=residual)
 
 
-def estimate_euclidean_homography_single(m: ArrayLike, m_ref: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """One frame of :func:`estimate_euclidean_homography`, raising on an invalid frame.
-
-    Returns
-    -------
-    H : ndarray, shape (3, 3)
-    alpha : ndarray, shape (N,)
-
-    Raises
-    ------
-    NonFiniteInputError
-        If a current point is NaN or infinite.
-    PointBehindCameraError
-        If a depth ratio is not positive (a point crossed the camera's horizon, i.e. it is
-        behind the camera or matched to the wrong reference point).
-    """
-    m = np.asarray(m, dtype=float)
-    if not np.all(np.isfinite(m)):
-        raise NonFiniteInputError("current image points contain NaN or infinity")
-    estimate = estimate_euclidean_homography(m, m_ref)
-    if not bool(estimate.valid):
-        raise PointBehindCameraError(
-            "a depth ratio alpha_i = m_iz / m*_iz is not positive: a point is on the other side "
-            "of the camera's horizon than in the reference image"
-        )
-    return estimate.H, estimate.depth_ratios
-
-
 def _normalizing_transform(points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Hartley normalisation of the (y, z) coordinates of paper-axis points, batched."""
     yz = points[..., 1:] / points[..., :1]

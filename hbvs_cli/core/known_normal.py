@@ -357,8 +357,3 @@ def _solve_symmetric3(a11: Any, a12: Any, a13: Any, a22: Any, a23: Any, a33: Any
         (c12 * b1 + c22 * b2 + c23 * b3) / det,
         (c13 * b1 + c23 * b2 + c33 * b3) / det,
     )
-
-
-def solve_planar_motion_known_normal(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike) -> PlanarMotion:
-    """One-off use of :class:`KnownNormalSolver`: ``KnownNormalSolver(m_ref, normal).solve(m)``."""
-    return KnownNormalSolver(m_ref, normal).solve(m)

@@ -6,7 +6,7 @@ Because every segment is an arc, the pose at any time is known exactly
 (:mod:`hbvs_cli.core.unicycle`), which makes the taught run's ground truth exact too.
 
 Built-in presets (:data:`PRESETS`) are defined for the default world (a target on a wall
-4 m ahead of the start pose, see :mod:`hbvs_cli.core.world`); each keeps the target in view
+4 m ahead of the start pose, see :mod:`hbvs_cli.sim.world`); each keeps the target in view
 and keeps x_hd1_dot away from zero, condition (35).
 """
 
@@ -19,7 +19,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError, MalformedDataError
-from .control_settings import DEFAULT_PRESET  # noqa: F401 - re-exported
 from .unicycle import advance_unicycle, integrate_commands
 
 

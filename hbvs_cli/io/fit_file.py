@@ -31,14 +31,14 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.control_settings import GAIN_NAMES, ControllerGains
 from ..core.desired import DesiredFit
-from ..core.fit_model import FitModel, TaughtPath
+from ..core.fit_model import MAX_TARGET_POINTS, FitModel, TaughtPath
 from ..core.trajectory import SplineTrajectory
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
 from .mcap import McapStream, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
-from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
+from .teach_file import PARSE_ERRORS, render_settings_problem, world_description
 
 FILE_KIND = "fit"
 FORMAT_VERSION = 1
@@ -175,7 +175,7 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "condition35": model.condition35,
         "residual_px": model.residual_px,
         "detector": model.detector,
-        "world": model.world.to_dict() if model.world is not None else None,
+        "world": model.world_description,
         "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
         "render": model.render,
         "gains": model.gains,
@@ -188,8 +188,9 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
 
     Everything ``repeat`` later uses is checked here, so that a damaged or hostile
     model fails with one clear message rather than deep inside the simulation: the
-    camera as a calibration, the world as :func:`~.teach_file.world_from_description`,
-    finite reference points (at most :data:`~.teach_file.MAX_TARGET_POINTS`), a
+    camera as a calibration, the world's camera (:func:`~.teach_file.world_description`;
+    the simulator checks the rest of the world when it builds it),
+    finite reference points (at most :data:`~hbvs_cli.core.fit_model.MAX_TARGET_POINTS`), a
     non-zero normal, a positive dhat0 and frame interval, the detector and render
     settings.
     """
@@ -212,7 +213,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         kind = str(message["target_kind"])
         if kind not in ("dots", "aruco", "chessboard", "texture"):
             raise ValueError(f"unknown target kind {kind!r}")
-        world = world_from_description(message["world"], source) if message.get("world") else None
+        world = world_description(message["world"], source) if message.get("world") else None
         taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None
         frames = dict(message.get("frames") or {})
         _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
@@ -242,7 +243,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
             condition35=dict(message.get("condition35") or {}),
             residual_px=dict(message.get("residual_px") or {}),
             detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
-            world=world,
+            world_description=world,
             taught_path=taught,
             render=dict(render) if render is not None else None,
             gains=dict(gains) if gains is not None else None,

@@ -386,7 +386,7 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     step = float(np.median(np.diff(taught.t)))
     profile = CommandProfile(t=taught.t, v=taught.v, w=taught.w, t_end=float(taught.t[-1] + step))
     poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
-    height = float(model.world.camera_height) if model.world is not None else 0.0
+    height = float(model.world_description["camera_height_m"]) if model.world_description is not None else 0.0
     quaternions = yaw_to_quaternion(poses[:, 2])
     return [
         build.pose_stamped(seconds_to_ns(t), (x, y, height), q)

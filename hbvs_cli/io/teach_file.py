@@ -22,11 +22,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
-import numpy as np
-
 from .. import __version__
-from ..core.camera import CameraIntrinsics
-from ..core.world import World
+from ..core.camera import CameraIntrinsics, camera_from_description
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .foxglove_scene import SceneWriter
@@ -39,11 +36,6 @@ from .topics import TRUE_POSE_TOPIC as POSE_TOPIC
 
 FILE_KIND = "teach"
 
-#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
-#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
-MAX_POSTER_SIDE_M = 10.0
-#: Most target points accepted from a file (dot posters have up to 10, the others 4).
-MAX_TARGET_POINTS = 64
 #: The settings of a simulated teach that repeat reuses to render the same sensor.
 RENDER_SETTINGS = ("noise", "blur", "exposure", "noise_grain")
 
@@ -51,46 +43,31 @@ RENDER_SETTINGS = ("noise", "blur", "exposure", "noise_grain")
 PARSE_ERRORS = (LookupError, TypeError, ValueError, AttributeError, ArithmeticError)
 
 
-def world_from_description(data: Any, source: str) -> World:
-    """A :class:`World` from its recorded description, checked so that rendering it is safe.
-
-    Beyond :meth:`World.from_dict`: the camera passes the calibration checks (image size
-    capped), the poster is at most :data:`MAX_POSTER_SIDE_M` a side with unit, orthogonal
-    axes, the camera height and dot radius are finite, and there are at most
-    :data:`MAX_TARGET_POINTS` points.
+def world_description(data: Any, source: str) -> dict[str, Any]:
+    """A recorded world description (the simulated world's ``to_dict``) with what io uses of it
+    checked: the camera as a calibration (image size capped) and a finite camera height (the
+    poses' z). The simulator checks the rest when it builds the world
+    (:func:`hbvs_cli.sim.world.world_from_description`).
 
     Raises
     ------
     RecordingError
-        The description is malformed or outside those bounds.
+        Not a mapping with a well-formed camera and camera height.
     """
     try:
-        world = World.from_dict(data)
-    except HbvsError as exc:  # World says "malformed world description: ..." itself
-        raise RecordingError(f"{source}: {exc}") from None
+        camera = camera_from_description(data["camera"])
+    except HbvsError as exc:
+        raise RecordingError(f"{source}: malformed world description: {exc}") from None
     except PARSE_ERRORS as exc:
         raise RecordingError(f"{source}: malformed world description ({exc})") from None
-    camera = world.camera
     try:
         intrinsics_from_values(camera.K, camera.width, camera.height, camera.distortion_model, camera.distortion, "camera")
     except HbvsError as exc:
         raise RecordingError(f"{source}: the world's {exc}") from None
-    target = world.target
-    poster = target.poster
-    axes = np.array([poster.right, poster.down])
-    problems = [
-        (not math.isfinite(world.camera_height), "the camera height is not finite"),
-        (not (0.0 < poster.width <= MAX_POSTER_SIDE_M and 0.0 < poster.height <= MAX_POSTER_SIDE_M),
-         f"the poster must measure more than 0 and at most {MAX_POSTER_SIDE_M:g} m a side"),
-        (not np.allclose(axes @ axes.T, np.eye(2), atol=1e-6), "the poster's axes are not orthogonal unit vectors"),
-        (not (math.isfinite(target.dot_radius) and 0.0 <= target.dot_radius <= max(poster.width, poster.height)),
-         "the dot radius is not a size on the poster"),
-        (target.points_poster.shape[0] > MAX_TARGET_POINTS, f"more than {MAX_TARGET_POINTS} target points"),
-    ]
-    for failed, reason in problems:
-        if failed:
-            raise RecordingError(f"{source}: malformed world description ({reason})")
-    return world
+    height = data.get("camera_height_m")
+    if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height):
+        raise RecordingError(f"{source}: malformed world description (the camera height is not finite)")
+    return data
 
 
 def render_settings_problem(settings: Any) -> str | None:
@@ -109,10 +86,12 @@ def render_settings_problem(settings: Any) -> str | None:
 
 
 class TeachWriter:
-    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`."""
+    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`; a simulated
+    teach hands its world (:class:`hbvs_cli.sim.world.World`: its ``to_dict`` is recorded,
+    its target drawn on ``/scene``)."""
 
     def __init__(
-        self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None, frame_id: str | None = None,
+        self, writer: McapWriter, source: str, settings: dict[str, Any], world: Any = None, frame_id: str | None = None,
     ) -> None:
         self.writer = writer
         #: The camera's frame of reference: a bag's own frame_id, else hbvs's camera frame.
@@ -203,13 +182,15 @@ class TeachReader:
         (:class:`~hbvs_cli.errors.RecordingError`, :class:`~hbvs_cli.errors.CalibrationError`)
         while iterating, for anything malformed: not an MCAP file, not a teach recording,
         a topic with the wrong schema, a message that is not a valid JSON object of its
-        kind, a world description outside :func:`world_from_description`'s bounds.
+        kind, a world description whose camera is not a valid calibration
+        (:func:`world_description`).
     """
 
     source: Any
     name: str = ""
     camera: CameraIntrinsics | None = None
-    world: World | None = None
+    #: The simulated world's description (:func:`world_description`), None for real footage.
+    world_description: dict[str, Any] | None = None
     info: dict[str, Any] = field(default_factory=dict)
     stream: McapStream | None = None
 
@@ -233,7 +214,7 @@ class TeachReader:
             self.info = info
             world = read_metadata(self.stream, WORLD_METADATA).get("world")
             if world is not None:
-                self.world = world_from_description(world, self.name)
+                self.world_description = world_description(world, self.name)
 
     def frames(self) -> Iterator[TeachFrame]:
         """Yield frames in recording order."""

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..errors import InputError, OutputError, UsageError
+from ..errors import OutputError, UsageError
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -186,7 +186,7 @@ def save_figure(figure: Any, path: Path, dpi: float) -> None:
 
     Raises
     ------
-    InputError
+    OutputError
         The file cannot be written.
     """
     import io

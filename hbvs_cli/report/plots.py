@@ -47,6 +47,7 @@ from .figure_style import (
     save_figure,
 )
 from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .result import RunReport
 from .table import run_labels
 
 #: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
@@ -424,10 +425,10 @@ PANEL_NAMES = tuple(PANELS)
 
 
 # ----------------------------------------------------------------------------- figure
-def _status(report: Mapping[str, Any]) -> str:
-    if report["run"]["source"].get("mode") == "replay":
+def _status(report: RunReport) -> str:
+    if report.run.source.mode == "replay":
         return "open-loop replay"
-    return "converged" if report["verdict"]["converged"] else "not converged"
+    return "converged" if report.verdict.converged else "not converged"
 
 
 def _content_height(panels: Sequence[str], columns: int) -> float:
@@ -480,7 +481,7 @@ def check_figure_size(runs: Sequence[RunData], style: FigureStyle) -> None:
     _layout(figure_panels(runs, style), style)
 
 
-def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
+def _legend_handles(reports: Sequence[RunReport], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -498,7 +499,7 @@ def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str],
 
 
 def plot_runs(
-    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], style: FigureStyle | None = None,
+    runs: Sequence[RunData], reports: Sequence[RunReport], style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
     """The figure of one or several runs (overlaid, one colour per run).
@@ -506,7 +507,7 @@ def plot_runs(
     Parameters
     ----------
     runs : list of RunData
-    reports : list of dict
+    reports : list of RunReport
         Their reports (labels and verdicts for the legend).
     style : FigureStyle, optional
         Size, resolution and panels (default: every panel, 7 in wide, 200 dpi).
@@ -554,7 +555,7 @@ def plot_runs(
 
 
 def save_plot(
-    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], path: Path, style: FigureStyle | None = None,
+    runs: Sequence[RunData], reports: Sequence[RunReport], path: Path, style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
     """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.

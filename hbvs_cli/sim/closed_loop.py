@@ -38,7 +38,7 @@ from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
 from ..core.unicycle import integrate_unicycle
 from ..errors import InvalidValueError
-from .camera import SimulatedCamera
+from .simulated_camera import SimulatedCamera
 from .scene import Scene
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]

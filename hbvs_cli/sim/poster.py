@@ -3,7 +3,7 @@
 Pixel convention
 ----------------
 Poster coordinates ``(a, b)`` are metres from the poster's top-left corner, ``a`` to the
-right and ``b`` down (:class:`hbvs_cli.core.world.Poster`). Raster pixels follow OpenCV:
+right and ``b`` down (:class:`hbvs_cli.sim.world.Poster`). Raster pixels follow OpenCV:
 pixel ``(i, j)`` (column, row) has its centre at integer coordinates ``(i, j)`` and covers
 ``[i - 0.5, i + 0.5] x [j - 0.5, j + 0.5]``. With ``ppm`` raster pixels per metre,
 
@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.grayscale import as_gray
-from ..core.world import Target
+from .world import Target
 from ..errors import InputError, UsageError
 
 #: Gray level of the poster's paper.

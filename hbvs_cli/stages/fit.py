@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from itertools import chain, islice
 from pathlib import Path
 from typing import Any, Iterator
@@ -28,9 +28,10 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
-from .frames import decoded_frames
+from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
+from ..sim.world import World, world_from_description
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -38,8 +39,6 @@ FALLBACK_DHAT0 = 2.0
 
 @dataclass
 class FitSummary:
-    frames_total: int
-    frames_used: int
     output: str
     model: Any
 
@@ -140,13 +139,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 def _one_opencv_thread() -> Iterator[None]:
     """OpenCV's own thread pool off (one thread) while fitting, restored after.
 
-    fit already keeps two cores busy: the frame loop on the main thread, and the images
-    decoded in a second thread (:func:`~.frames.decoded_frames`). OpenCV's pool threads
-    (the detectors' thresholds, filters and labelling on 640x480 frames or windows of
-    them) could only take cores from those two, and spin while they wait for work; with
-    one thread each call runs where it is made. Per-frame detection costs the same main
-    thread CPU either way (aruco 1.30-1.38 against 1.32-1.33 ms, dots 1.21-1.22 against
-    1.15-1.19 ms at load 6; a quiet machine gives the pool's threads a core to spin on).
+    fit already keeps two cores busy: the frame loop, and the images decoded in a second
+    thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads could only take
+    cores from those two and spin while they wait; with one thread each call runs where it
+    is made, at the same cost per frame (bench/).
     """
     import cv2
 
@@ -250,7 +246,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             condition35=result.condition35,
             residual_px=result.residual_px.as_dict(),
             detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
-            world=reader.world,
+            world_description=reader.world_description,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
@@ -258,15 +254,16 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
-            height = reader.world.camera_height if reader.world is not None else 0.0
-            SceneWriter(writer).start(int(arrays["log_time"][0]), height, reader.world, arrays["pose"])
+            world = _teach_world(reader)
+            height = world.camera_height if world is not None else 0.0
+            SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
-    return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
+    return FitSummary(output=options.output, model=model)
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
@@ -317,9 +314,16 @@ def _render_settings(reader: Any) -> dict[str, Any] | None:
     from ..io.teach_file import RENDER_SETTINGS
 
     settings = reader.info.get("settings") if reader.info else None
-    if reader.world is None or not isinstance(settings, dict):
+    if reader.world_description is None or not isinstance(settings, dict):
         return None
     return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
+
+
+def _teach_world(reader: Any) -> World | None:
+    """The simulated world of a teach recording, checked (None for real footage)."""
+    if reader.world_description is None:
+        return None
+    return world_from_description(reader.world_description, reader.name)
 
 
 def _version() -> str:
@@ -356,7 +360,7 @@ def _detector_spec(
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
     (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    world = reader.world
+    world = _teach_world(reader)
     image = images[0]
     kind = options.target
     choice = None
@@ -428,6 +432,13 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
+def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
+    """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
+    candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
+    return {"dhat0": estimate.d_star, "standard_error": estimate.standard_error, "source": estimate.source,
+            "samples": estimate.samples}
+
+
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
            board: tuple[int, int] | None = None) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
@@ -441,7 +452,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
-            estimates["commands"] = asdict(from_commands)
+            estimates["commands"] = _estimate_record(from_commands)
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
@@ -458,7 +469,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         else:
             kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
         from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
-        estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
+        estimates["target_size"] = _estimate_record(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
     if chosen is None:
         console.warn(
@@ -499,9 +510,9 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     estimates = depth["estimates"]
     if estimates.get("commands"):
         e = estimates["commands"]
-        table.add_row("d* from taught commands (25)", f"{e['d_star']:.3f} +- {e['standard_error']:.3f} m")
+        table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
     if estimates.get("target_size"):
-        table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
+        table.add_row("d* from target size", f"{estimates['target_size']['dhat0']:.3f} m")
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
     from ..core.gains import dhat0_range_text
 

@@ -14,11 +14,14 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
 from .console import Console
 from .options import parse_assignment
+
+if TYPE_CHECKING:
+    from ..report.result import RunReport
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,7 @@ def parse_bounds(items: Sequence[str]) -> list[Bound]:
     return [Bound(*parse_assignment(item, "--fail-above")) for item in items]
 
 
-def metric_value(report: Mapping[str, Any], key: str) -> float:
+def metric_value(report: RunReport, key: str) -> float:
     """The number at a dotted key of a report (``pose_error.position_m.final``).
 
     Raises
@@ -68,20 +71,20 @@ def metric_value(report: Mapping[str, Any], key: str) -> float:
         The key does not exist in this report, names a group rather than a number, or its
         value is null for this run (e.g. ``lyapunov.final`` of a replay).
     """
-    from ..report.build import MissingKey, resolve_key
+    from ..report.result import MissingKey
 
     try:
-        value = resolve_key(report, key)
+        value = report.value(key)
     except MissingKey as missing:
         choices = ", ".join(missing.choices) or "none (it is a value)"
         raise UsageError(
-            f"--fail-above {key}: {missing.where} has no key {missing.part!r} in {report['run']['name']} (keys: {choices})"
+            f"--fail-above {key}: {missing.where} has no key {missing.part!r} in {report.run.name} (keys: {choices})"
         ) from None
     if isinstance(value, Mapping):
         raise UsageError(f"--fail-above {key}: names a group, not a number; use one of {', '.join(f'{key}.{k}' for k in value)}")
     if value is None:
         raise UsageError(
-            f"--fail-above {key}: the value is null for {report['run']['name']} (unknown for this run, e.g. V without "
+            f"--fail-above {key}: the value is null for {report.run.name} (unknown for this run, e.g. V without "
             "ground truth, or a settling time that never settled), so the bound cannot be checked"
         )
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -89,7 +92,7 @@ def metric_value(report: Mapping[str, Any], key: str) -> float:
     return float(value)
 
 
-def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound]) -> list[str]:
+def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
     """One message per (run, bound) whose metric exceeds the bound.
 
     Raises :class:`UsageError` for a bad key (see :func:`metric_value`), so call it before
@@ -100,19 +103,13 @@ def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound
         for bound in bounds:
             value = metric_value(report, bound.key)
             if value > bound.value:
-                messages.append(f"{report['run']['name']}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}")
+                messages.append(f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}")
     return messages
 
 
-def not_converged(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+def not_converged(reports: Sequence[RunReport]) -> list[str]:
     """One message per run that did not converge, naming its failed checks (``--require-converged``)."""
-    messages = []
-    for report in reports:
-        verdict = report["verdict"]
-        if not verdict["converged"]:
-            failed = [text.removeprefix("fail: ") for text in verdict["checks"].values() if text.startswith("fail")]
-            messages.append(f"{report['run']['name']}: {'; '.join(failed)}")
-    return messages
+    return [f"{report.run.name}: {'; '.join(report.verdict.failures())}" for report in reports if not report.verdict.converged]
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
@@ -214,10 +211,11 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
 
 
 # ----------------------------------------------------------------------------- output
-def print_reports(reports: Sequence[Mapping[str, Any]], json_output: bool) -> None:
+def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
     if json_output:
-        document = reports[0] if len(reports) == 1 else {"runs": list(reports)}
+        documents = [report.to_dict() for report in reports]
+        document = documents[0] if len(documents) == 1 else {"runs": documents}
         sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
     else:
         from ..report.table import print_report_tables

@@ -40,7 +40,7 @@ from ..io.output_target import open_text_output
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
-from .frames import fit_reference_image
+from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset
 from ..io.settings import RobotSimOptions
 
@@ -179,7 +179,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary
     model = fit.model
     taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
     rate = float(options.rate) if options.rate is not None else 1.0 / taught
-    scene = simulation_world(model, fit_reference_image(fit), options.depth)
+    scene = simulation_world(model, fit_reference_image(fit), options.depth, source=options.input)
     renderer = renderer_for(scene, model)
     rng = np.random.default_rng(options.seed)
     pose = tuple(float(v) for v in compose_planar_pose(scene.taught_pose_at_run_time(0.0), parse_offset(options.offset)))

@@ -18,9 +18,12 @@ import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, empty_metrics
+
+if TYPE_CHECKING:
+    from ..report.result import RunReport
 
 KEEP_CHOICES = ("failed", "all", "none")
 
@@ -83,17 +86,18 @@ def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> No
         parse_interval(window, "--occlude")
 
 
-def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
-    """The :data:`METRICS` of a report (None where the report has no such value)."""
-    from ..report.build import MissingKey, resolve_key
+def report_row(report: RunReport) -> dict[str, Any]:
+    """The :data:`METRICS` of a report (None where the report has no such value: the pose
+    errors of a run without ground truth)."""
+    from ..report.result import MissingKey, resolve_key
 
+    document = report.to_dict()
     row: dict[str, Any] = {}
     for column, key in METRICS.items():
         try:
-            value = resolve_key(report, key)
+            row[column] = resolve_key(document, key)
         except MissingKey:
-            value = None
-        row[column] = value
+            row[column] = None
     return row
 
 

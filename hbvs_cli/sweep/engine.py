@@ -126,17 +126,12 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    # worker-saturation 1: a worker holds only the batch it is running, so a run that kills
-    # its worker takes no queued innocent batch down with it (each costs ~1 ms of idle time).
-    # The workers' statistical profiler (for the dashboard, which hbvs does not open) keeps
-    # up to 1000 profile trees per worker: tens of MB that grew with the sweep's length.
-    # The event loop's 20 ms latency tick and the 100 ms memory monitor wake each worker's
-    # main thread, which then takes the interpreter lock from the run: a run took 91 ms on
-    # a worker against 81 ms in a plain process, 86 ms with these once a second.
-    # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which makes glibc hand freed
-    # heap back to the system at every free of 64 KiB: each run then took ~490 page faults
-    # and 2 ms of system time more than in a plain process (11 faults, 0.1 ms); the runs
-    # hold no memory between them, so the glibc default (dynamic threshold) is kept.
+    # worker-saturation 1: a worker holds only the batch it runs, so a run that kills its
+    # worker takes no queued batch down with it. No profiler (its trees grow with the
+    # sweep), and the ticks and monitors wake once a second, not every 20-100 ms (each
+    # wake takes the interpreter lock from the run). Dask's MALLOC_TRIM_THRESHOLD_ makes
+    # glibc return memory at every free, costing page faults; runs hold no memory between
+    # them, so glibc's default is kept (bench/ measures all of this).
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                      if name != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,
@@ -146,9 +141,7 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.admin.tick.interval": "1s",
                           "distributed.admin.system-monitor.interval": "1s",
                           "distributed.worker.memory.monitor-interval": "1s",
-                          # A worker restarted after a death registers with the scheduler
-                          # within this: 30 s was too short on a 2-core machine at load 20
-                          # (the worker gave up, its nanny stopped, the cluster had none).
+                          # A restarted worker must register within this, also on a loaded machine.
                           "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
@@ -194,12 +187,9 @@ def _jobqueue_cluster(kind: str, jobs: int) -> Any:
     return cluster
 
 
-#: A batch of runs aims at this much CPU time on its worker (s): long enough that the
-#: scheduler's per-task work (milliseconds of CPU in the driving process and in the
-#: worker's event loop, taken from the runs on a 2-core machine) is paid once per many
-#: runs; short enough that rows reach the table often and a killed batch costs little.
-#: CPU time, not wall time: on a loaded machine a run's wall time grows, its CPU time and
-#: the per-task work hardly do.
+#: A batch of runs aims at this much CPU time on its worker (s): the scheduler's per-task
+#: work is paid once per many runs, yet rows reach the table often and a killed batch costs
+#: little. CPU time, not wall time: load stretches the wall time, not the work.
 BATCH_CPU_SECONDS = 1.0
 #: ... and at most this much wall time (runs that wait rather than compute).
 BATCH_WALL_SECONDS = 5.0
@@ -269,9 +259,8 @@ class BatchSizer:
 #: recorded as failed anyway (with Dask's error).
 MAX_UNSTARTED_ATTEMPTS = 5
 #: Longest time a sweep waits on a cluster without a single worker (s) before it stops
-#: (workers that died and were not restarted, e.g. a nanny that gave up under load):
-#: the finished rows are kept and the same command resumes. Without it the sweep waited
-#: forever for runs that no worker would take.
+#: (workers that died and were not restarted): the finished rows are kept and the same
+#: command resumes.
 NO_WORKER_SECONDS = 120.0
 
 

@@ -12,7 +12,6 @@ its index, so a plan of 100 000 runs costs the memory of its design matrix only.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import shlex
 import warnings
@@ -502,8 +501,3 @@ def file_digest(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def spec_fingerprint(spec: SweepSpec, fit_path: str, fit_digest: str) -> str:
-    """A stable text of everything that decides the runs and their results."""
-    return json.dumps({"spec": spec.as_dict(), "fit": fit_path, "fit_sha256": fit_digest}, sort_keys=True)

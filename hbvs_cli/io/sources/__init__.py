@@ -18,8 +18,8 @@ re-exported here.
 
 from __future__ import annotations
 
-from .base import FrameSource, SourceFrame, to_image8
-from .camera import CameraSource
+from .frame_source import FrameSource, SourceFrame, to_image8
+from .camera_source import CameraSource
 from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource

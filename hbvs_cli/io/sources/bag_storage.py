@@ -34,7 +34,7 @@ import yaml
 from ...errors import HbvsError, InputError, RecordingError
 from .. import limits
 from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
-from .base import _natural_key
+from .frame_source import _natural_key
 
 #: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
 MAX_SCHEMA_BYTES = 1 << 20

@@ -9,7 +9,7 @@ from typing import Any
 
 from ...errors import InputError, UsageError
 from ..images import as_image8, decode_image, image_size, sniff_format
-from .base import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
+from .frame_source import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
 
 #: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")

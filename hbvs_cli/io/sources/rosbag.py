@@ -27,7 +27,7 @@ from ..topics import (
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
 from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
-from .base import _NS, FrameSource, SourceFrame, _same_size
+from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)

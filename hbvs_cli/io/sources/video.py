@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
 
 
 class VideoSource(FrameSource):

@@ -12,15 +12,25 @@ Everything a later stage needs to re-create the same world (and the same images)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InvalidValueError, MalformedDataError, PointAtCameraHeightError
-from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points, normalized_to_pixels
-from .frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
+from ..errors import HbvsError, InvalidValueError, MalformedDataError, PointAtCameraHeightError, RecordingError
+from ..core.camera import (
+    DEFAULT_CAMERA,
+    CameraIntrinsics,
+    camera_description,
+    camera_from_description,
+    normalize_points,
+    normalized_to_pixels,
+)
+from ..core.fit_model import MAX_TARGET_POINTS
+from ..core.frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
 
@@ -217,14 +227,9 @@ class World:
     # -- serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready description (the ``world`` record of a teach file)."""
-        cam = self.camera
         target = self.target
         return {
-            "camera": {
-                "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
-                "width": cam.width, "height": cam.height,
-                "distortion_model": cam.distortion_model, "distortion": list(cam.distortion),
-            },
+            "camera": camera_description(self.camera),
             "camera_height_m": self.camera_height,
             "target": {
                 "kind": target.kind,
@@ -248,13 +253,7 @@ class World:
     def from_dict(cls, data: dict[str, Any]) -> "World":
         """Inverse of :meth:`to_dict`; raises :class:`MalformedDataError` on a malformed description."""
         try:
-            cam = data["camera"]
-            camera = CameraIntrinsics(
-                fx=float(cam["fx"]), fy=float(cam["fy"]), cx=float(cam["cx"]), cy=float(cam["cy"]),
-                width=int(cam["width"]), height=int(cam["height"]),
-                distortion_model=str(cam.get("distortion_model", "none")),
-                distortion=tuple(float(v) for v in cam.get("distortion", ())),
-            )
+            camera = camera_from_description(data["camera"])
             t = data["target"]
             p = t["poster"]
             poster = Poster(
@@ -281,6 +280,46 @@ class World:
             return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
         except (KeyError, TypeError, ValueError) as exc:
             raise MalformedDataError(f"malformed world description: {exc}") from None
+
+
+#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
+#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
+MAX_POSTER_SIDE_M = 10.0
+
+
+def world_from_description(data: Any, source: str) -> World:
+    """The :class:`World` of a recorded description (:meth:`World.to_dict`), checked so that
+    rendering it is safe: the poster at most :data:`MAX_POSTER_SIDE_M` a side with unit,
+    orthogonal axes, a finite dot radius, at most :data:`MAX_TARGET_POINTS` points. (io
+    checks the camera and its height when it reads the description:
+    :func:`hbvs_cli.io.teach_file.world_description`.)
+
+    Raises
+    ------
+    RecordingError
+        The description is malformed or outside those bounds.
+    """
+    try:
+        world = World.from_dict(data)
+    except HbvsError as exc:  # World says "malformed world description: ..." itself
+        raise RecordingError(f"{source}: {exc}") from None
+    except (LookupError, TypeError, ValueError, AttributeError, ArithmeticError) as exc:
+        raise RecordingError(f"{source}: malformed world description ({exc})") from None
+    target = world.target
+    poster = target.poster
+    axes = np.array([poster.right, poster.down])
+    problems = [
+        (not (0.0 < poster.width <= MAX_POSTER_SIDE_M and 0.0 < poster.height <= MAX_POSTER_SIDE_M),
+         f"the poster must measure more than 0 and at most {MAX_POSTER_SIDE_M:g} m a side"),
+        (not np.allclose(axes @ axes.T, np.eye(2), atol=1e-6), "the poster's axes are not orthogonal unit vectors"),
+        (not (math.isfinite(target.dot_radius) and 0.0 <= target.dot_radius <= max(poster.width, poster.height)),
+         "the dot radius is not a size on the poster"),
+        (target.points_poster.shape[0] > MAX_TARGET_POINTS, f"more than {MAX_TARGET_POINTS} target points"),
+    ]
+    for failed, reason in problems:
+        if failed:
+            raise RecordingError(f"{source}: malformed world description ({reason})")
+    return world
 
 
 def _vector(values: Any, size: int) -> NDArray[np.float64]:
@@ -347,8 +386,3 @@ def default_world(
 ) -> World:
     """The default world: the default camera 0.30 m above the floor, the wall at x = 4 m."""
     return World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=default_target(kind, dots, texture, wall_x))
-
-
-def with_camera(world: World, camera: CameraIntrinsics) -> World:
-    """The same world seen through another camera."""
-    return replace(world, camera=camera)

@@ -22,7 +22,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from ..core.world import World
+from .world import World
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
 

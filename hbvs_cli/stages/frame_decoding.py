@@ -6,8 +6,7 @@ detected keeps both cores busy. At most ``depth`` decoded frames wait at any tim
 
 Colour is decoded only where a detector uses it: the dot detector finds a dot that differs
 from its wall in hue alone (:func:`hbvs_cli.perception.dots.dark_image`); every other
-detector works on luminance, and a colour JPEG's luminance alone decodes in about two
-thirds of the time (1.4 against 2.1 ms for 640x480). A gray frame costs the same either way.
+detector works on luminance, which a colour JPEG decodes faster than its colour.
 
 The fit's reference and template images are decoded here too, for the simulation and the
 detector of repeat (:func:`fit_reference_image`, :func:`fit_template_image`).
