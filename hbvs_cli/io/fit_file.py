@@ -302,7 +302,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         if message.topic == MODEL_TOPIC:
             model_message = message.json(stream.name)
         else:
-            images[message.topic] = read_compressed_image(message.message_encoding, message.data, stream.name).data
+            images[message.topic] = read_compressed_image(message.data, stream.name).data
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):

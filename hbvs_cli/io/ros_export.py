@@ -211,23 +211,20 @@ class _Messages:
             header=self.header(ns, OPTICAL_FRAME), format=image_format, data=np.frombuffer(data, dtype=np.uint8),
         )
 
-    def camera_info(self, ns: int, calibration: dict[str, Any]) -> Any:
+    def camera_info(self, ns: int, calibration: Any) -> Any:
         roi = self.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         return self.types[ROS_CAMERA_INFO_SCHEMA](
-            header=self.header(ns, OPTICAL_FRAME), height=int(calibration["height"]), width=int(calibration["width"]),
-            distortion_model=str(calibration["distortion_model"]), d=np.array(calibration["D"], dtype=np.float64),
-            k=np.array(calibration["K"], dtype=np.float64), r=np.array(calibration["R"], dtype=np.float64),
-            p=np.array(calibration["P"], dtype=np.float64), binning_x=0, binning_y=0, roi=roi,
+            header=self.header(ns, OPTICAL_FRAME), height=int(calibration.height), width=int(calibration.width),
+            distortion_model=str(calibration.distortion_model), d=np.array(calibration.D, dtype=np.float64),
+            k=np.array(calibration.K, dtype=np.float64), r=np.array(calibration.R, dtype=np.float64),
+            p=np.array(calibration.P, dtype=np.float64), binning_x=0, binning_y=0, roi=roi,
         )
 
 
-def _pose_fields(message: dict[str, Any], source: str) -> tuple[list[float], list[float]]:
+def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
     """Position and orientation of a ``foxglove.PoseInFrame``, as recorded (3D)."""
-    try:
-        position = [float(message["pose"]["position"][k]) for k in ("x", "y", "z")]
-        orientation = [float(message["pose"]["orientation"][k]) for k in ("x", "y", "z", "w")]
-    except (KeyError, TypeError, ValueError):
-        raise RecordingError(f"{source}: malformed pose message") from None
+    position = [float(getattr(message.pose.position, k)) for k in ("x", "y", "z")]
+    orientation = [float(getattr(message.pose.orientation, k)) for k in ("x", "y", "z", "w")]
     if not np.all(np.isfinite(position + orientation)):
         raise RecordingError(f"{source}: a pose message holds NaN or infinity")
     return position, orientation
@@ -288,7 +285,7 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
-    camera_calibration: dict[str, Any] | None = None
+    camera_calibration: Any = None
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
     camera_height: float | None = None
@@ -321,7 +318,7 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
                     v, w = velocity_from_message(message.json(stream.name), stream.name)
                     bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, build.twist(v, w))
                 elif message.topic in (TRUE_POSE_TOPIC, DESIRED_POSE_TOPIC):
-                    position, orientation = _pose_fields(message.json(stream.name), stream.name)
+                    position, orientation = _pose_fields(message.foxglove(stream.name), stream.name)
                     pose = build.pose_stamped(ns, position, orientation)
                     topic = ROS_TRUE_POSE_TOPIC if message.topic == TRUE_POSE_TOPIC else ROS_DESIRED_POSE_TOPIC
                     bag.write(topic, ROS_POSE_STAMPED_SCHEMA, ns, pose)
@@ -335,11 +332,11 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
                         bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
                             ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation)]))
                 elif message.topic == CALIBRATION_TOPIC:
-                    camera_calibration = message.json(stream.name)
+                    camera_calibration = message.foxglove(stream.name)
                 elif message.topic in (IMAGE_TOPIC, REFERENCE_IMAGE_TOPIC):
                     from .images import read_compressed_image
 
-                    image = read_compressed_image(message.message_encoding, message.data, stream.name)
+                    image = read_compressed_image(message.data, stream.name)
                     if message.topic == REFERENCE_IMAGE_TOPIC:
                         bag.write(ROS_REFERENCE_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
                         continue

@@ -135,16 +135,43 @@ class McapMessage:
     data: bytes
 
     def json(self, source: str = "") -> dict[str, Any]:
-        """The message decoded as a JSON object; :class:`RecordingError` if it is not one.
-
-        Size, number of values and nesting are capped (:func:`decode_json`).
-        """
+        """An ``hbvs.*`` message decoded as a JSON object under :func:`decode_json`'s caps;
+        :class:`RecordingError` if it is not one."""
         if self.message_encoding != "json":
-            raise RecordingError(f"{source}: message on {self.topic} is {self.message_encoding!r}, expected JSON")
+            raise RecordingError(f"{source}: message on {self.topic} is {self.message_encoding[:40]!r}, expected JSON")
         value = decode_json(self.data, f"{source}: message on {self.topic}")
         if not isinstance(value, dict):
             raise RecordingError(f"{source}: message on {self.topic} is not a JSON object")
         return value
+
+    def foxglove(self, source: str = "") -> Any:
+        """A ``foxglove.*`` message parsed with its ``foxglove-schemas-protobuf`` class;
+        :class:`RecordingError` if it is not protobuf or does not parse."""
+        from google.protobuf.message import DecodeError
+
+        message_class = _foxglove_class(self.schema_name)
+        if self.message_encoding != "protobuf" or message_class is None:
+            raise RecordingError(
+                f"{source}: message on {self.topic} is {self.message_encoding[:40]!r} {self.schema_name[:60]!r}, "
+                "expected a protobuf foxglove message"
+            )
+        try:
+            return message_class.FromString(self.data)
+        except (DecodeError, ValueError, RuntimeError):
+            raise RecordingError(f"{source}: malformed {self.schema_name} message on {self.topic}") from None
+
+
+def _foxglove_class(schema_name: str) -> Any:
+    """The protobuf class of a ``foxglove.<Name>`` schema, or None."""
+    import importlib
+
+    package, _, name = schema_name.partition(".")
+    if package != "foxglove" or not name.isidentifier():
+        return None
+    try:
+        return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
+    except (ImportError, AttributeError):
+        return None
 
 
 @dataclass

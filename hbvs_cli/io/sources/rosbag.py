@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ...core.camera import CameraIntrinsics
-from ...errors import CalibrationError, InputError, UsageError
+from ...errors import CalibrationError, InputError, RecordingError, UsageError
 from ..calibration import intrinsics_from_values
 from ..images import as_image8, decode_image, sniff_format
 from ..mcap import McapMessage
@@ -33,7 +33,7 @@ from .ros_images import compressed_to_image8, raw_to_image8
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
 #: in the protobuf and JSON encodings.
-_FOXGLOVE_ENCODINGS = ("protobuf", "json")
+_FOXGLOVE_ENCODINGS = ("protobuf",)
 #: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
 _COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
 #: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
@@ -161,7 +161,7 @@ class BagSource(FrameSource):
                     f"not {ROS_IMAGE_SCHEMA}, {ROS_COMPRESSED_IMAGE_SCHEMA} or {COMPRESSED_IMAGE_SCHEMA}"
                 )
             if not _is_image_topic(chosen):
-                expected = "protobuf or json" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
+                expected = "protobuf" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
                 raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
             return topic, chosen
         # Recorders create channels for subscribed topics that never published: skip them.
@@ -363,34 +363,23 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
     """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
     from ..images import read_compressed_image
 
-    stored = read_compressed_image(message.message_encoding, message.data, what)
+    stored = read_compressed_image(message.data, what)
     image = as_image8(decode_image(stored.data, f"{what} (format {stored.format!r})", colour=True), what)
     fmt = sniff_format(stored.data)
     return image, (stored.data if fmt else None), fmt, stored.stamp_ns
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-    """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
+    """Intrinsics of a protobuf ``foxglove.CameraCalibration``, or why there are none."""
     from ..calibration import calibration_from_foxglove
-    from ..mcap import decode_json
 
-    if message.message_encoding == "json":
-        fields = decode_json(message.data, source)
-    else:
-        from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
-        from google.protobuf.message import DecodeError
-
-        try:
-            calibration = CameraCalibration.FromString(message.data)
-        except (DecodeError, ValueError, RuntimeError):
-            return None, f"{source}: malformed foxglove.CameraCalibration"
-        fields = {
-            "width": calibration.width, "height": calibration.height, "distortion_model": calibration.distortion_model,
-            "D": list(calibration.D), "K": list(calibration.K), "R": list(calibration.R), "P": list(calibration.P),
-        }
-    if isinstance(fields, dict) and not any(fields.get("K") or []):
+    try:
+        calibration = message.foxglove(source)
+    except RecordingError as exc:
+        return None, str(exc)
+    if not any(calibration.K):
         return None, f"{source}: K is all zeros (an uncalibrated camera)"
     try:
-        return calibration_from_foxglove(fields, source), None
+        return calibration_from_foxglove(calibration, source), None
     except CalibrationError as exc:
         return None, str(exc)
