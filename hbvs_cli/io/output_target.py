@@ -41,9 +41,8 @@ from ..errors import InputError, OutputError, PipeClosedError, TruncatedInputErr
 
 #: Suffix of every file that is still being written.
 PARTIAL_SUFFIX = ".partial"
-#: ``NAME.partial`` (older hbvs, and the documented crash-recovery name) or
 #: ``NAME.<pid>-<hex>.partial``: what a partial file of ``NAME`` is called.
-_PARTIAL_NAME = re.compile(r"^(?P<final>.+?)(?:\.\d+-[0-9a-f]+)?\.partial$")
+_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
 # ----------------------------------------------------------------------------- targets
@@ -111,20 +110,17 @@ def partial_name_of(final: Path) -> Path:
 
 
 def final_name_of_partial(path: Path) -> Path | None:
-    """The file a partial file belongs to (``a.mcap.partial`` -> ``a.mcap``), else None."""
+    """The file a partial file belongs to (``a.mcap.<pid>-<hex>.partial`` -> ``a.mcap``), else None."""
     match = _PARTIAL_NAME.match(path.name)
     return path.with_name(match.group("final")) if match else None
-
-
-_OWNED_PARTIAL = re.compile(r"^.+\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs (``NAME.<pid>-<hex>.partial``)
     whose process is gone (killed with SIGKILL, or the machine stopped): nobody will finish
-    it, and removing it loses nothing. A partial of a living process, or any other name
-    (``NAME.partial`` is someone's crash-recovery input), is not stale."""
-    match = _OWNED_PARTIAL.match(path.name)
+    it, and removing it loses nothing. A partial of a living process, or any other name, is
+    not stale."""
+    match = _PARTIAL_NAME.match(path.name)
     if match is None:
         return False
     pid = int(match.group("pid"))
