@@ -1,19 +1,10 @@
 """The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads.
 
-Topics:
-
-========================  ==============================  ====================================
-``/fit/model``            ``hbvs.FitModel``               the model (one message, at the end)
-``/desired/raw``          ``hbvs.DesiredSignal``          theta_d, x_hd per used frame
-``/desired/smooth``       ``hbvs.DesiredSignal``          the splines and their derivatives
-``/camera/image``         ``foxglove.CompressedImage``    the taught images (unless --no-images)
-``/camera/annotations``   ``foxglove.ImageAnnotations``   detected points on the taught images
-``/camera/calibration``   ``foxglove.CameraCalibration``  the camera
-``/reference/image``      ``foxglove.CompressedImage``    the reference frame F*
-``/detector/template``    ``foxglove.CompressedImage``    the image texture features come from
-========================  ==============================  ====================================
-
-Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
+Topics (:data:`~.topics.TOPICS` ``["fit"]``, docs/files.md): the model (``hbvs.FitModel``,
+one message at the end), the desired signals raw and smoothed (``hbvs.DesiredSignal``), the
+reference image F* and the texture template, the calibration, the detections drawn on the
+taught images (and the images with ``--with-images``). Metadata ``hbvs``: ``file_kind =
+fit``, version, settings.
 """
 
 from __future__ import annotations

@@ -28,9 +28,8 @@ from .topics import FRAME_TRANSFORM_SCHEMA, SCENE_TOPIC, SCENE_UPDATE_SCHEMA, TR
 
 BASE_FRAME = "base_link"
 
-#: Rotation of ``camera_optical`` in ``base_link`` (x, y, z, w): its columns are the optical
-#: axes in the robot's frame, x_opt = -y, y_opt = -z, z_opt = +x.
-OPTICAL_FROM_BASE_MATRIX = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+#: Rotation of ``camera_optical`` in ``base_link`` (x, y, z, w): the optical axes in the
+#: robot's frame are x_opt = -y, y_opt = -z, z_opt = +x.
 OPTICAL_FROM_BASE_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
 
 _TARGET_RGBA = (0.1, 0.9, 0.2, 1.0)

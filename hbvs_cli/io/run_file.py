@@ -1,22 +1,11 @@
 """The run file: what ``hbvs repeat`` writes and ``hbvs report`` reads.
 
-Topics:
-
-=======================  ==============================  ==========================================
-``/repeat/state``        ``hbvs.ControllerState``        every control step (errors, commands, dhat, V)
-``/repeat/cmd_vel``      ``hbvs.VelocityCommand``        the command sent (after actuator limits)
-``/repeat/events``       ``foxglove.Log``                target lost / back, saturation, faults, stop
-``/ground_truth/pose``   ``foxglove.PoseInFrame``        true robot pose (``--sim``)
-``/desired/pose``        ``foxglove.PoseInFrame``        taught pose at the same time (``--sim``)
-``/camera/image``        ``foxglove.CompressedImage``    camera images (``--record-images``)
-``/camera/annotations``  ``foxglove.ImageAnnotations``   detected (green) and desired (orange) points
-``/camera/calibration``  ``foxglove.CameraCalibration``  the camera
-``/repeat/timing``       ``hbvs.LoopTiming``             per step of ``--live``: frame stamp, latency, interval, dropped
-=======================  ==============================  ==========================================
-
-Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay), ``law``,
-``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and
-``condition35`` (from the fit).
+Topics (:data:`~.topics.TOPICS` ``["run"]``, docs/files.md): the controller's state every
+step, the command sent, events, the true and taught poses (``--sim``), images and their
+annotations (``--record-images``), the calibration, and a live run's loop timing. The
+``hbvs`` metadata record holds ``file_kind = run``, the version, ``mode``, ``law``,
+``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and the
+fit's ``condition35``.
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
 
-Topics (``foxglove.*`` in protobuf, ``hbvs.*`` in JSON):
-
-=====================  ===========================  =========================================
-``/camera/image``      ``foxglove.CompressedImage`` every frame, 8-bit gray or colour, JPEG or PNG
-``/camera/calibration`` ``foxglove.CameraCalibration`` once, before the first frame
-``/teach/cmd_vel``     ``hbvs.VelocityCommand``     the taught command of each frame (sim, CSV)
-``/ground_truth/pose`` ``foxglove.PoseInFrame``     true robot pose of each frame (sim only)
-=====================  ===========================  =========================================
-
-Metadata records: ``hbvs`` (``file_kind = teach``, version, source, settings), and for a
-simulated teach ``hbvs.world`` (the world description, to re-create it in ``repeat``).
-Per frame, the command and the pose are written just before the image with the same log
-time, so a streaming reader has them when the image arrives.
+Topics (:data:`~.topics.TOPICS` ``["teach"]``, docs/files.md): every frame's image, the
+calibration once before the first frame, the taught command and the true pose of each frame
+when known (written just before its image, with the same log time, so a streaming reader has
+them when the image arrives), and the 3D scene. Metadata ``hbvs`` (``file_kind = teach``,
+version, source, settings) and, for a simulated teach, ``hbvs.world`` (to re-create it).
 """
 
 from __future__ import annotations
@@ -186,18 +178,11 @@ class TeachFrame:
 class TeachReader:
     """Streams the frames of a teach recording (a file or ``-``) in constant memory.
 
-    ``camera``, ``world`` and ``info`` are filled as the records arrive; all of them come
-    before the first frame in files written by ``hbvs teach``. A recording cut short (a
-    crashed recorder) yields its frames up to the last complete one, then sets
-    :attr:`truncated`.
-
-    Raises
-    ------
-    InputError
-        (:class:`~hbvs_cli.errors.RecordingError`, :class:`~hbvs_cli.errors.CalibrationError`)
-        while iterating, for anything malformed: not an MCAP file, not a teach recording,
-        a topic with the wrong schema, a message that is not a valid JSON object of its
-        kind, a world description outside :func:`world_from_description`'s bounds.
+    ``camera``, ``world`` and ``info`` are filled as their records arrive (before the first
+    frame in files hbvs writes). A recording cut short yields its frames up to the last
+    complete one and sets :attr:`truncated`. Iterating raises :class:`RecordingError` or
+    :class:`CalibrationError` for anything malformed: not a teach recording, a topic with the
+    wrong schema or encoding, a malformed message, a world outside :func:`world_from_description`'s bounds.
     """
 
     source: Any

@@ -72,58 +72,18 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and commands.
+    """Images from a ROS 2 bag (a folder, its ``metadata.yaml``, or one ``.mcap`` file), with the
+    bag's stamps, frame_id, intrinsics and taught commands.
 
-    Parameters
-    ----------
-    path : str or path-like
-        A bag folder (``metadata.yaml`` and its ``.db3``/``.mcap`` files, compressed or
-        not, split or not), its ``metadata.yaml``, or a single ``.mcap`` file.
-    topic : str, optional
-        The image topic (``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``).
-        None picks the only image topic that has messages.
-    cmd_topic : str, optional
-        The topic of the operator's commands (``geometry_msgs/msg/Twist``,
-        ``TwistStamped`` or ``nav_msgs/msg/Odometry``). None: the only Twist or
-        TwistStamped topic with messages, else the only Odometry topic, else none.
+    ``topic`` is the image topic (``sensor_msgs/msg/Image`` or ``CompressedImage``, or
+    ``foxglove.CompressedImage``); ``cmd_topic`` the commands (``Twist``, ``TwistStamped``,
+    else ``nav_msgs/msg/Odometry``); None picks the only one with messages. ``camera`` comes
+    from the image topic's ``CameraInfo`` (``camera_problem`` says why it is unusable); a
+    frame's ``command`` is the last one at or before its stamp. ``t`` counts from the first
+    frame's ``header.stamp`` (``time_base_ns``), falling back to the log time for zero stamps.
 
-    Attributes
-    ----------
-    topic : str
-        The image topic read.
-    camera : CameraIntrinsics or None
-        From the first message of the ``sensor_msgs/msg/CameraInfo`` topic that belongs
-        to the image topic (the one in the same namespace, or the only one). None when
-        there is none, or when it is unusable, with the reason in ``camera_problem``.
-    camera_problem : str or None
-        Why a CameraInfo topic present in the bag gave no intrinsics (all-zero K of an
-        uncalibrated driver, a distortion model hbvs does not know, binning/ROI). Not an
-        error: the user may give a calibration file instead.
-    cmd_topic, cmd_type : str or None
-        Where the taught commands come from; each frame's ``command`` is the last
-        command at or before its stamp ((0, 0) before the first one: a robot without a
-        command stands still).
-    time_base_ns : int
-        The stamp of the first frame (ns, on the bag's clock); frame ``t`` counts from it.
-    frame_id : str or None
-        ``header.frame_id`` of the first image.
-
-    Raises
-    ------
-    InputError
-        The path is not a bag, the bag is damaged, there is no image topic, ``topic`` or
-        ``cmd_topic`` is not one of the bag's topics of the right type. During iteration:
-        an image that cannot be decoded, an unsupported raw encoding, frames that change
-        size, a topic without messages.
-    UsageError
-        Several image topics (or several command topics named by type) and no choice.
-
-    Notes
-    -----
-    ``t`` comes from ``header.stamp`` relative to the first frame; a frame with a zero
-    stamp (drivers that do not fill it) falls back to the message log time, shifted onto
-    the stamps' clock. Frames are yielded in the order of the bag's log times, so a
-    driver whose stamps go backwards gives a ``t`` that does too.
+    Raises :class:`InputError` for a damaged bag, a missing or mistyped topic, an undecodable
+    image or frames that change size; :class:`UsageError` when several topics fit and none is named.
     """
 
     kind = "ros2_bag"
