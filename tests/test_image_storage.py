@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from hbvs_cli.io.images import bytes_to_store, encode_image, is_gray8_png, read_compressed_image
 from hbvs_cli.io.teach_file import TeachReader

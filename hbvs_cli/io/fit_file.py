@@ -310,19 +310,9 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
 
 
 def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
-    """Write a fit's desired signals: ``/desired/raw`` (theta_d, x_hd and the residual of
-    every used frame) and ``/desired/smooth`` (the splines and their derivatives over the
-    used span), each at its frame's log time.
-
-    Parameters
-    ----------
-    writer
-        An open MCAP writer (``write(topic, schema, log_time_ns, message)``).
-    t : ndarray, shape (F,)
-        Frame times (s).
-    log_time : ndarray of int, shape (F,)
-        The frames' log times (ns).
-    fit : DesiredFit
+    """Write a fit's desired signals at their frames' log times (``log_time``, ns, shape (F,)):
+    ``/desired/raw`` (theta_d, x_hd and the residual of every used frame, times ``t`` (F,) in s)
+    and ``/desired/smooth`` (the splines and their derivatives over the used span).
     """
     schemas = TOPICS[FILE_KIND]
     uncertainty = fit.uncertainty

@@ -48,19 +48,10 @@ _PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 # ----------------------------------------------------------------------------- targets
 @dataclass(frozen=True)
 class OutputTarget:
-    """An output as hbvs will write it.
-
-    Attributes
-    ----------
-    spec : str
-        As the user gave it.
-    kind : str
-        ``"stdout"``, ``"file"`` (a regular file or a new path: written atomically) or
-        ``"stream"`` (a device, FIFO or socket: written in place).
-    path : Path or None
-        The file finally written: symbolic links resolved. None for stdout.
-    existed : bool
-        A file was there already (for ``"file"``: a regular file that would be replaced).
+    """An output as hbvs will write it: ``spec`` as given; ``kind`` ``"stdout"``, ``"file"`` (a
+    regular file or a new path, written atomically) or ``"stream"`` (a device, FIFO or socket,
+    written in place); ``path`` the file finally written (links resolved; None for stdout);
+    ``existed``: a file was there already.
     """
 
     spec: str
@@ -168,21 +159,10 @@ def directory_lock(folder: Path) -> Iterator[None]:
 
 
 class FolderLock:
-    """One writer at a time for an output folder: an advisory lock (``fcntl.flock``) on a
-    lock file, held until :meth:`release` or the process ends (a SIGKILL releases it too).
-
-    Parameters
-    ----------
-    lock_path : Path
-        The lock file (created if missing, never deleted: deleting it would let a third
-        process lock a new file while the second still holds the old one).
-    what : str
-        The output, for the message.
-
-    Raises
-    ------
-    OutputError
-        Another process holds the lock (exit 6): its pid is named.
+    """One writer at a time for an output folder: an advisory ``flock`` on ``lock_path`` (created
+    if missing and never deleted, so that two processes never lock different files), held until
+    :meth:`release` or the process ends. :class:`OutputError` (exit 6), naming the holder's pid,
+    when another process holds it.
     """
 
     def __init__(self, lock_path: Path, what: str) -> None:
@@ -247,18 +227,10 @@ def refuse_overwriting_inputs(
 ) -> None:
     """Refuse, before anything is opened, an output that would destroy an input or another output.
 
-    Parameters
-    ----------
-    outputs, inputs : sequence of (label, path or None)
-        Labels name the option in messages (``"-o"``, ``"--cmd-out"``, ``"input"``);
-        None entries are skipped; ``-`` is stdin or stdout.
-
-    Raises
-    ------
-    UsageError
-        An output is the same file as an input (device and inode, symbolic links
-        resolved; stdout redirected into an input counts), the final file of an input
-        that is a ``.partial`` file, or the same file as another output (exit 2).
+    ``outputs`` and ``inputs`` are (label, path or None) pairs, ``-`` being stdout or stdin.
+    :class:`UsageError` (exit 2) for an output that is the same file as an input (device and
+    inode, links resolved; stdout redirected into it counts), the final file of an input that is
+    a partial file, or the same file as another output.
     """
     known: dict[tuple[int, int], str] = {}
     recovering: dict[Path, str] = {}
@@ -423,21 +395,9 @@ def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
 
 @contextmanager
 def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
-    """Open an output as described in this module's docstring; commit it when the body succeeds.
-
-    Parameters
-    ----------
-    spec : str or path
-        ``-`` for stdout.
-    what : str
-        What is written, for messages (``"output"``, ``"command stream"``, ``"figure"``).
-    stdout : binary stream, optional
-        Instead of ``sys.stdout.buffer`` (tests).
-
-    Yields
-    ------
-    OutputSink
-        Write to ``sink.stream``.
+    """Open ``spec`` (``-``: stdout, or ``stdout`` when given) as the module describes and yield
+    an :class:`OutputSink` to write ``sink.stream``; the output is committed when the body
+    succeeds. ``what`` names the output in messages (``"output"``, ``"figure"``...).
     """
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)

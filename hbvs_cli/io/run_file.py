@@ -212,23 +212,11 @@ def read_run(source: Any, name: str = "") -> RunData:
 
 # ----------------------------------------------------------------------------- writing
 class RunWriter:
-    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values.
-
-    The ``hbvs`` metadata record is written first, then the camera's calibration at the log
-    time of ``t = 0``; every other message is stamped with ``base_ns`` plus its time ``t``
-    (s), as log time and timestamp.
-
-    Parameters
-    ----------
-    writer : McapWriter
-    info : dict
-        The ``hbvs`` metadata record (``file_kind`` = ``run``, mode, law, gains, settings...).
-    camera : CameraIntrinsics
-    base_ns : int or None
-        Log time (ns) of ``t = 0``: a simulated run's fixed epoch
-        (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`). None when it is known
-        only with the first frame (a replay keeps its recording's stamps): call
-        :meth:`start` then.
+    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values: the
+    ``hbvs`` metadata record ``info`` first, then the calibration at ``t = 0``, then every
+    message stamped ``base_ns`` plus its run time ``t`` (s). ``base_ns`` is a simulated run's
+    epoch (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`), or None when it is known
+    only with the first frame (a replay keeps its recording's stamps): call :meth:`start` then.
     """
 
     def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics, base_ns: int | None = 0) -> None:

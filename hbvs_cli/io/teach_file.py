@@ -145,21 +145,10 @@ class TeachWriter:
 
 @dataclass(frozen=True)
 class TeachFrame:
-    """One frame of a teach recording.
-
-    Attributes
-    ----------
-    index : int
-        0-based frame number.
-    log_time_ns : int
-    t : float
-        Seconds since the first frame.
-    image_message : bytes
-        The ``foxglove.CompressedImage`` as stored (protobuf); read it with :meth:`stored_image`.
-    pose : (x, y, phi) or None
-        True robot pose (simulated recordings).
-    command : (v, w) or None
-        The taught command of this frame.
+    """One frame of a teach recording: its 0-based ``index``, ``log_time_ns``, ``t`` (s since the
+    first frame), ``image_message`` (the stored protobuf ``foxglove.CompressedImage``: read it
+    with :meth:`stored_image`), the true ``pose`` (x, y, phi) of a simulated recording and the
+    taught ``command`` (v, w), when known.
     """
 
     index: int
