@@ -1,19 +1,12 @@
-"""Image bytes <-> arrays, and the ``foxglove.CompressedImage`` message around them.
+"""Image bytes <-> arrays, and the protobuf ``foxglove.CompressedImage`` around them.
 
-What is stored: frames are 8 bits a channel, in colour when the source has colour (BGR, three
-channels) and one gray channel when it has not (the simulator, a mono camera, a colour
-container whose channels are within :data:`NEUTRAL_SPREAD` levels): the dot detector sees a red dot on a grey wall
-of the same brightness only in colour. A source that is already compressed keeps its bytes
-(JPEG as it is, an 8-bit gray or colour PNG as it is; a 16-bit, palette or alpha PNG, or a
-colour PNG of gray content, becomes an 8-bit PNG of the decoded image, still lossless);
-frames that hbvs compresses itself (the simulator, a video, a live camera, raw bag images)
-become JPEG at a stated quality (:data:`DEFAULT_JPEG_QUALITY`) unless PNG is asked for.
-``teach --gray`` stores every frame as one gray channel.
-
-How it is stored: ``foxglove.CompressedImage`` in Foxglove's protobuf encoding (the
-``foxglove-schemas-protobuf`` classes, schema from ``mcap-protobuf-support``), so the
-image bytes sit in the file as they are, a few dozen bytes of framing around them, and
-Foxglove, ``mcap cat`` and any protobuf reader open them.
+Frames are stored 8 bits a channel: BGR when the source has colour (a red dot on a grey wall
+of the same brightness is visible only in colour), one gray channel otherwise (or with
+``teach --gray``). A compressed source keeps its bytes (a JPEG, an 8-bit gray or colour
+PNG; other PNGs become 8-bit PNGs, still lossless); frames hbvs compresses itself become
+JPEG at :data:`DEFAULT_JPEG_QUALITY` unless PNG is asked for (:func:`bytes_to_store`).
+Decoding refuses headers that declare more pixels than the data can hold, before OpenCV
+allocates them (:func:`decode_image`).
 """
 
 from __future__ import annotations

@@ -1,27 +1,14 @@
-"""Where and how every output of hbvs is written: the one place that decides it.
+"""Where and how every output of hbvs is written (``-o``, ``--cmd-out``, ``--plot``,
+``--export-tum``), so that what a user points hbvs at is never lost.
 
-Every file hbvs writes (``-o``, ``--cmd-out``, ``--plot``, ``--export-tum``) is opened by
-:func:`open_output_stream`, so that what a user points hbvs at is never lost:
-
-* ``-`` is stdout, written as a stream.
-* A regular file, or a path that does not exist yet, is written beside its final name
-  under a partial name unique to the process (``NAME.<pid>-<random>.partial``, created with
-  ``O_EXCL``), flushed, fsynced and renamed over the final name only when complete. Two
-  runs writing the same path never share a partial file: the last one to finish wins,
-  whole, and neither can leave a corrupt file. An error or a signal removes the partial
-  file and leaves an earlier output as it was. The permissions of a file that is replaced
-  are kept.
-* A symbolic link is followed: its target is replaced atomically, the link stays.
-* A device, a FIFO or any other file that is not regular (``/dev/null``, a named pipe
-  someone reads) is written in place, streaming, never replaced by a regular file.
-* Write errors (a full disk, an I/O error, stdout closed) become
-  :class:`~hbvs_cli.errors.OutputError` (exit 6); a reader that closed the pipe becomes
-  :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
-
-:func:`refuse_overwriting_inputs` is called by every stage before it opens anything: an
-output that is the same file as one of its inputs (same device and inode once symbolic
-links are resolved; also stdout redirected into an input), or the final file of an input
-that is a ``.partial`` (a recording being recovered), is refused with exit code 2.
+``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``
+(``O_EXCL``), fsynced and renamed over ``NAME`` only when complete (keeping a replaced
+file's permissions; a symbolic link's target is replaced): an error or a signal removes it
+and leaves an earlier output as it was, and two runs never share one. A device, FIFO or
+socket is written in place. Write errors become :class:`~hbvs_cli.errors.OutputError`
+(exit 6), a closed pipe :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
+:func:`refuse_overwriting_inputs` refuses, before anything is opened, an output that is an
+input or the final name of an input's partial file (exit 2).
 """
 
 from __future__ import annotations
