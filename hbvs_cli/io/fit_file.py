@@ -1,19 +1,10 @@
 """The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads.
 
-Topics:
-
-========================  ==============================  ====================================
-``/fit/model``            ``hbvs.FitModel``               the model (one message, at the end)
-``/desired/raw``          ``hbvs.DesiredSignal``          theta_d, x_hd per used frame
-``/desired/smooth``       ``hbvs.DesiredSignal``          the splines and their derivatives
-``/camera/image``         ``foxglove.CompressedImage``    the taught images (unless --no-images)
-``/camera/annotations``   ``foxglove.ImageAnnotations``   detected points on the taught images
-``/camera/calibration``   ``foxglove.CameraCalibration``  the camera
-``/reference/image``      ``foxglove.CompressedImage``    the reference frame F*
-``/detector/template``    ``foxglove.CompressedImage``    the image texture features come from
-========================  ==============================  ====================================
-
-Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
+Topics (:data:`~.topics.TOPICS` ``["fit"]``, docs/files.md): the model (``hbvs.FitModel``,
+one message at the end), the desired signals raw and smoothed (``hbvs.DesiredSignal``), the
+reference image F* and the texture template, the calibration, the detections drawn on the
+taught images (and the images with ``--with-images``). Metadata ``hbvs``: ``file_kind =
+fit``, version, settings.
 """
 
 from __future__ import annotations
@@ -303,7 +294,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         if message.topic == MODEL_TOPIC:
             model_message = message.json(stream.name)
         else:
-            images[message.topic] = read_compressed_image(message.message_encoding, message.data, stream.name).data
+            images[message.topic] = read_compressed_image(message.data, stream.name).data
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):
@@ -320,19 +311,9 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
 
 
 def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
-    """Write a fit's desired signals: ``/desired/raw`` (theta_d, x_hd and the residual of
-    every used frame) and ``/desired/smooth`` (the splines and their derivatives over the
-    used span), each at its frame's log time.
-
-    Parameters
-    ----------
-    writer
-        An open MCAP writer (``write(topic, schema, log_time_ns, message)``).
-    t : ndarray, shape (F,)
-        Frame times (s).
-    log_time : ndarray of int, shape (F,)
-        The frames' log times (ns).
-    fit : DesiredFit
+    """Write a fit's desired signals at their frames' log times (``log_time``, ns, shape (F,)):
+    ``/desired/raw`` (theta_d, x_hd and the residual of every used frame, times ``t`` (F,) in s)
+    and ``/desired/smooth`` (the splines and their derivatives over the used span).
     """
     schemas = TOPICS[FILE_KIND]
     uncertainty = fit.uncertainty

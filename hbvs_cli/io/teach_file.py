@@ -1,19 +1,10 @@
 """The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
 
-Topics (Foxglove schemas where one exists; JSON but for the images):
-
-=====================  ===========================  =========================================
-``/camera/image``      ``foxglove.CompressedImage`` every frame, 8-bit gray JPEG or PNG, in
-                                                    protobuf (JSON with base64 is read too)
-``/camera/calibration`` ``foxglove.CameraCalibration`` once, before the first frame
-``/teach/cmd_vel``     ``hbvs.VelocityCommand``     the taught command of each frame (sim, CSV)
-``/ground_truth/pose`` ``foxglove.PoseInFrame``     true robot pose of each frame (sim only)
-=====================  ===========================  =========================================
-
-Metadata records: ``hbvs`` (``file_kind = teach``, version, source, settings), and for a
-simulated teach ``hbvs.world`` (the world description, to re-create it in ``repeat``).
-Per frame, the command and the pose are written just before the image with the same log
-time, so a streaming reader has them when the image arrives.
+Topics (:data:`~.topics.TOPICS` ``["teach"]``, docs/files.md): every frame's image, the
+calibration once before the first frame, the taught command and the true pose of each frame
+when known (written just before its image, with the same log time, so a streaming reader has
+them when the image arrives), and the 3D scene. Metadata ``hbvs`` (``file_kind = teach``,
+version, source, settings) and, for a simulated teach, ``hbvs.world`` (to re-create it).
 """
 
 from __future__ import annotations
@@ -27,8 +18,8 @@ from ..core.camera import CameraIntrinsics, camera_from_description
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .foxglove_scene import SceneWriter
-from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
-from .mcap import McapStream, McapWriter, check_json_limits, read_metadata, time_message
+from .images import StoredImage, read_compressed_image, write_compressed_image
+from .mcap import McapStream, McapWriter, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
 from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
@@ -119,11 +110,11 @@ class TeachWriter:
         command: tuple[float, float] | None = None,
     ) -> None:
         """One frame: its command and true pose (when known), then the image."""
-        stamp = time_message(log_time_ns)
         if command is not None:
-            self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
+            message = velocity_message(time_message(log_time_ns), *command)
+            self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, message)
         if pose is not None:
-            self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
+            self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(log_time_ns, pose, camera_height))
             if not self.scene.started:
                 self.scene.start(log_time_ns, camera_height, self.world)
             self.scene.pose(log_time_ns, pose)
@@ -133,25 +124,10 @@ class TeachWriter:
 
 @dataclass(frozen=True)
 class TeachFrame:
-    """One frame of a teach recording.
-
-    Attributes
-    ----------
-    index : int
-        0-based frame number.
-    log_time_ns : int
-    t : float
-        Seconds since the first frame.
-    image_message : bytes
-        The ``foxglove.CompressedImage`` as stored, in ``image_encoding``; read it with
-        :meth:`stored_image`. JSON is within the caps of
-        :func:`~hbvs_cli.io.mcap.check_json_limits`, so decoding it is safe.
-    pose : (x, y, phi) or None
-        True robot pose (simulated recordings).
-    command : (v, w) or None
-        The taught command of this frame.
-    image_encoding : str
-        ``protobuf`` (what hbvs writes) or ``json`` (base64: older files).
+    """One frame of a teach recording: its 0-based ``index``, ``log_time_ns``, ``t`` (s since the
+    first frame), ``image_message`` (the stored protobuf ``foxglove.CompressedImage``: read it
+    with :meth:`stored_image`), the true ``pose`` (x, y, phi) of a simulated recording and the
+    taught ``command`` (v, w), when known.
     """
 
     index: int
@@ -160,30 +136,22 @@ class TeachFrame:
     image_message: bytes
     pose: tuple[float, float, float] | None
     command: tuple[float, float] | None
-    image_encoding: str = "protobuf"
 
     def stored_image(self, source: str = "") -> StoredImage:
         """The compressed image bytes and format of this frame."""
-        return read_compressed_image(self.image_encoding, self.image_message, source)
+        return read_compressed_image(self.image_message, source)
 
 
 @dataclass
 class TeachReader:
     """Streams the frames of a teach recording (a file or ``-``) in constant memory.
 
-    ``camera``, ``world`` and ``info`` are filled as the records arrive; all of them come
-    before the first frame in files written by ``hbvs teach``. A recording cut short (a
-    crashed recorder) yields its frames up to the last complete one, then sets
-    :attr:`truncated`.
-
-    Raises
-    ------
-    InputError
-        (:class:`~hbvs_cli.errors.RecordingError`, :class:`~hbvs_cli.errors.CalibrationError`)
-        while iterating, for anything malformed: not an MCAP file, not a teach recording,
-        a topic with the wrong schema, a message that is not a valid JSON object of its
-        kind, a world description whose camera is not a valid calibration
-        (:func:`world_description`).
+    ``camera``, ``world`` and ``info`` are filled as their records arrive (before the first
+    frame in files hbvs writes). A recording cut short yields its frames up to the last
+    complete one and sets :attr:`truncated`. Iterating raises :class:`RecordingError` or
+    :class:`CalibrationError` for anything malformed: not a teach recording, a topic with the
+    wrong schema or encoding, a malformed message, a world whose camera is not a valid
+    calibration (:func:`world_description`).
     """
 
     source: Any
@@ -226,20 +194,15 @@ class TeachReader:
             self._check_kind()
             if message.topic == CALIBRATION_TOPIC:
                 if self.camera is None:
-                    self.camera = calibration_from_foxglove(message.json(self.name))
+                    self.camera = calibration_from_foxglove(message.foxglove(self.name), self.name)
             elif message.topic == POSE_TOPIC:
-                pending_pose = (message.log_time, planar_pose_from_message(message.json(self.name), self.name))
+                pending_pose = (message.log_time, planar_pose_from_message(message.foxglove(self.name), self.name))
             elif message.topic == COMMAND_TOPIC:
                 pending_command = (message.log_time, velocity_from_message(message.json(self.name), self.name))
             elif message.topic == IMAGE_TOPIC:
-                # Callers decode image_message themselves (in a worker thread, ahead of
-                # use); the caps are checked here so that any JSON they get is bounded.
-                if message.message_encoding not in IMAGE_ENCODINGS:
-                    raise RecordingError(
-                        f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding[:40]!r}, expected protobuf or JSON"
-                    )
-                if message.message_encoding == "json":
-                    check_json_limits(message.data, f"{self.name}: image message")
+                # Callers decode image_message themselves (in a worker thread, ahead of use).
+                if message.message_encoding != "protobuf":
+                    raise RecordingError(f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding[:40]!r}, expected protobuf")
                 if first_time is None:
                     first_time = message.log_time
                 pose = pending_pose[1] if pending_pose and pending_pose[0] == message.log_time else None
@@ -247,7 +210,6 @@ class TeachReader:
                 yield TeachFrame(
                     index=index, log_time_ns=message.log_time, t=(message.log_time - first_time) * 1e-9,
                     image_message=message.data, pose=pose, command=command,
-                    image_encoding=message.message_encoding,
                 )
                 index += 1
         self._check_kind()

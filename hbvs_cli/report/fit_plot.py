@@ -34,8 +34,8 @@ from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, new_figure, paper_
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
 SMOOTH_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
-#: The splines' standard deviations (``hbvs fit`` writes them since the joint estimate of
-#: n*; older fit files have none, and their figure has no band).
+#: The splines' standard deviations (from the joint estimate of n*; a fit without that
+#: estimate has none, and its figure has no band).
 SIGMA_FIELDS = ("theta_d_sigma", "x_hd1_sigma")
 #: Panels of the fit figure, in order: each signal and its raw - smooth difference, then
 #: the feed-forward derivative.

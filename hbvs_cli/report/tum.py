@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.frames import yaw_to_quaternion
-from ..errors import InputError, RecordingError, UsageError
+from ..errors import InputError, UsageError
 from ..io.mcap import McapStream
 from ..io.run_file import TRUE_POSE_TOPIC, RunData
 
@@ -41,10 +41,7 @@ def camera_height_m(source: Any, name: str = "") -> float | None:
         How to name it in error messages.
     """
     for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
-        try:
-            return float(message.json(name)["pose"]["position"]["z"])
-        except (KeyError, TypeError, ValueError):
-            raise RecordingError(f"{name}: malformed pose message on {TRUE_POSE_TOPIC}") from None
+        return float(message.foxglove(name).pose.position.z)
     return None
 
 

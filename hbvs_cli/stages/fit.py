@@ -158,7 +158,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..core.fit_model import FitModel
     from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
-    from ..io.mcap import open_output, time_message
+    from ..io.mcap import open_output
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
@@ -213,7 +213,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 # teach and fit files are opened together.
                 writer.write(
                     ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], frame.log_time_ns,
-                    annotations_message(time_message(frame.log_time_ns), pixels),
+                    annotations_message(frame.log_time_ns, pixels),
                 )
                 bar.advance()
         if log is None or log.count == 0:
