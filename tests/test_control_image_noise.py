@@ -19,7 +19,7 @@ Before the windowed detection and the depth in the filter: 0.19 cm / 0.13 deg (w
 0.21) and 0.44 cm / 0.20 deg (worst 0.71 / 0.33). The same seeds with the filter and law
 from before the depth state, on today's detection: 0.21 cm / 0.14 deg (worst 0.31 / 0.19)
 and 0.59 cm / 0.28 deg (worst 1.33 / 0.51): the depth state costs about 0.06 cm of position
-under the image noise alone (0.14 cm before its pull was eased on the lateral error), and
+under the image noise alone (0.12 cm before its pull was eased on the lateral error), and
 its heading is better with the added 1 px (issues 25, 28).
 """
 
