@@ -134,3 +134,24 @@ def test_the_report_says_how_dhat_learnt(fit_path, tmp_path):
     # Measured: 16 m -> 9.2 m, falling 3.7 % of d* per second at the end.
     assert paper["learning_time_s"] is None and paper["still_moving"] is True
     assert paper["end_rate_per_s"] < -0.01 and "still moving" in paper["warning"]
+
+
+def test_the_pull_is_eased_on_the_lateral_error_only_once_dhat_has_met_the_depth():
+    """scheduled_depth_pull: the full rate until dhat has met d_f, then halved at a lateral
+    error l = sqrt(k_2 ebar2^2 + e3^2) of lateral_settled; never negative, so the composite
+    law's V_dot term -(kappa / gamma_1) d~^2 stays <= 0 (docs/method.md)."""
+    import math
+
+    from hbvs_cli.core.state_filter import FilterSettings, scheduled_depth_pull
+
+    settings = FilterSettings()
+    l0, k_2 = settings.lateral_settled, 400.0
+    assert scheduled_depth_pull(0.8, 0.0, 0.05, k_2, settings, met=False) == 0.8
+    assert scheduled_depth_pull(0.8, 0.0, 0.0, k_2, settings, met=True) == 0.8
+    assert scheduled_depth_pull(0.8, 0.0, l0, k_2, settings, met=True) == pytest.approx(0.4)
+    assert scheduled_depth_pull(0.8, l0 / math.sqrt(k_2), 0.0, k_2, settings, met=True) == pytest.approx(0.4)
+    rng = np.random.default_rng(25)
+    for _ in range(200):
+        pull, ebar2, e3 = rng.uniform(0.0, 2.0), rng.normal(0.0, 0.05), rng.normal(0.0, 0.1)
+        kappa = scheduled_depth_pull(pull, ebar2, e3, k_2, settings, met=bool(rng.integers(2)))
+        assert 0.0 <= kappa <= pull
