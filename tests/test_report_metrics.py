@@ -334,3 +334,18 @@ def test_chattering_commands_fail_the_verdict_and_limits_are_counted():
     assert commands["at_limit_fraction"] == 1.0
     assert report["verdict"]["converged"] is False
     assert report["verdict"]["reasons"][-1].startswith("fail: commands chatter: RMS dv/dt 100 > 1.29 m/s^2")
+
+
+def test_a_dhat_that_wanders_about_d_true_is_not_still_moving():
+    """With ground truth, a drift at the end within 2 % of d* is noise about the truth; the
+    same drift without ground truth, or one ending 2.5 % from d*, is still moving."""
+    run = synthetic_run()
+    run.state["dhat"] = np.linspace(3.8, 4.05, N)            # 0.63 % of d* per second, ends 1.25 % above d*
+    depth = build_report(run, {}).depth
+    assert depth.end_rate_per_s == pytest.approx(0.25 / 9.99 / 4.0, rel=1e-6) and depth.relative_error == pytest.approx(0.0125)
+    assert depth.still_moving is False and depth.warning is None
+    run.state["dhat"] = np.linspace(3.6, 3.9, N)             # 0.75 % per second, ends 2.5 % below d*
+    assert build_report(run, {}).depth.still_moving is True
+    run.state["dhat"] = np.linspace(3.8, 4.05, N)
+    run.info["d_true"] = None
+    assert build_report(run, {}).depth.still_moving is True

@@ -204,6 +204,9 @@ DEPTH_END_WINDOW = 0.10
 #: dhat is still moving at the end when it drifts faster than this (fraction of its
 #: reference per second) over that window: a 20 s run would then move it by 10 % more.
 DEPTH_MOVING_RATE = 0.005
+#: With ground truth, a dhat that ends within this fraction of d* is not "still moving":
+#: under pixel noise it wanders about d* at up to 2 % per second while (31) holds it there.
+DEPTH_SETTLED_BAND = 0.02
 
 
 def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[float | None, float | None]:
@@ -257,7 +260,8 @@ def _depth(run: RunData) -> Depth:
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
     reference = d_true if d_true is not None else dhat_final
     learning, rate = depth_learning(run.state["t"], dhat, reference) if reference is not None else (None, None)
-    moving = rate is not None and abs(rate) > DEPTH_MOVING_RATE
+    moving = (rate is not None and abs(rate) > DEPTH_MOVING_RATE
+              and not (relative is not None and relative <= DEPTH_SETTLED_BAND))
     return Depth(
         dhat0=float(finite[0]) if finite.size else None,
         dhat_final=dhat_final,

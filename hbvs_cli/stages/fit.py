@@ -435,7 +435,7 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
 def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
     """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
     candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
-    return {"dhat0": estimate.d_star, "standard_error": estimate.standard_error, "source": estimate.source,
+    return {"dhat0": estimate.dhat0, "standard_error": estimate.standard_error, "source": estimate.source,
             "samples": estimate.samples}
 
 
@@ -477,7 +477,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
-    return {"dhat0": float(chosen.d_star), "source": chosen.source, "estimates": estimates}
+    return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
 
 
 def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict[str, Any], options: FitOptions) -> None:
