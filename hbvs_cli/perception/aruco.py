@@ -117,6 +117,22 @@ def marker_ids_in_view(gray: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIO
     return [] if ids is None else [int(i) for i in np.ravel(ids)]
 
 
+def marker_corners_in_view(image: NDArray[np.uint8], dictionary: str, ids: Sequence[int]) -> NDArray[np.float64] | None:
+    """The corners (4M, 2) of the markers ``ids`` of ``dictionary`` seen in a frame (no
+    corner refinement; the largest copy of an id), or None when none is seen."""
+    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
+    corners, seen, _ = detector.detectMarkers(as_gray(image))
+    if seen is None:
+        return None
+    seen = np.ravel(seen)
+    picked = []
+    for ident in ids:
+        matches = [corners[i].reshape(4, 2) for i in np.flatnonzero(seen == int(ident))]
+        if matches:
+            picked.append(max(matches, key=lambda c: abs(cv2.contourArea(c.astype(np.float32)))))
+    return np.concatenate(picked).astype(np.float64) if picked else None
+
+
 @dataclass(frozen=True)
 class MarkerSighting:
     """Markers of one dictionary found in a frame.

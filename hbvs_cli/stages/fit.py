@@ -170,8 +170,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
-    if options.target not in ("auto", "dots", "aruco", "chessboard", "texture"):
-        raise UsageError(f"--target must be auto, dots, aruco, chessboard or texture, got {options.target!r}")
+    if options.target not in ("auto", "dots", "aruco", "chessboard", "charuco", "texture"):
+        raise UsageError(f"--target must be auto, dots, aruco, chessboard, charuco or texture, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
@@ -282,6 +282,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
+    if spec.kind == "charuco" and spec.board is not None:
+        shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                       max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
@@ -342,8 +344,8 @@ def _check_marker_options(options: FitOptions) -> None:
     """--marker-dict/--marker-id: a known dictionary, an id in it, and not with dots or texture."""
     if options.marker_dict is None and options.marker_id is None:
         return
-    if options.target not in ("auto", "aruco"):
-        raise UsageError(f"--marker-dict and --marker-id are for markers, not --target {options.target}")
+    if options.target not in ("auto", "aruco", "charuco") or (options.target == "charuco" and options.marker_id is not None):
+        raise UsageError(f"--marker-dict and --marker-id are for markers (--marker-dict also for a ChArUco board), not --target {options.target}")
     from ..perception.aruco import DEFAULT_DICTIONARY, dictionary_name, dictionary_size
 
     name = dictionary_name(options.marker_dict or DEFAULT_DICTIONARY)
@@ -362,7 +364,9 @@ def _detector_spec(
     choice = None
     pinned_marker = options.marker_dict is not None or options.marker_id is not None
     if kind == "auto" and world is None:
-        if pinned_marker:
+        if options.board is not None:
+            kind = "charuco"
+        elif pinned_marker:
             kind = "aruco"
         else:
             choice = choose_target(images, camera, seed=options.seed)
@@ -381,6 +385,8 @@ def _detector_spec(
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
         return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
+    if kind == "charuco":
+        return _charuco_spec(options, images, details, console)
     if kind == "chessboard":
         board = details.get("board")
         if board is None:
@@ -418,6 +424,38 @@ def _detector_spec(
     return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
 
 
+def _charuco_spec(options: FitOptions, images: list[np.ndarray], details: dict[str, Any], console: Console) -> DetectorSpec:
+    """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
+    inferred from the first frames' markers."""
+    from ..perception.autodetect import find_charuco
+
+    squares = parse_board(options.board) if options.board is not None else None
+    if "board" not in details or squares is not None:
+        found = find_charuco(images, options.marker_dict, squares)
+        if found is None:
+            given = f"{squares[0]}x{squares[1]} " if squares is not None else ""
+            raise InputError(f"no ChArUco board {given}found consistently in the first {len(images)} frames "
+                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
+        console.info(f"charuco: {found.reason}")
+        details = found.details
+    columns, rows = (int(n) for n in details["board"])
+    return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
+
+
+def parse_board(text: str) -> tuple[int, int]:
+    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each).
+
+    Raises
+    ------
+    UsageError
+        For anything else.
+    """
+    parts = str(text).lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
+        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     from ..core.fit_model import TaughtPath
 
@@ -451,8 +489,10 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest
         # pair. A chessboard: its first and last inner corners, a diagonal of whole squares.
         size = options.target_size
-        if kind == "chessboard":
+        if kind in ("chessboard", "charuco"):
             columns, rows = board or (result.m_ref.shape[0], 1)
+            if kind == "charuco" and board is not None:
+                columns, rows = board[0] - 1, board[1] - 1
             kind_pair = (0, columns * rows - 1)
             size = options.target_size * math.hypot(columns - 1, rows - 1)
         else:
