@@ -129,12 +129,16 @@ class Blobs:
         Dot-like: compact, not elongated, not cut by the window's edge.
     touches_edge : ndarray, shape (M,), bool
         The component reaches the edge of the searched window.
+    faint : ndarray, shape (M,), bool, or None
+        Barely below the threshold in a dim patch of ground (:data:`MIN_DEPTH_FRACTION`):
+        noise, not structure (None: not judged).
     """
 
     centres: NDArray[np.float64]
     areas: NDArray[np.float64]
     round: NDArray[np.bool_]
     touches_edge: NDArray[np.bool_]
+    faint: NDArray[np.bool_] | None = None
 
     @property
     def considered(self) -> int:
@@ -184,6 +188,16 @@ SMOOTHED_NOISE = 5.0
 MAX_SMOOTHING_PX = 2.5
 #: The threshold stays this many noise sigmas below the ground.
 GROUND_NOISE_MARGIN = 5.0
+#: On a flattened window (ground at 255), a dot lies deeper below the paper around it than
+#: this fraction of the threshold's own depth below 255. A dot on good ground (paper near
+#: 255) always does, since its pixels are below the threshold; a speck of noise in a dim
+#: patch of ground does not (the ground's estimate is high at the frame's edges, where
+#: vignetting falls off: with dots 20 gray levels below their wall the threshold is only
+#: 23 levels below 255, and the edges' specks, 6-8 levels below their ring, were counted as
+#: a dozen more dots).
+MIN_DEPTH_FRACTION = 0.5
+#: ... judged only when the threshold is less than this many levels below 255.
+SHALLOW_THRESHOLD_DEPTH = 64.0
 
 
 def ground_noise(flat: NDArray[np.float32]) -> float:
@@ -317,28 +331,38 @@ def find_dark_blobs(
     areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
     round_ = np.zeros(keep.size, dtype=bool)
     touches = np.zeros(keep.size, dtype=bool)
+    faint = np.zeros(keep.size, dtype=bool)
+    # Faint specks are looked for only under a shallow threshold (dots of low contrast):
+    # under a deep one the ground's noise never reaches it.
+    shallow = flatten and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH
     for k, label in enumerate(keep):
         bx, by, bw, bh, area = (int(s) for s in stats[label])
         touches[k] = bx == 0 or by == 0 or bx + bw == sub_w or by + bh == sub_h
         # Cheap bounding-box tests first: a disc (or a mildly oblique ellipse) fills ~pi/4
         # of its box, and far more than 40 %.
         if touches[k] or area > max_area or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
+            if shallow and not touches[k] and area <= max_area:
+                faint[k] = _blob_centre(sub, labels, label, (bx, by, bw, bh))[2] < MIN_DEPTH_FRACTION * (255.0 - threshold)
             continue
-        centre, elongation = _blob_centre(sub, labels, label, (bx, by, bw, bh))
+        centre, elongation, depth = _blob_centre(sub, labels, label, (bx, by, bw, bh))
+        if shallow and depth < MIN_DEPTH_FRACTION * (255.0 - threshold):
+            faint[k] = True  # barely below the threshold in a dim patch of ground: not a dot
+            continue
         if elongation <= max_elongation and np.all(np.isfinite(centre)):
             centres[k] = centre + (x0, y0)
             round_[k] = True
-    return Blobs(centres, areas, round_, touches)
+    return Blobs(centres, areas, round_, touches, faint)
 
 
 def _blob_centre(
     sub: NDArray[np.uint8], labels: NDArray[np.int32], label: int, box: tuple[int, int, int, int]
-) -> tuple[NDArray[np.float64], float]:
-    """Intensity-weighted centroid of one blob and its elongation.
+) -> tuple[NDArray[np.float64], float, float]:
+    """Intensity-weighted centroid of one blob, its elongation and its depth.
 
     The weights are ``max(paper - I, 0)`` over the blob grown by 2 px (the anti-aliased
     rim); ``paper`` is the 75th percentile of a ring 2-4 px outside the blob, high enough to
-    ignore a neighbouring dark region that reaches into the ring.
+    ignore a neighbouring dark region that reaches into the ring. The depth is ``paper``
+    minus the blob's mean level (gray levels).
     """
     bx, by, bw, bh = box
     grow = 5
@@ -356,15 +380,16 @@ def _blob_centre(
     patch = np.asarray(sub[py0:py1, px0:px1], dtype=np.float32)
     ring_values = patch[ring.view(bool)]
     if ring_values.size == 0:
-        return np.full(2, np.nan), elongation
+        return np.full(2, np.nan), elongation, 0.0
     paper = float(np.partition(ring_values, (3 * ring_values.size) // 4)[(3 * ring_values.size) // 4])
+    depth = paper - float(patch[mask.view(bool)].mean())
     weights = np.maximum(paper - patch, 0.0) * rim
     total = float(weights.sum())
     if total <= 0:
-        return np.full(2, np.nan), elongation
+        return np.full(2, np.nan), elongation, depth
     u = float(weights.sum(axis=0) @ np.arange(px0, px1)) / total
     v = float(weights.sum(axis=1) @ np.arange(py0, py1)) / total
-    return np.array([u, v]), elongation
+    return np.array([u, v]), elongation, depth
 
 
 class DotDetector:
