@@ -175,6 +175,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
+    known_layout = _read_known_layout(options)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
@@ -230,9 +231,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         camera = reader.camera
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
+        layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board)
+        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -269,8 +271,39 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
 
 
+def _read_known_layout(options: FitOptions) -> np.ndarray | None:
+    """--target-points: the target points' positions on the wall (m), or None."""
+    if options.target_points is None:
+        return None
+    if options.target == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    from ..io.target_points import read_target_points
+
+    return read_target_points(options.target_points)
+
+
+def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: CameraIntrinsics, spec: DetectorSpec,
+                    options: FitOptions) -> np.ndarray:
+    """--target-points in the detector's order, matched to F*'s points by their layout
+    (:func:`~hbvs_cli.core.known_points.match_layout`)."""
+    from ..core.camera import measured_pixels_to_normalized
+    from ..core.known_points import match_layout
+
+    if spec.kind == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    if layout.shape[0] != reference_pixels.shape[0]:
+        raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
+    if not np.all(np.isfinite(reference_pixels)):
+        return layout  # the target is not whole in F*: the fit says so in its own words
+    seen = measured_pixels_to_normalized(camera, reference_pixels)[:, 1:]
+    try:
+        return layout[match_layout(layout, seen)]
+    except GeometryError as exc:
+        raise InputError(f"--target-points {options.target_points}: {exc}") from None
+
+
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -284,6 +317,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(spec.n_points), board_layout(spec.board))]
     if spec.kind == "charuco" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
+    if layout is not None:  # --target-points: the whole target's layout, known
+        shapes = [(range(layout.shape[0]), layout)]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                       max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
@@ -467,9 +502,10 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
 
 
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
-           board: tuple[int, int] | None = None) -> dict[str, Any]:
+           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
-    ``board`` its inner corners per row and rows); which one becomes dhat(0)."""
+    ``board`` its inner corners per row and rows) or --target-points (``layout``, in the
+    target's order: its two points farthest apart); which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
@@ -500,9 +536,15 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
         estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
+    elif layout is not None:
+        gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
+        i, j = (int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
+        from_size = depth_from_target_size(result.m_ref, result.normal, (i, j), float(gaps[i, j]))
+        estimates["target_size"] = asdict(from_size) | {"pair": [i, j]}
+        chosen = from_size
     if chosen is None:
         console.warn(
-            f"no taught commands and no --target-size: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
+            f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
