@@ -524,17 +524,18 @@ def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
     return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=corners)
 
 
-def photo_with_tags_wall(name: str = "coffee", poster_width_m: float = 1.8, tag_m: float = 0.05) -> Wall:
-    """:func:`photo_wall` with four small AprilTags (36h11, ids 1-4, ``tag_m`` wide, white
-    quiet zone) printed inside the photograph near its corners: a lab's poster with
-    fiducials for another purpose. ``points`` stay the photograph's corners."""
+def photo_with_tags_wall(name: str = "coffee", poster_width_m: float = 1.8, tag_m: float = 0.12) -> Wall:
+    """:func:`photo_wall` with two small ArUco markers (DICT_4X4_50, ids 1 and 2, ``tag_m``
+    wide, white quiet zone) printed side by side in the photograph's top left corner: a
+    lab's poster with fiducials for another purpose. ``points`` stay the photograph's
+    corners."""
     wall = photo_wall(name, poster_width_m)
     image = wall.image.copy()
     (left, top), (right, bottom) = wall.points[0] + 0.5, wall.points[2] + 0.5
     px = int(round(tag_m / WALL_MPP))
     quiet = px // 4
-    cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
-    for ident, (fx, fy) in enumerate(((0.12, 0.15), (0.88, 0.15), (0.88, 0.85), (0.12, 0.85)), start=1):
+    cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    for ident, (fx, fy) in enumerate(((0.08, 0.12), (0.18, 0.12)), start=1):
         col = int(round(left + fx * (right - left) - px / 2))
         row = int(round(top + fy * (bottom - top) - px / 2))
         image[row - quiet:row + px + quiet, col - quiet:col + px + quiet] = 245

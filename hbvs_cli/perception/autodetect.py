@@ -146,19 +146,12 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     return TargetChoice("chessboard", reason, {"board": [columns, rows]})
 
 
-#: Blobs smaller than this fraction of the round blobs' median area are not structure: the
-#: specks of sensor noise that dots of 20 gray levels bring (7-8 px beside 47-68 px dots on
-#: the footage) would otherwise outnumber a quarter of the dots.
-MIN_STRUCTURE_AREA = 0.15
-
-
 def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[int, bool]:
     """Round blobs of similar size in one frame, and whether they make up most of its blob-like structure.
 
     A textured picture has many dark shapes that are not round; a dots target's dots are
     most of what is compact and interior (components cut by the frame's edge, e.g. the
-    wall or a door frame, faint specks of noise and specks much smaller than the dots are
-    not counted).
+    wall or a door frame, are not counted).
     """
     blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
     round_areas = blobs.areas[blobs.round]
@@ -166,8 +159,7 @@ def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "g
         return int(round_areas.size), False
     median = np.median(round_areas)
     similar = int(np.count_nonzero((round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)))
-    faint = blobs.faint if blobs.faint is not None else np.zeros_like(blobs.touches_edge)
-    interior = int(np.count_nonzero(~blobs.touches_edge & ~faint & (blobs.areas >= MIN_STRUCTURE_AREA * median)))
+    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
     return similar, similar >= 3 and similar >= 0.75 * interior
 
 

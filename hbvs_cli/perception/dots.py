@@ -83,7 +83,7 @@ def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str =
     return cv2.bitwise_not(gray) if polarity == "light" else gray
 
 
-def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX) -> NDArray[np.float32]:
+def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX, extrapolate_edges: bool = False) -> NDArray[np.float32]:
     """``gray`` with its ground's brightness divided out (float32, the ground at 255).
 
     Uneven lighting, vignetting and exposure drift vary slowly across the wall; the
@@ -94,6 +94,13 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX)
     in a dim corner, a small dot is not drowned by the gradient across the wall, and a
     gradient across a dot does not pull its centroid. Float, not rounded to 8 bits: the
     centroids are measured on it.
+
+    Near the window's edges the closing sees the ground on one side only: where the ground
+    falls toward an edge (vignetting, a lamp's fall-off) it takes the brighter ground
+    farther in, and the edges come out darker than they are. With ``extrapolate_edges``
+    the ground is continued past the edges by its own slope (odd reflection) first, which
+    a closing leaves exact for a linear ramp; the searches for faint dots use it
+    (:data:`SHALLOW_THRESHOLD_DEPTH`).
     """
     height, width = gray.shape
     small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
@@ -104,8 +111,14 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX)
         ground = np.full(gray.shape, max(float(small.max()), 1.0), dtype=np.float32)
     else:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
-        ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
-        ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+        if extrapolate_edges:
+            pad = size
+            extended = np.pad(small.astype(np.float32), pad, mode="reflect", reflect_type="odd")
+            closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[pad:-pad, pad:-pad]
+            ground = cv2.resize(cv2.max(closed, 1.0), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+        else:
+            ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
+            ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
 
 
@@ -129,16 +142,12 @@ class Blobs:
         Dot-like: compact, not elongated, not cut by the window's edge.
     touches_edge : ndarray, shape (M,), bool
         The component reaches the edge of the searched window.
-    faint : ndarray, shape (M,), bool, or None
-        Barely below the threshold in a dim patch of ground (:data:`MIN_DEPTH_FRACTION`):
-        noise, not structure (None: not judged).
     """
 
     centres: NDArray[np.float64]
     areas: NDArray[np.float64]
     round: NDArray[np.bool_]
     touches_edge: NDArray[np.bool_]
-    faint: NDArray[np.bool_] | None = None
 
     @property
     def considered(self) -> int:
@@ -188,16 +197,15 @@ SMOOTHED_NOISE = 5.0
 MAX_SMOOTHING_PX = 2.5
 #: The threshold stays this many noise sigmas below the ground.
 GROUND_NOISE_MARGIN = 5.0
-#: On a flattened window (ground at 255), a dot lies deeper below the paper around it than
-#: this fraction of the threshold's own depth below 255. A dot on good ground (paper near
-#: 255) always does, since its pixels are below the threshold; a speck of noise in a dim
-#: patch of ground does not (the ground's estimate is high at the frame's edges, where
-#: vignetting falls off: with dots 20 gray levels below their wall the threshold is only
-#: 23 levels below 255, and the edges' specks, 6-8 levels below their ring, were counted as
-#: a dozen more dots).
-MIN_DEPTH_FRACTION = 0.5
-#: ... judged only when the threshold is less than this many levels below 255.
-SHALLOW_THRESHOLD_DEPTH = 64.0
+#: A threshold less than this many levels below the flattened ground (255) is shallow: a
+#: whole frame is flattened again with its ground continued past its edges
+#: (:func:`flatten_ground`). With dots 20 gray levels below their wall (the footage's, with
+#: vignetting) the threshold is about 23 levels deep, and the frame's edges, where the
+#: first ground estimate is too bright by about as much, gave a dozen specks counted as
+#: dots. Deeper thresholds (dots of more contrast: the threshold is half-way to the
+#: darkest dot, about 70 levels deep for red dots on a light wall in gray) keep the first
+#: estimate: their searches are unchanged.
+SHALLOW_THRESHOLD_DEPTH = 40.0
 
 
 def ground_noise(flat: NDArray[np.float32]) -> float:
@@ -261,6 +269,24 @@ def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
     return threshold
 
 
+def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolate_edges: bool
+                         ) -> tuple[NDArray[np.float32], NDArray[np.uint8], int | None]:
+    """A window flattened (:func:`flatten_ground`), the 8-bit levels it is thresholded on
+    (smoothed when the sensor is noisy) and the threshold."""
+    sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
+    levels = np.clip(sub + 0.5, 0, 255).astype(np.uint8)
+    noise = ground_noise(sub)
+    noisy = noise > NOISY_GROUND
+    if noisy:
+        # A noisy sensor (low light, high gain): segment a smoothed copy, or every
+        # noise speck becomes a blob and the dots' outlines fray; the centres are
+        # still measured on the unsmoothed window.
+        sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
+        levels = cv2.GaussianBlur(levels, (0, 0), sigma)
+        noise /= 2.0 * math.sqrt(math.pi) * sigma
+    return sub, levels, _flat_threshold(levels, min_contrast, noise, noisy)
+
+
 def find_dark_blobs(
     gray: NDArray[np.uint8],
     window: tuple[int, int, int, int] | None = None,
@@ -301,18 +327,15 @@ def find_dark_blobs(
     if sub.size == 0:
         return empty
     if flatten:
-        sub = flatten_ground(np.ascontiguousarray(sub))
-        levels = np.clip(sub + 0.5, 0, 255).astype(np.uint8)
-        noise = ground_noise(sub)
-        noisy = noise > NOISY_GROUND
-        if noisy:
-            # A noisy sensor (low light, high gain): segment a smoothed copy, or every
-            # noise speck becomes a blob and the dots' outlines fray; the centres are
-            # still measured on the unsmoothed window.
-            sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
-            levels = cv2.GaussianBlur(levels, (0, 0), sigma)
-            noise /= 2.0 * math.sqrt(math.pi) * sigma
-        threshold = _flat_threshold(levels, min_contrast, noise, noisy)
+        raw = np.ascontiguousarray(sub)
+        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
+        if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
+            # Faint dots: a threshold this shallow also catches the frame's edges where
+            # the ground's estimate is too bright; estimated again, continued past them.
+            # (Not in a tracked dot's window, whose edges are close to the dots: continued
+            # from a few noisy rows there, the ground measured the dots worse, 0.18 px
+            # against 0.11 px of point noise on the 20-level footage.)
+            sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     else:
         levels = sub
         threshold = otsu_threshold(levels, min_contrast)
@@ -331,38 +354,28 @@ def find_dark_blobs(
     areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
     round_ = np.zeros(keep.size, dtype=bool)
     touches = np.zeros(keep.size, dtype=bool)
-    faint = np.zeros(keep.size, dtype=bool)
-    # Faint specks are looked for only under a shallow threshold (dots of low contrast):
-    # under a deep one the ground's noise never reaches it.
-    shallow = flatten and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH
     for k, label in enumerate(keep):
         bx, by, bw, bh, area = (int(s) for s in stats[label])
         touches[k] = bx == 0 or by == 0 or bx + bw == sub_w or by + bh == sub_h
         # Cheap bounding-box tests first: a disc (or a mildly oblique ellipse) fills ~pi/4
         # of its box, and far more than 40 %.
         if touches[k] or area > max_area or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
-            if shallow and not touches[k] and area <= max_area:
-                faint[k] = _blob_centre(sub, labels, label, (bx, by, bw, bh))[2] < MIN_DEPTH_FRACTION * (255.0 - threshold)
             continue
-        centre, elongation, depth = _blob_centre(sub, labels, label, (bx, by, bw, bh))
-        if shallow and depth < MIN_DEPTH_FRACTION * (255.0 - threshold):
-            faint[k] = True  # barely below the threshold in a dim patch of ground: not a dot
-            continue
+        centre, elongation = _blob_centre(sub, labels, label, (bx, by, bw, bh))
         if elongation <= max_elongation and np.all(np.isfinite(centre)):
             centres[k] = centre + (x0, y0)
             round_[k] = True
-    return Blobs(centres, areas, round_, touches, faint)
+    return Blobs(centres, areas, round_, touches)
 
 
 def _blob_centre(
     sub: NDArray[np.uint8], labels: NDArray[np.int32], label: int, box: tuple[int, int, int, int]
-) -> tuple[NDArray[np.float64], float, float]:
-    """Intensity-weighted centroid of one blob, its elongation and its depth.
+) -> tuple[NDArray[np.float64], float]:
+    """Intensity-weighted centroid of one blob and its elongation.
 
     The weights are ``max(paper - I, 0)`` over the blob grown by 2 px (the anti-aliased
     rim); ``paper`` is the 75th percentile of a ring 2-4 px outside the blob, high enough to
-    ignore a neighbouring dark region that reaches into the ring. The depth is ``paper``
-    minus the blob's mean level (gray levels).
+    ignore a neighbouring dark region that reaches into the ring.
     """
     bx, by, bw, bh = box
     grow = 5
@@ -380,16 +393,15 @@ def _blob_centre(
     patch = np.asarray(sub[py0:py1, px0:px1], dtype=np.float32)
     ring_values = patch[ring.view(bool)]
     if ring_values.size == 0:
-        return np.full(2, np.nan), elongation, 0.0
+        return np.full(2, np.nan), elongation
     paper = float(np.partition(ring_values, (3 * ring_values.size) // 4)[(3 * ring_values.size) // 4])
-    depth = paper - float(patch[mask.view(bool)].mean())
     weights = np.maximum(paper - patch, 0.0) * rim
     total = float(weights.sum())
     if total <= 0:
-        return np.full(2, np.nan), elongation, depth
+        return np.full(2, np.nan), elongation
     u = float(weights.sum(axis=0) @ np.arange(px0, px1)) / total
     v = float(weights.sum(axis=1) @ np.arange(py0, py1)) / total
-    return np.array([u, v]), elongation, depth
+    return np.array([u, v]), elongation
 
 
 class DotDetector:
