@@ -171,8 +171,8 @@ def test_auto_picks_the_picture_over_a_small_marker_printed_in_it():
 
 
 # --------------------------------------------------------------------------- whole drives
-def _teach_and_fit(tmp_path, name, *fit_args, seed: int = 7):
-    made = footage.FootageMaker(*footage.case(name), seed=seed).write(tmp_path / name, DRIVE)
+def _teach_and_fit(tmp_path, name, seed: int = 7, drive: footage.Drive = DRIVE):
+    made = footage.FootageMaker(*footage.case(name), seed=seed).write(tmp_path / name, drive)
     teach = tmp_path / name / "teach.mcap"
     result = call_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q")
     assert result.returncode == 0, result.stderr.decode()
@@ -194,25 +194,34 @@ def _write_points(made_wall: footage.Wall, path, seed: int = 5):
     return path
 
 
-#: The ChArUco board hung high, leaving the view at the end of the drive (seed 7). Measured:
-#: 57 of 60 frames used (the last 3 show one row of corners, collinear), theta_d 0.064 deg
-#: RMS (0.43x the Cramer-Rao bound of its corners), x_hd1 1.8e-4, n* 0.05 deg off.
+#: The ChArUco board hung high, its top row leaving the view in the last 15 frames (seed 7).
+#: Measured at 5 frames per second: 57 of 60 frames used (the last 3 show one row of
+#: corners, collinear), theta_d 0.064 deg RMS (0.43x the Cramer-Rao bound of its corners),
+#: x_hd1 1.8e-4, n* 0.05 deg off; at 2.5 (the suite's): 29 of 30, 0.045 deg, 1.9e-4,
+#: 0.02 deg. The board in full view the whole drive (the campaign's "charuco"): 0.55 deg,
+#: 2.7x its bound (n* 0.53 deg off, its sigma 0.16 deg: its corners in F*, 22 px squares,
+#: are 0.1 px off).
 CHARUCO_PARTIAL_BOUNDS = {"theta_deg": 0.35, "x_hd1": 5e-3, "normal_deg": 0.5}
 
 
 @SUITE_OR_CAMPAIGN
 def test_charuco_board_leaving_the_view_is_picked_and_fitted(tmp_path, request, extent, capsys):
-    names = ["charuco_partial"] + (["charuco"] if campaign_extent(request, extent) else [])
+    campaign = campaign_extent(request, extent)
+    names = ["charuco_partial"] + (["charuco"] if campaign else [])
+    drive = DRIVE if campaign else footage.Drive(duration=12.0, fps=2.5, speed=0.24, period=9.0)
     for name in names:
-        made, teach = _teach_and_fit(tmp_path, name)
-        model, stderr = _fit(teach, tmp_path / f"{name}-fit.mcap")
+        made, teach = _teach_and_fit(tmp_path, name, drive=drive)
+        # The suite names the kind (its board still inferred): --target auto scans every
+        # dictionary in 5 frames first, seconds on a board's many square candidates.
+        model, stderr = _fit(teach, tmp_path / f"{name}-fit.mcap", *([] if campaign else ["--target", "charuco"]))
         errors = footage.errors_against_truth(model, made)
         with capsys.disabled():
             print(f"\n{name}: {model.frames['used']}/{model.frames['total']} frames, {errors}")
-        assert model.target_kind == "charuco" and "--target auto picked charuco: ChArUco board of 6x4 squares" in stderr
+        picked = "--target auto picked charuco" if campaign else "charuco"
+        assert model.target_kind == "charuco" and f"{picked}: ChArUco board of 6x4 squares" in stderr
         assert model.detector["board"] == [6, 4] and model.detector["marker_dict"] == "DICT_4X4_50"
         if name == "charuco_partial":
-            assert model.frames["used"] >= 56
+            assert model.frames["used"] >= model.frames["total"] - 3
             for key, bound in CHARUCO_PARTIAL_BOUNDS.items():
                 assert errors[key] <= bound, (key, errors)
 
