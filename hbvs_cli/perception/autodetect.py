@@ -39,7 +39,7 @@ from ..errors import InputError
 from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, scan_markers
 from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
-from .chessboard import find_board
+from .chessboard import Board, board_corners_cross, find_board
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
 from .texture import TextureDetector
 
@@ -134,16 +134,26 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     The first frame is searched for the largest board (``findChessboardCornersSB``); the
     others for that pattern.
     """
-    first = find_board(images[0])
+    first = _checked_board(images[0])
     if first is None:
         return None
-    found = 1 + sum(find_board(image, first.pattern) is not None for image in images[1:])
+    found = 1 + sum(_checked_board(image, first.pattern) is not None for image in images[1:])
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern
     reason = (f"chessboard of {columns}x{rows} inner corners found in {found} of the first {len(images)} frames "
               f"({columns * rows} sub-pixel corners on a known grid pin the plane better than texture)")
     return TargetChoice("chessboard", reason, {"board": [columns, rows]})
+
+
+def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
+    """:func:`~.chessboard.find_board`, its corners checked to be crossings of two dark and
+    two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots
+    on a wall: a 4x3 board in 3 of 5 frames of a simulated dots target)."""
+    board = find_board(image, pattern)
+    if board is None or not board_corners_cross(as_gray(image), board.corners, board.pattern):
+        return None
+    return board
 
 
 def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[int, bool]:
