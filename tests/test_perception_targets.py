@@ -245,9 +245,9 @@ def test_aruco_board_partly_out_of_view_loses_no_frame(tmp_path, request, capsys
 def test_known_layout_pins_the_plane_normal(tmp_path, request, name, capsys):
     """The same drive fitted without and with --target-points (the dots' positions in
     metres, shuffled). Measured (seed 7), n* and theta_d RMS error without -> with:
-    20-level dots 1.71 -> 0.03 deg and 0.445 -> 0.112 deg; black dots with distortion 0.27 ->
+    20-level dots 1.10 -> 0.06 deg and 0.252 -> 0.115 deg; black dots with distortion 0.27 ->
     0.05 deg and 0.071 -> 0.027 deg; three bright dots 0.087 -> 0.014 deg and 0.016 ->
-    0.020 deg. d* from the layout within 2 % of the truth."""
+    0.020 deg. d* from the layout: 5.782, 5.782 and 5.781 m (true 5.781 m)."""
     campaign_extent(request, "campaign")
     made, teach = _teach_and_fit(tmp_path, name)
     plain, _ = _fit(teach, tmp_path / "plain.mcap", "-q")
@@ -265,8 +265,9 @@ def test_known_layout_pins_the_plane_normal(tmp_path, request, name, capsys):
 @pytest.mark.parametrize("name, kind", [("low_contrast20_dots", "dots"), ("chessboard", "chessboard"), ("photo_with_tags", "texture")])
 def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):
     """--target auto on the whole drive, its one line and the fit against the truth.
-    Measured (seed 7): 20-level dots theta_d 0.445 deg (1.1x the bound; n* 1.7 deg off,
-    sigma 0.63 deg, warned); chessboard 0.47 deg (1.4x); photograph with a marker 0.022 deg."""
+    Measured (seed 7): 20-level dots, 60 of 60 frames, theta_d 0.25 deg (0.63x the bound;
+    n* 1.1 deg off, sigma 0.69 deg, warned); chessboard 0.47 deg (1.4x; texture gave 0.08
+    deg, docs/targets.md); photograph with a marker 0.031 deg."""
     campaign_extent(request, "campaign")
     made, teach = _teach_and_fit(tmp_path, name)
     model, stderr = _fit(teach, tmp_path / "fit.mcap")
@@ -274,3 +275,18 @@ def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):
     with capsys.disabled():
         print(f"\n{name}: {model.frames['used']}/{model.frames['total']} frames, {errors}")
     assert model.target_kind == kind and f"--target auto picked {kind}" in stderr
+
+
+def test_target_options_refused_in_one_line(tmp_path):
+    """--board and --target-points are checked before any frame is read: one line, the
+    usage or input exit code, no output."""
+    points = tmp_path / "points.csv"
+    points.write_text("0,0\n1,0\n")
+    cases = ((("--board", "6by4"), 2, "--board must be COLUMNSxROWS"), (("--board", "6x4", "--target", "dots"), 2, "--board is for a ChArUco"),
+             (("--target-points", str(tmp_path / "none.csv")), 3, "no such file"), (("--target-points", str(points)), 3, "3 to"),
+             (("--target-points", str(points), "--target", "texture"), 2, "texture"))
+    for args, code, words in cases:
+        result = call_hbvs("fit", str(tmp_path / "teach.mcap"), "-o", str(tmp_path / "fit.mcap"), *args)
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == code and len(lines) == 1 and words in lines[0], (args, result.returncode, lines)
+        assert not (tmp_path / "fit.mcap").exists()

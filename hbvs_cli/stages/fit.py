@@ -176,6 +176,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
     known_layout = _read_known_layout(options)
+    if options.board is not None:
+        if options.target not in ("auto", "charuco"):
+            raise UsageError(f"--board is for a ChArUco board, not --target {options.target}")
+        parse_board(options.board)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
