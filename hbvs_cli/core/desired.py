@@ -19,14 +19,18 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InsufficientDataError
+from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
-from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise
+from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
+
+#: A frame that shows only part of the target (a board partly out of view) is used when at
+#: least this many of its points were found: its pose comes from them alone.
+MIN_PARTIAL_POINTS = 4
 
 #: A normal-estimation margin below this means the path did not tell the branches apart.
 AMBIGUOUS_NORMAL_MARGIN = 1e-3
@@ -321,6 +325,7 @@ def fit_desired_trajectory(
             normal, m_ref = theirs.normal, theirs.m_ref
     joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
     normal, m_ref = joint.normal, joint.m_ref
+    m, found = _completed_partial_frames(m, found, m_ref, normal)
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
     residual = np.where(found, motion.residual, np.nan)
@@ -342,7 +347,7 @@ def fit_desired_trajectory(
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
-        initial_pixels=pixels[int(np.flatnonzero(used)[0])],
+        initial_pixels=_initial_pixels(pixels, m, int(np.flatnonzero(used)[0]), camera),
         normal=normal,
         normal_margin=margin,
         trajectory=trajectory,
@@ -359,6 +364,71 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
+
+
+def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
+    """The first used frame's measured pixels, its points out of view (a partial frame)
+    where its pose puts them (undistorted: a prediction for repeat's first search only)."""
+    initial = pixels[first]
+    missing = ~np.all(np.isfinite(initial), axis=1)
+    if not np.any(missing):
+        return initial
+    initial = initial.copy()
+    initial[missing] = normalized_to_pixels(camera, m[first][missing])
+    return initial
+
+
+def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
+                              normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Frames that show part of the target, completed from the part they show.
+
+    A frame with at least :data:`MIN_PARTIAL_POINTS` points found (a board partly out of
+    view) gets its pose ``(theta, x_h)`` from those points alone (the known-normal solver on
+    them), and its missing points are put where that pose projects them (12). The
+    completed points lie exactly on the frame's model, so the frame's pose is the one its
+    found points give; n* and the reference points are estimated before, from the whole
+    frames only.
+
+    Parameters
+    ----------
+    m : ndarray, shape (F, N, 3)
+        Normalised points, NaN rows where not found.
+    found : ndarray of bool, shape (F,)
+        Frames where every point was found.
+    m_ref : ndarray, shape (N, 3)
+    normal : ndarray, shape (3,)
+
+    Returns
+    -------
+    m : ndarray, shape (F, N, 3)
+        With the partial frames completed (a copy when any was).
+    found : ndarray of bool, shape (F,)
+        Also True for the completed frames.
+    """
+    seen = np.all(np.isfinite(m), axis=-1)
+    partial = ~found & (seen.sum(axis=1) >= MIN_PARTIAL_POINTS)
+    if not np.any(partial):
+        return m, found
+    m = m.copy()
+    found = found.copy()
+    patterns, which = np.unique(seen[partial], axis=0, return_inverse=True)
+    frames = np.flatnonzero(partial)
+    for index, pattern in enumerate(patterns):
+        rows = frames[np.ravel(which) == index]
+        try:
+            motion = KnownNormalSolver(m_ref[pattern], normal).solve(m[rows][:, pattern])
+        except GeometryError:  # the found points are degenerate (collinear): the frames stay unused
+            continue
+        solved = rows[motion.valid]
+        if solved.size == 0:
+            continue
+        poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
+        predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
+        missing = ~pattern
+        m[np.ix_(solved, np.flatnonzero(missing), [0])] = 1.0
+        m[np.ix_(solved, np.flatnonzero(missing), [1, 2])] = predicted[:, missing, :]
+        found[solved] = True
+    return m, found
 
 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,

@@ -84,9 +84,12 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
         if detector.get(key) is not None and not isinstance(detector.get(key), str):
             raise ValueError(f"detector {key} must be text")
     board = detector.get("board")
+    # A chessboard's board is its inner corners per row and rows; a ChArUco board's, its squares.
+    inner = 1 if kind == "charuco" else 0
     if board is not None and (not isinstance(board, list) or len(board) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and 3 <= n <= 100 for n in board)
-                              or board[0] * board[1] != points):
-        raise ValueError(f"detector board must be [corners per row, rows] of the {points} points, got {board!r}")
+                              or (board[0] - inner) * (board[1] - inner) != points):
+        what = "squares across and down" if inner else "corners per row, rows"
+        raise ValueError(f"detector board must be [{what}] of the {points} points, got {board!r}")
     for key in ("template_pixels", "initial_pixels"):
         value = detector.get(key)
         if value is None:
@@ -202,7 +205,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
             raise ValueError("normal must be 3 finite numbers, not all zero")
         dhat0 = _positive_number(message["dhat0"], "dhat0")
         kind = str(message["target_kind"])
-        if kind not in ("dots", "aruco", "chessboard", "texture"):
+        if kind not in ("dots", "aruco", "chessboard", "charuco", "texture"):
             raise ValueError(f"unknown target kind {kind!r}")
         world = world_description(message["world"], source) if message.get("world") else None
         taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None

@@ -68,7 +68,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "format_version": {"type": "integer", "const": 1},
             "timestamp": _TIME,
-            "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "texture"]},
+            "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "charuco", "texture"]},
             "camera": {"type": "object"},
             "reference": {"type": "object"},
             "normal": _number_array(3),

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
 from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
+from .charuco import CharucoTargetDetector
 from .chessboard import ChessboardDetector
 from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
 from .dot_windows import WindowedDotDetector
@@ -41,7 +42,7 @@ def make_detector(
     windowed: bool = False,
     board: tuple[int, int] | None = None,
 ) -> TargetDetector:
-    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"`` or ``"texture"``).
+    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"``, ``"charuco"`` or ``"texture"``).
 
     Parameters
     ----------
@@ -68,7 +69,8 @@ def make_detector(
         For ``dots``: follow each tracked dot in its own small window
         (:class:`~.dot_windows.WindowedDotDetector`) rather than in their common box.
     board : (int, int), optional
-        For ``chessboard`` (required): inner corners per row and rows of them.
+        For ``chessboard`` (required): inner corners per row and rows of them; for
+        ``charuco`` (required): the board's squares across and down.
 
     Raises
     ------
@@ -94,7 +96,11 @@ def make_detector(
         if board is None or board[0] * board[1] != n_points:
             raise UsageError(f"a chessboard target needs its pattern of inner corners ({n_points} points), got {board!r}")
         return ChessboardDetector(board)
-    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, texture")
+    if kind == "charuco":
+        if board is None or (board[0] - 1) * (board[1] - 1) != n_points:
+            raise UsageError(f"a ChArUco target needs its squares across and down ({n_points} inner corners), got {board!r}")
+        return CharucoTargetDetector(board, marker_dict or DEFAULT_DICTIONARY)
+    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, charuco, texture")
 
 
 def guess_target_kind(image: NDArray[np.uint8]) -> str:

@@ -166,11 +166,16 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
-    if options.target not in ("auto", "dots", "aruco", "chessboard", "texture"):
-        raise UsageError(f"--target must be auto, dots, aruco, chessboard or texture, got {options.target!r}")
+    if options.target not in ("auto", "dots", "aruco", "chessboard", "charuco", "texture"):
+        raise UsageError(f"--target must be auto, dots, aruco, chessboard, charuco or texture, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
+    known_layout = _read_known_layout(options)
+    if options.board is not None:
+        if options.target not in ("auto", "charuco"):
+            raise UsageError(f"--board is for a ChArUco board, not --target {options.target}")
+        parse_board(options.board)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
@@ -226,9 +231,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         camera = reader.camera
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
+        layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board)
+        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -266,8 +272,39 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     return FitSummary(output=options.output, model=model)
 
 
+def _read_known_layout(options: FitOptions) -> np.ndarray | None:
+    """--target-points: the target points' positions on the wall (m), or None."""
+    if options.target_points is None:
+        return None
+    if options.target == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    from ..io.target_points import read_target_points
+
+    return read_target_points(options.target_points)
+
+
+def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: CameraIntrinsics, spec: DetectorSpec,
+                    options: FitOptions) -> np.ndarray:
+    """--target-points in the detector's order, matched to F*'s points by their layout
+    (:func:`~hbvs_cli.core.known_points.match_layout`)."""
+    from ..core.camera import measured_pixels_to_normalized
+    from ..core.known_points import match_layout
+
+    if spec.kind == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    if layout.shape[0] != reference_pixels.shape[0]:
+        raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
+    if not np.all(np.isfinite(reference_pixels)):
+        return layout  # the target is not whole in F*: the fit says so in its own words
+    seen = measured_pixels_to_normalized(camera, reference_pixels)[:, 1:]
+    try:
+        return layout[match_layout(layout, seen)]
+    except GeometryError as exc:
+        raise InputError(f"--target-points {options.target_points}: {exc}") from None
+
+
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -279,6 +316,10 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
+    if spec.kind == "charuco" and spec.board is not None:
+        shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
+    if layout is not None:  # --target-points: the whole target's layout, known
+        shapes = [(range(layout.shape[0]), layout)]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                       max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
@@ -346,8 +387,8 @@ def _check_marker_options(options: FitOptions) -> None:
     """--marker-dict/--marker-id: a known dictionary, an id in it, and not with dots or texture."""
     if options.marker_dict is None and options.marker_id is None:
         return
-    if options.target not in ("auto", "aruco"):
-        raise UsageError(f"--marker-dict and --marker-id are for markers, not --target {options.target}")
+    if options.target not in ("auto", "aruco", "charuco") or (options.target == "charuco" and options.marker_id is not None):
+        raise UsageError(f"--marker-dict and --marker-id are for markers (--marker-dict also for a ChArUco board), not --target {options.target}")
     from ..perception.aruco import DEFAULT_DICTIONARY, dictionary_name, dictionary_size
 
     name = dictionary_name(options.marker_dict or DEFAULT_DICTIONARY)
@@ -366,7 +407,9 @@ def _detector_spec(
     choice = None
     pinned_marker = options.marker_dict is not None or options.marker_id is not None
     if kind == "auto" and world is None:
-        if pinned_marker:
+        if options.board is not None:
+            kind = "charuco"
+        elif pinned_marker:
             kind = "aruco"
         else:
             choice = choose_target(images, camera, seed=options.seed)
@@ -385,6 +428,8 @@ def _detector_spec(
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
         return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
+    if kind == "charuco":
+        return _charuco_spec(options, images, details, console)
     if kind == "chessboard":
         board = details.get("board")
         if board is None:
@@ -422,6 +467,38 @@ def _detector_spec(
     return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
 
 
+def _charuco_spec(options: FitOptions, images: list[np.ndarray], details: dict[str, Any], console: Console) -> DetectorSpec:
+    """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
+    inferred from the first frames' markers."""
+    from ..perception.autodetect import find_charuco
+
+    squares = parse_board(options.board) if options.board is not None else None
+    if "board" not in details or squares is not None:
+        found = find_charuco(images, options.marker_dict, squares)
+        if found is None:
+            given = f"{squares[0]}x{squares[1]} " if squares is not None else ""
+            raise InputError(f"no ChArUco board {given}found consistently in the first {len(images)} frames "
+                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
+        console.info(f"charuco: {found.reason}")
+        details = found.details
+    columns, rows = (int(n) for n in details["board"])
+    return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
+
+
+def parse_board(text: str) -> tuple[int, int]:
+    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each).
+
+    Raises
+    ------
+    UsageError
+        For anything else.
+    """
+    parts = str(text).lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
+        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     from ..core.fit_model import TaughtPath
 
@@ -440,9 +517,10 @@ def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
 
 
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
-           board: tuple[int, int] | None = None) -> dict[str, Any]:
+           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
-    ``board`` its inner corners per row and rows); which one becomes dhat(0)."""
+    ``board`` its inner corners per row and rows) or --target-points (``layout``, in the
+    target's order: its two points farthest apart); which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
@@ -462,8 +540,10 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest
         # pair. A chessboard: its first and last inner corners, a diagonal of whole squares.
         size = options.target_size
-        if kind == "chessboard":
+        if kind in ("chessboard", "charuco"):
             columns, rows = board or (result.m_ref.shape[0], 1)
+            if kind == "charuco" and board is not None:
+                columns, rows = board[0] - 1, board[1] - 1
             kind_pair = (0, columns * rows - 1)
             size = options.target_size * math.hypot(columns - 1, rows - 1)
         else:
@@ -471,9 +551,15 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
         estimates["target_size"] = _estimate_record(from_size) | {"pair": list(kind_pair)}
         chosen = from_size
+    elif layout is not None:
+        gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
+        i, j = (int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
+        from_size = depth_from_target_size(result.m_ref, result.normal, (i, j), float(gaps[i, j]))
+        estimates["target_size"] = asdict(from_size) | {"pair": [i, j]}
+        chosen = from_size
     if chosen is None:
         console.warn(
-            f"no taught commands and no --target-size: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
+            f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
