@@ -32,12 +32,8 @@ DEFAULT_PRESET = "s-curve"
 class ControllerGains:
     """Gains of (29)-(31).
 
-    These defaults are the clean-camera gains, used when a fit file carries no suggestion;
-    ``hbvs fit`` suggests gains from its own data (:mod:`.gains`), and ``repeat`` uses those.
-
-    The defaults were tuned on the default scenario (target 4 m ahead, taught at 0.1 m/s,
-    so |x_hd1_dot| ~ 0.025 1/s) with the whole vision pipeline in the loop, and follow
-    two rules that carry over to other scenes (``hbvs fit`` reports x_hd1_dot):
+    The clean-camera defaults, used when a fit file suggests none (:mod:`.gains`), tuned on
+    the default scenario (|x_hd1_dot| ~ 0.025 1/s) by rules that carry over to other scenes:
 
     * ``k_2 = k_w^2 / (4 x_hd1_dot^2) = 400`` makes the lateral mode
       ``s^2 + k_w s + k_2 x_hd1_dot^2`` (docs/method.md, "Choosing the gains") critically damped, at about k_w/2;
