@@ -16,13 +16,10 @@ Panels (``--panels`` chooses and orders them; default all, in this order):
                robot's heading every few seconds (m, equal aspect; full width)
 =============  ===========================================================================
 
-Conventions: one colour per run (Okabe-Ito); the figure legend names runs by their
-labels (``--label``, else the law) and verdicts. Stretches where the target was lost are
-shaded in the run's colour and the error lines break across them (nothing is drawn that
-was not measured); a dropped frame inside tracking is skipped, so the line joins its
-neighbours. Each run is drawn with at most :data:`MAX_POINTS_PER_RUN` points per panel
-(bin means), so a noisy 200 Hz run does not paint over a 30 Hz one. A panel whose data no
-run has is left out, unless ``--panels`` names it: then it says so in its middle.
+One colour per run (Okabe-Ito). Lines break across lost stretches, which are shaded
+(nothing is drawn that was not measured), and join across dropped frames; at most
+:data:`MAX_POINTS_PER_RUN` bin means per run and panel, so a 200 Hz run does not paint over
+a 30 Hz one. A panel no run has data for is left out unless ``--panels`` names it.
 """
 
 from __future__ import annotations
@@ -83,23 +80,9 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
     """The samples of a signal as drawn: broken (NaN) across lost stretches, joined across
     dropped frames, and at most ``max_points`` of them.
 
-    Parameters
-    ----------
-    t : ndarray, shape (K,)
-        Step times (s).
-    x : ndarray, shape (K,)
-        The signal; NaN where it has no value (lost target, dropped frame).
-    lost : ndarray of bool, shape (K,), or None
-        Steps where the target was lost: there the line breaks. ``None``: the signal is
-        defined through losses (the commands), so only its NaNs are skipped.
-    max_points : int
-        Beyond this many samples, the signal is shown as means over equal time bins of its
-        measured samples (a bin with none stays NaN, so losses longer than a bin still
-        break the line).
-
-    Returns
-    -------
-    t, x : ndarray
+    ``lost`` (K,) marks where the line breaks (None: a signal defined through losses, such
+    as the commands). Beyond ``max_points``, means over equal time bins (an empty bin stays
+    NaN, so a loss longer than a bin still breaks the line).
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float).copy()
@@ -504,21 +487,8 @@ def plot_runs(
 ) -> Any:
     """The figure of one or several runs (overlaid, one colour per run).
 
-    Parameters
-    ----------
-    runs : list of RunData
-    reports : list of RunReport
-        Their reports (labels and verdicts for the legend).
-    style : FigureStyle, optional
-        Size, resolution and panels (default: every panel, 7 in wide, 200 dpi).
-    tolerances : dict, optional
-        The report's tolerances (:data:`~hbvs_cli.report.build.DEFAULT_TOLERANCES`
-        units), drawn as dotted lines.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        Not yet saved. Each panel's axes is labelled with its panel name (``ax.get_label()``).
+    ``reports`` give the legend's labels and verdicts; ``tolerances`` are drawn dotted.
+    Returns the unsaved matplotlib figure; each axes is labelled with its panel name.
     """
     import matplotlib
 
