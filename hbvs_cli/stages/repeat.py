@@ -307,16 +307,8 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- closed loop
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes
-    them before running anything).
-
-    Raises
-    ------
-    UsageError
-        A pace that is not a finite positive number.
-    LimitExceededError
-        More steps than the ``steps`` limit.
-    """
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
+    first): UsageError for a bad ``--speed``, LimitExceededError beyond the ``steps`` limit."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(

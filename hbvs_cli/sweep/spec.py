@@ -35,21 +35,9 @@ SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
 class Parameter:
     """A parameter a sweep can vary or fix.
 
-    Attributes
-    ----------
-    name : str
-    kind : str
-        ``float``, ``int`` or ``choice``.
-    unit : str
-    help : str
-    setting : str or None
-        The ``hbvs repeat`` option it sets (:data:`hbvs_cli.io.settings.REPEAT`), whose
-        bounds it has: a value ``repeat`` refuses, the sweep refuses with the same message.
-    choices : tuple of str
-        The allowed values of a ``choice``.
-    own_bounds : mapping
-        ``min`` and ``max`` of a parameter that is no one ``repeat`` option (the occlusion
-        window, dhat0 as a multiple of d*).
+    ``kind``: ``float``, ``int`` or ``choice``; ``setting``: the ``hbvs repeat`` option it
+    sets, whose bounds (and refusal message) it shares; ``own_bounds``: ``min`` and ``max``
+    of a parameter that is no ``repeat`` option.
     """
 
     name: str
