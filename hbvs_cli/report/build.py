@@ -130,14 +130,8 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
-    """Ground-truth errors per step, or ``None`` without ground truth.
-
-    Returns
-    -------
-    dict
-        ``position_m``: distance (m) between the true and the taught position at the same
-        time; ``heading_deg``: true minus taught heading, wrapped to [-180, 180) degrees.
-    """
+    """Per step, ``position_m`` from the taught position at the same time and ``heading_deg``
+    (true minus taught, wrapped to [-180, 180)); ``None`` without ground truth."""
     if run.true_pose is None or run.desired_pose is None:
         return None
     difference = run.true_pose - run.desired_pose

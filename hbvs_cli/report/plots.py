@@ -422,14 +422,8 @@ def _content_height(panels: Sequence[str], columns: int) -> float:
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
-    """Figure size (in) and number of columns for these panels.
-
-    Raises
-    ------
-    UsageError
-        ``--size`` leaves the panels less than :data:`MIN_SCALE` of their natural height:
-        their axis labels would overlap (the message gives the least height that fits).
-    """
+    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
+    less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
     width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
     columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
     content = _content_height(panels, columns)
