@@ -1,25 +1,7 @@
 """``--plot``: one figure of a run (or several, overlaid) fit for a paper.
 
-Panels (``--panels`` chooses and orders them; default all, in this order):
-
-=============  ===========================================================================
-``position``   position error against the taught pose at the same time (cm, log), 1 cm line
-``heading``    \\|heading error\\| against the taught pose (deg, log), 0.2 deg line
-``e1``         longitudinal image error e1 (19) (units of d*), +-tolerance
-``ebar2``      lateral image error ebar2 (27), +-tolerance
-``e2``         lateral image error e2 (19), +-tolerance
-``e3``         rotation error e3 (19) (deg), +-0.2 deg
-``v``, ``w``   commands v_c (29) (m/s) and w_c (30) (rad/s), with the actuator limits
-``dhat``       depth estimate dhat (31) (m), with the true d*
-``V``          Lyapunov function (36) as V / V(0) (dimensionless, log)
-``top``        top view: wall and target, taught (dashed, on top) and repeated paths, the
-               robot's heading every few seconds (m, equal aspect; full width)
-=============  ===========================================================================
-
-One colour per run (Okabe-Ito). Lines break across lost stretches, which are shaded
-(nothing is drawn that was not measured), and join across dropped frames; at most
-:data:`MAX_POINTS_PER_RUN` bin means per run and panel, so a 200 Hz run does not paint over
-a 30 Hz one. A panel no run has data for is left out unless ``--panels`` names it.
+Panels (:data:`PANELS`, in their default order) and conventions (losses shaded and lines
+broken: nothing is drawn that was not measured): docs/report.md, "Figure".
 """
 
 from __future__ import annotations

@@ -87,8 +87,8 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, default: float | None, option: str) -> float | None:
-    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (a limit of
-    0 would mean "stand still", which is no run at all, and it once meant "no limit")."""
+    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (it would mean
+    "stand still", which is no run at all)."""
     if value is None:
         return default
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
