@@ -226,10 +226,8 @@ def fit_desired_trajectory(
     shapes : sequence of KnownShape, optional
         Target parts of known shape (each marker's square); they pin n* where the motion does not.
 
-    Raises
-    ------
-    InsufficientDataError
-        Too few frames with the target, none in F*, or too many lost; ``facts`` holds the numbers.
+    Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
+    ``facts`` holds the numbers.
     """
     t = np.asarray(t, dtype=float)
     pixels = np.asarray(pixels, dtype=float)

@@ -62,10 +62,8 @@ def validate_reference_points(
     check_height : bool
         Reject points at the camera's height (only the three-point method divides by m*_z).
 
-    Raises
-    ------
-    NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
-    CollinearPointsError, PointBehindCameraError
+    Raises NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
+    CollinearPointsError, PointBehindCameraError.
     """
     m_ref = np.asarray(m_ref, dtype=float)
     if m_ref.ndim != 2 or m_ref.shape[-1] != 3:

@@ -101,10 +101,7 @@ class PointTrack:
 def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
     """``predicted`` as an (N, 2) float array (NaN rows allowed), or None.
 
-    Raises
-    ------
-    UsageError
-        If it has the wrong shape or contains infinities.
+    Raises UsageError: if it has the wrong shape or contains infinities.
     """
     if predicted is None:
         return None

@@ -46,10 +46,7 @@ class FigureStyle:
 def parse_size(text: str) -> tuple[float, float]:
     """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
 
-    Raises
-    ------
-    UsageError
-        Not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
+    Raises UsageError: not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
     """
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
@@ -64,10 +61,7 @@ def parse_size(text: str) -> tuple[float, float]:
 def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
     """``"position,heading,top"`` -> the panel names, checked against ``known``.
 
-    Raises
-    ------
-    UsageError
-        An empty list, an unknown name or a name given twice.
+    Raises UsageError: an empty list, an unknown name or a name given twice.
     """
     names = [name.strip() for name in (text or "").split(",") if name.strip()]
     if not names:
@@ -158,10 +152,7 @@ def check_plot_path(path: Path) -> None:
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
     """Write ``figure`` to ``path`` (format from the suffix), under the paper style.
 
-    Raises
-    ------
-    OutputError
-        The file cannot be written.
+    Raises OutputError: the file cannot be written.
     """
     import io
 

@@ -57,10 +57,7 @@ def _column(messages: list[dict[str, Any]], key: str, name: str, topic: str) -> 
 def read_fit_signals(source: Any, name: str = "") -> FitSignals:
     """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream).
 
-    Raises
-    ------
-    RecordingError
-        Not a fit file, or one without desired signals.
+    Raises RecordingError: not a fit file, or one without desired signals.
     """
     from ..io.mcap import McapStream, read_metadata
 

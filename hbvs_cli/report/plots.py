@@ -506,10 +506,7 @@ def save_plot(
 ) -> Any:
     """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.
 
-    Raises
-    ------
-    InputError
-        The file cannot be written.
+    Raises InputError: the file cannot be written.
     """
     style = style or FigureStyle()
     figure = plot_runs(runs, reports, style, tolerances)

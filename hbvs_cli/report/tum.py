@@ -46,12 +46,7 @@ def require_ground_truth(run: RunData) -> None:
 
 
 def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
-    """Fail before writing anything: a run without ground truth, or two runs with one file stem.
-
-    Raises
-    ------
-    UsageError
-    """
+    """UsageError before writing anything for a run without ground truth, or two runs with one file stem."""
     seen: dict[Path, str] = {}
     for run in runs:
         require_ground_truth(run)

@@ -106,10 +106,7 @@ def not_converged(reports: Sequence[RunReport]) -> list[str]:
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
     """``--label`` is given once per run, in the runs' order, or not at all.
 
-    Raises
-    ------
-    UsageError
-        A different number of labels than runs, or an empty label.
+    Raises UsageError: a different number of labels than runs, or an empty label.
     """
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
@@ -170,10 +167,7 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
 def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its figure.
 
-    Raises
-    ------
-    UsageError
-        An option that applies to runs only.
+    Raises UsageError: an option that applies to runs only.
     """
     from ..report.figure_style import figure_style
     from ..report.fit_plot import FIT_PANELS, fit_summary, save_fit_plot

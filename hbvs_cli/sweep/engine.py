@@ -56,10 +56,7 @@ def dashboard_address(text: str | None) -> str | None:
     """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``; ``HOST:PORT`` as given
     (another interface only when asked for by name). None: no dashboard.
 
-    Raises
-    ------
-    UsageError
-        Not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
+    Raises UsageError: not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
     """
     if text is None:
         return None
@@ -74,10 +71,7 @@ def dashboard_address(text: str | None) -> str | None:
 def check_scheduler_address(address: str | None) -> None:
     """Refuse a ``--scheduler`` that is no Dask address, before anything is written.
 
-    Raises
-    ------
-    UsageError
-        An unknown scheme, or a host and port that do not parse.
+    Raises UsageError: an unknown scheme, or a host and port that do not parse.
     """
     if address is None:
         return
