@@ -258,10 +258,8 @@ def fit_desired_trajectory(
     start_solver = KnownNormalSolver(m_ref, normal)
     noise = measured_point_noise(start_solver.reprojection_residuals(start_solver.solve(m[others]), m[others])) if others.size else 0.0
     if rival is not None and AMBIGUOUS_NORMAL_MARGIN <= margin < BRANCH_CHECK_MARGIN:
-        # The homographies' vote between the two branches was close: the joint estimate
-        # from each branch on a few evenly spread frames, and the one that explains the
-        # points better wins (4 of 60 noise draws of a curving drive had voted for a
-        # normal 27 deg off).
+        # A close vote between the branches: the joint estimate from each on a few frames
+        # decides (4 of 60 noisy curving drives had voted for a normal 27 deg off).
         few = others[np.linspace(0, others.size - 1, min(others.size, BRANCH_CHECK_FRAMES)).astype(int)]
         ours = estimate_plane_jointly(m[few], m_ref, normal, m[reference_index], noise, shapes=shapes)
         theirs = estimate_plane_jointly(m[few], m[reference_index], rival, m[reference_index], noise, shapes=shapes)

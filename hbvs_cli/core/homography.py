@@ -53,15 +53,8 @@ def validate_reference_points(
 ) -> NDArray[np.float64]:
     """Check reference points for the degenerate cases of (16)-(18) and return them.
 
-    Parameters
-    ----------
-    m_ref : array_like, shape (N, 3)
-        Normalised reference points ``m*_i = [1, m*_iy, m*_iz]``.
-    min_points : int
-        3 for the three-point method, 4 for the projective route.
-    check_height : bool
-        Reject points at the camera's height (only the three-point method divides by m*_z).
-
+    ``m_ref`` (N, 3): ``m*_i = [1, m*_iy, m*_iz]``; ``min_points``: 3 for the three-point
+    method, 4 for the projective route, which does not divide by m*_z (``check_height``).
     Raises NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
     CollinearPointsError, PointBehindCameraError.
     """

@@ -127,14 +127,8 @@ class KnownNormalSolver:
     BLOCK = 4096
 
     def solve(self, m: ArrayLike) -> PlanarMotion:
-        """Solve for points of shape (..., N, 3) in the reference's order.
-
-        Returns
-        -------
-        PlanarMotion
-            ``valid`` is False for frames with non-finite points or a non-positive depth
-            ratio; ``residual`` is the RMS reprojection error (normalised units).
-        """
+        """Solve for points (..., N, 3) in the reference's order; ``valid`` is False for
+        non-finite points or a depth ratio <= 0, ``residual`` the RMS reprojection error."""
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]

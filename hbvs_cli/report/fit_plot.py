@@ -136,13 +136,8 @@ def _gaps(t: np.ndarray) -> list[tuple[float, float]]:
 
 
 def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
-    """The fit figure: raw against smoothed desired signals and the feed-forward x_hd1_dot.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        Not yet saved; each panel's axes is labelled with its name (:data:`FIT_PANELS`).
-    """
+    """The fit figure (unsaved; each axes labelled with its :data:`FIT_PANELS` name): raw
+    against smoothed desired signals and the feed-forward x_hd1_dot."""
     import matplotlib
 
     style = style or FigureStyle()

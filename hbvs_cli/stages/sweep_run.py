@@ -105,15 +105,9 @@ def keep_file(source: str, destination: str) -> None:
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
-    """Make one run and its report; never raises for a run that fails (the row says why).
-
-    Returns
-    -------
-    dict
-        The row: ``index, point, repeat, seed``, the parameter values, ``status``,
-        ``error``, the :data:`METRICS`, ``run_time_s`` (s, this run's own wall time),
-        ``run_file`` (kept file or None) and ``command``.
-    """
+    """Make one run and its report, and return its row (``index, point, repeat, seed``, the
+    parameter values, ``status``, ``error``, the :data:`METRICS`, ``run_time_s``, ``run_file``,
+    ``command``); never raises for a run that fails: the row says why."""
     from ..errors import HbvsError, TargetLostError
     from ..io.run_file import read_run
     from ..report.build import build_report

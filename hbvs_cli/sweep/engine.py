@@ -108,12 +108,9 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    # worker-saturation 1: a worker holds only the batch it runs, so a run that kills its
-    # worker takes no queued batch down with it. No profiler (its trees grow with the
-    # sweep), and the ticks and monitors wake once a second, not every 20-100 ms (each
-    # wake takes the interpreter lock from the run). Dask's MALLOC_TRIM_THRESHOLD_ makes
-    # glibc return memory at every free, costing page faults; runs hold no memory between
-    # them, so glibc's default is kept (bench/ measures all of this).
+    # worker-saturation 1: a run that kills its worker takes no queued batch down with it.
+    # No profiler (its trees grow), ticks once a second (each wake takes the GIL from the
+    # run), glibc's default malloc trimming (Dask's costs page faults); bench/ measures it.
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                      if name != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,

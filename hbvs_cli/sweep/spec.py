@@ -365,12 +365,7 @@ def run_seed(sweep_seed: int, index: int) -> int:
 
 
 class SweepPlan:
-    """The runs of a spec, made one at a time from their index.
-
-    Parameters
-    ----------
-    spec : SweepSpec
-    """
+    """The runs of a spec, made one at a time from their index."""
 
     def __init__(self, spec: SweepSpec) -> None:
         self.spec = spec
