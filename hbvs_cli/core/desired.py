@@ -117,16 +117,10 @@ class PixelResidual:
 class FitUncertainty:
     """How uncertain the fit is, from the joint estimate's covariance (:mod:`.bundle`).
 
-    Attributes
-    ----------
-    point_noise_px : float
-        The point noise the reprojection errors show (px, per coordinate).
-    theta_sigma, x_h1_sigma : ndarray, shape (F,)
-        1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used), including what
-        it inherits from n* and m*_i.
-    smooth_theta_sigma, smooth_x_h1_sigma : ndarray, shape (S,)
-        The same of the splines over the used span (the spline averages a frame's own noise,
-        not the inherited part common to neighbours).
+    ``point_noise_px``: the reprojection errors' noise (px per coordinate); ``theta_sigma``,
+    ``x_h1_sigma`` (F,): 1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used),
+    with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
+    the used span (which average a frame's own noise, not the inherited part).
     """
 
     normal_sigma_deg: float

@@ -44,19 +44,9 @@ def run_closed_loop(
 ) -> Iterator[StepRecord]:
     """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
 
-    Parameters
-    ----------
-    sense : callable
-        ``(pose, t) -> Observation``.
-    controller : AdaptiveTrackingController
-        Its dhat is updated in place.
-    dt, duration : float
-        Control period and run length (s).
-    latency_steps : int
-        The law acts on the observation of this many periods earlier (holding still before).
-    state_filter : ServoStateFilter, optional
-        The law acts on its estimate (docs/method.md, "State filter") instead of each raw
-        measurement as in the paper.
+    ``sense(pose, t) -> Observation``; the controller's dhat is updated in place; ``dt`` and
+    ``duration`` in s. The law acts on the observation ``latency_steps`` periods old (holding
+    still before), or on the ``state_filter``'s estimate (docs/method.md, "State filter").
     """
     if dt <= 0.0 or not np.isfinite(dt):
         raise InvalidValueError(f"the control period must be positive, got {dt}")

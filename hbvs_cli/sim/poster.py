@@ -39,15 +39,8 @@ _PYRAMID_KERNEL = np.array([1.0, 3.0, 3.0, 1.0], dtype=np.float32) / 8.0
 class PosterRaster:
     """A grayscale picture of a target's poster and its anti-aliasing pyramid.
 
-    Attributes
-    ----------
-    ppm : float
-        Level-0 resolution (raster px per metre of poster).
-    levels : tuple of ndarray
-        uint8 image of level ``l``, shape ``(ceil(H0 / 2^l), ceil(W0 / 2^l))``,
-        ``(H0, W0) = round((height, width) ppm)``.
-    width, height : float
-        Poster size (m).
+    ``ppm``: level-0 raster px per metre of poster; ``levels[l]``: uint8 image of shape
+    ``(ceil(H0 / 2^l), ceil(W0 / 2^l))``, ``(H0, W0) = round((height, width) ppm)`` (m).
     """
 
     kind: str

@@ -28,20 +28,11 @@ from .scene import Scene, renderer_for, world_point_identity
 class CameraSettings:
     """What the simulated camera measures and which faults it suffers.
 
-    Attributes
-    ----------
-    pixel_noise : float
-        Added to the measured points (px, 1 sigma), after tracking.
-    seed : int
-        Seed of the sensor noise (and, with 1 appended, of the faults).
-    occlusions : tuple of (float, float)
-        ``[start, end)`` (s) when the target is covered.
-    drop_rate, outlier_rate : float
-        Fractions of frames dropped and of frames with a spurious blob or a wrong point.
-    exposure_step : (float, float) or None
-        ``(t, gain)``: the exposure gain from ``t`` (s) on.
-    record_images : bool
-        Render images for the run file even with ``points`` perception.
+    ``pixel_noise``: px (1 sigma), added after tracking; ``seed``: of the sensor noise (with 1
+    appended, of the faults); ``occlusions``: ``[start, end)`` (s) when the target is covered;
+    ``drop_rate``, ``outlier_rate``: fractions of frames dropped, or with a spurious blob or a
+    wrong point; ``exposure_step``: ``(t, gain)`` from ``t`` (s) on; ``record_images``: render
+    images for the run file even with ``points`` perception.
     """
 
     perception: str
