@@ -107,10 +107,7 @@ _FINAL_CHECKS: dict[str, tuple[str, float, str]] = {
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
     """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied, checked.
 
-    Raises
-    ------
-    UsageError
-        An unknown name, or a value that is not a positive finite number.
+    Raises UsageError: an unknown name, or a value that is not a positive finite number.
     """
     tolerances = dict(DEFAULT_TOLERANCES)
     for name, value in (overrides or {}).items():
@@ -130,14 +127,8 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
-    """Ground-truth errors per step, or ``None`` without ground truth.
-
-    Returns
-    -------
-    dict
-        ``position_m``: distance (m) between the true and the taught position at the same
-        time; ``heading_deg``: true minus taught heading, wrapped to [-180, 180) degrees.
-    """
+    """Per step, ``position_m`` from the taught position at the same time and ``heading_deg``
+    (true minus taught, wrapped to [-180, 180)); ``None`` without ground truth."""
     if run.true_pose is None or run.desired_pose is None:
         return None
     difference = run.true_pose - run.desired_pose
@@ -210,24 +201,11 @@ DEPTH_SETTLED_BAND = 0.02
 
 
 def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[float | None, float | None]:
-    """How dhat learnt the depth: the time it came within :data:`DEPTH_LEARNT_BAND` of
-    ``reference`` for good, and its drift at the end.
+    """How dhat (m, NaN where not logged) learnt ``reference`` (d*, or dhat's final value).
 
-    Parameters
-    ----------
-    t, dhat : ndarray, shape (K,)
-        Times (s) and the depth estimate (m); NaN where not logged.
-    reference : float
-        d* (m), or dhat's final value without ground truth.
-
-    Returns
-    -------
-    learning_time_s : float or None
-        Seconds from the start after which |dhat - reference| <= band * reference at every
-        later step; None when it never does.
-    end_rate_per_s : float or None
-        The least-squares slope of dhat over the last :data:`DEPTH_END_WINDOW` of the run,
-        as a fraction of ``reference`` per second; None with fewer than 3 samples there.
+    Returns ``learning_time_s``, after which dhat stays within :data:`DEPTH_LEARNT_BAND`
+    of it (None: never), and ``end_rate_per_s``, dhat's least-squares slope over the last
+    :data:`DEPTH_END_WINDOW` as a fraction of ``reference`` per second (None: < 3 samples).
     """
     keep = np.isfinite(dhat)
     t, dhat = t[keep], dhat[keep]
@@ -434,21 +412,8 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
 def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> RunReport:
     """Every metric of one run (see docs/report.md for units).
 
-    Parameters
-    ----------
-    run : RunData
-        A run read by :func:`hbvs_cli.io.run_file.read_run`.
-    tolerances : dict, optional
-        Overrides of :data:`DEFAULT_TOLERANCES` (names ``e1, e2, ebar2, e3, position_m,
-        heading_deg``).
-    label : str, optional
-        The run's name in tables and legends (``--label``); default :func:`default_label`.
-
-    Returns
-    -------
-    RunReport
-        ``pose_error`` is None without ground truth, ``timing`` unless the run is live;
-        unknown values are None.
+    ``tolerances`` override :data:`DEFAULT_TOLERANCES`; ``label`` (``--label``) defaults to
+    :func:`default_label`. Unknown values are None (``pose_error`` without ground truth).
     """
     tolerances = resolve_tolerances(tolerances)
     errors, pose_error = _image_errors(run, tolerances), _pose_errors(run, tolerances)

@@ -29,10 +29,7 @@ class MissingKey(KeyError):
 def resolve_key(document: Mapping[str, Any], key: str) -> Any:
     """The value at a dotted key of a JSON document, e.g. ``"pose_error.position_m.final"``.
 
-    Raises
-    ------
-    MissingKey
-        A part of the key is not there (``where`` is the dotted prefix that lacks it).
+    Raises MissingKey where a part is missing (``where``: the dotted prefix that lacks it).
     """
     value: Any = document
     walked: list[str] = []
@@ -240,9 +237,6 @@ class RunReport:
     def value(self, key: str) -> Any:
         """The value at a dotted key of :meth:`to_dict` (``--fail-above``, the sweep's columns).
 
-        Raises
-        ------
-        MissingKey
-            The key is not in this report.
+        Raises MissingKey: the key is not in this report.
         """
         return resolve_key(self.to_dict(), key)

@@ -1,15 +1,8 @@
 """The human-readable report: rich tables on stdout.
 
-On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a test) they
-are plain text: no colour, no box characters, columns separated by at least two spaces and
-the numbers never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
-final``); the verdict's sentences wrap to the reader's width (:func:`reading_width`).
-
-Every number is the JSON value (:mod:`.build`) to 4 significant digits, in the unit
-named in its row label. One run: a run table, an error matrix (one row per error, one
-column per statistic), a table of the other metrics and the verdict. Several runs: the same
-tables side by side, one column per run named by its label (--label, else its law), with the error
-statistics one per row.
+Rules and colour on a terminal; elsewhere plain text with unwrapped numbers, so that the
+output diffs and greps well. Numbers are the JSON values to 4 significant digits in the
+unit of the row label; several runs stand side by side, one column each.
 """
 
 from __future__ import annotations
@@ -244,13 +237,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
 def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
     """Every table of the report with its title, in print order.
 
-    Parameters
-    ----------
-    reports : list of RunReport
-        Reports from :func:`hbvs_cli.report.build.build_report`, one per run.
-    console : rich.console.Console
-        Where they will be printed: plain text (no box characters) unless it is a
-        terminal, whose width decides the error tables' layout.
+    Plain text unless ``console`` is a terminal, whose width decides the error tables' layout.
     """
     plain = not console.is_terminal
     return [

@@ -1,10 +1,8 @@
 """The simulated world of ``repeat --sim``: the scene, its true depth and the taught pose.
 
-After a simulated teach the fit file carries the world and the taught path, so the repeat
-sees exactly the world that was taught, and the taught pose at any time is known exactly.
-After a teach from real footage there is no world: one consistent with the reference image
-is built instead, at an assumed depth ``--depth D`` (a vertical wall D metres from F*,
-papered with the reference image, the target points where the reference image shows them).
+After a simulated teach the fit file carries the taught world and path. After real footage
+a world consistent with the reference image is built at an assumed ``--depth D``: a wall D m
+from F* papered with the reference image, the target points where it shows them.
 """
 
 from __future__ import annotations
@@ -33,14 +31,7 @@ from .render import RenderSettings, SceneRenderer, make_renderer
 class Scene:
     """A world to simulate, its true depth d*, and the taught pose at any taught time.
 
-    Attributes
-    ----------
-    world : World
-    d_true : float
-        True distance from F* to the target plane (m).
-    reference_pose : ndarray, shape (3,)
-    poster_image : ndarray or None
-        The picture on the wall when it is not the target's own drawing (real footage).
+    ``poster_image``: the picture on the wall when it is not the target's own drawing.
     """
 
     world: World
@@ -83,14 +74,8 @@ def knows_its_world(model: FitModel) -> bool:
 
 def simulation_world(model: FitModel, reference_image: NDArray | None, depth: float | None, speed: float = 1.0,
                      source: str = "the fit file") -> Scene:
-    """The scene of ``repeat --sim`` for a fit model (see the module docstring); the
-    decoded reference image is needed only when the model does not know its world.
-
-    Raises
-    ------
-    RecordingError
-        The recorded world is malformed (``source`` names the fit file).
-    """
+    """The scene of ``repeat --sim`` for a fit model; the reference image is needed only when
+    the model does not know its world. RecordingError (naming ``source``) for a malformed one."""
     start = model.trajectory.t_start
     if knows_its_world(model):
         if depth is not None:

@@ -1,13 +1,9 @@
 """The simulated world: a camera on a unicycle robot and a planar target on a wall.
 
-World frame W: x toward the wall, y left, z up (metres). The camera's optical centre is
-the origin of the robot frame F (the paper's camera "in hand", Sec. II) at height
-``camera_height`` above the floor. The target lies on a vertical wall ``x = wall_x``; its
-points are the dot centres (``dots``), the marker's four corners (``aruco``) or four points
-of a textured poster (``texture``). No target point may lie at the camera's height, (18).
-
-Everything a later stage needs to re-create the same world (and the same images) is in
-:meth:`World.to_dict`, which ``hbvs teach`` records in its MCAP file.
+World frame W: x toward the wall, y left, z up (m). The optical centre is the origin of F
+(camera "in hand", Sec. II) at ``camera_height``. The target lies on the wall ``x = wall_x``;
+no target point may lie at the camera's height (18). :meth:`World.to_dict` is what ``hbvs
+teach`` records so that later stages re-create the same world and images.
 """
 
 from __future__ import annotations
@@ -39,15 +35,8 @@ TARGET_KINDS = ("dots", "aruco", "texture")
 class Poster:
     """A flat rectangle on the wall carrying the target's picture.
 
-    Attributes
-    ----------
-    center : ndarray, shape (3,)
-        Centre in W (m).
-    width, height : float
-        Size (m).
-    right, down : ndarray, shape (3,)
-        Unit vectors in W along the poster's rows (left to right as seen from the robot)
-        and columns (top to bottom).
+    ``center`` (3,) in W and ``width``, ``height`` in m; ``right`` and ``down`` (3,): unit
+    vectors in W along the rows (as seen from the robot) and columns.
     """
 
     center: NDArray[np.float64]
@@ -67,19 +56,9 @@ class Poster:
 class Target:
     """The planar target: its kind, its points and the poster it is drawn on.
 
-    Attributes
-    ----------
-    kind : str
-        ``"dots"``, ``"aruco"`` or ``"texture"``.
-    points_poster : ndarray, shape (N, 2)
-        The target points in poster coordinates (m from the poster's top-left corner).
-    poster : Poster
-    dot_radius : float
-        Radius of each dot (m), for ``dots``.
-    marker_id : int
-        ArUco id, for ``aruco`` (dictionary :data:`ARUCO_DICTIONARY`).
-    texture : str
-        ``"builtin"`` or an image file name, for ``texture``.
+    ``kind``: ``"dots"``, ``"aruco"`` or ``"texture"``; ``points_poster`` (N, 2): poster
+    coordinates (m); ``dot_radius`` (m, dots), ``marker_id`` (aruco, :data:`ARUCO_DICTIONARY`),
+    ``texture`` (``"builtin"`` or an image file name).
     """
 
     kind: str
@@ -107,16 +86,7 @@ ARUCO_DICTIONARY = "DICT_4X4_50"
 
 @dataclass(frozen=True)
 class World:
-    """Camera, mounting and target: all a simulator needs to produce measurements.
-
-    Attributes
-    ----------
-    camera : CameraIntrinsics
-    camera_height : float
-        Height of the optical centre (m).
-    target : Target
-        On the wall ``x = wall_x``, the x of the poster's centre.
-    """
+    """Camera, its height (m) and the target (on the wall ``x = wall_x``, the poster centre's x)."""
 
     camera: CameraIntrinsics
     camera_height: float
@@ -171,16 +141,7 @@ class World:
         )
 
     def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-        """What F* sees: reference points m*_i, the plane normal n* in F* and the depth d*.
-
-        Returns
-        -------
-        m_ref : ndarray, shape (N, 3)
-        normal : ndarray, shape (3,)
-            Unit normal in F*, pointing from the camera toward the plane (7).
-        d_star : float
-            Distance from F* to the plane (m), ``n*^T m_bar*_i`` (7).
-        """
+        """What F* sees: m*_i (N, 3), the unit normal n* in F* toward the plane and d* (m), (7)."""
         reference_pose = np.asarray(reference_pose, dtype=float)
         m_ref = self.normalized_points(reference_pose)
         phi = reference_pose[2]
@@ -191,25 +152,13 @@ class World:
         return m_ref, normal, d_star
 
     def ground_truth(self, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
-        """True (theta, x_h) of F relative to F*, (4), (14).
-
-        Returns
-        -------
-        theta : float or ndarray
-            rad.
-        x_h : ndarray, shape (..., 2)
-            ``x_f / d*`` (dimensionless).
-        """
+        """True theta (rad) and x_h = x_f / d* (..., 2) of F relative to F*, (4), (14)."""
         theta, x_f = relative_planar_pose(pose, reference_pose)
         d_star = float(self.wall_x - np.asarray(reference_pose, dtype=float)[0])
         return theta, x_f[..., :2] / d_star
 
     def poster_to_image_homography(self, pose: ArrayLike) -> NDArray[np.float64]:
-        """Homography from poster coordinates (m, top-left origin) to ideal pixels.
-
-        ``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: the plane-to-image homography
-        a renderer warps the poster with.
-        """
+        """``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: poster metres to ideal pixels."""
         pose = np.asarray(pose, dtype=float)
         poster = self.poster_basis()
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -288,17 +237,9 @@ MAX_POSTER_SIDE_M = 10.0
 
 
 def world_from_description(data: Any, source: str) -> World:
-    """The :class:`World` of a recorded description (:meth:`World.to_dict`), checked so that
-    rendering it is safe: the poster at most :data:`MAX_POSTER_SIDE_M` a side with unit,
-    orthogonal axes, a finite dot radius, at most :data:`MAX_TARGET_POINTS` points. (io
-    checks the camera and its height when it reads the description:
-    :func:`hbvs_cli.io.teach_file.world_description`.)
-
-    Raises
-    ------
-    RecordingError
-        The description is malformed or outside those bounds.
-    """
+    """The :class:`World` of a recorded description, checked so that rendering it is safe
+    (poster at most :data:`MAX_POSTER_SIDE_M` a side, unit orthogonal axes, finite dot radius,
+    at most :data:`MAX_TARGET_POINTS` points); RecordingError otherwise."""
     try:
         world = World.from_dict(data)
     except HbvsError as exc:  # World says "malformed world description: ..." itself
@@ -345,16 +286,10 @@ DOT_LAYOUT: tuple[tuple[float, float], ...] = (
 )
 
 def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", wall_x: float = DEFAULT_WALL_X) -> Target:
-    """The default target of each kind, centred on the wall in front of the start pose.
+    """The default target of each kind, centred 0.75 m high on the wall in front of the start.
 
-    * ``dots``: 3 to 10 black dots of radius 5 cm on a white 2.0 m x 0.9 m poster whose
-      centre is 0.75 m above the floor (:data:`DOT_LAYOUT`; no dot at the camera's 0.30 m);
-    * ``aruco``: a 0.6 m marker (DICT_4X4_50, id 7) on a 0.9 m x 0.9 m white poster;
-    * ``texture``: a 1.8 m x 0.9 m textured poster; its four target points are the corners
-      of a rectangle inset by 10 %.
-
-    A wide target matters: the yaw/lateral-shift ambiguity of a small, distant target makes
-    theta sensitive to pixel noise in proportion to (distance / width)^2.
+    Wide, because a small distant target's yaw/lateral-shift ambiguity makes theta's noise
+    grow as (distance / width)^2.
     """
     if kind not in TARGET_KINDS:
         raise InvalidValueError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")

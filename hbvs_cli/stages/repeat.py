@@ -87,8 +87,8 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, default: float | None, option: str) -> float | None:
-    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (a limit of
-    0 would mean "stand still", which is no run at all, and it once meant "no limit")."""
+    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (it would mean
+    "stand still", which is no run at all)."""
     if value is None:
         return default
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
@@ -307,16 +307,8 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- closed loop
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes
-    them before running anything).
-
-    Raises
-    ------
-    UsageError
-        A pace that is not a finite positive number.
-    LimitExceededError
-        More steps than the ``steps`` limit.
-    """
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
+    first): UsageError for a bad ``--speed``, LimitExceededError beyond the ``steps`` limit."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(

@@ -1,21 +1,12 @@
 """``hbvs robot-sim FIT --ros2`` (or ``--mjpeg PORT --cmd-in FILE``): a stand-in robot in its
 own process.
 
-It is what ``repeat --sim`` simulates, split off as a robot on the network: it starts at
-the taught start plus ``--offset`` in the fit's taught world (:func:`hbvs_cli.sim.simulation_world`),
-integrates the unicycle in real time under the latest velocity command it received,
-and renders the camera with the same renderer as ``repeat --sim`` at ``--rate``.
-
-``--ros2``: commands from ``/cmd_vel``; the camera published as a ROS 2 camera does:
-``sensor_msgs/msg/Image`` (or a JPEG ``CompressedImage``) with sensor-data QoS,
-``CameraInfo`` on the sibling ``camera_info`` topic, and the true pose as
-``geometry_msgs/msg/PoseStamped`` on ``/ground_truth/pose``; stamps are the wall clock (as
-ROS 2 drivers stamp). Without ROS: ``--mjpeg PORT`` serves the camera as an MJPEG stream on
-``http://127.0.0.1:PORT/`` (``repeat --live --camera URL``) and ``--cmd-in FILE|FIFO|-``
-reads the commands as the JSON lines ``repeat --cmd-out`` writes.
-
-Users try ``repeat --live`` against it before a robot; the tests run the live loop across
-processes with it.
+What ``repeat --sim`` simulates, as a robot on the network for ``repeat --live`` to be tried
+against: the unicycle integrated in real time under the latest command, from the taught
+start plus ``--offset``, and the same renderer at ``--rate``. ``--ros2`` speaks as a ROS 2
+camera does (``/cmd_vel`` in; Image or CompressedImage with CameraInfo, and the true pose
+on ``/ground_truth/pose``, stamped by the wall clock); ``--mjpeg PORT`` serves an MJPEG
+stream on 127.0.0.1 and ``--cmd-in`` reads ``repeat --cmd-out``'s JSON lines.
 """
 
 from __future__ import annotations
