@@ -261,6 +261,19 @@ def test_known_layout_pins_the_plane_normal(tmp_path, request, name, capsys):
     assert known.dhat0_source != "guess" and abs(known.dhat0 / made["d_star"] - 1.0) < 0.02
 
 
+def test_known_layout_gives_the_depth_in_the_suite(tmp_path, capsys):
+    """The suite's short drive of the three bright dots fitted with --target-points: the layout
+    pins n* and gives d* (the campaign above runs the whole drives)."""
+    made, teach = _teach_and_fit(tmp_path, "bright_dots", drive=footage.Drive(duration=12.0, fps=2.5, speed=0.24, period=9.0))
+    points = _write_points(footage.case("bright_dots")[0], tmp_path / "points.csv")
+    known, _ = _fit(teach, tmp_path / "known.mcap", "-q", "--target-points", str(points))
+    errors = footage.errors_against_truth(known, made)
+    with capsys.disabled():
+        print(f"\nbright_dots, short drive, with --target-points: {errors}  d* {known.dhat0:.3f} (true {made['d_star']:.3f})")
+    assert errors["normal_deg"] <= 0.2 and errors["theta_deg"] <= 0.1
+    assert known.dhat0_source == "target-size" and abs(known.dhat0 / made["d_star"] - 1.0) < 0.02
+
+
 @pytest.mark.campaign
 @pytest.mark.parametrize("name, kind", [("low_contrast20_dots", "dots"), ("chessboard", "chessboard"), ("photo_with_tags", "texture")])
 def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):

@@ -555,7 +555,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
         i, j = (int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
         from_size = depth_from_target_size(result.m_ref, result.normal, (i, j), float(gaps[i, j]))
-        estimates["target_size"] = asdict(from_size) | {"pair": [i, j]}
+        estimates["target_size"] = _estimate_record(from_size) | {"pair": [i, j]}
         chosen = from_size
     if chosen is None:
         console.warn(
