@@ -147,7 +147,7 @@ def sim_final_errors(tmp_path, speed: float) -> tuple[float, float]:
     path = tmp_path / f"sim{speed:g}.mcap"
     make_run(FIT, path, sim=True, speed=speed)  # in this process: the live run is the one that needs processes
     report = build_report(read_run(path))
-    return report["pose_error"]["position_m"]["final"], abs(report["pose_error"]["heading_deg"]["final"])
+    return report.pose_error["position_m"].final, abs(report.pose_error["heading_deg"].final)
 
 
 def converge_like_sim(tmp_path, speed: float, jpeg: bool = False) -> dict:

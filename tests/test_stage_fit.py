@@ -88,7 +88,7 @@ def test_fit_is_deterministic_streams_from_stdin_and_prints_its_summary_on_stder
 
 
 def copy_teach(source, target, image=lambda t, message: message):
-    """Copy a teach file through ``image(t, json_bytes) -> json_bytes or None`` (None drops it)."""
+    """Copy a teach file through ``image(t, image_message_bytes) -> bytes or None`` (None drops it)."""
     from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
     from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
@@ -102,13 +102,11 @@ def copy_teach(source, target, image=lambda t, message: message):
                     writer.metadata(name, read_metadata(stream, name))
                 first = False
             data = message.data
-            if message.message_encoding != "json":  # protobuf images: keep their encoding
-                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
             if message.topic == "/camera/image":
                 data = image((message.log_time - SIMULATION_EPOCH_NS) * 1e-9, data)  # s from the start
                 if data is None:
                     continue
-            writer.write_encoded(message.topic, message.schema_name, message.log_time, data)
+            writer.copy(message, data=data)
         writer.finish()
 
 
@@ -118,13 +116,13 @@ def strip_frames(source, target, drop):
 
 
 def _painted_out(data: bytes) -> bytes:
-    """A stored image (protobuf CompressedImage) with the target painted out."""
-    from hbvs_cli.io.images import decode_image, encode_compressed_image, encode_image, read_compressed_image
+    """A stored image (a serialized CompressedImage) with the target painted out."""
+    from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image, read_compressed_image
 
-    stored = read_compressed_image("protobuf", data)
+    stored = read_compressed_image(data)
     image = decode_image(stored.data)
     image[:260, :] = 150
-    return encode_compressed_image(stored.stamp_ns, encode_image(image), "png")
+    return compressed_image_message(stored.stamp_ns, encode_image(image), "png").SerializeToString()
 
 
 def _cover_target(source, target, covered):
@@ -167,7 +165,7 @@ def test_fit_of_a_video_recording_agrees_with_the_truth(video_fit):
     _, fit, world, profile, start, times = video_fit
     model = read_fit_file(fit).model
     errors = errors_against_drive(model, world, profile, start, times)
-    assert model.world is None and model.taught_path is None
+    assert model.world_description is None and model.taught_path is None
     assert errors["theta_deg"] < 0.05
     assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
     # No commands in a video: d* from the target's metric size (--target-size).
@@ -185,7 +183,7 @@ def test_fit_of_a_ros2_bag_agrees_with_the_truth(video_fit, tmp_path):
     from hbvs_cli.io.mcap import McapStream
 
     video_teach, _, world, profile, start, times = video_fit
-    stored = [read_compressed_image(m.message_encoding, m.data) for m in McapStream(video_teach, topics={"/camera/image"})]
+    stored = [read_compressed_image(m.data) for m in McapStream(video_teach, topics={"/camera/image"})]
     assert len(stored) == 600 and {image.format for image in stored} == {"jpeg"}
     write_bag(tmp_path / "bag", [image.data for image in stored])
     teach = make_teach(tmp_path / "bag.mcap", bag=tmp_path / "bag")
@@ -212,8 +210,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
         for k, message in enumerate(stream):
             if k == 0:
                 writer.metadata("hbvs", read_metadata(stream, "hbvs"))
-                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
-            writer.write_encoded(message.topic, message.schema_name, message.log_time, message.data)
+            writer.copy(message)
             if k > 20:
                 break
         writer.finish()
