@@ -293,14 +293,32 @@ def default_fit(default_teach, pipeline_dir):
     return path, read_fit_file(path).model
 
 
+@pytest.fixture(scope="session")
+def video_fit(pipeline_dir):
+    """A teach from a lossless video of :func:`rendered_s_curve` (seed 1, 600 frames) and
+    its fit at the target's metric size, with the drive's truth: (teach path, fit path,
+    world, command profile, start pose, frame times)."""
+
+    def teach(path):
+        folder = pipeline_dir / "video-build"
+        folder.mkdir(exist_ok=True)
+        teach_from_rendered_video(folder, seed=1)[0].rename(path)
+
+    world, profile, start, times, _ = rendered_s_curve(1)
+    teach_path = shared_recording(pipeline_dir, "video-teach.mcap", teach)
+    fit_path = shared_recording(pipeline_dir, "video-fit.mcap",
+                                lambda path: make_fit(teach_path, path, target_size=world.target.size))
+    return teach_path, fit_path, world, profile, start, times
+
+
 #: CPU seconds of the heaviest test files (their own and their children's, measured test by
 #: test in a quiet run of the suite on this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
 #: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
 #: running alone at the end made the suite ~14 s longer than its work divided by two.
 HEAVY_FILES = {
-    "test_robustness_errors.py": 47, "test_stage_fit.py": 40, "test_sweep.py": 34, "test_stage_repeat.py": 31,
+    "test_robustness_errors.py": 25, "test_stage_fit.py": 30, "test_sweep.py": 23, "test_stage_repeat.py": 22,
     "test_perception_footage.py": 30, "test_robustness_outputs.py": 28, "test_end_to_end.py": 24,
-    "test_robustness_fuzz.py": 17, "test_stage_options.py": 16, "test_io_rosbag_layouts.py": 15,
+    "test_robustness_fuzz.py": 17, "test_stage_options.py": 11, "test_io_rosbag_layouts.py": 15,
     "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
     "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 8,
     "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6, "test_walkthrough.py": 13,

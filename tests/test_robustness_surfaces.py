@@ -181,10 +181,11 @@ def test_a_kept_run_file_is_whole_or_absent_and_the_temporary_folder_goes(tmp_pa
 # ----------------------------------------------------------------------------- 1. the sweep's folder
 @pytest.fixture(scope="module")
 def small_sweep(tmp_path_factory):
-    """A finished 2-run sweep (points with 1 px of noise, one worker), made once for the tests below."""
+    """A finished 2-run sweep (points with 1 px of noise, one worker), made once for the tests
+    below (from this process: tests/test_sweep.py runs sweeps as their own processes)."""
     folder = tmp_path_factory.mktemp("sweep") / "results"
-    result = run_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1",
-                      "-o", str(folder), "--workers", "1", "--no-plots", "--quiet", timeout=300)
+    result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1",
+                       "-o", str(folder), "--workers", "1", "--no-plots", "--quiet")
     assert result.returncode == 0, result.stderr
     return folder
 

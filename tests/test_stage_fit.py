@@ -15,9 +15,7 @@ from conftest import (
     fit_errors,
     make_fit,
     make_teach,
-    rendered_s_curve,
     run_hbvs,
-    teach_from_rendered_video,
 )
 
 #: Measured on the default scenario (3 dots, 4 m, 640x480, f = 500 px, frames stored as
@@ -64,12 +62,13 @@ def test_other_targets_agree_with_the_truth(tmp_path, kind, bounds, capsys):
     assert abs(model.dhat0 - errors["d_star"]) < 0.02 * errors["d_star"]
 
 
-def test_fit_is_deterministic_and_streams_from_stdin(default_teach, default_fit):
+def test_fit_is_deterministic_streams_from_stdin_and_prints_its_summary_on_stderr(default_teach, default_fit):
     from hbvs_cli.io.mcap import McapStream, read_metadata
 
     # The same teach through a pipe, in another process: message for message the same fit
-    # as the session's (only the recorded input name differs: "-").
-    result = run_hbvs("fit", "-", "-o", "-", "-q", input=default_teach.read_bytes())
+    # as the session's (only the recorded input name differs: "-"). Without -q its summary
+    # table goes to stderr; stdout holds the fit file alone.
+    result = run_hbvs("fit", "-", "-o", "-", input=default_teach.read_bytes())
     assert result.returncode == 0, result.stderr
 
     def contents(source):
@@ -79,15 +78,11 @@ def test_fit_is_deterministic_and_streams_from_stdin(default_teach, default_fit)
         names = (metadata.pop("input"), metadata["settings"].pop("input"))
         return messages, metadata, names
 
+    assert result.stdout.startswith(b"\x89MCAP0\r\n")
     piped, reference = contents(io.BytesIO(result.stdout)), contents(default_fit[0])
     assert len(piped[0]) > 600 and piped[:2] == reference[:2]
     assert piped[2] == ("stdin", "-") and reference[2][0].endswith("teach.mcap")
-
-
-def test_the_summary_table_goes_to_stderr(default_teach, tmp_path):
-    result = run_hbvs("fit", str(default_teach), "-o", str(tmp_path / "f.mcap"))
     text = result.stderr.decode()
-    assert result.returncode == 0 and result.stdout == b""
     for words in ("frames used / total", "600 / 600", "d* from taught commands", "condition (35)", "lambda"):
         assert words in text
 
@@ -120,31 +115,31 @@ def strip_frames(source, target, drop):
     copy_teach(source, target, lambda t, data: None if drop(t) else data)
 
 
-def _cover_target(source, target, covered):
-    """Copy a teach file, painting the target out of the images at times where covered(t)."""
+def _painted_out(data: bytes) -> bytes:
+    """A stored image (a serialized CompressedImage) with the target painted out."""
     from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image, read_compressed_image
 
-    def paint(t, data):
-        if not covered(t):
-            return data
-        stored = read_compressed_image(data)
-        image = decode_image(stored.data)
-        image[:260, :] = 150
-        return compressed_image_message(stored.stamp_ns, encode_image(image), "png").SerializeToString()
+    stored = read_compressed_image(data)
+    image = decode_image(stored.data)
+    image[:260, :] = 150
+    return compressed_image_message(stored.stamp_ns, encode_image(image), "png").SerializeToString()
 
-    copy_teach(source, target, paint)
+
+def _cover_target(source, target, covered):
+    """Copy a teach file, painting the target out of the images at times where covered(t)."""
+    copy_teach(source, target, lambda t, data: _painted_out(data) if covered(t) else data)
 
 
 def test_a_stretch_without_the_target_is_bridged_and_reported(default_teach, tmp_path):
+    # Both kinds of stretch in one recording (one fit): 18 frames missing from the file
+    # (8.0-8.6 s), and 15 frames present with the target covered (a detector blackout,
+    # 12.0-12.5 s).
     gappy = tmp_path / "gappy.mcap"
-    strip_frames(default_teach, gappy, lambda t: 8.0 <= t < 8.6)  # 18 frames missing
-    summary = make_fit(gappy, tmp_path / "fit.mcap")
-    model = summary.model
-    assert model.frames["total"] == 582 and model.frames["used"] == 582
-    # Detector blackout instead: frames present but the target covered.
-    blank = tmp_path / "blank.mcap"
-    _cover_target(default_teach, blank, lambda t: 12.0 <= t < 12.5)
-    model = make_fit(blank, tmp_path / "fit2.mcap").model
+    copy_teach(default_teach, gappy,
+               lambda t, data: None if 8.0 <= t < 8.6 else (_painted_out(data) if 12.0 <= t < 12.5 else data))
+    model = make_fit(gappy, tmp_path / "fit.mcap").model
+    # Missing frames are not counted, covered ones are counted as lost.
+    assert model.frames["total"] == 582 and model.frames["used"] == 567
     assert model.frames["lost"] == 15 and model.frames["longest_gap_s"] == pytest.approx(16 / 30, abs=1e-6)
     errors = fit_errors(model)
     assert errors["theta_deg"] < 0.1 and errors["x_hd2"] < 2e-3
@@ -152,10 +147,11 @@ def test_a_stretch_without_the_target_is_bridged_and_reported(default_teach, tmp
 
 def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
     csv = tmp_path / "stop.csv"
-    rows = ["t,v,w"] + [f"{k / 10:.1f},{0.1 if k < 50 else 0.0},0.0" for k in range(100)]
+    # 3 s of driving, then 3 s stopped.
+    rows = ["t,v,w"] + [f"{k / 10:.1f},{0.1 if k < 30 else 0.0},0.0" for k in range(60)]
     csv.write_text("\n".join(rows) + "\n")
     teach = make_teach(tmp_path / "teach.mcap", path=str(csv))
-    result = run_hbvs("fit", str(teach), "-o", str(tmp_path / "fit.mcap"))
+    result = call_hbvs("fit", str(teach), "-o", str(tmp_path / "fit.mcap"))
     assert result.returncode == 0
     warning = [line for line in result.stderr.decode().splitlines() if "warning" in line]
     assert any("condition (35)" in line and "stops" in line for line in warning), result.stderr.decode()
@@ -164,11 +160,10 @@ def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
     assert model.condition35["min_abs_xhd1_dot"] < 0.002
 
 
-def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
+def test_fit_of_a_video_recording_agrees_with_the_truth(video_fit):
     """Teach from a video of the simulated drive (the truth is known), then fit."""
-    teach, world, profile, start, times = teach_from_rendered_video(tmp_path, seed=1)
-    make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
-    model = read_fit_file(tmp_path / "fit.mcap").model
+    _, fit, world, profile, start, times = video_fit
+    model = read_fit_file(fit).model
     errors = errors_against_drive(model, world, profile, start, times)
     assert model.world_description is None and model.taught_path is None
     assert errors["theta_deg"] < 0.05
@@ -178,11 +173,19 @@ def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
     assert model.dhat0_source == "target-size" and abs(model.dhat0 - d_star) < 0.02 * d_star
 
 
-def test_fit_of_a_ros2_bag_agrees_with_the_truth(tmp_path):
+def test_fit_of_a_ros2_bag_agrees_with_the_truth(video_fit, tmp_path):
+    """The video teach's frames (JPEG, as a camera driver's compressed topic carries them)
+    in a ROS 2 bag with its CameraInfo: taught from the bag and fitted, they agree with the
+    truth as the video does."""
     from test_stage_teach import write_bag
 
-    world, profile, start, times, images = rendered_s_curve(seed=2)
-    write_bag(tmp_path / "bag", list(images))
+    from hbvs_cli.io.images import read_compressed_image
+    from hbvs_cli.io.mcap import McapStream
+
+    video_teach, _, world, profile, start, times = video_fit
+    stored = [read_compressed_image(m.data) for m in McapStream(video_teach, topics={"/camera/image"})]
+    assert len(stored) == 600 and {image.format for image in stored} == {"jpeg"}
+    write_bag(tmp_path / "bag", [image.data for image in stored])
     teach = make_teach(tmp_path / "bag.mcap", bag=tmp_path / "bag")
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
@@ -211,8 +214,8 @@ def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
             if k > 20:
                 break
         writer.finish()
-    never_found = tmp_path / "never.mcap"
-    _cover_target(short_teach, never_found, lambda t: True)
+    never_found = tmp_path / "never.mcap"  # its first second, the target covered throughout
+    copy_teach(short_teach, never_found, lambda t, data: _painted_out(data) if t < 1.0 else None)
     cases = [
         ([str(not_mcap)], 3, "not"),
         ([str(truncated)], 3, ""),
@@ -233,12 +236,14 @@ def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
         assert not output.exists() and not list(tmp_path.glob("out.mcap*.partial"))
 
 
-def test_reference_last_and_index(default_teach, tmp_path):
+def test_reference_last_and_index(default_teach, short_teach, tmp_path):
     last = make_fit(default_teach, tmp_path / "last.mcap", reference="last").model
-    middle = make_fit(default_teach, tmp_path / "mid.mcap", reference="300").model
-    assert last.reference_index == 599 and middle.reference_index == 300
+    # An index inside the drive: the 6 s teach's middle (the same choice of reference).
+    middle = make_fit(short_teach, tmp_path / "mid.mcap", reference="90").model
+    assert last.reference_index == 599 and middle.reference_index == 90
     # F* at the last frame is 2 m from the wall: d* follows.
     assert abs(last.dhat0 - 2.0) < 0.04
+    # Measured: last 0.006 deg, 3e-5 / 1e-4; the 6 s teach's middle 0.031 deg, 1.1e-4 / 5.0e-4.
     for model in (last, middle):
         errors = fit_errors(model)
         assert errors["theta_deg"] < 0.05 and errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3

@@ -13,7 +13,7 @@ from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.run_file import read_run
 
-from conftest import call_hbvs, fit_errors, make_fit, make_run, make_teach, run_hbvs, teach_from_rendered_video
+from conftest import call_hbvs, fit_errors, make_fit, make_run, make_teach
 
 
 @pytest.mark.parametrize("kind", TARGET_KINDS)
@@ -109,13 +109,12 @@ def test_record_images_stores_images_with_detected_and_desired_points(default_fi
     assert (tmp_path / "run.mcap").stat().st_size <= 1.1 * image_bytes
 
 
-def test_sim_after_real_footage_needs_and_uses_an_assumed_depth(tmp_path):
+def test_sim_after_real_footage_needs_and_uses_an_assumed_depth(video_fit, tmp_path):
     """A teach from a video has no world: repeat --sim builds one at --depth D."""
-    teach, world, *_ = teach_from_rendered_video(tmp_path, seed=8, frames=300)
-    make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
-    result = run_hbvs("repeat", str(tmp_path / "fit.mcap"), "--sim", "-o", str(tmp_path / "run.mcap"), "-q")
-    assert result.returncode == 2 and b"--depth" in result.stderr
-    make_run(tmp_path / "fit.mcap", tmp_path / "run.mcap", sim=True, depth=4.0, perception="points")
+    fit = video_fit[1]
+    result = call_hbvs("repeat", str(fit), "--sim", "-o", str(tmp_path / "run.mcap"), "-q")
+    assert result.returncode == 2 and b"--depth" in result.stderr and not (tmp_path / "run.mcap").exists()
+    make_run(fit, tmp_path / "run.mcap", sim=True, depth=4.0, perception="points")
     run = read_run(tmp_path / "run.mcap")
     assert run.info["d_true"] == 4.0
     position = np.hypot(*(run.true_pose[:, :2] - run.desired_pose[:, :2]).T)

@@ -216,7 +216,8 @@ def test_live_camera_ctrl_c_leaves_a_valid_finished_recording(tmp_path, calibrat
 
 
 def write_bag(directory: Path, frames, *, images=True, camera_info=True, second_topic=False):
-    """A ROS 2 bag in MCAP storage written by the independent rosbags library."""
+    """A ROS 2 bag in MCAP storage written by the independent rosbags library; ``frames``
+    are images (stored as PNG) or JPEG bytes (stored as they are)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from test_io_sources import TYPES, CompressedImage, CameraInfo, _camera_info, _header
 
@@ -228,10 +229,13 @@ def write_bag(directory: Path, frames, *, images=True, camera_info=True, second_
         info_connection = writer.add_connection("/cam/camera_info", CameraInfo.__msgtype__, typestore=TYPES) if camera_info else None
         for k, frame in enumerate(frames):
             stamp_ns = 1_700_000_000_000_000_000 + k * 33_333_333
-            # Fastest lossless PNG: the same pixels, a third of the default level's CPU.
-            data = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].ravel()
+            if isinstance(frame, bytes):  # a JPEG already, as a camera driver's compressed topic
+                image_format, data = "jpeg", np.frombuffer(frame, np.uint8)
+            else:
+                # Fastest lossless PNG: the same pixels, a third of the default level's CPU.
+                image_format, data = "png", cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].ravel()
             for connection in image_connections:
-                message = CompressedImage(header=_header(stamp_ns), format="png", data=data)
+                message = CompressedImage(header=_header(stamp_ns), format=image_format, data=data)
                 writer.write(connection, stamp_ns, TYPES.serialize_cdr(message, CompressedImage.__msgtype__))
             if info_connection is not None and k == 0:  # one CameraInfo is enough
                 info = _camera_info(DEFAULT_CAMERA, stamp_ns)
