@@ -248,6 +248,7 @@ def fit_desired_trajectory(
     max_gap: float,
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
+    measured_points: bool = True,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -273,6 +274,12 @@ def fit_desired_trajectory(
         Parts of the target whose shape is known up to a similarity (each marker's
         square, :data:`~.plane.UNIT_SQUARE`); they pin n* where the motion does not
         (:func:`~.plane.refine_plane_and_reference`).
+    measured_points : bool
+        The points are measured in each frame on their own (dots, markers, a board's
+        corners): errors that the residuals show correlated from frame to frame widen the
+        reported uncertainty (:func:`~.bundle.correlation_inflation`). False for points
+        that are one tracked homography's corners (texture), correlated from frame to
+        frame by the tracking itself.
 
     Returns
     -------
@@ -341,7 +348,7 @@ def fit_desired_trajectory(
     if others.size:
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used))
+                                      frames=m[used], frames_motion=stacked(used), correlated=measured_points)
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG and warn is not None:
             warn(UNCERTAIN_NORMAL_WARNING.format(sigma=uncertainty.normal_sigma_deg))

@@ -284,7 +284,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(spec.n_points), board_layout(spec.board))]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
+                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes,
+                                      measured_points=spec.kind != "texture")
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
