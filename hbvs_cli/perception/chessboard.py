@@ -215,12 +215,19 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDAr
     -------
     ndarray, shape (K, 2)
     """
-    smooth = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), SADDLE_SMOOTHING_PX)
     reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
     offsets = np.arange(-reach, reach + 1)
-    height, width = gray.shape
     refined = np.asarray(corners, dtype=np.float64).copy()
     start = refined.copy()
+    # Only the board's box (and what a step and the smoothing reach) is smoothed.
+    border = reach + int(np.ceil(SADDLE_MAX_STEP_PX)) + int(np.ceil(4 * SADDLE_SMOOTHING_PX))
+    x0, y0 = np.maximum(np.floor(refined.min(axis=0)).astype(int) - border, 0)
+    x1, y1 = np.minimum(np.ceil(refined.max(axis=0)).astype(int) + border + 1, np.array(gray.shape[::-1]))
+    if x1 <= x0 or y1 <= y0:
+        return refined
+    smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SADDLE_SMOOTHING_PX)
+    refined -= (x0, y0)
+    height, width = smooth.shape
     for _ in range(SADDLE_PASSES):
         centre = np.rint(refined).astype(np.intp)
         inside = np.all((centre >= reach) & (centre < np.array([width, height]) - reach), axis=1)
@@ -247,6 +254,7 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDAr
         moved = refined[inside]
         moved[accept] += step[accept]
         refined[inside] = moved
+    refined += (x0, y0)
     far = np.hypot(*(refined - start).T) > SADDLE_MAX_STEP_PX
     refined[far] = start[far]
     return refined
