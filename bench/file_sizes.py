@@ -30,34 +30,47 @@ RESULTS = HERE / "FILE_SIZES.md"
 
 
 def _old_layout_copy(source: Path, target: Path, colour_pngs: list[Path] | None = None) -> None:
-    """``source`` rewritten as hbvs wrote files before: PNG frames, base64 in JSON.
+    """``source`` rewritten as hbvs wrote files before issue 18: PNG frames, base64 in JSON
+    (written with the mcap library directly: hbvs no longer reads or writes that layout).
 
     With ``colour_pngs`` the frames are those files' bytes as they came (what ``--images``
     stored then); otherwise each frame is re-encoded as the gray PNG hbvs wrote then.
     """
-    from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image, read_compressed_image
-    from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata, time_message
+    import base64
+    import json
+
+    from mcap.writer import CompressionType, Writer
+
+    from hbvs_cli.io.images import decode_image, encode_image, read_compressed_image
+    from hbvs_cli.io.mcap import McapStream
 
     stream = McapStream(source)
     with open(target, "wb") as handle:
-        writer = McapWriter(handle, chunk_size=512 * 1024)
+        writer = Writer(handle, chunk_size=512 * 1024, compression=CompressionType.ZSTD)
+        writer.start()
+        channels: dict[str, int] = {}
         first, index = True, 0
         for message in stream:
             if first:
-                for name in stream.metadata:
-                    writer.metadata(name, read_metadata(stream, name))
+                for name, values in stream.metadata.items():
+                    writer.add_metadata(name, values)
                 first = False
-            if message.schema_name != "foxglove.CompressedImage":
-                writer.write_encoded(message.topic, message.schema_name, message.log_time, message.data)
-                continue
-            stored = read_compressed_image(message.message_encoding, message.data)
-            if colour_pngs is not None:
-                png = colour_pngs[index].read_bytes()
-            else:
-                png = stored.data if stored.format == "png" else encode_image(decode_image(stored.data), "png")
-            image = compressed_image_message(time_message(message.log_time), "camera", png, "png")
-            writer.write(message.topic, message.schema_name, message.log_time, image)
-            index += 1
+            data = message.data
+            if message.schema_name == "foxglove.CompressedImage":
+                stored = read_compressed_image(message.data)
+                if colour_pngs is not None:
+                    png = colour_pngs[index].read_bytes()
+                else:
+                    png = stored.data if stored.format == "png" else encode_image(decode_image(stored.data), "png")
+                sec, nsec = divmod(message.log_time, 10**9)
+                data = json.dumps({"timestamp": {"sec": sec, "nsec": nsec}, "frame_id": "camera",
+                                   "data": base64.b64encode(png).decode("ascii"), "format": "png"}, separators=(",", ":")).encode()
+                index += 1
+            if message.topic not in channels:
+                schema = writer.register_schema(message.schema_name, message.schema_encoding, message.schema_data)
+                encoding = "json" if message.schema_name == "foxglove.CompressedImage" else message.message_encoding
+                channels[message.topic] = writer.register_channel(message.topic, encoding, schema)
+            writer.add_message(channels[message.topic], message.log_time, data, message.log_time)
         writer.finish()
 
 
@@ -69,7 +82,7 @@ def _image_bytes(path: Path) -> tuple[int, int]:
     count = total = 0
     for message in McapStream(path, topics={"/camera/image"}):
         count += 1
-        total += len(read_compressed_image(message.message_encoding, message.data).data)
+        total += len(read_compressed_image(message.data).data)
     return count, total
 
 
@@ -78,6 +91,7 @@ def _fit_theta_error(teach: Path, folder: Path) -> tuple[float, float]:
     from hbvs_cli.core.path import CommandProfile
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.io.fit_file import read_fit_file
+    from hbvs_cli.sim.world import World
     from hbvs_cli.stages.console import Console
     from hbvs_cli.stages.fit import FitOptions, run_fit
 
@@ -87,7 +101,7 @@ def _fit_theta_error(teach: Path, folder: Path) -> tuple[float, float]:
     path = model.taught_path
     interval = float(np.median(np.diff(path.t)))
     profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
-    _, _, d_star = model.world.reference_geometry(path.reference_pose)
+    _, _, d_star = World.from_dict(model.world_description).reference_geometry(path.reference_pose)
     truth = TaughtPathTrajectory(profile, path.start_pose, path.reference_pose, d_star)
     t = path.t[(path.t >= model.trajectory.t_start) & (path.t <= model.trajectory.t_end)]
     fitted, exact = model.trajectory.evaluate(t), truth.evaluate(t - path.t[0])

@@ -74,7 +74,7 @@ def interleaved(a: Callable[[], object], b: Callable[[], object], repeats: int) 
 # --------------------------------------------------------------------------- 1. estimation
 def estimation_inputs(frames: int, seed: int = 0):
     """Noisy 4-point correspondences of the ArUco target from random poses (0.1 px noise)."""
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world("aruco")
     reference = np.zeros(3)
@@ -410,7 +410,7 @@ def bench_images_loop(work: Path, quick: bool) -> list[Figure]:
 def decode_only(teach: Path) -> int:
     """Read and decode every image of a teach file, nothing else: the floor for fit."""
     from hbvs_cli.io.teach_file import TeachReader
-    from hbvs_cli.stages.frames import decode_frame
+    from hbvs_cli.stages.frame_decoding import decode_frame
 
     count = 0
     reader = TeachReader(teach)
@@ -521,7 +521,7 @@ def bench_per_frame(quick: bool) -> list[Figure]:
     the tests keep what the detector finds, the timing lives here.
     """
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.perception import DotDetector
     from hbvs_cli.perception.dot_windows import WindowedDotDetector
     from hbvs_cli.sim import SceneRenderer

@@ -148,7 +148,7 @@ def rendered_s_curve(seed: int, frames: int = 600):
     generator of the grayscale frames.
     """
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.sim.render import make_renderer
 
     world = default_world()
@@ -220,11 +220,12 @@ def ground_truth_trajectory(model):
     """The exact desired trajectory of a simulated teach (for comparisons with the fit)."""
     from hbvs_cli.core.path import CommandProfile
     from hbvs_cli.core.trajectory import TaughtPathTrajectory
+    from hbvs_cli.sim.world import World
 
     path = model.taught_path
     interval = float(np.median(np.diff(path.t)))
     profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
-    _, _, d_star = model.world.reference_geometry(path.reference_pose)
+    _, _, d_star = World.from_dict(model.world_description).reference_geometry(path.reference_pose)
     return TaughtPathTrajectory(profile, path.start_pose, path.reference_pose, d_star), d_star
 
 

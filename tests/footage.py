@@ -401,6 +401,12 @@ def dots_wall(kind: str) -> Wall:
         image = _canvas(width, height, (128, 128, 128))
         layout = [((0.55, 1.10), 0.05), ((2.40, 1.12), 0.05), ((2.25, 0.50), 0.05), ((0.80, 0.48), 0.05), ((1.50, 0.80), 0.05)]
         colour = (103, 103, 103)
+    elif kind == "low_contrast20":
+        # Dark-grey dots 20 gray levels below a mid-grey wall, before the lighting (about
+        # 17-22 levels after it) and the sensor noise.
+        image = _canvas(width, height, (128, 128, 128))
+        layout = [((0.55, 1.10), 0.05), ((2.40, 1.12), 0.05), ((2.25, 0.50), 0.05), ((0.80, 0.48), 0.05), ((1.50, 0.80), 0.05)]
+        colour = (108, 108, 108)
     elif kind == "sizes3x":
         # Black dots whose radii differ 3x (3 to 9 cm) on a white poster.
         image = _canvas(width, height, (225, 228, 230))
@@ -461,6 +467,51 @@ def chessboard_wall(inner: tuple[int, int] = (7, 5), square_m: float = 0.06) -> 
     return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(corners, float))
 
 
+def charuco_wall(squares: tuple[int, int] = (6, 4), square_m: float = 0.12, marker_m: float = 0.09,
+                 dictionary: str = "DICT_4X4_50", centre_height_m: float = 1.0) -> Wall:
+    """A ChArUco board of ``squares`` = (columns, rows) squares of ``square_m`` with markers
+    of ``marker_m`` (OpenCV's ``CharucoBoard.generateImage`` as the print, a white margin of
+    one square) on a painted wall. ``points`` are the inner corners in the board's corner
+    ids' order (row by row from the top left), wall pixels."""
+    width, height = 2.4, 1.6 + max(0.0, centre_height_m - 0.8)
+    image = _canvas(width, height, (175, 185, 190))
+    px = int(round(square_m / WALL_MPP))
+    columns, rows = squares
+    board = cv2.aruco.CharucoBoard(squares, square_m, marker_m, cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)))
+    printed = board.generateImage((columns * px, rows * px), marginSize=0, borderBits=1)
+    col0 = int(round(1.2 / WALL_MPP - columns * px / 2))
+    row0 = int(round((height - centre_height_m) / WALL_MPP - rows * px / 2))
+    image[row0 - px:row0 + (rows + 1) * px, col0 - px:col0 + (columns + 1) * px] = 245
+    image[row0:row0 + rows * px, col0:col0 + columns * px] = np.where(printed[:, :, None] > 127, 245, 20).astype(np.uint8)
+    corners = [[col0 + c * px - 0.5, row0 + r * px - 0.5] for r in range(1, rows) for c in range(1, columns)]
+    image = _lighting(image, 0.85, 1.05)
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(corners, float))
+
+
+def marker_board_wall(dictionary: str = "DICT_4X4_50", grid: tuple[int, int] = (3, 2), side_m: float = 0.18, gap_m: float = 0.04,
+                      centre_height_m: float = 1.0) -> Wall:
+    """A board of ``grid`` = (columns, rows) markers (ids 0, 1, ... row by row) of ``side_m``
+    with ``gap_m`` between them, on white paper, on a painted wall; ``points`` are their
+    corners, marker by marker (TL, TR, BR, BL), wall pixels."""
+    columns, rows = grid
+    width, height = 2.4, 2.2
+    image = _canvas(width, height, (175, 185, 190))
+    px, gap = int(round(side_m / WALL_MPP)), int(round(gap_m / WALL_MPP))
+    pitch = px + gap
+    col0 = int(round(1.2 / WALL_MPP - (columns * pitch - gap) / 2))
+    row0 = int(round((height - centre_height_m) / WALL_MPP - (rows * pitch - gap) / 2))
+    image[row0 - gap:row0 + rows * pitch, col0 - gap:col0 + columns * pitch] = 250
+    cv_dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    points = []
+    for ident in range(columns * rows):
+        r, c = divmod(ident, columns)
+        top, left = row0 + r * pitch, col0 + c * pitch
+        image[top:top + px, left:left + px] = cv2.aruco.generateImageMarker(cv_dictionary, ident, px)[:, :, None]
+        points += [[left - 0.5, top - 0.5], [left + px - 0.5, top - 0.5], [left + px - 0.5, top + px - 0.5], [left - 0.5, top + px - 0.5]]
+    image = _lighting(image, 0.85, 1.05)
+    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(points, float))
+
+
 def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
     """A real photograph from ``skimage.data`` printed ``poster_width_m`` wide on a painted wall."""
     from skimage import data
@@ -480,6 +531,25 @@ def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
     image = _lighting(image, 0.85, 1.08)
     corners = np.array([[col0, row0], [col0 + px_w, row0], [col0 + px_w, row0 + px_h], [col0, row0 + px_h]], float) - 0.5
     return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=corners)
+
+
+def photo_with_tags_wall(name: str = "coffee", poster_width_m: float = 1.8, tag_m: float = 0.12) -> Wall:
+    """:func:`photo_wall` with two small ArUco markers (DICT_4X4_50, ids 1 and 2, ``tag_m``
+    wide, white quiet zone) printed side by side in the photograph's top left corner: a
+    lab's poster with fiducials for another purpose. ``points`` stay the photograph's
+    corners."""
+    wall = photo_wall(name, poster_width_m)
+    image = wall.image.copy()
+    (left, top), (right, bottom) = wall.points[0] + 0.5, wall.points[2] + 0.5
+    px = int(round(tag_m / WALL_MPP))
+    quiet = px // 4
+    cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    for ident, (fx, fy) in enumerate(((0.08, 0.12), (0.18, 0.12)), start=1):
+        col = int(round(left + fx * (right - left) - px / 2))
+        row = int(round(top + fy * (bottom - top) - px / 2))
+        image[row - quiet:row + px + quiet, col - quiet:col + px + quiet] = 245
+        image[row:row + px, col:col + px] = cv2.aruco.generateImageMarker(cv_dictionary, ident, px)[:, :, None]
+    return replace(wall, image=image)
 
 
 # --------------------------------------------------------------------------- cases
@@ -514,6 +584,26 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
         return dots_wall("low_contrast"), plain, Effects(noise=3.0)
     if name == "dots_sizes_3x":
         return dots_wall("sizes3x"), plain, Effects()
+    if name == "low_contrast20_dots":
+        return dots_wall("low_contrast20"), plain, Effects(noise=3.0)
+    if name == "charuco":
+        # A 6x4 ChArUco board of 20 cm squares (DICT_4X4_50, 15 cm markers), the start 4.6 m
+        # from it: its markers about 16 px wide in F*.
+        wall = charuco_wall(square_m=0.2, marker_m=0.15, centre_height_m=0.65)
+        return replace(wall, centre=(4.6, *wall.centre[1:])), plain, Effects()
+    if name == "charuco_partial":
+        # The same board hung higher (its centre 1.0 m above the floor): its top row leaves
+        # the top of the view in the last frames of the drive.
+        wall = charuco_wall(square_m=0.2, marker_m=0.15, centre_height_m=1.0)
+        return replace(wall, centre=(4.6, *wall.centre[1:])), plain, Effects()
+    if name == "aruco_board_partial":
+        # The issue's 3x2 board of ArUco 4x4 markers with barrel distortion, hung high: its
+        # top row leaves the top of the view in the last 16 of the 60 frames.
+        camera = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
+        wall = marker_board_wall(centre_height_m=1.2)
+        return replace(wall, centre=(4.6, *wall.centre[1:])), camera, Effects()
+    if name == "photo_with_tags":
+        return photo_with_tags_wall(), plain, Effects()
     raise ValueError(name)
 
 
@@ -528,7 +618,8 @@ class CurvingDrive(Drive):
 
 
 CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
-EXPECTED_KIND = {"small_apriltag": "aruco", "chessboard": "chessboard", "low_contrast_dots": "dots", "dots_sizes_3x": "dots",
+EXPECTED_KIND = {"charuco": "charuco", "charuco_partial": "charuco", "aruco_board_partial": "aruco", "photo_with_tags": "texture",
+                 "low_contrast20_dots": "dots","small_apriltag": "aruco", "chessboard": "chessboard", "low_contrast_dots": "dots", "dots_sizes_3x": "dots",
                  "noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "red_on_grey": "dots", "black_dots_distorted": "dots",
                  "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}
 
@@ -670,32 +761,6 @@ class RollingShutterMaker(FootageMaker):
         return canvas
 
 
-def photo_with_markers_wall(name: str = "coffee", poster_width_m: float = 1.8, side_m: float = 0.06) -> Wall:
-    """:func:`photo_wall` with three small ArUco 4x4 markers (``side_m``, white quiet zone)
-    printed inside the photograph (a lab's poster with fiducials in it)."""
-    wall = photo_wall(name, poster_width_m)
-    image = wall.image.copy()
-    h, w = image.shape[:2]
-    px = int(round(side_m / WALL_MPP))
-    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
-    for ident, (fx, fy) in enumerate([(0.35, 0.35), (0.62, 0.40), (0.50, 0.62)]):
-        col0, row0 = int(fx * w), int(fy * h)
-        quiet = px // 4
-        image[row0 - quiet:row0 + px + quiet, col0 - quiet:col0 + px + quiet] = 245
-        image[row0:row0 + px, col0:col0 + px] = cv2.aruco.generateImageMarker(dictionary, ident, px)[:, :, None]
-    return Wall(image, wall.metres_per_px, wall.centre, wall.yaw, wall.points)
-
-
-def aruco_board_wall(columns: int = 3, rows: int = 2, side_m: float = 0.16, gap_m: float = 0.04) -> Wall:
-    """A ``columns`` x ``rows`` board of ArUco 4x4 markers (ids 0, 1, ... row by row), marker
-    0 at the top left where :func:`marker_wall` puts its marker; ``points`` are every
-    marker's 4 corners, by id."""
-    pitch = side_m + gap_m
-    placed = [("DICT_4X4_50", ident, side_m, (1.2 + (ident % columns) * pitch, 0.85 - (ident // columns) * pitch))
-              for ident in range(1, columns * rows)]
-    return marker_wall("DICT_4X4_50", 0, side_m, extra=placed)
-
-
 #: Rows of the issue's table that the cases above do not draw: (wall, camera, effects,
 #: rolling shutter or None).
 def extra_case(name: str):
@@ -708,10 +773,8 @@ def extra_case(name: str):
         return photo_wall("camera", 1.8), plain, Effects(exposure_drift=0.3, noise=3.0), RollingShutter()
     if name == "low_contrast_dots_rolling":
         return dots_wall("low_contrast"), plain, Effects(noise=4.0), RollingShutter()
-    if name == "photo_with_markers":
-        return photo_with_markers_wall(), plain, Effects(), None
     if name == "aruco_board_3x2":
-        return aruco_board_wall(), barrel, Effects(), None
+        return marker_board_wall(grid=(3, 2)), barrel, Effects(), None
     raise ValueError(name)
 
 

@@ -63,7 +63,7 @@ ROWS = [
     ("chessboard", "printed chessboard, 7x5 inner corners of 6 cm (auto: texture)", MARKER_BOUND, ()),
     pytest.param("chessboard", "printed chessboard, --target chessboard", MARKER_BOUND, ("--target", "chessboard"), id="chessboard_target"),
     ("photo_plain_rolling", "photograph with plain areas, rolling shutter, exposure drift", DOT_BOUND, ()),
-    ("photo_with_markers", "photograph with small fiducials printed in it", DOT_BOUND, ()),
+    ("photo_with_tags", "photograph with small fiducials printed in it", DOT_BOUND, ()),
     pytest.param("low_contrast_dots", "low-contrast dots (25 levels), sensor noise", DOT_BOUND, (),
                  id="low_contrast_dots", marks=_misses("no fit: --target auto finds no target (the detectors' work, issue 24's other part)")),
     pytest.param("low_contrast_dots_rolling", "low-contrast dots, sensor noise, rolling shutter", DOT_BOUND, (),

@@ -157,7 +157,7 @@ def test_video_metadata_records_no_simulator_settings_and_jpeg_quality(video, tm
     for key in ("noise", "blur", "exposure", "seed", "path", "target", "dots", "offset", "texture"):
         assert key not in settings, key
     assert settings["jpeg_quality"] == 80 and settings["video"] == str(path)
-    assert reader.world is None
+    assert reader.world_description is None
     assert all(frame.stored_image().format == "jpeg" for frame in frames)
 
 

@@ -20,7 +20,7 @@ from hbvs_cli.core.frames import compose_planar_pose, wrap_angle
 from hbvs_cli.core.path import sampled_profile
 from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.trajectory import TaughtPathTrajectory
-from hbvs_cli.core.world import default_world
+from hbvs_cli.sim.world import default_world
 from hbvs_cli.sim.closed_loop import run_closed_loop
 
 RATE_HZ = 1000.0

@@ -15,7 +15,7 @@ from hbvs_cli.core.desired import DEFAULT_FRAME_INTERVAL, taught_frame_interval
 from hbvs_cli.core.estimation import Observation, ObservationStatus, dropped
 from hbvs_cli.core.known_normal import KnownNormalSolver, point_jacobian
 from hbvs_cli.core.state_filter import FilterOutcome, measurement_information
-from hbvs_cli.core.world import default_world
+from hbvs_cli.sim.world import default_world
 from hbvs_cli.errors import InvalidValueError
 
 

@@ -1,11 +1,9 @@
-"""Foxglove (issue 14): official schemas and the 3D scene.
+"""Foxglove (issues 14 and 27): Foxglove's own schemas and the 3D scene.
 
-* Every ``foxglove.*`` message of every file kind validates against Foxglove's own JSON
-  schemas, vendored from ``@foxglove/schemas`` (hbvs_cli/io/foxglove_schemas.json); the
-  schema stored in the file is that one, byte for byte once parsed; the protobuf images
-  parse with Foxglove's published protobuf classes and carry their descriptor.
-* The vendored JSON schemas agree field for field with the protobuf definitions that
-  Foxglove publishes on PyPI (foxglove-schemas-protobuf): two official sources, one format.
+* Every ``foxglove.*`` message of every file kind is protobuf, on a channel whose schema is
+  the FileDescriptorSet of the class Foxglove publishes (foxglove-schemas-protobuf), as
+  mcap-protobuf-support writes it, and parses with that class; every ``hbvs.*`` message
+  validates against its JSON schema.
 * The 3D topics are consistent: world -> base_link is the true pose, camera_optical has its
   z along the robot's x, and the target points of the scene, carried through the published
   transforms into camera_optical and projected with the published CameraCalibration, land
@@ -14,18 +12,26 @@
 
 from __future__ import annotations
 
-import base64
+import importlib
 import json
 
 import jsonschema
 import numpy as np
 import pytest
+from google.protobuf.json_format import MessageToDict
 from mcap.reader import make_reader
+from mcap_protobuf.schema import build_file_descriptor_set
 from scipy.spatial.transform import Rotation
 
 from conftest import make_fit, make_run, make_teach
 from hbvs_cli.io import topics
-from hbvs_cli.io.schemas import FOXGLOVE_SCHEMAS, SCHEMAS
+from hbvs_cli.io.schemas import HBVS_SCHEMAS
+from hbvs_cli.sim.world import World
+
+
+def foxglove_class(schema_name: str):
+    name = schema_name.split(".", 1)[1]
+    return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
 
 
 @pytest.fixture(scope="module")
@@ -44,71 +50,30 @@ def read_all(path):
         return [(schema, channel, message) for schema, channel, message in make_reader(handle).iter_messages()]
 
 
-def test_vendored_schemas_name_their_source_and_cover_every_foxglove_topic():
-    from pathlib import Path
-
-    import hbvs_cli.io.schemas
-
-    vendored = json.loads(Path(hbvs_cli.io.schemas.__file__).with_name("foxglove_schemas.json").read_text())
-    assert vendored["package"] == "@foxglove/schemas" and vendored["version"] == "2.1.0" and len(vendored["tarball_sha256"]) == 64
-    used = {schema for kind in topics.TOPICS.values() for schema in kind.values() if schema.startswith("foxglove.")}
-    assert used == set(FOXGLOVE_SCHEMAS) == set(vendored["schemas"])
-    for name, schema in FOXGLOVE_SCHEMAS.items():
-        assert schema["title"] == name and "foxglove-sdk" in schema["$comment"]
-
-
-def _proto_fields(descriptor) -> dict:
-    """Field names of a protobuf message, nested messages expanded (Timestamp/Duration kept as leaves)."""
-    fields = {}
-    for field in descriptor.fields:
-        sub = field.message_type
-        if sub is not None and sub.full_name.startswith("foxglove."):
-            fields[field.name] = _proto_fields(sub)
-        else:
-            fields[field.name] = None
-    return fields
-
-
-def _json_fields(schema: dict) -> dict:
-    target = schema.get("items", schema)
-    fields = {}
-    for name, sub in target.get("properties", {}).items():
-        inner = sub.get("items", sub)
-        nested = inner.get("title", "").startswith("foxglove.") and "properties" in inner
-        fields[name] = _json_fields(inner) if nested else None
-    return fields
-
-
-@pytest.mark.parametrize("name", sorted(FOXGLOVE_SCHEMAS))
-def test_vendored_json_schemas_match_foxgloves_protobuf_definitions(name):
-    import importlib
-
-    module = importlib.import_module(f"foxglove_schemas_protobuf.{name.split('.')[1]}_pb2")
-    descriptor = getattr(module, name.split(".")[1]).DESCRIPTOR
-    assert _json_fields(FOXGLOVE_SCHEMAS[name]) == _proto_fields(descriptor)
+def decoded(schema, message) -> dict:
+    """A message as a dict: JSON as it is, protobuf with its field names and every field."""
+    if schema.encoding == "protobuf":
+        return MessageToDict(foxglove_class(schema.name).FromString(message.data), preserving_proto_field_name=True,
+                             always_print_fields_with_no_presence=True)
+    return json.loads(message.data)
 
 
 @pytest.mark.parametrize("kind", ["teach", "fit", "run"])
 def test_every_message_validates_against_the_official_schemas(files, kind):
-    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-    from mcap_protobuf.schema import build_file_descriptor_set
-
-    official_descriptor = build_file_descriptor_set(CompressedImage).SerializeToString()
-    validators = {name: jsonschema.Draft202012Validator(schema) for name, schema in SCHEMAS.items()}
+    validators = {name: jsonschema.Draft202012Validator(schema) for name, schema in HBVS_SCHEMAS.items()}
     counts: dict[str, int] = {}
     for schema, channel, message in read_all(files[kind]):
         assert topics.TOPICS[kind][channel.topic] == schema.name
-        if channel.message_encoding == "protobuf":
-            assert schema.name == topics.COMPRESSED_IMAGE_SCHEMA and schema.data == official_descriptor
-            image = CompressedImage.FromString(message.data)
-            decoded = {
-                "timestamp": {"sec": image.timestamp.seconds, "nsec": image.timestamp.nanos}, "frame_id": image.frame_id,
-                "data": base64.b64encode(image.data).decode(), "format": image.format,
-            }
+        if schema.name.startswith("foxglove."):
+            message_class = foxglove_class(schema.name)
+            assert channel.message_encoding == schema.encoding == "protobuf"
+            assert schema.data == build_file_descriptor_set(message_class).SerializeToString()
+            decoded = message_class.FromString(message.data)
+            assert decoded.SerializeToString(deterministic=True) == message.data
         else:
-            assert json.loads(schema.data) == SCHEMAS[schema.name]
-            decoded = json.loads(message.data)
-        validators[schema.name].validate(decoded)
+            assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+            assert json.loads(schema.data) == HBVS_SCHEMAS[schema.name]
+            validators[schema.name].validate(json.loads(message.data))
         counts[schema.name] = counts.get(schema.name, 0) + 1
     expected = {
         "teach": {"foxglove.CompressedImage", "foxglove.CameraCalibration", "foxglove.PoseInFrame", "foxglove.FrameTransform", "foxglove.SceneUpdate"},
@@ -127,9 +92,8 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
     model = read_fit_file(files["fit"]).model
     messages = read_all(files["run"])
     by_topic: dict[str, list] = {}
-    for _, channel, message in messages:
-        if channel.message_encoding == "json":
-            by_topic.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+    for schema, channel, message in messages:
+        by_topic.setdefault(channel.topic, []).append((message.log_time, decoded(schema, message)))
     transforms = [m for _, m in by_topic[topics.TRANSFORM_TOPIC]]
     camera = [t for t in transforms if t["child_frame_id"] == "camera_optical"]
     robot = [(t["timestamp"], t) for t in transforms if t["child_frame_id"] == "base_link"]
@@ -138,7 +102,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
     # Optical convention: z forward = the robot's x, x right = -y, y down = -z.
     assert np.allclose(optical.apply([[0, 0, 1], [1, 0, 0], [0, 1, 0]]), [[1, 0, 0], [0, -1, 0], [0, 0, -1]], atol=1e-15)
     height = camera[0]["translation"]["z"]
-    assert height == pytest.approx(model.world.camera_height)
+    assert height == pytest.approx(World.from_dict(model.world_description).camera_height)
     poses = [m for _, m in by_topic[topics.TRUE_POSE_TOPIC]]
     assert len(robot) == len(poses)
     for (stamp, transform), pose in zip(robot, poses):
@@ -152,7 +116,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
     path = next(e for e in scene["entities"] if e["id"] == "taught_path")
     assert target["frame_id"] == "world" and len(path["lines"][0]["points"]) == len(poses)
     points_world = np.array([[s["pose"]["position"][k] for k in "xyz"] for s in target["spheres"]])
-    assert np.array_equal(points_world, model.world.target.points_world)
+    assert np.array_equal(points_world, World.from_dict(model.world_description).target.points_world)
     calibration = by_topic[topics.CALIBRATION_TOPIC][0][1]
     assert calibration["frame_id"] == "camera_optical"
     K = np.array(calibration["K"]).reshape(3, 3)
@@ -166,7 +130,7 @@ def test_the_3d_scene_is_consistent_with_the_camera_model(files):
         projected = (K @ (in_optical / in_optical[:, 2:3]).T).T[:, :2]
         position, q = pose["pose"]["position"], pose["pose"]["orientation"]
         phi = 2 * np.arctan2(q["z"], q["w"])
-        expected = model.world.pixels(np.array([position["x"], position["y"], phi]))
+        expected = World.from_dict(model.world_description).pixels(np.array([position["x"], position["y"], phi]))
         worst = max(worst, float(np.max(np.abs(projected - expected))))
     assert worst < 1e-6  # pixels
 
@@ -178,7 +142,7 @@ def test_the_shipped_layout_is_generated_and_names_only_what_run_files_hold():
     panels = layout["configById"]
     assert sorted(p.split("!")[0] for p in panels) == ["3D", "Image", "Plot", "Plot", "RosOut"]
     run_topics = topics.TOPICS["run"]
-    state_fields = set(SCHEMAS[topics.CONTROLLER_STATE_SCHEMA]["properties"])
+    state_fields = set(HBVS_SCHEMAS[topics.CONTROLLER_STATE_SCHEMA]["properties"])
     plotted = []
     for panel_id, config in panels.items():
         for series in config.get("paths", []):

@@ -11,13 +11,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from hbvs_cli.io.images import bytes_to_store, encode_image, is_gray8_png, read_compressed_image
-from hbvs_cli.io.mcap import McapStream
 from hbvs_cli.io.teach_file import TeachReader
 
-from conftest import SAMPLES, make_teach, rendered_s_curve
+from conftest import make_teach, rendered_s_curve
 
 #: The default 20 s simulated teach before issue 18 (bytes), measured on commit 72a80c9.
 TEACH_BYTES_BEFORE = 80_916_159
@@ -50,17 +48,6 @@ def test_frames_are_one_channel_jpeg_at_the_stated_quality(default_teach):
     # stated in the metadata is the one used.
     again = encode_image(image, "jpeg", 90)
     assert abs(len(again) - len(stored.data)) < 0.05 * len(stored.data)
-
-
-def test_files_written_before_issue_18_are_still_read():
-    """samples/teach.mcap holds its images as base64 JSON, as hbvs wrote them before."""
-    stream = McapStream(SAMPLES / "teach.mcap", topics={"/camera/image"})
-    first = next(iter(stream))
-    assert first.message_encoding == "json"
-    frames = list(TeachReader(SAMPLES / "teach.mcap").frames())
-    stored = frames[0].stored_image()
-    assert frames[0].image_encoding == "json" and stored.format in ("png", "jpeg")
-    assert cv2.imdecode(np.frombuffer(stored.data, np.uint8), cv2.IMREAD_GRAYSCALE) is not None
 
 
 def noisy_frame(seed: int = 0) -> np.ndarray:
@@ -195,19 +182,19 @@ def test_an_image_folder_of_colour_pngs_of_gray_content_is_stored_as_gray(tmp_pa
 
 
 def test_protobuf_images_round_trip_their_bytes_and_stamp():
-    from hbvs_cli.io.images import encode_compressed_image
+    from hbvs_cli.io.images import compressed_image_message
 
     data = encode_image(noisy_frame(), "jpeg")
-    stored = read_compressed_image("protobuf", encode_compressed_image(1_500_000_123, data, "jpeg"))
+    message = compressed_image_message(1_500_000_123, data, "jpeg").SerializeToString()
+    stored = read_compressed_image(message)
     assert (stored.data, stored.format, stored.stamp_ns) == (data, "jpeg", 1_500_000_123)
-    assert len(encode_compressed_image(1_500_000_123, data, "jpeg")) - len(data) < 40
+    assert len(message) - len(data) < 40
 
 
-@pytest.mark.parametrize("encoding", ["protobuf", "json"])
-def test_teach_bag_reads_foxglove_image_files(tmp_path, encoding):
-    """``teach --bag`` on an MCAP of foxglove.CompressedImage: hbvs's own teach file
-    (protobuf) or an older one / another tool's (JSON), with its foxglove.CameraCalibration."""
-    source = make_teach(tmp_path / "source.mcap", duration=0.5) if encoding == "protobuf" else SAMPLES / "teach.mcap"
+def test_teach_bag_reads_foxglove_image_files(tmp_path):
+    """``teach --bag`` on an MCAP of foxglove.CompressedImage: hbvs's own teach file, with
+    its foxglove.CameraCalibration."""
+    source = make_teach(tmp_path / "source.mcap", duration=0.5)
     again = make_teach(tmp_path / "again.mcap", bag=source)
     original = TeachReader(source)
     before = [(frame.stored_image().data, frame.t) for frame in original.frames()]

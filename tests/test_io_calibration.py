@@ -337,50 +337,47 @@ def test_errors_are_input_errors_with_exit_code_3(tmp_path):
 # ----------------------------------------------------------------------------- Foxglove
 def test_foxglove_message_fields():
     msg = calibration_to_foxglove(PLUMB_BOB, "camera", 12_345_678_901)
-    assert msg["timestamp"] == {"sec": 12, "nsec": 345_678_901}
-    assert msg["frame_id"] == "camera"
-    assert (msg["width"], msg["height"]) == (640, 480)
-    assert msg["distortion_model"] == "plumb_bob"
-    assert msg["D"] == list(PLUMB_BOB.distortion)
-    assert msg["K"] == [612.4375, 0.0, 318.25, 0.0, 611.9921875, 241.5, 0.0, 0.0, 1.0]
-    assert msg["R"] == [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    assert msg["P"] == [612.4375, 0.0, 318.25, 0.0, 0.0, 611.9921875, 241.5, 0.0, 0.0, 0.0, 1.0, 0.0]
-    json.dumps(msg, allow_nan=False)  # plain JSON types only
+    assert (msg.timestamp.seconds, msg.timestamp.nanos) == (12, 345_678_901)
+    assert msg.frame_id == "camera"
+    assert (msg.width, msg.height) == (640, 480)
+    assert msg.distortion_model == "plumb_bob"
+    assert list(msg.D) == list(PLUMB_BOB.distortion)
+    assert list(msg.K) == [612.4375, 0.0, 318.25, 0.0, 611.9921875, 241.5, 0.0, 0.0, 1.0]
+    assert list(msg.R) == [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    assert list(msg.P) == [612.4375, 0.0, 318.25, 0.0, 0.0, 611.9921875, 241.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
+def _through_bytes(msg):
+    return type(msg).FromString(msg.SerializeToString())
 
 
 @pytest.mark.parametrize("camera", [PLUMB_BOB, RATIONAL, DEFAULT_CAMERA], ids=["plumb_bob", "rational", "none"])
-def test_foxglove_round_trip_through_json(camera):
-    msg = json.loads(json.dumps(calibration_to_foxglove(camera, "cam", 0)))
-    assert calibration_from_foxglove(msg) == camera
+def test_foxglove_round_trip_through_protobuf(camera):
+    assert calibration_from_foxglove(_through_bytes(calibration_to_foxglove(camera, "cam", 0))) == camera
 
 
 @pytest.mark.parametrize(
     "change, expected",
     [
         ({"K": [500.0] * 8}, "K has 8 numbers"),
-        ({"K": "500 0 320"}, "K must be a list"),
-        ({"width": None}, "must hold numbers"),
-        ({"height": -480}, "positive"),
-        ({"D": {"a": 1}}, "D must be a list"),
-        ({"distortion_model": 5}, "distortion_model must be a string"),
+        ({"height": 0}, "positive"),
         ({"distortion_model": "double_sphere", "D": [0.1, 0.2, 0.3, 0.4]}, "unsupported distortion"),
         ({"K": [500.0, 0, 320, 0, float("nan"), 240, 0, 0, 1]}, "NaN or infinity"),
     ],
 )
 def test_foxglove_malformed_messages(change, expected):
     msg = calibration_to_foxglove(DEFAULT_CAMERA, "cam", 0)
-    msg.update(change)
+    for key, value in change.items():
+        if isinstance(value, list):
+            del getattr(msg, key)[:]
+            getattr(msg, key).extend(value)
+        else:
+            setattr(msg, key, value)
     with pytest.raises(InputError, match=expected):
         calibration_from_foxglove(msg, source="run.mcap /camera/calibration")
 
 
-def test_foxglove_missing_field_and_not_a_mapping():
-    msg = calibration_to_foxglove(DEFAULT_CAMERA, "cam", 0)
-    del msg["K"]
-    with pytest.raises(InputError, match="missing field 'K'"):
-        calibration_from_foxglove(msg)
-    with pytest.raises(InputError, match="expected a JSON object"):
-        calibration_from_foxglove([1, 2, 3])  # type: ignore[arg-type]
+def test_foxglove_negative_timestamp():
     with pytest.raises(InputError, match="negative"):
         calibration_to_foxglove(DEFAULT_CAMERA, "cam", -1)
 
@@ -416,4 +413,4 @@ def test_random_cameras_round_trip_exactly(tmp_path_factory, fx, fy, u, v, width
     camera = CameraIntrinsics(fx, fy, u * width, v * height, width, height, model, tuple(distortion))
     path = save_calibration_ros(camera, tmp_path_factory.mktemp("rt") / "c.yaml")
     assert load_calibration(path) == camera
-    assert calibration_from_foxglove(json.loads(json.dumps(calibration_to_foxglove(camera, "c", 1)))) == camera
+    assert calibration_from_foxglove(_through_bytes(calibration_to_foxglove(camera, "c", 1))) == camera

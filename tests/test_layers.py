@@ -5,7 +5,8 @@
   one layer (io, perception and sim; report and sweep) do not import each other;
 - no stage imports another stage (the modules that run several stages aside);
 - no two modules import each other, directly or through others (no cycle);
-- every topic and schema name is spelled once, in ``io/topics.py``.
+- every topic and schema name is spelled once, in ``io/topics.py``;
+- no two modules share a file name.
 
 Imports inside functions count the same as those at the top of a module.
 """
@@ -33,7 +34,7 @@ LAYERS: dict[str, int] = {
 }
 #: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them
 #: (``live``: the loop of ``repeat --live``).
-STAGE_HELPERS = ("console", "options", "frames", "live")
+STAGE_HELPERS = ("console", "options", "frame_decoding", "live")
 #: Modules of ``stages`` that run other stages: ``demo`` (the whole pipeline) and
 #: ``sweep_run`` (one run of a sweep: repeat, then report).
 STAGE_RUNNERS = ("demo", "sweep_run")
@@ -248,3 +249,9 @@ def test_topic_and_schema_names_are_spelled_once_in_io_topics():
             if node.value in names:
                 spelled.append(f"{module_name(path)}:{node.lineno} {node.value!r}")
     assert spelled == []
+
+
+def test_no_two_modules_share_a_file_name():
+    """A file name says which module it is: ``camera.py`` in three packages meant three things."""
+    names = [path.name for path in package_root().rglob("*.py") if path.name != "__init__.py"]
+    assert sorted({name for name in names if names.count(name) > 1}) == []

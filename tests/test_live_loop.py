@@ -146,7 +146,7 @@ def sim_final_errors(tmp_path, speed: float) -> tuple[float, float]:
     result = subprocess.run([*HBVS, "repeat", str(FIT), "--sim", "--speed", str(speed), "-o", str(path), "-q"], capture_output=True, timeout=300)
     assert result.returncode == 0, result.stderr
     report = build_report(read_run(path))
-    return report["pose_error"]["position_m"]["final"], abs(report["pose_error"]["heading_deg"]["final"])
+    return report.pose_error["position_m"].final, abs(report.pose_error["heading_deg"].final)
 
 
 def converge_like_sim(tmp_path, speed: float, jpeg: bool = False) -> dict:

@@ -11,6 +11,7 @@ wait has a timeout.
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import os
 import socket
@@ -93,7 +94,12 @@ def test_live_view_serves_the_run_files_channels_and_messages(tmp_path):
         for schema, channel, message in make_reader(handle).iter_messages():
             file_channels[channel.topic] = (schema.name, channel.message_encoding, schema.encoding, schema.data)
             file_messages[(channel.topic, message.log_time)] = message.data
-    advertised = {c["topic"]: (c["schemaName"], c["encoding"], c["schemaEncoding"], c["schema"].encode()) for c in channels.values()}
+    # The protocol sends binary (protobuf) schemas in base64, JSON schemas as text.
+    advertised = {
+        c["topic"]: (c["schemaName"], c["encoding"], c["schemaEncoding"],
+                     base64.b64decode(c["schema"]) if c["schemaEncoding"] == "protobuf" else c["schema"].encode())
+        for c in channels.values()
+    }
     assert advertised == file_channels
     assert len(received) > 300
     assert {topic for topic, _, _ in received} >= {"/repeat/state", "/repeat/cmd_vel", "/ground_truth/pose", "/desired/pose", "/tf"}

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.core.path import preset_profile
-from hbvs_cli.core.world import Poster, Target, World, default_world
+from hbvs_cli.sim.world import Poster, Target, World, default_world
 from hbvs_cli.core.camera import DEFAULT_CAMERA
 from hbvs_cli.errors import UsageError
 from hbvs_cli.perception import (

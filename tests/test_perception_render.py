@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from hbvs_cli.core.camera import CameraIntrinsics, distort_pixels
 from hbvs_cli.core.path import preset_profile
-from hbvs_cli.core.world import default_world, with_camera
+from hbvs_cli.sim.world import default_world
 from hbvs_cli.errors import InputError, UsageError
 from hbvs_cli.perception import DotDetector
 from hbvs_cli.sim import PosterRaster, RenderSettings, SceneRenderer
@@ -194,7 +196,7 @@ def test_lens_distortion_moves_the_target_where_distort_pixels_says(dots_world):
         fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480,
         distortion_model="plumb_bob", distortion=(-0.3, 0.1, 0.001, -0.001, 0.0),
     )
-    world = with_camera(dots_world, camera)
+    world = replace(dots_world, camera=camera)
     renderer = SceneRenderer(world, settings=RenderSettings(noise_std=0.0))
     moved = []
     for pose in ([0.0, -0.1, 0.0], [0.8, 0.3, 0.25], [1.8, 0.0, -0.1]):
@@ -229,7 +231,7 @@ def test_windows_render_the_whole_frames_scene(dots_world, blur, lens):
     if lens:
         camera = CameraIntrinsics(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480,
                                   distortion_model="plumb_bob", distortion=(-0.3, 0.1, 0.001, -0.001, 0.0))
-        world = with_camera(dots_world, camera)
+        world = replace(dots_world, camera=camera)
     renderer = SceneRenderer(world, settings=RenderSettings(noise_std=0.0, blur_sigma=blur, exposure_gain=0.9, exposure_offset=4.0))
     differing = 0
     for pose in [*path_poses(6), np.array([0.0, 0.0, np.pi]), np.array([world.wall_x - 0.05, 0.0, np.pi / 2])]:

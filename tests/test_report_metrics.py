@@ -202,7 +202,7 @@ def synthetic_run(mode: str = "sim", ground_truth: bool = True, events=None, tru
 
 
 def test_report_of_a_synthetic_run():
-    report = build_report(synthetic_run(), {})
+    report = build_report(synthetic_run(), {}).to_dict()
     assert tuple(report) == REPORT_KEYS
     assert report["run"] == {
         "name": "synthetic.mcap", "label": "paper", "duration_s": pytest.approx(9.99), "steps": N, "rate_hz": pytest.approx(100.0),
@@ -252,8 +252,27 @@ def test_report_of_a_synthetic_run():
     assert any(r.startswith("pass: final position error") for r in report["verdict"]["reasons"])
 
 
+def test_the_typed_report_is_its_json():
+    """Each section's fields are the JSON's keys and values; a missing section is None in
+    the report and absent from the JSON; ``value`` reads a dotted JSON key (--fail-above)."""
+    from hbvs_cli.report.result import MissingKey
+
+    report = build_report(synthetic_run(), {})
+    document = report.to_dict()
+    assert report.depth.dhat0 == document["depth"]["dhat0"] == 3.0
+    assert report.pose_error["position_m"].final == document["pose_error"]["position_m"]["final"]
+    assert report.commands.taught.dv_dt_rms_mps2 == report.value("commands.taught.dv_dt_rms_mps2")
+    assert report.timing is None and "timing" not in document
+    replay = build_report(synthetic_run(mode="replay", ground_truth=False), {})
+    assert replay.pose_error is None and "pose_error" not in replay.to_dict()
+    with pytest.raises(MissingKey) as missing:
+        replay.value("pose_error.position_m.final")
+    assert missing.value.where == "the report" and missing.value.part == "pose_error"
+    assert replay.verdict.failures()[0] == "open-loop replay: nothing moved, so it cannot have converged"
+
+
 def test_tolerances_change_the_verdict_and_the_settling_times():
-    loose = build_report(synthetic_run(), {"heading_deg": 2.0})
+    loose = build_report(synthetic_run(), {"heading_deg": 2.0}).to_dict()
     assert loose["verdict"]["converged"] is True
     final_cm = 3.0 * geometric(R, 950, N) / 50
     assert loose["verdict"]["reasons"] == [
@@ -266,13 +285,13 @@ def test_tolerances_change_the_verdict_and_the_settling_times():
         f"RMS dw/dt {loose['commands']['dw_dt_rms_radps2']:.3g} <= 1 rad/s^2",
     ]
     assert loose["pose_error"]["heading_deg"]["settling_time_s"] == 0.0
-    tight = build_report(synthetic_run(), {"position_m": 1e-6, "heading_deg": 2.0})
+    tight = build_report(synthetic_run(), {"position_m": 1e-6, "heading_deg": 2.0}).to_dict()
     assert tight["verdict"]["converged"] is False
     assert tight["pose_error"]["position_m"]["settling_time_s"] is None
 
 
 def test_replay_stopped_and_truncated_runs_never_converge():
-    replay = build_report(synthetic_run(mode="replay", ground_truth=False), {})
+    replay = build_report(synthetic_run(mode="replay", ground_truth=False), {}).to_dict()
     assert "pose_error" not in replay
     assert replay["lyapunov"] == {"initial": None, "final": None, "ratio": None, "increase_fraction": None}
     assert replay["depth"]["d_true"] is None and replay["depth"]["relative_error"] is None
@@ -283,10 +302,10 @@ def test_replay_stopped_and_truncated_runs_never_converge():
     assert checked == ["|e1|", "|e2|", "|e3|"]
     assert replay["verdict"]["reasons"][-2].startswith("skip: V unknown")
     assert replay["verdict"]["reasons"][-1].startswith("pass: commands smooth")
-    stopped = build_report(synthetic_run(events=[(4.0, 4, "target lost for more than 3 s: run stopped")]), {"heading_deg": 2.0})
+    stopped = build_report(synthetic_run(events=[(4.0, 4, "target lost for more than 3 s: run stopped")]), {"heading_deg": 2.0}).to_dict()
     assert stopped["verdict"]["converged"] is False
     assert stopped["verdict"]["checks"]["finished"] == "fail: run stopped at t = 4.00 s (target lost for more than 3 s: run stopped)"
-    truncated = build_report(synthetic_run(truncated=True), {"heading_deg": 2.0})
+    truncated = build_report(synthetic_run(truncated=True), {"heading_deg": 2.0}).to_dict()
     assert truncated["verdict"]["converged"] is False and truncated["run"]["truncated"] is True
 
 
@@ -308,10 +327,25 @@ def test_chattering_commands_fail_the_verdict_and_limits_are_counted():
     run = synthetic_run()
     run.state["v_c"] = 0.5 * np.where(np.arange(N) % 2 == 0, 1.0, -1.0)
     run.info["settings"]["limits"] = {"max_v": 0.5, "max_w": 0.6, "max_accel": None}
-    report = build_report(run, {"heading_deg": 2.0})
+    report = build_report(run, {"heading_deg": 2.0}).to_dict()
     commands = report["commands"]
     assert commands["dv_dt_rms_mps2"] == pytest.approx(1.0 / DT)              # 100 m/s^2
     assert commands["v_tv_per_s"] == pytest.approx(1.0 * (N - 1) / 9.99)
     assert commands["at_limit_fraction"] == 1.0
     assert report["verdict"]["converged"] is False
     assert report["verdict"]["reasons"][-1].startswith("fail: commands chatter: RMS dv/dt 100 > 1.29 m/s^2")
+
+
+def test_a_dhat_that_wanders_about_d_true_is_not_still_moving():
+    """With ground truth, a drift at the end within 2 % of d* is noise about the truth; the
+    same drift without ground truth, or one ending 2.5 % from d*, is still moving."""
+    run = synthetic_run()
+    run.state["dhat"] = np.linspace(3.8, 4.05, N)            # 0.63 % of d* per second, ends 1.25 % above d*
+    depth = build_report(run, {}).depth
+    assert depth.end_rate_per_s == pytest.approx(0.25 / 9.99 / 4.0, rel=1e-6) and depth.relative_error == pytest.approx(0.0125)
+    assert depth.still_moving is False and depth.warning is None
+    run.state["dhat"] = np.linspace(3.6, 3.9, N)             # 0.75 % per second, ends 2.5 % below d*
+    assert build_report(run, {}).depth.still_moving is True
+    run.state["dhat"] = np.linspace(3.8, 4.05, N)
+    run.info["d_true"] = None
+    assert build_report(run, {}).depth.still_moving is True

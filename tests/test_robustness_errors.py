@@ -70,13 +70,12 @@ def rewrite(source: Path, target: Path, change) -> None:
         for name, values in stream.metadata.items():
             writer._writer.add_metadata(name, dict(values))
         for m in messages:
-            if m.message_encoding != "json":  # images (protobuf): copied as they are, retimed
-                writer.declare_channel(m.topic, m.schema_name, m.schema_encoding, m.schema_data, m.message_encoding)
+            if m.message_encoding != "json":  # foxglove messages (protobuf): copied as they are, retimed
                 log_time, _ = change(m.topic, m.log_time, None)
-                writer.write_encoded(m.topic, m.schema_name, log_time, m.data)
+                writer.copy(m, log_time)
                 continue
             log_time, payload = change(m.topic, m.log_time, json.loads(m.data))
-            writer.write_encoded(m.topic, m.schema_name, log_time, json.dumps(payload).encode())
+            writer.copy(m, log_time, json.dumps(payload).encode())
         writer.finish()
 
 

@@ -114,14 +114,14 @@ def tiny_png(value: int = 128) -> bytes:
 def shrunk_fit(data: bytes) -> bytes:
     """A fit file with its reference and template images replaced by 8x6 ones (the reader
     does not look inside them), so that a case reads a few kilobytes."""
-    from hbvs_cli.io.images import encode_compressed_image, read_compressed_image
+    from hbvs_cli.io.images import compressed_image_message, read_compressed_image
 
     recording = decompose(data)
     messages = []
     for message in recording.messages:
         if message.topic in ("/reference/image", "/detector/template"):
-            stamp = read_compressed_image("protobuf", message.data).stamp_ns
-            message = replace(message, data=encode_compressed_image(stamp, tiny_png(), "png"))
+            stamp = read_compressed_image(message.data).stamp_ns
+            message = replace(message, data=compressed_image_message(stamp, tiny_png(), "png").SerializeToString())
         messages.append(message)
     return compose(replace(recording, messages=tuple(messages)))
 
@@ -216,7 +216,7 @@ def inputs(tmp_path_factory) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- readers under test
 def read_teach(data: bytes) -> None:
     """What ``hbvs fit`` does with a teach file, up to the detector: every frame and image."""
-    from hbvs_cli.stages.frames import decode_frame
+    from hbvs_cli.stages.frame_decoding import decode_frame
     from hbvs_cli.io.teach_file import TeachReader
 
     reader = TeachReader(io.BytesIO(data), name="teach.mcap")

@@ -192,12 +192,13 @@ def test_unknown_schema_names_on_known_topics_are_refused(tmp_path):
             read(source)
 
 
-def test_a_teach_image_that_is_not_protobuf_or_json_is_refused():
+def test_a_teach_image_that_is_not_protobuf_is_refused():
     from hbvs_cli.io.teach_file import TeachReader
 
-    source = mcap(schema(1, "foxglove.CompressedImage") + channel(1, 1, "/camera/image", "cdr"), message(1, b"\x00"))
-    with pytest.raises(RecordingError, match="expected protobuf or JSON"):
-        list(TeachReader(source).frames())
+    for encoding in ("cdr", "json"):
+        source = mcap(schema(1, "foxglove.CompressedImage") + channel(1, 1, "/camera/image", encoding), message(1, b"{}"))
+        with pytest.raises(RecordingError, match="expected protobuf"):
+            list(TeachReader(source).frames())
     garbage = mcap(schema(1, "foxglove.CompressedImage") + channel(1, 1, "/camera/image", "protobuf"), message(1, b"\x0a\xff\xff\xff\xff\x0f"))
     frame = next(TeachReader(garbage).frames())
     with pytest.raises(RecordingError, match="not a protobuf foxglove.CompressedImage"):
@@ -205,7 +206,7 @@ def test_a_teach_image_that_is_not_protobuf_or_json_is_refused():
 
 
 def world_description(**changes) -> dict:
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
 
     world = default_world().to_dict()
     for path, value in changes.items():
@@ -227,10 +228,12 @@ def world_description(**changes) -> dict:
     ({"camera": "not a camera"}, "malformed world"),
 ])
 def test_world_descriptions_are_bounded_before_anything_renders_them(changes, error):
-    from hbvs_cli.io.teach_file import world_from_description
+    """io checks what it uses (camera, height) as it reads; sim the rest as it builds the world."""
+    from hbvs_cli.io.teach_file import world_description as checked_description
+    from hbvs_cli.sim.world import world_from_description
 
     with pytest.raises(RecordingError, match=error):
-        world_from_description(world_description(**changes), "teach.mcap")
+        world_from_description(checked_description(world_description(**changes), "teach.mcap"), "teach.mcap")
 
 
 @pytest.fixture(scope="module")
@@ -269,7 +272,7 @@ def test_run_files_with_mistyped_events_or_metadata_are_refused():
     state = {key: 0.0 for key in ("t", "v_c", "w_c", "dhat")} | {"saturated": False, "target_lost": False}
     topics = schema(1, "hbvs.ControllerState") + channel(1, 1, "/repeat/state") + schema(2, "foxglove.Log") + channel(2, 2, "/repeat/events")
     good = metadata("hbvs", {"file_kind": '"run"'})
-    with pytest.raises(RecordingError, match="level"):
+    with pytest.raises(RecordingError, match="expected a protobuf foxglove message"):
         read_run(mcap(good, topics, message(1, json.dumps(state).encode()), message(2, b'{"level": "high"}')))
     with pytest.raises(RecordingError, match="settings"):
         read_run(mcap(metadata("hbvs", {"file_kind": '"run"', "settings": "[1]"}), topics, message(1, json.dumps(state).encode())))

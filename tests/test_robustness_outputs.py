@@ -97,8 +97,8 @@ SAME_FILE_CASES = {
     "--cmd-out onto the fit": (["repeat", "f.mcap", "--sim", "--cmd-out", "f.mcap", "-o", "new.mcap"], None),
     "--cmd-out and -o one file": (["repeat", "f.mcap", "--sim", "--cmd-out", "r.mcap", "-o", "r.mcap"], None),
     "--plot onto the report's input": (["report", "run.png", "--plot", "run.png"], "png"),
-    "fit of a .partial onto its final name": (["fit", "rec.mcap.partial", "-o", "rec.mcap"], "partial"),
-    "replay of a .partial onto its final name": (["repeat", "f.mcap", "--replay", "rec.mcap.partial", "-o", "rec.mcap"], "partial"),
+    "fit of a .partial onto its final name": (["fit", "rec.mcap.123-0badc0de.partial", "-o", "rec.mcap"], "partial"),
+    "replay of a .partial onto its final name": (["repeat", "f.mcap", "--replay", "rec.mcap.123-0badc0de.partial", "-o", "rec.mcap"], "partial"),
     "fit onto a symlink to its input": (["fit", "t.mcap", "-o", "alias.mcap"], "symlink"),
     "fit onto a hard link of its input": (["fit", "t.mcap", "-o", "hard.mcap"], "hardlink"),
     "--export-tum onto the run": (["report", "r.mcap", "--export-tum", "tum"], "tum"),
@@ -111,7 +111,7 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, c
     if setup == "png":
         (work / "run.png").write_bytes(b"\x89PNG\r\n\x1a\n" + PRECIOUS)
     elif setup == "partial":
-        shutil.copyfile(work / "t.mcap", work / "rec.mcap.partial")
+        shutil.copyfile(work / "t.mcap", work / "rec.mcap.123-0badc0de.partial")
     elif setup == "symlink":
         (work / "alias.mcap").symlink_to("t.mcap")
     elif setup == "hardlink":

@@ -181,9 +181,9 @@ def test_a_kept_run_file_is_whole_or_absent_and_the_temporary_folder_goes(tmp_pa
 # ----------------------------------------------------------------------------- 1. the sweep's folder
 @pytest.fixture(scope="module")
 def small_sweep(tmp_path_factory):
-    """A finished 2-run sweep (points, one worker), made once for the tests below."""
+    """A finished 2-run sweep (points with 1 px of noise, one worker), made once for the tests below."""
     folder = tmp_path_factory.mktemp("sweep") / "results"
-    result = run_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points",
+    result = run_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1",
                       "-o", str(folder), "--workers", "1", "--no-plots", "--quiet", timeout=300)
     assert result.returncode == 0, result.stderr
     return folder
@@ -202,7 +202,7 @@ def test_a_second_sweep_into_a_locked_folder_stops_with_one_line_and_exit_6(smal
     folder = copy_of(small_sweep, tmp_path)
     before = digest_tree(folder)
     with FolderLock(folder / LOCK, "test"):
-        result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "-o", str(folder), "--no-plots")
+        result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1", "-o", str(folder), "--no-plots")
     assert result.returncode == 6
     assert f"(pid {os.getpid()})" in one_line(result) and "another hbvs process" in one_line(result)
     assert digest_tree(folder) == before
@@ -235,7 +235,7 @@ def test_a_sweep_removes_only_the_partial_files_of_dead_processes(small_sweep, t
     someone = folder / "parts" / "notes.partial"
     for path in (stale, alive, someone):
         path.write_text("x")
-    result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "-o", str(folder), "--no-plots", "--json")
+    result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1", "-o", str(folder), "--no-plots", "--json")
     assert result.returncode == 0, result.stderr
     assert not stale.exists() and alive.exists() and someone.exists()
     assert json.loads(result.stdout)["runs"]["done"] == 2
@@ -279,7 +279,7 @@ def test_a_results_table_of_another_sweep_is_an_input_error(small_sweep, tmp_pat
     pq.write_table(pa.table({"index": [0, 1], "k_v": [0.5, 1.0], "status": ["ok", "ok"]}), folder / "runs.parquet")
     result = call_hbvs("report", str(folder))
     assert result.returncode == 3 and "another sweep" in one_line(result)
-    result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "-o", str(folder), "--no-plots")
+    result = call_hbvs("sweep", str(FIT), "--vary", "offset_y=-0.1,0.1", "--set", "perception=points", "--set", "pixel_noise=1", "-o", str(folder), "--no-plots")
     assert result.returncode == 3 and "another sweep" in one_line(result)
 
 
@@ -298,7 +298,7 @@ def test_a_scheduler_address_that_is_not_one_is_a_usage_error(tmp_path, address)
 
 # ----------------------------------------------------------------------------- 6. report RESULTS/
 def test_report_of_a_sweep_gates_on_convergence_and_takes_a_label(small_sweep):
-    # The two runs of the sample fit end within 0.5 cm but do not settle (report's verdict).
+    # With 1 px of pixel noise the two runs of the sample fit end about 1 cm off: not converged (report's verdict).
     result = call_hbvs("report", str(small_sweep), "--require-converged", "--label", "nightly")
     assert result.returncode == 1
     assert "not converged: 2 of 2 runs of the sweep" in result.stderr.decode()
@@ -393,8 +393,21 @@ def test_a_truncated_input_does_not_replace_a_bag_unless_allowed(exported, tmp_p
     bag = tmp_path / "bag"
     shutil.copytree(exported, bag)
     before = digest_tree(bag)
+    from hbvs_cli.io.mcap import McapStream, McapWriter
+
+    # The sample in 64 KB chunks (it is one chunk as hbvs writes it), cut in the middle.
+    rechunked = tmp_path / "teach-small-chunks.mcap"
+    stream = McapStream(TEACH)
+    with open(rechunked, "wb") as handle:
+        writer = McapWriter(handle, chunk_size=64 * 1024)
+        for k, message in enumerate(stream):
+            if k == 0:
+                for name, values in stream.metadata.items():
+                    writer._writer.add_metadata(name, values)
+            writer.copy(message)
+        writer.finish()
     truncated = tmp_path / "teach-cut.mcap"
-    truncated.write_bytes(TEACH.read_bytes()[:1_500_000])
+    truncated.write_bytes(rechunked.read_bytes()[: rechunked.stat().st_size // 2])
     result = call_hbvs("export", str(truncated), "-o", str(bag), "-q")
     assert result.returncode == 3 and "--allow-truncated" in one_line(result)
     assert digest_tree(bag) == before

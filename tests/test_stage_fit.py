@@ -93,7 +93,7 @@ def test_the_summary_table_goes_to_stderr(default_teach, tmp_path):
 
 
 def copy_teach(source, target, image=lambda t, message: message):
-    """Copy a teach file through ``image(t, json_bytes) -> json_bytes or None`` (None drops it)."""
+    """Copy a teach file through ``image(t, image_message_bytes) -> bytes or None`` (None drops it)."""
     from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
     from hbvs_cli.io.mcap import McapStream, McapWriter, read_metadata
 
@@ -107,13 +107,11 @@ def copy_teach(source, target, image=lambda t, message: message):
                     writer.metadata(name, read_metadata(stream, name))
                 first = False
             data = message.data
-            if message.message_encoding != "json":  # protobuf images: keep their encoding
-                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
             if message.topic == "/camera/image":
                 data = image((message.log_time - SIMULATION_EPOCH_NS) * 1e-9, data)  # s from the start
                 if data is None:
                     continue
-            writer.write_encoded(message.topic, message.schema_name, message.log_time, data)
+            writer.copy(message, data=data)
         writer.finish()
 
 
@@ -124,15 +122,15 @@ def strip_frames(source, target, drop):
 
 def _cover_target(source, target, covered):
     """Copy a teach file, painting the target out of the images at times where covered(t)."""
-    from hbvs_cli.io.images import decode_image, encode_compressed_image, encode_image, read_compressed_image
+    from hbvs_cli.io.images import compressed_image_message, decode_image, encode_image, read_compressed_image
 
     def paint(t, data):
         if not covered(t):
             return data
-        stored = read_compressed_image("protobuf", data)
+        stored = read_compressed_image(data)
         image = decode_image(stored.data)
         image[:260, :] = 150
-        return encode_compressed_image(stored.stamp_ns, encode_image(image), "png")
+        return compressed_image_message(stored.stamp_ns, encode_image(image), "png").SerializeToString()
 
     copy_teach(source, target, paint)
 
@@ -172,7 +170,7 @@ def test_fit_of_a_video_recording_agrees_with_the_truth(tmp_path):
     make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
     model = read_fit_file(tmp_path / "fit.mcap").model
     errors = errors_against_drive(model, world, profile, start, times)
-    assert model.world is None and model.taught_path is None
+    assert model.world_description is None and model.taught_path is None
     assert errors["theta_deg"] < 0.05
     assert errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
     # No commands in a video: d* from the target's metric size (--target-size).
@@ -209,8 +207,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
         for k, message in enumerate(stream):
             if k == 0:
                 writer.metadata("hbvs", read_metadata(stream, "hbvs"))
-                writer.declare_channel(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
-            writer.write_encoded(message.topic, message.schema_name, message.log_time, message.data)
+            writer.copy(message)
             if k > 20:
                 break
         writer.finish()

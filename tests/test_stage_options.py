@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import json
-
 import cv2
 import numpy as np
 import pytest
 
 from hbvs_cli.core.path import PRESETS, preset_profile
-from hbvs_cli.core.world import TARGET_KINDS, default_world
+from hbvs_cli.sim.world import TARGET_KINDS, default_world
 from hbvs_cli.errors import InputError, UsageError
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.mcap import McapStream
@@ -44,7 +42,7 @@ def test_teach_with_a_poster_image(tmp_path):
     teach = make_teach(tmp_path / "teach.mcap", target="texture", texture=poster, duration=4.0)
     make_fit(teach, tmp_path / "fit.mcap")
     model = read_fit_file(tmp_path / "fit.mcap").model
-    assert model.target_kind == "texture" and model.world.target.texture == str(poster)
+    assert model.target_kind == "texture" and model.world_description["target"]["texture"] == str(poster)
     assert model.frames["used"] == model.frames["total"] == 120
     with pytest.raises(InputError, match="not found"):
         make_teach(tmp_path / "x.mcap", target="texture", texture=tmp_path / "missing.png", duration=1.0)
@@ -97,17 +95,17 @@ def test_record_images_stores_images_with_detected_and_desired_points(default_fi
     run = read_run(tmp_path / "run.mcap")
     images = [m for m in McapStream(tmp_path / "run.mcap", topics={"/camera/image", "/camera/annotations"})]
     assert sum(m.topic == "/camera/image" for m in images) == run.steps
-    annotation = json.loads(next(m.data for m in images if m.topic == "/camera/annotations"))
-    assert len(annotation["circles"]) == 6  # 3 detected (green) + 3 desired (orange)
+    annotation = next(m for m in images if m.topic == "/camera/annotations").foxglove()
+    assert len(annotation.circles) == 6  # 3 detected (green) + 3 desired (orange)
     from hbvs_cli.io.images import read_compressed_image
 
     first = next(m for m in images if m.topic == "/camera/image")
-    stored = read_compressed_image(first.message_encoding, first.data)
+    stored = read_compressed_image(first.data)
     image = cv2.imdecode(np.frombuffer(stored.data, np.uint8), cv2.IMREAD_UNCHANGED)
     assert stored.format == "jpeg" and image.shape == (480, 640)  # one gray channel
     # The file holds little more than its images (measured 1.04x: the state, pose and
     # command messages of each step are the rest; bench/FILE_SIZES.md).
-    image_bytes = sum(len(read_compressed_image(m.message_encoding, m.data).data) for m in images if m.topic == "/camera/image")
+    image_bytes = sum(len(read_compressed_image(m.data).data) for m in images if m.topic == "/camera/image")
     assert (tmp_path / "run.mcap").stat().st_size <= 1.1 * image_bytes
 
 

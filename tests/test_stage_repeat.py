@@ -118,9 +118,10 @@ def test_replay_of_a_displaced_drive_gives_the_displacement_back(default_fit, tm
     make_run(fit_path, tmp_path / "replay.mcap", replay=displaced)
     run = read_run(tmp_path / "replay.mcap")
     from hbvs_cli.io.teach_file import TeachReader
+    from hbvs_cli.sim.world import World
 
     truth = np.array([f.pose for f in TeachReader(displaced).frames()])
-    world, reference_pose = model.world, model.taught_path.reference_pose
+    world, reference_pose = World.from_dict(model.world_description), model.taught_path.reference_pose
     theta, x_h = world.ground_truth(truth, reference_pose)
     desired = model.trajectory.evaluate(run.state["t"])
     expected = {"e1": x_h[:, 0] - desired.x_hd1, "e2": x_h[:, 1] - desired.x_hd2, "e3": theta - desired.theta_d}
@@ -237,6 +238,6 @@ def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
     from hbvs_cli.report.build import build_report
 
     for law, run in image_runs.items():
-        lyapunov = build_report(run)["lyapunov"]
-        assert 0.05 < lyapunov["increase_fraction"] < 0.3, (law, lyapunov)
-        assert lyapunov["ratio"] < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)
+        lyapunov = build_report(run).lyapunov
+        assert 0.05 < lyapunov.increase_fraction < 0.3, (law, lyapunov)
+        assert lyapunov.ratio < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import json
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from hbvs_cli.io.schemas import SCHEMAS
+from hbvs_cli.io.schemas import HBVS_SCHEMAS
 from hbvs_cli.io.topics import TOPICS
 from hbvs_cli.io.teach_file import TeachReader
 
@@ -20,9 +19,8 @@ from conftest import SAMPLES, call_hbvs, make_teach, run_hbvs
 
 
 def read_all(path):
-    """Every message through the official mcap reader and Foxglove's protobuf decoder:
-    (topic, schema name, JSON schema or None, message as a dict: images as
-    {"timestamp", "frame_id", "data" (bytes), "format"})."""
+    """Every message through the official mcap reader and mcap-protobuf-support's decoder:
+    (topic, schema name, schema record, message: a dict for JSON, else the protobuf message)."""
     from mcap_protobuf.decoder import DecoderFactory
 
     out = []
@@ -31,13 +29,10 @@ def read_all(path):
         reader = make_reader(handle)
         for schema, channel, message in reader.iter_messages():
             if channel.message_encoding == "json":
-                out.append((channel.topic, schema.name, json.loads(schema.data), json.loads(message.data)))
+                out.append((channel.topic, schema.name, schema, json.loads(message.data)))
             else:
                 assert (channel.message_encoding, schema.encoding) == ("protobuf", "protobuf")
-                decoded = factory.decoder_for(channel.message_encoding, schema)(message.data)
-                stamp = {"sec": decoded.timestamp.seconds, "nsec": decoded.timestamp.nanos}
-                fields = {"timestamp": stamp, "frame_id": decoded.frame_id, "data": decoded.data, "format": decoded.format}
-                out.append((channel.topic, schema.name, None, fields))
+                out.append((channel.topic, schema.name, schema, factory.decoder_for(channel.message_encoding, schema)(message.data)))
         metadata = {record.name: record.metadata for record in reader.iter_metadata()}
     return out, metadata
 
@@ -58,32 +53,36 @@ def test_sim_teach_records_images_truth_commands_and_world(default_teach):
     assert settings["seed"] == 0 and settings["path_name"] == "s-curve"
     # Images are one-channel JPEGs (the default, at the stated quality) of the camera's size.
     image_message = next(m[3] for m in messages if m[0] == "/camera/image")
-    assert image_message["format"] == "jpeg" and image_message["frame_id"] == "camera_optical"
-    image = cv2.imdecode(np.frombuffer(image_message["data"], np.uint8), cv2.IMREAD_UNCHANGED)
+    assert image_message.format == "jpeg" and image_message.frame_id == "camera_optical"
+    image = cv2.imdecode(np.frombuffer(image_message.data, np.uint8), cv2.IMREAD_UNCHANGED)
     assert image.shape == (480, 640)
     assert settings["image_format"] == "auto" and settings["jpeg_quality"] == 90
 
 
 def test_every_message_validates_against_its_schema(default_teach):
-    """Each JSON message validates against the JSON schema stored with it, every schema
-    named foxglove.X is the Foxglove message format hbvs declares for X, and the protobuf
-    images carry the fields of the JSON schema of foxglove.CompressedImage."""
+    """Each JSON message validates against the hbvs JSON schema stored with it; each
+    foxglove.X message is protobuf, its schema the FileDescriptorSet of Foxglove's own class
+    for X (foxglove-schemas-protobuf), parsed by that class."""
+    import importlib
+
+    from mcap_protobuf.schema import build_file_descriptor_set
+
     messages, _ = read_all(default_teach)
     validators = {}
     for topic, schema_name, schema, message in messages:
-        if schema is None:  # protobuf: validate its fields against the JSON form
-            schema = SCHEMAS[schema_name]
-            message = message | {"data": base64.b64encode(message["data"]).decode()}
-        assert schema == SCHEMAS[schema_name]
-        validator = validators.setdefault(schema_name, jsonschema.Draft202012Validator(schema))
+        if schema.encoding == "protobuf":
+            name = schema_name.split(".", 1)[1]
+            message_class = getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
+            assert schema.data == build_file_descriptor_set(message_class).SerializeToString()
+            assert type(message).DESCRIPTOR.full_name == schema_name
+            continue
+        assert json.loads(schema.data) == HBVS_SCHEMAS[schema_name]
+        validator = validators.setdefault(schema_name, jsonschema.Draft202012Validator(HBVS_SCHEMAS[schema_name]))
         validator.validate(message)
-    required = {
-        "foxglove.CompressedImage": {"timestamp", "frame_id", "data", "format"},
-        "foxglove.CameraCalibration": {"timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"},
-        "foxglove.PoseInFrame": {"timestamp", "frame_id", "pose"},
+    assert {m[1] for m in messages if m[2].encoding == "protobuf"} == {
+        "foxglove.CompressedImage", "foxglove.CameraCalibration", "foxglove.PoseInFrame", "foxglove.FrameTransform",
+        "foxglove.SceneUpdate",
     }
-    for name, fields in required.items():
-        assert set(SCHEMAS[name]["required"]) == fields
 
 
 def test_log_times_are_nanoseconds_at_the_frame_rate(default_teach):
@@ -97,7 +96,7 @@ def test_other_target_kinds(tmp_path, kind):
     path = make_teach(tmp_path / f"{kind}.mcap", target=kind, duration=1.0)
     reader = TeachReader(path)
     frames = list(reader.frames())
-    assert len(frames) == 30 and reader.world.target.kind == kind and all(f.pose is not None for f in frames)
+    assert len(frames) == 30 and reader.world_description["target"]["kind"] == kind and all(f.pose is not None for f in frames)
 
 
 def test_teach_from_a_pendant_csv_and_a_calibration_file(tmp_path):
@@ -127,7 +126,7 @@ def test_same_seed_same_bytes(tmp_path):
 def rendered_frames(count: int = 12):
     """Frames of the default scenario, rendered as a camera would record them."""
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.sim.render import make_renderer
 
     world = default_world()
@@ -294,7 +293,7 @@ def test_sample_recording_and_calibration_are_small_and_readable():
     assert teach.stat().st_size < 2 * 2**20
     reader = TeachReader(teach)
     frames = list(reader.frames())
-    assert len(frames) >= 30 and reader.world is not None
+    assert len(frames) >= 30 and reader.world_description is not None
     from hbvs_cli.io.calibration import load_calibration
 
     camera = load_calibration(SAMPLES / "camera.yaml")

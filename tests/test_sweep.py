@@ -94,7 +94,7 @@ def test_each_row_is_hbvs_repeat_with_the_printed_options_and_hbvs_report(uninte
     """Every run re-made alone from its printed command: the same bytes, the same metrics."""
     from hbvs_cli.cli.app import _run
     from hbvs_cli.io.sweep_table import METRICS
-    from hbvs_cli.report.build import resolve_key
+    from hbvs_cli.report.result import resolve_key
 
     folder, _ = uninterrupted
     for row in table(folder):
@@ -116,7 +116,7 @@ def test_each_row_is_hbvs_repeat_with_the_printed_options_and_hbvs_report(uninte
 def test_a_row_re_made_by_the_hbvs_commands_in_a_shell(uninterrupted, tmp_path):
     """The same as a user at a shell: the printed command, then hbvs report --json."""
     from hbvs_cli.io.sweep_table import METRICS
-    from hbvs_cli.report.build import resolve_key
+    from hbvs_cli.report.result import resolve_key
 
     folder, _ = uninterrupted
     row = table(folder)[27]

@@ -151,11 +151,11 @@ def test_each_baseline_tracks_with_the_true_depth(tmp_path, law):
 
     make_run(SAMPLES / "fit.mcap", tmp_path / "run.mcap", sim=True, perception="points", rate=30.0, law=law, dhat0=4.0)
     report = build_report(read_run(tmp_path / "run.mcap"))
-    assert report["run"]["law"] == law and report["run"]["gains"]["gamma"] == 0.0
-    assert report["depth"]["dhat_final"] == 4.0
-    assert report["pose_error"]["position_m"]["final"] < 0.01
-    assert report["pose_error"]["heading_deg"]["final"] < 0.5
-    assert report["lyapunov"]["ratio"] < 0.01
+    assert report.run.law == law and report.run.gains["gamma"] == 0.0
+    assert report.depth.dhat_final == 4.0
+    assert report.pose_error["position_m"].final < 0.01
+    assert report.pose_error["heading_deg"].final < 0.5
+    assert report.lyapunov.ratio < 0.01
 
 
 def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tmp_path, monkeypatch):

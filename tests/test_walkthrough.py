@@ -31,7 +31,7 @@ def render_drive(path, start_offset, seed):
 
     from hbvs_cli.core.camera import DEFAULT_CAMERA
     from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.core.world import default_world
+    from hbvs_cli.sim.world import default_world
     from hbvs_cli.sim.render import make_renderer
 
     profile, start = preset_profile("s-curve", 30)

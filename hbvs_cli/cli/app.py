@@ -31,7 +31,7 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
-    FIT_SETTINGS, OUTPUT_HELP, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
+    FIT_SETTINGS, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
     options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
@@ -542,12 +542,9 @@ def _one_blas_thread() -> None:
     """OpenBLAS (numpy's and scipy's) on one thread unless the user set it otherwise.
 
     hbvs's linear algebra is on small matrices (at most a few thousand rows by ten
-    columns: the plane refinement's Jacobian), where OpenBLAS's threads cost more than
-    they share, and the cores are busy decoding images and in OpenCV. On a busy 2-core
-    machine their spin-waiting made that Jacobian's SVD take 160 ms instead of 4 ms, and
-    ``fit``'s plane refinement of 600 marker frames 1.55 s instead of 0.67 s (0.83 s of
-    CPU instead of 0.46 s).
-    Read when OpenBLAS loads, so it is set before numpy is first imported.
+    columns), where OpenBLAS's threads cost more than they share (they spin-wait on cores
+    busy decoding images and in OpenCV). Read when OpenBLAS loads, so it is set before
+    numpy is first imported.
     """
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 

@@ -1,11 +1,7 @@
 """The exit code of each error hbvs raises on purpose (the table in :mod:`hbvs_cli.errors`).
 
-The I/O edge and the stages raise errors that say what the command line or a file did
-wrong, and carry their exit code (``UsageError`` 2, ``InputError`` 3, ...). The pure core
-raises domain errors (:class:`~hbvs_cli.errors.DomainError`) that know nothing of a command
-line; this is where they become exit codes, the same a user saw when the core raised the
-command line's errors: a bad value is a bad option (2), malformed or too little data a bad
-input (3). Degenerate geometry keeps its own code (4).
+The core's domain errors know nothing of a command line: here a bad value becomes a bad
+option (2), malformed or too little data a bad input (3); degenerate geometry keeps 4.
 """
 
 from __future__ import annotations

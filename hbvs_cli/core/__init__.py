@@ -16,7 +16,6 @@ One concept per module:
 * :mod:`.depth`: initial depth estimates from (25) or a known target size
 * :mod:`.unicycle`: exact integration of the kinematics (21)
 * :mod:`.path`: teach-pendant command profiles and presets
-* :mod:`.world`: the scene teach and fit files describe: camera, wall and target
 * :mod:`.simulator`: one control period: actuator limits, the step record
 * :mod:`.fit_model`: what a fit hands to repeat
 * :mod:`.metrics`: statistics and convergence measures of a run

@@ -10,8 +10,8 @@ def optimal_assignment(cost: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.in
     """Rows and columns of the assignment of least total ``cost`` (the Hungarian method,
     ``scipy.optimize.linear_sum_assignment``); a rectangular cost assigns the smaller side.
 
-    scipy.optimize is imported here, not at the top: it takes about 0.35 s, which every
-    ``hbvs`` command that loads perception would otherwise pay at start-up.
+    scipy.optimize is imported here, not at the top: every ``hbvs`` command that loads
+    perception would otherwise pay its import at start-up.
     """
     from scipy.optimize import linear_sum_assignment
 

@@ -12,6 +12,7 @@ intrinsic matrix ``K`` (x right, y down, z forward)::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,18 +28,8 @@ SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant"
 class CameraIntrinsics:
     """Pinhole intrinsics with optional lens distortion.
 
-    Attributes
-    ----------
-    fx, fy : float
-        Focal lengths (px).
-    cx, cy : float
-        Principal point (px), OpenCV convention (centre of the top-left pixel is (0, 0)).
-    width, height : int
-        Image size (px).
-    distortion_model : str
-        ``"plumb_bob"`` (k1, k2, p1, p2, k3), ``"rational_polynomial"`` or ``"none"``.
-    distortion : tuple of float
-        The distortion coefficients in OpenCV order (empty for none).
+    Focal lengths, principal point (OpenCV: the top-left pixel's centre is (0, 0)) and image
+    size in px; ``distortion``: the coefficients of ``distortion_model`` in OpenCV order.
     """
 
     fx: float
@@ -82,18 +73,25 @@ class CameraIntrinsics:
         """True when any distortion coefficient is non-zero."""
         return any(abs(v) > 0.0 for v in self.distortion)
 
-    def scaled(self, factor: float) -> "CameraIntrinsics":
-        """The same camera with images resized by ``factor`` (no distortion rescale needed)."""
-        return CameraIntrinsics(
-            fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=(self.cx + 0.5) * factor - 0.5,
-            cy=(self.cy + 0.5) * factor - 0.5,
-            width=int(round(self.width * factor)),
-            height=int(round(self.height * factor)),
-            distortion_model=self.distortion_model,
-            distortion=self.distortion,
-        )
+
+def camera_description(camera: CameraIntrinsics) -> dict[str, Any]:
+    """A JSON-ready description of a camera (the ``camera`` of a world description)."""
+    return {
+        "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+        "width": camera.width, "height": camera.height,
+        "distortion_model": camera.distortion_model, "distortion": list(camera.distortion),
+    }
+
+
+def camera_from_description(data: Any) -> CameraIntrinsics:
+    """Inverse of :func:`camera_description`; raises KeyError, TypeError or ValueError on a
+    malformed description, :class:`~hbvs_cli.errors.CalibrationError` on bad values."""
+    return CameraIntrinsics(
+        fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
+        width=int(data["width"]), height=int(data["height"]),
+        distortion_model=str(data.get("distortion_model", "none")),
+        distortion=tuple(float(v) for v in data.get("distortion", ())),
+    )
 
 
 #: The default simulated camera: 640x480, f = 500 px (a 65 deg horizontal field of view),
@@ -104,18 +102,8 @@ DEFAULT_CAMERA = CameraIntrinsics(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=
 def pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
     """Pixels to the paper's normalised coordinates ``m = [1, m_y, m_z]`` (9), (11).
 
-    Lens distortion is not removed here: call :func:`undistort_pixels` first when the
-    camera has any.
-
-    Parameters
-    ----------
-    camera : CameraIntrinsics
-    pixels : array_like, shape (..., 2)
-        ``(u, v)`` in px.
-
-    Returns
-    -------
-    m : ndarray, shape (..., 3)
+    ``pixels`` (..., 2) -> ``m`` (..., 3); lens distortion is not removed here
+    (:func:`measured_pixels_to_normalized` does).
     """
     pixels = np.asarray(pixels, dtype=float)
     x_n = (pixels[..., 0] - camera.cx) / camera.fx
@@ -124,20 +112,8 @@ def pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray
 
 
 def normalized_to_pixels(camera: CameraIntrinsics, m: ArrayLike) -> NDArray[np.float64]:
-    """The paper's normalised coordinates to pixels, the inverse of :func:`pixels_to_normalized`:
-    the pinhole projection (9), (11).
-
-    Parameters
-    ----------
-    m : array_like, shape (..., 3)
-        ``[1, m_y, m_z]``, or points in F in the paper's axes (m): the first component
-        is divided out.
-
-    Returns
-    -------
-    pixels : ndarray, shape (..., 2)
-        Ideal pinhole pixels (no distortion).
-    """
+    """Ideal pinhole pixels (..., 2) of ``m`` (..., 3), (9), (11): ``[1, m_y, m_z]`` or points
+    in F (the first component is divided out). Inverse of :func:`pixels_to_normalized`."""
     m = np.asarray(m, dtype=float)
     u = camera.cx - camera.fx * m[..., 1] / m[..., 0]
     v = camera.cy - camera.fy * m[..., 2] / m[..., 0]
@@ -145,18 +121,7 @@ def normalized_to_pixels(camera: CameraIntrinsics, m: ArrayLike) -> NDArray[np.f
 
 
 def normalize_points(points_camera: ArrayLike) -> NDArray[np.float64]:
-    """Euclidean points in F to normalised coordinates ``m = m_bar / x`` (9).
-
-    Parameters
-    ----------
-    points_camera : array_like, shape (..., N, 3)
-        Points in the paper's camera axes (m).
-
-    Raises
-    ------
-    PointBehindCameraError
-        If a point has non-positive depth x.
-    """
+    """Points in F (..., N, 3) (m) to ``m = m_bar / x`` (9); PointBehindCameraError if x <= 0."""
     points_camera = np.asarray(points_camera, dtype=float)
     if not np.all(np.isfinite(points_camera)):
         raise NonFiniteInputError("point coordinates contain NaN or infinity")
@@ -167,41 +132,19 @@ def normalize_points(points_camera: ArrayLike) -> NDArray[np.float64]:
 
 
 def undistort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
-    """Remove lens distortion from measured pixels (OpenCV's iterative undistortion).
-
-    Parameters
-    ----------
-    pixels : array_like, shape (N, 2)
-
-    Returns
-    -------
-    pixels : ndarray, shape (N, 2)
-        Ideal pinhole pixels under the same ``K``; the input itself when the camera has no
-        distortion.
-    """
+    """Ideal pinhole pixels (N, 2), same ``K``, of measured ones (OpenCV's iterative undistortion)."""
     pixels = np.asarray(pixels, dtype=float)
     if not camera.has_distortion or pixels.size == 0:
         return pixels
     import cv2  # lazy: keep the core importable without loading OpenCV
 
-    if camera.distortion_model == "equidistant":
-        undistorted = cv2.fisheye.undistortPoints(
-            pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K
-        )
-        return undistorted.reshape(pixels.shape)
-    undistorted = cv2.undistortPoints(
-        pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K
-    )
+    undistort = cv2.fisheye.undistortPoints if camera.distortion_model == "equidistant" else cv2.undistortPoints
+    undistorted = undistort(pixels.reshape(-1, 1, 2), camera.K, np.asarray(camera.distortion, dtype=float), P=camera.K)
     return undistorted.reshape(pixels.shape)
 
 
 def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
-    """Apply lens distortion to ideal pinhole pixels (the forward model of the lens).
-
-    Parameters
-    ----------
-    pixels : array_like, shape (N, 2)
-    """
+    """Apply lens distortion to ideal pinhole pixels (N, 2): the lens's forward model."""
     pixels = np.asarray(pixels, dtype=float)
     if not camera.has_distortion or pixels.size == 0:
         return pixels
@@ -221,17 +164,7 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
 
 
 def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
-    """Measured pixels to normalised coordinates (9), (11), lens distortion removed first.
-
-    Parameters
-    ----------
-    pixels : array_like, shape (..., 2)
-        NaN where a point was not found (it stays NaN).
-
-    Returns
-    -------
-    m : ndarray, shape (..., 3)
-    """
+    """Measured pixels (..., 2; NaN stays NaN) to ``m`` (..., 3), (9), (11), undistorted first."""
     pixels = np.asarray(pixels, dtype=float)
     flat = pixels.reshape(-1, 2)
     undistorted = np.full_like(flat, np.nan)

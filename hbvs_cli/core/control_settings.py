@@ -32,32 +32,17 @@ DEFAULT_PRESET = "s-curve"
 class ControllerGains:
     """Gains of (29)-(31).
 
-    These defaults are the clean-camera gains, used when a fit file carries no suggestion;
-    ``hbvs fit`` suggests gains from its own data (:mod:`.gains`), and ``repeat`` uses those.
-
-    The defaults were tuned on the default scenario (target 4 m ahead, taught at 0.1 m/s,
-    so |x_hd1_dot| ~ 0.025 1/s) with the whole vision pipeline in the loop, and follow
-    two rules that carry over to other scenes (``hbvs fit`` reports x_hd1_dot):
+    The clean-camera defaults, used when a fit file suggests none (:mod:`.gains`), tuned on
+    the default scenario (|x_hd1_dot| ~ 0.025 1/s) by rules that carry over to other scenes:
 
     * ``k_2 = k_w^2 / (4 x_hd1_dot^2) = 400`` makes the lateral mode
       ``s^2 + k_w s + k_2 x_hd1_dot^2`` (docs/method.md, "Choosing the gains") critically damped, at about k_w/2;
-    * ``gamma ~ 0.4 k_v / x_hd1_dot^2 = 2500``: near the path the depth error decays at
-      about ``gamma x_hd1_dot^2 / k_v`` ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within the
-      first 10 s;
-    * ``k_v = 4`` gives e1 a time constant d*/k_v = 1 s; ``k_w = 1`` a heading time constant
-      of 1 s.
+    * ``gamma ~ 0.4 k_v / x_hd1_dot^2 = 2500``: the depth error decays at about
+      ``gamma x_hd1_dot^2 / k_v`` ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within 10 s;
+    * ``k_v = 4`` (m/s) and ``k_w = 1`` (1/s) give e1 and the heading 1 s time constants.
 
-    Attributes
-    ----------
-    k_v : float
-        Longitudinal gain (m/s), > 0: multiplies the dimensionless e1 in (29).
-    k_w : float
-        Heading gain (1/s), > 0.
-    gamma : float
-        Adaptation gain gamma_1 of (31) (m: dhat_dot in m/s over e1 (x_h2 w_c - x_hd1_dot) in 1/s), >= 0
-        (0: no adaptation, the non-adaptive baseline of core/laws.py).
-    k_2 : float
-        Lateral gain (docs/method.md, "Control"); 1 is the paper's law exactly.
+    ``gamma`` is gamma_1 of (31) in m, >= 0 (0: the non-adaptive baseline); ``k_2`` = 1 is
+    the paper's law exactly (docs/method.md, "Control").
     """
 
     k_v: float = 4.0

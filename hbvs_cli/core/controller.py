@@ -33,15 +33,7 @@ from .frames import wrap_angle
 
 @dataclass(frozen=True)
 class Measurement:
-    """What the camera gives at one instant: the decomposed homography of (12), (14).
-
-    Attributes
-    ----------
-    theta : float or ndarray
-        Rotation angle theta = phi* - phi (rad).
-    x_h1, x_h2 : float or ndarray
-        Scaled translation x_f / d* (dimensionless).
-    """
+    """The decomposed homography at one instant (12), (14): theta = phi* - phi (rad), x_h = x_f / d*."""
 
     theta: float | NDArray[np.float64]
     x_h1: float | NDArray[np.float64]
@@ -50,19 +42,9 @@ class Measurement:
 
 @dataclass(frozen=True)
 class DesiredState:
-    """The desired trajectory and its feed-forward derivatives at one instant (Remark 1).
-
-    Attributes
-    ----------
-    theta_d : float or ndarray
-        Desired rotation angle (rad), unwrapped along the trajectory.
-    x_hd1, x_hd2 : float or ndarray
-        Desired scaled translation (dimensionless).
-    theta_d_dot : float or ndarray
-        rad/s; equals -w_cd (5).
-    x_hd1_dot, x_hd2_dot : float or ndarray
-        1/s; (25).
-    """
+    """The desired trajectory and its feed-forward derivatives at one instant (Remark 1):
+    theta_d (rad, unwrapped), x_hd (dimensionless), theta_d_dot = -w_cd (5) (rad/s), x_hd_dot
+    (1/s, (25))."""
 
     theta_d: float | NDArray[np.float64]
     x_hd1: float | NDArray[np.float64]
@@ -110,18 +92,7 @@ def control_law(
 ) -> ControlOutput:
     """Commands (29)-(30) and the update law (31), with the lateral gain k_2.
 
-    Parameters
-    ----------
-    measured : Measurement
-    desired : DesiredState
-    dhat : float or array_like
-        Current depth estimate dhat (m).
-    gains : ControllerGains
-
-    Returns
-    -------
-    ControlOutput
-        ``v_c`` in m/s, ``w_c`` in rad/s, ``dhat_dot`` in m/s.
+    ``dhat``: the depth estimate (m); returns ``v_c`` (m/s), ``w_c`` (rad/s), ``dhat_dot`` (m/s).
     """
     err = tracking_errors(measured, desired)
     k2 = gains.k_2
@@ -159,14 +130,9 @@ def closed_loop_error_rates(
     d_star: float,
     gains: ControllerGains,
 ) -> tuple[float, float, float]:
-    """Right-hand side of the closed-loop error system (32), with the lateral gain.
-
-    Returns
-    -------
-    (e1_dot, ebar2_dot, e3_dot)
-        ``d* e1_dot = -k_v e1 + k_2 ebar2 w_c + d~ (x_h2 w_c - x_hd1_dot)``,
-        ``ebar2_dot = -(e1 w_c + x_hd1_dot e3)``,
-        ``e3_dot = -k_w e3 + k_2 x_hd1_dot ebar2``.
+    """``(e1_dot, ebar2_dot, e3_dot)`` of the closed-loop error system (32), with k_2:
+    ``d* e1_dot = -k_v e1 + k_2 ebar2 w_c + d~ (x_h2 w_c - x_hd1_dot)``,
+    ``ebar2_dot = -(e1 w_c + x_hd1_dot e3)``, ``e3_dot = -k_w e3 + k_2 x_hd1_dot ebar2``.
     """
     e1_dot = (-gains.k_v * errors.e1 + gains.k_2 * errors.ebar2 * w_c + d_tilde * (x_h2 * w_c - x_hd1_dot)) / d_star
     ebar2_dot = -(errors.e1 * w_c + x_hd1_dot * errors.e3)
@@ -177,15 +143,8 @@ def closed_loop_error_rates(
 class AdaptiveTrackingController:
     """The controller with its one piece of state, the depth estimate dhat.
 
-    Each :meth:`step` evaluates (29)-(31) on a measurement and integrates the update law
-    over the control period (explicit Euler, exact for a held e1 and coupling). When the
-    target is lost, :meth:`hold` commands zero velocity and freezes the adaptation.
-
-    Parameters
-    ----------
-    gains : ControllerGains
-    dhat0 : float
-        Initial depth estimate dhat(0) (m), > 0.
+    :meth:`step` evaluates (29)-(31) and integrates (31) over the period (explicit Euler,
+    exact for a held e1 and coupling); ``dhat0`` (m, > 0) is dhat(0).
     """
 
     def __init__(self, gains: ControllerGains, dhat0: float) -> None:

@@ -1,16 +1,9 @@
 """Decomposing the Euclidean homography into (theta, x_h, n*): the four branches.
 
-``H = R + x_h n*^T`` (12) has up to four decompositions (Faugeras-Lustman [15],
-Zhang-Hanson [32]). The physically right one is found in two steps (docs/method.md,
-"Decomposition into (theta, x_h, n*)"):
-
-1. the plane must be in front of F*: ``n*^T m*_i > 0`` for every point (two candidates stay);
-2. the true normal is the same in every frame of a sequence, the spurious one moves with
-   the robot: keep the candidate whose normal agrees with the sequence's common normal
-   (:func:`~hbvs_cli.core.plane.estimate_common_normal`) or with a given prior.
-
-Once n* is known, :mod:`.known_normal` solves every frame directly from the points, with
-no branch to choose.
+``H = R + x_h n*^T`` (12) has up to four decompositions (Faugeras-Lustman [15]). The plane
+in front of F* (``n*^T m*_i > 0``) leaves two; the true normal is the one common to the
+sequence (the spurious one moves with the robot) or closest to a prior (docs/method.md,
+"Decomposition into (theta, x_h, n*)").
 """
 
 from __future__ import annotations
@@ -20,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import NoValidBranchError, NonFiniteInputError
+from ..errors import NonFiniteInputError
 
 #: Default prior for the plane normal in F*: the target faces the reference camera.
 FACING_PRIOR = np.array([1.0, 0.0, 0.0])
@@ -34,16 +27,9 @@ PURE_ROTATION_TOLERANCE = 1e-9
 class HomographyCandidates:
     """The four decompositions ``H = R + t n^T`` of each homography in a batch.
 
-    Attributes
-    ----------
-    rotations : ndarray, shape (..., 4, 3, 3)
-    translations : ndarray, shape (..., 4, 3)
-        Scaled translations ``x_h = x_f / d*`` (14).
-    normals : ndarray, shape (..., 4, 3)
-        Unit plane normals in F* (NaN for a pure rotation).
-    strength : ndarray, shape (...)
-        ``sigma_1 - sigma_3`` of the scaled H: how well the translation (and hence the
-        normal) is determined; 0 for a pure rotation.
+    ``rotations`` (..., 4, 3, 3), ``translations`` x_h = x_f / d* (14) and unit ``normals``
+    in F* (..., 4, 3; NaN for a pure rotation); ``strength`` (...): sigma_1 - sigma_3 of the
+    scaled H, how well the translation and normal are determined.
     """
 
     rotations: NDArray[np.float64]
@@ -56,18 +42,9 @@ class HomographyCandidates:
 class PlanarMotion:
     """Rotation angle and scaled translation of F* seen from F, per frame.
 
-    Attributes
-    ----------
-    theta : ndarray, shape (...)
-        Rotation about z, ``phi* - phi`` (rad), from ``atan2(R_21, R_11)``.
-    x_h : ndarray, shape (..., 2)
-        ``[x_h1, x_h2] = x_f / d*`` (14), dimensionless.
-    normal : ndarray, shape (..., 3)
-        Plane normal n* in F* (unit).
-    valid : ndarray of bool, shape (...)
-    residual : ndarray, shape (...)
-        RMS residual of the equations solved (normalised units); large values flag
-        outliers or a wrong normal.
+    ``theta`` (...): ``phi* - phi`` (rad); ``x_h`` (..., 2): x_f / d* (14); ``normal``
+    (..., 3): unit n* in F*; ``residual`` (...): RMS of the equations solved (normalised
+    units), large for outliers or a wrong normal.
     """
 
     theta: NDArray[np.float64]
@@ -86,14 +63,7 @@ def homography_candidates(H: ArrayLike) -> HomographyCandidates:
     normals ``v2 x u`` and ``R = [H v2, H u, H v2 x H u] [v2, u, v2 x u]^T``, ``t = (H - R) n``;
     the other two solutions are ``(R, -t, -n)``.
 
-    Parameters
-    ----------
-    H : array_like, shape (..., 3, 3)
-        Euclidean homographies (any positive scale).
-
-    Returns
-    -------
-    HomographyCandidates
+    ``H`` (..., 3, 3) may have any positive scale.
     """
     H = np.asarray(H, dtype=float)
     if not np.all(np.isfinite(H)):
@@ -156,21 +126,8 @@ def select_branch(
 ) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
     """Index of the physically right decomposition of each homography.
 
-    Among the candidates with the plane in front of F*, the one whose normal is closest
-    to ``reference_normal``. A pure rotation has no normal; its first candidate is taken.
-
-    Parameters
-    ----------
-    candidates : HomographyCandidates
-        Batch shape (...).
-    m_ref : array_like, shape (N, 3)
-    reference_normal : array_like, shape (3,) or (..., 3)
-
-    Returns
-    -------
-    index : ndarray of int, shape (...)
-    valid : ndarray of bool, shape (...)
-        False where no candidate has the plane in front.
+    Among those with the plane in front of F*, the closest to ``reference_normal`` ((3,) or
+    (..., 3)); a pure rotation takes its first. ``valid`` is False where none is in front.
     """
     m_ref = np.asarray(m_ref, dtype=float)
     reference_normal = np.asarray(reference_normal, dtype=float)
@@ -190,27 +147,13 @@ def take_branch(array: NDArray[np.float64], index: NDArray[np.intp]) -> NDArray[
     return np.take_along_axis(array, expanded, axis=index.ndim).squeeze(axis=index.ndim)
 
 
-
-
 def decompose_homography(
     H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR
 ) -> PlanarMotion:
     """(theta, x_h, n*) of each homography, the branch chosen by a reference normal.
 
-    Parameters
-    ----------
-    H : array_like, shape (..., 3, 3)
-        Euclidean homographies in the paper's axes.
-    m_ref : array_like, shape (N, 3)
-        Reference points, for the plane-in-front test.
-    reference_normal : array_like, shape (3,) or (..., 3)
-        The sequence's common normal (:func:`~hbvs_cli.core.plane.estimate_common_normal`), the previous
-        frame's, or a prior; the closest front-facing candidate is returned.
-
-    Returns
-    -------
-    PlanarMotion
-        ``valid`` is False where no candidate puts the plane in front of F*.
+    ``reference_normal``: the sequence's common normal, the previous frame's or a prior
+    (see :func:`select_branch`).
     """
     m_ref = np.asarray(m_ref, dtype=float)
     candidates = homography_candidates(H)
@@ -223,15 +166,3 @@ def decompose_homography(
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
-
-
-def decompose_homography_single(
-    H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR
-) -> PlanarMotion:
-    """One homography; raises :class:`NoValidBranchError` when no branch is physical."""
-    motion = decompose_homography(H, m_ref, reference_normal)
-    if not bool(motion.valid):
-        raise NoValidBranchError(
-            "no decomposition of the homography puts the target plane in front of the camera"
-        )
-    return motion

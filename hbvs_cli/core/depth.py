@@ -36,11 +36,11 @@ def check_depth(value: float, name: str) -> float:
 
 @dataclass(frozen=True)
 class DepthEstimate:
-    """A depth estimate and how well it is determined.
+    """An estimate of d*, handed to (31) as dhat(0), and how well it is determined.
 
     Attributes
     ----------
-    d_star : float
+    dhat0 : float
         Estimated distance from F* to the target plane (m).
     standard_error : float
         1-sigma uncertainty of the least-squares estimate (m); NaN when not applicable.
@@ -50,7 +50,7 @@ class DepthEstimate:
         Number of equations used.
     """
 
-    d_star: float
+    dhat0: float
     standard_error: float
     source: str
     samples: int
@@ -85,7 +85,7 @@ def depth_from_taught_commands(v_cd: ArrayLike, w_cd: ArrayLike, x_hd2: ArrayLik
         raise GeometryError(
             f"the taught commands give a negative depth ({d_star:.3g} m): do the recorded commands belong to these images?"
         )
-    return DepthEstimate(d_star=d_star, standard_error=float(np.sqrt(sigma2 / energy)), source="commands", samples=int(v.size))
+    return DepthEstimate(dhat0=d_star, standard_error=float(np.sqrt(sigma2 / energy)), source="commands", samples=int(v.size))
 
 
 def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int, int], distance_m: float) -> DepthEstimate:
@@ -114,7 +114,7 @@ def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int,
     separation = float(np.linalg.norm(unit_depth_points[i] - unit_depth_points[j]))
     if separation <= 1e-12:
         raise GeometryError("the two points that define the target size coincide in the reference image")
-    return DepthEstimate(d_star=distance_m / separation, standard_error=float("nan"), source="target-size", samples=1)
+    return DepthEstimate(dhat0=distance_m / separation, standard_error=float("nan"), source="target-size", samples=1)
 
 
 def farthest_pair(m_ref: ArrayLike, normal: ArrayLike) -> tuple[int, int]:

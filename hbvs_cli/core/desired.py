@@ -1,14 +1,9 @@
 """The desired trajectory of Remark 1 from the target pixels of a taught run: the fit.
 
-Given every frame's target pixels (NaN where the target was not found) and the frame chosen
-as F*: undistort and normalise them (9), (11); the Euclidean homographies H_d (16)-(18) of a
-sample of frames; the plane normal n* common to the sequence and its refinement together
-with the reference points m*_i (:mod:`.plane`); (theta_d, x_hd) of every frame by the
-known-normal solver (:mod:`.known_normal`), frames whose residual shows an outlier gated
-out (:func:`.estimation.within_residual_gate`); cubic smoothing splines of what is left
-(:mod:`.trajectory`, Remark 1) and condition (35) along the path (docs/method.md, "Desired
-trajectory"). Plain arrays in, a :class:`DesiredFit` out; nothing is printed: what a user
-should hear about (an ambiguous normal) is part of the result.
+Pixels normalised (9), (11); homographies (16)-(18) of a sample of frames; n* and m*_i
+(:mod:`.plane`, :mod:`.bundle`); (theta_d, x_hd) of every frame (:mod:`.known_normal`),
+outliers gated; smoothing splines (Remark 1) and condition (35) (docs/method.md, "Desired
+trajectory"). What a user should hear is passed to ``warn``, never printed.
 """
 
 from __future__ import annotations
@@ -19,14 +14,18 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InsufficientDataError
+from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
-from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise
+from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
+
+#: A frame that shows only part of the target (a board partly out of view) is used when at
+#: least this many of its points were found: its pose comes from them alone.
+MIN_PARTIAL_POINTS = 4
 
 #: A normal-estimation margin below this means the path did not tell the branches apart.
 AMBIGUOUS_NORMAL_MARGIN = 1e-3
@@ -57,9 +56,8 @@ BRANCH_CHECK_FRAMES = 200
 #: the smoothed variance is estimated to about 1/sqrt(32) (18 %), its root to 9 %.
 NOISE_PROBES = 64
 
-#: Samples the splines are fitted to at most: longer recordings are averaged in equal
-#: groups of consecutive frames first (30 Hz is far above a taught path's bandwidth, and
-#: the cost of generalised cross-validation grows with the sample count).
+#: Samples the splines are fitted to at most: longer recordings are averaged in groups of
+#: consecutive frames (30 Hz is far above a taught path's bandwidth; GCV's cost grows).
 MAX_SPLINE_SAMPLES = 3000
 
 #: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
@@ -87,20 +85,9 @@ def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = N
 class FrameStats:
     """Which frames of a taught run the fit used.
 
-    Attributes
-    ----------
-    total, used, lost, outliers : int
-        Frames in all; used; not used (not found, or gated out); gated out as outliers.
-    lost_fraction : float
-        ``lost / total``.
-    gaps : list of (float, float)
-        ``(t_before, t_after)`` (s) of every stretch of frames not used.
-    longest_gap_s : float
-        The longest of them (s), 0 without any.
-    frame_interval_s : float or None
-        Median interval between frames (s); None for one frame.
-    trimmed_start, trimmed_end : int
-        Frames not used before the first used one and after the last.
+    ``lost``: not used (not found, or gated out as ``outliers``); ``gaps``: ``(t_before,
+    t_after)`` (s) of each unused stretch; ``trimmed_start``/``trimmed_end``: unused frames
+    before the first used one and after the last.
     """
 
     total: int
@@ -134,18 +121,10 @@ class PixelResidual:
 class FitUncertainty:
     """How uncertain the fit is, from the joint estimate's covariance (:mod:`.bundle`).
 
-    Attributes
-    ----------
-    normal_sigma_deg : float
-        One standard deviation of n*'s direction (deg).
-    point_noise_px : float
-        The point noise the reprojection errors show (px, per coordinate).
-    theta_sigma, x_h1_sigma : ndarray, shape (F,)
-        One standard deviation of each frame's theta_d (rad) and x_hd1 (NaN where not
-        used), including what the frame inherits from n* and the reference points.
-    smooth_theta_sigma, smooth_x_h1_sigma : ndarray, shape (S,)
-        The same of the splines at the frames of the used span (the frame's own noise
-        averaged by the spline; the inherited part, common to neighbouring frames, is not).
+    ``point_noise_px``: the reprojection errors' noise (px per coordinate); ``theta_sigma``,
+    ``x_h1_sigma`` (F,): 1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used),
+    with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
+    the used span (which average a frame's own noise, not the inherited part).
     """
 
     normal_sigma_deg: float
@@ -174,33 +153,18 @@ class DesiredFit:
     Attributes
     ----------
     m_ref : ndarray, shape (N, 3)
-        Reference points m*_i of F* (refined together with n*).
-    reference_pixels : ndarray, shape (N, 2)
-        The same as ideal pinhole pixels (no distortion).
+        m*_i of F*, refined with n*; ``reference_pixels`` (N, 2): the same as ideal pixels.
     initial_pixels : ndarray, shape (N, 2)
         The measured pixels of the first used frame.
-    normal : ndarray, shape (3,)
-        Plane normal n* in F* (unit).
     normal_margin : float
-        How clearly the sequence chose the normal's branch, in [0, 1] (see
-        :func:`~.plane.estimate_common_normal`).
-    trajectory : SplineTrajectory
-        The desired trajectory (Remark 1).
+        How clearly the sequence chose n*'s branch, in [0, 1] (:func:`~.plane.estimate_common_normal`).
     used : ndarray of bool, shape (F,)
-        Frames whose (theta_d, x_hd) the splines were fitted to.
-    theta, residual : ndarray, shape (F,)
-        theta_d (rad) and the known-normal residual (normalised units) of every frame (NaN
-        where not solved).
-    x_h : ndarray, shape (F, 2)
-        x_hd of every frame.
-    frames : FrameStats
-    condition : FeedforwardCondition
-        Condition (35) along the used span.
-    residual_px : PixelResidual
+        Frames the splines were fitted to.
+    theta, residual, x_h : ndarray, shape (F,) and (F, 2)
+        theta_d (rad), known-normal residual (normalised units) and x_hd of every frame
+        (NaN where not solved).
     span : slice
-        From the first used frame to the last.
-    uncertainty : FitUncertainty or None
-        The estimate's uncertainty (None when it could not be computed).
+        From the first used frame to the last; ``condition`` (35) is measured over it.
     """
 
     m_ref: NDArray[np.float64]
@@ -218,12 +182,6 @@ class DesiredFit:
     residual_px: PixelResidual
     span: slice
     uncertainty: "FitUncertainty | None" = None
-
-    @property
-    def normal_ambiguous(self) -> bool:
-        """True when the taught motion did not tell the two homography branches apart (e.g.
-        a straight drive): n* is then the prior, "the target faces F*"."""
-        return self.normal_margin < AMBIGUOUS_NORMAL_MARGIN
 
     @property
     def condition35(self) -> dict[str, Any]:
@@ -257,42 +215,23 @@ def fit_desired_trajectory(
     t : array_like, shape (F,)
         Frame times (s), increasing.
     pixels : array_like, shape (F, N, 2)
-        Measured target pixels in a consistent order; NaN where the target was not found.
-    reference_index : int
-        The frame taken as F*.
-    camera : CameraIntrinsics
+        Target pixels in a consistent order; NaN where not found.
     smoothing : float or None
-        Spline smoothing lambda (s^3); None chooses it by generalised cross-validation.
-    max_lost : float
-        Largest fraction of frames that may go unused.
-    max_gap : float
-        Longest stretch without a used frame that the splines may bridge (s).
+        Spline lambda (s^3); None: generalised cross-validation.
+    max_lost, max_gap : float
+        Largest fraction of unused frames, and longest unused stretch (s) to bridge.
     warn : callable, optional
-        Told, as it happens, what a user should know (the motion did not tell the
-        homography branches apart: :attr:`DesiredFit.normal_ambiguous`).
+        Told what a user should know (ambiguous or uncertain n*), as it happens.
     shapes : sequence of KnownShape, optional
-        Parts of the target whose shape is known up to a similarity (each marker's
-        square, :data:`~.plane.UNIT_SQUARE`); they pin n* where the motion does not
-        (:func:`~.plane.refine_plane_and_reference`).
+        Target parts of known shape (each marker's square); they pin n* where the motion does not.
     measured_points : bool
         The points are measured in each frame on their own (dots, markers, a board's
-        corners): errors that the residuals show correlated from frame to frame widen the
-        reported uncertainty (:func:`~.bundle.correlation_inflation`). False for points
-        that are one tracked homography's corners (texture), correlated from frame to
-        frame by the tracking itself.
+        corners): errors the residuals show correlated from frame to frame widen the
+        reported uncertainty (:func:`~.bundle.correlation_inflation`). False for one
+        tracked homography's corners (texture), correlated by the tracking itself.
 
-    Returns
-    -------
-    DesiredFit
-
-    Raises
-    ------
-    InsufficientDataError
-        The target is in no frame, not in the reference frame, in fewer than
-        :data:`MIN_SAMPLES` frames, or missing from more than ``max_lost`` of them or
-        for longer than ``max_gap``; ``facts`` holds the numbers.
-    GeometryError
-        Degenerate reference points.
+    Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
+    ``facts`` holds the numbers.
     """
     t = np.asarray(t, dtype=float)
     pixels = np.asarray(pixels, dtype=float)
@@ -323,10 +262,8 @@ def fit_desired_trajectory(
     start_solver = KnownNormalSolver(m_ref, normal)
     noise = measured_point_noise(start_solver.reprojection_residuals(start_solver.solve(m[others]), m[others])) if others.size else 0.0
     if rival is not None and AMBIGUOUS_NORMAL_MARGIN <= margin < BRANCH_CHECK_MARGIN:
-        # The homographies' vote between the two branches was close: the joint estimate
-        # from each branch on a few evenly spread frames, and the one that explains the
-        # points better wins (4 of 60 noise draws of a curving drive had voted for a
-        # normal 27 deg off).
+        # A close vote between the branches: the joint estimate from each on a few frames
+        # decides (4 of 60 noisy curving drives had voted for a normal 27 deg off).
         few = others[np.linspace(0, others.size - 1, min(others.size, BRANCH_CHECK_FRAMES)).astype(int)]
         ours = estimate_plane_jointly(m[few], m_ref, normal, m[reference_index], noise, shapes=shapes)
         theirs = estimate_plane_jointly(m[few], m[reference_index], rival, m[reference_index], noise, shapes=shapes)
@@ -334,6 +271,7 @@ def fit_desired_trajectory(
             normal, m_ref = theirs.normal, theirs.m_ref
     joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
     normal, m_ref = joint.normal, joint.m_ref
+    m, found = _completed_partial_frames(m, found, m_ref, normal)
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
     residual = np.where(found, motion.residual, np.nan)
@@ -355,7 +293,7 @@ def fit_desired_trajectory(
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
-        initial_pixels=pixels[int(np.flatnonzero(used)[0])],
+        initial_pixels=_initial_pixels(pixels, m, int(np.flatnonzero(used)[0]), camera),
         normal=normal,
         normal_margin=margin,
         trajectory=trajectory,
@@ -374,15 +312,78 @@ def fit_desired_trajectory(
     )
 
 
+def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
+    """The first used frame's measured pixels, its points out of view (a partial frame)
+    where its pose puts them (undistorted: a prediction for repeat's first search only)."""
+    initial = pixels[first]
+    missing = ~np.all(np.isfinite(initial), axis=1)
+    if not np.any(missing):
+        return initial
+    initial = initial.copy()
+    initial[missing] = normalized_to_pixels(camera, m[first][missing])
+    return initial
+
+
+def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
+                              normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Frames that show part of the target, completed from the part they show.
+
+    A frame with at least :data:`MIN_PARTIAL_POINTS` points found (a board partly out of
+    view) gets its pose ``(theta, x_h)`` from those points alone (the known-normal solver on
+    them), and its missing points are put where that pose projects them (12). The
+    completed points lie exactly on the frame's model, so the frame's pose is the one its
+    found points give; n* and the reference points are estimated before, from the whole
+    frames only.
+
+    Parameters
+    ----------
+    m : ndarray, shape (F, N, 3)
+        Normalised points, NaN rows where not found.
+    found : ndarray of bool, shape (F,)
+        Frames where every point was found.
+    m_ref : ndarray, shape (N, 3)
+    normal : ndarray, shape (3,)
+
+    Returns
+    -------
+    m : ndarray, shape (F, N, 3)
+        With the partial frames completed (a copy when any was).
+    found : ndarray of bool, shape (F,)
+        Also True for the completed frames.
+    """
+    seen = np.all(np.isfinite(m), axis=-1)
+    partial = ~found & (seen.sum(axis=1) >= MIN_PARTIAL_POINTS)
+    if not np.any(partial):
+        return m, found
+    m = m.copy()
+    found = found.copy()
+    patterns, which = np.unique(seen[partial], axis=0, return_inverse=True)
+    frames = np.flatnonzero(partial)
+    for index, pattern in enumerate(patterns):
+        rows = frames[np.ravel(which) == index]
+        try:
+            motion = KnownNormalSolver(m_ref[pattern], normal).solve(m[rows][:, pattern])
+        except GeometryError:  # the found points are degenerate (collinear): the frames stay unused
+            continue
+        solved = rows[motion.valid]
+        if solved.size == 0:
+            continue
+        poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
+        predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
+        missing = ~pattern
+        m[np.ix_(solved, np.flatnonzero(missing), [0])] = 1.0
+        m[np.ix_(solved, np.flatnonzero(missing), [1, 2])] = predicted[:, missing, :]
+        found[solved] = True
+    return m, found
+
+
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
                      trajectory: SplineTrajectory, focal: float) -> FitUncertainty:
     """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance.
 
-    A frame's error is its own (independent between frames) plus what it inherits from the
-    globals' error (common to all frames). The spline is linear in its samples: the
-    inherited part is carried through it exactly (along the few directions of the globals'
-    covariance that hold its variance), the own part by :data:`NOISE_PROBES` random probes
-    of the same variance (seeded: the same fit gives the same numbers).
+    A frame's error is its own plus what it inherits from the globals (common to all frames).
+    The spline is linear: the inherited part goes through it exactly, the own part by
+    :data:`NOISE_PROBES` seeded random probes of the same variance.
     """
     from scipy.interpolate import make_smoothing_spline
 

@@ -1,10 +1,7 @@
 """From measured target pixels to the controller's measurement (theta, x_h1, x_h2).
 
-Once the reference points m*_i and the plane normal n* are known (``hbvs fit`` estimates
-them from the teach run), every frame is handled the same way: undistort, normalise (11),
-solve the known-normal linear system (:class:`~hbvs_cli.core.known_normal.KnownNormalSolver`)
-and reject the frame when its residual shows that the points do not fit one plane seen
-under planar motion (an outlier, a swapped identity, a wrong detection).
+With m*_i and n* from ``hbvs fit``: undistort, normalise (11), solve the known-normal system,
+and reject a frame whose residual shows its points do not fit one plane under planar motion.
 """
 
 from __future__ import annotations
@@ -53,18 +50,8 @@ class ObservationStatus(Label):
 class Observation:
     """What one camera frame gave the controller.
 
-    Attributes
-    ----------
-    measurement : Measurement or None
-        Set when ``status`` is ``OK``.
-    residual : float
-        RMS residual of the known-normal solve (normalised units; NaN if not solved).
-    status : ObservationStatus
-        ``OK``; ``DROPPED`` (no frame arrived: the last command is held); or why the
-        target is lost: ``MISSING`` (not detected), ``INVALID`` (no physical solution),
-        ``OUTLIER`` (inconsistent with one plane under planar motion), ``OCCLUDED``.
-    pixels : ndarray, shape (N, 2), or None
-        The detected target pixels, when there were any (for image annotations).
+    ``measurement`` is set when ``status`` is OK; ``residual``: RMS of the known-normal solve
+    (normalised units, NaN if not solved); ``pixels`` (N, 2): the detected ones, if any.
     """
 
     measurement: Measurement | None
@@ -86,15 +73,7 @@ def dropped() -> Observation:
 class PlanarPoseEstimator:
     """Measurement of (theta, x_h) from one frame's target pixels.
 
-    Parameters
-    ----------
-    camera : CameraIntrinsics
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points m*_i.
-    normal : array_like, shape (3,)
-        Plane normal n* in F*.
-    residual_gate : float
-        Frames whose residual exceeds it are rejected as outliers.
+    ``m_ref`` (N, 3): m*_i; ``normal``: n* in F*; a residual above ``residual_gate`` is an outlier.
     """
 
     def __init__(self, camera: CameraIntrinsics, m_ref: ArrayLike, normal: ArrayLike, residual_gate: float = DEFAULT_RESIDUAL_GATE) -> None:

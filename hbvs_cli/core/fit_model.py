@@ -11,7 +11,9 @@ import numpy as np
 from .camera import CameraIntrinsics
 from .control_settings import GAIN_NAMES, ControllerGains
 from .trajectory import SplineTrajectory
-from .world import World
+
+#: Most target points a file may describe (dot posters have up to 10, the others 4).
+MAX_TARGET_POINTS = 64
 
 
 @dataclass
@@ -49,7 +51,8 @@ class FitModel:
     condition35: dict[str, Any]
     residual_px: dict[str, Any]
     detector: dict[str, Any]
-    world: World | None = None
+    #: A simulated teach's world, as recorded (``hbvs_cli.sim.world.World.to_dict``); None for real footage.
+    world_description: dict[str, Any] | None = None
     taught_path: TaughtPath | None = None
     render: dict[str, Any] | None = None
     gains: dict[str, Any] | None = None

@@ -1,19 +1,14 @@
 """Frames, rotations and planar poses in the paper's conventions.
 
-Conventions (docs/method.md, "Frames (1)-(5), (9)-(11)"):
-
-* Robot/camera frame F: origin at the centre of the wheel axis, **x forward** (optical
-  axis), **y left**, **z up**. The robot moves in the x-y plane.
-* A planar robot pose is ``(x, y, phi)`` in a world frame W with z up: metres, metres,
-  radians.
-* F* is the reference snapshot with pose ``(x*, y*, phi*)``. Then (3)-(5)::
+Robot/camera frame F: x forward (optical axis), y left, z up; a planar pose is
+``(x, y, phi)`` (m, m, rad) in a world frame W with z up; F* is the reference pose
+``(x*, y*, phi*)`` (docs/method.md, "Frames (1)-(5), (9)-(11)"). Then (3)-(5)::
 
       R     = Rz(theta),   theta = phi* - phi       (4), (5): theta_dot = -w_c
       x_f   = Rz(phi)^T (p* - p)                    (3): origin of F* seen from F
       m_i   = x_f + R m*_i                          (3)
 
-* OpenCV/ROS camera axes are x right, y down, z forward. The permutation ``P`` maps the
-  paper's axes to OpenCV's: ``v_cv = P v_paper``; a homography maps as ``H_cv = P H P^T``.
+OpenCV/ROS camera axes (x right, y down, z forward) are ``v_cv = P v_paper``, ``H_cv = P H P^T``.
 """
 
 from __future__ import annotations
@@ -31,17 +26,7 @@ PAPER_TO_OPENCV.setflags(write=False)
 
 
 def rotation_z(theta: ArrayLike) -> NDArray[np.float64]:
-    """Right-handed rotation about z, the paper's R of (4).
-
-    Parameters
-    ----------
-    theta : array_like, shape (...)
-        Angle in radians.
-
-    Returns
-    -------
-    R : ndarray, shape (..., 3, 3)
-    """
+    """Right-handed rotation (..., 3, 3) about z by ``theta`` (rad), the paper's R of (4)."""
     theta = np.asarray(theta, dtype=float)
     c, s = np.cos(theta), np.sin(theta)
     R = np.zeros(theta.shape + (3, 3))
@@ -54,13 +39,7 @@ def rotation_z(theta: ArrayLike) -> NDArray[np.float64]:
 
 
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
-    """Wrap angles to [-pi, pi).
-
-    Parameters
-    ----------
-    angle : array_like
-        Radians.
-    """
+    """Wrap angles (rad) to [-pi, pi)."""
     if isinstance(angle, float):  # the closed loop's scalar case, without numpy's overhead
         return (angle + math.pi) % (2.0 * math.pi) - math.pi
     wrapped = (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
@@ -68,17 +47,7 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
 
 
 def paper_to_opencv_homography(H: ArrayLike) -> NDArray[np.float64]:
-    """Express a homography given in the paper's axes in OpenCV camera axes.
-
-    Parameters
-    ----------
-    H : array_like, shape (..., 3, 3)
-
-    Returns
-    -------
-    H_cv : ndarray, shape (..., 3, 3)
-        ``P H P^T``.
-    """
+    """A homography (..., 3, 3) in the paper's axes, in OpenCV camera axes: ``P H P^T``."""
     return PAPER_TO_OPENCV @ np.asarray(H, dtype=float) @ PAPER_TO_OPENCV.T
 
 
@@ -92,19 +61,8 @@ def relative_planar_pose(
 ) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
     """Rotation angle and translation of F* seen from F, equations (3)-(5).
 
-    Parameters
-    ----------
-    pose : array_like, shape (..., 3)
-        Current robot pose ``(x, y, phi)`` in W (m, m, rad).
-    reference_pose : array_like, shape (3,) or (..., 3)
-        Pose of the reference frame F*.
-
-    Returns
-    -------
-    theta : float or ndarray, shape (...)
-        ``phi* - phi`` wrapped to [-pi, pi) (rad).
-    x_f : ndarray, shape (..., 3)
-        ``Rz(phi)^T (p* - p)``, the origin of F* in F (m); its z component is 0.
+    ``pose`` (..., 3) and ``reference_pose`` ((3,) or (..., 3)) in W. Returns ``theta = phi* -
+    phi`` wrapped to [-pi, pi) and ``x_f = Rz(phi)^T (p* - p)`` (..., 3) (m, z = 0).
     """
     pose = np.asarray(pose, dtype=float)
     reference_pose = np.asarray(reference_pose, dtype=float)
@@ -117,22 +75,7 @@ def relative_planar_pose(
 
 
 def world_to_robot(points_world: ArrayLike, pose: ArrayLike, camera_height: float) -> NDArray[np.float64]:
-    """Coordinates of world points in the robot/camera frame F.
-
-    Parameters
-    ----------
-    points_world : array_like, shape (N, 3)
-        Points in W (m).
-    pose : array_like, shape (3,)
-        Robot pose ``(x, y, phi)`` (m, m, rad).
-    camera_height : float
-        Height of the optical centre above the floor (m); F's origin is there.
-
-    Returns
-    -------
-    points : ndarray, shape (N, 3)
-        ``Rz(phi)^T (P - p)`` with ``p = (x, y, camera_height)``.
-    """
+    """World points (N, 3) in F: ``Rz(phi)^T (P - p)``, ``p = (x, y, camera_height)`` (m)."""
     points_world = np.asarray(points_world, dtype=float)
     x, y, phi = (float(v) for v in np.asarray(pose, dtype=float))
     c, s = np.cos(phi), np.sin(phi)
@@ -141,13 +84,7 @@ def world_to_robot(points_world: ArrayLike, pose: ArrayLike, camera_height: floa
 
 
 def compose_planar_pose(base: ArrayLike, offset: ArrayLike) -> NDArray[np.float64]:
-    """Pose of ``offset`` (expressed in the frame of ``base``) in the world.
-
-    Parameters
-    ----------
-    base, offset : array_like, shape (3,)
-        ``(x, y, phi)`` (m, m, rad).
-    """
+    """World pose of ``offset``, given in the frame of ``base`` (both ``(x, y, phi)``)."""
     bx, by, bphi = (float(v) for v in np.asarray(base, dtype=float))
     ox, oy, ophi = (float(v) for v in np.asarray(offset, dtype=float))
     c, s = np.cos(bphi), np.sin(bphi)
@@ -155,17 +92,7 @@ def compose_planar_pose(base: ArrayLike, offset: ArrayLike) -> NDArray[np.float6
 
 
 def yaw_to_quaternion(phi: ArrayLike) -> NDArray[np.float64]:
-    """Quaternion ``(x, y, z, w)`` of a rotation by ``phi`` about z.
-
-    Parameters
-    ----------
-    phi : array_like, shape (...)
-        Radians.
-
-    Returns
-    -------
-    q : ndarray, shape (..., 4)
-    """
+    """Quaternion ``(x, y, z, w)`` (..., 4) of a rotation by ``phi`` (rad) about z."""
     half = 0.5 * np.asarray(phi, dtype=float)
     zeros = np.zeros_like(half)
     return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=-1)

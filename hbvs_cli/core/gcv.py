@@ -1,17 +1,9 @@
 """The smoothing spline's penalty weight by generalised cross-validation, in O(n) per trial.
 
-scipy's ``make_smoothing_spline(x, y)`` (lam=None) picks lambda by minimising the GCV
-criterion with ``minimize_scalar(bounds=(0, n), method="bounded")``, but evaluates the
-criterion with Python loops over every sample (about 30 ms per trial for 3000 samples,
-40 trials per channel: 2.2-3 s of ``hbvs fit``'s serial time after its frame loop on a
-3000-frame recording). :func:`gcv_smoothing` minimises the same criterion with the same
-minimiser, bounds and tolerance, and evaluates it in Reinsch's form (Green and Silverman,
-*Nonparametric Regression and Generalized Linear Models*, 1994, Sec. 2.3 and 3.3):
-banded matrices and LAPACK's banded Cholesky factor, and one Python loop of a few float
-operations per sample for the trace (about 3 ms per trial). The spline itself is still
-scipy's, fitted with the lambda found here.
-
-The criterion, for unit weights, samples ``y`` at ``t`` and fitted values ``f``::
+scipy's ``make_smoothing_spline`` (lam=None) minimises the GCV criterion with Python loops
+over every sample (bench/ measures it). :func:`gcv_smoothing` minimises the same criterion
+with the same minimiser, bounds and tolerance, in Reinsch's banded form (Green and
+Silverman, 1994, Sec. 2.3, 3.3); the spline itself stays scipy's. For unit weights::
 
     GCV(lambda) = (|y - f|^2 / n) / (1 - tr A(lambda) / n)^2
 
@@ -37,18 +29,8 @@ from numpy.typing import NDArray
 def gcv_criterion(t: NDArray[np.float64], y: NDArray[np.float64]) -> Callable[[float], float]:
     """The GCV criterion of a cubic smoothing spline of ``(t, y)`` as a function of lambda.
 
-    Parameters
-    ----------
-    t : ndarray, shape (n,)
-        Strictly increasing abscissae (s), n >= 5.
-    y : ndarray, shape (n,)
-        Samples (unit weights).
-
-    Returns
-    -------
-    callable
-        ``lambda -> GCV(lambda)`` (lambda >= 0 in the units of ``t``^3 when ``t`` is time;
-        the penalty weight of ``sum (y_i - f(t_i))^2 + lambda int f''^2``, scipy's ``lam``).
+    ``t`` (n,) strictly increasing (s), n >= 5; lambda (s^3) weighs ``int f''^2`` against
+    ``sum (y_i - f(t_i))^2``, as scipy's ``lam``.
     """
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
@@ -120,15 +102,8 @@ def _banded_inverse_trace(factor: NDArray[np.float64], weights: tuple[list[float
 
 
 def gcv_smoothing(t: NDArray[np.float64], y: NDArray[np.float64]) -> float:
-    """The lambda scipy's ``make_smoothing_spline(t, y)`` chooses: the GCV criterion's
-    minimum over ``(0, n)`` by bounded Brent search with scipy's default tolerance, as scipy
-    searches it (the values agree to rounding; see the module's docstring).
-
-    Raises
-    ------
-    ValueError
-        The search did not converge (as scipy's does).
-    """
+    """The lambda scipy's ``make_smoothing_spline(t, y)`` chooses (to rounding): the GCV
+    minimum over ``(0, n)`` by bounded Brent search; ValueError if it does not converge."""
     from scipy.optimize import minimize_scalar
 
     n = int(np.asarray(t).size)

@@ -13,20 +13,8 @@ from ..errors import NotAnImageError
 def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
     """An image as a contiguous gray uint8 array, shape (H, W).
 
-    Accepts gray, single-channel, BGR or BGRA arrays of 8 or 16 bits; 16-bit data keeps
-    its high byte (a fixed scale, so brightness does not change from frame to frame).
-    Every frame source and every detector converts through here.
-
-    Parameters
-    ----------
-    image : array_like
-    what : str
-        How to name the image in error messages.
-
-    Raises
-    ------
-    NotAnImageError
-        For anything that is not such an image.
+    Gray, BGR or BGRA, 8 or 16 bits; 16-bit data keeps its high byte (a fixed scale, so
+    brightness does not change between frames). NotAnImageError names the image ``what``.
     """
     import cv2
 

@@ -1,18 +1,10 @@
 """The Euclidean homography between the reference view F* and a current view, (12)-(18).
 
-``m_i = alpha_i H m*_i`` with ``H = R + x_h n*^T`` (12) and depth ratios
-``alpha_i = x*_i / x_i``. For a robot moving in a plane the third row of H is exactly
-``[0, 0, 1]`` (15), which gives two routes:
-
-* the paper's three-point method (16)-(18): ``alpha_i = m_iz / m*_iz`` from row 3, then rows
-  1 and 2 are linear in H. Three points give a square system; more points, least squares.
-  No SVD and no scale normalisation: H comes out at its true Euclidean scale.
-* the projective route, for N >= 4 points: a normalised DLT (or RANSAC) homography, scaled
-  so its middle singular value is 1, with the sign that makes every depth ratio positive.
-
-All functions work on batches: points of shape ``(..., N, 3)`` against one reference set
-``(N, 3)``; the reference system is factored once, so a whole recording costs a few matrix
-products (this is what ``hbvs fit`` uses).
+``m_i = alpha_i H m*_i``, ``H = R + x_h n*^T`` (12). Planar motion makes H's third row
+``[0, 0, 1]`` (15), so the paper's three-point method (16)-(18) gets H at its Euclidean scale
+by linear least squares; the projective route (N >= 4, normalised DLT, then scale and sign)
+does not assume planar motion. Batched: points ``(..., N, 3)`` against one reference (N, 3)
+whose system is factored once.
 """
 
 from __future__ import annotations
@@ -45,17 +37,9 @@ MIN_REFERENCE_CONDITION = 1e-4
 class HomographyEstimate:
     """A batch of Euclidean homographies and what came with them.
 
-    Attributes
-    ----------
-    H : ndarray, shape (..., 3, 3)
-        Euclidean homographies in the paper's axes (NaN where ``valid`` is False).
-    depth_ratios : ndarray, shape (..., N)
-        ``alpha_i = x*_i / x_i`` (NaN where not valid).
-    valid : ndarray of bool, shape (...)
-        False for frames with non-finite input or a non-positive depth ratio.
-    residual : ndarray, shape (...)
-        RMS transfer error of the points through H in normalised units (0 for 3 exact
-        points); a consistency measure for outlier gating.
+    ``H`` (..., 3, 3) in the paper's axes and ``depth_ratios`` alpha_i (..., N), NaN where
+    ``valid`` (...) is False (non-finite input or a depth ratio <= 0); ``residual`` (...):
+    RMS transfer error (normalised units), for outlier gating.
     """
 
     H: NDArray[np.float64]
@@ -69,19 +53,10 @@ def validate_reference_points(
 ) -> NDArray[np.float64]:
     """Check reference points for the degenerate cases of (16)-(18) and return them.
 
-    Parameters
-    ----------
-    m_ref : array_like, shape (N, 3)
-        Normalised reference points ``m*_i = [1, m*_iy, m*_iz]``.
-    min_points : int
-        3 for the three-point method, 4 for the projective route.
-    check_height : bool
-        Reject points at the camera's height (only the three-point method divides by m*_z).
-
-    Raises
-    ------
-    NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
-    CollinearPointsError, PointBehindCameraError
+    ``m_ref`` (N, 3): ``m*_i = [1, m*_iy, m*_iz]``; ``min_points``: 3 for the three-point
+    method, 4 for the projective route, which does not divide by m*_z (``check_height``).
+    Raises NotEnoughPointsError, NonFiniteInputError, PointAtCameraHeightError,
+    CollinearPointsError, PointBehindCameraError.
     """
     m_ref = np.asarray(m_ref, dtype=float)
     if m_ref.ndim != 2 or m_ref.shape[-1] != 3:
@@ -113,19 +88,7 @@ def validate_reference_points(
 
 
 def depth_ratios(m: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
-    """Depth ratios ``alpha_i = m_iz / m*_iz`` from the third row of (12), equation (18).
-
-    Parameters
-    ----------
-    m : array_like, shape (..., N, 3)
-        Current normalised points.
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points (validated, no point at the camera's height).
-
-    Returns
-    -------
-    alpha : ndarray, shape (..., N)
-    """
+    """Depth ratios ``alpha_i = m_iz / m*_iz`` (18), shape (..., N), of points (..., N, 3)."""
     m = np.asarray(m, dtype=float)
     m_ref = np.asarray(m_ref, dtype=float)
     return m[..., 2] / m_ref[:, 2]
@@ -142,27 +105,9 @@ def _check_batch_shapes(m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> N
 def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyEstimate:
     """Euclidean homography by the paper's three-point method, (16)-(18).
 
-    With ``alpha_i`` from (18), rows 1 and 2 of (12) read
-    ``[1, m*_iy, m*_iz] . h_1 = 1 / alpha_i`` and ``[1, m*_iy, m*_iz] . h_2 = m_iy / alpha_i``;
-    three non-collinear points give one 3x3 solve per row, more points least squares. The
-    third row is ``[0, 0, 1]`` (15).
-
-    Parameters
-    ----------
-    m : array_like, shape (..., N, 3)
-        Current normalised points ``[1, m_y, m_z]``, N >= 3, in the order of ``m_ref``.
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points ``m*_i``.
-
-    Returns
-    -------
-    HomographyEstimate
-        Frames with non-finite points or a non-positive depth ratio are marked invalid.
-
-    Raises
-    ------
-    NotEnoughPointsError, CollinearPointsError, PointAtCameraHeightError, NonFiniteInputError
-        For a degenerate reference (these concern every frame).
+    Rows 1 and 2 of (12) read ``m*_i . h_1 = 1 / alpha_i`` and ``m*_i . h_2 = m_iy / alpha_i``:
+    least squares over the N >= 3 points ``m`` (..., N, 3), in the order of ``m_ref`` (N, 3).
+    A degenerate reference raises (:func:`validate_reference_points`).
     """
     m_ref = validate_reference_points(m_ref, min_points=3)
     m = np.asarray(m, dtype=float)
@@ -179,39 +124,15 @@ def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyE
     H = np.zeros(m.shape[:-2] + (3, 3))
     H[..., :2, :] = rows
     H[..., 2, 2] = 1.0
-    residual = _transfer_residual(H, m, m_ref)
+    return _masked_estimate(H, alpha, valid, _transfer_residual(H, m, m_ref))
+
+
+def _masked_estimate(H: NDArray[np.float64], alpha: NDArray[np.float64], valid: NDArray[np.bool_],
+                     residual: NDArray[np.float64]) -> HomographyEstimate:
+    """The estimate with NaN wherever ``valid`` is False (H is masked in place)."""
     H[~valid] = np.nan
     alpha = np.where(valid[..., None], alpha, np.nan)
-    residual = np.where(valid, residual, np.nan)
-    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=residual)
-
-
-def estimate_euclidean_homography_single(m: ArrayLike, m_ref: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """One frame of :func:`estimate_euclidean_homography`, raising on an invalid frame.
-
-    Returns
-    -------
-    H : ndarray, shape (3, 3)
-    alpha : ndarray, shape (N,)
-
-    Raises
-    ------
-    NonFiniteInputError
-        If a current point is NaN or infinite.
-    PointBehindCameraError
-        If a depth ratio is not positive (a point crossed the camera's horizon, i.e. it is
-        behind the camera or matched to the wrong reference point).
-    """
-    m = np.asarray(m, dtype=float)
-    if not np.all(np.isfinite(m)):
-        raise NonFiniteInputError("current image points contain NaN or infinity")
-    estimate = estimate_euclidean_homography(m, m_ref)
-    if not bool(estimate.valid):
-        raise PointBehindCameraError(
-            "a depth ratio alpha_i = m_iz / m*_iz is not positive: a point is on the other side "
-            "of the camera's horizon than in the reference image"
-        )
-    return estimate.H, estimate.depth_ratios
+    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=np.where(valid, residual, np.nan))
 
 
 def _normalizing_transform(points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -232,13 +153,8 @@ def _normalizing_transform(points: NDArray[np.float64]) -> NDArray[np.float64]:
 def scale_to_euclidean(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
     """Fix the scale and sign of a projective homography in the paper's axes.
 
-    A Euclidean homography ``R + t n^T`` has middle singular value 1; its sign makes
-    ``(H m*_i)_x = 1 / alpha_i`` positive (docs/method.md, "Euclidean homography", the projective route).
-
-    Parameters
-    ----------
-    H : array_like, shape (..., 3, 3)
-    m_ref : array_like, shape (N, 3)
+    ``R + t n^T`` has middle singular value 1, and the sign makes ``(H m*_i)_x = 1 / alpha_i``
+    positive for the points ``m_ref`` (N, 3).
     """
     H = np.asarray(H, dtype=float)
     sigma = np.linalg.svd(H, compute_uv=False)
@@ -251,18 +167,7 @@ def scale_to_euclidean(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
 def estimate_projective_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyEstimate:
     """Euclidean homography by the projective route: normalised DLT, then scale and sign.
 
-    Does not assume planar motion, so it also serves as an independent check of the
-    three-point method.
-
-    Parameters
-    ----------
-    m : array_like, shape (..., N, 3)
-        Current normalised points, N >= 4.
-    m_ref : array_like, shape (N, 3)
-
-    Returns
-    -------
-    HomographyEstimate
+    Does not assume planar motion: an independent check of the three-point method. N >= 4.
     """
     m_ref = validate_reference_points(m_ref, min_points=4, check_height=False)
     m = np.asarray(m, dtype=float)
@@ -289,10 +194,7 @@ def estimate_projective_homography(m: ArrayLike, m_ref: ArrayLike) -> Homography
         alpha = 1.0 / np.einsum("...k,nk->...n", H[..., 0, :], m_ref)
     residual = _transfer_residual(H, m_safe, m_ref)
     valid = finite & np.all(alpha > 0.0, axis=-1)
-    H[~valid] = np.nan
-    alpha = np.where(valid[..., None], alpha, np.nan)
-    residual = np.where(valid, residual, np.nan)
-    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=residual)
+    return _masked_estimate(H, alpha, valid, residual)
 
 
 def euclidean_from_pixel_homography(
@@ -300,16 +202,8 @@ def euclidean_from_pixel_homography(
 ) -> NDArray[np.float64]:
     """Map a pixel homography (e.g. from ``cv2.findHomography``) to the paper's H.
 
-    ``H_cv = K^-1 G K`` in OpenCV axes, ``H = P^T H_cv P`` in the paper's axes, then scaled
-    and signed by :func:`scale_to_euclidean`.
-
-    Parameters
-    ----------
-    G : array_like, shape (..., 3, 3)
-        Maps reference pixels to current pixels.
-    camera : CameraIntrinsics
-    m_ref : array_like, shape (N, 3)
-        Reference points used to fix the sign (every depth ratio positive).
+    ``H = P^T (K^-1 G K) P``, scaled and signed by :func:`scale_to_euclidean` on ``m_ref``;
+    ``G`` (..., 3, 3) maps reference pixels to current pixels.
     """
     K = camera.K
     H_cv = np.linalg.inv(K) @ np.asarray(G, dtype=float) @ K
@@ -325,16 +219,6 @@ def _transfer_residual(H: NDArray[np.float64], m: NDArray[np.float64], m_ref: ND
 
 
 def transfer_points(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
-    """Predicted current points ``m_i = alpha_i H m*_i``, normalised to ``[1, m_y, m_z]``.
-
-    Parameters
-    ----------
-    H : array_like, shape (..., 3, 3)
-    m_ref : array_like, shape (N, 3)
-
-    Returns
-    -------
-    m : ndarray, shape (..., N, 3)
-    """
+    """Predicted points ``m_i = alpha_i H m*_i`` (..., N, 3), normalised to ``[1, m_y, m_z]``."""
     projected = np.einsum("...ij,nj->...ni", np.asarray(H, dtype=float), np.asarray(m_ref, dtype=float))
     return projected / projected[..., :1]

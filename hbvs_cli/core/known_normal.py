@@ -1,11 +1,8 @@
 """(theta, x_h) from the points when the plane normal n* is known: the known-normal solver.
 
-Once n* is known, ``H = Rz(theta) + x_h n*^T`` is *linear* in ``(cos theta, sin theta,
-x_h1, x_h2)``: :class:`KnownNormalSolver` solves it by least squares from the points
-directly (docs/method.md, "Decomposition into (theta, x_h, n*)"). It has a unique answer
-and can never pick a wrong branch, so ``fit`` and ``repeat`` use it for every frame once n*
-has been estimated. :func:`point_jacobian` is the derivative of the predicted points with
-respect to (theta, x_h1, x_h2), shared with the state filter.
+Once n* is known, ``H = Rz(theta) + x_h n*^T`` is linear in ``(cos theta, sin theta, x_h1,
+x_h2)``: a unique least-squares answer that never picks a wrong branch, so ``fit`` and
+``repeat`` use it for every frame (docs/method.md, "Decomposition into (theta, x_h, n*)").
 """
 
 from __future__ import annotations
@@ -24,31 +21,10 @@ from .homography import depth_ratios, validate_reference_points
 def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> tuple[Any, ...]:
     """A reference point's predicted image point and its Jacobian in (theta, x_h1, x_h2).
 
-    With ``q = H m*_i``, ``q0 = c - s m*_iy + x_h1 g_i`` and ``q1 = s + c m*_iy + x_h2 g_i``
-    (``g_i = n*^T m*_i``), the point is ``m_i = [1, q1 / q0, m*_iz / q0]`` (docs/method.md,
-    "Decomposition into (theta, x_h, n*)"). Plain floats (one point) or broadcasting arrays
-    alike: the known-normal solver's Gauss-Newton steps and the state filter's measurement
-    information both use it.
-
-    Parameters
-    ----------
-    c, s : float or ndarray
-        cos theta, sin theta.
-    y, z : float or ndarray
-        The reference point's m*_iy and m*_iz.
-    g : float or ndarray
-        ``n*^T m*_i``.
-    x1, x2 : float or ndarray
-        x_h1, x_h2.
-
-    Returns
-    -------
-    q0, q1, inv : float or ndarray
-        ``q0``, ``q1`` and ``1 / q0``.
-    jy_t, jy_1, jy_2 : float or ndarray
-        d(m_iy) / d(theta, x_h1, x_h2).
-    jz_t, jz_1 : float or ndarray
-        d(m_iz) / d(theta, x_h1); d(m_iz) / d x_h2 is 0.
+    With ``c, s = cos, sin theta``, ``(y, z) = (m*_iy, m*_iz)``, ``g = n*^T m*_i``,
+    ``q0 = c - s y + x_h1 g`` and ``q1 = s + c y + x_h2 g``, the point is
+    ``m_i = [1, q1 / q0, z / q0]`` (12). Floats or broadcasting arrays; returns ``q0, q1,
+    1 / q0``, d(m_iy)/d(theta, x_h1, x_h2) and d(m_iz)/d(theta, x_h1) (d/d x_h2 is 0).
     """
     q0 = c - s * y + x1 * g
     q1 = s + c * y + x2 * g
@@ -62,30 +38,11 @@ def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> 
 def normal_equations(c: float, s: float, y_ref: Sequence[float], z_ref: Sequence[float], g: Sequence[float],
                      x1: float, x2: float, m_y: Sequence[float] | None = None, m_z: Sequence[float] | None = None
                      ) -> tuple[tuple[float, float, float, float, float, float], tuple[float, float, float]]:
-    """``J^T J`` and ``J^T r`` of one frame's points, in plain floats (a few points, every
-    control period: faster without numpy).
+    """``J^T J`` (upper triangle a11 ... a33) and ``J^T r`` (b1, b2, b3) of one frame.
 
-    J is :func:`point_jacobian` of every point with respect to (theta, x_h1, x_h2), r the
-    predicted minus the measured ``(m_y, m_z)``.
-
-    Parameters
-    ----------
-    c, s : float
-        cos theta, sin theta.
-    y_ref, z_ref, g : sequences of float, length N
-        m*_iy, m*_iz and ``n*^T m*_i``.
-    x1, x2 : float
-        x_h1, x_h2.
-    m_y, m_z : sequences of float, length N, optional
-        The measured points; without them ``J^T r`` is meaningless (the state filter needs
-        only ``J^T J``).
-
-    Returns
-    -------
-    information : (a11, a12, a13, a22, a23, a33)
-        The symmetric ``J^T J``.
-    gradient : (b1, b2, b3)
-        ``J^T r``.
+    J: :func:`point_jacobian` of the N points (arguments as there); r: predicted minus the
+    measured ``(m_y, m_z)`` (without them ``J^T r`` is meaningless). Plain floats: a few
+    points every control period are faster without numpy.
     """
     a11 = a12 = a13 = a22 = a23 = a33 = b1 = b2 = b3 = 0.0
     measured = zip(m_y, m_z) if m_y is not None and m_z is not None else zip(y_ref, z_ref)
@@ -134,28 +91,18 @@ class KnownNormalSolver:
         1 / alpha_i      = c - s m*_iy + x_h1 g_i
         m_iy / alpha_i   = s + c m*_iy + x_h2 g_i
 
-    (docs/method.md, "Decomposition into (theta, x_h, n*)"). Unique, no SVD, never a wrong branch. The design
-    matrix depends only on the reference, so it is factored once here and every frame (or
-    a whole batch of frames) costs one matrix product.
-
-    The linear solution leaves ``(c, s)`` free of ``c^2 + s^2 = 1``; Gauss-Newton steps on
-    the reprojection error of the points, with theta as the unknown, then give the
-    maximum-likelihood estimate under equal pixel noise (half the theta error of the
-    linear solution at 0.02 px). Each step is kept only where it lowers the error: plain
-    Gauss-Newton can diverge at large noise. ``refine_steps=0`` keeps the linear solution.
-
-    :meth:`solve` works on batches with numpy; :meth:`solve_one` is the same computation
-    in plain floats for one frame of a few points, where numpy's per-call overhead would
-    dominate (the closed loop calls it every control period).
+    The design matrix depends only on the reference: factored once, each frame costs one
+    product. The linear solution ignores ``c^2 + s^2 = 1``; ``refine_steps`` Gauss-Newton
+    steps in theta on the reprojection error then give the maximum-likelihood estimate
+    (half the linear theta error at 0.02 px), each kept only where it lowers the error.
+    :meth:`solve_one` is :meth:`solve` in plain floats for the closed loop's single frame.
 
     Parameters
     ----------
     m_ref : array_like, shape (N, 3)
         Reference normalised points, N >= 3.
     normal : array_like, shape (3,)
-        Unit normal of the target plane in F* (pointing from the camera to the plane).
-    refine_steps : int
-        Gauss-Newton steps after the linear solution.
+        Unit normal of the plane in F*, from the camera toward the plane.
     """
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, refine_steps: int = 2) -> None:
@@ -180,14 +127,8 @@ class KnownNormalSolver:
     BLOCK = 4096
 
     def solve(self, m: ArrayLike) -> PlanarMotion:
-        """Solve for points of shape (..., N, 3) in the reference's order.
-
-        Returns
-        -------
-        PlanarMotion
-            ``valid`` is False for frames with non-finite points or a non-positive depth
-            ratio; ``residual`` is the RMS reprojection error (normalised units).
-        """
+        """Solve for points (..., N, 3) in the reference's order; ``valid`` is False for
+        non-finite points or a depth ratio <= 0, ``residual`` the RMS reprojection error."""
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
@@ -291,18 +232,8 @@ class KnownNormalSolver:
 
     # -- one frame --------------------------------------------------------------------------
     def solve_one(self, m_y: Sequence[float], m_z: Sequence[float]) -> tuple[float, float, float, float] | None:
-        """:meth:`solve` for one frame, in plain floats.
-
-        Parameters
-        ----------
-        m_y, m_z : sequences of float, length N
-            The current normalised points' second and third components.
-
-        Returns
-        -------
-        (theta, x_h1, x_h2, residual) or None
-            None when a point is not finite or a depth ratio is not positive.
-        """
+        """:meth:`solve` for one frame's normalised ``m_y``, ``m_z`` (N each), in plain floats:
+        ``(theta, x_h1, x_h2, residual)``, or None for a non-finite point or depth ratio <= 0."""
         y_ref, z_ref, g = self._y, self._z, self._g
         rhs = []
         for my, mz, zr in zip(m_y, m_z, z_ref):
@@ -357,8 +288,3 @@ def _solve_symmetric3(a11: Any, a12: Any, a13: Any, a22: Any, a23: Any, a33: Any
         (c12 * b1 + c22 * b2 + c23 * b3) / det,
         (c13 * b1 + c23 * b2 + c33 * b3) / det,
     )
-
-
-def solve_planar_motion_known_normal(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike) -> PlanarMotion:
-    """One-off use of :class:`KnownNormalSolver`: ``KnownNormalSolver(m_ref, normal).solve(m)``."""
-    return KnownNormalSolver(m_ref, normal).solve(m)

@@ -1,24 +1,9 @@
 """Statistics and convergence measures of a run: numpy in, plain Python numbers out.
 
-Every function takes the step times ``t`` (s) and a per-step signal, and leaves out NaN
-samples: a step where the target was lost has no measured error, and averaging a guess
-into the statistics would hide the loss. Results are Python ``float`` (or ``None`` when
-the signal has no valid sample), ready for JSON.
-
-Definitions (docs/report.md cites them):
-
-* statistics of a signal, as evo computes them for trajectory errors: ``rmse``, ``mean``,
-  ``median``, ``std`` (population, ddof = 0), ``min``, ``max`` of the valid samples;
-* ``initial``: the first valid sample;
-* ``final``: the mean of ``|x|`` over the valid samples in the last
-  :data:`FINAL_WINDOW_FRACTION` (5 %) of the run's duration;
-* ``settling_time_s``: the first time (from the run's first step) after which every valid
-  sample stays within ``|x| <= tolerance`` until the end; ``None`` if the last valid
-  sample is outside the band (it never settles);
-* Lyapunov summary of V (36): ``initial``, ``final`` (the last valid value), ``ratio``
-  = final / initial, and ``increase_fraction``, the fraction of pairs of adjacent valid
-  steps in which V rose by more than :data:`V_INCREASE_RELATIVE` times V(0);
-* :func:`longest_true_run_s`: the longest stretch of consecutive flagged steps, in seconds.
+Functions take step times ``t`` (s, shape (K,)) and a per-step signal (K,), and leave out
+NaN samples: a lost target has no measured error, and averaging a guess in would hide the
+loss. Results are ``float``, or ``None`` without a valid sample (JSON-ready). The statistics
+are evo's (``std`` with ddof = 0); docs/report.md defines each.
 """
 
 from __future__ import annotations
@@ -47,15 +32,7 @@ def _optional(value: float | np.floating | None) -> float | None:
 
 
 def valid_samples(t: ArrayLike, x: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The times (s) and values of the finite samples of ``x``.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s).
-    x : array_like, shape (K,)
-        Signal, NaN where it is unknown (target lost).
-    """
+    """The times (s) and values of the finite samples of ``x``."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
     keep = np.isfinite(x)
@@ -90,24 +67,8 @@ def initial_value(x: ArrayLike) -> float | None:
 
 
 def final_value(t: ArrayLike, x: ArrayLike, fraction: float = FINAL_WINDOW_FRACTION) -> float | None:
-    """Mean of ``|x|`` over the valid samples in the last ``fraction`` of the run's duration.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s); the window is ``t >= t[-1] - fraction (t[-1] - t[0])``, so it is
-        measured on the whole run, lost steps included.
-    x : array_like, shape (K,)
-        Signal (any unit); NaN samples are left out.
-    fraction : float
-        Share of the duration (0 < fraction <= 1).
-
-    Returns
-    -------
-    float or None
-        Units of ``x``; ``None`` when no valid sample lies in the window (the target was
-        lost at the end).
-    """
+    """Mean of ``|x|`` over the valid samples with ``t >= t[-1] - fraction (t[-1] - t[0])``
+    (the whole run's duration, lost steps included); ``None`` if the target was lost there."""
     t = np.asarray(t, dtype=float)
     if t.size == 0:
         return None
@@ -120,18 +81,8 @@ def final_value(t: ArrayLike, x: ArrayLike, fraction: float = FINAL_WINDOW_FRACT
 def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
     """Time (s, from the run's first step) after which ``|x| <= tolerance`` until the end.
 
-    It is the time of the first valid sample that follows the last valid sample outside
-    the band (or of the first valid sample, if none is outside). ``None`` when the last
-    valid sample is outside the band, or there is no valid sample: it never settled.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s).
-    x : array_like, shape (K,)
-        Signal; NaN samples are left out.
-    tolerance : float
-        Half-width of the band, in the units of ``x``.
+    The time of the first valid sample after the last one outside the band; ``None`` when
+    the last valid sample is outside it (it never settled).
     """
     t = np.asarray(t, dtype=float)
     tv, xv = valid_samples(t, x)
@@ -147,17 +98,7 @@ def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
 
 
 def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:
-    """Every statistic of :data:`STATISTICS` for one error signal.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s).
-    x : array_like, shape (K,)
-        Error signal (any unit; NaN where unknown).
-    tolerance : float
-        Settling band, units of ``x``.
-    """
+    """Every statistic of :data:`STATISTICS` for one error signal (settling band ``tolerance``)."""
     summary = signal_statistics(x)
     summary["initial"] = initial_value(x)
     summary["final"] = final_value(t, x)
@@ -168,20 +109,9 @@ def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, flo
 def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dict[str, float | None]:
     """How the Lyapunov function (36) evolved.
 
-    Parameters
-    ----------
-    V : array_like, shape (K,)
-        V per step (units of (36)); NaN where unknown (lost target, or no ground-truth d*).
-    relative : float
-        An increase counts only when larger than ``relative * V(0)``.
-
-    Returns
-    -------
-    dict
-        ``initial`` (first valid V), ``final`` (last valid V), ``ratio`` (final / initial,
-        ``None`` when V(0) is 0) and ``increase_fraction`` (0..1, over pairs of adjacent
-        steps that both have V; ``None`` without such a pair). All ``None`` when V is
-        never known.
+    ``initial`` and ``final`` valid V, ``ratio`` = final / initial and ``increase_fraction``:
+    the share of adjacent valid pairs where V rose by more than ``relative * V(0)``. V is NaN
+    where unknown (lost target, or no ground-truth d*).
     """
     V = np.asarray(V, dtype=float)
     finite = V[np.isfinite(V)]
@@ -200,13 +130,7 @@ def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dic
 
 
 def step_durations(t: ArrayLike) -> NDArray[np.float64]:
-    """How long each step lasts (s): to the next step, the last one as long as the median step.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Increasing step times (s).
-    """
+    """How long each step lasts (s): to the next step, the last one as long as the median step."""
     t = np.asarray(t, dtype=float)
     if t.size < 2:
         return np.zeros(t.size)
@@ -217,12 +141,6 @@ def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
     """Duration (s) of the longest stretch of consecutive ``True`` steps (0 if none).
 
     Each step counts for :func:`step_durations`, so n flagged steps at rate f last n / f.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s).
-    flags : array_like of bool, shape (K,)
     """
     flags = np.asarray(flags, dtype=bool)
     durations = step_durations(t)
@@ -267,15 +185,7 @@ def sample_rate_hz(t: ArrayLike) -> float | None:
 def round_significant(value: Any, digits: int) -> Any:
     """``value`` with every float rounded to ``digits`` significant digits.
 
-    Dicts, lists and tuples are walked (and rebuilt: the input is not changed); bools,
-    ints, strings, ``None`` and non-finite floats are kept as they are.
-
-    Parameters
-    ----------
-    value : any
-        A JSON-like value.
-    digits : int
-        Significant digits (>= 1).
+    Dicts, lists and tuples are rebuilt; everything but finite floats is kept as it is.
     """
     if isinstance(value, dict):
         return {key: round_significant(item, digits) for key, item in value.items()}
@@ -296,24 +206,10 @@ def command_smoothness(
 ) -> dict[str, float | None]:
     """How smooth a command stream is (docs/report.md, ``commands``).
 
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Step times (s).
-    v, w : array_like, shape (K,)
-        Commands (m/s, rad/s); NaN samples are left out.
-    max_v, max_w, max_accel : float or None
-        The actuator limits (m/s, rad/s, m/s^2 and rad/s^2); None when unlimited.
-
-    Returns
-    -------
-    dict
-        ``v_tv_per_s`` (m/s per s) and ``w_tv_per_s`` (rad/s per s): the total variation
-        ``sum |v[k+1] - v[k]|`` divided by the duration; ``dv_dt_rms_mps2`` (m/s^2) and
-        ``dw_dt_rms_radps2`` (rad/s^2): the RMS of the step-to-step rates of change;
-        ``at_limit_fraction``: the fraction of steps with |v| or |w| at its bound, or a
-        change at the acceleration bound (within 0.1 %). None when there are fewer than
-        two samples.
+    ``v``, ``w`` in m/s, rad/s and the actuator limits (None: unlimited). Returns the total
+    variation per second (``*_tv_per_s``), the RMS rate of change (``dv_dt_rms_mps2``,
+    ``dw_dt_rms_radps2``) and the share of steps at a bound within 0.1 %
+    (``at_limit_fraction``); None with fewer than two samples.
     """
     t = np.asarray(t, dtype=float)
     v = np.asarray(v, dtype=float)

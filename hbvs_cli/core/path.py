@@ -1,13 +1,8 @@
 """Teach-pendant command profiles: what the operator sends while teaching a path.
 
-A :class:`CommandProfile` is a sequence of (v, w) commands, each held from its start time
-until the next one starts (a robot driver holds the last command), ending at ``t_end``.
-Because every segment is an arc, the pose at any time is known exactly
-(:mod:`hbvs_cli.core.unicycle`), which makes the taught run's ground truth exact too.
-
-Built-in presets (:data:`PRESETS`) are defined for the default world (a target on a wall
-4 m ahead of the start pose, see :mod:`hbvs_cli.core.world`); each keeps the target in view
-and keeps x_hd1_dot away from zero, condition (35).
+Each (v, w) command is held until the next one starts: every segment is an arc, so the
+taught run's ground-truth pose is exact (:mod:`.unicycle`). The :data:`PRESETS` keep the
+default world's target in view and x_hd1_dot away from zero, condition (35).
 """
 
 from __future__ import annotations
@@ -19,25 +14,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError, MalformedDataError
-from .control_settings import DEFAULT_PRESET  # noqa: F401 - re-exported
 from .unicycle import advance_unicycle, integrate_commands
 
 
 @dataclass(frozen=True)
 class CommandProfile:
-    """Piecewise-constant velocity commands.
-
-    Attributes
-    ----------
-    t : ndarray, shape (K,)
-        Start time of each command (s), strictly increasing, ``t[0] = 0``.
-    v : ndarray, shape (K,)
-        Linear velocity (m/s).
-    w : ndarray, shape (K,)
-        Angular velocity (rad/s).
-    t_end : float
-        End of the last command (s), > ``t[-1]``.
-    """
+    """Piecewise-constant commands ``v`` (m/s), ``w`` (rad/s), shape (K,), starting at ``t``
+    (s, strictly increasing from 0) until ``t_end`` (s)."""
 
     t: NDArray[np.float64]
     v: NDArray[np.float64]
@@ -82,11 +65,8 @@ class CommandProfile:
         return integrate_commands(start_pose, self.v, self.w, dt)
 
     def poses_at(self, t: ArrayLike, start_pose: ArrayLike, segment_starts: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        """Exact poses at times ``t`` (s), shape (..., 3); held after ``t_end``.
-
-        ``segment_starts`` (from :meth:`segment_start_poses` of the same start pose) saves
-        re-integrating the profile when poses are asked for one at a time.
-        """
+        """Exact poses (..., 3) at times ``t`` (s), held after ``t_end``; ``segment_starts``
+        (:meth:`segment_start_poses`) saves re-integrating when asked one at a time."""
         t = np.clip(np.asarray(t, dtype=float), 0.0, self.t_end)
         starts = self.segment_start_poses(start_pose) if segment_starts is None else segment_starts
         index = self.segment_index(t)
@@ -94,17 +74,7 @@ class CommandProfile:
 
 
 def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, ArrayLike]], duration: float, rate: float) -> CommandProfile:
-    """A profile that samples smooth command functions at ``rate`` Hz, as a pendant does.
-
-    Parameters
-    ----------
-    function : callable
-        ``t -> (v(t), w(t))`` for an array of times.
-    duration : float
-        Seconds.
-    rate : float
-        Pendant update rate (Hz).
-    """
+    """``function(t) -> (v, w)`` sampled at ``rate`` Hz for ``duration`` s, as a pendant does."""
     if duration <= 0 or rate <= 0:
         raise InvalidValueError("the duration and the rate of a command profile must be positive")
     steps = max(1, int(round(duration * rate)))
@@ -171,22 +141,8 @@ PRESETS: dict[str, PathPreset] = {
 
 
 def preset_profile(name: str, rate: float, duration: float | None = None) -> tuple[CommandProfile, tuple[float, float, float]]:
-    """The command profile and start pose of a built-in path.
-
-    Parameters
-    ----------
-    name : str
-        One of :data:`PRESETS`.
-    rate : float
-        Pendant (and camera) rate (Hz).
-    duration : float, optional
-        Seconds; defaults to the preset's length.
-
-    Raises
-    ------
-    InvalidValueError
-        For an unknown preset name.
-    """
+    """The command profile (``rate`` Hz, ``duration`` s or the preset's) and start pose of a
+    built-in path; InvalidValueError for an unknown name."""
     try:
         preset = PRESETS[name]
     except KeyError:

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from ..errors import InvalidValueError
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
-from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
+from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, scheduled_depth_pull
 
 
 @dataclass(frozen=True)
@@ -165,6 +165,8 @@ class ServoStep:
         self.target_lost = False
         # Commands sent since the frame being fused was taken (latency_steps of them).
         self.unseen_commands: deque[tuple[float, float]] = deque()
+        #: Whether dhat has met the filter's depth (scheduled_depth_pull).
+        self.depth_met = False
         if state_filter is not None:
             # The filter starts its depth from dhat(0), and the motion measures it from there.
             state_filter.expect_depth(controller.dhat)
@@ -219,8 +221,14 @@ class ServoStep:
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
             # With the filter's depth: the composite law of docs/method.md ("The depth in
-            # the filter"), (31) plus a pull towards the depth the motion measured.
-            controller.adapt(output, dt, (estimate.depth, estimate.depth_pull))
+            # the filter"), (31) plus a pull towards the depth the motion measured, eased
+            # while the robot turns onto its path once dhat has met it (scheduled_depth_pull).
+            errors, settings = output.errors, state_filter.settings
+            self.depth_met = self.depth_met or abs(estimate.depth - controller.dhat) <= settings.depth_met * estimate.depth
+            # Kanayama's gains have no k_2; its adapt learns nothing and ignores the pull.
+            pull = scheduled_depth_pull(estimate.depth_pull, float(errors.ebar2), float(errors.e3),
+                                        getattr(controller.gains, "k_2", 1.0), settings, self.depth_met)
+            controller.adapt(output, dt, (estimate.depth, pull))
         self.previous = (v_c, w_c)
         return StepRecord(
             t=t, pose=pose, observation=observation, desired=desired, output=output,

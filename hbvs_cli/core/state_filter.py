@@ -89,6 +89,12 @@ class FilterSettings:
     depth_pull_rate : float
         Rate (1/s) at which the update law moves dhat towards the filter's depth once that
         is well measured (docs/method.md, "The depth in the filter").
+    lateral_settled : float
+        Lateral error ``sqrt(k_2 ebar2^2 + e3^2)`` (rad) at which the pull is halved once
+        dhat has met the filter's depth (:func:`scheduled_depth_pull`).
+    depth_met : float
+        Relative gap ``|d_f - dhat| / d_f`` within which dhat counts as having met the
+        filter's depth (dimensionless): until then the pull learns at its full rate.
     gate : float
         Squared Mahalanobis distance beyond which a measurement is rejected.
     reset_after : int
@@ -123,6 +129,8 @@ class FilterSettings:
     depth_prior: float = 1.0
     depth_trust: float = 0.05
     depth_pull_rate: float = 1.0
+    lateral_settled: float = math.radians(0.3)
+    depth_met: float = 0.05
     gate: float = CHI2_3DOF_999
     reset_after: int = 5
     noise_time_constant: float = 0.5
@@ -135,8 +143,8 @@ class FilterSettings:
     settle_noise: float = 4e-4
 
     def __post_init__(self) -> None:
-        for name in ("speed_noise", "turn_noise", "depth_prior", "depth_trust", "depth_pull_rate", "noise_time_constant",
-                     "min_noise", "gate"):
+        for name in ("speed_noise", "turn_noise", "depth_prior", "depth_trust", "depth_pull_rate",
+                     "lateral_settled", "depth_met", "noise_time_constant", "min_noise", "gate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise InvalidValueError(f"filter setting {name} must be a non-negative number, got {value}")
@@ -180,6 +188,44 @@ class FilterEstimate:
     depth: float = math.nan
     depth_std: float = math.nan
     depth_pull: float = 0.0
+
+
+def scheduled_depth_pull(pull: float, ebar2: float, e3: float, k_2: float, settings: FilterSettings,
+                         met: bool = True) -> float:
+    """The rate kappa (1/s) of the composite update law's pull towards the filter's depth.
+
+    The update law is ``dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot) + kappa (d_f - dhat)``
+    ((31) plus a pull; :meth:`~hbvs_cli.core.controller.AdaptiveTrackingController.adapt`).
+    Until dhat has ``met`` the filter's depth d_f, ``kappa = pull``: the pull learns the
+    depth from a dhat(0) 2-4x off. After, ``kappa = pull / (1 + (l / l_0)^2)`` with
+    ``l = sqrt(k_2 ebar2^2 + e3^2)`` (the lateral part of V (36)) and ``l_0`` =
+    ``lateral_settled``: while the law turns the robot onto its path (a start off it, the
+    filter's slow corrections of its heading), (31) moves dhat away from d* and back, and
+    a pull that holds dhat stiff there slows the lateral mode, whose error then lasts to
+    the end of a short run; (31) adapts alone then, as in the paper, and the pull holds
+    dhat at d_f once the robot is on its path.
+
+    Any ``kappa >= 0`` keeps the Lyapunov argument: along (32) the pull adds
+    ``-(kappa / gamma_1) d~ (d_f - dhat)`` to V_dot (38), which is ``-(kappa / gamma_1) d~^2
+    <= 0`` when d_f = d* (docs/method.md, "The depth in the filter").
+
+    Parameters
+    ----------
+    pull : float
+        The filter's confidence-scheduled rate (1/s), :attr:`FilterEstimate.depth_pull`.
+    ebar2, e3 : float
+        The law's errors (27) (dimensionless, rad).
+    k_2 : float
+        The lateral gain.
+    settings : FilterSettings
+    met : bool
+        Whether dhat has come within ``depth_met`` of d_f in this run
+        (:class:`~hbvs_cli.core.simulator.ServoStep` keeps it).
+    """
+    lateral0 = settings.lateral_settled
+    if pull <= 0.0 or not met or lateral0 <= 0.0:
+        return max(pull, 0.0)
+    return pull / (1.0 + (k_2 * ebar2 * ebar2 + e3 * e3) / (lateral0 * lateral0))
 
 
 def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:

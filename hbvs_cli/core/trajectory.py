@@ -1,27 +1,12 @@
 """The desired trajectory: smooth theta_d(t), x_hd(t) and their derivatives (Remark 1).
 
-Remark 1 of the paper asks for "sufficiently smooth functions" fitted to the signals
-decomposed from the taught images, so that the feed-forward terms x_hd1_dot and
-theta_d_dot of (29)-(31) are bounded and come without numerical differencing of noisy
-samples. :func:`fit_spline_trajectory` fits a cubic smoothing spline (twice continuously
-differentiable) to theta_d (unwrapped) and to x_hd1, with the smoothing chosen by
-generalised cross-validation (the criterion of scipy's ``make_smoothing_spline``,
-evaluated in :mod:`.gcv`) or given.
-
-x_hd2 is not fitted on its own: the taught camera moved as a unicycle, so by (25)
-``x_hd2_dot = -x_hd1 w_cd = x_hd1 theta_d_dot``, and x_hd2 is that product integrated
-exactly (a piecewise polynomial), plus one constant fitted to the samples. Independent
-splines would break this relation by a few per cent, and the proof of (38) needs it:
-the mismatch enters ebar2's derivative and, amplified by k_2, makes V rise.
-
-Two trajectories implement the same interface (``t_start``, ``t_end``, ``evaluate``):
-
-* :class:`SplineTrajectory`, what ``hbvs fit`` produces and ``hbvs repeat`` tracks;
-* :class:`TaughtPathTrajectory`, the exact desired signals of a simulated taught run, the
-  ground truth that tests and ``report`` compare against.
-
-Outside ``[t_start, t_end]`` both hold their end values with zero derivatives: after the
-taught path ends, the robot is asked to stay at its last pose.
+Cubic smoothing splines of theta_d (unwrapped) and x_hd1, smoothing by generalised
+cross-validation (:mod:`.gcv`) or given, so that the feed-forward terms of (29)-(31) are
+bounded without differencing noisy samples. x_hd2 is not fitted on its own: it is
+``x_hd2_dot = x_hd1 theta_d_dot`` (25) integrated exactly, plus one fitted constant, because
+(38) needs that relation (a few per cent off, amplified by k_2, makes V rise).
+:class:`TaughtPathTrajectory` gives the exact signals of a simulated taught run (ground
+truth). Outside ``[t_start, t_end]`` trajectories hold their end values, derivatives zero.
 """
 
 from __future__ import annotations
@@ -60,14 +45,8 @@ MAX_SPLINE_COEFFICIENT = 1e6
 class SplineChannel:
     """One cubic B-spline channel and the smoothing it was fitted with.
 
-    Attributes
-    ----------
-    knots : ndarray, shape (K,)
-    coefficients : ndarray, shape (K - 4,)
-    smoothing : float
-        The penalty weight lambda of the fit (units: s^3, for time in seconds).
-    residual_rms : float
-        RMS difference between the spline and the samples it was fitted to.
+    ``knots`` (K,), ``coefficients`` (K - 4,), ``smoothing``: penalty weight lambda (s^3),
+    ``residual_rms``: RMS of spline minus samples.
     """
 
     knots: NDArray[np.float64]
@@ -85,16 +64,9 @@ class SplineChannel:
 class SplineTrajectory:
     """Desired signals as smooth functions of time (Remark 1), consistent with (25).
 
-    Parameters
-    ----------
-    channels : dict
-        :class:`SplineChannel` for ``theta_d`` and ``x_hd1``.
-    x_hd2_offset : float
-        x_hd2 at ``t_start``; x_hd2 then follows ``x_hd2_dot = x_hd1 theta_d_dot`` (25).
-    t_start, t_end : float
-        Time span covered (s).
-    x_hd2_residual_rms : float
-        RMS difference between the derived x_hd2 and its decomposed samples.
+    ``channels``: :class:`SplineChannel` of ``theta_d`` and ``x_hd1``; ``x_hd2_offset``:
+    x_hd2 at ``t_start`` (s), from where (25) carries it; ``x_hd2_residual_rms``: RMS of the
+    derived x_hd2 minus its samples.
     """
 
     def __init__(
@@ -203,11 +175,7 @@ class SplineTrajectory:
 
 
 def _product_antiderivative(spline: Any, other: Any) -> Any:
-    """Exact antiderivative of ``spline * other'`` for two splines on the same knots (a PPoly).
-
-    Used for x_hd2 = integral of x_hd1 theta_d_dot: a cubic times a quadratic is a quintic
-    on each knot interval, whose antiderivative scipy's PPoly computes exactly.
-    """
+    """Exact antiderivative (PPoly) of ``spline * other'`` on shared knots: x_hd2 of (25)."""
     from scipy.interpolate import PPoly
 
     first = PPoly.from_spline(spline)
@@ -224,9 +192,7 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
 class TimeScaledTrajectory:
     """A trajectory played from ``start`` at ``speed`` times its taught pace.
 
-    ``evaluate(tau) = base.evaluate(start + speed * tau)`` with every derivative multiplied
-    by ``speed`` (chain rule), so the feed-forward terms stay consistent. Run time ``tau``
-    goes from 0 to ``(base.t_end - start) / speed``.
+    ``evaluate(tau) = base.evaluate(start + speed * tau)``, derivatives times ``speed``.
     """
 
     def __init__(self, base: DesiredTrajectory, speed: float = 1.0, start: float | None = None) -> None:
@@ -257,20 +223,8 @@ class TimeScaledTrajectory:
 class TaughtPathTrajectory:
     """The exact desired signals of a simulated taught run (the ground truth).
 
-    With the taught poses known exactly from the command profile,
-    ``theta_d = phi* - phi_d`` and ``x_hd = Rz(phi_d)^T (p* - p_d) / d*`` (3), (14); the
-    derivatives follow from (25): ``theta_d_dot = -w_cd``,
-    ``x_hd1_dot = -v_cd / d* + x_hd2 w_cd``, ``x_hd2_dot = -x_hd1 w_cd``.
-
-    Parameters
-    ----------
-    profile : CommandProfile
-    start_pose : array_like, shape (3,)
-        Pose at t = 0 (m, m, rad).
-    reference_pose : array_like, shape (3,)
-        Pose of F*.
-    d_star : float
-        Distance from F* to the target plane (m).
+    ``theta_d = phi* - phi_d``, ``x_hd = Rz(phi_d)^T (p* - p_d) / d*`` (3), (14) from the
+    profile's poses (start at t = 0, F* at ``reference_pose``, d* in m); derivatives by (25).
     """
 
     def __init__(self, profile: CommandProfile, start_pose: ArrayLike, reference_pose: ArrayLike, d_star: float) -> None:
@@ -311,12 +265,7 @@ def _scalar(value: ArrayLike) -> Any:
 
 
 def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
-    """A cubic smoothing spline and its penalty weight lambda.
-
-    With ``smoothing=None`` lambda is the one scipy's generalised cross-validation picks,
-    found by :func:`~.gcv.gcv_smoothing` (the same criterion and search, in Reinsch's banded
-    form instead of scipy's per-sample loops); the spline is scipy's, with that lambda.
-    """
+    """scipy's cubic smoothing spline and its lambda (None: scipy's GCV choice, by :mod:`.gcv`)."""
     from scipy.interpolate import make_smoothing_spline
 
     from .gcv import gcv_smoothing
@@ -341,20 +290,11 @@ def fit_spline_trajectory(
     Parameters
     ----------
     t : array_like, shape (K,)
-        Sample times (s), strictly increasing; gaps (lost frames) are allowed and bridged
-        by the spline.
-    theta_d : array_like, shape (K,)
-        Desired rotation (rad); unwrapped here.
-    x_hd1, x_hd2 : array_like, shape (K,)
-        Desired scaled translation (dimensionless); x_hd2 only sets the constant of its
-        integral (25).
+        Sample times (s), strictly increasing; gaps are bridged.
+    theta_d, x_hd1, x_hd2 : array_like, shape (K,)
+        rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
     smoothing : float, optional
-        The penalty weight lambda of the theta_d and x_hd1 splines; ``None`` chooses it per
-        channel by generalised cross-validation.
-
-    Returns
-    -------
-    SplineTrajectory
+        lambda of both splines (s^3); None: per channel by generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
     samples = {
@@ -394,18 +334,8 @@ def fit_spline_trajectory(
 class FeedforwardCondition:
     """How well a taught path satisfies condition (35): x_hd1_dot away from zero.
 
-    Attributes
-    ----------
-    min_abs_xhd1_dot : float
-        Minimum of |x_hd1_dot| along the path (1/s).
-    percentiles : dict
-        The 5th, 25th, 50th, 75th and 95th percentiles of |x_hd1_dot| (1/s).
-    stopped_fraction : float
-        Fraction of the path where |x_hd1_dot| < ``threshold``.
-    longest_stop_s : float
-        Longest stretch with |x_hd1_dot| < ``threshold`` (s).
-    threshold : float
-        The level below which the path counts as stopped (1/s).
+    Minimum and percentiles (p5 ... p95) of |x_hd1_dot| (1/s), and the fraction of the path
+    and longest stretch (s) where it is below ``threshold`` (1/s): stopped.
     """
 
     min_abs_xhd1_dot: float

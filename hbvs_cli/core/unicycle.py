@@ -1,9 +1,7 @@
 """Unicycle kinematics of the wheeled mobile robot, integrated exactly.
 
-The robot moves with linear velocity v_c along its x axis and turns at w_c about z
-(Sec. II, (21)). For commands held constant over a step of length dt (what a robot driver
-does between two control updates), the motion is a circular arc, integrated here in
-closed form::
+Velocity v_c along x, turn rate w_c about z (Sec. II, (21)); commands held over dt (as a
+driver holds them between updates) move the robot on a circular arc::
 
     phi'  = phi + w dt
     x'    = x + v dt cos(phi + w dt / 2) sinc(w dt / 2)
@@ -23,20 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 def advance_unicycle(pose: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
     """Poses after holding ``(v, w)`` for ``dt`` seconds, exactly; broadcasts over batches.
 
-    Parameters
-    ----------
-    pose : array_like, shape (..., 3)
-        ``(x, y, phi)`` in the world (m, m, rad).
-    v : array_like, shape (...)
-        Linear velocity (m/s).
-    w : array_like, shape (...)
-        Angular velocity (rad/s).
-    dt : array_like, shape (...)
-        Duration (s), >= 0.
-
-    Returns
-    -------
-    pose : ndarray, shape (..., 3)
+    ``pose`` (..., 3) is ``(x, y, phi)``; ``v`` (m/s), ``w`` (rad/s), ``dt`` (s, >= 0) broadcast.
     """
     pose = np.asarray(pose, dtype=float)
     turn = np.asarray(w, dtype=float) * dt
@@ -50,19 +35,7 @@ def advance_unicycle(pose: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike)
 
 
 def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> tuple[float, float, float]:
-    """Pose after holding ``(v, w)`` for ``dt`` seconds: :func:`advance_unicycle` for one
-    pose, in plain floats (the closed loop calls it every control period).
-
-    Parameters
-    ----------
-    pose : sequence of 3 floats
-    v, w, dt : float
-        m/s, rad/s, s.
-
-    Returns
-    -------
-    (x, y, phi)
-    """
+    """:func:`advance_unicycle` for one pose in plain floats (the closed loop calls it every period)."""
     x, y, phi = pose
     half = 0.5 * w * dt
     chord = v * dt * (math.sin(half) / half if abs(half) > 1e-12 else 1.0 - half * half / 6.0)
@@ -73,21 +46,8 @@ def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> tuple[
 def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
     """Poses after each of a sequence of held commands, exactly and vectorised.
 
-    The heading at the start of every step is a cumulative sum, and each step's
-    displacement depends only on that heading, so no loop is needed.
-
-    Parameters
-    ----------
-    pose0 : array_like, shape (3,)
-    v, w : array_like, shape (K,)
-        Commands held over each step (m/s, rad/s).
-    dt : float or array_like, shape (K,)
-        Step durations (s).
-
-    Returns
-    -------
-    poses : ndarray, shape (K + 1, 3)
-        ``poses[0] = pose0``; ``poses[k + 1]`` is the pose after step k.
+    Each step's displacement depends only on its starting heading, a cumulative sum: no loop.
+    ``v``, ``w``, ``dt`` have shape (K,) (or scalar dt); returns (K + 1, 3) from ``pose0``.
     """
     pose0 = np.asarray(pose0, dtype=float)
     v = np.asarray(v, dtype=float)

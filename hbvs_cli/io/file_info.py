@@ -37,28 +37,11 @@ class TopicInfo:
 
 @dataclass
 class FileInfo:
-    """What :func:`read_file_info` found.
-
-    Attributes
-    ----------
-    name : str
-        The file's name (``stdin`` for ``-``).
-    kind : str or None
-        ``teach``, ``fit`` or ``run``; None for an MCAP file hbvs did not write.
-    version : str or None
-        The hbvs version that wrote it.
-    metadata : dict
-        The ``hbvs`` metadata record, values decoded from JSON.
-    metadata_names : list of str
-        Every metadata record's name.
-    topics : list of TopicInfo
-        In the order their first message appears.
-    complete : bool
-        The file ends with its footer (False: cut off, read up to the last complete record).
-    stop_reason : str
-        Why reading stopped early, when not complete.
-    target : str or None
-        The target kind (dots, aruco, texture) when the file says it.
+    """What :func:`read_file_info` found: ``name`` (``stdin`` for ``-``), ``kind`` (``teach``,
+    ``fit``, ``run``, or None for a file hbvs did not write), ``version``, the ``hbvs``
+    ``metadata`` decoded, every ``metadata_names``, the ``topics`` (:class:`TopicInfo`, in order
+    of first message), ``complete`` (the footer was reached) or ``stop_reason``, and ``target``
+    (the target kind, when the file says it).
     """
 
     name: str

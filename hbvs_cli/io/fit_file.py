@@ -1,19 +1,10 @@
 """The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads.
 
-Topics:
-
-========================  ==============================  ====================================
-``/fit/model``            ``hbvs.FitModel``               the model (one message, at the end)
-``/desired/raw``          ``hbvs.DesiredSignal``          theta_d, x_hd per used frame
-``/desired/smooth``       ``hbvs.DesiredSignal``          the splines and their derivatives
-``/camera/image``         ``foxglove.CompressedImage``    the taught images (unless --no-images)
-``/camera/annotations``   ``foxglove.ImageAnnotations``   detected points on the taught images
-``/camera/calibration``   ``foxglove.CameraCalibration``  the camera
-``/reference/image``      ``foxglove.CompressedImage``    the reference frame F*
-``/detector/template``    ``foxglove.CompressedImage``    the image texture features come from
-========================  ==============================  ====================================
-
-Metadata record ``hbvs``: ``file_kind = fit``, version, settings.
+Topics (:data:`~.topics.TOPICS` ``["fit"]``, docs/files.md): the model (``hbvs.FitModel``,
+one message at the end), the desired signals raw and smoothed (``hbvs.DesiredSignal``), the
+reference image F* and the texture template, the calibration, the detections drawn on the
+taught images (and the images with ``--with-images``). Metadata ``hbvs``: ``file_kind =
+fit``, version, settings.
 """
 
 from __future__ import annotations
@@ -31,14 +22,14 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.control_settings import GAIN_NAMES, ControllerGains
 from ..core.desired import DesiredFit
-from ..core.fit_model import FitModel, TaughtPath
+from ..core.fit_model import MAX_TARGET_POINTS, FitModel, TaughtPath
 from ..core.trajectory import SplineTrajectory
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
 from .mcap import McapStream, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
-from .teach_file import MAX_TARGET_POINTS, PARSE_ERRORS, render_settings_problem, world_from_description
+from .teach_file import PARSE_ERRORS, render_settings_problem, world_description
 
 FILE_KIND = "fit"
 FORMAT_VERSION = 1
@@ -93,9 +84,12 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
         if detector.get(key) is not None and not isinstance(detector.get(key), str):
             raise ValueError(f"detector {key} must be text")
     board = detector.get("board")
+    # A chessboard's board is its inner corners per row and rows; a ChArUco board's, its squares.
+    inner = 1 if kind == "charuco" else 0
     if board is not None and (not isinstance(board, list) or len(board) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and 3 <= n <= 100 for n in board)
-                              or board[0] * board[1] != points):
-        raise ValueError(f"detector board must be [corners per row, rows] of the {points} points, got {board!r}")
+                              or (board[0] - inner) * (board[1] - inner) != points):
+        what = "squares across and down" if inner else "corners per row, rows"
+        raise ValueError(f"detector board must be [{what}] of the {points} points, got {board!r}")
     for key in ("template_pixels", "initial_pixels"):
         value = detector.get(key)
         if value is None:
@@ -175,7 +169,7 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "condition35": model.condition35,
         "residual_px": model.residual_px,
         "detector": model.detector,
-        "world": model.world.to_dict() if model.world is not None else None,
+        "world": model.world_description,
         "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
         "render": model.render,
         "gains": model.gains,
@@ -188,8 +182,9 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
 
     Everything ``repeat`` later uses is checked here, so that a damaged or hostile
     model fails with one clear message rather than deep inside the simulation: the
-    camera as a calibration, the world as :func:`~.teach_file.world_from_description`,
-    finite reference points (at most :data:`~.teach_file.MAX_TARGET_POINTS`), a
+    camera as a calibration, the world's camera (:func:`~.teach_file.world_description`;
+    the simulator checks the rest of the world when it builds it),
+    finite reference points (at most :data:`~hbvs_cli.core.fit_model.MAX_TARGET_POINTS`), a
     non-zero normal, a positive dhat0 and frame interval, the detector and render
     settings.
     """
@@ -210,9 +205,9 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
             raise ValueError("normal must be 3 finite numbers, not all zero")
         dhat0 = _positive_number(message["dhat0"], "dhat0")
         kind = str(message["target_kind"])
-        if kind not in ("dots", "aruco", "chessboard", "texture"):
+        if kind not in ("dots", "aruco", "chessboard", "charuco", "texture"):
             raise ValueError(f"unknown target kind {kind!r}")
-        world = world_from_description(message["world"], source) if message.get("world") else None
+        world = world_description(message["world"], source) if message.get("world") else None
         taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None
         frames = dict(message.get("frames") or {})
         _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
@@ -242,7 +237,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
             condition35=dict(message.get("condition35") or {}),
             residual_px=dict(message.get("residual_px") or {}),
             detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
-            world=world,
+            world_description=world,
             taught_path=taught,
             render=dict(render) if render is not None else None,
             gains=dict(gains) if gains is not None else None,
@@ -302,7 +297,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         if message.topic == MODEL_TOPIC:
             model_message = message.json(stream.name)
         else:
-            images[message.topic] = read_compressed_image(message.message_encoding, message.data, stream.name).data
+            images[message.topic] = read_compressed_image(message.data, stream.name).data
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):
@@ -319,19 +314,9 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
 
 
 def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
-    """Write a fit's desired signals: ``/desired/raw`` (theta_d, x_hd and the residual of
-    every used frame) and ``/desired/smooth`` (the splines and their derivatives over the
-    used span), each at its frame's log time.
-
-    Parameters
-    ----------
-    writer
-        An open MCAP writer (``write(topic, schema, log_time_ns, message)``).
-    t : ndarray, shape (F,)
-        Frame times (s).
-    log_time : ndarray of int, shape (F,)
-        The frames' log times (ns).
-    fit : DesiredFit
+    """Write a fit's desired signals at their frames' log times (``log_time``, ns, shape (F,)):
+    ``/desired/raw`` (theta_d, x_hd and the residual of every used frame, times ``t`` (F,) in s)
+    and ``/desired/smooth`` (the splines and their derivatives over the used span).
     """
     schemas = TOPICS[FILE_KIND]
     uncertainty = fit.uncertainty

@@ -1,29 +1,18 @@
-"""Image bytes <-> arrays, and the ``foxglove.CompressedImage`` message around them.
+"""Image bytes <-> arrays, and the protobuf ``foxglove.CompressedImage`` around them.
 
-What is stored: frames are 8 bits a channel, in colour when the source has colour (BGR, three
-channels) and one gray channel when it has not (the simulator, a mono camera, a colour
-container whose channels are within :data:`NEUTRAL_SPREAD` levels): the dot detector sees a red dot on a grey wall
-of the same brightness only in colour. A source that is already compressed keeps its bytes
-(JPEG as it is, an 8-bit gray or colour PNG as it is; a 16-bit, palette or alpha PNG, or a
-colour PNG of gray content, becomes an 8-bit PNG of the decoded image, still lossless);
-frames that hbvs compresses itself (the simulator, a video, a live camera, raw bag images)
-become JPEG at a stated quality (:data:`DEFAULT_JPEG_QUALITY`) unless PNG is asked for.
-``teach --gray`` stores every frame as one gray channel.
-
-How it is stored: ``foxglove.CompressedImage`` in Foxglove's protobuf encoding (the
-``foxglove-schemas-protobuf`` classes, schema from ``mcap-protobuf-support``), so the
-image bytes sit in the file as they are, a few dozen bytes of framing around them, and
-Foxglove, ``mcap cat`` and any protobuf reader open them. Images in the JSON encoding
-(bytes in base64) are read too.
+Frames are stored 8 bits a channel: BGR when the source has colour (a red dot on a grey wall
+of the same brightness is visible only in colour), one gray channel otherwise (or with
+``teach --gray``). A compressed source keeps its bytes (a JPEG, an 8-bit gray or colour
+PNG; other PNGs become 8-bit PNGs, still lossless); frames hbvs compresses itself become
+JPEG at :data:`DEFAULT_JPEG_QUALITY` unless PNG is asked for (:func:`bytes_to_store`).
+Decoding refuses headers that declare more pixels than the data can hold, before OpenCV
+allocates them (:func:`decode_image`).
 """
 
 from __future__ import annotations
 
-import base64
-import binascii
 import zlib
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -41,8 +30,6 @@ STORE_FORMATS = ("auto", *IMAGE_FORMATS)
 DEFAULT_JPEG_QUALITY = 90
 #: The schema every image topic of hbvs carries.
 IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA
-#: Message encodings read on image topics: what hbvs writes, and base64 JSON (older files).
-IMAGE_ENCODINGS = ("protobuf", "json")
 #: Largest difference between a pixel's channels (levels) in a frame taken as gray: OpenCV's
 #: own MJPG writer turns a gray frame into channels 2 levels apart (its colour conversion's
 #: rounding); a colour camera's noise alone spreads them wider.
@@ -300,88 +287,28 @@ class StoredImage:
     stamp_ns: int
 
 
-@lru_cache(maxsize=1)
-def _image_schema() -> bytes:
+def compressed_image_message(stamp_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> Any:
+    """A ``foxglove.CompressedImage`` (protobuf: the bytes as they are) stamped ``stamp_ns``."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-    from mcap_protobuf.schema import build_file_descriptor_set
 
-    return build_file_descriptor_set(CompressedImage).SerializeToString()
+    from .messages import stamp
+
+    return CompressedImage(timestamp=stamp(stamp_ns), frame_id=frame_id, data=bytes(data), format=image_format)
 
 
 def write_compressed_image(writer: Any, topic: str, log_time_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> None:
-    """Write one ``foxglove.CompressedImage`` (protobuf: the bytes as they are) at ``log_time_ns``.
-
-    ``writer`` is an :class:`~hbvs_cli.io.mcap.McapWriter`; the message's timestamp is
-    the log time.
-    """
-    declare_image_channel(writer, topic)
-    writer.write_encoded(topic, IMAGE_SCHEMA, log_time_ns, encode_compressed_image(log_time_ns, data, image_format, frame_id))
+    """Write one ``foxglove.CompressedImage`` on an :class:`~hbvs_cli.io.mcap.McapWriter`, stamped with its log time."""
+    writer.write(topic, IMAGE_SCHEMA, log_time_ns, compressed_image_message(log_time_ns, data, image_format, frame_id))
 
 
-def declare_image_channel(writer: Any, topic: str) -> None:
-    """Declare ``topic`` on ``writer`` as protobuf ``foxglove.CompressedImage`` (once)."""
-    writer.declare_channel(topic, IMAGE_SCHEMA, "protobuf", _image_schema(), "protobuf")
-
-
-def encode_compressed_image(stamp_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> bytes:
-    """The protobuf bytes of a ``foxglove.CompressedImage``."""
+def read_compressed_image(data: bytes, source: str = "") -> StoredImage:
+    """A ``foxglove.CompressedImage`` from its protobuf bytes; :class:`RecordingError` if it does not parse."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from google.protobuf.message import DecodeError
 
-    message = CompressedImage(frame_id=frame_id, data=bytes(data), format=image_format)
-    message.timestamp.FromNanoseconds(max(int(stamp_ns), 0))
-    return message.SerializeToString()
-
-
-def read_compressed_image(message_encoding: str, data: bytes, source: str = "") -> StoredImage:
-    """A ``foxglove.CompressedImage`` in the protobuf or the JSON (base64) encoding.
-
-    Raises
-    ------
-    RecordingError
-        Another encoding, or a message that does not parse as one.
-    """
-    if message_encoding == "protobuf":
-        from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-        from google.protobuf.message import DecodeError
-
-        try:
-            message = CompressedImage.FromString(data)
-        except (DecodeError, ValueError, RuntimeError):
-            raise RecordingError(f"{source}: malformed image message (not a protobuf foxglove.CompressedImage)") from None
-        stamp = message.timestamp.seconds * 1_000_000_000 + message.timestamp.nanos
-        return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(int(stamp), 0))
-    if message_encoding == "json":
-        from .mcap import decode_json
-
-        value = decode_json(data, f"{source}: image message")
-        if not isinstance(value, dict):
-            raise RecordingError(f"{source}: malformed image message (not a JSON object)")
-        image, image_format = image_bytes_from_message(value, source)
-        stamp = value.get("timestamp")
-        try:
-            stamp_ns = int(stamp["sec"]) * 1_000_000_000 + int(stamp["nsec"]) if isinstance(stamp, dict) else 0
-        except (KeyError, TypeError, ValueError, OverflowError):
-            stamp_ns = 0
-        return StoredImage(data=image, format=image_format, stamp_ns=max(stamp_ns, 0))
-    raise RecordingError(f"{source}: image messages encoded as {message_encoding[:40]!r}; hbvs reads protobuf and JSON")
-
-
-def compressed_image_message(timestamp: dict[str, int], frame_id: str, data: bytes, image_format: str) -> dict[str, Any]:
-    """A ``foxglove.CompressedImage`` message in the JSON encoding (base64 data), as hbvs
-    wrote before it used protobuf; tests use it to make such files."""
-    return {
-        "timestamp": timestamp,
-        "frame_id": frame_id,
-        "data": base64.b64encode(data).decode("ascii"),
-        "format": image_format,
-    }
-
-
-def image_bytes_from_message(message: dict[str, Any], source: str = "") -> tuple[bytes, str]:
-    """The compressed bytes and format of a ``foxglove.CompressedImage`` message."""
     try:
-        data = base64.b64decode(message["data"], validate=True)
-        image_format = str(message.get("format", ""))
-    except (KeyError, TypeError, ValueError, binascii.Error):
-        raise RecordingError(f"{source}: malformed image message (data must be base64)") from None
-    return data, image_format
+        message = CompressedImage.FromString(data)
+    except (DecodeError, ValueError, RuntimeError):
+        raise RecordingError(f"{source}: malformed image message (not a protobuf foxglove.CompressedImage)") from None
+    stamp = message.timestamp.seconds * 1_000_000_000 + message.timestamp.nanos
+    return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(int(stamp), 0))

@@ -1,28 +1,9 @@
 """Limits on every size that turns into memory or time, and the one option that raises them.
 
-A small file or an option can ask for a lot: a fit file whose trajectory lasts 3e5 s makes
-``repeat --sim`` step millions of times (and allocate per step); a 1 MB MCAP chunk can hold
-4 million empty messages. Each such size is checked against a limit *before* anything is
-allocated, and the error names the limit and how to raise it::
-
-    hbvs --limit steps=5e6 repeat fit.mcap --sim
-
-========================= ============ ======================================================
-name                      default      what it bounds
-========================= ============ ======================================================
-``steps``                 1 000 000    control steps of one ``repeat --sim`` run (duration
-                                       over ``--speed`` times ``--rate``), and frames of a
-                                       simulated ``teach`` (``--duration`` times ``--fps``)
-``messages``              4 194 304    messages read from one MCAP file or stream
-``chunk-messages``        262 144      messages in one MCAP chunk
-``input-bytes``           64 GiB       bytes read from one MCAP file or stream, after
-                                       decompression
-``decompressed-bytes``    1 GiB        bytes one file of a file-compressed ROS 2 bag
-                                       expands to (in TMPDIR), streamed and counted
-``sweep-runs``            1 000 000    runs of one ``hbvs sweep`` (values of a grid axis,
-                                       samples, and their product times the repeats),
-                                       checked before the plan is built
-========================= ============ ======================================================
+A small file or an option can ask for a lot (a trajectory of 3e5 s, a 1 MB MCAP chunk of
+4 million empty messages). Each such size is checked against a limit of :data:`LIMITS`
+*before* anything is allocated, and the error names the limit and how to raise it:
+``hbvs --limit steps=5e6 repeat fit.mcap --sim``.
 """
 
 from __future__ import annotations
@@ -36,22 +17,23 @@ from ..errors import HbvsError, InputError, LimitExceededError, UsageError
 
 @dataclass(frozen=True)
 class Limit:
-    """One limit: its name (as ``--limit NAME=N`` takes it), default and unit."""
+    """One limit: its name (as ``--limit NAME=N`` takes it), default, unit and what it bounds."""
 
     name: str
     default: int
     unit: str
+    bounds: str
 
 
 LIMITS: dict[str, Limit] = {
     limit.name: limit
     for limit in (
-        Limit("steps", 1_000_000, "steps"),
-        Limit("messages", 2**22, "messages"),
-        Limit("chunk-messages", 2**18, "messages"),
-        Limit("input-bytes", 64 * 2**30, "bytes"),
-        Limit("decompressed-bytes", 2**30, "bytes"),
-        Limit("sweep-runs", 1_000_000, "runs"),
+        Limit("steps", 1_000_000, "steps", "control steps of one repeat --sim run, frames of a simulated teach"),
+        Limit("messages", 2**22, "messages", "messages read from one MCAP file or stream"),
+        Limit("chunk-messages", 2**18, "messages", "messages in one MCAP chunk"),
+        Limit("input-bytes", 64 * 2**30, "bytes", "bytes read from one MCAP file or stream, after decompression"),
+        Limit("decompressed-bytes", 2**30, "bytes", "bytes one file of a file-compressed ROS 2 bag expands to (in TMPDIR)"),
+        Limit("sweep-runs", 1_000_000, "runs", "runs of one hbvs sweep, checked before the plan is built"),
     )
 }
 

@@ -9,20 +9,10 @@ import numpy as np
 
 @dataclass
 class LiveFrame:
-    """One camera frame as it arrived.
-
-    Attributes
-    ----------
-    image : ndarray, shape (H, W) or (H, W, 3), uint8
-        Gray or BGR.
-    stamp : float
-        The frame's header stamp (s), or its arrival time when the stamp is zero.
-    arrival : float
-        When it arrived, on ``time.monotonic()``'s clock (s): a ROS 2 frame's DDS publication
-        time when the camera is on this host's clock, else when hbvs took it; a camera
-        frame's capture.
-    skipped : int
-        Frames that arrived since the previous one handed out and were dropped for this one.
+    """One camera frame as it arrived: ``image`` (H, W) or (H, W, 3) uint8; ``stamp`` its header
+    stamp (s), or its arrival when the stamp is zero; ``arrival`` on ``time.monotonic()``'s
+    clock (s): a ROS 2 frame's publication when the camera shares this host's clock, else when
+    hbvs took it; ``skipped`` frames dropped since the previous one handed out.
     """
 
     image: np.ndarray

@@ -14,13 +14,11 @@ goes), so that it can be watched.
 
 from __future__ import annotations
 
-import json
 import time
 from contextlib import contextmanager
 from typing import Any, Iterator
 
 from ..errors import UsageError
-from .schemas import SCHEMAS
 
 #: Foxglove's default WebSocket port (what the app proposes).
 DEFAULT_PORT = 8765
@@ -63,31 +61,21 @@ class LiveMirror:
         # metadata, flush, finish, input_ended_early...: the file's business only.
         return getattr(self._writer, name)
 
-    def _channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> Any:
-        channel = self._channels.get(topic)
-        if channel is None:
-            foxglove = _sdk()
-            schema = foxglove.Schema(name=schema_name, encoding=schema_encoding, data=schema_data)
-            channel = foxglove.Channel(topic, schema=schema, message_encoding=message_encoding, context=self._context)
-            self._channels[topic] = channel
-        return channel
-
-    def declare_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> None:
-        self._writer.declare_channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
-        self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
-
-    def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
-        from .mcap import encode_json
-
-        self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
+    def write(self, topic: str, schema_name: str, log_time_ns: int, message: Any) -> None:
+        self._log(topic, log_time_ns, self._writer.write(topic, schema_name, log_time_ns, message))
 
     def write_encoded(self, topic: str, schema_name: str, log_time_ns: int, data: bytes) -> None:
         self._writer.write_encoded(topic, schema_name, log_time_ns, data)
+        self._log(topic, log_time_ns, data)
+
+    def _log(self, topic: str, log_time_ns: int, data: bytes) -> None:
         channel = self._channels.get(topic)
         if channel is None:
-            # A JSON channel: the schema bytes the file holds (McapWriter._channel).
-            schema_data = json.dumps(SCHEMAS[schema_name], separators=(",", ":")).encode()
-            channel = self._channel(topic, schema_name, "jsonschema", schema_data, "json")
+            # The channel as the file declares it (McapWriter.channels).
+            _, name, encoding, schema_data, message_encoding = self._writer.channels[topic]
+            foxglove = _sdk()
+            schema = foxglove.Schema(name=name, encoding=encoding, data=schema_data)
+            channel = self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding=message_encoding, context=self._context)
         self._pace(int(log_time_ns))
         channel.log(bytes(data), log_time=int(log_time_ns))
 

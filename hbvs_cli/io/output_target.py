@@ -1,27 +1,14 @@
-"""Where and how every output of hbvs is written: the one place that decides it.
+"""Where and how every output of hbvs is written (``-o``, ``--cmd-out``, ``--plot``,
+``--export-tum``), so that what a user points hbvs at is never lost.
 
-Every file hbvs writes (``-o``, ``--cmd-out``, ``--plot``, ``--export-tum``) is opened by
-:func:`open_output_stream`, so that what a user points hbvs at is never lost:
-
-* ``-`` is stdout, written as a stream.
-* A regular file, or a path that does not exist yet, is written beside its final name
-  under a partial name unique to the process (``NAME.<pid>-<random>.partial``, created with
-  ``O_EXCL``), flushed, fsynced and renamed over the final name only when complete. Two
-  runs writing the same path never share a partial file: the last one to finish wins,
-  whole, and neither can leave a corrupt file. An error or a signal removes the partial
-  file and leaves an earlier output as it was. The permissions of a file that is replaced
-  are kept.
-* A symbolic link is followed: its target is replaced atomically, the link stays.
-* A device, a FIFO or any other file that is not regular (``/dev/null``, a named pipe
-  someone reads) is written in place, streaming, never replaced by a regular file.
-* Write errors (a full disk, an I/O error, stdout closed) become
-  :class:`~hbvs_cli.errors.OutputError` (exit 6); a reader that closed the pipe becomes
-  :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
-
-:func:`refuse_overwriting_inputs` is called by every stage before it opens anything: an
-output that is the same file as one of its inputs (same device and inode once symbolic
-links are resolved; also stdout redirected into an input), or the final file of an input
-that is a ``.partial`` (a recording being recovered), is refused with exit code 2.
+``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``
+(``O_EXCL``), fsynced and renamed over ``NAME`` only when complete (keeping a replaced
+file's permissions; a symbolic link's target is replaced): an error or a signal removes it
+and leaves an earlier output as it was, and two runs never share one. A device, FIFO or
+socket is written in place. Write errors become :class:`~hbvs_cli.errors.OutputError`
+(exit 6), a closed pipe :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
+:func:`refuse_overwriting_inputs` refuses, before anything is opened, an output that is an
+input or the final name of an input's partial file (exit 2).
 """
 
 from __future__ import annotations
@@ -41,27 +28,17 @@ from ..errors import InputError, OutputError, PipeClosedError, TruncatedInputErr
 
 #: Suffix of every file that is still being written.
 PARTIAL_SUFFIX = ".partial"
-#: ``NAME.partial`` (older hbvs, and the documented crash-recovery name) or
 #: ``NAME.<pid>-<hex>.partial``: what a partial file of ``NAME`` is called.
-_PARTIAL_NAME = re.compile(r"^(?P<final>.+?)(?:\.\d+-[0-9a-f]+)?\.partial$")
+_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
 # ----------------------------------------------------------------------------- targets
 @dataclass(frozen=True)
 class OutputTarget:
-    """An output as hbvs will write it.
-
-    Attributes
-    ----------
-    spec : str
-        As the user gave it.
-    kind : str
-        ``"stdout"``, ``"file"`` (a regular file or a new path: written atomically) or
-        ``"stream"`` (a device, FIFO or socket: written in place).
-    path : Path or None
-        The file finally written: symbolic links resolved. None for stdout.
-    existed : bool
-        A file was there already (for ``"file"``: a regular file that would be replaced).
+    """An output as hbvs will write it: ``spec`` as given; ``kind`` ``"stdout"``, ``"file"`` (a
+    regular file or a new path, written atomically) or ``"stream"`` (a device, FIFO or socket,
+    written in place); ``path`` the file finally written (links resolved; None for stdout);
+    ``existed``: a file was there already.
     """
 
     spec: str
@@ -111,20 +88,17 @@ def partial_name_of(final: Path) -> Path:
 
 
 def final_name_of_partial(path: Path) -> Path | None:
-    """The file a partial file belongs to (``a.mcap.partial`` -> ``a.mcap``), else None."""
+    """The file a partial file belongs to (``a.mcap.<pid>-<hex>.partial`` -> ``a.mcap``), else None."""
     match = _PARTIAL_NAME.match(path.name)
     return path.with_name(match.group("final")) if match else None
-
-
-_OWNED_PARTIAL = re.compile(r"^.+\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs (``NAME.<pid>-<hex>.partial``)
     whose process is gone (killed with SIGKILL, or the machine stopped): nobody will finish
-    it, and removing it loses nothing. A partial of a living process, or any other name
-    (``NAME.partial`` is someone's crash-recovery input), is not stale."""
-    match = _OWNED_PARTIAL.match(path.name)
+    it, and removing it loses nothing. A partial of a living process, or any other name, is
+    not stale."""
+    match = _PARTIAL_NAME.match(path.name)
     if match is None:
         return False
     pid = int(match.group("pid"))
@@ -172,21 +146,10 @@ def directory_lock(folder: Path) -> Iterator[None]:
 
 
 class FolderLock:
-    """One writer at a time for an output folder: an advisory lock (``fcntl.flock``) on a
-    lock file, held until :meth:`release` or the process ends (a SIGKILL releases it too).
-
-    Parameters
-    ----------
-    lock_path : Path
-        The lock file (created if missing, never deleted: deleting it would let a third
-        process lock a new file while the second still holds the old one).
-    what : str
-        The output, for the message.
-
-    Raises
-    ------
-    OutputError
-        Another process holds the lock (exit 6): its pid is named.
+    """One writer at a time for an output folder: an advisory ``flock`` on ``lock_path`` (created
+    if missing and never deleted, so that two processes never lock different files), held until
+    :meth:`release` or the process ends. :class:`OutputError` (exit 6), naming the holder's pid,
+    when another process holds it.
     """
 
     def __init__(self, lock_path: Path, what: str) -> None:
@@ -251,18 +214,10 @@ def refuse_overwriting_inputs(
 ) -> None:
     """Refuse, before anything is opened, an output that would destroy an input or another output.
 
-    Parameters
-    ----------
-    outputs, inputs : sequence of (label, path or None)
-        Labels name the option in messages (``"-o"``, ``"--cmd-out"``, ``"input"``);
-        None entries are skipped; ``-`` is stdin or stdout.
-
-    Raises
-    ------
-    UsageError
-        An output is the same file as an input (device and inode, symbolic links
-        resolved; stdout redirected into an input counts), the final file of an input
-        that is a ``.partial`` file, or the same file as another output (exit 2).
+    ``outputs`` and ``inputs`` are (label, path or None) pairs, ``-`` being stdout or stdin.
+    :class:`UsageError` (exit 2) for an output that is the same file as an input (device and
+    inode, links resolved; stdout redirected into it counts), the final file of an input that is
+    a partial file, or the same file as another output.
     """
     known: dict[tuple[int, int], str] = {}
     recovering: dict[Path, str] = {}
@@ -427,21 +382,9 @@ def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
 
 @contextmanager
 def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
-    """Open an output as described in this module's docstring; commit it when the body succeeds.
-
-    Parameters
-    ----------
-    spec : str or path
-        ``-`` for stdout.
-    what : str
-        What is written, for messages (``"output"``, ``"command stream"``, ``"figure"``).
-    stdout : binary stream, optional
-        Instead of ``sys.stdout.buffer`` (tests).
-
-    Yields
-    ------
-    OutputSink
-        Write to ``sink.stream``.
+    """Open ``spec`` (``-``: stdout, or ``stdout`` when given) as the module describes and yield
+    an :class:`OutputSink` to write ``sink.stream``; the output is committed when the body
+    succeeds. ``what`` names the output in messages (``"output"``, ``"figure"``...).
     """
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)

@@ -23,20 +23,10 @@ REQUIRED_COLUMNS = ("t", "v", "w")
 
 
 def load_command_profile(path: str | Path) -> CommandProfile:
-    """Read a teach-pendant CSV into a :class:`CommandProfile`.
-
-    Raises
-    ------
-    InputError
-        Missing file, bad header, non-numeric cell, fewer than 2 rows, non-monotonic time.
-    """
-    text = read_small_text(path, MAX_CSV_BYTES, "a CSV file with columns t,v,w")
-    return parse_command_csv(text, str(path))
-
-
-def parse_command_csv(text: str, name: str = "commands.csv") -> CommandProfile:
-    """Parse CSV text with a ``t,v,w`` header into a :class:`CommandProfile`."""
-    reader = csv.reader(io.StringIO(text))
+    """Read a teach-pendant CSV into a :class:`CommandProfile`; :class:`InputError` for a
+    missing file, a bad header, a non-numeric cell, fewer than 2 rows or times that do not increase."""
+    name = str(path)
+    reader = csv.reader(io.StringIO(read_small_text(path, MAX_CSV_BYTES, "a CSV file with columns t,v,w")))
     try:
         header = next(reader)
     except StopIteration:
@@ -88,8 +78,3 @@ def _short(text: str) -> str:
     text = repr(text)
     return text if len(text) <= 60 else text[:57] + "..."
 
-
-def save_command_profile(profile: CommandProfile, path: str | Path) -> None:
-    """Write a profile as a ``t,v,w`` CSV (the last row's hold time is implied)."""
-    lines = ["t,v,w"] + [f"{t:.6f},{v:.6f},{w:.6f}" for t, v, w in zip(profile.t, profile.v, profile.w)]
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -1,27 +1,13 @@
 """ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot.
 
-A ROS 2 node (with the Cyclone DDS or Fast DDS RMW) publishes ``/cmd_vel`` as the DDS topic
-``rt/cmd_vel`` of type ``geometry_msgs::msg::dds_::Twist_``, serialised as plain CDR
-(XCDR1, little endian). Eclipse Cyclone DDS's Python binding (``cyclonedds``,
-``pip install 'hbvs[ros2]'``) speaks the same wire protocol, so hbvs declares the few ROS 2
-messages it needs as IDL structs with those names and talks to a robot directly: no ROS
-installation, no rclpy. ``tests/test_live_dds.py`` checks that the bytes decode with
-``rosbags``' ROS 2 typestore field for field, and the other way round.
-
-QoS as ROS 2 sets it: commands reliable, keep last 10, volatile (the default profile);
-images best effort, keep last 5, volatile (the sensor-data profile, what cameras publish).
-The DDS domain is ``ROS_DOMAIN_ID`` (0 when unset), as for ROS 2.
-
-Network: Cyclone reads its configuration from ``CYCLONEDDS_URI`` (an XML string or a file
-URL) when the first participant is created. :func:`loopback_config` is the configuration
-that keeps all traffic on this machine (interface ``lo``, no multicast, the peer
-127.0.0.1); the tests and benchmarks use it, and docs/robot.md shows a robot's.
-
-Image data: the binding (de)serialises a ``sequence[uint8]`` field through a Python list of
-ints (about 40 ms for a 640x480 bgr8 image). The structs declare ``data`` as
-``sequence[uint8]`` (the type DDS discovery announces and matches) and :func:`_octets_as_bytes`
-then gives that field the binding's own ``bytes`` machine, which writes the same CDR (a
-4-byte length, then the bytes) from and to ``bytes`` in one block: about 1 ms.
+ROS 2 topics are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain
+CDR; Cyclone DDS's Python binding (``pip install 'hbvs[ros2]'``) speaks that protocol, so
+the few messages hbvs needs are IDL structs with those names (``tests/test_live_dds.py``
+checks them against ``rosbags``' typestore). QoS as ROS 2: commands reliable, keep last 10;
+images best effort, keep last 5; the domain is ``ROS_DOMAIN_ID``. :func:`loopback_config`
+keeps the traffic on ``lo`` (no multicast, peer 127.0.0.1). Image ``data`` is declared
+``sequence[uint8]`` but (de)serialised as ``bytes`` in one block (:func:`_octets_as_bytes`):
+the binding's list of ints costs 40 ms an image.
 """
 
 # No "from __future__ import annotations": the binding reads the structs' annotations as types.

@@ -1,39 +1,14 @@
 """``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR), written with
-the ``rosbags`` library (a dependency of hbvs: it also reads bags for ``teach --bag``).
+``rosbags``. The topics are listed in docs/ros2.md (and in :mod:`.topics`): ``/cmd_vel``,
+the true and taught poses, ``/taught_path``, ``/tf`` and ``/tf_static``, the images with
+their ``camera_info``, and F*. Every message keeps its hbvs log time as stamp and bag time;
+poses keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives what
+``hbvs report`` gives.
 
-=============================== ================================= =================================================
-bag topic                       type                              from
-=============================== ================================= =================================================
-``/cmd_vel``                    ``geometry_msgs/msg/Twist``       the command sent (run) or taught (teach)
-``/ground_truth/pose``          ``geometry_msgs/msg/PoseStamped`` the true pose (simulation), frame ``world``
-``/desired/pose``               ``geometry_msgs/msg/PoseStamped`` the taught pose at the same time (simulated runs)
-``/taught_path``                ``nav_msgs/msg/Path``             the whole taught path, once, at its last pose's
-                                                                  time (teach: the true poses; run: the taught
-                                                                  poses; fit: integrated from the taught commands)
-``/tf``                         ``tf2_msgs/msg/TFMessage``        ``world -> base_link`` at every true pose
-``/tf_static``                  ``tf2_msgs/msg/TFMessage``        ``base_link -> camera_optical`` (once)
-``/camera/image/compressed``    ``sensor_msgs/msg/CompressedImage`` every image, bytes as stored, frame ``camera_optical``
-``/camera/camera_info``         ``sensor_msgs/msg/CameraInfo``    with every image (same stamp)
-``/reference/image/compressed`` ``sensor_msgs/msg/CompressedImage`` F* (fit files)
-=============================== ================================= =================================================
-
-Every message keeps its original stamp (header and bag time are the hbvs log time, in ns).
-Poses are copied as recorded, with the camera's height as z, so that ``evo_ape bag2`` on
-the two pose topics gives what ``hbvs report`` gives (and ``--export-tum``). ``base_link``
-is on the floor under the camera; ``camera_optical`` is the camera at its height, in the
-optical convention (z forward along the robot's x, x right, y down).
-
-The bag is a folder. It is written beside its name as ``NAME.<pid>-<random>.partial/NAME``
-and moved into place only when complete, so a failed export leaves nothing, and an
-existing bag of that name is replaced whole. Only a bag hbvs wrote is ever replaced: its
-metadata.yaml is a rosbag2 description carrying hbvs's mark (``custom_data``), and the folder
-holds nothing but that file and the bag files it lists; any other folder is kept and the
-export refused. Exports to one bag at once each write their own partial folder and put it
-in place under an advisory lock on the parent folder (``flock``, no file created), checking
-the target again there: the last to finish wins, whole. A partial folder whose process is
-dead (a SIGKILL) is removed by the next export of the same name. An input that
-ended early (no end record) does not replace an existing bag unless ``--allow-truncated``,
-as for ``fit`` (exit 3).
+The bag (a folder) is written as ``NAME.<pid>-<random>.partial/NAME`` and moved into place
+when complete, under an advisory lock on the parent folder; only a bag hbvs wrote (its
+metadata.yaml carries hbvs's mark and lists every file in the folder) is ever replaced, and
+a truncated input does not replace one unless ``--allow-truncated`` (exit 3).
 """
 
 from __future__ import annotations
@@ -211,23 +186,20 @@ class _Messages:
             header=self.header(ns, OPTICAL_FRAME), format=image_format, data=np.frombuffer(data, dtype=np.uint8),
         )
 
-    def camera_info(self, ns: int, calibration: dict[str, Any]) -> Any:
+    def camera_info(self, ns: int, calibration: Any) -> Any:
         roi = self.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         return self.types[ROS_CAMERA_INFO_SCHEMA](
-            header=self.header(ns, OPTICAL_FRAME), height=int(calibration["height"]), width=int(calibration["width"]),
-            distortion_model=str(calibration["distortion_model"]), d=np.array(calibration["D"], dtype=np.float64),
-            k=np.array(calibration["K"], dtype=np.float64), r=np.array(calibration["R"], dtype=np.float64),
-            p=np.array(calibration["P"], dtype=np.float64), binning_x=0, binning_y=0, roi=roi,
+            header=self.header(ns, OPTICAL_FRAME), height=int(calibration.height), width=int(calibration.width),
+            distortion_model=str(calibration.distortion_model), d=np.array(calibration.D, dtype=np.float64),
+            k=np.array(calibration.K, dtype=np.float64), r=np.array(calibration.R, dtype=np.float64),
+            p=np.array(calibration.P, dtype=np.float64), binning_x=0, binning_y=0, roi=roi,
         )
 
 
-def _pose_fields(message: dict[str, Any], source: str) -> tuple[list[float], list[float]]:
+def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
     """Position and orientation of a ``foxglove.PoseInFrame``, as recorded (3D)."""
-    try:
-        position = [float(message["pose"]["position"][k]) for k in ("x", "y", "z")]
-        orientation = [float(message["pose"]["orientation"][k]) for k in ("x", "y", "z", "w")]
-    except (KeyError, TypeError, ValueError):
-        raise RecordingError(f"{source}: malformed pose message") from None
+    position = [float(getattr(message.pose.position, k)) for k in ("x", "y", "z")]
+    orientation = [float(getattr(message.pose.orientation, k)) for k in ("x", "y", "z", "w")]
     if not np.all(np.isfinite(position + orientation)):
         raise RecordingError(f"{source}: a pose message holds NaN or infinity")
     return position, orientation
@@ -251,26 +223,11 @@ class _BagWriter:
 
 
 def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
-    """Write the teach, fit or run file ``source`` as a ROS 2 bag folder ``output``.
-
-    Parameters
-    ----------
-    source : str, path or binary stream
-        An hbvs MCAP file (``-``: stdin).
-    output : str
-        The bag folder to write (see the module's notes on how it is replaced).
-
-    allow_truncated : bool
-        Replace an existing bag even when ``source`` ended before its end record.
-
-    Raises
-    ------
-    UsageError
-        rosbags is missing; ``output`` is ``-`` or a file or folder that is not a bag.
-    RecordingError
-        Not an hbvs file, or malformed messages.
-    TruncatedInputError
-        ``source`` ended early and a bag is there already (exit 3).
+    """Write the teach, fit or run file ``source`` (a path, a stream, ``-``) as the ROS 2 bag
+    folder ``output``. :class:`UsageError` when rosbags is missing or ``output`` is ``-`` or not
+    a bag hbvs wrote; :class:`RecordingError` for a malformed input;
+    :class:`TruncatedInputError` when ``source`` ended early and would replace a bag without
+    ``allow_truncated``.
     """
     from .output_target import directory_lock, remove_stale_partials
 
@@ -288,7 +245,7 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
-    camera_calibration: dict[str, Any] | None = None
+    camera_calibration: Any = None
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
     camera_height: float | None = None
@@ -321,7 +278,7 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
                     v, w = velocity_from_message(message.json(stream.name), stream.name)
                     bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, build.twist(v, w))
                 elif message.topic in (TRUE_POSE_TOPIC, DESIRED_POSE_TOPIC):
-                    position, orientation = _pose_fields(message.json(stream.name), stream.name)
+                    position, orientation = _pose_fields(message.foxglove(stream.name), stream.name)
                     pose = build.pose_stamped(ns, position, orientation)
                     topic = ROS_TRUE_POSE_TOPIC if message.topic == TRUE_POSE_TOPIC else ROS_DESIRED_POSE_TOPIC
                     bag.write(topic, ROS_POSE_STAMPED_SCHEMA, ns, pose)
@@ -335,11 +292,11 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
                         bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
                             ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation)]))
                 elif message.topic == CALIBRATION_TOPIC:
-                    camera_calibration = message.json(stream.name)
+                    camera_calibration = message.foxglove(stream.name)
                 elif message.topic in (IMAGE_TOPIC, REFERENCE_IMAGE_TOPIC):
                     from .images import read_compressed_image
 
-                    image = read_compressed_image(message.message_encoding, message.data, stream.name)
+                    image = read_compressed_image(message.data, stream.name)
                     if message.topic == REFERENCE_IMAGE_TOPIC:
                         bag.write(ROS_REFERENCE_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
                         continue
@@ -386,7 +343,7 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     step = float(np.median(np.diff(taught.t)))
     profile = CommandProfile(t=taught.t, v=taught.v, w=taught.w, t_end=float(taught.t[-1] + step))
     poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
-    height = float(model.world.camera_height) if model.world is not None else 0.0
+    height = float(model.world_description["camera_height_m"]) if model.world_description is not None else 0.0
     quaternions = yaw_to_quaternion(poses[:, 2])
     return [
         build.pose_stamped(seconds_to_ns(t), (x, y, height), q)

@@ -1,22 +1,11 @@
 """The run file: what ``hbvs repeat`` writes and ``hbvs report`` reads.
 
-Topics:
-
-=======================  ==============================  ==========================================
-``/repeat/state``        ``hbvs.ControllerState``        every control step (errors, commands, dhat, V)
-``/repeat/cmd_vel``      ``hbvs.VelocityCommand``        the command sent (after actuator limits)
-``/repeat/events``       ``foxglove.Log``                target lost / back, saturation, faults, stop
-``/ground_truth/pose``   ``foxglove.PoseInFrame``        true robot pose (``--sim``)
-``/desired/pose``        ``foxglove.PoseInFrame``        taught pose at the same time (``--sim``)
-``/camera/image``        ``foxglove.CompressedImage``    camera images (``--record-images``)
-``/camera/annotations``  ``foxglove.ImageAnnotations``   detected (green) and desired (orange) points
-``/camera/calibration``  ``foxglove.CameraCalibration``  the camera
-``/repeat/timing``       ``hbvs.LoopTiming``             per step of ``--live``: frame stamp, latency, interval, dropped
-=======================  ==============================  ==========================================
-
-Metadata record ``hbvs``: ``file_kind = run``, version, ``mode`` (sim or replay), ``law``,
-``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and
-``condition35`` (from the fit).
+Topics (:data:`~.topics.TOPICS` ``["run"]``, docs/files.md): the controller's state every
+step, the command sent, events, the true and taught poses (``--sim``), images and their
+annotations (``--record-images``), the calibration, and a live run's loop timing. The
+``hbvs`` metadata record holds ``file_kind = run``, the version, ``mode``, ``law``,
+``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and the
+fit's ``condition35``.
 """
 
 from __future__ import annotations
@@ -47,7 +36,7 @@ RUN_SCHEMAS = TOPICS[FILE_KIND]
 STATE_FIELDS = (
     "t", "x_h1", "x_h2", "theta", "x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot",
     "e1", "e2", "ebar2", "e3", "v_c", "w_c", "v_law", "w_law", "dhat", "residual", "V",
-    # The state filter's estimate and std (NaN without a filter, or in an older file).
+    # The state filter's estimate and std (NaN without a filter).
     "theta_est", "x_h1_est", "x_h2_est", "theta_std", "x_h1_std", "x_h2_std", "noise_px",
 )
 
@@ -76,8 +65,8 @@ class RunData:
     truncated : bool
         The file ended early (a crashed or killed run).
     dropped : ndarray of bool, shape (K,), or None
-        Steps whose camera frame was dropped (``frame_dropped``; all False in files
-        written before hbvs recorded it). ``None`` when not given (a run built in memory).
+        Steps whose camera frame was dropped (``frame_dropped``). ``None`` when not given
+        (a run built in memory).
     timing : dict of ndarray or None
         A live run's per-step timing (:data:`TIMING_FIELDS`, each shape (T,)); None for
         simulated and replayed runs.
@@ -142,14 +131,6 @@ def _check_info(info: dict[str, Any], name: str) -> None:
             raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity")
 
 
-def _event(data: dict[str, Any], log_time: int, name: str) -> tuple[int, int, str]:
-    """(log time, level, text) of a ``foxglove.Log`` message."""
-    level = data.get("level", 0)
-    if isinstance(level, bool) or not isinstance(level, int):
-        raise RecordingError(f"{name}: malformed event message (level {str(level)[:40]!r} is not a whole number)")
-    return log_time, level, str(data.get("message", ""))
-
-
 def read_run(source: Any, name: str = "") -> RunData:
     """Read a run file (or ``-``) into :class:`RunData`.
 
@@ -183,11 +164,12 @@ def read_run(source: Any, name: str = "") -> RunData:
                 raise RecordingError(f"{stream.name}: malformed controller state message ({exc})") from None
             step_times.append(message.log_time)
         elif message.topic == TRUE_POSE_TOPIC:
-            true_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
+            true_pose[message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
         elif message.topic == DESIRED_POSE_TOPIC:
-            desired_pose[message.log_time] = planar_pose_from_message(message.json(stream.name), stream.name)
+            desired_pose[message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
         elif message.topic == EVENTS_TOPIC:
-            events.append(_event(message.json(stream.name), message.log_time, stream.name))
+            log = message.foxglove(stream.name)
+            events.append((message.log_time, int(log.level), log.message))
         elif message.topic == TIMING_TOPIC:
             data = message.json(stream.name)
             try:
@@ -230,23 +212,11 @@ def read_run(source: Any, name: str = "") -> RunData:
 
 # ----------------------------------------------------------------------------- writing
 class RunWriter:
-    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values.
-
-    The ``hbvs`` metadata record is written first, then the camera's calibration at the log
-    time of ``t = 0``; every other message is stamped with ``base_ns`` plus its time ``t``
-    (s), as log time and timestamp.
-
-    Parameters
-    ----------
-    writer : McapWriter
-    info : dict
-        The ``hbvs`` metadata record (``file_kind`` = ``run``, mode, law, gains, settings...).
-    camera : CameraIntrinsics
-    base_ns : int or None
-        Log time (ns) of ``t = 0``: a simulated run's fixed epoch
-        (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`). None when it is known
-        only with the first frame (a replay keeps its recording's stamps): call
-        :meth:`start` then.
+    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values: the
+    ``hbvs`` metadata record ``info`` first, then the calibration at ``t = 0``, then every
+    message stamped ``base_ns`` plus its run time ``t`` (s). ``base_ns`` is a simulated run's
+    epoch (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`), or None when it is known
+    only with the first frame (a replay keeps its recording's stamps): call :meth:`start` then.
     """
 
     def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics, base_ns: int | None = 0) -> None:
@@ -274,7 +244,7 @@ class RunWriter:
     def event(self, t: float, level: int, text: str) -> None:
         """A ``foxglove.Log`` line on the events topic (``level``: one of messages.LOG_*)."""
         ns = self.log_time_ns(t)
-        self.writer.write(EVENTS_TOPIC, RUN_SCHEMAS[EVENTS_TOPIC], ns, log_message(time_message(ns), level, text))
+        self.writer.write(EVENTS_TOPIC, RUN_SCHEMAS[EVENTS_TOPIC], ns, log_message(ns, level, text))
 
     def state(self, t: float, values: dict[str, Any]) -> None:
         """One ``hbvs.ControllerState``: ``t`` and ``values`` (numbers, strings, bools or None;
@@ -302,17 +272,15 @@ class RunWriter:
         """The true robot pose and the taught pose at ``t``: ``(x, y, phi)`` (m, m, rad), the
         camera ``height`` (m) above the floor."""
         ns = self.log_time_ns(t)
-        stamp = time_message(ns)
-        self._write_flat(TRUE_POSE_TOPIC, ns, pose_message(stamp, true_pose, height), clean=False)
-        self._write_flat(DESIRED_POSE_TOPIC, ns, pose_message(stamp, desired_pose, height), clean=False)
+        self.writer.write(TRUE_POSE_TOPIC, RUN_SCHEMAS[TRUE_POSE_TOPIC], ns, pose_message(ns, true_pose, height))
+        self.writer.write(DESIRED_POSE_TOPIC, RUN_SCHEMAS[DESIRED_POSE_TOPIC], ns, pose_message(ns, desired_pose, height))
 
     def image(self, t: float, data: bytes, image_format: str, detected: np.ndarray | None, desired: np.ndarray | None,
               label: str) -> None:
         """A camera image (encoded ``data``) and its annotations: detected and desired pixels."""
         ns = self.log_time_ns(t)
         write_compressed_image(self.writer, IMAGE_TOPIC, ns, data, image_format, CAMERA_FRAME)
-        self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns,
-                          annotations_message(time_message(ns), detected, desired, label))
+        self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns, annotations_message(ns, detected, desired, label))
 
     def _write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
         """Write a message whose values are plain numbers, strings, bools, None or small

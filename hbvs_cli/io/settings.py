@@ -177,7 +177,7 @@ DEFAULT_OFFSET = "-0.1,0.05,2"
 FIT_SETTINGS: tuple[Setting, ...] = (
     Setting("input", str, "Teach MCAP file, or - for stdin.", argument=True),
     Setting("output", str, OUTPUT_HELP, default="fit.mcap", flags=("-o", "--output")),
-    Setting("target", str, "auto, dots, aruco, chessboard or texture.", default="auto"),
+    Setting("target", str, "auto, dots, aruco, chessboard, charuco or texture.", default="auto"),
     Setting("reference", str, "The frame that is F*: first, last or a frame index.", default="first"),
     Setting("smoothing", str, "Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).", default="auto"),
     Setting("target_size", float, "Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot "
@@ -194,6 +194,9 @@ FIT_SETTINGS: tuple[Setting, ...] = (
             "every one is scanned)."),
     Setting("marker_id", int, "The marker to use (default: every marker seen consistently, all corners as points).",
             bounds={"min": 0}),
+    Setting("board", str, "A ChArUco board's squares across and down, e.g. 6x4 (default: inferred from its markers)."),
+    Setting("target_points", Path, "CSV of the target points' positions on the wall in metres (x,y per line, in the "
+            "order the target's points are found or any order for dots): pins the plane normal n* and gives d*."),
 )
 
 DEFAULT_MAX_V = 0.5

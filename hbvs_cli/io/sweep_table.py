@@ -1,21 +1,12 @@
-"""The results table of a sweep: written as runs finish, valid after any interruption.
+"""The results table of a sweep, written as runs finish and valid after any interruption.
 
-Layout of the results folder::
-
-    sweep.json        the spec, the fit and its SHA-256 (a resume must match it)
-    parts/            part-NNNNNN.parquet, one per flush while the sweep runs
-    runs.parquet      the whole table, sorted by run index (written when the sweep ends)
-    runs.csv          the same rows as CSV: appended at every flush, rewritten sorted at the end
-    runs/             run files kept by --keep-runs
-
-One process writes a folder at a time: a second ``hbvs sweep`` into it stops with one line
-and exit 6 (an advisory lock on ``.hbvs-sweep.lock``, released when the first ends, even by
-SIGKILL). Every file is written under a name unique to its process
-(``NAME.<pid>-<hex>.partial``) and renamed when complete, so a part is either whole or
-absent; a part never replaces another (it is linked in place, and takes the next number if
-its name is taken). A start removes only partial files whose process is dead. The CSV gets whole lines appended; a line torn by a kill is
-dropped when the sweep resumes, which rewrites the CSV from the Parquet rows. A resume
-skips every run index already in ``runs.parquet`` or a part.
+The folder holds ``sweep.json`` (the spec, the fit and its SHA-256, which a resume must
+match), ``parts/part-NNNNNN.parquet`` (one per flush), ``runs.parquet`` (all rows sorted,
+at the end), ``runs.csv`` (appended at every flush, rewritten sorted at the end) and
+``runs/`` (``--keep-runs``). One process writes a folder at a time (an advisory lock on
+``.hbvs-sweep.lock``; a second sweep exits 6). Files are written under partial names and
+renamed whole; a part never replaces another; a resume drops a torn CSV line, rewrites the
+CSV from the Parquet rows and skips every run index already written.
 """
 
 from __future__ import annotations

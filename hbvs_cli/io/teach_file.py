@@ -1,19 +1,10 @@
 """The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
 
-Topics (Foxglove schemas where one exists; JSON but for the images):
-
-=====================  ===========================  =========================================
-``/camera/image``      ``foxglove.CompressedImage`` every frame, 8-bit gray JPEG or PNG, in
-                                                    protobuf (JSON with base64 is read too)
-``/camera/calibration`` ``foxglove.CameraCalibration`` once, before the first frame
-``/teach/cmd_vel``     ``hbvs.VelocityCommand``     the taught command of each frame (sim, CSV)
-``/ground_truth/pose`` ``foxglove.PoseInFrame``     true robot pose of each frame (sim only)
-=====================  ===========================  =========================================
-
-Metadata records: ``hbvs`` (``file_kind = teach``, version, source, settings), and for a
-simulated teach ``hbvs.world`` (the world description, to re-create it in ``repeat``).
-Per frame, the command and the pose are written just before the image with the same log
-time, so a streaming reader has them when the image arrives.
+Topics (:data:`~.topics.TOPICS` ``["teach"]``, docs/files.md): every frame's image, the
+calibration once before the first frame, the taught command and the true pose of each frame
+when known (written just before its image, with the same log time, so a streaming reader has
+them when the image arrives), and the 3D scene. Metadata ``hbvs`` (``file_kind = teach``,
+version, source, settings) and, for a simulated teach, ``hbvs.world`` (to re-create it).
 """
 
 from __future__ import annotations
@@ -22,16 +13,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
-import numpy as np
-
 from .. import __version__
-from ..core.camera import CameraIntrinsics
-from ..core.world import World
+from ..core.camera import CameraIntrinsics, camera_from_description
 from ..errors import HbvsError, RecordingError
 from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
 from .foxglove_scene import SceneWriter
-from .images import IMAGE_ENCODINGS, StoredImage, read_compressed_image, write_compressed_image
-from .mcap import McapStream, McapWriter, check_json_limits, read_metadata, time_message
+from .images import StoredImage, read_compressed_image, write_compressed_image
+from .mcap import McapStream, McapWriter, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
 from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
 from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
@@ -39,11 +27,6 @@ from .topics import TRUE_POSE_TOPIC as POSE_TOPIC
 
 FILE_KIND = "teach"
 
-#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
-#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
-MAX_POSTER_SIDE_M = 10.0
-#: Most target points accepted from a file (dot posters have up to 10, the others 4).
-MAX_TARGET_POINTS = 64
 #: The settings of a simulated teach that repeat reuses to render the same sensor.
 RENDER_SETTINGS = ("noise", "blur", "exposure", "noise_grain")
 
@@ -51,46 +34,31 @@ RENDER_SETTINGS = ("noise", "blur", "exposure", "noise_grain")
 PARSE_ERRORS = (LookupError, TypeError, ValueError, AttributeError, ArithmeticError)
 
 
-def world_from_description(data: Any, source: str) -> World:
-    """A :class:`World` from its recorded description, checked so that rendering it is safe.
-
-    Beyond :meth:`World.from_dict`: the camera passes the calibration checks (image size
-    capped), the poster is at most :data:`MAX_POSTER_SIDE_M` a side with unit, orthogonal
-    axes, the camera height and dot radius are finite, and there are at most
-    :data:`MAX_TARGET_POINTS` points.
+def world_description(data: Any, source: str) -> dict[str, Any]:
+    """A recorded world description (the simulated world's ``to_dict``) with what io uses of it
+    checked: the camera as a calibration (image size capped) and a finite camera height (the
+    poses' z). The simulator checks the rest when it builds the world
+    (:func:`hbvs_cli.sim.world.world_from_description`).
 
     Raises
     ------
     RecordingError
-        The description is malformed or outside those bounds.
+        Not a mapping with a well-formed camera and camera height.
     """
     try:
-        world = World.from_dict(data)
-    except HbvsError as exc:  # World says "malformed world description: ..." itself
-        raise RecordingError(f"{source}: {exc}") from None
+        camera = camera_from_description(data["camera"])
+    except HbvsError as exc:
+        raise RecordingError(f"{source}: malformed world description: {exc}") from None
     except PARSE_ERRORS as exc:
         raise RecordingError(f"{source}: malformed world description ({exc})") from None
-    camera = world.camera
     try:
         intrinsics_from_values(camera.K, camera.width, camera.height, camera.distortion_model, camera.distortion, "camera")
     except HbvsError as exc:
         raise RecordingError(f"{source}: the world's {exc}") from None
-    target = world.target
-    poster = target.poster
-    axes = np.array([poster.right, poster.down])
-    problems = [
-        (not math.isfinite(world.camera_height), "the camera height is not finite"),
-        (not (0.0 < poster.width <= MAX_POSTER_SIDE_M and 0.0 < poster.height <= MAX_POSTER_SIDE_M),
-         f"the poster must measure more than 0 and at most {MAX_POSTER_SIDE_M:g} m a side"),
-        (not np.allclose(axes @ axes.T, np.eye(2), atol=1e-6), "the poster's axes are not orthogonal unit vectors"),
-        (not (math.isfinite(target.dot_radius) and 0.0 <= target.dot_radius <= max(poster.width, poster.height)),
-         "the dot radius is not a size on the poster"),
-        (target.points_poster.shape[0] > MAX_TARGET_POINTS, f"more than {MAX_TARGET_POINTS} target points"),
-    ]
-    for failed, reason in problems:
-        if failed:
-            raise RecordingError(f"{source}: malformed world description ({reason})")
-    return world
+    height = data.get("camera_height_m")
+    if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height):
+        raise RecordingError(f"{source}: malformed world description (the camera height is not finite)")
+    return data
 
 
 def render_settings_problem(settings: Any) -> str | None:
@@ -109,10 +77,12 @@ def render_settings_problem(settings: Any) -> str | None:
 
 
 class TeachWriter:
-    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`."""
+    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`; a simulated
+    teach hands its world (:class:`hbvs_cli.sim.world.World`: its ``to_dict`` is recorded,
+    its target drawn on ``/scene``)."""
 
     def __init__(
-        self, writer: McapWriter, source: str, settings: dict[str, Any], world: World | None = None, frame_id: str | None = None,
+        self, writer: McapWriter, source: str, settings: dict[str, Any], world: Any = None, frame_id: str | None = None,
     ) -> None:
         self.writer = writer
         #: The camera's frame of reference: a bag's own frame_id, else hbvs's camera frame.
@@ -140,11 +110,11 @@ class TeachWriter:
         command: tuple[float, float] | None = None,
     ) -> None:
         """One frame: its command and true pose (when known), then the image."""
-        stamp = time_message(log_time_ns)
         if command is not None:
-            self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, velocity_message(stamp, *command))
+            message = velocity_message(time_message(log_time_ns), *command)
+            self.writer.write(COMMAND_TOPIC, TOPICS[FILE_KIND][COMMAND_TOPIC], log_time_ns, message)
         if pose is not None:
-            self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(stamp, pose, camera_height))
+            self.writer.write(POSE_TOPIC, TOPICS[FILE_KIND][POSE_TOPIC], log_time_ns, pose_message(log_time_ns, pose, camera_height))
             if not self.scene.started:
                 self.scene.start(log_time_ns, camera_height, self.world)
             self.scene.pose(log_time_ns, pose)
@@ -154,25 +124,10 @@ class TeachWriter:
 
 @dataclass(frozen=True)
 class TeachFrame:
-    """One frame of a teach recording.
-
-    Attributes
-    ----------
-    index : int
-        0-based frame number.
-    log_time_ns : int
-    t : float
-        Seconds since the first frame.
-    image_message : bytes
-        The ``foxglove.CompressedImage`` as stored, in ``image_encoding``; read it with
-        :meth:`stored_image`. JSON is within the caps of
-        :func:`~hbvs_cli.io.mcap.check_json_limits`, so decoding it is safe.
-    pose : (x, y, phi) or None
-        True robot pose (simulated recordings).
-    command : (v, w) or None
-        The taught command of this frame.
-    image_encoding : str
-        ``protobuf`` (what hbvs writes) or ``json`` (base64: older files).
+    """One frame of a teach recording: its 0-based ``index``, ``log_time_ns``, ``t`` (s since the
+    first frame), ``image_message`` (the stored protobuf ``foxglove.CompressedImage``: read it
+    with :meth:`stored_image`), the true ``pose`` (x, y, phi) of a simulated recording and the
+    taught ``command`` (v, w), when known.
     """
 
     index: int
@@ -181,35 +136,29 @@ class TeachFrame:
     image_message: bytes
     pose: tuple[float, float, float] | None
     command: tuple[float, float] | None
-    image_encoding: str = "protobuf"
 
     def stored_image(self, source: str = "") -> StoredImage:
         """The compressed image bytes and format of this frame."""
-        return read_compressed_image(self.image_encoding, self.image_message, source)
+        return read_compressed_image(self.image_message, source)
 
 
 @dataclass
 class TeachReader:
     """Streams the frames of a teach recording (a file or ``-``) in constant memory.
 
-    ``camera``, ``world`` and ``info`` are filled as the records arrive; all of them come
-    before the first frame in files written by ``hbvs teach``. A recording cut short (a
-    crashed recorder) yields its frames up to the last complete one, then sets
-    :attr:`truncated`.
-
-    Raises
-    ------
-    InputError
-        (:class:`~hbvs_cli.errors.RecordingError`, :class:`~hbvs_cli.errors.CalibrationError`)
-        while iterating, for anything malformed: not an MCAP file, not a teach recording,
-        a topic with the wrong schema, a message that is not a valid JSON object of its
-        kind, a world description outside :func:`world_from_description`'s bounds.
+    ``camera``, ``world`` and ``info`` are filled as their records arrive (before the first
+    frame in files hbvs writes). A recording cut short yields its frames up to the last
+    complete one and sets :attr:`truncated`. Iterating raises :class:`RecordingError` or
+    :class:`CalibrationError` for anything malformed: not a teach recording, a topic with the
+    wrong schema or encoding, a malformed message, a world whose camera is not a valid
+    calibration (:func:`world_description`).
     """
 
     source: Any
     name: str = ""
     camera: CameraIntrinsics | None = None
-    world: World | None = None
+    #: The simulated world's description (:func:`world_description`), None for real footage.
+    world_description: dict[str, Any] | None = None
     info: dict[str, Any] = field(default_factory=dict)
     stream: McapStream | None = None
 
@@ -233,7 +182,7 @@ class TeachReader:
             self.info = info
             world = read_metadata(self.stream, WORLD_METADATA).get("world")
             if world is not None:
-                self.world = world_from_description(world, self.name)
+                self.world_description = world_description(world, self.name)
 
     def frames(self) -> Iterator[TeachFrame]:
         """Yield frames in recording order."""
@@ -245,20 +194,15 @@ class TeachReader:
             self._check_kind()
             if message.topic == CALIBRATION_TOPIC:
                 if self.camera is None:
-                    self.camera = calibration_from_foxglove(message.json(self.name))
+                    self.camera = calibration_from_foxglove(message.foxglove(self.name), self.name)
             elif message.topic == POSE_TOPIC:
-                pending_pose = (message.log_time, planar_pose_from_message(message.json(self.name), self.name))
+                pending_pose = (message.log_time, planar_pose_from_message(message.foxglove(self.name), self.name))
             elif message.topic == COMMAND_TOPIC:
                 pending_command = (message.log_time, velocity_from_message(message.json(self.name), self.name))
             elif message.topic == IMAGE_TOPIC:
-                # Callers decode image_message themselves (in a worker thread, ahead of
-                # use); the caps are checked here so that any JSON they get is bounded.
-                if message.message_encoding not in IMAGE_ENCODINGS:
-                    raise RecordingError(
-                        f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding[:40]!r}, expected protobuf or JSON"
-                    )
-                if message.message_encoding == "json":
-                    check_json_limits(message.data, f"{self.name}: image message")
+                # Callers decode image_message themselves (in a worker thread, ahead of use).
+                if message.message_encoding != "protobuf":
+                    raise RecordingError(f"{self.name}: images on {IMAGE_TOPIC} are {message.message_encoding[:40]!r}, expected protobuf")
                 if first_time is None:
                     first_time = message.log_time
                 pose = pending_pose[1] if pending_pose and pending_pose[0] == message.log_time else None
@@ -266,7 +210,6 @@ class TeachReader:
                 yield TeachFrame(
                     index=index, log_time_ns=message.log_time, t=(message.log_time - first_time) * 1e-9,
                     image_message=message.data, pose=pose, command=command,
-                    image_encoding=message.message_encoding,
                 )
                 index += 1
         self._check_kind()

@@ -117,6 +117,22 @@ def marker_ids_in_view(gray: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIO
     return [] if ids is None else [int(i) for i in np.ravel(ids)]
 
 
+def marker_corners_in_view(image: NDArray[np.uint8], dictionary: str, ids: Sequence[int]) -> NDArray[np.float64] | None:
+    """The corners (4M, 2) of the markers ``ids`` of ``dictionary`` seen in a frame (no
+    corner refinement; the largest copy of an id), or None when none is seen."""
+    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
+    corners, seen, _ = detector.detectMarkers(as_gray(image))
+    if seen is None:
+        return None
+    seen = np.ravel(seen)
+    picked = []
+    for ident in ids:
+        matches = [corners[i].reshape(4, 2) for i in np.flatnonzero(seen == int(ident))]
+        if matches:
+            picked.append(max(matches, key=lambda c: abs(cv2.contourArea(c.astype(np.float32)))))
+    return np.concatenate(picked).astype(np.float64) if picked else None
+
+
 @dataclass(frozen=True)
 class MarkerSighting:
     """Markers of one dictionary found in a frame.
@@ -174,7 +190,8 @@ class ArucoMarkerDetector:
         A predefined dictionary (:data:`MARKER_DICTIONARIES`); DICT_4X4_50 by default.
     marker_ids : sequence of int, optional
         Several markers on the wall: the target's points are their 4 corners each, in this
-        order; a frame counts as found when every one of them is seen.
+        order; a frame counts as found when any of them is seen (the others' corners are
+        NaN rows: a board partly out of view keeps the markers it shows).
 
     Attributes
     ----------
@@ -226,16 +243,20 @@ class ArucoMarkerDetector:
             prediction = self._track.predict()
         result = None
         considered = 0
+        searches = [(None, None)]
         if prediction is not None:
             window = _window(gray.shape, prediction)
             if window is not None:
-                result, considered = self._search(gray, window, self._window_detector)
-                if result is None:
-                    result, more = self._search(gray, window)
-                    considered = max(considered, more)
-        if result is None:
-            result, more = self._search(gray, None)
+                searches = [(window, self._window_detector), (window, None), (None, None)]
+        # Narrowest search first; a wider one only while markers are missing (a board partly
+        # out of view is searched whole once a frame, its missing markers may be back).
+        for window, detector in searches:
+            found, more = self._search(gray, window, detector)
             considered = max(considered, more)
+            if found is not None and (result is None or _markers_seen(found) > _markers_seen(result)):
+                result = found
+            if result is not None and _markers_seen(result) == len(result) // 4:
+                break
         pixels = np.full((self.n_points, 2), np.nan) if result is None else result
         self._track.update(pixels)
         found = result is not None
@@ -265,14 +286,26 @@ class ArucoMarkerDetector:
             for ident in self.marker_ids:
                 matches = np.flatnonzero(ids == ident)
                 if matches.size == 0:
-                    return None, considered
+                    picks.append(None)
+                    continue
                 # Several copies of the id: report the largest (the nearest, usually the target).
                 areas = [abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]
                 picks.append(int(matches[int(np.argmax(areas))]))
-        self.last_id = int(ids[picks[0]])
+            # A board of several markers partly out of view keeps the markers it shows
+            # (NaN rows for the others); a single marker is all or nothing.
+            if all(pick is None for pick in picks) or (len(picks) == 1 and picks[0] is None):
+                return None, considered
+        self.last_id = int(ids[next(pick for pick in picks if pick is not None)])
         cells = self._detector.getDictionary().markerSize + 2
-        refined = [refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells) for pick in picks]
+        missing = np.full((4, 2), np.nan)
+        refined = [missing if pick is None else refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells)
+                   for pick in picks]
         return np.concatenate(refined) + (x0, y0), considered
+
+
+def _markers_seen(corners: NDArray[np.float64]) -> int:
+    """Markers whose 4 corners are in ``corners`` (4M, 2) (NaN rows for the others)."""
+    return int(np.count_nonzero(np.all(np.isfinite(corners.reshape(-1, 8)), axis=1)))
 
 
 #: Passes of :func:`refine_marker_corners` at most, and the move (px) under which it stops.

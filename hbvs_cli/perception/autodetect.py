@@ -1,21 +1,29 @@
 """``--target auto``: which target a recording shows, judged on its first frames.
 
-The kinds are tried from the most specific evidence to the least:
+The kinds are tried from the most specific evidence to the least, and the first that
+pins the plane best wins:
 
-1. **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
+1. **ChArUco board** -- markers laid out as a ChArUco board's (:func:`~.charuco.infer_board`),
+   its corners found in most of the first frames: a known grid of sub-pixel chessboard
+   corners, each identified by its markers;
+2. **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
    predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
-   the same ids in most of the first frames;
-2. **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
+   the same ids in most of the first frames. Markers that cover only a small part of a
+   textured picture they are printed in (less than :data:`SMALL_MARKERS_FRACTION` of its
+   area) give way to the picture: the whole picture's alignment pins the plane over its
+   full width, a few small squares over theirs;
+3. **chessboard** -- ``findChessboardCornersSB`` finds the same pattern in most of the
+   first frames: a known grid of sub-pixel corners;
+4. **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
    number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
    in most of the first frames; in gray first, then (colour footage) in colour, for dots that
    differ from their wall in hue alone (:func:`~.dots.dark_image`);
-3. **texture** -- natural features of the first frame, matched (robust homography) in most
+5. **texture** -- natural features of the first frame, matched (robust homography) in most
    of the following first frames.
 
-The first kind that passes wins, and :class:`TargetChoice` says why in one sentence (what
-was found, in how many frames, and what was ruled out before), so that a wrong pick is
-impossible to miss. When none passes, :class:`~hbvs_cli.errors.InputError` names every kind
-tried.
+:class:`TargetChoice` says why in one sentence (what was found, in how many frames, and
+what was ruled out before), so that a wrong pick is impossible to miss. When none passes,
+:class:`~hbvs_cli.errors.InputError` names every kind tried.
 """
 
 from __future__ import annotations
@@ -28,9 +36,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, scan_markers
+from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, scan_markers
 from .base import as_gray
-from .chessboard import find_board
+from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
+from .chessboard import Board, board_corners_cross, find_board
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
 from .texture import TextureDetector
 
@@ -38,6 +47,9 @@ from .texture import TextureDetector
 MAX_DOTS = 10
 #: Markers smaller than this (px) in every frame are not trusted as a decoded code.
 MIN_MARKER_SIDE_PX = 8.0
+#: Markers whose outline (convex hull) covers less than this fraction of the textured
+#: picture's region around them give way to the picture.
+SMALL_MARKERS_FRACTION = 0.25
 
 
 @dataclass(frozen=True)
@@ -47,13 +59,13 @@ class TargetChoice:
     Attributes
     ----------
     kind : str
-        ``dots``, ``aruco``, ``chessboard`` or ``texture``.
+        ``dots``, ``aruco``, ``chessboard``, ``charuco`` or ``texture``.
     reason : str
         One sentence for stderr: what was found, how consistently, what was ruled out.
     details : dict
         ``polarity``, ``n_points`` and, for dots seen in colour only, ``contrast`` (dots);
         ``marker_dict`` and ``marker_ids`` (aruco); ``board`` (chessboard: inner corners
-        per row and rows).
+        per row and rows; charuco: squares across and down, and its ``marker_dict``).
     """
 
     kind: str
@@ -97,25 +109,51 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids})
 
 
+def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None,
+                 squares: tuple[int, int] | None = None) -> TargetChoice | None:
+    """A ChArUco board (its layout inferred from the first frame's markers) whose corners
+    are found in most of ``images``, or None."""
+    geometry = infer_board(images[0], None if dictionary is None else [dictionary_name(dictionary)], squares)
+    if geometry is None:
+        return None
+    detector = CharucoTargetDetector(geometry.squares, geometry.dictionary, geometry.marker_ratio)
+    seen = [int(np.count_nonzero(np.all(np.isfinite(detector.detect(image).pixels), axis=1))) for image in images]
+    found = sum(count > 0 for count in seen)
+    if not _majority(found, len(images)):
+        return None
+    columns, rows = geometry.squares
+    reason = (f"ChArUco board of {columns}x{rows} squares ({geometry.dictionary}, {geometry.n_markers} markers) with up to "
+              f"{max(seen)} of its {detector.n_points} corners found in {found} of the first {len(images)} frames "
+              "(a known grid of sub-pixel corners, each named by its markers)")
+    return TargetChoice("charuco", reason, {"board": [columns, rows], "marker_dict": geometry.dictionary})
+
+
 def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     """A chessboard of the same pattern in most of ``images``, or None.
 
     The first frame is searched for the largest board (``findChessboardCornersSB``); the
-    others for that pattern. ``--target chessboard`` uses it; ``--target auto`` does not
-    yet: on the independent footage's board (6 cm squares, 5-10 px wide from 3-6 m) the
-    texture alignment of the whole board measured theta_d to 0.08 deg, its 35 corners to
-    0.47 deg (1.4x their Cramer-Rao bound at the 0.04 px they are measured to).
+    others for that pattern.
     """
-    first = find_board(images[0])
+    first = _checked_board(images[0])
     if first is None:
         return None
-    found = 1 + sum(find_board(image, first.pattern) is not None for image in images[1:])
+    found = 1 + sum(_checked_board(image, first.pattern) is not None for image in images[1:])
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern
     reason = (f"chessboard of {columns}x{rows} inner corners found in {found} of the first {len(images)} frames "
               f"({columns * rows} sub-pixel corners on a known grid pin the plane better than texture)")
     return TargetChoice("chessboard", reason, {"board": [columns, rows]})
+
+
+def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
+    """:func:`~.chessboard.find_board`, its corners checked to be crossings of two dark and
+    two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots
+    on a wall: a 4x3 board in 3 of 5 frames of a simulated dots target)."""
+    board = find_board(image, pattern)
+    if board is None or not board_corners_cross(as_gray(image), board.corners, board.pattern):
+        return None
+    return board
 
 
 def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[int, bool]:
@@ -218,10 +256,20 @@ def choose_target(
     grays = [as_gray(image) for image in images]
     ruled_out = []
     markers = find_markers(grays, marker_dict)
+    if markers is not None and len(markers.details["marker_ids"]) >= MIN_INFER_MARKERS:
+        # Enough markers of one dictionary for a ChArUco board: is it one?
+        board = find_charuco(grays, markers.details["marker_dict"])
+        if board is not None:
+            return board
     if markers is not None:
-        return markers
+        picture = None if marker_dict is not None else _picture_around_small_markers(grays, markers, template_pixels_of, seed)
+        return markers if picture is None else picture
     ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
     if marker_dict is None:
+        chessboard = find_chessboard(grays)
+        if chessboard is not None:
+            return _with_ruled_out(chessboard, ruled_out)
+        ruled_out.append("chessboard")
         dots = find_dots(images)  # in colour: dots may differ from their wall in hue alone
         if dots is not None:
             return _with_ruled_out(dots, ruled_out)
@@ -235,8 +283,36 @@ def choose_target(
         ruled_out.append("texture (natural features matched from frame to frame)")
     raise InputError(
         f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
-        "Choose one with --target dots|aruco|texture (and --marker-dict NAME, --marker-id N for markers)"
+        "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
     )
+
+
+def _picture_around_small_markers(grays: Sequence[NDArray[np.uint8]], markers: TargetChoice, template_pixels_of: Any,
+                                  seed: int) -> TargetChoice | None:
+    """The textured picture the markers are printed in, when they cover only a small part
+    of it (less than :data:`SMALL_MARKERS_FRACTION` of its area) and it is matched from
+    frame to frame; else None (the markers are the target)."""
+    import cv2
+
+    corners = marker_corners_in_view(grays[0], markers.details["marker_dict"], markers.details["marker_ids"])
+    if corners is None:
+        return None
+    try:
+        box = np.asarray(template_pixels_of(grays[0]), dtype=np.float32)
+    except InputError:
+        return None
+    picture_area = abs(float(cv2.contourArea(box)))
+    marker_area = abs(float(cv2.contourArea(cv2.convexHull(corners.astype(np.float32)))))
+    if picture_area <= 0 or marker_area >= SMALL_MARKERS_FRACTION * picture_area:
+        return None
+    texture = find_texture(grays, box.astype(np.float64), seed)
+    if texture is None:
+        return None
+    ids = markers.details["marker_ids"]
+    reason = (f"{texture.reason}; it holds {markers.details['marker_dict']} marker{'s' if len(ids) > 1 else ''} "
+              f"{', '.join(map(str, ids))} covering only {100 * marker_area / picture_area:.0f} % of it "
+              "(the whole picture pins the plane over its full width)")
+    return TargetChoice("texture", reason)
 
 
 def _with_ruled_out(choice: TargetChoice, ruled_out: list[str]) -> TargetChoice:

@@ -2,14 +2,8 @@
 :class:`TargetDetector` protocol, the constant-velocity :class:`PointTrack` it predicts
 with, and the point identity (:func:`match_identity`).
 
-A detector turns a camera frame into the pixels of the target's N points **in the target's
-point order** (their identity), which is what the homography estimation needs. Pixels
-follow OpenCV's convention (centre of the top-left pixel at (0, 0)) and are the
-*measured*, i.e. distorted, pixels: undistort them with
-:func:`hbvs_cli.core.camera.undistort_pixels` before using them geometrically.
-
-The detectors of each kind (:mod:`.dots`, :mod:`.aruco`, :mod:`.texture`) import this
-module, and :mod:`.detector` (which picks one) imports them: no cycle.
+A detector gives the pixels of the target's N points in the target's order (their
+identity), as the homography needs them: OpenCV's convention, measured (distorted) pixels.
 """
 
 from __future__ import annotations
@@ -29,17 +23,8 @@ from ..core.grayscale import as_gray  # noqa: F401 - re-exported: the detectors 
 class Detection:
     """The target points found in one frame.
 
-    Attributes
-    ----------
-    pixels : ndarray, shape (N, 2), float64
-        ``(u, v)`` of each target point (px), in the target's point order; NaN rows for
-        points not found.
-    found : bool
-        True when all N points were found and accepted.
-    candidates : int
-        Blobs, markers or feature matches considered (diagnostics).
-    rejected : int
-        Candidates rejected as outliers.
+    ``pixels`` (N, 2): ``(u, v)`` in the target's order, NaN rows where not found; ``found``:
+    all N found and accepted; ``candidates`` considered and ``rejected`` as outliers.
     """
 
     pixels: NDArray[np.float64]
@@ -59,31 +44,16 @@ class TargetDetector(Protocol):
         """Forget the tracking state (the next frame is searched as if it were the first)."""
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the target points in ``image``.
-
-        Parameters
-        ----------
-        image : ndarray, shape (H, W) or (H, W, 3), uint8
-            Gray or BGR frame.
-        predicted : ndarray, shape (N, 2), optional
-            Where the points are expected (px, in point order); NaN rows are unknown. When
-            omitted the detector predicts from its own track.
-        """
+        """Find the target points in a gray or BGR uint8 ``image``; ``predicted`` (N, 2, NaN
+        rows unknown) is where they are expected, else the detector's own track says."""
         ...
 
 
 class PointTrack:
     """Constant-velocity prediction of N image points from their past measurements.
 
-    Each point keeps its last measured position, its velocity (px per frame) and the number
-    of frames since it was last measured; a point unseen for more than ``max_coast`` frames
-    is dropped, and the track becomes inactive once every point is dropped.
-
-    Parameters
-    ----------
-    n_points : int
-    max_coast : int
-        Frames a point is predicted through without a measurement.
+    A point unseen for more than ``max_coast`` frames is dropped; the track is inactive once
+    every point is. Velocities are in px per frame.
     """
 
     def __init__(self, n_points: int, max_coast: int = 10) -> None:
@@ -131,10 +101,7 @@ class PointTrack:
 def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
     """``predicted`` as an (N, 2) float array (NaN rows allowed), or None.
 
-    Raises
-    ------
-    UsageError
-        If it has the wrong shape or contains infinities.
+    Raises UsageError: if it has the wrong shape or contains infinities.
     """
     if predicted is None:
         return None
@@ -164,23 +131,9 @@ def signed_polygon_area(points: ArrayLike) -> float:
 def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = True) -> NDArray[np.intp]:
     """The permutation that puts detected points in the order of reference points.
 
-    Solves the assignment of minimum total squared distance
-    (``scipy.optimize.linear_sum_assignment``). With ``normalize`` both point sets are
-    first centred and scaled to unit RMS radius, so that a target seen from another place
-    (shifted, nearer or farther) still matches its reference layout.
-
-    Parameters
-    ----------
-    detected : array_like, shape (N, 2)
-        Points in an arbitrary order (px); all finite.
-    reference : array_like, shape (N, 2)
-        The same points in the target's order (px), e.g. from a reference frame.
-    normalize : bool
-
-    Returns
-    -------
-    permutation : ndarray, shape (N,), int
-        ``detected[permutation]`` is in reference order.
+    The minimum total squared distance assignment; with ``normalize`` both sets (N, 2) are
+    first centred and scaled to unit RMS radius, so that a target seen nearer, farther or
+    shifted still matches. ``detected[permutation]`` is in reference order.
     """
     detected = np.asarray(detected, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)

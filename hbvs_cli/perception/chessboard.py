@@ -179,7 +179,7 @@ class ChessboardDetector:
         fitted = cv2.perspectiveTransform(self._layout.reshape(-1, 1, 2), H).reshape(-1, 2)
         if float(np.sqrt(np.mean(np.sum((fitted - corners) ** 2, axis=1)))) > GRID_FIT_PX:
             return None
-        if not _crossings(gray, corners, self.pattern):
+        if not board_corners_cross(gray, corners, self.pattern):
             return None
         return saddle_points(gray, corners)
 
@@ -267,7 +267,7 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDAr
 MIN_CROSSING_CONTRAST = 0.3
 
 
-def _crossings(gray: NDArray[np.uint8], corners: NDArray[np.float64], pattern: tuple[int, int]) -> bool:
+def board_corners_cross(gray: NDArray[np.uint8], corners: NDArray[np.float64], pattern: tuple[int, int]) -> bool:
     """True when every corner is a crossing of two dark and two light squares."""
     grid = corners.reshape(pattern[1], pattern[0], 2)
     along = np.gradient(grid, axis=1)  # one square along a row, at every corner

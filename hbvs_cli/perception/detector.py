@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import UsageError
 from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
+from .charuco import CharucoTargetDetector
 from .chessboard import ChessboardDetector
 from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
 from .dot_windows import WindowedDotDetector
@@ -41,39 +42,14 @@ def make_detector(
     windowed: bool = False,
     board: tuple[int, int] | None = None,
 ) -> TargetDetector:
-    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"`` or ``"texture"``).
+    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"``, ``"charuco"`` or ``"texture"``).
 
-    Parameters
-    ----------
-    kind : str
-    n_points : int
-        Number of target points (4 for ``aruco`` and for ``texture``'s default target).
-    reference_image : ndarray, optional
-        For ``texture`` (required): a frame (or picture) showing the target.
-    reference_pixels : array_like, shape (N, 2), optional
-        For ``texture`` (required): the target points in ``reference_image`` (px).
-    marker_id : int, optional
-        For ``aruco``: the marker to report; None accepts the only marker in view.
-    seed : int
-        Seed of the robust estimators' random sampling (``texture``).
-    marker_dict : str, optional
-        For ``aruco``: the dictionary (DICT_4X4_50 by default).
-    marker_ids : sequence of int, optional
-        For ``aruco``: several markers, 4 corners each (``n_points`` = 4 per marker).
-    polarity : str, optional
-        For ``dots``: ``"dark"`` (default) or ``"light"`` dots.
-    contrast : str, optional
-        For ``dots``: ``"gray"`` (default) or ``"colour"`` (see :func:`~.dots.dark_image`).
-    windowed : bool
-        For ``dots``: follow each tracked dot in its own small window
-        (:class:`~.dot_windows.WindowedDotDetector`) rather than in their common box.
-    board : (int, int), optional
-        For ``chessboard`` (required): inner corners per row and rows of them.
-
-    Raises
-    ------
-    UsageError
-        For an unknown kind or inconsistent arguments.
+    ``texture`` needs ``reference_image`` and the target's ``reference_pixels`` (N, 2) in it
+    (``seed``: its robust sampling); ``aruco`` takes ``marker_id`` (None: the only marker in
+    view) or ``marker_ids`` (4 corners each) from ``marker_dict``; ``dots`` takes
+    ``polarity``, ``contrast`` and ``windowed`` (each dot in its own window); ``chessboard``
+    needs ``board`` (inner corners per row, rows), ``charuco`` the board's squares across and
+    down. UsageError for inconsistent arguments.
     """
     if kind == "dots":
         dots = WindowedDotDetector if windowed else DotDetector
@@ -94,19 +70,18 @@ def make_detector(
         if board is None or board[0] * board[1] != n_points:
             raise UsageError(f"a chessboard target needs its pattern of inner corners ({n_points} points), got {board!r}")
         return ChessboardDetector(board)
-    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, texture")
+    if kind == "charuco":
+        if board is None or (board[0] - 1) * (board[1] - 1) != n_points:
+            raise UsageError(f"a ChArUco target needs its squares across and down ({n_points} inner corners), got {board!r}")
+        return CharucoTargetDetector(board, marker_dict or DEFAULT_DICTIONARY)
+    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, charuco, texture")
 
 
 def guess_target_kind(image: NDArray[np.uint8]) -> str:
     """Which kind of target a frame shows.
 
-    ``"aruco"`` if a DICT_4X4_50 marker is detected; ``"dots"`` if at least 3 dark round
-    blobs of similar size stand out and make up most of the dark structure (a textured
-    picture has many dark shapes that are not round); otherwise ``"texture"``.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W) or (H, W, 3), uint8
+    ``"aruco"`` if a marker is detected; ``"dots"`` if 3 or more similar dark round blobs make
+    up most of the dark structure (a texture has many that are not round); else ``"texture"``.
     """
     gray = as_gray(image)
     if marker_ids_in_view(gray):

@@ -1,8 +1,5 @@
-"""The metrics of one run as a JSON-ready dictionary: what ``hbvs report`` prints.
-
-:func:`build_report` returns exactly these top-level keys (docs/report.md documents every
-key and unit): ``run``, ``errors``, ``pose_error`` (only with ground truth), ``lyapunov``,
-``depth``, ``commands``, ``target``, ``condition35``, ``verdict``.
+"""The metrics of one run: :func:`build_report` computes the :class:`~.result.RunReport`
+that ``hbvs report`` prints (docs/report.md documents every field and unit).
 
 Convergence rule (:func:`verdict`; docs/report.md and docs/commands.md cite it here). A run has
 converged when every one of these holds:
@@ -27,7 +24,7 @@ the bands of the settling times.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 
@@ -35,7 +32,6 @@ from ..core.frames import wrap_angle
 from ..core.metrics import (
     command_smoothness,
     error_summary,
-    round_significant,
     longest_true_run_s,
     lyapunov_summary,
     min_abs,
@@ -47,6 +43,21 @@ from ..core.metrics import (
 from ..errors import UsageError
 from ..io.messages import LOG_ERROR
 from ..io.run_file import RunData
+from .result import (
+    Commands,
+    Condition35,
+    Depth,
+    ErrorSummary,
+    Limits,
+    Lyapunov,
+    RunReport,
+    RunSummary,
+    Source,
+    TaughtSmoothness,
+    Target,
+    Timing,
+    Verdict,
+)
 
 #: Final-error and settling tolerances: image errors in x_h units (fractions of d*),
 #: e3 and heading in degrees, position in metres.
@@ -58,9 +69,6 @@ DEFAULT_TOLERANCES: dict[str, float] = {
     "ebar2": 0.0025,
     "e3": 0.2,
 }
-#: Significant digits of every number in a report: float noise such as a rate of
-#: 30.0000003 Hz (1 / a median step of float times) is not a measurement.
-REPORT_DIGITS = 7
 #: V must end below this fraction of V(0) for a run to count as converged.
 V_RATIO_BOUND = 0.5
 #: Command smoothness (rule 5): the RMS of dv/dt (dw/dt) may be at most this many times
@@ -72,7 +80,7 @@ SMOOTHNESS_FLOOR_W = 1.0
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
 POSE_ERRORS = ("position_m", "heading_deg")
-#: Top-level keys of a report, in order.
+#: Top-level keys of a report's JSON, in order (``timing``, a live run's, before ``verdict``).
 REPORT_KEYS = ("run", "errors", "pose_error", "lyapunov", "depth", "commands", "target", "condition35", "verdict")
 
 #: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
@@ -99,10 +107,7 @@ _FINAL_CHECKS: dict[str, tuple[str, float, str]] = {
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
     """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied, checked.
 
-    Raises
-    ------
-    UsageError
-        An unknown name, or a value that is not a positive finite number.
+    Raises UsageError: an unknown name, or a value that is not a positive finite number.
     """
     tolerances = dict(DEFAULT_TOLERANCES)
     for name, value in (overrides or {}).items():
@@ -114,33 +119,6 @@ def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str
     return tolerances
 
 
-class MissingKey(KeyError):
-    """A dotted report key with a part that does not exist: ``where`` lacks ``part``."""
-
-    def __init__(self, where: str, part: str, choices: list[str]) -> None:
-        super().__init__(part)
-        self.where, self.part, self.choices = where, part, choices
-
-
-def resolve_key(report: Mapping[str, Any], key: str) -> Any:
-    """The value at a dotted key of a report, e.g. ``"pose_error.position_m.final"``.
-
-    Raises
-    ------
-    MissingKey
-        A part of the key is not in the report (``where`` is the dotted prefix that lacks it).
-    """
-    value: Any = report
-    walked: list[str] = []
-    for part in key.split("."):
-        if not isinstance(value, Mapping) or part not in value:
-            choices = list(value) if isinstance(value, Mapping) else []
-            raise MissingKey(".".join(walked) or "the report", part, choices)
-        value = value[part]
-        walked.append(part)
-    return value
-
-
 # ----------------------------------------------------------------------------- signals
 def image_error_signal(run: RunData, name: str) -> np.ndarray:
     """An image error per step: e1, e2, ebar2 (x_h units) or e3 (degrees); NaN when lost."""
@@ -149,14 +127,8 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
-    """Ground-truth errors per step, or ``None`` without ground truth.
-
-    Returns
-    -------
-    dict
-        ``position_m``: distance (m) between the true and the taught position at the same
-        time; ``heading_deg``: true minus taught heading, wrapped to [-180, 180) degrees.
-    """
+    """Per step, ``position_m`` from the taught position at the same time and ``heading_deg``
+    (true minus taught, wrapped to [-180, 180)); ``None`` without ground truth."""
     if run.true_pose is None or run.desired_pose is None:
         return None
     difference = run.true_pose - run.desired_pose
@@ -187,32 +159,32 @@ def default_label(run: RunData) -> str:
     return str(run.info.get("law") or run.info.get("mode") or "run")
 
 
-def _run_section(run: RunData, label: str | None) -> dict[str, Any]:
+def _run_summary(run: RunData, label: str | None) -> RunSummary:
     settings = run.info.get("settings") or {}
-    return {
-        "name": run.name,
-        "label": label if label is not None else default_label(run),
-        "duration_s": _duration_s(run),
-        "steps": run.steps,
-        "rate_hz": sample_rate_hz(run.state["t"]),
-        "law": run.info.get("law"),
-        "gains": dict(run.info.get("gains") or {}),
-        "source": {"mode": run.info.get("mode"), "fit_file": settings.get("input")},
-        "truncated": bool(run.truncated),
-    }
+    return RunSummary(
+        name=run.name,
+        label=label if label is not None else default_label(run),
+        duration_s=_duration_s(run),
+        steps=run.steps,
+        rate_hz=sample_rate_hz(run.state["t"]),
+        law=run.info.get("law"),
+        gains=dict(run.info.get("gains") or {}),
+        source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
+        truncated=bool(run.truncated),
+    )
 
 
-def _error_section(run: RunData, tolerances: Mapping[str, float]) -> dict[str, Any]:
-    t = run.state["t"]
-    return {name: error_summary(t, image_error_signal(run, name), tolerances[name]) for name in IMAGE_ERRORS}
+def _error_summaries(t: np.ndarray, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
+    return {name: ErrorSummary(**error_summary(t, signal, tolerances[name])) for name, signal in signals.items()}
 
 
-def _pose_section(run: RunData, tolerances: Mapping[str, float]) -> dict[str, Any] | None:
+def _image_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
+    return _error_summaries(run.state["t"], {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
+
+
+def _pose_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary] | None:
     signals = pose_error_signals(run)
-    if signals is None:
-        return None
-    t = run.state["t"]
-    return {name: error_summary(t, signals[name], tolerances[name]) for name in POSE_ERRORS}
+    return None if signals is None else _error_summaries(run.state["t"], signals, tolerances)
 
 
 #: dhat has learnt the depth once it stays within this fraction of d* (of its final value
@@ -223,27 +195,17 @@ DEPTH_END_WINDOW = 0.10
 #: dhat is still moving at the end when it drifts faster than this (fraction of its
 #: reference per second) over that window: a 20 s run would then move it by 10 % more.
 DEPTH_MOVING_RATE = 0.005
+#: With ground truth, a dhat that ends within this fraction of d* is not "still moving":
+#: under pixel noise it wanders about d* at up to 2 % per second while (31) holds it there.
+DEPTH_SETTLED_BAND = 0.02
 
 
 def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[float | None, float | None]:
-    """How dhat learnt the depth: the time it came within :data:`DEPTH_LEARNT_BAND` of
-    ``reference`` for good, and its drift at the end.
+    """How dhat (m, NaN where not logged) learnt ``reference`` (d*, or dhat's final value).
 
-    Parameters
-    ----------
-    t, dhat : ndarray, shape (K,)
-        Times (s) and the depth estimate (m); NaN where not logged.
-    reference : float
-        d* (m), or dhat's final value without ground truth.
-
-    Returns
-    -------
-    learning_time_s : float or None
-        Seconds from the start after which |dhat - reference| <= band * reference at every
-        later step; None when it never does.
-    end_rate_per_s : float or None
-        The least-squares slope of dhat over the last :data:`DEPTH_END_WINDOW` of the run,
-        as a fraction of ``reference`` per second; None with fewer than 3 samples there.
+    Returns ``learning_time_s``, after which dhat stays within :data:`DEPTH_LEARNT_BAND`
+    of it (None: never), and ``end_rate_per_s``, dhat's least-squares slope over the last
+    :data:`DEPTH_END_WINDOW` as a fraction of ``reference`` per second (None: < 3 samples).
     """
     keep = np.isfinite(dhat)
     t, dhat = t[keep], dhat[keep]
@@ -263,75 +225,77 @@ def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[f
     return learning, rate
 
 
-def _depth_section(run: RunData) -> dict[str, Any]:
+def _d_true(run: RunData) -> float | None:
+    d_true = run.info.get("d_true")
+    return float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
+
+
+def _depth(run: RunData) -> Depth:
     dhat = run.state["dhat"]
     finite = dhat[np.isfinite(dhat)]
-    d_true = run.info.get("d_true")
-    d_true = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
+    d_true = _d_true(run)
     dhat_final = float(finite[-1]) if finite.size else None
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
     reference = d_true if d_true is not None else dhat_final
     learning, rate = depth_learning(run.state["t"], dhat, reference) if reference is not None else (None, None)
-    moving = rate is not None and abs(rate) > DEPTH_MOVING_RATE
-    return {
-        "dhat0": float(finite[0]) if finite.size else None,
-        "dhat_final": dhat_final,
-        "d_true": d_true,
-        "relative_error": relative,
-        "learning_reference": None if reference is None else ("d_true" if d_true is not None else "dhat_final"),
-        "learning_time_s": learning,
-        "end_rate_per_s": rate,
-        "still_moving": moving,
-        "warning": (f"dhat is still moving at the end of the run ({100.0 * rate:+.2g} % per second): "
-                    "the depth is not learnt yet; a longer run, a better --dhat0 or a larger --gamma would help")
+    moving = (rate is not None and abs(rate) > DEPTH_MOVING_RATE
+              and not (relative is not None and relative <= DEPTH_SETTLED_BAND))
+    return Depth(
+        dhat0=float(finite[0]) if finite.size else None,
+        dhat_final=dhat_final,
+        d_true=d_true,
+        relative_error=relative,
+        learning_reference=None if reference is None else ("d_true" if d_true is not None else "dhat_final"),
+        learning_time_s=learning,
+        end_rate_per_s=rate,
+        still_moving=moving,
+        warning=(f"dhat is still moving at the end of the run ({100.0 * rate:+.2g} % per second): "
+                 "the depth is not learnt yet; a longer run, a better --dhat0 or a larger --gamma would help")
         if moving else None,
-    }
+    )
 
 
-def _limits(run: RunData) -> dict[str, float | None]:
+def _limits(run: RunData) -> Limits:
     limits = ((run.info.get("settings") or {}).get("limits")) or {}
-    return {name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
-            for name in ("max_v", "max_w", "max_accel")}
+    return Limits(**{name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
+                     for name in ("max_v", "max_w", "max_accel")})
 
 
-def _command_section(run: RunData) -> dict[str, Any]:
+def _commands(run: RunData) -> Commands:
     v, w, t = run.state["v_c"], run.state["w_c"], run.state["t"]
     limits = _limits(run)
-    d_true = run.info.get("d_true")
+    d_true = _d_true(run)
     dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
+    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
     v_d, w_d = taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
     taught = command_smoothness(t, v_d, w_d)
-    return {
-        "v_peak_mps": peak_abs(v),
-        "v_rms_mps": rms(v),
-        "w_peak_radps": peak_abs(w),
-        "w_rms_radps": rms(w),
-        "saturated_fraction": float(np.mean(run.saturated)),
-        **command_smoothness(t, v, w, **limits),
-        "limits": limits,
-        "taught": {key: taught[key] for key in ("v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2")},
-    }
+    del taught["at_limit_fraction"]
+    return Commands(
+        v_peak_mps=peak_abs(v),
+        v_rms_mps=rms(v),
+        w_peak_radps=peak_abs(w),
+        w_rms_radps=rms(w),
+        saturated_fraction=float(np.mean(run.saturated)),
+        **command_smoothness(t, v, w, limits.max_v, limits.max_w, limits.max_accel),
+        limits=limits,
+        taught=TaughtSmoothness(**taught),
+    )
 
 
-def _target_section(run: RunData) -> dict[str, Any]:
+def _target(run: RunData) -> Target:
     # A dropped frame inside a loss is still lost time (run.lost holds through drops),
     # so the longest loss spans drops; dropped frames are also counted on their own.
     dropped = run.dropped if run.dropped is not None else np.zeros(run.steps, dtype=bool)
-    return {
-        "lost_frames": int(np.count_nonzero(run.lost)),
-        "lost_fraction": float(np.mean(run.lost)),
-        "longest_loss_s": longest_true_run_s(run.state["t"], run.lost),
-        "dropped_frames": int(np.count_nonzero(dropped)),
-        "dropped_fraction": float(np.mean(dropped)),
-    }
+    return Target(
+        lost_frames=int(np.count_nonzero(run.lost)),
+        lost_fraction=float(np.mean(run.lost)),
+        longest_loss_s=longest_true_run_s(run.state["t"], run.lost),
+        dropped_frames=int(np.count_nonzero(dropped)),
+        dropped_fraction=float(np.mean(dropped)),
+    )
 
 
-#: Percentiles of the frame-to-command latency in a live run's report.
-LATENCY_PERCENTILES = (50, 95, 99)
-
-
-def timing_section(run: RunData) -> dict[str, Any] | None:
+def _timing(run: RunData) -> Timing | None:
     """A live run's loop timing (``repeat --live``; None for other runs): the latency from a
     frame's arrival to its command's publication (ms), the frame interval, and the frames
     dropped (arrived while another was processed) or late (interval over 1.5 periods)."""
@@ -340,21 +304,24 @@ def timing_section(run: RunData) -> dict[str, Any] | None:
         return None
     latency_ms = 1e3 * timing["latency_s"]
     intervals = timing["frame_interval_s"][np.isfinite(timing["frame_interval_s"])]
-    section: dict[str, Any] = {f"latency_p{q}_ms": float(np.percentile(latency_ms, q)) for q in LATENCY_PERCENTILES}
-    section["latency_max_ms"] = float(np.max(latency_ms))
-    section["frame_interval_p50_ms"] = float(1e3 * np.median(intervals)) if intervals.size else None
-    section["frame_interval_max_ms"] = float(1e3 * np.max(intervals)) if intervals.size else None
-    section["frames_dropped"] = int(np.nansum(timing["dropped"]))
-    section["frames_late"] = int(np.nansum(timing["late"]))
-    return section
+    return Timing(
+        latency_p50_ms=float(np.percentile(latency_ms, 50)),
+        latency_p95_ms=float(np.percentile(latency_ms, 95)),
+        latency_p99_ms=float(np.percentile(latency_ms, 99)),
+        latency_max_ms=float(np.max(latency_ms)),
+        frame_interval_p50_ms=float(1e3 * np.median(intervals)) if intervals.size else None,
+        frame_interval_max_ms=float(1e3 * np.max(intervals)) if intervals.size else None,
+        frames_dropped=int(np.nansum(timing["dropped"])),
+        frames_late=int(np.nansum(timing["late"])),
+    )
 
 
-def _condition35_section(run: RunData) -> dict[str, Any]:
+def _condition35(run: RunData) -> Condition35:
     fitted = (run.info.get("condition35") or {}).get("min_abs_xhd1_dot")
-    return {
-        "min_abs_xhd1_dot": min_abs(run.state["x_hd1_dot"]),
-        "fit_min_abs_xhd1_dot": float(fitted) if isinstance(fitted, (int, float)) else None,
-    }
+    return Condition35(
+        min_abs_xhd1_dot=min_abs(run.state["x_hd1_dot"]),
+        fit_min_abs_xhd1_dot=float(fitted) if isinstance(fitted, (int, float)) else None,
+    )
 
 
 # ----------------------------------------------------------------------------- verdict
@@ -386,12 +353,11 @@ def _finished_check(run: RunData) -> tuple[bool | None, str]:
     return _check(True, f"run finished ({_duration_s(run):.2f} s, {run.steps} steps)")
 
 
-def _lyapunov_check(lyapunov: Mapping[str, Any]) -> tuple[bool | None, str]:
-    ratio = lyapunov.get("ratio")
-    if ratio is None:
+def _lyapunov_check(lyapunov: Lyapunov) -> tuple[bool | None, str]:
+    if lyapunov.ratio is None:
         return _check(None, "V unknown (it needs the true depth d*): not checked")
-    fell = ratio < V_RATIO_BOUND
-    return _check(fell, f"V final / V(0) = {ratio:.3g} {'<' if fell else '>='} {V_RATIO_BOUND:g}")
+    fell = lyapunov.ratio < V_RATIO_BOUND
+    return _check(fell, f"V final / V(0) = {lyapunov.ratio:.3g} {'<' if fell else '>='} {V_RATIO_BOUND:g}")
 
 
 def smoothness_bound(taught_rms: float | None, floor: float) -> float:
@@ -401,36 +367,28 @@ def smoothness_bound(taught_rms: float | None, floor: float) -> float:
     return SMOOTHNESS_FACTOR * (taught_rms or 0.0) + floor
 
 
-def _smoothness_check(commands: Mapping[str, Any]) -> tuple[bool | None, str]:
-    taught = commands.get("taught") or {}
+def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
     parts, passed = [], True
-    for key, floor, unit in (("dv_dt_rms_mps2", SMOOTHNESS_FLOOR_V, "m/s^2"), ("dw_dt_rms_radps2", SMOOTHNESS_FLOOR_W, "rad/s^2")):
-        value = commands.get(key)
+    for name, value, taught, floor, unit in (
+        ("v", commands.dv_dt_rms_mps2, commands.taught.dv_dt_rms_mps2, SMOOTHNESS_FLOOR_V, "m/s^2"),
+        ("w", commands.dw_dt_rms_radps2, commands.taught.dw_dt_rms_radps2, SMOOTHNESS_FLOOR_W, "rad/s^2"),
+    ):
         if value is None:
             return _check(None, "command smoothness unknown (fewer than two steps): not checked")
-        bound = smoothness_bound(taught.get(key), floor)
+        bound = smoothness_bound(taught, floor)
         within = value <= bound
         passed = passed and within
-        parts.append(f"RMS d{key[1]}/dt {value:.3g} {'<=' if within else '>'} {bound:.3g} {unit}")
+        parts.append(f"RMS d{name}/dt {value:.3g} {'<=' if within else '>'} {bound:.3g} {unit}")
     return _check(passed, "commands smooth: " + ", ".join(parts) if passed else "commands chatter: " + ", ".join(parts))
 
 
-def verdict(run: RunData, report: Mapping[str, Any], tolerances: Mapping[str, float]) -> dict[str, Any]:
+def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mapping[str, ErrorSummary] | None,
+            lyapunov: Lyapunov, commands: Commands, tolerances: Mapping[str, float]) -> Verdict:
     """Whether the run converged, by the rule of this module's docstring, and why.
 
-    Parameters
-    ----------
-    run : RunData
-    report : dict
-        The other sections of the report (``errors``, ``pose_error``, ``lyapunov``).
-    tolerances : dict
-        Final-error tolerances (:data:`DEFAULT_TOLERANCES` units).
-
-    Returns
-    -------
-    dict
-        ``converged`` (bool); ``checks``: check name (:data:`CHECK_NAMES`) -> its line,
-        ``pass: ...``, ``fail: ...`` or ``skip: ...``; ``reasons``: the same lines as a list.
+    ``errors``, ``pose_error``, ``lyapunov`` and ``commands`` are the report's sections;
+    ``tolerances`` the final-error tolerances (:data:`DEFAULT_TOLERANCES` units). Each
+    check (:data:`CHECK_NAMES`) gives a line ``pass: ...``, ``fail: ...`` or ``skip: ...``.
     """
     checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
@@ -438,57 +396,37 @@ def verdict(run: RunData, report: Mapping[str, Any], tolerances: Mapping[str, fl
     else:
         checks["closed_loop"] = _check(True, f"closed loop ({run.info.get('mode') or 'unknown mode'})")
     checks["finished"] = _finished_check(run)
-    errors, names = (report["pose_error"], POSE_ERRORS) if "pose_error" in report else (report["errors"], ("e1", "e2", "e3"))
+    final_errors, names = (pose_error, POSE_ERRORS) if pose_error is not None else (errors, ("e1", "e2", "e3"))
     for name in names:
-        checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, errors[name]["final"], tolerances[name])
-    checks["lyapunov"] = _lyapunov_check(report["lyapunov"])
-    checks["smoothness"] = _smoothness_check(report["commands"])
-    return {
-        "converged": all(passed is not False for passed, _ in checks.values()),
-        "checks": {name: text for name, (_, text) in checks.items()},
-        "reasons": [text for _, text in checks.values()],
-    }
+        checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, final_errors[name].final, tolerances[name])
+    checks["lyapunov"] = _lyapunov_check(lyapunov)
+    checks["smoothness"] = _smoothness_check(commands)
+    return Verdict(
+        converged=all(passed is not False for passed, _ in checks.values()),
+        checks={name: text for name, (_, text) in checks.items()},
+        reasons=[text for _, text in checks.values()],
+    )
 
 
 # ----------------------------------------------------------------------------- report
-def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> dict[str, Any]:
-    """Every metric of one run, as JSON-ready values (see docs/report.md for units).
+def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> RunReport:
+    """Every metric of one run (see docs/report.md for units).
 
-    Parameters
-    ----------
-    run : RunData
-        A run read by :func:`hbvs_cli.io.run_file.read_run`.
-    tolerances : dict, optional
-        Overrides of :data:`DEFAULT_TOLERANCES` (names ``e1, e2, ebar2, e3, position_m,
-        heading_deg``).
-    label : str, optional
-        The run's name in tables and legends (``--label``); default :func:`default_label`.
-
-    Returns
-    -------
-    dict
-        Keys :data:`REPORT_KEYS` in that order; ``pose_error`` only when the run has
-        ground truth; ``timing`` (before ``verdict``) only for a live run. Unknown values are ``None``; every number is rounded to
-        :data:`REPORT_DIGITS` significant digits, so JSON, table and ``--fail-above`` see
-        one value.
+    ``tolerances`` override :data:`DEFAULT_TOLERANCES`; ``label`` (``--label``) defaults to
+    :func:`default_label`. Unknown values are None (``pose_error`` without ground truth).
     """
     tolerances = resolve_tolerances(tolerances)
-    sections: dict[str, Callable[[], Any]] = {
-        "run": lambda: _run_section(run, label),
-        "errors": lambda: _error_section(run, tolerances),
-        "pose_error": lambda: _pose_section(run, tolerances),
-        "lyapunov": lambda: lyapunov_summary(run.state["V"]),
-        "depth": lambda: _depth_section(run),
-        "commands": lambda: _command_section(run),
-        "target": lambda: _target_section(run),
-        "condition35": lambda: _condition35_section(run),
-        "timing": lambda: timing_section(run),
-    }
-    report: dict[str, Any] = {}
-    for key, section in sections.items():
-        value = section()
-        if value is not None:
-            report[key] = value
-    report = round_significant(report, REPORT_DIGITS)
-    report["verdict"] = verdict(run, report, tolerances)
-    return report
+    errors, pose_error = _image_errors(run, tolerances), _pose_errors(run, tolerances)
+    lyapunov, commands = Lyapunov(**lyapunov_summary(run.state["V"])), _commands(run)
+    return RunReport(
+        run=_run_summary(run, label),
+        errors=errors,
+        pose_error=pose_error,
+        lyapunov=lyapunov,
+        depth=_depth(run),
+        commands=commands,
+        target=_target(run),
+        condition35=_condition35(run),
+        timing=_timing(run),
+        verdict=verdict(run, errors, pose_error, lyapunov, commands, tolerances),
+    )

@@ -1,16 +1,9 @@
 """The look shared by every hbvs figure: paper-sized, readable, colour-blind safe.
 
-One style serves the run figure (:mod:`.plots`) and the fit figure (:mod:`.fit_plot`):
-
-* sizes in inches for a two-column paper (7 in wide by default; ``--size 3.5x8 --panels
-  position,heading,v,w,top`` for one column), fonts of 7-9 pt, so that text printed at 100 % is as large as the paper's;
-* the Okabe-Ito palette (Okabe and Ito, "Color Universal Design", 2008), distinguishable
-  with every common colour-vision deficiency; the taught path is black and dashed;
-* vector output (PDF, SVG) keeps its text as text (TrueType in PDF, ``<text>`` in SVG);
-  raster output (PNG) is at ``--dpi`` (200 by default).
-
-:func:`figure_style` turns ``--dpi``, ``--size`` and ``--panels`` into a
-:class:`FigureStyle`; :func:`paper_rc` is the matplotlib ``rcParams`` of the style.
+Sizes in inches for a two-column paper (7 in wide) with 7-9 pt fonts, so that text printed
+at 100 % is as large as the paper's; the Okabe-Ito palette (safe for every common
+colour-vision deficiency), the taught path black and dashed; vector output keeps its text
+as text, raster output is at ``--dpi``.
 """
 
 from __future__ import annotations
@@ -21,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..errors import InputError, OutputError, UsageError
+from ..errors import OutputError, UsageError
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -41,14 +34,8 @@ SIZE_RANGE_IN = (1.5, 40.0)
 class FigureStyle:
     """How to draw a figure: resolution, size and which panels.
 
-    Attributes
-    ----------
-    dpi : float
-        Raster resolution (PNG); vector formats ignore it.
-    size_in : tuple of float or None
-        (width, height) in inches; ``None``: 7 in wide, as tall as the panels need.
-    panels : tuple of str or None
-        Panel names in drawing order; ``None``: every panel of the figure.
+    ``size_in``: (width, height) in inches, None: 7 in wide and as tall as the panels need;
+    ``panels``: names in drawing order, None: all.
     """
 
     dpi: float = DEFAULT_DPI
@@ -59,10 +46,7 @@ class FigureStyle:
 def parse_size(text: str) -> tuple[float, float]:
     """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
 
-    Raises
-    ------
-    UsageError
-        Not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
+    Raises UsageError: not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
     """
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
@@ -77,10 +61,7 @@ def parse_size(text: str) -> tuple[float, float]:
 def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
     """``"position,heading,top"`` -> the panel names, checked against ``known``.
 
-    Raises
-    ------
-    UsageError
-        An empty list, an unknown name or a name given twice.
+    Raises UsageError: an empty list, an unknown name or a name given twice.
     """
     names = [name.strip() for name in (text or "").split(",") if name.strip()]
     if not names:
@@ -94,14 +75,8 @@ def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
 
 
 def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str]) -> FigureStyle:
-    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (checked);
-    ``--panels`` names some of ``known_panels``.
-
-    Raises
-    ------
-    UsageError
-        A resolution that is not a positive number, or a bad size or panel list.
-    """
+    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (some of
+    ``known_panels``); UsageError for a bad value."""
     if dpi is not None and not (math.isfinite(dpi) and dpi > 0):
         raise UsageError(f"--dpi must be a positive number, got {dpi}")
     return FigureStyle(
@@ -163,15 +138,8 @@ def supported_formats() -> set[str]:
 
 
 def check_plot_path(path: Path) -> None:
-    """Fail early, before any work, on a figure path that cannot be written.
-
-    Raises
-    ------
-    UsageError
-        A suffix matplotlib cannot write.
-    OutputError
-        The folder does not exist (exit 6).
-    """
+    """Fail before any work on a figure path that cannot be written: UsageError for a
+    suffix matplotlib cannot write, OutputError (exit 6) for a missing folder."""
     suffix = path.suffix.lower().lstrip(".")
     formats = supported_formats()
     if suffix not in formats:
@@ -184,10 +152,7 @@ def check_plot_path(path: Path) -> None:
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
     """Write ``figure`` to ``path`` (format from the suffix), under the paper style.
 
-    Raises
-    ------
-    InputError
-        The file cannot be written.
+    Raises OutputError: the file cannot be written.
     """
     import io
 

@@ -1,19 +1,9 @@
 """``hbvs report fit.mcap``: what the fit did to the taught signals (Remark 1).
 
-Remark 1 of the paper asks for a desired trajectory whose derivatives exist and are
-bounded, because the feed-forward terms of (29)-(30) use them. ``hbvs fit`` decomposes
-one homography per taught frame (the raw ``theta_d``, ``x_hd1``, ``x_hd2``), fits cubic
-smoothing splines to ``theta_d`` and ``x_hd1``, and integrates ``x_hd2`` from them by
-(25). This module reads both from a fit file (``/desired/raw`` and ``/desired/smooth``)
-and shows them:
-
-* a summary (numbers, for the table and ``--json``): frames, the RMS and largest
-  difference between raw and smooth signals, and the smallest ``|x_hd1_dot|`` (35);
-* a figure: raw (grey dots) against smoothed (line) ``theta_d`` (deg), ``x_hd1`` and
-  ``x_hd2`` (units of d*), each beside its raw - smooth difference (at the scale of the
-  signal the two coincide), and the feed-forward ``x_hd1_dot`` (1/s) of the spline
-  against a finite difference of the raw samples, which shows why the derivative is
-  taken from the spline. Gaps in the raw samples (target lost while teaching) are shaded.
+Reads ``/desired/raw`` and ``/desired/smooth`` of a fit file: a summary (raw minus smooth,
+the smallest ``|x_hd1_dot|`` (35)) and a figure of raw against smoothed theta_d, x_hd1 and
+x_hd2 beside their differences, and the spline's x_hd1_dot against a finite difference of
+the raw samples: why the feed-forward of (29)-(30) takes the derivative from the spline.
 """
 
 from __future__ import annotations
@@ -34,8 +24,8 @@ from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, new_figure, paper_
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
 SMOOTH_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
-#: The splines' standard deviations (``hbvs fit`` writes them since the joint estimate of
-#: n*; older fit files have none, and their figure has no band).
+#: The splines' standard deviations (from the joint estimate of n*; a fit without that
+#: estimate has none, and its figure has no band).
 SIGMA_FIELDS = ("theta_d_sigma", "x_hd1_sigma")
 #: Panels of the fit figure, in order: each signal and its raw - smooth difference, then
 #: the feed-forward derivative.
@@ -67,10 +57,7 @@ def _column(messages: list[dict[str, Any]], key: str, name: str, topic: str) -> 
 def read_fit_signals(source: Any, name: str = "") -> FitSignals:
     """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream).
 
-    Raises
-    ------
-    RecordingError
-        Not a fit file, or one without desired signals.
+    Raises RecordingError: not a fit file, or one without desired signals.
     """
     from ..io.mcap import McapStream, read_metadata
 
@@ -112,14 +99,8 @@ def raw_derivative(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def fit_summary(signals: FitSignals) -> dict[str, Any]:
     """The numbers of a fit report (JSON-ready).
 
-    Returns
-    -------
-    dict
-        ``file``; ``frames_raw`` and ``frames_smooth``; ``raw_minus_smooth``: for
-        ``theta_d_deg`` (deg), ``x_hd1`` and ``x_hd2`` (units of d*) the ``rms`` and
-        ``max_abs`` difference at the raw frames; ``x_hd1_dot``: ``min_abs`` and
-        ``max_abs`` of the spline's derivative (1/s) and ``raw_difference_rms``, the RMS
-        of a finite difference of the raw x_hd1 about the spline's (1/s).
+    ``raw_minus_smooth``: ``rms`` and ``max_abs`` at the raw frames (theta_d in deg);
+    ``x_hd1_dot`` (1/s): the spline's extremes and ``raw_difference_rms`` about it.
     """
     from ..core.metrics import round_significant
 
@@ -155,13 +136,8 @@ def _gaps(t: np.ndarray) -> list[tuple[float, float]]:
 
 
 def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
-    """The fit figure: raw against smoothed desired signals and the feed-forward x_hd1_dot.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        Not yet saved; each panel's axes is labelled with its name (:data:`FIT_PANELS`).
-    """
+    """The fit figure (unsaved; each axes labelled with its :data:`FIT_PANELS` name): raw
+    against smoothed desired signals and the feed-forward x_hd1_dot."""
     import matplotlib
 
     style = style or FigureStyle()

@@ -1,28 +1,7 @@
 """``--plot``: one figure of a run (or several, overlaid) fit for a paper.
 
-Panels (``--panels`` chooses and orders them; default all, in this order):
-
-=============  ===========================================================================
-``position``   position error against the taught pose at the same time (cm, log), 1 cm line
-``heading``    \\|heading error\\| against the taught pose (deg, log), 0.2 deg line
-``e1``         longitudinal image error e1 (19) (units of d*), +-tolerance
-``ebar2``      lateral image error ebar2 (27), +-tolerance
-``e2``         lateral image error e2 (19), +-tolerance
-``e3``         rotation error e3 (19) (deg), +-0.2 deg
-``v``, ``w``   commands v_c (29) (m/s) and w_c (30) (rad/s), with the actuator limits
-``dhat``       depth estimate dhat (31) (m), with the true d*
-``V``          Lyapunov function (36) as V / V(0) (dimensionless, log)
-``top``        top view: wall and target, taught (dashed, on top) and repeated paths, the
-               robot's heading every few seconds (m, equal aspect; full width)
-=============  ===========================================================================
-
-Conventions: one colour per run (Okabe-Ito); the figure legend names runs by their
-labels (``--label``, else the law) and verdicts. Stretches where the target was lost are
-shaded in the run's colour and the error lines break across them (nothing is drawn that
-was not measured); a dropped frame inside tracking is skipped, so the line joins its
-neighbours. Each run is drawn with at most :data:`MAX_POINTS_PER_RUN` points per panel
-(bin means), so a noisy 200 Hz run does not paint over a 30 Hz one. A panel whose data no
-run has is left out, unless ``--panels`` names it: then it says so in its middle.
+Panels (:data:`PANELS`, in their default order) and conventions (losses shaded and lines
+broken: nothing is drawn that was not measured): docs/report.md, "Figure".
 """
 
 from __future__ import annotations
@@ -47,6 +26,7 @@ from .figure_style import (
     save_figure,
 )
 from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .result import RunReport
 from .table import run_labels
 
 #: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
@@ -82,23 +62,9 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
     """The samples of a signal as drawn: broken (NaN) across lost stretches, joined across
     dropped frames, and at most ``max_points`` of them.
 
-    Parameters
-    ----------
-    t : ndarray, shape (K,)
-        Step times (s).
-    x : ndarray, shape (K,)
-        The signal; NaN where it has no value (lost target, dropped frame).
-    lost : ndarray of bool, shape (K,), or None
-        Steps where the target was lost: there the line breaks. ``None``: the signal is
-        defined through losses (the commands), so only its NaNs are skipped.
-    max_points : int
-        Beyond this many samples, the signal is shown as means over equal time bins of its
-        measured samples (a bin with none stays NaN, so losses longer than a bin still
-        break the line).
-
-    Returns
-    -------
-    t, x : ndarray
+    ``lost`` (K,) marks where the line breaks (None: a signal defined through losses, such
+    as the commands). Beyond ``max_points``, means over equal time bins (an empty bin stays
+    NaN, so a loss longer than a bin still breaks the line).
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float).copy()
@@ -424,10 +390,10 @@ PANEL_NAMES = tuple(PANELS)
 
 
 # ----------------------------------------------------------------------------- figure
-def _status(report: Mapping[str, Any]) -> str:
-    if report["run"]["source"].get("mode") == "replay":
+def _status(report: RunReport) -> str:
+    if report.run.source.mode == "replay":
         return "open-loop replay"
-    return "converged" if report["verdict"]["converged"] else "not converged"
+    return "converged" if report.verdict.converged else "not converged"
 
 
 def _content_height(panels: Sequence[str], columns: int) -> float:
@@ -438,14 +404,8 @@ def _content_height(panels: Sequence[str], columns: int) -> float:
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
-    """Figure size (in) and number of columns for these panels.
-
-    Raises
-    ------
-    UsageError
-        ``--size`` leaves the panels less than :data:`MIN_SCALE` of their natural height:
-        their axis labels would overlap (the message gives the least height that fits).
-    """
+    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
+    less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
     width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
     columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
     content = _content_height(panels, columns)
@@ -480,7 +440,7 @@ def check_figure_size(runs: Sequence[RunData], style: FigureStyle) -> None:
     _layout(figure_panels(runs, style), style)
 
 
-def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
+def _legend_handles(reports: Sequence[RunReport], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -498,26 +458,13 @@ def _legend_handles(reports: Sequence[Mapping[str, Any]], colors: Sequence[str],
 
 
 def plot_runs(
-    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], style: FigureStyle | None = None,
+    runs: Sequence[RunData], reports: Sequence[RunReport], style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
     """The figure of one or several runs (overlaid, one colour per run).
 
-    Parameters
-    ----------
-    runs : list of RunData
-    reports : list of dict
-        Their reports (labels and verdicts for the legend).
-    style : FigureStyle, optional
-        Size, resolution and panels (default: every panel, 7 in wide, 200 dpi).
-    tolerances : dict, optional
-        The report's tolerances (:data:`~hbvs_cli.report.build.DEFAULT_TOLERANCES`
-        units), drawn as dotted lines.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        Not yet saved. Each panel's axes is labelled with its panel name (``ax.get_label()``).
+    ``reports`` give the legend's labels and verdicts; ``tolerances`` are drawn dotted.
+    Returns the unsaved matplotlib figure; each axes is labelled with its panel name.
     """
     import matplotlib
 
@@ -554,15 +501,12 @@ def plot_runs(
 
 
 def save_plot(
-    runs: Sequence[RunData], reports: Sequence[Mapping[str, Any]], path: Path, style: FigureStyle | None = None,
+    runs: Sequence[RunData], reports: Sequence[RunReport], path: Path, style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
     """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.
 
-    Raises
-    ------
-    InputError
-        The file cannot be written.
+    Raises InputError: the file cannot be written.
     """
     style = style or FigureStyle()
     figure = plot_runs(runs, reports, style, tolerances)

@@ -1,13 +1,7 @@
 """Figures of a sweep, for a paper: convergence map, CDFs per law, error against parameters.
 
-* ``convergence_map.png``: the convergence rate over each pair of the first three numeric
-  swept parameters (their grid values, or ``BINS`` bins of a sampled range; the other
-  parameters pooled), one row per pair, one column per law; with one numeric parameter,
-  the rate against it, one line per law with its Wilson 95 % interval;
-* ``final_error_cdf.png``: the empirical CDFs of the final position and heading errors,
-  one curve per law;
-* ``final_error_vs_parameters.png``: the final position error of every run against each
-  numeric swept parameter (log scale), one colour per law, with the median per group.
+``convergence_map.png`` (rate over pairs of the first three numeric parameters, one column
+per law), ``final_error_cdf.png`` and ``final_error_vs_parameters.png``.
 """
 
 from __future__ import annotations

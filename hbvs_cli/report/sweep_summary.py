@@ -1,12 +1,8 @@
 """The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles.
 
-Groups: every law (when the law is swept or fixed), and for every other swept parameter its
-values (a grid) or ``BINS`` equal-width bins of its range (sampled), crossed with the law.
-For each group: runs, failed runs (no report; left out of the rate), converged runs, the
-convergence rate and its Wilson 95 % interval, and the median and 95th percentile of the
-final position error (m), the final heading error (deg) and the settling time (s: the
-later of the position and heading settling times; runs that never settled are left out of
-its quantiles and counted in ``unsettled``).
+Groups: each law, crossed with each other swept parameter's values (grid) or ``BINS`` bins
+(sampled). Failed runs are left out of the rate; runs that never settled are left out of
+the settling-time quantiles and counted in ``unsettled``.
 """
 
 from __future__ import annotations

@@ -1,25 +1,22 @@
 """The human-readable report: rich tables on stdout.
 
-On a terminal the tables have rules and colour. Anywhere else (a pipe, a file, a test) they
-are plain text: no colour, no box characters, columns separated by at least two spaces and
-the numbers never wrapped, so the output diffs and greps well (``hbvs report run.mcap | grep
-final``); the verdict's sentences wrap to the reader's width (:func:`reading_width`).
-
-Every number is the JSON value (:mod:`.build`) to 4 significant digits, in the unit
-named in its row label. One run: a run table, an error matrix (one row per error, one
-column per statistic), a table of the other metrics and the verdict. Several runs: the same
-tables side by side, one column per run named by its label (--label, else its law), with the error
-statistics one per row.
+Rules and colour on a terminal; elsewhere plain text with unwrapped numbers, so that the
+output diffs and greps well. Numbers are the JSON values to 4 significant digits in the
+unit of the row label; several runs stand side by side, one column each.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence, TextIO
+from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
 
 from ..core.control_settings import GAIN_UNITS
 from ..core.metrics import STATISTICS
-from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS, MissingKey, resolve_key
+from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS
+from .result import ErrorSummary, RunReport, resolve_key
+
+#: A table row: its label (with the unit) and how to read its value from a report.
+Row = tuple[str, Callable[[RunReport], Any]]
 
 #: Width of the plain-text output: wide enough never to wrap a row of a comparison.
 PLAIN_WIDTH = 1000
@@ -38,50 +35,50 @@ ERROR_SIGNALS = {
 #: Short name of each statistic; all are in the signal's unit except the settling time (s).
 STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
 
-#: Rows of the metrics table: (label with unit, dotted key into a report).
-METRIC_ROWS: tuple[tuple[str, str], ...] = (
-    ("V initial", "lyapunov.initial"),
-    ("V final", "lyapunov.final"),
-    ("V final / V(0)", "lyapunov.ratio"),
-    ("V increase (fraction of steps)", "lyapunov.increase_fraction"),
-    ("dhat0 (m)", "depth.dhat0"),
-    ("dhat final (m)", "depth.dhat_final"),
-    ("d* true (m)", "depth.d_true"),
-    ("dhat relative error (-)", "depth.relative_error"),
-    ("dhat within 10 % after (s)", "depth.learning_time_s"),
-    ("dhat drift at the end (1/s)", "depth.end_rate_per_s"),
-    ("dhat still moving at the end", "depth.still_moving"),
-    ("v peak (m/s)", "commands.v_peak_mps"),
-    ("v rms (m/s)", "commands.v_rms_mps"),
-    ("w peak (rad/s)", "commands.w_peak_radps"),
-    ("w rms (rad/s)", "commands.w_rms_radps"),
-    ("saturated (fraction of steps)", "commands.saturated_fraction"),
-    ("at a limit (fraction of steps)", "commands.at_limit_fraction"),
-    ("v total variation (m/s per s)", "commands.v_tv_per_s"),
-    ("w total variation (rad/s per s)", "commands.w_tv_per_s"),
-    ("RMS dv/dt (m/s^2)", "commands.dv_dt_rms_mps2"),
-    ("RMS dw/dt (rad/s^2)", "commands.dw_dt_rms_radps2"),
-    ("taught RMS dv/dt (m/s^2)", "commands.taught.dv_dt_rms_mps2"),
-    ("taught RMS dw/dt (rad/s^2)", "commands.taught.dw_dt_rms_radps2"),
-    ("target lost (frames)", "target.lost_frames"),
-    ("target lost (fraction of steps)", "target.lost_fraction"),
-    ("longest loss (s)", "target.longest_loss_s"),
-    ("dropped frames", "target.dropped_frames"),
-    ("dropped (fraction of steps)", "target.dropped_fraction"),
-    ("min |x_hd1_dot| run (1/s)", "condition35.min_abs_xhd1_dot"),
-    ("min |x_hd1_dot| fit (1/s)", "condition35.fit_min_abs_xhd1_dot"),
+#: Rows of the metrics table.
+METRIC_ROWS: tuple[Row, ...] = (
+    ("V initial", lambda r: r.lyapunov.initial),
+    ("V final", lambda r: r.lyapunov.final),
+    ("V final / V(0)", lambda r: r.lyapunov.ratio),
+    ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
+    ("dhat0 (m)", lambda r: r.depth.dhat0),
+    ("dhat final (m)", lambda r: r.depth.dhat_final),
+    ("d* true (m)", lambda r: r.depth.d_true),
+    ("dhat relative error (-)", lambda r: r.depth.relative_error),
+    ("dhat within 10 % after (s)", lambda r: r.depth.learning_time_s),
+    ("dhat drift at the end (1/s)", lambda r: r.depth.end_rate_per_s),
+    ("dhat still moving at the end", lambda r: r.depth.still_moving),
+    ("v peak (m/s)", lambda r: r.commands.v_peak_mps),
+    ("v rms (m/s)", lambda r: r.commands.v_rms_mps),
+    ("w peak (rad/s)", lambda r: r.commands.w_peak_radps),
+    ("w rms (rad/s)", lambda r: r.commands.w_rms_radps),
+    ("saturated (fraction of steps)", lambda r: r.commands.saturated_fraction),
+    ("at a limit (fraction of steps)", lambda r: r.commands.at_limit_fraction),
+    ("v total variation (m/s per s)", lambda r: r.commands.v_tv_per_s),
+    ("w total variation (rad/s per s)", lambda r: r.commands.w_tv_per_s),
+    ("RMS dv/dt (m/s^2)", lambda r: r.commands.dv_dt_rms_mps2),
+    ("RMS dw/dt (rad/s^2)", lambda r: r.commands.dw_dt_rms_radps2),
+    ("taught RMS dv/dt (m/s^2)", lambda r: r.commands.taught.dv_dt_rms_mps2),
+    ("taught RMS dw/dt (rad/s^2)", lambda r: r.commands.taught.dw_dt_rms_radps2),
+    ("target lost (frames)", lambda r: r.target.lost_frames),
+    ("target lost (fraction of steps)", lambda r: r.target.lost_fraction),
+    ("longest loss (s)", lambda r: r.target.longest_loss_s),
+    ("dropped frames", lambda r: r.target.dropped_frames),
+    ("dropped (fraction of steps)", lambda r: r.target.dropped_fraction),
+    ("min |x_hd1_dot| run (1/s)", lambda r: r.condition35.min_abs_xhd1_dot),
+    ("min |x_hd1_dot| fit (1/s)", lambda r: r.condition35.fit_min_abs_xhd1_dot),
 )
 
 #: Rows of a live run's loop timing (``repeat --live``): shown when a run has them.
-TIMING_ROWS: tuple[tuple[str, str], ...] = (
-    ("latency p50 (ms)", "timing.latency_p50_ms"),
-    ("latency p95 (ms)", "timing.latency_p95_ms"),
-    ("latency p99 (ms)", "timing.latency_p99_ms"),
-    ("latency max (ms)", "timing.latency_max_ms"),
-    ("frame interval p50 (ms)", "timing.frame_interval_p50_ms"),
-    ("frame interval max (ms)", "timing.frame_interval_max_ms"),
-    ("frames dropped", "timing.frames_dropped"),
-    ("frames late", "timing.frames_late"),
+TIMING_ROWS: tuple[Row, ...] = (
+    ("latency p50 (ms)", lambda r: r.timing and r.timing.latency_p50_ms),
+    ("latency p95 (ms)", lambda r: r.timing and r.timing.latency_p95_ms),
+    ("latency p99 (ms)", lambda r: r.timing and r.timing.latency_p99_ms),
+    ("latency max (ms)", lambda r: r.timing and r.timing.latency_max_ms),
+    ("frame interval p50 (ms)", lambda r: r.timing and r.timing.frame_interval_p50_ms),
+    ("frame interval max (ms)", lambda r: r.timing and r.timing.frame_interval_max_ms),
+    ("frames dropped", lambda r: r.timing and r.timing.frames_dropped),
+    ("frames late", lambda r: r.timing and r.timing.frames_late),
 )
 
 #: Row label of each verdict check (``verdict.checks``).
@@ -92,14 +89,14 @@ CHECK_LABELS = {
 }
 
 #: Rows of the run table after the gains.
-RUN_ROWS: tuple[tuple[str, str], ...] = (
-    ("law", "run.law"),
-    ("mode", "run.source.mode"),
-    ("fit file", "run.source.fit_file"),
-    ("duration (s)", "run.duration_s"),
-    ("steps", "run.steps"),
-    ("rate (Hz)", "run.rate_hz"),
-    ("truncated", "run.truncated"),
+RUN_ROWS: tuple[Row, ...] = (
+    ("law", lambda r: r.run.law),
+    ("mode", lambda r: r.run.source.mode),
+    ("fit file", lambda r: r.run.source.fit_file),
+    ("duration (s)", lambda r: r.run.duration_s),
+    ("steps", lambda r: r.run.steps),
+    ("rate (Hz)", lambda r: r.run.rate_hz),
+    ("truncated", lambda r: r.run.truncated),
 )
 
 
@@ -116,21 +113,12 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
-def lookup(report: Mapping[str, Any], key: str) -> Any:
-    """The value at a dotted key (``"depth.d_true"``), or ``None`` when a part is absent
-    (``pose_error`` of a run without ground truth, in a comparison)."""
-    try:
-        return resolve_key(report, key)
-    except MissingKey:
-        return None
-
-
-def run_labels(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+def run_labels(reports: Sequence[RunReport]) -> list[str]:
     """How tables and legends name the runs: their labels (``--label``, else the law);
     a label two runs share is followed by the run's file name, e.g. ``paper (b.mcap)``."""
-    labels = [str(report["run"].get("label") or "run") for report in reports]
+    labels = [report.run.label or "run" for report in reports]
     return [
-        f"{label} ({Path(report['run']['name']).name})" if labels.count(label) > 1 else label
+        f"{label} ({Path(report.run.name).name})" if labels.count(label) > 1 else label
         for label, report in zip(labels, reports)
     ]
 
@@ -150,41 +138,53 @@ def _table(headers: Sequence[str], plain: bool) -> Any:
     return table
 
 
-def _rows_table(rows: Iterable[tuple[str, str]], reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
-    """One row per (label, dotted key), one column per run."""
+def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) -> Any:
+    """One row per (label, value of a report), one column per run."""
     table = _table(["quantity", *run_labels(reports)], plain)
-    for label, key in rows:
-        table.add_row(label, *(format_value(lookup(r, key)) for r in reports))
+    for label, value in rows:
+        table.add_row(label, *(format_value(value(r)) for r in reports))
     return table
 
 
-def _run_rows(reports: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
+def _gain(name: str) -> Callable[[RunReport], Any]:
+    return lambda report: report.run.gains.get(name)
+
+
+def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
     """The run table's rows: file, the fixed rows, then every gain any run has."""
     gains: dict[str, None] = {}
     for report in reports:
-        gains.update(dict.fromkeys(report["run"]["gains"]))
-    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", f"run.gains.{name}") for name in gains]
-    return [("file", "run.name"), ("label", "run.label"), *RUN_ROWS, *gain_rows]
+        gains.update(dict.fromkeys(report.run.gains))
+    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", _gain(name)) for name in gains]
+    return [("file", lambda r: r.run.name), ("label", lambda r: r.run.label), *RUN_ROWS, *gain_rows]
 
 
 def _statistic_unit(statistic: str, signal: str) -> str:
     return "s" if statistic == "settling_time_s" else ERROR_SIGNALS[signal][1]
 
 
-def _error_matrix(section: Mapping[str, Any], names: Sequence[str], plain: bool) -> Any:
+def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], plain: bool) -> Any:
     """One run's errors: a row per error signal (with its unit), a column per statistic."""
     headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
     table = _table(["error", *headers], plain)
     for name in names:
         short, unit = ERROR_SIGNALS[name]
-        table.add_row(f"{short} ({unit})", *(format_value(section[name][s]) for s in STATISTICS))
+        table.add_row(f"{short} ({unit})", *(format_value(getattr(section[name], s)) for s in STATISTICS))
     return table
 
 
-def _error_rows(section: str, names: Sequence[str]) -> list[tuple[str, str]]:
+def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport], Any]:
+    """A statistic of an error of a report; None when the report lacks the section (no ground truth)."""
+    def value(report: RunReport) -> Any:
+        errors = getattr(report, section)
+        return None if errors is None else getattr(errors[name], statistic)
+    return value
+
+
+def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
     """Several runs' errors: a row per (signal, statistic), e.g. ``e1 final (d*)``."""
     return [
-        (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", f"{section}.{name}.{s}")
+        (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", _statistic(section, name, s))
         for name in names for s in STATISTICS
     ]
 
@@ -196,15 +196,15 @@ def _natural_width(table: Any, console: Any) -> int:
     return Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum
 
 
-def _error_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tuple[str, Any]]:
+def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
     """The image and pose error tables: a matrix for one run when it fits the width, else rows."""
     plain = not console.is_terminal
     sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
-    if any("pose_error" in r for r in reports):
+    if any(r.pose_error is not None for r in reports):
         sections.append(("pose_error", POSE_ERRORS, "pose error against the taught path at the same time (ground truth)"))
     tables = []
     for key, names, title in sections:
-        table = _error_matrix(reports[0][key], names, plain) if len(reports) == 1 else None
+        table = _error_matrix(getattr(reports[0], key), names, plain) if len(reports) == 1 else None
         # A terminal narrower than the matrix would squeeze its numbers into ellipses.
         if table is None or _natural_width(table, console) > console.width:
             table = _rows_table(_error_rows(key, names), reports, plain)
@@ -212,7 +212,7 @@ def _error_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tu
     return tables
 
 
-def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
+def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     """``converged`` then one row per check; failed checks in red on a terminal."""
     from rich.text import Text
 
@@ -224,26 +224,20 @@ def _verdict_table(reports: Sequence[Mapping[str, Any]], plain: bool) -> Any:
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")
 
-    table.add_row("converged", *(styled(format_value(r["verdict"]["converged"]), r["verdict"]["converged"]) for r in reports))
+    table.add_row("converged", *(styled(format_value(r.verdict.converged), r.verdict.converged) for r in reports))
     # One row per named check: a replay's image-error checks and a simulated run's pose
     # checks land in rows of their own, and a check a run does not have shows n/a.
     for name in CHECK_NAMES:
-        cells = [r["verdict"]["checks"].get(name, MISSING) for r in reports]
+        cells = [r.verdict.checks.get(name, MISSING) for r in reports]
         if any(cell != MISSING for cell in cells):
             table.add_row(CHECK_LABELS[name], *(styled(c, not c.startswith("fail")) for c in cells))
     return table
 
 
-def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tuple[str, Any]]:
+def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
     """Every table of the report with its title, in print order.
 
-    Parameters
-    ----------
-    reports : list of dict
-        Reports from :func:`hbvs_cli.report.build.build_report`, one per run.
-    console : rich.console.Console
-        Where they will be printed: plain text (no box characters) unless it is a
-        terminal, whose width decides the error tables' layout.
+    Plain text unless ``console`` is a terminal, whose width decides the error tables' layout.
     """
     plain = not console.is_terminal
     return [
@@ -251,7 +245,7 @@ def report_tables(reports: Sequence[Mapping[str, Any]], console: Any) -> list[tu
         *_error_tables(reports, console),
         ("Lyapunov function (36), depth, commands, target, condition (35)", _rows_table(METRIC_ROWS, reports, plain)),
         *([("live loop: frame-to-command latency, frames dropped or late", _rows_table(TIMING_ROWS, reports, plain))]
-          if any("timing" in report for report in reports) else []),
+          if any(report.timing is not None for report in reports) else []),
         ("verdict (convergence rule: docs/report.md)", _verdict_table(reports, plain)),
     ]
 
@@ -266,7 +260,7 @@ def report_console(stream: TextIO) -> Any:
     return Console(file=stream, highlight=False, markup=False, emoji=False, color_system=None, width=PLAIN_WIDTH)
 
 
-def print_report_tables(reports: Sequence[Mapping[str, Any]], stream: TextIO) -> None:
+def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
     """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
     from rich.text import Text
 
@@ -320,6 +314,6 @@ def print_fit_table(summary: Mapping[str, Any], stream: TextIO) -> None:
     plain = not console.is_terminal
     table = _table(["quantity", Path(str(summary["file"])).name], plain)
     for label, key in FIT_ROWS:
-        table.add_row(label, format_value(lookup(summary, key)))
+        table.add_row(label, format_value(resolve_key(summary, key)))
     console.print(Text("desired trajectory (Remark 1): raw homography decomposition against the splines", style="" if plain else "bold cyan"))
     console.print(table)

@@ -1,13 +1,8 @@
 """``--export-tum``: the taught and the repeated trajectories in the TUM RGB-D format.
 
-One line per control step, space separated::
-
-    timestamp tx ty tz qx qy qz qw
-
-timestamp in seconds from the run's start, position in metres in the simulator's world
-frame (z up; tz is the camera's height above the floor), orientation the unit quaternion
-of the heading about z. ``evo_ape tum run.taught.tum run.repeated.tum`` then compares
-them. Only runs with ground truth (``hbvs repeat --sim``) have poses to export.
+One line per step, ``timestamp tx ty tz qx qy qz qw``: seconds from the start, metres in
+the simulator's world frame (tz: camera height), the heading's quaternion; for
+``evo_ape tum run.taught.tum run.repeated.tum``. Only runs with ground truth have poses.
 """
 
 from __future__ import annotations
@@ -18,7 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.frames import yaw_to_quaternion
-from ..errors import InputError, RecordingError, UsageError
+from ..errors import InputError, UsageError
 from ..io.mcap import McapStream
 from ..io.run_file import TRUE_POSE_TOPIC, RunData
 
@@ -30,21 +25,11 @@ REPEATED_SUFFIX = ".repeated.tum"
 def camera_height_m(source: Any, name: str = "") -> float | None:
     """The camera's height (m): the z of the first ground-truth pose of a run file.
 
-    :func:`~hbvs_cli.io.run_file.read_run` keeps planar poses only; the height is constant,
-    so one message is enough. ``None`` when the file has no ground-truth pose.
-
-    Parameters
-    ----------
-    source : str, path or binary stream
-        The run file (a stream must be positioned at its start).
-    name : str
-        How to name it in error messages.
+    ``read_run`` keeps planar poses only, and the height is constant: one message is enough.
+    ``source``: path or binary stream at its start; ``None`` without a ground-truth pose.
     """
     for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
-        try:
-            return float(message.json(name)["pose"]["position"]["z"])
-        except (KeyError, TypeError, ValueError):
-            raise RecordingError(f"{name}: malformed pose message on {TRUE_POSE_TOPIC}") from None
+        return float(message.foxglove(name).pose.position.z)
     return None
 
 
@@ -58,12 +43,7 @@ def require_ground_truth(run: RunData) -> None:
 
 
 def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
-    """Fail before writing anything: a run without ground truth, or two runs with one file stem.
-
-    Raises
-    ------
-    UsageError
-    """
+    """UsageError before writing anything for a run without ground truth, or two runs with one file stem."""
     seen: dict[Path, str] = {}
     for run in runs:
         require_ground_truth(run)
@@ -74,17 +54,7 @@ def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
 
 
 def tum_lines(t: np.ndarray, poses: np.ndarray, height_m: float) -> list[str]:
-    """TUM lines of planar poses.
-
-    Parameters
-    ----------
-    t : ndarray, shape (K,)
-        Timestamps (s).
-    poses : ndarray, shape (K, 3)
-        ``(x, y, phi)`` (m, m, rad).
-    height_m : float
-        The constant z (m).
-    """
+    """TUM lines of planar poses (K, 3) at times ``t`` (s), at the constant z ``height_m``."""
     quaternions = yaw_to_quaternion(poses[:, 2])
     return [
         f"{stamp:.9f} {x:.9f} {y:.9f} {height_m:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
@@ -99,27 +69,8 @@ def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
 
 
 def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Path]:
-    """Write the taught and repeated trajectories of a run into ``directory`` (created if needed).
-
-    Parameters
-    ----------
-    run : RunData
-        A run with ground truth.
-    directory : Path
-    height_m : float
-        Camera height (m), written as tz.
-
-    Returns
-    -------
-    (taught, repeated) : paths written
-
-    Raises
-    ------
-    UsageError
-        The run has no ground truth.
-    InputError
-        The folder cannot be created or written.
-    """
+    """Write a run's taught and repeated trajectories into ``directory`` (created if needed)
+    and return both paths. UsageError without ground truth, InputError if unwritable."""
     from ..io.output_target import write_output_bytes
 
     require_ground_truth(run)

@@ -1,25 +1,12 @@
 """The closed loop of ``repeat --sim``: sense, control, actuate, move; one camera frame at a time.
 
-Every control period ``dt`` the simulator asks a sensing function for a measurement of
-the current pose (exact points, noisy points or a whole rendered image run through a
-detector: the caller decides), the controller answers with (v_c, w_c), the actuator limits
-clip them, and the unicycle integrates them exactly while they are held for ``dt``
-(:mod:`hbvs_cli.core.unicycle`).
-
-When the sensing function reports the target lost, the robot is commanded to stop and the
-adaptation is frozen; it resumes when the target is back. When a frame is dropped (never
-arrives), or a few in a row are rejected as outliers, the last command is held and the
-adaptation is frozen for those periods: stopping for one bad frame would only make the
-robot lag its trajectory. A dropped frame carries no news about the target, so it keeps
-the lost state of the last frame that arrived: a drop during an occlusion is still lost
-time (the lost timeout keeps counting), never a "target back".
-
-With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
-through frames that give no measurement (dropped, occluded, rejected) on its prediction for
-as long as the prediction's standard deviation stays small; only then does the robot stop.
-
-:class:`Simulation` holds what the loop runs on: the scene, the simulated camera, the
-time-scaled trajectory and the controller.
+Every period ``dt``: a sensing function measures the pose, the controller answers with
+(v_c, w_c), the limits clip them and the unicycle integrates them exactly over ``dt``.
+A lost target stops the robot and freezes the adaptation; a dropped frame or a few rejected
+ones hold the last command instead (stopping for one bad frame only makes the robot lag),
+and a drop keeps the lost state of the last frame that arrived. With a state filter the law
+acts on its estimate, and on its prediction through frames without a measurement while the
+prediction stays certain.
 """
 
 from __future__ import annotations
@@ -38,7 +25,7 @@ from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
 from ..core.unicycle import integrate_unicycle
 from ..errors import InvalidValueError
-from .camera import SimulatedCamera
+from .simulated_camera import SimulatedCamera
 from .scene import Scene
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]
@@ -57,28 +44,9 @@ def run_closed_loop(
 ) -> Iterator[StepRecord]:
     """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
 
-    Parameters
-    ----------
-    sense : callable
-        ``(pose, t) -> Observation``.
-    trajectory : DesiredTrajectory
-    controller : AdaptiveTrackingController
-        Its dhat is updated in place.
-    start_pose : array_like, shape (3,)
-    dt : float
-        Control period (s).
-    duration : float
-        Seconds to simulate.
-    limits : ActuatorLimits, optional
-    latency_steps : int
-        The controller acts on the observation taken this many periods earlier; before
-        the first one arrives it holds still.
-    state_filter : ServoStateFilter, optional
-        When given, the law acts on its estimate (docs/method.md, "State filter"): each
-        frame is fused at the time it was taken, the estimate is carried over the commands
-        sent since (latency), and through dropped frames and rejected ones the law runs on
-        the prediction with the adaptation frozen. Without it the law acts on each raw
-        measurement, as in the paper.
+    ``sense(pose, t) -> Observation``; the controller's dhat is updated in place; ``dt`` and
+    ``duration`` in s. The law acts on the observation ``latency_steps`` periods old (holding
+    still before), or on the ``state_filter``'s estimate (docs/method.md, "State filter").
     """
     if dt <= 0.0 or not np.isfinite(dt):
         raise InvalidValueError(f"the control period must be positive, got {dt}")
@@ -87,8 +55,7 @@ def run_closed_loop(
     limits = limits or ActuatorLimits()
     pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
     steps = int(round(duration / dt))
-    # The control instants are known in advance: evaluate the desired trajectory at all of
-    # them at once (vectorised) instead of once per step.
+    # The control instants are known in advance: one vectorised evaluation.
     times = np.arange(steps) * dt
     schedule = trajectory.evaluate(times)
     columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
@@ -110,23 +77,8 @@ _DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_h
 
 @dataclass
 class Simulation:
-    """Everything a closed-loop run needs.
-
-    Attributes
-    ----------
-    scene : Scene
-    camera : SimulatedCamera
-    trajectory : TimeScaledTrajectory
-    controller : AdaptiveTrackingController
-    start_pose : ndarray, shape (3,)
-        ``(x, y, phi)`` (m, m, rad) in W.
-    dt, duration : float
-        Control period and run length (s).
-    limits : ActuatorLimits
-    latency : int
-        Measurement latency (frames).
-    state_filter : ServoStateFilter or None
-    """
+    """Everything a closed-loop run needs: ``start_pose`` (x, y, phi) in W, ``dt`` and
+    ``duration`` (s), ``latency`` (frames), and the objects the loop runs on."""
 
     scene: Scene
     camera: SimulatedCamera

@@ -1,23 +1,11 @@
 """The target's picture as a raster: the poster a renderer warps into the camera.
 
-Pixel convention
-----------------
-Poster coordinates ``(a, b)`` are metres from the poster's top-left corner, ``a`` to the
-right and ``b`` down (:class:`hbvs_cli.core.world.Poster`). Raster pixels follow OpenCV:
-pixel ``(i, j)`` (column, row) has its centre at integer coordinates ``(i, j)`` and covers
-``[i - 0.5, i + 0.5] x [j - 0.5, j + 0.5]``. With ``ppm`` raster pixels per metre,
-
-* the poster point ``(a, b)`` is the level-0 raster coordinate ``(a ppm - 0.5, b ppm - 0.5)``,
-  so the poster's top-left corner is the outer corner of pixel (0, 0);
-* pyramid level ``l`` halves the resolution ``l`` times; its pixel ``i`` has its centre at
-  the level-0 coordinate ``2^l i + (2^l - 1) / 2`` (it summarises the ``2^l`` level-0 pixels
-  ``2^l i ... 2^l i + 2^l - 1``), i.e. at the poster coordinate ``(i + 0.5) 2^l / ppm``.
-  Level ``l`` is therefore a raster of ``ppm / 2^l`` pixels per metre under the same rule.
-
-``cv2.pyrDown`` centres output pixel ``i`` on input pixel ``2i``, a quarter-pixel shift per
-level that would bias every rendered point; the pyramid here uses the even binomial kernel
-``[1, 3, 3, 1] / 8`` centred between input pixels ``2i`` and ``2i + 1`` instead, which is
-exactly the convention above.
+Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down.
+Raster pixel ``(i, j)`` (OpenCV) has its centre at ``(i, j)``: the poster point ``(a, b)`` is
+the level-0 coordinate ``(a ppm - 0.5, b ppm - 0.5)``, and pyramid level ``l`` is a raster of
+``ppm / 2^l`` px/m under the same rule (its pixel ``i`` centred at ``(i + 0.5) 2^l / ppm`` m).
+``cv2.pyrDown`` would shift each level by a quarter pixel and bias every rendered point, so
+the pyramid uses the even kernel ``[1, 3, 3, 1] / 8`` centred between input pixels 2i, 2i+1.
 """
 
 from __future__ import annotations
@@ -29,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.grayscale import as_gray
-from ..core.world import Target
+from .world import Target
 from ..errors import InputError, UsageError
 
 #: Gray level of the poster's paper.
@@ -51,18 +39,8 @@ _PYRAMID_KERNEL = np.array([1.0, 3.0, 3.0, 1.0], dtype=np.float32) / 8.0
 class PosterRaster:
     """A grayscale picture of a target's poster and its anti-aliasing pyramid.
 
-    Attributes
-    ----------
-    kind : str
-        The target kind the picture was drawn for.
-    ppm : float
-        Level-0 resolution (raster pixels per metre of poster).
-    levels : tuple of ndarray
-        ``levels[l]`` is the uint8 image of pyramid level ``l``, shape
-        ``(ceil(H0 / 2^l), ceil(W0 / 2^l))``; ``levels[0]`` has shape ``(H0, W0)`` with
-        ``W0 = round(width ppm)``, ``H0 = round(height ppm)``.
-    width, height : float
-        Poster size (m).
+    ``ppm``: level-0 raster px per metre of poster; ``levels[l]``: uint8 image of shape
+    ``(ceil(H0 / 2^l), ceil(W0 / 2^l))``, ``(H0, W0) = round((height, width) ppm)`` (m).
     """
 
     kind: str
@@ -80,22 +58,9 @@ class PosterRaster:
     ) -> "PosterRaster":
         """Draw the poster of ``target``.
 
-        Parameters
-        ----------
-        target : Target
-        texture : ndarray, optional
-            For ``kind == "texture"``: an already-loaded image (uint8 or uint16; gray,
-            BGR or BGRA), stretched to fill the poster. ``None`` draws the built-in pattern.
-            Ignored for the other kinds.
-        ppm : float
-            Level-0 resolution (px per metre).
-
-        Raises
-        ------
-        InputError
-            If ``texture`` is not a usable image.
-        UsageError
-            If ``ppm`` is not positive or the poster would be degenerate.
+        ``texture`` (kind "texture" only): a loaded image (uint8/uint16, gray, BGR or BGRA)
+        stretched over the poster; None draws the built-in pattern. Raises InputError for an
+        unusable texture, UsageError for a non-positive ``ppm`` (px/m) or degenerate poster.
         """
         if not np.isfinite(ppm) or ppm <= 0:
             raise UsageError(f"the poster resolution must be positive, got {ppm!r} px/m")
@@ -130,10 +95,7 @@ class PosterRaster:
         return len(self.levels)
 
     def level_to_poster(self, level: int) -> NDArray[np.float64]:
-        """Homography from level-``level`` pixel coordinates to poster metres, 3x3.
-
-        ``(a, b) = (i + 0.5) 2^level / ppm`` (module docstring).
-        """
+        """Homography (3x3) from level-``level`` pixels to poster metres: ``(i + 0.5) 2^level / ppm``."""
         step = 2.0**level / self.ppm
         return np.array([[step, 0.0, 0.5 * step], [0.0, step, 0.5 * step], [0.0, 0.0, 1.0]])
 
@@ -143,19 +105,10 @@ class PosterRaster:
         return np.array([[scale, 0.0, -0.5], [0.0, scale, -0.5], [0.0, 0.0, 1.0]])
 
     def level_for_scale(self, px_per_metre: float) -> int:
-        """The level whose pixels are closest to ``px_per_metre`` camera pixels per metre.
+        """The level closest to the poster's magnification ``px_per_metre`` (camera px/m).
 
-        Parameters
-        ----------
-        px_per_metre : float
-            Local magnification of the poster in the camera (camera px per metre).
-
-        Returns
-        -------
-        level : int
-            ``round(log2(ppm / px_per_metre))`` clamped to the pyramid, so that one level
-            pixel spans between ~0.7 and ~1.4 camera pixels: fine enough to keep the
-            picture sharp, coarse enough that bilinear sampling does not alias.
+        ``round(log2(ppm / px_per_metre))`` clamped to the pyramid: one level pixel spans
+        ~0.7-1.4 camera pixels, sharp enough yet coarse enough for bilinear sampling not to alias.
         """
         if not np.isfinite(px_per_metre) or px_per_metre <= 0:
             return self.n_levels - 1
@@ -164,20 +117,8 @@ class PosterRaster:
 
 
 def build_pyramid(image: NDArray[np.uint8], min_size: int = MIN_LEVEL_SIZE) -> tuple[NDArray[np.uint8], ...]:
-    """Halve ``image`` repeatedly with the centred ``[1, 3, 3, 1] / 8`` binomial filter.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W), uint8
-    min_size : int
-        Stop before the longer side of a level would fall below this (px).
-
-    Returns
-    -------
-    levels : tuple of ndarray
-        ``levels[0]`` is ``image``; level ``l + 1`` pixel ``i`` is centred between level-``l``
-        pixels ``2i`` and ``2i + 1`` (module docstring).
-    """
+    """Halve ``image`` (H, W) uint8 with the centred ``[1, 3, 3, 1] / 8`` filter until the
+    longer side would fall below ``min_size`` px; ``levels[0]`` is ``image``."""
     levels = [np.ascontiguousarray(image)]
     while max(levels[-1].shape) // 2 >= min_size:
         previous = levels[-1]
@@ -193,19 +134,9 @@ def build_pyramid(image: NDArray[np.uint8], min_size: int = MIN_LEVEL_SIZE) -> t
 def _draw_dots(size: tuple[int, int], centres: NDArray[np.float64], radius: float) -> NDArray[np.uint8]:
     """Black discs on white paper with analytic, radially symmetric anti-aliasing.
 
-    Each pixel's ink coverage is ``clip(radius - d + 0.5, 0, 1)`` with ``d`` the distance
-    from the pixel centre to the disc centre: a one-pixel linear ramp across the rim. Being
-    a function of ``d`` only, it keeps the ink's centroid on the exact sub-pixel centre,
-    which ``cv2.circle`` (integer-ish polygon rims) does not.
-
-    Parameters
-    ----------
-    size : (int, int)
-        ``(H0, W0)``.
-    centres : ndarray, shape (N, 2)
-        Disc centres in level-0 raster coordinates (px).
-    radius : float
-        Disc radius (level-0 px).
+    Coverage ``clip(radius - d + 0.5, 0, 1)`` (``d``: pixel centre to disc centre) depends on
+    ``d`` only, so the ink's centroid stays on the sub-pixel centre (``cv2.circle`` does not).
+    ``centres`` (N, 2) and ``radius`` are in level-0 raster px; ``size`` is ``(H0, W0)``.
     """
     if radius <= 0:
         raise UsageError("a dot target needs a positive dot radius")
@@ -228,15 +159,9 @@ def _draw_dots(size: tuple[int, int], centres: NDArray[np.float64], radius: floa
 def _draw_aruco(size: tuple[int, int], corners: NDArray[np.float64], marker_id: int) -> NDArray[np.uint8]:
     """The DICT_4X4_50 marker ``marker_id`` with its outer corners on ``corners``.
 
-    The marker (one black border cell, 6 x 6 cells) is mapped by the homography that sends
-    its outer corners (TL, TR, BR, BL) to ``corners`` and drawn by 4 x 4 supersampling, so
-    any quadrilateral works; when the corners fall on pixel edges of an axis-aligned square
-    whose side is a multiple of 6 px (the default target), the cells land exactly on pixels.
-
-    Parameters
-    ----------
-    corners : ndarray, shape (4, 2)
-        Outer marker corners in level-0 raster coordinates (px), OpenCV order.
+    ``corners`` (4, 2): outer corners in level-0 px, OpenCV order. The 6 x 6-cell marker is
+    warped there by 4 x 4 supersampling, so any quadrilateral works; on the default target
+    (square, side a multiple of 6 px, corners on pixel edges) the cells land exactly on pixels.
     """
     if corners.shape != (4, 2):
         raise UsageError(f"an ArUco target has 4 points (its corners), got {corners.shape[0]}")
@@ -289,11 +214,8 @@ def _fit_texture(texture: NDArray, size: tuple[int, int]) -> NDArray[np.uint8]:
 def _builtin_texture(size: tuple[int, int]) -> NDArray[np.uint8]:
     """A deterministic, corner-rich gray pattern for the ``texture`` target.
 
-    Overlapping rectangles, polygons, thick lines, checkerboard patches and rings whose
-    sizes are fractions of the poster (about 1/60 to 1/4 of its longer side, i.e. 2-30 cm
-    on the default 1.2 m poster), in gray levels spread over the whole range: plenty of ORB
-    corners at every distance of the default path, and nothing that looks like a lone dark
-    dot on paper. Drawn at 2x with anti-aliased primitives and reduced by area averaging.
+    Shapes 1/60 to 1/4 of the longer side in all gray levels: ORB corners at every distance
+    of the default path and nothing like a lone dark dot. Drawn at 2x, area-averaged down.
     """
     rng = np.random.default_rng(BUILTIN_TEXTURE_SEED)
     height, width = size

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.camera import CameraIntrinsics, distort_pixels
-from ..core.world import World
+from .world import World
 from ..errors import InputError, UsageError
 from .poster import PosterRaster
 

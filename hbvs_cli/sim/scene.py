@@ -1,10 +1,8 @@
 """The simulated world of ``repeat --sim``: the scene, its true depth and the taught pose.
 
-After a simulated teach the fit file carries the world and the taught path, so the repeat
-sees exactly the world that was taught, and the taught pose at any time is known exactly.
-After a teach from real footage there is no world: one consistent with the reference image
-is built instead, at an assumed depth ``--depth D`` (a vertical wall D metres from F*,
-papered with the reference image, the target points where the reference image shows them).
+After a simulated teach the fit file carries the taught world and path. After real footage
+a world consistent with the reference image is built at an assumed ``--depth D``: a wall D m
+from F* papered with the reference image, the target points where it shows them.
 """
 
 from __future__ import annotations
@@ -23,7 +21,7 @@ from ..core.desired import taught_frame_interval
 from ..core.fit_model import FitModel
 from ..core.path import CommandProfile
 from ..core.trajectory import SplineTrajectory
-from ..core.world import Poster, Target, World
+from .world import Poster, Target, World, world_from_description
 from ..errors import UsageError
 from .poster import PosterRaster, build_pyramid
 from .render import RenderSettings, SceneRenderer, make_renderer
@@ -33,22 +31,12 @@ from .render import RenderSettings, SceneRenderer, make_renderer
 class Scene:
     """A world to simulate, its true depth d*, and the taught pose at any taught time.
 
-    Attributes
-    ----------
-    world : World
-    d_true : float
-        True distance from F* to the target plane (m).
-    reference_pose : ndarray, shape (3,)
-    has_ground_truth : bool
-        True when the taught poses are the simulated teach's own (not reconstructed).
-    poster_image : ndarray or None
-        The picture on the wall when it is not the target's own drawing (real footage).
+    ``poster_image``: the picture on the wall when it is not the target's own drawing.
     """
 
     world: World
     d_true: float
     reference_pose: np.ndarray
-    has_ground_truth: bool
     taught_profile: CommandProfile | None = None
     taught_start: np.ndarray | None = None
     taught_t0: float = 0.0
@@ -81,22 +69,24 @@ class Scene:
 def knows_its_world(model: FitModel) -> bool:
     """True for a fit of a simulated teach (its world recorded), False for real footage,
     whose world :func:`simulation_world` builds from the reference image."""
-    return model.world is not None and model.taught_path is not None
+    return model.world_description is not None and model.taught_path is not None
 
 
-def simulation_world(model: FitModel, reference_image: NDArray | None, depth: float | None, speed: float = 1.0) -> Scene:
-    """The scene of ``repeat --sim`` for a fit model (see the module docstring); the
-    decoded reference image is needed only when the model does not know its world."""
+def simulation_world(model: FitModel, reference_image: NDArray | None, depth: float | None, speed: float = 1.0,
+                     source: str = "the fit file") -> Scene:
+    """The scene of ``repeat --sim`` for a fit model; the reference image is needed only when
+    the model does not know its world. RecordingError (naming ``source``) for a malformed one."""
     start = model.trajectory.t_start
     if knows_its_world(model):
-        path = model.taught_path
-        _, _, d_true = model.world.reference_geometry(path.reference_pose)
-        interval = taught_frame_interval(path.t)
-        profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
         if depth is not None:
             raise UsageError("--depth is for a teach from real footage; this fit came from a simulated teach and knows its world")
+        world = world_from_description(model.world_description, source)
+        path = model.taught_path
+        _, _, d_true = world.reference_geometry(path.reference_pose)
+        interval = taught_frame_interval(path.t)
+        profile = CommandProfile(t=path.t - path.t[0], v=path.v, w=path.w, t_end=float(path.t[-1] - path.t[0] + interval))
         return Scene(
-            world=model.world, d_true=d_true, reference_pose=path.reference_pose, has_ground_truth=True,
+            world=world, d_true=d_true, reference_pose=path.reference_pose,
             taught_profile=profile, taught_start=path.start_pose, taught_t0=float(path.t[0]),
             run_start=start, run_speed=speed,
         )
@@ -111,7 +101,7 @@ def simulation_world(model: FitModel, reference_image: NDArray | None, depth: fl
         raise UsageError("the fit file has no reference image to build a world from")
     world, poster_image, reference_pose = world_from_reference(model, reference_image, depth)
     return Scene(
-        world=world, d_true=float(depth), reference_pose=reference_pose, has_ground_truth=False,
+        world=world, d_true=float(depth), reference_pose=reference_pose,
         spline=model.trajectory, poster_image=poster_image, run_start=start, run_speed=speed,
     )
 

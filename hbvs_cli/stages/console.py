@@ -13,15 +13,7 @@ from typing import Any, Iterator
 
 
 class Console:
-    """Where a stage reports to the user: stderr only.
-
-    Parameters
-    ----------
-    quiet : bool
-        Print nothing but warnings.
-    stream : text stream, optional
-        Defaults to ``sys.stderr`` (tests pass a buffer).
-    """
+    """Where a stage reports to the user: ``stream`` (stderr); ``quiet`` prints only warnings."""
 
     def __init__(self, quiet: bool = False, stream: Any = None) -> None:
         from rich.console import Console as RichConsole

@@ -49,13 +49,14 @@ def run_demo(folder: Path, console: Console) -> int:
         runs.append(read_run(path))
     reports = [build_report(run) for run in runs]
     report_json, plot = folder / "report.json", folder / "report.png"
-    write_output_bytes(report_json, (json.dumps(json_ready({"runs": reports}), indent=2) + "\n").encode("utf-8"), "report")
+    document = {"runs": [report.to_dict() for report in reports]}
+    write_output_bytes(report_json, (json.dumps(json_ready(document), indent=2) + "\n").encode("utf-8"), "report")
     save_plot(runs, reports, plot)
     console.info(f"demo 4/4: report -> {report_json}, {plot}")
     print_report_tables(reports, sys.stdout)
-    default = reports[0]["verdict"]
-    if default["converged"]:
+    default = reports[0].verdict
+    if default.converged:
         console.info(f"demo: the {DEMO_LAWS[0]} law converged; every file is in {folder}/")
         return 0
-    console.warn(f"the {DEMO_LAWS[0]} law did not converge: " + "; ".join(r for r in default["reasons"] if r.startswith("fail")))
+    console.warn(f"the {DEMO_LAWS[0]} law did not converge: " + "; ".join(r for r in default.reasons if r.startswith("fail")))
     return 1

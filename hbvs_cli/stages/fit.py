@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from itertools import chain, islice
 from pathlib import Path
 from typing import Any, Iterator
@@ -28,9 +28,10 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
-from .frames import decoded_frames
+from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
+from ..sim.world import World, world_from_description
 
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
@@ -38,8 +39,6 @@ FALLBACK_DHAT0 = 2.0
 
 @dataclass
 class FitSummary:
-    frames_total: int
-    frames_used: int
     output: str
     model: Any
 
@@ -140,13 +139,10 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 def _one_opencv_thread() -> Iterator[None]:
     """OpenCV's own thread pool off (one thread) while fitting, restored after.
 
-    fit already keeps two cores busy: the frame loop on the main thread, and the images
-    decoded in a second thread (:func:`~.frames.decoded_frames`). OpenCV's pool threads
-    (the detectors' thresholds, filters and labelling on 640x480 frames or windows of
-    them) could only take cores from those two, and spin while they wait for work; with
-    one thread each call runs where it is made. Per-frame detection costs the same main
-    thread CPU either way (aruco 1.30-1.38 against 1.32-1.33 ms, dots 1.21-1.22 against
-    1.15-1.19 ms at load 6; a quiet machine gives the pool's threads a core to spin on).
+    fit already keeps two cores busy: the frame loop, and the images decoded in a second
+    thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads could only take
+    cores from those two and spin while they wait; with one thread each call runs where it
+    is made, at the same cost per frame (bench/).
     """
     import cv2
 
@@ -162,7 +158,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..core.fit_model import FitModel
     from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import write_compressed_image
-    from ..io.mcap import open_output, time_message
+    from ..io.mcap import open_output
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
@@ -170,11 +166,16 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
-    if options.target not in ("auto", "dots", "aruco", "chessboard", "texture"):
-        raise UsageError(f"--target must be auto, dots, aruco, chessboard or texture, got {options.target!r}")
+    if options.target not in ("auto", "dots", "aruco", "chessboard", "charuco", "texture"):
+        raise UsageError(f"--target must be auto, dots, aruco, chessboard, charuco or texture, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
     _check_marker_options(options)
+    known_layout = _read_known_layout(options)
+    if options.board is not None:
+        if options.target not in ("auto", "charuco"):
+            raise UsageError(f"--board is for a ChArUco board, not --target {options.target}")
+        parse_board(options.board)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
@@ -217,7 +218,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 # teach and fit files are opened together.
                 writer.write(
                     ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], frame.log_time_ns,
-                    annotations_message(time_message(frame.log_time_ns), pixels),
+                    annotations_message(frame.log_time_ns, pixels),
                 )
                 bar.advance()
         if log is None or log.count == 0:
@@ -230,9 +231,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         camera = reader.camera
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec)
+        layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board)
+        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -250,7 +252,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             condition35=result.condition35,
             residual_px=result.residual_px.as_dict(),
             detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
-            world=reader.world,
+            world_description=reader.world_description,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
@@ -258,19 +260,51 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
-            height = reader.world.camera_height if reader.world is not None else 0.0
-            SceneWriter(writer).start(int(arrays["log_time"][0]), height, reader.world, arrays["pose"])
+            world = _teach_world(reader)
+            height = world.camera_height if world is not None else 0.0
+            SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
-    return FitSummary(frames_total=log.count, frames_used=result.frames.used, output=options.output, model=model)
+    return FitSummary(output=options.output, model=model)
+
+
+def _read_known_layout(options: FitOptions) -> np.ndarray | None:
+    """--target-points: the target points' positions on the wall (m), or None."""
+    if options.target_points is None:
+        return None
+    if options.target == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    from ..io.target_points import read_target_points
+
+    return read_target_points(options.target_points)
+
+
+def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: CameraIntrinsics, spec: DetectorSpec,
+                    options: FitOptions) -> np.ndarray:
+    """--target-points in the detector's order, matched to F*'s points by their layout
+    (:func:`~hbvs_cli.core.known_points.match_layout`)."""
+    from ..core.camera import measured_pixels_to_normalized
+    from ..core.known_points import match_layout
+
+    if spec.kind == "texture":
+        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+    if layout.shape[0] != reference_pixels.shape[0]:
+        raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
+    if not np.all(np.isfinite(reference_pixels)):
+        return layout  # the target is not whole in F*: the fit says so in its own words
+    seen = measured_pixels_to_normalized(camera, reference_pixels)[:, 1:]
+    try:
+        return layout[match_layout(layout, seen)]
+    except GeometryError as exc:
+        raise InputError(f"--target-points {options.target_points}: {exc}") from None
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -282,6 +316,10 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
+    if spec.kind == "charuco" and spec.board is not None:
+        shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
+    if layout is not None:  # --target-points: the whole target's layout, known
+        shapes = [(range(layout.shape[0]), layout)]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                       max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes,
@@ -322,9 +360,16 @@ def _render_settings(reader: Any) -> dict[str, Any] | None:
     from ..io.teach_file import RENDER_SETTINGS
 
     settings = reader.info.get("settings") if reader.info else None
-    if reader.world is None or not isinstance(settings, dict):
+    if reader.world_description is None or not isinstance(settings, dict):
         return None
     return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
+
+
+def _teach_world(reader: Any) -> World | None:
+    """The simulated world of a teach recording, checked (None for real footage)."""
+    if reader.world_description is None:
+        return None
+    return world_from_description(reader.world_description, reader.name)
 
 
 def _version() -> str:
@@ -347,8 +392,8 @@ def _check_marker_options(options: FitOptions) -> None:
     """--marker-dict/--marker-id: a known dictionary, an id in it, and not with dots or texture."""
     if options.marker_dict is None and options.marker_id is None:
         return
-    if options.target not in ("auto", "aruco"):
-        raise UsageError(f"--marker-dict and --marker-id are for markers, not --target {options.target}")
+    if options.target not in ("auto", "aruco", "charuco") or (options.target == "charuco" and options.marker_id is not None):
+        raise UsageError(f"--marker-dict and --marker-id are for markers (--marker-dict also for a ChArUco board), not --target {options.target}")
     from ..perception.aruco import DEFAULT_DICTIONARY, dictionary_name, dictionary_size
 
     name = dictionary_name(options.marker_dict or DEFAULT_DICTIONARY)
@@ -361,13 +406,15 @@ def _detector_spec(
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
     (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    world = reader.world
+    world = _teach_world(reader)
     image = images[0]
     kind = options.target
     choice = None
     pinned_marker = options.marker_dict is not None or options.marker_id is not None
     if kind == "auto" and world is None:
-        if pinned_marker:
+        if options.board is not None:
+            kind = "charuco"
+        elif pinned_marker:
             kind = "aruco"
         else:
             choice = choose_target(images, camera, seed=options.seed)
@@ -386,6 +433,8 @@ def _detector_spec(
     if kind == "dots":
         n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
         return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
+    if kind == "charuco":
+        return _charuco_spec(options, images, details, console)
     if kind == "chessboard":
         board = details.get("board")
         if board is None:
@@ -423,6 +472,38 @@ def _detector_spec(
     return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
 
 
+def _charuco_spec(options: FitOptions, images: list[np.ndarray], details: dict[str, Any], console: Console) -> DetectorSpec:
+    """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
+    inferred from the first frames' markers."""
+    from ..perception.autodetect import find_charuco
+
+    squares = parse_board(options.board) if options.board is not None else None
+    if "board" not in details or squares is not None:
+        found = find_charuco(images, options.marker_dict, squares)
+        if found is None:
+            given = f"{squares[0]}x{squares[1]} " if squares is not None else ""
+            raise InputError(f"no ChArUco board {given}found consistently in the first {len(images)} frames "
+                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
+        console.info(f"charuco: {found.reason}")
+        details = found.details
+    columns, rows = (int(n) for n in details["board"])
+    return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
+
+
+def parse_board(text: str) -> tuple[int, int]:
+    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each).
+
+    Raises
+    ------
+    UsageError
+        For anything else.
+    """
+    parts = str(text).lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
+        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     from ..core.fit_model import TaughtPath
 
@@ -433,10 +514,18 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
+def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
+    """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
+    candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
+    return {"dhat0": estimate.dhat0, "standard_error": estimate.standard_error, "source": estimate.source,
+            "samples": estimate.samples}
+
+
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
-           board: tuple[int, int] | None = None) -> dict[str, Any]:
+           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> dict[str, Any]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
-    ``board`` its inner corners per row and rows); which one becomes dhat(0)."""
+    ``board`` its inner corners per row and rows) or --target-points (``layout``, in the
+    target's order: its two points farthest apart); which one becomes dhat(0)."""
     estimates: dict[str, Any] = {"commands": None, "target_size": None}
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
@@ -446,7 +535,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
-            estimates["commands"] = asdict(from_commands)
+            estimates["commands"] = _estimate_record(from_commands)
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
@@ -456,22 +545,30 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest
         # pair. A chessboard: its first and last inner corners, a diagonal of whole squares.
         size = options.target_size
-        if kind == "chessboard":
+        if kind in ("chessboard", "charuco"):
             columns, rows = board or (result.m_ref.shape[0], 1)
+            if kind == "charuco" and board is not None:
+                columns, rows = board[0] - 1, board[1] - 1
             kind_pair = (0, columns * rows - 1)
             size = options.target_size * math.hypot(columns - 1, rows - 1)
         else:
             kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
         from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
-        estimates["target_size"] = asdict(from_size) | {"pair": list(kind_pair)}
+        estimates["target_size"] = _estimate_record(from_size) | {"pair": list(kind_pair)}
+        chosen = from_size
+    elif layout is not None:
+        gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
+        i, j = (int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
+        from_size = depth_from_target_size(result.m_ref, result.normal, (i, j), float(gaps[i, j]))
+        estimates["target_size"] = _estimate_record(from_size) | {"pair": [i, j]}
         chosen = from_size
     if chosen is None:
         console.warn(
-            f"no taught commands and no --target-size: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
+            f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
-    return {"dhat0": float(chosen.d_star), "source": chosen.source, "estimates": estimates}
+    return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
 
 
 def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict[str, Any], options: FitOptions) -> None:
@@ -504,9 +601,9 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     estimates = depth["estimates"]
     if estimates.get("commands"):
         e = estimates["commands"]
-        table.add_row("d* from taught commands (25)", f"{e['d_star']:.3f} +- {e['standard_error']:.3f} m")
+        table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
     if estimates.get("target_size"):
-        table.add_row("d* from target size", f"{estimates['target_size']['d_star']:.3f} m")
+        table.add_row("d* from target size", f"{estimates['target_size']['dhat0']:.3f} m")
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
     from ..core.gains import dhat0_range_text
 

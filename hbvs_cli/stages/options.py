@@ -63,10 +63,7 @@ def parse_time_and_factor(text: str, option: str) -> tuple[float, float]:
 def parse_assignment(text: str, option: str) -> tuple[str, float]:
     """``NAME=VALUE`` -> (name, finite float).
 
-    Raises
-    ------
-    UsageError
-        No ``=``, an empty name, or a value that is not a finite number.
+    Raises UsageError: no ``=``, an empty name, or a value that is not a finite number.
     """
     name, sep, value = text.partition("=")
     name = name.strip()

@@ -31,7 +31,7 @@ from ..core.metrics import final_value
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
-from ..core.world import World
+from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
 from ..io.config import load_config
 from ..io.fit_file import FitFile, read_fit_file
@@ -49,7 +49,7 @@ from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
 from .console import Console
-from .frames import decoded_frames, fit_reference_image, fit_template_image
+from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
 
 @dataclass(frozen=True)
@@ -87,8 +87,8 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, default: float | None, option: str) -> float | None:
-    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (a limit of
-    0 would mean "stand still", which is no run at all, and it once meant "no limit")."""
+    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (it would mean
+    "stand still", which is no run at all)."""
     if value is None:
         return default
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
@@ -307,16 +307,8 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- closed loop
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes
-    them before running anything).
-
-    Raises
-    ------
-    UsageError
-        A pace that is not a finite positive number.
-    LimitExceededError
-        More steps than the ``steps`` limit.
-    """
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
+    first): UsageError for a bad ``--speed``, LimitExceededError beyond the ``steps`` limit."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
@@ -329,7 +321,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     """The world, camera, trajectory and controller of ``repeat --sim`` (no file is opened)."""
     model = fit.model
     check_simulation_settings(settings, model)
-    scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed)
+    scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed, options.input)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):

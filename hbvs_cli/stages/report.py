@@ -1,10 +1,7 @@
 """``hbvs report``: how well did the repeat follow the taught path, and did it converge?
 
-Reads one or more run files (``-`` reads stdin, at most once), builds each run's report
-(:func:`hbvs_cli.report.build.build_report`), prints the table or the JSON on stdout
-(and nothing else there), writes the figure and the TUM files when asked, and finally
-checks the ``--fail-above`` bounds. Every option is checked before anything is printed, so
-a mistyped key fails with exit code 2 and no half-written output.
+Every option is checked before anything is printed, so that a mistyped key fails with exit
+code 2 and no half-written output; stdout carries only the table or the JSON.
 """
 
 from __future__ import annotations
@@ -14,11 +11,14 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
 from .console import Console
 from .options import parse_assignment
+
+if TYPE_CHECKING:
+    from ..report.result import RunReport
 
 
 @dataclass(frozen=True)
@@ -59,29 +59,23 @@ def parse_bounds(items: Sequence[str]) -> list[Bound]:
     return [Bound(*parse_assignment(item, "--fail-above")) for item in items]
 
 
-def metric_value(report: Mapping[str, Any], key: str) -> float:
-    """The number at a dotted key of a report (``pose_error.position_m.final``).
-
-    Raises
-    ------
-    UsageError
-        The key does not exist in this report, names a group rather than a number, or its
-        value is null for this run (e.g. ``lyapunov.final`` of a replay).
-    """
-    from ..report.build import MissingKey, resolve_key
+def metric_value(report: RunReport, key: str) -> float:
+    """The number at a dotted key of a report (``pose_error.position_m.final``); UsageError
+    when it is missing, a group, or null for this run (``lyapunov.final`` of a replay)."""
+    from ..report.result import MissingKey
 
     try:
-        value = resolve_key(report, key)
+        value = report.value(key)
     except MissingKey as missing:
         choices = ", ".join(missing.choices) or "none (it is a value)"
         raise UsageError(
-            f"--fail-above {key}: {missing.where} has no key {missing.part!r} in {report['run']['name']} (keys: {choices})"
+            f"--fail-above {key}: {missing.where} has no key {missing.part!r} in {report.run.name} (keys: {choices})"
         ) from None
     if isinstance(value, Mapping):
         raise UsageError(f"--fail-above {key}: names a group, not a number; use one of {', '.join(f'{key}.{k}' for k in value)}")
     if value is None:
         raise UsageError(
-            f"--fail-above {key}: the value is null for {report['run']['name']} (unknown for this run, e.g. V without "
+            f"--fail-above {key}: the value is null for {report.run.name} (unknown for this run, e.g. V without "
             "ground truth, or a settling time that never settled), so the bound cannot be checked"
         )
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -89,7 +83,7 @@ def metric_value(report: Mapping[str, Any], key: str) -> float:
     return float(value)
 
 
-def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound]) -> list[str]:
+def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
     """One message per (run, bound) whose metric exceeds the bound.
 
     Raises :class:`UsageError` for a bad key (see :func:`metric_value`), so call it before
@@ -100,28 +94,19 @@ def exceeded_bounds(reports: Sequence[Mapping[str, Any]], bounds: Sequence[Bound
         for bound in bounds:
             value = metric_value(report, bound.key)
             if value > bound.value:
-                messages.append(f"{report['run']['name']}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}")
+                messages.append(f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}")
     return messages
 
 
-def not_converged(reports: Sequence[Mapping[str, Any]]) -> list[str]:
+def not_converged(reports: Sequence[RunReport]) -> list[str]:
     """One message per run that did not converge, naming its failed checks (``--require-converged``)."""
-    messages = []
-    for report in reports:
-        verdict = report["verdict"]
-        if not verdict["converged"]:
-            failed = [text.removeprefix("fail: ") for text in verdict["checks"].values() if text.startswith("fail")]
-            messages.append(f"{report['run']['name']}: {'; '.join(failed)}")
-    return messages
+    return [f"{report.run.name}: {'; '.join(report.verdict.failures())}" for report in reports if not report.verdict.converged]
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
     """``--label`` is given once per run, in the runs' order, or not at all.
 
-    Raises
-    ------
-    UsageError
-        A different number of labels than runs, or an empty label.
+    Raises UsageError: a different number of labels than runs, or an empty label.
     """
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
@@ -145,13 +130,8 @@ def _source(text: str, keep_stdin: bool) -> Any:
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
     """Every run, with its camera height (m) when ``need_height`` (for TUM files).
 
-    A fit file (for the fit figure) comes back as its
-    :class:`~hbvs_cli.report.fit_plot.FitSignals`, with no height.
-
-    Raises
-    ------
-    UsageError
-        No run, or ``-`` given more than once (stdin can be read only once).
+    A fit file comes back as its :class:`~hbvs_cli.report.fit_plot.FitSignals`, without
+    height. UsageError for no run, or ``-`` given twice (stdin can be read only once).
     """
     from ..io.run_file import NotARunFile, read_run
     from ..report.fit_plot import read_fit_signals
@@ -187,10 +167,7 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
 def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its figure.
 
-    Raises
-    ------
-    UsageError
-        An option that applies to runs only.
+    Raises UsageError: an option that applies to runs only.
     """
     from ..report.figure_style import figure_style
     from ..report.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
@@ -214,10 +191,11 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
 
 
 # ----------------------------------------------------------------------------- output
-def print_reports(reports: Sequence[Mapping[str, Any]], json_output: bool) -> None:
+def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
     if json_output:
-        document = reports[0] if len(reports) == 1 else {"runs": list(reports)}
+        documents = [report.to_dict() for report in reports]
+        document = documents[0] if len(documents) == 1 else {"runs": documents}
         sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
     else:
         from ..report.table import print_report_tables
@@ -227,22 +205,9 @@ def print_reports(reports: Sequence[Mapping[str, Any]], json_output: bool) -> No
 
 
 def run_report(options: ReportOptions, console: Console) -> int:
-    """Run ``hbvs report``.
-
-    Returns
-    -------
-    int
-        0, or 1 when a ``--fail-above`` bound was exceeded or, with
-        ``--require-converged``, a run did not converge (one line on stderr for each).
-
-    Raises
-    ------
-    UsageError
-        A malformed option, a ``--fail-above`` key missing or null in a report, or
-        ``--export-tum`` for a run without ground truth (exit code 2).
-    InputError, RecordingError
-        A missing or unreadable file, or not a run file (exit code 3).
-    """
+    """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` bound was exceeded or (with
+    ``--require-converged``) a run did not converge, one stderr line each. UsageError (exit
+    2) for a bad option; InputError, RecordingError (exit 3) for an unreadable run file."""
     from ..report.fit_plot import FIT_PANELS, FitSignals
     from ..report.plots import PANEL_NAMES
     from ..report.build import build_report

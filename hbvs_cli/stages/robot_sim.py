@@ -1,21 +1,12 @@
 """``hbvs robot-sim FIT --ros2`` (or ``--mjpeg PORT --cmd-in FILE``): a stand-in robot in its
 own process.
 
-It is what ``repeat --sim`` simulates, split off as a robot on the network: it starts at
-the taught start plus ``--offset`` in the fit's taught world (:func:`hbvs_cli.sim.simulation_world`),
-integrates the unicycle in real time under the latest velocity command it received,
-and renders the camera with the same renderer as ``repeat --sim`` at ``--rate``.
-
-``--ros2``: commands from ``/cmd_vel``; the camera published as a ROS 2 camera does:
-``sensor_msgs/msg/Image`` (or a JPEG ``CompressedImage``) with sensor-data QoS,
-``CameraInfo`` on the sibling ``camera_info`` topic, and the true pose as
-``geometry_msgs/msg/PoseStamped`` on ``/ground_truth/pose``; stamps are the wall clock (as
-ROS 2 drivers stamp). Without ROS: ``--mjpeg PORT`` serves the camera as an MJPEG stream on
-``http://127.0.0.1:PORT/`` (``repeat --live --camera URL``) and ``--cmd-in FILE|FIFO|-``
-reads the commands as the JSON lines ``repeat --cmd-out`` writes.
-
-Users try ``repeat --live`` against it before a robot; the tests run the live loop across
-processes with it.
+What ``repeat --sim`` simulates, as a robot on the network for ``repeat --live`` to be tried
+against: the unicycle integrated in real time under the latest command, from the taught
+start plus ``--offset``, and the same renderer at ``--rate``. ``--ros2`` speaks as a ROS 2
+camera does (``/cmd_vel`` in; Image or CompressedImage with CameraInfo, and the true pose
+on ``/ground_truth/pose``, stamped by the wall clock); ``--mjpeg PORT`` serves an MJPEG
+stream on 127.0.0.1 and ``--cmd-in`` reads ``repeat --cmd-out``'s JSON lines.
 """
 
 from __future__ import annotations
@@ -40,7 +31,7 @@ from ..io.output_target import open_text_output
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
-from .frames import fit_reference_image
+from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset
 from ..io.settings import RobotSimOptions
 
@@ -179,7 +170,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary
     model = fit.model
     taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
     rate = float(options.rate) if options.rate is not None else 1.0 / taught
-    scene = simulation_world(model, fit_reference_image(fit), options.depth)
+    scene = simulation_world(model, fit_reference_image(fit), options.depth, source=options.input)
     renderer = renderer_for(scene, model)
     rng = np.random.default_rng(options.seed)
     pose = tuple(float(v) for v in compose_planar_pose(scene.taught_pose_at_run_time(0.0), parse_offset(options.offset)))

@@ -1,14 +1,8 @@
 """``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask.
 
-Plans the runs of a spec (:mod:`hbvs_cli.sweep.spec`), runs each one as ``hbvs repeat
---sim`` + ``hbvs report --json`` (:func:`hbvs_cli.stages.sweep_run.execute_run`) on a Dask
-cluster (:mod:`hbvs_cli.sweep.engine`), writes the rows as they finish
-(:mod:`hbvs_cli.io.sweep_table`), and prints the summary (:mod:`hbvs_cli.report.sweep_summary`)
-and draws the figures (:mod:`hbvs_cli.report.sweep_plots`). Interrupted, the same command
-resumes: the runs already in the table are skipped.
-
-Like ``demo``, this stage drives the others (``repeat`` and ``report``) through their
-callables; it copies none of their code.
+Each run of the spec is ``repeat --sim`` + ``report --json`` through their own callables
+(:mod:`.sweep_run`), on Dask; rows are written as they finish, so the same command resumes
+an interrupted sweep by skipping the runs already in the table.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """One run of a sweep, as a Dask worker (or a serial loop) executes it.
 
-A run is ``hbvs repeat --sim`` (:func:`hbvs_cli.stages.repeat.run_repeat`, the same closed
-loop, writing the same run file) followed by ``hbvs report --json``
-(:func:`hbvs_cli.report.build.build_report` on :func:`hbvs_cli.io.run_file.read_run`),
-and its row is a set of that report's values picked by dotted key
-(:data:`~hbvs_cli.io.sweep_table.METRICS`). No
-part of the loop or of the metrics is copied here, so whatever those stages compute, the
-sweep's rows say.
+A run is ``hbvs repeat --sim`` then ``hbvs report --json`` through their own functions, and
+its row is that report's values at the dotted keys of :data:`~hbvs_cli.io.sweep_table.METRICS`.
 """
 
 from __future__ import annotations
@@ -18,9 +13,12 @@ import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, empty_metrics
+
+if TYPE_CHECKING:
+    from ..report.result import RunReport
 
 KEEP_CHOICES = ("failed", "all", "none")
 
@@ -29,21 +27,9 @@ KEEP_CHOICES = ("failed", "all", "none")
 class RunTask:
     """Everything a worker needs for one run (small: it travels to the worker).
 
-    Attributes
-    ----------
-    fit_path : str
-        The fit file, as the printed command names it (absolute).
-    index, point, repeat, seed : int
-    values : dict
-        The run's parameter values (swept and fixed).
-    arguments : dict
-        The ``RepeatOptions`` fields of the run besides input and output.
-    command : str
-        The ``hbvs repeat`` command that re-makes the run.
-    keep_path : str or None
-        Where to keep the run file (``--keep-runs``); None keeps none.
-    keep : str
-        ``failed``, ``all`` or ``none``.
+    ``fit_path`` is absolute; ``values``: swept and fixed parameters; ``arguments``: the
+    ``RepeatOptions`` fields besides input and output; ``command``: the ``hbvs repeat`` that
+    re-makes the run; ``keep_path``: where ``--keep-runs`` keeps it (None: nowhere).
     """
 
     fit_path: str
@@ -83,17 +69,18 @@ def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> No
         parse_interval(window, "--occlude")
 
 
-def report_row(report: Mapping[str, Any]) -> dict[str, Any]:
-    """The :data:`METRICS` of a report (None where the report has no such value)."""
-    from ..report.build import MissingKey, resolve_key
+def report_row(report: RunReport) -> dict[str, Any]:
+    """The :data:`METRICS` of a report (None where the report has no such value: the pose
+    errors of a run without ground truth)."""
+    from ..report.result import MissingKey, resolve_key
 
+    document = report.to_dict()
     row: dict[str, Any] = {}
     for column, key in METRICS.items():
         try:
-            value = resolve_key(report, key)
+            row[column] = resolve_key(document, key)
         except MissingKey:
-            value = None
-        row[column] = value
+            row[column] = None
     return row
 
 
@@ -118,15 +105,9 @@ def keep_file(source: str, destination: str) -> None:
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
-    """Make one run and its report; never raises for a run that fails (the row says why).
-
-    Returns
-    -------
-    dict
-        The row: ``index, point, repeat, seed``, the parameter values, ``status``,
-        ``error``, the :data:`METRICS`, ``run_time_s`` (s, this run's own wall time),
-        ``run_file`` (kept file or None) and ``command``.
-    """
+    """Make one run and its report, and return its row (``index, point, repeat, seed``, the
+    parameter values, ``status``, ``error``, the :data:`METRICS`, ``run_time_s``, ``run_file``,
+    ``command``); never raises for a run that fails: the row says why."""
     from ..errors import HbvsError, TargetLostError
     from ..io.run_file import read_run
     from ..report.build import build_report

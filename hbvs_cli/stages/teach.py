@@ -12,7 +12,7 @@ import numpy as np
 from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics
 from ..core.frames import compose_planar_pose
 from ..core.path import PRESETS, CommandProfile, preset_profile
-from ..core.world import World, default_world
+from ..sim.world import World, default_world
 from ..errors import InputError, UsageError
 from ..io import sources
 from ..io.calibration import load_calibration

@@ -1,20 +1,11 @@
 """Where the runs execute: a Dask distributed cluster (local, remote, or batch jobs).
 
-* default: a ``LocalCluster`` of single-threaded worker processes, one per core, talking
-  TCP on localhost (the runs are CPU-bound Python: processes, not threads);
-* ``--scheduler tcp://HOST:8786``: an existing cluster (``dask scheduler`` and
-  ``dask worker`` started by hand; the workers need hbvs installed);
-* ``--cluster slurm|pbs``: workers submitted as batch jobs through dask-jobqueue (the queue,
-  account and walltime come from dask's jobqueue configuration file).
-
-Runs travel to the workers in batches of several runs (:class:`BatchSizer`: about a
-second of CPU time each, single runs at the start and the end), and never more than ``in_flight`` batches
-exist: a new one is submitted as one finishes, so memory stays flat however many runs a
-sweep has. A worker that dies has its batch rescheduled by the Dask scheduler (up to
-``distributed.scheduler.allowed-failures`` times); a batch that keeps killing workers is
-split and its runs are run alone, a run that fails alone is run once more with the
-cluster to itself, and only a run that kills its worker then is recorded as failed with the
-error, like any run that raises.
+By default a ``LocalCluster`` of single-threaded processes (the runs are CPU-bound Python);
+``--scheduler`` joins an existing cluster, ``--cluster slurm|pbs`` submits batch jobs via
+dask-jobqueue. Runs travel in batches of about a second of CPU (:class:`BatchSizer`), at
+most ``in_flight`` at once, so memory stays flat. A batch that keeps killing workers is
+split; a run that fails alone is retried with the cluster to itself, and only then
+recorded as failed.
 """
 
 from __future__ import annotations
@@ -65,10 +56,7 @@ def dashboard_address(text: str | None) -> str | None:
     """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``; ``HOST:PORT`` as given
     (another interface only when asked for by name). None: no dashboard.
 
-    Raises
-    ------
-    UsageError
-        Not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
+    Raises UsageError: not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
     """
     if text is None:
         return None
@@ -83,10 +71,7 @@ def dashboard_address(text: str | None) -> str | None:
 def check_scheduler_address(address: str | None) -> None:
     """Refuse a ``--scheduler`` that is no Dask address, before anything is written.
 
-    Raises
-    ------
-    UsageError
-        An unknown scheme, or a host and port that do not parse.
+    Raises UsageError: an unknown scheme, or a host and port that do not parse.
     """
     if address is None:
         return
@@ -113,11 +98,8 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
     ``dashboard``: the address of Dask's dashboard (:func:`dashboard_address`) for a local
     cluster; None (the default) serves none (the dashboard has no authentication).
 
-    Raises
-    ------
-    UsageError
-        Clashing options, an unknown cluster kind, dask-jobqueue missing, or a scheduler
-        that cannot be reached.
+    UsageError for clashing options, an unknown cluster kind, no dask-jobqueue or an
+    unreachable scheduler.
     """
     import dask
     from distributed import Client, LocalCluster
@@ -126,17 +108,9 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    # worker-saturation 1: a worker holds only the batch it is running, so a run that kills
-    # its worker takes no queued innocent batch down with it (each costs ~1 ms of idle time).
-    # The workers' statistical profiler (for the dashboard, which hbvs does not open) keeps
-    # up to 1000 profile trees per worker: tens of MB that grew with the sweep's length.
-    # The event loop's 20 ms latency tick and the 100 ms memory monitor wake each worker's
-    # main thread, which then takes the interpreter lock from the run: a run took 91 ms on
-    # a worker against 81 ms in a plain process, 86 ms with these once a second.
-    # Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which makes glibc hand freed
-    # heap back to the system at every free of 64 KiB: each run then took ~490 page faults
-    # and 2 ms of system time more than in a plain process (11 faults, 0.1 ms); the runs
-    # hold no memory between them, so the glibc default (dynamic threshold) is kept.
+    # worker-saturation 1: a run that kills its worker takes no queued batch down with it.
+    # No profiler (its trees grow), ticks once a second (each wake takes the GIL from the
+    # run), glibc's default malloc trimming (Dask's costs page faults); bench/ measures it.
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                      if name != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,
@@ -146,9 +120,7 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.admin.tick.interval": "1s",
                           "distributed.admin.system-monitor.interval": "1s",
                           "distributed.worker.memory.monitor-interval": "1s",
-                          # A worker restarted after a death registers with the scheduler
-                          # within this: 30 s was too short on a 2-core machine at load 20
-                          # (the worker gave up, its nanny stopped, the cluster had none).
+                          # A restarted worker must register within this, also on a loaded machine.
                           "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
@@ -194,12 +166,9 @@ def _jobqueue_cluster(kind: str, jobs: int) -> Any:
     return cluster
 
 
-#: A batch of runs aims at this much CPU time on its worker (s): long enough that the
-#: scheduler's per-task work (milliseconds of CPU in the driving process and in the
-#: worker's event loop, taken from the runs on a 2-core machine) is paid once per many
-#: runs; short enough that rows reach the table often and a killed batch costs little.
-#: CPU time, not wall time: on a loaded machine a run's wall time grows, its CPU time and
-#: the per-task work hardly do.
+#: A batch of runs aims at this much CPU time on its worker (s): the scheduler's per-task
+#: work is paid once per many runs, yet rows reach the table often and a killed batch costs
+#: little. CPU time, not wall time: load stretches the wall time, not the work.
 BATCH_CPU_SECONDS = 1.0
 #: ... and at most this much wall time (runs that wait rather than compute).
 BATCH_WALL_SECONDS = 5.0
@@ -211,13 +180,8 @@ def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
               started: str | None = None) -> tuple[list[dict[str, Any]], float, float]:
     """On a worker: ``function(task)`` for each task in turn.
 
-    ``started``: a scheduler metadata key set (a round trip, so it is there before the
-    run begins) when a run with the cluster to itself starts: a worker death before it is
-    not the run's doing (:func:`run_tasks`).
-
-    Returns the rows, the batch's wall time and its CPU time (s; the worker process's, so
-    a worker with several threads over-counts, which only makes batches smaller), from
-    which the driver sizes the next batches.
+    ``started``: a scheduler metadata key set before an isolated run begins (a worker death
+    before it is not the run's doing). Returns the rows and the batch's wall and CPU time (s).
     """
     if started is not None:
         from distributed import get_client
@@ -231,11 +195,9 @@ def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
 class BatchSizer:
     """How many runs the next batch gets.
 
-    Until a batch has come back a batch is one run; then as many runs as take about
-    :data:`BATCH_CPU_SECONDS` of CPU time (and at most :data:`BATCH_WALL_SECONDS` of wall
-    time) at the mean per run so far, 1 to :data:`MAX_BATCH`. When the number of runs left
-    is known, a batch is never more than ``left / (2 x workers)`` (guided self-scheduling),
-    so the last batches are single runs and the workers finish together.
+    One run until a batch has come back; then about :data:`BATCH_CPU_SECONDS` of CPU (at most
+    :data:`BATCH_WALL_SECONDS` of wall time) at the mean so far, 1 to :data:`MAX_BATCH`, and
+    at most ``left / (2 x workers)`` (guided self-scheduling: the workers finish together).
     """
 
     def __init__(self, total: int | None, workers: int) -> None:
@@ -269,9 +231,8 @@ class BatchSizer:
 #: recorded as failed anyway (with Dask's error).
 MAX_UNSTARTED_ATTEMPTS = 5
 #: Longest time a sweep waits on a cluster without a single worker (s) before it stops
-#: (workers that died and were not restarted, e.g. a nanny that gave up under load):
-#: the finished rows are kept and the same command resumes. Without it the sweep waited
-#: forever for runs that no worker would take.
+#: (workers that died and were not restarted): the finished rows are kept and the same
+#: command resumes.
 NO_WORKER_SECONDS = 120.0
 
 
@@ -312,19 +273,11 @@ def run_tasks(
     total: int | None = None,
     no_worker_seconds: float = NO_WORKER_SECONDS,
 ) -> int:
-    """Run ``function(task)`` for every task on the cluster; ``on_row`` gets each row as it
-    comes back (in completion order). Tasks travel in batches (:class:`BatchSizer`); at most
-    ``in_flight`` batches are submitted at a time. ``total``: the number of tasks, when
-    known (it keeps the last batches small).
-
-    Returns the number of rows produced. A batch whose future fails (its worker died too
-    often, or the function raised despite catching everything) is split and each of its
-    tasks submitted alone. A task that fails alone is run once more in isolation (nothing
-    else in flight, so no other task can have killed the worker); only a task that fails
-    then, after it started (it says so on the scheduler as it starts), gets
-    ``on_lost(task, error)``; one whose workers died before it started is run again. The
-    rule counts worker deaths during the run, never time: a slow run is never taken for a
-    killer.
+    """Run ``function(task)`` for every task on the cluster, ``on_row`` getting each row in
+    completion order; returns the number of rows. ``total`` (if known) keeps the last
+    batches small. A failed batch is split; a task that fails alone is run once more in
+    isolation, and only if it fails then, after it started, gets ``on_lost(task, error)``.
+    Worker deaths are counted, never time: a slow run is never taken for a killer.
     """
     from distributed import as_completed
 

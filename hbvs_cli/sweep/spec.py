@@ -1,18 +1,13 @@
 """What a sweep runs: the parameters, the design (grid or scipy.stats.qmc samples), the seeds.
 
-A sweep is a list of *points* (one value for every swept parameter) each run ``repeats``
-times. Run ``i`` is point ``i // repeats``, repeat ``i % repeats``; its seed is drawn from
-``numpy.random.SeedSequence([sweep seed, i])``, so any run can be made again alone, with
-``hbvs repeat`` and the options :func:`repeat_command` prints, byte-identical.
-
-Nothing here holds one object per run: :meth:`SweepPlan.run` builds a run's settings from
-its index, so a plan of 100 000 runs costs the memory of its design matrix only.
+Run ``i`` is point ``i // repeats``, seeded from ``SeedSequence([sweep seed, i])``, so any
+run can be made again alone, byte-identical, by the command :func:`repeat_command` prints.
+:meth:`SweepPlan.run` builds a run from its index: a plan costs only its design matrix.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import shlex
 import warnings
@@ -36,21 +31,9 @@ SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
 class Parameter:
     """A parameter a sweep can vary or fix.
 
-    Attributes
-    ----------
-    name : str
-    kind : str
-        ``float``, ``int`` or ``choice``.
-    unit : str
-    help : str
-    setting : str or None
-        The ``hbvs repeat`` option it sets (:data:`hbvs_cli.io.settings.REPEAT`), whose
-        bounds it has: a value ``repeat`` refuses, the sweep refuses with the same message.
-    choices : tuple of str
-        The allowed values of a ``choice``.
-    own_bounds : mapping
-        ``min`` and ``max`` of a parameter that is no one ``repeat`` option (the occlusion
-        window, dhat0 as a multiple of d*).
+    ``kind``: ``float``, ``int`` or ``choice``; ``setting``: the ``hbvs repeat`` option it
+    sets, whose bounds (and refusal message) it shares; ``own_bounds``: ``min`` and ``max``
+    of a parameter that is no ``repeat`` option.
     """
 
     name: str
@@ -185,13 +168,7 @@ def _known(name: str, where: str) -> None:
 
 def parse_vary(text: str) -> Axis:
     """``--vary NAME=LO:HI:N`` (N values, ends included), ``NAME=LO:HI`` (a range to sample)
-    or ``NAME=A,B,C`` (a list).
-
-    Raises
-    ------
-    UsageError
-        No ``=``, an unknown name, or values of the wrong type.
-    """
+    or ``NAME=A,B,C`` (a list); UsageError otherwise."""
     name, sep, rest = text.partition("=")
     name = name.strip()
     where = f"--vary {text}"
@@ -286,15 +263,8 @@ def build_spec(
     sampling: str | None = None,
     samples: int | None = None,
 ) -> SweepSpec:
-    """The spec file's contents overridden by the options (``--vary`` replaces an axis of
-    the same name, ``--set NAME=VALUE`` a fixed value).
-
-    Raises
-    ------
-    UsageError
-        Unknown parameters, a parameter both varied and fixed, ranges on a grid, a
-        sampling method that is not known, nothing to run.
-    """
+    """The spec file's contents overridden by ``--vary`` (an axis) and ``--set`` (a fixed
+    value); UsageError for unknown or clashing parameters, ranges on a grid, nothing to run."""
     data = dict(file_data or {})
     axes: dict[str, Axis] = {}
     vary_table = data.get("vary", {})
@@ -395,12 +365,7 @@ def run_seed(sweep_seed: int, index: int) -> int:
 
 
 class SweepPlan:
-    """The runs of a spec, made one at a time from their index.
-
-    Parameters
-    ----------
-    spec : SweepSpec
-    """
+    """The runs of a spec, made one at a time from their index."""
 
     def __init__(self, spec: SweepSpec) -> None:
         self.spec = spec
@@ -502,8 +467,3 @@ def file_digest(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def spec_fingerprint(spec: SweepSpec, fit_path: str, fit_digest: str) -> str:
-    """A stable text of everything that decides the runs and their results."""
-    return json.dumps({"spec": spec.as_dict(), "fit": fit_path, "fit_sha256": fit_digest}, sort_keys=True)

@@ -1,28 +1,10 @@
 """Camera calibration files: read the common formats, write ROS ``camera_info`` YAML.
 
-Three families of files are recognised by their content (the extension is only a hint
-people get wrong):
-
-* the ROS ``camera_info`` YAML written by the ROS camera calibrator (``camera_matrix:
-  {rows, cols, data}``...), and also the flat ``k:``/``d:`` lists of a dumped
-  ``sensor_msgs/CameraInfo``;
-* OpenCV ``FileStorage`` files (YAML with ``!!opencv-matrix`` tags, JSON with
-  ``"type_id": "opencv-matrix"``, XML), parsed with :class:`cv2.FileStorage` and their
-  matrices read field by field (``FileNode.mat()`` corrupts OpenCV's heap on a malformed
-  matrix);
-* Kalibr ``camchain.yaml`` (``cam0``: pinhole with radtan, equidistant or no distortion);
-* plain JSON such as ``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}``.
-
-Key names are matched without regard to case, ``_`` or ``-``, so ``camera_matrix``,
-``cameraMatrix`` and ``Camera_Matrix`` are the same key.
-
-Every problem a user can cause raises :class:`~hbvs_cli.errors.CalibrationError` with a
-one-line message that starts with the file name.
-
-The package's rooms: :mod:`.load` (:func:`load_calibration`, format detection), one module
-per format (:mod:`.ros`, :mod:`.opencv`, :mod:`.plain_json`, :mod:`.kalibr`), :mod:`.mapping` (keys to
-intrinsics), :mod:`.validate` (the checks every format passes) and :mod:`.foxglove`.
-Every public name is re-exported here.
+Formats are recognised by content: ROS ``camera_info`` YAML (:mod:`.ros`), OpenCV
+``FileStorage`` YAML/JSON/XML (:mod:`.opencv`), Kalibr ``camchain.yaml`` (:mod:`.kalibr`)
+and plain JSON (:mod:`.plain_json`); keys match without regard to case, ``_`` or ``-``
+(:mod:`.mapping`), and every format passes :mod:`.validate`. A user's mistake raises
+:class:`~hbvs_cli.errors.CalibrationError`, one line starting with the file name.
 """
 
 from __future__ import annotations

@@ -21,30 +21,13 @@ MAX_CALIBRATION_BYTES = 1 << 20
 def load_calibration(
     path: str | os.PathLike[str], image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Read camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file.
+    """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content).
 
-    Parameters
-    ----------
-    path : str or path-like
-        The calibration file. Its format is detected from its content.
-    image_size : (width, height), optional
-        The size of the images the calibration is for, used when the file gives none.
-    notes : list, optional
-        Receives what the reader assumed and the user should hear (a 4-coefficient file
-        without a distortion model, read as plumb_bob).
-
-    Returns
-    -------
-    CameraIntrinsics
-        Validated intrinsics. All-zero distortion coefficients become the ``"none"``
-        model with no coefficients, so "no distortion" has a single representation.
-
-    Raises
-    ------
-    CalibrationError
-        If the file is missing, a directory, larger than :data:`MAX_CALIBRATION_BYTES`,
-        not UTF-8 text, malformed, lacks a camera matrix or image size, or holds values
-        that are not a valid zero-skew pinhole camera.
+    ``image_size`` (width, height) is used when the file gives none; ``notes`` receives what
+    the reader assumed (a 4-coefficient file without a model, read as plumb_bob). All-zero
+    distortion becomes the ``"none"`` model. :class:`CalibrationError` if the file is missing,
+    a directory, larger than :data:`MAX_CALIBRATION_BYTES`, not UTF-8, malformed, without a
+    camera matrix or image size, or not a valid zero-skew pinhole camera.
     """
     name = str(path)
     data = _read_capped(Path(path), name)

@@ -55,29 +55,9 @@ _IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 def save_calibration_ros(
     camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs"
 ) -> Path:
-    """Write ``camera`` as the ROS ``camera_info`` YAML of the ROS camera calibrator.
-
-    The rectification is the identity and the projection ``[K | 0]`` (a monocular
-    camera). Floats are written with their shortest exact representation, so
-    :func:`load_calibration` returns the same values.
-
-    Parameters
-    ----------
-    camera : CameraIntrinsics
-    path : str or path-like
-        Destination; overwritten if it exists.
-    camera_name : str
-        The ``camera_name`` field.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
-
-    Raises
-    ------
-    InputError
-        If the file cannot be written.
+    """Write ``camera`` to ``path`` as the ROS camera calibrator's ``camera_info`` YAML (identity
+    rectification, projection ``[K | 0]``) and return ``path``. Floats are written exactly, so
+    :func:`load_calibration` gives the same values back; :class:`InputError` if it cannot be written.
     """
     model, coefficients = _ros_distortion(camera)
     document = {

@@ -54,30 +54,11 @@ def intrinsics_from_values(
     distortion: Any,
     source: str,
 ) -> CameraIntrinsics:
-    """Validate raw calibration values (e.g. the fields of a ROS ``CameraInfo``).
-
-    Parameters
-    ----------
-    K : array_like
-        Nine numbers, row-major, or a 3x3 array.
-    width, height : int
-        Image size (px).
-    distortion_model : str or None
-        ``plumb_bob``, ``rational_polynomial``, ``none`` or empty/None (inferred from the
-        number of coefficients).
-    distortion : array_like
-        Distortion coefficients (OpenCV order).
-    source : str
-        How to name the origin of the values in error messages.
-
-    Returns
-    -------
-    CameraIntrinsics
-
-    Raises
-    ------
-    CalibrationError
-        With the same checks as :func:`load_calibration`.
+    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major,
+    or 3x3), the image size (px), the distortion model (``plumb_bob``, ``rational_polynomial``,
+    ``none``; empty or None: inferred from the number of coefficients) and its coefficients in
+    OpenCV order. ``source`` names the values in errors; :class:`CalibrationError` with the
+    checks of :func:`load_calibration`.
     """
     k_values = _numbers(K, f"{source}: K")
     if len(k_values) != 9:

@@ -12,7 +12,7 @@ MAX_SCHEMAS = 4096
 MAX_CHANNELS = 4096
 #: Bytes that the schemas, channels and metadata of one file may hold in total.
 MAX_DECLARED_BYTES = 64 * 2**20
-#: Largest JSON message decoded (images in older files travel in it base64-encoded).
+#: Largest JSON message decoded (a fit model holds the taught path's arrays in base64).
 MAX_JSON_BYTES = 64 * 2**20
 #: Most values (counted as commas, colons and brackets) in one JSON document. Each becomes
 #: a Python object of tens of bytes, so this bounds memory where the byte cap cannot.

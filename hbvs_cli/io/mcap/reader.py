@@ -1,4 +1,13 @@
-"""Reading MCAP files record by record under caps, streaming, with truncated files read up to their last complete record."""
+"""Reading MCAP files as streams, under caps, keeping what a truncated file holds.
+
+The ``mcap`` library's :class:`~mcap.stream_reader.StreamReader` parses the records and its
+``SeekingReader`` the summary; hbvs adds what they do not do. Every read the library makes
+is capped before it allocates (:class:`_CappedInput`); chunks are decompressed under a cap
+and their records parsed one at a time (the library builds a chunk's records as one list);
+schemas, channels and metadata are capped in number and bytes; the messages, chunk
+messages and bytes read are counted against :mod:`..limits`; and damage after good data
+(a crashed recorder) ends the stream with :attr:`McapStream.truncated` instead of an error.
+"""
 
 from __future__ import annotations
 
@@ -21,14 +30,13 @@ class _FieldTooLarge(Exception):
     """A record asked to read a field larger than any record hbvs accepts."""
 
 
-class _CappedInput:
-    """The input the mcap library reads from, refusing any single read above the cap.
+class _Damaged(Exception):
+    """The data stops making sense here; what was read before it is kept."""
 
-    The library's record parsers read inner fields with the lengths the file declares
-    (a chunk's data, a metadata map, a string), so a record could declare 100 bytes and
-    then ask for a terabyte. Every read goes through here and is refused beyond
-    :data:`MAX_RECORD_BYTES`; short reads from pipes are completed.
-    """
+
+class _CappedInput:
+    """The stream the mcap library reads: a read above :data:`MAX_RECORD_BYTES` (a field
+    whose declared length is a lie) is refused, and short reads from pipes are completed."""
 
     def __init__(self, raw: BinaryIO) -> None:
         self._raw = raw
@@ -46,12 +54,8 @@ class _CappedInput:
 
 
 def _read_up_to(stream: Any, size: int) -> bytes:
-    """``size`` bytes, or fewer when the stream ends (pipes may return short reads)."""
-    data = stream.read(size)
-    if data is None or len(data) == size or not data:
-        return data or b""
-    parts = [data]
-    missing = size - len(data)
+    """``size`` bytes, or fewer when the stream ends."""
+    parts, missing = [], size
     while missing > 0:
         part = stream.read(missing)
         if not part:
@@ -62,11 +66,8 @@ def _read_up_to(stream: Any, size: int) -> bytes:
 
 
 class _Declarations:
-    """The schemas and channels of a file read so far, under count and byte caps.
-
-    Ids are 16-bit, so a hostile file could declare 65 536 schemas of 64 MiB each; real
-    recordings have tens. ``charge`` also accounts for metadata, which shares the budget.
-    """
+    """The schemas and channels read so far, capped in number (ids are 16-bit) and, with the
+    metadata, in bytes (:data:`MAX_DECLARED_BYTES`)."""
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -74,10 +75,6 @@ class _Declarations:
         self.channels: dict[int, Any] = {}
         self._sizes: dict[tuple[str, Any], int] = {}
         self._bytes = 0
-
-    @property
-    def empty(self) -> bool:
-        return not self.schemas and not self.channels
 
     def charge(self, key: tuple[str, Any], size: int) -> None:
         """Account ``size`` bytes to ``key`` (replacing what it held before)."""
@@ -89,19 +86,20 @@ class _Declarations:
                 "hbvs accepts; not a recording hbvs can read"
             )
 
-    def add_schema(self, schema: Any) -> None:
-        size = len(schema.name) + len(schema.encoding) + len(schema.data)
-        self._store(self.schemas, schema.id, schema, "schema", size, MAX_SCHEMAS, "schemas")
+    def add(self, record: Any) -> None:
+        """Keep a Schema or Channel record."""
+        from mcap.records import Schema
 
-    def add_channel(self, channel: Any) -> None:
-        size = len(channel.topic) + len(channel.message_encoding) + sum(len(k) + len(v) for k, v in channel.metadata.items())
-        self._store(self.channels, channel.id, channel, "channel", size, MAX_CHANNELS, "channels")
-
-    def _store(self, table: dict[int, Any], key: int, value: Any, kind: str, size: int, limit: int, what: str) -> None:
-        if key not in table and len(table) >= limit:
-            raise RecordingError(f"{self.name}: declares more than {limit} {what}; not a recording hbvs can read")
-        self.charge((kind, key), size)
-        table[key] = value
+        if isinstance(record, Schema):
+            table, kind, limit = self.schemas, "schemas", MAX_SCHEMAS
+            size = len(record.name) + len(record.encoding) + len(record.data)
+        else:
+            table, kind, limit = self.channels, "channels", MAX_CHANNELS
+            size = len(record.topic) + len(record.message_encoding) + sum(len(k) + len(v) for k, v in record.metadata.items())
+        if record.id not in table and len(table) >= limit:
+            raise RecordingError(f"{self.name}: declares more than {limit} {kind}; not a recording hbvs can read")
+        self.charge((kind, record.id), size)
+        table[record.id] = record
 
     def channel_of(self, channel_id: int) -> tuple[Any, Any]:
         channel = self.channels.get(channel_id)
@@ -115,16 +113,7 @@ class _Declarations:
 
 @dataclass(frozen=True)
 class McapMessage:
-    """One message as read from a file, before decoding.
-
-    Attributes
-    ----------
-    topic, schema_name, schema_encoding, message_encoding : str
-    schema_data : bytes
-    log_time : int
-        Nanoseconds.
-    data : bytes
-    """
+    """One message as read from a file, before decoding (``log_time`` in ns)."""
 
     topic: str
     schema_name: str
@@ -135,57 +124,79 @@ class McapMessage:
     data: bytes
 
     def json(self, source: str = "") -> dict[str, Any]:
-        """The message decoded as a JSON object; :class:`RecordingError` if it is not one.
-
-        Size, number of values and nesting are capped (:func:`decode_json`).
-        """
+        """An ``hbvs.*`` message decoded as a JSON object under :func:`decode_json`'s caps;
+        :class:`RecordingError` if it is not one."""
         if self.message_encoding != "json":
-            raise RecordingError(f"{source}: message on {self.topic} is {self.message_encoding!r}, expected JSON")
+            raise RecordingError(f"{source}: message on {self.topic} is {self.message_encoding[:40]!r}, expected JSON")
         value = decode_json(self.data, f"{source}: message on {self.topic}")
         if not isinstance(value, dict):
             raise RecordingError(f"{source}: message on {self.topic} is not a JSON object")
         return value
 
+    def foxglove(self, source: str = "") -> Any:
+        """A ``foxglove.*`` message parsed with its ``foxglove-schemas-protobuf`` class;
+        :class:`RecordingError` if it is not protobuf or does not parse."""
+        from google.protobuf.message import DecodeError
+
+        message_class = _foxglove_class(self.schema_name)
+        if self.message_encoding != "protobuf" or message_class is None:
+            raise RecordingError(
+                f"{source}: message on {self.topic} is {self.message_encoding[:40]!r} {self.schema_name[:60]!r}, "
+                "expected a protobuf foxglove message"
+            )
+        try:
+            return message_class.FromString(self.data)
+        except (DecodeError, ValueError, RuntimeError):
+            raise RecordingError(f"{source}: malformed {self.schema_name} message on {self.topic}") from None
+
+
+def _foxglove_class(schema_name: str) -> Any:
+    """The protobuf class of a ``foxglove.<Name>`` schema, or None."""
+    import importlib
+
+    package, _, name = schema_name.partition(".")
+    if package != "foxglove" or not name.isidentifier():
+        return None
+    try:
+        return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
+    except (ImportError, AttributeError):
+        return None
+
+
+#: What the library raises on damaged data, beyond its own McapError (added in __iter__).
+_DAMAGE = (_FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, KeyError, EOFError)
+
 
 @dataclass
 class McapStream:
-    """Iterate over the messages of an MCAP file or stream, in file order, safely.
+    """The messages of an MCAP file, stream or stdin (``"-"``), in file order, in constant memory.
 
     Parameters
     ----------
     source : str, path or binary stream
-        ``"-"`` reads stdin.
     topics : set of str, optional
-        Only these topics are yielded (others are still parsed, as they share chunks).
+        Only these topics are yielded (the others are still parsed: they share chunks).
     schemas : dict of str to str, optional
-        Topic to the schema name its messages must have. Only these topics are yielded
-        (with ``topics``, only those in both), and a message under another schema is refused.
+        Topic -> the schema name its messages must have: only these topics are yielded, and
+        a message under another schema is refused.
     name : str
-        How to name the source in error messages.
+        The source in error messages.
 
-    Attributes (filled while iterating)
-    ----------
-    metadata : dict
-        Metadata records by name.
-    truncated : bool
-        The stream ended before the MCAP footer (a crashed writer), or became unreadable
-        after some good records; everything up to the last complete record was yielded.
-    stop_reason : str
-        Why reading stopped early, when ``truncated``.
-    messages : int
-        Messages yielded.
-    complete : bool
-        The footer was reached.
+    Attributes, filled while iterating: ``metadata`` (records by name), ``truncated`` and
+    ``stop_reason`` (the stream ended before its footer, or became unreadable after good
+    records: everything before was yielded), ``complete`` (the footer was reached) and
+    ``messages`` (yielded).
 
     Raises
     ------
     InputError
         The file is missing or unreadable.
     RecordingError
-        Not an MCAP file; damaged before any schema or channel; a record or chunk larger
-        than :data:`MAX_RECORD_BYTES` / :data:`MAX_CHUNK_BYTES`; more schemas, channels or
-        declared bytes than the caps; a message on an undeclared channel; an unsupported
-        chunk compression; a message whose schema is not the one ``schemas`` expects.
+        Not an MCAP file, or damaged before any schema, channel or message; a record or
+        chunk above the caps; too many schemas, channels or declared bytes; a message on an
+        undeclared channel; an unsupported compression; a schema other than ``schemas`` says.
+    LimitExceededError
+        More messages, chunk messages or input bytes than :mod:`..limits` allows.
     """
 
     source: Any
@@ -197,8 +208,7 @@ class McapStream:
     messages: int = 0
     complete: bool = False
     stop_reason: str = ""
-    _messages_read: int = field(default=0, repr=False)
-    _bytes_read: int = field(default=0, repr=False)
+    _counts: dict[str, int] = field(default_factory=lambda: {"messages": 0, "input-bytes": 0}, repr=False)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -207,83 +217,69 @@ class McapStream:
     def _open(self) -> tuple[BinaryIO, bool]:
         if str(self.source) == "-":
             return sys.stdin.buffer, False
-        if isinstance(self.source, (str, os.PathLike)):
-            path = Path(self.source)
-            if not path.exists():
-                raise InputError(f"{path}: no such file")
-            if path.is_dir():
-                raise InputError(f"{path}: is a directory, expected an MCAP file")
-            try:
-                return open(path, "rb"), True
-            except OSError as exc:
-                raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-        return self.source, False
+        if not isinstance(self.source, (str, os.PathLike)):
+            return self.source, False
+        path = Path(self.source)
+        if not path.exists():
+            raise InputError(f"{path}: no such file")
+        if path.is_dir():
+            raise InputError(f"{path}: is a directory, expected an MCAP file")
+        try:
+            return open(path, "rb"), True
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read ({exc.strerror})") from None
 
     def __iter__(self) -> Iterator[McapMessage]:
         from mcap.exceptions import EndOfFile, InvalidMagic, McapError, RecordLengthLimitExceeded
         from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
-        from mcap.stream_reader import StreamReader, breakup_chunk
+        from mcap.stream_reader import StreamReader
 
         stream, owned = self._open()
         declarations = _Declarations(self.name)
-        # The mcap library parses the records; chunks are left to us (emit_chunks) so that
-        # they are decompressed under the cap before the library splits them.
-        reader = StreamReader(
-            _CappedInput(stream), skip_magic=False, emit_chunks=True, validate_crcs=True,
-            record_size_limit=MAX_RECORD_BYTES,
-        )
+        reader = StreamReader(_CappedInput(stream), emit_chunks=True, validate_crcs=True, record_size_limit=MAX_RECORD_BYTES)
         records = reader.records
-        damage = (McapError, _FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, KeyError)
         try:
             while True:
                 try:
-                    record = next(records)
-                    if isinstance(record, Message):
-                        self._count_message()
-                    if not isinstance(record, Chunk):
-                        self._count_bytes(_record_size(record))
-                    inner = self._chunk_records(record, breakup_chunk) if isinstance(record, Chunk) else [record]
+                    record = next(records, None)
+                    if record is None or isinstance(record, Footer):
+                        self.complete = True
+                        return
+                    if isinstance(record, Chunk):
+                        inner: Any = self._chunk_records(record)
+                    else:
+                        if isinstance(record, Message):
+                            self._count("messages", 1, "the number of messages")
+                        data = getattr(record, "data", None)
+                        self._count("input-bytes", len(data) if isinstance(data, (bytes, memoryview)) else 64, "the data (after decompression)")
+                        inner = [record]
                     for item in inner:
                         if isinstance(item, Message):
                             yield from self._message(item, declarations)
-                        elif isinstance(item, Schema):
-                            declarations.add_schema(item)
-                        elif isinstance(item, Channel):
-                            declarations.add_channel(item)
-                    if isinstance(record, Metadata):
-                        declarations.charge(("metadata", record.name), len(record.name) + sum(len(k) + len(v) for k, v in record.metadata.items()))
-                        self.metadata[record.name] = dict(record.metadata)
-                    elif isinstance(record, Footer):
-                        self.complete = True
-                        return
-                except StopIteration:
-                    self.complete = True
-                    return
+                        elif isinstance(item, Metadata):
+                            declarations.charge(("metadata", item.name), len(item.name) + sum(len(k) + len(v) for k, v in item.metadata.items()))
+                            self.metadata[item.name] = dict(item.metadata)
+                        elif isinstance(item, (Schema, Channel)):
+                            declarations.add(item)
                 except RecordLengthLimitExceeded as exc:
                     raise RecordingError(
                         f"{self.name}: a record declares more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs accepts ({_short(exc)})"
                     ) from None
-                except InvalidMagic:
-                    if self.messages == 0 and declarations.empty:
-                        raise RecordingError(f"{self.name}: not an MCAP file") from None
-                    self._stop("the file's closing magic is damaged")
-                    return
-                except (EndOfFile, EOFError):
-                    if self.messages == 0 and declarations.empty and not self.metadata:
-                        raise RecordingError(f"{self.name}: not an MCAP file, or empty") from None
-                    # What a crashed writer leaves: keep everything up to here.
-                    self._stop("the file ends before its footer")
-                    return
-                except _Damaged as exc:
-                    if self.messages == 0 and declarations.empty:
-                        raise RecordingError(f"{self.name}: not a readable MCAP file ({exc})") from None
-                    self._stop(str(exc))
-                    return
-                except damage as exc:
-                    if self.messages == 0 and declarations.empty:
-                        raise RecordingError(f"{self.name}: not a readable MCAP file ({_short(exc)})") from None
-                    # Damage after good data: keep what was read, as for a crashed writer.
-                    self._stop(f"damaged data ({_short(exc)})")
+                except (McapError, _Damaged, *_DAMAGE) as exc:
+                    empty = self.messages == 0 and not declarations.schemas and not declarations.channels
+                    if isinstance(exc, InvalidMagic):
+                        reason, refusal = "the file's closing magic is damaged", "not an MCAP file"
+                    elif isinstance(exc, (EndOfFile, EOFError)):
+                        # What a crashed writer leaves: keep everything up to here.
+                        reason, refusal = "the file ends before its footer", "not an MCAP file, or empty"
+                        empty = empty and not self.metadata
+                    elif isinstance(exc, _Damaged):
+                        reason, refusal = str(exc), f"not a readable MCAP file ({exc})"
+                    else:
+                        reason, refusal = f"damaged data ({_short(exc)})", f"not a readable MCAP file ({_short(exc)})"
+                    if empty:
+                        raise RecordingError(f"{self.name}: {refusal}") from None
+                    self.truncated, self.stop_reason = True, reason
                     return
         except OSError as exc:
             raise InputError(f"{self.name}: cannot read ({exc.strerror or exc})") from None
@@ -291,21 +287,17 @@ class McapStream:
             if owned:
                 stream.close()
 
-    def _stop(self, reason: str) -> None:
-        self.truncated = True
-        self.stop_reason = reason
-
     def _message(self, record: Any, declarations: _Declarations) -> Iterator[McapMessage]:
         channel, schema = declarations.channel_of(record.channel_id)
         if self.topics is not None and channel.topic not in self.topics:
             return
+        schema_name = schema.name if schema else ""
         if self.schemas is not None:
             expected = self.schemas.get(channel.topic)
             if expected is None:
                 return
-            found = schema.name if schema else ""
-            if found != expected:
-                raise RecordingError(f"{self.name}: topic {channel.topic} has schema {found!r}, expected {expected!r}")
+            if schema_name != expected:
+                raise RecordingError(f"{self.name}: topic {channel.topic} has schema {schema_name!r}, expected {expected!r}")
         if record.log_time > MAX_LOG_TIME_NS:
             raise RecordingError(
                 f"{self.name}: a message on {channel.topic} is stamped {record.log_time} ns, later than hbvs handles "
@@ -313,23 +305,25 @@ class McapStream:
             )
         self.messages += 1
         yield McapMessage(
-            topic=channel.topic,
-            schema_name=schema.name if schema else "",
-            schema_encoding=schema.encoding if schema else "",
-            schema_data=bytes(schema.data) if schema else b"",
-            message_encoding=channel.message_encoding,
-            log_time=int(record.log_time),
-            data=bytes(record.data),
+            topic=channel.topic, schema_name=schema_name, schema_encoding=schema.encoding if schema else "",
+            schema_data=bytes(schema.data) if schema else b"", message_encoding=channel.message_encoding,
+            log_time=int(record.log_time), data=bytes(record.data),
         )
 
-    def _chunk_records(self, chunk: Any, breakup_chunk: Any) -> Iterator[Any]:
-        """The records of a chunk, decompressed under the size cap, CRC-checked, then split
-        one at a time (:meth:`_chunk_items`)."""
+    def _chunk_records(self, chunk: Any) -> Iterator[Any]:
+        """The Schema, Channel and Message records of a chunk, decompressed under
+        :data:`MAX_CHUNK_BYTES`, CRC-checked, and parsed one at a time by the library's
+        record parsers (a few KB of zstd can hold millions of empty messages)."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Channel, Message, Schema
+
+        from .. import limits
+
         declared = chunk.uncompressed_size
         if declared > MAX_CHUNK_BYTES:
             raise RecordingError(
-                f"{self.name}: a chunk declares {declared} bytes uncompressed, "
-                f"more than the {MAX_CHUNK_BYTES // 2**20} MiB hbvs accepts"
+                f"{self.name}: a chunk declares {declared} bytes uncompressed, more than the {MAX_CHUNK_BYTES // 2**20} MiB hbvs accepts"
             )
         try:
             data = _decompress_capped(chunk.compression, chunk.data, declared, self.name)
@@ -339,66 +333,32 @@ class McapStream:
             raise _Damaged(f"a chunk holds {len(data)} bytes, not the {declared} it declares")
         if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
             raise _Damaged("a chunk fails its CRC check")
-        self._count_bytes(len(data))
-        return self._chunk_items(data)
-
-    def _chunk_items(self, data: bytes) -> Iterator[Any]:
-        """The schema, channel and message records of a decompressed chunk, parsed one at a
-        time by the mcap library's record parsers (its ``breakup_chunk`` builds them all as
-        one list, which a small chunk of millions of empty messages turns into gigabytes), and counted
-        against the ``chunk-messages`` and ``messages`` limits."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Message, Schema
-
-        from .. import limits
-
+        self._count("input-bytes", len(data), "the data (after decompression)")
         stream = ReadDataStream(io.BytesIO(data))
-        length_of_data = len(data)
-        in_chunk = 0
-        chunk_limit = limits.current("chunk-messages")
-        while stream.count < length_of_data:
-            opcode = stream.read1()
-            length = stream.read8()
+        in_chunk, chunk_limit = 0, limits.current("chunk-messages")
+        while stream.count < len(data):
+            opcode, length = stream.read1(), stream.read8()
             if opcode == Opcode.MESSAGE:
                 in_chunk += 1
                 if in_chunk > chunk_limit:
                     raise limits.exceeded("chunk-messages", None, f"{self.name}: a chunk's number of messages")
-                self._count_message()
+                self._count("messages", 1, "the number of messages")
                 yield Message.read(stream, length)
             elif opcode == Opcode.CHANNEL:
                 yield Channel.read(stream)
             elif opcode == Opcode.SCHEMA:
                 yield Schema.read(stream)
+            elif length > len(data):
+                raise _Damaged("a record inside a chunk is longer than the chunk")
             else:
-                if length > length_of_data:
-                    raise _Damaged("a record inside a chunk is longer than the chunk")
                 stream.read(length)
 
-    def _count_message(self) -> None:
+    def _count(self, limit: str, amount: int, what: str) -> None:
         from .. import limits
 
-        self._messages_read += 1
-        if self._messages_read > limits.current("messages"):
-            raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
-
-    def _count_bytes(self, size: int) -> None:
-        from .. import limits
-
-        self._bytes_read += size
-        if self._bytes_read > limits.current("input-bytes"):
-            raise limits.exceeded("input-bytes", None, f"{self.name}: the data (after decompression)")
-
-
-def _record_size(record: Any) -> int:
-    """Bytes a record outside a chunk holds (its data, or 64 for one without): for the
-    ``input-bytes`` limit."""
-    data = getattr(record, "data", None)
-    return len(data) if isinstance(data, (bytes, bytearray, memoryview)) else 64
-
-
-class _Damaged(Exception):
-    """The data stops making sense here; what was read before it is kept."""
+        self._counts[limit] += amount
+        if self._counts[limit] > limits.current(limit):
+            raise limits.exceeded(limit, None, f"{self.name}: {what}")
 
 
 #: What damaged compressed data raises: zstandard.ZstdError and lz4's RuntimeError among them.
@@ -412,34 +372,79 @@ except ImportError:  # pragma: no cover
 
 
 def _decompress_capped(compression: str, data: bytes | memoryview, declared: int, name: str) -> bytes:
-    """Decompress a chunk, producing at most ``declared + 1`` bytes whatever its headers claim."""
-    limit = declared + 1
+    """Decompress a chunk into at most ``declared + 1`` bytes, whatever its frame headers claim."""
     if compression == "":
         return bytes(data)
     if compression == "zstd":
         import zstandard
 
-        # A streaming read bounds the output; one-shot decompression would trust the
-        # frame header's content size (a hostile file could claim gigabytes).
+        # A streaming read bounds the output; one-shot decompression trusts the frame header.
         with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True) as reader:
-            return _read_up_to(reader, limit)
+            return _read_up_to(reader, declared + 1)
     if compression == "lz4":
         import lz4.frame
 
-        return lz4.frame.LZ4FrameDecompressor().decompress(bytes(data), max_length=limit)
+        return lz4.frame.LZ4FrameDecompressor().decompress(bytes(data), max_length=declared + 1)
     raise RecordingError(f"{name}: unsupported chunk compression {compression[:40]!r}")
 
 
 def read_metadata(stream: McapStream, name: str) -> dict[str, Any]:
     """A metadata record with its JSON values decoded (values that are not JSON stay strings)."""
-    raw = stream.metadata.get(name)
-    if raw is None:
-        return {}
     decoded: dict[str, Any] = {}
-    for key, value in raw.items():
+    for key, value in stream.metadata.get(name, {}).items():
         check_json_limits(value, f"{stream.name}: metadata {name}.{key}")
         try:
             decoded[key] = json.loads(value, parse_int=_bounded_int)
         except (ValueError, RecursionError):
             decoded[key] = value
     return decoded
+
+
+@dataclass(frozen=True)
+class ChannelSummary:
+    """One channel as a file's summary section lists it (``message_count`` None without statistics)."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    message_encoding: str
+    message_count: int | None
+
+
+def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
+    """The channels of an MCAP file's summary section, read by the library's seeking reader
+    through the same capped input (cheap on a large file); None when the file has no usable
+    summary (stream it with :class:`McapStream` instead).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read.
+    RecordingError
+        The summary declares more than the caps allow.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import SeekingReader
+
+    name = name or str(path)
+    try:
+        with open(path, "rb") as stream:
+            summary = SeekingReader(_CappedInput(stream), record_size_limit=MAX_RECORD_BYTES).get_summary()
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read ({exc.strerror or exc})") from None
+    except (McapError, *_DAMAGE):
+        return None
+    if summary is None or not summary.channels:
+        return None
+    declarations = _Declarations(name)
+    for record in (*summary.schemas.values(), *summary.channels.values()):
+        declarations.add(record)
+    counts = dict(summary.statistics.channel_message_counts) if summary.statistics is not None else None
+    listed = []
+    for channel_id, channel in declarations.channels.items():
+        schema = declarations.schemas.get(channel.schema_id)
+        listed.append(ChannelSummary(
+            topic=channel.topic, schema_name=schema.name if schema else "", schema_encoding=schema.encoding if schema else "",
+            message_encoding=channel.message_encoding, message_count=counts.get(channel_id, 0) if counts is not None else None,
+        ))
+    return listed

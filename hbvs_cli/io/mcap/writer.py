@@ -1,26 +1,33 @@
-"""Writing hbvs MCAP files: JSON messages on registered schemas, atomically (see :func:`open_output`)."""
+"""Writing hbvs MCAP files atomically: ``foxglove.*`` messages in protobuf, ``hbvs.*`` in JSON."""
 
 from __future__ import annotations
 
 import json
 import os
 from contextlib import contextmanager
+from functools import lru_cache
 from typing import IO, Any, Iterator
 
-from ..schemas import SCHEMAS
+from ..schemas import HBVS_SCHEMAS
 from .caps import PROFILE
 from .json_codec import encode_json, json_ready
 
 
-class McapWriter:
-    """Writes one hbvs MCAP file: JSON messages on topics with registered schemas.
+@lru_cache(maxsize=None)
+def protobuf_schema(message_class: Any) -> bytes:
+    """The FileDescriptorSet of a protobuf class, as mcap-protobuf-support stores it."""
+    from mcap_protobuf.schema import build_file_descriptor_set
 
-    Parameters
-    ----------
-    stream : binary stream with ``write``, ``tell`` and ``flush``
-    chunk_size : int
-        Bytes per chunk; each finished chunk is flushed to the stream, so a crash loses
-        at most the chunk in progress.
+    return build_file_descriptor_set(message_class).SerializeToString()
+
+
+class McapWriter:
+    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks).
+
+    A protobuf message (the ``foxglove-schemas-protobuf`` classes) goes on a ``protobuf``
+    channel whose schema is its FileDescriptorSet; a dict goes on a ``json`` channel whose
+    schema is the ``hbvs.*`` JSON schema of :mod:`..schemas`. Each finished chunk of
+    ``chunk_size`` bytes is flushed, so a crash loses at most the chunk in progress.
     """
 
     def __init__(self, stream: Any, chunk_size: int = 1024 * 1024) -> None:
@@ -32,50 +39,47 @@ class McapWriter:
         self._writer = Writer(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"hbvs {__version__}")
         self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
+        #: topic -> (channel id, schema name, schema encoding, schema data, message encoding)
+        self.channels: dict[str, tuple[int, str, str, bytes, str]] = {}
         self._sequence = 0
-        self._chunk_size = chunk_size
         self._finished = False
 
-    def _channel(self, topic: str, schema_name: str) -> int:
-        if topic in self._channels:
-            return self._channels[topic]
-        if schema_name not in self._schemas:
-            schema = SCHEMAS[schema_name]
-            self._schemas[schema_name] = self._writer.register_schema(
-                name=schema_name, encoding="jsonschema", data=json.dumps(schema, separators=(",", ":")).encode()
-            )
-        channel_id = self._writer.register_channel(
-            topic=topic, message_encoding="json", schema_id=self._schemas[schema_name]
-        )
-        self._channels[topic] = channel_id
-        return channel_id
+    def _channel(self, topic: str, schema_name: str, message: Any) -> int:
+        if topic in self.channels:
+            return self.channels[topic][0]
+        if isinstance(message, dict) or message is None:
+            schema = json.dumps(HBVS_SCHEMAS[schema_name], separators=(",", ":")).encode()
+            return self._declare(topic, schema_name, "jsonschema", schema, "json")
+        assert type(message).DESCRIPTOR.full_name == schema_name, (topic, schema_name)
+        return self._declare(topic, schema_name, "protobuf", protobuf_schema(type(message)), "protobuf")
 
-    def declare_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> None:
-        """Register a channel whose messages are not JSON (e.g. protobuf images), once per topic.
+    def _declare(self, topic: str, schema_name: str, encoding: str, schema: bytes, message_encoding: str) -> int:
+        if topic not in self.channels:
+            if schema_name not in self._schemas:
+                self._schemas[schema_name] = self._writer.register_schema(name=schema_name, encoding=encoding, data=schema)
+            channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_name])
+            self.channels[topic] = (channel_id, schema_name, encoding, schema, message_encoding)
+        return self.channels[topic][0]
 
-        Later :meth:`write_encoded` calls on ``topic`` use it; the caller encodes the messages.
-        """
-        if topic in self._channels:
-            return
-        key = f"{schema_name}\0{schema_encoding}"
-        if key not in self._schemas:
-            self._schemas[key] = self._writer.register_schema(name=schema_name, encoding=schema_encoding, data=schema_data)
-        self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[key]
-        )
-
-    def write(self, topic: str, schema_name: str, log_time_ns: int, message: dict[str, Any]) -> None:
-        """Write one message, JSON-encoded."""
-        self.write_encoded(topic, schema_name, log_time_ns, encode_json(message))
+    def write(self, topic: str, schema_name: str, log_time_ns: int, message: Any) -> bytes:
+        """Write one message (a protobuf message, or a dict encoded as JSON); returns its bytes."""
+        data = encode_json(message) if isinstance(message, dict) else message.SerializeToString(deterministic=True)
+        self._add(self._channel(topic, schema_name, message), log_time_ns, data)
+        return data
 
     def write_encoded(self, topic: str, schema_name: str, log_time_ns: int, data: bytes) -> None:
-        """Write one message whose bytes are already encoded (JSON copied from input, or in
-        the encoding of a channel given to :meth:`declare_channel`)."""
-        channel_id = self._channel(topic, schema_name)
+        """Write one ``hbvs.*`` message whose JSON bytes are already encoded."""
+        self._add(self._channel(topic, schema_name, None), log_time_ns, data)
+
+    def copy(self, message: Any, log_time_ns: int | None = None, data: bytes | None = None) -> None:
+        """Write a :class:`~.reader.McapMessage` read from another file, on a channel declared
+        as there, with its own bytes and log time unless others are given."""
+        channel_id = self._declare(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
+        self._add(channel_id, message.log_time if log_time_ns is None else log_time_ns, message.data if data is None else data)
+
+    def _add(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
         self._writer.add_message(
-            channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns),
-            data=data, sequence=self._sequence,
+            channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns), data=data, sequence=self._sequence,
         )
         self._sequence += 1
 
@@ -88,8 +92,7 @@ class McapWriter:
         self._writer.add_metadata(name, encoded)
 
     def input_ended_early(self, name: str, allow: bool) -> None:
-        """An input of this output ended before its end record: see
-        :meth:`hbvs_cli.io.output_target.OutputSink.input_ended_early` (set by :func:`open_output`)."""
+        """Set by :func:`open_output` (see :meth:`~hbvs_cli.io.output_target.OutputSink.input_ended_early`)."""
 
     def flush(self) -> None:
         """Finish the chunk in progress and push it to the stream (crash safety)."""
@@ -107,12 +110,8 @@ class McapWriter:
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on an output opened by :func:`~hbvs_cli.io.output_target.open_output_stream`.
 
-    A file is written under a partial name unique to the process and renamed into place
-    when complete (a symbolic link's target is replaced); a device or FIFO is written in
-    place; ``-`` is stdout. If the body raises (an error, KeyboardInterrupt, or the
-    exception the CLI raises on SIGTERM), the partial file is removed and an existing
-    output is left as it was. Only a hard crash, which runs no code, leaves the partial
-    file behind. A stage whose input ended early calls ``writer.input_ended_early``.
+    A file is written under a partial name and renamed into place when complete; if the
+    body raises, the partial file is removed and an existing output is left as it was.
     """
     from ..output_target import open_output_stream
 

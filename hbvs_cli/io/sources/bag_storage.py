@@ -1,22 +1,13 @@
-"""The storage side of a ROS 2 bag: which topics it has and its messages, decoded on demand.
+"""The storage side of a ROS 2 bag: its topics and its messages, decoded on demand.
 
-Two readers stand behind :class:`~hbvs_cli.io.sources.rosbag.BagSource`:
-
-* :class:`RosbagsBag`, for a bag folder (``metadata.yaml`` beside its files, as ``ros2 bag
-  record`` writes it): ``rosbags``' ``AnyReader`` reads SQLite (``.db3``) and MCAP storage,
-  split bags, file- and message-compressed bags, and decodes CDR with the type store built
-  from the bag's own message definitions, or, for a bag without them (SQLite bags before
-  Iron), the type store of the bag's ``ros_distro`` (Humble when the metadata names none).
-* :class:`McapFileBag`, for a single ``.mcap`` file given by itself (or a folder of them
-  without ``metadata.yaml``): read by hbvs's capped :class:`~hbvs_cli.io.mcap.McapStream`,
-  which also reads files that are not ROS bags at all (``foxglove.CompressedImage`` and
-  ``foxglove.CameraCalibration`` in protobuf or JSON: hbvs's own files, Foxglove
-  recordings), files without a summary section, and refuses a damaged one.
-
-hbvs's caps hold for both: a message above :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` is
-refused before it is decoded, message definitions above 1 MiB are not parsed, the
-``messages`` limit (``--limit``) counts every message read, and ``metadata.yaml`` above
-1 MiB is refused unread.
+:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader`` (SQLite or MCAP
+storage, split, compressed; CDR decoded with the bag's own message definitions, or its
+``ros_distro``'s typestore, Humble by default). :class:`McapFileBag` reads one ``.mcap``
+file (or a folder of them without ``metadata.yaml``) with hbvs's capped
+:class:`~hbvs_cli.io.mcap.McapStream`: ROS 2 bags, and protobuf ``foxglove.CompressedImage``
+and ``CameraCalibration`` recordings such as hbvs's own. Both keep hbvs's caps: messages
+above :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES`, message definitions and ``metadata.yaml``
+above 1 MiB are refused, and the ``messages`` limit counts every message read.
 """
 
 from __future__ import annotations
@@ -34,7 +25,7 @@ import yaml
 from ...errors import HbvsError, InputError, RecordingError
 from .. import limits
 from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
-from .base import _natural_key
+from .frame_source import _natural_key
 
 #: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
 MAX_SCHEMA_BYTES = 1 << 20
@@ -202,9 +193,8 @@ def _typestore_for(information: dict[str, Any]) -> Any:
 class _CappedZstd:
     """The ``zstd`` module as rosbags' reader uses it, decompressing under caps.
 
-    rosbags decompresses a message-compressed bag's messages whole (a 56 KB ``.db3`` asked
-    for 1.2 GB) and a file-compressed bag's files into TMPDIR (a 61 KB bag wrote 700 MB):
-    here a message stops at :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` + 1 bytes of output
+    rosbags decompresses a message-compressed bag's messages whole and a file-compressed
+    bag's files into TMPDIR, whatever size they expand to: here a message stops at :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` + 1 bytes of output
     and a file at the ``decompressed-bytes`` limit, both streamed, before anything more is
     allocated or written.
     """

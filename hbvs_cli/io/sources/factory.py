@@ -6,8 +6,8 @@ import os
 from typing import Any
 
 from ...errors import UsageError
-from .base import FrameSource
-from .camera import CameraSource
+from .frame_source import FrameSource
+from .camera_source import CameraSource
 from .folder import ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource

@@ -9,30 +9,17 @@ from typing import Any
 
 from ...errors import InputError, UsageError
 from ..images import as_image8, decode_image, image_size, sniff_format
-from .base import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
+from .frame_source import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
 
 #: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 class ImageFolderSource(FrameSource):
-    """Image files from a folder or a glob pattern, in natural order, at a fixed rate.
-
-    Parameters
-    ----------
-    dir_or_glob : str or path-like
-        A folder (every ``.png .jpg .jpeg .bmp .tif .tiff`` file in it, not recursive),
-        a glob pattern such as ``"run1/*.jpg"`` (``**`` recurses), or a single image.
-    fps : float
-        The frame rate: frame ``i`` has ``t = i / fps``.
-
-    Raises
-    ------
-    InputError
-        If the folder does not exist, or no image file is found. An image that cannot be
-        read raises InputError naming it when iteration reaches it.
-    UsageError
-        If ``fps`` is not a positive number.
+    """Image files at ``fps`` (frame ``i`` at ``t = i / fps``), in natural order, from a folder
+    (its ``.png .jpg .jpeg .bmp .tif .tiff`` files, not recursive), a glob (``**`` recurses) or
+    one image. :class:`InputError` for a missing folder, no image, or (when iteration reaches
+    it) an unreadable image; :class:`UsageError` for an ``fps`` that is not positive.
     """
 
     kind = "images"

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..live_frame import LiveFrame
-from .base import to_image8
+from .frame_source import to_image8
 
 
 def _is_file(device: str) -> bool:

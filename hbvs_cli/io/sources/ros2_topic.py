@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from ...errors import InputError
-from .base import FrameSource, SourceFrame
+from .frame_source import FrameSource, SourceFrame
 
 class Ros2TopicSource(FrameSource):
     """Frames of a ROS 2 image topic, with the commands of a Twist topic.

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ...core.camera import CameraIntrinsics
-from ...errors import CalibrationError, InputError, UsageError
+from ...errors import CalibrationError, InputError, RecordingError, UsageError
 from ..calibration import intrinsics_from_values
 from ..images import as_image8, decode_image, sniff_format
 from ..mcap import McapMessage
@@ -27,13 +27,13 @@ from ..topics import (
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
 from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
-from .base import _NS, FrameSource, SourceFrame, _same_size
+from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
 #: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
 #: in the protobuf and JSON encodings.
-_FOXGLOVE_ENCODINGS = ("protobuf", "json")
+_FOXGLOVE_ENCODINGS = ("protobuf",)
 #: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
 _COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
 #: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
@@ -72,58 +72,18 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and commands.
+    """Images from a ROS 2 bag (a folder, its ``metadata.yaml``, or one ``.mcap`` file), with the
+    bag's stamps, frame_id, intrinsics and taught commands.
 
-    Parameters
-    ----------
-    path : str or path-like
-        A bag folder (``metadata.yaml`` and its ``.db3``/``.mcap`` files, compressed or
-        not, split or not), its ``metadata.yaml``, or a single ``.mcap`` file.
-    topic : str, optional
-        The image topic (``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``).
-        None picks the only image topic that has messages.
-    cmd_topic : str, optional
-        The topic of the operator's commands (``geometry_msgs/msg/Twist``,
-        ``TwistStamped`` or ``nav_msgs/msg/Odometry``). None: the only Twist or
-        TwistStamped topic with messages, else the only Odometry topic, else none.
+    ``topic`` is the image topic (``sensor_msgs/msg/Image`` or ``CompressedImage``, or
+    ``foxglove.CompressedImage``); ``cmd_topic`` the commands (``Twist``, ``TwistStamped``,
+    else ``nav_msgs/msg/Odometry``); None picks the only one with messages. ``camera`` comes
+    from the image topic's ``CameraInfo`` (``camera_problem`` says why it is unusable); a
+    frame's ``command`` is the last one at or before its stamp. ``t`` counts from the first
+    frame's ``header.stamp`` (``time_base_ns``), falling back to the log time for zero stamps.
 
-    Attributes
-    ----------
-    topic : str
-        The image topic read.
-    camera : CameraIntrinsics or None
-        From the first message of the ``sensor_msgs/msg/CameraInfo`` topic that belongs
-        to the image topic (the one in the same namespace, or the only one). None when
-        there is none, or when it is unusable, with the reason in ``camera_problem``.
-    camera_problem : str or None
-        Why a CameraInfo topic present in the bag gave no intrinsics (all-zero K of an
-        uncalibrated driver, a distortion model hbvs does not know, binning/ROI). Not an
-        error: the user may give a calibration file instead.
-    cmd_topic, cmd_type : str or None
-        Where the taught commands come from; each frame's ``command`` is the last
-        command at or before its stamp ((0, 0) before the first one: a robot without a
-        command stands still).
-    time_base_ns : int
-        The stamp of the first frame (ns, on the bag's clock); frame ``t`` counts from it.
-    frame_id : str or None
-        ``header.frame_id`` of the first image.
-
-    Raises
-    ------
-    InputError
-        The path is not a bag, the bag is damaged, there is no image topic, ``topic`` or
-        ``cmd_topic`` is not one of the bag's topics of the right type. During iteration:
-        an image that cannot be decoded, an unsupported raw encoding, frames that change
-        size, a topic without messages.
-    UsageError
-        Several image topics (or several command topics named by type) and no choice.
-
-    Notes
-    -----
-    ``t`` comes from ``header.stamp`` relative to the first frame; a frame with a zero
-    stamp (drivers that do not fill it) falls back to the message log time, shifted onto
-    the stamps' clock. Frames are yielded in the order of the bag's log times, so a
-    driver whose stamps go backwards gives a ``t`` that does too.
+    Raises :class:`InputError` for a damaged bag, a missing or mistyped topic, an undecodable
+    image or frames that change size; :class:`UsageError` when several topics fit and none is named.
     """
 
     kind = "ros2_bag"
@@ -161,7 +121,7 @@ class BagSource(FrameSource):
                     f"not {ROS_IMAGE_SCHEMA}, {ROS_COMPRESSED_IMAGE_SCHEMA} or {COMPRESSED_IMAGE_SCHEMA}"
                 )
             if not _is_image_topic(chosen):
-                expected = "protobuf or json" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
+                expected = "protobuf" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
                 raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
             return topic, chosen
         # Recorders create channels for subscribed topics that never published: skip them.
@@ -363,34 +323,23 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
     """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
     from ..images import read_compressed_image
 
-    stored = read_compressed_image(message.message_encoding, message.data, what)
+    stored = read_compressed_image(message.data, what)
     image = as_image8(decode_image(stored.data, f"{what} (format {stored.format!r})", colour=True), what)
     fmt = sniff_format(stored.data)
     return image, (stored.data if fmt else None), fmt, stored.stamp_ns
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-    """Intrinsics of a ``foxglove.CameraCalibration`` (JSON or protobuf), or why there are none."""
+    """Intrinsics of a protobuf ``foxglove.CameraCalibration``, or why there are none."""
     from ..calibration import calibration_from_foxglove
-    from ..mcap import decode_json
 
-    if message.message_encoding == "json":
-        fields = decode_json(message.data, source)
-    else:
-        from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
-        from google.protobuf.message import DecodeError
-
-        try:
-            calibration = CameraCalibration.FromString(message.data)
-        except (DecodeError, ValueError, RuntimeError):
-            return None, f"{source}: malformed foxglove.CameraCalibration"
-        fields = {
-            "width": calibration.width, "height": calibration.height, "distortion_model": calibration.distortion_model,
-            "D": list(calibration.D), "K": list(calibration.K), "R": list(calibration.R), "P": list(calibration.P),
-        }
-    if isinstance(fields, dict) and not any(fields.get("K") or []):
+    try:
+        calibration = message.foxglove(source)
+    except RecordingError as exc:
+        return None, str(exc)
+    if not any(calibration.K):
         return None, f"{source}: K is all zeros (an uncalibrated camera)"
     try:
-        return calibration_from_foxglove(fields, source), None
+        return calibration_from_foxglove(calibration, source), None
     except CalibrationError as exc:
         return None, str(exc)

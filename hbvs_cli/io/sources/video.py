@@ -12,31 +12,14 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
 
 
 class VideoSource(FrameSource):
-    """Frames of a video file (anything ``cv2.VideoCapture`` reads).
-
-    Parameters
-    ----------
-    path : str or path-like
-        The video. URLs (``rtsp://...``) and OpenCV image-sequence patterns
-        (``img_%04d.png``) are passed to OpenCV unchecked.
-    fps : float, optional
-        Frame rate to assume instead of the one the container declares.
-
-    Raises
-    ------
-    InputError
-        If the file is missing, cannot be opened, or no frame can be decoded.
-    UsageError
-        If ``fps`` is not a positive number.
-
-    Notes
-    -----
-    ``t`` is ``index / fps`` with the ``fps`` override, else with the container's frame
-    rate, else (a container without a usable rate) from ``CAP_PROP_POS_MSEC``.
+    """Frames of a video file (anything ``cv2.VideoCapture`` reads; URLs and image-sequence
+    patterns are passed on unchecked). ``t`` is ``index / fps`` with ``fps`` given or the
+    container's rate, else ``CAP_PROP_POS_MSEC``. :class:`InputError` when the file is missing
+    or no frame decodes; :class:`UsageError` for an ``fps`` that is not positive.
     """
 
     kind = "video"

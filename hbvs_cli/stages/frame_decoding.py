@@ -1,16 +1,9 @@
 """Taught frames decoded ahead of use, in a worker thread, with bounded memory.
 
-Decoding a PNG or JPEG is most of what reading a recording costs, and OpenCV's decoder
-releases the GIL: decoding the next frames in a second thread while the current one is
-detected keeps both cores busy. At most ``depth`` decoded frames wait at any time.
-
-Colour is decoded only where a detector uses it: the dot detector finds a dot that differs
-from its wall in hue alone (:func:`hbvs_cli.perception.dots.dark_image`); every other
-detector works on luminance, and a colour JPEG's luminance alone decodes in about two
-thirds of the time (1.4 against 2.1 ms for 640x480). A gray frame costs the same either way.
-
-The fit's reference and template images are decoded here too, for the simulation and the
-detector of repeat (:func:`fit_reference_image`, :func:`fit_template_image`).
+Decoding is most of a recording's reading cost and OpenCV's decoder releases the GIL, so a
+second thread decodes ahead (at most ``depth`` frames) while the current one is detected.
+Colour is decoded only for the dot detector (a dot may differ from its wall in hue alone);
+the others use luminance, which a colour JPEG decodes faster.
 """
 
 from __future__ import annotations

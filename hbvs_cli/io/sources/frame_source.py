@@ -24,21 +24,15 @@ class SourceFrame:
     Attributes
     ----------
     t : float
-        Seconds from the first frame of the source.
-    image : numpy.ndarray
-        ``uint8`` image: gray, shape ``(H, W)``, or BGR, shape ``(H, W, 3)``, when the
-        source has colour (:func:`hbvs_cli.io.images.as_image8`).
-    encoded : bytes or None
-        The original compressed bytes when the source already had them (a JPEG/PNG file,
-        a ``CompressedImage`` in a bag), so a recording can store them without
-        re-encoding; None otherwise.
-    format : str or None
-        ``"jpeg"`` or ``"png"`` when ``encoded`` is set.
+        Seconds from the source's first frame.
+    image : ndarray of uint8, shape (H, W) or (H, W, 3)
+        Gray, or BGR when the source has colour (:func:`hbvs_cli.io.images.as_image8`).
+    encoded, format : bytes and "jpeg"/"png", or None
+        The source's own compressed bytes, stored without re-encoding.
     stamp_ns : int or None
-        The frame's stamp on the source's own clock (ns; a bag's ``header.stamp``), when
-        the source has one: ``t`` is this minus the first frame's stamp.
+        The frame's stamp on the source's clock (ns), when it has one.
     command : (v, w) or None
-        The operator's command at this frame (m/s, rad/s), when the source recorded it.
+        The operator's command at this frame (m/s, rad/s), when recorded.
     """
 
     t: float

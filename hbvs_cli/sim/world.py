@@ -1,26 +1,32 @@
 """The simulated world: a camera on a unicycle robot and a planar target on a wall.
 
-World frame W: x toward the wall, y left, z up (metres). The camera's optical centre is
-the origin of the robot frame F (the paper's camera "in hand", Sec. II) at height
-``camera_height`` above the floor. The target lies on a vertical wall ``x = wall_x``; its
-points are the dot centres (``dots``), the marker's four corners (``aruco``) or four points
-of a textured poster (``texture``). No target point may lie at the camera's height, (18).
-
-Everything a later stage needs to re-create the same world (and the same images) is in
-:meth:`World.to_dict`, which ``hbvs teach`` records in its MCAP file.
+World frame W: x toward the wall, y left, z up (m). The optical centre is the origin of F
+(camera "in hand", Sec. II) at ``camera_height``. The target lies on the wall ``x = wall_x``;
+no target point may lie at the camera's height (18). :meth:`World.to_dict` is what ``hbvs
+teach`` records so that later stages re-create the same world and images.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InvalidValueError, MalformedDataError, PointAtCameraHeightError
-from .camera import DEFAULT_CAMERA, CameraIntrinsics, normalize_points, normalized_to_pixels
-from .frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
+from ..errors import HbvsError, InvalidValueError, MalformedDataError, PointAtCameraHeightError, RecordingError
+from ..core.camera import (
+    DEFAULT_CAMERA,
+    CameraIntrinsics,
+    camera_description,
+    camera_from_description,
+    normalize_points,
+    normalized_to_pixels,
+)
+from ..core.fit_model import MAX_TARGET_POINTS
+from ..core.frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
 
@@ -29,15 +35,8 @@ TARGET_KINDS = ("dots", "aruco", "texture")
 class Poster:
     """A flat rectangle on the wall carrying the target's picture.
 
-    Attributes
-    ----------
-    center : ndarray, shape (3,)
-        Centre in W (m).
-    width, height : float
-        Size (m).
-    right, down : ndarray, shape (3,)
-        Unit vectors in W along the poster's rows (left to right as seen from the robot)
-        and columns (top to bottom).
+    ``center`` (3,) in W and ``width``, ``height`` in m; ``right`` and ``down`` (3,): unit
+    vectors in W along the rows (as seen from the robot) and columns.
     """
 
     center: NDArray[np.float64]
@@ -57,19 +56,9 @@ class Poster:
 class Target:
     """The planar target: its kind, its points and the poster it is drawn on.
 
-    Attributes
-    ----------
-    kind : str
-        ``"dots"``, ``"aruco"`` or ``"texture"``.
-    points_poster : ndarray, shape (N, 2)
-        The target points in poster coordinates (m from the poster's top-left corner).
-    poster : Poster
-    dot_radius : float
-        Radius of each dot (m), for ``dots``.
-    marker_id : int
-        ArUco id, for ``aruco`` (dictionary :data:`ARUCO_DICTIONARY`).
-    texture : str
-        ``"builtin"`` or an image file name, for ``texture``.
+    ``kind``: ``"dots"``, ``"aruco"`` or ``"texture"``; ``points_poster`` (N, 2): poster
+    coordinates (m); ``dot_radius`` (m, dots), ``marker_id`` (aruco, :data:`ARUCO_DICTIONARY`),
+    ``texture`` (``"builtin"`` or an image file name).
     """
 
     kind: str
@@ -97,16 +86,7 @@ ARUCO_DICTIONARY = "DICT_4X4_50"
 
 @dataclass(frozen=True)
 class World:
-    """Camera, mounting and target: all a simulator needs to produce measurements.
-
-    Attributes
-    ----------
-    camera : CameraIntrinsics
-    camera_height : float
-        Height of the optical centre (m).
-    target : Target
-        On the wall ``x = wall_x``, the x of the poster's centre.
-    """
+    """Camera, its height (m) and the target (on the wall ``x = wall_x``, the poster centre's x)."""
 
     camera: CameraIntrinsics
     camera_height: float
@@ -161,16 +141,7 @@ class World:
         )
 
     def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-        """What F* sees: reference points m*_i, the plane normal n* in F* and the depth d*.
-
-        Returns
-        -------
-        m_ref : ndarray, shape (N, 3)
-        normal : ndarray, shape (3,)
-            Unit normal in F*, pointing from the camera toward the plane (7).
-        d_star : float
-            Distance from F* to the plane (m), ``n*^T m_bar*_i`` (7).
-        """
+        """What F* sees: m*_i (N, 3), the unit normal n* in F* toward the plane and d* (m), (7)."""
         reference_pose = np.asarray(reference_pose, dtype=float)
         m_ref = self.normalized_points(reference_pose)
         phi = reference_pose[2]
@@ -181,25 +152,13 @@ class World:
         return m_ref, normal, d_star
 
     def ground_truth(self, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
-        """True (theta, x_h) of F relative to F*, (4), (14).
-
-        Returns
-        -------
-        theta : float or ndarray
-            rad.
-        x_h : ndarray, shape (..., 2)
-            ``x_f / d*`` (dimensionless).
-        """
+        """True theta (rad) and x_h = x_f / d* (..., 2) of F relative to F*, (4), (14)."""
         theta, x_f = relative_planar_pose(pose, reference_pose)
         d_star = float(self.wall_x - np.asarray(reference_pose, dtype=float)[0])
         return theta, x_f[..., :2] / d_star
 
     def poster_to_image_homography(self, pose: ArrayLike) -> NDArray[np.float64]:
-        """Homography from poster coordinates (m, top-left origin) to ideal pixels.
-
-        ``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: the plane-to-image homography
-        a renderer warps the poster with.
-        """
+        """``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: poster metres to ideal pixels."""
         pose = np.asarray(pose, dtype=float)
         poster = self.poster_basis()
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -217,14 +176,9 @@ class World:
     # -- serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready description (the ``world`` record of a teach file)."""
-        cam = self.camera
         target = self.target
         return {
-            "camera": {
-                "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
-                "width": cam.width, "height": cam.height,
-                "distortion_model": cam.distortion_model, "distortion": list(cam.distortion),
-            },
+            "camera": camera_description(self.camera),
             "camera_height_m": self.camera_height,
             "target": {
                 "kind": target.kind,
@@ -248,13 +202,7 @@ class World:
     def from_dict(cls, data: dict[str, Any]) -> "World":
         """Inverse of :meth:`to_dict`; raises :class:`MalformedDataError` on a malformed description."""
         try:
-            cam = data["camera"]
-            camera = CameraIntrinsics(
-                fx=float(cam["fx"]), fy=float(cam["fy"]), cx=float(cam["cx"]), cy=float(cam["cy"]),
-                width=int(cam["width"]), height=int(cam["height"]),
-                distortion_model=str(cam.get("distortion_model", "none")),
-                distortion=tuple(float(v) for v in cam.get("distortion", ())),
-            )
+            camera = camera_from_description(data["camera"])
             t = data["target"]
             p = t["poster"]
             poster = Poster(
@@ -283,6 +231,38 @@ class World:
             raise MalformedDataError(f"malformed world description: {exc}") from None
 
 
+#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
+#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
+MAX_POSTER_SIDE_M = 10.0
+
+
+def world_from_description(data: Any, source: str) -> World:
+    """The :class:`World` of a recorded description, checked so that rendering it is safe
+    (poster at most :data:`MAX_POSTER_SIDE_M` a side, unit orthogonal axes, finite dot radius,
+    at most :data:`MAX_TARGET_POINTS` points); RecordingError otherwise."""
+    try:
+        world = World.from_dict(data)
+    except HbvsError as exc:  # World says "malformed world description: ..." itself
+        raise RecordingError(f"{source}: {exc}") from None
+    except (LookupError, TypeError, ValueError, AttributeError, ArithmeticError) as exc:
+        raise RecordingError(f"{source}: malformed world description ({exc})") from None
+    target = world.target
+    poster = target.poster
+    axes = np.array([poster.right, poster.down])
+    problems = [
+        (not (0.0 < poster.width <= MAX_POSTER_SIDE_M and 0.0 < poster.height <= MAX_POSTER_SIDE_M),
+         f"the poster must measure more than 0 and at most {MAX_POSTER_SIDE_M:g} m a side"),
+        (not np.allclose(axes @ axes.T, np.eye(2), atol=1e-6), "the poster's axes are not orthogonal unit vectors"),
+        (not (math.isfinite(target.dot_radius) and 0.0 <= target.dot_radius <= max(poster.width, poster.height)),
+         "the dot radius is not a size on the poster"),
+        (target.points_poster.shape[0] > MAX_TARGET_POINTS, f"more than {MAX_TARGET_POINTS} target points"),
+    ]
+    for failed, reason in problems:
+        if failed:
+            raise RecordingError(f"{source}: malformed world description ({reason})")
+    return world
+
+
 def _vector(values: Any, size: int) -> NDArray[np.float64]:
     array = np.asarray(values, dtype=float)
     if array.shape != (size,) or not np.all(np.isfinite(array)):
@@ -306,16 +286,10 @@ DOT_LAYOUT: tuple[tuple[float, float], ...] = (
 )
 
 def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", wall_x: float = DEFAULT_WALL_X) -> Target:
-    """The default target of each kind, centred on the wall in front of the start pose.
+    """The default target of each kind, centred 0.75 m high on the wall in front of the start.
 
-    * ``dots``: 3 to 10 black dots of radius 5 cm on a white 2.0 m x 0.9 m poster whose
-      centre is 0.75 m above the floor (:data:`DOT_LAYOUT`; no dot at the camera's 0.30 m);
-    * ``aruco``: a 0.6 m marker (DICT_4X4_50, id 7) on a 0.9 m x 0.9 m white poster;
-    * ``texture``: a 1.8 m x 0.9 m textured poster; its four target points are the corners
-      of a rectangle inset by 10 %.
-
-    A wide target matters: the yaw/lateral-shift ambiguity of a small, distant target makes
-    theta sensitive to pixel noise in proportion to (distance / width)^2.
+    Wide, because a small distant target's yaw/lateral-shift ambiguity makes theta's noise
+    grow as (distance / width)^2.
     """
     if kind not in TARGET_KINDS:
         raise InvalidValueError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
@@ -347,8 +321,3 @@ def default_world(
 ) -> World:
     """The default world: the default camera 0.30 m above the floor, the wall at x = 4 m."""
     return World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=default_target(kind, dots, texture, wall_x))
-
-
-def with_camera(world: World, camera: CameraIntrinsics) -> World:
-    """The same world seen through another camera."""
-    return replace(world, camera=camera)

@@ -11,39 +11,19 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .base import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
 
 
 class CameraSource(FrameSource):
-    """A live camera, timestamped with ``clock`` from the first frame.
+    """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with the
+    monotonic ``clock`` (s) from the first frame.
 
-    The device is opened by the constructor (so a missing camera is reported before
-    anything is recorded) and released when iteration ends, when the consumer stops
-    iterating (``close()`` on the generator, e.g. on Ctrl-C), or by :meth:`close`.
-
-    Parameters
-    ----------
-    index : int or str
-        The device index (``0``) or a device path/URL for OpenCV.
-    duration : float, optional
-        Stop once a frame arrives ``duration`` seconds or more after the first one
-        (that frame is not yielded). None: until the consumer stops.
-    capture_factory : callable
-        ``capture_factory(index)`` returns an object with ``isOpened()``, ``read()``,
-        ``get(prop)`` and ``release()``, like ``cv2.VideoCapture``; injectable for tests.
-    clock : callable
-        Monotonic seconds; injectable for tests.
-    max_failed_reads : int
-        Consecutive failed reads tolerated (cameras drop the odd frame, some fail the
-        first reads while starting) before giving up.
-
-    Raises
-    ------
-    InputError
-        If the device cannot be opened; during iteration, if it delivers no frame or
-        stops delivering frames.
-    UsageError
-        If ``duration`` is not a positive number.
+    The device is opened here, so a missing camera is reported before anything is recorded, and
+    released when iteration ends or stops, or by :meth:`close`. Iteration ends at the first frame
+    ``duration`` seconds (or more) after the first one; up to ``max_failed_reads`` reads in a
+    row may fail. ``capture_factory`` (``cv2.VideoCapture`` by default) and ``clock`` are
+    injectable for tests. :class:`InputError` when the device cannot be opened or delivers no
+    more frames; :class:`UsageError` for a ``duration`` that is not a positive number.
     """
 
     kind = "camera"

@@ -1,12 +1,9 @@
 """The camera of ``repeat --sim``: one measurement per control period, with the faults asked for.
 
-``images`` perception renders the scene (:mod:`.render`) and runs the fit's detector
-(:mod:`hbvs_cli.perception.tracked`) on it, as ``fit`` measured the taught images;
-``points`` perception projects the target points through the pinhole model of
-:mod:`hbvs_cli.core` and adds pixel noise. Pixel noise is also added to the points the
-detector found in a rendered image: image noise alone moves the dots' centres by at most
-about 0.2 px before the detector loses them, and a real detector's 0.5-1 px comes from
-what a renderer does not model (docs/results.md, "Under measurement noise").
+``images`` renders the scene and runs the fit's detector on it; ``points`` projects the
+target points. Pixel noise is added in both: rendered image noise moves a dot's centre by
+at most ~0.2 px, while a real detector's 0.5-1 px comes from what a renderer does not model
+(docs/results.md, "Under measurement noise").
 """
 
 from __future__ import annotations
@@ -22,7 +19,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from ..core.world import World
+from .world import World
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
 
@@ -31,23 +28,11 @@ from .scene import Scene, renderer_for, world_point_identity
 class CameraSettings:
     """What the simulated camera measures and which faults it suffers.
 
-    Attributes
-    ----------
-    perception : str
-        ``images`` (render and detect) or ``points`` (project and add noise).
-    pixel_noise : float
-        Noise added to the measured points (px, 1 sigma): the projected ones (``points``)
-        or those the detector found (``images``), after tracking.
-    seed : int
-        Seed of the sensor noise (and, with 1 appended, of the faults).
-    occlusions : tuple of (float, float)
-        Intervals ``[start, end)`` (s) when the target is covered.
-    drop_rate, outlier_rate : float
-        Fractions of frames dropped and of frames with a spurious blob or a wrong point.
-    exposure_step : (float, float) or None
-        ``(t, gain)``: the exposure gain from time ``t`` (s) on.
-    record_images : bool
-        Images are wanted for the run file (rendered even with ``points`` perception).
+    ``pixel_noise``: px (1 sigma), added after tracking; ``seed``: of the sensor noise (with 1
+    appended, of the faults); ``occlusions``: ``[start, end)`` (s) when the target is covered;
+    ``drop_rate``, ``outlier_rate``: fractions of frames dropped, or with a spurious blob or a
+    wrong point; ``exposure_step``: ``(t, gain)`` from ``t`` (s) on; ``record_images``: render
+    images for the run file even with ``points`` perception.
     """
 
     perception: str

@@ -1,0 +1,156 @@
+"""The target's known layout matched to its detected points.
+
+``--target-points`` gives the target points' positions in the wall's plane in any order;
+the detector gives them in its own (dots: the first frame's rows and columns). Seen from
+F*, the plane's points map to the image by a homography, so the right order is the one
+under which one homography carries the layout onto the image points.
+:func:`match_layout` finds it.
+"""
+
+from __future__ import annotations
+
+from itertools import permutations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import GeometryError
+from .assignment import optimal_assignment
+
+#: A match whose RMS distance (after the best homography) is above this fraction of the
+#: image points' RMS spread is refused: the layout is not the target's.
+MAX_MATCH_SPREAD = 0.05
+
+
+def _normalised(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    centred = points - points.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
+    return centred / spread if spread > 0 else centred
+
+
+def _homographies(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The homographies (K, 3, 3) that carry each of K sets of M >= 4 source points (K, M, 2)
+    onto the M target points (M, 2) (direct linear transform: exact for 4 points, least
+    squares of the algebraic error for more)."""
+    k = source.shape[0]
+    x, y = source[..., 0], source[..., 1]
+    u, v = np.broadcast_to(target[:, 0], x.shape), np.broadcast_to(target[:, 1], x.shape)
+    zeros, ones = np.zeros_like(x), np.ones_like(x)
+    rows_u = np.stack([x, y, ones, zeros, zeros, zeros, -u * x, -u * y, -u], axis=-1)
+    rows_v = np.stack([zeros, zeros, zeros, x, y, ones, -v * x, -v * y, -v], axis=-1)
+    design = np.concatenate([rows_u, rows_v], axis=1)  # (K, 8, 9)
+    _, _, vt = np.linalg.svd(design)
+    return vt[:, -1, :].reshape(k, 3, 3)
+
+
+def _similarities(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The similarities (K, 3, 3) (reflection allowed) best carrying each of K ordered sets of
+    source points (K, M, 2) onto the target points (M, 2) (Procrustes)."""
+    out = np.zeros((source.shape[0], 3, 3))
+    t_mean = target.mean(axis=0)
+    t_centred = target - t_mean
+    for index, points in enumerate(source):
+        s_mean = points.mean(axis=0)
+        s_centred = points - s_mean
+        u, singular, vt = np.linalg.svd(s_centred.T @ t_centred)
+        rotation = (u @ vt).T
+        scale = singular.sum() / max(float(np.sum(s_centred**2)), 1e-300)
+        out[index, :2, :2] = scale * rotation
+        out[index, :2, 2] = t_mean - scale * rotation @ s_mean
+        out[index, 2, 2] = 1.0
+    return out
+
+
+def _apply(transforms: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``points`` (N, 2) through each of K transforms, shape (K, N, 2)."""
+    homogeneous = np.concatenate([points, np.ones((points.shape[0], 1))], axis=1)
+    mapped = np.einsum("kij,nj->kni", transforms, homogeneous)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return mapped[..., :2] / mapped[..., 2:3]
+
+
+def _spread_corners(points: NDArray[np.float64]) -> list[int]:
+    """Four well-spread, distinct points: the extremes along the two diagonals."""
+    picks: list[int] = []
+    for score in (points[:, 0] + points[:, 1], points[:, 0] - points[:, 1], -points[:, 0] - points[:, 1], points[:, 1] - points[:, 0]):
+        for index in np.argsort(-score):
+            if int(index) not in picks:
+                picks.append(int(index))
+                break
+    return picks
+
+
+def match_layout(layout: ArrayLike, image: ArrayLike) -> NDArray[np.intp]:
+    """The order of the layout's points that matches the image's points.
+
+    Parameters
+    ----------
+    layout : array_like, shape (N, 2)
+        The target points in the wall's plane (any unit and order).
+    image : array_like, shape (N, 2)
+        The same points as seen (any consistent unit, e.g. F*'s normalised ``(m_y, m_z)``),
+        in the detector's order.
+
+    Returns
+    -------
+    order : ndarray, shape (N,), int
+        ``layout[order]`` is in the image's order.
+
+    Raises
+    ------
+    GeometryError
+        When the counts differ, or no homography carries the layout onto the image points
+        to :data:`MAX_MATCH_SPREAD` of their spread.
+
+    Notes
+    -----
+    Four well-spread image points are matched to every ordered four of the layout's (at
+    most 5040 for 10 points); each gives a homography, the whole layout is carried through
+    it, and the assignment of least squared distance pairs the rest. Three or four points
+    do not tell their order apart by a homography (one carries any four onto any four):
+    they are matched by the best similarity, mirror included (a wall seen within a few tens
+    of degrees of face-on).
+    """
+    layout = np.asarray(layout, dtype=np.float64)
+    image = np.asarray(image, dtype=np.float64)
+    n = image.shape[0]
+    if layout.shape != image.shape or layout.ndim != 2 or layout.shape[1] != 2:
+        raise GeometryError(f"the known layout has {layout.shape[0]} points, the target {image.shape[0]}")
+    if n > 10:
+        # Many points (a board's corners, several markers'): the order must be the
+        # detector's own (row by row, marker by marker); it is checked, not searched.
+        candidates = np.arange(n)[None, :]
+        chosen = list(range(n))
+    elif n >= 5:
+        chosen = _spread_corners(image)
+        candidates = np.array(list(permutations(range(n), 4)), dtype=np.intp)
+    else:
+        chosen = list(range(n))
+        candidates = np.array(list(permutations(range(n), n)), dtype=np.intp)
+    # Both point sets centred and scaled to unit spread: the direct linear transform is
+    # then well conditioned, whatever the units.
+    layout_n, image_n = _normalised(layout), _normalised(image)
+    if n >= 5:
+        transforms = _homographies(layout_n[candidates], image_n[chosen])
+    else:
+        transforms = _similarities(layout_n[candidates], image_n[chosen])
+    mapped = _apply(transforms, layout_n)  # (K, N, 2)
+    layout, image = layout_n, image_n
+    distance = np.sum((mapped[:, :, None, :] - image[None, None, :, :]) ** 2, axis=-1)  # (K, layout, image)
+    distance = np.where(np.isfinite(distance), distance, np.inf)
+    # Nearest image point of each mapped layout point: a quick score, then the assignment
+    # on the best few.
+    quick = distance.min(axis=2).sum(axis=1)
+    best_order, best_cost = None, np.inf
+    for k in np.argsort(quick)[:10]:
+        if not np.all(np.isfinite(distance[k])):
+            continue
+        rows, cols = optimal_assignment(distance[k])
+        cost = float(distance[k][rows, cols].sum())
+        if cost < best_cost:
+            order = np.empty(n, dtype=np.intp)
+            order[cols] = rows
+            best_order, best_cost = order, cost
+    if best_order is None or np.sqrt(best_cost / n) > MAX_MATCH_SPREAD:
+        raise GeometryError("the known layout of the target points does not match the points seen in F* under any order")
+    return best_order

@@ -1,0 +1,61 @@
+"""``--target-points``: the target points' positions on the wall, a CSV in metres.
+
+One point a line, ``x,y`` (m) in the wall's plane, any origin and orientation (mirrored or
+not); a first line that is not numbers (a header) is skipped, as are blank lines and
+lines starting with ``#``. The order does not matter: the fit matches the points to the
+detected ones by their layout (:func:`~hbvs_cli.core.known_points.match_layout`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from .text_files import read_small_text
+
+#: Largest file accepted (bytes): a target has a few dozen points.
+MAX_POINTS_BYTES = 1 << 20
+#: A target has at most this many points (hbvs's largest target: a board's corners).
+MAX_POINTS = 1000
+
+
+def read_target_points(path: str | Path) -> NDArray[np.float64]:
+    """The points of a ``--target-points`` CSV, shape (N, 2) (m).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, a line that is not two numbers, fewer than 3 or more
+        than :data:`MAX_POINTS` points, or two points at the same place.
+    """
+    name = str(path)
+    text = read_small_text(path, MAX_POINTS_BYTES, "a CSV file of x,y positions in metres")
+    rows = []
+    try:
+        for line_number, row in enumerate(csv.reader(io.StringIO(text)), start=1):
+            cells = [cell.strip() for cell in row]
+            if not cells or all(not cell for cell in cells) or cells[0].startswith("#"):
+                continue
+            try:
+                values = [float(cell) for cell in cells if cell]
+            except ValueError:
+                if not rows and line_number == 1:
+                    continue  # a header
+                raise InputError(f"{name}: line {line_number} is not two numbers x,y (m): {','.join(cells)[:60]}") from None
+            if len(values) != 2 or not all(np.isfinite(values)):
+                raise InputError(f"{name}: line {line_number} must hold two finite numbers x,y (m), got {','.join(cells)[:60]}")
+            rows.append(values)
+    except csv.Error as exc:
+        raise InputError(f"{name}: not a CSV file ({exc})") from None
+    if not 3 <= len(rows) <= MAX_POINTS:
+        raise InputError(f"{name}: a target needs 3 to {MAX_POINTS} points, the file has {len(rows)}")
+    points = np.array(rows, dtype=np.float64)
+    gaps = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1) + np.eye(len(points))
+    if gaps.min() <= 0.0:
+        raise InputError(f"{name}: two points are at the same place")
+    return points

@@ -1,0 +1,287 @@
+"""A ChArUco board as the target: a chessboard whose white squares hold ArUco markers.
+
+The target's points are the board's inner corners, in OpenCV's ChArUco corner ids (row by
+row from the board's top-left inner corner), so the board's grid (:func:`~.chessboard.board_layout`
+of its inner corners) is a shape the fit knows. OpenCV's ``CharucoDetector`` finds the
+markers, interpolates the corners between them and refines them; every corner that was
+found is then refined again as the chessboard's are (``cornerSubPix`` in a window sized to
+the board's squares as seen).
+
+The markers' codes give the corners their identity, so a board partly out of view (or
+partly hidden) still gives the corners next to the markers it shows: the rows of the
+others are NaN and the frame counts as found when at least :data:`MIN_CORNERS` corners are.
+
+The board's geometry: its squares across and down and its dictionary (``--board``,
+``--marker-dict``) or, without them, inferred from a frame (:func:`infer_board`): the
+markers' centres are at the centres of the white squares, whatever the markers' size, so
+the squares and the markers' ids tell the board apart from every other candidate layout.
+The markers' side relative to the squares is measured in the same frame (OpenCV's corner
+interpolation needs it; the corners themselves do not depend on it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import UsageError
+from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
+from .base import Detection, PointTrack, as_gray
+
+#: A frame counts as found when at least this many corners are (a homography needs 4; a
+#: few more keep a frame whose corners are nearly collinear out).
+MIN_CORNERS = 6
+#: A board needs at least this many markers seen to be inferred (4 fix a homography).
+MIN_INFER_MARKERS = 5
+#: A marker's centre fits a candidate layout when it is within this fraction of a square
+#: of where the best homography (RANSAC) puts its white square's centre.
+LAYOUT_FIT_SQUARES = 0.2
+#: Squares across or down a board may be at most this many (the candidates tried).
+MAX_SQUARES = 16
+#: A refined corner may move this far (px) from OpenCV's at most.
+MAX_REFINE_MOVE_PX = 1.5
+#: A corner is refined in a window whose half-size is this fraction of the gap between
+#: its squares' markers, ``(1 - marker_ratio)`` of a square as seen, within bounds (px).
+#: On the footage's board (15-30 px squares, markers 0.73 of them, their ratio measured
+#: as 0.71): 0.5 of the gap reached into the markers (0.10 px RMS from the true corners,
+#: 0.076 px of it the same in every frame), 0.4 of it 0.052 px (0.016 px).
+GAP_WINDOW_FRACTION = 0.4
+GAP_WINDOW_PX = (2, 8)
+
+
+@dataclass(frozen=True)
+class CharucoGeometry:
+    """A ChArUco board's layout.
+
+    Attributes
+    ----------
+    squares : (int, int)
+        Squares across and down (OpenCV's ``CharucoBoard`` size).
+    dictionary : str
+        The markers' predefined dictionary.
+    marker_ratio : float
+        The markers' side over the squares'.
+    legacy : bool
+        OpenCV's legacy pattern (before 4.6, boards with an even number of rows started
+        with a white square).
+    """
+
+    squares: tuple[int, int]
+    dictionary: str
+    marker_ratio: float = 0.75
+    legacy: bool = False
+
+    @property
+    def n_markers(self) -> int:
+        """Markers on the board (one on every white square)."""
+        return self.squares[0] * self.squares[1] // 2
+
+    @property
+    def inner(self) -> tuple[int, int]:
+        """Inner corners per row and rows of them."""
+        return self.squares[0] - 1, self.squares[1] - 1
+
+    def board(self) -> cv2.aruco.CharucoBoard:
+        board = cv2.aruco.CharucoBoard(self.squares, 1.0, float(self.marker_ratio), _dictionary(self.dictionary))
+        board.setLegacyPattern(self.legacy)
+        return board
+
+
+@lru_cache(maxsize=None)
+def _layout(squares: tuple[int, int], legacy: bool) -> dict[int, NDArray[np.float64]]:
+    """Each marker's centre (squares) on a board of ``squares``, by id (any dictionary's)."""
+    return _marker_centres(CharucoGeometry(squares, "DICT_4X4_1000", 0.5, legacy).board())
+
+
+def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, NDArray[np.float64]]:
+    """Each marker's centre on the board (squares), by id."""
+    return {int(i): np.asarray(points, float).reshape(4, 3)[:, :2].mean(axis=0) for i, points in zip(np.ravel(board.getIds()), board.getObjPoints())}
+
+
+def _detect_markers(gray: NDArray[np.uint8], dictionary: str) -> tuple[list[NDArray[np.float64]], list[int]]:
+    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
+    corners, ids, _ = detector.detectMarkers(gray)
+    if ids is None:
+        return [], []
+    return [np.asarray(c, float).reshape(4, 2) for c in corners], [int(i) for i in np.ravel(ids)]
+
+
+def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = None,
+                squares: tuple[int, int] | None = None) -> CharucoGeometry | None:
+    """The ChArUco board in ``image``, its layout inferred from its markers, or None.
+
+    Every candidate layout (squares across and down up to :data:`MAX_SQUARES`, the current
+    and the legacy pattern) that holds every id seen is fitted to the markers' centres by a
+    homography from the centres of its white squares; the smallest that fits to
+    :data:`LAYOUT_FIT_SQUARES` wins. The markers' side is measured through that homography.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3), uint8
+    dictionaries : sequence of str, optional
+        The dictionaries to try (default: the largest of every ArUco family; AprilTag
+        families are not made into ChArUco boards).
+    squares : (int, int), optional
+        The board's squares across and down, when known (``--board``).
+    """
+    gray = as_gray(image)
+    names = list(dictionaries) if dictionaries else [MARKER_FAMILIES[f][-1] for f in ("4x4", "5x5", "6x6", "7x7", "original")]
+    for name in names:
+        corners, ids = _detect_markers(gray, name)
+        if len(set(ids)) < MIN_INFER_MARKERS or len(set(ids)) != len(ids):
+            continue
+        geometry = _fit_layout(corners, ids, name, squares)
+        if geometry is not None:
+            # The smallest dictionary of the family that holds the board's markers.
+            family = next(members for members in MARKER_FAMILIES.values() if name in members)
+            count = geometry.squares[0] * geometry.squares[1] // 2
+            smallest = next(n for n in family if int(_dictionary(n).bytesList.shape[0]) >= count)
+            return CharucoGeometry(geometry.squares, smallest, geometry.marker_ratio, geometry.legacy)
+    return None
+
+
+def _fit_layout(corners: list[NDArray[np.float64]], ids: list[int], dictionary: str,
+                squares: tuple[int, int] | None) -> CharucoGeometry | None:
+    """The candidate layout whose white squares' centres fit the most markers' centres (a
+    falsely decoded marker fits none), the smallest among equals, or None."""
+    centres = np.array([c.mean(axis=0) for c in corners])
+    # Pixels per square near each marker, for a marker about 0.7 of its square.
+    sides = np.array([np.mean(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)) for c in corners])
+    square_px = float(np.median(sides)) / 0.7
+    candidates = [squares] if squares is not None else [
+        (columns, rows) for columns in range(3, MAX_SQUARES + 1) for rows in range(3, MAX_SQUARES + 1)]
+    best: tuple[int, int, CharucoGeometry] | None = None
+    for size in candidates:
+        for legacy in (False, True):
+            if legacy and size[1] % 2:
+                continue  # the legacy pattern differs only for an even number of rows
+            layout = _layout(tuple(size), legacy)
+            held = [k for k, i in enumerate(ids) if i in layout]
+            if len(held) < MIN_INFER_MARKERS or (best is not None and len(held) < best[0]):
+                continue
+            planar = np.array([layout[ids[k]] for k in held], np.float32)
+            target = centres[held].astype(np.float32)
+            # Least squares first (most layouts miss by squares); RANSAC only to drop a
+            # falsely decoded marker from a layout that nearly fits.
+            H, _ = cv2.findHomography(planar, target, 0)
+            if H is None:
+                continue
+            miss = np.linalg.norm(cv2.perspectiveTransform(planar.reshape(-1, 1, 2), H).reshape(-1, 2) - target, axis=1)
+            mask = miss <= LAYOUT_FIT_SQUARES * square_px
+            if not np.all(mask) and np.count_nonzero(miss <= square_px) >= 0.8 * len(held):
+                H, mask = cv2.findHomography(planar, target, cv2.RANSAC, LAYOUT_FIT_SQUARES * square_px, maxIters=500)
+                if H is None:
+                    continue
+            inliers = int(np.count_nonzero(mask))
+            if inliers < MIN_INFER_MARKERS or inliers < 0.8 * len(held):
+                continue
+            score = (inliers, -size[0] * size[1])
+            if best is not None and score <= (best[0], best[1]):
+                continue
+            back = np.linalg.inv(H)
+            in_squares = [cv2.perspectiveTransform(corners[k].reshape(-1, 1, 2), back).reshape(4, 2)
+                          for k, keep in zip(held, np.ravel(mask)) if keep]
+            ratio = float(np.median([np.mean(np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1)) for q in in_squares]))
+            if 0.3 <= ratio <= 0.95:
+                best = (inliers, -size[0] * size[1], CharucoGeometry(tuple(size), dictionary, round(ratio, 3), legacy))  # type: ignore[arg-type]
+    return None if best is None else best[2]
+
+
+class CharucoTargetDetector:
+    """A ChArUco board's inner corners, by their ids.
+
+    Parameters
+    ----------
+    squares : (int, int)
+        The board's squares across and down.
+    dictionary : str
+        Its markers' predefined dictionary.
+    marker_ratio : float, optional
+        Its markers' side over its squares'; measured in the first frame that shows the
+        board when not given (with its pattern, current or legacy).
+    """
+
+    kind = "charuco"
+
+    def __init__(self, squares: tuple[int, int], dictionary: str, marker_ratio: float | None = None) -> None:
+        columns, rows = int(squares[0]), int(squares[1])
+        if columns < 3 or rows < 3:
+            raise UsageError(f"a ChArUco board needs at least 3x3 squares, got {columns}x{rows}")
+        self.squares = (columns, rows)
+        self.dictionary = dictionary_name(dictionary)
+        if int(_dictionary(self.dictionary).bytesList.shape[0]) < columns * rows // 2:
+            raise UsageError(f"a {columns}x{rows} ChArUco board has {columns * rows // 2} markers, more than {self.dictionary} holds")
+        self.n_points = (columns - 1) * (rows - 1)
+        self._geometry = None if marker_ratio is None else CharucoGeometry(self.squares, self.dictionary, float(marker_ratio))
+        self._detector = None if self._geometry is None else self._make(self._geometry)
+        self._track = PointTrack(self.n_points, max_coast=2)
+
+    @staticmethod
+    def _make(geometry: CharucoGeometry) -> cv2.aruco.CharucoDetector:
+        parameters = cv2.aruco.CharucoParameters()
+        parameters.tryRefineMarkers = True
+        return cv2.aruco.CharucoDetector(geometry.board(), parameters, _parameters(cv2.aruco.CORNER_REFINE_NONE))
+
+    def reset(self) -> None:
+        self._track.reset()
+
+    def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
+        gray = as_gray(image)
+        pixels = np.full((self.n_points, 2), np.nan)
+        if self._detector is None:
+            geometry = infer_board(gray, [self.dictionary], self.squares)
+            if geometry is not None:
+                self._geometry, self._detector = geometry, self._make(geometry)
+        corners, ids, considered = None, None, 0
+        if self._detector is not None:
+            corners, ids, marker_corners, _ = self._detector.detectBoard(gray)
+            considered = 0 if marker_corners is None else len(marker_corners)
+        if corners is not None and ids is not None and len(ids) >= MIN_CORNERS:
+            ids = np.ravel(ids).astype(int)
+            found = corners.reshape(-1, 2).astype(np.float64)
+            pixels[ids] = self._refined(gray, found, ids)
+        seen = np.all(np.isfinite(pixels), axis=1)
+        ok = int(seen.sum()) >= MIN_CORNERS
+        if not ok:
+            pixels[:] = np.nan
+        self._track.update(pixels)
+        return Detection(pixels, ok, considered, 0)
+
+    def _refined(self, gray: NDArray[np.uint8], corners: NDArray[np.float64], ids: NDArray[np.int_]) -> NDArray[np.float64]:
+        """The corners refined again (``cornerSubPix``) in a window that stays inside the gap
+        between a corner and its markers (:data:`GAP_WINDOW_FRACTION`). OpenCV's own window
+        reaches into the markers on small boards (0.6 px RMS off on 15 px squares of the
+        footage, 0.05 px with this window). A corner that moves farther than
+        :data:`MAX_REFINE_MOVE_PX`, or that does not come back when refined again from a
+        little off, keeps OpenCV's position."""
+        assert self._geometry is not None
+        columns = self.squares[0] - 1
+        grid = np.column_stack([ids % columns, ids // columns]).astype(np.float32)
+        square = 8.0
+        if len(ids) >= 4:
+            H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
+            if H is not None:  # the square as seen: the mapped grid's step at each corner
+                right = cv2.perspectiveTransform((grid + np.float32((1, 0))).reshape(-1, 1, 2), H).reshape(-1, 2)
+                square = float(np.median(np.linalg.norm(right - corners, axis=1)))
+        window = int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX))
+        height, width = gray.shape
+        margin = window + 2
+        inside = (corners[:, 0] >= margin) & (corners[:, 1] >= margin) & (corners[:, 0] <= width - 1 - margin) & (corners[:, 1] <= height - 1 - margin)
+        refined = corners.copy()
+        if not np.any(inside):
+            return refined
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+        once = corners[inside].astype(np.float32).reshape(-1, 1, 2)
+        cv2.cornerSubPix(gray, once, (window, window), (-1, -1), criteria)
+        again = once + np.float32((0.5, -0.5))
+        cv2.cornerSubPix(gray, again, (window, window), (-1, -1), criteria)
+        once_px, again_px = once.reshape(-1, 2).astype(np.float64), again.reshape(-1, 2).astype(np.float64)
+        good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= 0.1)
+        rows = np.flatnonzero(inside)[good]
+        refined[rows] = once_px[good]
+        return refined
