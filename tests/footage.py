@@ -225,6 +225,10 @@ class FootageMaker:
 
     def render(self, pose_of_time, t: float, gain: float = 1.0) -> np.ndarray:
         """The BGR frame (uint8) at time ``t``; ``pose_of_time(t)`` gives (x, y, phi)."""
+        return self._sensor(self._exposure(pose_of_time, t), gain)
+
+    def _exposure(self, pose_of_time, t: float) -> np.ndarray:
+        """The ideal supersampled canvas (float32) of the exposure at ``t``, motion blur included."""
         fx = self.effects
         if fx.blur_samples > 1 and fx.exposure_s > 0:
             offsets = (np.arange(fx.blur_samples) + 0.5) / fx.blur_samples - 0.5
@@ -235,6 +239,11 @@ class FootageMaker:
             canvas *= np.float32(1.0 / fx.blur_samples)
         else:
             canvas = self._warp(pose_of_time(t)).astype(np.float32)
+        return canvas
+
+    def _sensor(self, canvas: np.ndarray, gain: float) -> np.ndarray:
+        """Lens distortion, the sensor's pixels, optical blur, vignetting, gain and noise."""
+        fx = self.effects
         if any(self.camera.distortion):
             distorted = cv2.remap(canvas, self._map[0], self._map[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         else:
@@ -714,3 +723,71 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
     theta_sigma = np.zeros(len(frames))
     theta_sigma[[i for i, k in enumerate(frames) if k != reference]] = phi_sigma
     return {"theta_sigma": theta_sigma, "normal_sigma": float(np.sqrt(covariance[0, 0] + covariance[1, 1]))}
+
+
+# --------------------------------------------------------------------------- issue 24's other rows
+@dataclass(frozen=True)
+class RollingShutter:
+    """Rows read out one after the other: the first row ``readout_s / 2`` before the frame's
+    time, the last as much after (the truth is the middle row's pose). The frame is
+    assembled from ``bands`` bands of rows, each warped at its own time."""
+
+    readout_s: float = 0.033
+    bands: int = 8
+
+
+class RollingShutterMaker(FootageMaker):
+    """:class:`FootageMaker` with a rolling shutter (rows exposed at different poses)."""
+
+    def __init__(self, wall: Wall, camera: Camera, effects: Effects = Effects(), seed: int = 0,
+                 shutter: RollingShutter = RollingShutter()) -> None:
+        super().__init__(wall, camera, effects, seed)
+        self.shutter = shutter
+
+    def _exposure(self, pose_of_time, t: float) -> np.ndarray:
+        ss, bands = self.effects.supersample, self.shutter.bands
+        rows = self.camera.height
+        canvas = None
+        for b in range(bands):
+            first, last = b * rows // bands, (b + 1) * rows // bands
+            offset = self.shutter.readout_s * ((first + last) / 2.0 / rows - 0.5)
+            band = super()._exposure(pose_of_time, t + offset)
+            if canvas is None:
+                canvas = band
+            # The band's rows on the ideal canvas (the margin rows go with the first and last band).
+            top = 0 if b == 0 else self.margin + first * ss
+            bottom = canvas.shape[0] if b == bands - 1 else self.margin + last * ss
+            canvas[top:bottom] = band[top:bottom]
+        return canvas
+
+
+#: Rows of the issue's table that the cases above do not draw: (wall, camera, effects,
+#: rolling shutter or None).
+def extra_case(name: str):
+    plain = Camera()
+    barrel = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
+    if name == "photo_distorted_jpeg70":
+        return photo_wall("coffee", 1.8), barrel, Effects(exposure_s=0.06, blur_samples=3, optical_blur=1.2, jpeg_quality=70), None
+    if name == "photo_plain_rolling":
+        # The cameraman: a large plain sky; rows read out over 33 ms; exposure drifting +-30 %.
+        return photo_wall("camera", 1.8), plain, Effects(exposure_drift=0.3, noise=3.0), RollingShutter()
+    if name == "low_contrast_dots_rolling":
+        return dots_wall("low_contrast"), plain, Effects(noise=4.0), RollingShutter()
+    if name == "aruco_board_3x2":
+        return marker_board_wall(grid=(3, 2)), barrel, Effects(), None
+    raise ValueError(name)
+
+
+def any_case(name: str):
+    """(wall, camera, effects, rolling shutter or None) of a row, from :func:`case` or :func:`extra_case`."""
+    try:
+        return (*case(name), None)
+    except ValueError:
+        return extra_case(name)
+
+
+def make_any_footage(name: str, folder: Path, drive: Drive = Drive(), seed: int = 7) -> dict:
+    """:func:`make_footage` for every row, the rolling-shutter ones included."""
+    wall, camera, effects, shutter = any_case(name)
+    maker = FootageMaker(wall, camera, effects, seed=seed) if shutter is None else RollingShutterMaker(wall, camera, effects, seed, shutter)
+    return maker.write(Path(folder), drive)

@@ -28,7 +28,8 @@ def frames():
 def test_board_found_and_its_corners_tracked_to_a_tenth_of_a_pixel(frames):
     """The board's pattern is found without being told; its 35 corners are tracked in a
     fixed order through a drive at 2.5 frames per second (3-9 px of motion a frame).
-    Measured: 0.06 px RMS from the true corners, 0.2 px at most."""
+    Measured: 0.007 px RMS from the true corners with the saddle fit (0.039 px with
+    cornerSubPix alone)."""
     images, truth = frames
     board = find_board(images[0])
     assert board is not None and sorted(board.pattern) == [5, 7]
@@ -44,7 +45,7 @@ def test_board_found_and_its_corners_tracked_to_a_tenth_of_a_pixel(frames):
         order = nearest.argmin(axis=1) if order is None else order
         assert np.array_equal(nearest.argmin(axis=1), order)
     errors = np.concatenate(errors)
-    assert np.sqrt(np.mean(errors**2)) < 0.1 and errors.max() < 0.3
+    assert np.sqrt(np.mean(errors**2)) < 0.02 and errors.max() < 0.1
 
 
 def test_board_layout_is_row_by_row():

@@ -325,6 +325,47 @@ def measured_point_noise(residuals: ArrayLike) -> float:
     return float(np.sqrt(np.mean(inliers**2))) * float(np.sqrt(rows / max(rows - 3, 1)))
 
 
+#: The longest lag (as a fraction of the frames) over which :func:`correlation_inflation`
+#: sums the residuals' correlation from frame to frame.
+CORRELATION_LAG_FRACTION = 1.0 / 8.0
+
+
+def correlation_inflation(residuals: ArrayLike) -> float:
+    """How much more a sum over frames varies than independent point errors would let it.
+
+    A detector's point errors are not independent from frame to frame when they come from
+    the picture rather than from the sensor's noise (a marker's edges sampled at a phase
+    that changes slowly with the pose, the blur of a slow drive): neighbouring frames err
+    alike, and the drive holds fewer independent looks at the target than frames. The
+    long-run variance of each residual's series over the frames (Bartlett's weights up to a
+    lag of :data:`CORRELATION_LAG_FRACTION` of the frames, Newey and West's estimator)
+    divided by its plain variance is that factor; independent errors give 1.
+
+    Parameters
+    ----------
+    residuals : array_like, shape (K, R)
+        Every frame's reprojection errors, the frames in time order.
+
+    Returns
+    -------
+    float
+        The factor on the point noise's variance, at least 1.
+    """
+    r = np.asarray(residuals, dtype=float)
+    r = r[np.all(np.isfinite(r), axis=1)]
+    frames = r.shape[0]
+    lag = int(np.floor(CORRELATION_LAG_FRACTION * frames))
+    if lag < 1:
+        return 1.0
+    r = r - r.mean(axis=0)
+    variance = float(np.mean(r * r))
+    if variance <= 0.0:
+        return 1.0
+    weights = 1.0 - np.arange(1, lag + 1) / (lag + 1.0)
+    covariances = np.array([np.sum(r[:-j] * r[j:]) / r.size for j in range(1, lag + 1)])
+    return max(1.0, 1.0 + 2.0 * float(weights @ covariances) / variance)
+
+
 @dataclass(frozen=True)
 class JointCovariance:
     """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
@@ -340,13 +381,17 @@ class JointCovariance:
         How each frame's estimate moves with an error of the globals: the frame's full
         covariance is ``own + sensitivity shared sensitivity^T``.
     noise : float
-        The point noise used (normalised units).
+        The point noise the residuals show (normalised units).
+    inflation : float
+        The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
+        (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
     """
 
     shared: NDArray[np.float64]
     own: NDArray[np.float64]
     sensitivity: NDArray[np.float64]
     noise: float
+    inflation: float = 1.0
 
     @property
     def normal_sigma(self) -> float:
@@ -365,8 +410,9 @@ BLOCK_FRAMES = 256
 
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
-                     frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None) -> JointCovariance:
-    """``noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
+                     frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
+                     correlated: bool = True) -> JointCovariance:
+    """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
     their coupling ``B_k``. The globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1
@@ -389,6 +435,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
         Frames to give the own covariance and sensitivity of (default: ``estimated``),
         e.g. every frame of a recording whose globals came from a sample of it.
+    correlated : bool
+        Grow the covariance by :func:`correlation_inflation` of the estimated frames'
+        residuals (in the order given: time order); False assumes independent frames.
 
     Returns
     -------
@@ -406,7 +455,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
     if noise is None:
         noise = measured_point_noise(np.concatenate(residuals))
-    shared = noise**2 * np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    inflation = correlation_inflation(np.concatenate(residuals)) if correlated else 1.0
+    variance = inflation * noise**2
+    shared = variance * np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     if frames is None:
         frames, frames_motion = estimated, motion
     frames = np.asarray(frames, dtype=float)
@@ -416,7 +467,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         blocks = frame_blocks(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
         inverse_own = _stable_inverse(own_info)
-        own_parts.append(noise**2 * inverse_own)
+        own_parts.append(variance * inverse_own)
         sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
     size = shared.shape[0]
     return JointCovariance(
@@ -424,6 +475,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         own=np.concatenate(own_parts) if own_parts else np.zeros((0, 3, 3)),
         sensitivity=np.concatenate(sensitivity_parts) if sensitivity_parts else np.zeros((0, 3, size)),
         noise=float(noise),
+        inflation=float(inflation),
     )
 
 

@@ -206,6 +206,7 @@ def fit_desired_trajectory(
     max_gap: float,
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
+    measured_points: bool = True,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -223,6 +224,11 @@ def fit_desired_trajectory(
         Told what a user should know (ambiguous or uncertain n*), as it happens.
     shapes : sequence of KnownShape, optional
         Target parts of known shape (each marker's square); they pin n* where the motion does not.
+    measured_points : bool
+        The points are measured in each frame on their own (dots, markers, a board's
+        corners): errors the residuals show correlated from frame to frame widen the
+        reported uncertainty (:func:`~.bundle.correlation_inflation`). False for one
+        tracked homography's corners (texture), correlated by the tracking itself.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -280,7 +286,7 @@ def fit_desired_trajectory(
     if others.size:
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used))
+                                      frames=m[used], frames_motion=stacked(used), correlated=measured_points)
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG and warn is not None:
             warn(UNCERTAIN_NORMAL_WARNING.format(sigma=uncertainty.normal_sigma_deg))

@@ -322,7 +322,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(layout.shape[0]), layout)]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes)
+                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes,
+                                      measured_points=spec.kind != "texture")
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
@@ -343,11 +344,15 @@ def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) 
 
 def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, Any]:
     """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
-    (core/gains.py, docs/method.md "Choosing the gains")."""
-    from ..core.gains import noise_from_residual, suggest_gains
+    (core/gains.py, docs/method.md "Choosing the gains"), with the heading tolerance that
+    the taught theta_d's uncertainty allows (the report's default where that is larger)."""
+    from ..core.gains import heading_tolerance, noise_from_residual, suggest_gains
+    from ..report.build import DEFAULT_TOLERANCES
 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal).as_dict()
+    sigma_deg = float(np.degrees(np.max(result.uncertainty.smooth_theta_sigma))) if result.uncertainty is not None else float("nan")
+    tolerance = heading_tolerance(DEFAULT_TOLERANCES["heading_deg"], sigma_deg)
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance).as_dict()
 
 
 def _render_settings(reader: Any) -> dict[str, Any] | None:
@@ -607,6 +612,11 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
         "suggested k_v, k_w, k_2, gamma",
         f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px, {dhat0_range_text()})",
     )
+    from ..report.build import DEFAULT_TOLERANCES
+
+    if g.get("heading_tolerance_deg", 0.0) > DEFAULT_TOLERANCES["heading_deg"]:
+        table.add_row("suggested heading tolerance",
+                      f"{g['heading_tolerance_deg']:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g['heading_tolerance_deg']:.2f})")
     console.print(table)
     if condition.path_stops:
         console.warn(
