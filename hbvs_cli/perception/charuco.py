@@ -4,8 +4,9 @@ The target's points are the board's inner corners, in OpenCV's ChArUco corner id
 row from the board's top-left inner corner), so the board's grid (:func:`~.chessboard.board_layout`
 of its inner corners) is a shape the fit knows. OpenCV's ``CharucoDetector`` finds the
 markers, interpolates the corners between them and refines them; every corner that was
-found is then refined again as the chessboard's are (``cornerSubPix`` in a window sized to
-the board's squares as seen).
+found is then refined again (``cornerSubPix`` in a window that stays inside the gap to the
+markers) and measured as the saddle point of the image, as a chessboard's corners are
+(:func:`~.chessboard.saddle_points`).
 
 The markers' codes give the corners their identity, so a board partly out of view (or
 partly hidden) still gives the corners next to the markers it shows: the rows of the
@@ -32,6 +33,7 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray
+from .chessboard import saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -284,4 +286,4 @@ class CharucoTargetDetector:
         good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= 0.1)
         rows = np.flatnonzero(inside)[good]
         refined[rows] = once_px[good]
-        return refined
+        return saddle_points(gray, refined)
