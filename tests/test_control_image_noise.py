@@ -31,14 +31,17 @@ from test_control_filter import closed_loop
 HARSH = {"noise": 15.0, "noise_grain": 2.0, "blur": 1.0}
 
 
-def detection_errors(noise: float, grain: float, blur: float, jpeg_quality: int = 100, frames: int = 120):
+def detection_errors(noise: float, grain: float, blur: float, jpeg_quality: int = 100, frames: int = 120, windowed: bool = False):
     """Per-axis detection errors (px) of the tracked dot detector against the projected truth,
-    on rendered frames of the taught s-curve, and the fraction of frames where it lost the dots."""
+    on rendered frames of the taught s-curve, and the fraction of frames where it lost the dots.
+    ``windowed``: each dot followed in its own window, only the windows rendered, as the
+    images loop of ``repeat --sim`` does (JPEG not applied)."""
     import cv2
     from scipy.optimize import linear_sum_assignment
 
     from hbvs_cli.core.path import preset_profile
     from hbvs_cli.core.world import default_world
+    from hbvs_cli.perception.dot_windows import WindowedDotDetector
     from hbvs_cli.perception.dots import DotDetector
     from hbvs_cli.sim.render import make_renderer
 
@@ -46,14 +49,19 @@ def detection_errors(noise: float, grain: float, blur: float, jpeg_quality: int 
     profile, start = preset_profile("s-curve", 30)
     renderer = make_renderer(world, noise, blur, 1.0, grain)
     rng = np.random.default_rng(7)
-    detector = DotDetector(len(world.target.points_world))
+    detector = (WindowedDotDetector if windowed else DotDetector)(len(world.target.points_world))
     errors, lost = [], 0
     for t in np.linspace(0.0, 19.9, frames):
         pose = profile.poses_at(t, start)
-        image = renderer.render(pose, rng)
-        if jpeg_quality < 100:
-            image = cv2.imdecode(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])[1], cv2.IMREAD_GRAYSCALE)
-        found = detector.detect(image)
+        windows = detector.search_windows((world.camera.height, world.camera.width)) if windowed else None
+        found = None
+        if windows is not None:
+            found = detector.detect_in_windows(renderer.render_windows(pose, rng, windows), windows)
+        if found is None:
+            image = renderer.render(pose, rng)
+            if jpeg_quality < 100:
+                image = cv2.imdecode(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])[1], cv2.IMREAD_GRAYSCALE)
+            found = detector.detect(image)
         if not found.found:
             lost += 1
             continue
@@ -77,6 +85,17 @@ def test_the_harsh_setting_raises_the_detectors_error_tenfold():
     default_rms, harsh_rms = float(np.sqrt(np.mean(default**2))), float(np.sqrt(np.mean(harsh**2)))
     assert default_rms < 0.03 and lost == 0
     assert 0.12 < harsh_rms < 0.3 and harsh_rms > 8 * default_rms, (default_rms, harsh_rms)
+
+
+def test_dots_followed_in_their_windows_are_measured_as_well_as_in_whole_frames():
+    """The images loop's detector (each dot in its own window, only those rendered) against
+    the fit's (the dots' common box in whole frames) under the harsh noise (measured on 300
+    frames: 0.172 against 0.193 px RMS per axis; the 30-frame averages that the filter
+    passes on: 0.033 against 0.036 px in the closed loop)."""
+    whole, _ = detection_errors(HARSH["noise"], HARSH["noise_grain"], HARSH["blur"], frames=60)
+    windowed, lost = detection_errors(HARSH["noise"], HARSH["noise_grain"], HARSH["blur"], frames=60, windowed=True)
+    whole_rms, windowed_rms = float(np.sqrt(np.mean(whole**2))), float(np.sqrt(np.mean(windowed**2)))
+    assert lost == 0 and windowed_rms <= whole_rms, (windowed_rms, whole_rms)
 
 
 def test_the_fit_measures_the_raised_noise(harsh_fit):
