@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
-
-import cv2
 
 from .base import Detection
 from .dots import (MAX_SMOOTHING_PX, NOISY_GROUND, SMOOTHED_NOISE, Blobs, DotDetector, _blob_centre, _flat_threshold,
