@@ -29,6 +29,7 @@ def align_homography(
     check_points: NDArray[np.float64],
     blur: int = 3,
     min_correlation: float | None = None,
+    settle_px: float | None = None,
 ) -> tuple[NDArray[np.float64] | None, float]:
     """The template -> frame homography refined by ECC alignment, and how well they match.
 
@@ -46,6 +47,11 @@ def align_homography(
         Gaussian filter size ECC applies to both images (odd).
     min_correlation : float, optional
         Reject an alignment whose correlation coefficient ends below this.
+    settle_px : float, optional
+        Take one ECC step first, and go on to the usual criteria only when it moved a check
+        point farther than this (px). From a close start (a tracked prediction) a step leaves
+        about a tenth of its move, so a small one is as good as the converged alignment at
+        a fraction of its cost (ECC's steps are most of a followed frame's).
 
     Returns
     -------
@@ -70,13 +76,25 @@ def align_homography(
     crop = np.ascontiguousarray(frame[y0:y1, x0:x1])
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ECC_ITERATIONS, ECC_EPSILON)
     try:
-        correlation, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, blur)
+        if settle_px is not None:
+            first = warp
+            correlation, warp = cv2.findTransformECC(template, crop, first.copy(), cv2.MOTION_HOMOGRAPHY, (cv2.TERM_CRITERIA_COUNT, 1, 0.0),
+                                                     None, blur)
+            step = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), warp.astype(np.float64))
+            before = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), first.astype(np.float64))
+            settled = bool(np.max(np.abs(step - before)) <= settle_px)
+        else:
+            settled = False
+        if not settled:
+            correlation, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, blur)
     except cv2.error:
         return None, float("nan")
     correlation = float(correlation)
     if min_correlation is not None and not correlation >= min_correlation:
         return None, correlation
-    refined = np.linalg.inv(shift) @ warp.astype(np.float64)
+    refined = warp.astype(np.float64)
+    refined[0] += x0 * refined[2]
+    refined[1] += y0 * refined[2]  # the shift undone: inv(shift) @ warp
     if not np.all(np.isfinite(refined)) or abs(refined[2, 2]) < 1e-12:
         return None, correlation
     refined /= refined[2, 2]

@@ -14,6 +14,7 @@ result.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -41,6 +42,9 @@ FOLLOW_CORRELATION = 0.9
 #: started, where the template's shading was placed, it is aligned again with the shading
 #: placed where it ended (a prediction far off; a tracked one is within a few tenths).
 SHADING_PLACEMENT_PX = 0.5
+#: A followed frame's alignment stops after one ECC step that moves no target point farther
+#: than this (px); a larger step goes on to convergence (:func:`~.ecc.align_homography`).
+SETTLE_PX = 0.05
 #: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
 POOL_FRAMES = 32
 #: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
@@ -245,7 +249,7 @@ class TextureDetector:
         the others, the template is shaded by the pooled vignetting and aligned once.
         """
         x0, y0, template = self._align_template
-        to_crop = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
+        to_crop = _shift(x0, y0)
         points = self.reference_pixels - (x0, y0)
         template_sigma, frame_sigma = _matched_blur(homography, self.reference_pixels)
         if template_sigma > ALIGN_BLUR_SIGMA:  # the frame sees the target smaller than the reference
@@ -254,7 +258,7 @@ class TextureDetector:
         if region is None:
             return None, float("nan")
         (fx0, fy0), frame = region
-        to_frame = np.array([[1.0, 0.0, -fx0], [0.0, 1.0, -fy0], [0.0, 0.0, 1.0]])
+        to_frame = _shift(-fx0, -fy0)
         to_whole = homography @ to_crop
         start = to_frame @ to_whole
         if self._vignetting.wants():
@@ -270,13 +274,13 @@ class TextureDetector:
             self._vignetting.skip()
             shaded = self._vignetting.shaded(template, to_whole)
             refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, 1,
-                                                    min_correlation)
+                                                    min_correlation, settle_px=SETTLE_PX)
             if refined is None:
                 return None, correlation
             if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
                 # The start was off: the shading was placed there; again, placed where aligned.
                 refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
-        aligned = np.linalg.inv(to_frame) @ refined @ np.linalg.inv(to_crop)
+        aligned = _shift(fx0, fy0) @ refined @ _shift(-x0, -y0)
         return aligned / aligned[2, 2], correlation
 
     def _aligned_shaded(self, template: NDArray[np.float32], frame: NDArray[np.float32], refined: NDArray[np.float64],
@@ -285,7 +289,7 @@ class TextureDetector:
         """``refined`` (template -> ``frame`` pixels) aligned again against the template shaded
         by the pooled vignetting where ``refined`` places it, with its correlation; the given
         pair when there is no fall-off yet or that alignment fails."""
-        shaded = self._vignetting.shaded(template, np.linalg.inv(to_frame) @ refined)
+        shaded = self._vignetting.shaded(template, _shift(-to_frame[0, 2], -to_frame[1, 2]) @ refined)
         if shaded is None:
             return refined, correlation
         again, again_correlation = align_homography(shaded, frame, refined, points, 1)
@@ -512,18 +516,20 @@ def _matched_blur(homography: NDArray[np.float64], reference_pixels: NDArray[np.
     """Smoothing (px) of the template and of the frame that give both the same blur in the
     template's pixels, the frame seeing the target ``s`` times larger (the homography's
     local scale at the target's centre): a sharper frame matched to a blurrier template
-    biases the fitted scale (a blob looks larger blurred)."""
-    centre = reference_pixels.mean(axis=0)
-    h = homography / homography[2, 2]
-    w = h[2, 0] * centre[0] + h[2, 1] * centre[1] + 1.0
-    u = (h[0, 0] * centre[0] + h[0, 1] * centre[1] + h[0, 2]) / w
-    v = (h[1, 0] * centre[0] + h[1, 1] * centre[1] + h[1, 2]) / w
-    jacobian = np.array([[h[0, 0] - u * h[2, 0], h[0, 1] - u * h[2, 1]], [h[1, 0] - v * h[2, 0], h[1, 1] - v * h[2, 1]]]) / w
-    scale = float(np.sqrt(abs(np.linalg.det(jacobian))))
+    biases the fitted scale (a blob looks larger blurred). In plain floats (once a frame)."""
+    points = reference_pixels.tolist()
+    cx, cy = sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points)
+    (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = (homography / homography[2, 2]).tolist()
+    w = h20 * cx + h21 * cy + 1.0
+    u = (h00 * cx + h01 * cy + h02) / w
+    v = (h10 * cx + h11 * cy + h12) / w
+    # The determinant of the 2x2 Jacobian of the mapping at the centre.
+    determinant = ((h00 - u * h20) * (h11 - v * h21) - (h01 - u * h21) * (h10 - v * h20)) / (w * w)
+    scale = math.sqrt(abs(determinant))
     total = CAMERA_BLUR_SIGMA**2 + ALIGN_BLUR_SIGMA**2  # the template's blur (its own pixels), squared
     if scale >= 1.0:
-        return ALIGN_BLUR_SIGMA, float(np.sqrt(max(scale**2 * total - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2)))
-    return float(np.sqrt(max(total / scale**2 - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2))), ALIGN_BLUR_SIGMA
+        return ALIGN_BLUR_SIGMA, math.sqrt(max(scale**2 * total - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2))
+    return math.sqrt(max(total / scale**2 - CAMERA_BLUR_SIGMA**2, ALIGN_BLUR_SIGMA**2)), ALIGN_BLUR_SIGMA
 
 
 def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma: float = ALIGN_BLUR_SIGMA,
@@ -542,6 +548,11 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
     return (int(x0), int(y0)), _smoothed(gray[y0:y1, x0:x1], sigma)
 
 
+def _shift(x: float, y: float) -> NDArray[np.float64]:
+    """The homography that moves pixels by ``(x, y)``."""
+    return np.array([[1.0, 0.0, x], [0.0, 1.0, y], [0.0, 0.0, 1.0]])
+
+
 def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], points: NDArray[np.float64]) -> float:
     """How far (px, the largest) two homographies put ``points`` apart."""
     return float(np.max(np.linalg.norm(_transfer(after, points) - _transfer(before, points), axis=1)))
@@ -553,21 +564,26 @@ def _transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> N
 
 
 def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64], shape: tuple[int, int]) -> bool:
-    """Reject fits that fold, mirror or blow up the target (a degenerate or wrong homography)."""
-    h = np.column_stack([reference_pixels, np.ones(len(reference_pixels))]) @ homography.T
-    if np.any(h[:, 2] <= 0):
-        return False
-    mapped = h[:, :2] / h[:, 2:]
-    if not np.all(np.isfinite(mapped)):
-        return False
+    """Reject fits that fold, mirror or blow up the target (a degenerate or wrong homography).
+
+    In plain floats (a few points, twice a frame: numpy's per-call cost would dominate)."""
+    (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = homography.tolist()
+    height, width = shape
+    bound = 10.0 * math.hypot(width, height)
+    mapped = []
+    for x, y in reference_pixels.tolist():
+        w = h20 * x + h21 * y + h22
+        if not w > 0:
+            return False
+        u, v = (h00 * x + h01 * y + h02) / w, (h10 * x + h11 * y + h12) / w
+        if not (abs(u) < bound and abs(v) < bound):  # also false for NaN
+            return False
+        mapped.append((u, v))
     before = signed_polygon_area(reference_pixels)
     after = signed_polygon_area(mapped)
     if before == 0 or np.sign(after) != np.sign(before):
         return False
-    scale = abs(after / before)
-    height, width = shape
-    diagonal = np.hypot(width, height)
-    return 1e-3 < scale < 1e3 and np.all(np.abs(mapped) < 10 * diagonal)
+    return 1e-3 < abs(after / before) < 1e3
 
 
 def _window(shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int] | None:
