@@ -13,13 +13,11 @@ images), which brings the measured points to 1.0 px.
 
 Measured on this machine: detector error 0.19 px RMS per axis against the projected truth
 (the default images: 0.012 px; the loop's windowed detector: 0.17 px), the fit's residual
-0.13 px. Seeds 0-9, mean final error: 0.35 cm / 0.15 deg (worst 0.41 cm / 0.17 deg); with
-the added 1 px, 0.72 cm / 0.30 deg (worst 1.47 cm / 0.61 deg), no frame without the target
+0.13 px. Seeds 0-9, mean final error: 0.30 cm / 0.12 deg (worst 0.38 cm / 0.16 deg); with
+the added 1 px, 0.49 cm / 0.19 deg (worst 0.75 cm / 0.37 deg), no frame without the target
 (``pytest -s -n 0 -m campaign``). Before the windowed detection and the depth in the filter:
 0.19 cm / 0.13 deg (worst 0.29 / 0.21) and 0.44 cm / 0.20 deg (worst 0.71 / 0.33): the
-position got worse (issues 25, 28). On the same whole frames the windowed detector ends
-where the whole-frame one does (seeds 0-15: 0.30 cm both); rendering only the windows ends
-0.34 cm off (seeds 0-31; docs/results.md).
+position got worse by 1 mm (issues 25, 28; the breakdown is in docs/results.md).
 """
 
 from __future__ import annotations
