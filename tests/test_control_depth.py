@@ -108,10 +108,10 @@ def test_the_depth_is_learnt_from_four_times_off_either_way(request, extent, fit
 @pytest.mark.campaign
 def test_the_depth_is_learnt_with_images_in_the_loop(request, fit_path, smoothness_baseline, capsys):
     campaign_extent(request, "campaign")
-    starts = [(factor, 0.05, 2.0) for factor in FACTORS]
+    starts = list(itertools.product(FACTORS, OFFSETS_Y, OFFSETS_THETA))
     rows, converged, ratios = check_campaign(fit_path, starts, (1,), smoothness_baseline, "images", capsys)
     assert all(row["status"] == "ok" for row in rows)
-    assert converged.all()
+    assert converged.mean() >= 0.95
     assert max(ratios) <= 2.0
 
 

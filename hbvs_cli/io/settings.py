@@ -181,7 +181,7 @@ FIT_SETTINGS: tuple[Setting, ...] = (
     Setting("reference", str, "The frame that is F*: first, last or a frame index.", default="first"),
     Setting("smoothing", str, "Spline smoothing: auto (generalised cross-validation) or the penalty lambda (s^3).", default="auto"),
     Setting("target_size", float, "Metric target size (m) for d*: the marker's side (aruco) or the largest dot-to-dot "
-            "distance (dots) or the square (chessboard).", bounds={"min": 0.0}),
+            "distance (dots) or a square's side (chessboard, charuco).", bounds={"min": 0.0}),
     Setting("max_gap", float, "Longest stretch (s) without the target that the spline may bridge.", default=1.0, bounds={"min": 0.0}),
     Setting("max_lost", float, "Largest fraction of frames without the target before fit fails.", default=0.3,
             bounds={"min": 0.0, "max": 1.0}),
