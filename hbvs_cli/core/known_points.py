@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError
 from .assignment import optimal_assignment
+from .plane import procrustes_2d
 
 #: A match whose RMS distance (after the best homography) is above this fraction of the
 #: image points' RMS spread is refused: the layout is not the target's.
@@ -46,18 +47,16 @@ def _homographies(source: NDArray[np.float64], target: NDArray[np.float64]) -> N
 def _similarities(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
     """The similarities (K, 3, 3) (reflection allowed) best carrying each of K ordered sets of
     source points (K, M, 2) onto the target points (M, 2) (Procrustes)."""
-    out = np.zeros((source.shape[0], 3, 3))
     t_mean = target.mean(axis=0)
-    t_centred = target - t_mean
-    for index, points in enumerate(source):
-        s_mean = points.mean(axis=0)
-        s_centred = points - s_mean
-        u, singular, vt = np.linalg.svd(s_centred.T @ t_centred)
-        rotation = (u @ vt).T
-        scale = singular.sum() / max(float(np.sum(s_centred**2)), 1e-300)
-        out[index, :2, :2] = scale * rotation
-        out[index, :2, 2] = t_mean - scale * rotation @ s_mean
-        out[index, 2, 2] = 1.0
+    s_mean = source.mean(axis=1)  # (K, 2)
+    s_centred = source - s_mean[:, None, :]
+    factor, singular_sum = procrustes_2d(np.einsum("kmi,mj->kij", s_centred, target - t_mean))
+    scale = singular_sum / np.maximum(np.sum(s_centred**2, axis=(1, 2)), 1e-300)
+    linear = scale[:, None, None] * np.swapaxes(factor, 1, 2)
+    out = np.zeros((source.shape[0], 3, 3))
+    out[:, :2, :2] = linear
+    out[:, :2, 2] = t_mean - np.einsum("kij,kj->ki", linear, s_mean)
+    out[:, 2, 2] = 1.0
     return out
 
 

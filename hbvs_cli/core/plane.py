@@ -148,7 +148,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
         q_mean = q.mean(axis=-2, keepdims=True)
         lc = layout - layout.mean(axis=0)
         qc = np.nan_to_num(q - q_mean)
-        rotation, singular_sum = _procrustes_2d(np.einsum("ki,...kj->...ij", lc, qc))
+        rotation, singular_sum = procrustes_2d(np.einsum("ki,...kj->...ij", lc, qc))
         scale = singular_sum / max(float(np.sum(lc * lc)), 1e-300)
         fitted = q_mean + scale[..., None, None] * np.einsum("ki,...ij->...kj", lc, rotation)
         world = normal[..., None, :] + fitted[..., :1] * e1[..., None, :] + fitted[..., 1:] * e2[..., None, :]
@@ -158,7 +158,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     return np.concatenate(residuals, axis=-1) if residuals else np.zeros(m.shape[:-2] + (0,))
 
 
-def _procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The orthogonal polar factor ``U V^T`` of 2x2 matrices and their singular values' sum.
 
     In closed form (a batched SVD of many 2x2 matrices cost a third of
