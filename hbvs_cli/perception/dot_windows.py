@@ -29,8 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import Detection
-from .dots import (MAX_SMOOTHING_PX, NOISY_GROUND, SMOOTHED_NOISE, Blobs, DotDetector, _blob_centre, _flat_threshold,
-                   dark_image, flatten_ground, ground_noise)
+from .dots import Blobs, DotDetector, _blob_centre, dark_image, flatten_ground, ground_noise, segmentation_threshold
 
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
 Window = tuple[int, int, int, int]
@@ -136,15 +135,8 @@ def find_blobs_in_windows(
         view = flat[: y1 - y0, column : column + x1 - x0]
         view[...] = flatten_ground(np.ascontiguousarray(gray[y0:y1, x0:x1]))
         views.append(view)
-    levels = np.clip(flat + 0.5, 0, 255).astype(np.uint8)
     noise = sum(ground_noise(view) for view in views) / len(views)
-    noisy = noise > NOISY_GROUND
-    if noisy:
-        # As find_dark_blobs does for a noisy window: segment a smoothed copy.
-        sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
-        levels = cv2.GaussianBlur(levels, (0, 0), sigma)
-        noise /= 2.0 * math.sqrt(math.pi) * sigma
-    threshold = _flat_threshold(levels, min_contrast, noise, noisy)
+    levels, threshold = segmentation_threshold(np.clip(flat + 0.5, 0, 255).astype(np.uint8), noise, min_contrast)
     if threshold is None:
         return empty
     _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)

@@ -274,17 +274,23 @@ def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolat
     """A window flattened (:func:`flatten_ground`), the 8-bit levels it is thresholded on
     (smoothed when the sensor is noisy) and the threshold."""
     sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
-    levels = np.clip(sub + 0.5, 0, 255).astype(np.uint8)
-    noise = ground_noise(sub)
+    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub), min_contrast)
+    return sub, levels, threshold
+
+
+def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast: float
+                           ) -> tuple[NDArray[np.uint8], int | None]:
+    """The 8-bit levels of a flattened image to threshold (smoothed when the sensor is noisy)
+    and the threshold, given the ground's noise (gray levels)."""
     noisy = noise > NOISY_GROUND
     if noisy:
         # A noisy sensor (low light, high gain): segment a smoothed copy, or every
         # noise speck becomes a blob and the dots' outlines fray; the centres are
-        # still measured on the unsmoothed window.
+        # still measured on the unsmoothed image.
         sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
         levels = cv2.GaussianBlur(levels, (0, 0), sigma)
         noise /= 2.0 * math.sqrt(math.pi) * sigma
-    return sub, levels, _flat_threshold(levels, min_contrast, noise, noisy)
+    return levels, _flat_threshold(levels, min_contrast, noise, noisy)
 
 
 def find_dark_blobs(
