@@ -33,6 +33,8 @@ from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL
 from ..io.foxglove_scene import SceneWriter
 from ..sim.world import World, world_from_description
 
+#: Why --target-points and a texture do not go together (refused before and after auto picks).
+NO_LAYOUT_FOR_TEXTURE = "--target-points needs dots, markers or a board: a texture's points are not printed anywhere"
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
 
@@ -202,7 +204,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                         f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
                     )
                 if detector is None:
-                    spec = _detector_spec(options, reader, [im for _, _, im in first] or [image], camera, frame.pose, console)
+                    world = _teach_world(reader)
+                    spec = _detector_spec(options, world, [im for _, _, im in first] or [image], camera, frame.pose, console)
                     detector = TrackedDetector(spec, camera, seed=options.seed)
                     template = data
                     writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
@@ -260,7 +263,6 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
-            world = _teach_world(reader)
             height = world.camera_height if world is not None else 0.0
             SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
@@ -277,7 +279,7 @@ def _read_known_layout(options: FitOptions) -> np.ndarray | None:
     if options.target_points is None:
         return None
     if options.target == "texture":
-        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+        raise UsageError(NO_LAYOUT_FOR_TEXTURE)
     from ..io.target_points import read_target_points
 
     return read_target_points(options.target_points)
@@ -291,7 +293,7 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
     from ..core.known_points import match_layout
 
     if spec.kind == "texture":
-        raise UsageError("--target-points needs dots, markers or a board: a texture's points are not printed anywhere")
+        raise UsageError(NO_LAYOUT_FOR_TEXTURE)
     if layout.shape[0] != reference_pixels.shape[0]:
         raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
     if not np.all(np.isfinite(reference_pixels)):
@@ -402,11 +404,10 @@ def _check_marker_options(options: FitOptions) -> None:
 
 
 def _detector_spec(
-    options: FitOptions, reader: Any, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console
+    options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
     (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    world = _teach_world(reader)
     image = images[0]
     kind = options.target
     choice = None
