@@ -88,19 +88,14 @@ CHECK_NAMES = (
     "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
     "smoothness",
 )
-#: The check of each final error.
-_FINAL_CHECK_NAMES = {
-    "position_m": "final_position", "heading_deg": "final_heading", "e1": "final_e1", "e2": "final_e2", "e3": "final_e3",
-}
-
-#: How a verdict line names each final error: (label, scale to the shown unit, unit).
-_FINAL_CHECKS: dict[str, tuple[str, float, str]] = {
-    "position_m": ("final position error", 100.0, "cm"),
-    "heading_deg": ("final |heading error|", 1.0, "deg"),
-    "e1": ("final |e1|", 1.0, ""),
-    "e2": ("final |e2|", 1.0, ""),
-    "ebar2": ("final |ebar2|", 1.0, ""),
-    "e3": ("final |e3|", 1.0, "deg"),
+#: Each final error's check (``verdict.checks``) and how its line names it: (check, label,
+#: scale to the shown unit, unit).
+_FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
+    "position_m": ("final_position", "final position error", 100.0, "cm"),
+    "heading_deg": ("final_heading", "final |heading error|", 1.0, "deg"),
+    "e1": ("final_e1", "final |e1|", 1.0, ""),
+    "e2": ("final_e2", "final |e2|", 1.0, ""),
+    "e3": ("final_e3", "final |e3|", 1.0, "deg"),
 }
 
 
@@ -225,15 +220,24 @@ def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[f
     return learning, rate
 
 
-def _d_true(run: RunData) -> float | None:
+def true_depth(run: RunData) -> float | None:
+    """The true d* (m) a simulated run records; None otherwise."""
     d_true = run.info.get("d_true")
     return float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
+
+
+def taught_commands_along(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The taught commands (25) at each step (m/s, rad/s), at the true d* (else the final dhat)."""
+    d_true = true_depth(run)
+    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
+    return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
 def _depth(run: RunData) -> Depth:
     dhat = run.state["dhat"]
     finite = dhat[np.isfinite(dhat)]
-    d_true = _d_true(run)
+    d_true = true_depth(run)
     dhat_final = float(finite[-1]) if finite.size else None
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
     reference = d_true if d_true is not None else dhat_final
@@ -255,7 +259,8 @@ def _depth(run: RunData) -> Depth:
     )
 
 
-def _limits(run: RunData) -> Limits:
+def run_limits(run: RunData) -> Limits:
+    """The run's actuator limits (``settings.limits``); None where unlimited."""
     limits = ((run.info.get("settings") or {}).get("limits")) or {}
     return Limits(**{name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
                      for name in ("max_v", "max_w", "max_accel")})
@@ -263,12 +268,8 @@ def _limits(run: RunData) -> Limits:
 
 def _commands(run: RunData) -> Commands:
     v, w, t = run.state["v_c"], run.state["w_c"], run.state["t"]
-    limits = _limits(run)
-    d_true = _d_true(run)
-    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
-    v_d, w_d = taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
-    taught = command_smoothness(t, v_d, w_d)
+    limits = run_limits(run)
+    taught = command_smoothness(t, *taught_commands_along(run))
     del taught["at_limit_fraction"]
     return Commands(
         v_peak_mps=peak_abs(v),
@@ -336,7 +337,7 @@ def _quantity(value: float, scale: float, unit: str) -> str:
 
 
 def _final_error_check(name: str, final: float | None, tolerance: float) -> tuple[bool | None, str]:
-    label, scale, unit = _FINAL_CHECKS[name]
+    _, label, scale, unit = _FINAL_CHECKS[name]
     bound = _quantity(tolerance, scale, unit)
     if final is None:
         return _check(False, f"{label} unknown (target not seen at the end), tolerance {bound}")
@@ -398,7 +399,7 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
     checks["finished"] = _finished_check(run)
     final_errors, names = (pose_error, POSE_ERRORS) if pose_error is not None else (errors, ("e1", "e2", "e3"))
     for name in names:
-        checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, final_errors[name].final, tolerances[name])
+        checks[_FINAL_CHECKS[name][0]] = _final_error_check(name, final_errors[name].final, tolerances[name])
     checks["lyapunov"] = _lyapunov_check(lyapunov)
     checks["smoothness"] = _smoothness_check(commands)
     return Verdict(

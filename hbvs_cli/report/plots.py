@@ -25,7 +25,7 @@ from .figure_style import (
     run_colors,
     save_figure,
 )
-from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth
 from .result import RunReport
 from .table import run_labels
 
@@ -164,30 +164,29 @@ def _has_poses(run: RunData) -> bool:
     return run.true_pose is not None and run.desired_pose is not None
 
 
-def _pose_panel(ax: Any, context: PanelContext, key: str, title: str, ylabel: str, scale: float) -> None:
-    with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
-    ax.set_title(title)
-    if not with_poses:
-        _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
-        return
-    for run, color in with_poses:
-        magnitude = np.abs(scale * pose_error_signals(run)[key])
-        # A log axis cannot show an exact zero: the first step of a run started on the path.
-        magnitude[magnitude <= 0] = np.nan
-        _line(ax, context, run.state["t"], magnitude, color, None)
-    _shade_losses(ax, context)
-    _band(ax, scale * context.tolerances[key], signed=False)
-    ax.set_yscale("log")
-    _time_axes(ax, title, ylabel)
-    _note_missing(ax, context.runs, _has_poses)
+#: What a pose panel says without ground truth.
+NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 
 
-def _position_panel(ax: Any, context: PanelContext) -> None:
-    _pose_panel(ax, context, "position_m", "Position error against the taught pose", "position error (cm)", 100.0)
+def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[Any, PanelContext], None]:
+    def paint(ax: Any, context: PanelContext) -> None:
+        with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
+        ax.set_title(title)
+        if not with_poses:
+            _say_absent(ax, NO_POSES)
+            return
+        for run, color in with_poses:
+            magnitude = np.abs(scale * pose_error_signals(run)[key])
+            # A log axis cannot show an exact zero: the first step of a run started on the path.
+            magnitude[magnitude <= 0] = np.nan
+            _line(ax, context, run.state["t"], magnitude, color, None)
+        _shade_losses(ax, context)
+        _band(ax, scale * context.tolerances[key], signed=False)
+        ax.set_yscale("log")
+        _time_axes(ax, title, ylabel)
+        _note_missing(ax, context.runs, _has_poses)
 
-
-def _heading_panel(ax: Any, context: PanelContext) -> None:
-    _pose_panel(ax, context, "heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0)
+    return paint
 
 
 def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
@@ -201,37 +200,22 @@ def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, Pan
     return paint
 
 
-def _limit(run: RunData, key: str) -> float | None:
-    limits = (run.info.get("settings") or {}).get("limits") or {}
-    value = limits.get(key) if isinstance(limits, Mapping) else None
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0 else None
-
-
 def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
             # The taught commands (25), dotted: what a smooth run's commands should look like.
-            taught = _taught_commands(run)[0 if key == "v_c" else 1]
+            taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             shown_t, shown_x = display_series(run.state["t"], taught, None)
             ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)
         _shade_losses(ax, context)
-        for limit in sorted({value for value in (_limit(run, limit_key) for run in context.runs) if value is not None}):
+        limits = {getattr(run_limits(run), limit_key) for run in context.runs}
+        for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
             for level in (-limit, limit):
                 ax.axhline(level, color=GUIDE_COLOR, ls="--", lw=0.8, zorder=1)
         _time_axes(ax, title, ylabel)
 
     return paint
-
-
-def _taught_commands(run: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The taught commands (25) along the run, at the true d* (or the final dhat)."""
-    from ..core.metrics import taught_commands
-
-    d_true = run.info.get("d_true")
-    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
-    return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
 def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -243,15 +227,10 @@ def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
     return kept
 
 
-def _has_d_true(run: RunData) -> bool:
-    value = run.info.get("d_true")
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def _depth_panel(ax: Any, context: PanelContext) -> None:
     for run, color in zip(context.runs, context.colors):
         _line(ax, context, run.state["t"], run.state["dhat"], color, None)
-    for d_true in _distinct([np.array(float(run.info["d_true"])) for run in context.runs if _has_d_true(run)]):
+    for d_true in _distinct([np.array(d) for d in map(true_depth, context.runs) if d is not None]):
         ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
     _shade_losses(ax, context)
     _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
@@ -328,7 +307,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
         ax.set_title("Top view")
-        _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
+        _say_absent(ax, NO_POSES)
         return
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
@@ -374,8 +353,8 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
 
 #: Every panel of the run figure: name -> painter, in the default order.
 PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
-    "position": _position_panel,
-    "heading": _heading_panel,
+    "position": _pose_panel("position_m", "Position error against the taught pose", "position error (cm)", 100.0),
+    "heading": _pose_panel("heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0),
     "e1": _image_error_panel("e1", r"Longitudinal image error $e_1$ (19)", "e1 (units of d*)"),
     "ebar2": _image_error_panel("ebar2", r"Lateral image error $\bar{e}_2$ (27)", "ebar2 (units of d*)"),
     "e2": _image_error_panel("e2", r"Lateral image error $e_2$ (19)", "e2 (units of d*)"),
