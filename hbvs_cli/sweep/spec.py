@@ -440,8 +440,8 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
     if values.get("occlusion_length", 0) > 0:
         start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
         options["occlude"] = [f"{start!r}:{start + float(values['occlusion_length'])!r}"]
-    for name in ("pixel_noise", "k_v", "k_w", "gamma", "k_2", "law", "drop_rate", "outlier_rate", "latency", "perception", "rate", "speed", "lost_timeout"):
-        if name in values:
+    for name, parameter in PARAMETERS.items():
+        if parameter.setting is not None and name != "dhat0" and name in values:
             options[name] = values[name]
     return options
 
