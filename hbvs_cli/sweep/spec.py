@@ -435,7 +435,7 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
         options["dhat0"] = float(values["dhat0"])
     elif "dhat0_factor" in values:
         if d_true is None:
-            raise UsageError("dhat0_factor needs the true d*: the fit must come from a simulated teach (or use dhat0)")
+            raise UsageError("dhat0_factor needs the true d*, which only a fit of a simulated teach has; sweep dhat0 (m) instead")
         options["dhat0"] = float(values["dhat0_factor"]) * d_true
     if values.get("occlusion_length", 0) > 0:
         start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
