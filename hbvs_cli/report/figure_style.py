@@ -43,6 +43,12 @@ class FigureStyle:
     panels: tuple[str, ...] | None = None
 
 
+def column_count(style: FigureStyle, panels: int) -> tuple[float, int]:
+    """The figure's width (in) and its columns of panels (one below :data:`ONE_COLUMN_BELOW_IN`)."""
+    width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
+    return width, 1 if width < ONE_COLUMN_BELOW_IN or panels == 1 else 2
+
+
 def parse_size(text: str) -> tuple[float, float]:
     """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
 

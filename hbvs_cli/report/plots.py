@@ -15,16 +15,7 @@ import numpy as np
 
 from ..errors import UsageError
 from ..io.run_file import RunData
-from .figure_style import (
-    DEFAULT_WIDTH_IN,
-    ONE_COLUMN_BELOW_IN,
-    TAUGHT_COLOR,
-    FigureStyle,
-    new_figure,
-    paper_rc,
-    run_colors,
-    save_figure,
-)
+from .figure_style import TAUGHT_COLOR, FigureStyle, column_count, new_figure, paper_rc, run_colors, save_figure
 from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth
 from .result import RunReport
 from .table import run_labels
@@ -385,8 +376,7 @@ def _content_height(panels: Sequence[str], columns: int) -> float:
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
     """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
     less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
-    width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
-    columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
+    width, columns = column_count(style, len(panels))
     content = _content_height(panels, columns)
     if style.size_in is None:
         return (width, content + LEGEND_HEIGHT_IN), columns

@@ -169,8 +169,8 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
 
     Raises UsageError: an option that applies to runs only.
     """
-    from ..report.figure_style import figure_style
-    from ..report.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
+    from ..report.figure_style import figure_style, save_figure
+    from ..report.fit_plot import FIT_PANELS, fit_summary, plot_fit
     from ..report.table import print_fit_table
 
     for given, flag in ((options.fail_above, "--fail-above"), (options.require_converged, "--require-converged"),
@@ -185,7 +185,7 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
         print_fit_table(summary, sys.stdout)
     sys.stdout.flush()
     if options.plot is not None:
-        save_fit_plot(fit, options.plot, style)
+        save_figure(plot_fit(fit, style), options.plot, style.dpi)
         console.info(f"report: fit figure written to {options.plot}")
     return 0
 
