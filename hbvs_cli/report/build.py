@@ -169,17 +169,10 @@ def _run_summary(run: RunData, label: str | None) -> RunSummary:
     )
 
 
-def _error_summaries(t: np.ndarray, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
-    return {name: ErrorSummary(**error_summary(t, signal, tolerances[name])) for name, signal in signals.items()}
-
-
-def _image_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
-    return _error_summaries(run.state["t"], {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
-
-
-def _pose_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary] | None:
-    signals = pose_error_signals(run)
-    return None if signals is None else _error_summaries(run.state["t"], signals, tolerances)
+def _error_summaries(run: RunData, signals: Mapping[str, np.ndarray] | None, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary] | None:
+    if signals is None:
+        return None
+    return {name: ErrorSummary(**error_summary(run.state["t"], signal, tolerances[name])) for name, signal in signals.items()}
 
 
 #: dhat has learnt the depth once it stays within this fraction of d* (of its final value
@@ -417,7 +410,8 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
     :func:`default_label`. Unknown values are None (``pose_error`` without ground truth).
     """
     tolerances = resolve_tolerances(tolerances)
-    errors, pose_error = _image_errors(run, tolerances), _pose_errors(run, tolerances)
+    errors = _error_summaries(run, {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
+    pose_error = _error_summaries(run, pose_error_signals(run), tolerances)
     lyapunov, commands = Lyapunov(**lyapunov_summary(run.state["V"])), _commands(run)
     return RunReport(
         run=_run_summary(run, label),

@@ -114,19 +114,7 @@ def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
         raise UsageError("--label: a label cannot be empty")
 
 
-def labels_or_none(labels: Sequence[str], count: int) -> list[str | None]:
-    """Each run's ``--label``, or ``None`` (the report names it by its law and file)."""
-    return list(labels) if labels else [None] * count
-
-
 # ----------------------------------------------------------------------------- reading
-def _source(text: str, keep_stdin: bool) -> Any:
-    """What :func:`read_run` reads: a path, ``-``, or stdin buffered (to read it twice)."""
-    if text == "-" and keep_stdin:
-        return io.BytesIO(sys.stdin.buffer.read())
-    return text
-
-
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
     """Every run, with its camera height (m) when ``need_height`` (for TUM files).
 
@@ -145,7 +133,7 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
     for text in sources:
         name = "stdin" if text == "-" else text
         # stdin is kept in memory: it may have to be read twice (a fit file, TUM heights).
-        source = _source(text, True)
+        source = io.BytesIO(sys.stdin.buffer.read()) if text == "-" else text
         try:
             run = read_run(source, name=name)
         except NotARunFile as other:
@@ -242,7 +230,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
         style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES)
         check_figure_size(runs, style)
-    reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
+    reports = [build_report(run, tolerances, label) for run, label in zip(runs, options.labels or [None] * len(runs))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
         from ..report.tum import check_exportable, tum_paths
