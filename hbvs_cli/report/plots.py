@@ -366,18 +366,18 @@ def _status(report: RunReport) -> str:
     return "converged" if report.verdict.converged else "not converged"
 
 
-def _content_height(panels: Sequence[str], columns: int) -> float:
-    """Height (in) the panels take at their natural size, without the legend."""
+def _row_heights(panels: Sequence[str], columns: int) -> list[float]:
+    """Height (in) of each row at its natural size: the time panels', then the top view's."""
     rows = math.ceil(len([name for name in panels if name != "top"]) / columns)
     top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
-    return rows * ROW_HEIGHT_IN + ("top" in panels) * top_height
+    return [ROW_HEIGHT_IN] * rows + ([top_height] if "top" in panels else [])
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
     """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
     less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
     width, columns = column_count(style, len(panels))
-    content = _content_height(panels, columns)
+    content = sum(_row_heights(panels, columns))
     if style.size_in is None:
         return (width, content + LEGEND_HEIGHT_IN), columns
     least = MIN_SCALE * content + LEGEND_HEIGHT_IN
@@ -445,8 +445,8 @@ def plot_runs(
     with matplotlib.rc_context(paper_rc()):
         figure = new_figure(size, style.dpi)
         time_panels = [name for name in panels if name != "top"]
-        rows = math.ceil(len(time_panels) / columns)
-        ratios = [ROW_HEIGHT_IN] * rows + ([TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)] if "top" in panels else [])
+        ratios = _row_heights(panels, columns)
+        rows = len(ratios) - ("top" in panels)
         grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
         slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
         if "top" in panels:
