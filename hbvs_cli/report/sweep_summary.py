@@ -8,7 +8,6 @@ the settling-time quantiles and counted in ``unsettled``.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any, Mapping, TextIO
 
@@ -149,15 +148,9 @@ def summarize(folder: Path) -> dict[str, Any]:
     return summary
 
 
-def _format(value: Any, digits: int = 4) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "n/a"
-    if isinstance(value, float):
-        return f"{value:.{digits}g}"
-    return str(value)
-
-
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
+    from .table import format_value
+
     low, high = stats["rate_ci95"]
     rate = "n/a" if stats["rate"] is None else f"{100 * stats['rate']:.1f} %"
     interval = "n/a" if low is None else f"[{100 * low:.1f}, {100 * high:.1f}]"
@@ -166,10 +159,10 @@ def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
     settle = stats["settling_time_s"]
     return [
         str(stats["runs"]), str(stats["failed"]), rate, interval,
-        _format(None if position["median"] is None else 100 * position["median"]),
-        _format(None if position["p95"] is None else 100 * position["p95"]),
-        _format(heading["median"]), _format(heading["p95"]),
-        _format(settle["median"]), _format(settle["p95"]),
+        format_value(None if position["median"] is None else 100 * position["median"]),
+        format_value(None if position["p95"] is None else 100 * position["p95"]),
+        format_value(heading["median"]), format_value(heading["p95"]),
+        format_value(settle["median"]), format_value(settle["p95"]),
     ]
 
 

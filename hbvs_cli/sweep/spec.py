@@ -237,15 +237,11 @@ def _axis_from_toml(name: str, value: Any) -> Axis:
 
 def load_spec_file(path: Path) -> dict[str, Any]:
     """The TOML spec as a dictionary (see docs and :func:`build_spec`)."""
+    from ..io.config import MAX_CONFIG_BYTES, tomllib
+    from ..io.text_files import read_small_text
+
     try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the sweep spec ({exc.strerror})") from None
+        data = tomllib.loads(read_small_text(path, MAX_CONFIG_BYTES, "a TOML sweep spec"))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not a valid TOML sweep spec ({exc})") from None
     unknown = set(data) - {"seed", "repeats", "sampling", "samples", "vary", "fixed"}
