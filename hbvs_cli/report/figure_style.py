@@ -136,18 +136,13 @@ def new_figure(size_in: tuple[float, float], dpi: float) -> Any:
     return figure
 
 
-def supported_formats() -> set[str]:
-    """File suffixes (without the dot) the Agg canvas can write: png, pdf, svg..."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    return set(FigureCanvasAgg.get_supported_filetypes())
-
-
 def check_plot_path(path: Path) -> None:
     """Fail before any work on a figure path that cannot be written: UsageError for a
     suffix matplotlib cannot write, OutputError (exit 6) for a missing folder."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     suffix = path.suffix.lower().lstrip(".")
-    formats = supported_formats()
+    formats = set(FigureCanvasAgg.get_supported_filetypes())
     if suffix not in formats:
         others = ", ".join(sorted(formats - {"pdf", "svg", "png"}))
         raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .pdf or .svg (vector) or .png (or {others})")

@@ -58,10 +58,13 @@ class CommandOut:
             v, w = 0.0, 0.0
         if self._publish is not None:
             self._publish(v, w)
+        self._write(t, v, w)
+        self.sent += 1
+
+    def _write(self, t: float, v: float, w: float) -> None:
         if self._stream is not None:
             self._stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
             self._stream.flush()
-        self.sent += 1
 
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
@@ -71,12 +74,10 @@ class CommandOut:
                     self._publish(0.0, 0.0)
                 except Exception:  # noqa: BLE001 - stopping must reach every output it can
                     pass
-        if self._stream is not None:
-            try:
-                self._stream.write(json.dumps({"t": round(t, 9), "v": 0.0, "w": 0.0}) + "\n")
-                self._stream.flush()
-            except (OSError, ValueError):
-                pass
+        try:
+            self._write(t, 0.0, 0.0)
+        except (OSError, ValueError):
+            pass
 
 
 def check_live_options(options: RepeatOptions) -> None:

@@ -84,11 +84,8 @@ def metric_value(report: RunReport, key: str) -> float:
 
 
 def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
-    """One message per (run, bound) whose metric exceeds the bound.
-
-    Raises :class:`UsageError` for a bad key (see :func:`metric_value`), so call it before
-    printing anything.
-    """
+    """One message per (run, bound) whose metric exceeds the bound; UsageError for a bad key
+    (:func:`metric_value`), so call it before printing anything."""
     messages = []
     for report in reports:
         for bound in bounds:
@@ -104,10 +101,7 @@ def not_converged(reports: Sequence[RunReport]) -> list[str]:
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
-    """``--label`` is given once per run, in the runs' order, or not at all.
-
-    Raises UsageError: a different number of labels than runs, or an empty label.
-    """
+    """UsageError unless ``--label`` is given once per run, none empty, or not at all."""
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
     if any(not label.strip() for label in labels):
@@ -153,10 +147,8 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
 
 
 def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
-    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its figure.
-
-    Raises UsageError: an option that applies to runs only.
-    """
+    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its
+    figure; UsageError for an option that applies to runs only."""
     from ..report.figure_style import figure_style, save_figure
     from ..report.fit_plot import FIT_PANELS, fit_summary, plot_fit
     from ..report.table import print_fit_table
