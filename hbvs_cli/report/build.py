@@ -100,10 +100,8 @@ _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
 
 
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-    """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied, checked.
-
-    Raises UsageError: an unknown name, or a value that is not a positive finite number.
-    """
+    """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied; UsageError for an unknown name
+    or a value that is not a positive finite number."""
     tolerances = dict(DEFAULT_TOLERANCES)
     for name, value in (overrides or {}).items():
         if name not in tolerances:

@@ -50,10 +50,8 @@ def column_count(style: FigureStyle, panels: int) -> tuple[float, int]:
 
 
 def parse_size(text: str) -> tuple[float, float]:
-    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
-
-    Raises UsageError: not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
-    """
+    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``; UsageError unless both are in
+    :data:`SIZE_RANGE_IN`."""
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
         raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x8 (one column) or 7x9")
@@ -65,10 +63,8 @@ def parse_size(text: str) -> tuple[float, float]:
 
 
 def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
-    """``"position,heading,top"`` -> the panel names, checked against ``known``.
-
-    Raises UsageError: an empty list, an unknown name or a name given twice.
-    """
+    """``"position,heading,top"`` -> the panel names; UsageError for none, an unknown one
+    (not in ``known``) or one given twice."""
     names = [name.strip() for name in (text or "").split(",") if name.strip()]
     if not names:
         raise UsageError(f"--panels: name at least one panel ({', '.join(known)})")
@@ -151,10 +147,8 @@ def check_plot_path(path: Path) -> None:
 
 
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
-    """Write ``figure`` to ``path`` (format from the suffix), under the paper style.
-
-    Raises OutputError: the file cannot be written.
-    """
+    """Write ``figure`` to ``path`` (format from the suffix), under the paper style;
+    OutputError when it cannot be written."""
     import io
 
     import matplotlib

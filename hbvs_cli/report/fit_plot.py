@@ -55,10 +55,8 @@ def _column(messages: list[dict[str, Any]], key: str, name: str, topic: str) -> 
 
 
 def read_fit_signals(source: Any, name: str = "") -> FitSignals:
-    """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream).
-
-    Raises RecordingError: not a fit file, or one without desired signals.
-    """
+    """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream);
+    RecordingError for another file, or a fit without desired signals."""
     from ..io.mcap import McapStream, read_metadata
 
     stream = McapStream(source, topics={RAW_TOPIC, SMOOTH_TOPIC, MODEL_TOPIC}, schemas=TOPICS["fit"], name=name)

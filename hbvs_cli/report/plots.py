@@ -473,10 +473,7 @@ def save_plot(
     runs: Sequence[RunData], reports: Sequence[RunReport], path: Path, style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
-    """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.
-
-    Raises InputError: the file cannot be written.
-    """
+    """Draw :func:`plot_runs` and write it to ``path`` (:func:`save_figure`); returns the figure."""
     style = style or FigureStyle()
     figure = plot_runs(runs, reports, style, tolerances)
     save_figure(figure, path, style.dpi)

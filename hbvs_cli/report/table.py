@@ -235,10 +235,8 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
 
 
 def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """Every table of the report with its title, in print order.
-
-    Plain text unless ``console`` is a terminal, whose width decides the error tables' layout.
-    """
+    """Every table of the report with its title, in print order; plain text unless ``console``
+    is a terminal, whose width decides the error tables' layout."""
     plain = not console.is_terminal
     return [
         ("run", _rows_table(_run_rows(reports), reports, plain)),
