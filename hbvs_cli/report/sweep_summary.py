@@ -7,7 +7,6 @@ the settling-time quantiles and counted in ``unsettled``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Mapping, TextIO
 
@@ -196,7 +195,3 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
         console.print(table)
     console.print()
     console.print(Text("converged: hbvs report's verdict (docs/report.md); failed runs have no report and are not in the rate"))
-
-
-def print_summary_json(summary: Mapping[str, Any], stream: TextIO) -> None:
-    stream.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")

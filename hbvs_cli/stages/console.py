@@ -7,9 +7,15 @@ so pipelines and logs stay clean; warnings and the final summary lines are alway
 
 from __future__ import annotations
 
+import json
 import sys
 from contextlib import contextmanager
 from typing import Any, Iterator
+
+
+def print_json(document: Any) -> None:
+    """A JSON document on stdout, the data channel (two-space indents, no NaN)."""
+    sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
 
 
 class Console:

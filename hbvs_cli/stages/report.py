@@ -7,14 +7,13 @@ code 2 and no half-written output; stdout carries only the table or the JSON.
 from __future__ import annotations
 
 import io
-import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
-from .console import Console
+from .console import Console, print_json
 from .options import parse_assignment
 
 if TYPE_CHECKING:
@@ -160,7 +159,7 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     style = figure_style(options.dpi, options.size, options.panels, FIT_PANELS) if options.plot is not None else None
     summary = fit_summary(fit)
     if options.json_output:
-        sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        print_json(summary)
     else:
         print_fit_table(summary, sys.stdout)
     sys.stdout.flush()
@@ -176,7 +175,7 @@ def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     if json_output:
         documents = [report.to_dict() for report in reports]
         document = documents[0] if len(documents) == 1 else {"runs": documents}
-        sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+        print_json(document)
     else:
         from ..report.table import print_report_tables
 
@@ -252,7 +251,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
 def _report_sweep(options: ReportOptions, console: Console) -> int:
     """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
-    from ..report.sweep_summary import print_summary, print_summary_json, summarize
+    from ..report.sweep_summary import print_summary, summarize
 
     if options.plot or options.fail_above or options.export_tum or options.tolerance:
         raise UsageError("a sweep's results folder takes only --json (its figures are in the folder)")
@@ -266,7 +265,7 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
         # The sweep's name in the heading (the folder stays in the JSON's "folder").
         summary = summary | {"label": options.labels[0]}
     if options.json_output:
-        print_summary_json(summary, sys.stdout)
+        print_json(summary)
     else:
         print_summary(summary | {"folder": summary.get("label", summary["folder"])}, sys.stdout)
     sys.stdout.flush()

@@ -21,8 +21,8 @@ from ..sim.scene import simulation_world
 from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..report.sweep_plots import save_sweep_plots
-from ..report.sweep_summary import print_summary, print_summary_json, summarize
-from .console import Console
+from ..report.sweep_summary import print_summary, summarize
+from .console import Console, print_json
 from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
 
 
@@ -191,7 +191,7 @@ def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None
     rows = table.finish()
     summary = summarize(Path(options.output))
     if options.json_output:
-        print_summary_json(summary, sys.stdout)
+        print_json(summary)
     else:
         print_summary(summary, sys.stdout)
     sys.stdout.flush()
