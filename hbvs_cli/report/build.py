@@ -88,27 +88,20 @@ CHECK_NAMES = (
     "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
     "smoothness",
 )
-#: The check of each final error.
-_FINAL_CHECK_NAMES = {
-    "position_m": "final_position", "heading_deg": "final_heading", "e1": "final_e1", "e2": "final_e2", "e3": "final_e3",
-}
-
-#: How a verdict line names each final error: (label, scale to the shown unit, unit).
-_FINAL_CHECKS: dict[str, tuple[str, float, str]] = {
-    "position_m": ("final position error", 100.0, "cm"),
-    "heading_deg": ("final |heading error|", 1.0, "deg"),
-    "e1": ("final |e1|", 1.0, ""),
-    "e2": ("final |e2|", 1.0, ""),
-    "ebar2": ("final |ebar2|", 1.0, ""),
-    "e3": ("final |e3|", 1.0, "deg"),
+#: Each final error's check (``verdict.checks``) and how its line names it: (check, label,
+#: scale to the shown unit, unit).
+_FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
+    "position_m": ("final_position", "final position error", 100.0, "cm"),
+    "heading_deg": ("final_heading", "final |heading error|", 1.0, "deg"),
+    "e1": ("final_e1", "final |e1|", 1.0, ""),
+    "e2": ("final_e2", "final |e2|", 1.0, ""),
+    "e3": ("final_e3", "final |e3|", 1.0, "deg"),
 }
 
 
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-    """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied, checked.
-
-    Raises UsageError: an unknown name, or a value that is not a positive finite number.
-    """
+    """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied; UsageError for an unknown name
+    or a value that is not a positive finite number."""
     tolerances = dict(DEFAULT_TOLERANCES)
     for name, value in (overrides or {}).items():
         if name not in tolerances:
@@ -174,17 +167,10 @@ def _run_summary(run: RunData, label: str | None) -> RunSummary:
     )
 
 
-def _error_summaries(t: np.ndarray, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
-    return {name: ErrorSummary(**error_summary(t, signal, tolerances[name])) for name, signal in signals.items()}
-
-
-def _image_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary]:
-    return _error_summaries(run.state["t"], {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
-
-
-def _pose_errors(run: RunData, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary] | None:
-    signals = pose_error_signals(run)
-    return None if signals is None else _error_summaries(run.state["t"], signals, tolerances)
+def _error_summaries(run: RunData, signals: Mapping[str, np.ndarray] | None, tolerances: Mapping[str, float]) -> dict[str, ErrorSummary] | None:
+    if signals is None:
+        return None
+    return {name: ErrorSummary(**error_summary(run.state["t"], signal, tolerances[name])) for name, signal in signals.items()}
 
 
 #: dhat has learnt the depth once it stays within this fraction of d* (of its final value
@@ -225,15 +211,24 @@ def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[f
     return learning, rate
 
 
-def _d_true(run: RunData) -> float | None:
+def true_depth(run: RunData) -> float | None:
+    """The true d* (m) a simulated run records; None otherwise."""
     d_true = run.info.get("d_true")
     return float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
+
+
+def taught_commands_along(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The taught commands (25) at each step (m/s, rad/s), at the true d* (else the final dhat)."""
+    d_true = true_depth(run)
+    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
+    return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
 def _depth(run: RunData) -> Depth:
     dhat = run.state["dhat"]
     finite = dhat[np.isfinite(dhat)]
-    d_true = _d_true(run)
+    d_true = true_depth(run)
     dhat_final = float(finite[-1]) if finite.size else None
     relative = abs(dhat_final - d_true) / d_true if d_true is not None and dhat_final is not None else None
     reference = d_true if d_true is not None else dhat_final
@@ -255,7 +250,8 @@ def _depth(run: RunData) -> Depth:
     )
 
 
-def _limits(run: RunData) -> Limits:
+def run_limits(run: RunData) -> Limits:
+    """The run's actuator limits (``settings.limits``); None where unlimited."""
     limits = ((run.info.get("settings") or {}).get("limits")) or {}
     return Limits(**{name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
                      for name in ("max_v", "max_w", "max_accel")})
@@ -263,12 +259,8 @@ def _limits(run: RunData) -> Limits:
 
 def _commands(run: RunData) -> Commands:
     v, w, t = run.state["v_c"], run.state["w_c"], run.state["t"]
-    limits = _limits(run)
-    d_true = _d_true(run)
-    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
-    v_d, w_d = taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
-    taught = command_smoothness(t, v_d, w_d)
+    limits = run_limits(run)
+    taught = command_smoothness(t, *taught_commands_along(run))
     del taught["at_limit_fraction"]
     return Commands(
         v_peak_mps=peak_abs(v),
@@ -336,7 +328,7 @@ def _quantity(value: float, scale: float, unit: str) -> str:
 
 
 def _final_error_check(name: str, final: float | None, tolerance: float) -> tuple[bool | None, str]:
-    label, scale, unit = _FINAL_CHECKS[name]
+    _, label, scale, unit = _FINAL_CHECKS[name]
     bound = _quantity(tolerance, scale, unit)
     if final is None:
         return _check(False, f"{label} unknown (target not seen at the end), tolerance {bound}")
@@ -398,7 +390,7 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
     checks["finished"] = _finished_check(run)
     final_errors, names = (pose_error, POSE_ERRORS) if pose_error is not None else (errors, ("e1", "e2", "e3"))
     for name in names:
-        checks[_FINAL_CHECK_NAMES[name]] = _final_error_check(name, final_errors[name].final, tolerances[name])
+        checks[_FINAL_CHECKS[name][0]] = _final_error_check(name, final_errors[name].final, tolerances[name])
     checks["lyapunov"] = _lyapunov_check(lyapunov)
     checks["smoothness"] = _smoothness_check(commands)
     return Verdict(
@@ -416,7 +408,8 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
     :func:`default_label`. Unknown values are None (``pose_error`` without ground truth).
     """
     tolerances = resolve_tolerances(tolerances)
-    errors, pose_error = _image_errors(run, tolerances), _pose_errors(run, tolerances)
+    errors = _error_summaries(run, {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
+    pose_error = _error_summaries(run, pose_error_signals(run), tolerances)
     lyapunov, commands = Lyapunov(**lyapunov_summary(run.state["V"])), _commands(run)
     return RunReport(
         run=_run_summary(run, label),

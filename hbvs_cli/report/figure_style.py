@@ -43,11 +43,15 @@ class FigureStyle:
     panels: tuple[str, ...] | None = None
 
 
-def parse_size(text: str) -> tuple[float, float]:
-    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``.
+def column_count(style: FigureStyle, panels: int) -> tuple[float, int]:
+    """The figure's width (in) and its columns of panels (one below :data:`ONE_COLUMN_BELOW_IN`)."""
+    width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
+    return width, 1 if width < ONE_COLUMN_BELOW_IN or panels == 1 else 2
 
-    Raises UsageError: not ``WxH`` with two positive numbers in :data:`SIZE_RANGE_IN`.
-    """
+
+def parse_size(text: str) -> tuple[float, float]:
+    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``; UsageError unless both are in
+    :data:`SIZE_RANGE_IN`."""
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
         raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x8 (one column) or 7x9")
@@ -59,10 +63,8 @@ def parse_size(text: str) -> tuple[float, float]:
 
 
 def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
-    """``"position,heading,top"`` -> the panel names, checked against ``known``.
-
-    Raises UsageError: an empty list, an unknown name or a name given twice.
-    """
+    """``"position,heading,top"`` -> the panel names; UsageError for none, an unknown one
+    (not in ``known``) or one given twice."""
     names = [name.strip() for name in (text or "").split(",") if name.strip()]
     if not names:
         raise UsageError(f"--panels: name at least one panel ({', '.join(known)})")
@@ -130,18 +132,13 @@ def new_figure(size_in: tuple[float, float], dpi: float) -> Any:
     return figure
 
 
-def supported_formats() -> set[str]:
-    """File suffixes (without the dot) the Agg canvas can write: png, pdf, svg..."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    return set(FigureCanvasAgg.get_supported_filetypes())
-
-
 def check_plot_path(path: Path) -> None:
     """Fail before any work on a figure path that cannot be written: UsageError for a
     suffix matplotlib cannot write, OutputError (exit 6) for a missing folder."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     suffix = path.suffix.lower().lstrip(".")
-    formats = supported_formats()
+    formats = set(FigureCanvasAgg.get_supported_filetypes())
     if suffix not in formats:
         others = ", ".join(sorted(formats - {"pdf", "svg", "png"}))
         raise UsageError(f"--plot {path}: unknown figure format {path.suffix!r}; use .pdf or .svg (vector) or .png (or {others})")
@@ -150,10 +147,8 @@ def check_plot_path(path: Path) -> None:
 
 
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
-    """Write ``figure`` to ``path`` (format from the suffix), under the paper style.
-
-    Raises OutputError: the file cannot be written.
-    """
+    """Write ``figure`` to ``path`` (format from the suffix), under the paper style;
+    OutputError when it cannot be written."""
     import io
 
     import matplotlib

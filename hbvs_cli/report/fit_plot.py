@@ -19,7 +19,7 @@ from ..errors import RecordingError
 from ..io.topics import MODEL_TOPIC, TOPICS
 from ..io.topics import RAW_DESIRED_TOPIC as RAW_TOPIC
 from ..io.topics import SMOOTH_DESIRED_TOPIC as SMOOTH_TOPIC
-from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, new_figure, paper_rc, save_figure
+from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, column_count, new_figure, paper_rc
 
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
@@ -55,10 +55,8 @@ def _column(messages: list[dict[str, Any]], key: str, name: str, topic: str) -> 
 
 
 def read_fit_signals(source: Any, name: str = "") -> FitSignals:
-    """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream).
-
-    Raises RecordingError: not a fit file, or one without desired signals.
-    """
+    """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream);
+    RecordingError for another file, or a fit without desired signals."""
     from ..io.mcap import McapStream, read_metadata
 
     stream = McapStream(source, topics={RAW_TOPIC, SMOOTH_TOPIC, MODEL_TOPIC}, schemas=TOPICS["fit"], name=name)
@@ -142,8 +140,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
 
     style = style or FigureStyle()
     panels = list(style.panels or FIT_PANELS)
-    width = style.size_in[0] if style.size_in else 7.0
-    columns = 1 if width < 4.5 or len(panels) == 1 else 2
+    width, columns = column_count(style, len(panels))
     rows = math.ceil(len(panels) / columns)
     size = style.size_in or (width, 1.55 * rows + 0.45)
     raw, smooth = signals.raw, signals.smooth
@@ -204,10 +201,3 @@ def _paint_feed_forward(ax: Any, raw: Mapping[str, np.ndarray], smooth: Mapping[
     ax.set_ylabel(r"$\dot{x}_{hd1}$ (1/s)")
     ax.legend(loc="best", fontsize=6.5, handlelength=1.5)
 
-
-def save_fit_plot(signals: FitSignals, path: Path, style: FigureStyle | None = None) -> Any:
-    """Draw :func:`plot_fit` and write it (format from the suffix); returns the figure."""
-    style = style or FigureStyle()
-    figure = plot_fit(signals, style)
-    save_figure(figure, path, style.dpi)
-    return figure

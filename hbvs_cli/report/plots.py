@@ -15,17 +15,8 @@ import numpy as np
 
 from ..errors import UsageError
 from ..io.run_file import RunData
-from .figure_style import (
-    DEFAULT_WIDTH_IN,
-    ONE_COLUMN_BELOW_IN,
-    TAUGHT_COLOR,
-    FigureStyle,
-    new_figure,
-    paper_rc,
-    run_colors,
-    save_figure,
-)
-from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals
+from .figure_style import TAUGHT_COLOR, FigureStyle, column_count, new_figure, paper_rc, run_colors, save_figure
+from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth
 from .result import RunReport
 from .table import run_labels
 
@@ -164,30 +155,29 @@ def _has_poses(run: RunData) -> bool:
     return run.true_pose is not None and run.desired_pose is not None
 
 
-def _pose_panel(ax: Any, context: PanelContext, key: str, title: str, ylabel: str, scale: float) -> None:
-    with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
-    ax.set_title(title)
-    if not with_poses:
-        _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
-        return
-    for run, color in with_poses:
-        magnitude = np.abs(scale * pose_error_signals(run)[key])
-        # A log axis cannot show an exact zero: the first step of a run started on the path.
-        magnitude[magnitude <= 0] = np.nan
-        _line(ax, context, run.state["t"], magnitude, color, None)
-    _shade_losses(ax, context)
-    _band(ax, scale * context.tolerances[key], signed=False)
-    ax.set_yscale("log")
-    _time_axes(ax, title, ylabel)
-    _note_missing(ax, context.runs, _has_poses)
+#: What a pose panel says without ground truth.
+NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 
 
-def _position_panel(ax: Any, context: PanelContext) -> None:
-    _pose_panel(ax, context, "position_m", "Position error against the taught pose", "position error (cm)", 100.0)
+def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[Any, PanelContext], None]:
+    def paint(ax: Any, context: PanelContext) -> None:
+        with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
+        ax.set_title(title)
+        if not with_poses:
+            _say_absent(ax, NO_POSES)
+            return
+        for run, color in with_poses:
+            magnitude = np.abs(scale * pose_error_signals(run)[key])
+            # A log axis cannot show an exact zero: the first step of a run started on the path.
+            magnitude[magnitude <= 0] = np.nan
+            _line(ax, context, run.state["t"], magnitude, color, None)
+        _shade_losses(ax, context)
+        _band(ax, scale * context.tolerances[key], signed=False)
+        ax.set_yscale("log")
+        _time_axes(ax, title, ylabel)
+        _note_missing(ax, context.runs, _has_poses)
 
-
-def _heading_panel(ax: Any, context: PanelContext) -> None:
-    _pose_panel(ax, context, "heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0)
+    return paint
 
 
 def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
@@ -201,37 +191,22 @@ def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, Pan
     return paint
 
 
-def _limit(run: RunData, key: str) -> float | None:
-    limits = (run.info.get("settings") or {}).get("limits") or {}
-    value = limits.get(key) if isinstance(limits, Mapping) else None
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0 else None
-
-
 def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
             # The taught commands (25), dotted: what a smooth run's commands should look like.
-            taught = _taught_commands(run)[0 if key == "v_c" else 1]
+            taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             shown_t, shown_x = display_series(run.state["t"], taught, None)
             ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)
         _shade_losses(ax, context)
-        for limit in sorted({value for value in (_limit(run, limit_key) for run in context.runs) if value is not None}):
+        limits = {getattr(run_limits(run), limit_key) for run in context.runs}
+        for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
             for level in (-limit, limit):
                 ax.axhline(level, color=GUIDE_COLOR, ls="--", lw=0.8, zorder=1)
         _time_axes(ax, title, ylabel)
 
     return paint
-
-
-def _taught_commands(run: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The taught commands (25) along the run, at the true d* (or the final dhat)."""
-    from ..core.metrics import taught_commands
-
-    d_true = run.info.get("d_true")
-    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else (float(dhat[-1]) if dhat.size else float("nan"))
-    return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
 def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -243,15 +218,10 @@ def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
     return kept
 
 
-def _has_d_true(run: RunData) -> bool:
-    value = run.info.get("d_true")
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def _depth_panel(ax: Any, context: PanelContext) -> None:
     for run, color in zip(context.runs, context.colors):
         _line(ax, context, run.state["t"], run.state["dhat"], color, None)
-    for d_true in _distinct([np.array(float(run.info["d_true"])) for run in context.runs if _has_d_true(run)]):
+    for d_true in _distinct([np.array(d) for d in map(true_depth, context.runs) if d is not None]):
         ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
     _shade_losses(ax, context)
     _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
@@ -328,7 +298,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
         ax.set_title("Top view")
-        _say_absent(ax, "no ground-truth poses\n(a replay or a real run)")
+        _say_absent(ax, NO_POSES)
         return
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
@@ -374,8 +344,8 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
 
 #: Every panel of the run figure: name -> painter, in the default order.
 PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
-    "position": _position_panel,
-    "heading": _heading_panel,
+    "position": _pose_panel("position_m", "Position error against the taught pose", "position error (cm)", 100.0),
+    "heading": _pose_panel("heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0),
     "e1": _image_error_panel("e1", r"Longitudinal image error $e_1$ (19)", "e1 (units of d*)"),
     "ebar2": _image_error_panel("ebar2", r"Lateral image error $\bar{e}_2$ (27)", "ebar2 (units of d*)"),
     "e2": _image_error_panel("e2", r"Lateral image error $e_2$ (19)", "e2 (units of d*)"),
@@ -396,19 +366,18 @@ def _status(report: RunReport) -> str:
     return "converged" if report.verdict.converged else "not converged"
 
 
-def _content_height(panels: Sequence[str], columns: int) -> float:
-    """Height (in) the panels take at their natural size, without the legend."""
+def _row_heights(panels: Sequence[str], columns: int) -> list[float]:
+    """Height (in) of each row at its natural size: the time panels', then the top view's."""
     rows = math.ceil(len([name for name in panels if name != "top"]) / columns)
     top_height = TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)   # one column: scene above paths
-    return rows * ROW_HEIGHT_IN + ("top" in panels) * top_height
+    return [ROW_HEIGHT_IN] * rows + ([top_height] if "top" in panels else [])
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
     """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
     less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
-    width = style.size_in[0] if style.size_in else DEFAULT_WIDTH_IN
-    columns = 1 if width < ONE_COLUMN_BELOW_IN or len(panels) == 1 else 2
-    content = _content_height(panels, columns)
+    width, columns = column_count(style, len(panels))
+    content = sum(_row_heights(panels, columns))
     if style.size_in is None:
         return (width, content + LEGEND_HEIGHT_IN), columns
     least = MIN_SCALE * content + LEGEND_HEIGHT_IN
@@ -476,8 +445,8 @@ def plot_runs(
     with matplotlib.rc_context(paper_rc()):
         figure = new_figure(size, style.dpi)
         time_panels = [name for name in panels if name != "top"]
-        rows = math.ceil(len(time_panels) / columns)
-        ratios = [ROW_HEIGHT_IN] * rows + ([TOP_VIEW_HEIGHT_IN * (2 if columns == 1 else 1)] if "top" in panels else [])
+        ratios = _row_heights(panels, columns)
+        rows = len(ratios) - ("top" in panels)
         grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
         slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
         if "top" in panels:
@@ -504,10 +473,7 @@ def save_plot(
     runs: Sequence[RunData], reports: Sequence[RunReport], path: Path, style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
-    """Draw :func:`plot_runs` and write it to ``path`` (format from the suffix); returns the figure.
-
-    Raises InputError: the file cannot be written.
-    """
+    """Draw :func:`plot_runs` and write it to ``path`` (:func:`save_figure`); returns the figure."""
     style = style or FigureStyle()
     figure = plot_runs(runs, reports, style, tolerances)
     save_figure(figure, path, style.dpi)

@@ -27,10 +27,8 @@ class MissingKey(KeyError):
 
 
 def resolve_key(document: Mapping[str, Any], key: str) -> Any:
-    """The value at a dotted key of a JSON document, e.g. ``"pose_error.position_m.final"``.
-
-    Raises MissingKey where a part is missing (``where``: the dotted prefix that lacks it).
-    """
+    """The value at a dotted key of a JSON document, e.g. ``"pose_error.position_m.final"``;
+    MissingKey where a part is missing."""
     value: Any = document
     walked: list[str] = []
     for part in key.split("."):
@@ -235,8 +233,5 @@ class RunReport:
         }
 
     def value(self, key: str) -> Any:
-        """The value at a dotted key of :meth:`to_dict` (``--fail-above``, the sweep's columns).
-
-        Raises MissingKey: the key is not in this report.
-        """
+        """The value at a dotted key of :meth:`to_dict` (``--fail-above``, the sweep's columns)."""
         return resolve_key(self.to_dict(), key)

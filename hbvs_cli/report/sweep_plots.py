@@ -17,14 +17,14 @@ FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameter
 MAP_PARAMETERS = 3
 
 
-def _laws(data: SweepData) -> list[tuple[str, np.ndarray]]:
-    if data.law is None:
-        return [("all runs", np.ones(data.rows, dtype=bool))]
-    return [(str(v), data.law == v) for v in dict.fromkeys(data.law.tolist())]
-
-
 def _numeric(data: SweepData) -> list[str]:
     return [n for n in data.swept if n != "law" and data.columns[n].dtype != object]
+
+
+def _save(plt, figure, path: Path, dpi: int) -> Path:
+    figure.savefig(path, dpi=dpi)
+    plt.close(figure)
+    return path
 
 
 def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarray, path: Path) -> Path:
@@ -49,9 +49,7 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarr
     axis.set_ylabel("convergence rate (Wilson 95 %)")
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize=8)
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(plt, figure, path, 110)
 
 
 def save_sweep_plots(folder: Path) -> list[Path]:
@@ -65,7 +63,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
     data = SweepData(folder)
     written = []
     reported = data.columns["status"] != "failed"
-    laws = _laws(data)
+    laws = data.laws("all runs")
     numeric = _numeric(data)
     pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
     if pairs:
@@ -88,10 +86,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
                 axis.set_ylabel(y_name)
                 axis.set_title(law)
         figure.colorbar(image, ax=axes.ravel().tolist(), label="convergence rate")
-        path = Path(folder) / FILES[0]
-        figure.savefig(path, dpi=110)
-        plt.close(figure)
-        written.append(path)
+        written.append(_save(plt, figure, Path(folder) / FILES[0], 110))
     elif numeric:
         written.append(_convergence_curve(plt, data, numeric[0], laws, reported, Path(folder) / FILES[0]))
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
@@ -107,10 +102,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
         axis.set_ylabel("fraction of runs")
         axis.grid(True, alpha=0.3)
         axis.legend(fontsize=8)
-    path = Path(folder) / FILES[1]
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
-    written.append(path)
+    written.append(_save(plt, figure, Path(folder) / FILES[1], 120))
     if numeric:
         figure, axes = plt.subplots(1, len(numeric), figsize=(4.2 * len(numeric), 3.6), squeeze=False, constrained_layout=True)
         for axis, name in zip(axes[0], numeric):
@@ -131,8 +123,5 @@ def save_sweep_plots(folder: Path) -> list[Path]:
             axis.set_ylabel("final position error (cm)")
             axis.grid(True, alpha=0.3)
         axes[0][0].legend(fontsize=8, markerscale=3)
-        path = Path(folder) / FILES[2]
-        figure.savefig(path, dpi=120)
-        plt.close(figure)
-        written.append(path)
+        written.append(_save(plt, figure, Path(folder) / FILES[2], 120))
     return written

@@ -7,10 +7,8 @@ the settling-time quantiles and counted in ``unsettled``.
 
 from __future__ import annotations
 
-import json
-import math
 from pathlib import Path
-from typing import Any, Mapping, Sequence, TextIO
+from typing import Any, Mapping, TextIO
 
 import numpy as np
 
@@ -76,6 +74,12 @@ class SweepData:
         if self.law is None and "law" in self.fixed:
             self.law = np.full(self.rows, self.fixed["law"], dtype=object)
 
+    def laws(self, everything: str = "all") -> list[tuple[str, np.ndarray]]:
+        """``(law, mask)`` per law run, in the table's order; one group ``everything`` without a law."""
+        if self.law is None:
+            return [(everything, np.ones(self.rows, dtype=bool))]
+        return [(str(v), self.law == v) for v in dict.fromkeys(self.law.tolist())]
+
     def groups(self, name: str) -> list[tuple[str, Any, np.ndarray]]:
         """``(label, value, mask)`` per value or bin of a swept parameter."""
         values = self.columns[name]
@@ -117,7 +121,7 @@ def summarize(folder: Path) -> dict[str, Any]:
     """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
     data = SweepData(folder)
     everything = np.ones(data.rows, dtype=bool)
-    laws = [(str(v), v, data.law == v) for v in dict.fromkeys(data.law.tolist())] if data.law is not None else [("all", None, everything)]
+    laws = data.laws()
     summary: dict[str, Any] = {
         "folder": str(folder),
         "runs": {"planned": data.total_runs, "done": data.rows,
@@ -126,14 +130,14 @@ def summarize(folder: Path) -> dict[str, Any]:
         "swept": data.swept,
         "fixed": data.fixed,
         "overall": group_stats(data, everything),
-        "by_law": [{"law": label} | group_stats(data, mask) for label, _, mask in laws] if data.law is not None else [],
+        "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
         "by_parameter": {},
     }
     for name in data.swept:
         if name == "law":
             continue
         rows = []
-        for law_label, _, law_mask in laws:
+        for law_label, law_mask in laws:
             for label, value, mask in data.groups(name):
                 entry = {"value": label, "center": value}
                 if data.law is not None:
@@ -143,15 +147,9 @@ def summarize(folder: Path) -> dict[str, Any]:
     return summary
 
 
-def _format(value: Any, digits: int = 4) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "n/a"
-    if isinstance(value, float):
-        return f"{value:.{digits}g}"
-    return str(value)
-
-
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
+    from .table import format_value
+
     low, high = stats["rate_ci95"]
     rate = "n/a" if stats["rate"] is None else f"{100 * stats['rate']:.1f} %"
     interval = "n/a" if low is None else f"[{100 * low:.1f}, {100 * high:.1f}]"
@@ -160,10 +158,10 @@ def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
     settle = stats["settling_time_s"]
     return [
         str(stats["runs"]), str(stats["failed"]), rate, interval,
-        _format(None if position["median"] is None else 100 * position["median"]),
-        _format(None if position["p95"] is None else 100 * position["p95"]),
-        _format(heading["median"]), _format(heading["p95"]),
-        _format(settle["median"]), _format(settle["p95"]),
+        format_value(None if position["median"] is None else 100 * position["median"]),
+        format_value(None if position["p95"] is None else 100 * position["p95"]),
+        format_value(heading["median"]), format_value(heading["p95"]),
+        format_value(settle["median"]), format_value(settle["p95"]),
     ]
 
 
@@ -171,46 +169,29 @@ STAT_HEADERS = ["runs", "failed", "converged", "95 % CI (Wilson)", "pos. median 
                 "head. median (deg)", "head. p95 (deg)", "settle median (s)", "settle p95 (s)"]
 
 
-def _table(headers: Sequence[str], plain: bool) -> Any:
-    from rich import box
-    from rich.table import Table
-
-    table = Table(box=None if plain else box.SIMPLE_HEAD, pad_edge=not plain, show_edge=not plain,
-                  header_style=None if plain else "bold")
-    for index, header in enumerate(headers):
-        table.add_column(header, justify="left" if index == 0 else "right", no_wrap=plain)
-    return table
-
-
 def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
     """The summary as tables on ``stream``: rich on a terminal, plain text otherwise."""
     from rich.text import Text
 
-    from .table import report_console
+    from .table import new_table, print_title, report_console
 
     console = report_console(stream)
     plain = not console.is_terminal
     runs = summary["runs"]
-    console.print(Text(
-        f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
-        f"{runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}",
-        style="" if plain else "bold cyan"))
+    print_title(console, f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
+                f"{runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}")
     groups = summary["by_law"] or [{"law": "all"} | summary["overall"]]
-    table = _table(["law", *STAT_HEADERS], plain)
+    table = new_table(["law", *STAT_HEADERS], plain)
     for entry in groups:
         table.add_row(entry["law"], *_stat_cells(entry))
     console.print(table)
     for name, rows in summary["by_parameter"].items():
         console.print()
-        console.print(Text(f"by {name}", style="" if plain else "bold cyan"))
+        print_title(console, f"by {name}")
         with_law = bool(rows) and "law" in rows[0]
-        table = _table([name, *(["law"] if with_law else []), *STAT_HEADERS], plain)
+        table = new_table([name, *(["law"] if with_law else []), *STAT_HEADERS], plain)
         for entry in rows:
             table.add_row(entry["value"], *([entry["law"]] if with_law else []), *_stat_cells(entry))
         console.print(table)
     console.print()
     console.print(Text("converged: hbvs report's verdict (docs/report.md); failed runs have no report and are not in the rate"))
-
-
-def print_summary_json(summary: Mapping[str, Any], stream: TextIO) -> None:
-    stream.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")

@@ -124,7 +124,7 @@ def run_labels(reports: Sequence[RunReport]) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- tables
-def _table(headers: Sequence[str], plain: bool) -> Any:
+def new_table(headers: Sequence[str], plain: bool) -> Any:
     """An empty table: first column left-aligned labels, the others right-aligned values."""
     from rich import box
     from rich.table import Table
@@ -140,7 +140,7 @@ def _table(headers: Sequence[str], plain: bool) -> Any:
 
 def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) -> Any:
     """One row per (label, value of a report), one column per run."""
-    table = _table(["quantity", *run_labels(reports)], plain)
+    table = new_table(["quantity", *run_labels(reports)], plain)
     for label, value in rows:
         table.add_row(label, *(format_value(value(r)) for r in reports))
     return table
@@ -166,7 +166,7 @@ def _statistic_unit(statistic: str, signal: str) -> str:
 def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], plain: bool) -> Any:
     """One run's errors: a row per error signal (with its unit), a column per statistic."""
     headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
-    table = _table(["error", *headers], plain)
+    table = new_table(["error", *headers], plain)
     for name in names:
         short, unit = ERROR_SIGNALS[name]
         table.add_row(f"{short} ({unit})", *(format_value(getattr(section[name], s)) for s in STATISTICS))
@@ -216,7 +216,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     """``converged`` then one row per check; failed checks in red on a terminal."""
     from rich.text import Text
 
-    table = _table(["check", *run_labels(reports)], plain)
+    table = new_table(["check", *run_labels(reports)], plain)
     # The checks are sentences: left-aligned, and wrapped to the width they are printed in.
     for column in table.columns[1:]:
         column.justify, column.no_wrap = "left", False
@@ -235,10 +235,8 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
 
 
 def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """Every table of the report with its title, in print order.
-
-    Plain text unless ``console`` is a terminal, whose width decides the error tables' layout.
-    """
+    """Every table of the report with its title, in print order; plain text unless ``console``
+    is a terminal, whose width decides the error tables' layout."""
     plain = not console.is_terminal
     return [
         ("run", _rows_table(_run_rows(reports), reports, plain)),
@@ -260,18 +258,22 @@ def report_console(stream: TextIO) -> Any:
     return Console(file=stream, highlight=False, markup=False, emoji=False, color_system=None, width=PLAIN_WIDTH)
 
 
-def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
-    """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
+def print_title(console: Any, text: str) -> None:
+    """A title on a line of its own (a rich table title wraps to the table's width)."""
     from rich.text import Text
 
+    console.print(Text(text, style="bold cyan" if console.is_terminal else ""))
+
+
+def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
+    """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
     console = report_console(stream)
     plain = not console.is_terminal
     tables = report_tables(reports, console)
-    # Titles are lines of their own: a rich table title wraps to the table's width.
     for index, (title, table) in enumerate(tables):
         if index:
             console.print()
-        console.print(Text(title, style="" if plain else "bold cyan"))
+        print_title(console, title)
         # The verdict's sentences wrap to the terminal even through a pipe (hbvs report | less);
         # the numbers' rows are never wrapped, so that they grep.
         console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
@@ -308,12 +310,10 @@ FIT_ROWS: tuple[tuple[str, str], ...] = (
 
 def print_fit_table(summary: Mapping[str, Any], stream: TextIO) -> None:
     """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream``."""
-    from rich.text import Text
-
     console = report_console(stream)
     plain = not console.is_terminal
-    table = _table(["quantity", Path(str(summary["file"])).name], plain)
+    table = new_table(["quantity", Path(str(summary["file"])).name], plain)
     for label, key in FIT_ROWS:
         table.add_row(label, format_value(resolve_key(summary, key)))
-    console.print(Text("desired trajectory (Remark 1): raw homography decomposition against the splines", style="" if plain else "bold cyan"))
+    print_title(console, "desired trajectory (Remark 1): raw homography decomposition against the splines")
     console.print(table)

@@ -162,12 +162,8 @@ def world_from_reference(model: FitModel, image: np.ndarray, depth: float) -> tu
 
 
 def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
-    """Order of the world's target points that matches the fit's point identity.
-
-    The fit numbers the points as its detector first saw them; the world lists them in its
-    own order. Matching where F* sees each world point to the fit's reference pixels
-    gives the permutation once.
-    """
+    """The permutation of the world's target points into the fit's order (as its detector
+    first saw them): where F* sees each world point matched to the fit's reference pixels."""
     seen = scene.world.pixels(scene.reference_pose)
     cost = np.linalg.norm(np.asarray(model.reference_pixels)[:, None, :] - seen[None, :, :], axis=-1)
     rows, columns = optimal_assignment(cost)

@@ -231,8 +231,7 @@ class World:
             raise MalformedDataError(f"malformed world description: {exc}") from None
 
 
-#: Largest poster side (m) accepted from a file. Simulated posters are 2 m wide and the
-#: renderer draws 640 px per metre, so this bounds its raster to 6400 px a side.
+#: Largest poster side (m) accepted from a file: at 640 px/m, a raster of 6400 px a side.
 MAX_POSTER_SIDE_M = 10.0
 
 

@@ -7,9 +7,15 @@ so pipelines and logs stay clean; warnings and the final summary lines are alway
 
 from __future__ import annotations
 
+import json
 import sys
 from contextlib import contextmanager
 from typing import Any, Iterator
+
+
+def print_json(document: Any) -> None:
+    """A JSON document on stdout, the data channel (two-space indents, no NaN)."""
+    sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
 
 
 class Console:
@@ -42,16 +48,18 @@ class Console:
             self.rich.print(renderable)
 
     @contextmanager
-    def progress(self, description: str, total: float | None) -> Iterator["ProgressTask"]:
-        """A progress bar on stderr for a long task; silent when not interactive."""
+    def progress(self, description: str, total: float | None, note: str = "", **fields: Any) -> Iterator["ProgressTask"]:
+        """A progress bar on stderr for a long task; silent when not interactive. ``note``: a
+        column after the count, e.g. ``"{task.fields[failed]} failed"``, ``fields`` its first values."""
         if not self.interactive:
             yield ProgressTask(None, None)
             return
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), *([TextColumn(note)] if note else []),
+                   TimeElapsedColumn(), TimeRemainingColumn()]
         with Progress(*columns, console=self.rich, transient=True) as progress:
-            task = progress.add_task(description, total=total)
+            task = progress.add_task(description, total=total, **fields)
             yield ProgressTask(progress, task)
 
 
@@ -62,6 +70,6 @@ class ProgressTask:
         self._progress = progress
         self._task = task
 
-    def advance(self, amount: float = 1.0) -> None:
+    def advance(self, amount: float = 1.0, **fields: Any) -> None:
         if self._progress is not None:
-            self._progress.advance(self._task, amount)
+            self._progress.update(self._task, advance=amount, **fields)

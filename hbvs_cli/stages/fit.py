@@ -113,11 +113,8 @@ class _FrameLog:
 
 
 def recorded_frame_count(source: str) -> int | None:
-    """How many images a teach file holds, from its MCAP summary (the progress bar's total).
-
-    ``None`` for stdin, or a file without a usable summary (a crashed recorder): the
-    frames are then counted as they come. Reading the summary never fails the fit.
-    """
+    """How many images a teach file holds, from its MCAP summary (the progress bar's total);
+    None for stdin or a file without a usable summary. Never fails the fit."""
     from ..io.mcap import read_summary
     from ..io.teach_file import IMAGE_TOPIC
 
@@ -139,13 +136,8 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 
 @contextmanager
 def _one_opencv_thread() -> Iterator[None]:
-    """OpenCV's own thread pool off (one thread) while fitting, restored after.
-
-    fit already keeps two cores busy: the frame loop, and the images decoded in a second
-    thread (:func:`~.frame_decoding.decoded_frames`). OpenCV's pool threads could only take
-    cores from those two and spin while they wait; with one thread each call runs where it
-    is made, at the same cost per frame (bench/).
-    """
+    """OpenCV's thread pool off while fitting, restored after: the frame loop and the decoding
+    thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy."""
     import cv2
 
     threads = cv2.getNumThreads()
@@ -311,10 +303,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
 
-    scipy's modules are imported here, by the main thread, not ahead in a second thread
-    during the frame loop (0.3 s sooner): a stop signal that lands inside an import can
-    leave an import lock held, and the two threads then waited for each other forever
-    (3 hangs in about 300 SIGTERMs at random moments, two fits at a time)."""
+    scipy is imported here, by the main thread, never in a second thread during the frame
+    loop: a stop signal inside an import can leave its lock held and the threads deadlocked."""
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
@@ -492,13 +482,7 @@ def _charuco_spec(options: FitOptions, images: list[np.ndarray], details: dict[s
 
 
 def parse_board(text: str) -> tuple[int, int]:
-    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each).
-
-    Raises
-    ------
-    UsageError
-        For anything else.
-    """
+    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each); UsageError otherwise."""
     parts = str(text).lower().replace(" ", "").split("x")
     if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
         raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, TextIO
 
-from .console import Console
+from .console import Console, print_json
 
 
 @dataclass(frozen=True)
@@ -110,7 +110,7 @@ def run_info(options: InfoOptions, console: Console) -> None:
         console.warn(f"{info.name}: read up to {info.stop_reason.split(' (')[0]}; the rest is lost")
     document = info_document(info)
     if options.json_output:
-        sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+        print_json(document)
     else:
         print_info(document, sys.stdout, width=shutil.get_terminal_size((100, 24)).columns)
     sys.stdout.flush()

@@ -1,23 +1,11 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md); the loop and
-its stops, wired by :func:`hbvs_cli.stages.repeat._run_live`.
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), wired by
+:func:`hbvs_cli.stages.repeat._run_live`.
 
-Every camera frame that arrives is measured by the fit's detector and estimator, and
-decided by the same per-frame step as ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`:
-state filter, law, actuator limits, adaptation); the command goes out at once, to a ROS 2
-topic (``--ros2-cmd``) and/or as JSON lines (``--cmd-out``). Only the newest frame is
-measured: frames that arrived while the previous one was processed are dropped and counted.
-
-Safety, on every way out: zero commands (several, on the reliable topic) when the
-trajectory ends, when the target is lost (at once; the run stops after ``--lost-timeout``,
-exit 5), when no frame came for ``--stale-timeout``, and on Ctrl-C, SIGTERM, a closed output
-or any error. The first non-zero command goes out only once the target has been seen near
-its taught start view in :data:`START_FRAMES` frames in a row; a robot that is not there
-is told how far off it seems (exit 8). ``--dry-run`` does everything but publishes zeros.
-
-Run time ``t`` is the frame's stamp minus the first tracked frame's; the run file has, per
-step, the controller's state as in ``--sim`` and the loop's timing on ``/repeat/timing``
-(frame stamp, latency from the frame's arrival to the command's publication, frame
-interval, frames dropped).
+Each newest frame is measured by the fit's detector and estimator and decided by the
+per-frame step of ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`); frames that came
+meanwhile are dropped and counted. Zero commands go out on every way out (end, lost target,
+stale camera, signals, errors), and none but zeros before the target is seen near its
+taught start view (:data:`START_FRAMES`).
 """
 
 from __future__ import annotations
@@ -42,13 +30,11 @@ from ..io.settings import RepeatOptions
 #: Consecutive frames with the target seen near its taught start view before the first
 #: non-zero command.
 START_FRAMES = 5
-#: How far from the taught start a live run may begin: the distance (m, at the fit's
-#: depth estimate) and heading (deg) between the view and the taught start's view. The
-#: default --offset of --sim is 0.11 m and 2 deg; these are about 3 and 7 times that.
+#: How far from the taught start a live run may begin (m at the fit's depth estimate, deg):
+#: about 3 and 7 times --sim's default --offset.
 START_TOLERANCE_M = 0.3
 START_TOLERANCE_DEG = 15.0
-#: Zero commands sent at each stop (a reliable topic delivers each; more than one in case
-#: a subscriber joined late or the robot's driver drops one).
+#: Zero commands sent at each stop: more than one, for a late subscriber or a lost one.
 ZERO_REPEATS = 3
 #: A frame is "late" when its interval exceeds this many control periods.
 LATE_FACTOR = 1.5
@@ -72,10 +58,13 @@ class CommandOut:
             v, w = 0.0, 0.0
         if self._publish is not None:
             self._publish(v, w)
+        self._write(t, v, w)
+        self.sent += 1
+
+    def _write(self, t: float, v: float, w: float) -> None:
         if self._stream is not None:
             self._stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
             self._stream.flush()
-        self.sent += 1
 
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
@@ -85,12 +74,10 @@ class CommandOut:
                     self._publish(0.0, 0.0)
                 except Exception:  # noqa: BLE001 - stopping must reach every output it can
                     pass
-        if self._stream is not None:
-            try:
-                self._stream.write(json.dumps({"t": round(t, 9), "v": 0.0, "w": 0.0}) + "\n")
-                self._stream.flush()
-            except (OSError, ValueError):
-                pass
+        try:
+            self._write(t, 0.0, 0.0)
+        except (OSError, ValueError):
+            pass
 
 
 def check_live_options(options: RepeatOptions) -> None:
@@ -159,24 +146,8 @@ def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
 class LiveLoop:
     """The loop of ``repeat --live``: frames in, commands out, the run file written.
 
-    Attributes
-    ----------
-    source : LatestImage or LatestCameraFrame
-        ``latest(timeout_s) -> LiveFrame | None``.
-    detector, estimator
-        The fit's (:mod:`hbvs_cli.perception.tracked`).
-    model : FitModel
-    trajectory : TimeScaledTrajectory
-        The desired signals over run time (s).
-    servo : ServoStep
-        The per-frame decision, as in ``--sim``.
-    out : CommandOut
-    run : RunWriter
-    log, tally
-        repeat's step log (the run file's messages) and summary.
-    options : RepeatOptions
-    settings
-        repeat's resolved settings (``lost_timeout``, ``dhat0``, ``rate``).
+    ``source.latest(timeout_s)`` gives the newest frame or None; ``trajectory`` the desired
+    signals over run time (s); ``log``, ``tally`` and ``settings`` are repeat's.
     """
 
     source: Any
@@ -197,16 +168,11 @@ class LiveLoop:
     stopped: str | None = None
 
     def wait_for_start(self) -> None:
-        """Hold still until the target is seen near its taught start view in START_FRAMES
-        frames in a row; a robot seen elsewhere that many times is told how far off it is,
-        one that does not see the target for --lost-timeout that it does not.
+        """Send zeros until the target is seen near its taught start view in
+        :data:`START_FRAMES` frames in a row.
 
-        Raises
-        ------
-        NotAtStartError
-            The robot is not at the taught start.
-        TargetLostError
-            No frame for --lost-timeout.
+        Raises NotAtStartError (seen elsewhere, or not at all for --lost-timeout) and
+        TargetLostError (no frame for --lost-timeout).
         """
         desired = self.trajectory.evaluate(0.0)
         lost_timeout = self.settings.lost_timeout

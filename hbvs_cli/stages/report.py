@@ -7,14 +7,13 @@ code 2 and no half-written output; stdout carries only the table or the JSON.
 from __future__ import annotations
 
 import io
-import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
-from .console import Console
+from .console import Console, print_json
 from .options import parse_assignment
 
 if TYPE_CHECKING:
@@ -84,11 +83,8 @@ def metric_value(report: RunReport, key: str) -> float:
 
 
 def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
-    """One message per (run, bound) whose metric exceeds the bound.
-
-    Raises :class:`UsageError` for a bad key (see :func:`metric_value`), so call it before
-    printing anything.
-    """
+    """One message per (run, bound) whose metric exceeds the bound; UsageError for a bad key
+    (:func:`metric_value`), so call it before printing anything."""
     messages = []
     for report in reports:
         for bound in bounds:
@@ -104,29 +100,14 @@ def not_converged(reports: Sequence[RunReport]) -> list[str]:
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
-    """``--label`` is given once per run, in the runs' order, or not at all.
-
-    Raises UsageError: a different number of labels than runs, or an empty label.
-    """
+    """UsageError unless ``--label`` is given once per run, none empty, or not at all."""
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
     if any(not label.strip() for label in labels):
         raise UsageError("--label: a label cannot be empty")
 
 
-def labels_or_none(labels: Sequence[str], count: int) -> list[str | None]:
-    """Each run's ``--label``, or ``None`` (the report names it by its law and file)."""
-    return list(labels) if labels else [None] * count
-
-
 # ----------------------------------------------------------------------------- reading
-def _source(text: str, keep_stdin: bool) -> Any:
-    """What :func:`read_run` reads: a path, ``-``, or stdin buffered (to read it twice)."""
-    if text == "-" and keep_stdin:
-        return io.BytesIO(sys.stdin.buffer.read())
-    return text
-
-
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
     """Every run, with its camera height (m) when ``need_height`` (for TUM files).
 
@@ -145,7 +126,7 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
     for text in sources:
         name = "stdin" if text == "-" else text
         # stdin is kept in memory: it may have to be read twice (a fit file, TUM heights).
-        source = _source(text, True)
+        source = io.BytesIO(sys.stdin.buffer.read()) if text == "-" else text
         try:
             run = read_run(source, name=name)
         except NotARunFile as other:
@@ -165,12 +146,10 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
 
 
 def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
-    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its figure.
-
-    Raises UsageError: an option that applies to runs only.
-    """
-    from ..report.figure_style import figure_style
-    from ..report.fit_plot import FIT_PANELS, fit_summary, save_fit_plot
+    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its
+    figure; UsageError for an option that applies to runs only."""
+    from ..report.figure_style import figure_style, save_figure
+    from ..report.fit_plot import FIT_PANELS, fit_summary, plot_fit
     from ..report.table import print_fit_table
 
     for given, flag in ((options.fail_above, "--fail-above"), (options.require_converged, "--require-converged"),
@@ -180,12 +159,12 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     style = figure_style(options.dpi, options.size, options.panels, FIT_PANELS) if options.plot is not None else None
     summary = fit_summary(fit)
     if options.json_output:
-        sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        print_json(summary)
     else:
         print_fit_table(summary, sys.stdout)
     sys.stdout.flush()
     if options.plot is not None:
-        save_fit_plot(fit, options.plot, style)
+        save_figure(plot_fit(fit, style), options.plot, style.dpi)
         console.info(f"report: fit figure written to {options.plot}")
     return 0
 
@@ -196,7 +175,7 @@ def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     if json_output:
         documents = [report.to_dict() for report in reports]
         document = documents[0] if len(documents) == 1 else {"runs": documents}
-        sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+        print_json(document)
     else:
         from ..report.table import print_report_tables
 
@@ -242,7 +221,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
         style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES)
         check_figure_size(runs, style)
-    reports = [build_report(run, tolerances, label) for run, label in zip(runs, labels_or_none(options.labels, len(runs)))]
+    reports = [build_report(run, tolerances, label) for run, label in zip(runs, options.labels or [None] * len(runs))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
         from ..report.tum import check_exportable, tum_paths
@@ -272,7 +251,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
 
 def _report_sweep(options: ReportOptions, console: Console) -> int:
     """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
-    from ..report.sweep_summary import print_summary, print_summary_json, summarize
+    from ..report.sweep_summary import print_summary, summarize
 
     if options.plot or options.fail_above or options.export_tum or options.tolerance:
         raise UsageError("a sweep's results folder takes only --json (its figures are in the folder)")
@@ -286,7 +265,7 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
         # The sweep's name in the heading (the folder stays in the JSON's "folder").
         summary = summary | {"label": options.labels[0]}
     if options.json_output:
-        print_summary_json(summary, sys.stdout)
+        print_json(summary)
     else:
         print_summary(summary | {"folder": summary.get("label", summary["folder"])}, sys.stdout)
     sys.stdout.flush()

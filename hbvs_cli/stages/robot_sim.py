@@ -16,7 +16,6 @@ import math
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import IO, Any
 
 import numpy as np
@@ -34,13 +33,6 @@ from .console import Console
 from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset
 from ..io.settings import RobotSimOptions
-
-
-@dataclass
-class RobotSimSummary:
-    frames: int
-    commands: int
-    final_pose: tuple[float, float, float]
 
 
 class _Ros2Robot:
@@ -160,7 +152,7 @@ def _transport(options: RobotSimOptions, camera: Any) -> Any:
     return _Ros2Robot(options, camera) if options.ros2 else _PlainRobot(options)
 
 
-def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary:
+def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     """Run the stand-in robot until ``--duration`` or a stop signal."""
     if options.image_format not in ("raw", "jpeg"):
         raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
@@ -221,4 +213,3 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> RobotSimSummary
         robot.close()
     console.info(f"robot-sim: {frames} frames, {received} commands{' (stopped by Ctrl-C)' if interrupted else ''}; "
                  f"final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, phi {math.degrees(pose[2]):.2f} deg")
-    return RobotSimSummary(frames=frames, commands=received, final_pose=pose)

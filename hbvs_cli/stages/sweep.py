@@ -14,8 +14,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
 from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
 from ..io.sweep_table import ResultsTable, failed_row, row_schema
@@ -23,8 +21,8 @@ from ..sim.scene import simulation_world
 from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..report.sweep_plots import save_sweep_plots
-from ..report.sweep_summary import print_summary, print_summary_json, summarize
-from .console import Console
+from ..report.sweep_summary import print_summary, summarize
+from .console import Console, print_json
 from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
 
 
@@ -107,8 +105,6 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     fit_text = str(fit_path.resolve())
     fit = read_fit_file(fit_text)
     d_true = _true_depth(fit)
-    if ("dhat0_factor" in plan.swept or "dhat0_factor" in spec.fixed) and d_true is None:
-        raise UsageError("dhat0_factor needs the true d*, which only a fit of a simulated teach has; sweep dhat0 (m) instead")
     _check_values(spec, fit, fit_text, d_true)
     parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
     schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})
@@ -166,7 +162,7 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
         started = time.monotonic()
         dashboard = dashboard_address(options.dashboard)
         with dask_client(options.scheduler, options.cluster, options.workers, dashboard=dashboard) as client, \
-                _progress(console, remaining) as progress:
+                console.progress("sweep", remaining, "runs, {task.fields[failed]} failed", failed=0) as progress:
             if dashboard is not None:
                 console.info(f"sweep: Dask dashboard at {client.dashboard_link} (no authentication: anyone who reaches it sees the workers)")
             workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
@@ -176,7 +172,7 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
                 nonlocal failures
                 table.append(row)
                 failures += row["status"] == "failed"
-                progress(failures)
+                progress.advance(failed=failures)
 
             try:
                 done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}", total=remaining)
@@ -195,7 +191,7 @@ def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None
     rows = table.finish()
     summary = summarize(Path(options.output))
     if options.json_output:
-        print_summary_json(summary, sys.stdout)
+        print_json(summary)
     else:
         print_summary(summary, sys.stdout)
     sys.stdout.flush()
@@ -205,29 +201,3 @@ def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None
     failed = summary["runs"]["failed"]
     if failed:
         console.warn(f"{failed} runs failed; their error is in the error column of {options.output}/runs.csv")
-
-
-class _progress:
-    """A rich progress bar on stderr (runs done, failures, time left); silent off a terminal."""
-
-    def __init__(self, console: Console, total: int) -> None:
-        self.console, self.total = console, total
-        self.bar: Any = None
-
-    def __enter__(self) -> Any:
-        if self.console.interactive:
-            self.bar = Progress(
-                TextColumn("sweep"), BarColumn(), MofNCompleteColumn(), TextColumn("runs, {task.fields[failed]} failed"),
-                TextColumn("elapsed"), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=self.console.rich, transient=True,
-            )
-            self.bar.__enter__()
-            self.task = self.bar.add_task("sweep", total=self.total, failed=0)
-        return self.advance
-
-    def advance(self, failures: int) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, advance=1, failed=failures)
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(*exc)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -77,15 +77,7 @@ class TeachOptions(TeachFields):
         return {key: value for key, value in recorded.items() if key in keep and key in names}
 
 
-@dataclass(frozen=True)
-class TeachSummary:
-    frames: int
-    duration_s: float
-    output: str
-    source: str
-
-
-def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
+def run_teach(options: TeachOptions, console: Console) -> None:
     """Record the taught run described by ``options`` into ``options.output``."""
     if options.image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
@@ -106,8 +98,9 @@ def run_teach(options: TeachOptions, console: Console) -> TeachSummary:
     if options.ros2_cmd is not None and kind != "ros2":
         raise UsageError(f"--ros2-cmd goes with --ros2-image, not --{kind}")
     if kind == "sim":
-        return _teach_simulated(options.for_simulation(), console)
-    return _teach_from_source(kind, options, console)
+        _teach_simulated(options.for_simulation(), console)
+    else:
+        _teach_from_source(kind, options, console)
 
 
 # ----------------------------------------------------------------------------- simulated
@@ -144,7 +137,7 @@ def simulated_world(options: TeachOptions) -> World:
     return default_world(options.target, camera=camera, dots=options.dots, texture=texture)
 
 
-def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
+def _teach_simulated(options: TeachOptions, console: Console) -> None:
     if options.calibration is None and options.fps <= 0:
         raise UsageError("--fps must be positive")
     world = simulated_world(options)
@@ -188,7 +181,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> TeachSummary:
                 )
                 bar.advance()
     console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
-    return TeachSummary(frames=frame_count, duration_s=duration, output=options.output, source="sim")
 
 
 # ----------------------------------------------------------------------------- real sources
@@ -211,7 +203,7 @@ def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
     return sources.open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
-def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> TeachSummary:
+def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> None:
     given = options.simulation_options_given()
     if given:
         verb = "describes" if len(given) == 1 else "describe"
@@ -257,7 +249,6 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> Te
             raise InputError(f"{source.describe().get('path', kind)}: no frames could be read")
     note = " (stopped by Ctrl-C)" if interrupted else ""
     console.info(f"teach: {frames} frames ({last_t:.1f} s from {kind}){note} -> {options.output}")
-    return TeachSummary(frames=frames, duration_s=last_t, output=options.output, source=kind)
 
 
 def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: sources.FrameSource) -> None:

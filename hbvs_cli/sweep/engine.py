@@ -53,11 +53,8 @@ HEALTH_ONLY = ["distributed.http.health"]
 
 
 def dashboard_address(text: str | None) -> str | None:
-    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``; ``HOST:PORT`` as given
-    (another interface only when asked for by name). None: no dashboard.
-
-    Raises UsageError: not ``PORT`` or ``HOST:PORT`` with a port 0 to 65535.
-    """
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given, None
+    none; UsageError for anything else."""
     if text is None:
         return None
     host, sep, port = text.strip().rpartition(":")
@@ -69,10 +66,7 @@ def dashboard_address(text: str | None) -> str | None:
 
 
 def check_scheduler_address(address: str | None) -> None:
-    """Refuse a ``--scheduler`` that is no Dask address, before anything is written.
-
-    Raises UsageError: an unknown scheme, or a host and port that do not parse.
-    """
+    """UsageError, before anything is written, for a ``--scheduler`` that is no Dask address."""
     if address is None:
         return
     from distributed.comm.addressing import get_address_host_port, parse_address
@@ -93,13 +87,9 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                 allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
     """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
 
-    ``allowed_worker_deaths``: how often a run is rescheduled after its worker died (a
-    cluster started here; a running scheduler keeps its own configuration).
-    ``dashboard``: the address of Dask's dashboard (:func:`dashboard_address`) for a local
-    cluster; None (the default) serves none (the dashboard has no authentication).
-
-    UsageError for clashing options, an unknown cluster kind, no dask-jobqueue or an
-    unreachable scheduler.
+    ``allowed_worker_deaths`` applies to a cluster started here; ``dashboard``
+    (:func:`dashboard_address`): None serves none (it has no authentication). UsageError for
+    clashing options, an unknown cluster kind, no dask-jobqueue or an unreachable scheduler.
     """
     import dask
     from distributed import Client, LocalCluster
@@ -227,12 +217,9 @@ class BatchSizer:
             self.left = max(0, self.left - size)
 
 
-#: Isolated attempts of a run whose workers keep dying before it starts, before it is
-#: recorded as failed anyway (with Dask's error).
+#: Isolated attempts of a run whose workers keep dying before it starts, then recorded as failed.
 MAX_UNSTARTED_ATTEMPTS = 5
-#: Longest time a sweep waits on a cluster without a single worker (s) before it stops
-#: (workers that died and were not restarted): the finished rows are kept and the same
-#: command resumes.
+#: Longest time (s) a sweep waits on a cluster without a worker before it stops (resumable).
 NO_WORKER_SECONDS = 120.0
 
 

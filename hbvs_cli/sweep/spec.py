@@ -237,15 +237,11 @@ def _axis_from_toml(name: str, value: Any) -> Axis:
 
 def load_spec_file(path: Path) -> dict[str, Any]:
     """The TOML spec as a dictionary (see docs and :func:`build_spec`)."""
+    from ..io.config import MAX_CONFIG_BYTES, tomllib
+    from ..io.text_files import read_small_text
+
     try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the sweep spec ({exc.strerror})") from None
+        data = tomllib.loads(read_small_text(path, MAX_CONFIG_BYTES, "a TOML sweep spec"))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not a valid TOML sweep spec ({exc})") from None
     unknown = set(data) - {"seed", "repeats", "sampling", "samples", "vary", "fixed"}
@@ -435,13 +431,13 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
         options["dhat0"] = float(values["dhat0"])
     elif "dhat0_factor" in values:
         if d_true is None:
-            raise UsageError("dhat0_factor needs the true d*: the fit must come from a simulated teach (or use dhat0)")
+            raise UsageError("dhat0_factor needs the true d*, which only a fit of a simulated teach has; sweep dhat0 (m) instead")
         options["dhat0"] = float(values["dhat0_factor"]) * d_true
     if values.get("occlusion_length", 0) > 0:
         start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
         options["occlude"] = [f"{start!r}:{start + float(values['occlusion_length'])!r}"]
-    for name in ("pixel_noise", "k_v", "k_w", "gamma", "k_2", "law", "drop_rate", "outlier_rate", "latency", "perception", "rate", "speed", "lost_timeout"):
-        if name in values:
+    for name, parameter in PARAMETERS.items():
+        if parameter.setting is not None and name != "dhat0" and name in values:
             options[name] = values[name]
     return options
 
