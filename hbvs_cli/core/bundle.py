@@ -385,6 +385,10 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
+    bias_shared, bias : ndarray, shapes (G, 2N) and (K, 3, 2N), or None
+        How the globals and each frame's (theta, x_h1, x_h2) move with a detector bias of
+        one standard deviation on each point's coordinate (``bias_fraction`` of :func:`joint_covariance`); their
+        covariance adds ``bias bias^T``, common to all frames (None: no such bias).
     """
 
     shared: NDArray[np.float64]
@@ -392,16 +396,20 @@ class JointCovariance:
     sensitivity: NDArray[np.float64]
     noise: float
     inflation: float = 1.0
+    bias_shared: NDArray[np.float64] | None = None
+    bias: NDArray[np.float64] | None = None
 
     @property
     def normal_sigma(self) -> float:
         """The angle (rad) of n*'s error: the root of the trace of its 2x2 covariance."""
-        return float(np.sqrt(max(np.trace(self.shared[:2, :2]), 0.0)))
+        biased = 0.0 if self.bias_shared is None else float(np.sum(self.bias_shared[:2] ** 2))
+        return float(np.sqrt(max(np.trace(self.shared[:2, :2]) + biased, 0.0)))
 
     def frame_sigma(self) -> NDArray[np.float64]:
         """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3)."""
         inherited = np.einsum("kag,gh,kah->ka", self.sensitivity, self.shared, self.sensitivity)
-        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited, 0.0))
+        biased = 0.0 if self.bias is None else np.sum(self.bias**2, axis=-1)
+        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited + biased, 0.0))
 
 
 #: Frames whose Jacobian blocks are held at once: memory stays bounded for many points.
@@ -411,7 +419,8 @@ BLOCK_FRAMES = 256
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
-                     correlated: bool = True) -> JointCovariance:
+                     correlated: bool = True, bias_fraction: float = 0.0,
+                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
@@ -438,6 +447,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     correlated : bool
         Grow the covariance by :func:`correlation_inflation` of the estimated frames'
         residuals (in the order given: time order); False assumes independent frames.
+    bias_fraction : float
+        A detector's bias on each point's coordinates that stays the same over the whole
+        drive, as a standard deviation in measured point noise (0: none). Such a bias is
+        absorbed into n* and the reference points, and the residuals do not show it.
 
     Returns
     -------
@@ -446,29 +459,57 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
     shared_info = None
+    bias_rhs = 0.0
+    m_ref = np.asarray(m_ref, dtype=float)
+    if bias_segments is not None:
+        reference_segment, estimated_segments, frame_segments = bias_segments
+        estimated_segments, frame_segments = np.asarray(estimated_segments, np.intp), np.asarray(frame_segments, np.intp)
+        count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
+    else:
+        bias_fraction = 0.0
     residuals = []
     for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
         blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
-        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, _stable_inverse(own_info), coupling)
+        inverse_own = _stable_inverse(own_info)
+        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, inverse_own, coupling)
         shared_info = blocks.reference.T @ blocks.reference + part if shared_info is None else shared_info + part
         residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
+        if bias_fraction > 0.0:
+            rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
+            segment = estimated_segments[k:k + BLOCK_FRAMES]
+            own_rhs = _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), segment, count)
+            shared_rhs = _in_segments(np.einsum("krg,krb->kgb", blocks.shared, rows), segment, count)
+            bias_rhs = bias_rhs + shared_rhs.sum(axis=0) - np.einsum("kag,kab,kbc->gc", coupling, inverse_own, own_rhs)
+            if k == 0:  # F*'s own points carry its segment's bias
+                points = 2 * m_ref.shape[0]
+                reference_rows = np.zeros((points, count * points))
+                reference_rows[:, reference_segment * points:(reference_segment + 1) * points] = -np.eye(points)
+                bias_rhs = bias_rhs + blocks.reference[:points].T @ reference_rows
     if noise is None:
         noise = measured_point_noise(np.concatenate(residuals))
     inflation = correlation_inflation(np.concatenate(residuals)) if correlated else 1.0
     variance = inflation * noise**2
-    shared = variance * np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    detector_bias = bias_fraction * noise
+    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    shared = variance * shared_inverse
+    bias_shared = detector_bias * shared_inverse @ bias_rhs if detector_bias > 0.0 else None
     if frames is None:
         frames, frames_motion = estimated, motion
     frames = np.asarray(frames, dtype=float)
     frames_motion = np.asarray(frames_motion, dtype=float)
-    own_parts, sensitivity_parts = [], []
+    own_parts, sensitivity_parts, bias_parts = [], [], []
     for k in range(0, frames.shape[0], BLOCK_FRAMES):
         blocks = frame_blocks(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
         inverse_own = _stable_inverse(own_info)
         own_parts.append(variance * inverse_own)
         sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
+        if bias_shared is not None:
+            rows = _bias_rows(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
+            own_rhs = (detector_bias * _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), frame_segments[k:k + BLOCK_FRAMES], count)
+                       - np.einsum("kag,gb->kab", coupling, bias_shared))
+            bias_parts.append(np.einsum("kab,kbc->kac", inverse_own, own_rhs))
     size = shared.shape[0]
     return JointCovariance(
         shared=shared,
@@ -476,7 +517,33 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         sensitivity=np.concatenate(sensitivity_parts) if sensitivity_parts else np.zeros((0, 3, size)),
         noise=float(noise),
         inflation=float(inflation),
+        bias_shared=bias_shared,
+        bias=np.concatenate(bias_parts) if bias_parts else None,
     )
+
+
+def _bias_rows(m: NDArray[np.float64], m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
+               shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z):
+    shape (K, R, 2N), by central differences of :func:`_frame_residuals`."""
+    m_ref = np.asarray(m_ref, dtype=float)
+    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    motion = np.asarray(motion, dtype=float)
+    h = DIFFERENCE_STEP
+    columns = []
+    for point in range(m.shape[1]):
+        for axis in (1, 2):
+            step = np.zeros(m.shape[1:])
+            step[point, axis] = h
+            columns.append((_frame_residuals(normal, m_ref, motion, m + step, shapes) - _frame_residuals(normal, m_ref, motion, m - step, shapes)) / (2 * h))
+    return np.nan_to_num(np.stack(columns, axis=-1))
+
+
+def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
+    """Each frame's (K, A, B) values placed in its segment's columns: (K, A, count * B)."""
+    out = np.zeros(values.shape[:2] + (count, values.shape[2]))
+    out[np.arange(values.shape[0]), :, segments, :] = values
+    return out.reshape(values.shape[:2] + (-1,))
 
 
 def _frame_information(blocks: FrameBlocks) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
