@@ -385,10 +385,11 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
-    bias_shared, bias : ndarray, shapes (G, 2N) and (K, 3, 2N), or None
+    bias_shared, bias : ndarray, shapes (G, S 2N) and (K, 3, S 2N), or None
         How the globals and each frame's (theta, x_h1, x_h2) move with a detector bias of
-        one standard deviation on each point's coordinate (``bias_fraction`` of :func:`joint_covariance`); their
-        covariance adds ``bias bias^T``, common to all frames (None: no such bias).
+        one standard deviation on each point's coordinate in each of S spans of the drive
+        (:func:`joint_covariance`'s ``bias_fraction``); their covariances add ``bias
+        bias^T``, common to the frames (None: no such bias).
     """
 
     shared: NDArray[np.float64]
@@ -448,9 +449,14 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         Grow the covariance by :func:`correlation_inflation` of the estimated frames'
         residuals (in the order given: time order); False assumes independent frames.
     bias_fraction : float
-        A detector's bias on each point's coordinates that stays the same over the whole
-        drive, as a standard deviation in measured point noise (0: none). Such a bias is
-        absorbed into n* and the reference points, and the residuals do not show it.
+        A detector's bias on each point's coordinates, the same over a span of the drive
+        and independent between spans, as a standard deviation in point noise (0: none).
+        n* and the reference points absorb it, and the residuals do not show it. Its effect
+        on the estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it,
+        by the same Schur complement.
+    bias_segments : (int, array_like (K,), array_like (F,)), optional
+        The span (0, 1, ...) of F*, of every estimated frame and of every frame of
+        ``frames``; without it, no bias.
 
     Returns
     -------
