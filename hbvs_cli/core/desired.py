@@ -41,9 +41,10 @@ UNCERTAIN_NORMAL_DEG = 0.5
 
 #: A detector's point bias (in measured point noise) by target kind, that the reported
 #: uncertainty allows for: edge-located corners err alike over nearby frames (their error
-#: follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor), which
-#: the residuals cannot show (bench/CALIBRATION.md). Other kinds: none.
-DETECTOR_BIAS_FRACTION = {"aruco": 1.0, "chessboard": 1.0, "charuco": 1.0}
+#: follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor), and so
+#: do a tracked texture's corners, which the residuals cannot show (bench/CALIBRATION.md).
+#: Dots: none.
+DETECTOR_BIAS_FRACTION = {"aruco": 1.0, "chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
 
 #: The spans of the drive over which that bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
