@@ -304,9 +304,8 @@ def measured_point_noise(residuals: ArrayLike) -> float:
 
     The root mean square of the residuals within :data:`OUTLIER_SPREADS` robust spreads
     (the median absolute residual, as a Gaussian's sigma) of zero, corrected for the 3
-    unknowns every frame fits to its own ``2N`` coordinates: with three points, half of
-    the noise is absorbed by the frame's pose and the residuals alone would show too
-    little. (The median alone, on residuals of unequal leverage, read 10 % low.)
+    unknowns every frame fits to its own ``2N`` coordinates (with three points the
+    frame's pose absorbs half of the noise).
 
     Parameters
     ----------
@@ -333,13 +332,11 @@ CORRELATION_LAG_FRACTION = 1.0 / 8.0
 def correlation_inflation(residuals: ArrayLike) -> float:
     """How much more a sum over frames varies than independent point errors would let it.
 
-    A detector's point errors are not independent from frame to frame when they come from
-    the picture rather than from the sensor's noise (a marker's edges sampled at a phase
-    that changes slowly with the pose, the blur of a slow drive): neighbouring frames err
-    alike, and the drive holds fewer independent looks at the target than frames. The
-    long-run variance of each residual's series over the frames (Bartlett's weights up to a
-    lag of :data:`CORRELATION_LAG_FRACTION` of the frames, Newey and West's estimator)
-    divided by its plain variance is that factor; independent errors give 1.
+    Errors that come from the picture rather than the sensor's noise (a marker's edges
+    sampled at a phase that changes slowly with the pose) are alike in neighbouring frames:
+    the drive holds fewer independent looks than frames. The factor is the long-run variance
+    of each residual's series over the frames (Newey and West: Bartlett's weights up to a
+    lag of :data:`CORRELATION_LAG_FRACTION` of the frames) over its plain variance.
 
     Parameters
     ----------
@@ -484,9 +481,12 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         if bias_fraction > 0.0:
             rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
             segment = estimated_segments[k:k + BLOCK_FRAMES]
-            own_rhs = _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), segment, count)
-            shared_rhs = _in_segments(np.einsum("krg,krb->kgb", blocks.shared, rows), segment, count)
-            bias_rhs = bias_rhs + shared_rhs.sum(axis=0) - np.einsum("kag,kab,kbc->gc", coupling, inverse_own, own_rhs)
+            # Each frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
+            own_rhs = np.einsum("kra,krb->kab", blocks.own, rows)
+            per_frame = np.einsum("krg,krb->kgb", blocks.shared, rows) - np.einsum("kag,kab,kbc->kgc", coupling, inverse_own, own_rhs)
+            spans = np.zeros((count,) + per_frame.shape[1:])
+            np.add.at(spans, segment, per_frame)
+            bias_rhs = bias_rhs + np.concatenate(list(spans), axis=1)
             if k == 0:  # F*'s own points carry its segment's bias
                 points = 2 * m_ref.shape[0]
                 reference_rows = np.zeros((points, count * points))
