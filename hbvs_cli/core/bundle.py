@@ -462,14 +462,15 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
     shared_info = None
-    bias_rhs = 0.0
     m_ref = np.asarray(m_ref, dtype=float)
-    if bias_segments is not None:
+    points = 2 * m_ref.shape[0]
+    if bias_segments is None:
+        bias_fraction = 0.0
+    else:
         reference_segment, estimated_segments, frame_segments = bias_segments
         estimated_segments, frame_segments = np.asarray(estimated_segments, np.intp), np.asarray(frame_segments, np.intp)
         count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
-    else:
-        bias_fraction = 0.0
+        spans = np.zeros((count, 2 + points, points))  # J^T W's Schur part on the globals, span by span
     residuals = []
     for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
         blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
@@ -480,18 +481,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
         if bias_fraction > 0.0:
             rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
-            segment = estimated_segments[k:k + BLOCK_FRAMES]
             # Each frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs = np.einsum("kra,krb->kab", blocks.own, rows)
             per_frame = np.einsum("krg,krb->kgb", blocks.shared, rows) - np.einsum("kag,kab,kbc->kgc", coupling, inverse_own, own_rhs)
-            spans = np.zeros((count,) + per_frame.shape[1:])
-            np.add.at(spans, segment, per_frame)
-            bias_rhs = bias_rhs + np.concatenate(list(spans), axis=1)
-            if k == 0:  # F*'s own points carry its segment's bias
-                points = 2 * m_ref.shape[0]
-                reference_rows = np.zeros((points, count * points))
-                reference_rows[:, reference_segment * points:(reference_segment + 1) * points] = -np.eye(points)
-                bias_rhs = bias_rhs + blocks.reference[:points].T @ reference_rows
+            np.add.at(spans, estimated_segments[k:k + BLOCK_FRAMES], per_frame)
     if noise is None:
         noise = measured_point_noise(np.concatenate(residuals))
     inflation = correlation_inflation(np.concatenate(residuals)) if correlated else 1.0
@@ -499,7 +492,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     detector_bias = bias_fraction * noise
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     shared = variance * shared_inverse
-    bias_shared = detector_bias * shared_inverse @ bias_rhs if detector_bias > 0.0 else None
+    bias_shared = None
+    if detector_bias > 0.0:
+        spans[reference_segment] -= blocks.reference[:points].T  # F*'s own points carry its span's bias
+        bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
     if frames is None:
         frames, frames_motion = estimated, motion
     frames = np.asarray(frames, dtype=float)
