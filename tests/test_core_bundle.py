@@ -114,3 +114,36 @@ def test_theta_d_near_the_bound_and_the_interval_calibrated(request, extent, cap
         assert figures["ratio_to_bound"] <= 1.5, (name, figures)
         assert figures["coverage"] >= 0.9, (name, figures)
         assert 0.5 <= figures["sigma_over_rms"] <= 2.0, (name, figures)
+
+
+def test_detector_bias_moves_the_estimate_as_the_covariance_says():
+    """A bias on each point, the same over each of 4 spans of the drive (the detector's bias
+    of ``bias_fraction``), moves the joint estimate's n* and every frame's theta as the
+    covariance's bias columns predict (to first order, within 10 %): the exact points of a drive, then the
+    same points shifted by a known draw of that bias."""
+    from hbvs_cli.core.bundle import PlaneGeometry, projected_points
+
+    rng = np.random.default_rng(3)
+    normal = np.array([0.97, -0.12, 0.05])
+    normal /= np.linalg.norm(normal)
+    m_ref = np.column_stack([np.ones(5), rng.uniform(-0.2, 0.2, 5), rng.uniform(-0.1, 0.15, 5)])
+    frames = 40
+    s = np.linspace(0.0, 1.0, frames + 1)[1:]
+    motion = np.column_stack([0.15 * np.sin(3 * s), 0.6 * s, 0.1 * np.sin(5 * s)])
+    exact = np.concatenate([np.ones((frames, 5, 1)), projected_points(normal, m_ref, motion)], axis=-1)
+    segments = np.minimum((s * 4).astype(int), 3)
+    noise, size = 1e-4, 1e-6  # normalised units: the bias draw is small, so the estimate moves linearly
+    covariance = joint_covariance(exact, m_ref, normal, motion, noise=noise, correlated=False, bias_fraction=1.0,
+                                  bias_segments=(0, segments, segments))
+    draw = rng.standard_normal((4, 5, 2))  # per span, per point, (y, z): in units of the bias's sigma
+    shift = size / noise * draw
+    biased = exact.copy()
+    biased[..., 1:] += noise * shift[segments]
+    reference = m_ref.copy()
+    reference[:, 1:] += noise * shift[0]
+    joint = estimate_plane_jointly(biased, reference, normal, reference, noise)
+    moved = PlaneGeometry.around(normal, m_ref).pack(joint.normal, joint.m_ref)[:2]
+    predicted_normal = -covariance.bias_shared[:2] @ shift.ravel()
+    predicted_theta = -covariance.bias[:, 0, :] @ shift.ravel()
+    assert np.abs(moved - predicted_normal).max() < 0.1 * np.abs(predicted_normal).max()
+    assert np.abs(joint.motion[:, 0] - motion[:, 0] - predicted_theta).max() < 0.1 * np.abs(predicted_theta).max()

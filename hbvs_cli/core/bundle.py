@@ -304,9 +304,8 @@ def measured_point_noise(residuals: ArrayLike) -> float:
 
     The root mean square of the residuals within :data:`OUTLIER_SPREADS` robust spreads
     (the median absolute residual, as a Gaussian's sigma) of zero, corrected for the 3
-    unknowns every frame fits to its own ``2N`` coordinates: with three points, half of
-    the noise is absorbed by the frame's pose and the residuals alone would show too
-    little. (The median alone, on residuals of unequal leverage, read 10 % low.)
+    unknowns every frame fits to its own ``2N`` coordinates (with three points the
+    frame's pose absorbs half of the noise).
 
     Parameters
     ----------
@@ -333,13 +332,11 @@ CORRELATION_LAG_FRACTION = 1.0 / 8.0
 def correlation_inflation(residuals: ArrayLike) -> float:
     """How much more a sum over frames varies than independent point errors would let it.
 
-    A detector's point errors are not independent from frame to frame when they come from
-    the picture rather than from the sensor's noise (a marker's edges sampled at a phase
-    that changes slowly with the pose, the blur of a slow drive): neighbouring frames err
-    alike, and the drive holds fewer independent looks at the target than frames. The
-    long-run variance of each residual's series over the frames (Bartlett's weights up to a
-    lag of :data:`CORRELATION_LAG_FRACTION` of the frames, Newey and West's estimator)
-    divided by its plain variance is that factor; independent errors give 1.
+    Errors that come from the picture rather than the sensor's noise (a marker's edges
+    sampled at a phase that changes slowly with the pose) are alike in neighbouring frames:
+    the drive holds fewer independent looks than frames. The factor is the long-run variance
+    of each residual's series over the frames (Newey and West: Bartlett's weights up to a
+    lag of :data:`CORRELATION_LAG_FRACTION` of the frames) over its plain variance.
 
     Parameters
     ----------
@@ -385,6 +382,11 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
+    bias_shared, bias : ndarray, shapes (G, S 2N) and (K, 3, S 2N), or None
+        How the globals and each frame's (theta, x_h1, x_h2) move with a detector bias of
+        one standard deviation on each point's coordinate in each of S spans of the drive
+        (:func:`joint_covariance`'s ``bias_fraction``); their covariances add ``bias
+        bias^T``, common to the frames (None: no such bias).
     """
 
     shared: NDArray[np.float64]
@@ -392,16 +394,20 @@ class JointCovariance:
     sensitivity: NDArray[np.float64]
     noise: float
     inflation: float = 1.0
+    bias_shared: NDArray[np.float64] | None = None
+    bias: NDArray[np.float64] | None = None
 
     @property
     def normal_sigma(self) -> float:
         """The angle (rad) of n*'s error: the root of the trace of its 2x2 covariance."""
-        return float(np.sqrt(max(np.trace(self.shared[:2, :2]), 0.0)))
+        biased = 0.0 if self.bias_shared is None else float(np.sum(self.bias_shared[:2] ** 2))
+        return float(np.sqrt(max(np.trace(self.shared[:2, :2]) + biased, 0.0)))
 
     def frame_sigma(self) -> NDArray[np.float64]:
         """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3)."""
         inherited = np.einsum("kag,gh,kah->ka", self.sensitivity, self.shared, self.sensitivity)
-        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited, 0.0))
+        biased = 0.0 if self.bias is None else np.sum(self.bias**2, axis=-1)
+        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited + biased, 0.0))
 
 
 #: Frames whose Jacobian blocks are held at once: memory stays bounded for many points.
@@ -411,7 +417,8 @@ BLOCK_FRAMES = 256
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
-                     correlated: bool = True) -> JointCovariance:
+                     correlated: bool = True, bias_fraction: float = 0.0,
+                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
@@ -438,6 +445,15 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     correlated : bool
         Grow the covariance by :func:`correlation_inflation` of the estimated frames'
         residuals (in the order given: time order); False assumes independent frames.
+    bias_fraction : float
+        A detector's bias on each point's coordinates, the same over a span of the drive
+        and independent between spans, as a standard deviation in point noise (0: none).
+        n* and the reference points absorb it, and the residuals do not show it. Its effect
+        on the estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it,
+        by the same Schur complement.
+    bias_segments : (int, array_like (K,), array_like (F,)), optional
+        The span (0, 1, ...) of F*, of every estimated frame and of every frame of
+        ``frames``; without it, no bias.
 
     Returns
     -------
@@ -446,29 +462,56 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
     shared_info = None
+    m_ref = np.asarray(m_ref, dtype=float)
+    points = 2 * m_ref.shape[0]
+    if bias_segments is None:
+        bias_fraction = 0.0
+    else:
+        reference_segment, estimated_segments, frame_segments = bias_segments
+        estimated_segments, frame_segments = np.asarray(estimated_segments, np.intp), np.asarray(frame_segments, np.intp)
+        count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
+        spans = np.zeros((count, 2 + points, points))  # J^T W's Schur part on the globals, span by span
     residuals = []
     for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
         blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
-        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, _stable_inverse(own_info), coupling)
+        inverse_own = _stable_inverse(own_info)
+        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, inverse_own, coupling)
         shared_info = blocks.reference.T @ blocks.reference + part if shared_info is None else shared_info + part
         residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
+        if bias_fraction > 0.0:
+            rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
+            # Each frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
+            own_rhs = np.einsum("kra,krb->kab", blocks.own, rows)
+            per_frame = np.einsum("krg,krb->kgb", blocks.shared, rows) - np.einsum("kag,kab,kbc->kgc", coupling, inverse_own, own_rhs)
+            np.add.at(spans, estimated_segments[k:k + BLOCK_FRAMES], per_frame)
     if noise is None:
         noise = measured_point_noise(np.concatenate(residuals))
     inflation = correlation_inflation(np.concatenate(residuals)) if correlated else 1.0
     variance = inflation * noise**2
-    shared = variance * np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    detector_bias = bias_fraction * noise
+    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    shared = variance * shared_inverse
+    bias_shared = None
+    if detector_bias > 0.0:
+        spans[reference_segment] -= blocks.reference[:points].T  # F*'s own points carry its span's bias
+        bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
     if frames is None:
         frames, frames_motion = estimated, motion
     frames = np.asarray(frames, dtype=float)
     frames_motion = np.asarray(frames_motion, dtype=float)
-    own_parts, sensitivity_parts = [], []
+    own_parts, sensitivity_parts, bias_parts = [], [], []
     for k in range(0, frames.shape[0], BLOCK_FRAMES):
         blocks = frame_blocks(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
         inverse_own = _stable_inverse(own_info)
         own_parts.append(variance * inverse_own)
         sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
+        if bias_shared is not None:
+            rows = _bias_rows(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
+            own_rhs = (detector_bias * _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), frame_segments[k:k + BLOCK_FRAMES], count)
+                       - np.einsum("kag,gb->kab", coupling, bias_shared))
+            bias_parts.append(np.einsum("kab,kbc->kac", inverse_own, own_rhs))
     size = shared.shape[0]
     return JointCovariance(
         shared=shared,
@@ -476,7 +519,33 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         sensitivity=np.concatenate(sensitivity_parts) if sensitivity_parts else np.zeros((0, 3, size)),
         noise=float(noise),
         inflation=float(inflation),
+        bias_shared=bias_shared,
+        bias=np.concatenate(bias_parts) if bias_parts else None,
     )
+
+
+def _bias_rows(m: NDArray[np.float64], m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
+               shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z):
+    shape (K, R, 2N), by central differences of :func:`_frame_residuals`."""
+    m_ref = np.asarray(m_ref, dtype=float)
+    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    motion = np.asarray(motion, dtype=float)
+    h = DIFFERENCE_STEP
+    columns = []
+    for point in range(m.shape[1]):
+        for axis in (1, 2):
+            step = np.zeros(m.shape[1:])
+            step[point, axis] = h
+            columns.append((_frame_residuals(normal, m_ref, motion, m + step, shapes) - _frame_residuals(normal, m_ref, motion, m - step, shapes)) / (2 * h))
+    return np.nan_to_num(np.stack(columns, axis=-1))
+
+
+def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
+    """Each frame's (K, A, B) values placed in its segment's columns: (K, A, count * B)."""
+    out = np.zeros(values.shape[:2] + (count, values.shape[2]))
+    out[np.arange(values.shape[0]), :, segments, :] = values
+    return out.reshape(values.shape[:2] + (-1,))
 
 
 def _frame_information(blocks: FrameBlocks) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -39,6 +39,16 @@ AMBIGUOUS_NORMAL_WARNING = (
 #: n* uncertain by more than this (deg, one standard deviation) is said in one line.
 UNCERTAIN_NORMAL_DEG = 0.5
 
+#: A detector's point bias (in measured point noise) by target kind, that the reported
+#: uncertainty allows for: edge-located corners err alike over nearby frames (their error
+#: follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor), and so
+#: do a tracked texture's corners, which the residuals cannot show (bench/CALIBRATION.md).
+#: Dots: none.
+DETECTOR_BIAS_FRACTION = {"aruco": 1.0, "chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+
+#: The spans of the drive over which that bias is the same (independent between spans).
+BIAS_SEGMENTS = 8
+
 #: What :func:`fit_desired_trajectory` says then (``{sigma}``: n*'s sigma in degrees).
 UNCERTAIN_NORMAL_WARNING = (
     "the drive leaves the plane normal n* uncertain by {sigma:.1f} deg (1 sigma), and theta_d inherits it as a bias; "
@@ -207,6 +217,7 @@ def fit_desired_trajectory(
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
     measured_points: bool = True,
+    bias_fraction: float = 0.0,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -229,6 +240,10 @@ def fit_desired_trajectory(
         corners): errors the residuals show correlated from frame to frame widen the
         reported uncertainty (:func:`~.bundle.correlation_inflation`). False for one
         tracked homography's corners (texture), correlated by the tracking itself.
+    bias_fraction : float
+        The detector's bias on each point, in measured point noise, that stays the same over
+        each of :data:`BIAS_SEGMENTS` spans of the drive (:data:`DETECTOR_BIAS_FRACTION`):
+        the residuals cannot show it, n* and the reference points absorb it.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -285,8 +300,12 @@ def fit_desired_trajectory(
     uncertainty = None
     if others.size:
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
+        duration = max(t[span][-1] - t[span][0], 1e-9)
+        segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used), correlated=measured_points)
+                                      frames=m[used], frames_motion=stacked(used), correlated=measured_points,
+                                      bias_fraction=bias_fraction,
+                                      bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG and warn is not None:
             warn(UNCERTAIN_NORMAL_WARNING.format(sigma=uncertainty.normal_sigma_deg))
@@ -399,6 +418,8 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     smoothed = []
     for index, channel in ((0, "theta_d"), (1, "x_hd1")):
         inherited = covariance.sensitivity[:, index, :] @ directions
+        if covariance.bias is not None:  # a detector's bias: common to all frames as well
+            inherited = np.column_stack([inherited, covariance.bias[:, index, :]])
         own = probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]
         columns = np.column_stack([inherited, own])
         binned_t, binned = _binned_columns(t[used], columns)
