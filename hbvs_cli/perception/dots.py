@@ -560,8 +560,11 @@ class DotDetector:
         has_area = np.isfinite(expected)
         ratio = blobs.areas[candidates][None, :] / np.where(has_area, expected, 1.0)[:, None]
         allowed &= ~has_area[:, None] | ((ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1]))
-        cost = np.where(allowed, distance2, _FORBIDDEN)
-        chosen_rows, chosen_cols = optimal_assignment(cost)
+        chosen_rows, chosen_cols = np.nonzero(allowed)
+        if len(set(chosen_rows.tolist())) < chosen_rows.size or len(set(chosen_cols.tolist())) < chosen_cols.size:
+            # Rivals for a dot or a candidate: the least-cost assignment decides (without
+            # rivals, the gated pairs are that assignment's allowed pairs).
+            chosen_rows, chosen_cols = optimal_assignment(np.where(allowed, distance2, _FORBIDDEN))
         crowded = self._crowded(prediction[rows], expected)
         for r, c in zip(chosen_rows, chosen_cols):
             if allowed[r, c] and not crowded[r]:
