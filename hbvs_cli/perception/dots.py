@@ -533,16 +533,16 @@ class DotDetector:
         return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
-        """Search window: the predicted dots' box grown by the gate and a dot's size."""
-        known = prediction[np.all(np.isfinite(prediction), axis=1)]
-        areas = self._areas[np.isfinite(self._areas)]
-        radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
+        """Search window: the predicted dots' box grown by the gate and a dot's size (in
+        plain floats: numpy's per-call cost on a few points was most of it)."""
+        known = [(u, v) for u, v in prediction.tolist() if math.isfinite(u) and math.isfinite(v)]
+        areas = [a for a in self._areas.tolist() if math.isfinite(a)]
+        radius = math.sqrt(max(areas) / math.pi) if areas else 30.0
         margin = self.gate_px + radius + 6.0
         height, width = shape
-        x0 = int(max(np.floor(known[:, 0].min() - margin), 0))
-        y0 = int(max(np.floor(known[:, 1].min() - margin), 0))
-        x1 = int(min(np.ceil(known[:, 0].max() + margin) + 1, width))
-        y1 = int(min(np.ceil(known[:, 1].max() + margin) + 1, height))
+        us, vs = [u for u, _ in known], [v for _, v in known]
+        x0, y0 = max(math.floor(min(us) - margin), 0), max(math.floor(min(vs) - margin), 0)
+        x1, y1 = min(math.ceil(max(us) + margin) + 1, width), min(math.ceil(max(vs) + margin) + 1, height)
         return x0, y0, max(x1, x0), max(y1, y0)
 
     def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -573,17 +573,17 @@ class DotDetector:
         return pixels, areas
 
     @staticmethod
-    def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> NDArray[np.bool_]:
+    def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> list[bool]:
         """Dots predicted to touch another dot (closer than their radii plus 2 px).
 
         Touching dots merge into one blob whose centroid is neither dot's: they are not
         reported (the track predicts them through) until they are apart again.
         """
-        radius = np.sqrt(np.where(np.isfinite(areas), areas, 0.0) / np.pi)
-        distance = np.linalg.norm(prediction[:, None, :] - prediction[None, :, :], axis=-1)
-        touching = distance < radius[:, None] + radius[None, :] + 2.0
-        np.fill_diagonal(touching, False)
-        return np.any(touching, axis=1)
+        radius = [math.sqrt(a / math.pi) if math.isfinite(a) else 0.0 for a in areas.tolist()]
+        points = prediction.tolist()
+        return [any(j != i and math.sqrt((u - uj) * (u - uj) + (v - vj) * (v - vj)) < radius[i] + radius[j] + 2.0
+                    for j, (uj, vj) in enumerate(points))
+                for i, (u, v) in enumerate(points)]
 
     def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Dots without any prediction: exactly N dot-like blobs, in canonical order.
