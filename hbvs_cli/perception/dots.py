@@ -513,17 +513,16 @@ class DotDetector:
     def _record(self, blobs: Blobs, pixels: NDArray[np.float64], areas: NDArray[np.float64]) -> Detection:
         """Update the track, the dots' areas and their layout with one frame's dots."""
         self.last_blobs = blobs
-        seen = np.all(np.isfinite(pixels), axis=1)
+        seen = [math.isfinite(u) and math.isfinite(v) for u, v in pixels.tolist()]
         self._track.update(pixels)
         # A moving average: the thresholded area of a small dot jumps with the window's
         # threshold; the last value alone would make the area gate reject real dots.
-        known = seen & np.isfinite(self._areas)
-        self._areas[known] = 0.7 * self._areas[known] + 0.3 * areas[known]
-        self._areas[seen & ~known] = areas[seen & ~known]
-        found = bool(np.all(seen))
+        self._areas[:] = [(0.7 * old + 0.3 * new if math.isfinite(old) else new) if dot else old
+                          for dot, old, new in zip(seen, self._areas.tolist(), areas.tolist())]
+        found = all(seen)
         if found:
             self._layout = pixels.copy()
-        n_seen = int(np.count_nonzero(seen))
+        n_seen = sum(seen)
         return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
 
     def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
