@@ -1,9 +1,10 @@
 """hbvs benchmarks: speed and memory as ratios of things measured side by side.
 
-Run ``python -m bench`` (about 4 minutes on 2 cores) or ``python -m bench --quick``
-(under a minute, smaller inputs); ``--only 2 3 6`` measures some figures again (here the
+Run ``python -m bench`` (about 4 minutes on 2 cores, and some 6 more for the chessboard
+and ChArUco fits of 3d and 3e, whose detection is slow) or ``python -m bench --quick``
+(a few minutes, smaller inputs); ``--only 2 3 6`` measures some figures again (here the
 closed loops, fit's throughput for each target kind and the per-frame renderer and dot
-detector, about 6 minutes). Every
+detector). Every
 figure is a ratio of two measurements taken in the same run, interleaved, with the median
 over repeats, so a noisy machine moves both sides. The closed loops are also measured
 against OpenCV anchors timed in the same process between chunks of the loop (the
