@@ -513,16 +513,17 @@ class DotDetector:
     def _record(self, blobs: Blobs, pixels: NDArray[np.float64], areas: NDArray[np.float64]) -> Detection:
         """Update the track, the dots' areas and their layout with one frame's dots."""
         self.last_blobs = blobs
-        seen = [math.isfinite(u) and math.isfinite(v) for u, v in pixels.tolist()]
+        seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)
         # A moving average: the thresholded area of a small dot jumps with the window's
         # threshold; the last value alone would make the area gate reject real dots.
-        self._areas[:] = [(0.7 * old + 0.3 * new if math.isfinite(old) else new) if dot else old
-                          for dot, old, new in zip(seen, self._areas.tolist(), areas.tolist())]
-        found = all(seen)
+        known = seen & np.isfinite(self._areas)
+        self._areas[known] = 0.7 * self._areas[known] + 0.3 * areas[known]
+        self._areas[seen & ~known] = areas[seen & ~known]
+        found = bool(np.all(seen))
         if found:
             self._layout = pixels.copy()
-        n_seen = sum(seen)
+        n_seen = int(np.count_nonzero(seen))
         return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
 
     def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -532,16 +533,16 @@ class DotDetector:
         return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
-        """Search window: the predicted dots' box grown by the gate and a dot's size (in
-        plain floats: numpy's per-call cost on a few points was most of it)."""
-        known = [(u, v) for u, v in prediction.tolist() if math.isfinite(u) and math.isfinite(v)]
-        areas = [a for a in self._areas.tolist() if math.isfinite(a)]
-        radius = math.sqrt(max(areas) / math.pi) if areas else 30.0
+        """Search window: the predicted dots' box grown by the gate and a dot's size."""
+        known = prediction[np.all(np.isfinite(prediction), axis=1)]
+        areas = self._areas[np.isfinite(self._areas)]
+        radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
         margin = self.gate_px + radius + 6.0
         height, width = shape
-        us, vs = [u for u, _ in known], [v for _, v in known]
-        x0, y0 = max(math.floor(min(us) - margin), 0), max(math.floor(min(vs) - margin), 0)
-        x1, y1 = min(math.ceil(max(us) + margin) + 1, width), min(math.ceil(max(vs) + margin) + 1, height)
+        x0 = int(max(np.floor(known[:, 0].min() - margin), 0))
+        y0 = int(max(np.floor(known[:, 1].min() - margin), 0))
+        x1 = int(min(np.ceil(known[:, 0].max() + margin) + 1, width))
+        y1 = int(min(np.ceil(known[:, 1].max() + margin) + 1, height))
         return x0, y0, max(x1, x0), max(y1, y0)
 
     def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -559,11 +560,8 @@ class DotDetector:
         has_area = np.isfinite(expected)
         ratio = blobs.areas[candidates][None, :] / np.where(has_area, expected, 1.0)[:, None]
         allowed &= ~has_area[:, None] | ((ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1]))
-        chosen_rows, chosen_cols = np.nonzero(allowed)
-        if len(set(chosen_rows.tolist())) < chosen_rows.size or len(set(chosen_cols.tolist())) < chosen_cols.size:
-            # Rivals for a dot or a candidate: the least-cost assignment decides (without
-            # rivals, the gated pairs are that assignment's allowed pairs).
-            chosen_rows, chosen_cols = optimal_assignment(np.where(allowed, distance2, _FORBIDDEN))
+        cost = np.where(allowed, distance2, _FORBIDDEN)
+        chosen_rows, chosen_cols = optimal_assignment(cost)
         crowded = self._crowded(prediction[rows], expected)
         for r, c in zip(chosen_rows, chosen_cols):
             if allowed[r, c] and not crowded[r]:
@@ -572,17 +570,17 @@ class DotDetector:
         return pixels, areas
 
     @staticmethod
-    def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> list[bool]:
+    def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Dots predicted to touch another dot (closer than their radii plus 2 px).
 
         Touching dots merge into one blob whose centroid is neither dot's: they are not
         reported (the track predicts them through) until they are apart again.
         """
-        radius = [math.sqrt(a / math.pi) if math.isfinite(a) else 0.0 for a in areas.tolist()]
-        points = prediction.tolist()
-        return [any(j != i and math.sqrt((u - uj) * (u - uj) + (v - vj) * (v - vj)) < radius[i] + radius[j] + 2.0
-                    for j, (uj, vj) in enumerate(points))
-                for i, (u, v) in enumerate(points)]
+        radius = np.sqrt(np.where(np.isfinite(areas), areas, 0.0) / np.pi)
+        distance = np.linalg.norm(prediction[:, None, :] - prediction[None, :, :], axis=-1)
+        touching = distance < radius[:, None] + radius[None, :] + 2.0
+        np.fill_diagonal(touching, False)
+        return np.any(touching, axis=1)
 
     def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Dots without any prediction: exactly N dot-like blobs, in canonical order.
