@@ -181,6 +181,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         The start when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
+    from scipy.sparse import csr_matrix
 
     m = np.asarray(m, dtype=float)
     measured_ref = validate_reference_points(measured_ref)
@@ -202,7 +203,12 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
             _reference_residuals(trial_normal, trial_ref, measured_ref, shapes),
         ]), nan=1.0, posinf=1.0, neginf=-1.0)
 
-    sparsity = _block_arrow(frames, per_frame, reference_rows, n_global)
+    # Block-arrow sparsity: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
+    own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
+    columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
+                              np.tile(np.arange(n_global), reference_rows)])
+    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_rows]))])
+    sparsity = csr_matrix((np.ones(columns.size, np.int8), columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
     x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
     # Plain least squares first: from a start far off every residual looks like an outlier
     # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
@@ -218,21 +224,6 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     if np.any(solved_ref @ solved_normal <= 0.0) or not np.all(np.isfinite(solution.x)):
         return start
     return JointEstimate(solved_normal, solved_ref, solution.x[n_global:].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)))
-
-
-def _block_arrow(frames: int, per_frame: int, reference_rows: int, n_global: int):
-    """The joint estimate's Jacobian sparsity (CSR, int8): each of a frame's ``per_frame``
-    rows depends on the ``n_global`` globals and its own 3 unknowns, F*'s rows on the
-    globals alone."""
-    from scipy.sparse import csr_matrix
-
-    own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
-    frame_columns = np.concatenate([np.broadcast_to(np.arange(n_global), (frames, n_global)), own], axis=1)
-    columns = np.concatenate([np.repeat(frame_columns, per_frame, axis=0).ravel(), np.tile(np.arange(n_global), reference_rows)])
-    counts = np.concatenate([np.full(frames * per_frame, n_global + 3), np.full(reference_rows, n_global)])
-    pointers = np.concatenate([[0], np.cumsum(counts)])
-    shape = (frames * per_frame + reference_rows, n_global + 3 * frames)
-    return csr_matrix((np.ones(columns.size, np.int8), columns, pointers), shape=shape)
 
 
 def _motion(motion: object) -> NDArray[np.float64]:
