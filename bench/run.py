@@ -1,9 +1,10 @@
 """hbvs benchmarks: speed and memory as ratios of things measured side by side.
 
-Run ``python -m bench`` (about 4 minutes on 2 cores) or ``python -m bench --quick``
-(under a minute, smaller inputs); ``--only 2 3 6`` measures some figures again (here the
+Run ``python -m bench`` (about 4 minutes on 2 cores, and some 6 more for the chessboard
+and ChArUco fits of 3d and 3e, whose detection is slow) or ``python -m bench --quick``
+(a few minutes, smaller inputs); ``--only 2 3 6`` measures some figures again (here the
 closed loops, fit's throughput for each target kind and the per-frame renderer and dot
-detector, about 6 minutes). Every
+detector). Every
 figure is a ratio of two measurements taken in the same run, interleaved, with the median
 over repeats, so a noisy machine moves both sides. The closed loops are also measured
 against OpenCV anchors timed in the same process between chunks of the loop (the
@@ -422,13 +423,68 @@ def decode_only(teach: Path) -> int:
     return count
 
 
+#: Figure 3's target kinds: its label, and the ``hbvs fit --target`` it is fitted with; a
+#: chessboard and a ChArUco board are taught as posters of the texture target.
+FIT_TARGETS = {"dots": "3", "aruco": "3b", "texture": "3c", "chessboard": "3d", "charuco": "3e"}
+
+
+def board_poster(kind: str, path: Path) -> None:
+    """A 1200x600 px poster (the texture target's 2:1) of a chessboard of 8x4 squares
+    (7x3 inner corners) or a ChArUco board of 6x3 squares (DICT_4X4_50, markers 0.75 of a
+    square), white around it."""
+    import cv2
+
+    poster = np.full((600, 1200), 255, np.uint8)
+    if kind == "chessboard":
+        squares = (np.add.outer(np.arange(400) // 100, np.arange(800) // 100) % 2 == 0)
+        poster[100:500, 200:1000] = np.where(squares, 0, 255)
+    else:
+        dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+        board = cv2.aruco.CharucoBoard((6, 3), 0.04, 0.03, dictionary)
+        poster[75:525, 150:1050] = board.generateImage((900, 450), marginSize=0, borderBits=1)
+    cv2.imwrite(str(path), poster)
+
+
+def as_footage(teach: Path, footage: Path) -> None:
+    """A copy of a simulated teach file without its ``hbvs.world`` record, as real footage
+    is: fit then finds the target in the images (a board's kind from ``--target``)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from hbvs_cli.io.topics import WORLD_METADATA
+
+    with open(teach, "rb") as source, open(footage, "wb") as sink:
+        reader, writer = make_reader(source), Writer(sink)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas.get(channel.schema_id, 0), channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time, message.sequence)
+        for record in reader.iter_metadata():
+            if record.name != WORLD_METADATA:
+                writer.add_metadata(record.name, record.metadata)
+        writer.finish()
+
+
 def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figure:
     """fit against decode-only on the same recording, for one target kind."""
     frames = 600 if quick else 3000
     pendant = work / "fit_pendant.csv"
     write_pendant(pendant, frames / 30.0)
     teach = work / f"fit_teach_{target}.mcap"
-    run_cli("teach", "--path", str(pendant), "--target", target, "--format", "png", "-o", str(teach), "-q", cwd=work)
+    taught, fitted = ["--target", target], []
+    if target in ("chessboard", "charuco"):
+        board_poster(target, work / f"{target}.png")
+        taught, fitted = ["--target", "texture", "--texture", f"{target}.png"], ["--target", target]
+    run_cli("teach", "--path", str(pendant), *taught, "--format", "png", "-o", str(teach), "-q", cwd=work)
+    if fitted:
+        as_footage(teach, teach.with_suffix(".footage.mcap"))
+        teach = teach.with_suffix(".footage.mcap")
     code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
     decode_walls, fit_walls, decode_cpus, fit_cpus = [], [], [], []
     for _ in range(1 if quick else 3):
@@ -441,13 +497,13 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
         decode_walls.append(time.perf_counter() - start)
         decode_cpus.append(_children_cpu() - cpu)
         cpu = _children_cpu()
-        wall, _ = run_cli("fit", str(teach), "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
+        wall, _ = run_cli("fit", str(teach), *fitted, "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
         fit_walls.append(wall)
         fit_cpus.append(_children_cpu() - cpu)
     ratios = [d / f for d, f in zip(decode_walls, fit_walls)]
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
     ratio = min(ratios)
-    label = {"dots": "3", "aruco": "3b", "texture": "3c"}[target]
+    label = FIT_TARGETS[target]
     return Figure(
         f"{label}. hbvs fit throughput / decode-only throughput, {target} target ({frames} frames), the lowest of "
         f"{len(ratios)} run{'s' if len(ratios) > 1 else ''}", ratio, ">= 0.75 in every run", ratio >= 0.75,
@@ -455,7 +511,7 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
         f"{frames / fit_wall:.0f} frames/s (PNG 640x480; both whole processes; fit decodes in a second thread); CPU "
         f"{statistics.median(decode_cpus):.2f} s vs {statistics.median(fit_cpus):.2f} s; load average "
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
-        f"hbvs fit teach.mcap -o fit.mcap vs. reading and decoding the same images (teach --target {target})",
+        f"hbvs fit teach.mcap {' '.join(fitted + ['-o'])} fit.mcap vs. reading and decoding the same images (teach {' '.join(taught)})",
     )
 
 
@@ -521,7 +577,23 @@ def bench_per_frame(quick: bool) -> list[Figure]:
 
     These were wall-clock bounds inside the test suite, where a busy machine made them fail;
     the tests keep what the detector finds, the timing lives here.
+
+    OpenCV runs on this thread alone, as in the loop and in fit: this thread's CPU time
+    would otherwise leave out what its pool threads do (on a quiet machine, half of each
+    anchor: 0.93 ms for the threshold and labelling the loop measured at 1.93 ms).
     """
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        return _per_frame(quick)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _per_frame(quick: bool) -> list[Figure]:
+    """:func:`bench_per_frame`'s figures, measured on one OpenCV thread."""
     from hbvs_cli.core.path import preset_profile
     from hbvs_cli.sim.world import default_world
     from hbvs_cli.perception import DotDetector
@@ -695,7 +767,7 @@ def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seco
 
 
 #: The figure groups ``--only`` selects, each measured by one function.
-GROUPS = ("5", "1", "2a", "2b", "3", "3b", "3c", "4", "6")
+GROUPS = ("5", "1", "2a", "2b", "3", "3b", "3c", "3d", "3e", "4", "6")
 #: Figures measured by another figure's group (in the same runs).
 MEASURED_WITH = {"1a": "1", "1b": "1", "2a'": "2a", "2c": "2a", "2d": "2b", "2e": "2b", "4a": "4", "4b": "4",
                  "6a": "6", "6b": "6", "6c": "6", "6d": "6"}
@@ -704,7 +776,7 @@ MEASURED_WITH = {"1a": "1", "1b": "1", "2a'": "2a", "2c": "2a", "2d": "2b", "2e"
 def selected(only: list[str] | None) -> list[str]:
     """The groups of :data:`GROUPS` that ``--only`` IDs select: an id selects the group it
     names, the group that measures it (``2c`` is measured with 2a), or the groups it
-    prefixes (``2`` selects 2a and 2b, ``3`` selects 3, 3b and 3c)."""
+    prefixes (``2`` selects 2a and 2b, ``3`` selects 3 to 3e)."""
     if not only:
         return list(GROUPS)
     wanted = set()
@@ -722,7 +794,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller inputs, under a minute")
     parser.add_argument("--only", nargs="*", default=None,
-                        help=f"run only these figures ({' '.join(GROUPS)}; 2 = 2a 2b, 3 = 3 3b 3c; 2c is measured with 2a, "
+                        help=f"run only these figures ({' '.join(GROUPS)}; 2 = 2a 2b, 3 = 3 3b 3c 3d 3e; 2c is measured with 2a, "
                              "2d and 2e with 2b); the other rows of RESULTS.md are kept")
     args = parser.parse_args(argv)
     start = time.perf_counter()
@@ -732,9 +804,8 @@ def main(argv: list[str] | None = None) -> int:
         "1": lambda work: bench_estimation(args.quick),
         "2a": lambda work: bench_points_loop(work, args.quick),
         "2b": lambda work: bench_images_loop(work, args.quick),
-        "3": lambda work: [bench_fit_throughput(work, args.quick, "dots")],
-        "3b": lambda work: [bench_fit_throughput(work, args.quick, "aruco")],
-        "3c": lambda work: [bench_fit_throughput(work, args.quick, "texture")],
+        **{label: (lambda work, target=target: [bench_fit_throughput(work, args.quick, target)])
+           for target, label in FIT_TARGETS.items()},
         "4": lambda work: bench_memory(work, args.quick),
         "6": lambda work: bench_per_frame(args.quick),
     }

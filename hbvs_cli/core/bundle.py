@@ -181,7 +181,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         The start when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
-    from scipy.sparse import lil_matrix
+    from scipy.sparse import csr_matrix
 
     m = np.asarray(m, dtype=float)
     measured_ref = validate_reference_points(measured_ref)
@@ -203,19 +203,20 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
             _reference_residuals(trial_normal, trial_ref, measured_ref, shapes),
         ]), nan=1.0, posinf=1.0, neginf=-1.0)
 
-    # Block-arrow sparsity: a frame's rows depend on the globals and on its own 3 unknowns.
-    sparsity = lil_matrix((frames * per_frame + reference_rows, n_global + 3 * frames), dtype=np.int8)
-    sparsity[:, :n_global] = 1
-    for k in range(frames):
-        sparsity[k * per_frame:(k + 1) * per_frame, n_global + 3 * k:n_global + 3 * k + 3] = 1
+    # Block-arrow sparsity: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
+    own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
+    columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
+                              np.tile(np.arange(n_global), reference_rows)])
+    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_rows]))])
+    sparsity = csr_matrix((np.ones(columns.size, np.int8), columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
     x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
     # Plain least squares first: from a start far off every residual looks like an outlier
     # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
     # frame with a wrong point counts less.
     try:
-        solution = least_squares(residuals, x0, jac_sparsity=sparsity.tocsr(), method="trf", x_scale="jac",
+        solution = least_squares(residuals, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
                                  ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
-        solution = least_squares(residuals, solution.x, jac_sparsity=sparsity.tocsr(), method="trf", loss="huber",
+        solution = least_squares(residuals, solution.x, jac_sparsity=sparsity, method="trf", loss="huber",
                                  f_scale=ROBUST_SCALE * max(noise, 1e-9), x_scale="jac", ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
     except (ValueError, np.linalg.LinAlgError):
         return start
