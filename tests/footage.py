@@ -512,8 +512,21 @@ def marker_board_wall(dictionary: str = "DICT_4X4_50", grid: tuple[int, int] = (
     return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(points, float))
 
 
-def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
-    """A real photograph from ``skimage.data`` printed ``poster_width_m`` wide on a painted wall."""
+def brick_canvas(width_m: float, height_m: float) -> np.ndarray:
+    """A brick wall: ``skimage.data``'s photograph of bricks (512 px for about 1 m) tiled, mirrored at each seam."""
+    from skimage import data
+
+    tile = cv2.resize(data.brick(), (500, 500), interpolation=cv2.INTER_CUBIC)
+    w, h = int(round(width_m / WALL_MPP)), int(round(height_m / WALL_MPP))
+    mirrored = np.block([[tile, tile[:, ::-1]], [tile[::-1], tile[::-1, ::-1]]])
+    tiled = np.tile(mirrored, (h // 1000 + 1, w // 1000 + 1))[:h, :w]
+    # Brick red: the gray photograph as the luminance of a terracotta colour.
+    return np.clip(tiled[:, :, None] * (np.array([70, 95, 170]) / 128.0), 0, 255).astype(np.uint8)
+
+
+def photo_wall(name: str = "coffee", poster_width_m: float = 1.8, brick: bool = False) -> Wall:
+    """A real photograph from ``skimage.data`` printed ``poster_width_m`` wide on a painted
+    wall, or (``brick``) on a brick wall."""
     from skimage import data
 
     photo = getattr(data, name)()
@@ -524,7 +537,9 @@ def photo_wall(name: str = "coffee", poster_width_m: float = 1.8) -> Wall:
     px_h = int(round(px_w * photo.shape[0] / photo.shape[1]))
     poster = cv2.resize(photo, (px_w, px_h), interpolation=cv2.INTER_CUBIC)
     width, height = poster_width_m + 1.0, max(1.9, px_h * WALL_MPP + 0.5)
-    image = _canvas(width, height, (160, 176, 186))
+    if brick:  # the bricks fill the whole view (a painted wall's edges, replicated, look alike)
+        width, height = poster_width_m + 9.0, 3.5
+    image = brick_canvas(width, height) if brick else _canvas(width, height, (160, 176, 186))
     row0 = int(round((height - 0.95) / WALL_MPP - px_h / 2))
     col0 = int(round((image.shape[1] - px_w) / 2))
     image[row0:row0 + px_h, col0:col0 + px_w] = poster
@@ -727,6 +742,39 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
 
 # --------------------------------------------------------------------------- issue 24's other rows
 @dataclass(frozen=True)
+class Pole:
+    """A vertical pole close to the camera that crosses the view from left to right between
+    ``start_s`` and ``end_s`` (drive time), hiding whatever is behind it."""
+
+    start_s: float = 3.0
+    end_s: float = 8.0
+    width_px: float = 40.0  # in frame pixels
+    colour: tuple[int, int, int] = (60, 70, 75)
+
+
+class PoleMaker(FootageMaker):
+    """:class:`FootageMaker` with a :class:`Pole` passing in front of the wall."""
+
+    def __init__(self, wall: Wall, camera: Camera, effects: Effects = Effects(), seed: int = 0, pole: Pole = Pole()) -> None:
+        super().__init__(wall, camera, effects, seed)
+        self.pole = pole
+
+    def _exposure(self, pose_of_time, t: float) -> np.ndarray:
+        canvas = super()._exposure(pose_of_time, t)
+        ss, pole = self.effects.supersample, self.pole
+        travel = (t - pole.start_s) / (pole.end_s - pole.start_s)
+        if 0.0 <= travel <= 1.0:
+            left = self.margin + ss * ((self.camera.width + pole.width_px) * travel - pole.width_px)
+            columns = np.arange(canvas.shape[1])
+            # Its edges anti-aliased: the covered fraction of each canvas column.
+            cover = np.clip(np.minimum(columns + 1 - left, left + ss * pole.width_px - columns), 0.0, 1.0).astype(np.float32)
+            canvas *= 1.0 - cover[None, :, None]
+            canvas += cover[None, :, None] * np.asarray(pole.colour, np.float32)
+        return canvas
+
+
+
+@dataclass(frozen=True)
 class RollingShutter:
     """Rows read out one after the other: the first row ``readout_s / 2`` before the frame's
     time, the last as much after (the truth is the middle row's pose). The frame is
@@ -762,7 +810,7 @@ class RollingShutterMaker(FootageMaker):
 
 
 #: Rows of the issue's table that the cases above do not draw: (wall, camera, effects,
-#: rolling shutter or None).
+#: rolling shutter, a pole or None).
 def extra_case(name: str):
     plain = Camera()
     barrel = Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0))
@@ -775,11 +823,16 @@ def extra_case(name: str):
         return dots_wall("low_contrast"), plain, Effects(noise=4.0), RollingShutter()
     if name == "aruco_board_3x2":
         return marker_board_wall(grid=(3, 2)), barrel, Effects(), None
+    if name == "brick_sign":
+        # A 1.2 m sign (a real photograph) on a real photograph of bricks.
+        return photo_wall("chelsea", 1.2, brick=True), plain, Effects(), None
+    if name == "dots_pole":
+        return dots_wall("red"), plain, Effects(), Pole()
     raise ValueError(name)
 
 
 def any_case(name: str):
-    """(wall, camera, effects, rolling shutter or None) of a row, from :func:`case` or :func:`extra_case`."""
+    """(wall, camera, effects, rolling shutter, pole or None) of a row, from :func:`case` or :func:`extra_case`."""
     try:
         return (*case(name), None)
     except ValueError:
@@ -789,5 +842,8 @@ def any_case(name: str):
 def make_any_footage(name: str, folder: Path, drive: Drive = Drive(), seed: int = 7) -> dict:
     """:func:`make_footage` for every row, the rolling-shutter ones included."""
     wall, camera, effects, shutter = any_case(name)
-    maker = FootageMaker(wall, camera, effects, seed=seed) if shutter is None else RollingShutterMaker(wall, camera, effects, seed, shutter)
+    if isinstance(shutter, Pole):
+        maker = PoleMaker(wall, camera, effects, seed, shutter)
+    else:
+        maker = FootageMaker(wall, camera, effects, seed=seed) if shutter is None else RollingShutterMaker(wall, camera, effects, seed, shutter)
     return maker.write(Path(folder), drive)

@@ -67,6 +67,8 @@ ROWS = [
     ("photo_with_tags", "photograph with small fiducials printed in it", DOT_BOUND, ()),
     ("low_contrast_dots", "low-contrast dots (25 levels), sensor noise", DOT_BOUND, ()),
     ("low_contrast_dots_rolling", "low-contrast dots, sensor noise, rolling shutter", DOT_BOUND, ()),
+    ("brick_sign", "photograph of a 1.2 m sign on a brick wall", DOT_BOUND, ()),
+    ("dots_pole", "four red dots, a pole passing in front", DOT_BOUND, ()),
 ]
 ROWS = [row if hasattr(row, "marks") else pytest.param(*row, id=row[0]) for row in ROWS]
 

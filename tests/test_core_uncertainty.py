@@ -40,3 +40,12 @@ def test_heading_tolerance_is_the_default_or_the_interval():
     assert heading_tolerance(0.2, 0.05) == 0.2
     assert heading_tolerance(0.2, 0.5) == pytest.approx(INTERVAL_SIGMAS * 0.5)
     assert math.isnan(heading_tolerance(0.2, float("nan")))
+
+
+def test_uncertain_normal_warning_names_both_known_geometry_options():
+    """The warning is one line and names both ways of giving the target's geometry."""
+    from hbvs_cli.core.desired import UNCERTAIN_NORMAL_WARNING
+
+    line = UNCERTAIN_NORMAL_WARNING.format(sigma=1.234)
+    assert "\n" not in line and "1.2 deg" in line
+    assert "--target-size" in line and "--target-points FILE" in line

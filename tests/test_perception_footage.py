@@ -12,6 +12,7 @@ the fitted (theta_d, x_hd) and n* are compared with the truth.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -381,3 +382,18 @@ def test_the_same_frames_as_video_images_and_bag_give_the_same_fit(fitted, tmp_p
         assert apart <= 2.0 * sigma
         assert np.all(np.abs(smooth[name]["theta_d"] - smooth["video"]["theta_d"])
                       <= 2.0 * np.hypot(smooth[name]["theta_d_sigma"], smooth["video"]["theta_d_sigma"]))
+
+
+def test_footage_maker_pole_hides_the_wall_only_while_it_passes():
+    """The pole of the ``dots_pole`` row: outside its passage the frame is the plain maker's,
+    byte for byte; halfway through, its colour fills a band of its width at mid-frame."""
+    wall, camera, effects, pole = footage.any_case("dots_pole")
+    quiet = replace(effects, noise=0.0)
+    at_start = lambda t: np.array(DRIVE.start)  # noqa: E731
+    with_pole, plain = footage.PoleMaker(wall, camera, quiet, 1, pole), footage.FootageMaker(wall, camera, quiet, 1)
+    assert np.array_equal(with_pole.render(at_start, pole.start_s - 0.1), plain.render(at_start, pole.start_s - 0.1))
+    frame = with_pole.render(at_start, (pole.start_s + pole.end_s) / 2)
+    band = frame[:, camera.width // 2 - 10:camera.width // 2 + 10].reshape(-1, 3).astype(float)
+    gain_free = band / band.mean(axis=1, keepdims=True) * np.mean(pole.colour)
+    assert np.allclose(np.median(gain_free, axis=0), pole.colour, atol=4.0)
+    assert not np.array_equal(frame, plain.render(at_start, (pole.start_s + pole.end_s) / 2))

@@ -52,7 +52,7 @@ BIAS_SEGMENTS = 8
 #: What :func:`fit_desired_trajectory` says then (``{sigma}``: n*'s sigma in degrees).
 UNCERTAIN_NORMAL_WARNING = (
     "the drive leaves the plane normal n* uncertain by {sigma:.1f} deg (1 sigma), and theta_d inherits it as a bias; "
-    "what would pin it: the target's known geometry (--target-size), a drive that curves more or comes closer, "
+    "what would pin it: the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), a drive that curves more or comes closer, "
     "or another reference frame (--reference last: the close end of the drive)"
 )
 
