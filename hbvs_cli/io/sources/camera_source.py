@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message
+from ..images import as_image8
 
 
 class CameraSource(FrameSource):
@@ -112,7 +113,7 @@ class CameraSource(FrameSource):
                 t = now - first
                 if self.duration is not None and t >= self.duration:
                     return
-                yield SourceFrame(t=t, image=to_image8(np.asarray(frame), f"camera {self.index}"))
+                yield SourceFrame(t=t, image=as_image8(np.asarray(frame), f"camera {self.index}"))
                 count += 1
         finally:
             capture.release()

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..live_frame import LiveFrame
-from .frame_source import to_image8
+from ..images import as_image8
 
 
 def _is_file(device: str) -> bool:
@@ -69,7 +69,7 @@ class LatestCameraFrame:
             failures = 0
             count += 1
             try:
-                image8 = to_image8(np.asarray(image), f"--camera {self.device}")
+                image8 = as_image8(np.asarray(image), f"--camera {self.device}")
             except InputError as exc:
                 with self._lock:
                     self._error = str(exc)
