@@ -17,15 +17,12 @@ from ..images import as_image8
 
 class CameraSource(FrameSource):
     """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with the
-    monotonic ``clock`` (s) from the first frame.
+    monotonic ``clock`` (s) from the first frame, until ``duration`` s.
 
-    The device is opened here, so a missing camera is reported before anything is recorded, and
-    released when iteration ends or stops, or by :meth:`close`. Iteration ends at the first frame
-    ``duration`` seconds (or more) after the first one; up to ``max_failed_reads`` reads in a
-    row may fail. ``capture_factory`` (``cv2.VideoCapture`` by default) and ``clock`` are
-    injectable for tests. :class:`InputError` when the device cannot be opened or delivers no
-    more frames; :class:`UsageError` for a ``duration`` that is not a positive number.
+    The device is opened here, so that a missing camera is reported before anything is
+    recorded; up to ``max_failed_reads`` reads in a row may fail.
     """
+
 
     kind = "camera"
 
