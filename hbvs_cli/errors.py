@@ -1,11 +1,8 @@
 """The exceptions hbvs raises on purpose, and the exit code each one maps to.
 
-Every error a user can cause (a bad file, a degenerate target, a lost target) is an
-:class:`HbvsError`. The CLI prints its message as one line on stderr and exits with its
-exit code; anything else that escapes is a bug and is reported as such. The errors of the
-I/O edge and the stages carry their ``exit_code``; the pure core raises domain errors
-(:class:`DomainError`: a bad value, malformed or too little data, degenerate geometry),
-which the CLI maps (``hbvs_cli/cli/exit_codes.py``) to the code of the same kind below.
+Every error a user can cause is an :class:`HbvsError`: the CLI prints its message as one
+line on stderr and exits with its code (the core's :class:`DomainError` kinds are mapped in
+``hbvs_cli/cli/exit_codes.py``); anything else that escapes is a bug.
 
 Exit codes
 ----------
@@ -57,12 +54,8 @@ class RecordingError(InputError):
 
 
 class DomainError(HbvsError):
-    """An error of the method itself, raised by the pure core (``hbvs_cli/core``).
-
-    It says what is wrong with the numbers, not which option or file they came from; the
-    CLI maps each kind to its exit code (:func:`hbvs_cli.cli.exit_codes.exit_code_of`) and
-    a stage may add which input it was.
-    """
+    """An error of the method itself, raised by the pure core: what is wrong with the numbers,
+    not which option or file they came from."""
 
 
 class InvalidValueError(DomainError):
@@ -75,19 +68,12 @@ class MalformedDataError(DomainError):
 
 
 class NotAnImageError(MalformedDataError, InputError):
-    """An array that is not an image hbvs reads (empty, or of another pixel type or shape):
-    raised by the core (:func:`hbvs_cli.core.grayscale.as_gray`) and a bad input to a stage."""
+    """An array that is not an image hbvs reads (empty, or of another pixel type or shape)."""
 
 
 class InsufficientDataError(DomainError):
-    """Too little usable data: a target found in too few frames, or missing for too long.
+    """Too little usable data; ``facts`` holds the numbers behind the message for a stage to word."""
 
-    Attributes
-    ----------
-    facts : dict
-        The numbers behind the message (which frame, what fraction), for a stage to word
-        its own message with.
-    """
 
     def __init__(self, message: str, **facts: Any) -> None:
         super().__init__(message)

@@ -22,8 +22,8 @@ from hbvs_cli.io.sources import (
     ImageFolderSource,
     SourceFrame,
     VideoSource,
-    to_image8,
 )
+from hbvs_cli.io.images import as_image8
 
 WIDTH, HEIGHT = 64, 48
 
@@ -177,15 +177,15 @@ def test_image_size_change_is_refused(tmp_path):
 def test_to_image8_keeps_colour_and_makes_equal_channels_gray():
     bgr = np.zeros((2, 3, 3), np.uint8)
     bgr[..., 2] = 255  # pure red: kept in colour
-    assert np.array_equal(to_image8(bgr, "x"), bgr)
+    assert np.array_equal(as_image8(bgr, "x"), bgr)
     bgra = np.dstack([bgr, np.full((2, 3), 7, np.uint8)])
-    assert np.array_equal(to_image8(bgra, "x"), bgr)  # alpha dropped
+    assert np.array_equal(as_image8(bgra, "x"), bgr)  # alpha dropped
     # Three equal channels (a gray video in a colour container) become one gray channel.
-    assert to_image8(cv2.merge([pattern(0)] * 3), "x").shape == pattern(0).shape
-    assert to_image8(np.full((2, 2), 0xABCD, np.uint16), "x")[0, 0] == 0xAB
-    assert np.array_equal(to_image8(np.full((2, 2, 3), (0x1234, 0x5678, 0x9ABC), np.uint16), "x")[0, 0], (0x12, 0x56, 0x9A))
+    assert as_image8(cv2.merge([pattern(0)] * 3), "x").shape == pattern(0).shape
+    assert as_image8(np.full((2, 2), 0xABCD, np.uint16), "x")[0, 0] == 0xAB
+    assert np.array_equal(as_image8(np.full((2, 2, 3), (0x1234, 0x5678, 0x9ABC), np.uint16), "x")[0, 0], (0x12, 0x56, 0x9A))
     with pytest.raises(InputError, match="x: unsupported pixel type float32"):
-        to_image8(np.zeros((2, 2), np.float32), "x")
+        as_image8(np.zeros((2, 2), np.float32), "x")
 
 
 # ----------------------------------------------------------------------------- camera

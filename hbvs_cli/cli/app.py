@@ -1,10 +1,7 @@
 """The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
 
-This layer stays thin: it turns :class:`~hbvs_cli.errors.HbvsError` into one line on
-stderr and the error's exit code (``--debug`` shows the traceback instead). Each command
-imports its stage inside the command, the only lazy imports here: ``hbvs --help`` must not
-load OpenCV, scipy, matplotlib or mcap (tests/test_repository.py checks). The options of
-``repeat`` come from its settings table (:mod:`hbvs_cli.io.settings`).
+Each command imports its stage lazily, so that ``hbvs --help`` loads no OpenCV, scipy,
+matplotlib or mcap (tests/test_repository.py checks).
 """
 
 from __future__ import annotations
@@ -80,10 +77,6 @@ def _root(
         set_limits(list(limit))
 
 
-def _console(quiet: bool) -> Console:
-    return Console(quiet=quiet)
-
-
 # --------------------------------------------------------------------------- teach
 @app.command(rich_help_panel="Pipeline")
 @with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
@@ -92,7 +85,7 @@ def teach(**values: Any) -> None:
     from ..stages.teach import TeachOptions, run_teach  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
-    run_teach(options_from_command_line(TeachOptions, values), _console(quiet))
+    run_teach(options_from_command_line(TeachOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- fit
@@ -103,7 +96,7 @@ def fit(**values: Any) -> None:
     from ..stages.fit import run_fit  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
-    run_fit(options_from_command_line(FitOptions, values), _console(quiet))
+    run_fit(options_from_command_line(FitOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- repeat
@@ -114,7 +107,7 @@ def repeat(**values: Any) -> None:
     from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
-    run_repeat(options_from_command_line(RepeatOptions, values), _console(quiet))
+    run_repeat(options_from_command_line(RepeatOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- robot-sim
@@ -125,7 +118,7 @@ def robot_sim(**values: Any) -> None:
     from ..stages.robot_sim import run_robot_sim  # lazy: start-up time (see above)
 
     quiet = values.pop("quiet")
-    run_robot_sim(options_from_command_line(RobotSimOptions, values), _console(quiet))
+    run_robot_sim(options_from_command_line(RobotSimOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- report
@@ -152,7 +145,7 @@ def report(
             export_tum=export_tum, tolerance=list(tolerance or []), require_converged=require_converged,
             labels=list(label or []), dpi=dpi, size=size, panels=panels,
         ),
-        _console(False),
+        Console(False),
     )
     if code:
         raise typer.Exit(code)
@@ -169,7 +162,7 @@ def export(
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
     from ..stages.export import ExportOptions, run_export
 
-    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), _console(quiet))
+    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), Console(quiet))
 
 
 # --------------------------------------------------------------------------- info
@@ -181,7 +174,7 @@ def info(
     """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
     from ..stages.info import InfoOptions, run_info
 
-    run_info(InfoOptions(input=input, json_output=json_output), _console(False))
+    run_info(InfoOptions(input=input, json_output=json_output), Console(False))
 
 
 # --------------------------------------------------------------------------- sweep
@@ -214,7 +207,7 @@ def sweep(
             sampling=sampling, samples=samples, scheduler=scheduler, cluster=cluster, workers=workers, keep_runs=keep_runs,
             json_output=json_output, plots=plots, dashboard=dashboard,
         ),
-        _console(quiet),
+        Console(quiet),
     )
 
 
@@ -228,7 +221,7 @@ def demo(
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
     from ..stages.demo import run_demo  # lazy: start-up time (see above)
 
-    code = run_demo(out if out is not None else output, _console(quiet))
+    code = run_demo(out if out is not None else output, Console(quiet))
     if code:
         raise typer.Exit(code)
 
@@ -239,13 +232,8 @@ class _Terminated(BaseException):
 
 
 class _Interrupted(KeyboardInterrupt):
-    """Raised from the SIGINT handler: a KeyboardInterrupt to every ``except`` clause.
-
-    CPython notes a KeyboardInterrupt of exactly that type escaping code it runs through
-    some of its C entry points, and then ends the process by SIGINT (exit status -2,
-    whatever sys.exit said) even when the exception was handled afterwards: Ctrl-C during
-    a stage's imports did that in one run out of five. A subclass does not trip the check.
-    """
+    """Raised from the SIGINT handler. A subclass, because CPython ends the process by SIGINT
+    when exactly KeyboardInterrupt escapes some of its C entry points, even if handled later."""
 
 
 #: Exit code and message of each signal that stops hbvs.
@@ -257,12 +245,8 @@ _swallowed = False
 
 
 def _on_signal(signum: int, frame: object) -> None:
-    """Stop the command by raising (KeyboardInterrupt for SIGINT, _Terminated for SIGTERM).
-
-    An exception unwinds through the stages, so ``open_output`` removes its partial file
-    and a previous output stays as it was. Further signals are ignored from here on: the
-    cleanup that this starts must not be interrupted in turn.
-    """
+    """Stop the command by raising, so that partial files are removed on the way out; later
+    signals are ignored so that this cleanup is not interrupted in turn."""
     global _received
     _ignore_stop_signals()
     _received = signum
@@ -280,12 +264,7 @@ def _ignore_stop_signals() -> None:
 
 
 def _on_unraisable(unraisable: Any) -> None:
-    """Keep quiet about a stop signal that landed inside a finaliser.
-
-    Python runs ``__del__`` methods and closing generators where an exception cannot
-    propagate, so it prints and drops it; the command then runs to its end, and
-    :func:`main` reports the stop instead of a traceback.
-    """
+    """Keep quiet about a stop signal dropped inside a finaliser; :func:`main` reports the stop."""
     global _swallowed
     if isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
         _swallowed = True
@@ -303,12 +282,8 @@ def _install_signal_handlers() -> None:
 
 
 def _raise_if_stopping() -> None:
-    """Re-raise a stop signal that some code turned into another exception.
-
-    A signal landing inside a C extension's module initialisation comes back as
-    ``ImportError: initialization failed``; other native code may wrap it too. Once a stop
-    signal has arrived, any failure is its consequence and is reported as the stop.
-    """
+    """Re-raise a stop signal that native code turned into another exception (e.g.
+    ``ImportError: initialization failed``): once one has arrived, any failure is its consequence."""
     if _received == signal.SIGINT:
         raise _Interrupted
     if _received is not None:
@@ -372,7 +347,7 @@ _WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EBADF
 
 
 def _live_port_given(args: list[str]) -> list[str]:
-    """``--foxglove`` without a port means Foxglove's default (typer has no option with an optional value)."""
+    """``--foxglove`` without a port means Foxglove's default (typer has no optional values)."""
     if "--foxglove" not in args:
         return args
     from ..io.live_view import DEFAULT_PORT
@@ -388,8 +363,8 @@ def _live_port_given(args: list[str]) -> list[str]:
 
 
 def _old_live_view_spelling(args: list[str]) -> str | None:
-    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling
-    (``--live`` alone now drives a robot)."""
+    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling."""
+
     for index, token in enumerate(args):
         if token == "--":
             break
@@ -491,8 +466,7 @@ class _ClosedStdout:
 
 
 class _ClosedStdin:
-    """What sys.stdin is when hbvs was started with stdin closed (``<&-``): reading "-" is
-    an input error (exit 3), not a crash."""
+    """What sys.stdin is when hbvs was started with stdin closed: reading "-" is exit 3."""
 
     encoding = "utf-8"
 
@@ -513,15 +487,8 @@ class _ClosedStdin:
 
 
 def _prepare_stdio(debug: bool) -> None:
-    """Closed stdio, native logging and warnings, before any command runs.
-
-    A closed descriptor 0, 1 or 2 gets /dev/null (so no file hbvs opens takes its number)
-    and writing to a closed stdout is an error. Unless ``--debug``: descriptor 2 goes to a
-    temporary file for native code (libpng, OpenCV, the ROS message parser print there on
-    their own; :mod:`hbvs_cli.io.native_log` quotes it in our messages), Python's stderr
-    keeps the terminal on a copy of it, and warnings (numpy's RuntimeWarnings among them)
-    are not shown: hbvs reports problems in its own words.
-    """
+    """Before any command: closed stdio made safe (:func:`guard_stdio`); unless ``--debug``,
+    native stderr captured (:mod:`hbvs_cli.io.native_log`) and warnings hidden."""
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
@@ -539,24 +506,14 @@ def _prepare_stdio(debug: bool) -> None:
 
 
 def _one_blas_thread() -> None:
-    """OpenBLAS (numpy's and scipy's) on one thread unless the user set it otherwise.
-
-    hbvs's linear algebra is on small matrices (at most a few thousand rows by ten
-    columns), where OpenBLAS's threads cost more than they share (they spin-wait on cores
-    busy decoding images and in OpenCV). Read when OpenBLAS loads, so it is set before
-    numpy is first imported.
-    """
+    """OpenBLAS on one thread unless the user set it: its threads cost more than they share on
+    hbvs's small matrices. Must run before numpy is first imported."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point: run the app and exit with the right code.
-
-    SIGINT and SIGTERM stop a command with exit code 130 and 143 and one line on stderr
-    (partial outputs removed). Once the command is over, both signals are ignored until
-    the process exits, so that a late signal cannot turn a finished run into a traceback:
-    this function is meant to end the process (it always raises SystemExit).
-    """
+    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143
+    with one line on stderr; after the command they are ignored, so a late one changes nothing."""
     _one_blas_thread()
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))

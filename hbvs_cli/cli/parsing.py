@@ -1,10 +1,5 @@
 """How the command line reads and explains itself: value labels in help, one-line usage
-errors, ``--debug`` anywhere, and the unquoted-glob hint.
-
-Kept apart from :mod:`.app` so that every command gets the same treatment from one place:
-:class:`HbvsGroup` is the ``cls`` of the typer app, and it labels the parameters of every
-command it holds when it is built.
-"""
+errors, ``--debug`` anywhere, and the unquoted-glob hint."""
 
 from __future__ import annotations
 
@@ -20,11 +15,8 @@ _MAX_MESSAGE = 300
 
 
 def value_label(param: Any) -> str:
-    """What the help shows after an option: nothing for a flag, else its kind of value.
-
-    Typer's own labels are Python types (``<str>``, ``<list[str]>``) and it shows
-    ``<bool>`` after flags, which take no value.
-    """
+    """What the help shows after an option: nothing for a flag, else its kind of value (typer's
+    own labels are Python types)."""
     if getattr(param, "is_flag", False) or getattr(param, "count", False):
         return ""
     descriptor = getattr(param, "type_descriptor", None)
@@ -101,11 +93,8 @@ def one_line_usage_error(exc: Any) -> str:
 
 
 def unquoted_glob_hint(args: list[str]) -> str | None:
-    """The message for ``teach --images dir/*.png`` that the shell expanded, or None.
+    """The message for ``teach --images dir/*.png`` that the shell expanded, or None."""
 
-    ``--images`` takes one value; when several names follow it, the shell expanded a
-    pattern before hbvs saw it.
-    """
     if "teach" not in args:
         return None
     for index, arg in enumerate(args):

@@ -1,11 +1,5 @@
-"""What an MCAP file holds, read in one pass: its kind, time span, settings and topics.
-
-The reading behind ``hbvs info`` (what ``mcap info`` and ``ros2 bag info`` give, plus what
-hbvs's own metadata says). Any MCAP file is listed; an hbvs teach, fit or run file also
-gives its frames, its target and the settings that made it. The file is streamed with
-:class:`~hbvs_cli.io.mcap.reader.McapStream`, so stdin, size caps and files cut off by a
-crash behave as in every other reader.
-"""
+"""What an MCAP file holds, read in one pass (``hbvs info``): its kind, time span, settings and
+topics; an hbvs file also gives its frames and target."""
 
 from __future__ import annotations
 
@@ -37,12 +31,8 @@ class TopicInfo:
 
 @dataclass
 class FileInfo:
-    """What :func:`read_file_info` found: ``name`` (``stdin`` for ``-``), ``kind`` (``teach``,
-    ``fit``, ``run``, or None for a file hbvs did not write), ``version``, the ``hbvs``
-    ``metadata`` decoded, every ``metadata_names``, the ``topics`` (:class:`TopicInfo`, in order
-    of first message), ``complete`` (the footer was reached) or ``stop_reason``, and ``target``
-    (the target kind, when the file says it).
-    """
+    """What :func:`read_file_info` found (``kind`` None for a file hbvs did not write; ``topics``
+    in order of first message)."""
 
     name: str
     kind: str | None = None
@@ -82,15 +72,8 @@ class FileInfo:
 
 
 def read_file_info(source: Any, name: str = "") -> FileInfo:
-    """Read an MCAP file (a path, ``"-"`` for stdin, or a binary stream) through to its end.
+    """Read an MCAP file (a path, ``"-"`` for stdin, or a binary stream) through to its end."""
 
-    Raises
-    ------
-    InputError
-        The file is missing or unreadable.
-    RecordingError
-        Not an MCAP file, or damaged before any message (see :class:`McapStream`).
-    """
     if isinstance(source, (str, os.PathLike)) and str(source) != "-" and Path(source).is_dir():
         storage = sorted(Path(source).glob("*.mcap"))
         hint = f": give its storage file, e.g. {storage[0]}" if storage else ""

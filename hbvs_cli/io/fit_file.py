@@ -1,11 +1,5 @@
-"""The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads.
-
-Topics (:data:`~.topics.TOPICS` ``["fit"]``, docs/files.md): the model (``hbvs.FitModel``,
-one message at the end), the desired signals raw and smoothed (``hbvs.DesiredSignal``), the
-reference image F* and the texture template, the calibration, the detections drawn on the
-taught images (and the images with ``--with-images``). Metadata ``hbvs``: ``file_kind =
-fit``, version, settings.
-"""
+"""The fit file: what ``hbvs fit`` writes and ``hbvs repeat`` reads (topics in
+:data:`~.topics.TOPICS` ``["fit"]`` and docs/files.md)."""
 
 from __future__ import annotations
 
@@ -44,13 +38,7 @@ def camera_to_dict(camera: CameraIntrinsics) -> dict[str, Any]:
 
 
 def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
-    """The inverse of :func:`camera_to_dict`, with the checks of a calibration file.
-
-    Raises
-    ------
-    CalibrationError
-        Values that are not a valid camera (or an image larger than hbvs reads).
-    """
+    """The inverse of :func:`camera_to_dict`, checked as a calibration file (:class:`CalibrationError`)."""
     K = [data["fx"], 0.0, data["cx"], 0.0, data["fy"], data["cy"], 0.0, 0.0, 1.0]
     return intrinsics_from_values(
         K, data["width"], data["height"], str(data.get("distortion_model", "none")), data.get("distortion", ()), "camera",
@@ -103,8 +91,7 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
 
 
 def taught_path_to_dict(path: TaughtPath) -> dict[str, Any]:
-    """The ``taught_path`` object of a fit model: per-frame arrays as base64 float64 (a long
-    recording would otherwise be a list of JSON numbers several times its size in memory)."""
+    """The ``taught_path`` object of a fit model: per-frame arrays as base64 float64 (compact)."""
     return {
         "encoding": "float64-le-base64",
         "t": _pack(path.t), "v": _pack(path.v), "w": _pack(path.w),
@@ -178,15 +165,10 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
 
 
 def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
-    """The model of a ``hbvs.FitModel`` message, validated; :class:`RecordingError` when malformed.
+    """The model of a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed.
 
-    Everything ``repeat`` later uses is checked here, so that a damaged or hostile
-    model fails with one clear message rather than deep inside the simulation: the
-    camera as a calibration, the world's camera (:func:`~.teach_file.world_description`;
-    the simulator checks the rest of the world when it builds it),
-    finite reference points (at most :data:`~hbvs_cli.core.fit_model.MAX_TARGET_POINTS`), a
-    non-zero normal, a positive dhat0 and frame interval, the detector and render
-    settings.
+    Everything ``repeat`` later uses is checked here, so that a damaged model fails with one
+    clear message rather than deep inside the simulation.
     """
     try:
         if message.get("format_version") != FORMAT_VERSION:
@@ -243,22 +225,13 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
             gains=dict(gains) if gains is not None else None,
             uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
         )
-    except HbvsError as exc:
-        raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
-    except PARSE_ERRORS as exc:
+    except (HbvsError, *PARSE_ERRORS) as exc:
         raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None
 
 
 def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dict[str, Any]:
-    """The model's message, after checking that :func:`model_from_message` (what
-    ``repeat`` reads) accepts it as it will be stored (JSON: NaN and infinity become null).
-
-    Raises
-    ------
-    RecordingError
-        The fit produced a model repeat would refuse (e.g. an infinite dhat0 from a
-        teach recording with speeds of 1e308): nothing is written.
-    """
+    """The model's message, once :func:`model_from_message` accepts it as it will be stored
+    (JSON: NaN and infinity become null); :class:`RecordingError` otherwise."""
     from .mcap import encode_json
 
     message = model_message(model, log_time_ns)
@@ -282,13 +255,7 @@ class FitFile:
 
 
 def read_fit_file(source: Any, name: str = "") -> FitFile:
-    """Read the model (and reference/template images) of a fit file or stream.
-
-    Raises
-    ------
-    RecordingError
-        Not a fit file, or no complete model in it.
-    """
+    """Read the model and images of a fit file or stream; :class:`RecordingError` if it has none."""
     topics = {MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC}
     stream = McapStream(source, topics=topics, schemas=TOPICS[FILE_KIND], name=name)
     model_message: dict[str, Any] | None = None
@@ -314,10 +281,9 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
 
 
 def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
-    """Write a fit's desired signals at their frames' log times (``log_time``, ns, shape (F,)):
-    ``/desired/raw`` (theta_d, x_hd and the residual of every used frame, times ``t`` (F,) in s)
-    and ``/desired/smooth`` (the splines and their derivatives over the used span).
-    """
+    """Write ``/desired/raw`` (every used frame's measurement) and ``/desired/smooth`` (the splines
+    and derivatives over the used span); ``t`` (F,) in s, ``log_time`` (F,) in ns."""
+
     schemas = TOPICS[FILE_KIND]
     uncertainty = fit.uncertainty
     for k in np.flatnonzero(fit.used):

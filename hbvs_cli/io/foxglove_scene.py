@@ -1,19 +1,9 @@
 """What Foxglove's 3D panel needs: frame transforms, the target, the taught path.
 
-Frames (the same in the Foxglove files and in the ROS 2 export, :mod:`.ros_export`):
-
-* ``world``: the simulator's world frame, x toward the wall, z up (m).
-* ``base_link``: the robot on the floor, x forward, z up; ``world -> base_link`` is the
-  robot's planar pose, published at every pose (``foxglove.FrameTransform`` on ``/tf``).
-* ``camera_optical``: the camera at its height above ``base_link``, in the optical
-  convention that Foxglove's ``CameraCalibration`` and ROS's ``CameraInfo`` assume: z
-  forward (the robot's x), x right (the robot's -y), y down (the robot's -z). Images,
-  annotations and the calibration are in this frame. ``base_link -> camera_optical`` is
-  published once, at the first pose.
-
-The target (its points as spheres, the poster as a thin box) and the taught path (a line)
-are one ``foxglove.SceneUpdate`` on ``/scene``, in ``world``, written when the world and
-the path are known (a simulated teach, a simulated run).
+Frames (also those of the ROS 2 export): ``world`` (x toward the wall, z up, m);
+``base_link`` (the robot on the floor, x forward, z up); ``camera_optical`` (the camera at
+its height above ``base_link``, z forward, x right, y down, as Foxglove's
+``CameraCalibration`` and ROS's ``CameraInfo`` assume).
 """
 
 from __future__ import annotations
@@ -124,9 +114,7 @@ def scene_update(ns: int, world: Any = None, taught_poses: np.ndarray | None = N
 
 
 class SceneWriter:
-    """Writes the 3D topics of one hbvs file through an :class:`~hbvs_cli.io.mcap.McapWriter`:
-    :meth:`start` once (the camera on the robot, the target, the taught path), then
-    :meth:`pose` at every true pose."""
+    """Writes the 3D topics of one hbvs file: :meth:`start` once, then :meth:`pose` at every true pose."""
 
     def __init__(self, writer: Any) -> None:
         self.writer = writer
@@ -145,9 +133,7 @@ class SceneWriter:
         self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot_transform(ns, pose))
 
 
-#: Where the clock of a simulated teach or run starts (ns since 1970, UTC): 2003-10-27
-#: 00:00:00, the opening day of IROS 2003, where Chen et al. presented the method. A fixed
-#: epoch gives Foxglove and ROS tools a real date instead of 1 January 1970 while the same
-#: inputs and seed still give byte-identical files. A replayed run keeps the stamps of the
-#: recording it replays, so that the two line up.
+#: Where the clock of a simulated teach or run starts (ns since 1970, UTC): 2003-10-27, the
+#: opening day of IROS 2003; fixed, so that the same seed gives byte-identical files.
+
 SIMULATION_EPOCH_NS = 1_067_212_800 * 1_000_000_000

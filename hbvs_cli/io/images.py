@@ -1,10 +1,5 @@
-"""Image bytes <-> arrays, and the protobuf ``foxglove.CompressedImage`` around them.
+"""Image bytes <-> 8-bit arrays (gray or BGR), and the ``foxglove.CompressedImage`` around them.
 
-Frames are stored 8 bits a channel: BGR when the source has colour (a red dot on a grey wall
-of the same brightness is visible only in colour), one gray channel otherwise (or with
-``teach --gray``). A compressed source keeps its bytes (a JPEG, an 8-bit gray or colour
-PNG; other PNGs become 8-bit PNGs, still lossless); frames hbvs compresses itself become
-JPEG at :data:`DEFAULT_JPEG_QUALITY` unless PNG is asked for (:func:`bytes_to_store`).
 Decoding refuses headers that declare more pixels than the data can hold, before OpenCV
 allocates them (:func:`decode_image`).
 """
@@ -25,17 +20,14 @@ from .topics import COMPRESSED_IMAGE_SCHEMA
 IMAGE_FORMATS = ("png", "jpeg")
 #: ``--format`` choices: ``auto`` keeps what a source has and compresses the rest as JPEG.
 STORE_FORMATS = ("auto", *IMAGE_FORMATS)
-#: JPEG quality of the frames hbvs compresses itself: a fraction of PNG's size for a fit
-#: almost as accurate (tests/test_image_storage.py and bench/FILE_SIZES.md measure both).
+#: JPEG quality of the frames hbvs compresses itself (bench/FILE_SIZES.md).
 DEFAULT_JPEG_QUALITY = 90
 #: The schema every image topic of hbvs carries.
 IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA
-#: Largest difference between a pixel's channels (levels) in a frame taken as gray: OpenCV's
-#: own MJPG writer turns a gray frame into channels 2 levels apart (its colour conversion's
-#: rounding); a colour camera's noise alone spreads them wider.
+#: Largest difference between a pixel's channels (levels) in a frame taken as gray (OpenCV's
+#: MJPG writer puts a gray frame's channels 2 levels apart).
 NEUTRAL_SPREAD = 3
-#: Largest decoded image accepted (pixels): 8K x 8K. A hostile header cannot make OpenCV
-#: allocate more than this.
+#: Largest decoded image accepted (pixels): 8K x 8K.
 MAX_IMAGE_PIXELS = 8192 * 8192
 
 
@@ -61,26 +53,19 @@ def encode_image(image: NDArray[np.uint8], image_format: str = "png", jpeg_quali
     return buffer.tobytes()
 
 
-#: The eight bytes that open every PNG file (the one place hbvs spells them).
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: The three bytes that open every JPEG file.
 JPEG_SIGNATURE = b"\xff\xd8\xff"
 #: Most pixels a byte of compressed data can hold, by the file's first two bytes. Deflate
 #: expands at most 1032:1 and a 1-bit PNG packs 8 pixels a byte; a JPEG spends a few bits
 #: at least on every 8x8 block, even with progressive end-of-band runs.
 _MAX_PIXELS_PER_BYTE = {PNG_SIGNATURE[:2]: 8 * 1100, JPEG_SIGNATURE[:2]: 1 << 14}
-#: JPEG start-of-frame markers, which carry the image size (C4, C8 and CC are not frames).
+#: JPEG start-of-frame markers (C4, C8 and CC are not frames), and markers without a length.
 _JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-#: JPEG markers that stand alone, without a length field.
 _JPEG_BARE_MARKERS = frozenset(range(0xD0, 0xDA)) | {0x01}
 
 
 def image_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) read from a PNG, JPEG or BMP header without decoding, when available.
-
-    Decoders allocate the whole image from these numbers before reading any pixel, so a
-    few hostile bytes could ask for gigabytes; other formats rely on OpenCV's own cap.
-    """
+    """(width, height) from a PNG, JPEG or BMP header without decoding, else None."""
     if data[:8] == PNG_SIGNATURE and len(data) >= 24:
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if data[:2] == JPEG_SIGNATURE[:2]:
@@ -116,11 +101,7 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
 
 
 def _png_problem(data: bytes) -> str | None:
-    """What is wrong with a PNG's chunk structure (lengths, CRCs, the end chunk), if anything.
-
-    OpenCV's PNG reader trusts chunk lengths: a damaged one declaring gigabytes costs
-    seconds and as much memory before the decode fails, so PNGs are walked here first.
-    """
+    """What is wrong with a PNG's chunks (lengths, CRCs, end), if anything: OpenCV trusts them."""
     offset = len(PNG_SIGNATURE)
     while offset + 12 <= len(data):
         length = int.from_bytes(data[offset:offset + 4], "big")
@@ -136,14 +117,8 @@ def _png_problem(data: bytes) -> str | None:
 
 
 def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray[np.uint8]:
-    """Decode PNG/JPEG (any image OpenCV reads) to 8 bits; :class:`InputError` if it cannot.
-
-    Gray (H, W) by default: OpenCV's grayscale decoding converts colour and 16-bit images to
-    8-bit gray itself, and a colour JPEG's luminance is decoded without its chroma (the
-    cheapest decode). With ``colour``, a colour image is decoded to BGR (H, W, 3) (alpha
-    dropped, 16 bits to their high byte) and a gray one to (H, W), at the same cost as
-    without: only colour pays for its chroma.
-    """
+    """Decode any image OpenCV reads to 8-bit gray (H, W), or with ``colour`` a colour one to
+    BGR (H, W, 3); :class:`InputError` if it cannot."""
     import cv2
 
     size = image_size(data)
@@ -151,8 +126,6 @@ def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray
         raise InputError(f"{source}: an image declares {size[0]}x{size[1]} pixels, more than hbvs accepts")
     density = _MAX_PIXELS_PER_BYTE.get(data[:2])
     if size is not None and density is not None and size[0] * size[1] > density * len(data):
-        # Decoders allocate and walk every declared row even when the data runs out, so
-        # a few damaged bytes would cost seconds and megabytes before failing anyway.
         raise InputError(
             f"{source}: cannot be decoded as an image ({len(data)} bytes cannot hold the "
             f"{size[0]}x{size[1]} pixels its header declares: corrupt or truncated)"
@@ -194,19 +167,8 @@ def sniff_format(data: bytes) -> str | None:
 
 
 def as_image8(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
-    """An image as contiguous uint8, keeping its colour: gray (H, W) or BGR (H, W, 3).
-
-    Accepts what :func:`as_gray` accepts. BGRA loses its alpha, 16 bits keep their high
-    byte, and a colour image whose channels nowhere differ by more than
-    :data:`NEUTRAL_SPREAD` levels (a gray video in a colour container, a mono camera
-    delivering BGR) becomes its gray (:func:`as_gray`): it has no colour to keep, and one
-    channel costs less to decode and to store.
-
-    Raises
-    ------
-    InputError
-        For anything that is not such an image.
-    """
+    """An image as contiguous uint8 gray (H, W) or BGR (H, W, 3); a colour image whose channels
+    differ nowhere by more than :data:`NEUTRAL_SPREAD` becomes gray. :class:`InputError` otherwise."""
     import cv2
 
     if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] not in (3, 4):
@@ -234,22 +196,10 @@ def bytes_to_store(
 ) -> tuple[bytes, str]:
     """The bytes and format a recording stores for one frame.
 
-    Parameters
-    ----------
-    image : (H, W) or (H, W, 3) uint8
-        The frame as the source decoded it: gray, or BGR when it has colour
-        (:func:`as_image8`).
-    encoded, encoded_format : bytes and "png"/"jpeg", optional
-        What the source had, when it was compressed already.
-    image_format : str
-        ``auto``: a JPEG is kept as it is, an 8-bit PNG of the image's channels too (gray
-        for a gray image, RGB for a colour one), another PNG is stored as the image's
-        8-bit PNG, and a frame without bytes becomes a JPEG at ``jpeg_quality``.
-        ``png`` or ``jpeg``: that format (bytes already in it are kept as above).
-    gray : bool
-        Store one gray channel whatever the source has (``teach --gray``): a colour image
-        is reduced to its luminance and encoded again (a colour JPEG too, at
-        ``jpeg_quality``).
+    ``image`` is gray (H, W) or BGR (H, W, 3) uint8; ``encoded`` the source's own bytes, if
+    compressed. ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels, re-encodes other
+    PNGs as PNG and compresses the rest as JPEG; ``png``/``jpeg`` force a format. ``gray``
+    (``teach --gray``) stores the luminance only.
     """
     if image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {image_format!r}")
@@ -270,17 +220,8 @@ def bytes_to_store(
 
 @dataclass(frozen=True)
 class StoredImage:
-    """One ``foxglove.CompressedImage`` as read from a file.
+    """One ``foxglove.CompressedImage`` as read from a file (``stamp_ns``: its own stamp, ns)."""
 
-    Attributes
-    ----------
-    data : bytes
-        The compressed image.
-    format : str
-        As the message says (``png``, ``jpeg``...).
-    stamp_ns : int
-        The message's own timestamp (ns).
-    """
 
     data: bytes
     format: str

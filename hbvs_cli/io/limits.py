@@ -1,10 +1,5 @@
-"""Limits on every size that turns into memory or time, and the one option that raises them.
-
-A small file or an option can ask for a lot (a trajectory of 3e5 s, a 1 MB MCAP chunk of
-4 million empty messages). Each such size is checked against a limit of :data:`LIMITS`
-*before* anything is allocated, and the error names the limit and how to raise it:
-``hbvs --limit steps=5e6 repeat fit.mcap --sim``.
-"""
+"""Limits on every size that turns into memory or time, checked before anything is allocated;
+the error names the limit and how to raise it (``hbvs --limit steps=5e6 ...``)."""
 
 from __future__ import annotations
 
@@ -46,13 +41,7 @@ def current(name: str) -> int:
 
 
 def set_limits(items: list[str]) -> None:
-    """Apply ``--limit NAME=N`` options (N may be written 5e6).
-
-    Raises
-    ------
-    UsageError
-        An unknown name, or N not a positive whole number.
-    """
+    """Apply ``--limit NAME=N`` options (N may be written 5e6); :class:`UsageError` when malformed."""
     for item in items:
         name, sep, text = item.partition("=")
         name = name.strip().lower()
@@ -91,15 +80,7 @@ def check(name: str, amount: float, what: str) -> None:
 
 
 def step_count(duration_s: float, rate_hz: float, what: str) -> int:
-    """The number of steps of ``duration_s`` seconds at ``rate_hz``, checked against ``steps``.
-
-    Raises
-    ------
-    UsageError
-        A duration or rate that is not a finite positive number.
-    LimitExceededError
-        More steps than the ``steps`` limit.
-    """
+    """The number of steps of ``duration_s`` seconds at ``rate_hz``, checked against ``steps``."""
     if not (math.isfinite(duration_s) and duration_s >= 0):
         raise UsageError(f"{what}: the duration must be a finite number of seconds, got {duration_s}")
     if not (math.isfinite(rate_hz) and rate_hz > 0):
@@ -109,16 +90,14 @@ def step_count(duration_s: float, rate_hz: float, what: str) -> int:
     return int(round(steps))
 
 
-#: Nodes a YAML document may have once its aliases are expanded: a calibration file has a
-#: few dozen, a bag's metadata.yaml a few thousand. Aliases make a small file a huge value
-#: ("billion laughs"): 1.4 KB of nested aliases cost 2.2 GB once printed.
+#: Nodes a YAML document may have once its aliases are expanded ("billion laughs"); a bag's
+#: metadata.yaml has a few thousand.
 MAX_YAML_NODES = 200_000
 
 
 def _expanded_nodes(root: Any, budget: int) -> int:
-    """Nodes of a composed YAML node with every alias expanded, counted without expanding
-    (each distinct node once, memoised); stops above ``budget``. A node that contains
-    itself counts as unbounded."""
+    """Nodes of a composed YAML node with every alias expanded, counted without expanding;
+    stops above ``budget`` (a node that contains itself is unbounded)."""
     import yaml
 
     sizes: dict[int, int] = {}
@@ -151,17 +130,9 @@ def _expanded_nodes(root: Any, budget: int) -> int:
 
 
 def load_yaml_documents(text: str, name: str, max_nodes: int = MAX_YAML_NODES, error: type[HbvsError] = InputError) -> list[Any]:
-    """Every document of a YAML text (safe types only), refused when its aliases expand to
-    more than ``max_nodes`` nodes, before anything is built, printed or ``repr()``-ed.
+    """Every document of a YAML text (safe types only); ``error`` when its aliases expand to
+    more than ``max_nodes`` nodes, before anything is built; yaml.YAMLError when malformed."""
 
-    Raises
-    ------
-    error (InputError by default)
-        Aliases that expand beyond ``max_nodes`` (or refer to themselves): a hostile or
-        broken file, not a size to raise; the message names the top-level key.
-    yaml.YAMLError
-        Malformed YAML (the caller words it).
-    """
     import yaml
 
     loader = yaml.SafeLoader(text)

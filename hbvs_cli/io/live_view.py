@@ -1,15 +1,8 @@
 """``hbvs repeat --foxglove [PORT]``: the run served to the Foxglove app while it runs.
 
-The official Foxglove SDK (``foxglove-sdk``, ``pip install 'hbvs[live]'``) runs a WebSocket
-server (Foxglove's ``foxglove.websocket.v1`` protocol) on localhost. :class:`LiveMirror`
-sits in front of the run file's :class:`~hbvs_cli.io.mcap.McapWriter`: every message
-written to the file is also logged, with the same bytes, topic, schema (name, encoding and
-data), message encoding and log time, on an SDK channel. The file and ``-o -`` are written
-exactly as without ``--foxglove``. In Foxglove: "Open connection", Foxglove WebSocket,
-``ws://localhost:PORT``.
-
-A simulated run is paced to ``--foxglove-speed`` times real time (default 1, 0 for as fast as it
-goes), so that it can be watched.
+The Foxglove SDK's WebSocket server on localhost gets every message written to the run file,
+with the same bytes, schema and log time; the file itself is unchanged. A simulated run is
+paced to ``--foxglove-speed`` times real time so that it can be watched.
 """
 
 from __future__ import annotations
@@ -23,8 +16,7 @@ from ..errors import UsageError
 #: Foxglove's default WebSocket port (what the app proposes).
 DEFAULT_PORT = 8765
 INSTALL_HINT = "--foxglove needs the Foxglove SDK: pip install 'hbvs[live]'"
-#: Paces a live view may have (times real time): slower than 1/1000 a run of seconds would
-#: take hours (and the sleeps overflow the clock); faster than 1e6 is no pacing at all.
+#: Paces a live view may have (times real time): beyond them the sleeps overflow or do nothing.
 MIN_SPEED, MAX_SPEED = 1e-3, 1e6
 
 
@@ -37,18 +29,8 @@ def _sdk() -> Any:
 
 
 class LiveMirror:
-    """An McapWriter look-alike that writes through to ``writer`` and logs to a live server.
-
-    Parameters
-    ----------
-    writer : McapWriter
-        The run file's writer (anything with its methods).
-    context : foxglove.Context
-        The SDK context the server was started on; channels are created in it.
-    speed : float
-        Pace: a message at log time ``t`` is sent no earlier than ``t / speed`` seconds of
-        wall time after the first one (0: no pacing).
-    """
+    """An McapWriter look-alike that writes through to ``writer`` and logs on ``context``'s
+    server, a message at log time ``t`` no earlier than ``t / speed`` s after the first (0: unpaced)."""
 
     def __init__(self, writer: Any, context: Any, speed: float = 1.0) -> None:
         self._writer = writer
@@ -93,15 +75,8 @@ class LiveMirror:
 
 @contextmanager
 def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Iterator[Any]:
-    """Start the SDK's WebSocket server on ``host:port``; yield a function that wraps a writer
-    in a :class:`LiveMirror`; stop the server afterwards.
-
-    Raises
-    ------
-    UsageError
-        The SDK is missing, the port is out of range, the speed negative, or the server
-        cannot listen (the port is taken).
-    """
+    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`);
+    :class:`UsageError` when the SDK is missing, a value is out of range or the port is taken."""
     foxglove = _sdk()
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
@@ -118,18 +93,13 @@ def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Itera
         stop_within(server.stop, STOP_SECONDS)
 
 
-#: Longest wait for the server to stop (s). A client that subscribed and stopped reading
-#: can hold the SDK's stop forever; the run file is complete by then, so hbvs goes on.
+#: Longest wait for the server to stop (s): a client that stopped reading can hold it forever.
 STOP_SECONDS = 1.0
 
 
 def stop_within(stop: Any, seconds: float) -> bool:
-    """Call ``stop()`` on a daemon thread and wait at most ``seconds`` for it.
-
-    The wait is a timed join, which SIGINT and SIGTERM interrupt (their handlers raise),
-    unlike the SDK's own blocking stop. Returns True when ``stop`` returned in time; when it
-    did not, the thread is left behind (a daemon thread does not keep the process alive).
-    """
+    """Call ``stop()`` on a daemon thread and wait at most ``seconds`` (a timed join, which a stop
+    signal interrupts); True when it returned in time."""
     import threading
 
     thread = threading.Thread(target=_quietly, args=(stop,), name="hbvs-live-stop", daemon=True)
@@ -147,9 +117,9 @@ def _quietly(function: Any) -> None:
 
 @contextmanager
 def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> Iterator[Any]:
-    """A function that wraps the run file's writer: itself without ``--live`` (``port``
-    None), else in a :class:`LiveMirror` of a server started here; ``announce`` gets the
-    line that says where to connect."""
+    """A function that wraps the run file's writer: the identity when ``port`` is None, else in a
+    :class:`LiveMirror` of a server started here; ``announce`` gets where to connect."""
+
     if port is None:
         yield lambda writer: writer
         return

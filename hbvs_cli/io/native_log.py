@@ -1,12 +1,10 @@
 """What native libraries print on their own, kept off the terminal and turned into our words.
 
-libpng, libtiff (through OpenCV's ``[ERROR]`` logger) and other C code write straight to
-file descriptor 2, whatever Python's ``sys.stderr`` is. The CLI (:func:`capture`, unless
-``--debug``) points descriptor 2 at an anonymous temporary file and keeps the terminal for
-Python's ``sys.stderr`` on a copy of it; code that calls such a library takes a
-:func:`mark` before the call and, when the call fails, puts :func:`said_since` into its
-one-line error ("cannot be decoded as an image (libpng: IDAT: incorrect data check)").
+C libraries write straight to descriptor 2; :func:`capture` points it at a temporary file
+(Python's ``sys.stderr`` keeps the terminal), and a caller quotes :func:`said_since` a
+:func:`mark` in its one-line error.
 """
+
 
 from __future__ import annotations
 

@@ -1,14 +1,8 @@
-"""Where and how every output of hbvs is written (``-o``, ``--cmd-out``, ``--plot``,
-``--export-tum``), so that what a user points hbvs at is never lost.
+"""How every output of hbvs is written, so that what a user points hbvs at is never lost.
 
-``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``
-(``O_EXCL``), fsynced and renamed over ``NAME`` only when complete (keeping a replaced
-file's permissions; a symbolic link's target is replaced): an error or a signal removes it
-and leaves an earlier output as it was, and two runs never share one. A device, FIFO or
-socket is written in place. Write errors become :class:`~hbvs_cli.errors.OutputError`
-(exit 6), a closed pipe :class:`~hbvs_cli.errors.PipeClosedError` (exit 141).
-:func:`refuse_overwriting_inputs` refuses, before anything is opened, an output that is an
-input or the final name of an input's partial file (exit 2).
+``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``,
+fsynced and renamed over ``NAME`` only when complete: an error or a signal removes it and
+leaves an earlier output as it was. A device, FIFO or socket is written in place.
 """
 
 from __future__ import annotations
@@ -26,20 +20,15 @@ from typing import IO, Any, Iterator, Sequence
 
 from ..errors import InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
-#: Suffix of every file that is still being written.
 PARTIAL_SUFFIX = ".partial"
-#: ``NAME.<pid>-<hex>.partial``: what a partial file of ``NAME`` is called.
 _PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
 # ----------------------------------------------------------------------------- targets
 @dataclass(frozen=True)
 class OutputTarget:
-    """An output as hbvs will write it: ``spec`` as given; ``kind`` ``"stdout"``, ``"file"`` (a
-    regular file or a new path, written atomically) or ``"stream"`` (a device, FIFO or socket,
-    written in place); ``path`` the file finally written (links resolved; None for stdout);
-    ``existed``: a file was there already.
-    """
+    """An output as hbvs will write it: ``kind`` is ``"stdout"``, ``"file"`` (written atomically)
+    or ``"stream"`` (written in place); ``path`` the file finally written (None for stdout)."""
 
     spec: str
     kind: str
@@ -48,15 +37,8 @@ class OutputTarget:
 
 
 def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> OutputTarget:
-    """Decide how ``spec`` is written (nothing is opened or created).
-
-    Raises
-    ------
-    InputError
-        A directory (exit 3).
-    OutputError
-        A folder that does not exist: the output cannot be written there (exit 6).
-    """
+    """Decide how ``spec`` is written (nothing is opened); :class:`InputError` for a directory,
+    :class:`OutputError` for a missing folder."""
     text = os.fspath(spec)
     if text == "-":
         return OutputTarget(text, "stdout", None, True)
@@ -94,10 +76,7 @@ def final_name_of_partial(path: Path) -> Path | None:
 
 
 def stale_partial(path: Path) -> bool:
-    """True when ``path`` is a partial file or folder of hbvs (``NAME.<pid>-<hex>.partial``)
-    whose process is gone (killed with SIGKILL, or the machine stopped): nobody will finish
-    it, and removing it loses nothing. A partial of a living process, or any other name, is
-    not stale."""
+    """True when ``path`` is a partial file or folder of hbvs whose process is gone."""
     match = _PARTIAL_NAME.match(path.name)
     if match is None:
         return False
@@ -132,9 +111,7 @@ def remove_stale_partials(paths: Any) -> list[Path]:
 
 @contextmanager
 def directory_lock(folder: Path) -> Iterator[None]:
-    """Hold an advisory lock on ``folder`` itself (``flock`` on the directory: no file is
-    created) for a short critical section, waiting for another holder; a stop signal
-    interrupts the wait."""
+    """Hold an advisory ``flock`` on ``folder`` itself for a short critical section."""
     import fcntl
 
     fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
@@ -146,11 +123,8 @@ def directory_lock(folder: Path) -> Iterator[None]:
 
 
 class FolderLock:
-    """One writer at a time for an output folder: an advisory ``flock`` on ``lock_path`` (created
-    if missing and never deleted, so that two processes never lock different files), held until
-    :meth:`release` or the process ends. :class:`OutputError` (exit 6), naming the holder's pid,
-    when another process holds it.
-    """
+    """One writer at a time for an output folder: a ``flock`` on ``lock_path`` (never deleted, so
+    that two processes never lock different files); :class:`OutputError` naming the holder's pid."""
 
     def __init__(self, lock_path: Path, what: str) -> None:
         import fcntl
@@ -212,13 +186,9 @@ def refuse_overwriting_inputs(
     outputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
     inputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
 ) -> None:
-    """Refuse, before anything is opened, an output that would destroy an input or another output.
-
-    ``outputs`` and ``inputs`` are (label, path or None) pairs, ``-`` being stdout or stdin.
-    :class:`UsageError` (exit 2) for an output that is the same file as an input (device and
-    inode, links resolved; stdout redirected into it counts), the final file of an input that is
-    a partial file, or the same file as another output.
-    """
+    """:class:`UsageError` for an output that is the same file as an input (stdout redirected
+    included), the final file of an input's partial file, or another output. ``outputs`` and
+    ``inputs`` are (label, path or None) pairs."""
     known: dict[tuple[int, int], str] = {}
     recovering: dict[Path, str] = {}
     for label, spec in inputs:
@@ -259,8 +229,7 @@ def refuse_overwriting_inputs(
 
 # ----------------------------------------------------------------------------- writing
 def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
-    """The error hbvs reports for an OSError while writing ``what`` (``atomic``: a file
-    written beside its final name, so whatever was there is kept)."""
+    """The hbvs error for an OSError while writing ``what`` (``atomic``: an earlier file is kept)."""
     kept = "; an earlier file of that name is left as it was" if atomic else ""
     if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
         return PipeClosedError(f"{what}: the reader closed the pipe")
@@ -273,11 +242,8 @@ def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
 
 
 class GuardedStream:
-    """A binary write stream that reports OS errors as hbvs errors and counts bytes.
-
-    ``tell()`` answers from the count (a pipe or a device cannot seek; the mcap writer
-    asks). Closing it never closes stdout.
-    """
+    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe
+    cannot seek)."""
 
     def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False) -> None:
         self.closed = False
@@ -333,13 +299,7 @@ class GuardedStream:
 
 
 class OutputSink:
-    """What :func:`open_output_stream` yields: the stream, and how the output may be committed.
-
-    Attributes
-    ----------
-    stream : GuardedStream
-    target : OutputTarget
-    """
+    """What :func:`open_output_stream` yields: the stream, and whether it may be committed."""
 
     def __init__(self, stream: GuardedStream, target: OutputTarget) -> None:
         self.stream = stream
@@ -348,16 +308,8 @@ class OutputSink:
         self._allow_truncated = False
 
     def input_ended_early(self, name: str, allow: bool) -> None:
-        """Record that an input ended before its end record (its writer died upstream).
-
-        Such a run does not replace an existing regular file unless ``allow``
-        (``--allow-truncated``); a new file, a device, a FIFO or stdout is still written.
-
-        Raises
-        ------
-        TruncatedInputError
-            At once, when the output is an existing regular file and not ``allow``.
-        """
+        """Record that an input ended before its end record: its result then replaces an
+        existing file only with ``allow`` (:class:`TruncatedInputError` at once otherwise)."""
         self._truncated_input = name
         self._allow_truncated = allow
         self.check_commit()  # fail now, before the work, when the output is there already
@@ -382,10 +334,8 @@ def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
 
 @contextmanager
 def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
-    """Open ``spec`` (``-``: stdout, or ``stdout`` when given) as the module describes and yield
-    an :class:`OutputSink` to write ``sink.stream``; the output is committed when the body
-    succeeds. ``what`` names the output in messages (``"output"``, ``"figure"``...).
-    """
+    """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what``
+    names the output in messages."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
@@ -396,8 +346,7 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
     assert target.path is not None
     if target.kind == "stream":
         try:
-            # No O_CREAT: a device or FIFO is written as it is, never replaced (a regular
-            # file reached through /proc/self/fd is truncated, as a shell's > would).
+            # A regular file reached through /proc/self/fd is truncated, as a shell's > would.
             regular = stat.S_ISREG(os.stat(target.path).st_mode)
             fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
         except OSError as exc:
@@ -488,16 +437,12 @@ def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> 
 
 
 # ----------------------------------------------------------------------------- stdio
-#: Standard file descriptors found closed when hbvs started (see :func:`guard_stdio`).
 _closed_stdio: set[int] = set()
 
 
 def guard_stdio() -> None:
-    """Occupy closed standard descriptors with ``/dev/null`` and remember them.
-
-    A process started with stdout closed (``>&-``) would otherwise give descriptor 1 to the
-    next file it opens, and anything written to "stdout" would land in that file.
-    """
+    """Occupy closed standard descriptors with ``/dev/null`` (else the next file opened would
+    become "stdout") and remember them."""
     for fd in (0, 1, 2):
         try:
             os.fstat(fd)
@@ -513,6 +458,5 @@ def guard_stdio() -> None:
 
 
 def stdio_closed(fd: int) -> bool:
-    """Whether standard descriptor ``fd`` was closed when hbvs started."""
     return fd in _closed_stdio
 

@@ -1,13 +1,8 @@
 """ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot.
 
 ROS 2 topics are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain
-CDR; Cyclone DDS's Python binding (``pip install 'hbvs[ros2]'``) speaks that protocol, so
-the few messages hbvs needs are IDL structs with those names (``tests/test_live_dds.py``
-checks them against ``rosbags``' typestore). QoS as ROS 2: commands reliable, keep last 10;
-images best effort, keep last 5; the domain is ``ROS_DOMAIN_ID``. :func:`loopback_config`
-keeps the traffic on ``lo`` (no multicast, peer 127.0.0.1). Image ``data`` is declared
-``sequence[uint8]`` but (de)serialised as ``bytes`` in one block (:func:`_octets_as_bytes`):
-the binding's list of ints costs 40 ms an image.
+CDR, so the few messages hbvs needs are Cyclone DDS IDL structs with those names
+(``tests/test_live_dds.py`` checks them against ``rosbags``' typestore).
 """
 
 # No "from __future__ import annotations": the binding reads the structs' annotations as types.
@@ -25,16 +20,11 @@ from .topics import (
 INSTALL_HINT = "ROS 2 topics need Eclipse Cyclone DDS's Python binding: pip install 'hbvs[ros2]'"
 
 
-def _dds() -> Any:
-    try:
-        import cyclonedds.domain  # noqa: F401
-        import cyclonedds.idl
-    except ImportError:
-        raise UsageError(INSTALL_HINT) from None
-    return cyclonedds
-
-
-_dds()
+try:
+    import cyclonedds.domain  # noqa: F401
+    import cyclonedds.idl  # noqa: F401
+except ImportError:
+    raise UsageError(INSTALL_HINT) from None
 from cyclonedds.qos import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
@@ -154,15 +144,9 @@ class CameraInfo(IdlStruct, typename=dds_type_name(ROS_CAMERA_INFO_SCHEMA)):
 
 
 def _octets_as_bytes(message_type: type, name: str) -> None:
-    """(De)serialise the ``sequence[uint8]`` field ``name`` from and to ``bytes`` in one block.
-
-    The binding builds one serialisation machine per struct (XCDR1 and XCDR2) with one
-    machine per member; the member's list-of-ints machine is replaced by the binding's
-    ``bytes`` machine, whose CDR is identical (align 4, uint32 length, the bytes). The type
-    announced to DDS stays ``sequence<uint8>``. Raises if the binding's layout differs
-    (a newer binding): tests/test_live_dds.py then fails loudly instead of sending
-    something else.
-    """
+    """(De)serialise the ``sequence[uint8]`` field ``name`` as ``bytes`` in one block (the
+    binding's list of ints costs 40 ms an image): the member's serialiser is swapped for the
+    binding's ``bytes`` one, whose CDR is identical. Raises if the binding's layout differs."""
     from cyclonedds.idl._machinery import BytesMachine, PlainCdrV2SequenceOfPrimitiveMachine, StructMachine
 
     support = message_type.__idl__
@@ -249,10 +233,9 @@ def domain_id() -> int:
 
 
 def loopback_config() -> str:
-    """A Cyclone DDS configuration (for ``CYCLONEDDS_URI``) that keeps DDS on this machine:
-    the loopback interface only, no multicast, unicast discovery of the peer 127.0.0.1
-    (participant indices found automatically, so that several processes share the host).
-    The syntax is Cyclone's 0.10 and later (``Interfaces/NetworkInterface``)."""
+    """A Cyclone DDS configuration (``CYCLONEDDS_URI``, syntax of 0.10 and later) that keeps
+    DDS on this machine: ``lo`` only, no multicast, unicast discovery of 127.0.0.1."""
+
     return (
         '<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">'
         "<General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
@@ -276,14 +259,13 @@ class Ros2Node:
 
     def _topic(self, ros_name: str, message_type: type) -> Any:
         name = dds_topic_name(ros_name)
-        key = name
-        if key in self._topics:
-            topic = self._topics[key]
+        if name in self._topics:
+            topic = self._topics[name]
             if topic.data_type is not message_type:
                 raise UsageError(f"{ros_name}: used with two message types")
             return topic
         topic = Topic(self.participant, name, message_type)
-        self._topics[key] = topic
+        self._topics[name] = topic
         return topic
 
     def publisher(self, ros_name: str, message_type: type, qos: Qos) -> DataWriter:

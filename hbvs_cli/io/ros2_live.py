@@ -1,11 +1,5 @@
-"""The live robot's ROS 2 endpoints: the newest camera frame in, velocity commands out.
-
-:class:`LatestImage` subscribes to a ``sensor_msgs/msg/Image`` or ``CompressedImage`` topic
-(whichever its publisher sends, found by DDS discovery) with the sensor-data QoS and hands
-out only the newest frame: the frames that arrived while the previous one was processed are
-taken too, and counted as dropped, never queued. :class:`CommandPublisher` sends
-``geometry_msgs/msg/Twist`` (or ``TwistStamped``) with ROS 2's default QoS (reliable).
-Messages, names and QoS: :mod:`hbvs_cli.io.ros2_dds`.
+"""The live robot's ROS 2 endpoints: the newest camera frame in (older ones counted as
+dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.ros2_dds`.
 """
 
 from __future__ import annotations
@@ -27,9 +21,8 @@ DISCOVERY_TIMEOUT_S = 10.0
 
 
 def image_message_type(topic: str) -> type:
-    """The message type of an image topic, by image_transport's naming: ``.../compressed`` is
-    a ``CompressedImage``, anything else an ``Image``. (Cyclone's Python binding cannot read
-    the discovery topics reliably, so the publisher's type is not looked up.)"""
+    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image``:
+    Cyclone's Python binding cannot read the discovery topics reliably."""
     return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
 
 
@@ -38,16 +31,7 @@ def _ros_name(message_type: type) -> str:
 
 
 class LatestImage:
-    """The newest frame of an image topic.
-
-    Parameters
-    ----------
-    node : Ros2Node
-    topic : str
-        The ROS 2 image topic (``/camera/image_raw``, ``/camera/image_raw/compressed``).
-    discovery_timeout_s : float
-        How long to wait for its publisher.
-    """
+    """The newest frame of an image topic, with the sensor-data QoS."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
         from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
@@ -91,15 +75,13 @@ class LatestImage:
         return [sample for sample in samples if hasattr(sample, "header")]
 
 
-#: Largest plausible transport delay (s): a publication time further back than this (or in
-#: the future) is on another host's clock, which says nothing about the arrival here.
+#: Largest plausible transport delay (s): a publication time beyond it is another host's clock.
 _SAME_CLOCK_S = 1.0
 
 
 def _arrival(message: Any) -> float:
-    """When the frame arrived (``time.monotonic()``): the camera's DDS publication time when
-    its clock is plainly this host's (the frame may have waited in the reader while the
-    previous one was processed, and that wait counts), else now, when hbvs took it."""
+    """When the frame arrived (``time.monotonic()``): its DDS publication time when on this
+    host's clock (a wait in the reader counts), else now."""
     now, wall = time.monotonic(), time.time()
     info = getattr(message, "sample_info", None)
     source_ns = getattr(info, "source_timestamp", None)
@@ -111,13 +93,7 @@ def _arrival(message: Any) -> float:
 
 
 def decode_image_message(message: Any, topic: str) -> np.ndarray:
-    """A ``sensor_msgs`` Image or CompressedImage as 8-bit gray or BGR.
-
-    Raises
-    ------
-    InputError
-        An encoding hbvs does not read, or data that do not match the size.
-    """
+    """A ``sensor_msgs`` Image or CompressedImage as 8-bit gray or BGR; :class:`InputError` if unreadable."""
     if isinstance(message, dds.CompressedImage):
         return compressed_to_image8(message, topic)[0]
     if message.encoding == "mono8" and message.step == message.width:
@@ -130,13 +106,8 @@ def decode_image_message(message: Any, topic: str) -> np.ndarray:
 
 
 def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVERY_TIMEOUT_S) -> CameraIntrinsics:
-    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``.
-
-    Raises
-    ------
-    InputError
-        None within ``timeout_s``, or one hbvs cannot use (all-zero K, binning, a ROI).
-    """
+    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``; :class:`InputError`
+    when none comes within ``timeout_s`` or it is unusable."""
     from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
 
     # Best effort: matches the camera's CameraInfo whether it is published reliably or not.
@@ -158,15 +129,8 @@ def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVER
 
 
 class CommandPublisher:
-    """Velocity commands on a ROS 2 topic (reliable, keep last 10).
+    """Velocity commands on a ROS 2 topic (reliable): ``Twist``, or ``TwistStamped`` in ``base_link``."""
 
-    Parameters
-    ----------
-    node : Ros2Node
-    topic : str
-    stamped : bool
-        ``geometry_msgs/msg/TwistStamped`` (frame ``base_link``) instead of ``Twist``.
-    """
 
     def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
         self.topic = topic

@@ -1,20 +1,14 @@
 """``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR), written with
-``rosbags``. The topics are listed in docs/ros2.md (and in :mod:`.topics`): ``/cmd_vel``,
-the true and taught poses, ``/taught_path``, ``/tf`` and ``/tf_static``, the images with
-their ``camera_info``, and F*. Every message keeps its hbvs log time as stamp and bag time;
-poses keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives what
-``hbvs report`` gives.
+``rosbags`` (topics in docs/ros2.md). Poses keep the camera's height as z, so that ``evo_ape``
+on the two pose topics gives what ``hbvs report`` gives.
 
-The bag (a folder) is written as ``NAME.<pid>-<random>.partial/NAME`` and moved into place
-when complete, under an advisory lock on the parent folder; only a bag hbvs wrote (its
-metadata.yaml carries hbvs's mark and lists every file in the folder) is ever replaced, and
-a truncated input does not replace one unless ``--allow-truncated`` (exit 3).
+The bag folder is written beside its name and moved into place when complete; only a bag
+hbvs wrote (marked in its metadata.yaml) is ever replaced.
 """
 
 from __future__ import annotations
 
 import os
-import secrets
 import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -36,7 +30,6 @@ from .topics import (
 
 #: rosbag2 metadata version written (read by Iron and later; rosbags reads every version).
 BAG_VERSION = 8
-#: The file holding a ROS 2 bag's description: what tells a bag folder from any folder.
 BAG_METADATA = "metadata.yaml"
 #: The ``custom_data`` entry that marks a bag hbvs wrote (the only kind export replaces).
 HBVS_MARK = ("hbvs_export", "1")
@@ -63,16 +56,9 @@ def _rosbags() -> tuple[Any, Any, Any]:
 
 # ----------------------------------------------------------------------------- output folder
 def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
-    """The folder ``hbvs export -o`` will write, checked before anything is read.
-
-    Raises
-    ------
-    UsageError
-        ``-`` (a bag is a folder), an existing file or folder that is not a bag hbvs wrote
-        (:func:`written_by_hbvs`), or one of ``inputs`` stored inside it.
-    OutputError
-        The parent folder does not exist (exit 6).
-    """
+    """The folder ``hbvs export -o`` will write, checked before anything is read: :class:`UsageError`
+    for ``-``, anything but a bag hbvs wrote, or an input inside it; :class:`OutputError` for a
+    missing parent folder."""
     if spec == "-":
         raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
     final = Path(os.path.realpath(spec))
@@ -90,9 +76,8 @@ def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
 
 
 def written_by_hbvs(folder: Path) -> bool:
-    """True when ``folder`` is a bag ``hbvs export`` wrote: a rosbag2 ``metadata.yaml`` with
-    hbvs's mark in ``custom_data``, and no file but it and the bag files it lists (so that
-    replacing it deletes nothing else)."""
+    """True when ``folder`` holds hbvs's mark in its ``metadata.yaml`` and no file but the ones
+    it lists (so that replacing it deletes nothing else)."""
     from .limits import load_yaml_documents
 
     metadata = folder / BAG_METADATA
@@ -115,14 +100,11 @@ def written_by_hbvs(folder: Path) -> bool:
 
 @contextmanager
 def _atomic_folder(final: Path, before_swap: Any) -> Iterator[Path]:
-    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds.
+    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds, under
+    the parent folder's lock, after ``before_swap()`` (which may refuse) has checked it again."""
+    from .output_target import directory_lock, partial_name_of
 
-    The move happens under the parent folder's lock, after ``before_swap()`` (which may
-    refuse) has checked ``final`` again: no other export moves it meanwhile.
-    """
-    from .output_target import directory_lock
-
-    work = final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
+    work = partial_name_of(final)
     try:
         work.mkdir()
     except OSError as exc:
@@ -224,11 +206,7 @@ class _BagWriter:
 
 def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` (a path, a stream, ``-``) as the ROS 2 bag
-    folder ``output``. :class:`UsageError` when rosbags is missing or ``output`` is ``-`` or not
-    a bag hbvs wrote; :class:`RecordingError` for a malformed input;
-    :class:`TruncatedInputError` when ``source`` ended early and would replace a bag without
-    ``allow_truncated``.
-    """
+    folder ``output``; a truncated ``source`` replaces a bag only with ``allow_truncated``."""
     from .output_target import directory_lock, remove_stale_partials
 
     final = check_bag_target(output)
@@ -297,11 +275,9 @@ def _export(source: Any, final: Path, output: str, name: str, allow_truncated: b
                     from .images import read_compressed_image
 
                     image = read_compressed_image(message.data, stream.name)
-                    if message.topic == REFERENCE_IMAGE_TOPIC:
-                        bag.write(ROS_REFERENCE_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
-                        continue
-                    bag.write(ROS_IMAGE_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
-                    if camera_calibration is not None:
+                    topic = ROS_IMAGE_TOPIC if message.topic == IMAGE_TOPIC else ROS_REFERENCE_IMAGE_TOPIC
+                    bag.write(topic, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
+                    if message.topic == IMAGE_TOPIC and camera_calibration is not None:
                         bag.write(ROS_CAMERA_INFO_TOPIC, ROS_CAMERA_INFO_SCHEMA, ns, build.camera_info(ns, camera_calibration))
                 elif message.topic == MODEL_TOPIC:
                     path_poses = _fit_taught_path(message.json(stream.name), stream.name, build)
@@ -329,8 +305,8 @@ def _file_kind(stream: McapStream) -> str:
 
 
 def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Messages) -> list[Any]:
-    """The taught path of a fit file (a simulated teach): the poses at the taught frames,
-    integrated exactly from the taught commands (:class:`~hbvs_cli.core.path.CommandProfile`)."""
+    """The taught path of a fit file: poses at the taught frames, integrated from the taught commands."""
+
     from ..core.frames import yaw_to_quaternion
     from ..core.path import CommandProfile
     from .fit_file import model_from_message

@@ -1,12 +1,5 @@
-"""The run file: what ``hbvs repeat`` writes and ``hbvs report`` reads.
-
-Topics (:data:`~.topics.TOPICS` ``["run"]``, docs/files.md): the controller's state every
-step, the command sent, events, the true and taught poses (``--sim``), images and their
-annotations (``--record-images``), the calibration, and a live run's loop timing. The
-``hbvs`` metadata record holds ``file_kind = run``, the version, ``mode``, ``law``,
-``gains``, ``settings`` (every option and the seed), ``d_true`` (m, when known) and the
-fit's ``condition35``.
-"""
+"""The run file: what ``hbvs repeat`` writes and ``hbvs report`` reads (topics in
+:data:`~.topics.TOPICS` ``["run"]`` and docs/files.md)."""
 
 from __future__ import annotations
 
@@ -29,7 +22,6 @@ from .topics import (
 )
 
 FILE_KIND = "run"
-#: Schema of each topic of a run file.
 RUN_SCHEMAS = TOPICS[FILE_KIND]
 
 #: Per-step numeric fields of ``hbvs.ControllerState`` kept by :class:`RunData` (NaN for null).
@@ -47,29 +39,12 @@ TIMING_FIELDS = ("t", "frame_stamp", "latency_s", "frame_interval_s", "dropped",
 
 @dataclass
 class RunData:
-    """A whole run as arrays (one row per control step).
+    """A whole run as arrays, one row per control step (K steps).
 
-    Attributes
-    ----------
-    name : str
-    info : dict
-        The ``hbvs`` metadata record (mode, law, gains, settings, d_true...).
-    state : dict of ndarray
-        :data:`STATE_FIELDS`, each shape (K,), NaN where the message had null.
-    saturated, lost : ndarray of bool, shape (K,)
-        ``lost`` holds through dropped frames: it is the state of the last frame that arrived.
-    lost_reason : list of str
-    true_pose, desired_pose : ndarray, shape (K, 3) or None
-        (x, y, phi) at the step times (``--sim`` runs).
-    events : list of (t, level, text)
-    truncated : bool
-        The file ended early (a crashed or killed run).
-    dropped : ndarray of bool, shape (K,), or None
-        Steps whose camera frame was dropped (``frame_dropped``). ``None`` when not given
-        (a run built in memory).
-    timing : dict of ndarray or None
-        A live run's per-step timing (:data:`TIMING_FIELDS`, each shape (T,)); None for
-        simulated and replayed runs.
+    ``info`` is the ``hbvs`` metadata record; ``state`` maps :data:`STATE_FIELDS` to (K,)
+    arrays (NaN for null); ``saturated``, ``lost``, ``dropped`` are (K,) bool; ``true_pose``
+    and ``desired_pose`` (K, 3) (x, y, phi) in m, m, rad for ``--sim`` runs, else None;
+    ``events`` (t, level, text); ``timing`` a live run's :data:`TIMING_FIELDS`, else None.
     """
 
     name: str
@@ -114,8 +89,7 @@ def _number(value: Any) -> float:
 
 
 def _check_info(info: dict[str, Any], name: str) -> None:
-    """Refuse metadata whose entries have types ``hbvs report`` cannot use, or that holds
-    NaN or infinity (hbvs writes those as null; the report's JSON cannot hold them)."""
+    """Refuse metadata of types ``hbvs report`` cannot use, or holding NaN or infinity."""
     for key, types in INFO_TYPES.items():
         value = info.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, types)):
@@ -132,13 +106,7 @@ def _check_info(info: dict[str, Any], name: str) -> None:
 
 
 def read_run(source: Any, name: str = "") -> RunData:
-    """Read a run file (or ``-``) into :class:`RunData`.
-
-    Raises
-    ------
-    RecordingError
-        Not an MCAP file, not a run file, malformed messages, or no steps.
-    """
+    """Read a run file (or ``-``) into :class:`RunData`; :class:`RecordingError` if it is not one."""
     stream = McapStream(source, schemas=TOPICS[FILE_KIND], name=name)
     columns: dict[str, list[float]] = {key: [] for key in STATE_FIELDS}
     saturated: list[bool] = []
@@ -189,8 +157,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     state = {key: np.array(values) for key, values in columns.items()}
     if not np.all(np.isfinite(state["t"])) or np.any(np.diff(state["t"]) < 0):
         raise RecordingError(f"{stream.name}: the step times are missing, not finite or go backwards")
-    # Log times count from the file's time base (a fixed epoch, or a replayed recording's
-    # stamps): events are placed on the steps' clock, t = 0 at the base.
+    # Events placed on the steps' clock (log times count from the file's time base).
     base_ns = step_times[0] - int(round(state["t"][0] * 1e9))
     events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
@@ -212,12 +179,8 @@ def read_run(source: Any, name: str = "") -> RunData:
 
 # ----------------------------------------------------------------------------- writing
 class RunWriter:
-    """Writes a run file through an :class:`~hbvs_cli.io.mcap.McapWriter`, from plain values: the
-    ``hbvs`` metadata record ``info`` first, then the calibration at ``t = 0``, then every
-    message stamped ``base_ns`` plus its run time ``t`` (s). ``base_ns`` is a simulated run's
-    epoch (:data:`~hbvs_cli.io.foxglove_scene.SIMULATION_EPOCH_NS`), or None when it is known
-    only with the first frame (a replay keeps its recording's stamps): call :meth:`start` then.
-    """
+    """Writes a run file from plain values, every message stamped ``base_ns`` plus its run time
+    ``t`` (s); ``base_ns`` None when only the first frame gives it (call :meth:`start` then)."""
 
     def __init__(self, writer: McapWriter, info: dict[str, Any], camera: CameraIntrinsics, base_ns: int | None = 0) -> None:
         self.writer = writer
@@ -247,8 +210,7 @@ class RunWriter:
         self.writer.write(EVENTS_TOPIC, RUN_SCHEMAS[EVENTS_TOPIC], ns, log_message(ns, level, text))
 
     def state(self, t: float, values: dict[str, Any]) -> None:
-        """One ``hbvs.ControllerState``: ``t`` and ``values`` (numbers, strings, bools or None;
-        a NaN or infinite number is written as null), in that order."""
+        """One ``hbvs.ControllerState``: ``t`` and ``values`` (NaN and infinity written as null)."""
         ns = self.log_time_ns(t)
         message = {"timestamp": time_message(ns), "t": t}
         message.update(values)
@@ -269,8 +231,7 @@ class RunWriter:
         })
 
     def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
-        """The true robot pose and the taught pose at ``t``: ``(x, y, phi)`` (m, m, rad), the
-        camera ``height`` (m) above the floor."""
+        """The true and taught poses ``(x, y, phi)`` (m, m, rad) at ``t``; camera ``height`` (m)."""
         ns = self.log_time_ns(t)
         self.writer.write(TRUE_POSE_TOPIC, RUN_SCHEMAS[TRUE_POSE_TOPIC], ns, pose_message(ns, true_pose, height))
         self.writer.write(DESIRED_POSE_TOPIC, RUN_SCHEMAS[DESIRED_POSE_TOPIC], ns, pose_message(ns, desired_pose, height))
@@ -283,9 +244,9 @@ class RunWriter:
         self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns, annotations_message(ns, detected, desired, label))
 
     def _write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
-        """Write a message whose values are plain numbers, strings, bools, None or small
-        dicts of them: encoded directly, without the general JSON cleaning pass (this
-        runs several times per control period). ``clean=False`` when no value can be NaN."""
+        """Write a message of plain values without the general JSON cleaning pass (it runs
+        several times per control period); ``clean=False`` when no value can be NaN."""
+
         if clean:
             for key, value in message.items():
                 if isinstance(value, float) and not math.isfinite(value):

@@ -1,16 +1,9 @@
-"""The options of ``hbvs teach``, ``hbvs fit`` and ``hbvs repeat``, declared once: name, type, default,
-help, config key.
+"""The options of the commands, declared once: name, type, default, help, bounds, config key.
 
-:data:`TEACH_SETTINGS` and :data:`REPEAT_SETTINGS` are the tables. From each come the typer
-signature of the command (:mod:`hbvs_cli.cli.signature`), the options dataclass the stage
-takes (:class:`RepeatOptions`; ``TeachOptions`` adds its methods in the stage), the
-``--config`` key of each repeat option, and the defaults shown in ``--help``.
-
-Precedence: built-in default < ``--config`` file < the command line. An option that a
-config file may set holds None until it is given, so an explicit value always wins, even
-one equal to the default (``--offset -0.1,0.05,2``) or a false one (``--pixel-noise 0``).
-
-Kept light (no OpenCV, scipy, MCAP or typer): ``hbvs --help`` builds its commands from here.
+From each table come the command's typer signature (:mod:`hbvs_cli.cli.signature`), the
+options dataclass its stage takes, and the defaults ``--help`` shows. Precedence: built-in
+default < ``--config`` file < command line; an option a config may set holds None until
+given, so an explicit value always wins. Kept light: ``hbvs --help`` imports it.
 """
 
 from __future__ import annotations
@@ -33,36 +26,10 @@ FROM_THE_FIT = "the fit's suggestion"
 class Setting:
     """One option of a stage.
 
-    Attributes
-    ----------
-    name : str
-        The field of the stage's options and the parameter of the typer command.
-    type : type
-        The value's Python type as the command line parses it (``str``, ``float``, ``int``,
-        ``bool``, ``Path``); ``repeatable`` options hold a list of it.
-    help : str
-        What it does, without its default (``--help`` shows the default from ``default``
-        or ``fallback``).
-    default : object
-        What the stage's options hold when it is not given (None: "not given").
-    fallback : object
-        The value used when neither the option nor a ``--config`` file gives one (options
-        with a ``config`` key; None when the stage decides, e.g. from the fit).
-    shown : str or None
-        The default as ``--help`` words it when the value alone would not say it (it
-        depends on the fit, or None means "no limit").
-    config : str or None
-        Its key in a ``--config`` TOML file (:mod:`hbvs_cli.io.config`).
-    flags : tuple of str
-        Its option names (default ``--name-with-dashes``).
-    panel : str or None
-        Its section in ``--help``.
-    argument : bool
-        A positional argument (required) instead of an option.
-    repeatable : bool
-        May be given several times (a list).
-    bounds : mapping
-        ``min`` and ``max`` checked by the command line.
+    ``default`` is what the options hold when it is not given (None: "not given");
+    ``fallback`` the value used when neither the option nor the ``config`` key of a
+    ``--config`` file gives one; ``shown`` the default as ``--help`` words it when the value
+    alone would not say it; ``bounds`` the ``min`` and ``max`` the command line checks.
     """
 
     name: str
@@ -93,8 +60,7 @@ class Setting:
         return _shown(value)
 
     def bound_violation(self, value: float) -> str | None:
-        """Why ``value`` is outside :attr:`bounds`, in the words the command line uses for
-        this option (``hbvs sweep`` refuses a value with the same message), or None."""
+        """Why ``value`` is outside :attr:`bounds`, in the command line's words, or None."""
         low, high = self.bounds.get("min"), self.bounds.get("max")
         option = self.option_names[-1]
         if low is not None and not value >= low:
@@ -104,8 +70,7 @@ class Setting:
         return None
 
     def resolve(self, given: Any, config: Mapping[str, Any], fallback: Any = None) -> Any:
-        """The value in force: the option if given, else the config's, else the fallback
-        (``fallback`` replaces this setting's own, e.g. with the fit's suggestion)."""
+        """The option if given, else the config's value, else ``fallback`` or this setting's own."""
         if given is not None:
             return given
         if self.config is not None and self.config in config:
@@ -166,14 +131,12 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
             bounds={"min": 1, "max": 100}),
 )
 
-#: Options that describe the simulated robot and camera, and their defaults (None in the
-#: options means "not given"). A recorded source refuses them.
+#: The simulated robot's and camera's options and their defaults (a recorded source refuses them).
 SIMULATION_DEFAULTS: dict[str, Any] = {s.name: s.fallback for s in TEACH_SETTINGS if s.panel == "Simulation"}
 
 
 #: The default start offset of ``repeat --sim`` (m, m, deg): where the robot was put down by hand.
 DEFAULT_OFFSET = "-0.1,0.05,2"
-#: Default actuator limits of the simulated robot (m/s, rad/s): a small indoor platform.
 FIT_SETTINGS: tuple[Setting, ...] = (
     Setting("input", str, "Teach MCAP file, or - for stdin.", argument=True),
     Setting("output", str, OUTPUT_HELP, default="fit.mcap", flags=("-o", "--output")),
@@ -199,12 +162,13 @@ FIT_SETTINGS: tuple[Setting, ...] = (
             "order the target's points are found or any order for dots): pins the plane normal n* and gives d*."),
 )
 
+#: Default actuator limits of the simulated robot (m/s, rad/s): a small indoor platform.
 DEFAULT_MAX_V = 0.5
 DEFAULT_MAX_W = 0.6
 #: Seconds without the target before a run is stopped.
 DEFAULT_LOST_TIMEOUT = 3.0
-#: Depths an initial estimate may take (m): below a millimetre the state filter's variances
-#: (which divide by the depth squared) underflow; beyond a kilometre no target is seen.
+#: Depths an initial estimate may take (m): below 1 mm the state filter's variances underflow.
+
 MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
 #: Longest measurement latency (frames): more than any run has steps at the default limit.
 MAX_LATENCY_FRAMES = 1_000_000

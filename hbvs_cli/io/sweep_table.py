@@ -1,12 +1,8 @@
 """The results table of a sweep, written as runs finish and valid after any interruption.
 
-The folder holds ``sweep.json`` (the spec, the fit and its SHA-256, which a resume must
-match), ``parts/part-NNNNNN.parquet`` (one per flush), ``runs.parquet`` (all rows sorted,
-at the end), ``runs.csv`` (appended at every flush, rewritten sorted at the end) and
-``runs/`` (``--keep-runs``). One process writes a folder at a time (an advisory lock on
-``.hbvs-sweep.lock``; a second sweep exits 6). Files are written under partial names and
-renamed whole; a part never replaces another; a resume drops a torn CSV line, rewrites the
-CSV from the Parquet rows and skips every run index already written.
+The folder holds ``sweep.json`` (spec and fit digest, which a resume must match),
+``parts/part-NNNNNN.parquet`` (one per flush), ``runs.parquet`` and ``runs.csv`` (sorted at
+the end) and ``runs/`` (``--keep-runs``); one process writes it at a time.
 """
 
 from __future__ import annotations
@@ -63,8 +59,7 @@ METRICS: dict[str, str] = {
 BOOLEAN_METRICS = ("converged", "truncated")
 INTEGER_METRICS = ("steps",)
 
-#: What became of a run: reported; reported after ``repeat`` stopped it for a lost
-#: target (it did not converge); or failed before a report existed (``error`` says why).
+#: What became of a run: reported; stopped for a lost target; failed before a report existed.
 STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
 
 
@@ -99,14 +94,8 @@ def _replace(path: Path, write: Any) -> None:
 
 
 def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
-    """``sweep.json`` of a results folder, checked to be what ``hbvs sweep`` writes
-    (``need_spec``: with the spec's ``vary`` and ``fixed`` tables, which a summary reads).
-
-    Raises
-    ------
-    InputError
-        Missing, unreadable, or not a sweep's description (exit 3).
-    """
+    """``sweep.json`` of a results folder (``need_spec``: with the spec's ``vary`` and ``fixed``);
+    :class:`InputError` when it is not what ``hbvs sweep`` writes."""
     path = Path(folder) / SPEC_FILE
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
@@ -159,8 +148,7 @@ def _read_table(path: Path, **options: Any) -> Any:
 
 
 def _sorted_unique(table: Any) -> Any:
-    """``table`` sorted by run index, one row per index (a part written again after a kill
-    during the final merge repeats some)."""
+    """``table`` sorted by run index, one row per index (a kill during the final merge repeats some)."""
     import numpy as np
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -176,14 +164,7 @@ def _sorted_unique(table: Any) -> Any:
 
 def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iterator[Any]:
     """The rows of ``runs.parquet`` and the parts, sorted by run index, in tables of at most
-    ``window`` consecutive indices.
-
-    Only one window's rows are in memory at a time (plus every file's index column), so
-    the merge of a 100 000-run sweep takes the memory of a few thousand rows. A part holds
-    the runs that finished together, so its indices are close and it is read for one or two
-    windows; ``runs.parquet`` is sorted and written in row groups of one window, which the
-    reader's statistics skip.
-    """
+    ``window`` consecutive indices: one window's rows in memory at a time."""
     window = window or MERGE_WINDOW
     spans = []
     for path in _result_files(folder):
@@ -248,13 +229,7 @@ def done_indices(folder: Path) -> set[int]:
 
 
 def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
-    """Every row written so far (``runs.parquet`` and the parts), one per run index, sorted.
-
-    Raises
-    ------
-    InputError
-        Not a sweep's results folder.
-    """
+    """Every row written so far, one per run index, sorted; :class:`InputError` if not a sweep's folder."""
     import pyarrow as pa
 
     folder = Path(folder)
@@ -285,17 +260,8 @@ def pq_names(path: Path) -> list[str]:
 
 
 class ResultsTable:
-    """Appends rows as runs finish; see the module docstring for the files.
-
-    Parameters
-    ----------
-    folder : Path
-    schema : pyarrow.Schema
-    fingerprint : dict
-        What decides the runs (spec, fit, digest); a folder with another one is refused.
-    flush_rows, flush_seconds :
-        Write a part when this many rows wait, or this long after the last part.
-    """
+    """Appends rows as runs finish; a folder of another ``fingerprint`` is refused; a part is
+    written when ``flush_rows`` wait or ``flush_seconds`` after the last one."""
 
     def __init__(self, folder: Path, schema: Any, fingerprint: Mapping[str, Any], description: Mapping[str, Any] | None = None,
                  flush_rows: int = 256, flush_seconds: float = 2.0) -> None:
@@ -328,8 +294,7 @@ class ResultsTable:
             self.folder.mkdir(exist_ok=True)
         except OSError as exc:
             raise OutputError(f"{self.folder}: cannot create the results folder ({exc.strerror})") from None
-        # From here on this process is the folder's one writer (checked again under the lock:
-        # another sweep may have started it meanwhile).
+        # Checked again under the lock: another sweep may have started it meanwhile.
         self._lock = FolderLock(self.folder / LOCK, f"{self.folder}/ (a sweep's results)")
         if spec_path.is_file():
             if read_description(self.folder, need_spec=False).get("fingerprint") != fingerprint:
@@ -373,8 +338,7 @@ class ResultsTable:
         self._last_flush = time.monotonic()
         if not self._buffer:
             return
-        # Taken out first: a stop signal landing in here must not make a second flush
-        # write these rows again (a lost row is only re-run on resume).
+        # Taken out first: a stop signal here must not make a second flush write them again.
         rows, self._buffer = self._buffer, []
         table = pa.Table.from_pylist(rows, schema=self.schema)
         partial = partial_name_of(self.folder / PARTS / "part.parquet")
@@ -397,14 +361,13 @@ class ResultsTable:
             os.fsync(handle.fileno())
 
     def close(self) -> None:
-        """After an interruption: write the waiting rows, and make the CSV hold exactly the
-        Parquet rows (the signal may have cut a flush between the two)."""
+        """After an interruption: write the waiting rows; the CSV rewritten from the Parquet rows."""
         self.flush()
         _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
 
     def finish(self) -> int:
-        """Merge everything into ``runs.parquet`` and ``runs.csv``, sorted by run index, in a
-        streamed merge (:func:`merged_windows`); returns the number of rows."""
+        """Merge everything into ``runs.parquet`` and ``runs.csv``; returns the number of rows."""
+
         self.flush()
         merged = partial_name_of(self.folder / PARQUET)
         csv_partial = partial_name_of(self.folder / CSV)

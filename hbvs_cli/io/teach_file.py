@@ -1,10 +1,6 @@
-"""The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read.
-
-Topics (:data:`~.topics.TOPICS` ``["teach"]``, docs/files.md): every frame's image, the
-calibration once before the first frame, the taught command and the true pose of each frame
-when known (written just before its image, with the same log time, so a streaming reader has
-them when the image arrives), and the 3D scene. Metadata ``hbvs`` (``file_kind = teach``,
-version, source, settings) and, for a simulated teach, ``hbvs.world`` (to re-create it).
+"""The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read
+(topics in :data:`~.topics.TOPICS` ``["teach"]`` and docs/files.md). A frame's command and
+true pose are written just before its image, with its log time, so a streaming reader has them.
 """
 
 from __future__ import annotations
@@ -35,16 +31,8 @@ PARSE_ERRORS = (LookupError, TypeError, ValueError, AttributeError, ArithmeticEr
 
 
 def world_description(data: Any, source: str) -> dict[str, Any]:
-    """A recorded world description (the simulated world's ``to_dict``) with what io uses of it
-    checked: the camera as a calibration (image size capped) and a finite camera height (the
-    poses' z). The simulator checks the rest when it builds the world
-    (:func:`hbvs_cli.sim.world.world_from_description`).
-
-    Raises
-    ------
-    RecordingError
-        Not a mapping with a well-formed camera and camera height.
-    """
+    """A recorded world description with what io uses of it checked (the camera as a calibration,
+    a finite camera height); :class:`RecordingError` otherwise. The simulator checks the rest."""
     try:
         camera = camera_from_description(data["camera"])
     except HbvsError as exc:
@@ -77,9 +65,7 @@ def render_settings_problem(settings: Any) -> str | None:
 
 
 class TeachWriter:
-    """Writes a teach recording through an :class:`~hbvs_cli.io.mcap.McapWriter`; a simulated
-    teach hands its world (:class:`hbvs_cli.sim.world.World`: its ``to_dict`` is recorded,
-    its target drawn on ``/scene``)."""
+    """Writes a teach recording; a simulated teach hands its world (recorded, and drawn on ``/scene``)."""
 
     def __init__(
         self, writer: McapWriter, source: str, settings: dict[str, Any], world: Any = None, frame_id: str | None = None,
@@ -124,11 +110,9 @@ class TeachWriter:
 
 @dataclass(frozen=True)
 class TeachFrame:
-    """One frame of a teach recording: its 0-based ``index``, ``log_time_ns``, ``t`` (s since the
-    first frame), ``image_message`` (the stored protobuf ``foxglove.CompressedImage``: read it
-    with :meth:`stored_image`), the true ``pose`` (x, y, phi) of a simulated recording and the
-    taught ``command`` (v, w), when known.
-    """
+    """One frame of a teach recording: ``t`` in s since the first frame, ``image_message`` the
+    stored ``foxglove.CompressedImage``, the true ``pose`` (x, y, phi) and taught ``command``
+    (v, w) when known."""
 
     index: int
     log_time_ns: int
@@ -146,13 +130,10 @@ class TeachFrame:
 class TeachReader:
     """Streams the frames of a teach recording (a file or ``-``) in constant memory.
 
-    ``camera``, ``world`` and ``info`` are filled as their records arrive (before the first
-    frame in files hbvs writes). A recording cut short yields its frames up to the last
-    complete one and sets :attr:`truncated`. Iterating raises :class:`RecordingError` or
-    :class:`CalibrationError` for anything malformed: not a teach recording, a topic with the
-    wrong schema or encoding, a malformed message, a world whose camera is not a valid
-    calibration (:func:`world_description`).
+    ``camera``, ``world_description`` and ``info`` are filled as their records arrive; a
+    recording cut short yields its complete frames and sets :attr:`truncated`.
     """
+
 
     source: Any
     name: str = ""

@@ -1,10 +1,6 @@
-"""The one table of hbvs's topics and schema names.
+"""The one table of hbvs's topics and schema names, per file kind (teach, fit, run); no other
+module spells a topic (``tests/test_repository.py`` checks)."""
 
-Every MCAP file hbvs writes is one of three kinds (teach, fit, run); each kind has a fixed
-set of topics, each topic one schema. The names are written here and nowhere else: the
-writers, the readers, the stages and the documentation's tables all take them from this
-module (``tests/test_repository.py`` checks that no other module spells a topic).
-"""
 
 from __future__ import annotations
 

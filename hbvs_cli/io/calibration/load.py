@@ -13,8 +13,7 @@ from .opencv import _read_opencv_storage
 from .plain_json import _read_json
 from .ros import _read_yaml
 
-#: Calibration files are a few hundred bytes; anything above this is refused unread, so a
-#: hostile or mistaken file (a video passed as --calibration) cannot exhaust memory.
+#: Calibration files are a few hundred bytes; anything above this is refused unread.
 MAX_CALIBRATION_BYTES = 1 << 20
 
 
@@ -24,10 +23,7 @@ def load_calibration(
     """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content).
 
     ``image_size`` (width, height) is used when the file gives none; ``notes`` receives what
-    the reader assumed (a 4-coefficient file without a model, read as plumb_bob). All-zero
-    distortion becomes the ``"none"`` model. :class:`CalibrationError` if the file is missing,
-    a directory, larger than :data:`MAX_CALIBRATION_BYTES`, not UTF-8, malformed, without a
-    camera matrix or image size, or not a valid zero-skew pinhole camera.
+    the reader assumed. :class:`CalibrationError` for anything but a zero-skew pinhole camera.
     """
     name = str(path)
     data = _read_capped(Path(path), name)
@@ -37,17 +33,7 @@ def load_calibration(
 def parse_calibration(
     data: bytes | str, name: str = "calibration", image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Parse the content of a calibration file (see :func:`load_calibration`).
-
-    Parameters
-    ----------
-    data : bytes or str
-        The file content.
-    name : str
-        How to name the source in error messages (usually the file name).
-
-    Returns the intrinsics and raises :class:`CalibrationError` as :func:`load_calibration`.
-    """
+    """Parse the content of a calibration file (see :func:`load_calibration`); ``name`` names it in errors."""
     if isinstance(data, bytes):
         if len(data) > MAX_CALIBRATION_BYTES:
             raise CalibrationError(f"{name}: larger than {MAX_CALIBRATION_BYTES} bytes, not a calibration file")
@@ -67,8 +53,7 @@ def parse_calibration(
         raise CalibrationError(f"{name}: the file is empty")
 
     if head.startswith("%YAML:") or "opencv-matrix" in text or head.startswith("<"):
-        # "%YAML:1.0" is not even valid YAML for PyYAML, and the opencv-matrix tags need
-        # OpenCV's own reader; XML can only be OpenCV's too.
+        # "%YAML:1.0" and opencv-matrix tags need OpenCV's own reader; XML can only be OpenCV's.
         mapping = _read_opencv_storage(text, name)
     elif head.startswith("{") or head.startswith("["):
         mapping = _read_json(text, name)
@@ -95,8 +80,8 @@ def _read_capped(path: Path, name: str) -> bytes:
         )
     try:
         with path.open("rb") as stream:
-            # Read one byte past the cap: the size seen by stat() means nothing for pipes
-            # and device files, and the file may grow between stat() and open().
+            # One byte past the cap: stat() means nothing for pipes, and a file may grow.
+
             data = stream.read(MAX_CALIBRATION_BYTES + 1)
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None

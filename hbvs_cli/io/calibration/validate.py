@@ -12,19 +12,15 @@ from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
 from ..images import MAX_IMAGE_PIXELS
 
-#: Image sizes beyond this are surely a typo, and would make later per-pixel buffers
-#: (undistortion maps) allocate absurd amounts of memory.
+#: Image sides beyond this are surely a typo (and would make undistortion maps huge).
 _MAX_IMAGE_SIDE = 1 << 15
 
 
 _MODEL_SIZES = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
-#: Other names of the fisheye model: Kalibr's and OpenCV's ``equidistant`` is ROS's
-#: ``equidistant`` (camera_calibration's fisheye), ``kannala_brandt`` elsewhere (ROS's
-#: ``fisheye`` in older tools); all four coefficients k1..k4 of ``cv2.fisheye``.
+#: Other names of the fisheye model (k1..k4 of ``cv2.fisheye``).
 _MODEL_ALIASES = {"kannala_brandt": "equidistant", "fisheye": "equidistant", "kannala-brandt": "equidistant"}
 
-#: More numbers than any calibration matrix holds. YAML aliases let a small file describe
-#: a huge nested list; counting before flattening keeps that from exhausting memory.
+#: More numbers than any calibration matrix holds (counted before flattening: YAML aliases).
 _MAX_NUMBERS = 4096
 
 
@@ -55,11 +51,8 @@ def intrinsics_from_values(
     source: str,
 ) -> CameraIntrinsics:
     """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major,
-    or 3x3), the image size (px), the distortion model (``plumb_bob``, ``rational_polynomial``,
-    ``none``; empty or None: inferred from the number of coefficients) and its coefficients in
-    OpenCV order. ``source`` names the values in errors; :class:`CalibrationError` with the
-    checks of :func:`load_calibration`.
-    """
+    or 3x3), the image size (px), the distortion model (None: inferred from the number of
+    coefficients) and its coefficients in OpenCV order; :class:`CalibrationError` otherwise."""
     k_values = _numbers(K, f"{source}: K")
     if len(k_values) != 9:
         raise CalibrationError(f"{source}: K has {len(k_values)} numbers, expected 9")
@@ -82,10 +75,8 @@ def _build_intrinsics(
     d_key: str = "distortion_coefficients",
     notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics.
-
-    ``notes`` (when given) receives what the reader assumed and the user should know (a
-    4-coefficient file without a model read as plumb_bob)."""
+    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics; ``notes``
+    receives what the reader assumed."""
     if not all(math.isfinite(v) for v in K):
         raise CalibrationError(f"{name}: {k_key} contains NaN or infinity")
     if not all(math.isfinite(v) for v in coefficients):
@@ -126,12 +117,8 @@ def _build_intrinsics(
 def _resolve_distortion(
     model: str | None, coefficients: list[float], name: str, d_key: str, notes: list[str] | None = None
 ) -> tuple[str, tuple[float, ...]]:
-    """A supported (model, coefficients) pair, inferring the model from the count if absent.
-
-    OpenCV pads its distortion vectors with zeros (14 coefficients when the thin-prism or
-    tilt terms are off); trailing zeros beyond a model's length carry no information and
-    are dropped.
-    """
+    """A supported (model, coefficients) pair, inferring the model from the count if absent;
+    trailing zeros beyond a model's length (OpenCV's padding) are dropped."""
     requested = (model or "").strip().lower()
     requested = _MODEL_ALIASES.get(requested, requested)
     n = len(coefficients)
@@ -215,23 +202,16 @@ def _numbers(value: Any, what: str) -> list[float]:
                     f"{what} declares {rows:g}x{cols:g} but its data has {len(data)} numbers"
                 )
         return data
-    if isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
-        if value and all(isinstance(row, Sequence) and not isinstance(row, (str, bytes)) for row in value):
-            widths = {len(row) for row in value}
-            if sum(len(row) for row in value) > _MAX_NUMBERS:
-                raise CalibrationError(f"{what} has far more numbers than a calibration holds")
-            if len(widths) != 1:
-                raise CalibrationError(f"{what} has rows of different lengths")
-            return [_number(v, what) for row in value for v in row]
-        if len(value) > _MAX_NUMBERS:
-            raise CalibrationError(f"{what} has far more numbers than a calibration holds")
-        return [_number(v, what) for v in value]
-    if hasattr(value, "__len__") and hasattr(value, "__iter__") and not isinstance(value, (str, bytes)):
-        # array.array and other sized iterables (as decoded ROS messages may hold)
-        if len(value) > _MAX_NUMBERS:
-            raise CalibrationError(f"{what} has far more numbers than a calibration holds")
-        return [_number(v, what) for v in value]
-    return [_number(value, what)]
+    if isinstance(value, (str, bytes)) or not (hasattr(value, "__len__") and hasattr(value, "__iter__")):
+        return [_number(value, what)]
+    # A list, or array.array and other sized iterables (as decoded ROS messages hold).
+    rows = [value] if not value or not all(isinstance(row, Sequence) and not isinstance(row, (str, bytes)) for row in value) else value
+    if sum(len(row) for row in rows) > _MAX_NUMBERS:
+        raise CalibrationError(f"{what} has far more numbers than a calibration holds")
+    if len({len(row) for row in rows}) != 1:
+        raise CalibrationError(f"{what} has rows of different lengths")
+    return [_number(v, what) for row in rows for v in row]
+
 
 
 def _image_side(value: Any, what: str) -> int:

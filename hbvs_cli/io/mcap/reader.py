@@ -1,11 +1,8 @@
 """Reading MCAP files as streams, under caps, keeping what a truncated file holds.
 
-The ``mcap`` library's :class:`~mcap.stream_reader.StreamReader` parses the records and its
-``SeekingReader`` the summary; hbvs adds what they do not do. Every read the library makes
-is capped before it allocates (:class:`_CappedInput`); chunks are decompressed under a cap
-and their records parsed one at a time (the library builds a chunk's records as one list);
-schemas, channels and metadata are capped in number and bytes; the messages, chunk
-messages and bytes read are counted against :mod:`..limits`; and damage after good data
+The ``mcap`` library parses the records; hbvs adds what it does not do: every read is capped
+before it allocates, chunks are decompressed under a cap and parsed one record at a time,
+declarations and messages are counted against :mod:`..limits`, and damage after good data
 (a crashed recorder) ends the stream with :attr:`McapStream.truncated` instead of an error.
 """
 
@@ -35,8 +32,8 @@ class _Damaged(Exception):
 
 
 class _CappedInput:
-    """The stream the mcap library reads: a read above :data:`MAX_RECORD_BYTES` (a field
-    whose declared length is a lie) is refused, and short reads from pipes are completed."""
+    """The stream the mcap library reads: reads above :data:`MAX_RECORD_BYTES` refused, short
+    reads from pipes completed."""
 
     def __init__(self, raw: BinaryIO) -> None:
         self._raw = raw
@@ -66,8 +63,7 @@ def _read_up_to(stream: Any, size: int) -> bytes:
 
 
 class _Declarations:
-    """The schemas and channels read so far, capped in number (ids are 16-bit) and, with the
-    metadata, in bytes (:data:`MAX_DECLARED_BYTES`)."""
+    """The schemas and channels read so far, capped in number and, with the metadata, in bytes."""
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -124,8 +120,7 @@ class McapMessage:
     data: bytes
 
     def json(self, source: str = "") -> dict[str, Any]:
-        """An ``hbvs.*`` message decoded as a JSON object under :func:`decode_json`'s caps;
-        :class:`RecordingError` if it is not one."""
+        """An ``hbvs.*`` message as a JSON object; :class:`RecordingError` if it is not one."""
         if self.message_encoding != "json":
             raise RecordingError(f"{source}: message on {self.topic} is {self.message_encoding[:40]!r}, expected JSON")
         value = decode_json(self.data, f"{source}: message on {self.topic}")
@@ -134,8 +129,7 @@ class McapMessage:
         return value
 
     def foxglove(self, source: str = "") -> Any:
-        """A ``foxglove.*`` message parsed with its ``foxglove-schemas-protobuf`` class;
-        :class:`RecordingError` if it is not protobuf or does not parse."""
+        """A ``foxglove.*`` message as its protobuf class; :class:`RecordingError` if it is not one."""
         from google.protobuf.message import DecodeError
 
         message_class = _foxglove_class(self.schema_name)
@@ -171,32 +165,11 @@ _DAMAGE = (_FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, Overflo
 class McapStream:
     """The messages of an MCAP file, stream or stdin (``"-"``), in file order, in constant memory.
 
-    Parameters
-    ----------
-    source : str, path or binary stream
-    topics : set of str, optional
-        Only these topics are yielded (the others are still parsed: they share chunks).
-    schemas : dict of str to str, optional
-        Topic -> the schema name its messages must have: only these topics are yielded, and
-        a message under another schema is refused.
-    name : str
-        The source in error messages.
-
-    Attributes, filled while iterating: ``metadata`` (records by name), ``truncated`` and
-    ``stop_reason`` (the stream ended before its footer, or became unreadable after good
-    records: everything before was yielded), ``complete`` (the footer was reached) and
-    ``messages`` (yielded).
-
-    Raises
-    ------
-    InputError
-        The file is missing or unreadable.
-    RecordingError
-        Not an MCAP file, or damaged before any schema, channel or message; a record or
-        chunk above the caps; too many schemas, channels or declared bytes; a message on an
-        undeclared channel; an unsupported compression; a schema other than ``schemas`` says.
-    LimitExceededError
-        More messages, chunk messages or input bytes than :mod:`..limits` allows.
+    ``topics`` selects topics; ``schemas`` (topic -> schema name) selects them too and refuses
+    another schema. Filled while iterating: ``metadata``, ``truncated`` and ``stop_reason``
+    (the file ended or turned unreadable after good records, all yielded), ``complete`` and
+    ``messages``. Raises :class:`InputError` (unreadable), :class:`RecordingError` (not MCAP,
+    damaged before any record, above the caps) and :class:`LimitExceededError`.
     """
 
     source: Any
@@ -311,9 +284,8 @@ class McapStream:
         )
 
     def _chunk_records(self, chunk: Any) -> Iterator[Any]:
-        """The Schema, Channel and Message records of a chunk, decompressed under
-        :data:`MAX_CHUNK_BYTES`, CRC-checked, and parsed one at a time by the library's
-        record parsers (a few KB of zstd can hold millions of empty messages)."""
+        """The records of a chunk, decompressed under :data:`MAX_CHUNK_BYTES`, CRC-checked, and
+        parsed one at a time (a few KB of zstd can hold millions of empty messages)."""
         from mcap.data_stream import ReadDataStream
         from mcap.opcode import Opcode
         from mcap.records import Channel, Message, Schema
@@ -412,17 +384,8 @@ class ChannelSummary:
 
 
 def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
-    """The channels of an MCAP file's summary section, read by the library's seeking reader
-    through the same capped input (cheap on a large file); None when the file has no usable
-    summary (stream it with :class:`McapStream` instead).
+    """The channels of an MCAP file's summary section, or None when it has no usable one."""
 
-    Raises
-    ------
-    InputError
-        The file cannot be read.
-    RecordingError
-        The summary declares more than the caps allow.
-    """
     from mcap.exceptions import McapError
     from mcap.reader import SeekingReader
 

@@ -22,13 +22,9 @@ def protobuf_schema(message_class: Any) -> bytes:
 
 
 class McapWriter:
-    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks).
-
-    A protobuf message (the ``foxglove-schemas-protobuf`` classes) goes on a ``protobuf``
-    channel whose schema is its FileDescriptorSet; a dict goes on a ``json`` channel whose
-    schema is the ``hbvs.*`` JSON schema of :mod:`..schemas`. Each finished chunk of
-    ``chunk_size`` bytes is flushed, so a crash loses at most the chunk in progress.
-    """
+    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks): a
+    protobuf message on a ``protobuf`` channel, a dict on a ``json`` one with its ``hbvs.*``
+    JSON schema."""
 
     def __init__(self, stream: Any, chunk_size: int = 1024 * 1024) -> None:
         from mcap.writer import CompressionType, Writer
@@ -108,11 +104,9 @@ class McapWriter:
 
 @contextmanager
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on an output opened by :func:`~hbvs_cli.io.output_target.open_output_stream`.
+    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream`: committed
+    only when the body succeeds."""
 
-    A file is written under a partial name and renamed into place when complete; if the
-    body raises, the partial file is removed and an existing output is left as it was.
-    """
     from ..output_target import open_output_stream
 
     with open_output_stream(target, "output", stdout=stdout) as sink:

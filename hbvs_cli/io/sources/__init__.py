@@ -7,7 +7,7 @@ for the metadata and a ``camera`` attribute for intrinsics the source carries (b
 
 from __future__ import annotations
 
-from .frame_source import FrameSource, SourceFrame, to_image8
+from .frame_source import FrameSource, SourceFrame
 from .camera_source import CameraSource
 from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
@@ -22,7 +22,6 @@ __all__ = [
     "CameraSource",
     "BagSource",
     "IMAGE_EXTENSIONS",
-    "to_image8",
     "open_source",
     "SOURCE_KINDS",
 ]

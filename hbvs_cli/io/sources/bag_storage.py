@@ -1,13 +1,9 @@
 """The storage side of a ROS 2 bag: its topics and its messages, decoded on demand.
 
-:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader`` (SQLite or MCAP
-storage, split, compressed; CDR decoded with the bag's own message definitions, or its
-``ros_distro``'s typestore, Humble by default). :class:`McapFileBag` reads one ``.mcap``
-file (or a folder of them without ``metadata.yaml``) with hbvs's capped
-:class:`~hbvs_cli.io.mcap.McapStream`: ROS 2 bags, and protobuf ``foxglove.CompressedImage``
-and ``CameraCalibration`` recordings such as hbvs's own. Both keep hbvs's caps: messages
-above :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES`, message definitions and ``metadata.yaml``
-above 1 MiB are refused, and the ``messages`` limit counts every message read.
+:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag`
+reads ``.mcap`` file(s) without ``metadata.yaml`` with hbvs's capped
+:class:`~hbvs_cli.io.mcap.McapStream` (ROS 2 bags, and Foxglove protobuf recordings such as
+hbvs's own). Both keep hbvs's size caps.
 """
 
 from __future__ import annotations
@@ -27,9 +23,8 @@ from .. import limits
 from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
 from .frame_source import _natural_key
 
-#: Largest ROS 2 message definition parsed (CameraInfo with its dependencies is ~10 KB).
+#: Largest message definition and metadata.yaml read (real ones are ~10 KB).
 MAX_SCHEMA_BYTES = 1 << 20
-#: Largest metadata.yaml read (a real one is a few KB, even for a bag of hundreds of topics).
 MAX_METADATA_BYTES = 1 << 20
 
 
@@ -45,11 +40,8 @@ class BagTopic:
 
 @dataclass
 class BagMessage:
-    """One message: topic, log time (ns), size, and how to decode it.
-
-    ``mcap`` is the raw MCAP message for the files :class:`McapFileBag` reads (the
-    Foxglove schemas are decoded from it, not through ``decode``).
-    """
+    """One message: topic, log time (ns), size, how to decode it, and for :class:`McapFileBag`
+    the raw MCAP message (Foxglove schemas are decoded from it)."""
 
     topic: str
     log_time: int
@@ -65,13 +57,8 @@ def ros2_type(name: str) -> str:
 
 
 def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
-    """The reader for ``path``: a bag folder (or its ``metadata.yaml``), or ``.mcap`` file(s).
-
-    Raises
-    ------
-    InputError
-        No such path, not a bag, or a bag that cannot be opened.
-    """
+    """The reader for a bag folder (or its ``metadata.yaml``) or ``.mcap`` file(s); :class:`InputError`
+    when it is none of them."""
     if path.name == "metadata.yaml" and path.is_file():
         path = path.parent
     if path.is_dir():
@@ -132,8 +119,7 @@ def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
     if size > MAX_METADATA_BYTES:
         raise InputError(f"{name}: metadata.yaml is {size} bytes, more than the {MAX_METADATA_BYTES} hbvs reads")
     try:
-        # Aliases expanded under a limit (an alias bomb in ros_distro is refused here, before
-        # rosbags or a message shows the value).
+        # Aliases expanded under a limit, before rosbags reads it.
         documents = limits.load_yaml_documents(metadata.read_text(encoding="utf-8"), f"{name}: metadata.yaml")
         information = documents[0]["rosbag2_bagfile_information"] if documents else None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, KeyError, TypeError):
@@ -145,13 +131,8 @@ def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
 
 
 def check_metadata(information: dict[str, Any], name: str) -> None:
-    """The counts and names of metadata.yaml that rosbags and hbvs use, of the right types.
-
-    Raises
-    ------
-    InputError
-        ``message_count: many`` and the like, a ``ros_distro`` that is not a short name.
-    """
+    """:class:`InputError` unless the counts and names of metadata.yaml that rosbags and hbvs
+    use have the right types."""
     def counts(where: str, value: Any) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
@@ -178,8 +159,7 @@ def _shown(value: Any) -> str:
 
 
 def _typestore_for(information: dict[str, Any]) -> Any:
-    """The type store of the distro named in metadata.yaml (Humble when none is named): for
-    bags that carry no message definitions."""
+    """The type store of metadata.yaml's distro (Humble by default), for bags without definitions."""
     from rosbags.typesys import Stores, get_typestore
 
     distro = str(information.get("ros_distro") or "humble").strip().lower()
@@ -191,13 +171,9 @@ def _typestore_for(information: dict[str, Any]) -> Any:
 
 
 class _CappedZstd:
-    """The ``zstd`` module as rosbags' reader uses it, decompressing under caps.
-
-    rosbags decompresses a message-compressed bag's messages whole and a file-compressed
-    bag's files into TMPDIR, whatever size they expand to: here a message stops at :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` + 1 bytes of output
-    and a file at the ``decompressed-bytes`` limit, both streamed, before anything more is
-    allocated or written.
-    """
+    """The ``zstd`` module as rosbags' reader uses it, with a message capped at
+    :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` and a file at the ``decompressed-bytes`` limit
+    (rosbags itself decompresses whatever size they expand to)."""
 
     def __init__(self, module: Any) -> None:
         self._module = module
@@ -227,18 +203,19 @@ class _CappedReader(io.RawIOBase):
     def readable(self) -> bool:
         return True
 
-    def readinto(self, buffer: Any) -> int:
-        count = self._inner.readinto(buffer)
-        self._read += count or 0
+    def _count(self, size: int) -> None:
+        self._read += size
         if self._read > limits.current("decompressed-bytes"):
             raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+
+    def readinto(self, buffer: Any) -> int:
+        count = self._inner.readinto(buffer)
+        self._count(count or 0)
         return count
 
     def read(self, size: int = -1) -> bytes:
         data = self._inner.read(size if size is not None and size >= 0 else 1 << 20)
-        self._read += len(data)
-        if self._read > limits.current("decompressed-bytes"):
-            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
+        self._count(len(data))
         return data
 
     def close(self) -> None:
@@ -255,10 +232,7 @@ def _cap_rosbags_decompression() -> None:
 
 
 class RosbagsBag:
-    """A ROS 2 bag folder read with ``rosbags``' ``AnyReader`` (see the module's notes).
-
-    The reader stays open from construction to :meth:`close`.
-    """
+    """A ROS 2 bag folder read with ``rosbags``' ``AnyReader``, open until :meth:`close`."""
 
     def __init__(self, folder: Path, name: str) -> None:
         from rosbags.highlevel import AnyReader
@@ -331,8 +305,7 @@ class RosbagsBag:
 # ----------------------------------------------------------------------------- MCAP files
 @contextlib.contextmanager
 def mcap_bag_errors(name: str) -> Iterator[None]:
-    """Turn what the MCAP reader or the CDR decoder raises on a damaged file into one
-    InputError that says so."""
+    """What the MCAP reader or the CDR decoder raises on a damaged file, as one InputError."""
     try:
         yield
     except RecordingError as exc:
@@ -348,8 +321,7 @@ def mcap_bag_errors(name: str) -> Iterator[None]:
 
 
 def _require_complete(stream: McapStream, name: str) -> None:
-    """A bag file that ends early or turns unreadable is refused, as a damaged input
-    (raised as a RecordingError, which :func:`mcap_bag_errors` words for bags)."""
+    """Refuse a bag file that ends early or turns unreadable (worded by :func:`mcap_bag_errors`)."""
     if stream.truncated:
         raise RecordingError(f"{name}: {stream.stop_reason}")
 
@@ -376,8 +348,7 @@ class _Ros2Decoders:
                 id=len(self._decoders) + 1, name=message.schema_name,
                 encoding=message.schema_encoding, data=message.schema_data,
             )
-            # The vendored ROS parser prints its own complaint about a bad definition on
-            # stderr before raising; the exception says it already, in hbvs's one line.
+            # The ROS parser prints on stderr what its exception says already.
             with contextlib.redirect_stderr(io.StringIO()):
                 decoder = self._factory.decoder_for(message.message_encoding, schema)
             if decoder is None:
@@ -420,8 +391,8 @@ class McapFileBag:
 
     @staticmethod
     def _stream_channels(file: Path) -> list[ChannelSummary]:
-        """Channels and message counts from one pass over a file without a summary (a
-        recorder killed before writing it); messages are counted, not kept."""
+        """Channels and message counts from one pass over a file without a summary."""
+
         stream = McapStream(file, name=str(file))
         counts: dict[tuple[str, str, str, str], int] = {}
         for message in stream:

@@ -11,20 +11,18 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message
+from ..images import as_image8
 
 
 class CameraSource(FrameSource):
     """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with the
-    monotonic ``clock`` (s) from the first frame.
+    monotonic ``clock`` (s) from the first frame, until ``duration`` s.
 
-    The device is opened here, so a missing camera is reported before anything is recorded, and
-    released when iteration ends or stops, or by :meth:`close`. Iteration ends at the first frame
-    ``duration`` seconds (or more) after the first one; up to ``max_failed_reads`` reads in a
-    row may fail. ``capture_factory`` (``cv2.VideoCapture`` by default) and ``clock`` are
-    injectable for tests. :class:`InputError` when the device cannot be opened or delivers no
-    more frames; :class:`UsageError` for a ``duration`` that is not a positive number.
+    The device is opened here, so that a missing camera is reported before anything is
+    recorded; up to ``max_failed_reads`` reads in a row may fail.
     """
+
 
     kind = "camera"
 
@@ -112,7 +110,7 @@ class CameraSource(FrameSource):
                 t = now - first
                 if self.duration is not None and t >= self.duration:
                     return
-                yield SourceFrame(t=t, image=to_image8(np.asarray(frame), f"camera {self.index}"))
+                yield SourceFrame(t=t, image=as_image8(np.asarray(frame), f"camera {self.index}"))
                 count += 1
         finally:
             capture.release()

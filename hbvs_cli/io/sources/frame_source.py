@@ -12,28 +12,15 @@ import numpy as np
 
 from ...core.camera import CameraIntrinsics
 from ...errors import InputError, UsageError
-from ..images import as_image8
 
 _NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
 class SourceFrame:
-    """One frame from a source.
-
-    Attributes
-    ----------
-    t : float
-        Seconds from the source's first frame.
-    image : ndarray of uint8, shape (H, W) or (H, W, 3)
-        Gray, or BGR when the source has colour (:func:`hbvs_cli.io.images.as_image8`).
-    encoded, format : bytes and "jpeg"/"png", or None
-        The source's own compressed bytes, stored without re-encoding.
-    stamp_ns : int or None
-        The frame's stamp on the source's clock (ns), when it has one.
-    command : (v, w) or None
-        The operator's command at this frame (m/s, rad/s), when recorded.
-    """
+    """One frame from a source: ``t`` in s from the first frame; ``image`` uint8 gray (H, W) or
+    BGR (H, W, 3); ``encoded`` the source's own JPEG/PNG bytes; ``stamp_ns`` on the source's
+    clock; ``command`` the operator's (v, w) in m/s, rad/s, when recorded."""
 
     t: float
     image: np.ndarray
@@ -44,15 +31,8 @@ class SourceFrame:
 
 
 class FrameSource:
-    """Base of the frame sources: iterate it for :class:`SourceFrame` objects.
-
-    Attributes
-    ----------
-    kind : str
-        Short name of the source type, as in :meth:`describe`.
-    camera : CameraIntrinsics or None
-        Intrinsics found in the source itself, None when it has none.
-    """
+    """Base of the frame sources: iterate it for :class:`SourceFrame` objects; ``camera`` holds
+    intrinsics the source itself carries."""
 
     kind: str = "source"
     camera: CameraIntrinsics | None = None
@@ -74,12 +54,6 @@ class FrameSource:
 
 
 # ----------------------------------------------------------------------------- helpers
-def to_image8(image: np.ndarray, what: str) -> np.ndarray:
-    """A decoded frame as contiguous 8 bits, gray or BGR as it has colour or not (see
-    :func:`hbvs_cli.io.images.as_image8`)."""
-    return as_image8(image, what)
-
-
 def _cv_message(exc: BaseException) -> str:
     cause = exc.__cause__ if exc.__cause__ is not None else exc
     message = " ".join(str(cause).split())
@@ -88,9 +62,8 @@ def _cv_message(exc: BaseException) -> str:
 
 def _natural_key(text: str) -> tuple[Any, ...]:
     """Sort key that orders embedded numbers by value: frame2 before frame10."""
-    # re.split with a capturing group alternates text, number, text...: the types line up
-    # position by position, so the part tuples of two names always compare; the name
-    # itself breaks ties ("a01" vs "a1").
+    # Text and numbers alternate, so two names' parts always compare; the name breaks ties.
+
     parts = re.split(r"(\d+)", text)
     return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)), text
 

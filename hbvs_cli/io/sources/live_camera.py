@@ -1,9 +1,6 @@
-"""The newest frame of an OpenCV camera, for a live loop (``repeat --live --camera DEV``).
-
-A thread reads the device as fast as it delivers and keeps only the newest frame (with its
-capture time); the loop takes it when it is ready for one, and the frames it did not take
-are counted as dropped, never queued. A video file is played at its own rate (its frame
-rate from the container), so that a recording can stand in for a camera.
+"""The newest frame of an OpenCV camera, for a live loop (``repeat --live --camera DEV``): a
+thread reads the device and keeps the newest frame; the others are counted as dropped, never
+queued. A video file is played at its own rate, so that a recording can stand in for a camera.
 """
 
 from __future__ import annotations
@@ -17,7 +14,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..live_frame import LiveFrame
-from .frame_source import to_image8
+from ..images import as_image8
 
 
 def _is_file(device: str) -> bool:
@@ -27,13 +24,8 @@ def _is_file(device: str) -> bool:
 
 
 class LatestCameraFrame:
-    """Frames of ``cv2.VideoCapture(device)``, newest only.
+    """Frames of ``cv2.VideoCapture(device)`` (an index, ``/dev/videoN``, a URL or a video file), newest only."""
 
-    Parameters
-    ----------
-    device : str
-        An index (``0``), ``/dev/videoN``, an RTSP/HTTP URL or a video file.
-    """
 
     def __init__(self, device: str) -> None:
         self.device = device
@@ -69,7 +61,7 @@ class LatestCameraFrame:
             failures = 0
             count += 1
             try:
-                image8 = to_image8(np.asarray(image), f"--camera {self.device}")
+                image8 = as_image8(np.asarray(image), f"--camera {self.device}")
             except InputError as exc:
                 with self._lock:
                     self._error = str(exc)

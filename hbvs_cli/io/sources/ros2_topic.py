@@ -1,11 +1,7 @@
-"""A running ROS 2 camera as a teach source (``hbvs teach --ros2-image TOPIC``).
+"""A running ROS 2 camera as a teach source (``hbvs teach --ros2-image TOPIC``): the newest
+frame each time, stamped by its header, the intrinsics from the sibling ``camera_info`` topic
+and the taught command from ``--ros2-cmd``; until ``--duration`` or Ctrl-C."""
 
-Frames come from the image topic (:class:`hbvs_cli.io.ros2_live.LatestImage`: the newest
-each time the recorder is ready, the others counted as dropped), stamped by their headers;
-the intrinsics from the sibling ``camera_info`` topic; the taught (teleoperated) command
-from ``--ros2-cmd`` (the last ``geometry_msgs/msg/Twist`` received before each frame).
-It runs until ``--duration`` seconds of stamps or Ctrl-C.
-"""
 
 from __future__ import annotations
 

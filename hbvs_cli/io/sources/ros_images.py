@@ -1,13 +1,5 @@
-"""ROS 2 image messages to 8-bit gray or BGR (as they have colour or not): raw encodings
-through rosbags-image, compressed ones through :func:`hbvs_cli.io.images.decode_image`.
-
-Raw ``sensor_msgs/msg/Image`` encodings are read by ``rosbags-image`` (mono, rgb/bgr,
-rgba/bgra, yuv422 (UYVY) and yuv422_yuy2 (YUYV), bayer_* in 8 and 16 bits, and the
-generic ``8UC1``/``16UC1``). hbvs checks the row stride itself first (rosbags-image
-assumes rows without padding), then converts mono data as it is and colour data (rgb, bgr,
-yuv, bayer) to BGR, 16 bits keeping their high byte, as every other source does
-(:func:`~hbvs_cli.io.images.as_image8`: three equal channels become gray).
-"""
+"""ROS 2 image messages to 8-bit gray or BGR: raw encodings through ``rosbags-image``,
+compressed ones through :func:`hbvs_cli.io.images.decode_image`."""
 
 from __future__ import annotations
 
@@ -29,14 +21,9 @@ def compressed_to_image8(msg: Any, what: str) -> tuple[np.ndarray, bytes | None,
 
 
 def raw_to_image8(msg: Any, what: str) -> np.ndarray:
-    """A ``sensor_msgs/msg/Image`` in any encoding rosbags-image reads, as 8-bit gray or BGR.
+    """A ``sensor_msgs/msg/Image`` in any encoding rosbags-image reads, as 8-bit gray or BGR
+    (16 bits keep their high byte); :class:`InputError` for an unknown encoding or bad sizes."""
 
-    Raises
-    ------
-    InputError
-        An encoding rosbags-image does not know, an empty image, a stride shorter than a
-        row, or fewer bytes than the rows need.
-    """
     import cv2
     from rosbags.image import ImageError, message_to_cvimage
     from rosbags.image.image import to_cvtype

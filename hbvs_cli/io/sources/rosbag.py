@@ -1,11 +1,5 @@
-"""Images, intrinsics and the operator's commands from a ROS 2 bag (``hbvs teach --bag``).
-
-The storage is read by :mod:`.bag_storage` (``rosbags``' AnyReader for a bag folder, hbvs's
-capped MCAP reader for a lone ``.mcap`` file); this module picks the topics and turns
-messages into frames: images through :mod:`.ros_images`, the first ``CameraInfo`` into
-intrinsics, and the taught commands (``geometry_msgs/msg/Twist`` or ``TwistStamped``, else
-``nav_msgs/msg/Odometry``) into the (v, w) of each frame.
-"""
+"""Images, intrinsics and the operator's commands from a ROS 2 bag (``hbvs teach --bag``);
+the storage is read by :mod:`.bag_storage`."""
 
 from __future__ import annotations
 
@@ -20,7 +14,6 @@ import numpy as np
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError, RecordingError, UsageError
 from ..calibration import intrinsics_from_values
-from ..images import as_image8, decode_image, sniff_format
 from ..mcap import McapMessage
 from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
@@ -31,13 +24,11 @@ from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
-#: Foxglove's image and calibration schemas (hbvs's own files, Foxglove recordings), read
-#: in the protobuf and JSON encodings.
+#: Encodings of Foxglove's image and calibration schemas read (hbvs's own files).
 _FOXGLOVE_ENCODINGS = ("protobuf",)
 #: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
 _COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
-#: Largest CameraInfo message decoded: a real one is under 1 KB, and CDR arrays decode
-#: element by element in Python, so a huge one would take seconds for nothing.
+#: Largest CameraInfo message decoded (a real one is under 1 KB; CDR arrays decode slowly).
 _MAX_CAMERA_INFO_BYTES = 1 << 16
 
 
@@ -72,18 +63,12 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag (a folder, its ``metadata.yaml``, or one ``.mcap`` file), with the
-    bag's stamps, frame_id, intrinsics and taught commands.
+    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and taught commands.
 
-    ``topic`` is the image topic (``sensor_msgs/msg/Image`` or ``CompressedImage``, or
-    ``foxglove.CompressedImage``); ``cmd_topic`` the commands (``Twist``, ``TwistStamped``,
-    else ``nav_msgs/msg/Odometry``); None picks the only one with messages. ``camera`` comes
-    from the image topic's ``CameraInfo`` (``camera_problem`` says why it is unusable); a
-    frame's ``command`` is the last one at or before its stamp. ``t`` counts from the first
-    frame's ``header.stamp`` (``time_base_ns``), falling back to the log time for zero stamps.
-
-    Raises :class:`InputError` for a damaged bag, a missing or mistyped topic, an undecodable
-    image or frames that change size; :class:`UsageError` when several topics fit and none is named.
+    ``topic`` and ``cmd_topic`` None pick the only one with messages (:class:`UsageError` when
+    several fit). ``camera`` comes from the image topic's ``CameraInfo`` (``camera_problem``
+    says why it is unusable); a frame's ``command`` is the last one at or before its stamp;
+    ``t`` counts from the first frame's ``header.stamp``, or its log time for zero stamps.
     """
 
     kind = "ros2_bag"
@@ -172,14 +157,17 @@ class BagSource(FrameSource):
         best = max(infos, key=shared)
         return best if shared(best) > 0 else None
 
-    def _read_camera_info(self, topic: str) -> tuple[CameraIntrinsics | None, str | None]:
-        """The first CameraInfo message, reading only up to it."""
-        source = f"{self.path} {topic}"
+    def _first_message(self, topic: str) -> BagMessage | None:
+        """The first message of ``topic``, reading only up to it."""
         messages = self._bag.messages({topic})
         try:
-            first = next(messages, None)
+            return next(messages, None)
         finally:
             messages.close()
+
+    def _read_camera_info(self, topic: str) -> tuple[CameraIntrinsics | None, str | None]:
+        source = f"{self.path} {topic}"
+        first = self._first_message(topic)
         if first is None:
             return None, f"{source}: the topic has no messages"
         if first.size > _MAX_CAMERA_INFO_BYTES:
@@ -213,11 +201,7 @@ class BagSource(FrameSource):
     def _first_frame(self) -> tuple[int, str | None, str, np.ndarray | None]:
         """The first frame's stamp (ns), frame_id, which clock stamps the frames, and its
         image (None for a topic without messages, which iteration reports)."""
-        messages = self._bag.messages({self.topic})
-        try:
-            first = next(messages, None)
-        finally:
-            messages.close()
+        first = self._first_message(self.topic)
         if first is None:
             return 0, None, "header", None
         image, _, _, stamp_ns, frame_id = self._frame(first, f"{self.path} {self.topic} message 0")
@@ -241,8 +225,7 @@ class BagSource(FrameSource):
             frame_id = str(header.frame_id) if header is not None and header.frame_id else None
             return image, encoded, fmt, _stamp_ns(decoded), frame_id
         except (AttributeError, TypeError, ValueError, OverflowError) as exc:
-            # A message definition that does not match the type's name (a damaged or
-            # hand-made bag): the fields hbvs reads are not there.
+            # A message definition that does not match the type's name: the fields are not there.
             raise InputError(f"{what}: malformed {self._topic.type} message ({exc})") from None
 
     def __iter__(self) -> Iterator[SourceFrame]:
@@ -298,8 +281,7 @@ class BagSource(FrameSource):
         self._bag.close()
 
     def describe(self) -> dict[str, Any]:
-        """Kind, path, topic, message type, frame count, CameraInfo topic and problem, the
-        bag's storage, its first stamp (the recording's time base), frame_id and commands."""
+        """What the source is, for the recording's metadata."""
         return {
             "kind": self.kind,
             "path": self.path,
@@ -324,9 +306,8 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
     from ..images import read_compressed_image
 
     stored = read_compressed_image(message.data, what)
-    image = as_image8(decode_image(stored.data, f"{what} (format {stored.format!r})", colour=True), what)
-    fmt = sniff_format(stored.data)
-    return image, (stored.data if fmt else None), fmt, stored.stamp_ns
+    return (*compressed_to_image8(stored, what), stored.stamp_ns)
+
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:

@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, to_image8
+from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message
+from ..images import as_image8
 
 
 class VideoSource(FrameSource):
@@ -101,7 +102,7 @@ class VideoSource(FrameSource):
                     msec = float(capture.get(cv2.CAP_PROP_POS_MSEC))
                     first_msec = msec if first_msec is None else first_msec
                     t = (msec - first_msec) / 1000.0
-                yield SourceFrame(t=t, image=to_image8(frame, f"{self.path} frame {index}"))
+                yield SourceFrame(t=t, image=as_image8(frame, f"{self.path} frame {index}"))
                 index += 1
             if index == 0:
                 raise InputError(f"no frames could be decoded from {self.path}")
