@@ -1,6 +1,7 @@
 """Nothing a user points hbvs at is ever lost: outputs, concurrent runs, truncated stdin.
 
-Every case runs through the command line as a user runs it (``python -m hbvs_cli``) and
+Every case runs through the command line as a user runs it (``python -m hbvs_cli``; the
+refusals of an output that is an input in this process, through ``conftest.call_hbvs``) and
 checks the exit code, that stderr holds exactly one line (and no traceback), and that the
 inputs and any earlier good output are byte-identical afterwards. FIFO cases use ``mkfifo``
 in a temporary folder; device and full-disk cases run only as root, inside a private
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO, make_fit, make_teach
+from conftest import REPO, call_hbvs, make_fit, make_teach
 
 PRECIOUS = b"a good output from an earlier run, which hbvs must never lose\n"
 
@@ -106,7 +107,10 @@ SAME_FILE_CASES = {
 
 
 @pytest.mark.parametrize("case", list(SAME_FILE_CASES))
-def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, case):
+def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, case, monkeypatch):
+    """In this process (``call_hbvs``, the same parsing and mapping of errors): what is
+    checked is the paths, not the process around them (stdout redirected into an input,
+    below, is a real process)."""
     args, setup = SAME_FILE_CASES[case]
     if setup == "png":
         (work / "run.png").write_bytes(b"\x89PNG\r\n\x1a\n" + PRECIOUS)
@@ -121,7 +125,8 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, c
         os.link(work / "r.mcap", work / "tum" / "r.taught.tum")
     before = snapshot(work)
     tum_before = snapshot(work / "tum") if setup == "tum" else None
-    result = hbvs(work, *args)
+    monkeypatch.chdir(work)
+    result = call_hbvs(*args)
     assert result.returncode == 2, result.stderr
     line = one_line(result)
     assert "same file" in line or "belongs to" in line
