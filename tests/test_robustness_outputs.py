@@ -1,9 +1,10 @@
 """Nothing a user points hbvs at is ever lost: outputs, concurrent runs, truncated stdin.
 
-Every case runs through the command line as a user runs it (``python -m hbvs_cli``; the
-refusals of an output that is an input in this process, through ``conftest.call_hbvs``) and
-checks the exit code, that stderr holds exactly one line (and no traceback), and that the
-inputs and any earlier good output are byte-identical afterwards. FIFO cases use ``mkfifo``
+Every case runs through the command line: as a user runs it (``python -m hbvs_cli``) where
+stdin, stdout or the process matter, the others in this process through
+``conftest.call_hbvs`` (the same parsing, stages and mapping of errors). Each checks the
+exit code, that stderr holds exactly one line (and no traceback), and that the inputs and
+any earlier good output are byte-identical afterwards. FIFO cases use ``mkfifo``
 in a temporary folder; device and full-disk cases run only as root, inside a private
 mount namespace (``unshare -m``) on a tmpfs with ``mknod``: never the real ``/dev``.
 """
@@ -146,17 +147,18 @@ def test_stdout_redirected_into_the_input_is_refused(work):
 
 
 # ----------------------------------------------------------------------------- links, FIFOs
-def test_a_symlink_output_keeps_the_link_and_replaces_its_target(work):
+def test_a_symlink_output_keeps_the_link_and_replaces_its_target(work, monkeypatch):
     (work / "old.mcap").write_bytes(PRECIOUS)
     (work / "link.mcap").symlink_to("old.mcap")
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "link.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "link.mcap", "-q")
     assert result.returncode == 0, result.stderr
     assert (work / "link.mcap").is_symlink() and os.readlink(work / "link.mcap") == "old.mcap"
     assert (work / "old.mcap").read_bytes() == (work / "r.mcap").read_bytes()  # the same run, deterministic
     assert not list(work.glob("*.partial"))
 
 
-def test_a_fifo_output_is_written_in_place_for_its_reader(work):
+def test_a_fifo_output_is_written_in_place_for_its_reader(work, monkeypatch):
     fifo = work / "pipe.mcap"
     os.mkfifo(fifo)
     received = {}
@@ -167,7 +169,8 @@ def test_a_fifo_output_is_written_in_place_for_its_reader(work):
 
     reader = threading.Thread(target=read)
     reader.start()
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "pipe.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "pipe.mcap", "-q")
     reader.join(60)
     assert result.returncode == 0, result.stderr
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
@@ -175,7 +178,7 @@ def test_a_fifo_output_is_written_in_place_for_its_reader(work):
     assert not list(work.glob("*.partial"))
 
 
-def test_a_fifo_command_stream_is_written_in_place(work):
+def test_a_fifo_command_stream_is_written_in_place(work, monkeypatch):
     fifo = work / "cmd.fifo"
     os.mkfifo(fifo)
     received = {}
@@ -186,7 +189,8 @@ def test_a_fifo_command_stream_is_written_in_place(work):
 
     reader = threading.Thread(target=read)
     reader.start()
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "run2.mcap", "--cmd-out", "cmd.fifo", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "run2.mcap", "--cmd-out", "cmd.fifo", "-q")
     reader.join(60)
     assert result.returncode == 0, result.stderr
     lines = received["data"].decode().splitlines()
@@ -203,15 +207,16 @@ def test_dev_stdout_is_written_in_place_not_replaced(work):
 
 
 # ----------------------------------------------------------------------------- --cmd-out
-def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work):
+def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work, monkeypatch):
     (work / "cmd.jsonl").write_bytes(PRECIOUS)
     (work / "broken.mcap").write_bytes(b"not an mcap file at all")
     before = snapshot(work)
-    result = hbvs(work, "repeat", "f.mcap", "--replay", "broken.mcap", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--replay", "broken.mcap", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
     assert result.returncode == 3
     one_line(result)
     assert snapshot(work) == before
-    ok = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
+    ok = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
     assert ok.returncode == 0, ok.stderr
     assert len((work / "cmd.jsonl").read_text().splitlines()) == commands_in(work / "run2.mcap") > 0
 
