@@ -297,48 +297,71 @@ def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- concurrent runs
+#: A writer process that writes ``target`` once per line read from stdin ("ok" or "fail"),
+#: answering with its exit code for that round: 0, or 3 when it failed at message 300 (a
+#: SystemExit raised inside open_output, as when the process exits there). The two writers
+#: live through all the rounds: forty Python start-ups were most of the test's time.
 WRITER = r"""
 import sys, time
 from hbvs_cli.io.mcap import open_output
-target, ident, fail = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "fail"
-with open_output(target, chunk_size=4096) as writer:
-    for k in range(400):
-        writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": float(ident), "w": float(k)})
-        if k % 50 == 0:
-            writer.flush()
-            time.sleep(0.002)
-        if fail and k == 300:
-            raise SystemExit(3)
+target, ident = sys.argv[1], int(sys.argv[2])
+for order in sys.stdin:
+    fail = order.strip() == "fail"
+    try:
+        with open_output(target, chunk_size=4096) as writer:
+            for k in range(400):
+                writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": float(ident), "w": float(k)})
+                if k % 50 == 0:
+                    writer.flush()
+                    time.sleep(0.002)
+                if fail and k == 300:
+                    raise SystemExit(3)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    print(code, flush=True)
 """
 
 
-def writers_round(folder: Path, second_fails: bool) -> tuple[set[float], int]:
+def start_writers(target: Path) -> list[subprocess.Popen]:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    target = folder / "same.mcap"
-    processes = [
-        subprocess.Popen([sys.executable, "-c", WRITER, str(target), str(ident), "fail" if (second_fails and ident == 2) else "ok"], env=env)
-        for ident in (1, 2)
-    ]
-    codes = [p.wait(60) for p in processes]
+    return [subprocess.Popen([sys.executable, "-c", WRITER, str(target), str(ident)], env=env, text=True,
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE) for ident in (1, 2)]
+
+
+def writers_round(writers: list[subprocess.Popen], target: Path, second_fails: bool) -> tuple[set[float], int]:
+    """Both writers write ``target`` at once; the second fails midway if ``second_fails``."""
+    for ident, writer in zip((1, 2), writers):
+        writer.stdin.write("fail\n" if (second_fails and ident == 2) else "ok\n")
+        writer.stdin.flush()
+    codes = [int(writer.stdout.readline()) for writer in writers]
     assert codes == [0, 3 if second_fails else 0]
     from hbvs_cli.io.mcap import McapStream
 
     stream = McapStream(target)
     values = [json.loads(m.data) for m in stream]
     assert stream.complete and not stream.truncated
-    assert not list(folder.glob("*.partial"))
+    assert not list(target.parent.glob("*.partial"))
     return {v["v"] for v in values}, len(values)
 
 
 def test_two_concurrent_writers_to_one_path_twenty_times(tmp_path):
     """The final file is always one writer's complete output; a writer that fails never wins."""
-    for round_ in range(20):
-        second_fails = round_ % 4 == 3
-        writers, count = writers_round(tmp_path, second_fails)
-        assert count == 400 and len(writers) == 1
-        if second_fails:
-            assert writers == {1.0}
-        valid_mcap(tmp_path / "same.mcap")
+    target = tmp_path / "same.mcap"
+    writers = start_writers(target)
+    try:
+        for round_ in range(20):
+            second_fails = round_ % 4 == 3
+            values, count = writers_round(writers, target, second_fails)
+            assert count == 400 and len(values) == 1
+            if second_fails:
+                assert values == {1.0}
+            valid_mcap(target)
+    finally:
+        for writer in writers:
+            writer.stdin.close()
+            writer.wait(60)
+    assert [writer.returncode for writer in writers] == [0, 0]
 
 
 @pytest.mark.campaign
