@@ -157,7 +157,7 @@ def test_target_lost_for_a_stretch_stops_resumes_and_converges(default_fit, tmp_
 def test_target_lost_beyond_the_timeout_stops_with_a_valid_run_file(default_fit, tmp_path):
     fit_path, _ = default_fit
     output = tmp_path / "run.mcap"
-    result = run_hbvs("repeat", str(fit_path), "--sim", "--occlude", "5:30", "--lost-timeout", "1", "-o", str(output), "-q")
+    result = call_hbvs("repeat", str(fit_path), "--sim", "--occlude", "5:30", "--lost-timeout", "1", "-o", str(output), "-q")
     assert result.returncode == 5
     lines = result.stderr.decode().strip().splitlines()
     assert len(lines) == 1 and "lost" in lines[0]
