@@ -294,6 +294,14 @@ def default_fit(default_teach, pipeline_dir):
 
 
 @pytest.fixture(scope="session")
+def default_image_runs(default_fit, pipeline_dir):
+    """``hbvs repeat --sim`` of the default fit under the lateral-gain and the paper's law
+    (images in the loop, seed 0): {law: run file}, shared by the files that judge them."""
+    return {law: shared_recording(pipeline_dir, f"run-{law}.mcap", lambda path, law=law: make_run(default_fit[0], path, sim=True, law=law))
+            for law in ("lateral-gain", "paper")}
+
+
+@pytest.fixture(scope="session")
 def video_fit(pipeline_dir):
     """A teach from a lossless video of :func:`rendered_s_curve` (seed 1, 600 frames) and
     its fit at the target's metric size, with the drive's truth: (teach path, fit path,

@@ -65,14 +65,8 @@ PAPER_BOUNDS = (0.08, 0.2)
 
 
 @pytest.fixture(scope="module")
-def image_runs(default_fit, tmp_path_factory):
-    fit_path, _ = default_fit
-    folder = tmp_path_factory.mktemp("runs")
-    runs = {}
-    for law in ("lateral-gain", "paper"):
-        make_run(fit_path, folder / f"{law}.mcap", sim=True, law=law)
-        runs[law] = read_run(folder / f"{law}.mcap")
-    return runs
+def image_runs(default_image_runs):
+    return {law: read_run(path) for law, path in default_image_runs.items()}
 
 
 def test_default_scenario_with_images_converges_under_both_laws(image_runs, capsys):
