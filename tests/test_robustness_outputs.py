@@ -34,8 +34,8 @@ def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("outputs")
     teach = make_teach(folder / "t.mcap", duration=2.0)
     make_fit(teach, folder / "f.mcap")
-    # Through the CLI, as the tests run it: the run file records its input as given.
-    assert hbvs(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
+    # Through the CLI in the folder, as the tests run it: the run file records its input as given.
+    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
     return folder
 
 
@@ -74,6 +74,16 @@ def hbvs(folder: Path, *args: str, **kwargs):
     full_env.update(env or {})
     return subprocess.run([sys.executable, "-m", "hbvs_cli", *args], cwd=folder, capture_output=True,
                           timeout=300, env=full_env, **kwargs)
+
+
+def in_folder(folder: Path, *args: str):
+    """``hbvs ARGS`` run in ``folder``, in this process (``conftest.call_hbvs``)."""
+    here = os.getcwd()
+    os.chdir(folder)
+    try:
+        return call_hbvs(*args)
+    finally:
+        os.chdir(here)
 
 
 def valid_mcap(path: Path) -> int:
