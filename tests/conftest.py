@@ -294,6 +294,14 @@ def default_fit(default_teach, pipeline_dir):
 
 
 @pytest.fixture(scope="session")
+def default_image_runs(default_fit, pipeline_dir):
+    """``hbvs repeat --sim`` of the default fit under the lateral-gain and the paper's law
+    (images in the loop, seed 0): {law: run file}, shared by the files that judge them."""
+    return {law: shared_recording(pipeline_dir, f"run-{law}.mcap", lambda path, law=law: make_run(default_fit[0], path, sim=True, law=law))
+            for law in ("lateral-gain", "paper")}
+
+
+@pytest.fixture(scope="session")
 def video_fit(pipeline_dir):
     """A teach from a lossless video of :func:`rendered_s_curve` (seed 1, 600 frames) and
     its fit at the target's metric size, with the drive's truth: (teach path, fit path,
@@ -316,11 +324,11 @@ def video_fit(pipeline_dir):
 #: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
 #: running alone at the end made the suite ~14 s longer than its work divided by two.
 HEAVY_FILES = {
-    "test_robustness_errors.py": 25, "test_stage_fit.py": 30, "test_sweep.py": 23, "test_stage_repeat.py": 22,
-    "test_perception_footage.py": 30, "test_robustness_outputs.py": 28, "test_end_to_end.py": 24,
-    "test_robustness_fuzz.py": 17, "test_stage_options.py": 11, "test_io_rosbag_layouts.py": 15,
+    "test_robustness_errors.py": 20, "test_stage_fit.py": 30, "test_sweep.py": 23, "test_stage_repeat.py": 22,
+    "test_perception_footage.py": 30, "test_robustness_outputs.py": 9, "test_end_to_end.py": 24,
+    "test_robustness_fuzz.py": 17, "test_stage_options.py": 11, "test_io_rosbag_layouts.py": 12,
     "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
-    "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 8,
+    "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 6,
     "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6, "test_walkthrough.py": 13,
 }
 

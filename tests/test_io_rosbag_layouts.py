@@ -20,7 +20,7 @@ import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
-from conftest import errors_against_drive, make_fit, make_teach, rendered_s_curve, run_hbvs
+from conftest import call_hbvs, errors_against_drive, make_fit, make_teach, rendered_s_curve
 from test_io_sources import TYPES, CameraInfo, CompressedImage, Header, Image, RegionOfInterest, Time
 
 from hbvs_cli.core.camera import DEFAULT_CAMERA
@@ -270,6 +270,7 @@ def test_twist_stamped_and_odometry_give_the_same_commands(drive, tmp_path, comm
 
 
 def test_refusals_exit_with_the_right_code_and_one_line(drive, tmp_path):
+    """In this process (call_hbvs): the same parsing, stages and mapping of errors to one line."""
     two = tmp_path / "two_topics"
     with Writer(two, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
         for topic in ("/left/image/compressed", "/right/image/compressed"):
@@ -294,7 +295,7 @@ def test_refusals_exit_with_the_right_code_and_one_line(drive, tmp_path):
         (["--sim", "--cmd-topic", "/cmd_vel"], 2, ["--cmd-topic goes with --bag"]),
     ]
     for args, code, words in cases:
-        result = run_hbvs("teach", *args, "-o", str(output))
+        result = call_hbvs("teach", *args, "-o", str(output))
         lines = result.stderr.decode().strip().splitlines()
         assert result.returncode == code, (args, result.stderr)
         assert len(lines) == 1 and lines[0].startswith("hbvs: error:"), (args, lines)

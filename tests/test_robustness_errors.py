@@ -28,7 +28,7 @@ import zstandard
 
 from conftest import REPO, call_hbvs, make_fit, make_teach, run_with_peak_memory
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
-from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
+from test_robustness_outputs import PRECIOUS, hbvs, in_folder, one_line, snapshot
 
 #: Peak resident memory (MB) any hostile file or option may cost.
 MAX_PEAK_MB = 300
@@ -40,7 +40,7 @@ def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("errors")
     make_teach(folder / "t.mcap", duration=2.0)
     make_fit(folder / "t.mcap", folder / "f.mcap")
-    assert hbvs(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
+    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
     from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
 
     rewrite(folder / "t.mcap", folder / "late.mcap", lambda topic, t, m: (t - SIMULATION_EPOCH_NS + 2**64 - 10**10, m))

@@ -30,7 +30,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import make_run, run_hbvs
+from conftest import call_hbvs, make_run
 
 SEED = 0
 RUNS = {
@@ -46,15 +46,18 @@ RUNS = {
 
 
 @pytest.fixture(scope="module")
-def runs(default_fit, tmp_path_factory):
-    """Every run above, read back, with its ``hbvs report --json`` (one report call)."""
+def runs(default_fit, default_image_runs, tmp_path_factory):
+    """Every run above, read back, with its ``hbvs report --json`` (one report call). The
+    clean run with images is the shared lateral-gain run (the default law and seed 0)."""
     from hbvs_cli.io.run_file import read_run
 
     folder = tmp_path_factory.mktemp("faults")
     paths = {name: folder / f"{name}.mcap" for name in RUNS}
+    paths["clean_images"] = default_image_runs["lateral-gain"]
     for name, options in RUNS.items():
-        make_run(default_fit[0], paths[name], sim=True, seed=SEED, **options)
-    result = run_hbvs("report", "--json", *(str(path) for path in paths.values()))
+        if name != "clean_images":
+            make_run(default_fit[0], paths[name], sim=True, seed=SEED, **options)
+    result = call_hbvs("report", "--json", *(str(path) for path in paths.values()))
     assert result.returncode == 0, result.stderr
     reports = json.loads(result.stdout)["runs"]
     return {name: (read_run(path), report) for (name, path), report in zip(paths.items(), reports)}

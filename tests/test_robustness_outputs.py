@@ -1,8 +1,10 @@
 """Nothing a user points hbvs at is ever lost: outputs, concurrent runs, truncated stdin.
 
-Every case runs through the command line as a user runs it (``python -m hbvs_cli``) and
-checks the exit code, that stderr holds exactly one line (and no traceback), and that the
-inputs and any earlier good output are byte-identical afterwards. FIFO cases use ``mkfifo``
+Every case runs through the command line: as a user runs it (``python -m hbvs_cli``) where
+stdin, stdout or the process matter, the others in this process through
+``conftest.call_hbvs`` (the same parsing, stages and mapping of errors). Each checks the
+exit code, that stderr holds exactly one line (and no traceback), and that the inputs and
+any earlier good output are byte-identical afterwards. FIFO cases use ``mkfifo``
 in a temporary folder; device and full-disk cases run only as root, inside a private
 mount namespace (``unshare -m``) on a tmpfs with ``mknod``: never the real ``/dev``.
 """
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO, make_fit, make_teach
+from conftest import REPO, call_hbvs, make_fit, make_teach
 
 PRECIOUS = b"a good output from an earlier run, which hbvs must never lose\n"
 
@@ -32,8 +34,8 @@ def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("outputs")
     teach = make_teach(folder / "t.mcap", duration=2.0)
     make_fit(teach, folder / "f.mcap")
-    # Through the CLI, as the tests run it: the run file records its input as given.
-    assert hbvs(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
+    # Through the CLI in the folder, as the tests run it: the run file records its input as given.
+    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
     return folder
 
 
@@ -74,6 +76,16 @@ def hbvs(folder: Path, *args: str, **kwargs):
                           timeout=300, env=full_env, **kwargs)
 
 
+def in_folder(folder: Path, *args: str):
+    """``hbvs ARGS`` run in ``folder``, in this process (``conftest.call_hbvs``)."""
+    here = os.getcwd()
+    os.chdir(folder)
+    try:
+        return call_hbvs(*args)
+    finally:
+        os.chdir(here)
+
+
 def valid_mcap(path: Path) -> int:
     """Messages in a complete MCAP file, read by the official mcap reader."""
     from mcap.reader import make_reader
@@ -106,7 +118,10 @@ SAME_FILE_CASES = {
 
 
 @pytest.mark.parametrize("case", list(SAME_FILE_CASES))
-def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, case):
+def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, case, monkeypatch):
+    """In this process (``call_hbvs``, the same parsing and mapping of errors): what is
+    checked is the paths, not the process around them (stdout redirected into an input,
+    below, is a real process)."""
     args, setup = SAME_FILE_CASES[case]
     if setup == "png":
         (work / "run.png").write_bytes(b"\x89PNG\r\n\x1a\n" + PRECIOUS)
@@ -121,7 +136,8 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_opened(work, c
         os.link(work / "r.mcap", work / "tum" / "r.taught.tum")
     before = snapshot(work)
     tum_before = snapshot(work / "tum") if setup == "tum" else None
-    result = hbvs(work, *args)
+    monkeypatch.chdir(work)
+    result = call_hbvs(*args)
     assert result.returncode == 2, result.stderr
     line = one_line(result)
     assert "same file" in line or "belongs to" in line
@@ -141,17 +157,18 @@ def test_stdout_redirected_into_the_input_is_refused(work):
 
 
 # ----------------------------------------------------------------------------- links, FIFOs
-def test_a_symlink_output_keeps_the_link_and_replaces_its_target(work):
+def test_a_symlink_output_keeps_the_link_and_replaces_its_target(work, monkeypatch):
     (work / "old.mcap").write_bytes(PRECIOUS)
     (work / "link.mcap").symlink_to("old.mcap")
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "link.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "link.mcap", "-q")
     assert result.returncode == 0, result.stderr
     assert (work / "link.mcap").is_symlink() and os.readlink(work / "link.mcap") == "old.mcap"
     assert (work / "old.mcap").read_bytes() == (work / "r.mcap").read_bytes()  # the same run, deterministic
     assert not list(work.glob("*.partial"))
 
 
-def test_a_fifo_output_is_written_in_place_for_its_reader(work):
+def test_a_fifo_output_is_written_in_place_for_its_reader(work, monkeypatch):
     fifo = work / "pipe.mcap"
     os.mkfifo(fifo)
     received = {}
@@ -162,7 +179,8 @@ def test_a_fifo_output_is_written_in_place_for_its_reader(work):
 
     reader = threading.Thread(target=read)
     reader.start()
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "pipe.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "pipe.mcap", "-q")
     reader.join(60)
     assert result.returncode == 0, result.stderr
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
@@ -170,7 +188,7 @@ def test_a_fifo_output_is_written_in_place_for_its_reader(work):
     assert not list(work.glob("*.partial"))
 
 
-def test_a_fifo_command_stream_is_written_in_place(work):
+def test_a_fifo_command_stream_is_written_in_place(work, monkeypatch):
     fifo = work / "cmd.fifo"
     os.mkfifo(fifo)
     received = {}
@@ -181,7 +199,8 @@ def test_a_fifo_command_stream_is_written_in_place(work):
 
     reader = threading.Thread(target=read)
     reader.start()
-    result = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "run2.mcap", "--cmd-out", "cmd.fifo", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", "run2.mcap", "--cmd-out", "cmd.fifo", "-q")
     reader.join(60)
     assert result.returncode == 0, result.stderr
     lines = received["data"].decode().splitlines()
@@ -198,15 +217,16 @@ def test_dev_stdout_is_written_in_place_not_replaced(work):
 
 
 # ----------------------------------------------------------------------------- --cmd-out
-def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work):
+def test_cmd_out_is_atomic_a_failed_run_keeps_the_earlier_file(work, monkeypatch):
     (work / "cmd.jsonl").write_bytes(PRECIOUS)
     (work / "broken.mcap").write_bytes(b"not an mcap file at all")
     before = snapshot(work)
-    result = hbvs(work, "repeat", "f.mcap", "--replay", "broken.mcap", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
+    monkeypatch.chdir(work)
+    result = call_hbvs("repeat", "f.mcap", "--replay", "broken.mcap", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
     assert result.returncode == 3
     one_line(result)
     assert snapshot(work) == before
-    ok = hbvs(work, "repeat", "f.mcap", "--sim", "--perception", "points", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
+    ok = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "--cmd-out", "cmd.jsonl", "-o", "run2.mcap", "-q")
     assert ok.returncode == 0, ok.stderr
     assert len((work / "cmd.jsonl").read_text().splitlines()) == commands_in(work / "run2.mcap") > 0
 
@@ -287,48 +307,71 @@ def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- concurrent runs
+#: A writer process that writes ``target`` once per line read from stdin ("ok" or "fail"),
+#: answering with its exit code for that round: 0, or 3 when it failed at message 300 (a
+#: SystemExit raised inside open_output, as when the process exits there). The two writers
+#: live through all the rounds: forty Python start-ups were most of the test's time.
 WRITER = r"""
 import sys, time
 from hbvs_cli.io.mcap import open_output
-target, ident, fail = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "fail"
-with open_output(target, chunk_size=4096) as writer:
-    for k in range(400):
-        writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": float(ident), "w": float(k)})
-        if k % 50 == 0:
-            writer.flush()
-            time.sleep(0.002)
-        if fail and k == 300:
-            raise SystemExit(3)
+target, ident = sys.argv[1], int(sys.argv[2])
+for order in sys.stdin:
+    fail = order.strip() == "fail"
+    try:
+        with open_output(target, chunk_size=4096) as writer:
+            for k in range(400):
+                writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": float(ident), "w": float(k)})
+                if k % 50 == 0:
+                    writer.flush()
+                    time.sleep(0.002)
+                if fail and k == 300:
+                    raise SystemExit(3)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    print(code, flush=True)
 """
 
 
-def writers_round(folder: Path, second_fails: bool) -> tuple[set[float], int]:
+def start_writers(target: Path) -> list[subprocess.Popen]:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    target = folder / "same.mcap"
-    processes = [
-        subprocess.Popen([sys.executable, "-c", WRITER, str(target), str(ident), "fail" if (second_fails and ident == 2) else "ok"], env=env)
-        for ident in (1, 2)
-    ]
-    codes = [p.wait(60) for p in processes]
+    return [subprocess.Popen([sys.executable, "-c", WRITER, str(target), str(ident)], env=env, text=True,
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE) for ident in (1, 2)]
+
+
+def writers_round(writers: list[subprocess.Popen], target: Path, second_fails: bool) -> tuple[set[float], int]:
+    """Both writers write ``target`` at once; the second fails midway if ``second_fails``."""
+    for ident, writer in zip((1, 2), writers):
+        writer.stdin.write("fail\n" if (second_fails and ident == 2) else "ok\n")
+        writer.stdin.flush()
+    codes = [int(writer.stdout.readline()) for writer in writers]
     assert codes == [0, 3 if second_fails else 0]
     from hbvs_cli.io.mcap import McapStream
 
     stream = McapStream(target)
     values = [json.loads(m.data) for m in stream]
     assert stream.complete and not stream.truncated
-    assert not list(folder.glob("*.partial"))
+    assert not list(target.parent.glob("*.partial"))
     return {v["v"] for v in values}, len(values)
 
 
 def test_two_concurrent_writers_to_one_path_twenty_times(tmp_path):
     """The final file is always one writer's complete output; a writer that fails never wins."""
-    for round_ in range(20):
-        second_fails = round_ % 4 == 3
-        writers, count = writers_round(tmp_path, second_fails)
-        assert count == 400 and len(writers) == 1
-        if second_fails:
-            assert writers == {1.0}
-        valid_mcap(tmp_path / "same.mcap")
+    target = tmp_path / "same.mcap"
+    writers = start_writers(target)
+    try:
+        for round_ in range(20):
+            second_fails = round_ % 4 == 3
+            values, count = writers_round(writers, target, second_fails)
+            assert count == 400 and len(values) == 1
+            if second_fails:
+                assert values == {1.0}
+            valid_mcap(target)
+    finally:
+        for writer in writers:
+            writer.stdin.close()
+            writer.wait(60)
+    assert [writer.returncode for writer in writers] == [0, 0]
 
 
 @pytest.mark.campaign

@@ -15,9 +15,8 @@ import random
 import re
 import struct
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 
-from conftest import SUITE_OR_CAMPAIGN, campaign_extent, run_hbvs
+from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
 
 SEED = 20031027
 CUTS = 10
@@ -65,12 +64,13 @@ def complete_image_messages(data: bytes, topic: str = IMAGE_TOPIC) -> int:
 
 
 def fit_prefix(teach: bytes, cut: int, folder) -> tuple[int, int, str, object]:
-    """Fit ``teach[:cut]`` with the CLI; (cut, exit code, stderr, fit model or None)."""
+    """Fit ``teach[:cut]`` with the CLI (in this process: the file, not the process, is what
+    is cut); (cut, exit code, stderr, fit model or None)."""
     from hbvs_cli.io.fit_file import read_fit_file
 
     source, output = folder / f"cut{cut}.mcap", folder / f"fit{cut}.mcap"
     source.write_bytes(teach[:cut])
-    result = run_hbvs("fit", str(source), "-q", "-o", str(output))
+    result = call_hbvs("fit", str(source), "-q", "-o", str(output))
     model = read_fit_file(output).model if result.returncode == 0 else None
     return cut, result.returncode, result.stderr.decode(), model
 
@@ -85,8 +85,7 @@ def test_a_teach_cut_anywhere_fits_from_its_complete_prefix(default_teach, tmp_p
         # two in between, the longest); ``pytest -m campaign`` fits all 10.
         cuts = [cuts[0], cuts[3], cuts[6], cuts[-1]]
     assert complete_image_messages(teach) == 600  # the walker reads a whole file right
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(lambda cut: fit_prefix(teach, cut, tmp_path), cuts))
+    results = [fit_prefix(teach, cut, tmp_path) for cut in cuts]
     for cut, code, stderr, model in results:
         expected = complete_image_messages(teach[:cut])
         assert code == 0, (cut, stderr)

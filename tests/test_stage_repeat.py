@@ -65,14 +65,8 @@ PAPER_BOUNDS = (0.08, 0.2)
 
 
 @pytest.fixture(scope="module")
-def image_runs(default_fit, tmp_path_factory):
-    fit_path, _ = default_fit
-    folder = tmp_path_factory.mktemp("runs")
-    runs = {}
-    for law in ("lateral-gain", "paper"):
-        make_run(fit_path, folder / f"{law}.mcap", sim=True, law=law)
-        runs[law] = read_run(folder / f"{law}.mcap")
-    return runs
+def image_runs(default_image_runs):
+    return {law: read_run(path) for law, path in default_image_runs.items()}
 
 
 def test_default_scenario_with_images_converges_under_both_laws(image_runs, capsys):
@@ -157,7 +151,7 @@ def test_target_lost_for_a_stretch_stops_resumes_and_converges(default_fit, tmp_
 def test_target_lost_beyond_the_timeout_stops_with_a_valid_run_file(default_fit, tmp_path):
     fit_path, _ = default_fit
     output = tmp_path / "run.mcap"
-    result = run_hbvs("repeat", str(fit_path), "--sim", "--occlude", "5:30", "--lost-timeout", "1", "-o", str(output), "-q")
+    result = call_hbvs("repeat", str(fit_path), "--sim", "--occlude", "5:30", "--lost-timeout", "1", "-o", str(output), "-q")
     assert result.returncode == 5
     lines = result.stderr.decode().strip().splitlines()
     assert len(lines) == 1 and "lost" in lines[0]
