@@ -604,7 +604,9 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
                       f"{g['heading_tolerance_deg']:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g['heading_tolerance_deg']:.2f})")
     console.print(table)
     if condition.path_stops:
+        percent = 100 * condition.stopped_fraction
+        share = f"{percent:.0f}" if percent >= 1 else f"{percent:.1g}"  # a brief stop is not "0 %"
         console.warn(
-            f"the taught path stops: |x_hd1_dot| < {condition.threshold:g} 1/s for {100 * condition.stopped_fraction:.0f} % of it "
+            f"the taught path stops: |x_hd1_dot| < {condition.threshold:g} 1/s for {share} % of it "
             f"(longest {condition.longest_stop_s:.1f} s). The lateral error e2 cannot converge there (condition (35))"
         )
