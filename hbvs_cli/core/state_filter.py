@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InvalidValueError
 from .control_settings import FILTER_EKF, FILTER_NONE, FILTERS  # noqa: F401 - re-exported
 from .controller import Measurement
+from .frames import wrap_angle
 from .known_normal import normal_equations, point_jacobian
 from .labels import Label
 
@@ -284,11 +285,6 @@ def chi2_quantile(probability: float, dof: int) -> float:
     return float(chi2.ppf(probability, dof))
 
 
-def wrap(angle: float) -> float:
-    """An angle in [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 # --------------------------------------------------------------------------- small algebra
 # The filter runs every control period; in plain floats a 4-state update costs a fraction
 # of numpy's per-call overhead. A symmetric 3x3 is the 6-tuple (a00, a01, a02, a11, a12,
@@ -524,7 +520,7 @@ class ServoStateFilter:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._covariance
-        n0, n1, n2 = wrap(z[0] - theta), z[1] - x1, z[2] - x2
+        n0, n1, n2 = wrap_angle(z[0] - theta), z[1] - x1, z[2] - x2
         try:
             s00, s01, s02, s11, s12, s22 = _sym_inverse((p00 + r00, p01 + r01, p02 + r02, p11 + r11, p12 + r12, p22 + r22))
         except ZeroDivisionError:
