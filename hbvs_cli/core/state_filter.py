@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InvalidValueError
 from .control_settings import FILTER_EKF, FILTER_NONE, FILTERS  # noqa: F401 - re-exported
 from .controller import Measurement
+from .frames import wrap_angle
 from .known_normal import normal_equations, point_jacobian
 from .labels import Label
 
@@ -172,8 +173,6 @@ class FilterEstimate:
         predicted (no frame).
     depth : float
         The filter's depth d* = 1 / rho (m), as the motion measured it.
-    depth_std : float
-        Its standard deviation (m).
     depth_pull : float
         The rate (1/s) at which the update law may pull dhat towards :attr:`depth`:
         ``depth_pull_rate / (1 + (relative std / depth_trust)^2)``, 0 while the depth is
@@ -186,7 +185,6 @@ class FilterEstimate:
     noise: float
     outcome: FilterOutcome
     depth: float = math.nan
-    depth_std: float = math.nan
     depth_pull: float = 0.0
 
 
@@ -258,12 +256,6 @@ def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float)
     return theta - dphi, c * a + s * b, -s * a + c * b
 
 
-def state_rate(state: ArrayLike, v: float, w: float, depth: float) -> NDArray[np.float64]:
-    """(theta_dot, x_h1_dot, x_h2_dot) from (5), (23): ``-w``, ``x_h2 w - v / d*``, ``-x_h1 w``."""
-    _, x1, x2 = (float(s) for s in state)
-    return np.array([-w, x2 * w - v / depth, -x1 * w])
-
-
 def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float64], state: ArrayLike) -> NDArray[np.float64]:
     """``J^T J`` of the N normalised image points with respect to (theta, x_h1, x_h2).
 
@@ -293,11 +285,6 @@ def chi2_quantile(probability: float, dof: int) -> float:
     return float(chi2.ppf(probability, dof))
 
 
-def wrap(angle: float) -> float:
-    """An angle in [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 # --------------------------------------------------------------------------- small algebra
 # The filter runs every control period; in plain floats a 4-state update costs a fraction
 # of numpy's per-call overhead. A symmetric 3x3 is the 6-tuple (a00, a01, a02, a11, a12,
@@ -321,16 +308,6 @@ def _sym_inverse(a: Sym3) -> Sym3:
     inv = 1.0 / det
     return (c00 * inv, c01 * inv, c02 * inv, (a00 * a22 - a02 * a02) * inv, (a01 * a02 - a00 * a12) * inv,
             (a00 * a11 - a01 * a01) * inv)
-
-
-def _sym_times(a: Sym3, v: Vec3) -> Vec3:
-    a00, a01, a02, a11, a12, a22 = a
-    return (a00 * v[0] + a01 * v[1] + a02 * v[2], a01 * v[0] + a11 * v[1] + a12 * v[2], a02 * v[0] + a12 * v[1] + a22 * v[2])
-
-
-def _sym_to_array(a: Sym3) -> NDArray[np.float64]:
-    a00, a01, a02, a11, a12, a22 = a
-    return np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
 
 
 def _sym4_to_array(p: Sym4) -> NDArray[np.float64]:
@@ -419,14 +396,6 @@ class ServoStateFilter:
         return 1.0 / rho if rho > 0.0 else math.nan
 
     @property
-    def depth_std(self) -> float:
-        """Standard deviation of :attr:`depth` (m), to first order: ``std(rho) / rho^2``."""
-        if self._state is None:
-            return self.settings.depth_prior * self.depth
-        rho = self._state[3]
-        return math.sqrt(max(self._covariance[9], 0.0)) / (rho * rho)
-
-    @property
     def started(self) -> bool:
         return self._state is not None
 
@@ -512,12 +481,6 @@ class ServoStateFilter:
             p33,
         )
 
-    def extrapolate(self, commands: list[tuple[float, float]], dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """The estimate and its covariance (theta, x_h1, x_h2) carried over commands already
-        sent but not yet seen by the camera (latency), without changing the filter."""
-        carried = self._carried(commands, dt)
-        return None if carried is None else (np.array(carried[0][:3]), _sym4_to_array(carried[1])[:3, :3])
-
     def _carried(self, commands: list[tuple[float, float]], dt: float) -> tuple[State, Sym4] | None:
         if self._state is None:
             return None
@@ -557,7 +520,7 @@ class ServoStateFilter:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._covariance
-        n0, n1, n2 = wrap(z[0] - theta), z[1] - x1, z[2] - x2
+        n0, n1, n2 = wrap_angle(z[0] - theta), z[1] - x1, z[2] - x2
         try:
             s00, s01, s02, s11, s12, s22 = _sym_inverse((p00 + r00, p01 + r01, p02 + r02, p11 + r11, p12 + r12, p22 + r22))
         except ZeroDivisionError:
@@ -696,10 +659,9 @@ class ServoStateFilter:
         return FilterEstimate(
             measurement=Measurement(theta=theta, x_h1=x1, x_h2=x2),
             std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[4], 0.0)), math.sqrt(max(p[7], 0.0)))),
-            rate=np.array((-w, x2 * w - v / depth, -x1 * w)),  # state_rate, (5), (23)
+            rate=np.array((-w, x2 * w - v / depth, -x1 * w)),  # (5), (23)
             noise=math.sqrt(self.noise_variance),
             outcome=self.last_outcome,
             depth=depth,
-            depth_std=math.sqrt(max(p[9], 0.0)) * depth * depth,
             depth_pull=self.depth_pull(),
         )

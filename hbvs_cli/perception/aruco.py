@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
+from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
 
 #: The default dictionary (hbvs's simulated marker).
 DEFAULT_DICTIONARY = "DICT_4X4_50"
@@ -245,7 +245,7 @@ class ArucoMarkerDetector:
         considered = 0
         searches = [(None, None)]
         if prediction is not None:
-            window = _window(gray.shape, prediction)
+            window = search_window(gray.shape, prediction, 0.5, 16)
             if window is not None:
                 searches = [(window, self._window_detector), (window, None), (None, None)]
         # Narrowest search first; a wider one only while markers are missing (a board partly
@@ -455,18 +455,3 @@ def _bilinear(gray: NDArray[np.uint8], points: NDArray[np.float64]) -> NDArray[n
     top = flat[at] * (1 - fx) + flat[at + 1] * fx
     bottom = flat[at + width] * (1 - fx) + flat[at + width + 1] * fx
     return top * (1 - fy) + bottom * fy
-
-
-def _window(shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int] | None:
-    """The predicted marker's box grown by half its size plus 16 px, clipped to the frame."""
-    known = prediction[np.all(np.isfinite(prediction), axis=1)]
-    if len(known) < 2:
-        return None
-    low, high = known.min(axis=0), known.max(axis=0)
-    margin = 0.5 * float(np.max(high - low)) + 16.0
-    height, width = shape
-    x0, y0 = int(max(np.floor(low[0] - margin), 0)), int(max(np.floor(low[1] - margin), 0))
-    x1, y1 = int(min(np.ceil(high[0] + margin) + 1, width)), int(min(np.ceil(high[1] + margin) + 1, height))
-    if x1 - x0 < 16 or y1 - y0 < 16:
-        return None
-    return x0, y0, x1, y1

@@ -115,6 +115,26 @@ def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.f
     return array
 
 
+def search_window(shape: tuple[int, int], prediction: NDArray[np.float64], grow: float, min_size: int,
+                  per_axis: bool = False) -> tuple[int, int, int, int] | None:
+    """The predicted target's box (x0, y0, x1, y1) grown by ``grow`` times its size (its
+    larger side, or each side with ``per_axis``) plus 16 px, clipped to the frame; None when
+    fewer than two points are predicted or it is narrower than ``min_size`` px."""
+    known = prediction[np.all(np.isfinite(prediction), axis=1)]
+    if len(known) < 2:
+        return None
+    low, high = known.min(axis=0), known.max(axis=0)
+    extent = high - low
+    margin = grow * (extent if per_axis else np.full(2, np.max(extent))) + 16.0
+    height, width = shape
+    x0, y0 = int(max(np.floor(low[0] - margin[0]), 0)), int(max(np.floor(low[1] - margin[1]), 0))
+    x1 = int(min(np.ceil(high[0] + margin[0]) + 1, width))
+    y1 = int(min(np.ceil(high[1] + margin[1]) + 1, height))
+    if x1 - x0 < min_size or y1 - y0 < min_size:
+        return None
+    return x0, y0, x1, y1
+
+
 def signed_polygon_area(points: ArrayLike) -> float:
     """Signed area of a polygon (shoelace), shape (N, 2): positive when its vertices run
     counter-clockwise in x-right, y-up axes (clockwise on an image).

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray
-from .chessboard import saddle_points
+from .chessboard import refine_twice, saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -277,12 +277,7 @@ class CharucoTargetDetector:
         refined = corners.copy()
         if not np.any(inside):
             return refined
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
-        once = corners[inside].astype(np.float32).reshape(-1, 1, 2)
-        cv2.cornerSubPix(gray, once, (window, window), (-1, -1), criteria)
-        again = once + np.float32((0.5, -0.5))
-        cv2.cornerSubPix(gray, again, (window, window), (-1, -1), criteria)
-        once_px, again_px = once.reshape(-1, 2).astype(np.float64), again.reshape(-1, 2).astype(np.float64)
+        once_px, again_px = refine_twice(gray, corners[inside], window, (0.5, -0.5))
         good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= 0.1)
         rows = np.flatnonzero(inside)[good]
         refined[rows] = once_px[good]

@@ -162,16 +162,11 @@ class ChessboardDetector:
         margin = window + 2
         if np.any(prediction < margin) or np.any(prediction[:, 0] > width - 1 - margin) or np.any(prediction[:, 1] > height - 1 - margin):
             return None
-        corners = prediction.astype(np.float32).reshape(-1, 1, 2).copy()
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
-        cv2.cornerSubPix(gray, corners, (window, window), (-1, -1), criteria)
-        settled = corners + np.float32(RESTART_OFFSET_PX)
-        cv2.cornerSubPix(gray, settled, (window, window), (-1, -1), criteria)
-        corners = corners.reshape(-1, 2).astype(np.float64)
+        corners, settled = refine_twice(gray, prediction, window, RESTART_OFFSET_PX)
         # A corner draws the refinement from all around: started again a little off, it
         # must come back. From a prediction a few pixels off the refinement can stop on
         # the grid but off the corners (found: 2 px off on 5 px squares).
-        if np.max(np.linalg.norm(corners - prediction, axis=1)) > MAX_TRACKED_MOVE_PX or np.max(np.linalg.norm(settled.reshape(-1, 2) - corners, axis=1)) > SETTLED_PX:
+        if np.max(np.linalg.norm(corners - prediction, axis=1)) > MAX_TRACKED_MOVE_PX or np.max(np.linalg.norm(settled - corners, axis=1)) > SETTLED_PX:
             return None
         H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
         if H is None:
@@ -191,6 +186,18 @@ SADDLE_SMOOTHING_PX = 0.8
 SADDLE_RADIUS_PX = 1.5
 SADDLE_PASSES = 3
 SADDLE_MAX_STEP_PX = 1.0
+
+
+def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: int,
+                 offset: tuple[float, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``cornerSubPix`` of ``points`` (N, 2), and of the result moved by ``offset`` (px): a
+    true corner draws the second refinement back to the first."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+    once = points.astype(np.float32).reshape(-1, 1, 2).copy()
+    cv2.cornerSubPix(gray, once, (window, window), (-1, -1), criteria)
+    again = once + np.float32(offset)
+    cv2.cornerSubPix(gray, again, (window, window), (-1, -1), criteria)
+    return once.reshape(-1, 2).astype(np.float64), again.reshape(-1, 2).astype(np.float64)
 
 
 def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64]) -> NDArray[np.float64]:

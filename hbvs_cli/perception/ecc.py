@@ -62,7 +62,7 @@ def align_homography(
         images equal up to gain and offset); NaN when ECC failed.
     """
     height, width = frame.shape
-    start = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+    start = transfer(homography, check_points)
     # Work on the frame's region around the target: ECC warps the whole input each step.
     low = np.floor(start.min(axis=0) - 8).astype(int)
     high = np.ceil(start.max(axis=0) + 8).astype(int)
@@ -80,8 +80,8 @@ def align_homography(
             first = warp
             correlation, warp = cv2.findTransformECC(template, crop, first.copy(), cv2.MOTION_HOMOGRAPHY, (cv2.TERM_CRITERIA_COUNT, 1, 0.0),
                                                      None, blur)
-            step = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), warp.astype(np.float64))
-            before = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), first.astype(np.float64))
+            step = transfer(warp.astype(np.float64), check_points)
+            before = transfer(first.astype(np.float64), check_points)
             settled = bool(np.max(np.abs(step - before)) <= settle_px)
         else:
             settled = False
@@ -98,7 +98,12 @@ def align_homography(
     if not np.all(np.isfinite(refined)) or abs(refined[2, 2]) < 1e-12:
         return None, correlation
     refined /= refined[2, 2]
-    moved = cv2.perspectiveTransform(check_points.reshape(-1, 1, 2).astype(np.float64), refined).reshape(-1, 2)
+    moved = transfer(refined, check_points)
     if not np.all(np.isfinite(moved)) or np.max(np.linalg.norm(moved - start, axis=1)) > MAX_CORRECTION_PX:
         return None, correlation
     return refined, correlation
+
+
+def transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points (N, 2) mapped by a homography."""
+    return cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)

@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, signed_polygon_area
-from .ecc import align_homography
+from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
+from .ecc import align_homography, transfer
 
 #: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
 ALIGN_BLUR_SIGMA = 0.8
@@ -203,7 +203,7 @@ class TextureDetector:
                     result = self._aligned_from(gray, guess)
                     aligned = result is not None
             if result is None:
-                window = _window(gray.shape, prediction)
+                window = search_window(gray.shape, prediction, 0.6, 32, per_axis=True)
                 if window is not None:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
@@ -225,7 +225,7 @@ class TextureDetector:
         homography, correlation = self._aligned_homography(gray, result.homography)
         if homography is None:
             return result
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
+        return TextureDetection(transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
                                 result.inliers, correlation)
 
     def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64],
@@ -236,7 +236,7 @@ class TextureDetector:
         homography, correlation = self._aligned_homography(gray, guess, min_correlation)
         if homography is None or not _plausible(homography, self.reference_pixels, gray.shape):
             return None
-        return TextureDetection(_transfer(homography, self.reference_pixels), True, 0, 0, homography, 0, correlation)
+        return TextureDetection(transfer(homography, self.reference_pixels), True, 0, 0, homography, 0, correlation)
 
     def _aligned_homography(self, gray: NDArray[np.uint8], homography: NDArray[np.float64],
                             min_correlation: float | None = None) -> tuple[NDArray[np.float64] | None, float]:
@@ -254,7 +254,7 @@ class TextureDetector:
         template_sigma, frame_sigma = _matched_blur(homography, self.reference_pixels)
         if template_sigma > ALIGN_BLUR_SIGMA:  # the frame sees the target smaller than the reference
             template = self._template(template_sigma)
-        region = _smoothed_region(gray, _transfer(homography, self.reference_pixels), frame_sigma)
+        region = _smoothed_region(gray, transfer(homography, self.reference_pixels), frame_sigma)
         if region is None:
             return None, float("nan")
         (fx0, fy0), frame = region
@@ -335,7 +335,7 @@ class TextureDetector:
             polished = self._follow(gray, homography, levels=1)
             if polished is not None:
                 homography = polished.homography
-        pixels = _transfer(homography, self.reference_pixels)
+        pixels = transfer(homography, self.reference_pixels)
         return TextureDetection(pixels, True, candidates, candidates - inliers, homography, inliers)
 
     def _follow(self, gray: NDArray[np.uint8], homography: NDArray[np.float64], levels: int = 2) -> TextureDetection | None:
@@ -350,7 +350,7 @@ class TextureDetector:
         off, the target is acquired again by its features.
         """
         height, width = gray.shape
-        projected = _transfer(homography, self._polish_points.astype(np.float64))
+        projected = transfer(homography, self._polish_points.astype(np.float64))
         inside = (projected[:, 0] > 8) & (projected[:, 1] > 8) & (projected[:, 0] < width - 9) & (projected[:, 1] < height - 9)
         if np.count_nonzero(inside) < self.min_inliers:
             return None
@@ -383,7 +383,7 @@ class TextureDetector:
         refined /= refined[2, 2]
         if not _plausible(refined, self.reference_pixels, gray.shape):
             return None
-        pixels = _transfer(refined, self.reference_pixels)
+        pixels = transfer(refined, self.reference_pixels)
         return TextureDetection(pixels, True, tracked, tracked - inliers, refined, inliers)
 
 
@@ -555,12 +555,7 @@ def _shift(x: float, y: float) -> NDArray[np.float64]:
 
 def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], points: NDArray[np.float64]) -> float:
     """How far (px, the largest) two homographies put ``points`` apart."""
-    return float(np.max(np.linalg.norm(_transfer(after, points) - _transfer(before, points), axis=1)))
-
-
-def _transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Points (N, 2) mapped by a homography."""
-    return cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+    return float(np.max(np.linalg.norm(transfer(after, points) - transfer(before, points), axis=1)))
 
 
 def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64], shape: tuple[int, int]) -> bool:
@@ -584,19 +579,3 @@ def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.flo
     if before == 0 or np.sign(after) != np.sign(before):
         return False
     return 1e-3 < abs(after / before) < 1e3
-
-
-def _window(shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int] | None:
-    """The predicted target's box grown by 60 % of its size plus 16 px, clipped to the frame."""
-    known = prediction[np.all(np.isfinite(prediction), axis=1)]
-    if len(known) < 2:
-        return None
-    low, high = known.min(axis=0), known.max(axis=0)
-    margin = 0.6 * (high - low) + 16.0
-    height, width = shape
-    x0, y0 = int(max(np.floor(low[0] - margin[0]), 0)), int(max(np.floor(low[1] - margin[1]), 0))
-    x1 = int(min(np.ceil(high[0] + margin[0]) + 1, width))
-    y1 = int(min(np.ceil(high[1] + margin[1]) + 1, height))
-    if x1 - x0 < 32 or y1 - y0 < 32:
-        return None
-    return x0, y0, x1, y1
