@@ -25,10 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, shape_residuals
-
-#: Finite-difference step of the covariance's Jacobian (normalised units and radians).
-DIFFERENCE_STEP = 1e-6
+from .plane import KnownShape, PlaneGeometry, globals_derivative, point_derivatives, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -44,52 +41,6 @@ COST_TOLERANCE = 1e-5
 
 #: Iterations of the joint estimate at most (it starts from the variable-projection estimate).
 MAX_EVALUATIONS = 60
-
-
-@dataclass(frozen=True)
-class PlaneGeometry:
-    """The global unknowns of the joint estimate, around a base normal.
-
-    Attributes
-    ----------
-    base : ndarray, shape (3,)
-        The unit normal the two angles are measured from.
-    u, v : ndarray, shape (3,)
-        Unit directions perpendicular to ``base`` (``u`` horizontal).
-    measured_ref : ndarray, shape (N, 3)
-        The reference points as measured in F* (the y, z unknowns are offsets from them).
-    """
-
-    base: NDArray[np.float64]
-    u: NDArray[np.float64]
-    v: NDArray[np.float64]
-    measured_ref: NDArray[np.float64]
-
-    @classmethod
-    def around(cls, normal: ArrayLike, measured_ref: ArrayLike) -> "PlaneGeometry":
-        base = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
-        u = np.cross(base, [0.0, 0.0, 1.0])
-        u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
-        return cls(base, u, np.cross(base, u), np.asarray(measured_ref, dtype=float))
-
-    @property
-    def size(self) -> int:
-        """Number of global unknowns: 2 + 2N."""
-        return 2 + 2 * self.measured_ref.shape[0]
-
-    def unpack(self, p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(normal (3,), m_ref (N, 3)) of global unknowns ``p`` (shape (2 + 2N,))."""
-        normal = self.base + p[0] * self.u + p[1] * self.v
-        ref = self.measured_ref.copy()
-        ref[:, 1:] += p[2:].reshape(-1, 2)
-        return normal / np.linalg.norm(normal), ref
-
-    def pack(self, normal: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
-        """The global unknowns of ``normal`` (on the base's side) and ``m_ref``."""
-        normal = np.asarray(normal, dtype=float)
-        normal = normal / (normal @ self.base)
-        offsets = (np.asarray(m_ref, dtype=float)[:, 1:] - self.measured_ref[:, 1:]).ravel()
-        return np.concatenate([[normal @ self.u, normal @ self.v], offsets])
 
 
 def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -133,6 +84,42 @@ def _reference_residuals(normal: NDArray[np.float64], m_ref: NDArray[np.float64]
     if not shapes:
         return points
     return np.concatenate([points, shape_residuals(normal, m_ref, shapes)])
+
+
+def _frame_jacobian(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[np.float64], m: NDArray[np.float64],
+                    shapes: Sequence[KnownShape]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each frame's residuals (K, R) of :func:`_frame_residuals` at the globals ``p`` and their
+    derivatives by its own (theta, x_h1, x_h2) (K, R, 3) and by ``p`` (K, R, G), analytic."""
+    normal, m_ref = geometry.unpack(p)
+    by_angles = geometry.normal_derivative(p)
+    frames = m.shape[0]
+    predicted, gradient = point_derivatives(normal, m_ref, motion)
+    residuals = (predicted - m[..., 1:]).reshape(frames, -1)
+    own = gradient[..., :3].reshape(frames, -1, 3)
+    shared = np.einsum("knca,nag->kncg", gradient[..., 3:], globals_derivative(normal, m_ref, by_angles)).reshape(frames, -1, geometry.size)
+    if shapes:
+        # Every frame sees the shape under its own normal Rz(theta) n*.
+        normals, by_theta = rotated_normals(normal, motion[:, 0])
+        shape, by_normal = shape_residuals(normals, m, shapes, "normal")
+        shape_own = np.zeros(shape.shape + (3,))
+        shape_own[..., 0] = np.einsum("krj,kj->kr", by_normal, by_theta)
+        rotated = np.stack([rotated_normals(by_angles[:, a], motion[:, 0])[0] for a in range(2)], axis=-1)
+        shape_shared = np.zeros(shape.shape + (geometry.size,))
+        shape_shared[..., :2] = np.einsum("krj,kja->kra", by_normal, rotated)
+        residuals = np.concatenate([residuals, shape], axis=1)
+        own, shared = np.concatenate([own, shape_own], axis=1), np.concatenate([shared, shape_shared], axis=1)
+    return residuals, own, shared
+
+
+def _reference_jacobian(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """F*'s residuals (:func:`_reference_residuals`) by the globals ``p``, shape (R0, G)."""
+    points = 2 * geometry.measured_ref.shape[0]
+    offsets = np.eye(points, geometry.size, 2)
+    if not shapes:
+        return offsets
+    normal, m_ref = geometry.unpack(p)
+    _, by_normal, by_points = shape_residuals(normal, m_ref, shapes, "points")
+    return np.concatenate([offsets, np.concatenate([by_normal @ geometry.normal_derivative(p), by_points.reshape(-1, points)], axis=1)])
 
 
 @dataclass(frozen=True)
@@ -203,20 +190,26 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
             _reference_residuals(trial_normal, trial_ref, measured_ref, shapes),
         ]), nan=1.0, posinf=1.0, neginf=-1.0)
 
-    # Block-arrow sparsity: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
+    # Block-arrow: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
     own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
     columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
                               np.tile(np.arange(n_global), reference_rows)])
     pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_rows]))])
-    sparsity = csr_matrix((np.ones(columns.size, np.int8), columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
+
+    def jacobian(p: NDArray[np.float64]) -> csr_matrix:
+        at, by_own, by_globals = _frame_jacobian(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes)
+        rows = np.where(np.isfinite(at)[..., None], np.concatenate([by_globals, by_own], axis=2), 0.0)  # as residuals' nan_to_num
+        data = np.nan_to_num(np.concatenate([rows.ravel(), _reference_jacobian(geometry, p[:n_global], shapes).ravel()]))
+        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
+
     x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
     # Plain least squares first: from a start far off every residual looks like an outlier
     # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
     # frame with a wrong point counts less.
     try:
-        solution = least_squares(residuals, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
+        solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
                                  ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
-        solution = least_squares(residuals, solution.x, jac_sparsity=sparsity, method="trf", loss="huber",
+        solution = least_squares(residuals, solution.x, jac=jacobian, method="trf", loss="huber",
                                  f_scale=ROBUST_SCALE * max(noise, 1e-9), x_scale="jac", ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
     except (ValueError, np.linalg.LinAlgError):
         return start
@@ -233,7 +226,7 @@ def _motion(motion: object) -> NDArray[np.float64]:
 
 @dataclass(frozen=True)
 class FrameBlocks:
-    """The joint estimate's Jacobian as blocks, around a solution.
+    """The joint estimate's Jacobian blocks of some frames, around a solution.
 
     Attributes
     ----------
@@ -242,27 +235,19 @@ class FrameBlocks:
     shared : ndarray, shape (K, R, G)
         The same residuals by the G global unknowns (:class:`PlaneGeometry` around the
         solution's normal).
-    reference : ndarray, shape (R0, G)
-        F*'s residuals by the global unknowns.
     residuals : ndarray, shape (K, R)
-        The frames' residuals at the solution.
-    reprojection_rows : int
-        The first ``2N`` of each frame's R rows are reprojection errors (the rest are
-        shape residuals).
+        The frames' residuals at the solution: first ``2N`` reprojection errors, then the
+        shapes' residuals.
     """
 
     own: NDArray[np.float64]
     shared: NDArray[np.float64]
-    reference: NDArray[np.float64]
     residuals: NDArray[np.float64]
-    reprojection_rows: int
 
 
 def frame_blocks(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                  shapes: Sequence[KnownShape] = ()) -> FrameBlocks:
-    """The Jacobian blocks of the joint estimate at ``(normal, m_ref, motion)``, by central
-    differences: one perturbation per column group (the 3 own columns of every frame at
-    once, then each global), all frames vectorised.
+    """The Jacobian blocks of the joint estimate at ``(normal, m_ref, motion)`` (analytic).
 
     Parameters
     ----------
@@ -276,28 +261,9 @@ def frame_blocks(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: Arra
     -------
     FrameBlocks
     """
-    m = np.asarray(m, dtype=float)
-    m_ref = np.asarray(m_ref, dtype=float)
-    motion = np.asarray(motion, dtype=float)
     geometry = PlaneGeometry.around(normal, m_ref)
-    h = DIFFERENCE_STEP
-    at = _frame_residuals(geometry.base, m_ref, motion, m, shapes)
-    own = np.empty(at.shape + (3,))
-    for j in range(3):
-        step = np.zeros(3)
-        step[j] = h
-        own[..., j] = (_frame_residuals(geometry.base, m_ref, motion + step, m, shapes)
-                       - _frame_residuals(geometry.base, m_ref, motion - step, m, shapes)) / (2 * h)
-    shared = np.empty(at.shape + (geometry.size,))
-    reference_at = _reference_residuals(geometry.base, m_ref, m_ref, shapes)
-    reference = np.empty((reference_at.size, geometry.size))
-    for j in range(geometry.size):
-        step = np.zeros(geometry.size)
-        step[j] = h
-        plus, minus = geometry.unpack(step), geometry.unpack(-step)
-        shared[..., j] = (_frame_residuals(*plus, motion, m, shapes) - _frame_residuals(*minus, motion, m, shapes)) / (2 * h)
-        reference[:, j] = (_reference_residuals(*plus, m_ref, shapes) - _reference_residuals(*minus, m_ref, shapes)) / (2 * h)
-    return FrameBlocks(np.nan_to_num(own), np.nan_to_num(shared), reference, at, 2 * m_ref.shape[0])
+    at, own, shared = _frame_jacobian(geometry, np.zeros(geometry.size), np.asarray(motion, dtype=float), np.asarray(m, dtype=float), shapes)
+    return FrameBlocks(np.nan_to_num(own), np.nan_to_num(shared), at)
 
 
 def measured_point_noise(residuals: ArrayLike) -> float:
@@ -462,7 +428,6 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
-    shared_info = None
     m_ref = np.asarray(m_ref, dtype=float)
     points = 2 * m_ref.shape[0]
     if bias_segments is None:
@@ -472,16 +437,18 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         estimated_segments, frame_segments = np.asarray(estimated_segments, np.intp), np.asarray(frame_segments, np.intp)
         count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
         spans = np.zeros((count, 2 + points, points))  # J^T W's Schur part on the globals, span by span
-    residuals = []
-    for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
+    geometry = PlaneGeometry.around(normal, m_ref)
+    reference = _reference_jacobian(geometry, np.zeros(geometry.size), shapes)
+    shared_info = reference.T @ reference
+    residuals = [np.zeros((0, points))]
+    for k in range(0, estimated.shape[0], BLOCK_FRAMES):
         blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
         own_info, coupling = _frame_information(blocks)
         inverse_own = _stable_inverse(own_info)
-        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, inverse_own, coupling)
-        shared_info = blocks.reference.T @ blocks.reference + part if shared_info is None else shared_info + part
-        residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
+        shared_info += np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, inverse_own, coupling)
+        residuals.append(blocks.residuals[:, :points])
         if bias_fraction > 0.0:
-            rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
+            rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], normal, motion[k:k + BLOCK_FRAMES], shapes)
             # Each frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs = np.einsum("kra,krb->kab", blocks.own, rows)
             per_frame = np.einsum("krg,krb->kgb", blocks.shared, rows) - np.einsum("kag,kab,kbc->kgc", coupling, inverse_own, own_rhs)
@@ -495,7 +462,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     shared = variance * shared_inverse
     bias_shared = None
     if detector_bias > 0.0:
-        spans[reference_segment] -= blocks.reference[:points].T  # F*'s own points carry its span's bias
+        spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
     if frames is None:
         frames, frames_motion = estimated, motion
@@ -509,7 +476,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         own_parts.append(variance * inverse_own)
         sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
         if bias_shared is not None:
-            rows = _bias_rows(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
+            rows = _bias_rows(frames[k:k + BLOCK_FRAMES], normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
             own_rhs = (detector_bias * _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), frame_segments[k:k + BLOCK_FRAMES], count)
                        - np.einsum("kag,gb->kab", coupling, bias_shared))
             bias_parts.append(np.einsum("kab,kbc->kac", inverse_own, own_rhs))
@@ -525,21 +492,16 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     )
 
 
-def _bias_rows(m: NDArray[np.float64], m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
-               shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z):
-    shape (K, R, 2N), by central differences of :func:`_frame_residuals`."""
-    m_ref = np.asarray(m_ref, dtype=float)
-    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
-    motion = np.asarray(motion, dtype=float)
-    h = DIFFERENCE_STEP
-    columns = []
-    for point in range(m.shape[1]):
-        for axis in (1, 2):
-            step = np.zeros(m.shape[1:])
-            step[point, axis] = h
-            columns.append((_frame_residuals(normal, m_ref, motion, m + step, shapes) - _frame_residuals(normal, m_ref, motion, m - step, shapes)) / (2 * h))
-    return np.nan_to_num(np.stack(columns, axis=-1))
+def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
+    (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
+    points = 2 * m.shape[1]
+    rows = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    if not shapes:
+        return rows
+    normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
+    by_points = shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, points)
+    return np.concatenate([rows, np.nan_to_num(by_points)], axis=1)
 
 
 def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
