@@ -198,8 +198,9 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
         at, by_own, by_globals = _frame_jacobian(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes)
-        rows = np.where(np.isfinite(at)[..., None], np.concatenate([by_globals, by_own], axis=2), 0.0)  # as residuals' nan_to_num
-        data = np.nan_to_num(np.concatenate([rows.ravel(), _reference_jacobian(geometry, p[:n_global], shapes).ravel()]))
+        rows = np.concatenate([by_globals, by_own], axis=2)
+        rows[~np.isfinite(at)] = 0.0  # where the residuals are replaced (nan_to_num)
+        data = np.nan_to_num(np.concatenate([rows.ravel(), _reference_jacobian(geometry, p[:n_global], shapes).ravel()]), copy=False)
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
 
     x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
