@@ -267,7 +267,7 @@ def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
 
 
 def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
-                      second: bool = False) -> tuple[NDArray[np.float64], ...]:
+                      order: int = 1) -> tuple[NDArray[np.float64], ...]:
     """Every reference point's predicted ``(m_y, m_z)`` in every frame (12) and its derivatives.
 
     With ``u = (theta, x_h1, x_h2, g, m*_y, m*_z)``, ``g = n*^T m*_i``, ``q0 = c - s m*_y +
@@ -279,29 +279,32 @@ def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], m
     m_ref : ndarray, shape (N, 3)
     motion : ndarray, shape (K, 3)
         (theta, x_h1, x_h2) per frame.
-    second : bool
-        Also the second derivatives.
+    order : {0, 1, 2}
+        The highest derivatives returned.
 
     Returns
     -------
     predicted : ndarray, shape (K, N, 2)
-    gradient : ndarray, shape (K, N, 2, 6)
+    gradient : ndarray, shape (K, N, 2, 6), from order 1
         By ``u``.
-    hessian : ndarray, shape (K, N, 2, 6, 6), with ``second``
+    hessian : ndarray, shape (K, N, 2, 6, 6), from order 2
     """
     y, z, g = m_ref[:, 1], m_ref[:, 2], m_ref @ normal
     c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
     x1, x2 = motion[:, 1:2], motion[:, 2:3]
     q0 = c - s * y + x1 * g
     q1 = s + c * y + x2 * g
+    with np.errstate(divide="ignore", invalid="ignore"):
+        predicted = np.stack([q1 / q0, np.broadcast_to(z, q0.shape) / q0], axis=-1)
+    if order == 0:
+        return (predicted,)
     zero = np.zeros_like(q0)
     d_q0 = np.stack(np.broadcast_arrays(-s - c * y, g, zero, x1, -s, zero), axis=-1)
     d_q1 = np.stack(np.broadcast_arrays(c - s * y, zero, g, x2, c, zero), axis=-1)
     d_numerator = np.stack([d_q1, np.broadcast_to(np.eye(6)[5], d_q1.shape)], axis=-2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        predicted = np.stack([q1 / q0, np.broadcast_to(z, q0.shape) / q0], axis=-1)
         gradient = (d_numerator - predicted[..., None] * d_q0[..., None, :]) / q0[..., None, None]
-    if not second:
+    if order == 1:
         return predicted, gradient
     dd_q0, dd_q1 = np.zeros(q0.shape + (6, 6)), np.zeros(q0.shape + (6, 6))
     dd_q0[..., 0, 0], dd_q1[..., 0, 0] = -c + s * y, -s - c * y
@@ -420,7 +423,7 @@ def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames:
         # the implicit function theorem d pose / d p = -H_xx^-1 H_xp (full Hessians).
         solved = np.all(np.isfinite(x), axis=1)
         x = np.where(solved[:, None], x, 0.0)
-        predicted, gradient, hessian = point_derivatives(trial_normal, trial_ref, x, second=True)
+        predicted, gradient, hessian = point_derivatives(trial_normal, trial_ref, x, order=2)
         r = np.where(solved[:, None, None], predicted - frames[..., 1:], 0.0)
         local = globals_derivative(trial_normal, trial_ref, geometry.normal_derivative(p))
         by_globals = np.einsum("knca,nag->kncg", gradient[..., 3:], local)
