@@ -72,17 +72,17 @@ def test_joint_estimate_jacobian(name):
     frames, motion = m[1::6], np.column_stack([np.linspace(0.0, 0.2, m[1::6].shape[0]), np.linspace(0.0, 0.5, m[1::6].shape[0]), np.full(m[1::6].shape[0], 0.02)])
     geometry = PlaneGeometry.around(normal, m[0])
     p = np.random.default_rng(2).normal(0.0, 1e-3, geometry.size)
-    residuals, by_own, by_globals = bundle._frame_rows(geometry, p, motion, frames, shapes, derivatives=True)
-    frame_residuals = lambda q, x: bundle._frame_rows(geometry, q, x.reshape(-1, 3), frames, shapes)  # noqa: E731
+    residuals, by_own, by_globals = plane.frame_rows(geometry, p, motion, frames, shapes, derivatives=True)
+    frame_residuals = lambda q, x: plane.frame_rows(geometry, q, x.reshape(-1, 3), frames, shapes)  # noqa: E731
     assert _relative(by_globals, _differences(lambda q: frame_residuals(q, motion.ravel()), p)) < 1e-6
     numeric_own = _differences(lambda x: frame_residuals(p, x), motion.ravel()).reshape(residuals.shape + (-1, 3))
     assert _relative(by_own, np.einsum("krkj->krj", numeric_own)) < 1e-6
-    reference = lambda q: bundle._reference_rows(geometry, q, shapes)  # noqa: E731
-    assert _relative(bundle._reference_rows(geometry, p, shapes, derivatives=True), _differences(reference, p)) < 1e-6
+    reference = lambda q: plane.reference_rows(geometry, q, shapes)  # noqa: E731
+    assert _relative(plane.reference_rows(geometry, p, shapes, derivatives=True), _differences(reference, p)) < 1e-6
     def shifted(yz):
         points = frames.copy()
         points[..., 1:] = yz.reshape(frames.shape[0], -1, 2)
-        return bundle._frame_rows(geometry, p, motion, points, shapes)
+        return plane.frame_rows(geometry, p, motion, points, shapes)
     numeric_bias = _differences(shifted, frames[..., 1:].ravel()).reshape(residuals.shape + (frames.shape[0], -1))
     assert _relative(bundle._bias_rows(frames, geometry.unpack(p)[0], motion, shapes), np.einsum("krkb->krb", numeric_bias)) < 1e-6
 

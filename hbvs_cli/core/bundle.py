@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, globals_derivative, point_derivatives, rotated_normals, shape_residuals
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_derivatives, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -46,45 +46,6 @@ def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], mo
     """Predicted ``(m_y, m_z)`` (K, N, 2) of every reference point (N, 3) in every frame (12),
     for a normal (3,) and (theta, x_h1, x_h2) per frame (K, 3)."""
     return point_derivatives(normal, m_ref, motion, order=0)[0]
-
-
-def _frame_rows(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[np.float64], m: NDArray[np.float64],
-                shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
-    """Each frame's residuals (K, R) at the globals ``p``: reprojection errors, then its known
-    shapes' residuals; with ``derivatives`` also by its own (theta, x_h1, x_h2) (K, R, 3) and
-    by ``p`` (K, R, G)."""
-    normal, m_ref = geometry.unpack(p)
-    frames = m.shape[0]
-    predicted, *gradient = point_derivatives(normal, m_ref, motion, order=int(derivatives))
-    residuals = (predicted - m[..., 1:]).reshape(frames, -1)
-    # Every frame sees the shapes under its own normal Rz(theta) n*.
-    normals, by_theta = rotated_normals(normal, motion[:, 0])
-    if not derivatives:
-        return np.concatenate([residuals, shape_residuals(normals, m, shapes)], axis=-1)
-    by_angles = geometry.normal_derivative(p)
-    own = gradient[0][..., :3].reshape(frames, -1, 3)
-    shared = np.einsum("knca,nag->kncg", gradient[0][..., 3:], globals_derivative(normal, m_ref, by_angles)).reshape(frames, -1, geometry.size)
-    shape, by_normal = shape_residuals(normals, m, shapes, "normal")
-    shape_own = np.zeros(shape.shape + (3,))
-    shape_own[..., 0] = np.einsum("krj,kj->kr", by_normal, by_theta)
-    rotated = np.stack([rotated_normals(by_angles[:, a], motion[:, 0])[0] for a in range(2)], axis=-1)
-    shape_shared = np.zeros(shape.shape + (geometry.size,))
-    shape_shared[..., :2] = np.einsum("krj,kja->kra", by_normal, rotated)
-    return (np.concatenate([residuals, shape], axis=1), np.concatenate([own, shape_own], axis=1),
-            np.concatenate([shared, shape_shared], axis=1))
-
-
-def _reference_rows(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequence[KnownShape],
-                    derivatives: bool = False) -> NDArray[np.float64]:
-    """F*'s residuals at the globals ``p`` (R0,): its points' offsets (its pose is the
-    identity: the gauge), then its shapes'; with ``derivatives`` their derivatives (R0, G)."""
-    normal, m_ref = geometry.unpack(p)
-    points = 2 * m_ref.shape[0]
-    if not derivatives:
-        return np.concatenate([(m_ref[:, 1:] - geometry.measured_ref[:, 1:]).ravel(), shape_residuals(normal, m_ref, shapes)])
-    _, by_normal, by_points = shape_residuals(normal, m_ref, shapes, "points")
-    return np.concatenate([np.eye(points, geometry.size, 2),
-                           np.concatenate([by_normal @ geometry.normal_derivative(p), by_points.reshape(-1, points)], axis=1)])
 
 
 @dataclass(frozen=True)
@@ -145,25 +106,25 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     if frames == 0:
         return start
     p0 = geometry.pack(geometry.base, start_ref)
-    per_frame = _frame_rows(geometry, p0, start_motion, m, shapes).shape[1]
-    reference_rows = _reference_rows(geometry, p0, shapes).size
+    per_frame = frame_rows(geometry, p0, start_motion, m, shapes).shape[1]
+    reference_count = reference_rows(geometry, p0, shapes).size
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.nan_to_num(np.concatenate([_frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
-                                             _reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
+        return np.nan_to_num(np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
+                                             reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
 
     # Block-arrow: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
     own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
     columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
-                              np.tile(np.arange(n_global), reference_rows)])
-    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_rows]))])
+                              np.tile(np.arange(n_global), reference_count)])
+    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_count]))])
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        at, by_own, by_globals = _frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
+        at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
         rows = np.concatenate([by_globals, by_own], axis=2)
         rows[~np.isfinite(at)] = 0.0  # where the residuals are replaced (nan_to_num)
-        data = np.nan_to_num(np.concatenate([rows.ravel(), _reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]), copy=False)
-        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
+        data = np.nan_to_num(np.concatenate([rows.ravel(), reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]), copy=False)
+        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])
     # Plain least squares first: from a start far off every residual looks like an outlier
@@ -369,14 +330,14 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
     weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
     geometry = PlaneGeometry.around(normal, m_ref)
-    reference = _reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
+    reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
     shared_info = reference.T @ reference
     spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
     inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
     own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
     for k in range(0, pool.shape[0], BLOCK_FRAMES):
         block = slice(k, k + BLOCK_FRAMES)
-        at, own, shared = _frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
+        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
         own, shared = np.nan_to_num(own), np.nan_to_num(shared)
         coupling[block] = np.einsum("kra,krg->kag", own, shared)  # B_k = J_k^T J_kg; D_k = J_k^T J_k
         inverse_own[block] = np.linalg.pinv(np.einsum("kra,krb->kab", own, own), rcond=1e-12, hermitian=True)

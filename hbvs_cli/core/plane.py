@@ -140,7 +140,8 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     """
     normal = np.asarray(normal, dtype=float)
     m = np.asarray(m, dtype=float)
-    normal = np.broadcast_to(normal, m.shape[:-2] + (3,))
+    batch = m.shape[:-2]
+    normal = np.broadcast_to(normal, batch + (3,))
     e1 = np.cross(normal, [0.0, 0.0, 1.0])
     length = np.linalg.norm(e1, axis=-1, keepdims=True)
     e1 = e1 / length
@@ -150,7 +151,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
         da = np.cross(d_normal, [0.0, 0.0, 1.0])
         d_e1 = (da - np.einsum("...k,...jk->...j", e1, da)[..., None] * e1[..., None, :]) / length[..., None]
         d_e2 = np.cross(d_normal, e1[..., None, :]) + np.cross(normal[..., None, :], d_e1)
-    residuals, by_normal, by_points = [], [], []
+    residuals, by_normal, by_points = [np.zeros(batch + (0,))], [np.zeros(batch + (0, 3))], [np.zeros(batch + (0, m.shape[-2], 2))]
     for indices, layout in shapes:
         indices = list(indices)
         points = m[..., indices, :]
@@ -164,7 +165,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
         world = normal[..., None, :] + fitted[..., :1] * e1[..., None, :] + fitted[..., 1:] * e2[..., None, :]
         with np.errstate(divide="ignore", invalid="ignore"):
             projected = world / world[..., :1]
-        residuals.append((projected[..., 1:] - points[..., 1:]).reshape(m.shape[:-2] + (-1,)))
+        residuals.append((projected[..., 1:] - points[..., 1:]).reshape(batch + (-1,)))
         if not derivatives:
             continue
         # The match is a fixed linear map of q for each handedness: ``match`` (..., 2K, 2K).
@@ -182,26 +183,20 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
             d_world = (d_normal[..., None, :, :] + d_fitted[..., 0, :, None] * e1[..., None, None, :] + fitted[..., 0, None, None] * d_e1[..., None, :, :]
                        + d_fitted[..., 1, :, None] * e2[..., None, None, :] + fitted[..., 1, None, None] * d_e2[..., None, :, :])
             out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]  # d projection / d world, (..., K, 2, 3)
-            by_normal.append((out @ d_world.swapaxes(-1, -2)).reshape(m.shape[:-2] + (2 * count, 3)))
+            by_normal.append((out @ d_world.swapaxes(-1, -2)).reshape(batch + (2 * count, 3)))
             if derivatives == "points":
                 # By each point's own (m_y, m_z) into its q, through the match, out of every projection.
                 d_own = (np.eye(3)[1:] - on_plane[..., None, :] * normal[..., None, 1:, None]) / depth[..., None, None]
                 into = np.stack([np.einsum("...k,...nyk->...ny", e1, d_own), np.einsum("...k,...nyk->...ny", e2, d_own)], axis=-2)
                 chain = (_block_diagonal(out @ np.stack([e1, e2], axis=-1)[..., None, :, :]) @ match.swapaxes(-1, -2)
                          @ _block_diagonal(into)) - np.eye(2 * count)
-                full = np.zeros(m.shape[:-2] + (2 * count, m.shape[-2], 2))
-                full[..., indices, :] = chain.reshape(m.shape[:-2] + (2 * count, count, 2))
+                full = np.zeros(batch + (2 * count, m.shape[-2], 2))
+                full[..., indices, :] = chain.reshape(batch + (2 * count, count, 2))
                 by_points.append(full)
-    if not residuals:
-        residuals = [np.zeros(m.shape[:-2] + (0,))]
-        by_normal = [np.zeros(m.shape[:-2] + (0, 3))]
-        by_points = [np.zeros(m.shape[:-2] + (0, m.shape[-2], 2))]
     stacked = np.concatenate(residuals, axis=-1)
     if not derivatives:
         return stacked
-    if derivatives == "normal":
-        return stacked, np.concatenate(by_normal, axis=-2)
-    return stacked, np.concatenate(by_normal, axis=-2), np.concatenate(by_points, axis=-3)
+    return (stacked, np.concatenate(by_normal, axis=-2), np.concatenate(by_points, axis=-3))[:2 if derivatives == "normal" else 3]
 
 
 def _block_diagonal(blocks: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -393,63 +388,89 @@ class PlaneGeometry:
         return np.concatenate([[normal @ self.u, normal @ self.v], offsets])
 
 
+def frame_rows(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[np.float64], m: NDArray[np.float64],
+                shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
+    """Each frame's residuals (K, R) at the globals ``p`` and its ``motion`` (K, 3): reprojection
+    errors of its points ``m`` (K, N, 3) (12), then its known shapes' residuals; with
+    ``derivatives`` also their derivatives by its own (theta, x_h1, x_h2) (K, R, 3) and by ``p``
+    (K, R, G)."""
+    normal, m_ref = geometry.unpack(p)
+    frames = m.shape[0]
+    predicted, *gradient = point_derivatives(normal, m_ref, motion, order=int(derivatives))
+    residuals = (predicted - m[..., 1:]).reshape(frames, -1)
+    # Every frame sees the shapes under its own normal Rz(theta) n*.
+    normals, by_theta = rotated_normals(normal, motion[:, 0])
+    if not derivatives:
+        return np.concatenate([residuals, shape_residuals(normals, m, shapes)], axis=-1)
+    by_angles = geometry.normal_derivative(p)
+    own = gradient[0][..., :3].reshape(frames, -1, 3)
+    shared = np.einsum("knca,nag->kncg", gradient[0][..., 3:], globals_derivative(normal, m_ref, by_angles)).reshape(frames, -1, geometry.size)
+    shape, by_normal = shape_residuals(normals, m, shapes, "normal")
+    shape_own = np.zeros(shape.shape + (3,))
+    shape_own[..., 0] = np.einsum("krj,kj->kr", by_normal, by_theta)
+    rotated = np.stack([rotated_normals(by_angles[:, a], motion[:, 0])[0] for a in range(2)], axis=-1)
+    shape_shared = np.zeros(shape.shape + (geometry.size,))
+    shape_shared[..., :2] = np.einsum("krj,kja->kra", by_normal, rotated)
+    return (np.concatenate([residuals, shape], axis=1), np.concatenate([own, shape_own], axis=1),
+            np.concatenate([shared, shape_shared], axis=1))
+
+
+def reference_rows(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequence[KnownShape],
+                    derivatives: bool = False) -> NDArray[np.float64]:
+    """F*'s residuals at the globals ``p`` (R0,): its points' offsets (its pose is the
+    identity: the gauge), then its shapes'; with ``derivatives`` their derivatives (R0, G)."""
+    normal, m_ref = geometry.unpack(p)
+    points = 2 * m_ref.shape[0]
+    if not derivatives:
+        return np.concatenate([(m_ref[:, 1:] - geometry.measured_ref[:, 1:]).ravel(), shape_residuals(normal, m_ref, shapes)])
+    _, by_normal, by_points = shape_residuals(normal, m_ref, shapes, "points")
+    return np.concatenate([np.eye(points, geometry.size, 2),
+                           np.concatenate([by_normal @ geometry.normal_derivative(p), by_points.reshape(-1, points)], axis=1)])
+
+
 def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames: NDArray[np.float64],
                         shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64]:
     """The cost of :func:`refine_plane_and_reference` at the globals ``p`` (its residuals,
     or with ``derivatives`` their Jacobian by ``p``): every frame's reprojection errors at
-    its best pose (:class:`KnownNormalSolver`), F*'s points' offsets, the shapes' residuals
-    in F* and in every frame.
+    its best pose (:class:`KnownNormalSolver`), F*'s rows (:func:`reference_rows`), every
+    frame's shapes' residuals.
 
     Parameters
     ----------
     geometry : PlaneGeometry
-        n* and F*'s measured points the globals ``p`` (shape (2 + 2N,)) are offsets from.
+        n* and F*'s measured points the globals ``p`` (shape (G = 2 + 2N,)) are offsets from.
     frames : ndarray, shape (K, N, 3)
     shapes : sequence of KnownShape
 
     Returns
     -------
-    ndarray, shape (R,) or (R, 2 + 2N)
+    ndarray, shape (R,) or (R, G)
     """
-    trial_normal, trial_ref = geometry.unpack(p)
-    offsets = np.eye(trial_ref.size - trial_ref.shape[0], geometry.size, 2)
-    solver = KnownNormalSolver(trial_ref, trial_normal)
-    motion = solver.solve(frames)
+    normal, m_ref = geometry.unpack(p)
+    motion = KnownNormalSolver(m_ref, normal).solve(frames)
     x = np.column_stack([motion.theta, motion.x_h])
+    points = 2 * m_ref.shape[0]
     if not derivatives:
-        parts = [np.nan_to_num(solver.reprojection_residuals(motion, frames)).ravel(), (trial_ref[:, 1:] - geometry.measured_ref[:, 1:]).ravel()]
+        rows = frame_rows(geometry, p, x, frames, shapes)
     else:
-        # Variable projection: each frame's pose minimises its reprojection error, so by
-        # the implicit function theorem d pose / d p = -H_xx^-1 H_xp (full Hessians).
+        # Variable projection: each frame's pose minimises its reprojection error, so by the
+        # implicit function theorem d pose / d p = -H_xx^-1 H_xp (full Hessians).
         solved = np.all(np.isfinite(x), axis=1)
         x = np.where(solved[:, None], x, 0.0)
-        predicted, gradient, hessian = point_derivatives(trial_normal, trial_ref, x, order=2)
-        r = np.where(solved[:, None, None], predicted - frames[..., 1:], 0.0)
-        local = globals_derivative(trial_normal, trial_ref, geometry.normal_derivative(p))
-        by_globals = np.einsum("knca,nag->kncg", gradient[..., 3:], local)
-        by_pose = gradient[..., :3]
-        h_xx = np.einsum("knca,kncb->kab", by_pose, by_pose) + np.einsum("knc,kncab->kab", r, hessian[..., :3, :3])
-        h_xp = np.einsum("knca,kncg->kag", by_pose, by_globals) + np.einsum("knc,kncal,nlg->kag", r, hessian[..., :3, 3:], local)
+        _, own, rows = frame_rows(geometry, p, x, frames, shapes, derivatives=True)
+        predicted, _, hessian = point_derivatives(normal, m_ref, x, order=2)
+        r = (predicted - frames[..., 1:]).reshape(x.shape[0], -1)
+        hessian = hessian.reshape(r.shape + (6, 6))
+        local = np.repeat(globals_derivative(normal, m_ref, geometry.normal_derivative(p)), 2, axis=0)  # per row
+        h_xx = np.einsum("kra,krb->kab", own[:, :points], own[:, :points]) + np.einsum("kr,krab->kab", r, hessian[..., :3, :3])
+        h_xp = np.einsum("kra,krg->kag", own[:, :points], rows[:, :points]) + np.einsum("kr,kral,rlg->kag", r, hessian[..., :3, 3:], local)
         h_xx[~solved] = np.eye(3)
-        pose = -np.linalg.solve(h_xx, h_xp)
-        total = np.where(solved[:, None, None, None], by_globals + np.einsum("knca,kag->kncg", by_pose, pose), 0.0)
-        parts = [np.nan_to_num(total.transpose(0, 2, 1, 3).reshape(-1, geometry.size)), offsets]
-    if shapes:
-        # Every frame sees the shape too, under its own normal Rz(theta) n*.
-        normals, by_theta = rotated_normals(trial_normal, x[:, 0])
-        if not derivatives:
-            parts.append(np.nan_to_num(np.concatenate([shape_residuals(trial_normal, trial_ref, shapes), shape_residuals(normals, frames, shapes).ravel()])))
-        else:
-            by_angles = geometry.normal_derivative(p)
-            _, reference_by_normal, reference_by_points = shape_residuals(trial_normal, trial_ref, shapes, "points")
-            reference = np.concatenate([reference_by_normal @ by_angles, reference_by_points.reshape(reference_by_points.shape[0], -1)], axis=1)
-            _, frame_by_normal = shape_residuals(normals, frames, shapes, "normal")
-            rotated = np.stack([rotated_normals(by_angles[:, a], x[:, 0])[0] for a in range(2)], axis=-1)  # Rz(theta) dn*/d angles
-            frame = np.einsum("krj,kj,kg->krg", frame_by_normal, by_theta, pose[:, 0, :])
-            frame[..., :2] += np.einsum("krj,kja->kra", frame_by_normal, rotated)
-            frame[~solved] = 0.0
-            parts += [np.nan_to_num(reference), np.nan_to_num(frame.reshape(-1, geometry.size))]
-    return np.concatenate(parts)
+        rows = rows - own @ np.linalg.solve(h_xx, h_xp)
+        rows[~solved] = 0.0
+    # The solver's order: each frame's m_y errors, then its m_z errors.
+    reprojection = rows[:, :points].reshape((x.shape[0], -1, 2) + rows.shape[2:]).swapaxes(1, 2)
+    return np.nan_to_num(np.concatenate([reprojection.reshape((-1,) + rows.shape[2:]), reference_rows(geometry, p, shapes, derivatives),
+                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]))
 
 
 def refine_plane_and_reference(
