@@ -8,10 +8,9 @@ by maximum likelihood on the reprojection error of every point in every frame (1
 ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
 block-arrow sparsity given to scipy's trust-region solver.
 
-:func:`frame_blocks` gives the same problem's Jacobian as blocks (every frame's own 3
-columns, and the global columns) and :func:`joint_covariance` the estimate's covariance
-from them (``sigma^2 (J^T J)^-1`` by the Schur complement on the global unknowns), with
-``sigma`` the measured point noise: how uncertain n* is, and every frame's
+:func:`joint_covariance` gives the estimate's covariance from the same problem's Jacobian
+as blocks (every frame's own 3 columns, and the global columns): ``sigma^2 (J^T J)^-1``
+by the Schur complement on the global unknowns, with ``sigma`` the measured point noise: how uncertain n* is, and every frame's
 ``(theta, x_h)`` including what it inherits from n* and the reference points.
 """
 
@@ -25,10 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, shape_residuals
-
-#: Finite-difference step of the covariance's Jacobian (normalised units and radians).
-DIFFERENCE_STEP = 1e-6
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_derivatives, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -46,93 +42,10 @@ COST_TOLERANCE = 1e-5
 MAX_EVALUATIONS = 60
 
 
-@dataclass(frozen=True)
-class PlaneGeometry:
-    """The global unknowns of the joint estimate, around a base normal.
-
-    Attributes
-    ----------
-    base : ndarray, shape (3,)
-        The unit normal the two angles are measured from.
-    u, v : ndarray, shape (3,)
-        Unit directions perpendicular to ``base`` (``u`` horizontal).
-    measured_ref : ndarray, shape (N, 3)
-        The reference points as measured in F* (the y, z unknowns are offsets from them).
-    """
-
-    base: NDArray[np.float64]
-    u: NDArray[np.float64]
-    v: NDArray[np.float64]
-    measured_ref: NDArray[np.float64]
-
-    @classmethod
-    def around(cls, normal: ArrayLike, measured_ref: ArrayLike) -> "PlaneGeometry":
-        base = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
-        u = np.cross(base, [0.0, 0.0, 1.0])
-        u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
-        return cls(base, u, np.cross(base, u), np.asarray(measured_ref, dtype=float))
-
-    @property
-    def size(self) -> int:
-        """Number of global unknowns: 2 + 2N."""
-        return 2 + 2 * self.measured_ref.shape[0]
-
-    def unpack(self, p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(normal (3,), m_ref (N, 3)) of global unknowns ``p`` (shape (2 + 2N,))."""
-        normal = self.base + p[0] * self.u + p[1] * self.v
-        ref = self.measured_ref.copy()
-        ref[:, 1:] += p[2:].reshape(-1, 2)
-        return normal / np.linalg.norm(normal), ref
-
-    def pack(self, normal: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
-        """The global unknowns of ``normal`` (on the base's side) and ``m_ref``."""
-        normal = np.asarray(normal, dtype=float)
-        normal = normal / (normal @ self.base)
-        offsets = (np.asarray(m_ref, dtype=float)[:, 1:] - self.measured_ref[:, 1:]).ravel()
-        return np.concatenate([[normal @ self.u, normal @ self.v], offsets])
-
-
 def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Predicted ``(m_y, m_z)`` of every reference point in every frame (12).
-
-    Parameters
-    ----------
-    normal : ndarray, shape (3,)
-    m_ref : ndarray, shape (N, 3)
-    motion : ndarray, shape (K, 3)
-        (theta, x_h1, x_h2) per frame.
-
-    Returns
-    -------
-    ndarray, shape (K, N, 2)
-    """
-    g = m_ref @ normal
-    c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
-    q0 = c - s * m_ref[:, 1] + motion[:, 1:2] * g
-    q1 = s + c * m_ref[:, 1] + motion[:, 2:3] * g
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.stack([q1 / q0, m_ref[:, 2] / q0], axis=-1)
-
-
-def _frame_residuals(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
-                     m: NDArray[np.float64], shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """Each frame's residuals (K, R): reprojection errors, then its known shapes' residuals."""
-    reprojection = (projected_points(normal, m_ref, motion) - m[..., 1:]).reshape(m.shape[0], -1)
-    if not shapes:
-        return reprojection
-    c, s = np.cos(motion[:, 0]), np.sin(motion[:, 0])
-    # Every frame sees the shape under its own normal Rz(theta) n*.
-    normals = np.stack([c * normal[0] - s * normal[1], s * normal[0] + c * normal[1], np.full_like(c, normal[2])], axis=-1)
-    return np.concatenate([reprojection, shape_residuals(normals, m, shapes)], axis=-1)
-
-
-def _reference_residuals(normal: NDArray[np.float64], m_ref: NDArray[np.float64], measured_ref: NDArray[np.float64],
-                         shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """F*'s residuals: its points (its pose is the identity: the gauge), then its shapes'."""
-    points = (m_ref[:, 1:] - measured_ref[:, 1:]).ravel()
-    if not shapes:
-        return points
-    return np.concatenate([points, shape_residuals(normal, m_ref, shapes)])
+    """Predicted ``(m_y, m_z)`` (K, N, 2) of every reference point (N, 3) in every frame (12),
+    for a normal (3,) and (theta, x_h1, x_h2) per frame (K, 3)."""
+    return point_derivatives(normal, m_ref, motion, order=0)[0]
 
 
 @dataclass(frozen=True)
@@ -192,31 +105,35 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     start = JointEstimate(geometry.base, start_ref, start_motion, float("nan"))
     if frames == 0:
         return start
-    per_frame = _frame_residuals(geometry.base, start_ref, start_motion, m, shapes).shape[1]
-    reference_rows = _reference_residuals(geometry.base, start_ref, measured_ref, shapes).size
+    p0 = geometry.pack(geometry.base, start_ref)
+    per_frame = frame_rows(geometry, p0, start_motion, m, shapes).shape[1]
+    reference_count = reference_rows(geometry, p0, shapes).size
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        trial_normal, trial_ref = geometry.unpack(p[:n_global])
-        motion = p[n_global:].reshape(frames, 3)
-        return np.nan_to_num(np.concatenate([
-            _frame_residuals(trial_normal, trial_ref, motion, m, shapes).ravel(),
-            _reference_residuals(trial_normal, trial_ref, measured_ref, shapes),
-        ]), nan=1.0, posinf=1.0, neginf=-1.0)
+        return np.nan_to_num(np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
+                                             reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
 
-    # Block-arrow sparsity: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
+    # Block-arrow: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
     own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
     columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
-                              np.tile(np.arange(n_global), reference_rows)])
-    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_rows]))])
-    sparsity = csr_matrix((np.ones(columns.size, np.int8), columns, pointers), shape=(frames * per_frame + reference_rows, n_global + 3 * frames))
-    x0 = np.concatenate([geometry.pack(geometry.base, start_ref), start_motion.ravel()])
+                              np.tile(np.arange(n_global), reference_count)])
+    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_count]))])
+
+    def jacobian(p: NDArray[np.float64]) -> csr_matrix:
+        at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
+        rows = np.concatenate([by_globals, by_own], axis=2)
+        rows[~np.isfinite(at)] = 0.0  # where the residuals are replaced (nan_to_num)
+        data = np.nan_to_num(np.concatenate([rows.ravel(), reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]), copy=False)
+        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
+
+    x0 = np.concatenate([p0, start_motion.ravel()])
     # Plain least squares first: from a start far off every residual looks like an outlier
     # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
     # frame with a wrong point counts less.
     try:
-        solution = least_squares(residuals, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
+        solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
                                  ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
-        solution = least_squares(residuals, solution.x, jac_sparsity=sparsity, method="trf", loss="huber",
+        solution = least_squares(residuals, solution.x, jac=jacobian, method="trf", loss="huber",
                                  f_scale=ROBUST_SCALE * max(noise, 1e-9), x_scale="jac", ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
     except (ValueError, np.linalg.LinAlgError):
         return start
@@ -229,75 +146,6 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
 def _motion(motion: object) -> NDArray[np.float64]:
     """(K, 3) (theta, x_h1, x_h2) of a :class:`~.decomposition.PlanarMotion` (0 where not solved)."""
     return np.nan_to_num(np.column_stack([motion.theta, motion.x_h]))  # type: ignore[attr-defined]
-
-
-@dataclass(frozen=True)
-class FrameBlocks:
-    """The joint estimate's Jacobian as blocks, around a solution.
-
-    Attributes
-    ----------
-    own : ndarray, shape (K, R, 3)
-        Each frame's residuals by its own (theta, x_h1, x_h2).
-    shared : ndarray, shape (K, R, G)
-        The same residuals by the G global unknowns (:class:`PlaneGeometry` around the
-        solution's normal).
-    reference : ndarray, shape (R0, G)
-        F*'s residuals by the global unknowns.
-    residuals : ndarray, shape (K, R)
-        The frames' residuals at the solution.
-    reprojection_rows : int
-        The first ``2N`` of each frame's R rows are reprojection errors (the rest are
-        shape residuals).
-    """
-
-    own: NDArray[np.float64]
-    shared: NDArray[np.float64]
-    reference: NDArray[np.float64]
-    residuals: NDArray[np.float64]
-    reprojection_rows: int
-
-
-def frame_blocks(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
-                 shapes: Sequence[KnownShape] = ()) -> FrameBlocks:
-    """The Jacobian blocks of the joint estimate at ``(normal, m_ref, motion)``, by central
-    differences: one perturbation per column group (the 3 own columns of every frame at
-    once, then each global), all frames vectorised.
-
-    Parameters
-    ----------
-    m : array_like, shape (K, N, 3)
-    m_ref : array_like, shape (N, 3)
-    normal : array_like, shape (3,)
-    motion : array_like, shape (K, 3)
-    shapes : sequence of KnownShape, optional
-
-    Returns
-    -------
-    FrameBlocks
-    """
-    m = np.asarray(m, dtype=float)
-    m_ref = np.asarray(m_ref, dtype=float)
-    motion = np.asarray(motion, dtype=float)
-    geometry = PlaneGeometry.around(normal, m_ref)
-    h = DIFFERENCE_STEP
-    at = _frame_residuals(geometry.base, m_ref, motion, m, shapes)
-    own = np.empty(at.shape + (3,))
-    for j in range(3):
-        step = np.zeros(3)
-        step[j] = h
-        own[..., j] = (_frame_residuals(geometry.base, m_ref, motion + step, m, shapes)
-                       - _frame_residuals(geometry.base, m_ref, motion - step, m, shapes)) / (2 * h)
-    shared = np.empty(at.shape + (geometry.size,))
-    reference_at = _reference_residuals(geometry.base, m_ref, m_ref, shapes)
-    reference = np.empty((reference_at.size, geometry.size))
-    for j in range(geometry.size):
-        step = np.zeros(geometry.size)
-        step[j] = h
-        plus, minus = geometry.unpack(step), geometry.unpack(-step)
-        shared[..., j] = (_frame_residuals(*plus, motion, m, shapes) - _frame_residuals(*minus, motion, m, shapes)) / (2 * h)
-        reference[:, j] = (_reference_residuals(*plus, m_ref, shapes) - _reference_residuals(*minus, m_ref, shapes)) / (2 * h)
-    return FrameBlocks(np.nan_to_num(own), np.nan_to_num(shared), reference, at, 2 * m_ref.shape[0])
 
 
 def measured_point_noise(residuals: ArrayLike) -> float:
@@ -425,8 +273,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
     their coupling ``B_k``. The globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1
     B_k)^-1``; a frame's own part ``noise^2 D_k^-1``, and its sensitivity to the globals
-    ``-D_k^-1 B_k``. The blocks (:func:`frame_blocks`) are built :data:`BLOCK_FRAMES`
-    frames at a time.
+    ``-D_k^-1 B_k``. The blocks are built :data:`BLOCK_FRAMES` frames at a time.
 
     Parameters
     ----------
@@ -462,84 +309,84 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
-    shared_info = None
+    frames = estimated if frames is None else np.asarray(frames, dtype=float)
+    frames_motion = motion if frames_motion is None else np.asarray(frames_motion, dtype=float)
     m_ref = np.asarray(m_ref, dtype=float)
     points = 2 * m_ref.shape[0]
+    reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
-    else:
-        reference_segment, estimated_segments, frame_segments = bias_segments
-        estimated_segments, frame_segments = np.asarray(estimated_segments, np.intp), np.asarray(frame_segments, np.intp)
-        count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
-        spans = np.zeros((count, 2 + points, points))  # J^T W's Schur part on the globals, span by span
-    residuals = []
-    for k in range(0, max(estimated.shape[0], 1), BLOCK_FRAMES):
-        blocks = frame_blocks(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
-        own_info, coupling = _frame_information(blocks)
-        inverse_own = _stable_inverse(own_info)
-        part = np.einsum("krg,krh->gh", blocks.shared, blocks.shared) - np.einsum("kag,kab,kbh->gh", coupling, inverse_own, coupling)
-        shared_info = blocks.reference.T @ blocks.reference + part if shared_info is None else shared_info + part
-        residuals.append(blocks.residuals[:, :blocks.reprojection_rows])
+    estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
+    frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
+    count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
+    # One pass over ``frames`` and the estimated frames not among them (the same points, pose
+    # and span); ``weight`` counts the times each is an estimated frame.
+    key = lambda *row: b"".join(np.ascontiguousarray(part).tobytes() for part in row)  # noqa: E731
+    position = {key(*row): i for i, row in enumerate(zip(frames, frames_motion, frame_segments))}
+    where = np.array([position.get(key(*row), -1) for row in zip(estimated, motion, estimated_segments)], dtype=np.intp)
+    missing = np.flatnonzero(where < 0)
+    where[missing] = frames.shape[0] + np.arange(missing.size)
+    pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
+    pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
+    weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
+    geometry = PlaneGeometry.around(normal, m_ref)
+    reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
+    shared_info = reference.T @ reference
+    spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
+    inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
+    own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
+    for k in range(0, pool.shape[0], BLOCK_FRAMES):
+        block = slice(k, k + BLOCK_FRAMES)
+        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
+        own, shared = np.nan_to_num(own), np.nan_to_num(shared)
+        coupling[block] = np.einsum("kra,krg->kag", own, shared)  # B_k = J_k^T J_kg; D_k = J_k^T J_k
+        inverse_own[block] = np.linalg.pinv(np.einsum("kra,krb->kab", own, own), rcond=1e-12, hermitian=True)
+        weighted = weight[block, None, None] * shared
+        shared_info += np.einsum("krg,krh->gh", weighted, shared) - np.einsum(
+            "kag,kab,kbh->gh", weight[block, None, None] * coupling[block], inverse_own[block], coupling[block])
+        residuals[block] = at[:, :points]
         if bias_fraction > 0.0:
-            rows = _bias_rows(estimated[k:k + BLOCK_FRAMES], m_ref, normal, motion[k:k + BLOCK_FRAMES], shapes)
-            # Each frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
-            own_rhs = np.einsum("kra,krb->kab", blocks.own, rows)
-            per_frame = np.einsum("krg,krb->kgb", blocks.shared, rows) - np.einsum("kag,kab,kbc->kgc", coupling, inverse_own, own_rhs)
-            np.add.at(spans, estimated_segments[k:k + BLOCK_FRAMES], per_frame)
+            rows = _bias_rows(pool[block], normal, pool_motion[block], shapes)
+            # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
+            own_rhs[block] = np.einsum("kra,krb->kab", own, rows)
+            per_frame = np.einsum("krg,krb->kgb", weighted, rows) - np.einsum(
+                "kag,kab,kbc->kgc", weight[block, None, None] * coupling[block], inverse_own[block], own_rhs[block])
+            np.add.at(spans, pool_segments[block], per_frame)
+    residuals = residuals[where]  # the estimated frames' own, in their (time) order
     if noise is None:
-        noise = measured_point_noise(np.concatenate(residuals))
-    inflation = correlation_inflation(np.concatenate(residuals)) if correlated else 1.0
+        noise = measured_point_noise(residuals)
+    inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
-    shared = variance * shared_inverse
-    bias_shared = None
+    bias_shared = bias = None
+    inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
-        spans[reference_segment] -= blocks.reference[:points].T  # F*'s own points carry its span's bias
+        spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-    if frames is None:
-        frames, frames_motion = estimated, motion
-    frames = np.asarray(frames, dtype=float)
-    frames_motion = np.asarray(frames_motion, dtype=float)
-    own_parts, sensitivity_parts, bias_parts = [], [], []
-    for k in range(0, frames.shape[0], BLOCK_FRAMES):
-        blocks = frame_blocks(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
-        own_info, coupling = _frame_information(blocks)
-        inverse_own = _stable_inverse(own_info)
-        own_parts.append(variance * inverse_own)
-        sensitivity_parts.append(-np.einsum("kab,kbg->kag", inverse_own, coupling))
-        if bias_shared is not None:
-            rows = _bias_rows(frames[k:k + BLOCK_FRAMES], m_ref, normal, frames_motion[k:k + BLOCK_FRAMES], shapes)
-            own_rhs = (detector_bias * _in_segments(np.einsum("kra,krb->kab", blocks.own, rows), frame_segments[k:k + BLOCK_FRAMES], count)
-                       - np.einsum("kag,gb->kab", coupling, bias_shared))
-            bias_parts.append(np.einsum("kab,kbc->kac", inverse_own, own_rhs))
-    size = shared.shape[0]
+        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - np.einsum("kag,gb->kab", coupling, bias_shared)
+        bias = np.einsum("kab,kbc->kac", inverse_own, own_rhs)
     return JointCovariance(
-        shared=shared,
-        own=np.concatenate(own_parts) if own_parts else np.zeros((0, 3, 3)),
-        sensitivity=np.concatenate(sensitivity_parts) if sensitivity_parts else np.zeros((0, 3, size)),
+        shared=variance * shared_inverse,
+        own=variance * inverse_own,
+        sensitivity=-np.einsum("kab,kbg->kag", inverse_own, coupling),
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
-        bias=np.concatenate(bias_parts) if bias_parts else None,
+        bias=bias,
     )
 
 
-def _bias_rows(m: NDArray[np.float64], m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
-               shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z):
-    shape (K, R, 2N), by central differences of :func:`_frame_residuals`."""
-    m_ref = np.asarray(m_ref, dtype=float)
-    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
-    motion = np.asarray(motion, dtype=float)
-    h = DIFFERENCE_STEP
-    columns = []
-    for point in range(m.shape[1]):
-        for axis in (1, 2):
-            step = np.zeros(m.shape[1:])
-            step[point, axis] = h
-            columns.append((_frame_residuals(normal, m_ref, motion, m + step, shapes) - _frame_residuals(normal, m_ref, motion, m - step, shapes)) / (2 * h))
-    return np.nan_to_num(np.stack(columns, axis=-1))
+def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
+    (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
+    points = 2 * m.shape[1]
+    rows = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    if not shapes:
+        return rows
+    normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
+    by_points = shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, points)
+    return np.concatenate([rows, np.nan_to_num(by_points)], axis=1)
 
 
 def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
@@ -547,13 +394,3 @@ def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count:
     out = np.zeros(values.shape[:2] + (count, values.shape[2]))
     out[np.arange(values.shape[0]), :, segments, :] = values
     return out.reshape(values.shape[:2] + (-1,))
-
-
-def _frame_information(blocks: FrameBlocks) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Per frame ``D_k = J_k^T J_k`` (K, 3, 3) and ``B_k = J_k^T J_kg`` (K, 3, G)."""
-    return (np.einsum("kra,krb->kab", blocks.own, blocks.own), np.einsum("kra,krg->kag", blocks.own, blocks.shared))
-
-
-def _stable_inverse(matrices: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Inverses of symmetric 3x3 blocks (a pseudo-inverse where one is singular)."""
-    return np.linalg.pinv(matrices, rcond=1e-12, hermitian=True)

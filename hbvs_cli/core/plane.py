@@ -9,6 +9,7 @@ solver as the inner step.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -109,16 +110,18 @@ KnownShape = tuple[Sequence[int], ArrayLike]
 UNIT_SQUARE = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
 
 
-def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape], derivatives: str | None = None
+                    ) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
     """How far image points are from target shapes known up to a similarity, in image units.
 
     Points m_i seen from a camera lie on the plane ``n^T m_bar = d`` (7): with d = 1,
     ``P_i = m_i / (n^T m_i)``. Their coordinates in the plane are matched to each known
-    shape by the best similarity (Procrustes, reflection allowed), and the matched shape's
-    points are projected back into the camera (9). The residual is their ``(m_y, m_z)``
-    minus the points': zero when the points and the normal agree with the shape. A square
-    seen under a wrong wall angle is foreshortened wrongly: this is what tells the normal's
-    yaw on a small target, which the motion alone hardly does.
+    shape by the best similarity (Procrustes, reflection allowed: for a given handedness the
+    match is linear in the coordinates), and the matched shape's points are projected back
+    into the camera (9). The residual is their ``(m_y, m_z)`` minus the points': zero when
+    the points and the normal agree with the shape. A square seen under a wrong wall angle
+    is foreshortened wrongly: this is what tells the normal's yaw on a small target, which
+    the motion alone hardly does.
 
     Parameters
     ----------
@@ -127,35 +130,105 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     m : array_like, shape (..., N, 3)
         Normalised image points.
     shapes : sequence of (indices, plane coordinates of shape (K, 2)), K >= 3
+    derivatives : {None, "normal", "points"}
+        Also return the residuals' derivatives by the normal's components, shape
+        (..., R, 3), and with "points" by every point's ``(m_y, m_z)``, shape (..., R, N, 2).
 
     Returns
     -------
-    ndarray, shape (..., 2 * sum of K)
+    ndarray, shape (..., R = 2 * sum of K), or a tuple with the derivatives
     """
     normal = np.asarray(normal, dtype=float)
     m = np.asarray(m, dtype=float)
-    normal = np.broadcast_to(normal, m.shape[:-2] + (3,))
+    batch = m.shape[:-2]
+    normal = np.broadcast_to(normal, batch + (3,))
     e1 = np.cross(normal, [0.0, 0.0, 1.0])
-    e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
+    length = np.linalg.norm(e1, axis=-1, keepdims=True)
+    e1 = e1 / length
     e2 = np.cross(normal, e1)
-    residuals = []
+    if derivatives:  # tangents (..., D, 3): d/d n_j in row j (then the points' rows, zero here)
+        d_normal = np.broadcast_to(np.eye(3), normal.shape[:-1] + (3, 3))
+        da = np.cross(d_normal, [0.0, 0.0, 1.0])
+        d_e1 = (da - np.einsum("...k,...jk->...j", e1, da)[..., None] * e1[..., None, :]) / length[..., None]
+        d_e2 = np.cross(d_normal, e1[..., None, :]) + np.cross(normal[..., None, :], d_e1)
+    residuals, by_normal, by_points = [np.zeros(batch + (0,))], [np.zeros(batch + (0, 3))], [np.zeros(batch + (0, m.shape[-2], 2))]
     for indices, layout in shapes:
-        points = m[..., list(indices), :]
+        indices = list(indices)
+        points = m[..., indices, :]
         with np.errstate(divide="ignore", invalid="ignore"):
-            on_plane = points / np.einsum("...k,...nk->...n", normal, points)[..., None]
+            depth = np.einsum("...k,...nk->...n", normal, points)
+            on_plane = points / depth[..., None]
         q = np.stack([np.einsum("...k,...nk->...n", e1, on_plane), np.einsum("...k,...nk->...n", e2, on_plane)], axis=-1)
         layout = np.asarray(layout, dtype=float)
-        q_mean = q.mean(axis=-2, keepdims=True)
         lc = layout - layout.mean(axis=0)
-        qc = np.nan_to_num(q - q_mean)
-        rotation, singular_sum = procrustes_2d(np.einsum("ki,...kj->...ij", lc, qc))
-        scale = singular_sum / max(float(np.sum(lc * lc)), 1e-300)
-        fitted = q_mean + scale[..., None, None] * np.einsum("ki,...ij->...kj", lc, rotation)
+        fitted, proper = _similar(q, lc)
         world = normal[..., None, :] + fitted[..., :1] * e1[..., None, :] + fitted[..., 1:] * e2[..., None, :]
         with np.errstate(divide="ignore", invalid="ignore"):
             projected = world / world[..., :1]
-        residuals.append((projected[..., 1:] - points[..., 1:]).reshape(m.shape[:-2] + (-1,)))
-    return np.concatenate(residuals, axis=-1) if residuals else np.zeros(m.shape[:-2] + (0,))
+        residuals.append((projected[..., 1:] - points[..., 1:]).reshape(batch + (-1,)))
+        if not derivatives:
+            continue
+        # The match is a fixed linear map of q for each handedness: ``match`` (..., 2K, 2K).
+        count = len(indices)
+        basis = np.eye(2 * count).reshape(2 * count, count, 2)
+        match = np.where(proper[..., None, None], _similar(basis, lc, True)[0].reshape(2 * count, -1),
+                         _similar(basis, lc, False)[0].reshape(2 * count, -1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # By the normal's components d: P = p / (n . p), q = (e1 . P, e2 . P), the match,
+            # the matched points on the plane, their projections.
+            d_plane = -on_plane[..., None, :] * (points / depth[..., None])[..., None]
+            dq = np.stack([np.einsum("...dk,...nk->...nd", d_e1, on_plane) + np.einsum("...k,...ndk->...nd", e1, d_plane),
+                           np.einsum("...dk,...nk->...nd", d_e2, on_plane) + np.einsum("...k,...ndk->...nd", e2, d_plane)], axis=-2)
+            d_fitted = (match.swapaxes(-1, -2) @ dq.reshape(dq.shape[:-3] + (2 * count, 3))).reshape(dq.shape)
+            d_world = (d_normal[..., None, :, :] + d_fitted[..., 0, :, None] * e1[..., None, None, :] + fitted[..., 0, None, None] * d_e1[..., None, :, :]
+                       + d_fitted[..., 1, :, None] * e2[..., None, None, :] + fitted[..., 1, None, None] * d_e2[..., None, :, :])
+            out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]  # d projection / d world, (..., K, 2, 3)
+            by_normal.append((out @ d_world.swapaxes(-1, -2)).reshape(batch + (2 * count, 3)))
+            if derivatives == "points":
+                # By each point's own (m_y, m_z) into its q, through the match, out of every projection.
+                d_own = (np.eye(3)[1:] - on_plane[..., None, :] * normal[..., None, 1:, None]) / depth[..., None, None]
+                into = np.stack([np.einsum("...k,...nyk->...ny", e1, d_own), np.einsum("...k,...nyk->...ny", e2, d_own)], axis=-2)
+                chain = (_block_diagonal(out @ np.stack([e1, e2], axis=-1)[..., None, :, :]) @ match.swapaxes(-1, -2)
+                         @ _block_diagonal(into)) - np.eye(2 * count)
+                full = np.zeros(batch + (2 * count, m.shape[-2], 2))
+                full[..., indices, :] = chain.reshape(batch + (2 * count, count, 2))
+                by_points.append(full)
+    stacked = np.concatenate(residuals, axis=-1)
+    if not derivatives:
+        return stacked
+    return (stacked, np.concatenate(by_normal, axis=-2), np.concatenate(by_points, axis=-3))[:2 if derivatives == "normal" else 3]
+
+
+def _block_diagonal(blocks: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The (..., 2K, 2K) block-diagonal matrices of (..., K, 2, 2) blocks."""
+    count = blocks.shape[-3]
+    out = np.zeros(blocks.shape[:-3] + (count, 2, count, 2))
+    out[..., np.arange(count), :, np.arange(count), :] = np.moveaxis(blocks, -3, 0)
+    return out.reshape(blocks.shape[:-3] + (2 * count, 2 * count))
+
+
+def _similar(q: NDArray[np.float64], lc: NDArray[np.float64], proper: NDArray[np.bool_] | None = None
+             ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The similarity image of the centred layout ``lc`` (K, 2) nearest to points ``q``
+    (..., K, 2), a reflection allowed, and whether it is proper (..., ).
+
+    With ``M = sum_k lc_k q_k^T = [[a, b], [c, d]]`` (q centred), the best proper match is
+    ``lc_k (a + d, c - b)`` rotated, the best mirrored ``(a - d, b + c)`` reflected, over
+    ``sum |lc|^2``; the larger of ``|(a + d, c - b)|`` and ``|(a - d, b + c)|`` wins
+    (:func:`procrustes_2d`). Given ``proper``, the same map: linear in ``q``.
+    """
+    q_mean = q.mean(axis=-2, keepdims=True)
+    qc = q - q_mean
+    a, b = qc[..., 0] @ lc[:, 0], qc[..., 1] @ lc[:, 0]
+    c, d = qc[..., 0] @ lc[:, 1], qc[..., 1] @ lc[:, 1]
+    if proper is None:
+        proper = np.hypot(a + d, c - b) >= np.hypot(a - d, b + c)
+    alpha = np.where(proper, a + d, a - d)[..., None]
+    beta = np.where(proper, c - b, b + c)[..., None]
+    sign = np.where(proper, 1.0, -1.0)[..., None]
+    scale = 1.0 / max(float(np.sum(lc * lc)), 1e-300)
+    fitted = np.stack([lc[:, 0] * alpha + lc[:, 1] * beta, sign * (lc[:, 1] * alpha - lc[:, 0] * beta)], axis=-1)
+    return q_mean + scale * fitted, proper
 
 
 def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -186,6 +259,218 @@ def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
     sign = np.where(proper, 1.0, -1.0)
     factor = np.stack([np.stack([cos, -sign * sin], axis=-1), np.stack([sin, sign * cos], axis=-1)], axis=-2)
     return factor, np.maximum(E, F)
+
+
+def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
+                      order: int = 1) -> tuple[NDArray[np.float64], ...]:
+    """Every reference point's predicted ``(m_y, m_z)`` in every frame (12) and its derivatives.
+
+    With ``u = (theta, x_h1, x_h2, g, m*_y, m*_z)``, ``g = n*^T m*_i``, ``q0 = c - s m*_y +
+    x_h1 g`` and ``q1 = s + c m*_y + x_h2 g``, the point is ``(q1 / q0, m*_z / q0)``.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (3,)
+    m_ref : ndarray, shape (N, 3)
+    motion : ndarray, shape (K, 3)
+        (theta, x_h1, x_h2) per frame.
+    order : {0, 1, 2}
+        The highest derivatives returned.
+
+    Returns
+    -------
+    predicted : ndarray, shape (K, N, 2)
+    gradient : ndarray, shape (K, N, 2, 6), from order 1
+        By ``u``.
+    hessian : ndarray, shape (K, N, 2, 6, 6), from order 2
+    """
+    y, z, g = m_ref[:, 1], m_ref[:, 2], m_ref @ normal
+    c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
+    x1, x2 = motion[:, 1:2], motion[:, 2:3]
+    q0 = c - s * y + x1 * g
+    q1 = s + c * y + x2 * g
+    with np.errstate(divide="ignore", invalid="ignore"):
+        predicted = np.stack([q1 / q0, np.broadcast_to(z, q0.shape) / q0], axis=-1)
+    if order == 0:
+        return (predicted,)
+    zero = np.zeros_like(q0)
+    d_q0 = np.stack(np.broadcast_arrays(-s - c * y, g, zero, x1, -s, zero), axis=-1)
+    d_q1 = np.stack(np.broadcast_arrays(c - s * y, zero, g, x2, c, zero), axis=-1)
+    d_numerator = np.stack([d_q1, np.broadcast_to(np.eye(6)[5], d_q1.shape)], axis=-2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gradient = (d_numerator - predicted[..., None] * d_q0[..., None, :]) / q0[..., None, None]
+    if order == 1:
+        return predicted, gradient
+    dd_q0, dd_q1 = np.zeros(q0.shape + (6, 6)), np.zeros(q0.shape + (6, 6))
+    dd_q0[..., 0, 0], dd_q1[..., 0, 0] = -c + s * y, -s - c * y
+    dd_q0[..., 0, 4] = dd_q0[..., 4, 0] = -c
+    dd_q1[..., 0, 4] = dd_q1[..., 4, 0] = -s
+    dd_q0[..., 1, 3] = dd_q0[..., 3, 1] = dd_q1[..., 2, 3] = dd_q1[..., 3, 2] = 1.0
+    # (N / q0)'' = (N'' - f q0'' - f' q0'^T - q0' f'^T) / q0 with f = N / q0 (the z numerator's N'' is 0).
+    cross = gradient[..., :, None] * d_q0[..., None, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hessian = (np.stack([dd_q1, np.zeros_like(dd_q1)], axis=-3) - predicted[..., None, None] * dd_q0[..., None, :, :]
+                   - cross - np.swapaxes(cross, -1, -2)) / q0[..., None, None, None]
+    return predicted, gradient, hessian
+
+
+def globals_derivative(normal: NDArray[np.float64], m_ref: NDArray[np.float64], by_angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(g, m*_y, m*_z)`` of every reference point by the global unknowns (n*'s two angles,
+    then each point's y and z offsets), shape (N, 3, 2 + 2N); ``by_angles`` (3, 2) is n* by
+    its two angles."""
+    count = m_ref.shape[0]
+    local = np.zeros((count, 3, 2 + 2 * count))
+    own = np.arange(count)
+    local[:, 0, :2] = m_ref @ by_angles
+    local[own, 0, 2 + 2 * own], local[own, 0, 3 + 2 * own] = normal[1], normal[2]
+    local[own, 1, 2 + 2 * own] = local[own, 2, 3 + 2 * own] = 1.0
+    return local
+
+
+def rotated_normals(normal: NDArray[np.float64], theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each frame's normal ``Rz(theta) n*`` (K, 3) and its derivative by theta (K, 3)."""
+    c, s = np.cos(theta), np.sin(theta)
+    normals = np.stack([c * normal[0] - s * normal[1], s * normal[0] + c * normal[1], np.full_like(c, normal[2])], axis=-1)
+    return normals, np.stack([-normals[:, 1], normals[:, 0], np.zeros_like(c)], axis=-1)
+
+
+@dataclass(frozen=True)
+class PlaneGeometry:
+    """The global unknowns of the joint estimate, around a base normal.
+
+    Attributes
+    ----------
+    base : ndarray, shape (3,)
+        The unit normal the two angles are measured from.
+    u, v : ndarray, shape (3,)
+        Unit directions perpendicular to ``base`` (``u`` horizontal).
+    measured_ref : ndarray, shape (N, 3)
+        The reference points as measured in F* (the y, z unknowns are offsets from them).
+    """
+
+    base: NDArray[np.float64]
+    u: NDArray[np.float64]
+    v: NDArray[np.float64]
+    measured_ref: NDArray[np.float64]
+
+    @classmethod
+    def around(cls, normal: ArrayLike, measured_ref: ArrayLike) -> "PlaneGeometry":
+        base = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+        u = np.cross(base, [0.0, 0.0, 1.0])
+        u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
+        return cls(base, u, np.cross(base, u), np.asarray(measured_ref, dtype=float))
+
+    @property
+    def size(self) -> int:
+        """Number of global unknowns: 2 + 2N."""
+        return 2 + 2 * self.measured_ref.shape[0]
+
+    def unpack(self, p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(normal (3,), m_ref (N, 3)) of global unknowns ``p`` (shape (2 + 2N,))."""
+        normal = self.base + p[0] * self.u + p[1] * self.v
+        ref = self.measured_ref.copy()
+        ref[:, 1:] += p[2:].reshape(-1, 2)
+        return normal / np.linalg.norm(normal), ref
+
+    def normal_derivative(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The unit normal of ``p`` by its two angles, shape (3, 2)."""
+        raw = self.base + p[0] * self.u + p[1] * self.v
+        length = np.linalg.norm(raw)
+        normal = raw / length
+        tangents = np.column_stack([self.u, self.v])
+        return (tangents - np.outer(normal, normal @ tangents)) / length
+
+    def pack(self, normal: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
+        """The global unknowns of ``normal`` (on the base's side) and ``m_ref``."""
+        normal = np.asarray(normal, dtype=float)
+        normal = normal / (normal @ self.base)
+        offsets = (np.asarray(m_ref, dtype=float)[:, 1:] - self.measured_ref[:, 1:]).ravel()
+        return np.concatenate([[normal @ self.u, normal @ self.v], offsets])
+
+
+def frame_rows(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[np.float64], m: NDArray[np.float64],
+                shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
+    """Each frame's residuals (K, R) at the globals ``p`` and its ``motion`` (K, 3): reprojection
+    errors of its points ``m`` (K, N, 3) (12), then its known shapes' residuals; with
+    ``derivatives`` also their derivatives by its own (theta, x_h1, x_h2) (K, R, 3) and by ``p``
+    (K, R, G)."""
+    normal, m_ref = geometry.unpack(p)
+    frames = m.shape[0]
+    predicted, *gradient = point_derivatives(normal, m_ref, motion, order=int(derivatives))
+    residuals = (predicted - m[..., 1:]).reshape(frames, -1)
+    # Every frame sees the shapes under its own normal Rz(theta) n*.
+    normals, by_theta = rotated_normals(normal, motion[:, 0])
+    if not derivatives:
+        return np.concatenate([residuals, shape_residuals(normals, m, shapes)], axis=-1)
+    by_angles = geometry.normal_derivative(p)
+    own = gradient[0][..., :3].reshape(frames, -1, 3)
+    shared = np.einsum("knca,nag->kncg", gradient[0][..., 3:], globals_derivative(normal, m_ref, by_angles)).reshape(frames, -1, geometry.size)
+    shape, by_normal = shape_residuals(normals, m, shapes, "normal")
+    shape_own = np.zeros(shape.shape + (3,))
+    shape_own[..., 0] = np.einsum("krj,kj->kr", by_normal, by_theta)
+    rotated = np.stack([rotated_normals(by_angles[:, a], motion[:, 0])[0] for a in range(2)], axis=-1)
+    shape_shared = np.zeros(shape.shape + (geometry.size,))
+    shape_shared[..., :2] = np.einsum("krj,kja->kra", by_normal, rotated)
+    return (np.concatenate([residuals, shape], axis=1), np.concatenate([own, shape_own], axis=1),
+            np.concatenate([shared, shape_shared], axis=1))
+
+
+def reference_rows(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequence[KnownShape],
+                    derivatives: bool = False) -> NDArray[np.float64]:
+    """F*'s residuals at the globals ``p`` (R0,): its points' offsets (its pose is the
+    identity: the gauge), then its shapes'; with ``derivatives`` their derivatives (R0, G)."""
+    normal, m_ref = geometry.unpack(p)
+    points = 2 * m_ref.shape[0]
+    if not derivatives:
+        return np.concatenate([(m_ref[:, 1:] - geometry.measured_ref[:, 1:]).ravel(), shape_residuals(normal, m_ref, shapes)])
+    _, by_normal, by_points = shape_residuals(normal, m_ref, shapes, "points")
+    return np.concatenate([np.eye(points, geometry.size, 2),
+                           np.concatenate([by_normal @ geometry.normal_derivative(p), by_points.reshape(-1, points)], axis=1)])
+
+
+def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames: NDArray[np.float64],
+                        shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64]:
+    """The cost of :func:`refine_plane_and_reference` at the globals ``p`` (its residuals,
+    or with ``derivatives`` their Jacobian by ``p``): every frame's reprojection errors at
+    its best pose (:class:`KnownNormalSolver`), F*'s rows (:func:`reference_rows`), every
+    frame's shapes' residuals.
+
+    Parameters
+    ----------
+    geometry : PlaneGeometry
+        n* and F*'s measured points the globals ``p`` (shape (G = 2 + 2N,)) are offsets from.
+    frames : ndarray, shape (K, N, 3)
+    shapes : sequence of KnownShape
+
+    Returns
+    -------
+    ndarray, shape (R,) or (R, G)
+    """
+    normal, m_ref = geometry.unpack(p)
+    motion = KnownNormalSolver(m_ref, normal).solve(frames)
+    x = np.column_stack([motion.theta, motion.x_h])
+    points = 2 * m_ref.shape[0]
+    if not derivatives:
+        rows = frame_rows(geometry, p, x, frames, shapes)
+    else:
+        # Variable projection: each frame's pose minimises its reprojection error, so by the
+        # implicit function theorem d pose / d p = -H_xx^-1 H_xp (full Hessians).
+        solved = np.all(np.isfinite(x), axis=1)
+        x = np.where(solved[:, None], x, 0.0)
+        _, own, rows = frame_rows(geometry, p, x, frames, shapes, derivatives=True)
+        predicted, _, hessian = point_derivatives(normal, m_ref, x, order=2)
+        r = (predicted - frames[..., 1:]).reshape(x.shape[0], -1)
+        hessian = hessian.reshape(r.shape + (6, 6))
+        local = np.repeat(globals_derivative(normal, m_ref, geometry.normal_derivative(p)), 2, axis=0)  # per row
+        h_xx = np.einsum("kra,krb->kab", own[:, :points], own[:, :points]) + np.einsum("kr,krab->kab", r, hessian[..., :3, :3])
+        h_xp = np.einsum("kra,krg->kag", own[:, :points], rows[:, :points]) + np.einsum("kr,kral,rlg->kag", r, hessian[..., :3, 3:], local)
+        h_xx[~solved] = np.eye(3)
+        rows = rows - own @ np.linalg.solve(h_xx, h_xp)
+        rows[~solved] = 0.0
+    # The solver's order: each frame's m_y errors, then its m_z errors.
+    reprojection = rows[:, :points].reshape((x.shape[0], -1, 2) + rows.shape[2:]).swapaxes(1, 2)
+    return np.nan_to_num(np.concatenate([reprojection.reshape((-1,) + rows.shape[2:]), reference_rows(geometry, p, shapes, derivatives),
+                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]))
 
 
 def refine_plane_and_reference(
@@ -232,39 +517,15 @@ def refine_plane_and_reference(
     frames = m[others]
     if frames.shape[0] > REFINEMENT_FRAMES:
         frames = frames[np.linspace(0, frames.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
-    start = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
-    u = np.cross(start, [0.0, 0.0, 1.0])
-    u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([0.0, 1.0, 0.0])
-    v = np.cross(start, u)
-    n_points = measured_ref.shape[0]
-
-    def unpack(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        trial_normal = start + p[0] * u + p[1] * v
-        trial_ref = measured_ref.copy()
-        trial_ref[:, 1:] += p[2:].reshape(n_points, 2)
-        return trial_normal / np.linalg.norm(trial_normal), trial_ref
-
-    def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        trial_normal, trial_ref = unpack(p)
-        solver = KnownNormalSolver(trial_ref, trial_normal)
-        motion = solver.solve(frames)
-        reprojection = np.nan_to_num(solver.reprojection_residuals(motion, frames)).ravel()
-        if not shapes:
-            return np.concatenate([reprojection, (trial_ref[:, 1:] - measured_ref[:, 1:]).ravel()])
-        # Every frame sees the shape too, under its own normal Rz(theta) n*.
-        c, s = np.cos(motion.theta), np.sin(motion.theta)
-        normals = np.stack([c * trial_normal[0] - s * trial_normal[1], s * trial_normal[0] + c * trial_normal[1],
-                            np.full_like(c, trial_normal[2])], axis=-1)
-        shape = np.concatenate([shape_residuals(trial_normal, trial_ref, shapes), shape_residuals(normals, frames, shapes).ravel()])
-        return np.concatenate([reprojection, (trial_ref[:, 1:] - measured_ref[:, 1:]).ravel(), np.nan_to_num(shape)])
-
+    geometry = PlaneGeometry.around(normal, measured_ref)
     if frames.shape[0] == 0:
-        return start, measured_ref
+        return geometry.base, measured_ref
     try:
-        solution = least_squares(residuals, np.zeros(2 + 2 * n_points), x_scale=1e-3, max_nfev=100)
+        solution = least_squares(lambda p: projected_residuals(geometry, p, frames, shapes), np.zeros(geometry.size),
+                                 jac=lambda p: projected_residuals(geometry, p, frames, shapes, derivatives=True), x_scale=1e-3, max_nfev=100)
     except GeometryError:
-        return start, measured_ref
-    refined_normal, refined_ref = unpack(solution.x)
+        return geometry.base, measured_ref
+    refined_normal, refined_ref = geometry.unpack(solution.x)
     if np.any(refined_ref @ refined_normal <= 0.0):
-        return start, measured_ref
+        return geometry.base, measured_ref
     return refined_normal, refined_ref
