@@ -49,13 +49,16 @@ MIN_MARKER_SIDE_PX = 8.0
 #: reaches theta_d. The medians over the footage maker's rows without lens distortion,
 #: rolling shutter or heavy blur, each kind fitted with --target KIND (docs/targets.md).
 #: Texture's points are its matched features, whose errors are shared by neighbours (one
-#: alignment): its scale, 2.4 times the chessboard's, counts 6 features as one corner.
-PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 2.8, "texture": 24.8}
+#: alignment): its scale, 2.3 times the chessboard's, counts 5 features as one corner.
+PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 2.8, "texture": 23.8}
 #: Dots or decoded markers whose outline (convex hull) covers at least this fraction of the
 #: texture's box: the texture is their own print and is set aside. Their wall's texture
 #: measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a marker's own print
 #: measured better (docs/targets.md), but the markers keep their ids and known square.
 OWN_PRINT_FRACTION = 0.25
+#: A texture feature counts as matched within this distance (px) of where the frame's
+#: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).
+MATCHED_PX = 3.0
 #: What each kind's points are called in the one line.
 POINT_NAMES = {"dots": "dots", "aruco": "corners", "chessboard": "corners", "charuco": "corners", "texture": "features"}
 
@@ -75,11 +78,11 @@ class TargetChoice:
         ``marker_dict`` and ``marker_ids`` (aruco); ``board`` (chessboard: inner corners
         per row and rows; charuco: squares across and down, and its ``marker_dict``).
     n_points : int
-        Points seen in the first frames (texture: median matched features).
+        Points seen in the first frames (texture: median matched features per frame).
     spread_px : float
-        Their RMS distance from their centroid (px; texture: of its box, filled evenly).
+        Their RMS distance from their centroid (px).
     area_px : float
-        The area of their outline, the convex hull (px^2; texture: of its box).
+        The area of their outline, the convex hull (px^2).
     """
 
     kind: str
@@ -242,24 +245,39 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
 def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[np.float64], seed: int = 0) -> TargetChoice | None:
     """The first frame's natural features matched in most of the following frames, or None.
 
-    Its points are the median number of features matched, spread as evenly over the
-    aligned box ``template_pixels`` (4, 2) px: the box corners' RMS spread over sqrt(3).
+    Its points are the first frame's ORB features inside the box ``template_pixels`` (4, 2)
+    px whose match in a following frame lies within :data:`MATCHED_PX` of where the
+    detector's homography puts them: their median number per frame, and the spread and
+    outline of all of them (features on noise or off the picture do not count).
     """
-    box = TargetChoice("texture", "").measured_by(np.asarray(template_pixels, dtype=float))
+    import cv2
+
+    box = np.asarray(template_pixels, dtype=float)
     if len(images) < 2:
-        return replace(box, reason="textured picture (a single frame: not checked against others)", spread_px=box.spread_px / np.sqrt(3.0))
-    detector = TextureDetector(images[0], template_pixels, seed=seed)
-    inliers = []
+        return TargetChoice("texture", "textured picture (a single frame: not checked against others)").measured_by(box)
+    orb, matcher = cv2.ORB_create(nfeatures=1000), cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    keys, codes = orb.detectAndCompute(images[0], None)
+    first = np.array([k.pt for k in keys], dtype=float).reshape(-1, 2)
+    inside = np.array([cv2.pointPolygonTest(box.astype(np.float32), (float(x), float(y)), False) >= 0 for x, y in first], dtype=bool)
+    detector = TextureDetector(images[0], box, seed=seed)
+    counts, matched = [], set()
     for image in images[1:]:
         detector.reset()
         detection = detector.detect(image, None)
-        if detection.found:
-            inliers.append(detection.inliers)
-    if not _majority(len(inliers), len(images) - 1):
+        if not detection.found:
+            continue
+        frame_keys, frame_codes = orb.detectAndCompute(image, None)
+        pairs = matcher.match(codes, frame_codes) if codes is not None and frame_codes is not None else []
+        index = np.array([pair.queryIdx for pair in pairs], dtype=int)
+        where = np.array([frame_keys[pair.trainIdx].pt for pair in pairs], dtype=float).reshape(-1, 2)
+        predicted = cv2.perspectiveTransform(first[index].reshape(-1, 1, 2), detection.homography).reshape(-1, 2)
+        good = index[inside[index] & (np.linalg.norm(predicted - where, axis=1) <= MATCHED_PX)]
+        counts.append(len(good))
+        matched.update(good.tolist())
+    if not _majority(len(counts), len(images) - 1) or len(matched) < 4:
         return None
-    matched = int(np.median(inliers))
-    reason = f"textured picture: the first frame's features matched in {len(inliers)} of the next {len(images) - 1} frames"
-    return replace(box, reason=reason, n_points=matched, spread_px=box.spread_px / np.sqrt(3.0))
+    reason = f"textured picture: the first frame's features matched in {len(counts)} of the next {len(images) - 1} frames"
+    return replace(TargetChoice("texture", reason).measured_by(first[sorted(matched)]), n_points=int(np.median(counts)))
 
 
 def choose_target(
