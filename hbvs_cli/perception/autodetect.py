@@ -11,9 +11,10 @@ Every kind found consistently in the first frames is a candidate:
 * **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
   number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
   in most of the first frames; in gray first, then (colour footage) in colour, for dots that
-  differ from their wall in hue alone (:func:`~.dots.dark_image`);
+  differ from their wall in hue alone (:func:`~.dots.dark_image`); not where markers are;
 * **texture** -- natural features of the first frame, matched (robust homography) in most
-  of the following first frames.
+  of the following first frames; not when it is the print of dots, markers or a board
+  (:data:`OWN_PRINT_FRACTION`).
 
 The candidate whose points predict the most precise theta_d wins
 (:attr:`TargetChoice.predicted_deg`: the kind's measured scale over the points' spread and
@@ -50,11 +51,11 @@ MIN_MARKER_SIDE_PX = 8.0
 #: rolling shutter or heavy blur, each kind fitted with --target KIND (docs/targets.md).
 #: Texture's points are its matched features, whose errors are shared by neighbours (one
 #: alignment): its scale, 2.3 times the chessboard's, counts 5 features as one corner.
-PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 2.8, "texture": 23.8}
-#: Dots or decoded markers whose outline (convex hull) covers at least this fraction of the
-#: texture's box: the texture is their own print and is set aside. Their wall's texture
-#: measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a marker's own print
-#: measured better (docs/targets.md), but the markers keep their ids and known square.
+PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7.4, "texture": 23.8}
+#: Dots, decoded markers or a ChArUco board whose outline (convex hull) covers at least this
+#: fraction of the matched texture's: the texture is their own print and is set aside. Their
+#: wall's texture measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a
+#: marker's own print measured better (docs/targets.md), but codes keep their ids.
 OWN_PRINT_FRACTION = 0.25
 #: A texture feature counts as matched within this distance (px) of where the frame's
 #: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).
@@ -324,7 +325,7 @@ def choose_target(
             texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
         except InputError:
             texture = None
-        printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None and c.kind == "aruco"]
+        printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
         if texture is not None and any(c.area_px >= OWN_PRINT_FRACTION * texture.area_px for c in printed):
             aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
         else:
