@@ -30,6 +30,7 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -60,8 +61,6 @@ OWN_PRINT_FRACTION = 0.25
 #: A texture feature counts as matched within this distance (px) of where the frame's
 #: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).
 MATCHED_PX = 3.0
-#: What each kind's points are called in the one line.
-POINT_NAMES = {"dots": "dots", "aruco": "corners", "chessboard": "corners", "charuco": "corners", "texture": "features"}
 
 
 @dataclass(frozen=True)
@@ -101,8 +100,6 @@ class TargetChoice:
 
     def measured_by(self, points: NDArray[np.float64] | None) -> TargetChoice:
         """This choice with ``n_points``, ``spread_px`` and ``area_px`` of ``points`` (N, 2) px (NaN rows unseen)."""
-        import cv2
-
         if points is None:
             return self
         seen = points[np.all(np.isfinite(points), axis=1)]
@@ -129,16 +126,11 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
             family = next(name for name, members in MARKER_FAMILIES.items() if sighting.dictionary in members)
             votes[family] += 1
             ids_seen.setdefault(family, Counter()).update(sighting.ids)
-    if not votes:
+    family, count = votes.most_common(1)[0] if votes else ("", 0)
+    ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if _majority(n, len(images)))
+    if not _majority(count, len(images)) or not ids:
         return None
-    family, count = votes.most_common(1)[0]
-    if not _majority(count, len(images)):
-        return None
-    ids = sorted(i for i, n in ids_seen[family].items() if _majority(n, len(images)))
-    if not ids:
-        return None
-    names = MARKER_FAMILIES[family]
-    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in names if dictionary_size(n) > ids[-1])
+    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in MARKER_FAMILIES[family] if dictionary_size(n) > ids[-1])
     others = [f for f in votes if f != family]
     also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
     which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
@@ -189,9 +181,7 @@ def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = N
     two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots
     on a wall: a 4x3 board in 3 of 5 frames of a simulated dots target)."""
     board = find_board(image, pattern)
-    if board is None or not board_corners_cross(as_gray(image), board.corners, board.pattern):
-        return None
-    return board
+    return board if board is not None and board_corners_cross(as_gray(image), board.corners, board.pattern) else None
 
 
 def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[NDArray[np.float64], bool]:
@@ -251,8 +241,6 @@ def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[n
     detector's homography puts them: their median number per frame, and the spread and
     outline of all of them (features on noise or off the picture do not count).
     """
-    import cv2
-
     box = np.asarray(template_pixels, dtype=float)
     if len(images) < 2:
         return TargetChoice("texture", "textured picture (a single frame: not checked against others)").measured_by(box)
@@ -265,10 +253,10 @@ def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[n
     for image in images[1:]:
         detector.reset()
         detection = detector.detect(image, None)
-        if not detection.found:
-            continue
         frame_keys, frame_codes = orb.detectAndCompute(image, None)
         pairs = matcher.match(codes, frame_codes) if codes is not None and frame_codes is not None else []
+        if not detection.found or not pairs:
+            continue
         index = np.array([pair.queryIdx for pair in pairs], dtype=int)
         where = np.array([frame_keys[pair.trainIdx].pt for pair in pairs], dtype=float).reshape(-1, 2)
         predicted = cv2.perspectiveTransform(first[index].reshape(-1, 1, 2), detection.homography).reshape(-1, 2)
@@ -338,7 +326,8 @@ def choose_target(
             "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
         )
     found.sort(key=lambda choice: choice.predicted_deg)
-    described = [f"{c.predicted_deg:.2g} deg ({c.n_points} {POINT_NAMES[c.kind]} over {c.spread_px:.0f} px)" for c in found]
+    points = {"dots": "dots", "texture": "features"}
+    described = [f"{c.predicted_deg:.2g} deg ({c.n_points} {points.get(c.kind, 'corners')} over {c.spread_px:.0f} px)" for c in found]
     others = "".join(f" vs {c.kind} {d}" for c, d in zip(found[1:], described[1:]))
     none = f"; no {' and no '.join(ruled_out)}" if ruled_out else ""
     return replace(found[0], reason=f"{found[0].reason}; predicted theta_d precision {described[0]}{others}{aside}{none}")
