@@ -160,11 +160,8 @@ def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
 
 
 def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
-    """A chessboard of the same pattern in most of ``images``, or None.
-
-    The first frame is searched for the largest board (``findChessboardCornersSB``); the
-    others for that pattern.
-    """
+    """A chessboard in most of ``images`` (the first frame's largest, ``findChessboardCornersSB``;
+    that pattern in the others), or None."""
     first = _checked_board(images[0])
     if first is None:
         return None
@@ -218,10 +215,8 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
             found, dominant = round_dots(image, kind, contrast)
             centres.append(found if dominant and 3 <= len(found) <= MAX_DOTS else found[:0])
         tally = Counter(len(c) for c in centres if len(c))
-        if not tally:
-            continue
-        n_dots, frames = tally.most_common(1)[0]
-        if _majority(frames, len(images)):
+        n_dots, frames = tally.most_common(1)[0] if tally else (0, 0)
+        if frames and _majority(frames, len(images)):
             before = " (no dark dots)" if kind == "light" and polarity is None else ""
             details = {"polarity": kind, "n_points": n_dots}
             if contrast == "colour":
