@@ -1,37 +1,36 @@
 """``--target auto``: which target a recording shows, judged on its first frames.
 
-The kinds are tried from the most specific evidence to the least, and the first that
-pins the plane best wins:
+Every kind found consistently in the first frames is a candidate:
 
-1. **ChArUco board** -- markers laid out as a ChArUco board's (:func:`~.charuco.infer_board`),
-   its corners found in most of the first frames: a known grid of sub-pixel chessboard
-   corners, each identified by its markers;
-2. **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
-   predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
-   the same ids in most of the first frames. Markers that cover only a small part of a
-   textured picture they are printed in (less than :data:`SMALL_MARKERS_FRACTION` of its
-   area) give way to the picture: the whole picture's alignment pins the plane over its
-   full width, a few small squares over theirs;
-3. **chessboard** -- ``findChessboardCornersSB`` finds the same pattern in most of the
-   first frames: a known grid of sub-pixel corners;
-4. **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
-   number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
-   in most of the first frames; in gray first, then (colour footage) in colour, for dots that
-   differ from their wall in hue alone (:func:`~.dots.dark_image`);
-5. **texture** -- natural features of the first frame, matched (robust homography) in most
-   of the following first frames.
+* **ChArUco board** -- markers laid out as a ChArUco board's (:func:`~.charuco.infer_board`),
+  its corners found in most of the first frames (it stands for its own markers);
+* **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
+  predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
+  the same ids in most of the first frames;
+* **chessboard** -- ``findChessboardCornersSB`` finds the same pattern in most of them;
+* **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
+  number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
+  in most of the first frames; in gray first, then (colour footage) in colour, for dots that
+  differ from their wall in hue alone (:func:`~.dots.dark_image`); not where markers are;
+* **texture** -- natural features of the first frame, matched (robust homography) in most
+  of the following first frames; not when it is the print of dots, markers or a board
+  (:data:`OWN_PRINT_FRACTION`).
 
-:class:`TargetChoice` says why in one sentence (what was found, in how many frames, and
-what was ruled out before), so that a wrong pick is impossible to miss. When none passes,
+The candidate whose points predict the most precise theta_d wins
+(:attr:`TargetChoice.predicted_deg`: the kind's measured scale over the points' spread and
+the square root of their number), so a whole poster beats tiny markers printed in it and a
+small chessboard's texture its 35 corners. :class:`TargetChoice` says why in one sentence
+(what was found, the predicted precisions, what was ruled out). When none passes,
 :class:`~hbvs_cli.errors.InputError` names every kind tried.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -47,9 +46,21 @@ from .texture import TextureDetector
 MAX_DOTS = 10
 #: Markers smaller than this (px) in every frame are not trusted as a decoded code.
 MIN_MARKER_SIDE_PX = 8.0
-#: Markers whose outline (convex hull) covers less than this fraction of the textured
-#: picture's region around them give way to the picture.
-SMALL_MARKERS_FRACTION = 0.25
+#: theta_d's RMS error (deg) times the points' RMS spread about their centroid in the first
+#: frame (px) times the square root of their number, by kind: how each kind's point noise
+#: reaches theta_d. The medians over the footage maker's rows without lens distortion,
+#: rolling shutter or heavy blur, each kind fitted with --target KIND (docs/targets.md).
+#: Texture's points are its matched features, whose errors are shared by neighbours (one
+#: alignment): its scale, 2.3 times the chessboard's, counts 5 features as one corner.
+PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7.4, "texture": 23.8}
+#: Dots, decoded markers or a ChArUco board whose outline (convex hull) covers at least this
+#: fraction of the matched texture's: the texture is their own print and is set aside. Their
+#: wall's texture measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a
+#: marker's own print measured better (docs/targets.md), but codes keep their ids.
+OWN_PRINT_FRACTION = 0.25
+#: A texture feature counts as matched within this distance (px) of where the frame's
+#: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).
+MATCHED_PX = 3.0
 
 
 @dataclass(frozen=True)
@@ -66,11 +77,34 @@ class TargetChoice:
         ``polarity``, ``n_points`` and, for dots seen in colour only, ``contrast`` (dots);
         ``marker_dict`` and ``marker_ids`` (aruco); ``board`` (chessboard: inner corners
         per row and rows; charuco: squares across and down, and its ``marker_dict``).
+    n_points : int
+        Points seen in the first frames (texture: median matched features per frame).
+    spread_px : float
+        Their RMS distance from their centroid (px).
+    area_px : float
+        The area of their outline, the convex hull (px^2).
     """
 
     kind: str
     reason: str
     details: dict[str, Any] = field(default_factory=dict)
+    n_points: int = 0
+    spread_px: float = float("nan")
+    area_px: float = 0.0
+
+    @property
+    def predicted_deg(self) -> float:
+        """theta_d's predicted RMS error (deg): :data:`PRECISION_SCALE` over spread_px * sqrt(n_points)."""
+        spread = self.spread_px * np.sqrt(self.n_points)
+        return PRECISION_SCALE[self.kind] / spread if spread > 0 else float("inf")
+
+    def measured_by(self, points: NDArray[np.float64] | None) -> TargetChoice:
+        """This choice with ``n_points``, ``spread_px`` and ``area_px`` of ``points`` (N, 2) px (NaN rows unseen)."""
+        if points is None:
+            return self
+        seen = points[np.all(np.isfinite(points), axis=1)]
+        spread = float(np.sqrt(np.mean(np.sum((seen - seen.mean(axis=0)) ** 2, axis=1))))
+        return replace(self, n_points=len(seen), spread_px=spread, area_px=float(cv2.contourArea(cv2.convexHull(seen.astype(np.float32)))))
 
 
 def _majority(count: int, frames: int) -> bool:
@@ -92,21 +126,17 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
             family = next(name for name, members in MARKER_FAMILIES.items() if sighting.dictionary in members)
             votes[family] += 1
             ids_seen.setdefault(family, Counter()).update(sighting.ids)
-    if not votes:
+    family, count = votes.most_common(1)[0] if votes else ("", 0)
+    ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if _majority(n, len(images)))
+    if not _majority(count, len(images)) or not ids:
         return None
-    family, count = votes.most_common(1)[0]
-    if not _majority(count, len(images)):
-        return None
-    ids = sorted(i for i, n in ids_seen[family].items() if _majority(n, len(images)))
-    if not ids:
-        return None
-    names = MARKER_FAMILIES[family]
-    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in names if dictionary_size(n) > ids[-1])
+    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in MARKER_FAMILIES[family] if dictionary_size(n) > ids[-1])
     others = [f for f in votes if f != family]
     also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
     which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
     reason = f"markers: {name} {which} decoded in {count} of the first {len(images)} frames{also}"
-    return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids})
+    corners = next((c for c in (marker_corners_in_view(image, name, ids) for image in images) if c is not None), None)
+    return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids}).measured_by(corners)
 
 
 def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None,
@@ -117,7 +147,8 @@ def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     if geometry is None:
         return None
     detector = CharucoTargetDetector(geometry.squares, geometry.dictionary, geometry.marker_ratio)
-    seen = [int(np.count_nonzero(np.all(np.isfinite(detector.detect(image).pixels), axis=1))) for image in images]
+    pixels = [detector.detect(image).pixels for image in images]
+    seen = [int(np.count_nonzero(np.all(np.isfinite(p), axis=1))) for p in pixels]
     found = sum(count > 0 for count in seen)
     if not _majority(found, len(images)):
         return None
@@ -125,15 +156,12 @@ def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     reason = (f"ChArUco board of {columns}x{rows} squares ({geometry.dictionary}, {geometry.n_markers} markers) with up to "
               f"{max(seen)} of its {detector.n_points} corners found in {found} of the first {len(images)} frames "
               "(a known grid of sub-pixel corners, each named by its markers)")
-    return TargetChoice("charuco", reason, {"board": [columns, rows], "marker_dict": geometry.dictionary})
+    return TargetChoice("charuco", reason, {"board": [columns, rows], "marker_dict": geometry.dictionary}).measured_by(pixels[int(np.argmax(seen))])
 
 
 def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
-    """A chessboard of the same pattern in most of ``images``, or None.
-
-    The first frame is searched for the largest board (``findChessboardCornersSB``); the
-    others for that pattern.
-    """
+    """A chessboard in most of ``images`` (the first frame's largest, ``findChessboardCornersSB``;
+    that pattern in the others), or None."""
     first = _checked_board(images[0])
     if first is None:
         return None
@@ -141,9 +169,8 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern
-    reason = (f"chessboard of {columns}x{rows} inner corners found in {found} of the first {len(images)} frames "
-              f"({columns * rows} sub-pixel corners on a known grid pin the plane better than texture)")
-    return TargetChoice("chessboard", reason, {"board": [columns, rows]})
+    reason = f"chessboard of {columns}x{rows} inner corners found in {found} of the first {len(images)} frames"
+    return TargetChoice("chessboard", reason, {"board": [columns, rows]}).measured_by(first.corners)
 
 
 def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
@@ -151,13 +178,12 @@ def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = N
     two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots
     on a wall: a 4x3 board in 3 of 5 frames of a simulated dots target)."""
     board = find_board(image, pattern)
-    if board is None or not board_corners_cross(as_gray(image), board.corners, board.pattern):
-        return None
-    return board
+    return board if board is not None and board_corners_cross(as_gray(image), board.corners, board.pattern) else None
 
 
-def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[int, bool]:
-    """Round blobs of similar size in one frame, and whether they make up most of its blob-like structure.
+def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[NDArray[np.float64], bool]:
+    """Centres (N, 2) px of the round blobs of similar size in one frame, and whether they
+    make up most of its blob-like structure.
 
     A textured picture has many dark shapes that are not round; a dots target's dots are
     most of what is compact and interior (components cut by the frame's edge, e.g. the
@@ -166,17 +192,16 @@ def count_round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "g
     blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
     round_areas = blobs.areas[blobs.round]
     if round_areas.size < 3:
-        return int(round_areas.size), False
+        return blobs.centres[blobs.round], False
     median = np.median(round_areas)
-    similar = int(np.count_nonzero((round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)))
+    similar = (round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)
     interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
-    return similar, similar >= 3 and similar >= 0.75 * interior
+    return blobs.centres[blobs.round][similar], int(similar.sum()) >= max(3, 0.75 * interior)
 
 
 def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) -> TargetChoice | None:
     """The same number of dots (3-10) in most of ``images``, dark ones first, in gray first
     (then in colour, when the frames have it), or None."""
-    tried = []
     colour = any(np.ndim(image) == 3 for image in images)
     # In colour, light dots first: a dot that differs from a neutral wall in hue alone is
     # brighter than it in its own channel (red in red), where dark frames and shadows do not
@@ -185,16 +210,13 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
     # channel measured the dots to 0.087 px RMS, the darkest to 0.17 px.
     order = [("gray", "dark"), ("gray", "light")] + ([("colour", "light"), ("colour", "dark")] if colour else [])
     for contrast, kind in (pair for pair in order if polarity is None or pair[1] == polarity):
-        counts = []
+        centres = []
         for image in images:
-            count, dominant = count_round_dots(image, kind, contrast)
-            counts.append(count if dominant and 3 <= count <= MAX_DOTS else 0)
-        tally = Counter(c for c in counts if c)
-        tried.append(kind)
-        if not tally:
-            continue
-        n_dots, frames = tally.most_common(1)[0]
-        if _majority(frames, len(images)):
+            found, dominant = round_dots(image, kind, contrast)
+            centres.append(found if dominant and 3 <= len(found) <= MAX_DOTS else found[:0])
+        tally = Counter(len(c) for c in centres if len(c))
+        n_dots, frames = tally.most_common(1)[0] if tally else (0, 0)
+        if frames and _majority(frames, len(images)):
             before = " (no dark dots)" if kind == "light" and polarity is None else ""
             details = {"polarity": kind, "n_points": n_dots}
             if contrast == "colour":
@@ -202,30 +224,44 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
                 before = f" in colour, on their {channel} channel (no dots stand out in gray)"
                 details["contrast"] = contrast
             reason = f"{n_dots} {kind} round dots of comparable size in {frames} of the first {len(images)} frames{before}"
-            return TargetChoice("dots", reason, details)
+            return TargetChoice("dots", reason, details).measured_by(next(c for c in centres if len(c) == n_dots))
     return None
 
 
 def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[np.float64], seed: int = 0) -> TargetChoice | None:
-    """The first frame's natural features matched in most of the following frames, or None."""
+    """The first frame's natural features matched in most of the following frames, or None.
+
+    Its points are the first frame's ORB features inside the box ``template_pixels`` (4, 2)
+    px whose match in a following frame lies within :data:`MATCHED_PX` of where the
+    detector's homography puts them: their median number per frame, and the spread and
+    outline of all of them (features on noise or off the picture do not count).
+    """
+    box = np.asarray(template_pixels, dtype=float)
     if len(images) < 2:
-        return TargetChoice("texture", "textured picture (a single frame: not checked against others)")
-    detector = TextureDetector(images[0], template_pixels, seed=seed)
-    found = 0
-    inliers = []
+        return TargetChoice("texture", "textured picture (a single frame: not checked against others)").measured_by(box)
+    orb, matcher = cv2.ORB_create(nfeatures=1000), cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    keys, codes = orb.detectAndCompute(images[0], None)
+    first = np.array([k.pt for k in keys], dtype=float).reshape(-1, 2)
+    inside = np.array([cv2.pointPolygonTest(box.astype(np.float32), (float(x), float(y)), False) >= 0 for x, y in first], dtype=bool)
+    detector = TextureDetector(images[0], box, seed=seed)
+    counts, matched = [], set()
     for image in images[1:]:
         detector.reset()
         detection = detector.detect(image, None)
-        found += int(detection.found)
-        if detection.found:
-            inliers.append(detection.inliers)
-    if not _majority(found, len(images) - 1):
+        frame_keys, frame_codes = orb.detectAndCompute(image, None)
+        pairs = matcher.match(codes, frame_codes) if codes is not None and frame_codes is not None else []
+        if not detection.found or not pairs:
+            continue
+        index = np.array([pair.queryIdx for pair in pairs], dtype=int)
+        where = np.array([frame_keys[pair.trainIdx].pt for pair in pairs], dtype=float).reshape(-1, 2)
+        predicted = cv2.perspectiveTransform(first[index].reshape(-1, 1, 2), detection.homography).reshape(-1, 2)
+        good = index[inside[index] & (np.linalg.norm(predicted - where, axis=1) <= MATCHED_PX)]
+        counts.append(len(good))
+        matched.update(good.tolist())
+    if not _majority(len(counts), len(images) - 1) or len(matched) < 4:
         return None
-    reason = (
-        f"textured picture: the first frame's features matched in {found} of the next {len(images) - 1} frames "
-        f"(median {int(np.median(inliers))} inliers)"
-    )
-    return TargetChoice("texture", reason)
+    reason = f"textured picture: the first frame's features matched in {len(counts)} of the next {len(images) - 1} frames"
+    return replace(TargetChoice("texture", reason).measured_by(first[sorted(matched)]), n_points=int(np.median(counts)))
 
 
 def choose_target(
@@ -235,7 +271,8 @@ def choose_target(
     marker_dict: str | None = None,
     seed: int = 0,
 ) -> TargetChoice:
-    """Pick the target kind from the first frames of a recording.
+    """Pick the target kind from the first frames of a recording: of the kinds found
+    consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
 
     Parameters
     ----------
@@ -245,7 +282,7 @@ def choose_target(
         ``template_pixels_of(first_image) -> (4, 2) pixels``: where a texture target's
         points would be (or raises :class:`InputError` when the image has too few features).
     marker_dict : str, optional
-        Only this dictionary is scanned (``--marker-dict``).
+        Only markers of this dictionary (or their ChArUco board) are looked for (``--marker-dict``).
     seed : int
 
     Raises
@@ -254,66 +291,39 @@ def choose_target(
         When no kind is found consistently; the message names every kind tried.
     """
     grays = [as_gray(image) for image in images]
-    ruled_out = []
+    found, ruled_out, aside = [], [], ""
     markers = find_markers(grays, marker_dict)
     if markers is not None and len(markers.details["marker_ids"]) >= MIN_INFER_MARKERS:
-        # Enough markers of one dictionary for a ChArUco board: is it one?
-        board = find_charuco(grays, markers.details["marker_dict"])
-        if board is not None:
-            return board
+        # Enough markers of one dictionary for a ChArUco board: if it is one, its corners stand for its markers.
+        markers = find_charuco(grays, markers.details["marker_dict"]) or markers
     if markers is not None:
-        picture = None if marker_dict is not None else _picture_around_small_markers(grays, markers, template_pixels_of, seed)
-        return markers if picture is None else picture
-    ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
+        found.append(markers)
+    else:
+        ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
     if marker_dict is None:
-        chessboard = find_chessboard(grays)
-        if chessboard is not None:
-            return _with_ruled_out(chessboard, ruled_out)
-        ruled_out.append("chessboard")
-        dots = find_dots(images)  # in colour: dots may differ from their wall in hue alone
-        if dots is not None:
-            return _with_ruled_out(dots, ruled_out)
-        ruled_out.append("dots (3-10 round dark or light blobs)")
+        tried = [("chessboard", find_chessboard(grays))]
+        if markers is None:  # decoded markers are blobs a dots test would see; in colour: dots may differ in hue alone
+            tried.append(("dots (3-10 round dark or light blobs)", find_dots(images)))
         try:
-            texture = find_texture(grays, template_pixels_of(grays[0]), seed)
+            texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
         except InputError:
             texture = None
-        if texture is not None:
-            return _with_ruled_out(texture, ruled_out)
-        ruled_out.append("texture (natural features matched from frame to frame)")
-    raise InputError(
-        f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
-        "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
-    )
+        printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
+        if texture is not None and any(c.area_px >= OWN_PRINT_FRACTION * texture.area_px for c in printed):
+            aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
+        else:
+            tried.append(("texture (natural features matched from frame to frame)", texture))
+        found += [choice for _, choice in tried if choice is not None]
+        ruled_out += [name for name, choice in tried if choice is None]
+    if not found:
+        raise InputError(
+            f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
+            "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
+        )
+    found.sort(key=lambda choice: choice.predicted_deg)
+    points = {"dots": "dots", "texture": "features"}
+    described = [f"{c.predicted_deg:.2g} deg ({c.n_points} {points.get(c.kind, 'corners')} over {c.spread_px:.0f} px)" for c in found]
+    others = "".join(f" vs {c.kind} {d}" for c, d in zip(found[1:], described[1:]))
+    none = f"; no {' and no '.join(ruled_out)}" if ruled_out else ""
+    return replace(found[0], reason=f"{found[0].reason}; predicted theta_d precision {described[0]}{others}{aside}{none}")
 
-
-def _picture_around_small_markers(grays: Sequence[NDArray[np.uint8]], markers: TargetChoice, template_pixels_of: Any,
-                                  seed: int) -> TargetChoice | None:
-    """The textured picture the markers are printed in, when they cover only a small part
-    of it (less than :data:`SMALL_MARKERS_FRACTION` of its area) and it is matched from
-    frame to frame; else None (the markers are the target)."""
-    import cv2
-
-    corners = marker_corners_in_view(grays[0], markers.details["marker_dict"], markers.details["marker_ids"])
-    if corners is None:
-        return None
-    try:
-        box = np.asarray(template_pixels_of(grays[0]), dtype=np.float32)
-    except InputError:
-        return None
-    picture_area = abs(float(cv2.contourArea(box)))
-    marker_area = abs(float(cv2.contourArea(cv2.convexHull(corners.astype(np.float32)))))
-    if picture_area <= 0 or marker_area >= SMALL_MARKERS_FRACTION * picture_area:
-        return None
-    texture = find_texture(grays, box.astype(np.float64), seed)
-    if texture is None:
-        return None
-    ids = markers.details["marker_ids"]
-    reason = (f"{texture.reason}; it holds {markers.details['marker_dict']} marker{'s' if len(ids) > 1 else ''} "
-              f"{', '.join(map(str, ids))} covering only {100 * marker_area / picture_area:.0f} % of it "
-              "(the whole picture pins the plane over its full width)")
-    return TargetChoice("texture", reason)
-
-
-def _with_ruled_out(choice: TargetChoice, ruled_out: list[str]) -> TargetChoice:
-    return TargetChoice(choice.kind, f"{choice.reason}; no {' and no '.join(ruled_out)}", choice.details)
