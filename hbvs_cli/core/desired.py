@@ -40,11 +40,17 @@ AMBIGUOUS_NORMAL_WARNING = (
 UNCERTAIN_NORMAL_DEG = 0.5
 
 #: A detector's point bias (in measured point noise) by target kind, that the reported
-#: uncertainty allows for: edge-located corners err alike over nearby frames (their error
-#: follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor), and so
-#: do a tracked texture's corners, which the residuals cannot show (bench/CALIBRATION.md).
-#: Dots: none.
-DETECTOR_BIAS_FRACTION = {"aruco": 1.0, "chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+#: uncertainty allows for: corners located from edges err alike over nearby frames (their
+#: error follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor),
+#: and so do a tracked texture's corners, which the residuals cannot show
+#: (bench/CALIBRATION.md). Dots: none. Markers: :data:`MARKER_CORNER_BIAS`.
+DETECTOR_BIAS_FRACTION = {"chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+
+#: A marker corner's bias (px) at an edge of ``(px)`` in F*: a corner fitted from a longer
+#: edge averages the edge's phase and clipping errors over more pixels, and the bias falls
+#: as the edge's square. It stands for the errors neighbouring frames share, so marker
+#: fits are not also widened by the residuals' long-run variance.
+MARKER_CORNER_BIAS = (0.028, 30.0)
 
 #: The spans of the drive over which that bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
@@ -241,10 +247,11 @@ def fit_desired_trajectory(
     kind : str, optional
         The target's kind (``dots``, ``aruco``, ``chessboard``, ``charuco``, ``texture``):
         its detector's bias over each of :data:`BIAS_SEGMENTS` spans of the drive
-        (:data:`DETECTOR_BIAS_FRACTION`; n* and the reference points absorb it, the
+        (:func:`detector_bias_fraction`; n* and the reference points absorb it, the
         residuals cannot show it), its :data:`EXPECTED_PRECISION`, and whether errors
         correlated over frames widen the uncertainty (:func:`~.bundle.correlation_inflation`;
-        not for texture, one tracked homography's corners). None: dots without the check.
+        not for texture, one tracked homography's corners, nor markers, whose bias term
+        stands for them). None: dots without the check.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -304,8 +311,8 @@ def fit_desired_trajectory(
         duration = max(t[span][-1] - t[span][0], 1e-9)
         segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used), correlated=kind != "texture",
-                                      bias_fraction=DETECTOR_BIAS_FRACTION.get(kind, 0.0),
+                                      frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
+                                      bias_fraction=detector_bias_fraction(kind, pixels[reference_index], noise * camera.mean_focal),
                                       bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         line = uncertainty_warning(uncertainty, kind)
@@ -331,6 +338,18 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
+
+
+def detector_bias_fraction(kind: str | None, reference_pixels: NDArray[np.float64], noise_px: float) -> float:
+    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`,
+    or for markers (``reference_pixels`` (4M, 2): F*'s corners, marker by marker)
+    :data:`MARKER_CORNER_BIAS` at their mean edge length."""
+    if kind != "aruco":
+        return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
+    corners = reference_pixels.reshape(-1, 4, 2)
+    edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
+    bias_px, at_edge = MARKER_CORNER_BIAS
+    return bias_px * (at_edge / edge) ** 2 / max(noise_px, 1e-9)
 
 
 def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | None:
