@@ -46,6 +46,10 @@ UNCERTAIN_NORMAL_DEG = 0.5
 #: (bench/CALIBRATION.md). Dots: none. Markers: :data:`MARKER_CORNER_BIAS`.
 DETECTOR_BIAS_FRACTION = {"chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
 
+#: A tracked texture's corners are biased by at least this (px) however small the point
+#: noise: the warp's sub-pixel interpolation pulls its registration alike over nearby frames.
+TEXTURE_CORNER_BIAS_PX = 0.009
+
 #: A marker corner's bias (px) at an edge of ``(px)`` in F*: a corner fitted from a longer
 #: edge averages the edge's phase and clipping errors over more pixels, and the bias falls
 #: as the edge's square. It stands for the errors neighbouring frames share, so marker
@@ -341,15 +345,18 @@ def fit_desired_trajectory(
 
 
 def detector_bias_fraction(kind: str | None, reference_pixels: NDArray[np.float64], noise_px: float) -> float:
-    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`,
-    or for markers (``reference_pixels`` (4M, 2): F*'s corners, marker by marker)
-    :data:`MARKER_CORNER_BIAS` at their mean edge length."""
+    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`
+    (for texture at least :data:`TEXTURE_CORNER_BIAS_PX`), or for markers (``reference_pixels``
+    (4M, 2): F*'s corners, marker by marker) :data:`MARKER_CORNER_BIAS` at their mean edge length."""
+    noise_px = max(noise_px, 1e-9)
+    if kind == "texture":
+        return max(DETECTOR_BIAS_FRACTION[kind], TEXTURE_CORNER_BIAS_PX / noise_px)
     if kind != "aruco":
         return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
     corners = reference_pixels.reshape(-1, 4, 2)
     edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
     bias_px, at_edge = MARKER_CORNER_BIAS
-    return bias_px * (at_edge / edge) ** 2 / max(noise_px, 1e-9)
+    return bias_px * (at_edge / edge) ** 2 / noise_px
 
 
 def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | None:
