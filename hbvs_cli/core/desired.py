@@ -46,22 +46,20 @@ UNCERTAIN_NORMAL_DEG = 0.5
 #: (bench/CALIBRATION.md). Dots: none. Markers: :data:`MARKER_CORNER_BIAS`.
 DETECTOR_BIAS_FRACTION = {"chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
 
-#: A tracked texture's corners are biased by at least this (px) however small the point
-#: noise: the warp's sub-pixel interpolation pulls its registration alike over nearby frames.
+#: ... but a tracked texture's at least this (px): the warp's sub-pixel interpolation.
 TEXTURE_CORNER_BIAS_PX = 0.009
 
-#: A marker corner's bias (px) at an edge of ``(px)`` in F*: a corner fitted from a longer
-#: edge averages the edge's phase and clipping errors over more pixels, and the bias falls
-#: as the edge's square. It stands for the errors neighbouring frames share, so marker
-#: fits are not also widened by the residuals' long-run variance.
+#: A marker corner's bias (px) at an edge of (px) in F*, falling as the edge's square (a
+#: longer edge averages its phase and clipping errors over more pixels); it stands for the
+#: errors neighbouring frames share: no correlation inflation for markers.
 MARKER_CORNER_BIAS = (0.028, 30.0)
 
 #: The spans of the drive over which that bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
 
-#: The (theta_d deg, x_hd1) RMS error a target kind usually gives (the perception bounds):
-#: a fit whose splines' RMS sigma exceeds its kind's says so in the warning line.
-EXPECTED_PRECISION = {"dots": (0.1, 2e-3), "texture": (0.1, 2e-3), "aruco": (0.35, 5e-3), "chessboard": (0.35, 5e-3), "charuco": (0.35, 5e-3)}
+#: The (theta_d deg, x_hd1) RMS error a kind usually gives (the perception bounds): more
+#: RMS sigma in the splines is said in the warning line.
+EXPECTED_PRECISION = {"dots": (0.1, 2e-3), "texture": (0.1, 2e-3)} | dict.fromkeys(("aruco", "chessboard", "charuco"), (0.35, 5e-3))
 
 #: What :func:`fit_desired_trajectory` says then (sigmas, and ``{usual}``: the kind's precision).
 UNCERTAIN_NORMAL_WARNING = (
@@ -210,14 +208,7 @@ class DesiredFit:
     @property
     def condition35(self) -> dict[str, Any]:
         """Condition (35) as a record (the ``condition35`` of a fit file)."""
-        condition = self.condition
-        return {
-            "min_abs_xhd1_dot": condition.min_abs_xhd1_dot,
-            "percentiles": condition.percentiles,
-            "stopped_fraction": condition.stopped_fraction,
-            "longest_stop_s": condition.longest_stop_s,
-            "threshold": condition.threshold,
-        }
+        return asdict(self.condition)
 
 
 def fit_desired_trajectory(
@@ -249,13 +240,11 @@ def fit_desired_trajectory(
     shapes : sequence of KnownShape, optional
         Target parts of known shape (each marker's square); they pin n* where the motion does not.
     kind : str, optional
-        The target's kind (``dots``, ``aruco``, ``chessboard``, ``charuco``, ``texture``):
-        its detector's bias over each of :data:`BIAS_SEGMENTS` spans of the drive
-        (:func:`detector_bias_fraction`; n* and the reference points absorb it, the
-        residuals cannot show it), its :data:`EXPECTED_PRECISION`, and whether errors
-        correlated over frames widen the uncertainty (:func:`~.bundle.correlation_inflation`;
-        not for texture, one tracked homography's corners, nor markers, whose bias term
-        stands for them). None: dots without the check.
+        ``dots``, ``aruco``, ``chessboard``, ``charuco`` or ``texture``: the detector's bias
+        over each of :data:`BIAS_SEGMENTS` spans (:func:`detector_bias_fraction`; n* absorbs
+        it, the residuals cannot show it), :data:`EXPECTED_PRECISION`, and the widening for
+        errors correlated over frames (:func:`~.bundle.correlation_inflation`; not for one
+        tracked homography's corners, nor markers). None: dots, no precision check.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -319,8 +308,7 @@ def fit_desired_trajectory(
                                       bias_fraction=detector_bias_fraction(kind, pixels[reference_index], noise * camera.mean_focal),
                                       bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
-        line = uncertainty_warning(uncertainty, kind)
-        if line is not None and warn is not None:
+        if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
     return DesiredFit(
         m_ref=m_ref,
