@@ -42,10 +42,51 @@ def test_heading_tolerance_is_the_default_or_the_interval():
     assert math.isnan(heading_tolerance(0.2, float("nan")))
 
 
-def test_uncertain_normal_warning_names_both_known_geometry_options():
-    """The warning is one line and names both ways of giving the target's geometry."""
-    from hbvs_cli.core.desired import UNCERTAIN_NORMAL_WARNING
+def _uncertainty(normal_deg: float, theta_deg: float, x_h1: float):
+    from hbvs_cli.core.desired import FitUncertainty
 
-    line = UNCERTAIN_NORMAL_WARNING.format(sigma=1.234)
-    assert "\n" not in line and "1.2 deg" in line
-    assert "--target-size" in line and "--target-points FILE" in line
+    flat = lambda value: np.full(50, value)  # noqa: E731
+    return FitUncertainty(normal_sigma_deg=normal_deg, point_noise_px=0.02, theta_sigma=flat(np.radians(theta_deg)), x_h1_sigma=flat(x_h1),
+                          smooth_theta_sigma=flat(np.radians(theta_deg)), smooth_x_h1_sigma=flat(x_h1))
+
+
+def test_uncertain_fit_warning_is_one_line_naming_what_would_help():
+    """n* uncertain by more than 0.5 deg: one line with the sigmas, naming both ways of giving
+    the target's geometry, a curving drive and another reference frame."""
+    from hbvs_cli.core.desired import uncertainty_warning
+
+    line = uncertainty_warning(_uncertainty(1.234, 0.2, 1e-3), None)
+    assert "\n" not in line and "plane normal n* uncertain by 1.2 deg" in line and "theta_d by 0.20 deg" in line
+    assert "--target-size" in line and "--target-points FILE" in line and "curves" in line and "--reference last" in line
+
+
+@pytest.mark.parametrize("kind, theta_deg, x_h1, warned", [
+    ("aruco", 0.30, 1e-3, False),  # within a marker's 0.35 deg
+    ("aruco", 0.40, 1e-3, True),
+    ("chessboard", 0.30, 6e-3, True),  # x_hd1 over a board's 5e-3
+    ("dots", 0.08, 1e-3, False),
+    ("dots", 0.12, 1e-3, True),  # over a dot target's 0.1 deg, though n* is within 0.5 deg
+    ("texture", 0.12, 1e-3, True),
+    (None, 0.9, 9e-3, False),  # no kind: n*'s sigma alone decides
+])
+def test_uncertain_fit_warning_when_theta_d_or_x_hd1_exceeds_the_kinds_precision(kind, theta_deg, x_h1, warned):
+    """With n* at 0.3 deg (under 0.5), the splines' RMS sigma against the kind's precision."""
+    from hbvs_cli.core.desired import uncertainty_warning
+
+    line = uncertainty_warning(_uncertainty(0.3, theta_deg, x_h1), kind)
+    assert (line is not None) == warned
+    if warned:
+        assert "plane normal n* uncertain" in line and f"{kind} targets usually give" in line
+
+
+def test_detector_bias_falls_as_the_marker_edge_squared_and_texture_has_a_floor():
+    """A marker corner's bias: 0.028 px at a 30 px edge, a quarter of it at 60 px; a texture's
+    half a point noise, but not under 0.009 px; dots none."""
+    from hbvs_cli.core.desired import detector_bias_fraction
+
+    square = lambda side: np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])  # noqa: E731
+    assert detector_bias_fraction("aruco", square(30.0), 0.028) == pytest.approx(1.0)
+    assert detector_bias_fraction("aruco", np.vstack([square(60.0), square(60.0) + 100.0]), 0.014) == pytest.approx(0.5)
+    assert detector_bias_fraction("texture", square(100.0), 0.1) == pytest.approx(0.5)
+    assert detector_bias_fraction("texture", square(100.0), 0.003) == pytest.approx(3.0)
+    assert detector_bias_fraction("dots", square(30.0), 0.02) == 0.0

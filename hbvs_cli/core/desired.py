@@ -40,20 +40,32 @@ AMBIGUOUS_NORMAL_WARNING = (
 UNCERTAIN_NORMAL_DEG = 0.5
 
 #: A detector's point bias (in measured point noise) by target kind, that the reported
-#: uncertainty allows for: edge-located corners err alike over nearby frames (their error
-#: follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor), and so
-#: do a tracked texture's corners, which the residuals cannot show (bench/CALIBRATION.md).
-#: Dots: none.
-DETECTOR_BIAS_FRACTION = {"aruco": 1.0, "chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+#: uncertainty allows for: corners located from edges err alike over nearby frames (their
+#: error follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor),
+#: and so do a tracked texture's corners, which the residuals cannot show
+#: (bench/CALIBRATION.md). Dots: none. Markers: :data:`MARKER_CORNER_BIAS`.
+DETECTOR_BIAS_FRACTION = {"chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+
+#: ... but a tracked texture's at least this (px): the warp's sub-pixel interpolation.
+TEXTURE_CORNER_BIAS_PX = 0.009
+
+#: A marker corner's bias (px) at an edge of (px) in F*, falling as the edge's square (a
+#: longer edge averages its phase and clipping errors over more pixels); it stands for the
+#: errors neighbouring frames share: no correlation inflation for markers.
+MARKER_CORNER_BIAS = (0.028, 30.0)
 
 #: The spans of the drive over which that bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
 
-#: What :func:`fit_desired_trajectory` says then (``{sigma}``: n*'s sigma in degrees).
+#: The (theta_d deg, x_hd1) RMS error a kind usually gives (the perception bounds): more
+#: RMS sigma in the splines is said in the warning line.
+EXPECTED_PRECISION = {"dots": (0.1, 2e-3), "texture": (0.1, 2e-3)} | dict.fromkeys(("aruco", "chessboard", "charuco"), (0.35, 5e-3))
+
+#: What :func:`fit_desired_trajectory` says then (sigmas, and ``{usual}``: the kind's precision).
 UNCERTAIN_NORMAL_WARNING = (
-    "the drive leaves the plane normal n* uncertain by {sigma:.1f} deg (1 sigma), and theta_d inherits it as a bias; "
-    "what would pin it: the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), a drive that curves more or comes closer, "
-    "or another reference frame (--reference last: the close end of the drive)"
+    "the drive leaves the plane normal n* uncertain by {normal:.1f} deg, theta_d by {theta:.2f} deg and x_hd1 by {x_h1:.1e} (1 sigma{usual}), "
+    "a bias the whole trajectory inherits; what would pin it: the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), "
+    "a drive that curves more or comes closer, or another reference frame (--reference last: the close end of the drive)"
 )
 
 #: Below this branch margin (and above AMBIGUOUS_NORMAL_MARGIN, where the facing prior
@@ -196,14 +208,7 @@ class DesiredFit:
     @property
     def condition35(self) -> dict[str, Any]:
         """Condition (35) as a record (the ``condition35`` of a fit file)."""
-        condition = self.condition
-        return {
-            "min_abs_xhd1_dot": condition.min_abs_xhd1_dot,
-            "percentiles": condition.percentiles,
-            "stopped_fraction": condition.stopped_fraction,
-            "longest_stop_s": condition.longest_stop_s,
-            "threshold": condition.threshold,
-        }
+        return asdict(self.condition)
 
 
 def fit_desired_trajectory(
@@ -216,8 +221,7 @@ def fit_desired_trajectory(
     max_gap: float,
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
-    measured_points: bool = True,
-    bias_fraction: float = 0.0,
+    kind: str | None = None,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -235,15 +239,12 @@ def fit_desired_trajectory(
         Told what a user should know (ambiguous or uncertain n*), as it happens.
     shapes : sequence of KnownShape, optional
         Target parts of known shape (each marker's square); they pin n* where the motion does not.
-    measured_points : bool
-        The points are measured in each frame on their own (dots, markers, a board's
-        corners): errors the residuals show correlated from frame to frame widen the
-        reported uncertainty (:func:`~.bundle.correlation_inflation`). False for one
-        tracked homography's corners (texture), correlated by the tracking itself.
-    bias_fraction : float
-        The detector's bias on each point, in measured point noise, that stays the same over
-        each of :data:`BIAS_SEGMENTS` spans of the drive (:data:`DETECTOR_BIAS_FRACTION`):
-        the residuals cannot show it, n* and the reference points absorb it.
+    kind : str, optional
+        ``dots``, ``aruco``, ``chessboard``, ``charuco`` or ``texture``: the detector's bias
+        over each of :data:`BIAS_SEGMENTS` spans (:func:`detector_bias_fraction`; n* absorbs
+        it, the residuals cannot show it), :data:`EXPECTED_PRECISION`, and the widening for
+        errors correlated over frames (:func:`~.bundle.correlation_inflation`; not for one
+        tracked homography's corners, nor markers). None: dots, no precision check.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -303,12 +304,12 @@ def fit_desired_trajectory(
         duration = max(t[span][-1] - t[span][0], 1e-9)
         segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used), correlated=measured_points,
-                                      bias_fraction=bias_fraction,
+                                      frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
+                                      bias_fraction=detector_bias_fraction(kind, pixels[reference_index], noise * camera.mean_focal),
                                       bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
-        if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG and warn is not None:
-            warn(UNCERTAIN_NORMAL_WARNING.format(sigma=uncertainty.normal_sigma_deg))
+        if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
+            warn(line)
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
@@ -329,6 +330,34 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
+
+
+def detector_bias_fraction(kind: str | None, reference_pixels: NDArray[np.float64], noise_px: float) -> float:
+    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`
+    (for texture at least :data:`TEXTURE_CORNER_BIAS_PX`), or for markers (``reference_pixels``
+    (4M, 2): F*'s corners, marker by marker) :data:`MARKER_CORNER_BIAS` at their mean edge length."""
+    noise_px = max(noise_px, 1e-9)
+    if kind == "texture":
+        return max(DETECTOR_BIAS_FRACTION[kind], TEXTURE_CORNER_BIAS_PX / noise_px)
+    if kind != "aruco":
+        return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
+    corners = reference_pixels.reshape(-1, 4, 2)
+    edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
+    bias_px, at_edge = MARKER_CORNER_BIAS
+    return bias_px * (at_edge / edge) ** 2 / noise_px
+
+
+def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | None:
+    """The warning line when n* is uncertain by more than :data:`UNCERTAIN_NORMAL_DEG`, or the
+    splines' RMS sigma of theta_d or x_hd1 exceeds the ``kind``'s :data:`EXPECTED_PRECISION`;
+    else None."""
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    theta, x_h1 = np.degrees(rms(uncertainty.smooth_theta_sigma)), rms(uncertainty.smooth_x_h1_sigma)
+    expected = EXPECTED_PRECISION.get(kind)
+    if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG or (expected is not None and (theta > expected[0] or x_h1 > expected[1])):
+        usual = f"; {kind} targets usually give {expected[0]:g} deg and {expected[1]:g}" if expected is not None else ""
+        return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual)
+    return None
 
 
 def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
-from ..core.desired import DETECTOR_BIAS_FRACTION, DesiredFit, fit_desired_trajectory
+from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
@@ -314,8 +314,7 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(layout.shape[0]), layout)]
     try:
         return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes,
-                                      measured_points=spec.kind != "texture", bias_fraction=DETECTOR_BIAS_FRACTION.get(spec.kind, 0.0))
+                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
