@@ -47,10 +47,11 @@ def small_tag_errors():
 def test_small_apriltag_corners_are_unbiased(small_tag_errors):
     """Each corner's error averaged over the frames and noise draws (its bias), the
     square's dilation (the error along the outward diagonal, averaged over its corners,
-    per frame), and the worst corner. Measured: RMS 0.018 px, per-corner bias <= 0.018 px,
-    dilation +0.011 px on average (<= 0.037 in a frame), worst 0.066 px. The edges' levels
-    read from the profiles' ends (the integral of the step) gave RMS 0.016 px but one
-    corner 1.8 px off in 24 frames, and n* 2.5x farther off on the drive's video."""
+    per frame), and the worst corner. Measured: RMS 0.018 px, per-corner bias <= 0.016 px,
+    dilation +0.011 px on average (<= 0.035 in a frame), worst 0.065 px. The earlier edge
+    formula (the step's integral between levels read at the profiles' ends) gave RMS 0.016
+    px but one corner 1.8 px off in these 24 frames, and n* about twice as far off on the
+    drive's video (tests/test_calibration_table.py, small_apriltag)."""
     errors, truth = small_tag_errors
     outward = truth - truth.mean(axis=1, keepdims=True)
     outward /= np.linalg.norm(outward, axis=-1, keepdims=True)

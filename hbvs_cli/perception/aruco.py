@@ -393,7 +393,7 @@ def _refine_corners_once(
     if half < 1.0:
         return corners.copy()
     steps = np.arange(-half, half + 1e-9, step)
-    distances = np.arange(3.0, min(float(sides.min()) - 3.0, EDGE_STRETCH_PX) + 1e-9, step)
+    distances = np.arange(3.0, min(float(sides.min()) - 3.0, EDGE_STRETCH_PX) + 1e-9, 1.0)
     centres = starts[:, None, :] + distances[None, :, None] * along[:, None, :]
     samples = centres[:, :, None, :] + steps[None, None, :, None] * outward[:, None, None, :]
     profiles = _bilinear(gray, samples)
