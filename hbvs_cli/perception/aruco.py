@@ -8,10 +8,10 @@ unambiguous: no tracking is needed for identity, only to narrow the search.
 OpenCV's corner refinements are biased on a marker's outer corners (``cornerSubPix``, made
 for chessboard saddles, pulls an L-shaped corner ~0.15 px inward on each axis). After
 OpenCV's detection, each corner is therefore re-measured from its two edges
-(:func:`refine_marker_corners`): the edges are located to a few hundredths of a pixel along
-many short profiles across them, a line is fitted to each edge near the corner, and the
-corner is the lines' intersection. Fitting only the stretch of edge near each corner keeps
-the lens's bending of long edges out of it.
+(:func:`refine_marker_corners`): each edge is located along many short profiles across it
+(at the centroid of each profile's rise: the levels on either side, clipped or not, do not
+matter), a line is fitted to it (the whole edge of a small marker, the 30 px near the
+corner of a large one, whose edges the lens bends), and the corner is the lines' intersection.
 
 Dictionaries: OpenCV's predefined dictionaries of one family are prefixes of each other
 (DICT_4X4_50 is the first 50 markers of DICT_4X4_1000), so :func:`scan_markers` searches
@@ -308,9 +308,11 @@ def _markers_seen(corners: NDArray[np.float64]) -> int:
     return int(np.count_nonzero(np.all(np.isfinite(corners.reshape(-1, 8)), axis=1)))
 
 
-#: Passes of :func:`refine_marker_corners` at most, and the move (px) under which it stops.
+#: Passes of :func:`refine_marker_corners` at most, and the move (px) under which it stops;
+#: the farthest (px) from a corner its edges are measured (:func:`_refine_corners_once`).
 REFINE_PASSES = 3
 REFINE_CONVERGED_PX = 0.05
+EDGE_STRETCH_PX = 30.0
 
 
 def refine_marker_corners(
@@ -320,11 +322,9 @@ def refine_marker_corners(
 
     One pass (:func:`_refine_corners_once`) lays its profiles across the edges as the
     corners it starts from place them. OpenCV's corners can be most of a pixel off on a
-    small marker (a 35 px AprilTag 6 m away): the profiles then cross the edge off-centre,
-    the end meant to read the ink reaches into the blur (or the code's white cells behind
-    the thin border), and the corner lands a tenth or two of a pixel inward. Each further
-    pass starts from the last one's corners, centred on the edges, until no corner moves
-    more than :data:`REFINE_CONVERGED_PX` (two passes, rarely three, on the footage).
+    small marker (a 35 px AprilTag 6 m away): the profiles then cross the edge off-centre
+    and cut one tail of its rise. Each further pass starts from the last one's corners,
+    centred on the edges, until no corner moves more than :data:`REFINE_CONVERGED_PX`.
 
     Parameters and return as :func:`_refine_corners_once`; ``max_shift`` bounds the move
     from the ``corners`` given, over all passes.
@@ -348,12 +348,15 @@ def _refine_corners_once(
     """Sub-pixel outer corners of a marker from its edges: one pass.
 
     For each corner, short profiles across each of its two edges are sampled (bilinear
-    interpolation, 0.5 px steps) every pixel between 3 px and ``min(0.4 side, 30 px)``
-    from the corner. Along a profile of half-length ``h`` running from inside (ink) to
-    outside (paper), the edge lies at ``h - integral((I - ink) / (paper - ink))``, which
-    is exact for any symmetric blur and uses every sample. A total-least-squares line
-    through each edge's positions, and the intersection of a corner's two lines, give the
-    corner.
+    interpolation, 0.5 px steps) every half pixel from 3 px to ``min(side - 3, 30)`` px
+    from the corner: the whole edge of a small marker, the stretch near the corner of a
+    large one (where the lens bends long edges). Along a profile running from inside (ink)
+    to outside (paper), the edge lies at the centroid of the profile's rises (its positive
+    differences): a blurred step's derivative is the blur, symmetric about the edge. Only
+    rises count, so neither the levels on either side (ink clipped at the sensor's 0,
+    paper at 255) nor the code's white cells behind the border (a fall) move it. A
+    total-least-squares line through each edge's positions, and the intersection of a
+    corner's two lines, give the corner.
 
     Parameters
     ----------
@@ -364,8 +367,7 @@ def _refine_corners_once(
         A corner that would move farther than this (px) is left as it was.
     cells : int
         Cells across the marker, its black border included (the dictionary's bits + 2): the
-        profiles reach inside no farther than 60 % of the border cell, so the code's white
-        cells next to it do not brighten the ink level (which would push the edge outward).
+        profiles reach inside no farther than 60 % of the border cell.
 
     Returns
     -------
@@ -386,28 +388,22 @@ def _refine_corners_once(
     # orientation and by whether the edge is walked forward or backward around it.
     orientation = 1.0 if signed_polygon_area(corners) >= 0 else -1.0
     outward = (orientation * _WALK)[:, None] * np.stack([along[:, 1], -along[:, 0]], axis=1)
-    # Inside, stay within the black border cell (1/cells of a side).
     step = 0.5
-    # A whole number of steps: the edge formula below integrates from -half to +half exactly
-    # (an odd half would leave the last step out and bias every edge by up to a step).
     half = step * np.floor(min(4.0, 0.6 * float(sides.min()) / cells) / step)
     if half < 1.0:
         return corners.copy()
     steps = np.arange(-half, half + 1e-9, step)
-    distances = np.arange(3.0, min(0.4 * float(sides.min()), 30.0) + 1e-9, 1.0)
+    distances = np.arange(3.0, min(float(sides.min()) - 3.0, EDGE_STRETCH_PX) + 1e-9, 1.0)
     centres = starts[:, None, :] + distances[None, :, None] * along[:, None, :]
     samples = centres[:, :, None, :] + steps[None, None, :, None] * outward[:, None, None, :]
     profiles = _bilinear(gray, samples)
     if profiles is None:
         return corners.copy()
-    end = int(round(1.0 / step))
-    ink = profiles[..., :end].mean(axis=-1)
-    paper = profiles[..., -end:].mean(axis=-1)
-    contrast = paper - ink
-    usable = contrast > 20.0
-    fraction = (profiles - ink[..., None]) / np.where(usable, contrast, 1.0)[..., None]
-    covered = step * (fraction.sum(axis=-1) - 0.5 * (fraction[..., 0] + fraction[..., -1]))
-    points = centres + (half - covered)[..., None] * outward[:, None, :]
+    rises = np.maximum(np.diff(profiles, axis=-1), 0.0)
+    rise = rises.sum(axis=-1)
+    usable = rise > 20.0
+    offset = (rises @ (0.5 * (steps[1:] + steps[:-1]))) / np.where(usable, rise, 1.0)
+    points = centres + offset[..., None] * outward[:, None, :]
     # Weighted total least squares per edge (weights: usable profiles).
     weight = usable.astype(np.float64)
     count = weight.sum(axis=1)
