@@ -111,8 +111,8 @@ class TrackedDetector:
         which also fixes their identity.
     windowed : bool
         Dots: follow each tracked dot in its own small window
-        (:class:`~.dot_windows.WindowedDotDetector`), as the simulated camera of repeat
-        does; otherwise in the dots' common box, as fit does.
+        (:class:`~.dot_windows.WindowedDotDetector`), as fit and the simulated camera of
+        repeat do; otherwise in the dots' common box.
     """
 
     def __init__(
@@ -281,9 +281,7 @@ def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed
 
     ``template_image`` is the fit's decoded template image: texture targets need it, the
     others ignore it. ``windowed``: dots followed each in its own window (see
-    :class:`TrackedDetector`), as the simulated camera does; on real footage the common box
-    measured better (the red dots of tests/footage.py: theta_d 0.049 against 0.084 deg RMS
-    when fit used windows), so replays keep it.
+    :class:`TrackedDetector`), as the simulated camera does; replays keep the common box.
     """
     spec = DetectorSpec.from_dict(model.detector)
     template = None
