@@ -64,14 +64,9 @@ def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str =
     saturated red dot on a neutral grey wall of the same luminance is invisible in gray but
     dark in green and blue, and bright in red.
 
-    Chosen by measurement on the footage of ``tests/footage.py``. Gray is kept wherever it
-    sees the dots: the darkest channel measured black dots on a beige poster worse (fit
-    theta_d 0.086 against 0.071 deg RMS, n* 0.46 against 0.27 deg: the blue channel of a
-    JPEG carries its subsampled chroma's noise) and red dots on a light wall too (0.065
-    against 0.046 px RMS a dot). For five red dots on a grey of the same luminance, the
-    brightest channel (red) gave 0.085 px a dot and a fitted theta_d of 0.080 deg RMS, the
-    darkest 0.17 px, and the chroma (brightest minus darkest channel) 0.077 px but 0.31
-    deg: it spreads a small dot over the JPEG's half-resolution chroma.
+    Gray is kept wherever it sees the dots: a JPEG's colour channels carry its subsampled
+    chroma's noise (on the footage of ``tests/footage.py`` the darkest channel measured
+    black and red dots worse than gray, and the chroma spread small dots).
     """
     colour = isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
     if contrast == "colour" and colour:
@@ -120,12 +115,6 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
             ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
             ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
-
-
-def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
-    """The frame with the dots dark on an even, white ground, in 8 bits (:func:`dark_image`,
-    then :func:`flatten_ground`)."""
-    return np.clip(np.rint(flatten_ground(dark_image(image, polarity))), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -199,12 +188,8 @@ MAX_SMOOTHING_PX = 2.5
 GROUND_NOISE_MARGIN = 5.0
 #: A threshold less than this many levels below the flattened ground (255) is shallow: a
 #: whole frame is flattened again with its ground continued past its edges
-#: (:func:`flatten_ground`). With dots 20 gray levels below their wall (the footage's, with
-#: vignetting) the threshold is about 23 levels deep, and the frame's edges, where the
-#: first ground estimate is too bright by about as much, gave a dozen specks counted as
-#: dots. Deeper thresholds (dots of more contrast: the threshold is half-way to the
-#: darkest dot, about 70 levels deep for red dots on a light wall in gray) keep the first
-#: estimate: their searches are unchanged.
+#: (:func:`flatten_ground`): near the frame's edges the first ground estimate is too bright
+#: by about as much as faint dots are deep, and specks there would pass for dots.
 SHALLOW_THRESHOLD_DEPTH = 40.0
 
 
@@ -338,9 +323,8 @@ def find_dark_blobs(
         if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
             # Faint dots: a threshold this shallow also catches the frame's edges where
             # the ground's estimate is too bright; estimated again, continued past them.
-            # (Not in a tracked dot's window, whose edges are close to the dots: continued
-            # from a few noisy rows there, the ground measured the dots worse, 0.18 px
-            # against 0.11 px of point noise on the 20-level footage.)
+            # (Not in a tracked dot's window: continued from its few noisy edge rows, the
+            # ground measured the dots worse.)
             sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     else:
         levels = sub

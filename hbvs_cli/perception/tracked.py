@@ -237,10 +237,9 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
 
     The corners of the box holding the central 94 % of the image's features (3rd to 97th
     percentile), in the order TL, TR, BR, BL: the box is also the region the texture
-    detector aligns, and a wider one pins the perspective (yaw, n*) better. On the
-    independent footage's photograph, the central 80 % gave theta_d 0.10 deg RMS and n*
-    0.12 deg off, 94 % 0.05 deg and 0.10 deg (tests/test_perception_footage.py). Rows too close to the horizon (the principal point's row, where m_z ~ 0
-    and (18) breaks down) are pushed away from it.
+    detector aligns, and a wider one pins the perspective (yaw, n*) better. Rows too close
+    to the horizon (the principal point's row, where m_z ~ 0 and (18) breaks down) are
+    pushed away from it.
     """
     keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
