@@ -15,13 +15,12 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ..errors import OutputError, UsageError
+from ..io.settings import DEFAULT_DPI
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
 #: The taught path / desired signal, and the truth: black.
 TAUGHT_COLOR = "black"
-#: Raster resolution (dots per inch) unless ``--dpi`` says otherwise.
-DEFAULT_DPI = 200.0
 #: Width (in) unless ``--size`` says otherwise: a two-column figure of a paper.
 DEFAULT_WIDTH_IN = 7.0
 #: Below this width (in) panels are stacked in one column.

@@ -21,7 +21,7 @@ from ..core.control_settings import GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
-from ..io.settings import REPEAT
+from ..io.settings import REPEAT, SWEEP
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
@@ -120,10 +120,10 @@ class SweepSpec:
 
     axes: tuple[Axis, ...]
     fixed: Mapping[str, Any] = field(default_factory=dict)
-    sampling: str = "grid"
-    samples: int = 64
-    repeats: int = 1
-    seed: int = 0
+    sampling: str = SWEEP["sampling"].fallback
+    samples: int = SWEEP["samples"].fallback
+    repeats: int = SWEEP["repeats"].fallback
+    seed: int = SWEEP["seed"].fallback
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -291,12 +291,10 @@ def build_spec(
             raise UsageError(f"{name} is both varied and fixed; keep one")
     if "dhat0" in axes and "dhat0_factor" in axes or ("dhat0" in fixed_values and "dhat0_factor" in fixed_values):
         raise UsageError("give dhat0 or dhat0_factor, not both")
-    method = sampling if sampling is not None else data.get("sampling", "grid")
+    method, count, repeat_count, sweep_seed = (SWEEP[name].resolve(given, data) for name, given in (
+        ("sampling", sampling), ("samples", samples), ("repeats", repeats), ("seed", seed)))
     if method not in SAMPLING_METHODS:
         raise UsageError(f"sampling must be one of {', '.join(SAMPLING_METHODS)}, got {method!r}")
-    count = samples if samples is not None else data.get("samples", 64)
-    repeat_count = repeats if repeats is not None else data.get("repeats", 1)
-    sweep_seed = seed if seed is not None else data.get("seed", 0)
     for label, value, low in (("samples", count, 1), ("repeats", repeat_count, 1), ("seed", sweep_seed, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise UsageError(f"{label} must be a whole number >= {low}, got {value!r}")
