@@ -50,7 +50,7 @@ from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation
 from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
-from .options import parse_interval, parse_offset, parse_time_and_factor
+from .options import parse_interval, parse_offset, parse_time_and_factor, stamped_commands
 
 @dataclass(frozen=True)
 class Settings:
@@ -581,7 +581,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         if topic is not None:
             from ..io.ros2_live import CommandPublisher
 
-            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+            publisher = CommandPublisher(node, topic, stamped=stamped_commands(options.cmd_type))
             publish = publisher.publish
         cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
         out = live.CommandOut(publish, cmd_stream, options.dry_run)
