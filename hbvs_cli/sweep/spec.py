@@ -39,7 +39,6 @@ class Parameter:
     name: str
     kind: str
     unit: str
-    help: str
     setting: str | None = None
     choices: tuple[str, ...] = ()
     own_bounds: Mapping[str, float] = field(default_factory=dict)
@@ -59,21 +58,19 @@ class Parameter:
 
 
 def _repeat_parameter(name: str, kind: str, unit: str, choices: tuple[str, ...] = ()) -> Parameter:
-    """A parameter that is the ``hbvs repeat`` option of the same name (its help and bounds)."""
-    setting = REPEAT[name]
-    return Parameter(name, kind, unit, f"{setting.help} ({setting.option_names[-1]})", setting=name, choices=choices)
+    """A parameter that is the ``hbvs repeat`` option of the same name (its bounds)."""
+    return Parameter(name, kind, unit, setting=name, choices=choices)
 
 
 #: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
 PARAMETERS: dict[str, Parameter] = {
     p.name: p
     for p in (
-        Parameter("offset_x", "float", "m", "start offset along the taught start heading (--offset DX)"),
-        Parameter("offset_y", "float", "m", "start offset to the left (--offset DY)"),
-        Parameter("offset_theta", "float", "deg", "start heading offset (--offset DTHETA)"),
+        Parameter("offset_x", "float", "m"),  # --offset DX, along the taught start heading
+        Parameter("offset_y", "float", "m"),  # --offset DY, to the left
+        Parameter("offset_theta", "float", "deg"),  # --offset DTHETA
         _repeat_parameter("dhat0", "float", "m"),
-        Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)",
-                  own_bounds={"min": 0.0}),
+        Parameter("dhat0_factor", "float", "x d*", own_bounds={"min": 0.0}),  # --dhat0 as a multiple of the true d*
         _repeat_parameter("pixel_noise", "float", "px"),
         _repeat_parameter("k_v", "float", GAIN_UNITS["k_v"]),
         _repeat_parameter("k_w", "float", GAIN_UNITS["k_w"]),
@@ -82,8 +79,8 @@ PARAMETERS: dict[str, Parameter] = {
         _repeat_parameter("law", "choice", "", choices=ALL_LAWS),
         _repeat_parameter("drop_rate", "float", ""),
         _repeat_parameter("outlier_rate", "float", ""),
-        Parameter("occlusion_start", "float", "s", "start of an occlusion window (--occlude START:END)", own_bounds={"min": 0.0}),
-        Parameter("occlusion_length", "float", "s", "length of the occlusion window; 0 for none", own_bounds={"min": 0.0}),
+        Parameter("occlusion_start", "float", "s", own_bounds={"min": 0.0}),  # --occlude START:END
+        Parameter("occlusion_length", "float", "s", own_bounds={"min": 0.0}),  # 0: no occlusion
         _repeat_parameter("latency", "int", "frames"),
         _repeat_parameter("perception", "choice", "", choices=("points", "images")),
         _repeat_parameter("rate", "float", "Hz"),
