@@ -321,25 +321,8 @@ def _live_port_given(args: list[str]) -> list[str]:
     return args
 
 
-def _old_live_view_spelling(args: list[str]) -> str | None:
-    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling."""
-
-    for index, token in enumerate(args):
-        if token == "--":
-            break
-        if token == "--live-speed" or token.startswith("--live-speed="):
-            return "hbvs: error: --live-speed is now --foxglove-speed (--live drives a robot; the Foxglove view is --foxglove [PORT])"
-        if token == "--live" and index + 1 < len(args) and args[index + 1].isdigit():
-            return f"hbvs: error: the Foxglove view is now --foxglove {args[index + 1]} (--live drives a robot: docs/robot.md)"
-    return None
-
-
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
-    hint = _old_live_view_spelling(args)
-    if hint is not None:
-        _say(hint)
-        return 2
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
