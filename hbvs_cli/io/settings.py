@@ -340,6 +340,7 @@ REPORT_SETTINGS: tuple[Setting, ...] = (
     Setting("panels", str, "Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, "
             "V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", panel="Figure"),
 )
+REPORT = {setting.name: setting for setting in REPORT_SETTINGS}
 ReportOptions = options_class("ReportOptions", REPORT_SETTINGS, "Everything ``hbvs report`` was asked to do (see ``hbvs report --help``).")
 
 SWEEP_SETTINGS: tuple[Setting, ...] = (
