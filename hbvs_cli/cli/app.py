@@ -28,8 +28,9 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
-    FIT_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS, TEACH_SETTINGS, FitOptions,
-    RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions, options_from_command_line,
+    EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
+    TEACH_SETTINGS, ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions,
+    options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
@@ -135,28 +136,23 @@ def report(**values: Any) -> None:
 
 # --------------------------------------------------------------------------- export
 @app.command(rich_help_panel="Pipeline")
-def export(
-    input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
-    output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
-    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing bag even when the input ended early (no end record: the writer upstream died).")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
-) -> None:
+@with_settings(EXPORT_SETTINGS, QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]))
+def export(**values: Any) -> None:
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
-    from ..stages.export import ExportOptions, run_export
+    from ..stages.export import run_export
 
-    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), Console(quiet))
+    quiet = values.pop("quiet")
+    run_export(options_from_command_line(ExportOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- info
 @app.command(rich_help_panel="Files")
-def info(
-    input: Annotated[str, typer.Argument(help="An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.")],
-    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the text.")] = False,
-) -> None:
+@with_settings(INFO_SETTINGS)
+def info(**values: Any) -> None:
     """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
-    from ..stages.info import InfoOptions, run_info
+    from ..stages.info import run_info
 
-    run_info(InfoOptions(input=input, json_output=json_output), Console(False))
+    run_info(options_from_command_line(InfoOptions, values), Console(False))
 
 
 # --------------------------------------------------------------------------- sweep

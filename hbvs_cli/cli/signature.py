@@ -30,10 +30,10 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
     )
     if setting.repeatable:
         kind = Optional[List[kind]]
-    elif setting.default is None:
+    elif setting.default is None and not setting.required:
         kind = Optional[kind]
-    return inspect.Parameter(setting.name, inspect.Parameter.KEYWORD_ONLY, default=setting.default,
-                             annotation=Annotated[kind, option])
+    return inspect.Parameter(setting.name, inspect.Parameter.KEYWORD_ONLY, annotation=Annotated[kind, option],
+                             default=inspect.Parameter.empty if setting.required else setting.default)
 
 
 def with_settings(settings: tuple[Setting, ...], *extra: inspect.Parameter) -> Callable[[Callable[..., Any]], Callable[..., Any]]:

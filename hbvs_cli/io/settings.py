@@ -28,7 +28,7 @@ class Setting:
 
     ``default`` is what the options hold when it is not given (None: "not given");
     ``fallback`` the value used when neither the option nor the ``config`` key of a
-    ``--config`` file gives one; ``shown`` the default as ``--help`` words it when the value
+    ``--config`` file gives one; ``required`` an option that must be given; ``shown`` the default as ``--help`` words it when the value
     alone would not say it; ``bounds`` the ``min`` and ``max`` the command line checks.
     """
 
@@ -42,6 +42,7 @@ class Setting:
     flags: tuple[str, ...] = ()
     panel: str | None = None
     argument: bool = False
+    required: bool = False
     repeatable: bool = False
     bounds: Mapping[str, float] = field(default_factory=dict)
     metavar: str | None = None
@@ -257,11 +258,11 @@ REPEAT = {setting.name: setting for setting in REPEAT_SETTINGS}
 def options_class(name: str, settings: tuple[Setting, ...], doc: str) -> type:
     """A frozen dataclass with one field per setting (in order; the arguments first)."""
     specs: list[tuple[str, Any, Any]] = []
-    for setting in sorted(settings, key=lambda s: not s.argument):
+    for setting in sorted(settings, key=lambda s: not (s.argument or s.required)):
         kind: Any = setting.type
         if setting.repeatable:
             specs.append((setting.name, list[kind], field(default_factory=list)))
-        elif setting.argument:
+        elif setting.argument or setting.required:
             specs.append((setting.name, kind))  # type: ignore[arg-type]
         else:
             specs.append((setting.name, kind if setting.default is not None else Optional[kind], field(default=setting.default)))
@@ -370,3 +371,18 @@ SWEEP_SETTINGS: tuple[Setting, ...] = (
 #: The settings by name.
 SWEEP = {setting.name: setting for setting in SWEEP_SETTINGS}
 SweepOptions = options_class("SweepOptions", SWEEP_SETTINGS, "Everything ``hbvs sweep`` was asked to do (see ``hbvs sweep --help``).")
+
+EXPORT_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "A teach, fit or run MCAP file from hbvs, or - for stdin.", argument=True),
+    Setting("output", str, "The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when "
+            "complete.", flags=("-o", "--output"), required=True),
+    Setting("allow_truncated", bool, "Replace an existing bag even when the input ended early (no end record: the writer "
+            "upstream died).", default=False),
+)
+ExportOptions = options_class("ExportOptions", EXPORT_SETTINGS, "What ``hbvs export`` was asked to do (see ``hbvs export --help``).")
+
+INFO_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.", argument=True),
+    Setting("json_output", bool, "Print one JSON object instead of the text.", default=False, flags=("--json",)),
+)
+InfoOptions = options_class("InfoOptions", INFO_SETTINGS, "What ``hbvs info`` was asked to do (see ``hbvs info --help``).")
