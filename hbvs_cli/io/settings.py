@@ -170,7 +170,6 @@ DEFAULT_MAX_W = 0.6
 #: Seconds without the target before a run is stopped.
 DEFAULT_LOST_TIMEOUT = 3.0
 #: Depths an initial estimate may take (m): below 1 mm the state filter's variances underflow.
-
 MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
 #: Longest measurement latency (frames): more than any run has steps at the default limit.
 MAX_LATENCY_FRAMES = 1_000_000
