@@ -292,9 +292,9 @@ def build_spec(
         ("sampling", sampling), ("samples", samples), ("repeats", repeats), ("seed", seed)))
     if method not in SAMPLING_METHODS:
         raise UsageError(f"sampling must be one of {', '.join(SAMPLING_METHODS)}, got {method!r}")
-    for label, value, low in (("samples", count, 1), ("repeats", repeat_count, 1), ("seed", sweep_seed, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise UsageError(f"{label} must be a whole number >= {low}, got {value!r}")
+    for label, value in (("samples", count), ("repeats", repeat_count), ("seed", sweep_seed)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < SWEEP[label].bounds["min"]:
+            raise UsageError(f"{label} must be a whole number >= {SWEEP[label].bounds['min']}, got {value!r}")
     ordered = tuple(axes.values())
     _check_size(ordered, method, count, repeat_count)
     if method == "grid":
