@@ -54,6 +54,12 @@ MAX_REFINE_MOVE_PX = 1.5
 #: 0.076 px of it the same in every frame), 0.4 of it 0.052 px (0.016 px).
 GAP_WINDOW_FRACTION = 0.4
 GAP_WINDOW_PX = (2, 8)
+#: A tracked board is searched for in the box of its predicted corners widened by this many
+#: squares (its outer squares, one beyond the inner corners, hold markers) and pixels (half
+#: OpenCV's largest adaptive-threshold window and its 3 px from the image border); the whole
+#: frame when the box does not give every corner.
+SEARCH_MARGIN_SQUARES = 1.5
+SEARCH_MARGIN_PX = 16
 
 
 @dataclass(frozen=True)
@@ -241,8 +247,10 @@ class CharucoTargetDetector:
                 self._geometry, self._detector = geometry, self._make(geometry)
         corners, ids, considered = None, None, 0
         if self._detector is not None:
-            corners, ids, marker_corners, _ = self._detector.detectBoard(gray)
-            considered = 0 if marker_corners is None else len(marker_corners)
+            box = self._search_box(gray.shape)
+            corners, ids, considered = self._detect_board(gray, box)
+            if box is not None and (ids is None or len(ids) < self.n_points):
+                corners, ids, considered = self._detect_board(gray, None)
         if corners is not None and ids is not None and len(ids) >= MIN_CORNERS:
             ids = np.ravel(ids).astype(int)
             found = corners.reshape(-1, 2).astype(np.float64)
@@ -253,6 +261,30 @@ class CharucoTargetDetector:
             pixels[:] = np.nan
         self._track.update(pixels)
         return Detection(pixels, ok, considered, 0)
+
+    def _search_box(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+        """The box (x0, y0, x1, y1, px) the next frame's board is searched in: the predicted
+        corners' box widened by :data:`SEARCH_MARGIN_SQUARES` squares and :data:`SEARCH_MARGIN_PX`,
+        or None (the whole frame) unless every corner is predicted."""
+        prediction = self._track.predict()
+        if prediction is None or not np.all(np.isfinite(prediction)):
+            return None
+        grid = prediction.reshape(self.squares[1] - 1, self.squares[0] - 1, 2)
+        square = max(float(np.median(np.linalg.norm(np.diff(grid, axis=axis), axis=-1))) for axis in (0, 1))
+        margin = int(np.ceil(SEARCH_MARGIN_SQUARES * square)) + SEARCH_MARGIN_PX
+        x0, y0 = np.maximum(np.floor(prediction.min(axis=0)).astype(int) - margin, 0)
+        x1, y1 = np.minimum(np.ceil(prediction.max(axis=0)).astype(int) + margin + 1, (shape[1], shape[0]))
+        return int(x0), int(y0), int(x1), int(y1)
+
+    def _detect_board(self, gray: NDArray[np.uint8], box: tuple[int, int, int, int] | None):
+        """OpenCV's board detection in ``box`` of ``gray`` (None: all of it): the corners
+        (K, 1, 2) in the frame's pixels or None, their ids (K, 1) or None, and the markers found."""
+        assert self._detector is not None
+        x0, y0, x1, y1 = box or (0, 0, gray.shape[1], gray.shape[0])
+        corners, ids, marker_corners, _ = self._detector.detectBoard(gray[y0:y1, x0:x1])
+        if corners is not None:
+            corners = corners.astype(np.float64) + (x0, y0)
+        return corners, ids, 0 if marker_corners is None else len(marker_corners)
 
     def _refined(self, gray: NDArray[np.uint8], corners: NDArray[np.float64], ids: NDArray[np.int_]) -> NDArray[np.float64]:
         """The corners refined again (``cornerSubPix``) in a window that stays inside the gap
