@@ -95,7 +95,13 @@ class CharucoGeometry:
         return self.squares[0] - 1, self.squares[1] - 1
 
     def board(self) -> cv2.aruco.CharucoBoard:
-        board = cv2.aruco.CharucoBoard(self.squares, 1.0, float(self.marker_ratio), _dictionary(self.dictionary))
+        """OpenCV's board, its dictionary cut to the board's own markers: OpenCV compares each
+        candidate with every marker of the dictionary (on a 6x3 board of DICT_4X4_50 half of
+        the detection), and as a dictionary's markers differ by more than twice the bits it
+        corrects, a candidate identified as one of the board's markers is the same either way."""
+        full = _dictionary(self.dictionary)
+        own = cv2.aruco.Dictionary(full.bytesList[: self.n_markers].copy(), full.markerSize, full.maxCorrectionBits)
+        board = cv2.aruco.CharucoBoard(self.squares, 1.0, float(self.marker_ratio), own)
         board.setLegacyPattern(self.legacy)
         return board
 
