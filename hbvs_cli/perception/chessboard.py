@@ -142,11 +142,9 @@ class ChessboardDetector:
         return Detection(corners, True, self.n_points, 0)
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
-        """A search's corners in the track's order: of the grid's four orderings (its rows
-        and its columns each forward or reversed; OpenCV may start from any corner of a
-        board with a symmetric pattern), the one closest to the prediction as a whole. Per
-        point nearest assignment shifted the grid by a square when the board had moved
-        more than half a square from the prediction."""
+        """A search's corners in the track's order: of the grid's four orderings (rows and
+        columns each forward or reversed), the one closest to the prediction as a whole (per
+        point, the grid shifted by a square when the board had moved over half a square)."""
         columns, rows = self.pattern
         grid = np.arange(self.n_points).reshape(rows, columns)
         orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
@@ -227,9 +225,8 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
     offsets = np.arange(-reach, reach + 1, dtype=np.float64)
     size = offsets.size
-    # The quadratic is fitted in each window's own pixel offsets (x, y), the same for every
-    # window, so its design and the products of its columns are computed once; only the
-    # Gaussian weight, centred on the estimate, differs from corner to corner.
+    # Fitted in each window's own pixel offsets, the same for every window: the design and its
+    # columns' products are computed once, only the weight (centred on the estimate) differs.
     x, y = np.tile(offsets, size), np.repeat(offsets, size)
     design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])  # (P, 6)
     products = (design[:, :, None] * design[:, None, :]).reshape(size * size, 36)
