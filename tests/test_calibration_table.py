@@ -57,6 +57,7 @@ ROWS = [
     pytest.param("photo_distorted_jpeg70", "photograph, distortion, heavy blur, JPEG 70", DOT_BOUND, (),
                  id="photo_distorted_jpeg70", marks=_misses("warned and 100 % inside the interval (sigma/RMS 0.79), but 1.6x the bound of the poster's corners (a proxy)")),
     ("small_apriltag", "small AprilTag (25 cm, 30 px in F*)", MARKER_BOUND, ()),
+    pytest.param("small_apriltag", "small AprilTag, --target texture", MARKER_BOUND, ("--target", "texture"), id="small_apriltag_texture"),
     ("aruco_board_3x2", "3x2 board of ArUco 4x4 markers, distortion", MARKER_BOUND, ()),
     ("chessboard", "printed chessboard, 7x5 inner corners of 6 cm", MARKER_BOUND, ()),
     pytest.param("chessboard", "printed chessboard, --target chessboard", MARKER_BOUND, ("--target", "chessboard"), id="chessboard_target"),

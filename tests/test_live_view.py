@@ -151,10 +151,3 @@ def test_foxglove_without_a_port_means_foxgloves_default():
     assert _live_port_given(["report", "run.mcap"]) == ["report", "run.mcap"]
     # --live alone now drives a robot: it is left as it is.
     assert _live_port_given(["repeat", "f.mcap", "--live"]) == ["repeat", "f.mcap", "--live"]
-
-
-def test_the_old_spelling_of_the_view_gets_a_one_line_hint():
-    for old in (["--live", "9000"], ["--live-speed", "2"]):
-        result = subprocess.run([sys.executable, "-m", "hbvs_cli", "repeat", str(FIT), "--sim", *old], capture_output=True, timeout=60)
-        lines = result.stderr.decode().strip().splitlines()
-        assert result.returncode == 2 and len(lines) == 1 and "--foxglove" in lines[0]

@@ -28,7 +28,8 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
-    FIT_SETTINGS, REPEAT_SETTINGS, ROBOT_SIM_SETTINGS, TEACH_SETTINGS, FitOptions, RepeatOptions, RobotSimOptions,
+    EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
+    TEACH_SETTINGS, ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions,
     options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
@@ -123,92 +124,46 @@ def robot_sim(**values: Any) -> None:
 
 # --------------------------------------------------------------------------- report
 @app.command(rich_help_panel="Pipeline")
-def report(
-    runs: Annotated[List[str], typer.Argument(help="Run MCAP files from hbvs repeat, or one fit file from hbvs fit (- for one on stdin), or the results folder of hbvs sweep.")],
-    json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON object instead of a table.")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a figure; the suffix picks the format: .pdf or .svg (vector, for papers), .png (raster). A fit file gives the fit figure (Remark 1).", rich_help_panel="Figure")] = None,
-    fail_above: Annotated[Optional[List[str]], typer.Option("--fail-above", help="KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.")] = None,
-    export_tum: Annotated[Optional[Path], typer.Option("--export-tum", help="Write taught and repeated trajectories in TUM format into this folder.")] = None,
-    tolerance: Annotated[Optional[List[str]], typer.Option("--tolerance", help="Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.")] = None,
-    require_converged: Annotated[bool, typer.Option("--require-converged", help="Exit 1 when any run did not converge (the verdict): for CI. For a sweep's folder: unless every planned run converged (failed, stopped and missing runs count as not converged).")] = False,
-    label: Annotated[Optional[List[str]], typer.Option("--label", help="NAME of each run in tables and legends, once per run in order (default: its law).")] = None,
-    dpi: Annotated[Optional[float], typer.Option("--dpi", min=10.0, max=2400.0, help="Resolution of a raster figure (default 200).", rich_help_panel="Figure")] = None,
-    size: Annotated[Optional[str], typer.Option("--size", help="Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with --panels position,heading,v,w,top.", rich_help_panel="Figure")] = None,
-    panels: Annotated[Optional[str], typer.Option("--panels", help="Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", rich_help_panel="Figure")] = None,
-) -> None:
+@with_settings(REPORT_SETTINGS)
+def report(**values: Any) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
-    from ..stages.report import ReportOptions, run_report  # lazy: start-up time (see above)
+    from ..stages.report import run_report  # lazy: start-up time (see above)
 
-    code = run_report(
-        ReportOptions(
-            runs=runs, json_output=json_output, plot=plot, fail_above=list(fail_above or []),
-            export_tum=export_tum, tolerance=list(tolerance or []), require_converged=require_converged,
-            labels=list(label or []), dpi=dpi, size=size, panels=panels,
-        ),
-        Console(False),
-    )
+    code = run_report(options_from_command_line(ReportOptions, values), Console(False))
     if code:
         raise typer.Exit(code)
 
 
 # --------------------------------------------------------------------------- export
 @app.command(rich_help_panel="Pipeline")
-def export(
-    input: Annotated[str, typer.Argument(help="A teach, fit or run MCAP file from hbvs, or - for stdin.")],
-    output: Annotated[str, typer.Option("-o", "--output", help="The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when complete.")],
-    allow_truncated: Annotated[bool, typer.Option("--allow-truncated", help="Replace an existing bag even when the input ended early (no end record: the writer upstream died).")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")] = False,
-) -> None:
+@with_settings(EXPORT_SETTINGS, QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]))
+def export(**values: Any) -> None:
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
-    from ..stages.export import ExportOptions, run_export
+    from ..stages.export import run_export
 
-    run_export(ExportOptions(input=input, output=output, allow_truncated=allow_truncated), Console(quiet))
+    quiet = values.pop("quiet")
+    run_export(options_from_command_line(ExportOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- info
 @app.command(rich_help_panel="Files")
-def info(
-    input: Annotated[str, typer.Argument(help="An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.")],
-    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of the text.")] = False,
-) -> None:
+@with_settings(INFO_SETTINGS)
+def info(**values: Any) -> None:
     """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
-    from ..stages.info import InfoOptions, run_info
+    from ..stages.info import run_info
 
-    run_info(InfoOptions(input=input, json_output=json_output), Console(False))
+    run_info(options_from_command_line(InfoOptions, values), Console(False))
 
 
 # --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
-def sweep(
-    fit: Annotated[str, typer.Argument(help="Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.")] = Path("sweep-results"),
-    spec: Annotated[Optional[Path], typer.Option("--spec", help="TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (docs/sweeps.md).")] = None,
-    vary: Annotated[Optional[List[str]], typer.Option("--vary", help="NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.")] = None,
-    fixed: Annotated[Optional[List[str]], typer.Option("--set", help="NAME=VALUE held for every run, e.g. perception=points; repeatable.")] = None,
-    repeats: Annotated[Optional[int], typer.Option("--repeats", min=1, help="Runs per point, each with its own seed. Default 1.")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Sweep seed: run i has the seed of SeedSequence(\\[seed, i]). Default 0.")] = None,
-    sampling: Annotated[Optional[str], typer.Option("--sampling", help="grid (default), or sobol, halton, lhs (scipy.stats.qmc), random for ranges.")] = None,
-    samples: Annotated[Optional[int], typer.Option("--samples", min=1, help="Samples of the ranges (not grid). Default 64.")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. tcp://HOST:8786.", rich_help_panel="Engine")] = None,
-    cluster: Annotated[Optional[str], typer.Option("--cluster", help="slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs\\[sweep-cluster]').", rich_help_panel="Engine")] = None,
-    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Local worker processes (default one per core), or batch jobs with --cluster.", rich_help_panel="Engine")] = None,
-    dashboard: Annotated[Optional[str], typer.Option("--dashboard", metavar="[HOST:]PORT", help="Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on HOST:PORT (0.0.0.0 only if you name it).", rich_help_panel="Engine")] = None,
-    keep_runs: Annotated[str, typer.Option("--keep-runs", help="Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.")] = "failed",
-    json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON instead of tables.")] = False,
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Draw the summary figures into the results folder.")] = True,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")] = False,
-) -> None:
+@with_settings(SWEEP_SETTINGS, QUIET_MESSAGES)
+def sweep(**values: Any) -> None:
     """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    from ..stages.sweep import SweepOptions, run_sweep  # lazy: start-up time (see above)
+    from ..stages.sweep import run_sweep  # lazy: start-up time (see above)
 
-    run_sweep(
-        SweepOptions(
-            fit=fit, output=output, spec=spec, vary=list(vary or []), fixed=list(fixed or []), repeats=repeats, seed=seed,
-            sampling=sampling, samples=samples, scheduler=scheduler, cluster=cluster, workers=workers, keep_runs=keep_runs,
-            json_output=json_output, plots=plots, dashboard=dashboard,
-        ),
-        Console(quiet),
-    )
+    quiet = values.pop("quiet")
+    run_sweep(options_from_command_line(SweepOptions, values), Console(quiet))
 
 
 # --------------------------------------------------------------------------- demo
@@ -362,25 +317,8 @@ def _live_port_given(args: list[str]) -> list[str]:
     return args
 
 
-def _old_live_view_spelling(args: list[str]) -> str | None:
-    """The hint for ``--live PORT`` and ``--live-speed``, the Foxglove view's old spelling."""
-
-    for index, token in enumerate(args):
-        if token == "--":
-            break
-        if token == "--live-speed" or token.startswith("--live-speed="):
-            return "hbvs: error: --live-speed is now --foxglove-speed (--live drives a robot; the Foxglove view is --foxglove [PORT])"
-        if token == "--live" and index + 1 < len(args) and args[index + 1].isdigit():
-            return f"hbvs: error: the Foxglove view is now --foxglove {args[index + 1]} (--live drives a robot: docs/robot.md)"
-    return None
-
-
 def _run(args: list[str], debug: bool) -> int:
     """Run the app; every error but a stop signal becomes its message and exit code."""
-    hint = _old_live_view_spelling(args)
-    if hint is not None:
-        _say(hint)
-        return 2
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0

@@ -18,6 +18,7 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
     """The annotated parameter typer makes ``setting``'s option (or argument) from."""
     kind: Any = setting.type
     if setting.argument:
+        kind = List[kind] if setting.repeatable else kind
         return inspect.Parameter(setting.name, inspect.Parameter.POSITIONAL_OR_KEYWORD,
                                  annotation=Annotated[kind, typer.Argument(help=setting.help)])
     # An option that holds None until given (a config file may set it) words its default in
@@ -25,14 +26,14 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
     shown = setting.shown_default if setting.default is None else None
     option = typer.Option(
         *setting.option_names, help=setting.help + (f" Default {shown}." if shown is not None else ""),
-        rich_help_panel=setting.panel, show_default=setting.default is not None, **dict(setting.bounds),
+        rich_help_panel=setting.panel, show_default=setting.default is not None, metavar=setting.metavar, **dict(setting.bounds),
     )
     if setting.repeatable:
         kind = Optional[List[kind]]
-    elif setting.default is None:
+    elif setting.default is None and not setting.required:
         kind = Optional[kind]
-    return inspect.Parameter(setting.name, inspect.Parameter.KEYWORD_ONLY, default=setting.default,
-                             annotation=Annotated[kind, option])
+    return inspect.Parameter(setting.name, inspect.Parameter.KEYWORD_ONLY, annotation=Annotated[kind, option],
+                             default=inspect.Parameter.empty if setting.required else setting.default)
 
 
 def with_settings(settings: tuple[Setting, ...], *extra: inspect.Parameter) -> Callable[[Callable[..., Any]], Callable[..., Any]]:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from .settings import REPEAT_SETTINGS
 from .text_files import read_small_text
 
 if sys.version_info >= (3, 11):
@@ -24,13 +25,16 @@ else:  # pragma: no cover - Python 3.10
 
 MAX_CONFIG_BYTES = 1 * 2**20
 
-#: Allowed keys per table and their types.
-SCHEMA: dict[str, dict[str, type]] = {
-    "": {"law": str, "dhat0": float, "speed": float, "filter": str},
-    "gains": {"k_v": float, "k_w": float, "gamma": float, "k_2": float},
-    "limits": {"max_v": float, "max_w": float, "max_accel": float, "latency": int},
-    "run": {"lost_timeout": float, "rate": float, "perception": str, "pixel_noise": float, "offset": str},
+#: The keys of each table (top level: ""), in order.
+TABLES: dict[str, tuple[str, ...]] = {
+    "": ("law", "dhat0", "speed", "filter"),
+    "gains": ("k_v", "k_w", "gamma", "k_2"),
+    "limits": ("max_v", "max_w", "max_accel", "latency"),
+    "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
+_TYPES = {setting.config: setting.type for setting in REPEAT_SETTINGS if setting.config is not None}
+#: Allowed keys per table and their types (each the type of the repeat option it sets).
+SCHEMA: dict[str, dict[str, type]] = {table: {key: _TYPES[key] for key in keys} for table, keys in TABLES.items()}
 
 
 def load_config(path: str | Path) -> dict[str, Any]:

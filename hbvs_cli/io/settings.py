@@ -28,7 +28,7 @@ class Setting:
 
     ``default`` is what the options hold when it is not given (None: "not given");
     ``fallback`` the value used when neither the option nor the ``config`` key of a
-    ``--config`` file gives one; ``shown`` the default as ``--help`` words it when the value
+    ``--config`` file gives one; ``required`` an option that must be given; ``shown`` the default as ``--help`` words it when the value
     alone would not say it; ``bounds`` the ``min`` and ``max`` the command line checks.
     """
 
@@ -42,8 +42,10 @@ class Setting:
     flags: tuple[str, ...] = ()
     panel: str | None = None
     argument: bool = False
+    required: bool = False
     repeatable: bool = False
     bounds: Mapping[str, float] = field(default_factory=dict)
+    metavar: str | None = None
 
     @property
     def option_names(self) -> tuple[str, ...]:
@@ -168,7 +170,6 @@ DEFAULT_MAX_W = 0.6
 #: Seconds without the target before a run is stopped.
 DEFAULT_LOST_TIMEOUT = 3.0
 #: Depths an initial estimate may take (m): below 1 mm the state filter's variances underflow.
-
 MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
 #: Longest measurement latency (frames): more than any run has steps at the default limit.
 MAX_LATENCY_FRAMES = 1_000_000
@@ -256,11 +257,11 @@ REPEAT = {setting.name: setting for setting in REPEAT_SETTINGS}
 def options_class(name: str, settings: tuple[Setting, ...], doc: str) -> type:
     """A frozen dataclass with one field per setting (in order; the arguments first)."""
     specs: list[tuple[str, Any, Any]] = []
-    for setting in sorted(settings, key=lambda s: not s.argument):
+    for setting in sorted(settings, key=lambda s: not (s.argument or s.required)):
         kind: Any = setting.type
         if setting.repeatable:
             specs.append((setting.name, list[kind], field(default_factory=list)))
-        elif setting.argument:
+        elif setting.argument or setting.required:
             specs.append((setting.name, kind))  # type: ignore[arg-type]
         else:
             specs.append((setting.name, kind if setting.default is not None else Optional[kind], field(default=setting.default)))
@@ -313,3 +314,74 @@ ROBOT_SIM_SETTINGS: tuple[Setting, ...] = (
             repeatable=True),
 )
 RobotSimOptions = options_class("RobotSimOptions", ROBOT_SIM_SETTINGS, "Everything ``hbvs robot-sim`` was asked to do.")
+
+
+#: Resolution of a raster figure when ``--dpi`` is not given (dots per inch).
+DEFAULT_DPI = 200.0
+
+REPORT_SETTINGS: tuple[Setting, ...] = (
+    Setting("runs", str, "Run MCAP files from hbvs repeat, or one fit file from hbvs fit (- for one on stdin), or the results "
+            "folder of hbvs sweep.", argument=True, repeatable=True),
+    Setting("json_output", bool, "Print the metrics as one JSON object instead of a table.", default=False, flags=("--json",)),
+    Setting("plot", Path, "Write a figure; the suffix picks the format: .pdf or .svg (vector, for papers), .png (raster). "
+            "A fit file gives the fit figure (Remark 1).", panel="Figure"),
+    Setting("fail_above", str, "KEY=VALUE: exit 1 when a metric (dotted JSON key) exceeds VALUE; repeatable.", repeatable=True),
+    Setting("export_tum", Path, "Write taught and repeated trajectories in TUM format into this folder."),
+    Setting("tolerance", str, "Settling tolerance NAME=VALUE (e1, e2, ebar2, e3, position_m, heading_deg); repeatable.",
+            repeatable=True),
+    Setting("require_converged", bool, "Exit 1 when any run did not converge (the verdict): for CI. For a sweep's folder: "
+            "unless every planned run converged (failed, stopped and missing runs count as not converged).", default=False),
+    Setting("labels", str, "NAME of each run in tables and legends, once per run in order (default: its law).",
+            flags=("--label",), repeatable=True),
+    Setting("dpi", float, "Resolution of a raster figure.", fallback=DEFAULT_DPI, panel="Figure",
+            bounds={"min": 10.0, "max": 2400.0}),
+    Setting("size", str, "Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with "
+            "--panels position,heading,v,w,top.", panel="Figure"),
+    Setting("panels", str, "Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, "
+            "V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", panel="Figure"),
+)
+REPORT = {setting.name: setting for setting in REPORT_SETTINGS}
+ReportOptions = options_class("ReportOptions", REPORT_SETTINGS, "Everything ``hbvs report`` was asked to do (see ``hbvs report --help``).")
+
+SWEEP_SETTINGS: tuple[Setting, ...] = (
+    Setting("fit", str, "Fit MCAP file (from hbvs fit); every run is hbvs repeat --sim on it.", argument=True),
+    Setting("output", Path, "Results folder: runs.parquet, runs.csv, summary figures; the same command resumes into it.",
+            default=Path("sweep-results"), flags=("-o", "--output")),
+    Setting("spec", Path, "TOML spec: seed, repeats, sampling, samples and the tables vary and fixed (docs/sweeps.md)."),
+    Setting("vary", str, "NAME=LO:HI:N (grid), NAME=LO:HI (sampled range) or NAME=A,B,C; repeatable; replaces the spec's.",
+            repeatable=True),
+    Setting("fixed", str, "NAME=VALUE held for every run, e.g. perception=points; repeatable.", flags=("--set",), repeatable=True),
+    Setting("repeats", int, "Runs per point, each with its own seed.", config="repeats", fallback=1, bounds={"min": 1}),
+    Setting("seed", int, "Sweep seed: run i has the seed of SeedSequence(\\[seed, i]).", config="seed", fallback=0, bounds={"min": 0}),
+    Setting("sampling", str, "grid, or sobol, halton, lhs (scipy.stats.qmc), random for ranges.", config="sampling", fallback="grid"),
+    Setting("samples", int, "Samples of the ranges (not grid).", config="samples", fallback=64, bounds={"min": 1}),
+    Setting("scheduler", str, "Address of a running Dask scheduler, e.g. tcp://HOST:8786.", panel="Engine"),
+    Setting("cluster", str, "slurm or pbs: workers as batch jobs (dask-jobqueue; pip install 'hbvs\\[sweep-cluster]').",
+            panel="Engine"),
+    Setting("workers", int, "Local worker processes (default one per core), or batch jobs with --cluster.", panel="Engine",
+            bounds={"min": 1}),
+    Setting("dashboard", str, "Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on "
+            "HOST:PORT (0.0.0.0 only if you name it).", panel="Engine", metavar="[HOST:]PORT"),
+    Setting("keep_runs", str, "Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.",
+            default="failed"),
+    Setting("json_output", bool, "Print the summary as JSON instead of tables.", default=False, flags=("--json",)),
+    Setting("plots", bool, "Draw the summary figures into the results folder.", default=True, flags=("--plots/--no-plots",)),
+)
+#: The settings by name.
+SWEEP = {setting.name: setting for setting in SWEEP_SETTINGS}
+SweepOptions = options_class("SweepOptions", SWEEP_SETTINGS, "Everything ``hbvs sweep`` was asked to do (see ``hbvs sweep --help``).")
+
+EXPORT_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "A teach, fit or run MCAP file from hbvs, or - for stdin.", argument=True),
+    Setting("output", str, "The ROS 2 bag folder to write (MCAP storage, CDR); written beside it and moved into place when "
+            "complete.", flags=("-o", "--output"), required=True),
+    Setting("allow_truncated", bool, "Replace an existing bag even when the input ended early (no end record: the writer "
+            "upstream died).", default=False),
+)
+ExportOptions = options_class("ExportOptions", EXPORT_SETTINGS, "What ``hbvs export`` was asked to do (see ``hbvs export --help``).")
+
+INFO_SETTINGS: tuple[Setting, ...] = (
+    Setting("input", str, "An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.", argument=True),
+    Setting("json_output", bool, "Print one JSON object instead of the text.", default=False, flags=("--json",)),
+)
+InfoOptions = options_class("InfoOptions", INFO_SETTINGS, "What ``hbvs info`` was asked to do (see ``hbvs info --help``).")

@@ -21,7 +21,6 @@ SPEC_FILE = "sweep.json"
 PARTS = "parts"
 PARQUET = "runs.parquet"
 CSV = "runs.csv"
-RUNS = "runs"
 LOCK = ".hbvs-sweep.lock"
 
 #: Row column -> the dotted key of ``hbvs report --json`` it holds.

@@ -56,7 +56,7 @@ PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7
 #: Dots, decoded markers or a ChArUco board whose outline (convex hull) covers at least this
 #: fraction of the matched texture's: the texture is their own print and is set aside. Their
 #: wall's texture measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a
-#: marker's own print measured better (docs/targets.md), but codes keep their ids.
+#: marker's own print measured closer, but its interval 2.2-2.5x too wide (docs/targets.md).
 OWN_PRINT_FRACTION = 0.25
 #: A texture feature counts as matched within this distance (px) of where the frame's
 #: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).

@@ -54,6 +54,11 @@ MAX_REFINE_MOVE_PX = 1.5
 #: 0.076 px of it the same in every frame), 0.4 of it 0.052 px (0.016 px).
 GAP_WINDOW_FRACTION = 0.4
 GAP_WINDOW_PX = (2, 8)
+#: A tracked board is searched in its predicted corners' box widened by this many squares (the
+#: outer squares hold markers) and pixels (half OpenCV's largest threshold window, its 3 px
+#: from the border); the whole frame when that box does not give every corner.
+SEARCH_MARGIN_SQUARES = 1.5
+SEARCH_MARGIN_PX = 16
 
 
 @dataclass(frozen=True)
@@ -89,7 +94,11 @@ class CharucoGeometry:
         return self.squares[0] - 1, self.squares[1] - 1
 
     def board(self) -> cv2.aruco.CharucoBoard:
-        board = cv2.aruco.CharucoBoard(self.squares, 1.0, float(self.marker_ratio), _dictionary(self.dictionary))
+        """OpenCV's board, its dictionary cut to its own markers (each candidate is compared with
+        every marker; a dictionary's markers differ by more than twice the bits it corrects)."""
+        full = _dictionary(self.dictionary)
+        own = cv2.aruco.Dictionary(full.bytesList[: self.n_markers].copy(), full.markerSize, full.maxCorrectionBits)
+        board = cv2.aruco.CharucoBoard(self.squares, 1.0, float(self.marker_ratio), own)
         board.setLegacyPattern(self.legacy)
         return board
 
@@ -241,8 +250,10 @@ class CharucoTargetDetector:
                 self._geometry, self._detector = geometry, self._make(geometry)
         corners, ids, considered = None, None, 0
         if self._detector is not None:
-            corners, ids, marker_corners, _ = self._detector.detectBoard(gray)
-            considered = 0 if marker_corners is None else len(marker_corners)
+            box = self._search_box(gray.shape)
+            corners, ids, considered = self._detect_board(gray, box)
+            if box is not None and (ids is None or len(ids) < self.n_points):
+                corners, ids, considered = self._detect_board(gray, None)
         if corners is not None and ids is not None and len(ids) >= MIN_CORNERS:
             ids = np.ravel(ids).astype(int)
             found = corners.reshape(-1, 2).astype(np.float64)
@@ -254,13 +265,33 @@ class CharucoTargetDetector:
         self._track.update(pixels)
         return Detection(pixels, ok, considered, 0)
 
+    def _search_box(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+        """The box (x0, y0, x1, y1, px) of the predicted corners, widened (:data:`SEARCH_MARGIN_SQUARES`),
+        or None (the whole frame) unless every corner is predicted."""
+        prediction = self._track.predict()
+        if prediction is None or not np.all(np.isfinite(prediction)):
+            return None
+        grid = prediction.reshape(self.squares[1] - 1, self.squares[0] - 1, 2)
+        square = max(float(np.median(np.linalg.norm(np.diff(grid, axis=axis), axis=-1))) for axis in (0, 1))
+        margin = int(np.ceil(SEARCH_MARGIN_SQUARES * square)) + SEARCH_MARGIN_PX
+        x0, y0 = np.maximum(np.floor(prediction.min(axis=0)).astype(int) - margin, 0)
+        x1, y1 = np.minimum(np.ceil(prediction.max(axis=0)).astype(int) + margin + 1, (shape[1], shape[0]))
+        return int(x0), int(y0), int(x1), int(y1)
+
+    def _detect_board(self, gray: NDArray[np.uint8], box: tuple[int, int, int, int] | None):
+        """OpenCV's board in ``box`` of ``gray`` (None: all): corners (K, 1, 2, px) or None, ids (K, 1) or None, markers found."""
+        x0, y0, x1, y1 = box or (0, 0, gray.shape[1], gray.shape[0])
+        corners, ids, marker_corners, _ = self._detector.detectBoard(gray[y0:y1, x0:x1])  # type: ignore[union-attr]
+        if corners is not None:
+            corners = corners.astype(np.float64) + (x0, y0)
+        return corners, ids, 0 if marker_corners is None else len(marker_corners)
+
     def _refined(self, gray: NDArray[np.uint8], corners: NDArray[np.float64], ids: NDArray[np.int_]) -> NDArray[np.float64]:
-        """The corners refined again (``cornerSubPix``) in a window that stays inside the gap
-        between a corner and its markers (:data:`GAP_WINDOW_FRACTION`). OpenCV's own window
-        reaches into the markers on small boards (0.6 px RMS off on 15 px squares of the
-        footage, 0.05 px with this window). A corner that moves farther than
-        :data:`MAX_REFINE_MOVE_PX`, or that does not come back when refined again from a
-        little off, keeps OpenCV's position."""
+        """The corners refined again (``cornerSubPix``) in a window inside the gap between a
+        corner and its markers (:data:`GAP_WINDOW_FRACTION`; OpenCV's reaches into the markers
+        on small boards: 0.6 px RMS off on the footage's 15 px squares, 0.05 px with this one).
+        A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`, or does not come back when
+        refined again from a little off, keeps OpenCV's position."""
         assert self._geometry is not None
         columns = self.squares[0] - 1
         grid = np.column_stack([ids % columns, ids // columns]).astype(np.float32)

@@ -142,11 +142,9 @@ class ChessboardDetector:
         return Detection(corners, True, self.n_points, 0)
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
-        """A search's corners in the track's order: of the grid's four orderings (its rows
-        and its columns each forward or reversed; OpenCV may start from any corner of a
-        board with a symmetric pattern), the one closest to the prediction as a whole. Per
-        point nearest assignment shifted the grid by a square when the board had moved
-        more than half a square from the prediction."""
+        """A search's corners in the track's order: of the grid's four orderings (rows and
+        columns each forward or reversed), the one closest to the prediction as a whole (per
+        point, the grid shifted by a square when the board had moved over half a square)."""
         columns, rows = self.pattern
         grid = np.arange(self.n_points).reshape(rows, columns)
         orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
@@ -225,7 +223,13 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     ndarray, shape (K, 2)
     """
     reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
-    offsets = np.arange(-reach, reach + 1)
+    offsets = np.arange(-reach, reach + 1, dtype=np.float64)
+    size = offsets.size
+    # Fitted in each window's own pixel offsets, the same for every window: the design and its
+    # columns' products are computed once, only the weight (centred on the estimate) differs.
+    x, y = np.tile(offsets, size), np.repeat(offsets, size)
+    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])  # (P, 6)
+    products = (design[:, :, None] * design[:, None, :]).reshape(size * size, 36)
     refined = np.asarray(corners, dtype=np.float64).copy()
     start = refined.copy()
     # Only the board's box (and what a step and the smoothing reach) is smoothed.
@@ -235,30 +239,26 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     if x1 <= x0 or y1 <= y0:
         return refined
     smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), smoothing)
+    windows = np.lib.stride_tricks.sliding_window_view(smooth, (size, size))  # (H - 2 reach, W - 2 reach, P, P)
     refined -= (x0, y0)
-    height, width = smooth.shape
     for _ in range(SADDLE_PASSES):
         centre = np.rint(refined).astype(np.intp)
-        inside = np.all((centre >= reach) & (centre < np.array([width, height]) - reach), axis=1)
-        count, size = int(inside.sum()), offsets.size
-        if count == 0:
+        inside = np.all((centre >= reach) & (centre < np.array(smooth.shape[::-1]) - reach), axis=1)
+        if not np.any(inside):
             break
-        # Every window's pixels, (K, P, P), and their offsets from the estimate.
-        cols = np.broadcast_to(centre[inside, 0, None, None] + offsets[None, None, :], (count, size, size))
-        rows = np.broadcast_to(centre[inside, 1, None, None] + offsets[None, :, None], (count, size, size))
-        dx = (cols - refined[inside, 0, None, None]).reshape(count, -1)
-        dy = (rows - refined[inside, 1, None, None]).reshape(count, -1)
-        values = smooth[rows, cols].reshape(count, -1).astype(np.float64)
-        weight = np.exp(-(dx * dx + dy * dy) / SADDLE_RADIUS_PX**2)
-        design = np.stack([dx * dx, dx * dy, dy * dy, dx, dy, np.ones_like(dx)], axis=-1)
-        weighted = design * weight[..., None]
-        coefficients = np.linalg.solve(np.einsum("kpi,kpj->kij", weighted, design), np.einsum("kpi,kp->ki", weighted, values)[..., None])[..., 0]
-        a, b, c, d, e = (coefficients[:, j] for j in range(5))
+        centre = centre[inside]
+        values = windows[centre[:, 1] - reach, centre[:, 0] - reach].reshape(len(centre), -1).astype(np.float64)
+        fraction = refined[inside] - centre  # the estimate in its window's offsets
+        along_x = np.exp(-((offsets - fraction[:, :1]) ** 2) / SADDLE_RADIUS_PX**2)
+        along_y = np.exp(-((offsets - fraction[:, 1:]) ** 2) / SADDLE_RADIUS_PX**2)
+        weight = (along_y[:, :, None] * along_x[:, None, :]).reshape(len(centre), -1)  # exp(-d^2 / r^2)
+        normal = (weight @ products).reshape(-1, 6, 6)
+        a, b, c, d, e, _ = np.linalg.solve(normal, ((weight * values) @ design)[..., None])[..., 0].T
         determinant = 4.0 * a * c - b * b
         saddle = determinant < 0.0
         safe = np.where(saddle, determinant, -1.0)
-        # The stationary point of the quadratic: [2a b; b 2c] step = -[d e].
-        step = np.column_stack([(-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe])
+        # The stationary point of the quadratic: [2a b; b 2c] point = -[d e].
+        step = np.column_stack([(-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe]) - fraction
         accept = saddle & (np.hypot(step[:, 0], step[:, 1]) <= SADDLE_MAX_STEP_PX)
         moved = refined[inside]
         moved[accept] += step[accept]

@@ -8,20 +8,18 @@ as text, raster output is at ``--dpi``.
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 from ..errors import OutputError, UsageError
+from ..io.settings import DEFAULT_DPI, REPORT
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
 #: The taught path / desired signal, and the truth: black.
 TAUGHT_COLOR = "black"
-#: Raster resolution (dots per inch) unless ``--dpi`` says otherwise.
-DEFAULT_DPI = 200.0
 #: Width (in) unless ``--size`` says otherwise: a two-column figure of a paper.
 DEFAULT_WIDTH_IN = 7.0
 #: Below this width (in) panels are stacked in one column.
@@ -79,8 +77,9 @@ def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
 def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str]) -> FigureStyle:
     """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (some of
     ``known_panels``); UsageError for a bad value."""
-    if dpi is not None and not (math.isfinite(dpi) and dpi > 0):
-        raise UsageError(f"--dpi must be a positive number, got {dpi}")
+    violation = REPORT["dpi"].bound_violation(dpi) if dpi is not None else None
+    if violation is not None:
+        raise UsageError(violation)
     return FigureStyle(
         dpi=float(dpi) if dpi is not None else DEFAULT_DPI,
         size_in=parse_size(size) if size is not None else None,

@@ -2,18 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+from ..io.settings import ExportOptions
 from .console import Console
-
-
-@dataclass(frozen=True)
-class ExportOptions:
-    """What ``hbvs export`` was asked to do (see ``hbvs export --help``)."""
-
-    input: str
-    output: str
-    allow_truncated: bool = False
 
 
 def run_export(options: ExportOptions, console: Console) -> dict[str, int]:

@@ -6,19 +6,11 @@ import json
 import shutil
 import sys
 import textwrap
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, TextIO
 
+from ..io.settings import InfoOptions
 from .console import Console, print_json
-
-
-@dataclass(frozen=True)
-class InfoOptions:
-    """What ``hbvs info`` was asked to do (see ``hbvs info --help``)."""
-
-    input: str
-    json_output: bool = False
 
 
 def info_document(info: Any) -> dict[str, Any]:

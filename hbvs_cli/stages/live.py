@@ -26,6 +26,7 @@ from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..io.settings import RepeatOptions
+from .options import stamped_commands
 
 #: Consecutive frames with the target seen near its taught start view before the first
 #: non-zero command.
@@ -85,8 +86,7 @@ def check_live_options(options: RepeatOptions) -> None:
         raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
     if options.camera is not None and options.calibration is None:
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
-    if options.cmd_type not in ("twist", "twist-stamped"):
-        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {options.cmd_type!r}")
+    stamped_commands(options.cmd_type)
     for name in ("occlude", "drop_rate", "outlier_rate", "exposure_step", "record_images", "depth"):
         value = getattr(options, name)
         if value not in (None, False, 0.0, []):

@@ -43,14 +43,14 @@ from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
-from ..io.settings import DEFAULT_GAINS, DEFAULT_MAX_V, DEFAULT_MAX_W, REPEAT, RepeatOptions
+from ..io.settings import DEFAULT_GAINS, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
-from .options import parse_interval, parse_offset, parse_time_and_factor
+from .options import parse_interval, parse_offset, parse_time_and_factor, stamped_commands
 
 @dataclass(frozen=True)
 class Settings:
@@ -86,11 +86,11 @@ class RepeatSummary:
     stopped: bool
 
 
-def _limit(value: float | None, default: float | None, option: str) -> float | None:
-    """A limit option: None -> default; inf -> unlimited; 0 or less is refused (it would mean
-    "stand still", which is no run at all)."""
+def _limit(value: float | None, option: str) -> float | None:
+    """A limit option: None or inf -> unlimited; 0 or less is refused (it would mean "stand
+    still", which is no run at all)."""
     if value is None:
-        return default
+        return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
         raise UsageError(f"{option} must be positive (m/s, rad/s, m/s^2), or inf for no limit; got {value!r}")
     if math.isinf(value):
@@ -135,8 +135,6 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         raise UsageError(f"--perception must be images or points, got {perception!r}")
     offset_text = str(pick("offset"))
     latency = int(pick("latency"))
-    if latency < 0:
-        raise UsageError("--latency must be >= 0 frames")
     state_filter = str(pick("state_filter"))
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
@@ -146,9 +144,9 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         dhat0=dhat0,
         speed=speed,
         limits=ActuatorLimits(
-            max_v=_limit(pick("max_v"), DEFAULT_MAX_V, "--max-v"),
-            max_w=_limit(pick("max_w"), DEFAULT_MAX_W, "--max-w"),
-            max_accel=_limit(pick("max_accel"), None, "--max-accel"),
+            max_v=_limit(pick("max_v"), "--max-v"),
+            max_w=_limit(pick("max_w"), "--max-w"),
+            max_accel=_limit(pick("max_accel"), "--max-accel"),
         ),
         latency=latency,
         rate=rate,
@@ -581,7 +579,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         if topic is not None:
             from ..io.ros2_live import CommandPublisher
 
-            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+            publisher = CommandPublisher(node, topic, stamped=stamped_commands(options.cmd_type))
             publish = publisher.publish
         cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
         out = live.CommandOut(publish, cmd_stream, options.dry_run)

@@ -8,33 +8,17 @@ from __future__ import annotations
 
 import io
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
+from ..io.settings import ReportOptions
 from .console import Console, print_json
 from .options import parse_assignment
 
 if TYPE_CHECKING:
     from ..report.result import RunReport
-
-
-@dataclass(frozen=True)
-class ReportOptions:
-    """Everything ``hbvs report`` was asked to do (see ``hbvs report --help``)."""
-
-    runs: list[str]
-    json_output: bool = False
-    plot: Path | None = None
-    fail_above: list[str] = field(default_factory=list)
-    export_tum: Path | None = None
-    tolerance: list[str] = field(default_factory=list)
-    require_converged: bool = False
-    labels: list[str] = field(default_factory=list)
-    dpi: float | None = None
-    size: str | None = None
-    panels: str | None = None
 
 
 @dataclass(frozen=True)

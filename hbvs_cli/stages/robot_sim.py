@@ -31,7 +31,7 @@ from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
 from .frame_decoding import fit_reference_image
-from .options import parse_interval, parse_offset
+from .options import parse_interval, parse_offset, stamped_commands
 from ..io.settings import RobotSimOptions
 
 
@@ -55,7 +55,7 @@ class _Ros2Robot:
         self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.sensor_qos())
         self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.sensor_qos())
         self.pose_writer = node.publisher(ROS_TRUE_POSE_TOPIC, dds.PoseStamped, dds.command_qos())
-        self.stamped = options.cmd_type == "twist-stamped"
+        self.stamped = stamped_commands(options.cmd_type)
         self.commands = node.subscriber(options.cmd_topic, dds.TwistStamped if self.stamped else dds.Twist, dds.command_qos())
         self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()})"
 
@@ -156,8 +156,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     """Run the stand-in robot until ``--duration`` or a stop signal."""
     if options.image_format not in ("raw", "jpeg"):
         raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
-    if options.cmd_type not in ("twist", "twist-stamped"):
-        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {options.cmd_type!r}")
+    stamped_commands(options.cmd_type)
     fit = read_fit_file(options.input)
     model = fit.model
     taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))

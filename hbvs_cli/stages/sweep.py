@@ -10,12 +10,12 @@ from __future__ import annotations
 import hashlib
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
+from ..io.settings import SweepOptions
 from ..io.sweep_table import ResultsTable, failed_row, row_schema
 from ..sim.scene import simulation_world
 from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
@@ -24,29 +24,6 @@ from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, summarize
 from .console import Console, print_json
 from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
-
-
-@dataclass(frozen=True)
-class SweepOptions:
-    """Everything ``hbvs sweep`` was asked to do (see ``hbvs sweep --help``)."""
-
-    fit: str
-    output: Path = Path("sweep-results")
-    spec: Path | None = None
-    vary: list[str] = field(default_factory=list)
-    fixed: list[str] = field(default_factory=list)
-    repeats: int | None = None
-    seed: int | None = None
-    sampling: str | None = None
-    samples: int | None = None
-    scheduler: str | None = None
-    cluster: str | None = None
-    workers: int | None = None
-    keep_runs: str = "failed"
-    json_output: bool = False
-    plots: bool = True
-    in_flight: int | None = None
-    dashboard: str | None = None
 
 
 def _true_depth(fit: FitFile) -> float | None:
@@ -166,7 +143,7 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
             if dashboard is not None:
                 console.info(f"sweep: Dask dashboard at {client.dashboard_link} (no authentication: anyone who reaches it sees the workers)")
             workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
-            in_flight = options.in_flight or max(4 * workers, 8)
+            in_flight = max(4 * workers, 8)
 
             def on_row(row: dict[str, Any]) -> None:
                 nonlocal failures

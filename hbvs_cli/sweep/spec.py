@@ -21,7 +21,7 @@ from ..core.control_settings import GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
-from ..io.settings import REPEAT
+from ..io.settings import REPEAT, SWEEP
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
@@ -39,7 +39,6 @@ class Parameter:
     name: str
     kind: str
     unit: str
-    help: str
     setting: str | None = None
     choices: tuple[str, ...] = ()
     own_bounds: Mapping[str, float] = field(default_factory=dict)
@@ -59,21 +58,19 @@ class Parameter:
 
 
 def _repeat_parameter(name: str, kind: str, unit: str, choices: tuple[str, ...] = ()) -> Parameter:
-    """A parameter that is the ``hbvs repeat`` option of the same name (its help and bounds)."""
-    setting = REPEAT[name]
-    return Parameter(name, kind, unit, f"{setting.help} ({setting.option_names[-1]})", setting=name, choices=choices)
+    """A parameter that is the ``hbvs repeat`` option of the same name (its bounds)."""
+    return Parameter(name, kind, unit, setting=name, choices=choices)
 
 
 #: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
 PARAMETERS: dict[str, Parameter] = {
     p.name: p
     for p in (
-        Parameter("offset_x", "float", "m", "start offset along the taught start heading (--offset DX)"),
-        Parameter("offset_y", "float", "m", "start offset to the left (--offset DY)"),
-        Parameter("offset_theta", "float", "deg", "start heading offset (--offset DTHETA)"),
+        Parameter("offset_x", "float", "m"),  # --offset DX, along the taught start heading
+        Parameter("offset_y", "float", "m"),  # --offset DY, to the left
+        Parameter("offset_theta", "float", "deg"),  # --offset DTHETA
         _repeat_parameter("dhat0", "float", "m"),
-        Parameter("dhat0_factor", "float", "x d*", "initial depth estimate as a multiple of the true d* (--dhat0)",
-                  own_bounds={"min": 0.0}),
+        Parameter("dhat0_factor", "float", "x d*", own_bounds={"min": 0.0}),  # --dhat0 as a multiple of the true d*
         _repeat_parameter("pixel_noise", "float", "px"),
         _repeat_parameter("k_v", "float", GAIN_UNITS["k_v"]),
         _repeat_parameter("k_w", "float", GAIN_UNITS["k_w"]),
@@ -82,8 +79,8 @@ PARAMETERS: dict[str, Parameter] = {
         _repeat_parameter("law", "choice", "", choices=ALL_LAWS),
         _repeat_parameter("drop_rate", "float", ""),
         _repeat_parameter("outlier_rate", "float", ""),
-        Parameter("occlusion_start", "float", "s", "start of an occlusion window (--occlude START:END)", own_bounds={"min": 0.0}),
-        Parameter("occlusion_length", "float", "s", "length of the occlusion window; 0 for none", own_bounds={"min": 0.0}),
+        Parameter("occlusion_start", "float", "s", own_bounds={"min": 0.0}),  # --occlude START:END
+        Parameter("occlusion_length", "float", "s", own_bounds={"min": 0.0}),  # 0: no occlusion
         _repeat_parameter("latency", "int", "frames"),
         _repeat_parameter("perception", "choice", "", choices=("points", "images")),
         _repeat_parameter("rate", "float", "Hz"),
@@ -120,10 +117,10 @@ class SweepSpec:
 
     axes: tuple[Axis, ...]
     fixed: Mapping[str, Any] = field(default_factory=dict)
-    sampling: str = "grid"
-    samples: int = 64
-    repeats: int = 1
-    seed: int = 0
+    sampling: str = SWEEP["sampling"].fallback
+    samples: int = SWEEP["samples"].fallback
+    repeats: int = SWEEP["repeats"].fallback
+    seed: int = SWEEP["seed"].fallback
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -291,15 +288,13 @@ def build_spec(
             raise UsageError(f"{name} is both varied and fixed; keep one")
     if "dhat0" in axes and "dhat0_factor" in axes or ("dhat0" in fixed_values and "dhat0_factor" in fixed_values):
         raise UsageError("give dhat0 or dhat0_factor, not both")
-    method = sampling if sampling is not None else data.get("sampling", "grid")
+    method, count, repeat_count, sweep_seed = (SWEEP[name].resolve(given, data) for name, given in (
+        ("sampling", sampling), ("samples", samples), ("repeats", repeats), ("seed", seed)))
     if method not in SAMPLING_METHODS:
         raise UsageError(f"sampling must be one of {', '.join(SAMPLING_METHODS)}, got {method!r}")
-    count = samples if samples is not None else data.get("samples", 64)
-    repeat_count = repeats if repeats is not None else data.get("repeats", 1)
-    sweep_seed = seed if seed is not None else data.get("seed", 0)
-    for label, value, low in (("samples", count, 1), ("repeats", repeat_count, 1), ("seed", sweep_seed, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise UsageError(f"{label} must be a whole number >= {low}, got {value!r}")
+    for label, value in (("samples", count), ("repeats", repeat_count), ("seed", sweep_seed)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < SWEEP[label].bounds["min"]:
+            raise UsageError(f"{label} must be a whole number >= {SWEEP[label].bounds['min']}, got {value!r}")
     ordered = tuple(axes.values())
     _check_size(ordered, method, count, repeat_count)
     if method == "grid":
