@@ -79,14 +79,14 @@ def test_uncertain_fit_warning_when_theta_d_or_x_hd1_exceeds_the_kinds_precision
         assert "plane normal n* uncertain" in line and f"{kind} targets usually give" in line
 
 
-def test_detector_bias_falls_as_the_marker_edge_squared_and_texture_has_a_floor():
-    """A marker corner's bias: 0.028 px at a 30 px edge, a quarter of it at 60 px; a texture's
-    half a point noise, but not under 0.009 px; dots none."""
+def test_detector_bias_is_a_fraction_of_the_point_noise_and_texture_has_a_floor():
+    """Markers half a point noise, chessboards 1.25, whatever the noise; a texture's half a
+    point noise, but not under 0.009 px; dots none."""
     from hbvs_cli.core.desired import detector_bias_fraction
 
-    square = lambda side: np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])  # noqa: E731
-    assert detector_bias_fraction("aruco", square(30.0), 0.028) == pytest.approx(1.0)
-    assert detector_bias_fraction("aruco", np.vstack([square(60.0), square(60.0) + 100.0]), 0.014) == pytest.approx(0.5)
-    assert detector_bias_fraction("texture", square(100.0), 0.1) == pytest.approx(0.5)
-    assert detector_bias_fraction("texture", square(100.0), 0.003) == pytest.approx(3.0)
-    assert detector_bias_fraction("dots", square(30.0), 0.02) == 0.0
+    assert detector_bias_fraction("aruco", 0.028) == detector_bias_fraction("aruco", 0.001) == 0.5
+    assert detector_bias_fraction("chessboard", 0.01) == 1.25
+    assert detector_bias_fraction("texture", 0.1) == pytest.approx(0.5)
+    assert detector_bias_fraction("texture", 0.003) == pytest.approx(3.0)
+    assert detector_bias_fraction("dots", 0.02) == 0.0
+    assert detector_bias_fraction(None, 0.02) == 0.0

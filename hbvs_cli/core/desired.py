@@ -43,16 +43,11 @@ UNCERTAIN_NORMAL_DEG = 0.5
 #: uncertainty allows for: corners located from edges err alike over nearby frames (their
 #: error follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor),
 #: and so do a tracked texture's corners, which the residuals cannot show
-#: (bench/CALIBRATION.md). Dots: none. Markers: :data:`MARKER_CORNER_BIAS`.
-DETECTOR_BIAS_FRACTION = {"chessboard": 1.0, "charuco": 1.0, "texture": 0.5}
+#: (bench/CALIBRATION.md). Dots: none.
+DETECTOR_BIAS_FRACTION = {"aruco": 0.5, "chessboard": 1.25, "charuco": 1.0, "texture": 0.5}
 
 #: ... but a tracked texture's at least this (px): the warp's sub-pixel interpolation.
 TEXTURE_CORNER_BIAS_PX = 0.009
-
-#: A marker corner's bias (px) at an edge of (px) in F*, falling as the edge's square (a
-#: longer edge averages its phase and clipping errors over more pixels); it stands for the
-#: errors neighbouring frames share: no correlation inflation for markers.
-MARKER_CORNER_BIAS = (0.028, 30.0)
 
 #: The spans of the drive over which that bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
@@ -305,7 +300,7 @@ def fit_desired_trajectory(
         segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
                                       frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
-                                      bias_fraction=detector_bias_fraction(kind, pixels[reference_index], noise * camera.mean_focal),
+                                      bias_fraction=detector_bias_fraction(kind, noise * camera.mean_focal),
                                       bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
@@ -332,19 +327,12 @@ def fit_desired_trajectory(
     )
 
 
-def detector_bias_fraction(kind: str | None, reference_pixels: NDArray[np.float64], noise_px: float) -> float:
-    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`
-    (for texture at least :data:`TEXTURE_CORNER_BIAS_PX`), or for markers (``reference_pixels``
-    (4M, 2): F*'s corners, marker by marker) :data:`MARKER_CORNER_BIAS` at their mean edge length."""
-    noise_px = max(noise_px, 1e-9)
+def detector_bias_fraction(kind: str | None, noise_px: float) -> float:
+    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`,
+    for texture at least :data:`TEXTURE_CORNER_BIAS_PX`."""
     if kind == "texture":
-        return max(DETECTOR_BIAS_FRACTION[kind], TEXTURE_CORNER_BIAS_PX / noise_px)
-    if kind != "aruco":
-        return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
-    corners = reference_pixels.reshape(-1, 4, 2)
-    edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
-    bias_px, at_edge = MARKER_CORNER_BIAS
-    return bias_px * (at_edge / edge) ** 2 / noise_px
+        return max(DETECTOR_BIAS_FRACTION[kind], TEXTURE_CORNER_BIAS_PX / max(noise_px, 1e-9))
+    return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
 
 
 def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | None:
