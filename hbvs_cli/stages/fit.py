@@ -198,9 +198,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 if detector is None:
                     world = _teach_world(reader)
                     spec = _detector_spec(options, world, [im for _, _, im in first] or [image], camera, frame.pose, console)
-                    # Dots followed each in its own window; dots seen in colour in their
-                    # common box (windows measured their n* worse: red_on_grey 0.44 deg against 0.22).
-                    detector = TrackedDetector(spec, camera, seed=options.seed, windowed=spec.contrast != "colour")
+                    detector = TrackedDetector(spec, camera, seed=options.seed)
                     template = data
                     writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 pixels = detector.detect(image)
