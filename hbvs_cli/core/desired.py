@@ -19,6 +19,7 @@ from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
+from .metrics import rms
 from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
@@ -339,7 +340,6 @@ def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | 
     """The warning line when n* is uncertain by more than :data:`UNCERTAIN_NORMAL_DEG`, or the
     splines' RMS sigma of theta_d or x_hd1 exceeds the ``kind``'s :data:`EXPECTED_PRECISION`;
     else None."""
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     theta, x_h1 = np.degrees(rms(uncertainty.smooth_theta_sigma)), rms(uncertainty.smooth_x_h1_sigma)
     expected = EXPECTED_PRECISION.get(kind)
     if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG or (expected is not None and (theta > expected[0] or x_h1 > expected[1])):
