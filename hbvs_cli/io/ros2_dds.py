@@ -19,20 +19,17 @@ from .topics import (
 
 INSTALL_HINT = "ROS 2 topics need Eclipse Cyclone DDS's Python binding: pip install 'hbvs[ros2]'"
 
-
 try:
-    import cyclonedds.domain  # noqa: F401
-    import cyclonedds.idl  # noqa: F401
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.qos import Policy, Qos
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
 except ImportError:
     raise UsageError(INSTALL_HINT) from None
-from cyclonedds.qos import Policy, Qos  # noqa: E402
-from cyclonedds.domain import DomainParticipant  # noqa: E402
-from cyclonedds.idl import IdlStruct  # noqa: E402
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32  # noqa: E402
-from cyclonedds.pub import DataWriter  # noqa: E402
-from cyclonedds.sub import DataReader  # noqa: E402
-from cyclonedds.topic import Topic  # noqa: E402
-from cyclonedds.util import duration  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- messages

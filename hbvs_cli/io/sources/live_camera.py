@@ -26,7 +26,6 @@ def _is_file(device: str) -> bool:
 class LatestCameraFrame:
     """Frames of ``cv2.VideoCapture(device)`` (an index, ``/dev/videoN``, a URL or a video file), newest only."""
 
-
     def __init__(self, device: str) -> None:
         self.device = device
         self._capture = cv2.VideoCapture(int(device) if device.isdigit() else device)
