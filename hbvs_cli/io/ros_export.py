@@ -36,6 +36,7 @@ HBVS_MARK = ("hbvs_export", "1")
 #: Largest metadata.yaml read when deciding whether a folder is a bag hbvs wrote.
 MAX_METADATA_BYTES = 1 << 20
 
+
 @dataclass
 class ExportSummary:
     """What was written: the bag folder, the file kind, and messages per bag topic."""
@@ -153,8 +154,7 @@ class _Messages:
         return self.types[ROS_POSE_STAMPED_SCHEMA](header=self.header(ns, WORLD_FRAME), pose=pose)
 
     def path(self, poses: list[Any]) -> Any:
-        ns = poses[-1].header.stamp.sec * 1_000_000_000 + poses[-1].header.stamp.nanosec
-        return self.types[ROS_PATH_SCHEMA](header=self.header(ns, WORLD_FRAME), poses=poses)
+        return self.types[ROS_PATH_SCHEMA](header=self.header(_stamp_ns(poses[-1].header.stamp), WORLD_FRAME), poses=poses)
 
     def transform(self, ns: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
         transform = self.types["geometry_msgs/msg/Transform"](translation=self.vector(*translation), rotation=self.quaternion(rotation))
