@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, capture_property
+from ..native_log import opencv_error_text
+from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
 from ..images import as_image8
 
 
@@ -49,7 +50,7 @@ class CameraSource(FrameSource):
         try:
             capture = self._factory(self.index)
         except (cv2.error, SystemError, OSError) as exc:
-            raise InputError(f"camera {self.index}: cannot open the device ({_cv_message(exc)})") from None
+            raise InputError(f"camera {self.index}: cannot open the device ({opencv_error_text(exc)})") from None
         if capture is None or not capture.isOpened():
             if capture is not None:
                 capture.release()
@@ -82,7 +83,7 @@ class CameraSource(FrameSource):
                 try:
                     ok, frame = capture.read()
                 except (cv2.error, SystemError) as exc:
-                    raise InputError(f"camera {self.index}: read failed ({_cv_message(exc)})") from None
+                    raise InputError(f"camera {self.index}: read failed ({opencv_error_text(exc)})") from None
                 now = float(self._clock())
                 if not ok or frame is None or getattr(frame, "size", 0) == 0:
                     failures += 1

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -18,8 +19,6 @@ from ..images import as_image8
 
 
 def _is_file(device: str) -> bool:
-    from pathlib import Path
-
     return not device.isdigit() and "://" not in device and not device.startswith("/dev/") and Path(device).is_file()
 
 

@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message, capture_property
+from ..native_log import opencv_error_text
+from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
 from ..images import as_image8
 
 
@@ -63,7 +64,7 @@ class VideoSource(FrameSource):
         try:
             capture = cv2.VideoCapture(self.path)
         except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: cannot open the video ({_cv_message(exc)})") from None
+            raise InputError(f"{self.path}: cannot open the video ({opencv_error_text(exc)})") from None
         if not capture.isOpened():
             capture.release()
             raise InputError(
@@ -75,7 +76,7 @@ class VideoSource(FrameSource):
         try:
             ok, frame = capture.read()
         except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: error while decoding the video ({_cv_message(exc)})") from None
+            raise InputError(f"{self.path}: error while decoding the video ({opencv_error_text(exc)})") from None
         if not ok or frame is None or frame.size == 0:
             return False, None
         return True, frame
