@@ -17,7 +17,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..errors import InputError, OutputError, RecordingError, UsageError
+from ..errors import InputError, OutputError, RecordingError, TruncatedInputError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .mcap import McapStream, read_metadata
 from .topics import (
@@ -45,14 +45,6 @@ class ExportSummary:
     kind: str
     counts: dict[str, int] = field(default_factory=dict)
     truncated: bool = False
-
-
-def _rosbags() -> tuple[Any, Any, Any]:
-    # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    return Writer, StoragePlugin, get_typestore(Stores.ROS2_HUMBLE)
 
 
 # ----------------------------------------------------------------------------- output folder
@@ -217,9 +209,11 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
 
 
 def _export(source: Any, final: Path, output: str, name: str, allow_truncated: bool) -> ExportSummary:
-    from ..errors import TruncatedInputError
+    # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
 
-    Writer, StoragePlugin, typestore = _rosbags()
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
