@@ -29,7 +29,8 @@ from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
+from ..core.control_settings import FILTER_EKF, FILTERS
+from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
