@@ -13,7 +13,7 @@ import json
 import math
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
-from typing import IO, Any, ContextManager
+from typing import IO, Any
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from .. import __version__
 from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
+from ..core.estimation import PlanarPoseEstimator
 from ..core.desired import taught_frame_interval
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
@@ -29,7 +30,7 @@ from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.control_settings import FILTER_EKF, FILTERS
+from ..core.control_settings import FILTER_EKF, FILTERS, GAIN_NAMES
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
@@ -120,12 +121,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
-    gains = gains_for_law(ControllerGains(
-        k_v=pick("k_v", defaults.k_v),
-        k_w=pick("k_w", defaults.k_w),
-        gamma=pick("gamma", defaults.gamma),
-        k_2=pick("k_2", defaults.k_2),
-    ), law)
+    gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
     speed = float(pick("speed"))
     rate = float(pick("rate", taught_rate))
@@ -281,11 +277,6 @@ class _StepLog:
         }
 
 
-def _open_cmd_stream(target: str | None) -> ContextManager[IO[str] | None]:
-    """The ``--cmd-out`` stream: written like every output (atomically for a file)."""
-    return open_text_output(target, "command stream")
-
-
 def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
     """Keep an existing output when an input ended early (unless --allow-truncated); warn."""
     names = []
@@ -334,11 +325,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     )
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
-    state_filter = make_state_filter(settings, model)
-    if state_filter is not None:
-        # The filter tests each residual against the noise it learns; the fixed gate set
-        # from the taught images (a few tenths of a pixel) only has to catch gross errors.
-        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    state_filter = make_state_filter(settings, model, camera.estimator)
     return Simulation(
         scene=scene,
         camera=camera,
@@ -357,11 +344,14 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
+def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
+    # The filter tests each residual against the noise it learns; the estimator's fixed gate
+    # from the taught images (a few tenths of a pixel) only has to catch gross errors.
+    estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
 
 
@@ -382,7 +372,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --foxglove, if asked
             _note_truncated(writer, options, fit, console)
@@ -432,7 +422,7 @@ class _Tally:
     def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
         self.steps += 1
         errors = record.output.errors if record.output is not None else None
-        values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
+        values = dict.fromkeys(self.series, math.nan) | {"t": record.t}
         if errors is not None:
             values.update(e1=float(errors.e1), e2=float(errors.e2), e3_deg=math.degrees(float(errors.e3)))
         if taught is not None:
@@ -444,8 +434,8 @@ class _Tally:
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
         t = self.series["t"]
         errors: dict[str, float] = {}
-        for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
-            final = final_value(t, self.series[name]) if t else None
+        for name, series in self.series.items():
+            final = final_value(t, series) if t and name != "t" else None
             if final is not None:
                 errors[name] = final
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
@@ -512,7 +502,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     tally = _Tally()
     previous_t: float | None = None
     previous_command = (0.0, 0.0)
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --foxglove, if asked
             # The replay keeps the recording's stamps: t = 0 is known with the first frame.
@@ -562,9 +552,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    state_filter = make_state_filter(settings, model)
-    if state_filter is not None:
-        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    state_filter = make_state_filter(settings, model, estimator)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     servo = ServoStep(controller, settings.limits, 0, state_filter)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
