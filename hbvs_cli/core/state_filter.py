@@ -253,6 +253,12 @@ def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], 
     return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
 
 
+def residual_to_variance(points: int) -> float:
+    """``sigma^2 / r^2`` for the RMS residual r of the known-normal solve of ``points``
+    points: ``E[r^2] = sigma^2 (2N - 3) / (2N)``, three parameters fitted to 2N coordinates."""
+    return 2.0 * points / max(2.0 * points - 3.0, 1.0)
+
+
 #: The filter's inverse depth stays within this factor of its prior either way: a bound
 #: the motion never reaches, that keeps 1/rho finite whatever a wild frame does.
 INVERSE_DEPTH_RANGE = 100.0
@@ -287,8 +293,7 @@ class ServoStateFilter:
         self._y_ref = self.m_ref[:, 1].tolist()
         self._z_ref = self.m_ref[:, 2].tolist()
         self._g = (self.m_ref @ self.normal).tolist()
-        # E[r^2] = sigma^2 (2N - 3) / (2N): three parameters are fitted to 2N coordinates.
-        self._residual_to_variance = 2.0 * points / max(2.0 * points - 3.0, 1.0)
+        self._residual_to_variance = residual_to_variance(points)
         from scipy.stats import chi2
 
         dof = max(2 * points - 3, 1)
