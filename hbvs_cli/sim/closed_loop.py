@@ -1,12 +1,6 @@
-"""The closed loop of ``repeat --sim``: sense, control, actuate, move; one camera frame at a time.
-
-Every period ``dt``: a sensing function measures the pose, the controller answers with
-(v_c, w_c), the limits clip them and the unicycle integrates them exactly over ``dt``.
-A lost target stops the robot and freezes the adaptation; a dropped frame or a few rejected
-ones hold the last command instead (stopping for one bad frame only makes the robot lag),
-and a drop keeps the lost state of the last frame that arrived. With a state filter the law
-acts on its estimate, and on its prediction through frames without a measurement while the
-prediction stays certain.
+"""The closed loop of ``repeat --sim``, one camera frame at a time: a sensing function
+measures the pose, :class:`~hbvs_cli.core.simulator.ServoStep` answers with (v_c, w_c)
+(losses and drops as it says), and the unicycle integrates them exactly over ``dt``.
 """
 
 from __future__ import annotations

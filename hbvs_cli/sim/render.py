@@ -40,25 +40,10 @@ MAX_NOISE_GRAIN_PX = 20.0
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Photometric settings of the simulated camera.
-
-    Attributes
-    ----------
-    noise_std : float
-        Standard deviation of the additive white Gaussian sensor noise (gray levels).
-    blur_sigma : float
-        Standard deviation of the Gaussian optical blur (camera px); 0 for none.
-    exposure_gain : float
-        Multiplies the scene's gray levels (1 = nominal exposure).
-    exposure_offset : float
-        Added after the gain (gray levels): a black level or a brightness change.
-    background : float
-        Gray level of the wall around the poster, before exposure (0-255).
-    noise_grain : float
-        Correlation length of the sensor noise: the standard deviation (camera px) of the
-        Gaussian that smooths white noise before it is scaled back to ``noise_std``; 0 for
-        white noise.
-    """
+    """Photometric settings of the simulated camera: the sensor noise's standard deviation
+    (gray levels) and correlation length (the sigma, camera px, of the Gaussian that smooths
+    it; 0 for white noise), the optical blur's sigma (camera px), the exposure's gain and
+    offset (gray levels), and the wall's gray level before exposure (0-255)."""
 
     noise_std: float = 2.0
     blur_sigma: float = 0.0
@@ -95,19 +80,8 @@ def _gaussian_table() -> NDArray[np.float32]:
 
 
 class SceneRenderer:
-    """Render camera frames of a :class:`World` from robot poses.
-
-    Parameters
-    ----------
-    world : World
-    raster : PosterRaster, optional
-        The poster's picture; drawn from ``world.target`` (built-in texture) when omitted.
-    settings : RenderSettings, optional
-
-    Notes
-    -----
-    A renderer keeps scratch buffers between calls: use one per thread.
-    """
+    """Render camera frames of a :class:`World` from robot poses; ``raster`` is drawn from
+    ``world.target`` when omitted. It keeps scratch buffers between calls: one per thread."""
 
     def __init__(self, world: World, raster: PosterRaster | None = None, settings: RenderSettings | None = None) -> None:
         self.world = world
@@ -131,22 +105,9 @@ class SceneRenderer:
         return self.world.camera
 
     def render(self, pose: ArrayLike, rng: np.random.Generator, exposure_gain: float | None = None) -> NDArray[np.uint8]:
-        """One camera frame seen from ``pose``.
-
-        Parameters
-        ----------
-        pose : array_like, shape (3,)
-            Robot pose ``(x, y, phi)`` (m, m, rad).
-        rng : numpy.random.Generator
-            Source of the sensor noise; the same generator state gives the same image.
-            Nothing is drawn when ``settings.noise_std`` is 0.
-        exposure_gain : float, optional
-            Overrides ``settings.exposure_gain`` for this frame (an auto-exposure step).
-
-        Returns
-        -------
-        image : ndarray, shape (height, width), uint8
-        """
+        """One camera frame (height, width), uint8, seen from ``pose`` (x, y, phi) (m, m, rad),
+        its noise from ``rng`` (nothing drawn without noise); ``exposure_gain`` overrides
+        the settings' for this frame (an auto-exposure step)."""
         gain = self._gain(exposure_gain)
         scene = self.render_scene(pose)
         if self.settings.noise_std > 0:
