@@ -30,33 +30,15 @@ import numpy as np
 
 from ..core.frames import wrap_angle
 from ..core.metrics import (
-    command_smoothness,
-    error_summary,
-    longest_true_run_s,
-    lyapunov_summary,
-    min_abs,
-    peak_abs,
-    rms,
-    sample_rate_hz,
+    command_smoothness, error_summary, longest_true_run_s, lyapunov_summary, min_abs, peak_abs, rms, sample_rate_hz,
     taught_commands,
 )
 from ..errors import UsageError
 from ..io.messages import LOG_ERROR
 from ..io.run_file import RunData
 from .result import (
-    Commands,
-    Condition35,
-    Depth,
-    ErrorSummary,
-    Limits,
-    Lyapunov,
-    RunReport,
-    RunSummary,
-    Source,
-    TaughtSmoothness,
-    Target,
-    Timing,
-    Verdict,
+    Commands, Condition35, Depth, ErrorSummary, Limits, Lyapunov, RunReport, RunSummary, Source, TaughtSmoothness,
+    Target, Timing, Verdict,
 )
 
 #: Final-error and settling tolerances: image errors in x_h units (fractions of d*),
