@@ -448,8 +448,7 @@ class ServoStateFilter:
             self._learn_noise(residual, dt)
         observed = self._observed(measured)
         if observed is None:
-            self.last_outcome = FilterOutcome.GATED
-            return FilterOutcome.GATED
+            return self._gated()
         z, inverse_information = observed
         variance = self.noise_variance
         r00, r01, r02, r11, r12, r22 = (variance * value for value in inverse_information)
@@ -500,11 +499,12 @@ class ServoStateFilter:
             if math.isfinite(residual):
                 self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
             observed = observed or self._observed(measured)
-            if observed is None:
-                self.last_outcome = FilterOutcome.GATED
-                return FilterOutcome.GATED
-            z, inverse_information = observed
-            return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
+            if observed is not None:
+                z, inverse_information = observed
+                return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
+        return self._gated()
+
+    def _gated(self) -> FilterOutcome:
         self.last_outcome = FilterOutcome.GATED
         return FilterOutcome.GATED
 

@@ -24,6 +24,7 @@ the bands of the settling times.
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from typing import Mapping
 
 import numpy as np
@@ -62,8 +63,8 @@ SMOOTHNESS_FLOOR_W = 1.0
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
 POSE_ERRORS = ("position_m", "heading_deg")
-#: Top-level keys of a report's JSON, in order (``timing``, a live run's, before ``verdict``).
-REPORT_KEYS = ("run", "errors", "pose_error", "lyapunov", "depth", "commands", "target", "condition35", "verdict")
+#: Top-level keys of a report's JSON, in order, but a live run's ``timing``.
+REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name != "timing")
 
 #: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
 CHECK_NAMES = (

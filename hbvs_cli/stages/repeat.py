@@ -9,7 +9,6 @@ errors and commands are computed and logged, and nothing moves.
 
 from __future__ import annotations
 
-import json
 import math
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
@@ -257,9 +256,7 @@ class _StepLog:
         values.update(self._filter_fields(record))
         self.run.state(t, values)
         self.run.command(t, record.v_c, record.w_c, record.saturated)
-        if self.cmd_stream is not None:
-            self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
-            self.cmd_stream.flush()
+        live.write_command(self.cmd_stream, t, record.v_c, record.w_c)
 
     def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
         """The state filter's estimate and standard deviation (what the law acted on)."""
@@ -312,7 +309,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     model = fit.model
     check_simulation_settings(settings, model)
     scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed, options.input)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
@@ -497,7 +494,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
@@ -555,7 +552,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     state_filter = make_state_filter(settings, model, estimator)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     servo = ServoStep(controller, settings.limits, 0, state_filter)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     tally = _Tally()
     loop: live.LiveLoop | None = None
     with ExitStack() as stack:
