@@ -247,12 +247,6 @@ def _dot(a: Vec3, b: Vec3) -> float:
 _SYM4_ENTRIES = ((0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3))
 
 
-def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
-    """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
-    theta, x1, x2 = state
-    return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
-
-
 def residual_to_variance(points: int) -> float:
     """``sigma^2 / r^2`` for the RMS residual r of the known-normal solve of ``points``
     points: ``E[r^2] = sigma^2 (2N - 3) / (2N)``, three parameters fitted to 2N coordinates."""
@@ -483,8 +477,10 @@ class ServoStateFilter:
         """The measurement as a state, and the inverse of its points' information (per unit
         noise variance); None when the points do not determine the state."""
         z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+        # measurement_information in plain floats, as a symmetric 6-tuple.
+        information = normal_equations(math.cos(z[0]), math.sin(z[0]), self._y_ref, self._z_ref, self._g, z[1], z[2])[0]
         try:
-            return z, _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+            return z, _sym_inverse(information)
         except ZeroDivisionError:
             return None
 
