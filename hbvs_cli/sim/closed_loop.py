@@ -6,7 +6,7 @@ measures the pose, :class:`~hbvs_cli.core.simulator.ServoStep` answers with (v_c
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, Iterator
 
 import numpy as np
@@ -52,7 +52,7 @@ def run_closed_loop(
     # The control instants are known in advance: one vectorised evaluation.
     times = np.arange(steps) * dt
     schedule = trajectory.evaluate(times)
-    columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
+    columns = [np.atleast_1d(np.asarray(getattr(schedule, field.name), dtype=float)).tolist() for field in fields(DesiredState)]
     pending: deque[Observation] = deque()
     servo = ServoStep(controller, limits, latency_steps, state_filter)
     for k in range(steps):
@@ -64,9 +64,6 @@ def run_closed_loop(
         yield record
         servo.sent(dt)
         pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
-
-
-_DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
 
 
 @dataclass
