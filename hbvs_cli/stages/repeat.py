@@ -395,14 +395,9 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                         stopped_at = record.t
                         log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
                         break
-    summary = tally.summary(controller, options.output, stopped_at is not None)
-    _print_summary(console, summary, settings, scene.d_true)
-    if stopped_at is not None:
-        raise TargetLostError(
-            f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s); "
-            f"the run up to then is in {options.output}"
-        )
-    return summary
+    stopped = None if stopped_at is None else (
+        f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s)")
+    return _finish(console, tally, controller, options.output, settings, scene.d_true, stopped)
 
 
 class _Tally:
@@ -473,7 +468,10 @@ def _top_view(world: World) -> dict[str, Any]:
     }
 
 
-def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
+def _finish(console: Console, tally: _Tally, controller: Any, output: str, settings: Settings, d_true: float | None,
+            stopped: str | None) -> RepeatSummary:
+    """The run's summary, printed; TargetLostError when the run was ``stopped`` (why)."""
+    summary = tally.summary(controller, output, stopped is not None)
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
     e = summary.final_errors
     final = []
@@ -486,6 +484,9 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
     depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
     parts.append(depth)
     console.info("; ".join(parts) + f" -> {summary.output}")
+    if stopped is not None:
+        raise TargetLostError(f"{stopped}; the run up to then is in {output}")
+    return summary
 
 
 # ----------------------------------------------------------------------------- open loop
@@ -533,9 +534,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)
-    summary = tally.summary(controller, options.output, False)
-    _print_summary(console, summary, settings, None)
-    return summary
+    return _finish(console, tally, controller, options.output, settings, None, None)
 
 
 # ----------------------------------------------------------------------------- a robot
@@ -590,8 +589,4 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             loop.drive()
         finally:
             out.stop(loop.t if loop is not None else 0.0)
-    summary = tally.summary(controller, options.output, loop.stopped is not None)
-    _print_summary(console, summary, settings, None)
-    if loop.stopped is not None:
-        raise TargetLostError(loop.stopped + f"; the run up to then is in {options.output}")
-    return summary
+    return _finish(console, tally, controller, options.output, settings, None, loop.stopped)
