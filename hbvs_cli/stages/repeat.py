@@ -21,7 +21,6 @@ from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
 from ..core.estimation import PlanarPoseEstimator
-from ..core.desired import taught_frame_interval
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
@@ -182,11 +181,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
 def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
     """The settings of a run of ``model`` as ``options`` ask (:func:`resolve_settings` with
     the fit's suggestions and taught rate)."""
-    return resolve_settings(options, model.dhat0, 1.0 / _taught_frame_interval(model), model.suggested_gains())
-
-
-def _taught_frame_interval(model: FitModel) -> float:
-    return taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
+    return resolve_settings(options, model.dhat0, 1.0 / model.taught_frame_interval(), model.suggested_gains())
 
 
 # ----------------------------------------------------------------------------- shared pieces
