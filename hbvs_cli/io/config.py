@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..core.control_settings import GAIN_NAMES
 from .settings import REPEAT_SETTINGS
 from .text_files import read_small_text, short_repr
 
@@ -28,7 +29,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 #: The keys of each table (top level: ""), in order.
 TABLES: dict[str, tuple[str, ...]] = {
     "": ("law", "dhat0", "speed", "filter"),
-    "gains": ("k_v", "k_w", "gamma", "k_2"),
+    "gains": GAIN_NAMES,
     "limits": ("max_v", "max_w", "max_accel", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
