@@ -237,10 +237,9 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
 
     The corners of the box holding the central 94 % of the image's features (3rd to 97th
     percentile), in the order TL, TR, BR, BL: the box is also the region the texture
-    detector aligns, and a wider one pins the perspective (yaw, n*) better. On the
-    independent footage's photograph, the central 80 % gave theta_d 0.10 deg RMS and n*
-    0.12 deg off, 94 % 0.05 deg and 0.10 deg (tests/test_perception_footage.py). Rows too close to the horizon (the principal point's row, where m_z ~ 0
-    and (18) breaks down) are pushed away from it.
+    detector aligns, and a wider one pins the perspective (yaw, n*) better
+    (tests/test_perception_footage.py). Rows too close to the horizon (the principal
+    point's row, where m_z ~ 0 and (18) breaks down) are pushed away from it.
     """
     keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
@@ -282,8 +281,7 @@ def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed
     ``template_image`` is the fit's decoded template image: texture targets need it, the
     others ignore it. ``windowed``: dots followed each in its own window (see
     :class:`TrackedDetector`), as the simulated camera does; on real footage the common box
-    measured better (the red dots of tests/footage.py: theta_d 0.049 against 0.084 deg RMS
-    when fit used windows), so replays keep it.
+    measures better (tests/footage.py's red dots), so replays keep it.
     """
     spec = DetectorSpec.from_dict(model.detector)
     template = None
