@@ -131,11 +131,9 @@ class TrackedDetector:
         self.template_image = template_image
         self.initial_prediction = None if initial_prediction is None else np.asarray(initial_prediction, dtype=float)
         self._detector: TargetDetector | None = None
-        # A texture is aligned by homographies, which a lens's distortion bends: its images
-        # are undistorted first (the same K), its points distorted back. Its template's box
-        # (``spec.template_pixels``, the features' box in the first image as recorded) is
-        # taken as a box of the undistorted template: the same box undistorted would reach
-        # past the image.
+        # A texture is aligned by homographies, which a lens's distortion bends: tracked on
+        # undistorted images (same K), its points distorted back. Its template box is kept as
+        # found, a box of the undistorted template (undistorted, it would reach past the image).
         self._undistort_maps = _undistort_maps(camera) if spec.kind == "texture" and camera.has_distortion else None
 
     def _create(self, image: np.ndarray) -> None:
