@@ -273,9 +273,39 @@ def shared_recording(folder: Path, name: str, build) -> Path:
 
 
 @pytest.fixture(scope="session")
-def default_teach(pipeline_dir):
-    """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz."""
-    return shared_recording(pipeline_dir, "teach.mcap", make_teach)
+def demo_output(pipeline_dir):
+    """``hbvs demo --out FOLDER`` run once, as a user runs it (a process of its own):
+    (the folder, its exit code, stdout, stderr). Its teach, fit and two image runs are the
+    default scenario's recordings below: the demo runs the stages with their default
+    options, as :func:`make_teach`, :func:`make_fit` and :func:`make_run` would (only the
+    input paths the files record differ), so the suite builds that pipeline once."""
+    folder = pipeline_dir / "demo"
+
+    def build(path):
+        result = run_hbvs("demo", "--out", str(folder))
+        (pipeline_dir / "demo.stdout").write_bytes(result.stdout)
+        (pipeline_dir / "demo.stderr").write_bytes(result.stderr)
+        # Written last and renamed into place: its existence says the demo has finished.
+        partial = path.with_name(path.name + ".partial")
+        partial.write_text(str(result.returncode))
+        partial.rename(path)
+
+    code = int(shared_recording(pipeline_dir, "demo.code", build).read_text())
+    return folder, code, (pipeline_dir / "demo.stdout").read_bytes(), (pipeline_dir / "demo.stderr").read_bytes()
+
+
+def demo_file(demo_output, name: str) -> Path:
+    """One of the demo's recordings; the demo's own error if it did not make it."""
+    folder, code, _, stderr = demo_output
+    if not (folder / name).exists():
+        pytest.fail(f"hbvs demo (exit {code}) did not write {name}: {stderr.decode()}")
+    return folder / name
+
+
+@pytest.fixture(scope="session")
+def default_teach(demo_output):
+    """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz (the demo's)."""
+    return demo_file(demo_output, "teach.mcap")
 
 
 @pytest.fixture(scope="session")
@@ -286,19 +316,20 @@ def short_teach(pipeline_dir):
 
 
 @pytest.fixture(scope="session")
-def default_fit(default_teach, pipeline_dir):
+def default_fit(demo_output):
+    """The default teach's fit with default options (the demo's): (path, model)."""
     from hbvs_cli.io.fit_file import read_fit_file
 
-    path = shared_recording(pipeline_dir, "fit.mcap", lambda path: make_fit(default_teach, path))
+    path = demo_file(demo_output, "fit.mcap")
     return path, read_fit_file(path).model
 
 
 @pytest.fixture(scope="session")
-def default_image_runs(default_fit, pipeline_dir):
+def default_image_runs(demo_output):
     """``hbvs repeat --sim`` of the default fit under the lateral-gain and the paper's law
-    (images in the loop, seed 0): {law: run file}, shared by the files that judge them."""
-    return {law: shared_recording(pipeline_dir, f"run-{law}.mcap", lambda path, law=law: make_run(default_fit[0], path, sim=True, law=law))
-            for law in ("lateral-gain", "paper")}
+    (images in the loop, seed 0; the demo's): {law: run file}, shared by the files that
+    judge them."""
+    return {law: demo_file(demo_output, f"run-{law}.mcap") for law in ("lateral-gain", "paper")}
 
 
 @pytest.fixture(scope="session")

@@ -55,10 +55,11 @@ def test_a_closed_reader_does_not_leave_a_traceback():
     assert b"Traceback" not in result.stderr
 
 
-def test_demo_into_a_temporary_folder(tmp_path):
-    out = tmp_path / "demo"
-    result = run_hbvs("demo", "--out", str(out))
-    assert result.returncode == 0, result.stderr.decode()
+def test_demo_into_a_temporary_folder(demo_output):
+    """``hbvs demo --out`` as a process of its own (conftest's ``demo_output``, whose files
+    the other tests share as the default teach, fit and image runs)."""
+    out, code, stdout, stderr = demo_output
+    assert code == 0, stderr.decode()
     names = sorted(p.name for p in out.iterdir())
     assert names == ["fit.mcap", "report.json", "report.png", "run-lateral-gain.mcap", "run-paper.mcap", "teach.mcap"]
     reports = json.loads((out / "report.json").read_text())["runs"]
@@ -68,6 +69,6 @@ def test_demo_into_a_temporary_folder(tmp_path):
     assert lateral["pose_error"]["position_m"]["final"] < 0.01 and lateral["pose_error"]["heading_deg"]["final"] < 0.2
     # The paper's law is still converging laterally after 20 s (see docs/results.md).
     assert paper["pose_error"]["position_m"]["final"] > 5 * lateral["pose_error"]["position_m"]["final"]
-    table = result.stdout.decode()
+    table = stdout.decode()
     assert "lateral-gain" in table and "paper" in table and "converged" in table
     assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
