@@ -350,17 +350,21 @@ def video_fit(pipeline_dir):
     return teach_path, fit_path, world, profile, start, times
 
 
-#: CPU seconds of the heaviest test files (their own and their children's, measured test by
-#: test in a quiet run of the suite on this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
-#: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
-#: running alone at the end made the suite ~14 s longer than its work divided by two.
+#: Seconds of the heaviest test files (the summed durations of their tests in a run of the
+#: whole suite, scaled to a quiet 2-core machine; every file over 2.5 s). xdist (``--dist
+#: loadfile``) hands out files in collection order; alphabetically the heaviest come late
+#: (test_stage_*, test_sweep*), and one of them running alone at the end made the suite
+#: ~14 s longer than its work divided by two. Heaviest first, the last files are short.
 HEAVY_FILES = {
-    "test_robustness_errors.py": 20, "test_stage_fit.py": 30, "test_sweep.py": 23, "test_stage_repeat.py": 22,
-    "test_perception_footage.py": 30, "test_robustness_outputs.py": 9, "test_end_to_end.py": 24,
-    "test_robustness_fuzz.py": 17, "test_stage_options.py": 11, "test_io_rosbag_layouts.py": 12,
-    "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
-    "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 6,
-    "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6, "test_walkthrough.py": 13,
+    "test_perception_footage.py": 44, "test_sweep.py": 31, "test_stage_repeat.py": 28, "test_report_paper.py": 25,
+    "test_io_rosbag_layouts.py": 24, "test_end_to_end.py": 23, "test_robustness_errors.py": 20,
+    "test_robustness_fuzz.py": 17, "test_stage_fit.py": 15, "test_live_loop.py": 13, "test_robustness_outputs.py": 13,
+    "test_control_filter.py": 13, "test_report_stage.py": 11, "test_stage_options.py": 10, "test_perception_targets.py": 9,
+    "test_control_image_noise.py": 8, "test_robustness_surfaces.py": 8, "test_core_closed_loop.py": 8,
+    "test_walkthrough.py": 7, "test_live_view.py": 7, "test_robustness_interrupts.py": 6, "test_cli_usage.py": 4,
+    "test_perception_chessboard.py": 4, "test_robustness_truncated.py": 4, "test_perception_detectors.py": 4,
+    "test_robustness_faults.py": 4, "test_layers.py": 3, "test_foxglove_files.py": 3, "test_control_depth.py": 3,
+    "test_core_bundle.py": 3, "test_live_camera.py": 3,
 }
 
 
