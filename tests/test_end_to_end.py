@@ -9,8 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import run_hbvs
-
 
 def hbvs_command() -> str:
     """The installed ``hbvs`` script next to this Python, or ``python -m hbvs_cli``."""
