@@ -92,22 +92,26 @@ def run_hbvs(*args: str, input: bytes | None = None, check: bool = False, timeou
     )
 
 
-def call_hbvs(*args: str):
+def call_hbvs(*args: str, input: bytes | None = None):
     """``hbvs ARGS`` run inside this process: the same parsing, stages and mapping of errors
     to one line and an exit code as :func:`run_hbvs`, without the second or so a new Python
     process takes to import numpy, OpenCV and SciPy. For the many small cases of bad input;
     what only a real process shows (native libraries printing on descriptor 2, signals,
-    stdio) stays with :func:`run_hbvs`."""
+    stdio descriptors) stays with :func:`run_hbvs`. ``input``: the bytes ``-`` reads (the
+    stages read ``sys.stdin.buffer`` as a stream, seekable or not)."""
     import contextlib
     import io
     import subprocess
+    from unittest import mock
 
     from hbvs_cli.cli.app import _run
 
     out, err = io.BytesIO(), io.BytesIO()
     stdout = io.TextIOWrapper(out, encoding="utf-8", write_through=True)
     stderr = io.TextIOWrapper(err, encoding="utf-8", write_through=True)
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+    stdin = contextlib.nullcontext() if input is None else mock.patch.object(
+        sys, "stdin", io.TextIOWrapper(io.BytesIO(input), encoding="utf-8"))
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), stdin:
         code = _run(list(args), debug=False)
     return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 

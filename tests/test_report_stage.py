@@ -18,7 +18,7 @@ from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
 from hbvs_cli.report.build import REPORT_KEYS, build_report
 
-from conftest import call_hbvs, run_hbvs
+from conftest import call_hbvs
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -46,10 +46,9 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 
 def report_json(*args, input: bytes | None = None) -> dict:
-    """``hbvs report ARGS --json``, parsed: in this process, or as a process reading ``input``
-    on its stdin."""
+    """``hbvs report ARGS --json``, parsed (in this process, reading ``input`` as its stdin)."""
     words = ["report", *map(str, args), "--json"]
-    result = run_hbvs(*words, input=input) if input is not None else call_hbvs(*words)
+    result = call_hbvs(*words, input=input)
     assert result.returncode == 0, result.stderr.decode()
     return json.loads(result.stdout)
 
@@ -358,10 +357,10 @@ def test_stdin_is_read_once(runs, tmp_path):
     from_file = report_json(runs["run"])
     assert from_stdin["run"]["name"] == "stdin"
     assert from_stdin["errors"] == from_file["errors"] and from_stdin["pose_error"] == from_file["pose_error"]
-    twice = run_hbvs("report", "-", "-", input=data)
+    twice = call_hbvs("report", "-", "-", input=data)
     assert twice.returncode == 2 and b"only once" in twice.stderr
     # With --export-tum stdin is kept in memory, to read the camera height from it too.
-    exported = run_hbvs("report", "-", "--export-tum", str(tmp_path), input=data)
+    exported = call_hbvs("report", "-", "--export-tum", str(tmp_path), input=data)
     assert exported.returncode == 0, exported.stderr.decode()
     assert np.loadtxt(tmp_path / "stdin.repeated.tum").shape == (from_file["run"]["steps"], 8)
 
