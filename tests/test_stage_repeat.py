@@ -178,7 +178,7 @@ def test_same_seed_same_bytes_and_the_command_stream(default_fit, tmp_path):
 
 def test_command_stream_on_stdout_for_a_robot_driver(default_fit, tmp_path):
     fit_path, _ = default_fit
-    result = run_hbvs("repeat", str(fit_path), "--sim", "--perception", "points", "--cmd-out", "-", "-o", str(tmp_path / "r.mcap"), "-q")
+    result = call_hbvs("repeat", str(fit_path), "--sim", "--perception", "points", "--cmd-out", "-", "-o", str(tmp_path / "r.mcap"), "-q")
     assert result.returncode == 0, result.stderr
     lines = result.stdout.decode().splitlines()
     assert len(lines) == 599 and json.loads(lines[-1])["t"] == pytest.approx(598 / 30)
