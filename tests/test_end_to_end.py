@@ -21,11 +21,33 @@ def shell(command: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(["bash", "-o", "pipefail", "-c", command], capture_output=True, timeout=timeout, env=env)
 
 
-def test_the_pipeline_through_a_real_shell_with_nothing_on_disk(tmp_path):
+def test_the_pipeline_through_a_real_shell_with_nothing_on_disk(tmp_path, tmp_path_factory, default_fit):
+    """Also the fit as a stage of its own: through a pipe, in another process, message for
+    message the session's fit of the same teach (only the recorded input name differs:
+    "-"); without -q its summary table goes to stderr, and stdout holds the fit file alone
+    (``tee`` copies it, outside the pipeline's folder, for the comparison)."""
+    from hbvs_cli.io.mcap import McapStream, read_metadata
+
     h = hbvs_command()
-    result = shell(f"cd {shlex.quote(str(tmp_path))} && {h} teach --sim -o - | {h} fit - -o - | {h} repeat - --sim -o - | {h} report - --json")
+    piped_fit = tmp_path_factory.mktemp("tap") / "fit.mcap"
+    result = shell(f"cd {shlex.quote(str(tmp_path))} && {h} teach --sim -o - | {h} fit - -o - | tee {shlex.quote(str(piped_fit))}"
+                   f" | {h} repeat - --sim -o - | {h} report - --json")
     assert result.returncode == 0, result.stderr.decode()
     assert list(tmp_path.iterdir()) == []  # nothing written to disk
+
+    def contents(source):
+        stream = McapStream(source)
+        messages = [(m.topic, m.schema_name, m.log_time, m.data) for m in stream]
+        metadata = read_metadata(stream, "hbvs")
+        names = (metadata.pop("input"), metadata["settings"].pop("input"))
+        return messages, metadata, names
+
+    assert piped_fit.read_bytes().startswith(b"\x89MCAP0\r\n")
+    piped, reference = contents(piped_fit), contents(default_fit[0])
+    assert len(piped[0]) > 600 and piped[:2] == reference[:2]
+    assert piped[2] == ("stdin", "-") and reference[2][0].endswith("teach.mcap")
+    for words in ("frames used / total", "600 / 600", "d* from taught commands", "condition (35)", "lambda"):
+        assert words in result.stderr.decode()
     report = json.loads(result.stdout)  # stdout carries only data
     assert report["verdict"]["converged"] is True
     assert report["run"]["law"] == "lateral-gain" and report["run"]["steps"] == 599
