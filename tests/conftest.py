@@ -249,8 +249,7 @@ def fit_errors(model):
     }
 
 
-@pytest.fixture(scope="session")
-def pipeline_dir(tmp_path_factory):
+def shared_pipeline_folder(tmp_path_factory) -> Path:
     """A folder every xdist worker of this session shares (the workers' base folders sit
     side by side in it), for the recordings below: built once by whichever worker needs
     one first, read by all."""
@@ -258,6 +257,12 @@ def pipeline_dir(tmp_path_factory):
     folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-pipeline"
     folder.mkdir(exist_ok=True)
     return folder
+
+
+@pytest.fixture(scope="session")
+def pipeline_dir(tmp_path_factory):
+    """:func:`shared_pipeline_folder`."""
+    return shared_pipeline_folder(tmp_path_factory)
 
 
 def shared_recording(folder: Path, name: str, build) -> Path:
@@ -276,26 +281,59 @@ def shared_recording(folder: Path, name: str, build) -> Path:
     return path
 
 
+#: Runs ``hbvs demo --out FOLDER`` with its stdout and stderr in files beside FOLDER, then
+#: writes its exit code to ``demo.code`` (through a rename: the file exists once the demo
+#: has finished).
+DEMO_LAUNCHER = """
+import subprocess, sys
+from pathlib import Path
+folder = Path(sys.argv[1])
+with open(folder.with_name("demo.stdout"), "wb") as out, open(folder.with_name("demo.stderr"), "wb") as err:
+    code = subprocess.run([sys.executable, "-m", "hbvs_cli", "demo", "--out", str(folder)], stdout=out, stderr=err).returncode
+partial = folder.with_name("demo.code.partial")
+partial.write_text(str(code))
+partial.rename(folder.with_name("demo.code"))
+"""
+_demo_process = None
+
+
+def start_demo(pipeline_folder: Path) -> None:
+    """Start ``hbvs demo`` in the background unless a worker of this session did already.
+
+    Called when the tests are collected, so that the demo runs beside the first test files
+    (which need no recording) instead of one worker waiting on the lock while the other
+    builds it."""
+    import fcntl
+    import subprocess
+
+    global _demo_process
+    with open(pipeline_folder / "demo.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (pipeline_folder / "demo.started").exists():
+            return
+        (pipeline_folder / "demo.started").touch()
+        _demo_process = subprocess.Popen([sys.executable, "-c", DEMO_LAUNCHER, str(pipeline_folder / "demo")],
+                                         env=dict(os.environ, MPLBACKEND="Agg"), start_new_session=True)
+
+
 @pytest.fixture(scope="session")
 def demo_output(pipeline_dir):
-    """``hbvs demo --out FOLDER`` run once, as a user runs it (a process of its own):
-    (the folder, its exit code, stdout, stderr). Its teach, fit and two image runs are the
-    default scenario's recordings below: the demo runs the stages with their default
-    options, as :func:`make_teach`, :func:`make_fit` and :func:`make_run` would (only the
-    input paths the files record differ), so the suite builds that pipeline once."""
-    folder = pipeline_dir / "demo"
+    """``hbvs demo --out FOLDER`` run once, as a user runs it (a process of its own, started
+    when the tests were collected): (the folder, its exit code, stdout, stderr). Its teach,
+    fit and two image runs are the default scenario's recordings below: the demo runs the
+    stages with their default options, as :func:`make_teach`, :func:`make_fit` and
+    :func:`make_run` would (only the input paths the files record differ), so the suite
+    builds that pipeline once."""
+    import time
 
-    def build(path):
-        result = run_hbvs("demo", "--out", str(folder))
-        (pipeline_dir / "demo.stdout").write_bytes(result.stdout)
-        (pipeline_dir / "demo.stderr").write_bytes(result.stderr)
-        # Written last and renamed into place: its existence says the demo has finished.
-        partial = path.with_name(path.name + ".partial")
-        partial.write_text(str(result.returncode))
-        partial.rename(path)
-
-    code = int(shared_recording(pipeline_dir, "demo.code", build).read_text())
-    return folder, code, (pipeline_dir / "demo.stdout").read_bytes(), (pipeline_dir / "demo.stderr").read_bytes()
+    start_demo(pipeline_dir)
+    done, deadline = pipeline_dir / "demo.code", time.monotonic() + 600
+    while not done.exists():
+        if time.monotonic() > deadline:
+            pytest.fail("hbvs demo did not finish within 600 s")
+        time.sleep(0.1)
+    code = int(done.read_text())
+    return pipeline_dir / "demo", code, (pipeline_dir / "demo.stdout").read_bytes(), (pipeline_dir / "demo.stderr").read_bytes()
 
 
 def demo_file(demo_output, name: str) -> Path:
@@ -388,8 +426,21 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """Heaviest files first (a stable sort: the tests of a file keep their order)."""
+    """Heaviest files first (a stable sort: the tests of a file keep their order); the demo
+    started now if a selected test needs its recordings."""
     items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))
+    if any("demo_output" in getattr(item, "fixturenames", ()) for item in items):
+        start_demo(shared_pipeline_folder(config._tmp_path_factory))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The demo is waited for (another worker may still need it), or stopped on Ctrl-C."""
+    import signal
+
+    if _demo_process is not None and _demo_process.poll() is None:
+        if exitstatus == pytest.ExitCode.INTERRUPTED:
+            os.killpg(_demo_process.pid, signal.SIGTERM)
+        _demo_process.wait()
 
 
 # --------------------------------------------------------------------------- peak memory
