@@ -358,6 +358,13 @@ def short_teach(pipeline_dir):
 
 
 @pytest.fixture(scope="session")
+def teach_8s(pipeline_dir):
+    """The default scenario's first 8 s (240 frames), for the report tests' runs. Copy it
+    before writing beside it."""
+    return shared_recording(pipeline_dir, "teach-8s.mcap", lambda path: make_teach(path, duration=8.0))
+
+
+@pytest.fixture(scope="session")
 def default_fit(demo_output):
     """The default teach's fit with default options (the demo's): (path, model)."""
     from hbvs_cli.io.fit_file import read_fit_file

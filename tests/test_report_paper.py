@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import math
 import re
 from contextlib import contextmanager
@@ -43,15 +44,14 @@ class RecordingConsole(Console):
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict:
+def runs(tmp_path_factory, teach_8s) -> dict:
     from hbvs_cli.stages.fit import FitOptions, run_fit
     from hbvs_cli.stages.repeat import RepeatOptions, run_repeat
-    from hbvs_cli.stages.teach import TeachOptions, run_teach
 
     tmp = tmp_path_factory.mktemp("gate")
     quiet = Console(quiet=True)
     paths = {name: tmp / f"{name}.mcap" for name in ("teach", "fit", "run", "paper", "faults", "stopped", "replay")}
-    run_teach(TeachOptions(output=str(paths["teach"]), duration=8.0), quiet)
+    shutil.copyfile(teach_8s, paths["teach"])  # the session's 8 s teach (conftest)
     fit_console = RecordingConsole()
     run_fit(FitOptions(input=str(paths["teach"]), output=str(paths["fit"])), fit_console)
     fit = str(paths["fit"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import math
 import re
 import struct
@@ -24,16 +25,15 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, Path]:
+def runs(tmp_path_factory, teach_8s) -> dict[str, Path]:
     """An 8 s taught s-curve, its fit, and four repeats: both laws, a replay, a stopped run."""
     from hbvs_cli.stages.fit import FitOptions, run_fit
     from hbvs_cli.stages.repeat import RepeatOptions, run_repeat
-    from hbvs_cli.stages.teach import TeachOptions, run_teach
 
     tmp = tmp_path_factory.mktemp("report")
     quiet = Console(quiet=True)
     paths = {name: tmp / f"{name}.mcap" for name in ("teach", "fit", "run", "paper", "replay", "stopped")}
-    run_teach(TeachOptions(output=str(paths["teach"]), duration=8.0), quiet)
+    shutil.copyfile(teach_8s, paths["teach"])  # the session's 8 s teach (conftest)
     run_fit(FitOptions(input=str(paths["teach"]), output=str(paths["fit"])), quiet)
     fit = str(paths["fit"])
     run_repeat(RepeatOptions(input=fit, output=str(paths["run"]), sim=True, perception="images"), quiet)
