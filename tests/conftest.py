@@ -358,6 +358,28 @@ def short_teach(pipeline_dir):
 
 
 @pytest.fixture(scope="session")
+def small_recordings(pipeline_dir):
+    """A folder with a 2 s teach (t.mcap), its fit (f.mcap) and a run of it (r.mcap,
+    perception points, made by ``hbvs repeat f.mcap`` in the folder, so the run records
+    its input as given): small files for the robustness tests, which copy them."""
+    folder = pipeline_dir / "small"
+    folder.mkdir(exist_ok=True)
+
+    def build(run):
+        make_fit(make_teach(folder / "t.mcap", duration=2.0), folder / "f.mcap")
+        here = os.getcwd()
+        os.chdir(folder)
+        try:
+            result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", run.name, "-q")
+        finally:
+            os.chdir(here)
+        assert result.returncode == 0, result.stderr.decode()
+
+    shared_recording(folder, "r.mcap", build)
+    return folder
+
+
+@pytest.fixture(scope="session")
 def teach_8s(pipeline_dir):
     """The default scenario's first 8 s (240 frames), for the report tests' runs. Copy it
     before writing beside it."""

@@ -22,21 +22,16 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO, call_hbvs, make_fit, make_teach
+from conftest import REPO, call_hbvs
 
 PRECIOUS = b"a good output from an earlier run, which hbvs must never lose\n"
 
 
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    """A 2 s teach, its fit and a run (perception points): small, made once."""
-    folder = tmp_path_factory.mktemp("outputs")
-    teach = make_teach(folder / "t.mcap", duration=2.0)
-    make_fit(teach, folder / "f.mcap")
-    # Through the CLI in the folder, as the tests run it: the run file records its input as given.
-    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
-    return folder
+def files(small_recordings):
+    """A 2 s teach, its fit and a run (perception points): small, made once (conftest)."""
+    return small_recordings
 
 
 @pytest.fixture
