@@ -454,6 +454,7 @@ def pytest_configure(config):
     compileall.compile_dir(REPO / "hbvs_cli", quiet=2)
 
 
+@pytest.hookimpl(trylast=True)  # after -k and -m have deselected
 def pytest_collection_modifyitems(session, config, items):
     """Heaviest files first (a stable sort: the tests of a file keep their order); the demo
     started now if a selected test needs its recordings."""
