@@ -92,22 +92,26 @@ def run_hbvs(*args: str, input: bytes | None = None, check: bool = False, timeou
     )
 
 
-def call_hbvs(*args: str):
+def call_hbvs(*args: str, input: bytes | None = None):
     """``hbvs ARGS`` run inside this process: the same parsing, stages and mapping of errors
     to one line and an exit code as :func:`run_hbvs`, without the second or so a new Python
     process takes to import numpy, OpenCV and SciPy. For the many small cases of bad input;
     what only a real process shows (native libraries printing on descriptor 2, signals,
-    stdio) stays with :func:`run_hbvs`."""
+    stdio descriptors) stays with :func:`run_hbvs`. ``input``: the bytes ``-`` reads (the
+    stages read ``sys.stdin.buffer`` as a stream, seekable or not)."""
     import contextlib
     import io
     import subprocess
+    from unittest import mock
 
     from hbvs_cli.cli.app import _run
 
     out, err = io.BytesIO(), io.BytesIO()
     stdout = io.TextIOWrapper(out, encoding="utf-8", write_through=True)
     stderr = io.TextIOWrapper(err, encoding="utf-8", write_through=True)
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+    stdin = contextlib.nullcontext() if input is None else mock.patch.object(
+        sys, "stdin", io.TextIOWrapper(io.BytesIO(input), encoding="utf-8"))
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), stdin:
         code = _run(list(args), debug=False)
     return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
@@ -245,8 +249,7 @@ def fit_errors(model):
     }
 
 
-@pytest.fixture(scope="session")
-def pipeline_dir(tmp_path_factory):
+def shared_pipeline_folder(tmp_path_factory) -> Path:
     """A folder every xdist worker of this session shares (the workers' base folders sit
     side by side in it), for the recordings below: built once by whichever worker needs
     one first, read by all."""
@@ -254,6 +257,12 @@ def pipeline_dir(tmp_path_factory):
     folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-pipeline"
     folder.mkdir(exist_ok=True)
     return folder
+
+
+@pytest.fixture(scope="session")
+def pipeline_dir(tmp_path_factory):
+    """:func:`shared_pipeline_folder`."""
+    return shared_pipeline_folder(tmp_path_factory)
 
 
 def shared_recording(folder: Path, name: str, build) -> Path:
@@ -272,10 +281,73 @@ def shared_recording(folder: Path, name: str, build) -> Path:
     return path
 
 
+#: Runs ``hbvs demo --out FOLDER`` with its stdout and stderr in files beside FOLDER, then
+#: writes its exit code to ``demo.code`` (through a rename: the file exists once the demo
+#: has finished).
+DEMO_LAUNCHER = """
+import subprocess, sys
+from pathlib import Path
+folder = Path(sys.argv[1])
+with open(folder.with_name("demo.stdout"), "wb") as out, open(folder.with_name("demo.stderr"), "wb") as err:
+    code = subprocess.run([sys.executable, "-m", "hbvs_cli", "demo", "--out", str(folder)], stdout=out, stderr=err).returncode
+partial = folder.with_name("demo.code.partial")
+partial.write_text(str(code))
+partial.rename(folder.with_name("demo.code"))
+"""
+_demo_process = None
+
+
+def start_demo(pipeline_folder: Path) -> None:
+    """Start ``hbvs demo`` in the background unless a worker of this session did already.
+
+    Called when the tests are collected, so that the demo runs beside the first test files
+    (which need no recording) instead of one worker waiting on the lock while the other
+    builds it."""
+    import fcntl
+    import subprocess
+
+    global _demo_process
+    with open(pipeline_folder / "demo.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (pipeline_folder / "demo.started").exists():
+            return
+        (pipeline_folder / "demo.started").touch()
+        _demo_process = subprocess.Popen([sys.executable, "-c", DEMO_LAUNCHER, str(pipeline_folder / "demo")],
+                                         env=dict(os.environ, MPLBACKEND="Agg"), start_new_session=True)
+
+
 @pytest.fixture(scope="session")
-def default_teach(pipeline_dir):
-    """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz."""
-    return shared_recording(pipeline_dir, "teach.mcap", make_teach)
+def demo_output(pipeline_dir):
+    """``hbvs demo --out FOLDER`` run once, as a user runs it (a process of its own, started
+    when the tests were collected): (the folder, its exit code, stdout, stderr). Its teach,
+    fit and two image runs are the default scenario's recordings below: the demo runs the
+    stages with their default options, as :func:`make_teach`, :func:`make_fit` and
+    :func:`make_run` would (only the input paths the files record differ), so the suite
+    builds that pipeline once."""
+    import time
+
+    start_demo(pipeline_dir)
+    done, deadline = pipeline_dir / "demo.code", time.monotonic() + 600
+    while not done.exists():
+        if time.monotonic() > deadline:
+            pytest.fail("hbvs demo did not finish within 600 s")
+        time.sleep(0.1)
+    code = int(done.read_text())
+    return pipeline_dir / "demo", code, (pipeline_dir / "demo.stdout").read_bytes(), (pipeline_dir / "demo.stderr").read_bytes()
+
+
+def demo_file(demo_output, name: str) -> Path:
+    """One of the demo's recordings; the demo's own error if it did not make it."""
+    folder, code, _, stderr = demo_output
+    if not (folder / name).exists():
+        pytest.fail(f"hbvs demo (exit {code}) did not write {name}: {stderr.decode()}")
+    return folder / name
+
+
+@pytest.fixture(scope="session")
+def default_teach(demo_output):
+    """The default simulated teach: s-curve, 3 dots, 20 s at 30 Hz (the demo's)."""
+    return demo_file(demo_output, "teach.mcap")
 
 
 @pytest.fixture(scope="session")
@@ -286,19 +358,49 @@ def short_teach(pipeline_dir):
 
 
 @pytest.fixture(scope="session")
-def default_fit(default_teach, pipeline_dir):
+def small_recordings(pipeline_dir):
+    """A folder with a 2 s teach (t.mcap), its fit (f.mcap) and a run of it (r.mcap,
+    perception points, made by ``hbvs repeat f.mcap`` in the folder, so the run records
+    its input as given): small files for the robustness tests, which copy them."""
+    folder = pipeline_dir / "small"
+    folder.mkdir(exist_ok=True)
+
+    def build(run):
+        make_fit(make_teach(folder / "t.mcap", duration=2.0), folder / "f.mcap")
+        here = os.getcwd()
+        os.chdir(folder)
+        try:
+            result = call_hbvs("repeat", "f.mcap", "--sim", "--perception", "points", "-o", run.name, "-q")
+        finally:
+            os.chdir(here)
+        assert result.returncode == 0, result.stderr.decode()
+
+    shared_recording(folder, "r.mcap", build)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def teach_8s(pipeline_dir):
+    """The default scenario's first 8 s (240 frames), for the report tests' runs. Copy it
+    before writing beside it."""
+    return shared_recording(pipeline_dir, "teach-8s.mcap", lambda path: make_teach(path, duration=8.0))
+
+
+@pytest.fixture(scope="session")
+def default_fit(demo_output):
+    """The default teach's fit with default options (the demo's): (path, model)."""
     from hbvs_cli.io.fit_file import read_fit_file
 
-    path = shared_recording(pipeline_dir, "fit.mcap", lambda path: make_fit(default_teach, path))
+    path = demo_file(demo_output, "fit.mcap")
     return path, read_fit_file(path).model
 
 
 @pytest.fixture(scope="session")
-def default_image_runs(default_fit, pipeline_dir):
+def default_image_runs(demo_output):
     """``hbvs repeat --sim`` of the default fit under the lateral-gain and the paper's law
-    (images in the loop, seed 0): {law: run file}, shared by the files that judge them."""
-    return {law: shared_recording(pipeline_dir, f"run-{law}.mcap", lambda path, law=law: make_run(default_fit[0], path, sim=True, law=law))
-            for law in ("lateral-gain", "paper")}
+    (images in the loop, seed 0; the demo's): {law: run file}, shared by the files that
+    judge them."""
+    return {law: demo_file(demo_output, f"run-{law}.mcap") for law in ("lateral-gain", "paper")}
 
 
 @pytest.fixture(scope="session")
@@ -319,17 +421,21 @@ def video_fit(pipeline_dir):
     return teach_path, fit_path, world, profile, start, times
 
 
-#: CPU seconds of the heaviest test files (their own and their children's, measured test by
-#: test in a quiet run of the suite on this 2-core machine). xdist (``--dist loadfile``) hands out files in collection order;
-#: alphabetically the heaviest come last (test_stage_*, test_sweep*), and one of them
-#: running alone at the end made the suite ~14 s longer than its work divided by two.
+#: Seconds of the heaviest test files (the summed durations of their tests in a run of the
+#: whole suite, scaled to a quiet 2-core machine; every file over 2.5 s). xdist (``--dist
+#: loadfile``) hands out files in collection order; alphabetically the heaviest come late
+#: (test_stage_*, test_sweep*), and one of them running alone at the end made the suite
+#: ~14 s longer than its work divided by two. Heaviest first, the last files are short.
 HEAVY_FILES = {
-    "test_robustness_errors.py": 20, "test_stage_fit.py": 30, "test_sweep.py": 23, "test_stage_repeat.py": 22,
-    "test_perception_footage.py": 30, "test_robustness_outputs.py": 9, "test_end_to_end.py": 24,
-    "test_robustness_fuzz.py": 17, "test_stage_options.py": 11, "test_io_rosbag_layouts.py": 12,
-    "test_report_stage.py": 12, "test_control_image_noise.py": 12, "test_robustness_faults.py": 12,
-    "test_control_filter.py": 10, "test_report_paper.py": 9, "test_robustness_truncated.py": 6,
-    "test_robustness_interrupts.py": 7, "test_core_closed_loop.py": 6, "test_walkthrough.py": 13,
+    "test_perception_footage.py": 44, "test_sweep.py": 31, "test_stage_repeat.py": 28, "test_report_paper.py": 25,
+    "test_io_rosbag_layouts.py": 24, "test_end_to_end.py": 23, "test_robustness_errors.py": 20,
+    "test_robustness_fuzz.py": 17, "test_stage_fit.py": 15, "test_live_loop.py": 13, "test_robustness_outputs.py": 13,
+    "test_control_filter.py": 13, "test_report_stage.py": 11, "test_stage_options.py": 10, "test_perception_targets.py": 9,
+    "test_control_image_noise.py": 8, "test_robustness_surfaces.py": 8, "test_core_closed_loop.py": 8,
+    "test_walkthrough.py": 7, "test_live_view.py": 7, "test_robustness_interrupts.py": 6, "test_cli_usage.py": 4,
+    "test_perception_chessboard.py": 4, "test_robustness_truncated.py": 4, "test_perception_detectors.py": 4,
+    "test_robustness_faults.py": 4, "test_layers.py": 3, "test_foxglove_files.py": 3, "test_control_depth.py": 3,
+    "test_core_bundle.py": 3, "test_live_camera.py": 3,
 }
 
 
@@ -348,9 +454,23 @@ def pytest_configure(config):
     compileall.compile_dir(REPO / "hbvs_cli", quiet=2)
 
 
+@pytest.hookimpl(trylast=True)  # after -k and -m have deselected
 def pytest_collection_modifyitems(session, config, items):
-    """Heaviest files first (a stable sort: the tests of a file keep their order)."""
+    """Heaviest files first (a stable sort: the tests of a file keep their order); the demo
+    started now if a selected test needs its recordings."""
     items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))
+    if any("demo_output" in getattr(item, "fixturenames", ()) for item in items):
+        start_demo(shared_pipeline_folder(config._tmp_path_factory))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The demo is waited for (another worker may still need it), or stopped on Ctrl-C."""
+    import signal
+
+    if _demo_process is not None and _demo_process.poll() is None:
+        if exitstatus == pytest.ExitCode.INTERRUPTED:
+            os.killpg(_demo_process.pid, signal.SIGTERM)
+        _demo_process.wait()
 
 
 # --------------------------------------------------------------------------- peak memory

@@ -28,15 +28,15 @@ DURATION_S = 20.0
 START_OFFSET = (-0.2, 0.15, np.radians(5.0))  # m back, m left, rad
 
 
-def taught_path():
+def taught_path(rate_hz: float = RATE_HZ):
     """The default S-curve, its commands updated at the control rate: a path that keeps moving."""
-    return sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), DURATION_S, RATE_HZ)
+    return sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), DURATION_S, rate_hz)
 
 
-def closed_loop_run(gains: ControllerGains, dhat0_factor: float = 0.5, duration: float = DURATION_S):
+def closed_loop_run(gains: ControllerGains, dhat0_factor: float = 0.5, duration: float = DURATION_S, rate_hz: float = RATE_HZ):
     """Exact measurements: world points -> pixels -> known-normal estimate -> controller."""
     world = default_world("dots")
-    profile = taught_path()
+    profile = taught_path(rate_hz)
     start = np.array([0.0, -0.05, 0.0])
     m_ref, normal, d_star = world.reference_geometry(start)
     trajectory = TaughtPathTrajectory(profile, start, start, d_star)
@@ -47,7 +47,7 @@ def closed_loop_run(gains: ControllerGains, dhat0_factor: float = 0.5, duration:
         return estimator.from_normalized(world.normalized_points(pose))
 
     records = list(
-        run_closed_loop(sense, trajectory, controller, compose_planar_pose(start, START_OFFSET), 1.0 / RATE_HZ, duration)
+        run_closed_loop(sense, trajectory, controller, compose_planar_pose(start, START_OFFSET), 1.0 / rate_hz, duration)
     )
     return records, trajectory, d_star, controller
 
@@ -83,14 +83,8 @@ def test_lyapunov_never_increases(law_run):
 def test_lyapunov_never_increases_even_at_100_hz(law):
     """Even a 10 ms hold keeps V non-increasing on this path (measured: largest step
     change -1.0e-8 (paper) and -4.8e-10 (lateral gain), both decreases)."""
-    global RATE_HZ
     gains = ControllerGains().with_law(law)
-    saved = RATE_HZ
-    try:
-        RATE_HZ = 100.0
-        records, _, d_star, _ = closed_loop_run(gains)
-    finally:
-        RATE_HZ = saved
+    records, _, d_star, _ = closed_loop_run(gains, rate_hz=100.0)
     V = lyapunov_series(records, gains, d_star)
     assert np.diff(V).max() <= V_STEP_TOLERANCE * V[0]
 
@@ -211,7 +205,9 @@ def test_the_composite_law_adds_minus_kappa_over_gamma_d_tilde_squared_to_v_dot(
 
 
 def test_dhat_learns_depth_from_a_fifth_of_it():
-    records, _, d_star, controller = closed_loop_run(ControllerGains(), dhat0_factor=0.2)
+    """At 200 Hz: the rate changes nothing here (measured dhat 0.52 % low and e1 5.8e-5 at
+    the end, at 1000 Hz and at 200 Hz alike) but the CPU time, 1.4 s -> 0.3 s."""
+    records, _, d_star, controller = closed_loop_run(ControllerGains(), dhat0_factor=0.2, rate_hz=200.0)
     assert abs(controller.dhat - d_star) < 0.02 * d_star
     assert abs(records[-1].output.errors.e1) < 1e-3
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import run_hbvs
+from conftest import call_hbvs
 
 from hbvs_cli.core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from hbvs_cli.errors import CalibrationError
@@ -100,7 +100,7 @@ def test_teach_takes_the_image_size_from_the_video_and_warns_about_four_coeffici
     writer.release()
     calibration = _opencv_file(tmp_path / "nosize.yaml", FISHEYE_D, with_size=False)
     output = tmp_path / "teach.mcap"
-    result = run_hbvs("teach", "--video", str(video), "--calibration", str(calibration), "-o", str(output))
+    result = call_hbvs("teach", "--video", str(video), "--calibration", str(calibration), "-o", str(output))
     assert result.returncode == 0, result.stderr
     warnings = [line for line in result.stderr.decode().splitlines() if "4 distortion coefficients" in line]
     assert len(warnings) == 1

@@ -336,6 +336,7 @@ def test_the_same_frames_as_video_images_and_bag_give_the_same_fit(fitted, tmp_p
     again) to n* 0.16 deg (combined sigma 0.17 deg) and theta_d 0.036 deg at most."""
     from hbvs_cli.report.fit_plot import read_fit_signals
 
+    campaign = campaign_extent(request, extent)  # before the frames are decoded and written
     row = fitted("bright_dots")
     capture = cv2.VideoCapture(str(row["truth"]["video"]))
     frames = []
@@ -345,15 +346,14 @@ def test_the_same_frames_as_video_images_and_bag_give_the_same_fit(fitted, tmp_p
             break
         frames.append(frame)
     capture.release()
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for k, frame in enumerate(frames):
-        cv2.imwrite(str(folder / f"frame{k:03d}.png"), frame)
     _write_bag_of(tmp_path / "bag", frames, DRIVE.fps, footage.case("bright_dots")[1])
-    calibration = str(row["truth"]["calibration"])
     sources = {"bag": ("--bag", str(tmp_path / "bag"))}
-    if campaign_extent(request, extent):
-        sources["images"] = ("--images", str(folder), "--fps", str(DRIVE.fps), "--calibration", calibration)
+    if campaign:
+        folder = tmp_path / "frames"
+        folder.mkdir()
+        for k, frame in enumerate(frames):
+            cv2.imwrite(str(folder / f"frame{k:03d}.png"), frame)
+        sources["images"] = ("--images", str(folder), "--fps", str(DRIVE.fps), "--calibration", str(row["truth"]["calibration"]))
     fits = {"video": row["fit"]}
     for name, source in sources.items():
         teach, fit = tmp_path / f"{name}.mcap", tmp_path / f"{name}-fit.mcap"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import math
 import re
 import struct
@@ -18,22 +19,21 @@ from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
 from hbvs_cli.report.build import REPORT_KEYS, build_report
 
-from conftest import call_hbvs, run_hbvs
+from conftest import call_hbvs
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, Path]:
+def runs(tmp_path_factory, teach_8s) -> dict[str, Path]:
     """An 8 s taught s-curve, its fit, and four repeats: both laws, a replay, a stopped run."""
     from hbvs_cli.stages.fit import FitOptions, run_fit
     from hbvs_cli.stages.repeat import RepeatOptions, run_repeat
-    from hbvs_cli.stages.teach import TeachOptions, run_teach
 
     tmp = tmp_path_factory.mktemp("report")
     quiet = Console(quiet=True)
     paths = {name: tmp / f"{name}.mcap" for name in ("teach", "fit", "run", "paper", "replay", "stopped")}
-    run_teach(TeachOptions(output=str(paths["teach"]), duration=8.0), quiet)
+    shutil.copyfile(teach_8s, paths["teach"])  # the session's 8 s teach (conftest)
     run_fit(FitOptions(input=str(paths["teach"]), output=str(paths["fit"])), quiet)
     fit = str(paths["fit"])
     run_repeat(RepeatOptions(input=fit, output=str(paths["run"]), sim=True, perception="images"), quiet)
@@ -46,10 +46,9 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 
 def report_json(*args, input: bytes | None = None) -> dict:
-    """``hbvs report ARGS --json``, parsed: in this process, or as a process reading ``input``
-    on its stdin."""
+    """``hbvs report ARGS --json``, parsed (in this process, reading ``input`` as its stdin)."""
     words = ["report", *map(str, args), "--json"]
-    result = run_hbvs(*words, input=input) if input is not None else call_hbvs(*words)
+    result = call_hbvs(*words, input=input)
     assert result.returncode == 0, result.stderr.decode()
     return json.loads(result.stdout)
 
@@ -358,10 +357,10 @@ def test_stdin_is_read_once(runs, tmp_path):
     from_file = report_json(runs["run"])
     assert from_stdin["run"]["name"] == "stdin"
     assert from_stdin["errors"] == from_file["errors"] and from_stdin["pose_error"] == from_file["pose_error"]
-    twice = run_hbvs("report", "-", "-", input=data)
+    twice = call_hbvs("report", "-", "-", input=data)
     assert twice.returncode == 2 and b"only once" in twice.stderr
     # With --export-tum stdin is kept in memory, to read the camera height from it too.
-    exported = run_hbvs("report", "-", "--export-tum", str(tmp_path), input=data)
+    exported = call_hbvs("report", "-", "--export-tum", str(tmp_path), input=data)
     assert exported.returncode == 0, exported.stderr.decode()
     assert np.loadtxt(tmp_path / "stdin.repeated.tum").shape == (from_file["run"]["steps"], 8)
 

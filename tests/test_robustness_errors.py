@@ -26,21 +26,21 @@ from pathlib import Path
 import pytest
 import zstandard
 
-from conftest import REPO, call_hbvs, make_fit, make_teach, run_with_peak_memory
+from conftest import REPO, call_hbvs, run_with_peak_memory
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
-from test_robustness_outputs import PRECIOUS, hbvs, in_folder, one_line, snapshot
+from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
 
 #: Peak resident memory (MB) any hostile file or option may cost.
 MAX_PEAK_MB = 300
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    """A 2 s teach, its fit, a run, and hostile variants of them (made once)."""
+def files(tmp_path_factory, small_recordings):
+    """A 2 s teach, its fit, a run (conftest's small_recordings), and hostile variants of
+    them (made once)."""
     folder = tmp_path_factory.mktemp("errors")
-    make_teach(folder / "t.mcap", duration=2.0)
-    make_fit(folder / "t.mcap", folder / "f.mcap")
-    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
+    for name in ("t.mcap", "f.mcap", "r.mcap"):
+        shutil.copyfile(small_recordings / name, folder / name)
     from hbvs_cli.io.foxglove_scene import SIMULATION_EPOCH_NS  # where a simulated teach's clock starts
 
     rewrite(folder / "t.mcap", folder / "late.mcap", lambda topic, t, m: (t - SIMULATION_EPOCH_NS + 2**64 - 10**10, m))

@@ -22,21 +22,16 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO, call_hbvs, make_fit, make_teach
+from conftest import REPO, call_hbvs
 
 PRECIOUS = b"a good output from an earlier run, which hbvs must never lose\n"
 
 
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    """A 2 s teach, its fit and a run (perception points): small, made once."""
-    folder = tmp_path_factory.mktemp("outputs")
-    teach = make_teach(folder / "t.mcap", duration=2.0)
-    make_fit(teach, folder / "f.mcap")
-    # Through the CLI in the folder, as the tests run it: the run file records its input as given.
-    assert in_folder(folder, "repeat", "f.mcap", "--sim", "--perception", "points", "-o", "r.mcap", "-q").returncode == 0
-    return folder
+def files(small_recordings):
+    """A 2 s teach, its fit and a run (perception points): small, made once (conftest)."""
+    return small_recordings
 
 
 @pytest.fixture
@@ -76,12 +71,13 @@ def hbvs(folder: Path, *args: str, **kwargs):
                           timeout=300, env=full_env, **kwargs)
 
 
-def in_folder(folder: Path, *args: str):
-    """``hbvs ARGS`` run in ``folder``, in this process (``conftest.call_hbvs``)."""
+def in_folder(folder: Path, *args: str, input: bytes | None = None):
+    """``hbvs ARGS`` run in ``folder``, in this process (``conftest.call_hbvs``), reading
+    ``input`` as its stdin."""
     here = os.getcwd()
     os.chdir(folder)
     try:
-        return call_hbvs(*args)
+        return call_hbvs(*args, input=input)
     finally:
         os.chdir(here)
 
@@ -237,16 +233,16 @@ def test_a_truncated_stdin_does_not_replace_an_existing_output(work):
     cut = data[: len(data) * 6 // 10]  # the writer upstream died: no summary, no footer
     (work / "out.mcap").write_bytes(PRECIOUS)
     before = snapshot(work)
-    refused = hbvs(work, "fit", "-", "-o", "out.mcap", "-q", input=cut)
+    refused = in_folder(work, "fit", "-", "-o", "out.mcap", "-q", input=cut)
     assert refused.returncode == 3
     assert "--allow-truncated" in one_line(refused)
     assert snapshot(work) == before
     # A new output is still written (recovery keeps working), with a warning.
-    fresh = hbvs(work, "fit", "-", "-o", "new.mcap", "-q", input=cut)
+    fresh = in_folder(work, "fit", "-", "-o", "new.mcap", "-q", input=cut)
     assert fresh.returncode == 0 and "ends before its end record" in fresh.stderr.decode()
     assert valid_mcap(work / "new.mcap") > 0
     # And --allow-truncated replaces the existing one.
-    allowed = hbvs(work, "fit", "-", "-o", "out.mcap", "-q", "--allow-truncated", input=cut)
+    allowed = in_folder(work, "fit", "-", "-o", "out.mcap", "-q", "--allow-truncated", input=cut)
     assert allowed.returncode == 0
     assert valid_mcap(work / "out.mcap") == valid_mcap(work / "new.mcap")  # (the settings record the flag)
 
@@ -255,11 +251,11 @@ def test_a_truncated_fit_on_stdin_leaves_the_earlier_run(work):
     data = (work / "f.mcap").read_bytes()
     before = snapshot(work)
     # Cut in the summary: the model is complete, the end record missing.
-    refused = hbvs(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[:-100])
+    refused = in_folder(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[:-100])
     assert refused.returncode == 3
     assert "--allow-truncated" in one_line(refused)
     # Cut in half: no model at all.
-    half = hbvs(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[: len(data) // 2])
+    half = in_folder(work, "repeat", "-", "--sim", "--perception", "points", "-o", "r.mcap", "-q", input=data[: len(data) // 2])
     assert half.returncode == 3
     one_line(half)
     assert snapshot(work) == before

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from conftest import SAMPLES, call_hbvs, make_run, make_teach, run_hbvs
+from conftest import SAMPLES, call_hbvs, make_run, make_teach
 
 
 @pytest.fixture(scope="module")
@@ -60,9 +60,9 @@ def test_the_sample_fit_and_a_run_of_it(tmp_path):
 
 def test_stdin_and_a_file_cut_off_by_a_crash(short_teach):
     data = short_teach.read_bytes()
-    whole = run_hbvs("info", "-", "--json", input=data)
+    whole = call_hbvs("info", "-", "--json", input=data)
     assert whole.returncode == 0 and json.loads(whole.stdout)["file"] == "stdin"
-    cut = run_hbvs("info", "-", "--json", input=data[: len(data) // 2])
+    cut = call_hbvs("info", "-", "--json", input=data[: len(data) // 2])
     assert cut.returncode == 0, cut.stderr
     document = json.loads(cut.stdout)
     assert not document["complete"] and document["stop_reason"]
