@@ -267,7 +267,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
                      correlated: bool = True, bias_fraction: float = 0.0,
-                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
+                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
+                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
@@ -302,6 +303,13 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     bias_segments : (int, array_like (K,), array_like (F,)), optional
         The span (0, 1, ...) of F*, of every estimated frame and of every frame of
         ``frames``; without it, no bias.
+    shutter : (array_like (2N,), (K, 2N), (F, 2N)), optional
+        How F*'s, the estimated frames' and ``frames``' points would move with a rolling
+        shutter's readout (:func:`rolling_shutter_shift`). The readout is fitted to the
+        residuals (to the part of the shift the estimate cannot absorb) and that part is
+        taken out of them before the point noise is measured: it follows the drive's speed,
+        not the sensor's noise. The shift's effect on the estimate at that readout is added
+        as one more bias column (the fit does not model a shutter: its error is counted).
 
     Returns
     -------
@@ -316,6 +324,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
+    shifts = [np.zeros(points), np.zeros((estimated.shape[0], points)), np.zeros((frames.shape[0], points))] if shutter is None else \
+        [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter]
     estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
     frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
@@ -328,6 +338,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     where[missing] = frames.shape[0] + np.arange(missing.size)
     pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
+    pool_shift = np.concatenate([shifts[2], shifts[1][missing]])
     weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
     geometry = PlaneGeometry.around(normal, m_ref)
     reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
@@ -335,6 +346,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
     inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
     own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
+    shutter_own, shutter_globals = np.zeros((pool.shape[0], 3)), -reference[:points].T @ shifts[0]
     for k in range(0, pool.shape[0], BLOCK_FRAMES):
         block = slice(k, k + BLOCK_FRAMES)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
@@ -345,20 +357,40 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         shared_info += np.einsum("krg,krh->gh", weighted, shared) - np.einsum(
             "kag,kab,kbh->gh", weight[block, None, None] * coupling[block], inverse_own[block], coupling[block])
         residuals[block] = at[:, :points]
+        rows = _bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        if shutter is not None:  # as the bias below, for the one column of the shutter's shift
+            change = np.einsum("krb,kb->kr", rows, pool_shift[block])
+            shutter_own[block] = np.einsum("kra,kr->ka", own, change)
+            shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum(
+                "kag,kab,kb->g", weight[block, None, None] * coupling[block], inverse_own[block], shutter_own[block])
         if bias_fraction > 0.0:
-            rows = _bias_rows(pool[block], normal, pool_motion[block], shapes)
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = np.einsum("kra,krb->kab", own, rows)
             per_frame = np.einsum("krg,krb->kgb", weighted, rows) - np.einsum(
                 "kag,kab,kbc->kgc", weight[block, None, None] * coupling[block], inverse_own[block], own_rhs[block])
             np.add.at(spans, pool_segments[block], per_frame)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
+    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    readout = 0.0
+    if shutter is not None:
+        # The estimate's move per unit readout (as the bias's below), and the residuals' change
+        # it leaves: the shift less what the estimated frames' poses and the globals absorb.
+        moved_globals = shared_inverse @ shutter_globals
+        moved = np.einsum("kab,kb->ka", inverse_own, shutter_own - coupling @ moved_globals)
+        visible = np.empty_like(residuals)
+        for k in range(0, estimated.shape[0], BLOCK_FRAMES):
+            block = slice(k, k + BLOCK_FRAMES)
+            _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], shapes, derivatives=True)
+            change = np.einsum("krb,kb->kr", _bias_rows(estimated[block], normal, motion[block], shapes), shifts[1][block])
+            visible[block] = (change - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals)[:, :points]
+        finite = np.all(np.isfinite(residuals), axis=1)
+        readout = float(np.sum(residuals[finite] * visible[finite]) / max(float(np.sum(visible[finite] ** 2)), 1e-300))
+        residuals = residuals - readout * visible
     if noise is None:
         noise = measured_point_noise(residuals)
     inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
-    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
@@ -366,6 +398,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
         own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - np.einsum("kag,gb->kab", coupling, bias_shared)
         bias = np.einsum("kab,kbc->kac", inverse_own, own_rhs)
+    if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
+        column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
+        bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
+        bias = column if bias is None else np.concatenate([bias, column], axis=2)
     return JointCovariance(
         shared=variance * shared_inverse,
         own=variance * inverse_own,
@@ -375,6 +411,24 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared=bias_shared,
         bias=bias,
     )
+
+
+def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:
+    """How every point would move with a rolling shutter's readout time (per unit of normalised
+    row): its image velocity times its row ``m_z`` (rows read out one after the other, the
+    middle one at the frame's time), shape (K, 2N).
+
+    Parameters
+    ----------
+    points : array_like, shape (K, N, 2)
+        ``(m_y, m_z)`` of every point in every frame, the frames in time order.
+    t : array_like, shape (K,)
+        Their times (s).
+    """
+    points = np.asarray(points, dtype=float)
+    if points.shape[0] < 2:
+        return np.zeros((points.shape[0], points[0].size if points.shape[0] else 0))
+    return (np.gradient(points, np.asarray(t, dtype=float), axis=0) * points[..., 1:]).reshape(points.shape[0], -1)
 
 
 def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
