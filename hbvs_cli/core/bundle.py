@@ -8,10 +8,8 @@ by maximum likelihood on the reprojection error of every point in every frame (1
 ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
 block-arrow sparsity given to scipy's trust-region solver.
 
-:func:`joint_covariance` gives the estimate's covariance from the same problem's Jacobian
-as blocks (every frame's own 3 columns, and the global columns): ``sigma^2 (J^T J)^-1``
-by the Schur complement on the global unknowns, with ``sigma`` the measured point noise: how uncertain n* is, and every frame's
-``(theta, x_h)`` including what it inherits from n* and the reference points.
+:func:`joint_covariance`: the estimate's covariance ``sigma^2 (J^T J)^-1`` by the Schur
+complement on the globals (docs/uncertainty.md).
 """
 
 from __future__ import annotations
@@ -149,18 +147,9 @@ def _motion(motion: object) -> NDArray[np.float64]:
 
 
 def measured_point_noise(residuals: ArrayLike) -> float:
-    """The point noise (normalised units, per coordinate) that reprojection errors show.
-
-    The root mean square of the residuals within :data:`OUTLIER_SPREADS` robust spreads
-    (the median absolute residual, as a Gaussian's sigma) of zero, corrected for the 3
-    unknowns every frame fits to its own ``2N`` coordinates (with three points the
-    frame's pose absorbs half of the noise).
-
-    Parameters
-    ----------
-    residuals : array_like, shape (K, 2N)
-        Every frame's reprojection errors at the joint estimate.
-    """
+    """The point noise (normalised units, per coordinate) that reprojection errors (K, 2N) show:
+    their RMS within :data:`OUTLIER_SPREADS` robust spreads (the median absolute residual as a
+    Gaussian's sigma) of zero, corrected for the 3 unknowns each frame fits to its ``2N``."""
     r = np.asarray(residuals, dtype=float)
     rows = r.shape[1]
     r = r[np.all(np.isfinite(r), axis=1)]
@@ -179,24 +168,11 @@ CORRELATION_LAG_FRACTION = 1.0 / 8.0
 
 
 def correlation_inflation(residuals: ArrayLike) -> float:
-    """How much more a sum over frames varies than independent point errors would let it.
-
-    Errors that come from the picture rather than the sensor's noise (a marker's edges
-    sampled at a phase that changes slowly with the pose) are alike in neighbouring frames:
-    the drive holds fewer independent looks than frames. The factor is the long-run variance
-    of each residual's series over the frames (Newey and West: Bartlett's weights up to a
-    lag of :data:`CORRELATION_LAG_FRACTION` of the frames) over its plain variance.
-
-    Parameters
-    ----------
-    residuals : array_like, shape (K, R)
-        Every frame's reprojection errors, the frames in time order.
-
-    Returns
-    -------
-    float
-        The factor on the point noise's variance, at least 1.
-    """
+    """The factor (>= 1) on the point noise's variance for errors alike in neighbouring frames
+    (a marker's edges sampled at a phase that changes slowly with the pose): the long-run
+    variance of each residual's series over the frames (K, R), in time order (Newey and West:
+    Bartlett's weights to a lag of :data:`CORRELATION_LAG_FRACTION` of the frames), over its
+    plain variance."""
     r = np.asarray(residuals, dtype=float)
     r = r[np.all(np.isfinite(r), axis=1)]
     frames = r.shape[0]
@@ -231,11 +207,12 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
-    bias_shared, bias : ndarray, shapes (G, S 2N) and (K, 3, S 2N), or None
-        How the globals and each frame's (theta, x_h1, x_h2) move with a detector bias of
-        one standard deviation on each point's coordinate in each of S spans of the drive
-        (:func:`joint_covariance`'s ``bias_fraction``); their covariances add ``bias
-        bias^T``, common to the frames (None: no such bias).
+    bias_shared, bias : ndarray, shapes (G, C) and (K, 3, C), or None
+        How the globals and each frame's (theta, x_h1, x_h2) move with each of C biases: a
+        detector's, of one standard deviation on each point's coordinate in each of S spans
+        of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
+        rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
+        frames (None: no bias).
     """
 
     shared: NDArray[np.float64]
@@ -271,10 +248,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
-    ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
-    their coupling ``B_k``. The globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1
-    B_k)^-1``; a frame's own part ``noise^2 D_k^-1``, and its sensitivity to the globals
-    ``-D_k^-1 B_k``. The blocks are built :data:`BLOCK_FRAMES` frames at a time.
+    ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
+    ``B_k``): the globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1 B_k)^-1``, a frame's
+    own ``noise^2 D_k^-1``, its sensitivity to the globals ``-D_k^-1 B_k``.
 
     Parameters
     ----------
@@ -304,12 +280,11 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         The span (0, 1, ...) of F*, of every estimated frame and of every frame of
         ``frames``; without it, no bias.
     shutter : (array_like (2N,), (K, 2N), (F, 2N)), optional
-        How F*'s, the estimated frames' and ``frames``' points would move with a rolling
+        F*'s, the estimated frames' and ``frames``' points' move per unit of a rolling
         shutter's readout (:func:`rolling_shutter_shift`). The readout is fitted to the
-        residuals (to the part of the shift the estimate cannot absorb) and that part is
-        taken out of them before the point noise is measured: it follows the drive's speed,
-        not the sensor's noise. The shift's effect on the estimate at that readout is added
-        as one more bias column (the fit does not model a shutter: its error is counted).
+        residuals, the part of the shift the estimate cannot absorb is taken out of them
+        before the noise is measured, and the shift's effect on the estimate is one more
+        bias column (the shutter is not modelled: its error is counted, not removed).
 
     Returns
     -------
@@ -324,8 +299,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
-    shifts = [np.zeros(points), np.zeros((estimated.shape[0], points)), np.zeros((frames.shape[0], points))] if shutter is None else \
-        [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter]
+    shifts = [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
     estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
     frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
@@ -414,20 +388,12 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
 
 
 def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:
-    """How every point would move with a rolling shutter's readout time (per unit of normalised
-    row): its image velocity times its row ``m_z`` (rows read out one after the other, the
-    middle one at the frame's time), shape (K, 2N).
-
-    Parameters
-    ----------
-    points : array_like, shape (K, N, 2)
-        ``(m_y, m_z)`` of every point in every frame, the frames in time order.
-    t : array_like, shape (K,)
-        Their times (s).
-    """
+    """How every point ``(m_y, m_z)`` (K, N, 2) of frames at times ``t`` (K,) (s) moves per unit
+    of a rolling shutter's readout (s per normalised row; rows read out one after the other,
+    the middle one at the frame's time): its image velocity times its row ``m_z``, (K, 2N)."""
     points = np.asarray(points, dtype=float)
     if points.shape[0] < 2:
-        return np.zeros((points.shape[0], points[0].size if points.shape[0] else 0))
+        return np.zeros((points.shape[0], 2 * points.shape[1]))
     return (np.gradient(points, np.asarray(t, dtype=float), axis=0) * points[..., 1:]).reshape(points.shape[0], -1)
 
 
