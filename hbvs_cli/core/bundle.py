@@ -354,9 +354,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         visible = np.empty_like(residuals)
         for k in range(0, estimated.shape[0], BLOCK_FRAMES):
             block = slice(k, k + BLOCK_FRAMES)
-            _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], shapes, derivatives=True)
-            change = np.einsum("krb,kb->kr", _bias_rows(estimated[block], normal, motion[block], shapes), shifts[1][block])
-            visible[block] = (change - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals)[:, :points]
+            # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
+            _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
+            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
         readout = float(np.sum(residuals[finite] * visible[finite]) / max(float(np.sum(visible[finite] ** 2)), 1e-300))
         residuals = residuals - readout * visible
