@@ -313,8 +313,8 @@ def _poses_from(drive: Drive, fine: np.ndarray) -> np.ndarray:
 WALL_MPP = 0.002  # 2 mm per wall-image pixel
 
 
-def _canvas(width_m: float, height_m: float, colour) -> np.ndarray:
-    w, h = int(round(width_m / WALL_MPP)), int(round(height_m / WALL_MPP))
+def _canvas(width_m: float, height_m: float, colour, metres_per_px: float = WALL_MPP) -> np.ndarray:
+    w, h = int(round(width_m / metres_per_px)), int(round(height_m / metres_per_px))
     image = np.empty((h, w, 3), np.uint8)
     image[:] = colour
     return image
@@ -468,24 +468,26 @@ def chessboard_wall(inner: tuple[int, int] = (7, 5), square_m: float = 0.06) -> 
 
 
 def charuco_wall(squares: tuple[int, int] = (6, 4), square_m: float = 0.12, marker_m: float = 0.09,
-                 dictionary: str = "DICT_4X4_50", centre_height_m: float = 1.0) -> Wall:
+                 dictionary: str = "DICT_4X4_50", centre_height_m: float = 1.0, metres_per_px: float = WALL_MPP) -> Wall:
     """A ChArUco board of ``squares`` = (columns, rows) squares of ``square_m`` with markers
     of ``marker_m`` (OpenCV's ``CharucoBoard.generateImage`` as the print, a white margin of
-    one square) on a painted wall. ``points`` are the inner corners in the board's corner
-    ids' order (row by row from the top left), wall pixels."""
+    one square) on a painted wall printed at ``metres_per_px`` (a small board seen from
+    close needs finer than 2 mm: its markers' white margins are a few millimetres).
+    ``points`` are the inner corners in the board's corner ids' order (row by row from the
+    top left), wall pixels."""
     width, height = 2.4, 1.6 + max(0.0, centre_height_m - 0.8)
-    image = _canvas(width, height, (175, 185, 190))
-    px = int(round(square_m / WALL_MPP))
+    image = _canvas(width, height, (175, 185, 190), metres_per_px)
+    px = int(round(square_m / metres_per_px))
     columns, rows = squares
     board = cv2.aruco.CharucoBoard(squares, square_m, marker_m, cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)))
     printed = board.generateImage((columns * px, rows * px), marginSize=0, borderBits=1)
-    col0 = int(round(1.2 / WALL_MPP - columns * px / 2))
-    row0 = int(round((height - centre_height_m) / WALL_MPP - rows * px / 2))
+    col0 = int(round(1.2 / metres_per_px - columns * px / 2))
+    row0 = int(round((height - centre_height_m) / metres_per_px - rows * px / 2))
     image[row0 - px:row0 + (rows + 1) * px, col0 - px:col0 + (columns + 1) * px] = 245
     image[row0:row0 + rows * px, col0:col0 + columns * px] = np.where(printed[:, :, None] > 127, 245, 20).astype(np.uint8)
     corners = [[col0 + c * px - 0.5, row0 + r * px - 0.5] for r in range(1, rows) for c in range(1, columns)]
     image = _lighting(image, 0.85, 1.05)
-    return Wall(image, WALL_MPP, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(corners, float))
+    return Wall(image, metres_per_px, (5.8, -0.05, height / 2), yaw=np.radians(-7.0), points=np.array(corners, float))
 
 
 def marker_board_wall(dictionary: str = "DICT_4X4_50", grid: tuple[int, int] = (3, 2), side_m: float = 0.18, gap_m: float = 0.04,
@@ -606,6 +608,13 @@ def case(name: str) -> tuple[Wall, Camera, Effects]:
         # from it: its markers about 16 px wide in F*.
         wall = charuco_wall(square_m=0.2, marker_m=0.15, centre_height_m=0.65)
         return replace(wall, centre=(4.6, *wall.centre[1:])), plain, Effects()
+    if name == "charuco_board":
+        # A printed A1 ChArUco board, 7x5 squares of 12 cm (DICT_4X4_50, 9 cm markers), with
+        # the 3x2 board's barrel distortion, the start 3.3 m from it: its markers about 13 px
+        # wide in F*, the nearest frames show part of it. Printed at 1 mm (its markers'
+        # white margins are 1.5 cm).
+        wall = charuco_wall((7, 5), 0.12, 0.09, centre_height_m=0.45, metres_per_px=0.001)
+        return replace(wall, centre=(3.3, *wall.centre[1:])), Camera(distortion=(-0.22, 0.05, 0.0005, -0.0003, 0.0)), Effects()
     if name == "charuco_partial":
         # The same board hung higher (its centre 1.0 m above the floor): its top row leaves
         # the top of the view in the last frames of the drive.
@@ -633,7 +642,7 @@ class CurvingDrive(Drive):
 
 
 CASES = ("bright_dots", "red_dots", "black_dots_distorted", "aruco_6x6", "apriltag_36h11", "photo")
-EXPECTED_KIND = {"charuco": "charuco", "charuco_partial": "charuco", "aruco_board_partial": "aruco", "photo_with_tags": "texture",
+EXPECTED_KIND = {"charuco": "charuco", "charuco_board": "charuco", "charuco_partial": "charuco", "aruco_board_partial": "aruco", "photo_with_tags": "texture",
                  "low_contrast20_dots": "dots","small_apriltag": "aruco", "chessboard": "chessboard", "low_contrast_dots": "dots", "dots_sizes_3x": "dots",
                  "noisy_dots": "dots", "bright_dots": "dots", "red_dots": "dots", "red_on_grey": "dots", "black_dots_distorted": "dots",
                  "aruco_6x6": "aruco", "apriltag_36h11": "aruco", "photo": "texture"}

@@ -44,13 +44,13 @@ def closed_loop(fit_path, sensor=None, **options):
     ``sensor``: the render settings the images are made with, in place of the teach's that
     the fit recorded (the fit file's ``render``)."""
     from hbvs_cli.io.fit_file import read_fit_file
-    from hbvs_cli.stages.repeat import RepeatOptions, _taught_frame_interval, prepare_simulation, resolve_settings
+    from hbvs_cli.stages.repeat import RepeatOptions, prepare_simulation, resolve_settings
 
     fit = read_fit_file(str(fit_path))
     if sensor is not None:
         fit.model.render = dict(sensor)
     repeat_options = RepeatOptions(input=str(fit_path), sim=True, **options)
-    settings = resolve_settings(repeat_options, fit.model.dhat0, 1.0 / _taught_frame_interval(fit.model), fit.model.suggested_gains())
+    settings = resolve_settings(repeat_options, fit.model.dhat0, 1.0 / fit.model.taught_frame_interval(), fit.model.suggested_gains())
     simulation = prepare_simulation(repeat_options, settings, fit)
     records = list(simulation.run())
     t = np.array([r.t for r in records])

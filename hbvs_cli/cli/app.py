@@ -7,6 +7,7 @@ matplotlib or mcap (tests/test_repository.py checks).
 from __future__ import annotations
 
 import errno
+import importlib
 import inspect
 import os
 import signal
@@ -78,95 +79,73 @@ def _root(
         set_limits(list(limit))
 
 
-# --------------------------------------------------------------------------- teach
+def _run_stage(stage: str, options_class: Any, values: dict[str, Any]) -> None:
+    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now (start-up time, see
+    above), on the options ``values`` give; a stage's non-zero int return is the exit code."""
+    module = importlib.import_module(f"hbvs_cli.stages.{stage}")
+    quiet = values.pop("quiet", False)
+    options = options_from_command_line(options_class or module.TeachOptions, values)
+    code = getattr(module, f"run_{stage}")(options, Console(quiet))
+    if isinstance(code, int) and code:
+        raise typer.Exit(code)
+
+
 @app.command(rich_help_panel="Pipeline")
 @with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
 def teach(**values: Any) -> None:
     """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
-    from ..stages.teach import TeachOptions, run_teach  # lazy: start-up time (see above)
-
-    quiet = values.pop("quiet")
-    run_teach(options_from_command_line(TeachOptions, values), Console(quiet))
+    _run_stage("teach", None, values)
 
 
-# --------------------------------------------------------------------------- fit
 @app.command(rich_help_panel="Pipeline")
 @with_settings(FIT_SETTINGS, QUIET)
 def fit(**values: Any) -> None:
     """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    from ..stages.fit import run_fit  # lazy: start-up time (see above)
-
-    quiet = values.pop("quiet")
-    run_fit(options_from_command_line(FitOptions, values), Console(quiet))
+    _run_stage("fit", FitOptions, values)
 
 
-# --------------------------------------------------------------------------- repeat
 @app.command(rich_help_panel="Pipeline")
 @with_settings(REPEAT_SETTINGS, QUIET)
 def repeat(**values: Any) -> None:
     """Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."""
-    from ..stages.repeat import run_repeat  # lazy: start-up time (see above)
-
-    quiet = values.pop("quiet")
-    run_repeat(options_from_command_line(RepeatOptions, values), Console(quiet))
+    _run_stage("repeat", RepeatOptions, values)
 
 
-# --------------------------------------------------------------------------- robot-sim
 @app.command("robot-sim", rich_help_panel="Robot")
 @with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
 def robot_sim(**values: Any) -> None:
     """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
-    from ..stages.robot_sim import run_robot_sim  # lazy: start-up time (see above)
-
-    quiet = values.pop("quiet")
-    run_robot_sim(options_from_command_line(RobotSimOptions, values), Console(quiet))
+    _run_stage("robot_sim", RobotSimOptions, values)
 
 
-# --------------------------------------------------------------------------- report
 @app.command(rich_help_panel="Pipeline")
 @with_settings(REPORT_SETTINGS)
 def report(**values: Any) -> None:
     """How well did the repeat follow the taught path, and did it converge?"""
-    from ..stages.report import run_report  # lazy: start-up time (see above)
-
-    code = run_report(options_from_command_line(ReportOptions, values), Console(False))
-    if code:
-        raise typer.Exit(code)
+    _run_stage("report", ReportOptions, values)
 
 
-# --------------------------------------------------------------------------- export
 @app.command(rich_help_panel="Pipeline")
 @with_settings(EXPORT_SETTINGS, QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]))
 def export(**values: Any) -> None:
     """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
-    from ..stages.export import run_export
-
-    quiet = values.pop("quiet")
-    run_export(options_from_command_line(ExportOptions, values), Console(quiet))
+    _run_stage("export", ExportOptions, values)
 
 
-# --------------------------------------------------------------------------- info
 @app.command(rich_help_panel="Files")
 @with_settings(INFO_SETTINGS)
 def info(**values: Any) -> None:
     """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
-    from ..stages.info import run_info
-
-    run_info(options_from_command_line(InfoOptions, values), Console(False))
+    _run_stage("info", InfoOptions, values)
 
 
-# --------------------------------------------------------------------------- sweep
 @app.command(rich_help_panel="Studies")
 @with_settings(SWEEP_SETTINGS, QUIET_MESSAGES)
 def sweep(**values: Any) -> None:
     """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    from ..stages.sweep import run_sweep  # lazy: start-up time (see above)
-
-    quiet = values.pop("quiet")
-    run_sweep(options_from_command_line(SweepOptions, values), Console(quiet))
+    _run_stage("sweep", SweepOptions, values)
 
 
-# --------------------------------------------------------------------------- demo
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for every file the demo writes.")] = Path("hbvs-demo"),

@@ -3,6 +3,7 @@ errors, ``--debug`` anywhere, and the unquoted-glob hint."""
 
 from __future__ import annotations
 
+from itertools import takewhile
 from pathlib import Path
 from typing import Any, get_args, get_origin
 
@@ -94,7 +95,6 @@ def one_line_usage_error(exc: Any) -> str:
 
 def unquoted_glob_hint(args: list[str]) -> str | None:
     """The message for ``teach --images dir/*.png`` that the shell expanded, or None."""
-
     if "teach" not in args:
         return None
     for index, arg in enumerate(args):
@@ -113,12 +113,7 @@ def unquoted_glob_hint(args: list[str]) -> str | None:
 
 
 def _names_after(args: list[str]) -> list[str]:
-    names = []
-    for arg in args:
-        if arg.startswith("-"):
-            break
-        names.append(arg)
-    return names
+    return list(takewhile(lambda arg: not arg.startswith("-"), args))
 
 
 def _pattern_of(names: list[str]) -> str:

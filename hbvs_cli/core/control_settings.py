@@ -1,9 +1,6 @@
 """What a user sets of the method, by name: the control laws and their gains (29)-(31),
-the state filters, the default taught path.
-
-Plain Python, no numpy: the command line shows these defaults in ``--help`` without
-loading the numerical stack (``hbvs --help`` starts in a few tens of milliseconds; see
-``bench/``). :mod:`.controller`, :mod:`.state_filter` and :mod:`.path` re-export them.
+the state filters, the default taught path. Plain Python, no numpy: ``--help`` shows these
+defaults without loading the numerical stack.
 """
 
 from __future__ import annotations
@@ -30,20 +27,10 @@ DEFAULT_PRESET = "s-curve"
 
 @dataclass(frozen=True)
 class ControllerGains:
-    """Gains of (29)-(31).
-
-    The clean-camera defaults, used when a fit file suggests none (:mod:`.gains`), tuned on
-    the default scenario (|x_hd1_dot| ~ 0.025 1/s) by rules that carry over to other scenes:
-
-    * ``k_2 = k_w^2 / (4 x_hd1_dot^2) = 400`` makes the lateral mode
-      ``s^2 + k_w s + k_2 x_hd1_dot^2`` (docs/method.md, "Choosing the gains") critically damped, at about k_w/2;
-    * ``gamma ~ 0.4 k_v / x_hd1_dot^2 = 2500``: the depth error decays at about
-      ``gamma x_hd1_dot^2 / k_v`` ~ 0.4 1/s, so a dhat(0) of d*/5 is learnt within 10 s;
-    * ``k_v = 4`` (m/s) and ``k_w = 1`` (1/s) give e1 and the heading 1 s time constants.
-
-    ``gamma`` is gamma_1 of (31) in m, >= 0 (0: the non-adaptive baseline); ``k_2`` = 1 is
-    the paper's law exactly (docs/method.md, "Control").
-    """
+    """Gains of (29)-(31): the clean-camera defaults, used when a fit file suggests none,
+    are :mod:`.gains`' rules at the default scenario's |x_hd1_dot| ~ 0.025 1/s (k_v = 4 m/s
+    and k_w = 1 1/s: 1 s time constants of e1 and the heading). ``gamma`` is gamma_1 of (31)
+    in m, >= 0 (0: the non-adaptive baseline); ``k_2 = 1`` is the paper's law exactly."""
 
     k_v: float = 4.0
     k_w: float = 1.0

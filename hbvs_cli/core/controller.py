@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .control_settings import LAW_LATERAL_GAIN, LAW_PAPER, LAWS, ControllerGains  # noqa: F401 - re-exported
+from .control_settings import ControllerGains
 from .depth import check_depth
 from .frames import wrap_angle
 
@@ -75,10 +75,8 @@ class ControlOutput:
 
 
 def tracking_errors(measured: Measurement, desired: DesiredState) -> TrackingErrors:
-    """Errors (19) and the auxiliary error ebar2 (27).
-
-    e3 is wrapped to [-pi, pi) so that a trajectory crossing +-pi stays continuous.
-    """
+    """Errors (19) and the auxiliary error ebar2 (27); e3 wrapped to [-pi, pi) so that a
+    trajectory crossing +-pi stays continuous."""
     # Plain operators: floats stay floats (the closed loop), arrays broadcast (batches).
     e1 = measured.x_h1 - desired.x_hd1
     e2 = measured.x_h2 - desired.x_hd2
@@ -104,12 +102,8 @@ def control_law(
 
 
 def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: ControllerGains) -> NDArray[np.float64] | float:
-    """The Lyapunov function (36), weighted by k_2 (docs/method.md, "Control").
-
-    ``V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma) (d* - dhat)^2``.
-    Needs the true depth d* (m), so it is known only in simulation. Without adaptation
-    (gamma = 0, dhat constant) the depth term is left out.
-    """
+    """The Lyapunov function (36) of the module docstring, for the true depth d* (m): known
+    only in simulation. Without adaptation (gamma = 0) the depth term is left out."""
     d_tilde = d_star - dhat
     value = (
         0.5 * d_star * errors.e1 * errors.e1
@@ -162,12 +156,10 @@ class AdaptiveTrackingController:
     def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
         """Integrate the update law (31) of one evaluation over ``dt`` seconds.
 
-        ``depth_reference`` is ``(d_f, kappa)``: a depth measured independently (m; the
-        state filter's, from the motion) and the rate (1/s) at which to trust it. The law is
-        then the composite ``dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot) + kappa (d_f - dhat)``
-        (docs/method.md, "The depth in the filter"): along (32) it adds
-        ``-(kappa / gamma_1) d~ (d_f - dhat)`` to V_dot (38), which is ``-(kappa / gamma_1) d~^2``
-        when d_f = d*. Without adaptation (gamma_1 = 0, the non-adaptive baseline) dhat stays.
+        ``depth_reference`` ``(d_f, kappa)``: a depth measured from the motion (m) and the
+        rate (1/s) at which to trust it, for the composite law ``dhat_dot = gamma_1 e1 (x_h2
+        w_c - x_hd1_dot) + kappa (d_f - dhat)`` (:func:`~.state_filter.scheduled_depth_pull`).
+        Without adaptation (gamma_1 = 0, the non-adaptive baseline) dhat stays.
         """
         rate = float(output.dhat_dot)
         if depth_reference is not None and self.gains.gamma > 0.0:
@@ -184,10 +176,8 @@ class AdaptiveTrackingController:
             self.dhat += pull * (depth - self.dhat) * dt
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
-        """The taught commands (25) at the current dhat: (29)-(30) with every error zero,
-        ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``. Sent while the state
-        filter settles, so that the robot starts with the trajectory instead of jolting
-        after a wait."""
+        """The taught commands (25) at the current dhat, (29)-(30) with every error zero:
+        ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)`` (sent while the filter settles)."""
         w_c = -float(desired.theta_d_dot)
         return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
 

@@ -1,13 +1,8 @@
-"""Where a good initial depth estimate dhat(0) can come from (docs/method.md, "Depth d*").
-
-d* is unobservable from images alone (scale), and the update law (31) learns it, but a poor
-dhat(0) slows convergence. Two honest sources:
-
-* the teach run's commands: by (25), ``v_cd = d* (x_hd2 w_cd - x_hd1_dot)`` at every taught
-  instant, a one-parameter least-squares problem (:func:`depth_from_taught_commands`);
-* a known metric size of the target: the reference points lie on the plane
-  ``n*^T m_bar*_i = d*`` (7), so ``m_bar*_i = d* m*_i / (n*^T m*_i)`` and every distance
-  between target points is proportional to d* (:func:`depth_from_target_size`).
+"""Initial depth estimates dhat(0) for (31) (docs/method.md, "Depth d*"): d* is unobservable
+from images alone, and a poor dhat(0) slows convergence. From the taught commands, by (25)
+(:func:`depth_from_taught_commands`), or from a known metric size of the target: the points
+lie on ``n*^T m_bar*_i = d*`` (7), so distances between them scale with d*
+(:func:`depth_from_target_size`).
 """
 
 from __future__ import annotations
@@ -22,13 +17,8 @@ from ..errors import GeometryError, InvalidValueError
 
 
 def check_depth(value: float, name: str) -> float:
-    """``value`` as a depth d* or dhat (m): finite and positive, the one rule for all of them.
-
-    Raises
-    ------
-    InvalidValueError
-        "NAME must be a positive depth in metres, got VALUE".
-    """
+    """``value`` as a depth d* or dhat (m): finite and positive (InvalidValueError), the one
+    rule for all of them."""
     if not (math.isfinite(value) and value > 0.0):
         raise InvalidValueError(f"{name} must be a positive depth in metres, got {value}")
     return float(value)
@@ -36,19 +26,9 @@ def check_depth(value: float, name: str) -> float:
 
 @dataclass(frozen=True)
 class DepthEstimate:
-    """An estimate of d*, handed to (31) as dhat(0), and how well it is determined.
-
-    Attributes
-    ----------
-    dhat0 : float
-        Estimated distance from F* to the target plane (m).
-    standard_error : float
-        1-sigma uncertainty of the least-squares estimate (m); NaN when not applicable.
-    source : str
-        ``"commands"`` or ``"target-size"``.
-    samples : int
-        Number of equations used.
-    """
+    """An estimate ``dhat0`` of d* (m), handed to (31) as dhat(0); its 1-sigma
+    ``standard_error`` (m, NaN when not applicable); its ``source`` (``"commands"`` or
+    ``"target-size"``) and the number of equations used (``samples``)."""
 
     dhat0: float
     standard_error: float
@@ -57,20 +37,9 @@ class DepthEstimate:
 
 
 def depth_from_taught_commands(v_cd: ArrayLike, w_cd: ArrayLike, x_hd2: ArrayLike, x_hd1_dot: ArrayLike) -> DepthEstimate:
-    """Least-squares d* from (25): ``v_cd = d* (x_hd2 w_cd - x_hd1_dot)``.
-
-    Parameters
-    ----------
-    v_cd, w_cd : array_like, shape (K,)
-        Taught commands (m/s, rad/s) at the sample times.
-    x_hd2, x_hd1_dot : array_like, shape (K,)
-        The fitted desired signals at the same times (dimensionless, 1/s).
-
-    Raises
-    ------
-    GeometryError
-        When the taught path does not move (the regressor is zero).
-    """
+    """Least-squares d* from (25): ``v_cd = d* (x_hd2 w_cd - x_hd1_dot)``, for the taught
+    commands (m/s, rad/s) and the fitted x_hd2 (-), x_hd1_dot (1/s), all shape (K,);
+    GeometryError when the taught path does not move."""
     v = np.asarray(v_cd, dtype=float)
     regressor = np.asarray(x_hd2, dtype=float) * np.asarray(w_cd, dtype=float) - np.asarray(x_hd1_dot, dtype=float)
     keep = np.isfinite(v) & np.isfinite(regressor)
@@ -89,19 +58,8 @@ def depth_from_taught_commands(v_cd: ArrayLike, w_cd: ArrayLike, x_hd2: ArrayLik
 
 
 def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int, int], distance_m: float) -> DepthEstimate:
-    """d* from the known metric distance between two target points.
-
-    Parameters
-    ----------
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points.
-    normal : array_like, shape (3,)
-        Unit plane normal n* in F*.
-    pair : (int, int)
-        Indices of the two points whose distance is known.
-    distance_m : float
-        Their distance (m), > 0.
-    """
+    """d* from the known distance (m) between the target points ``pair`` (indices into the
+    reference normalised points m_ref, shape (N, 3)), with the unit plane normal n* (3,)."""
     m_ref = np.asarray(m_ref, dtype=float)
     normal = np.asarray(normal, dtype=float)
     if not np.isfinite(distance_m) or distance_m <= 0.0:

@@ -45,7 +45,7 @@ UNCERTAIN_NORMAL_DEG = 0.5
 #: error follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor),
 #: and so do a tracked texture's corners, which the residuals cannot show
 #: (bench/CALIBRATION.md). Dots: none.
-DETECTOR_BIAS_FRACTION = {"aruco": 0.5, "chessboard": 1.25, "charuco": 1.0, "texture": 0.5}
+DETECTOR_BIAS_FRACTION = {"aruco": 0.5, "chessboard": 1.25, "charuco": 0.75, "texture": 0.5}
 
 #: ... but a tracked texture's at least this (px): the warp's sub-pixel interpolation.
 TEXTURE_CORNER_BIAS_PX = 0.009

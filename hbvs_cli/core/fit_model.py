@@ -59,6 +59,12 @@ class FitModel:
     #: The joint estimate's uncertainty (sigma of n*, theta_d, x_hd1; docs/uncertainty.md), or None in an older fit file.
     uncertainty: dict[str, Any] | None = None
 
+    def taught_frame_interval(self) -> float:
+        """Seconds between taught frames (:func:`~.desired.taught_frame_interval`)."""
+        from .desired import taught_frame_interval
+
+        return taught_frame_interval(self.taught_path.t if self.taught_path is not None else None, self.frames.get("frame_interval_s"))
+
     def suggested_gains(self) -> ControllerGains | None:
         """The gains ``fit`` suggested (core/gains.py), or None in an older fit file."""
         if not self.gains:

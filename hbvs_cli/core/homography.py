@@ -15,11 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import (
-    CollinearPointsError,
-    NonFiniteInputError,
-    NotEnoughPointsError,
-    PointAtCameraHeightError,
-    PointBehindCameraError,
+    CollinearPointsError, NonFiniteInputError, NotEnoughPointsError, PointAtCameraHeightError, PointBehindCameraError,
 )
 from .camera import CameraIntrinsics
 from .frames import opencv_to_paper_homography

@@ -96,13 +96,7 @@ class KnownNormalSolver:
     steps in theta on the reprojection error then give the maximum-likelihood estimate
     (half the linear theta error at 0.02 px), each kept only where it lowers the error.
     :meth:`solve_one` is :meth:`solve` in plain floats for the closed loop's single frame.
-
-    Parameters
-    ----------
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points, N >= 3.
-    normal : array_like, shape (3,)
-        Unit normal of the plane in F*, from the camera toward the plane.
+    ``m_ref`` (N, 3), N >= 3: reference normalised points; ``normal`` (3,): n* in F*.
     """
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, refine_steps: int = 2) -> None:

@@ -80,35 +80,15 @@ def _spread_corners(points: NDArray[np.float64]) -> list[int]:
 
 
 def match_layout(layout: ArrayLike, image: ArrayLike) -> NDArray[np.intp]:
-    """The order of the layout's points that matches the image's points.
+    """The order (N,) such that ``layout[order]`` (points in the wall's plane, (N, 2), any
+    unit) is in the order of ``image`` (the same points as seen, (N, 2), e.g. F*'s ``(m_y,
+    m_z)``); GeometryError when the counts differ or no homography carries the layout onto
+    the image to :data:`MAX_MATCH_SPREAD` of their spread.
 
-    Parameters
-    ----------
-    layout : array_like, shape (N, 2)
-        The target points in the wall's plane (any unit and order).
-    image : array_like, shape (N, 2)
-        The same points as seen (any consistent unit, e.g. F*'s normalised ``(m_y, m_z)``),
-        in the detector's order.
-
-    Returns
-    -------
-    order : ndarray, shape (N,), int
-        ``layout[order]`` is in the image's order.
-
-    Raises
-    ------
-    GeometryError
-        When the counts differ, or no homography carries the layout onto the image points
-        to :data:`MAX_MATCH_SPREAD` of their spread.
-
-    Notes
-    -----
-    Four well-spread image points are matched to every ordered four of the layout's (at
-    most 5040 for 10 points); each gives a homography, the whole layout is carried through
-    it, and the assignment of least squared distance pairs the rest. Three or four points
-    do not tell their order apart by a homography (one carries any four onto any four):
-    they are matched by the best similarity, mirror included (a wall seen within a few tens
-    of degrees of face-on).
+    Four well-spread image points are matched to every ordered four of the layout's (at most
+    5040 for 10 points); each homography carries the layout over, and the least-squares
+    assignment pairs the rest. Three or four points, which any homography matches, are
+    matched by the best similarity, mirror included (a wall seen near face-on).
     """
     layout = np.asarray(layout, dtype=np.float64)
     image = np.asarray(image, dtype=np.float64)

@@ -1,17 +1,13 @@
-"""Every control law ``hbvs repeat --law`` knows, and the baselines to compare (31) against.
+"""Every control law ``hbvs repeat --law`` knows (docs/method.md, "Baselines").
 
-* ``lateral-gain`` (default) and ``paper`` (k_2 = 1): the adaptive law (29)-(31) of
-  :mod:`hbvs_cli.core.controller`.
-* ``non-adaptive``: the same law (29)-(30) with gamma_1 = 0, so dhat stays at dhat(0) for
-  the whole run (docs/method.md, "Baselines"). It shows what the update law (31) buys.
-* ``kanayama``: the classical kinematic tracking law of Y. Kanayama, Y. Kimura,
-  F. Miyazaki, T. Noguchi, "A stable tracking control method for an autonomous mobile
-  robot", IEEE ICRA 1990, on the planar pose reconstructed from the homography with a
-  fixed depth estimate dhat (docs/method.md, "Baselines").
+* ``lateral-gain`` (default) and ``paper`` (k_2 = 1): the adaptive law (29)-(31);
+* ``non-adaptive``: (29)-(30) with gamma_1 = 0 (dhat stays dhat(0)): what (31) buys;
+* ``kanayama``: Y. Kanayama, Y. Kimura, F. Miyazaki, T. Noguchi, "A stable tracking control
+  method for an autonomous mobile robot", IEEE ICRA 1990, on the planar pose reconstructed
+  from the homography at a fixed dhat.
 
-Every controller here has the interface the closed loop uses (:func:`~hbvs_cli.sim.closed_loop.run_closed_loop`):
-a ``dhat`` attribute, ``step(measured, desired, dt, adapt=True) -> ControlOutput``,
-``adapt(output, dt)``, ``feedforward(desired)`` and ``hold()``.
+Each controller has a ``dhat``, ``step(measured, desired, dt, adapt=True) -> ControlOutput``,
+``adapt(output, dt)``, ``follow_depth``, ``feedforward(desired)`` and ``hold()``.
 """
 
 from __future__ import annotations
@@ -20,16 +16,8 @@ import math
 from dataclasses import dataclass, replace
 
 from ..errors import InvalidValueError
-from .controller import (
-    LAW_LATERAL_GAIN,
-    LAW_PAPER,
-    AdaptiveTrackingController,
-    ControlOutput,
-    ControllerGains,
-    DesiredState,
-    Measurement,
-    tracking_errors,
-)
+from .control_settings import LAW_LATERAL_GAIN, LAW_PAPER, ControllerGains
+from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement, tracking_errors
 from .depth import check_depth
 
 LAW_NON_ADAPTIVE = "non-adaptive"
@@ -40,13 +28,9 @@ ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
 
 @dataclass(frozen=True)
 class KanayamaGains:
-    """Gains of Kanayama et al. (1990), in their units.
-
-    The defaults are the paper's own example (K_x = 10 1/s, K_y = 64 1/m^2, K_theta = 16 1/m,
-    so that K_theta = 2 sqrt(K_y): the linearised lateral error is critically damped). At
-    the default taught speed of 0.1 m/s the lateral mode then decays at
-    ``v_r sqrt(K_y)`` = 0.8 1/s, close to the lateral-gain law's k_w / 2.
-    """
+    """Gains of Kanayama et al. (1990), their example: K_x (1/s), K_y (1/m^2), K_theta (1/m)
+    = 2 sqrt(K_y), the linearised lateral error critically damped (at 0.1 m/s it decays at
+    ``v_r sqrt(K_y)`` = 0.8 1/s, near the lateral-gain law's k_w / 2)."""
 
     k_x: float = 10.0
     k_y: float = 64.0
@@ -54,16 +38,9 @@ class KanayamaGains:
 
 
 def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
-    """The gains a law runs with, as recorded in the run file.
-
-    ``paper`` forces k_2 = 1; ``non-adaptive`` and ``kanayama`` do not adapt, so their
-    gamma_1 is 0 (which also drops the depth term of V (36) in the report).
-
-    Raises
-    ------
-    InvalidValueError
-        An unknown law.
-    """
+    """The gains a law runs with, as recorded in the run file: ``paper`` forces k_2 = 1;
+    ``non-adaptive`` and ``kanayama`` have gamma_1 = 0 (no depth term in V (36)).
+    InvalidValueError for an unknown law."""
     if law in (LAW_PAPER, LAW_LATERAL_GAIN):
         return gains.with_law(law)
     if law in (LAW_NON_ADAPTIVE, LAW_KANAYAMA):
@@ -97,18 +74,9 @@ def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, d
 
 
 class KanayamaController:
-    """Kanayama et al. (1990) on the pose reconstructed at a fixed depth estimate.
-
-    The reference velocities come from the desired trajectory: ``w_r = -theta_d_dot`` (5)
-    and ``v_r = dhat (x_hd2 w_r - x_hd1_dot)`` (25). The law is
-    ``v = v_r cos e_theta + K_x e_x`` and ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``.
-
-    Parameters
-    ----------
-    dhat : float
-        The fixed depth estimate (m), > 0: dhat(0) of the run.
-    gains : KanayamaGains, optional
-    """
+    """Kanayama et al. (1990) on the pose reconstructed at the fixed depth ``dhat`` (m,
+    dhat(0) of the run): ``v = v_r cos e_theta + K_x e_x``, ``w = w_r + v_r (K_y e_y +
+    K_theta sin e_theta)``, with the reference commands (25) of :meth:`feedforward`."""
 
     def __init__(self, dhat: float, gains: KanayamaGains | None = None) -> None:
         self.dhat = check_depth(dhat, "the depth estimate dhat0")

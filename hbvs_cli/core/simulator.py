@@ -1,21 +1,12 @@
-"""One control period of the closed loop: what the simulated loop
-(:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and a live robot share. :class:`ServoStep`
-decides each frame's command (filter, law, limits, adaptation); :class:`ActuatorLimits` are
-the limits it passes through; :class:`StepRecord` is what one step did.
+"""One control period of the closed loop, shared by the simulated loop and a live robot:
+:class:`ServoStep` decides each frame's command (filter, law, limits, adaptation).
 
-When a frame reports the target lost, the robot is commanded to stop and the adaptation is
-frozen; it resumes when the target is back. When a frame is dropped (never arrives), or a
-few in a row are rejected as outliers, the last command is held and the adaptation is frozen
-for those periods: stopping for one bad frame would only make the robot lag its trajectory.
-A dropped frame carries no news about the target, so it keeps the lost state of the last
-frame that arrived: a drop during an occlusion is still lost time (the lost timeout keeps
-counting), never a "target back".
-
-With a state filter (:mod:`hbvs_cli.core.state_filter`) the law acts on its estimate, and
-through frames that give no measurement (dropped, occluded, rejected) on its prediction for
-as long as the prediction's standard deviation stays small; only then does the robot stop.
-The filter also measures the depth from the motion, and the update law (31) is then the
-composite one of :meth:`~hbvs_cli.core.controller.AdaptiveTrackingController.adapt`.
+A lost target stops the robot and freezes the adaptation until it is back. A dropped frame,
+or a few outliers in a row, hold the last command with the adaptation frozen (stopping for
+one bad frame would only make the robot lag); a dropped frame keeps the lost state of the
+last frame that arrived. With the state filter the law acts on its estimate, and through
+frames without a measurement on its prediction while that stays precise; the update law
+(31) is then the composite one of :meth:`~.controller.AdaptiveTrackingController.adapt`.
 """
 
 from __future__ import annotations
@@ -34,18 +25,8 @@ from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, sched
 
 @dataclass(frozen=True)
 class ActuatorLimits:
-    """Limits of the robot's drive; ``None`` means unlimited.
-
-    Attributes
-    ----------
-    max_v : float or None
-        |v| bound (m/s).
-    max_w : float or None
-        |w| bound (rad/s).
-    max_accel : float or None
-        Bound on the change of v per second (m/s^2); w's change is bounded by
-        ``max_accel`` rad/s^2 as well, a common simplification for differential drives.
-    """
+    """Limits of the robot's drive, None for unlimited: |v| (m/s), |w| (rad/s), and the
+    change of v per second (m/s^2), which bounds w's (rad/s^2) as well."""
 
     max_v: float | None = None
     max_w: float | None = None
@@ -74,32 +55,11 @@ class ActuatorLimits:
 
 @dataclass(frozen=True)
 class StepRecord:
-    """What happened in one control period.
-
-    Attributes
-    ----------
-    t : float
-        Time of the measurement (s).
-    pose : ndarray, shape (3,)
-        True robot pose at ``t`` (m, m, rad).
-    observation : Observation
-        What the controller acted on (after any latency).
-    desired : DesiredState
-    output : ControlOutput or None
-        The law's evaluation (None when lost or dropped).
-    v_c, w_c : float
-        The command actually sent after limits (m/s, rad/s).
-    saturated : bool
-    dhat : float
-        Depth estimate used at this step (m), before its update.
-    target_lost : bool or None
-        Whether the target counts as lost at this step: the last frame that arrived did
-        not show it (a dropped frame keeps the state before it). ``None``: the
-        observation's own ``lost``.
-    estimate : FilterEstimate or None
-        The state filter's estimate the law acted on (None without a filter, or before
-        its first measurement).
-    """
+    """What happened in one control period: the measurement's time ``t`` (s), the true
+    ``pose`` (3,) (m, m, rad), the ``observation`` acted on (after any latency), the law's
+    ``output`` (None when lost or dropped), the command sent after limits ``v_c, w_c`` (m/s,
+    rad/s), ``dhat`` (m) before its update, ``target_lost`` (the last frame that arrived did
+    not show it; None: the observation's own) and the filter's ``estimate`` acted on."""
 
     t: float
     pose: NDArray[np.float64]
@@ -135,23 +95,10 @@ NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
 
 
 class ServoStep:
-    """One camera frame's decision: filter, law, limits, adaptation (the loop's body).
-
-    The simulator (:func:`hbvs_cli.sim.closed_loop.run_closed_loop`) and the live loop on a robot
-    (:mod:`hbvs_cli.stages.live`) both call :meth:`decide` with each frame's observation and
-    then :meth:`sent` once the command is out, so that they act identically on the same
-    frames.
-
-    Parameters
-    ----------
-    controller : AdaptiveTrackingController
-        Its dhat is updated in place.
-    limits : ActuatorLimits
-    latency_steps : int
-        Frames between taking a frame and acting on it (the filter carries its estimate
-        over the commands sent since).
-    state_filter : ServoStateFilter or None
-    """
+    """One camera frame's decision: filter, law, limits, adaptation (the loop's body). The
+    simulated and the live loop call :meth:`decide` for each frame, then :meth:`sent` once
+    the command is out. ``controller``'s dhat is updated in place; ``latency_steps``: frames
+    between taking a frame and acting on it (the filter carries its estimate over them)."""
 
     def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
                  state_filter: ServoStateFilter | None = None) -> None:

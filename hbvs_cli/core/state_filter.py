@@ -1,37 +1,20 @@
-"""A Kalman filter on the servo state (theta, x_h1, x_h2) and the inverse depth 1/d*, between
-the camera and the law.
+"""A Kalman filter on the servo state (theta, x_h1, x_h2) and the inverse depth rho = 1/d*,
+between the camera and the law (docs/method.md, "State filter").
 
-The paper feeds the law (29)-(31) the raw decomposition of every frame. With a real
-detector (0.2-1 px of noise) the lateral gain k_2 multiplies that noise into the commands,
-and the robot chatters or loses its target (docs/method.md, "State filter"). This module
-keeps an estimate of the state that the law acts on:
+The paper feeds the law (29)-(31) the raw decomposition of every frame; with a real
+detector's noise the lateral gain k_2 multiplies it into the commands. This filter:
 
-* **Prediction** with the kinematics (5), (23), integrated exactly for a command (v, w)
-  held over ``dt`` (the robot moves on an arc)::
-
-      theta' = theta - w dt
-      x_h'   = Rz(-w dt) (x_h - [dx, dy] rho)
-      rho'   = rho
-
-  where ``[dx, dy]`` is the arc's displacement in the robot's frame at the start of the
-  step and ``rho = 1/d*`` is a state of the filter: the prediction is linear in it, so the
-  motion the camera sees for a known command measures the depth (docs/method.md, "The
-  depth in the filter"). The process noise is a white velocity error on v and w (what the
-  wheels did not do).
-* **Correction** with the frame's measurement (theta, x_h1, x_h2) as the known-normal
-  solver returns it, with the covariance the image points give it: ``sigma^2 (J^T J)^-1``,
-  where J is the Jacobian of the N normalised image points with respect to the state and
-  sigma the per-coordinate noise of the detector. This is the Gauss-Newton linearisation
-  of a correction with the 2N image coordinates themselves, at the cost of a 3x3 update.
-* **Noise from the detector's residuals.** The known-normal solve leaves a residual r
-  (RMS over 2N coordinates) whose expectation is ``sigma^2 (2N - 3) / (2N)``; sigma^2 is
-  the exponentially weighted mean of ``r^2 2N / (2N - 3)`` over the accepted frames, starting
-  from the fit's residual.
-* **Outliers** are gated by the squared Mahalanobis distance of the innovation (3 degrees
-  of freedom); after ``reset_after`` rejections in a row the filter restarts from the
-  measurement (the world moved, not the detector), keeping what it learnt of the depth.
-
-Every function here is pure; :class:`ServoStateFilter` holds the estimate and its covariance.
+* **predicts** with the kinematics (5), (23) integrated exactly for a command (v, w) held
+  over ``dt`` (an arc): ``theta' = theta - w dt``, ``x_h' = Rz(-w dt) (x_h - [dx, dy] rho)``,
+  ``rho' = rho``; linear in rho, so the motion the camera sees measures the depth. Process
+  noise: a white velocity error on v and w.
+* **corrects** with the known-normal solver's (theta, x_h1, x_h2), of covariance
+  ``sigma^2 (J^T J)^-1`` (J: Jacobian of the N normalised points with respect to the state),
+  the Gauss-Newton linearisation of a correction with the 2N coordinates themselves;
+* **learns sigma** from the solver's RMS residual r, ``E[r^2] = sigma^2 (2N - 3) / (2N)``,
+  as an exponentially weighted mean starting from the fit's residual;
+* **gates outliers** by the squared Mahalanobis distance of the innovation (3 dof); after
+  ``reset_after`` rejections in a row it restarts from the frame, keeping its depth.
 """
 
 from __future__ import annotations
@@ -44,7 +27,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError
-from .control_settings import FILTER_EKF, FILTER_NONE, FILTERS  # noqa: F401 - re-exported
 from .controller import Measurement
 from .frames import wrap_angle
 from .known_normal import normal_equations, point_jacobian
@@ -67,62 +49,40 @@ class FilterOutcome(Label):
     PREDICTED = "predicted"
 
 
-
-
 @dataclass(frozen=True)
 class FilterSettings:
     """Tuning of :class:`ServoStateFilter`.
 
     Attributes
     ----------
-    speed_noise : float
-        Spectral density of the error between the commanded and the executed v,
-        m/s/sqrt(Hz): over one second the position drifts by about this much (m).
-    turn_noise : float
-        The same for w, rad/s/sqrt(Hz).
+    speed_noise, turn_noise : float
+        Spectral density of the executed minus the commanded v (m/s/sqrt(Hz)) and w
+        (rad/s/sqrt(Hz)).
     depth_prior : float
-        Relative standard deviation of the inverse depth 1/dhat(0) the filter starts from
-        (dimensionless): 1 admits a dhat(0) from a quarter of d* (0.75 sigma) to four times
-        it (3 sigma); the motion then measures 1/d* within a few percent in a second.
+        Relative standard deviation of the starting 1/dhat(0): 1 admits dhat(0) from d*/4
+        (0.75 sigma) to 4 d* (3 sigma).
     depth_trust : float
-        Relative standard deviation of the filter's depth at which the law's depth estimate
-        is pulled towards it at half :attr:`depth_pull_rate` (dimensionless).
-    depth_pull_rate : float
-        Rate (1/s) at which the update law moves dhat towards the filter's depth once that
-        is well measured (docs/method.md, "The depth in the filter").
+        Relative standard deviation of the filter's depth at which dhat is pulled towards
+        it at half ``depth_pull_rate`` (1/s) (docs/method.md, "The depth in the filter").
     lateral_settled : float
-        Lateral error ``sqrt(k_2 ebar2^2 + e3^2)`` (rad) at which the pull is halved once
-        dhat has met the filter's depth (:func:`scheduled_depth_pull`).
-    depth_met : float
-        Relative gap ``|d_f - dhat| / d_f`` within which dhat counts as having met the
-        filter's depth (dimensionless): until then the pull learns at its full rate.
-    gate : float
-        Squared Mahalanobis distance beyond which a measurement is rejected.
-    reset_after : int
-        Rejections in a row after which the filter restarts from the measurement.
+        Lateral error ``sqrt(k_2 ebar2^2 + e3^2)`` (rad) halving the pull once dhat has met
+        the filter's depth within the relative gap ``depth_met`` (:func:`scheduled_depth_pull`).
+    gate, reset_after : float, int
+        Squared Mahalanobis distance beyond which a frame is rejected; rejections in a row
+        after which the filter restarts from the frame.
     noise_time_constant : float
-        Time constant of the running estimate of the detector's noise (s).
-    settle_time : float
-        Seconds of frames the filter fuses before its estimate is handed to the law: the
-        first frame alone is as noisy as the raw measurement, and the robot holds still
-        while a few more average it down.
-    fade_time : float
-        Seconds over which the law's feedback is then faded in (the commands go from the
-        taught ones (25) to those of (29)-(30)).
-    settle_noise : float
-        Measurement noise (normalised units; 4e-4 is 0.2 px at f = 500 px) from which
-        the whole settle and fade times apply; a cleaner camera needs them shorter, in
-        proportion to the noise variance.
+        Time constant (s) of the running estimate of the detector's noise.
+    settle_time, fade_time : float
+        Seconds of frames fused (the robot holding still) before the law gets the estimate,
+        then seconds over which its feedback fades in from the taught commands (25); both
+        shrink in proportion to the noise variance below ``settle_noise`` (normalised units).
     coast_theta_std, coast_x_h_std : float
-        While the target is not seen (occluded, not found, rejected) the law keeps acting
-        on the prediction as long as its standard deviations stay within these (rad,
-        units of d*: 0.005 is 2 cm at 4 m); beyond them the robot stops.
+        While the target is not seen the law acts on the prediction while its standard
+        deviations stay within these (rad, units of d*); beyond them the robot stops.
     residual_quantile : float
-        A frame whose residual is beyond this quantile of its chi^2 distribution, under
-        the noise learnt so far, is rejected before it is fused.
+        A frame whose residual is beyond this quantile of its chi^2 distribution is rejected.
     min_noise : float
-        Floor of the measurement noise, in normalised image units (1e-4 is 0.05 px at
-        f = 500 px): no detector is better, and the filter must not trust it more.
+        Floor of the measurement noise (normalised units): no detector is better.
     """
 
     speed_noise: float = 0.0005
@@ -169,14 +129,12 @@ class FilterEstimate:
     noise : float
         Current estimate of the detector's per-coordinate noise (normalised units).
     outcome : FilterOutcome
-        What the last frame did: fused, gated (rejected as an outlier), started, or
-        predicted (no frame).
+        What the last frame did.
     depth : float
-        The filter's depth d* = 1 / rho (m), as the motion measured it.
+        The filter's depth 1 / rho (m).
     depth_pull : float
-        The rate (1/s) at which the update law may pull dhat towards :attr:`depth`:
-        ``depth_pull_rate / (1 + (relative std / depth_trust)^2)``, 0 while the depth is
-        still a guess.
+        The rate (1/s) at which the update law may pull dhat towards ``depth``
+        (:meth:`ServoStateFilter.depth_pull`).
     """
 
     measurement: Measurement
@@ -193,32 +151,14 @@ def scheduled_depth_pull(pull: float, ebar2: float, e3: float, k_2: float, setti
     """The rate kappa (1/s) of the composite update law's pull towards the filter's depth.
 
     The update law is ``dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot) + kappa (d_f - dhat)``
-    ((31) plus a pull; :meth:`~hbvs_cli.core.controller.AdaptiveTrackingController.adapt`).
-    Until dhat has ``met`` the filter's depth d_f, ``kappa = pull``: the pull learns the
-    depth from a dhat(0) 2-4x off. After, ``kappa = pull / (1 + (l / l_0)^2)`` with
-    ``l = sqrt(k_2 ebar2^2 + e3^2)`` (the lateral part of V (36)) and ``l_0`` =
-    ``lateral_settled``: while the law turns the robot onto its path (a start off it, the
-    filter's slow corrections of its heading), (31) moves dhat away from d* and back, and
-    a pull that holds dhat stiff there slows the lateral mode, whose error then lasts to
-    the end of a short run; (31) adapts alone then, as in the paper, and the pull holds
-    dhat at d_f once the robot is on its path.
+    ((31) plus a pull). Until dhat has ``met`` the filter's depth d_f, ``kappa = pull``
+    (:attr:`FilterEstimate.depth_pull`). After, ``kappa = pull / (1 + (l / l_0)^2)`` with
+    ``l = sqrt(k_2 ebar2^2 + e3^2)`` (the lateral part of V (36); ebar2, e3 of (27)) and
+    ``l_0 = lateral_settled``: while the law turns the robot onto its path, (31) moves dhat
+    away from d* and back, and a stiff pull there would slow the lateral mode.
 
-    Any ``kappa >= 0`` keeps the Lyapunov argument: along (32) the pull adds
-    ``-(kappa / gamma_1) d~ (d_f - dhat)`` to V_dot (38), which is ``-(kappa / gamma_1) d~^2
-    <= 0`` when d_f = d* (docs/method.md, "The depth in the filter").
-
-    Parameters
-    ----------
-    pull : float
-        The filter's confidence-scheduled rate (1/s), :attr:`FilterEstimate.depth_pull`.
-    ebar2, e3 : float
-        The law's errors (27) (dimensionless, rad).
-    k_2 : float
-        The lateral gain.
-    settings : FilterSettings
-    met : bool
-        Whether dhat has come within ``depth_met`` of d_f in this run
-        (:class:`~hbvs_cli.core.simulator.ServoStep` keeps it).
+    Any ``kappa >= 0`` keeps the Lyapunov argument: the pull adds ``-(kappa / gamma_1) d~^2
+    <= 0`` to V_dot (38) when d_f = d* (docs/method.md, "The depth in the filter").
     """
     lateral0 = settings.lateral_settled
     if pull <= 0.0 or not met or lateral0 <= 0.0:
@@ -226,34 +166,24 @@ def scheduled_depth_pull(pull: float, ebar2: float, e3: float, k_2: float, setti
     return pull / (1.0 + (k_2 * ebar2 * ebar2 + e3 * e3) / (lateral0 * lateral0))
 
 
-def arc_displacement(v: float, w: float, dt: float) -> tuple[float, float, float]:
-    """Displacement (dx, dy, dphi) of a unicycle holding (v, w) for dt, in its start frame (21)."""
+def _arc(v: float, w: float, dt: float) -> tuple[float, float, float, float]:
+    """Displacement (dx, dy) of a unicycle holding (v, w) for dt, in its start frame (21),
+    and the cosine and sine of its turn ``w dt``."""
     dphi = w * dt
+    c, s = math.cos(dphi), math.sin(dphi)
     if abs(dphi) < 1e-6:
         # Second-order series of sin(dphi)/w and (1 - cos(dphi))/w.
-        return v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi, dphi
-    return v * math.sin(dphi) / w, v * (1.0 - math.cos(dphi)) / w, dphi
+        return v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi, c, s
+    return v * s / w, v * (1.0 - c) / w, c, s
 
 
 def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float) -> tuple[float, float, float]:
-    """The servo state after holding (v, w) for dt: (5), (23) integrated exactly.
-
-    Parameters
-    ----------
-    state : array_like, shape (3,)
-        (theta, x_h1, x_h2) now.
-    v, w : float
-        Command held over the step (m/s, rad/s).
-    dt : float
-        Step (s).
-    depth : float
-        d* or its estimate (m), > 0.
-    """
+    """The state (theta, x_h1, x_h2) after holding (v, w) (m/s, rad/s) for dt (s) at the
+    depth d* (m): (5), (23) integrated exactly."""
     theta, x1, x2 = (float(s) for s in state)
-    dx, dy, dphi = arc_displacement(v, w, dt)
-    c, s = math.cos(dphi), math.sin(dphi)
+    dx, dy, c, s = _arc(v, w, dt)
     a, b = x1 - dx / depth, x2 - dy / depth
-    return theta - dphi, c * a + s * b, -s * a + c * b
+    return theta - w * dt, c * a + s * b, -s * a + c * b
 
 
 def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float64], state: ArrayLike) -> NDArray[np.float64]:
@@ -276,13 +206,6 @@ def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float
         np.stack([jz_t, jz_1, np.zeros_like(g)], axis=1),
     ])
     return jacobian.T @ jacobian
-
-
-def chi2_quantile(probability: float, dof: int) -> float:
-    """The ``probability`` quantile of chi^2 with ``dof`` degrees of freedom."""
-    from scipy.stats import chi2
-
-    return float(chi2.ppf(probability, dof))
 
 
 # --------------------------------------------------------------------------- small algebra
@@ -310,15 +233,24 @@ def _sym_inverse(a: Sym3) -> Sym3:
             (a00 * a11 - a01 * a01) * inv)
 
 
-def _sym4_to_array(p: Sym4) -> NDArray[np.float64]:
-    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
-    return np.array([[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23], [p03, p13, p23, p33]])
+def _sym_times(s: Sym3, a0: float, a1: float, a2: float) -> Vec3:
+    """The symmetric 3x3 ``s`` times the vector (a0, a1, a2)."""
+    s00, s01, s02, s11, s12, s22 = s
+    return s00 * a0 + s01 * a1 + s02 * a2, s01 * a0 + s11 * a1 + s12 * a2, s02 * a0 + s12 * a1 + s22 * a2
 
 
-def _points_information(y_ref: list[float], z_ref: list[float], g: list[float], state: Vec3) -> Sym3:
-    """:func:`measurement_information` in plain floats, as a symmetric 6-tuple."""
-    theta, x1, x2 = state
-    return normal_equations(math.cos(theta), math.sin(theta), y_ref, z_ref, g, x1, x2)[0]
+def _dot(a: Vec3, b: Vec3) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+#: (row, column) of the 10-tuple's entries.
+_SYM4_ENTRIES = ((0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3))
+
+
+def residual_to_variance(points: int) -> float:
+    """``sigma^2 / r^2`` for the RMS residual r of the known-normal solve of ``points``
+    points: ``E[r^2] = sigma^2 (2N - 3) / (2N)``, three parameters fitted to 2N coordinates."""
+    return 2.0 * points / max(2.0 * points - 3.0, 1.0)
 
 
 #: The filter's inverse depth stays within this factor of its prior either way: a bound
@@ -355,9 +287,11 @@ class ServoStateFilter:
         self._y_ref = self.m_ref[:, 1].tolist()
         self._z_ref = self.m_ref[:, 2].tolist()
         self._g = (self.m_ref @ self.normal).tolist()
-        # E[r^2] = sigma^2 (2N - 3) / (2N): three parameters are fitted to 2N coordinates.
-        self._residual_to_variance = 2.0 * points / max(2.0 * points - 3.0, 1.0)
-        self._residual_gate = chi2_quantile(self.settings.residual_quantile, max(2 * points - 3, 1)) / max(2 * points - 3, 1)
+        self._residual_to_variance = residual_to_variance(points)
+        from scipy.stats import chi2
+
+        dof = max(2 * points - 3, 1)
+        self._residual_gate = float(chi2.ppf(self.settings.residual_quantile, dof)) / dof
         self.noise_variance = max(noise, self.settings.min_noise) ** 2
         self._state: State | None = None
         self._covariance: Sym4 | None = None
@@ -387,7 +321,10 @@ class ServoStateFilter:
     @property
     def covariance(self) -> NDArray[np.float64] | None:
         """Its covariance, shape (3, 3)."""
-        return None if self._covariance is None else _sym4_to_array(self._covariance)[:3, :3]
+        if self._covariance is None:
+            return None
+        p00, p01, p02, _, p11, p12, _, p22, _, _ = self._covariance
+        return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
 
     @property
     def depth(self) -> float:
@@ -446,13 +383,7 @@ class ServoStateFilter:
         ``(f13, f23) = -Rz(-w dt) [dx, dy]`` is how the step's x_h moves with rho."""
         settings = self.settings
         theta, x1, x2, rho = state
-        # arc_displacement fused with the rotation: one cos and one sin per step.
-        dphi = w * dt
-        c, s = math.cos(dphi), math.sin(dphi)
-        if abs(dphi) < 1e-6:
-            dx, dy = v * dt * (1.0 - dphi * dphi / 6.0), 0.5 * v * dt * dphi
-        else:
-            dx, dy = v * s / w, v * (1.0 - c) / w
+        dx, dy, c, s = _arc(v, w, dt)
         a, b = x1 - dx * rho, x2 - dy * rho
         f13, f23 = -(c * dx + s * dy), s * dx - c * dy
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = covariance
@@ -468,7 +399,7 @@ class ServoStateFilter:
         # and g_w = [-1, x_h2, -x_h1, 0]; their integral over dt has variance q dt.
         qv = settings.speed_noise**2 * dt * rho * rho
         qw = settings.turn_noise**2 * dt
-        return (theta - dphi, c * a + s * b, -s * a + c * b, rho), (
+        return (theta - w * dt, c * a + s * b, -s * a + c * b, rho), (
             p00 + qw,
             m10 - qw * x2,
             -s * p01 + c * p02 + f23 * p03 + qw * x1,
@@ -511,8 +442,7 @@ class ServoStateFilter:
             self._learn_noise(residual, dt)
         observed = self._observed(measured)
         if observed is None:
-            self.last_outcome = FilterOutcome.GATED
-            return FilterOutcome.GATED
+            return self._gated()
         z, inverse_information = observed
         variance = self.noise_variance
         r00, r01, r02, r11, r12, r22 = (variance * value for value in inverse_information)
@@ -520,52 +450,25 @@ class ServoStateFilter:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._covariance
-        n0, n1, n2 = wrap_angle(z[0] - theta), z[1] - x1, z[2] - x2
+        innovation = (wrap_angle(z[0] - theta), z[1] - x1, z[2] - x2)
         try:
-            s00, s01, s02, s11, s12, s22 = _sym_inverse((p00 + r00, p01 + r01, p02 + r02, p11 + r11, p12 + r12, p22 + r22))
+            inverse = _sym_inverse((p00 + r00, p01 + r01, p02 + r02, p11 + r11, p12 + r12, p22 + r22))
         except ZeroDivisionError:
             return self._reject(measured, residual, dt, observed)
         # S^-1 nu, and the squared Mahalanobis distance nu^T S^-1 nu.
-        w0 = s00 * n0 + s01 * n1 + s02 * n2
-        w1 = s01 * n0 + s11 * n1 + s12 * n2
-        w2 = s02 * n0 + s12 * n1 + s22 * n2
-        if n0 * w0 + n1 * w1 + n2 * w2 > self.settings.gate:
+        weights = _sym_times(inverse, *innovation)
+        if _dot(innovation, weights) > self.settings.gate:
             return self._reject(measured, residual, dt, observed)
         self.rejected_in_a_row = 0
         # The measurement sees the first three states: K = P[:, :3] S^-1, x += K nu and
         # P -= P[:, :3] S^-1 P[:3, :]. Column j of P[:3, :] is (p0j, p1j, p2j); u_j = S^-1 of it.
-        u00 = s00 * p00 + s01 * p01 + s02 * p02
-        u01 = s01 * p00 + s11 * p01 + s12 * p02
-        u02 = s02 * p00 + s12 * p01 + s22 * p02
-        u10 = s00 * p01 + s01 * p11 + s02 * p12
-        u11 = s01 * p01 + s11 * p11 + s12 * p12
-        u12 = s02 * p01 + s12 * p11 + s22 * p12
-        u20 = s00 * p02 + s01 * p12 + s02 * p22
-        u21 = s01 * p02 + s11 * p12 + s12 * p22
-        u22 = s02 * p02 + s12 * p12 + s22 * p22
-        u30 = s00 * p03 + s01 * p13 + s02 * p23
-        u31 = s01 * p03 + s11 * p13 + s12 * p23
-        u32 = s02 * p03 + s12 * p13 + s22 * p23
+        columns = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22), (p03, p13, p23))
+        u = [_sym_times(inverse, *column) for column in columns]
         low, high = self._rho_range
-        rho_new = rho + p03 * w0 + p13 * w1 + p23 * w2
-        self._state = (
-            theta + p00 * w0 + p01 * w1 + p02 * w2,
-            x1 + p01 * w0 + p11 * w1 + p12 * w2,
-            x2 + p02 * w0 + p12 * w1 + p22 * w2,
-            min(max(rho_new, low), high),
-        )
-        self._covariance = (
-            p00 - (p00 * u00 + p01 * u01 + p02 * u02),
-            p01 - (p00 * u10 + p01 * u11 + p02 * u12),
-            p02 - (p00 * u20 + p01 * u21 + p02 * u22),
-            p03 - (p00 * u30 + p01 * u31 + p02 * u32),
-            p11 - (p01 * u10 + p11 * u11 + p12 * u12),
-            p12 - (p01 * u20 + p11 * u21 + p12 * u22),
-            p13 - (p01 * u30 + p11 * u31 + p12 * u32),
-            p22 - (p02 * u20 + p12 * u21 + p22 * u22),
-            p23 - (p02 * u30 + p12 * u31 + p22 * u32),
-            p33 - (p03 * u30 + p13 * u31 + p23 * u32),
-        )
+        theta, x1, x2, rho = (x + c0 * weights[0] + c1 * weights[1] + c2 * weights[2]
+                              for x, (c0, c1, c2) in zip(self._state, columns))
+        self._state = (theta, x1, x2, min(max(rho, low), high))
+        self._covariance = tuple(p - _dot(columns[i], u[j]) for p, (i, j) in zip(self._covariance, _SYM4_ENTRIES))
         self.fused_time += dt
         self.last_outcome = FilterOutcome.FUSED
         return FilterOutcome.FUSED
@@ -574,8 +477,10 @@ class ServoStateFilter:
         """The measurement as a state, and the inverse of its points' information (per unit
         noise variance); None when the points do not determine the state."""
         z = (float(measured.theta), float(measured.x_h1), float(measured.x_h2))
+        # measurement_information in plain floats, as a symmetric 6-tuple.
+        information = normal_equations(math.cos(z[0]), math.sin(z[0]), self._y_ref, self._z_ref, self._g, z[1], z[2])[0]
         try:
-            return z, _sym_inverse(_points_information(self._y_ref, self._z_ref, self._g, z))
+            return z, _sym_inverse(information)
         except ZeroDivisionError:
             return None
 
@@ -590,11 +495,12 @@ class ServoStateFilter:
             if math.isfinite(residual):
                 self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
             observed = observed or self._observed(measured)
-            if observed is None:
-                self.last_outcome = FilterOutcome.GATED
-                return FilterOutcome.GATED
-            z, inverse_information = observed
-            return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
+            if observed is not None:
+                z, inverse_information = observed
+                return self._start(z, tuple(self.noise_variance * value for value in inverse_information), residual, dt)
+        return self._gated()
+
+    def _gated(self) -> FilterOutcome:
         self.last_outcome = FilterOutcome.GATED
         return FilterOutcome.GATED
 

@@ -190,26 +190,20 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
 
 
 class TimeScaledTrajectory:
-    """A trajectory played from ``start`` at ``speed`` times its taught pace.
+    """A trajectory played from its start at ``speed`` times its taught pace:
+    ``evaluate(tau) = base.evaluate(base.t_start + speed * tau)``, derivatives times ``speed``."""
 
-    ``evaluate(tau) = base.evaluate(start + speed * tau)``, derivatives times ``speed``.
-    """
-
-    def __init__(self, base: DesiredTrajectory, speed: float = 1.0, start: float | None = None) -> None:
+    def __init__(self, base: DesiredTrajectory, speed: float = 1.0) -> None:
         if not np.isfinite(speed) or speed <= 0.0:
             raise InvalidValueError(f"--speed must be a positive number, got {speed}")
         self.base = base
         self.speed = float(speed)
-        self.start = float(base.t_start if start is None else start)
+        self.start = float(base.t_start)
         self.t_start = 0.0
         self.t_end = (base.t_end - self.start) / self.speed
 
-    def base_time(self, tau: ArrayLike) -> NDArray[np.float64]:
-        """The base trajectory's time at run time ``tau``."""
-        return self.start + self.speed * np.asarray(tau, dtype=float)
-
     def evaluate(self, t: ArrayLike) -> DesiredState:
-        state = self.base.evaluate(self.base_time(t))
+        state = self.base.evaluate(self.start + self.speed * np.asarray(t, dtype=float))
         return DesiredState(
             theta_d=state.theta_d,
             x_hd1=state.x_hd1,

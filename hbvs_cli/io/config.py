@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..core.control_settings import GAIN_NAMES
 from .settings import REPEAT_SETTINGS
-from .text_files import read_small_text
+from .text_files import read_small_text, short_repr
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -28,7 +29,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 #: The keys of each table (top level: ""), in order.
 TABLES: dict[str, tuple[str, ...]] = {
     "": ("law", "dhat0", "speed", "filter"),
-    "gains": ("k_v", "k_w", "gamma", "k_2"),
+    "gains": GAIN_NAMES,
     "limits": ("max_v", "max_w", "max_accel", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
@@ -38,13 +39,8 @@ SCHEMA: dict[str, dict[str, type]] = {table: {key: _TYPES[key] for key in keys} 
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
-    """Read and validate a TOML config; returns flat ``{key: value}`` (e.g. ``k_v``, ``max_v``).
-
-    Raises
-    ------
-    InputError
-        Missing file, malformed TOML, an unknown key or a value of the wrong type.
-    """
+    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``); :class:`InputError` for a
+    missing file, malformed TOML, an unknown key or a value of the wrong type."""
     path = Path(path)
     text = read_small_text(path, MAX_CONFIG_BYTES, "a TOML file")
     try:
@@ -72,10 +68,10 @@ def _checked(path: Path, table: str, key: str, value: Any) -> Any:
     expected = SCHEMA[table].get(key)
     if expected is None:
         known = ", ".join(SCHEMA[table])
-        raise InputError(f"{path}: unknown key {_short(where)} (known here: {known})")
+        raise InputError(f"{path}: unknown key {short_repr(where)} (known here: {known})")
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{path}: {where} must be a number, got {_short(value)}")
+            raise InputError(f"{path}: {where} must be a number, got {short_repr(value)}")
         try:
             value = float(value)
         except OverflowError:  # an integer literal beyond float range
@@ -85,16 +81,10 @@ def _checked(path: Path, table: str, key: str, value: Any) -> Any:
         return value
     if expected is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{path}: {where} must be a whole number, got {_short(value)}")
+            raise InputError(f"{path}: {where} must be a whole number, got {short_repr(value)}")
         if not -(2**63) <= value < 2**63:  # TOML integers are 64-bit; tomllib does not check
             raise InputError(f"{path}: {where} is out of range")
         return value
     if not isinstance(value, str):
-        raise InputError(f"{path}: {where} must be a string, got {_short(value)}")
+        raise InputError(f"{path}: {where} must be a string, got {short_repr(value)}")
     return value
-
-
-def _short(value: Any) -> str:
-    """A value for a one-line message, cut to a readable length."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."

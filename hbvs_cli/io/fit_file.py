@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..core.camera import CameraIntrinsics
+from ..core.camera import CameraIntrinsics, camera_description
 from ..core.control_settings import GAIN_NAMES, ControllerGains
 from ..core.desired import DesiredFit
 from ..core.fit_model import MAX_TARGET_POINTS, FitModel, TaughtPath
@@ -29,16 +29,9 @@ FILE_KIND = "fit"
 FORMAT_VERSION = 1
 
 
-def camera_to_dict(camera: CameraIntrinsics) -> dict[str, Any]:
-    return {
-        "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
-        "width": camera.width, "height": camera.height,
-        "distortion_model": camera.distortion_model, "distortion": list(camera.distortion),
-    }
-
-
 def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
-    """The inverse of :func:`camera_to_dict`, checked as a calibration file (:class:`CalibrationError`)."""
+    """The inverse of :func:`~hbvs_cli.core.camera.camera_description`, checked as a calibration
+    file (:class:`CalibrationError`)."""
     K = [data["fx"], 0.0, data["cx"], 0.0, data["fy"], data["cy"], 0.0, 0.0, 1.0]
     return intrinsics_from_values(
         K, data["width"], data["height"], str(data.get("distortion_model", "none")), data.get("distortion", ()), "camera",
@@ -139,7 +132,7 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "timestamp": time_message(log_time_ns),
         "hbvs_version": __version__,
         "target_kind": model.target_kind,
-        "camera": camera_to_dict(model.camera),
+        "camera": camera_description(model.camera),
         "reference": {
             "index": model.reference_index,
             "t": model.reference_t,

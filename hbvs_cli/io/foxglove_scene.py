@@ -135,5 +135,4 @@ class SceneWriter:
 
 #: Where the clock of a simulated teach or run starts (ns since 1970, UTC): 2003-10-27, the
 #: opening day of IROS 2003; fixed, so that the same seed gives byte-identical files.
-
 SIMULATION_EPOCH_NS = 1_067_212_800 * 1_000_000_000

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from ..core.grayscale import as_gray
 from ..errors import InputError, RecordingError, UsageError
+from .messages import stamp, stamp_ns
 from .topics import COMPRESSED_IMAGE_SCHEMA
 
 IMAGE_FORMATS = ("png", "jpeg")
@@ -22,8 +23,6 @@ IMAGE_FORMATS = ("png", "jpeg")
 STORE_FORMATS = ("auto", *IMAGE_FORMATS)
 #: JPEG quality of the frames hbvs compresses itself (bench/FILE_SIZES.md).
 DEFAULT_JPEG_QUALITY = 90
-#: The schema every image topic of hbvs carries.
-IMAGE_SCHEMA = COMPRESSED_IMAGE_SCHEMA
 #: Largest difference between a pixel's channels (levels) in a frame taken as gray (OpenCV's
 #: MJPG writer puts a gray frame's channels 2 levels apart).
 NEUTRAL_SPREAD = 3
@@ -222,7 +221,6 @@ def bytes_to_store(
 class StoredImage:
     """One ``foxglove.CompressedImage`` as read from a file (``stamp_ns``: its own stamp, ns)."""
 
-
     data: bytes
     format: str
     stamp_ns: int
@@ -232,14 +230,12 @@ def compressed_image_message(stamp_ns: int, data: bytes, image_format: str, fram
     """A ``foxglove.CompressedImage`` (protobuf: the bytes as they are) stamped ``stamp_ns``."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-    from .messages import stamp
-
     return CompressedImage(timestamp=stamp(stamp_ns), frame_id=frame_id, data=bytes(data), format=image_format)
 
 
 def write_compressed_image(writer: Any, topic: str, log_time_ns: int, data: bytes, image_format: str, frame_id: str = "camera") -> None:
     """Write one ``foxglove.CompressedImage`` on an :class:`~hbvs_cli.io.mcap.McapWriter`, stamped with its log time."""
-    writer.write(topic, IMAGE_SCHEMA, log_time_ns, compressed_image_message(log_time_ns, data, image_format, frame_id))
+    writer.write(topic, COMPRESSED_IMAGE_SCHEMA, log_time_ns, compressed_image_message(log_time_ns, data, image_format, frame_id))
 
 
 def read_compressed_image(data: bytes, source: str = "") -> StoredImage:
@@ -251,5 +247,4 @@ def read_compressed_image(data: bytes, source: str = "") -> StoredImage:
         message = CompressedImage.FromString(data)
     except (DecodeError, ValueError, RuntimeError):
         raise RecordingError(f"{source}: malformed image message (not a protobuf foxglove.CompressedImage)") from None
-    stamp = message.timestamp.seconds * 1_000_000_000 + message.timestamp.nanos
-    return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(int(stamp), 0))
+    return StoredImage(data=bytes(message.data), format=message.format, stamp_ns=max(stamp_ns(message.timestamp), 0))

@@ -71,3 +71,10 @@ def said_since(start: int) -> str:
     lines = [re.sub(r"^\[[A-Z]+:[^\]]*\]\s+\S+\s+\S+:\d+\s+", "", line).strip() for line in text.splitlines()]
     said = "; ".join(line for line in lines if line)
     return said if len(said) <= MAX_QUOTED_CHARS else said[: MAX_QUOTED_CHARS - 3] + "..."
+
+
+def opencv_error_text(exc: BaseException) -> str:
+    """The useful part of an OpenCV error (``... error: (-212:Parsing error) ...``), on one line."""
+    cause = exc.__cause__ if exc.__cause__ is not None else exc
+    message = " ".join(str(cause).split())
+    return message.split("error: ", 1)[1] if "error: " in message else message

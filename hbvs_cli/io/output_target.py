@@ -167,19 +167,12 @@ class FolderLock:
 
 # ----------------------------------------------------------------------------- same file
 def _identity(path: str) -> tuple[int, int] | None:
+    """(device, inode) of ``path``, or of stdout for ``-`` when it is a regular file."""
     try:
-        status = os.stat(path)
+        status = os.fstat(1) if path == "-" else os.stat(path)
     except OSError:
         return None
-    return status.st_dev, status.st_ino
-
-
-def _stdout_identity() -> tuple[int, int] | None:
-    try:
-        status = os.fstat(1)
-    except OSError:
-        return None
-    return (status.st_dev, status.st_ino) if stat.S_ISREG(status.st_mode) else None
+    return (status.st_dev, status.st_ino) if path != "-" or stat.S_ISREG(status.st_mode) else None
 
 
 def refuse_overwriting_inputs(
@@ -206,12 +199,8 @@ def refuse_overwriting_inputs(
         if spec is None:
             continue
         text = os.fspath(spec)
-        if text == "-":
-            identity = _stdout_identity()
-            key: Any = ("stdout",)
-        else:
-            identity = _identity(text)
-            key = identity or Path(os.path.realpath(text))
+        identity = _identity(text)
+        key: Any = ("stdout",) if text == "-" else identity or Path(os.path.realpath(text))
         if identity is not None and identity in known:
             where = "stdout" if text == "-" else f"{label} {text}"
             raise UsageError(f"{where} is the same file as {known[identity]}: hbvs would overwrite its own input; write to another file")
@@ -275,13 +264,10 @@ class GuardedStream:
         except ValueError:
             raise OutputError(f"{self._what}: the stream is closed") from None
 
-    def fileno(self) -> int:
-        return self._raw.fileno()
-
     def __enter__(self) -> "GuardedStream":
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self.close()
 
     def close(self) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.path import CommandProfile
 from ..errors import HbvsError, InputError
-from .text_files import read_small_text
+from .text_files import read_small_text, short_repr
 
 #: Largest CSV accepted (bytes): a day of commands at 100 Hz is ~200 MB; paths are small.
 MAX_CSV_BYTES = 64 * 2**20
@@ -36,7 +36,7 @@ def load_command_profile(path: str | Path) -> CommandProfile:
     columns = [h.strip().lower() for h in header]
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if missing:
-        raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {_short(','.join(columns))})")
+        raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {short_repr(','.join(columns))})")
     index = [columns.index(c) for c in REQUIRED_COLUMNS]
     # Packed doubles, not a list per row: a 64 MiB file of short rows is ten million
     # rows, which as Python lists would take gigabytes.
@@ -49,7 +49,7 @@ def load_command_profile(path: str | Path) -> CommandProfile:
             try:
                 numbers = [float(row[i]) for i in index]
             except (ValueError, IndexError):
-                raise InputError(f"{name}:{line_number}: expected three numbers t,v,w, got {_short(','.join(row))}") from None
+                raise InputError(f"{name}:{line_number}: expected three numbers t,v,w, got {short_repr(','.join(row))}") from None
             for column, number in zip(values, numbers):
                 column.append(number)
             lines.append(line_number)
@@ -71,10 +71,3 @@ def load_command_profile(path: str | Path) -> CommandProfile:
         return CommandProfile(t=t, v=v, w=w, t_end=t_end)
     except HbvsError as exc:
         raise InputError(f"{name}: {exc}") from None
-
-
-def _short(text: str) -> str:
-    """A cell or row for a one-line message, cut to a readable length."""
-    text = repr(text)
-    return text if len(text) <= 60 else text[:57] + "..."
-

@@ -1,38 +1,33 @@
 """ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot.
 
 ROS 2 topics are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain
-CDR, so the few messages hbvs needs are Cyclone DDS IDL structs with those names
-(``tests/test_live_dds.py`` checks them against ``rosbags``' typestore).
+CDR, so the few messages hbvs needs are Cyclone DDS IDL structs with those names, made from
+``rosbags``' message definitions (``tests/test_live_dds.py`` checks them against its CDR).
 """
 
-# No "from __future__ import annotations": the binding reads the structs' annotations as types.
-
 import os
+import types
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import InputError, UsageError
 from .topics import (
-    ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA, ROS_POSE_STAMPED_SCHEMA, ROS_TWIST_SCHEMA,
-    ROS_TWIST_STAMPED_SCHEMA,
+    ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA, ROS_POSE_STAMPED_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
 
 INSTALL_HINT = "ROS 2 topics need Eclipse Cyclone DDS's Python binding: pip install 'hbvs[ros2]'"
 
-
 try:
-    import cyclonedds.domain  # noqa: F401
-    import cyclonedds.idl  # noqa: F401
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.qos import Policy, Qos
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
 except ImportError:
     raise UsageError(INSTALL_HINT) from None
-from cyclonedds.qos import Policy, Qos  # noqa: E402
-from cyclonedds.domain import DomainParticipant  # noqa: E402
-from cyclonedds.idl import IdlStruct  # noqa: E402
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32  # noqa: E402
-from cyclonedds.pub import DataWriter  # noqa: E402
-from cyclonedds.sub import DataReader  # noqa: E402
-from cyclonedds.topic import Topic  # noqa: E402
-from cyclonedds.util import duration  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- messages
@@ -43,104 +38,47 @@ def dds_type_name(ros_type: str) -> str:
     return f"{package}::{kind}::dds_::{name}_"
 
 
-@dataclass
-class Time(IdlStruct, typename=dds_type_name("builtin_interfaces/msg/Time")):
-    sec: int32 = 0
-    nanosec: uint32 = 0
+def _idl_structs(ros_types: tuple[str, ...]) -> dict[str, type]:
+    """IDL structs of ROS 2 message types (and the types they nest), made from rosbags' Humble
+    definitions: the same fields in the same order, numbers 0, strings "" and nested messages
+    their own default when not given; ``uint8[]`` is ``bytes`` (see :func:`_octets_as_bytes`)."""
+    from rosbags.interfaces import Nodetype
+    from rosbags.typesys import Stores, get_typestore
 
+    definitions = get_typestore(Stores.ROS2_HUMBLE).fielddefs
+    base = {"float64": (float64, 0.0), "int32": (int32, 0), "uint32": (uint32, 0), "uint8": (uint8, 0),
+            "bool": (bool, False), "string": (str, "")}
+    made: dict[str, type] = {}
 
-@dataclass
-class Header(IdlStruct, typename=dds_type_name("std_msgs/msg/Header")):
-    stamp: Time = field(default_factory=Time)
-    frame_id: str = ""
+    def typed(node: tuple[Any, Any]) -> tuple[Any, Any]:
+        kind, detail = node
+        if kind == Nodetype.BASE:
+            return base[detail[0]][0], field(default=base[detail[0]][1])
+        if kind == Nodetype.NAME:
+            return make(detail), field(default_factory=make(detail))
+        element, zero = detail[0][1][0], base[detail[0][1][0]][1]
+        if kind == Nodetype.ARRAY:
+            return array[base[element][0], detail[1]], field(default_factory=lambda: [zero] * detail[1])
+        if element == "uint8":
+            return sequence[uint8], field(default=b"")
+        return sequence[base[element][0]], field(default_factory=list)
 
+    def make(ros_type: str) -> type:
+        if ros_type not in made:
+            members = {name: typed(node) for name, node in definitions[ros_type][1]}
+            body = {"__module__": __name__, "__annotations__": {k: v[0] for k, v in members.items()}}
+            body.update({k: v[1] for k, v in members.items()})
+            cls = types.new_class(ros_type.rsplit("/", 1)[1], (IdlStruct,), {"typename": dds_type_name(ros_type)},
+                                  lambda namespace: namespace.update(body))
+            made[ros_type] = dataclass(cls)
+            for name, node in definitions[ros_type][1]:
+                if node == (Nodetype.SEQUENCE, ((Nodetype.BASE, ("uint8", 0)), 0)):
+                    _octets_as_bytes(made[ros_type], name)
+        return made[ros_type]
 
-@dataclass
-class Vector3(IdlStruct, typename=dds_type_name("geometry_msgs/msg/Vector3")):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-
-
-@dataclass
-class Twist(IdlStruct, typename=dds_type_name(ROS_TWIST_SCHEMA)):
-    linear: Vector3 = field(default_factory=Vector3)
-    angular: Vector3 = field(default_factory=Vector3)
-
-
-@dataclass
-class TwistStamped(IdlStruct, typename=dds_type_name(ROS_TWIST_STAMPED_SCHEMA)):
-    header: Header = field(default_factory=Header)
-    twist: Twist = field(default_factory=Twist)
-
-
-@dataclass
-class Point(IdlStruct, typename=dds_type_name("geometry_msgs/msg/Point")):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-
-
-@dataclass
-class Quaternion(IdlStruct, typename=dds_type_name("geometry_msgs/msg/Quaternion")):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-    w: float64 = 1.0
-
-
-@dataclass
-class Pose(IdlStruct, typename=dds_type_name("geometry_msgs/msg/Pose")):
-    position: Point = field(default_factory=Point)
-    orientation: Quaternion = field(default_factory=Quaternion)
-
-
-@dataclass
-class PoseStamped(IdlStruct, typename=dds_type_name(ROS_POSE_STAMPED_SCHEMA)):
-    header: Header = field(default_factory=Header)
-    pose: Pose = field(default_factory=Pose)
-
-
-@dataclass
-class Image(IdlStruct, typename=dds_type_name(ROS_IMAGE_SCHEMA)):
-    header: Header = field(default_factory=Header)
-    height: uint32 = 0
-    width: uint32 = 0
-    encoding: str = ""
-    is_bigendian: uint8 = 0
-    step: uint32 = 0
-    data: sequence[uint8] = b""  # bytes on the Python side: see _octets_as_bytes
-
-
-@dataclass
-class CompressedImage(IdlStruct, typename=dds_type_name(ROS_COMPRESSED_IMAGE_SCHEMA)):
-    header: Header = field(default_factory=Header)
-    format: str = ""
-    data: sequence[uint8] = b""  # bytes on the Python side: see _octets_as_bytes
-
-
-@dataclass
-class RegionOfInterest(IdlStruct, typename=dds_type_name("sensor_msgs/msg/RegionOfInterest")):
-    x_offset: uint32 = 0
-    y_offset: uint32 = 0
-    height: uint32 = 0
-    width: uint32 = 0
-    do_rectify: bool = False
-
-
-@dataclass
-class CameraInfo(IdlStruct, typename=dds_type_name(ROS_CAMERA_INFO_SCHEMA)):
-    header: Header = field(default_factory=Header)
-    height: uint32 = 0
-    width: uint32 = 0
-    distortion_model: str = ""
-    d: sequence[float64] = field(default_factory=list)
-    k: array[float64, 9] = field(default_factory=lambda: [0.0] * 9)
-    r: array[float64, 9] = field(default_factory=lambda: [0.0] * 9)
-    p: array[float64, 12] = field(default_factory=lambda: [0.0] * 12)
-    binning_x: uint32 = 0
-    binning_y: uint32 = 0
-    roi: RegionOfInterest = field(default_factory=RegionOfInterest)
+    for ros_type in ros_types:
+        make(ros_type)
+    return made
 
 
 def _octets_as_bytes(message_type: type, name: str) -> None:
@@ -157,26 +95,17 @@ def _octets_as_bytes(message_type: type, name: str) -> None:
         machine.members_machines[name] = BytesMachine()
 
 
-_octets_as_bytes(Image, "data")
-_octets_as_bytes(CompressedImage, "data")
-
-
 #: ROS 2 type name (as rosbags and ``ros2 topic info`` spell it) -> IDL struct.
-MESSAGE_TYPES: dict[str, type] = {
-    "builtin_interfaces/msg/Time": Time,
-    "std_msgs/msg/Header": Header,
-    "geometry_msgs/msg/Vector3": Vector3,
-    ROS_TWIST_SCHEMA: Twist,
-    ROS_TWIST_STAMPED_SCHEMA: TwistStamped,
-    "geometry_msgs/msg/Point": Point,
-    "geometry_msgs/msg/Quaternion": Quaternion,
-    "geometry_msgs/msg/Pose": Pose,
-    ROS_POSE_STAMPED_SCHEMA: PoseStamped,
-    ROS_IMAGE_SCHEMA: Image,
-    ROS_COMPRESSED_IMAGE_SCHEMA: CompressedImage,
-    "sensor_msgs/msg/RegionOfInterest": RegionOfInterest,
-    ROS_CAMERA_INFO_SCHEMA: CameraInfo,
-}
+MESSAGE_TYPES: dict[str, type] = _idl_structs((
+    ROS_TWIST_STAMPED_SCHEMA, ROS_POSE_STAMPED_SCHEMA, ROS_IMAGE_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA,
+))
+# Bound to module names (dds.Twist, dds.Image...), as the rest of hbvs uses them.
+_BY_NAME = {cls.__name__: cls for cls in MESSAGE_TYPES.values()}
+Time, Header, Vector3, Point, Quaternion, Pose, PoseStamped = (_BY_NAME[n] for n in ("Time", "Header", "Vector3", "Point", "Quaternion", "Pose", "PoseStamped"))
+Twist, TwistStamped, Image, CompressedImage, RegionOfInterest, CameraInfo = (
+    _BY_NAME[n] for n in ("Twist", "TwistStamped", "Image", "CompressedImage", "RegionOfInterest", "CameraInfo")
+)
+
 
 def stamp_of(seconds: float) -> Time:
     """A ROS 2 time from seconds (floor to whole seconds, the rest in ns)."""

@@ -131,7 +131,6 @@ def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVER
 class CommandPublisher:
     """Velocity commands on a ROS 2 topic (reliable): ``Twist``, or ``TwistStamped`` in ``base_link``."""
 
-
     def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
         self.topic = topic
         self.stamped = stamped

@@ -17,7 +17,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..errors import InputError, OutputError, RecordingError, UsageError
+from ..errors import InputError, OutputError, RecordingError, TruncatedInputError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .mcap import McapStream, read_metadata
 from .topics import (
@@ -36,6 +36,7 @@ HBVS_MARK = ("hbvs_export", "1")
 #: Largest metadata.yaml read when deciding whether a folder is a bag hbvs wrote.
 MAX_METADATA_BYTES = 1 << 20
 
+
 @dataclass
 class ExportSummary:
     """What was written: the bag folder, the file kind, and messages per bag topic."""
@@ -44,14 +45,6 @@ class ExportSummary:
     kind: str
     counts: dict[str, int] = field(default_factory=dict)
     truncated: bool = False
-
-
-def _rosbags() -> tuple[Any, Any, Any]:
-    # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    return Writer, StoragePlugin, get_typestore(Stores.ROS2_HUMBLE)
 
 
 # ----------------------------------------------------------------------------- output folder
@@ -153,8 +146,7 @@ class _Messages:
         return self.types[ROS_POSE_STAMPED_SCHEMA](header=self.header(ns, WORLD_FRAME), pose=pose)
 
     def path(self, poses: list[Any]) -> Any:
-        ns = poses[-1].header.stamp.sec * 1_000_000_000 + poses[-1].header.stamp.nanosec
-        return self.types[ROS_PATH_SCHEMA](header=self.header(ns, WORLD_FRAME), poses=poses)
+        return self.types[ROS_PATH_SCHEMA](header=self.header(_stamp_ns(poses[-1].header.stamp), WORLD_FRAME), poses=poses)
 
     def transform(self, ns: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
         transform = self.types["geometry_msgs/msg/Transform"](translation=self.vector(*translation), rotation=self.quaternion(rotation))
@@ -217,9 +209,11 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
 
 
 def _export(source: Any, final: Path, output: str, name: str, allow_truncated: bool) -> ExportSummary:
-    from ..errors import TruncatedInputError
+    # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
 
-    Writer, StoragePlugin, typestore = _rosbags()
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
     build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None

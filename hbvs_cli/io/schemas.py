@@ -22,13 +22,6 @@ _NUMBER = {"type": "number"}
 _NUMBER_OR_NULL = {"type": ["number", "null"]}
 
 
-def _number_array(length: int | None = None) -> dict[str, Any]:
-    schema: dict[str, Any] = {"type": "array", "items": _NUMBER}
-    if length is not None:
-        schema.update(minItems=length, maxItems=length)
-    return schema
-
-
 HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
     VELOCITY_COMMAND_SCHEMA: {
         "title": VELOCITY_COMMAND_SCHEMA,
@@ -71,7 +64,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "charuco", "texture"]},
             "camera": {"type": "object"},
             "reference": {"type": "object"},
-            "normal": _number_array(3),
+            "normal": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
             "normal_margin": _NUMBER,
             "trajectory": {"type": "object"},
             "dhat0": {**_NUMBER, "exclusiveMinimum": 0, "description": "suggested initial depth estimate (m)"},

@@ -278,12 +278,9 @@ RepeatOptions = options_class("RepeatOptions", REPEAT_SETTINGS, "Everything ``hb
 def options_from_command_line(cls: type, values: Mapping[str, Any]) -> Any:
     """The options dataclass from the values typer parsed (an absent repeatable option is None there)."""
     names = {f.name for f in fields(cls)}
-    return cls(**{key: (list(value or []) if isinstance(value, (list, tuple)) or value is None and _is_list(cls, key) else value)
+    lists = {f.name for f in fields(cls) if f.default_factory is list}
+    return cls(**{key: (list(value or []) if isinstance(value, (list, tuple)) or value is None and key in lists else value)
                   for key, value in values.items() if key in names})
-
-
-def _is_list(cls: type, name: str) -> bool:
-    return any(f.name == name and f.default_factory is list for f in fields(cls))
 
 
 #: The fields of ``hbvs teach``'s options (the stage's ``TeachOptions`` adds its methods).

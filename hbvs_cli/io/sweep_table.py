@@ -120,14 +120,6 @@ def _check_columns(path: Path, table: Any, schema: Any) -> None:
                          "are not this sweep's); move it away or give another -o folder")
 
 
-def _csv_bytes(table: Any, header: bool) -> bytes:
-    import pyarrow.csv as pacsv
-
-    buffer = io.BytesIO()
-    pacsv.write_csv(table, buffer, write_options=pacsv.WriteOptions(include_header=header))
-    return buffer.getvalue()
-
-
 #: Run indices per window of the streamed merge: the rows in memory at once.
 MERGE_WINDOW = 1024
 
@@ -238,13 +230,12 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
     except (ValueError, pa.ArrowException) as exc:
         raise InputError(f"{folder / SPEC_FILE}: not the description hbvs sweep writes ({exc})") from None
     wanted = None if columns is None else [n for n in dict.fromkeys(["index", *columns]) if n in schema.names]
-    pieces = []
-    for path in _result_files(folder):
-        whole = _read_table(path, columns=None if wanted is None else [n for n in wanted if n in pq_names(path)])
-        pieces.append(_cast(path, whole, schema if wanted is None else pa.schema([schema.field(n) for n in wanted])))
-    if not pieces:
-        return schema.empty_table() if wanted is None else pa.schema([schema.field(n) for n in wanted]).empty_table()
-    return _sorted_unique(pa.concat_tables(pieces))
+    target = schema if wanted is None else pa.schema([schema.field(n) for n in wanted])
+    pieces = [
+        _cast(path, _read_table(path, columns=None if wanted is None else [n for n in wanted if n in pq_names(path)]), target)
+        for path in _result_files(folder)
+    ]
+    return _sorted_unique(pa.concat_tables(pieces)) if pieces else target.empty_table()
 
 
 def pq_names(path: Path) -> list[str]:
@@ -332,6 +323,7 @@ class ResultsTable:
     def flush(self) -> None:
         """Write the waiting rows: a new Parquet part, and the same lines onto the CSV."""
         import pyarrow as pa
+        import pyarrow.csv as pacsv
         import pyarrow.parquet as pq
 
         self._last_flush = time.monotonic()
@@ -354,8 +346,10 @@ class ResultsTable:
                     continue
         finally:
             partial.unlink(missing_ok=True)
+        lines = io.BytesIO()  # written in one call: a kill tears at most the last line
+        pacsv.write_csv(table, lines, write_options=pacsv.WriteOptions(include_header=False))
         with open(self.folder / CSV, "ab") as handle:
-            handle.write(_csv_bytes(table, False))
+            handle.write(lines.getvalue())
             handle.flush()
             os.fsync(handle.fileno())
 

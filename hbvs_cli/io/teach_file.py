@@ -134,7 +134,6 @@ class TeachReader:
     recording cut short yields its complete frames and sets :attr:`truncated`.
     """
 
-
     source: Any
     name: str = ""
     camera: CameraIntrinsics | None = None

@@ -8,18 +8,9 @@ from ..errors import InputError
 
 
 def read_small_text(path: str | Path, max_bytes: int, what: str) -> str:
-    """The UTF-8 text of a file no larger than ``max_bytes``, or one clear :class:`InputError`.
-
-    The size is checked before reading, so a huge file (or a device) cannot exhaust
-    memory; a byte-order mark is dropped.
-
-    Parameters
-    ----------
-    path : str or Path
-    max_bytes : int
-    what : str
-        What the file should be, for messages ("a CSV file", "a TOML file").
-    """
+    """The UTF-8 text of a file of at most ``max_bytes`` (checked before reading: a huge file or
+    a device cannot exhaust memory), byte-order mark dropped; ``what`` names the expected file
+    in the one-line :class:`InputError`."""
     path = Path(path)
     try:
         if path.is_dir():
@@ -37,3 +28,9 @@ def read_small_text(path: str | Path, max_bytes: int, what: str) -> str:
         raise InputError(f"{path}: not a text (UTF-8) file; expected {what}") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def short_repr(value: object) -> str:
+    """A value for a one-line message, cut to a readable length."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -97,12 +97,10 @@ def _window_parameters(refinement: int) -> cv2.aruco.DetectorParameters:
     """:func:`_parameters` with one adaptive threshold (window :data:`WINDOW_THRESHOLD_SIZE`)
     instead of OpenCV's three (3, 13 and 23 px), for the search around a tracked marker.
 
-    The three sizes make OpenCV find markers of any size and contrast anywhere in a frame;
-    around a marker found in the last frame one size finds it, and about a quarter of a
-    frame's detection goes (1.41-1.45 -> 0.99-1.16 ms on 600 of the bench's 640x480 marker
-    frames, none lost). The corners hardly move: they are re-measured from the marker's
-    edges (:func:`refine_marker_corners`), and on those frames they agree with the three
-    sizes' to 7e-5 px. When the one size misses the marker, the window is searched with all three.
+    The three sizes find markers of any size and contrast anywhere in a frame; around a
+    marker found in the last frame one size finds it, for about a quarter less time. The
+    corners are re-measured from the marker's edges (:func:`refine_marker_corners`) either
+    way. When the one size misses the marker, the window is searched with all three.
     """
     parameters = _parameters(refinement)
     parameters.adaptiveThreshWinSizeMin = WINDOW_THRESHOLD_SIZE

@@ -64,14 +64,8 @@ def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str =
     saturated red dot on a neutral grey wall of the same luminance is invisible in gray but
     dark in green and blue, and bright in red.
 
-    Chosen by measurement on the footage of ``tests/footage.py``. Gray is kept wherever it
-    sees the dots: the darkest channel measured black dots on a beige poster worse (fit
-    theta_d 0.086 against 0.071 deg RMS, n* 0.46 against 0.27 deg: the blue channel of a
-    JPEG carries its subsampled chroma's noise) and red dots on a light wall too (0.065
-    against 0.046 px RMS a dot). For five red dots on a grey of the same luminance, the
-    brightest channel (red) gave 0.085 px a dot and a fitted theta_d of 0.080 deg RMS, the
-    darkest 0.17 px, and the chroma (brightest minus darkest channel) 0.077 px but 0.31
-    deg: it spreads a small dot over the JPEG's half-resolution chroma.
+    Gray is kept wherever it sees the dots: a single channel of a JPEG carries its
+    subsampled chroma's noise, and the chroma spreads a small dot over half resolution.
     """
     colour = isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
     if contrast == "colour" and colour:
@@ -120,12 +114,6 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
             ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
             ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
-
-
-def dot_contrast(image: NDArray[np.uint8], polarity: str = "dark") -> NDArray[np.uint8]:
-    """The frame with the dots dark on an even, white ground, in 8 bits (:func:`dark_image`,
-    then :func:`flatten_ground`)."""
-    return np.clip(np.rint(flatten_ground(dark_image(image, polarity))), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -338,9 +326,8 @@ def find_dark_blobs(
         if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
             # Faint dots: a threshold this shallow also catches the frame's edges where
             # the ground's estimate is too bright; estimated again, continued past them.
-            # (Not in a tracked dot's window, whose edges are close to the dots: continued
-            # from a few noisy rows there, the ground measured the dots worse, 0.18 px
-            # against 0.11 px of point noise on the 20-level footage.)
+            # (Not in a tracked dot's window: continued from a few noisy rows next to the
+            # dots, the ground would measure them worse.)
             sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     else:
         levels = sub
@@ -432,11 +419,6 @@ class DotDetector:
         one (LEDs, retro-reflectors): light dots are found as the dark dots of the negative.
     contrast : str
         ``"gray"`` or ``"colour"``: what the dots stand out in (:func:`dark_image`).
-
-    Attributes
-    ----------
-    last_blobs : Blobs or None
-        The candidates of the last call (diagnostics).
     """
 
     kind = "dots"
@@ -473,7 +455,6 @@ class DotDetector:
         self._track = PointTrack(self.n_points, max_coast)
         self._areas = np.full(self.n_points, np.nan)
         self._layout: NDArray[np.float64] | None = None
-        self.last_blobs: Blobs | None = None
 
     def reset(self) -> None:
         """Forget the track, the dots' areas and their last known layout."""
@@ -512,7 +493,6 @@ class DotDetector:
 
     def _record(self, blobs: Blobs, pixels: NDArray[np.float64], areas: NDArray[np.float64]) -> Detection:
         """Update the track, the dots' areas and their layout with one frame's dots."""
-        self.last_blobs = blobs
         seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)
         # A moving average: the thresholded area of a small dot jumps with the window's

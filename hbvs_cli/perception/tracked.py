@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..core.camera import CameraIntrinsics
+from ..core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..errors import InputError, RecordingError
@@ -131,6 +131,10 @@ class TrackedDetector:
         self.template_image = template_image
         self.initial_prediction = None if initial_prediction is None else np.asarray(initial_prediction, dtype=float)
         self._detector: TargetDetector | None = None
+        # A texture is aligned by homographies, which a lens's distortion bends: tracked on
+        # undistorted images (same K), its points distorted back. Its template box is kept as
+        # found, a box of the undistorted template (undistorted, it would reach past the image).
+        self._undistort_maps = _undistort_maps(camera) if spec.kind == "texture" and camera.has_distortion else None
 
     def _create(self, image: np.ndarray) -> None:
         spec = self.spec
@@ -147,7 +151,7 @@ class TrackedDetector:
         self._detector = make_detector(
             spec.kind,
             n_points=int(spec.n_points or 4),
-            reference_image=self.template_image if spec.kind == "texture" else None,
+            reference_image=self._undistorted(self.template_image) if spec.kind == "texture" else None,
             reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
             marker_id=spec.marker_id,
             seed=self.seed,
@@ -164,13 +168,25 @@ class TrackedDetector:
         first = self._detector is None
         if first:
             self._create(image)
+        image = self._undistorted(image)
         if first and self.initial_prediction is not None:
-            detection = self._acquire(image, self.initial_prediction)
+            prediction = self.initial_prediction
+            if self._undistort_maps is not None:
+                prediction = undistort_pixels(self.camera, prediction)
+            detection = self._acquire(image, prediction)
         else:
             detection = self._detector.detect(image, None)
         if not detection.found:
             return np.full((int(self.spec.n_points), 2), np.nan)
-        return np.asarray(detection.pixels, dtype=float)
+        pixels = np.asarray(detection.pixels, dtype=float)
+        return pixels if self._undistort_maps is None else distort_pixels(self.camera, pixels)
+
+    def _undistorted(self, image: np.ndarray | None) -> np.ndarray | None:
+        """``image`` as the pinhole camera of the same K would see it (texture with a lens's
+        distortion), else itself."""
+        if image is None or self._undistort_maps is None:
+            return image
+        return cv2.remap(image, *self._undistort_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def search_windows(self) -> list[Window] | None:
         """The image windows the next detection needs (dots followed in windows), or None
@@ -202,6 +218,14 @@ class TrackedDetector:
         ordered = acquired.pixels[match_identity(acquired.pixels, prediction)]
         self._detector.reset()
         return self._detector.detect(image, ordered)
+
+
+def _undistort_maps(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap``'s maps from a distorted image to the pinhole image of the same K."""
+    size, distortion = (int(camera.width), int(camera.height)), np.asarray(camera.distortion, dtype=float)
+    if camera.distortion_model == "equidistant":
+        return cv2.fisheye.initUndistortRectifyMap(camera.K, distortion, np.eye(3), camera.K, size, cv2.CV_32FC1)
+    return cv2.initUndistortRectifyMap(camera.K, distortion, None, camera.K, size, cv2.CV_32FC1)
 
 
 def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> TargetChoice:
@@ -237,10 +261,9 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
 
     The corners of the box holding the central 94 % of the image's features (3rd to 97th
     percentile), in the order TL, TR, BR, BL: the box is also the region the texture
-    detector aligns, and a wider one pins the perspective (yaw, n*) better. On the
-    independent footage's photograph, the central 80 % gave theta_d 0.10 deg RMS and n*
-    0.12 deg off, 94 % 0.05 deg and 0.10 deg (tests/test_perception_footage.py). Rows too close to the horizon (the principal point's row, where m_z ~ 0
-    and (18) breaks down) are pushed away from it.
+    detector aligns, and a wider one pins the perspective (yaw, n*) better
+    (tests/test_perception_footage.py). Rows too close to the horizon (the principal
+    point's row, where m_z ~ 0 and (18) breaks down) are pushed away from it.
     """
     keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
@@ -282,8 +305,7 @@ def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed
     ``template_image`` is the fit's decoded template image: texture targets need it, the
     others ignore it. ``windowed``: dots followed each in its own window (see
     :class:`TrackedDetector`), as the simulated camera does; on real footage the common box
-    measured better (the red dots of tests/footage.py: theta_d 0.049 against 0.084 deg RMS
-    when fit used windows), so replays keep it.
+    measures better (tests/footage.py's red dots), so replays keep it.
     """
     spec = DetectorSpec.from_dict(model.detector)
     template = None

@@ -24,39 +24,22 @@ the bands of the settling times.
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from typing import Mapping
 
 import numpy as np
 
 from ..core.frames import wrap_angle
 from ..core.metrics import (
-    command_smoothness,
-    error_summary,
-    longest_true_run_s,
-    lyapunov_summary,
-    min_abs,
-    peak_abs,
-    rms,
-    sample_rate_hz,
+    command_smoothness, error_summary, longest_true_run_s, lyapunov_summary, min_abs, peak_abs, rms, sample_rate_hz,
     taught_commands,
 )
 from ..errors import UsageError
 from ..io.messages import LOG_ERROR
 from ..io.run_file import RunData
 from .result import (
-    Commands,
-    Condition35,
-    Depth,
-    ErrorSummary,
-    Limits,
-    Lyapunov,
-    RunReport,
-    RunSummary,
-    Source,
-    TaughtSmoothness,
-    Target,
-    Timing,
-    Verdict,
+    Commands, Condition35, Depth, ErrorSummary, Limits, Lyapunov, RunReport, RunSummary, Source, TaughtSmoothness,
+    Target, Timing, Verdict,
 )
 
 #: Final-error and settling tolerances: image errors in x_h units (fractions of d*),
@@ -80,8 +63,8 @@ SMOOTHNESS_FLOOR_W = 1.0
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
 POSE_ERRORS = ("position_m", "heading_deg")
-#: Top-level keys of a report's JSON, in order (``timing``, a live run's, before ``verdict``).
-REPORT_KEYS = ("run", "errors", "pose_error", "lyapunov", "depth", "commands", "target", "condition35", "verdict")
+#: Top-level keys of a report's JSON, in order, but a live run's ``timing``.
+REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name != "timing")
 
 #: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
 CHECK_NAMES = (

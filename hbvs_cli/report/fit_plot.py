@@ -94,6 +94,12 @@ def raw_derivative(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return 0.5 * (t[1:] + t[:-1]), np.diff(x) / np.diff(t)
 
 
+def _raw_minus_smooth(signals: FitSignals, key: str, scale: float) -> np.ndarray:
+    """``scale`` times a signal's raw samples minus the spline at their times."""
+    raw, smooth = signals.raw, signals.smooth
+    return scale * (raw[key] - np.interp(raw["t"], smooth["t"], smooth[key]))
+
+
 def fit_summary(signals: FitSignals) -> dict[str, Any]:
     """The numbers of a fit report (JSON-ready).
 
@@ -105,7 +111,7 @@ def fit_summary(signals: FitSignals) -> dict[str, Any]:
     raw, smooth = signals.raw, signals.smooth
     differences: dict[str, Any] = {}
     for key, scale, label in (("theta_d", 180.0 / math.pi, "theta_d_deg"), ("x_hd1", 1.0, "x_hd1"), ("x_hd2", 1.0, "x_hd2")):
-        difference = scale * (raw[key] - np.interp(raw["t"], smooth["t"], smooth[key]))
+        difference = _raw_minus_smooth(signals, key, scale)
         differences[label] = {"rms": float(np.sqrt(np.mean(difference**2))), "max_abs": float(np.max(np.abs(difference)))}
     t_mid, slope = raw_derivative(raw["t"], raw["x_hd1"])
     about = slope - np.interp(t_mid, smooth["t"], smooth["x_hd1_dot"])
@@ -161,8 +167,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                 _paint_feed_forward(ax, raw, smooth)
             elif name.endswith("_residual"):
                 title, _, key, scale, how = signal_panels[name.removesuffix("_residual")]
-                difference = scale * (raw[key] - np.interp(raw["t"], smooth["t"], smooth[key]))
-                ax.plot(raw["t"], difference, ls="none", marker="o", ms=1.6, mew=0, color="0.45")
+                ax.plot(raw["t"], _raw_minus_smooth(signals, key, scale), ls="none", marker="o", ms=1.6, mew=0, color="0.45")
                 ax.axhline(0.0, color=PALETTE[0], lw=1.0)
                 unit = "deg" if key == "theta_d" else "units of d*"
                 ax.set_title(f"{title.split(' (')[0]}: raw minus {how.split()[0]}")

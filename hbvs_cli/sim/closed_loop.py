@@ -1,18 +1,12 @@
-"""The closed loop of ``repeat --sim``: sense, control, actuate, move; one camera frame at a time.
-
-Every period ``dt``: a sensing function measures the pose, the controller answers with
-(v_c, w_c), the limits clip them and the unicycle integrates them exactly over ``dt``.
-A lost target stops the robot and freezes the adaptation; a dropped frame or a few rejected
-ones hold the last command instead (stopping for one bad frame only makes the robot lag),
-and a drop keeps the lost state of the last frame that arrived. With a state filter the law
-acts on its estimate, and on its prediction through frames without a measurement while the
-prediction stays certain.
+"""The closed loop of ``repeat --sim``, one camera frame at a time: a sensing function
+measures the pose, :class:`~hbvs_cli.core.simulator.ServoStep` answers with (v_c, w_c)
+(losses and drops as it says), and the unicycle integrates them exactly over ``dt``.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, Iterator
 
 import numpy as np
@@ -58,7 +52,7 @@ def run_closed_loop(
     # The control instants are known in advance: one vectorised evaluation.
     times = np.arange(steps) * dt
     schedule = trajectory.evaluate(times)
-    columns = [np.atleast_1d(np.asarray(getattr(schedule, name), dtype=float)).tolist() for name in _DESIRED_FIELDS]
+    columns = [np.atleast_1d(np.asarray(getattr(schedule, field.name), dtype=float)).tolist() for field in fields(DesiredState)]
     pending: deque[Observation] = deque()
     servo = ServoStep(controller, limits, latency_steps, state_filter)
     for k in range(steps):
@@ -70,9 +64,6 @@ def run_closed_loop(
         yield record
         servo.sent(dt)
         pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
-
-
-_DESIRED_FIELDS = ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
 
 
 @dataclass

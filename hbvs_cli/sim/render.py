@@ -1,17 +1,13 @@
 """Synthetic camera frames: the poster warped into the camera, with exposure, blur and noise.
 
-The image model, in order: the poster's picture (a :class:`~.poster.PosterRaster` level
-chosen so that its pixels are about camera-pixel sized, i.e. pre-filtered against aliasing)
-is projected through the pinhole homography of :meth:`World.poster_to_image_homography`
-onto a uniform wall; the lens distortion of the camera, if any, moves it; optional Gaussian
-blur (optics, focus); then the sensor: ``gain * irradiance + offset`` plus Gaussian noise,
-rounded and clipped to 8 bits. The noise is white by default; with a grain it is correlated
-over a few pixels, as a camera's own processing (demosaicing, denoising, compression) leaves
-it, and then moves a dot's centroid far more than white noise of the same level does.
+The image model, in order: the poster's picture (a :class:`~.poster.PosterRaster` level of
+about camera-pixel sized pixels, against aliasing) projected through
+:meth:`World.poster_to_image_homography` onto a uniform wall; the lens distortion; optional
+Gaussian blur; the sensor: ``gain * irradiance + offset`` plus Gaussian noise (white, or
+correlated over ``noise_grain`` px as a camera's processing leaves it), rounded to 8 bits.
 
-Pixel convention: OpenCV's, as in :meth:`World.pixels`: the centre of the top-left pixel is
-(0, 0), so a target point rendered here is found by a detector at ``World.pixels(pose)``
-(distorted by :func:`hbvs_cli.core.camera.distort_pixels` when the camera has distortion).
+Pixels are OpenCV's (the top-left pixel's centre is (0, 0)), so a target point rendered
+here is found at ``World.pixels(pose)``, distorted by :func:`~hbvs_cli.core.camera.distort_pixels`.
 """
 
 from __future__ import annotations
@@ -44,25 +40,10 @@ MAX_NOISE_GRAIN_PX = 20.0
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Photometric settings of the simulated camera.
-
-    Attributes
-    ----------
-    noise_std : float
-        Standard deviation of the additive white Gaussian sensor noise (gray levels).
-    blur_sigma : float
-        Standard deviation of the Gaussian optical blur (camera px); 0 for none.
-    exposure_gain : float
-        Multiplies the scene's gray levels (1 = nominal exposure).
-    exposure_offset : float
-        Added after the gain (gray levels): a black level or a brightness change.
-    background : float
-        Gray level of the wall around the poster, before exposure (0-255).
-    noise_grain : float
-        Correlation length of the sensor noise: the standard deviation (camera px) of the
-        Gaussian that smooths white noise before it is scaled back to ``noise_std``; 0 for
-        white noise.
-    """
+    """Photometric settings of the simulated camera: the sensor noise's standard deviation
+    (gray levels) and correlation length (the sigma, camera px, of the Gaussian that smooths
+    it; 0 for white noise), the optical blur's sigma (camera px), the exposure's gain and
+    offset (gray levels), and the wall's gray level before exposure (0-255)."""
 
     noise_std: float = 2.0
     blur_sigma: float = 0.0
@@ -89,13 +70,9 @@ class RenderSettings:
 
 @lru_cache(maxsize=1)
 def _gaussian_table() -> NDArray[np.float32]:
-    """Standard normal quantiles at the 65536 mid-bin probabilities, rescaled to unit variance.
-
-    Indexing it with uniform 16-bit integers draws Gaussian samples (tails to 4.3 sigma) three
-    times faster than ``Generator.standard_normal``, which alone would exceed the frame budget.
-    Made on first use, with scipy.special imported then: it takes about 0.17 s, which every
-    command that loads the simulator would otherwise pay at start-up.
-    """
+    """Standard normal quantiles at the 65536 mid-bin probabilities, rescaled to unit variance:
+    indexed with uniform 16-bit integers they draw Gaussian samples (tails to 4.3 sigma) faster
+    than ``Generator.standard_normal``. Made on first use (scipy.special is slow to import)."""
     from scipy.special import ndtri
 
     table = ndtri((np.arange(65536, dtype=np.float64) + 0.5) / 65536.0)
@@ -103,19 +80,8 @@ def _gaussian_table() -> NDArray[np.float32]:
 
 
 class SceneRenderer:
-    """Render camera frames of a :class:`World` from robot poses.
-
-    Parameters
-    ----------
-    world : World
-    raster : PosterRaster, optional
-        The poster's picture; drawn from ``world.target`` (built-in texture) when omitted.
-    settings : RenderSettings, optional
-
-    Notes
-    -----
-    A renderer keeps scratch buffers between calls: use one per thread.
-    """
+    """Render camera frames of a :class:`World` from robot poses; ``raster`` is drawn from
+    ``world.target`` when omitted. It keeps scratch buffers between calls: one per thread."""
 
     def __init__(self, world: World, raster: PosterRaster | None = None, settings: RenderSettings | None = None) -> None:
         self.world = world
@@ -139,22 +105,9 @@ class SceneRenderer:
         return self.world.camera
 
     def render(self, pose: ArrayLike, rng: np.random.Generator, exposure_gain: float | None = None) -> NDArray[np.uint8]:
-        """One camera frame seen from ``pose``.
-
-        Parameters
-        ----------
-        pose : array_like, shape (3,)
-            Robot pose ``(x, y, phi)`` (m, m, rad).
-        rng : numpy.random.Generator
-            Source of the sensor noise; the same generator state gives the same image.
-            Nothing is drawn when ``settings.noise_std`` is 0.
-        exposure_gain : float, optional
-            Overrides ``settings.exposure_gain`` for this frame (an auto-exposure step).
-
-        Returns
-        -------
-        image : ndarray, shape (height, width), uint8
-        """
+        """One camera frame (height, width), uint8, seen from ``pose`` (x, y, phi) (m, m, rad),
+        its noise from ``rng`` (nothing drawn without noise); ``exposure_gain`` overrides
+        the settings' for this frame (an auto-exposure step)."""
         gain = self._gain(exposure_gain)
         scene = self.render_scene(pose)
         if self.settings.noise_std > 0:
@@ -170,65 +123,23 @@ class SceneRenderer:
     def render_scene(self, pose: ArrayLike) -> NDArray[np.uint8]:
         """The noiseless, unexposed scene (poster on the wall, lens, blur), shape (height, width), uint8."""
         view = self._view(pose)
-        poster_to_image, level_to_image, picture, outline, depth = view
         frame = self._wall.copy()
-        if np.all(depth <= _NEAR_DEPTH):
-            return frame
-        pad = _ROI_PAD + int(np.ceil(3.0 * self.settings.blur_sigma))
-        if np.any(depth <= _NEAR_DEPTH):
-            window = (0, 0, self._size[1], self._size[0])
-            patch = self._sample_masked(picture, level_to_image, window)
-        else:
-            ideal = _apply(poster_to_image, outline)
-            if self._ideal_map is None:
-                window = _bounding_window(ideal, pad, self._size)
-            elif _near_image(ideal, self._size):
-                window = _bounding_window(distort_pixels(self.camera, ideal), pad, self._size)
-            else:
-                # Far outside the image the lens polynomial can fold back: its image of the
-                # outline is no bound any more, so sample every pixel.
-                window = (0, 0, self._size[1], self._size[0])
-            if window is None:
-                return frame
-            if self._ideal_map is None:
-                patch = self._warp(picture, level_to_image, window)
-            else:
-                patch = self._remap(picture, level_to_image, window)
-        x0, y0, x1, y1 = window
-        if self.settings.blur_sigma > 0:
-            # The patch extends `pad` pixels of plain wall beyond the poster, so blurring it
-            # alone equals blurring the whole frame (up to the image border, replicated).
-            patch = cv2.GaussianBlur(patch, (0, 0), self.settings.blur_sigma, borderType=cv2.BORDER_REPLICATE)
-        frame[y0:y1, x0:x1] = patch
+        # The patch extends the blur's reach of plain wall beyond the poster, so blurring it
+        # alone equals blurring the whole frame (up to the image border, replicated).
+        window = self._poster_box(view, _ROI_PAD + int(np.ceil(3.0 * self.settings.blur_sigma)))
+        if window is not None:
+            x0, y0, x1, y1 = window
+            frame[y0:y1, x0:x1] = self._sampled(view, window)
         return frame
 
     def render_windows(
         self, pose: ArrayLike, rng: np.random.Generator, windows: Sequence[Window], exposure_gain: float | None = None
     ) -> NDArray[np.uint8]:
-        """A camera frame rendered only inside ``windows``: what a detector that reads only
-        those windows needs, at a fraction of a whole frame's cost.
-
-        Each window's pixels follow the image model of :meth:`render` (the same scene, blur
-        and exposure; sensor noise of the same statistics, drawn for the window's pixels
-        only, so the generator's stream differs from a whole frame's). Pixels outside every
-        window are the exposed wall without noise, and must not be measured.
-
-        Parameters
-        ----------
-        pose : array_like, shape (3,)
-            Robot pose ``(x, y, phi)`` (m, m, rad).
-        rng : numpy.random.Generator
-            Source of the sensor noise.
-        windows : sequence of (x0, y0, x1, y1)
-            End-exclusive pixel bounds; they should not overlap (a pixel in two windows is
-            drawn twice, the later one kept).
-        exposure_gain : float, optional
-            As in :meth:`render`.
-
-        Returns
-        -------
-        image : ndarray, shape (height, width), uint8
-        """
+        """A camera frame, shape (height, width), uint8, rendered only inside ``windows``
+        (end-exclusive ``(x0, y0, x1, y1)``, not overlapping), for a detector that reads only
+        those: each window follows :meth:`render`'s image model (its noise drawn for its own
+        pixels, so ``rng``'s stream differs from a whole frame's); the rest is the exposed
+        wall without noise, not to be measured."""
         gain = self._gain(exposure_gain)
         settings = self.settings
         wall = float(np.clip(np.rint(gain * self._background + settings.exposure_offset), 0, 255))
@@ -269,9 +180,9 @@ class SceneRenderer:
         depth = np.column_stack([outline, np.ones(len(outline))]) @ poster_to_image[2]
         return poster_to_image, level_to_image, self.raster.levels[level], outline, depth
 
-    def _poster_box(self, view: tuple) -> Window | None:
-        """The pixels the poster can cover in a frame of ``view`` (its bilinear fringe
-        included; the whole image when unsure), or None when it covers none."""
+    def _poster_box(self, view: tuple, pad: int = _ROI_PAD) -> Window | None:
+        """The pixels the poster can cover in a frame of ``view``, ``pad`` pixels around it
+        included (the whole image when unsure), or None when it covers none."""
         poster_to_image, _, _, outline, depth = view
         if np.all(depth <= _NEAR_DEPTH):
             return None
@@ -279,33 +190,38 @@ class SceneRenderer:
             return (0, 0, self._size[1], self._size[0])
         ideal = _apply(poster_to_image, outline)
         if self._ideal_map is None:
-            return _bounding_window(ideal, _ROI_PAD, self._size)
+            return _bounding_window(ideal, pad, self._size)
         if _near_image(ideal, self._size):
-            return _bounding_window(distort_pixels(self.camera, ideal), _ROI_PAD, self._size)
+            return _bounding_window(distort_pixels(self.camera, ideal), pad, self._size)
+        # Far outside the image the lens polynomial can fold back: sample every pixel.
         return (0, 0, self._size[1], self._size[0])
+
+    def _sampled(self, view: tuple, window: Window) -> NDArray[np.uint8]:
+        """The noiseless, unexposed scene of ``view`` in ``window``, blurred (the border
+        replicated)."""
+        _, level_to_image, picture, _, depth = view
+        if np.any(depth <= _NEAR_DEPTH):
+            patch = self._sample_masked(picture, level_to_image, window)
+        elif self._ideal_map is None:
+            patch = self._warp(picture, level_to_image, window)
+        else:
+            patch = self._remap(picture, level_to_image, window)
+        if self.settings.blur_sigma > 0:
+            patch = cv2.GaussianBlur(patch, (0, 0), self.settings.blur_sigma, borderType=cv2.BORDER_REPLICATE)
+        return patch
 
     def _scene_in(self, view: tuple, poster_box: Window | None, window: Window) -> NDArray[np.uint8]:
         """The noiseless, unexposed scene inside ``window`` (within the image), equal to
         that window of :meth:`render_scene`'s frame up to the rounding of the sampling."""
-        _, level_to_image, picture, _, depth = view
         x0, y0, x1, y1 = window
-        # Blurring a window needs the scene `pad` pixels around it (the kernel's reach).
+        # Blurring a window needs the scene `pad` pixels around it (the kernel's reach); the
+        # replicated border is wrong only within `pad` of the grown window's inner edges.
         pad = int(np.ceil(3.0 * self.settings.blur_sigma))
         grown = _clipped((x0 - pad, y0 - pad, x1 + pad, y1 + pad), self._size)
         gx0, gy0, gx1, gy1 = grown
         if poster_box is None or not _overlap(poster_box, grown):
             return self._wall[y0:y1, x0:x1]
-        if np.any(depth <= _NEAR_DEPTH):
-            patch = self._sample_masked(picture, level_to_image, grown)
-        elif self._ideal_map is None:
-            patch = self._warp(picture, level_to_image, grown)
-        else:
-            patch = self._remap(picture, level_to_image, grown)
-        if self.settings.blur_sigma > 0:
-            # At the window's inner edges the replicated border is wrong, but only within
-            # `pad` of them, outside the window; at the image's edges it is render_scene's.
-            patch = cv2.GaussianBlur(patch, (0, 0), self.settings.blur_sigma, borderType=cv2.BORDER_REPLICATE)
-        return patch[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
+        return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
     def _noise_in(self, rng: np.random.Generator, windows: list[Window]) -> list[NDArray[np.float32]]:
         """Unit-variance sensor noise for each window's pixels (float32), correlated by the
@@ -328,11 +244,8 @@ class SceneRenderer:
         return noises
 
     def level_for(self, poster_to_image: NDArray[np.float64]) -> int:
-        """Pyramid level for a poster-to-image homography: judged at the target's centroid.
-
-        Uses the geometric mean of the two local magnifications (camera px per poster metre),
-        ``sqrt(|det J|)`` of the homography's Jacobian.
-        """
+        """Pyramid level for a poster-to-image homography, from the magnification (camera px
+        per poster metre) ``sqrt(|det J|)`` of its Jacobian at the target's centroid."""
         centre = np.mean(self.world.target.points_poster, axis=0)
         h = np.append(centre, 1.0) @ poster_to_image.T
         if h[2] <= _NEAR_DEPTH:
@@ -343,11 +256,8 @@ class SceneRenderer:
 
     # -- sampling ----------------------------------------------------------------------
     def _outline(self, level: int) -> NDArray[np.float64]:
-        """Points along the edge of the level's picture, in poster metres, shape (4 K, 2)
-        (made once per level).
-
-        Several points per side, because with lens distortion straight edges bow outward.
-        """
+        """Points along the edge of the level's picture, in poster metres, shape (4 K, 2),
+        made once per level: several a side, as lens distortion bows straight edges."""
         outline = self._outlines.get(level)
         if outline is None:
             outline = self._outlines[level] = self._make_outline(level)
@@ -383,11 +293,8 @@ class SceneRenderer:
         )
 
     def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
-        """Whole-frame sampling that blanks rays meeting the wall plane behind the camera.
-
-        For a pixel ``p``, ``inv(H) [p, 1]`` has third component ``1 / depth`` of the wall
-        point it sees, so a non-positive value means the wall is behind the camera there.
-        """
+        """Sampling that blanks rays meeting the wall plane behind the camera: the third
+        component of ``inv(H) [p, 1]``, ``1 / depth`` of the wall point, is not positive."""
         x0, y0, x1, y1 = window
         if self._ideal_map is None:
             u, v = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
@@ -443,13 +350,9 @@ def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int
 
 
 def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:
-    """For every real (distorted) pixel, the ideal pinhole pixel it sees, shape (H, W, 2).
-
-    ``cv2.undistortPoints`` stops after 5 iterations by default (0.1 px residuals for a
-    strong lens); iterating to convergence makes the map the inverse of
-    :func:`distort_pixels` to ~1e-9 px, so that rendered points land exactly where
-    ``distort_pixels(camera, World.pixels(pose))`` says.
-    """
+    """For every real (distorted) pixel, the ideal pinhole pixel it sees, shape (H, W, 2):
+    the inverse of :func:`distort_pixels` to ~1e-9 px, as ``cv2.undistortPoints`` iterates to
+    convergence here (its default 5 iterations leave 0.1 px for a strong lens)."""
     u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
     real = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
     coefficients = np.asarray(camera.distortion, dtype=np.float64)
@@ -482,9 +385,7 @@ def make_renderer(world: World, noise: float, blur: float, exposure: float, grai
 
 def _grain_kernel(grain: float) -> NDArray[np.float32]:
     """The 1D Gaussian (sigma ``grain`` px, 4 sigma each side) that correlates the noise,
-    scaled so that white noise of unit variance keeps unit variance after both passes
-    (the variance of the smoothed field is the sum of the 2D kernel's squares, which for a
-    separable kernel is ``(sum k^2)^2``)."""
+    scaled so that unit-variance white noise keeps unit variance after both passes."""
     radius = max(int(np.ceil(4.0 * grain)), 1)
     kernel = cv2.getGaussianKernel(2 * radius + 1, grain, cv2.CV_64F).ravel()
     return (kernel / np.sqrt(np.sum(kernel**2))).astype(np.float32)

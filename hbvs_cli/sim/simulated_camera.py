@@ -19,7 +19,6 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from .world import World
 from .render import SceneRenderer
 from .scene import Scene, renderer_for, world_point_identity
 
@@ -224,7 +223,7 @@ class SimulatedCamera:
         px = world.pixels(pose)
         spread = max(float(np.ptp(px[:, 0])), float(np.ptp(px[:, 1])), 20.0)
         centre = px.mean(axis=0) + self.fault_rng.uniform(-0.8, 0.8, 2) * spread
-        distance = float(np.mean(_to_camera(world, pose, world.target.points_world.mean(axis=0))[0:1]))
+        distance = float(world_to_robot(world.target.points_world.mean(axis=0)[None, :], pose, world.camera_height)[0, 0])
         radius = max(2.0, world.camera.fx * max(world.target.dot_radius, 0.03) / max(distance, 0.1))
         value = 30 if world.target.kind == "dots" else 250
         return (int(round(centre[0] * 16)), int(round(centre[1] * 16))), int(round(radius * 16)), value
@@ -236,7 +235,3 @@ class SimulatedCamera:
         if image is None or self.perception != "images":
             image = self.renderer.render(pose, np.random.default_rng(0))
         return image
-
-
-def _to_camera(world: World, pose: np.ndarray, point: np.ndarray) -> np.ndarray:
-    return world_to_robot(np.asarray(point, dtype=float)[None, :], pose, world.camera_height)[0]

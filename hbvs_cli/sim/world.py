@@ -18,11 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import HbvsError, InvalidValueError, MalformedDataError, PointAtCameraHeightError, RecordingError
 from ..core.camera import (
-    DEFAULT_CAMERA,
-    CameraIntrinsics,
-    camera_description,
-    camera_from_description,
-    normalize_points,
+    DEFAULT_CAMERA, CameraIntrinsics, camera_description, camera_from_description, normalize_points,
     normalized_to_pixels,
 )
 from ..core.fit_model import MAX_TARGET_POINTS

@@ -45,6 +45,13 @@ STALE_POLL_S = 0.01
 CALIBRATION_TOLERANCE = 0.02
 
 
+def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
+    """A command as a JSON line ``{"t", "v", "w"}`` (s, m/s, rad/s) on ``--cmd-out``'s stream."""
+    if stream is not None:
+        stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
+        stream.flush()
+
+
 class CommandOut:
     """Where commands go: a ROS 2 topic and/or a JSON-lines stream; zero on :meth:`stop`."""
 
@@ -59,13 +66,8 @@ class CommandOut:
             v, w = 0.0, 0.0
         if self._publish is not None:
             self._publish(v, w)
-        self._write(t, v, w)
+        write_command(self._stream, t, v, w)
         self.sent += 1
-
-    def _write(self, t: float, v: float, w: float) -> None:
-        if self._stream is not None:
-            self._stream.write(json.dumps({"t": round(t, 9), "v": v, "w": w}) + "\n")
-            self._stream.flush()
 
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
@@ -76,7 +78,7 @@ class CommandOut:
                 except Exception:  # noqa: BLE001 - stopping must reach every output it can
                     pass
         try:
-            self._write(t, 0.0, 0.0)
+            write_command(self._stream, t, 0.0, 0.0)
         except (OSError, ValueError):
             pass
 

@@ -9,11 +9,10 @@ errors and commands are computed and logged, and nothing moves.
 
 from __future__ import annotations
 
-import json
 import math
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
-from typing import IO, Any, ContextManager
+from typing import IO, Any
 
 import numpy as np
 
@@ -21,7 +20,7 @@ from .. import __version__
 from ..core.camera import normalized_to_pixels
 from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
 from ..core.depth import check_depth
-from ..core.desired import taught_frame_interval
+from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
@@ -29,7 +28,8 @@ from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.state_filter import FILTER_EKF, FILTERS, ServoStateFilter
+from ..core.control_settings import FILTER_EKF, FILTERS, GAIN_NAMES
+from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
@@ -119,12 +119,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
-    gains = gains_for_law(ControllerGains(
-        k_v=pick("k_v", defaults.k_v),
-        k_w=pick("k_w", defaults.k_w),
-        gamma=pick("gamma", defaults.gamma),
-        k_2=pick("k_2", defaults.k_2),
-    ), law)
+    gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
     speed = float(pick("speed"))
     rate = float(pick("rate", taught_rate))
@@ -186,11 +181,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
 def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
     """The settings of a run of ``model`` as ``options`` ask (:func:`resolve_settings` with
     the fit's suggestions and taught rate)."""
-    return resolve_settings(options, model.dhat0, 1.0 / _taught_frame_interval(model), model.suggested_gains())
-
-
-def _taught_frame_interval(model: FitModel) -> float:
-    return taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
+    return resolve_settings(options, model.dhat0, 1.0 / model.taught_frame_interval(), model.suggested_gains())
 
 
 # ----------------------------------------------------------------------------- shared pieces
@@ -260,9 +251,7 @@ class _StepLog:
         values.update(self._filter_fields(record))
         self.run.state(t, values)
         self.run.command(t, record.v_c, record.w_c, record.saturated)
-        if self.cmd_stream is not None:
-            self.cmd_stream.write(json.dumps({"t": round(t, 9), "v": record.v_c, "w": record.w_c}) + "\n")
-            self.cmd_stream.flush()
+        live.write_command(self.cmd_stream, t, record.v_c, record.w_c)
 
     def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
         """The state filter's estimate and standard deviation (what the law acted on)."""
@@ -278,11 +267,6 @@ class _StepLog:
             "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
             "noise_px": estimate.noise * self.model.camera.mean_focal,
         }
-
-
-def _open_cmd_stream(target: str | None) -> ContextManager[IO[str] | None]:
-    """The ``--cmd-out`` stream: written like every output (atomically for a file)."""
-    return open_text_output(target, "command stream")
 
 
 def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
@@ -320,7 +304,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     model = fit.model
     check_simulation_settings(settings, model)
     scene = simulation_world(model, fit_reference_image(fit), options.depth, settings.speed, options.input)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     start_pose = compose_planar_pose(scene.taught_pose_at_run_time(0.0), settings.offset)
     if not scene.world.in_view(start_pose, margin_px=0.0):
         raise UsageError("the target is not in view from the start pose; use a smaller --offset")
@@ -333,11 +317,7 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     )
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
-    state_filter = make_state_filter(settings, model)
-    if state_filter is not None:
-        # The filter tests each residual against the noise it learns; the fixed gate set
-        # from the taught images (a few tenths of a pixel) only has to catch gross errors.
-        camera.estimator.residual_gate = max(camera.estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    state_filter = make_state_filter(settings, model, camera.estimator)
     return Simulation(
         scene=scene,
         camera=camera,
@@ -356,11 +336,14 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
 COARSE_RESIDUAL_GATE_PX = 3.0
 
 
-def make_state_filter(settings: Settings, model: FitModel) -> ServoStateFilter | None:
+def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
     """The state filter ``--filter`` asks for (None for ``none``), its noise started from
     the fit's residual on the taught images (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
+    # The filter tests each residual against the noise it learns; the estimator's fixed gate
+    # from the taught images (a few tenths of a pixel) only has to catch gross errors.
+    estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
 
 
@@ -381,7 +364,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --foxglove, if asked
             _note_truncated(writer, options, fit, console)
@@ -407,14 +390,9 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                         stopped_at = record.t
                         log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
                         break
-    summary = tally.summary(controller, options.output, stopped_at is not None)
-    _print_summary(console, summary, settings, scene.d_true)
-    if stopped_at is not None:
-        raise TargetLostError(
-            f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s); "
-            f"the run up to then is in {options.output}"
-        )
-    return summary
+    stopped = None if stopped_at is None else (
+        f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s)")
+    return _finish(console, tally, controller, options.output, settings, scene.d_true, stopped)
 
 
 class _Tally:
@@ -431,7 +409,7 @@ class _Tally:
     def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
         self.steps += 1
         errors = record.output.errors if record.output is not None else None
-        values = {"t": record.t, "e1": math.nan, "e2": math.nan, "e3_deg": math.nan, "position_m": math.nan, "heading_deg": math.nan}
+        values = dict.fromkeys(self.series, math.nan) | {"t": record.t}
         if errors is not None:
             values.update(e1=float(errors.e1), e2=float(errors.e2), e3_deg=math.degrees(float(errors.e3)))
         if taught is not None:
@@ -443,8 +421,8 @@ class _Tally:
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
         t = self.series["t"]
         errors: dict[str, float] = {}
-        for name in ("e1", "e2", "e3_deg", "position_m", "heading_deg"):
-            final = final_value(t, self.series[name]) if t else None
+        for name, series in self.series.items():
+            final = final_value(t, series) if t and name != "t" else None
             if final is not None:
                 errors[name] = final
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
@@ -485,7 +463,10 @@ def _top_view(world: World) -> dict[str, Any]:
     }
 
 
-def _print_summary(console: Console, summary: RepeatSummary, settings: Settings, d_true: float | None) -> None:
+def _finish(console: Console, tally: _Tally, controller: Any, output: str, settings: Settings, d_true: float | None,
+            stopped: str | None) -> RepeatSummary:
+    """The run's summary, printed; TargetLostError when the run was ``stopped`` (why)."""
+    summary = tally.summary(controller, output, stopped is not None)
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
     e = summary.final_errors
     final = []
@@ -498,6 +479,9 @@ def _print_summary(console: Console, summary: RepeatSummary, settings: Settings,
     depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
     parts.append(depth)
     console.info("; ".join(parts) + f" -> {summary.output}")
+    if stopped is not None:
+        raise TargetLostError(f"{stopped}; the run up to then is in {output}")
+    return summary
 
 
 # ----------------------------------------------------------------------------- open loop
@@ -506,12 +490,12 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     reader = TeachReader(options.replay)
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     tally = _Tally()
     previous_t: float | None = None
     previous_command = (0.0, 0.0)
-    with _open_cmd_stream(options.cmd_out) as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)  # the same messages to --foxglove, if asked
             # The replay keeps the recording's stamps: t = 0 is known with the first frame.
@@ -545,9 +529,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)
-    summary = tally.summary(controller, options.output, False)
-    _print_summary(console, summary, settings, None)
-    return summary
+    return _finish(console, tally, controller, options.output, settings, None, None)
 
 
 # ----------------------------------------------------------------------------- a robot
@@ -561,12 +543,10 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    state_filter = make_state_filter(settings, model)
-    if state_filter is not None:
-        estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    state_filter = make_state_filter(settings, model, estimator)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     servo = ServoStep(controller, settings.limits, 0, state_filter)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed, start=model.trajectory.t_start)
+    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     tally = _Tally()
     loop: live.LiveLoop | None = None
     with ExitStack() as stack:
@@ -604,8 +584,4 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             loop.drive()
         finally:
             out.stop(loop.t if loop is not None else 0.0)
-    summary = tally.summary(controller, options.output, loop.stopped is not None)
-    _print_summary(console, summary, settings, None)
-    if loop.stopped is not None:
-        raise TargetLostError(loop.stopped + f"; the run up to then is in {options.output}")
-    return summary
+    return _finish(console, tally, controller, options.output, settings, None, loop.stopped)

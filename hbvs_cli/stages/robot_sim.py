@@ -20,7 +20,6 @@ from typing import IO, Any
 
 import numpy as np
 
-from ..core.desired import taught_frame_interval
 from ..core.frames import compose_planar_pose
 from ..core.unicycle import integrate_unicycle
 from ..errors import InputError, UsageError
@@ -159,8 +158,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     stamped_commands(options.cmd_type)
     fit = read_fit_file(options.input)
     model = fit.model
-    taught = taught_frame_interval(model.taught_path.t if model.taught_path is not None else None, model.frames.get("frame_interval_s"))
-    rate = float(options.rate) if options.rate is not None else 1.0 / taught
+    rate = float(options.rate) if options.rate is not None else 1.0 / model.taught_frame_interval()
     scene = simulation_world(model, fit_reference_image(fit), options.depth, source=options.input)
     renderer = renderer_for(scene, model)
     rng = np.random.default_rng(options.seed)

@@ -44,11 +44,8 @@ class SweepTasks:
         run = self.plan.run(index)
         arguments = repeat_arguments(run.values, run.seed, self.d_true)
         keep_path = None if self.keep == "none" else str(self.folder / "runs" / f"run-{index:06d}.mcap")
-        return RunTask(
-            fit_path=self.fit_path, index=index, point=run.point, repeat=run.repeat, seed=run.seed, values=run.values,
-            arguments=arguments, command=repeat_command(self.fit_path, arguments, f"run-{index:06d}.mcap"),
-            keep_path=keep_path, keep=self.keep,
-        )
+        return RunTask(**vars(run), fit_path=self.fit_path, arguments=arguments, keep_path=keep_path, keep=self.keep,
+                       command=repeat_command(self.fit_path, arguments, f"run-{index:06d}.mcap"))
 
     def __iter__(self):
         return (self.task(i) for i in range(self.plan.runs) if i not in self.done)

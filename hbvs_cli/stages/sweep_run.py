@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
 from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, empty_metrics
+from ..sweep.spec import RunSettings
 
 if TYPE_CHECKING:
     from ..report.result import RunReport
@@ -24,20 +25,13 @@ KEEP_CHOICES = ("failed", "all", "none")
 
 
 @dataclass(frozen=True)
-class RunTask:
-    """Everything a worker needs for one run (small: it travels to the worker).
-
-    ``fit_path`` is absolute; ``values``: swept and fixed parameters; ``arguments``: the
-    ``RepeatOptions`` fields besides input and output; ``command``: the ``hbvs repeat`` that
-    re-makes the run; ``keep_path``: where ``--keep-runs`` keeps it (None: nowhere).
-    """
+class RunTask(RunSettings):
+    """A run (:class:`RunSettings`) with what a worker needs for it (small: it travels to the
+    worker): the absolute ``fit_path``; ``arguments``, the ``RepeatOptions`` fields besides
+    input and output; ``command``, the ``hbvs repeat`` that re-makes the run; ``keep_path``,
+    where ``--keep-runs`` keeps it (None: nowhere)."""
 
     fit_path: str
-    index: int
-    point: int
-    repeat: int
-    seed: int
-    values: dict[str, Any]
     arguments: dict[str, Any]
     command: str
     keep_path: str | None

@@ -17,7 +17,7 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..core.control_settings import GAIN_UNITS
+from ..core.control_settings import GAIN_NAMES, GAIN_UNITS
 from ..core.laws import ALL_LAWS
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
@@ -72,10 +72,8 @@ PARAMETERS: dict[str, Parameter] = {
         _repeat_parameter("dhat0", "float", "m"),
         Parameter("dhat0_factor", "float", "x d*", own_bounds={"min": 0.0}),  # --dhat0 as a multiple of the true d*
         _repeat_parameter("pixel_noise", "float", "px"),
-        _repeat_parameter("k_v", "float", GAIN_UNITS["k_v"]),
-        _repeat_parameter("k_w", "float", GAIN_UNITS["k_w"]),
-        _repeat_parameter("gamma", "float", GAIN_UNITS["gamma"]),
-        _repeat_parameter("k_2", "float", ""),
+        # The gains (29)-(31); a dimensionless one has no unit.
+        *(_repeat_parameter(name, "float", GAIN_UNITS[name].replace("-", "")) for name in GAIN_NAMES),
         _repeat_parameter("law", "choice", "", choices=ALL_LAWS),
         _repeat_parameter("drop_rate", "float", ""),
         _repeat_parameter("outlier_rate", "float", ""),

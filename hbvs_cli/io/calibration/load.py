@@ -81,7 +81,6 @@ def _read_capped(path: Path, name: str) -> bytes:
     try:
         with path.open("rb") as stream:
             # One byte past the cap: stat() means nothing for pipes, and a file may grow.
-
             data = stream.read(MAX_CALIBRATION_BYTES + 1)
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None

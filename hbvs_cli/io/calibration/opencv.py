@@ -9,8 +9,9 @@ from typing import Any
 import numpy as np
 
 from ...errors import CalibrationError
+from ..native_log import opencv_error_text
 from .mapping import _ALL_KEYS
-from .validate import _MAX_NUMBERS, _normalise_key, _one_line
+from .validate import _MAX_NUMBERS, _normalise_key
 
 
 def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:
@@ -23,7 +24,7 @@ def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:
         # OpenCV's parser errors surface as SystemError chained to the cv2.error.
-        raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {_opencv_message(exc)}") from None
+        raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {opencv_error_text(exc)}") from None
     try:
         if not storage.isOpened():
             raise CalibrationError(f"{name}: OpenCV could not parse this FileStorage file")
@@ -36,17 +37,9 @@ def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:
                 result[key] = _opencv_node_value(storage.getNode(key), f"{name}: {key}")
         return result
     except (cv2.error, SystemError) as exc:
-        raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {_opencv_message(exc)}") from None
+        raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {opencv_error_text(exc)}") from None
     finally:
         storage.release()
-
-
-def _opencv_message(exc: BaseException) -> str:
-    """The useful part of an OpenCV error (``... error: (-212:Parsing error) ...``)."""
-    cause = exc.__cause__ if exc.__cause__ is not None else exc
-    message = _one_line(cause)
-    marker = "error: "
-    return message.split(marker, 1)[1] if marker in message else message
 
 
 def _opencv_node_value(node: Any, what: str, depth: int = 0) -> Any:

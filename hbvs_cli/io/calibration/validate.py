@@ -213,7 +213,6 @@ def _numbers(value: Any, what: str) -> list[float]:
     return [_number(v, what) for row in rows for v in row]
 
 
-
 def _image_side(value: Any, what: str) -> int:
     number = _number(value, what)
     if not math.isfinite(number) or number != int(number):

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, Iterator
 
 from ...errors import InputError, RecordingError
+from .. import limits
 from .caps import MAX_CHANNELS, MAX_CHUNK_BYTES, MAX_DECLARED_BYTES, MAX_LOG_TIME_NS, MAX_RECORD_BYTES, MAX_SCHEMAS
 from .json_codec import _bounded_int, _short, check_json_limits, decode_json
 
@@ -290,8 +291,6 @@ class McapStream:
         from mcap.opcode import Opcode
         from mcap.records import Channel, Message, Schema
 
-        from .. import limits
-
         declared = chunk.uncompressed_size
         if declared > MAX_CHUNK_BYTES:
             raise RecordingError(
@@ -326,8 +325,6 @@ class McapStream:
                 stream.read(length)
 
     def _count(self, limit: str, amount: int, what: str) -> None:
-        from .. import limits
-
         self._counts[limit] += amount
         if self._counts[limit] > limits.current(limit):
             raise limits.exceeded(limit, None, f"{self.name}: {what}")
@@ -385,7 +382,6 @@ class ChannelSummary:
 
 def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
     """The channels of an MCAP file's summary section, or None when it has no usable one."""
-
     from mcap.exceptions import McapError
     from mcap.reader import SeekingReader
 

@@ -106,7 +106,6 @@ class McapWriter:
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream`: committed
     only when the body succeeds."""
-
     from ..output_target import open_output_stream
 
     with open_output_stream(target, "output", stdout=stdout) as sink:

@@ -1,5 +1,5 @@
 """Frame sources for ``hbvs teach``: video files (:mod:`.video`), image folders
-(:mod:`.folder`), live cameras (:mod:`.camera`) and ROS 2 bags (:mod:`.rosbag`), each an
+(:mod:`.folder`), live cameras (:mod:`.camera_source`) and ROS 2 bags (:mod:`.rosbag`), each an
 iterable of :class:`SourceFrame` read one frame at a time, with :meth:`FrameSource.describe`
 for the metadata and a ``camera`` attribute for intrinsics the source carries (bags).
 :func:`open_source` picks one; every public name is re-exported here.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -11,7 +10,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message
+from ..native_log import opencv_error_text
+from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
 from ..images import as_image8
 
 
@@ -22,7 +22,6 @@ class CameraSource(FrameSource):
     The device is opened here, so that a missing camera is reported before anything is
     recorded; up to ``max_failed_reads`` reads in a row may fail.
     """
-
 
     kind = "camera"
 
@@ -41,9 +40,9 @@ class CameraSource(FrameSource):
         self._clock = clock
         self.max_failed_reads = int(max_failed_reads)
         self._capture: Any = self._open()
-        self.fps = self._property(self._capture, cv2.CAP_PROP_FPS)
-        width = self._property(self._capture, cv2.CAP_PROP_FRAME_WIDTH)
-        height = self._property(self._capture, cv2.CAP_PROP_FRAME_HEIGHT)
+        self.fps = capture_property(self._capture, cv2.CAP_PROP_FPS)
+        width = capture_property(self._capture, cv2.CAP_PROP_FRAME_WIDTH)
+        height = capture_property(self._capture, cv2.CAP_PROP_FRAME_HEIGHT)
         self.width = int(width) if width else None
         self.height = int(height) if height else None
 
@@ -51,7 +50,7 @@ class CameraSource(FrameSource):
         try:
             capture = self._factory(self.index)
         except (cv2.error, SystemError, OSError) as exc:
-            raise InputError(f"camera {self.index}: cannot open the device ({_cv_message(exc)})") from None
+            raise InputError(f"camera {self.index}: cannot open the device ({opencv_error_text(exc)})") from None
         if capture is None or not capture.isOpened():
             if capture is not None:
                 capture.release()
@@ -59,17 +58,6 @@ class CameraSource(FrameSource):
                 f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)"
             )
         return capture
-
-    @staticmethod
-    def _property(capture: Any, prop: int) -> float | None:
-        get = getattr(capture, "get", None)
-        if get is None:
-            return None
-        try:
-            value = float(get(prop))
-        except (cv2.error, SystemError, TypeError, ValueError):
-            return None
-        return value if math.isfinite(value) and value > 0 else None
 
     def close(self) -> None:
         """Release the device if it is still held (it is after construction)."""
@@ -95,7 +83,7 @@ class CameraSource(FrameSource):
                 try:
                     ok, frame = capture.read()
                 except (cv2.error, SystemError) as exc:
-                    raise InputError(f"camera {self.index}: read failed ({_cv_message(exc)})") from None
+                    raise InputError(f"camera {self.index}: read failed ({opencv_error_text(exc)})") from None
                 now = float(self._clock())
                 if not ok or frame is None or getattr(frame, "size", 0) == 0:
                     failures += 1

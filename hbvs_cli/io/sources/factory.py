@@ -25,16 +25,9 @@ def open_source(
     topic: str | None = None,
     cmd_topic: str | None = None,
 ) -> FrameSource:
-    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag).
-
-    ``fps`` applies to videos (an override) and image folders (required); ``duration`` to
-    cameras; ``topic`` and ``cmd_topic`` to bags (see :class:`BagSource`).
-
-    Raises
-    ------
-    UsageError
-        An unknown kind. The sources raise their own errors for the rest.
-    """
+    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag): ``fps`` for videos
+    (an override) and image folders (required), ``duration`` for cameras, ``topic`` and
+    ``cmd_topic`` for bags (:class:`BagSource`); :class:`UsageError` for an unknown kind."""
     openers: dict[str, Any] = {
         "video": lambda: VideoSource(spec, fps=fps),
         "images": lambda: ImageFolderSource(spec, fps=fps),

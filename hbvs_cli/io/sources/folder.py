@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -49,8 +50,6 @@ class ImageFolderSource(FrameSource):
                 raise InputError(f"{spec}: no images ({extensions}) in this folder")
             return sorted(files, key=lambda p: _natural_key(p.name))
         if any(c in spec for c in "*?["):
-            import glob
-
             files = [Path(p) for p in glob.glob(spec, recursive=True) if wanted(Path(p))]
             if not files:
                 raise InputError(f"{spec}: no image files ({extensions}) match this pattern")

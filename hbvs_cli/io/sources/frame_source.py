@@ -52,18 +52,21 @@ class FrameSource:
         return (int(width), int(height)) if width and height else None
 
 
-
 # ----------------------------------------------------------------------------- helpers
-def _cv_message(exc: BaseException) -> str:
-    cause = exc.__cause__ if exc.__cause__ is not None else exc
-    message = " ".join(str(cause).split())
-    return message.split("error: ", 1)[1] if "error: " in message else message
+def capture_property(capture: Any, prop: int) -> float | None:
+    """A ``cv2.VideoCapture`` property when finite and positive (drivers report 0 for unknown), else None."""
+    import cv2
+
+    try:
+        value = float(capture.get(prop))
+    except (cv2.error, SystemError, AttributeError, TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
 
 
 def _natural_key(text: str) -> tuple[Any, ...]:
     """Sort key that orders embedded numbers by value: frame2 before frame10."""
     # Text and numbers alternate, so two names' parts always compare; the name breaks ties.
-
     parts = re.split(r"(\d+)", text)
     return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)), text
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -18,14 +19,11 @@ from ..images import as_image8
 
 
 def _is_file(device: str) -> bool:
-    from pathlib import Path
-
     return not device.isdigit() and "://" not in device and not device.startswith("/dev/") and Path(device).is_file()
 
 
 class LatestCameraFrame:
     """Frames of ``cv2.VideoCapture(device)`` (an index, ``/dev/videoN``, a URL or a video file), newest only."""
-
 
     def __init__(self, device: str) -> None:
         self.device = device

@@ -2,7 +2,6 @@
 frame each time, stamped by its header, the intrinsics from the sibling ``camera_info`` topic
 and the taught command from ``--ros2-cmd``; until ``--duration`` or Ctrl-C."""
 
-
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -11,35 +10,28 @@ from typing import Any
 from ...errors import InputError
 from .frame_source import FrameSource, SourceFrame
 
-class Ros2TopicSource(FrameSource):
-    """Frames of a ROS 2 image topic, with the commands of a Twist topic.
 
-    Parameters
-    ----------
-    topic : str
-        ``sensor_msgs/msg/Image`` topic, or ``.../compressed`` for ``CompressedImage``.
-    cmd_topic : str, optional
-        ``geometry_msgs/msg/Twist`` topic of the operator's commands.
-    duration : float, optional
-        Stop at the first frame stamped ``duration`` seconds or more after the first one.
-    """
+class Ros2TopicSource(FrameSource):
+    """Frames of ``topic`` (``sensor_msgs/msg/Image``, or ``CompressedImage`` on ``.../compressed``)
+    with the operator's ``geometry_msgs/msg/Twist`` on ``cmd_topic``, up to the first frame
+    stamped ``duration`` s or more after the first."""
 
     kind = "ros2"
 
     def __init__(self, topic: str, cmd_topic: str | None = None, duration: float | None = None) -> None:
         from .. import ros2_dds as dds
-        from ..ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
+        from ..ros2_live import LatestImage, wait_camera_info
 
         self.topic = topic
         self.cmd_topic = cmd_topic
         self.duration = duration
         self.dropped = 0
         node = dds.Ros2Node()
-        self._images = LatestImage(node, topic, DISCOVERY_TIMEOUT_S)
+        self._images = LatestImage(node, topic)
         self.camera = None
         self.camera_problem: str | None = None
         try:
-            self.camera = wait_camera_info(node, dds.camera_info_topic(topic), DISCOVERY_TIMEOUT_S)
+            self.camera = wait_camera_info(node, dds.camera_info_topic(topic))
         except InputError as exc:
             self.camera_problem = str(exc)
         self._commands = node.subscriber(cmd_topic, dds.Twist, dds.command_qos()) if cmd_topic else None

@@ -24,23 +24,22 @@ from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
 _IMAGE_TYPES = (ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA)
-#: Encodings of Foxglove's image and calibration schemas read (hbvs's own files).
-_FOXGLOVE_ENCODINGS = ("protobuf",)
 #: Message types that carry the operator's command, in order of preference for --cmd-topic auto.
 _COMMAND_TYPES = (ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA)
 #: Largest CameraInfo message decoded (a real one is under 1 KB; CDR arrays decode slowly).
 _MAX_CAMERA_INFO_BYTES = 1 << 16
 
 
+# Foxglove's image and calibration schemas (hbvs's own files) are read in protobuf only.
 def _is_image_topic(topic: BagTopic) -> bool:
     if topic.type == COMPRESSED_IMAGE_SCHEMA:
-        return topic.encoding in _FOXGLOVE_ENCODINGS
+        return topic.encoding == "protobuf"
     return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
 
 
 def _is_calibration_topic(topic: BagTopic) -> bool:
     if topic.type == CAMERA_CALIBRATION_SCHEMA:
-        return topic.encoding in _FOXGLOVE_ENCODINGS
+        return topic.encoding == "protobuf"
     return topic.type == ROS_CAMERA_INFO_SCHEMA
 
 
@@ -86,11 +85,6 @@ class BagSource(FrameSource):
             self.camera, self.camera_problem = self._read_camera_info(self.camera_info_topic)
         self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
         self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
-
-    @property
-    def files(self) -> list[Path]:
-        """The bag's files."""
-        return [Path(p) for p in bag_files_description(self._bag)]
 
     # -- discovery
     def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
@@ -285,7 +279,7 @@ class BagSource(FrameSource):
         return {
             "kind": self.kind,
             "path": self.path,
-            "files": [str(f) for f in self.files],
+            "files": bag_files_description(self._bag),
             "topic": self.topic,
             "message_type": self._topic.type,
             "frame_count": self._topic.count,
@@ -307,7 +301,6 @@ def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes 
 
     stored = read_compressed_image(message.data, what)
     return (*compressed_to_image8(stored, what), stored.stamp_ns)
-
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,7 +11,8 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from .frame_source import FrameSource, SourceFrame, _check_rate, _cv_message
+from ..native_log import opencv_error_text
+from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
 from ..images import as_image8
 
 
@@ -40,8 +40,8 @@ class VideoSource(FrameSource):
                 )
         capture = self._open()
         try:
-            self._container_fps = self._property(capture, cv2.CAP_PROP_FPS)
-            count = self._property(capture, cv2.CAP_PROP_FRAME_COUNT)
+            self._container_fps = capture_property(capture, cv2.CAP_PROP_FPS)
+            count = capture_property(capture, cv2.CAP_PROP_FRAME_COUNT)
             self.frame_count = int(count) if count is not None else None
             ok, frame = self._read(capture)
             if not ok:
@@ -64,7 +64,7 @@ class VideoSource(FrameSource):
         try:
             capture = cv2.VideoCapture(self.path)
         except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: cannot open the video ({_cv_message(exc)})") from None
+            raise InputError(f"{self.path}: cannot open the video ({opencv_error_text(exc)})") from None
         if not capture.isOpened():
             capture.release()
             raise InputError(
@@ -76,15 +76,10 @@ class VideoSource(FrameSource):
         try:
             ok, frame = capture.read()
         except (cv2.error, SystemError) as exc:
-            raise InputError(f"{self.path}: error while decoding the video ({_cv_message(exc)})") from None
+            raise InputError(f"{self.path}: error while decoding the video ({opencv_error_text(exc)})") from None
         if not ok or frame is None or frame.size == 0:
             return False, None
         return True, frame
-
-    @staticmethod
-    def _property(capture: Any, prop: int) -> float | None:
-        value = capture.get(prop)
-        return float(value) if value is not None and math.isfinite(value) and value > 0 else None
 
     def __iter__(self) -> Iterator[SourceFrame]:
         capture = self._open()
