@@ -367,31 +367,12 @@ def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
                               normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Frames that show part of the target, completed from the part they show.
-
-    A frame with at least :data:`MIN_PARTIAL_POINTS` points found (a board partly out of
-    view) gets its pose ``(theta, x_h)`` from those points alone (the known-normal solver on
-    them), and its missing points are put where that pose projects them (12). The
-    completed points lie exactly on the frame's model, so the frame's pose is the one its
-    found points give; n* and the reference points are estimated before, from the whole
-    frames only.
-
-    Parameters
-    ----------
-    m : ndarray, shape (F, N, 3)
-        Normalised points, NaN rows where not found.
-    found : ndarray of bool, shape (F,)
-        Frames where every point was found.
-    m_ref : ndarray, shape (N, 3)
-    normal : ndarray, shape (3,)
-
-    Returns
-    -------
-    m : ndarray, shape (F, N, 3)
-        With the partial frames completed (a copy when any was).
-    found : ndarray of bool, shape (F,)
-        Also True for the completed frames.
-    """
+    """Frames that show part of the target, completed: ``(m, found)`` (F, N, 3), (F,) with NaN
+    rows where not found and True where whole, returned with every frame of at least
+    :data:`MIN_PARTIAL_POINTS` points (a board partly out of view) completed where the pose
+    its found points give (the known-normal solver, given n* and ``m_ref``) projects the
+    missing ones (12), and marked found (a copy when any was). n* and the reference points
+    come before, from the whole frames only."""
     seen = np.all(np.isfinite(m), axis=-1)
     partial = ~found & (seen.sum(axis=1) >= MIN_PARTIAL_POINTS)
     if not np.any(partial):
