@@ -90,3 +90,35 @@ def test_detector_bias_is_a_fraction_of_the_point_noise_and_texture_has_a_floor(
     assert detector_bias_fraction("texture", 0.003) == pytest.approx(3.0)
     assert detector_bias_fraction("dots", 0.02) == 0.0
     assert detector_bias_fraction(None, 0.02) == 0.0
+
+
+def test_a_rolling_shutters_error_is_counted_once_not_as_noise():
+    """Dots seen through a rolling shutter (rows read out over 33 ms: each point displaced by
+    its image velocity times its row's delay, written here from the independent footage
+    maker's geometry) plus 0.1 px of noise, 12 draws. The shutter biases theta_d (about
+    0.3 deg on its own); its displacement, taken as point noise, made the interval 2.06x
+    the error. Fitted as the shutter's readout and propagated as a bias: 95 % inside, sigma
+    1.24x the error (the same scene without the shutter: 87 %, 0.73, before and after)."""
+    import footage
+
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.core.desired import fit_desired_trajectory
+
+    drive = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
+    wall, camera, _ = footage.case("low_contrast_dots")
+    intrinsics = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width, height=camera.height)
+    times = drive.times()
+    poses = drive.poses(times)
+    ideal = footage.ideal_pixels(wall, camera, poses)
+    shuttered = ideal + np.gradient(ideal, times, axis=0) * (0.033 * (ideal[..., 1] / camera.height - 0.5))[..., None]
+    theta_true = poses[0, 2] - poses[:, 2]
+    errors, sigmas = [], []
+    for seed in range(12):
+        pixels = shuttered + np.random.default_rng(seed).normal(0.0, 0.1, ideal.shape)
+        fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, kind="dots")
+        errors.append(fit.trajectory.evaluate(times).theta_d - theta_true)
+        sigmas.append(fit.uncertainty.smooth_theta_sigma)
+    errors, sigmas = np.array(errors), np.array(sigmas)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert np.mean(np.abs(errors) <= 1.96 * sigmas) >= 0.9
+    assert 0.5 <= rms(sigmas) / rms(errors) <= 2.0

@@ -8,10 +8,8 @@ by maximum likelihood on the reprojection error of every point in every frame (1
 ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
 block-arrow sparsity given to scipy's trust-region solver.
 
-:func:`joint_covariance` gives the estimate's covariance from the same problem's Jacobian
-as blocks (every frame's own 3 columns, and the global columns): ``sigma^2 (J^T J)^-1``
-by the Schur complement on the global unknowns, with ``sigma`` the measured point noise: how uncertain n* is, and every frame's
-``(theta, x_h)`` including what it inherits from n* and the reference points.
+:func:`joint_covariance`: the estimate's covariance ``sigma^2 (J^T J)^-1`` by the Schur
+complement on the globals (docs/uncertainty.md).
 """
 
 from __future__ import annotations
@@ -149,18 +147,9 @@ def _motion(motion: object) -> NDArray[np.float64]:
 
 
 def measured_point_noise(residuals: ArrayLike) -> float:
-    """The point noise (normalised units, per coordinate) that reprojection errors show.
-
-    The root mean square of the residuals within :data:`OUTLIER_SPREADS` robust spreads
-    (the median absolute residual, as a Gaussian's sigma) of zero, corrected for the 3
-    unknowns every frame fits to its own ``2N`` coordinates (with three points the
-    frame's pose absorbs half of the noise).
-
-    Parameters
-    ----------
-    residuals : array_like, shape (K, 2N)
-        Every frame's reprojection errors at the joint estimate.
-    """
+    """The point noise (normalised units, per coordinate) that reprojection errors (K, 2N) show:
+    their RMS within :data:`OUTLIER_SPREADS` robust spreads (the median absolute residual as a
+    Gaussian's sigma) of zero, corrected for the 3 unknowns each frame fits to its ``2N``."""
     r = np.asarray(residuals, dtype=float)
     rows = r.shape[1]
     r = r[np.all(np.isfinite(r), axis=1)]
@@ -179,24 +168,11 @@ CORRELATION_LAG_FRACTION = 1.0 / 8.0
 
 
 def correlation_inflation(residuals: ArrayLike) -> float:
-    """How much more a sum over frames varies than independent point errors would let it.
-
-    Errors that come from the picture rather than the sensor's noise (a marker's edges
-    sampled at a phase that changes slowly with the pose) are alike in neighbouring frames:
-    the drive holds fewer independent looks than frames. The factor is the long-run variance
-    of each residual's series over the frames (Newey and West: Bartlett's weights up to a
-    lag of :data:`CORRELATION_LAG_FRACTION` of the frames) over its plain variance.
-
-    Parameters
-    ----------
-    residuals : array_like, shape (K, R)
-        Every frame's reprojection errors, the frames in time order.
-
-    Returns
-    -------
-    float
-        The factor on the point noise's variance, at least 1.
-    """
+    """The factor (>= 1) on the point noise's variance for errors alike in neighbouring frames
+    (a marker's edges sampled at a phase that changes slowly with the pose): the long-run
+    variance of each residual's series over the frames (K, R), in time order (Newey and West:
+    Bartlett's weights to a lag of :data:`CORRELATION_LAG_FRACTION` of the frames), over its
+    plain variance."""
     r = np.asarray(residuals, dtype=float)
     r = r[np.all(np.isfinite(r), axis=1)]
     frames = r.shape[0]
@@ -231,11 +207,12 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
-    bias_shared, bias : ndarray, shapes (G, S 2N) and (K, 3, S 2N), or None
-        How the globals and each frame's (theta, x_h1, x_h2) move with a detector bias of
-        one standard deviation on each point's coordinate in each of S spans of the drive
-        (:func:`joint_covariance`'s ``bias_fraction``); their covariances add ``bias
-        bias^T``, common to the frames (None: no such bias).
+    bias_shared, bias : ndarray, shapes (G, C) and (K, 3, C), or None
+        How the globals and each frame's (theta, x_h1, x_h2) move with each of C biases: a
+        detector's, of one standard deviation on each point's coordinate in each of S spans
+        of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
+        rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
+        frames (None: no bias).
     """
 
     shared: NDArray[np.float64]
@@ -267,13 +244,13 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
                      correlated: bool = True, bias_fraction: float = 0.0,
-                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
+                     bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
+                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
-    ``J^T J`` is block-arrow: a 3x3 block ``D_k`` per frame, the globals' block ``A`` and
-    their coupling ``B_k``. The globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1
-    B_k)^-1``; a frame's own part ``noise^2 D_k^-1``, and its sensitivity to the globals
-    ``-D_k^-1 B_k``. The blocks are built :data:`BLOCK_FRAMES` frames at a time.
+    ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
+    ``B_k``): the globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1 B_k)^-1``, a frame's
+    own ``noise^2 D_k^-1``, its sensitivity to the globals ``-D_k^-1 B_k``.
 
     Parameters
     ----------
@@ -302,6 +279,12 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     bias_segments : (int, array_like (K,), array_like (F,)), optional
         The span (0, 1, ...) of F*, of every estimated frame and of every frame of
         ``frames``; without it, no bias.
+    shutter : (array_like (2N,), (K, 2N), (F, 2N)), optional
+        F*'s, the estimated frames' and ``frames``' points' move per unit of a rolling
+        shutter's readout (:func:`rolling_shutter_shift`). The readout is fitted to the
+        residuals, the part of the shift the estimate cannot absorb is taken out of them
+        before the noise is measured, and the shift's effect on the estimate is one more
+        bias column (the shutter is not modelled: its error is counted, not removed).
 
     Returns
     -------
@@ -316,6 +299,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
+    shifts = [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
     estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
     frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
@@ -328,6 +312,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     where[missing] = frames.shape[0] + np.arange(missing.size)
     pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
+    pool_shift = np.concatenate([shifts[2], shifts[1][missing]])
     weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
     geometry = PlaneGeometry.around(normal, m_ref)
     reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
@@ -335,6 +320,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
     inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
     own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
+    shutter_own, shutter_globals = np.zeros((pool.shape[0], 3)), -reference[:points].T @ shifts[0]
     for k in range(0, pool.shape[0], BLOCK_FRAMES):
         block = slice(k, k + BLOCK_FRAMES)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
@@ -345,20 +331,40 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         shared_info += np.einsum("krg,krh->gh", weighted, shared) - np.einsum(
             "kag,kab,kbh->gh", weight[block, None, None] * coupling[block], inverse_own[block], coupling[block])
         residuals[block] = at[:, :points]
+        rows = _bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        if shutter is not None:  # as the bias below, for the one column of the shutter's shift
+            change = np.einsum("krb,kb->kr", rows, pool_shift[block])
+            shutter_own[block] = np.einsum("kra,kr->ka", own, change)
+            shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum(
+                "kag,kab,kb->g", weight[block, None, None] * coupling[block], inverse_own[block], shutter_own[block])
         if bias_fraction > 0.0:
-            rows = _bias_rows(pool[block], normal, pool_motion[block], shapes)
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = np.einsum("kra,krb->kab", own, rows)
             per_frame = np.einsum("krg,krb->kgb", weighted, rows) - np.einsum(
                 "kag,kab,kbc->kgc", weight[block, None, None] * coupling[block], inverse_own[block], own_rhs[block])
             np.add.at(spans, pool_segments[block], per_frame)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
+    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
+    readout = 0.0
+    if shutter is not None:
+        # The estimate's move per unit readout (as the bias's below), and the residuals' change
+        # it leaves: the shift less what the estimated frames' poses and the globals absorb.
+        moved_globals = shared_inverse @ shutter_globals
+        moved = np.einsum("kab,kb->ka", inverse_own, shutter_own - coupling @ moved_globals)
+        visible = np.empty_like(residuals)
+        for k in range(0, estimated.shape[0], BLOCK_FRAMES):
+            block = slice(k, k + BLOCK_FRAMES)
+            # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
+            _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
+            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals
+        finite = np.all(np.isfinite(residuals), axis=1)
+        readout = float(np.sum(residuals[finite] * visible[finite]) / max(float(np.sum(visible[finite] ** 2)), 1e-300))
+        residuals = residuals - readout * visible
     if noise is None:
         noise = measured_point_noise(residuals)
     inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
-    shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
@@ -366,6 +372,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
         own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - np.einsum("kag,gb->kab", coupling, bias_shared)
         bias = np.einsum("kab,kbc->kac", inverse_own, own_rhs)
+    if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
+        column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
+        bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
+        bias = column if bias is None else np.concatenate([bias, column], axis=2)
     return JointCovariance(
         shared=variance * shared_inverse,
         own=variance * inverse_own,
@@ -375,6 +385,16 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared=bias_shared,
         bias=bias,
     )
+
+
+def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:
+    """How every point ``(m_y, m_z)`` (K, N, 2) of frames at times ``t`` (K,) (s) moves per unit
+    of a rolling shutter's readout (s per normalised row; rows read out one after the other,
+    the middle one at the frame's time): its image velocity times its row ``m_z``, (K, 2N)."""
+    points = np.asarray(points, dtype=float)
+    if points.shape[0] < 2:
+        return np.zeros((points.shape[0], 2 * points.shape[1]))
+    return (np.gradient(points, np.asarray(t, dtype=float), axis=0) * points[..., 1:]).reshape(points.shape[0], -1)
 
 
 def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:

@@ -20,7 +20,7 @@ from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
 from .metrics import rms
-from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points
+from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points, rolling_shutter_shift
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -299,10 +299,15 @@ def fit_desired_trajectory(
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
         duration = max(t[span][-1] - t[span][0], 1e-9)
         segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
+        # A rolling shutter's shift of every point (per unit readout), from the poses of the frames found.
+        seen = np.flatnonzero(found & motion.valid)
+        shift = np.full((t.size, 2 * m_ref.shape[0]), np.nan)
+        shift[seen] = rolling_shutter_shift(projected_points(normal, m_ref, stacked(seen)), t[seen])
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
                                       frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
                                       bias_fraction=detector_bias_fraction(kind, noise * camera.mean_focal),
-                                      bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))))
+                                      bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
+                                      shutter=(shift[reference_index], shift[others], shift[used]))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
@@ -362,31 +367,12 @@ def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
                               normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Frames that show part of the target, completed from the part they show.
-
-    A frame with at least :data:`MIN_PARTIAL_POINTS` points found (a board partly out of
-    view) gets its pose ``(theta, x_h)`` from those points alone (the known-normal solver on
-    them), and its missing points are put where that pose projects them (12). The
-    completed points lie exactly on the frame's model, so the frame's pose is the one its
-    found points give; n* and the reference points are estimated before, from the whole
-    frames only.
-
-    Parameters
-    ----------
-    m : ndarray, shape (F, N, 3)
-        Normalised points, NaN rows where not found.
-    found : ndarray of bool, shape (F,)
-        Frames where every point was found.
-    m_ref : ndarray, shape (N, 3)
-    normal : ndarray, shape (3,)
-
-    Returns
-    -------
-    m : ndarray, shape (F, N, 3)
-        With the partial frames completed (a copy when any was).
-    found : ndarray of bool, shape (F,)
-        Also True for the completed frames.
-    """
+    """Frames that show part of the target, completed: ``(m, found)`` (F, N, 3), (F,) with NaN
+    rows where not found and True where whole, returned with every frame of at least
+    :data:`MIN_PARTIAL_POINTS` points (a board partly out of view) completed where the pose
+    its found points give (the known-normal solver, given n* and ``m_ref``) projects the
+    missing ones (12), and marked found (a copy when any was). n* and the reference points
+    come before, from the whole frames only."""
     seen = np.all(np.isfinite(m), axis=-1)
     partial = ~found & (seen.sum(axis=1) >= MIN_PARTIAL_POINTS)
     if not np.any(partial):
