@@ -23,6 +23,11 @@ from .known_normal import KnownNormalSolver
 #: Frames the plane estimates use at most (evenly spaced): the normal and the reference
 #: points need no more, and long recordings stay fast and memory flat.
 REFINEMENT_FRAMES = 1500
+#: The Jacobian of :func:`refine_plane_and_reference` has at most this many entries (1500
+#: frames of a marker's 4 corners and its square), built from at least MIN_PROJECTION_FRAMES
+#: frames: it gives the joint estimate (:mod:`.bundle`) its start.
+PROJECTION_JACOBIAN_ENTRIES = 1500 * 16 * 10
+MIN_PROJECTION_FRAMES = 200
 
 
 def estimate_common_normal(
@@ -515,9 +520,13 @@ def refine_plane_and_reference(
     others = np.ones(m.shape[0], dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
     others[reference_index] = False
     frames = m[others]
-    if frames.shape[0] > REFINEMENT_FRAMES:
-        frames = frames[np.linspace(0, frames.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
     geometry = PlaneGeometry.around(normal, measured_ref)
+    # Each step decomposes the dense Jacobian (frames x rows x globals): a target of many
+    # points (a board's corners) uses fewer frames, still far more than the few globals need.
+    rows = 2 * m.shape[1] + 2 * sum(len(indices) for indices, _ in shapes)
+    count = min(REFINEMENT_FRAMES, max(MIN_PROJECTION_FRAMES, PROJECTION_JACOBIAN_ENTRIES // (rows * geometry.size)))
+    if frames.shape[0] > count:
+        frames = frames[np.linspace(0, frames.shape[0] - 1, count).astype(int)]
     if frames.shape[0] == 0:
         return geometry.base, measured_ref
     try:
