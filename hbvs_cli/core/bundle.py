@@ -114,16 +114,22 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
                                              reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
 
     # Block-arrow: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
+    # 32-bit indices when they fit, as scipy would make them (else it converts them at every step).
+    index = np.int32 if frames * per_frame * (n_global + 3) + reference_count * n_global < 2**31 else np.int64
     own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
     columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
-                              np.tile(np.arange(n_global), reference_count)])
-    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_count]))])
+                              np.tile(np.arange(n_global), reference_count)]).astype(index)
+    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_count]))]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
         at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
-        rows = np.concatenate([by_globals, by_own], axis=2)
+        data = np.empty(columns.size)
+        rows = data[:frames * per_frame * (n_global + 3)].reshape(frames, per_frame, n_global + 3)
+        rows[..., :n_global], rows[..., n_global:] = by_globals, by_own
         rows[~np.isfinite(at)] = 0.0  # where the residuals are replaced (nan_to_num)
-        data = np.nan_to_num(np.concatenate([rows.ravel(), reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]), copy=False)
+        data[rows.size:] = reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()
+        if not np.all(np.isfinite(data)):
+            np.nan_to_num(data, copy=False)
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])
