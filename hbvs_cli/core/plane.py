@@ -23,9 +23,8 @@ from .known_normal import KnownNormalSolver
 #: Frames the plane estimates use at most (evenly spaced): the normal and the reference
 #: points need no more, and long recordings stay fast and memory flat.
 REFINEMENT_FRAMES = 1500
-#: The Jacobian of :func:`refine_plane_and_reference` has at most this many entries (1500
-#: frames of a marker's 4 corners and its square), built from at least MIN_PROJECTION_FRAMES
-#: frames: it gives the joint estimate (:mod:`.bundle`) its start.
+#: :func:`refine_plane_and_reference`'s Jacobian has at most this many entries (1500 frames of
+#: a marker), from at least MIN_PROJECTION_FRAMES frames: it starts the joint estimate (:mod:`.bundle`).
 PROJECTION_JACOBIAN_ENTRIES = 1500 * 16 * 10
 MIN_PROJECTION_FRAMES = 200
 
@@ -488,11 +487,8 @@ def refine_plane_and_reference(
     reference points (their y and z), :class:`KnownNormalSolver` gives every frame its best
     (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
     error, plus the reference frame's own: F* is where the reference frame was taken, so
-    its motion is pinned at identity (this fixes the gauge).
-
-    Both parts matter. With the reference points held at their noisy measurement, the
-    normal bends to absorb their error (the cost is lower at the wrong normal); averaging
-    per-frame SVD normals is biased too.
+    its motion is pinned at identity (this fixes the gauge). Both parts matter: with the
+    reference points held at their measurement, the normal bends to absorb their error.
 
     Parameters
     ----------
@@ -521,8 +517,7 @@ def refine_plane_and_reference(
     others[reference_index] = False
     frames = m[others]
     geometry = PlaneGeometry.around(normal, measured_ref)
-    # Each step decomposes the dense Jacobian (frames x rows x globals): a target of many
-    # points (a board's corners) uses fewer frames, still far more than the few globals need.
+    # Each step decomposes the dense Jacobian: a target of many points uses fewer frames.
     rows = 2 * m.shape[1] + 2 * sum(len(indices) for indices, _ in shapes)
     count = min(REFINEMENT_FRAMES, max(MIN_PROJECTION_FRAMES, PROJECTION_JACOBIAN_ENTRIES // (rows * geometry.size)))
     if frames.shape[0] > count:

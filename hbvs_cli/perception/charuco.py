@@ -8,6 +8,9 @@ found is then refined again (``cornerSubPix`` in a window that stays inside the 
 markers) and measured as the saddle point of the image, as a chessboard's corners are
 (:func:`~.chessboard.saddle_points`).
 
+A board seen whole in the last two frames is tracked: its corners are refined from the
+track's prediction, and OpenCV's search runs only when that fails (:meth:`CharucoTargetDetector._tracked`).
+
 The markers' codes give the corners their identity, so a board partly out of view (or
 partly hidden) still gives the corners next to the markers it shows: the rows of the
 others are NaN and the frame counts as found when at least :data:`MIN_CORNERS` corners are.
@@ -283,9 +286,7 @@ class CharucoTargetDetector:
             return None
         ids = np.arange(self.n_points)
         window, fit_px = self._window(prediction, ids)
-        height, width = gray.shape
-        margin = window + 2
-        if fit_px > GRID_FIT_PX or np.any(prediction < margin) or np.any(prediction[:, 0] > width - 1 - margin) or np.any(prediction[:, 1] > height - 1 - margin):
+        if fit_px > GRID_FIT_PX or not np.all(_inside(prediction, window + 2, gray.shape)):
             return None
         once, again = refine_twice(gray, prediction, window, (0.5, -0.5))
         if np.max(np.linalg.norm(once - prediction, axis=1)) > MAX_REFINE_MOVE_PX or np.max(np.linalg.norm(again - once, axis=1)) > SETTLED_PX:
@@ -338,9 +339,7 @@ class CharucoTargetDetector:
         A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`, or does not come back when
         refined again from a little off, keeps OpenCV's position."""
         window, _ = self._window(corners, ids)
-        height, width = gray.shape
-        margin = window + 2
-        inside = (corners[:, 0] >= margin) & (corners[:, 1] >= margin) & (corners[:, 0] <= width - 1 - margin) & (corners[:, 1] <= height - 1 - margin)
+        inside = _inside(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
             return refined
@@ -349,3 +348,8 @@ class CharucoTargetDetector:
         rows = np.flatnonzero(inside)[good]
         refined[rows] = once_px[good]
         return saddle_points(gray, refined)
+
+
+def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
+    return np.all((corners >= margin) & (corners <= np.array([shape[1], shape[0]]) - 1 - margin), axis=1)
