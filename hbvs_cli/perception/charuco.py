@@ -235,6 +235,7 @@ class CharucoTargetDetector:
         self._detector = None if self._geometry is None else self._make(self._geometry)
         self._track = PointTrack(self.n_points, max_coast=2)
         self._streak = 0  # frames in a row with every corner: the track's velocity is known from 2 on
+        self._last_window = GAP_WINDOW_PX[0]  # the refinement's window in the last frame (px)
 
     @staticmethod
     def _make(geometry: CharucoGeometry) -> cv2.aruco.CharucoDetector:
@@ -278,22 +279,19 @@ class CharucoTargetDetector:
 
     def _tracked(self, gray: NDArray[np.uint8]) -> NDArray[np.float64] | None:
         """Every corner refined from the track's prediction as a searched frame's are
-        (:meth:`_refined`), without OpenCV's search; None (the frame is searched) unless every
+        (:meth:`_refined`, in the last frame's window), without OpenCV's search; None (the frame is searched) unless every
         corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`, comes back when refined
         again from a little off, and they all fit one homography of the grid (:data:`~.chessboard.GRID_FIT_PX`)."""
         prediction = self._track.predict()
         if prediction is None or not np.all(np.isfinite(prediction)):
             return None
-        ids = np.arange(self.n_points)
-        window, fit_px = self._window(prediction, ids)
-        if fit_px > GRID_FIT_PX or not np.all(_inside(prediction, window + 2, gray.shape)):
+        if not np.all(_inside(prediction, self._last_window + 2, gray.shape)):
             return None
-        once, again = refine_twice(gray, prediction, window, (0.5, -0.5))
+        once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
         if np.max(np.linalg.norm(once - prediction, axis=1)) > MAX_REFINE_MOVE_PX or np.max(np.linalg.norm(again - once, axis=1)) > SETTLED_PX:
             return None
-        if self._window(once, ids)[1] > GRID_FIT_PX:
-            return None
-        return saddle_points(gray, once)
+        self._last_window, fit_px = self._window(once, np.arange(self.n_points))
+        return saddle_points(gray, once) if fit_px <= GRID_FIT_PX else None
 
     def _window(self, corners: NDArray[np.float64], ids: NDArray[np.int_]) -> tuple[int, float]:
         """The half-size (px) of the window a corner is refined in (:data:`GAP_WINDOW_FRACTION`),
@@ -338,7 +336,7 @@ class CharucoTargetDetector:
         on small boards: 0.6 px RMS off on the footage's 15 px squares, 0.05 px with this one).
         A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`, or does not come back when
         refined again from a little off, keeps OpenCV's position."""
-        window, _ = self._window(corners, ids)
+        window = self._last_window = self._window(corners, ids)[0]
         inside = _inside(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
