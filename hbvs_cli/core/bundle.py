@@ -111,17 +111,31 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         return np.nan_to_num(np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
                                              reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
 
-    # Block-arrow: a frame's rows depend on the globals and its own 3 unknowns, F*'s on the globals.
-    own = n_global + 3 * np.arange(frames)[:, None] + np.arange(3)
-    columns = np.concatenate([np.repeat(np.hstack([np.broadcast_to(np.arange(n_global), (frames, n_global)), own]), per_frame, axis=0).ravel(),
-                              np.tile(np.arange(n_global), reference_count)])
-    pointers = np.concatenate([[0], np.cumsum(np.repeat([n_global + 3, n_global], [frames * per_frame, reference_count]))])
+    # Block-arrow, and sparser: a frame's rows depend on its own 3 unknowns and on n*'s two
+    # angles, a point's on its reference point's two offsets too; F*'s on the globals.
+    points = 2 * m.shape[1]
+    shape_rows = per_frame - points
+    point_globals = np.repeat(np.column_stack([np.zeros(points // 2, int), np.ones(points // 2, int), 2 + 2 * np.arange(points // 2),
+                                               3 + 2 * np.arange(points // 2)]), 2, axis=0)  # (2N, 4)
+    own = np.broadcast_to((n_global + 3 * np.arange(frames)[:, None] + np.arange(3))[:, None], (frames, per_frame, 3))
+    columns = np.concatenate([np.concatenate([np.concatenate([np.broadcast_to(point_globals, (frames, points, 4)), own[:, :points]], axis=2).reshape(frames, -1),
+                                              np.concatenate([np.broadcast_to([0, 1], (frames, shape_rows, 2)), own[:, points:]], axis=2).reshape(frames, -1)],
+                                             axis=1).ravel(), np.tile(np.arange(n_global), reference_count)])
+    counts = np.concatenate([np.tile(np.repeat([7, 5], [points, shape_rows]), frames), np.full(reference_count, n_global)])
+    # 32-bit indices when they fit, as scipy would make them (else it converts them at every step).
+    index = np.int32 if columns.size < 2**31 else np.int64
+    columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
         at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
-        rows = np.concatenate([by_globals, by_own], axis=2)
-        rows[~np.isfinite(at)] = 0.0  # where the residuals are replaced (nan_to_num)
-        data = np.nan_to_num(np.concatenate([rows.ravel(), reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]), copy=False)
+        by_points = np.concatenate([np.take_along_axis(by_globals[:, :points], point_globals[None], axis=2), by_own[:, :points]], axis=2)
+        by_shapes = np.concatenate([by_globals[:, points:, :2], by_own[:, points:]], axis=2)
+        by_points[~np.isfinite(at[:, :points])] = 0.0  # where the residuals are replaced (nan_to_num)
+        by_shapes[~np.isfinite(at[:, points:])] = 0.0
+        data = np.concatenate([by_points.reshape(frames, -1), by_shapes.reshape(frames, -1)], axis=1).ravel()
+        data = np.concatenate([data, reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()])
+        if not np.all(np.isfinite(data)):
+            np.nan_to_num(data, copy=False)
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])

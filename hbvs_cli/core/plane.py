@@ -23,6 +23,10 @@ from .known_normal import KnownNormalSolver
 #: Frames the plane estimates use at most (evenly spaced): the normal and the reference
 #: points need no more, and long recordings stay fast and memory flat.
 REFINEMENT_FRAMES = 1500
+#: :func:`refine_plane_and_reference`'s Jacobian has at most this many entries (1500 frames of
+#: a marker), from at least MIN_PROJECTION_FRAMES frames: it starts the joint estimate (:mod:`.bundle`).
+PROJECTION_JACOBIAN_ENTRIES = 1500 * 16 * 10
+MIN_PROJECTION_FRAMES = 200
 
 
 def estimate_common_normal(
@@ -483,11 +487,8 @@ def refine_plane_and_reference(
     reference points (their y and z), :class:`KnownNormalSolver` gives every frame its best
     (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
     error, plus the reference frame's own: F* is where the reference frame was taken, so
-    its motion is pinned at identity (this fixes the gauge).
-
-    Both parts matter. With the reference points held at their noisy measurement, the
-    normal bends to absorb their error (the cost is lower at the wrong normal); averaging
-    per-frame SVD normals is biased too.
+    its motion is pinned at identity (this fixes the gauge). Both parts matter: with the
+    reference points held at their measurement, the normal bends to absorb their error.
 
     Parameters
     ----------
@@ -515,9 +516,12 @@ def refine_plane_and_reference(
     others = np.ones(m.shape[0], dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
     others[reference_index] = False
     frames = m[others]
-    if frames.shape[0] > REFINEMENT_FRAMES:
-        frames = frames[np.linspace(0, frames.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
     geometry = PlaneGeometry.around(normal, measured_ref)
+    # Each step decomposes the dense Jacobian: a target of many points uses fewer frames.
+    rows = 2 * m.shape[1] + 2 * sum(len(indices) for indices, _ in shapes)
+    count = min(REFINEMENT_FRAMES, max(MIN_PROJECTION_FRAMES, PROJECTION_JACOBIAN_ENTRIES // (rows * geometry.size)))
+    if frames.shape[0] > count:
+        frames = frames[np.linspace(0, frames.shape[0] - 1, count).astype(int)]
     if frames.shape[0] == 0:
         return geometry.base, measured_ref
     try:

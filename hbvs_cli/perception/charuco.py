@@ -8,6 +8,9 @@ found is then refined again (``cornerSubPix`` in a window that stays inside the 
 markers) and measured as the saddle point of the image, as a chessboard's corners are
 (:func:`~.chessboard.saddle_points`).
 
+A board seen whole in the last two frames is tracked: its corners are refined from the
+track's prediction, and OpenCV's search runs only when that fails (:meth:`CharucoTargetDetector._tracked`).
+
 The markers' codes give the corners their identity, so a board partly out of view (or
 partly hidden) still gives the corners next to the markers it shows: the rows of the
 others are NaN and the frame counts as found when at least :data:`MIN_CORNERS` corners are.
@@ -33,7 +36,7 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray
-from .chessboard import refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, refine_twice, saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -231,6 +234,8 @@ class CharucoTargetDetector:
         self._geometry = None if marker_ratio is None else CharucoGeometry(self.squares, self.dictionary, float(marker_ratio))
         self._detector = None if self._geometry is None else self._make(self._geometry)
         self._track = PointTrack(self.n_points, max_coast=2)
+        self._streak = 0  # frames in a row with every corner: the track's velocity is known from 2 on
+        self._last_window = GAP_WINDOW_PX[0]  # the refinement's window in the last frame (px)
 
     @staticmethod
     def _make(geometry: CharucoGeometry) -> cv2.aruco.CharucoDetector:
@@ -240,6 +245,7 @@ class CharucoTargetDetector:
 
     def reset(self) -> None:
         self._track.reset()
+        self._streak = 0
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         gray = as_gray(image)
@@ -249,6 +255,11 @@ class CharucoTargetDetector:
             if geometry is not None:
                 self._geometry, self._detector = geometry, self._make(geometry)
         corners, ids, considered = None, None, 0
+        tracked = self._tracked(gray) if self._detector is not None and self._streak >= 2 else None
+        if tracked is not None:
+            self._track.update(tracked)
+            self._streak += 1
+            return Detection(tracked, True, self.n_points, 0)
         if self._detector is not None:
             box = self._search_box(gray.shape)
             corners, ids, considered = self._detect_board(gray, box)
@@ -263,7 +274,40 @@ class CharucoTargetDetector:
         if not ok:
             pixels[:] = np.nan
         self._track.update(pixels)
+        self._streak = self._streak + 1 if np.all(seen) else 0
         return Detection(pixels, ok, considered, 0)
+
+    def _tracked(self, gray: NDArray[np.uint8]) -> NDArray[np.float64] | None:
+        """Every corner refined from the track's prediction as a searched frame's are
+        (:meth:`_refined`, in the last frame's window), without OpenCV's search; None (the frame is searched) unless every
+        corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`, comes back when refined
+        again from a little off, and they all fit one homography of the grid (:data:`~.chessboard.GRID_FIT_PX`)."""
+        prediction = self._track.predict()
+        if prediction is None or not np.all(np.isfinite(prediction)):
+            return None
+        if not np.all(_inside(prediction, self._last_window + 2, gray.shape)):
+            return None
+        once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
+        if np.max(np.linalg.norm(once - prediction, axis=1)) > MAX_REFINE_MOVE_PX or np.max(np.linalg.norm(again - once, axis=1)) > SETTLED_PX:
+            return None
+        self._last_window, fit_px = self._window(once, np.arange(self.n_points))
+        return saddle_points(gray, once) if fit_px <= GRID_FIT_PX else None
+
+    def _window(self, corners: NDArray[np.float64], ids: NDArray[np.int_]) -> tuple[int, float]:
+        """The half-size (px) of the window a corner is refined in (:data:`GAP_WINDOW_FRACTION`),
+        and the RMS (px) of ``corners`` (K, 2) from one homography of their ids' grid (inf
+        for fewer than 4)."""
+        assert self._geometry is not None
+        columns = self.squares[0] - 1
+        grid = np.column_stack([ids % columns, ids // columns]).astype(np.float32)
+        square, fit_px = 8.0, float("inf")
+        if len(ids) >= 4:
+            H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
+            if H is not None:  # the square as seen: the mapped grid's step at each corner
+                mapped = cv2.perspectiveTransform(np.concatenate([grid, grid + np.float32((1, 0))]).reshape(-1, 1, 2), H).reshape(2, -1, 2)
+                square = float(np.median(np.linalg.norm(mapped[1] - corners, axis=1)))
+                fit_px = float(np.sqrt(np.mean(np.sum((mapped[0] - corners) ** 2, axis=1))))
+        return int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX)), fit_px
 
     def _search_box(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
         """The box (x0, y0, x1, y1, px) of the predicted corners, widened (:data:`SEARCH_MARGIN_SQUARES`),
@@ -292,24 +336,18 @@ class CharucoTargetDetector:
         on small boards: 0.6 px RMS off on the footage's 15 px squares, 0.05 px with this one).
         A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`, or does not come back when
         refined again from a little off, keeps OpenCV's position."""
-        assert self._geometry is not None
-        columns = self.squares[0] - 1
-        grid = np.column_stack([ids % columns, ids // columns]).astype(np.float32)
-        square = 8.0
-        if len(ids) >= 4:
-            H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
-            if H is not None:  # the square as seen: the mapped grid's step at each corner
-                right = cv2.perspectiveTransform((grid + np.float32((1, 0))).reshape(-1, 1, 2), H).reshape(-1, 2)
-                square = float(np.median(np.linalg.norm(right - corners, axis=1)))
-        window = int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX))
-        height, width = gray.shape
-        margin = window + 2
-        inside = (corners[:, 0] >= margin) & (corners[:, 1] >= margin) & (corners[:, 0] <= width - 1 - margin) & (corners[:, 1] <= height - 1 - margin)
+        window = self._last_window = self._window(corners, ids)[0]
+        inside = _inside(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
             return refined
         once_px, again_px = refine_twice(gray, corners[inside], window, (0.5, -0.5))
-        good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= 0.1)
+        good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= SETTLED_PX)
         rows = np.flatnonzero(inside)[good]
         refined[rows] = once_px[good]
         return saddle_points(gray, refined)
+
+
+def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
+    return np.all((corners >= margin) & (corners <= np.array([shape[1], shape[0]]) - 1 - margin), axis=1)

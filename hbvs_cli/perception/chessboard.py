@@ -1,15 +1,12 @@
 """A printed chessboard as the target: its inner corners, in a fixed order.
 
 The first frame (and any frame where tracking is lost) is searched by OpenCV's
-``findChessboardCornersSB`` (the sector-based detector, sub-pixel accurate); the board's
-size need not be known: :func:`find_board` lets OpenCV find the largest board
-(``CALIB_CB_LARGER``) and reports its pattern. In the frames that follow, every corner is
-refined from where the track predicts it (``cornerSubPix``, a tenth of a millisecond per
-corner where the full search costs about 100 ms per frame) and the refined corners must
-fit one homography of the board's grid; a frame where they do not is searched again.
-Each accepted corner is then re-measured as the saddle point of the image around it
-(:func:`saddle_points`), four times closer to the true corner than ``cornerSubPix`` on
-small squares.
+``findChessboardCornersSB``; :func:`find_board` finds the largest board (``CALIB_CB_LARGER``)
+and reports its pattern. In the frames that follow, every corner is refined from where the
+track predicts it (``cornerSubPix``) and the corners must fit one homography of the board's
+grid, else the frame is searched again. Each accepted corner is then re-measured as the
+saddle point of the image around it (:func:`saddle_points`), four times closer to the true
+corner than ``cornerSubPix`` on small squares.
 
 The corners' order is row by row as OpenCV gives it in the first detection; a later search
 (the board's 180 deg symmetry can flip OpenCV's order) is put back in the track's order.

@@ -130,20 +130,24 @@ def recorded_frame_count(source: str) -> int | None:
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
     """Fit the desired trajectory of a teach recording; write the fit file."""
-    with _one_opencv_thread():
+    with _one_thread_each():
         return _run_fit(options, console)
 
 
 @contextmanager
-def _one_opencv_thread() -> Iterator[None]:
-    """OpenCV's thread pool off while fitting, restored after: the frame loop and the decoding
-    thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy."""
+def _one_thread_each() -> Iterator[None]:
+    """OpenCV's and BLAS's thread pools off while fitting, restored after: the frame loop and
+    the decoding thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy,
+    and BLAS's threads made the solvers' decompositions of tall Jacobians slower, not faster."""
     import cv2
+    import scipy.linalg  # noqa: F401  (loaded now, so that its BLAS is limited too)
+    from threadpoolctl import threadpool_limits
 
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        yield
+        with threadpool_limits(limits=1, user_api="blas"):
+            yield
     finally:
         cv2.setNumThreads(threads)
 
