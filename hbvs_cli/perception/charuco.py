@@ -50,6 +50,10 @@ LAYOUT_FIT_SQUARES = 0.2
 MAX_SQUARES = 16
 #: A refined corner may move this far (px) from OpenCV's at most.
 MAX_REFINE_MOVE_PX = 1.5
+#: ... or up to this far (px) where the corner's neighbours on the board agree with it
+#: (:func:`_from_neighbours`) within :data:`NEIGHBOUR_AGREEMENT_PX`.
+FAR_REFINE_MOVE_PX = 3.0
+NEIGHBOUR_AGREEMENT_PX = 0.5
 #: A corner is refined in a window whose half-size is this fraction of the gap between
 #: its squares' markers, ``(1 - marker_ratio)`` of a square as seen, within bounds (px).
 #: On the footage's board (15-30 px squares, markers 0.73 of them, their ratio measured
@@ -334,20 +338,44 @@ class CharucoTargetDetector:
         """The corners refined again (``cornerSubPix``) in a window inside the gap between a
         corner and its markers (:data:`GAP_WINDOW_FRACTION`; OpenCV's reaches into the markers
         on small boards: 0.6 px RMS off on the footage's 15 px squares, 0.05 px with this one).
-        A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`, or does not come back when
-        refined again from a little off, keeps OpenCV's position."""
+        A corner that moves farther than :data:`MAX_REFINE_MOVE_PX` (:data:`FAR_REFINE_MOVE_PX`
+        where its neighbours agree), or does not come back when refined again from a little
+        off, keeps OpenCV's position."""
         window = self._last_window = self._window(corners, ids)[0]
         inside = _inside(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
             return refined
         once_px, again_px = refine_twice(gray, corners[inside], window, (0.5, -0.5))
-        good = (np.linalg.norm(once_px - corners[inside], axis=1) <= MAX_REFINE_MOVE_PX) & (np.linalg.norm(again_px - once_px, axis=1) <= SETTLED_PX)
+        moved = np.linalg.norm(once_px - corners[inside], axis=1)
+        settled = np.linalg.norm(again_px - once_px, axis=1) <= SETTLED_PX
+        good = settled & (moved <= MAX_REFINE_MOVE_PX)
         rows = np.flatnonzero(inside)[good]
         refined[rows] = once_px[good]
+        # OpenCV's corner can be off by more than the refinement may move it: a settled
+        # refinement a little farther is taken where the corner's neighbours agree with it.
+        far = settled & ~good & (moved <= FAR_REFINE_MOVE_PX)
+        grid = np.column_stack([ids % (self.squares[0] - 1), ids // (self.squares[0] - 1)]).astype(np.float32)
+        for row, once in zip(np.flatnonzero(inside)[far], once_px[far]):
+            expected = _from_neighbours(grid, refined, row)
+            if expected is not None and np.linalg.norm(once - expected) < min(NEIGHBOUR_AGREEMENT_PX, np.linalg.norm(refined[row] - expected)):
+                refined[row] = once
         return saddle_points(gray, refined)
 
 
 def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
     """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
     return np.all((corners >= margin) & (corners <= np.array([shape[1], shape[0]]) - 1 - margin), axis=1)
+
+
+def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], row: int) -> NDArray[np.float64] | None:
+    """Where corner ``row`` should be by the homography of its neighbours (board corners at
+    most two squares away, itself left out; (K, 2) ``grid`` positions and ``corners`` px), or
+    None with fewer than six of them. Local: the lens bends the board too little over two
+    squares to matter."""
+    near = np.flatnonzero(np.max(np.abs(grid - grid[row]), axis=1) <= 2)
+    near = near[(near != row) & np.all(np.isfinite(corners[near]), axis=1)]
+    if near.size < 6:
+        return None
+    H, _ = cv2.findHomography(grid[near], corners[near].astype(np.float32), 0)
+    return None if H is None else cv2.perspectiveTransform(grid[row].reshape(1, 1, 2), H).reshape(2).astype(np.float64)
