@@ -342,8 +342,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         coupling[block] = np.einsum("kra,krg->kag", own, shared)  # B_k = J_k^T J_kg; D_k = J_k^T J_k
         inverse_own[block] = np.linalg.pinv(np.einsum("kra,krb->kab", own, own), rcond=1e-12, hermitian=True)
         weighted = weight[block, None, None] * shared
-        shared_info += np.einsum("krg,krh->gh", weighted, shared) - np.einsum(
-            "kag,kab,kbh->gh", weight[block, None, None] * coupling[block], inverse_own[block], coupling[block])
+        # Sums over frames and rows as matrix products (BLAS): plain einsum loops over every index.
+        reduced = np.swapaxes(weight[block, None, None] * coupling[block], 1, 2) @ inverse_own[block]  # B_k^T D_k^-1, weighted
+        shared_info += (weighted.reshape(-1, geometry.size).T @ shared.reshape(-1, geometry.size)
+                        - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
         residuals[block] = at[:, :points]
         rows = _bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
@@ -353,9 +355,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                 "kag,kab,kb->g", weight[block, None, None] * coupling[block], inverse_own[block], shutter_own[block])
         if bias_fraction > 0.0:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
-            own_rhs[block] = np.einsum("kra,krb->kab", own, rows)
-            per_frame = np.einsum("krg,krb->kgb", weighted, rows) - np.einsum(
-                "kag,kab,kbc->kgc", weight[block, None, None] * coupling[block], inverse_own[block], own_rhs[block])
+            own_rhs[block] = np.swapaxes(own, 1, 2) @ rows
+            per_frame = np.swapaxes(weighted, 1, 2) @ rows - reduced @ own_rhs[block]
             np.add.at(spans, pool_segments[block], per_frame)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
