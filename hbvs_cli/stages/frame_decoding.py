@@ -1,16 +1,15 @@
 """Taught frames decoded ahead of use, in a worker thread, with bounded memory.
 
-Reading the MCAP and decoding its images are a recording's reading cost, and OpenCV's
-decoder releases the GIL, so a second thread reads and decodes ahead (at most ``depth``
-frames) while the current one is detected.
+Decoding is most of a recording's reading cost and OpenCV's decoder releases the GIL, so a
+second thread decodes ahead (at most ``depth`` frames) while the current one is detected.
 Colour is decoded only for the dot detector (a dot may differ from its wall in hue alone);
 the others use luminance, which a colour JPEG decodes faster.
 """
 
 from __future__ import annotations
 
-import queue
-import threading
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, Iterator
 
 import numpy as np
@@ -31,44 +30,21 @@ def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[by
 def decoded_frames(
     frames: Iterator[TeachFrame], name: str, depth: int = 4, colour: Callable[[], bool] = lambda: False
 ) -> Iterator[tuple[TeachFrame, bytes, np.ndarray]]:
-    """Yield ``(frame, image_bytes, image)`` in order, read and decoded up to ``depth`` frames
-    ahead in a worker thread (the caller's thread is left to detection).
+    """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead.
 
-    ``colour()`` is asked as each frame is read: whether to keep its colour (fit keeps it
-    while it picks the target, then only for dots). An error of the reading or decoding is
-    raised here, at the frame where it happened.
+    ``colour()`` is asked as each frame is queued: whether to keep its colour (fit keeps it
+    while it picks the target, then only for dots).
     """
-    ready: queue.Queue[tuple[TeachFrame, bytes, np.ndarray] | BaseException | None] = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-
-    def hand_over(item: tuple[TeachFrame, bytes, np.ndarray] | BaseException | None) -> bool:
-        while not stop.is_set():
-            try:
-                ready.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def read_ahead() -> None:
-        try:
-            for frame in frames:
-                if not hand_over((frame, *decode_frame(frame, name, colour()))):
-                    return
-            hand_over(None)
-        except BaseException as error:  # raised again in the caller's thread
-            hand_over(error)
-
-    worker = threading.Thread(target=read_ahead, name="hbvs-decode", daemon=True)
-    worker.start()
-    try:
-        while (item := ready.get()) is not None:
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        worker.join(timeout=2.0)  # a worker blocked on a silent pipe must not hold the exit
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
+        pending: deque[tuple[TeachFrame, Future[tuple[bytes, np.ndarray]]]] = deque()
+        for frame in frames:
+            pending.append((frame, pool.submit(decode_frame, frame, name, colour())))
+            if len(pending) > depth:
+                ready, future = pending.popleft()
+                yield (ready, *future.result())
+        while pending:
+            ready, future = pending.popleft()
+            yield (ready, *future.result())
 
 
 def fit_reference_image(fit: FitFile) -> np.ndarray | None:
