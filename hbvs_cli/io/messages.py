@@ -114,25 +114,29 @@ def annotations_message(ns: int, detected: np.ndarray | None, desired: np.ndarra
     """
     from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-    from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
     from foxglove_schemas_protobuf.Point2_pb2 import Point2
     from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 
     time, clear = stamp(ns), color(0.0, 0.0, 0.0, 0.0)
     annotations = ImageAnnotations()
     for points, rgba, diameter in ((detected, DETECTED_RGBA, 10.0), (desired, DESIRED_RGBA, 16.0)):
-        for index, (u, v) in enumerate(np.asarray(points if points is not None else [], dtype=float).reshape(-1, 2)):
+        outline = color(*rgba)
+        # Every point's annotations copied from one made whole: building each nested message
+        # anew cost the fit more than a third of a millisecond a frame.
+        circle = CircleAnnotation(timestamp=time, diameter=diameter, thickness=2.0, fill_color=clear, outline_color=outline)
+        number = TextAnnotation(timestamp=time, font_size=12.0, text_color=outline, background_color=clear)
+        for index, (u, v) in enumerate(np.asarray(points if points is not None else [], dtype=float).reshape(-1, 2).tolist()):
             if not (math.isfinite(u) and math.isfinite(v)):
                 continue
-            annotations.circles.append(CircleAnnotation(
-                timestamp=time, position=Point2(x=u + 0.5, y=v + 0.5), diameter=diameter, thickness=2.0,
-                fill_color=clear, outline_color=color(*rgba), metadata=[KeyValuePair(key="point", value=str(index))],
-            ))
+            added = annotations.circles.add()
+            added.CopyFrom(circle)
+            added.position.x, added.position.y = u + 0.5, v + 0.5
+            added.metadata.add(key="point", value=str(index))
             if rgba is DETECTED_RGBA:
-                annotations.texts.append(TextAnnotation(
-                    timestamp=time, position=Point2(x=u + 8.5, y=v - 5.5), text=str(index), font_size=12.0,
-                    text_color=color(*rgba), background_color=clear,
-                ))
+                text = annotations.texts.add()
+                text.CopyFrom(number)
+                text.position.x, text.position.y = u + 8.5, v - 5.5
+                text.text = str(index)
     if label:
         annotations.texts.append(TextAnnotation(
             timestamp=time, position=Point2(x=8.0, y=20.0), text=label, font_size=14.0,
