@@ -197,6 +197,20 @@ def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: i
     return once.reshape(-1, 2).astype(np.float64), again.reshape(-1, 2).astype(np.float64)
 
 
+def _saddle_window() -> tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The saddle fit's window: its reach (px), pixel offsets (P,), the quadratic's design
+    (P^2, 6) and its columns' products (P^2, 36). Fitted in each window's own offsets, the
+    same for every window and frame: only the weight (centred on the estimate) differs."""
+    reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
+    offsets = np.arange(-reach, reach + 1, dtype=np.float64)
+    x, y = np.tile(offsets, offsets.size), np.repeat(offsets, offsets.size)
+    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
+    return reach, offsets, design, (design[:, :, None] * design[:, None, :]).reshape(-1, 36)
+
+
+_SADDLE_WINDOW = _saddle_window()
+
+
 def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothing: float = SADDLE_SMOOTHING_PX) -> NDArray[np.float64]:
     """Chessboard corners re-measured as the saddle points of the image around them.
 
@@ -219,14 +233,8 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     -------
     ndarray, shape (K, 2)
     """
-    reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
-    offsets = np.arange(-reach, reach + 1, dtype=np.float64)
+    reach, offsets, design, products = _SADDLE_WINDOW
     size = offsets.size
-    # Fitted in each window's own pixel offsets, the same for every window: the design and its
-    # columns' products are computed once, only the weight (centred on the estimate) differs.
-    x, y = np.tile(offsets, size), np.repeat(offsets, size)
-    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])  # (P, 6)
-    products = (design[:, :, None] * design[:, None, :]).reshape(size * size, 36)
     refined = np.asarray(corners, dtype=np.float64).copy()
     start = refined.copy()
     # Only the board's box (and what a step and the smoothing reach) is smoothed.
