@@ -8,10 +8,8 @@
 * :mod:`.tracked` -- the detector as ``fit`` and ``repeat`` use it (:class:`TrackedDetector`,
   re-created from a fit model).
 
-Synthetic frames (poster, renderer) are in :mod:`hbvs_cli.sim`.
-
-Images are numpy arrays (gray uint8, OpenCV pixel convention: the centre of the top-left
-pixel is (0, 0)); nothing here reads or writes files.
+Images are numpy arrays (gray uint8, OpenCV pixels: the top-left pixel's centre is (0, 0));
+nothing here reads or writes files.
 """
 
 from .aruco import ArucoMarkerDetector, refine_marker_corners
@@ -22,20 +20,8 @@ from .texture import TextureDetection, TextureDetector
 from .tracked import DetectorSpec, TrackedDetector, detector_from_model, estimator_from_model
 
 __all__ = [
-    "ArucoMarkerDetector",
-    "Detection",
-    "DetectorSpec",
-    "DotDetector",
-    "PointTrack",
-    "TargetDetector",
-    "TextureDetection",
-    "TextureDetector",
-    "TrackedDetector",
-    "detector_from_model",
-    "estimator_from_model",
-    "find_dark_blobs",
-    "guess_target_kind",
-    "make_detector",
-    "match_identity",
-    "refine_marker_corners",
+    "ArucoMarkerDetector", "Detection", "DetectorSpec", "DotDetector", "PointTrack",
+    "TargetDetector", "TextureDetection", "TextureDetector", "TrackedDetector",
+    "detector_from_model", "estimator_from_model", "find_dark_blobs", "guess_target_kind",
+    "make_detector", "match_identity", "refine_marker_corners",
 ]

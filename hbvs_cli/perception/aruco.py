@@ -5,18 +5,9 @@ in OpenCV's order (top-left, top-right, bottom-right, bottom-left of the marker 
 and the markers in the order of their ids as given. A marker's code makes its corners
 unambiguous: no tracking is needed for identity, only to narrow the search.
 
-OpenCV's corner refinements are biased on a marker's outer corners (``cornerSubPix``, made
-for chessboard saddles, pulls an L-shaped corner ~0.15 px inward on each axis). After
-OpenCV's detection, each corner is therefore re-measured from its two edges
-(:func:`refine_marker_corners`): each edge is located along many short profiles across it
-(at the centroid of each profile's rise: the levels on either side, clipped or not, do not
-matter), a line is fitted to it (the whole edge of a small marker, the 30 px near the
-corner of a large one, whose edges the lens bends), and the corner is the lines' intersection.
-
-Dictionaries: OpenCV's predefined dictionaries of one family are prefixes of each other
-(DICT_4X4_50 is the first 50 markers of DICT_4X4_1000), so :func:`scan_markers` searches
-each family once, with its largest dictionary, and names the smallest dictionary that
-holds the ids it saw.
+OpenCV's ``cornerSubPix`` pulls an L-shaped outer corner ~0.15 px inward, so each corner
+is re-measured as the intersection of lines fitted to its two edges
+(:func:`refine_marker_corners`).
 """
 
 from __future__ import annotations
@@ -95,13 +86,7 @@ WINDOW_THRESHOLD_SIZE = 13
 
 def _window_parameters(refinement: int) -> cv2.aruco.DetectorParameters:
     """:func:`_parameters` with one adaptive threshold (window :data:`WINDOW_THRESHOLD_SIZE`)
-    instead of OpenCV's three (3, 13 and 23 px), for the search around a tracked marker.
-
-    The three sizes find markers of any size and contrast anywhere in a frame; around a
-    marker found in the last frame one size finds it, for about a quarter less time. The
-    corners are re-measured from the marker's edges (:func:`refine_marker_corners`) either
-    way. When the one size misses the marker, the window is searched with all three.
-    """
+    instead of OpenCV's three, for the search around a tracked marker (a quarter faster)."""
     parameters = _parameters(refinement)
     parameters.adaptiveThreshWinSizeMin = WINDOW_THRESHOLD_SIZE
     parameters.adaptiveThreshWinSizeMax = WINDOW_THRESHOLD_SIZE
@@ -187,9 +172,8 @@ class ArucoMarkerDetector:
     dictionary : str
         A predefined dictionary (:data:`MARKER_DICTIONARIES`); DICT_4X4_50 by default.
     marker_ids : sequence of int, optional
-        Several markers on the wall: the target's points are their 4 corners each, in this
-        order; a frame counts as found when any of them is seen (the others' corners are
-        NaN rows: a board partly out of view keeps the markers it shows).
+        Several markers: their 4 corners each, in this order; found when any is seen (the
+        others' corners are NaN rows).
 
     Attributes
     ----------
@@ -230,10 +214,8 @@ class ArucoMarkerDetector:
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the marker's corners; see :class:`~.detector.TargetDetector`.
 
-        With a prediction only a window around the predicted marker is searched first (the
-        marker plus half its size around it, for the white quiet zone), with one adaptive
-        threshold (:func:`_window_parameters`), then with all of them; the whole frame is
-        searched when that fails or when there is no prediction.
+        With a prediction, a window around the predicted marker (plus half its size) is
+        searched with one adaptive threshold, then all; the whole frame when that fails.
         """
         gray = as_gray(image)
         prediction = check_prediction(predicted, self.n_points)
@@ -318,11 +300,9 @@ def refine_marker_corners(
 ) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges, refined until they settle.
 
-    One pass (:func:`_refine_corners_once`) lays its profiles across the edges as the
-    corners it starts from place them. OpenCV's corners can be most of a pixel off on a
-    small marker (a 35 px AprilTag 6 m away): the profiles then cross the edge off-centre
-    and cut one tail of its rise. Each further pass starts from the last one's corners,
-    centred on the edges, until no corner moves more than :data:`REFINE_CONVERGED_PX`.
+    OpenCV's corners can be most of a pixel off on a small marker, and the profiles of one
+    pass (:func:`_refine_corners_once`) then cut one tail of the edge's rise; each further
+    pass starts from the last one's corners, until none moves :data:`REFINE_CONVERGED_PX`.
 
     Parameters and return as :func:`_refine_corners_once`; ``max_shift`` bounds the move
     from the ``corners`` given, over all passes.
@@ -345,16 +325,10 @@ def _refine_corners_once(
 ) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges: one pass.
 
-    For each corner, short profiles across each of its two edges are sampled (bilinear
-    interpolation, 0.5 px steps) every half pixel from 3 px to ``min(side - 3, 30)`` px
-    from the corner: the whole edge of a small marker, the stretch near the corner of a
-    large one (where the lens bends long edges). Along a profile running from inside (ink)
-    to outside (paper), the edge lies at the centroid of the profile's rises (its positive
-    differences): a blurred step's derivative is the blur, symmetric about the edge. Only
-    rises count, so neither the levels on either side (ink clipped at the sensor's 0,
-    paper at 255) nor the code's white cells behind the border (a fall) move it. A
-    total-least-squares line through each edge's positions, and the intersection of a
-    corner's two lines, give the corner.
+    Short bilinear profiles across each of a corner's two edges, from 3 px to
+    ``min(side - 3, 30)`` px from it (the lens bends long edges), locate the edge at the
+    centroid of each profile's rises (clipped levels and the code's cells, a fall, do not
+    move it); the corner is where the edges' total-least-squares lines meet.
 
     Parameters
     ----------
@@ -371,8 +345,7 @@ def _refine_corners_once(
     -------
     corners : ndarray, shape (4, 2)
     """
-    # (Norms as sqrt(sum of squares) and neighbours by index: np.linalg.norm, np.roll and
-    # np.tile cost more than the arithmetic on these few points, and this runs 2-3 times a frame.)
+    # Norms and neighbours by hand: np.linalg.norm and np.roll cost more on 4 points.
     corners = np.asarray(corners, dtype=np.float64)
     sides = np.sqrt(np.add.reduce(np.square(corners[_NEXT] - corners), axis=1))
     if sides.min() < 12.0:
@@ -414,8 +387,7 @@ def _refine_corners_once(
     sxy = np.sum(delta[..., 0] * delta[..., 1], axis=1)
     angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     direction = np.column_stack([np.cos(angle), np.sin(angle)])
-    # Each corner's two lines (point p + t d, point q + s e) met by Cramer's rule, all four
-    # at once (a 2x2 np.linalg.solve per corner cost a third of the pass).
+    # Each corner's two lines (p + t d, q + s e) met by Cramer's rule, all four at once.
     p, q = mean[0::2], mean[1::2]
     d, e = direction[0::2], direction[1::2]
     determinant = e[:, 0] * d[:, 1] - d[:, 0] * e[:, 1]

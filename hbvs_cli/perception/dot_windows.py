@@ -1,23 +1,13 @@
 """Dots followed in one small window each: the tracked detection of the closed loop.
 
 :class:`~.dots.DotDetector` follows its dots in one window, the box around all of them
-grown by the gate, which for a target spread over the frame is most of it. A dot that
-moved at most ``g`` px from its prediction lies, whole, in a square of half-side
-``g + radius + 6`` px around that prediction; searching those squares alone (merged
-where they overlap, so that no blob is counted twice) finds the same dots, by the same
-thresholding, centroids and gated assignment, reading a few percent of the pixels. ``g`` is
-:data:`WINDOW_GATE_PX`, smaller than the detector's gate: a tracked dot hardly leaves its
-prediction, and a dot that did is found in the whole frame.
-
-A renderer that knows the windows can render just them
-(:meth:`hbvs_cli.sim.render.SceneRenderer.render_windows`); a frame where some dot is not
-in its window falls back to the whole frame (:meth:`WindowedDotDetector.detect`), as the
-single-window detector does.
-
-The windows are searched as one image (:func:`find_blobs_in_windows`): each window's
-ground divided out on its own, then the windows side by side, so that the noise estimate,
-the threshold and the labelling run once a frame, as they do for the common box, rather
-than once per window (whose fixed cost, not the pixels, is most of a small window's).
+grown by the gate, which for a spread target is most of the frame. A dot within ``g`` px
+(:data:`WINDOW_GATE_PX`) of its prediction lies whole in a square of half-side
+``g + radius + 6`` px around it; searching those squares alone (merged where they overlap)
+finds the same dots reading a few percent of the pixels, and a renderer can render just
+them (:meth:`hbvs_cli.sim.render.SceneRenderer.render_windows`). A dot not in its window
+falls back to the whole frame. The windows are searched side by side as one image, so the
+threshold and the labelling run once a frame.
 """
 
 from __future__ import annotations
@@ -40,9 +30,8 @@ UNKNOWN_RADIUS_PX = 30.0
 #: the blob, and one more.
 RIM_MARGIN_PX = 6.0
 #: A tracked dot's window reaches this far (px) beyond where its prediction puts the dot (the
-#: detector's gate when that is smaller). A followed dot lands within a fraction of a pixel
-#: of its constant-velocity prediction, a few pixels when the robot starts or turns hard;
-#: one that moved farther touches its window's edge, and the whole-frame search finds it.
+#: detector's gate when that is smaller); a dot that moved farther touches its window's
+#: edge, and the whole-frame search finds it.
 WINDOW_GATE_PX = 8.0
 
 
@@ -104,12 +93,9 @@ def find_blobs_in_windows(
     """Dark, dot-like blobs in the non-overlapping ``windows`` of ``gray`` and their sub-pixel
     centres, as :func:`~.dots.find_dark_blobs` finds them in a flattened window.
 
-    Each window's ground is divided out on its own (:func:`~.dots.flatten_ground`); the
-    flattened windows are then searched together, as the common box of
-    :class:`~.dots.DotDetector` is: one noise estimate (the windows' mean), one smoothing
-    when the sensor is noisy, one threshold (:func:`~.dots._flat_threshold`) and one
-    labelling. A candidate may be at most as large as its window; one that reaches its
-    window's edge is not dot-like; centres are measured in the candidate's own window.
+    Each window's ground is divided out on its own; then one noise estimate (the windows'
+    mean), one threshold and one labelling serve them all. A candidate reaching its
+    window's edge is not dot-like.
 
     Parameters
     ----------
@@ -167,10 +153,8 @@ def find_blobs_in_windows(
 class WindowedDotDetector(DotDetector):
     """A :class:`~.dots.DotDetector` that follows each dot in its own window.
 
-    Takes the same parameters. While every dot is tracked, :meth:`detect` first searches
-    the windows of :meth:`search_windows`; only when some dot is not found there does it
-    search as :class:`~.dots.DotDetector` does (the dots' common box, then the whole
-    frame).
+    Same parameters; while every dot is tracked, :meth:`detect` first searches the windows
+    of :meth:`search_windows`, and falls back to the parent's search.
     """
 
     def __init__(self, n_points: int, **options) -> None:

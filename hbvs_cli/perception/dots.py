@@ -1,22 +1,10 @@
 """Dark dots on a light poster: sub-pixel blob centres with identity kept by tracking.
 
-Candidates are the connected components of an Otsu threshold (robust to exposure: it
-adapts to the frame's own gray levels) that are dot-like: big enough, compact, not
-elongated, not cut by the search window. Each centre is the intensity-weighted centroid of
-its blob, the weights being the darkness below the local paper level, so anti-aliased rim
-pixels count in proportion to their ink and the centre is sub-pixel accurate. The frame is
-searched in gray, or, for dots that differ from their wall in hue alone, on a colour
-channel (:func:`dark_image`); light dots are the dark dots of the negative.
-
-Identity is *not* taken from the image layout but from the points' predicted positions:
-an optimal assignment (``scipy.optimize.linear_sum_assignment``) of candidates to
-predictions, gated by distance and by each dot's previous area. It therefore survives dots
-crossing or swapping order, and a spurious blob away from the predictions is never taken.
-Dots predicted to touch one another are not reported while they do (their merged blob's
-centroid would be neither's); the track carries them across.
-Only the very first detection (no prediction, no track) uses a canonical rule: the dots
-sorted by image row ``v``, then column ``u`` -- or, when re-acquiring a lost target, the
-assignment to its last known layout (:func:`~.detector.match_identity`).
+Candidates are the dot-like connected components of an Otsu threshold; each centre is the
+centroid of its blob weighted by darkness below the local paper level (sub-pixel).
+Identity comes from an optimal, distance- and area-gated assignment of candidates to the
+predicted positions, so it survives dots crossing; only a first detection sorts the dots
+by row ``v`` then column ``u`` (or matches a lost target's last layout).
 """
 
 from __future__ import annotations
@@ -39,10 +27,7 @@ _DILATE_RING = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
 
 #: Dot polarities: ink on paper, or lights on a dark ground.
 POLARITIES = ("dark", "light")
-#: What the dots stand out in: ``gray`` (luminance, as every other detector sees), or
-#: ``colour``: a colour frame's darkest channel at each pixel for dark dots, its brightest
-#: for light ones (see :func:`dark_image`). Gray is tried first: it is what a black dot on
-#: white or a white light on a dark wall is measured best on.
+#: What the dots stand out in (see :func:`dark_image`); gray is tried first.
 CONTRASTS = ("gray", "colour")
 
 
@@ -55,17 +40,11 @@ MAX_DOT_RADIUS_PX = 80
 
 
 def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str = "gray") -> NDArray[np.uint8]:
-    """The one-channel frame in which the dots are dark: the frame itself, or its negative for
-    light dots (exact: no rescaling, so the centroids keep the frame's precision).
+    """The one-channel frame in which the dots are dark (the negative for light dots, exact).
 
-    With ``contrast="gray"`` a colour frame goes through its luminance
-    (:func:`~.base.as_gray`). With ``"colour"`` a colour (BGR) frame gives its darkest
-    channel at each pixel for dark dots (its brightest, negated, for light ones): a
-    saturated red dot on a neutral grey wall of the same luminance is invisible in gray but
-    dark in green and blue, and bright in red.
-
-    Gray is kept wherever it sees the dots: a single channel of a JPEG carries its
-    subsampled chroma's noise, and the chroma spreads a small dot over half resolution.
+    ``"gray"``: the luminance. ``"colour"``: a BGR frame's darkest channel per pixel (its
+    brightest, negated, for light dots), so a red dot on a grey wall of equal luminance
+    shows. Gray is preferred: one JPEG channel carries the subsampled chroma's noise.
     """
     colour = isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
     if contrast == "colour" and colour:
@@ -80,28 +59,16 @@ def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str =
 def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX, extrapolate_edges: bool = False) -> NDArray[np.float32]:
     """``gray`` with its ground's brightness divided out (float32, the ground at 255).
 
-    Uneven lighting, vignetting and exposure drift vary slowly across the wall; the
-    background is a morphological closing wider than the largest dot (which removes every
-    dark feature up to ``max_radius`` px and keeps the ground), computed at a quarter of the
-    resolution and scaled back up. Divided by it, each pixel becomes its darkness relative to
-    its surroundings, so one threshold serves a dot in the bright middle of the frame and one
-    in a dim corner, a small dot is not drowned by the gradient across the wall, and a
-    gradient across a dot does not pull its centroid. Float, not rounded to 8 bits: the
-    centroids are measured on it.
-
-    Near the window's edges the closing sees the ground on one side only: where the ground
-    falls toward an edge (vignetting, a lamp's fall-off) it takes the brighter ground
-    farther in, and the edges come out darker than they are. With ``extrapolate_edges``
-    the ground is continued past the edges by its own slope (odd reflection) first, which
-    a closing leaves exact for a linear ramp; the searches for faint dots use it
-    (:data:`SHALLOW_THRESHOLD_DEPTH`).
+    The ground is a morphological closing wider than the largest dot (``max_radius`` px), at
+    quarter resolution, so one threshold serves a bright centre and a vignetted corner.
+    Near the edges the closing sees the ground on one side only and comes out too bright;
+    ``extrapolate_edges`` first continues it by odd reflection (exact for a linear ramp).
     """
     height, width = gray.shape
     small = cv2.resize(gray, (max(width // 4, 1), max(height // 4, 1)), interpolation=cv2.INTER_AREA)
     size = 2 * (max_radius // 4) + 5
     if max(small.shape) <= size // 2 + 1:
-        # A window the kernel spans from every pixel (a tracked dot's): its closing is its
-        # maximum everywhere, which is all the morphology and the resize would compute.
+        # The kernel spans the whole window: its closing is its maximum everywhere.
         ground = np.full(gray.shape, max(float(small.max()), 1.0), dtype=np.float32)
     else:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
@@ -146,12 +113,9 @@ class Blobs:
 def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
     """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined).
 
-    Otsu's split is computed after folding the brightest ``clip_fraction`` of pixels into
-    one bin, so that a small highlight (a reflection, a lamp) cannot become the bright class
-    and turn the whole paper "dark". While the dark class holds most pixels (a darker wall
-    around a small poster), it is split again, as long as the split has contrast: dots are
-    a small, dark minority, and a mostly-foreground binary image would also make the
-    labelling several times slower.
+    The brightest ``clip_fraction`` of pixels is folded into one bin, so a highlight cannot
+    become the bright class. While the dark class holds most pixels (a dark wall around a
+    small poster) it is split again: dots are a small, dark minority.
 
     Returns
     -------
@@ -186,13 +150,8 @@ MAX_SMOOTHING_PX = 2.5
 #: The threshold stays this many noise sigmas below the ground.
 GROUND_NOISE_MARGIN = 5.0
 #: A threshold less than this many levels below the flattened ground (255) is shallow: a
-#: whole frame is flattened again with its ground continued past its edges
-#: (:func:`flatten_ground`). With dots 20 gray levels below their wall (the footage's, with
-#: vignetting) the threshold is about 23 levels deep, and the frame's edges, where the
-#: first ground estimate is too bright by about as much, gave a dozen specks counted as
-#: dots. Deeper thresholds (dots of more contrast: the threshold is half-way to the
-#: darkest dot, about 70 levels deep for red dots on a light wall in gray) keep the first
-#: estimate: their searches are unchanged.
+#: whole frame is then flattened again with its ground continued past its edges, whose
+#: first estimate is too bright by about as much and gives specks counted as dots.
 SHALLOW_THRESHOLD_DEPTH = 40.0
 
 
@@ -200,16 +159,13 @@ def ground_noise(flat: NDArray[np.float32]) -> float:
     """Robust sigma (gray levels) of the sensor noise on a flattened window.
 
     The median absolute difference of horizontal neighbours on every fourth row, scaled to
-    a Gaussian's sigma (1.4826 / sqrt 2): edges and dots are a small share of the pixel
-    pairs and do not move the median, and a quarter of the rows keeps it well under a
-    millisecond on a full frame.
+    a Gaussian's sigma (1.4826 / sqrt 2); edges and dots do not move the median.
     """
     rows = np.asarray(flat, dtype=np.float32)[::4]
     if rows.shape[1] < 2:
         return 0.0
     steps = np.abs(rows[:, 1:] - rows[:, :-1]).ravel()
-    # np.median's own steps (partition, then the mean of the middle one or two), without
-    # its generic wrapper: this runs on every searched window.
+    # np.median's own steps without its generic wrapper: this runs on every window.
     half = steps.size // 2
     if steps.size % 2:
         median = np.partition(steps, half)[half]
@@ -222,19 +178,17 @@ def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float
     """Threshold of a flattened window (ground at 255): Otsu's, or half-way from the ground
     to the darkest (3x3-averaged) level if that is higher.
 
-    Otsu needs the dots to be a fair share of the pixels; a few dots of 2-3 px radius are
-    not, and only the half-way level finds them (it is also the level a blurred disc's rim
-    crosses at its true radius). A ``noisy`` (smoothed) window takes the half-way level,
-    kept :data:`GROUND_NOISE_MARGIN` times the remaining ``noise`` below the ground.
+    Otsu misses a few 2-3 px dots; the half-way level (where a blurred disc's rim crosses
+    its true radius) finds them. A ``noisy`` window takes the half-way level, kept
+    :data:`GROUND_NOISE_MARGIN` times the remaining ``noise`` below the ground.
     """
     darkest = float(cv2.blur(levels, (3, 3)).min())
     if 255.0 - darkest < min_contrast:
         return None
     halfway = int(0.5 * (255.0 + darkest))
     if noisy:
-        # Otsu would split the ground's own noise (the dots are too few to be a class),
-        # and a threshold that jumps between Otsu's and the half-way level would change
-        # the dots' areas from frame to frame (the tracker gates on them).
+        # Otsu would split the ground's noise, and a threshold jumping between the two
+        # would change the dots' areas (the tracker gates on them) from frame to frame.
         return min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
     otsu = otsu_threshold(levels, min_contrast)
     return halfway if otsu is None else max(otsu, halfway)
@@ -272,9 +226,8 @@ def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast
     and the threshold, given the ground's noise (gray levels)."""
     noisy = noise > NOISY_GROUND
     if noisy:
-        # A noisy sensor (low light, high gain): segment a smoothed copy, or every
-        # noise speck becomes a blob and the dots' outlines fray; the centres are
-        # still measured on the unsmoothed image.
+        # Segment a smoothed copy, or every speck becomes a blob; the centres are still
+        # measured on the unsmoothed image.
         sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
         levels = cv2.GaussianBlur(levels, (0, 0), sigma)
         noise /= 2.0 * math.sqrt(math.pi) * sigma
@@ -324,10 +277,8 @@ def find_dark_blobs(
         raw = np.ascontiguousarray(sub)
         sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
         if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
-            # Faint dots: a threshold this shallow also catches the frame's edges where
-            # the ground's estimate is too bright; estimated again, continued past them.
-            # (Not in a tracked dot's window: continued from a few noisy rows next to the
-            # dots, the ground would measure them worse.)
+            # Faint dots: re-estimate the ground continued past the frame's edges (not in a
+            # tracked window, where a few noisy rows would extrapolate it worse).
             sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     else:
         levels = sub
@@ -350,8 +301,7 @@ def find_dark_blobs(
     for k, label in enumerate(keep):
         bx, by, bw, bh, area = (int(s) for s in stats[label])
         touches[k] = bx == 0 or by == 0 or bx + bw == sub_w or by + bh == sub_h
-        # Cheap bounding-box tests first: a disc (or a mildly oblique ellipse) fills ~pi/4
-        # of its box, and far more than 40 %.
+        # Cheap box tests first: a disc fills ~pi/4 of its box.
         if touches[k] or area > max_area or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
             continue
         centre, elongation = _blob_centre(sub, labels, label, (bx, by, bw, bh))
@@ -407,18 +357,14 @@ class DotDetector:
     gate_px : float
         A candidate farther than this from a dot's predicted position (px) cannot be that dot.
     area_ratio : (float, float)
-        A candidate whose area is outside these multiples of a tracked dot's recent (averaged) area
-        cannot be that dot (e.g. two dots merged into one blob). Dots predicted to touch
-        each other are not reported at all while they do.
+        A candidate whose area is outside these multiples of a tracked dot's averaged area
+        cannot be that dot (e.g. two merged dots).
     max_coast : int
         Frames a dot is predicted through while unseen before it is dropped.
     min_area, max_elongation, min_contrast
         See :func:`find_dark_blobs`.
-    polarity : str
-        ``"dark"`` dots on a lighter ground (ink on paper) or ``"light"`` dots on a darker
-        one (LEDs, retro-reflectors): light dots are found as the dark dots of the negative.
-    contrast : str
-        ``"gray"`` or ``"colour"``: what the dots stand out in (:func:`dark_image`).
+    polarity, contrast : str
+        One of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
     """
 
     kind = "dots"
@@ -480,9 +426,8 @@ class DotDetector:
             window = self._window(gray.shape, prediction)
             blobs, (pixels, areas) = self._search(gray, window, lambda found: self._assign(found, prediction))
             if not np.all(np.isfinite(pixels)):
-                # Some dots were not where predicted (a fast turn, a dropped frame, a dot
-                # unseen too long): a whole-frame acquisition, its identities matched to the
-                # prediction's layout (or the last full layout), brings them back.
+                # Some dots were not where predicted: a whole-frame acquisition matched to
+                # the prediction's (or the last full) layout brings them back.
                 layout = prediction if np.all(np.isfinite(prediction)) else None
                 everywhere, (again, again_areas) = self._search(gray, None, lambda found: self._acquire(found, layout))
                 if np.all(np.isfinite(again)):
@@ -495,8 +440,7 @@ class DotDetector:
         """Update the track, the dots' areas and their layout with one frame's dots."""
         seen = np.all(np.isfinite(pixels), axis=1)
         self._track.update(pixels)
-        # A moving average: the thresholded area of a small dot jumps with the window's
-        # threshold; the last value alone would make the area gate reject real dots.
+        # Averaged: a small dot's area jumps with the threshold and would fail the gate.
         known = seen & np.isfinite(self._areas)
         self._areas[known] = 0.7 * self._areas[known] + 0.3 * areas[known]
         self._areas[seen & ~known] = areas[seen & ~known]
@@ -551,11 +495,8 @@ class DotDetector:
 
     @staticmethod
     def _crowded(prediction: NDArray[np.float64], areas: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """Dots predicted to touch another dot (closer than their radii plus 2 px).
-
-        Touching dots merge into one blob whose centroid is neither dot's: they are not
-        reported (the track predicts them through) until they are apart again.
-        """
+        """Dots predicted to touch another (closer than their radii plus 2 px): their merged
+        blob's centroid is neither's, so the track carries them until they part."""
         radius = np.sqrt(np.where(np.isfinite(areas), areas, 0.0) / np.pi)
         distance = np.linalg.norm(prediction[:, None, :] - prediction[None, :, :], axis=-1)
         touching = distance < radius[:, None] + radius[None, :] + 2.0

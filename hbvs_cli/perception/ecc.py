@@ -1,12 +1,9 @@
 """Homography refinement by intensity alignment (OpenCV's ECC), shared by the marker and
 texture detectors.
 
-A few corners or feature matches give a homography to a few tenths of a pixel; aligning a
-template's *every pixel* with the frame (the enhanced correlation coefficient of Evangelidis
-and Psarakis, ``cv2.findTransformECC``, invariant to the frame's gain and offset) brings it
-to a few hundredths, because every edge of the picture -- a marker's code cells, a
-photograph's detail -- contributes. The alignment starts from the detector's homography and
-is accepted only when it converges near it.
+Aligning every template pixel with the frame (``cv2.findTransformECC``, invariant to gain
+and offset) takes a homography from corners or matches (a few tenths of a pixel) to a few
+hundredths; it is accepted only when it converges near its start.
 """
 
 from __future__ import annotations
@@ -49,9 +46,7 @@ def align_homography(
         Reject an alignment whose correlation coefficient ends below this.
     settle_px : float, optional
         Take one ECC step first, and go on to the usual criteria only when it moved a check
-        point farther than this (px). From a close start (a tracked prediction) a step leaves
-        about a tenth of its move, so a small one is as good as the converged alignment at
-        a fraction of its cost (ECC's steps are most of a followed frame's).
+        point farther than this (px): from a close start a small step is as good as converged.
 
     Returns
     -------

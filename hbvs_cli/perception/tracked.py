@@ -259,11 +259,9 @@ TEXTURE_BOX_PERCENTILE = 3.0
 def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
     """Four target points for a natural-feature target seen in ``image``.
 
-    The corners of the box holding the central 94 % of the image's features (3rd to 97th
-    percentile), in the order TL, TR, BR, BL: the box is also the region the texture
-    detector aligns, and a wider one pins the perspective (yaw, n*) better
-    (tests/test_perception_footage.py). Rows too close to the horizon (the principal
-    point's row, where m_z ~ 0 and (18) breaks down) are pushed away from it.
+    The corners (TL, TR, BR, BL) of the box holding the central 94 % of the image's features;
+    rows too close to the principal point's row (m_z ~ 0, where (18) breaks down) are pushed
+    away from it.
     """
     keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
@@ -290,9 +288,8 @@ MIN_RESIDUAL_GATE_PX = 0.25
 def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """The per-frame estimator of repeat, with an outlier gate that fits the fit's data.
 
-    Clean frames of the taught run have residuals of a few hundredths of a pixel; a wrong
-    point (a spurious blob, a swapped identity) gives tenths or more. A gate at ten times
-    the taught maximum rejects those and keeps the noise.
+    Clean taught frames have residuals of hundredths of a pixel, a wrong point tenths: a
+    gate at ten times the taught maximum rejects those and keeps the noise.
     """
     taught = float(model.residual_px.get("max", float("nan")))
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
@@ -302,10 +299,8 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and template).
 
-    ``template_image`` is the fit's decoded template image: texture targets need it, the
-    others ignore it. ``windowed``: dots followed each in its own window (see
-    :class:`TrackedDetector`), as the simulated camera does; on real footage the common box
-    measures better (tests/footage.py's red dots), so replays keep it.
+    ``template_image``: the fit's decoded template (texture only). ``windowed``: see
+    :class:`TrackedDetector` (the simulated camera; real footage keeps the common box).
     """
     spec = DetectorSpec.from_dict(model.detector)
     template = None
