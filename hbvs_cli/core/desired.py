@@ -266,7 +266,9 @@ def fit_desired_trajectory(
     usable = np.zeros_like(found)
     usable[sample[homographies.valid]] = True
     normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
-    if margin < AMBIGUOUS_NORMAL_MARGIN and warn is not None:
+    if margin < AMBIGUOUS_NORMAL_MARGIN and not shapes and warn is not None:
+        # A known shape pins n* in the refinement whatever the vote: how well, the
+        # uncertainty (and its warning) says.
         warn(AMBIGUOUS_NORMAL_WARNING)
     # The joint estimate of n*, the reference points and every sampled frame's pose, from
     # the variable-projection estimate (robust: a frame with an outlier point counts less).
