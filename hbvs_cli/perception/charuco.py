@@ -302,8 +302,7 @@ class CharucoTargetDetector:
         and the RMS (px) of ``corners`` (K, 2) from one homography of their ids' grid (inf
         for fewer than 4)."""
         assert self._geometry is not None
-        columns = self.squares[0] - 1
-        grid = np.column_stack([ids % columns, ids // columns]).astype(np.float32)
+        grid = self._grid(ids)
         square, fit_px = 8.0, float("inf")
         if len(ids) >= 4:
             H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
@@ -312,6 +311,11 @@ class CharucoTargetDetector:
                 square = float(np.median(np.linalg.norm(mapped[1] - corners, axis=1)))
                 fit_px = float(np.sqrt(np.mean(np.sum((mapped[0] - corners) ** 2, axis=1))))
         return int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX)), fit_px
+
+    def _grid(self, ids: NDArray[np.int_]) -> NDArray[np.float32]:
+        """The (column, row) of each corner id on the board's grid of inner corners, (K, 2)."""
+        columns = self.squares[0] - 1
+        return np.column_stack([ids % columns, ids // columns]).astype(np.float32)
 
     def _search_box(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
         """The box (x0, y0, x1, y1, px) of the predicted corners, widened (:data:`SEARCH_MARGIN_SQUARES`),
@@ -355,7 +359,7 @@ class CharucoTargetDetector:
         # OpenCV's corner can be off by more than the refinement may move it: a settled
         # refinement a little farther is taken where the corner's neighbours agree with it.
         far = settled & ~good & (moved <= FAR_REFINE_MOVE_PX)
-        grid = np.column_stack([ids % (self.squares[0] - 1), ids // (self.squares[0] - 1)]).astype(np.float32)
+        grid = self._grid(ids)
         for row, once in zip(np.flatnonzero(inside)[far], once_px[far]):
             expected = _from_neighbours(grid, refined, row)
             if expected is not None and np.linalg.norm(once - expected) < min(NEIGHBOUR_AGREEMENT_PX, np.linalg.norm(refined[row] - expected)):
