@@ -351,8 +351,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
             change = np.einsum("krb,kb->kr", rows, pool_shift[block])
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
-            shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum(
-                "kag,kab,kb->g", weight[block, None, None] * coupling[block], inverse_own[block], shutter_own[block])
+            shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
         if bias_fraction > 0.0:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = np.swapaxes(own, 1, 2) @ rows
