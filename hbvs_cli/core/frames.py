@@ -46,16 +46,6 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     return float(wrapped) if wrapped.ndim == 0 else wrapped
 
 
-def paper_to_opencv_homography(H: ArrayLike) -> NDArray[np.float64]:
-    """A homography (..., 3, 3) in the paper's axes, in OpenCV camera axes: ``P H P^T``."""
-    return PAPER_TO_OPENCV @ np.asarray(H, dtype=float) @ PAPER_TO_OPENCV.T
-
-
-def opencv_to_paper_homography(H_cv: ArrayLike) -> NDArray[np.float64]:
-    """Inverse of :func:`paper_to_opencv_homography`: ``P^T H_cv P``."""
-    return PAPER_TO_OPENCV.T @ np.asarray(H_cv, dtype=float) @ PAPER_TO_OPENCV
-
-
 def relative_planar_pose(
     pose: ArrayLike, reference_pose: ArrayLike
 ) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:

@@ -100,7 +100,7 @@ class KnownNormalSolver:
     """
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, refine_steps: int = 2) -> None:
-        self.m_ref = validate_reference_points(m_ref, min_points=3)
+        self.m_ref = validate_reference_points(m_ref)
         self.refine_steps = int(refine_steps)
         normal = np.asarray(normal, dtype=float)
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or np.linalg.norm(normal) < 1e-9:
