@@ -7,12 +7,8 @@ from numpy.typing import ArrayLike, NDArray
 
 
 def optimal_assignment(cost: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Rows and columns of the assignment of least total ``cost`` (the Hungarian method,
-    ``scipy.optimize.linear_sum_assignment``); a rectangular cost assigns the smaller side.
-
-    scipy.optimize is imported here, not at the top: every ``hbvs`` command that loads
-    perception would otherwise pay its import at start-up.
-    """
+    """Rows and columns of the assignment of least total ``cost`` (scipy's Hungarian method,
+    imported here so that loading perception does not pay for scipy.optimize)."""
     from scipy.optimize import linear_sum_assignment
 
     return linear_sum_assignment(cost)

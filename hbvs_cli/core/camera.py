@@ -1,12 +1,6 @@
-"""The pinhole camera: intrinsics, and pixels <-> the paper's normalised coordinates.
-
-The paper writes a normalised point as ``m = [1, m_y, m_z]^T`` (9) in its own axes (x forward,
-y left, z up) and relates it to pixels by ``p = A m`` (11). With the usual OpenCV/ROS
-intrinsic matrix ``K`` (x right, y down, z forward)::
-
-    [x_n, y_n, 1]^T = K^-1 [u, v, 1]^T     and     m = [1, -x_n, -y_n]^T
-
-(docs/method.md, "Frames (1)-(5), (9)-(11)").
+"""The pinhole camera: intrinsics, and pixels <-> the paper's normalised coordinates
+``m = [1, m_y, m_z]`` (9), (11) (x forward, y left, z up). With OpenCV's ``K`` (x right, y down,
+z forward): ``[x_n, y_n, 1] = K^-1 [u, v, 1]`` and ``m = [1, -x_n, -y_n]``.
 """
 
 from __future__ import annotations
@@ -19,18 +13,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import CalibrationError, NonFiniteInputError, PointBehindCameraError
 
-#: Distortion models hbvs understands (ROS names); ``plumb_bob`` is OpenCV's k1 k2 p1 p2 k3,
-#: ``equidistant`` the fisheye model k1 k2 k3 k4 of ``cv2.fisheye`` (Kannala-Brandt).
+#: Distortion models hbvs understands (ROS names); ``equidistant`` is ``cv2.fisheye``'s.
 SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "none", "")
 
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
-    """Pinhole intrinsics with optional lens distortion.
-
-    Focal lengths, principal point (OpenCV: the top-left pixel's centre is (0, 0)) and image
-    size in px; ``distortion``: the coefficients of ``distortion_model`` in OpenCV order.
-    """
+    """Pinhole intrinsics in px (OpenCV: the top-left pixel's centre is (0, 0)) and the
+    ``distortion`` coefficients of ``distortion_model`` in OpenCV order."""
 
     fx: float
     fy: float
@@ -50,10 +40,8 @@ class CameraIntrinsics:
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise CalibrationError(f"image size must be positive, got {self.width}x{self.height}")
         if self.distortion_model not in SUPPORTED_DISTORTION_MODELS:
-            raise CalibrationError(
-                f"unsupported distortion model {self.distortion_model!r} "
-                f"(supported: plumb_bob, rational_polynomial, equidistant, none)"
-            )
+            raise CalibrationError(f"unsupported distortion model {self.distortion_model!r} "
+                                   "(supported: plumb_bob, rational_polynomial, equidistant, none)")
         if not all(np.isfinite(v) for v in self.distortion):
             raise CalibrationError("distortion coefficients contain NaN or infinity")
 
@@ -64,8 +52,7 @@ class CameraIntrinsics:
 
     @property
     def mean_focal(self) -> float:
-        """The mean focal length ``(fx + fy) / 2`` (px): pixels per unit of normalised
-        coordinates, which turns a residual or a noise between the two."""
+        """``(fx + fy) / 2`` (px): pixels per unit of normalised coordinates."""
         return 0.5 * (self.fx + self.fy)
 
     @property
@@ -84,8 +71,7 @@ def camera_description(camera: CameraIntrinsics) -> dict[str, Any]:
 
 
 def camera_from_description(data: Any) -> CameraIntrinsics:
-    """Inverse of :func:`camera_description`; raises KeyError, TypeError or ValueError on a
-    malformed description, :class:`~hbvs_cli.errors.CalibrationError` on bad values."""
+    """Inverse of :func:`camera_description`; KeyError, TypeError or ValueError when malformed."""
     return CameraIntrinsics(
         fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
         width=int(data["width"]), height=int(data["height"]),
@@ -94,17 +80,12 @@ def camera_from_description(data: Any) -> CameraIntrinsics:
     )
 
 
-#: The default simulated camera: 640x480, f = 500 px (a 65 deg horizontal field of view),
-#: principal point at the image centre, no distortion.
+#: The default simulated camera: 640x480, f = 500 px (65 deg horizontal field of view).
 DEFAULT_CAMERA = CameraIntrinsics(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480)
 
 
 def pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
-    """Pixels to the paper's normalised coordinates ``m = [1, m_y, m_z]`` (9), (11).
-
-    ``pixels`` (..., 2) -> ``m`` (..., 3); lens distortion is not removed here
-    (:func:`measured_pixels_to_normalized` does).
-    """
+    """Ideal pinhole pixels (..., 2) to ``m`` (..., 3), (9), (11); no undistortion."""
     pixels = np.asarray(pixels, dtype=float)
     x_n = (pixels[..., 0] - camera.cx) / camera.fx
     y_n = (pixels[..., 1] - camera.cy) / camera.fy
@@ -157,9 +138,7 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
         distorted = cv2.fisheye.distortPoints(normalized, camera.K, np.asarray(camera.distortion, dtype=float))
         return distorted.reshape(pixels.shape)
     object_points = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).reshape(-1, 1, 3)
-    projected, _ = cv2.projectPoints(
-        object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float)
-    )
+    projected, _ = cv2.projectPoints(object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float))
     return projected.reshape(pixels.shape)
 
 
@@ -174,8 +153,8 @@ def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -
 
 
 def pixels_to_normalized_floats(camera: CameraIntrinsics, pixels: NDArray[np.float64]) -> tuple[list[float], list[float]]:
-    """:func:`pixels_to_normalized` of one frame's few points, as plain floats ``(m_y, m_z)``:
-    a handful of points is faster without numpy (the closed loop does it every period)."""
+    """:func:`pixels_to_normalized` of one frame's few points as plain floats ``(m_y, m_z)``
+    (faster without numpy)."""
     m_y = [(camera.cx - u) / camera.fx for u in pixels[:, 0].tolist()]
     m_z = [(camera.cy - v) / camera.fy for v in pixels[:, 1].tolist()]
     return m_y, m_z

@@ -27,10 +27,9 @@ DEFAULT_PRESET = "s-curve"
 
 @dataclass(frozen=True)
 class ControllerGains:
-    """Gains of (29)-(31): the clean-camera defaults, used when a fit file suggests none,
-    are :mod:`.gains`' rules at the default scenario's |x_hd1_dot| ~ 0.025 1/s (k_v = 4 m/s
-    and k_w = 1 1/s: 1 s time constants of e1 and the heading). ``gamma`` is gamma_1 of (31)
-    in m, >= 0 (0: the non-adaptive baseline); ``k_2 = 1`` is the paper's law exactly."""
+    """Gains of (29)-(31) (units: :data:`GAIN_UNITS`); the defaults, used when a fit suggests
+    none, are :mod:`.gains`' rules for the default scenario. ``gamma`` = 0 is the non-adaptive
+    baseline, ``k_2 = 1`` the paper's law."""
 
     k_v: float = 4.0
     k_w: float = 1.0
@@ -40,7 +39,6 @@ class ControllerGains:
     def __post_init__(self) -> None:
         for name in GAIN_NAMES:
             value = getattr(self, name)
-            # gamma_1 = 0 is the non-adaptive baseline (core/laws.py): dhat stays dhat(0).
             if not math.isfinite(value) or value < 0.0 or (value == 0.0 and name != "gamma"):
                 raise InvalidValueError(f"gain {name} must be a positive number, got {value}")
 

@@ -1,23 +1,13 @@
-"""The adaptive tracking controller of Chen et al., equations (19)-(31) and (36).
+"""The adaptive tracking controller of Chen et al., (19)-(31) and (36), with the lateral gain
+k_2 (k_2 = 1 is the paper's law; docs/method.md, "Control")::
 
-Errors (19), (27)::
+    e1 = x_h1 - x_hd1,  e2 = x_h2 - x_hd2,  e3 = theta - theta_d,  ebar2 = e2 - x_hd1 e3   (19), (27)
+    w_c = k_w e3 - theta_d_dot - k_2 x_hd1_dot ebar2                                       (30)
+    v_c = k_v e1 - k_2 ebar2 w_c + dhat (x_h2 w_c - x_hd1_dot)                              (29)
+    dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot)                                           (31)
+    V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma_1) (d* - dhat)^2               (36)
 
-    e1 = x_h1 - x_hd1,   e2 = x_h2 - x_hd2,   e3 = theta - theta_d,   ebar2 = e2 - x_hd1 e3
-
-Control law with the lateral gain k_2 (docs/method.md, "Control"; k_2 = 1 is exactly
-the paper's (29)-(30))::
-
-    w_c  = k_w e3 - theta_d_dot - k_2 x_hd1_dot ebar2                    (30)
-    v_c  = k_v e1 - k_2 ebar2 w_c + dhat (x_h2 w_c - x_hd1_dot)           (29)
-    dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot)                          (31)
-
-Lyapunov function (36), weighted by k_2::
-
-    V = 1/2 d* e1^2 + k_2/2 ebar2^2 + 1/2 e3^2 + 1/(2 gamma_1) (d* - dhat)^2
-
-whose derivative along the closed loop (32) is ``-k_v e1^2 - k_w e3^2`` (38).
-
-Every function accepts scalars or broadcastable arrays.
+and ``V_dot = -k_v e1^2 - k_w e3^2`` (38). Functions take scalars or broadcastable arrays.
 """
 
 from __future__ import annotations
@@ -42,9 +32,8 @@ class Measurement:
 
 @dataclass(frozen=True)
 class DesiredState:
-    """The desired trajectory and its feed-forward derivatives at one instant (Remark 1):
-    theta_d (rad, unwrapped), x_hd (dimensionless), theta_d_dot = -w_cd (5) (rad/s), x_hd_dot
-    (1/s, (25))."""
+    """The desired trajectory at one instant (Remark 1): theta_d (rad, unwrapped), x_hd (-),
+    theta_d_dot = -w_cd (5) (rad/s), x_hd_dot (1/s, (25))."""
 
     theta_d: float | NDArray[np.float64]
     x_hd1: float | NDArray[np.float64]
@@ -75,9 +64,7 @@ class ControlOutput:
 
 
 def tracking_errors(measured: Measurement, desired: DesiredState) -> TrackingErrors:
-    """Errors (19) and the auxiliary error ebar2 (27); e3 wrapped to [-pi, pi) so that a
-    trajectory crossing +-pi stays continuous."""
-    # Plain operators: floats stay floats (the closed loop), arrays broadcast (batches).
+    """Errors (19) and ebar2 (27); e3 wrapped to [-pi, pi) so that crossing +-pi stays continuous."""
     e1 = measured.x_h1 - desired.x_hd1
     e2 = measured.x_h2 - desired.x_hd2
     e3 = wrap_angle(measured.theta - desired.theta_d)
@@ -85,13 +72,9 @@ def tracking_errors(measured: Measurement, desired: DesiredState) -> TrackingErr
     return TrackingErrors(e1=e1, e2=e2, e3=e3, ebar2=ebar2)
 
 
-def control_law(
-    measured: Measurement, desired: DesiredState, dhat: ArrayLike, gains: ControllerGains
-) -> ControlOutput:
-    """Commands (29)-(30) and the update law (31), with the lateral gain k_2.
-
-    ``dhat``: the depth estimate (m); returns ``v_c`` (m/s), ``w_c`` (rad/s), ``dhat_dot`` (m/s).
-    """
+def control_law(measured: Measurement, desired: DesiredState, dhat: ArrayLike, gains: ControllerGains) -> ControlOutput:
+    """Commands (29)-(30) and the update law (31) at the depth estimate ``dhat`` (m): ``v_c``
+    (m/s), ``w_c`` (rad/s), ``dhat_dot`` (m/s)."""
     err = tracking_errors(measured, desired)
     k2 = gains.k_2
     w_c = gains.k_w * err.e3 - desired.theta_d_dot - k2 * desired.x_hd1_dot * err.ebar2
@@ -102,32 +85,18 @@ def control_law(
 
 
 def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: ControllerGains) -> NDArray[np.float64] | float:
-    """The Lyapunov function (36) of the module docstring, for the true depth d* (m): known
-    only in simulation. Without adaptation (gamma = 0) the depth term is left out."""
+    """The Lyapunov function (36) for the true depth d* (m), known only in simulation; without
+    adaptation (gamma = 0) the depth term is left out."""
     d_tilde = d_star - dhat
-    value = (
-        0.5 * d_star * errors.e1 * errors.e1
-        + 0.5 * gains.k_2 * errors.ebar2 * errors.ebar2
-        + 0.5 * errors.e3 * errors.e3
-    )
+    value = 0.5 * d_star * errors.e1 * errors.e1 + 0.5 * gains.k_2 * errors.ebar2 * errors.ebar2 + 0.5 * errors.e3 * errors.e3
     if gains.gamma > 0.0:
         value = value + 0.5 / gains.gamma * d_tilde * d_tilde
     return float(value) if np.ndim(value) == 0 else value
 
 
-def closed_loop_error_rates(
-    errors: TrackingErrors,
-    d_tilde: float,
-    x_h2: float,
-    w_c: float,
-    x_hd1_dot: float,
-    d_star: float,
-    gains: ControllerGains,
-) -> tuple[float, float, float]:
-    """``(e1_dot, ebar2_dot, e3_dot)`` of the closed-loop error system (32), with k_2:
-    ``d* e1_dot = -k_v e1 + k_2 ebar2 w_c + d~ (x_h2 w_c - x_hd1_dot)``,
-    ``ebar2_dot = -(e1 w_c + x_hd1_dot e3)``, ``e3_dot = -k_w e3 + k_2 x_hd1_dot ebar2``.
-    """
+def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,
+                            d_star: float, gains: ControllerGains) -> tuple[float, float, float]:
+    """``(e1_dot, ebar2_dot, e3_dot)`` of the closed-loop error system (32) with k_2."""
     e1_dot = (-gains.k_v * errors.e1 + gains.k_2 * errors.ebar2 * w_c + d_tilde * (x_h2 * w_c - x_hd1_dot)) / d_star
     ebar2_dot = -(errors.e1 * w_c + x_hd1_dot * errors.e3)
     e3_dot = -gains.k_w * errors.e3 + gains.k_2 * x_hd1_dot * errors.ebar2
@@ -135,32 +104,23 @@ def closed_loop_error_rates(
 
 
 class AdaptiveTrackingController:
-    """The controller with its one piece of state, the depth estimate dhat.
-
-    :meth:`step` evaluates (29)-(31) and integrates (31) over the period (explicit Euler,
-    exact for a held e1 and coupling); ``dhat0`` (m, > 0) is dhat(0).
-    """
+    """The law with its one piece of state, the depth estimate dhat (m), from ``dhat0``."""
 
     def __init__(self, gains: ControllerGains, dhat0: float) -> None:
         self.gains = gains
         self.dhat = check_depth(dhat0, "the initial depth estimate dhat0")
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
-        """Commands for this instant; advances dhat by ``dt`` seconds unless ``adapt`` is
-        False (the state is a prediction through a frame that gave no measurement)."""
+        """Commands for this instant; advances dhat by ``dt`` (s) unless ``adapt`` is False."""
         output = control_law(measured, desired, self.dhat, self.gains)
         if adapt:
             self.adapt(output, dt)
         return output
 
     def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
-        """Integrate the update law (31) of one evaluation over ``dt`` seconds.
-
-        ``depth_reference`` ``(d_f, kappa)``: a depth measured from the motion (m) and the
-        rate (1/s) at which to trust it, for the composite law ``dhat_dot = gamma_1 e1 (x_h2
-        w_c - x_hd1_dot) + kappa (d_f - dhat)`` (:func:`~.state_filter.scheduled_depth_pull`).
-        Without adaptation (gamma_1 = 0, the non-adaptive baseline) dhat stays.
-        """
+        """Integrate (31) over ``dt`` (s) by explicit Euler; ``depth_reference`` ``(d_f, kappa)``
+        (m, 1/s) adds the pull ``kappa (d_f - dhat)`` (:func:`~.state_filter.scheduled_depth_pull`).
+        With gamma_1 = 0 (the non-adaptive baseline) dhat stays."""
         rate = float(output.dhat_dot)
         if depth_reference is not None and self.gains.gamma > 0.0:
             depth, pull = depth_reference
@@ -168,19 +128,17 @@ class AdaptiveTrackingController:
         self.dhat += rate * dt
 
     def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
-        """Only the composite term of :meth:`adapt` over ``dt``: while the state filter
-        settles, (31) is frozen (its errors are not yet those of the law) but the depth the
-        motion measures already sets the pace of the taught commands (25)."""
+        """Only the pull of :meth:`adapt` over ``dt``: while the state filter settles (31) is
+        frozen, but the depth the motion measures already paces the taught commands (25)."""
         if self.gains.gamma > 0.0:
             depth, pull = depth_reference
             self.dhat += pull * (depth - self.dhat) * dt
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
-        """The taught commands (25) at the current dhat, (29)-(30) with every error zero:
-        ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)`` (sent while the filter settles)."""
+        """The taught commands (25) at the current dhat: ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``."""
         w_c = -float(desired.theta_d_dot)
         return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
 
     def hold(self) -> tuple[float, float]:
-        """Commands while the target is lost: stop, and leave dhat as it is."""
+        """Commands while the target is lost: stop."""
         return 0.0, 0.0

@@ -1,9 +1,6 @@
-"""Decomposing the Euclidean homography into (theta, x_h, n*): the four branches.
-
-``H = R + x_h n*^T`` (12) has up to four decompositions (Faugeras-Lustman [15]). The plane
-in front of F* (``n*^T m*_i > 0``) leaves two; the true normal is the one common to the
-sequence (the spurious one moves with the robot) or closest to a prior (docs/method.md,
-"Decomposition into (theta, x_h, n*)").
+"""Decomposing ``H = R + x_h n*^T`` (12) into (theta, x_h, n*): of its four decompositions
+(Faugeras-Lustman [15]) the plane in front of F* leaves two; the true normal is the one common
+to the sequence, or closest to a prior (docs/method.md, "Decomposition into (theta, x_h, n*)").
 """
 
 from __future__ import annotations
@@ -18,19 +15,15 @@ from ..errors import NonFiniteInputError
 #: Default prior for the plane normal in F*: the target faces the reference camera.
 FACING_PRIOR = np.array([1.0, 0.0, 0.0])
 
-#: Below this spread of singular values (sigma_1 - sigma_3) the homography is a pure
-#: rotation: the translation is zero and the normal is undefined.
+#: Below this sigma_1 - sigma_3 the homography is a pure rotation: no translation, no normal.
 PURE_ROTATION_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
 class HomographyCandidates:
-    """The four decompositions ``H = R + t n^T`` of each homography in a batch.
-
-    ``rotations`` (..., 4, 3, 3), ``translations`` x_h = x_f / d* (14) and unit ``normals``
-    in F* (..., 4, 3; NaN for a pure rotation); ``strength`` (...): sigma_1 - sigma_3 of the
-    scaled H, how well the translation and normal are determined.
-    """
+    """The four decompositions ``H = R + t n^T`` of each homography: ``rotations`` (..., 4, 3, 3),
+    ``translations`` x_h (14) and unit ``normals`` in F* (..., 4, 3; NaN for a pure rotation);
+    ``strength`` (...): sigma_1 - sigma_3 of the scaled H, how well t and n are determined."""
 
     rotations: NDArray[np.float64]
     translations: NDArray[np.float64]
@@ -40,12 +33,9 @@ class HomographyCandidates:
 
 @dataclass(frozen=True)
 class PlanarMotion:
-    """Rotation angle and scaled translation of F* seen from F, per frame.
-
-    ``theta`` (...): ``phi* - phi`` (rad); ``x_h`` (..., 2): x_f / d* (14); ``normal``
-    (..., 3): unit n* in F*; ``residual`` (...): RMS of the equations solved (normalised
-    units), large for outliers or a wrong normal.
-    """
+    """F* seen from F per frame: ``theta`` (...) = phi* - phi (rad), ``x_h`` (..., 2) = x_f / d*
+    (14), unit n* ``normal`` (..., 3) and ``residual`` (...), the RMS of the equations solved
+    (normalised units), large for outliers or a wrong normal."""
 
     theta: NDArray[np.float64]
     x_h: NDArray[np.float64]
@@ -55,15 +45,11 @@ class PlanarMotion:
 
 
 def homography_candidates(H: ArrayLike) -> HomographyCandidates:
-    """All four decompositions of a batch of Euclidean homographies (SVD method).
+    """All four decompositions of homographies ``H`` (..., 3, 3) of any positive scale.
 
-    Follows Ma, Soatto, Kosecka and Sastry, *An Invitation to 3-D Vision*, Sec. 5.3: with
-    ``H^T H = V diag(s1^2, 1, s3^2) V^T`` (H scaled so that its middle singular value is 1),
-    ``u_{1,2} = (sqrt(1 - s3^2) v1 +- sqrt(s1^2 - 1) v3) / sqrt(s1^2 - s3^2)`` give the
-    normals ``v2 x u`` and ``R = [H v2, H u, H v2 x H u] [v2, u, v2 x u]^T``, ``t = (H - R) n``;
-    the other two solutions are ``(R, -t, -n)``.
-
-    ``H`` (..., 3, 3) may have any positive scale.
+    Ma, Soatto, Kosecka and Sastry, *An Invitation to 3-D Vision*, Sec. 5.3: with ``H^T H =
+    V diag(s1^2, 1, s3^2) V^T``, ``u = (sqrt(1 - s3^2) v1 +- sqrt(s1^2 - 1) v3) / sqrt(s1^2 - s3^2)``
+    gives ``n = v2 x u``, ``R = [H v2, H u, H v2 x H u] [v2, u, n]^T``, ``t = (H - R) n``, and (R, -t, -n).
     """
     H = np.asarray(H, dtype=float)
     if not np.all(np.isfinite(H)):
@@ -87,9 +73,7 @@ def homography_candidates(H: ArrayLike) -> HomographyCandidates:
     u1 = (a * v1 + b * v3) / safe_spread
     u2 = (a * v1 - b * v3) / safe_spread
 
-    rotations = []
-    translations = []
-    normals = []
+    rotations, translations, normals = [], [], []
     for u in (u1, u2):
         U = np.stack([v2, u, np.cross(v2, u)], axis=-1)
         Hv2 = np.einsum("...ij,...j->...i", H, v2)
@@ -109,9 +93,7 @@ def homography_candidates(H: ArrayLike) -> HomographyCandidates:
         rotations_arr[pure_rotation] = H[pure_rotation][:, None, :, :]
         translations_arr[pure_rotation] = 0.0
         normals_arr[pure_rotation] = np.nan
-    return HomographyCandidates(
-        rotations=rotations_arr, translations=translations_arr, normals=normals_arr, strength=strength
-    )
+    return HomographyCandidates(rotations=rotations_arr, translations=translations_arr, normals=normals_arr, strength=strength)
 
 
 def front_facing(candidates: HomographyCandidates, m_ref: NDArray[np.float64]) -> NDArray[np.bool_]:
@@ -121,14 +103,10 @@ def front_facing(candidates: HomographyCandidates, m_ref: NDArray[np.float64]) -
         return np.all(dots > 0.0, axis=-1)
 
 
-def select_branch(
-    candidates: HomographyCandidates, m_ref: ArrayLike, reference_normal: ArrayLike
-) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
-    """Index of the physically right decomposition of each homography.
-
-    Among those with the plane in front of F*, the closest to ``reference_normal`` ((3,) or
-    (..., 3)); a pure rotation takes its first. ``valid`` is False where none is in front.
-    """
+def select_branch(candidates: HomographyCandidates, m_ref: ArrayLike, reference_normal: ArrayLike
+                  ) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+    """Index of each homography's decomposition in front of F* closest to ``reference_normal``
+    ((3,) or (..., 3)), a pure rotation's first; ``valid`` is False where none is in front."""
     m_ref = np.asarray(m_ref, dtype=float)
     reference_normal = np.asarray(reference_normal, dtype=float)
     front = front_facing(candidates, m_ref)
@@ -147,14 +125,8 @@ def take_branch(array: NDArray[np.float64], index: NDArray[np.intp]) -> NDArray[
     return np.take_along_axis(array, expanded, axis=index.ndim).squeeze(axis=index.ndim)
 
 
-def decompose_homography(
-    H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR
-) -> PlanarMotion:
-    """(theta, x_h, n*) of each homography, the branch chosen by a reference normal.
-
-    ``reference_normal``: the sequence's common normal, the previous frame's or a prior
-    (see :func:`select_branch`).
-    """
+def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR) -> PlanarMotion:
+    """(theta, x_h, n*) of each homography, the branch chosen by :func:`select_branch`."""
     m_ref = np.asarray(m_ref, dtype=float)
     candidates = homography_candidates(H)
     index, valid = select_branch(candidates, m_ref, reference_normal)

@@ -1,9 +1,5 @@
 """Initial depth estimates dhat(0) for (31) (docs/method.md, "Depth d*"): d* is unobservable
-from images alone, and a poor dhat(0) slows convergence. From the taught commands, by (25)
-(:func:`depth_from_taught_commands`), or from a known metric size of the target: the points
-lie on ``n*^T m_bar*_i = d*`` (7), so distances between them scale with d*
-(:func:`depth_from_target_size`).
-"""
+from images alone, and a poor dhat(0) slows convergence."""
 
 from __future__ import annotations
 
@@ -17,8 +13,7 @@ from ..errors import GeometryError, InvalidValueError
 
 
 def check_depth(value: float, name: str) -> float:
-    """``value`` as a depth d* or dhat (m): finite and positive (InvalidValueError), the one
-    rule for all of them."""
+    """``value`` as a depth d* or dhat (m): finite and positive, else InvalidValueError."""
     if not (math.isfinite(value) and value > 0.0):
         raise InvalidValueError(f"{name} must be a positive depth in metres, got {value}")
     return float(value)
@@ -26,9 +21,8 @@ def check_depth(value: float, name: str) -> float:
 
 @dataclass(frozen=True)
 class DepthEstimate:
-    """An estimate ``dhat0`` of d* (m), handed to (31) as dhat(0); its 1-sigma
-    ``standard_error`` (m, NaN when not applicable); its ``source`` (``"commands"`` or
-    ``"target-size"``) and the number of equations used (``samples``)."""
+    """An estimate ``dhat0`` of d* (m), its 1-sigma ``standard_error`` (m, NaN when not
+    applicable), its ``source`` and the number of equations used (``samples``)."""
 
     dhat0: float
     standard_error: float
@@ -58,8 +52,8 @@ def depth_from_taught_commands(v_cd: ArrayLike, w_cd: ArrayLike, x_hd2: ArrayLik
 
 
 def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int, int], distance_m: float) -> DepthEstimate:
-    """d* from the known distance (m) between the target points ``pair`` (indices into the
-    reference normalised points m_ref, shape (N, 3)), with the unit plane normal n* (3,)."""
+    """d* from the known distance (m) between the target points ``pair`` of m*_i ``m_ref``
+    (N, 3): they lie on ``n*^T m_bar*_i = d*`` (7), so distances scale with d*."""
     m_ref = np.asarray(m_ref, dtype=float)
     normal = np.asarray(normal, dtype=float)
     if not np.isfinite(distance_m) or distance_m <= 0.0:

@@ -1,8 +1,5 @@
-"""From measured target pixels to the controller's measurement (theta, x_h1, x_h2).
-
-With m*_i and n* from ``hbvs fit``: undistort, normalise (11), solve the known-normal system,
-and reject a frame whose residual shows its points do not fit one plane under planar motion.
-"""
+"""From measured target pixels to the controller's measurement (theta, x_h1, x_h2): undistort,
+normalise (11), solve with the fitted n*, and reject a frame whose points do not fit one plane."""
 
 from __future__ import annotations
 
@@ -12,9 +9,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .camera import CameraIntrinsics, measured_pixels_to_normalized, pixels_to_normalized_floats, undistort_pixels
+from .camera import CameraIntrinsics, pixels_to_normalized_floats, undistort_pixels
 from .controller import Measurement
-from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .labels import Label
 
@@ -24,14 +20,12 @@ DEFAULT_RESIDUAL_GATE = 0.004
 
 
 def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> Any:
-    """True where a known-normal residual (normalised units; float or array) passes the
-    outlier gate; NaN (not solved) never does."""
+    """True where a known-normal residual (normalised units) passes the outlier gate; NaN never does."""
     return residual <= gate
 
 
 class ObservationStatus(Label):
-    """What a camera frame gave: a measurement, nothing (the frame never arrived), or why
-    the target was lost. The values are the words run files record (``lost_reason``)."""
+    """What a camera frame gave: a measurement, nothing, or why the target was lost (run files' ``lost_reason``)."""
 
     OK = "ok"
     #: No frame arrived: the last command is held; the target is not lost.
@@ -48,11 +42,8 @@ class ObservationStatus(Label):
 
 @dataclass(frozen=True)
 class Observation:
-    """What one camera frame gave the controller.
-
-    ``measurement`` is set when ``status`` is OK; ``residual``: RMS of the known-normal solve
-    (normalised units, NaN if not solved); ``pixels`` (N, 2): the detected ones, if any.
-    """
+    """What one camera frame gave: ``measurement`` when ``status`` is OK, the known-normal
+    ``residual`` (normalised units, NaN if not solved) and the detected ``pixels`` (N, 2)."""
 
     measurement: Measurement | None
     residual: float = float("nan")
@@ -71,10 +62,7 @@ def dropped() -> Observation:
 
 
 class PlanarPoseEstimator:
-    """Measurement of (theta, x_h) from one frame's target pixels.
-
-    ``m_ref`` (N, 3): m*_i; ``normal``: n* in F*; a residual above ``residual_gate`` is an outlier.
-    """
+    """(theta, x_h) from one frame's target pixels, for m*_i ``m_ref`` (N, 3) and n* ``normal``."""
 
     def __init__(self, camera: CameraIntrinsics, m_ref: ArrayLike, normal: ArrayLike, residual_gate: float = DEFAULT_RESIDUAL_GATE) -> None:
         self.camera = camera
@@ -82,14 +70,6 @@ class PlanarPoseEstimator:
         self.m_ref = self.solver.m_ref
         self.normal = self.solver.normal
         self.residual_gate = float(residual_gate)
-
-    def normalize(self, pixels: ArrayLike) -> NDArray[np.float64]:
-        """Undistorted, normalised points ``[1, m_y, m_z]`` of pixels, shape (N, 3)."""
-        return measured_pixels_to_normalized(self.camera, pixels)
-
-    def solve(self, m: ArrayLike) -> PlanarMotion:
-        """Batch solve for normalised points of shape (..., N, 3)."""
-        return self.solver.solve(m)
 
     def from_pixels(self, pixels: ArrayLike | None) -> Observation:
         """Estimate from pixels of shape (N, 2) in the reference order (NaN = not seen)."""

@@ -18,11 +18,8 @@ MAX_TARGET_POINTS = 64
 
 @dataclass
 class TaughtPath:
-    """Ground truth of a simulated teach: per-frame commands, the start pose and F*'s pose.
-
-    The commands were held between frames, so the taught pose at any time follows
-    exactly from them and the start pose (:class:`~hbvs_cli.core.path.CommandProfile`).
-    """
+    """Ground truth of a simulated teach: per-frame commands, held between frames, the start
+    pose and F*'s pose."""
 
     t: np.ndarray
     v: np.ndarray

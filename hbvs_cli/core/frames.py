@@ -1,14 +1,8 @@
-"""Frames, rotations and planar poses in the paper's conventions.
+"""Frames, rotations and planar poses in the paper's conventions (docs/method.md, "Frames").
 
-Robot/camera frame F: x forward (optical axis), y left, z up; a planar pose is
-``(x, y, phi)`` (m, m, rad) in a world frame W with z up; F* is the reference pose
-``(x*, y*, phi*)`` (docs/method.md, "Frames (1)-(5), (9)-(11)"). Then (3)-(5)::
-
-      R     = Rz(theta),   theta = phi* - phi       (4), (5): theta_dot = -w_c
-      x_f   = Rz(phi)^T (p* - p)                    (3): origin of F* seen from F
-      m_i   = x_f + R m*_i                          (3)
-
-OpenCV/ROS camera axes (x right, y down, z forward) are ``v_cv = P v_paper``, ``H_cv = P H P^T``.
+Robot/camera frame F: x forward (optical axis), y left, z up; a planar pose is ``(x, y, phi)``
+(m, m, rad) in a world frame W with z up, F* is at ``(x*, y*, phi*)``, and (3)-(5) give
+``R = Rz(theta)``, ``theta = phi* - phi``, ``x_f = Rz(phi)^T (p* - p)``.
 """
 
 from __future__ import annotations
@@ -19,9 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 #: Paper axes (x fwd, y left, z up) -> OpenCV camera axes (x right, y down, z fwd).
-PAPER_TO_OPENCV: NDArray[np.float64] = np.array(
-    [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
-)
+PAPER_TO_OPENCV: NDArray[np.float64] = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 PAPER_TO_OPENCV.setflags(write=False)
 
 
@@ -46,24 +38,9 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     return float(wrapped) if wrapped.ndim == 0 else wrapped
 
 
-def paper_to_opencv_homography(H: ArrayLike) -> NDArray[np.float64]:
-    """A homography (..., 3, 3) in the paper's axes, in OpenCV camera axes: ``P H P^T``."""
-    return PAPER_TO_OPENCV @ np.asarray(H, dtype=float) @ PAPER_TO_OPENCV.T
-
-
-def opencv_to_paper_homography(H_cv: ArrayLike) -> NDArray[np.float64]:
-    """Inverse of :func:`paper_to_opencv_homography`: ``P^T H_cv P``."""
-    return PAPER_TO_OPENCV.T @ np.asarray(H_cv, dtype=float) @ PAPER_TO_OPENCV
-
-
-def relative_planar_pose(
-    pose: ArrayLike, reference_pose: ArrayLike
-) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
-    """Rotation angle and translation of F* seen from F, equations (3)-(5).
-
-    ``pose`` (..., 3) and ``reference_pose`` ((3,) or (..., 3)) in W. Returns ``theta = phi* -
-    phi`` wrapped to [-pi, pi) and ``x_f = Rz(phi)^T (p* - p)`` (..., 3) (m, z = 0).
-    """
+def relative_planar_pose(pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """``theta = phi* - phi`` wrapped to [-pi, pi) and ``x_f`` (..., 3) (m), (3)-(5), of F* at
+    ``reference_pose`` ((3,) or (..., 3)) seen from ``pose`` (..., 3)."""
     pose = np.asarray(pose, dtype=float)
     reference_pose = np.asarray(reference_pose, dtype=float)
     dx = reference_pose[..., 0] - pose[..., 0]

@@ -1,17 +1,10 @@
-"""Gains of (29)-(31) from the data: the taught path's x_hd1_dot and the detector's noise.
+"""Gains of (29)-(31) from the taught path's x_hd1_dot and the detector's noise
+(docs/method.md, "Choosing the gains").
 
-Near the desired path the lateral pair (ebar2, e3) behaves like ``s^2 + k_w s + k_2
-x_hd1_dot^2`` and the depth error decays at ``gamma x_hd1_dot^2 / k_v`` (docs/method.md,
-"Choosing the gains"). The rules: :class:`ControllerGains`' k_w and k_v;
-``k_2 = k_w^2 / (4 x_hd1_dot^2)`` (critically damped at ``k_w / 2``); and
-``gamma = DEPTH_RATE k_v / x_hd1_dot^2 / (1 + (sigma_e1 / SIGMA_E1_REFERENCE)^2)``: (31)
-integrates the noise of e1, so gamma falls as ``1/sigma_e1^2`` once the per-frame noise of
-x_h1 at F* (``sigma^2 (J^T J)^-1``, :func:`~.state_filter.measurement_information`, which
-sees the target's size and distance) passes the reference.
-
-An error of the fitted n* biases the whole taught trajectory, which no gain removes: the
-suggestion carries ``heading_tolerance_deg``, the taught theta_d's 95 % half-interval where
-it is larger than the default tolerance, for ``hbvs report --tolerance heading_deg=...``.
+Near the path (ebar2, e3) behaves like ``s^2 + k_w s + k_2 x_hd1_dot^2``, so
+``k_2 = k_w^2 / (4 x_hd1_dot^2)`` (critically damped), and the depth error decays at
+``gamma x_hd1_dot^2 / k_v``, so ``gamma = DEPTH_RATE k_v / x_hd1_dot^2 / (1 + (sigma_e1 /
+SIGMA_E1_REFERENCE)^2)``: (31) integrates e1's noise, sigma_e1 the per-frame std of x_h1 at F*.
 """
 
 from __future__ import annotations
@@ -28,13 +21,11 @@ from .state_filter import measurement_information, residual_to_variance
 #: Per-coordinate pixel noise the gains are designed for at least (px): the taught images'
 #: residual is a lower bound of a live camera's.
 DESIGN_NOISE_FLOOR_PX = 0.5
-#: Per-frame std of x_h1 at which gamma is halved (0.39 px in the default scene;
-#: docs/method.md).
+#: Per-frame std of x_h1 at which gamma is halved.
 SIGMA_E1_REFERENCE = 0.002
 #: Depth learning rate without noise, gamma x_hd1_dot^2 / k_v (1/s).
 DEPTH_RATE = 0.4
-#: The range of dhat(0) / d* the suggested gains are good for with the state filter
-#: (tests/test_control_depth.py's campaign).
+#: The range of dhat(0) / d* the suggested gains are good for with the state filter.
 DHAT0_RANGE = (0.25, 4.0)
 #: The half-width of the taught trajectory's 95 % interval, in its sigmas.
 INTERVAL_SIGMAS = 1.96
@@ -48,24 +39,9 @@ def dhat0_range_text() -> str:
 
 @dataclass(frozen=True)
 class GainSuggestion:
-    """Gains suggested for a fit, and the numbers they came from.
-
-    Attributes
-    ----------
-    gains : ControllerGains
-    x_hd1_dot : float
-        The median |x_hd1_dot| of the taught path (1/s).
-    noise_px : float
-        The detector's per-coordinate noise measured on the taught images (px).
-    design_noise_px : float
-        The noise the gains are designed for: ``max(noise_px, DESIGN_NOISE_FLOOR_PX)``.
-    sigma_e1 : float
-        Per-frame std of x_h1 at F* under the design noise (dimensionless).
-    heading_tolerance_deg : float
-        The final heading error a repeat can be held to (deg): the default tolerance, or
-        the taught theta_d's 95 % half-interval where that is larger; NaN when the fit
-        has no uncertainty.
-    """
+    """Gains suggested for a fit and what they came from: the taught path's median
+    |``x_hd1_dot``| (1/s), the detector's noise ``noise_px`` and the ``design_noise_px`` (px),
+    ``sigma_e1`` under it (-) and the :func:`heading_tolerance` (deg)."""
 
     gains: ControllerGains
     x_hd1_dot: float
@@ -83,8 +59,8 @@ class GainSuggestion:
 
 
 def heading_tolerance(default_deg: float, theta_d_sigma_deg: float) -> float:
-    """The heading tolerance (deg) of the module docstring: ``max(default_deg,
-    INTERVAL_SIGMAS * theta_d_sigma_deg)``; NaN when the sigma is unknown."""
+    """The final heading error (deg) a repeat can be held to: an error of the fitted n* biases
+    the whole taught path, so at least theta_d's 95 % half-interval; NaN when it is unknown."""
     if not math.isfinite(theta_d_sigma_deg):
         return float("nan")
     return max(float(default_deg), INTERVAL_SIGMAS * float(theta_d_sigma_deg))
@@ -98,9 +74,8 @@ def noise_from_residual(residual_rms: float, points: int) -> float:
 
 def suggest_gains(x_hd1_dot: float, noise_px: float, m_ref: ArrayLike, normal: ArrayLike, focal_px: float,
                   heading_tolerance_deg: float = float("nan")) -> GainSuggestion:
-    """The rules of the module docstring for a typical |x_hd1_dot| (1/s), the detector's
-    per-coordinate noise (px; NaN if unknown), the reference points m_ref (N, 3), the normal
-    n* (3,) and the focal length (px)."""
+    """The rules of the module docstring for a typical |x_hd1_dot| (1/s), the noise (px, NaN
+    if unknown), m*_i ``m_ref`` (N, 3), n* ``normal`` (3,) and the focal length (px)."""
     speed = abs(float(x_hd1_dot))
     if not (math.isfinite(speed) and speed > 1e-6):
         # A path that does not move: no lateral convergence to design for (condition (35)).

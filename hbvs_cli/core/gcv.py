@@ -1,21 +1,13 @@
-"""The smoothing spline's penalty weight by generalised cross-validation, in O(n) per trial.
-
-scipy's ``make_smoothing_spline`` (lam=None) minimises the GCV criterion with Python loops
-over every sample (bench/ measures it). :func:`gcv_smoothing` minimises the same criterion
-with the same minimiser, bounds and tolerance, in Reinsch's banded form (Green and
-Silverman, 1994, Sec. 2.3, 3.3); the spline itself stays scipy's. For unit weights::
+"""The smoothing spline's lambda by generalised cross-validation in O(n) per trial: scipy's
+``make_smoothing_spline(lam=None)`` criterion, minimiser and bounds without its per-sample
+Python loops, in Reinsch's banded form (Green and Silverman, 1994, Sec. 2.3, 3.3)::
 
     GCV(lambda) = (|y - f|^2 / n) / (1 - tr A(lambda) / n)^2
+    y - f = lambda Q gamma,   n - tr A = lambda tr(M^-1 Q^T Q),   M = R + lambda Q^T Q,   gamma = M^-1 Q^T y
 
-with ``A`` the smoother matrix (``f = A y``). In Reinsch's form, with ``Q`` the n x (n-2)
-second-difference matrix of the knot spacing and ``R`` the (n-2) x (n-2) tridiagonal
-matrix of the same book, ``M = R + lambda Q^T Q``, ``gamma = M^-1 Q^T y``:
-
-    y - f = lambda Q gamma,        n - tr A = lambda tr(M^-1 Q^T Q)
-
-and only the five central bands of ``M^-1`` enter the trace (``Q^T Q`` is pentadiagonal);
-they follow from the Cholesky factor by the recursion of Hutchinson and de Hoog ("Smoothing
-noisy data with spline functions", Numerische Mathematik 47, 1985, 99-106).
+with Q (n x (n-2)) and R ((n-2) x (n-2), tridiagonal) of the book. Only the five central
+bands of M^-1 enter the trace; they follow from the Cholesky factor by the recursion of
+Hutchinson and de Hoog (Numerische Mathematik 47, 1985, 99-106).
 """
 
 from __future__ import annotations
@@ -27,11 +19,8 @@ from numpy.typing import NDArray
 
 
 def gcv_criterion(t: NDArray[np.float64], y: NDArray[np.float64]) -> Callable[[float], float]:
-    """The GCV criterion of a cubic smoothing spline of ``(t, y)`` as a function of lambda.
-
-    ``t`` (n,) strictly increasing (s), n >= 5; lambda (s^3) weighs ``int f''^2`` against
-    ``sum (y_i - f(t_i))^2``, as scipy's ``lam``.
-    """
+    """The GCV criterion of a cubic smoothing spline of ``(t, y)``, ``t`` (n,) strictly
+    increasing (s), n >= 5, as a function of scipy's ``lam`` (s^3)."""
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
     t = np.asarray(t, dtype=np.float64)
@@ -72,14 +61,10 @@ def gcv_criterion(t: NDArray[np.float64], y: NDArray[np.float64]) -> Callable[[f
 
 
 def _banded_inverse_trace(factor: NDArray[np.float64], weights: tuple[list[float], list[float], list[float]]) -> float:
-    """``sum_ij S_ij P_ij`` over the five central bands, with ``S = M^-1`` and ``M = U^T U``.
-
-    ``factor`` is U in upper banded storage (bandwidth 2); ``weights`` are P's diagonal,
-    first and second superdiagonals (the off-diagonals already doubled), in the same
-    shifted layout. From ``U S = U^-T`` (lower triangular, diagonal 1/U_ii), row i of the
-    band of S follows from rows i+1 and i+2, from the last row up (Hutchinson and de Hoog).
-    Plain floats: numpy's per-element overhead would be most of the cost.
-    """
+    """``sum_ij S_ij P_ij`` over the five central bands, ``S = M^-1``, ``M = U^T U``: ``factor``
+    is U in upper banded storage, ``weights`` P's three upper bands (off-diagonals doubled),
+    same layout. By ``U S = U^-T``, row i of S's band follows from rows i+1 and i+2 (plain
+    floats: numpy's per-element overhead would be most of the cost)."""
     diagonal, first, second = factor[2].tolist(), factor[1].tolist(), factor[0].tolist()
     p0, p1, p2 = weights
     m = len(diagonal)

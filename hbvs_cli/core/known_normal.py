@@ -1,9 +1,5 @@
-"""(theta, x_h) from the points when the plane normal n* is known: the known-normal solver.
-
-Once n* is known, ``H = Rz(theta) + x_h n*^T`` is linear in ``(cos theta, sin theta, x_h1,
-x_h2)``: a unique least-squares answer that never picks a wrong branch, so ``fit`` and
-``repeat`` use it for every frame (docs/method.md, "Decomposition into (theta, x_h, n*)").
-"""
+"""(theta, x_h) from the points when the plane normal n* is known: ``H = Rz(theta) + x_h n*^T``
+is linear in (cos theta, sin theta, x_h1, x_h2), a unique answer with no branch to pick."""
 
 from __future__ import annotations
 
@@ -38,12 +34,8 @@ def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> 
 def normal_equations(c: float, s: float, y_ref: Sequence[float], z_ref: Sequence[float], g: Sequence[float],
                      x1: float, x2: float, m_y: Sequence[float] | None = None, m_z: Sequence[float] | None = None
                      ) -> tuple[tuple[float, float, float, float, float, float], tuple[float, float, float]]:
-    """``J^T J`` (upper triangle a11 ... a33) and ``J^T r`` (b1, b2, b3) of one frame.
-
-    J: :func:`point_jacobian` of the N points (arguments as there); r: predicted minus the
-    measured ``(m_y, m_z)`` (without them ``J^T r`` is meaningless). Plain floats: a few
-    points every control period are faster without numpy.
-    """
+    """``J^T J`` (upper triangle) and ``J^T r`` of one frame in plain floats (faster than numpy
+    for a few points): J of :func:`point_jacobian`, r predicted minus measured ``(m_y, m_z)``."""
     a11 = a12 = a13 = a22 = a23 = a33 = b1 = b2 = b3 = 0.0
     measured = zip(m_y, m_z) if m_y is not None and m_z is not None else zip(y_ref, z_ref)
     for (my, mz), yr, zr, gi in zip(measured, y_ref, z_ref, g):
@@ -62,45 +54,17 @@ def normal_equations(c: float, s: float, y_ref: Sequence[float], z_ref: Sequence
     return (a11, a12, a13, a22, a23, a33), (b1, b2, b3)
 
 
-def known_normal_design(m_ref: ArrayLike, normal: ArrayLike) -> NDArray[np.float64]:
-    """The (2N, 4) design matrix of the known-normal solver for one reference.
-
-    Rows ``[1, -m*_iy, g_i, 0]`` and ``[m*_iy, 1, 0, g_i]`` with ``g_i = n*^T m*_i``, for the
-    unknowns ``(cos theta, sin theta, x_h1, x_h2)``.
-    """
-    m_ref = np.asarray(m_ref, dtype=float)
-    normal = np.asarray(normal, dtype=float)
-    g = m_ref @ normal
-    n_points = m_ref.shape[0]
-    design = np.zeros((2 * n_points, 4))
-    design[0::2, 0] = 1.0
-    design[0::2, 1] = -m_ref[:, 1]
-    design[0::2, 2] = g
-    design[1::2, 0] = m_ref[:, 1]
-    design[1::2, 1] = 1.0
-    design[1::2, 3] = g
-    return design
-
-
 class KnownNormalSolver:
-    """(theta, x_h) from points when the plane normal n* is known: linear least squares.
+    """The known-normal solver for reference points ``m_ref`` (N, 3) and n* ``normal`` (3,).
 
-    With ``alpha_i = m_iz / m*_iz`` (18) and ``g_i = n*^T m*_i``, each point of (12) with
-    ``H = Rz(theta) + x_h n*^T`` gives two equations linear in ``(c, s, x_h1, x_h2)``::
-
-        1 / alpha_i      = c - s m*_iy + x_h1 g_i
-        m_iy / alpha_i   = s + c m*_iy + x_h2 g_i
-
-    The design matrix depends only on the reference: factored once, each frame costs one
-    product. The linear solution ignores ``c^2 + s^2 = 1``; ``refine_steps`` Gauss-Newton
-    steps in theta on the reprojection error then give the maximum-likelihood estimate
-    (half the linear theta error at 0.02 px), each kept only where it lowers the error.
-    :meth:`solve_one` is :meth:`solve` in plain floats for the closed loop's single frame.
-    ``m_ref`` (N, 3), N >= 3: reference normalised points; ``normal`` (3,): n* in F*.
+    With ``alpha_i = m_iz / m*_iz`` (18) and ``g_i = n*^T m*_i``, each point of (12) gives
+    ``1 / alpha_i = c - s m*_iy + x_h1 g_i`` and ``m_iy / alpha_i = s + c m*_iy + x_h2 g_i``,
+    solved by one pseudo-inverse of the reference's design. That ignores ``c^2 + s^2 = 1``:
+    ``refine_steps`` safeguarded Gauss-Newton steps on the reprojection error follow.
     """
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, refine_steps: int = 2) -> None:
-        self.m_ref = validate_reference_points(m_ref, min_points=3)
+        self.m_ref = validate_reference_points(m_ref)
         self.refine_steps = int(refine_steps)
         normal = np.asarray(normal, dtype=float)
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or np.linalg.norm(normal) < 1e-9:
@@ -108,21 +72,28 @@ class KnownNormalSolver:
         self.normal = normal / np.linalg.norm(normal)
         if np.any(self.m_ref @ self.normal <= 0.0):
             raise NoValidBranchError("the given plane normal puts the target behind the reference camera")
-        self.design = known_normal_design(self.m_ref, self.normal)
-        self._pinv = np.linalg.pinv(self.design)
+        g = self.m_ref @ self.normal
+        # Rows [1, -m*_iy, g_i, 0] and [m*_iy, 1, 0, g_i] for the unknowns (c, s, x_h1, x_h2).
+        design = np.zeros((2 * self.m_ref.shape[0], 4))
+        design[0::2, 0] = 1.0
+        design[0::2, 1] = -self.m_ref[:, 1]
+        design[0::2, 2] = g
+        design[1::2, 0] = self.m_ref[:, 1]
+        design[1::2, 1] = 1.0
+        design[1::2, 3] = g
+        self._pinv = np.linalg.pinv(design)
         # Plain-float copies for solve_one.
         self._y = [float(v) for v in self.m_ref[:, 1]]
         self._z = [float(v) for v in self.m_ref[:, 2]]
         self._g = [float(v) for v in self.m_ref @ self.normal]
         self._pinv_rows = [[float(v) for v in row] for row in self._pinv]
 
-    # -- batches ----------------------------------------------------------------------------
     #: Frames solved at once: bounds the temporaries of a long recording.
     BLOCK = 4096
 
     def solve(self, m: ArrayLike) -> PlanarMotion:
-        """Solve for points (..., N, 3) in the reference's order; ``valid`` is False for
-        non-finite points or a depth ratio <= 0, ``residual`` the RMS reprojection error."""
+        """Solve for points (..., N, 3); ``valid`` is False for non-finite points or a depth
+        ratio <= 0, ``residual`` is the RMS reprojection error."""
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
@@ -193,11 +164,7 @@ class KnownNormalSolver:
             return np.nan_to_num(np.sum(r_y * r_y + r_z * r_z, axis=-1), nan=np.inf)
 
     def _gauss_newton_step(self, theta: Any, x1: Any, x2: Any, cost: Any, m_y: Any, m_z: Any) -> tuple[Any, Any, Any, Any]:
-        """One safeguarded Gauss-Newton step on the reprojection error, per frame.
-
-        The 3x3 normal equations are built from per-point sums and solved in closed form
-        (Cramer's rule): no Jacobian arrays, no batched linalg calls.
-        """
+        """One Gauss-Newton step per frame, kept where it lowers the cost (Cramer's rule, no batched linalg)."""
         y, z, g = self.m_ref[:, 1], self.m_ref[:, 2], self.m_ref @ self.normal
         c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -224,10 +191,9 @@ class KnownNormalSolver:
             np.where(better, new_cost, cost),
         )
 
-    # -- one frame --------------------------------------------------------------------------
     def solve_one(self, m_y: Sequence[float], m_z: Sequence[float]) -> tuple[float, float, float, float] | None:
-        """:meth:`solve` for one frame's normalised ``m_y``, ``m_z`` (N each), in plain floats:
-        ``(theta, x_h1, x_h2, residual)``, or None for a non-finite point or depth ratio <= 0."""
+        """:meth:`solve` of one frame's ``m_y``, ``m_z`` (N each) in plain floats, the closed
+        loop's case: ``(theta, x_h1, x_h2, residual)``, or None where :meth:`solve` is invalid."""
         y_ref, z_ref, g = self._y, self._z, self._g
         rhs = []
         for my, mz, zr in zip(m_y, m_z, z_ref):

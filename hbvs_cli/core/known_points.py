@@ -1,11 +1,5 @@
-"""The target's known layout matched to its detected points.
-
-``--target-points`` gives the target points' positions in the wall's plane in any order;
-the detector gives them in its own (dots: the first frame's rows and columns). Seen from
-F*, the plane's points map to the image by a homography, so the right order is the one
-under which one homography carries the layout onto the image points.
-:func:`match_layout` finds it.
-"""
+"""The target's known layout (``--target-points``, any order) matched to its detected points:
+the right order is the one under which one homography carries the layout onto the image."""
 
 from __future__ import annotations
 
@@ -80,15 +74,12 @@ def _spread_corners(points: NDArray[np.float64]) -> list[int]:
 
 
 def match_layout(layout: ArrayLike, image: ArrayLike) -> NDArray[np.intp]:
-    """The order (N,) such that ``layout[order]`` (points in the wall's plane, (N, 2), any
-    unit) is in the order of ``image`` (the same points as seen, (N, 2), e.g. F*'s ``(m_y,
-    m_z)``); GeometryError when the counts differ or no homography carries the layout onto
-    the image to :data:`MAX_MATCH_SPREAD` of their spread.
+    """The order (N,) that puts ``layout`` (N, 2), points in the wall's plane in any unit, in
+    the order of ``image`` (N, 2), e.g. F*'s ``(m_y, m_z)``; GeometryError when none fits.
 
-    Four well-spread image points are matched to every ordered four of the layout's (at most
-    5040 for 10 points); each homography carries the layout over, and the least-squares
-    assignment pairs the rest. Three or four points, which any homography matches, are
-    matched by the best similarity, mirror included (a wall seen near face-on).
+    Four well-spread image points are matched to every ordered four of the layout's; each
+    homography carries the layout over and the least-squares assignment pairs the rest. Three
+    or four points, which any homography matches, take the best similarity, mirror included.
     """
     layout = np.asarray(layout, dtype=np.float64)
     image = np.asarray(image, dtype=np.float64)

@@ -1,13 +1,8 @@
-"""Every control law ``hbvs repeat --law`` knows (docs/method.md, "Baselines").
-
-* ``lateral-gain`` (default) and ``paper`` (k_2 = 1): the adaptive law (29)-(31);
-* ``non-adaptive``: (29)-(30) with gamma_1 = 0 (dhat stays dhat(0)): what (31) buys;
-* ``kanayama``: Y. Kanayama, Y. Kimura, F. Miyazaki, T. Noguchi, "A stable tracking control
-  method for an autonomous mobile robot", IEEE ICRA 1990, on the planar pose reconstructed
-  from the homography at a fixed dhat.
-
-Each controller has a ``dhat``, ``step(measured, desired, dt, adapt=True) -> ControlOutput``,
-``adapt(output, dt)``, ``follow_depth``, ``feedforward(desired)`` and ``hold()``.
+"""Every control law ``hbvs repeat --law`` knows (docs/method.md, "Baselines"): the adaptive
+law (29)-(31) as ``lateral-gain`` (default) or ``paper`` (k_2 = 1); ``non-adaptive``, gamma_1 = 0;
+and ``kanayama`` (Kanayama, Kimura, Miyazaki, Noguchi, IEEE ICRA 1990) on the planar pose
+reconstructed from the homography at a fixed dhat. Each has the methods of
+:class:`~.controller.AdaptiveTrackingController`.
 """
 
 from __future__ import annotations
@@ -29,8 +24,7 @@ ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
 @dataclass(frozen=True)
 class KanayamaGains:
     """Gains of Kanayama et al. (1990), their example: K_x (1/s), K_y (1/m^2), K_theta (1/m)
-    = 2 sqrt(K_y), the linearised lateral error critically damped (at 0.1 m/s it decays at
-    ``v_r sqrt(K_y)`` = 0.8 1/s, near the lateral-gain law's k_w / 2)."""
+    = 2 sqrt(K_y), the linearised lateral error critically damped."""
 
     k_x: float = 10.0
     k_y: float = 64.0
@@ -38,9 +32,8 @@ class KanayamaGains:
 
 
 def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
-    """The gains a law runs with, as recorded in the run file: ``paper`` forces k_2 = 1;
-    ``non-adaptive`` and ``kanayama`` have gamma_1 = 0 (no depth term in V (36)).
-    InvalidValueError for an unknown law."""
+    """The gains a law runs with (recorded in the run file): ``paper`` forces k_2 = 1,
+    ``non-adaptive`` and ``kanayama`` have gamma_1 = 0."""
     if law in (LAW_PAPER, LAW_LATERAL_GAIN):
         return gains.with_law(law)
     if law in (LAW_NON_ADAPTIVE, LAW_KANAYAMA):
@@ -58,13 +51,8 @@ def make_controller(law: str, gains: ControllerGains, dhat0: float):
 
 
 def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, dhat: float) -> tuple[float, float, float]:
-    """Kanayama's error posture ``(e_x, e_y, e_theta)`` from the homography with a fixed depth.
-
-    With ``x_f = dhat x_h`` the origin of F* seen from the robot (3), (14) and
-    ``theta = phi* - phi`` (4), the desired pose seen from the robot is
-    ``e_xy = dhat (x_h - Rz(e3) x_hd)`` (m) and ``e_theta = e3 = theta - theta_d`` (rad)
-    (docs/method.md, "Baselines").
-    """
+    """Kanayama's error posture: the desired pose seen from the robot, ``e_xy = dhat (x_h -
+    Rz(e3) x_hd)`` (m) with ``x_f = dhat x_h`` (3), (14), and ``e_theta = e3`` (rad)."""
     e3 = float(tracking_errors(measured, desired).e3)
     c, s = math.cos(e3), math.sin(e3)
     x_hd1, x_hd2 = float(desired.x_hd1), float(desired.x_hd2)
@@ -74,16 +62,15 @@ def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, d
 
 
 class KanayamaController:
-    """Kanayama et al. (1990) on the pose reconstructed at the fixed depth ``dhat`` (m,
-    dhat(0) of the run): ``v = v_r cos e_theta + K_x e_x``, ``w = w_r + v_r (K_y e_y +
-    K_theta sin e_theta)``, with the reference commands (25) of :meth:`feedforward`."""
+    """Kanayama et al. (1990) at the fixed depth ``dhat`` (m): ``v = v_r cos e_theta + K_x e_x``,
+    ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``, (v_r, w_r) from :meth:`feedforward`."""
 
-    def __init__(self, dhat: float, gains: KanayamaGains | None = None) -> None:
+    def __init__(self, dhat: float) -> None:
         self.dhat = check_depth(dhat, "the depth estimate dhat0")
-        self.gains = gains or KanayamaGains()
+        self.gains = KanayamaGains()
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
-        """Commands for this instant (``dt`` and ``adapt`` are unused: nothing adapts)."""
+        """Commands for this instant (nothing adapts)."""
         e_x, e_y, e_theta = reconstructed_tracking_error(measured, desired, self.dhat)
         v_r, w_r = self.feedforward(desired)
         g = self.gains
@@ -98,7 +85,7 @@ class KanayamaController:
         """Nothing to learn: the depth estimate stays fixed."""
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
-        """The reference commands (25): ``w_r = -theta_d_dot``, ``v_r = dhat (x_hd2 w_r - x_hd1_dot)``."""
+        """The reference commands (25), as :meth:`~.controller.AdaptiveTrackingController.feedforward`."""
         w_r = -float(desired.theta_d_dot)
         return self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot)), w_r
 

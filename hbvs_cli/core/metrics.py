@@ -1,9 +1,6 @@
-"""Statistics and convergence measures of a run: numpy in, plain Python numbers out.
-
-Functions take step times ``t`` (s, shape (K,)) and a per-step signal (K,), and leave out
-NaN samples: a lost target has no measured error, and averaging a guess in would hide the
-loss. Results are ``float``, or ``None`` without a valid sample (JSON-ready). The statistics
-are evo's (``std`` with ddof = 0); docs/report.md defines each.
+"""Statistics and convergence measures of a run (docs/report.md): step times ``t`` (s, (K,))
+and per-step signals (K,) in, ``float`` or ``None`` (no valid sample) out. NaN samples are left
+out: a lost target has no measured error. The statistics are evo's (``std`` with ddof = 0).
 """
 
 from __future__ import annotations
@@ -40,11 +37,7 @@ def valid_samples(t: ArrayLike, x: ArrayLike) -> tuple[NDArray[np.float64], NDAr
 
 
 def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
-    """``rmse, mean, median, std, min, max`` of the finite samples (units of ``x``).
-
-    ``std`` is the population standard deviation (ddof = 0), as in evo. Every value is
-    ``None`` when no sample is finite.
-    """
+    """``rmse, mean, median, std, min, max`` of the finite samples (units of ``x``)."""
     x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]
     if x.size == 0:
@@ -79,11 +72,8 @@ def final_value(t: ArrayLike, x: ArrayLike, fraction: float = FINAL_WINDOW_FRACT
 
 
 def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
-    """Time (s, from the run's first step) after which ``|x| <= tolerance`` until the end.
-
-    The time of the first valid sample after the last one outside the band; ``None`` when
-    the last valid sample is outside it (it never settled).
-    """
+    """Time (s, from the run's first step) of the first valid sample after the last one with
+    ``|x| > tolerance``; ``None`` if the last valid sample is outside (it never settled)."""
     t = np.asarray(t, dtype=float)
     tv, xv = valid_samples(t, x)
     if xv.size == 0:
@@ -107,12 +97,8 @@ def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, flo
 
 
 def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dict[str, float | None]:
-    """How the Lyapunov function (36) evolved.
-
-    ``initial`` and ``final`` valid V, ``ratio`` = final / initial and ``increase_fraction``:
-    the share of adjacent valid pairs where V rose by more than ``relative * V(0)``. V is NaN
-    where unknown (lost target, or no ground-truth d*).
-    """
+    """``initial`` and ``final`` valid V (36), their ``ratio`` and ``increase_fraction``: the
+    share of adjacent valid pairs where V rose by more than ``relative * V(0)``."""
     V = np.asarray(V, dtype=float)
     finite = V[np.isfinite(V)]
     if finite.size == 0:
@@ -138,10 +124,7 @@ def step_durations(t: ArrayLike) -> NDArray[np.float64]:
 
 
 def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
-    """Duration (s) of the longest stretch of consecutive ``True`` steps (0 if none).
-
-    Each step counts for :func:`step_durations`, so n flagged steps at rate f last n / f.
-    """
+    """Duration (s) of the longest stretch of consecutive ``True`` steps (:func:`step_durations`)."""
     flags = np.asarray(flags, dtype=bool)
     durations = step_durations(t)
     longest = current = 0.0
@@ -183,10 +166,7 @@ def sample_rate_hz(t: ArrayLike) -> float | None:
 
 
 def round_significant(value: Any, digits: int) -> Any:
-    """``value`` with every float rounded to ``digits`` significant digits.
-
-    Dicts, lists and tuples are rebuilt; everything but finite floats is kept as it is.
-    """
+    """``value`` with every finite float, in dicts, lists and tuples too, rounded to ``digits`` significant digits."""
     if isinstance(value, dict):
         return {key: round_significant(item, digits) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
@@ -196,14 +176,8 @@ def round_significant(value: Any, digits: int) -> Any:
     return value
 
 
-def command_smoothness(
-    t: ArrayLike,
-    v: ArrayLike,
-    w: ArrayLike,
-    max_v: float | None = None,
-    max_w: float | None = None,
-    max_accel: float | None = None,
-) -> dict[str, float | None]:
+def command_smoothness(t: ArrayLike, v: ArrayLike, w: ArrayLike, max_v: float | None = None, max_w: float | None = None,
+                       max_accel: float | None = None) -> dict[str, float | None]:
     """How smooth a command stream is (docs/report.md, ``commands``).
 
     ``v``, ``w`` in m/s, rad/s and the actuator limits (None: unlimited). Returns the total

@@ -1,9 +1,6 @@
-"""Teach-pendant command profiles: what the operator sends while teaching a path.
-
-Each (v, w) command is held until the next one starts: every segment is an arc, so the
-taught run's ground-truth pose is exact (:mod:`.unicycle`). The :data:`PRESETS` keep the
-default world's target in view and x_hd1_dot away from zero, condition (35).
-"""
+"""Teach-pendant command profiles: each (v, w) is held until the next, so every segment is an
+arc and the taught pose is exact. The :data:`PRESETS` keep the default target in view and
+x_hd1_dot away from zero, condition (35)."""
 
 from __future__ import annotations
 
@@ -80,12 +77,8 @@ def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, A
     steps = max(1, int(round(duration * rate)))
     t = np.arange(steps) / rate
     v, w = function(t)
-    return CommandProfile(
-        t=t,
-        v=np.broadcast_to(np.asarray(v, dtype=float), t.shape).copy(),
-        w=np.broadcast_to(np.asarray(w, dtype=float), t.shape).copy(),
-        t_end=steps / rate,
-    )
+    v, w = (np.broadcast_to(np.asarray(values, dtype=float), t.shape).copy() for values in (v, w))
+    return CommandProfile(t=t, v=v, w=w, t_end=steps / rate)
 
 
 def _straight(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
@@ -114,30 +107,14 @@ class PathPreset:
 PRESETS: dict[str, PathPreset] = {
     preset.name: preset
     for preset in (
-        PathPreset(
-            "straight",
-            "straight approach toward the target at 0.1 m/s for 20 s (4 m -> 2 m from it)",
-            _straight,
-            20.0,
-            (0.0, 0.0, 0.0),
-        ),
-        PathPreset(
-            "s-curve",
-            "S-curve toward the target: 0.1 m/s, w = 0.045 cos(2 pi t / 20 s) rad/s (heading +-8 deg), 20 s",
-            _s_curve,
-            20.0,
-            (0.0, -0.05, 0.0),
-        ),
-        PathPreset(
-            "arc",
-            "arc toward the target: 0.1 m/s, w = -0.012 rad/s, 20 s, starting 0.35 m left, heading 8 deg left",
-            _arc,
-            20.0,
-            (0.0, 0.35, np.radians(8.0)),
-        ),
+        PathPreset("straight", "straight approach toward the target at 0.1 m/s for 20 s (4 m -> 2 m from it)",
+                   _straight, 20.0, (0.0, 0.0, 0.0)),
+        PathPreset("s-curve", "S-curve toward the target: 0.1 m/s, w = 0.045 cos(2 pi t / 20 s) rad/s (heading +-8 deg), 20 s",
+                   _s_curve, 20.0, (0.0, -0.05, 0.0)),
+        PathPreset("arc", "arc toward the target: 0.1 m/s, w = -0.012 rad/s, 20 s, starting 0.35 m left, heading 8 deg left",
+                   _arc, 20.0, (0.0, 0.35, np.radians(8.0))),
     )
 }
-
 
 
 def preset_profile(name: str, rate: float, duration: float | None = None) -> tuple[CommandProfile, tuple[float, float, float]]:

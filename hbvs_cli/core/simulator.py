@@ -1,12 +1,9 @@
-"""One control period of the closed loop, shared by the simulated loop and a live robot:
-:class:`ServoStep` decides each frame's command (filter, law, limits, adaptation).
+"""One control period of the closed loop, shared by the simulated loop and a live robot.
 
-A lost target stops the robot and freezes the adaptation until it is back. A dropped frame,
-or a few outliers in a row, hold the last command with the adaptation frozen (stopping for
-one bad frame would only make the robot lag); a dropped frame keeps the lost state of the
-last frame that arrived. With the state filter the law acts on its estimate, and through
-frames without a measurement on its prediction while that stays precise; the update law
-(31) is then the composite one of :meth:`~.controller.AdaptiveTrackingController.adapt`.
+A lost target stops the robot and freezes the adaptation until it is back; a dropped frame,
+or a few outliers in a row, hold the last command (stopping for one bad frame would make the
+robot lag). With the state filter the law acts on its estimate, through frames without a
+measurement on its prediction while that stays precise.
 """
 
 from __future__ import annotations
@@ -55,11 +52,10 @@ class ActuatorLimits:
 
 @dataclass(frozen=True)
 class StepRecord:
-    """What happened in one control period: the measurement's time ``t`` (s), the true
-    ``pose`` (3,) (m, m, rad), the ``observation`` acted on (after any latency), the law's
-    ``output`` (None when lost or dropped), the command sent after limits ``v_c, w_c`` (m/s,
-    rad/s), ``dhat`` (m) before its update, ``target_lost`` (the last frame that arrived did
-    not show it; None: the observation's own) and the filter's ``estimate`` acted on."""
+    """One control period: the measurement's time ``t`` (s), the true ``pose`` (3,) (m, m, rad),
+    the ``observation`` acted on, the law's ``output`` (None when lost or dropped), the command
+    sent ``v_c, w_c`` (m/s, rad/s), ``dhat`` (m) before its update, ``target_lost`` (None: the
+    observation's own) and the filter's ``estimate``."""
 
     t: float
     pose: NDArray[np.float64]
@@ -95,10 +91,9 @@ NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
 
 
 class ServoStep:
-    """One camera frame's decision: filter, law, limits, adaptation (the loop's body). The
-    simulated and the live loop call :meth:`decide` for each frame, then :meth:`sent` once
-    the command is out. ``controller``'s dhat is updated in place; ``latency_steps``: frames
-    between taking a frame and acting on it (the filter carries its estimate over them)."""
+    """One camera frame's decision, filter, law, limits and adaptation: :meth:`decide` for each
+    frame, then :meth:`sent` once the command is out. ``latency_steps``: frames between taking
+    a frame and acting on it."""
 
     def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
                  state_filter: ServoStateFilter | None = None) -> None:
@@ -119,16 +114,12 @@ class ServoStep:
             state_filter.expect_depth(controller.dhat)
 
     def decide(self, t: float, pose: NDArray[np.float64], observation: Observation, desired: DesiredState, dt: float) -> StepRecord:
-        """The command for ``observation`` (taken at ``t``, s) while ``desired`` is wanted.
-
-        ``dt`` (s) is the control period: the time the command will be held. ``pose`` is
-        only recorded (the true pose in simulation, NaN on a robot).
-        """
+        """The command for ``observation`` (taken at ``t``, s), held for the period ``dt`` (s);
+        ``pose`` is only recorded (the true pose in simulation, NaN on a robot)."""
         controller, state_filter, previous = self.controller, self.state_filter, self.previous
         dhat = controller.dhat
         output = None
-        # A dropped frame changes neither the lost state nor the run of rejected frames:
-        # both describe the frames that arrived.
+        # The lost state and the run of rejected frames describe the frames that arrived.
         if observation.status != ObservationStatus.DROPPED:
             self.rejected_in_a_row = self.rejected_in_a_row + 1 if observation.status == ObservationStatus.OUTLIER else 0
             self.target_lost = observation.lost
@@ -139,20 +130,16 @@ class ServoStep:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
             estimate = state_filter.estimate(self.unseen_commands, dt, dhat, previous)
-            # No usable frame (dropped, occluded, rejected): the law acts on the
-            # prediction while it is trusted, with the adaptation frozen.
+            # Without a usable frame the law acts on a trusted prediction, adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
         if estimate is not None and not state_filter.settled:
-            # Soft start: the feedback of (29)-(30) is faded in over the filter's settling
-            # time, from the taught commands (25), while the first frames are averaged.
+            # Soft start: the feedback of (29)-(30) fades in from the taught commands (25).
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_ff, w_ff = controller.feedforward(desired)
             share = state_filter.settling_fraction
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
             if fresh:
-                # (31) waits for the law's feedback, but the depth the motion measures
-                # already sets the pace of the taught commands (docs/method.md).
                 controller.follow_depth((estimate.depth, estimate.depth_pull), dt)
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
@@ -167,9 +154,6 @@ class ServoStep:
         v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
-            # With the filter's depth: the composite law of docs/method.md ("The depth in
-            # the filter"), (31) plus a pull towards the depth the motion measured, eased
-            # while the robot turns onto its path once dhat has met it (scheduled_depth_pull).
             errors, settings = output.errors, state_filter.settings
             self.depth_met = self.depth_met or abs(estimate.depth - controller.dhat) <= settings.depth_met * estimate.depth
             # Kanayama's gains have no k_2; its adapt learns nothing and ignores the pull.
@@ -185,8 +169,7 @@ class ServoStep:
     def sent(self, dt: float) -> None:
         """The last decided command was sent and is held for ``dt`` (s): the filter moves on."""
         if self.state_filter is not None:
-            # The filter's state is at the time its last frame was taken: it moves on with
-            # the command sent then, and the later ones wait (latency).
+            # The filter's state is at its last frame's time: later commands wait (latency).
             self.unseen_commands.append(self.previous)
             if len(self.unseen_commands) > self.latency_steps:
                 self.state_filter.predict(*self.unseen_commands.popleft(), dt)

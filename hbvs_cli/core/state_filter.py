@@ -1,20 +1,12 @@
-"""A Kalman filter on the servo state (theta, x_h1, x_h2) and the inverse depth rho = 1/d*,
-between the camera and the law (docs/method.md, "State filter").
+"""A Kalman filter on (theta, x_h1, x_h2) and the inverse depth rho = 1/d*, between the
+camera and the law (docs/method.md, "State filter"): the lateral gain k_2 would multiply a
+real detector's noise into the commands.
 
-The paper feeds the law (29)-(31) the raw decomposition of every frame; with a real
-detector's noise the lateral gain k_2 multiplies it into the commands. This filter:
-
-* **predicts** with the kinematics (5), (23) integrated exactly for a command (v, w) held
-  over ``dt`` (an arc): ``theta' = theta - w dt``, ``x_h' = Rz(-w dt) (x_h - [dx, dy] rho)``,
-  ``rho' = rho``; linear in rho, so the motion the camera sees measures the depth. Process
-  noise: a white velocity error on v and w.
-* **corrects** with the known-normal solver's (theta, x_h1, x_h2), of covariance
-  ``sigma^2 (J^T J)^-1`` (J: Jacobian of the N normalised points with respect to the state),
-  the Gauss-Newton linearisation of a correction with the 2N coordinates themselves;
-* **learns sigma** from the solver's RMS residual r, ``E[r^2] = sigma^2 (2N - 3) / (2N)``,
-  as an exponentially weighted mean starting from the fit's residual;
-* **gates outliers** by the squared Mahalanobis distance of the innovation (3 dof); after
-  ``reset_after`` rejections in a row it restarts from the frame, keeping its depth.
+It predicts with (5), (23) integrated over a held command (an arc),
+``x_h' = Rz(-w dt) (x_h - [dx, dy] rho)``, linear in rho, so the motion measures the depth;
+corrects with the known-normal solver's state of covariance ``sigma^2 (J^T J)^-1``; learns
+sigma from the solver's RMS residual r, ``E[r^2] = sigma^2 (2N - 3) / (2N)``; and gates
+outliers by the innovation's Mahalanobis distance, restarting after ``reset_after`` in a row.
 """
 
 from __future__ import annotations
@@ -28,6 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidValueError
 from .controller import Measurement
+from .depth import check_depth
 from .frames import wrap_angle
 from .known_normal import normal_equations, point_jacobian
 from .labels import Label
@@ -37,8 +30,7 @@ from .labels import Label
 CHI2_3DOF_999 = 16.266
 
 class FilterOutcome(Label):
-    """What the state filter did with a frame; the values are the words run files record
-    (``filter``)."""
+    """What the state filter did with a frame (run files' ``filter``)."""
 
     FUSED = "fused"
     #: Rejected as an outlier.
@@ -56,33 +48,31 @@ class FilterSettings:
     Attributes
     ----------
     speed_noise, turn_noise : float
-        Spectral density of the executed minus the commanded v (m/s/sqrt(Hz)) and w
-        (rad/s/sqrt(Hz)).
+        Spectral density of executed minus commanded v (m/s/sqrt(Hz)) and w (rad/s/sqrt(Hz)).
     depth_prior : float
-        Relative standard deviation of the starting 1/dhat(0): 1 admits dhat(0) from d*/4
-        (0.75 sigma) to 4 d* (3 sigma).
-    depth_trust : float
-        Relative standard deviation of the filter's depth at which dhat is pulled towards
-        it at half ``depth_pull_rate`` (1/s) (docs/method.md, "The depth in the filter").
-    lateral_settled : float
-        Lateral error ``sqrt(k_2 ebar2^2 + e3^2)`` (rad) halving the pull once dhat has met
-        the filter's depth within the relative gap ``depth_met`` (:func:`scheduled_depth_pull`).
+        Relative standard deviation of the starting 1/dhat(0).
+    depth_trust, depth_pull_rate : float
+        Relative std of the filter's depth at which dhat is pulled towards it at half
+        ``depth_pull_rate`` (1/s).
+    lateral_settled, depth_met : float
+        Lateral error (rad) halving the pull once dhat is within the relative gap
+        ``depth_met`` of the filter's depth (:func:`scheduled_depth_pull`).
     gate, reset_after : float, int
         Squared Mahalanobis distance beyond which a frame is rejected; rejections in a row
         after which the filter restarts from the frame.
     noise_time_constant : float
         Time constant (s) of the running estimate of the detector's noise.
-    settle_time, fade_time : float
-        Seconds of frames fused (the robot holding still) before the law gets the estimate,
-        then seconds over which its feedback fades in from the taught commands (25); both
-        shrink in proportion to the noise variance below ``settle_noise`` (normalised units).
+    settle_time, fade_time, settle_noise : float
+        Seconds of fused frames before the law gets the estimate, then seconds over which
+        its feedback fades in from the taught commands (25); both shrink with the noise
+        variance below ``settle_noise`` (normalised units).
     coast_theta_std, coast_x_h_std : float
-        While the target is not seen the law acts on the prediction while its standard
-        deviations stay within these (rad, units of d*); beyond them the robot stops.
+        Without a frame the law acts on the prediction while its stds stay within these
+        (rad, units of d*); beyond them the robot stops.
     residual_quantile : float
-        A frame whose residual is beyond this quantile of its chi^2 distribution is rejected.
+        Quantile of the residual's chi^2 distribution beyond which a frame is rejected.
     min_noise : float
-        Floor of the measurement noise (normalised units): no detector is better.
+        Floor of the measurement noise (normalised units).
     """
 
     speed_noise: float = 0.0005
@@ -103,39 +93,13 @@ class FilterSettings:
     fade_time: float = 2.0
     settle_noise: float = 4e-4
 
-    def __post_init__(self) -> None:
-        for name in ("speed_noise", "turn_noise", "depth_prior", "depth_trust", "depth_pull_rate",
-                     "lateral_settled", "depth_met", "noise_time_constant", "min_noise", "gate"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise InvalidValueError(f"filter setting {name} must be a non-negative number, got {value}")
-        if self.reset_after < 1:
-            raise InvalidValueError("filter setting reset_after must be at least 1")
-
 
 @dataclass(frozen=True)
 class FilterEstimate:
-    """The filter's state at one instant.
-
-    Attributes
-    ----------
-    measurement : Measurement
-        The estimate of (theta, x_h1, x_h2) (rad, dimensionless), what the law acts on.
-    std : ndarray, shape (3,)
-        Standard deviations of theta (rad), x_h1, x_h2.
-    rate : ndarray, shape (3,)
-        Its time derivative (rad/s, 1/s, 1/s) from (5), (23) with the command being sent
-        and the filter's depth: the derivative consistent with the estimate.
-    noise : float
-        Current estimate of the detector's per-coordinate noise (normalised units).
-    outcome : FilterOutcome
-        What the last frame did.
-    depth : float
-        The filter's depth 1 / rho (m).
-    depth_pull : float
-        The rate (1/s) at which the update law may pull dhat towards ``depth``
-        (:meth:`ServoStateFilter.depth_pull`).
-    """
+    """The filter's estimate at one instant: ``measurement`` (theta, x_h1, x_h2) the law acts
+    on, their ``std`` (3,) and time derivative ``rate`` (3,) by (5), (23) under the command
+    being sent (rad/s, 1/s, 1/s), the detector's ``noise`` (normalised units), the last
+    frame's ``outcome``, the ``depth`` 1/rho (m) and ``depth_pull`` (1/s, :meth:`~ServoStateFilter.depth_pull`)."""
 
     measurement: Measurement
     std: NDArray[np.float64]
@@ -148,17 +112,13 @@ class FilterEstimate:
 
 def scheduled_depth_pull(pull: float, ebar2: float, e3: float, k_2: float, settings: FilterSettings,
                          met: bool = True) -> float:
-    """The rate kappa (1/s) of the composite update law's pull towards the filter's depth.
+    """The rate kappa (1/s) of the pull in ``dhat_dot = (31) + kappa (d_f - dhat)`` towards
+    the filter's depth d_f.
 
-    The update law is ``dhat_dot = gamma_1 e1 (x_h2 w_c - x_hd1_dot) + kappa (d_f - dhat)``
-    ((31) plus a pull). Until dhat has ``met`` the filter's depth d_f, ``kappa = pull``
-    (:attr:`FilterEstimate.depth_pull`). After, ``kappa = pull / (1 + (l / l_0)^2)`` with
-    ``l = sqrt(k_2 ebar2^2 + e3^2)`` (the lateral part of V (36); ebar2, e3 of (27)) and
-    ``l_0 = lateral_settled``: while the law turns the robot onto its path, (31) moves dhat
-    away from d* and back, and a stiff pull there would slow the lateral mode.
-
-    Any ``kappa >= 0`` keeps the Lyapunov argument: the pull adds ``-(kappa / gamma_1) d~^2
-    <= 0`` to V_dot (38) when d_f = d* (docs/method.md, "The depth in the filter").
+    Until dhat has ``met`` d_f, ``kappa = pull``; after, ``pull / (1 + (l / lateral_settled)^2)``
+    with ``l = sqrt(k_2 ebar2^2 + e3^2)``, the lateral part of V (36): while the robot turns onto
+    its path (31) moves dhat away and back, and a stiff pull would slow that. Any kappa >= 0 adds
+    ``-(kappa / gamma_1) d~^2`` to V_dot (38) when d_f = d* (docs/method.md).
     """
     lateral0 = settings.lateral_settled
     if pull <= 0.0 or not met or lateral0 <= 0.0:
@@ -187,17 +147,8 @@ def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float)
 
 
 def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float64], state: ArrayLike) -> NDArray[np.float64]:
-    """``J^T J`` of the N normalised image points with respect to (theta, x_h1, x_h2).
-
-    Each point is ``m_i = [1, q1 / q0, m*_iz / q0]`` with ``q0 = c - s m*_iy + x_h1 g_i``,
-    ``q1 = s + c m*_iy + x_h2 g_i`` and ``g_i = n*^T m*_i`` (docs/method.md, known-normal
-    solver). Divided by the per-coordinate noise variance this is the information a frame
-    carries about the state.
-
-    Returns
-    -------
-    ndarray, shape (3, 3)
-    """
+    """``J^T J`` (3, 3) of the N normalised image points (:func:`~.known_normal.point_jacobian`)
+    with respect to (theta, x_h1, x_h2): over the noise variance, a frame's information."""
     theta, x1, x2 = (float(s) for s in state)
     g = m_ref @ normal
     _, _, _, jy_t, jy_1, jy_2, jz_t, jz_1 = point_jacobian(math.cos(theta), math.sin(theta), m_ref[:, 1], m_ref[:, 2], g, x1, x2)
@@ -208,11 +159,9 @@ def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float
     return jacobian.T @ jacobian
 
 
-# --------------------------------------------------------------------------- small algebra
-# The filter runs every control period; in plain floats a 4-state update costs a fraction
-# of numpy's per-call overhead. A symmetric 3x3 is the 6-tuple (a00, a01, a02, a11, a12,
-# a22); the filter's 4x4 covariance of (theta, x_h1, x_h2, rho) the 10-tuple (p00, p01, p02,
-# p03, p11, p12, p13, p22, p23, p33).
+# Plain floats: numpy's per-call overhead would dominate a 4-state update every period. A
+# symmetric 3x3 is the 6-tuple of its upper triangle, the 4x4 covariance of (theta, x_h1,
+# x_h2, rho) the 10-tuple (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33).
 Sym3 = tuple[float, float, float, float, float, float]
 Sym4 = tuple[float, float, float, float, float, float, float, float, float, float]
 Vec3 = tuple[float, float, float]
@@ -248,39 +197,27 @@ _SYM4_ENTRIES = ((0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3), (2, 2),
 
 
 def residual_to_variance(points: int) -> float:
-    """``sigma^2 / r^2`` for the RMS residual r of the known-normal solve of ``points``
-    points: ``E[r^2] = sigma^2 (2N - 3) / (2N)``, three parameters fitted to 2N coordinates."""
+    """``sigma^2 / r^2`` for the RMS residual r of a known-normal solve of N ``points``: three
+    parameters fitted to 2N coordinates."""
     return 2.0 * points / max(2.0 * points - 3.0, 1.0)
 
 
-#: The filter's inverse depth stays within this factor of its prior either way: a bound
-#: the motion never reaches, that keeps 1/rho finite whatever a wild frame does.
+#: The inverse depth stays within this factor of its prior: 1/rho finite after a wild frame.
 INVERSE_DEPTH_RANGE = 100.0
 
 
 class ServoStateFilter:
-    """Extended Kalman filter on (theta, x_h1, x_h2, 1/d*) (module docstring; docs/method.md).
+    """Extended Kalman filter on (theta, x_h1, x_h2, 1/d*) (module docstring).
 
-    Parameters
-    ----------
-    m_ref : array_like, shape (N, 3)
-        Reference normalised points m*_i.
-    normal : array_like, shape (3,)
-        Plane normal n* in F*.
-    noise : float
-        Initial per-coordinate noise of the detector, in normalised image units (pixels
-        divided by the focal length); the residuals refine it as the run goes.
-    settings : FilterSettings, optional
-    depth : float, optional
-        The depth guess (m) the filter starts from, dhat(0); :meth:`expect_depth` sets it
-        later (before the first frame).
+    ``m_ref`` (N, 3): m*_i; ``normal`` (3,): n* in F*; ``noise``: the detector's initial
+    per-coordinate noise (normalised units), refined by the residuals; ``depth``: dhat(0) (m),
+    or later by :meth:`expect_depth`.
     """
 
-    def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, settings: FilterSettings | None = None,
-                 depth: float | None = None) -> None:
+    def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, depth: float | None = None) -> None:
         self.m_ref = np.asarray(m_ref, dtype=float)
         self.normal = np.asarray(normal, dtype=float)
-        self.settings = settings or FilterSettings()
+        self.settings = FilterSettings()
         if not (math.isfinite(noise) and noise >= 0.0):
             raise InvalidValueError(f"the initial measurement noise must be a non-negative number, got {noise}")
         points = self.m_ref.shape[0]
@@ -304,13 +241,10 @@ class ServoStateFilter:
         self.fused_time = 0.0
 
     def expect_depth(self, depth: float) -> None:
-        """Start the filter's inverse depth at ``1 / depth`` (m), with the relative standard
-        deviation ``depth_prior``; only before the first frame."""
+        """Start the inverse depth at ``1 / depth`` (m); only before the first frame."""
         if self._state is not None:
             return
-        if not (math.isfinite(depth) and depth > 0.0):
-            raise InvalidValueError(f"the filter's depth guess must be a positive depth in metres, got {depth}")
-        self._rho_prior = 1.0 / depth
+        self._rho_prior = 1.0 / check_depth(depth, "the filter's depth guess")
         self._rho_range = (self._rho_prior / INVERSE_DEPTH_RANGE, self._rho_prior * INVERSE_DEPTH_RANGE)
 
     @property
@@ -325,16 +259,6 @@ class ServoStateFilter:
             return None
         p00, p01, p02, _, p11, p12, _, p22, _, _ = self._covariance
         return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
-
-    @property
-    def depth(self) -> float:
-        """The filter's depth 1 / rho (m); NaN before a depth is expected."""
-        rho = self._rho_prior if self._state is None else self._state[3]
-        return 1.0 / rho if rho > 0.0 else math.nan
-
-    @property
-    def started(self) -> bool:
-        return self._state is not None
 
     def trusted(self, estimate: FilterEstimate | None) -> bool:
         """Whether a prediction is good enough to act on without a frame."""
@@ -357,8 +281,8 @@ class ServoStateFilter:
         return self._state is not None and self.fused_time >= sum(self._settle_times()) - 1e-9
 
     def _settle_times(self) -> tuple[float, float]:
-        """Settle and fade times, shrunk by (noise / settle_noise)^2 for a clean camera:
-        the number of frames needed to average the noise down scales so."""
+        """Settle and fade times, shrunk by (noise / settle_noise)^2: the frames needed to
+        average the noise down."""
         scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
         return self.settings.settle_time * scale, self.settings.fade_time * scale
 
@@ -367,13 +291,9 @@ class ServoStateFilter:
         """Current per-coordinate measurement noise (normalised units)."""
         return math.sqrt(self.noise_variance)
 
-    # ------------------------------------------------------------------ prediction
-    def predict(self, v: float, w: float, dt: float, depth: float | None = None) -> None:
-        """Advance the estimate over a command (v, w) held for dt, at the filter's own depth
-        (``depth``, dhat (m), only seeds it before the first frame: :meth:`expect_depth`)."""
+    def predict(self, v: float, w: float, dt: float) -> None:
+        """Advance the estimate over a command (v, w) held for dt."""
         if self._state is None:
-            if depth is not None:
-                self.expect_depth(depth)
             return
         self._state, self._covariance = self._predicted(self._state, self._covariance, v, w, dt)
 
@@ -412,27 +332,9 @@ class ServoStateFilter:
             p33,
         )
 
-    def _carried(self, commands: list[tuple[float, float]], dt: float) -> tuple[State, Sym4] | None:
-        if self._state is None:
-            return None
-        state, covariance = self._state, self._covariance
-        for v, w in commands:
-            state, covariance = self._predicted(state, covariance, v, w, dt)
-        return state, covariance
-
-    # ------------------------------------------------------------------ correction
     def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
-        """Fuse one frame's measurement; returns FUSED, GATED or STARTED.
-
-        Parameters
-        ----------
-        measured : Measurement
-            The known-normal solver's (theta, x_h1, x_h2) of this frame.
-        residual : float
-            Its RMS residual over the 2N point coordinates (normalised units).
-        dt : float
-            Time since the previous frame (s), for the running noise estimate.
-        """
+        """Fuse a frame's known-normal solution and its RMS ``residual`` (normalised units),
+        ``dt`` (s) after the previous frame; returns FUSED, GATED or STARTED."""
         if math.isfinite(residual) and self._state is not None:
             # The residual alone tells a wrong point: r^2 2N / sigma^2 ~ chi^2(2N - 3).
             ratio = residual * residual * self._residual_to_variance / self.noise_variance
@@ -490,8 +392,7 @@ class ServoStateFilter:
         (``observed``: :meth:`_observed` of it, when already computed)."""
         self.rejected_in_a_row += 1
         if self.rejected_in_a_row >= self.settings.reset_after:
-            # The camera, not the detector, changed (or the filter diverged): start over,
-            # noise included.
+            # The camera, not the detector, changed (or the filter diverged): start over.
             if math.isfinite(residual):
                 self.noise_variance = max(residual * residual * self._residual_to_variance, self.settings.min_noise**2)
             observed = observed or self._observed(measured)
@@ -506,8 +407,7 @@ class ServoStateFilter:
 
     def _start(self, z: Vec3, covariance: Sym3, residual: float, dt: float) -> FilterOutcome:
         if self._state is None and math.isfinite(residual):
-            # The first frame's own residual beats a prior from other images (the taught
-            # ones may have been cleaner than this camera).
+            # The first frame's own residual beats a prior from the (maybe cleaner) taught images.
             sample = residual * residual * self._residual_to_variance
             if sample > self.noise_variance:
                 covariance = tuple(value * (sample / self.noise_variance) for value in covariance)
@@ -530,16 +430,13 @@ class ServoStateFilter:
         return FilterOutcome.STARTED
 
     def _learn_noise(self, residual: float, dt: float) -> None:
-        if not math.isfinite(residual):
-            return
         weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
         sample = residual * residual * self._residual_to_variance
         self.noise_variance += weight * (sample - self.noise_variance)
         self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
 
-    # ------------------------------------------------------------------ output
     def depth_pull(self) -> float:
-        """The rate (1/s) at which the update law may pull dhat towards :attr:`depth`:
+        """The rate (1/s) at which the update law may pull dhat towards the filter's depth:
         ``depth_pull_rate / (1 + (relative std / depth_trust)^2)``."""
         if self._state is None or self.settings.depth_pull_rate <= 0.0:
             return 0.0
@@ -550,15 +447,16 @@ class ServoStateFilter:
 
     def estimate(self, commands: Collection[tuple[float, float]], dt: float, depth: float | None,
                  command: tuple[float, float]) -> FilterEstimate | None:
-        """The estimate now: carried over ``commands`` sent since the last frame was taken
-        (latency), at the filter's own depth, with its derivative (5), (23) under ``command``
-        (the last one sent). ``depth`` (dhat, m) only seeds the filter's depth before its
-        first frame (:meth:`expect_depth`)."""
+        """The estimate carried over the ``commands`` sent since the last frame was taken
+        (latency), with its derivative under ``command``, the last one sent. ``depth`` (dhat,
+        m) only seeds the filter's depth before its first frame."""
         if self._state is None:
             if depth is not None:
                 self.expect_depth(depth)
             return None
-        state, p = self._carried(commands, dt) if commands else (self._state, self._covariance)
+        state, p = self._state, self._covariance
+        for v, w in commands:
+            state, p = self._predicted(state, p, v, w, dt)
         theta, x1, x2, rho = state
         depth = 1.0 / rho
         v, w = command

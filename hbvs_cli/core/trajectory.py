@@ -1,17 +1,14 @@
-"""The desired trajectory: smooth theta_d(t), x_hd(t) and their derivatives (Remark 1).
+"""The desired trajectory theta_d(t), x_hd(t) and its derivatives (Remark 1).
 
-Cubic smoothing splines of theta_d (unwrapped) and x_hd1, smoothing by generalised
-cross-validation (:mod:`.gcv`) or given, so that the feed-forward terms of (29)-(31) are
-bounded without differencing noisy samples. x_hd2 is not fitted on its own: it is
-``x_hd2_dot = x_hd1 theta_d_dot`` (25) integrated exactly, plus one fitted constant, because
-(38) needs that relation (a few per cent off, amplified by k_2, makes V rise).
-:class:`TaughtPathTrajectory` gives the exact signals of a simulated taught run (ground
-truth). Outside ``[t_start, t_end]`` trajectories hold their end values, derivatives zero.
+Cubic smoothing splines of theta_d (unwrapped) and x_hd1 give bounded feed-forward terms.
+x_hd2 is ``x_hd2_dot = x_hd1 theta_d_dot`` (25) integrated exactly plus one fitted constant:
+(38) needs that relation, and k_2 amplifies any mismatch. Outside ``[t_start, t_end]``
+trajectories hold their end values with zero derivatives.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -36,8 +33,8 @@ class DesiredTrajectory(Protocol):
         ...
 
 
-#: Largest spline coefficient accepted when a trajectory is read: theta_d is in radians and
-#: x_hd1 in units of d*, so a real fit stays far below; 1e308 made every command infinite.
+#: Largest spline coefficient a file may hold (theta_d in rad, x_hd1 in units of d*): a real
+#: fit stays far below, and a huge one makes every command infinite.
 MAX_SPLINE_COEFFICIENT = 1e6
 
 
@@ -69,14 +66,8 @@ class SplineTrajectory:
     derived x_hd2 minus its samples.
     """
 
-    def __init__(
-        self,
-        channels: dict[str, SplineChannel],
-        x_hd2_offset: float,
-        t_start: float,
-        t_end: float,
-        x_hd2_residual_rms: float = float("nan"),
-    ) -> None:
+    def __init__(self, channels: dict[str, SplineChannel], x_hd2_offset: float, t_start: float, t_end: float,
+                 x_hd2_residual_rms: float = float("nan")) -> None:
         missing = [c for c in CHANNELS if c not in channels]
         if missing:
             raise MalformedDataError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
@@ -104,36 +95,15 @@ class SplineTrajectory:
         theta_d_dot = np.where(inside, self._derivatives["theta_d"](clamped), 0.0)
         x_hd1_dot = np.where(inside, self._derivatives["x_hd1"](clamped), 0.0)
         x_hd2 = self.x_hd2_offset + self._x_hd2_integral(clamped) - self._x_hd2_origin
-        return DesiredState(
-            theta_d=_scalar(theta_d),
-            x_hd1=_scalar(x_hd1),
-            x_hd2=_scalar(x_hd2),
-            theta_d_dot=_scalar(theta_d_dot),
-            x_hd1_dot=_scalar(x_hd1_dot),
-            x_hd2_dot=_scalar(x_hd1 * theta_d_dot),
-        )
+        return _desired_state(theta_d, x_hd1, x_hd2, theta_d_dot, x_hd1_dot, x_hd1 * theta_d_dot)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description: knots and coefficients of every channel."""
-        return {
-            "t_start": self.t_start,
-            "t_end": self.t_end,
-            "degree": 3,
-            "channels": {
-                name: {
-                    "knots": ch.knots.tolist(),
-                    "coefficients": ch.coefficients.tolist(),
-                    "smoothing": ch.smoothing,
-                    "residual_rms": ch.residual_rms,
-                }
-                for name, ch in self.channels.items()
-            },
-            "x_hd2": {
-                "derived_from": "(25): x_hd2_dot = x_hd1 theta_d_dot",
-                "value_at_t_start": self.x_hd2_offset,
-                "residual_rms": self.x_hd2_residual_rms,
-            },
-        }
+        channels = {name: {"knots": ch.knots.tolist(), "coefficients": ch.coefficients.tolist(), "smoothing": ch.smoothing,
+                           "residual_rms": ch.residual_rms} for name, ch in self.channels.items()}
+        x_hd2 = {"derived_from": "(25): x_hd2_dot = x_hd1 theta_d_dot", "value_at_t_start": self.x_hd2_offset,
+                 "residual_rms": self.x_hd2_residual_rms}
+        return {"t_start": self.t_start, "t_end": self.t_end, "degree": 3, "channels": channels, "x_hd2": x_hd2}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "SplineTrajectory":
@@ -154,22 +124,13 @@ class SplineTrajectory:
                 if np.any(np.abs(coefficients) > MAX_SPLINE_COEFFICIENT):
                     raise ValueError(f"channel {name}: coefficients beyond +-{MAX_SPLINE_COEFFICIENT:g} (radians, or units of d*)")
                 knots_of.append(knots)
-                channels[name] = SplineChannel(
-                    knots=knots,
-                    coefficients=coefficients,
-                    smoothing=float(raw.get("smoothing", float("nan"))),
-                    residual_rms=float(raw.get("residual_rms", float("nan"))),
-                )
+                channels[name] = SplineChannel(knots, coefficients, float(raw.get("smoothing", float("nan"))),
+                                               float(raw.get("residual_rms", float("nan"))))
             if knots_of[0].shape != knots_of[1].shape or not np.allclose(knots_of[0], knots_of[1]):
                 raise ValueError("theta_d and x_hd1 must share their knots")
             x_hd2 = data["x_hd2"]
-            return cls(
-                channels,
-                float(x_hd2["value_at_t_start"]),
-                float(data["t_start"]),
-                float(data["t_end"]),
-                float(x_hd2.get("residual_rms", float("nan"))),
-            )
+            return cls(channels, float(x_hd2["value_at_t_start"]), float(data["t_start"]), float(data["t_end"]),
+                       float(x_hd2.get("residual_rms", float("nan"))))
         except (KeyError, TypeError, ValueError) as exc:
             raise MalformedDataError(f"malformed trajectory model: {exc}") from None
 
@@ -190,8 +151,7 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
 
 
 class TimeScaledTrajectory:
-    """A trajectory played from its start at ``speed`` times its taught pace:
-    ``evaluate(tau) = base.evaluate(base.t_start + speed * tau)``, derivatives times ``speed``."""
+    """``base`` played from its start at ``speed`` times its taught pace (derivatives times ``speed``)."""
 
     def __init__(self, base: DesiredTrajectory, speed: float = 1.0) -> None:
         if not np.isfinite(speed) or speed <= 0.0:
@@ -204,14 +164,8 @@ class TimeScaledTrajectory:
 
     def evaluate(self, t: ArrayLike) -> DesiredState:
         state = self.base.evaluate(self.start + self.speed * np.asarray(t, dtype=float))
-        return DesiredState(
-            theta_d=state.theta_d,
-            x_hd1=state.x_hd1,
-            x_hd2=state.x_hd2,
-            theta_d_dot=np.multiply(state.theta_d_dot, self.speed),
-            x_hd1_dot=np.multiply(state.x_hd1_dot, self.speed),
-            x_hd2_dot=np.multiply(state.x_hd2_dot, self.speed),
-        )
+        return replace(state, theta_d_dot=np.multiply(state.theta_d_dot, self.speed),
+                       x_hd1_dot=np.multiply(state.x_hd1_dot, self.speed), x_hd2_dot=np.multiply(state.x_hd2_dot, self.speed))
 
 
 class TaughtPathTrajectory:
@@ -243,23 +197,17 @@ class TaughtPathTrajectory:
         x_hd1 = x_f[..., 0] / self.d_star
         x_hd2 = x_f[..., 1] / self.d_star
         v, w = self.profile.commands_at(t)
-        return DesiredState(
-            theta_d=_scalar(theta_d),
-            x_hd1=_scalar(x_hd1),
-            x_hd2=_scalar(x_hd2),
-            theta_d_dot=_scalar(-w),
-            x_hd1_dot=_scalar(-v / self.d_star + x_hd2 * w),
-            x_hd2_dot=_scalar(-x_hd1 * w),
-        )
+        return _desired_state(theta_d, x_hd1, x_hd2, -w, -v / self.d_star + x_hd2 * w, -x_hd1 * w)
 
 
-def _scalar(value: ArrayLike) -> Any:
-    array = np.asarray(value, dtype=float)
-    return float(array) if array.ndim == 0 else array
+def _desired_state(*values: ArrayLike) -> DesiredState:
+    """A DesiredState of (theta_d, x_hd1, x_hd2, theta_d_dot, x_hd1_dot, x_hd2_dot), a float for a scalar time."""
+    arrays = [np.asarray(value, dtype=float) for value in values]
+    return DesiredState(*(float(array) if array.ndim == 0 else array for array in arrays))
 
 
 def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
-    """scipy's cubic smoothing spline and its lambda (None: scipy's GCV choice, by :mod:`.gcv`)."""
+    """scipy's cubic smoothing spline and its lambda (None: the GCV choice, :mod:`.gcv`)."""
     from scipy.interpolate import make_smoothing_spline
 
     from .gcv import gcv_smoothing
@@ -272,13 +220,8 @@ def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing:
 MIN_SAMPLES = 5
 
 
-def fit_spline_trajectory(
-    t: ArrayLike,
-    theta_d: ArrayLike,
-    x_hd1: ArrayLike,
-    x_hd2: ArrayLike,
-    smoothing: float | None = None,
-) -> SplineTrajectory:
+def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_hd2: ArrayLike,
+                          smoothing: float | None = None) -> SplineTrajectory:
     """Fit the desired trajectory of Remark 1 to decomposed samples.
 
     Parameters
@@ -291,10 +234,7 @@ def fit_spline_trajectory(
         lambda of both splines (s^3); None: per channel by generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
-    samples = {
-        "theta_d": np.unwrap(np.asarray(theta_d, dtype=float)),
-        "x_hd1": np.asarray(x_hd1, dtype=float),
-    }
+    samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
     x_hd2 = np.asarray(x_hd2, dtype=float)
     if t.ndim != 1 or t.size < MIN_SAMPLES:
         raise InsufficientDataError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
@@ -308,12 +248,7 @@ def fit_spline_trajectory(
             raise MalformedDataError(f"the {name} samples must be finite and as many as the times")
         spline, lam = _smoothing_spline(t, y, smoothing)
         residual = float(np.sqrt(np.mean((spline(t) - y) ** 2)))
-        channels[name] = SplineChannel(
-            knots=np.asarray(spline.t, dtype=float),
-            coefficients=np.asarray(spline.c, dtype=float),
-            smoothing=lam,
-            residual_rms=residual,
-        )
+        channels[name] = SplineChannel(np.asarray(spline.t, dtype=float), np.asarray(spline.c, dtype=float), lam, residual)
     if x_hd2.shape != t.shape or not np.all(np.isfinite(x_hd2)):
         raise MalformedDataError("the x_hd2 samples must be finite and as many as the times")
     # x_hd2 by (25) from the two splines; its one free constant by least squares.
@@ -326,11 +261,9 @@ def fit_spline_trajectory(
 
 @dataclass(frozen=True)
 class FeedforwardCondition:
-    """How well a taught path satisfies condition (35): x_hd1_dot away from zero.
-
-    Minimum and percentiles (p5 ... p95) of |x_hd1_dot| (1/s), and the fraction of the path
-    and longest stretch (s) where it is below ``threshold`` (1/s): stopped.
-    """
+    """Condition (35), x_hd1_dot away from zero, on a taught path: the minimum and percentiles
+    (p5 ... p95) of |x_hd1_dot| (1/s), and the fraction and longest stretch (s) of the path
+    where it is below ``threshold`` (1/s): stopped."""
 
     min_abs_xhd1_dot: float
     percentiles: dict[str, float]
@@ -340,7 +273,7 @@ class FeedforwardCondition:
 
     @property
     def path_stops(self) -> bool:
-        """True when the taught path stops somewhere: e2 cannot converge there."""
+        """True when the path stops somewhere: e2 cannot converge there."""
         return self.stopped_fraction > 0.0
 
 
@@ -360,10 +293,5 @@ def feedforward_condition(trajectory: DesiredTrajectory, t: ArrayLike, threshold
         for flag, step in zip(stopped, dt):
             run = run + step if flag else 0.0
             longest = max(longest, run)
-    return FeedforwardCondition(
-        min_abs_xhd1_dot=float(rate.min()),
-        percentiles={f"p{q}": float(np.percentile(rate, q)) for q in (5, 25, 50, 75, 95)},
-        stopped_fraction=float(np.mean(stopped)),
-        longest_stop_s=float(longest),
-        threshold=threshold,
-    )
+    percentiles = {f"p{q}": float(np.percentile(rate, q)) for q in (5, 25, 50, 75, 95)}
+    return FeedforwardCondition(float(rate.min()), percentiles, float(np.mean(stopped)), float(longest), threshold)

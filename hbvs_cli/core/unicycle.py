@@ -1,13 +1,5 @@
-"""Unicycle kinematics of the wheeled mobile robot, integrated exactly.
-
-Velocity v_c along x, turn rate w_c about z (Sec. II, (21)); commands held over dt (as a
-driver holds them between updates) move the robot on a circular arc::
-
-    phi'  = phi + w dt
-    x'    = x + v dt cos(phi + w dt / 2) sinc(w dt / 2)
-    y'    = y + v dt sin(phi + w dt / 2) sinc(w dt / 2)
-
-with ``sinc(a) = sin(a) / a``, which is exact and stays accurate as w -> 0.
+"""Unicycle kinematics (21), integrated exactly: a command (v, w) held over dt moves the robot
+on an arc, ``phi' = phi + w dt``, ``(x', y') = (x, y) + v dt sinc(w dt / 2) (cos, sin)(phi + w dt / 2)``.
 """
 
 from __future__ import annotations
@@ -19,10 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 
 def advance_unicycle(pose: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
-    """Poses after holding ``(v, w)`` for ``dt`` seconds, exactly; broadcasts over batches.
-
-    ``pose`` (..., 3) is ``(x, y, phi)``; ``v`` (m/s), ``w`` (rad/s), ``dt`` (s, >= 0) broadcast.
-    """
+    """Poses ``(x, y, phi)`` (..., 3) after holding ``v`` (m/s), ``w`` (rad/s) for ``dt`` (s), broadcast."""
     pose = np.asarray(pose, dtype=float)
     turn = np.asarray(w, dtype=float) * dt
     half = 0.5 * turn
@@ -44,11 +33,8 @@ def integrate_unicycle(pose: ArrayLike, v: float, w: float, dt: float) -> tuple[
 
 
 def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLike) -> NDArray[np.float64]:
-    """Poses after each of a sequence of held commands, exactly and vectorised.
-
-    Each step's displacement depends only on its starting heading, a cumulative sum: no loop.
-    ``v``, ``w``, ``dt`` have shape (K,) (or scalar dt); returns (K + 1, 3) from ``pose0``.
-    """
+    """Poses (K + 1, 3) from ``pose0`` after each of K held commands (``dt`` (K,) or scalar):
+    each step depends only on its starting heading, a cumulative sum."""
     pose0 = np.asarray(pose0, dtype=float)
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)
