@@ -15,7 +15,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from .render import SceneRenderer
+from .render import SceneRenderer, Window
 from .scene import Scene, renderer_for, world_point_identity
 
 
@@ -38,10 +38,6 @@ class CameraSettings:
     outlier_rate: float = 0.0
     exposure_step: tuple[float, float] | None = None
     record_images: bool = False
-
-
-#: An image window ``(x0, y0, x1, y1)`` (px, end exclusive).
-Window = tuple[int, int, int, int]
 
 
 class PointDetector(Protocol):
