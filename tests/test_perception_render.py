@@ -61,7 +61,7 @@ def test_dot_raster_centres_are_exact_on_every_level(dots_world, dots_raster):
     # Ink centroid at each pyramid level vs. the metre -> level map; measured < 0.002 px.
     pad = 10
     for level in range(2, 6):
-        to_level = dots_raster.poster_to_level(level)
+        to_level = np.linalg.inv(dots_raster.level_to_poster(level))
         radius = dots_world.target.dot_radius * dots_raster.ppm / 2**level
         picture = np.pad(dots_raster.levels[level], pad, constant_values=PAPER_WHITE)
         for a, b in dots_world.target.points_poster:
@@ -104,7 +104,7 @@ def test_level_choice_matches_scale(dots_raster):
     assert dots_raster.level_for_scale(dots_raster.ppm) == 0
     assert dots_raster.level_for_scale(dots_raster.ppm / 8) == 3
     assert dots_raster.level_for_scale(dots_raster.ppm / 8 * 1.3) == 3
-    assert dots_raster.level_for_scale(1e-6) == dots_raster.n_levels - 1
+    assert dots_raster.level_for_scale(1e-6) == len(dots_raster.levels) - 1
 
 
 # -- rendering --------------------------------------------------------------------------

@@ -1,13 +1,10 @@
 """Square fiducial markers: every predefined ArUco dictionary and AprilTag family of OpenCV.
 
-The target's points are the outer corners of one or several markers, each marker's corners
-in OpenCV's order (top-left, top-right, bottom-right, bottom-left of the marker as printed)
-and the markers in the order of their ids as given. A marker's code makes its corners
-unambiguous: no tracking is needed for identity, only to narrow the search.
-
-OpenCV's ``cornerSubPix`` pulls an L-shaped outer corner ~0.15 px inward, so each corner
-is re-measured as the intersection of lines fitted to its two edges
-(:func:`refine_marker_corners`).
+The target's points are the outer corners of one or several markers, each marker's in
+OpenCV's order (top-left, top-right, bottom-right, bottom-left as printed), the markers in
+the order of their ids as given; the code gives identity, tracking only narrows the search.
+``cornerSubPix`` pulls an L-shaped outer corner inward, so each corner is re-measured where
+lines fitted to its two edges meet (:func:`refine_marker_corners`).
 """
 
 from __future__ import annotations
@@ -44,16 +41,8 @@ MARKER_DICTIONARIES: tuple[str, ...] = tuple(name for family in MARKER_FAMILIES.
 
 
 def dictionary_name(name: str) -> str:
-    """The canonical name of a predefined dictionary, from a user's spelling.
-
-    Accepts ``DICT_6X6_250``, ``6x6_250``, ``apriltag_36h11``, ``DICT_APRILTAG_36H11`` ...
-    (case and the ``DICT_`` prefix do not matter).
-
-    Raises
-    ------
-    UsageError
-        For a name that is not one of OpenCV's predefined dictionaries.
-    """
+    """The canonical name of a predefined dictionary from a user's spelling (``6x6_250``,
+    ``DICT_APRILTAG_36H11``: case and the ``DICT_`` prefix do not matter); UsageError if none."""
     key = str(name).strip().upper()
     key = key if key.startswith("DICT_") else "DICT_" + key
     for candidate in MARKER_DICTIONARIES:
@@ -71,25 +60,21 @@ def _dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary_name(name)))
 
 
-def _parameters(refinement: int) -> cv2.aruco.DetectorParameters:
+#: The one adaptive-threshold window size (px) of the search around a tracked marker.
+WINDOW_THRESHOLD_SIZE = 13
+
+
+def _parameters(refinement: int, tracked: bool = False) -> cv2.aruco.DetectorParameters:
+    """Detector parameters; ``tracked``: one adaptive threshold instead of OpenCV's three,
+    for the search around a tracked marker (a quarter faster)."""
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = refinement
     # The defaults stop refining once a step is under 0.1 px, too coarse for servoing.
     parameters.cornerRefinementMinAccuracy = 0.001
     parameters.cornerRefinementMaxIterations = 100
-    return parameters
-
-
-#: The one adaptive-threshold window size (px) of the search around a tracked marker.
-WINDOW_THRESHOLD_SIZE = 13
-
-
-def _window_parameters(refinement: int) -> cv2.aruco.DetectorParameters:
-    """:func:`_parameters` with one adaptive threshold (window :data:`WINDOW_THRESHOLD_SIZE`)
-    instead of OpenCV's three, for the search around a tracked marker (a quarter faster)."""
-    parameters = _parameters(refinement)
-    parameters.adaptiveThreshWinSizeMin = WINDOW_THRESHOLD_SIZE
-    parameters.adaptiveThreshWinSizeMax = WINDOW_THRESHOLD_SIZE
+    if tracked:
+        parameters.adaptiveThreshWinSizeMin = WINDOW_THRESHOLD_SIZE
+        parameters.adaptiveThreshWinSizeMax = WINDOW_THRESHOLD_SIZE
     return parameters
 
 
@@ -107,28 +92,25 @@ def marker_corners_in_view(image: NDArray[np.uint8], dictionary: str, ids: Seque
     corners, seen, _ = detector.detectMarkers(as_gray(image))
     if seen is None:
         return None
-    seen = np.ravel(seen)
-    picked = []
-    for ident in ids:
-        matches = [corners[i].reshape(4, 2) for i in np.flatnonzero(seen == int(ident))]
-        if matches:
-            picked.append(max(matches, key=lambda c: abs(cv2.contourArea(c.astype(np.float32)))))
+    picks = [_largest_copy(corners, np.ravel(seen), int(ident)) for ident in ids]
+    picked = [corners[pick].reshape(4, 2) for pick in picks if pick is not None]
     return np.concatenate(picked).astype(np.float64) if picked else None
+
+
+def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32], ident: int) -> int | None:
+    """Index of the largest marker ``ident`` among the detected ``ids`` (several copies: the
+    nearest, usually the target), or None when it is not there."""
+    matches = np.flatnonzero(ids == ident)
+    if matches.size == 0:
+        return None
+    return int(matches[int(np.argmax([abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]))])
 
 
 @dataclass(frozen=True)
 class MarkerSighting:
-    """Markers of one dictionary found in a frame.
-
-    Attributes
-    ----------
-    dictionary : str
-        The smallest predefined dictionary of the family that holds every id seen.
-    ids : tuple of int
-        The distinct ids seen, ascending.
-    smallest_side_px : float
-        Side of the smallest marker seen (px): tiny markers are the likeliest false decodes.
-    """
+    """Markers of one family found in a frame: the smallest ``dictionary`` of the family that
+    holds every id seen, the distinct ``ids`` ascending, and the ``smallest_side_px`` of the
+    markers (tiny markers are the likeliest false decodes)."""
 
     dictionary: str
     ids: tuple[int, ...]
@@ -136,12 +118,8 @@ class MarkerSighting:
 
 
 def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None) -> list[MarkerSighting]:
-    """Every family of markers seen in a frame, the family with the most markers first.
-
-    Each family is searched once with its largest dictionary (the smaller ones are its
-    prefixes). Markers whose id is seen twice are kept (the same marker printed twice
-    still gives a dictionary and id).
-    """
+    """Every family of markers seen in a frame, the family with the most markers first; each
+    searched once with its largest dictionary (the smaller ones are its prefixes)."""
     gray = as_gray(image)
     parameters = _parameters(cv2.aruco.CORNER_REFINE_NONE)
     sightings = []
@@ -162,23 +140,10 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
 class ArucoMarkerDetector:
     """Detect one or several markers of a dictionary and report their corners.
 
-    Parameters
-    ----------
-    marker_id : int, optional
-        The marker to report; None accepts whichever single marker is in view (and reports
-        nothing when several are). Ignored when ``marker_ids`` is given.
-    refinement : int
-        ``cv2.aruco.CORNER_REFINE_*``; sub-pixel (``cornerSubPix``) by default.
-    dictionary : str
-        A predefined dictionary (:data:`MARKER_DICTIONARIES`); DICT_4X4_50 by default.
-    marker_ids : sequence of int, optional
-        Several markers: their 4 corners each, in this order; found when any is seen (the
-        others' corners are NaN rows).
-
-    Attributes
-    ----------
-    last_id : int or None
-        Id of the marker reported by the last call.
+    ``marker_id``: the marker to report (None: whichever single marker is in view; ignored
+    when ``marker_ids`` is given); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``;
+    ``marker_ids``: several markers, 4 corners each in this order, found when any is seen
+    (NaN rows for the others). ``last_id``: the id reported by the last call.
     """
 
     kind = "aruco"
@@ -199,10 +164,9 @@ class ArucoMarkerDetector:
         if len(set(wanted)) != len(wanted):
             raise UsageError(f"marker ids must differ, got {wanted}")
         self.marker_ids = tuple(wanted)
-        self.marker_id = wanted[0] if len(wanted) == 1 else None
         self.n_points = 4 * max(len(wanted), 1)
         self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
-        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _window_parameters(refinement))
+        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement, tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
         self.last_id: int | None = None
 
@@ -262,18 +226,9 @@ class ArucoMarkerDetector:
                 return None, considered
             picks = [0]
         else:
-            picks = []
-            for ident in self.marker_ids:
-                matches = np.flatnonzero(ids == ident)
-                if matches.size == 0:
-                    picks.append(None)
-                    continue
-                # Several copies of the id: report the largest (the nearest, usually the target).
-                areas = [abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]
-                picks.append(int(matches[int(np.argmax(areas))]))
-            # A board of several markers partly out of view keeps the markers it shows
-            # (NaN rows for the others); a single marker is all or nothing.
-            if all(pick is None for pick in picks) or (len(picks) == 1 and picks[0] is None):
+            # A board partly out of view keeps the markers it shows (NaN rows for the others).
+            picks = [_largest_copy(corners, ids, ident) for ident in self.marker_ids]
+            if all(pick is None for pick in picks):
                 return None, considered
         self.last_id = int(ids[next(pick for pick in picks if pick is not None)])
         cells = self._detector.getDictionary().markerSize + 2
@@ -295,17 +250,13 @@ REFINE_CONVERGED_PX = 0.05
 EDGE_STRETCH_PX = 30.0
 
 
-def refine_marker_corners(
-    gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 2.5, cells: int = 6
-) -> NDArray[np.float64]:
+def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 2.5,
+                          cells: int = 6) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges, refined until they settle.
 
-    OpenCV's corners can be most of a pixel off on a small marker, and the profiles of one
-    pass (:func:`_refine_corners_once`) then cut one tail of the edge's rise; each further
-    pass starts from the last one's corners, until none moves :data:`REFINE_CONVERGED_PX`.
-
-    Parameters and return as :func:`_refine_corners_once`; ``max_shift`` bounds the move
-    from the ``corners`` given, over all passes.
+    OpenCV's corners can be most of a pixel off on a small marker, where one pass's profiles
+    (:func:`_refine_corners_once`, whose parameters these are) cut one tail of the edge's
+    rise; each pass starts from the last one's corners. ``max_shift`` bounds the whole move.
     """
     start = np.asarray(corners, dtype=np.float64)
     refined = start
@@ -320,30 +271,14 @@ def refine_marker_corners(
     return refined.copy()
 
 
-def _refine_corners_once(
-    gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 1.5, cells: int = 6
-) -> NDArray[np.float64]:
-    """Sub-pixel outer corners of a marker from its edges: one pass.
+def _refine_corners_once(gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float, cells: int) -> NDArray[np.float64]:
+    """Sub-pixel outer corners (4, 2) of a marker from its edges: one pass.
 
-    Short bilinear profiles across each of a corner's two edges, from 3 px to
-    ``min(side - 3, 30)`` px from it (the lens bends long edges), locate the edge at the
-    centroid of each profile's rises (clipped levels and the code's cells, a fall, do not
-    move it); the corner is where the edges' total-least-squares lines meet.
-
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    corners : ndarray, shape (4, 2)
-        Approximate outer corners (px), in order around the marker.
-    max_shift : float
-        A corner that would move farther than this (px) is left as it was.
-    cells : int
-        Cells across the marker, its black border included (the dictionary's bits + 2): the
-        profiles reach inside no farther than 60 % of the border cell.
-
-    Returns
-    -------
-    corners : ndarray, shape (4, 2)
+    Bilinear profiles across each of a corner's two edges, 3 to ``min(side - 3, 30)`` px from
+    it (the lens bends long edges), locate the edge at the centroid of the profile's rises;
+    the corner is where the edges' total-least-squares lines meet. ``corners`` (4, 2): around
+    the marker (px); a corner that would move farther than ``max_shift`` px stays; ``cells``:
+    across the marker, border included (the profiles reach 60 % into the border cell).
     """
     # Norms and neighbours by hand: np.linalg.norm and np.roll cost more on 4 points.
     corners = np.asarray(corners, dtype=np.float64)

@@ -1,27 +1,10 @@
 """``--target auto``: which target a recording shows, judged on its first frames.
 
-Every kind found consistently in the first frames is a candidate:
-
-* **ChArUco board** -- markers laid out as a ChArUco board's (:func:`~.charuco.infer_board`),
-  its corners found in most of the first frames (it stands for its own markers);
-* **markers** -- a decoded ArUco/AprilTag code is hard to produce by chance; every
-  predefined dictionary is scanned (:func:`~.aruco.scan_markers`) and a family must decode
-  the same ids in most of the first frames;
-* **chessboard** -- ``findChessboardCornersSB`` finds the same pattern in most of them;
-* **dots** -- dark dots on a lighter ground, then light dots on a darker one: the same
-  number (3-10) of round blobs of comparable size, making up most of the blob-like structure,
-  in most of the first frames; in gray first, then (colour footage) in colour, for dots that
-  differ from their wall in hue alone (:func:`~.dots.dark_image`); not where markers are;
-* **texture** -- natural features of the first frame, matched (robust homography) in most
-  of the following first frames; not when it is the print of dots, markers or a board
-  (:data:`OWN_PRINT_FRACTION`).
-
-The candidate whose points predict the most precise theta_d wins
-(:attr:`TargetChoice.predicted_deg`: the kind's measured scale over the points' spread and
-the square root of their number), so a whole poster beats tiny markers printed in it and a
-small chessboard's texture its 35 corners. :class:`TargetChoice` says why in one sentence
-(what was found, the predicted precisions, what was ruled out). When none passes,
-:class:`~hbvs_cli.errors.InputError` names every kind tried.
+Each kind found in most of the first frames is a candidate (a ChArUco board standing for
+its own markers, decoded markers of one family, a chessboard, 3-10 round dots, matched
+natural features that are not the print of another candidate); the one whose points
+predict the most precise theta_d wins (:attr:`TargetChoice.predicted_deg`), so a whole
+poster beats tiny markers printed in it.
 """
 
 from __future__ import annotations
@@ -46,44 +29,23 @@ from .texture import TextureDetector
 MAX_DOTS = 10
 #: Markers smaller than this (px) in every frame are not trusted as a decoded code.
 MIN_MARKER_SIDE_PX = 8.0
-#: theta_d's RMS error (deg) times the points' RMS spread about their centroid in the first
-#: frame (px) times the square root of their number, by kind: how each kind's point noise
-#: reaches theta_d. The medians over the footage maker's rows without lens distortion,
-#: rolling shutter or heavy blur, each kind fitted with --target KIND (docs/targets.md).
-#: Texture's points are its matched features, whose errors are shared by neighbours (one
-#: alignment): its scale, 2.3 times the chessboard's, counts 5 features as one corner.
+#: theta_d's RMS error (deg) times the points' RMS spread (px) times the square root of
+#: their number, by kind: how each kind's point noise reaches theta_d (docs/targets.md).
 PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7.4, "texture": 23.8}
-#: Dots, decoded markers or a ChArUco board whose outline (convex hull) covers at least this
-#: fraction of the matched texture's: the texture is their own print and is set aside. Their
-#: wall's texture measured worse than dots (1.5 vs 0.07 deg under barrel distortion); a
-#: marker's own print measured closer, but its interval 2.2-2.5x too wide (docs/targets.md).
+#: Dots, markers or a board whose outline covers at least this fraction of the matched
+#: texture's: the texture is their own print and is set aside (docs/targets.md).
 OWN_PRINT_FRACTION = 0.25
-#: A texture feature counts as matched within this distance (px) of where the frame's
-#: homography puts it (ORB's keypoints are about 1.1 px RMS from it on the footage).
+#: A texture feature counts as matched within this distance (px) of where the homography puts it.
 MATCHED_PX = 3.0
 
 
 @dataclass(frozen=True)
 class TargetChoice:
-    """What ``--target auto`` picked.
-
-    Attributes
-    ----------
-    kind : str
-        ``dots``, ``aruco``, ``chessboard``, ``charuco`` or ``texture``.
-    reason : str
-        One sentence for stderr: what was found, how consistently, what was ruled out.
-    details : dict
-        ``polarity``, ``n_points`` and, for dots seen in colour only, ``contrast`` (dots);
-        ``marker_dict`` and ``marker_ids`` (aruco); ``board`` (chessboard: inner corners
-        per row and rows; charuco: squares across and down, and its ``marker_dict``).
-    n_points : int
-        Points seen in the first frames (texture: median matched features per frame).
-    spread_px : float
-        Their RMS distance from their centroid (px).
-    area_px : float
-        The area of their outline, the convex hull (px^2).
-    """
+    """What ``--target auto`` picked: the ``kind``, one sentence for stderr (``reason``), the
+    detector's ``details`` (``polarity``, ``n_points``, ``contrast``; ``marker_dict``,
+    ``marker_ids``; ``board``), and the points seen: how many (texture: median matched
+    features per frame), their RMS ``spread_px`` about their centroid and their convex hull's
+    ``area_px`` (px^2)."""
 
     kind: str
     reason: str
@@ -175,20 +137,15 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
 
 def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
     """:func:`~.chessboard.find_board`, its corners checked to be crossings of two dark and
-    two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots
-    on a wall: a 4x3 board in 3 of 5 frames of a simulated dots target)."""
+    two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots)."""
     board = find_board(image, pattern)
     return board if board is not None and board_corners_cross(as_gray(image), board.corners, board.pattern) else None
 
 
 def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[NDArray[np.float64], bool]:
     """Centres (N, 2) px of the round blobs of similar size in one frame, and whether they
-    make up most of its blob-like structure.
-
-    A textured picture has many dark shapes that are not round; a dots target's dots are
-    most of what is compact and interior (components cut by the frame's edge, e.g. the
-    wall or a door frame, are not counted).
-    """
+    make up most of what is compact and interior (a textured picture has many dark shapes
+    that are not round; components cut by the frame's edge are not counted)."""
     blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
     round_areas = blobs.areas[blobs.round]
     if round_areas.size < 3:
@@ -204,10 +161,7 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
     (then in colour, when the frames have it), or None."""
     colour = any(np.ndim(image) == 3 for image in images)
     # In colour, light dots first: a dot that differs from a neutral wall in hue alone is
-    # brighter than it in its own channel (red in red), where dark frames and shadows do not
-    # compete, and darker in the others only as far as it is saturated (a blue dot of a grey's
-    # luminance is not darker in any channel). On the red-on-grey footage the brightest
-    # channel measured the dots to 0.087 px RMS, the darkest to 0.17 px.
+    # brighter than it in its own channel, and darker in the others only as far as it is saturated.
     order = [("gray", "dark"), ("gray", "light")] + ([("colour", "light"), ("colour", "dark")] if colour else [])
     for contrast, kind in (pair for pair in order if polarity is None or pair[1] == polarity):
         centres = []
@@ -232,9 +186,7 @@ def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[n
     """The first frame's natural features matched in most of the following frames, or None.
 
     Its points are the first frame's ORB features inside the box ``template_pixels`` (4, 2)
-    px whose match in a following frame lies within :data:`MATCHED_PX` of where the
-    detector's homography puts them: their median number per frame, and the spread and
-    outline of all of them (features on noise or off the picture do not count).
+    px whose match lies within :data:`MATCHED_PX` of where the detector's homography puts them.
     """
     box = np.asarray(template_pixels, dtype=float)
     if len(images) < 2:
@@ -271,24 +223,12 @@ def choose_target(
     marker_dict: str | None = None,
     seed: int = 0,
 ) -> TargetChoice:
-    """Pick the target kind from the first frames of a recording: of the kinds found
-    consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
+    """Pick the target kind from the first frames (gray or BGR uint8) of a recording: of the
+    kinds found consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
 
-    Parameters
-    ----------
-    images : sequence of ndarray
-        The first few frames (gray or BGR uint8).
-    template_pixels_of : callable
-        ``template_pixels_of(first_image) -> (4, 2) pixels``: where a texture target's
-        points would be (or raises :class:`InputError` when the image has too few features).
-    marker_dict : str, optional
-        Only markers of this dictionary (or their ChArUco board) are looked for (``--marker-dict``).
-    seed : int
-
-    Raises
-    ------
-    InputError
-        When no kind is found consistently; the message names every kind tried.
+    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
+    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
+    (or their ChArUco board). InputError naming every kind tried when none is found.
     """
     grays = [as_gray(image) for image in images]
     found, ruled_out, aside = [], [], ""

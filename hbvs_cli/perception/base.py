@@ -1,9 +1,6 @@
 """What every target detector shares: the :class:`Detection` it returns, the
-:class:`TargetDetector` protocol, the constant-velocity :class:`PointTrack` it predicts
-with, and the point identity (:func:`match_identity`).
-
-A detector gives the pixels of the target's N points in the target's order (their
-identity), as the homography needs them: OpenCV's convention, measured (distorted) pixels.
+:class:`TargetDetector` protocol, the :class:`PointTrack` it predicts with, and the point
+identity (:func:`match_identity`). Pixels are OpenCV's, measured (distorted).
 """
 
 from __future__ import annotations
@@ -99,10 +96,8 @@ class PointTrack:
 
 
 def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
-    """``predicted`` as an (N, 2) float array (NaN rows allowed), or None.
-
-    Raises UsageError: if it has the wrong shape or contains infinities.
-    """
+    """``predicted`` as an (N, 2) float array (NaN rows allowed), or None when it has no
+    finite row; UsageError for the wrong shape or infinities."""
     if predicted is None:
         return None
     array = np.asarray(predicted, dtype=np.float64)
@@ -137,14 +132,10 @@ def search_window(shape: tuple[int, int], prediction: NDArray[np.float64], grow:
 
 def signed_polygon_area(points: ArrayLike) -> float:
     """Signed area of a polygon (shoelace), shape (N, 2): positive when its vertices run
-    counter-clockwise in x-right, y-up axes (clockwise on an image).
-
-    Each vertex's successor by slicing (what ``np.roll(-1)`` gives, at a tenth of its cost:
-    trackers call this every frame).
-    """
+    counter-clockwise in x-right, y-up axes (clockwise on an image)."""
     points = np.asarray(points, dtype=np.float64)
     x, y = points[:, 0], points[:, 1]
-    x_next, y_next = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))
+    x_next, y_next = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))  # np.roll at a tenth of its cost
     return 0.5 * float(np.dot(x, y_next) - np.dot(x_next, y))
 
 

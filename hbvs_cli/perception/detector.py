@@ -1,9 +1,4 @@
-"""Choosing a detector: :func:`make_detector` for a target kind, and
-:func:`guess_target_kind` for a frame.
-
-The shared types (:class:`Detection`, :class:`TargetDetector`, :class:`PointTrack`,
-:func:`match_identity`) live in :mod:`.base`; they are re-exported here.
-"""
+"""Choosing a detector: :func:`make_detector` for a target kind, :func:`guess_target_kind` for a frame."""
 
 from __future__ import annotations
 
@@ -16,15 +11,10 @@ from ..errors import UsageError
 from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
 from .charuco import CharucoTargetDetector
 from .chessboard import ChessboardDetector
-from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity
+from .base import TargetDetector, as_gray
 from .dot_windows import WindowedDotDetector
 from .dots import DotDetector, find_dark_blobs
 from .texture import TextureDetector
-
-__all__ = [
-    "Detection", "PointTrack", "TargetDetector", "as_gray", "check_prediction", "guess_target_kind",
-    "make_detector", "match_identity",
-]
 
 
 def make_detector(
@@ -78,11 +68,8 @@ def make_detector(
 
 
 def guess_target_kind(image: NDArray[np.uint8]) -> str:
-    """Which kind of target a frame shows.
-
-    ``"aruco"`` if a marker is detected; ``"dots"`` if 3 or more similar dark round blobs make
-    up most of the dark structure (a texture has many that are not round); else ``"texture"``.
-    """
+    """Which kind of target a frame shows: ``"aruco"`` if a marker is detected; ``"dots"`` if 3
+    or more similar dark round blobs make up most of the dark structure; else ``"texture"``."""
     gray = as_gray(image)
     if marker_ids_in_view(gray):
         return "aruco"

@@ -1,13 +1,10 @@
 """Dots followed in one small window each: the tracked detection of the closed loop.
 
-:class:`~.dots.DotDetector` follows its dots in one window, the box around all of them
-grown by the gate, which for a spread target is most of the frame. A dot within ``g`` px
-(:data:`WINDOW_GATE_PX`) of its prediction lies whole in a square of half-side
-``g + radius + 6`` px around it; searching those squares alone (merged where they overlap)
-finds the same dots reading a few percent of the pixels, and a renderer can render just
-them (:meth:`hbvs_cli.sim.render.SceneRenderer.render_windows`). A dot not in its window
-falls back to the whole frame. The windows are searched side by side as one image, so the
-threshold and the labelling run once a frame.
+:class:`~.dots.DotDetector` searches the box around all its dots, most of the frame for a
+spread target; a dot within :data:`WINDOW_GATE_PX` of its prediction lies whole in a small
+square around it, and those squares alone (merged where they overlap, searched side by side
+as one image) find the same dots reading a few percent of the pixels, which is all a
+renderer need render. A dot not in its window falls back to the whole frame.
 """
 
 from __future__ import annotations
@@ -26,12 +23,10 @@ Window = tuple[int, int, int, int]
 
 #: Radius (px) assumed for a dot whose area is not known yet (as the single window does).
 UNKNOWN_RADIUS_PX = 30.0
-#: Pixels kept between a dot's rim and its window's edge: the 5 px its centroid reads around
-#: the blob, and one more.
+#: Pixels between a dot's rim and its window's edge: the 5 px its centroid reads, and one more.
 RIM_MARGIN_PX = 6.0
-#: A tracked dot's window reaches this far (px) beyond where its prediction puts the dot (the
-#: detector's gate when that is smaller); a dot that moved farther touches its window's
-#: edge, and the whole-frame search finds it.
+#: A tracked dot's window reaches this far (px) beyond its prediction (the detector's gate
+#: when smaller); a dot that moved farther touches the edge and the whole frame is searched.
 WINDOW_GATE_PX = 8.0
 
 
@@ -60,9 +55,8 @@ GROUND_LEVEL = 255.0
 
 
 class WindowMosaic:
-    """A reusable buffer that holds several flattened windows side by side, one column of
-    ground between neighbours (so that no blob joins two windows) and ground below the
-    shorter ones."""
+    """A reusable buffer of flattened windows side by side, one column of ground between
+    neighbours (no blob joins two windows) and ground below the shorter ones."""
 
     def __init__(self) -> None:
         self._buffer = np.empty((0, 0), dtype=np.float32)
@@ -90,26 +84,12 @@ def find_blobs_in_windows(
     max_elongation: float = 1.8,
     min_contrast: float = 20.0,
 ) -> Blobs:
-    """Dark, dot-like blobs in the non-overlapping ``windows`` of ``gray`` and their sub-pixel
-    centres, as :func:`~.dots.find_dark_blobs` finds them in a flattened window.
+    """Dark, dot-like blobs in the non-overlapping ``windows`` of ``gray`` (H, W) uint8, as
+    :func:`~.dots.find_dark_blobs` (whose options these are) finds them in a flattened window.
 
     Each window's ground is divided out on its own; then one noise estimate (the windows'
-    mean), one threshold and one labelling serve them all. A candidate reaching its
-    window's edge is not dot-like.
-
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    windows : list of (x0, y0, x1, y1)
-        End-exclusive pixel bounds within ``gray``, none overlapping another.
-    mosaic : WindowMosaic
-        The buffer the windows are laid out in (reused from frame to frame).
-    min_area, max_elongation, min_contrast
-        As in :func:`~.dots.find_dark_blobs`.
-
-    Returns
-    -------
-    Blobs
+    mean), one threshold and one labelling in ``mosaic`` serve them all. A candidate reaching
+    its window's edge is not dot-like.
     """
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     windows = [w for w in windows if w[2] > w[0] and w[3] > w[1]]
@@ -151,11 +131,8 @@ def find_blobs_in_windows(
 
 
 class WindowedDotDetector(DotDetector):
-    """A :class:`~.dots.DotDetector` that follows each dot in its own window.
-
-    Same parameters; while every dot is tracked, :meth:`detect` first searches the windows
-    of :meth:`search_windows`, and falls back to the parent's search.
-    """
+    """A :class:`~.dots.DotDetector` that, while every dot is tracked, first searches the
+    windows of :meth:`search_windows`."""
 
     def __init__(self, n_points: int, **options) -> None:
         super().__init__(n_points, **options)

@@ -1,15 +1,10 @@
 """A textured poster: natural features matched to a reference view, then a homography.
 
-Acquisition matches ORB features of the reference in the frame (Lowe's ratio test);
-following starts from the predicted points (ECC alignment straight from the prediction,
-else pyramidal Lucas-Kanade on the reference's corners), which is faster and, always
-relative to the reference, does not drift. Both end in a seeded ``USAC_MAGSAC`` fit.
-The homography is then aligned on the whole target region (:mod:`.ecc`): at a few
-hundredths of a pixel, where yaw and the plane normal are decided, the images are smoothed
-before the template is cut, the template is shaded by the lens's vignetting (``1 - a r^2``,
-pooled over the frames) and the sharper image is blurred to the other's resolution, since
-each of these otherwise reads as a shift or a tilt. The same frames and seed give the same
-result.
+Acquired by ORB matching, followed from the prediction (ECC, else Lucas-Kanade on the
+reference's corners: relative to the reference, it does not drift), then aligned on the
+whole target region (ECC, invariant to gain and offset). At the few hundredths of a pixel that decide yaw and the
+plane normal, smoothing, the lens's vignetting and unequal blur each read as a shift or a
+tilt, so the alignment models all three.
 """
 
 from __future__ import annotations
@@ -23,49 +18,44 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
-from .ecc import align_homography, transfer
 
+#: ORB features per searched frame (the reference gets three times as many), Lowe's
+#: ratio-test bound, fewest inliers of a found target, inlier threshold (px) of the robust fit.
+N_FEATURES = 500
+MATCH_RATIO = 0.8
+MIN_INLIERS = 15
+REPROJECTION_PX = 2.0
 #: Gaussian sigma (px) both images are smoothed with before the alignment (ECC's own 3x3 filter).
 ALIGN_BLUR_SIGMA = 0.8
-#: The camera's own blur (px, optics and pixel together), assumed when matching the
-#: template's resolution with a frame that sees the target larger or smaller.
+#: The camera's own blur (px, optics and pixel together), assumed when matching resolutions.
 CAMERA_BLUR_SIGMA = 0.5
 #: The pooled vignetting fall-off ``a`` (per squared half-diagonal) is kept within this range.
 VIGNETTING_RANGE = (-0.5, 0.9)
 #: Fewer template pixels in the frame than this tell nothing about the vignetting.
 MIN_SHADING_PIXELS = 64
-#: Following from a prediction by the alignment alone is accepted when the aligned template and
-#: frame correlate at least this well (measured: 0.992-0.9999 on the benchmark's and the
-#: photographs' footage); below, Lucas-Kanade follows first, as from a farther prediction.
+#: Following by the alignment alone is accepted at this correlation; below, Lucas-Kanade first.
 FOLLOW_CORRELATION = 0.9
-#: When a frame's alignment moved the target's points farther than this (px) from where it
-#: started, where the template's shading was placed, it is aligned again with the shading
-#: placed where it ended (a prediction far off; a tracked one is within a few tenths).
+#: An alignment that moved the points farther than this (px) from where the shading was
+#: placed is aligned again with the shading placed where it ended.
 SHADING_PLACEMENT_PX = 0.5
-#: A followed frame's alignment stops after one ECC step that moves no target point farther
-#: than this (px); a larger step goes on to convergence (:func:`~.ecc.align_homography`).
+#: A followed frame's alignment stops after one ECC step that moves no point farther (px).
 SETTLE_PX = 0.05
-#: Every one of the first this many aligned frames reads the vignetting (two alignments each)...
+#: Each of the first POOL_FRAMES aligned frames reads the vignetting (two alignments), then
+#: one in POOL_INTERVAL; the others are aligned once, with the pooled value.
 POOL_FRAMES = 32
-#: ... then one frame in this many (the others are aligned once, with the pooled vignetting).
 POOL_INTERVAL = 32
+#: ECC iterations and the step (template pixels) at which it stops.
+ECC_ITERATIONS = 15
+ECC_EPSILON = 1e-3
+#: An alignment that moves the target's points farther than this (px) from the start is rejected.
+MAX_CORRECTION_PX = 3.0
 
 
 @dataclass(frozen=True)
 class TextureDetection(Detection):
-    """A :class:`Detection` with the fitted homography.
-
-    Attributes
-    ----------
-    homography : ndarray, shape (3, 3), or None
-        Reference image pixels -> frame pixels (None when nothing was fitted).
-    inliers : int
-        Correspondences consistent with the homography (feature matches when acquiring,
-        Lucas-Kanade points when following; 0 when followed by the alignment alone).
-    correlation : float
-        How well the reference region and the frame match once aligned (ECC's correlation
-        coefficient, 1 for images equal up to gain and offset); NaN when not aligned.
-    """
+    """A :class:`Detection` with the fitted ``homography`` (3, 3), reference -> frame pixels
+    (None when nothing was fitted), its ``inliers`` (matches or Lucas-Kanade points; 0 when
+    followed by the alignment alone) and ECC's ``correlation`` (NaN when not aligned)."""
 
     homography: NDArray[np.float64] | None = None
     inliers: int = 0
@@ -75,50 +65,13 @@ class TextureDetection(Detection):
 class TextureDetector:
     """Find a textured target by matching features against a reference image.
 
-    Parameters
-    ----------
-    reference_image : ndarray, shape (H, W) or (H, W, 3), uint8
-        A view of the target.
-    reference_pixels : array_like, shape (N, 2)
-        The target points in ``reference_image`` (px).
-    seed : int
-        Seed of OpenCV's RNG for the robust homography fit.
-    n_features : int
-        ORB features per searched frame (the reference gets three times as many).
-    ratio : float
-        Lowe's ratio-test bound.
-    min_inliers : int
-        Fewer inliers than this: the target is reported missing.
-    reprojection_px : float
-        Inlier threshold of the robust fit (px).
-    refine : bool
-        Polish acquired homographies by intensity-based (Lucas-Kanade) correspondences.
-    align : bool
-        Then polish every homography by aligning the whole reference region (ECC, :mod:`.ecc`).
-
-    Attributes
-    ----------
-    homography : ndarray or None
-        The last homography fitted (reference -> frame).
-    inliers : int
-        Inliers of the last fit.
+    ``reference_image``: a gray or BGR uint8 view of the target; ``reference_pixels`` (N, 2):
+    the target points in it (px); ``seed``: of OpenCV's RNG for the robust fits.
     """
 
     kind = "texture"
 
-    def __init__(
-        self,
-        reference_image: NDArray[np.uint8],
-        reference_pixels: ArrayLike,
-        seed: int = 0,
-        *,
-        n_features: int = 500,
-        ratio: float = 0.8,
-        min_inliers: int = 15,
-        reprojection_px: float = 2.0,
-        refine: bool = True,
-        align: bool = True,
-    ) -> None:
+    def __init__(self, reference_image: NDArray[np.uint8], reference_pixels: ArrayLike, seed: int = 0) -> None:
         self.reference = as_gray(reference_image)
         points = np.asarray(reference_pixels, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 2 or len(points) < 4 or not np.all(np.isfinite(points)):
@@ -126,14 +79,9 @@ class TextureDetector:
         self.reference_pixels = points
         self.n_points = len(points)
         self.seed = int(seed)
-        self.ratio = float(ratio)
-        self.min_inliers = int(min_inliers)
-        self.reprojection_px = float(reprojection_px)
-        self.refine = bool(refine)
-        self._orb = cv2.ORB_create(nfeatures=int(n_features))
-        reference_orb = cv2.ORB_create(nfeatures=3 * int(n_features))
-        keypoints, descriptors = reference_orb.detectAndCompute(self.reference, None)
-        if descriptors is None or len(keypoints) < self.min_inliers:
+        self._orb = cv2.ORB_create(nfeatures=N_FEATURES)
+        keypoints, descriptors = cv2.ORB_create(nfeatures=3 * N_FEATURES).detectAndCompute(self.reference, None)
+        if descriptors is None or len(keypoints) < MIN_INLIERS:
             raise InputError(
                 f"the texture reference image has too few features ({len(keypoints)}); "
                 "the target needs a richly textured picture"
@@ -141,20 +89,16 @@ class TextureDetector:
         self._reference_points = np.array([k.pt for k in keypoints], dtype=np.float32)
         self._reference_descriptors = descriptors
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-        # Reference corners to follow and polish with: strong, well spread, sub-pixel by
-        # construction of LK (which measures displacements, not corner positions).
+        # Reference corners to follow with (LK measures displacements, not corner positions).
         corners = cv2.goodFeaturesToTrack(self.reference, maxCorners=250, qualityLevel=0.01, minDistance=8)
         self._polish_points = np.empty((0, 2), np.float32) if corners is None else corners.reshape(-1, 2)
         self._track = PointTrack(self.n_points, max_coast=5)
-        self.align = bool(align)
         # The reference's region of the target (its points' box) is what ECC aligns.
         low = np.clip(np.floor(points.min(axis=0)).astype(int), 0, None)
         high = np.minimum(np.ceil(points.max(axis=0)).astype(int) + 1, self.reference.shape[::-1])
         self._align_box = (int(low[0]), int(low[1]), int(high[0]), int(high[1]))
         self._align_template = (int(low[0]), int(low[1]), self._template(ALIGN_BLUR_SIGMA))
         self._vignetting = Vignetting(self.reference.shape, self._align_template)
-        self.homography: NDArray[np.float64] | None = None
-        self.inliers = 0
 
     def _template(self, sigma: float) -> NDArray[np.float32]:
         """The reference's target region smoothed by ``sigma`` px (smoothed with a margin,
@@ -169,15 +113,14 @@ class TextureDetector:
     def reset(self) -> None:
         """Forget the track."""
         self._track.reset()
-        self.homography = None
-        self.inliers = 0
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
         """Find the target points; see :class:`~.detector.TargetDetector`.
 
-        With a prediction (given, or from the track) the target is followed from it, and
-        acquired by feature matching around the prediction (its box grown by 60 %) if
-        following fails; without one, features are matched over the whole frame.
+        With a prediction (given, or from the track) the target is followed from it: by the
+        alignment alone when it correlates well, else by Lucas-Kanade, else by the alignment
+        without that bound (a picture with little texture); failing those, acquired around
+        the prediction (its box grown by 60 %), then in the whole frame.
         """
         gray = as_gray(image)
         prediction = check_prediction(predicted, self.n_points)
@@ -188,18 +131,11 @@ class TextureDetector:
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
-                if self.align:
-                    # The whole region's alignment straight from the prediction: near it (a
-                    # tracked target) it converges, and is all that is needed; checked by
-                    # its correlation. Farther off, Lucas-Kanade first.
-                    result = self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION)
-                    aligned = result is not None
+                result = self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION)
+                aligned = result is not None
                 if result is None:
                     result = self._follow(gray, guess)
-                if result is None and self.align:
-                    # Too few reference corners agree either (a picture with little texture,
-                    # e.g. mostly sky, correlates weakly): the alignment from the prediction
-                    # without the bound, which is nearer than a fresh acquisition.
+                if result is None:
                     result = self._aligned_from(gray, guess)
                     aligned = result is not None
             if result is None:
@@ -208,20 +144,14 @@ class TextureDetector:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and self.align and not aligned:
+        if result.found and result.homography is not None and not aligned:
             result = self._align(gray, result)
         self._track.update(result.pixels)
-        self.homography = result.homography
-        self.inliers = result.inliers
         return result
 
     def _align(self, gray: NDArray[np.uint8], result: TextureDetection) -> TextureDetection:
-        """Polish the homography by aligning the whole reference picture with the frame (ECC).
-
-        LK on a few hundred corners leaves a few tenths of a pixel; the alignment uses every
-        pixel of the target's region of the reference (:meth:`_aligned_homography`). Kept
-        only when it converges near the LK result.
-        """
+        """``result`` polished by aligning the whole target region (ECC); kept as it was when
+        the alignment fails."""
         homography, correlation = self._aligned_homography(gray, result.homography)
         if homography is None:
             return result
@@ -243,10 +173,9 @@ class TextureDetector:
         """``homography`` (reference -> frame) refined by ECC on the target's region (None
         when that fails, or correlates below ``min_correlation``), and the correlation.
 
-        Both images smoothed alike (:func:`_matched_blur`). On a frame that reads the
-        vignetting (:meth:`Vignetting.wants`), the frame's vignetting relative to the reference
-        is estimated from a first alignment, the template shaded by it and aligned again; on
-        the others, the template is shaded by the pooled vignetting and aligned once.
+        Both images are smoothed alike (:func:`_matched_blur`). A frame that reads the
+        vignetting (:meth:`Vignetting.wants`) is aligned, pooled, and aligned again against
+        the shaded template; the others once, against the template shaded by the pooled value.
         """
         x0, y0, template = self._align_template
         to_crop = _shift(x0, y0)
@@ -262,23 +191,19 @@ class TextureDetector:
         to_whole = homography @ to_crop
         start = to_frame @ to_whole
         if self._vignetting.wants():
-            # Aligned as the reference looks, the frame tells the vignetting; then again
-            # against the template shaded by it.
-            refined, correlation = align_homography(template, frame, start, points, 1, min_correlation)
+            refined, correlation = align_homography(template, frame, start, points, min_correlation)
             if refined is None:
                 return None, correlation
             self._vignetting.pool(template, frame, refined, (fx0, fy0))
             refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
         else:
-            # One alignment, against the template shaded by the pooled vignetting.
             self._vignetting.skip()
             shaded = self._vignetting.shaded(template, to_whole)
-            refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, 1,
+            refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points,
                                                     min_correlation, settle_px=SETTLE_PX)
             if refined is None:
                 return None, correlation
             if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
-                # The start was off: the shading was placed there; again, placed where aligned.
                 refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
         aligned = _shift(fx0, fy0) @ refined @ _shift(-x0, -y0)
         return aligned / aligned[2, 2], correlation
@@ -292,7 +217,7 @@ class TextureDetector:
         shaded = self._vignetting.shaded(template, _shift(-to_frame[0, 2], -to_frame[1, 2]) @ refined)
         if shaded is None:
             return refined, correlation
-        again, again_correlation = align_homography(shaded, frame, refined, points, 1)
+        again, again_correlation = align_homography(shaded, frame, refined, points)
         return (refined, correlation) if again is None else (again, again_correlation)
 
     def _homography_from(self, prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
@@ -300,8 +225,7 @@ class TextureDetector:
         known = np.all(np.isfinite(prediction), axis=1)
         if np.count_nonzero(known) < 4:
             return None
-        if np.count_nonzero(known) == 4:
-            # Four points fix the homography: the direct solve, several times cheaper.
+        if np.count_nonzero(known) == 4:  # the direct solve, several times cheaper
             guess = cv2.getPerspectiveTransform(self.reference_pixels[known].astype(np.float32), prediction[known].astype(np.float32))
         else:
             guess, _ = cv2.findHomography(self.reference_pixels[known], prediction[known], 0)
@@ -318,23 +242,22 @@ class TextureDetector:
         if descriptors is None or len(keypoints) < 2:
             return TextureDetection(missing, False, 0, 0)
         pairs = self._matcher.knnMatch(descriptors, self._reference_descriptors, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.ratio * p[1].distance]
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < MATCH_RATIO * p[1].distance]
         candidates = len(good)
-        if candidates < self.min_inliers:
+        if candidates < MIN_INLIERS:
             return TextureDetection(missing, False, candidates, candidates)
         frame_points = np.array([keypoints[m.queryIdx].pt for m in good], dtype=np.float32) + np.float32([x0, y0])
         reference_points = self._reference_points[[m.trainIdx for m in good]]
         cv2.setRNGSeed(self.seed)
         homography, inlier_mask = cv2.findHomography(
-            reference_points, frame_points, cv2.USAC_MAGSAC, self.reprojection_px, maxIters=2000, confidence=0.9999
+            reference_points, frame_points, cv2.USAC_MAGSAC, REPROJECTION_PX, maxIters=2000, confidence=0.9999
         )
         inliers = 0 if inlier_mask is None else int(inlier_mask.sum())
-        if homography is None or inliers < self.min_inliers or not _plausible(homography, self.reference_pixels, gray.shape):
+        if homography is None or inliers < MIN_INLIERS or not _plausible(homography, self.reference_pixels, gray.shape):
             return TextureDetection(missing, False, candidates, candidates - inliers, None, inliers)
-        if self.refine:
-            polished = self._follow(gray, homography, levels=1)
-            if polished is not None:
-                homography = polished.homography
+        polished = self._follow(gray, homography, levels=1)
+        if polished is not None:
+            homography = polished.homography
         pixels = transfer(homography, self.reference_pixels)
         return TextureDetection(pixels, True, candidates, candidates - inliers, homography, inliers)
 
@@ -342,17 +265,14 @@ class TextureDetector:
         """Refine an approximate ``homography`` by Lucas-Kanade on the warped reference.
 
         Warped by the estimate, the reference nearly coincides with the frame, so small-window
-        LK (translation model) is valid; its sub-pixel displacements give a correction
-        homography (robust fit, seeded). None when too few reference corners are in view or
-        agree: the estimate was too far off, or the target is not there. Two pyramid levels
-        reach about 20 px from a tracked prediction (a third cost 10 % of a frame's
-        detection on the benchmark and changed no point by more than 0.005 px); farther
-        off, the target is acquired again by its features.
+        LK gives sub-pixel displacements and a correction homography (seeded robust fit).
+        None when too few reference corners are in view or agree. Two pyramid levels reach
+        about 20 px from a tracked prediction.
         """
         height, width = gray.shape
         projected = transfer(homography, self._polish_points.astype(np.float64))
         inside = (projected[:, 0] > 8) & (projected[:, 1] > 8) & (projected[:, 0] < width - 9) & (projected[:, 1] < height - 9)
-        if np.count_nonzero(inside) < self.min_inliers:
+        if np.count_nonzero(inside) < MIN_INLIERS:
             return None
         start = projected[inside].astype(np.float32)
         margin = 8 * 2**levels
@@ -369,7 +289,7 @@ class TextureDetector:
         )
         ok = status.ravel() == 1
         tracked = int(np.count_nonzero(ok))
-        if tracked < self.min_inliers:
+        if tracked < MIN_INLIERS:
             return None
         cv2.setRNGSeed(self.seed)
         correction, agree = cv2.findHomography(
@@ -377,7 +297,7 @@ class TextureDetector:
         )
         inliers = 0 if agree is None else int(agree.sum())
         # Most reference corners must agree: a wrong warp leaves LK points scattered.
-        if correction is None or inliers < max(self.min_inliers, tracked // 2):
+        if correction is None or inliers < max(MIN_INLIERS, tracked // 2):
             return None
         refined = np.linalg.inv(shift) @ correction @ shift @ homography
         refined /= refined[2, 2]
@@ -390,24 +310,11 @@ class TextureDetector:
 class Vignetting:
     """The lens's fall-off of brightness, ``1 - a r^2`` about the image centre, pooled over frames.
 
-    A frame sees the target at brightness ``V(x_frame) / V(x_reference)`` times the
-    reference's: one parameter ``a`` a frame at a time by linear least squares (frame ~
-    gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset, the frame warped
-    onto the template by its homography), pooled by each frame's information (near the
-    reference's place in the image a frame tells nothing). ``r`` is in units of the image's
-    half-diagonal. The reference is taken to be a frame of the same camera, as ``fit`` and
-    ``repeat`` make it.
-
-    The fall-off is the camera's: once a few dozen frames have told it, it is read again only
-    every :data:`POOL_INTERVAL`-th frame (:meth:`wants`), and the other frames are aligned
-    once, against the template shaded with the pooled value (:meth:`shaded`).
-
-    Parameters
-    ----------
-    shape : (height, width)
-        The images' size.
-    template : (x0, y0, ndarray of shape (h, w))
-        The template and its place in the reference image.
+    A frame sees the target ``V(x_frame) / V(x_reference)`` times as bright as the reference
+    (a frame of the same camera): ``a`` by linear least squares a frame at a time (frame ~
+    gain * template + gain * a * (r_ref^2 - r_frame^2) * template + offset), pooled by each
+    frame's information. ``r`` is in units of the image's half-diagonal. ``shape``: the images'
+    (height, width); ``template``: ``(x0, y0, image)``, the template and its place in the reference.
     """
 
     def __init__(self, shape: tuple[int, int], template: tuple[int, int, NDArray[np.float32]]) -> None:
@@ -415,7 +322,6 @@ class Vignetting:
         self.centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
         self.scale = 0.25 * (width**2 + height**2)
         x0, y0, image = template
-        # The template's pixel columns and rows, broadcastable against each other.
         self._cols = np.arange(image.shape[1], dtype=np.float32)[None, :]
         self._rows = np.arange(image.shape[0], dtype=np.float32)[:, None]
         self._r2_reference = self._r2_frame(np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]]))
@@ -440,9 +346,7 @@ class Vignetting:
 
     def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float32]:
         """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->
-        whole-frame pixels), shape (h, w), float32."""
-        # About the image centre: r^2 = (x^2 + y^2) / (w^2 scale), x, y and w affine in the
-        # template's columns and rows (each one broadcast sum).
+        whole-frame pixels), shape (h, w), float32: (x^2 + y^2) / (w^2 scale) about the centre."""
         h = (np.array([[1.0, 0.0, -self.centre[0]], [0.0, 1.0, -self.centre[1]], [0.0, 0.0, 1.0]]) @ homography).astype(np.float32)
         cols, rows = self._cols, self._rows
         x = h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])
@@ -458,11 +362,7 @@ class Vignetting:
 
     def shaded(self, template: NDArray[np.float32], homography: NDArray[np.float64]) -> NDArray[np.float32] | None:
         """The template as a frame's vignetting shades it, with the pooled fall-off; None
-        while no frame has told it.
-
-        ``homography`` maps template pixels to whole-frame pixels (to a pixel or so is
-        enough: the shading varies over hundreds of pixels).
-        """
+        while no frame has told it. ``homography``: template -> whole-frame pixels, to a pixel or so."""
         a = self.falloff
         if a == 0.0:
             return None
@@ -477,11 +377,8 @@ class Vignetting:
 
     def pool(self, template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
              offset: tuple[int, int]) -> None:
-        """Add a frame's estimate of the fall-off to the pool.
-
-        ``template`` is the unshaded template, aligned with ``frame`` (cut out of the whole
-        frame at ``offset``) by ``homography`` (template pixels -> ``frame`` pixels).
-        """
+        """Add a frame's estimate of the fall-off to the pool: ``template`` (unshaded) aligned
+        with ``frame`` (cut out of the whole frame at ``offset``) by ``homography``."""
         self._frames += 1
         height, width = template.shape
         warped = cv2.warpPerspective(frame, homography, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
@@ -496,7 +393,7 @@ class Vignetting:
         gram = design @ design.T
         try:
             coefficients = np.linalg.solve(gram, design @ warped[ok].astype(np.float64))
-            # The information on a: the shading term's part that gain and offset do not explain.
+            # The information on a: the part of the shading term that gain and offset do not explain.
             unexplained = 1.0 / np.linalg.inv(gram)[2, 2]
         except np.linalg.LinAlgError:
             return
@@ -514,9 +411,8 @@ def _smoothed(image: NDArray[np.uint8], sigma: float = ALIGN_BLUR_SIGMA) -> NDAr
 
 def _matched_blur(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64]) -> tuple[float, float]:
     """Smoothing (px) of the template and of the frame that give both the same blur in the
-    template's pixels, the frame seeing the target ``s`` times larger (the homography's
-    local scale at the target's centre): a sharper frame matched to a blurrier template
-    biases the fitted scale (a blob looks larger blurred). In plain floats (once a frame)."""
+    template's pixels, the frame seeing the target ``s`` times larger (the homography's local
+    scale at the target's centre): unequal blur biases the fitted scale."""
     points = reference_pixels.tolist()
     cx, cy = sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points)
     (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = (homography / homography[2, 2]).tolist()
@@ -534,10 +430,8 @@ def _matched_blur(homography: NDArray[np.float64], reference_pixels: NDArray[np.
 
 def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma: float = ALIGN_BLUR_SIGMA,
                      margin: int = 16) -> tuple[tuple[int, int], NDArray[np.float32]] | None:
-    """The frame around ``points`` (their box and ``margin`` px), smoothed; None when empty.
-
-    The region is cut before smoothing with a margin wider than the filter, so that what
-    ECC sees near the target is the smoothed frame, not its cut edge."""
+    """The frame around ``points`` (their box and ``margin`` px, wider than the filter, so that
+    ECC sees no cut edge), smoothed; None when empty."""
     height, width = gray.shape
     if not np.all(np.isfinite(points)):
         return None
@@ -559,9 +453,8 @@ def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], point
 
 
 def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64], shape: tuple[int, int]) -> bool:
-    """Reject fits that fold, mirror or blow up the target (a degenerate or wrong homography).
-
-    In plain floats (a few points, twice a frame: numpy's per-call cost would dominate)."""
+    """Reject fits that fold, mirror or blow up the target (in plain floats: a few points,
+    twice a frame, where numpy's per-call cost would dominate)."""
     (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = homography.tolist()
     height, width = shape
     bound = 10.0 * math.hypot(width, height)
@@ -579,3 +472,58 @@ def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.flo
     if before == 0 or np.sign(after) != np.sign(before):
         return False
     return 1e-3 < abs(after / before) < 1e3
+
+
+def align_homography(template: NDArray[np.float32], frame: NDArray[np.float32], homography: NDArray[np.float64],
+                     check_points: NDArray[np.float64], min_correlation: float | None = None,
+                     settle_px: float | None = None) -> tuple[NDArray[np.float64] | None, float]:
+    """The template -> frame ``homography`` (3, 3, to a pixel or so) refined by ECC, and ECC's
+    correlation coefficient (1 for images equal up to gain and offset; NaN when ECC failed).
+
+    None instead of the homography when ECC fails, moves a ``check_points`` (N, 2, template px)
+    farther than :data:`MAX_CORRECTION_PX`, or correlates below ``min_correlation``. With
+    ``settle_px``, one ECC step first, and the full run only when it moved a point farther (px).
+    """
+    height, width = frame.shape
+    start = transfer(homography, check_points)
+    # Work on the frame's region around the target: ECC warps the whole input each step.
+    low = np.floor(start.min(axis=0) - 8).astype(int)
+    high = np.ceil(start.max(axis=0) + 8).astype(int)
+    x0, y0 = max(int(low[0]), 0), max(int(low[1]), 0)
+    x1, y1 = min(int(high[0]), width), min(int(high[1]), height)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None, float("nan")
+    warp = (_shift(-x0, -y0) @ homography).astype(np.float32)
+    warp /= warp[2, 2]
+    crop = np.ascontiguousarray(frame[y0:y1, x0:x1])
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, ECC_ITERATIONS, ECC_EPSILON)
+    settled = False
+    try:
+        if settle_px is not None:
+            first = warp
+            correlation, warp = cv2.findTransformECC(template, crop, first.copy(), cv2.MOTION_HOMOGRAPHY, (cv2.TERM_CRITERIA_COUNT, 1, 0.0),
+                                                     None, 1)
+            step = transfer(warp.astype(np.float64), check_points) - transfer(first.astype(np.float64), check_points)
+            settled = bool(np.max(np.abs(step)) <= settle_px)
+        if not settled:
+            correlation, warp = cv2.findTransformECC(template, crop, warp, cv2.MOTION_HOMOGRAPHY, criteria, None, 1)
+    except cv2.error:
+        return None, float("nan")
+    correlation = float(correlation)
+    if min_correlation is not None and not correlation >= min_correlation:
+        return None, correlation
+    refined = warp.astype(np.float64)
+    refined[0] += x0 * refined[2]
+    refined[1] += y0 * refined[2]  # the shift undone: inv(shift) @ warp
+    if not np.all(np.isfinite(refined)) or abs(refined[2, 2]) < 1e-12:
+        return None, correlation
+    refined /= refined[2, 2]
+    moved = transfer(refined, check_points)
+    if not np.all(np.isfinite(moved)) or np.max(np.linalg.norm(moved - start, axis=1)) > MAX_CORRECTION_PX:
+        return None, correlation
+    return refined, correlation
+
+
+def transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points (N, 2) mapped by a homography."""
+    return cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)

@@ -1,9 +1,6 @@
-"""The target detector as ``fit`` and ``repeat`` use it: one set-up, used by both.
-
-``fit`` decides what to detect (from the recording's world, or from the first image) and
-records it in the model; ``repeat`` re-creates exactly the same detector from the model, so
-the live camera is measured the way the taught images were.
-"""
+"""The target detector as ``fit`` and ``repeat`` use it: ``fit`` records in the model what
+to detect, ``repeat`` re-creates the same detector from it, so the live camera is measured
+the way the taught images were."""
 
 from __future__ import annotations
 
@@ -28,30 +25,11 @@ from .dots import dark_image, find_dark_blobs
 
 @dataclass(frozen=True)
 class DetectorSpec:
-    """What to detect and how to give its points an identity.
-
-    Attributes
-    ----------
-    kind : str
-        ``dots``, ``aruco`` or ``texture``.
-    n_points : int or None
-        Number of target points (None: count the dots in the first image).
-    marker_id : int or None
-        ArUco id (None: the first marker seen).
-    template_pixels : ndarray, shape (N, 2), or None
-        Texture: the target points in the template image (the first frame).
-    marker_dict : str or None
-        Markers: the predefined dictionary (None: DICT_4X4_50).
-    marker_ids : tuple of int or None
-        Markers: several markers, 4 corners each, in this order (None: ``marker_id`` alone).
-    polarity : str or None
-        Dots: ``dark`` or ``light`` (None: dark).
-    contrast : str or None
-        Dots: ``gray`` or ``colour`` (None: gray; recorded only when colour, so that fits
-        of gray dots keep their bytes).
-    board : (int, int) or None
-        Chessboard: inner corners per row and rows of them (recorded only for a chessboard).
-    """
+    """What to detect (``kind``) and how to give its points an identity; None fields take
+    the defaults of :func:`~.detector.make_detector` (``n_points`` None: count the dots in the
+    first image; ``marker_id`` None: the first marker seen). ``template_pixels`` (N, 2):
+    texture's points in the template image. ``contrast`` and ``board`` are recorded only
+    when set (a gray dots fit keeps its bytes)."""
 
     kind: str
     n_points: int | None = None
@@ -98,21 +76,10 @@ class DetectorSpec:
 class TrackedDetector:
     """Images in, target pixels out, in a fixed identity order (NaN rows when not found).
 
-    Parameters
-    ----------
-    spec : DetectorSpec
-    camera : CameraIntrinsics
-    seed : int
-        Seed of the robust estimation (texture), for identical results run to run.
-    template_image : ndarray, optional
-        Texture: the image the features come from (default: the first image detected).
-    initial_prediction : ndarray, shape (N, 2), optional
-        Where the points are expected in the first image (repeat: the taught first frame),
-        which also fixes their identity.
-    windowed : bool
-        Dots: follow each tracked dot in its own small window
-        (:class:`~.dot_windows.WindowedDotDetector`), as the simulated camera of repeat
-        does; otherwise in the dots' common box, as fit does.
+    ``seed``: of texture's robust fits; ``template_image``: texture's reference (default the
+    first image detected); ``initial_prediction`` (N, 2): where the points are expected in
+    the first image (repeat: the taught first frame), which also fixes their identity;
+    ``windowed``: dots followed each in its own window, as the simulated camera does.
     """
 
     def __init__(
@@ -131,9 +98,8 @@ class TrackedDetector:
         self.template_image = template_image
         self.initial_prediction = None if initial_prediction is None else np.asarray(initial_prediction, dtype=float)
         self._detector: TargetDetector | None = None
-        # A texture is aligned by homographies, which a lens's distortion bends: tracked on
-        # undistorted images (same K), its points distorted back. Its template box is kept as
-        # found, a box of the undistorted template (undistorted, it would reach past the image).
+        # A lens's distortion bends texture's homographies: it is tracked on undistorted images
+        # (same K), its points distorted back (its template box as found, in the undistorted image).
         self._undistort_maps = _undistort_maps(camera) if spec.kind == "texture" and camera.has_distortion else None
 
     def _create(self, image: np.ndarray) -> None:
@@ -182,8 +148,7 @@ class TrackedDetector:
         return pixels if self._undistort_maps is None else distort_pixels(self.camera, pixels)
 
     def _undistorted(self, image: np.ndarray | None) -> np.ndarray | None:
-        """``image`` as the pinhole camera of the same K would see it (texture with a lens's
-        distortion), else itself."""
+        """``image`` as the pinhole camera of the same K would see it (texture with distortion)."""
         if image is None or self._undistort_maps is None:
             return image
         return cv2.remap(image, *self._undistort_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -196,9 +161,8 @@ class TrackedDetector:
         return self._detector.search_windows((int(self.camera.height), int(self.camera.width)))
 
     def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None:
-        """Pixels (N, 2) of the target points found in ``windows`` of ``image`` (its only
-        pixels read: the rest need not be rendered), or None, the track unchanged, unless
-        every point was found there: then :meth:`detect` the whole frame."""
+        """Pixels (N, 2) of the target points found in ``windows`` of ``image`` (its only pixels
+        read), or None, the track unchanged, unless every point was found there."""
         if not isinstance(self._detector, WindowedDotDetector):
             return None
         detection = self._detector.detect_in_windows(image, windows)
@@ -257,12 +221,9 @@ TEXTURE_BOX_PERCENTILE = 3.0
 
 
 def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-    """Four target points for a natural-feature target seen in ``image``.
-
-    The corners (TL, TR, BR, BL) of the box holding the central 94 % of the image's features;
-    rows too close to the principal point's row (m_z ~ 0, where (18) breaks down) are pushed
-    away from it.
-    """
+    """Four target points (TL, TR, BR, BL) for a natural-feature target seen in ``image``: the
+    box of the central 94 % of its features, its rows pushed away from the principal point's
+    row (m_z ~ 0, where (18) breaks down)."""
     keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
@@ -279,35 +240,27 @@ def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> 
     return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
 
 
-#: The outlier gate is this many times the largest residual of the taught frames ...
+#: The outlier gate is this many times the largest residual of the taught frames, and never
+#: tighter than MIN_RESIDUAL_GATE_PX (px): one frame's noise can exceed the taught fit's.
 RESIDUAL_GATE_FACTOR = 10.0
-#: ... and never tighter than this (px): the noise of one frame can exceed the taught fit's.
 MIN_RESIDUAL_GATE_PX = 0.25
 
 
 def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
-    """The per-frame estimator of repeat, with an outlier gate that fits the fit's data.
-
-    Clean taught frames have residuals of hundredths of a pixel, a wrong point tenths: a
-    gate at ten times the taught maximum rejects those and keeps the noise.
-    """
+    """The per-frame estimator of repeat, its outlier gate from the taught residuals (clean
+    frames: hundredths of a pixel; a wrong point: tenths)."""
     taught = float(model.residual_px.get("max", float("nan")))
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
     return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
 
 
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
-    """The fit's detector, re-created for repeat (same kind, identity and template).
-
-    ``template_image``: the fit's decoded template (texture only). ``windowed``: see
-    :class:`TrackedDetector` (the simulated camera; real footage keeps the common box).
-    """
+    """The fit's detector, re-created for repeat (same kind, identity and ``template_image``,
+    the fit's decoded template, texture only); ``windowed``: see :class:`TrackedDetector`."""
     spec = DetectorSpec.from_dict(model.detector)
-    template = None
-    if spec.kind == "texture":
-        if template_image is None:
-            raise RecordingError("the fit file lacks the texture template image (/detector/template)")
-        template = template_image
+    if spec.kind == "texture" and template_image is None:
+        raise RecordingError("the fit file lacks the texture template image (/detector/template)")
     initial = model.detector.get("initial_pixels")
+    template = template_image if spec.kind == "texture" else None
     return TrackedDetector(spec, model.camera, seed=seed, template_image=template,
                            initial_prediction=None if initial is None else np.asarray(initial, dtype=float), windowed=windowed)

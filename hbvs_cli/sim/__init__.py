@@ -3,22 +3,11 @@ renderer, the repeat's scene and camera, and the closed loop. No MCAP I/O (the s
 
 from .simulated_camera import CameraSettings, SimulatedCamera
 from .closed_loop import Simulation
-from .poster import PosterRaster, build_pyramid
-from .render import RenderSettings, SceneRenderer, load_texture, make_renderer
-from .scene import Scene, simulation_world, world_from_reference, world_point_identity
+from .poster import PosterRaster
+from .render import RenderSettings, SceneRenderer, make_renderer
+from .scene import Scene, simulation_world
 
 __all__ = [
-    "CameraSettings",
-    "PosterRaster",
-    "RenderSettings",
-    "Scene",
-    "SceneRenderer",
-    "SimulatedCamera",
-    "Simulation",
-    "build_pyramid",
-    "load_texture",
-    "make_renderer",
-    "simulation_world",
-    "world_from_reference",
-    "world_point_identity",
+    "CameraSettings", "PosterRaster", "RenderSettings", "Scene", "SceneRenderer", "SimulatedCamera", "Simulation",
+    "make_renderer", "simulation_world",
 ]

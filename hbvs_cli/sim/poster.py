@@ -1,11 +1,9 @@
 """The target's picture as a raster: the poster a renderer warps into the camera.
 
-Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down.
-Raster pixel ``(i, j)`` (OpenCV) has its centre at ``(i, j)``: the poster point ``(a, b)`` is
-the level-0 coordinate ``(a ppm - 0.5, b ppm - 0.5)``, and pyramid level ``l`` is a raster of
-``ppm / 2^l`` px/m under the same rule (its pixel ``i`` centred at ``(i + 0.5) 2^l / ppm`` m).
-``cv2.pyrDown`` would shift each level by a quarter pixel and bias every rendered point, so
-the pyramid uses the even kernel ``[1, 3, 3, 1] / 8`` centred between input pixels 2i, 2i+1.
+Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down;
+pyramid level ``l`` is a raster of ``ppm / 2^l`` px/m whose pixel ``i`` is centred at
+``(i + 0.5) 2^l / ppm`` m. ``cv2.pyrDown`` would shift each level by a quarter pixel, so the
+pyramid uses the even kernel ``[1, 3, 3, 1] / 8`` centred between input pixels 2i, 2i+1.
 """
 
 from __future__ import annotations
@@ -20,12 +18,10 @@ from ..core.grayscale import as_gray
 from .world import Target
 from ..errors import InputError, UsageError
 
-#: Gray level of the poster's paper.
+#: Gray levels of the poster's paper and of the ink (dots, marker cells).
 PAPER_WHITE = 230
-#: Gray level of the ink (dots, marker cells).
 INK_BLACK = 20
-#: Default level-0 resolution (raster pixels per metre). 640 makes every default poster a
-#: whole multiple of 2^6 pixels, so coarse pyramid levels cover the poster exactly.
+#: Default level-0 resolution (px/m): every default poster a whole multiple of 2^6 pixels.
 DEFAULT_PPM = 640.0
 #: The pyramid stops once a level's longer side would drop below this (px).
 MIN_LEVEL_SIZE = 8
@@ -50,18 +46,10 @@ class PosterRaster:
     height: float
 
     @classmethod
-    def from_target(
-        cls,
-        target: Target,
-        texture: NDArray | None = None,
-        ppm: float = DEFAULT_PPM,
-    ) -> "PosterRaster":
-        """Draw the poster of ``target``.
-
-        ``texture`` (kind "texture" only): a loaded image (uint8/uint16, gray, BGR or BGRA)
-        stretched over the poster; None draws the built-in pattern. Raises InputError for an
-        unusable texture, UsageError for a non-positive ``ppm`` (px/m) or degenerate poster.
-        """
+    def from_target(cls, target: Target, texture: NDArray | None = None, ppm: float = DEFAULT_PPM) -> "PosterRaster":
+        """Draw the poster of ``target``; ``texture`` (kind "texture" only): a loaded image
+        stretched over it (None: the built-in pattern). InputError for an unusable texture,
+        UsageError for a non-positive ``ppm`` (px/m) or a degenerate poster."""
         if not np.isfinite(ppm) or ppm <= 0:
             raise UsageError(f"the poster resolution must be positive, got {ppm!r} px/m")
         poster = target.poster
@@ -76,44 +64,25 @@ class PosterRaster:
             base = _builtin_texture(size) if texture is None else _fit_texture(texture, size)
         else:
             raise UsageError(f"unknown target kind {target.kind!r}")
-        return cls(
-            kind=target.kind,
-            ppm=float(ppm),
-            levels=build_pyramid(base),
-            width=float(poster.width),
-            height=float(poster.height),
-        )
+        return cls(kind=target.kind, ppm=float(ppm), levels=build_pyramid(base), width=float(poster.width), height=float(poster.height))
 
     @property
     def image(self) -> NDArray[np.uint8]:
         """The level-0 picture, shape (H0, W0)."""
         return self.levels[0]
 
-    @property
-    def n_levels(self) -> int:
-        """Number of pyramid levels."""
-        return len(self.levels)
-
     def level_to_poster(self, level: int) -> NDArray[np.float64]:
         """Homography (3x3) from level-``level`` pixels to poster metres: ``(i + 0.5) 2^level / ppm``."""
         step = 2.0**level / self.ppm
         return np.array([[step, 0.0, 0.5 * step], [0.0, step, 0.5 * step], [0.0, 0.0, 1.0]])
 
-    def poster_to_level(self, level: int) -> NDArray[np.float64]:
-        """Homography from poster metres to level-``level`` pixel coordinates, 3x3."""
-        scale = self.ppm / 2.0**level
-        return np.array([[scale, 0.0, -0.5], [0.0, scale, -0.5], [0.0, 0.0, 1.0]])
-
     def level_for_scale(self, px_per_metre: float) -> int:
-        """The level closest to the poster's magnification ``px_per_metre`` (camera px/m).
-
-        ``round(log2(ppm / px_per_metre))`` clamped to the pyramid: one level pixel spans
-        ~0.7-1.4 camera pixels, sharp enough yet coarse enough for bilinear sampling not to alias.
-        """
+        """The level closest to the poster's magnification ``px_per_metre`` (camera px/m):
+        one level pixel spans 0.7-1.4 camera pixels, enough for bilinear sampling not to alias."""
         if not np.isfinite(px_per_metre) or px_per_metre <= 0:
-            return self.n_levels - 1
+            return len(self.levels) - 1
         level = int(np.floor(np.log2(self.ppm / px_per_metre) + 0.5))
-        return int(np.clip(level, 0, self.n_levels - 1))
+        return int(np.clip(level, 0, len(self.levels) - 1))
 
 
 def build_pyramid(image: NDArray[np.uint8], min_size: int = MIN_LEVEL_SIZE) -> tuple[NDArray[np.uint8], ...]:
@@ -132,12 +101,9 @@ def build_pyramid(image: NDArray[np.uint8], min_size: int = MIN_LEVEL_SIZE) -> t
 
 
 def _draw_dots(size: tuple[int, int], centres: NDArray[np.float64], radius: float) -> NDArray[np.uint8]:
-    """Black discs on white paper with analytic, radially symmetric anti-aliasing.
-
-    Coverage ``clip(radius - d + 0.5, 0, 1)`` (``d``: pixel centre to disc centre) depends on
-    ``d`` only, so the ink's centroid stays on the sub-pixel centre (``cv2.circle`` does not).
-    ``centres`` (N, 2) and ``radius`` are in level-0 raster px; ``size`` is ``(H0, W0)``.
-    """
+    """Black discs on white paper, ``centres`` (N, 2) and ``radius`` in level-0 px, with
+    radially symmetric anti-aliasing (coverage ``clip(radius - d + 0.5, 0, 1)``), so that the
+    ink's centroid stays on the sub-pixel centre (``cv2.circle``'s does not)."""
     if radius <= 0:
         raise UsageError("a dot target needs a positive dot radius")
     height, width = size
@@ -157,12 +123,8 @@ def _draw_dots(size: tuple[int, int], centres: NDArray[np.float64], radius: floa
 
 
 def _draw_aruco(size: tuple[int, int], corners: NDArray[np.float64], marker_id: int) -> NDArray[np.uint8]:
-    """The DICT_4X4_50 marker ``marker_id`` with its outer corners on ``corners``.
-
-    ``corners`` (4, 2): outer corners in level-0 px, OpenCV order. The 6 x 6-cell marker is
-    warped there by 4 x 4 supersampling, so any quadrilateral works; on the default target
-    (square, side a multiple of 6 px, corners on pixel edges) the cells land exactly on pixels.
-    """
+    """The DICT_4X4_50 marker ``marker_id`` with its outer corners on ``corners`` (4, 2,
+    level-0 px, OpenCV order), warped there by 4 x 4 supersampling."""
     if corners.shape != (4, 2):
         raise UsageError(f"an ArUco target has 4 points (its corners), got {corners.shape[0]}")
     dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
@@ -212,11 +174,8 @@ def _fit_texture(texture: NDArray, size: tuple[int, int]) -> NDArray[np.uint8]:
 
 
 def _builtin_texture(size: tuple[int, int]) -> NDArray[np.uint8]:
-    """A deterministic, corner-rich gray pattern for the ``texture`` target.
-
-    Shapes 1/60 to 1/4 of the longer side in all gray levels: ORB corners at every distance
-    of the default path and nothing like a lone dark dot. Drawn at 2x, area-averaged down.
-    """
+    """A deterministic, corner-rich gray pattern for the ``texture`` target: shapes 1/60 to
+    1/4 of the longer side (corners at every distance of the default path), drawn at 2x."""
     rng = np.random.default_rng(BUILTIN_TEXTURE_SEED)
     height, width = size
     scale = 2

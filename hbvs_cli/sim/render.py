@@ -1,13 +1,10 @@
 """Synthetic camera frames: the poster warped into the camera, with exposure, blur and noise.
 
-The image model, in order: the poster's picture (a :class:`~.poster.PosterRaster` level of
-about camera-pixel sized pixels, against aliasing) projected through
-:meth:`World.poster_to_image_homography` onto a uniform wall; the lens distortion; optional
-Gaussian blur; the sensor: ``gain * irradiance + offset`` plus Gaussian noise (white, or
-correlated over ``noise_grain`` px as a camera's processing leaves it), rounded to 8 bits.
-
-Pixels are OpenCV's (the top-left pixel's centre is (0, 0)), so a target point rendered
-here is found at ``World.pixels(pose)``, distorted by :func:`~hbvs_cli.core.camera.distort_pixels`.
+The image model, in order: the poster's picture (the :class:`~.poster.PosterRaster` level of
+about camera-pixel sized pixels, against aliasing) on a uniform wall; the lens distortion;
+Gaussian blur; the sensor, ``gain * irradiance + offset`` plus Gaussian noise (white, or
+correlated over ``noise_grain`` px), rounded to 8 bits. A target point is rendered at
+``World.pixels(pose)`` (OpenCV pixels), distorted by :func:`~hbvs_cli.core.camera.distort_pixels`.
 """
 
 from __future__ import annotations
@@ -26,11 +23,10 @@ from .world import World
 from ..errors import InputError, UsageError
 from .poster import PosterRaster
 
-#: Poster corners closer to the camera plane than this (m) trigger the exact (slow) path
-#: that masks rays hitting the wall plane behind the camera.
+#: Poster corners closer to the camera plane than this (m) take the exact (slow) path that
+#: masks rays meeting the wall behind the camera.
 _NEAR_DEPTH = 1e-3
-#: Extra camera pixels around the poster's projected outline rendered with it, so that the
-#: bilinear fringe and the blur are complete.
+#: Camera pixels around the poster's projected outline rendered with it (the bilinear fringe).
 _ROI_PAD = 2
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
 Window = tuple[int, int, int, int]
@@ -71,8 +67,8 @@ class RenderSettings:
 @lru_cache(maxsize=1)
 def _gaussian_table() -> NDArray[np.float32]:
     """Standard normal quantiles at the 65536 mid-bin probabilities, rescaled to unit variance:
-    indexed with uniform 16-bit integers they draw Gaussian samples (tails to 4.3 sigma) faster
-    than ``Generator.standard_normal``. Made on first use (scipy.special is slow to import)."""
+    indexed by uniform 16-bit integers, Gaussian samples (tails to 4.3 sigma) faster than
+    ``Generator.standard_normal``."""
     from scipy.special import ndtri
 
     table = ndtri((np.arange(65536, dtype=np.float64) + 0.5) / 65536.0)
@@ -95,14 +91,8 @@ class SceneRenderer:
         self._wall = np.full(self._size, self._background, dtype=np.uint8)
         self._noise = np.zeros(self._size, dtype=np.float32)
         self._grain_kernel = _grain_kernel(self.settings.noise_grain) if self.settings.noise_grain > 0 else None
-        # Ideal (undistorted) pixel coordinates seen by each real pixel: the lens's inverse map.
         self._ideal_map = _inverse_distortion_map(camera) if camera.has_distortion else None
         self._outlines: dict[int, NDArray[np.float64]] = {}
-
-    @property
-    def camera(self) -> CameraIntrinsics:
-        """The world's camera."""
-        return self.world.camera
 
     def render(self, pose: ArrayLike, rng: np.random.Generator, exposure_gain: float | None = None) -> NDArray[np.uint8]:
         """One camera frame (height, width), uint8, seen from ``pose`` (x, y, phi) (m, m, rad),
@@ -124,8 +114,7 @@ class SceneRenderer:
         """The noiseless, unexposed scene (poster on the wall, lens, blur), shape (height, width), uint8."""
         view = self._view(pose)
         frame = self._wall.copy()
-        # The patch extends the blur's reach of plain wall beyond the poster, so blurring it
-        # alone equals blurring the whole frame (up to the image border, replicated).
+        # The patch reaches the blur's reach beyond the poster: blurring it equals blurring the frame.
         window = self._poster_box(view, _ROI_PAD + int(np.ceil(3.0 * self.settings.blur_sigma)))
         if window is not None:
             x0, y0, x1, y1 = window
@@ -135,11 +124,9 @@ class SceneRenderer:
     def render_windows(
         self, pose: ArrayLike, rng: np.random.Generator, windows: Sequence[Window], exposure_gain: float | None = None
     ) -> NDArray[np.uint8]:
-        """A camera frame, shape (height, width), uint8, rendered only inside ``windows``
-        (end-exclusive ``(x0, y0, x1, y1)``, not overlapping), for a detector that reads only
-        those: each window follows :meth:`render`'s image model (its noise drawn for its own
-        pixels, so ``rng``'s stream differs from a whole frame's); the rest is the exposed
-        wall without noise, not to be measured."""
+        """A camera frame rendered only inside ``windows`` (end-exclusive ``(x0, y0, x1, y1)``,
+        not overlapping) as :meth:`render` would (the noise drawn for their pixels alone); the
+        rest is the exposed wall without noise, not to be measured."""
         gain = self._gain(exposure_gain)
         settings = self.settings
         wall = float(np.clip(np.rint(gain * self._background + settings.exposure_offset), 0, 255))
@@ -168,8 +155,7 @@ class SceneRenderer:
 
     def _view(self, pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]:
         """What a frame from ``pose`` samples: the poster-to-image and level-to-image
-        homographies, the pyramid level's picture, its outline (poster m) and the outline's
-        depth factors (the homography's third row applied to it)."""
+        homographies, the level's picture, its outline (poster m) and the outline's depths."""
         pose = np.asarray(pose, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise UsageError(f"a pose is three finite numbers (x, y, phi), got {pose!r}")
@@ -181,8 +167,8 @@ class SceneRenderer:
         return poster_to_image, level_to_image, self.raster.levels[level], outline, depth
 
     def _poster_box(self, view: tuple, pad: int = _ROI_PAD) -> Window | None:
-        """The pixels the poster can cover in a frame of ``view``, ``pad`` pixels around it
-        included (the whole image when unsure), or None when it covers none."""
+        """The window the poster can cover in a frame of ``view``, ``pad`` px around it included
+        (the whole image when unsure), or None when it covers none."""
         poster_to_image, _, _, outline, depth = view
         if np.all(depth <= _NEAR_DEPTH):
             return None
@@ -192,13 +178,12 @@ class SceneRenderer:
         if self._ideal_map is None:
             return _bounding_window(ideal, pad, self._size)
         if _near_image(ideal, self._size):
-            return _bounding_window(distort_pixels(self.camera, ideal), pad, self._size)
+            return _bounding_window(distort_pixels(self.world.camera, ideal), pad, self._size)
         # Far outside the image the lens polynomial can fold back: sample every pixel.
         return (0, 0, self._size[1], self._size[0])
 
     def _sampled(self, view: tuple, window: Window) -> NDArray[np.uint8]:
-        """The noiseless, unexposed scene of ``view`` in ``window``, blurred (the border
-        replicated)."""
+        """The noiseless, unexposed scene of ``view`` in ``window``, blurred (border replicated)."""
         _, level_to_image, picture, _, depth = view
         if np.any(depth <= _NEAR_DEPTH):
             patch = self._sample_masked(picture, level_to_image, window)
@@ -214,8 +199,7 @@ class SceneRenderer:
         """The noiseless, unexposed scene inside ``window`` (within the image), equal to
         that window of :meth:`render_scene`'s frame up to the rounding of the sampling."""
         x0, y0, x1, y1 = window
-        # Blurring a window needs the scene `pad` pixels around it (the kernel's reach); the
-        # replicated border is wrong only within `pad` of the grown window's inner edges.
+        # Blurring a window needs the scene the kernel's reach around it.
         pad = int(np.ceil(3.0 * self.settings.blur_sigma))
         grown = _clipped((x0 - pad, y0 - pad, x1 + pad, y1 + pad), self._size)
         gx0, gy0, gx1, gy1 = grown
@@ -224,10 +208,8 @@ class SceneRenderer:
         return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
     def _noise_in(self, rng: np.random.Generator, windows: list[Window]) -> list[NDArray[np.float32]]:
-        """Unit-variance sensor noise for each window's pixels (float32), correlated by the
-        grain as in :meth:`render`: drawn over the window grown by the grain kernel's
-        reach, so that each window pixel sees a whole kernel of white noise (reflected at
-        the image's edges, as a whole frame's is). One draw from ``rng`` for all windows."""
+        """Unit-variance sensor noise (float32) for each window, correlated by the grain as in
+        :meth:`render`: drawn over the window grown by the kernel's reach, in one draw from ``rng``."""
         reach = 0 if self._grain_kernel is None else len(self._grain_kernel) // 2
         grown = [_clipped((x0 - reach, y0 - reach, x1 + reach, y1 + reach), self._size) for x0, y0, x1, y1 in windows]
         sizes = [(gy1 - gy0) * (gx1 - gx0) for gx0, gy0, gx1, gy1 in grown]
@@ -254,7 +236,6 @@ class SceneRenderer:
         jacobian = (poster_to_image[:2, :2] - np.outer(pixel, poster_to_image[2, :2])) / h[2]
         return self.raster.level_for_scale(float(np.sqrt(abs(np.linalg.det(jacobian)))))
 
-    # -- sampling ----------------------------------------------------------------------
     def _outline(self, level: int) -> NDArray[np.float64]:
         """Points along the edge of the level's picture, in poster metres, shape (4 K, 2),
         made once per level: several a side, as lens distortion bows straight edges."""
@@ -293,8 +274,8 @@ class SceneRenderer:
         )
 
     def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
-        """Sampling that blanks rays meeting the wall plane behind the camera: the third
-        component of ``inv(H) [p, 1]``, ``1 / depth`` of the wall point, is not positive."""
+        """Sampling that blanks rays meeting the wall behind the camera (the third component of
+        ``inv(H) [p, 1]``, ``1 / depth`` of the wall point, not positive)."""
         x0, y0, x1, y1 = window
         if self._ideal_map is None:
             u, v = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
@@ -350,9 +331,8 @@ def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int
 
 
 def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:
-    """For every real (distorted) pixel, the ideal pinhole pixel it sees, shape (H, W, 2):
-    the inverse of :func:`distort_pixels` to ~1e-9 px, as ``cv2.undistortPoints`` iterates to
-    convergence here (its default 5 iterations leave 0.1 px for a strong lens)."""
+    """For every real (distorted) pixel, the ideal pinhole pixel it sees, shape (H, W, 2): the
+    inverse of :func:`distort_pixels`, ``cv2.undistortPoints`` iterated to convergence."""
     u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
     real = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
     coefficients = np.asarray(camera.distortion, dtype=np.float64)

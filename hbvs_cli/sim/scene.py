@@ -1,8 +1,7 @@
 """The simulated world of ``repeat --sim``: the scene, its true depth and the taught pose.
 
-After a simulated teach the fit file carries the taught world and path. After real footage
-a world consistent with the reference image is built at an assumed ``--depth D``: a wall D m
-from F* papered with the reference image, the target points where it shows them.
+A simulated teach's fit carries its world and path; for real footage a world is built at an
+assumed ``--depth D``: a wall D m from F* papered with the reference image.
 """
 
 from __future__ import annotations
@@ -29,10 +28,8 @@ from .render import RenderSettings, SceneRenderer, make_renderer
 
 @dataclass
 class Scene:
-    """A world to simulate, its true depth d*, and the taught pose at any taught time.
-
-    ``poster_image``: the picture on the wall when it is not the target's own drawing.
-    """
+    """A world to simulate, its true depth d*, and the taught pose at any taught time
+    (``poster_image``: the picture on the wall when it is not the target's own drawing)."""
 
     world: World
     d_true: float
@@ -106,17 +103,14 @@ def simulation_world(model: FitModel, reference_image: NDArray | None, depth: fl
     )
 
 
-#: Height given to the camera of a world built from real footage (any value works: only
-#: heights relative to the camera matter).
+#: Height of the camera of a world built from real footage (only relative heights matter).
 BUILT_CAMERA_HEIGHT = 1.0
 
 
 def world_from_reference(model: FitModel, image: np.ndarray, depth: float) -> tuple[World, np.ndarray, np.ndarray]:
-    """A vertical wall ``depth`` metres ahead of F* (at the world origin), papered with the
-    reference image as F* saw it, and the target points where F* saw them.
-
-    Returns the world, the poster's picture and the pose of F* in it.
-    """
+    """A world whose vertical wall, ``depth`` m ahead of F* (at the origin), is papered with
+    the reference image as F* saw it, the target points where F* saw them; the poster's
+    picture; and the pose of F*."""
     normal = np.asarray(model.normal, dtype=float)
     horizontal = np.array([normal[0], normal[1], 0.0])
     if np.linalg.norm(horizontal) < 0.5:

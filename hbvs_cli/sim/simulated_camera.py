@@ -1,10 +1,6 @@
-"""The camera of ``repeat --sim``: one measurement per control period, with the faults asked for.
-
-``images`` renders the scene and runs the fit's detector on it; ``points`` projects the
-target points. Pixel noise is added in both: rendered image noise moves a dot's centre by
-at most ~0.2 px, while a real detector's 0.5-1 px comes from what a renderer does not model
-(docs/results.md, "Under measurement noise").
-"""
+"""The camera of ``repeat --sim``: one measurement per control period, with the faults asked
+for. Pixel noise is added to the detected points too: a real detector's comes mostly from
+what a renderer does not model (docs/results.md, "Under measurement noise")."""
 
 from __future__ import annotations
 
@@ -19,7 +15,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from .render import SceneRenderer
+from .render import SceneRenderer, Window
 from .scene import Scene, renderer_for, world_point_identity
 
 
@@ -44,10 +40,6 @@ class CameraSettings:
     record_images: bool = False
 
 
-#: An image window ``(x0, y0, x1, y1)`` (px, end exclusive).
-Window = tuple[int, int, int, int]
-
-
 class PointDetector(Protocol):
     """What the camera runs on a rendered frame: the fit's detector, made by the stage
     (:func:`hbvs_cli.perception.tracked.detector_from_model` with ``windowed=True``)."""
@@ -63,13 +55,8 @@ class PointDetector(Protocol):
 
 
 class SimulatedCamera:
-    """The repeat's camera: a measurement per frame, with the faults asked for.
-
-    ``perception="images"`` renders the scene and runs the fit's detector on it;
-    ``perception="points"`` projects the target points and adds pixel noise. Faults:
-    occlusion intervals (the target is covered), dropped frames, outliers (a spurious dot
-    or a wrong point), a sudden exposure change.
-    """
+    """The repeat's camera: ``perception="images"`` renders the scene and runs the fit's
+    detector on it, ``"points"`` projects the target points; faults as :class:`CameraSettings`."""
 
     def __init__(
         self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: PointDetector | None,
@@ -80,7 +67,6 @@ class SimulatedCamera:
         self.perception = settings.perception
         self.estimator = estimator
         self.identity = world_point_identity(scene, model)
-        # What projecting the points each control period needs, as plain floats.
         self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
         self._identity = [int(i) for i in self.identity]
         self._camera_height = float(scene.world.camera_height)
@@ -91,7 +77,6 @@ class SimulatedCamera:
         self.outlier_rate = settings.outlier_rate
         self.exposure_step = settings.exposure_step
         self.record_images = settings.record_images
-        #: Noise of a stored image's pixels outside the measured windows.
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
         self.renderer: SceneRenderer | None = None
@@ -130,8 +115,7 @@ class SimulatedCamera:
     def _observe_image(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
         gain = self.settings_exposure(t)
         blob = self._spurious_blob(pose) if outlier else None
-        # Dots followed by their track are looked for in small windows: only those are
-        # rendered. When some dot is not there (or nothing is tracked), the whole frame.
+        # Tracked dots are looked for in small windows, all that is rendered; failing that, the whole frame.
         windows = self.detector.search_windows()
         pixels = None
         if windows is not None:
@@ -141,15 +125,13 @@ class SimulatedCamera:
             image = self._frame(self.renderer.render(pose, self.noise_rng, exposure_gain=gain), pose, t, blob)
             pixels = self.detector.detect(image)
         elif self.record_images:
-            # The stored image: the windows measured, in a whole frame whose other pixels
-            # draw their noise from a stream of their own (the run does not depend on it).
+            # The windows measured, in a whole frame whose other pixels have a noise stream of their own.
             whole = self._frame(self.renderer.render(pose, self.image_rng, exposure_gain=gain), pose, t, blob)
             for x0, y0, x1, y1 in windows:
                 whole[y0:y1, x0:x1] = image[y0:y1, x0:x1]
             image = whole
         self.last_image = image
         if self.pixel_noise > 0:
-            # NaN rows (points not found) stay NaN.
             pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
         return self.estimator.from_pixels(pixels)
 
@@ -164,13 +146,9 @@ class SimulatedCamera:
 
     def _project(self, pose: np.ndarray) -> np.ndarray | None:
         """Pixels of the target points (in the fit's identity order) seen from ``pose``, or
-        None when one is behind the camera or outside the image.
-
-        The points in F, ``Rz(phi)^T (P - p)`` (:func:`~hbvs_cli.core.frames.world_to_robot`),
-        and their pinhole pixels (9), (11) (:func:`~hbvs_cli.core.camera.normalized_to_pixels`),
-        in plain floats with the same operations in the same order (the same numbers): a
-        few points, every control period, are faster without numpy's per-call cost.
-        """
+        None when one is behind the camera or outside the image: the numbers of
+        :func:`~hbvs_cli.core.frames.world_to_robot` and (9), (11), in plain floats (faster
+        for a few points than numpy's per-call cost)."""
         camera = self.scene.world.camera
         x, y, phi = (float(v) for v in pose)
         c, s = np.cos(phi), np.sin(phi)
@@ -199,20 +177,16 @@ class SimulatedCamera:
         at, gain = self.exposure_step
         return gain if t >= at else None
 
-    def _target_box(self, pose: np.ndarray, pad: float) -> tuple[int, int, int, int]:
+    def _cover_target(self, image: np.ndarray, pose: np.ndarray) -> None:
+        """An occluder (a person walking by) in front of the whole poster, and 4 px around it."""
         world = self.scene.world
-        corners = world.target.poster.to_world(np.array([[0, 0], [world.target.poster.width, 0],
-                                                         [world.target.poster.width, world.target.poster.height],
-                                                         [0, world.target.poster.height]]))
+        poster = world.target.poster
+        corners = poster.to_world(np.array([[0, 0], [poster.width, 0], [poster.width, poster.height], [0, poster.height]]))
         with np.errstate(divide="ignore", invalid="ignore"):
             px = normalized_to_pixels(world.camera, world_to_robot(corners, pose, world.camera_height))
-        u0, v0 = np.floor(px.min(axis=0) - pad).astype(int)
-        u1, v1 = np.ceil(px.max(axis=0) + pad).astype(int)
-        return max(u0, 0), max(v0, 0), min(u1, world.camera.width), min(v1, world.camera.height)
-
-    def _cover_target(self, image: np.ndarray, pose: np.ndarray) -> None:
-        """An occluder (a person walking by) in front of the whole poster."""
-        u0, v0, u1, v1 = self._target_box(pose, pad=4.0)
+        u0, v0 = np.floor(px.min(axis=0) - 4.0).astype(int)
+        u1, v1 = np.ceil(px.max(axis=0) + 4.0).astype(int)
+        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, world.camera.width), min(v1, world.camera.height)
         if u1 > u0 and v1 > v0:
             image[v0:v1, u0:u1] = 90
 

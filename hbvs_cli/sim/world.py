@@ -1,9 +1,8 @@
 """The simulated world: a camera on a unicycle robot and a planar target on a wall.
 
-World frame W: x toward the wall, y left, z up (m). The optical centre is the origin of F
-(camera "in hand", Sec. II) at ``camera_height``. The target lies on the wall ``x = wall_x``;
-no target point may lie at the camera's height (18). :meth:`World.to_dict` is what ``hbvs
-teach`` records so that later stages re-create the same world and images.
+World frame W: x toward the wall, y left, z up (m). The optical centre, the origin of F
+(Sec. II), is at ``camera_height``; no target point may lie at that height (18).
+:meth:`World.to_dict` is what ``hbvs teach`` records, so that later stages re-create it.
 """
 
 from __future__ import annotations
@@ -100,16 +99,10 @@ class World:
                 "equation (18) needs every point at least 2 cm above or below it"
             )
 
-    # -- geometry ---------------------------------------------------------------------
     @property
     def wall_x(self) -> float:
         """The wall is the plane x = wall_x in W (m)."""
         return float(self.target.poster.center[0])
-
-    @property
-    def wall_normal(self) -> NDArray[np.float64]:
-        """Unit normal of the wall in W, pointing from the robot's side into the wall."""
-        return np.array([1.0, 0.0, 0.0])
 
     def points_in_camera(self, pose: ArrayLike) -> NDArray[np.float64]:
         """Target points in F (paper axes), shape (N, 3) (m)."""
@@ -142,7 +135,7 @@ class World:
         m_ref = self.normalized_points(reference_pose)
         phi = reference_pose[2]
         c, s = np.cos(phi), np.sin(phi)
-        n_w = self.wall_normal
+        n_w = np.array([1.0, 0.0, 0.0])  # the wall's unit normal in W, into the wall
         normal = np.array([c * n_w[0] + s * n_w[1], -s * n_w[0] + c * n_w[1], n_w[2]])
         d_star = float(self.wall_x - reference_pose[0])
         return m_ref, normal, d_star
@@ -156,20 +149,13 @@ class World:
     def poster_to_image_homography(self, pose: ArrayLike) -> NDArray[np.float64]:
         """``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: poster metres to ideal pixels."""
         pose = np.asarray(pose, dtype=float)
-        poster = self.poster_basis()
+        poster = self.target.poster
         c, s = np.cos(pose[2]), np.sin(pose[2])
         to_robot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        origin = poster[:, 2] - np.array([pose[0], pose[1], self.camera_height])
-        columns = np.column_stack([poster[:, 0], poster[:, 1], origin])
+        origin = poster.to_world(np.zeros(2)) - np.array([pose[0], pose[1], self.camera_height])
+        columns = np.column_stack([poster.right, poster.down, origin])
         return self.camera.K @ PAPER_TO_OPENCV @ to_robot @ columns
 
-    def poster_basis(self) -> NDArray[np.float64]:
-        """Columns: the poster's right and down unit vectors and its top-left corner, in W."""
-        poster = self.target.poster
-        top_left = poster.to_world(np.zeros(2))
-        return np.column_stack([poster.right, poster.down, top_left])
-
-    # -- serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready description (the ``world`` record of a teach file)."""
         target = self.target
@@ -271,21 +257,16 @@ DEFAULT_WALL_X = 4.0
 DEFAULT_CAMERA_HEIGHT = 0.30
 
 
-#: Dot centres as fractions of the dot poster's width and height (from its top-left
-#: corner). The first three form the scalene triangle of the default target; the others
-#: are added in order. On the 2.0 m x 0.9 m poster they are at least 0.3 m apart and none
-#: is level with the camera.
+#: Dot centres as fractions of the dot poster's width and height (from its top-left corner),
+#: the default scalene triangle first: at least 0.3 m apart and none level with the camera.
 DOT_LAYOUT: tuple[tuple[float, float], ...] = (
     (0.06, 0.70), (0.94, 0.55), (0.47, 0.09), (0.82, 0.12), (0.24, 0.28),
     (0.70, 0.80), (0.42, 0.55), (0.10, 0.06), (0.30, 0.88), (0.96, 0.90),
 )
 
 def default_target(kind: str = "dots", dots: int = 3, texture: str = "builtin", wall_x: float = DEFAULT_WALL_X) -> Target:
-    """The default target of each kind, centred 0.75 m high on the wall in front of the start.
-
-    Wide, because a small distant target's yaw/lateral-shift ambiguity makes theta's noise
-    grow as (distance / width)^2.
-    """
+    """The default target of each kind, centred 0.75 m high on the wall in front of the start;
+    wide, since theta's noise grows as (distance / width)^2."""
     if kind not in TARGET_KINDS:
         raise InvalidValueError(f"unknown target kind {kind!r}: choose one of {', '.join(TARGET_KINDS)}")
     center = np.array([wall_x, 0.0, 0.75])
