@@ -20,7 +20,7 @@ from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
 from .metrics import rms
-from .bundle import JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points, rolling_shutter_shift
+from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points, rolling_shutter_shift
 from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -69,14 +69,6 @@ UNCERTAIN_NORMAL_WARNING = (
 BRANCH_CHECK_MARGIN = 0.05
 #: ... on this many frames at most (the branches' costs differ by far more than their noise).
 BRANCH_CHECK_FRAMES = 200
-
-#: A rolling shutter's readout (s per normalised row) is taken out of the points when fitting
-#: it lowers the joint estimate's cost by more than this many point-noise variances (a
-#: chi-square of one unknown: about 1 without a shutter) ...
-ROLLING_SHUTTER_CHI2 = 100.0
-#: ... the cost's parabola through the readouts 0 and +- this (a 480-row sensor read out in
-#: 20 ms at a focal length of 500 px is 0.021).
-ROLLING_SHUTTER_PROBE = 0.02
 
 #: Random probes that carry each frame's own noise through the (linear) smoothing spline:
 #: the smoothed variance is estimated to about 1/sqrt(32) (18 %), its root to 9 %.
@@ -292,7 +284,6 @@ def fit_desired_trajectory(
         if np.isfinite(theirs.cost) and (not np.isfinite(ours.cost) or theirs.cost < ours.cost):
             normal, m_ref = theirs.normal, theirs.m_ref
     joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
-    m, joint = _without_rolling_shutter(m, t, found, others, reference_index, joint, noise, shapes)
     normal, m_ref = joint.normal, joint.m_ref
     m, found = _completed_partial_frames(m, found, m_ref, normal)
     solver = KnownNormalSolver(m_ref, normal)
@@ -342,43 +333,6 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
-
-
-def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
-                             reference_index: int, joint: JointEstimate, noise: float,
-                             shapes: Sequence[KnownShape]) -> tuple[NDArray[np.float64], JointEstimate]:
-    """The points (F, N, 3) and the joint estimate with a rolling shutter's shift taken out, when
-    the drive shows one; else both as given.
-
-    A rolling shutter moves every point by its readout ``tau`` times
-    :func:`~.bundle.rolling_shutter_shift` (the same for the whole recording), which the model
-    (12) does not hold: the skew biases n*. ``tau`` is where the parabola through the joint
-    estimate's costs at 0 and +-:data:`ROLLING_SHUTTER_PROBE` is lowest (on at most
-    :data:`BRANCH_CHECK_FRAMES` frames), kept when it lowers the cost by more than
-    :data:`ROLLING_SHUTTER_CHI2` noise variances; then the estimate is made again.
-    """
-    if others.size < 2 or noise <= 0.0:
-        return m, joint
-    motion = KnownNormalSolver(joint.m_ref, joint.normal).solve(m[found])
-    seen = np.flatnonzero(found)[motion.valid]
-    poses = np.column_stack([motion.theta, motion.x_h])[motion.valid]
-    shift = np.zeros(m.shape)
-    shift[seen, :, 1:] = rolling_shutter_shift(projected_points(joint.normal, joint.m_ref, poses), t[seen]).reshape(seen.size, -1, 2)
-    few = others[np.linspace(0, others.size - 1, min(others.size, BRANCH_CHECK_FRAMES)).astype(int)]
-    costs = []
-    for readout in (-ROLLING_SHUTTER_PROBE, 0.0, ROLLING_SHUTTER_PROBE):
-        moved = m - readout * shift
-        costs.append(estimate_plane_jointly(moved[few], joint.m_ref, joint.normal, moved[reference_index], noise, shapes=shapes).cost)
-    before, at_zero, after = costs
-    curvature = before - 2.0 * at_zero + after
-    if not np.all(np.isfinite(costs)) or curvature <= 0.0:
-        return m, joint
-    readout = ROLLING_SHUTTER_PROBE * (before - after) / (2.0 * curvature)
-    # The parabola's drop from 0 to its lowest point is half the chi-square's (cost = sum r^2 / 2).
-    if (before - after) ** 2 / (8.0 * curvature) < ROLLING_SHUTTER_CHI2 * noise**2 / 2.0:
-        return m, joint
-    m = m - readout * shift
-    return m, estimate_plane_jointly(m[others], joint.m_ref, joint.normal, m[reference_index], noise, shapes=shapes)
 
 
 def detector_bias_fraction(kind: str | None, noise_px: float) -> float:
