@@ -754,8 +754,12 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
         # at that delay puts it (a few passes settle which band holds it).
         pose_of_time = drive_pose_function(drive)
         times = drive.times()[frames]
-        moved = lambda delay, readout_s: (pose_of_time((times[:, None] + readout_s * delay).ravel()).T.reshape(delay.shape + (3,))  # noqa: E731
-                                          - pose_of_time(times).T[:, None])
+        at_times = pose_of_time(times).T[:, None]  # (F, 1, 3)
+
+        def moved(delay: np.ndarray, readout_s: float) -> np.ndarray:
+            """How far the drive moves (F, N, 3) from each frame's time to its points' rows' times."""
+            return pose_of_time((times[:, None] + readout_s * delay).ravel()).T.reshape(delay.shape + (3,)) - at_times
+
         delay = np.zeros((len(frames), len(world)))
         for _ in range(5):
             delay = shutter.delay_fraction(project(true_poses + moved(delay, shutter.readout_s), world)[..., 1] + camera.cy, camera.height)

@@ -152,9 +152,10 @@ def test_the_rolling_shutter_bound_marginalises_the_readout():
     frames = np.arange(0, len(DRIVE.times()), 3)
     poses = np.array([pose_of_time(t) for t in DRIVE.times()])
     plain = footage.cramer_rao_bound(wall, camera, poses, 0.03, frames=frames)
-    still = footage.cramer_rao_bound(wall, camera, poses, 0.03, frames=frames, shutter=replace(shutter, readout_s=0.0), drive=DRIVE, readout_known=True)
-    known = footage.cramer_rao_bound(wall, camera, poses, 0.03, frames=frames, shutter=shutter, drive=DRIVE, readout_known=True)
-    unknown = footage.cramer_rao_bound(wall, camera, poses, 0.03, frames=frames, shutter=shutter, drive=DRIVE)
+    bound = lambda **shutter_model: footage.cramer_rao_bound(wall, camera, poses, 0.03, frames=frames, drive=DRIVE, **shutter_model)  # noqa: E731
+    still = bound(shutter=replace(shutter, readout_s=0.0), readout_known=True)
+    known = bound(shutter=shutter, readout_known=True)
+    unknown = bound(shutter=shutter)
     assert still["theta_sigma"] == pytest.approx(plain["theta_sigma"], rel=1e-9)
     assert still["normal_sigma"] == pytest.approx(plain["normal_sigma"], rel=1e-9)
     assert np.all(unknown["theta_sigma"] >= known["theta_sigma"] * (1 - 1e-9))
