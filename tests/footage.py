@@ -261,9 +261,7 @@ class FootageMaker:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         times = drive.times()
-        fine = np.linspace(times[0] - 0.5, times[-1] + 0.5, int((times[-1] - times[0] + 1.0) * 200) + 1)
-        fine_poses = _poses_from(drive, fine)
-        pose_of_time = lambda t: np.array([np.interp(t, fine, fine_poses[:, k]) for k in range(3)])  # noqa: E731
+        pose_of_time = drive_pose_function(drive)
         poses = np.array([pose_of_time(t) for t in times])
         video = folder / "drive.avi"
         writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), drive.fps, (self.camera.width, self.camera.height), True)
@@ -293,6 +291,16 @@ class FootageMaker:
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         x_f = np.column_stack([c * delta[:, 0] + s * delta[:, 1], -s * delta[:, 0] + c * delta[:, 1]])
         return {"t": times, "poses": poses, "theta_d": theta, "x_hd": x_f / d_star, "normal": normal, "d_star": d_star}
+
+
+def drive_pose_function(drive: Drive):
+    """The drive's pose (x, y, phi) at any time ``t`` (s, a number or an array of shape (T,):
+    then (3, T)), interpolated on a 200 Hz grid from half a second before the first frame to
+    half a second after the last (motion blur and a rolling shutter look that far)."""
+    times = drive.times()
+    fine = np.linspace(times[0] - 0.5, times[-1] + 0.5, int((times[-1] - times[0] + 1.0) * 200) + 1)
+    fine_poses = _poses_from(drive, fine)
+    return lambda t: np.array([np.interp(t, fine, fine_poses[:, k]) for k in range(3)])
 
 
 def _poses_from(drive: Drive, fine: np.ndarray) -> np.ndarray:
@@ -686,7 +694,8 @@ def ideal_pixels(wall: Wall, camera: Camera, poses: np.ndarray) -> np.ndarray:
 
 
 def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: float, reference: int = 0,
-                     frames: np.ndarray | None = None) -> dict:
+                     frames: np.ndarray | None = None, shutter: RollingShutter | None = None, drive: Drive | None = None,
+                     readout_known: bool = False) -> dict:
     """The Cramer-Rao bound of the joint estimate at the footage's true geometry.
 
     Unknowns: the wall's normal (yaw and tilt), every target point's two coordinates in the
@@ -696,6 +705,12 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
     coordinate. The Fisher information is ``J^T J / noise^2`` with J the projections'
     Jacobian at the truth (central differences); its inverse bounds the covariance of any
     unbiased estimate. Written here from the footage's own geometry (no hbvs code).
+
+    With a rolling ``shutter`` (``poses`` are then the frames of ``drive``), each point is
+    seen as :class:`RollingShutterMaker` draws it: from the pose at its row's time
+    (:meth:`RollingShutter.delay_fraction` of its row), the frame's pose moved by the drive's
+    motion over that delay. The readout time is then one more unknown, a nuisance that the
+    inverse marginalises (it can only raise the bound), unless ``readout_known``.
 
     Returns
     -------
@@ -718,23 +733,47 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
     n0, e10, e20 = plane(base_yaw, 0.0)
     coords = np.column_stack([(world - centre_ref) @ e10, (world - centre_ref) @ e20])
     others = [k for k in frames if k != reference]
-    x0 = np.concatenate([[base_yaw, 0.0], coords.ravel(), np.asarray(poses)[others].ravel()])
+    readout = [] if shutter is None or readout_known else [shutter.readout_s]
+    x0 = np.concatenate([[base_yaw, 0.0], coords.ravel(), np.asarray(poses)[others].ravel(), readout])
+    poses_end = 2 + 2 * len(world) + 3 * len(others)
+
+    def project(at: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Pixels (F, N, 2) of ``points`` (N, 3) seen from ``at`` (F, 1 or N, 3), from the principal point."""
+        c, s = np.cos(at[..., 2]), np.sin(at[..., 2])
+        # camera_rotation's rows (right, down, forward) for every frame (and row) at once.
+        right = np.stack([s, -c, np.zeros_like(c)], axis=-1)
+        down = np.broadcast_to([0.0, 0.0, -1.0], right.shape)
+        forward = np.stack([c, s, np.zeros_like(c)], axis=-1)
+        offset = points[None] - np.concatenate([at[..., :2], np.full(at.shape[:-1] + (1,), camera.camera_height)], axis=-1)
+        q = [np.einsum("fnk,fnk->fn", np.broadcast_to(axis, offset.shape), offset) for axis in (right, down, forward)]
+        return np.stack([camera.fx * q[0] / q[2], camera.fy * q[1] / q[2]], axis=-1)
+
+    true_poses = np.asarray(poses, float)[frames][:, None]
+    if shutter is not None:
+        # Each point's row's delay (a fraction of the readout) at the truth: where the pose
+        # at that delay puts it (a few passes settle which band holds it).
+        pose_of_time = drive_pose_function(drive)
+        times = drive.times()[frames]
+        at_times = pose_of_time(times).T[:, None]  # (F, 1, 3)
+
+        def moved(delay: np.ndarray, readout_s: float) -> np.ndarray:
+            """How far the drive moves (F, N, 3) from each frame's time to its points' rows' times."""
+            return pose_of_time((times[:, None] + readout_s * delay).ravel()).T.reshape(delay.shape + (3,)) - at_times
+
+        delay = np.zeros((len(frames), len(world)))
+        for _ in range(5):
+            delay = shutter.delay_fraction(project(true_poses + moved(delay, shutter.readout_s), world)[..., 1] + camera.cy, camera.height)
 
     def pixels(x: np.ndarray) -> np.ndarray:
         n, e1, e2 = plane(x[0], x[1])
         ab = x[2:2 + 2 * len(world)].reshape(-1, 2)
         points = centre_ref + d * n + ab[:, :1] * e1 + ab[:, 1:] * e2
         all_poses = np.asarray(poses, float).copy()
-        all_poses[others] = x[2 + 2 * len(world):].reshape(-1, 3)
-        chosen = all_poses[frames]
-        c, s = np.cos(chosen[:, 2]), np.sin(chosen[:, 2])
-        # camera_rotation's rows (right, down, forward) for every frame at once.
-        right = np.stack([s, -c, np.zeros_like(c)], axis=-1)
-        down = np.broadcast_to([0.0, 0.0, -1.0], right.shape)
-        forward = np.stack([c, s, np.zeros_like(c)], axis=-1)
-        offset = points[None] - np.column_stack([chosen[:, :2], np.full(len(chosen), camera.camera_height)])[:, None]
-        q = [np.einsum("fk,fnk->fn", axis, offset) for axis in (right, down, forward)]
-        return np.stack([camera.fx * q[0] / q[2], camera.fy * q[1] / q[2]], axis=-1).ravel()
+        all_poses[others] = x[2 + 2 * len(world):poses_end].reshape(-1, 3)
+        at = all_poses[frames][:, None]
+        if shutter is not None:
+            at = at + moved(delay, x[poses_end] if len(readout) else shutter.readout_s)
+        return project(at, points).ravel()
 
     h = 1e-6
     J = np.empty((pixels(x0).size, x0.size))
@@ -743,7 +782,7 @@ def cramer_rao_bound(wall: Wall, camera: Camera, poses: np.ndarray, noise_px: fl
         step[j] = h
         J[:, j] = (pixels(x0 + step) - pixels(x0 - step)) / (2 * h)
     covariance = np.linalg.inv(J.T @ J) * noise_px**2
-    phi_sigma = np.sqrt(np.diag(covariance)[2 + 2 * len(world):].reshape(-1, 3)[:, 2])
+    phi_sigma = np.sqrt(np.diag(covariance)[2 + 2 * len(world):poses_end].reshape(-1, 3)[:, 2])
     theta_sigma = np.zeros(len(frames))
     theta_sigma[[i for i, k in enumerate(frames) if k != reference]] = phi_sigma
     return {"theta_sigma": theta_sigma, "normal_sigma": float(np.sqrt(covariance[0, 0] + covariance[1, 1]))}
@@ -792,6 +831,21 @@ class RollingShutter:
     readout_s: float = 0.033
     bands: int = 8
 
+    def band_rows(self, height: int, band):
+        """The first sensor row of a band (or an array of bands) and the one past its last."""
+        return band * height // self.bands, (band + 1) * height // self.bands
+
+    def band_delay(self, height: int, band):
+        """When a band's rows are exposed, after the frame's time, as a fraction of the readout
+        (its middle row's time, in [-1/2, 1/2])."""
+        first, last = self.band_rows(height, band)
+        return (first + last) / 2.0 / height - 0.5
+
+    def delay_fraction(self, rows: np.ndarray, height: int) -> np.ndarray:
+        """:meth:`band_delay` of the bands that hold ideal pixel rows ``rows`` (any shape)."""
+        ends = self.band_rows(height, np.arange(self.bands))[1]
+        return self.band_delay(height, np.clip(np.searchsorted(ends, np.floor(np.asarray(rows) + 0.5), side="right"), 0, self.bands - 1))
+
 
 class RollingShutterMaker(FootageMaker):
     """:class:`FootageMaker` with a rolling shutter (rows exposed at different poses)."""
@@ -806,8 +860,8 @@ class RollingShutterMaker(FootageMaker):
         rows = self.camera.height
         canvas = None
         for b in range(bands):
-            first, last = b * rows // bands, (b + 1) * rows // bands
-            offset = self.shutter.readout_s * ((first + last) / 2.0 / rows - 0.5)
+            first, last = self.shutter.band_rows(rows, b)
+            offset = self.shutter.readout_s * self.shutter.band_delay(rows, b)
             band = super()._exposure(pose_of_time, t + offset)
             if canvas is None:
                 canvas = band
