@@ -54,8 +54,7 @@ class RecordingError(InputError):
 
 
 class DomainError(HbvsError):
-    """An error of the method itself, raised by the pure core: what is wrong with the numbers,
-    not which option or file they came from."""
+    """An error of the method itself, raised by the pure core (the numbers, not their source)."""
 
 
 class InvalidValueError(DomainError):
@@ -63,8 +62,7 @@ class InvalidValueError(DomainError):
 
 
 class MalformedDataError(DomainError):
-    """Data that are not what the method needs: command times that do not increase, a
-    trajectory model without a channel, a world description that does not parse."""
+    """Data that are not what the method needs (times that do not increase, a missing channel)."""
 
 
 class NotAnImageError(MalformedDataError, InputError):
@@ -73,7 +71,6 @@ class NotAnImageError(MalformedDataError, InputError):
 
 class InsufficientDataError(DomainError):
     """Too little usable data; ``facts`` holds the numbers behind the message for a stage to word."""
-
 
     def __init__(self, message: str, **facts: Any) -> None:
         super().__init__(message)

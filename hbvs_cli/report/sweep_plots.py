@@ -1,8 +1,5 @@
-"""Figures of a sweep, for a paper: convergence map, CDFs per law, error against parameters.
-
-``convergence_map.png`` (rate over pairs of the first three numeric parameters, one column
-per law), ``final_error_cdf.png`` and ``final_error_vs_parameters.png``.
-"""
+"""Figures of a sweep: convergence map (rate over pairs of the first three numeric parameters,
+one column per law), CDFs of the final errors per law, final error against each parameter."""
 
 from __future__ import annotations
 
@@ -28,8 +25,7 @@ def _save(plt, figure, path: Path, dpi: int) -> Path:
 
 
 def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarray, path: Path) -> Path:
-    """The map of a single numeric parameter: the convergence rate per value (or bin), one
-    line per law, with its Wilson 95 % interval."""
+    """The map of a single numeric parameter: rate per value or bin, one line per law, Wilson 95 %."""
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for index, (law, law_mask) in enumerate(laws):
         centres, rates, low, high = [], [], [], []
@@ -53,8 +49,8 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarr
 
 
 def save_sweep_plots(folder: Path) -> list[Path]:
-    """Write the figures into ``folder``; returns the paths written (the map and the scatter
-    need a numeric swept parameter; with one, the map is a curve of the rate)."""
+    """Write the figures into ``folder`` (the map and the scatter need a numeric swept parameter);
+    returns the paths written."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -1,9 +1,6 @@
-"""The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles.
-
-Groups: each law, crossed with each other swept parameter's values (grid) or ``BINS`` bins
-(sampled). Failed runs are left out of the rate; runs that never settled are left out of
-the settling-time quantiles and counted in ``unsettled``.
-"""
+"""The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles,
+per law crossed with each other swept parameter's values or ``BINS`` bins. Failed runs are
+left out of the rate, unsettled ones out of the settling-time quantiles."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""The human-readable report: rich tables on stdout.
-
-Rules and colour on a terminal; elsewhere plain text with unwrapped numbers, so that the
-output diffs and greps well. Numbers are the JSON values to 4 significant digits in the
-unit of the row label; several runs stand side by side, one column each.
-"""
+"""The human-readable report: rich tables on stdout, one column per run, the JSON values to 4
+significant digits. Colour on a terminal; elsewhere plain unwrapped text that diffs and greps."""
 
 from __future__ import annotations
 
@@ -23,7 +19,7 @@ PLAIN_WIDTH = 1000
 #: What a missing (null) value shows.
 MISSING = "n/a"
 
-#: Each error signal's short name and unit (image errors are in units of d*: x_h = x_f / d*).
+#: Each error signal's short name and unit.
 ERROR_SIGNALS = {
     "e1": ("e1", "d*"),
     "e2": ("e2", "d*"),
@@ -32,7 +28,7 @@ ERROR_SIGNALS = {
     "position_m": ("position", "m"),
     "heading_deg": ("heading", "deg"),
 }
-#: Short name of each statistic; all are in the signal's unit except the settling time (s).
+#: Short name of each statistic.
 STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
 
 #: Rows of the metrics table.
@@ -69,7 +65,7 @@ METRIC_ROWS: tuple[Row, ...] = (
     ("min |x_hd1_dot| fit (1/s)", lambda r: r.condition35.fit_min_abs_xhd1_dot),
 )
 
-#: Rows of a live run's loop timing (``repeat --live``): shown when a run has them.
+#: Rows of a live run's loop timing, shown when a run has them.
 TIMING_ROWS: tuple[Row, ...] = (
     ("latency p50 (ms)", lambda r: r.timing and r.timing.latency_p50_ms),
     ("latency p95 (ms)", lambda r: r.timing and r.timing.latency_p95_ms),
@@ -114,8 +110,7 @@ def format_value(value: Any) -> str:
 
 
 def run_labels(reports: Sequence[RunReport]) -> list[str]:
-    """How tables and legends name the runs: their labels (``--label``, else the law);
-    a label two runs share is followed by the run's file name, e.g. ``paper (b.mcap)``."""
+    """How tables and legends name the runs: their labels, a shared one followed by the file name."""
     labels = [report.run.label or "run" for report in reports]
     return [
         f"{label} ({Path(report.run.name).name})" if labels.count(label) > 1 else label
@@ -125,7 +120,7 @@ def run_labels(reports: Sequence[RunReport]) -> list[str]:
 
 # ----------------------------------------------------------------------------- tables
 def new_table(headers: Sequence[str], plain: bool) -> Any:
-    """An empty table: first column left-aligned labels, the others right-aligned values."""
+    """An empty table: left-aligned labels, right-aligned values."""
     from rich import box
     from rich.table import Table
 
@@ -139,7 +134,6 @@ def new_table(headers: Sequence[str], plain: bool) -> Any:
 
 
 def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) -> Any:
-    """One row per (label, value of a report), one column per run."""
     table = new_table(["quantity", *run_labels(reports)], plain)
     for label, value in rows:
         table.add_row(label, *(format_value(value(r)) for r in reports))
@@ -151,7 +145,6 @@ def _gain(name: str) -> Callable[[RunReport], Any]:
 
 
 def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
-    """The run table's rows: file, the fixed rows, then every gain any run has."""
     gains: dict[str, None] = {}
     for report in reports:
         gains.update(dict.fromkeys(report.run.gains))
@@ -164,7 +157,7 @@ def _statistic_unit(statistic: str, signal: str) -> str:
 
 
 def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], plain: bool) -> Any:
-    """One run's errors: a row per error signal (with its unit), a column per statistic."""
+    """One run's errors: a row per signal, a column per statistic."""
     headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
     table = new_table(["error", *headers], plain)
     for name in names:
@@ -174,7 +167,7 @@ def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], pla
 
 
 def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport], Any]:
-    """A statistic of an error of a report; None when the report lacks the section (no ground truth)."""
+    """A statistic of an error of a report; None when the report lacks the section."""
     def value(report: RunReport) -> Any:
         errors = getattr(report, section)
         return None if errors is None else getattr(errors[name], statistic)
@@ -182,7 +175,7 @@ def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport],
 
 
 def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
-    """Several runs' errors: a row per (signal, statistic), e.g. ``e1 final (d*)``."""
+    """Several runs' errors: a row per (signal, statistic)."""
     return [
         (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", _statistic(section, name, s))
         for name in names for s in STATISTICS
@@ -190,14 +183,13 @@ def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
 
 
 def _natural_width(table: Any, console: Any) -> int:
-    """Columns a table needs to show every cell on one line."""
     from rich.measure import Measurement
 
     return Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum
 
 
 def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """The image and pose error tables: a matrix for one run when it fits the width, else rows."""
+    """The image and pose error tables: a matrix for one run if it fits the width, else rows."""
     plain = not console.is_terminal
     sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
     if any(r.pose_error is not None for r in reports):
@@ -205,7 +197,6 @@ def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
     tables = []
     for key, names, title in sections:
         table = _error_matrix(getattr(reports[0], key), names, plain) if len(reports) == 1 else None
-        # A terminal narrower than the matrix would squeeze its numbers into ellipses.
         if table is None or _natural_width(table, console) > console.width:
             table = _rows_table(_error_rows(key, names), reports, plain)
         tables.append((title, table))
@@ -217,7 +208,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     from rich.text import Text
 
     table = new_table(["check", *run_labels(reports)], plain)
-    # The checks are sentences: left-aligned, and wrapped to the width they are printed in.
+    # The checks are sentences: left-aligned and wrapped.
     for column in table.columns[1:]:
         column.justify, column.no_wrap = "left", False
 
@@ -225,8 +216,6 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
         return Text(text, style="green" if good else "red")
 
     table.add_row("converged", *(styled(format_value(r.verdict.converged), r.verdict.converged) for r in reports))
-    # One row per named check: a replay's image-error checks and a simulated run's pose
-    # checks land in rows of their own, and a check a run does not have shows n/a.
     for name in CHECK_NAMES:
         cells = [r.verdict.checks.get(name, MISSING) for r in reports]
         if any(cell != MISSING for cell in cells):
@@ -235,8 +224,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
 
 
 def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """Every table of the report with its title, in print order; plain text unless ``console``
-    is a terminal, whose width decides the error tables' layout."""
+    """Every table of the report with its title, in print order (plain unless ``console`` is a terminal)."""
     plain = not console.is_terminal
     return [
         ("run", _rows_table(_run_rows(reports), reports, plain)),
@@ -249,7 +237,7 @@ def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
 
 
 def report_console(stream: TextIO) -> Any:
-    """A rich console on ``stream``: colour on a terminal; else no colour and never wrapped."""
+    """A rich console on ``stream``: colour on a terminal, else plain and never wrapped."""
     from rich.console import Console
 
     console = Console(file=stream, highlight=False, markup=False, emoji=False)
@@ -266,7 +254,7 @@ def print_title(console: Any, text: str) -> None:
 
 
 def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
-    """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
+    """Print the report on ``stream`` (stdout)."""
     console = report_console(stream)
     plain = not console.is_terminal
     tables = report_tables(reports, console)
@@ -274,8 +262,7 @@ def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
         if index:
             console.print()
         print_title(console, title)
-        # The verdict's sentences wrap to the terminal even through a pipe (hbvs report | less);
-        # the numbers' rows are never wrapped, so that they grep.
+        # The verdict wraps to the reader's terminal even through a pipe; number rows never wrap.
         console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
 
 
@@ -292,7 +279,7 @@ def reading_width() -> int:
         return 100
 
 
-#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.report.fit_plot.fit_summary`).
+#: Rows of the fit table: label with unit, dotted key of :func:`~hbvs_cli.report.fit_plot.fit_summary`.
 FIT_ROWS: tuple[tuple[str, str], ...] = (
     ("frames with a raw sample", "frames_raw"),
     ("frames on the spline", "frames_smooth"),
