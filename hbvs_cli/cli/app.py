@@ -19,7 +19,6 @@ from typing import Annotated, Any, List, Optional
 
 import typer
 
-
 from .. import __version__
 from ..errors import HbvsError, InputError, OutputError
 from ..io.limits import set_limits
@@ -80,8 +79,7 @@ def _root(
 
 
 def _run_stage(stage: str, options_class: Any, values: dict[str, Any]) -> None:
-    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now (start-up time, see
-    above), on the options ``values`` give; a stage's non-zero int return is the exit code."""
+    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code."""
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
     options = options_from_command_line(options_class or module.TeachOptions, values)
@@ -153,7 +151,7 @@ def demo(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
-    from ..stages.demo import run_demo  # lazy: start-up time (see above)
+    from ..stages.demo import run_demo
 
     code = run_demo(out if out is not None else output, Console(quiet))
     if code:
@@ -166,21 +164,18 @@ class _Terminated(BaseException):
 
 
 class _Interrupted(KeyboardInterrupt):
-    """Raised from the SIGINT handler. A subclass, because CPython ends the process by SIGINT
-    when exactly KeyboardInterrupt escapes some of its C entry points, even if handled later."""
+    """Raised from the SIGINT handler (CPython ends the process when exactly KeyboardInterrupt
+    escapes some of its C entry points, even if handled later)."""
 
 
-#: Exit code and message of each signal that stops hbvs.
 _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
-#: The first stop signal received, if any.
 _received: int | None = None
 #: True when a stop signal's exception was raised inside a finaliser and dropped there.
 _swallowed = False
 
 
 def _on_signal(signum: int, frame: object) -> None:
-    """Stop the command by raising, so that partial files are removed on the way out; later
-    signals are ignored so that this cleanup is not interrupted in turn."""
+    """Stop the command by raising, so that partial files are removed; later signals are ignored."""
     global _received
     _ignore_stop_signals()
     _received = signum
@@ -198,7 +193,7 @@ def _ignore_stop_signals() -> None:
 
 
 def _on_unraisable(unraisable: Any) -> None:
-    """Keep quiet about a stop signal dropped inside a finaliser; :func:`main` reports the stop."""
+    """Keep quiet about a stop signal dropped inside a finaliser (:func:`main` reports it)."""
     global _swallowed
     if isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
         _swallowed = True
@@ -216,8 +211,7 @@ def _install_signal_handlers() -> None:
 
 
 def _raise_if_stopping() -> None:
-    """Re-raise a stop signal that native code turned into another exception (e.g.
-    ``ImportError: initialization failed``): once one has arrived, any failure is its consequence."""
+    """Re-raise a stop signal that native code turned into another exception."""
     if _received == signal.SIGINT:
         raise _Interrupted
     if _received is not None:
@@ -225,7 +219,6 @@ def _raise_if_stopping() -> None:
 
 
 def _stopped(signum: int) -> int:
-    """Report a stop signal on stderr (one line) and return its exit code."""
     code, what = _STOP_SIGNALS[signum]
     _say(f"hbvs: {what}")
     return code
@@ -240,7 +233,6 @@ def _silence_stdout() -> None:
         pass
 
 
-#: Device and inode of stdout when hbvs started.
 _stdout_at_start: tuple[int, int] | None = None
 
 
@@ -297,7 +289,7 @@ def _live_port_given(args: list[str]) -> list[str]:
 
 
 def _run(args: list[str], debug: bool) -> int:
-    """Run the app; every error but a stop signal becomes its message and exit code."""
+    """Run the app; every error but a stop signal becomes one line and its exit code."""
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
@@ -312,7 +304,7 @@ def _run(args: list[str], debug: bool) -> int:
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130
-    except typer.TyperException as exc:  # usage errors (typer's vendored click): one line, with where to find help
+    except typer.TyperException as exc:  # usage errors (typer's vendored click)
         if type(exc).__name__ == "NoArgsIsHelpError":  # `hbvs` alone: the help is what was asked for
             exc.show()
             return int(getattr(exc, "exit_code", 2))
@@ -324,8 +316,7 @@ def _run(args: list[str], debug: bool) -> int:
             _say("hbvs: error: " + " ".join(str(exc).split()))
         return int(getattr(exc, "exit_code", 2))
     except SystemExit as exc:
-        # typer (and rich, printing help) answer a broken pipe with exit status 1, after
-        # wrapping stdout (typer) or pointing it at /dev/null (rich).
+        # typer and rich answer a broken pipe with status 1, after wrapping or redirecting stdout.
         if exc.code == 1 and (type(sys.stdout).__name__ == "PacifyFlushWrapper" or _stdout_became_devnull()):
             return _pipe_closed()
         raise
@@ -358,54 +349,43 @@ def _run(args: list[str], debug: bool) -> int:
         return 70
 
 
-class _ClosedStdout:
-    """What sys.stdout is when hbvs was started with stdout closed: writing is an error."""
+class _ClosedStream:
+    """What sys.stdin or sys.stdout is when hbvs was started with it closed: using it is an error."""
 
     encoding = "utf-8"
+    error: type[HbvsError]
+    message: str
 
     def _closed(self, *args: Any) -> Any:
-        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-
-    write = _closed
+        raise self.error(self.message)
 
     @property
     def buffer(self) -> Any:
         return self._closed()
 
-    def flush(self) -> None:
-        pass
-
     def isatty(self) -> bool:
         return False
+
+
+class _ClosedStdout(_ClosedStream):
+    error, message = OutputError, "stdout: it is closed; give a file with -o, or redirect stdout"
+    write = _ClosedStream._closed
+
+    def flush(self) -> None:
+        pass
 
     def fileno(self) -> int:
         return 1
 
 
-class _ClosedStdin:
-    """What sys.stdin is when hbvs was started with stdin closed: reading "-" is exit 3."""
-
-    encoding = "utf-8"
-
-    def _closed(self, *args: Any) -> Any:
-        raise InputError("stdin: it is closed; give the input as a file instead of -")
-
-    read = readline = _closed
-
-    @property
-    def buffer(self) -> Any:
-        return self._closed()
-
-    def isatty(self) -> bool:
-        return False
-
-    def fileno(self) -> int:
-        return self._closed()
+class _ClosedStdin(_ClosedStream):
+    error, message = InputError, "stdin: it is closed; give the input as a file instead of -"
+    read = readline = fileno = _ClosedStream._closed
 
 
 def _prepare_stdio(debug: bool) -> None:
-    """Before any command: closed stdio made safe (:func:`guard_stdio`); unless ``--debug``,
-    native stderr captured (:mod:`hbvs_cli.io.native_log`) and warnings hidden."""
+    """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured
+    and warnings hidden."""
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
@@ -423,14 +403,13 @@ def _prepare_stdio(debug: bool) -> None:
 
 
 def _one_blas_thread() -> None:
-    """OpenBLAS on one thread unless the user set it: its threads cost more than they share on
-    hbvs's small matrices. Must run before numpy is first imported."""
+    """OpenBLAS on one thread unless the user set it (hbvs's matrices are small); before numpy is imported."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143
-    with one line on stderr; after the command they are ignored, so a late one changes nothing."""
+    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143;
+    after the command they are ignored."""
     _one_blas_thread()
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))

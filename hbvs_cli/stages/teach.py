@@ -35,8 +35,7 @@ SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quali
 
 
 class TeachOptions(TeachFields):
-    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``); its fields are
-    :data:`~hbvs_cli.io.settings.TEACH_SETTINGS`."""
+    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.io.settings.TEACH_SETTINGS`)."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
@@ -58,16 +57,12 @@ class TeachOptions(TeachFields):
         return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
 
     def settings(self) -> dict[str, Any]:
-        """The options as recorded in the teach file's metadata.
-
-        A simulated teach records every option; a recorded source only those that apply
-        to it (no simulator settings such as noise or the path).
-        """
+        """The options recorded in the teach file's metadata: a simulated teach's all, a
+        recorded source's only those that apply to it."""
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            # The simulator's frames are gray whatever --gray says, so --gray is not recorded.
-            # The simulator is the default source: "sim" is true with or without --sim.
+            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
             simulated = {key: value for key, value in recorded.items()
                          if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd")}
             return {**simulated, "sim": True}
