@@ -29,8 +29,7 @@ from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
     EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
-    TEACH_SETTINGS, ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions,
-    options_from_command_line,
+    TEACH_SETTINGS, options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
@@ -78,70 +77,51 @@ def _root(
         set_limits(list(limit))
 
 
-def _run_stage(stage: str, options_class: Any, values: dict[str, Any]) -> None:
+def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
     """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code."""
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
-    options = options_from_command_line(options_class or module.TeachOptions, values)
+    options = options_from_command_line(getattr(module, options_class), values)
     code = getattr(module, f"run_{stage}")(options, Console(quiet))
     if isinstance(code, int) and code:
         raise typer.Exit(code)
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
-def teach(**values: Any) -> None:
-    """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
-    _run_stage("teach", None, values)
+#: Each stage's command: name, help panel, settings, its stage module's options class, extra options, help.
+STAGE_COMMANDS = (
+    ("teach", "Pipeline", TEACH_SETTINGS, "TeachOptions", (QUIET_MESSAGES,),
+     "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
+    ("fit", "Pipeline", FIT_SETTINGS, "FitOptions", (QUIET,),
+     "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
+    ("repeat", "Pipeline", REPEAT_SETTINGS, "RepeatOptions", (QUIET,),
+     "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
+    ("robot-sim", "Robot", ROBOT_SIM_SETTINGS, "RobotSimOptions", (QUIET_MESSAGES,),
+     "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
+    ("report", "Pipeline", REPORT_SETTINGS, "ReportOptions", (),
+     "How well did the repeat follow the taught path, and did it converge?"),
+    ("export", "Pipeline", EXPORT_SETTINGS, "ExportOptions",
+     (QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]),),
+     "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
+    ("info", "Files", INFO_SETTINGS, "InfoOptions", (),
+     "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
+    ("sweep", "Studies", SWEEP_SETTINGS, "SweepOptions", (QUIET_MESSAGES,),
+     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."),
+)
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(FIT_SETTINGS, QUIET)
-def fit(**values: Any) -> None:
-    """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    _run_stage("fit", FitOptions, values)
+def _add_stage_command(name: str, panel: str, settings: Any, options_class: str, extra: tuple[inspect.Parameter, ...],
+                       help_text: str) -> None:
+    stage = name.replace("-", "_")
+
+    def command(**values: Any) -> None:
+        _run_stage(stage, options_class, values)
+
+    command.__name__, command.__doc__ = stage, help_text
+    app.command(name, rich_help_panel=panel)(with_settings(settings, *extra)(command))
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(REPEAT_SETTINGS, QUIET)
-def repeat(**values: Any) -> None:
-    """Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."""
-    _run_stage("repeat", RepeatOptions, values)
-
-
-@app.command("robot-sim", rich_help_panel="Robot")
-@with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
-def robot_sim(**values: Any) -> None:
-    """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
-    _run_stage("robot_sim", RobotSimOptions, values)
-
-
-@app.command(rich_help_panel="Pipeline")
-@with_settings(REPORT_SETTINGS)
-def report(**values: Any) -> None:
-    """How well did the repeat follow the taught path, and did it converge?"""
-    _run_stage("report", ReportOptions, values)
-
-
-@app.command(rich_help_panel="Pipeline")
-@with_settings(EXPORT_SETTINGS, QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]))
-def export(**values: Any) -> None:
-    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
-    _run_stage("export", ExportOptions, values)
-
-
-@app.command(rich_help_panel="Files")
-@with_settings(INFO_SETTINGS)
-def info(**values: Any) -> None:
-    """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
-    _run_stage("info", InfoOptions, values)
-
-
-@app.command(rich_help_panel="Studies")
-@with_settings(SWEEP_SETTINGS, QUIET_MESSAGES)
-def sweep(**values: Any) -> None:
-    """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    _run_stage("sweep", SweepOptions, values)
+for _command in STAGE_COMMANDS:
+    _add_stage_command(*_command)
 
 
 @app.command()
@@ -158,7 +138,6 @@ def demo(
         raise typer.Exit(code)
 
 
-# --------------------------------------------------------------------------- entry point
 class _Terminated(BaseException):
     """Raised from the SIGTERM handler so that cleanup (partial files) runs."""
 
@@ -384,8 +363,7 @@ class _ClosedStdin(_ClosedStream):
 
 
 def _prepare_stdio(debug: bool) -> None:
-    """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured
-    and warnings hidden."""
+    """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured and warnings hidden."""
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
@@ -402,15 +380,10 @@ def _prepare_stdio(debug: bool) -> None:
     capture()
 
 
-def _one_blas_thread() -> None:
-    """OpenBLAS on one thread unless the user set it (hbvs's matrices are small); before numpy is imported."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143;
-    after the command they are ignored."""
-    _one_blas_thread()
+    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143; after the command they are ignored."""
+    # OpenBLAS on one thread unless the user set it (hbvs's matrices are small): before numpy is imported.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _prepare_stdio(debug)

@@ -54,11 +54,6 @@ POSE_ERRORS = ("position_m", "heading_deg")
 #: Top-level keys of a report's JSON, in order, but a live run's ``timing``.
 REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name != "timing")
 
-#: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
-CHECK_NAMES = (
-    "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
-    "smoothness",
-)
 #: Each final error's check name, label, scale to the shown unit, and unit.
 _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
     "position_m": ("final_position", "final position error", 100.0, "cm"),
@@ -67,6 +62,8 @@ _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
     "e2": ("final_e2", "final |e2|", 1.0, ""),
     "e3": ("final_e3", "final |e3|", 1.0, "deg"),
 }
+#: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
+CHECK_NAMES = ("closed_loop", "finished", *(check for check, *_ in _FINAL_CHECKS.values()), "lyapunov", "smoothness")
 
 
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
@@ -81,7 +78,6 @@ def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str
     return tolerances
 
 
-# ----------------------------------------------------------------------------- signals
 def image_error_signal(run: RunData, name: str) -> np.ndarray:
     """An image error per step: e1, e2, ebar2 (x_h units) or e3 (degrees); NaN when lost."""
     values = run.state[name]
@@ -89,8 +85,7 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
-    """Per step, ``position_m`` from the taught pose at the same time and ``heading_deg`` (wrapped
-    to [-180, 180)); ``None`` without ground truth."""
+    """Per step, ``position_m`` and ``heading_deg`` (in [-180, 180)) from the taught pose; None without ground truth."""
     if run.true_pose is None or run.desired_pose is None:
         return None
     difference = run.true_pose - run.desired_pose
@@ -113,7 +108,6 @@ def _duration_s(run: RunData) -> float:
     return float(t[-1] - t[0])
 
 
-# ----------------------------------------------------------------------------- sections
 def default_label(run: RunData) -> str:
     """How a run is named without ``--label``: its law (``replay`` for an open-loop replay)."""
     if run.info.get("mode") == "replay":
@@ -253,8 +247,7 @@ def _target(run: RunData) -> Target:
 
 
 def _timing(run: RunData) -> Timing | None:
-    """A live run's loop timing (None for other runs): frame-to-command latency and frame
-    interval (ms), frames dropped or late."""
+    """A live run's loop timing (None for other runs): frame-to-command latency and frame interval (ms), frames dropped or late."""
     timing = run.timing
     if timing is None or timing["t"].size == 0:
         return None
@@ -280,7 +273,6 @@ def _condition35(run: RunData) -> Condition35:
     )
 
 
-# ----------------------------------------------------------------------------- verdict
 def _check(passed: bool | None, text: str) -> tuple[bool | None, str]:
     """A verdict line: ``pass: ...``, ``fail: ...`` or, for a check not made, ``skip: ...``."""
     prefix = {True: "pass", False: "fail", None: "skip"}[passed]
@@ -317,8 +309,7 @@ def _lyapunov_check(lyapunov: Lyapunov) -> tuple[bool | None, str]:
 
 
 def smoothness_bound(taught_rms: float | None, floor: float) -> float:
-    """The largest RMS rate of change of a command that is not chatter: :data:`SMOOTHNESS_FACTOR`
-    times the taught commands' plus ``floor`` for correcting the start offset."""
+    """The largest RMS rate of change of a command that is not chatter (``floor``: for the start's correction)."""
     return SMOOTHNESS_FACTOR * (taught_rms or 0.0) + floor
 
 
@@ -339,8 +330,7 @@ def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
 
 def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mapping[str, ErrorSummary] | None,
             lyapunov: Lyapunov, commands: Commands, tolerances: Mapping[str, float]) -> Verdict:
-    """Whether the run converged, by the rule of this module's docstring, and why: one line
-    ``pass: ...``, ``fail: ...`` or ``skip: ...`` per check (:data:`CHECK_NAMES`)."""
+    """Whether the run converged (this module's rule), with a ``pass``, ``fail`` or ``skip`` line per check."""
     checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
         checks["closed_loop"] = _check(False, "open-loop replay: nothing moved, so it cannot have converged")
@@ -359,10 +349,8 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
     )
 
 
-# ----------------------------------------------------------------------------- report
 def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> RunReport:
-    """Every metric of one run (docs/report.md); ``tolerances`` override :data:`DEFAULT_TOLERANCES`,
-    ``label`` defaults to :func:`default_label`; unknown values are None."""
+    """Every metric of one run (docs/report.md); ``tolerances`` override :data:`DEFAULT_TOLERANCES`."""
     tolerances = resolve_tolerances(tolerances)
     errors = _error_summaries(run, {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
     pose_error = _error_summaries(run, pose_error_signals(run), tolerances)

@@ -25,8 +25,7 @@ SIZE_RANGE_IN = (1.5, 40.0)
 
 @dataclass(frozen=True)
 class FigureStyle:
-    """How to draw a figure: ``size_in`` (width, height) in inches (None: 7 in wide, as tall as
-    the panels need) and ``panels`` in drawing order (None: all)."""
+    """How to draw a figure: ``size_in`` (width, height) in inches, ``panels`` in drawing order (None: default)."""
 
     dpi: float = DEFAULT_DPI
     size_in: tuple[float, float] | None = None

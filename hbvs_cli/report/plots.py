@@ -46,7 +46,6 @@ class PanelContext:
     line_styles: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
-# ----------------------------------------------------------------------------- series
 def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_points: int = MAX_POINTS_PER_RUN) -> tuple[np.ndarray, np.ndarray]:
     """The samples of a signal as drawn: broken (NaN) where ``lost`` (K,) is true (None: never),
     joined across dropped frames, and beyond ``max_points`` the means over equal time bins."""
@@ -89,8 +88,7 @@ def lost_intervals(t: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]
 
 
 def _shade_losses(ax: Any, context: PanelContext) -> None:
-    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter ones
-    only break the line: hundreds of hairline spans would tint the whole panel)."""
+    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter ones only break the line)."""
     for run, color in zip(context.runs, context.colors):
         for start, end in lost_intervals(run.state["t"], run.lost):
             if end - start >= MIN_SHADED_LOSS_S:
@@ -138,7 +136,6 @@ def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, di
     }
 
 
-# ----------------------------------------------------------------------------- panels
 def _has_poses(run: RunData) -> bool:
     return run.true_pose is not None and run.desired_pose is not None
 
@@ -345,7 +342,6 @@ PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
 PANEL_NAMES = tuple(PANELS)
 
 
-# ----------------------------------------------------------------------------- figure
 def _status(report: RunReport) -> str:
     if report.run.source.mode == "replay":
         return "open-loop replay"
@@ -360,8 +356,7 @@ def _row_heights(panels: Sequence[str], columns: int) -> list[float]:
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
-    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
-    less than :data:`MIN_SCALE` of their height."""
+    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels less than :data:`MIN_SCALE` of their height."""
     width, columns = column_count(style, len(panels))
     content = sum(_row_heights(panels, columns))
     if style.size_in is None:
@@ -415,8 +410,7 @@ def plot_runs(
     runs: Sequence[RunData], reports: Sequence[RunReport], style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
-    """The unsaved figure of one or several runs, overlaid; ``reports`` give the legend,
-    each axes is labelled with its panel name."""
+    """The unsaved figure of one or several runs, overlaid; ``reports`` give the legend, each axes is labelled with its panel name."""
     import matplotlib
 
     style = style or FigureStyle()

@@ -69,8 +69,7 @@ class RunSummary(Section):
 
 @dataclass(frozen=True)
 class ErrorSummary(Section):
-    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`) in its unit;
-    None when unknown."""
+    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`) in its unit; None when unknown."""
 
     rmse: float | None
     mean: float | None
@@ -85,8 +84,7 @@ class ErrorSummary(Section):
 
 @dataclass(frozen=True)
 class Lyapunov(Section):
-    """The Lyapunov function (36): first and last values, their ratio, the fraction of steps
-    at which it rose; None without the true d*."""
+    """The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; None without the true d*."""
 
     initial: float | None
     final: float | None
@@ -198,8 +196,7 @@ OPTIONAL_SECTIONS = ("pose_error", "timing")
 
 @dataclass(frozen=True)
 class RunReport:
-    """Every metric of one run (:func:`~hbvs_cli.report.build.build_report`); ``errors``: e1, e2,
-    ebar2 (units of d*), e3 (deg); ``pose_error``: position_m, heading_deg."""
+    """Every metric of one run (:func:`~hbvs_cli.report.build.build_report`)."""
 
     run: RunSummary
     errors: dict[str, ErrorSummary]

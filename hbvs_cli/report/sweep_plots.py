@@ -14,10 +14,6 @@ FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameter
 MAP_PARAMETERS = 3
 
 
-def _numeric(data: SweepData) -> list[str]:
-    return [n for n in data.swept if n != "law" and data.columns[n].dtype != object]
-
-
 def _save(plt, figure, path: Path, dpi: int) -> Path:
     figure.savefig(path, dpi=dpi)
     plt.close(figure)
@@ -49,8 +45,7 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarr
 
 
 def save_sweep_plots(folder: Path) -> list[Path]:
-    """Write the figures into ``folder`` (the map and the scatter need a numeric swept parameter);
-    returns the paths written."""
+    """Write the figures into ``folder`` (the map and the scatter need a numeric swept parameter); returns the paths written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -60,7 +55,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
     written = []
     reported = data.columns["status"] != "failed"
     laws = data.laws("all runs")
-    numeric = _numeric(data)
+    numeric = [name for name in data.swept if name != "law" and data.columns[name].dtype != object]
     pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
     if pairs:
         figure, axes = plt.subplots(len(pairs), len(laws), figsize=(4.2 * len(laws) + 1, 3.6 * len(pairs)), squeeze=False,

@@ -3,13 +3,14 @@ significant digits. Colour on a terminal; elsewhere plain unwrapped text that di
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
 
 from ..core.control_settings import GAIN_UNITS
 from ..core.metrics import STATISTICS
 from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS
-from .result import ErrorSummary, RunReport, resolve_key
+from .result import ErrorSummary, RunReport, Timing, resolve_key
 
 #: A table row: its label (with the unit) and how to read its value from a report.
 Row = tuple[str, Callable[[RunReport], Any]]
@@ -65,16 +66,11 @@ METRIC_ROWS: tuple[Row, ...] = (
     ("min |x_hd1_dot| fit (1/s)", lambda r: r.condition35.fit_min_abs_xhd1_dot),
 )
 
-#: Rows of a live run's loop timing, shown when a run has them.
-TIMING_ROWS: tuple[Row, ...] = (
-    ("latency p50 (ms)", lambda r: r.timing and r.timing.latency_p50_ms),
-    ("latency p95 (ms)", lambda r: r.timing and r.timing.latency_p95_ms),
-    ("latency p99 (ms)", lambda r: r.timing and r.timing.latency_p99_ms),
-    ("latency max (ms)", lambda r: r.timing and r.timing.latency_max_ms),
-    ("frame interval p50 (ms)", lambda r: r.timing and r.timing.frame_interval_p50_ms),
-    ("frame interval max (ms)", lambda r: r.timing and r.timing.frame_interval_max_ms),
-    ("frames dropped", lambda r: r.timing and r.timing.frames_dropped),
-    ("frames late", lambda r: r.timing and r.timing.frames_late),
+#: Rows of a live run's loop timing, shown when a run has them: ``latency_p50_ms`` is "latency p50 (ms)".
+TIMING_ROWS: tuple[Row, ...] = tuple(
+    (name.removesuffix("_ms").replace("_", " ") + (" (ms)" if name.endswith("_ms") else ""),
+     lambda r, name=name: r.timing and getattr(r.timing, name))
+    for name in (field.name for field in fields(Timing))
 )
 
 #: Row label of each verdict check (``verdict.checks``).
@@ -102,8 +98,6 @@ def format_value(value: Any) -> str:
         return MISSING
     if isinstance(value, bool):
         return "yes" if value else "no"
-    if isinstance(value, int):
-        return str(value)
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
@@ -118,7 +112,6 @@ def run_labels(reports: Sequence[RunReport]) -> list[str]:
     ]
 
 
-# ----------------------------------------------------------------------------- tables
 def new_table(headers: Sequence[str], plain: bool) -> Any:
     """An empty table: left-aligned labels, right-aligned values."""
     from rich import box
@@ -182,14 +175,10 @@ def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
     ]
 
 
-def _natural_width(table: Any, console: Any) -> int:
-    from rich.measure import Measurement
-
-    return Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum
-
-
 def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
     """The image and pose error tables: a matrix for one run if it fits the width, else rows."""
+    from rich.measure import Measurement
+
     plain = not console.is_terminal
     sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
     if any(r.pose_error is not None for r in reports):
@@ -197,7 +186,7 @@ def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
     tables = []
     for key, names, title in sections:
         table = _error_matrix(getattr(reports[0], key), names, plain) if len(reports) == 1 else None
-        if table is None or _natural_width(table, console) > console.width:
+        if table is None or Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum > console.width:
             table = _rows_table(_error_rows(key, names), reports, plain)
         tables.append((title, table))
     return tables

@@ -20,8 +20,7 @@ REPEATED_SUFFIX = ".repeated.tum"
 
 
 def camera_height_m(source: Any, name: str = "") -> float | None:
-    """The camera's height (m): the z of the first ground-truth pose of a run file (path or
-    binary stream; ``read_run`` keeps planar poses only); None without one."""
+    """The camera's height (m): the z of a run file's first ground-truth pose (None without one)."""
     for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
         return float(message.foxglove(name).pose.position.z)
     return None

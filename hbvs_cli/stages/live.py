@@ -111,8 +111,7 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
 
 
 def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics; a ROS 2 camera is awaited for the
-    discovery time, or ``lost_timeout`` (s) if longer."""
+    """The frame source and the camera's intrinsics; a ROS 2 camera is awaited for the discovery time, or ``lost_timeout`` (s) if longer."""
     if options.camera is not None:
         from ..io.sources.live_camera import LatestCameraFrame
 
@@ -141,8 +140,7 @@ def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
 
 @dataclass
 class LiveLoop:
-    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or
-    None), commands out, the run file written."""
+    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written."""
 
     source: Any
     detector: Any
@@ -162,8 +160,7 @@ class LiveLoop:
     stopped: str | None = None
 
     def wait_for_start(self) -> None:
-        """Send zeros until the target is seen near its taught start view in :data:`START_FRAMES`
-        frames in a row; NotAtStartError or TargetLostError otherwise."""
+        """Send zeros until the target is seen near its taught start view in :data:`START_FRAMES` frames in a row."""
         desired = self.trajectory.evaluate(0.0)
         lost_timeout = self.settings.lost_timeout
         near = far = 0
@@ -201,8 +198,7 @@ class LiveLoop:
                     )
 
     def drive(self) -> None:
-        """Each newest frame measured, decided, sent until the trajectory ends or the target or
-        camera is gone for --lost-timeout (:attr:`stopped` says why)."""
+        """Measure, decide and send each newest frame until the end or a stop (:attr:`stopped` says why)."""
         period = 1.0 / self.settings.rate
         duration = self.trajectory.t_end - self.trajectory.t_start
         first_stamp: float | None = None
@@ -253,8 +249,7 @@ class LiveLoop:
         return latency, record
 
     def _next_frame(self, last_arrival: float) -> Any:
-        """The next frame; zeros once none came for --stale-timeout; None (:attr:`stopped` set)
-        after --lost-timeout or the source's end."""
+        """The next frame; zeros once none came for --stale-timeout; None (:attr:`stopped` set) after --lost-timeout or the source's end."""
         stale = False
         while True:
             wait = self.options.stale_timeout - (time.monotonic() - last_arrival)

@@ -11,8 +11,7 @@ from ..errors import UsageError
 
 
 def recorded_settings(options: Any) -> dict[str, Any]:
-    """A stage's options as JSON-ready metadata, without the output name (the same inputs
-    make the same bytes wherever they go)."""
+    """A stage's options as JSON-ready metadata, without the output name (the same inputs make the same bytes wherever they go)."""
     return {
         key: (str(value) if isinstance(value, Path) else value)
         for key, value in asdict(options).items()

@@ -148,8 +148,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
 
 
 def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = None) -> RepeatSummary:
-    """Run the repeat phase as ``options`` say; write the run file. ``fit``: ``options.input``
-    already read (``hbvs sweep`` reads it once per worker)."""
+    """Run the repeat phase as ``options`` say; write the run file. ``fit``: ``options.input`` already read."""
     if int(options.sim) + int(options.replay is not None) + int(options.live) != 1:
         raise UsageError("choose one mode: --live (closed loop with a robot), --sim (closed loop, simulated) or --replay FILE "
                          "(open loop on a recording)")
@@ -174,10 +173,8 @@ def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
     return resolve_settings(options, model.dhat0, 1.0 / model.taught_frame_interval(), model.suggested_gains())
 
 
-# ----------------------------------------------------------------------------- shared pieces
 class _StepLog:
-    """Each step record as run file messages and on the command stream, with events for a
-    target lost or back, a dropped frame, saturation."""
+    """Each step record as run file messages and a command; events when the target is lost or back, etc."""
 
     def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
         self.run = run
@@ -274,7 +271,6 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
     return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
-# ----------------------------------------------------------------------------- closed loop
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
     """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them first)."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
@@ -323,8 +319,7 @@ COARSE_RESIDUAL_GATE_PX = 3.0
 
 
 def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
-    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's
-    residual (docs/method.md, "State filter")."""
+    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's residual (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
     estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
@@ -378,8 +373,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
 
 
 class _Tally:
-    """What the one-line summary needs, per step; its "final" errors are the report's
-    (:func:`hbvs_cli.core.metrics.final_value`)."""
+    """What the one-line summary needs, per step; its "final" errors are the report's (:func:`hbvs_cli.core.metrics.final_value`)."""
 
     def __init__(self) -> None:
         self.steps = 0
@@ -463,7 +457,6 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
-# ----------------------------------------------------------------------------- open loop
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
@@ -511,7 +504,6 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     return _finish(console, tally, controller, options.output, settings, None, None)
 
 
-# ----------------------------------------------------------------------------- a robot
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     """``--live``: drive a robot, every frame through the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``."""
     live.check_live_options(options)

@@ -28,18 +28,6 @@ class Bound:
     value: float
 
 
-# ----------------------------------------------------------------------------- options
-def parse_tolerances(items: Sequence[str]) -> dict[str, float]:
-    """``--tolerance NAME=VALUE`` options -> the full tolerance table."""
-    from ..report.build import resolve_tolerances
-
-    return resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in items))
-
-
-def parse_bounds(items: Sequence[str]) -> list[Bound]:
-    return [Bound(*parse_assignment(item, "--fail-above")) for item in items]
-
-
 def metric_value(report: RunReport, key: str) -> float:
     """The number at a dotted key of a report; UsageError when it is missing, a group, or null."""
     from ..report.result import MissingKey
@@ -74,11 +62,6 @@ def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> li
     return messages
 
 
-def not_converged(reports: Sequence[RunReport]) -> list[str]:
-    """One message per run that did not converge, naming its failed checks."""
-    return [f"{report.run.name}: {'; '.join(report.verdict.failures())}" for report in reports if not report.verdict.converged]
-
-
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
@@ -86,10 +69,8 @@ def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
         raise UsageError("--label: a label cannot be empty")
 
 
-# ----------------------------------------------------------------------------- reading
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
-    """Every run, with its camera height (m) when ``need_height``; a fit file as its
-    :class:`~hbvs_cli.report.fit_plot.FitSignals`."""
+    """Every run, with its camera height (m) when ``need_height``; a fit file as its :class:`~hbvs_cli.report.fit_plot.FitSignals`."""
     from ..io.run_file import NotARunFile, read_run
     from ..report.fit_plot import read_fit_signals
     from ..report.tum import camera_height_m
@@ -144,7 +125,6 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     return 0
 
 
-# ----------------------------------------------------------------------------- output
 def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
     if json_output:
@@ -159,18 +139,16 @@ def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
 
 
 def run_report(options: ReportOptions, console: Console) -> int:
-    """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` bound was exceeded or (with
-    ``--require-converged``) a run did not converge, one stderr line each."""
+    """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` or ``--require-converged`` check failed."""
     from ..report.fit_plot import FIT_PANELS, FitSignals
     from ..report.plots import PANEL_NAMES
-    from ..report.build import build_report
-
+    from ..report.build import build_report, resolve_tolerances
     from ..io.output_target import refuse_overwriting_inputs
 
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
         return _report_sweep(options, console)
-    tolerances = parse_tolerances(options.tolerance)
-    bounds = parse_bounds(options.fail_above)
+    tolerances = resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in options.tolerance))
+    bounds = [Bound(*parse_assignment(item, "--fail-above")) for item in options.fail_above]
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
     style = None
@@ -217,7 +195,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
     for message in excesses:
         console.warn(f"threshold exceeded: {message}")
-    unconverged = not_converged(reports) if options.require_converged else []
+    unconverged = [f"{report.run.name}: {'; '.join(report.verdict.failures())}"
+                   for report in reports if options.require_converged and not report.verdict.converged]
     for message in unconverged:
         console.warn(f"not converged: {message}")
     return 1 if excesses or unconverged else 0

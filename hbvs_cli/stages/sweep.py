@@ -87,8 +87,7 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
 
 
 def _check_values(spec: SweepSpec, fit: FitFile, fit_path: str, d_true: float | None) -> None:
-    """Refuse before running what ``hbvs repeat`` would refuse for some run, with its message:
-    each axis's extremes (every choice) with the fixed values, as repeat's checks are intervals."""
+    """Refuse before running what ``hbvs repeat`` would refuse for some run (each axis's extremes), with its message."""
     base = dict(spec.fixed)
     candidates = [("", base)]
     for axis in spec.axes:

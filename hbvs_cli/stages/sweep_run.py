@@ -23,8 +23,7 @@ KEEP_CHOICES = ("failed", "all", "none")
 
 @dataclass(frozen=True)
 class RunTask(RunSettings):
-    """A run with what a worker needs: ``arguments`` (``RepeatOptions`` fields besides input
-    and output), the ``command`` that re-makes it, ``keep_path`` (None: not kept)."""
+    """A run with what a worker needs; ``arguments``: ``RepeatOptions`` fields besides input and output."""
 
     fit_path: str
     arguments: dict[str, Any]
@@ -72,8 +71,7 @@ def report_row(report: RunReport) -> dict[str, Any]:
 
 
 def keep_file(source: str, destination: str) -> None:
-    """Put ``source`` at ``destination`` whole or not at all, also across file systems
-    (copied to a partial file beside it, fsynced, renamed)."""
+    """Put ``source`` at ``destination`` whole or not at all, also across file systems."""
     from ..io.output_target import partial_name_of
 
     final = Path(destination)
@@ -91,8 +89,7 @@ def keep_file(source: str, destination: str) -> None:
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
-    """Make one run and its report, and return its row; a run that fails does not raise: its
-    row says why."""
+    """Make one run and its report, and return its row; a run that fails does not raise: its row says why."""
     from ..errors import HbvsError, TargetLostError
     from ..io.run_file import read_run
     from ..report.build import build_report

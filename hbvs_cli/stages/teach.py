@@ -47,18 +47,13 @@ class TeachOptions(TeachFields):
             raise UsageError(f"give exactly one source, got {', '.join('--' + g for g in given)}")
         return given[0] if given else "sim"
 
-    def simulation_options_given(self) -> list[str]:
-        """The simulation options that were given (not None), as ``--name``."""
-        return [f"--{name.replace('_', '-')}" for name in SIMULATION_DEFAULTS if getattr(self, name) is not None]
-
     def for_simulation(self) -> TeachOptions:
         """These options with the simulation's defaults filled in where none was given."""
         missing = {name: value for name, value in SIMULATION_DEFAULTS.items() if getattr(self, name) is None}
         return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
 
     def settings(self) -> dict[str, Any]:
-        """The options recorded in the teach file's metadata: a simulated teach's all, a
-        recorded source's only those that apply to it."""
+        """The options recorded in the teach file's metadata: a simulated teach's all, a recorded source's only those that apply to it."""
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
@@ -98,7 +93,6 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         _teach_from_source(kind, options, console)
 
 
-# ----------------------------------------------------------------------------- simulated
 def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[CommandProfile, tuple[float, float, float], str]:
     """The taught commands and start pose of ``--path`` (a preset name or a CSV file)."""
     if spec in PRESETS:
@@ -178,7 +172,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
     console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
 
 
-# ----------------------------------------------------------------------------- real sources
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
     notes: list[str] = []
     camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
@@ -199,7 +192,7 @@ def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> None:
-    given = options.simulation_options_given()
+    given = [f"--{name.replace('_', '-')}" for name in SIMULATION_DEFAULTS if getattr(options, name) is not None]
     if given:
         verb = "describes" if len(given) == 1 else "describe"
         raise UsageError(f"{', '.join(given)} {verb} the simulated robot and camera, not --{kind}: leave {'it' if len(given) == 1 else 'them'} out")

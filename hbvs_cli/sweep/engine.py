@@ -78,8 +78,7 @@ def check_scheduler_address(address: str | None) -> None:
 @contextmanager
 def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                 allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
-    """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
-    ``dashboard`` None serves none (it has no authentication)."""
+    """A connected ``distributed.Client``; the cluster it started (if any) is closed after."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -203,8 +202,7 @@ NO_WORKER_SECONDS = 120.0
 
 
 def _finished(completed: Any, client: Any, no_worker_seconds: float) -> Iterator[Any]:
-    """``(future, result)`` as ``completed`` gives them; OutputError once the cluster has had no
-    worker for ``no_worker_seconds``. Short sleeps, so that signals interrupt the wait."""
+    """``(future, result)`` as they complete; OutputError once the cluster had no worker for ``no_worker_seconds``."""
     without_workers: float | None = None
     while True:
         if completed.has_ready() or completed.is_empty():

@@ -123,7 +123,6 @@ class SweepSpec:
         }
 
 
-# ----------------------------------------------------------------------------- parsing
 def _check_value(name: str, value: Any, where: str) -> Any:
     """A parameter value of the right type and range."""
     parameter = PARAMETERS[name]
@@ -307,7 +306,6 @@ def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -
     check_limit("sweep-runs", runs, "the sweep (points x samples x repeats)")
 
 
-# ----------------------------------------------------------------------------- the plan
 def _qmc_unit_samples(method: str, dimensions: int, count: int, seed: int) -> np.ndarray:
     """``count`` points in [0, 1)^dimensions, seeded."""
     rng = np.random.default_rng(seed)
@@ -373,8 +371,7 @@ class SweepPlan:
         return [a.name for a in self.spec.axes]
 
     def point_values(self, point: int) -> dict[str, Any]:
-        """The swept values of a point: listed values vary slowest, samples fastest (so every law
-        meets the same sampled points)."""
+        """The swept values of a point: listed values vary slowest, samples fastest (so every law meets the same sampled points)."""
         combination, sample = divmod(point, self._sample_count)
         values: dict[str, Any] = {}
         if self.listed:
@@ -395,7 +392,6 @@ class SweepPlan:
         return (self.run(i) for i in range(self.runs))
 
 
-# ----------------------------------------------------------------------------- to hbvs repeat
 def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None) -> dict[str, Any]:
     """The ``RepeatOptions`` fields (besides input and output) of a run's values; numbers as
     ``repr`` text, as the printed command gives them, so a re-make reads identical options."""
