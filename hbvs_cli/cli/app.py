@@ -1,8 +1,5 @@
-"""The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
-
-Each command imports its stage lazily, so that ``hbvs --help`` loads no OpenCV, scipy,
-matplotlib or mcap (tests/test_repository.py checks).
-"""
+"""The ``hbvs`` command line: parse options, call a stage (imported lazily, so that ``hbvs
+--help`` stays fast), map errors to exit codes."""
 
 from __future__ import annotations
 
@@ -14,6 +11,7 @@ import signal
 import sys
 import traceback
 import warnings
+from contextlib import suppress
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
@@ -156,19 +154,17 @@ _swallowed = False
 def _on_signal(signum: int, frame: object) -> None:
     """Stop the command by raising, so that partial files are removed; later signals are ignored."""
     global _received
-    _ignore_stop_signals()
+    _set_stop_handlers(signal.SIG_IGN)
     _received = signum
     if signum == signal.SIGINT:
         raise _Interrupted
     raise _Terminated
 
 
-def _ignore_stop_signals() -> None:
+def _set_stop_handlers(handler: Any) -> None:
     for signum in _STOP_SIGNALS:
-        try:
-            signal.signal(signum, signal.SIG_IGN)
-        except ValueError:  # not in the main thread (e.g. embedded)
-            pass
+        with suppress(ValueError):  # not in the main thread: the signals keep their handlers
+            signal.signal(signum, handler)
 
 
 def _on_unraisable(unraisable: Any) -> None:
@@ -182,11 +178,7 @@ def _on_unraisable(unraisable: Any) -> None:
 
 def _install_signal_handlers() -> None:
     sys.unraisablehook = _on_unraisable
-    for signum in _STOP_SIGNALS:
-        try:
-            signal.signal(signum, _on_signal)
-        except ValueError:  # not in the main thread: the signals keep their defaults
-            pass
+    _set_stop_handlers(_on_signal)
 
 
 def _raise_if_stopping() -> None:
@@ -205,11 +197,8 @@ def _stopped(signum: int) -> int:
 
 def _silence_stdout() -> None:
     """After a broken pipe, point stdout at /dev/null so interpreter shutdown stays quiet."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):
-        pass
+    with suppress(OSError, ValueError, AttributeError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 _stdout_at_start: tuple[int, int] | None = None
@@ -234,11 +223,9 @@ def _stdout_became_devnull() -> bool:
 
 def _say(line: str) -> None:
     """One line on stderr; a closed or broken stderr is no reason for a traceback."""
-    try:
+    with suppress(OSError, ValueError, AttributeError):
         sys.stderr.write(line + "\n")
         sys.stderr.flush()
-    except (OSError, ValueError, AttributeError):
-        pass
 
 
 def _pipe_closed() -> int:
@@ -392,7 +379,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             code = _run(args, debug)
         finally:
-            _ignore_stop_signals()
+            _set_stop_handlers(signal.SIG_IGN)
     except KeyboardInterrupt:
         code = _stopped(signal.SIGINT)
     except _Terminated:

@@ -33,14 +33,7 @@ from .result import (
 
 #: Final-error and settling tolerances: image errors in x_h units (fractions of d*),
 #: e3 and heading in degrees, position in metres.
-DEFAULT_TOLERANCES: dict[str, float] = {
-    "position_m": 0.01,
-    "heading_deg": 0.2,
-    "e1": 0.0025,
-    "e2": 0.0025,
-    "ebar2": 0.0025,
-    "e3": 0.2,
-}
+DEFAULT_TOLERANCES: dict[str, float] = {"position_m": 0.01, "heading_deg": 0.2, "e1": 0.0025, "e2": 0.0025, "ebar2": 0.0025, "e3": 0.2}
 #: V must end below this fraction of V(0) for a run to count as converged.
 V_RATIO_BOUND = 0.5
 #: Command smoothness (rule 5): factor on the taught commands' RMS rate, floors in m/s^2, rad/s^2.
@@ -118,14 +111,9 @@ def default_label(run: RunData) -> str:
 def _run_summary(run: RunData, label: str | None) -> RunSummary:
     settings = run.info.get("settings") or {}
     return RunSummary(
-        name=run.name,
-        label=label if label is not None else default_label(run),
-        duration_s=_duration_s(run),
-        steps=run.steps,
-        rate_hz=sample_rate_hz(run.state["t"]),
-        law=run.info.get("law"),
-        gains=dict(run.info.get("gains") or {}),
-        source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
+        name=run.name, label=label if label is not None else default_label(run), duration_s=_duration_s(run),
+        steps=run.steps, rate_hz=sample_rate_hz(run.state["t"]), law=run.info.get("law"),
+        gains=dict(run.info.get("gains") or {}), source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
         truncated=bool(run.truncated),
     )
 
@@ -196,14 +184,9 @@ def _depth(run: RunData) -> Depth:
     moving = (rate is not None and abs(rate) > DEPTH_MOVING_RATE
               and not (relative is not None and relative <= DEPTH_SETTLED_BAND))
     return Depth(
-        dhat0=float(finite[0]) if finite.size else None,
-        dhat_final=dhat_final,
-        d_true=d_true,
-        relative_error=relative,
+        dhat0=float(finite[0]) if finite.size else None, dhat_final=dhat_final, d_true=d_true, relative_error=relative,
         learning_reference=None if reference is None else ("d_true" if d_true is not None else "dhat_final"),
-        learning_time_s=learning,
-        end_rate_per_s=rate,
-        still_moving=moving,
+        learning_time_s=learning, end_rate_per_s=rate, still_moving=moving,
         warning=(f"dhat is still moving at the end of the run ({100.0 * rate:+.2g} % per second): "
                  "the depth is not learnt yet; a longer run, a better --dhat0 or a larger --gamma would help")
         if moving else None,
@@ -223,14 +206,10 @@ def _commands(run: RunData) -> Commands:
     taught = command_smoothness(t, *taught_commands_along(run))
     del taught["at_limit_fraction"]
     return Commands(
-        v_peak_mps=peak_abs(v),
-        v_rms_mps=rms(v),
-        w_peak_radps=peak_abs(w),
-        w_rms_radps=rms(w),
+        v_peak_mps=peak_abs(v), v_rms_mps=rms(v), w_peak_radps=peak_abs(w), w_rms_radps=rms(w),
         saturated_fraction=float(np.mean(run.saturated)),
         **command_smoothness(t, v, w, limits.max_v, limits.max_w, limits.max_accel),
-        limits=limits,
-        taught=TaughtSmoothness(**taught),
+        limits=limits, taught=TaughtSmoothness(**taught),
     )
 
 
@@ -238,11 +217,9 @@ def _target(run: RunData) -> Target:
     # run.lost holds through drops, so the longest loss spans them.
     dropped = run.dropped if run.dropped is not None else np.zeros(run.steps, dtype=bool)
     return Target(
-        lost_frames=int(np.count_nonzero(run.lost)),
-        lost_fraction=float(np.mean(run.lost)),
+        lost_frames=int(np.count_nonzero(run.lost)), lost_fraction=float(np.mean(run.lost)),
         longest_loss_s=longest_true_run_s(run.state["t"], run.lost),
-        dropped_frames=int(np.count_nonzero(dropped)),
-        dropped_fraction=float(np.mean(dropped)),
+        dropped_frames=int(np.count_nonzero(dropped)), dropped_fraction=float(np.mean(dropped)),
     )
 
 
@@ -254,14 +231,11 @@ def _timing(run: RunData) -> Timing | None:
     latency_ms = 1e3 * timing["latency_s"]
     intervals = timing["frame_interval_s"][np.isfinite(timing["frame_interval_s"])]
     return Timing(
-        latency_p50_ms=float(np.percentile(latency_ms, 50)),
-        latency_p95_ms=float(np.percentile(latency_ms, 95)),
-        latency_p99_ms=float(np.percentile(latency_ms, 99)),
-        latency_max_ms=float(np.max(latency_ms)),
+        latency_p50_ms=float(np.percentile(latency_ms, 50)), latency_p95_ms=float(np.percentile(latency_ms, 95)),
+        latency_p99_ms=float(np.percentile(latency_ms, 99)), latency_max_ms=float(np.max(latency_ms)),
         frame_interval_p50_ms=float(1e3 * np.median(intervals)) if intervals.size else None,
         frame_interval_max_ms=float(1e3 * np.max(intervals)) if intervals.size else None,
-        frames_dropped=int(np.nansum(timing["dropped"])),
-        frames_late=int(np.nansum(timing["late"])),
+        frames_dropped=int(np.nansum(timing["dropped"])), frames_late=int(np.nansum(timing["late"])),
     )
 
 
@@ -356,14 +330,7 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
     pose_error = _error_summaries(run, pose_error_signals(run), tolerances)
     lyapunov, commands = Lyapunov(**lyapunov_summary(run.state["V"])), _commands(run)
     return RunReport(
-        run=_run_summary(run, label),
-        errors=errors,
-        pose_error=pose_error,
-        lyapunov=lyapunov,
-        depth=_depth(run),
-        commands=commands,
-        target=_target(run),
-        condition35=_condition35(run),
-        timing=_timing(run),
+        run=_run_summary(run, label), errors=errors, pose_error=pose_error, lyapunov=lyapunov, depth=_depth(run),
+        commands=commands, target=_target(run), condition35=_condition35(run), timing=_timing(run),
         verdict=verdict(run, errors, pose_error, lyapunov, commands, tolerances),
     )

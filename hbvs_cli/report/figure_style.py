@@ -80,27 +80,13 @@ def paper_rc() -> dict[str, Any]:
     from cycler import cycler
 
     return {
-        "font.size": 8.0,
-        "axes.titlesize": 8.5,
-        "axes.labelsize": 8.0,
-        "xtick.labelsize": 7.0,
-        "ytick.labelsize": 7.0,
-        "legend.fontsize": 7.5,
-        "figure.titlesize": 9.5,
-        "lines.linewidth": 1.0,
-        "axes.linewidth": 0.6,
-        "xtick.major.width": 0.6,
-        "ytick.major.width": 0.6,
-        "grid.linewidth": 0.4,
-        "grid.alpha": 0.35,
-        "axes.grid": True,
-        "axes.prop_cycle": cycler(color=list(PALETTE)),
-        "axes.titlelocation": "left",
-        "legend.frameon": False,
-        "pdf.fonttype": 42,
-        "ps.fonttype": 42,
-        "svg.fonttype": "none",
-        "mathtext.default": "regular",
+        "font.size": 8.0, "axes.titlesize": 8.5, "axes.labelsize": 8.0, "xtick.labelsize": 7.0, "ytick.labelsize": 7.0,
+        "legend.fontsize": 7.5, "figure.titlesize": 9.5,
+        "lines.linewidth": 1.0, "axes.linewidth": 0.6, "xtick.major.width": 0.6, "ytick.major.width": 0.6,
+        "grid.linewidth": 0.4, "grid.alpha": 0.35, "axes.grid": True,
+        "axes.prop_cycle": cycler(color=list(PALETTE)), "axes.titlelocation": "left", "legend.frameon": False,
+        # Text stays text in vector output.
+        "pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none", "mathtext.default": "regular",
     }
 
 

@@ -106,15 +106,10 @@ def fit_summary(signals: FitSignals) -> dict[str, Any]:
     about = slope - np.interp(t_mid, smooth["t"], smooth["x_hd1_dot"])
     feed_forward = np.abs(smooth["x_hd1_dot"])
     summary = {
-        "file": signals.name,
-        "frames_raw": int(raw["t"].size),
-        "frames_smooth": int(smooth["t"].size),
+        "file": signals.name, "frames_raw": int(raw["t"].size), "frames_smooth": int(smooth["t"].size),
         "raw_minus_smooth": differences,
-        "x_hd1_dot": {
-            "min_abs": float(feed_forward.min()),
-            "max_abs": float(feed_forward.max()),
-            "raw_difference_rms": float(np.sqrt(np.mean(about**2))) if about.size else None,
-        },
+        "x_hd1_dot": {"min_abs": float(feed_forward.min()), "max_abs": float(feed_forward.max()),
+                      "raw_difference_rms": float(np.sqrt(np.mean(about**2))) if about.size else None},
     }
     return round_significant(summary, 7)
 
@@ -158,8 +153,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                 ax.plot(raw["t"], _raw_minus_smooth(signals, key, scale), ls="none", marker="o", ms=1.6, mew=0, color="0.45")
                 ax.axhline(0.0, color=PALETTE[0], lw=1.0)
                 unit = "deg" if key == "theta_d" else "units of d*"
-                ax.set_title(f"{title.split(' (')[0]}: raw minus {how.split()[0]}")
-                ax.set_ylabel(f"difference ({unit})")
+                ax.set(title=f"{title.split(' (')[0]}: raw minus {how.split()[0]}", ylabel=f"difference ({unit})")
             else:
                 title, ylabel, key, scale, how = signal_panels[name]
                 ax.plot(raw["t"], scale * raw[key], ls="none", marker="o", ms=1.6, mew=0, color="0.55", label="raw: one homography per frame")
@@ -168,8 +162,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                     band = 1.96 * scale * smooth[f"{key}_sigma"]
                     ax.fill_between(smooth["t"], scale * smooth[key] - band, scale * smooth[key] + band, color=PALETTE[0],
                                     alpha=0.2, lw=0, label="95 % interval (n*, reference points, noise)")
-                ax.set_title(title)
-                ax.set_ylabel(ylabel)
+                ax.set(title=title, ylabel=ylabel)
                 ax.legend(loc="best", fontsize=6.5, handlelength=1.5, markerscale=2.5)
             for start, end in _gaps(raw["t"]):
                 ax.axvspan(start, end, color="0.5", alpha=0.2, lw=0, zorder=0)
@@ -189,7 +182,6 @@ def _paint_feed_forward(ax: Any, raw: Mapping[str, np.ndarray], smooth: Mapping[
     low, high = min(float(values.min()), 0.0), max(float(values.max()), 0.0)
     pad = 0.25 * (high - low) + 1e-9
     ax.set_ylim(low - pad, high + pad)
-    ax.set_title(r"Feed-forward $\dot{x}_{hd1}$ of (29)-(30); condition (35) needs it away from 0")
-    ax.set_ylabel(r"$\dot{x}_{hd1}$ (1/s)")
+    ax.set(title=r"Feed-forward $\dot{x}_{hd1}$ of (29)-(30); condition (35) needs it away from 0", ylabel=r"$\dot{x}_{hd1}$ (1/s)")
     ax.legend(loc="best", fontsize=6.5, handlelength=1.5)
 

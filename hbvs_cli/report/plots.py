@@ -1,8 +1,5 @@
-"""``--plot``: one figure of a run (or several, overlaid) fit for a paper.
-
-Panels (:data:`PANELS`, in their default order) and conventions (losses shaded and lines
-broken: nothing is drawn that was not measured): docs/report.md, "Figure".
-"""
+"""``--plot``: one figure of a run (or several, overlaid) fit for a paper; its panels
+(:data:`PANELS`) and conventions: docs/report.md, "Figure"."""
 
 from __future__ import annotations
 
@@ -97,8 +94,7 @@ def _shade_losses(ax: Any, context: PanelContext) -> None:
 
 def _say_absent(ax: Any, message: str) -> None:
     ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
-    ax.set_xticks([])
-    ax.set_yticks([])
+    ax.set(xticks=[], yticks=[])
     ax.grid(False)
 
 
@@ -110,9 +106,7 @@ def _note_missing(ax: Any, runs: Sequence[RunData], has_data: Callable[[RunData]
 
 
 def _time_axes(ax: Any, title: str, ylabel: str) -> None:
-    ax.set_title(title)
-    ax.set_xlabel("time t (s)")
-    ax.set_ylabel(ylabel)
+    ax.set(title=title, xlabel="time t (s)", ylabel=ylabel)
 
 
 def _band(ax: Any, tolerance: float, signed: bool) -> None:
@@ -292,9 +286,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     zoom = figure.add_subplot(zoom_box, label="top_paths")
     _scene_view(scene, with_poses)
     _draw_paths(zoom, with_poses)
-    zoom.set_title("Paths, y stretched: taught (dashed), repeated")
-    zoom.set_xlabel("x (m)")
-    zoom.set_ylabel("y (m)")
+    zoom.set(title="Paths, y stretched: taught (dashed), repeated", xlabel="x (m)", ylabel="y (m)")
     for axes in (scene, zoom):
         _note_missing(axes, context.runs, _has_poses)
 
@@ -321,8 +313,7 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
         _heading_arrows(ax, run.true_pose, run.state["t"], color, 0.08 * span)
     ax.margins(0.06)
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set(xlabel="x (m)", ylabel="y (m)")
 
 
 #: Every panel of the run figure, in the default order.

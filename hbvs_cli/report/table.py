@@ -22,45 +22,32 @@ MISSING = "n/a"
 
 #: Each error signal's short name and unit.
 ERROR_SIGNALS = {
-    "e1": ("e1", "d*"),
-    "e2": ("e2", "d*"),
-    "ebar2": ("ebar2", "d*"),
-    "e3": ("e3", "deg"),
-    "position_m": ("position", "m"),
-    "heading_deg": ("heading", "deg"),
+    "e1": ("e1", "d*"), "e2": ("e2", "d*"), "ebar2": ("ebar2", "d*"), "e3": ("e3", "deg"),
+    "position_m": ("position", "m"), "heading_deg": ("heading", "deg"),
 }
 #: Short name of each statistic.
 STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
 
 #: Rows of the metrics table.
 METRIC_ROWS: tuple[Row, ...] = (
-    ("V initial", lambda r: r.lyapunov.initial),
-    ("V final", lambda r: r.lyapunov.final),
-    ("V final / V(0)", lambda r: r.lyapunov.ratio),
-    ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
-    ("dhat0 (m)", lambda r: r.depth.dhat0),
-    ("dhat final (m)", lambda r: r.depth.dhat_final),
-    ("d* true (m)", lambda r: r.depth.d_true),
-    ("dhat relative error (-)", lambda r: r.depth.relative_error),
+    ("V initial", lambda r: r.lyapunov.initial), ("V final", lambda r: r.lyapunov.final),
+    ("V final / V(0)", lambda r: r.lyapunov.ratio), ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
+    ("dhat0 (m)", lambda r: r.depth.dhat0), ("dhat final (m)", lambda r: r.depth.dhat_final),
+    ("d* true (m)", lambda r: r.depth.d_true), ("dhat relative error (-)", lambda r: r.depth.relative_error),
     ("dhat within 10 % after (s)", lambda r: r.depth.learning_time_s),
     ("dhat drift at the end (1/s)", lambda r: r.depth.end_rate_per_s),
     ("dhat still moving at the end", lambda r: r.depth.still_moving),
-    ("v peak (m/s)", lambda r: r.commands.v_peak_mps),
-    ("v rms (m/s)", lambda r: r.commands.v_rms_mps),
-    ("w peak (rad/s)", lambda r: r.commands.w_peak_radps),
-    ("w rms (rad/s)", lambda r: r.commands.w_rms_radps),
+    ("v peak (m/s)", lambda r: r.commands.v_peak_mps), ("v rms (m/s)", lambda r: r.commands.v_rms_mps),
+    ("w peak (rad/s)", lambda r: r.commands.w_peak_radps), ("w rms (rad/s)", lambda r: r.commands.w_rms_radps),
     ("saturated (fraction of steps)", lambda r: r.commands.saturated_fraction),
     ("at a limit (fraction of steps)", lambda r: r.commands.at_limit_fraction),
     ("v total variation (m/s per s)", lambda r: r.commands.v_tv_per_s),
     ("w total variation (rad/s per s)", lambda r: r.commands.w_tv_per_s),
-    ("RMS dv/dt (m/s^2)", lambda r: r.commands.dv_dt_rms_mps2),
-    ("RMS dw/dt (rad/s^2)", lambda r: r.commands.dw_dt_rms_radps2),
+    ("RMS dv/dt (m/s^2)", lambda r: r.commands.dv_dt_rms_mps2), ("RMS dw/dt (rad/s^2)", lambda r: r.commands.dw_dt_rms_radps2),
     ("taught RMS dv/dt (m/s^2)", lambda r: r.commands.taught.dv_dt_rms_mps2),
     ("taught RMS dw/dt (rad/s^2)", lambda r: r.commands.taught.dw_dt_rms_radps2),
-    ("target lost (frames)", lambda r: r.target.lost_frames),
-    ("target lost (fraction of steps)", lambda r: r.target.lost_fraction),
-    ("longest loss (s)", lambda r: r.target.longest_loss_s),
-    ("dropped frames", lambda r: r.target.dropped_frames),
+    ("target lost (frames)", lambda r: r.target.lost_frames), ("target lost (fraction of steps)", lambda r: r.target.lost_fraction),
+    ("longest loss (s)", lambda r: r.target.longest_loss_s), ("dropped frames", lambda r: r.target.dropped_frames),
     ("dropped (fraction of steps)", lambda r: r.target.dropped_fraction),
     ("min |x_hd1_dot| run (1/s)", lambda r: r.condition35.min_abs_xhd1_dot),
     ("min |x_hd1_dot| fit (1/s)", lambda r: r.condition35.fit_min_abs_xhd1_dot),
@@ -82,12 +69,9 @@ CHECK_LABELS = {
 
 #: Rows of the run table after the gains.
 RUN_ROWS: tuple[Row, ...] = (
-    ("law", lambda r: r.run.law),
-    ("mode", lambda r: r.run.source.mode),
-    ("fit file", lambda r: r.run.source.fit_file),
-    ("duration (s)", lambda r: r.run.duration_s),
-    ("steps", lambda r: r.run.steps),
-    ("rate (Hz)", lambda r: r.run.rate_hz),
+    ("law", lambda r: r.run.law), ("mode", lambda r: r.run.source.mode),
+    ("fit file", lambda r: r.run.source.fit_file), ("duration (s)", lambda r: r.run.duration_s),
+    ("steps", lambda r: r.run.steps), ("rate (Hz)", lambda r: r.run.rate_hz),
     ("truncated", lambda r: r.run.truncated),
 )
 
@@ -133,15 +117,11 @@ def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) 
     return table
 
 
-def _gain(name: str) -> Callable[[RunReport], Any]:
-    return lambda report: report.run.gains.get(name)
-
-
 def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
     gains: dict[str, None] = {}
     for report in reports:
         gains.update(dict.fromkeys(report.run.gains))
-    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", _gain(name)) for name in gains]
+    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", lambda r, name=name: r.run.gains.get(name)) for name in gains]
     return [("file", lambda r: r.run.name), ("label", lambda r: r.run.label), *RUN_ROWS, *gain_rows]
 
 

@@ -1,9 +1,6 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md).
-
-Each newest frame is measured and decided by the step of ``--sim``
-(:class:`hbvs_cli.core.simulator.ServoStep`); frames that came meanwhile are dropped. Zero
-commands go out on every way out, and only zeros before the target is seen near its taught
-start view (:data:`START_FRAMES`).
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame
+decided by the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out
+on every way out, and only zeros before the target is seen near its taught start view.
 """
 
 from __future__ import annotations

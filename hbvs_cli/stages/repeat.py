@@ -127,22 +127,11 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     state_filter = str(pick("state_filter"))
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
+    limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
+                            max_accel=_limit(pick("max_accel"), "--max-accel"))
     return Settings(
-        gains=gains,
-        law=law,
-        dhat0=dhat0,
-        speed=speed,
-        limits=ActuatorLimits(
-            max_v=_limit(pick("max_v"), "--max-v"),
-            max_w=_limit(pick("max_w"), "--max-w"),
-            max_accel=_limit(pick("max_accel"), "--max-accel"),
-        ),
-        latency=latency,
-        rate=rate,
-        perception=perception,
-        pixel_noise=float(pick("pixel_noise")),
-        offset=parse_offset(offset_text),
-        lost_timeout=float(pick("lost_timeout")),
+        gains=gains, law=law, dhat0=dhat0, speed=speed, limits=limits, latency=latency, rate=rate, perception=perception,
+        pixel_noise=float(pick("pixel_noise")), offset=parse_offset(offset_text), lost_timeout=float(pick("lost_timeout")),
         state_filter=state_filter,
     )
 
@@ -177,14 +166,8 @@ class _StepLog:
     """Each step record as run file messages and a command; events when the target is lost or back, etc."""
 
     def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
-        self.run = run
-        self.settings = settings
-        self.model = model
-        self.d_true = d_true
-        self.cmd_stream = cmd_stream
-        self.was_saturated = False
-        self.was_lost = False
-        self.was_dropped = False
+        self.run, self.settings, self.model, self.d_true, self.cmd_stream = run, settings, model, d_true, cmd_stream
+        self.was_saturated = self.was_lost = self.was_dropped = False
         self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
@@ -301,16 +284,9 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model, camera.estimator)
     return Simulation(
-        scene=scene,
-        camera=camera,
-        trajectory=trajectory,
-        controller=make_controller(settings.law, settings.gains, settings.dhat0),
-        start_pose=start_pose,
-        dt=1.0 / settings.rate,
-        duration=trajectory.t_end - trajectory.t_start,
-        limits=settings.limits,
-        latency=settings.latency,
-        state_filter=state_filter,
+        scene=scene, camera=camera, trajectory=trajectory, controller=make_controller(settings.law, settings.gains, settings.dhat0),
+        start_pose=start_pose, dt=1.0 / settings.rate, duration=trajectory.t_end - trajectory.t_start, limits=settings.limits,
+        latency=settings.latency, state_filter=state_filter,
     )
 
 
@@ -404,11 +380,7 @@ class _Tally:
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
     model = fit.model
     return {
-        "file_kind": "run",
-        "hbvs_version": __version__,
-        "mode": mode,
-        "law": settings.law,
-        "gains": settings.gains.as_dict(),
+        "file_kind": "run", "hbvs_version": __version__, "mode": mode, "law": settings.law, "gains": settings.gains.as_dict(),
         "settings": settings.as_dict() | {
             "seed": options.seed, "input": str(options.input), "replay": str(options.replay) if options.replay else None,
             "faults": {
@@ -417,10 +389,7 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Fi
             },
             "record_images": options.record_images,
         },
-        "d_true": d_true,
-        "dhat0": settings.dhat0,
-        "target_kind": model.target_kind,
-        "condition35": model.condition35,
+        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind, "condition35": model.condition35,
         "fit_frames": model.frames,
     } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 

@@ -1,7 +1,5 @@
 """``hbvs report``: how well did the repeat follow the taught path, and did it converge?
-
-Every option is checked before anything is printed; stdout carries only the table or the JSON.
-"""
+Every option is checked before anything is printed; stdout carries only the table or the JSON."""
 
 from __future__ import annotations
 
@@ -89,16 +87,13 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
         except NotARunFile as other:
             if other.kind != "fit":
                 raise
-            if isinstance(source, io.BytesIO):
-                source.seek(0)
+            run = None
+        if isinstance(source, io.BytesIO):
+            source.seek(0)
+        if run is None:
             loaded.append((read_fit_signals(source, name), None))
-            continue
-        height = None
-        if need_height and run.true_pose is not None:
-            if isinstance(source, io.BytesIO):
-                source.seek(0)
-            height = camera_height_m(source, name)
-        loaded.append((run, height))
+        else:
+            loaded.append((run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
     return loaded
 
 

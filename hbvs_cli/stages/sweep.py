@@ -1,8 +1,5 @@
-"""``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask.
-
-Each run is ``repeat --sim`` + ``report --json`` (:mod:`.sweep_run`); rows are written as they
-finish, so the same command resumes an interrupted sweep.
-"""
+"""``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask. Rows are written as
+runs finish (:mod:`.sweep_run`), so the same command resumes an interrupted sweep."""
 
 from __future__ import annotations
 

@@ -77,11 +77,8 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
     path_file = options.path if options.path not in PRESETS else None
-    refuse_overwriting_inputs(
-        [("-o", options.output)],
-        [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
-         ("--calibration", options.calibration), ("--path", path_file)],
-    )
+    refuse_overwriting_inputs([("-o", options.output)], [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
+                                                         ("--calibration", options.calibration), ("--path", path_file)])
     kind = options.source_kind()
     if options.cmd_topic is not None and kind != "bag":
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
@@ -151,12 +148,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
         )
     renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
-    settings = options.settings() | {
-        "path_name": path_name,
-        "start_pose": list(start_pose),
-        "duration_s": duration,
-        "frames": frame_count,
-    }
+    settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, "sim", settings, world)
         teach.calibration(world.camera, SIMULATION_EPOCH_NS)

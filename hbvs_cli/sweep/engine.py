@@ -90,15 +90,12 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
     # profiler, slow ticks (each takes the GIL from the run), glibc's malloc trimming.
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                      if name != "MALLOC_TRIM_THRESHOLD_"}
+    # A restarted worker must connect within the timeout, also on a loaded machine.
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,
                           "distributed.scheduler.allowed-failures": allowed_worker_deaths,
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.worker.profile.enabled": False,
-                          "distributed.admin.tick.interval": "1s",
-                          "distributed.admin.system-monitor.interval": "1s",
-                          "distributed.worker.memory.monitor-interval": "1s",
-                          # A restarted worker must register within this, also on a loaded machine.
-                          "distributed.comm.timeouts.connect": "120s",
+                          "distributed.scheduler.worker-saturation": 1.0, "distributed.worker.profile.enabled": False,
+                          "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "1s",
+                          "distributed.worker.memory.monitor-interval": "1s", "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
         try:

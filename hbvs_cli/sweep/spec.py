@@ -114,12 +114,8 @@ class SweepSpec:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "vary": {axis.name: axis.as_dict() for axis in self.axes},
-            "fixed": dict(self.fixed),
-            "sampling": self.sampling,
-            "samples": self.samples if self.sampling != "grid" else None,
-            "repeats": self.repeats,
-            "seed": self.seed,
+            "vary": {axis.name: axis.as_dict() for axis in self.axes}, "fixed": dict(self.fixed), "sampling": self.sampling,
+            "samples": self.samples if self.sampling != "grid" else None, "repeats": self.repeats, "seed": self.seed,
         }
 
 
