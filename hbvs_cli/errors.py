@@ -1,25 +1,8 @@
-"""The exceptions hbvs raises on purpose, and the exit code each one maps to.
+"""The exceptions hbvs raises on purpose, each with its exit code (README.md, "Exit codes").
 
 Every error a user can cause is an :class:`HbvsError`: the CLI prints its message as one
 line on stderr and exits with its code (the core's :class:`DomainError` kinds are mapped in
 ``hbvs_cli/cli/exit_codes.py``); anything else that escapes is a bug.
-
-Exit codes
-----------
-==== =========================================================================
-0    success
-1    a ``report --fail-above`` threshold was exceeded, or the demo did not converge
-2    the command line is wrong (an unknown option, a bad value, clashing options)
-3    an input file is missing, unreadable or malformed
-4    the geometry is degenerate (too few points, collinear, a point at camera height...)
-5    the run was stopped: the target was lost for longer than ``--lost-timeout``
-6    an output could not be written (its folder does not exist, disk full, I/O error, stdout
-     closed); nothing was replaced
-7    a size limit was reached (the message names the limit and the option that raises it)
-8    ``repeat --live`` did not start: the robot is not near the taught start (the message says how far)
-130  interrupted by Ctrl-C (SIGINT); 143 by SIGTERM
-141  the reader of the output pipe went away (``hbvs ... | head``)
-==== =========================================================================
 """
 
 from __future__ import annotations
@@ -54,8 +37,7 @@ class RecordingError(InputError):
 
 
 class DomainError(HbvsError):
-    """An error of the method itself, raised by the pure core: what is wrong with the numbers,
-    not which option or file they came from."""
+    """An error of the method itself, raised by the pure core (the numbers, not their source)."""
 
 
 class InvalidValueError(DomainError):
@@ -63,8 +45,7 @@ class InvalidValueError(DomainError):
 
 
 class MalformedDataError(DomainError):
-    """Data that are not what the method needs: command times that do not increase, a
-    trajectory model without a channel, a world description that does not parse."""
+    """Data that are not what the method needs (times that do not increase, a missing channel)."""
 
 
 class NotAnImageError(MalformedDataError, InputError):
@@ -73,7 +54,6 @@ class NotAnImageError(MalformedDataError, InputError):
 
 class InsufficientDataError(DomainError):
     """Too little usable data; ``facts`` holds the numbers behind the message for a stage to word."""
-
 
     def __init__(self, message: str, **facts: Any) -> None:
         super().__init__(message)

@@ -1,8 +1,5 @@
-"""The ``hbvs`` command line: parse options, call a stage, map errors to exit codes.
-
-Each command imports its stage lazily, so that ``hbvs --help`` loads no OpenCV, scipy,
-matplotlib or mcap (tests/test_repository.py checks).
-"""
+"""The ``hbvs`` command line: parse options, call a stage (imported lazily, so that ``hbvs
+--help`` stays fast), map errors to exit codes."""
 
 from __future__ import annotations
 
@@ -14,11 +11,11 @@ import signal
 import sys
 import traceback
 import warnings
+from contextlib import suppress
 from pathlib import Path
 from typing import Annotated, Any, List, Optional
 
 import typer
-
 
 from .. import __version__
 from ..errors import HbvsError, InputError, OutputError
@@ -30,8 +27,7 @@ from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..io.settings import (
     EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
-    TEACH_SETTINGS, ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions,
-    options_from_command_line,
+    TEACH_SETTINGS, options_from_command_line,
 )
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
@@ -79,71 +75,51 @@ def _root(
         set_limits(list(limit))
 
 
-def _run_stage(stage: str, options_class: Any, values: dict[str, Any]) -> None:
-    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now (start-up time, see
-    above), on the options ``values`` give; a stage's non-zero int return is the exit code."""
+def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
+    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code."""
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
-    options = options_from_command_line(options_class or module.TeachOptions, values)
+    options = options_from_command_line(getattr(module, options_class), values)
     code = getattr(module, f"run_{stage}")(options, Console(quiet))
     if isinstance(code, int) and code:
         raise typer.Exit(code)
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(TEACH_SETTINGS, QUIET_MESSAGES)
-def teach(**values: Any) -> None:
-    """Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."""
-    _run_stage("teach", None, values)
+#: Each stage's command: name, help panel, settings, its stage module's options class, extra options, help.
+STAGE_COMMANDS = (
+    ("teach", "Pipeline", TEACH_SETTINGS, "TeachOptions", (QUIET_MESSAGES,),
+     "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
+    ("fit", "Pipeline", FIT_SETTINGS, "FitOptions", (QUIET,),
+     "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
+    ("repeat", "Pipeline", REPEAT_SETTINGS, "RepeatOptions", (QUIET,),
+     "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
+    ("robot-sim", "Robot", ROBOT_SIM_SETTINGS, "RobotSimOptions", (QUIET_MESSAGES,),
+     "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
+    ("report", "Pipeline", REPORT_SETTINGS, "ReportOptions", (),
+     "How well did the repeat follow the taught path, and did it converge?"),
+    ("export", "Pipeline", EXPORT_SETTINGS, "ExportOptions",
+     (QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]),),
+     "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
+    ("info", "Files", INFO_SETTINGS, "InfoOptions", (),
+     "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
+    ("sweep", "Studies", SWEEP_SETTINGS, "SweepOptions", (QUIET_MESSAGES,),
+     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."),
+)
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(FIT_SETTINGS, QUIET)
-def fit(**values: Any) -> None:
-    """Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."""
-    _run_stage("fit", FitOptions, values)
+def _add_stage_command(name: str, panel: str, settings: Any, options_class: str, extra: tuple[inspect.Parameter, ...],
+                       help_text: str) -> None:
+    stage = name.replace("-", "_")
+
+    def command(**values: Any) -> None:
+        _run_stage(stage, options_class, values)
+
+    command.__name__, command.__doc__ = stage, help_text
+    app.command(name, rich_help_panel=panel)(with_settings(settings, *extra)(command))
 
 
-@app.command(rich_help_panel="Pipeline")
-@with_settings(REPEAT_SETTINGS, QUIET)
-def repeat(**values: Any) -> None:
-    """Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."""
-    _run_stage("repeat", RepeatOptions, values)
-
-
-@app.command("robot-sim", rich_help_panel="Robot")
-@with_settings(ROBOT_SIM_SETTINGS, QUIET_MESSAGES)
-def robot_sim(**values: Any) -> None:
-    """A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."""
-    _run_stage("robot_sim", RobotSimOptions, values)
-
-
-@app.command(rich_help_panel="Pipeline")
-@with_settings(REPORT_SETTINGS)
-def report(**values: Any) -> None:
-    """How well did the repeat follow the taught path, and did it converge?"""
-    _run_stage("report", ReportOptions, values)
-
-
-@app.command(rich_help_panel="Pipeline")
-@with_settings(EXPORT_SETTINGS, QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]))
-def export(**values: Any) -> None:
-    """Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."""
-    _run_stage("export", ExportOptions, values)
-
-
-@app.command(rich_help_panel="Files")
-@with_settings(INFO_SETTINGS)
-def info(**values: Any) -> None:
-    """What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."""
-    _run_stage("info", InfoOptions, values)
-
-
-@app.command(rich_help_panel="Studies")
-@with_settings(SWEEP_SETTINGS, QUIET_MESSAGES)
-def sweep(**values: Any) -> None:
-    """Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."""
-    _run_stage("sweep", SweepOptions, values)
+for _command in STAGE_COMMANDS:
+    _add_stage_command(*_command)
 
 
 @app.command()
@@ -153,52 +129,46 @@ def demo(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the final report.")] = False,
 ) -> None:
     """Teach, fit, repeat under both laws and report: the whole method in one command."""
-    from ..stages.demo import run_demo  # lazy: start-up time (see above)
+    from ..stages.demo import run_demo
 
     code = run_demo(out if out is not None else output, Console(quiet))
     if code:
         raise typer.Exit(code)
 
 
-# --------------------------------------------------------------------------- entry point
 class _Terminated(BaseException):
     """Raised from the SIGTERM handler so that cleanup (partial files) runs."""
 
 
 class _Interrupted(KeyboardInterrupt):
-    """Raised from the SIGINT handler. A subclass, because CPython ends the process by SIGINT
-    when exactly KeyboardInterrupt escapes some of its C entry points, even if handled later."""
+    """Raised from the SIGINT handler (CPython ends the process when exactly KeyboardInterrupt
+    escapes some of its C entry points, even if handled later)."""
 
 
-#: Exit code and message of each signal that stops hbvs.
 _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
-#: The first stop signal received, if any.
 _received: int | None = None
 #: True when a stop signal's exception was raised inside a finaliser and dropped there.
 _swallowed = False
 
 
 def _on_signal(signum: int, frame: object) -> None:
-    """Stop the command by raising, so that partial files are removed on the way out; later
-    signals are ignored so that this cleanup is not interrupted in turn."""
+    """Stop the command by raising, so that partial files are removed; later signals are ignored."""
     global _received
-    _ignore_stop_signals()
+    _set_stop_handlers(signal.SIG_IGN)
     _received = signum
     if signum == signal.SIGINT:
         raise _Interrupted
     raise _Terminated
 
 
-def _ignore_stop_signals() -> None:
+def _set_stop_handlers(handler: Any) -> None:
     for signum in _STOP_SIGNALS:
-        try:
-            signal.signal(signum, signal.SIG_IGN)
-        except ValueError:  # not in the main thread (e.g. embedded)
-            pass
+        with suppress(ValueError):  # not in the main thread: the signals keep their handlers
+            signal.signal(signum, handler)
 
 
 def _on_unraisable(unraisable: Any) -> None:
-    """Keep quiet about a stop signal dropped inside a finaliser; :func:`main` reports the stop."""
+    """Keep quiet about a stop signal dropped inside a finaliser (:func:`main` reports it)."""
     global _swallowed
     if isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
         _swallowed = True
@@ -208,16 +178,11 @@ def _on_unraisable(unraisable: Any) -> None:
 
 def _install_signal_handlers() -> None:
     sys.unraisablehook = _on_unraisable
-    for signum in _STOP_SIGNALS:
-        try:
-            signal.signal(signum, _on_signal)
-        except ValueError:  # not in the main thread: the signals keep their defaults
-            pass
+    _set_stop_handlers(_on_signal)
 
 
 def _raise_if_stopping() -> None:
-    """Re-raise a stop signal that native code turned into another exception (e.g.
-    ``ImportError: initialization failed``): once one has arrived, any failure is its consequence."""
+    """Re-raise a stop signal that native code turned into another exception."""
     if _received == signal.SIGINT:
         raise _Interrupted
     if _received is not None:
@@ -225,7 +190,6 @@ def _raise_if_stopping() -> None:
 
 
 def _stopped(signum: int) -> int:
-    """Report a stop signal on stderr (one line) and return its exit code."""
     code, what = _STOP_SIGNALS[signum]
     _say(f"hbvs: {what}")
     return code
@@ -233,14 +197,10 @@ def _stopped(signum: int) -> int:
 
 def _silence_stdout() -> None:
     """After a broken pipe, point stdout at /dev/null so interpreter shutdown stays quiet."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):
-        pass
+    with suppress(OSError, ValueError, AttributeError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
-#: Device and inode of stdout when hbvs started.
 _stdout_at_start: tuple[int, int] | None = None
 
 
@@ -263,11 +223,9 @@ def _stdout_became_devnull() -> bool:
 
 def _say(line: str) -> None:
     """One line on stderr; a closed or broken stderr is no reason for a traceback."""
-    try:
+    with suppress(OSError, ValueError, AttributeError):
         sys.stderr.write(line + "\n")
         sys.stderr.flush()
-    except (OSError, ValueError, AttributeError):
-        pass
 
 
 def _pipe_closed() -> int:
@@ -297,7 +255,7 @@ def _live_port_given(args: list[str]) -> list[str]:
 
 
 def _run(args: list[str], debug: bool) -> int:
-    """Run the app; every error but a stop signal becomes its message and exit code."""
+    """Run the app; every error but a stop signal becomes one line and its exit code."""
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
@@ -312,7 +270,7 @@ def _run(args: list[str], debug: bool) -> int:
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130
-    except typer.TyperException as exc:  # usage errors (typer's vendored click): one line, with where to find help
+    except typer.TyperException as exc:  # usage errors (typer's vendored click)
         if type(exc).__name__ == "NoArgsIsHelpError":  # `hbvs` alone: the help is what was asked for
             exc.show()
             return int(getattr(exc, "exit_code", 2))
@@ -324,8 +282,7 @@ def _run(args: list[str], debug: bool) -> int:
             _say("hbvs: error: " + " ".join(str(exc).split()))
         return int(getattr(exc, "exit_code", 2))
     except SystemExit as exc:
-        # typer (and rich, printing help) answer a broken pipe with exit status 1, after
-        # wrapping stdout (typer) or pointing it at /dev/null (rich).
+        # typer and rich answer a broken pipe with status 1, after wrapping or redirecting stdout.
         if exc.code == 1 and (type(sys.stdout).__name__ == "PacifyFlushWrapper" or _stdout_became_devnull()):
             return _pipe_closed()
         raise
@@ -358,54 +315,42 @@ def _run(args: list[str], debug: bool) -> int:
         return 70
 
 
-class _ClosedStdout:
-    """What sys.stdout is when hbvs was started with stdout closed: writing is an error."""
+class _ClosedStream:
+    """What sys.stdin or sys.stdout is when hbvs was started with it closed: using it is an error."""
 
     encoding = "utf-8"
+    error: type[HbvsError]
+    message: str
 
     def _closed(self, *args: Any) -> Any:
-        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-
-    write = _closed
+        raise self.error(self.message)
 
     @property
     def buffer(self) -> Any:
         return self._closed()
 
-    def flush(self) -> None:
-        pass
-
     def isatty(self) -> bool:
         return False
+
+
+class _ClosedStdout(_ClosedStream):
+    error, message = OutputError, "stdout: it is closed; give a file with -o, or redirect stdout"
+    write = _ClosedStream._closed
+
+    def flush(self) -> None:
+        pass
 
     def fileno(self) -> int:
         return 1
 
 
-class _ClosedStdin:
-    """What sys.stdin is when hbvs was started with stdin closed: reading "-" is exit 3."""
-
-    encoding = "utf-8"
-
-    def _closed(self, *args: Any) -> Any:
-        raise InputError("stdin: it is closed; give the input as a file instead of -")
-
-    read = readline = _closed
-
-    @property
-    def buffer(self) -> Any:
-        return self._closed()
-
-    def isatty(self) -> bool:
-        return False
-
-    def fileno(self) -> int:
-        return self._closed()
+class _ClosedStdin(_ClosedStream):
+    error, message = InputError, "stdin: it is closed; give the input as a file instead of -"
+    read = readline = fileno = _ClosedStream._closed
 
 
 def _prepare_stdio(debug: bool) -> None:
-    """Before any command: closed stdio made safe (:func:`guard_stdio`); unless ``--debug``,
-    native stderr captured (:mod:`hbvs_cli.io.native_log`) and warnings hidden."""
+    """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured and warnings hidden."""
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
@@ -422,16 +367,10 @@ def _prepare_stdio(debug: bool) -> None:
     capture()
 
 
-def _one_blas_thread() -> None:
-    """OpenBLAS on one thread unless the user set it: its threads cost more than they share on
-    hbvs's small matrices. Must run before numpy is first imported."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143
-    with one line on stderr; after the command they are ignored, so a late one changes nothing."""
-    _one_blas_thread()
+    """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143; after the command they are ignored."""
+    # OpenBLAS on one thread unless the user set it (hbvs's matrices are small): before numpy is imported.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _prepare_stdio(debug)
@@ -440,7 +379,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             code = _run(args, debug)
         finally:
-            _ignore_stop_signals()
+            _set_stop_handlers(signal.SIG_IGN)
     except KeyboardInterrupt:
         code = _stopped(signal.SIGINT)
     except _Terminated:

@@ -1,8 +1,5 @@
-"""The exit code of each error hbvs raises on purpose (the table in :mod:`hbvs_cli.errors`).
-
-The core's domain errors know nothing of a command line: here a bad value becomes a bad
-option (2), malformed or too little data a bad input (3); degenerate geometry keeps 4.
-"""
+"""The exit code of each error hbvs raises on purpose (the table in :mod:`hbvs_cli.errors`):
+a domain error's bad value is a bad option (2), bad or too little data a bad input (3)."""
 
 from __future__ import annotations
 

@@ -16,8 +16,7 @@ _MAX_MESSAGE = 300
 
 
 def value_label(param: Any) -> str:
-    """What the help shows after an option: nothing for a flag, else its kind of value (typer's
-    own labels are Python types)."""
+    """What the help shows after an option: nothing for a flag, else its kind of value."""
     if getattr(param, "is_flag", False) or getattr(param, "count", False):
         return ""
     descriptor = getattr(param, "type_descriptor", None)

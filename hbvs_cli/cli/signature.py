@@ -1,8 +1,5 @@
-"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.io.settings`).
-
-The command function takes ``**values``; its ``__signature__`` lists one annotated
-parameter per setting, which is what typer reads to build the click command.
-"""
+"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.io.settings`):
+the ``__signature__`` of a ``**values`` function, which typer reads."""
 
 from __future__ import annotations
 
@@ -21,8 +18,7 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
         kind = List[kind] if setting.repeatable else kind
         return inspect.Parameter(setting.name, inspect.Parameter.POSITIONAL_OR_KEYWORD,
                                  annotation=Annotated[kind, typer.Argument(help=setting.help)])
-    # An option that holds None until given (a config file may set it) words its default in
-    # the help; the others show their value as typer does.
+    # An option that holds None until given (a config file may set it) words its default itself.
     shown = setting.shown_default if setting.default is None else None
     option = typer.Option(
         *setting.option_names, help=setting.help + (f" Default {shown}." if shown is not None else ""),

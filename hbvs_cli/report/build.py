@@ -1,24 +1,13 @@
 """The metrics of one run: :func:`build_report` computes the :class:`~.result.RunReport`
 that ``hbvs report`` prints (docs/report.md documents every field and unit).
 
-Convergence rule (:func:`verdict`; docs/report.md and docs/commands.md cite it here). A run has
-converged when every one of these holds:
-
-1. it was a closed-loop run: an open-loop replay (``mode = replay``) never converged,
-   because nothing moved;
-2. it finished: the file is complete and the run was not stopped for a lost target;
-3. every final error (mean of |error| over the last 5 % of the run) is within its
-   tolerance: the pose errors ``position_m`` and ``heading_deg`` when the run has ground
-   truth, otherwise the image errors ``e1``, ``e2`` and ``e3``;
-4. the Lyapunov function fell, ``V_final / V(0) <`` :data:`V_RATIO_BOUND`, when V is known
-   (it needs the true d*, so a real or replayed run skips this check);
-5. the commands are smooth: the RMS of dv/dt is at most :data:`SMOOTHNESS_FACTOR` times
-   that of the taught commands (25) plus :data:`SMOOTHNESS_FLOOR_V` m/s^2, and the same
-   for w with :data:`SMOOTHNESS_FLOOR_W` rad/s^2 (a chattering robot has not converged,
-   whatever its mean error).
-
-The same tolerances (:data:`DEFAULT_TOLERANCES`, overridable with ``--tolerance``) are
-the bands of the settling times.
+Convergence rule (:func:`verdict`). A run has converged when (1) it was closed-loop (a
+replay never converged: nothing moved); (2) it finished (complete file, not stopped for a
+lost target); (3) every final error (mean |error| over the last 5 %) is within its
+tolerance: ``position_m`` and ``heading_deg`` with ground truth, else ``e1``, ``e2``,
+``e3``; (4) ``V_final / V(0) <`` :data:`V_RATIO_BOUND` when V is known (it needs the true
+d*); (5) the RMS of dv/dt and dw/dt is at most :func:`smoothness_bound` (a chattering robot
+has not converged). The tolerances (:data:`DEFAULT_TOLERANCES`) also band the settling times.
 """
 
 from __future__ import annotations
@@ -44,18 +33,10 @@ from .result import (
 
 #: Final-error and settling tolerances: image errors in x_h units (fractions of d*),
 #: e3 and heading in degrees, position in metres.
-DEFAULT_TOLERANCES: dict[str, float] = {
-    "position_m": 0.01,
-    "heading_deg": 0.2,
-    "e1": 0.0025,
-    "e2": 0.0025,
-    "ebar2": 0.0025,
-    "e3": 0.2,
-}
+DEFAULT_TOLERANCES: dict[str, float] = {"position_m": 0.01, "heading_deg": 0.2, "e1": 0.0025, "e2": 0.0025, "ebar2": 0.0025, "e3": 0.2}
 #: V must end below this fraction of V(0) for a run to count as converged.
 V_RATIO_BOUND = 0.5
-#: Command smoothness (rule 5): the RMS of dv/dt (dw/dt) may be at most this many times
-#: the taught commands' plus a floor, in m/s^2 (rad/s^2), for the start's correction.
+#: Command smoothness (rule 5): factor on the taught commands' RMS rate, floors in m/s^2, rad/s^2.
 SMOOTHNESS_FACTOR = 10.0
 SMOOTHNESS_FLOOR_V = 1.0
 SMOOTHNESS_FLOOR_W = 1.0
@@ -66,13 +47,7 @@ POSE_ERRORS = ("position_m", "heading_deg")
 #: Top-level keys of a report's JSON, in order, but a live run's ``timing``.
 REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name != "timing")
 
-#: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
-CHECK_NAMES = (
-    "closed_loop", "finished", "final_position", "final_heading", "final_e1", "final_e2", "final_e3", "lyapunov",
-    "smoothness",
-)
-#: Each final error's check (``verdict.checks``) and how its line names it: (check, label,
-#: scale to the shown unit, unit).
+#: Each final error's check name, label, scale to the shown unit, and unit.
 _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
     "position_m": ("final_position", "final position error", 100.0, "cm"),
     "heading_deg": ("final_heading", "final |heading error|", 1.0, "deg"),
@@ -80,11 +55,12 @@ _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
     "e2": ("final_e2", "final |e2|", 1.0, ""),
     "e3": ("final_e3", "final |e3|", 1.0, "deg"),
 }
+#: Names of the verdict's checks (``verdict.checks``), in order; a run has those that apply.
+CHECK_NAMES = ("closed_loop", "finished", *(check for check, *_ in _FINAL_CHECKS.values()), "lyapunov", "smoothness")
 
 
 def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-    """:data:`DEFAULT_TOLERANCES` with ``overrides`` applied; UsageError for an unknown name
-    or a value that is not a positive finite number."""
+    """:data:`DEFAULT_TOLERANCES` with ``overrides``; UsageError for an unknown name or a bad value."""
     tolerances = dict(DEFAULT_TOLERANCES)
     for name, value in (overrides or {}).items():
         if name not in tolerances:
@@ -95,7 +71,6 @@ def resolve_tolerances(overrides: Mapping[str, float] | None = None) -> dict[str
     return tolerances
 
 
-# ----------------------------------------------------------------------------- signals
 def image_error_signal(run: RunData, name: str) -> np.ndarray:
     """An image error per step: e1, e2, ebar2 (x_h units) or e3 (degrees); NaN when lost."""
     values = run.state[name]
@@ -103,8 +78,7 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
-    """Per step, ``position_m`` from the taught position at the same time and ``heading_deg``
-    (true minus taught, wrapped to [-180, 180)); ``None`` without ground truth."""
+    """Per step, ``position_m`` and ``heading_deg`` (in [-180, 180)) from the taught pose; None without ground truth."""
     if run.true_pose is None or run.desired_pose is None:
         return None
     difference = run.true_pose - run.desired_pose
@@ -127,7 +101,6 @@ def _duration_s(run: RunData) -> float:
     return float(t[-1] - t[0])
 
 
-# ----------------------------------------------------------------------------- sections
 def default_label(run: RunData) -> str:
     """How a run is named without ``--label``: its law (``replay`` for an open-loop replay)."""
     if run.info.get("mode") == "replay":
@@ -138,14 +111,9 @@ def default_label(run: RunData) -> str:
 def _run_summary(run: RunData, label: str | None) -> RunSummary:
     settings = run.info.get("settings") or {}
     return RunSummary(
-        name=run.name,
-        label=label if label is not None else default_label(run),
-        duration_s=_duration_s(run),
-        steps=run.steps,
-        rate_hz=sample_rate_hz(run.state["t"]),
-        law=run.info.get("law"),
-        gains=dict(run.info.get("gains") or {}),
-        source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
+        name=run.name, label=label if label is not None else default_label(run), duration_s=_duration_s(run),
+        steps=run.steps, rate_hz=sample_rate_hz(run.state["t"]), law=run.info.get("law"),
+        gains=dict(run.info.get("gains") or {}), source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
         truncated=bool(run.truncated),
     )
 
@@ -156,25 +124,22 @@ def _error_summaries(run: RunData, signals: Mapping[str, np.ndarray] | None, tol
     return {name: ErrorSummary(**error_summary(run.state["t"], signal, tolerances[name])) for name, signal in signals.items()}
 
 
-#: dhat has learnt the depth once it stays within this fraction of d* (of its final value
-#: without ground truth).
+#: dhat has learnt the depth once it stays within this fraction of d* (else of its final value).
 DEPTH_LEARNT_BAND = 0.10
-#: The window at the end of a run over which dhat's drift is measured (fraction of the run).
+#: The end window (fraction of the run) over which dhat's drift is measured.
 DEPTH_END_WINDOW = 0.10
-#: dhat is still moving at the end when it drifts faster than this (fraction of its
-#: reference per second) over that window: a 20 s run would then move it by 10 % more.
+#: dhat is still moving when it drifts faster than this (fraction of its reference per second).
 DEPTH_MOVING_RATE = 0.005
-#: With ground truth, a dhat that ends within this fraction of d* is not "still moving":
-#: under pixel noise it wanders about d* at up to 2 % per second while (31) holds it there.
+#: ... unless it ends within this fraction of d*: under pixel noise it wanders about d* while (31) holds it.
 DEPTH_SETTLED_BAND = 0.02
 
 
 def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[float | None, float | None]:
     """How dhat (m, NaN where not logged) learnt ``reference`` (d*, or dhat's final value).
 
-    Returns ``learning_time_s``, after which dhat stays within :data:`DEPTH_LEARNT_BAND`
-    of it (None: never), and ``end_rate_per_s``, dhat's least-squares slope over the last
-    :data:`DEPTH_END_WINDOW` as a fraction of ``reference`` per second (None: < 3 samples).
+    Returns the time (s) after which dhat stays within :data:`DEPTH_LEARNT_BAND` of it and
+    dhat's slope over :data:`DEPTH_END_WINDOW` as a fraction of ``reference`` per second
+    (each None when unknown).
     """
     keep = np.isfinite(dhat)
     t, dhat = t[keep], dhat[keep]
@@ -219,14 +184,9 @@ def _depth(run: RunData) -> Depth:
     moving = (rate is not None and abs(rate) > DEPTH_MOVING_RATE
               and not (relative is not None and relative <= DEPTH_SETTLED_BAND))
     return Depth(
-        dhat0=float(finite[0]) if finite.size else None,
-        dhat_final=dhat_final,
-        d_true=d_true,
-        relative_error=relative,
+        dhat0=float(finite[0]) if finite.size else None, dhat_final=dhat_final, d_true=d_true, relative_error=relative,
         learning_reference=None if reference is None else ("d_true" if d_true is not None else "dhat_final"),
-        learning_time_s=learning,
-        end_rate_per_s=rate,
-        still_moving=moving,
+        learning_time_s=learning, end_rate_per_s=rate, still_moving=moving,
         warning=(f"dhat is still moving at the end of the run ({100.0 * rate:+.2g} % per second): "
                  "the depth is not learnt yet; a longer run, a better --dhat0 or a larger --gamma would help")
         if moving else None,
@@ -246,48 +206,36 @@ def _commands(run: RunData) -> Commands:
     taught = command_smoothness(t, *taught_commands_along(run))
     del taught["at_limit_fraction"]
     return Commands(
-        v_peak_mps=peak_abs(v),
-        v_rms_mps=rms(v),
-        w_peak_radps=peak_abs(w),
-        w_rms_radps=rms(w),
+        v_peak_mps=peak_abs(v), v_rms_mps=rms(v), w_peak_radps=peak_abs(w), w_rms_radps=rms(w),
         saturated_fraction=float(np.mean(run.saturated)),
         **command_smoothness(t, v, w, limits.max_v, limits.max_w, limits.max_accel),
-        limits=limits,
-        taught=TaughtSmoothness(**taught),
+        limits=limits, taught=TaughtSmoothness(**taught),
     )
 
 
 def _target(run: RunData) -> Target:
-    # A dropped frame inside a loss is still lost time (run.lost holds through drops),
-    # so the longest loss spans drops; dropped frames are also counted on their own.
+    # run.lost holds through drops, so the longest loss spans them.
     dropped = run.dropped if run.dropped is not None else np.zeros(run.steps, dtype=bool)
     return Target(
-        lost_frames=int(np.count_nonzero(run.lost)),
-        lost_fraction=float(np.mean(run.lost)),
+        lost_frames=int(np.count_nonzero(run.lost)), lost_fraction=float(np.mean(run.lost)),
         longest_loss_s=longest_true_run_s(run.state["t"], run.lost),
-        dropped_frames=int(np.count_nonzero(dropped)),
-        dropped_fraction=float(np.mean(dropped)),
+        dropped_frames=int(np.count_nonzero(dropped)), dropped_fraction=float(np.mean(dropped)),
     )
 
 
 def _timing(run: RunData) -> Timing | None:
-    """A live run's loop timing (``repeat --live``; None for other runs): the latency from a
-    frame's arrival to its command's publication (ms), the frame interval, and the frames
-    dropped (arrived while another was processed) or late (interval over 1.5 periods)."""
+    """A live run's loop timing (None for other runs): frame-to-command latency and frame interval (ms), frames dropped or late."""
     timing = run.timing
     if timing is None or timing["t"].size == 0:
         return None
     latency_ms = 1e3 * timing["latency_s"]
     intervals = timing["frame_interval_s"][np.isfinite(timing["frame_interval_s"])]
     return Timing(
-        latency_p50_ms=float(np.percentile(latency_ms, 50)),
-        latency_p95_ms=float(np.percentile(latency_ms, 95)),
-        latency_p99_ms=float(np.percentile(latency_ms, 99)),
-        latency_max_ms=float(np.max(latency_ms)),
+        latency_p50_ms=float(np.percentile(latency_ms, 50)), latency_p95_ms=float(np.percentile(latency_ms, 95)),
+        latency_p99_ms=float(np.percentile(latency_ms, 99)), latency_max_ms=float(np.max(latency_ms)),
         frame_interval_p50_ms=float(1e3 * np.median(intervals)) if intervals.size else None,
         frame_interval_max_ms=float(1e3 * np.max(intervals)) if intervals.size else None,
-        frames_dropped=int(np.nansum(timing["dropped"])),
-        frames_late=int(np.nansum(timing["late"])),
+        frames_dropped=int(np.nansum(timing["dropped"])), frames_late=int(np.nansum(timing["late"])),
     )
 
 
@@ -299,7 +247,6 @@ def _condition35(run: RunData) -> Condition35:
     )
 
 
-# ----------------------------------------------------------------------------- verdict
 def _check(passed: bool | None, text: str) -> tuple[bool | None, str]:
     """A verdict line: ``pass: ...``, ``fail: ...`` or, for a check not made, ``skip: ...``."""
     prefix = {True: "pass", False: "fail", None: "skip"}[passed]
@@ -336,9 +283,7 @@ def _lyapunov_check(lyapunov: Lyapunov) -> tuple[bool | None, str]:
 
 
 def smoothness_bound(taught_rms: float | None, floor: float) -> float:
-    """The largest RMS rate of change of a command that is not chatter (docs/report.md):
-    :data:`SMOOTHNESS_FACTOR` times the taught commands' plus an allowance ``floor`` for
-    correcting the start offset."""
+    """The largest RMS rate of change of a command that is not chatter (``floor``: for the start's correction)."""
     return SMOOTHNESS_FACTOR * (taught_rms or 0.0) + floor
 
 
@@ -359,12 +304,7 @@ def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
 
 def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mapping[str, ErrorSummary] | None,
             lyapunov: Lyapunov, commands: Commands, tolerances: Mapping[str, float]) -> Verdict:
-    """Whether the run converged, by the rule of this module's docstring, and why.
-
-    ``errors``, ``pose_error``, ``lyapunov`` and ``commands`` are the report's sections;
-    ``tolerances`` the final-error tolerances (:data:`DEFAULT_TOLERANCES` units). Each
-    check (:data:`CHECK_NAMES`) gives a line ``pass: ...``, ``fail: ...`` or ``skip: ...``.
-    """
+    """Whether the run converged (this module's rule), with a ``pass``, ``fail`` or ``skip`` line per check."""
     checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
         checks["closed_loop"] = _check(False, "open-loop replay: nothing moved, so it cannot have converged")
@@ -383,26 +323,14 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
     )
 
 
-# ----------------------------------------------------------------------------- report
 def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, label: str | None = None) -> RunReport:
-    """Every metric of one run (see docs/report.md for units).
-
-    ``tolerances`` override :data:`DEFAULT_TOLERANCES`; ``label`` (``--label``) defaults to
-    :func:`default_label`. Unknown values are None (``pose_error`` without ground truth).
-    """
+    """Every metric of one run (docs/report.md); ``tolerances`` override :data:`DEFAULT_TOLERANCES`."""
     tolerances = resolve_tolerances(tolerances)
     errors = _error_summaries(run, {name: image_error_signal(run, name) for name in IMAGE_ERRORS}, tolerances)
     pose_error = _error_summaries(run, pose_error_signals(run), tolerances)
     lyapunov, commands = Lyapunov(**lyapunov_summary(run.state["V"])), _commands(run)
     return RunReport(
-        run=_run_summary(run, label),
-        errors=errors,
-        pose_error=pose_error,
-        lyapunov=lyapunov,
-        depth=_depth(run),
-        commands=commands,
-        target=_target(run),
-        condition35=_condition35(run),
-        timing=_timing(run),
+        run=_run_summary(run, label), errors=errors, pose_error=pose_error, lyapunov=lyapunov, depth=_depth(run),
+        commands=commands, target=_target(run), condition35=_condition35(run), timing=_timing(run),
         verdict=verdict(run, errors, pose_error, lyapunov, commands, tolerances),
     )

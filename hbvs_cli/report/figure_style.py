@@ -1,10 +1,5 @@
-"""The look shared by every hbvs figure: paper-sized, readable, colour-blind safe.
-
-Sizes in inches for a two-column paper (7 in wide) with 7-9 pt fonts, so that text printed
-at 100 % is as large as the paper's; the Okabe-Ito palette (safe for every common
-colour-vision deficiency), the taught path black and dashed; vector output keeps its text
-as text, raster output is at ``--dpi``.
-"""
+"""The look shared by every hbvs figure: sized in inches for a two-column paper with 7-9 pt
+fonts, the colour-blind safe Okabe-Ito palette, the taught path black and dashed."""
 
 from __future__ import annotations
 
@@ -30,11 +25,7 @@ SIZE_RANGE_IN = (1.5, 40.0)
 
 @dataclass(frozen=True)
 class FigureStyle:
-    """How to draw a figure: resolution, size and which panels.
-
-    ``size_in``: (width, height) in inches, None: 7 in wide and as tall as the panels need;
-    ``panels``: names in drawing order, None: all.
-    """
+    """How to draw a figure: ``size_in`` (width, height) in inches, ``panels`` in drawing order (None: default)."""
 
     dpi: float = DEFAULT_DPI
     size_in: tuple[float, float] | None = None
@@ -48,8 +39,7 @@ def column_count(style: FigureStyle, panels: int) -> tuple[float, int]:
 
 
 def parse_size(text: str) -> tuple[float, float]:
-    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``; UsageError unless both are in
-    :data:`SIZE_RANGE_IN`."""
+    """``"7x5"`` (inches, width x height) -> ``(7.0, 5.0)``, each in :data:`SIZE_RANGE_IN`."""
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*[xX*,]\s*([0-9]*\.?[0-9]+)\s*", text or "")
     if not match:
         raise UsageError(f"--size {text!r}: give WIDTHxHEIGHT in inches, e.g. 3.5x8 (one column) or 7x9")
@@ -61,8 +51,7 @@ def parse_size(text: str) -> tuple[float, float]:
 
 
 def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
-    """``"position,heading,top"`` -> the panel names; UsageError for none, an unknown one
-    (not in ``known``) or one given twice."""
+    """``"position,heading,top"`` -> the panel names, each in ``known`` and given once."""
     names = [name.strip() for name in (text or "").split(",") if name.strip()]
     if not names:
         raise UsageError(f"--panels: name at least one panel ({', '.join(known)})")
@@ -75,8 +64,7 @@ def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
 
 
 def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str]) -> FigureStyle:
-    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels`` (some of
-    ``known_panels``); UsageError for a bad value."""
+    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels``; UsageError for a bad value."""
     violation = REPORT["dpi"].bound_violation(dpi) if dpi is not None else None
     if violation is not None:
         raise UsageError(violation)
@@ -92,27 +80,13 @@ def paper_rc() -> dict[str, Any]:
     from cycler import cycler
 
     return {
-        "font.size": 8.0,
-        "axes.titlesize": 8.5,
-        "axes.labelsize": 8.0,
-        "xtick.labelsize": 7.0,
-        "ytick.labelsize": 7.0,
-        "legend.fontsize": 7.5,
-        "figure.titlesize": 9.5,
-        "lines.linewidth": 1.0,
-        "axes.linewidth": 0.6,
-        "xtick.major.width": 0.6,
-        "ytick.major.width": 0.6,
-        "grid.linewidth": 0.4,
-        "grid.alpha": 0.35,
-        "axes.grid": True,
-        "axes.prop_cycle": cycler(color=list(PALETTE)),
-        "axes.titlelocation": "left",
-        "legend.frameon": False,
-        "pdf.fonttype": 42,
-        "ps.fonttype": 42,
-        "svg.fonttype": "none",
-        "mathtext.default": "regular",
+        "font.size": 8.0, "axes.titlesize": 8.5, "axes.labelsize": 8.0, "xtick.labelsize": 7.0, "ytick.labelsize": 7.0,
+        "legend.fontsize": 7.5, "figure.titlesize": 9.5,
+        "lines.linewidth": 1.0, "axes.linewidth": 0.6, "xtick.major.width": 0.6, "ytick.major.width": 0.6,
+        "grid.linewidth": 0.4, "grid.alpha": 0.35, "axes.grid": True,
+        "axes.prop_cycle": cycler(color=list(PALETTE)), "axes.titlelocation": "left", "legend.frameon": False,
+        # Text stays text in vector output.
+        "pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none", "mathtext.default": "regular",
     }
 
 
@@ -132,8 +106,7 @@ def new_figure(size_in: tuple[float, float], dpi: float) -> Any:
 
 
 def check_plot_path(path: Path) -> None:
-    """Fail before any work on a figure path that cannot be written: UsageError for a
-    suffix matplotlib cannot write, OutputError (exit 6) for a missing folder."""
+    """Before any work: UsageError for a suffix matplotlib cannot write, OutputError for a missing folder."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     suffix = path.suffix.lower().lstrip(".")
@@ -146,15 +119,13 @@ def check_plot_path(path: Path) -> None:
 
 
 def save_figure(figure: Any, path: Path, dpi: float) -> None:
-    """Write ``figure`` to ``path`` (format from the suffix), under the paper style;
-    OutputError when it cannot be written."""
+    """Write ``figure`` to ``path`` (format from the suffix) under the paper style, atomically."""
     import io
 
     import matplotlib
 
     from ..io.output_target import write_output_bytes
 
-    # Drawn in memory, then written like every output (atomically; a device in place).
     image = io.BytesIO()
     with matplotlib.rc_context(paper_rc()):
         figure.savefig(image, dpi=dpi, format=Path(path).suffix.lower().lstrip(".") or "png")

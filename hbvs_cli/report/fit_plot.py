@@ -1,10 +1,6 @@
-"""``hbvs report fit.mcap``: what the fit did to the taught signals (Remark 1).
-
-Reads ``/desired/raw`` and ``/desired/smooth`` of a fit file: a summary (raw minus smooth,
-the smallest ``|x_hd1_dot|`` (35)) and a figure of raw against smoothed theta_d, x_hd1 and
-x_hd2 beside their differences, and the spline's x_hd1_dot against a finite difference of
-the raw samples: why the feed-forward of (29)-(30) takes the derivative from the spline.
-"""
+"""``hbvs report fit.mcap``: what the fit did to the taught signals (Remark 1): raw against
+smoothed theta_d, x_hd1, x_hd2, and the spline's x_hd1_dot (fed forward by (29)-(30))
+against a finite difference of the raw samples."""
 
 from __future__ import annotations
 
@@ -24,11 +20,9 @@ from .figure_style import TAUGHT_COLOR, FigureStyle, PALETTE, column_count, new_
 #: Fields of each signal, per topic.
 RAW_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2")
 SMOOTH_FIELDS = ("t", "theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")
-#: The splines' standard deviations (from the joint estimate of n*; a fit without that
-#: estimate has none, and its figure has no band).
+#: The splines' standard deviations (a fit without the joint estimate of n* has none).
 SIGMA_FIELDS = ("theta_d_sigma", "x_hd1_sigma")
-#: Panels of the fit figure, in order: each signal and its raw - smooth difference, then
-#: the feed-forward derivative.
+#: Panels of the fit figure, in order.
 FIT_PANELS = ("theta_d", "theta_d_residual", "x_hd1", "x_hd1_residual", "x_hd2", "x_hd2_residual", "x_hd1_dot")
 #: A gap between raw samples longer than this many median frame intervals is shaded.
 GAP_FRAMES = 1.5
@@ -55,8 +49,7 @@ def _column(messages: list[dict[str, Any]], key: str, name: str, topic: str) -> 
 
 
 def read_fit_signals(source: Any, name: str = "") -> FitSignals:
-    """The raw and smoothed desired signals of a fit file (or ``-``, or a binary stream);
-    RecordingError for another file, or a fit without desired signals."""
+    """The raw and smoothed desired signals of a fit file (path, ``-`` or binary stream)."""
     from ..io.mcap import McapStream, read_metadata
 
     stream = McapStream(source, topics={RAW_TOPIC, SMOOTH_TOPIC, MODEL_TOPIC}, schemas=TOPICS["fit"], name=name)
@@ -89,8 +82,7 @@ def read_fit_signals(source: Any, name: str = "") -> FitSignals:
 
 
 def raw_derivative(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Finite difference of raw samples: (midpoint times, slopes); what differentiating the
-    measurements directly, without the spline, would feed forward."""
+    """Finite difference of raw samples: (midpoint times, slopes)."""
     return 0.5 * (t[1:] + t[:-1]), np.diff(x) / np.diff(t)
 
 
@@ -101,11 +93,8 @@ def _raw_minus_smooth(signals: FitSignals, key: str, scale: float) -> np.ndarray
 
 
 def fit_summary(signals: FitSignals) -> dict[str, Any]:
-    """The numbers of a fit report (JSON-ready).
-
-    ``raw_minus_smooth``: ``rms`` and ``max_abs`` at the raw frames (theta_d in deg);
-    ``x_hd1_dot`` (1/s): the spline's extremes and ``raw_difference_rms`` about it.
-    """
+    """The numbers of a fit report (JSON-ready): raw minus smooth at the raw frames (theta_d
+    in deg), the spline's x_hd1_dot extremes (1/s) and the finite difference's RMS about it."""
     from ..core.metrics import round_significant
 
     raw, smooth = signals.raw, signals.smooth
@@ -117,15 +106,10 @@ def fit_summary(signals: FitSignals) -> dict[str, Any]:
     about = slope - np.interp(t_mid, smooth["t"], smooth["x_hd1_dot"])
     feed_forward = np.abs(smooth["x_hd1_dot"])
     summary = {
-        "file": signals.name,
-        "frames_raw": int(raw["t"].size),
-        "frames_smooth": int(smooth["t"].size),
+        "file": signals.name, "frames_raw": int(raw["t"].size), "frames_smooth": int(smooth["t"].size),
         "raw_minus_smooth": differences,
-        "x_hd1_dot": {
-            "min_abs": float(feed_forward.min()),
-            "max_abs": float(feed_forward.max()),
-            "raw_difference_rms": float(np.sqrt(np.mean(about**2))) if about.size else None,
-        },
+        "x_hd1_dot": {"min_abs": float(feed_forward.min()), "max_abs": float(feed_forward.max()),
+                      "raw_difference_rms": float(np.sqrt(np.mean(about**2))) if about.size else None},
     }
     return round_significant(summary, 7)
 
@@ -140,8 +124,7 @@ def _gaps(t: np.ndarray) -> list[tuple[float, float]]:
 
 
 def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
-    """The fit figure (unsaved; each axes labelled with its :data:`FIT_PANELS` name): raw
-    against smoothed desired signals and the feed-forward x_hd1_dot."""
+    """The unsaved fit figure, each axes labelled with its :data:`FIT_PANELS` name."""
     import matplotlib
 
     style = style or FigureStyle()
@@ -170,8 +153,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                 ax.plot(raw["t"], _raw_minus_smooth(signals, key, scale), ls="none", marker="o", ms=1.6, mew=0, color="0.45")
                 ax.axhline(0.0, color=PALETTE[0], lw=1.0)
                 unit = "deg" if key == "theta_d" else "units of d*"
-                ax.set_title(f"{title.split(' (')[0]}: raw minus {how.split()[0]}")
-                ax.set_ylabel(f"difference ({unit})")
+                ax.set(title=f"{title.split(' (')[0]}: raw minus {how.split()[0]}", ylabel=f"difference ({unit})")
             else:
                 title, ylabel, key, scale, how = signal_panels[name]
                 ax.plot(raw["t"], scale * raw[key], ls="none", marker="o", ms=1.6, mew=0, color="0.55", label="raw: one homography per frame")
@@ -180,8 +162,7 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                     band = 1.96 * scale * smooth[f"{key}_sigma"]
                     ax.fill_between(smooth["t"], scale * smooth[key] - band, scale * smooth[key] + band, color=PALETTE[0],
                                     alpha=0.2, lw=0, label="95 % interval (n*, reference points, noise)")
-                ax.set_title(title)
-                ax.set_ylabel(ylabel)
+                ax.set(title=title, ylabel=ylabel)
                 ax.legend(loc="best", fontsize=6.5, handlelength=1.5, markerscale=2.5)
             for start, end in _gaps(raw["t"]):
                 ax.axvspan(start, end, color="0.5", alpha=0.2, lw=0, zorder=0)
@@ -197,12 +178,10 @@ def _paint_feed_forward(ax: Any, raw: Mapping[str, np.ndarray], smooth: Mapping[
     ax.plot(smooth["t"], smooth["x_hd1_dot"], color=PALETTE[0], lw=1.4, label="spline derivative (fed forward)")
     ax.axhline(0.0, color=TAUGHT_COLOR, lw=0.6)
     values = smooth["x_hd1_dot"]
-    # Zero in view ((35): the lateral error converges only while x_hd1_dot stays away
-    # from it), the spline's range with room around it; raw spikes may leave the frame.
+    # Zero in view (condition (35)) and the spline's range; raw spikes may leave the frame.
     low, high = min(float(values.min()), 0.0), max(float(values.max()), 0.0)
     pad = 0.25 * (high - low) + 1e-9
     ax.set_ylim(low - pad, high + pad)
-    ax.set_title(r"Feed-forward $\dot{x}_{hd1}$ of (29)-(30); condition (35) needs it away from 0")
-    ax.set_ylabel(r"$\dot{x}_{hd1}$ (1/s)")
+    ax.set(title=r"Feed-forward $\dot{x}_{hd1}$ of (29)-(30); condition (35) needs it away from 0", ylabel=r"$\dot{x}_{hd1}$ (1/s)")
     ax.legend(loc="best", fontsize=6.5, handlelength=1.5)
 

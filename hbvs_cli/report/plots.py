@@ -1,8 +1,5 @@
-"""``--plot``: one figure of a run (or several, overlaid) fit for a paper.
-
-Panels (:data:`PANELS`, in their default order) and conventions (losses shaded and lines
-broken: nothing is drawn that was not measured): docs/report.md, "Figure".
-"""
+"""``--plot``: one figure of a run (or several, overlaid) fit for a paper; its panels
+(:data:`PANELS`) and conventions: docs/report.md, "Figure"."""
 
 from __future__ import annotations
 
@@ -20,8 +17,7 @@ from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, r
 from .result import RunReport
 from .table import run_labels
 
-#: Most points one run draws in one panel (about one per pixel column of a 3 in panel at
-#: 200 dpi); longer runs are shown as bin means.
+#: Most points one run draws in one panel; longer runs are shown as bin means.
 MAX_POINTS_PER_RUN = 600
 #: Shortest loss (s) that is shaded.
 MIN_SHADED_LOSS_S = 0.1
@@ -31,8 +27,7 @@ HEADING_EVERY_S = 2.0
 ROW_HEIGHT_IN = 1.45
 TOP_VIEW_HEIGHT_IN = 2.3
 LEGEND_HEIGHT_IN = 0.55
-#: The least share of their natural height (ROW_HEIGHT_IN, TOP_VIEW_HEIGHT_IN) that ``--size``
-#: may leave the panels: below it, the labels of stacked panels overlap.
+#: The least share of their natural height ``--size`` may leave the panels (else labels overlap).
 MIN_SCALE = 0.7
 #: Colour of tolerance lines and actuator limits.
 GUIDE_COLOR = "0.35"
@@ -48,15 +43,9 @@ class PanelContext:
     line_styles: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
-# ----------------------------------------------------------------------------- series
 def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_points: int = MAX_POINTS_PER_RUN) -> tuple[np.ndarray, np.ndarray]:
-    """The samples of a signal as drawn: broken (NaN) across lost stretches, joined across
-    dropped frames, and at most ``max_points`` of them.
-
-    ``lost`` (K,) marks where the line breaks (None: a signal defined through losses, such
-    as the commands). Beyond ``max_points``, means over equal time bins (an empty bin stays
-    NaN, so a loss longer than a bin still breaks the line).
-    """
+    """The samples of a signal as drawn: broken (NaN) where ``lost`` (K,) is true (None: never),
+    joined across dropped frames, and beyond ``max_points`` the means over equal time bins."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float).copy()
     breaks = np.zeros(t.size, dtype=bool) if lost is None else np.asarray(lost, dtype=bool)
@@ -75,8 +64,7 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
     centres = 0.5 * (edges[:-1] + edges[1:])
     with np.errstate(invalid="ignore", divide="ignore"):
         means = sums / valid
-    # A bin without a single measurement breaks the line (a loss longer than a bin); a
-    # bin with some keeps their mean, so isolated rejected frames do not erase the run.
+    # A bin without a measurement breaks the line; one with some keeps their mean.
     means[valid == 0] = np.nan
     filled = counts > 0
     return centres[filled], means[filled]
@@ -97,9 +85,7 @@ def lost_intervals(t: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]
 
 
 def _shade_losses(ax: Any, context: PanelContext) -> None:
-    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter
-    ones, e.g. single rejected frames, only break the line: hundreds of hairline spans
-    would tint the whole panel)."""
+    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter ones only break the line)."""
     for run, color in zip(context.runs, context.colors):
         for start, end in lost_intervals(run.state["t"], run.lost):
             if end - start >= MIN_SHADED_LOSS_S:
@@ -107,10 +93,8 @@ def _shade_losses(ax: Any, context: PanelContext) -> None:
 
 
 def _say_absent(ax: Any, message: str) -> None:
-    """Mark a panel with no data: a message in its middle, no ticks."""
     ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
-    ax.set_xticks([])
-    ax.set_yticks([])
+    ax.set(xticks=[], yticks=[])
     ax.grid(False)
 
 
@@ -122,13 +106,10 @@ def _note_missing(ax: Any, runs: Sequence[RunData], has_data: Callable[[RunData]
 
 
 def _time_axes(ax: Any, title: str, ylabel: str) -> None:
-    ax.set_title(title)
-    ax.set_xlabel("time t (s)")
-    ax.set_ylabel(ylabel)
+    ax.set(title=title, xlabel="time t (s)", ylabel=ylabel)
 
 
 def _band(ax: Any, tolerance: float, signed: bool) -> None:
-    """The tolerance: dotted lines at +-tolerance (or +tolerance for a magnitude)."""
     for level in ((-tolerance, tolerance) if signed else (tolerance,)):
         ax.axhline(level, color=GUIDE_COLOR, ls=":", lw=0.9, zorder=1)
 
@@ -139,8 +120,7 @@ def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: s
 
 
 def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Each run's line width and stacking: the denser a run (steps per second), the lower
-    and thinner it is drawn, so a noisy 200 Hz run stays under a 30 Hz one."""
+    """Each run's line width and stacking: denser runs lower and thinner (200 Hz under 30 Hz)."""
     density = [run.steps / max(float(run.state["t"][-1] - run.state["t"][0]), 1e-9) for run in runs]
     slowest = min(density)
     order = np.argsort(np.argsort([-d for d in density], kind="stable"), kind="stable")
@@ -150,12 +130,10 @@ def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, di
     }
 
 
-# ----------------------------------------------------------------------------- panels
 def _has_poses(run: RunData) -> bool:
     return run.true_pose is not None and run.desired_pose is not None
 
 
-#: What a pose panel says without ground truth.
 NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 
 
@@ -195,7 +173,7 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
-            # The taught commands (25), dotted: what a smooth run's commands should look like.
+            # The taught commands (25), dotted.
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             shown_t, shown_x = display_series(run.state["t"], taught, None)
             ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)
@@ -210,7 +188,7 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
 
 
 def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """The values that differ from every earlier one: runs of one fit share a taught path and d*."""
+    """The values unlike every earlier one (runs of one fit share a taught path and d*)."""
     kept: list[np.ndarray] = []
     for value in values:
         if not any(value.shape == k.shape and np.allclose(value, k) for k in kept):
@@ -293,8 +271,7 @@ def _draw_paths(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
 
 
 def _top_view_panel(ax: Any, context: PanelContext) -> None:
-    """The scene from above at one scale (left) and the paths with the lateral axis
-    stretched (right): at the scale of the wall, centimetres of deviation cannot be seen."""
+    """The scene to scale, and the paths with y stretched (centimetres vanish at the wall's scale)."""
     with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
         ax.set_title("Top view")
@@ -309,9 +286,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     zoom = figure.add_subplot(zoom_box, label="top_paths")
     _scene_view(scene, with_poses)
     _draw_paths(zoom, with_poses)
-    zoom.set_title("Paths, y stretched: taught (dashed), repeated")
-    zoom.set_xlabel("x (m)")
-    zoom.set_ylabel("y (m)")
+    zoom.set(title="Paths, y stretched: taught (dashed), repeated", xlabel="x (m)", ylabel="y (m)")
     for axes in (scene, zoom):
         _note_missing(axes, context.runs, _has_poses)
 
@@ -338,11 +313,10 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
         _heading_arrows(ax, run.true_pose, run.state["t"], color, 0.08 * span)
     ax.margins(0.06)
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set(xlabel="x (m)", ylabel="y (m)")
 
 
-#: Every panel of the run figure: name -> painter, in the default order.
+#: Every panel of the run figure, in the default order.
 PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
     "position": _pose_panel("position_m", "Position error against the taught pose", "position error (cm)", 100.0),
     "heading": _pose_panel("heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0),
@@ -359,7 +333,6 @@ PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
 PANEL_NAMES = tuple(PANELS)
 
 
-# ----------------------------------------------------------------------------- figure
 def _status(report: RunReport) -> str:
     if report.run.source.mode == "replay":
         return "open-loop replay"
@@ -374,8 +347,7 @@ def _row_heights(panels: Sequence[str], columns: int) -> list[float]:
 
 
 def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, float], int]:
-    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels
-    less than :data:`MIN_SCALE` of their height (their labels would overlap)."""
+    """Figure size (in) and number of columns; UsageError when ``--size`` leaves the panels less than :data:`MIN_SCALE` of their height."""
     width, columns = column_count(style, len(panels))
     content = sum(_row_heights(panels, columns))
     if style.size_in is None:
@@ -392,8 +364,7 @@ def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, flo
 
 
 def figure_panels(runs: Sequence[RunData], style: FigureStyle) -> list[str]:
-    """The panels drawn: those of ``--panels``; by default every panel for which a run has
-    data (a replay has no ground-truth poses and no V: those panels are left out)."""
+    """The panels drawn: ``--panels``, by default every panel for which a run has data."""
     if style.panels is not None:
         return list(style.panels)
     absent = set()
@@ -430,11 +401,7 @@ def plot_runs(
     runs: Sequence[RunData], reports: Sequence[RunReport], style: FigureStyle | None = None,
     tolerances: Mapping[str, float] | None = None,
 ) -> Any:
-    """The figure of one or several runs (overlaid, one colour per run).
-
-    ``reports`` give the legend's labels and verdicts; ``tolerances`` are drawn dotted.
-    Returns the unsaved matplotlib figure; each axes is labelled with its panel name.
-    """
+    """The unsaved figure of one or several runs, overlaid; ``reports`` give the legend, each axes is labelled with its panel name."""
     import matplotlib
 
     style = style or FigureStyle()
@@ -458,10 +425,9 @@ def plot_runs(
             ax.set_label(name)
             PANELS[name](ax, context)
             if name != "top" and ax.get_lines() and end > start:
-                ax.set_xlim(start, end)         # one time axis for every panel
+                ax.set_xlim(start, end)
             if columns == 1 and name != "top" and name != time_panels[-1] and ax.get_lines():
-                # Stacked in one column, the panels share one time axis: its ticks and label
-                # are drawn once, under the last, and the rows keep their height for the data.
+                # Stacked in one column: the shared time axis is labelled once, under the last.
                 ax.tick_params(labelbottom=False)
                 ax.set_xlabel("")
         handles = _legend_handles(reports, context.colors, panels)

@@ -1,9 +1,6 @@
-"""The report of one run as typed sections: what ``hbvs report`` prints and ``--json`` writes.
-
-:class:`RunReport` holds one dataclass per section (docs/report.md documents every field
-and unit); :meth:`RunReport.to_dict` is the JSON, with the sections and fields in the order
-declared here. Every float is rounded to :data:`REPORT_DIGITS` significant digits when a
-section is made, so the JSON, the tables and ``--fail-above`` see one value.
+"""The report of one run as typed sections (docs/report.md): what ``hbvs report`` prints and
+``--json`` writes, in the order declared here. Floats are rounded to :data:`REPORT_DIGITS`
+significant digits when a section is made, so the JSON, the tables and ``--fail-above`` agree.
 """
 
 from __future__ import annotations
@@ -13,8 +10,7 @@ from typing import Any, Mapping
 
 from ..core.metrics import round_significant
 
-#: Significant digits of every number in a report: float noise such as a rate of
-#: 30.0000003 Hz (1 / a median step of float times) is not a measurement.
+#: Significant digits of every number in a report (float noise is not a measurement).
 REPORT_DIGITS = 7
 
 
@@ -27,8 +23,7 @@ class MissingKey(KeyError):
 
 
 def resolve_key(document: Mapping[str, Any], key: str) -> Any:
-    """The value at a dotted key of a JSON document, e.g. ``"pose_error.position_m.final"``;
-    MissingKey where a part is missing."""
+    """The value at a dotted key such as ``"pose_error.position_m.final"``; MissingKey if absent."""
     value: Any = document
     walked: list[str] = []
     for part in key.split("."):
@@ -74,8 +69,7 @@ class RunSummary(Section):
 
 @dataclass(frozen=True)
 class ErrorSummary(Section):
-    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`), in its
-    unit; ``settling_time_s`` in s. None when unknown (never seen, never settled)."""
+    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`) in its unit; None when unknown."""
 
     rmse: float | None
     mean: float | None
@@ -90,8 +84,7 @@ class ErrorSummary(Section):
 
 @dataclass(frozen=True)
 class Lyapunov(Section):
-    """The Lyapunov function (36): first and last known values, their ratio, and the
-    fraction of steps at which it rose; None without the true d*."""
+    """The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; None without the true d*."""
 
     initial: float | None
     final: float | None
@@ -101,8 +94,7 @@ class Lyapunov(Section):
 
 @dataclass(frozen=True)
 class Depth(Section):
-    """The depth estimate dhat (m): its initial and final values, the true d* (``d_true``),
-    how long it took to learn d* and whether it still moved at the end."""
+    """The depth estimate dhat (m) against the true d*: how long it took to learn, whether it still moves."""
 
     dhat0: float | None
     dhat_final: float | None
@@ -173,8 +165,7 @@ class Condition35(Section):
 
 @dataclass(frozen=True)
 class Timing(Section):
-    """A live run's loop (``repeat --live``): frame-to-command latency and frame interval
-    percentiles (ms), frames dropped and late."""
+    """A live run's loop: frame-to-command latency and frame interval (ms), frames dropped and late."""
 
     latency_p50_ms: float
     latency_p95_ms: float
@@ -188,8 +179,7 @@ class Timing(Section):
 
 @dataclass(frozen=True)
 class Verdict:
-    """Whether the run converged (the rule of :mod:`.build`): each check's line (``pass: ...``,
-    ``fail: ...`` or ``skip: ...``) by name, and the same lines as a list."""
+    """Whether the run converged (:mod:`.build`): each check's line by name, and as a list."""
 
     converged: bool
     checks: dict[str, str]
@@ -206,11 +196,7 @@ OPTIONAL_SECTIONS = ("pose_error", "timing")
 
 @dataclass(frozen=True)
 class RunReport:
-    """Every metric of one run (:func:`hbvs_cli.report.build.build_report`).
-
-    ``errors`` maps the image errors (e1, e2, ebar2 in units of d*, e3 in degrees) and
-    ``pose_error`` the ground-truth errors (position_m, heading_deg) to their statistics.
-    """
+    """Every metric of one run (:func:`~hbvs_cli.report.build.build_report`)."""
 
     run: RunSummary
     errors: dict[str, ErrorSummary]
@@ -224,7 +210,7 @@ class RunReport:
     verdict: Verdict
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON of ``hbvs report --json``: the sections in order, an absent optional one left out."""
+        """The JSON of ``hbvs report --json`` (an absent optional section left out)."""
         return {
             field.name: asdict(value) if hasattr(value, "__dataclass_fields__") else
             {name: asdict(item) for name, item in value.items()}

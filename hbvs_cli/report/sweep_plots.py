@@ -1,8 +1,5 @@
-"""Figures of a sweep, for a paper: convergence map, CDFs per law, error against parameters.
-
-``convergence_map.png`` (rate over pairs of the first three numeric parameters, one column
-per law), ``final_error_cdf.png`` and ``final_error_vs_parameters.png``.
-"""
+"""Figures of a sweep: convergence map (rate over pairs of the first three numeric parameters,
+one column per law), CDFs of the final errors per law, final error against each parameter."""
 
 from __future__ import annotations
 
@@ -17,10 +14,6 @@ FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameter
 MAP_PARAMETERS = 3
 
 
-def _numeric(data: SweepData) -> list[str]:
-    return [n for n in data.swept if n != "law" and data.columns[n].dtype != object]
-
-
 def _save(plt, figure, path: Path, dpi: int) -> Path:
     figure.savefig(path, dpi=dpi)
     plt.close(figure)
@@ -28,8 +21,7 @@ def _save(plt, figure, path: Path, dpi: int) -> Path:
 
 
 def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarray, path: Path) -> Path:
-    """The map of a single numeric parameter: the convergence rate per value (or bin), one
-    line per law, with its Wilson 95 % interval."""
+    """The map of a single numeric parameter: rate per value or bin, one line per law, Wilson 95 %."""
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for index, (law, law_mask) in enumerate(laws):
         centres, rates, low, high = [], [], [], []
@@ -45,16 +37,14 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarr
         axis.plot(centres, rates, marker="o", ms=3, color=f"C{index}", label=law)
         axis.fill_between(centres, low, high, color=f"C{index}", alpha=0.12, lw=0)
     axis.set_ylim(-0.02, 1.02)
-    axis.set_xlabel(name)
-    axis.set_ylabel("convergence rate (Wilson 95 %)")
+    axis.set(xlabel=name, ylabel="convergence rate (Wilson 95 %)")
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize=8)
     return _save(plt, figure, path, 110)
 
 
 def save_sweep_plots(folder: Path) -> list[Path]:
-    """Write the figures into ``folder``; returns the paths written (the map and the scatter
-    need a numeric swept parameter; with one, the map is a curve of the rate)."""
+    """Write the figures into ``folder`` (the map and the scatter need a numeric swept parameter); returns the paths written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -64,7 +54,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
     written = []
     reported = data.columns["status"] != "failed"
     laws = data.laws("all runs")
-    numeric = _numeric(data)
+    numeric = [name for name in data.swept if name != "law" and data.columns[name].dtype != object]
     pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
     if pairs:
         figure, axes = plt.subplots(len(pairs), len(laws), figsize=(4.2 * len(laws) + 1, 3.6 * len(pairs)), squeeze=False,
@@ -82,9 +72,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
                 image = axis.imshow(rate, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis")
                 axis.set_xticks(range(len(x_groups)), [g[0] for g in x_groups], rotation=60, fontsize=7)
                 axis.set_yticks(range(len(y_groups)), [g[0] for g in y_groups], fontsize=7)
-                axis.set_xlabel(x_name)
-                axis.set_ylabel(y_name)
-                axis.set_title(law)
+                axis.set(xlabel=x_name, ylabel=y_name, title=law)
         figure.colorbar(image, ax=axes.ravel().tolist(), label="convergence rate")
         written.append(_save(plt, figure, Path(folder) / FILES[0], 110))
     elif numeric:
@@ -98,8 +86,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
                 axis.step(values, np.arange(1, values.size + 1) / values.size, where="post", label=law)
     for axis, label in ((axes[0], "final position error (cm)"), (axes[1], "final heading error (deg)")):
         axis.set_xscale("log")
-        axis.set_xlabel(label)
-        axis.set_ylabel("fraction of runs")
+        axis.set(xlabel=label, ylabel="fraction of runs")
         axis.grid(True, alpha=0.3)
         axis.legend(fontsize=8)
     written.append(_save(plt, figure, Path(folder) / FILES[1], 120))
@@ -119,8 +106,7 @@ def save_sweep_plots(folder: Path) -> list[Path]:
                         medians.append(100 * np.median(values))
                 axis.plot(centres, medians, color=colour, linewidth=1.5)
             axis.set_yscale("log")
-            axis.set_xlabel(name)
-            axis.set_ylabel("final position error (cm)")
+            axis.set(xlabel=name, ylabel="final position error (cm)")
             axis.grid(True, alpha=0.3)
         axes[0][0].legend(fontsize=8, markerscale=3)
         written.append(_save(plt, figure, Path(folder) / FILES[2], 120))

@@ -1,9 +1,6 @@
-"""The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles.
-
-Groups: each law, crossed with each other swept parameter's values (grid) or ``BINS`` bins
-(sampled). Failed runs are left out of the rate; runs that never settled are left out of
-the settling-time quantiles and counted in ``unsettled``.
-"""
+"""The summary of a sweep's table: convergence rates with Wilson intervals, error quantiles,
+per law crossed with each other swept parameter's values or ``BINS`` bins. Failed runs are
+left out of the rate, unsettled ones out of the settling-time quantiles."""
 
 from __future__ import annotations
 
@@ -67,9 +64,8 @@ class SweepData:
                 self.columns[name] = np.array([bool(v) for v in column.to_pylist()])
             else:
                 self.columns[name] = column.to_numpy(zero_copy_only=False).astype(float)
-        settle = np.fmax(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
-        unsettled = np.isnan(self.columns["settling_time_position_s"]) | np.isnan(self.columns["settling_time_heading_s"])
-        self.columns["settling_time_s"] = np.where(unsettled, np.nan, settle)
+        # NaN (never settled) when either error never settled.
+        self.columns["settling_time_s"] = np.maximum(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
         self.law = self.columns.get("law")
         if self.law is None and "law" in self.fixed:
             self.law = np.full(self.rows, self.fixed["law"], dtype=object)
@@ -106,11 +102,8 @@ def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     low, high = wilson_interval(n_converged, runs)
     settle = data.columns["settling_time_s"][mask][reported]
     return {
-        "runs": int(mask.sum()),
-        "failed": int((~reported).sum()),
-        "converged": n_converged,
-        "rate": n_converged / runs if runs else None,
-        "rate_ci95": [low, high],
+        "runs": int(mask.sum()), "failed": int((~reported).sum()), "converged": n_converged,
+        "rate": n_converged / runs if runs else None, "rate_ci95": [low, high],
         "final_position_m": _quantiles(data.columns["final_position_m"][mask][reported]),
         "final_heading_deg": _quantiles(data.columns["final_heading_deg"][mask][reported]),
         "settling_time_s": _quantiles(settle) | {"unsettled": int(np.isnan(settle).sum())},
@@ -127,8 +120,7 @@ def summarize(folder: Path) -> dict[str, Any]:
         "runs": {"planned": data.total_runs, "done": data.rows,
                  "failed": int((data.columns["status"] == "failed").sum()),
                  "stopped": int((data.columns["status"] == "stopped").sum())},
-        "swept": data.swept,
-        "fixed": data.fixed,
+        "swept": data.swept, "fixed": data.fixed,
         "overall": group_stats(data, everything),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
         "by_parameter": {},

@@ -1,19 +1,16 @@
-"""The human-readable report: rich tables on stdout.
-
-Rules and colour on a terminal; elsewhere plain text with unwrapped numbers, so that the
-output diffs and greps well. Numbers are the JSON values to 4 significant digits in the
-unit of the row label; several runs stand side by side, one column each.
-"""
+"""The human-readable report: rich tables on stdout, one column per run, the JSON values to 4
+significant digits. Colour on a terminal; elsewhere plain unwrapped text that diffs and greps."""
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence, TextIO
 
 from ..core.control_settings import GAIN_UNITS
 from ..core.metrics import STATISTICS
 from .build import CHECK_NAMES, IMAGE_ERRORS, POSE_ERRORS
-from .result import ErrorSummary, RunReport, resolve_key
+from .result import ErrorSummary, RunReport, Timing, resolve_key
 
 #: A table row: its label (with the unit) and how to read its value from a report.
 Row = tuple[str, Callable[[RunReport], Any]]
@@ -23,62 +20,44 @@ PLAIN_WIDTH = 1000
 #: What a missing (null) value shows.
 MISSING = "n/a"
 
-#: Each error signal's short name and unit (image errors are in units of d*: x_h = x_f / d*).
+#: Each error signal's short name and unit.
 ERROR_SIGNALS = {
-    "e1": ("e1", "d*"),
-    "e2": ("e2", "d*"),
-    "ebar2": ("ebar2", "d*"),
-    "e3": ("e3", "deg"),
-    "position_m": ("position", "m"),
-    "heading_deg": ("heading", "deg"),
+    "e1": ("e1", "d*"), "e2": ("e2", "d*"), "ebar2": ("ebar2", "d*"), "e3": ("e3", "deg"),
+    "position_m": ("position", "m"), "heading_deg": ("heading", "deg"),
 }
-#: Short name of each statistic; all are in the signal's unit except the settling time (s).
+#: Short name of each statistic.
 STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
 
 #: Rows of the metrics table.
 METRIC_ROWS: tuple[Row, ...] = (
-    ("V initial", lambda r: r.lyapunov.initial),
-    ("V final", lambda r: r.lyapunov.final),
-    ("V final / V(0)", lambda r: r.lyapunov.ratio),
-    ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
-    ("dhat0 (m)", lambda r: r.depth.dhat0),
-    ("dhat final (m)", lambda r: r.depth.dhat_final),
-    ("d* true (m)", lambda r: r.depth.d_true),
-    ("dhat relative error (-)", lambda r: r.depth.relative_error),
+    ("V initial", lambda r: r.lyapunov.initial), ("V final", lambda r: r.lyapunov.final),
+    ("V final / V(0)", lambda r: r.lyapunov.ratio), ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
+    ("dhat0 (m)", lambda r: r.depth.dhat0), ("dhat final (m)", lambda r: r.depth.dhat_final),
+    ("d* true (m)", lambda r: r.depth.d_true), ("dhat relative error (-)", lambda r: r.depth.relative_error),
     ("dhat within 10 % after (s)", lambda r: r.depth.learning_time_s),
     ("dhat drift at the end (1/s)", lambda r: r.depth.end_rate_per_s),
     ("dhat still moving at the end", lambda r: r.depth.still_moving),
-    ("v peak (m/s)", lambda r: r.commands.v_peak_mps),
-    ("v rms (m/s)", lambda r: r.commands.v_rms_mps),
-    ("w peak (rad/s)", lambda r: r.commands.w_peak_radps),
-    ("w rms (rad/s)", lambda r: r.commands.w_rms_radps),
+    ("v peak (m/s)", lambda r: r.commands.v_peak_mps), ("v rms (m/s)", lambda r: r.commands.v_rms_mps),
+    ("w peak (rad/s)", lambda r: r.commands.w_peak_radps), ("w rms (rad/s)", lambda r: r.commands.w_rms_radps),
     ("saturated (fraction of steps)", lambda r: r.commands.saturated_fraction),
     ("at a limit (fraction of steps)", lambda r: r.commands.at_limit_fraction),
     ("v total variation (m/s per s)", lambda r: r.commands.v_tv_per_s),
     ("w total variation (rad/s per s)", lambda r: r.commands.w_tv_per_s),
-    ("RMS dv/dt (m/s^2)", lambda r: r.commands.dv_dt_rms_mps2),
-    ("RMS dw/dt (rad/s^2)", lambda r: r.commands.dw_dt_rms_radps2),
+    ("RMS dv/dt (m/s^2)", lambda r: r.commands.dv_dt_rms_mps2), ("RMS dw/dt (rad/s^2)", lambda r: r.commands.dw_dt_rms_radps2),
     ("taught RMS dv/dt (m/s^2)", lambda r: r.commands.taught.dv_dt_rms_mps2),
     ("taught RMS dw/dt (rad/s^2)", lambda r: r.commands.taught.dw_dt_rms_radps2),
-    ("target lost (frames)", lambda r: r.target.lost_frames),
-    ("target lost (fraction of steps)", lambda r: r.target.lost_fraction),
-    ("longest loss (s)", lambda r: r.target.longest_loss_s),
-    ("dropped frames", lambda r: r.target.dropped_frames),
+    ("target lost (frames)", lambda r: r.target.lost_frames), ("target lost (fraction of steps)", lambda r: r.target.lost_fraction),
+    ("longest loss (s)", lambda r: r.target.longest_loss_s), ("dropped frames", lambda r: r.target.dropped_frames),
     ("dropped (fraction of steps)", lambda r: r.target.dropped_fraction),
     ("min |x_hd1_dot| run (1/s)", lambda r: r.condition35.min_abs_xhd1_dot),
     ("min |x_hd1_dot| fit (1/s)", lambda r: r.condition35.fit_min_abs_xhd1_dot),
 )
 
-#: Rows of a live run's loop timing (``repeat --live``): shown when a run has them.
-TIMING_ROWS: tuple[Row, ...] = (
-    ("latency p50 (ms)", lambda r: r.timing and r.timing.latency_p50_ms),
-    ("latency p95 (ms)", lambda r: r.timing and r.timing.latency_p95_ms),
-    ("latency p99 (ms)", lambda r: r.timing and r.timing.latency_p99_ms),
-    ("latency max (ms)", lambda r: r.timing and r.timing.latency_max_ms),
-    ("frame interval p50 (ms)", lambda r: r.timing and r.timing.frame_interval_p50_ms),
-    ("frame interval max (ms)", lambda r: r.timing and r.timing.frame_interval_max_ms),
-    ("frames dropped", lambda r: r.timing and r.timing.frames_dropped),
-    ("frames late", lambda r: r.timing and r.timing.frames_late),
+#: Rows of a live run's loop timing, shown when a run has them: ``latency_p50_ms`` is "latency p50 (ms)".
+TIMING_ROWS: tuple[Row, ...] = tuple(
+    (name.removesuffix("_ms").replace("_", " ") + (" (ms)" if name.endswith("_ms") else ""),
+     lambda r, name=name: r.timing and getattr(r.timing, name))
+    for name in (field.name for field in fields(Timing))
 )
 
 #: Row label of each verdict check (``verdict.checks``).
@@ -90,12 +69,9 @@ CHECK_LABELS = {
 
 #: Rows of the run table after the gains.
 RUN_ROWS: tuple[Row, ...] = (
-    ("law", lambda r: r.run.law),
-    ("mode", lambda r: r.run.source.mode),
-    ("fit file", lambda r: r.run.source.fit_file),
-    ("duration (s)", lambda r: r.run.duration_s),
-    ("steps", lambda r: r.run.steps),
-    ("rate (Hz)", lambda r: r.run.rate_hz),
+    ("law", lambda r: r.run.law), ("mode", lambda r: r.run.source.mode),
+    ("fit file", lambda r: r.run.source.fit_file), ("duration (s)", lambda r: r.run.duration_s),
+    ("steps", lambda r: r.run.steps), ("rate (Hz)", lambda r: r.run.rate_hz),
     ("truncated", lambda r: r.run.truncated),
 )
 
@@ -106,16 +82,13 @@ def format_value(value: Any) -> str:
         return MISSING
     if isinstance(value, bool):
         return "yes" if value else "no"
-    if isinstance(value, int):
-        return str(value)
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
 
 
 def run_labels(reports: Sequence[RunReport]) -> list[str]:
-    """How tables and legends name the runs: their labels (``--label``, else the law);
-    a label two runs share is followed by the run's file name, e.g. ``paper (b.mcap)``."""
+    """How tables and legends name the runs: their labels, a shared one followed by the file name."""
     labels = [report.run.label or "run" for report in reports]
     return [
         f"{label} ({Path(report.run.name).name})" if labels.count(label) > 1 else label
@@ -123,9 +96,8 @@ def run_labels(reports: Sequence[RunReport]) -> list[str]:
     ]
 
 
-# ----------------------------------------------------------------------------- tables
 def new_table(headers: Sequence[str], plain: bool) -> Any:
-    """An empty table: first column left-aligned labels, the others right-aligned values."""
+    """An empty table: left-aligned labels, right-aligned values."""
     from rich import box
     from rich.table import Table
 
@@ -139,23 +111,17 @@ def new_table(headers: Sequence[str], plain: bool) -> Any:
 
 
 def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) -> Any:
-    """One row per (label, value of a report), one column per run."""
     table = new_table(["quantity", *run_labels(reports)], plain)
     for label, value in rows:
         table.add_row(label, *(format_value(value(r)) for r in reports))
     return table
 
 
-def _gain(name: str) -> Callable[[RunReport], Any]:
-    return lambda report: report.run.gains.get(name)
-
-
 def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
-    """The run table's rows: file, the fixed rows, then every gain any run has."""
     gains: dict[str, None] = {}
     for report in reports:
         gains.update(dict.fromkeys(report.run.gains))
-    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", _gain(name)) for name in gains]
+    gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", lambda r, name=name: r.run.gains.get(name)) for name in gains]
     return [("file", lambda r: r.run.name), ("label", lambda r: r.run.label), *RUN_ROWS, *gain_rows]
 
 
@@ -164,7 +130,7 @@ def _statistic_unit(statistic: str, signal: str) -> str:
 
 
 def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], plain: bool) -> Any:
-    """One run's errors: a row per error signal (with its unit), a column per statistic."""
+    """One run's errors: a row per signal, a column per statistic."""
     headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
     table = new_table(["error", *headers], plain)
     for name in names:
@@ -174,7 +140,7 @@ def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], pla
 
 
 def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport], Any]:
-    """A statistic of an error of a report; None when the report lacks the section (no ground truth)."""
+    """A statistic of an error of a report; None when the report lacks the section."""
     def value(report: RunReport) -> Any:
         errors = getattr(report, section)
         return None if errors is None else getattr(errors[name], statistic)
@@ -182,22 +148,17 @@ def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport],
 
 
 def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
-    """Several runs' errors: a row per (signal, statistic), e.g. ``e1 final (d*)``."""
+    """Several runs' errors: a row per (signal, statistic)."""
     return [
         (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", _statistic(section, name, s))
         for name in names for s in STATISTICS
     ]
 
 
-def _natural_width(table: Any, console: Any) -> int:
-    """Columns a table needs to show every cell on one line."""
+def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
+    """The image and pose error tables: a matrix for one run if it fits the width, else rows."""
     from rich.measure import Measurement
 
-    return Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum
-
-
-def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """The image and pose error tables: a matrix for one run when it fits the width, else rows."""
     plain = not console.is_terminal
     sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
     if any(r.pose_error is not None for r in reports):
@@ -205,8 +166,7 @@ def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
     tables = []
     for key, names, title in sections:
         table = _error_matrix(getattr(reports[0], key), names, plain) if len(reports) == 1 else None
-        # A terminal narrower than the matrix would squeeze its numbers into ellipses.
-        if table is None or _natural_width(table, console) > console.width:
+        if table is None or Measurement.get(console, console.options.update_width(PLAIN_WIDTH), table).maximum > console.width:
             table = _rows_table(_error_rows(key, names), reports, plain)
         tables.append((title, table))
     return tables
@@ -217,7 +177,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     from rich.text import Text
 
     table = new_table(["check", *run_labels(reports)], plain)
-    # The checks are sentences: left-aligned, and wrapped to the width they are printed in.
+    # The checks are sentences: left-aligned and wrapped.
     for column in table.columns[1:]:
         column.justify, column.no_wrap = "left", False
 
@@ -225,8 +185,6 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
         return Text(text, style="green" if good else "red")
 
     table.add_row("converged", *(styled(format_value(r.verdict.converged), r.verdict.converged) for r in reports))
-    # One row per named check: a replay's image-error checks and a simulated run's pose
-    # checks land in rows of their own, and a check a run does not have shows n/a.
     for name in CHECK_NAMES:
         cells = [r.verdict.checks.get(name, MISSING) for r in reports]
         if any(cell != MISSING for cell in cells):
@@ -235,8 +193,7 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
 
 
 def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str, Any]]:
-    """Every table of the report with its title, in print order; plain text unless ``console``
-    is a terminal, whose width decides the error tables' layout."""
+    """Every table of the report with its title, in print order (plain unless ``console`` is a terminal)."""
     plain = not console.is_terminal
     return [
         ("run", _rows_table(_run_rows(reports), reports, plain)),
@@ -249,7 +206,7 @@ def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
 
 
 def report_console(stream: TextIO) -> Any:
-    """A rich console on ``stream``: colour on a terminal; else no colour and never wrapped."""
+    """A rich console on ``stream``: colour on a terminal, else plain and never wrapped."""
     from rich.console import Console
 
     console = Console(file=stream, highlight=False, markup=False, emoji=False)
@@ -266,7 +223,7 @@ def print_title(console: Any, text: str) -> None:
 
 
 def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
-    """Print the report on ``stream`` (stdout): rich on a terminal, plain text otherwise."""
+    """Print the report on ``stream`` (stdout)."""
     console = report_console(stream)
     plain = not console.is_terminal
     tables = report_tables(reports, console)
@@ -274,8 +231,7 @@ def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
         if index:
             console.print()
         print_title(console, title)
-        # The verdict's sentences wrap to the terminal even through a pipe (hbvs report | less);
-        # the numbers' rows are never wrapped, so that they grep.
+        # The verdict wraps to the reader's terminal even through a pipe; number rows never wrap.
         console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
 
 
@@ -292,7 +248,7 @@ def reading_width() -> int:
         return 100
 
 
-#: Rows of the fit table: (label with unit, dotted key into :func:`~hbvs_cli.report.fit_plot.fit_summary`).
+#: Rows of the fit table: label with unit, dotted key of :func:`~hbvs_cli.report.fit_plot.fit_summary`.
 FIT_ROWS: tuple[tuple[str, str], ...] = (
     ("frames with a raw sample", "frames_raw"),
     ("frames on the spline", "frames_smooth"),

@@ -1,9 +1,6 @@
-"""``--export-tum``: the taught and the repeated trajectories in the TUM RGB-D format.
-
-One line per step, ``timestamp tx ty tz qx qy qz qw``: seconds from the start, metres in
-the simulator's world frame (tz: camera height), the heading's quaternion; for
-``evo_ape tum run.taught.tum run.repeated.tum``. Only runs with ground truth have poses.
-"""
+"""``--export-tum``: the taught and repeated trajectories in the TUM RGB-D format
+(``timestamp tx ty tz qx qy qz qw``: s, m in the world frame with tz the camera height), for
+``evo_ape tum run.taught.tum run.repeated.tum``."""
 
 from __future__ import annotations
 
@@ -23,11 +20,7 @@ REPEATED_SUFFIX = ".repeated.tum"
 
 
 def camera_height_m(source: Any, name: str = "") -> float | None:
-    """The camera's height (m): the z of the first ground-truth pose of a run file.
-
-    ``read_run`` keeps planar poses only, and the height is constant: one message is enough.
-    ``source``: path or binary stream at its start; ``None`` without a ground-truth pose.
-    """
+    """The camera's height (m): the z of a run file's first ground-truth pose (None without one)."""
     for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
         return float(message.foxglove(name).pose.position.z)
     return None
@@ -69,8 +62,7 @@ def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
 
 
 def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Path]:
-    """Write a run's taught and repeated trajectories into ``directory`` (created if needed)
-    and return both paths. UsageError without ground truth, InputError if unwritable."""
+    """Write a run's taught and repeated trajectories into ``directory`` (created if needed); both paths."""
     from ..io.output_target import write_output_bytes
 
     require_ground_truth(run)

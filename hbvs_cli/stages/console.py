@@ -1,9 +1,4 @@
-"""Messages and progress bars on stderr; stdout is reserved for data.
-
-A rich progress bar is shown only when stderr is a terminal and ``--quiet`` is not given,
-so pipelines and logs stay clean; warnings and the final summary lines are always printed
-(unless quiet).
-"""
+"""Messages and progress bars on stderr (bars only on a terminal); stdout is for data."""
 
 from __future__ import annotations
 
@@ -30,16 +25,13 @@ class Console:
 
     @property
     def interactive(self) -> bool:
-        """True when progress bars make sense: a terminal on stderr and not quiet."""
         return not self.quiet and self.rich.is_terminal
 
     def info(self, message: str) -> None:
-        """A line of information (suppressed by --quiet)."""
         if not self.quiet:
             self.rich.print(message, markup=False)
 
     def warn(self, message: str) -> None:
-        """A warning: always printed."""
         self.rich.print(f"hbvs: warning: {message}", markup=False, style="yellow")
 
     def print(self, renderable: Any) -> None:
@@ -49,8 +41,8 @@ class Console:
 
     @contextmanager
     def progress(self, description: str, total: float | None, note: str = "", **fields: Any) -> Iterator["ProgressTask"]:
-        """A progress bar on stderr for a long task; silent when not interactive. ``note``: a
-        column after the count, e.g. ``"{task.fields[failed]} failed"``, ``fields`` its first values."""
+        """A progress bar on stderr, silent when not interactive; ``note``: a column after the
+        count, e.g. ``"{task.fields[failed]} failed"``, ``fields`` its first values."""
         if not self.interactive:
             yield ProgressTask(None, None)
             return

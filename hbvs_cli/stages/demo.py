@@ -1,11 +1,5 @@
-"""``hbvs demo``: the whole method in one command, and a check of it.
-
-Teach the default scenario in simulation, fit it, repeat it in closed loop with the
-camera images rendered and detected in the loop, under both laws (the lateral-gain law,
-hbvs's default, and the paper's law, k_2 = 1), and report them side by side. Every file
-goes into one folder. The exit code is 0 only when the default law converged, by
-``report``'s verdict, so the demo is itself a test of the installation.
-"""
+"""``hbvs demo``: teach, fit, repeat under both laws with images in the loop, and report, into
+one folder; exit 0 only when the default law converged, so it also tests the installation."""
 
 from __future__ import annotations
 

@@ -16,27 +16,15 @@ from .console import Console, print_json
 def info_document(info: Any) -> dict[str, Any]:
     """The file's description as one JSON-ready object (the keys of ``hbvs info --json``)."""
     return {
-        "file": info.name,
-        "kind": info.kind,
-        "hbvs_version": info.version,
-        "complete": info.complete,
-        "stop_reason": info.stop_reason or None,
-        "start_ns": info.start_ns,
-        "end_ns": info.end_ns,
-        "duration_s": round(info.duration_s, 9),
-        "frames": info.frames,
-        "messages": info.messages,
-        "target": info.target,
+        "file": info.name, "kind": info.kind, "hbvs_version": info.version,
+        "complete": info.complete, "stop_reason": info.stop_reason or None,
+        "start_ns": info.start_ns, "end_ns": info.end_ns, "duration_s": round(info.duration_s, 9),
+        "frames": info.frames, "messages": info.messages, "target": info.target,
         "settings": info.metadata.get("settings"),
         "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
         "metadata_records": info.metadata_names,
-        "topics": [
-            {
-                "topic": topic.topic, "messages": topic.messages, "schema": topic.schema_name,
-                "schema_encoding": topic.schema_encoding, "message_encoding": topic.message_encoding,
-            }
-            for topic in info.topics
-        ],
+        "topics": [{"topic": topic.topic, "messages": topic.messages, "schema": topic.schema_name,
+                    "schema_encoding": topic.schema_encoding, "message_encoding": topic.message_encoding} for topic in info.topics],
     }
 
 

@@ -1,11 +1,6 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), wired by
-:func:`hbvs_cli.stages.repeat._run_live`.
-
-Each newest frame is measured by the fit's detector and estimator and decided by the
-per-frame step of ``--sim`` (:class:`hbvs_cli.core.simulator.ServoStep`); frames that came
-meanwhile are dropped and counted. Zero commands go out on every way out (end, lost target,
-stale camera, signals, errors), and none but zeros before the target is seen near its
-taught start view (:data:`START_FRAMES`).
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame
+decided by the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out
+on every way out, and only zeros before the target is seen near its taught start view.
 """
 
 from __future__ import annotations
@@ -28,14 +23,12 @@ from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..io.settings import RepeatOptions
 from .options import stamped_commands
 
-#: Consecutive frames with the target seen near its taught start view before the first
-#: non-zero command.
+#: Consecutive frames with the target near its taught start view before the first non-zero command.
 START_FRAMES = 5
-#: How far from the taught start a live run may begin (m at the fit's depth estimate, deg):
-#: about 3 and 7 times --sim's default --offset.
+#: How far from the taught start a live run may begin (m at the fit's depth estimate, deg).
 START_TOLERANCE_M = 0.3
 START_TOLERANCE_DEG = 15.0
-#: Zero commands sent at each stop: more than one, for a late subscriber or a lost one.
+#: Zero commands sent at each stop (more than one, for a late or lost subscriber).
 ZERO_REPEATS = 3
 #: A frame is "late" when its interval exceeds this many control periods.
 LATE_FACTOR = 1.5
@@ -115,9 +108,7 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
 
 
 def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics. A ROS 2 camera's publisher and
-    CameraInfo are awaited for the discovery time, or ``lost_timeout`` (s) if longer: a
-    camera node may still be starting."""
+    """The frame source and the camera's intrinsics; a ROS 2 camera is awaited for the discovery time, or ``lost_timeout`` (s) if longer."""
     if options.camera is not None:
         from ..io.sources.live_camera import LatestCameraFrame
 
@@ -146,11 +137,7 @@ def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
 
 @dataclass
 class LiveLoop:
-    """The loop of ``repeat --live``: frames in, commands out, the run file written.
-
-    ``source.latest(timeout_s)`` gives the newest frame or None; ``trajectory`` the desired
-    signals over run time (s); ``log``, ``tally`` and ``settings`` are repeat's.
-    """
+    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written."""
 
     source: Any
     detector: Any
@@ -170,12 +157,7 @@ class LiveLoop:
     stopped: str | None = None
 
     def wait_for_start(self) -> None:
-        """Send zeros until the target is seen near its taught start view in
-        :data:`START_FRAMES` frames in a row.
-
-        Raises NotAtStartError (seen elsewhere, or not at all for --lost-timeout) and
-        TargetLostError (no frame for --lost-timeout).
-        """
+        """Send zeros until the target is seen near its taught start view in :data:`START_FRAMES` frames in a row."""
         desired = self.trajectory.evaluate(0.0)
         lost_timeout = self.settings.lost_timeout
         near = far = 0
@@ -213,8 +195,7 @@ class LiveLoop:
                     )
 
     def drive(self) -> None:
-        """Until the trajectory ends, or the target or the camera is gone for --lost-timeout
-        (then :attr:`stopped` says why): each newest frame measured, decided, sent."""
+        """Measure, decide and send each newest frame until the end or a stop (:attr:`stopped` says why)."""
         period = 1.0 / self.settings.rate
         duration = self.trajectory.t_end - self.trajectory.t_start
         first_stamp: float | None = None
@@ -252,7 +233,7 @@ class LiveLoop:
                 return
 
     def _step(self, frame: Any, t: float, dt: float) -> tuple[float, Any]:
-        """Measure, decide (:meth:`ServoStep.decide`), send; the latency (s) and the step's record."""
+        """Measure, decide, send; the latency (s) and the step's record."""
         observation = measure(frame, self.detector, self.estimator, self.model)
         record = self.servo.decide(t, _NO_POSE, observation, self.trajectory.evaluate(t), dt)
         if record.lost:
@@ -265,13 +246,11 @@ class LiveLoop:
         return latency, record
 
     def _next_frame(self, last_arrival: float) -> Any:
-        """The next frame; zero commands once none came for --stale-timeout; None (and
-        :attr:`stopped` set) when none came for --lost-timeout or the source ended."""
+        """The next frame; zeros once none came for --stale-timeout; None (:attr:`stopped` set) after --lost-timeout or the source's end."""
         stale = False
         while True:
             wait = self.options.stale_timeout - (time.monotonic() - last_arrival)
-            # Once stale, the source is still polled (briefly), so that a camera that comes
-            # back is driven from again rather than timed out.
+            # Once stale, still polled briefly: a camera that comes back is driven from again.
             frame = self.source.latest(wait if wait > 0 else STALE_POLL_S)
             if frame is not None:
                 if stale:

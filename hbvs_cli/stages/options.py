@@ -1,8 +1,4 @@
-"""Option syntaxes several stages share, and how a stage records its options.
-
-One place, one message: ``--offset DX,DY,DTHETA``, ``START:END`` intervals, ``T:FACTOR``
-steps and ``KEY=VALUE`` pairs.
-"""
+"""Option syntaxes several stages share, and how a stage records its options."""
 
 from __future__ import annotations
 
@@ -15,10 +11,7 @@ from ..errors import UsageError
 
 
 def recorded_settings(options: Any) -> dict[str, Any]:
-    """A stage's options as JSON-ready values for its output's metadata.
-
-    The output name is left out: the same inputs make the same bytes wherever they go.
-    """
+    """A stage's options as JSON-ready metadata, without the output name (the same inputs make the same bytes wherever they go)."""
     return {
         key: (str(value) if isinstance(value, Path) else value)
         for key, value in asdict(options).items()
@@ -68,10 +61,7 @@ def parse_time_and_factor(text: str, option: str) -> tuple[float, float]:
 
 
 def parse_assignment(text: str, option: str) -> tuple[str, float]:
-    """``NAME=VALUE`` -> (name, finite float).
-
-    Raises UsageError: no ``=``, an empty name, or a value that is not a finite number.
-    """
+    """``NAME=VALUE`` -> (name, finite float)."""
     name, sep, value = text.partition("=")
     name = name.strip()
     try:

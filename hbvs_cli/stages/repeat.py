@@ -1,10 +1,8 @@
 """``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31).
 
-``--sim``: closed loop. A simulated robot starts at the taught start pose plus ``--offset``;
-every frame the camera (rendered images through the same detector as ``fit``, or projected
-points with noise) gives a measurement, the controller answers, the unicycle moves.
-``--replay``: open loop. The frames of a recording are the live camera; the controller's
-errors and commands are computed and logged, and nothing moves.
+``--sim``: closed loop, a simulated robot from the taught start plus ``--offset``.
+``--replay``: open loop on a recording's frames; commands are logged, nothing moves.
+``--live``: closed loop with a robot (:mod:`.live`).
 """
 
 from __future__ import annotations
@@ -72,7 +70,6 @@ class Settings:
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)
         data["gains"] = self.gains.as_dict()
-        data["limits"] = {k: (v if v is not None else None) for k, v in asdict(self.limits).items()}
         data["offset"] = {"dx_m": self.offset[0], "dy_m": self.offset[1], "dtheta_deg": math.degrees(self.offset[2])}
         return data
 
@@ -87,8 +84,7 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, option: str) -> float | None:
-    """A limit option: None or inf -> unlimited; 0 or less is refused (it would mean "stand
-    still", which is no run at all)."""
+    """A limit option: None or inf -> unlimited (None); 0 or less is refused."""
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
@@ -100,13 +96,11 @@ def _limit(value: float | None, option: str) -> float | None:
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
                      suggested_gains: ControllerGains | None = None) -> Settings:
-    """Defaults < ``--config`` < command-line options (:mod:`.settings`: an option that was
-    not given is None, so any value given wins, even one equal to the default)."""
+    """Defaults < ``--config`` < command-line options (an option not given is None)."""
     config: dict[str, Any] = load_config(options.config) if options.config is not None else {}
 
     def pick(name: str, fallback: Any = None) -> Any:
-        # The bounds the command line checks, checked again here for values from a config
-        # file or from hbvs sweep (which call this without the command line).
+        # Bounds checked again for values from a config file or hbvs sweep.
         value = REPEAT[name].resolve(getattr(options, name), config, fallback)
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             violation = REPEAT[name].bound_violation(value)
@@ -133,32 +127,17 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     state_filter = str(pick("state_filter"))
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
+    limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
+                            max_accel=_limit(pick("max_accel"), "--max-accel"))
     return Settings(
-        gains=gains,
-        law=law,
-        dhat0=dhat0,
-        speed=speed,
-        limits=ActuatorLimits(
-            max_v=_limit(pick("max_v"), "--max-v"),
-            max_w=_limit(pick("max_w"), "--max-w"),
-            max_accel=_limit(pick("max_accel"), "--max-accel"),
-        ),
-        latency=latency,
-        rate=rate,
-        perception=perception,
-        pixel_noise=float(pick("pixel_noise")),
-        offset=parse_offset(offset_text),
-        lost_timeout=float(pick("lost_timeout")),
+        gains=gains, law=law, dhat0=dhat0, speed=speed, limits=limits, latency=latency, rate=rate, perception=perception,
+        pixel_noise=float(pick("pixel_noise")), offset=parse_offset(offset_text), lost_timeout=float(pick("lost_timeout")),
         state_filter=state_filter,
     )
 
 
 def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = None) -> RepeatSummary:
-    """Run the repeat phase as ``options`` say; write the run file.
-
-    ``fit`` is the already read ``options.input`` (``hbvs sweep`` reads it once per worker
-    for thousands of runs); by default it is read here.
-    """
+    """Run the repeat phase as ``options`` say; write the run file. ``fit``: ``options.input`` already read."""
     if int(options.sim) + int(options.replay is not None) + int(options.live) != 1:
         raise UsageError("choose one mode: --live (closed loop with a robot), --sim (closed loop, simulated) or --replay FILE "
                          "(open loop on a recording)")
@@ -179,26 +158,16 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
 
 
 def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
-    """The settings of a run of ``model`` as ``options`` ask (:func:`resolve_settings` with
-    the fit's suggestions and taught rate)."""
+    """:func:`resolve_settings` with the fit's suggestions and taught rate."""
     return resolve_settings(options, model.dhat0, 1.0 / model.taught_frame_interval(), model.suggested_gains())
 
 
-# ----------------------------------------------------------------------------- shared pieces
 class _StepLog:
-    """Turns each step record into the run file's messages (:class:`RunWriter`) and the
-    optional command stream, and notes the changes worth an event (target lost or back,
-    a dropped frame, saturation)."""
+    """Each step record as run file messages and a command; events when the target is lost or back, etc."""
 
     def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
-        self.run = run
-        self.settings = settings
-        self.model = model
-        self.d_true = d_true
-        self.cmd_stream = cmd_stream
-        self.was_saturated = False
-        self.was_lost = False
-        self.was_dropped = False
+        self.run, self.settings, self.model, self.d_true, self.cmd_stream = run, settings, model, d_true, cmd_stream
+        self.was_saturated = self.was_lost = self.was_dropped = False
         self.lost_reason = ""
 
     def event(self, t: float, level: int, text: str) -> None:
@@ -213,8 +182,7 @@ class _StepLog:
         V = None
         if errors is not None and self.d_true is not None:
             V = lyapunov(errors, record.dhat, self.d_true, self.settings.gains)
-        # A dropped frame says nothing about the target: the lost state and its reason are
-        # those of the last frame that arrived (record.lost already keeps them).
+        # A dropped frame keeps the lost state and reason of the last frame that arrived.
         if not record.dropped:
             self.lost_reason = record.observation.status if record.lost else ""
         if record.lost and not self.was_lost:
@@ -254,7 +222,6 @@ class _StepLog:
         live.write_command(self.cmd_stream, t, record.v_c, record.w_c)
 
     def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
-        """The state filter's estimate and standard deviation (what the law acted on)."""
         estimate = record.estimate
         if estimate is None:
             return {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
@@ -287,10 +254,8 @@ def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
     return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
-# ----------------------------------------------------------------------------- closed loop
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
-    first): UsageError for a bad ``--speed``, LimitExceededError beyond the ``steps`` limit."""
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them first)."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
@@ -319,16 +284,9 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model, camera.estimator)
     return Simulation(
-        scene=scene,
-        camera=camera,
-        trajectory=trajectory,
-        controller=make_controller(settings.law, settings.gains, settings.dhat0),
-        start_pose=start_pose,
-        dt=1.0 / settings.rate,
-        duration=trajectory.t_end - trajectory.t_start,
-        limits=settings.limits,
-        latency=settings.latency,
-        state_filter=state_filter,
+        scene=scene, camera=camera, trajectory=trajectory, controller=make_controller(settings.law, settings.gains, settings.dhat0),
+        start_pose=start_pose, dt=1.0 / settings.rate, duration=trajectory.t_end - trajectory.t_start, limits=settings.limits,
+        latency=settings.latency, state_filter=state_filter,
     )
 
 
@@ -337,19 +295,15 @@ COARSE_RESIDUAL_GATE_PX = 3.0
 
 
 def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
-    """The state filter ``--filter`` asks for (None for ``none``), its noise started from
-    the fit's residual on the taught images (docs/method.md, "State filter")."""
+    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's residual (docs/method.md, "State filter")."""
     if settings.state_filter != FILTER_EKF:
         return None
-    # The filter tests each residual against the noise it learns; the estimator's fixed gate
-    # from the taught images (a few tenths of a pixel) only has to catch gross errors.
     estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
     return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
 
 
 def detector_noise(model: FitModel) -> float:
-    """Per-coordinate noise of the fit's detector on the taught images (normalised units),
-    from the RMS residual of the known-normal solve over 2N coordinates with 3 unknowns."""
+    """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
     residual_px = float((model.residual_px or {}).get("rms", float("nan")))
     if not math.isfinite(residual_px):
         return 0.0
@@ -361,12 +315,11 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     simulation = prepare_simulation(options, settings, fit)
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
     stopped_at: float | None = None
-    # The taught pose at every control instant, at once (a scheduled, vectorised evaluation).
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --foxglove, if asked
+            writer = live(file_writer)
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
@@ -396,11 +349,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
 
 
 class _Tally:
-    """What the one-line summary needs, kept as the run goes: a few numbers per step.
-
-    Its "final" errors are the report's: the mean of |error| over the last 5 % of the run
-    (:func:`hbvs_cli.core.metrics.final_value`), so repeat and report agree on the word.
-    """
+    """What the one-line summary needs, per step; its "final" errors are the report's (:func:`hbvs_cli.core.metrics.final_value`)."""
 
     def __init__(self) -> None:
         self.steps = 0
@@ -431,11 +380,7 @@ class _Tally:
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
     model = fit.model
     return {
-        "file_kind": "run",
-        "hbvs_version": __version__,
-        "mode": mode,
-        "law": settings.law,
-        "gains": settings.gains.as_dict(),
+        "file_kind": "run", "hbvs_version": __version__, "mode": mode, "law": settings.law, "gains": settings.gains.as_dict(),
         "settings": settings.as_dict() | {
             "seed": options.seed, "input": str(options.input), "replay": str(options.replay) if options.replay else None,
             "faults": {
@@ -444,16 +389,13 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Fi
             },
             "record_images": options.record_images,
         },
-        "d_true": d_true,
-        "dhat0": settings.dhat0,
-        "target_kind": model.target_kind,
-        "condition35": model.condition35,
+        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind, "condition35": model.condition35,
         "fit_frames": model.frames,
     } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 
 
 def _top_view(world: World) -> dict[str, Any]:
-    """The wall and the target seen from above (m, world frame), for the report's top view."""
+    """The wall and the target from above (m, world frame), for the report's top view."""
     poster = world.target.poster
     ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
     return {
@@ -484,7 +426,6 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
-# ----------------------------------------------------------------------------- open loop
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
@@ -497,7 +438,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     previous_command = (0.0, 0.0)
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)  # the same messages to --foxglove, if asked
+            writer = live(file_writer)
             # The replay keeps the recording's stamps: t = 0 is known with the first frame.
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
@@ -532,10 +473,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     return _finish(console, tally, controller, options.output, settings, None, None)
 
 
-# ----------------------------------------------------------------------------- a robot
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
-    """``--live``: drive a robot along the fitted trajectory, every frame through the same
-    :class:`~hbvs_cli.core.simulator.ServoStep` as ``--sim`` (:mod:`.live`: the loop and its stops)."""
+    """``--live``: drive a robot, every frame through the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``."""
     live.check_live_options(options)
     model = fit.model
     topic = live.command_topic(options)

@@ -1,8 +1,5 @@
 """``hbvs report``: how well did the repeat follow the taught path, and did it converge?
-
-Every option is checked before anything is printed, so that a mistyped key fails with exit
-code 2 and no half-written output; stdout carries only the table or the JSON.
-"""
+Every option is checked before anything is printed; stdout carries only the table or the JSON."""
 
 from __future__ import annotations
 
@@ -29,22 +26,8 @@ class Bound:
     value: float
 
 
-# ----------------------------------------------------------------------------- options
-def parse_tolerances(items: Sequence[str]) -> dict[str, float]:
-    """``--tolerance NAME=VALUE`` options -> the full tolerance table (defaults for the rest)."""
-    from ..report.build import resolve_tolerances
-
-    return resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in items))
-
-
-def parse_bounds(items: Sequence[str]) -> list[Bound]:
-    """``--fail-above KEY=VALUE`` options -> :class:`Bound` list (keys checked later, per run)."""
-    return [Bound(*parse_assignment(item, "--fail-above")) for item in items]
-
-
 def metric_value(report: RunReport, key: str) -> float:
-    """The number at a dotted key of a report (``pose_error.position_m.final``); UsageError
-    when it is missing, a group, or null for this run (``lyapunov.final`` of a replay)."""
+    """The number at a dotted key of a report; UsageError when it is missing, a group, or null."""
     from ..report.result import MissingKey
 
     try:
@@ -67,8 +50,7 @@ def metric_value(report: RunReport, key: str) -> float:
 
 
 def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
-    """One message per (run, bound) whose metric exceeds the bound; UsageError for a bad key
-    (:func:`metric_value`), so call it before printing anything."""
+    """One message per (run, bound) whose metric exceeds the bound; call it before printing."""
     messages = []
     for report in reports:
         for bound in bounds:
@@ -78,26 +60,15 @@ def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> li
     return messages
 
 
-def not_converged(reports: Sequence[RunReport]) -> list[str]:
-    """One message per run that did not converge, naming its failed checks (``--require-converged``)."""
-    return [f"{report.run.name}: {'; '.join(report.verdict.failures())}" for report in reports if not report.verdict.converged]
-
-
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
-    """UsageError unless ``--label`` is given once per run, none empty, or not at all."""
     if labels and len(labels) != len(runs):
         raise UsageError(f"--label: give one per run, in order ({len(runs)} run(s), {len(labels)} label(s))")
     if any(not label.strip() for label in labels):
         raise UsageError("--label: a label cannot be empty")
 
 
-# ----------------------------------------------------------------------------- reading
 def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
-    """Every run, with its camera height (m) when ``need_height`` (for TUM files).
-
-    A fit file comes back as its :class:`~hbvs_cli.report.fit_plot.FitSignals`, without
-    height. UsageError for no run, or ``-`` given twice (stdin can be read only once).
-    """
+    """Every run, with its camera height (m) when ``need_height``; a fit file as its :class:`~hbvs_cli.report.fit_plot.FitSignals`."""
     from ..io.run_file import NotARunFile, read_run
     from ..report.fit_plot import read_fit_signals
     from ..report.tum import camera_height_m
@@ -116,22 +87,18 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
         except NotARunFile as other:
             if other.kind != "fit":
                 raise
-            if isinstance(source, io.BytesIO):
-                source.seek(0)
+            run = None
+        if isinstance(source, io.BytesIO):
+            source.seek(0)
+        if run is None:
             loaded.append((read_fit_signals(source, name), None))
-            continue
-        height = None
-        if need_height and run.true_pose is not None:
-            if isinstance(source, io.BytesIO):
-                source.seek(0)
-            height = camera_height_m(source, name)
-        loaded.append((run, height))
+        else:
+            loaded.append((run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
     return loaded
 
 
 def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
-    """``hbvs report fit.mcap``: the fit's numbers (table or JSON) and, with ``--plot``, its
-    figure; UsageError for an option that applies to runs only."""
+    """``hbvs report fit.mcap``: the fit's numbers and, with ``--plot``, its figure."""
     from ..report.figure_style import figure_style, save_figure
     from ..report.fit_plot import FIT_PANELS, fit_summary, plot_fit
     from ..report.table import print_fit_table
@@ -153,7 +120,6 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     return 0
 
 
-# ----------------------------------------------------------------------------- output
 def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
     if json_output:
@@ -168,19 +134,16 @@ def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
 
 
 def run_report(options: ReportOptions, console: Console) -> int:
-    """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` bound was exceeded or (with
-    ``--require-converged``) a run did not converge, one stderr line each. UsageError (exit
-    2) for a bad option; InputError, RecordingError (exit 3) for an unreadable run file."""
+    """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` or ``--require-converged`` check failed."""
     from ..report.fit_plot import FIT_PANELS, FitSignals
     from ..report.plots import PANEL_NAMES
-    from ..report.build import build_report
-
+    from ..report.build import build_report, resolve_tolerances
     from ..io.output_target import refuse_overwriting_inputs
 
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
         return _report_sweep(options, console)
-    tolerances = parse_tolerances(options.tolerance)
-    bounds = parse_bounds(options.fail_above)
+    tolerances = resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in options.tolerance))
+    bounds = [Bound(*parse_assignment(item, "--fail-above")) for item in options.fail_above]
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
     style = None
@@ -227,14 +190,15 @@ def run_report(options: ReportOptions, console: Console) -> int:
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
     for message in excesses:
         console.warn(f"threshold exceeded: {message}")
-    unconverged = not_converged(reports) if options.require_converged else []
+    unconverged = [f"{report.run.name}: {'; '.join(report.verdict.failures())}"
+                   for report in reports if options.require_converged and not report.verdict.converged]
     for message in unconverged:
         console.warn(f"not converged: {message}")
     return 1 if excesses or unconverged else 0
 
 
 def _report_sweep(options: ReportOptions, console: Console) -> int:
-    """``hbvs report RESULTS/``: the summary of a sweep's table (as ``hbvs sweep`` printed it)."""
+    """``hbvs report RESULTS/``: the summary of a sweep's table."""
     from ..report.sweep_summary import print_summary, summarize
 
     if options.plot or options.fail_above or options.export_tum or options.tolerance:
@@ -246,7 +210,6 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
     check_labels(options.labels, options.runs)
     summary = summarize(Path(options.runs[0]))
     if options.labels:
-        # The sweep's name in the heading (the folder stays in the JSON's "folder").
         summary = summary | {"label": options.labels[0]}
     if options.json_output:
         print_json(summary)
@@ -256,8 +219,7 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
     if options.require_converged:
         runs = summary["runs"]
         converged = summary["overall"]["converged"]
-        # Every planned run must have converged: a failed, stopped, unconverged or missing
-        # run fails the gate (and a sweep with no run at all does).
+        # Every planned run must have converged (a sweep with none fails).
         if runs["planned"] == 0 or converged < runs["planned"]:
             console.warn(f"not converged: {runs['planned'] - converged} of {runs['planned']} runs of the sweep "
                          f"({runs['failed']} failed, {runs['stopped']} stopped, {runs['planned'] - runs['done']} not run)")

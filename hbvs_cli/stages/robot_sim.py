@@ -1,12 +1,7 @@
-"""``hbvs robot-sim FIT --ros2`` (or ``--mjpeg PORT --cmd-in FILE``): a stand-in robot in its
-own process.
-
-What ``repeat --sim`` simulates, as a robot on the network for ``repeat --live`` to be tried
-against: the unicycle integrated in real time under the latest command, from the taught
-start plus ``--offset``, and the same renderer at ``--rate``. ``--ros2`` speaks as a ROS 2
-camera does (``/cmd_vel`` in; Image or CompressedImage with CameraInfo, and the true pose
-on ``/ground_truth/pose``, stamped by the wall clock); ``--mjpeg PORT`` serves an MJPEG
-stream on 127.0.0.1 and ``--cmd-in`` reads ``repeat --cmd-out``'s JSON lines.
+"""``hbvs robot-sim FIT``: what ``repeat --sim`` simulates, as a robot in its own process for
+``repeat --live`` to be tried against: the unicycle in real time under the latest command,
+rendered at ``--rate``. ``--ros2``: ``/cmd_vel`` in, camera, CameraInfo and the true pose
+out; ``--mjpeg PORT --cmd-in FILE``: MJPEG on 127.0.0.1, ``repeat --cmd-out``'s JSON lines in.
 """
 
 from __future__ import annotations
@@ -102,8 +97,7 @@ class _PlainRobot:
         self._received: list[tuple[float, float]] = []
         self._problem: str | None = None
         self._server = MjpegServer(options.mjpeg)
-        # The commands are opened by the reader: a FIFO's open waits for its writer, and the
-        # camera must be served meanwhile (the writer looks at it first).
+        # Opened by the reader thread: a FIFO's open waits for its writer, who looks at the camera first.
         self._reader = threading.Thread(target=self._read, name="hbvs-cmd-in", daemon=True)
         self._reader.start()
         self.description = f"http://127.0.0.1:{options.mjpeg}/ (MJPEG), commands from {options.cmd_in}"

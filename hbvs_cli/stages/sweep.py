@@ -1,9 +1,5 @@
-"""``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask.
-
-Each run of the spec is ``repeat --sim`` + ``report --json`` through their own callables
-(:mod:`.sweep_run`), on Dask; rows are written as they finish, so the same command resumes
-an interrupted sweep by skipping the runs already in the table.
-"""
+"""``hbvs sweep``: Monte Carlo studies and controller comparisons, on Dask. Rows are written as
+runs finish (:mod:`.sweep_run`), so the same command resumes an interrupted sweep."""
 
 from __future__ import annotations
 
@@ -55,10 +51,7 @@ class SweepTasks:
 
 
 def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, SweepTasks]:
-    """Check the options, plan the runs, open the results table (nothing runs yet).
-
-    Returns ``(plan, spec, table, tasks)``.
-    """
+    """Check the options, plan the runs, open the results table (nothing runs yet)."""
     require_engine()
     check_scheduler_address(options.scheduler)
     dashboard_address(options.dashboard)
@@ -91,11 +84,7 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
 
 
 def _check_values(spec: SweepSpec, fit: FitFile, fit_path: str, d_true: float | None) -> None:
-    """Refuse before running what ``hbvs repeat`` would refuse for some run, with its message.
-
-    Each axis's extreme values (every value of a choice) are checked with the fixed values:
-    the bounds and checks of ``repeat`` are intervals, so the values between pass too.
-    """
+    """Refuse before running what ``hbvs repeat`` would refuse for some run (each axis's extremes), with its message."""
     base = dict(spec.fixed)
     candidates = [("", base)]
     for axis in spec.axes:
@@ -110,12 +99,12 @@ def _check_values(spec: SweepSpec, fit: FitFile, fit_path: str, d_true: float | 
         try:
             check_arguments(fit, fit_path, repeat_arguments(values, 0, d_true))
         except HbvsError as exc:
-            exc.args = (f"{where}{exc}",)  # the same error (and exit code), saying which value
+            exc.args = (f"{where}{exc}",)
             raise
 
 
 def run_sweep(options: SweepOptions, console: Console) -> int:
-    """Run (or resume) a sweep, then print its summary; returns the exit code (0)."""
+    """Run (or resume) a sweep, then print its summary."""
     plan, spec, table, tasks = prepare(options)
     try:
         return _run_prepared(options, plan, spec, table, tasks, console)
@@ -151,7 +140,7 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
             try:
                 done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}", total=remaining)
             except BaseException:
-                # Ctrl-C, SIGTERM or an error: keep every finished row; the same command resumes.
+                # Keep every finished row: the same command resumes.
                 table.close()
                 raise
         elapsed = time.monotonic() - started

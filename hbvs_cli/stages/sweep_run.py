@@ -1,8 +1,5 @@
-"""One run of a sweep, as a Dask worker (or a serial loop) executes it.
-
-A run is ``hbvs repeat --sim`` then ``hbvs report --json`` through their own functions, and
-its row is that report's values at the dotted keys of :data:`~hbvs_cli.io.sweep_table.METRICS`.
-"""
+"""One run of a sweep on a worker: ``hbvs repeat --sim`` then ``hbvs report``; its row is the
+report's values at the keys of :data:`~hbvs_cli.io.sweep_table.METRICS`."""
 
 from __future__ import annotations
 
@@ -26,10 +23,7 @@ KEEP_CHOICES = ("failed", "all", "none")
 
 @dataclass(frozen=True)
 class RunTask(RunSettings):
-    """A run (:class:`RunSettings`) with what a worker needs for it (small: it travels to the
-    worker): the absolute ``fit_path``; ``arguments``, the ``RepeatOptions`` fields besides
-    input and output; ``command``, the ``hbvs repeat`` that re-makes the run; ``keep_path``,
-    where ``--keep-runs`` keeps it (None: nowhere)."""
+    """A run with what a worker needs; ``arguments``: ``RepeatOptions`` fields besides input and output."""
 
     fit_path: str
     arguments: dict[str, Any]
@@ -52,8 +46,7 @@ def _fit(path: str) -> Any:
 
 
 def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> None:
-    """Raise what ``hbvs repeat`` would raise for a run with ``arguments`` before it starts
-    (its own checks, so a value it refuses the sweep refuses with the same message)."""
+    """Raise what ``hbvs repeat`` would raise for a run with ``arguments`` before it starts."""
     from ..stages.repeat import RepeatOptions, check_simulation_settings, settings_for
     from ..stages.options import parse_interval
 
@@ -64,8 +57,7 @@ def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> No
 
 
 def report_row(report: RunReport) -> dict[str, Any]:
-    """The :data:`METRICS` of a report (None where the report has no such value: the pose
-    errors of a run without ground truth)."""
+    """The :data:`METRICS` of a report (None where it has no such value)."""
     from ..report.result import MissingKey, resolve_key
 
     document = report.to_dict()
@@ -79,9 +71,7 @@ def report_row(report: RunReport) -> dict[str, Any]:
 
 
 def keep_file(source: str, destination: str) -> None:
-    """Put the run file ``source`` at ``destination`` whole or not at all, also across file
-    systems (the workers' temporary folder and the results folder): copied to a partial
-    file beside ``destination``, fsynced, renamed; a failure (a full disk) removes it."""
+    """Put ``source`` at ``destination`` whole or not at all, also across file systems."""
     from ..io.output_target import partial_name_of
 
     final = Path(destination)
@@ -99,9 +89,7 @@ def keep_file(source: str, destination: str) -> None:
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
-    """Make one run and its report, and return its row (``index, point, repeat, seed``, the
-    parameter values, ``status``, ``error``, the :data:`METRICS`, ``run_time_s``, ``run_file``,
-    ``command``); never raises for a run that fails: the row says why."""
+    """Make one run and its report, and return its row; a run that fails does not raise: its row says why."""
     from ..errors import HbvsError, TargetLostError
     from ..io.run_file import read_run
     from ..report.build import build_report

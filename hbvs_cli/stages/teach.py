@@ -35,8 +35,7 @@ SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quali
 
 
 class TeachOptions(TeachFields):
-    """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``); its fields are
-    :data:`~hbvs_cli.io.settings.TEACH_SETTINGS`."""
+    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.io.settings.TEACH_SETTINGS`)."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
@@ -48,26 +47,17 @@ class TeachOptions(TeachFields):
             raise UsageError(f"give exactly one source, got {', '.join('--' + g for g in given)}")
         return given[0] if given else "sim"
 
-    def simulation_options_given(self) -> list[str]:
-        """The simulation options that were given (not None), as ``--name``."""
-        return [f"--{name.replace('_', '-')}" for name in SIMULATION_DEFAULTS if getattr(self, name) is not None]
-
     def for_simulation(self) -> TeachOptions:
         """These options with the simulation's defaults filled in where none was given."""
         missing = {name: value for name, value in SIMULATION_DEFAULTS.items() if getattr(self, name) is None}
         return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
 
     def settings(self) -> dict[str, Any]:
-        """The options as recorded in the teach file's metadata.
-
-        A simulated teach records every option; a recorded source only those that apply
-        to it (no simulator settings such as noise or the path).
-        """
+        """The options recorded in the teach file's metadata: a simulated teach's all, a recorded source's only those that apply to it."""
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            # The simulator's frames are gray whatever --gray says, so --gray is not recorded.
-            # The simulator is the default source: "sim" is true with or without --sim.
+            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
             simulated = {key: value for key, value in recorded.items()
                          if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd")}
             return {**simulated, "sim": True}
@@ -87,11 +77,8 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
     path_file = options.path if options.path not in PRESETS else None
-    refuse_overwriting_inputs(
-        [("-o", options.output)],
-        [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
-         ("--calibration", options.calibration), ("--path", path_file)],
-    )
+    refuse_overwriting_inputs([("-o", options.output)], [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
+                                                         ("--calibration", options.calibration), ("--path", path_file)])
     kind = options.source_kind()
     if options.cmd_topic is not None and kind != "bag":
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
@@ -103,7 +90,6 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         _teach_from_source(kind, options, console)
 
 
-# ----------------------------------------------------------------------------- simulated
 def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[CommandProfile, tuple[float, float, float], str]:
     """The taught commands and start pose of ``--path`` (a preset name or a CSV file)."""
     if spec in PRESETS:
@@ -162,12 +148,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
         )
     renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
-    settings = options.settings() | {
-        "path_name": path_name,
-        "start_pose": list(start_pose),
-        "duration_s": duration,
-        "frames": frame_count,
-    }
+    settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, "sim", settings, world)
         teach.calibration(world.camera, SIMULATION_EPOCH_NS)
@@ -183,7 +164,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
     console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
 
 
-# ----------------------------------------------------------------------------- real sources
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
     notes: list[str] = []
     camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
@@ -204,7 +184,7 @@ def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
 
 
 def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> None:
-    given = options.simulation_options_given()
+    given = [f"--{name.replace('_', '-')}" for name in SIMULATION_DEFAULTS if getattr(options, name) is not None]
     if given:
         verb = "describes" if len(given) == 1 else "describe"
         raise UsageError(f"{', '.join(given)} {verb} the simulated robot and camera, not --{kind}: leave {'it' if len(given) == 1 else 'them'} out")

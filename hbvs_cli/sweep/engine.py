@@ -1,11 +1,7 @@
-"""Where the runs execute: a Dask distributed cluster (local, remote, or batch jobs).
-
-By default a ``LocalCluster`` of single-threaded processes (the runs are CPU-bound Python);
-``--scheduler`` joins an existing cluster, ``--cluster slurm|pbs`` submits batch jobs via
-dask-jobqueue. Runs travel in batches of about a second of CPU (:class:`BatchSizer`), at
-most ``in_flight`` at once, so memory stays flat. A batch that keeps killing workers is
-split; a run that fails alone is retried with the cluster to itself, and only then
-recorded as failed.
+"""Where the runs execute: a Dask cluster (a local one of single-threaded processes,
+``--scheduler``'s, or ``--cluster slurm|pbs`` batch jobs), in batches (:class:`BatchSizer`),
+at most ``in_flight`` at once. A failed batch is split; a run that fails alone is retried
+with the cluster to itself, and only then recorded as failed.
 """
 
 from __future__ import annotations
@@ -20,7 +16,6 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from ..errors import OutputError, UsageError
 
-#: Installing the engine: named by every error about a missing piece.
 INSTALL_HINT = "pip install 'hbvs[sweep]'"
 CLUSTER_KINDS = ("slurm", "pbs")
 #: Times a run may be rescheduled after its worker died before it is recorded as failed.
@@ -47,14 +42,12 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-#: The scheduler's HTTP routes without ``--dashboard``: its health check alone (no pages of
-#: worker logs, local paths or tasks, no proxy), on a random port of the loopback interface.
+#: The scheduler's HTTP routes without ``--dashboard``: its health check alone, on loopback.
 HEALTH_ONLY = ["distributed.http.health"]
 
 
 def dashboard_address(text: str | None) -> str | None:
-    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given, None
-    none; UsageError for anything else."""
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given."""
     if text is None:
         return None
     host, sep, port = text.strip().rpartition(":")
@@ -85,12 +78,7 @@ def check_scheduler_address(address: str | None) -> None:
 @contextmanager
 def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                 allowed_worker_deaths: int = ALLOWED_WORKER_DEATHS, dashboard: str | None = None) -> Iterator[Any]:
-    """A connected ``distributed.Client``; the cluster it started (if any) is closed after.
-
-    ``allowed_worker_deaths`` applies to a cluster started here; ``dashboard``
-    (:func:`dashboard_address`): None serves none (it has no authentication). UsageError for
-    clashing options, an unknown cluster kind, no dask-jobqueue or an unreachable scheduler.
-    """
+    """A connected ``distributed.Client``; the cluster it started (if any) is closed after."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -98,20 +86,16 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
     if workers is not None and workers < 1:
         raise UsageError(f"--workers must be >= 1, got {workers}")
-    # worker-saturation 1: a run that kills its worker takes no queued batch down with it.
-    # No profiler (its trees grow), ticks once a second (each wake takes the GIL from the
-    # run), glibc's default malloc trimming (Dask's costs page faults); bench/ measures it.
+    # worker-saturation 1: a run that kills its worker takes no queued batch with it. No
+    # profiler, slow ticks (each takes the GIL from the run), glibc's malloc trimming.
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                      if name != "MALLOC_TRIM_THRESHOLD_"}
+    # A restarted worker must connect within the timeout, also on a loaded machine.
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ,
                           "distributed.scheduler.allowed-failures": allowed_worker_deaths,
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.worker.profile.enabled": False,
-                          "distributed.admin.tick.interval": "1s",
-                          "distributed.admin.system-monitor.interval": "1s",
-                          "distributed.worker.memory.monitor-interval": "1s",
-                          # A restarted worker must register within this, also on a loaded machine.
-                          "distributed.comm.timeouts.connect": "120s",
+                          "distributed.scheduler.worker-saturation": 1.0, "distributed.worker.profile.enabled": False,
+                          "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "1s",
+                          "distributed.worker.memory.monitor-interval": "1s", "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
         started = None
         try:
@@ -149,16 +133,13 @@ def _jobqueue_cluster(kind: str, jobs: int) -> Any:
     except ImportError:
         raise UsageError(f"--cluster {kind} needs dask-jobqueue: pip install 'hbvs[sweep-cluster]'") from None
     cluster_class = {"slurm": dask_jobqueue.SLURMCluster, "pbs": dask_jobqueue.PBSCluster}[kind]
-    # One single-threaded worker per job slot; the rest (queue, account, walltime,
-    # memory) from the user's ~/.config/dask/jobqueue.yaml.
+    # The rest (queue, account, walltime, memory) from ~/.config/dask/jobqueue.yaml.
     cluster = cluster_class(cores=1, processes=1)
     cluster.scale(jobs=jobs)
     return cluster
 
 
-#: A batch of runs aims at this much CPU time on its worker (s): the scheduler's per-task
-#: work is paid once per many runs, yet rows reach the table often and a killed batch costs
-#: little. CPU time, not wall time: load stretches the wall time, not the work.
+#: CPU time (s) a batch aims at: the per-task overhead paid rarely, a killed batch cheap.
 BATCH_CPU_SECONDS = 1.0
 #: ... and at most this much wall time (runs that wait rather than compute).
 BATCH_WALL_SECONDS = 5.0
@@ -168,11 +149,8 @@ MAX_BATCH = 64
 
 def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
               started: str | None = None) -> tuple[list[dict[str, Any]], float, float]:
-    """On a worker: ``function(task)`` for each task in turn.
-
-    ``started``: a scheduler metadata key set before an isolated run begins (a worker death
-    before it is not the run's doing). Returns the rows and the batch's wall and CPU time (s).
-    """
+    """On a worker: ``function(task)`` for each task; the rows and the batch's wall and CPU
+    time (s). ``started``: a metadata key set first (a worker death before it is not the run's)."""
     if started is not None:
         from distributed import get_client
 
@@ -183,12 +161,9 @@ def run_batch(function: Callable[[Any], dict[str, Any]], tasks: Sequence[Any],
 
 
 class BatchSizer:
-    """How many runs the next batch gets.
-
-    One run until a batch has come back; then about :data:`BATCH_CPU_SECONDS` of CPU (at most
-    :data:`BATCH_WALL_SECONDS` of wall time) at the mean so far, 1 to :data:`MAX_BATCH`, and
-    at most ``left / (2 x workers)`` (guided self-scheduling: the workers finish together).
-    """
+    """How many runs the next batch gets: one until a batch came back, then about
+    :data:`BATCH_CPU_SECONDS` at the mean so far, at most ``left / (2 x workers)`` (guided
+    self-scheduling: the workers finish together)."""
 
     def __init__(self, total: int | None, workers: int) -> None:
         self.left, self.workers = total, max(1, workers)
@@ -224,9 +199,7 @@ NO_WORKER_SECONDS = 120.0
 
 
 def _finished(completed: Any, client: Any, no_worker_seconds: float) -> Iterator[Any]:
-    """``(future, result)`` as ``completed`` gives them, watching that the cluster still
-    has a worker while futures wait (the client's cached scheduler information: no round
-    trip). The waits are short sleeps, which SIGINT and SIGTERM interrupt."""
+    """``(future, result)`` as they complete; OutputError once the cluster had no worker for ``no_worker_seconds``."""
     without_workers: float | None = None
     while True:
         if completed.has_ready() or completed.is_empty():
@@ -260,20 +233,15 @@ def run_tasks(
     total: int | None = None,
     no_worker_seconds: float = NO_WORKER_SECONDS,
 ) -> int:
-    """Run ``function(task)`` for every task on the cluster, ``on_row`` getting each row in
-    completion order; returns the number of rows. ``total`` (if known) keeps the last
-    batches small. A failed batch is split; a task that fails alone is run once more in
-    isolation, and only if it fails then, after it started, gets ``on_lost(task, error)``.
-    Worker deaths are counted, never time: a slow run is never taken for a killer.
-    """
+    """Run ``function(task)`` for every task, ``on_row`` getting each row as it completes;
+    returns the number of rows. A task that fails alone, then again in isolation after it
+    started, gets ``on_lost(task, error)``. Worker deaths are counted, never time."""
     from distributed import as_completed
 
     pending = iter(tasks)
     alone: deque[Any] = deque()  # tasks of a failed batch, each to be run by itself
     suspects: deque[Any] = deque()  # tasks that failed alone, to be run once more in isolation
     waiting: dict[str, tuple[list[Any], bool]] = {}  # future key -> (its tasks, run in isolation)
-    # The results are fetched by the client's event loop as the futures finish (no
-    # second round trip from this thread per future).
     completed = as_completed(with_results=True, raise_errors=False)
     workers = len(client.scheduler_info().get("workers", {}))
     sizer = BatchSizer(total, workers or 1)
@@ -293,8 +261,7 @@ def run_tasks(
         if any(isolated for _, isolated in waiting.values()):
             return False  # nothing joins a run that has the cluster to itself
         if suspects:
-            # A suspect runs with nothing else on the cluster: if a worker dies then, it is
-            # the suspect's doing, whatever the timing (a slow run beside a killer is not).
+            # A suspect runs alone: a worker death then is its doing.
             if waiting:
                 return False
             task = suspects.popleft()
@@ -323,15 +290,12 @@ def run_tasks(
         failed = future.status != "finished"
         future.release()
         if failed and len(batch) > 1:
-            # One of them may kill its worker every time: run each alone.
             alone.extend(batch)
         elif failed and not isolated:
-            # Alone, but other runs were on the cluster when its worker died: try it once
-            # more in isolation before calling it a killer.
+            # Other runs were on the cluster: try it once more in isolation.
             suspects.append(batch[0])
         elif failed and not client.get_metadata(future.key, False) and attempts[batch[0].index] < MAX_UNSTARTED_ATTEMPTS:
-            # Its workers died before it started (Dask counts a worker that dies while it
-            # is being restarted against the task waiting for it): not its doing.
+            # Its workers died before it started: not its doing.
             suspects.appendleft(batch[0])
         else:
             if failed:  # killed its worker again with the cluster to itself: record, go on

@@ -1,8 +1,7 @@
 """What a sweep runs: the parameters, the design (grid or scipy.stats.qmc samples), the seeds.
 
-Run ``i`` is point ``i // repeats``, seeded from ``SeedSequence([sweep seed, i])``, so any
-run can be made again alone, byte-identical, by the command :func:`repeat_command` prints.
-:meth:`SweepPlan.run` builds a run from its index: a plan costs only its design matrix.
+Run ``i`` is point ``i // repeats``, seeded from ``SeedSequence([sweep seed, i])``, so the
+command :func:`repeat_command` prints makes it again, byte-identical.
 """
 
 from __future__ import annotations
@@ -29,12 +28,8 @@ SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
 
 @dataclass(frozen=True)
 class Parameter:
-    """A parameter a sweep can vary or fix.
-
-    ``kind``: ``float``, ``int`` or ``choice``; ``setting``: the ``hbvs repeat`` option it
-    sets, whose bounds (and refusal message) it shares; ``own_bounds``: ``min`` and ``max``
-    of a parameter that is no ``repeat`` option.
-    """
+    """A parameter a sweep can vary or fix: ``kind`` float, int or choice; ``setting`` the
+    ``hbvs repeat`` option whose bounds it shares, else ``own_bounds`` (min, max)."""
 
     name: str
     kind: str
@@ -58,7 +53,6 @@ class Parameter:
 
 
 def _repeat_parameter(name: str, kind: str, unit: str, choices: tuple[str, ...] = ()) -> Parameter:
-    """A parameter that is the ``hbvs repeat`` option of the same name (its bounds)."""
     return Parameter(name, kind, unit, setting=name, choices=choices)
 
 
@@ -94,7 +88,6 @@ DEFAULT_OCCLUSION_START = 8.0
 
 @dataclass(frozen=True)
 class Axis:
-    """How one parameter varies: a list of values, or a range to sample."""
 
     name: str
     values: tuple[Any, ...] = ()
@@ -111,7 +104,6 @@ class Axis:
 
 @dataclass(frozen=True)
 class SweepSpec:
-    """A whole sweep, as the spec file and the options say."""
 
     axes: tuple[Axis, ...]
     fixed: Mapping[str, Any] = field(default_factory=dict)
@@ -122,18 +114,13 @@ class SweepSpec:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "vary": {axis.name: axis.as_dict() for axis in self.axes},
-            "fixed": dict(self.fixed),
-            "sampling": self.sampling,
-            "samples": self.samples if self.sampling != "grid" else None,
-            "repeats": self.repeats,
-            "seed": self.seed,
+            "vary": {axis.name: axis.as_dict() for axis in self.axes}, "fixed": dict(self.fixed), "sampling": self.sampling,
+            "samples": self.samples if self.sampling != "grid" else None, "repeats": self.repeats, "seed": self.seed,
         }
 
 
-# ----------------------------------------------------------------------------- parsing
 def _check_value(name: str, value: Any, where: str) -> Any:
-    """A parameter value of the right type and range (numbers as float or int)."""
+    """A parameter value of the right type and range."""
     parameter = PARAMETERS[name]
     if parameter.kind == "choice":
         if not isinstance(value, str) or value not in parameter.choices:
@@ -162,8 +149,7 @@ def _known(name: str, where: str) -> None:
 
 
 def parse_vary(text: str) -> Axis:
-    """``--vary NAME=LO:HI:N`` (N values, ends included), ``NAME=LO:HI`` (a range to sample)
-    or ``NAME=A,B,C`` (a list); UsageError otherwise."""
+    """``--vary NAME=LO:HI:N`` (a grid, ends included), ``NAME=LO:HI`` (sampled) or ``NAME=A,B,C``."""
     name, sep, rest = text.partition("=")
     name = name.strip()
     where = f"--vary {text}"
@@ -231,7 +217,7 @@ def _axis_from_toml(name: str, value: Any) -> Axis:
 
 
 def load_spec_file(path: Path) -> dict[str, Any]:
-    """The TOML spec as a dictionary (see docs and :func:`build_spec`)."""
+    """The TOML spec as a dictionary (:func:`build_spec`)."""
     from ..io.config import MAX_CONFIG_BYTES, tomllib
     from ..io.text_files import read_small_text
 
@@ -254,8 +240,7 @@ def build_spec(
     sampling: str | None = None,
     samples: int | None = None,
 ) -> SweepSpec:
-    """The spec file's contents overridden by ``--vary`` (an axis) and ``--set`` (a fixed
-    value); UsageError for unknown or clashing parameters, ranges on a grid, nothing to run."""
+    """The spec file's contents overridden by ``--vary`` (an axis) and ``--set`` (a fixed value)."""
     data = dict(file_data or {})
     axes: dict[str, Axis] = {}
     vary_table = data.get("vary", {})
@@ -307,8 +292,7 @@ def build_spec(
 
 
 def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -> None:
-    """Refuse a sweep of more runs than the ``sweep-runs`` limit, before anything is
-    allocated (the design matrix holds one row per sample)."""
+    """Refuse more runs than the ``sweep-runs`` limit before the design matrix is allocated."""
     if method != "grid" and any(axis.is_range for axis in axes):
         check_limit("sweep-runs", samples, "--samples")
     check_limit("sweep-runs", repeats, "--repeats")
@@ -318,7 +302,6 @@ def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -
     check_limit("sweep-runs", runs, "the sweep (points x samples x repeats)")
 
 
-# ----------------------------------------------------------------------------- the plan
 def _qmc_unit_samples(method: str, dimensions: int, count: int, seed: int) -> np.ndarray:
     """``count`` points in [0, 1)^dimensions, seeded."""
     rng = np.random.default_rng(seed)
@@ -339,7 +322,6 @@ def _qmc_unit_samples(method: str, dimensions: int, count: int, seed: int) -> np
 
 @dataclass(frozen=True)
 class RunSettings:
-    """One run of a sweep: its index, point, repeat, seed and every parameter value."""
 
     index: int
     point: int
@@ -374,7 +356,6 @@ class SweepPlan:
 
     @property
     def points(self) -> int:
-        """Number of distinct parameter points (each run ``repeats`` times)."""
         return self._combinations * self._sample_count
 
     @property
@@ -383,12 +364,10 @@ class SweepPlan:
 
     @property
     def swept(self) -> list[str]:
-        """The swept parameters, in the spec's order."""
         return [a.name for a in self.spec.axes]
 
     def point_values(self, point: int) -> dict[str, Any]:
-        """The swept values of a point: the listed values vary slowest, the samples fastest
-        (so every law of a ``law`` list meets the same sampled points: paired comparisons)."""
+        """The swept values of a point: listed values vary slowest, samples fastest (so every law meets the same sampled points)."""
         combination, sample = divmod(point, self._sample_count)
         values: dict[str, Any] = {}
         if self.listed:
@@ -409,13 +388,9 @@ class SweepPlan:
         return (self.run(i) for i in range(self.runs))
 
 
-# ----------------------------------------------------------------------------- to hbvs repeat
 def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None) -> dict[str, Any]:
-    """The ``RepeatOptions`` fields (besides input and output) of a run's values.
-
-    Numbers are passed as their shortest exact text (``repr``), the same the printed
-    command gives, so the run and its re-make read identical options.
-    """
+    """The ``RepeatOptions`` fields (besides input and output) of a run's values; numbers as
+    ``repr`` text, as the printed command gives them, so a re-make reads identical options."""
     options: dict[str, Any] = {"sim": True, "seed": int(seed)}
     if any(k in values for k in ("offset_x", "offset_y", "offset_theta")):
         offset = [values.get(k, d) for k, d in zip(("offset_x", "offset_y", "offset_theta"), DEFAULT_OFFSET)]
