@@ -171,9 +171,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         pixels = np.asarray(reference["pixels"], dtype=float)
         normal = np.asarray(message["normal"], dtype=float)
         if m_ref.ndim != 2 or m_ref.shape[1] != 3 or not 3 <= m_ref.shape[0] <= MAX_TARGET_POINTS or pixels.shape != (m_ref.shape[0], 2):
-            raise ValueError(
-                f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels"
-            )
+            raise ValueError(f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels")
         if not (np.all(np.isfinite(m_ref)) and np.all(np.isfinite(pixels))):
             raise ValueError("reference points hold NaN or infinity")
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:

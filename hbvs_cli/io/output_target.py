@@ -87,8 +87,8 @@ def stale_partial(path: Path) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return True
-    except (PermissionError, OverflowError, OSError):
-        return False  # alive under another user, or not a pid this system has: keep it
+    except (OverflowError, OSError):
+        pass  # alive under another user, or not a pid this system has: keep it
     return False
 
 
@@ -392,28 +392,16 @@ def _remove_quietly(path: Path) -> None:
         pass
 
 
-class _TextOutput:
-    """UTF-8 text on a :class:`GuardedStream` (JSON lines: write and flush are all it needs)."""
-
-    def __init__(self, stream: GuardedStream) -> None:
-        self._stream = stream
-
-    def write(self, text: str) -> int:
-        self._stream.write(text.encode("utf-8"))
-        return len(text)
-
-    def flush(self) -> None:
-        self._stream.flush()
-
-
 @contextmanager
 def open_text_output(spec: str | os.PathLike[str] | None, what: str) -> Iterator[Any]:
     """A UTF-8 text stream on :func:`open_output_stream` (None yields None): for JSON lines."""
     if spec is None:
         yield None
         return
+    import codecs
+
     with open_output_stream(spec, what) as sink:
-        yield _TextOutput(sink.stream)
+        yield codecs.getwriter("utf-8")(sink.stream)
 
 
 def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> None:

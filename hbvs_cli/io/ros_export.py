@@ -315,7 +315,4 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
     height = float(model.world_description["camera_height_m"]) if model.world_description is not None else 0.0
     quaternions = yaw_to_quaternion(poses[:, 2])
-    return [
-        build.pose_stamped(seconds_to_ns(t), (x, y, height), q)
-        for t, (x, y, _), q in zip(taught.t, poses, quaternions)
-    ]
+    return [build.pose_stamped(seconds_to_ns(t), (x, y, height), q) for t, (x, y, _), q in zip(taught.t, poses, quaternions)]

@@ -25,9 +25,7 @@ def is_kalibr(mapping: Mapping[str, Any]) -> bool:
     return isinstance(camera, Mapping) and "intrinsics" in camera
 
 
-def intrinsics_from_kalibr(
-    mapping: Mapping[str, Any], name: str, image_size: tuple[int, int] | None = None
-) -> CameraIntrinsics:
+def intrinsics_from_kalibr(mapping: Mapping[str, Any], name: str, image_size: tuple[int, int] | None = None) -> CameraIntrinsics:
     """The intrinsics of ``cam0`` of a Kalibr camchain; :class:`CalibrationError` for a camera model
     other than pinhole, a distortion model other than radtan, equidistant or none, or bad values."""
     camera = mapping["cam0"]
@@ -42,9 +40,7 @@ def intrinsics_from_kalibr(
     distortion = camera.get("distortion_model", "none")
     if not isinstance(distortion, str) or distortion.strip().lower() not in _KALIBR_MODELS:
         shown = str(distortion)[:40] if isinstance(distortion, str) else _kind_of(distortion)
-        raise CalibrationError(
-            f"{where}: distortion_model {shown!r} is not supported (hbvs reads radtan, equidistant, none)"
-        )
+        raise CalibrationError(f"{where}: distortion_model {shown!r} is not supported (hbvs reads radtan, equidistant, none)")
     coefficients = _numbers(camera.get("distortion_coeffs") or [], f"{where}: distortion_coeffs")
     resolution = camera.get("resolution")
     if resolution is not None:

@@ -75,9 +75,7 @@ def _read_capped(path: Path, name: str) -> bytes:
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot access the file ({exc.strerror or exc})") from None
     if size > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(
-            f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
-        )
+        raise CalibrationError(f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
     try:
         with path.open("rb") as stream:
             # One byte past the cap: stat() means nothing for pipes, and a file may grow.
@@ -85,7 +83,5 @@ def _read_capped(path: Path, name: str) -> bytes:
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
     if len(data) > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(
-            f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
-        )
+        raise CalibrationError(f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
     return data

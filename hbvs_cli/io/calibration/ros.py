@@ -52,9 +52,7 @@ def _projection(camera: CameraIntrinsics) -> list[float]:
 _IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 
 
-def save_calibration_ros(
-    camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs"
-) -> Path:
+def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs") -> Path:
     """Write ``camera`` to ``path`` as the ROS camera calibrator's ``camera_info`` YAML (identity
     rectification, projection ``[K | 0]``) and return ``path``. Floats are written exactly, so
     :func:`load_calibration` gives the same values back; :class:`InputError` if it cannot be written.

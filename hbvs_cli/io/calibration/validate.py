@@ -87,17 +87,11 @@ def _build_intrinsics(
     if abs(skew) > 1e-9 * fx:
         raise CalibrationError(f"{name}: {k_key} has skew {skew:g}; hbvs supports zero-skew cameras only")
     if zero_10 != 0 or zero_20 != 0 or zero_21 != 0 or one != 1:
-        raise CalibrationError(
-            f"{name}: {k_key} is not an intrinsic matrix: expected the form [fx 0 cx; 0 fy cy; 0 0 1]"
-        )
+        raise CalibrationError(f"{name}: {k_key} is not an intrinsic matrix: expected the form [fx 0 cx; 0 fy cy; 0 0 1]")
     if width * height > MAX_IMAGE_PIXELS:
-        raise CalibrationError(
-            f"{name}: a {width}x{height} image has more pixels than hbvs reads ({MAX_IMAGE_PIXELS} at most)"
-        )
+        raise CalibrationError(f"{name}: a {width}x{height} image has more pixels than hbvs reads ({MAX_IMAGE_PIXELS} at most)")
     if not (0.0 <= cx <= width and 0.0 <= cy <= height):
-        raise CalibrationError(
-            f"{name}: principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image"
-        )
+        raise CalibrationError(f"{name}: principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image")
     resolved_model, distortion = _resolve_distortion(model, list(coefficients), name, d_key, notes)
     try:
         return CameraIntrinsics(
@@ -137,9 +131,7 @@ def _resolve_distortion(
         elif n in (8, 12, 14):
             requested = "rational_polynomial" if any(coefficients[5:]) else "plumb_bob"
         else:
-            raise CalibrationError(
-                f"{name}: {d_key} has {n} numbers; expected 5 (k1 k2 p1 p2 k3) or 8 (rational polynomial)"
-            )
+            raise CalibrationError(f"{name}: {d_key} has {n} numbers; expected 5 (k1 k2 p1 p2 k3) or 8 (rational polynomial)")
     if requested not in _MODEL_SIZES:
         raise CalibrationError(
             f"{name}: unsupported distortion model {requested!r} (hbvs supports plumb_bob, rational_polynomial, "
@@ -154,9 +146,7 @@ def _resolve_distortion(
     elif n > expected and not any(coefficients[expected:]):
         coefficients = coefficients[:expected]
     if len(coefficients) != expected:
-        raise CalibrationError(
-            f"{name}: {d_key} has {n} numbers, expected {expected} for the {requested} model"
-        )
+        raise CalibrationError(f"{name}: {d_key} has {n} numbers, expected {expected} for the {requested} model")
     return requested, tuple(float(v) for v in coefficients)
 
 
@@ -198,9 +188,7 @@ def _numbers(value: Any, what: str) -> list[float]:
             rows = _number(lowered["rows"], f"{what} rows")
             cols = _number(lowered["cols"], f"{what} cols")
             if rows * cols != len(data):
-                raise CalibrationError(
-                    f"{what} declares {rows:g}x{cols:g} but its data has {len(data)} numbers"
-                )
+                raise CalibrationError(f"{what} declares {rows:g}x{cols:g} but its data has {len(data)} numbers")
         return data
     if isinstance(value, (str, bytes)) or not (hasattr(value, "__len__") and hasattr(value, "__iter__")):
         return [_number(value, what)]

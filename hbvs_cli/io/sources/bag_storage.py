@@ -1,9 +1,7 @@
-"""The storage side of a ROS 2 bag: its topics and its messages, decoded on demand.
+"""The storage side of a ROS 2 bag: its topics and its messages, decoded on demand, under hbvs's size caps.
 
-:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag`
-reads ``.mcap`` file(s) without ``metadata.yaml`` with hbvs's capped
-:class:`~hbvs_cli.io.mcap.McapStream` (ROS 2 bags, and Foxglove protobuf recordings such as
-hbvs's own). Both keep hbvs's size caps.
+:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag` reads
+``.mcap`` file(s) without ``metadata.yaml`` (ROS 2 bags, Foxglove protobuf recordings such as hbvs's own).
 """
 
 from __future__ import annotations
@@ -326,47 +324,17 @@ def _require_complete(stream: McapStream, name: str) -> None:
         raise RecordingError(f"{name}: {stream.stop_reason}")
 
 
-class _Ros2Decoders:
-    """CDR decoders from mcap-ros2-support, one per distinct schema, built on first use."""
-
-    def __init__(self) -> None:
-        from mcap_ros2.decoder import DecoderFactory
-
-        self._factory = DecoderFactory()
-        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
-
-    def decode(self, message: McapMessage, what: str) -> Any:
-        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
-        decoder = self._decoders.get(key)
-        if decoder is None:
-            from mcap.records import Schema
-
-            if len(message.schema_data) > MAX_SCHEMA_BYTES:
-                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
-            # The factory caches decoders by schema id: every distinct schema gets its own.
-            schema = Schema(
-                id=len(self._decoders) + 1, name=message.schema_name,
-                encoding=message.schema_encoding, data=message.schema_data,
-            )
-            # The ROS parser prints on stderr what its exception says already.
-            with contextlib.redirect_stderr(io.StringIO()):
-                decoder = self._factory.decoder_for(message.message_encoding, schema)
-            if decoder is None:
-                raise InputError(
-                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
-                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
-                )
-            self._decoders[key] = decoder
-        return decoder(message.data)
-
-
 class McapFileBag:
-    """``.mcap`` file(s) read with hbvs's capped MCAP reader and mcap-ros2-support's CDR decoders."""
+    """``.mcap`` file(s) read with hbvs's capped MCAP reader and mcap-ros2-support's CDR decoders
+    (one per distinct schema, built on first use)."""
 
     def __init__(self, files: Sequence[Path], name: str) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
         self.name = name
         self.files = list(files)
-        self._decoders = _Ros2Decoders()
+        self._factory = DecoderFactory()
+        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
         self.topics = self._scan()
         self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
 
@@ -392,7 +360,6 @@ class McapFileBag:
     @staticmethod
     def _stream_channels(file: Path) -> list[ChannelSummary]:
         """Channels and message counts from one pass over a file without a summary."""
-
         stream = McapStream(file, name=str(file))
         counts: dict[tuple[str, str, str, str], int] = {}
         for message in stream:
@@ -417,9 +384,30 @@ class McapFileBag:
     def _decoder(self, message: McapMessage, file: str) -> Callable[[str], Any]:
         def decode(what: str) -> Any:
             with mcap_bag_errors(file):
-                return self._decoders.decode(message, what)
+                return self._decode(message, what)
 
         return decode
+
+    def _decode(self, message: McapMessage, what: str) -> Any:
+        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
+        decoder = self._decoders.get(key)
+        if decoder is None:
+            from mcap.records import Schema
+
+            if len(message.schema_data) > MAX_SCHEMA_BYTES:
+                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
+            # The factory caches decoders by schema id: every distinct schema gets its own.
+            schema = Schema(id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding, data=message.schema_data)
+            # The ROS parser prints on stderr what its exception says already.
+            with contextlib.redirect_stderr(io.StringIO()):
+                decoder = self._factory.decoder_for(message.message_encoding, schema)
+            if decoder is None:
+                raise InputError(
+                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
+                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                )
+            self._decoders[key] = decoder
+        return decoder(message.data)
 
     def close(self) -> None:
         """Nothing stays open between reads."""

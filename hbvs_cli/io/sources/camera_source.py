@@ -54,9 +54,7 @@ class CameraSource(FrameSource):
         if capture is None or not capture.isOpened():
             if capture is not None:
                 capture.release()
-            raise InputError(
-                f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)"
-            )
+            raise InputError(f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)")
         return capture
 
     def close(self) -> None:

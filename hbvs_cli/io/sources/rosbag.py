@@ -183,9 +183,7 @@ class BagSource(FrameSource):
             return None, f"{source}: binning is not supported; give a calibration for the binned images"
         roi = getattr(info, "roi", None)
         if roi is not None and int(getattr(roi, "width", 0)) > 0:
-            return None, (
-                f"{source}: a region of interest is not supported; give a calibration for the cropped images"
-            )
+            return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
         try:
             camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
         except CalibrationError as exc:
@@ -261,9 +259,7 @@ class BagSource(FrameSource):
                 # A Twist has no stamp: its log time, shifted onto the images' clock.
                 while pending and (pending[0][0] or pending[0][1] + stamp_minus_log) <= ns:
                     command = pending.popleft()[2]
-                yield SourceFrame(
-                    t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command,
-                )
+                yield SourceFrame(t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command)
                 index += 1
         finally:
             self._bag.close()  # reopened by a later iteration

@@ -35,9 +35,7 @@ class VideoSource(FrameSource):
             if not file.exists():
                 raise InputError(f"{self.path}: no such file")
             if file.is_dir():
-                raise InputError(
-                    f"{self.path}: is a directory, expected a video file (use an image folder source for images)"
-                )
+                raise InputError(f"{self.path}: is a directory, expected a video file (use an image folder source for images)")
         capture = self._open()
         try:
             self._container_fps = capture_property(capture, cv2.CAP_PROP_FPS)
@@ -67,9 +65,7 @@ class VideoSource(FrameSource):
             raise InputError(f"{self.path}: cannot open the video ({opencv_error_text(exc)})") from None
         if not capture.isOpened():
             capture.release()
-            raise InputError(
-                f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)"
-            )
+            raise InputError(f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)")
         return capture
 
     def _read(self, capture: Any) -> tuple[bool, np.ndarray | None]:
