@@ -1,11 +1,6 @@
-"""``--config FILE.toml``: controller gains, actuator limits and run settings.
-
-The tables and keys are :data:`SCHEMA` (top level: ``law``, ``filter``, ``dhat0``,
-``speed``; ``[gains]``, ``[limits]``, ``[run]``). ``samples/gains.toml`` is an example that
-holds the defaults; the defaults themselves are written once, in the code
-(:mod:`hbvs_cli.io.settings`), and a test checks that the sample agrees with them.
-
-Options given on the command line override the file."""
+"""``--config FILE.toml``: controller gains, actuator limits and run settings (tables and keys:
+:data:`SCHEMA`). The defaults are declared in :mod:`hbvs_cli.io.settings`; ``samples/gains.toml``
+lists them. Options given on the command line override the file."""
 
 from __future__ import annotations
 
@@ -28,9 +23,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 
 #: The keys of each table (top level: ""), in order.
 TABLES: dict[str, tuple[str, ...]] = {
-    "": ("law", "dhat0", "speed", "filter"),
-    "gains": GAIN_NAMES,
-    "limits": ("max_v", "max_w", "max_accel", "latency"),
+    "": ("law", "dhat0", "speed", "filter"), "gains": GAIN_NAMES, "limits": ("max_v", "max_w", "max_accel", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
 _TYPES = {setting.config: setting.type for setting in REPEAT_SETTINGS if setting.config is not None}

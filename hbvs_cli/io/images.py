@@ -1,8 +1,5 @@
-"""Image bytes <-> 8-bit arrays (gray or BGR), and the ``foxglove.CompressedImage`` around them.
-
-Decoding refuses headers that declare more pixels than the data can hold, before OpenCV
-allocates them (:func:`decode_image`).
-"""
+"""Image bytes <-> 8-bit arrays (gray or BGR), and the ``foxglove.CompressedImage`` around them;
+headers that declare more pixels than the data can hold are refused before OpenCV allocates them."""
 
 from __future__ import annotations
 
@@ -186,20 +183,12 @@ def as_image8(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
 
 
 def bytes_to_store(
-    image: NDArray[np.uint8],
-    encoded: bytes | None = None,
-    encoded_format: str | None = None,
-    image_format: str = "auto",
-    jpeg_quality: int = DEFAULT_JPEG_QUALITY,
-    gray: bool = False,
+    image: NDArray[np.uint8], encoded: bytes | None = None, encoded_format: str | None = None,
+    image_format: str = "auto", jpeg_quality: int = DEFAULT_JPEG_QUALITY, gray: bool = False,
 ) -> tuple[bytes, str]:
-    """The bytes and format a recording stores for one frame.
-
-    ``image`` is gray (H, W) or BGR (H, W, 3) uint8; ``encoded`` the source's own bytes, if
-    compressed. ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels, re-encodes other
-    PNGs as PNG and compresses the rest as JPEG; ``png``/``jpeg`` force a format. ``gray``
-    (``teach --gray``) stores the luminance only.
-    """
+    """The bytes and format a recording stores for ``image`` (gray (H, W) or BGR (H, W, 3) uint8),
+    ``encoded`` the source's own bytes: ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels,
+    re-encodes other PNGs and compresses the rest as JPEG; ``gray`` stores the luminance only."""
     if image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {image_format!r}")
     colour = image.ndim == 3

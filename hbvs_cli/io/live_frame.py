@@ -9,11 +9,9 @@ import numpy as np
 
 @dataclass
 class LiveFrame:
-    """One camera frame as it arrived: ``image`` (H, W) or (H, W, 3) uint8; ``stamp`` its header
-    stamp (s), or its arrival when the stamp is zero; ``arrival`` on ``time.monotonic()``'s
-    clock (s): a ROS 2 frame's publication when the camera shares this host's clock, else when
-    hbvs took it; ``skipped`` frames dropped since the previous one handed out.
-    """
+    """One camera frame as it arrived: ``image`` (H, W) or (H, W, 3) uint8; ``stamp`` its header stamp
+    (s) or arrival; ``arrival`` (s, ``time.monotonic()``): its publication when on this host's clock,
+    else when hbvs took it; ``skipped`` frames dropped since the previous one."""
 
     image: np.ndarray
     stamp: float

@@ -1,8 +1,6 @@
-"""``hbvs repeat --foxglove [PORT]``: the run served to the Foxglove app while it runs.
-
-The Foxglove SDK's WebSocket server on localhost gets every message written to the run file,
-with the same bytes, schema and log time; the file itself is unchanged. A simulated run is
-paced to ``--foxglove-speed`` times real time so that it can be watched.
+"""``hbvs repeat --foxglove [PORT]``: every message of the run file (same bytes, schema and log time)
+also served by the Foxglove SDK's WebSocket server on localhost, a simulated run paced to
+``--foxglove-speed`` times real time.
 """
 
 from __future__ import annotations

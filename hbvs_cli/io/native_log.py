@@ -5,7 +5,6 @@ C libraries write straight to descriptor 2; :func:`capture` points it at a tempo
 :func:`mark` in its one-line error.
 """
 
-
 from __future__ import annotations
 
 import os
@@ -22,10 +21,8 @@ _captured = False
 
 
 def capture() -> bool:
-    """Send descriptor 2 to a temporary file; ``sys.stderr`` keeps the real stderr.
-
-    Returns False (and changes nothing) when descriptor 2 cannot be redirected.
-    """
+    """Send descriptor 2 to a temporary file, ``sys.stderr`` keeping the real stderr; False (nothing
+    changed) when descriptor 2 cannot be redirected."""
     global _captured
     try:
         sys.stderr.flush()

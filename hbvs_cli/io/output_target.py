@@ -179,9 +179,8 @@ def refuse_overwriting_inputs(
     outputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
     inputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
 ) -> None:
-    """:class:`UsageError` for an output that is the same file as an input (stdout redirected
-    included), the final file of an input's partial file, or another output. ``outputs`` and
-    ``inputs`` are (label, path or None) pairs."""
+    """:class:`UsageError` for an output (a (label, path or None) pair) that is the same file as an input
+    (stdout redirected included), the final file of an input's partial file, or another output."""
     known: dict[tuple[int, int], str] = {}
     recovering: dict[Path, str] = {}
     for label, spec in inputs:

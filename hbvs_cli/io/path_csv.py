@@ -38,8 +38,7 @@ def load_command_profile(path: str | Path) -> CommandProfile:
     if missing:
         raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {short_repr(','.join(columns))})")
     index = [columns.index(c) for c in REQUIRED_COLUMNS]
-    # Packed doubles, not a list per row: a 64 MiB file of short rows is ten million
-    # rows, which as Python lists would take gigabytes.
+    # Packed doubles: ten million short rows as Python lists would take gigabytes.
     values = [array("d") for _ in REQUIRED_COLUMNS]
     lines = array("q")
     try:

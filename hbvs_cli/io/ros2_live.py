@@ -34,13 +34,10 @@ class LatestImage:
     """The newest frame of an image topic, with the sensor-data QoS."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
-        from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
-
         self.topic = topic
         self.message_type = image_message_type(topic)
         self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
-        self._waitset = WaitSet(node.participant)
-        self._waitset.attach(ReadCondition(self.reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+        self._waitset = _waitset(node, self.reader)
         self._wait_for_publisher(discovery_timeout_s)
 
     def _wait_for_publisher(self, timeout_s: float) -> None:
@@ -73,6 +70,15 @@ class LatestImage:
     def _valid(samples: list[Any]) -> list[Any]:
         # A publisher going away shows up as an "invalid sample" (no data): not a frame.
         return [sample for sample in samples if hasattr(sample, "header")]
+
+
+def _waitset(node: dds.Ros2Node, reader: Any) -> Any:
+    """A waitset that wakes when ``reader`` has any sample."""
+    from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+
+    waitset = WaitSet(node.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    return waitset
 
 
 #: Largest plausible transport delay (s): a publication time beyond it is another host's clock.
@@ -108,12 +114,9 @@ def decode_image_message(message: Any, topic: str) -> np.ndarray:
 def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVERY_TIMEOUT_S) -> CameraIntrinsics:
     """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``; :class:`InputError`
     when none comes within ``timeout_s`` or it is unusable."""
-    from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
-
     # Best effort: matches the camera's CameraInfo whether it is published reliably or not.
     reader = node.subscriber(topic, dds.CameraInfo, dds.sensor_qos())
-    waitset = WaitSet(node.participant)
-    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    waitset = _waitset(node, reader)
     deadline = time.monotonic() + timeout_s
     while True:
         infos = [sample for sample in reader.take(N=8) if hasattr(sample, "header")]

@@ -49,9 +49,8 @@ class ExportSummary:
 
 # ----------------------------------------------------------------------------- output folder
 def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
-    """The folder ``hbvs export -o`` will write, checked before anything is read: :class:`UsageError`
-    for ``-``, anything but a bag hbvs wrote, or an input inside it; :class:`OutputError` for a
-    missing parent folder."""
+    """The folder ``hbvs export -o`` will write, checked before anything is read: :class:`UsageError` for
+    ``-``, anything but a bag hbvs wrote, or an input inside it."""
     if spec == "-":
         raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
     final = Path(os.path.realpath(spec))

@@ -1,8 +1,6 @@
-"""The results table of a sweep, written as runs finish and valid after any interruption.
-
-The folder holds ``sweep.json`` (spec and fit digest, which a resume must match),
-``parts/part-NNNNNN.parquet`` (one per flush), ``runs.parquet`` and ``runs.csv`` (sorted at
-the end) and ``runs/`` (``--keep-runs``); one process writes it at a time.
+"""The results table of a sweep, written as runs finish and valid after any interruption: ``sweep.json``
+(spec and fit digest, which a resume must match), ``parts/part-NNNNNN.parquet`` (one per flush),
+``runs.parquet`` and ``runs.csv`` (sorted at the end); one process writes it at a time.
 """
 
 from __future__ import annotations
@@ -360,7 +358,6 @@ class ResultsTable:
 
     def finish(self) -> int:
         """Merge everything into ``runs.parquet`` and ``runs.csv``; returns the number of rows."""
-
         self.flush()
         merged = partial_name_of(self.folder / PARQUET)
         csv_partial = partial_name_of(self.folder / CSV)

@@ -1,9 +1,6 @@
-"""``--target-points``: the target points' positions on the wall, a CSV in metres.
-
-One point a line, ``x,y`` (m) in the wall's plane, any origin and orientation (mirrored or
-not); a first line that is not numbers (a header) is skipped, as are blank lines and
-lines starting with ``#``. The order does not matter: the fit matches the points to the
-detected ones by their layout (:func:`~hbvs_cli.core.known_points.match_layout`).
+"""``--target-points``: the target points' positions on the wall, a CSV of ``x,y`` (m) per line in
+the wall's plane, any origin, orientation and order (the fit matches them by their layout); a header,
+blank lines and lines starting with ``#`` are skipped.
 """
 
 from __future__ import annotations

@@ -11,9 +11,8 @@ from .validate import intrinsics_from_values
 
 
 def calibration_to_foxglove(camera: CameraIntrinsics, frame_id: str, timestamp_ns: int) -> Any:
-    """The ``foxglove.CameraCalibration`` of ``camera``: ``K`` (9, row-major), ``R`` (identity),
-    ``P`` (``[K | 0]``), ``D``; a camera without distortion is written as plumb_bob with five
-    zeros, which every viewer understands. :class:`InputError` for a negative ``timestamp_ns``."""
+    """The ``foxglove.CameraCalibration`` of ``camera`` (``R`` identity, ``P`` ``[K | 0]``, no distortion
+    as plumb_bob zeros); :class:`InputError` for a negative ``timestamp_ns``."""
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 
     from ..messages import stamp
@@ -29,7 +28,6 @@ def calibration_to_foxglove(camera: CameraIntrinsics, frame_id: str, timestamp_n
 
 
 def calibration_from_foxglove(msg: Any, source: str = "foxglove.CameraCalibration message") -> CameraIntrinsics:
-    """Intrinsics from a ``foxglove.CameraCalibration`` (``K``, ``D``, size; hbvs works on
-    unrectified images, so ``R`` and ``P`` are not used); :class:`CalibrationError` as
-    :func:`~hbvs_cli.io.calibration.validate.intrinsics_from_values`."""
+    """Intrinsics from a ``foxglove.CameraCalibration``'s ``K``, ``D`` and size (the images are
+    unrectified: ``R`` and ``P`` unused); :class:`CalibrationError` when unusable."""
     return intrinsics_from_values(list(msg.K), msg.width, msg.height, msg.distortion_model, list(msg.D), source)

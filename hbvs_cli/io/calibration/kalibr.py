@@ -1,9 +1,5 @@
-"""Kalibr ``camchain.yaml`` (``cam0: {camera_model, intrinsics, distortion_model, ...}``).
-
-Kalibr writes one entry per camera (``cam0``, ``cam1``...); hbvs uses ``cam0``, the
-camera whose images a single-camera teach records. Supported: ``camera_model: pinhole``
-with ``distortion_model: radtan`` (OpenCV's k1 k2 p1 p2, read as plumb_bob with k3 = 0),
-``equidistant`` (the fisheye model of ``cv2.fisheye``) or ``none``.
+"""Kalibr ``camchain.yaml``: hbvs reads ``cam0``, a ``pinhole`` camera with ``radtan`` (read as
+plumb_bob with k3 = 0), ``equidistant`` (``cv2.fisheye``) or no distortion.
 """
 
 from __future__ import annotations

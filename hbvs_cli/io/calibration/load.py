@@ -20,11 +20,8 @@ MAX_CALIBRATION_BYTES = 1 << 20
 def load_calibration(
     path: str | os.PathLike[str], image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content).
-
-    ``image_size`` (width, height) is used when the file gives none; ``notes`` receives what
-    the reader assumed. :class:`CalibrationError` for anything but a zero-skew pinhole camera.
-    """
+    """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content);
+    ``image_size`` (width, height) when the file gives none; ``notes`` receives what was assumed."""
     name = str(path)
     data = _read_capped(Path(path), name)
     return parse_calibration(data, name, image_size, notes)

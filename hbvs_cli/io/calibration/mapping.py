@@ -1,7 +1,5 @@
-"""A calibration read as a mapping of keys (ROS YAML, plain JSON, OpenCV FileStorage) to intrinsics.
-
-Key names are matched without regard to case, ``_`` or ``-``, so ``camera_matrix``,
-``cameraMatrix`` and ``Camera_Matrix`` are the same key.
+"""A calibration read as a mapping of keys (ROS YAML, plain JSON, OpenCV FileStorage) to intrinsics;
+keys match without regard to case, ``_`` or ``-`` (``camera_matrix`` is ``cameraMatrix``).
 """
 
 from __future__ import annotations

@@ -35,11 +35,8 @@ def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
 
 
 def _ros_distortion(camera: CameraIntrinsics) -> tuple[str, list[float]]:
-    """ROS/Foxglove name and coefficients; "none" becomes plumb_bob with zeros.
-
-    ROS tools (image_geometry, camera_info_manager) know no "none" model, while a
-    zero plumb_bob is understood everywhere and loads back as "none".
-    """
+    """ROS/Foxglove name and coefficients; "none", which ROS tools do not know, becomes plumb_bob with
+    zeros (read back as "none")."""
     if camera.distortion_model in ("none", "") or not camera.distortion:
         return "plumb_bob", [0.0] * 5
     return camera.distortion_model, [float(v) for v in camera.distortion]
@@ -53,15 +50,11 @@ _IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 
 
 def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs") -> Path:
-    """Write ``camera`` to ``path`` as the ROS camera calibrator's ``camera_info`` YAML (identity
-    rectification, projection ``[K | 0]``) and return ``path``. Floats are written exactly, so
-    :func:`load_calibration` gives the same values back; :class:`InputError` if it cannot be written.
-    """
+    """Write ``camera`` as the ROS camera calibrator's ``camera_info`` YAML (identity rectification,
+    projection ``[K | 0]``, floats exact) and return ``path``; :class:`InputError` if it cannot."""
     model, coefficients = _ros_distortion(camera)
     document = {
-        "image_width": int(camera.width),
-        "image_height": int(camera.height),
-        "camera_name": str(camera_name),
+        "image_width": int(camera.width), "image_height": int(camera.height), "camera_name": str(camera_name),
         "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in camera.K.ravel()]},
         "distortion_model": model,
         "distortion_coefficients": {"rows": 1, "cols": len(coefficients), "data": coefficients},

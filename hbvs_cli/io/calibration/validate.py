@@ -14,8 +14,6 @@ from ..images import MAX_IMAGE_PIXELS
 
 #: Image sides beyond this are surely a typo (and would make undistortion maps huge).
 _MAX_IMAGE_SIDE = 1 << 15
-
-
 _MODEL_SIZES = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
 #: Other names of the fisheye model (k1..k4 of ``cv2.fisheye``).
 _MODEL_ALIASES = {"kannala_brandt": "equidistant", "fisheye": "equidistant", "kannala-brandt": "equidistant"}
@@ -42,14 +40,7 @@ def _normalise_key(key: Any) -> str:
     return str(key).lower().replace("_", "").replace("-", "")
 
 
-def intrinsics_from_values(
-    K: Any,
-    width: Any,
-    height: Any,
-    distortion_model: str | None,
-    distortion: Any,
-    source: str,
-) -> CameraIntrinsics:
+def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str) -> CameraIntrinsics:
     """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major,
     or 3x3), the image size (px), the distortion model (None: inferred from the number of
     coefficients) and its coefficients in OpenCV order; :class:`CalibrationError` otherwise."""
@@ -65,15 +56,8 @@ def intrinsics_from_values(
 
 
 def _build_intrinsics(
-    K: Sequence[float],
-    width: int,
-    height: int,
-    model: str | None,
-    coefficients: Sequence[float],
-    name: str,
-    k_key: str = "camera_matrix",
-    d_key: str = "distortion_coefficients",
-    notes: list[str] | None = None,
+    K: Sequence[float], width: int, height: int, model: str | None, coefficients: Sequence[float], name: str,
+    k_key: str = "camera_matrix", d_key: str = "distortion_coefficients", notes: list[str] | None = None,
 ) -> CameraIntrinsics:
     """Validate a flat row-major K, a size and a distortion into CameraIntrinsics; ``notes``
     receives what the reader assumed."""
@@ -95,14 +79,8 @@ def _build_intrinsics(
     resolved_model, distortion = _resolve_distortion(model, list(coefficients), name, d_key, notes)
     try:
         return CameraIntrinsics(
-            fx=float(fx),
-            fy=float(fy),
-            cx=float(cx),
-            cy=float(cy),
-            width=width,
-            height=height,
-            distortion_model=resolved_model,
-            distortion=distortion,
+            fx=float(fx), fy=float(fy), cx=float(cx), cy=float(cy), width=width, height=height,
+            distortion_model=resolved_model, distortion=distortion,
         )
     except CalibrationError as exc:
         raise CalibrationError(f"{name}: {exc}") from None

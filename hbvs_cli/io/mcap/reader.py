@@ -1,9 +1,8 @@
 """Reading MCAP files as streams, under caps, keeping what a truncated file holds.
 
-The ``mcap`` library parses the records; hbvs adds what it does not do: every read is capped
-before it allocates, chunks are decompressed under a cap and parsed one record at a time,
-declarations and messages are counted against :mod:`..limits`, and damage after good data
-(a crashed recorder) ends the stream with :attr:`McapStream.truncated` instead of an error.
+The ``mcap`` library parses the records; hbvs caps every read before it allocates, decompresses chunks
+under a cap, counts against :mod:`..limits`, and ends the stream at damage after good data (a crashed
+recorder) with :attr:`McapStream.truncated` instead of an error.
 """
 
 from __future__ import annotations

@@ -1,9 +1,5 @@
-"""Frame sources for ``hbvs teach``: video files (:mod:`.video`), image folders
-(:mod:`.folder`), live cameras (:mod:`.camera_source`) and ROS 2 bags (:mod:`.rosbag`), each an
-iterable of :class:`SourceFrame` read one frame at a time, with :meth:`FrameSource.describe`
-for the metadata and a ``camera`` attribute for intrinsics the source carries (bags).
-:func:`open_source` picks one; every public name is re-exported here.
-"""
+"""Frame sources for ``hbvs teach`` (video, image folder, camera, ROS 2 bag): iterables of
+:class:`SourceFrame`, one frame at a time; :func:`open_source` picks one."""
 
 from __future__ import annotations
 
@@ -15,13 +11,6 @@ from .rosbag import BagSource
 from .video import VideoSource
 
 __all__ = [
-    "SourceFrame",
-    "FrameSource",
-    "VideoSource",
-    "ImageFolderSource",
-    "CameraSource",
-    "BagSource",
-    "IMAGE_EXTENSIONS",
-    "open_source",
-    "SOURCE_KINDS",
+    "SourceFrame", "FrameSource", "VideoSource", "ImageFolderSource", "CameraSource", "BagSource", "IMAGE_EXTENSIONS",
+    "open_source", "SOURCE_KINDS",
 ]

@@ -17,20 +17,13 @@ SOURCE_KINDS = ("video", "images", "camera", "bag")
 
 
 def open_source(
-    kind: str,
-    spec: str | int | os.PathLike[str],
-    *,
-    fps: float | None = None,
-    duration: float | None = None,
-    topic: str | None = None,
-    cmd_topic: str | None = None,
+    kind: str, spec: str | int | os.PathLike[str], *, fps: float | None = None, duration: float | None = None,
+    topic: str | None = None, cmd_topic: str | None = None,
 ) -> FrameSource:
-    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag): ``fps`` for videos
-    (an override) and image folders (required), ``duration`` for cameras, ``topic`` and
-    ``cmd_topic`` for bags (:class:`BagSource`); :class:`UsageError` for an unknown kind."""
+    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag): ``fps`` for videos and
+    image folders, ``duration`` for cameras, ``topic`` and ``cmd_topic`` for bags."""
     openers: dict[str, Any] = {
-        "video": lambda: VideoSource(spec, fps=fps),
-        "images": lambda: ImageFolderSource(spec, fps=fps),
+        "video": lambda: VideoSource(spec, fps=fps), "images": lambda: ImageFolderSource(spec, fps=fps),
         "camera": lambda: CameraSource(spec, duration=duration),
         "bag": lambda: BagSource(spec, topic=topic, cmd_topic=cmd_topic),
     }

@@ -62,13 +62,9 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and taught commands.
-
-    ``topic`` and ``cmd_topic`` None pick the only one with messages (:class:`UsageError` when
-    several fit). ``camera`` comes from the image topic's ``CameraInfo`` (``camera_problem``
-    says why it is unusable); a frame's ``command`` is the last one at or before its stamp;
-    ``t`` counts from the first frame's ``header.stamp``, or its log time for zero stamps.
-    """
+    """Images from a ROS 2 bag with its stamps, frame_id, intrinsics (``camera``, else why not in
+    ``camera_problem``) and taught commands (the last at or before each frame's stamp); ``topic`` and
+    ``cmd_topic`` None pick the only one with messages."""
 
     kind = "ros2_bag"
 
@@ -273,21 +269,11 @@ class BagSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """What the source is, for the recording's metadata."""
         return {
-            "kind": self.kind,
-            "path": self.path,
-            "files": bag_files_description(self._bag),
-            "topic": self.topic,
-            "message_type": self._topic.type,
-            "frame_count": self._topic.count,
-            "fps": None,
-            "camera_info_topic": self.camera_info_topic,
-            "camera_info_problem": self.camera_problem,
-            "storage": self._bag.storage,
-            "time_base_ns": self.time_base_ns,
-            "timestamps": self.stamps,
-            "frame_id": self.frame_id,
-            "cmd_topic": self.cmd_topic,
-            "cmd_type": self.cmd_type,
+            "kind": self.kind, "path": self.path, "files": bag_files_description(self._bag), "topic": self.topic,
+            "message_type": self._topic.type, "frame_count": self._topic.count, "fps": None,
+            "camera_info_topic": self.camera_info_topic, "camera_info_problem": self.camera_problem,
+            "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
+            "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
         }
 
 

@@ -17,11 +17,8 @@ from ..images import as_image8
 
 
 class VideoSource(FrameSource):
-    """Frames of a video file (anything ``cv2.VideoCapture`` reads; URLs and image-sequence
-    patterns are passed on unchecked). ``t`` is ``index / fps`` with ``fps`` given or the
-    container's rate, else ``CAP_PROP_POS_MSEC``. :class:`InputError` when the file is missing
-    or no frame decodes; :class:`UsageError` for an ``fps`` that is not positive.
-    """
+    """Frames of a video file (anything ``cv2.VideoCapture`` reads), ``t`` = ``index / fps`` with ``fps``
+    given or the container's rate, else ``CAP_PROP_POS_MSEC``."""
 
     kind = "video"
 
