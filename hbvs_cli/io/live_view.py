@@ -117,7 +117,6 @@ def _quietly(function: Any) -> None:
 def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> Iterator[Any]:
     """A function that wraps the run file's writer: the identity when ``port`` is None, else in a
     :class:`LiveMirror` of a server started here; ``announce`` gets where to connect."""
-
     if port is None:
         yield lambda writer: writer
         return

@@ -1,8 +1,6 @@
-"""How every output of hbvs is written, so that what a user points hbvs at is never lost.
-
-``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``,
-fsynced and renamed over ``NAME`` only when complete: an error or a signal removes it and
-leaves an earlier output as it was. A device, FIFO or socket is written in place.
+"""How every output of hbvs is written, so that what a user points hbvs at is never lost: a regular file
+is written as ``NAME.<pid>-<random>.partial``, fsynced and renamed over ``NAME`` only when complete;
+``-`` is stdout; a device, FIFO or socket is written in place.
 """
 
 from __future__ import annotations
@@ -24,7 +22,6 @@ PARTIAL_SUFFIX = ".partial"
 _PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
-# ----------------------------------------------------------------------------- targets
 @dataclass(frozen=True)
 class OutputTarget:
     """An output as hbvs will write it: ``kind`` is ``"stdout"``, ``"file"`` (written atomically)
@@ -56,8 +53,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     if stat.S_ISDIR(status.st_mode):
         raise InputError(f"{given}: is a directory; give a file name for the {what}")
     path = Path(os.path.realpath(given))
-    # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor, not a place to
-    # put a new file: they are written in place, whatever they lead to.
+    # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor: written in place, whatever they lead to.
     through_proc = path.parts[1:2] == ("proc",)
     if stat.S_ISREG(status.st_mode) and not through_proc:
         return OutputTarget(text, "file", path, True)
@@ -78,13 +74,10 @@ def final_name_of_partial(path: Path) -> Path | None:
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs whose process is gone."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None:
-        return False
-    pid = int(match.group("pid"))
-    if pid == os.getpid():
+    if match is None or int(match.group("pid")) == os.getpid():
         return False
     try:
-        os.kill(pid, 0)
+        os.kill(int(match.group("pid")), 0)
     except ProcessLookupError:
         return True
     except (OverflowError, OSError):
@@ -165,7 +158,6 @@ class FolderLock:
         self.release()
 
 
-# ----------------------------------------------------------------------------- same file
 def _identity(path: str) -> tuple[int, int] | None:
     """(device, inode) of ``path``, or of stdout for ``-`` when it is a regular file."""
     try:
@@ -215,7 +207,6 @@ def refuse_overwriting_inputs(
         written[key] = f"{label} {text}"
 
 
-# ----------------------------------------------------------------------------- writing
 def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
     """The hbvs error for an OSError while writing ``what`` (``atomic``: an earlier file is kept)."""
     kept = "; an earlier file of that name is left as it was" if atomic else ""
@@ -409,7 +400,6 @@ def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> 
         sink.stream.write(data)
 
 
-# ----------------------------------------------------------------------------- stdio
 _closed_stdio: set[int] = set()
 
 

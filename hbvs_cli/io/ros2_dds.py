@@ -30,7 +30,6 @@ except ImportError:
     raise UsageError(INSTALL_HINT) from None
 
 
-# ----------------------------------------------------------------------------- messages
 def dds_type_name(ros_type: str) -> str:
     """The DDS type name of a ROS 2 message type, as the ROS 2 RMWs register it:
     ``geometry_msgs/msg/Twist`` -> ``geometry_msgs::msg::dds_::Twist_``."""
@@ -115,7 +114,6 @@ def seconds_of(stamp: Time) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-# ----------------------------------------------------------------------------- names, QoS
 def dds_topic_name(ros_name: str) -> str:
     """The DDS topic of a ROS 2 topic: ``/cmd_vel`` -> ``rt/cmd_vel``."""
     name = ros_name.strip()
@@ -172,7 +170,6 @@ def loopback_config() -> str:
     )
 
 
-# ----------------------------------------------------------------------------- endpoints
 class Ros2Node:
     """One DDS participant on ``ROS_DOMAIN_ID``, with its ROS 2 publishers and subscribers."""
 

@@ -21,8 +21,8 @@ DISCOVERY_TIMEOUT_S = 10.0
 
 
 def image_message_type(topic: str) -> type:
-    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image``:
-    Cyclone's Python binding cannot read the discovery topics reliably."""
+    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image`` (Cyclone's
+    Python binding cannot read the type from discovery reliably)."""
     return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
 
 

@@ -171,7 +171,6 @@ def read_run(source: Any, name: str = "") -> RunData:
     )
 
 
-# ----------------------------------------------------------------------------- writing
 class RunWriter:
     """Writes a run file from plain values, every message stamped ``base_ns`` plus its run time
     ``t`` (s); ``base_ns`` None when only the first frame gives it (call :meth:`start` then)."""

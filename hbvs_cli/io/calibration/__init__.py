@@ -9,8 +9,3 @@ from .foxglove import calibration_from_foxglove, calibration_to_foxglove
 from .load import MAX_CALIBRATION_BYTES, load_calibration, parse_calibration
 from .ros import save_calibration_ros
 from .validate import intrinsics_from_values
-
-__all__ = [
-    "MAX_CALIBRATION_BYTES", "load_calibration", "parse_calibration", "save_calibration_ros",
-    "calibration_to_foxglove", "calibration_from_foxglove", "intrinsics_from_values",
-]

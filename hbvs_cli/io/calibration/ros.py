@@ -18,9 +18,7 @@ from .validate import _one_line
 
 def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
     try:
-        # safe_load_all: `ros2 topic echo` output ends with a "---" separator, which
-        # safe_load rejects as a second document. The first non-empty document is used.
-        # Aliases are expanded under a limit before any value is built or shown.
+        # All documents: `ros2 topic echo` output ends with a "---" separator (the first non-empty one is used).
         document = next((doc for doc in load_yaml_documents(text, name, error=CalibrationError) if doc is not None), None)
     except yaml.MarkedYAMLError as exc:
         where = f" at line {exc.problem_mark.line + 1}" if exc.problem_mark is not None else ""
@@ -61,8 +59,7 @@ def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str],
         "rectification_matrix": {"rows": 3, "cols": 3, "data": list(_IDENTITY)},
         "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in _projection(camera)]},
     }
-    # PyYAML writes floats with repr() (plus ".0" before an exponent), which is exact and
-    # reads back as a float; flow style keeps each matrix on one line like the ROS tools.
+    # PyYAML writes floats exactly (repr); flow style keeps each matrix on one line like the ROS tools.
     text = yaml.safe_dump(document, default_flow_style=None, sort_keys=False, width=4096)
     target = Path(path)
     try:

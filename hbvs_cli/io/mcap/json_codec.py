@@ -80,8 +80,7 @@ def _json_depth(raw: bytes) -> int:
 
 
 def _bounded_int(text: str) -> int:
-    # Every number hbvs reads becomes a float somewhere; an integer literal beyond float
-    # range would raise OverflowError far from the file that held it.
+    # An integer beyond float range would raise OverflowError far from the file that held it.
     if len(text.lstrip("-")) > 308:
         raise ValueError("an integer literal with more than 308 digits")
     return int(text)

@@ -165,10 +165,8 @@ _DAMAGE = (_FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, Overflo
 class McapStream:
     """The messages of an MCAP file, stream or stdin (``"-"``), in file order, in constant memory.
 
-    ``topics`` selects topics; ``schemas`` (topic -> schema name) selects them too and refuses
-    another schema. ``truncated`` and ``stop_reason``: the file ended or turned unreadable after
-    good records (all yielded). :class:`InputError` when unreadable, :class:`RecordingError`
-    when not MCAP, damaged before any record or above the caps."""
+    ``topics`` selects topics; ``schemas`` (topic -> schema name) selects them too and refuses another
+    schema. ``truncated`` and ``stop_reason``: the file ended or turned unreadable after good records."""
 
     source: Any
     topics: set[str] | None = None

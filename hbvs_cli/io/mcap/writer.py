@@ -81,10 +81,7 @@ class McapWriter:
 
     def metadata(self, name: str, values: dict[str, Any]) -> None:
         """A metadata record; values are stored as strings (dicts and lists as JSON)."""
-        encoded = {
-            str(k): v if isinstance(v, str) else json.dumps(json_ready(v), separators=(",", ":"))
-            for k, v in values.items()
-        }
+        encoded = {str(k): v if isinstance(v, str) else json.dumps(json_ready(v), separators=(",", ":")) for k, v in values.items()}
         self._writer.add_metadata(name, encoded)
 
     def input_ended_early(self, name: str, allow: bool) -> None:

@@ -9,8 +9,3 @@ from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource
-
-__all__ = [
-    "SourceFrame", "FrameSource", "VideoSource", "ImageFolderSource", "CameraSource", "BagSource", "IMAGE_EXTENSIONS",
-    "open_source", "SOURCE_KINDS",
-]

@@ -91,7 +91,6 @@ def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
     return McapFileBag([path], name)
 
 
-# ----------------------------------------------------------------------------- rosbags
 @contextlib.contextmanager
 def _rosbags_errors(name: str) -> Iterator[None]:
     """What rosbags raises on a bag it cannot read, as one InputError naming the bag."""
@@ -106,7 +105,7 @@ def _rosbags_errors(name: str) -> Iterator[None]:
         raise InputError(f"{name}: cannot read the bag ({detail[:300]})") from None
 
 
-def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
+def bag_information(folder: Path, name: str) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
     when malformed (rosbags then says what is wrong with it when it opens the bag)."""
     metadata = folder / "metadata.yaml"
@@ -169,9 +168,8 @@ def _typestore_for(information: dict[str, Any]) -> Any:
 
 
 class _CappedZstd:
-    """The ``zstd`` module as rosbags' reader uses it, with a message capped at
-    :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` and a file at the ``decompressed-bytes`` limit
-    (rosbags itself decompresses whatever size they expand to)."""
+    """The ``zstd`` module as rosbags' reader uses it, a message capped at ``MAX_RECORD_BYTES`` and a file
+    at the ``decompressed-bytes`` limit (rosbags decompresses whatever size they expand to)."""
 
     def __init__(self, module: Any) -> None:
         self._module = module
@@ -237,7 +235,7 @@ class RosbagsBag:
 
         self.name = name
         self.folder = folder
-        information = _bag_metadata(folder, name)
+        information = bag_information(folder, name)
         _cap_rosbags_decompression()
         with _rosbags_errors(name):
             self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
@@ -300,7 +298,6 @@ class RosbagsBag:
             self._reader.close()
 
 
-# ----------------------------------------------------------------------------- MCAP files
 @contextlib.contextmanager
 def mcap_bag_errors(name: str) -> Iterator[None]:
     """What the MCAP reader or the CDR decoder raises on a damaged file, as one InputError."""

@@ -52,7 +52,6 @@ class FrameSource:
         return (int(width), int(height)) if width and height else None
 
 
-# ----------------------------------------------------------------------------- helpers
 def capture_property(capture: Any, prop: int) -> float | None:
     """A ``cv2.VideoCapture`` property when finite and positive (drivers report 0 for unknown), else None."""
     import cv2

@@ -82,7 +82,6 @@ class BagSource(FrameSource):
         self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
         self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
 
-    # -- discovery
     def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
         images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
         if topic is not None:
@@ -138,8 +137,7 @@ class BagSource(FrameSource):
         if len(infos) <= 1:
             return infos[0] if infos else None
 
-        # Several cameras: take the CameraInfo whose namespace is the longest prefix of
-        # the image topic (/front/camera_info for /front/image_raw/compressed).
+        # Several cameras: the CameraInfo whose namespace is the longest prefix of the image topic.
         def shared(info: str) -> int:
             namespace = info.rsplit("/", 1)[0] + "/"
             return len(namespace) if self.topic.startswith(namespace) else -1
@@ -197,7 +195,6 @@ class BagSource(FrameSource):
             return first.log_time, frame_id, "log time", image
         return stamp_ns, frame_id, "header", image
 
-    # -- frames
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
         if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
@@ -222,8 +219,7 @@ class BagSource(FrameSource):
         stamp_minus_log = 0
         size: tuple[int, int] | None = None
         index = 0
-        # Commands are stamped on the images' clock, then held: each frame takes the last
-        # command at or before its stamp.
+        # Commands on the images' clock, held: each frame takes the last one at or before its stamp.
         pending: deque[tuple[int, int, tuple[float, float]]] = deque()  # (stamp or 0, log time, (v, w))
         command: tuple[float, float] | None = (0.0, 0.0) if self.cmd_topic is not None else None
         wanted = {self.topic} | ({self.cmd_topic} if self.cmd_topic is not None else set())

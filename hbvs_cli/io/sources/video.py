@@ -99,14 +99,9 @@ class VideoSource(FrameSource):
 
     def describe(self) -> dict[str, Any]:
         """Kind, path, frame count (the container's estimate), fps and image size."""
+        timestamps = "fps override" if self.fps_override is not None else "frame rate" if self.fps is not None else "container clock"
         return {
-            "kind": self.kind,
-            "path": self.path,
-            "frame_count": self.frame_count,
-            "fps": self.fps,
-            "width": self.width,
-            "height": self.height,
-            "timestamps": "fps override" if self.fps_override is not None
-            else "frame rate" if self.fps is not None else "container clock",
+            "kind": self.kind, "path": self.path, "frame_count": self.frame_count, "fps": self.fps, "width": self.width,
+            "height": self.height, "timestamps": timestamps,
         }
 
