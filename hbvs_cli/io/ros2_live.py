@@ -12,7 +12,7 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..errors import InputError
 from . import ros2_dds as dds
-from .live_frame import LiveFrame
+from .sources.frame_source import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
 from .sources.rosbag import BagSource
 

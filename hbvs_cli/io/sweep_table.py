@@ -111,13 +111,6 @@ def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
     return document
 
 
-def _check_columns(path: Path, table: Any, schema: Any) -> None:
-    """Refuse a table whose columns are not the sweep's (another sweep's rows)."""
-    if schema is not None and set(table.column_names) - set(schema.names):
-        raise InputError(f"{path}: holds the rows of another sweep (columns {', '.join(sorted(set(table.column_names) - set(schema.names)))} "
-                         "are not this sweep's); move it away or give another -o folder")
-
-
 #: Run indices per window of the streamed merge: the rows in memory at once.
 MERGE_WINDOW = 1024
 
@@ -134,6 +127,11 @@ def _read_table(path: Path, **options: Any) -> Any:
         return pq.read_table(path, **options)
     except (OSError, pa.ArrowException) as exc:
         raise InputError(f"{path}: unreadable results ({exc})") from None
+
+
+def _indices(path: Path) -> Any:
+    """The run indices of a results file (only its index column is read)."""
+    return _read_table(path, columns=["index"]).column("index").to_numpy()
 
 
 def _sorted_unique(table: Any) -> Any:
@@ -157,7 +155,7 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
     window = window or MERGE_WINDOW
     spans = []
     for path in _result_files(folder):
-        index = _read_table(path, columns=["index"]).column("index").to_numpy()
+        index = _indices(path)
         if index.size:
             spans.append((path, int(index.min()), int(index.max())))
     if not spans:
@@ -179,9 +177,13 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
 
 
 def _cast(path: Path, table: Any, schema: Any) -> Any:
+    """``table`` with the sweep's column types; :class:`InputError` for another sweep's rows."""
     import pyarrow as pa
 
-    _check_columns(path, table, schema)
+    foreign = sorted(set(table.column_names) - set(schema.names))
+    if foreign:
+        raise InputError(f"{path}: holds the rows of another sweep (columns {', '.join(foreign)} are not this sweep's); "
+                         "move it away or give another -o folder")
     try:
         return table.cast(schema)
     except (pa.ArrowException, ValueError) as exc:
@@ -207,14 +209,6 @@ def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> 
         if parquet_writer is not None:
             parquet_writer.close()
     return rows
-
-
-def done_indices(folder: Path) -> set[int]:
-    """Run indices with a row in ``runs.parquet`` or a part (only the index column is read)."""
-    done: set[int] = set()
-    for path in _result_files(folder):
-        done.update(_read_table(path, columns=["index"]).column("index").to_pylist())
-    return done
 
 
 def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
@@ -300,18 +294,14 @@ class ResultsTable:
         remove_stale_partials(self.folder.rglob("*.partial"))
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
         _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
-        self._done = done_indices(self.folder)
+        #: Run indices with a row when the table was opened.
+        self.done: set[int] = {int(i) for path in _result_files(self.folder) for i in _indices(path)}
 
     def release(self) -> None:
         """Let another process write the folder (also done when this one ends)."""
         if self._lock is not None:
             self._lock.release()
             self._lock = None
-
-    @property
-    def done(self) -> set[int]:
-        """Run indices with a row (read when the table was opened)."""
-        return self._done
 
     def append(self, row: Mapping[str, Any]) -> None:
         self._buffer.append(dict(row))

@@ -5,7 +5,6 @@ and a user's mistake raises a one-line :class:`~hbvs_cli.errors.CalibrationError
 
 from __future__ import annotations
 
-from .foxglove import calibration_from_foxglove, calibration_to_foxglove
 from .load import MAX_CALIBRATION_BYTES, load_calibration, parse_calibration
-from .ros import save_calibration_ros
+from .ros import calibration_from_foxglove, calibration_to_foxglove, save_calibration_ros
 from .validate import intrinsics_from_values

@@ -1,17 +1,21 @@
-"""Reading a calibration file of any supported format, recognised by its content."""
+"""Reading a calibration file of any supported format, recognised by its content; plain JSON such as
+``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}`` is read here."""
 
 from __future__ import annotations
 
+import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
 from .kalibr import intrinsics_from_kalibr, is_kalibr
-from .mapping import _intrinsics_from_mapping
+from .mapping import _intrinsics_from_mapping, _require_mapping
 from .opencv import _read_opencv_storage
-from .plain_json import _read_json
 from .ros import _read_yaml
+from .validate import _one_line
 
 #: Calibration files are a few hundred bytes; anything above this is refused unread.
 MAX_CALIBRATION_BYTES = 1 << 20
@@ -82,3 +86,19 @@ def _read_capped(path: Path, name: str) -> bytes:
     if len(data) > MAX_CALIBRATION_BYTES:
         raise CalibrationError(f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
     return data
+
+
+def _read_json(text: str, name: str) -> Mapping[str, Any]:
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{name}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise CalibrationError(f"{name}: malformed JSON: nested too deeply") from None
+    except ValueError as exc:
+        raise CalibrationError(f"{name}: malformed JSON: {_one_line(exc)}") from None
+    mapping = _require_mapping(document, name)
+    if any(isinstance(v, Mapping) and str(v.get("type_id", "")).startswith("opencv-") for v in mapping.values()):
+        # OpenCV FileStorage JSON: let OpenCV interpret its own matrix encoding.
+        return _read_opencv_storage(text, name)
+    return mapping

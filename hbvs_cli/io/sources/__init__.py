@@ -3,9 +3,31 @@
 
 from __future__ import annotations
 
+import os
+from typing import Any
+
+from ...errors import UsageError
 from .frame_source import FrameSource, SourceFrame
 from .camera_source import CameraSource
-from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource
+
+#: The kinds of recorded sources, as the ``teach`` options name them.
+SOURCE_KINDS = ("video", "images", "camera", "bag")
+
+
+def open_source(
+    kind: str, spec: str | int | os.PathLike[str], *, fps: float | None = None, duration: float | None = None,
+    topic: str | None = None, cmd_topic: str | None = None,
+) -> FrameSource:
+    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag): ``fps`` for videos and
+    image folders, ``duration`` for cameras, ``topic`` and ``cmd_topic`` for bags."""
+    openers: dict[str, Any] = {
+        "video": lambda: VideoSource(spec, fps=fps), "images": lambda: ImageFolderSource(spec, fps=fps),
+        "camera": lambda: CameraSource(spec, duration=duration),
+        "bag": lambda: BagSource(spec, topic=topic, cmd_topic=cmd_topic),
+    }
+    if kind not in openers:
+        raise UsageError(f"unknown source kind {kind!r} (one of {', '.join(SOURCE_KINDS)})")
+    return openers[kind]()

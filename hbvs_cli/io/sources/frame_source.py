@@ -30,6 +30,18 @@ class SourceFrame:
     command: tuple[float, float] | None = None
 
 
+@dataclass
+class LiveFrame:
+    """One camera frame of a live loop (``repeat --live``) as it arrived: ``image`` (H, W) or (H, W, 3)
+    uint8; ``stamp`` its header stamp (s) or arrival; ``arrival`` (s, ``time.monotonic()``): its publication
+    when on this host's clock, else when hbvs took it; ``skipped`` frames dropped since the previous one."""
+
+    image: np.ndarray
+    stamp: float
+    arrival: float
+    skipped: int
+
+
 class FrameSource:
     """Base of the frame sources: iterate it for :class:`SourceFrame` objects; ``camera`` holds
     intrinsics the source itself carries."""

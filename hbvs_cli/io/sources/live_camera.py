@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from ..live_frame import LiveFrame
+from .frame_source import LiveFrame
 from ..images import as_image8
 
 
