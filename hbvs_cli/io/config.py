@@ -32,8 +32,7 @@ SCHEMA: dict[str, dict[str, type]] = {table: {key: _TYPES[key] for key in keys} 
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
-    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``); :class:`InputError` for a
-    missing file, malformed TOML, an unknown key or a value of the wrong type."""
+    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``), every key and type checked."""
     path = Path(path)
     text = read_small_text(path, MAX_CONFIG_BYTES, "a TOML file")
     try:

@@ -31,8 +31,7 @@ class TopicInfo:
 
 @dataclass
 class FileInfo:
-    """What :func:`read_file_info` found (``kind`` None for a file hbvs did not write; ``topics``
-    in order of first message)."""
+    """What :func:`read_file_info` found (``kind`` None for a file hbvs did not write)."""
 
     name: str
     kind: str | None = None

@@ -143,14 +143,10 @@ def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray
     return image
 
 
-def is_gray8_png(data: bytes) -> bool:
-    """True for a PNG of 8-bit gray pixels (colour type 0, bit depth 8), read from its header."""
-    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 0
-
-
-def is_rgb8_png(data: bytes) -> bool:
-    """True for a PNG of 8-bit RGB pixels (colour type 2, bit depth 8, no alpha, no palette)."""
-    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 2
+def is_png8(data: bytes, colour: bool = False) -> bool:
+    """True for a PNG of 8-bit gray pixels (colour type 0), or with ``colour`` of RGB ones (type 2: no
+    alpha, no palette), read from its header."""
+    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == (2 if colour else 0)
 
 
 def sniff_format(data: bytes) -> str | None:
@@ -199,7 +195,7 @@ def bytes_to_store(
     if encoded is not None and encoded_format == "jpeg" and image_format in ("auto", "jpeg"):
         return encoded, "jpeg"
     if encoded is not None and encoded_format == "png" and image_format in ("auto", "png"):
-        kept = is_rgb8_png(encoded) if colour else is_gray8_png(encoded)
+        kept = is_png8(encoded, colour)
         return (encoded if kept else encode_image(image, "png")), "png"
     chosen = "jpeg" if image_format == "auto" and encoded is None else image_format
     chosen = "png" if chosen == "auto" else chosen

@@ -73,8 +73,7 @@ class LiveMirror:
 
 @contextmanager
 def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Iterator[Any]:
-    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`);
-    :class:`UsageError` when the SDK is missing, a value is out of range or the port is taken."""
+    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`)."""
     foxglove = _sdk()
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")

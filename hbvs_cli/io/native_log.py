@@ -1,8 +1,5 @@
-"""What native libraries print on their own, kept off the terminal and turned into our words.
-
-C libraries write straight to descriptor 2; :func:`capture` points it at a temporary file
-(Python's ``sys.stderr`` keeps the terminal), and a caller quotes :func:`said_since` a
-:func:`mark` in its one-line error.
+"""What native libraries print on descriptor 2, kept off the terminal (:func:`capture`) and quoted in
+our one-line errors (:func:`said_since` a :func:`mark`).
 """
 
 from __future__ import annotations

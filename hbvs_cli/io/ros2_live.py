@@ -112,8 +112,7 @@ def decode_image_message(message: Any, topic: str) -> np.ndarray:
 
 
 def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVERY_TIMEOUT_S) -> CameraIntrinsics:
-    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``; :class:`InputError`
-    when none comes within ``timeout_s`` or it is unusable."""
+    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic`` within ``timeout_s``."""
     # Best effort: matches the camera's CameraInfo whether it is published reliably or not.
     reader = node.subscriber(topic, dds.CameraInfo, dds.sensor_qos())
     waitset = _waitset(node, reader)

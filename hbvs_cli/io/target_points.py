@@ -22,9 +22,7 @@ MAX_POINTS = 1000
 
 
 def read_target_points(path: str | Path) -> NDArray[np.float64]:
-    """The points of a ``--target-points`` CSV, shape (N, 2) (m); :class:`InputError` for a missing
-    or unreadable file, a line that is not two numbers, fewer than 3 or more than
-    :data:`MAX_POINTS` points, or two points at the same place."""
+    """The points of a ``--target-points`` CSV, shape (N, 2) (m): 3 to :data:`MAX_POINTS`, all distinct."""
     name = str(path)
     text = read_small_text(path, MAX_POINTS_BYTES, "a CSV file of x,y positions in metres")
     rows = []

@@ -22,8 +22,7 @@ def is_kalibr(mapping: Mapping[str, Any]) -> bool:
 
 
 def intrinsics_from_kalibr(mapping: Mapping[str, Any], name: str, image_size: tuple[int, int] | None = None) -> CameraIntrinsics:
-    """The intrinsics of ``cam0`` of a Kalibr camchain; :class:`CalibrationError` for a camera model
-    other than pinhole, a distortion model other than radtan, equidistant or none, or bad values."""
+    """The intrinsics of ``cam0`` of a Kalibr camchain; :class:`CalibrationError` when unsupported or bad."""
     camera = mapping["cam0"]
     where = f"{name}: cam0"
     model = camera.get("camera_model", "pinhole")

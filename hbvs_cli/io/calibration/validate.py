@@ -59,8 +59,7 @@ def _build_intrinsics(
     K: Sequence[float], width: int, height: int, model: str | None, coefficients: Sequence[float], name: str,
     k_key: str = "camera_matrix", d_key: str = "distortion_coefficients", notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics; ``notes``
-    receives what the reader assumed."""
+    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics."""
     if not all(math.isfinite(v) for v in K):
         raise CalibrationError(f"{name}: {k_key} contains NaN or infinity")
     if not all(math.isfinite(v) for v in coefficients):

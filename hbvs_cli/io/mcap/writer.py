@@ -22,9 +22,8 @@ def protobuf_schema(message_class: Any) -> bytes:
 
 
 class McapWriter:
-    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks): a
-    protobuf message on a ``protobuf`` channel, a dict on a ``json`` one with its ``hbvs.*``
-    JSON schema."""
+    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks): a protobuf
+    message on a ``protobuf`` channel, a dict on a ``json`` one with its ``hbvs.*`` JSON schema."""
 
     def __init__(self, stream: Any, chunk_size: int = 1024 * 1024) -> None:
         from mcap.writer import CompressionType, Writer
@@ -101,8 +100,7 @@ class McapWriter:
 
 @contextmanager
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream`: committed
-    only when the body succeeds."""
+    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success)."""
     from ..output_target import open_output_stream
 
     with open_output_stream(target, "output", stdout=stdout) as sink:

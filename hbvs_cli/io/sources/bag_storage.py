@@ -55,8 +55,7 @@ def ros2_type(name: str) -> str:
 
 
 def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
-    """The reader for a bag folder (or its ``metadata.yaml``) or ``.mcap`` file(s); :class:`InputError`
-    when it is none of them."""
+    """The reader for a bag folder (or its ``metadata.yaml``) or ``.mcap`` file(s)."""
     if path.name == "metadata.yaml" and path.is_file():
         path = path.parent
     if path.is_dir():
@@ -128,8 +127,7 @@ def bag_information(folder: Path, name: str) -> dict[str, Any]:
 
 
 def check_metadata(information: dict[str, Any], name: str) -> None:
-    """:class:`InputError` unless the counts and names of metadata.yaml that rosbags and hbvs
-    use have the right types."""
+    """:class:`InputError` unless the counts and names rosbags and hbvs use have the right types."""
     def counts(where: str, value: Any) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")

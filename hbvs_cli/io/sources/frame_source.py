@@ -18,9 +18,8 @@ _NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class SourceFrame:
-    """One frame from a source: ``t`` in s from the first frame; ``image`` uint8 gray (H, W) or
-    BGR (H, W, 3); ``encoded`` the source's own JPEG/PNG bytes; ``stamp_ns`` on the source's
-    clock; ``command`` the operator's (v, w) in m/s, rad/s, when recorded."""
+    """One frame from a source: ``t`` (s) from the first; ``image`` uint8 gray (H, W) or BGR (H, W, 3);
+    ``encoded`` the source's own JPEG/PNG bytes; ``command`` the operator's (v, w) (m/s, rad/s)."""
 
     t: float
     image: np.ndarray
