@@ -1,7 +1,6 @@
 """What Foxglove's 3D panel needs: frame transforms, the target, the taught path. Frames (also the ROS 2
 export's): ``world`` (x toward the wall, z up, m); ``base_link`` (the robot on the floor, x forward, z up);
-``camera_optical`` (at the camera's height, z forward, x right, y down, as ``CameraInfo`` assumes).
-"""
+``camera_optical`` (at the camera's height, z forward, x right, y down, as ``CameraInfo`` assumes)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """``hbvs repeat --foxglove [PORT]``: every message of the run file (same bytes, schema and log time)
 also served by the Foxglove SDK's WebSocket server on localhost, a simulated run paced to
-``--foxglove-speed`` times real time.
-"""
+``--foxglove-speed`` times real time."""
 
 from __future__ import annotations
 

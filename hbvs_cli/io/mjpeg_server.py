@@ -1,7 +1,6 @@
 """A camera as an MJPEG stream over HTTP on 127.0.0.1 (``robot-sim --mjpeg PORT``): one JPEG part of a
 ``multipart/x-mixed-replace`` response per frame, as IP cameras serve and ``cv2.VideoCapture`` reads.
-Only the newest frame is sent: a slow reader skips frames rather than falling behind.
-"""
+Only the newest frame is sent: a slow reader skips frames rather than falling behind."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """What native libraries print on descriptor 2, kept off the terminal (:func:`capture`) and quoted in
-our one-line errors (:func:`said_since` a :func:`mark`).
-"""
+our one-line errors (:func:`said_since` a :func:`mark`)."""
 
 from __future__ import annotations
 

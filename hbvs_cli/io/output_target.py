@@ -1,7 +1,6 @@
 """How every output of hbvs is written, so that what a user points hbvs at is never lost: a regular file
 is written as ``NAME.<pid>-<random>.partial``, fsynced and renamed over ``NAME`` only when complete;
-``-`` is stdout; a device, FIFO or socket is written in place.
-"""
+``-`` is stdout; a device, FIFO or socket is written in place."""
 
 from __future__ import annotations
 
@@ -300,22 +299,16 @@ class OutputSink:
             )
 
 
-def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
-    if stdout is not None:
-        return stdout
-    if sys.stdout is None or stdio_closed(1):
-        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-    return sys.stdout.buffer
-
-
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output") -> Iterator[OutputSink]:
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what``
     names the output in messages."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        sink = OutputSink(GuardedStream(_stdout_binary(stdout), "stdout", owned=False), target)
+        if sys.stdout is None or stdio_closed(1):
+            raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False), target)
         yield sink
         sink.stream.flush()
         return

@@ -1,6 +1,5 @@
 """Teach-pendant command files: CSV with the columns ``t,v,w`` (s, m/s, rad/s), in any order, each row
-held until the next row's time, the last one for the median row interval.
-"""
+held until the next row's time, the last one for the median row interval."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot. ROS 2 topics
 are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain CDR, so the messages are
-Cyclone DDS IDL structs of those names, made from ``rosbags``' message definitions.
-"""
+Cyclone DDS IDL structs of those names, made from ``rosbags``' message definitions."""
 
 import os
 import types

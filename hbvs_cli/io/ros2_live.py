@@ -1,6 +1,5 @@
 """The live robot's ROS 2 endpoints: the newest camera frame in (older ones counted as
-dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.ros2_dds`.
-"""
+dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.ros2_dds`."""
 
 from __future__ import annotations
 

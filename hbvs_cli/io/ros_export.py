@@ -1,7 +1,6 @@
 """``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR) written with ``rosbags``
 (topics in docs/ros2.md), moved into place when complete; only a bag hbvs wrote is ever replaced. Poses
-keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives what ``hbvs report`` gives.
-"""
+keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives what ``hbvs report`` gives."""
 
 from __future__ import annotations
 

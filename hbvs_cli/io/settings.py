@@ -1,8 +1,7 @@
 """The options of the commands, declared once: name, type, default, help, bounds, config key.
 
 Each table gives the command's typer signature (:mod:`hbvs_cli.cli.signature`) and its stage's options
-dataclass. Precedence: built-in default < ``--config`` file < command line. Kept light: ``hbvs --help`` imports it.
-"""
+dataclass. Precedence: built-in default < ``--config`` file < command line. Kept light: ``hbvs --help`` imports it."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """The results table of a sweep, written as runs finish and valid after any interruption: ``sweep.json``
 (spec and fit digest, which a resume must match), ``parts/part-NNNNNN.parquet`` (one per flush),
-``runs.parquet`` and ``runs.csv`` (sorted at the end); one process writes it at a time.
-"""
+``runs.parquet`` and ``runs.csv`` (sorted at the end); one process writes it at a time."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """``--target-points``: the target points' positions on the wall, a CSV of ``x,y`` (m) per line in
 the wall's plane, any origin, orientation and order (the fit matches them by their layout); a header,
-blank lines and lines starting with ``#`` are skipped.
-"""
+blank lines and lines starting with ``#`` are skipped."""
 
 from __future__ import annotations
 

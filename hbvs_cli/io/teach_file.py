@@ -1,6 +1,5 @@
 """The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read (docs/files.md).
-A frame's command and true pose are written just before its image, with its log time, so a streaming reader has them.
-"""
+A frame's command and true pose are written just before its image, with its log time, so a streaming reader has them."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """Kalibr ``camchain.yaml``: hbvs reads ``cam0``, a ``pinhole`` camera with ``radtan`` (read as
-plumb_bob with k3 = 0), ``equidistant`` (``cv2.fisheye``) or no distortion.
-"""
+plumb_bob with k3 = 0), ``equidistant`` (``cv2.fisheye``) or no distortion."""
 
 from __future__ import annotations
 

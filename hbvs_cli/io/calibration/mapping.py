@@ -1,6 +1,5 @@
 """A calibration read as a mapping of keys (ROS YAML, plain JSON, OpenCV FileStorage) to intrinsics;
-keys match without regard to case, ``_`` or ``-`` (``camera_matrix`` is ``cameraMatrix``).
-"""
+keys match without regard to case, ``_`` or ``-`` (``camera_matrix`` is ``cameraMatrix``)."""
 
 from __future__ import annotations
 

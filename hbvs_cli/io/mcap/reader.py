@@ -2,8 +2,7 @@
 
 The ``mcap`` library parses the records; hbvs caps every read before it allocates, decompresses chunks
 under a cap, counts against :mod:`..limits`, and ends the stream at damage after good data (a crashed
-recorder) with :attr:`McapStream.truncated` instead of an error.
-"""
+recorder) with :attr:`McapStream.truncated` instead of an error."""
 
 from __future__ import annotations
 

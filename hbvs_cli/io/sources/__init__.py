@@ -13,6 +13,12 @@ from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource
 
+__all__ = [
+    "SourceFrame", "FrameSource", "VideoSource", "ImageFolderSource", "CameraSource", "BagSource", "IMAGE_EXTENSIONS",
+    "open_source", "SOURCE_KINDS",
+]
+
+
 #: The kinds of recorded sources, as the ``teach`` options name them.
 SOURCE_KINDS = ("video", "images", "camera", "bag")
 

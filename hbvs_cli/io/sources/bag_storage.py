@@ -1,8 +1,7 @@
 """The storage side of a ROS 2 bag: its topics and its messages, decoded on demand, under hbvs's size caps.
 
 :class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag` reads
-``.mcap`` file(s) without ``metadata.yaml`` (ROS 2 bags, Foxglove protobuf recordings such as hbvs's own).
-"""
+``.mcap`` file(s) without ``metadata.yaml`` (ROS 2 bags, Foxglove protobuf recordings such as hbvs's own)."""
 
 from __future__ import annotations
 

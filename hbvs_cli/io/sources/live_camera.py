@@ -1,6 +1,5 @@
 """The newest frame of an OpenCV camera for a live loop (``repeat --live --camera DEV``), older ones
-counted as dropped, never queued; a video file is played at its own rate to stand in for a camera.
-"""
+counted as dropped, never queued; a video file is played at its own rate to stand in for a camera."""
 
 from __future__ import annotations
 
