@@ -11,8 +11,7 @@ from typing import Any
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
-from .kalibr import intrinsics_from_kalibr, is_kalibr
-from .mapping import _intrinsics_from_mapping, _require_mapping
+from .mapping import _intrinsics_from_mapping, _require_mapping, intrinsics_from_kalibr, is_kalibr
 from .opencv import _read_opencv_storage
 from .ros import _read_yaml
 from .validate import _one_line
