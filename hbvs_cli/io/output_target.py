@@ -300,15 +300,15 @@ class OutputSink:
 
 
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output") -> Iterator[OutputSink]:
-    """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what``
-    names the output in messages."""
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
+    """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
+    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        if sys.stdout is None or stdio_closed(1):
+        if stdout is None and (sys.stdout is None or stdio_closed(1)):
             raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False), target)
+        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False), target)
         yield sink
         sink.stream.flush()
         return

@@ -156,12 +156,8 @@ def read_run(source: Any, name: str = "") -> RunData:
     events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
     def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
-        if not poses:
-            return None
         rows = [poses.get(t) for t in step_times]
-        if any(r is None for r in rows):
-            return None
-        return np.array(rows, dtype=float)
+        return np.array(rows, dtype=float) if poses and all(row is not None for row in rows) else None
 
     return RunData(
         name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),

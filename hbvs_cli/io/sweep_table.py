@@ -118,12 +118,13 @@ def _result_files(folder: Path) -> list[Path]:
     return ([folder / PARQUET] if (folder / PARQUET).is_file() else []) + sorted((folder / PARTS).glob("part-*.parquet"))
 
 
-def _read_table(path: Path, **options: Any) -> Any:
+def _read_table(path: Path, schema_only: bool = False, **options: Any) -> Any:
+    """A results file's rows (or, with ``schema_only``, its schema); :class:`InputError` when unreadable."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        return pq.read_table(path, **options)
+        return pq.read_schema(path) if schema_only else pq.read_table(path, **options)
     except (OSError, pa.ArrowException) as exc:
         raise InputError(f"{path}: unreadable results ({exc})") from None
 
@@ -222,22 +223,11 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
         raise InputError(f"{folder / SPEC_FILE}: not the description hbvs sweep writes ({exc})") from None
     wanted = None if columns is None else [n for n in dict.fromkeys(["index", *columns]) if n in schema.names]
     target = schema if wanted is None else pa.schema([schema.field(n) for n in wanted])
-    pieces = [
-        _cast(path, _read_table(path, columns=None if wanted is None else [n for n in wanted if n in pq_names(path)]), target)
-        for path in _result_files(folder)
-    ]
+    pieces = []
+    for path in _result_files(folder):
+        present = None if wanted is None else [n for n in wanted if n in _read_table(path, schema_only=True).names]
+        pieces.append(_cast(path, _read_table(path, columns=present), target))
     return _sorted_unique(pa.concat_tables(pieces)) if pieces else target.empty_table()
-
-
-def pq_names(path: Path) -> list[str]:
-    """The column names of a Parquet file (its schema only is read)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    try:
-        return pq.read_schema(path).names
-    except (OSError, pa.ArrowException) as exc:
-        raise InputError(f"{path}: unreadable results ({exc})") from None
 
 
 class ResultsTable:

@@ -6,7 +6,7 @@ import json
 import os
 from contextlib import contextmanager
 from functools import lru_cache
-from typing import Any, Iterator
+from typing import IO, Any, Iterator
 
 from ..schemas import HBVS_SCHEMAS
 from .caps import PROFILE
@@ -99,11 +99,11 @@ class McapWriter:
 
 
 @contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024) -> Iterator[McapWriter]:
+def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success)."""
     from ..output_target import open_output_stream
 
-    with open_output_stream(target, "output") as sink:
+    with open_output_stream(target, "output", stdout=stdout) as sink:
         writer = McapWriter(sink.stream, chunk_size=chunk_size)
         writer.input_ended_early = sink.input_ended_early
         yield writer

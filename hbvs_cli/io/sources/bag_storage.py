@@ -391,7 +391,9 @@ class McapFileBag:
             if len(message.schema_data) > MAX_SCHEMA_BYTES:
                 raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
             # The factory caches decoders by schema id: every distinct schema gets its own.
-            schema = Schema(id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding, data=message.schema_data)
+            schema = Schema(
+                id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding, data=message.schema_data,
+            )
             # The ROS parser prints on stderr what its exception says already.
             with contextlib.redirect_stderr(io.StringIO()):
                 decoder = self._factory.decoder_for(message.message_encoding, schema)
