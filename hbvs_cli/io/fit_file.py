@@ -30,8 +30,7 @@ FORMAT_VERSION = 1
 
 
 def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
-    """The inverse of :func:`~hbvs_cli.core.camera.camera_description`, checked as a calibration
-    file (:class:`CalibrationError`)."""
+    """The inverse of :func:`~hbvs_cli.core.camera.camera_description`, checked as a calibration file."""
     K = [data["fx"], 0.0, data["cx"], 0.0, data["fy"], data["cy"], 0.0, 0.0, 1.0]
     return intrinsics_from_values(
         K, data["width"], data["height"], str(data.get("distortion_model", "none")), data.get("distortion", ()), "camera",

@@ -113,8 +113,7 @@ def _png_problem(data: bytes) -> str | None:
 
 
 def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray[np.uint8]:
-    """Decode any image OpenCV reads to 8-bit gray (H, W), or with ``colour`` a colour one to
-    BGR (H, W, 3); :class:`InputError` if it cannot."""
+    """Decode any image OpenCV reads to 8-bit gray (H, W), or with ``colour`` a colour one to BGR (H, W, 3)."""
     import cv2
 
     size = image_size(data)

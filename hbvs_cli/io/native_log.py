@@ -50,8 +50,7 @@ def mark() -> int:
 
 
 def said_since(start: int) -> str:
-    """The native text written since :func:`mark` returned ``start``, as one short line
-    ("" when nothing was captured or said)."""
+    """The native text written since :func:`mark` returned ``start``, as one short line ("" for none)."""
     if not _captured:
         return ""
     try:

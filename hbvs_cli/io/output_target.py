@@ -220,8 +220,7 @@ def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
 
 
 class GuardedStream:
-    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe
-    cannot seek)."""
+    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek)."""
 
     def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False) -> None:
         self.closed = False

@@ -18,8 +18,7 @@ def shipped_path(relative: str) -> Path:
 
 
 def shipped_root() -> Path:
-    """The folder that holds the installed ``docs/`` and ``samples/`` (the wheel's package
-    folder, or a checkout's root)."""
+    """The folder that holds the installed ``docs/`` and ``samples/`` (the wheel's package, or a checkout)."""
     return shipped_path("docs/method.md").parent.parent
 
 

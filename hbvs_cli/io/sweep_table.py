@@ -90,8 +90,7 @@ def _replace(path: Path, write: Any) -> None:
 
 
 def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
-    """``sweep.json`` of a results folder (``need_spec``: with the spec's ``vary`` and ``fixed``);
-    :class:`InputError` when it is not what ``hbvs sweep`` writes."""
+    """``sweep.json`` of a results folder, checked (``need_spec``: with the spec's ``vary`` and ``fixed``)."""
     path = Path(folder) / SPEC_FILE
     try:
         document = json.loads(path.read_text(encoding="utf-8"))

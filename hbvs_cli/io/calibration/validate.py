@@ -41,9 +41,8 @@ def _normalise_key(key: Any) -> str:
 
 
 def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str) -> CameraIntrinsics:
-    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major,
-    or 3x3), the image size (px), the distortion model (None: inferred from the number of
-    coefficients) and its coefficients in OpenCV order; :class:`CalibrationError` otherwise."""
+    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major, or 3x3), the
+    image size (px), the distortion model (None: inferred from the count) and its coefficients in OpenCV order."""
     k_values = _numbers(K, f"{source}: K")
     if len(k_values) != 9:
         raise CalibrationError(f"{source}: K has {len(k_values)} numbers, expected 9")

@@ -31,8 +31,7 @@ class _Damaged(Exception):
 
 
 class _CappedInput:
-    """The stream the mcap library reads: reads above :data:`MAX_RECORD_BYTES` refused, short
-    reads from pipes completed."""
+    """The stream the mcap library reads: reads above :data:`MAX_RECORD_BYTES` refused, short pipe reads completed."""
 
     def __init__(self, raw: BinaryIO) -> None:
         self._raw = raw

@@ -42,8 +42,7 @@ class LiveFrame:
 
 
 class FrameSource:
-    """Base of the frame sources: iterate it for :class:`SourceFrame` objects; ``camera`` holds
-    intrinsics the source itself carries."""
+    """Base of the frame sources, iterables of :class:`SourceFrame`; ``camera``: intrinsics the source carries."""
 
     kind: str = "source"
     camera: CameraIntrinsics | None = None
@@ -57,8 +56,7 @@ class FrameSource:
 
     @property
     def image_size(self) -> tuple[int, int] | None:
-        """(width, height) of the frames when known before iterating (for a calibration
-        file that gives no size), else None."""
+        """(width, height) of the frames when known before iterating (for a calibration without one)."""
         width, height = getattr(self, "width", None), getattr(self, "height", None)
         return (int(width), int(height)) if width and height else None
 

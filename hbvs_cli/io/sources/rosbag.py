@@ -50,8 +50,7 @@ def _stamp_ns(message: Any) -> int:
 
 
 def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
-    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and
-    ``angular.z`` (rad/s), the unicycle's forward and turning speeds."""
+    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and ``angular.z`` (rad/s)."""
     if message_type == ROS_TWIST_STAMPED_SCHEMA:
         twist = message.twist
     elif message_type == ROS_ODOMETRY_SCHEMA:
