@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from hbvs_cli.io.images import bytes_to_store, encode_image, is_gray8_png, read_compressed_image
+from hbvs_cli.io.images import bytes_to_store, encode_image, is_png8, read_compressed_image
 from hbvs_cli.io.teach_file import TeachReader
 
 from conftest import make_teach, rendered_s_curve
@@ -65,7 +65,7 @@ def test_what_each_source_stores():
     jpeg = cv2.imencode(".jpg", colour, [cv2.IMWRITE_JPEG_QUALITY, 80])[1].tobytes()
     # A colour PNG becomes a gray PNG, lossless, about a third of the size.
     data, fmt = bytes_to_store(gray, colour_png, "png")
-    assert fmt == "png" and is_gray8_png(data) and not is_gray8_png(colour_png)
+    assert fmt == "png" and is_png8(data) and not is_png8(colour_png)
     assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), gray)
     assert len(data) < 0.5 * len(colour_png)
     # A gray PNG and any JPEG are kept byte for byte.
@@ -174,7 +174,7 @@ def test_an_image_folder_of_colour_pngs_of_gray_content_is_stored_as_gray(tmp_pa
     path = make_teach(tmp_path / "images.mcap", images=str(folder), calibration=calibration)
     stored = [frame.stored_image().data for frame in TeachReader(path).frames()]
     colour_bytes = sum(f.stat().st_size for f in files)
-    assert all(is_gray8_png(data) for data in stored)
+    assert all(is_png8(data) for data in stored)
     assert sum(map(len, stored)) < 0.5 * colour_bytes
     for data, file in zip(stored, files):
         assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED),

@@ -1,11 +1,6 @@
-"""``--config FILE.toml``: controller gains, actuator limits and run settings.
-
-The tables and keys are :data:`SCHEMA` (top level: ``law``, ``filter``, ``dhat0``,
-``speed``; ``[gains]``, ``[limits]``, ``[run]``). ``samples/gains.toml`` is an example that
-holds the defaults; the defaults themselves are written once, in the code
-(:mod:`hbvs_cli.io.settings`), and a test checks that the sample agrees with them.
-
-Options given on the command line override the file."""
+"""``--config FILE.toml``: controller gains, actuator limits and run settings (tables and keys:
+:data:`SCHEMA`). The defaults are declared in :mod:`hbvs_cli.io.settings`; ``samples/gains.toml``
+lists them. Options given on the command line override the file."""
 
 from __future__ import annotations
 
@@ -28,9 +23,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 
 #: The keys of each table (top level: ""), in order.
 TABLES: dict[str, tuple[str, ...]] = {
-    "": ("law", "dhat0", "speed", "filter"),
-    "gains": GAIN_NAMES,
-    "limits": ("max_v", "max_w", "max_accel", "latency"),
+    "": ("law", "dhat0", "speed", "filter"), "gains": GAIN_NAMES, "limits": ("max_v", "max_w", "max_accel", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
 _TYPES = {setting.config: setting.type for setting in REPEAT_SETTINGS if setting.config is not None}
@@ -39,8 +32,7 @@ SCHEMA: dict[str, dict[str, type]] = {table: {key: _TYPES[key] for key in keys} 
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
-    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``); :class:`InputError` for a
-    missing file, malformed TOML, an unknown key or a value of the wrong type."""
+    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``), every key and type checked."""
     path = Path(path)
     text = read_small_text(path, MAX_CONFIG_BYTES, "a TOML file")
     try:

@@ -31,8 +31,7 @@ class TopicInfo:
 
 @dataclass
 class FileInfo:
-    """What :func:`read_file_info` found (``kind`` None for a file hbvs did not write; ``topics``
-    in order of first message)."""
+    """What :func:`read_file_info` found (``kind`` None for a file hbvs did not write)."""
 
     name: str
     kind: str | None = None
@@ -99,13 +98,8 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
     if target is None:
         target = metadata.get("target_kind") or (settings.get("target") if kind == "teach" and metadata.get("source") == "sim" else None)
     return FileInfo(
-        name=stream.name,
-        kind=kind if kind in FRAME_TOPICS else None,
-        version=metadata.get("hbvs_version"),
-        metadata=metadata,
-        metadata_names=sorted(stream.metadata),
-        topics=list(topics.values()),
-        complete=not stream.truncated,
-        stop_reason=stream.stop_reason,
+        name=stream.name, kind=kind if kind in FRAME_TOPICS else None, version=metadata.get("hbvs_version"),
+        metadata=metadata, metadata_names=sorted(stream.metadata), topics=list(topics.values()),
+        complete=not stream.truncated, stop_reason=stream.stop_reason,
         target=target if isinstance(target, str) else None,
     )

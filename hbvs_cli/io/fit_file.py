@@ -30,8 +30,7 @@ FORMAT_VERSION = 1
 
 
 def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
-    """The inverse of :func:`~hbvs_cli.core.camera.camera_description`, checked as a calibration
-    file (:class:`CalibrationError`)."""
+    """The inverse of :func:`~hbvs_cli.core.camera.camera_description`, checked as a calibration file."""
     K = [data["fx"], 0.0, data["cx"], 0.0, data["fy"], data["cy"], 0.0, 0.0, 1.0]
     return intrinsics_from_values(
         K, data["width"], data["height"], str(data.get("distortion_model", "none")), data.get("distortion", ()), "camera",
@@ -86,10 +85,8 @@ def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
 def taught_path_to_dict(path: TaughtPath) -> dict[str, Any]:
     """The ``taught_path`` object of a fit model: per-frame arrays as base64 float64 (compact)."""
     return {
-        "encoding": "float64-le-base64",
-        "t": _pack(path.t), "v": _pack(path.v), "w": _pack(path.w),
-        "start_pose": path.start_pose.tolist(),
-        "reference_pose": path.reference_pose.tolist(),
+        "encoding": "float64-le-base64", "t": _pack(path.t), "v": _pack(path.v), "w": _pack(path.w),
+        "start_pose": path.start_pose.tolist(), "reference_pose": path.reference_pose.tolist(),
     }
 
 
@@ -134,9 +131,7 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "target_kind": model.target_kind,
         "camera": camera_description(model.camera),
         "reference": {
-            "index": model.reference_index,
-            "t": model.reference_t,
-            "pixels": model.reference_pixels.tolist(),
+            "index": model.reference_index, "t": model.reference_t, "pixels": model.reference_pixels.tolist(),
             "m_ref": model.m_ref.tolist(),
         },
         "normal": model.normal.tolist(),
@@ -158,11 +153,8 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
 
 
 def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
-    """The model of a ``hbvs.FitModel`` message; :class:`RecordingError` when malformed.
-
-    Everything ``repeat`` later uses is checked here, so that a damaged model fails with one
-    clear message rather than deep inside the simulation.
-    """
+    """The model of a ``hbvs.FitModel`` message, everything ``repeat`` uses checked here (one clear
+    message rather than a failure deep inside the simulation); :class:`RecordingError` when malformed."""
     try:
         if message.get("format_version") != FORMAT_VERSION:
             raise ValueError(f"unsupported model format_version {message.get('format_version')!r}")
@@ -171,9 +163,7 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         pixels = np.asarray(reference["pixels"], dtype=float)
         normal = np.asarray(message["normal"], dtype=float)
         if m_ref.ndim != 2 or m_ref.shape[1] != 3 or not 3 <= m_ref.shape[0] <= MAX_TARGET_POINTS or pixels.shape != (m_ref.shape[0], 2):
-            raise ValueError(
-                f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels"
-            )
+            raise ValueError(f"reference points must be 3 to {MAX_TARGET_POINTS} rows of [1, m_y, m_z] with matching pixels")
         if not (np.all(np.isfinite(m_ref)) and np.all(np.isfinite(pixels))):
             raise ValueError("reference points hold NaN or infinity")
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
@@ -196,25 +186,14 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
                 raise ValueError("gains must be an object")
             ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in GAIN_NAMES})
         return FitModel(
-            target_kind=kind,
-            camera=camera_from_dict(message["camera"]),
-            reference_index=int(reference["index"]),
-            reference_t=float(reference["t"]),
-            reference_pixels=pixels,
-            m_ref=m_ref,
-            normal=normal,
+            target_kind=kind, camera=camera_from_dict(message["camera"]), reference_index=int(reference["index"]),
+            reference_t=float(reference["t"]), reference_pixels=pixels, m_ref=m_ref, normal=normal,
             normal_margin=float(margin) if margin is not None else float("nan"),
-            trajectory=SplineTrajectory.from_dict(message["trajectory"]),
-            dhat0=dhat0,
-            dhat0_source=str(message.get("dhat0_source", "")),
-            depth=dict(message.get("depth") or {}),
-            frames=frames,
-            condition35=dict(message.get("condition35") or {}),
-            residual_px=dict(message.get("residual_px") or {}),
-            detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]),
-            world_description=world,
-            taught_path=taught,
-            render=dict(render) if render is not None else None,
+            trajectory=SplineTrajectory.from_dict(message["trajectory"]), dhat0=dhat0,
+            dhat0_source=str(message.get("dhat0_source", "")), depth=dict(message.get("depth") or {}), frames=frames,
+            condition35=dict(message.get("condition35") or {}), residual_px=dict(message.get("residual_px") or {}),
+            detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]), world_description=world,
+            taught_path=taught, render=dict(render) if render is not None else None,
             gains=dict(gains) if gains is not None else None,
             uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
         )
@@ -265,11 +244,8 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
     if model_message is None:
         raise RecordingError(f"{stream.name}: no fit model in it (is it the output of hbvs fit, and complete?)")
     return FitFile(
-        model=model_from_message(model_message, stream.name),
-        reference_image=images.get(REFERENCE_IMAGE_TOPIC),
-        template_image=images.get(TEMPLATE_IMAGE_TOPIC),
-        info=info,
-        truncated=stream.truncated,
+        model=model_from_message(model_message, stream.name), reference_image=images.get(REFERENCE_IMAGE_TOPIC),
+        template_image=images.get(TEMPLATE_IMAGE_TOPIC), info=info, truncated=stream.truncated,
     )
 
 

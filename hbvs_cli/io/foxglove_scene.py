@@ -1,10 +1,6 @@
-"""What Foxglove's 3D panel needs: frame transforms, the target, the taught path.
-
-Frames (also those of the ROS 2 export): ``world`` (x toward the wall, z up, m);
-``base_link`` (the robot on the floor, x forward, z up); ``camera_optical`` (the camera at
-its height above ``base_link``, z forward, x right, y down, as Foxglove's
-``CameraCalibration`` and ROS's ``CameraInfo`` assume).
-"""
+"""What Foxglove's 3D panel needs: frame transforms, the target, the taught path. Frames (also the ROS 2
+export's): ``world`` (x toward the wall, z up, m); ``base_link`` (the robot on the floor, x forward, z up);
+``camera_optical`` (at the camera's height, z forward, x right, y down, as ``CameraInfo`` assumes)."""
 
 from __future__ import annotations
 
@@ -22,9 +18,6 @@ BASE_FRAME = "base_link"
 #: robot's frame are x_opt = -y, y_opt = -z, z_opt = +x.
 OPTICAL_FROM_BASE_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
 
-_TARGET_RGBA = (0.1, 0.9, 0.2, 1.0)
-_POSTER_RGBA = (0.9, 0.9, 0.9, 0.6)
-_PATH_RGBA = (1.0, 0.3, 0.1, 1.0)
 _IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
@@ -74,17 +67,15 @@ def target_entity(ns: int, world: Any) -> Any:
     poster = target.poster
     diameter = max(2.0 * float(target.dot_radius), 0.03)
     spheres = [
-        SpherePrimitive(pose=_pose(point), size=vector3((diameter, diameter, diameter)), color=color(*_TARGET_RGBA))
+        SpherePrimitive(pose=_pose(point), size=vector3((diameter, diameter, diameter)), color=color(0.1, 0.9, 0.2, 1.0))
         for point in np.asarray(target.points_world, dtype=float)
     ]
     # The poster's box: its x along the wall normal, y along "right", z along "up".
     right = np.asarray(poster.right, dtype=float)
     up = -np.asarray(poster.down, dtype=float)
     rotation = Rotation.from_matrix(np.column_stack([np.cross(right, up), right, up])).as_quat()
-    cube = CubePrimitive(
-        pose=_pose(poster.center, rotation), size=vector3((0.01, float(poster.width), float(poster.height))),
-        color=color(*_POSTER_RGBA),
-    )
+    size = vector3((0.01, float(poster.width), float(poster.height)))
+    cube = CubePrimitive(pose=_pose(poster.center, rotation), size=size, color=color(0.9, 0.9, 0.9, 0.6))
     return _entity(ns, "target", spheres=spheres, cubes=[cube])
 
 
@@ -96,7 +87,7 @@ def path_entity(ns: int, poses: np.ndarray, height: float = 0.0) -> Any:
     points = [Point3(x=float(x), y=float(y), z=float(height)) for x, y in np.asarray(poses, dtype=float)[:, :2]]
     line = LinePrimitive(
         type=LinePrimitive.LINE_STRIP, pose=_pose((0.0, 0.0, 0.0)), thickness=0.02, scale_invariant=False,
-        points=points, color=color(*_PATH_RGBA),
+        points=points, color=color(1.0, 0.3, 0.1, 1.0),
     )
     return _entity(ns, "taught_path", lines=[line])
 

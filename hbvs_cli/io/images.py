@@ -1,8 +1,5 @@
-"""Image bytes <-> 8-bit arrays (gray or BGR), and the ``foxglove.CompressedImage`` around them.
-
-Decoding refuses headers that declare more pixels than the data can hold, before OpenCV
-allocates them (:func:`decode_image`).
-"""
+"""Image bytes <-> 8-bit arrays (gray or BGR), and the ``foxglove.CompressedImage`` around them;
+headers that declare more pixels than the data can hold are refused before OpenCV allocates them."""
 
 from __future__ import annotations
 
@@ -116,8 +113,7 @@ def _png_problem(data: bytes) -> str | None:
 
 
 def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray[np.uint8]:
-    """Decode any image OpenCV reads to 8-bit gray (H, W), or with ``colour`` a colour one to
-    BGR (H, W, 3); :class:`InputError` if it cannot."""
+    """Decode any image OpenCV reads to 8-bit gray (H, W), or with ``colour`` a colour one to BGR (H, W, 3)."""
     import cv2
 
     size = image_size(data)
@@ -146,14 +142,10 @@ def decode_image(data: bytes, source: str = "", colour: bool = False) -> NDArray
     return image
 
 
-def is_gray8_png(data: bytes) -> bool:
-    """True for a PNG of 8-bit gray pixels (colour type 0, bit depth 8), read from its header."""
-    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 0
-
-
-def is_rgb8_png(data: bytes) -> bool:
-    """True for a PNG of 8-bit RGB pixels (colour type 2, bit depth 8, no alpha, no palette)."""
-    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == 2
+def is_png8(data: bytes, colour: bool = False) -> bool:
+    """True for a PNG of 8-bit gray pixels (colour type 0), or with ``colour`` of RGB ones (type 2: no
+    alpha, no palette), read from its header."""
+    return data[:8] == PNG_SIGNATURE and len(data) >= 26 and data[24] == 8 and data[25] == (2 if colour else 0)
 
 
 def sniff_format(data: bytes) -> str | None:
@@ -186,20 +178,12 @@ def as_image8(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
 
 
 def bytes_to_store(
-    image: NDArray[np.uint8],
-    encoded: bytes | None = None,
-    encoded_format: str | None = None,
-    image_format: str = "auto",
-    jpeg_quality: int = DEFAULT_JPEG_QUALITY,
-    gray: bool = False,
+    image: NDArray[np.uint8], encoded: bytes | None = None, encoded_format: str | None = None,
+    image_format: str = "auto", jpeg_quality: int = DEFAULT_JPEG_QUALITY, gray: bool = False,
 ) -> tuple[bytes, str]:
-    """The bytes and format a recording stores for one frame.
-
-    ``image`` is gray (H, W) or BGR (H, W, 3) uint8; ``encoded`` the source's own bytes, if
-    compressed. ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels, re-encodes other
-    PNGs as PNG and compresses the rest as JPEG; ``png``/``jpeg`` force a format. ``gray``
-    (``teach --gray``) stores the luminance only.
-    """
+    """The bytes and format a recording stores for ``image`` (gray (H, W) or BGR (H, W, 3) uint8),
+    ``encoded`` the source's own bytes: ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels,
+    re-encodes other PNGs and compresses the rest as JPEG; ``gray`` stores the luminance only."""
     if image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {image_format!r}")
     colour = image.ndim == 3
@@ -210,7 +194,7 @@ def bytes_to_store(
     if encoded is not None and encoded_format == "jpeg" and image_format in ("auto", "jpeg"):
         return encoded, "jpeg"
     if encoded is not None and encoded_format == "png" and image_format in ("auto", "png"):
-        kept = is_rgb8_png(encoded) if colour else is_gray8_png(encoded)
+        kept = is_png8(encoded, colour)
         return (encoded if kept else encode_image(image, "png")), "png"
     chosen = "jpeg" if image_format == "auto" and encoded is None else image_format
     chosen = "png" if chosen == "auto" else chosen

@@ -1,9 +1,6 @@
-"""``hbvs repeat --foxglove [PORT]``: the run served to the Foxglove app while it runs.
-
-The Foxglove SDK's WebSocket server on localhost gets every message written to the run file,
-with the same bytes, schema and log time; the file itself is unchanged. A simulated run is
-paced to ``--foxglove-speed`` times real time so that it can be watched.
-"""
+"""``hbvs repeat --foxglove [PORT]``: every message of the run file (same bytes, schema and log time)
+also served by the Foxglove SDK's WebSocket server on localhost, a simulated run paced to
+``--foxglove-speed`` times real time."""
 
 from __future__ import annotations
 
@@ -75,8 +72,7 @@ class LiveMirror:
 
 @contextmanager
 def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Iterator[Any]:
-    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`);
-    :class:`UsageError` when the SDK is missing, a value is out of range or the port is taken."""
+    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`)."""
     foxglove = _sdk()
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
@@ -119,7 +115,6 @@ def _quietly(function: Any) -> None:
 def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> Iterator[Any]:
     """A function that wraps the run file's writer: the identity when ``port`` is None, else in a
     :class:`LiveMirror` of a server started here; ``announce`` gets where to connect."""
-
     if port is None:
         yield lambda writer: writer
         return

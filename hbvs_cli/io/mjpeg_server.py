@@ -1,10 +1,6 @@
-"""A camera as an MJPEG stream over HTTP on 127.0.0.1 (``robot-sim --mjpeg PORT``).
-
-The stand-in robot's camera without ROS: every frame is sent as one JPEG part of a
-``multipart/x-mixed-replace`` response, the format IP cameras serve and OpenCV's
-``VideoCapture("http://127.0.0.1:PORT/")`` reads (``repeat --live --camera URL``). Only the
-newest frame is sent: a slow reader skips frames rather than falling behind.
-"""
+"""A camera as an MJPEG stream over HTTP on 127.0.0.1 (``robot-sim --mjpeg PORT``): one JPEG part of a
+``multipart/x-mixed-replace`` response per frame, as IP cameras serve and ``cv2.VideoCapture`` reads.
+Only the newest frame is sent: a slow reader skips frames rather than falling behind."""
 
 from __future__ import annotations
 

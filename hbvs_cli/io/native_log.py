@@ -1,10 +1,5 @@
-"""What native libraries print on their own, kept off the terminal and turned into our words.
-
-C libraries write straight to descriptor 2; :func:`capture` points it at a temporary file
-(Python's ``sys.stderr`` keeps the terminal), and a caller quotes :func:`said_since` a
-:func:`mark` in its one-line error.
-"""
-
+"""What native libraries print on descriptor 2, kept off the terminal (:func:`capture`) and quoted in
+our one-line errors (:func:`said_since` a :func:`mark`)."""
 
 from __future__ import annotations
 
@@ -22,10 +17,8 @@ _captured = False
 
 
 def capture() -> bool:
-    """Send descriptor 2 to a temporary file; ``sys.stderr`` keeps the real stderr.
-
-    Returns False (and changes nothing) when descriptor 2 cannot be redirected.
-    """
+    """Send descriptor 2 to a temporary file, ``sys.stderr`` keeping the real stderr; False (nothing
+    changed) when descriptor 2 cannot be redirected."""
     global _captured
     try:
         sys.stderr.flush()
@@ -57,8 +50,7 @@ def mark() -> int:
 
 
 def said_since(start: int) -> str:
-    """The native text written since :func:`mark` returned ``start``, as one short line
-    ("" when nothing was captured or said)."""
+    """The native text written since :func:`mark` returned ``start``, as one short line ("" for none)."""
     if not _captured:
         return ""
     try:

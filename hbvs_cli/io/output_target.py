@@ -1,9 +1,6 @@
-"""How every output of hbvs is written, so that what a user points hbvs at is never lost.
-
-``-`` is stdout. A regular file or a new path is written as ``NAME.<pid>-<random>.partial``,
-fsynced and renamed over ``NAME`` only when complete: an error or a signal removes it and
-leaves an earlier output as it was. A device, FIFO or socket is written in place.
-"""
+"""How every output of hbvs is written, so that what a user points hbvs at is never lost: a regular file
+is written as ``NAME.<pid>-<random>.partial``, fsynced and renamed over ``NAME`` only when complete;
+``-`` is stdout; a device, FIFO or socket is written in place."""
 
 from __future__ import annotations
 
@@ -24,7 +21,6 @@ PARTIAL_SUFFIX = ".partial"
 _PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
 
 
-# ----------------------------------------------------------------------------- targets
 @dataclass(frozen=True)
 class OutputTarget:
     """An output as hbvs will write it: ``kind`` is ``"stdout"``, ``"file"`` (written atomically)
@@ -56,8 +52,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     if stat.S_ISDIR(status.st_mode):
         raise InputError(f"{given}: is a directory; give a file name for the {what}")
     path = Path(os.path.realpath(given))
-    # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor, not a place to
-    # put a new file: they are written in place, whatever they lead to.
+    # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor: written in place, whatever they lead to.
     through_proc = path.parts[1:2] == ("proc",)
     if stat.S_ISREG(status.st_mode) and not through_proc:
         return OutputTarget(text, "file", path, True)
@@ -78,17 +73,14 @@ def final_name_of_partial(path: Path) -> Path | None:
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs whose process is gone."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None:
-        return False
-    pid = int(match.group("pid"))
-    if pid == os.getpid():
+    if match is None or int(match.group("pid")) == os.getpid():
         return False
     try:
-        os.kill(pid, 0)
+        os.kill(int(match.group("pid")), 0)
     except ProcessLookupError:
         return True
-    except (PermissionError, OverflowError, OSError):
-        return False  # alive under another user, or not a pid this system has: keep it
+    except (OverflowError, OSError):
+        pass  # alive under another user, or not a pid this system has: keep it
     return False
 
 
@@ -165,7 +157,6 @@ class FolderLock:
         self.release()
 
 
-# ----------------------------------------------------------------------------- same file
 def _identity(path: str) -> tuple[int, int] | None:
     """(device, inode) of ``path``, or of stdout for ``-`` when it is a regular file."""
     try:
@@ -179,9 +170,8 @@ def refuse_overwriting_inputs(
     outputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
     inputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
 ) -> None:
-    """:class:`UsageError` for an output that is the same file as an input (stdout redirected
-    included), the final file of an input's partial file, or another output. ``outputs`` and
-    ``inputs`` are (label, path or None) pairs."""
+    """:class:`UsageError` for an output (a (label, path or None) pair) that is the same file as an input
+    (stdout redirected included), the final file of an input's partial file, or another output."""
     known: dict[tuple[int, int], str] = {}
     recovering: dict[Path, str] = {}
     for label, spec in inputs:
@@ -216,7 +206,6 @@ def refuse_overwriting_inputs(
         written[key] = f"{label} {text}"
 
 
-# ----------------------------------------------------------------------------- writing
 def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
     """The hbvs error for an OSError while writing ``what`` (``atomic``: an earlier file is kept)."""
     kept = "; an earlier file of that name is left as it was" if atomic else ""
@@ -231,8 +220,7 @@ def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
 
 
 class GuardedStream:
-    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe
-    cannot seek)."""
+    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek)."""
 
     def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False) -> None:
         self.closed = False
@@ -310,22 +298,16 @@ class OutputSink:
             )
 
 
-def _stdout_binary(stdout: IO[bytes] | None) -> IO[bytes]:
-    if stdout is not None:
-        return stdout
-    if sys.stdout is None or stdio_closed(1):
-        raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-    return sys.stdout.buffer
-
-
 @contextmanager
 def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
-    """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what``
-    names the output in messages."""
+    """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
+    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        sink = OutputSink(GuardedStream(_stdout_binary(stdout), "stdout", owned=False), target)
+        if stdout is None and (sys.stdout is None or stdio_closed(1)):
+            raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False), target)
         yield sink
         sink.stream.flush()
         return
@@ -392,28 +374,16 @@ def _remove_quietly(path: Path) -> None:
         pass
 
 
-class _TextOutput:
-    """UTF-8 text on a :class:`GuardedStream` (JSON lines: write and flush are all it needs)."""
-
-    def __init__(self, stream: GuardedStream) -> None:
-        self._stream = stream
-
-    def write(self, text: str) -> int:
-        self._stream.write(text.encode("utf-8"))
-        return len(text)
-
-    def flush(self) -> None:
-        self._stream.flush()
-
-
 @contextmanager
 def open_text_output(spec: str | os.PathLike[str] | None, what: str) -> Iterator[Any]:
     """A UTF-8 text stream on :func:`open_output_stream` (None yields None): for JSON lines."""
     if spec is None:
         yield None
         return
+    import codecs
+
     with open_output_stream(spec, what) as sink:
-        yield _TextOutput(sink.stream)
+        yield codecs.getwriter("utf-8")(sink.stream)
 
 
 def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> None:
@@ -422,7 +392,6 @@ def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> 
         sink.stream.write(data)
 
 
-# ----------------------------------------------------------------------------- stdio
 _closed_stdio: set[int] = set()
 
 

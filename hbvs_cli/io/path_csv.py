@@ -1,8 +1,5 @@
-"""Teach-pendant command files: CSV with the columns ``t,v,w`` (s, m/s, rad/s).
-
-Each row is a command held until the next row's time; the last one is held for the
-median row interval. Columns may come in any order; extra columns are ignored.
-"""
+"""Teach-pendant command files: CSV with the columns ``t,v,w`` (s, m/s, rad/s), in any order, each row
+held until the next row's time, the last one for the median row interval."""
 
 from __future__ import annotations
 
@@ -23,8 +20,7 @@ REQUIRED_COLUMNS = ("t", "v", "w")
 
 
 def load_command_profile(path: str | Path) -> CommandProfile:
-    """Read a teach-pendant CSV into a :class:`CommandProfile`; :class:`InputError` for a
-    missing file, a bad header, a non-numeric cell, fewer than 2 rows or times that do not increase."""
+    """Read a teach-pendant CSV into a :class:`CommandProfile`."""
     name = str(path)
     reader = csv.reader(io.StringIO(read_small_text(path, MAX_CSV_BYTES, "a CSV file with columns t,v,w")))
     try:
@@ -38,8 +34,7 @@ def load_command_profile(path: str | Path) -> CommandProfile:
     if missing:
         raise InputError(f"{name}: the header must name the columns t,v,w (missing: {', '.join(missing)}; found: {short_repr(','.join(columns))})")
     index = [columns.index(c) for c in REQUIRED_COLUMNS]
-    # Packed doubles, not a list per row: a 64 MiB file of short rows is ten million
-    # rows, which as Python lists would take gigabytes.
+    # Packed doubles: ten million short rows as Python lists would take gigabytes.
     values = [array("d") for _ in REQUIRED_COLUMNS]
     lines = array("q")
     try:

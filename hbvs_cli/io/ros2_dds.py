@@ -1,9 +1,6 @@
-"""ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot.
-
-ROS 2 topics are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain
-CDR, so the few messages hbvs needs are Cyclone DDS IDL structs with those names, made from
-``rosbags``' message definitions (``tests/test_live_dds.py`` checks them against its CDR).
-"""
+"""ROS 2 over DDS without ROS: the messages, names and QoS hbvs speaks on a live robot. ROS 2 topics
+are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain CDR, so the messages are
+Cyclone DDS IDL structs of those names, made from ``rosbags``' message definitions."""
 
 import os
 import types
@@ -30,7 +27,6 @@ except ImportError:
     raise UsageError(INSTALL_HINT) from None
 
 
-# ----------------------------------------------------------------------------- messages
 def dds_type_name(ros_type: str) -> str:
     """The DDS type name of a ROS 2 message type, as the ROS 2 RMWs register it:
     ``geometry_msgs/msg/Twist`` -> ``geometry_msgs::msg::dds_::Twist_``."""
@@ -39,9 +35,8 @@ def dds_type_name(ros_type: str) -> str:
 
 
 def _idl_structs(ros_types: tuple[str, ...]) -> dict[str, type]:
-    """IDL structs of ROS 2 message types (and the types they nest), made from rosbags' Humble
-    definitions: the same fields in the same order, numbers 0, strings "" and nested messages
-    their own default when not given; ``uint8[]`` is ``bytes`` (see :func:`_octets_as_bytes`)."""
+    """IDL structs of ROS 2 message types (and the types they nest) from rosbags' Humble definitions,
+    fields defaulting to zero, "" and their own default; ``uint8[]`` is ``bytes``."""
     from rosbags.interfaces import Nodetype
     from rosbags.typesys import Stores, get_typestore
 
@@ -82,9 +77,8 @@ def _idl_structs(ros_types: tuple[str, ...]) -> dict[str, type]:
 
 
 def _octets_as_bytes(message_type: type, name: str) -> None:
-    """(De)serialise the ``sequence[uint8]`` field ``name`` as ``bytes`` in one block (the
-    binding's list of ints costs 40 ms an image): the member's serialiser is swapped for the
-    binding's ``bytes`` one, whose CDR is identical. Raises if the binding's layout differs."""
+    """(De)serialise the ``sequence[uint8]`` field ``name`` with the binding's ``bytes`` serialiser (same
+    CDR, one block instead of a list of ints); raises if the binding's layout differs."""
     from cyclonedds.idl._machinery import BytesMachine, PlainCdrV2SequenceOfPrimitiveMachine, StructMachine
 
     support = message_type.__idl__
@@ -117,7 +111,6 @@ def seconds_of(stamp: Time) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-# ----------------------------------------------------------------------------- names, QoS
 def dds_topic_name(ros_name: str) -> str:
     """The DDS topic of a ROS 2 topic: ``/cmd_vel`` -> ``rt/cmd_vel``."""
     name = ros_name.strip()
@@ -162,9 +155,8 @@ def domain_id() -> int:
 
 
 def loopback_config() -> str:
-    """A Cyclone DDS configuration (``CYCLONEDDS_URI``, syntax of 0.10 and later) that keeps
-    DDS on this machine: ``lo`` only, no multicast, unicast discovery of 127.0.0.1."""
-
+    """A Cyclone DDS configuration (``CYCLONEDDS_URI``, 0.10 and later) that keeps DDS on this machine:
+    ``lo`` only, no multicast, unicast discovery of 127.0.0.1."""
     return (
         '<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">'
         "<General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
@@ -175,7 +167,6 @@ def loopback_config() -> str:
     )
 
 
-# ----------------------------------------------------------------------------- endpoints
 class Ros2Node:
     """One DDS participant on ``ROS_DOMAIN_ID``, with its ROS 2 publishers and subscribers."""
 

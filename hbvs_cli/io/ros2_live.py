@@ -1,6 +1,5 @@
 """The live robot's ROS 2 endpoints: the newest camera frame in (older ones counted as
-dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.ros2_dds`.
-"""
+dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.ros2_dds`."""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..errors import InputError
 from . import ros2_dds as dds
-from .live_frame import LiveFrame
+from .sources.frame_source import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
 from .sources.rosbag import BagSource
 
@@ -21,8 +20,8 @@ DISCOVERY_TIMEOUT_S = 10.0
 
 
 def image_message_type(topic: str) -> type:
-    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image``:
-    Cyclone's Python binding cannot read the discovery topics reliably."""
+    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image`` (Cyclone's
+    Python binding cannot read the type from discovery reliably)."""
     return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
 
 
@@ -34,13 +33,10 @@ class LatestImage:
     """The newest frame of an image topic, with the sensor-data QoS."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
-        from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
-
         self.topic = topic
         self.message_type = image_message_type(topic)
         self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
-        self._waitset = WaitSet(node.participant)
-        self._waitset.attach(ReadCondition(self.reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+        self._waitset = _waitset(node, self.reader)
         self._wait_for_publisher(discovery_timeout_s)
 
     def _wait_for_publisher(self, timeout_s: float) -> None:
@@ -75,6 +71,15 @@ class LatestImage:
         return [sample for sample in samples if hasattr(sample, "header")]
 
 
+def _waitset(node: dds.Ros2Node, reader: Any) -> Any:
+    """A waitset that wakes when ``reader`` has any sample."""
+    from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+
+    waitset = WaitSet(node.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    return waitset
+
+
 #: Largest plausible transport delay (s): a publication time beyond it is another host's clock.
 _SAME_CLOCK_S = 1.0
 
@@ -106,14 +111,10 @@ def decode_image_message(message: Any, topic: str) -> np.ndarray:
 
 
 def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVERY_TIMEOUT_S) -> CameraIntrinsics:
-    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic``; :class:`InputError`
-    when none comes within ``timeout_s`` or it is unusable."""
-    from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
-
+    """The camera of the first ``sensor_msgs/msg/CameraInfo`` on ``topic`` within ``timeout_s``."""
     # Best effort: matches the camera's CameraInfo whether it is published reliably or not.
     reader = node.subscriber(topic, dds.CameraInfo, dds.sensor_qos())
-    waitset = WaitSet(node.participant)
-    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    waitset = _waitset(node, reader)
     deadline = time.monotonic() + timeout_s
     while True:
         infos = [sample for sample in reader.take(N=8) if hasattr(sample, "header")]

@@ -1,10 +1,6 @@
-"""``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR), written with
-``rosbags`` (topics in docs/ros2.md). Poses keep the camera's height as z, so that ``evo_ape``
-on the two pose topics gives what ``hbvs report`` gives.
-
-The bag folder is written beside its name and moved into place when complete; only a bag
-hbvs wrote (marked in its metadata.yaml) is ever replaced.
-"""
+"""``hbvs export``: a teach, fit or run file as a ROS 2 bag (MCAP storage, CDR) written with ``rosbags``
+(topics in docs/ros2.md), moved into place when complete; only a bag hbvs wrote is ever replaced. Poses
+keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives what ``hbvs report`` gives."""
 
 from __future__ import annotations
 
@@ -33,8 +29,6 @@ BAG_VERSION = 8
 BAG_METADATA = "metadata.yaml"
 #: The ``custom_data`` entry that marks a bag hbvs wrote (the only kind export replaces).
 HBVS_MARK = ("hbvs_export", "1")
-#: Largest metadata.yaml read when deciding whether a folder is a bag hbvs wrote.
-MAX_METADATA_BYTES = 1 << 20
 
 
 @dataclass
@@ -47,11 +41,9 @@ class ExportSummary:
     truncated: bool = False
 
 
-# ----------------------------------------------------------------------------- output folder
 def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
-    """The folder ``hbvs export -o`` will write, checked before anything is read: :class:`UsageError`
-    for ``-``, anything but a bag hbvs wrote, or an input inside it; :class:`OutputError` for a
-    missing parent folder."""
+    """The folder ``hbvs export -o`` will write, checked before anything is read: :class:`UsageError` for
+    ``-``, anything but a bag hbvs wrote, or an input inside it."""
     if spec == "-":
         raise UsageError("a ROS 2 bag is a folder and cannot go to stdout; give a folder name with -o")
     final = Path(os.path.realpath(spec))
@@ -71,17 +63,11 @@ def check_bag_target(spec: str, inputs: tuple[str, ...] = ()) -> Path:
 def written_by_hbvs(folder: Path) -> bool:
     """True when ``folder`` holds hbvs's mark in its ``metadata.yaml`` and no file but the ones
     it lists (so that replacing it deletes nothing else)."""
-    from .limits import load_yaml_documents
+    from .sources.bag_storage import bag_information
 
-    metadata = folder / BAG_METADATA
     try:
-        if not metadata.is_file() or metadata.stat().st_size > MAX_METADATA_BYTES:
-            return False
-        documents = load_yaml_documents(metadata.read_text(encoding="utf-8"), str(metadata))
-    except Exception:  # noqa: BLE001 - unreadable, malformed or an alias bomb: not ours
-        return False
-    information = documents[0].get("rosbag2_bagfile_information") if documents and isinstance(documents[0], dict) else None
-    if not isinstance(information, dict):
+        information = bag_information(folder, str(folder)) if (folder / BAG_METADATA).is_file() else {}
+    except Exception:  # noqa: BLE001 - unreadable, too large, malformed or an alias bomb: not ours
         return False
     custom = information.get("custom_data")
     files = information.get("relative_file_paths")
@@ -113,7 +99,6 @@ def _atomic_folder(final: Path, before_swap: Any) -> Iterator[Path]:
         shutil.rmtree(work, ignore_errors=True)
 
 
-# ----------------------------------------------------------------------------- messages
 class _Messages:
     """Builds the ROS 2 messages with one type store."""
 
@@ -179,7 +164,6 @@ def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
     return position, orientation
 
 
-# ----------------------------------------------------------------------------- export
 class _BagWriter:
     """A rosbags writer with one connection per topic, opened on first use, and counts."""
 
@@ -315,7 +299,4 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
     height = float(model.world_description["camera_height_m"]) if model.world_description is not None else 0.0
     quaternions = yaw_to_quaternion(poses[:, 2])
-    return [
-        build.pose_stamped(seconds_to_ns(t), (x, y, height), q)
-        for t, (x, y, _), q in zip(taught.t, poses, quaternions)
-    ]
+    return [build.pose_stamped(seconds_to_ns(t), (x, y, height), q) for t, (x, y, _), q in zip(taught.t, poses, quaternions)]

@@ -28,10 +28,8 @@ RUN_SCHEMAS = TOPICS[FILE_KIND]
 STATE_FIELDS = (
     "t", "x_h1", "x_h2", "theta", "x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot",
     "e1", "e2", "ebar2", "e3", "v_c", "w_c", "v_law", "w_law", "dhat", "residual", "V",
-    # The state filter's estimate and std (NaN without a filter).
     "theta_est", "x_h1_est", "x_h2_est", "theta_std", "x_h1_std", "x_h2_std", "noise_px",
 )
-
 
 #: Per-step fields of ``hbvs.LoopTiming`` (live runs) kept by :class:`RunData`.
 TIMING_FIELDS = ("t", "frame_stamp", "latency_s", "frame_interval_s", "dropped", "late")
@@ -39,13 +37,9 @@ TIMING_FIELDS = ("t", "frame_stamp", "latency_s", "frame_interval_s", "dropped",
 
 @dataclass
 class RunData:
-    """A whole run as arrays, one row per control step (K steps).
-
-    ``info`` is the ``hbvs`` metadata record; ``state`` maps :data:`STATE_FIELDS` to (K,)
-    arrays (NaN for null); ``saturated``, ``lost``, ``dropped`` are (K,) bool; ``true_pose``
-    and ``desired_pose`` (K, 3) (x, y, phi) in m, m, rad for ``--sim`` runs, else None;
-    ``events`` (t, level, text); ``timing`` a live run's :data:`TIMING_FIELDS`, else None.
-    """
+    """A whole run as arrays over its K control steps: ``state`` maps :data:`STATE_FIELDS` to (K,)
+    (NaN for null); ``saturated``, ``lost``, ``dropped`` (K,) bool; ``true_pose`` and ``desired_pose``
+    (K, 3) (x, y, phi) in m, m, rad for ``--sim`` runs; ``timing`` a live run's :data:`TIMING_FIELDS`."""
 
     name: str
     info: dict[str, Any]
@@ -162,12 +156,8 @@ def read_run(source: Any, name: str = "") -> RunData:
     events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
     def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
-        if not poses:
-            return None
         rows = [poses.get(t) for t in step_times]
-        if any(r is None for r in rows):
-            return None
-        return np.array(rows, dtype=float)
+        return np.array(rows, dtype=float) if poses and all(row is not None for row in rows) else None
 
     return RunData(
         name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),
@@ -177,7 +167,6 @@ def read_run(source: Any, name: str = "") -> RunData:
     )
 
 
-# ----------------------------------------------------------------------------- writing
 class RunWriter:
     """Writes a run file from plain values, every message stamped ``base_ns`` plus its run time
     ``t`` (s); ``base_ns`` None when only the first frame gives it (call :meth:`start` then)."""
@@ -244,9 +233,8 @@ class RunWriter:
         self.writer.write(ANNOTATIONS_TOPIC, RUN_SCHEMAS[ANNOTATIONS_TOPIC], ns, annotations_message(ns, detected, desired, label))
 
     def _write_flat(self, topic: str, ns: int, message: dict[str, Any], clean: bool = True) -> None:
-        """Write a message of plain values without the general JSON cleaning pass (it runs
-        several times per control period); ``clean=False`` when no value can be NaN."""
-
+        """Write plain values without the general JSON cleaning pass (several messages a control period);
+        ``clean=False`` when no value can be NaN."""
         if clean:
             for key, value in message.items():
                 if isinstance(value, float) and not math.isfinite(value):

@@ -1,7 +1,4 @@
-"""JSON schemas of hbvs's own messages (``hbvs.*``, ``json`` message encoding, ``jsonschema``
-schema encoding). ``foxglove.*`` messages are protobuf, with the classes of
-``foxglove-schemas-protobuf`` (:mod:`.messages`). Times are ``{"sec", "nsec"}``.
-"""
+"""JSON schemas of hbvs's own ``hbvs.*`` messages (``foxglove.*`` ones are protobuf)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """The options of the commands, declared once: name, type, default, help, bounds, config key.
 
-From each table come the command's typer signature (:mod:`hbvs_cli.cli.signature`), the
-options dataclass its stage takes, and the defaults ``--help`` shows. Precedence: built-in
-default < ``--config`` file < command line; an option a config may set holds None until
-given, so an explicit value always wins. Kept light: ``hbvs --help`` imports it.
-"""
+Each table gives the command's typer signature (:mod:`hbvs_cli.cli.signature`) and its stage's options
+dataclass. Precedence: built-in default < ``--config`` file < command line. Kept light: ``hbvs --help`` imports it."""
 
 from __future__ import annotations
 
@@ -24,13 +21,9 @@ FROM_THE_FIT = "the fit's suggestion"
 
 @dataclass(frozen=True)
 class Setting:
-    """One option of a stage.
-
-    ``default`` is what the options hold when it is not given (None: "not given");
-    ``fallback`` the value used when neither the option nor the ``config`` key of a
-    ``--config`` file gives one; ``required`` an option that must be given; ``shown`` the default as ``--help`` words it when the value
-    alone would not say it; ``bounds`` the ``min`` and ``max`` the command line checks.
-    """
+    """One option of a stage: ``default`` what the options hold when it is not given (None: "not given");
+    ``fallback`` the value used when neither the option nor the ``config`` key of a ``--config`` file gives
+    one; ``shown`` the default in ``--help``'s words; ``bounds`` the ``min`` and ``max`` the command line checks."""
 
     name: str
     type: type

@@ -1,9 +1,6 @@
-"""The results table of a sweep, written as runs finish and valid after any interruption.
-
-The folder holds ``sweep.json`` (spec and fit digest, which a resume must match),
-``parts/part-NNNNNN.parquet`` (one per flush), ``runs.parquet`` and ``runs.csv`` (sorted at
-the end) and ``runs/`` (``--keep-runs``); one process writes it at a time.
-"""
+"""The results table of a sweep, written as runs finish and valid after any interruption: ``sweep.json``
+(spec and fit digest, which a resume must match), ``parts/part-NNNNNN.parquet`` (one per flush),
+``runs.parquet`` and ``runs.csv`` (sorted at the end); one process writes it at a time."""
 
 from __future__ import annotations
 
@@ -93,8 +90,7 @@ def _replace(path: Path, write: Any) -> None:
 
 
 def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
-    """``sweep.json`` of a results folder (``need_spec``: with the spec's ``vary`` and ``fixed``);
-    :class:`InputError` when it is not what ``hbvs sweep`` writes."""
+    """``sweep.json`` of a results folder, checked (``need_spec``: with the spec's ``vary`` and ``fixed``)."""
     path = Path(folder) / SPEC_FILE
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
@@ -113,13 +109,6 @@ def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
     return document
 
 
-def _check_columns(path: Path, table: Any, schema: Any) -> None:
-    """Refuse a table whose columns are not the sweep's (another sweep's rows)."""
-    if schema is not None and set(table.column_names) - set(schema.names):
-        raise InputError(f"{path}: holds the rows of another sweep (columns {', '.join(sorted(set(table.column_names) - set(schema.names)))} "
-                         "are not this sweep's); move it away or give another -o folder")
-
-
 #: Run indices per window of the streamed merge: the rows in memory at once.
 MERGE_WINDOW = 1024
 
@@ -128,14 +117,20 @@ def _result_files(folder: Path) -> list[Path]:
     return ([folder / PARQUET] if (folder / PARQUET).is_file() else []) + sorted((folder / PARTS).glob("part-*.parquet"))
 
 
-def _read_table(path: Path, **options: Any) -> Any:
+def _read_table(path: Path, schema_only: bool = False, **options: Any) -> Any:
+    """A results file's rows (or, with ``schema_only``, its schema); :class:`InputError` when unreadable."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        return pq.read_table(path, **options)
+        return pq.read_schema(path) if schema_only else pq.read_table(path, **options)
     except (OSError, pa.ArrowException) as exc:
         raise InputError(f"{path}: unreadable results ({exc})") from None
+
+
+def _indices(path: Path) -> Any:
+    """The run indices of a results file (only its index column is read)."""
+    return _read_table(path, columns=["index"]).column("index").to_numpy()
 
 
 def _sorted_unique(table: Any) -> Any:
@@ -159,7 +154,7 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
     window = window or MERGE_WINDOW
     spans = []
     for path in _result_files(folder):
-        index = _read_table(path, columns=["index"]).column("index").to_numpy()
+        index = _indices(path)
         if index.size:
             spans.append((path, int(index.min()), int(index.max())))
     if not spans:
@@ -181,9 +176,13 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
 
 
 def _cast(path: Path, table: Any, schema: Any) -> Any:
+    """``table`` with the sweep's column types; :class:`InputError` for another sweep's rows."""
     import pyarrow as pa
 
-    _check_columns(path, table, schema)
+    foreign = sorted(set(table.column_names) - set(schema.names))
+    if foreign:
+        raise InputError(f"{path}: holds the rows of another sweep (columns {', '.join(foreign)} are not this sweep's); "
+                         "move it away or give another -o folder")
     try:
         return table.cast(schema)
     except (pa.ArrowException, ValueError) as exc:
@@ -211,14 +210,6 @@ def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> 
     return rows
 
 
-def done_indices(folder: Path) -> set[int]:
-    """Run indices with a row in ``runs.parquet`` or a part (only the index column is read)."""
-    done: set[int] = set()
-    for path in _result_files(folder):
-        done.update(_read_table(path, columns=["index"]).column("index").to_pylist())
-    return done
-
-
 def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
     """Every row written so far, one per run index, sorted; :class:`InputError` if not a sweep's folder."""
     import pyarrow as pa
@@ -231,22 +222,11 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
         raise InputError(f"{folder / SPEC_FILE}: not the description hbvs sweep writes ({exc})") from None
     wanted = None if columns is None else [n for n in dict.fromkeys(["index", *columns]) if n in schema.names]
     target = schema if wanted is None else pa.schema([schema.field(n) for n in wanted])
-    pieces = [
-        _cast(path, _read_table(path, columns=None if wanted is None else [n for n in wanted if n in pq_names(path)]), target)
-        for path in _result_files(folder)
-    ]
+    pieces = []
+    for path in _result_files(folder):
+        present = None if wanted is None else [n for n in wanted if n in _read_table(path, schema_only=True).names]
+        pieces.append(_cast(path, _read_table(path, columns=present), target))
     return _sorted_unique(pa.concat_tables(pieces)) if pieces else target.empty_table()
-
-
-def pq_names(path: Path) -> list[str]:
-    """The column names of a Parquet file (its schema only is read)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    try:
-        return pq.read_schema(path).names
-    except (OSError, pa.ArrowException) as exc:
-        raise InputError(f"{path}: unreadable results ({exc})") from None
 
 
 class ResultsTable:
@@ -302,18 +282,14 @@ class ResultsTable:
         remove_stale_partials(self.folder.rglob("*.partial"))
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
         _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
-        self._done = done_indices(self.folder)
+        #: Run indices with a row when the table was opened.
+        self.done: set[int] = {int(i) for path in _result_files(self.folder) for i in _indices(path)}
 
     def release(self) -> None:
         """Let another process write the folder (also done when this one ends)."""
         if self._lock is not None:
             self._lock.release()
             self._lock = None
-
-    @property
-    def done(self) -> set[int]:
-        """Run indices with a row (read when the table was opened)."""
-        return self._done
 
     def append(self, row: Mapping[str, Any]) -> None:
         self._buffer.append(dict(row))
@@ -360,7 +336,6 @@ class ResultsTable:
 
     def finish(self) -> int:
         """Merge everything into ``runs.parquet`` and ``runs.csv``; returns the number of rows."""
-
         self.flush()
         merged = partial_name_of(self.folder / PARQUET)
         csv_partial = partial_name_of(self.folder / CSV)

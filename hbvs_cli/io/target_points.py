@@ -1,10 +1,6 @@
-"""``--target-points``: the target points' positions on the wall, a CSV in metres.
-
-One point a line, ``x,y`` (m) in the wall's plane, any origin and orientation (mirrored or
-not); a first line that is not numbers (a header) is skipped, as are blank lines and
-lines starting with ``#``. The order does not matter: the fit matches the points to the
-detected ones by their layout (:func:`~hbvs_cli.core.known_points.match_layout`).
-"""
+"""``--target-points``: the target points' positions on the wall, a CSV of ``x,y`` (m) per line in
+the wall's plane, any origin, orientation and order (the fit matches them by their layout); a header,
+blank lines and lines starting with ``#`` are skipped."""
 
 from __future__ import annotations
 
@@ -25,9 +21,7 @@ MAX_POINTS = 1000
 
 
 def read_target_points(path: str | Path) -> NDArray[np.float64]:
-    """The points of a ``--target-points`` CSV, shape (N, 2) (m); :class:`InputError` for a missing
-    or unreadable file, a line that is not two numbers, fewer than 3 or more than
-    :data:`MAX_POINTS` points, or two points at the same place."""
+    """The points of a ``--target-points`` CSV, shape (N, 2) (m): 3 to :data:`MAX_POINTS`, all distinct."""
     name = str(path)
     text = read_small_text(path, MAX_POINTS_BYTES, "a CSV file of x,y positions in metres")
     rows = []

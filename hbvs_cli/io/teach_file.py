@@ -1,7 +1,5 @@
-"""The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read
-(topics in :data:`~.topics.TOPICS` ``["teach"]`` and docs/files.md). A frame's command and
-true pose are written just before its image, with its log time, so a streaming reader has them.
-"""
+"""The teach recording: what ``hbvs teach`` writes and ``hbvs fit`` / ``repeat --replay`` read (docs/files.md).
+A frame's command and true pose are written just before its image, with its log time, so a streaming reader has them."""
 
 from __future__ import annotations
 
@@ -87,13 +85,8 @@ class TeachWriter:
         )
 
     def frame(
-        self,
-        log_time_ns: int,
-        image_bytes: bytes,
-        image_format: str,
-        pose: tuple[float, float, float] | None = None,
-        camera_height: float = 0.0,
-        command: tuple[float, float] | None = None,
+        self, log_time_ns: int, image_bytes: bytes, image_format: str, pose: tuple[float, float, float] | None = None,
+        camera_height: float = 0.0, command: tuple[float, float] | None = None,
     ) -> None:
         """One frame: its command and true pose (when known), then the image."""
         if command is not None:
@@ -110,9 +103,8 @@ class TeachWriter:
 
 @dataclass(frozen=True)
 class TeachFrame:
-    """One frame of a teach recording: ``t`` in s since the first frame, ``image_message`` the
-    stored ``foxglove.CompressedImage``, the true ``pose`` (x, y, phi) and taught ``command``
-    (v, w) when known."""
+    """One frame of a teach recording: ``t`` (s) since the first, the stored ``foxglove.CompressedImage``,
+    the true ``pose`` (x, y, phi) and taught ``command`` (v, w) when known."""
 
     index: int
     log_time_ns: int
@@ -128,11 +120,8 @@ class TeachFrame:
 
 @dataclass
 class TeachReader:
-    """Streams the frames of a teach recording (a file or ``-``) in constant memory.
-
-    ``camera``, ``world_description`` and ``info`` are filled as their records arrive; a
-    recording cut short yields its complete frames and sets :attr:`truncated`.
-    """
+    """Streams the frames of a teach recording (a file or ``-``) in constant memory; ``camera``,
+    ``world_description`` and ``info`` are filled as their records arrive."""
 
     source: Any
     name: str = ""

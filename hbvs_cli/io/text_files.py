@@ -8,9 +8,8 @@ from ..errors import InputError
 
 
 def read_small_text(path: str | Path, max_bytes: int, what: str) -> str:
-    """The UTF-8 text of a file of at most ``max_bytes`` (checked before reading: a huge file or
-    a device cannot exhaust memory), byte-order mark dropped; ``what`` names the expected file
-    in the one-line :class:`InputError`."""
+    """The UTF-8 text of a file of at most ``max_bytes`` (checked before reading: a huge file or a device
+    cannot exhaust memory); ``what`` names the expected file in the one-line :class:`InputError`."""
     path = Path(path)
     try:
         if path.is_dir():

@@ -1,7 +1,6 @@
 """The one table of hbvs's topics and schema names, per file kind (teach, fit, run); no other
 module spells a topic (``tests/test_repository.py`` checks)."""
 
-
 from __future__ import annotations
 
 # ----------------------------------------------------------------------------- schema names

@@ -1,17 +1,20 @@
-"""Reading a calibration file of any supported format, recognised by its content."""
+"""Reading a calibration file of any supported format, recognised by its content; plain JSON such as
+``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}`` is read here."""
 
 from __future__ import annotations
 
+import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
-from .kalibr import intrinsics_from_kalibr, is_kalibr
-from .mapping import _intrinsics_from_mapping
+from .mapping import _intrinsics_from_mapping, _require_mapping, intrinsics_from_kalibr, is_kalibr
 from .opencv import _read_opencv_storage
-from .plain_json import _read_json
 from .ros import _read_yaml
+from .validate import _one_line
 
 #: Calibration files are a few hundred bytes; anything above this is refused unread.
 MAX_CALIBRATION_BYTES = 1 << 20
@@ -20,11 +23,8 @@ MAX_CALIBRATION_BYTES = 1 << 20
 def load_calibration(
     path: str | os.PathLike[str], image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content).
-
-    ``image_size`` (width, height) is used when the file gives none; ``notes`` receives what
-    the reader assumed. :class:`CalibrationError` for anything but a zero-skew pinhole camera.
-    """
+    """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content);
+    ``image_size`` (width, height) when the file gives none; ``notes`` receives what was assumed."""
     name = str(path)
     data = _read_capped(Path(path), name)
     return parse_calibration(data, name, image_size, notes)
@@ -75,9 +75,7 @@ def _read_capped(path: Path, name: str) -> bytes:
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot access the file ({exc.strerror or exc})") from None
     if size > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(
-            f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
-        )
+        raise CalibrationError(f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
     try:
         with path.open("rb") as stream:
             # One byte past the cap: stat() means nothing for pipes, and a file may grow.
@@ -85,7 +83,21 @@ def _read_capped(path: Path, name: str) -> bytes:
     except OSError as exc:
         raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
     if len(data) > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(
-            f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)"
-        )
+        raise CalibrationError(f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
     return data
+
+
+def _read_json(text: str, name: str) -> Mapping[str, Any]:
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{name}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise CalibrationError(f"{name}: malformed JSON: nested too deeply") from None
+    except ValueError as exc:
+        raise CalibrationError(f"{name}: malformed JSON: {_one_line(exc)}") from None
+    mapping = _require_mapping(document, name)
+    if any(isinstance(v, Mapping) and str(v.get("type_id", "")).startswith("opencv-") for v in mapping.values()):
+        # OpenCV FileStorage JSON: let OpenCV interpret its own matrix encoding.
+        return _read_opencv_storage(text, name)
+    return mapping

@@ -19,8 +19,7 @@ def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:
     import cv2
 
     try:
-        # FILE_STORAGE_MEMORY parses the text already read (and size-checked) instead of
-        # opening the path a second time.
+        # FILE_STORAGE_MEMORY: the text already read (and size-checked), not the path a second time.
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:
         # OpenCV's parser errors surface as SystemError chained to the cv2.error.
@@ -68,13 +67,8 @@ _OPENCV_ELEMENT_TYPE = re.compile(r"([1-9][0-9]?)?([ucwsifdh])")
 
 
 def _opencv_matrix(node: Any, what: str) -> np.ndarray:
-    """An ``opencv-matrix`` (rows, cols, dt, data) or ``opencv-nd-matrix`` (sizes, dt,
-    data) mapping, read and checked field by field, as a flat array.
-
-    ``FileNode.mat()`` is not used: OpenCV corrupts its heap on a matrix without rows or
-    cols (it raises, and the process aborts later with a double free), so no matrix is
-    handed to OpenCV's reader at all.
-    """
+    """An ``opencv-matrix`` (rows, cols, dt, data) or ``opencv-nd-matrix`` (sizes, dt, data) mapping, read
+    field by field as a flat array: ``FileNode.mat()`` corrupts OpenCV's heap on a matrix without rows or cols."""
     if node.getNode("data").empty():
         raise CalibrationError(f"{what} is a mapping, expected a matrix or a list of numbers")
     sizes = node.getNode("sizes")

@@ -1,4 +1,5 @@
-"""ROS ``camera_info`` YAML: read (as the ROS camera calibrator or ``ros2 topic echo`` write it) and written."""
+"""ROS ``camera_info`` YAML, read (as the ROS camera calibrator or ``ros2 topic echo`` write it) and written, and
+``foxglove.CameraCalibration`` messages (protobuf) from and to intrinsics."""
 
 from __future__ import annotations
 
@@ -13,14 +14,12 @@ from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError
 from ..limits import load_yaml_documents
 from .mapping import _require_mapping
-from .validate import _one_line
+from .validate import _one_line, intrinsics_from_values
 
 
 def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
     try:
-        # safe_load_all: `ros2 topic echo` output ends with a "---" separator, which
-        # safe_load rejects as a second document. The first non-empty document is used.
-        # Aliases are expanded under a limit before any value is built or shown.
+        # All documents: `ros2 topic echo` output ends with a "---" separator (the first non-empty one is used).
         document = next((doc for doc in load_yaml_documents(text, name, error=CalibrationError) if doc is not None), None)
     except yaml.MarkedYAMLError as exc:
         where = f" at line {exc.problem_mark.line + 1}" if exc.problem_mark is not None else ""
@@ -35,11 +34,8 @@ def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
 
 
 def _ros_distortion(camera: CameraIntrinsics) -> tuple[str, list[float]]:
-    """ROS/Foxglove name and coefficients; "none" becomes plumb_bob with zeros.
-
-    ROS tools (image_geometry, camera_info_manager) know no "none" model, while a
-    zero plumb_bob is understood everywhere and loads back as "none".
-    """
+    """ROS/Foxglove name and coefficients; "none", which ROS tools do not know, becomes plumb_bob with
+    zeros (read back as "none")."""
     if camera.distortion_model in ("none", "") or not camera.distortion:
         return "plumb_bob", [0.0] * 5
     return camera.distortion_model, [float(v) for v in camera.distortion]
@@ -52,26 +48,19 @@ def _projection(camera: CameraIntrinsics) -> list[float]:
 _IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 
 
-def save_calibration_ros(
-    camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs"
-) -> Path:
-    """Write ``camera`` to ``path`` as the ROS camera calibrator's ``camera_info`` YAML (identity
-    rectification, projection ``[K | 0]``) and return ``path``. Floats are written exactly, so
-    :func:`load_calibration` gives the same values back; :class:`InputError` if it cannot be written.
-    """
+def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs") -> Path:
+    """Write ``camera`` as the ROS camera calibrator's ``camera_info`` YAML (identity rectification,
+    projection ``[K | 0]``, floats exact) and return ``path``; :class:`InputError` if it cannot."""
     model, coefficients = _ros_distortion(camera)
     document = {
-        "image_width": int(camera.width),
-        "image_height": int(camera.height),
-        "camera_name": str(camera_name),
+        "image_width": int(camera.width), "image_height": int(camera.height), "camera_name": str(camera_name),
         "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in camera.K.ravel()]},
         "distortion_model": model,
         "distortion_coefficients": {"rows": 1, "cols": len(coefficients), "data": coefficients},
         "rectification_matrix": {"rows": 3, "cols": 3, "data": list(_IDENTITY)},
         "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in _projection(camera)]},
     }
-    # PyYAML writes floats with repr() (plus ".0" before an exponent), which is exact and
-    # reads back as a float; flow style keeps each matrix on one line like the ROS tools.
+    # PyYAML writes floats exactly (repr); flow style keeps each matrix on one line like the ROS tools.
     text = yaml.safe_dump(document, default_flow_style=None, sort_keys=False, width=4096)
     target = Path(path)
     try:
@@ -79,3 +68,26 @@ def save_calibration_ros(
     except OSError as exc:
         raise InputError(f"{path}: cannot write the calibration ({exc.strerror or exc})") from None
     return target
+
+
+def calibration_to_foxglove(camera: CameraIntrinsics, frame_id: str, timestamp_ns: int) -> Any:
+    """The ``foxglove.CameraCalibration`` of ``camera`` (``R`` identity, ``P`` ``[K | 0]``, no distortion
+    as plumb_bob zeros); :class:`InputError` for a negative ``timestamp_ns``."""
+    from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+
+    from ..messages import stamp
+
+    if int(timestamp_ns) < 0:
+        raise InputError(f"CameraCalibration timestamp must not be negative, got {int(timestamp_ns)} ns")
+    model, coefficients = _ros_distortion(camera)
+    return CameraCalibration(
+        timestamp=stamp(timestamp_ns), frame_id=str(frame_id), width=int(camera.width), height=int(camera.height),
+        distortion_model=model, D=coefficients, K=[float(v) for v in camera.K.ravel()], R=list(_IDENTITY),
+        P=[float(v) for v in _projection(camera)],
+    )
+
+
+def calibration_from_foxglove(msg: Any, source: str = "foxglove.CameraCalibration message") -> CameraIntrinsics:
+    """Intrinsics from a ``foxglove.CameraCalibration``'s ``K``, ``D`` and size (the images are
+    unrectified: ``R`` and ``P`` unused); :class:`CalibrationError` when unusable."""
+    return intrinsics_from_values(list(msg.K), msg.width, msg.height, msg.distortion_model, list(msg.D), source)

@@ -14,8 +14,6 @@ from ..images import MAX_IMAGE_PIXELS
 
 #: Image sides beyond this are surely a typo (and would make undistortion maps huge).
 _MAX_IMAGE_SIDE = 1 << 15
-
-
 _MODEL_SIZES = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
 #: Other names of the fisheye model (k1..k4 of ``cv2.fisheye``).
 _MODEL_ALIASES = {"kannala_brandt": "equidistant", "fisheye": "equidistant", "kannala-brandt": "equidistant"}
@@ -42,17 +40,9 @@ def _normalise_key(key: Any) -> str:
     return str(key).lower().replace("_", "").replace("-", "")
 
 
-def intrinsics_from_values(
-    K: Any,
-    width: Any,
-    height: Any,
-    distortion_model: str | None,
-    distortion: Any,
-    source: str,
-) -> CameraIntrinsics:
-    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major,
-    or 3x3), the image size (px), the distortion model (None: inferred from the number of
-    coefficients) and its coefficients in OpenCV order; :class:`CalibrationError` otherwise."""
+def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str) -> CameraIntrinsics:
+    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major, or 3x3), the
+    image size (px), the distortion model (None: inferred from the count) and its coefficients in OpenCV order."""
     k_values = _numbers(K, f"{source}: K")
     if len(k_values) != 9:
         raise CalibrationError(f"{source}: K has {len(k_values)} numbers, expected 9")
@@ -65,18 +55,10 @@ def intrinsics_from_values(
 
 
 def _build_intrinsics(
-    K: Sequence[float],
-    width: int,
-    height: int,
-    model: str | None,
-    coefficients: Sequence[float],
-    name: str,
-    k_key: str = "camera_matrix",
-    d_key: str = "distortion_coefficients",
-    notes: list[str] | None = None,
+    K: Sequence[float], width: int, height: int, model: str | None, coefficients: Sequence[float], name: str,
+    k_key: str = "camera_matrix", d_key: str = "distortion_coefficients", notes: list[str] | None = None,
 ) -> CameraIntrinsics:
-    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics; ``notes``
-    receives what the reader assumed."""
+    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics."""
     if not all(math.isfinite(v) for v in K):
         raise CalibrationError(f"{name}: {k_key} contains NaN or infinity")
     if not all(math.isfinite(v) for v in coefficients):
@@ -87,28 +69,16 @@ def _build_intrinsics(
     if abs(skew) > 1e-9 * fx:
         raise CalibrationError(f"{name}: {k_key} has skew {skew:g}; hbvs supports zero-skew cameras only")
     if zero_10 != 0 or zero_20 != 0 or zero_21 != 0 or one != 1:
-        raise CalibrationError(
-            f"{name}: {k_key} is not an intrinsic matrix: expected the form [fx 0 cx; 0 fy cy; 0 0 1]"
-        )
+        raise CalibrationError(f"{name}: {k_key} is not an intrinsic matrix: expected the form [fx 0 cx; 0 fy cy; 0 0 1]")
     if width * height > MAX_IMAGE_PIXELS:
-        raise CalibrationError(
-            f"{name}: a {width}x{height} image has more pixels than hbvs reads ({MAX_IMAGE_PIXELS} at most)"
-        )
+        raise CalibrationError(f"{name}: a {width}x{height} image has more pixels than hbvs reads ({MAX_IMAGE_PIXELS} at most)")
     if not (0.0 <= cx <= width and 0.0 <= cy <= height):
-        raise CalibrationError(
-            f"{name}: principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image"
-        )
+        raise CalibrationError(f"{name}: principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image")
     resolved_model, distortion = _resolve_distortion(model, list(coefficients), name, d_key, notes)
     try:
         return CameraIntrinsics(
-            fx=float(fx),
-            fy=float(fy),
-            cx=float(cx),
-            cy=float(cy),
-            width=width,
-            height=height,
-            distortion_model=resolved_model,
-            distortion=distortion,
+            fx=float(fx), fy=float(fy), cx=float(cx), cy=float(cy), width=width, height=height,
+            distortion_model=resolved_model, distortion=distortion,
         )
     except CalibrationError as exc:
         raise CalibrationError(f"{name}: {exc}") from None
@@ -137,9 +107,7 @@ def _resolve_distortion(
         elif n in (8, 12, 14):
             requested = "rational_polynomial" if any(coefficients[5:]) else "plumb_bob"
         else:
-            raise CalibrationError(
-                f"{name}: {d_key} has {n} numbers; expected 5 (k1 k2 p1 p2 k3) or 8 (rational polynomial)"
-            )
+            raise CalibrationError(f"{name}: {d_key} has {n} numbers; expected 5 (k1 k2 p1 p2 k3) or 8 (rational polynomial)")
     if requested not in _MODEL_SIZES:
         raise CalibrationError(
             f"{name}: unsupported distortion model {requested!r} (hbvs supports plumb_bob, rational_polynomial, "
@@ -154,9 +122,7 @@ def _resolve_distortion(
     elif n > expected and not any(coefficients[expected:]):
         coefficients = coefficients[:expected]
     if len(coefficients) != expected:
-        raise CalibrationError(
-            f"{name}: {d_key} has {n} numbers, expected {expected} for the {requested} model"
-        )
+        raise CalibrationError(f"{name}: {d_key} has {n} numbers, expected {expected} for the {requested} model")
     return requested, tuple(float(v) for v in coefficients)
 
 
@@ -198,9 +164,7 @@ def _numbers(value: Any, what: str) -> list[float]:
             rows = _number(lowered["rows"], f"{what} rows")
             cols = _number(lowered["cols"], f"{what} cols")
             if rows * cols != len(data):
-                raise CalibrationError(
-                    f"{what} declares {rows:g}x{cols:g} but its data has {len(data)} numbers"
-                )
+                raise CalibrationError(f"{what} declares {rows:g}x{cols:g} but its data has {len(data)} numbers")
         return data
     if isinstance(value, (str, bytes)) or not (hasattr(value, "__len__") and hasattr(value, "__iter__")):
         return [_number(value, what)]

@@ -1,8 +1,5 @@
-"""MCAP files, safely: streamed both ways (a file or ``-``), written atomically
-(:mod:`..output_target`), read under caps with truncated files kept up to their last
-complete record (:mod:`.reader`). :mod:`.caps` holds the caps, :mod:`.json_codec` the JSON
-of ``hbvs.*`` messages, :mod:`.writer` the writer. Every public name is re-exported here.
-"""
+"""MCAP files, safely: streamed both ways (a file or ``-``), written atomically, read under caps
+with truncated files kept up to their last complete record."""
 
 from __future__ import annotations
 
@@ -17,7 +14,6 @@ from .writer import McapWriter, open_output
 __all__ = [
     "MAGIC", "MAX_CHANNELS", "MAX_CHUNK_BYTES", "MAX_DECLARED_BYTES", "MAX_JSON_BYTES", "MAX_JSON_DEPTH",
     "MAX_JSON_ITEMS", "MAX_LOG_TIME_NS", "MAX_RECORD_BYTES", "MAX_SCHEMAS", "NANOSECONDS", "PROFILE",
-    "check_json_limits", "decode_json", "encode_json", "json_ready", "seconds_to_ns", "time_message",
-    "McapMessage", "McapStream", "read_metadata", "ChannelSummary", "read_summary",
-    "McapWriter", "open_output",
+    "check_json_limits", "decode_json", "encode_json", "json_ready", "seconds_to_ns", "time_message", "McapMessage",
+    "McapStream", "read_metadata", "ChannelSummary", "read_summary", "McapWriter", "open_output",
 ]

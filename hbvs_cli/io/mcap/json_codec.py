@@ -53,10 +53,9 @@ _JSON_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
 
 
 def check_json_limits(data: bytes | str, what: str) -> None:
-    """:class:`RecordingError` for JSON above :data:`MAX_JSON_BYTES`, :data:`MAX_JSON_ITEMS` values
-    or :data:`MAX_JSON_DEPTH` levels, which could exhaust memory or the stack. Structural bytes
-    are counted in one pass (base64 data holds none); the nesting is measured only when there
-    are enough brackets to exceed its cap."""
+    """:class:`RecordingError` for JSON above :data:`MAX_JSON_BYTES`, :data:`MAX_JSON_ITEMS` values or
+    :data:`MAX_JSON_DEPTH` levels, which could exhaust memory or the stack (nesting measured only when
+    there are enough brackets to exceed its cap)."""
     raw = data.encode("utf-8", "surrogatepass") if isinstance(data, str) else data
     if len(raw) > MAX_JSON_BYTES:
         raise RecordingError(f"{what}: {len(raw)} bytes of JSON, more than the {MAX_JSON_BYTES // 2**20} MiB hbvs accepts")
@@ -81,8 +80,7 @@ def _json_depth(raw: bytes) -> int:
 
 
 def _bounded_int(text: str) -> int:
-    # Every number hbvs reads becomes a float somewhere; an integer literal beyond float
-    # range would raise OverflowError far from the file that held it.
+    # An integer beyond float range would raise OverflowError far from the file that held it.
     if len(text.lstrip("-")) > 308:
         raise ValueError("an integer literal with more than 308 digits")
     return int(text)

@@ -1,10 +1,8 @@
 """Reading MCAP files as streams, under caps, keeping what a truncated file holds.
 
-The ``mcap`` library parses the records; hbvs adds what it does not do: every read is capped
-before it allocates, chunks are decompressed under a cap and parsed one record at a time,
-declarations and messages are counted against :mod:`..limits`, and damage after good data
-(a crashed recorder) ends the stream with :attr:`McapStream.truncated` instead of an error.
-"""
+The ``mcap`` library parses the records; hbvs caps every read before it allocates, decompresses chunks
+under a cap, counts against :mod:`..limits`, and ends the stream at damage after good data (a crashed
+recorder) with :attr:`McapStream.truncated` instead of an error."""
 
 from __future__ import annotations
 
@@ -33,8 +31,7 @@ class _Damaged(Exception):
 
 
 class _CappedInput:
-    """The stream the mcap library reads: reads above :data:`MAX_RECORD_BYTES` refused, short
-    reads from pipes completed."""
+    """The stream the mcap library reads: reads above :data:`MAX_RECORD_BYTES` refused, short pipe reads completed."""
 
     def __init__(self, raw: BinaryIO) -> None:
         self._raw = raw
@@ -166,12 +163,8 @@ _DAMAGE = (_FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, Overflo
 class McapStream:
     """The messages of an MCAP file, stream or stdin (``"-"``), in file order, in constant memory.
 
-    ``topics`` selects topics; ``schemas`` (topic -> schema name) selects them too and refuses
-    another schema. Filled while iterating: ``metadata``, ``truncated`` and ``stop_reason``
-    (the file ended or turned unreadable after good records, all yielded), ``complete`` and
-    ``messages``. Raises :class:`InputError` (unreadable), :class:`RecordingError` (not MCAP,
-    damaged before any record, above the caps) and :class:`LimitExceededError`.
-    """
+    ``topics`` selects topics; ``schemas`` (topic -> schema name) selects them too and refuses another
+    schema. ``truncated`` and ``stop_reason``: the file ended or turned unreadable after good records."""
 
     source: Any
     topics: set[str] | None = None
@@ -296,9 +289,11 @@ class McapStream:
             raise RecordingError(
                 f"{self.name}: a chunk declares {declared} bytes uncompressed, more than the {MAX_CHUNK_BYTES // 2**20} MiB hbvs accepts"
             )
+        import zstandard
+
         try:
             data = _decompress_capped(chunk.compression, chunk.data, declared, self.name)
-        except _DECOMPRESSION_ERRORS:
+        except (ValueError, RuntimeError, EOFError, OSError, struct.error, zstandard.ZstdError):  # lz4 raises RuntimeError
             raise _Damaged("a chunk cannot be decompressed") from None
         if len(data) != declared:
             raise _Damaged(f"a chunk holds {len(data)} bytes, not the {declared} it declares")
@@ -328,16 +323,6 @@ class McapStream:
         self._counts[limit] += amount
         if self._counts[limit] > limits.current(limit):
             raise limits.exceeded(limit, None, f"{self.name}: {what}")
-
-
-#: What damaged compressed data raises: zstandard.ZstdError and lz4's RuntimeError among them.
-_DECOMPRESSION_ERRORS: tuple[type[BaseException], ...] = (ValueError, RuntimeError, EOFError, OSError, struct.error)
-try:  # pragma: no cover - zstandard is a dependency of mcap
-    import zstandard as _zstandard
-
-    _DECOMPRESSION_ERRORS += (_zstandard.ZstdError,)
-except ImportError:  # pragma: no cover
-    pass
 
 
 def _decompress_capped(compression: str, data: bytes | memoryview, declared: int, name: str) -> bytes:

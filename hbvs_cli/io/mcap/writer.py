@@ -22,9 +22,8 @@ def protobuf_schema(message_class: Any) -> bytes:
 
 
 class McapWriter:
-    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks): a
-    protobuf message on a ``protobuf`` channel, a dict on a ``json`` one with its ``hbvs.*``
-    JSON schema."""
+    """Writes one hbvs MCAP file through the ``mcap`` library's ``Writer`` (zstd chunks): a protobuf
+    message on a ``protobuf`` channel, a dict on a ``json`` one with its ``hbvs.*`` JSON schema."""
 
     def __init__(self, stream: Any, chunk_size: int = 1024 * 1024) -> None:
         from mcap.writer import CompressionType, Writer
@@ -81,10 +80,7 @@ class McapWriter:
 
     def metadata(self, name: str, values: dict[str, Any]) -> None:
         """A metadata record; values are stored as strings (dicts and lists as JSON)."""
-        encoded = {
-            str(k): v if isinstance(v, str) else json.dumps(json_ready(v), separators=(",", ":"))
-            for k, v in values.items()
-        }
+        encoded = {str(k): v if isinstance(v, str) else json.dumps(json_ready(v), separators=(",", ":")) for k, v in values.items()}
         self._writer.add_metadata(name, encoded)
 
     def input_ended_early(self, name: str, allow: bool) -> None:
@@ -104,8 +100,7 @@ class McapWriter:
 
 @contextmanager
 def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream`: committed
-    only when the body succeeds."""
+    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success)."""
     from ..output_target import open_output_stream
 
     with open_output_stream(target, "output", stdout=stdout) as sink:

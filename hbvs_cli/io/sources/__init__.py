@@ -1,27 +1,39 @@
-"""Frame sources for ``hbvs teach``: video files (:mod:`.video`), image folders
-(:mod:`.folder`), live cameras (:mod:`.camera_source`) and ROS 2 bags (:mod:`.rosbag`), each an
-iterable of :class:`SourceFrame` read one frame at a time, with :meth:`FrameSource.describe`
-for the metadata and a ``camera`` attribute for intrinsics the source carries (bags).
-:func:`open_source` picks one; every public name is re-exported here.
-"""
+"""Frame sources for ``hbvs teach`` (video, image folder, camera, ROS 2 bag): iterables of
+:class:`SourceFrame`, one frame at a time; :func:`open_source` picks one."""
 
 from __future__ import annotations
 
+import os
+from typing import Any
+
+from ...errors import UsageError
 from .frame_source import FrameSource, SourceFrame
 from .camera_source import CameraSource
-from .factory import SOURCE_KINDS, open_source
 from .folder import IMAGE_EXTENSIONS, ImageFolderSource
 from .rosbag import BagSource
 from .video import VideoSource
 
 __all__ = [
-    "SourceFrame",
-    "FrameSource",
-    "VideoSource",
-    "ImageFolderSource",
-    "CameraSource",
-    "BagSource",
-    "IMAGE_EXTENSIONS",
-    "open_source",
-    "SOURCE_KINDS",
+    "SourceFrame", "FrameSource", "VideoSource", "ImageFolderSource", "CameraSource", "BagSource", "IMAGE_EXTENSIONS",
+    "open_source", "SOURCE_KINDS",
 ]
+
+
+#: The kinds of recorded sources, as the ``teach`` options name them.
+SOURCE_KINDS = ("video", "images", "camera", "bag")
+
+
+def open_source(
+    kind: str, spec: str | int | os.PathLike[str], *, fps: float | None = None, duration: float | None = None,
+    topic: str | None = None, cmd_topic: str | None = None,
+) -> FrameSource:
+    """The source of ``kind`` on ``spec`` (a path, glob, device index or bag): ``fps`` for videos and
+    image folders, ``duration`` for cameras, ``topic`` and ``cmd_topic`` for bags."""
+    openers: dict[str, Any] = {
+        "video": lambda: VideoSource(spec, fps=fps), "images": lambda: ImageFolderSource(spec, fps=fps),
+        "camera": lambda: CameraSource(spec, duration=duration),
+        "bag": lambda: BagSource(spec, topic=topic, cmd_topic=cmd_topic),
+    }
+    if kind not in openers:
+        raise UsageError(f"unknown source kind {kind!r} (one of {', '.join(SOURCE_KINDS)})")
+    return openers[kind]()

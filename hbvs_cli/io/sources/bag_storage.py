@@ -1,10 +1,7 @@
-"""The storage side of a ROS 2 bag: its topics and its messages, decoded on demand.
+"""The storage side of a ROS 2 bag: its topics and its messages, decoded on demand, under hbvs's size caps.
 
-:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag`
-reads ``.mcap`` file(s) without ``metadata.yaml`` with hbvs's capped
-:class:`~hbvs_cli.io.mcap.McapStream` (ROS 2 bags, and Foxglove protobuf recordings such as
-hbvs's own). Both keep hbvs's size caps.
-"""
+:class:`RosbagsBag` reads a bag folder with ``rosbags``' ``AnyReader``; :class:`McapFileBag` reads
+``.mcap`` file(s) without ``metadata.yaml`` (ROS 2 bags, Foxglove protobuf recordings such as hbvs's own)."""
 
 from __future__ import annotations
 
@@ -57,8 +54,7 @@ def ros2_type(name: str) -> str:
 
 
 def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
-    """The reader for a bag folder (or its ``metadata.yaml``) or ``.mcap`` file(s); :class:`InputError`
-    when it is none of them."""
+    """The reader for a bag folder (or its ``metadata.yaml``) or ``.mcap`` file(s)."""
     if path.name == "metadata.yaml" and path.is_file():
         path = path.parent
     if path.is_dir():
@@ -93,7 +89,6 @@ def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
     return McapFileBag([path], name)
 
 
-# ----------------------------------------------------------------------------- rosbags
 @contextlib.contextmanager
 def _rosbags_errors(name: str) -> Iterator[None]:
     """What rosbags raises on a bag it cannot read, as one InputError naming the bag."""
@@ -108,7 +103,7 @@ def _rosbags_errors(name: str) -> Iterator[None]:
         raise InputError(f"{name}: cannot read the bag ({detail[:300]})") from None
 
 
-def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
+def bag_information(folder: Path, name: str) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
     when malformed (rosbags then says what is wrong with it when it opens the bag)."""
     metadata = folder / "metadata.yaml"
@@ -131,8 +126,7 @@ def _bag_metadata(folder: Path, name: str) -> dict[str, Any]:
 
 
 def check_metadata(information: dict[str, Any], name: str) -> None:
-    """:class:`InputError` unless the counts and names of metadata.yaml that rosbags and hbvs
-    use have the right types."""
+    """:class:`InputError` unless the counts and names rosbags and hbvs use have the right types."""
     def counts(where: str, value: Any) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
@@ -171,9 +165,8 @@ def _typestore_for(information: dict[str, Any]) -> Any:
 
 
 class _CappedZstd:
-    """The ``zstd`` module as rosbags' reader uses it, with a message capped at
-    :data:`~hbvs_cli.io.mcap.MAX_RECORD_BYTES` and a file at the ``decompressed-bytes`` limit
-    (rosbags itself decompresses whatever size they expand to)."""
+    """The ``zstd`` module as rosbags' reader uses it, a message capped at ``MAX_RECORD_BYTES`` and a file
+    at the ``decompressed-bytes`` limit (rosbags decompresses whatever size they expand to)."""
 
     def __init__(self, module: Any) -> None:
         self._module = module
@@ -239,7 +232,7 @@ class RosbagsBag:
 
         self.name = name
         self.folder = folder
-        information = _bag_metadata(folder, name)
+        information = bag_information(folder, name)
         _cap_rosbags_decompression()
         with _rosbags_errors(name):
             self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
@@ -302,7 +295,6 @@ class RosbagsBag:
             self._reader.close()
 
 
-# ----------------------------------------------------------------------------- MCAP files
 @contextlib.contextmanager
 def mcap_bag_errors(name: str) -> Iterator[None]:
     """What the MCAP reader or the CDR decoder raises on a damaged file, as one InputError."""
@@ -326,47 +318,17 @@ def _require_complete(stream: McapStream, name: str) -> None:
         raise RecordingError(f"{name}: {stream.stop_reason}")
 
 
-class _Ros2Decoders:
-    """CDR decoders from mcap-ros2-support, one per distinct schema, built on first use."""
-
-    def __init__(self) -> None:
-        from mcap_ros2.decoder import DecoderFactory
-
-        self._factory = DecoderFactory()
-        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
-
-    def decode(self, message: McapMessage, what: str) -> Any:
-        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
-        decoder = self._decoders.get(key)
-        if decoder is None:
-            from mcap.records import Schema
-
-            if len(message.schema_data) > MAX_SCHEMA_BYTES:
-                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
-            # The factory caches decoders by schema id: every distinct schema gets its own.
-            schema = Schema(
-                id=len(self._decoders) + 1, name=message.schema_name,
-                encoding=message.schema_encoding, data=message.schema_data,
-            )
-            # The ROS parser prints on stderr what its exception says already.
-            with contextlib.redirect_stderr(io.StringIO()):
-                decoder = self._factory.decoder_for(message.message_encoding, schema)
-            if decoder is None:
-                raise InputError(
-                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
-                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
-                )
-            self._decoders[key] = decoder
-        return decoder(message.data)
-
-
 class McapFileBag:
-    """``.mcap`` file(s) read with hbvs's capped MCAP reader and mcap-ros2-support's CDR decoders."""
+    """``.mcap`` file(s) read with hbvs's capped MCAP reader and mcap-ros2-support's CDR decoders
+    (one per distinct schema, built on first use)."""
 
     def __init__(self, files: Sequence[Path], name: str) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
         self.name = name
         self.files = list(files)
-        self._decoders = _Ros2Decoders()
+        self._factory = DecoderFactory()
+        self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
         self.topics = self._scan()
         self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
 
@@ -392,7 +354,6 @@ class McapFileBag:
     @staticmethod
     def _stream_channels(file: Path) -> list[ChannelSummary]:
         """Channels and message counts from one pass over a file without a summary."""
-
         stream = McapStream(file, name=str(file))
         counts: dict[tuple[str, str, str, str], int] = {}
         for message in stream:
@@ -417,9 +378,32 @@ class McapFileBag:
     def _decoder(self, message: McapMessage, file: str) -> Callable[[str], Any]:
         def decode(what: str) -> Any:
             with mcap_bag_errors(file):
-                return self._decoders.decode(message, what)
+                return self._decode(message, what)
 
         return decode
+
+    def _decode(self, message: McapMessage, what: str) -> Any:
+        key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
+        decoder = self._decoders.get(key)
+        if decoder is None:
+            from mcap.records import Schema
+
+            if len(message.schema_data) > MAX_SCHEMA_BYTES:
+                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
+            # The factory caches decoders by schema id: every distinct schema gets its own.
+            schema = Schema(
+                id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding, data=message.schema_data,
+            )
+            # The ROS parser prints on stderr what its exception says already.
+            with contextlib.redirect_stderr(io.StringIO()):
+                decoder = self._factory.decoder_for(message.message_encoding, schema)
+            if decoder is None:
+                raise InputError(
+                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
+                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                )
+            self._decoders[key] = decoder
+        return decoder(message.data)
 
     def close(self) -> None:
         """Nothing stays open between reads."""

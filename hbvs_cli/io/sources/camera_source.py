@@ -16,22 +16,15 @@ from ..images import as_image8
 
 
 class CameraSource(FrameSource):
-    """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with the
-    monotonic ``clock`` (s) from the first frame, until ``duration`` s.
-
-    The device is opened here, so that a missing camera is reported before anything is
-    recorded; up to ``max_failed_reads`` reads in a row may fail.
-    """
+    """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with ``clock`` (s)
+    from the first frame, until ``duration`` s; opened here, so that a missing camera is reported
+    before anything is recorded."""
 
     kind = "camera"
 
     def __init__(
-        self,
-        index: int | str,
-        duration: float | None = None,
-        capture_factory: Callable[[Any], Any] = cv2.VideoCapture,
-        clock: Callable[[], float] = time.monotonic,
-        max_failed_reads: int = 5,
+        self, index: int | str, duration: float | None = None, capture_factory: Callable[[Any], Any] = cv2.VideoCapture,
+        clock: Callable[[], float] = time.monotonic, max_failed_reads: int = 5,
     ) -> None:
         self.index = index
         self.duration = _check_rate(duration, "--duration")
@@ -54,9 +47,7 @@ class CameraSource(FrameSource):
         if capture is None or not capture.isOpened():
             if capture is not None:
                 capture.release()
-            raise InputError(
-                f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)"
-            )
+            raise InputError(f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)")
         return capture
 
     def close(self) -> None:
@@ -106,13 +97,7 @@ class CameraSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """Kind, device, fps reported by the driver, requested duration, image size."""
         return {
-            "kind": self.kind,
-            "path": None,
-            "device": self.index,
-            "frame_count": None,
-            "fps": self.fps,
-            "duration": self.duration,
-            "width": self.width,
-            "height": self.height,
+            "kind": self.kind, "path": None, "device": self.index, "frame_count": None, "fps": self.fps,
+            "duration": self.duration, "width": self.width, "height": self.height,
         }
 

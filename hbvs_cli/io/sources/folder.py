@@ -17,11 +17,8 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 class ImageFolderSource(FrameSource):
-    """Image files at ``fps`` (frame ``i`` at ``t = i / fps``), in natural order, from a folder
-    (its ``.png .jpg .jpeg .bmp .tif .tiff`` files, not recursive), a glob (``**`` recurses) or
-    one image. :class:`InputError` for a missing folder, no image, or (when iteration reaches
-    it) an unreadable image; :class:`UsageError` for an ``fps`` that is not positive.
-    """
+    """Image files at ``fps`` (frame ``i`` at ``t = i / fps``), in natural order, from a folder (not
+    recursive), a glob (``**`` recurses) or one image."""
 
     kind = "images"
 
@@ -84,11 +81,7 @@ class ImageFolderSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """Kind, path, frame count, fps and the first and last file."""
         return {
-            "kind": self.kind,
-            "path": self.path,
-            "frame_count": len(self.files),
-            "fps": self.fps,
-            "first": str(self.files[0]),
-            "last": str(self.files[-1]),
+            "kind": self.kind, "path": self.path, "frame_count": len(self.files), "fps": self.fps,
+            "first": str(self.files[0]), "last": str(self.files[-1]),
         }
 

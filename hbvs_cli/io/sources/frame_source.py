@@ -18,9 +18,8 @@ _NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class SourceFrame:
-    """One frame from a source: ``t`` in s from the first frame; ``image`` uint8 gray (H, W) or
-    BGR (H, W, 3); ``encoded`` the source's own JPEG/PNG bytes; ``stamp_ns`` on the source's
-    clock; ``command`` the operator's (v, w) in m/s, rad/s, when recorded."""
+    """One frame from a source: ``t`` (s) from the first; ``image`` uint8 gray (H, W) or BGR (H, W, 3);
+    ``encoded`` the source's own JPEG/PNG bytes; ``command`` the operator's (v, w) (m/s, rad/s)."""
 
     t: float
     image: np.ndarray
@@ -30,9 +29,20 @@ class SourceFrame:
     command: tuple[float, float] | None = None
 
 
+@dataclass
+class LiveFrame:
+    """One camera frame of a live loop (``repeat --live``) as it arrived: ``image`` (H, W) or (H, W, 3)
+    uint8; ``stamp`` its header stamp (s) or arrival; ``arrival`` (s, ``time.monotonic()``): its publication
+    when on this host's clock, else when hbvs took it; ``skipped`` frames dropped since the previous one."""
+
+    image: np.ndarray
+    stamp: float
+    arrival: float
+    skipped: int
+
+
 class FrameSource:
-    """Base of the frame sources: iterate it for :class:`SourceFrame` objects; ``camera`` holds
-    intrinsics the source itself carries."""
+    """Base of the frame sources, iterables of :class:`SourceFrame`; ``camera``: intrinsics the source carries."""
 
     kind: str = "source"
     camera: CameraIntrinsics | None = None
@@ -46,13 +56,11 @@ class FrameSource:
 
     @property
     def image_size(self) -> tuple[int, int] | None:
-        """(width, height) of the frames when known before iterating (for a calibration
-        file that gives no size), else None."""
+        """(width, height) of the frames when known before iterating (for a calibration without one)."""
         width, height = getattr(self, "width", None), getattr(self, "height", None)
         return (int(width), int(height)) if width and height else None
 
 
-# ----------------------------------------------------------------------------- helpers
 def capture_property(capture: Any, prop: int) -> float | None:
     """A ``cv2.VideoCapture`` property when finite and positive (drivers report 0 for unknown), else None."""
     import cv2

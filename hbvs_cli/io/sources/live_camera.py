@@ -1,7 +1,5 @@
-"""The newest frame of an OpenCV camera, for a live loop (``repeat --live --camera DEV``): a
-thread reads the device and keeps the newest frame; the others are counted as dropped, never
-queued. A video file is played at its own rate, so that a recording can stand in for a camera.
-"""
+"""The newest frame of an OpenCV camera for a live loop (``repeat --live --camera DEV``), older ones
+counted as dropped, never queued; a video file is played at its own rate to stand in for a camera."""
 
 from __future__ import annotations
 
@@ -14,7 +12,7 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
-from ..live_frame import LiveFrame
+from .frame_source import LiveFrame
 from ..images import as_image8
 
 

@@ -1,6 +1,4 @@
-"""A running ROS 2 camera as a teach source (``hbvs teach --ros2-image TOPIC``): the newest
-frame each time, stamped by its header, the intrinsics from the sibling ``camera_info`` topic
-and the taught command from ``--ros2-cmd``; until ``--duration`` or Ctrl-C."""
+"""A running ROS 2 camera as a teach source (``hbvs teach --ros2-image TOPIC``), until ``--duration`` or Ctrl-C."""
 
 from __future__ import annotations
 
@@ -12,9 +10,8 @@ from .frame_source import FrameSource, SourceFrame
 
 
 class Ros2TopicSource(FrameSource):
-    """Frames of ``topic`` (``sensor_msgs/msg/Image``, or ``CompressedImage`` on ``.../compressed``)
-    with the operator's ``geometry_msgs/msg/Twist`` on ``cmd_topic``, up to the first frame
-    stamped ``duration`` s or more after the first."""
+    """Frames of ``topic`` (``Image``, or ``CompressedImage`` on ``.../compressed``), stamped by their header,
+    with the intrinsics from the sibling ``camera_info`` topic and the operator's ``Twist`` on ``cmd_topic``."""
 
     kind = "ros2"
 

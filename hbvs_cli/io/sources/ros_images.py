@@ -23,7 +23,6 @@ def compressed_to_image8(msg: Any, what: str) -> tuple[np.ndarray, bytes | None,
 def raw_to_image8(msg: Any, what: str) -> np.ndarray:
     """A ``sensor_msgs/msg/Image`` in any encoding rosbags-image reads, as 8-bit gray or BGR
     (16 bits keep their high byte); :class:`InputError` for an unknown encoding or bad sizes."""
-
     import cv2
     from rosbags.image import ImageError, message_to_cvimage
     from rosbags.image.image import to_cvtype

@@ -50,8 +50,7 @@ def _stamp_ns(message: Any) -> int:
 
 
 def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
-    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and
-    ``angular.z`` (rad/s), the unicycle's forward and turning speeds."""
+    """(v, w) of a Twist, TwistStamped or Odometry message: ``linear.x`` (m/s) and ``angular.z`` (rad/s)."""
     if message_type == ROS_TWIST_STAMPED_SCHEMA:
         twist = message.twist
     elif message_type == ROS_ODOMETRY_SCHEMA:
@@ -62,13 +61,9 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
 
 
 class BagSource(FrameSource):
-    """Images from a ROS 2 bag, with the bag's stamps, frame_id, intrinsics and taught commands.
-
-    ``topic`` and ``cmd_topic`` None pick the only one with messages (:class:`UsageError` when
-    several fit). ``camera`` comes from the image topic's ``CameraInfo`` (``camera_problem``
-    says why it is unusable); a frame's ``command`` is the last one at or before its stamp;
-    ``t`` counts from the first frame's ``header.stamp``, or its log time for zero stamps.
-    """
+    """Images from a ROS 2 bag with its stamps, frame_id, intrinsics (``camera``, else why not in
+    ``camera_problem``) and taught commands (the last at or before each frame's stamp); ``topic`` and
+    ``cmd_topic`` None pick the only one with messages."""
 
     kind = "ros2_bag"
 
@@ -86,7 +81,6 @@ class BagSource(FrameSource):
         self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
         self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
 
-    # -- discovery
     def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
         images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
         if topic is not None:
@@ -142,8 +136,7 @@ class BagSource(FrameSource):
         if len(infos) <= 1:
             return infos[0] if infos else None
 
-        # Several cameras: take the CameraInfo whose namespace is the longest prefix of
-        # the image topic (/front/camera_info for /front/image_raw/compressed).
+        # Several cameras: the CameraInfo whose namespace is the longest prefix of the image topic.
         def shared(info: str) -> int:
             namespace = info.rsplit("/", 1)[0] + "/"
             return len(namespace) if self.topic.startswith(namespace) else -1
@@ -183,9 +176,7 @@ class BagSource(FrameSource):
             return None, f"{source}: binning is not supported; give a calibration for the binned images"
         roi = getattr(info, "roi", None)
         if roi is not None and int(getattr(roi, "width", 0)) > 0:
-            return None, (
-                f"{source}: a region of interest is not supported; give a calibration for the cropped images"
-            )
+            return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
         try:
             camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
         except CalibrationError as exc:
@@ -203,7 +194,6 @@ class BagSource(FrameSource):
             return first.log_time, frame_id, "log time", image
         return stamp_ns, frame_id, "header", image
 
-    # -- frames
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
         if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
@@ -228,8 +218,7 @@ class BagSource(FrameSource):
         stamp_minus_log = 0
         size: tuple[int, int] | None = None
         index = 0
-        # Commands are stamped on the images' clock, then held: each frame takes the last
-        # command at or before its stamp.
+        # Commands on the images' clock, held: each frame takes the last one at or before its stamp.
         pending: deque[tuple[int, int, tuple[float, float]]] = deque()  # (stamp or 0, log time, (v, w))
         command: tuple[float, float] | None = (0.0, 0.0) if self.cmd_topic is not None else None
         wanted = {self.topic} | ({self.cmd_topic} if self.cmd_topic is not None else set())
@@ -261,9 +250,7 @@ class BagSource(FrameSource):
                 # A Twist has no stamp: its log time, shifted onto the images' clock.
                 while pending and (pending[0][0] or pending[0][1] + stamp_minus_log) <= ns:
                     command = pending.popleft()[2]
-                yield SourceFrame(
-                    t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command,
-                )
+                yield SourceFrame(t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command)
                 index += 1
         finally:
             self._bag.close()  # reopened by a later iteration
@@ -277,21 +264,11 @@ class BagSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """What the source is, for the recording's metadata."""
         return {
-            "kind": self.kind,
-            "path": self.path,
-            "files": bag_files_description(self._bag),
-            "topic": self.topic,
-            "message_type": self._topic.type,
-            "frame_count": self._topic.count,
-            "fps": None,
-            "camera_info_topic": self.camera_info_topic,
-            "camera_info_problem": self.camera_problem,
-            "storage": self._bag.storage,
-            "time_base_ns": self.time_base_ns,
-            "timestamps": self.stamps,
-            "frame_id": self.frame_id,
-            "cmd_topic": self.cmd_topic,
-            "cmd_type": self.cmd_type,
+            "kind": self.kind, "path": self.path, "files": bag_files_description(self._bag), "topic": self.topic,
+            "message_type": self._topic.type, "frame_count": self._topic.count, "fps": None,
+            "camera_info_topic": self.camera_info_topic, "camera_info_problem": self.camera_problem,
+            "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
+            "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
         }
 
 

@@ -17,11 +17,8 @@ from ..images import as_image8
 
 
 class VideoSource(FrameSource):
-    """Frames of a video file (anything ``cv2.VideoCapture`` reads; URLs and image-sequence
-    patterns are passed on unchecked). ``t`` is ``index / fps`` with ``fps`` given or the
-    container's rate, else ``CAP_PROP_POS_MSEC``. :class:`InputError` when the file is missing
-    or no frame decodes; :class:`UsageError` for an ``fps`` that is not positive.
-    """
+    """Frames of a video file (anything ``cv2.VideoCapture`` reads), ``t`` = ``index / fps`` with ``fps``
+    given or the container's rate, else ``CAP_PROP_POS_MSEC``."""
 
     kind = "video"
 
@@ -35,9 +32,7 @@ class VideoSource(FrameSource):
             if not file.exists():
                 raise InputError(f"{self.path}: no such file")
             if file.is_dir():
-                raise InputError(
-                    f"{self.path}: is a directory, expected a video file (use an image folder source for images)"
-                )
+                raise InputError(f"{self.path}: is a directory, expected a video file (use an image folder source for images)")
         capture = self._open()
         try:
             self._container_fps = capture_property(capture, cv2.CAP_PROP_FPS)
@@ -67,9 +62,7 @@ class VideoSource(FrameSource):
             raise InputError(f"{self.path}: cannot open the video ({opencv_error_text(exc)})") from None
         if not capture.isOpened():
             capture.release()
-            raise InputError(
-                f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)"
-            )
+            raise InputError(f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)")
         return capture
 
     def _read(self, capture: Any) -> tuple[bool, np.ndarray | None]:
@@ -106,14 +99,9 @@ class VideoSource(FrameSource):
 
     def describe(self) -> dict[str, Any]:
         """Kind, path, frame count (the container's estimate), fps and image size."""
+        timestamps = "fps override" if self.fps_override is not None else "frame rate" if self.fps is not None else "container clock"
         return {
-            "kind": self.kind,
-            "path": self.path,
-            "frame_count": self.frame_count,
-            "fps": self.fps,
-            "width": self.width,
-            "height": self.height,
-            "timestamps": "fps override" if self.fps_override is not None
-            else "frame rate" if self.fps is not None else "container clock",
+            "kind": self.kind, "path": self.path, "frame_count": self.frame_count, "fps": self.fps, "width": self.width,
+            "height": self.height, "timestamps": timestamps,
         }
 
