@@ -16,6 +16,7 @@ it to pin the plane normal n*.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -71,6 +72,21 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
         found and its pattern reported.
     """
     gray = as_gray(image)
+    key = (gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
+    if key not in _SEARCHES:
+        if len(_SEARCHES) >= 8:
+            del _SEARCHES[next(iter(_SEARCHES))]
+        _SEARCHES[key] = _search(gray, key[2])
+    found = _SEARCHES[key]
+    return None if found is None else Board(found.pattern, found.corners.copy())
+
+
+#: The last few searches by image and pattern: fit searches its first frames twice (to pick
+#: the target, then to track it), and each search takes about 0.2 s.
+_SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
+
+
+def _search(gray: NDArray[np.uint8], pattern: tuple[int, int] | None) -> Board | None:
     flags = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     if pattern is None:
         found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (MIN_SIDE, MIN_SIDE), flags | cv2.CALIB_CB_LARGER)
@@ -78,10 +94,10 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
             return None
         rows, columns = meta.shape[:2]
         return Board((int(columns), int(rows)), corners.reshape(-1, 2).astype(np.float64))
-    found, corners = cv2.findChessboardCornersSB(gray, tuple(pattern), flags=flags)
+    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
     if not found or corners is None:
         return None
-    return Board((int(pattern[0]), int(pattern[1])), corners.reshape(-1, 2).astype(np.float64))
+    return Board(pattern, corners.reshape(-1, 2).astype(np.float64))
 
 
 def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
@@ -152,26 +168,38 @@ class ChessboardDetector:
         """Every corner refined from its prediction, or None when they do not fit the grid."""
         height, width = gray.shape
         grid = prediction.reshape(self.pattern[1], self.pattern[0], 2)
-        square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=-1)))
+        square = _median(_lengths(np.diff(grid, axis=1).reshape(-1, 2)))
         window = int(np.clip(min(np.floor(REFINE_WINDOW_SQUARES * square), square - 2.0), *REFINE_WINDOW_PX))
         margin = window + 2
-        if np.any(prediction < margin) or np.any(prediction[:, 0] > width - 1 - margin) or np.any(prediction[:, 1] > height - 1 - margin):
+        if (prediction < margin).any() or (prediction > (width - 1 - margin, height - 1 - margin)).any():
             return None
         corners, settled = refine_twice(gray, prediction, window, RESTART_OFFSET_PX)
         # A corner draws the refinement from all around: started again a little off, it
         # must come back. From a prediction a few pixels off the refinement can stop on
         # the grid but off the corners (found: 2 px off on 5 px squares).
-        if np.max(np.linalg.norm(corners - prediction, axis=1)) > MAX_TRACKED_MOVE_PX or np.max(np.linalg.norm(settled - corners, axis=1)) > SETTLED_PX:
+        if _lengths(corners - prediction).max() > MAX_TRACKED_MOVE_PX or _lengths(settled - corners).max() > SETTLED_PX:
             return None
         H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
         if H is None:
             return None
         fitted = cv2.perspectiveTransform(self._layout.reshape(-1, 1, 2), H).reshape(-1, 2)
-        if float(np.sqrt(np.mean(np.sum((fitted - corners) ** 2, axis=1)))) > GRID_FIT_PX:
+        if math.sqrt(((fitted - corners) ** 2).sum(axis=1).mean()) > GRID_FIT_PX:
             return None
         if not board_corners_cross(gray, corners, self.pattern):
             return None
         return saddle_points(gray, corners, CHESSBOARD_SMOOTHING_PX)
+
+
+def _lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The lengths of (K, 2) vectors (``np.linalg.norm(vectors, axis=1)`` without its overhead)."""
+    return np.sqrt((vectors * vectors).sum(axis=1))
+
+
+def _median(values: NDArray[np.float64]) -> float:
+    """``np.median`` of a 1-d array, without its overhead."""
+    ordered = np.sort(values)
+    middle = ordered.size // 2
+    return float(ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 #: The saddle fit of :func:`saddle_points`: the Gaussian smoothing (px) of the image before
@@ -190,7 +218,7 @@ def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: i
     """``cornerSubPix`` of ``points`` (N, 2), and of the result moved by ``offset`` (px): a
     true corner draws the second refinement back to the first."""
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
-    once = points.astype(np.float32).reshape(-1, 1, 2).copy()
+    once = points.astype(np.float32).reshape(-1, 1, 2)
     cv2.cornerSubPix(gray, once, (window, window), (-1, -1), criteria)
     again = once + np.float32(offset)
     cv2.cornerSubPix(gray, again, (window, window), (-1, -1), criteria)
@@ -199,8 +227,8 @@ def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: i
 
 def _saddle_window() -> tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The saddle fit's window: its reach (px), pixel offsets (P,), the quadratic's design
-    (P^2, 6) and its columns' products (P^2, 36). Fitted in each window's own offsets, the
-    same for every window and frame: only the weight (centred on the estimate) differs."""
+    (P^2, 6) and its columns' products (P^2, 36), the same for every window (fitted in its
+    own offsets; only the weight, centred on the estimate, differs)."""
     reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
     offsets = np.arange(-reach, reach + 1, dtype=np.float64)
     x, y = np.tile(offsets, offsets.size), np.repeat(offsets, offsets.size)
@@ -212,62 +240,59 @@ _SADDLE_WINDOW = _saddle_window()
 
 
 def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothing: float = SADDLE_SMOOTHING_PX) -> NDArray[np.float64]:
-    """Chessboard corners re-measured as the saddle points of the image around them.
+    """Chessboard corners (K, 2, px) re-measured as the saddle points of the image around them.
 
-    Where two dark and two light squares meet, the smoothed image is a saddle: a quadratic
-    ``a x^2 + b x y + c y^2 + d x + e y + f`` fitted by weighted least squares to the pixels
-    near the corner has its stationary point there, whatever the squares' angles (the
-    crossing of two straight edges is symmetric under a half turn about it). Each pass
-    fits around the last estimate and moves to the saddle; a fit that is not a saddle
-    (``4 a c >= b^2``) or would move more than :data:`SADDLE_MAX_STEP_PX` leaves the corner.
-
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    corners : ndarray, shape (K, 2)
-        Corners to start from (px), e.g. ``cornerSubPix``'s.
-    smoothing : float
-        Sigma (px) of the Gaussian smoothing before the fit.
-
-    Returns
-    -------
-    ndarray, shape (K, 2)
+    Where two dark and two light squares meet, the image smoothed (Gaussian, sigma
+    ``smoothing`` px) is a saddle: a quadratic ``a x^2 + b x y + c y^2 + d x + e y + f``
+    fitted by weighted least squares to the pixels near the corner has its stationary point
+    there, whatever the squares' angles. Each pass fits around the last estimate and moves
+    to the saddle; a fit that is not a saddle (``4 a c >= b^2``) or would move more than
+    :data:`SADDLE_MAX_STEP_PX` leaves the corner.
     """
     reach, offsets, design, products = _SADDLE_WINDOW
     size = offsets.size
-    refined = np.asarray(corners, dtype=np.float64).copy()
+    refined = np.array(corners, dtype=np.float64)
     start = refined.copy()
     # Only the board's box (and what a step and the smoothing reach) is smoothed.
     border = reach + int(np.ceil(SADDLE_MAX_STEP_PX)) + int(np.ceil(4 * smoothing))
-    x0, y0 = np.maximum(np.floor(refined.min(axis=0)).astype(int) - border, 0)
-    x1, y1 = np.minimum(np.ceil(refined.max(axis=0)).astype(int) + border + 1, np.array(gray.shape[::-1]))
+    low, high = refined.min(axis=0), refined.max(axis=0)
+    x0, y0 = max(math.floor(low[0]) - border, 0), max(math.floor(low[1]) - border, 0)
+    x1, y1 = min(math.ceil(high[0]) + border + 1, gray.shape[1]), min(math.ceil(high[1]) + border + 1, gray.shape[0])
     if x1 <= x0 or y1 <= y0:
         return refined
     smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), smoothing)
-    windows = np.lib.stride_tricks.sliding_window_view(smooth, (size, size))  # (H - 2 reach, W - 2 reach, P, P)
+    pixels = smooth.ravel()
+    window = (np.arange(size)[:, None] * smooth.shape[1] + np.arange(size)).ravel()  # a window's pixels from its corner
+    limit = np.array([smooth.shape[1] - reach, smooth.shape[0] - reach])
     refined -= (x0, y0)
     for _ in range(SADDLE_PASSES):
         centre = np.rint(refined).astype(np.intp)
-        inside = np.all((centre >= reach) & (centre < np.array(smooth.shape[::-1]) - reach), axis=1)
-        if not np.any(inside):
-            break
-        centre = centre[inside]
-        values = windows[centre[:, 1] - reach, centre[:, 0] - reach].reshape(len(centre), -1).astype(np.float64)
-        fraction = refined[inside] - centre  # the estimate in its window's offsets
-        along_x = np.exp(-((offsets - fraction[:, :1]) ** 2) / SADDLE_RADIUS_PX**2)
-        along_y = np.exp(-((offsets - fraction[:, 1:]) ** 2) / SADDLE_RADIUS_PX**2)
-        weight = (along_y[:, :, None] * along_x[:, None, :]).reshape(len(centre), -1)  # exp(-d^2 / r^2)
+        inside = ((centre >= reach) & (centre < limit)).all(axis=1)
+        every = inside.all()
+        if not every:
+            if not inside.any():
+                break
+            centre = centre[inside]
+        values = pixels[((centre[:, 1] - reach) * smooth.shape[1] + centre[:, 0] - reach)[:, None] + window].astype(np.float64)
+        fraction = (refined if every else refined[inside]) - centre  # the estimate in its window's offsets
+        along = np.exp(-((offsets - fraction[:, :, None]) ** 2) / SADDLE_RADIUS_PX**2)  # (K, 2, P)
+        weight = (along[:, 1, :, None] * along[:, 0, None, :]).reshape(len(centre), -1)  # exp(-d^2 / r^2)
         normal = (weight @ products).reshape(-1, 6, 6)
         a, b, c, d, e, _ = np.linalg.solve(normal, ((weight * values) @ design)[..., None])[..., 0].T
         determinant = 4.0 * a * c - b * b
         saddle = determinant < 0.0
         safe = np.where(saddle, determinant, -1.0)
         # The stationary point of the quadratic: [2a b; b 2c] point = -[d e].
-        step = np.column_stack([(-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe]) - fraction
+        step = np.empty_like(fraction)
+        step[:, 0], step[:, 1] = (-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe
+        step -= fraction
         accept = saddle & (np.hypot(step[:, 0], step[:, 1]) <= SADDLE_MAX_STEP_PX)
-        moved = refined[inside]
-        moved[accept] += step[accept]
-        refined[inside] = moved
+        if every:
+            refined[accept] += step[accept]
+        else:
+            moved = refined[inside]
+            moved[accept] += step[accept]
+            refined[inside] = moved
     refined += (x0, y0)
     far = np.hypot(*(refined - start).T) > SADDLE_MAX_STEP_PX
     refined[far] = start[far]
@@ -284,21 +309,25 @@ MIN_CROSSING_CONTRAST = 0.3
 def board_corners_cross(gray: NDArray[np.uint8], corners: NDArray[np.float64], pattern: tuple[int, int]) -> bool:
     """True when every corner is a crossing of two dark and two light squares."""
     grid = corners.reshape(pattern[1], pattern[0], 2)
-    along = np.gradient(grid, axis=1)  # one square along a row, at every corner
-    across = np.gradient(grid, axis=0) if pattern[1] > 1 else np.stack([-along[..., 1], along[..., 0]], axis=-1)
+    along = _grid_step(grid, 1)  # one square along a row, at every corner
+    across = _grid_step(grid, 0) if pattern[1] > 1 else np.stack([-along[..., 1], along[..., 0]], axis=-1)
+    first, second = 0.3 * (along + across), 0.3 * (along - across)
+    points = np.rint(np.stack([grid + first, grid - first, grid + second, grid - second]))
     height, width = gray.shape
-
-    def sample(points: NDArray[np.float64]) -> NDArray[np.float64]:
-        cols = np.clip(np.rint(points[..., 0]), 0, width - 1).astype(int)
-        rows = np.clip(np.rint(points[..., 1]), 0, height - 1).astype(int)
-        return gray[rows, cols].astype(np.float64)
-
-    first = 0.3 * (along + across)
-    second = 0.3 * (along - across)
-    levels = np.stack([sample(grid + first), sample(grid - first), sample(grid + second), sample(grid - second)])
+    levels = gray[np.clip(points[..., 1], 0, height - 1).astype(int), np.clip(points[..., 0], 0, width - 1).astype(int)].astype(np.float64)
     contrast = np.maximum(levels.max(axis=0) - levels.min(axis=0), 1.0)
     one, other = 0.5 * (levels[0] + levels[1]), 0.5 * (levels[2] + levels[3])
     # Opposite squares alike (a board's outer corner, two squares and the white margin, is not).
     alike = (np.abs(levels[0] - levels[1]) <= MIN_CROSSING_CONTRAST * contrast) & (np.abs(levels[2] - levels[3]) <= MIN_CROSSING_CONTRAST * contrast)
     crossing = alike & (np.abs(one - other) >= (1.0 - MIN_CROSSING_CONTRAST) * contrast) & (contrast >= 10.0)
-    return bool(np.all(crossing))
+    return bool(crossing.all())
+
+
+def _grid_step(grid: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """``np.gradient(grid, axis=axis)`` (central differences, one-sided at the ends) of a
+    (rows, columns, 2) grid, without its overhead."""
+    values = grid if axis == 0 else grid.swapaxes(0, 1)
+    step = np.empty_like(values)
+    step[1:-1] = (values[2:] - values[:-2]) / 2.0
+    step[0], step[-1] = values[1] - values[0], values[-1] - values[-2]
+    return step if axis == 0 else step.swapaxes(0, 1)
