@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, frame_rows, point_derivatives, reference_rows, rotated_normals, shape_residuals
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, point_derivatives, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -115,8 +115,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     # angles, a point's on its reference point's two offsets too; F*'s on the globals.
     points = 2 * m.shape[1]
     shape_rows = per_frame - points
-    point_globals = np.repeat(np.column_stack([np.zeros(points // 2, int), np.ones(points // 2, int), 2 + 2 * np.arange(points // 2),
-                                               3 + 2 * np.arange(points // 2)]), 2, axis=0)  # (2N, 4)
+    point_globals = point_columns(points // 2)
     own = np.broadcast_to((n_global + 3 * np.arange(frames)[:, None] + np.arange(3))[:, None], (frames, per_frame, 3))
     columns = np.concatenate([np.concatenate([np.concatenate([np.broadcast_to(point_globals, (frames, points, 4)), own[:, :points]], axis=2).reshape(frames, -1),
                                               np.concatenate([np.broadcast_to([0, 1], (frames, shape_rows, 2)), own[:, points:]], axis=2).reshape(frames, -1)],
@@ -127,9 +126,9 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
-        by_points = np.concatenate([np.take_along_axis(by_globals[:, :points], point_globals[None], axis=2), by_own[:, :points]], axis=2)
-        by_shapes = np.concatenate([by_globals[:, points:, :2], by_own[:, points:]], axis=2)
+        at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives="compact")
+        by_points = np.concatenate([by_point_globals, by_own[:, :points]], axis=2)
+        by_shapes = np.concatenate([by_angles, by_own[:, points:]], axis=2)
         by_points[~np.isfinite(at[:, :points])] = 0.0  # where the residuals are replaced (nan_to_num)
         by_shapes[~np.isfinite(at[:, points:])] = 0.0
         data = np.concatenate([by_points.reshape(frames, -1), by_shapes.reshape(frames, -1)], axis=1).ravel()
@@ -319,9 +318,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
     # One pass over ``frames`` and the estimated frames not among them (the same points, pose
     # and span); ``weight`` counts the times each is an estimated frame.
-    key = lambda *row: b"".join(np.ascontiguousarray(part).tobytes() for part in row)  # noqa: E731
-    position = {key(*row): i for i, row in enumerate(zip(frames, frames_motion, frame_segments))}
-    where = np.array([position.get(key(*row), -1) for row in zip(estimated, motion, estimated_segments)], dtype=np.intp)
+    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts]).astype(float)]  # noqa: E731
+    position = {key: i for i, key in enumerate(keys(frames, frames_motion, frame_segments))}
+    where = np.array([position.get(key, -1) for key in keys(estimated, motion, estimated_segments)], dtype=np.intp)
     missing = np.flatnonzero(where < 0)
     where[missing] = frames.shape[0] + np.arange(missing.size)
     pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
@@ -339,8 +338,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         block = slice(k, k + BLOCK_FRAMES)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
         own, shared = np.nan_to_num(own), np.nan_to_num(shared)
-        coupling[block] = np.einsum("kra,krg->kag", own, shared)  # B_k = J_k^T J_kg; D_k = J_k^T J_k
-        inverse_own[block] = np.linalg.pinv(np.einsum("kra,krb->kab", own, own), rcond=1e-12, hermitian=True)
+        coupling[block] = np.swapaxes(own, 1, 2) @ shared  # B_k = J_k^T J_kg; D_k = J_k^T J_k
+        inverse_own[block] = np.linalg.pinv(np.swapaxes(own, 1, 2) @ own, rcond=1e-12, hermitian=True)
         weighted = weight[block, None, None] * shared
         # Sums over frames and rows as matrix products (BLAS): plain einsum loops over every index.
         reduced = np.swapaxes(weight[block, None, None] * coupling[block], 1, 2) @ inverse_own[block]  # B_k^T D_k^-1, weighted
@@ -356,7 +355,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = np.swapaxes(own, 1, 2) @ rows
             per_frame = np.swapaxes(weighted, 1, 2) @ rows - reduced @ own_rhs[block]
-            np.add.at(spans, pool_segments[block], per_frame)
+            for span in np.unique(pool_segments[block]):
+                spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     readout = 0.0
@@ -384,8 +384,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     if detector_bias > 0.0:
         spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - np.einsum("kag,gb->kab", coupling, bias_shared)
-        bias = np.einsum("kab,kbc->kac", inverse_own, own_rhs)
+        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(
+            coupling.shape[:2] + (-1,))
+        bias = inverse_own @ own_rhs
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
         column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
@@ -393,7 +394,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     return JointCovariance(
         shared=variance * shared_inverse,
         own=variance * inverse_own,
-        sensitivity=-np.einsum("kab,kbg->kag", inverse_own, coupling),
+        sensitivity=-(inverse_own @ coupling),
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
