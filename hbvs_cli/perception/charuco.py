@@ -25,6 +25,7 @@ interpolation needs it; the corners themselves do not depend on it).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray
-from .chessboard import GRID_FIT_PX, SETTLED_PX, refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, plain_median, refine_twice, row_lengths, saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -287,12 +288,12 @@ class CharucoTargetDetector:
         corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`, comes back when refined
         again from a little off, and they all fit one homography of the grid (:data:`~.chessboard.GRID_FIT_PX`)."""
         prediction = self._track.predict()
-        if prediction is None or not np.all(np.isfinite(prediction)):
+        if prediction is None or not np.isfinite(prediction).all():
             return None
-        if not np.all(_inside(prediction, self._last_window + 2, gray.shape)):
+        if not _inside(prediction, self._last_window + 2, gray.shape).all():
             return None
         once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
-        if np.max(np.linalg.norm(once - prediction, axis=1)) > MAX_REFINE_MOVE_PX or np.max(np.linalg.norm(again - once, axis=1)) > SETTLED_PX:
+        if row_lengths(once - prediction).max() > MAX_REFINE_MOVE_PX or row_lengths(again - once).max() > SETTLED_PX:
             return None
         self._last_window, fit_px = self._window(once, np.arange(self.n_points))
         return saddle_points(gray, once) if fit_px <= GRID_FIT_PX else None
@@ -308,8 +309,8 @@ class CharucoTargetDetector:
             H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
             if H is not None:  # the square as seen: the mapped grid's step at each corner
                 mapped = cv2.perspectiveTransform(np.concatenate([grid, grid + np.float32((1, 0))]).reshape(-1, 1, 2), H).reshape(2, -1, 2)
-                square = float(np.median(np.linalg.norm(mapped[1] - corners, axis=1)))
-                fit_px = float(np.sqrt(np.mean(np.sum((mapped[0] - corners) ** 2, axis=1))))
+                square = plain_median(row_lengths(mapped[1] - corners))
+                fit_px = math.sqrt(((mapped[0] - corners) ** 2).sum(axis=1).mean())
         return int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX)), fit_px
 
     def _grid(self, ids: NDArray[np.int_]) -> NDArray[np.float32]:
@@ -369,7 +370,7 @@ class CharucoTargetDetector:
 
 def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
     """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
-    return np.all((corners >= margin) & (corners <= np.array([shape[1], shape[0]]) - 1 - margin), axis=1)
+    return ((corners >= margin) & (corners <= (shape[1] - 1 - margin, shape[0] - 1 - margin))).all(axis=1)
 
 
 def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], row: int) -> NDArray[np.float64] | None:

@@ -168,7 +168,7 @@ class ChessboardDetector:
         """Every corner refined from its prediction, or None when they do not fit the grid."""
         height, width = gray.shape
         grid = prediction.reshape(self.pattern[1], self.pattern[0], 2)
-        square = _median(_lengths(np.diff(grid, axis=1).reshape(-1, 2)))
+        square = plain_median(row_lengths(np.diff(grid, axis=1).reshape(-1, 2)))
         window = int(np.clip(min(np.floor(REFINE_WINDOW_SQUARES * square), square - 2.0), *REFINE_WINDOW_PX))
         margin = window + 2
         if (prediction < margin).any() or (prediction > (width - 1 - margin, height - 1 - margin)).any():
@@ -177,7 +177,7 @@ class ChessboardDetector:
         # A corner draws the refinement from all around: started again a little off, it
         # must come back. From a prediction a few pixels off the refinement can stop on
         # the grid but off the corners (found: 2 px off on 5 px squares).
-        if _lengths(corners - prediction).max() > MAX_TRACKED_MOVE_PX or _lengths(settled - corners).max() > SETTLED_PX:
+        if row_lengths(corners - prediction).max() > MAX_TRACKED_MOVE_PX or row_lengths(settled - corners).max() > SETTLED_PX:
             return None
         H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
         if H is None:
@@ -190,12 +190,12 @@ class ChessboardDetector:
         return saddle_points(gray, corners, CHESSBOARD_SMOOTHING_PX)
 
 
-def _lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+def row_lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
     """The lengths of (K, 2) vectors (``np.linalg.norm(vectors, axis=1)`` without its overhead)."""
     return np.sqrt((vectors * vectors).sum(axis=1))
 
 
-def _median(values: NDArray[np.float64]) -> float:
+def plain_median(values: NDArray[np.float64]) -> float:
     """``np.median`` of a 1-d array, without its overhead."""
     ordered = np.sort(values)
     middle = ordered.size // 2
