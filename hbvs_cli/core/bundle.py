@@ -1,12 +1,9 @@
 """n*, the reference points and every frame's planar pose at once: the joint estimate.
 
-The far reference frame F* alone pins the plane normal n* poorly (a small target seen
-from afar is foreshortened by a fraction of a pixel); the close frames of the drive pin it
-well. :func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the
-reference points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` together
-by maximum likelihood on the reprojection error of every point in every frame (12),
-``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
-block-arrow sparsity given to scipy's trust-region solver.
+:func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the reference
+points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` by maximum likelihood
+on every point's reprojection error (12), ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``
+(robust loss, block-arrow sparse Jacobian): the close frames pin the n* that F* alone does not.
 
 :func:`joint_covariance`: the estimate's covariance ``sigma^2 (J^T J)^-1`` by the Schur
 complement on the globals (docs/uncertainty.md).
@@ -30,10 +27,8 @@ ROBUST_SCALE = 3.0
 #: Residuals beyond this many robust spreads are left out of the measured point noise.
 OUTLIER_SPREADS = 4.0
 
-#: The joint estimate stops when a step lowers the cost by less than this fraction of it:
-#: the cost is about (number of residuals) x noise^2 / 2, so 1e-5 of it is far below what
-#: one noise draw changes (a flat valley along n*'s yaw otherwise takes the solver dozens
-#: of steps of no consequence).
+#: The joint estimate stops when a step lowers the cost by less than this fraction of it
+#: (far below what one noise draw changes; a flat valley along n*'s yaw otherwise takes dozens of steps).
 COST_TOLERANCE = 1e-5
 
 #: Iterations of the joint estimate at most (it starts from the variable-projection estimate).
@@ -138,9 +133,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])
-    # Plain least squares first: from a start far off every residual looks like an outlier
-    # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
-    # frame with a wrong point counts less.
+    # Plain least squares first (from far off, a robust loss's steps stall), then Huber's loss.
     try:
         solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
                                  ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)

@@ -1,10 +1,8 @@
 """The plane normal n* common to a sequence of homographies, and its refinement.
 
-The true normal is the same in every frame, the spurious decomposition's moves with the
-robot (docs/method.md, "Decomposition into (theta, x_h, n*)"): :func:`estimate_common_normal`
-picks the branch the whole sequence agrees on, and :func:`refine_plane_and_reference`
-refines n* and the reference points m*_i together over every frame, with the known-normal
-solver as the inner step.
+:func:`estimate_common_normal` picks the decomposition branch the whole sequence agrees on
+(docs/method.md, "Decomposition into (theta, x_h, n*)"); :func:`refine_plane_and_reference`
+refines n* and the reference points m*_i over every frame, the known-normal solver inside.
 """
 
 from __future__ import annotations
@@ -123,9 +121,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     shape by the best similarity (Procrustes, reflection allowed: for a given handedness the
     match is linear in the coordinates), and the matched shape's points are projected back
     into the camera (9). The residual is their ``(m_y, m_z)`` minus the points': zero when
-    the points and the normal agree with the shape. A square seen under a wrong wall angle
-    is foreshortened wrongly: this is what tells the normal's yaw on a small target, which
-    the motion alone hardly does.
+    the points and the normal agree with the shape (a wrong wall angle foreshortens it wrongly).
 
     Parameters
     ----------
@@ -244,8 +240,7 @@ def _similar(q: NDArray[np.float64], lc: NDArray[np.float64], proper: NDArray[np
 def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The orthogonal polar factor ``U V^T`` of 2x2 matrices and their singular values' sum.
 
-    In closed form (a batched SVD of many 2x2 matrices cost a third of
-    :func:`shape_residuals`): with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
+    In closed form: with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
     ``F = |(a - d, b + c)|``, the singular values are ``(E + F) / 2`` and ``|E - F| / 2``
     (so they sum to ``max(E, F)``), and ``E^2 - F^2 = 4 det M``: a rotation by
     ``atan2(c - b, a + d)`` when ``E >= F``, else a reflection.
@@ -508,9 +503,7 @@ def refine_plane_and_reference(
     Variable projection: for trial values of n* (two angles about ``normal``) and of the
     reference points (their y and z), :class:`KnownNormalSolver` gives every frame its best
     (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
-    error, plus the reference frame's own: F* is where the reference frame was taken, so
-    its motion is pinned at identity (this fixes the gauge). Both parts matter: with the
-    reference points held at their measurement, the normal bends to absorb their error.
+    error, plus F*'s own (its motion pinned at identity: the gauge).
 
     Parameters
     ----------
@@ -523,8 +516,7 @@ def refine_plane_and_reference(
         Frames to use besides the reference frame.
     shapes : sequence of KnownShape, optional
         Parts of the target whose shape is known up to a similarity (a marker's square):
-        :func:`shape_residuals` joins the cost. With a single 0.4 m marker 3-6 m away the
-        motion barely tells the normal's yaw; the square's foreshortening does.
+        :func:`shape_residuals` joins the cost.
 
     Returns
     -------

@@ -1,17 +1,10 @@
-"""A printed chessboard as the target: its inner corners, in a fixed order.
+"""A printed chessboard as the target: its inner corners, row by row in the first detection's order.
 
-The first frame (and any frame where tracking is lost) is searched by OpenCV's
-``findChessboardCornersSB``; :func:`find_board` finds the largest board (``CALIB_CB_LARGER``)
-and reports its pattern. In the frames that follow, every corner is refined from where the
-track predicts it (``cornerSubPix``) and the corners must fit one homography of the board's
-grid, else the frame is searched again. Each accepted corner is then re-measured as the
-saddle point of the image around it (:func:`saddle_points`), four times closer to the true
-corner than ``cornerSubPix`` on small squares.
-
-The corners' order is row by row as OpenCV gives it in the first detection; a later search
-(the board's 180 deg symmetry can flip OpenCV's order) is put back in the track's order.
-The board's grid is a shape known up to a similarity (:func:`board_layout`): the fit uses
-it to pin the plane normal n*.
+A frame is searched by ``findChessboardCornersSB`` (:func:`find_board`) until the track
+is known; then every corner is refined from its prediction (``cornerSubPix``), must fit one
+homography of the grid, and is re-measured as the image's saddle point (:func:`saddle_points`).
+A later search is put back in the track's order (the board's half-turn symmetry can flip
+OpenCV's). The grid (:func:`board_layout`) is a shape known up to a similarity: it pins n*.
 """
 
 from __future__ import annotations
@@ -26,19 +19,15 @@ from numpy.typing import NDArray
 from .base import Detection, PointTrack, as_gray, check_prediction
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
-#: board's square as seen, and its bounds (px). On 5 px squares (6 cm at 5.8 m): half-size
-#: 3 px measured the corners to 0.058 px RMS, 2 px to 0.073 px, 4 px reached the neighbouring
-#: corners (1.1 px); OpenCV's sector-based search alone, 0.105 px.
+#: board's square as seen, and its bounds (px).
 REFINE_WINDOW_SQUARES = 0.6
 REFINE_WINDOW_PX = (2, 8)
 #: A tracked frame's corners must fit the board's homography to this RMS (px).
 GRID_FIT_PX = 0.35
-#: A tracked corner may lie this far (px) from its prediction at most: from farther, the
-#: refinement on small squares can settle on the grid but off the corners (2 px, seen on
-#: 5 px squares at 5 frames per second); the frame is then searched again.
+#: A tracked corner may lie this far (px) from its prediction at most (from farther, the
+#: refinement on small squares can settle on the grid but off the corners): else searched.
 MAX_TRACKED_MOVE_PX = 1.5
-#: A refined corner, refined again from RESTART_OFFSET_PX away, must come back to within
-#: SETTLED_PX (px).
+#: A refined corner, refined again from RESTART_OFFSET_PX away, must come back within SETTLED_PX.
 RESTART_OFFSET_PX = (0.7, -0.7)
 SETTLED_PX = 0.1
 #: A board needs at least this many inner corners along each side.
@@ -47,15 +36,8 @@ MIN_SIDE = 3
 
 @dataclass(frozen=True)
 class Board:
-    """A chessboard found in an image.
-
-    Attributes
-    ----------
-    pattern : (int, int)
-        Inner corners per row and rows of them (OpenCV's ``patternSize``).
-    corners : ndarray, shape (columns * rows, 2)
-        Row by row (px).
-    """
+    """A chessboard found in an image: its ``pattern`` (inner corners per row, rows: OpenCV's
+    ``patternSize``) and ``corners`` (columns * rows, 2), row by row (px)."""
 
     pattern: tuple[int, int]
     corners: NDArray[np.float64]
@@ -81,8 +63,7 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
     return None if found is None else Board(found.pattern, found.corners.copy())
 
 
-#: The last few searches by image and pattern: fit searches its first frames twice (to pick
-#: the target, then to track it), and each search takes about 0.2 s.
+#: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
 _SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
 
 
@@ -107,13 +88,7 @@ def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
 
 
 class ChessboardDetector:
-    """A chessboard's inner corners, tracked from frame to frame.
-
-    Parameters
-    ----------
-    pattern : (int, int)
-        Inner corners per row and rows of them.
-    """
+    """A chessboard's inner corners (``pattern``: per row, rows), tracked from frame to frame."""
 
     kind = "chessboard"
 
@@ -132,9 +107,8 @@ class ChessboardDetector:
         gray = as_gray(image)
         given = check_prediction(predicted, self.n_points)
         prediction = given if given is not None else self._track.predict()
-        # Refined from the track's prediction only once its velocity is known: from a
-        # prediction a board's motion off, the refinement can settle on the grid but off
-        # the corners (seen on 5 px squares at 5 frames per second). Else searched.
+        # Refined from the track's prediction only once its velocity is known (from a
+        # prediction a board's motion off, it can settle on the grid but off the corners).
         trusted = given is not None or self._streak >= 2
         usable = prediction is not None and np.all(np.isfinite(prediction))
         corners = self._refined(gray, prediction) if trusted and usable else None
@@ -156,8 +130,7 @@ class ChessboardDetector:
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
         """A search's corners in the track's order: of the grid's four orderings (rows and
-        columns each forward or reversed), the one closest to the prediction as a whole (per
-        point, the grid shifted by a square when the board had moved over half a square)."""
+        columns each forward or reversed), the one closest to the prediction as a whole."""
         columns, rows = self.pattern
         grid = np.arange(self.n_points).reshape(rows, columns)
         orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
@@ -174,9 +147,7 @@ class ChessboardDetector:
         if (prediction < margin).any() or (prediction > (width - 1 - margin, height - 1 - margin)).any():
             return None
         corners, settled = refine_twice(gray, prediction, window, RESTART_OFFSET_PX)
-        # A corner draws the refinement from all around: started again a little off, it
-        # must come back. From a prediction a few pixels off the refinement can stop on
-        # the grid but off the corners (found: 2 px off on 5 px squares).
+        # A corner draws the refinement from all around: started again a little off, it must come back.
         if row_lengths(corners - prediction).max() > MAX_TRACKED_MOVE_PX or row_lengths(settled - corners).max() > SETTLED_PX:
             return None
         H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
@@ -202,10 +173,9 @@ def plain_median(values: NDArray[np.float64]) -> float:
     return float(ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
-#: The saddle fit of :func:`saddle_points`: the Gaussian smoothing (px) of the image before
-#: it (a plain chessboard's crossings, symmetric farther out than a ChArUco board's, whose
-#: squares hold markers, take more), the radius (px) of the Gaussian weight
-#: ``exp(-d^2 / r^2)`` on the pixels it fits, its passes, and the largest step (px) a pass may take.
+#: The saddle fit (:func:`saddle_points`): the image's Gaussian smoothing (px; more for a plain
+#: chessboard, whose crossings stay symmetric farther out than a ChArUco board's), the radius
+#: (px) of the weight ``exp(-d^2 / r^2)`` on the pixels fitted, the passes, a pass's largest step (px).
 SADDLE_SMOOTHING_PX = 0.8
 CHESSBOARD_SMOOTHING_PX = 1.2
 SADDLE_RADIUS_PX = 1.5
@@ -299,10 +269,9 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     return refined
 
 
-#: A corner is where two dark and two light squares meet: along one diagonal the image is
-#: dark on both sides, along the other light, by at least this fraction of the board's
-#: local contrast. The centres of the squares (where ``cornerSubPix`` also settles, and
-#: which also make a grid) are one colour all round.
+#: A corner is where two dark and two light squares meet: dark along one diagonal, light along
+#: the other, by at least this fraction of the local contrast (a square's centre, where
+#: ``cornerSubPix`` also settles, is one colour all round).
 MIN_CROSSING_CONTRAST = 0.3
 
 
