@@ -339,15 +339,17 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         shared_info += (weighted.reshape(-1, geometry.size).T @ shared.reshape(-1, geometry.size)
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
         residuals[block] = at[:, :points]
-        rows = _bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
+        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
-            change = np.einsum("krb,kb->kr", rows, pool_shift[block])
+            change = np.concatenate([-pool_shift[block], np.einsum("krb,kb->kr", by_shapes, pool_shift[block])], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
         if bias_fraction > 0.0:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
-            own_rhs[block] = np.swapaxes(own, 1, 2) @ rows
-            per_frame = np.swapaxes(weighted, 1, 2) @ rows - reduced @ own_rhs[block]
+            own_rhs[block] = through(own)
+            per_frame = through(weighted) - reduced @ own_rhs[block]
             for span in np.unique(pool_segments[block]):
                 spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
@@ -409,12 +411,15 @@ def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, sha
     """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
     (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
     points = 2 * m.shape[1]
-    rows = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    return np.concatenate([np.broadcast_to(-np.eye(points), (m.shape[0], points, points)), _shape_bias_rows(m, normal, motion, shapes)], axis=1)
+
+
+def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """The shapes' rows of :func:`_bias_rows`, (K, R - 2N, 2N)."""
     if not shapes:
-        return rows
+        return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
-    by_points = shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, points)
-    return np.concatenate([rows, np.nan_to_num(by_points)], axis=1)
+    return np.nan_to_num(shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, 2 * m.shape[1]))
 
 
 def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:

@@ -484,14 +484,15 @@ def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames:
         hessian = hessian.reshape(r.shape + (6, 6))
         local = np.repeat(globals_derivative(normal, m_ref, geometry.normal_derivative(p)), 2, axis=0)  # per row
         h_xx = np.einsum("kra,krb->kab", own[:, :points], own[:, :points]) + np.einsum("kr,krab->kab", r, hessian[..., :3, :3])
-        h_xp = np.einsum("kra,krg->kag", own[:, :points], rows[:, :points]) + np.einsum("kr,kral,rlg->kag", r, hessian[..., :3, 3:], local)
+        curvature = (r[..., None, None] * hessian[..., :3, 3:]).swapaxes(1, 2).reshape(r.shape[0], 3, -1)  # (K, 3, R 3)
+        h_xp = np.swapaxes(own[:, :points], 1, 2) @ rows[:, :points] + curvature @ local.reshape(-1, geometry.size)
         h_xx[~solved] = np.eye(3)
         rows = rows - own @ np.linalg.solve(h_xx, h_xp)
         rows[~solved] = 0.0
     # The solver's order: each frame's m_y errors, then its m_z errors.
     reprojection = rows[:, :points].reshape((x.shape[0], -1, 2) + rows.shape[2:]).swapaxes(1, 2)
     return np.nan_to_num(np.concatenate([reprojection.reshape((-1,) + rows.shape[2:]), reference_rows(geometry, p, shapes, derivatives),
-                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]))
+                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]), copy=False)
 
 
 def refine_plane_and_reference(
