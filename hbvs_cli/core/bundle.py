@@ -121,7 +121,8 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives="compact")
+        motion = p[n_global:].reshape(frames, 3)
+        at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], motion, m, shapes, derivatives="compact")
         by_points = np.concatenate([by_point_globals, by_own[:, :points]], axis=2)
         by_shapes = np.concatenate([by_angles, by_own[:, points:]], axis=2)
         by_points[~np.isfinite(at[:, :points])] = 0.0  # where the residuals are replaced (nan_to_num)
@@ -311,7 +312,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
     # One pass over ``frames`` and the estimated frames not among them (the same points, pose
     # and span); ``weight`` counts the times each is an estimated frame.
-    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts]).astype(float)]  # noqa: E731
+    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts])]  # noqa: E731
     position = {key: i for i, key in enumerate(keys(frames, frames_motion, frame_segments))}
     where = np.array([position.get(key, -1) for key in keys(estimated, motion, estimated_segments)], dtype=np.intp)
     missing = np.flatnonzero(where < 0)
@@ -340,7 +341,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
         residuals[block] = at[:, :points]
         # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
-        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        biased = shutter is not None or bias_fraction > 0.0
+        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
             change = np.concatenate([-pool_shift[block], np.einsum("krb,kb->kr", by_shapes, pool_shift[block])], axis=1)
@@ -379,8 +381,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     if detector_bias > 0.0:
         spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(
-            coupling.shape[:2] + (-1,))
+        inherited = (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(coupling.shape[:2] + (-1,))
+        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - inherited
         bias = inverse_own @ own_rhs
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
         column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
@@ -411,7 +413,8 @@ def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, sha
     """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
     (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
     points = 2 * m.shape[1]
-    return np.concatenate([np.broadcast_to(-np.eye(points), (m.shape[0], points, points)), _shape_bias_rows(m, normal, motion, shapes)], axis=1)
+    own = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    return np.concatenate([own, _shape_bias_rows(m, normal, motion, shapes)], axis=1)
 
 
 def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:

@@ -176,7 +176,8 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
             dq -= q[..., None, :, :] * on_plane.swapaxes(-1, -2)[..., None]
             d_fitted = _similar(dq, lc, proper[..., None])[0]
             # The matched points on the plane, N + fitted_0 e1 + fitted_1 e2, by d: (..., d, K, 3).
-            d_world = (d_normal[..., :, None, :] + d_fitted[..., :1] * e1[..., None, None, :] + fitted[..., None, :, :1] * d_e1[..., :, None, :]
+            d_world = (d_normal[..., :, None, :] + d_fitted[..., :1] * e1[..., None, None, :]
+                       + fitted[..., None, :, :1] * d_e1[..., :, None, :]
                        + d_fitted[..., 1:] * e2[..., None, None, :] + fitted[..., None, :, 1:] * d_e2[..., :, None, :])
             # Their projections (world_y, world_z) / world_x by d: (..., K, 2, d).
             by_normal.append(((d_world[..., 1:] - projected[..., None, :, 1:] * d_world[..., :1]) / world[..., None, :, :1])
@@ -186,7 +187,8 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
                 basis = np.eye(2 * count).reshape(2 * count, count, 2)
                 match = np.where(proper[..., None, None], _similar(basis, lc, True)[0].reshape(2 * count, -1),
                                  _similar(basis, lc, False)[0].reshape(2 * count, -1))
-                out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]  # d projection / d world, (..., K, 2, 3)
+                # d projection / d world, (..., K, 2, 3).
+                out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]
                 # By each point's own (m_y, m_z) into its q, through the match, out of every projection.
                 d_own = (np.eye(3)[1:] - on_plane[..., None, :] * normal[..., None, 1:, None]) / depth[..., None, None]
                 into = np.stack([np.einsum("...k,...nyk->...ny", e1, d_own), np.einsum("...k,...nyk->...ny", e2, d_own)], axis=-2)
@@ -199,7 +201,8 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
                     full = np.zeros(batch + (2 * count, m.shape[-2], 2))
                     full[..., indices, :] = chain
                     by_points.append(full)
-    joined = [parts[1] if len(parts) == 2 else np.concatenate(parts, axis=axis) for parts, axis in ((residuals, -1), (by_normal, -2), (by_points, -3))]
+    joined = [parts[1] if len(parts) == 2 else np.concatenate(parts, axis=axis)
+              for parts, axis in ((residuals, -1), (by_normal, -2), (by_points, -3))]
     if not derivatives:
         return joined[0]
     return tuple(joined[:2 if derivatives == "normal" else 3])
