@@ -43,17 +43,8 @@ def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], mo
 
 @dataclass(frozen=True)
 class JointEstimate:
-    """What :func:`estimate_plane_jointly` gives.
-
-    Attributes
-    ----------
-    normal : ndarray, shape (3,)
-    m_ref : ndarray, shape (N, 3)
-    motion : ndarray, shape (K, 3)
-        (theta, x_h1, x_h2) of the frames estimated with them.
-    cost : float
-        Half the sum of squared residuals at the solution (normalised units).
-    """
+    """What :func:`estimate_plane_jointly` gives: ``normal`` (3,), ``m_ref`` (N, 3), the frames'
+    (theta, x_h1, x_h2) ``motion`` (K, 3), and ``cost``, half the sum of squared residuals."""
 
     normal: NDArray[np.float64]
     m_ref: NDArray[np.float64]

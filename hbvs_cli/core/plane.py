@@ -344,17 +344,9 @@ def rotated_normals(normal: NDArray[np.float64], theta: NDArray[np.float64]) -> 
 
 @dataclass(frozen=True)
 class PlaneGeometry:
-    """The global unknowns of the joint estimate, around a base normal.
-
-    Attributes
-    ----------
-    base : ndarray, shape (3,)
-        The unit normal the two angles are measured from.
-    u, v : ndarray, shape (3,)
-        Unit directions perpendicular to ``base`` (``u`` horizontal).
-    measured_ref : ndarray, shape (N, 3)
-        The reference points as measured in F* (the y, z unknowns are offsets from them).
-    """
+    """The global unknowns of the joint estimate: n*'s two angles about the unit ``base`` (3,)
+    along ``u`` (horizontal) and ``v`` (3,), and the reference points' (y, z) offsets from
+    ``measured_ref`` (N, 3), as measured in F*."""
 
     base: NDArray[np.float64]
     u: NDArray[np.float64]
