@@ -1,12 +1,9 @@
 """n*, the reference points and every frame's planar pose at once: the joint estimate.
 
-The far reference frame F* alone pins the plane normal n* poorly (a small target seen
-from afar is foreshortened by a fraction of a pixel); the close frames of the drive pin it
-well. :func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the
-reference points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` together
-by maximum likelihood on the reprojection error of every point in every frame (12),
-``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``: a robust loss, and the Jacobian's
-block-arrow sparsity given to scipy's trust-region solver.
+:func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the reference
+points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` by maximum likelihood
+on every point's reprojection error (12), ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``
+(robust loss, block-arrow sparse Jacobian): the close frames pin the n* that F* alone does not.
 
 :func:`joint_covariance`: the estimate's covariance ``sigma^2 (J^T J)^-1`` by the Schur
 complement on the globals (docs/uncertainty.md).
@@ -22,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, frame_rows, point_derivatives, reference_rows, rotated_normals, shape_residuals
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, point_derivatives, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -30,10 +27,8 @@ ROBUST_SCALE = 3.0
 #: Residuals beyond this many robust spreads are left out of the measured point noise.
 OUTLIER_SPREADS = 4.0
 
-#: The joint estimate stops when a step lowers the cost by less than this fraction of it:
-#: the cost is about (number of residuals) x noise^2 / 2, so 1e-5 of it is far below what
-#: one noise draw changes (a flat valley along n*'s yaw otherwise takes the solver dozens
-#: of steps of no consequence).
+#: The joint estimate stops when a step lowers the cost by less than this fraction of it
+#: (far below what one noise draw changes; a flat valley along n*'s yaw otherwise takes dozens of steps).
 COST_TOLERANCE = 1e-5
 
 #: Iterations of the joint estimate at most (it starts from the variable-projection estimate).
@@ -48,17 +43,8 @@ def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], mo
 
 @dataclass(frozen=True)
 class JointEstimate:
-    """What :func:`estimate_plane_jointly` gives.
-
-    Attributes
-    ----------
-    normal : ndarray, shape (3,)
-    m_ref : ndarray, shape (N, 3)
-    motion : ndarray, shape (K, 3)
-        (theta, x_h1, x_h2) of the frames estimated with them.
-    cost : float
-        Half the sum of squared residuals at the solution (normalised units).
-    """
+    """What :func:`estimate_plane_jointly` gives: ``normal`` (3,), ``m_ref`` (N, 3), the frames'
+    (theta, x_h1, x_h2) ``motion`` (K, 3), and ``cost``, half the sum of squared residuals."""
 
     normal: NDArray[np.float64]
     m_ref: NDArray[np.float64]
@@ -115,8 +101,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     # angles, a point's on its reference point's two offsets too; F*'s on the globals.
     points = 2 * m.shape[1]
     shape_rows = per_frame - points
-    point_globals = np.repeat(np.column_stack([np.zeros(points // 2, int), np.ones(points // 2, int), 2 + 2 * np.arange(points // 2),
-                                               3 + 2 * np.arange(points // 2)]), 2, axis=0)  # (2N, 4)
+    point_globals = point_columns(points // 2)
     own = np.broadcast_to((n_global + 3 * np.arange(frames)[:, None] + np.arange(3))[:, None], (frames, per_frame, 3))
     columns = np.concatenate([np.concatenate([np.concatenate([np.broadcast_to(point_globals, (frames, points, 4)), own[:, :points]], axis=2).reshape(frames, -1),
                                               np.concatenate([np.broadcast_to([0, 1], (frames, shape_rows, 2)), own[:, points:]], axis=2).reshape(frames, -1)],
@@ -127,9 +112,10 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        at, by_own, by_globals = frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes, derivatives=True)
-        by_points = np.concatenate([np.take_along_axis(by_globals[:, :points], point_globals[None], axis=2), by_own[:, :points]], axis=2)
-        by_shapes = np.concatenate([by_globals[:, points:, :2], by_own[:, points:]], axis=2)
+        motion = p[n_global:].reshape(frames, 3)
+        at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], motion, m, shapes, derivatives="compact")
+        by_points = np.concatenate([by_point_globals, by_own[:, :points]], axis=2)
+        by_shapes = np.concatenate([by_angles, by_own[:, points:]], axis=2)
         by_points[~np.isfinite(at[:, :points])] = 0.0  # where the residuals are replaced (nan_to_num)
         by_shapes[~np.isfinite(at[:, points:])] = 0.0
         data = np.concatenate([by_points.reshape(frames, -1), by_shapes.reshape(frames, -1)], axis=1).ravel()
@@ -139,9 +125,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])
-    # Plain least squares first: from a start far off every residual looks like an outlier
-    # to a robust loss, whose steps then stall. Then Huber's loss from there, so that a
-    # frame with a wrong point counts less.
+    # Plain least squares first (from far off, a robust loss's steps stall), then Huber's loss.
     try:
         solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
                                  ftol=COST_TOLERANCE, max_nfev=MAX_EVALUATIONS)
@@ -319,9 +303,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
     # One pass over ``frames`` and the estimated frames not among them (the same points, pose
     # and span); ``weight`` counts the times each is an estimated frame.
-    key = lambda *row: b"".join(np.ascontiguousarray(part).tobytes() for part in row)  # noqa: E731
-    position = {key(*row): i for i, row in enumerate(zip(frames, frames_motion, frame_segments))}
-    where = np.array([position.get(key(*row), -1) for row in zip(estimated, motion, estimated_segments)], dtype=np.intp)
+    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts])]  # noqa: E731
+    position = {key: i for i, key in enumerate(keys(frames, frames_motion, frame_segments))}
+    where = np.array([position.get(key, -1) for key in keys(estimated, motion, estimated_segments)], dtype=np.intp)
     missing = np.flatnonzero(where < 0)
     where[missing] = frames.shape[0] + np.arange(missing.size)
     pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
@@ -339,24 +323,28 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         block = slice(k, k + BLOCK_FRAMES)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
         own, shared = np.nan_to_num(own), np.nan_to_num(shared)
-        coupling[block] = np.einsum("kra,krg->kag", own, shared)  # B_k = J_k^T J_kg; D_k = J_k^T J_k
-        inverse_own[block] = np.linalg.pinv(np.einsum("kra,krb->kab", own, own), rcond=1e-12, hermitian=True)
+        coupling[block] = np.swapaxes(own, 1, 2) @ shared  # B_k = J_k^T J_kg; D_k = J_k^T J_k
+        inverse_own[block] = np.linalg.pinv(np.swapaxes(own, 1, 2) @ own, rcond=1e-12, hermitian=True)
         weighted = weight[block, None, None] * shared
         # Sums over frames and rows as matrix products (BLAS): plain einsum loops over every index.
         reduced = np.swapaxes(weight[block, None, None] * coupling[block], 1, 2) @ inverse_own[block]  # B_k^T D_k^-1, weighted
         shared_info += (weighted.reshape(-1, geometry.size).T @ shared.reshape(-1, geometry.size)
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
         residuals[block] = at[:, :points]
-        rows = _bias_rows(pool[block], normal, pool_motion[block], shapes) if shutter is not None or bias_fraction > 0.0 else None
+        # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
+        biased = shutter is not None or bias_fraction > 0.0
+        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if biased else None
+        through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
-            change = np.einsum("krb,kb->kr", rows, pool_shift[block])
+            change = np.concatenate([-pool_shift[block], np.einsum("krb,kb->kr", by_shapes, pool_shift[block])], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
         if bias_fraction > 0.0:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
-            own_rhs[block] = np.swapaxes(own, 1, 2) @ rows
-            per_frame = np.swapaxes(weighted, 1, 2) @ rows - reduced @ own_rhs[block]
-            np.add.at(spans, pool_segments[block], per_frame)
+            own_rhs[block] = through(own)
+            per_frame = through(weighted) - reduced @ own_rhs[block]
+            for span in np.unique(pool_segments[block]):
+                spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
     residuals = residuals[where]  # the estimated frames' own, in their (time) order
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     readout = 0.0
@@ -384,8 +372,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     if detector_bias > 0.0:
         spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - np.einsum("kag,gb->kab", coupling, bias_shared)
-        bias = np.einsum("kab,kbc->kac", inverse_own, own_rhs)
+        inherited = (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(coupling.shape[:2] + (-1,))
+        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - inherited
+        bias = inverse_own @ own_rhs
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
         column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
@@ -393,7 +382,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     return JointCovariance(
         shared=variance * shared_inverse,
         own=variance * inverse_own,
-        sensitivity=-np.einsum("kab,kbg->kag", inverse_own, coupling),
+        sensitivity=-(inverse_own @ coupling),
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
@@ -415,12 +404,16 @@ def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, sha
     """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
     (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
     points = 2 * m.shape[1]
-    rows = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    own = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    return np.concatenate([own, _shape_bias_rows(m, normal, motion, shapes)], axis=1)
+
+
+def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
+    """The shapes' rows of :func:`_bias_rows`, (K, R - 2N, 2N)."""
     if not shapes:
-        return rows
+        return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
-    by_points = shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, points)
-    return np.concatenate([rows, np.nan_to_num(by_points)], axis=1)
+    return np.nan_to_num(shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, 2 * m.shape[1]))
 
 
 def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:

@@ -1,10 +1,8 @@
 """The plane normal n* common to a sequence of homographies, and its refinement.
 
-The true normal is the same in every frame, the spurious decomposition's moves with the
-robot (docs/method.md, "Decomposition into (theta, x_h, n*)"): :func:`estimate_common_normal`
-picks the branch the whole sequence agrees on, and :func:`refine_plane_and_reference`
-refines n* and the reference points m*_i together over every frame, with the known-normal
-solver as the inner step.
+:func:`estimate_common_normal` picks the decomposition branch the whole sequence agrees on
+(docs/method.md, "Decomposition into (theta, x_h, n*)"); :func:`refine_plane_and_reference`
+refines n* and the reference points m*_i over every frame, the known-normal solver inside.
 """
 
 from __future__ import annotations
@@ -123,9 +121,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     shape by the best similarity (Procrustes, reflection allowed: for a given handedness the
     match is linear in the coordinates), and the matched shape's points are projected back
     into the camera (9). The residual is their ``(m_y, m_z)`` minus the points': zero when
-    the points and the normal agree with the shape. A square seen under a wrong wall angle
-    is foreshortened wrongly: this is what tells the normal's yaw on a small target, which
-    the motion alone hardly does.
+    the points and the normal agree with the shape (a wrong wall angle foreshortens it wrongly).
 
     Parameters
     ----------
@@ -172,35 +168,44 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
         residuals.append((projected[..., 1:] - points[..., 1:]).reshape(batch + (-1,)))
         if not derivatives:
             continue
-        # The match is a fixed linear map of q for each handedness: ``match`` (..., 2K, 2K).
         count = len(indices)
-        basis = np.eye(2 * count).reshape(2 * count, count, 2)
-        match = np.where(proper[..., None, None], _similar(basis, lc, True)[0].reshape(2 * count, -1),
-                         _similar(basis, lc, False)[0].reshape(2 * count, -1))
         with np.errstate(divide="ignore", invalid="ignore"):
-            # By the normal's components d: P = p / (n . p), q = (e1 . P, e2 . P), the match,
-            # the matched points on the plane, their projections.
-            d_plane = -on_plane[..., None, :] * (points / depth[..., None])[..., None]
-            dq = np.stack([np.einsum("...dk,...nk->...nd", d_e1, on_plane) + np.einsum("...k,...ndk->...nd", e1, d_plane),
-                           np.einsum("...dk,...nk->...nd", d_e2, on_plane) + np.einsum("...k,...ndk->...nd", e2, d_plane)], axis=-2)
-            d_fitted = (match.swapaxes(-1, -2) @ dq.reshape(dq.shape[:-3] + (2 * count, 3))).reshape(dq.shape)
-            d_world = (d_normal[..., None, :, :] + d_fitted[..., 0, :, None] * e1[..., None, None, :] + fitted[..., 0, None, None] * d_e1[..., None, :, :]
-                       + d_fitted[..., 1, :, None] * e2[..., None, None, :] + fitted[..., 1, None, None] * d_e2[..., None, :, :])
-            out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]  # d projection / d world, (..., K, 2, 3)
-            by_normal.append((out @ d_world.swapaxes(-1, -2)).reshape(batch + (2 * count, 3)))
+            # By the normal's components d: P = p / (n . p), so dP_k/dn_d = -P_k P_d, and
+            # dq_i/dn_d = de_i/dn_d . P - q_i P_d: (..., d, K, i); the match is linear in q.
+            dq = np.stack([on_plane @ d_e1.swapaxes(-1, -2), on_plane @ d_e2.swapaxes(-1, -2)], axis=-1).swapaxes(-2, -3)
+            dq -= q[..., None, :, :] * on_plane.swapaxes(-1, -2)[..., None]
+            d_fitted = _similar(dq, lc, proper[..., None])[0]
+            # The matched points on the plane, N + fitted_0 e1 + fitted_1 e2, by d: (..., d, K, 3).
+            d_world = (d_normal[..., :, None, :] + d_fitted[..., :1] * e1[..., None, None, :]
+                       + fitted[..., None, :, :1] * d_e1[..., :, None, :]
+                       + d_fitted[..., 1:] * e2[..., None, None, :] + fitted[..., None, :, 1:] * d_e2[..., :, None, :])
+            # Their projections (world_y, world_z) / world_x by d: (..., K, 2, d).
+            by_normal.append(((d_world[..., 1:] - projected[..., None, :, 1:] * d_world[..., :1]) / world[..., None, :, :1])
+                             .transpose(tuple(range(len(batch))) + (-2, -1, -3)).reshape(batch + (2 * count, 3)))
             if derivatives == "points":
+                # The match is a fixed linear map of q for each handedness: ``match`` (..., 2K, 2K).
+                basis = np.eye(2 * count).reshape(2 * count, count, 2)
+                match = np.where(proper[..., None, None], _similar(basis, lc, True)[0].reshape(2 * count, -1),
+                                 _similar(basis, lc, False)[0].reshape(2 * count, -1))
+                # d projection / d world, (..., K, 2, 3).
+                out = (np.eye(3)[1:] - projected[..., 1:, None] * np.eye(3)[0]) / world[..., :1, None]
                 # By each point's own (m_y, m_z) into its q, through the match, out of every projection.
                 d_own = (np.eye(3)[1:] - on_plane[..., None, :] * normal[..., None, 1:, None]) / depth[..., None, None]
                 into = np.stack([np.einsum("...k,...nyk->...ny", e1, d_own), np.einsum("...k,...nyk->...ny", e2, d_own)], axis=-2)
                 chain = (_block_diagonal(out @ np.stack([e1, e2], axis=-1)[..., None, :, :]) @ match.swapaxes(-1, -2)
                          @ _block_diagonal(into)) - np.eye(2 * count)
-                full = np.zeros(batch + (2 * count, m.shape[-2], 2))
-                full[..., indices, :] = chain.reshape(batch + (2 * count, count, 2))
-                by_points.append(full)
-    stacked = np.concatenate(residuals, axis=-1)
+                chain = chain.reshape(batch + (2 * count, count, 2))
+                if indices == list(range(m.shape[-2])):
+                    by_points.append(chain)
+                else:
+                    full = np.zeros(batch + (2 * count, m.shape[-2], 2))
+                    full[..., indices, :] = chain
+                    by_points.append(full)
+    joined = [parts[1] if len(parts) == 2 else np.concatenate(parts, axis=axis)
+              for parts, axis in ((residuals, -1), (by_normal, -2), (by_points, -3))]
     if not derivatives:
-        return stacked
-    return (stacked, np.concatenate(by_normal, axis=-2), np.concatenate(by_points, axis=-3))[:2 if derivatives == "normal" else 3]
+        return joined[0]
+    return tuple(joined[:2 if derivatives == "normal" else 3])
 
 
 def _block_diagonal(blocks: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -238,8 +243,7 @@ def _similar(q: NDArray[np.float64], lc: NDArray[np.float64], proper: NDArray[np
 def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The orthogonal polar factor ``U V^T`` of 2x2 matrices and their singular values' sum.
 
-    In closed form (a batched SVD of many 2x2 matrices cost a third of
-    :func:`shape_residuals`): with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
+    In closed form: with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
     ``F = |(a - d, b + c)|``, the singular values are ``(E + F) / 2`` and ``|E - F| / 2``
     (so they sum to ``max(E, F)``), and ``E^2 - F^2 = 4 det M``: a rotation by
     ``atan2(c - b, a + d)`` when ``E >= F``, else a reflection.
@@ -340,17 +344,9 @@ def rotated_normals(normal: NDArray[np.float64], theta: NDArray[np.float64]) -> 
 
 @dataclass(frozen=True)
 class PlaneGeometry:
-    """The global unknowns of the joint estimate, around a base normal.
-
-    Attributes
-    ----------
-    base : ndarray, shape (3,)
-        The unit normal the two angles are measured from.
-    u, v : ndarray, shape (3,)
-        Unit directions perpendicular to ``base`` (``u`` horizontal).
-    measured_ref : ndarray, shape (N, 3)
-        The reference points as measured in F* (the y, z unknowns are offsets from them).
-    """
+    """The global unknowns of the joint estimate: n*'s two angles about the unit ``base`` (3,)
+    along ``u`` (horizontal) and ``v`` (3,), and the reference points' (y, z) offsets from
+    ``measured_ref`` (N, 3), as measured in F*."""
 
     base: NDArray[np.float64]
     u: NDArray[np.float64]
@@ -393,14 +389,15 @@ class PlaneGeometry:
 
 
 def frame_rows(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[np.float64], m: NDArray[np.float64],
-                shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
+                shapes: Sequence[KnownShape], derivatives: bool | str = False) -> NDArray[np.float64] | tuple[NDArray[np.float64], ...]:
     """Each frame's residuals (K, R) at the globals ``p`` and its ``motion`` (K, 3): reprojection
     errors of its points ``m`` (K, N, 3) (12), then its known shapes' residuals; with
     ``derivatives`` also their derivatives by its own (theta, x_h1, x_h2) (K, R, 3) and by ``p``
-    (K, R, G)."""
+    (K, R, G), or with "compact" only the nonzero ones of the latter: the points' rows by the
+    columns :func:`point_columns` names (K, 2N, 4), the shapes' by n*'s two angles (K, R - 2N, 2)."""
     normal, m_ref = geometry.unpack(p)
     frames = m.shape[0]
-    predicted, *gradient = point_derivatives(normal, m_ref, motion, order=int(derivatives))
+    predicted, *gradient = point_derivatives(normal, m_ref, motion, order=int(bool(derivatives)))
     residuals = (predicted - m[..., 1:]).reshape(frames, -1)
     # Every frame sees the shapes under its own normal Rz(theta) n*.
     normals, by_theta = rotated_normals(normal, motion[:, 0])
@@ -408,15 +405,30 @@ def frame_rows(geometry: PlaneGeometry, p: NDArray[np.float64], motion: NDArray[
         return np.concatenate([residuals, shape_residuals(normals, m, shapes)], axis=-1)
     by_angles = geometry.normal_derivative(p)
     own = gradient[0][..., :3].reshape(frames, -1, 3)
-    shared = np.einsum("knca,nag->kncg", gradient[0][..., 3:], globals_derivative(normal, m_ref, by_angles)).reshape(frames, -1, geometry.size)
+    # (g, m*_y, m*_z) by the globals (:func:`globals_derivative`): g by the angles and the
+    # point's own offsets (n*_y, n*_z), m*_y and m*_z by their own offsets.
+    by_g, by_y, by_z = gradient[0][..., 3], gradient[0][..., 4], gradient[0][..., 5]
+    shared = np.stack([by_g * (m_ref @ by_angles[:, 0])[:, None], by_g * (m_ref @ by_angles[:, 1])[:, None],
+                       by_g * normal[1] + by_y, by_g * normal[2] + by_z], axis=-1).reshape(frames, -1, 4)
     shape, by_normal = shape_residuals(normals, m, shapes, "normal")
     shape_own = np.zeros(shape.shape + (3,))
     shape_own[..., 0] = np.einsum("krj,kj->kr", by_normal, by_theta)
     rotated = np.stack([rotated_normals(by_angles[:, a], motion[:, 0])[0] for a in range(2)], axis=-1)
-    shape_shared = np.zeros(shape.shape + (geometry.size,))
-    shape_shared[..., :2] = np.einsum("krj,kja->kra", by_normal, rotated)
-    return (np.concatenate([residuals, shape], axis=1), np.concatenate([own, shape_own], axis=1),
-            np.concatenate([shared, shape_shared], axis=1))
+    shape_shared = by_normal @ rotated
+    residuals, own = np.concatenate([residuals, shape], axis=1), np.concatenate([own, shape_own], axis=1)
+    if derivatives == "compact":
+        return residuals, own, shared, shape_shared
+    dense = np.zeros(residuals.shape + (geometry.size,))
+    columns = point_columns(m.shape[1])
+    dense[:, np.arange(columns.shape[0])[:, None], columns] = shared
+    dense[:, columns.shape[0]:, :2] = shape_shared
+    return residuals, own, dense
+
+
+def point_columns(count: int) -> NDArray[np.intp]:
+    """The globals each point row depends on, (2N, 4): n*'s two angles and its point's two offsets."""
+    point = np.arange(count)
+    return np.repeat(np.column_stack([np.zeros(count, np.intp), np.ones(count, np.intp), 2 + 2 * point, 3 + 2 * point]), 2, axis=0)
 
 
 def reference_rows(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequence[KnownShape],
@@ -467,14 +479,15 @@ def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames:
         hessian = hessian.reshape(r.shape + (6, 6))
         local = np.repeat(globals_derivative(normal, m_ref, geometry.normal_derivative(p)), 2, axis=0)  # per row
         h_xx = np.einsum("kra,krb->kab", own[:, :points], own[:, :points]) + np.einsum("kr,krab->kab", r, hessian[..., :3, :3])
-        h_xp = np.einsum("kra,krg->kag", own[:, :points], rows[:, :points]) + np.einsum("kr,kral,rlg->kag", r, hessian[..., :3, 3:], local)
+        curvature = (r[..., None, None] * hessian[..., :3, 3:]).swapaxes(1, 2).reshape(r.shape[0], 3, -1)  # (K, 3, R 3)
+        h_xp = np.swapaxes(own[:, :points], 1, 2) @ rows[:, :points] + curvature @ local.reshape(-1, geometry.size)
         h_xx[~solved] = np.eye(3)
         rows = rows - own @ np.linalg.solve(h_xx, h_xp)
         rows[~solved] = 0.0
     # The solver's order: each frame's m_y errors, then its m_z errors.
     reprojection = rows[:, :points].reshape((x.shape[0], -1, 2) + rows.shape[2:]).swapaxes(1, 2)
     return np.nan_to_num(np.concatenate([reprojection.reshape((-1,) + rows.shape[2:]), reference_rows(geometry, p, shapes, derivatives),
-                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]))
+                                         rows[:, points:].reshape((-1,) + rows.shape[2:])]), copy=False)
 
 
 def refine_plane_and_reference(
@@ -486,9 +499,7 @@ def refine_plane_and_reference(
     Variable projection: for trial values of n* (two angles about ``normal``) and of the
     reference points (their y and z), :class:`KnownNormalSolver` gives every frame its best
     (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
-    error, plus the reference frame's own: F* is where the reference frame was taken, so
-    its motion is pinned at identity (this fixes the gauge). Both parts matter: with the
-    reference points held at their measurement, the normal bends to absorb their error.
+    error, plus F*'s own (its motion pinned at identity: the gauge).
 
     Parameters
     ----------
@@ -501,8 +512,7 @@ def refine_plane_and_reference(
         Frames to use besides the reference frame.
     shapes : sequence of KnownShape, optional
         Parts of the target whose shape is known up to a similarity (a marker's square):
-        :func:`shape_residuals` joins the cost. With a single 0.4 m marker 3-6 m away the
-        motion barely tells the normal's yaw; the square's foreshortening does.
+        :func:`shape_residuals` joins the cost.
 
     Returns
     -------

@@ -1,30 +1,21 @@
 """A ChArUco board as the target: a chessboard whose white squares hold ArUco markers.
 
-The target's points are the board's inner corners, in OpenCV's ChArUco corner ids (row by
-row from the board's top-left inner corner), so the board's grid (:func:`~.chessboard.board_layout`
-of its inner corners) is a shape the fit knows. OpenCV's ``CharucoDetector`` finds the
-markers, interpolates the corners between them and refines them; every corner that was
-found is then refined again (``cornerSubPix`` in a window that stays inside the gap to the
-markers) and measured as the saddle point of the image, as a chessboard's corners are
-(:func:`~.chessboard.saddle_points`).
+The points are the inner corners in OpenCV's ChArUco ids (row by row), so the grid
+(:func:`~.chessboard.board_layout`) is a shape the fit knows. OpenCV's ``CharucoDetector``
+finds them; each is refined again (``cornerSubPix`` in a window inside the gap to the
+markers) and measured as the image's saddle point (:func:`~.chessboard.saddle_points`). A
+board seen whole in the last two frames is tracked from its prediction instead
+(:meth:`CharucoTargetDetector._tracked`). The markers name the corners, so a board partly in
+view gives the corners next to its markers (the others NaN; found with :data:`MIN_CORNERS`).
 
-A board seen whole in the last two frames is tracked: its corners are refined from the
-track's prediction, and OpenCV's search runs only when that fails (:meth:`CharucoTargetDetector._tracked`).
-
-The markers' codes give the corners their identity, so a board partly out of view (or
-partly hidden) still gives the corners next to the markers it shows: the rows of the
-others are NaN and the frame counts as found when at least :data:`MIN_CORNERS` corners are.
-
-The board's geometry: its squares across and down and its dictionary (``--board``,
-``--marker-dict``) or, without them, inferred from a frame (:func:`infer_board`): the
-markers' centres are at the centres of the white squares, whatever the markers' size, so
-the squares and the markers' ids tell the board apart from every other candidate layout.
-The markers' side relative to the squares is measured in the same frame (OpenCV's corner
-interpolation needs it; the corners themselves do not depend on it).
+The board's squares and dictionary come from ``--board`` and ``--marker-dict`` or a frame
+(:func:`infer_board`: the markers' centres are the white squares' centres, which with
+their ids tell the layout apart); the markers' side is measured there too.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
@@ -36,7 +27,7 @@ from numpy.typing import NDArray
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray
-from .chessboard import GRID_FIT_PX, SETTLED_PX, refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, plain_median, refine_twice, row_lengths, saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -56,9 +47,6 @@ FAR_REFINE_MOVE_PX = 3.0
 NEIGHBOUR_AGREEMENT_PX = 0.5
 #: A corner is refined in a window whose half-size is this fraction of the gap between
 #: its squares' markers, ``(1 - marker_ratio)`` of a square as seen, within bounds (px).
-#: On the footage's board (15-30 px squares, markers 0.73 of them, their ratio measured
-#: as 0.71): 0.5 of the gap reached into the markers (0.10 px RMS from the true corners,
-#: 0.076 px of it the same in every frame), 0.4 of it 0.052 px (0.016 px).
 GAP_WINDOW_FRACTION = 0.4
 GAP_WINDOW_PX = (2, 8)
 #: A tracked board is searched in its predicted corners' box widened by this many squares (the
@@ -70,20 +58,9 @@ SEARCH_MARGIN_PX = 16
 
 @dataclass(frozen=True)
 class CharucoGeometry:
-    """A ChArUco board's layout.
-
-    Attributes
-    ----------
-    squares : (int, int)
-        Squares across and down (OpenCV's ``CharucoBoard`` size).
-    dictionary : str
-        The markers' predefined dictionary.
-    marker_ratio : float
-        The markers' side over the squares'.
-    legacy : bool
-        OpenCV's legacy pattern (before 4.6, boards with an even number of rows started
-        with a white square).
-    """
+    """A ChArUco board's layout: ``squares`` across and down (OpenCV's ``CharucoBoard`` size), the
+    markers' ``dictionary``, their side over the squares' (``marker_ratio``), and whether it is
+    OpenCV's ``legacy`` pattern (before 4.6, boards with an even number of rows started white)."""
 
     squares: tuple[int, int]
     dictionary: str
@@ -282,17 +259,16 @@ class CharucoTargetDetector:
         return Detection(pixels, ok, considered, 0)
 
     def _tracked(self, gray: NDArray[np.uint8]) -> NDArray[np.float64] | None:
-        """Every corner refined from the track's prediction as a searched frame's are
-        (:meth:`_refined`, in the last frame's window), without OpenCV's search; None (the frame is searched) unless every
-        corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`, comes back when refined
-        again from a little off, and they all fit one homography of the grid (:data:`~.chessboard.GRID_FIT_PX`)."""
+        """Every corner refined from the track's prediction (in the last frame's window), or None
+        (the frame is searched) unless every corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`,
+        comes back when refined again from a little off, and all fit one homography of the grid."""
         prediction = self._track.predict()
-        if prediction is None or not np.all(np.isfinite(prediction)):
+        if prediction is None or not np.isfinite(prediction).all():
             return None
-        if not np.all(_inside(prediction, self._last_window + 2, gray.shape)):
+        if not _inside(prediction, self._last_window + 2, gray.shape).all():
             return None
         once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
-        if np.max(np.linalg.norm(once - prediction, axis=1)) > MAX_REFINE_MOVE_PX or np.max(np.linalg.norm(again - once, axis=1)) > SETTLED_PX:
+        if row_lengths(once - prediction).max() > MAX_REFINE_MOVE_PX or row_lengths(again - once).max() > SETTLED_PX:
             return None
         self._last_window, fit_px = self._window(once, np.arange(self.n_points))
         return saddle_points(gray, once) if fit_px <= GRID_FIT_PX else None
@@ -308,8 +284,8 @@ class CharucoTargetDetector:
             H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
             if H is not None:  # the square as seen: the mapped grid's step at each corner
                 mapped = cv2.perspectiveTransform(np.concatenate([grid, grid + np.float32((1, 0))]).reshape(-1, 1, 2), H).reshape(2, -1, 2)
-                square = float(np.median(np.linalg.norm(mapped[1] - corners, axis=1)))
-                fit_px = float(np.sqrt(np.mean(np.sum((mapped[0] - corners) ** 2, axis=1))))
+                square = plain_median(row_lengths(mapped[1] - corners))
+                fit_px = math.sqrt(((mapped[0] - corners) ** 2).sum(axis=1).mean())
         return int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX)), fit_px
 
     def _grid(self, ids: NDArray[np.int_]) -> NDArray[np.float32]:
@@ -340,11 +316,10 @@ class CharucoTargetDetector:
 
     def _refined(self, gray: NDArray[np.uint8], corners: NDArray[np.float64], ids: NDArray[np.int_]) -> NDArray[np.float64]:
         """The corners refined again (``cornerSubPix``) in a window inside the gap between a
-        corner and its markers (:data:`GAP_WINDOW_FRACTION`; OpenCV's reaches into the markers
-        on small boards: 0.6 px RMS off on the footage's 15 px squares, 0.05 px with this one).
-        A corner that moves farther than :data:`MAX_REFINE_MOVE_PX` (:data:`FAR_REFINE_MOVE_PX`
-        where its neighbours agree), or does not come back when refined again from a little
-        off, keeps OpenCV's position."""
+        corner and its markers (:data:`GAP_WINDOW_FRACTION`: OpenCV's reaches into the markers
+        on small boards). A corner that moves farther than :data:`MAX_REFINE_MOVE_PX`
+        (:data:`FAR_REFINE_MOVE_PX` where its neighbours agree), or does not come back when
+        refined again from a little off, keeps OpenCV's position."""
         window = self._last_window = self._window(corners, ids)[0]
         inside = _inside(corners, window + 2, gray.shape)
         refined = corners.copy()
@@ -369,7 +344,7 @@ class CharucoTargetDetector:
 
 def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
     """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
-    return np.all((corners >= margin) & (corners <= np.array([shape[1], shape[0]]) - 1 - margin), axis=1)
+    return ((corners >= margin) & (corners <= (shape[1] - 1 - margin, shape[0] - 1 - margin))).all(axis=1)
 
 
 def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], row: int) -> NDArray[np.float64] | None:

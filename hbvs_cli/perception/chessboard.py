@@ -1,21 +1,15 @@
-"""A printed chessboard as the target: its inner corners, in a fixed order.
+"""A printed chessboard as the target: its inner corners, row by row in the first detection's order.
 
-The first frame (and any frame where tracking is lost) is searched by OpenCV's
-``findChessboardCornersSB``; :func:`find_board` finds the largest board (``CALIB_CB_LARGER``)
-and reports its pattern. In the frames that follow, every corner is refined from where the
-track predicts it (``cornerSubPix``) and the corners must fit one homography of the board's
-grid, else the frame is searched again. Each accepted corner is then re-measured as the
-saddle point of the image around it (:func:`saddle_points`), four times closer to the true
-corner than ``cornerSubPix`` on small squares.
-
-The corners' order is row by row as OpenCV gives it in the first detection; a later search
-(the board's 180 deg symmetry can flip OpenCV's order) is put back in the track's order.
-The board's grid is a shape known up to a similarity (:func:`board_layout`): the fit uses
-it to pin the plane normal n*.
+A frame is searched by ``findChessboardCornersSB`` (:func:`find_board`) until the track
+is known; then every corner is refined from its prediction (``cornerSubPix``), must fit one
+homography of the grid, and is re-measured as the image's saddle point (:func:`saddle_points`).
+A later search is put back in the track's order (the board's half-turn symmetry can flip
+OpenCV's). The grid (:func:`board_layout`) is a shape known up to a similarity: it pins n*.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -25,19 +19,15 @@ from numpy.typing import NDArray
 from .base import Detection, PointTrack, as_gray, check_prediction
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
-#: board's square as seen, and its bounds (px). On 5 px squares (6 cm at 5.8 m): half-size
-#: 3 px measured the corners to 0.058 px RMS, 2 px to 0.073 px, 4 px reached the neighbouring
-#: corners (1.1 px); OpenCV's sector-based search alone, 0.105 px.
+#: board's square as seen, and its bounds (px).
 REFINE_WINDOW_SQUARES = 0.6
 REFINE_WINDOW_PX = (2, 8)
 #: A tracked frame's corners must fit the board's homography to this RMS (px).
 GRID_FIT_PX = 0.35
-#: A tracked corner may lie this far (px) from its prediction at most: from farther, the
-#: refinement on small squares can settle on the grid but off the corners (2 px, seen on
-#: 5 px squares at 5 frames per second); the frame is then searched again.
+#: A tracked corner may lie this far (px) from its prediction at most (from farther, the
+#: refinement on small squares can settle on the grid but off the corners): else searched.
 MAX_TRACKED_MOVE_PX = 1.5
-#: A refined corner, refined again from RESTART_OFFSET_PX away, must come back to within
-#: SETTLED_PX (px).
+#: A refined corner, refined again from RESTART_OFFSET_PX away, must come back within SETTLED_PX.
 RESTART_OFFSET_PX = (0.7, -0.7)
 SETTLED_PX = 0.1
 #: A board needs at least this many inner corners along each side.
@@ -46,15 +36,8 @@ MIN_SIDE = 3
 
 @dataclass(frozen=True)
 class Board:
-    """A chessboard found in an image.
-
-    Attributes
-    ----------
-    pattern : (int, int)
-        Inner corners per row and rows of them (OpenCV's ``patternSize``).
-    corners : ndarray, shape (columns * rows, 2)
-        Row by row (px).
-    """
+    """A chessboard found in an image: its ``pattern`` (inner corners per row, rows: OpenCV's
+    ``patternSize``) and ``corners`` (columns * rows, 2), row by row (px)."""
 
     pattern: tuple[int, int]
     corners: NDArray[np.float64]
@@ -71,6 +54,20 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
         found and its pattern reported.
     """
     gray = as_gray(image)
+    key = (gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
+    if key not in _SEARCHES:
+        if len(_SEARCHES) >= 8:
+            del _SEARCHES[next(iter(_SEARCHES))]
+        _SEARCHES[key] = _search(gray, key[2])
+    found = _SEARCHES[key]
+    return None if found is None else Board(found.pattern, found.corners.copy())
+
+
+#: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
+_SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
+
+
+def _search(gray: NDArray[np.uint8], pattern: tuple[int, int] | None) -> Board | None:
     flags = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     if pattern is None:
         found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (MIN_SIDE, MIN_SIDE), flags | cv2.CALIB_CB_LARGER)
@@ -78,10 +75,10 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
             return None
         rows, columns = meta.shape[:2]
         return Board((int(columns), int(rows)), corners.reshape(-1, 2).astype(np.float64))
-    found, corners = cv2.findChessboardCornersSB(gray, tuple(pattern), flags=flags)
+    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
     if not found or corners is None:
         return None
-    return Board((int(pattern[0]), int(pattern[1])), corners.reshape(-1, 2).astype(np.float64))
+    return Board(pattern, corners.reshape(-1, 2).astype(np.float64))
 
 
 def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
@@ -91,13 +88,7 @@ def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
 
 
 class ChessboardDetector:
-    """A chessboard's inner corners, tracked from frame to frame.
-
-    Parameters
-    ----------
-    pattern : (int, int)
-        Inner corners per row and rows of them.
-    """
+    """A chessboard's inner corners (``pattern``: per row, rows), tracked from frame to frame."""
 
     kind = "chessboard"
 
@@ -116,9 +107,8 @@ class ChessboardDetector:
         gray = as_gray(image)
         given = check_prediction(predicted, self.n_points)
         prediction = given if given is not None else self._track.predict()
-        # Refined from the track's prediction only once its velocity is known: from a
-        # prediction a board's motion off, the refinement can settle on the grid but off
-        # the corners (seen on 5 px squares at 5 frames per second). Else searched.
+        # Refined from the track's prediction only once its velocity is known (from a
+        # prediction a board's motion off, it can settle on the grid but off the corners).
         trusted = given is not None or self._streak >= 2
         usable = prediction is not None and np.all(np.isfinite(prediction))
         corners = self._refined(gray, prediction) if trusted and usable else None
@@ -140,8 +130,7 @@ class ChessboardDetector:
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
         """A search's corners in the track's order: of the grid's four orderings (rows and
-        columns each forward or reversed), the one closest to the prediction as a whole (per
-        point, the grid shifted by a square when the board had moved over half a square)."""
+        columns each forward or reversed), the one closest to the prediction as a whole."""
         columns, rows = self.pattern
         grid = np.arange(self.n_points).reshape(rows, columns)
         orders = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
@@ -152,32 +141,41 @@ class ChessboardDetector:
         """Every corner refined from its prediction, or None when they do not fit the grid."""
         height, width = gray.shape
         grid = prediction.reshape(self.pattern[1], self.pattern[0], 2)
-        square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=-1)))
+        square = plain_median(row_lengths(np.diff(grid, axis=1).reshape(-1, 2)))
         window = int(np.clip(min(np.floor(REFINE_WINDOW_SQUARES * square), square - 2.0), *REFINE_WINDOW_PX))
         margin = window + 2
-        if np.any(prediction < margin) or np.any(prediction[:, 0] > width - 1 - margin) or np.any(prediction[:, 1] > height - 1 - margin):
+        if (prediction < margin).any() or (prediction > (width - 1 - margin, height - 1 - margin)).any():
             return None
         corners, settled = refine_twice(gray, prediction, window, RESTART_OFFSET_PX)
-        # A corner draws the refinement from all around: started again a little off, it
-        # must come back. From a prediction a few pixels off the refinement can stop on
-        # the grid but off the corners (found: 2 px off on 5 px squares).
-        if np.max(np.linalg.norm(corners - prediction, axis=1)) > MAX_TRACKED_MOVE_PX or np.max(np.linalg.norm(settled - corners, axis=1)) > SETTLED_PX:
+        # A corner draws the refinement from all around: started again a little off, it must come back.
+        if row_lengths(corners - prediction).max() > MAX_TRACKED_MOVE_PX or row_lengths(settled - corners).max() > SETTLED_PX:
             return None
         H, _ = cv2.findHomography(self._layout, corners.astype(np.float32), 0)
         if H is None:
             return None
         fitted = cv2.perspectiveTransform(self._layout.reshape(-1, 1, 2), H).reshape(-1, 2)
-        if float(np.sqrt(np.mean(np.sum((fitted - corners) ** 2, axis=1)))) > GRID_FIT_PX:
+        if math.sqrt(((fitted - corners) ** 2).sum(axis=1).mean()) > GRID_FIT_PX:
             return None
         if not board_corners_cross(gray, corners, self.pattern):
             return None
         return saddle_points(gray, corners, CHESSBOARD_SMOOTHING_PX)
 
 
-#: The saddle fit of :func:`saddle_points`: the Gaussian smoothing (px) of the image before
-#: it (a plain chessboard's crossings, symmetric farther out than a ChArUco board's, whose
-#: squares hold markers, take more), the radius (px) of the Gaussian weight
-#: ``exp(-d^2 / r^2)`` on the pixels it fits, its passes, and the largest step (px) a pass may take.
+def row_lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The lengths of (K, 2) vectors (``np.linalg.norm(vectors, axis=1)`` without its overhead)."""
+    return np.sqrt((vectors * vectors).sum(axis=1))
+
+
+def plain_median(values: NDArray[np.float64]) -> float:
+    """``np.median`` of a 1-d array, without its overhead."""
+    ordered = np.sort(values)
+    middle = ordered.size // 2
+    return float(ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2.0)
+
+
+#: The saddle fit (:func:`saddle_points`): the image's Gaussian smoothing (px; more for a plain
+#: chessboard, whose crossings stay symmetric farther out than a ChArUco board's), the radius
+#: (px) of the weight ``exp(-d^2 / r^2)`` on the pixels fitted, the passes, a pass's largest step (px).
 SADDLE_SMOOTHING_PX = 0.8
 CHESSBOARD_SMOOTHING_PX = 1.2
 SADDLE_RADIUS_PX = 1.5
@@ -190,7 +188,7 @@ def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: i
     """``cornerSubPix`` of ``points`` (N, 2), and of the result moved by ``offset`` (px): a
     true corner draws the second refinement back to the first."""
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.001)
-    once = points.astype(np.float32).reshape(-1, 1, 2).copy()
+    once = points.astype(np.float32).reshape(-1, 1, 2)
     cv2.cornerSubPix(gray, once, (window, window), (-1, -1), criteria)
     again = once + np.float32(offset)
     cv2.cornerSubPix(gray, again, (window, window), (-1, -1), criteria)
@@ -199,8 +197,8 @@ def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: i
 
 def _saddle_window() -> tuple[int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The saddle fit's window: its reach (px), pixel offsets (P,), the quadratic's design
-    (P^2, 6) and its columns' products (P^2, 36). Fitted in each window's own offsets, the
-    same for every window and frame: only the weight (centred on the estimate) differs."""
+    (P^2, 6) and its columns' products (P^2, 36), the same for every window (fitted in its
+    own offsets; only the weight, centred on the estimate, differs)."""
     reach = int(np.ceil(SADDLE_RADIUS_PX)) + 1
     offsets = np.arange(-reach, reach + 1, dtype=np.float64)
     x, y = np.tile(offsets, offsets.size), np.repeat(offsets, offsets.size)
@@ -212,93 +210,93 @@ _SADDLE_WINDOW = _saddle_window()
 
 
 def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothing: float = SADDLE_SMOOTHING_PX) -> NDArray[np.float64]:
-    """Chessboard corners re-measured as the saddle points of the image around them.
+    """Chessboard corners (K, 2, px) re-measured as the saddle points of the image around them.
 
-    Where two dark and two light squares meet, the smoothed image is a saddle: a quadratic
-    ``a x^2 + b x y + c y^2 + d x + e y + f`` fitted by weighted least squares to the pixels
-    near the corner has its stationary point there, whatever the squares' angles (the
-    crossing of two straight edges is symmetric under a half turn about it). Each pass
-    fits around the last estimate and moves to the saddle; a fit that is not a saddle
-    (``4 a c >= b^2``) or would move more than :data:`SADDLE_MAX_STEP_PX` leaves the corner.
-
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    corners : ndarray, shape (K, 2)
-        Corners to start from (px), e.g. ``cornerSubPix``'s.
-    smoothing : float
-        Sigma (px) of the Gaussian smoothing before the fit.
-
-    Returns
-    -------
-    ndarray, shape (K, 2)
+    Where two dark and two light squares meet, the image smoothed (Gaussian, sigma
+    ``smoothing`` px) is a saddle: a quadratic ``a x^2 + b x y + c y^2 + d x + e y + f``
+    fitted by weighted least squares to the pixels near the corner has its stationary point
+    there, whatever the squares' angles. Each pass fits around the last estimate and moves
+    to the saddle; a fit that is not a saddle (``4 a c >= b^2``) or would move more than
+    :data:`SADDLE_MAX_STEP_PX` leaves the corner.
     """
     reach, offsets, design, products = _SADDLE_WINDOW
     size = offsets.size
-    refined = np.asarray(corners, dtype=np.float64).copy()
+    refined = np.array(corners, dtype=np.float64)
     start = refined.copy()
     # Only the board's box (and what a step and the smoothing reach) is smoothed.
     border = reach + int(np.ceil(SADDLE_MAX_STEP_PX)) + int(np.ceil(4 * smoothing))
-    x0, y0 = np.maximum(np.floor(refined.min(axis=0)).astype(int) - border, 0)
-    x1, y1 = np.minimum(np.ceil(refined.max(axis=0)).astype(int) + border + 1, np.array(gray.shape[::-1]))
+    low, high = refined.min(axis=0), refined.max(axis=0)
+    x0, y0 = max(math.floor(low[0]) - border, 0), max(math.floor(low[1]) - border, 0)
+    x1, y1 = min(math.ceil(high[0]) + border + 1, gray.shape[1]), min(math.ceil(high[1]) + border + 1, gray.shape[0])
     if x1 <= x0 or y1 <= y0:
         return refined
     smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), smoothing)
-    windows = np.lib.stride_tricks.sliding_window_view(smooth, (size, size))  # (H - 2 reach, W - 2 reach, P, P)
+    pixels = smooth.ravel()
+    window = (np.arange(size)[:, None] * smooth.shape[1] + np.arange(size)).ravel()  # a window's pixels from its corner
+    limit = np.array([smooth.shape[1] - reach, smooth.shape[0] - reach])
     refined -= (x0, y0)
     for _ in range(SADDLE_PASSES):
         centre = np.rint(refined).astype(np.intp)
-        inside = np.all((centre >= reach) & (centre < np.array(smooth.shape[::-1]) - reach), axis=1)
-        if not np.any(inside):
-            break
-        centre = centre[inside]
-        values = windows[centre[:, 1] - reach, centre[:, 0] - reach].reshape(len(centre), -1).astype(np.float64)
-        fraction = refined[inside] - centre  # the estimate in its window's offsets
-        along_x = np.exp(-((offsets - fraction[:, :1]) ** 2) / SADDLE_RADIUS_PX**2)
-        along_y = np.exp(-((offsets - fraction[:, 1:]) ** 2) / SADDLE_RADIUS_PX**2)
-        weight = (along_y[:, :, None] * along_x[:, None, :]).reshape(len(centre), -1)  # exp(-d^2 / r^2)
+        inside = ((centre >= reach) & (centre < limit)).all(axis=1)
+        every = inside.all()
+        if not every:
+            if not inside.any():
+                break
+            centre = centre[inside]
+        values = pixels[((centre[:, 1] - reach) * smooth.shape[1] + centre[:, 0] - reach)[:, None] + window].astype(np.float64)
+        fraction = (refined if every else refined[inside]) - centre  # the estimate in its window's offsets
+        along = np.exp(-((offsets - fraction[:, :, None]) ** 2) / SADDLE_RADIUS_PX**2)  # (K, 2, P)
+        weight = (along[:, 1, :, None] * along[:, 0, None, :]).reshape(len(centre), -1)  # exp(-d^2 / r^2)
         normal = (weight @ products).reshape(-1, 6, 6)
         a, b, c, d, e, _ = np.linalg.solve(normal, ((weight * values) @ design)[..., None])[..., 0].T
         determinant = 4.0 * a * c - b * b
         saddle = determinant < 0.0
         safe = np.where(saddle, determinant, -1.0)
         # The stationary point of the quadratic: [2a b; b 2c] point = -[d e].
-        step = np.column_stack([(-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe]) - fraction
+        step = np.empty_like(fraction)
+        step[:, 0], step[:, 1] = (-2.0 * c * d + b * e) / safe, (-2.0 * a * e + b * d) / safe
+        step -= fraction
         accept = saddle & (np.hypot(step[:, 0], step[:, 1]) <= SADDLE_MAX_STEP_PX)
-        moved = refined[inside]
-        moved[accept] += step[accept]
-        refined[inside] = moved
+        if every:
+            refined[accept] += step[accept]
+        else:
+            moved = refined[inside]
+            moved[accept] += step[accept]
+            refined[inside] = moved
     refined += (x0, y0)
     far = np.hypot(*(refined - start).T) > SADDLE_MAX_STEP_PX
     refined[far] = start[far]
     return refined
 
 
-#: A corner is where two dark and two light squares meet: along one diagonal the image is
-#: dark on both sides, along the other light, by at least this fraction of the board's
-#: local contrast. The centres of the squares (where ``cornerSubPix`` also settles, and
-#: which also make a grid) are one colour all round.
+#: A corner is where two dark and two light squares meet: dark along one diagonal, light along
+#: the other, by at least this fraction of the local contrast (a square's centre, where
+#: ``cornerSubPix`` also settles, is one colour all round).
 MIN_CROSSING_CONTRAST = 0.3
 
 
 def board_corners_cross(gray: NDArray[np.uint8], corners: NDArray[np.float64], pattern: tuple[int, int]) -> bool:
     """True when every corner is a crossing of two dark and two light squares."""
     grid = corners.reshape(pattern[1], pattern[0], 2)
-    along = np.gradient(grid, axis=1)  # one square along a row, at every corner
-    across = np.gradient(grid, axis=0) if pattern[1] > 1 else np.stack([-along[..., 1], along[..., 0]], axis=-1)
+    along = _grid_step(grid, 1)  # one square along a row, at every corner
+    across = _grid_step(grid, 0) if pattern[1] > 1 else np.stack([-along[..., 1], along[..., 0]], axis=-1)
+    first, second = 0.3 * (along + across), 0.3 * (along - across)
+    points = np.rint(np.stack([grid + first, grid - first, grid + second, grid - second]))
     height, width = gray.shape
-
-    def sample(points: NDArray[np.float64]) -> NDArray[np.float64]:
-        cols = np.clip(np.rint(points[..., 0]), 0, width - 1).astype(int)
-        rows = np.clip(np.rint(points[..., 1]), 0, height - 1).astype(int)
-        return gray[rows, cols].astype(np.float64)
-
-    first = 0.3 * (along + across)
-    second = 0.3 * (along - across)
-    levels = np.stack([sample(grid + first), sample(grid - first), sample(grid + second), sample(grid - second)])
+    levels = gray[np.clip(points[..., 1], 0, height - 1).astype(int), np.clip(points[..., 0], 0, width - 1).astype(int)].astype(np.float64)
     contrast = np.maximum(levels.max(axis=0) - levels.min(axis=0), 1.0)
     one, other = 0.5 * (levels[0] + levels[1]), 0.5 * (levels[2] + levels[3])
     # Opposite squares alike (a board's outer corner, two squares and the white margin, is not).
     alike = (np.abs(levels[0] - levels[1]) <= MIN_CROSSING_CONTRAST * contrast) & (np.abs(levels[2] - levels[3]) <= MIN_CROSSING_CONTRAST * contrast)
     crossing = alike & (np.abs(one - other) >= (1.0 - MIN_CROSSING_CONTRAST) * contrast) & (contrast >= 10.0)
-    return bool(np.all(crossing))
+    return bool(crossing.all())
+
+
+def _grid_step(grid: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """``np.gradient(grid, axis=axis)`` (central differences, one-sided at the ends) of a
+    (rows, columns, 2) grid, without its overhead."""
+    values = grid if axis == 0 else grid.swapaxes(0, 1)
+    step = np.empty_like(values)
+    step[1:-1] = (values[2:] - values[:-2]) / 2.0
+    step[0], step[-1] = values[1] - values[0], values[-1] - values[-2]
+    return step if axis == 0 else step.swapaxes(0, 1)
