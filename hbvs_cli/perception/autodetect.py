@@ -10,6 +10,7 @@ poster beats tiny markers printed in it.
 from __future__ import annotations
 
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
@@ -127,7 +128,9 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     first = _checked_board(images[0])
     if first is None:
         return None
-    found = 1 + sum(_checked_board(image, first.pattern) is not None for image in images[1:])
+    # The other frames' searches are independent and OpenCV releases the GIL: two at a time.
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="hbvs-board") as pool:
+        found = 1 + sum(board is not None for board in pool.map(lambda image: _checked_board(image, first.pattern), images[1:]))
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern

@@ -10,6 +10,7 @@ OpenCV's). The grid (:func:`board_layout`) is a shape known up to a similarity: 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -55,16 +56,21 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
     """
     gray = as_gray(image)
     key = (gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
-    if key not in _SEARCHES:
-        if len(_SEARCHES) >= 8:
-            del _SEARCHES[next(iter(_SEARCHES))]
-        _SEARCHES[key] = _search(gray, key[2])
-    found = _SEARCHES[key]
+    with _SEARCHES_LOCK:
+        found = _SEARCHES.get(key, _NOT_SEARCHED)
+    if found is _NOT_SEARCHED:
+        found = _search(gray, key[2])
+        with _SEARCHES_LOCK:  # the target's pick searches frames in two threads
+            _SEARCHES[key] = found
+            while len(_SEARCHES) > 8:
+                del _SEARCHES[next(iter(_SEARCHES))]
     return None if found is None else Board(found.pattern, found.corners.copy())
 
 
 #: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
 _SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
+_SEARCHES_LOCK = threading.Lock()
+_NOT_SEARCHED = object()
 
 
 def _search(gray: NDArray[np.uint8], pattern: tuple[int, int] | None) -> Board | None:
