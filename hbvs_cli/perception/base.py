@@ -165,3 +165,17 @@ def _normalized(points: NDArray[np.float64]) -> NDArray[np.float64]:
     centred = points - points.mean(axis=0)
     spread = np.sqrt(np.mean(np.sum(centred**2, axis=1)))
     return centred / spread if spread > 0 else centred
+
+
+def row_lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The lengths of (K, 2) vectors (``np.linalg.norm(vectors, axis=1)`` without its overhead)."""
+    return np.sqrt((vectors * vectors).sum(axis=1))
+
+
+def plain_median(values: NDArray[np.floating]) -> np.floating:
+    """``np.median`` of a 1-d array, in its dtype, without the generic wrapper (it runs on every frame)."""
+    half = values.size // 2
+    if values.size % 2:
+        return np.partition(values, half)[half]
+    low, high = np.partition(values, (half - 1, half))[half - 1 : half + 1]
+    return (low + high) / 2

@@ -26,8 +26,8 @@ from numpy.typing import NDArray
 
 from ..errors import UsageError
 from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
-from .base import Detection, PointTrack, as_gray
-from .chessboard import GRID_FIT_PX, SETTLED_PX, plain_median, refine_twice, row_lengths, saddle_points
+from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
+from .chessboard import GRID_FIT_PX, SETTLED_PX, refine_twice, saddle_points
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .base import Detection, PointTrack, as_gray, check_prediction
+from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
 #: board's square as seen, and its bounds (px).
@@ -165,18 +165,6 @@ class ChessboardDetector:
         if not board_corners_cross(gray, corners, self.pattern):
             return None
         return saddle_points(gray, corners, CHESSBOARD_SMOOTHING_PX)
-
-
-def row_lengths(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The lengths of (K, 2) vectors (``np.linalg.norm(vectors, axis=1)`` without its overhead)."""
-    return np.sqrt((vectors * vectors).sum(axis=1))
-
-
-def plain_median(values: NDArray[np.float64]) -> float:
-    """``np.median`` of a 1-d array, without its overhead."""
-    ordered = np.sort(values)
-    middle = ordered.size // 2
-    return float(ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 #: The saddle fit (:func:`saddle_points`): the image's Gaussian smoothing (px; more for a plain

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, match_identity, optimal_assignment
+from .base import Detection, PointTrack, as_gray, check_prediction, match_identity, optimal_assignment, plain_median
 
 #: Cost of a forbidden candidate-to-point pairing in the assignment.
 _FORBIDDEN = 1e12
@@ -164,14 +164,7 @@ def ground_noise(flat: NDArray[np.float32]) -> float:
     rows = np.asarray(flat, dtype=np.float32)[::4]
     if rows.shape[1] < 2:
         return 0.0
-    steps = np.abs(rows[:, 1:] - rows[:, :-1]).ravel()
-    # np.median's own steps without its generic wrapper: this runs on every window.
-    half = steps.size // 2
-    if steps.size % 2:
-        median = np.partition(steps, half)[half]
-    else:
-        median = np.mean(np.partition(steps, (half - 1, half))[half - 1 : half + 1])
-    return float(1.4826 / math.sqrt(2.0) * median)
+    return float(1.4826 / math.sqrt(2.0) * plain_median(np.abs(rows[:, 1:] - rows[:, :-1]).ravel()))
 
 
 def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float = 0.0, noisy: bool = False) -> int | None:
