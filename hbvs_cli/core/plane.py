@@ -21,9 +21,11 @@ from .known_normal import KnownNormalSolver
 #: Frames the plane estimates use at most (evenly spaced): the normal and the reference
 #: points need no more, and long recordings stay fast and memory flat.
 REFINEMENT_FRAMES = 1500
-#: :func:`refine_plane_and_reference`'s Jacobian has at most this many entries (1500 frames of
-#: a marker), from at least MIN_PROJECTION_FRAMES frames: it starts the joint estimate (:mod:`.bundle`).
-PROJECTION_JACOBIAN_ENTRIES = 1500 * 16 * 10
+#: :func:`refine_plane_and_reference`'s Jacobian has at most this many entries (800 frames of
+#: a marker), from at least MIN_PROJECTION_FRAMES frames: it only starts the joint estimate
+#: (:mod:`.bundle`), whose optimum more frames move by a thousandth of its sigma, and each of
+#: its steps decomposes the whole Jacobian.
+PROJECTION_JACOBIAN_ENTRIES = 800 * 16 * 10
 MIN_PROJECTION_FRAMES = 200
 
 

@@ -155,16 +155,25 @@ GROUND_NOISE_MARGIN = 5.0
 SHALLOW_THRESHOLD_DEPTH = 40.0
 
 
-def ground_noise(flat: NDArray[np.float32]) -> float:
+def ground_noise(flat: NDArray[np.float32], floor: float = 0.0) -> float:
     """Robust sigma (gray levels) of the sensor noise on a flattened window.
 
     The median absolute difference of horizontal neighbours on every fourth row, scaled to
-    a Gaussian's sigma (1.4826 / sqrt 2); edges and dots do not move the median.
+    a Gaussian's sigma (1.4826 / sqrt 2); edges and dots do not move the median. A noise
+    surely below ``floor`` is reported as ``floor``: a count of the differences above it
+    decides that, cheaper than the median (segmentation only asks whether the noise
+    exceeds :data:`NOISY_GROUND`).
     """
     rows = np.asarray(flat, dtype=np.float32)[::4]
     if rows.shape[1] < 2:
-        return 0.0
-    return float(1.4826 / math.sqrt(2.0) * plain_median(np.abs(rows[:, 1:] - rows[:, :-1]).ravel()))
+        return max(0.0, floor)
+    differences = np.abs(rows[:, 1:] - rows[:, :-1]).ravel()
+    scale = 1.4826 / math.sqrt(2.0)
+    # The upper of the two middle values is at most the level (a margin far wider than
+    # float32 rounding below it): so is the median.
+    if floor > 0.0 and np.count_nonzero(differences > floor / scale * (1.0 - 1e-5)) <= differences.size - differences.size // 2 - 1:
+        return floor
+    return float(scale * plain_median(differences))
 
 
 def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float = 0.0, noisy: bool = False) -> int | None:
@@ -209,7 +218,7 @@ def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolat
     """A window flattened (:func:`flatten_ground`), the 8-bit levels it is thresholded on
     (smoothed when the sensor is noisy) and the threshold."""
     sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
-    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub), min_contrast)
+    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub, NOISY_GROUND), min_contrast)
     return sub, levels, threshold
 
 
