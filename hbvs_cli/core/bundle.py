@@ -44,16 +44,19 @@ def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], mo
 @dataclass(frozen=True)
 class JointEstimate:
     """What :func:`estimate_plane_jointly` gives: ``normal`` (3,), ``m_ref`` (N, 3), the frames'
-    (theta, x_h1, x_h2) ``motion`` (K, 3), and ``cost``, half the sum of squared residuals."""
+    (theta, x_h1, x_h2) ``motion`` (K, 3), ``cost``, half the sum of squared residuals, and a
+    rolling shutter's ``readout`` (s per normalised row; 0 when not estimated)."""
 
     normal: NDArray[np.float64]
     m_ref: NDArray[np.float64]
     motion: NDArray[np.float64]
     cost: float
+    readout: float = 0.0
 
 
 def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, measured_ref: ArrayLike,
-                           noise: float, shapes: Sequence[KnownShape] = ()) -> JointEstimate:
+                           noise: float, shapes: Sequence[KnownShape] = (),
+                           shutter: tuple[ArrayLike, ArrayLike] | None = None) -> JointEstimate:
     """n*, the reference points and every frame's pose by maximum likelihood, jointly.
 
     Parameters
@@ -71,6 +74,11 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         :data:`ROBUST_SCALE` times it.
     shapes : sequence of KnownShape, optional
         Parts of the target known up to a similarity (:func:`~.plane.shape_residuals`).
+    shutter : (array_like (2N,), array_like (K, 2N)), optional
+        F*'s and the frames' points' move per unit of a rolling shutter's readout
+        (:func:`rolling_shutter_shift`): the readout is then one more global unknown (from 0),
+        every point predicted at ``H m*_i + readout shift_i`` (12). The known shapes'
+        residuals keep the measured points.
 
     Returns
     -------
@@ -78,7 +86,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         The start when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
-    from scipy.sparse import csr_matrix
+    from scipy.sparse import csr_matrix, hstack
 
     m = np.asarray(m, dtype=float)
     measured_ref = validate_reference_points(measured_ref)
@@ -93,9 +101,18 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     per_frame = frame_rows(geometry, p0, start_motion, m, shapes).shape[1]
     reference_count = reference_rows(geometry, p0, shapes).size
 
+    # The readout's column (the last unknown, when estimated): each point row's shift.
+    readout_column = np.zeros(0) if shutter is None else np.concatenate([
+        np.pad(np.nan_to_num(np.asarray(shutter[1], dtype=float)), ((0, 0), (0, per_frame - 2 * m.shape[1]))).ravel(),
+        np.pad(np.nan_to_num(np.asarray(shutter[0], dtype=float)), (0, reference_count - 2 * m.shape[1]))])
+    motion_end = n_global + 3 * frames
+
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.nan_to_num(np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
-                                             reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
+        rows = np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:motion_end].reshape(frames, 3), m, shapes).ravel(),
+                               reference_rows(geometry, p[:n_global], shapes)])
+        if shutter is not None:
+            rows = rows + p[motion_end] * readout_column
+        return np.nan_to_num(rows, nan=1.0, posinf=1.0, neginf=-1.0)
 
     # Block-arrow, and sparser: a frame's rows depend on its own 3 unknowns and on n*'s two
     # angles, a point's on its reference point's two offsets too; F*'s on the globals.
@@ -112,7 +129,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        motion = p[n_global:].reshape(frames, 3)
+        motion = p[n_global:motion_end].reshape(frames, 3)
         at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], motion, m, shapes, derivatives="compact")
         by_points = np.concatenate([by_point_globals, by_own[:, :points]], axis=2)
         by_shapes = np.concatenate([by_angles, by_own[:, points:]], axis=2)
@@ -122,9 +139,10 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         data = np.concatenate([data, reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()])
         if not np.all(np.isfinite(data)):
             np.nan_to_num(data, copy=False)
-        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
+        matrix = csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, motion_end))
+        return matrix if shutter is None else hstack([matrix, csr_matrix(readout_column[:, None])], format="csr")
 
-    x0 = np.concatenate([p0, start_motion.ravel()])
+    x0 = np.concatenate([p0, start_motion.ravel(), np.zeros(0 if shutter is None else 1)])
     # Plain least squares first (from far off, a robust loss's steps stall), then Huber's loss.
     try:
         solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
@@ -136,7 +154,8 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     solved_normal, solved_ref = geometry.unpack(solution.x[:n_global])
     if np.any(solved_ref @ solved_normal <= 0.0) or not np.all(np.isfinite(solution.x)):
         return start
-    return JointEstimate(solved_normal, solved_ref, solution.x[n_global:].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)))
+    readout = 0.0 if shutter is None else float(solution.x[motion_end])
+    return JointEstimate(solved_normal, solved_ref, solution.x[n_global:motion_end].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)), readout)
 
 
 def _motion(motion: object) -> NDArray[np.float64]:
@@ -243,7 +262,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
                      correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
-                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
+                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+                     readout_estimated: bool = False) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
@@ -283,6 +303,11 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         residuals, the part of the shift the estimate cannot absorb is taken out of them
         before the noise is measured, and the shift's effect on the estimate is one more
         bias column (the shutter is not modelled: its error is counted, not removed).
+    readout_estimated : bool
+        The readout was one more unknown of the estimate (``estimated`` and ``frames`` with
+        its shift taken out): the column is then the estimate's move by the readout's own
+        standard deviation, ``sqrt(inflation) noise / |s_perp|`` with ``s_perp`` the shift's
+        part the other unknowns cannot absorb (the Schur complement of ``J^T J`` on it).
 
     Returns
     -------
@@ -360,13 +385,17 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
             visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
-        readout = float(np.sum(residuals[finite] * visible[finite]) / max(float(np.sum(visible[finite] ** 2)), 1e-300))
+        unabsorbed = float(np.sum(visible[finite] ** 2))
+        readout = float(np.sum(residuals[finite] * visible[finite]) / max(unabsorbed, 1e-300))
         residuals = residuals - readout * visible
+        unabsorbed += float(np.sum((shifts[0] + reference[:points] @ moved_globals) ** 2))  # F*'s points
     if noise is None:
         noise = measured_point_noise(residuals)
     inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
+    if readout_estimated and shutter is not None:
+        readout = float(np.sqrt(variance / max(unabsorbed, 1e-300)))
     bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
