@@ -44,19 +44,16 @@ def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], mo
 @dataclass(frozen=True)
 class JointEstimate:
     """What :func:`estimate_plane_jointly` gives: ``normal`` (3,), ``m_ref`` (N, 3), the frames'
-    (theta, x_h1, x_h2) ``motion`` (K, 3), ``cost``, half the sum of squared residuals, and a
-    rolling shutter's ``readout`` (s per normalised row; 0 when not estimated)."""
+    (theta, x_h1, x_h2) ``motion`` (K, 3), and ``cost``, half the sum of squared residuals."""
 
     normal: NDArray[np.float64]
     m_ref: NDArray[np.float64]
     motion: NDArray[np.float64]
     cost: float
-    readout: float = 0.0
 
 
 def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, measured_ref: ArrayLike,
-                           noise: float, shapes: Sequence[KnownShape] = (),
-                           shutter: tuple[ArrayLike, ArrayLike] | None = None) -> JointEstimate:
+                           noise: float, shapes: Sequence[KnownShape] = ()) -> JointEstimate:
     """n*, the reference points and every frame's pose by maximum likelihood, jointly.
 
     Parameters
@@ -74,11 +71,6 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         :data:`ROBUST_SCALE` times it.
     shapes : sequence of KnownShape, optional
         Parts of the target known up to a similarity (:func:`~.plane.shape_residuals`).
-    shutter : (array_like (2N,), array_like (K, 2N)), optional
-        F*'s and the frames' points' move per unit of a rolling shutter's readout
-        (:func:`rolling_shutter_shift`): the readout is then one more global unknown (from 0),
-        every point predicted at ``H m*_i + readout shift_i`` (12). The known shapes'
-        residuals keep the measured points.
 
     Returns
     -------
@@ -86,7 +78,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         The start when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
-    from scipy.sparse import csr_matrix, hstack
+    from scipy.sparse import csr_matrix
 
     m = np.asarray(m, dtype=float)
     measured_ref = validate_reference_points(measured_ref)
@@ -101,18 +93,9 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     per_frame = frame_rows(geometry, p0, start_motion, m, shapes).shape[1]
     reference_count = reference_rows(geometry, p0, shapes).size
 
-    # The readout's column (the last unknown, when estimated): each point row's shift.
-    readout_column = np.zeros(0) if shutter is None else np.concatenate([
-        np.pad(np.nan_to_num(np.asarray(shutter[1], dtype=float)), ((0, 0), (0, per_frame - 2 * m.shape[1]))).ravel(),
-        np.pad(np.nan_to_num(np.asarray(shutter[0], dtype=float)), (0, reference_count - 2 * m.shape[1]))])
-    motion_end = n_global + 3 * frames
-
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        rows = np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:motion_end].reshape(frames, 3), m, shapes).ravel(),
-                               reference_rows(geometry, p[:n_global], shapes)])
-        if shutter is not None:
-            rows = rows + p[motion_end] * readout_column
-        return np.nan_to_num(rows, nan=1.0, posinf=1.0, neginf=-1.0)
+        return np.nan_to_num(np.concatenate([frame_rows(geometry, p[:n_global], p[n_global:].reshape(frames, 3), m, shapes).ravel(),
+                                             reference_rows(geometry, p[:n_global], shapes)]), nan=1.0, posinf=1.0, neginf=-1.0)
 
     # Block-arrow, and sparser: a frame's rows depend on its own 3 unknowns and on n*'s two
     # angles, a point's on its reference point's two offsets too; F*'s on the globals.
@@ -129,7 +112,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     columns, pointers = columns.astype(index), np.concatenate([[0], np.cumsum(counts)]).astype(index)
 
     def jacobian(p: NDArray[np.float64]) -> csr_matrix:
-        motion = p[n_global:motion_end].reshape(frames, 3)
+        motion = p[n_global:].reshape(frames, 3)
         at, by_own, by_point_globals, by_angles = frame_rows(geometry, p[:n_global], motion, m, shapes, derivatives="compact")
         by_points = np.concatenate([by_point_globals, by_own[:, :points]], axis=2)
         by_shapes = np.concatenate([by_angles, by_own[:, points:]], axis=2)
@@ -139,10 +122,9 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         data = np.concatenate([data, reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()])
         if not np.all(np.isfinite(data)):
             np.nan_to_num(data, copy=False)
-        matrix = csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, motion_end))
-        return matrix if shutter is None else hstack([matrix, csr_matrix(readout_column[:, None])], format="csr")
+        return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
-    x0 = np.concatenate([p0, start_motion.ravel(), np.zeros(0 if shutter is None else 1)])
+    x0 = np.concatenate([p0, start_motion.ravel()])
     # Plain least squares first (from far off, a robust loss's steps stall), then Huber's loss.
     try:
         solution = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac",
@@ -154,8 +136,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     solved_normal, solved_ref = geometry.unpack(solution.x[:n_global])
     if np.any(solved_ref @ solved_normal <= 0.0) or not np.all(np.isfinite(solution.x)):
         return start
-    readout = 0.0 if shutter is None else float(solution.x[motion_end])
-    return JointEstimate(solved_normal, solved_ref, solution.x[n_global:motion_end].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)), readout)
+    return JointEstimate(solved_normal, solved_ref, solution.x[n_global:].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)))
 
 
 def _motion(motion: object) -> NDArray[np.float64]:
@@ -230,6 +211,11 @@ class JointCovariance:
         of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
         rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
         frames (None: no bias).
+    readout, readout_sigma : float
+        With ``shutter``: the readout (s per normalised row) the residuals show, and its
+        standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
+        shift that the other unknowns cannot absorb (the Schur complement of ``J^T J`` on the
+        readout's column).
     """
 
     shared: NDArray[np.float64]
@@ -239,6 +225,8 @@ class JointCovariance:
     inflation: float = 1.0
     bias_shared: NDArray[np.float64] | None = None
     bias: NDArray[np.float64] | None = None
+    readout: float = 0.0
+    readout_sigma: float = 0.0
 
     @property
     def normal_sigma(self) -> float:
@@ -304,10 +292,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         before the noise is measured, and the shift's effect on the estimate is one more
         bias column (the shutter is not modelled: its error is counted, not removed).
     readout_estimated : bool
-        The readout was one more unknown of the estimate (``estimated`` and ``frames`` with
-        its shift taken out): the column is then the estimate's move by the readout's own
-        standard deviation, ``sqrt(inflation) noise / |s_perp|`` with ``s_perp`` the shift's
-        part the other unknowns cannot absorb (the Schur complement of ``J^T J`` on it).
+        The readout was one more unknown of the estimate, and is taken out of ``estimated``
+        and ``frames``: the column is then the estimate's move by ``readout_sigma``.
 
     Returns
     -------
@@ -394,8 +380,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
-    if readout_estimated and shutter is not None:
-        readout = float(np.sqrt(variance / max(unabsorbed, 1e-300)))
+    fitted_readout, readout_sigma = readout, float(np.sqrt(variance / unabsorbed)) if readout != 0.0 else 0.0
+    if readout_estimated:
+        readout = readout_sigma
     bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
@@ -416,6 +403,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         inflation=float(inflation),
         bias_shared=bias_shared,
         bias=bias,
+        readout=fitted_readout,
+        readout_sigma=readout_sigma,
     )
 
 
