@@ -169,3 +169,52 @@ def test_a_straight_drive_with_a_known_shape_pins_n_star_without_the_branch_warn
     unshaped: list[str] = []
     fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, warn=unshaped.append)
     assert any("branches apart" in line for line in unshaped)
+
+
+def _fit_spying_the_readout(monkeypatch, times, pixels, intrinsics):
+    """The fit, and the rolling shutter's readout (s per normalised row) it estimated (0: none)."""
+    import hbvs_cli.core.desired as desired
+
+    found = []
+    original = desired._without_rolling_shutter
+
+    def spy(*args):
+        result = original(*args)
+        found.append(result[3])
+        return result
+
+    monkeypatch.setattr(desired, "_without_rolling_shutter", spy)
+    fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0)
+    monkeypatch.setattr(desired, "_without_rolling_shutter", original)
+    return fit, found[0]
+
+
+def test_a_rolling_shutter_readout_is_estimated_and_its_skew_taken_out_of_n_star(monkeypatch):
+    """Each point seen at its row's time (rolling_shutter_shift's model: a 30 ms readout per
+    normalised row, 0.05 px of noise, the photograph's drive): the readout is found within
+    10 % (0.0288), n*'s error is less than half of the unmodelled shutter's (0.45 against
+    1.17 deg; 0.21 without a shutter) and inside its reported 95 % interval (sigma 0.34 deg).
+    Without a shutter the fit is the same, bit for bit, as with the readout never estimated
+    (READOUT_CHI2 infinite)."""
+    import hbvs_cli.core.desired as desired
+
+    wall, camera, intrinsics, times, poses, _, true_normal = _scene("photo")
+    ideal = footage.ideal_pixels(wall, camera, poses)
+    readout = 0.03
+    row = measured_pixels_to_normalized(intrinsics, ideal)[..., 2]  # m_z, as rolling_shutter_shift reads rows
+    noise = np.random.default_rng(5).normal(0.0, 0.05, ideal.shape)
+    angle = lambda fit: np.degrees(np.arccos(min(1.0, abs(fit.normal @ true_normal))))  # noqa: E731
+    skewed = ideal + np.gradient(ideal, times, axis=0) * (readout * row)[..., None] + noise
+    shuttered, found = _fit_spying_the_readout(monkeypatch, times, skewed, intrinsics)
+    plain, none_found = _fit_spying_the_readout(monkeypatch, times, ideal + noise, intrinsics)
+    monkeypatch.setattr(desired, "READOUT_CHI2", np.inf)
+    unmodelled = fit_desired_trajectory(times, skewed, 0, intrinsics, None, 0.3, 1.0)
+    never = fit_desired_trajectory(times, ideal + noise, 0, intrinsics, None, 0.3, 1.0)
+    assert found == pytest.approx(readout, rel=0.1)
+    assert angle(shuttered) < angle(unmodelled) / 2.0
+    assert angle(shuttered) < 1.96 * shuttered.uncertainty.normal_sigma_deg
+    assert none_found == 0.0
+    for name in ("normal", "m_ref", "theta", "x_h", "residual"):
+        assert np.array_equal(getattr(plain, name), getattr(never, name), equal_nan=True)
+    for name, value in vars(plain.uncertainty).items():
+        assert np.array_equal(value, getattr(never.uncertainty, name), equal_nan=True), name

@@ -211,6 +211,11 @@ class JointCovariance:
         of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
         rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
         frames (None: no bias).
+    readout, readout_sigma : float
+        With ``shutter``: the readout (s per normalised row) the residuals show, and its
+        standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
+        shift that the other unknowns cannot absorb (the Schur complement of ``J^T J`` on the
+        readout's column).
     """
 
     shared: NDArray[np.float64]
@@ -220,6 +225,8 @@ class JointCovariance:
     inflation: float = 1.0
     bias_shared: NDArray[np.float64] | None = None
     bias: NDArray[np.float64] | None = None
+    readout: float = 0.0
+    readout_sigma: float = 0.0
 
     @property
     def normal_sigma(self) -> float:
@@ -243,7 +250,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
                      correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
-                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
+                     shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+                     readout_estimated: bool = False) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
@@ -283,6 +291,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         residuals, the part of the shift the estimate cannot absorb is taken out of them
         before the noise is measured, and the shift's effect on the estimate is one more
         bias column (the shutter is not modelled: its error is counted, not removed).
+    readout_estimated : bool
+        The readout was one more unknown of the estimate, and is taken out of ``estimated``
+        and ``frames``: the column is then the estimate's move by ``readout_sigma``.
 
     Returns
     -------
@@ -360,13 +371,18 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
             visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
-        readout = float(np.sum(residuals[finite] * visible[finite]) / max(float(np.sum(visible[finite] ** 2)), 1e-300))
+        unabsorbed = float(np.sum(visible[finite] ** 2))
+        readout = float(np.sum(residuals[finite] * visible[finite]) / max(unabsorbed, 1e-300))
         residuals = residuals - readout * visible
+        unabsorbed += float(np.sum((shifts[0] + reference[:points] @ moved_globals) ** 2))  # F*'s points
     if noise is None:
         noise = measured_point_noise(residuals)
     inflation = correlation_inflation(residuals) if correlated else 1.0
     variance = inflation * noise**2
     detector_bias = bias_fraction * noise
+    fitted_readout, readout_sigma = readout, float(np.sqrt(variance / unabsorbed)) if readout != 0.0 else 0.0
+    if readout_estimated:
+        readout = readout_sigma
     bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     if detector_bias > 0.0:
@@ -387,6 +403,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         inflation=float(inflation),
         bias_shared=bias_shared,
         bias=bias,
+        readout=fitted_readout,
+        readout_sigma=readout_sigma,
     )
 
 

@@ -20,8 +20,9 @@ from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .known_normal import KnownNormalSolver
 from .metrics import rms
-from .bundle import JointCovariance, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points, rolling_shutter_shift
-from .plane import REFINEMENT_FRAMES, KnownShape, estimate_common_normal, refine_plane_and_reference
+from .bundle import (JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points,
+                     rolling_shutter_shift)
+from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A frame that shows only part of the target (a board partly out of view) is used when at
@@ -69,6 +70,10 @@ UNCERTAIN_NORMAL_WARNING = (
 BRANCH_CHECK_MARGIN = 0.05
 #: ... on this many frames at most (the branches' costs differ by far more than their noise).
 BRANCH_CHECK_FRAMES = 200
+
+#: A rolling shutter's readout is estimated when its score statistic exceeds this: the
+#: chi-square of one degree of freedom does so with probability 1e-6 without a shutter.
+READOUT_CHI2 = 23.9
 
 #: Random probes that carry each frame's own noise through the (linear) smoothing spline:
 #: the smoothed variance is estimated to about 1/sqrt(32) (18 %), its root to 9 %.
@@ -284,7 +289,7 @@ def fit_desired_trajectory(
         if np.isfinite(theirs.cost) and (not np.isfinite(ours.cost) or theirs.cost < ours.cost):
             normal, m_ref = theirs.normal, theirs.m_ref
     joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
-    normal, m_ref = joint.normal, joint.m_ref
+    m, normal, m_ref, readout = _without_rolling_shutter(m, t, found, others, reference_index, joint, noise, shapes)
     m, found = _completed_partial_frames(m, found, m_ref, normal)
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
@@ -309,7 +314,7 @@ def fit_desired_trajectory(
                                       frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
                                       bias_fraction=detector_bias_fraction(kind, noise * camera.mean_focal),
                                       bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
-                                      shutter=(shift[reference_index], shift[others], shift[used]))
+                                      shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout != 0.0)
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
@@ -333,6 +338,38 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
+
+
+def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
+                             reference_index: int, joint: JointEstimate, noise: float, shapes: Sequence[KnownShape]
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+    """The points (F, N, 3), n* (3,), the reference points (N, 3) and a rolling shutter's
+    readout (s per normalised row), the shutter's shift taken out when the drive shows one;
+    else the points and the joint estimate as given, and 0.
+
+    A rolling shutter moves every point by the readout times its
+    :func:`~.bundle.rolling_shutter_shift` (from the joint estimate's poses), which (12)
+    without it cannot hold: the skew biases n*. With the readout as one more unknown, the
+    joint estimate takes one Gauss-Newton step from ``joint``: :func:`~.bundle.joint_covariance`'s
+    readout and its shutter column (the globals' move per unit readout, through the Schur
+    complement). The step is taken when the readout's score statistic ``(readout /
+    readout_sigma)^2`` exceeds :data:`READOUT_CHI2`.
+    """
+    if others.size < 2 or noise <= 0.0:
+        return m, joint.normal, joint.m_ref, 0.0
+    motion = KnownNormalSolver(joint.m_ref, joint.normal).solve(m[found])
+    seen = np.flatnonzero(found)[motion.valid]
+    poses = np.column_stack([motion.theta, motion.x_h])[motion.valid]
+    shift = np.zeros((m.shape[0], 2 * m.shape[1]))
+    shift[seen] = rolling_shutter_shift(projected_points(joint.normal, joint.m_ref, poses), t[seen])
+    step = joint_covariance(m[others], joint.m_ref, joint.normal, joint.motion, noise=noise, shapes=shapes, correlated=False,
+                            shutter=(shift[reference_index], shift[others], shift[others]))
+    if step.readout_sigma <= 0.0 or (step.readout / step.readout_sigma) ** 2 <= READOUT_CHI2:
+        return m, joint.normal, joint.m_ref, 0.0
+    normal, m_ref = PlaneGeometry.around(joint.normal, joint.m_ref).unpack(step.bias_shared[:, -1])
+    deskewed = m.copy()
+    deskewed[..., 1:] -= step.readout * shift.reshape(m.shape[0], m.shape[1], 2)
+    return deskewed, normal, m_ref, step.readout
 
 
 def detector_bias_fraction(kind: str | None, noise_px: float) -> float:
