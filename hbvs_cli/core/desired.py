@@ -306,10 +306,8 @@ def fit_desired_trajectory(
         stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
         duration = max(t[span][-1] - t[span][0], 1e-9)
         segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
-        # A rolling shutter's shift of every point (per unit readout), from the poses of the frames found.
         seen = np.flatnonzero(found & motion.valid)
-        shift = np.full((t.size, 2 * m_ref.shape[0]), np.nan)
-        shift[seen] = rolling_shutter_shift(projected_points(normal, m_ref, stacked(seen)), t[seen])
+        shift = _shutter_shifts(normal, m_ref, t, seen, stacked(seen))
         covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
                                       frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
                                       bias_fraction=detector_bias_fraction(kind, noise * camera.mean_focal),
@@ -358,10 +356,8 @@ def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], fou
     if others.size < 2 or noise <= 0.0:
         return m, joint.normal, joint.m_ref, 0.0
     motion = KnownNormalSolver(joint.m_ref, joint.normal).solve(m[found])
-    seen = np.flatnonzero(found)[motion.valid]
-    poses = np.column_stack([motion.theta, motion.x_h])[motion.valid]
-    shift = np.zeros((m.shape[0], 2 * m.shape[1]))
-    shift[seen] = rolling_shutter_shift(projected_points(joint.normal, joint.m_ref, poses), t[seen])
+    shift = _shutter_shifts(joint.normal, joint.m_ref, t, np.flatnonzero(found)[motion.valid],
+                            np.column_stack([motion.theta, motion.x_h])[motion.valid])
     step = joint_covariance(m[others], joint.m_ref, joint.normal, joint.motion, noise=noise, shapes=shapes, correlated=False,
                             shutter=(shift[reference_index], shift[others], shift[others]))
     if step.readout_sigma <= 0.0 or (step.readout / step.readout_sigma) ** 2 <= READOUT_CHI2:
@@ -370,6 +366,16 @@ def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], fou
     deskewed = m.copy()
     deskewed[..., 1:] -= step.readout * shift.reshape(m.shape[0], m.shape[1], 2)
     return deskewed, normal, m_ref, step.readout
+
+
+def _shutter_shifts(normal: NDArray[np.float64], m_ref: NDArray[np.float64], t: NDArray[np.float64], rows: NDArray[np.intp],
+                    poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Every frame's points' move per unit of a rolling shutter's readout (F, 2N)
+    (:func:`~.bundle.rolling_shutter_shift`), from the ``poses`` (K, 3) of the frames ``rows``
+    (K,); 0 in the others."""
+    shift = np.zeros((t.size, 2 * m_ref.shape[0]))
+    shift[rows] = rolling_shutter_shift(projected_points(normal, m_ref, poses), t[rows])
+    return shift
 
 
 def detector_bias_fraction(kind: str | None, noise_px: float) -> float:
