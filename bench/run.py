@@ -492,10 +492,12 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
         # two-thread process to a one-thread one tends to their CPU ratio, not to what a
         # quiet machine shows; the CPU figures tell which it was.
         cpu = _children_cpu()
+        _read_into_page_cache(teach)
         start = time.perf_counter()
         subprocess.run([sys.executable, "-c", code], check=True, cwd=work)
         decode_walls.append(time.perf_counter() - start)
         decode_cpus.append(_children_cpu() - cpu)
+        _read_into_page_cache(teach)
         cpu = _children_cpu()
         wall, _ = run_cli("fit", str(teach), *fitted, "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
         fit_walls.append(wall)
@@ -513,6 +515,15 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
         f"hbvs fit teach.mcap {' '.join(fitted + ['-o'])} fit.mcap vs. reading and decoding the same images (teach {' '.join(taught)})",
     )
+
+
+def _read_into_page_cache(path: Path) -> None:
+    """Read a file once, so that the run timed next reads it from memory: the kernel may have
+    paged out a recording idle for a minute (this machine's DAMON reclaims cold page cache),
+    and whichever run found it on disk paid for the disk."""
+    with open(path, "rb") as stream:
+        while stream.read(1 << 24):
+            pass
 
 
 def _children_cpu() -> float:
