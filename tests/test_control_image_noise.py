@@ -19,10 +19,13 @@ x_hd1_dot 2.3 % over the last second, theta_d 0.27 deg): with exact points the r
 images loop is measured twice (seeds 0-9, mean final error, worst in brackets;
 ``pytest -s -n 0 -m campaign``):
 
-- on the harsh teach's fit: 0.30 cm / 0.12 deg (0.38 / 0.16); with the added 1 px
-  0.49 cm / 0.19 deg (0.75 / 0.37). At that fit's floor: it cannot be judged below it.
+- on the harsh teach's fit: 0.30 cm / 0.11 deg (0.36 / 0.16); with the added 1 px
+  0.48 cm / 0.20 deg (1.26 / 0.62). At that fit's floor: it cannot be judged below it.
 - on the default teach's fit (the taught path right), the images rendered with the same
-  harsh sensor: 0.10 cm / 0.040 deg (0.17 / 0.08); with 1 px 0.39 cm / 0.12 deg (0.84 / 0.46).
+  harsh sensor: 0.06 cm / 0.022 deg (0.13 / 0.05); with 1 px seeds 0-29 are judged, as ten
+  seeds' mean is a draw from a wide spread: seeds 0-89 end 0.49 +- 0.035 cm / 0.179 +- 0.015
+  deg (mean +- its standard error), the same as the code this test was written on (0.52 +-
+  0.038 cm / 0.179 +- 0.016 deg), whose ten-seed means range 0.12-0.22 deg.
 
 Before the windowed loop and the depth in the filter the harsh fit gave 0.19 cm / 0.13 deg,
 below its own floor: (31) alone ended 2.5 % above d* on average (up to 4.5 %), and a dhat
@@ -149,12 +152,12 @@ def skip_unless_campaign(request):
         pytest.skip("runs with: pytest -m campaign tests/test_control_image_noise.py")
 
 
-def ten_seeds(fit_path, what: str, **options):
-    """Final position (cm) and heading (deg) errors of seeds 0-9 with images, printed."""
-    runs = [closed_loop(fit_path, perception="images", seed=seed, **options) for seed in range(10)]
+def ten_seeds(fit_path, what: str, seeds: range = range(10), **options):
+    """Final position (cm) and heading (deg) errors of ``seeds`` (0-9) with images, printed."""
+    runs = [closed_loop(fit_path, perception="images", seed=seed, **options) for seed in seeds]
     position = [run["position_cm"] for run in runs]
     heading = [run["heading_deg"] for run in runs]
-    print(f"\n{what}, seeds 0-9: position mean {np.mean(position):.3f} max {max(position):.3f} cm, "
+    print(f"\n{what}, seeds {seeds.start}-{seeds.stop - 1}: position mean {np.mean(position):.3f} max {max(position):.3f} cm, "
           f"heading mean {np.mean(heading):.3f} max {max(heading):.3f} deg, lost {[run['lost'] for run in runs]}, "
           f"RMS dv/dt {[round(run['smoothness']['dv_dt_rms_mps2'], 3) for run in runs]}")
     return np.array(position), np.array(heading)
@@ -179,14 +182,16 @@ def test_rendered_images_with_one_pixel_at_the_detector_ten_seeds(harsh_fit, req
 
 @pytest.mark.campaign
 def test_harsh_images_along_a_right_taught_path_ten_seeds(default_fit, request):
-    """About 30 s: the default teach's fit (the taught path right to 0.03 cm), the images
+    """About 40 s: the default teach's fit (the taught path right to 0.03 cm), the images
     rendered with the harsh sensor: what the loop itself makes of the image noise, below the
-    0.19 cm the harsh fit gave before the depth in the filter."""
+    0.19 cm the harsh fit gave before the depth in the filter. With 1 px more, seeds 0-29
+    against their population's mean plus about three standard errors (module docstring)."""
     skip_unless_campaign(request)
     position, heading = ten_seeds(default_fit[0], "harsh images, the default teach's fit", sensor=HARSH_SENSOR)
     assert position.mean() < 0.15 and heading.mean() < 0.06, (position, heading)
-    position, heading = ten_seeds(default_fit[0], "the same + 1 px at the detector", sensor=HARSH_SENSOR, pixel_noise=1.0)
-    assert position.mean() < 0.5 and heading.mean() < 0.2, (position, heading)
+    position, heading = ten_seeds(default_fit[0], "the same + 1 px at the detector", sensor=HARSH_SENSOR, pixel_noise=1.0,
+                                  seeds=range(30))
+    assert position.mean() < 0.7 and heading.mean() < 0.27, (position, heading)
 
 
 #: Image noise raised every way hbvs's renderer can (gray levels, grain px, blur px, JPEG quality).
