@@ -300,6 +300,25 @@ def test_a_png_chunk_declaring_gigabytes_is_refused_before_opencv():
         decode_image(bytes(data), "frame")
 
 
+def test_a_damaged_byte_anywhere_in_a_long_png_chunk_is_refused():
+    """A chunk's CRC is summed in pieces (CRC_PIECE_BYTES): a byte flipped in its first,
+    a middle or its last piece is found, and the intact PNG decodes to its pixels."""
+    import cv2
+
+    from hbvs_cli.io.images import CRC_PIECE_BYTES, decode_image
+
+    image = np.random.default_rng(4).integers(0, 256, (120, 160), dtype=np.uint8)
+    data = cv2.imencode(".png", image)[1].tobytes()
+    length = int.from_bytes(data[33:37], "big")  # the first IDAT's, after the IHDR
+    assert data[37:41] == b"IDAT" and length >= 2 * CRC_PIECE_BYTES
+    np.testing.assert_array_equal(decode_image(data, "frame"), image)
+    for offset in (41, 41 + CRC_PIECE_BYTES + 7, 41 + length - 1):
+        damaged = bytearray(data)
+        damaged[offset] ^= 0x10
+        with pytest.raises(InputError, match=r"frame: cannot be decoded as an image \(a b'IDAT' chunk fails its CRC check"):
+            decode_image(bytes(damaged), "frame")
+
+
 def test_image_headers_declaring_more_pixels_than_the_data_can_hold_are_refused():
     from hbvs_cli.io.images import decode_image
 
