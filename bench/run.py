@@ -485,8 +485,8 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     if fitted:
         as_footage(teach, teach.with_suffix(".footage.mcap"))
         teach = teach.with_suffix(".footage.mcap")
-    # The recordings just written (0.4-0.8 GB) go to disk now, not in the kernel's threads
-    # during the first timed runs, which a two-thread fit feels more than one-thread decoding.
+    # The recordings just written (0.4-0.8 GB) go to disk now, not by the kernel's writeback
+    # while the first runs are timed.
     os.sync()
     code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
     decode_walls, fit_walls, decode_cpus, fit_cpus = [], [], [], []
