@@ -152,7 +152,7 @@ def skip_unless_campaign(request):
         pytest.skip("runs with: pytest -m campaign tests/test_control_image_noise.py")
 
 
-def ten_seeds(fit_path, what: str, seeds: range = range(10), **options):
+def final_errors_over_seeds(fit_path, what: str, seeds: range = range(10), **options):
     """Final position (cm) and heading (deg) errors of ``seeds`` (0-9) with images, printed."""
     runs = [closed_loop(fit_path, perception="images", seed=seed, **options) for seed in seeds]
     position = [run["position_cm"] for run in runs]
@@ -167,7 +167,7 @@ def ten_seeds(fit_path, what: str, seeds: range = range(10), **options):
 def test_rendered_images_under_harsh_noise_ten_seeds(harsh_fit, request):
     """About 40 s."""
     skip_unless_campaign(request)
-    position, heading = ten_seeds(harsh_fit, "images, harsh noise")
+    position, heading = final_errors_over_seeds(harsh_fit, "images, harsh noise")
     assert position.mean() < 1.0 and heading.mean() < 0.2, (position, heading)
     assert position.max() < 2.0 and heading.max() < 0.4
 
@@ -176,7 +176,7 @@ def test_rendered_images_under_harsh_noise_ten_seeds(harsh_fit, request):
 def test_rendered_images_with_one_pixel_at_the_detector_ten_seeds(harsh_fit, request):
     """About 40 s: the issue's 1 px case with images, mean < 2 cm and < 0.4 deg."""
     skip_unless_campaign(request)
-    position, heading = ten_seeds(harsh_fit, "images + 1 px at the detector", pixel_noise=1.0)
+    position, heading = final_errors_over_seeds(harsh_fit, "images + 1 px at the detector", pixel_noise=1.0)
     assert position.mean() < 2.0 and heading.mean() < 0.4, (position, heading)
 
 
@@ -187,10 +187,10 @@ def test_harsh_images_along_a_right_taught_path_ten_seeds(default_fit, request):
     0.19 cm the harsh fit gave before the depth in the filter. With 1 px more, seeds 0-29
     against their population's mean plus about three standard errors (module docstring)."""
     skip_unless_campaign(request)
-    position, heading = ten_seeds(default_fit[0], "harsh images, the default teach's fit", sensor=HARSH_SENSOR)
+    position, heading = final_errors_over_seeds(default_fit[0], "harsh images, the default teach's fit", sensor=HARSH_SENSOR)
     assert position.mean() < 0.15 and heading.mean() < 0.06, (position, heading)
-    position, heading = ten_seeds(default_fit[0], "the same + 1 px at the detector", sensor=HARSH_SENSOR, pixel_noise=1.0,
-                                  seeds=range(30))
+    position, heading = final_errors_over_seeds(default_fit[0], "the same + 1 px at the detector", seeds=range(30),
+                                                sensor=HARSH_SENSOR, pixel_noise=1.0)
     assert position.mean() < 0.7 and heading.mean() < 0.27, (position, heading)
 
 
