@@ -50,3 +50,27 @@ def test_board_found_and_its_corners_tracked_to_a_tenth_of_a_pixel(frames):
 
 def test_board_layout_is_row_by_row():
     assert board_layout((3, 2)).tolist() == [[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [2, 1]]
+
+
+def test_the_pick_leaves_the_first_frames_searched_for_the_tracker(frames, monkeypatch):
+    """After --target auto's pick (:func:`find_chessboard`) the tracker searches neither the
+    first frame nor the second again (each a 0.1-0.2 s ``findChessboardCornersSB``), and
+    finds the same corners as without the pick."""
+    from hbvs_cli.perception import chessboard
+    from hbvs_cli.perception.autodetect import find_chessboard
+
+    images, _ = frames
+    pattern = find_board(images[0]).pattern
+    alone = make_detector("chessboard", n_points=35, board=pattern)
+    monkeypatch.setattr(chessboard, "_SEARCHES", {})  # nothing cached from other tests
+    expected = [alone.detect(image).pixels for image in images[:2]]
+    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    choice = find_chessboard(images[:5])
+    assert choice is not None and tuple(choice.details["board"]) == pattern
+    searched = []
+    search = chessboard._search
+    monkeypatch.setattr(chessboard, "_search", lambda gray, wanted: searched.append(wanted) or search(gray, wanted))
+    tracker = make_detector("chessboard", n_points=35, board=pattern)
+    for image, pixels in zip(images[:2], expected):
+        assert np.array_equal(tracker.detect(image).pixels, pixels)
+    assert searched == []

@@ -70,7 +70,7 @@ def _banded_inverse_trace(factor: NDArray[np.float64], weights: tuple[list[float
     m = len(diagonal)
     total = 0.0
     s11 = s12 = s22 = 0.0  # S[i+1,i+1], S[i+1,i+2], S[i+2,i+2]
-    for i in range(m - 1, -1, -1):
+    for i in range(m - 1, max(m - 3, -1), -1):  # the last two rows: U's bands end there
         u0 = diagonal[i]
         u1 = first[i + 1] if i + 1 < m else 0.0
         u2 = second[i + 2] if i + 2 < m else 0.0
@@ -80,8 +80,14 @@ def _banded_inverse_trace(factor: NDArray[np.float64], weights: tuple[list[float
         total += s00 * p0[i]
         if i + 1 < m:
             total += s01 * p1[i + 1]
-        if i + 2 < m:
-            total += s02 * p2[i + 2]
+        s11, s12, s22 = s00, s01, s11
+    # The other rows, in the same order and operations, without indexing.
+    rows = slice(m - 3, None, -1) if m >= 3 else slice(0, 0)
+    for u0, u1, u2, w0, w1, w2 in zip(diagonal[rows], first[1:][rows], second[2:][rows], p0[rows], p1[1:][rows], p2[2:][rows]):
+        s02 = -(u1 * s12 + u2 * s22) / u0
+        s01 = -(u1 * s11 + u2 * s12) / u0
+        s00 = (1.0 / u0 - u1 * s01 - u2 * s02) / u0
+        total = total + s00 * w0 + s01 * w1 + s02 * w2
         s11, s12, s22 = s00, s01, s11
     return total
 

@@ -129,7 +129,10 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     if first is None:
         return None
     # The other frames' searches are independent and OpenCV releases the GIL: two at a time.
+    # The first frame is searched for the pattern too: the tracker starts from that search
+    # (which can settle on other corners than the largest board's), cached by find_board.
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="hbvs-board") as pool:
+        pool.submit(find_board, images[0], first.pattern)
         found = 1 + sum(board is not None for board in pool.map(lambda image: _checked_board(image, first.pattern), images[1:]))
     if not _majority(found, len(images)):
         return None

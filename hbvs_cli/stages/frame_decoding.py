@@ -9,6 +9,7 @@ the others use luminance, which a colour JPEG decodes faster.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, Iterator
 
@@ -33,18 +34,45 @@ def decoded_frames(
     """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead.
 
     ``colour()`` is asked as each frame is queued: whether to keep its colour (fit keeps it
-    while it picks the target, then only for dots).
+    while it picks the target, then only for dots). A consumer that would wait for a frame
+    still being decoded decodes the next queued one itself (:func:`_next_decoded`).
     """
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
-        pending: deque[tuple[TeachFrame, Future[tuple[bytes, np.ndarray]]]] = deque()
+        pending: deque[_Queued] = deque()
         for frame in frames:
-            pending.append((frame, pool.submit(decode_frame, frame, name, colour())))
+            keep_colour = colour()
+            pending.append(_Queued(frame, keep_colour, pool.submit(decode_frame, frame, name, keep_colour)))
             if len(pending) > depth:
-                ready, future = pending.popleft()
-                yield (ready, *future.result())
+                yield _next_decoded(pending, name)
         while pending:
-            ready, future = pending.popleft()
-            yield (ready, *future.result())
+            yield _next_decoded(pending, name)
+
+
+@dataclass
+class _Queued:
+    """A frame queued for decoding: whether its colour is kept, and its decoding."""
+
+    frame: TeachFrame
+    colour: bool
+    decoding: Future[tuple[bytes, np.ndarray]]
+
+
+def _next_decoded(pending: deque[_Queued], name: str) -> tuple[TeachFrame, bytes, np.ndarray]:
+    """The oldest queued frame, decoded. While the decoding thread is still on it, the
+    frame after it is decoded here, when the thread has not started that one: a fit whose
+    detection is quicker than decoding (a chessboard's) waited for frames a second each
+    thousand, with a core to spare."""
+    oldest = pending.popleft()
+    if pending and not oldest.decoding.done():
+        after = pending[0]
+        if after.decoding.cancel():
+            decoded: Future[tuple[bytes, np.ndarray]] = Future()
+            try:
+                decoded.set_result(decode_frame(after.frame, name, after.colour))
+            except Exception as exc:  # raised when that frame's turn comes, not before this one
+                decoded.set_exception(exc)
+            after.decoding = decoded
+    return (oldest.frame, *oldest.decoding.result())
 
 
 def fit_reference_image(fit: FitFile) -> np.ndarray | None:
