@@ -9,8 +9,8 @@ the others use luminance, which a colour JPEG decodes faster.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Callable, Iterator
 
 import numpy as np
@@ -59,9 +59,9 @@ class _Queued:
 
 def _next_decoded(pending: deque[_Queued], name: str) -> tuple[TeachFrame, bytes, np.ndarray]:
     """The oldest queued frame, decoded. While the decoding thread is still on it, the
-    frame after it is decoded here, when the thread has not started that one: a fit whose
-    detection is quicker than decoding (a chessboard's) waited for frames a second each
-    thousand, with a core to spare."""
+    frame after it is decoded here, when the thread has not started that one: where the
+    consumer's work is quicker than decoding (a board's or a marker's detection), it would
+    otherwise wait with a core to spare."""
     oldest = pending.popleft()
     if pending and not oldest.decoding.done():
         after = pending[0]
