@@ -308,7 +308,8 @@ def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsi
 
 #: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
 #: meanwhile, on the core the pick leaves idle (a board's search of the first frame is serial).
-READ_AHEAD_BYTES = 64 << 20
+#: About 430 gray 640x480 frames; a board's pick took as long as some 330.
+READ_AHEAD_BYTES = 128 << 20
 
 
 def _taken_while(frames: Iterator[Any], busy: Callable[[], bool], budget: int) -> Iterator[Any]:
