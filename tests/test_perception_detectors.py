@@ -263,3 +263,16 @@ def test_point_track_predicts_at_constant_velocity():
     for _ in range(3):
         track.update(np.full((2, 2), np.nan))
     assert track.predict() is None and not track.active
+
+
+def test_point_track_takes_a_coasted_point_back_at_its_mean_velocity():
+    track = PointTrack(2, max_coast=2)
+    track.update(np.array([[0.0, 0.0], [10.0, 10.0]]))
+    track.update(np.array([[1.0, 2.0], [np.nan, np.nan]]))
+    # Every point seen again: the second over the two frames since it was last seen.
+    measured = np.array([[2.0, 4.0], [16.0, 10.0]])
+    track.update(measured)
+    measured[:] = 0.0  # the track keeps its own copy
+    np.testing.assert_allclose(track.predict(), [[3.0, 6.0], [19.0, 10.0]])
+    track.update(np.array([[3.0, 6.0], [19.0, 10.0]]))
+    np.testing.assert_allclose(track.predict(), [[4.0, 8.0], [22.0, 10.0]])

@@ -246,3 +246,82 @@ def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp
     for key in ("theta_d_sigma", "x_hd1_sigma"):
         signals.smooth.pop(key)
     plot_fit(signals)  # no band, no error
+
+
+def _gray_chessboard_teach(folder) -> str:
+    """The independent footage maker's chessboard row as 60 gray PNG frames, taught from images."""
+    import cv2
+
+    import footage
+
+    drive = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
+    maker = footage.FootageMaker(*footage.case("chessboard"), seed=3)
+    pose_of = footage.drive_pose_function(drive)
+    images = folder / "images"
+    images.mkdir()
+    for k, t in enumerate(drive.times()):
+        cv2.imwrite(str(images / f"frame_{k:04d}.png"), cv2.cvtColor(maker.render(pose_of, t), cv2.COLOR_BGR2GRAY))
+    calibration = maker.camera.write_ros_yaml(folder / "camera.yaml")
+    teach = folder / "teach.mcap"
+    result = call_hbvs("teach", "--images", str(images), "--fps", "5", "--calibration", str(calibration), "-o", str(teach), "-q")
+    assert result.returncode == 0, result.stderr.decode()
+    return str(teach)
+
+
+def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, monkeypatch):
+    """Gray footage: while fit finds the board's pattern in the first frames (held here until
+    30 frames are decoded), it decodes the frames after the first few, in gray as the detector wants
+    them; the fit file is the same, byte for byte, as without reading ahead."""
+    import threading
+    import time
+
+    from hbvs_cli.stages import fit as fit_stage
+    from hbvs_cli.stages import frame_decoding
+
+    teach = _gray_chessboard_teach(tmp_path)
+    decoded: list[tuple[int, bool]] = []
+    decode = frame_decoding.decode_frame
+    monkeypatch.setattr(frame_decoding, "decode_frame", lambda frame, name, colour=False: decoded.append((frame.index, colour)) or decode(frame, name, colour))
+    pick, during_pick = fit_stage._detector_spec, []
+
+    def held_pick(*args, **kwargs):
+        assert threading.current_thread() is not threading.main_thread()
+        deadline = time.monotonic() + 30.0
+        while len(decoded) < 30 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        during_pick.extend(decoded)
+        return pick(*args, **kwargs)
+
+    monkeypatch.setattr(fit_stage, "_detector_spec", held_pick)
+    assert call_hbvs("fit", teach, "--target", "chessboard", "-o", str(tmp_path / "ahead.mcap"), "-q").returncode == 0
+    assert len(during_pick) >= 30
+    # The first frames asked for colour (the target unknown), the ones after them gray.
+    assert all(colour for index, colour in decoded if index < 5)
+    assert not any(colour for index, colour in decoded if index >= 9)
+    assert sorted(index for index, _ in decoded) == list(range(60))
+
+    monkeypatch.setattr(fit_stage, "_detector_spec", pick)
+    monkeypatch.setattr(fit_stage, "READ_AHEAD_BYTES", 0)
+    decoded.clear()
+    assert call_hbvs("fit", teach, "--target", "chessboard", "-o", str(tmp_path / "in_turn.mcap"), "-q").returncode == 0
+    assert (tmp_path / "ahead.mcap").read_bytes() == (tmp_path / "in_turn.mcap").read_bytes()
+    assert read_fit_file(tmp_path / "ahead.mcap").model.frames["used"] == 60
+
+
+def test_an_error_met_while_reading_ahead_comes_after_the_frames_before_it():
+    from hbvs_cli.errors import InputError
+    from hbvs_cli.stages.fit import _taken_while
+
+    def frames():
+        for index in range(3):
+            yield index, b"", np.zeros((2, 2), np.uint8)
+        raise InputError("teach.mcap frame 3: cannot be decoded")
+
+    seen = []
+    with pytest.raises(InputError, match="frame 3"):
+        for index, _, _ in _taken_while(frames(), lambda: True, 1 << 20):
+            seen.append(index)
+    assert seen == [0, 1, 2]
+    # Within a budget of two frames' pixels, two are taken ahead; the rest follow in order.
+    rest = _taken_while(iter([(k, b"", np.zeros((2, 2), np.uint8)) for k in range(5)]), lambda: True, 8)
+    assert [index for index, _, _ in rest] == list(range(5))

@@ -76,10 +76,12 @@ class PointTrack:
         """Expected positions in the next frame, shape (N, 2) (NaN rows for dropped points),
         or None when the track is inactive."""
         alive = self._alive()
-        if not np.any(alive):
+        every = alive.all()
+        if not every and not alive.any():
             return None
         predicted = self._last + self._velocity * (self._since + 1)[:, None]
-        predicted[~alive] = np.nan
+        if not every:
+            predicted[~alive] = np.nan
         return predicted
 
     def update(self, measured: NDArray[np.float64]) -> None:
@@ -87,6 +89,11 @@ class PointTrack:
         seen = np.all(np.isfinite(measured), axis=1)
         self._since += 1
         known = seen & np.all(np.isfinite(self._last), axis=1) & (self._since <= self.max_coast + 1)
+        if known.all():  # every point seen again in time: the same updates, without the masks
+            self._velocity = (measured - self._last) / self._since[:, None]
+            self._last = np.array(measured, dtype=np.float64)
+            self._since[:] = 0
+            return
         self._velocity[known] = (measured[known] - self._last[known]) / self._since[known][:, None]
         self._velocity[seen & ~known] = 0.0
         self._last[seen] = measured[seen]

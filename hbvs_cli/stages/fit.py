@@ -14,7 +14,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from itertools import chain, islice
 from pathlib import Path
-from typing import Any, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -203,24 +204,31 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
             # Colour while the target is not known (the dots of --target auto may differ from
             # their wall in hue alone), then only for dots seen in colour: everything else
-            # is measured on luminance, which decodes faster.
-            frames = decoded_frames(reader.frames(), reader.name, colour=lambda: detector is None or detector.spec.contrast == "colour")
+            # is measured on luminance, which decodes faster. First frames that came out gray
+            # asked for colour hold none: no detector will want it.
+            gray_source = False
+            frames = decoded_frames(
+                reader.frames(), reader.name,
+                colour=lambda: detector.spec.contrast == "colour" if detector is not None else not gray_source,
+            )
             # --target auto judges the first few frames together: peek at them, then go on.
             first = list(islice(frames, AUTO_FRAMES))
-            for frame, data, image in chain(first, frames):
-                camera = reader.camera
-                if camera is None:
-                    raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
-                if image.shape[:2] != (camera.height, camera.width):
-                    raise RecordingError(
-                        f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
-                    )
-                if detector is None:
-                    world = _teach_world(reader)
-                    spec = _detector_spec(options, world, [im for _, _, im in first] or [image], camera, frame.pose, console)
-                    detector = TrackedDetector(spec, camera, seed=options.seed)
-                    template = data
-                    writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+            gray_source = all(image.ndim == 2 for _, _, image in first)
+            rest: Iterator[tuple[Any, bytes, np.ndarray]] = frames
+            if first:
+                frame, data, image = first[0]
+                camera = _checked_frame(reader, frame, image)
+                world = _teach_world(reader)
+                with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-pick") as pool:
+                    picking = pool.submit(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
+                    if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
+                        rest = _taken_while(frames, lambda: not picking.done(), READ_AHEAD_BYTES)
+                detector = TrackedDetector(picking.result(), camera, seed=options.seed)
+                template = data
+                writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+            for frame, data, image in chain(first, rest):
+                _checked_frame(reader, frame, image)
+                assert detector is not None
                 pixels = detector.detect(image)
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
@@ -284,6 +292,49 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(output=options.output, model=model)
+
+
+def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsics:
+    """The recording's camera, which a frame must come after and match in size."""
+    camera = reader.camera
+    if camera is None:
+        raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
+    if image.shape[:2] != (camera.height, camera.width):
+        raise RecordingError(
+            f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
+        )
+    return camera
+
+
+#: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
+#: meanwhile, on the core the pick leaves idle (a board's search of the first frame is serial).
+#: About 430 gray 640x480 frames; a board's pick took as long as some 330.
+READ_AHEAD_BYTES = 128 << 20
+
+
+def _taken_while(frames: Iterator[Any], busy: Callable[[], bool], budget: int) -> Iterator[Any]:
+    """The frames taken from ``frames`` while ``busy()``, up to ``budget`` bytes of images,
+    then what is left of ``frames``. An error reading them is raised at its turn, after the
+    frames taken before it (and after the pick's own error, which ``busy`` waits for)."""
+    taken: list[Any] = []
+    size = 0
+    try:
+        while busy() and size < budget:
+            item = next(frames, None)
+            if item is None:
+                break
+            taken.append(item)
+            size += item[2].nbytes
+    except Exception as exc:  # kept for its turn
+        failure = exc
+    else:
+        return chain(taken, frames)
+
+    def in_turn() -> Iterator[Any]:
+        yield from taken
+        raise failure
+
+    return in_turn()
 
 
 def _read_known_layout(options: FitOptions) -> np.ndarray | None:
