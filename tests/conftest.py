@@ -208,6 +208,28 @@ def teach_from_rendered_video(folder, seed: int, frames: int = 600):
     return teach, world, profile, start, times
 
 
+def gray_footage_teach(folder, name: str = "chessboard") -> Path:
+    """A row of the independent footage maker (tests/footage.py) as 60 gray PNG frames (a
+    12 s drive at 5 Hz), taught from the images folder: footage without a world, whose
+    target fit must find, from a source that decodes gray."""
+    import cv2
+
+    import footage
+
+    drive = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
+    maker = footage.FootageMaker(*footage.case(name), seed=3)
+    pose_of = footage.drive_pose_function(drive)
+    images = Path(folder) / "images"
+    images.mkdir(parents=True)
+    for k, t in enumerate(drive.times()):
+        cv2.imwrite(str(images / f"frame_{k:04d}.png"), cv2.cvtColor(maker.render(pose_of, t), cv2.COLOR_BGR2GRAY))
+    calibration = maker.camera.write_ros_yaml(Path(folder) / "camera.yaml")
+    teach = Path(folder) / "teach.mcap"
+    result = call_hbvs("teach", "--images", str(images), "--fps", "5", "--calibration", str(calibration), "-o", str(teach), "-q")
+    assert result.returncode == 0, result.stderr.decode()
+    return teach
+
+
 def make_fit(teach_path, fit_path, **options):
     from hbvs_cli.stages.fit import FitOptions, run_fit
 

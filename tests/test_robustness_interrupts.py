@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import SUITE_OR_CAMPAIGN, campaign_extent, make_fit
+from conftest import SUITE_OR_CAMPAIGN, campaign_extent, gray_footage_teach, make_fit
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux's /proc")
 
@@ -114,15 +114,18 @@ def check_outcome(outcome: Outcome, signum: int, output: Path, had_file: bool) -
 
 @pytest.fixture(scope="module")
 def inputs(short_teach, tmp_path_factory):
-    """A 6 s teach and its fit: each command below runs for one to two seconds."""
+    """A 6 s teach and its fit, and gray footage of a chessboard without a world (its fit
+    picks the target while a second thread reads frames): each command below runs for one
+    to two seconds."""
     folder = tmp_path_factory.mktemp("interrupt_inputs")
     make_fit(short_teach, folder / "fit.mcap")
-    return {"teach": short_teach, "fit": folder / "fit.mcap"}
+    return {"teach": short_teach, "fit": folder / "fit.mcap", "footage": gray_footage_teach(folder / "footage")}
 
 
 COMMANDS = {
     "teach": lambda inputs, out: ["teach", "--duration", "6", "-q", "-o", str(out)],
     "fit": lambda inputs, out: ["fit", str(inputs["teach"]), "-q", "-o", str(out)],
+    "fit-footage": lambda inputs, out: ["fit", str(inputs["footage"]), "-q", "-o", str(out)],
     "repeat": lambda inputs, out: ["repeat", str(inputs["fit"]), "--sim", "--rate", "60", "-q", "-o", str(out)],
 }
 
@@ -132,7 +135,7 @@ def test_signals_at_random_moments_leave_no_broken_output(inputs, tmp_path, requ
     rng = random.Random(SEED)
     runs = []
     # Each command and signal with and without an earlier output file; the default suite
-    # runs one of the two for each pair (both, for each command), ``-m campaign`` all 12.
+    # runs one of the two for each pair (both, for each command), ``-m campaign`` all 16.
     campaign = campaign_extent(request, extent)
     for k, (command, signum) in enumerate((c, s) for c in COMMANDS for s in SIGNAL_CODES):
         for attempt in range(2):
@@ -150,6 +153,22 @@ def test_signals_at_random_moments_leave_no_broken_output(inputs, tmp_path, requ
     interrupted = [check_outcome(outcome, run[1], run[3], run[4]) for outcome, run in zip(outcomes, runs)]
     # Most signals land while the command runs (a fast machine may finish a few first).
     assert sum(interrupted) >= len(runs) // 2, [(o.returncode, round(o.delay, 2)) for o in outcomes]
+
+
+@SUITE_OR_CAMPAIGN
+def test_signals_through_the_target_pick_of_footage_stop_cleanly(inputs, tmp_path, request, extent):
+    """Footage without a world: fit picks its target (here most of its first second) while a
+    second thread reads frames. A signal every 0.25 s from 0.1 s in (``-m campaign``: every
+    0.03 s): each run stops with its code and one line (a thread left running unjoined used
+    to abort the interpreter's exit, code -6, when the signal cut short the wait for the pick)."""
+    step = 0.03 if campaign_extent(request, extent) else 0.25
+    delays = [0.1 + step * k for k in range(int(1.1 / step) + 1)]
+    runs = [(COMMANDS["fit-footage"](inputs, tmp_path / f"footage-{k}.mcap"), (signal.SIGINT, signal.SIGTERM)[k % 2], delay)
+            for k, delay in enumerate(delays)]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        outcomes = list(pool.map(lambda run: run_and_signal(*run), runs))
+    for outcome, (args, signum, _) in zip(outcomes, runs):
+        check_outcome(outcome, signum, Path(args[-1]), had_file=False)
 
 
 @pytest.mark.parametrize("signum", list(SIGNAL_CODES), ids=lambda s: s.name)

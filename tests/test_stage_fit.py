@@ -11,6 +11,7 @@ from conftest import (
     call_hbvs,
     errors_against_drive,
     fit_errors,
+    gray_footage_teach,
     make_fit,
     make_teach,
     run_hbvs,
@@ -248,26 +249,6 @@ def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp
     plot_fit(signals)  # no band, no error
 
 
-def _gray_chessboard_teach(folder) -> str:
-    """The independent footage maker's chessboard row as 60 gray PNG frames, taught from images."""
-    import cv2
-
-    import footage
-
-    drive = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
-    maker = footage.FootageMaker(*footage.case("chessboard"), seed=3)
-    pose_of = footage.drive_pose_function(drive)
-    images = folder / "images"
-    images.mkdir()
-    for k, t in enumerate(drive.times()):
-        cv2.imwrite(str(images / f"frame_{k:04d}.png"), cv2.cvtColor(maker.render(pose_of, t), cv2.COLOR_BGR2GRAY))
-    calibration = maker.camera.write_ros_yaml(folder / "camera.yaml")
-    teach = folder / "teach.mcap"
-    result = call_hbvs("teach", "--images", str(images), "--fps", "5", "--calibration", str(calibration), "-o", str(teach), "-q")
-    assert result.returncode == 0, result.stderr.decode()
-    return str(teach)
-
-
 def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, monkeypatch):
     """Gray footage: while fit finds the board's pattern in the first frames (held here until
     30 frames are decoded), it decodes the frames after the first few, in gray as the detector wants
@@ -278,14 +259,14 @@ def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, m
     from hbvs_cli.stages import fit as fit_stage
     from hbvs_cli.stages import frame_decoding
 
-    teach = _gray_chessboard_teach(tmp_path)
+    teach = str(gray_footage_teach(tmp_path))
     decoded: list[tuple[int, bool]] = []
     decode = frame_decoding.decode_frame
     monkeypatch.setattr(frame_decoding, "decode_frame", lambda frame, name, colour=False: decoded.append((frame.index, colour)) or decode(frame, name, colour))
     pick, during_pick = fit_stage._detector_spec, []
 
     def held_pick(*args, **kwargs):
-        assert threading.current_thread() is not threading.main_thread()
+        assert threading.current_thread() is threading.main_thread()  # where a stop signal lands
         deadline = time.monotonic() + 30.0
         while len(decoded) < 30 and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -309,19 +290,47 @@ def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, m
 
 
 def test_an_error_met_while_reading_ahead_comes_after_the_frames_before_it():
+    import threading
+
     from hbvs_cli.errors import InputError
-    from hbvs_cli.stages.fit import _taken_while
+    from hbvs_cli.stages.fit import _picked_while_reading
+
+    ended = threading.Event()
 
     def frames():
         for index in range(3):
             yield index, b"", np.zeros((2, 2), np.uint8)
+        ended.set()
         raise InputError("teach.mcap frame 3: cannot be decoded")
 
+    spec, rest = _picked_while_reading(lambda: ended.wait(10.0) and "picked", frames(), 1 << 20)
+    assert spec == "picked"
     seen = []
     with pytest.raises(InputError, match="frame 3"):
-        for index, _, _ in _taken_while(frames(), lambda: True, 1 << 20):
+        for index, _, _ in rest:
             seen.append(index)
     assert seen == [0, 1, 2]
     # Within a budget of two frames' pixels, two are taken ahead; the rest follow in order.
-    rest = _taken_while(iter([(k, b"", np.zeros((2, 2), np.uint8)) for k in range(5)]), lambda: True, 8)
+    _, rest = _picked_while_reading(lambda: None, iter([(k, b"", np.zeros((2, 2), np.uint8)) for k in range(5)]), 8)
     assert [index for index, _, _ in rest] == list(range(5))
+
+
+def test_a_stop_signal_during_the_pick_stops_the_reading_thread_first():
+    import threading
+
+    from hbvs_cli.stages.fit import _picked_while_reading
+
+    started = threading.Event()
+
+    def endless():
+        started.set()
+        while True:
+            yield 0, b"", np.zeros((2, 2), np.uint8)
+
+    def interrupted_pick():
+        started.wait(10.0)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _picked_while_reading(interrupted_pick, endless(), 1 << 40)
+    assert not any(thread.name == "hbvs-read-ahead" for thread in threading.enumerate())

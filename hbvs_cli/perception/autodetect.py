@@ -10,7 +10,7 @@ poster beats tiny markers printed in it.
 from __future__ import annotations
 
 from collections import Counter
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
@@ -132,8 +132,11 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     # The first frame is searched for the pattern too: the tracker starts from that search
     # (which can settle on other corners than the largest board's), cached by find_board.
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="hbvs-board") as pool:
-        pool.submit(find_board, images[0], first.pattern)
+        for_tracker = pool.submit(find_board, images[0], first.pattern)
         found = 1 + sum(board is not None for board in pool.map(lambda image: _checked_board(image, first.pattern), images[1:]))
+        # Waited for here, not in the pool's join: a stop signal that interrupts a join
+        # leaves the thread running unjoined, and the interpreter's exit then aborts it.
+        wait([for_tracker])
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern

@@ -10,11 +10,12 @@ and condition (35) along the path. Reads and writes streams: constant memory.
 from __future__ import annotations
 
 import math
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from itertools import chain, islice
 from pathlib import Path
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -219,11 +220,12 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
                 world = _teach_world(reader)
-                with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-pick") as pool:
-                    picking = pool.submit(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
-                    if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
-                        rest = _taken_while(frames, lambda: not picking.done(), READ_AHEAD_BYTES)
-                detector = TrackedDetector(picking.result(), camera, seed=options.seed)
+                pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
+                if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
+                    spec, rest = _picked_while_reading(pick, frames, READ_AHEAD_BYTES)
+                else:
+                    spec = pick()
+                detector = TrackedDetector(spec, camera, seed=options.seed)
                 template = data
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             for frame, data, image in chain(first, rest):
@@ -312,29 +314,51 @@ def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsi
 READ_AHEAD_BYTES = 128 << 20
 
 
-def _taken_while(frames: Iterator[Any], busy: Callable[[], bool], budget: int) -> Iterator[Any]:
-    """The frames taken from ``frames`` while ``busy()``, up to ``budget`` bytes of images,
-    then what is left of ``frames``. An error reading them is raised at its turn, after the
-    frames taken before it (and after the pick's own error, which ``busy`` waits for)."""
+def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any], budget: int
+                          ) -> tuple[DetectorSpec, Iterator[Any]]:
+    """``pick()``, while a second thread takes frames from ``frames`` (up to ``budget`` bytes
+    of images); then the frames taken and what is left of ``frames``, in order.
+
+    The pick runs here, in the main thread, where a stop signal interrupts it between two
+    OpenCV calls; the reading thread stops within a frame once the pick is over. An error
+    reading is raised at its turn, after the frames taken before it (and after the pick's).
+    """
     taken: list[Any] = []
-    size = 0
+    failures: list[Exception] = []
+    over, stopped = threading.Event(), threading.Event()
+
+    def take() -> None:
+        size = 0
+        try:
+            while not over.is_set() and size < budget:
+                item = next(frames, None)
+                if item is None:
+                    return
+                taken.append(item)
+                size += item[2].nbytes
+        except Exception as exc:  # kept for its turn
+            failures.append(exc)
+        finally:
+            stopped.set()
+
+    reading = threading.Thread(target=take, name="hbvs-read-ahead")
+    reading.start()
     try:
-        while busy() and size < budget:
-            item = next(frames, None)
-            if item is None:
-                break
-            taken.append(item)
-            size += item[2].nbytes
-    except Exception as exc:  # kept for its turn
-        failure = exc
-    else:
-        return chain(taken, frames)
+        spec = pick()
+    finally:
+        over.set()
+        # Waited for on an event, then joined: a stop signal interrupting a join would mark
+        # the thread finished while it still decodes, and the interpreter's exit abort it.
+        stopped.wait()
+        reading.join()
+    if not failures:
+        return spec, chain(taken, frames)
 
     def in_turn() -> Iterator[Any]:
         yield from taken
-        raise failure
+        raise failures[0]
 
-    return in_turn()
+    return spec, in_turn()
 
 
 def _read_known_layout(options: FitOptions) -> np.ndarray | None:

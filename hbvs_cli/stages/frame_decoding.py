@@ -9,7 +9,7 @@ the others use luminance, which a colour JPEG decodes faster.
 from __future__ import annotations
 
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -39,13 +39,19 @@ def decoded_frames(
     """
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
         pending: deque[_Queued] = deque()
-        for frame in frames:
-            keep_colour = colour()
-            pending.append(_Queued(frame, keep_colour, pool.submit(decode_frame, frame, name, keep_colour)))
-            if len(pending) > depth:
+        try:
+            for frame in frames:
+                keep_colour = colour()
+                pending.append(_Queued(frame, keep_colour, pool.submit(decode_frame, frame, name, keep_colour)))
+                if len(pending) > depth:
+                    yield _next_decoded(pending, name)
+            while pending:
                 yield _next_decoded(pending, name)
-        while pending:
-            yield _next_decoded(pending, name)
+        finally:
+            # Left early (an error, a closed consumer): the frames still decoding are waited
+            # for here, not in the pool's join, which a stop signal would cut short (the
+            # thread left running unjoined, and aborted by the interpreter's exit).
+            wait([queued.decoding for queued in pending])
 
 
 @dataclass
