@@ -333,4 +333,4 @@ def test_a_stop_signal_during_the_pick_stops_the_reading_thread_first():
 
     with pytest.raises(KeyboardInterrupt):
         _picked_while_reading(interrupted_pick, endless(), 1 << 40)
-    assert not any(thread.name == "hbvs-read-ahead" for thread in threading.enumerate())
+    assert not any(thread.name.startswith("hbvs-read-ahead") for thread in threading.enumerate())

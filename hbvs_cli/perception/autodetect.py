@@ -10,7 +10,6 @@ poster beats tiny markers printed in it.
 from __future__ import annotations
 
 from collections import Counter
-from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
@@ -19,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
+from ..thread_pool import StopSafePool
 from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, scan_markers
 from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
@@ -131,12 +131,9 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     # The other frames' searches are independent and OpenCV releases the GIL: two at a time.
     # The first frame is searched for the pattern too: the tracker starts from that search
     # (which can settle on other corners than the largest board's), cached by find_board.
-    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="hbvs-board") as pool:
-        for_tracker = pool.submit(find_board, images[0], first.pattern)
+    with StopSafePool(max_workers=2, thread_name_prefix="hbvs-board") as pool:
+        pool.submit(find_board, images[0], first.pattern)
         found = 1 + sum(board is not None for board in pool.map(lambda image: _checked_board(image, first.pattern), images[1:]))
-        # Waited for here, not in the pool's join: a stop signal that interrupts a join
-        # leaves the thread running unjoined, and the interpreter's exit then aborts it.
-        wait([for_tracker])
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern

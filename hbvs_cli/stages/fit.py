@@ -30,6 +30,7 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
+from ..thread_pool import StopSafePool
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
@@ -316,47 +317,31 @@ READ_AHEAD_BYTES = 128 << 20
 
 def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any], budget: int
                           ) -> tuple[DetectorSpec, Iterator[Any]]:
-    """``pick()``, while a second thread takes frames from ``frames`` (up to ``budget`` bytes
-    of images); then the frames taken and what is left of ``frames``, in order.
-
-    The pick runs here, in the main thread, where a stop signal interrupts it between two
-    OpenCV calls; the reading thread stops within a frame once the pick is over. An error
-    reading is raised at its turn, after the frames taken before it (and after the pick's).
-    """
+    """``pick()`` here, where a stop signal interrupts it, while a second thread takes frames
+    (up to ``budget`` bytes of images); then the frames taken and the rest, in order. An
+    error reading is raised at its turn, after the frames before it (and after the pick's)."""
     taken: list[Any] = []
-    failures: list[Exception] = []
-    over, stopped = threading.Event(), threading.Event()
+    over = threading.Event()
 
     def take() -> None:
         size = 0
-        try:
-            while not over.is_set() and size < budget:
-                item = next(frames, None)
-                if item is None:
-                    return
-                taken.append(item)
-                size += item[2].nbytes
-        except Exception as exc:  # kept for its turn
-            failures.append(exc)
-        finally:
-            stopped.set()
+        while not over.is_set() and size < budget and (item := next(frames, None)) is not None:
+            taken.append(item)
+            size += item[2].nbytes
 
-    reading = threading.Thread(target=take, name="hbvs-read-ahead")
-    reading.start()
-    try:
-        spec = pick()
-    finally:
-        over.set()
-        # Waited for on an event, then joined: a stop signal interrupting a join would mark
-        # the thread finished while it still decodes, and the interpreter's exit abort it.
-        stopped.wait()
-        reading.join()
-    if not failures:
+    with StopSafePool(max_workers=1, thread_name_prefix="hbvs-read-ahead") as pool:
+        reading = pool.submit(take)
+        try:
+            spec = pick()
+        finally:
+            over.set()
+    failure = reading.exception()
+    if failure is None:
         return spec, chain(taken, frames)
 
     def in_turn() -> Iterator[Any]:
         yield from taken
-        raise failures[0]
+        raise failure
 
     return spec, in_turn()
 

@@ -9,7 +9,7 @@ the others use luminance, which a colour JPEG decodes faster.
 from __future__ import annotations
 
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -19,6 +19,7 @@ from ..io.fit_file import FitFile
 from ..io.images import decode_image
 from ..io.teach_file import TeachFrame
 from ..sim.scene import knows_its_world
+from ..thread_pool import StopSafePool
 
 
 def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[bytes, np.ndarray]:
@@ -37,21 +38,15 @@ def decoded_frames(
     while it picks the target, then only for dots). A consumer that would wait for a frame
     still being decoded decodes the next queued one itself (:func:`_next_decoded`).
     """
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
+    with StopSafePool(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
         pending: deque[_Queued] = deque()
-        try:
-            for frame in frames:
-                keep_colour = colour()
-                pending.append(_Queued(frame, keep_colour, pool.submit(decode_frame, frame, name, keep_colour)))
-                if len(pending) > depth:
-                    yield _next_decoded(pending, name)
-            while pending:
+        for frame in frames:
+            keep_colour = colour()
+            pending.append(_Queued(frame, keep_colour, pool.submit(decode_frame, frame, name, keep_colour)))
+            if len(pending) > depth:
                 yield _next_decoded(pending, name)
-        finally:
-            # Left early (an error, a closed consumer): the frames still decoding are waited
-            # for here, not in the pool's join, which a stop signal would cut short (the
-            # thread left running unjoined, and aborted by the interpreter's exit).
-            wait([queued.decoding for queued in pending])
+        while pending:
+            yield _next_decoded(pending, name)
 
 
 @dataclass
