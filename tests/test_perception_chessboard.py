@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbvs_cli.perception.chessboard import ChessboardDetector, board_layout, find_board
+from hbvs_cli.perception.chessboard import ChessboardDetector, board_layout, find_board, find_board_near
 from hbvs_cli.perception.detector import make_detector
 
 import footage
@@ -74,3 +74,43 @@ def test_the_pick_leaves_the_first_frames_searched_for_the_tracker(frames, monke
     for image, pixels in zip(images[:2], expected):
         assert np.array_equal(tracker.detect(image).pixels, pixels)
     assert searched == []
+
+
+def test_a_board_is_found_near_a_nearby_frames_corners_as_in_the_whole_frame(frames):
+    """:func:`find_board_near` searches a window around another frame's corners: the same
+    corners as the whole frame's search (within 0.3 px here, and 0.29 px of the truth against
+    the whole frame's 0.16: the pick takes only whether the board is there), None once the
+    board has left the window, and the whole frame's search when the window is the frame."""
+    images, truth = frames
+    first = find_board(images[0])
+    whole, near = find_board(images[1], first.pattern), find_board_near(images[1], first.pattern, first.corners)
+    assert near is not None and near.pattern == first.pattern
+    assert np.abs(near.corners - whole.corners).max() < 0.3
+    assert np.linalg.norm(near.corners[:, None] - truth[1][None], axis=-1).min(axis=1).max() < 0.35
+    assert find_board_near(images[1], first.pattern, first.corners + (250.0, 0.0)) is None
+    spread = np.array([[0.0, 0.0], [639.0, 479.0]])  # a window of the whole frame
+    assert np.array_equal(find_board_near(images[1], first.pattern, spread).corners, whole.corners)
+
+
+def test_the_pick_searches_later_frames_near_the_first_board_then_whole(frames, monkeypatch):
+    """find_chessboard searches frames 0 and 1 whole (the tracker starts from those searches)
+    and the later ones in a window around frame 0's board; a frame whose board has left the
+    window is searched whole, so the verdict is the whole frames'."""
+    from hbvs_cli.perception import chessboard
+    from hbvs_cli.perception.autodetect import find_chessboard
+
+    images, _ = frames
+    shapes = []
+    search = chessboard._search
+    monkeypatch.setattr(chessboard, "_search", lambda gray, wanted: shapes.append(gray.shape) or search(gray, wanted))
+    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    slow = [images[0], images[1], images[1], images[1], images[1]]  # the board still near frame 0's
+    assert find_chessboard(slow) is not None
+    assert sorted(shape == images[0].shape[:2] for shape in shapes) == [False] * 3 + [True] * 3
+    shapes.clear()
+    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    moving = images[:5]  # 10 to 63 px from frame 0's board: frames 3 and 4 left its window
+    choice = find_chessboard(moving)
+    assert choice is not None and "5 of the first 5" in choice.reason
+    whole = sum(shape == images[0].shape[:2] for shape in shapes)
+    assert len(shapes) - whole >= 2 and whole >= 4

@@ -10,6 +10,7 @@ poster beats tiny markers printed in it.
 from __future__ import annotations
 
 from collections import Counter
+from functools import partial
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
@@ -22,7 +23,7 @@ from ..thread_pool import StopSafePool
 from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, scan_markers
 from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
-from .chessboard import Board, board_corners_cross, find_board
+from .chessboard import Board, board_corners_cross, find_board, find_board_near
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
 from .texture import TextureDetector
 
@@ -130,10 +131,12 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
         return None
     # The other frames' searches are independent and OpenCV releases the GIL: two at a time.
     # The first frame is searched for the pattern too: the tracker starts from that search
-    # (which can settle on other corners than the largest board's), cached by find_board.
+    # (which can settle on other corners than the largest board's), cached by find_board, as
+    # the second frame's. The later ones are searched near the first frame's board first.
     with StopSafePool(max_workers=2, thread_name_prefix="hbvs-board") as pool:
         pool.submit(find_board, images[0], first.pattern)
-        found = 1 + sum(board is not None for board in pool.map(lambda image: _checked_board(image, first.pattern), images[1:]))
+        near = [None] + [first.corners] * (len(images) - 2)
+        found = 1 + sum(board is not None for board in pool.map(partial(_checked_board, pattern=first.pattern), images[1:], near))
     if not _majority(found, len(images)):
         return None
     columns, rows = first.pattern
@@ -141,10 +144,13 @@ def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     return TargetChoice("chessboard", reason, {"board": [columns, rows]}).measured_by(first.corners)
 
 
-def _checked_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
-    """:func:`~.chessboard.find_board`, its corners checked to be crossings of two dark and
-    two light squares (``findChessboardCornersSB`` also "finds" small boards in a few dots)."""
-    board = find_board(image, pattern)
+def _checked_board(image: NDArray[np.uint8], near: NDArray[np.float64] | None = None, pattern: tuple[int, int] | None = None
+                   ) -> Board | None:
+    """:func:`~.chessboard.find_board` (first :func:`~.chessboard.find_board_near` the corners
+    ``near``, when given), its corners checked to be crossings of two dark and two light
+    squares (``findChessboardCornersSB`` also "finds" small boards in a few dots)."""
+    board = find_board_near(image, pattern, near) if near is not None and pattern is not None else None
+    board = board or find_board(image, pattern)
     return board if board is not None and board_corners_cross(as_gray(image), board.corners, board.pattern) else None
 
 

@@ -67,6 +67,25 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
     return None if found is None else Board(found.pattern, found.corners.copy())
 
 
+def find_board_near(image: NDArray[np.uint8], pattern: tuple[int, int], corners: NDArray[np.float64]) -> Board | None:
+    """The board of ``pattern`` searched for only in a window around ``corners`` (px, a
+    nearby frame's), grown by their extent and by :data:`NEAR_MARGIN_PX` at least on each
+    side, or None. A search's time goes with its image's area: a board a sixth of the frame
+    wide is found about 8 times sooner. A window of the whole frame is :func:`find_board`'s."""
+    gray = as_gray(image)
+    grow = max(float(np.ptp(corners, axis=0).max()), NEAR_MARGIN_PX)
+    x0, y0 = np.maximum(np.floor(corners.min(axis=0) - grow), 0).astype(int)
+    x1, y1 = np.ceil(corners.max(axis=0) + grow).astype(int) + 1
+    if x0 == 0 and y0 == 0 and x1 >= gray.shape[1] and y1 >= gray.shape[0]:
+        return find_board(gray, pattern)
+    found = _search(np.ascontiguousarray(gray[y0:y1, x0:x1]), pattern)
+    return None if found is None else Board(found.pattern, found.corners + (x0, y0))
+
+
+#: The least margin (px) of :func:`find_board_near`'s window.
+NEAR_MARGIN_PX = 32
+
+
 #: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
 _SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
 _SEARCHES_LOCK = threading.Lock()

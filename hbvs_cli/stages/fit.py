@@ -223,7 +223,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 world = _teach_world(reader)
                 pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
-                    spec, rest = _picked_while_reading(pick, frames, READ_AHEAD_BYTES)
+                    spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
                 else:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
@@ -346,6 +346,15 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
     return spec, in_turn()
 
 
+def _with_solvers_loaded(pick: Callable[[], DetectorSpec]) -> DetectorSpec:
+    """``pick()`` after importing the fit's solvers (scipy.optimize and .interpolate, 0.2 s):
+    while a second thread reads ahead, not after the frame loop, when nothing else runs."""
+    import scipy.interpolate  # noqa: F401
+    import scipy.optimize  # noqa: F401
+
+    return pick()
+
+
 def _read_known_layout(options: FitOptions) -> np.ndarray | None:
     """--target-points: the target points' positions on the wall (m), or None."""
     if options.target_points is None:
@@ -383,8 +392,9 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
 
-    scipy is imported here, by the main thread, never in a second thread during the frame
-    loop: a stop signal inside an import can leave its lock held and the threads deadlocked."""
+    scipy is imported by the main thread (here, or while reading ahead: :func:`_with_solvers_loaded`),
+    never by a second thread: a stop signal inside an import can leave its lock held and the
+    threads deadlocked."""
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
