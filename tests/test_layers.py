@@ -22,9 +22,10 @@ from conftest import REPO
 #: The layer of each part of ``hbvs_cli``: a module may import from a lower layer or from
 #: its own package, never from a higher layer or from another package of its layer.
 #: ``""`` is the package itself (``hbvs_cli/__init__.py``: the version), ``__main__``
-#: starts the command line; ``thread_pool`` is the thread pool perception and stages share.
+#: starts the command line; ``thread_pool`` is the thread pool perception and stages share;
+#: ``stop_signals`` the stop signals' exceptions the CLI raises and the stages' loops check.
 LAYERS: dict[str, int] = {
-    "": 0, "errors": 0, "thread_pool": 0,
+    "": 0, "errors": 0, "thread_pool": 0, "stop_signals": 0,
     "core": 1,
     "io": 2, "perception": 2, "sim": 2,
     "report": 3, "sweep": 3,

@@ -24,6 +24,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -209,10 +210,11 @@ def test_a_second_signal_during_cleanup_is_ignored(inputs, tmp_path):
 def test_a_signal_wrapped_by_native_code_is_reported_as_the_stop(monkeypatch, capsys, signum):
     """A SIGTERM that lands in a C extension's initialisation comes back as ImportError
     ("initialization failed"); it is still the stop, not an internal error (exit 70)."""
+    from hbvs_cli import stop_signals
     from hbvs_cli.cli import app as cli_app
 
     def wrapped_by_native_code(*args, **kwargs):
-        monkeypatch.setattr(cli_app, "_received", signum)
+        monkeypatch.setattr(stop_signals, "received", signum)
         raise ImportError("initialization failed")
 
     monkeypatch.setattr(cli_app, "app", wrapped_by_native_code)
@@ -223,3 +225,68 @@ def test_a_signal_wrapped_by_native_code_is_reported_as_the_stop(monkeypatch, ca
     code, line = SIGNAL_CODES[signum]
     assert stop.value.code == code
     assert capsys.readouterr().err.strip().splitlines() == [line]
+
+
+#: Runs hbvs with a stop signal swallowed at the 20th progress step, as a native extension
+#: that clears Python's errors swallows the handler's exception (the handler has already set
+#: the signals to be ignored, so no second signal would come); says on stderr if a later step ran.
+SWALLOWING_RUN = """
+import os, signal, sys, time
+from hbvs_cli.stages import console
+advance, steps = console.ProgressTask.advance, [0]
+def swallowing_advance(self, *args, **kwargs):
+    steps[0] += 1
+    if steps[0] == 20:
+        try:
+            os.kill(os.getpid(), {signum})
+            time.sleep(1.0)  # the handler runs here and raises
+        except BaseException:
+            pass
+    if steps[0] > 21:
+        sys.stderr.write("a step after the stop\\n")
+    return advance(self, *args, **kwargs)
+console.ProgressTask.advance = swallowing_advance
+from hbvs_cli.cli.app import main
+main(sys.argv[1:])
+"""
+
+
+@pytest.mark.parametrize("signum", list(SIGNAL_CODES))
+@pytest.mark.parametrize("command", ["teach", "fit", "repeat"])
+def test_a_stop_signal_swallowed_by_native_code_stops_the_loop_at_its_next_step(inputs, tmp_path, command, signum):
+    """The loops of teach, fit and repeat check for a stop signal once a step: one whose
+    exception native code swallowed still stops the command at the next step, with its exit
+    code and line and no output (it used to run on to the end and exit 0)."""
+    output = tmp_path / "out.mcap"
+    args = {"teach": ["teach", "--duration", "6"], "fit": ["fit", str(inputs["teach"])],
+            "repeat": ["repeat", str(inputs["fit"]), "--sim"]}[command]
+    process = subprocess.run([sys.executable, "-c", SWALLOWING_RUN.format(signum=int(signum)), *args, "-q", "-o", str(output)],
+                             capture_output=True, text=True, timeout=120, env=dict(os.environ, MPLBACKEND="Agg"))
+    code, line = SIGNAL_CODES[signum]
+    assert process.returncode == code and stop_lines(process.stderr) == [line], process.stderr
+    assert "a step after the stop" not in process.stderr
+    assert not output.exists() and not list(tmp_path.glob("*.partial"))
+
+
+@pytest.mark.parametrize("step", ["wait_for_start", "drive"])
+def test_the_live_loop_checks_for_a_stop_signal_before_each_frame(monkeypatch, step):
+    """``repeat --live``'s loops raise a received stop signal before taking a frame, so one
+    whose exception native code swallowed still stops the robot (its zeros are sent on the
+    way out, ``tests/test_live_loop.py``)."""
+    from hbvs_cli import stop_signals
+    from hbvs_cli.stages.live import LiveLoop
+
+    class Source:
+        taken = 0
+
+        def latest(self, timeout):
+            Source.taken += 1
+            raise AssertionError("a frame was taken after the stop")
+
+    monkeypatch.setattr(stop_signals, "received", signal.SIGTERM)
+    trajectory = SimpleNamespace(t_start=0.0, t_end=10.0, evaluate=lambda t: None)
+    loop = LiveLoop(Source(), None, None, None, trajectory, None, None, None, None, None,
+                    SimpleNamespace(stale_timeout=0.5), SimpleNamespace(rate=30.0, lost_timeout=1.0))
+    with pytest.raises(stop_signals.Terminated):
+        getattr(loop, step)()
+    assert Source.taken == 0

@@ -17,7 +17,7 @@ from typing import Annotated, Any, List, Optional
 
 import typer
 
-from .. import __version__
+from .. import __version__, stop_signals
 from ..errors import HbvsError, InputError, OutputError
 from ..io.limits import set_limits
 from ..io.native_log import capture
@@ -136,29 +136,15 @@ def demo(
         raise typer.Exit(code)
 
 
-class _Terminated(BaseException):
-    """Raised from the SIGTERM handler so that cleanup (partial files) runs."""
-
-
-class _Interrupted(KeyboardInterrupt):
-    """Raised from the SIGINT handler (CPython ends the process when exactly KeyboardInterrupt
-    escapes some of its C entry points, even if handled later)."""
-
-
 _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
-_received: int | None = None
 #: True when a stop signal's exception was raised inside a finaliser and dropped there.
 _swallowed = False
 
 
 def _on_signal(signum: int, frame: object) -> None:
     """Stop the command by raising, so that partial files are removed; later signals are ignored."""
-    global _received
     _set_stop_handlers(signal.SIG_IGN)
-    _received = signum
-    if signum == signal.SIGINT:
-        raise _Interrupted
-    raise _Terminated
+    stop_signals.stop(signum)
 
 
 def _set_stop_handlers(handler: Any) -> None:
@@ -170,7 +156,7 @@ def _set_stop_handlers(handler: Any) -> None:
 def _on_unraisable(unraisable: Any) -> None:
     """Keep quiet about a stop signal dropped inside a finaliser (:func:`main` reports it)."""
     global _swallowed
-    if isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
+    if isinstance(unraisable.exc_value, (KeyboardInterrupt, stop_signals.Terminated)):
         _swallowed = True
         return
     sys.__unraisablehook__(unraisable)
@@ -179,14 +165,6 @@ def _on_unraisable(unraisable: Any) -> None:
 def _install_signal_handlers() -> None:
     sys.unraisablehook = _on_unraisable
     _set_stop_handlers(_on_signal)
-
-
-def _raise_if_stopping() -> None:
-    """Re-raise a stop signal that native code turned into another exception."""
-    if _received == signal.SIGINT:
-        raise _Interrupted
-    if _received is not None:
-        raise _Terminated
 
 
 def _stopped(signum: int) -> int:
@@ -260,7 +238,7 @@ def _run(args: list[str], debug: bool) -> int:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except HbvsError as exc:
-        _raise_if_stopping()
+        stop_signals.raise_if_stopped()
         if debug:
             traceback.print_exc()
         if exc.exit_code == 141:
@@ -294,7 +272,7 @@ def _run(args: list[str], debug: bool) -> int:
         _say("hbvs: error: out of memory (a limit is set too high for this machine? see hbvs --limit)")
         return 7
     except OSError as exc:
-        _raise_if_stopping()
+        stop_signals.raise_if_stopped()
         if debug:
             traceback.print_exc()
         if exc.errno == errno.EPIPE:
@@ -306,7 +284,7 @@ def _run(args: list[str], debug: bool) -> int:
         _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
         return 70
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
-        _raise_if_stopping()
+        stop_signals.raise_if_stopped()
         if debug:
             traceback.print_exc()
             return 70
@@ -382,12 +360,13 @@ def main(argv: list[str] | None = None) -> None:
             _set_stop_handlers(signal.SIG_IGN)
     except KeyboardInterrupt:
         code = _stopped(signal.SIGINT)
-    except _Terminated:
+    except stop_signals.Terminated:
         code = _stopped(signal.SIGTERM)
     else:
         # typer turns a KeyboardInterrupt into exit code 130 without a word.
-        if _received is not None and (_swallowed or (_received == signal.SIGINT and code == 130)):
-            code = _stopped(_received)
+        received = stop_signals.received
+        if received is not None and (_swallowed or (received == signal.SIGINT and code == 130)):
+            code = _stopped(received)
     try:
         sys.stdout.flush()
     except BrokenPipeError:

@@ -30,6 +30,7 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
+from ..stop_signals import raise_if_stopped
 from ..thread_pool import StopSafePool
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
@@ -247,6 +248,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                     annotations_message(frame.log_time_ns, pixels),
                 )
                 bar.advance()
+                raise_if_stopped()
         if log is None or log.count == 0:
             cut = " (it ends before its end record: a crashed recorder?)" if reader.truncated else ""
             raise RecordingError(f"{reader.name}: no complete image in the recording{cut}")

@@ -21,6 +21,7 @@ from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..io.settings import RepeatOptions
+from ..stop_signals import raise_if_stopped
 from .options import stamped_commands
 
 #: Consecutive frames with the target near its taught start view before the first non-zero command.
@@ -163,6 +164,7 @@ class LiveLoop:
         near = far = 0
         waited_since = seen_at = time.monotonic()
         while near < START_FRAMES:
+            raise_if_stopped()
             frame = self.source.latest(self.options.stale_timeout)
             if frame is None:
                 if time.monotonic() - waited_since > lost_timeout:
@@ -203,6 +205,7 @@ class LiveLoop:
         last_arrival = time.monotonic()
         lost_for = 0.0
         while True:
+            raise_if_stopped()
             frame = self._next_frame(last_arrival)
             if frame is None:
                 return  # the camera is gone (self.stopped says so)

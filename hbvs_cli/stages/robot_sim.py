@@ -27,6 +27,7 @@ from .console import Console
 from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset, stamped_commands
 from ..io.settings import RobotSimOptions
+from ..stop_signals import raise_if_stopped
 
 
 class _Ros2Robot:
@@ -172,6 +173,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
             start = last = time.monotonic()
             try:
                 while options.duration is None or last - start < options.duration:
+                    raise_if_stopped()
                     next_frame = start + frames * period
                     # Until the next frame is due: apply each command from the moment it arrives.
                     while True:
