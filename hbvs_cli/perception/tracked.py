@@ -115,18 +115,11 @@ class TrackedDetector:
             self.template_image = image
         self.spec = spec
         self._detector = make_detector(
-            spec.kind,
-            n_points=int(spec.n_points or 4),
+            spec.kind, n_points=int(spec.n_points or 4),
             reference_image=self._undistorted(self.template_image) if spec.kind == "texture" else None,
             reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
-            marker_id=spec.marker_id,
-            seed=self.seed,
-            marker_dict=spec.marker_dict,
-            marker_ids=spec.marker_ids,
-            polarity=spec.polarity,
-            contrast=spec.contrast,
-            windowed=self.windowed,
-            board=spec.board,
+            marker_id=spec.marker_id, seed=self.seed, marker_dict=spec.marker_dict, marker_ids=spec.marker_ids,
+            polarity=spec.polarity, contrast=spec.contrast, windowed=self.windowed, board=spec.board,
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
@@ -158,10 +159,9 @@ def _one_thread_each() -> Iterator[None]:
 
 
 def _reuse_freed_frames() -> None:
-    """glibc's malloc keeps the frame loop's freed frame-sized arrays for reuse (mallopt(3)):
-    with the decoding thread it handed them back to the kernel, and each frame's arrays were
-    page-faulted in anew (fit's page faults 58 000 -> 32 000, its time 3 % less). Both limits
-    are needed (either alone faults ten times more); without glibc nothing is done."""
+    """glibc's malloc keeps the frame loop's freed frame-sized arrays for reuse (mallopt(3)),
+    instead of handing them back and page-faulting them in anew each frame. Both limits are
+    needed; without glibc nothing is done."""
     import ctypes
 
     try:
@@ -203,7 +203,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
     with open_output(options.output) as writer:
-        writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
+        writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
             # Colour while the target is not known (the dots of --target auto may differ from
             # their wall in hue alone), then only for dots seen in colour: everything else
@@ -221,7 +221,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
-                world = _teach_world(reader)
+                # The simulated world of a teach recording, checked (None for real footage).
+                world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
                     spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
@@ -264,25 +265,14 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
         depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
-            target_kind=detector.spec.kind,
-            camera=camera,
-            reference_index=reference_index,
-            reference_t=float(arrays["t"][reference_index]),
-            reference_pixels=result.reference_pixels,
-            m_ref=result.m_ref,
-            normal=result.normal,
-            normal_margin=result.normal_margin,
-            trajectory=result.trajectory,
-            dhat0=depth["dhat0"],
-            dhat0_source=depth["source"],
-            depth=depth["estimates"],
+            target_kind=detector.spec.kind, camera=camera,
+            reference_index=reference_index, reference_t=float(arrays["t"][reference_index]), reference_pixels=result.reference_pixels,
+            m_ref=result.m_ref, normal=result.normal, normal_margin=result.normal_margin, trajectory=result.trajectory,
+            dhat0=depth["dhat0"], dhat0_source=depth["source"], depth=depth["estimates"],
             frames=result.frames.as_dict() | {"truncated_input": reader.truncated},
-            condition35=result.condition35,
-            residual_px=result.residual_px.as_dict(),
+            condition35=result.condition35, residual_px=result.residual_px.as_dict(),
             detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
-            world_description=reader.world_description,
-            taught_path=taught_path,
-            render=_render_settings(reader),
+            world_description=reader.world_description, taught_path=taught_path, render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
             uncertainty=result.uncertainty.as_dict() if result.uncertainty is not None else None,
         )
@@ -313,7 +303,6 @@ def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsi
 
 #: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
 #: meanwhile, on the core the pick leaves idle (a board's search of the first frame is serial).
-#: About 430 gray 640x480 frames; a board's pick took as long as some 330.
 READ_AHEAD_BYTES = 128 << 20
 
 
@@ -446,19 +435,6 @@ def _render_settings(reader: Any) -> dict[str, Any] | None:
     if reader.world_description is None or not isinstance(settings, dict):
         return None
     return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
-
-
-def _teach_world(reader: Any) -> World | None:
-    """The simulated world of a teach recording, checked (None for real footage)."""
-    if reader.world_description is None:
-        return None
-    return world_from_description(reader.world_description, reader.name)
-
-
-def _version() -> str:
-    from .. import __version__
-
-    return __version__
 
 
 def _format_of(data: bytes) -> str:
