@@ -133,11 +133,8 @@ class KnownNormalSolver:
         residual = np.sqrt(cost / (2 * m_ref.shape[0]))
         x_h = np.stack([x1, x2], axis=-1)
         return PlanarMotion(
-            theta=np.where(valid, theta, np.nan),
-            x_h=np.where(valid[..., None], x_h, np.nan),
-            normal=np.broadcast_to(self.normal, m.shape[:-2] + (3,)),
-            valid=valid,
-            residual=np.where(valid, residual, np.nan),
+            theta=np.where(valid, theta, np.nan), x_h=np.where(valid[..., None], x_h, np.nan),
+            normal=np.broadcast_to(self.normal, m.shape[:-2] + (3,)), valid=valid, residual=np.where(valid, residual, np.nan),
         )
 
     def reprojection_residuals(self, motion: PlanarMotion, m: ArrayLike) -> NDArray[np.float64]:

@@ -43,12 +43,8 @@ def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
     if x.size == 0:
         return dict.fromkeys(("rmse", "mean", "median", "std", "min", "max"))
     return {
-        "rmse": _optional(np.sqrt(np.mean(np.square(x)))),
-        "mean": _optional(np.mean(x)),
-        "median": _optional(np.median(x)),
-        "std": _optional(np.std(x)),
-        "min": _optional(np.min(x)),
-        "max": _optional(np.max(x)),
+        "rmse": _optional(np.sqrt(np.mean(np.square(x)))), "mean": _optional(np.mean(x)), "median": _optional(np.median(x)),
+        "std": _optional(np.std(x)), "min": _optional(np.min(x)), "max": _optional(np.max(x)),
     }
 
 

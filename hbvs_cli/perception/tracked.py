@@ -45,12 +45,9 @@ class DetectorSpec:
         colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
         colour |= {"board": [int(n) for n in self.board]} if self.board is not None else {}
         return {
-            "kind": self.kind,
-            "n_points": self.n_points,
-            "marker_id": self.marker_id,
+            "kind": self.kind, "n_points": self.n_points, "marker_id": self.marker_id,
             "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
-            "marker_dict": self.marker_dict,
-            "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
+            "marker_dict": self.marker_dict, "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
             "polarity": self.polarity,
         } | colour
 

@@ -123,10 +123,8 @@ class World:
             return False
         px = self.pixels(pose)
         return bool(
-            np.all(px[:, 0] >= margin_px)
-            and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
-            and np.all(px[:, 1] >= margin_px)
-            and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
+            np.all(px[:, 0] >= margin_px) and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
+            and np.all(px[:, 1] >= margin_px) and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
         )
 
     def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
