@@ -205,9 +205,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            # Colour while the target is not known (--target auto's dots may differ from their wall
-            # in hue alone), then only for dots seen in colour: luminance decodes faster. Once the
-            # first frames came out gray, no detector will want colour.
+            # Colour until the target is known, then only for dots seen in colour (:mod:`.frame_decoding`
+            # says why); once the first frames came out gray, no detector will want colour.
             gray_source = False
             frames = decoded_frames(
                 reader.frames(), reader.name,
