@@ -33,7 +33,8 @@ from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob
 from .signature import with_settings
 
 app = typer.Typer(
-    cls=HbvsGroup, name="hbvs",
+    cls=HbvsGroup,
+    name="hbvs",
     help=(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
@@ -42,7 +43,10 @@ app = typer.Typer(
         f"Default gains: {shipped_name('samples/gains.toml')}. "
         f"These docs/ and samples/ files are installed in {shipped_root()}."
     ),
-    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 

@@ -392,9 +392,15 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
         bias = column if bias is None else np.concatenate([bias, column], axis=2)
     return JointCovariance(
-        shared=variance * shared_inverse, own=variance * inverse_own, sensitivity=-(inverse_own @ coupling),
-        noise=float(noise), inflation=float(inflation), bias_shared=bias_shared, bias=bias,
-        readout=fitted_readout, readout_sigma=readout_sigma,
+        shared=variance * shared_inverse,
+        own=variance * inverse_own,
+        sensitivity=-(inverse_own @ coupling),
+        noise=float(noise),
+        inflation=float(inflation),
+        bias_shared=bias_shared,
+        bias=bias,
+        readout=fitted_readout,
+        readout_sigma=readout_sigma,
     )
 
 

@@ -317,13 +317,24 @@ def fit_desired_trajectory(
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
     return DesiredFit(
-        m_ref=m_ref, reference_pixels=normalized_to_pixels(camera, m_ref),
+        m_ref=m_ref,
+        reference_pixels=normalized_to_pixels(camera, m_ref),
         initial_pixels=_initial_pixels(pixels, m, int(np.flatnonzero(used)[0]), camera),
-        normal=normal, normal_margin=margin, trajectory=trajectory, used=used,
-        theta=motion.theta, x_h=motion.x_h, residual=residual, frames=frames, condition=condition,
-        residual_px=PixelResidual(rms=float(np.sqrt(np.nanmean(residual[used] ** 2)) * focal),
-                                  max=float(np.nanmax(residual[used]) * focal)),
-        span=span, uncertainty=uncertainty,
+        normal=normal,
+        normal_margin=margin,
+        trajectory=trajectory,
+        used=used,
+        theta=motion.theta,
+        x_h=motion.x_h,
+        residual=residual,
+        frames=frames,
+        condition=condition,
+        residual_px=PixelResidual(
+            rms=float(np.sqrt(np.nanmean(residual[used] ** 2)) * focal),
+            max=float(np.nanmax(residual[used]) * focal),
+        ),
+        span=span,
+        uncertainty=uncertainty,
     )
 
 
@@ -465,8 +476,12 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
         variance = np.sum(at[:, : inherited.shape[1]] ** 2, axis=1) + np.mean(at[:, inherited.shape[1]:] ** 2, axis=1)
         smoothed.append(np.sqrt(variance))
     return FitUncertainty(
-        normal_sigma_deg=float(np.degrees(covariance.normal_sigma)), point_noise_px=float(covariance.noise * focal),
-        theta_sigma=theta_sigma, x_h1_sigma=x_h1_sigma, smooth_theta_sigma=smoothed[0], smooth_x_h1_sigma=smoothed[1],
+        normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
+        point_noise_px=float(covariance.noise * focal),
+        theta_sigma=theta_sigma,
+        x_h1_sigma=x_h1_sigma,
+        smooth_theta_sigma=smoothed[0],
+        smooth_x_h1_sigma=smoothed[1],
     )
 
 
@@ -518,7 +533,14 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
             reason="gap", start=a, end=b, longest=longest, max_gap=max_gap,
         )
     return FrameStats(
-        total=total, used=n_used, lost=total - n_used, outliers=outliers, lost_fraction=lost_fraction,
-        gaps=gaps, longest_gap_s=longest, frame_interval_s=frame_interval(t),
-        trimmed_start=int(indices[0]), trimmed_end=int(total - 1 - indices[-1]),
+        total=total,
+        used=n_used,
+        lost=total - n_used,
+        outliers=outliers,
+        lost_fraction=lost_fraction,
+        gaps=gaps,
+        longest_gap_s=longest,
+        frame_interval_s=frame_interval(t),
+        trimmed_start=int(indices[0]),
+        trimmed_end=int(total - 1 - indices[-1]),
     )

@@ -98,8 +98,10 @@ class KnownNormalSolver:
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
             return PlanarMotion(
-                theta=np.concatenate([p.theta for p in parts]), x_h=np.concatenate([p.x_h for p in parts]),
-                normal=np.broadcast_to(self.normal, (m.shape[0], 3)), valid=np.concatenate([p.valid for p in parts]),
+                theta=np.concatenate([p.theta for p in parts]),
+                x_h=np.concatenate([p.x_h for p in parts]),
+                normal=np.broadcast_to(self.normal, (m.shape[0], 3)),
+                valid=np.concatenate([p.valid for p in parts]),
                 residual=np.concatenate([p.residual for p in parts]),
             )
         return self._solve_block(m)
@@ -131,8 +133,11 @@ class KnownNormalSolver:
         residual = np.sqrt(cost / (2 * m_ref.shape[0]))
         x_h = np.stack([x1, x2], axis=-1)
         return PlanarMotion(
-            theta=np.where(valid, theta, np.nan), x_h=np.where(valid[..., None], x_h, np.nan),
-            normal=np.broadcast_to(self.normal, m.shape[:-2] + (3,)), valid=valid, residual=np.where(valid, residual, np.nan),
+            theta=np.where(valid, theta, np.nan),
+            x_h=np.where(valid[..., None], x_h, np.nan),
+            normal=np.broadcast_to(self.normal, m.shape[:-2] + (3,)),
+            valid=valid,
+            residual=np.where(valid, residual, np.nan),
         )
 
     def reprojection_residuals(self, motion: PlanarMotion, m: ArrayLike) -> NDArray[np.float64]:
@@ -179,8 +184,12 @@ class KnownNormalSolver:
             new_theta, new_x1, new_x2 = theta - d1, x1 - d2, x2 - d3
             new_cost = self._cost(new_theta, new_x1, new_x2, m_y, m_z)
         better = np.isfinite(new_cost) & (new_cost < cost)
-        return (np.where(better, new_theta, theta), np.where(better, new_x1, x1), np.where(better, new_x2, x2),
-                np.where(better, new_cost, cost))
+        return (
+            np.where(better, new_theta, theta),
+            np.where(better, new_x1, x1),
+            np.where(better, new_x2, x2),
+            np.where(better, new_cost, cost),
+        )
 
     def solve_one(self, m_y: Sequence[float], m_z: Sequence[float]) -> tuple[float, float, float, float] | None:
         """:meth:`solve` of one frame's ``m_y``, ``m_z`` (N each) in plain floats, the closed

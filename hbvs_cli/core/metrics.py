@@ -43,8 +43,12 @@ def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
     if x.size == 0:
         return dict.fromkeys(("rmse", "mean", "median", "std", "min", "max"))
     return {
-        "rmse": _optional(np.sqrt(np.mean(np.square(x)))), "mean": _optional(np.mean(x)), "median": _optional(np.median(x)),
-        "std": _optional(np.std(x)), "min": _optional(np.min(x)), "max": _optional(np.max(x)),
+        "rmse": _optional(np.sqrt(np.mean(np.square(x)))),
+        "mean": _optional(np.mean(x)),
+        "median": _optional(np.median(x)),
+        "std": _optional(np.std(x)),
+        "min": _optional(np.min(x)),
+        "max": _optional(np.max(x)),
     }
 
 
@@ -104,7 +108,9 @@ def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dic
     both = np.isfinite(V[:-1]) & np.isfinite(V[1:])
     rises = np.diff(V)[both] > relative * initial
     return {
-        "initial": _optional(initial), "final": _optional(final), "ratio": _optional(final / initial) if initial > 0 else None,
+        "initial": _optional(initial),
+        "final": _optional(final),
+        "ratio": _optional(final / initial) if initial > 0 else None,
         "increase_fraction": _optional(np.mean(rises)) if rises.size else None,
     }
 
@@ -199,7 +205,8 @@ def command_smoothness(t: ArrayLike, v: ArrayLike, w: ArrayLike, max_v: float | 
         step = max_accel * np.where(positive, dt, np.inf)
         at_limit[1:] |= (np.abs(dv) >= step * (1.0 - 1e-3)) | (np.abs(dw) >= step * (1.0 - 1e-3))
     return {
-        "v_tv_per_s": float(np.sum(np.abs(dv)) / duration), "w_tv_per_s": float(np.sum(np.abs(dw)) / duration),
+        "v_tv_per_s": float(np.sum(np.abs(dv)) / duration),
+        "w_tv_per_s": float(np.sum(np.abs(dw)) / duration),
         "dv_dt_rms_mps2": float(np.sqrt(np.mean(np.square(dv[positive] / dt[positive])))) if positive.any() else None,
         "dw_dt_rms_radps2": float(np.sqrt(np.mean(np.square(dw[positive] / dt[positive])))) if positive.any() else None,
         "at_limit_fraction": float(np.mean(at_limit)),

@@ -125,18 +125,30 @@ def _unpack(text: Any, what: str) -> np.ndarray:
 def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
     """The ``hbvs.FitModel`` message of a model, stamped ``log_time_ns``."""
     return {
-        "format_version": FORMAT_VERSION, "timestamp": time_message(log_time_ns), "hbvs_version": __version__,
-        "target_kind": model.target_kind, "camera": camera_description(model.camera),
+        "format_version": FORMAT_VERSION,
+        "timestamp": time_message(log_time_ns),
+        "hbvs_version": __version__,
+        "target_kind": model.target_kind,
+        "camera": camera_description(model.camera),
         "reference": {
             "index": model.reference_index, "t": model.reference_t, "pixels": model.reference_pixels.tolist(),
             "m_ref": model.m_ref.tolist(),
         },
-        "normal": model.normal.tolist(), "normal_margin": model.normal_margin, "trajectory": model.trajectory.to_dict(),
-        "dhat0": model.dhat0, "dhat0_source": model.dhat0_source, "depth": model.depth,
-        "frames": model.frames, "condition35": model.condition35, "residual_px": model.residual_px, "detector": model.detector,
+        "normal": model.normal.tolist(),
+        "normal_margin": model.normal_margin,
+        "trajectory": model.trajectory.to_dict(),
+        "dhat0": model.dhat0,
+        "dhat0_source": model.dhat0_source,
+        "depth": model.depth,
+        "frames": model.frames,
+        "condition35": model.condition35,
+        "residual_px": model.residual_px,
+        "detector": model.detector,
         "world": model.world_description,
         "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
-        "render": model.render, "gains": model.gains, "uncertainty": model.uncertainty,
+        "render": model.render,
+        "gains": model.gains,
+        "uncertainty": model.uncertainty,
     }
 
 

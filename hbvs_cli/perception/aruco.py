@@ -29,9 +29,12 @@ MARKER_FAMILIES: dict[str, tuple[str, ...]] = {
     "5x5": ("DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000"),
     "6x6": ("DICT_6X6_50", "DICT_6X6_100", "DICT_6X6_250", "DICT_6X6_1000"),
     "7x7": ("DICT_7X7_50", "DICT_7X7_100", "DICT_7X7_250", "DICT_7X7_1000"),
-    "original": ("DICT_ARUCO_ORIGINAL",), "mip_36h12": ("DICT_ARUCO_MIP_36h12",),
-    "apriltag_36h11": ("DICT_APRILTAG_36h11",), "apriltag_36h10": ("DICT_APRILTAG_36h10",),
-    "apriltag_25h9": ("DICT_APRILTAG_25h9",), "apriltag_16h5": ("DICT_APRILTAG_16h5",),
+    "original": ("DICT_ARUCO_ORIGINAL",),
+    "mip_36h12": ("DICT_ARUCO_MIP_36h12",),
+    "apriltag_36h11": ("DICT_APRILTAG_36h11",),
+    "apriltag_36h10": ("DICT_APRILTAG_36h10",),
+    "apriltag_25h9": ("DICT_APRILTAG_25h9",),
+    "apriltag_16h5": ("DICT_APRILTAG_16h5",),
 }
 #: Every dictionary name hbvs accepts (``--marker-dict``), in scanning order.
 MARKER_DICTIONARIES: tuple[str, ...] = tuple(name for family in MARKER_FAMILIES.values() for name in family)

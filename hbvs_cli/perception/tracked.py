@@ -45,9 +45,12 @@ class DetectorSpec:
         colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
         colour |= {"board": [int(n) for n in self.board]} if self.board is not None else {}
         return {
-            "kind": self.kind, "n_points": self.n_points, "marker_id": self.marker_id,
+            "kind": self.kind,
+            "n_points": self.n_points,
+            "marker_id": self.marker_id,
             "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
-            "marker_dict": self.marker_dict, "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
+            "marker_dict": self.marker_dict,
+            "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
             "polarity": self.polarity,
         } | colour
 
@@ -112,11 +115,18 @@ class TrackedDetector:
             self.template_image = image
         self.spec = spec
         self._detector = make_detector(
-            spec.kind, n_points=int(spec.n_points or 4),
+            spec.kind,
+            n_points=int(spec.n_points or 4),
             reference_image=self._undistorted(self.template_image) if spec.kind == "texture" else None,
             reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
-            marker_id=spec.marker_id, seed=self.seed, marker_dict=spec.marker_dict, marker_ids=spec.marker_ids,
-            polarity=spec.polarity, contrast=spec.contrast, windowed=self.windowed, board=spec.board,
+            marker_id=spec.marker_id,
+            seed=self.seed,
+            marker_dict=spec.marker_dict,
+            marker_ids=spec.marker_ids,
+            polarity=spec.polarity,
+            contrast=spec.contrast,
+            windowed=self.windowed,
+            board=spec.board,
         )
 
     def detect(self, image: np.ndarray) -> np.ndarray:

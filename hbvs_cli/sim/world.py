@@ -123,8 +123,10 @@ class World:
             return False
         px = self.pixels(pose)
         return bool(
-            np.all(px[:, 0] >= margin_px) and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
-            and np.all(px[:, 1] >= margin_px) and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
+            np.all(px[:, 0] >= margin_px)
+            and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
+            and np.all(px[:, 1] >= margin_px)
+            and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
         )
 
     def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
@@ -158,14 +160,22 @@ class World:
         """A JSON-ready description (the ``world`` record of a teach file)."""
         target = self.target
         return {
-            "camera": camera_description(self.camera), "camera_height_m": self.camera_height,
+            "camera": camera_description(self.camera),
+            "camera_height_m": self.camera_height,
             "target": {
-                "kind": target.kind, "points_poster_m": target.points_poster.tolist(), "points_world_m": target.points_world.tolist(),
-                "dot_radius_m": target.dot_radius, "marker_id": target.marker_id, "aruco_dictionary": ARUCO_DICTIONARY,
+                "kind": target.kind,
+                "points_poster_m": target.points_poster.tolist(),
+                "points_world_m": target.points_world.tolist(),
+                "dot_radius_m": target.dot_radius,
+                "marker_id": target.marker_id,
+                "aruco_dictionary": ARUCO_DICTIONARY,
                 "texture": target.texture,
                 "poster": {
-                    "center_m": target.poster.center.tolist(), "width_m": target.poster.width, "height_m": target.poster.height,
-                    "right": target.poster.right.tolist(), "down": target.poster.down.tolist(),
+                    "center_m": target.poster.center.tolist(),
+                    "width_m": target.poster.width,
+                    "height_m": target.poster.height,
+                    "right": target.poster.right.tolist(),
+                    "down": target.poster.down.tolist(),
                 },
             },
         }
@@ -177,16 +187,27 @@ class World:
             camera = camera_from_description(data["camera"])
             t = data["target"]
             p = t["poster"]
-            poster = Poster(center=_vector(p["center_m"], 3), width=float(p["width_m"]), height=float(p["height_m"]),
-                            right=_vector(p["right"], 3), down=_vector(p["down"], 3))
+            poster = Poster(
+                center=_vector(p["center_m"], 3),
+                width=float(p["width_m"]),
+                height=float(p["height_m"]),
+                right=_vector(p["right"], 3),
+                down=_vector(p["down"], 3),
+            )
             points = np.asarray(t["points_poster_m"], dtype=float)
             if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 3 or not np.all(np.isfinite(points)):
                 raise ValueError("points_poster_m must be a list of at least 3 finite (a, b) pairs")
             kind = str(t["kind"])
             if kind not in TARGET_KINDS:
                 raise ValueError(f"unknown target kind {kind!r}")
-            target = Target(kind=kind, points_poster=points, poster=poster, dot_radius=float(t.get("dot_radius_m", 0.0)),
-                            marker_id=int(t.get("marker_id", 0)), texture=str(t.get("texture", "builtin")))
+            target = Target(
+                kind=kind,
+                points_poster=points,
+                poster=poster,
+                dot_radius=float(t.get("dot_radius_m", 0.0)),
+                marker_id=int(t.get("marker_id", 0)),
+                texture=str(t.get("texture", "builtin")),
+            )
             return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
         except (KeyError, TypeError, ValueError) as exc:
             raise MalformedDataError(f"malformed world description: {exc}") from None

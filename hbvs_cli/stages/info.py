@@ -45,8 +45,12 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
     if document["hbvs_version"]:
         kind += f" (hbvs {document['hbvs_version']})"
     rows = [
-        ("file", document["file"]), ("kind", kind), ("complete", "yes" if document["complete"] else f"no: {document['stop_reason']}"),
-        ("duration", f"{document['duration_s']:.3f} s"), ("start", _stamp(document["start_ns"])), ("end", _stamp(document["end_ns"])),
+        ("file", document["file"]),
+        ("kind", kind),
+        ("complete", "yes" if document["complete"] else f"no: {document['stop_reason']}"),
+        ("duration", f"{document['duration_s']:.3f} s"),
+        ("start", _stamp(document["start_ns"])),
+        ("end", _stamp(document["end_ns"])),
         ("messages", str(document["messages"])),
     ]
     if document["frames"] is not None:

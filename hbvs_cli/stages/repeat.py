@@ -209,9 +209,13 @@ class _StepLog:
             "v_c": record.v_c, "w_c": record.w_c,
             "v_law": float(output.v_c) if output is not None else v_law,
             "w_law": float(output.w_c) if output is not None else w_law,
-            "saturated": bool(record.saturated), "dhat": float(record.dhat),
-            "target_lost": bool(record.lost), "lost_reason": self.lost_reason if record.lost else "",
-            "frame_dropped": bool(record.dropped), "residual": float(record.observation.residual), "V": V,
+            "saturated": bool(record.saturated),
+            "dhat": float(record.dhat),
+            "target_lost": bool(record.lost),
+            "lost_reason": self.lost_reason if record.lost else "",
+            "frame_dropped": bool(record.dropped),
+            "residual": float(record.observation.residual),
+            "V": V,
         }
         values.update(self._filter_fields(record))
         self.run.state(t, values)

@@ -249,10 +249,12 @@ class RosbagsBag:
                 known.count = (known.count or 0) + connection.msgcount
         files = information.get("relative_file_paths")
         self.storage = {
-            "reader": "rosbags", "storage": str(information.get("storage_identifier", "")),
+            "reader": "rosbags",
+            "storage": str(information.get("storage_identifier", "")),
             "files": len(files) if isinstance(files, list) else None,
-            "compression": " ".join(str(information.get(key) or "") for key in ("compression_mode", "compression_format")).strip()
-            or "none",
+            "compression": " ".join(
+                str(information.get(key) or "") for key in ("compression_mode", "compression_format")
+            ).strip() or "none",
             "ros_distro": str(information.get("ros_distro", "")),
         }
 
