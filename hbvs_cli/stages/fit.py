@@ -202,6 +202,9 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
+    # The frame whose image is kept as F*'s: "last" keeps each one in turn ("05" is frame 5;
+    # resolve_reference checks the range once the frames are counted).
+    wanted_index = 0 if wanted_reference == "first" else int(wanted_reference) if wanted_reference.lstrip("+-").isdigit() else None
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
@@ -236,7 +239,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
-                if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
+                if wanted_reference == "last" or frame.index == wanted_index:
                     reference_image = data
                 if options.copy_images:
                     write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
