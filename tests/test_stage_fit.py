@@ -223,6 +223,18 @@ def test_reference_last_and_index(default_teach, short_teach, tmp_path):
         assert errors["theta_deg"] < 0.05 and errors["x_hd1"] < 1e-3 and errors["x_hd2"] < 1e-3
 
 
+def test_a_reference_index_with_a_leading_zero_keeps_that_frames_image(short_teach, tmp_path):
+    """``--reference 090`` is frame 90, as ``--reference 90`` is: its image is the fit's
+    reference image (it used to be missed, and fit ended in an internal error, exit 70)."""
+    from hbvs_cli.io.fit_file import read_fit_file
+
+    padded = make_fit(short_teach, tmp_path / "padded.mcap", reference="090").model
+    plain = make_fit(short_teach, tmp_path / "plain.mcap", reference="90").model
+    assert padded.reference_index == plain.reference_index == 90
+    image = read_fit_file(tmp_path / "padded.mcap").reference_image
+    assert image is not None and image == read_fit_file(tmp_path / "plain.mcap").reference_image
+
+
 def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp_path):
     """The fit file holds n*'s sigma and the splines' (model.uncertainty, theta_d_sigma and
     x_hd1_sigma on /desired/raw and /desired/smooth); the default scenario's actual theta_d

@@ -84,7 +84,8 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     measured_ref = validate_reference_points(measured_ref)
     start_ref = np.asarray(m_ref, dtype=float)
     geometry = PlaneGeometry.around(normal, measured_ref)
-    start_motion = _motion(KnownNormalSolver(start_ref, geometry.base).solve(m))
+    solved = KnownNormalSolver(start_ref, geometry.base).solve(m)
+    start_motion = np.nan_to_num(np.column_stack([solved.theta, solved.x_h]))  # 0 where not solved
     frames, n_global = m.shape[0], geometry.size
     start = JointEstimate(geometry.base, start_ref, start_motion, float("nan"))
     if frames == 0:
@@ -137,11 +138,6 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
     if np.any(solved_ref @ solved_normal <= 0.0) or not np.all(np.isfinite(solution.x)):
         return start
     return JointEstimate(solved_normal, solved_ref, solution.x[n_global:].reshape(frames, 3), float(0.5 * np.sum(solution.fun ** 2)))
-
-
-def _motion(motion: object) -> NDArray[np.float64]:
-    """(K, 3) (theta, x_h1, x_h2) of a :class:`~.decomposition.PlanarMotion` (0 where not solved)."""
-    return np.nan_to_num(np.column_stack([motion.theta, motion.x_h]))  # type: ignore[attr-defined]
 
 
 def measured_point_noise(residuals: ArrayLike) -> float:

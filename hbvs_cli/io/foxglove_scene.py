@@ -39,11 +39,6 @@ def robot_transform(ns: int, pose: Sequence[float]) -> Any:
     return frame_transform(ns, WORLD_FRAME, BASE_FRAME, (x, y, 0.0), yaw_to_quaternion(phi))
 
 
-def camera_transform(ns: int, camera_height: float) -> Any:
-    """``base_link -> camera_optical``: the camera ``camera_height`` (m) above the wheel axis."""
-    return frame_transform(ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION)
-
-
 def _pose(position: Sequence[float], rotation: Sequence[float] = _IDENTITY) -> Any:
     from foxglove_schemas_protobuf.Pose_pb2 import Pose
 
@@ -112,8 +107,10 @@ class SceneWriter:
         self.started = False
 
     def start(self, ns: int, camera_height: float, world: Any = None, taught_poses: np.ndarray | None = None) -> None:
-        """``base_link -> camera_optical`` and the scene (target, taught path), at ``ns``."""
-        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, camera_transform(ns, camera_height))
+        """``base_link -> camera_optical`` (the camera ``camera_height`` m above the wheel axis) and the
+        scene (target, taught path), at ``ns``."""
+        camera = frame_transform(ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION)
+        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, camera)
         scene = scene_update(ns, world, taught_poses)
         if scene.entities:
             self.writer.write(SCENE_TOPIC, SCENE_UPDATE_SCHEMA, ns, scene)

@@ -93,7 +93,6 @@ TOPICS: dict[str, dict[str, str]] = {
     },
 }
 
-# ----------------------------------------------------------------------------- ROS 2 message types
 # The ROS 2 types hbvs reads from bags (``teach --bag``) and writes (``hbvs export``).
 ROS_IMAGE_SCHEMA = "sensor_msgs/msg/Image"
 ROS_COMPRESSED_IMAGE_SCHEMA = "sensor_msgs/msg/CompressedImage"
@@ -105,7 +104,6 @@ ROS_POSE_STAMPED_SCHEMA = "geometry_msgs/msg/PoseStamped"
 ROS_PATH_SCHEMA = "nav_msgs/msg/Path"
 ROS_TF_SCHEMA = "tf2_msgs/msg/TFMessage"
 
-# ----------------------------------------------------------------------------- ROS 2 export
 # ``hbvs export`` writes a ROS 2 bag (MCAP storage, CDR) with these topics.
 #: The command sent (run) or taught (teach).
 ROS_CMD_VEL_TOPIC = "/cmd_vel"
@@ -120,7 +118,6 @@ ROS_REFERENCE_IMAGE_TOPIC = "/reference/image/compressed"
 ROS_TF_TOPIC = TRANSFORM_TOPIC
 ROS_TF_STATIC_TOPIC = "/tf_static"
 
-# ----------------------------------------------------------------------------- live robot (ROS 2 over DDS)
 # ``repeat --live`` and ``robot-sim --ros2`` (DDS topic ``rt/<name>``: :mod:`hbvs_cli.io.ros2_dds`).
 #: The camera of a robot (sensor_msgs Image; ``/compressed`` beside it for CompressedImage),
 #: its CameraInfo on the sibling ``camera_info`` topic (ROS_CAMERA_INFO_TOPIC), the commands

@@ -173,7 +173,6 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
-            # The taught commands (25), dotted.
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             shown_t, shown_x = display_series(run.state["t"], taught, None)
             ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)

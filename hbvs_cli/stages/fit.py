@@ -20,6 +20,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
@@ -158,10 +159,9 @@ def _one_thread_each() -> Iterator[None]:
 
 
 def _reuse_freed_frames() -> None:
-    """glibc's malloc keeps the frame loop's freed frame-sized arrays for reuse (mallopt(3)):
-    with the decoding thread it handed them back to the kernel, and each frame's arrays were
-    page-faulted in anew (fit's page faults 58 000 -> 32 000, its time 3 % less). Both limits
-    are needed (either alone faults ten times more); without glibc nothing is done."""
+    """glibc's malloc keeps the frame loop's freed frame-sized arrays for reuse (mallopt(3)),
+    instead of handing them back and page-faulting them in anew each frame. Both limits are
+    needed; without glibc nothing is done."""
     import ctypes
 
     try:
@@ -175,7 +175,7 @@ def _reuse_freed_frames() -> None:
 def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..core.fit_model import FitModel
     from ..io.fit_file import checked_model_message, write_desired_signals
-    from ..io.images import write_compressed_image
+    from ..io.images import sniff_format, write_compressed_image
     from ..io.mcap import open_output
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
@@ -202,13 +202,14 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
+    # The frame whose image is kept as F*'s: "last" keeps each one in turn ("05" is frame 5;
+    # resolve_reference checks the range once the frames are counted).
+    wanted_index = 0 if wanted_reference == "first" else int(wanted_reference) if wanted_reference.lstrip("+-").isdigit() else None
     with open_output(options.output) as writer:
-        writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": _version(), "settings": recorded_settings(options), "input": reader.name})
+        writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            # Colour while the target is not known (the dots of --target auto may differ from
-            # their wall in hue alone), then only for dots seen in colour: everything else
-            # is measured on luminance, which decodes faster. First frames that came out gray
-            # asked for colour hold none: no detector will want it.
+            # Colour until the target is known, then only for dots seen in colour (:mod:`.frame_decoding`
+            # says why); once the first frames came out gray, no detector will want colour.
             gray_source = False
             frames = decoded_frames(
                 reader.frames(), reader.name,
@@ -221,7 +222,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
-                world = _teach_world(reader)
+                # The simulated world of a teach recording, checked (None for real footage).
+                world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
                     spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
@@ -237,10 +239,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
-                if wanted_reference == "last" or (wanted_reference == "first" and frame.index == 0) or wanted_reference == str(frame.index):
+                if wanted_reference == "last" or frame.index == wanted_index:
                     reference_image = data
                 if options.copy_images:
-                    write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, _format_of(data), CAMERA_FRAME)
+                    write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
                 # Same log time as the teach image: Foxglove overlays these on it when the
                 # teach and fit files are opened together.
                 writer.write(
@@ -293,7 +295,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         end_ns = int(arrays["log_time"][-1])
         for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
             stamp = int(arrays["log_time"][k])
-            write_compressed_image(writer, topic, stamp, payload, _format_of(payload), CAMERA_FRAME)
+            write_compressed_image(writer, topic, stamp, payload, sniff_format(payload) or "jpeg", CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, depth, options)
     return FitSummary(output=options.output, model=model)
@@ -313,7 +315,6 @@ def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsi
 
 #: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
 #: meanwhile, on the core the pick leaves idle (a board's search of the first frame is serial).
-#: About 430 gray 640x480 frames; a board's pick took as long as some 330.
 READ_AHEAD_BYTES = 128 << 20
 
 
@@ -446,25 +447,6 @@ def _render_settings(reader: Any) -> dict[str, Any] | None:
     if reader.world_description is None or not isinstance(settings, dict):
         return None
     return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
-
-
-def _teach_world(reader: Any) -> World | None:
-    """The simulated world of a teach recording, checked (None for real footage)."""
-    if reader.world_description is None:
-        return None
-    return world_from_description(reader.world_description, reader.name)
-
-
-def _version() -> str:
-    from .. import __version__
-
-    return __version__
-
-
-def _format_of(data: bytes) -> str:
-    from ..io.images import PNG_SIGNATURE
-
-    return "png" if data[:8] == PNG_SIGNATURE else "jpeg"
 
 
 #: Frames ``--target auto`` looks at before it picks a kind.
@@ -615,6 +597,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
+    pair = None
     if options.target_size is not None:
         if kind == "texture":
             raise UsageError("--target-size needs a dots or aruco target; a texture's points have no metric size")
@@ -625,19 +608,17 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
             columns, rows = board or (result.m_ref.shape[0], 1)
             if kind == "charuco" and board is not None:
                 columns, rows = board[0] - 1, board[1] - 1
-            kind_pair = (0, columns * rows - 1)
+            pair = (0, columns * rows - 1)
             size = options.target_size * math.hypot(columns - 1, rows - 1)
         else:
-            kind_pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
-        from_size = depth_from_target_size(result.m_ref, result.normal, kind_pair, size)
-        estimates["target_size"] = _estimate_record(from_size) | {"pair": list(kind_pair)}
-        chosen = from_size
+            pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
     elif layout is not None:
         gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
-        i, j = (int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
-        from_size = depth_from_target_size(result.m_ref, result.normal, (i, j), float(gaps[i, j]))
-        estimates["target_size"] = _estimate_record(from_size) | {"pair": [i, j]}
-        chosen = from_size
+        pair = tuple(int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
+        size = float(gaps[pair])
+    if pair is not None:
+        chosen = depth_from_target_size(result.m_ref, result.normal, pair, size)
+        estimates["target_size"] = _estimate_record(chosen) | {"pair": list(pair)}
     if chosen is None:
         console.warn(
             f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
