@@ -202,9 +202,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
-    # The frame whose image is kept as F*'s: "last" keeps each one in turn ("05" is frame 5;
-    # resolve_reference checks the range once the frames are counted).
-    wanted_index = 0 if wanted_reference == "first" else int(wanted_reference) if wanted_reference.lstrip("+-").isdigit() else None
+    try:  # the frame whose image is kept as F*'s ("05" is frame 5; the range is checked once the frames are counted)
+        wanted_index = 0 if wanted_reference == "first" else int(wanted_reference)
+    except ValueError:  # "last": each frame's in turn
+        wanted_index = None
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
