@@ -9,7 +9,6 @@ loops call :func:`raise_if_stopped` once a step to raise it again.
 from __future__ import annotations
 
 import signal
-from typing import NoReturn
 
 
 class Terminated(BaseException):
@@ -25,12 +24,11 @@ class Interrupted(KeyboardInterrupt):
 received: int | None = None
 
 
-def stop(signum: int) -> NoReturn:
-    """Record the stop signal ``signum`` and raise its exception."""
+def stop(signum: int) -> None:
+    """Record the stop signal ``signum`` and raise its exception (:func:`raise_if_stopped`)."""
     global received
     received = signum
     raise_if_stopped()
-    raise AssertionError("unreachable")
 
 
 def raise_if_stopped() -> None:
