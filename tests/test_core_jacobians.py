@@ -47,13 +47,16 @@ def _drive(name: str, noise_px: float = 0.1, seed: int = 0):
 
 
 def test_shape_residuals_derivatives():
-    """By the normal and by every point's (m_y, m_z), two shapes sharing a point, one mirrored."""
+    """By the normal and by every point's (m_y, m_z), two shapes sharing a point, one mirrored;
+    "points only" gives the latter alone, the same to the bit."""
     rng = np.random.default_rng(1)
     m = np.concatenate([np.ones((5, 8, 1)), rng.uniform(-0.2, 0.2, (5, 8, 2))], axis=-1)
     normals = np.array([0.95, 0.2, 0.1]) + rng.normal(0.0, 0.05, (5, 3))
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     shapes = [(range(4), UNIT_SQUARE), ([4, 5, 6, 7, 1], rng.uniform(0.0, 1.0, (5, 2)))]
-    _, by_normal, by_points = shape_residuals(normals, m, shapes, "points")
+    residuals, by_normal, by_points = shape_residuals(normals, m, shapes, "points")
+    alone = shape_residuals(normals, m, shapes, "points only")  # without the normal's (the bias rows')
+    assert len(alone) == 2 and np.array_equal(alone[0], residuals) and np.array_equal(alone[1], by_points)
     for k in range(m.shape[0]):
         numeric = _differences(lambda n: shape_residuals(n, m[k], shapes), normals[k])
         assert _relative(by_normal[k], numeric) < 1e-6

@@ -301,6 +301,42 @@ def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, m
     assert read_fit_file(tmp_path / "ahead.mcap").model.frames["used"] == 60
 
 
+def test_the_solvers_are_loaded_while_reading_ahead_and_run_with_blas_on_one_thread(tmp_path, monkeypatch):
+    """scipy's solvers (and scipy's own BLAS) are imported before the pick, while a second thread
+    reads ahead, not at the start when nothing else runs; the fit runs them with every BLAS
+    library on one thread, and the limits are restored after."""
+    import threading
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from hbvs_cli.stages import fit as fit_stage
+
+    teach = str(gray_footage_teach(tmp_path))
+    load, pick, fit_trajectory, steps = fit_stage._load_solvers, fit_stage._detector_spec, fit_stage.fit_desired_trajectory, []
+
+    def loaded() -> None:
+        steps.append(("load", threading.current_thread() is threading.main_thread()))
+        load()
+
+    def picked(*args, **kwargs):
+        steps.append(("pick", threading.active_count() > 1))  # the reading thread runs
+        return pick(*args, **kwargs)
+
+    def fitted(*args, **kwargs):
+        steps.append(("fit", all(library["num_threads"] == 1 for library in threadpool_info() if library["user_api"] == "blas")))
+        return fit_trajectory(*args, **kwargs)
+
+    monkeypatch.setattr(fit_stage, "_load_solvers", loaded)
+    monkeypatch.setattr(fit_stage, "_detector_spec", picked)
+    monkeypatch.setattr(fit_stage, "fit_desired_trajectory", fitted)
+    with threadpool_limits(limits=2, user_api="blas"):  # as OPENBLAS_NUM_THREADS=2 would
+        before = [(library["filepath"], library["num_threads"]) for library in threadpool_info()]
+        assert call_hbvs("fit", teach, "--target", "chessboard", "-o", str(tmp_path / "fit.mcap"), "-q").returncode == 0
+        after = {library["filepath"]: library["num_threads"] for library in threadpool_info()}
+    assert steps == [("load", True), ("pick", True), ("load", True), ("fit", True)]
+    assert any(threads == 2 for _, threads in before) and all(after[path] == threads for path, threads in before)
+
+
 def test_an_error_met_while_reading_ahead_comes_after_the_frames_before_it():
     import threading
 

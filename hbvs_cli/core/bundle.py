@@ -329,7 +329,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     for k in range(0, pool.shape[0], BLOCK_FRAMES):
         block = slice(k, k + BLOCK_FRAMES)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
-        own, shared = np.nan_to_num(own), np.nan_to_num(shared)
+        own, shared = _finite(own), _finite(shared)
         coupling[block] = np.swapaxes(own, 1, 2) @ shared  # B_k = J_k^T J_kg; D_k = J_k^T J_k
         inverse_own[block] = np.linalg.pinv(np.swapaxes(own, 1, 2) @ own, rcond=1e-12, hermitian=True)
         weighted = weight[block, None, None] * shared
@@ -365,7 +365,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
             block = slice(k, k + BLOCK_FRAMES)
             # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
-            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", np.nan_to_num(own), moved[where[block]]) - np.nan_to_num(shared) @ moved_globals
+            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[where[block]]) - _finite(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
         unabsorbed = float(np.sum(visible[finite] ** 2))
         readout = float(np.sum(residuals[finite] * visible[finite]) / max(unabsorbed, 1e-300))
@@ -427,7 +427,13 @@ def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLik
     if not shapes:
         return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
-    return np.nan_to_num(shape_residuals(normals, m, shapes, "points")[2].reshape(m.shape[0], -1, 2 * m.shape[1]))
+    return _finite(shape_residuals(normals, m, shapes, "points only")[1].reshape(m.shape[0], -1, 2 * m.shape[1]))
+
+
+def _finite(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.nan_to_num(values)``, and ``values`` themselves when all are finite (the usual
+    case): the check is a tenth of the copy's cost, on every block of frames."""
+    return values if np.isfinite(values).all() else np.nan_to_num(values)
 
 
 def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:

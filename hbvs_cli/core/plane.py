@@ -132,9 +132,10 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     m : array_like, shape (..., N, 3)
         Normalised image points.
     shapes : sequence of (indices, plane coordinates of shape (K, 2)), K >= 3
-    derivatives : {None, "normal", "points"}
+    derivatives : {None, "normal", "points", "points only"}
         Also return the residuals' derivatives by the normal's components, shape
-        (..., R, 3), and with "points" by every point's ``(m_y, m_z)``, shape (..., R, N, 2).
+        (..., R, 3), and with "points" by every point's ``(m_y, m_z)``, shape (..., R, N, 2);
+        "points only" returns the latter alone.
 
     Returns
     -------
@@ -148,7 +149,8 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     length = np.linalg.norm(e1, axis=-1, keepdims=True)
     e1 = e1 / length
     e2 = np.cross(normal, e1)
-    if derivatives:  # tangents (..., D, 3): d/d n_j in row j (then the points' rows, zero here)
+    by_normal_too = derivatives in ("normal", "points")
+    if by_normal_too:  # tangents (..., D, 3): d/d n_j in row j (then the points' rows, zero here)
         d_normal = np.broadcast_to(np.eye(3), normal.shape[:-1] + (3, 3))
         da = np.cross(d_normal, [0.0, 0.0, 1.0])
         d_e1 = (da - np.einsum("...k,...jk->...j", e1, da)[..., None] * e1[..., None, :]) / length[..., None]
@@ -172,19 +174,20 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
             continue
         count = len(indices)
         with np.errstate(divide="ignore", invalid="ignore"):
-            # By the normal's components d: P = p / (n . p), so dP_k/dn_d = -P_k P_d, and
-            # dq_i/dn_d = de_i/dn_d . P - q_i P_d: (..., d, K, i); the match is linear in q.
-            dq = np.stack([on_plane @ d_e1.swapaxes(-1, -2), on_plane @ d_e2.swapaxes(-1, -2)], axis=-1).swapaxes(-2, -3)
-            dq -= q[..., None, :, :] * on_plane.swapaxes(-1, -2)[..., None]
-            d_fitted = _similar(dq, lc, proper[..., None])[0]
-            # The matched points on the plane, N + fitted_0 e1 + fitted_1 e2, by d: (..., d, K, 3).
-            d_world = (d_normal[..., :, None, :] + d_fitted[..., :1] * e1[..., None, None, :]
-                       + fitted[..., None, :, :1] * d_e1[..., :, None, :]
-                       + d_fitted[..., 1:] * e2[..., None, None, :] + fitted[..., None, :, 1:] * d_e2[..., :, None, :])
-            # Their projections (world_y, world_z) / world_x by d: (..., K, 2, d).
-            by_normal.append(((d_world[..., 1:] - projected[..., None, :, 1:] * d_world[..., :1]) / world[..., None, :, :1])
-                             .transpose(tuple(range(len(batch))) + (-2, -1, -3)).reshape(batch + (2 * count, 3)))
-            if derivatives == "points":
+            if by_normal_too:
+                # By the normal's components d: P = p / (n . p), so dP_k/dn_d = -P_k P_d, and
+                # dq_i/dn_d = de_i/dn_d . P - q_i P_d: (..., d, K, i); the match is linear in q.
+                dq = np.stack([on_plane @ d_e1.swapaxes(-1, -2), on_plane @ d_e2.swapaxes(-1, -2)], axis=-1).swapaxes(-2, -3)
+                dq -= q[..., None, :, :] * on_plane.swapaxes(-1, -2)[..., None]
+                d_fitted = _similar(dq, lc, proper[..., None])[0]
+                # The matched points on the plane, N + fitted_0 e1 + fitted_1 e2, by d: (..., d, K, 3).
+                d_world = (d_normal[..., :, None, :] + d_fitted[..., :1] * e1[..., None, None, :]
+                           + fitted[..., None, :, :1] * d_e1[..., :, None, :]
+                           + d_fitted[..., 1:] * e2[..., None, None, :] + fitted[..., None, :, 1:] * d_e2[..., :, None, :])
+                # Their projections (world_y, world_z) / world_x by d: (..., K, 2, d).
+                by_normal.append(((d_world[..., 1:] - projected[..., None, :, 1:] * d_world[..., :1]) / world[..., None, :, :1])
+                                 .transpose(tuple(range(len(batch))) + (-2, -1, -3)).reshape(batch + (2 * count, 3)))
+            if derivatives in ("points", "points only"):
                 # The match is a fixed linear map of q for each handedness: ``match`` (..., 2K, 2K).
                 basis = np.eye(2 * count).reshape(2 * count, count, 2)
                 match = np.where(proper[..., None, None], _similar(basis, lc, True)[0].reshape(2 * count, -1),
@@ -207,7 +210,7 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
               for parts, axis in ((residuals, -1), (by_normal, -2), (by_points, -3))]
     if not derivatives:
         return joined[0]
-    return tuple(joined[:2 if derivatives == "normal" else 3])
+    return (joined[0], joined[2]) if derivatives == "points only" else tuple(joined[:2 if derivatives == "normal" else 3])
 
 
 def _block_diagonal(blocks: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -142,10 +142,9 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 @contextmanager
 def _one_thread_each() -> Iterator[None]:
     """OpenCV's and BLAS's thread pools off while fitting, restored after: the frame loop and
-    the decoding thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy,
-    and BLAS's threads made the solvers' decompositions of tall Jacobians slower, not faster."""
+    the decoding thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy.
+    scipy's BLAS, loaded later with the solvers, is limited where they run (:func:`_fit`)."""
     import cv2
-    import scipy.linalg  # noqa: F401  (loaded now, so that its BLAS is limited too)
     from threadpoolctl import threadpool_limits
 
     threads = cv2.getNumThreads()
@@ -351,12 +350,17 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
 
 
 def _with_solvers_loaded(pick: Callable[[], DetectorSpec]) -> DetectorSpec:
-    """``pick()`` after importing the fit's solvers (scipy.optimize and .interpolate, 0.2 s):
-    while a second thread reads ahead, not after the frame loop, when nothing else runs."""
-    import scipy.interpolate  # noqa: F401
-    import scipy.optimize  # noqa: F401
-
+    """``pick()`` after :func:`_load_solvers` (0.3 s): while a second thread reads ahead, not
+    before the frames are read or after the frame loop, when nothing else runs."""
+    _load_solvers()
     return pick()
+
+
+def _load_solvers() -> None:
+    """Import the fit's solvers: scipy.linalg (and its BLAS), .optimize and .interpolate."""
+    import scipy.interpolate  # noqa: F401
+    import scipy.linalg  # noqa: F401
+    import scipy.optimize  # noqa: F401
 
 
 def _read_known_layout(options: FitOptions) -> np.ndarray | None:
@@ -406,9 +410,14 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
     if layout is not None:  # --target-points: the whole target's layout, known
         shapes = [(range(layout.shape[0]), layout)]
+    from threadpoolctl import threadpool_limits
+
+    _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
-        return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                      max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
+        # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
+                                          max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
