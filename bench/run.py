@@ -742,13 +742,19 @@ def _measured_again_within(line: str, only: list[str]) -> bool:
     return set(figures) <= set(only)
 
 
+def machine_line(info: dict[str, str]) -> str:
+    """The machine and library versions of :func:`machine`, as the results name them: a partial
+    run names its own, since the machine may not be the one of the rows it keeps."""
+    return (f"{info['cpu']}, {info['cores']} cores; Python {info['python']}, numpy {info['numpy']}, "
+            f"OpenCV {info['opencv']}, scipy {info['scipy']}")
+
+
 def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seconds: float, only: list[str] | None = None) -> str:
     header = [
         "# hbvs benchmark results",
         "",
         f"Produced by `python -m bench{' --quick' if quick else ''}` in {seconds:.0f} s on {info['date']}.",
-        f"Machine: {info['cpu']}, {info['cores']} cores; Python {info['python']}, numpy {info['numpy']}, "
-        f"OpenCV {info['opencv']}, scipy {info['scipy']}.",
+        f"Machine: {machine_line(info)}.",
         "",
         "Every figure is a ratio of two measurements taken side by side in the same run "
         "(medians over repeats, interleaved), so that a busy machine moves both sides.",
@@ -767,7 +773,7 @@ def write_results(figures: list[Figure], info: dict[str, str], quick: bool, seco
             header = preamble + [
                 "",
                 f"Figures {', '.join(only)} (all their rows) were measured again with `python -m bench{' --quick' if quick else ''} --only "
-                f"{' '.join(only)}` on {info['date']} ({seconds:.0f} s); their rows replace the earlier ones.",
+                f"{' '.join(only)}` on {info['date']} ({seconds:.0f} s), on {machine_line(info)}; their rows replace the earlier ones.",
                 "",
             ]
         rows = {**kept, **rows}
