@@ -299,6 +299,36 @@ def test_windowed_tracking_finds_what_the_common_box_finds(dots_world):
     assert max(read) < 0.04
 
 
+@pytest.mark.parametrize("noisy", [(), (0,), (0, 1, 2)])
+def test_windows_skip_the_noise_median_only_where_it_cannot_change_the_blobs(dots_world, monkeypatch, noisy):
+    """find_blobs_in_windows takes a window's noise median only when some window's noise may
+    exceed NOISY_GROUND (its mean then decides the smoothing): quiet windows, one noisy among
+    quiet ones, and all noisy find the same blobs, to the bit, as with every window's median."""
+    from hbvs_cli.perception import dot_windows
+    from hbvs_cli.perception.dot_windows import WindowMosaic, find_blobs_in_windows
+
+    pose = np.array([0.5, 0.0, 0.0])
+    pixels = dots_world.pixels(pose)
+    windows = [(int(u) - 22, int(v) - 22, int(u) + 23, int(v) + 23) for u, v in pixels]
+    image = SceneRenderer(dots_world, settings=RenderSettings(noise_std=1.0)).render(pose, np.random.default_rng(4)).astype(float)
+    rng = np.random.default_rng(5)
+    for k in noisy:  # the sensor's noise well above NOISY_GROUND in these windows
+        x0, y0, x1, y1 = windows[k]
+        image[y0:y1, x0:x1] += rng.normal(0.0, 9.0, (y1 - y0, x1 - x0))
+    gray = np.clip(image, 0, 255).astype(np.uint8)
+    medians = []
+    own = dot_windows.ground_noise
+    monkeypatch.setattr(dot_windows, "ground_noise", lambda view, floor=0.0: medians.append(floor) or own(view, floor))
+    found = find_blobs_in_windows(gray, windows, WindowMosaic())
+    monkeypatch.setattr(dot_windows, "ground_noise", lambda view, floor=0.0: own(view))
+    every = find_blobs_in_windows(gray, windows, WindowMosaic())
+    for name in ("centres", "areas", "round", "touches_edge"):
+        assert np.array_equal(getattr(found, name), getattr(every, name), equal_nan=name == "centres"), name
+    assert np.count_nonzero(found.round) == 3  # the three dots (the other blobs reach their window's edge)
+    # Quiet windows: three counts, no median; else the quiet ones' medians are taken too.
+    assert medians == [dot_windows.NOISY_GROUND] * 3 + ([0.0] * (3 - len(noisy)) if noisy else [])
+
+
 def test_a_windowed_detector_searches_the_whole_frame_when_a_dot_left_its_window(dots_world):
     from hbvs_cli.perception.dot_windows import WindowedDotDetector
 

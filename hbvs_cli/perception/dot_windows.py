@@ -9,6 +9,7 @@ renderer need render. A dot not in its window falls back to the whole frame.
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import cv2
@@ -16,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import Detection
-from .dots import Blobs, DotDetector, _blob_centre, dark_image, flatten_ground, ground_noise, segmentation_threshold
+from .dots import NOISY_GROUND, Blobs, DotDetector, _blob_centre, dark_image, flatten_ground, ground_noise, segmentation_threshold
 
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
 Window = tuple[int, int, int, int]
@@ -101,7 +102,13 @@ def find_blobs_in_windows(
         view = flat[: y1 - y0, column : column + x1 - x0]
         view[...] = flatten_ground(np.ascontiguousarray(gray[y0:y1, x0:x1]))
         views.append(view)
-    noise = sum(ground_noise(view) for view in views) / len(views)
+    # The windows' mean noise decides whether to smooth (and by how much). ground_noise with
+    # NOISY_GROUND as its floor skips the median of a window surely below it: when every
+    # window is, so is the mean; else those windows' own values enter the mean too.
+    noises = [ground_noise(view, NOISY_GROUND) for view in views]
+    if any(noise > NOISY_GROUND for noise in noises):
+        noises = [noise if noise > NOISY_GROUND else ground_noise(view) for noise, view in zip(noises, views)]
+    noise = sum(noises) / len(noises)
     levels, threshold = segmentation_threshold(np.clip(flat + 0.5, 0, 255).astype(np.uint8), noise, min_contrast)
     if threshold is None:
         return empty
@@ -112,10 +119,9 @@ def find_blobs_in_windows(
     areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
     round_ = np.zeros(keep.size, dtype=bool)
     touches = np.zeros(keep.size, dtype=bool)
-    starts = np.asarray(columns)
     for k, label in enumerate(keep.tolist()):
         bx, by, bw, bh, area = stats[label].tolist()
-        index = int(np.searchsorted(starts, bx, side="right")) - 1
+        index = bisect.bisect_right(columns, bx) - 1  # the window whose columns hold the blob
         x0, y0, x1, y1 = windows[index]
         column, window_w, window_h = columns[index], x1 - x0, y1 - y0
         bx -= column

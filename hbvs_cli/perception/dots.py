@@ -326,7 +326,7 @@ def _blob_centre(
     grow = 5
     px0, py0 = max(bx - grow, 0), max(by - grow, 0)
     px1, py1 = min(bx + bw + grow, sub.shape[1]), min(by + bh + grow, sub.shape[0])
-    mask = (labels[py0:py1, px0:px1] == label).astype(np.uint8)
+    mask = np.equal(labels[py0:py1, px0:px1], label).view(np.uint8)  # 0 and 1, without a copy
     moments = cv2.moments(mask, binaryImage=True)
     # Principal second moments (eigenvalues of the 2x2 scatter matrix), in closed form.
     half_sum = 0.5 * (moments["mu20"] + moments["mu02"])
@@ -334,7 +334,7 @@ def _blob_centre(
     minor = half_sum - half_gap
     elongation = math.sqrt((half_sum + half_gap) / minor) if minor > 0 else np.inf
     rim = cv2.dilate(mask, _DILATE_RIM)
-    ring = cv2.dilate(mask, _DILATE_RING) & (1 - rim)
+    ring = cv2.dilate(mask, _DILATE_RING) - rim  # the rim's kernel lies inside the ring's: 0 or 1
     patch = np.asarray(sub[py0:py1, px0:px1], dtype=np.float32)
     ring_values = patch[ring.view(bool)]
     if ring_values.size == 0:
