@@ -192,10 +192,6 @@ def _dot(a: Vec3, b: Vec3) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-#: (row, column) of the 10-tuple's entries.
-_SYM4_ENTRIES = ((0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3))
-
-
 def residual_to_variance(points: int) -> float:
     """``sigma^2 / r^2`` for the RMS residual r of a known-normal solve of N ``points``: three
     parameters fitted to 2N coordinates."""
@@ -347,7 +343,8 @@ class ServoStateFilter:
             return self._gated()
         z, inverse_information = observed
         variance = self.noise_variance
-        r00, r01, r02, r11, r12, r22 = (variance * value for value in inverse_information)
+        i00, i01, i02, i11, i12, i22 = inverse_information
+        r00, r01, r02, r11, r12, r22 = variance * i00, variance * i01, variance * i02, variance * i11, variance * i12, variance * i22
         if self._state is None:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state
@@ -364,13 +361,22 @@ class ServoStateFilter:
         self.rejected_in_a_row = 0
         # The measurement sees the first three states: K = P[:, :3] S^-1, x += K nu and
         # P -= P[:, :3] S^-1 P[:3, :]. Column j of P[:3, :] is (p0j, p1j, p2j); u_j = S^-1 of it.
-        columns = ((p00, p01, p02), (p01, p11, p12), (p02, p12, p22), (p03, p13, p23))
-        u = [_sym_times(inverse, *column) for column in columns]
+        # Written out (a step of the closed loop pays for every Python call): the same products and sums.
+        w0, w1, w2 = weights
+        a0, a1, a2 = _sym_times(inverse, p00, p01, p02)
+        b0, b1, b2 = _sym_times(inverse, p01, p11, p12)
+        c0, c1, c2 = _sym_times(inverse, p02, p12, p22)
+        d0, d1, d2 = _sym_times(inverse, p03, p13, p23)
         low, high = self._rho_range
-        theta, x1, x2, rho = (x + c0 * weights[0] + c1 * weights[1] + c2 * weights[2]
-                              for x, (c0, c1, c2) in zip(self._state, columns))
-        self._state = (theta, x1, x2, min(max(rho, low), high))
-        self._covariance = tuple(p - _dot(columns[i], u[j]) for p, (i, j) in zip(self._covariance, _SYM4_ENTRIES))
+        self._state = (theta + p00 * w0 + p01 * w1 + p02 * w2, x1 + p01 * w0 + p11 * w1 + p12 * w2,
+                       x2 + p02 * w0 + p12 * w1 + p22 * w2, min(max(rho + p03 * w0 + p13 * w1 + p23 * w2, low), high))
+        self._covariance = (
+            p00 - (p00 * a0 + p01 * a1 + p02 * a2), p01 - (p00 * b0 + p01 * b1 + p02 * b2),
+            p02 - (p00 * c0 + p01 * c1 + p02 * c2), p03 - (p00 * d0 + p01 * d1 + p02 * d2),
+            p11 - (p01 * b0 + p11 * b1 + p12 * b2), p12 - (p01 * c0 + p11 * c1 + p12 * c2),
+            p13 - (p01 * d0 + p11 * d1 + p12 * d2), p22 - (p02 * c0 + p12 * c1 + p22 * c2),
+            p23 - (p02 * d0 + p12 * d1 + p22 * d2), p33 - (p03 * d0 + p13 * d1 + p23 * d2),
+        )
         self.fused_time += dt
         self.last_outcome = FilterOutcome.FUSED
         return FilterOutcome.FUSED
