@@ -123,3 +123,47 @@ def test_a_rolling_shutters_error_is_counted_once_not_as_noise():
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     assert np.mean(np.abs(errors) <= 1.96 * sigmas) >= 0.9
     assert 0.5 <= rms(sigmas) / rms(errors) <= 2.0
+
+
+@pytest.mark.parametrize("frames", [2500, 9001])
+def test_the_splines_sigma_is_formed_a_block_at_a_time_with_the_same_numbers(frames, monkeypatch):
+    """A long recording's probes are formed, averaged into the spline's samples and evaluated
+    a block of frames at a time (the fit's peak memory stays flat; 30 000 frames had taken
+    90 MiB more than 3000): the smoothed sigmas are the same, to the bit, as from the whole
+    arrays at once (int8 signs for the probes, drawn as the float ones were)."""
+    from scipy.interpolate import make_smoothing_spline
+
+    from hbvs_cli.core import desired
+    from hbvs_cli.core.bundle import JointCovariance
+    from hbvs_cli.core.trajectory import fit_spline_trajectory
+
+    rng = np.random.default_rng(7)
+    t = np.arange(frames) / 30.0
+    used = rng.random(frames) > 0.02
+    count, g = int(used.sum()), 6
+    shared = np.cov(rng.normal(size=(g, 50))) * 1e-6
+    covariance = JointCovariance(shared=shared, own=np.abs(rng.normal(size=(count, 3, 3))) * 1e-6,
+                                 sensitivity=rng.normal(size=(count, 3, g)), noise=1e-3, inflation=1.0,
+                                 bias=rng.normal(size=(count, 3, 4)) * 1e-4, bias_shared=rng.normal(size=(g, 4)) * 1e-4)
+    trajectory = fit_spline_trajectory(t[used], 0.1 * np.sin(t[used] / 5), 0.2 * np.cos(t[used] / 7), 0.01 * t[used], 1.0)
+    span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
+    monkeypatch.setattr(desired, "UNCERTAINTY_BLOCK", 1000)  # several blocks even for the shorter recording
+    blocked = desired._fit_uncertainty(covariance, t, used, span, trajectory, 500.0)
+
+    # The same numbers from the whole arrays, as the fit formed them before.
+    values, vectors = np.linalg.eigh(shared)
+    keep = values > 1e-6 * max(float(values.max()), 1e-300)
+    directions = vectors[:, keep] * np.sqrt(values[keep])
+    probes = np.random.default_rng(0).choice([-1.0, 1.0], size=(count, desired.NOISE_PROBES))
+    group = int(np.ceil(count / desired.MAX_SPLINE_SAMPLES))
+    usable = count // group * group
+    for index, channel, got in ((0, "theta_d", blocked.smooth_theta_sigma), (1, "x_hd1", blocked.smooth_x_h1_sigma)):
+        inherited = np.column_stack([covariance.sensitivity[:, index, :] @ directions, covariance.bias[:, index, :]])
+        columns = np.column_stack([inherited, probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]])
+        binned_t, binned = t[used], columns
+        if group > 1:
+            binned_t = t[used][:usable].reshape(-1, group).mean(axis=1)
+            binned = columns[:usable].reshape(-1, group, columns.shape[1]).mean(axis=1)
+        at = make_smoothing_spline(binned_t, binned, lam=trajectory.channels[channel].smoothing)(t[span])
+        whole = np.sqrt(np.sum(at[:, :inherited.shape[1]] ** 2, axis=1) + np.mean(at[:, inherited.shape[1]:] ** 2, axis=1))
+        assert got.shape == whole.shape and np.array_equal(got, whole)

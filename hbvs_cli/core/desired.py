@@ -82,6 +82,9 @@ NOISE_PROBES = 64
 #: Samples the splines are fitted to at most: longer recordings are averaged in groups of
 #: consecutive frames (30 Hz is far above a taught path's bandwidth; GCV's cost grows).
 MAX_SPLINE_SAMPLES = 3000
+#: Frames whose uncertainty probes are formed and evaluated at once (:func:`_fit_uncertainty`):
+#: the fit's peak memory stays flat however long the recording.
+UNCERTAINTY_BLOCK = 4096
 
 #: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
 #: fit file older than the interval it records): 30 Hz, the rate ``teach`` records at.
@@ -462,19 +465,23 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     keep = values > 1e-6 * max(float(values.max()), 1e-300)
     directions = vectors[:, keep] * np.sqrt(values[keep])  # (G, r): shared = directions directions^T
     rng = np.random.default_rng(0)
-    probes = rng.choice([-1.0, 1.0], size=(int(used.sum()), NOISE_PROBES))
+    # The signs as int8 (the same draws as +-1.0): a long recording's probes take 64 bytes a frame, not 512.
+    probes = rng.choice(np.array([-1, 1], dtype=np.int8), size=(int(used.sum()), NOISE_PROBES))
+    times = t[span]
     smoothed = []
     for index, channel in ((0, "theta_d"), (1, "x_hd1")):
         inherited = covariance.sensitivity[:, index, :] @ directions
         if covariance.bias is not None:  # a detector's bias: common to all frames as well
             inherited = np.column_stack([inherited, covariance.bias[:, index, :]])
-        own = probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]
-        columns = np.column_stack([inherited, own])
-        binned_t, binned = _binned_columns(t[used], columns)
+        own = np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))
+        binned_t, binned = _binned_columns(t[used], lambda rows: np.column_stack([inherited[rows], probes[rows] * own[rows, None]]))
         spline = make_smoothing_spline(binned_t, binned, lam=trajectory.channels[channel].smoothing)
-        at = spline(t[span])
-        variance = np.sum(at[:, : inherited.shape[1]] ** 2, axis=1) + np.mean(at[:, inherited.shape[1]:] ** 2, axis=1)
-        smoothed.append(np.sqrt(variance))
+        shared = inherited.shape[1]
+        variance = []
+        for block in range(0, times.size, UNCERTAINTY_BLOCK):  # the spline's columns at a block of frames at a time
+            at = spline(times[block:block + UNCERTAINTY_BLOCK])
+            variance.append(np.sum(at[:, :shared] ** 2, axis=1) + np.mean(at[:, shared:] ** 2, axis=1))
+        smoothed.append(np.sqrt(np.concatenate(variance)))
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
         point_noise_px=float(covariance.noise * focal),
@@ -485,13 +492,20 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     )
 
 
-def _binned_columns(t: NDArray[np.float64], columns: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(t, columns)`` (K, C) averaged in groups as :func:`_binned` averages the splines' samples."""
+def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[np.float64]]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``t`` (K,) and the columns (K, C) averaged in groups as :func:`_binned` averages the
+    splines' samples; ``columns(rows)`` forms the columns of a slice of the K rows, which are
+    asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a time, so that a
+    long recording's columns are never held whole."""
     group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
     if group <= 1:
-        return t, columns
+        return t, columns(slice(0, t.size))
     usable = t.size // group * group
-    return t[:usable].reshape(-1, group).mean(axis=1), columns[:usable].reshape(-1, group, columns.shape[1]).mean(axis=1)
+    step = max(UNCERTAINTY_BLOCK // group, 1) * group
+    blocks = [columns(slice(k, min(k + step, usable))) for k in range(0, usable, step)]
+    return (t[:usable].reshape(-1, group).mean(axis=1),
+            np.concatenate([block.reshape(-1, group, block.shape[1]).mean(axis=1) for block in blocks]))
 
 
 def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
