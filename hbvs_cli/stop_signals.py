@@ -3,7 +3,8 @@
 The CLI's handler raises at once (:func:`stop`), so that partial files are removed and a robot
 is sent its zero commands. A native extension that clears Python's errors (some do, between
 attempts) can swallow that exception, and the command would run on to its end: the long
-loops call :func:`raise_if_stopped` once a step to raise it again.
+loops call :func:`raise_if_stopped` once a step to raise it again (those with a progress bar
+through its step, :meth:`~hbvs_cli.stages.console.ProgressTask.advance`).
 """
 
 from __future__ import annotations

@@ -7,6 +7,8 @@ import sys
 from contextlib import contextmanager
 from typing import Any, Iterator
 
+from ..stop_signals import raise_if_stopped
+
 
 def print_json(document: Any) -> None:
     """A JSON document on stdout, the data channel (two-space indents, no NaN)."""
@@ -56,7 +58,9 @@ class Console:
 
 
 class ProgressTask:
-    """Handle on one progress bar; does nothing when there is no bar."""
+    """Handle on one progress bar (nothing is drawn when there is none). Each step of a long
+    loop advances it, so :meth:`advance` also raises a stop signal that native code swallowed
+    (:func:`~hbvs_cli.stop_signals.raise_if_stopped`)."""
 
     def __init__(self, progress: Any, task: Any) -> None:
         self._progress = progress
@@ -65,3 +69,4 @@ class ProgressTask:
     def advance(self, amount: float = 1.0, **fields: Any) -> None:
         if self._progress is not None:
             self._progress.update(self._task, advance=amount, **fields)
+        raise_if_stopped()

@@ -31,7 +31,6 @@ from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
-from ..stop_signals import raise_if_stopped
 from ..thread_pool import StopSafePool
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
@@ -250,7 +249,6 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                     annotations_message(frame.log_time_ns, pixels),
                 )
                 bar.advance()
-                raise_if_stopped()
         if log is None or log.count == 0:
             cut = " (it ends before its end record: a crashed recorder?)" if reader.truncated else ""
             raise RecordingError(f"{reader.name}: no complete image in the recording{cut}")
@@ -403,6 +401,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     scipy is imported by the main thread (here, or while reading ahead: :func:`_with_solvers_loaded`),
     never by a second thread: a stop signal inside an import can leave its lock held and the
     threads deadlocked."""
+    from threadpoolctl import threadpool_limits
+
     shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
     if spec.kind == "chessboard" and spec.board is not None:
         shapes = [(range(spec.n_points), board_layout(spec.board))]
@@ -410,8 +410,6 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
     if layout is not None:  # --target-points: the whole target's layout, known
         shapes = [(range(layout.shape[0]), layout)]
-    from threadpoolctl import threadpool_limits
-
     _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.

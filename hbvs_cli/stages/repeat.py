@@ -45,7 +45,6 @@ from ..io.settings import DEFAULT_GAINS, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
-from ..stop_signals import raise_if_stopped
 from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
@@ -339,7 +338,6 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                                   desired_pixels(model, record.desired), label)
                     tally.add(record, taught_poses[k])
                     bar.advance()
-                    raise_if_stopped()
                     lost_for = lost_for + dt if record.lost else 0.0
                     if lost_for > settings.lost_timeout:
                         stopped_at = record.t
@@ -469,7 +467,6 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
                     log.step(record)
                     tally.add(record)
                     bar.advance()
-                    raise_if_stopped()
             if tally.steps == 0:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)

@@ -18,7 +18,6 @@ from ..sweep.engine import check_scheduler_address, dashboard_address, dask_clie
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, summarize
-from ..stop_signals import raise_if_stopped
 from .console import Console, print_json
 from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
 
@@ -137,7 +136,6 @@ def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table
                 table.append(row)
                 failures += row["status"] == "failed"
                 progress.advance(failed=failures)
-                raise_if_stopped()
 
             try:
                 done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}", total=remaining)

@@ -25,7 +25,6 @@ from ..io.path_csv import load_command_profile
 from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..sim.render import make_renderer
-from ..stop_signals import raise_if_stopped
 from .console import Console
 from .options import parse_offset, recorded_settings
 
@@ -162,7 +161,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()
-                raise_if_stopped()
     console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
 
 
@@ -222,7 +220,6 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     frames += 1
                     last_t = frame.t
                     bar.advance()
-                    raise_if_stopped()
             except KeyboardInterrupt:
                 if kind not in ("camera", "ros2"):
                     raise
