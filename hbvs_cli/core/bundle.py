@@ -12,7 +12,7 @@ complement on the globals (docs/uncertainty.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -244,7 +244,7 @@ BLOCK_FRAMES = 256
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
-                     correlated: bool = True, bias_fraction: float = 0.0,
+                     estimated_rows: ArrayLike | None = None, correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
                      readout_estimated: bool = False) -> JointCovariance:
@@ -269,6 +269,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
         Frames to give the own covariance and sensitivity of (default: ``estimated``),
         e.g. every frame of a recording whose globals came from a sample of it.
+    estimated_rows : array_like of int, shape (K,), optional
+        Which frame of ``frames`` each estimated frame is, -1 for one that is not among them
+        (by default none is; without ``frames``, each is itself).
     correlated : bool
         Grow the covariance by :func:`correlation_inflation` of the estimated frames'
         residuals (in the order given: time order); False assumes independent frames.
@@ -297,38 +300,46 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
-    frames = estimated if frames is None else np.asarray(frames, dtype=float)
+    if frames is None:
+        frames, rows = estimated, np.arange(estimated.shape[0])
+    else:
+        frames = np.asarray(frames, dtype=float)
+        rows = np.full(estimated.shape[0], -1) if estimated_rows is None else np.array(estimated_rows, dtype=np.intp)
     frames_motion = motion if frames_motion is None else np.asarray(frames_motion, dtype=float)
     m_ref = np.asarray(m_ref, dtype=float)
     points = 2 * m_ref.shape[0]
     reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
-    shifts = [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
+    shifts = [_finite(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
     estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
     frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
-    # One pass over ``frames`` and the estimated frames not among them (the same points, pose
-    # and span); ``weight`` counts the times each is an estimated frame.
-    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts])]  # noqa: E731
-    position = {key: i for i, key in enumerate(keys(frames, frames_motion, frame_segments))}
-    where = np.array([position.get(key, -1) for key in keys(estimated, motion, estimated_segments)], dtype=np.intp)
-    missing = np.flatnonzero(where < 0)
+    # One pass over the pool: ``frames``, then the estimated frames not among them; ``weight``
+    # counts the times each is an estimated frame. A block's rows are gathered as it is reached,
+    # and only what later steps need is kept per frame: a long recording's frames are not copied.
+    missing = np.flatnonzero(rows < 0)
+    where = rows.copy()
     where[missing] = frames.shape[0] + np.arange(missing.size)
-    pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
+    extra = (estimated[missing], motion[missing], shifts[1][missing])
+    pool_size = frames.shape[0] + missing.size
+    pooled = lambda block: [_rows_then(whole, more, block) for whole, more in zip((frames, frames_motion, shifts[2]), extra)]  # noqa: E731
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
-    pool_shift = np.concatenate([shifts[2], shifts[1][missing]])
-    weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
+    weight = np.bincount(where, minlength=pool_size).astype(float)
+    by_row = np.argsort(where, kind="stable")  # the estimated frames in the pool's order
+    rows_in_order = where[by_row]
     geometry = PlaneGeometry.around(normal, m_ref)
     reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
     shared_info = reference.T @ reference
     spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
-    inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
-    own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
-    shutter_own, shutter_globals = np.zeros((pool.shape[0], 3)), -reference[:points].T @ shifts[0]
-    for k in range(0, pool.shape[0], BLOCK_FRAMES):
-        block = slice(k, k + BLOCK_FRAMES)
-        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
+    inverse_own, coupling = np.empty((pool_size, 3, 3)), np.empty((pool_size, 3, geometry.size))
+    own_rhs = np.zeros((pool_size, 3, points)) if bias_fraction > 0.0 else None
+    residuals = np.empty((estimated.shape[0], points))  # the estimated frames' own, in their (time) order
+    shutter_own, shutter_globals = np.zeros((pool_size, 3)), -reference[:points].T @ shifts[0]
+    for k in range(0, pool_size, BLOCK_FRAMES):
+        block = slice(k, min(k + BLOCK_FRAMES, pool_size))
+        pool, pool_motion, pool_shift = pooled(block)
+        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion, pool, shapes, derivatives=True)
         own, shared = _finite(own), _finite(shared)
         coupling[block] = np.swapaxes(own, 1, 2) @ shared  # B_k = J_k^T J_kg; D_k = J_k^T J_k
         inverse_own[block] = np.linalg.pinv(np.swapaxes(own, 1, 2) @ own, rcond=1e-12, hermitian=True)
@@ -337,22 +348,22 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         reduced = np.swapaxes(weight[block, None, None] * coupling[block], 1, 2) @ inverse_own[block]  # B_k^T D_k^-1, weighted
         shared_info += (weighted.reshape(-1, geometry.size).T @ shared.reshape(-1, geometry.size)
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
-        residuals[block] = at[:, :points]
+        mine = by_row[slice(*np.searchsorted(rows_in_order, [block.start, block.stop]))]
+        residuals[mine] = at[where[mine] - k, :points]
         # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
         biased = shutter is not None or bias_fraction > 0.0
-        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if biased else None
+        by_shapes = _shape_bias_rows(pool, normal, pool_motion, shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
-            change = np.concatenate([-pool_shift[block], np.einsum("krb,kb->kr", by_shapes, pool_shift[block])], axis=1)
+            change = np.concatenate([-pool_shift, np.einsum("krb,kb->kr", by_shapes, pool_shift)], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
-        if bias_fraction > 0.0:
+        if own_rhs is not None:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = through(own)
             per_frame = through(weighted) - reduced @ own_rhs[block]
             for span in np.unique(pool_segments[block]):
                 spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
-    residuals = residuals[where]  # the estimated frames' own, in their (time) order
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     readout = 0.0
     if shutter is not None:
@@ -391,10 +402,14 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
         bias = column if bias is None else np.concatenate([bias, column], axis=2)
+    for k in range(0, frames.shape[0], BLOCK_FRAMES):  # -D_k^-1 B_k in B_k's place: no second frame-long array
+        block = slice(k, k + BLOCK_FRAMES)
+        coupling[block] = -(inverse_own[block] @ coupling[block])
+    inverse_own *= variance
     return JointCovariance(
         shared=variance * shared_inverse,
-        own=variance * inverse_own,
-        sensitivity=-(inverse_own @ coupling),
+        own=inverse_own,
+        sensitivity=coupling,
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
@@ -428,6 +443,15 @@ def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLik
         return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
     return _finite(shape_residuals(normals, m, shapes, "points only")[1].reshape(m.shape[0], -1, 2 * m.shape[1]))
+
+
+def _rows_then(first: NDArray[Any], then: NDArray[Any], rows: slice) -> NDArray[Any]:
+    """Rows ``rows`` of ``first`` followed by ``then``, without concatenating the two whole."""
+    if rows.stop <= first.shape[0]:
+        return first[rows]
+    if rows.start >= first.shape[0]:
+        return then[rows.start - first.shape[0]:rows.stop - first.shape[0]]
+    return np.concatenate([first[rows.start:], then[:rows.stop - first.shape[0]]])
 
 
 def _finite(values: NDArray[np.float64]) -> NDArray[np.float64]:
