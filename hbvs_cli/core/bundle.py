@@ -186,6 +186,10 @@ def correlation_inflation(residuals: ArrayLike) -> float:
 class JointCovariance:
     """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
 
+    A frame's move with all C biases, :meth:`bias_rows`, is its own (zero in the other
+    spans' columns) plus what it inherits, ``sensitivity bias_shared``: kept in these parts,
+    a board's frames take ``3 2N`` numbers each instead of ``3 S 2N``.
+
     Attributes
     ----------
     shared : ndarray, shape (G, G)
@@ -201,12 +205,16 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
-    bias_shared, bias : ndarray, shapes (G, C) and (K, 3, C), or None
-        How the globals and each frame's (theta, x_h1, x_h2) move with each of C biases: a
-        detector's, of one standard deviation on each point's coordinate in each of S spans
-        of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
-        rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
-        frames (None: no bias).
+    bias_shared : ndarray, shape (G, C), or None
+        How the globals move with each of C biases: a detector's, of one standard deviation
+        on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
+        :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
+        column); their covariances add ``bias bias^T``, common to the frames (None: no bias).
+    span_bias, frame_spans : ndarrays, shapes (K, 3, 2N) and (K,), or None
+        A frame's own move with the biases of its span (its columns of the span's ``2N``),
+        and its span; None: no detector's bias.
+    readout_bias : ndarray, shape (K, 3), or None
+        A frame's own move with the rolling shutter's bias (the last column).
     readout, readout_sigma : float
         With ``shutter``: the readout (s per normalised row) the residuals show, and its
         standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
@@ -220,7 +228,9 @@ class JointCovariance:
     noise: float
     inflation: float = 1.0
     bias_shared: NDArray[np.float64] | None = None
-    bias: NDArray[np.float64] | None = None
+    span_bias: NDArray[np.float64] | None = None
+    frame_spans: NDArray[np.intp] | None = None
+    readout_bias: NDArray[np.float64] | None = None
     readout: float = 0.0
     readout_sigma: float = 0.0
 
@@ -230,15 +240,50 @@ class JointCovariance:
         biased = 0.0 if self.bias_shared is None else float(np.sum(self.bias_shared[:2] ** 2))
         return float(np.sqrt(max(np.trace(self.shared[:2, :2]) + biased, 0.0)))
 
+    def bias_rows(self, rows: slice, component: int | None = None) -> NDArray[np.float64] | None:
+        """How the frames ``rows`` (of K) move with each bias, shape (n, 3, C), or (n, C) for
+        one ``component`` of (theta, x_h1, x_h2); None: no bias."""
+        if self.bias_shared is None:
+            return None
+        components = slice(None) if component is None else [component]
+        moved = self.sensitivity[rows][:, components] @ self.bias_shared
+        if self.span_bias is not None and self.frame_spans is not None:
+            width = self.span_bias.shape[2]
+            columns = self.frame_spans[rows, None] * width + np.arange(width)  # (n, 2N): each frame's span
+            frames, parts = np.arange(moved.shape[0])[:, None, None], np.arange(moved.shape[1])[:, None]
+            moved[frames, parts, columns[:, None, :]] += self.span_bias[rows][:, components]
+        if self.readout_bias is not None:
+            moved[:, :, -1] += self.readout_bias[rows][:, components]
+        return moved if component is None else moved[:, 0]
+
+    @property
+    def bias(self) -> NDArray[np.float64] | None:
+        """Every frame's :meth:`bias_rows`, shape (K, 3, C): a long recording's are large."""
+        return self.bias_rows(slice(None))
+
     def frame_sigma(self) -> NDArray[np.float64]:
-        """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3)."""
-        inherited = np.einsum("kag,gh,kah->ka", self.sensitivity, self.shared, self.sensitivity)
-        biased = 0.0 if self.bias is None else np.sum(self.bias**2, axis=-1)
-        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited + biased, 0.0))
+        """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3), formed
+        :data:`BLOCK_FRAMES` frames at a time."""
+        sigma = np.empty(self.own.shape[:2])
+        for k in range(0, sigma.shape[0], BLOCK_FRAMES):
+            rows = slice(k, k + BLOCK_FRAMES)
+            inherited = np.einsum("kag,gh,kah->ka", self.sensitivity[rows], self.shared, self.sensitivity[rows])
+            bias = self.bias_rows(rows)
+            biased = 0.0 if bias is None else np.sum(bias**2, axis=-1)
+            sigma[rows] = np.sqrt(np.maximum(np.einsum("kaa->ka", self.own[rows]) + inherited + biased, 0.0))
+        return sigma
 
 
 #: Frames whose Jacobian blocks are held at once: memory stays bounded for many points.
 BLOCK_FRAMES = 256
+#: At most these bytes in one block's Jacobian (its frames' rows by the globals): a target of
+#: many points (a board's 54 corners: 95 kB a frame) is taken fewer frames at a time.
+BLOCK_BYTES = 4 << 20
+
+
+def _frames_per_block(rows: int, columns: int) -> int:
+    """Frames in a block of :func:`joint_covariance`, of ``rows`` residuals each by ``columns`` globals."""
+    return int(np.clip(BLOCK_BYTES // max(8 * rows * columns, 1), 16, BLOCK_FRAMES))
 
 
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
@@ -336,8 +381,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     own_rhs = np.zeros((pool_size, 3, points)) if bias_fraction > 0.0 else None
     residuals = np.empty((estimated.shape[0], points))  # the estimated frames' own, in their (time) order
     shutter_own, shutter_globals = np.zeros((pool_size, 3)), -reference[:points].T @ shifts[0]
-    for k in range(0, pool_size, BLOCK_FRAMES):
-        block = slice(k, min(k + BLOCK_FRAMES, pool_size))
+    block_frames = _frames_per_block(reference.shape[0], geometry.size)
+    for k in range(0, pool_size, block_frames):
+        block = slice(k, min(k + block_frames, pool_size))
         pool, pool_motion, pool_shift = pooled(block)
         at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion, pool, shapes, derivatives=True)
         own, shared = _finite(own), _finite(shared)
@@ -370,13 +416,13 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         # The estimate's move per unit readout (as the bias's below), and the residuals' change
         # it leaves: the shift less what the estimated frames' poses and the globals absorb.
         moved_globals = shared_inverse @ shutter_globals
-        moved = np.einsum("kab,kb->ka", inverse_own, shutter_own - coupling @ moved_globals)
+        moved = np.einsum("kab,kb->ka", inverse_own[where], shutter_own[where] - coupling[where] @ moved_globals)  # the estimated frames'
         visible = np.empty_like(residuals)
-        for k in range(0, estimated.shape[0], BLOCK_FRAMES):
-            block = slice(k, k + BLOCK_FRAMES)
+        for k in range(0, estimated.shape[0], block_frames):
+            block = slice(k, k + block_frames)
             # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
-            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[where[block]]) - _finite(shared) @ moved_globals
+            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[block]) - _finite(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
         unabsorbed = float(np.sum(visible[finite] ** 2))
         readout = float(np.sum(residuals[finite] * visible[finite]) / max(unabsorbed, 1e-300))
@@ -390,21 +436,23 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     fitted_readout, readout_sigma = readout, float(np.sqrt(variance / unabsorbed)) if readout != 0.0 else 0.0
     if readout_estimated:
         readout = readout_sigma
-    bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
-    if detector_bias > 0.0:
+    # A frame's move with the biases: its own, D_k^-1 (J_k^T W_k in its span's columns), plus
+    # what it inherits through the globals, -D_k^-1 B_k bias_shared (JointCovariance.bias_rows).
+    bias_shared = span_bias = readout_bias = None
+    if detector_bias > 0.0 and own_rhs is not None:
         spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-        inherited = (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(coupling.shape[:2] + (-1,))
-        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - inherited
-        bias = inverse_own @ own_rhs
+        span_bias = own_rhs[:frames.shape[0]]  # formed in J_k^T W_k's place below
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
-        column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
+        column_shared = readout * moved_globals[:, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
-        bias = column if bias is None else np.concatenate([bias, column], axis=2)
-    for k in range(0, frames.shape[0], BLOCK_FRAMES):  # -D_k^-1 B_k in B_k's place: no second frame-long array
+        readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
+    for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
         block = slice(k, k + BLOCK_FRAMES)
-        coupling[block] = -(inverse_own[block] @ coupling[block])
+        if span_bias is not None:
+            span_bias[block] = detector_bias * (inverse_own[block] @ span_bias[block])
+        coupling[block] = -(inverse_own[block] @ coupling[block])  # the sensitivity, -D_k^-1 B_k
     inverse_own *= variance
     return JointCovariance(
         shared=variance * shared_inverse,
@@ -413,7 +461,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
-        bias=bias,
+        span_bias=span_bias,
+        frame_spans=None if span_bias is None else np.array(frame_segments),
+        readout_bias=readout_bias,
         readout=fitted_readout,
         readout_sigma=readout_sigma,
     )
@@ -458,10 +508,3 @@ def _finite(values: NDArray[np.float64]) -> NDArray[np.float64]:
     """``np.nan_to_num(values)``, and ``values`` themselves when all are finite (the usual
     case): the check is a tenth of the copy's cost, on every block of frames."""
     return values if np.isfinite(values).all() else np.nan_to_num(values)
-
-
-def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
-    """Each frame's (K, A, B) values placed in its segment's columns: (K, A, count * B)."""
-    out = np.zeros(values.shape[:2] + (count, values.shape[2]))
-    out[np.arange(values.shape[0]), :, segments, :] = values
-    return out.reshape(values.shape[:2] + (-1,))

@@ -86,6 +86,8 @@ MAX_SPLINE_SAMPLES = 3000
 #: Frames whose uncertainty probes are formed and evaluated at once (:func:`_fit_uncertainty`):
 #: the fit's peak memory stays flat however long the recording.
 UNCERTAINTY_BLOCK = 2048
+#: Columns (inherited errors, biases, probes) whose smoothing splines are formed at once.
+SPLINE_COLUMNS = 128
 
 #: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
 #: fit file older than the interval it records): 30 Hz, the rate ``teach`` records at.
@@ -493,18 +495,23 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
             # What the frames inherit from the globals (and a detector's bias: common to all
             # frames as well), then the probes of their own error; a block of frames at a time.
             inherited = [covariance.sensitivity[rows, index, :] @ directions]
-            if covariance.bias is not None:
-                inherited.append(covariance.bias[rows, index, :])
+            if (bias := covariance.bias_rows(rows, index)) is not None:
+                inherited.append(bias)
             return np.column_stack([*inherited, probes[rows] * own[rows, None]])
 
         binned_t, binned = _binned_columns(t[used], columns)
-        spline = make_smoothing_spline(binned_t, binned, lam=trajectory.channels[channel].smoothing)
         shared = binned.shape[1] - NOISE_PROBES
-        variance = []
-        for block in range(0, times.size, UNCERTAINTY_BLOCK):  # the spline's columns at a block of frames at a time
-            at = spline(times[block:block + UNCERTAINTY_BLOCK])
-            variance.append(np.sum(at[:, :shared] ** 2, axis=1) + np.mean(at[:, shared:] ** 2, axis=1))
-        smoothed.append(np.sqrt(np.concatenate(variance)))
+        inherited_variance, probed_variance = np.zeros(times.size), np.zeros(times.size)
+        # A few columns' splines at a time (a board's biases are ~900 columns), each evaluated
+        # a block of frames at a time: the same splines, column by column, as all at once.
+        for first in range(0, binned.shape[1], SPLINE_COLUMNS):
+            spline = make_smoothing_spline(binned_t, binned[:, first:first + SPLINE_COLUMNS], lam=trajectory.channels[channel].smoothing)
+            split = max(shared - first, 0)
+            for block in range(0, times.size, UNCERTAINTY_BLOCK):
+                at = spline(times[block:block + UNCERTAINTY_BLOCK])
+                inherited_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, :split] ** 2, axis=1)
+                probed_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, split:] ** 2, axis=1)
+        smoothed.append(np.sqrt(inherited_variance + probed_variance / NOISE_PROBES))
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
         point_noise_px=float(covariance.noise * focal),
@@ -521,9 +528,7 @@ def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[n
     splines' samples; ``columns(rows)`` forms the columns of a slice of the K rows, which are
     asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a time, so that a
     long recording's columns are never held whole."""
-    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
-    if group <= 1:
-        return t, columns(slice(0, t.size))
+    group = max(int(np.ceil(t.size / MAX_SPLINE_SAMPLES)), 1)
     usable = t.size // group * group
     step = max(UNCERTAINTY_BLOCK // group, 1) * group
     averaged = lambda block: block.reshape(-1, group, block.shape[1]).mean(axis=1)  # noqa: E731
