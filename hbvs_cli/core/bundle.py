@@ -12,7 +12,7 @@ complement on the globals (docs/uncertainty.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -186,6 +186,10 @@ def correlation_inflation(residuals: ArrayLike) -> float:
 class JointCovariance:
     """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
 
+    A frame's move with all C biases, :meth:`bias_rows`, is its own (zero in the other
+    spans' columns) plus what it inherits, ``sensitivity bias_shared``: kept in these parts,
+    a board's frames take ``3 2N`` numbers each instead of ``3 S 2N``.
+
     Attributes
     ----------
     shared : ndarray, shape (G, G)
@@ -201,12 +205,16 @@ class JointCovariance:
     inflation : float
         The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
         (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
-    bias_shared, bias : ndarray, shapes (G, C) and (K, 3, C), or None
-        How the globals and each frame's (theta, x_h1, x_h2) move with each of C biases: a
-        detector's, of one standard deviation on each point's coordinate in each of S spans
-        of the drive (``S 2N`` columns, :func:`joint_covariance`'s ``bias_fraction``), then a
-        rolling shutter's (one column); their covariances add ``bias bias^T``, common to the
-        frames (None: no bias).
+    bias_shared : ndarray, shape (G, C), or None
+        How the globals move with each of C biases: a detector's, of one standard deviation
+        on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
+        :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
+        column); their covariances add ``bias bias^T``, common to the frames (None: no bias).
+    span_bias, frame_spans : ndarrays, shapes (K, 3, 2N) and (K,), or None
+        A frame's own move with the biases of its span (its columns of the span's ``2N``),
+        and its span; None: no detector's bias.
+    readout_bias : ndarray, shape (K, 3), or None
+        A frame's own move with the rolling shutter's bias (the last column).
     readout, readout_sigma : float
         With ``shutter``: the readout (s per normalised row) the residuals show, and its
         standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
@@ -220,7 +228,9 @@ class JointCovariance:
     noise: float
     inflation: float = 1.0
     bias_shared: NDArray[np.float64] | None = None
-    bias: NDArray[np.float64] | None = None
+    span_bias: NDArray[np.float64] | None = None
+    frame_spans: NDArray[np.intp] | None = None
+    readout_bias: NDArray[np.float64] | None = None
     readout: float = 0.0
     readout_sigma: float = 0.0
 
@@ -230,21 +240,56 @@ class JointCovariance:
         biased = 0.0 if self.bias_shared is None else float(np.sum(self.bias_shared[:2] ** 2))
         return float(np.sqrt(max(np.trace(self.shared[:2, :2]) + biased, 0.0)))
 
+    def bias_rows(self, rows: slice, component: int | None = None) -> NDArray[np.float64] | None:
+        """How the frames ``rows`` (of K) move with each bias, shape (n, 3, C), or (n, C) for
+        one ``component`` of (theta, x_h1, x_h2); None: no bias."""
+        if self.bias_shared is None:
+            return None
+        components = slice(None) if component is None else [component]
+        moved = self.sensitivity[rows][:, components] @ self.bias_shared
+        if self.span_bias is not None and self.frame_spans is not None:
+            width = self.span_bias.shape[2]
+            columns = self.frame_spans[rows, None] * width + np.arange(width)  # (n, 2N): each frame's span
+            frames, parts = np.arange(moved.shape[0])[:, None, None], np.arange(moved.shape[1])[:, None]
+            moved[frames, parts, columns[:, None, :]] += self.span_bias[rows][:, components]
+        if self.readout_bias is not None:
+            moved[:, :, -1] += self.readout_bias[rows][:, components]
+        return moved if component is None else moved[:, 0]
+
+    @property
+    def bias(self) -> NDArray[np.float64] | None:
+        """Every frame's :meth:`bias_rows`, shape (K, 3, C): a long recording's are large."""
+        return self.bias_rows(slice(None))
+
     def frame_sigma(self) -> NDArray[np.float64]:
-        """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3)."""
-        inherited = np.einsum("kag,gh,kah->ka", self.sensitivity, self.shared, self.sensitivity)
-        biased = 0.0 if self.bias is None else np.sum(self.bias**2, axis=-1)
-        return np.sqrt(np.maximum(np.einsum("kaa->ka", self.own) + inherited + biased, 0.0))
+        """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3), formed
+        :data:`BLOCK_FRAMES` frames at a time."""
+        sigma = np.empty(self.own.shape[:2])
+        for k in range(0, sigma.shape[0], BLOCK_FRAMES):
+            rows = slice(k, k + BLOCK_FRAMES)
+            inherited = np.einsum("kag,gh,kah->ka", self.sensitivity[rows], self.shared, self.sensitivity[rows])
+            bias = self.bias_rows(rows)
+            biased = 0.0 if bias is None else np.sum(bias**2, axis=-1)
+            sigma[rows] = np.sqrt(np.maximum(np.einsum("kaa->ka", self.own[rows]) + inherited + biased, 0.0))
+        return sigma
 
 
 #: Frames whose Jacobian blocks are held at once: memory stays bounded for many points.
 BLOCK_FRAMES = 256
+#: At most these bytes in one block's Jacobian (its frames' rows by the globals): a target of
+#: many points (a board's 54 corners: 95 kB a frame) is taken fewer frames at a time.
+BLOCK_BYTES = 4 << 20
+
+
+def _frames_per_block(rows: int, columns: int) -> int:
+    """Frames in a block of :func:`joint_covariance`, of ``rows`` residuals each by ``columns`` globals."""
+    return int(np.clip(BLOCK_BYTES // max(8 * rows * columns, 1), 16, BLOCK_FRAMES))
 
 
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
-                     correlated: bool = True, bias_fraction: float = 0.0,
+                     estimated_rows: ArrayLike | None = None, correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
                      readout_estimated: bool = False) -> JointCovariance:
@@ -269,6 +314,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
         Frames to give the own covariance and sensitivity of (default: ``estimated``),
         e.g. every frame of a recording whose globals came from a sample of it.
+    estimated_rows : array_like of int, shape (K,), optional
+        Which frame of ``frames`` each estimated frame is, -1 for one that is not among them
+        (by default none is; without ``frames``, each is itself).
     correlated : bool
         Grow the covariance by :func:`correlation_inflation` of the estimated frames'
         residuals (in the order given: time order); False assumes independent frames.
@@ -297,38 +345,47 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
-    frames = estimated if frames is None else np.asarray(frames, dtype=float)
+    if frames is None:
+        frames, rows = estimated, np.arange(estimated.shape[0])
+    else:
+        frames = np.asarray(frames, dtype=float)
+        rows = np.full(estimated.shape[0], -1) if estimated_rows is None else np.array(estimated_rows, dtype=np.intp)
     frames_motion = motion if frames_motion is None else np.asarray(frames_motion, dtype=float)
     m_ref = np.asarray(m_ref, dtype=float)
     points = 2 * m_ref.shape[0]
     reference_segment, estimated_segments, frame_segments = (0, 0, 0) if bias_segments is None else bias_segments
     if bias_segments is None:
         bias_fraction = 0.0
-    shifts = [np.nan_to_num(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
+    shifts = [_finite(np.asarray(x, dtype=float)) for x in shutter or (np.zeros(points), np.zeros((len(estimated), points)), np.zeros((len(frames), points)))]
     estimated_segments = np.broadcast_to(np.asarray(estimated_segments, np.intp), estimated.shape[:1])
     frame_segments = np.broadcast_to(np.asarray(frame_segments, np.intp), frames.shape[:1])
     count = int(max(reference_segment, estimated_segments.max(initial=0), frame_segments.max(initial=0))) + 1
-    # One pass over ``frames`` and the estimated frames not among them (the same points, pose
-    # and span); ``weight`` counts the times each is an estimated frame.
-    keys = lambda *parts: [row.tobytes() for row in np.column_stack([part.reshape(len(part), -1) for part in parts])]  # noqa: E731
-    position = {key: i for i, key in enumerate(keys(frames, frames_motion, frame_segments))}
-    where = np.array([position.get(key, -1) for key in keys(estimated, motion, estimated_segments)], dtype=np.intp)
-    missing = np.flatnonzero(where < 0)
+    # One pass over the pool: ``frames``, then the estimated frames not among them; ``weight``
+    # counts the times each is an estimated frame. A block's rows are gathered as it is reached,
+    # and only what later steps need is kept per frame: a long recording's frames are not copied.
+    missing = np.flatnonzero(rows < 0)
+    where = rows.copy()
     where[missing] = frames.shape[0] + np.arange(missing.size)
-    pool, pool_motion = np.concatenate([frames, estimated[missing]]), np.concatenate([frames_motion, motion[missing]])
+    extra = (estimated[missing], motion[missing], shifts[1][missing])
+    pool_size = frames.shape[0] + missing.size
+    pooled = lambda block: [_rows_then(whole, more, block) for whole, more in zip((frames, frames_motion, shifts[2]), extra)]  # noqa: E731
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
-    pool_shift = np.concatenate([shifts[2], shifts[1][missing]])
-    weight = np.bincount(where, minlength=pool.shape[0]).astype(float)
+    weight = np.bincount(where, minlength=pool_size).astype(float)
+    by_row = np.argsort(where, kind="stable")  # the estimated frames in the pool's order
+    rows_in_order = where[by_row]
     geometry = PlaneGeometry.around(normal, m_ref)
     reference = reference_rows(geometry, np.zeros(geometry.size), shapes, derivatives=True)
     shared_info = reference.T @ reference
     spans = np.zeros((count, geometry.size, points))  # J^T W's Schur part on the globals, span by span
-    inverse_own, coupling = np.empty((pool.shape[0], 3, 3)), np.empty((pool.shape[0], 3, geometry.size))
-    own_rhs, residuals = np.zeros((pool.shape[0], 3, points)), np.empty((pool.shape[0], points))
-    shutter_own, shutter_globals = np.zeros((pool.shape[0], 3)), -reference[:points].T @ shifts[0]
-    for k in range(0, pool.shape[0], BLOCK_FRAMES):
-        block = slice(k, k + BLOCK_FRAMES)
-        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion[block], pool[block], shapes, derivatives=True)
+    inverse_own, coupling = np.empty((pool_size, 3, 3)), np.empty((pool_size, 3, geometry.size))
+    own_rhs = np.zeros((pool_size, 3, points)) if bias_fraction > 0.0 else None
+    residuals = np.empty((estimated.shape[0], points))  # the estimated frames' own, in their (time) order
+    shutter_own, shutter_globals = np.zeros((pool_size, 3)), -reference[:points].T @ shifts[0]
+    block_frames = _frames_per_block(reference.shape[0], geometry.size)
+    for k in range(0, pool_size, block_frames):
+        block = slice(k, min(k + block_frames, pool_size))
+        pool, pool_motion, pool_shift = pooled(block)
+        at, own, shared = frame_rows(geometry, np.zeros(geometry.size), pool_motion, pool, shapes, derivatives=True)
         own, shared = _finite(own), _finite(shared)
         coupling[block] = np.swapaxes(own, 1, 2) @ shared  # B_k = J_k^T J_kg; D_k = J_k^T J_k
         inverse_own[block] = np.linalg.pinv(np.swapaxes(own, 1, 2) @ own, rcond=1e-12, hermitian=True)
@@ -337,35 +394,35 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         reduced = np.swapaxes(weight[block, None, None] * coupling[block], 1, 2) @ inverse_own[block]  # B_k^T D_k^-1, weighted
         shared_info += (weighted.reshape(-1, geometry.size).T @ shared.reshape(-1, geometry.size)
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
-        residuals[block] = at[:, :points]
+        mine = by_row[slice(*np.searchsorted(rows_in_order, [block.start, block.stop]))]
+        residuals[mine] = at[where[mine] - k, :points]
         # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
         biased = shutter is not None or bias_fraction > 0.0
-        by_shapes = _shape_bias_rows(pool[block], normal, pool_motion[block], shapes) if biased else None
+        by_shapes = _shape_bias_rows(pool, normal, pool_motion, shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
-            change = np.concatenate([-pool_shift[block], np.einsum("krb,kb->kr", by_shapes, pool_shift[block])], axis=1)
+            change = np.concatenate([-pool_shift, np.einsum("krb,kb->kr", by_shapes, pool_shift)], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
-        if bias_fraction > 0.0:
+        if own_rhs is not None:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = through(own)
             per_frame = through(weighted) - reduced @ own_rhs[block]
             for span in np.unique(pool_segments[block]):
                 spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
-    residuals = residuals[where]  # the estimated frames' own, in their (time) order
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
     readout = 0.0
     if shutter is not None:
         # The estimate's move per unit readout (as the bias's below), and the residuals' change
         # it leaves: the shift less what the estimated frames' poses and the globals absorb.
         moved_globals = shared_inverse @ shutter_globals
-        moved = np.einsum("kab,kb->ka", inverse_own, shutter_own - coupling @ moved_globals)
+        moved = np.einsum("kab,kb->ka", inverse_own[where], shutter_own[where] - coupling[where] @ moved_globals)  # the estimated frames'
         visible = np.empty_like(residuals)
-        for k in range(0, estimated.shape[0], BLOCK_FRAMES):
-            block = slice(k, k + BLOCK_FRAMES)
+        for k in range(0, estimated.shape[0], block_frames):
+            block = slice(k, k + block_frames)
             # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
-            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[where[block]]) - _finite(shared) @ moved_globals
+            visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[block]) - _finite(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
         unabsorbed = float(np.sum(visible[finite] ** 2))
         readout = float(np.sum(residuals[finite] * visible[finite]) / max(unabsorbed, 1e-300))
@@ -379,26 +436,34 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     fitted_readout, readout_sigma = readout, float(np.sqrt(variance / unabsorbed)) if readout != 0.0 else 0.0
     if readout_estimated:
         readout = readout_sigma
-    bias_shared = bias = None
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
-    if detector_bias > 0.0:
+    # A frame's move with the biases: its own, D_k^-1 (J_k^T W_k in its span's columns), plus
+    # what it inherits through the globals, -D_k^-1 B_k bias_shared (JointCovariance.bias_rows).
+    bias_shared = span_bias = readout_bias = None
+    if detector_bias > 0.0 and own_rhs is not None:
         spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
-        inherited = (coupling.reshape(-1, geometry.size) @ bias_shared).reshape(coupling.shape[:2] + (-1,))
-        own_rhs = detector_bias * _in_segments(own_rhs[:frames.shape[0]], frame_segments, count) - inherited
-        bias = inverse_own @ own_rhs
+        span_bias = own_rhs[:frames.shape[0]]  # formed in J_k^T W_k's place below
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
-        column_shared, column = readout * moved_globals[:, None], readout * moved[:frames.shape[0], :, None]
+        column_shared = readout * moved_globals[:, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
-        bias = column if bias is None else np.concatenate([bias, column], axis=2)
+        readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
+    for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
+        block = slice(k, k + BLOCK_FRAMES)
+        if span_bias is not None:
+            span_bias[block] = detector_bias * (inverse_own[block] @ span_bias[block])
+        coupling[block] = -(inverse_own[block] @ coupling[block])  # the sensitivity, -D_k^-1 B_k
+    inverse_own *= variance
     return JointCovariance(
         shared=variance * shared_inverse,
-        own=variance * inverse_own,
-        sensitivity=-(inverse_own @ coupling),
+        own=inverse_own,
+        sensitivity=coupling,
         noise=float(noise),
         inflation=float(inflation),
         bias_shared=bias_shared,
-        bias=bias,
+        span_bias=span_bias,
+        frame_spans=None if span_bias is None else np.array(frame_segments),
+        readout_bias=readout_bias,
         readout=fitted_readout,
         readout_sigma=readout_sigma,
     )
@@ -430,14 +495,16 @@ def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLik
     return _finite(shape_residuals(normals, m, shapes, "points only")[1].reshape(m.shape[0], -1, 2 * m.shape[1]))
 
 
+def _rows_then(first: NDArray[Any], then: NDArray[Any], rows: slice) -> NDArray[Any]:
+    """Rows ``rows`` of ``first`` followed by ``then``, without concatenating the two whole."""
+    if rows.stop <= first.shape[0]:
+        return first[rows]
+    if rows.start >= first.shape[0]:
+        return then[rows.start - first.shape[0]:rows.stop - first.shape[0]]
+    return np.concatenate([first[rows.start:], then[:rows.stop - first.shape[0]]])
+
+
 def _finite(values: NDArray[np.float64]) -> NDArray[np.float64]:
     """``np.nan_to_num(values)``, and ``values`` themselves when all are finite (the usual
     case): the check is a tenth of the copy's cost, on every block of frames."""
     return values if np.isfinite(values).all() else np.nan_to_num(values)
-
-
-def _in_segments(values: NDArray[np.float64], segments: NDArray[np.intp], count: int) -> NDArray[np.float64]:
-    """Each frame's (K, A, B) values placed in its segment's columns: (K, A, count * B)."""
-    out = np.zeros(values.shape[:2] + (count, values.shape[2]))
-    out[np.arange(values.shape[0]), :, segments, :] = values
-    return out.reshape(values.shape[:2] + (-1,))

@@ -18,6 +18,7 @@ from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
+from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points,
@@ -84,7 +85,9 @@ NOISE_PROBES = 64
 MAX_SPLINE_SAMPLES = 3000
 #: Frames whose uncertainty probes are formed and evaluated at once (:func:`_fit_uncertainty`):
 #: the fit's peak memory stays flat however long the recording.
-UNCERTAINTY_BLOCK = 4096
+UNCERTAINTY_BLOCK = 2048
+#: Columns (inherited errors, biases, probes) whose smoothing splines are formed at once.
+SPLINE_COLUMNS = 128
 
 #: The frame interval (s) assumed when a recording does not tell it (a single frame, or a
 #: fit file older than the interval it records): 30 Hz, the rate ``teach`` records at.
@@ -306,16 +309,8 @@ def fit_desired_trajectory(
     focal = camera.mean_focal
     uncertainty = None
     if others.size:
-        stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
-        duration = max(t[span][-1] - t[span][0], 1e-9)
-        segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
-        seen = np.flatnonzero(found & motion.valid)
-        shift = _shutter_shifts(normal, m_ref, t, seen, stacked(seen))
-        covariance = joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                                      frames=m[used], frames_motion=stacked(used), correlated=kind not in ("texture", "aruco"),
-                                      bias_fraction=detector_bias_fraction(kind, noise * camera.mean_focal),
-                                      bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
-                                      shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout != 0.0)
+        covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
+                                       shapes, kind, detector_bias_fraction(kind, noise * camera.mean_focal), readout != 0.0)
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
@@ -339,6 +334,32 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
+
+
+def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
+                      seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
+                      m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], kind: str | None, bias_fraction: float,
+                      readout_estimated: bool) -> JointCovariance:
+    """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
+    for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
+    used ``span``, and the rolling shutter's shift from the poses of the frames ``seen``.
+    Its frame-long inputs are freed when it returns, before the uncertainty is carried
+    through the smoothing."""
+    stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
+    duration = max(t[span][-1] - t[span][0], 1e-9)
+    segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
+    seen_rows = np.flatnonzero(seen)
+    shift = _shutter_shifts(normal, m_ref, t, seen_rows, stacked(seen_rows))
+    return joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
+                            frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
+                            correlated=kind not in ("texture", "aruco"), bias_fraction=bias_fraction,
+                            bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
+                            shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated)
+
+
+def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:
+    """Where each of ``frames`` (indices) is among the ``chosen`` frames, -1 where it is not."""
+    return np.where(chosen[frames], np.searchsorted(np.flatnonzero(chosen), frames), -1)
 
 
 def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
@@ -464,24 +485,33 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     values, vectors = np.linalg.eigh(covariance.shared)
     keep = values > 1e-6 * max(float(values.max()), 1e-300)
     directions = vectors[:, keep] * np.sqrt(values[keep])  # (G, r): shared = directions directions^T
-    rng = np.random.default_rng(0)
-    # The signs as int8 (the same draws as +-1.0): a long recording's probes take 64 bytes a frame, not 512.
-    probes = rng.choice(np.array([-1, 1], dtype=np.int8), size=(int(used.sum()), NOISE_PROBES))
+    probes = _random_signs(np.random.default_rng(0), int(used.sum()), NOISE_PROBES)
     times = t[span]
     smoothed = []
     for index, channel in ((0, "theta_d"), (1, "x_hd1")):
-        inherited = covariance.sensitivity[:, index, :] @ directions
-        if covariance.bias is not None:  # a detector's bias: common to all frames as well
-            inherited = np.column_stack([inherited, covariance.bias[:, index, :]])
         own = np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))
-        binned_t, binned = _binned_columns(t[used], lambda rows: np.column_stack([inherited[rows], probes[rows] * own[rows, None]]))
-        spline = make_smoothing_spline(binned_t, binned, lam=trajectory.channels[channel].smoothing)
-        shared = inherited.shape[1]
-        variance = []
-        for block in range(0, times.size, UNCERTAINTY_BLOCK):  # the spline's columns at a block of frames at a time
-            at = spline(times[block:block + UNCERTAINTY_BLOCK])
-            variance.append(np.sum(at[:, :shared] ** 2, axis=1) + np.mean(at[:, shared:] ** 2, axis=1))
-        smoothed.append(np.sqrt(np.concatenate(variance)))
+
+        def columns(rows: slice, index: int = index, own: NDArray[np.float64] = own) -> NDArray[np.float64]:
+            # What the frames inherit from the globals (and a detector's bias: common to all
+            # frames as well), then the probes of their own error; a block of frames at a time.
+            inherited = [covariance.sensitivity[rows, index, :] @ directions]
+            if (bias := covariance.bias_rows(rows, index)) is not None:
+                inherited.append(bias)
+            return np.column_stack([*inherited, probes[rows] * own[rows, None]])
+
+        binned_t, binned = _binned_columns(t[used], columns)
+        shared = binned.shape[1] - NOISE_PROBES
+        inherited_variance, probed_variance = np.zeros(times.size), np.zeros(times.size)
+        # A few columns' splines at a time (a board's biases are ~900 columns), each evaluated
+        # a block of frames at a time: the same splines, column by column, as all at once.
+        for first in range(0, binned.shape[1], SPLINE_COLUMNS):
+            spline = make_smoothing_spline(binned_t, binned[:, first:first + SPLINE_COLUMNS], lam=trajectory.channels[channel].smoothing)
+            split = max(shared - first, 0)
+            for block in range(0, times.size, UNCERTAINTY_BLOCK):
+                at = spline(times[block:block + UNCERTAINTY_BLOCK])
+                inherited_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, :split] ** 2, axis=1)
+                probed_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, split:] ** 2, axis=1)
+        smoothed.append(np.sqrt(inherited_variance + probed_variance / NOISE_PROBES))
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
         point_noise_px=float(covariance.noise * focal),
@@ -498,14 +528,22 @@ def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[n
     splines' samples; ``columns(rows)`` forms the columns of a slice of the K rows, which are
     asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a time, so that a
     long recording's columns are never held whole."""
-    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
-    if group <= 1:
-        return t, columns(slice(0, t.size))
+    group = max(int(np.ceil(t.size / MAX_SPLINE_SAMPLES)), 1)
     usable = t.size // group * group
     step = max(UNCERTAINTY_BLOCK // group, 1) * group
-    blocks = [columns(slice(k, min(k + step, usable))) for k in range(0, usable, step)]
+    averaged = lambda block: block.reshape(-1, group, block.shape[1]).mean(axis=1)  # noqa: E731
     return (t[:usable].reshape(-1, group).mean(axis=1),
-            np.concatenate([block.reshape(-1, group, block.shape[1]).mean(axis=1) for block in blocks]))
+            np.concatenate([averaged(columns(slice(k, min(k + step, usable)))) for k in range(0, usable, step)]))
+
+
+def _random_signs(rng: np.random.Generator, rows: int, columns: int) -> NDArray[np.int8]:
+    """``rng.choice([-1, 1], size=(rows, columns))`` as int8, drawn :data:`UNCERTAINTY_BLOCK`
+    rows at a time: the same draws (the generator's stream continues from block to block),
+    without the frame-long int64 indices that ``choice`` draws them through (512 bytes a
+    frame, against the signs' 64)."""
+    signs = np.array([-1, 1], dtype=np.int8)
+    return np.concatenate([rng.choice(signs, size=(min(UNCERTAINTY_BLOCK, rows - k), columns))
+                           for k in range(0, rows, UNCERTAINTY_BLOCK)] or [np.empty((0, columns), np.int8)])
 
 
 def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
