@@ -91,10 +91,33 @@ class Listener:
 
     def commands(self) -> list[dict[str, float]]:
         time.sleep(0.3)  # the last zeros on their way
-        self.process.terminate()
-        self.process.wait(timeout=30)
-        self._thread.join(timeout=10)
+        self.close()
         return list(self.received)
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+        try:
+            self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # two orphaned listeners had outlived a SIGTERM
+            self.process.kill()
+            self.process.wait()
+        self._thread.join(timeout=10)
+
+
+@pytest.fixture
+def listen():
+    """Starts :class:`Listener`\ s, each ended after its test, passed or failed: its loop
+    never ends on its own (a failed test had left its listener polling the topic)."""
+    started: list[Listener] = []
+
+    def start(env: dict[str, str]) -> Listener:
+        started.append(Listener(env))
+        return started[-1]
+
+    yield start
+    for listener in started:
+        listener.close()
 
 
 def robot_sim(env, tmp_path, *options, duration=40.0):
@@ -150,9 +173,9 @@ def sim_final_errors(tmp_path, speed: float) -> tuple[float, float]:
     return report.pose_error["position_m"].final, abs(report.pose_error["heading_deg"].final)
 
 
-def converge_like_sim(tmp_path, speed: float, jpeg: bool = False) -> dict:
+def converge_like_sim(tmp_path, listen, speed: float, jpeg: bool = False) -> dict:
     env = dict(dds_env())
-    listener = Listener(env)
+    listener = listen(env)
     # Ended by Ctrl-C once the run is over.
     robot, poses = robot_sim(env, tmp_path, *(["--image-format", "jpeg"] if jpeg else []), duration=20.0 / speed + 60.0)
     live = repeat_live(env, tmp_path, "--speed", str(speed), topic="/camera/image_raw" + ("/compressed" if jpeg else ""))
@@ -178,26 +201,26 @@ def converge_like_sim(tmp_path, speed: float, jpeg: bool = False) -> dict:
     return {"commands": commands, "run": run}
 
 
-def test_live_loop_converges_like_sim_and_ends_on_zero(tmp_path):
+def test_live_loop_converges_like_sim_and_ends_on_zero(tmp_path, listen):
     """At twice the taught pace (10 s of motion)."""
-    converge_like_sim(tmp_path, 2.0)
+    converge_like_sim(tmp_path, listen, 2.0)
 
 
 @pytest.mark.campaign
-def test_live_loop_converges_like_sim_whole_trajectory(tmp_path, request):
+def test_live_loop_converges_like_sim_whole_trajectory(tmp_path, listen, request):
     """The taught pace (20 s), and the end's zero within a frame interval + 50 ms."""
     skip_unless_campaign(request)
-    result = converge_like_sim(tmp_path, 1.0)
+    result = converge_like_sim(tmp_path, listen, 1.0)
     commands = result["commands"]
     last_moving = max(k for k, c in enumerate(commands) if (c["v"], c["w"]) != (0.0, 0.0))
     assert commands[last_moving + 1]["wall"] - commands[last_moving]["wall"] <= FRAME_INTERVAL + 0.05
 
 
 @pytest.mark.campaign
-def test_live_loop_on_compressed_images_converges_like_sim(tmp_path, request):
+def test_live_loop_on_compressed_images_converges_like_sim(tmp_path, listen, request):
     """sensor_msgs/msg/CompressedImage (JPEG) on /camera/image_raw/compressed, at twice the pace."""
     skip_unless_campaign(request)
-    converge_like_sim(tmp_path, 2.0, jpeg=True)
+    converge_like_sim(tmp_path, listen, 2.0, jpeg=True)
 
 
 def _zero_after(commands, cause_wall: float) -> float:
@@ -207,10 +230,10 @@ def _zero_after(commands, cause_wall: float) -> float:
 
 @pytest.mark.campaign
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_a_stop_signal_sends_zero(tmp_path, signum, code, request):
+def test_a_stop_signal_sends_zero(tmp_path, listen, signum, code, request):
     skip_unless_campaign(request)
     env = dds_env()
-    listener = Listener(env)
+    listener = listen(env)
     robot, _ = robot_sim(env, tmp_path)
     live = repeat_live(env, tmp_path)
     try:
@@ -233,10 +256,10 @@ def test_a_stop_signal_sends_zero(tmp_path, signum, code, request):
 
 
 @pytest.mark.campaign
-def test_a_killed_stand_in_stops_the_robot_within_the_stale_timeout(tmp_path, request):
+def test_a_killed_stand_in_stops_the_robot_within_the_stale_timeout(tmp_path, listen, request):
     skip_unless_campaign(request)
     env = dds_env()
-    listener = Listener(env)
+    listener = listen(env)
     robot, _ = robot_sim(env, tmp_path)
     live = repeat_live(env, tmp_path, "--lost-timeout", "1")
     try:
@@ -256,10 +279,10 @@ def test_a_killed_stand_in_stops_the_robot_within_the_stale_timeout(tmp_path, re
 
 
 @pytest.mark.campaign
-def test_a_lost_target_stops_at_once_and_the_run_after_the_lost_timeout(tmp_path, request):
+def test_a_lost_target_stops_at_once_and_the_run_after_the_lost_timeout(tmp_path, listen, request):
     skip_unless_campaign(request)
     env = dds_env()
-    listener = Listener(env)
+    listener = listen(env)
     robot, poses = robot_sim(env, tmp_path, "--occlude", "6:30")
     live = repeat_live(env, tmp_path, "--lost-timeout", "1")
     try:
@@ -288,10 +311,10 @@ def assert_refused_with_only_zeros(live, err: str, listener, code: int, words: s
 
 @pytest.mark.campaign
 @pytest.mark.parametrize("offset, words", [("-0.45,0.05,2", "from the taught start"), ("0.5,0.3,15", "the target is not in view")])
-def test_a_robot_away_from_the_start_never_moves(tmp_path, offset, words, request):
+def test_a_robot_away_from_the_start_never_moves(tmp_path, listen, offset, words, request):
     skip_unless_campaign(request)
     env = dds_env()
-    listener = Listener(env)
+    listener = listen(env)
     robot, _ = robot_sim(env, tmp_path, "--offset", offset)
     live = repeat_live(env, tmp_path)
     try:
@@ -324,11 +347,11 @@ PUBLISHER = textwrap.dedent("""
     pytest.param(320, 240, "32FC1", 250.0, "unsupported image encoding", marks=pytest.mark.campaign),
     pytest.param(320, 240, "mono8", 300.0, "disagrees with the fit's camera", marks=pytest.mark.campaign),
 ])
-def test_bad_input_is_one_line_exit_3_and_only_zeros(tmp_path, width, height, encoding, fx, words, request):
+def test_bad_input_is_one_line_exit_3_and_only_zeros(tmp_path, listen, width, height, encoding, fx, words, request):
     if width == 320:
         skip_unless_campaign(request)
     env = dds_env()
-    listener = Listener(env)
+    listener = listen(env)
     camera = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(width), str(height), encoding, str(fx)], env=env)
     live = repeat_live(env, tmp_path)
     try:
