@@ -107,8 +107,8 @@ class Listener:
 
 @pytest.fixture
 def listen():
-    """Starts :class:`Listener`\ s, each ended after its test, passed or failed: its loop
-    never ends on its own (a failed test had left its listener polling the topic)."""
+    """Starts listeners (:class:`Listener`), each ended after its test, passed or failed: its
+    loop never ends on its own (a failed test had left its listener polling the topic)."""
     started: list[Listener] = []
 
     def start(env: dict[str, str]) -> Listener:
