@@ -102,6 +102,19 @@ class TargetLostError(HbvsError):
     exit_code = 5
 
 
+class CameraClockError(HbvsError):
+    """A live camera's time stamps ran ahead of this host's clock or stepped back (a clock jump,
+    or two clocks on one topic): the taught trajectory must never run faster than real time."""
+
+    exit_code = 9
+
+
+class CommandConflictError(HbvsError):
+    """Another node published on the robot's command topic while hbvs was driving."""
+
+    exit_code = 10
+
+
 class TruncatedInputError(InputError):
     """An input ended before its end record, and its result would replace an existing file."""
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from hbvs_cli.core.camera_clock import CameraClock
 from hbvs_cli.io.images import decode_image
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.teach_file import TeachReader
@@ -83,7 +84,7 @@ def test_a_camera_that_comes_back_after_going_stale_is_driven_from_again():
             time.sleep(max(0.0, min(timeout_s, self.back_at - time.monotonic())))
             if time.monotonic() >= self.back_at and not self.served:
                 self.served = True
-                return SimpleNamespace(arrival=time.monotonic())
+                return SimpleNamespace(arrival=time.monotonic(), stamp=time.time())
             return None
 
     stops, events = [], []
@@ -95,7 +96,8 @@ def test_a_camera_that_comes_back_after_going_stale_is_driven_from_again():
     loop.out = SimpleNamespace(stop=stops.append)
     loop.servo = SimpleNamespace(previous=(0.3, 0.1))
     loop.run = SimpleNamespace(event=lambda t, level, text: events.append(text))
-    frame = loop._next_frame(time.monotonic())
+    loop.clock, loop.used_at = CameraClock(0.1), time.monotonic()
+    frame = loop._next_frame()
     assert frame is not None and loop.stopped is None
     assert len(stops) == 1 and loop.servo.previous == (0.0, 0.0)
     assert any("--stale-timeout" in text for text in events) and events[-1] == "camera frames back"

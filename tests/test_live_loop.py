@@ -300,12 +300,25 @@ def test_a_lost_target_stops_at_once_and_the_run_after_the_lost_timeout(tmp_path
 
 def assert_refused_with_only_zeros(live, err: str, listener, code: int, words: str, tmp_path: Path) -> None:
     """``repeat --live`` ended with ``code`` and one line saying ``words``, the listener on
-    the command topic heard only zeros, and no run file was left."""
+    the command topic heard only zeros, and the run file was kept with why it stopped."""
     commands = listener.commands()
     lines = err.strip().splitlines()
     assert live.returncode == code and len(lines) == 1 and words in lines[0], err
     assert commands and all((c["v"], c["w"]) == (0.0, 0.0) for c in commands)
-    assert not (tmp_path / "live.mcap").exists()
+    assert_kept_with_reason(tmp_path / "live.mcap", words)
+
+
+def assert_kept_with_reason(path: Path, words: str) -> None:
+    """The run file is a complete MCAP file that says why the run stopped (``hbvs info``) and
+    ends on a zero command."""
+    from hbvs_cli.io.file_info import read_file_info
+    from hbvs_cli.io.mcap import McapStream
+    from hbvs_cli.io.topics import COMMAND_TOPIC
+
+    info = read_file_info(path)
+    assert info.complete and words in info.stopped, info.stopped
+    commands = [message.json("run") for message in McapStream(path) if message.topic == COMMAND_TOPIC]
+    assert commands and (commands[-1]["v"], commands[-1]["w"]) == (0.0, 0.0)
 
 
 

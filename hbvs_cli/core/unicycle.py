@@ -47,3 +47,55 @@ def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLi
     poses[1:, :2] = pose0[:2] + np.cumsum(steps[:, :2], axis=0)
     poses[1:, 2] = steps[:, 2]
     return poses
+
+
+class DynamicBase:
+    """A wheeled base that does not obey a command at once: its speeds follow the command through a
+    first-order motor lag, within acceleration and speed limits, and move it as :func:`integrate_unicycle`.
+
+    Parameters
+    ----------
+    max_v, max_w : float
+        Speed limits (m/s, rad/s); ``inf`` for none.
+    max_accel, max_alpha : float
+        Acceleration limits (m/s^2, rad/s^2); ``inf`` for none.
+    lag_s : float
+        The motors' time constant (s); 0 for none.
+
+    Notes
+    -----
+    With every limit infinite and no lag it is the kinematic unicycle (21) of the paper.
+    """
+
+    #: The longest step (s) the speeds are integrated over at once.
+    STEP_S = 0.002
+
+    def __init__(self, max_v: float = math.inf, max_w: float = math.inf, max_accel: float = math.inf,
+                 max_alpha: float = math.inf, lag_s: float = 0.0) -> None:
+        self.max_v, self.max_w, self.max_accel, self.max_alpha, self.lag_s = max_v, max_w, max_accel, max_alpha, lag_s
+        #: The base's actual speeds (m/s, rad/s).
+        self.v = self.w = 0.0
+
+    @property
+    def kinematic(self) -> bool:
+        return all(math.isinf(x) for x in (self.max_v, self.max_w, self.max_accel, self.max_alpha)) and self.lag_s == 0.0
+
+    def advance(self, pose: tuple[float, float, float], command: tuple[float, float], dt: float) -> tuple[float, float, float]:
+        """The pose after ``dt`` (s) under ``command`` (v, w) (m/s, rad/s); :attr:`v` and :attr:`w` follow it."""
+        target_v = min(max(command[0], -self.max_v), self.max_v)
+        target_w = min(max(command[1], -self.max_w), self.max_w)
+        if self.kinematic:
+            self.v, self.w = target_v, target_w
+            return integrate_unicycle(pose, target_v, target_w, dt)
+        steps = max(1, math.ceil(dt / self.STEP_S))
+        h = dt / steps
+        for _ in range(steps):
+            self.v = self._follow(self.v, target_v, self.max_accel, h)
+            self.w = self._follow(self.w, target_w, self.max_alpha, h)
+            pose = integrate_unicycle(pose, self.v, self.w, h)
+        return pose
+
+    def _follow(self, speed: float, target: float, max_rate: float, h: float) -> float:
+        # The lag's exact step for the rate, then clipped to the acceleration limit.
+        change = (target - speed) * (1.0 - math.exp(-h / self.lag_s)) if self.lag_s > 0 else target - speed
+        return speed + min(max(change, -max_rate * h), max_rate * h)

@@ -10,7 +10,7 @@ from typing import Any
 
 from ..errors import InputError
 from .mcap.reader import McapStream, read_metadata
-from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, STATE_TOPIC
+from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, STATE_TOPIC, STOPPED_METADATA
 
 #: The topic with one message per frame (teach, fit) or per control step (run).
 FRAME_TOPICS = {"teach": IMAGE_TOPIC, "fit": RAW_DESIRED_TOPIC, "run": STATE_TOPIC}
@@ -42,6 +42,8 @@ class FileInfo:
     complete: bool = True
     stop_reason: str = ""
     target: str | None = None
+    #: Why a live run stopped before its end (its ``hbvs.stopped`` record), else "".
+    stopped: str = ""
 
     @property
     def messages(self) -> int:
@@ -101,5 +103,6 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         name=stream.name, kind=kind if kind in FRAME_TOPICS else None, version=metadata.get("hbvs_version"),
         metadata=metadata, metadata_names=sorted(stream.metadata), topics=list(topics.values()),
         complete=not stream.truncated, stop_reason=stream.stop_reason,
+        stopped=str(read_metadata(stream, STOPPED_METADATA).get("reason", "")),
         target=target if isinstance(target, str) else None,
     )

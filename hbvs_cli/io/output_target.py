@@ -299,9 +299,11 @@ class OutputSink:
 
 
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None) -> Iterator[OutputSink]:
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None,
+                       keep_on_error: bool = False) -> Iterator[OutputSink]:
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
-    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``."""
+    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``. ``keep_on_error``: committed also when the
+    body fails (a record of what a robot was sent outlives the run's failure), then the failure raised."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
@@ -324,10 +326,10 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
             yield sink
             sink.stream.flush()
         return
-    yield from _atomic_file(target, label, what)
+    yield from _atomic_file(target, label, what, keep_on_error)
 
 
-def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[OutputSink]:
+def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: bool) -> Iterator[OutputSink]:
     assert target.path is not None
     final = target.path
     mode = None
@@ -348,9 +350,15 @@ def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[Output
     try:
         handle = os.fdopen(fd, "wb")
         sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=True), target)
+        failure: BaseException | None = None
         with sink.stream:
-            yield sink
-            sink.check_commit()
+            try:
+                yield sink
+                sink.check_commit()
+            except BaseException as exc:
+                if not keep_on_error:
+                    raise
+                failure = exc
             sink.stream.flush()
             try:
                 if mode is not None:
@@ -362,6 +370,8 @@ def _atomic_file(target: OutputTarget, label: str, what: str) -> Iterator[Output
             os.replace(temporary, final)
         except OSError as exc:
             raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
+        if failure is not None:
+            raise failure
     except BaseException:
         _remove_quietly(temporary)
         raise
@@ -375,14 +385,14 @@ def _remove_quietly(path: Path) -> None:
 
 
 @contextmanager
-def open_text_output(spec: str | os.PathLike[str] | None, what: str) -> Iterator[Any]:
+def open_text_output(spec: str | os.PathLike[str] | None, what: str, keep_on_error: bool = False) -> Iterator[Any]:
     """A UTF-8 text stream on :func:`open_output_stream` (None yields None): for JSON lines."""
     if spec is None:
         yield None
         return
     import codecs
 
-    with open_output_stream(spec, what) as sink:
+    with open_output_stream(spec, what, keep_on_error=keep_on_error) as sink:
         yield codecs.getwriter("utf-8")(sink.stream)
 
 

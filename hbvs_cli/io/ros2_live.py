@@ -130,12 +130,37 @@ def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVER
 
 
 class CommandPublisher:
-    """Velocity commands on a ROS 2 topic (reliable): ``Twist``, or ``TwistStamped`` in ``base_link``."""
+    """Velocity commands on a ROS 2 topic (reliable): ``Twist``, or ``TwistStamped`` in ``base_link``;
+    it also watches the topic for another commander (a robot obeys whoever spoke last)."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
+        from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+
         self.topic = topic
         self.stamped = stamped
-        self.writer = node.publisher(topic, dds.TwistStamped if stamped else dds.Twist, dds.command_qos())
+        message_type = dds.TwistStamped if stamped else dds.Twist
+        self.writer = node.publisher(topic, message_type, dds.command_qos())
+        # A sample's publication handle is the writer's instance handle as an unsigned 64-bit number.
+        self._own_handle = self.writer.instance_handle % (1 << 64)
+        self._echo = node.subscriber(topic, message_type, dds.command_qos())
+        self._publications = BuiltinDataReader(node.participant, BuiltinTopicDcpsPublication)
+        self._dds_topic = dds.dds_topic_name(topic)
+
+    def other_publishers(self) -> int:
+        """How many other writers on the topic are alive now (ROS 2 nodes that could command the robot)."""
+        from cyclonedds.core import InstanceState
+
+        return sum(
+            1 for endpoint in self._publications.read(N=1024)
+            if getattr(endpoint, "topic_name", None) == self._dds_topic and endpoint.key != self.writer.guid
+            and endpoint.sample_info.instance_state == InstanceState.Alive
+        )
+
+    def foreign_commands(self) -> int:
+        """Commands another writer put on the topic since the last call."""
+        return sum(1 for sample in self._echo.take(N=256)
+                   if (hasattr(sample, "linear") or hasattr(sample, "twist"))  # not a writer going away
+                   and sample.sample_info.publication_handle != self._own_handle)
 
     def publish(self, v: float, w: float, stamp: float | None = None) -> None:
         """Send ``(v, w)`` (m/s, rad/s), stamped ``stamp`` (s; now when None) if stamped."""

@@ -15,10 +15,10 @@ from ..errors import RecordingError
 from .calibration import calibration_to_foxglove
 from .images import write_compressed_image
 from .mcap import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
-from .messages import CAMERA_FRAME, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
+from .messages import CAMERA_FRAME, LOG_ERROR, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
 from .topics import (
-    ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC, TIMING_TOPIC,
-    TOPICS, TRUE_POSE_TOPIC,
+    ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC,
+    STOPPED_METADATA, TIMING_TOPIC, TOPICS, TRUE_POSE_TOPIC,
 )
 
 FILE_KIND = "run"
@@ -147,7 +147,8 @@ def read_run(source: Any, name: str = "") -> RunData:
         raise NotARunFile(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat", kind if isinstance(kind, str) else None)
     _check_info(info, stream.name)
     if not step_times:
-        raise RecordingError(f"{stream.name}: the run has no control steps")
+        stopped = read_metadata(stream, STOPPED_METADATA).get("reason")
+        raise RecordingError(f"{stream.name}: the run has no control steps" + (f"; it stopped before its first: {stopped}" if stopped else ""))
     state = {key: np.array(values) for key, values in columns.items()}
     if not np.all(np.isfinite(state["t"])) or np.any(np.diff(state["t"]) < 0):
         raise RecordingError(f"{stream.name}: the step times are missing, not finite or go backwards")
@@ -218,6 +219,12 @@ class RunWriter:
             "timestamp": time_message(ns), "t": t, "frame_stamp": frame_stamp, "latency_s": latency_s,
             "frame_interval_s": frame_interval_s, "dropped": int(dropped), "late": bool(late), "dry_run": bool(dry_run),
         })
+
+    def stopped(self, t: float, reason: str) -> None:
+        """The run stopped before its end at ``t`` (s): an error event and the ``hbvs.stopped`` metadata
+        record with ``reason`` (``hbvs report`` and ``hbvs info`` show them)."""
+        self.event(t, LOG_ERROR, f"{reason}: zero sent, run stopped")
+        self.writer.metadata(STOPPED_METADATA, {"t": t, "reason": reason})
 
     def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
         """The true and taught poses ``(x, y, phi)`` (m, m, rad) at ``t``; camera ``height`` (m)."""

@@ -58,6 +58,8 @@ class Setting:
         """Why ``value`` is outside :attr:`bounds`, in the command line's words, or None."""
         low, high = self.bounds.get("min"), self.bounds.get("max")
         option = self.option_names[-1]
+        if value != value:  # NaN compares false with every bound
+            return f"Invalid value for '{option}': Input should be a number, got nan"
         if low is not None and not value >= low:
             return f"Invalid value for '{option}': Input should be greater than or equal to {_shown(low)}"
         if high is not None and not value <= high:
@@ -168,6 +170,10 @@ MIN_DEPTH, MAX_DEPTH = 1e-3, 1e3
 MAX_LATENCY_FRAMES = 1_000_000
 #: Seconds without a camera frame before a live run commands zero (a stalled camera or link).
 DEFAULT_STALE_TIMEOUT = 0.3
+#: The longest a command may stand on one frame (s): beyond it a robot drives blind.
+MAX_STALE_TIMEOUT = 10.0
+#: The longest a run may wait for its target or camera (s).
+MAX_LOST_TIMEOUT = 3600.0
 #: Gains without a fit's suggestion (core's defaults; samples/gains.toml lists the same).
 DEFAULT_GAINS = ControllerGains()
 
@@ -210,7 +216,7 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators",
             bounds={"min": 0, "max": MAX_LATENCY_FRAMES}),
     Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",
-            fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0}),
+            fallback=DEFAULT_LOST_TIMEOUT, config="lost_timeout", bounds={"min": 0.0, "max": MAX_LOST_TIMEOUT}),
     Setting("cmd_out", str, "Also write one JSON line per step (t, v, w) to FILE, FIFO or - (stdout): with --live the commands "
             "sent to the robot, as they go (for a driver); with --sim and --replay a log (unpaced)."),
     Setting("record_images", bool, "Store the camera images with detected and desired points.", default=False),
@@ -237,8 +243,8 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("ros2_cmd", str, "With --live: publish geometry_msgs/msg/Twist commands on this ROS 2 topic (reliable QoS). "
             f"Default {ROS_CMD_VEL_TOPIC} unless only --cmd-out is given.", panel="Live robot"),
     Setting("cmd_type", str, "With --ros2-cmd: twist or twist-stamped.", default="twist", panel="Live robot"),
-    Setting("stale_timeout", float, "With --live: send zero commands when no frame came for this long (s).",
-            default=DEFAULT_STALE_TIMEOUT, panel="Live robot", bounds={"min": 0.01}),
+    Setting("stale_timeout", float, "With --live: send zero commands when no usable frame came for this long (s); at most "
+            "--lost-timeout.", default=DEFAULT_STALE_TIMEOUT, panel="Live robot", bounds={"min": 0.01, "max": MAX_STALE_TIMEOUT}),
     Setting("dry_run", bool, "With --live: measure and compute everything, but publish zero commands.", default=False,
             panel="Live robot"),
 )
@@ -302,6 +308,11 @@ ROBOT_SIM_SETTINGS: tuple[Setting, ...] = (
     Setting("poses_out", str, "Also write the true pose of every frame as JSON lines (stamp, x, y, phi) to FILE or -."),
     Setting("occlude", str, "Hide the target from START to END seconds after the start (a blank frame), e.g. 3:5.",
             repeatable=True),
+    Setting("base", str, "The base's dynamics: kinematic (obeys at once), small (a small differential drive: 0.26 m/s, "
+            "1.8 rad/s, 0.6 m/s^2, 3 rad/s^2, 0.12 s motor lag) or V,W,ACCEL,ALPHA,LAG.", default="kinematic"),
+    Setting("stamp_fault", str, "A camera clock fault from T s after the robot first moved: freeze@T, back:S@T, jump:S@T (one frame S s ahead), "
+            "second-clock:S@T (every other frame from a clock S s ahead), max@T (one frame at 2^31-1 s), stall:S@T "
+            "(no frame for S s).", panel="Faults"),
 )
 RobotSimOptions = options_class("RobotSimOptions", ROBOT_SIM_SETTINGS, "Everything ``hbvs robot-sim`` was asked to do.")
 

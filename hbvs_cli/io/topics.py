@@ -17,6 +17,8 @@ LOOP_TIMING_SCHEMA = "hbvs.LoopTiming"
 
 #: MCAP metadata record holding the simulated world of a teach file.
 WORLD_METADATA = "hbvs.world"
+#: MCAP metadata record of a live run that stopped before its end: ``t`` (s) and ``reason``.
+STOPPED_METADATA = "hbvs.stopped"
 
 # ----------------------------------------------------------------------------- topics
 #: The camera's images (every file kind that carries images).

@@ -42,6 +42,19 @@ class Console:
             self.rich.print(renderable)
 
     @contextmanager
+    def status_line(self) -> Iterator[Any]:
+        """A line rewritten in place on a terminal, for a loop without a known length (``repeat --live``):
+        yields a function taking the line's text, or None when not interactive (a pipe, ``-q``)."""
+        if not self.interactive:
+            yield None
+            return
+        from rich.live import Live
+        from rich.text import Text
+
+        with Live(Text(""), console=self.rich, refresh_per_second=4) as live:
+            yield lambda text: live.update(Text(text, no_wrap=True, overflow="ellipsis"))
+
+    @contextmanager
     def progress(self, description: str, total: float | None, note: str = "", **fields: Any) -> Iterator["ProgressTask"]:
         """A progress bar on stderr, silent when not interactive; ``note``: a column after the
         count, e.g. ``"{task.fields[failed]} failed"``, ``fields`` its first values."""

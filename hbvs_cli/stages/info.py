@@ -17,7 +17,7 @@ def info_document(info: Any) -> dict[str, Any]:
     """The file's description as one JSON-ready object (the keys of ``hbvs info --json``)."""
     return {
         "file": info.name, "kind": info.kind, "hbvs_version": info.version,
-        "complete": info.complete, "stop_reason": info.stop_reason or None,
+        "complete": info.complete, "stop_reason": info.stop_reason or None, "stopped": info.stopped or None,
         "start_ns": info.start_ns, "end_ns": info.end_ns, "duration_s": round(info.duration_s, 9),
         "frames": info.frames, "messages": info.messages, "target": info.target,
         "settings": info.metadata.get("settings"),
@@ -48,6 +48,7 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
         ("file", document["file"]),
         ("kind", kind),
         ("complete", "yes" if document["complete"] else f"no: {document['stop_reason']}"),
+        *([("stopped", f"before its end: {document['stopped']}")] if document["stopped"] else []),
         ("duration", f"{document['duration_s']:.3f} s"),
         ("start", _stamp(document["start_ns"])),
         ("end", _stamp(document["end_ns"])),

@@ -7,21 +7,24 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time
+from collections import deque
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from typing import IO, Any, Callable
 
 import numpy as np
 
+from ..core.camera_clock import CameraClock
 from ..core.simulator import ServoStep
-from ..errors import InputError, NotAtStartError, TargetLostError, UsageError
+from ..errors import CommandConflictError, HbvsError, InputError, NotAtStartError, TargetLostError, UsageError
 from ..io.calibration import load_calibration
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..io.settings import RepeatOptions
-from ..stop_signals import raise_if_stopped
+from ..stop_signals import Terminated, raise_if_stopped
 from .options import stamped_commands
 
 #: Consecutive frames with the target near its taught start view before the first non-zero command.
@@ -35,6 +38,10 @@ ZERO_REPEATS = 3
 LATE_FACTOR = 1.5
 #: How long (s) a stale camera is polled at a time while the robot stands still.
 STALE_POLL_S = 0.01
+#: How often (s) the deadman looks at a zero command (a non-zero one it waits for to the moment).
+DEADMAN_POLL_S = 0.05
+#: Steps the status line's frame rate and latency are taken over.
+STATUS_WINDOW = 60
 #: Largest relative difference between the given calibration and the fit's camera.
 CALIBRATION_TOLERANCE = 0.02
 
@@ -47,42 +54,113 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 
 
 class CommandOut:
-    """Where commands go: a ROS 2 topic and/or a JSON-lines stream; zero on :meth:`stop`."""
+    """Where commands go: a ROS 2 publisher and/or a JSON-lines stream; zero on :meth:`stop`.
 
-    def __init__(self, publish: Callable[[float, float], None] | None, stream: IO[str] | None, dry_run: bool) -> None:
-        self._publish = publish
+    ``publisher``: ``publish(v, w)``, ``other_publishers()`` (other writers on the topic now) and
+    ``foreign_commands()`` (commands another writer sent since the last call), or None.
+    ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s)
+    without a newer one by zero, whatever the loop is doing (a slow frame, a source that hangs);
+    None for none. :meth:`close` ends it.
+    """
+
+    def __init__(self, publisher: Any, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
+        self._publisher = publisher
         self._stream = stream
         self.dry_run = dry_run
         self.sent = 0
+        #: ``time.monotonic()`` of the last command sent.
+        self.sent_at = time.monotonic()
+        #: The last command sent (m/s, rad/s), and its run time (s).
+        self.last = (0.0, 0.0)
+        self._t = 0.0
+        #: Zeros the deadman sent.
+        self.deadman_stops = 0
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        self._deadman: threading.Thread | None = None
+        if stale_timeout_s is not None:
+            self._deadman = threading.Thread(target=self._watch, args=(stale_timeout_s,), name="hbvs-deadman", daemon=True)
+            self._deadman.start()
 
     def send(self, t: float, v: float, w: float) -> None:
         if self.dry_run:
             v, w = 0.0, 0.0
-        if self._publish is not None:
-            self._publish(v, w)
-        write_command(self._stream, t, v, w)
-        self.sent += 1
+        with self._lock:
+            if self._publisher is not None:
+                self._publisher.publish(v, w)
+            write_command(self._stream, t, v, w)
+            self.sent += 1
+            self.sent_at, self.last, self._t = time.monotonic(), (v, w), t
 
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
+        with self._lock:
+            self._zero(t)
+
+    def _zero(self, t: float) -> None:
         for _ in range(ZERO_REPEATS):
-            if self._publish is not None:
+            if self._publisher is not None:
                 try:
-                    self._publish(0.0, 0.0)
+                    self._publisher.publish(0.0, 0.0)
                 except Exception:  # noqa: BLE001 - stopping must reach every output it can
                     pass
         try:
             write_command(self._stream, t, 0.0, 0.0)
         except (OSError, ValueError):
             pass
+        self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
+
+    def _watch(self, stale_timeout_s: float) -> None:
+        while not self._closed.is_set():
+            with self._lock:
+                now = time.monotonic()
+                due = self.sent_at + stale_timeout_s if self.last != (0.0, 0.0) else None
+                if due is not None and now >= due:
+                    self._zero(self._t + (now - self.sent_at))
+                    self.deadman_stops += 1
+                    continue
+            self._closed.wait(min(due - now, DEADMAN_POLL_S) if due is not None else DEADMAN_POLL_S)
+
+    def close(self) -> None:
+        """End the deadman thread (after the last :meth:`stop`)."""
+        self._closed.set()
+        if self._deadman is not None:
+            self._deadman.join()
+
+    def other_commanders(self) -> int:
+        """Other writers on the command topic now (0 without a ROS 2 topic)."""
+        return self._publisher.other_publishers() if self._publisher is not None else 0
+
+    def check_one_commander(self) -> None:
+        """:class:`CommandConflictError` when another node commanded the robot since the last check."""
+        if self._publisher is not None and self._publisher.foreign_commands():
+            raise CommandConflictError(
+                f"another node published on {self._publisher.topic} while hbvs was driving: zero sent, hbvs stopped "
+                "(one commander at a time; stop the other node, e.g. a teleop, and start again)"
+            )
 
 
-def check_live_options(options: RepeatOptions) -> None:
+def stop_reason(error: BaseException) -> str:
+    """Why a live run ended early, in the run file's words."""
+    if isinstance(error, KeyboardInterrupt):
+        return "interrupted (SIGINT, Ctrl-C)"
+    if isinstance(error, Terminated):
+        return "terminated (SIGTERM)"
+    if isinstance(error, HbvsError):
+        return str(error)
+    return f"internal error ({type(error).__name__})"
+
+
+def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
+    """Refuse options a live run cannot honour (``lost_timeout``: the resolved --lost-timeout, s)."""
     if (options.camera is None) == (options.ros2_image is None):
         raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
     if options.camera is not None and options.calibration is None:
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
     stamped_commands(options.cmd_type)
+    if options.stale_timeout > lost_timeout:
+        raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "
+                         "robot would stop for a lost camera before it stopped for a stale one")
     for name in ("occlude", "drop_rate", "outlier_rate", "exposure_step", "record_images", "depth"):
         value = getattr(options, name)
         if value not in (None, False, 0.0, []):
@@ -136,9 +214,44 @@ def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
     return estimator.from_pixels(detector.detect(image))
 
 
+class LiveStats:
+    """What the status line shows of the last :data:`STATUS_WINDOW` steps: frame rate, latency, drops."""
+
+    def __init__(self) -> None:
+        self.arrivals: deque[float] = deque(maxlen=STATUS_WINDOW)
+        self.latencies: deque[float] = deque(maxlen=STATUS_WINDOW)
+        self.dropped = 0
+
+    def add(self, arrival: float, latency: float, skipped: int) -> None:
+        self.arrivals.append(arrival)
+        self.latencies.append(latency)
+        self.dropped += skipped
+
+    def frame_rate(self) -> float:
+        if len(self.arrivals) < 2 or self.arrivals[-1] <= self.arrivals[0]:
+            return math.nan
+        return (len(self.arrivals) - 1) / (self.arrivals[-1] - self.arrivals[0])
+
+    def latency_p95(self) -> float:
+        return float(np.percentile(self.latencies, 95)) if self.latencies else math.nan
+
+
+def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str:
+    """One line for a person watching the robot: run time, errors (29), dhat, frame rate, p95 latency, drops."""
+    errors = record.output.errors if record.output is not None else None
+    shown = (f"e1 {float(errors.e1):+.3f}  e2 {float(errors.e2):+.3f}  e3 {math.degrees(float(errors.e3)):+.2f} deg"
+             if errors is not None else "target lost")
+    return (f"t {t:5.1f}/{duration:.1f} s  {shown}  dhat {record.dhat:.3f} m  {stats.frame_rate():4.1f} fps  "
+            f"p95 latency {1e3 * stats.latency_p95():3.0f} ms  dropped {stats.dropped}")
+
+
 @dataclass
 class LiveLoop:
-    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written."""
+    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written.
+
+    Only frames that :class:`~hbvs_cli.core.camera_clock.CameraClock` admits are used, and every
+    non-zero command stands at most ``--stale-timeout`` after the last used frame's: a command never
+    outlives its measurement, whatever the camera's clock does."""
 
     source: Any
     detector: Any
@@ -152,10 +265,34 @@ class LiveLoop:
     tally: Any
     options: RepeatOptions
     settings: Any
+    #: Where the status line goes (a terminal), or None.
+    status: Callable[[str], None] | None = None
+    #: Where a warning goes (stderr).
+    warn: Callable[[str], None] = lambda text: None
     #: Run time of the last step (s).
     t: float = 0.0
     #: Why the run stopped early (None: it ended with the trajectory).
     stopped: str | None = None
+
+    def __post_init__(self) -> None:
+        self.clock = CameraClock(1.0 / self.settings.rate)
+        self.stats = LiveStats()
+        #: ``time.monotonic()`` when the command of the last used frame went out.
+        self.used_at = time.monotonic()
+
+    def now(self) -> float:
+        """The run time (s) now: the last step's, plus the time since its command went out."""
+        return self.t + (time.monotonic() - self.used_at)
+
+    def _usable(self, frame: Any) -> bool:
+        """A frame came: is it newer than the last used, on this host's clock? (CameraClockError if its stamp jumped.)"""
+        return frame is not None and self.clock.admit(frame.stamp, frame.arrival)
+
+    def _no_frame_reason(self, seconds: float) -> str:
+        if self.clock.refused:
+            return (f"no usable camera frame for {seconds:.2f} s: {self.clock.refused} frames came with stamps not newer than "
+                    "the last one used (the camera's clock froze or stepped back)")
+        return f"no camera frame for {seconds:.2f} s (the camera or its link stopped)"
 
     def wait_for_start(self) -> None:
         """Send zeros until the target is seen near its taught start view in :data:`START_FRAMES` frames in a row."""
@@ -165,10 +302,11 @@ class LiveLoop:
         waited_since = seen_at = time.monotonic()
         while near < START_FRAMES:
             raise_if_stopped()
+            self.out.check_one_commander()
             frame = self.source.latest(self.options.stale_timeout)
-            if frame is None:
+            if not self._usable(frame):
                 if time.monotonic() - waited_since > lost_timeout:
-                    raise TargetLostError(f"no camera frame for {lost_timeout:g} s (--lost-timeout) before the start")
+                    raise TargetLostError(self._no_frame_reason(time.monotonic() - waited_since) + " before the start (--lost-timeout)")
                 continue
             waited_since = time.monotonic()
             observation = measure(frame, self.detector, self.estimator, self.model)
@@ -195,26 +333,31 @@ class LiveLoop:
                         f"the robot seems {distance:.2f} m and {heading:.1f} deg from the taught start (at most "
                         f"{START_TOLERANCE_M:g} m and {START_TOLERANCE_DEG:g} deg); put it there and start again"
                     )
+        self.used_at = time.monotonic()
+        # By now discovery has long met the camera's node, and any other on the command topic.
+        others = self.out.other_commanders()
+        if others:
+            text = f"{others} other node(s) can publish on the command topic; hbvs stops if one of them sends a command"
+            self.log.event(0.0, LOG_WARNING, text)
+            self.warn(text)
 
     def drive(self) -> None:
-        """Measure, decide and send each newest frame until the end or a stop (:attr:`stopped` says why)."""
+        """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
         period = 1.0 / self.settings.rate
         duration = self.trajectory.t_end - self.trajectory.t_start
         first_stamp: float | None = None
         previous_stamp: float | None = None
-        last_arrival = time.monotonic()
         lost_for = 0.0
         while True:
             raise_if_stopped()
-            frame = self._next_frame(last_arrival)
+            self.out.check_one_commander()
+            frame = self._next_frame()
             if frame is None:
                 return  # the camera is gone (self.stopped says so)
-            last_arrival = frame.arrival
             if first_stamp is None:
                 first_stamp = frame.stamp
                 self.run.start(int(round(first_stamp * 1e9)))
-            if previous_stamp is not None and frame.stamp <= previous_stamp:
-                continue  # out of order (a camera's clock stepped): wait for a newer one
+            # The camera clock admitted the stamp: it is newer, and not ahead of this host's clock.
             t = frame.stamp - first_stamp
             if t >= duration:
                 self.t = t
@@ -229,6 +372,9 @@ class LiveLoop:
             self.run.timing(t, frame.stamp, latency, interval, frame.skipped,
                             interval is not None and interval > LATE_FACTOR * period, self.options.dry_run)
             self.tally.add(record)
+            self.stats.add(frame.arrival, latency, frame.skipped)
+            if self.status is not None:
+                self.status(status_text(t, duration, record, self.stats))
             lost_for = lost_for + dt if record.lost else 0.0
             if lost_for > self.settings.lost_timeout:
                 self.stopped = f"the target was lost for more than --lost-timeout {self.settings.lost_timeout:g} s (at t = {t:.2f} s)"
@@ -244,31 +390,34 @@ class LiveLoop:
             record = replace(record, v_c=0.0, w_c=0.0)
             self.servo.previous = (0.0, 0.0)
         self.out.send(t, record.v_c, record.w_c)
+        self.used_at = self.out.sent_at
         latency = time.monotonic() - frame.arrival
         self.servo.sent(dt)
         return latency, record
 
-    def _next_frame(self, last_arrival: float) -> Any:
-        """The next frame; zeros once none came for --stale-timeout; None (:attr:`stopped` set) after --lost-timeout or the source's end."""
+    def _next_frame(self) -> Any:
+        """The next usable frame; zeros once none came for --stale-timeout after the last used one; None
+        (:attr:`stopped` set) after --lost-timeout or the source's end."""
+        stale_timeout = self.options.stale_timeout
         stale = False
         while True:
-            wait = self.options.stale_timeout - (time.monotonic() - last_arrival)
+            wait = stale_timeout - (time.monotonic() - self.used_at)
             # Once stale, still polled briefly: a camera that comes back is driven from again.
-            frame = self.source.latest(wait if wait > 0 else STALE_POLL_S)
-            if frame is not None:
+            frame = self.source.latest(wait if wait > 0 and not stale else STALE_POLL_S)
+            if self._usable(frame):
                 if stale:
                     self.run.event(self.t, LOG_INFO, "camera frames back")
                 return frame
-            silent = time.monotonic() - last_arrival
-            if silent < self.options.stale_timeout:
+            silent = time.monotonic() - self.used_at
+            if silent < stale_timeout:
                 continue
             if not stale:
                 self.out.stop(self.t)
                 self.servo.previous = (0.0, 0.0)
-                self.run.event(self.t, LOG_WARNING, f"no camera frame for {self.options.stale_timeout:g} s (--stale-timeout): stopped")
+                self.run.event(self.t, LOG_WARNING, f"no usable camera frame for {stale_timeout:g} s (--stale-timeout): stopped")
                 stale = True
             if silent > self.settings.lost_timeout or getattr(self.source, "ended", False):
-                self.stopped = f"no camera frame for {silent:.2f} s (the camera or its link stopped)"
+                self.stopped = self._no_frame_reason(silent)
                 self.run.event(self.t, LOG_ERROR, self.stopped + ": run stopped")
                 return None
 

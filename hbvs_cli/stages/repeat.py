@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import math
+import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from typing import IO, Any
@@ -475,7 +476,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
 
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     """``--live``: drive a robot, every frame through the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``."""
-    live.check_live_options(options)
+    live.check_live_options(options, settings.lost_timeout)
     model = fit.model
     topic = live.command_topic(options)
     if topic is None and options.cmd_out is None:
@@ -488,27 +489,29 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     tally = _Tally()
     loop: live.LiveLoop | None = None
+    run: RunWriter | None = None
+    stop_reason: str | None = None
     with ExitStack() as stack:
         node = None
         if options.ros2_image is not None or topic is not None:
             from ..io import ros2_dds as dds  # lazy: an optional extra
 
             node = dds.Ros2Node()
-        publish = None
+        publisher = None
         if topic is not None:
             from ..io.ros2_live import CommandPublisher
 
             publisher = CommandPublisher(node, topic, stamped=stamped_commands(options.cmd_type))
-            publish = publisher.publish
-        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream"))
-        out = live.CommandOut(publish, cmd_stream, options.dry_run)
+        # Kept, finished, whatever ends the run: the record of what a robot was sent is never lost.
+        cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream", keep_on_error=True))
+        out = live.CommandOut(publisher, cmd_stream, options.dry_run, options.stale_timeout)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
             source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
             live.check_camera(camera, model.camera, "the live camera's calibration")
             # --foxglove: the run served as it is written (already real time: no pacing).
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
-            writer = view(stack.enter_context(open_output(options.output)))
+            writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
             info = _run_metadata("live", options, settings, fit, None) | {"live": {
                 "source": options.camera if options.camera is not None else options.ros2_image,
                 "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
@@ -516,11 +519,24 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, None)
-            loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings)
+            status = stack.enter_context(console.status_line())
+            loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings,
+                                 status=status, warn=console.warn)
             console.info(f"repeat --live: waiting for the target near its taught start ({live.START_FRAMES} frames in a row)")
             loop.wait_for_start()
             console.info("repeat --live: started" + (" (dry run: publishing zeros)" if options.dry_run else ""))
             loop.drive()
+        except BaseException as exc:
+            stop_reason = live.stop_reason(exc)
+            raise
         finally:
-            out.stop(loop.t if loop is not None else 0.0)
+            t = loop.now() if loop is not None else 0.0
+            out.stop(t)
+            out.close()
+            if run is not None:
+                run.start(time.time_ns())  # (no-op once the first frame set t = 0)
+                run.command(t, 0.0, 0.0, False)
+                reason = stop_reason or (loop.stopped if loop is not None else None)
+                if reason is not None:
+                    run.stopped(t, reason)
     return _finish(console, tally, controller, options.output, settings, None, loop.stopped)

@@ -16,7 +16,7 @@ from typing import IO, Any
 import numpy as np
 
 from ..core.frames import compose_planar_pose
-from ..core.unicycle import integrate_unicycle
+from ..core.unicycle import DynamicBase
 from ..errors import InputError, UsageError
 from ..io.fit_file import read_fit_file
 from ..io.images import encode_image
@@ -137,6 +137,75 @@ class _PlainRobot:
         self._server.close()
 
 
+#: ``--base`` presets: (max_v m/s, max_w rad/s, max_accel m/s^2, max_alpha rad/s^2, motor lag s).
+BASES: dict[str, tuple[float, float, float, float, float]] = {
+    "kinematic": (math.inf, math.inf, math.inf, math.inf, 0.0),
+    # A small differential-drive base (a TurtleBot-class robot) with a firmware ramp and motor lag.
+    "small": (0.26, 1.8, 0.6, 3.0, 0.12),
+}
+#: A command beyond these (m/s, rad/s) is no command a wheeled base could follow: ignored.
+MAX_PLAUSIBLE_V = 100.0
+MAX_PLAUSIBLE_W = 100.0
+
+
+def parse_base(text: str) -> DynamicBase:
+    """``--base``: a preset of :data:`BASES` or ``V,W,ACCEL,ALPHA,LAG`` (``inf`` for no limit)."""
+    if text in BASES:
+        return DynamicBase(*BASES[text])
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 5 or not all(v > 0 for v in values[:4]) or not (math.isfinite(values[4]) and values[4] >= 0):
+        raise UsageError(f"--base must be {', '.join(BASES)} or V,W,ACCEL,ALPHA,LAG (positive limits, inf for none; "
+                         f"a lag >= 0 s), got {text!r}")
+    return DynamicBase(*values)
+
+
+class StampFault:
+    """``--stamp-fault KIND[:S]@T``: what a faulty camera driver does to its header stamps from T s after the
+    robot first moved on."""
+
+    KINDS = ("freeze", "back", "jump", "second-clock", "max", "stall")
+    #: The largest stamp a ROS 2 time's int32 seconds can hold.
+    MAX_STAMP_S = 2.0 ** 31 - 1
+
+    def __init__(self, text: str) -> None:
+        kind, _, at = text.partition("@")
+        kind, _, size = kind.partition(":")
+        try:
+            self.at = float(at)
+            self.size = float(size) if size else 0.0
+        except ValueError:
+            self.at = self.size = math.nan
+        needs_size = kind in ("back", "jump", "second-clock", "stall")
+        if kind not in self.KINDS or not (math.isfinite(self.at) and self.at >= 0) or needs_size != bool(size) or not (
+                math.isfinite(self.size) and self.size >= 0):
+            raise UsageError(f"--stamp-fault must be KIND@T or KIND:S@T with KIND one of {', '.join(self.KINDS)} (S needed "
+                             f"by back, jump, second-clock and stall), T and S seconds; got {text!r}")
+        self.kind = kind
+        self._frozen: float | None = None
+        self._once_done = False
+
+    def stamp(self, stamp: float, t: float, frame: int) -> float | None:
+        """The stamp the driver puts on frame number ``frame`` taken at ``stamp`` (s), ``t`` s into the drive; None: no frame."""
+        if t < self.at:
+            return stamp
+        if self.kind == "freeze":
+            self._frozen = stamp if self._frozen is None else self._frozen
+            return self._frozen
+        if self.kind == "back":
+            return stamp - self.size
+        if self.kind == "second-clock":
+            return stamp + self.size if frame % 2 else stamp
+        if self.kind == "stall":
+            return None if t < self.at + self.size else stamp
+        if self._once_done:
+            return stamp
+        self._once_done = True
+        return stamp + self.size if self.kind == "jump" else self.MAX_STAMP_S
+
+
 def _transport(options: RobotSimOptions, camera: Any) -> Any:
     plain = options.mjpeg is not None or options.cmd_in is not None
     if options.ros2 == plain:
@@ -162,14 +231,17 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     if camera.distortion_model != "none" and any(camera.distortion):
         raise UsageError("robot-sim renders an undistorted camera; this fit's camera has lens distortion")
     occlusions = [parse_interval(text, "--occlude") for text in options.occlude]
+    base = parse_base(options.base)
+    fault = StampFault(options.stamp_fault) if options.stamp_fault is not None else None
     robot = _transport(options, camera)
     console.info(f"robot-sim: {camera.width}x{camera.height} at {rate:g} Hz on {robot.description}")
-    frames = received = 0
+    frames = received = ignored = 0
+    moving_since: float | None = None
     interrupted = False
     command = (0.0, 0.0)
     period = 1.0 / rate
     try:
-        with open_text_output(options.poses_out, "pose stream") as poses_out:
+        with open_text_output(options.poses_out, "pose stream", keep_on_error=True) as poses_out:
             start = last = time.monotonic()
             try:
                 while options.duration is None or last - start < options.duration:
@@ -179,30 +251,43 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
                     while True:
                         now = time.monotonic()
                         for new in robot.take_commands():
-                            pose = integrate_unicycle(pose, command[0], command[1], now - last)
-                            last, command = now, new
                             received += 1
+                            if not (abs(new[0]) <= MAX_PLAUSIBLE_V and abs(new[1]) <= MAX_PLAUSIBLE_W):  # NaN too
+                                ignored += 1
+                                if ignored == 1:
+                                    console.warn(f"robot-sim: ignored a command v {new[0]!r} m/s, w {new[1]!r} rad/s (not finite, "
+                                                 f"or beyond {MAX_PLAUSIBLE_V:g} m/s or {MAX_PLAUSIBLE_W:g} rad/s)")
+                                continue
+                            pose = base.advance(pose, command, now - last)
+                            last, command = now, new
                         if now >= next_frame:
                             break
                         time.sleep(min(0.002, next_frame - now))
                     now = time.monotonic()
-                    pose = integrate_unicycle(pose, command[0], command[1], now - last)
+                    pose = base.advance(pose, command, now - last)
                     last = now
                     stamp = time.time()
                     image = renderer.render(np.array(pose), rng)
                     occluded = any(begin <= now - start < end for begin, end in occlusions)
                     if occluded:
                         image[...] = int(np.mean(image))  # nothing to see: the target is covered
-                    robot.publish(image, stamp, pose)
+                    if moving_since is None and command != (0.0, 0.0):
+                        moving_since = now
+                    # The fault strikes T s into the drive (a stand-in cannot know when its driver started).
+                    driving = now - moving_since if moving_since is not None else -math.inf
+                    sent_stamp = fault.stamp(stamp, driving, frames) if fault is not None else stamp
+                    if sent_stamp is not None:
+                        robot.publish(image, sent_stamp, pose)
                     if poses_out is not None:
                         x, y, phi = pose
-                        poses_out.write(json.dumps({"stamp": stamp, "x": x, "y": y, "phi": phi,
-                                                    "v": command[0], "w": command[1], "occluded": occluded}) + "\n")
+                        poses_out.write(json.dumps({"stamp": stamp, "x": x, "y": y, "phi": phi, "v": command[0], "w": command[1],
+                                                    "v_base": base.v, "w_base": base.w, "occluded": occluded,
+                                                    "published": sent_stamp is not None}) + "\n")
                         poses_out.flush()
                     frames += 1
             except KeyboardInterrupt:
                 interrupted = True  # Ctrl-C is how a stand-in ends: keep its poses
     finally:
         robot.close()
-    console.info(f"robot-sim: {frames} frames, {received} commands{' (stopped by Ctrl-C)' if interrupted else ''}; "
+    console.info(f"robot-sim: {frames} frames, {received} commands ({ignored} ignored){' (stopped by Ctrl-C)' if interrupted else ''}; "
                  f"final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, phi {math.degrees(pose[2]):.2f} deg")

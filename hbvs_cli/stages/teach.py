@@ -19,6 +19,7 @@ from ..io.calibration import load_calibration
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
+from ..stop_signals import Terminated
 from ..io.mcap import open_output, seconds_to_ns
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
@@ -220,14 +221,18 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     frames += 1
                     last_t = frame.t
                     bar.advance()
-            except KeyboardInterrupt:
+            except (KeyboardInterrupt, Terminated):
                 if kind not in ("camera", "ros2"):
                     raise
-                # Ctrl-C is how a live recording ends, wherever it lands: keep what was recorded.
+                # Ctrl-C or SIGTERM is how a live recording ends, wherever it lands: keep what was recorded.
                 interrupted = True
         if frames == 0:
             raise InputError(f"{source.describe().get('path', kind)}: no frames could be read")
-    note = " (stopped by Ctrl-C)" if interrupted else ""
+    note = " (stopped by a signal)" if interrupted else ""
+    bad_stamps = source.describe().get("bad_stamps")
+    if bad_stamps:
+        console.warn(f"teach: {bad_stamps} frames left out: their stamps were not newer than the last, or ran ahead of this "
+                     "host's clock (a camera clock fault)")
     console.info(f"teach: {frames} frames ({last_t:.1f} s from {kind}){note} -> {options.output}")
 
 

@@ -99,12 +99,19 @@ class McapWriter:
 
 
 @contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None) -> Iterator[McapWriter]:
-    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success)."""
+def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None,
+                keep_on_error: bool = False) -> Iterator[McapWriter]:
+    """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success;
+    ``keep_on_error``: finished and committed on a failure too, then the failure raised)."""
     from ..output_target import open_output_stream
 
-    with open_output_stream(target, "output", stdout=stdout) as sink:
+    with open_output_stream(target, "output", stdout=stdout, keep_on_error=keep_on_error) as sink:
         writer = McapWriter(sink.stream, chunk_size=chunk_size)
         writer.input_ended_early = sink.input_ended_early
-        yield writer
+        try:
+            yield writer
+        except BaseException:
+            if keep_on_error:
+                writer.finish()
+            raise
         writer.finish()

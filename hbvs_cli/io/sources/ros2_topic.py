@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import math
+import time
 from collections.abc import Iterator
 from typing import Any
 
-from ...errors import InputError
+from ...core.camera_clock import CameraClock
+from ...errors import CameraClockError, InputError
 from .frame_source import FrameSource, SourceFrame
+
+
+#: The frame period (s) the stamps' tolerance assumes (a camera's rate is not known before it runs).
+NOMINAL_PERIOD_S = 1.0 / 30.0
 
 
 class Ros2TopicSource(FrameSource):
@@ -23,6 +30,8 @@ class Ros2TopicSource(FrameSource):
         self.cmd_topic = cmd_topic
         self.duration = duration
         self.dropped = 0
+        #: Frames left out for their stamps (not newer than the last, or jumped ahead of this host's clock).
+        self.bad_stamps = 0
         node = dds.Ros2Node()
         self._images = LatestImage(node, topic)
         self.camera = None
@@ -37,14 +46,26 @@ class Ros2TopicSource(FrameSource):
 
     def __iter__(self) -> Iterator[SourceFrame]:
         first_ns: int | None = None
-        while True:
-            frame = self._images.latest(1.0)
+        # --duration is this host's time from the first frame, whatever the camera's stamps do; a frame
+        # whose stamp is not newer, or jumped, is left out (counted in bad_stamps).
+        clock = CameraClock(NOMINAL_PERIOD_S)
+        ends_at = math.inf
+        while time.monotonic() < ends_at:
+            frame = self._images.latest(min(1.0, max(ends_at - time.monotonic(), 0.0)))
             if frame is None:
                 continue  # a camera that pauses: wait (Ctrl-C ends the recording)
             self.dropped += frame.skipped
+            try:
+                usable = clock.admit(frame.stamp, frame.arrival)
+            except CameraClockError:
+                usable = False
+            if not usable:
+                self.bad_stamps += 1
+                continue
             stamp_ns = int(round(frame.stamp * 1e9))
             if first_ns is None:
                 first_ns = self.time_base_ns = stamp_ns
+                ends_at = frame.arrival + self.duration if self.duration is not None else math.inf
             t = (stamp_ns - first_ns) * 1e-9
             if self.duration is not None and t >= self.duration - 1e-9:
                 return
@@ -59,4 +80,5 @@ class Ros2TopicSource(FrameSource):
         return self._command if self._command is not None else (0.0, 0.0)  # at rest until the operator drives
 
     def describe(self) -> dict[str, Any]:
-        return {"kind": self.kind, "topic": self.topic, "cmd_topic": self.cmd_topic, "dropped_frames": self.dropped}
+        return {"kind": self.kind, "topic": self.topic, "cmd_topic": self.cmd_topic, "dropped_frames": self.dropped,
+                "bad_stamps": self.bad_stamps}
