@@ -8,6 +8,7 @@ measurement on its prediction while that stays precise.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -23,17 +24,33 @@ from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, sched
 @dataclass(frozen=True)
 class ActuatorLimits:
     """Limits of the robot's drive, None for unlimited: |v| (m/s), |w| (rad/s), and the
-    change of v per second (m/s^2), which bounds w's (rad/s^2) as well."""
+    change of v per second (m/s^2), which bounds w's (rad/s^2) as well; ``lag_s`` the drive's
+    time constant (s): its speeds follow a command as a first-order lag (0: at once)."""
 
     max_v: float | None = None
     max_w: float | None = None
     max_accel: float | None = None
+    lag_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("max_v", "max_w", "max_accel"):
             value = getattr(self, name)
             if value is not None and (not np.isfinite(value) or value <= 0.0):
                 raise InvalidValueError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+        if not (math.isfinite(self.lag_s) and self.lag_s >= 0.0):
+            raise InvalidValueError(f"--base-lag must be a number of seconds >= 0, got {self.lag_s}")
+
+    def executed(self, speeds: tuple[float, float], command: tuple[float, float], dt: float) -> tuple[tuple[float, float], tuple[float, float]]:
+        """What the drive does with ``command`` (v, w) held for ``dt`` (s) from ``speeds``: its mean speeds over
+        ``dt`` (what moves the robot) and its speeds at the end, through the lag ``tau``:
+        ``s(t) = c + (s0 - c) exp(-t / tau)``. Without a lag both are the command."""
+        if self.lag_s == 0.0:
+            return command, command
+        decay = math.exp(-dt / self.lag_s)
+        kept = self.lag_s / dt * (1.0 - decay) if dt > 0 else 1.0
+        mean = tuple(c + (s0 - c) * kept for s0, c in zip(speeds, command))
+        end = tuple(c + (s0 - c) * decay for s0, c in zip(speeds, command))
+        return (mean[0], mean[1]), (end[0], end[1])
 
     def apply(self, v: float, w: float, previous: tuple[float, float], dt: float) -> tuple[float, float, bool]:
         """Clip a command; returns ``(v, w, saturated)``."""
@@ -103,6 +120,8 @@ class ServoStep:
         self.state_filter = state_filter
         #: The last command sent (m/s, rad/s).
         self.previous = (0.0, 0.0)
+        #: The drive's speeds as the limits' lag makes them (m/s, rad/s).
+        self.speeds = (0.0, 0.0)
         self.rejected_in_a_row = 0
         self.target_lost = False
         # Commands sent since the frame being fused was taken (latency_steps of them).
@@ -169,7 +188,9 @@ class ServoStep:
     def sent(self, dt: float) -> None:
         """The last decided command was sent and is held for ``dt`` (s): the filter moves on."""
         if self.state_filter is not None:
-            # The filter's state is at its last frame's time: later commands wait (latency).
-            self.unseen_commands.append(self.previous)
+            # The filter's state is at its last frame's time: later commands wait (latency). The robot
+            # moves as its drive executes the command: through a lag, the filter would read it as depth.
+            executed, self.speeds = self.limits.executed(self.speeds, self.previous, dt)
+            self.unseen_commands.append(executed)
             if len(self.unseen_commands) > self.latency_steps:
                 self.state_filter.predict(*self.unseen_commands.popleft(), dt)

@@ -23,7 +23,7 @@ MAX_CONFIG_BYTES = 1 * 2**20
 
 #: The keys of each table (top level: ""), in order.
 TABLES: dict[str, tuple[str, ...]] = {
-    "": ("law", "dhat0", "speed", "filter"), "gains": GAIN_NAMES, "limits": ("max_v", "max_w", "max_accel", "latency"),
+    "": ("law", "dhat0", "speed", "filter"), "gains": GAIN_NAMES, "limits": ("max_v", "max_w", "max_accel", "base_lag", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
 _TYPES = {setting.config: setting.type for setting in REPEAT_SETTINGS if setting.config is not None}

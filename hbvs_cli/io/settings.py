@@ -213,6 +213,9 @@ REPEAT_SETTINGS: tuple[Setting, ...] = (
     Setting("max_w", float, "|w| limit (rad/s); inf for none.", fallback=DEFAULT_MAX_W, config="max_w", panel="Actuators"),
     Setting("max_accel", float, "Acceleration limit (m/s^2 and rad/s^2); inf for none.", shown="inf", config="max_accel",
             panel="Actuators"),
+    Setting("base_lag", float, "The drive's time constant (s): its speed reaches 63 % of a step in the command after this "
+            "long. The state filter predicts the motion through it (else the lag reads as depth).", fallback=0.0,
+            config="base_lag", panel="Actuators", bounds={"min": 0.0, "max": 5.0}),
     Setting("latency", int, "Measurement latency in frames.", fallback=0, config="latency", panel="Actuators",
             bounds={"min": 0, "max": MAX_LATENCY_FRAMES}),
     Setting("lost_timeout", float, "Stop the run after the target was lost this long (s).",

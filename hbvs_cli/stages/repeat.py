@@ -129,7 +129,7 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     if state_filter not in FILTERS:
         raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
-                            max_accel=_limit(pick("max_accel"), "--max-accel"))
+                            max_accel=_limit(pick("max_accel"), "--max-accel"), lag_s=float(pick("base_lag")))
     return Settings(
         gains=gains, law=law, dhat0=dhat0, speed=speed, limits=limits, latency=latency, rate=rate, perception=perception,
         pixel_noise=float(pick("pixel_noise")), offset=parse_offset(offset_text), lost_timeout=float(pick("lost_timeout")),
