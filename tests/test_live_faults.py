@@ -171,3 +171,72 @@ def test_a_base_with_dynamics_follows_its_command_through_lag_and_limits():
     assert ramped.v == pytest.approx(0.06, rel=1e-9)  # the ramp, not the command
     pose = ramped.advance((0.0, 0.0, 0.0), (1.0, 0.0), 1.0)
     assert ramped.v == pytest.approx(0.26) and 0.26 * 1.0 - 0.26 ** 2 / (2 * 0.6) < pose[0] < 0.26
+
+
+def teach_from_stand_in(tmp_path, fault: str, *teach_options: str, signal_after: float | None = None):
+    """``teach --ros2-image --ros2-cmd`` from robot-sim driven by a teleop node; the wall time it took."""
+    env = dds_env()
+    robot, _ = robot_sim(env, tmp_path, "--stamp-fault", fault, duration=60.0)
+    teleop = subprocess.Popen([sys.executable, "-c", TELEOP], env=env)
+    teach = tmp_path / "teach.mcap"
+    process = subprocess.Popen([*HBVS, "teach", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "/cmd_vel", "-o", str(teach),
+                                "-q", *teach_options], stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        if signal_after is not None:
+            time.sleep(signal_after)
+            process.send_signal(__import__("signal").SIGTERM)
+        started = time.monotonic()
+        _, err = process.communicate(timeout=60)
+        waited = time.monotonic() - started
+    finally:
+        stop(teleop, robot)
+    return process.returncode, err, waited, teach
+
+
+def test_teach_ends_on_time_whatever_the_stamps(tmp_path):
+    """A frame stamped 2^31-1 s one second into the drive: the recording still runs its 3 s of this
+    host's time (it had ended after 30 frames), and leaves that frame out with a warning."""
+    from hbvs_cli.io.teach_file import TeachReader
+
+    code, err, _, teach = teach_from_stand_in(tmp_path, "max@1", "--duration", "3")
+    assert code == 0, err
+    assert "1 frames left out" in err
+    frames = list(TeachReader(str(teach)).frames())
+    print(f"{len(frames)} frames, last at {frames[-1].t:.2f} s")
+    assert 25 <= len(frames) <= 30 and 2.7 <= frames[-1].t < 3.0
+
+
+@pytest.mark.campaign
+def test_teach_keeps_the_recording_on_sigterm(tmp_path, request):
+    if "campaign" not in (request.config.option.markexpr or ""):
+        pytest.skip("runs with: pytest -m campaign tests/test_live_faults.py")
+    from hbvs_cli.io.teach_file import TeachReader
+
+    code, err, _, teach = teach_from_stand_in(tmp_path, "freeze@30", signal_after=6.0)
+    assert code == 0, err
+    frames = list(TeachReader(str(teach)).frames())
+    assert len(frames) >= 10
+
+
+def test_the_status_line_fits_80_columns_and_says_what_a_person_watches():
+    from types import SimpleNamespace
+
+    from hbvs_cli.stages.live import LiveStats, status_text
+
+    stats = LiveStats()
+    for k in range(31):
+        stats.add(100.0 + k / 30.0, 0.010 + 0.001 * (k % 10), 1 if k % 10 == 0 else 0)
+    errors = SimpleNamespace(e1=0.0123, e2=-0.0046, e3=math.radians(-0.31))
+    line = status_text(12.34, 20.0, SimpleNamespace(output=SimpleNamespace(errors=errors), dhat=4.012), stats)
+    print(line)
+    assert len(line) <= 80
+    for words in ("t 12.3/20s", "e +0.012 -0.005 -0.31°", "dhat 4.01m", "30Hz", "p95 19ms", "drop 4"):
+        assert words in line, words
+    lost = status_text(1.0, 20.0, SimpleNamespace(output=None, dhat=4.0), LiveStats())
+    assert "target lost" in lost and "nanHz" in lost and len(lost) <= 80
+    worst = SimpleNamespace(output=SimpleNamespace(errors=SimpleNamespace(e1=-1.2345, e2=-2.345, e3=math.radians(-179.99))),
+                            dhat=9.99)
+    slow = LiveStats()
+    for k in range(3):
+        slow.add(k / 30.0, 0.999, 3333)
+    assert len(status_text(999.9, 1000.0, worst, slow)) <= 80, status_text(999.9, 1000.0, worst, slow)

@@ -237,12 +237,13 @@ class LiveStats:
 
 
 def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str:
-    """One line for a person watching the robot: run time, errors (29), dhat, frame rate, p95 latency, drops."""
+    """One line of at most 80 columns for a person watching the robot: run time, errors e1, e2, e3 (19),
+    dhat, frame rate, p95 latency, frames dropped."""
     errors = record.output.errors if record.output is not None else None
-    shown = (f"e1 {float(errors.e1):+.3f}  e2 {float(errors.e2):+.3f}  e3 {math.degrees(float(errors.e3)):+.2f} deg"
-             if errors is not None else "target lost")
-    return (f"t {t:5.1f}/{duration:.1f} s  {shown}  dhat {record.dhat:.3f} m  {stats.frame_rate():4.1f} fps  "
-            f"p95 latency {1e3 * stats.latency_p95():3.0f} ms  dropped {stats.dropped}")
+    shown = (f"e {float(errors.e1):+.3f} {float(errors.e2):+.3f} {math.degrees(float(errors.e3)):+.2f}°"
+             if errors is not None else f"{'target lost':<22}")
+    return (f"t {t:.1f}/{duration:.0f}s  {shown}  dhat {record.dhat:.2f}m  {stats.frame_rate():.0f}Hz  "
+            f"p95 {1e3 * stats.latency_p95():.0f}ms  drop {stats.dropped}")
 
 
 @dataclass
