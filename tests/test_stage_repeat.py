@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -128,6 +130,39 @@ def test_replay_of_a_displaced_drive_gives_the_displacement_back(default_fit, tm
     for key in ("e1", "e2"):
         assert np.sqrt(np.mean((run.state[key] - expected[key]) ** 2)) < 6e-4, key
     assert np.degrees(np.sqrt(np.mean((run.state["e3"] - expected["e3"]) ** 2))) < 0.05
+
+
+def test_replaying_a_different_drive_keeps_the_depth_estimate_positive(default_fit, tmp_path):
+    """An arc replayed against the default fit: the errors grow that no command corrects (open loop),
+    and (31) alone had driven dhat to -3 m (the taught speed drawn from it reversed); projected, dhat
+    stays at or above dhat(0) / 10 at every step."""
+    from hbvs_cli.core.depth import DEPTH_PROJECTION_FACTOR
+
+    fit_path, model = default_fit
+    other = make_teach(tmp_path / "arc.mcap", path="arc", seed=5)
+    make_run(fit_path, tmp_path / "replay.mcap", replay=other)
+    dhat = read_run(tmp_path / "replay.mcap").state["dhat"]
+    print(f"dhat {dhat.min():.3f} .. {dhat.max():.3f} m (dhat0 {model.dhat0:.3f} m)")
+    assert np.all(dhat >= model.dhat0 / DEPTH_PROJECTION_FACTOR - 1e-12) and dhat.min() > 0
+
+
+def test_sim_live_and_replay_share_one_loop():
+    """Every mode's records come from core.servo_loop.run_servo, the only caller of ServoStep.decide."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1] / "hbvs_cli"
+    deciders, loops = [], {}
+    for path in root.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "decide":
+                deciders.append(path.relative_to(root).as_posix())
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "run_servo":
+                loops.setdefault(path.relative_to(root).as_posix(), 0)
+                loops[path.relative_to(root).as_posix()] += 1
+    assert deciders == ["core/servo_loop.py"]
+    # --sim (the simulated robot), --live (the live loop), --replay (the recording).
+    assert set(loops) == {"sim/closed_loop.py", "stages/live.py", "stages/repeat.py"}, loops
 
 
 def test_target_lost_for_a_stretch_stops_resumes_and_converges(default_fit, tmp_path):

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .control_settings import ControllerGains
-from .depth import check_depth
+from .depth import check_depth, project_depth
 from .frames import wrap_angle
 
 @dataclass(frozen=True)
@@ -108,7 +108,7 @@ class AdaptiveTrackingController:
 
     def __init__(self, gains: ControllerGains, dhat0: float) -> None:
         self.gains = gains
-        self.dhat = check_depth(dhat0, "the initial depth estimate dhat0")
+        self.dhat = self.dhat0 = check_depth(dhat0, "the initial depth estimate dhat0")
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
         """Commands for this instant; advances dhat by ``dt`` (s) unless ``adapt`` is False."""
@@ -118,21 +118,21 @@ class AdaptiveTrackingController:
         return output
 
     def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
-        """Integrate (31) over ``dt`` (s) by explicit Euler; ``depth_reference`` ``(d_f, kappa)``
+        """Integrate (31) over ``dt`` (s) by explicit Euler, projected (:func:`~.depth.project_depth`); ``depth_reference`` ``(d_f, kappa)``
         (m, 1/s) adds the pull ``kappa (d_f - dhat)`` (:func:`~.state_filter.scheduled_depth_pull`).
         With gamma_1 = 0 (the non-adaptive baseline) dhat stays."""
         rate = float(output.dhat_dot)
         if depth_reference is not None and self.gains.gamma > 0.0:
             depth, pull = depth_reference
             rate += pull * (depth - self.dhat)
-        self.dhat += rate * dt
+        self.dhat = project_depth(self.dhat + rate * dt, self.dhat0)
 
     def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
         """Only the pull of :meth:`adapt` over ``dt``: while the state filter settles (31) is
         frozen, but the depth the motion measures already paces the taught commands (25)."""
         if self.gains.gamma > 0.0:
             depth, pull = depth_reference
-            self.dhat += pull * (depth - self.dhat) * dt
+            self.dhat = project_depth(self.dhat + pull * (depth - self.dhat) * dt, self.dhat0)
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
         """The taught commands (25) at the current dhat: ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``."""

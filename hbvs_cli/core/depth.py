@@ -12,6 +12,19 @@ from numpy.typing import ArrayLike
 from ..errors import GeometryError, InvalidValueError
 
 
+#: The adaptive estimate dhat is projected onto [dhat(0) / F, inf): d* is taken to be more than 1/F of
+#: its initial estimate. Projection keeps (36) non-increasing whenever d* lies in the set (the
+#: parameter error only shrinks at its edge), and keeps dhat positive as (29) needs, where (31)
+#: alone can drive it through zero when the robot does not follow the commands (an open-loop replay,
+#: a stalled base). No upper bound: a poor dhat(0) can make (31) overshoot d* several times over.
+DEPTH_PROJECTION_FACTOR = 10.0
+
+
+def project_depth(dhat: float, dhat0: float) -> float:
+    """``dhat`` (m) projected onto ``[dhat0 / F, inf)``, F = :data:`DEPTH_PROJECTION_FACTOR`."""
+    return max(dhat, dhat0 / DEPTH_PROJECTION_FACTOR)
+
+
 def check_depth(value: float, name: str) -> float:
     """``value`` as a depth d* or dhat (m): finite and positive, else InvalidValueError."""
     if not (math.isfinite(value) and value > 0.0):

@@ -113,8 +113,10 @@ class ServoStep:
     a frame and acting on it."""
 
     def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
-                 state_filter: ServoStateFilter | None = None) -> None:
+                 state_filter: ServoStateFilter | None = None, stop_when_lost: bool = False) -> None:
         self.controller = controller
+        #: A robot stops at once when the target is lost (the simulator may coast on the filter's prediction).
+        self.stop_when_lost = stop_when_lost
         self.limits = limits
         self.latency_steps = latency_steps
         self.state_filter = state_filter
@@ -179,6 +181,8 @@ class ServoStep:
             pull = scheduled_depth_pull(estimate.depth_pull, float(errors.ebar2), float(errors.e3),
                                         getattr(controller.gains, "k_2", 1.0), settings, self.depth_met)
             controller.adapt(output, dt, (estimate.depth, pull))
+        if self.stop_when_lost and self.target_lost:
+            v_c = w_c = 0.0
         self.previous = (v_c, w_c)
         return StepRecord(
             t=t, pose=pose, observation=observation, desired=desired, output=output,

@@ -166,10 +166,13 @@ def true_depth(run: RunData) -> float | None:
 
 
 def taught_commands_along(run: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The taught commands (25) at each step (m/s, rad/s), at the true d* (else the final dhat)."""
+    """The taught commands (25) at each step (m/s, rad/s), at the true d*; else at the fit's dhat(0) for a
+    replay (open loop: its dhat adapted on errors no command corrected, no estimate of d*); else at the final dhat."""
     d_true = true_depth(run)
     dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
     depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
+    if d_true is None and run.info.get("mode") == "replay" and isinstance(run.info.get("dhat0"), (int, float)):
+        depth = float(run.info["dhat0"])
     return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 
@@ -307,7 +310,9 @@ def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mappin
     """Whether the run converged (this module's rule), with a ``pass``, ``fail`` or ``skip`` line per check."""
     checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
-        checks["closed_loop"] = _check(False, "open-loop replay: nothing moved, so it cannot have converged")
+        checks["closed_loop"] = _check(False, "open-loop replay: the commands were computed on the recorded frames, not "
+                                       "executed (nothing moved), so it cannot have converged; dhat adapted on errors no "
+                                       "command corrected and is no estimate of d*")
     else:
         checks["closed_loop"] = _check(True, f"closed loop ({run.info.get('mode') or 'unknown mode'})")
     checks["finished"] = _finished_check(run)

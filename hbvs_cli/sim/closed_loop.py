@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..core.controller import AdaptiveTrackingController, DesiredState
 from ..core.estimation import Observation
+from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import NOT_YET, ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
@@ -23,6 +24,37 @@ from .simulated_camera import SimulatedCamera
 from .scene import Scene
 
 SenseFunction = Callable[[NDArray[np.float64], float], Observation]
+
+
+class SimulatedRobot:
+    """The source of ``--sim`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a unicycle that
+    ``sense(pose, t)`` observes every ``dt`` (s) for ``duration`` (s), each observation acted on
+    ``latency_steps`` periods late (none before), and that integrates each command exactly."""
+
+    def __init__(self, sense: SenseFunction, trajectory: DesiredTrajectory, start_pose: ArrayLike, dt: float, duration: float,
+                 latency_steps: int = 0) -> None:
+        if dt <= 0.0 or not np.isfinite(dt):
+            raise InvalidValueError(f"the control period must be positive, got {dt}")
+        if latency_steps < 0:
+            raise InvalidValueError("--latency must be zero or a positive number of frames")
+        self.sense, self.trajectory, self.dt, self.latency_steps = sense, trajectory, dt, latency_steps
+        self.pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
+        self.steps = int(round(duration / dt))
+
+    def __iter__(self) -> Iterator[ServoInput]:
+        dt = self.dt
+        # The control instants are known in advance: one vectorised evaluation.
+        schedule = self.trajectory.evaluate(np.arange(self.steps) * dt)
+        columns = [np.atleast_1d(np.asarray(getattr(schedule, field.name), dtype=float)).tolist() for field in fields(DesiredState)]
+        pending: deque[Observation] = deque()
+        for k in range(self.steps):
+            t = k * dt
+            pending.append(self.sense(np.array(self.pose), t))
+            observation = pending.popleft() if len(pending) > self.latency_steps else NOT_YET
+            yield ServoInput(t, dt, observation, DesiredState(*(column[k] for column in columns)), np.array(self.pose))
+
+    def act(self, record: StepRecord) -> None:
+        self.pose = integrate_unicycle(self.pose, record.v_c, record.w_c, self.dt)
 
 
 def run_closed_loop(
@@ -42,28 +74,8 @@ def run_closed_loop(
     ``duration`` in s. The law acts on the observation ``latency_steps`` periods old (holding
     still before), or on the ``state_filter``'s estimate (docs/method.md, "State filter").
     """
-    if dt <= 0.0 or not np.isfinite(dt):
-        raise InvalidValueError(f"the control period must be positive, got {dt}")
-    if latency_steps < 0:
-        raise InvalidValueError("--latency must be zero or a positive number of frames")
-    limits = limits or ActuatorLimits()
-    pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
-    steps = int(round(duration / dt))
-    # The control instants are known in advance: one vectorised evaluation.
-    times = np.arange(steps) * dt
-    schedule = trajectory.evaluate(times)
-    columns = [np.atleast_1d(np.asarray(getattr(schedule, field.name), dtype=float)).tolist() for field in fields(DesiredState)]
-    pending: deque[Observation] = deque()
-    servo = ServoStep(controller, limits, latency_steps, state_filter)
-    for k in range(steps):
-        t = k * dt
-        pending.append(sense(np.array(pose), t))
-        observation = pending.popleft() if len(pending) > latency_steps else NOT_YET
-        desired = DesiredState(*(column[k] for column in columns))
-        record = servo.decide(t, np.array(pose), observation, desired, dt)
-        yield record
-        servo.sent(dt)
-        pose = integrate_unicycle(pose, record.v_c, record.w_c, dt)
+    robot = SimulatedRobot(sense, trajectory, start_pose, dt, duration, latency_steps)
+    return run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), latency_steps, state_filter))
 
 
 @dataclass

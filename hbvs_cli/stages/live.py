@@ -11,12 +11,13 @@ import threading
 import time
 from collections import deque
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
-from typing import IO, Any, Callable
+from dataclasses import dataclass
+from typing import IO, Any, Callable, Iterator
 
 import numpy as np
 
 from ..core.camera_clock import CameraClock
+from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ServoStep
 from ..errors import CommandConflictError, HbvsError, InputError, NotAtStartError, TargetLostError, UsageError
 from ..io.calibration import load_calibration
@@ -342,13 +343,13 @@ class LiveLoop:
             self.log.event(0.0, LOG_WARNING, text)
             self.warn(text)
 
-    def drive(self) -> None:
-        """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
+    def __iter__(self) -> Iterator[ServoInput]:
+        """The loop's inputs (:class:`~hbvs_cli.core.servo_loop.ServoSource`): each newest usable frame, measured, until
+        the trajectory's end or a stop (:attr:`stopped` says why)."""
         period = 1.0 / self.settings.rate
         duration = self.trajectory.t_end - self.trajectory.t_start
         first_stamp: float | None = None
         previous_stamp: float | None = None
-        lost_for = 0.0
         while True:
             raise_if_stopped()
             self.out.check_one_commander()
@@ -364,37 +365,38 @@ class LiveLoop:
                 self.t = t
                 self.run.event(t, LOG_INFO, "end of the taught trajectory: stopped")
                 return
-            interval = frame.stamp - previous_stamp if previous_stamp is not None else None
+            self.frame, self.interval = frame, (frame.stamp - previous_stamp if previous_stamp is not None else None)
             # The command is held until the next frame: about one frame interval.
-            dt = min(max(interval if interval is not None else period, 0.2 * period), 5.0 * period)
-            latency, record = self._step(frame, t, dt)
+            self.dt = min(max(self.interval if self.interval is not None else period, 0.2 * period), 5.0 * period)
+            observation = measure(frame, self.detector, self.estimator, self.model)
             previous_stamp, self.t = frame.stamp, t
+            yield ServoInput(t, self.dt, observation, self.trajectory.evaluate(t), _NO_POSE)
+
+    def act(self, record: Any) -> None:
+        """Send the command (a lost target's is zero: :attr:`ServoStep.stop_when_lost`)."""
+        self.out.send(record.t, record.v_c, record.w_c)
+        self.used_at = self.out.sent_at
+        self.latency = time.monotonic() - self.frame.arrival
+
+    def drive(self) -> None:
+        """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
+        period = 1.0 / self.settings.rate
+        duration = self.trajectory.t_end - self.trajectory.t_start
+        lost_for = 0.0
+        for record in run_servo(self, self.servo):
+            frame, t = self.frame, record.t
             self.log.step(record)
-            self.run.timing(t, frame.stamp, latency, interval, frame.skipped,
-                            interval is not None and interval > LATE_FACTOR * period, self.options.dry_run)
+            self.run.timing(t, frame.stamp, self.latency, self.interval, frame.skipped,
+                            self.interval is not None and self.interval > LATE_FACTOR * period, self.options.dry_run)
             self.tally.add(record)
-            self.stats.add(frame.arrival, latency, frame.skipped)
+            self.stats.add(frame.arrival, self.latency, frame.skipped)
             if self.status is not None:
                 self.status(status_text(t, duration, record, self.stats))
-            lost_for = lost_for + dt if record.lost else 0.0
+            lost_for = lost_for + self.dt if record.lost else 0.0
             if lost_for > self.settings.lost_timeout:
                 self.stopped = f"the target was lost for more than --lost-timeout {self.settings.lost_timeout:g} s (at t = {t:.2f} s)"
                 self.run.event(t, LOG_ERROR, f"target lost for more than {self.settings.lost_timeout:g} s: run stopped")
                 return
-
-    def _step(self, frame: Any, t: float, dt: float) -> tuple[float, Any]:
-        """Measure, decide, send; the latency (s) and the step's record."""
-        observation = measure(frame, self.detector, self.estimator, self.model)
-        record = self.servo.decide(t, _NO_POSE, observation, self.trajectory.evaluate(t), dt)
-        if record.lost:
-            # On a robot a lost target stops it at once (the simulator may coast on the filter).
-            record = replace(record, v_c=0.0, w_c=0.0)
-            self.servo.previous = (0.0, 0.0)
-        self.out.send(t, record.v_c, record.w_c)
-        self.used_at = self.out.sent_at
-        latency = time.monotonic() - frame.arrival
-        self.servo.sent(dt)
-        return latency, record
 
     def _next_frame(self) -> Any:
         """The next usable frame; zeros once none came for --stale-timeout after the last used one; None

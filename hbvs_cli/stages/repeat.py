@@ -26,6 +26,7 @@ from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
 from ..core.laws import ALL_LAWS, gains_for_law, make_controller
 from ..core.metrics import final_value
+from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.control_settings import FILTER_EKF, FILTERS, GAIN_NAMES
 from ..core.state_filter import ServoStateFilter
@@ -427,6 +428,35 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
+class RecordedDrive:
+    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames,
+    measured by the fit's detector, at their own stamps. Open loop: the commands are kept, nothing moves."""
+
+    def __init__(self, reader: TeachReader, detector: Any, estimator: PlanarPoseEstimator, model: FitModel,
+                 trajectory: TimeScaledTrajectory, run: RunWriter) -> None:
+        self.reader, self.detector, self.estimator, self.model, self.trajectory, self.run = reader, detector, estimator, model, trajectory, run
+
+    def __iter__(self) -> Any:
+        model, reader = self.model, self.reader
+        previous_t: float | None = None
+        keep_colour = self.detector.spec.contrast == "colour"  # only dots seen in colour use it
+        for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: keep_colour):
+            camera = reader.camera
+            if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
+                raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
+            observation = self.estimator.from_pixels(self.detector.detect(image))
+            t = frame.t
+            if previous_t is None:
+                # The replay keeps the recording's stamps: t = 0 is known with the first frame.
+                self.run.start(frame.log_time_ns - seconds_to_ns(t))
+            dt = t - previous_t if previous_t is not None else 0.0
+            previous_t = t
+            yield ServoInput(t, dt, observation, self.trajectory.evaluate(t), np.full(3, np.nan))
+
+    def act(self, record: StepRecord) -> None:
+        """Open loop: the command a robot would be sent is recorded, and nothing moves."""
+
+
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
@@ -434,37 +464,16 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
+    # The recording's motion is not the commands': no state filter (its prediction assumes they moved the robot).
+    servo = ServoStep(controller, settings.limits, 0, None, stop_when_lost=True)
     tally = _Tally()
-    previous_t: float | None = None
-    previous_command = (0.0, 0.0)
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)
-            # The replay keeps the recording's stamps: t = 0 is known with the first frame.
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, cmd_stream)
             with console.progress("repeat (replay)", None) as bar:
-                keep_colour = detector.spec.contrast == "colour"  # only dots seen in colour use it
-                for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: keep_colour):
-                    camera = reader.camera
-                    if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
-                        raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
-                    pixels = detector.detect(image)
-                    observation = estimator.from_pixels(pixels)
-                    t = frame.t
-                    if previous_t is None:
-                        run.start(frame.log_time_ns - seconds_to_ns(t))
-                    dt = t - previous_t if previous_t is not None else 0.0
-                    previous_t = t
-                    desired = trajectory.evaluate(t)
-                    dhat = controller.dhat
-                    output = controller.step(observation.measurement, desired, dt) if observation.status == "ok" else None
-                    v, w = (float(output.v_c), float(output.w_c)) if output is not None else controller.hold()
-                    # The commands a robot would be sent: through the same actuator limits as --sim.
-                    v, w, saturated = settings.limits.apply(v, w, previous_command, dt)
-                    previous_command = (v, w)
-                    record = StepRecord(t=t, pose=np.full(3, np.nan), observation=observation, desired=desired, output=output,
-                                  v_c=v, w_c=w, saturated=saturated, dhat=dhat)
+                for record in run_servo(RecordedDrive(reader, detector, estimator, model, trajectory, run), servo):
                     log.step(record)
                     tally.add(record)
                     bar.advance()
@@ -485,7 +494,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     state_filter = make_state_filter(settings, model, estimator)
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
-    servo = ServoStep(controller, settings.limits, 0, state_filter)
+    servo = ServoStep(controller, settings.limits, 0, state_filter, stop_when_lost=True)
     trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
     tally = _Tally()
     loop: live.LiveLoop | None = None

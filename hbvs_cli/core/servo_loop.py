@@ -1,0 +1,52 @@
+"""The one loop of ``hbvs repeat`` (``--sim``, ``--live`` and ``--replay`` alike).
+
+A :class:`ServoSource` gives each camera frame's time, observation and desired state;
+:class:`~.simulator.ServoStep` (detector output in, filter, law (29)-(31), limits out) decides
+the command; the source acts on it: a simulated robot moves, a live robot is sent it, a replay
+only keeps it (open loop). The modes differ in their source and in what the stage does with
+each :class:`~.simulator.StepRecord` (the run file, the commands, the live view), nothing else.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .controller import DesiredState
+from .estimation import Observation
+from .simulator import ServoStep, StepRecord
+
+
+@dataclass(frozen=True)
+class ServoInput:
+    """One frame as the loop sees it: its time ``t`` (s), the period ``dt`` (s) its command is held for,
+    the ``observation``, the ``desired`` state at ``t`` and the true ``pose`` (x, y, phi) (NaN when unknown)."""
+
+    t: float
+    dt: float
+    observation: Observation
+    desired: DesiredState
+    pose: NDArray[np.float64]
+
+
+class ServoSource(Protocol):
+    """Where frames come from and where commands go."""
+
+    def __iter__(self) -> Iterator[ServoInput]:
+        """The frames, each after the command of the one before was acted on; ends with the run."""
+
+    def act(self, record: StepRecord) -> None:
+        """Carry out the command ``record.v_c, record.w_c`` (move, send, or keep it)."""
+
+
+def run_servo(source: ServoSource, servo: ServoStep) -> Iterator[StepRecord]:
+    """The closed (or, for a replay, open) loop: a :class:`~.simulator.StepRecord` per frame."""
+    for step in source:
+        record = servo.decide(step.t, step.pose, step.observation, step.desired, step.dt)
+        source.act(record)
+        servo.sent(step.dt)
+        yield record
