@@ -31,6 +31,12 @@ A, TAU = 0.2, 1.5             # e(t) = A exp(-t / TAU)
 LOST = slice(300, 350)        # the target is lost from 3.00 s to 3.49 s (50 steps)
 R = math.exp(-DT / TAU)       # ratio of consecutive samples
 
+#: What the verdict says of an open-loop replay.
+REPLAY_VERDICT = (
+    "open-loop replay: the commands were computed on the recorded frames, not executed (nothing moved), so it cannot "
+    "have converged; dhat adapted on errors no command corrected and is no estimate of d*"
+)
+
 
 def geometric(r: float, start: int, stop: int) -> float:
     """sum_{k=start}^{stop-1} r^k in closed form."""
@@ -268,7 +274,7 @@ def test_the_typed_report_is_its_json():
     with pytest.raises(MissingKey) as missing:
         replay.value("pose_error.position_m.final")
     assert missing.value.where == "the report" and missing.value.part == "pose_error"
-    assert replay.verdict.failures()[0] == "open-loop replay: nothing moved, so it cannot have converged"
+    assert replay.verdict.failures()[0] == REPLAY_VERDICT
 
 
 def test_tolerances_change_the_verdict_and_the_settling_times():
@@ -296,7 +302,7 @@ def test_replay_stopped_and_truncated_runs_never_converge():
     assert replay["lyapunov"] == {"initial": None, "final": None, "ratio": None, "increase_fraction": None}
     assert replay["depth"]["d_true"] is None and replay["depth"]["relative_error"] is None
     assert replay["verdict"]["converged"] is False
-    assert replay["verdict"]["checks"]["closed_loop"] == "fail: open-loop replay: nothing moved, so it cannot have converged"
+    assert replay["verdict"]["checks"]["closed_loop"] == "fail: " + REPLAY_VERDICT
     # Without ground truth the image errors are checked: e1, e2 but not ebar2, and e3.
     checked = [r.split(":")[1].split()[1] for r in replay["verdict"]["reasons"] if "final" in r]
     assert checked == ["|e1|", "|e2|", "|e3|"]
