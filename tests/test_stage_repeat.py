@@ -274,3 +274,47 @@ def test_with_noisy_images_v_falls_overall_but_not_at_every_step(image_runs):
         lyapunov = build_report(run).lyapunov
         assert 0.02 < lyapunov.increase_fraction < 0.3, (law, lyapunov)
         assert lyapunov.ratio < (1e-5 if law == "lateral-gain" else 0.1), (law, lyapunov)
+
+
+def test_a_law_registered_from_outside_the_package_runs_in_every_mode(default_fit, tmp_path):
+    """docs/layout.md's recipe: a toy law (proportional on e1 and e3, at the fit's depth) is a
+    LawSpec registered from here; --sim runs it by name."""
+    from hbvs_cli.core.controller import ControlOutput, tracking_errors
+    from hbvs_cli.core.laws import LAW_REGISTRY, LawSpec, law_names, register_law
+
+    class ToyLaw:
+        lateral_gain = 1.0
+
+        def __init__(self, gains, dhat0):
+            self.gains, self.dhat = gains, dhat0
+
+        def step(self, measured, desired, dt, adapt=True):
+            errors = tracking_errors(measured, desired)
+            v_ff, w_ff = self.feedforward(desired)
+            return ControlOutput(v_c=v_ff + self.gains.k_v * errors.e1, w_c=w_ff + self.gains.k_w * errors.e3,
+                                 dhat_dot=0.0, errors=errors)
+
+        def adapt(self, output, dt, depth_reference=None):
+            pass
+
+        def follow_depth(self, depth_reference, dt):
+            pass
+
+        def feedforward(self, desired):
+            w = -float(desired.theta_d_dot)
+            return self.dhat * (float(desired.x_hd2) * w - float(desired.x_hd1_dot)), w
+
+        def hold(self):
+            return 0.0, 0.0
+
+    fit_path, _ = default_fit
+    register_law(LawSpec("toy", lambda gains: gains, ToyLaw))
+    try:
+        assert "toy" in law_names()
+        make_run(fit_path, tmp_path / "sim.mcap", sim=True, law="toy")
+        run = read_run(tmp_path / "sim.mcap")
+        assert run.info["law"] == "toy" and run.steps > 100
+        # Feed-forward plus feedback: it follows the taught path from the default offset.
+        assert abs(run.state["e1"][-1]) < abs(run.state["e1"][0])
+    finally:
+        del LAW_REGISTRY["toy"]

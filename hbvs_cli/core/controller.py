@@ -110,6 +110,11 @@ class AdaptiveTrackingController:
         self.gains = gains
         self.dhat = self.dhat0 = check_depth(dhat0, "the initial depth estimate dhat0")
 
+    @property
+    def lateral_gain(self) -> float:
+        """k_2 (1 for the paper's law)."""
+        return self.gains.k_2
+
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
         """Commands for this instant; advances dhat by ``dt`` (s) unless ``adapt`` is False."""
         output = control_law(measured, desired, self.dhat, self.gains)

@@ -1,14 +1,15 @@
 """Every control law ``hbvs repeat --law`` knows (docs/method.md, "Baselines"): the adaptive
 law (29)-(31) as ``lateral-gain`` (default) or ``paper`` (k_2 = 1); ``non-adaptive``, gamma_1 = 0;
 and ``kanayama`` (Kanayama, Kimura, Miyazaki, Noguchi, IEEE ICRA 1990) on the planar pose
-reconstructed from the homography at a fixed dhat. Each has the methods of
-:class:`~.controller.AdaptiveTrackingController`.
+reconstructed from the homography at a fixed dhat. Each is a :class:`ControlLaw` in
+:data:`LAW_REGISTRY`; another is added with :func:`register_law` (docs/layout.md).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Callable, Protocol
 
 from ..errors import InvalidValueError
 from .control_settings import LAW_LATERAL_GAIN, LAW_PAPER, ControllerGains
@@ -17,8 +18,67 @@ from .depth import check_depth
 
 LAW_NON_ADAPTIVE = "non-adaptive"
 LAW_KANAYAMA = "kanayama"
-#: Every law ``--law`` accepts, the default first.
-ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
+
+
+class ControlLaw(Protocol):
+    """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),
+    commands for a measurement, the update (31) and its pull toward the filter's depth, the taught
+    commands (25), the commands while the target is lost, and ``lateral_gain`` (k_2, 1 without one)."""
+
+    dhat: float
+
+    @property
+    def lateral_gain(self) -> float: ...
+
+    def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput: ...
+
+    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None: ...
+
+    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None: ...
+
+    def feedforward(self, desired: DesiredState) -> tuple[float, float]: ...
+
+    def hold(self) -> tuple[float, float]: ...
+
+
+@dataclass(frozen=True)
+class LawSpec:
+    """A law by name: ``gains`` the gains it runs with (recorded in the run file) from the ones set,
+    ``factory(gains, dhat0)`` the law itself."""
+
+    name: str
+    gains: Callable[[ControllerGains], ControllerGains]
+    factory: Callable[[ControllerGains, float], ControlLaw]
+
+
+#: Every law ``--law`` and ``hbvs sweep`` accept, by name, the default first (:func:`register_law` adds one).
+LAW_REGISTRY: dict[str, LawSpec] = {}
+
+
+def register_law(spec: LawSpec) -> None:
+    """Make ``spec`` a law ``--law`` accepts (a name already taken is replaced)."""
+    LAW_REGISTRY[spec.name] = spec
+
+
+def law_names() -> tuple[str, ...]:
+    return tuple(LAW_REGISTRY)
+
+
+def _law(name: str) -> LawSpec:
+    if name not in LAW_REGISTRY:
+        raise InvalidValueError(f"--law must be one of {', '.join(LAW_REGISTRY)}, got {name!r}")
+    return LAW_REGISTRY[name]
+
+
+def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
+    """The gains ``law`` runs with: ``paper`` forces k_2 = 1, ``non-adaptive`` and ``kanayama`` have gamma_1 = 0."""
+    return _law(law).gains(gains)
+
+
+def make_controller(law: str, gains: ControllerGains, dhat0: float) -> ControlLaw:
+    """The controller of ``law`` with the gains of :func:`gains_for_law` and dhat(0) (m)."""
+    spec = _law(law)
+    return spec.factory(spec.gains(gains), dhat0)
 
 
 @dataclass(frozen=True)
@@ -31,23 +91,9 @@ class KanayamaGains:
     k_theta: float = 16.0
 
 
-def gains_for_law(gains: ControllerGains, law: str) -> ControllerGains:
-    """The gains a law runs with (recorded in the run file): ``paper`` forces k_2 = 1,
-    ``non-adaptive`` and ``kanayama`` have gamma_1 = 0."""
-    if law in (LAW_PAPER, LAW_LATERAL_GAIN):
-        return gains.with_law(law)
-    if law in (LAW_NON_ADAPTIVE, LAW_KANAYAMA):
-        return replace(gains, gamma=0.0)
-    raise InvalidValueError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
-
-
-def make_controller(law: str, gains: ControllerGains, dhat0: float):
-    """The controller of ``law`` with the gains of :func:`gains_for_law` and dhat(0) (m)."""
-    gains = gains_for_law(gains, law)
-    if law == LAW_KANAYAMA:
-        return KanayamaController(dhat0)
+def _without_adaptation(gains: ControllerGains) -> ControllerGains:
     # gamma_1 = 0 makes (31) zero: the non-adaptive law is the adaptive one, frozen.
-    return AdaptiveTrackingController(gains, dhat0)
+    return replace(gains, gamma=0.0)
 
 
 def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, dhat: float) -> tuple[float, float, float]:
@@ -64,6 +110,9 @@ def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, d
 class KanayamaController:
     """Kanayama et al. (1990) at the fixed depth ``dhat`` (m): ``v = v_r cos e_theta + K_x e_x``,
     ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``, (v_r, w_r) from :meth:`feedforward`."""
+
+    #: Kanayama's law has no k_2: the depth pull (scheduled_depth_pull) sees the paper's 1.
+    lateral_gain = 1.0
 
     def __init__(self, dhat: float) -> None:
         self.dhat = check_depth(dhat, "the depth estimate dhat0")
@@ -92,3 +141,9 @@ class KanayamaController:
     def hold(self) -> tuple[float, float]:
         """Commands while the target is lost: stop."""
         return 0.0, 0.0
+
+
+register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains.with_law(LAW_LATERAL_GAIN), AdaptiveTrackingController))
+register_law(LawSpec(LAW_PAPER, lambda gains: gains.with_law(LAW_PAPER), AdaptiveTrackingController))
+register_law(LawSpec(LAW_NON_ADAPTIVE, _without_adaptation, AdaptiveTrackingController))
+register_law(LawSpec(LAW_KANAYAMA, _without_adaptation, lambda gains, dhat0: KanayamaController(dhat0)))

@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidValueError
-from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement
+from .controller import ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
+from .laws import ControlLaw
 from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, scheduled_depth_pull
 
 
@@ -112,7 +113,7 @@ class ServoStep:
     frame, then :meth:`sent` once the command is out. ``latency_steps``: frames between taking
     a frame and acting on it."""
 
-    def __init__(self, controller: AdaptiveTrackingController, limits: ActuatorLimits, latency_steps: int = 0,
+    def __init__(self, controller: ControlLaw, limits: ActuatorLimits, latency_steps: int = 0,
                  state_filter: ServoStateFilter | None = None, stop_when_lost: bool = False) -> None:
         self.controller = controller
         #: A robot stops at once when the target is lost (the simulator may coast on the filter's prediction).
@@ -177,9 +178,8 @@ class ServoStep:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
             errors, settings = output.errors, state_filter.settings
             self.depth_met = self.depth_met or abs(estimate.depth - controller.dhat) <= settings.depth_met * estimate.depth
-            # Kanayama's gains have no k_2; its adapt learns nothing and ignores the pull.
             pull = scheduled_depth_pull(estimate.depth_pull, float(errors.ebar2), float(errors.e3),
-                                        getattr(controller.gains, "k_2", 1.0), settings, self.depth_met)
+                                        controller.lateral_gain, settings, self.depth_met)
             controller.adapt(output, dt, (estimate.depth, pull))
         if self.stop_when_lost and self.target_lost:
             v_c = w_c = 0.0

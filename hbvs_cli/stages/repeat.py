@@ -24,7 +24,7 @@ from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
-from ..core.laws import ALL_LAWS, gains_for_law, make_controller
+from ..core.laws import gains_for_law, law_names, make_controller
 from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
@@ -111,8 +111,8 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
         return value
 
     law = pick("law")
-    if law not in ALL_LAWS:
-        raise UsageError(f"--law must be one of {', '.join(ALL_LAWS)}, got {law!r}")
+    if law not in law_names():
+        raise UsageError(f"--law must be one of {', '.join(law_names())}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)

@@ -17,7 +17,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..core.control_settings import GAIN_NAMES, GAIN_UNITS
-from ..core.laws import ALL_LAWS
+from ..core.laws import law_names
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
 from ..io.settings import REPEAT, SWEEP
@@ -68,7 +68,7 @@ PARAMETERS: dict[str, Parameter] = {
         _repeat_parameter("pixel_noise", "float", "px"),
         # The gains (29)-(31); a dimensionless one has no unit.
         *(_repeat_parameter(name, "float", GAIN_UNITS[name].replace("-", "")) for name in GAIN_NAMES),
-        _repeat_parameter("law", "choice", "", choices=ALL_LAWS),
+        _repeat_parameter("law", "choice", "", choices=law_names()),
         _repeat_parameter("drop_rate", "float", ""),
         _repeat_parameter("outlier_rate", "float", ""),
         Parameter("occlusion_start", "float", "s", own_bounds={"min": 0.0}),  # --occlude START:END
