@@ -15,6 +15,7 @@ import json
 import math
 import subprocess
 import sys
+import textwrap
 import time
 
 import pytest
@@ -240,3 +241,30 @@ def test_the_status_line_fits_80_columns_and_says_what_a_person_watches():
     for k in range(3):
         slow.add(k / 30.0, 0.999, 3333)
     assert len(status_text(999.9, 1000.0, worst, slow)) <= 80, status_text(999.9, 1000.0, worst, slow)
+
+
+BAD_TWISTS = textwrap.dedent("""
+    import math, time
+    from hbvs_cli.io import ros2_dds as dds
+    node = dds.Ros2Node()
+    writer = node.publisher("/cmd_vel", dds.Twist, dds.command_qos())
+    time.sleep(1.0)
+    for v, w in ((math.nan, 0.0), (0.0, math.inf), (1e300, 0.0), (0.1, 0.0)):
+        writer.write(dds.Twist(linear=dds.Vector3(x=v), angular=dds.Vector3(z=w)))
+        time.sleep(0.2)
+    time.sleep(1.0)
+""")
+
+
+def test_robot_sim_ignores_commands_no_base_could_follow(tmp_path):
+    """NaN, infinite and 1e300 m/s Twists: a warning, the pose stays finite, the last sane command is
+    followed, and the pose log is kept."""
+    env = dds_env()
+    robot, poses = robot_sim(env, tmp_path, duration=4.0)
+    sender = subprocess.run([sys.executable, "-c", BAD_TWISTS], env=env, timeout=60)
+    _, err = robot.communicate(timeout=60)
+    assert sender.returncode == 0 and robot.returncode == 0, err
+    assert "ignored a command v nan m/s" in err and "3 commands ignored in all" in err, err
+    rows = [json.loads(line) for line in poses.read_text().splitlines()]
+    assert rows and all(math.isfinite(row[key]) for row in rows for key in ("x", "y", "phi", "v", "w"))
+    assert rows[-1]["v"] == 0.1

@@ -289,5 +289,7 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
                 interrupted = True  # Ctrl-C is how a stand-in ends: keep its poses
     finally:
         robot.close()
+    if ignored > 1:
+        console.warn(f"robot-sim: {ignored} commands ignored in all")
     console.info(f"robot-sim: {frames} frames, {received} commands ({ignored} ignored){' (stopped by Ctrl-C)' if interrupted else ''}; "
                  f"final pose x {pose[0]:.3f} m, y {pose[1]:.3f} m, phi {math.degrees(pose[2]):.2f} deg")
