@@ -260,7 +260,7 @@ def test_robot_sim_ignores_commands_no_base_could_follow(tmp_path):
     """NaN, infinite and 1e300 m/s Twists: a warning, the pose stays finite, the last sane command is
     followed, and the pose log is kept."""
     env = dds_env()
-    robot, poses = robot_sim(env, tmp_path, duration=4.0)
+    robot, poses = robot_sim(env, tmp_path, duration=8.0)
     sender = subprocess.run([sys.executable, "-c", BAD_TWISTS], env=env, timeout=60)
     _, err = robot.communicate(timeout=60)
     assert sender.returncode == 0 and robot.returncode == 0, err
