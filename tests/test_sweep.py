@@ -198,3 +198,28 @@ def test_summary_rates_are_the_verdicts_of_the_rows(uninterrupted):
         finals = np.array([r["final_position_m"] for r in mine], dtype=float)
         assert entry["final_position_m"]["median"] == pytest.approx(np.median(finals), rel=1e-12)
         assert entry["final_position_m"]["p95"] == pytest.approx(np.percentile(finals, 95), rel=1e-12)
+
+
+def test_summary_tables_fit_80_columns_with_every_number_whole(uninterrupted):
+    """At 80 columns the summary's eleven columns are dealt out to parts that repeat the law
+    (and the parameter's value): no "…", no line past 80, each cell whole (issue 46)."""
+    from rich.console import Console
+
+    from hbvs_cli.report.sweep_summary import _stat_cells, print_summary
+
+    folder, summary = uninterrupted
+    for terminal in (True, False):
+        buffer = io.StringIO()
+        console = Console(file=buffer, width=80, force_terminal=terminal, color_system=None, highlight=False)
+        print_summary(summary, buffer, console=console)
+        text = buffer.getvalue()
+        assert "…" not in text and max(len(line.rstrip()) for line in text.splitlines()) <= 80
+        lines = text.splitlines()
+        words = set(text.split())
+        entries = [*summary["by_law"], *(row for rows in summary["by_parameter"].values() for row in rows)]
+        for entry in entries:
+            cells = _stat_cells(entry)
+            assert all(word in words for cell in cells for word in cell.split()), cells
+            # A row's cells are on the lines of its law: the interval and the medians whole.
+            assert any(entry["law"] in line and cells[3] in line for line in lines)
+        assert len(entries) == 4 + 8
