@@ -292,7 +292,8 @@ def test_figure_axes_are_labelled_with_units(runs):
         for label in (ax.get_xlabel(), ax.get_ylabel()):
             assert re.search(r"\(.+\)", label), (ax.get_title(loc="left"), label)
             labels.add(label)
-    assert {"time t (s)", "e1 (units of d*)", "ebar2 (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)",
+    assert {"time t (s)", "$e_1$ (units of $d^*$)", r"$\bar{e}_2$ (units of $d^*$)", "$e_3$ (deg)", "$v_c$ (m/s)",
+            r"$\omega_c$ (rad/s)", "depth (m)",
             "x (m)", "y (m)", "position error (cm)", "|heading error| (deg)", "V / V(0) (-)"} <= labels
     axes = {ax.get_label(): ax for ax in figure.axes}
     assert axes["V"].get_yscale() == "log"

@@ -223,3 +223,45 @@ def test_summary_tables_fit_80_columns_with_every_number_whole(uninterrupted):
             # A row's cells are on the lines of its law: the interval and the medians whole.
             assert any(entry["law"] in line and cells[3] in line for line in lines)
         assert len(entries) == 4 + 8
+
+
+def test_figures_label_units_rates_and_law_colours_without_overlaps(uninterrupted):
+    """The sweep's figures: offset_y in m, the rate a fraction (no "%"), each law's line in
+    its report colour, and the heading CDF's log tick labels apart (issue 46)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_hex
+
+    from hbvs_cli.report.figure_style import LAW_COLORS
+    from hbvs_cli.report.sweep_plots import FILES, sweep_figures
+    from hbvs_cli.sweep.spec import PARAMETERS
+
+    folder, _ = uninterrupted
+    figures = sweep_figures(folder, {name: parameter.unit for name, parameter in PARAMETERS.items()})
+    try:
+        assert set(figures) == set(FILES)
+        curve = figures["convergence_map.png"][0].axes[0]
+        assert curve.get_xlabel() == "offset_y (m)" and "%" not in curve.get_ylabel() and "fraction" in curve.get_ylabel()
+        assert figures["final_error_vs_parameters.png"][0].axes[0].get_xlabel() == "offset_y (m)"
+        for name, (figure, _) in figures.items():
+            figure.canvas.draw()
+            renderer = figure.canvas.get_renderer()
+            for ax in figure.axes:
+                for line in ax.get_lines():
+                    if line.get_label() in LAW_COLORS:
+                        assert to_hex(line.get_color()) == LAW_COLORS[line.get_label()].lower(), (name, line.get_label())
+                for axis in (ax.xaxis, ax.yaxis):
+                    low, high = sorted(axis.get_view_interval())
+                    # Major and minor labels: matplotlib's minor ones on a short log axis overlapped.
+                    ticks = [*zip(axis.get_majorticklocs(), axis.get_majorticklabels()),
+                             *zip(axis.get_minorticklocs(), axis.get_minorticklabels())]
+                    boxes = [label.get_window_extent(renderer) for loc, label in ticks if label.get_text() and low <= loc <= high]
+                    for i, a in enumerate(boxes):
+                        assert all(a.x1 <= b.x0 + 0.5 or b.x1 <= a.x0 + 0.5 or a.y1 <= b.y0 + 0.5 or b.y1 <= a.y0 + 0.5
+                                   for b in boxes[i + 1:]), (name, [t.get_text() for t in axis.get_majorticklabels()])
+        cdf = figures["final_error_cdf.png"][0]
+        heading = cdf.axes[1]
+        assert heading.get_xscale() == "log" and len([t for t in heading.get_xticklabels() if t.get_text()]) >= 2
+        assert {line.get_label() for line in heading.get_lines()} == {"lateral-gain", "paper", "non-adaptive", "kanayama"}
+    finally:
+        for figure, _ in figures.values():
+            plt.close(figure)
