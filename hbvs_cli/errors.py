@@ -16,6 +16,13 @@ class HbvsError(Exception):
     exit_code: int = 3
 
 
+class UpstreamFailedError(HbvsError):
+    """stdin is a pipe that closed without a byte: the command before this one in the
+    pipeline failed (and said why), so this one exits without a word of its own."""
+
+    exit_code = 9
+
+
 class UsageError(HbvsError):
     """Options that cannot go together, or a value outside its range."""
 

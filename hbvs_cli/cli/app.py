@@ -8,6 +8,7 @@ import importlib
 import inspect
 import os
 import signal
+import stat
 import sys
 import traceback
 import warnings
@@ -18,7 +19,7 @@ from typing import Annotated, Any, List, Optional
 import typer
 
 from .. import __version__, stop_signals
-from ..errors import HbvsError, InputError, OutputError
+from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
@@ -75,8 +76,36 @@ def _root(
         set_limits(list(limit))
 
 
+#: The options through which a stage reads a file, ``-`` meaning stdin.
+INPUT_OPTIONS = ("input", "runs", "fit")
+
+
+def _reads_stdin(values: dict[str, Any]) -> bool:
+    """Whether a stage's options name ``-`` (stdin) as an input."""
+    for key in INPUT_OPTIONS:
+        value = values.get(key)
+        if value == "-" or (isinstance(value, (list, tuple)) and "-" in value):
+            return True
+    return False
+
+
+def _stdin_is_an_empty_pipe() -> bool:
+    """True when stdin is a pipe closed before its first byte (read without consuming it):
+    what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
+    until the writer writes or closes."""
+    try:
+        if not stat.S_ISFIFO(os.fstat(0).st_mode):
+            return False
+        return sys.stdin.buffer.peek(1) == b""
+    except (OSError, ValueError, AttributeError, HbvsError):
+        return False
+
+
 def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
-    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code."""
+    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code.
+    A stage whose stdin input is an empty pipe stops with :class:`UpstreamFailedError` (one error line per pipeline)."""
+    if _reads_stdin(values) and _stdin_is_an_empty_pipe():
+        raise UpstreamFailedError("stdin: the pipe closed without data: the command before this one failed")
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
     options = options_from_command_line(getattr(module, options_class), values)
@@ -207,8 +236,10 @@ def _say(line: str) -> None:
 
 
 def _pipe_closed() -> int:
+    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE
+    would, without a word (it is not an error of this command, and in a pipeline whose later
+    stage failed, that stage's line is the one that matters)."""
     _silence_stdout()
-    _say("hbvs: error: stdout: the reader closed the pipe")
     return 141
 
 
@@ -243,6 +274,11 @@ def _run(args: list[str], debug: bool) -> int:
             traceback.print_exc()
         if exc.exit_code == 141:
             return _pipe_closed()
+        if isinstance(exc, UpstreamFailedError):
+            # The stage before said why; a second line would only repeat that it failed.
+            if debug:
+                _say(f"hbvs: error: {exc}")
+            return exc.exit_code
         _say(f"hbvs: error: {exc}")
         return exit_code_of(exc)
     except typer.Abort:
