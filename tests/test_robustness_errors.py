@@ -208,6 +208,24 @@ def test_a_raised_limit_lets_the_same_input_through(work, monkeypatch):
         limits.reset()
 
 
+def test_a_limit_must_be_a_whole_number():
+    """``--limit steps=1.5`` is refused (its message asks for a whole number; it used to become
+    1); ``5e6`` is a whole number written short."""
+    from hbvs_cli.errors import UsageError
+    from hbvs_cli.io import limits
+
+    try:
+        for text in ("steps=1.5", "messages=2.000001", "steps=0", "steps=inf"):
+            with pytest.raises(UsageError, match="whole number"):
+                limits.set_limits([text])
+        limits.set_limits(["messages=5e6", "steps=1000"])
+        assert limits.current("messages") == 5_000_000 and limits.current("steps") == 1000
+    finally:
+        limits.reset()
+    result = call_hbvs("--limit", "steps=1.5", "info", "nothing.mcap")
+    assert result.returncode == 2 and "whole number" in one_line(result)
+
+
 @pytest.mark.campaign
 def test_the_default_per_file_message_limit(work, request):
     """Thirty chunks of 200 000 messages: stopped at 4 194 304 (``-m campaign``, ~30 s)."""

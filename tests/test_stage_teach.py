@@ -303,3 +303,46 @@ def test_sample_recording_and_calibration_are_small_and_readable():
     camera = load_calibration(SAMPLES / "camera.yaml")
     assert (camera.width, camera.height, camera.fx) == (320, 240, 250.0)
     assert reader.camera == camera  # the sample recording was made with the sample calibration
+
+
+class FakeRos2Topic:
+    """What :class:`~hbvs_cli.io.sources.ros2_topic.Ros2TopicSource` yields without a DDS
+    network: frames stamped by their headers (1.7e18 ns, the epoch of a real clock), its time
+    base known only once the first frame arrives."""
+
+    frame_id = "camera"
+
+    def __init__(self, frames, first_stamp_ns: int) -> None:
+        from hbvs_cli.core.camera import DEFAULT_CAMERA
+
+        self.camera = DEFAULT_CAMERA
+        self.frames, self.first_stamp_ns = frames, first_stamp_ns
+        self.time_base_ns = 0
+
+    def describe(self):
+        return {"kind": "ros2", "topic": "/cam/image"}
+
+    def __iter__(self):
+        from hbvs_cli.io.sources import SourceFrame
+
+        for k, image in enumerate(self.frames):
+            stamp_ns = self.first_stamp_ns + k * 33_333_333
+            if k == 0:
+                self.time_base_ns = stamp_ns
+            yield SourceFrame(t=k * 33_333_333e-9, image=image, stamp_ns=stamp_ns, command=(0.1, 0.0))
+
+
+def test_a_teach_from_a_ros2_topic_starts_at_its_first_frame_not_in_1970(tmp_path, monkeypatch):
+    """The calibration is logged at the first frame's stamp (issue 46: at 0, ``info`` showed a
+    start of 1970-01-01 and a duration of 1.8e9 s)."""
+    from hbvs_cli.io.file_info import read_file_info
+    from hbvs_cli.stages import teach
+    from hbvs_cli.stages.info import info_document
+
+    first = 1_700_000_000_000_000_000
+    monkeypatch.setattr(teach, "_open_source", lambda kind, options: FakeRos2Topic(rendered_frames(6), first))
+    path = make_teach(tmp_path / "ros2.mcap", ros2_image="/cam/image")
+    document = info_document(read_file_info(str(path)))
+    assert document["start_ns"] == first and document["end_ns"] == first + 5 * 33_333_333
+    assert document["duration_s"] == pytest.approx(5 * 0.033333333, abs=1e-9)
+    assert document["frames"] == 6

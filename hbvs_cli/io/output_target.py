@@ -18,7 +18,10 @@ from typing import IO, Any, Iterator, Sequence
 from ..errors import HbvsError, InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
 PARTIAL_SUFFIX = ".partial"
-_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
+#: hbvs's partial names: the final name, the writer's pid and 8 hex digits (:func:`partial_name_of`).
+_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]{8}\.partial$")
+#: Linux's largest pid when /proc/sys/kernel/pid_max cannot be read (2^22).
+PID_MAX_FALLBACK = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -70,10 +73,36 @@ def final_name_of_partial(path: Path) -> Path | None:
     return path.with_name(match.group("final")) if match else None
 
 
+def _pid_max() -> int:
+    try:
+        return int(Path("/proc/sys/kernel/pid_max").read_text().strip())
+    except (OSError, ValueError):
+        return PID_MAX_FALLBACK
+
+
+def _made_by_hbvs(path: Path, final_name: str) -> bool:
+    """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
+    a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""
+    try:
+        status = os.lstat(path)
+        if status.st_uid != os.getuid():
+            return False
+        if stat.S_ISDIR(status.st_mode):
+            return all(entry.name in (final_name, "replaced") for entry in path.iterdir())
+        return stat.S_ISREG(status.st_mode)
+    except OSError:
+        return False
+
+
 def stale_partial(path: Path) -> bool:
-    """True when ``path`` is a partial file or folder of hbvs whose process is gone."""
+    """True when ``path`` is a partial file or folder of hbvs whose process is gone: its name is
+    one :func:`partial_name_of` gives (8 hex digits), its pid one this system can give (at most
+    /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
+    user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None or int(match.group("pid")) == os.getpid():
+    if match is None or int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= _pid_max():
+        return False
+    if not _made_by_hbvs(path, match.group("final")):
         return False
     try:
         os.kill(int(match.group("pid")), 0)

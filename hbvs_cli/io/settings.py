@@ -351,7 +351,8 @@ SWEEP_SETTINGS: tuple[Setting, ...] = (
     Setting("workers", int, "Local worker processes (default one per core), or batch jobs with --cluster.", panel="Engine",
             bounds={"min": 1}),
     Setting("dashboard", str, "Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on "
-            "HOST:PORT (0.0.0.0 only if you name it).", panel="Engine", metavar="[HOST:]PORT"),
+            "HOST:PORT, HOST an IPv4 address or a host name (every interface only if you name 0.0.0.0; no IPv6).", panel="Engine",
+            metavar="[HOST:]PORT"),
     Setting("keep_runs", str, "Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.",
             default="failed"),
     Setting("json_output", bool, "Print the summary as JSON instead of tables.", default=False, flags=("--json",)),

@@ -202,8 +202,6 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
-        # A bag's frames keep its stamps, so the recording lines up with the bag.
-        teach.calibration(camera, getattr(source, "time_base_ns", 0))
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
@@ -216,6 +214,11 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
+                    if frames == 0:
+                        # Logged at the first frame's time: frames keep their source's stamps (a bag's,
+                        # a ROS 2 topic's), which a live source knows only once the first arrives;
+                        # logged at 0 it made the recording start in 1970.
+                        teach.calibration(camera, log_time_ns)
                     teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
                     last_t = frame.t
