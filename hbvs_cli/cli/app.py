@@ -26,6 +26,7 @@ from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
+from ..sweep.parameters import parameter_names_text
 from ..io.settings import (
     EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
     TEACH_SETTINGS, options_from_command_line,
@@ -132,7 +133,8 @@ STAGE_COMMANDS = (
     ("info", "Files", INFO_SETTINGS, "InfoOptions", (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
     ("sweep", "Studies", SWEEP_SETTINGS, "SweepOptions", (QUIET_MESSAGES,),
-     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."),
+     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
+     f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
 
 

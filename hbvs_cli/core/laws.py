@@ -11,14 +11,11 @@ import math
 from dataclasses import dataclass, replace
 
 from ..errors import InvalidValueError
-from .control_settings import LAW_LATERAL_GAIN, LAW_PAPER, ControllerGains
+from .control_settings import ALL_LAWS, LAW_KANAYAMA, LAW_LATERAL_GAIN, LAW_NON_ADAPTIVE, LAW_PAPER, ControllerGains
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement, tracking_errors
 from .depth import check_depth
 
-LAW_NON_ADAPTIVE = "non-adaptive"
-LAW_KANAYAMA = "kanayama"
-#: Every law ``--law`` accepts, the default first.
-ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
+__all__ = ["ALL_LAWS", "LAW_KANAYAMA", "LAW_NON_ADAPTIVE"]  # spelled in control_settings (no numpy: --help lists them)
 
 
 @dataclass(frozen=True)

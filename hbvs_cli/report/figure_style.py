@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..core.laws import ALL_LAWS
+from ..core.control_settings import ALL_LAWS
 from ..errors import OutputError, UsageError
 from ..io.settings import DEFAULT_DPI, REPORT
 
