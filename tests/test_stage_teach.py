@@ -346,3 +346,46 @@ def test_a_teach_from_a_ros2_topic_starts_at_its_first_frame_not_in_1970(tmp_pat
     assert document["start_ns"] == first and document["end_ns"] == first + 5 * 33_333_333
     assert document["duration_s"] == pytest.approx(5 * 0.033333333, abs=1e-9)
     assert document["frames"] == 6
+
+
+def test_teach_camera_takes_what_repeat_live_camera_takes(tmp_path, monkeypatch):
+    """--camera is an index, a device path or a URL, as for repeat --live --camera (before: an
+    integer only), and a video file is read as --video."""
+    from hbvs_cli.stages import teach
+    from hbvs_cli.stages.teach import TeachOptions
+
+    opened = []
+    monkeypatch.setattr(teach.sources, "open_source", lambda kind, spec, **_: opened.append((kind, spec)))
+    for device in ("0", "2", "/dev/video4", "http://127.0.0.1:8080/stream.mjpg", "rtsp://camera.local/live"):
+        teach._open_source("camera", TeachOptions(camera=device))
+    video = tmp_path / "drive.avi"
+    video.write_bytes(b"x")
+    teach._open_source("camera", TeachOptions(camera=str(video)))
+    assert opened == [("camera", 0), ("camera", 2), ("camera", "/dev/video4"), ("camera", "http://127.0.0.1:8080/stream.mjpg"),
+                      ("camera", "rtsp://camera.local/live"), ("video", str(video))]
+
+
+def test_sim_teach_writes_practice_footage_and_its_calibration(tmp_path):
+    """--video-out: every simulated frame in a video that ``teach --video`` (or ``--camera FILE``)
+    reads back frame for frame (within MJPG's loss); --calibration-out: the simulated camera."""
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.io.calibration import load_calibration
+
+    path = make_teach(tmp_path / "practice.mcap", duration=1.0, video_out=tmp_path / "drive.avi",
+                      calibration_out=tmp_path / "camera.yaml")
+    assert load_calibration(tmp_path / "camera.yaml") == DEFAULT_CAMERA
+    stored = [cv2.imdecode(np.frombuffer(frame.stored_image().data, np.uint8), cv2.IMREAD_GRAYSCALE) for frame in TeachReader(path).frames()]
+    back = make_teach(tmp_path / "from_video.mcap", camera=str(tmp_path / "drive.avi"), calibration=tmp_path / "camera.yaml")
+    again = [cv2.imdecode(np.frombuffer(frame.stored_image().data, np.uint8), cv2.IMREAD_GRAYSCALE) for frame in TeachReader(back).frames()]
+    assert len(stored) == len(again) == 30
+    differences = [float(np.mean(np.abs(a.astype(float) - b.astype(float)))) for a, b in zip(stored, again)]
+    assert max(differences) < 3.0, differences          # gray levels: two lossy encodings, the same frames
+    assert not list(tmp_path.glob(".drive.avi.*"))       # the temporary folder is gone
+    # Refused before any work: a suffix hbvs does not write, an output that is an input.
+    for extra, words in ((["--video-out", str(tmp_path / "drive.gif")], "suffix"),
+                         (["--video-out", str(tmp_path / "x.avi"), "--calibration-out", str(tmp_path / "x.avi")], "same file")):
+        result = call_hbvs("teach", "--sim", "--duration", "0.2", "-o", str(tmp_path / "t.mcap"), *extra)
+        assert result.returncode == 2 and words in result.stderr.decode(), result.stderr.decode()
+        assert not (tmp_path / "t.mcap").exists()

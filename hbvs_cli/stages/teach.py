@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Iterator
@@ -15,7 +16,7 @@ from ..core.path import PRESETS, CommandProfile, preset_profile
 from ..sim.world import World, default_world
 from ..errors import InputError, UsageError
 from ..io import sources
-from ..io.calibration import load_calibration
+from ..io.calibration import load_calibration, save_calibration_ros
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
@@ -24,6 +25,7 @@ from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
+from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
 from .console import Console
 from .options import parse_offset, recorded_settings
@@ -58,8 +60,9 @@ class TeachOptions(TeachFields):
         kind = self.source_kind()
         if kind == "sim":
             # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
+            # The extra outputs are left out, as the output is: the same drive, the same bytes.
             simulated = {key: value for key, value in recorded.items()
-                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd")}
+                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")}
             return {**simulated, "sim": True}
         names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
@@ -77,8 +80,9 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
     path_file = options.path if options.path not in PRESETS else None
-    refuse_overwriting_inputs([("-o", options.output)], [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
-                                                         ("--calibration", options.calibration), ("--path", path_file)])
+    refuse_overwriting_inputs([("-o", options.output), ("--video-out", options.video_out), ("--calibration-out", options.calibration_out)],
+                              [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
+                               ("--calibration", options.calibration), ("--path", path_file)])
     kind = options.source_kind()
     if options.cmd_topic is not None and kind != "bag":
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
@@ -149,19 +153,30 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
     renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
     settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
-    with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
+    if options.video_out is not None:
+        check_video_path(options.video_out)
+    with ExitStack() as outputs:
+        writer = outputs.enter_context(open_output(options.output, chunk_size=TEACH_CHUNK_BYTES))
+        video = None if options.video_out is None else outputs.enter_context(
+            video_output(options.video_out, options.fps, (world.camera.width, world.camera.height)))
         teach = TeachWriter(writer, "sim", settings, world)
         teach.calibration(world.camera, SIMULATION_EPOCH_NS)
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
+                if video is not None:
+                    video.write(image)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
                     SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()
-    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
+    if options.calibration_out is not None:
+        save_calibration_ros(world.camera, options.calibration_out, camera_name="hbvs_simulated")
+    extras = "".join(f", {what} {path}" for what, path in (("video", options.video_out), ("calibration", options.calibration_out))
+                     if path is not None)
+    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}{extras}")
 
 
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
@@ -178,8 +193,14 @@ def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
         from ..io.sources.ros2_topic import Ros2TopicSource  # lazy: an optional extra
 
         return Ros2TopicSource(options.ros2_image, options.ros2_cmd, options.duration)
-    spec = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
+    spec: Any = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
     fps = DEFAULT_FPS if kind == "images" and options.fps is None else options.fps
+    if kind == "camera":
+        # What repeat --live --camera takes: an index, a device path, a URL; a video file is a video.
+        device = str(spec).strip()
+        if Path(device).is_file():
+            return sources.open_source("video", device, fps=fps)
+        spec = int(device) if device.isdigit() else device
     return sources.open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
