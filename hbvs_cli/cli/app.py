@@ -95,7 +95,8 @@ def _stdin_is_an_empty_pipe() -> bool:
     what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
     until the writer writes or closes."""
     try:
-        if not stat.S_ISFIFO(os.fstat(0).st_mode):
+        # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
+        if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
             return False
         return sys.stdin.buffer.peek(1) == b""
     except (OSError, ValueError, AttributeError, HbvsError):
