@@ -268,9 +268,9 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     from rich.text import Text
 
     table = new_table(["check", *run_labels(reports)], plain)
-    # The checks are sentences: left-aligned and wrapped.
+    # The checks are sentences: left-aligned and wrapped (a word wider than its column folds, never "…").
     for column in table.columns[1:]:
-        column.justify, column.no_wrap = "left", False
+        column.justify, column.no_wrap, column.overflow = "left", False, "fold"
 
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")

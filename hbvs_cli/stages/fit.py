@@ -647,11 +647,13 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
-    if not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
-        given = ("the taught commands (25)" if chosen.source == "commands"
-                 else "--target-size" if options.target_size is not None else "--target-points")
+    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
+    # (a value that is no depth at all is left to the model's own check: "repeat could not use").
+    if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
+        given, hint = (("the taught commands (25)", "are they in m/s and rad/s?") if chosen.source == "commands" else
+                       ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))
         raise InputError(f"d* from {given} is {chosen.dhat0:.3g} m, outside the {MIN_DEPTH:g} to {MAX_DEPTH:g} m repeat accepts "
-                         "as --dhat0: is the size in metres?")
+                         f"as --dhat0: {hint}")
     return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
 
 
