@@ -389,3 +389,46 @@ def test_sim_teach_writes_practice_footage_and_its_calibration(tmp_path):
         result = call_hbvs("teach", "--sim", "--duration", "0.2", "-o", str(tmp_path / "t.mcap"), *extra)
         assert result.returncode == 2 and words in result.stderr.decode(), result.stderr.decode()
         assert not (tmp_path / "t.mcap").exists()
+
+
+@pytest.mark.campaign
+def test_teach_records_robot_sims_mjpeg_camera_by_url(tmp_path, request, extent="campaign"):
+    """The issue's case end to end (``-m campaign``, ~8 s): ``robot-sim --mjpeg PORT`` serves
+    the camera on 127.0.0.1 and ``teach --camera http://127.0.0.1:PORT/`` records it."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from conftest import REPO, campaign_extent
+
+    campaign_extent(request, extent)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    commands = tmp_path / "commands"
+    os.mkfifo(commands)
+    hbvs = [sys.executable, "-m", "hbvs_cli"]
+    robot = subprocess.Popen([*hbvs, "robot-sim", str(SAMPLES / "fit.mcap"), "--mjpeg", str(port), "--cmd-in", str(commands),
+                              "--duration", "60", "-q"], env=dict(os.environ, PYTHONPATH=str(REPO)))
+    # The robot's command stream stays open and silent (it stands still); opened without
+    # blocking, so that a robot-sim that failed to start fails the test instead of hanging it.
+    deadline, writer = time.monotonic() + 60, None
+    while writer is None:
+        try:
+            writer = os.open(commands, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:                                  # ENXIO: robot-sim has not opened it yet
+            assert robot.poll() is None and time.monotonic() < deadline, "robot-sim did not start"
+            time.sleep(0.1)
+    try:
+        result = subprocess.run([*hbvs, "teach", "--camera", f"http://127.0.0.1:{port}/", "--duration", "2", "--calibration",
+                                 str(SAMPLES / "camera.yaml"), "-o", str(tmp_path / "teach.mcap"), "-q"],
+                                capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    finally:
+        os.close(writer)
+        robot.terminate()
+        robot.wait(timeout=30)
+    assert result.returncode == 0, result.stderr
+    frames = list(TeachReader(str(tmp_path / "teach.mcap")).frames())
+    assert len(frames) >= 5 and frames[-1].t < 2.0
