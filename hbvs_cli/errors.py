@@ -16,6 +16,13 @@ class HbvsError(Exception):
     exit_code: int = 3
 
 
+class UpstreamFailedError(HbvsError):
+    """stdin is a pipe that closed without a byte: the command before this one in the
+    pipeline failed (and said why), so this one exits without a word of its own."""
+
+    exit_code = 9
+
+
 class UsageError(HbvsError):
     """Options that cannot go together, or a value outside its range."""
 
@@ -106,13 +113,13 @@ class CameraClockError(HbvsError):
     """A live camera's time stamps ran ahead of this host's clock or stepped back (a clock jump,
     or two clocks on one topic): the taught trajectory must never run faster than real time."""
 
-    exit_code = 9
+    exit_code = 10
 
 
 class CommandConflictError(HbvsError):
     """Another node published on the robot's command topic while hbvs was driving."""
 
-    exit_code = 10
+    exit_code = 11
 
 
 class TruncatedInputError(InputError):

@@ -61,7 +61,8 @@ def test_help_shows_value_kinds_not_python_types(help_text, command):
 
 def test_help_labels_values_and_arguments(help_text):
     teach, fit, report = help_text("teach"), help_text("fit"), help_text("report")
-    assert re.search(r"--fps\s+NUMBER", teach) and re.search(r"--camera\s+INTEGER", teach)
+    assert re.search(r"--fps\s+NUMBER", teach) and re.search(r"--seed\s+INTEGER", teach)
+    assert re.search(r"--camera\s+TEXT", teach)   # an index, a device, a URL: as repeat --live --camera
     assert re.search(r"--calibration\s+PATH", teach) and re.search(r"--output\s+-o\s+TEXT", teach)
     assert "Usage: hbvs fit [OPTIONS] INPUT" in fit and "Usage: hbvs report [OPTIONS] RUNS..." in report
     assert re.search(r"--fail-above\s+TEXT", report)

@@ -34,10 +34,10 @@ HOLD_SLACK_S = 0.05
 #: fault -> (exit code, words of the one error line, words of the run file's stop reason)
 FAULTS = {
     "freeze@1": (5, "froze or stepped back", "froze or stepped back"),
-    "back:2@1": (9, "stepped back", "stepped back"),
-    "jump:5@1": (9, "ahead of this host's clock", "ahead of this host's clock"),
-    "second-clock:4@1": (9, "ahead of this host's clock", "ahead of this host's clock"),
-    "max@1": (9, "ahead of this host's clock", "ahead of this host's clock"),
+    "back:2@1": (10, "stepped back", "stepped back"),
+    "jump:5@1": (10, "ahead of this host's clock", "ahead of this host's clock"),
+    "second-clock:4@1": (10, "ahead of this host's clock", "ahead of this host's clock"),
+    "max@1": (10, "ahead of this host's clock", "ahead of this host's clock"),
     "stall:5@1": (5, "no camera frame", "no camera frame"),
 }
 DEFAULT_SUITE = ("freeze@2", "second-clock:4@1")
@@ -118,7 +118,7 @@ def test_a_stalled_camera_that_resumes_is_driven_from_again(tmp_path, listen, re
 
 
 def test_a_second_commander_stops_the_run(tmp_path, listen):
-    """Another node publishing on /cmd_vel while hbvs drives: zero, exit 10, the record kept."""
+    """Another node publishing on /cmd_vel while hbvs drives: zero, exit 11, the record kept."""
 
     def teleop_once_moving(env, listener):
         listener.wait_moving()
@@ -130,7 +130,7 @@ def test_a_second_commander_stops_the_run(tmp_path, listen):
     finally:
         stop(teleop_once_moving.process)
     lines = result.stderr.strip().splitlines()
-    assert result.returncode == 10 and len(lines) == 1 and "another node published on /cmd_vel" in lines[0], result.stderr
+    assert result.returncode == 11 and len(lines) == 1 and "another node published on /cmd_vel" in lines[0], result.stderr
     mine = [c for c in commands if (c["v"], c["w"]) != (0.1, 0.02)]  # the other node's are (0.1, 0.02)
     assert mine and (mine[-1]["v"], mine[-1]["w"]) == (0.0, 0.0)
     assert_kept_with_reason(tmp_path / "live.mcap", "another node published")

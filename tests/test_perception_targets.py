@@ -155,7 +155,10 @@ def test_target_points_file_is_read_or_refused_in_one_line(tmp_path):
     good.write_text("x,y\n0.5,1.1\n2.45,1.15\n\n# the third\n1.4,0.85\n")
     assert read_target_points(good).tolist() == [[0.5, 1.1], [2.45, 1.15], [1.4, 0.85]]
     for text, words in (("x,y\n0,0\n1,0\n", "3 to"), ("0,0\n1,0\nzero,1\n", "line 3"), ("0,0\n1,0\n0,0\n", "same place"),
-                        ("0,0,0\n1,0,0\n0,1,0\n", "two finite numbers")):
+                        ("0,0,0\n1,0,0\n0,1,0\n", "two finite numbers"),
+                        # Scaled by mistake (issue 46): refused here, not by repeat's --dhat0 after the fit.
+                        ("0,0\n1e150,0\n0,2e150\n", "in metres"), ("0,0\n1e-150,0\n0,2e-150\n", "in metres"),
+                        ("0,0\n0.0005,0\n0,0.0005\n", "apart at most")):
         bad = tmp_path / "bad.csv"
         bad.write_text(text)
         with pytest.raises(InputError, match=words):
@@ -288,12 +291,15 @@ def test_known_layout_gives_the_depth_in_the_suite(tmp_path, capsys):
     pins n* and gives d* (the campaign above runs the whole drives)."""
     made, teach = _teach_and_fit(tmp_path, "bright_dots", drive=footage.Drive(duration=12.0, fps=2.5, speed=0.24, period=9.0))
     points = _write_points(footage.case("bright_dots")[0], tmp_path / "points.csv")
-    known, _ = _fit(teach, tmp_path / "known.mcap", "-q", "--target-points", str(points))
+    known, said = _fit(teach, tmp_path / "known.mcap", "--target-points", str(points))
     errors = footage.errors_against_truth(known, made)
     with capsys.disabled():
         print(f"\nbright_dots, short drive, with --target-points: {errors}  d* {known.dhat0:.3f} (true {made['d_star']:.3f})")
     assert errors["normal_deg"] <= 0.2 and errors["theta_deg"] <= 0.1
     assert known.dhat0_source == "target-size" and abs(known.dhat0 / made["d_star"] - 1.0) < 0.02
+    # The table names where d* came from, and nothing advises giving what was given (issue 46).
+    assert f"d* from --target-points" in said and f"{known.dhat0:.3f} m (--target-points)" in said
+    assert "target size" not in said and "--target-points FILE" not in said
 
 
 @pytest.mark.campaign

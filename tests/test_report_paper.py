@@ -247,7 +247,7 @@ def test_run_figure_panels_titles_units_and_legend(runs):
         title = axes[name].get_title(loc="left")
         assert all(word in title for word in words), (name, title)
         assert axes[name].get_xlabel() == "time t (s)"
-        assert re.search(r"\((cm|deg|m|m/s|rad/s|units of d\*|-)\)$", axes[name].get_ylabel()), axes[name].get_ylabel()
+        assert re.search(r"\((cm|deg|m|m/s|rad/s|units of \$d\^\*\$|-)\)$", axes[name].get_ylabel()), axes[name].get_ylabel()
         assert axes[name].get_lines(), name
     assert axes["V"].get_ylabel() == "V / V(0) (-)" and axes["V"].get_yscale() == "log"
     assert axes["position"].get_yscale() == "log" and axes["heading"].get_yscale() == "log"
@@ -401,14 +401,134 @@ def test_fit_figure_panels(runs, tmp_path):
     for name in ("theta_d", "x_hd1", "x_hd2"):
         raw_points, smooth_line = axes[name].get_lines()[:2]
         assert len(raw_points.get_xdata()) == signals.raw["t"].size == 240
-        assert [t.get_text() for t in axes[name].get_legend().get_texts()][0].startswith("raw")
-    assert "(25)" in axes["x_hd2"].get_legend().get_texts()[1].get_text()
+        assert axes[name].get_legend() is None          # one legend for the figure (test_figures_of_a_person)
+    legend = [t.get_text() for t in figure.legends[0].get_texts()]
+    assert legend[0].startswith("raw") and any("(25)" in text for text in legend)
     assert "Remark 1" in axes["theta_d"].get_title(loc="left") and "(35)" in axes["x_hd1_dot"].get_title(loc="left")
     assert axes["theta_d"].get_ylabel().endswith("(deg)") and axes["x_hd1_dot"].get_ylabel().endswith("(1/s)")
     path = tmp_path / "fit.png"
     result = call_hbvs("report", str(runs["paths"]["fit"]), "--plot", str(path), "--panels", "theta_d,x_hd1_dot")
     assert result.returncode == 0, result.stderr.decode()
     assert path.stat().st_size > 10_000
+
+
+# ------------------------------------------------------------- what a person sees (issue 46)
+def _overlap_px2(a, b) -> float:
+    """Area (px^2) two window extents share."""
+    width = min(a.x1, b.x1) - max(a.x0, b.x0)
+    height = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return max(width, 0.0) * max(height, 0.0)
+
+
+def _tick_label_boxes(figure) -> list[list]:
+    """Per axis of each axes: the window extents of the tick labels drawn (in view, not empty)."""
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    groups = []
+    for ax in figure.axes:
+        for axis, (low, high) in ((ax.xaxis, sorted(ax.get_xlim())), (ax.yaxis, sorted(ax.get_ylim()))):
+            labels = zip(axis.get_majorticklocs(), axis.get_majorticklabels())
+            groups.append([label.get_window_extent(renderer) for loc, label in labels
+                           if label.get_visible() and label.get_text() and low <= loc <= high])
+    return groups
+
+
+def assert_nothing_covered(figure) -> int:
+    """No legend covers an axes, no two titles or tick labels of one axis overlap; returns
+    how many boxes were compared."""
+    groups = _tick_label_boxes(figure)
+    renderer = figure.canvas.get_renderer()
+    compared = 0
+    for boxes in groups:
+        for i, a in enumerate(boxes):
+            for b in boxes[i + 1:]:
+                assert _overlap_px2(a, b) < 1.0, (a, b)
+                compared += 1
+    panels = [ax.get_window_extent(renderer) for ax in figure.axes if ax.get_visible() and ax.axison]
+    titles = [ax.title.get_window_extent(renderer) for ax in figure.axes if ax.get_title(loc="left") or ax.get_title()]
+    legends = [legend.get_window_extent(renderer) for legend in figure.legends]
+    legends += [ax.get_legend().get_window_extent(renderer) for ax in figure.axes if ax.get_legend() is not None]
+    for legend in legends:
+        for box in panels + titles:
+            assert _overlap_px2(legend, box) < 1.0, (legend, box)
+            compared += 1
+    for i, a in enumerate(titles):
+        for b in titles[i + 1:]:
+            assert _overlap_px2(a, b) < 1.0, (a, b)
+            compared += 1
+    return compared
+
+
+def test_a_replay_beside_closed_loop_runs_keeps_the_titles_and_the_legend_says_it(runs):
+    """Each panel keeps its own title beside a replay (no "(no data: replay.mcap)"); the
+    replay's legend entry says it has no ground truth."""
+    alone, _ = _figure(runs, ("run",))
+    both, _ = _figure(runs, ("run", "replay"))
+
+    def titles(figure):
+        return {name: ax.get_title(loc="left") for name, ax in _axes(figure).items()}
+
+    assert titles(both) == titles(alone) and not any("no data" in title for title in titles(both).values())
+    legend = [text.get_text() for text in both.legends[0].get_texts()]
+    assert legend[0] == "lateral-gain (not converged)" and legend[1] == "replay (open-loop replay; no ground truth)"
+    assert assert_nothing_covered(both) > 100
+
+
+def test_each_line_style_has_one_meaning_in_the_legend(runs):
+    """Dotted is a tolerance, dash-dot the taught command: the v and w panels draw no dotted
+    line, the error panels no dash-dot one, and the legend names each style once."""
+    from matplotlib.lines import Line2D
+
+    figure, _ = _figure(runs, ("run", "paper"))
+    axes = _axes(figure)
+    legend = figure.legends[0]
+    styles = {}
+    for text, handle in zip(legend.get_texts(), legend.legend_handles):
+        if isinstance(handle, Line2D) and handle.get_linestyle() != "-":
+            styles.setdefault(handle.get_linestyle(), []).append(text.get_text())
+    assert styles[":"] == ["tolerance"] and styles["-."] == ["taught command (25)"]
+    for name in ("v", "w"):
+        drawn = [line.get_linestyle() for line in axes[name].get_lines()]
+        assert ":" not in drawn and drawn.count("-.") == 2                  # one taught command per run
+    for name in ("e1", "ebar2", "e2", "e3", "position", "heading"):
+        drawn = [line.get_linestyle() for line in axes[name].get_lines()]
+        assert ":" in drawn and "-." not in drawn
+
+
+def test_y_labels_use_the_symbols_of_the_titles(runs):
+    figure, _ = _figure(runs, ("run",))
+    axes = _axes(figure)
+    for name, symbol in {"e1": "$e_1$", "ebar2": r"$\bar{e}_2$", "e2": "$e_2$", "e3": "$e_3$", "v": "$v_c$",
+                         "w": r"$\omega_c$"}.items():
+        assert symbol in axes[name].get_title(loc="left") and axes[name].get_ylabel().startswith(symbol + " (")
+    for ax in figure.axes:
+        # Outside the mathtext ($...$) no ASCII spelling of a symbol is left.
+        words = re.sub(r"\$[^$]*\$", "", ax.get_ylabel())
+        assert not re.search(r"\b(ebar2|w_c|v_c|e[123])\b", words), ax.get_ylabel()
+
+
+def test_each_law_has_its_colour_in_every_figure(runs):
+    """The paper's law is drawn in its colour whether it comes first or second."""
+    from hbvs_cli.report.figure_style import LAW_COLORS, law_colors
+    from matplotlib.colors import to_hex
+
+    for names, laws in ((("run", "paper"), ("lateral-gain", "paper")), (("paper", "run"), ("paper", "lateral-gain"))):
+        figure, _ = _figure(runs, names)
+        drawn = [to_hex(line.get_color()) for line in _axes(figure)["e1"].get_lines()[:2]]
+        assert drawn == [LAW_COLORS[law].lower() for law in laws]
+    # Two runs of one law: the second takes a colour no law has.
+    first, second = law_colors(["lateral-gain", "lateral-gain"])
+    assert first == LAW_COLORS["lateral-gain"] and second not in LAW_COLORS.values()
+
+
+def test_the_fit_figure_legend_covers_no_panel(runs):
+    from hbvs_cli.report.fit_plot import plot_fit, read_fit_signals
+
+    figure = plot_fit(read_fit_signals(runs["paths"]["fit"]))
+    assert len(figure.legends) == 1 and all(ax.get_legend() is None for ax in figure.axes)
+    assert assert_nothing_covered(figure) > 50
+    for ax in figure.axes:
+        assert re.search(r"\(.+\)$", ax.get_ylabel()), ax.get_ylabel()
 
 
 def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():

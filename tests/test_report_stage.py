@@ -153,7 +153,7 @@ def test_plain_table_matches_the_json(runs, monkeypatch):
     tables = parse_tables(text)
     errors = next(rows for title, rows in tables.items() if title.startswith("image errors"))
     pose = next(rows for title, rows in tables.items() if title.startswith("pose error"))
-    assert errors[0] == ["error", *STATISTICS[:-1], "settling (s)"]
+    assert errors[0] == ["error", *STATISTICS[:-2], "final |.|", "settling (s)"]
     checked = 0
     for rows, section, names in ((errors, "errors", ("e1", "e2", "ebar2", "e3")), (pose, "pose_error", ("position_m", "heading_deg"))):
         labels = [row[0] for row in rows[1:]]
@@ -197,7 +197,7 @@ def test_comparison_prints_both_runs_side_by_side(runs):
     both = report_json(runs["run"], runs["paper"])
     assert list(both) == ["runs"] and [r["run"]["law"] for r in both["runs"]] == ["lateral-gain", "paper"]
     errors = {row[0]: row[1:] for row in next(rows for title, rows in tables.items() if title.startswith("image errors"))}
-    for label, (name, statistic) in {"e1 final (d*)": ("e1", "final"), "e3 rmse (deg)": ("e3", "rmse"),
+    for label, (name, statistic) in {"e1 final |.| (d*)": ("e1", "final"), "e3 rmse (deg)": ("e3", "rmse"),
                                       "ebar2 max (d*)": ("ebar2", "max")}.items():
         for cell, report in zip(errors[label], both["runs"]):
             assert close_to_shown(as_number(cell), report["errors"][name][statistic])
@@ -292,7 +292,8 @@ def test_figure_axes_are_labelled_with_units(runs):
         for label in (ax.get_xlabel(), ax.get_ylabel()):
             assert re.search(r"\(.+\)", label), (ax.get_title(loc="left"), label)
             labels.add(label)
-    assert {"time t (s)", "e1 (units of d*)", "ebar2 (units of d*)", "e3 (deg)", "v_c (m/s)", "w_c (rad/s)", "depth (m)",
+    assert {"time t (s)", "$e_1$ (units of $d^*$)", r"$\bar{e}_2$ (units of $d^*$)", "$e_3$ (deg)", "$v_c$ (m/s)",
+            r"$\omega_c$ (rad/s)", "depth (m)",
             "x (m)", "y (m)", "position error (cm)", "|heading error| (deg)", "V / V(0) (-)"} <= labels
     axes = {ax.get_label(): ax for ax in figure.axes}
     assert axes["V"].get_yscale() == "log"

@@ -717,3 +717,16 @@ def test_a_file_compressed_bag_bomb_stops_at_the_decompressed_bytes_limit(tmp_pa
                       env={"TMPDIR": str(scratch)})
     assert result.returncode == 7 and "decompressed-bytes limit" in one_line(result)
     assert list(scratch.iterdir()) == []  # the decompressed file went with the error
+
+
+@pytest.mark.parametrize("address", ["0:18792", "*:18794", "[::]:18793", "[::1]:18799", "::18795", "18798:18798"])
+def test_a_dashboard_on_every_interface_or_ipv6_is_refused_before_anything_is_written(address, tmp_path):
+    """Hostile spellings of --dashboard (issue 46): "0" and "*" would listen on 0.0.0.0 though
+    nobody named it, IPv6 forms and an all-digit host failed after the results folder and its
+    lock were made. Each is a usage error (exit 2, one line) and nothing is written."""
+    pytest.importorskip("distributed")
+    results = tmp_path / "results"
+    result = call_hbvs("sweep", str(SAMPLES / "fit.mcap"), "--vary", "offset_y=-0.1:0.1:2", "--dashboard", address,
+                       "-o", str(results), "--quiet")
+    assert result.returncode == 2 and "--dashboard" in one_line(result)
+    assert not results.exists() and list(tmp_path.iterdir()) == []

@@ -179,3 +179,30 @@ def test_export_is_atomic_and_refuses_what_it_must_not_replace(sim_run, tmp_path
     result = call_hbvs("export", str(junk), "-o", str(tmp_path / "new_bag"))
     assert result.returncode == 3 and not (tmp_path / "new_bag").exists()
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_export_removes_only_the_partials_hbvs_left(sim_run, tmp_path):
+    """``export -o P`` clears what a killed export left beside P (its pid dead, its folder
+    holding only the bag), never a user's folder named alike (issue 46): a token hbvs never
+    writes (``cafe``, ``ab``), a pid above pid_max, or contents of the user's own."""
+    import subprocess
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()                                          # a pid this system gave, now free
+    pid_max = int(Path("/proc/sys/kernel/pid_max").read_text())
+    bag = tmp_path / "P"
+    kept = [tmp_path / f"P.{dead.pid}-cafe.partial", tmp_path / f"P.{pid_max + 1}-ab.partial",
+            tmp_path / f"P.{pid_max + 1}-0123abcd.partial", tmp_path / f"P.{dead.pid}-89abcdef.partial"]
+    for folder in kept:
+        folder.mkdir()
+        (folder / "notes.txt").write_text("mine")
+    (kept[2] / "notes.txt").unlink()
+    (kept[2] / "P").mkdir()                              # hbvs's layout, but no pid ever had that number
+    stale = tmp_path / f"P.{dead.pid}-76543210.partial"
+    (stale / "P").mkdir(parents=True)
+    (stale / "P" / "half.db3").write_bytes(b"\0" * 10)
+    result = run_hbvs("export", str(sim_run), "-o", str(bag))
+    assert result.returncode == 0, result.stderr.decode()
+    assert (bag / "metadata.yaml").is_file() and not stale.exists()
+    assert all(folder.is_dir() for folder in kept)
+    assert [(kept[i] / "notes.txt").read_text() for i in (0, 1, 3)] == ["mine"] * 3

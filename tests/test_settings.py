@@ -130,6 +130,7 @@ def test_teach_options_come_from_their_table_too():
     assert set(helps) - {"quiet"} == {f.name for f in dataclasses.fields(TeachOptions)} == {s.name for s in TEACH_SETTINGS}
     # The simulation's defaults are the table's, and --help shows them.
     assert SIMULATION_DEFAULTS == {"path": "s-curve", "offset": None, "target": "dots", "dots": 3, "texture": None,
-                                   "seed": 0, "noise": 2.0, "blur": 0.0, "noise_grain": 0.0, "exposure": 1.0}
+                                   "seed": 0, "noise": 2.0, "blur": 0.0, "noise_grain": 0.0, "exposure": 1.0,
+                                   "video_out": None, "calibration_out": None}
     assert TeachOptions().for_simulation().noise == SIMULATION_DEFAULTS["noise"]
     assert helps["noise"].endswith("Default 2.") and helps["path"].endswith("Default s-curve.") and helps["dots"].endswith("Default 3.")

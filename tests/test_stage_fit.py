@@ -8,6 +8,7 @@ import pytest
 from hbvs_cli.io.fit_file import read_fit_file
 
 from conftest import (
+    SAMPLES,
     call_hbvs,
     errors_against_drive,
     fit_errors,
@@ -382,3 +383,29 @@ def test_a_stop_signal_during_the_pick_stops_the_reading_thread_first():
     with pytest.raises(KeyboardInterrupt):
         _picked_while_reading(interrupted_pick, endless(), 1 << 40)
     assert not any(thread.name.startswith("hbvs-read-ahead") for thread in threading.enumerate())
+
+
+def test_a_fit_given_the_layout_does_not_advise_giving_it():
+    """With --target-points the uncertain-n* warning keeps its numbers and its advice on the
+    drive, but no longer asks for --target-size or --target-points (issue 46)."""
+    from hbvs_cli.core.desired import FitUncertainty, uncertainty_warning
+    from hbvs_cli.stages.fit import layout_given_warn
+
+    flat = np.full(50, 1e-3)
+    line = uncertainty_warning(FitUncertainty(normal_sigma_deg=1.5, point_noise_px=0.02, theta_sigma=flat, x_h1_sigma=flat,
+                                              smooth_theta_sigma=flat, smooth_x_h1_sigma=flat), None)
+    assert "--target-points FILE" in line
+    told: list[str] = []
+    layout_given_warn(told.append)(line)
+    assert len(told) == 1 and "uncertain by 1.5 deg" in told[0] and "--reference last" in told[0] and "curves" in told[0]
+    assert "--target-size" not in told[0] and "--target-points FILE" not in told[0] and "layout is given (--target-points)" in told[0]
+
+
+def test_a_size_that_puts_d_star_out_of_repeats_bounds_is_refused_by_the_fit(tmp_path):
+    """--target-size in millimetres by mistake: d* of 2e9 m would pass the fit and fail in
+    repeat on an option never given; the fit refuses it in one line, writing nothing."""
+    output = tmp_path / "fit.mcap"
+    result = call_hbvs("fit", str(SAMPLES / "teach.mcap"), "--target-size", "1e9", "-o", str(output))
+    lines = result.stderr.decode().strip().splitlines()
+    assert result.returncode == 3 and len(lines) == 1 and "outside the 0.001 to 1000 m" in lines[0] and "--target-size" in lines[0]
+    assert not output.exists() and list(tmp_path.iterdir()) == []

@@ -303,3 +303,132 @@ def test_sample_recording_and_calibration_are_small_and_readable():
     camera = load_calibration(SAMPLES / "camera.yaml")
     assert (camera.width, camera.height, camera.fx) == (320, 240, 250.0)
     assert reader.camera == camera  # the sample recording was made with the sample calibration
+
+
+class FakeRos2Topic:
+    """What :class:`~hbvs_cli.io.sources.ros2_topic.Ros2TopicSource` yields without a DDS
+    network: frames stamped by their headers (1.7e18 ns, the epoch of a real clock), its time
+    base known only once the first frame arrives."""
+
+    frame_id = "camera"
+
+    def __init__(self, frames, first_stamp_ns: int) -> None:
+        from hbvs_cli.core.camera import DEFAULT_CAMERA
+
+        self.camera = DEFAULT_CAMERA
+        self.frames, self.first_stamp_ns = frames, first_stamp_ns
+        self.time_base_ns = 0
+
+    def describe(self):
+        return {"kind": "ros2", "topic": "/cam/image"}
+
+    def __iter__(self):
+        from hbvs_cli.io.sources import SourceFrame
+
+        for k, image in enumerate(self.frames):
+            stamp_ns = self.first_stamp_ns + k * 33_333_333
+            if k == 0:
+                self.time_base_ns = stamp_ns
+            yield SourceFrame(t=k * 33_333_333e-9, image=image, stamp_ns=stamp_ns, command=(0.1, 0.0))
+
+
+def test_a_teach_from_a_ros2_topic_starts_at_its_first_frame_not_in_1970(tmp_path, monkeypatch):
+    """The calibration is logged at the first frame's stamp (issue 46: at 0, ``info`` showed a
+    start of 1970-01-01 and a duration of 1.8e9 s)."""
+    from hbvs_cli.io.file_info import read_file_info
+    from hbvs_cli.stages import teach
+    from hbvs_cli.stages.info import info_document
+
+    first = 1_700_000_000_000_000_000
+    monkeypatch.setattr(teach, "_open_source", lambda kind, options: FakeRos2Topic(rendered_frames(6), first))
+    path = make_teach(tmp_path / "ros2.mcap", ros2_image="/cam/image")
+    document = info_document(read_file_info(str(path)))
+    assert document["start_ns"] == first and document["end_ns"] == first + 5 * 33_333_333
+    assert document["duration_s"] == pytest.approx(5 * 0.033333333, abs=1e-9)
+    assert document["frames"] == 6
+
+
+def test_teach_camera_takes_what_repeat_live_camera_takes(tmp_path, monkeypatch):
+    """--camera is an index, a device path or a URL, as for repeat --live --camera (before: an
+    integer only), and a video file is read as --video."""
+    from hbvs_cli.stages import teach
+    from hbvs_cli.stages.teach import TeachOptions
+
+    opened = []
+    monkeypatch.setattr(teach.sources, "open_source", lambda kind, spec, **_: opened.append((kind, spec)))
+    for device in ("0", "2", "/dev/video4", "http://127.0.0.1:8080/stream.mjpg", "rtsp://camera.local/live"):
+        teach._open_source("camera", TeachOptions(camera=device))
+    video = tmp_path / "drive.avi"
+    video.write_bytes(b"x")
+    teach._open_source("camera", TeachOptions(camera=str(video)))
+    assert opened == [("camera", 0), ("camera", 2), ("camera", "/dev/video4"), ("camera", "http://127.0.0.1:8080/stream.mjpg"),
+                      ("camera", "rtsp://camera.local/live"), ("video", str(video))]
+
+
+def test_sim_teach_writes_practice_footage_and_its_calibration(tmp_path):
+    """--video-out: every simulated frame in a video that ``teach --video`` (or ``--camera FILE``)
+    reads back frame for frame (within MJPG's loss); --calibration-out: the simulated camera."""
+    import cv2
+
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.io.calibration import load_calibration
+
+    path = make_teach(tmp_path / "practice.mcap", duration=1.0, video_out=tmp_path / "drive.avi",
+                      calibration_out=tmp_path / "camera.yaml")
+    assert load_calibration(tmp_path / "camera.yaml") == DEFAULT_CAMERA
+    stored = [cv2.imdecode(np.frombuffer(frame.stored_image().data, np.uint8), cv2.IMREAD_GRAYSCALE) for frame in TeachReader(path).frames()]
+    back = make_teach(tmp_path / "from_video.mcap", camera=str(tmp_path / "drive.avi"), calibration=tmp_path / "camera.yaml")
+    again = [cv2.imdecode(np.frombuffer(frame.stored_image().data, np.uint8), cv2.IMREAD_GRAYSCALE) for frame in TeachReader(back).frames()]
+    assert len(stored) == len(again) == 30
+    differences = [float(np.mean(np.abs(a.astype(float) - b.astype(float)))) for a, b in zip(stored, again)]
+    assert max(differences) < 3.0, differences          # gray levels: two lossy encodings, the same frames
+    assert not list(tmp_path.glob(".drive.avi.*"))       # the temporary folder is gone
+    # Refused before any work: a suffix hbvs does not write, an output that is an input.
+    for extra, words in ((["--video-out", str(tmp_path / "drive.gif")], "suffix"),
+                         (["--video-out", str(tmp_path / "x.avi"), "--calibration-out", str(tmp_path / "x.avi")], "same file")):
+        result = call_hbvs("teach", "--sim", "--duration", "0.2", "-o", str(tmp_path / "t.mcap"), *extra)
+        assert result.returncode == 2 and words in result.stderr.decode(), result.stderr.decode()
+        assert not (tmp_path / "t.mcap").exists()
+
+
+@pytest.mark.campaign
+def test_teach_records_robot_sims_mjpeg_camera_by_url(tmp_path, request, extent="campaign"):
+    """The issue's case end to end (``-m campaign``, ~8 s): ``robot-sim --mjpeg PORT`` serves
+    the camera on 127.0.0.1 and ``teach --camera http://127.0.0.1:PORT/`` records it."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from conftest import REPO, campaign_extent
+
+    campaign_extent(request, extent)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    commands = tmp_path / "commands"
+    os.mkfifo(commands)
+    hbvs = [sys.executable, "-m", "hbvs_cli"]
+    robot = subprocess.Popen([*hbvs, "robot-sim", str(SAMPLES / "fit.mcap"), "--mjpeg", str(port), "--cmd-in", str(commands),
+                              "--duration", "60", "-q"], env=dict(os.environ, PYTHONPATH=str(REPO)))
+    # The robot's command stream stays open and silent (it stands still); opened without
+    # blocking, so that a robot-sim that failed to start fails the test instead of hanging it.
+    deadline, writer = time.monotonic() + 60, None
+    while writer is None:
+        try:
+            writer = os.open(commands, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:                                  # ENXIO: robot-sim has not opened it yet
+            assert robot.poll() is None and time.monotonic() < deadline, "robot-sim did not start"
+            time.sleep(0.1)
+    try:
+        result = subprocess.run([*hbvs, "teach", "--camera", f"http://127.0.0.1:{port}/", "--duration", "2", "--calibration",
+                                 str(SAMPLES / "camera.yaml"), "-o", str(tmp_path / "teach.mcap"), "-q"],
+                                capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    finally:
+        os.close(writer)
+        robot.terminate()
+        robot.wait(timeout=30)
+    assert result.returncode == 0, result.stderr
+    frames = list(TeachReader(str(tmp_path / "teach.mcap")).frames())
+    assert len(frames) >= 5 and frames[-1].t < 2.0

@@ -198,3 +198,70 @@ def test_summary_rates_are_the_verdicts_of_the_rows(uninterrupted):
         finals = np.array([r["final_position_m"] for r in mine], dtype=float)
         assert entry["final_position_m"]["median"] == pytest.approx(np.median(finals), rel=1e-12)
         assert entry["final_position_m"]["p95"] == pytest.approx(np.percentile(finals, 95), rel=1e-12)
+
+
+def test_summary_tables_fit_80_columns_with_every_number_whole(uninterrupted):
+    """At 80 columns the summary's eleven columns are dealt out to parts that repeat the law
+    (and the parameter's value): no "…", no line past 80, each cell whole (issue 46)."""
+    from rich.console import Console
+
+    from hbvs_cli.report.sweep_summary import _stat_cells, print_summary
+
+    folder, summary = uninterrupted
+    for terminal in (True, False):
+        buffer = io.StringIO()
+        console = Console(file=buffer, width=80, force_terminal=terminal, color_system=None, highlight=False)
+        print_summary(summary, buffer, console=console)
+        text = buffer.getvalue()
+        assert "…" not in text and max(len(line.rstrip()) for line in text.splitlines()) <= 80
+        lines = text.splitlines()
+        words = set(text.split())
+        entries = [*summary["by_law"], *(row for rows in summary["by_parameter"].values() for row in rows)]
+        for entry in entries:
+            cells = _stat_cells(entry)
+            assert all(word in words for cell in cells for word in cell.split()), cells
+            # A row's cells are on the lines of its law: the interval and the medians whole.
+            assert any(entry["law"] in line and cells[3] in line for line in lines)
+        assert len(entries) == 4 + 8
+
+
+def test_figures_label_units_rates_and_law_colours_without_overlaps(uninterrupted):
+    """The sweep's figures: offset_y in m, the rate a fraction (no "%"), each law's line in
+    its report colour, and the heading CDF's log tick labels apart (issue 46)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_hex
+
+    from hbvs_cli.report.figure_style import LAW_COLORS
+    from hbvs_cli.report.sweep_plots import FILES, sweep_figures
+    from hbvs_cli.sweep.spec import PARAMETERS
+
+    folder, _ = uninterrupted
+    figures = sweep_figures(folder, {name: parameter.unit for name, parameter in PARAMETERS.items()})
+    try:
+        assert set(figures) == set(FILES)
+        curve = figures["convergence_map.png"][0].axes[0]
+        assert curve.get_xlabel() == "offset_y (m)" and "%" not in curve.get_ylabel() and "fraction" in curve.get_ylabel()
+        assert figures["final_error_vs_parameters.png"][0].axes[0].get_xlabel() == "offset_y (m)"
+        for name, (figure, _) in figures.items():
+            figure.canvas.draw()
+            renderer = figure.canvas.get_renderer()
+            for ax in figure.axes:
+                for line in ax.get_lines():
+                    if line.get_label() in LAW_COLORS:
+                        assert to_hex(line.get_color()) == LAW_COLORS[line.get_label()].lower(), (name, line.get_label())
+                for axis in (ax.xaxis, ax.yaxis):
+                    low, high = sorted(axis.get_view_interval())
+                    # Major and minor labels: matplotlib's minor ones on a short log axis overlapped.
+                    ticks = [*zip(axis.get_majorticklocs(), axis.get_majorticklabels()),
+                             *zip(axis.get_minorticklocs(), axis.get_minorticklabels())]
+                    boxes = [label.get_window_extent(renderer) for loc, label in ticks if label.get_text() and low <= loc <= high]
+                    for i, a in enumerate(boxes):
+                        assert all(a.x1 <= b.x0 + 0.5 or b.x1 <= a.x0 + 0.5 or a.y1 <= b.y0 + 0.5 or b.y1 <= a.y0 + 0.5
+                                   for b in boxes[i + 1:]), (name, [t.get_text() for t in axis.get_majorticklabels()])
+        cdf = figures["final_error_cdf.png"][0]
+        heading = cdf.axes[1]
+        assert heading.get_xscale() == "log" and len([t for t in heading.get_xticklabels() if t.get_text()]) >= 2
+        assert {line.get_label() for line in heading.get_lines()} == {"lateral-gain", "paper", "non-adaptive", "kanayama"}
+    finally:
+        for figure, _ in figures.values():
+            plt.close(figure)

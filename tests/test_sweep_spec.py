@@ -202,3 +202,22 @@ def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tm
     csv = pacsv.read_csv(folder / results.CSV)
     assert csv.column("index").to_pylist() == list(range(300))
     assert not list((folder / results.PARTS).glob("*.parquet")) and not list(folder.rglob("*.partial"))
+
+
+def test_sweep_help_lists_every_parameter_without_loading_numpy(monkeypatch):
+    """``hbvs sweep --help`` names what --vary and --set take, with units (issue 46); the
+    names come from a module without numpy, so the command line still starts without it."""
+    import subprocess
+    import sys
+
+    from hbvs_cli.sweep.parameters import PARAMETERS
+    from conftest import call_hbvs
+
+    monkeypatch.setenv("COLUMNS", "400")
+    text = " ".join(call_hbvs("sweep", "--help").stdout.decode().split())
+    for name, parameter in PARAMETERS.items():
+        assert f"{name} (" in text, name
+    assert "offset_y (m)" in text and "law (lateral-gain|paper|non-adaptive|kanayama)" in text
+    loaded = subprocess.run([sys.executable, "-c", "import sys, hbvs_cli.cli.app; print('numpy' in sys.modules)"],
+                            capture_output=True, text=True, check=True).stdout.strip()
+    assert loaded == "False"

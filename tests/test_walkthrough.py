@@ -1,6 +1,7 @@
-"""docs/walkthrough.md: every ``hbvs`` command of the page runs, in order, on two rendered
-videos (a taught drive and a second one started 10 cm further back and 5 cm to the side),
-and the calibration files it describes are read alike."""
+"""docs/walkthrough.md: every ``hbvs`` command of the page runs, in order, from the practice
+footage hbvs makes (step 0: a taught drive and a second one started 10 cm further back and 5 cm
+to the side, as videos, with their calibration) to the report, with nothing but hbvs; and the
+calibration files it describes are read alike."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import pytest
 from conftest import REPO, call_hbvs
 
 PAGE = REPO / "docs" / "walkthrough.md"
-#: Seconds of each drive (the page's commands do not depend on it).
+#: Seconds of each practice drive (step 0's --duration).
 DRIVE_S = 8.0
 
 
@@ -23,26 +24,6 @@ def page_commands() -> list[list[str]]:
     blocks = re.findall(r"```bash\n(.*?)```", PAGE.read_text(), flags=re.S)
     lines = [line.split("#")[0].strip() for block in blocks for line in block.splitlines()]
     return [shlex.split(line)[1:] for line in lines if line.startswith("hbvs ")]
-
-
-def render_drive(path, start_offset, seed):
-    """An MJPG video of the default s-curve drive, started ``start_offset`` (m, m, rad) away."""
-    import cv2
-
-    from hbvs_cli.core.camera import DEFAULT_CAMERA
-    from hbvs_cli.core.path import preset_profile
-    from hbvs_cli.sim.world import default_world
-    from hbvs_cli.sim.render import make_renderer
-
-    profile, start = preset_profile("s-curve", 30)
-    renderer = make_renderer(default_world(), 2.0, 0.0, 1.0)
-    rng = np.random.default_rng(seed)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0,
-                             (DEFAULT_CAMERA.width, DEFAULT_CAMERA.height), isColor=False)
-    assert writer.isOpened()
-    for t in np.arange(int(DRIVE_S * 30)) / 30.0:
-        writer.write(renderer.render(profile.poses_at(t, np.asarray(start) + start_offset), rng))
-    writer.release()
 
 
 def write_calibrations(folder):
@@ -64,20 +45,33 @@ def write_calibrations(folder):
 
 
 def test_every_command_of_the_walkthrough_runs(tmp_path, monkeypatch):
+    """From step 0's practice footage (made by hbvs) to the simulated repeat: every command
+    of the page, verbatim, with nothing but hbvs (issue 46)."""
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
     from hbvs_cli.io.calibration import load_calibration
 
     commands = page_commands()
-    assert [c[0] for c in commands] == ["teach", "info", "fit", "report", "teach", "repeat", "report", "repeat", "report"]
-    render_drive(tmp_path / "drive.avi", np.zeros(3), seed=1)
-    render_drive(tmp_path / "drive2.avi", np.array([-0.1, 0.05, 0.0]), seed=2)
-    write_calibrations(tmp_path)
-    assert load_calibration(tmp_path / "camera.yml") == load_calibration(tmp_path / "camera.yaml")
+    assert [c[0] for c in commands] == ["teach", "teach", "teach", "info", "fit", "report", "teach", "repeat", "report", "repeat", "report"]
     monkeypatch.chdir(tmp_path)
     for args in commands:
         result = call_hbvs(*args)
         assert result.returncode == 0, (args, result.stderr.decode())
+    assert load_calibration(tmp_path / "camera.yaml") == DEFAULT_CAMERA
+    # The practice videos hold every simulated frame: the taught file made from the video has them all.
+    practice = json.loads(call_hbvs("info", "practice.mcap", "--json").stdout)
+    taught = json.loads(call_hbvs("info", "teach.mcap", "--json").stdout)
+    assert taught["frames"] == practice["frames"] == int(DRIVE_S * 30)
     # What the page says of the replay: the second drive's offset, e1 about 0.1 / 4 at the start.
     replay = json.loads(call_hbvs("report", "replay.mcap", "--json").stdout)
     assert replay["errors"]["e1"]["initial"] == pytest.approx(0.025, abs=0.005)
     assert not replay["verdict"]["converged"] and "pose_error" not in replay
     assert (tmp_path / "fit.png").stat().st_size > 10_000 and (tmp_path / "replay.png").stat().st_size > 10_000
+
+
+def test_the_pages_opencv_calibration_reads_as_the_ros_one(tmp_path):
+    """Step 1's OpenCV FileStorage, written under the names of OpenCV's sample, is the same
+    camera as the ROS camera_info YAML."""
+    from hbvs_cli.io.calibration import load_calibration
+
+    write_calibrations(tmp_path)
+    assert load_calibration(tmp_path / "camera.yml") == load_calibration(tmp_path / "camera.yaml")

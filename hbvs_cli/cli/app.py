@@ -8,6 +8,7 @@ import importlib
 import inspect
 import os
 import signal
+import stat
 import sys
 import traceback
 import warnings
@@ -18,13 +19,14 @@ from typing import Annotated, Any, List, Optional
 import typer
 
 from .. import __version__, stop_signals
-from ..errors import HbvsError, InputError, OutputError
+from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
+from ..sweep.parameters import parameter_names_text
 from ..io.settings import (
     EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
     TEACH_SETTINGS, options_from_command_line,
@@ -75,8 +77,37 @@ def _root(
         set_limits(list(limit))
 
 
+#: The options through which a stage reads a file, ``-`` meaning stdin.
+INPUT_OPTIONS = ("input", "runs", "fit")
+
+
+def _reads_stdin(values: dict[str, Any]) -> bool:
+    """Whether a stage's options name ``-`` (stdin) as an input."""
+    for key in INPUT_OPTIONS:
+        value = values.get(key)
+        if value == "-" or (isinstance(value, (list, tuple)) and "-" in value):
+            return True
+    return False
+
+
+def _stdin_is_an_empty_pipe() -> bool:
+    """True when stdin is a pipe closed before its first byte (read without consuming it):
+    what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
+    until the writer writes or closes."""
+    try:
+        # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
+        if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
+            return False
+        return sys.stdin.buffer.peek(1) == b""
+    except (OSError, ValueError, AttributeError, HbvsError):
+        return False
+
+
 def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
-    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code."""
+    """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code.
+    A stage whose stdin input is an empty pipe stops with :class:`UpstreamFailedError` (one error line per pipeline)."""
+    if _reads_stdin(values) and _stdin_is_an_empty_pipe():
+        raise UpstreamFailedError("stdin: the pipe closed without data: the command before this one failed")
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
     options = options_from_command_line(getattr(module, options_class), values)
@@ -103,7 +134,8 @@ STAGE_COMMANDS = (
     ("info", "Files", INFO_SETTINGS, "InfoOptions", (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
     ("sweep", "Studies", SWEEP_SETTINGS, "SweepOptions", (QUIET_MESSAGES,),
-     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence."),
+     "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
+     f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
 
 
@@ -207,8 +239,10 @@ def _say(line: str) -> None:
 
 
 def _pipe_closed() -> int:
+    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE
+    would, without a word (it is not an error of this command, and in a pipeline whose later
+    stage failed, that stage's line is the one that matters)."""
     _silence_stdout()
-    _say("hbvs: error: stdout: the reader closed the pipe")
     return 141
 
 
@@ -243,6 +277,11 @@ def _run(args: list[str], debug: bool) -> int:
             traceback.print_exc()
         if exc.exit_code == 141:
             return _pipe_closed()
+        if isinstance(exc, UpstreamFailedError):
+            # The stage before said why; a second line would only repeat that it failed.
+            if debug:
+                _say(f"hbvs: error: {exc}")
+            return exc.exit_code
         _say(f"hbvs: error: {exc}")
         return exit_code_of(exc)
     except typer.Abort:

@@ -14,6 +14,12 @@ from ..errors import InvalidValueError
 LAW_PAPER = "paper"
 LAW_LATERAL_GAIN = "lateral-gain"
 LAWS = (LAW_PAPER, LAW_LATERAL_GAIN)
+#: The baselines ``--law`` also offers (docs/method.md, "Baselines"; :mod:`.laws`).
+LAW_NON_ADAPTIVE = "non-adaptive"
+LAW_KANAYAMA = "kanayama"
+#: The laws hbvs ships, the default first: core/laws.py registers each (LAW_REGISTRY, where another
+#: can be added); their names here serve --help and the figures' colours without numpy.
+ALL_LAWS = (LAW_LATERAL_GAIN, LAW_PAPER, LAW_NON_ADAPTIVE, LAW_KANAYAMA)
 
 
 #: Names of the filters ``repeat --filter`` offers: none is the paper exactly.

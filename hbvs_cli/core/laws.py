@@ -12,13 +12,9 @@ from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
 from ..errors import InvalidValueError
-from .control_settings import LAW_LATERAL_GAIN, LAW_PAPER, ControllerGains
+from .control_settings import LAW_KANAYAMA, LAW_LATERAL_GAIN, LAW_NON_ADAPTIVE, LAW_PAPER, ControllerGains
 from .controller import AdaptiveTrackingController, ControlOutput, DesiredState, Measurement, tracking_errors
 from .depth import check_depth
-
-LAW_NON_ADAPTIVE = "non-adaptive"
-LAW_KANAYAMA = "kanayama"
-
 
 class ControlLaw(Protocol):
     """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),

@@ -51,7 +51,8 @@ def set_limits(items: list[str]) -> None:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not (math.isfinite(value) and value >= 1 and value <= 2**62):
+        # 5e6 is a whole number written short; 1.5 is not one (it used to become 1).
+        if not (math.isfinite(value) and value >= 1 and value <= 2**62 and value.is_integer()):
             raise UsageError(f"--limit {name}: expected a positive whole number, got {text!r}")
         _values[name] = int(value)
 

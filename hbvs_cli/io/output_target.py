@@ -15,10 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Iterator, Sequence
 
-from ..errors import InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
+from ..errors import HbvsError, InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
 PARTIAL_SUFFIX = ".partial"
-_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]+\.partial$")
+#: hbvs's partial names: the final name, the writer's pid and 8 hex digits (:func:`partial_name_of`).
+_PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]{8}\.partial$")
+#: Linux's largest pid when /proc/sys/kernel/pid_max cannot be read (2^22).
+PID_MAX_FALLBACK = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -70,10 +73,36 @@ def final_name_of_partial(path: Path) -> Path | None:
     return path.with_name(match.group("final")) if match else None
 
 
+def _pid_max() -> int:
+    try:
+        return int(Path("/proc/sys/kernel/pid_max").read_text().strip())
+    except (OSError, ValueError):
+        return PID_MAX_FALLBACK
+
+
+def _made_by_hbvs(path: Path, final_name: str) -> bool:
+    """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
+    a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""
+    try:
+        status = os.lstat(path)
+        if status.st_uid != os.getuid():
+            return False
+        if stat.S_ISDIR(status.st_mode):
+            return all(entry.name in (final_name, "replaced") for entry in path.iterdir())
+        return stat.S_ISREG(status.st_mode)
+    except OSError:
+        return False
+
+
 def stale_partial(path: Path) -> bool:
-    """True when ``path`` is a partial file or folder of hbvs whose process is gone."""
+    """True when ``path`` is a partial file or folder of hbvs whose process is gone: its name is
+    one :func:`partial_name_of` gives (8 hex digits), its pid one this system can give (at most
+    /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
+    user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None or int(match.group("pid")) == os.getpid():
+    if match is None or int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= _pid_max():
+        return False
+    if not _made_by_hbvs(path, match.group("final")):
         return False
     try:
         os.kill(int(match.group("pid")), 0)
@@ -219,25 +248,53 @@ def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
     return OutputError(f"{what}: cannot write ({reason}){kept}")
 
 
-class GuardedStream:
-    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek)."""
+#: Bytes a stage's stdout holds back until it flushes or writes more: a stage that fails
+#: before (a missing input) writes nothing, so the next stage in a pipeline sees an empty
+#: pipe and stays silent (exit 9) instead of adding a second error line.
+STDOUT_HOLD_BYTES = 1 << 16
 
-    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False) -> None:
+
+class GuardedStream:
+    """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek).
+    With ``hold`` > 0 the first bytes wait in memory until more than ``hold`` are written or
+    :meth:`flush` is called; :meth:`discard` drops them (the stage failed)."""
+
+    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False, hold: int = 0) -> None:
         self.closed = False
         self._atomic = atomic
         self._raw = raw
         self._what = what
         self._owned = owned
         self._count = 0
+        self._hold = hold
+        self._held: bytearray | None = bytearray() if hold > 0 else None
 
-    def write(self, data: Any) -> int:
-        view = memoryview(data).cast("B")
+    def _write_raw(self, view: Any) -> None:
         try:
             self._raw.write(view)
         except OSError as exc:
             raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
+
+    def _release(self) -> None:
+        held, self._held = self._held, None
+        if held:
+            self._write_raw(memoryview(held))
+
+    def discard(self) -> None:
+        """Drop the bytes still held back (nothing of a failed stage reaches the reader)."""
+        if self._held is not None:
+            self._held = bytearray()
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data).cast("B")
+        if self._held is not None:
+            self._held += view
+            if len(self._held) > self._hold:
+                self._release()
+        else:
+            self._write_raw(view)
         self._count += len(view)
         return len(view)
 
@@ -245,6 +302,7 @@ class GuardedStream:
         return self._count
 
     def flush(self) -> None:
+        self._release()
         try:
             self._raw.flush()
         except OSError as exc:
@@ -309,8 +367,15 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
     if target.kind == "stdout":
         if stdout is None and (sys.stdout is None or stdio_closed(1)):
             raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False), target)
-        yield sink
+        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False,
+                                        hold=STDOUT_HOLD_BYTES), target)
+        try:
+            yield sink
+        except HbvsError:
+            # The stage failed (and says why): the little it held back is no file. A stop
+            # signal keeps what was written, the start of a recording.
+            sink.stream.discard()
+            raise
         sink.stream.flush()
         return
     assert target.path is not None

@@ -89,7 +89,9 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
     Setting("sim", bool, "Simulated robot and camera (the default source).", default=False),
     Setting("video", Path, "A video file (anything OpenCV reads).", panel="Sources"),
     Setting("images", str, "A folder of images or a glob; sorted naturally.", panel="Sources"),
-    Setting("camera", int, "A live camera by index; --duration or Ctrl-C ends it.", panel="Sources"),
+    Setting("camera", str, "A live camera, as repeat --live --camera takes it: an index, /dev/videoN, an RTSP/HTTP URL "
+            "(robot-sim --mjpeg's, an IP camera's), or a video file read as --video; --duration or Ctrl-C ends it.",
+            panel="Sources"),
     Setting("bag", Path, "A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one "
             ".mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", panel="Sources"),
     Setting("topic", str, "Image topic of the bag (automatic when there is one).", panel="Sources"),
@@ -118,6 +120,10 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
             "denoising and compression leave it; 0 for white noise.", fallback=0.0, panel="Simulation",
             bounds={"min": 0.0, "max": 20.0}),
     Setting("exposure", float, "Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05}),
+    Setting("video_out", Path, "Also write the simulated frames as a video (.avi or .mkv: MJPG; .mp4 or .mov: mp4v): "
+            "practice footage for docs/walkthrough.md, whose truth is known.", panel="Simulation"),
+    Setting("calibration_out", Path, "Also write the simulated camera's calibration as a ROS camera_info YAML (what "
+            "--calibration reads).", panel="Simulation"),
     Setting("image_format", str, "Stored images: auto keeps JPEG and PNG files and bag images as they are "
             "and stores frames hbvs compresses (simulator, video, camera) as JPEG at --quality; png (lossless) or jpeg for all.",
             default="auto", flags=("--format",)),
@@ -365,7 +371,8 @@ SWEEP_SETTINGS: tuple[Setting, ...] = (
     Setting("workers", int, "Local worker processes (default one per core), or batch jobs with --cluster.", panel="Engine",
             bounds={"min": 1}),
     Setting("dashboard", str, "Serve Dask's dashboard (off by default; it has no authentication) on PORT of 127.0.0.1, or on "
-            "HOST:PORT (0.0.0.0 only if you name it).", panel="Engine", metavar="[HOST:]PORT"),
+            "HOST:PORT, HOST an IPv4 address or a host name (every interface only if you name 0.0.0.0; no IPv6).", panel="Engine",
+            metavar="[HOST:]PORT"),
     Setting("keep_runs", str, "Keep run MCAPs in RESULTS/runs/: failed (default: failed or stopped runs), all or none.",
             default="failed"),
     Setting("json_output", bool, "Print the summary as JSON instead of tables.", default=False, flags=("--json",)),

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+from ..core.control_settings import ALL_LAWS
 from ..errors import OutputError, UsageError
 from ..io.settings import DEFAULT_DPI, REPORT
 
@@ -90,9 +91,26 @@ def paper_rc() -> dict[str, Any]:
     }
 
 
-def run_colors(count: int) -> list[str]:
-    """One palette colour per run (cycling after seven)."""
-    return [PALETTE[index % len(PALETTE)] for index in range(count)]
+#: One colour per control law in every figure, report and sweep alike (``--law``'s order).
+LAW_COLORS = dict(zip(ALL_LAWS, PALETTE))
+
+
+def law_colors(laws: Sequence[str | None]) -> list[str]:
+    """A colour per run (or group of runs) of the given laws: its law's :data:`LAW_COLORS`
+    the first time the law comes; a law seen before (two runs of one law) or unknown takes
+    the next palette colour no law has, then those of the laws absent here (cycling)."""
+    taken = {LAW_COLORS[law] for law in laws if law in LAW_COLORS}
+    spare = [color for color in PALETTE if color not in LAW_COLORS.values()] + [
+        color for color in LAW_COLORS.values() if color not in taken]
+    colors: list[str] = []
+    seen: set[str] = set()
+    for law in laws:
+        if law in LAW_COLORS and law not in seen:
+            colors.append(LAW_COLORS[law])
+            seen.add(law)
+        else:
+            colors.append(spare[sum(color in spare for color in colors) % len(spare)])
+    return colors
 
 
 def new_figure(size_in: tuple[float, float], dpi: float) -> Any:

@@ -26,6 +26,9 @@ SIGMA_FIELDS = ("theta_d_sigma", "x_hd1_sigma")
 FIT_PANELS = ("theta_d", "theta_d_residual", "x_hd1", "x_hd1_residual", "x_hd2", "x_hd2_residual", "x_hd1_dot")
 #: A gap between raw samples longer than this many median frame intervals is shaded.
 GAP_FRAMES = 1.5
+#: Legend labels of the fitted curves: theta_d and x_hd1 are smoothing splines, x_hd2 comes from (25).
+SPLINE_LABEL = r"smoothing spline ($\theta_d$, $x_{hd1}$)"
+INTEGRATED_LABEL = r"$x_{hd2}$ integrated by (25)"
 
 
 @dataclass
@@ -135,9 +138,9 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
     raw, smooth = signals.raw, signals.smooth
     degrees = 180.0 / math.pi
     signal_panels = {
-        "theta_d": (r"Desired rotation $\theta_d$ (Remark 1)", r"$\theta_d$ (deg)", "theta_d", degrees, "smoothing spline"),
-        "x_hd1": (r"Desired translation $x_{hd1}$", r"$x_{hd1}$ (units of d*)", "x_hd1", 1.0, "smoothing spline"),
-        "x_hd2": (r"Desired translation $x_{hd2}$", r"$x_{hd2}$ (units of d*)", "x_hd2", 1.0, "integrated by (25)"),
+        "theta_d": (r"Desired rotation $\theta_d$ (Remark 1)", r"$\theta_d$ (deg)", "theta_d", degrees, SPLINE_LABEL),
+        "x_hd1": (r"Desired translation $x_{hd1}$", r"$x_{hd1}$ (units of $d^*$)", "x_hd1", 1.0, SPLINE_LABEL),
+        "x_hd2": (r"Desired translation $x_{hd2}$", r"$x_{hd2}$ (units of $d^*$)", "x_hd2", 1.0, INTEGRATED_LABEL),
     }
     with matplotlib.rc_context(paper_rc()):
         figure = new_figure(size, style.dpi)
@@ -152,8 +155,9 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                 title, _, key, scale, how = signal_panels[name.removesuffix("_residual")]
                 ax.plot(raw["t"], _raw_minus_smooth(signals, key, scale), ls="none", marker="o", ms=1.6, mew=0, color="0.45")
                 ax.axhline(0.0, color=PALETTE[0], lw=1.0)
-                unit = "deg" if key == "theta_d" else "units of d*"
-                ax.set(title=f"{title.split(' (')[0]}: raw minus {how.split()[0]}", ylabel=f"difference ({unit})")
+                unit = "deg" if key == "theta_d" else "units of $d^*$"
+                ax.set(title=f"{title.split(' (')[0]}: raw minus {'integrated' if how == INTEGRATED_LABEL else 'smoothing'}",
+                       ylabel=f"difference ({unit})")
             else:
                 title, ylabel, key, scale, how = signal_panels[name]
                 ax.plot(raw["t"], scale * raw[key], ls="none", marker="o", ms=1.6, mew=0, color="0.55", label="raw: one homography per frame")
@@ -163,19 +167,31 @@ def plot_fit(signals: FitSignals, style: FigureStyle | None = None) -> Any:
                     ax.fill_between(smooth["t"], scale * smooth[key] - band, scale * smooth[key] + band, color=PALETTE[0],
                                     alpha=0.2, lw=0, label="95 % interval (n*, reference points, noise)")
                 ax.set(title=title, ylabel=ylabel)
-                ax.legend(loc="best", fontsize=6.5, handlelength=1.5, markerscale=2.5)
             for start, end in _gaps(raw["t"]):
                 ax.axvspan(start, end, color="0.5", alpha=0.2, lw=0, zorder=0)
             ax.set_xlabel("time t (s)")
         figure.suptitle(f"Desired trajectory fitted by hbvs fit ({Path(signals.name).name}); shaded: target not found")
+        _figure_legend(figure)
     return figure
+
+
+def _figure_legend(figure: Any) -> None:
+    """One legend under the panels for every labelled line (in a panel's corner it covered
+    the curves it named)."""
+    handles: dict[str, Any] = {}
+    for ax in figure.axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, handle)
+    if handles:
+        figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncols=min(3, len(handles)),
+                      fontsize=6.5, handlelength=1.8, markerscale=2.5)
 
 
 def _paint_feed_forward(ax: Any, raw: Mapping[str, np.ndarray], smooth: Mapping[str, np.ndarray]) -> None:
     """x_hd1_dot of the spline (what (29)-(30) feed forward) against a raw finite difference."""
     t_mid, slope = raw_derivative(raw["t"], raw["x_hd1"])
-    ax.plot(t_mid, slope, color="0.6", lw=0.5, label="finite difference of raw $x_{hd1}$")
-    ax.plot(smooth["t"], smooth["x_hd1_dot"], color=PALETTE[0], lw=1.4, label="spline derivative (fed forward)")
+    ax.plot(t_mid, slope, color="0.6", lw=0.5, label=r"finite difference of raw $x_{hd1}$")
+    ax.plot(smooth["t"], smooth["x_hd1_dot"], color=PALETTE[0], lw=1.4, label=r"spline derivative $\dot{x}_{hd1}$ (fed forward)")
     ax.axhline(0.0, color=TAUGHT_COLOR, lw=0.6)
     values = smooth["x_hd1_dot"]
     # Zero in view (condition (35)) and the spline's range; raw spikes may leave the frame.
@@ -183,5 +199,4 @@ def _paint_feed_forward(ax: Any, raw: Mapping[str, np.ndarray], smooth: Mapping[
     pad = 0.25 * (high - low) + 1e-9
     ax.set_ylim(low - pad, high + pad)
     ax.set(title=r"Feed-forward $\dot{x}_{hd1}$ of (29)-(30); condition (35) needs it away from 0", ylabel=r"$\dot{x}_{hd1}$ (1/s)")
-    ax.legend(loc="best", fontsize=6.5, handlelength=1.5)
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import UsageError
 from ..io.run_file import RunData
-from .figure_style import TAUGHT_COLOR, FigureStyle, column_count, new_figure, paper_rc, run_colors, save_figure
+from .figure_style import TAUGHT_COLOR, FigureStyle, column_count, law_colors, new_figure, paper_rc, save_figure
 from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth
 from .result import RunReport
 from .table import run_labels
@@ -31,6 +31,10 @@ LEGEND_HEIGHT_IN = 0.55
 MIN_SCALE = 0.7
 #: Colour of tolerance lines and actuator limits.
 GUIDE_COLOR = "0.35"
+#: Line style of a tolerance (dotted) and of the taught command in the v_c and omega_c
+#: panels (dash-dot): two styles, so the legend names each once.
+TOLERANCE_STYLE = ":"
+TAUGHT_COMMAND_STYLE = "-."
 
 
 @dataclass
@@ -98,20 +102,13 @@ def _say_absent(ax: Any, message: str) -> None:
     ax.grid(False)
 
 
-def _note_missing(ax: Any, runs: Sequence[RunData], has_data: Callable[[RunData], bool]) -> None:
-    """When only some runs have the panel's data, name the others under the title."""
-    missing = [Path(run.name).name for run in runs if not has_data(run)]
-    if missing:
-        ax.set_title(f"{ax.get_title()}\n(no data: {', '.join(missing)})")
-
-
 def _time_axes(ax: Any, title: str, ylabel: str) -> None:
     ax.set(title=title, xlabel="time t (s)", ylabel=ylabel)
 
 
 def _band(ax: Any, tolerance: float, signed: bool) -> None:
     for level in ((-tolerance, tolerance) if signed else (tolerance,)):
-        ax.axhline(level, color=GUIDE_COLOR, ls=":", lw=0.9, zorder=1)
+        ax.axhline(level, color=GUIDE_COLOR, ls=TOLERANCE_STYLE, lw=0.9, zorder=1)
 
 
 def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None) -> None:
@@ -153,7 +150,6 @@ def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[An
         _band(ax, scale * context.tolerances[key], signed=False)
         ax.set_yscale("log")
         _time_axes(ax, title, ylabel)
-        _note_missing(ax, context.runs, _has_poses)
 
     return paint
 
@@ -175,7 +171,7 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
             _line(ax, context, run.state["t"], run.state[key], color, None)
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             shown_t, shown_x = display_series(run.state["t"], taught, None)
-            ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=":", zorder=1.5)
+            ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
         _shade_losses(ax, context)
         limits = {getattr(run_limits(run), limit_key) for run in context.runs}
         for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
@@ -231,7 +227,6 @@ def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
     _shade_losses(ax, context)
     ax.set_yscale("log")
     _time_axes(ax, title, "V / V(0) (-)")
-    _note_missing(ax, context.runs, _has_V)
 
 
 def _top_view_geometry(run: RunData) -> dict[str, Any] | None:
@@ -286,8 +281,6 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     _scene_view(scene, with_poses)
     _draw_paths(zoom, with_poses)
     zoom.set(title="Paths, y stretched: taught (dashed), repeated", xlabel="x (m)", ylabel="y (m)")
-    for axes in (scene, zoom):
-        _note_missing(axes, context.runs, _has_poses)
 
 
 def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
@@ -319,12 +312,12 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
 PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
     "position": _pose_panel("position_m", "Position error against the taught pose", "position error (cm)", 100.0),
     "heading": _pose_panel("heading_deg", "Heading error against the taught pose", "|heading error| (deg)", 1.0),
-    "e1": _image_error_panel("e1", r"Longitudinal image error $e_1$ (19)", "e1 (units of d*)"),
-    "ebar2": _image_error_panel("ebar2", r"Lateral image error $\bar{e}_2$ (27)", "ebar2 (units of d*)"),
-    "e2": _image_error_panel("e2", r"Lateral image error $e_2$ (19)", "e2 (units of d*)"),
-    "e3": _image_error_panel("e3", r"Rotation error $e_3$ (19)", "e3 (deg)"),
-    "v": _command_panel("v_c", "max_v", r"Linear velocity command $v_c$ (29)", "v_c (m/s)"),
-    "w": _command_panel("w_c", "max_w", r"Angular velocity command $\omega_c$ (30)", "w_c (rad/s)"),
+    "e1": _image_error_panel("e1", r"Longitudinal image error $e_1$ (19)", r"$e_1$ (units of $d^*$)"),
+    "ebar2": _image_error_panel("ebar2", r"Lateral image error $\bar{e}_2$ (27)", r"$\bar{e}_2$ (units of $d^*$)"),
+    "e2": _image_error_panel("e2", r"Lateral image error $e_2$ (19)", r"$e_2$ (units of $d^*$)"),
+    "e3": _image_error_panel("e3", r"Rotation error $e_3$ (19)", r"$e_3$ (deg)"),
+    "v": _command_panel("v_c", "max_v", r"Linear velocity command $v_c$ (29)", r"$v_c$ (m/s)"),
+    "w": _command_panel("w_c", "max_w", r"Angular velocity command $\omega_c$ (30)", r"$\omega_c$ (rad/s)"),
     "dhat": _depth_panel,
     "V": _lyapunov_panel,
     "top": _top_view_panel,
@@ -379,18 +372,30 @@ def check_figure_size(runs: Sequence[RunData], style: FigureStyle) -> None:
     _layout(figure_panels(runs, style), style)
 
 
-def _legend_handles(reports: Sequence[RunReport], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
+#: Panels only a run with ground truth (poses, d*) has data for.
+GROUND_TRUTH_PANELS = ("position", "heading", "V", "top")
+
+
+def _run_legend_label(label: str, report: RunReport, run: RunData, panels: Sequence[str]) -> str:
+    """A run's legend entry: its label and status; a run left out of the ground-truth panels
+    that are drawn says so here rather than in every panel's title."""
+    absent = not (_has_poses(run) or _has_V(run)) and any(name in panels for name in GROUND_TRUTH_PANELS)
+    return f"{label} ({_status(report)}{'; no ground truth' if absent else ''})"
+
+
+def _legend_handles(runs: Sequence[RunData], reports: Sequence[RunReport], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     handles: list[Any] = [
-        Line2D([], [], color=color, lw=2.0, label=f"{label} ({_status(report)})")
-        for color, label, report in zip(colors, run_labels(reports), reports)
+        Line2D([], [], color=color, lw=2.0, label=_run_legend_label(label, report, run, panels))
+        for color, label, report, run in zip(colors, run_labels(reports), reports, runs)
     ]
     if "top" in panels or "dhat" in panels:
         handles.append(Line2D([], [], color=TAUGHT_COLOR, ls=(0, (4, 3)), lw=1.1, label="taught / true"))
-    handles.append(Line2D([], [], color=GUIDE_COLOR, ls=":", lw=0.9, label="tolerance"))
+    handles.append(Line2D([], [], color=GUIDE_COLOR, ls=TOLERANCE_STYLE, lw=0.9, label="tolerance"))
     if "v" in panels or "w" in panels:
+        handles.append(Line2D([], [], color=GUIDE_COLOR, ls=TAUGHT_COMMAND_STYLE, lw=0.9, label="taught command (25)"))
         handles.append(Line2D([], [], color=GUIDE_COLOR, ls="--", lw=0.8, label="actuator limit"))
     handles.append(Patch(color="0.5", alpha=0.3, lw=0, label="target lost"))
     return handles
@@ -405,7 +410,7 @@ def plot_runs(
 
     style = style or FigureStyle()
     panels = figure_panels(runs, style)
-    colors = run_colors(len(runs))
+    colors = law_colors([report.run.law for report in reports])
     context = PanelContext(runs, colors, {**DEFAULT_TOLERANCES, **(tolerances or {})}, _line_styles(runs, colors))
     size, columns = _layout(panels, style)
     with matplotlib.rc_context(paper_rc()):
@@ -429,7 +434,7 @@ def plot_runs(
                 # Stacked in one column: the shared time axis is labelled once, under the last.
                 ax.tick_params(labelbottom=False)
                 ax.set_xlabel("")
-        handles = _legend_handles(reports, context.colors, panels)
+        handles = _legend_handles(runs, reports, context.colors, panels)
         figure.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 4 if columns > 1 else 2))
     return figure
 

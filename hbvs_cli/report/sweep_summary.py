@@ -161,13 +161,13 @@ STAT_HEADERS = ["runs", "failed", "converged", "95 % CI (Wilson)", "pos. median 
                 "head. median (deg)", "head. p95 (deg)", "settle median (s)", "settle p95 (s)"]
 
 
-def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
-    """The summary as tables on ``stream``: rich on a terminal, plain text otherwise."""
+def print_summary(summary: Mapping[str, Any], stream: TextIO, console: Any = None) -> None:
+    """The summary as tables on ``stream`` (or ``console``): rich on a terminal, plain text otherwise."""
     from rich.text import Text
 
-    from .table import new_table, print_title, report_console
+    from .table import new_table, print_table, print_title, report_console
 
-    console = report_console(stream)
+    console = console or report_console(stream)
     plain = not console.is_terminal
     runs = summary["runs"]
     print_title(console, f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
@@ -176,7 +176,7 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
     table = new_table(["law", *STAT_HEADERS], plain)
     for entry in groups:
         table.add_row(entry["law"], *_stat_cells(entry))
-    console.print(table)
+    print_table(console, table)
     for name, rows in summary["by_parameter"].items():
         console.print()
         print_title(console, f"by {name}")
@@ -184,6 +184,6 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO) -> None:
         table = new_table([name, *(["law"] if with_law else []), *STAT_HEADERS], plain)
         for entry in rows:
             table.add_row(entry["value"], *([entry["law"]] if with_law else []), *_stat_cells(entry))
-        console.print(table)
+        print_table(console, table, keys=2 if with_law else 1)
     console.print()
     console.print(Text("converged: hbvs report's verdict (docs/report.md); failed runs have no report and are not in the rate"))

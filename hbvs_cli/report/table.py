@@ -25,8 +25,9 @@ ERROR_SIGNALS = {
     "e1": ("e1", "d*"), "e2": ("e2", "d*"), "ebar2": ("ebar2", "d*"), "e3": ("e3", "deg"),
     "position_m": ("position", "m"), "heading_deg": ("heading", "deg"),
 }
-#: Short name of each statistic.
-STATISTIC_NAMES = {name: name for name in STATISTICS} | {"settling_time_s": "settling"}
+#: Short name of each statistic: ``final`` is a mean of absolute values beside signed
+#: statistics, so its name says so.
+STATISTIC_NAMES = {name: name for name in STATISTICS} | {"final": "final |.|", "settling_time_s": "settling"}
 
 #: Rows of the metrics table.
 METRIC_ROWS: tuple[Row, ...] = (
@@ -106,8 +107,98 @@ def new_table(headers: Sequence[str], plain: bool) -> Any:
         header_style=None if plain else "bold",
     )
     for index, header in enumerate(headers):
-        table.add_column(header, justify="left" if index == 0 else "right", no_wrap=plain)
+        table.add_column(header, justify="left" if index == 0 else "right")
     return table
+
+
+def _plain_text(cell: Any) -> str:
+    return cell.plain if hasattr(cell, "plain") else str(cell)
+
+
+def _table_like(table: Any, columns: Sequence[Any]) -> Any:
+    """A table styled like ``table`` holding ``columns`` (their headers, cells and widths)."""
+    from rich.table import Table
+
+    part = Table(box=table.box, pad_edge=table.pad_edge, show_edge=table.show_edge, header_style=table.header_style)
+    for column in columns:
+        part.add_column(column.header, justify=column.justify, min_width=column.min_width, width=column.width,
+                        no_wrap=column.no_wrap, overflow=column.overflow)
+    for cells in zip(*(list(column.cells) for column in columns)):
+        part.add_row(*cells)
+    return part
+
+
+#: Row labels of a table too wide for the terminal wrap to no fewer characters than this
+#: (or their longest word).
+LABEL_MIN_WIDTH = 24
+
+
+def _table_overhead(columns: int) -> int:
+    """Characters a table of ``columns`` columns spends beside its cells: each column's
+    padding (1 each side) and the rules between and around them (at most)."""
+    return 3 * columns + 1
+
+
+def fit_to_width(table: Any, console: Any, keys: int = 1) -> list[Any]:
+    """``table`` as tables no wider than ``console``: no value cell is ever cut or wrapped.
+
+    A table that fits is returned as it is. Otherwise each column after the first ``keys``
+    gets the width of its widest cell (a text wider than the room beside the labels, a long
+    path, is folded over lines), its header wraps between words, the first ``keys`` columns
+    (the row labels) wrap between words down to :data:`LABEL_MIN_WIDTH`, and the value
+    columns are dealt out to as many tables as the width needs, each repeating the labels.
+
+    Parameters
+    ----------
+    table : rich.table.Table
+        The table (its columns' widths are set when it does not fit).
+    console : rich.console.Console
+        Where it is printed: its width (characters) is the limit.
+    keys : int
+        How many leading columns label the rows (repeated in every part).
+
+    Returns
+    -------
+    list of rich.table.Table
+        ``[table]`` when it fits, else the parts in column order.
+    """
+    from rich.cells import cell_len
+
+    width = console.width
+
+    def texts(column: Any) -> list[str]:
+        return [_plain_text(column.header), *(_plain_text(cell) for cell in column.cells)]
+
+    def longest(pieces: Iterable[str]) -> int:
+        return max((cell_len(piece) for piece in pieces), default=1)
+
+    if sum(longest(texts(column)) for column in table.columns) + _table_overhead(len(table.columns)) <= width:
+        return [table]
+    labels, values = table.columns[:keys], table.columns[keys:]
+    for column in labels:
+        words = longest(word for text in texts(column) for word in text.split())
+        column.min_width = min(longest(texts(column)), max(words, LABEL_MIN_WIDTH))
+    label_width = sum(column.min_width for column in labels)
+    room = width - label_width - _table_overhead(keys + 1)
+    for column in values:
+        cells = longest(_plain_text(cell) for cell in column.cells)
+        header_words = longest(_plain_text(column.header).split())
+        column.width, column.overflow = max(1, min(room, max(cells, header_words))), "fold"
+    parts: list[list[Any]] = []
+    for column in values:
+        if parts and label_width + sum(c.width for c in parts[-1]) + column.width + _table_overhead(keys + len(parts[-1]) + 1) <= width:
+            parts[-1].append(column)
+        else:
+            parts.append([column])
+    return [_table_like(table, [*labels, *part]) for part in parts]
+
+
+def print_table(console: Any, table: Any, keys: int = 1) -> None:
+    """Print ``table`` on ``console`` in as many parts as its width needs (:func:`fit_to_width`)."""
+    for index, part in enumerate(fit_to_width(table, console, keys)):
+        if index:
+            console.print()
+        console.print(part)
 
 
 def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) -> Any:
@@ -160,7 +251,7 @@ def _error_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
     from rich.measure import Measurement
 
     plain = not console.is_terminal
-    sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees")]
+    sections = [("errors", IMAGE_ERRORS, "image errors (19), (27): e1, e2, ebar2 in units of d*, e3 in degrees; final |.|: mean of |.| over the last 5 %")]
     if any(r.pose_error is not None for r in reports):
         sections.append(("pose_error", POSE_ERRORS, "pose error against the taught path at the same time (ground truth)"))
     tables = []
@@ -177,9 +268,9 @@ def _verdict_table(reports: Sequence[RunReport], plain: bool) -> Any:
     from rich.text import Text
 
     table = new_table(["check", *run_labels(reports)], plain)
-    # The checks are sentences: left-aligned and wrapped.
+    # The checks are sentences: left-aligned and wrapped (a word wider than its column folds, never "…").
     for column in table.columns[1:]:
-        column.justify, column.no_wrap = "left", False
+        column.justify, column.no_wrap, column.overflow = "left", False, "fold"
 
     def styled(text: str, good: bool) -> Text:
         return Text(text, style="green" if good else "red")
@@ -222,17 +313,20 @@ def print_title(console: Any, text: str) -> None:
     console.print(Text(text, style="bold cyan" if console.is_terminal else ""))
 
 
-def print_report_tables(reports: Sequence[RunReport], stream: TextIO) -> None:
-    """Print the report on ``stream`` (stdout)."""
-    console = report_console(stream)
+def print_report_tables(reports: Sequence[RunReport], stream: TextIO, console: Any = None) -> None:
+    """Print the report on ``stream`` (stdout), or on ``console`` (a rich Console) when given."""
+    console = console or report_console(stream)
     plain = not console.is_terminal
     tables = report_tables(reports, console)
     for index, (title, table) in enumerate(tables):
         if index:
             console.print()
         print_title(console, title)
-        # The verdict wraps to the reader's terminal even through a pipe; number rows never wrap.
-        console.print(table, width=reading_width() if plain and index == len(tables) - 1 else None)
+        if index < len(tables) - 1:
+            print_table(console, table)
+        else:
+            # The verdict's sentences wrap to the reader's terminal even through a pipe.
+            console.print(table, width=min(console.width, reading_width()) if plain else None)
 
 
 def reading_width() -> int:
@@ -264,12 +358,12 @@ FIT_ROWS: tuple[tuple[str, str], ...] = (
 )
 
 
-def print_fit_table(summary: Mapping[str, Any], stream: TextIO) -> None:
-    """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream``."""
-    console = report_console(stream)
+def print_fit_table(summary: Mapping[str, Any], stream: TextIO, console: Any = None) -> None:
+    """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream`` (or ``console``)."""
+    console = console or report_console(stream)
     plain = not console.is_terminal
     table = new_table(["quantity", Path(str(summary["file"])).name], plain)
     for label, key in FIT_ROWS:
         table.add_row(label, format_value(resolve_key(summary, key)))
     print_title(console, "desired trajectory (Remark 1): raw homography decomposition against the splines")
-    console.print(table)
+    print_table(console, table)

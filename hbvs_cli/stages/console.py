@@ -37,9 +37,10 @@ class Console:
         self.rich.print(f"hbvs: warning: {message}", markup=False, style="yellow")
 
     def print(self, renderable: Any) -> None:
-        """A rich renderable (a table, a panel) on stderr, unless quiet."""
+        """A rich renderable (a table, a panel) on stderr, unless quiet: wrapped to the width,
+        title included (messages are soft-wrapped, one line each, by the terminal)."""
         if not self.quiet:
-            self.rich.print(renderable)
+            self.rich.print(renderable, soft_wrap=False)
 
     @contextmanager
     def status_line(self) -> Iterator[Any]:

@@ -27,7 +27,7 @@ from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
-from ..io.settings import FitOptions
+from ..io.settings import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
@@ -415,9 +415,23 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
         with threadpool_limits(limits=1, user_api="blas"):
             return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                          max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
+                                          max_lost=options.max_lost, max_gap=options.max_gap,
+                                          warn=console.warn if layout is None else layout_given_warn(console.warn),
+                                          shapes=shapes, kind=spec.kind)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
+
+
+#: The fit's advice to give the target's geometry, which --target-points has given already.
+KNOWN_GEOMETRY_ADVICE = "the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), "
+
+
+def layout_given_warn(warn: Callable[[str], None]) -> Callable[[str], None]:
+    """``warn`` for a fit given --target-points: its warnings no longer advise giving the
+    target's geometry (the layout is given; what is left to advise is the drive)."""
+    def told(message: str) -> None:
+        warn(message.replace(KNOWN_GEOMETRY_ADVICE, "").replace("what would pin it:", "the layout is given (--target-points); what would pin it more:"))
+    return told
 
 
 def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
@@ -633,6 +647,13 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
+    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
+    # (a value that is no depth at all is left to the model's own check: "repeat could not use").
+    if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
+        given, hint = (("the taught commands (25)", "are they in m/s and rad/s?") if chosen.source == "commands" else
+                       ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))
+        raise InputError(f"d* from {given} is {chosen.dhat0:.3g} m, outside the {MIN_DEPTH:g} to {MAX_DEPTH:g} m repeat accepts "
+                         f"as --dhat0: {hint}")
     return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
 
 
@@ -668,8 +689,12 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
         e = estimates["commands"]
         table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
     if estimates.get("target_size"):
-        table.add_row("d* from target size", f"{estimates['target_size']['dhat0']:.3f} m")
-    table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({model.dhat0_source})")
+        given = "--target-size" if options.target_size is not None else "--target-points"
+        table.add_row(f"d* from {given}", f"{estimates['target_size']['dhat0']:.3f} m")
+    source = model.dhat0_source
+    if source == "target-size" and options.target_size is None:
+        source = "--target-points"   # d* from the layout's two points farthest apart
+    table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({source})")
     from ..core.gains import dhat0_range_text
 
     g = model.gains

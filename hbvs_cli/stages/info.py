@@ -35,8 +35,26 @@ def _stamp(ns: int | None) -> str:
     return when.isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
+#: Significant digits of a number shown by ``hbvs info`` (``--json`` keeps every digit).
+SHOWN_DIGITS = 6
+
+
+def _rounded(value: Any) -> Any:
+    """``value`` with each float rounded to :data:`SHOWN_DIGITS` significant digits, for display:
+    a rate stored as 30.000000299999996 Hz reads 30."""
+    if isinstance(value, float):
+        shown = float(f"{value:.{SHOWN_DIGITS}g}")
+        return int(shown) if shown.is_integer() and abs(shown) < 1e15 else shown
+    if isinstance(value, dict):
+        return {key: _rounded(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_rounded(item) for item in value]
+    return value
+
+
 def _value(value: Any) -> str:
-    return value if isinstance(value, str) else json.dumps(value, separators=(",", ":"))
+    # A space after each comma: a long value wraps between its items, never inside a number.
+    return value if isinstance(value, str) else json.dumps(_rounded(value), separators=(", ", ":"))
 
 
 def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
@@ -67,6 +85,7 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
         rows.append(("settings", " ".join(shown)))
     label_width = max(len(label) for label, _ in rows) + 2
     for label, text in rows:
+        # Only a word longer than the room (a path) is folded over lines.
         lines = textwrap.wrap(text, max(20, width - label_width), break_on_hyphens=False) or [""]
         out.write(f"{label:<{label_width}}{lines[0]}\n")
         for line in lines[1:]:
@@ -76,10 +95,12 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
     name_width = max((len(t["topic"]) for t in topics), default=0)
     count_width = max((len(str(t["messages"])) for t in topics), default=0)
     for topic in topics:
-        out.write(
-            f"  {topic['topic']:<{name_width}}  {topic['messages']:>{count_width}} msgs  "
-            f"{topic['schema'] or '(no schema)'} [{topic['schema_encoding'] or topic['message_encoding']}]\n"
-        )
+        line = (f"  {topic['topic']:<{name_width}}  {topic['messages']:>{count_width}} msgs  "
+                f"{topic['schema'] or '(no schema)'} [{topic['schema_encoding'] or topic['message_encoding']}]")
+        # Too wide: the schema goes under the topic, indented, rather than past the width.
+        lines = textwrap.wrap(line, max(20, width), initial_indent="", subsequent_indent=" " * 6,
+                              break_on_hyphens=False, break_long_words=False, drop_whitespace=True)
+        out.write("\n".join([line] if len(line) <= width else ["  " + lines[0].lstrip(), *lines[1:]]) + "\n")
 
 
 def run_info(options: InfoOptions, console: Console) -> None:

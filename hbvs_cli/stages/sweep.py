@@ -159,7 +159,8 @@ def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None
         print_summary(summary, sys.stdout)
     sys.stdout.flush()
     if options.plots and rows:
-        for path in save_sweep_plots(Path(options.output)):
+        units = {name: parameter.unit for name, parameter in PARAMETERS.items()}
+        for path in save_sweep_plots(Path(options.output), units):
             console.info(f"sweep: figure {path}")
     failed = summary["runs"]["failed"]
     if failed:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Iterator
@@ -15,7 +16,7 @@ from ..core.path import PRESETS, CommandProfile, preset_profile
 from ..sim.world import World, default_world
 from ..errors import InputError, UsageError
 from ..io import sources
-from ..io.calibration import load_calibration
+from ..io.calibration import load_calibration, save_calibration_ros
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
@@ -25,6 +26,7 @@ from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
+from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
 from .console import Console
 from .options import parse_offset, recorded_settings
@@ -59,8 +61,9 @@ class TeachOptions(TeachFields):
         kind = self.source_kind()
         if kind == "sim":
             # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
+            # The extra outputs are left out, as the output is: the same drive, the same bytes.
             simulated = {key: value for key, value in recorded.items()
-                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd")}
+                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")}
             return {**simulated, "sim": True}
         names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
@@ -78,8 +81,9 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
     path_file = options.path if options.path not in PRESETS else None
-    refuse_overwriting_inputs([("-o", options.output)], [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
-                                                         ("--calibration", options.calibration), ("--path", path_file)])
+    refuse_overwriting_inputs([("-o", options.output), ("--video-out", options.video_out), ("--calibration-out", options.calibration_out)],
+                              [("--video", options.video), ("--bag", options.bag), ("--texture", options.texture),
+                               ("--calibration", options.calibration), ("--path", path_file)])
     kind = options.source_kind()
     if options.cmd_topic is not None and kind != "bag":
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
@@ -150,19 +154,30 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
     renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
     settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
-    with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
+    if options.video_out is not None:
+        check_video_path(options.video_out)
+    with ExitStack() as outputs:
+        writer = outputs.enter_context(open_output(options.output, chunk_size=TEACH_CHUNK_BYTES))
+        video = None if options.video_out is None else outputs.enter_context(
+            video_output(options.video_out, options.fps, (world.camera.width, world.camera.height)))
         teach = TeachWriter(writer, "sim", settings, world)
         teach.calibration(world.camera, SIMULATION_EPOCH_NS)
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
+                if video is not None:
+                    video.write(image)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
                     SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
                     pose=tuple(pose), camera_height=world.camera_height, command=(float(v), float(w)),
                 )
                 bar.advance()
-    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}")
+    if options.calibration_out is not None:
+        save_calibration_ros(world.camera, options.calibration_out, camera_name="hbvs_simulated")
+    extras = "".join(f", {what} {path}" for what, path in (("video", options.video_out), ("calibration", options.calibration_out))
+                     if path is not None)
+    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}{extras}")
 
 
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
@@ -179,8 +194,14 @@ def _open_source(kind: str, options: TeachOptions) -> sources.FrameSource:
         from ..io.sources.ros2_topic import Ros2TopicSource  # lazy: an optional extra
 
         return Ros2TopicSource(options.ros2_image, options.ros2_cmd, options.duration)
-    spec = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
+    spec: Any = {"video": options.video, "images": options.images, "camera": options.camera, "bag": options.bag}[kind]
     fps = DEFAULT_FPS if kind == "images" and options.fps is None else options.fps
+    if kind == "camera":
+        # What repeat --live --camera takes: an index, a device path, a URL; a video file is a video.
+        device = str(spec).strip()
+        if Path(device).is_file():
+            return sources.open_source("video", device, fps=fps)
+        spec = int(device) if device.isdigit() else device
     return sources.open_source(kind, spec, fps=fps, duration=options.duration, topic=options.topic, cmd_topic=options.cmd_topic)
 
 
@@ -203,8 +224,6 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
-        # A bag's frames keep its stamps, so the recording lines up with the bag.
-        teach.calibration(camera, getattr(source, "time_base_ns", 0))
         total = source.describe().get("frames")
         with console.progress(f"teach ({kind})", total) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
@@ -217,6 +236,11 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
+                    if frames == 0:
+                        # Logged at the first frame's time: frames keep their source's stamps (a bag's,
+                        # a ROS 2 topic's), which a live source knows only once the first arrives;
+                        # logged at 0 it made the recording start in 1970.
+                        teach.calibration(camera, log_time_ns)
                     teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
                     last_t = frame.t

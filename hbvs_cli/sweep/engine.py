@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import re
 import time
 from collections import deque
 from contextlib import contextmanager
@@ -46,15 +47,36 @@ def default_workers() -> int:
 HEALTH_ONLY = ["distributed.http.health"]
 
 
+#: A host name: labels of letters, digits and hyphens, at least one letter (all digits would be
+#: read as an IPv4 number: "0" is 0.0.0.0).
+_HOST_NAME = re.compile(r"(?=.*[A-Za-z])[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*")
+
+
 def dashboard_address(text: str | None) -> str | None:
-    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given."""
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given,
+    where HOST is a dotted IPv4 address or a host name. Every other spelling is a
+    :class:`UsageError` before anything is written: ``0`` and ``*`` (they would listen on
+    every interface, which only a named 0.0.0.0 may), and IPv6 (``[::1]``, ``::``), which
+    Dask's dashboard does not serve."""
     if text is None:
         return None
-    host, sep, port = text.strip().rpartition(":")
+    import ipaddress
+
+    usage = f"--dashboard must be PORT or HOST:PORT with HOST an IPv4 address or a host name (e.g. 8787 or 127.0.0.1:8787), got {text!r}"
+    stripped = text.strip()
+    if stripped.startswith("[") or re.fullmatch(r"[0-9A-Fa-f:]*::?[0-9A-Fa-f:]*:?\d+", stripped) and stripped.count(":") > 1:
+        raise UsageError(f"{usage}: IPv6 addresses are not served; use 127.0.0.1 (or 0.0.0.0 for every interface)")
+    host, sep, port = stripped.rpartition(":")
     if not sep:
         host = "127.0.0.1"
-    if not port.isdigit() or int(port) > 65535 or not host or any(c.isspace() or c in "/@" for c in host):
-        raise UsageError(f"--dashboard must be PORT or HOST:PORT (e.g. 8787 or 127.0.0.1:8787), got {text!r}")
+    if not port.isdigit() or int(port) > 65535:
+        raise UsageError(usage)
+    try:
+        ipaddress.IPv4Address(host)
+    except ValueError:
+        if not _HOST_NAME.fullmatch(host):
+            reason = " (it would listen on every interface: name 0.0.0.0 for that)" if host in ("0", "*", "") else ""
+            raise UsageError(usage + reason) from None
     return f"{host}:{int(port)}"
 
 

@@ -16,70 +16,16 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..core.control_settings import GAIN_NAMES, GAIN_UNITS
 from ..core.laws import law_names
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
 from ..io.settings import REPEAT, SWEEP
+from .parameters import PARAMETERS
 
 #: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
 SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
 
 
-@dataclass(frozen=True)
-class Parameter:
-    """A parameter a sweep can vary or fix: ``kind`` float, int or choice; ``setting`` the
-    ``hbvs repeat`` option whose bounds it shares, else ``own_bounds`` (min, max)."""
-
-    name: str
-    kind: str
-    unit: str
-    setting: str | None = None
-    choices: tuple[str, ...] = ()
-    own_bounds: Mapping[str, float] = field(default_factory=dict)
-
-    @property
-    def bounds(self) -> Mapping[str, float]:
-        return REPEAT[self.setting].bounds if self.setting is not None else self.own_bounds
-
-    def bound_violation(self, value: float) -> str | None:
-        """Why ``value`` is out of bounds (``repeat``'s words for its options), or None."""
-        if self.setting is not None:
-            return REPEAT[self.setting].bound_violation(value)
-        low, high = self.own_bounds.get("min", -math.inf), self.own_bounds.get("max", math.inf)
-        if not low <= value <= high:
-            return f"{self.name} must be within [{low:g}, {high:g}], got {value!r}"
-        return None
-
-
-def _repeat_parameter(name: str, kind: str, unit: str, choices: tuple[str, ...] = ()) -> Parameter:
-    return Parameter(name, kind, unit, setting=name, choices=choices)
-
-
-#: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
-PARAMETERS: dict[str, Parameter] = {
-    p.name: p
-    for p in (
-        Parameter("offset_x", "float", "m"),  # --offset DX, along the taught start heading
-        Parameter("offset_y", "float", "m"),  # --offset DY, to the left
-        Parameter("offset_theta", "float", "deg"),  # --offset DTHETA
-        _repeat_parameter("dhat0", "float", "m"),
-        Parameter("dhat0_factor", "float", "x d*", own_bounds={"min": 0.0}),  # --dhat0 as a multiple of the true d*
-        _repeat_parameter("pixel_noise", "float", "px"),
-        # The gains (29)-(31); a dimensionless one has no unit.
-        *(_repeat_parameter(name, "float", GAIN_UNITS[name].replace("-", "")) for name in GAIN_NAMES),
-        _repeat_parameter("law", "choice", "", choices=law_names()),
-        _repeat_parameter("drop_rate", "float", ""),
-        _repeat_parameter("outlier_rate", "float", ""),
-        Parameter("occlusion_start", "float", "s", own_bounds={"min": 0.0}),  # --occlude START:END
-        Parameter("occlusion_length", "float", "s", own_bounds={"min": 0.0}),  # 0: no occlusion
-        _repeat_parameter("latency", "int", "frames"),
-        _repeat_parameter("perception", "choice", "", choices=("points", "images")),
-        _repeat_parameter("rate", "float", "Hz"),
-        _repeat_parameter("speed", "float", ""),
-        _repeat_parameter("lost_timeout", "float", "s"),
-    )
-}
 #: The start offset ``hbvs repeat`` uses when none is given (m, m, deg).
 DEFAULT_OFFSET = tuple(float(v) for v in REPEAT["offset"].fallback.split(","))
 #: The occlusion window starts here when only its length is swept.
@@ -123,8 +69,10 @@ def _check_value(name: str, value: Any, where: str) -> Any:
     """A parameter value of the right type and range."""
     parameter = PARAMETERS[name]
     if parameter.kind == "choice":
-        if not isinstance(value, str) or value not in parameter.choices:
-            raise UsageError(f"{where}: {name} must be one of {', '.join(parameter.choices)}, got {value!r}")
+        # The laws are those registered (core/laws.py), the shipped ones and any added since.
+        choices = law_names() if name == "law" else parameter.choices
+        if not isinstance(value, str) or value not in choices:
+            raise UsageError(f"{where}: {name} must be one of {', '.join(choices)}, got {value!r}")
         return value
     if isinstance(value, str):
         try:
