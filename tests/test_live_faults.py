@@ -276,3 +276,21 @@ def test_robot_sim_ignores_commands_no_base_could_follow(tmp_path, request):
     rows = [json.loads(line) for line in poses.read_text().splitlines()]
     assert rows and all(math.isfinite(row[key]) for row in rows for key in ("x", "y", "phi", "v", "w"))
     assert rows[-1]["v"] == 0.1
+
+
+@pytest.mark.campaign
+def test_a_live_run_on_stdout_is_kept_whole_when_it_stops_on_a_fault(tmp_path, listen, request):
+    """``-o -`` holds a stage's first bytes back until it succeeds (a failed pipeline stage leaves an
+    empty pipe); a live run's record is kept on every stop, on stdout as in a file."""
+    if "campaign" not in (request.config.option.markexpr or ""):
+        pytest.skip("runs with: pytest -m campaign tests/test_live_faults.py")
+    env = dds_env()
+    listener = listen(env)
+    robot, _ = robot_sim(env, tmp_path, "--stamp-fault", "jump:5@1", duration=60.0)
+    with open(tmp_path / "live.mcap", "wb") as out:
+        live = subprocess.run([*HBVS, "repeat", str(FIT), "--live", "--ros2-image", "/camera/image_raw", "-o", "-", "-q"],
+                              stdout=out, stderr=subprocess.PIPE, text=True, env=env, timeout=90)
+    stop(robot)
+    listener.close()
+    assert live.returncode == 10, live.stderr
+    assert_kept_with_reason(tmp_path / "live.mcap", "ahead of this host's clock")

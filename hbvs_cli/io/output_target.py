@@ -372,9 +372,13 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
         try:
             yield sink
         except HbvsError:
-            # The stage failed (and says why): the little it held back is no file. A stop
-            # signal keeps what was written, the start of a recording.
-            sink.stream.discard()
+            # The stage failed (and says why): the little it held back is no file, unless it is
+            # kept on errors (a live run's record). A stop signal keeps what was written, the
+            # start of a recording.
+            if keep_on_error:
+                sink.stream.flush()
+            else:
+                sink.stream.discard()
             raise
         sink.stream.flush()
         return
