@@ -9,8 +9,6 @@ tests/test_live_base.py`` drives the whole trajectory at its pace three times.
 from __future__ import annotations
 
 import math
-import signal
-import subprocess
 
 import numpy as np
 import pytest
@@ -19,7 +17,7 @@ pytest.importorskip("cyclonedds")
 
 from hbvs_cli.core.simulator import ActuatorLimits  # noqa: E402
 from hbvs_cli.io.run_file import read_run  # noqa: E402
-from test_live_loop import FIT, HBVS, dds_env, live_final_errors, robot_sim, stop  # noqa: E402
+from test_live_loop import dds_env, drive_stand_in  # noqa: E402
 
 #: robot-sim's ``small`` base, as repeat is told it.
 LIMITS = {"--max-v": 0.26, "--max-w": 1.8, "--max-accel": 0.6, "--base-lag": 0.12}
@@ -28,20 +26,8 @@ D_STAR = 4.0
 
 
 def drive_small_base(tmp_path, speed: float) -> tuple[float, float, object]:
-    env = dds_env()
-    robot, poses = robot_sim(env, tmp_path, "--base", "small", duration=20.0 / speed + 60.0)
     options = [str(x) for pair in LIMITS.items() for x in pair]
-    live = subprocess.Popen([*HBVS, "repeat", str(FIT), "--live", "--ros2-image", "/camera/image_raw", "--speed", str(speed),
-                             "-o", str(tmp_path / "live.mcap"), "-q", *options],
-                            stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        _, err = live.communicate(timeout=150)
-        assert live.returncode == 0, err
-        robot.send_signal(signal.SIGINT)
-        robot.wait(timeout=30)
-    finally:
-        stop(live, robot)
-    position, heading = live_final_errors(tmp_path / "live.mcap", poses, speed)
+    position, heading = drive_stand_in(dds_env(), tmp_path, speed, ["--base", "small"], options)
     return position, heading, read_run(tmp_path / "live.mcap")
 
 

@@ -173,21 +173,28 @@ def sim_final_errors(tmp_path, speed: float) -> tuple[float, float]:
     return report.pose_error["position_m"].final, abs(report.pose_error["heading_deg"].final)
 
 
-def converge_like_sim(tmp_path, listen, speed: float, jpeg: bool = False) -> dict:
-    env = dict(dds_env())
-    listener = listen(env)
-    # Ended by Ctrl-C once the run is over.
-    robot, poses = robot_sim(env, tmp_path, *(["--image-format", "jpeg"] if jpeg else []), duration=20.0 / speed + 60.0)
-    live = repeat_live(env, tmp_path, "--speed", str(speed), topic="/camera/image_raw" + ("/compressed" if jpeg else ""))
+def drive_stand_in(env, tmp_path, speed: float, robot_options=(), live_options=(), topic="/camera/image_raw") -> tuple[float, float]:
+    """robot-sim and ``repeat --live`` to the taught trajectory's end (exit 0); the final position (m)
+    and heading (deg) errors (:func:`live_final_errors`)."""
+    # The stand-in is ended by Ctrl-C once the run is over.
+    robot, poses = robot_sim(env, tmp_path, *robot_options, duration=20.0 / speed + 60.0)
+    live = repeat_live(env, tmp_path, "--speed", str(speed), *live_options, topic=topic)
     try:
-        _, err = live.communicate(timeout=120)
+        _, err = live.communicate(timeout=150)
         assert live.returncode == 0, err
         robot.send_signal(signal.SIGINT)
         robot.wait(timeout=30)
     finally:
         stop(live, robot)
+    return live_final_errors(tmp_path / "live.mcap", poses, speed)
+
+
+def converge_like_sim(tmp_path, listen, speed: float, jpeg: bool = False) -> dict:
+    env = dict(dds_env())
+    listener = listen(env)
+    position, heading = drive_stand_in(env, tmp_path, speed, ["--image-format", "jpeg"] if jpeg else [],
+                                       topic="/camera/image_raw" + ("/compressed" if jpeg else ""))
     commands = listener.commands()
-    position, heading = live_final_errors(tmp_path / "live.mcap", poses, speed)
     sim_position, sim_heading = sim_final_errors(tmp_path, speed)
     print(f"speed {speed}: live final {100 * position:.3f} cm, {heading:.3f} deg; sim {100 * sim_position:.3f} cm, {sim_heading:.3f} deg")
     assert position <= 2 * sim_position + 0.005
