@@ -109,7 +109,7 @@ class TargetLostError(HbvsError):
     exit_code = 5
 
 
-class CameraClockError(HbvsError):
+class CameraClockError(DomainError):
     """A live camera's time stamps ran ahead of this host's clock or stepped back (a clock jump,
     or two clocks on one topic): the taught trajectory must never run faster than real time."""
 
