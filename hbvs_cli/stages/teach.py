@@ -20,8 +20,10 @@ from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
 from ..io.mcap import open_output, seconds_to_ns
+from ..io.dds_discovery import describe_dds
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
+from ..io.ros2_names import check_topic_names
 from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..sim.render import make_renderer
@@ -84,6 +86,8 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     if options.ros2_cmd is not None and kind != "ros2":
         raise UsageError(f"--ros2-cmd goes with --ros2-image, not --{kind}")
+    if kind == "ros2":
+        check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if kind == "sim":
         _teach_simulated(options.for_simulation(), console)
     else:
@@ -191,6 +195,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     if options.fps is not None and kind in ("camera", "bag", "ros2"):
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps" if kind == "bag" else "their header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
+    if kind == "ros2":
+        console.info(f"teach: waiting for {options.ros2_image}; {describe_dds()}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:
