@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -222,3 +223,32 @@ def test_two_processes_talk_over_loopback(tmp_path):
     out, _ = listener.communicate(timeout=60)
     assert talker.returncode == 0
     assert out.strip() == "[0.0, 0.1, 0.2, 0.30000000000000004, 0.4]"
+
+
+INVALID_NAMES = ["/a?b*", "/ünï", "/1abc", "~/cmd", "//x", "/x/"]
+
+
+@pytest.mark.parametrize("name", INVALID_NAMES)
+@pytest.mark.parametrize("command, option", [
+    (["repeat", "FIT", "--live", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "NAME"], "--ros2-cmd"),
+    (["repeat", "FIT", "--live", "--ros2-image", "NAME"], "--ros2-image"),
+    (["robot-sim", "FIT", "--ros2", "--image-topic", "NAME", "--duration", "1"], "--image-topic"),
+    (["robot-sim", "FIT", "--ros2", "--cmd-topic", "NAME", "--duration", "1"], "--cmd-topic"),
+    (["teach", "--ros2-image", "NAME"], "--ros2-image"),
+    (["teach", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "NAME"], "--ros2-cmd"),
+])
+def test_invalid_ros2_names_are_one_line_usage_errors(tmp_path, monkeypatch, command, option, name):
+    """Exit 2, one line naming the option, nothing written; DDS (if joined at all) on loopback."""
+    from conftest import call_hbvs
+
+    monkeypatch.delenv("CYCLONEDDS_URI", raising=False)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(211 + os.getpid() % 10))
+    fit = str(Path(__file__).resolve().parents[1] / "samples" / "fit.mcap")
+    output = tmp_path / "out.mcap"
+    arguments = [fit if a == "FIT" else name if a == "NAME" else a for a in command]
+    result = call_hbvs(*arguments, *(["--poses-out", str(output)] if command[0] == "robot-sim" else ["-o", str(output)]))
+    lines = result.stderr.decode().strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1, lines
+    assert lines[0].startswith(f"hbvs: error: {option} {name!r} is not a ROS 2 topic name"), lines
+    assert not output.exists()
