@@ -12,8 +12,8 @@ Cases, for Jazzy and Kilted, each with hbvs started before and after the ROS 2 n
 * hbvs's commands (``repeat --live``'s CommandPublisher, 30 Hz) read by a ROS 2 node on /cmd_vel;
 * ``hbvs robot-sim --ros2`` itself seen by a ROS 2 subscriber of either QoS.
 
-Targets: >= 95 % of the frames, every command. The figures are printed (``-s``) and summed up at
-the end. Runs only with ``-m ros2_real``, with the venvs in ``HBVS_ROS2_VENVS`` (default
+Targets: >= 95 % of the frames, every command. The figures are printed (``-s``) and listed at
+the end of the run (conftest's ``pytest_terminal_summary``). Runs only with ``-m ros2_real``, with the venvs in ``HBVS_ROS2_VENVS`` (default
 ``~/.cache/hbvs-ros2``; ``.ci/ros2_venvs`` builds them), else skips.
 """
 
@@ -71,17 +71,15 @@ def release(request) -> str:
     return request.param
 
 
-@pytest.fixture(scope="module", autouse=True)
-def summary(request):
-    """The figures of every case, at the end of the run (also in docs/robot.md)."""
+@pytest.fixture(autouse=True)
+def matrix_rows(request):
+    """Where :func:`record` puts this case's row, for the run's summary (conftest's ROS2_MATRIX)."""
+    from conftest import ROS2_MATRIX
+
+    rows = request.config.stash.setdefault(ROS2_MATRIX, [])
+    RESULTS.clear()
     yield
-    if RESULTS:
-        reporter = request.config.pluginmanager.get_plugin("terminalreporter")
-        write = reporter.write_line if reporter is not None else print
-        write("")
-        write("ROS 2 middleware matrix (release | case | QoS | started first | received):")
-        for line in RESULTS:
-            write("  " + line)
+    rows.extend(RESULTS)
 
 
 def environments() -> tuple[dict[str, str], dict[str, str]]:
