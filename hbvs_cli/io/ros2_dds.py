@@ -161,7 +161,7 @@ def domain_id() -> int:
 
 
 def loopback_config() -> str:
-    """A Cyclone DDS configuration (``CYCLONEDDS_URI``, 0.10 and later) that keeps DDS on this machine:
+    """A Cyclone DDS configuration (a ``CYCLONEDDS_URI``; Cyclone DDS 11 and later) that keeps DDS on this machine:
     ``lo`` only, no multicast, unicast discovery of 127.0.0.1 (what ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
     gives, :func:`.dds_discovery.dds_settings`)."""
     return dds_settings({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}).config
