@@ -5,6 +5,7 @@ wheels, where hbvs is not importable):
     python node.py camera  --topic T --format raw|jpeg [--jpeg-file F] --qos sensor|default --rate HZ --count N
     python node.py images  --topic T --qos sensor|default --seconds S     (counts Image/CompressedImage)
     python node.py twists  --topic T --seconds S                          (counts Twist, default QoS)
+    python node.py relay   --topic T --seconds S [--stop-file F]  (T and its camera_info -> /robot/...; /robot/cmd_vel -> /cmd_vel)
 
 Each prints ``{"ready": ...}`` once its node is up, then one last JSON line with what it sent or
 received; stdout only. A camera waits for a subscriber before its first frame (what a late
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import array
 import json
+import os
 import time
 
 import rclpy
@@ -98,6 +100,33 @@ def twists(node, options) -> None:
     emit(received=len(received), v=[v for v, _ in received], w=[w for _, w in received])
 
 
+def relay(node, options) -> None:
+    """A ROS 2 node between hbvs's robot and hbvs's controller: ``--topic``'s Image (and its
+    camera_info) republished under /robot, and /robot/cmd_vel's Twists republished on /cmd_vel,
+    each with ROS 2's default QoS, for ``--seconds`` or until ``--stop-file`` exists (rclpy takes
+    Ctrl-C and SIGTERM for itself)."""
+    image_out = node.create_publisher(Image, "/robot" + options.topic, qos("default"))
+    info_topic = options.topic.rsplit("/", 1)[0] + "/camera_info"
+    info_out = node.create_publisher(CameraInfo, "/robot" + info_topic, qos("default"))
+    twist_out = node.create_publisher(Twist, "/cmd_vel", qos("default"))
+    counts = {"images": 0, "infos": 0, "twists": 0}
+
+    def forward(publisher, key):
+        def callback(message):
+            publisher.publish(message)
+            counts[key] += 1
+        return callback
+
+    node.create_subscription(Image, options.topic, forward(image_out, "images"), qos("default"))
+    node.create_subscription(CameraInfo, info_topic, forward(info_out, "infos"), qos("default"))
+    node.create_subscription(Twist, "/robot/cmd_vel", forward(twist_out, "twists"), qos("default"))
+    emit(ready=True)
+    deadline = time.monotonic() + options.seconds
+    while time.monotonic() < deadline and not (options.stop_file and os.path.exists(options.stop_file)):
+        rclpy.spin_once(node, timeout_sec=0.05)
+    emit(**counts)
+
+
 def _spin(node, seconds: float, received: list) -> None:
     """Until ``seconds`` pass, or :data:`IDLE_S` without a message once some came."""
     emit(ready=True)
@@ -111,7 +140,7 @@ def _spin(node, seconds: float, received: list) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("role", choices=("camera", "images", "twists"))
+    parser.add_argument("role", choices=("camera", "images", "twists", "relay"))
     parser.add_argument("--topic", required=True)
     parser.add_argument("--qos", choices=("sensor", "default"), default="default")
     parser.add_argument("--format", choices=("raw", "jpeg"), default="raw")
@@ -119,14 +148,15 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--count", type=int, default=90)
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--stop-file", help="relay: end once this file exists")
     options = parser.parse_args()
     rclpy.init()
     node = rclpy.create_node(f"hbvs_test_{options.role}")
     try:
-        {"camera": camera, "images": images, "twists": twists}[options.role](node, options)
+        {"camera": camera, "images": images, "twists": twists, "relay": relay}[options.role](node, options)
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()
 
 
 if __name__ == "__main__":
