@@ -2,8 +2,7 @@
 into the Eclipse Cyclone DDS configuration hbvs joins the domain with, and the one line the live
 stages print about it. Pure text: no DDS binding is needed to compute or test it.
 
-ROS 2 reads three variables (rcl's discovery options, REP 2005's successor design "Improved
-Dynamic Discovery"):
+ROS 2 reads three variables (rcl's discovery options, since Iron):
 
 * ``ROS_AUTOMATIC_DISCOVERY_RANGE``: ``OFF`` (no discovery outside the process), ``LOCALHOST``
   (this machine only), ``SUBNET`` (multicast on the local network, the default),
@@ -16,10 +15,12 @@ Dynamic Discovery"):
 ``CYCLONEDDS_URI``, when set, is the whole network configuration (it wins over the three).
 Whatever the source, hbvs adds one compatibility setting: type information from eProsima's Fast
 DDS (RTPS vendor 1.15) is ignored, so endpoints match by type name as with every other ROS 2
-middleware. Fast DDS 3 (ROS 2 Kilted) sends TypeObjects for sequences whose element flags
-Cyclone rejects as invalid, and an endpoint whose type cannot be resolved never matches: without
-this no ``Image``, ``CompressedImage`` or ``CameraInfo`` crossed (measured in
-``tests/test_ros2_real.py``).
+middleware. Fast DDS 3 (ROS 2 Kilted) announces XTypes type information, and Cyclone finds the
+TypeObjects it then receives for the ``uint8[]`` sequences invalid ("ddsi_xt_type_init_impl with
+invalid type object" for a PLAIN_SEQUENCE_SMALL, in Cyclone's discovery trace); an endpoint whose
+type cannot be resolved never matches, so no ``Image``, ``CompressedImage`` or ``CameraInfo``
+crossed either way (``Twist``, without sequences, did). Cyclone's ``AllowInvalidTryConstruct``
+alone did not make them match; ignoring the type information did (``tests/test_ros2_real.py``).
 """
 
 from __future__ import annotations
