@@ -182,10 +182,12 @@ def test_discovery_off_is_a_usage_error():
         dds_settings({"ROS_AUTOMATIC_DISCOVERY_RANGE": "off", "ROS_STATIC_PEERS": "127.0.0.1"})
 
 
-def test_every_configuration_is_one_cyclone_accepts(tmp_path):
-    """Each configuration joins a domain in a fresh process (a domain is made once per process)."""
-    environs = [{}, {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_STATIC_PEERS": "127.0.0.2"}, {"ROS_LOCALHOST_ONLY": "1"},
-                {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT"}, {"CYCLONEDDS_URI": dds.loopback_config()}]
+def test_every_loopback_configuration_is_one_cyclone_accepts(tmp_path):
+    """Each configuration joins a domain in a fresh process (a domain is made once per process). Only
+    those whose traffic stays on loopback: SUBNET and SYSTEM_DEFAULT would multicast on the machine's
+    network (their XML is the same elements, minus the interface)."""
+    environs = [{"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_STATIC_PEERS": "127.0.0.2"}, {"ROS_LOCALHOST_ONLY": "1"},
+                {"CYCLONEDDS_URI": dds.loopback_config()}]
     script = "from hbvs_cli.io import ros2_dds as dds; node = dds.Ros2Node(); print(node.description)"
     for extra in environs:
         env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "CYCLONEDDS"))}
