@@ -485,6 +485,19 @@ def pytest_collection_modifyitems(session, config, items):
         start_demo(shared_pipeline_folder(config._tmp_path_factory))
 
 
+#: Rows of the real-ROS-2 matrix (tests/test_ros2_real.py), shown after the run.
+ROS2_MATRIX = pytest.StashKey[list]()
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """The real-ROS-2 matrix's figures (a fixture's output would be captured): docs/robot.md quotes them."""
+    rows = config.stash.get(ROS2_MATRIX, [])
+    if rows:
+        terminalreporter.write_sep("-", "ROS 2 middleware matrix (release | case | QoS | started first | received)")
+        for row in rows:
+            terminalreporter.write_line(row)
+
+
 def pytest_sessionfinish(session, exitstatus):
     """The demo is waited for (another worker may still need it), or stopped on Ctrl-C."""
     import signal

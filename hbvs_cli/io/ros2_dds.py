@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import InputError, UsageError
+from .dds_discovery import dds_settings
+from .ros2_names import full_topic_name
 from .topics import (
     ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_IMAGE_SCHEMA, ROS_POSE_STAMPED_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
@@ -15,7 +17,7 @@ from .topics import (
 INSTALL_HINT = "ROS 2 topics need Eclipse Cyclone DDS's Python binding: pip install 'hbvs[ros2]'"
 
 try:
-    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.domain import Domain, DomainParticipant
     from cyclonedds.idl import IdlStruct
     from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
     from cyclonedds.pub import DataWriter
@@ -112,13 +114,9 @@ def seconds_of(stamp: Time) -> float:
 
 
 def dds_topic_name(ros_name: str) -> str:
-    """The DDS topic of a ROS 2 topic: ``/cmd_vel`` -> ``rt/cmd_vel``."""
-    name = ros_name.strip()
-    if not name.startswith("/"):
-        name = "/" + name
-    if name == "/" or "//" in name or name.endswith("/") or any(c.isspace() for c in name):
-        raise UsageError(f"not a ROS 2 topic name: {ros_name!r}")
-    return "rt" + name
+    """The DDS topic of a ROS 2 topic: ``/cmd_vel`` (or ``cmd_vel``) -> ``rt/cmd_vel``; a name ROS 2
+    refuses is a :class:`UsageError` (:func:`.ros2_names.full_topic_name`)."""
+    return "rt" + full_topic_name(ros_name)
 
 
 def camera_info_topic(image_topic: str) -> str:
@@ -133,6 +131,14 @@ def camera_info_topic(image_topic: str) -> str:
 def command_qos() -> Qos:
     """ROS 2's default QoS: reliable, keep last 10, volatile."""
     return Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(10), Policy.Durability.Volatile)
+
+
+def camera_qos() -> Qos:
+    """What a camera offers: reliable, keep last 1, volatile. Reliable matches ROS 2 subscribers of either
+    profile (a best-effort writer gets none with the default, reliable one: "incompatible QoS"), and a
+    reliable reader gets each lost fragment of a large image sent again; keep last 1 resends only the
+    newest frame, never a stale one."""
+    return Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(1), Policy.Durability.Volatile)
 
 
 def sensor_qos() -> Qos:
@@ -155,26 +161,34 @@ def domain_id() -> int:
 
 
 def loopback_config() -> str:
-    """A Cyclone DDS configuration (``CYCLONEDDS_URI``, 0.10 and later) that keeps DDS on this machine:
-    ``lo`` only, no multicast, unicast discovery of 127.0.0.1."""
-    return (
-        '<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">'
-        "<General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
-        "<AllowMulticast>false</AllowMulticast></General>"
-        "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>60</MaxAutoParticipantIndex>"
-        '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
-        "</Domain></CycloneDDS>"
-    )
+    """A Cyclone DDS configuration (a ``CYCLONEDDS_URI``; Cyclone DDS 11 and later) that keeps DDS on this machine:
+    ``lo`` only, no multicast, unicast discovery of 127.0.0.1 (what ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
+    gives, :func:`.dds_discovery.dds_settings`)."""
+    return dds_settings({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}).config
+
+
+#: The domains this process made, by id: alive as long as the process (a participant needs its domain).
+_DOMAINS: dict[int, Any] = {}
+
+
+def _join_domain(domain: int, config: str) -> None:
+    """Make domain ``domain`` with ``config`` once per process: a participant created afterwards joins
+    it (else Cyclone would make one from ``CYCLONEDDS_URI`` alone)."""
+    if domain not in _DOMAINS:
+        _DOMAINS[domain] = Domain(domain, config)
 
 
 class Ros2Node:
     """One DDS participant on ``ROS_DOMAIN_ID``, with its ROS 2 publishers and subscribers."""
 
     def __init__(self) -> None:
+        settings = dds_settings()
+        self.description = settings.description
         try:
+            _join_domain(domain_id(), settings.config)
             self.participant = DomainParticipant(domain_id())
         except Exception as exc:  # the binding raises DDSException with a return code
-            raise InputError(f"DDS: cannot join domain {domain_id()} ({exc}); check CYCLONEDDS_URI") from None
+            raise InputError(f"DDS: cannot join domain {domain_id()} ({exc}); check CYCLONEDDS_URI and ROS_STATIC_PEERS") from None
         self._topics: dict[str, Any] = {}
 
     def _topic(self, ros_name: str, message_type: type) -> Any:

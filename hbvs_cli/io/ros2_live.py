@@ -11,6 +11,7 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..errors import InputError
 from . import ros2_dds as dds
+from .ros2_names import full_topic_name
 from .sources.frame_source import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
 from .sources.rosbag import BagSource
@@ -33,6 +34,7 @@ class LatestImage:
     """The newest frame of an image topic, with the sensor-data QoS."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
+        full_topic_name(topic, "--ros2-image")
         self.topic = topic
         self.message_type = image_message_type(topic)
         self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
@@ -136,6 +138,7 @@ class CommandPublisher:
     def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
         from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
 
+        full_topic_name(topic, "--ros2-cmd")
         self.topic = topic
         self.stamped = stamped
         message_type = dds.TwistStamped if stamped else dds.Twist

@@ -21,6 +21,7 @@ from ..errors import InputError, UsageError
 from ..io.fit_file import read_fit_file
 from ..io.images import encode_image
 from ..io.output_target import open_text_output
+from ..io.ros2_names import check_topic_names
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
@@ -47,12 +48,12 @@ class _Ros2Robot:
         )
         node = dds.Ros2Node()
         image_topic = options.image_topic + ("/compressed" if self.jpeg else "")
-        self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.sensor_qos())
-        self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.sensor_qos())
+        self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.camera_qos())
+        self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.camera_qos())
         self.pose_writer = node.publisher(ROS_TRUE_POSE_TOPIC, dds.PoseStamped, dds.command_qos())
         self.stamped = stamped_commands(options.cmd_type)
         self.commands = node.subscriber(options.cmd_topic, dds.TwistStamped if self.stamped else dds.Twist, dds.command_qos())
-        self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()})"
+        self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()}); {node.description}"
 
     def take_commands(self) -> list[tuple[float, float]]:
         received = []
@@ -220,6 +221,8 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     if options.image_format not in ("raw", "jpeg"):
         raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
     stamped_commands(options.cmd_type)
+    if options.ros2:
+        check_topic_names((options.image_topic, "--image-topic"), (options.cmd_topic, "--cmd-topic"))
     fit = read_fit_file(options.input)
     model = fit.model
     rate = float(options.rate) if options.rate is not None else 1.0 / model.taught_frame_interval()

@@ -22,8 +22,10 @@ from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
 from ..stop_signals import Terminated
 from ..io.mcap import open_output, seconds_to_ns
+from ..io.dds_discovery import describe_dds
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
+from ..io.ros2_names import check_topic_names
 from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
@@ -89,6 +91,8 @@ def run_teach(options: TeachOptions, console: Console) -> None:
         raise UsageError(f"--cmd-topic goes with --bag, not --{kind}")
     if options.ros2_cmd is not None and kind != "ros2":
         raise UsageError(f"--ros2-cmd goes with --ros2-image, not --{kind}")
+    if kind == "ros2":
+        check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if kind == "sim":
         _teach_simulated(options.for_simulation(), console)
     else:
@@ -213,6 +217,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     if options.fps is not None and kind in ("camera", "bag", "ros2"):
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps" if kind == "bag" else "their header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
+    if kind == "ros2":
+        console.info(f"teach: waiting for {options.ros2_image}; {describe_dds()}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:

@@ -1,0 +1,125 @@
+"""Where hbvs's DDS looks for the robot: ROS 2's own discovery settings (Jazzy and later) turned
+into the Eclipse Cyclone DDS configuration hbvs joins the domain with, and the one line the live
+stages print about it. Pure text: no DDS binding is needed to compute or test it.
+
+ROS 2 reads three variables (rcl's discovery options, since Iron):
+
+* ``ROS_AUTOMATIC_DISCOVERY_RANGE``: ``OFF`` (no discovery outside the process), ``LOCALHOST``
+  (this machine only), ``SUBNET`` (multicast on the local network, the default),
+  ``SYSTEM_DEFAULT`` (the middleware's own settings untouched). Another value: ROS 2 warns and
+  keeps to this machine.
+* ``ROS_STATIC_PEERS``: addresses (``;``-separated) contacted by unicast whatever the range,
+  except ``OFF``.
+* ``ROS_LOCALHOST_ONLY=1`` (deprecated since Jazzy): ``LOCALHOST`` when the range is unset.
+
+``CYCLONEDDS_URI``, when set, is the whole network configuration (it wins over the three).
+Whatever the source, hbvs adds one compatibility setting: type information from eProsima's Fast
+DDS (RTPS vendor 1.15) is ignored, so endpoints match by type name as with every other ROS 2
+middleware. Fast DDS 3 (ROS 2 Kilted) announces XTypes type information, and Cyclone finds the
+TypeObjects it then receives for the ``uint8[]`` sequences invalid ("ddsi_xt_type_init_impl with
+invalid type object" for a PLAIN_SEQUENCE_SMALL, in Cyclone's discovery trace); an endpoint whose
+type cannot be resolved never matches, so no ``Image``, ``CompressedImage`` or ``CameraInfo``
+crossed either way (``Twist``, without sequences, did). Cyclone's ``AllowInvalidTryConstruct``
+alone did not make them match; ignoring the type information did (``tests/test_ros2_real.py``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
+
+from ..errors import UsageError
+
+RANGES = ("OFF", "LOCALHOST", "SUBNET", "SYSTEM_DEFAULT")
+#: eProsima's RTPS vendor id (Fast DDS), whose type information Cyclone is told to ignore.
+FAST_DDS_VENDOR_ID = "1.15"
+_COMPATIBILITY = f"<Compatibility><IgnoreTypeInformation>{FAST_DDS_VENDOR_ID}</IgnoreTypeInformation></Compatibility>"
+#: Unicast discovery needs participant indices: as many as processes on one machine may join.
+_MAX_PARTICIPANT_INDEX = 60
+
+
+@dataclass(frozen=True)
+class DdsSettings:
+    """The Cyclone DDS configuration to join the domain with, and what it means in one line.
+
+    Attributes
+    ----------
+    config : str
+        Cyclone DDS configuration (XML fragments joined by commas, as ``CYCLONEDDS_URI`` takes them).
+    description : str
+        One line for the start-up message, e.g. ``DDS: interface lo, discovery localhost
+        (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)``.
+    """
+
+    config: str
+    description: str
+
+
+def _domain(body: str) -> str:
+    return f'<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">{body}</Domain></CycloneDDS>'
+
+
+def _static_peers(environ: Mapping[str, str]) -> list[str]:
+    """``ROS_STATIC_PEERS``: addresses separated by ``;`` (blanks ignored)."""
+    return [peer.strip() for peer in environ.get("ROS_STATIC_PEERS", "").split(";") if peer.strip()]
+
+
+def discovery_range(environ: Mapping[str, str]) -> tuple[str, str]:
+    """The discovery range ROS 2 would use, and why (the variable that decided it).
+
+    Returns
+    -------
+    range : str
+        One of :data:`RANGES`.
+    reason : str
+        ``ROS_AUTOMATIC_DISCOVERY_RANGE=...``, ``ROS_LOCALHOST_ONLY=1`` or ``nothing set``.
+    """
+    text = environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip()
+    if text:
+        if text.upper() in RANGES:
+            return text.upper(), f"ROS_AUTOMATIC_DISCOVERY_RANGE={text}"
+        # rcl warns and falls back to this machine only: the safe reading of a typo.
+        return "LOCALHOST", f"ROS_AUTOMATIC_DISCOVERY_RANGE={text!r} is not one of {', '.join(RANGES)}: localhost, as ROS 2"
+    if environ.get("ROS_LOCALHOST_ONLY", "").strip() == "1":
+        return "LOCALHOST", "ROS_LOCALHOST_ONLY=1"
+    return "SUBNET", "nothing set: ROS 2's default"
+
+
+def dds_settings(environ: Mapping[str, str] | None = None) -> DdsSettings:
+    """The Cyclone DDS configuration for ROS 2's discovery variables in ``environ`` (``os.environ``
+    when None); :class:`UsageError` for ``OFF`` (no other process could ever be found).
+    """
+    environ = os.environ if environ is None else environ
+    compatibility = _domain(_COMPATIBILITY)
+    user = environ.get("CYCLONEDDS_URI", "").strip()
+    if user:
+        # Later fragments override earlier ones: the user's file has the last word.
+        return DdsSettings(f"{compatibility},{user}", "DDS: the network of CYCLONEDDS_URI (ROS 2's discovery variables not used)")
+    scope, reason = discovery_range(environ)
+    peers = _static_peers(environ)
+    peer_text = f", static peers {', '.join(peers)}" if peers else ""
+    if scope == "OFF":
+        raise UsageError("ROS_AUTOMATIC_DISCOVERY_RANGE=OFF: ROS 2 then discovers nothing outside its own process, so hbvs "
+                         "could never reach the robot; set LOCALHOST or SUBNET (or unset it)")
+    if scope == "SYSTEM_DEFAULT":
+        return DdsSettings(compatibility, f"DDS: Cyclone DDS's defaults (multicast on the interface it picks){peer_text} ({reason})")
+    peer_list = [*(["127.0.0.1"] if scope == "LOCALHOST" else []), *peers]
+    peer_xml = "".join(f"<Peer address={quoteattr(peer)}/>" for peer in peer_list)
+    discovery = (f"<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>{_MAX_PARTICIPANT_INDEX}"
+                 f"</MaxAutoParticipantIndex><Peers>{peer_xml}</Peers></Discovery>") if peer_list else ""
+    if scope == "LOCALHOST":
+        # Static peers are on other machines: then every interface, still without multicast.
+        interface = "" if peers else '<Interfaces><NetworkInterface name="lo"/></Interfaces>'
+        general = f"<General>{interface}<AllowMulticast>false</AllowMulticast></General>"
+        where = "the interface Cyclone DDS picks" if peers else "interface lo"
+        return DdsSettings(_domain(general + discovery + _COMPATIBILITY),
+                           f"DDS: {where}, discovery localhost{peer_text}, no multicast ({reason})")
+    return DdsSettings(_domain(discovery + _COMPATIBILITY),
+                       f"DDS: the interface Cyclone DDS picks, discovery subnet (multicast){peer_text} ({reason})")
+
+
+def describe_dds(environ: Mapping[str, str] | None = None) -> str:
+    """The start-up line's DDS part: which interface and discovery hbvs uses (see :func:`dds_settings`)."""
+    return dds_settings(environ).description
