@@ -22,6 +22,7 @@ from ..core.simulator import ServoStep
 from ..errors import CommandConflictError, HbvsError, InputError, NotAtStartError, TargetLostError, UsageError
 from ..io.calibration import load_calibration
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.ros2_names import check_topic_names
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..io.settings import RepeatOptions
@@ -159,6 +160,7 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
     if options.camera is not None and options.calibration is None:
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
     stamped_commands(options.cmd_type)
+    check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if options.stale_timeout > lost_timeout:
         raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "
                          "robot would stop for a lost camera before it stopped for a stale one")

@@ -504,7 +504,9 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         node = None
         if options.ros2_image is not None or topic is not None:
             from ..io import ros2_dds as dds  # lazy: an optional extra
+            from ..io.dds_discovery import describe_dds
 
+            console.info(f"repeat --live: {describe_dds()}")
             node = dds.Ros2Node()
         publisher = None
         if topic is not None:
