@@ -283,6 +283,12 @@ class LiveLoop:
         self.stats = LiveStats()
         #: ``time.monotonic()`` when the command of the last used frame went out.
         self.used_at = time.monotonic()
+        #: The frame being acted on, its interval from the one before (s, None for the first), the
+        #: period its command is held for (s), and its latency from arrival to command (s).
+        self.frame: Any = None
+        self.interval: float | None = None
+        self.dt = 0.0
+        self.latency = 0.0
 
     def now(self) -> float:
         """The run time (s) now: the last step's, plus the time since its command went out."""
