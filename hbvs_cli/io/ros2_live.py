@@ -137,15 +137,16 @@ class CommandPublisher:
 
     def __init__(self, node: dds.Ros2Node, topic: str, stamped: bool = False) -> None:
         from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+        from cyclonedds.qos import Policy, Qos
 
         full_topic_name(topic, "--ros2-cmd")
         self.topic = topic
         self.stamped = stamped
         message_type = dds.TwistStamped if stamped else dds.Twist
         self.writer = node.publisher(topic, message_type, dds.command_qos())
-        # A sample's publication handle is the writer's instance handle as an unsigned 64-bit number.
-        self._own_handle = self.writer.instance_handle % (1 << 64)
-        self._echo = node.subscriber(topic, message_type, dds.command_qos())
+        # Another writer's commands only: ignoring this participant, the echo never matches hbvs's own
+        # writer (whose matched count then counts the robot's subscribers alone).
+        self._echo = node.subscriber(topic, message_type, dds.command_qos() + Qos(Policy.IgnoreLocal.Participant))
         self._publications = BuiltinDataReader(node.participant, BuiltinTopicDcpsPublication)
         self._dds_topic = dds.dds_topic_name(topic)
 
@@ -161,9 +162,8 @@ class CommandPublisher:
 
     def foreign_commands(self) -> int:
         """Commands another writer put on the topic since the last call."""
-        return sum(1 for sample in self._echo.take(N=256)
-                   if (hasattr(sample, "linear") or hasattr(sample, "twist"))  # not a writer going away
-                   and sample.sample_info.publication_handle != self._own_handle)
+        # (Not a writer going away: those samples carry no data.)
+        return sum(1 for sample in self._echo.take(N=256) if hasattr(sample, "linear") or hasattr(sample, "twist"))
 
     def publish(self, v: float, w: float, stamp: float | None = None) -> None:
         """Send ``(v, w)`` (m/s, rad/s), stamped ``stamp`` (s; now when None) if stamped."""
