@@ -329,3 +329,29 @@ def test_the_live_loop_converges_through_a_ros2_relay(release, tmp_path, request
     assert counts["images"] > 100 and counts["twists"] > 50
     assert position <= 0.02 and heading <= 0.5
     assert (last["v"], last["w"]) == (0.0, 0.0)
+
+
+def test_a_ros2_teleop_on_the_command_topic_stops_hbvs(release, tmp_path):
+    """A teleop node (rclpy, Fast DDS) left publishing on /cmd_vel: hbvs, which would drive the robot
+    with it, stops with exit 11 (before or soon after its start, as the teleop's commands reach it)
+    and keeps its run file (one commander)."""
+    from test_live_loop import assert_kept_with_reason
+
+    ros_env, hbvs_env = environments()
+    fit = REPO / "samples" / "fit.mcap"
+    robot = subprocess.Popen([sys.executable, "-m", "hbvs_cli", "robot-sim", str(fit), "--ros2", "--duration", "60", "-q"],
+                             stderr=subprocess.PIPE, text=True, env=hbvs_env)
+    teleop = ros_node(release, ros_env, "teleop", "--topic", "/cmd_vel", "--rate", "10", "--seconds", "30")
+    with teleop:
+        try:
+            live = subprocess.run([sys.executable, "-m", "hbvs_cli", "repeat", str(fit), "--live", "--ros2-image", "/camera/image_raw",
+                                   "-o", str(tmp_path / "live.mcap"), "-q"], capture_output=True, text=True, env=hbvs_env, timeout=60)
+        finally:
+            robot.send_signal(signal.SIGINT)
+            robot.wait(timeout=30)
+    lines = live.stderr.strip().splitlines()
+    record(release, "ROS 2 teleop on /cmd_vel while hbvs starts", "default", "ros", f"exit {live.returncode}: {lines[-1][:60]}")
+    # The error; before it at most the start's warning that another node can publish there.
+    assert live.returncode == 11 and "another node published on /cmd_vel" in lines[-1], live.stderr
+    assert all("other node(s) can publish on the command topic" in line for line in lines[:-1]), live.stderr
+    assert_kept_with_reason(tmp_path / "live.mcap", "another node published")

@@ -100,6 +100,22 @@ def twists(node, options) -> None:
     emit(received=len(received), v=[v for v, _ in received], w=[w for _, w in received])
 
 
+def teleop(node, options) -> None:
+    """A teleop left running: a Twist (0.05 m/s) on ``--topic`` at ``--rate`` with ROS 2's default QoS,
+    for ``--seconds``."""
+    publisher = node.create_publisher(Twist, options.topic, qos("default"))
+    emit(ready=True)
+    message = Twist()
+    message.linear.x = 0.05
+    sent = 0
+    deadline = time.monotonic() + options.seconds
+    while time.monotonic() < deadline:
+        publisher.publish(message)
+        sent += 1
+        rclpy.spin_once(node, timeout_sec=1.0 / options.rate)
+    emit(sent=sent)
+
+
 def relay(node, options) -> None:
     """A ROS 2 node between hbvs's robot and hbvs's controller: ``--topic``'s Image (and its
     camera_info) republished under /robot, and /robot/cmd_vel's Twists republished on /cmd_vel,
@@ -140,7 +156,7 @@ def _spin(node, seconds: float, received: list) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("role", choices=("camera", "images", "twists", "relay"))
+    parser.add_argument("role", choices=("camera", "images", "twists", "teleop", "relay"))
     parser.add_argument("--topic", required=True)
     parser.add_argument("--qos", choices=("sensor", "default"), default="default")
     parser.add_argument("--format", choices=("raw", "jpeg"), default="raw")
@@ -153,7 +169,7 @@ def main() -> None:
     rclpy.init()
     node = rclpy.create_node(f"hbvs_test_{options.role}")
     try:
-        {"camera": camera, "images": images, "twists": twists, "relay": relay}[options.role](node, options)
+        {"camera": camera, "images": images, "twists": twists, "teleop": teleop, "relay": relay}[options.role](node, options)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
