@@ -242,7 +242,7 @@ def test_a_stop_signal_sends_zero(tmp_path, listen, signum, code, request):
     env = dds_env()
     listener = listen(env)
     robot, _ = robot_sim(env, tmp_path)
-    live = repeat_live(env, tmp_path)
+    live = repeat_live(env, tmp_path, "--cmd-out", str(tmp_path / "cmds.jsonl"))
     try:
         listener.wait_moving()
         time.sleep(1.0)
@@ -260,6 +260,10 @@ def test_a_stop_signal_sends_zero(tmp_path, listen, signum, code, request):
     delay = _zero_after(commands, cause)
     print(f"zero {1e3 * delay:.1f} ms after the signal")
     assert delay <= FRAME_INTERVAL + 0.05
+    # The record survives the stop: the run file finished and kept, ending on the zero, saying why.
+    assert_kept_with_reason(tmp_path / "live.mcap", "SIGTERM" if signum == signal.SIGTERM else "SIGINT")
+    log = [json.loads(line) for line in (tmp_path / "cmds.jsonl").read_text().splitlines()]
+    assert any(c["v"] != 0.0 for c in log) and (log[-1]["v"], log[-1]["w"]) == (0.0, 0.0)
 
 
 @pytest.mark.campaign
