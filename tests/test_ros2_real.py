@@ -295,13 +295,10 @@ def test_robot_sim_is_seen_by_a_ros2_subscriber(release, qos, tmp_path):
     frame_share(release, "robot-sim --ros2 -> ROS 2", qos, "ros", stamps, received["first_stamp"], received["distinct"], None)
 
 
-@pytest.mark.campaign
-def test_the_live_loop_converges_through_a_ros2_relay(release, tmp_path, request):
+def test_the_live_loop_converges_through_a_ros2_relay(release, tmp_path):
     """robot-sim --ros2 -> a ROS 2 relay node -> repeat --live -> the relay -> robot-sim, at twice the
-    taught pace: the robot ends within 2 cm and 0.5 deg of the taught end pose (issue 43's bound).
-    ``pytest -m "ros2_real and campaign"`` (about 40 s a release; .ci/run leaves it out)."""
-    if "campaign" not in (request.config.option.markexpr or ""):
-        pytest.skip('runs with: pytest -m "ros2_real and campaign" tests/test_ros2_real.py')
+    taught pace: the robot ends within 2 cm and 0.5 deg of the taught end pose (issue 43's bound;
+    about 15 s a release)."""
     from test_live_loop import live_final_errors
 
     ros_env, hbvs_env = environments()
