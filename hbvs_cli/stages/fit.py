@@ -24,14 +24,15 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
-from ..core.plane import UNIT_SQUARE
+from ..core.plane import UNIT_SQUARE, KnownShape
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
+from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates, texture_points_for_template
 from ..thread_pool import StopSafePool
+from .auto_target import choose_on_the_drive, followed_frames
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
@@ -223,7 +224,9 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 camera = _checked_frame(reader, frame, image)
                 # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
-                pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
+                sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
+                                 [(f.t, im) for f, _, im in first])
+                pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console, sample)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
                     spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
                 else:
@@ -403,13 +406,7 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     threads deadlocked."""
     from threadpoolctl import threadpool_limits
 
-    shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
-    if spec.kind == "chessboard" and spec.board is not None:
-        shapes = [(range(spec.n_points), board_layout(spec.board))]
-    if spec.kind == "charuco" and spec.board is not None:
-        shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
-    if layout is not None:  # --target-points: the whole target's layout, known
-        shapes = [(range(layout.shape[0]), layout)]
+    shapes = _known_shapes(spec, layout)
     _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
@@ -418,6 +415,21 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
                                           max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
+
+
+def _known_shapes(spec: DetectorSpec, layout: np.ndarray | None = None) -> list[KnownShape]:
+    """The target's parts of known shape: each marker's square (its four corners in OpenCV's
+    order), a board's grid, or ``layout`` (--target-points: the whole target's, known)."""
+    if layout is not None:
+        return [(range(layout.shape[0]), layout)]
+    n_points = int(spec.n_points or 0)
+    if spec.kind == "aruco":
+        return [(range(k, k + 4), UNIT_SQUARE) for k in range(0, n_points, 4)]
+    if spec.kind == "chessboard" and spec.board is not None:
+        return [(range(n_points), board_layout(spec.board))]
+    if spec.kind == "charuco" and spec.board is not None:
+        return [(range(n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
+    return []
 
 
 def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
@@ -475,13 +487,14 @@ def _check_marker_options(options: FitOptions) -> None:
 
 
 def _detector_spec(
-    options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console
+    options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console,
+    sample: Callable[[], Iterator[tuple[float, np.ndarray]]] | None = None,
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
-    (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    image = images[0]
+    (``--target auto`` finds the candidates in the first few, judges them on the frames
+    ``sample()`` spreads over the whole drive, :mod:`.auto_target`, and says on stderr what
+    it picked and why)."""
     kind = options.target
-    choice = None
     pinned_marker = options.marker_dict is not None or options.marker_id is not None
     if kind == "auto" and world is None:
         if options.board is not None:
@@ -489,14 +502,25 @@ def _detector_spec(
         elif pinned_marker:
             kind = "aruco"
         else:
-            choice = choose_target(images, camera, seed=options.seed)
-            kind = choice.kind
-            console.info(f"--target auto picked {kind}: {choice.reason}")
+            candidates = target_candidates(images, camera, seed=options.seed)
+            spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
+            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes,
+                                                       sample() if sample is not None else enumerate(images),
+                                                       camera, options.max_lost, options.seed)
+            console.info(f"--target auto picked {choice.kind}: {reason}")
+            return spec
     elif kind == "auto":
         kind = world.target.kind
     if world is not None and world.target.kind != kind:
         raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
-    details = choice.details if choice is not None else {}
+    return _spec_of_kind(kind, {}, options, world, images, camera, pose, console)
+
+
+def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
+                  camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
+    """The detector of a target ``kind``: from what ``--target auto`` found of it (``details``),
+    the options, the simulated ``world`` (None for real footage) or the first ``images``."""
+    image = images[0]
     if kind == "dots" and world is None and not details:
         from ..perception.autodetect import find_dots
 
