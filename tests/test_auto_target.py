@@ -17,7 +17,7 @@ from hbvs_cli.report.fit_plot import read_fit_signals
 from hbvs_cli.stages.auto_target import judge, picked
 
 import footage
-from conftest import call_hbvs
+from conftest import call_hbvs, campaign_extent
 
 #: The suite's short drive: 30 frames at 2.5 Hz.
 SHORT = footage.Drive(duration=12.0, fps=2.5, speed=0.24, period=9.0)
@@ -59,10 +59,12 @@ def test_a_candidate_missing_from_the_drive_is_passed_over_for_the_next():
         picked(judged[:1], candidates, max_lost=0.3)
 
 
-@pytest.mark.parametrize("name, kind", [("red_distractor", "dots"), ("photo_small_fiducials", "texture")])
-def test_auto_with_defaults_fits_the_issue_styles(tmp_path, name, kind, capsys):
+@pytest.mark.parametrize("name, kind, extent", [("red_distractor", "dots", "suite"),
+                                               pytest.param("photo_small_fiducials", "texture", "campaign", marks=pytest.mark.campaign)])
+def test_auto_with_defaults_fits_the_issue_styles(request, tmp_path, name, kind, extent, capsys):
     """Issue 44's styles at the suite's size (30 frames): ``hbvs fit`` with defaults picks
     the kind, names the measured figures, and fits with no frame lost after the pick."""
+    campaign_extent(request, extent)
     drive = replace(footage.STYLE_DRIVES[name], fps=2.5)
     made = footage.make_style_footage(name, tmp_path, drive, seed=3)
     teach, fit = tmp_path / "teach.mcap", tmp_path / "fit.mcap"

@@ -24,7 +24,7 @@ from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_cor
 from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
 from .chessboard import Board, board_corners_cross, find_board, find_board_near
-from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
+from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs, speck_floor
 from .texture import TextureDetector
 
 #: Dots targets have this many dots at most (and 3 at least).
@@ -164,13 +164,16 @@ def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") 
     make up most of what is compact and interior (a textured picture has many dark shapes
     that are not round; components cut by the frame's edge are not counted)."""
     blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
-    round_areas = blobs.areas[blobs.round]
+    round_areas, centres = blobs.areas[blobs.round], blobs.centres[blobs.round]
     if round_areas.size < 3:
-        return blobs.centres[blobs.round], False
+        return centres, False
+    # Specks of noise far smaller than the dots count neither as dots nor against them.
+    specks = speck_floor(round_areas)
+    round_areas, centres = round_areas[round_areas >= specks], centres[round_areas >= specks]
     median = np.median(round_areas)
     similar = (round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)
-    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
-    return blobs.centres[blobs.round][similar], int(similar.sum()) >= max(3, 0.75 * interior)
+    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= max(0.1 * median, specks))))
+    return centres[similar], int(similar.sum()) >= max(3, 0.75 * interior)
 
 
 def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) -> TargetChoice | None:

@@ -34,6 +34,18 @@ CONTRASTS = ("gray", "colour")
 #: On first sight, dots may differ in area by this factor from their median (radii 3 to 8 cm
 #: on one poster); tracking then follows each dot's own area.
 ACQUIRE_AREA_RATIO = 9.0
+#: Round blobs this many times smaller than the smallest of the larger ones are specks of
+#: noise (:func:`speck_floor`).
+SPECK_AREA_GAP = 4.0
+
+def speck_floor(areas: NDArray[np.float64], keep: int = 3) -> float:
+    """Area (px) below which round blobs are specks of noise, not dots: the first break of
+    :data:`SPECK_AREA_GAP` in the areas sorted from the largest, below at least ``keep`` of
+    them (the largest ``keep`` stand whatever their sizes); 0 without such a break."""
+    ordered = np.sort(np.asarray(areas, dtype=np.float64))[::-1]
+    breaks = np.flatnonzero(ordered[keep - 1:-1] >= SPECK_AREA_GAP * ordered[keep:]) + keep - 1
+    return float(ordered[breaks[0]] / SPECK_AREA_GAP) if breaks.size else 0.0
+
 
 #: Largest dot radius (px) the background estimate leaves out of the background.
 MAX_DOT_RADIUS_PX = 80
@@ -518,6 +530,10 @@ class DotDetector:
             median = np.median(blobs.areas[candidates])
             ratio = blobs.areas[candidates] / median
             candidates = candidates[(ratio >= 1.0 / ACQUIRE_AREA_RATIO) & (ratio <= ACQUIRE_AREA_RATIO)]
+        if candidates.size > self.n_points:
+            # Specks of noise that pass the area ratio (issue 44: 6 px beside dots of 48-60
+            # px, 20 gray levels dark under a shallow threshold) are dropped.
+            candidates = candidates[blobs.areas[candidates] >= speck_floor(blobs.areas[candidates], keep=self.n_points)]
         if candidates.size != self.n_points:
             return pixels, areas
         centres = blobs.centres[candidates]
