@@ -30,6 +30,7 @@ from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError
 from ..io.settings import FitOptions
 from .console import Console
 from .options import recorded_settings
+from ..perception.dots import SharedPull
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates, texture_points_for_template
 from ..thread_pool import StopSafePool
 from .auto_target import choose_on_the_drive, followed_frames
@@ -198,6 +199,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     topics = TOPICS["fit"]
     log: _FrameLog | None = None
     detector: TrackedDetector | None = None
+    pull: SharedPull | None = None
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
@@ -232,12 +234,16 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 else:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
+                # Saturated dots: the pull all of them share (bloom), for the uncertainty.
+                pull = SharedPull(spec.polarity or "dark", spec.contrast or "gray") if spec.kind == "dots" else None
                 template = data
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             for frame, data, image in chain(first, rest):
                 _checked_frame(reader, frame, image)
                 assert detector is not None
                 pixels = detector.detect(image)
+                if pull is not None:
+                    pull.add(image, pixels)
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
@@ -263,7 +269,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
+                      pull.pull_px if pull is not None else 0.0)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
         depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
@@ -396,7 +403,8 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
+         image_shift_px: float = 0.0) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -412,7 +420,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
         with threadpool_limits(limits=1, user_api="blas"):
             return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                          max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind)
+                                          max_lost=options.max_lost, max_gap=options.max_gap, warn=console.warn, shapes=shapes, kind=spec.kind,
+                                          image_shift_px=image_shift_px)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
