@@ -568,13 +568,19 @@ def photo_with_tags_wall(name: str = "coffee", poster_width_m: float = 1.8, tag_
     wide, white quiet zone) printed side by side in the photograph's top left corner: a
     lab's poster with fiducials for another purpose. ``points`` stay the photograph's
     corners."""
-    wall = photo_wall(name, poster_width_m)
+    return tags_printed_in(photo_wall(name, poster_width_m), tag_m, ((0.08, 0.12), (0.18, 0.12)), first_id=1)
+
+
+def tags_printed_in(wall: Wall, tag_m: float, places, first_id: int) -> Wall:
+    """``wall`` (a :func:`photo_wall`) with ArUco markers (DICT_4X4_50, ids from
+    ``first_id``, ``tag_m`` wide, white quiet zone) printed in its photograph, centred at
+    ``places`` (fractions of its width and height)."""
     image = wall.image.copy()
     (left, top), (right, bottom) = wall.points[0] + 0.5, wall.points[2] + 0.5
     px = int(round(tag_m / WALL_MPP))
     quiet = px // 4
     cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
-    for ident, (fx, fy) in enumerate(((0.08, 0.12), (0.18, 0.12)), start=1):
+    for ident, (fx, fy) in enumerate(places, start=first_id):
         col = int(round(left + fx * (right - left) - px / 2))
         row = int(round(top + fy * (bottom - top) - px / 2))
         image[row - quiet:row + px + quiet, col - quiet:col + px + quiet] = 245
@@ -963,18 +969,8 @@ def photo_small_fiducials_wall(name: str = "astronaut", poster_width_m: float = 
     """A photograph (``skimage.data``) with five small ArUco markers (DICT_4X4_50, ids 3-7,
     ``tag_m`` wide, white quiet zone) printed in it, one near each corner and one near its
     middle, as a lab marks a poster for another purpose. ``points`` stay the photograph's corners."""
-    wall = photo_wall(name, poster_width_m)
-    image = wall.image.copy()
-    (left, top), (right, bottom) = wall.points[0] + 0.5, wall.points[2] + 0.5
-    px = int(round(tag_m / WALL_MPP))
-    quiet = px // 4
-    cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
-    for ident, (fx, fy) in enumerate(((0.1, 0.1), (0.9, 0.12), (0.55, 0.45), (0.12, 0.88), (0.88, 0.9)), start=3):
-        col = int(round(left + fx * (right - left) - px / 2))
-        row = int(round(top + fy * (bottom - top) - px / 2))
-        image[row - quiet:row + px + quiet, col - quiet:col + px + quiet] = 245
-        image[row:row + px, col:col + px] = cv2.aruco.generateImageMarker(cv_dictionary, ident, px)[:, :, None]
-    return replace(wall, image=image)
+    places = ((0.1, 0.1), (0.9, 0.12), (0.55, 0.45), (0.12, 0.88), (0.88, 0.9))
+    return tags_printed_in(photo_wall(name, poster_width_m), tag_m, places, first_id=3)
 
 
 @dataclass(frozen=True)
