@@ -11,7 +11,7 @@ the RMS sigma of theta_d over the frames), not by their number of points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
@@ -88,8 +88,24 @@ def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec
         if failure:
             judged.append(Judged(choice, spec, 0, len(times), rejected=failure))
             continue
-        judged.append(_judged(choice, spec, np.asarray(times), np.stack(found), shapes_of(spec), camera, max_lost))
+        spec, found = _markers_whole_in_the_first_frame(spec, np.stack(found))
+        judged.append(_judged(choice, spec, np.asarray(times), found, shapes_of(spec), camera, max_lost))
     return judged
+
+
+def _markers_whole_in_the_first_frame(spec: DetectorSpec, pixels: np.ndarray) -> tuple[DetectorSpec, np.ndarray]:
+    """Several markers of which some are not whole in the first frame (F*, which must show
+    the whole target): those that are, and their pixels (F, 4M, 2); else as given. Markers
+    decoded in most of the first frames may miss the very first (a 3x2 board under a barrel
+    lens, 3 seeds of 10: the fit failed)."""
+    if spec.kind != "aruco" or not spec.marker_ids or len(spec.marker_ids) < 2:
+        return spec, pixels
+    whole = np.all(np.isfinite(pixels[0].reshape(-1, 4, 2)), axis=(1, 2))
+    if whole.all() or not whole.any():
+        return spec, pixels
+    ids = tuple(i for i, seen in zip(spec.marker_ids, whole) if seen)
+    return (replace(spec, marker_ids=ids, n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None),
+            pixels[:, np.repeat(whole, 4)])
 
 
 def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels: np.ndarray, shapes: list[KnownShape],
