@@ -73,8 +73,13 @@ ROWS = [
     # Issue 44's styles, each on a drive of its own (footage.STYLE_DRIVES).
     ("red_distractor", "four red dots and a red sign on a grey wall", DOT_BOUND, ()),
     pytest.param("red_distractor", "the same as a ROS 2 .db3 bag (JPEG, /cmd_vel)", DOT_BOUND, ("--bag",), id="red_distractor_bag"),
-    ("leds_bloom", "three LEDs with bloom on a dark wall", DOT_BOUND, ()),
-    ("board_barrel_k3", "3x2 ArUco 4x4 board, barrel lens beyond its two-term calibration", MARKER_BOUND, ()),
+    pytest.param("leds_bloom", "three LEDs with bloom on a dark wall", DOT_BOUND, (), id="leds_bloom", marks=_misses(
+        "seeds 0-9: warned, 100 % inside, sigma/RMS 1.29, but theta_d 2.56x the bound: bloom pulls every centroid 0.11-0.13 px "
+        "(an error no unbiased estimate has; counted in the interval, not removed)")),
+    pytest.param("board_barrel_k3", "3x2 ArUco 4x4 board, barrel lens beyond its two-term calibration", MARKER_BOUND, (),
+                 id="board_barrel_k3", marks=_misses(
+        "seeds 0-9: theta_d 0.568 deg (2.83x the bound), 59.5 % inside, sigma/RMS 0.39, not warned: one marker's corners in F* "
+        "0.5-1.5 px off (seeds 5, 7); the true lens gives the same error (bench/CALIBRATION.md)")),
     ("photo_small_fiducials", "photograph with five small fiducials printed in it", DOT_BOUND, ()),
     ("dim_dots_rolling", "dots 20 gray levels dark, sensor noise, rolling shutter", DOT_BOUND, ()),
 ]
