@@ -1,12 +1,13 @@
 """``--target auto`` judged on the whole drive (docs/targets.md).
 
 The first frames say which kinds of target a recording may show
-(:func:`~hbvs_cli.perception.autodetect.target_candidates`). Each candidate is then followed
-over at most :data:`FOLLOWED_FRAMES` frames strided evenly over the whole recording with the detector
-the fit would use, its own tracker from frame to frame: one missing from more than
-``--max-lost`` of them is not chosen, and the others are compared by the precision a short joint estimate of n* on those frames gives
-(the fit's own :func:`~hbvs_cli.core.desired.fit_desired_trajectory` and its uncertainty:
-the RMS sigma of theta_d over the frames), not by their number of points.
+(:func:`~hbvs_cli.perception.autodetect.target_candidates`). Each candidate is then
+followed over at most :data:`FOLLOWED_FRAMES` frames strided evenly over the whole
+recording by the detector the fit would use, its own tracker from frame to frame: one
+missing from more than ``--max-lost`` of them is not chosen, and the others are compared by
+the precision a short joint estimate of n* on :data:`JUDGE_FRAMES` of them gives (the fit's
+own :func:`~hbvs_cli.core.desired.fit_desired_trajectory` and its uncertainty: the RMS
+sigma of theta_d over those frames), not by their number of points.
 """
 
 from __future__ import annotations
