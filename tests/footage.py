@@ -39,6 +39,11 @@ class Camera:
     camera_height: float = 0.30
 
     @property
+    def written_distortion(self) -> tuple[float, float, float, float, float]:
+        """The distortion its calibration file says (the lens itself, here)."""
+        return self.distortion
+
+    @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
@@ -51,7 +56,7 @@ class Camera:
             f"image_width: {self.width}\nimage_height: {self.height}\ncamera_name: footage\n"
             f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: {fmt(k)}\n"
             f"distortion_model: plumb_bob\n"
-            f"distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: {fmt(self.distortion)}\n"
+            f"distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: {fmt(self.written_distortion)}\n"
             f"rectification_matrix:\n  rows: 3\n  cols: 3\n  data: {fmt(np.eye(3).ravel())}\n"
             f"projection_matrix:\n  rows: 3\n  cols: 4\n  data: {fmt(p)}\n"
         )
@@ -563,13 +568,19 @@ def photo_with_tags_wall(name: str = "coffee", poster_width_m: float = 1.8, tag_
     wide, white quiet zone) printed side by side in the photograph's top left corner: a
     lab's poster with fiducials for another purpose. ``points`` stay the photograph's
     corners."""
-    wall = photo_wall(name, poster_width_m)
+    return tags_printed_in(photo_wall(name, poster_width_m), tag_m, ((0.08, 0.12), (0.18, 0.12)), first_id=1)
+
+
+def tags_printed_in(wall: Wall, tag_m: float, places, first_id: int) -> Wall:
+    """``wall`` (a :func:`photo_wall`) with ArUco markers (DICT_4X4_50, ids from
+    ``first_id``, ``tag_m`` wide, white quiet zone) printed in its photograph, centred at
+    ``places`` (fractions of its width and height)."""
     image = wall.image.copy()
     (left, top), (right, bottom) = wall.points[0] + 0.5, wall.points[2] + 0.5
     px = int(round(tag_m / WALL_MPP))
     quiet = px // 4
     cv_dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
-    for ident, (fx, fy) in enumerate(((0.08, 0.12), (0.18, 0.12)), start=1):
+    for ident, (fx, fy) in enumerate(places, start=first_id):
         col = int(round(left + fx * (right - left) - px / 2))
         row = int(round(top + fy * (bottom - top) - px / 2))
         image[row - quiet:row + px + quiet, col - quiet:col + px + quiet] = 245
@@ -904,9 +915,216 @@ def any_case(name: str):
 
 def make_any_footage(name: str, folder: Path, drive: Drive = Drive(), seed: int = 7) -> dict:
     """:func:`make_footage` for every row, the rolling-shutter ones included."""
-    wall, camera, effects, shutter = any_case(name)
-    if isinstance(shutter, Pole):
-        maker = PoleMaker(wall, camera, effects, seed, shutter)
+    return make_style_footage(name, folder, drive, seed)
+
+
+# --------------------------------------------------------------------------- issue 44's styles
+@dataclass(frozen=True)
+class SwerveDrive(Drive):
+    """A drive of this file's own (none of hbvs's presets, nor :class:`Drive`'s weave): a
+    start off to one side, two swerves of different periods on top of each other, and a
+    speed that eases off toward the wall."""
+
+    start: tuple[float, float, float] = (0.0, -0.20, 0.0)
+    speed: float = 0.26
+    weave: float = 0.15
+    period: float = 8.0
+    second_weave: float = 0.05  # rad/s amplitude of the faster swerve
+    second_period: float = 3.1
+
+    def v(self, t: float) -> float:
+        return self.speed * (1.0 - 0.25 * t / self.duration)
+
+    def w(self, t: float) -> float:
+        # Cosines: the heading swings about the start's, not to one side of it.
+        return (self.weave * np.cos(2 * np.pi * t / self.period)
+                + self.second_weave * np.cos(2 * np.pi * t / self.second_period + 0.3))
+
+
+def led_wall() -> Wall:
+    """Three LEDs (4 cm, drawn at full white: the :class:`Bloom` sensor overexposes them) on a
+    dark wall, with a dim grey switch plate well away from them."""
+    width, height = 3.2, 1.8
+    image = _canvas(width, height, (30, 32, 34))
+    cv2.rectangle(image, (1300, 700), (1380, 800), (75, 75, 75), -1)
+    layout = [((0.70, 1.10), 0.02), ((2.50, 1.00), 0.02), ((1.45, 0.45), 0.02)]
+    points = np.array([_disc(image, centre, radius, (255, 255, 255), height) for centre, radius in layout])
+    return Wall(image, WALL_MPP, (5.8, 0.05, height / 2), yaw=np.radians(-4.0), points=points)
+
+
+def red_distractor_wall() -> Wall:
+    """Four red dots on a plain grey wall, and a red fire-exit sign of the same red (a
+    rectangle, not a dot) between them: a same-colour distractor."""
+    width, height = 3.2, 1.8
+    image = _canvas(width, height, (150, 152, 155))
+    red = (45, 40, 205)
+    layout = [((0.55, 1.15), 0.045), ((2.55, 1.05), 0.045), ((2.35, 0.45), 0.045), ((0.75, 0.50), 0.045)]
+    points = np.array([_disc(image, centre, radius, red, height) for centre, radius in layout])
+    cv2.rectangle(image, (int(1.35 / WALL_MPP), int(0.70 / WALL_MPP)), (int(1.85 / WALL_MPP), int(0.86 / WALL_MPP)), red, -1)
+    image = _lighting(image, 0.9, 1.05, 1.0, 0.92)
+    return Wall(image, WALL_MPP, (5.8, -0.10, height / 2), yaw=np.radians(-9.0), points=points)
+
+
+def photo_small_fiducials_wall(name: str = "astronaut", poster_width_m: float = 1.3, tag_m: float = 0.12) -> Wall:
+    """A photograph (``skimage.data``) with five small ArUco markers (DICT_4X4_50, ids 3-7,
+    ``tag_m`` wide, white quiet zone) printed in it, one near each corner and one near its
+    middle, as a lab marks a poster for another purpose. ``points`` stay the photograph's corners."""
+    places = ((0.1, 0.1), (0.9, 0.12), (0.55, 0.45), (0.12, 0.88), (0.88, 0.9))
+    return tags_printed_in(photo_wall(name, poster_width_m), tag_m, places, first_id=3)
+
+
+@dataclass(frozen=True)
+class Bloom:
+    """A light source's excess charge spilling over (what a saturating LED does to a cheap
+    sensor): the sensor's light above ``threshold`` gray levels (in the picture as the wall
+    image draws it) is ``overexposure`` times brighter than drawn, and ``share`` of that
+    excess spreads into a Gaussian halo of ``halo_px`` and a tail of ``smear_px`` down the
+    columns (the readout direction), before the pixels clip at 255."""
+
+    threshold: float = 200.0
+    overexposure: float = 12.0
+    share: float = 0.2
+    halo_px: float = 2.0
+    smear_px: float = 3.0
+
+
+class BloomMaker(FootageMaker):
+    """:class:`FootageMaker` whose sensor blooms around bright sources (:class:`Bloom`)."""
+
+    def __init__(self, wall: Wall, camera: Camera, effects: Effects = Effects(), seed: int = 0, bloom: Bloom = Bloom()) -> None:
+        super().__init__(wall, camera, effects, seed)
+        self.bloom = bloom
+        smear = bloom.smear_px * effects.supersample  # on the supersampled canvas
+        length = int(np.ceil(6 * smear))
+        # filter2D correlates: the upper half of a column kernel moves charge down the column.
+        tail = np.exp(-np.arange(length + 1) / smear)
+        self._smear = np.concatenate([tail[::-1], np.zeros(length)])[:, None].astype(np.float32)
+        self._smear /= self._smear.sum()
+
+    def _exposure(self, pose_of_time, t: float) -> np.ndarray:
+        canvas = super()._exposure(pose_of_time, t)
+        bloom = self.bloom
+        excess = np.maximum(canvas - bloom.threshold, 0.0) * bloom.overexposure
+        ss = self.effects.supersample
+        spill = cv2.GaussianBlur(excess, (0, 0), bloom.halo_px * ss) + cv2.filter2D(excess, -1, self._smear)
+        return canvas + excess * (1.0 - bloom.share) + 0.5 * bloom.share * spill
+
+
+def fitted_radial_distortion(camera: Camera, true_distortion) -> tuple[float, float, float, float, float]:
+    """The plumb_bob coefficients a two-term calibration (k1, k2; tangential kept, k3 = 0)
+    reports for a lens whose truth is ``true_distortion`` (k1, k2, p1, p2, k3): the least
+    squares fit of the radial factor over the frame's field of view (weighted by area), as a
+    calibration that fixes k3 = 0 would find it. Its error is the imperfect lens model."""
+    k1, k2, p1, p2, k3 = true_distortion
+    corner = np.hypot(max(camera.cx, camera.width - camera.cx) / camera.fx, max(camera.cy, camera.height - camera.cy) / camera.fy)
+    r = np.linspace(0.0, corner, 400)[1:]
+    target = k1 * r**2 + k2 * r**4 + k3 * r**6
+    design = np.column_stack([r**2, r**4]) * np.sqrt(r)[:, None]
+    fitted = np.linalg.lstsq(design, target * np.sqrt(r), rcond=None)[0]
+    return (float(fitted[0]), float(fitted[1]), p1, p2, 0.0)
+
+
+@dataclass(frozen=True)
+class CalibratedCamera(Camera):
+    """A camera whose written calibration (``camera.yaml``) is a two-term fit of its true
+    lens (:func:`fitted_radial_distortion`), not the lens itself."""
+
+    @property
+    def written_distortion(self) -> tuple[float, float, float, float, float]:
+        return fitted_radial_distortion(self, self.distortion)
+
+
+#: The styles of issue 44's table: (wall, camera, effects, extra) as :func:`any_case`
+#: returns them (extra: a RollingShutter, a Pole, a Bloom or None), and each one's drive.
+def style_case(name: str):
+    plain = Camera()
+    if name == "red_distractor":
+        return red_distractor_wall(), plain, Effects(noise=2.5), None
+    if name == "leds_bloom":
+        return led_wall(), plain, Effects(noise=2.0, vignetting=0.3), Bloom()
+    if name == "board_barrel_k3":
+        # A 3x2 board of ArUco 4x4 markers under a barrel lens with a sixth-order term that
+        # the written two-term calibration leaves out (0.1-0.3 px at the frame's edges).
+        lens = CalibratedCamera(distortion=(-0.26, 0.08, 0.0004, -0.0002, -0.03))
+        return marker_board_wall(grid=(3, 2), side_m=0.16, gap_m=0.05, centre_height_m=0.9), lens, Effects(), None
+    if name == "photo_small_fiducials":
+        return photo_small_fiducials_wall(), plain, Effects(), None
+    if name == "dim_dots_rolling":
+        # Dots 20 gray levels below a mid-grey wall, 4 levels of sensor noise, rows read out
+        # over 30 ms in 12 bands.
+        return dots_wall("low_contrast20"), plain, Effects(noise=4.0), RollingShutter(readout_s=0.030, bands=12)
+    raise ValueError(name)
+
+
+STYLES = ("red_distractor", "leds_bloom", "board_barrel_k3", "photo_small_fiducials", "dim_dots_rolling")
+STYLE_DRIVES = {
+    "red_distractor": SwerveDrive(start=(0.0, -0.20, 0.0), weave=0.15, period=8.0, second_weave=0.06, second_period=3.1),
+    "leds_bloom": SwerveDrive(start=(0.0, 0.10, 0.0), weave=0.13, period=8.5, second_weave=0.05, second_period=2.7),
+    "board_barrel_k3": SwerveDrive(start=(0.0, -0.15, 0.0), weave=0.14, period=7.0, second_weave=0.05, second_period=3.7),
+    "photo_small_fiducials": SwerveDrive(start=(0.0, -0.05, 0.0), weave=0.13, period=7.5, second_weave=0.05, second_period=3.3),
+    "dim_dots_rolling": SwerveDrive(start=(0.0, -0.20, -0.03), speed=0.28, weave=0.15, period=8.0, second_weave=0.06, second_period=2.9),
+}
+
+
+def any_style(name: str):
+    """(wall, camera, effects, extra) of any row: :func:`style_case` or :func:`any_case`."""
+    try:
+        return style_case(name)
+    except ValueError:
+        return any_case(name)
+
+
+def make_style_footage(name: str, folder: Path, drive: Drive | None = None, seed: int = 7) -> dict:
+    """Render any row (:func:`any_style`) into ``folder`` on ``drive`` (None: the style's own,
+    :data:`STYLE_DRIVES`, else :class:`Drive`); :meth:`FootageMaker.write`'s dict and the ``drive``."""
+    wall, camera, effects, extra = any_style(name)
+    drive = drive or STYLE_DRIVES.get(name, Drive())
+    if isinstance(extra, Bloom):
+        maker = BloomMaker(wall, camera, effects, seed, extra)
+    elif isinstance(extra, Pole):
+        maker = PoleMaker(wall, camera, effects, seed, extra)
+    elif isinstance(extra, RollingShutter):
+        maker = RollingShutterMaker(wall, camera, effects, seed, extra)
     else:
-        maker = FootageMaker(wall, camera, effects, seed=seed) if shutter is None else RollingShutterMaker(wall, camera, effects, seed, shutter)
-    return maker.write(Path(folder), drive)
+        maker = FootageMaker(wall, camera, effects, seed=seed)
+    return maker.write(Path(folder), drive) | {"drive": drive}
+
+
+def write_ros2_bag(folder: Path, made: dict, camera: Camera, jpeg_quality: int = 90) -> Path:
+    """The footage as a ROS 2 bag in SQLite storage (``.db3``), written by the independent
+    ``rosbags`` library: the video's frames as JPEG ``sensor_msgs/CompressedImage``, one
+    ``CameraInfo`` (the written calibration) and the drive's commands as
+    ``geometry_msgs/Twist`` on ``/cmd_vel``, each 1 ms before its frame."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    types = get_typestore(Stores.ROS2_HUMBLE).types
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    header = lambda ns: types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="camera")  # noqa: E731
+    drive, times = made["drive"], made["t"]
+    capture = cv2.VideoCapture(str(made["video"]))
+    folder = Path(folder)
+    with Writer(folder, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        images = writer.add_connection("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", typestore=store)
+        infos = writer.add_connection("/camera/camera_info", "sensor_msgs/msg/CameraInfo", typestore=store)
+        commands = writer.add_connection("/cmd_vel", "geometry_msgs/msg/Twist", typestore=store)
+        for k, t in enumerate(times):
+            ok, frame = capture.read()
+            assert ok, "the footage's video ends early"
+            ns = 1_700_000_000_000_000_000 + int(round(t * 1e9))
+            if k == 0:
+                info = types["sensor_msgs/msg/CameraInfo"](
+                    header=header(ns), height=camera.height, width=camera.width, distortion_model="plumb_bob",
+                    d=np.array(camera.written_distortion, float), k=camera.K.ravel(), r=np.eye(3).ravel(),
+                    p=np.array([camera.fx, 0, camera.cx, 0, 0, camera.fy, camera.cy, 0, 0, 0, 1, 0], float),
+                    binning_x=0, binning_y=0,
+                    roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+                writer.write(infos, ns, store.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+            vector = types["geometry_msgs/msg/Vector3"]
+            twist = types["geometry_msgs/msg/Twist"](linear=vector(x=float(drive.v(t)), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(drive.w(t))))
+            writer.write(commands, ns - 1_000_000, store.serialize_cdr(twist, "geometry_msgs/msg/Twist"))
+            data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])[1].ravel()
+            image = types["sensor_msgs/msg/CompressedImage"](header=header(ns), format="jpeg", data=data)
+            writer.write(images, ns, store.serialize_cdr(image, "sensor_msgs/msg/CompressedImage"))
+    capture.release()
+    return folder

@@ -35,7 +35,7 @@ LAYERS: dict[str, int] = {
 }
 #: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them
 #: (``live``: the loop of ``repeat --live``).
-STAGE_HELPERS = ("console", "options", "frame_decoding", "live")
+STAGE_HELPERS = ("console", "options", "frame_decoding", "live", "auto_target")
 #: Modules of ``stages`` that run other stages: ``demo`` (the whole pipeline) and
 #: ``sweep_run`` (one run of a sweep: repeat, then report).
 STAGE_RUNNERS = ("demo", "sweep_run")

@@ -209,12 +209,16 @@ class JointCovariance:
         How the globals move with each of C biases: a detector's, of one standard deviation
         on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
         :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
-        column); their covariances add ``bias bias^T``, common to the frames (None: no bias).
+        column), then a shift of the whole image (two); their covariances add ``bias bias^T``, common to the frames (None: no bias).
     span_bias, frame_spans : ndarrays, shapes (K, 3, 2N) and (K,), or None
         A frame's own move with the biases of its span (its columns of the span's ``2N``),
         and its span; None: no detector's bias.
     readout_bias : ndarray, shape (K, 3), or None
-        A frame's own move with the rolling shutter's bias (the last column).
+        A frame's own move with the rolling shutter's bias (its column, before the image
+        shift's).
+    image_shift_bias : ndarray, shape (K, 3, 2), or None
+        A frame's own move with a shift of every point of every frame (the last two
+        columns; :func:`joint_covariance`'s ``image_shift``).
     readout, readout_sigma : float
         With ``shutter``: the readout (s per normalised row) the residuals show, and its
         standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
@@ -231,6 +235,7 @@ class JointCovariance:
     span_bias: NDArray[np.float64] | None = None
     frame_spans: NDArray[np.intp] | None = None
     readout_bias: NDArray[np.float64] | None = None
+    image_shift_bias: NDArray[np.float64] | None = None
     readout: float = 0.0
     readout_sigma: float = 0.0
 
@@ -252,8 +257,11 @@ class JointCovariance:
             columns = self.frame_spans[rows, None] * width + np.arange(width)  # (n, 2N): each frame's span
             frames, parts = np.arange(moved.shape[0])[:, None, None], np.arange(moved.shape[1])[:, None]
             moved[frames, parts, columns[:, None, :]] += self.span_bias[rows][:, components]
+        shift_columns = 0 if self.image_shift_bias is None else self.image_shift_bias.shape[2]
         if self.readout_bias is not None:
-            moved[:, :, -1] += self.readout_bias[rows][:, components]
+            moved[:, :, -1 - shift_columns] += self.readout_bias[rows][:, components]
+        if self.image_shift_bias is not None:
+            moved[:, :, moved.shape[2] - shift_columns:] += self.image_shift_bias[rows][:, components]
         return moved if component is None else moved[:, 0]
 
     @property
@@ -292,7 +300,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      estimated_rows: ArrayLike | None = None, correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
-                     readout_estimated: bool = False) -> JointCovariance:
+                     readout_estimated: bool = False, image_shift: float = 0.0) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
@@ -338,6 +346,12 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     readout_estimated : bool
         The readout was one more unknown of the estimate, and is taken out of ``estimated``
         and ``frames``: the column is then the estimate's move by ``readout_sigma``.
+    image_shift : float
+        A shift of every point of every frame (F* too) by the same amount, as a standard
+        deviation (normalised units) in each image direction: a detector's error that all
+        points share all along the drive (bloom pulling bright dots' centroids down the
+        columns, issue 44). n* and the reference points absorb part of it and the residuals
+        cannot show it; its two columns (m_y, then m_z) join the bias after the shutter's.
 
     Returns
     -------
@@ -381,6 +395,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     own_rhs = np.zeros((pool_size, 3, points)) if bias_fraction > 0.0 else None
     residuals = np.empty((estimated.shape[0], points))  # the estimated frames' own, in their (time) order
     shutter_own, shutter_globals = np.zeros((pool_size, 3)), -reference[:points].T @ shifts[0]
+    # The image shift's two directions: every point's m_y, then every point's m_z, by 1.
+    directions = np.zeros((points, 2))
+    directions[0::2, 0], directions[1::2, 1] = 1.0, 1.0
+    shift_own, shift_globals = np.zeros((pool_size, 3, 2)), -reference[:points].T @ directions
     block_frames = _frames_per_block(reference.shape[0], geometry.size)
     for k in range(0, pool_size, block_frames):
         block = slice(k, min(k + block_frames, pool_size))
@@ -397,13 +415,17 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         mine = by_row[slice(*np.searchsorted(rows_in_order, [block.start, block.stop]))]
         residuals[mine] = at[where[mine] - k, :points]
         # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
-        biased = shutter is not None or bias_fraction > 0.0
+        biased = shutter is not None or bias_fraction > 0.0 or image_shift > 0.0
         by_shapes = _shape_bias_rows(pool, normal, pool_motion, shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
             change = np.concatenate([-pool_shift, np.einsum("krb,kb->kr", by_shapes, pool_shift)], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
+        if image_shift > 0.0:  # as the shutter's column, for the same shift in every frame
+            change = np.concatenate([np.broadcast_to(-directions, (len(pool), points, 2)), by_shapes @ directions], axis=1)
+            shift_own[block] = np.swapaxes(own, 1, 2) @ change
+            shift_globals += np.einsum("krg,krd->gd", weighted, change) - np.einsum("kga,kad->gd", reduced, shift_own[block])
         if own_rhs is not None:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
             own_rhs[block] = through(own)
@@ -448,6 +470,11 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         column_shared = readout * moved_globals[:, None]
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
         readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
+    image_shift_bias = None
+    if image_shift > 0.0:  # the estimate's move with the image shift: two more columns
+        columns_shared = image_shift * shared_inverse @ shift_globals
+        bias_shared = columns_shared if bias_shared is None else np.column_stack([bias_shared, columns_shared])
+        image_shift_bias = image_shift * (inverse_own @ shift_own[:frames.shape[0]])
     for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
         block = slice(k, k + BLOCK_FRAMES)
         if span_bias is not None:
@@ -464,6 +491,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         span_bias=span_bias,
         frame_spans=None if span_bias is None else np.array(frame_segments),
         readout_bias=readout_bias,
+        image_shift_bias=image_shift_bias,
         readout=fitted_readout,
         readout_sigma=readout_sigma,
     )

@@ -229,6 +229,7 @@ def fit_desired_trajectory(
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
     kind: str | None = None,
+    image_shift_px: float = 0.0,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -252,6 +253,10 @@ def fit_desired_trajectory(
         it, the residuals cannot show it), :data:`EXPECTED_PRECISION`, and the widening for
         errors correlated over frames (:func:`~.bundle.correlation_inflation`; not for one
         tracked homography's corners, nor markers). None: dots, no precision check.
+    image_shift_px : float, optional
+        A detector's error shared by every point of every frame (px, 1 sigma in each image
+        direction; e.g. bloom pulling saturated dots' centroids, measured by the detector):
+        :func:`~.bundle.joint_covariance`'s ``image_shift``.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -310,7 +315,8 @@ def fit_desired_trajectory(
     uncertainty = None
     if others.size:
         covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
-                                       shapes, kind, detector_bias_fraction(kind, noise * camera.mean_focal), readout != 0.0)
+                                       shapes, kind, detector_bias_fraction(kind, noise * camera.mean_focal), readout != 0.0,
+                                       image_shift_px / camera.mean_focal)
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
         if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
             warn(line)
@@ -339,10 +345,11 @@ def fit_desired_trajectory(
 def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
                       seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
                       m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], kind: str | None, bias_fraction: float,
-                      readout_estimated: bool) -> JointCovariance:
+                      readout_estimated: bool, image_shift: float = 0.0) -> JointCovariance:
     """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
     for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span``, and the rolling shutter's shift from the poses of the frames ``seen``.
+    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and a
+    shift of the whole image of ``image_shift`` (normalised units, 1 sigma).
     Its frame-long inputs are freed when it returns, before the uncertainty is carried
     through the smoothing."""
     stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
@@ -354,7 +361,8 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
                             frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
                             correlated=kind not in ("texture", "aruco"), bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
-                            shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated)
+                            shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
+                            image_shift=image_shift)
 
 
 def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:

@@ -24,7 +24,7 @@ from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_cor
 from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
 from .chessboard import Board, board_corners_cross, find_board, find_board_near
-from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs
+from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs, speck_floor
 from .texture import TextureDetector
 
 #: Dots targets have this many dots at most (and 3 at least).
@@ -37,6 +37,8 @@ PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7
 #: Dots, markers or a board whose outline covers at least this fraction of the matched
 #: texture's: the texture is their own print and is set aside (docs/targets.md).
 OWN_PRINT_FRACTION = 0.25
+#: A marker's quad grown about its centre by this factor holds its print (its quiet zone).
+MARKER_PRINT_MARGIN = 1.5
 #: A texture feature counts as matched within this distance (px) of where the homography puts it.
 MATCHED_PX = 3.0
 
@@ -55,6 +57,8 @@ class TargetChoice:
     n_points: int = 0
     spread_px: float = float("nan")
     area_px: float = 0.0
+    #: The points seen (K, 2) px (texture: its matched features), for the own-print test.
+    points: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
 
     @property
     def predicted_deg(self) -> float:
@@ -68,7 +72,8 @@ class TargetChoice:
             return self
         seen = points[np.all(np.isfinite(points), axis=1)]
         spread = float(np.sqrt(np.mean(np.sum((seen - seen.mean(axis=0)) ** 2, axis=1))))
-        return replace(self, n_points=len(seen), spread_px=spread, area_px=float(cv2.contourArea(cv2.convexHull(seen.astype(np.float32)))))
+        return replace(self, n_points=len(seen), spread_px=spread, area_px=float(cv2.contourArea(cv2.convexHull(seen.astype(np.float32)))),
+                       points=seen)
 
 
 def _majority(count: int, frames: int) -> bool:
@@ -159,13 +164,16 @@ def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") 
     make up most of what is compact and interior (a textured picture has many dark shapes
     that are not round; components cut by the frame's edge are not counted)."""
     blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
-    round_areas = blobs.areas[blobs.round]
+    round_areas, centres = blobs.areas[blobs.round], blobs.centres[blobs.round]
     if round_areas.size < 3:
-        return blobs.centres[blobs.round], False
+        return centres, False
+    # Specks of noise far smaller than the dots count neither as dots nor against them.
+    specks = speck_floor(round_areas)
+    round_areas, centres = round_areas[round_areas >= specks], centres[round_areas >= specks]
     median = np.median(round_areas)
     similar = (round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)
-    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= 0.1 * median)))
-    return blobs.centres[blobs.round][similar], int(similar.sum()) >= max(3, 0.75 * interior)
+    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= max(0.1 * median, specks))))
+    return centres[similar], int(similar.sum()) >= max(3, 0.75 * interior)
 
 
 def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) -> TargetChoice | None:
@@ -228,20 +236,53 @@ def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[n
     return replace(TargetChoice("texture", reason).measured_by(first[sorted(matched)]), n_points=int(np.median(counts)))
 
 
-def choose_target(
+@dataclass(frozen=True)
+class Candidates:
+    """The kinds the first frames show (``found``, the lowest :attr:`TargetChoice.predicted_deg`
+    first), the kinds looked for and not found (``ruled_out``, in words), and ``aside``: what
+    was set aside as another candidate's own print (words, or "")."""
+
+    found: list[TargetChoice]
+    ruled_out: list[str]
+    aside: str = ""
+
+    def described(self, choice: TargetChoice) -> str:
+        """A candidate's predicted precision and its points, in words."""
+        points = {"dots": "dots", "texture": "features"}.get(choice.kind, "corners")
+        return f"{choice.predicted_deg:.2g} deg ({choice.n_points} {points} over {choice.spread_px:.0f} px)"
+
+    def none_found(self) -> str:
+        """"; no markers (...) and no ..." for the kinds looked for and not found, or ""."""
+        return f"; no {' and no '.join(self.ruled_out)}" if self.ruled_out else ""
+
+
+def is_own_print(candidate: TargetChoice, texture: TargetChoice) -> bool:
+    """Whether the matched ``texture`` is ``candidate``'s own print (then set aside): the
+    candidate's outline covers at least :data:`OWN_PRINT_FRACTION` of the texture's, and, for
+    markers, most of the texture's features lie on the markers (their quads grown by
+    :data:`MARKER_PRINT_MARGIN` for the quiet zone). Small markers printed in a larger
+    picture are not its print: the two compete on their measured precision."""
+    if candidate.area_px < OWN_PRINT_FRACTION * texture.area_px:
+        return False
+    if candidate.kind != "aruco" or candidate.points is None or texture.points is None or len(candidate.points) % 4:
+        return True
+    quads = candidate.points.reshape(-1, 4, 2)
+    centres = quads.mean(axis=1, keepdims=True)
+    grown = (centres + MARKER_PRINT_MARGIN * (quads - centres)).astype(np.float32)
+    on_markers = [any(cv2.pointPolygonTest(quad, (float(x), float(y)), False) >= 0 for quad in grown) for x, y in texture.points]
+    return float(np.mean(on_markers)) >= 0.5
+
+
+def target_candidates(
     images: Sequence[NDArray[np.uint8]],
     template_pixels_of: Any,
     *,
     marker_dict: str | None = None,
     seed: int = 0,
-) -> TargetChoice:
-    """Pick the target kind from the first frames (gray or BGR uint8) of a recording: of the
-    kinds found consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
-
-    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
-    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
-    (or their ChArUco board). InputError naming every kind tried when none is found.
-    """
+) -> Candidates:
+    """Every target kind found consistently in the first frames (gray or BGR uint8) of a
+    recording, as :func:`choose_target` describes; InputError naming every kind tried when
+    none is found."""
     grays = [as_gray(image) for image in images]
     found, ruled_out, aside = [], [], ""
     markers = find_markers(grays, marker_dict)
@@ -261,7 +302,7 @@ def choose_target(
         except InputError:
             texture = None
         printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
-        if texture is not None and any(c.area_px >= OWN_PRINT_FRACTION * texture.area_px for c in printed):
+        if texture is not None and any(is_own_print(c, texture) for c in printed):
             aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
         else:
             tried.append(("texture (natural features matched from frame to frame)", texture))
@@ -273,9 +314,25 @@ def choose_target(
             "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
         )
     found.sort(key=lambda choice: choice.predicted_deg)
-    points = {"dots": "dots", "texture": "features"}
-    described = [f"{c.predicted_deg:.2g} deg ({c.n_points} {points.get(c.kind, 'corners')} over {c.spread_px:.0f} px)" for c in found]
-    others = "".join(f" vs {c.kind} {d}" for c, d in zip(found[1:], described[1:]))
-    none = f"; no {' and no '.join(ruled_out)}" if ruled_out else ""
-    return replace(found[0], reason=f"{found[0].reason}; predicted theta_d precision {described[0]}{others}{aside}{none}")
+    return Candidates(found, ruled_out, aside)
 
+
+def choose_target(
+    images: Sequence[NDArray[np.uint8]],
+    template_pixels_of: Any,
+    *,
+    marker_dict: str | None = None,
+    seed: int = 0,
+) -> TargetChoice:
+    """Pick the target kind from the first frames (gray or BGR uint8) of a recording: of the
+    kinds found consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
+
+    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
+    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
+    (or their ChArUco board). InputError naming every kind tried when none is found.
+    """
+    candidates = target_candidates(images, template_pixels_of, marker_dict=marker_dict, seed=seed)
+    best, *others = candidates.found
+    versus = "".join(f" vs {c.kind} {candidates.described(c)}" for c in others)
+    return replace(best, reason=f"{best.reason}; predicted theta_d precision {candidates.described(best)}{versus}{candidates.aside}"
+                                f"{candidates.none_found()}")

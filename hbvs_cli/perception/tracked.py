@@ -15,8 +15,9 @@ from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..errors import InputError, RecordingError
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
-from .autodetect import TargetChoice
+from .autodetect import Candidates, TargetChoice
 from .autodetect import choose_target as choose
+from .autodetect import target_candidates as candidates_in
 from .base import Detection, TargetDetector, as_gray, match_identity
 from .detector import make_detector
 from .dot_windows import Window, WindowedDotDetector
@@ -196,6 +197,11 @@ def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dic
     """``--target auto`` on real footage: what the first images show (a
     :class:`~hbvs_cli.perception.autodetect.TargetChoice`, which says why)."""
     return choose(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
+
+
+def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> Candidates:
+    """Every kind of target the first images show (:func:`~hbvs_cli.perception.autodetect.target_candidates`)."""
+    return candidates_in(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
 
 
 def count_dots(image: np.ndarray, polarity: str = "dark", contrast: str = "gray") -> int:

@@ -24,14 +24,16 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
-from ..core.plane import UNIT_SQUARE
+from ..core.plane import UNIT_SQUARE, KnownShape
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from ..io.settings import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.tracked import DetectorSpec, TrackedDetector, choose_target, texture_points_for_template
+from ..perception.dots import SharedPull
+from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates, texture_points_for_template
 from ..thread_pool import StopSafePool
+from .auto_target import choose_on_the_drive, followed_frames
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
@@ -197,6 +199,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     topics = TOPICS["fit"]
     log: _FrameLog | None = None
     detector: TrackedDetector | None = None
+    pull: SharedPull | None = None
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
@@ -223,18 +226,24 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 camera = _checked_frame(reader, frame, image)
                 # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
-                pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console)
+                sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
+                                 [(f.t, im) for f, _, im in first])
+                pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console, sample)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
                     spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
                 else:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
+                # Saturated dots: the pull all of them share (bloom), for the uncertainty.
+                pull = SharedPull(spec.polarity or "dark", spec.contrast or "gray") if spec.kind == "dots" else None
                 template = data
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             for frame, data, image in chain(first, rest):
                 _checked_frame(reader, frame, image)
                 assert detector is not None
                 pixels = detector.detect(image)
+                if pull is not None:
+                    pull.add(image, pixels)
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
@@ -260,7 +269,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout)
+        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
+                      pull.pull_px if pull is not None else 0.0)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
         depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
@@ -393,7 +403,8 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
 
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None) -> DesiredFit:
+         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
+         image_shift_px: float = 0.0) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -403,13 +414,7 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     threads deadlocked."""
     from threadpoolctl import threadpool_limits
 
-    shapes: list = [(range(k, k + 4), UNIT_SQUARE) for k in range(0, spec.n_points, 4)] if spec.kind == "aruco" else []
-    if spec.kind == "chessboard" and spec.board is not None:
-        shapes = [(range(spec.n_points), board_layout(spec.board))]
-    if spec.kind == "charuco" and spec.board is not None:
-        shapes = [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
-    if layout is not None:  # --target-points: the whole target's layout, known
-        shapes = [(range(layout.shape[0]), layout)]
+    shapes = _known_shapes(spec, layout)
     _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
@@ -417,7 +422,7 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
             return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                           max_lost=options.max_lost, max_gap=options.max_gap,
                                           warn=console.warn if layout is None else layout_given_warn(console.warn),
-                                          shapes=shapes, kind=spec.kind)
+                                          shapes=shapes, kind=spec.kind, image_shift_px=image_shift_px)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
@@ -432,6 +437,21 @@ def layout_given_warn(warn: Callable[[str], None]) -> Callable[[str], None]:
     def told(message: str) -> None:
         warn(message.replace(KNOWN_GEOMETRY_ADVICE, "").replace("what would pin it:", "the layout is given (--target-points); what would pin it more:"))
     return told
+
+
+def _known_shapes(spec: DetectorSpec, layout: np.ndarray | None = None) -> list[KnownShape]:
+    """The target's parts of known shape: each marker's square (its four corners in OpenCV's
+    order), a board's grid, or ``layout`` (--target-points: the whole target's, known)."""
+    if layout is not None:
+        return [(range(layout.shape[0]), layout)]
+    n_points = int(spec.n_points or 0)
+    if spec.kind == "aruco":
+        return [(range(k, k + 4), UNIT_SQUARE) for k in range(0, n_points, 4)]
+    if spec.kind == "chessboard" and spec.board is not None:
+        return [(range(n_points), board_layout(spec.board))]
+    if spec.kind == "charuco" and spec.board is not None:
+        return [(range(n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
+    return []
 
 
 def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
@@ -489,13 +509,14 @@ def _check_marker_options(options: FitOptions) -> None:
 
 
 def _detector_spec(
-    options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console
+    options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console,
+    sample: Callable[[], Iterator[tuple[float, np.ndarray]]] | None = None,
 ) -> DetectorSpec:
     """What to detect: the recording's world says it for a simulated teach, else the images
-    (``--target auto`` looks at the first few and says on stderr what it picked and why)."""
-    image = images[0]
+    (``--target auto`` finds the candidates in the first few, judges them on the frames
+    ``sample()`` spreads over the whole drive, :mod:`.auto_target`, and says on stderr what
+    it picked and why)."""
     kind = options.target
-    choice = None
     pinned_marker = options.marker_dict is not None or options.marker_id is not None
     if kind == "auto" and world is None:
         if options.board is not None:
@@ -503,14 +524,25 @@ def _detector_spec(
         elif pinned_marker:
             kind = "aruco"
         else:
-            choice = choose_target(images, camera, seed=options.seed)
-            kind = choice.kind
-            console.info(f"--target auto picked {kind}: {choice.reason}")
+            candidates = target_candidates(images, camera, seed=options.seed)
+            spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
+            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes,
+                                                       sample() if sample is not None else enumerate(images),
+                                                       camera, options.max_lost, options.seed)
+            console.info(f"--target auto picked {choice.kind}: {reason}")
+            return spec
     elif kind == "auto":
         kind = world.target.kind
     if world is not None and world.target.kind != kind:
         raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
-    details = choice.details if choice is not None else {}
+    return _spec_of_kind(kind, {}, options, world, images, camera, pose, console)
+
+
+def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
+                  camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
+    """The detector of a target ``kind``: from what ``--target auto`` found of it (``details``),
+    the options, the simulated ``world`` (None for real footage) or the first ``images``."""
+    image = images[0]
     if kind == "dots" and world is None and not details:
         from ..perception.autodetect import find_dots
 

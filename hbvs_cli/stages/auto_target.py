@@ -1,0 +1,160 @@
+"""``--target auto`` judged on the whole drive (docs/targets.md).
+
+The first frames say which kinds of target a recording may show
+(:func:`~hbvs_cli.perception.autodetect.target_candidates`). Each candidate is then
+followed over at most :data:`FOLLOWED_FRAMES` frames strided evenly over the whole
+recording by the detector the fit would use, its own tracker from frame to frame: one
+missing from more than ``--max-lost`` of them is not chosen, and the others are compared by
+the precision a short joint estimate of n* on :data:`JUDGE_FRAMES` of them gives (the fit's
+own :func:`~hbvs_cli.core.desired.fit_desired_trajectory` and its uncertainty: the RMS
+sigma of theta_d over those frames), not by their number of points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from ..core.camera import CameraIntrinsics
+from ..core.desired import MIN_PARTIAL_POINTS, fit_desired_trajectory
+from ..core.metrics import rms
+from ..core.plane import KnownShape
+from ..errors import HbvsError, InputError, InsufficientDataError
+from ..io.teach_file import TeachReader
+from ..perception.autodetect import Candidates, TargetChoice
+from ..perception.tracked import DetectorSpec, TrackedDetector
+from .frame_decoding import decode_frame
+
+#: Frames each candidate is followed on at most, evenly strided over the whole recording
+#: (every frame of a short one): each kind's own tracker from frame to frame, as the fit
+#: runs it, so that dots and chessboards keep their points' names.
+FOLLOWED_FRAMES = 120
+#: Of those, the frames the short joint estimate uses (evenly spread, the first as F*).
+JUDGE_FRAMES = 24
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One candidate followed over the drive: its ``spec``, the frames it was ``seen`` in of
+    ``frames``, and the RMS sigma of theta_d (deg) of the short joint estimate on
+    :data:`JUDGE_FRAMES` of them, or why it is not usable (``rejected``, words; then
+    ``theta_sigma_deg`` is NaN)."""
+
+    choice: TargetChoice
+    spec: DetectorSpec
+    seen: int
+    frames: int
+    theta_sigma_deg: float = float("nan")
+    rejected: str = ""
+
+
+def followed_frames(source: str, frame_count: int | None, colour: bool, first: Sequence[tuple[float, np.ndarray]]
+                    ) -> Iterator[tuple[float, np.ndarray]]:
+    """``(t, image)`` of at most :data:`FOLLOWED_FRAMES` frames evenly strided over the
+    recording ``source`` (read a second time; decoded in colour when ``colour``), the first
+    included; ``first`` (its first frames) when the recording cannot be read twice (stdin)
+    or does not say how many frames it holds."""
+    if source == "-" or frame_count is None or frame_count <= len(first):
+        yield from first
+        return
+    stride = -(-frame_count // FOLLOWED_FRAMES)
+    reader = TeachReader(source)
+    for frame in reader.frames():
+        if frame.index % stride == 0:
+            yield frame.t, decode_frame(frame, reader.name, colour=colour)[1]
+
+
+def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec], shapes_of: Callable[[DetectorSpec], list[KnownShape]],
+          frames: Iterable[tuple[float, np.ndarray]], camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> list[Judged]:
+    """Every candidate followed by its own tracker over ``frames`` (``(t, image)``, read once)
+    and, when it is found in all but ``max_lost`` of them, its short joint estimate on
+    :data:`JUDGE_FRAMES` of them with the first as F*: the candidates in the order given."""
+    specs = [spec_of(choice) for choice in candidates.found]
+    detectors: list[TrackedDetector | None] = [TrackedDetector(spec, camera, seed=seed) for spec in specs]
+    failures = [""] * len(specs)
+    times, pixels = [], [[] for _ in specs]
+    for t, image in frames:
+        times.append(t)
+        for k, detector in enumerate(detectors):
+            if detector is None:
+                continue
+            try:
+                pixels[k].append(detector.detect(image))
+            except HbvsError as exc:  # e.g. too few dots in the first frame for a dots target
+                detectors[k], failures[k] = None, str(exc)
+    judged = []
+    for choice, spec, found, failure in zip(candidates.found, specs, pixels, failures):
+        if failure:
+            judged.append(Judged(choice, spec, 0, len(times), rejected=failure))
+            continue
+        spec, found = _markers_whole_in_the_first_frame(spec, np.stack(found))
+        judged.append(_judged(choice, spec, np.asarray(times), found, shapes_of(spec), camera, max_lost))
+    return judged
+
+
+def _markers_whole_in_the_first_frame(spec: DetectorSpec, pixels: np.ndarray) -> tuple[DetectorSpec, np.ndarray]:
+    """Several markers of which some are not whole in the first frame (F*, which must show
+    the whole target): those that are, and their pixels (F, 4M, 2); else as given. Markers
+    decoded in most of the first frames may miss the very first (a 3x2 board under a barrel
+    lens, 3 seeds of 10: the fit failed)."""
+    if spec.kind != "aruco" or not spec.marker_ids or len(spec.marker_ids) < 2:
+        return spec, pixels
+    whole = np.all(np.isfinite(pixels[0].reshape(-1, 4, 2)), axis=(1, 2))
+    if whole.all() or not whole.any():
+        return spec, pixels
+    ids = tuple(i for i, seen in zip(spec.marker_ids, whole) if seen)
+    return (replace(spec, marker_ids=ids, n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None),
+            pixels[:, np.repeat(whole, 4)])
+
+
+def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels: np.ndarray, shapes: list[KnownShape],
+            camera: CameraIntrinsics, max_lost: float) -> Judged:
+    """One candidate's verdict from its pixels (F, N, 2) over the followed frames at ``times``."""
+    frames = len(times)
+    points_seen = np.sum(np.all(np.isfinite(pixels), axis=2), axis=1)
+    seen = int(np.count_nonzero(points_seen >= min(pixels.shape[1], MIN_PARTIAL_POINTS)))
+    if frames - seen > max_lost * frames:
+        return Judged(choice, spec, seen, frames, rejected=f"missing from {frames - seen} of {frames} frames")
+    rows = np.unique(np.linspace(0, frames - 1, min(JUDGE_FRAMES, frames)).round().astype(int))
+    try:
+        fit = fit_desired_trajectory(times[rows], pixels[rows], 0, camera, None, max_lost=1.0, max_gap=float("inf"), shapes=shapes,
+                                     kind=spec.kind)
+    except InsufficientDataError as exc:
+        words = "not whole in the first frame" if exc.facts.get("reason") == "not_in_reference" else str(exc)
+        return Judged(choice, spec, seen, frames, rejected=words)
+    except HbvsError as exc:
+        return Judged(choice, spec, seen, frames, rejected=str(exc))
+    if fit.uncertainty is None:
+        return Judged(choice, spec, seen, frames, rejected="found in the first frame only")
+    return Judged(choice, spec, seen, frames, theta_sigma_deg=float(np.degrees(rms(fit.uncertainty.theta_sigma[fit.used]))))
+
+
+def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) -> tuple[Judged, str]:
+    """The usable candidate of the lowest sigma, and the one line that says why (the measured
+    figures of every candidate); InputError when none is usable."""
+    usable = sorted((j for j in judged if not j.rejected), key=lambda j: j.theta_sigma_deg)
+    frames = judged[0].frames if judged else 0
+
+    def figures(j: Judged) -> str:
+        if j.rejected:
+            return f"{j.choice.kind} {j.rejected}" + (f" (more than --max-lost {100 * max_lost:.0f} %)" if j.rejected.startswith("missing") else "")
+        return f"{j.choice.kind} {j.theta_sigma_deg:.2g} deg (found in {j.seen} of {j.frames} frames)"
+
+    if not usable:
+        raise InputError(f"--target auto: no target kind is found over the whole drive ({frames} frames followed): "
+                         f"{'; '.join(figures(j) for j in judged)}. Choose one with --target dots|aruco|chessboard|charuco|texture")
+    best = usable[0]
+    others = "".join(f" vs {figures(j)}" for j in judged if j is not best)
+    reason = (f"{best.choice.reason}; followed over {frames} frames of the whole drive, a short joint estimate on up to {JUDGE_FRAMES} "
+              f"of them gives theta_d a sigma of {figures(best).split(' ', 1)[1]}{others}{candidates.aside}{candidates.none_found()}")
+    return best, reason
+
+
+def choose_on_the_drive(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec],
+                        shapes_of: Callable[[DetectorSpec], list[KnownShape]], frames: Iterable[tuple[float, np.ndarray]],
+                        camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> tuple[DetectorSpec, str, TargetChoice]:
+    """:func:`judge` over ``frames``, then :func:`picked`: the spec, its one line and the choice."""
+    best, reason = picked(judge(candidates, spec_of, shapes_of, frames, camera, max_lost, seed), candidates, max_lost)
+    return best.spec, reason, best.choice
