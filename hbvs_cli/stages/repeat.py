@@ -518,8 +518,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
         out = live.CommandOut(publisher, cmd_stream, options.dry_run, options.stale_timeout)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
-            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
-            live.check_camera(camera, model.camera, "the live camera's calibration")
+            # The run file first: whatever stops the run from here on is recorded in it.
             # --foxglove: the run served as it is written (already real time: no pacing).
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
             writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
@@ -530,6 +529,8 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, None)
+            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
+            live.check_camera(camera, model.camera, "the live camera's calibration")
             status = stack.enter_context(console.status_line())
             loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings,
                                  status=status, warn=console.warn)
