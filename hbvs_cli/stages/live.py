@@ -279,7 +279,10 @@ class LiveLoop:
     stopped: str | None = None
 
     def __post_init__(self) -> None:
-        self.clock = CameraClock(1.0 / self.settings.rate)
+        #: The control period and the taught trajectory's duration (s).
+        self.period = 1.0 / self.settings.rate
+        self.duration = self.trajectory.t_end - self.trajectory.t_start
+        self.clock = CameraClock(self.period)
         self.stats = LiveStats()
         #: ``time.monotonic()`` when the command of the last used frame went out.
         self.used_at = time.monotonic()
@@ -354,8 +357,7 @@ class LiveLoop:
     def __iter__(self) -> Iterator[ServoInput]:
         """The loop's inputs (:class:`~hbvs_cli.core.servo_loop.ServoSource`): each newest usable frame, measured, until
         the trajectory's end or a stop (:attr:`stopped` says why)."""
-        period = 1.0 / self.settings.rate
-        duration = self.trajectory.t_end - self.trajectory.t_start
+        period, duration = self.period, self.duration
         first_stamp: float | None = None
         previous_stamp: float | None = None
         while True:
@@ -388,8 +390,7 @@ class LiveLoop:
 
     def drive(self) -> None:
         """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
-        period = 1.0 / self.settings.rate
-        duration = self.trajectory.t_end - self.trajectory.t_start
+        period, duration = self.period, self.duration
         lost_for = 0.0
         for record in run_servo(self, self.servo):
             frame, t = self.frame, record.t
