@@ -27,10 +27,11 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
-from ..io.settings import (
+from ..settings.commands import (
     EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
-    TEACH_SETTINGS, options_from_command_line,
+    TEACH_SETTINGS,
 )
+from ..settings.option import options_from_command_line
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 

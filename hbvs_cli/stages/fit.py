@@ -27,7 +27,7 @@ from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE, KnownShape
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
-from ..io.settings import MAX_DEPTH, MIN_DEPTH, FitOptions
+from ..settings.commands import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
 from ..perception.dots import SharedPull

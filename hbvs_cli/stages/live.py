@@ -25,9 +25,8 @@ from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.ros2_names import check_topic_names
 from ..io.run_file import RunWriter
 from ..io.topics import ROS_CMD_VEL_TOPIC
-from ..io.settings import RepeatOptions
+from ..settings.commands import RepeatOptions
 from ..stop_signals import Terminated, raise_if_stopped
-from .options import stamped_commands
 
 #: Consecutive frames with the target near its taught start view before the first non-zero command.
 START_FRAMES = 5
@@ -159,7 +158,6 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
         raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
     if options.camera is not None and options.calibration is None:
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
-    stamped_commands(options.cmd_type)
     check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if options.stale_timeout > lost_timeout:
         raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "

@@ -26,8 +26,8 @@ from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
 from .console import Console
 from .frame_decoding import fit_reference_image
-from .options import parse_interval, parse_offset, stamped_commands
-from ..io.settings import RobotSimOptions
+from .options import parse_interval, parse_offset
+from ..settings.commands import RobotSimOptions
 from ..stop_signals import raise_if_stopped
 
 
@@ -51,7 +51,7 @@ class _Ros2Robot:
         self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.camera_qos())
         self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.camera_qos())
         self.pose_writer = node.publisher(ROS_TRUE_POSE_TOPIC, dds.PoseStamped, dds.command_qos())
-        self.stamped = stamped_commands(options.cmd_type)
+        self.stamped = options.cmd_type == "twist-stamped"
         self.commands = node.subscriber(options.cmd_topic, dds.TwistStamped if self.stamped else dds.Twist, dds.command_qos())
         self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()}); {node.description}"
 
@@ -218,9 +218,6 @@ def _transport(options: RobotSimOptions, camera: Any) -> Any:
 
 def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     """Run the stand-in robot until ``--duration`` or a stop signal."""
-    if options.image_format not in ("raw", "jpeg"):
-        raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
-    stamped_commands(options.cmd_type)
     if options.ros2:
         check_topic_names((options.image_topic, "--image-topic"), (options.cmd_topic, "--cmd-topic"))
     fit = read_fit_file(options.input)

@@ -26,7 +26,7 @@ from ..io.dds_discovery import describe_dds
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.ros2_names import check_topic_names
-from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
+from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
@@ -40,7 +40,7 @@ SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quali
 
 
 class TeachOptions(TeachFields):
-    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.io.settings.TEACH_SETTINGS`)."""
+    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.settings.commands.TEACH_SETTINGS`)."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
