@@ -12,7 +12,7 @@ import time
 from collections import deque
 from contextlib import ExitStack
 from dataclasses import dataclass
-from typing import IO, Any, Callable, Iterator
+from typing import IO, Any, Callable, Iterator, Protocol
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from ..io.calibration import load_calibration
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.ros2_names import check_topic_names
 from ..io.run_file import RunWriter
+from ..io.sources.frame_source import LiveFrame
 from ..io.topics import ROS_CMD_VEL_TOPIC
 from ..settings.commands import RepeatOptions
 from ..stop_signals import Terminated, raise_if_stopped
@@ -57,14 +58,13 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 class CommandOut:
     """Where commands go: a ROS 2 publisher and/or a JSON-lines stream; zero on :meth:`stop`.
 
-    ``publisher``: ``publish(v, w)``, ``other_publishers()`` (other writers on the topic now) and
-    ``foreign_commands()`` (commands another writer sent since the last call), or None.
+    ``publisher``: the robot interface's :class:`CommandSink`, or None.
     ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s)
     without a newer one by zero, whatever the loop is doing (a slow frame, a source that hangs);
     None for none. :meth:`close` ends it.
     """
 
-    def __init__(self, publisher: Any, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
+    def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
         self._publisher = publisher
         self._stream = stream
         self.dry_run = dry_run
@@ -156,8 +156,6 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
     """Refuse options a live run cannot honour (``lost_timeout``: the resolved --lost-timeout, s)."""
     if (options.camera is None) == (options.ros2_image is None):
         raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
-    if options.camera is not None and options.calibration is None:
-        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
     check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if options.stale_timeout > lost_timeout:
         raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "
@@ -168,13 +166,113 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
             raise UsageError(f"--{name.replace('_', '-')} is for --sim; a live run's faults are real")
 
 
-def command_topic(options: RepeatOptions) -> str | None:
-    """The ROS 2 command topic: --ros2-cmd, else /cmd_vel unless only --cmd-out was given."""
-    if options.ros2_cmd is not None:
-        return options.ros2_cmd
-    if options.cmd_out is not None and options.ros2_image is None:
-        return None
-    return ROS_CMD_VEL_TOPIC
+class LiveSource(Protocol):
+    """A robot's camera as ``repeat --live`` reads it: the newest frame not returned yet, waiting at most ``timeout_s``
+    (s) for one, else None. A source that can end (a video file) says so with an ``ended`` attribute."""
+
+    def latest(self, timeout_s: float) -> LiveFrame | None: ...
+
+
+class CommandSink(Protocol):
+    """Where a robot takes its commands: ``publish(v, w)`` (m/s, rad/s; zeros stop it), ``topic`` (its name in
+    messages), and the other commanders it sees: ``other_publishers()`` (now) and ``foreign_commands()`` (commands
+    another one sent since the last call)."""
+
+    topic: str
+
+    def publish(self, v: float, w: float) -> None: ...
+
+    def other_publishers(self) -> int: ...
+
+    def foreign_commands(self) -> int: ...
+
+
+@dataclass
+class RobotLink:
+    """A robot interface opened: its command sink (None: only ``--cmd-out``), what opens its camera (the frame
+    source and the camera's intrinsics; called once the run file is open, so a camera that cannot be used is
+    recorded), and the camera's name the run file records."""
+
+    commands: CommandSink | None
+    open_camera: Callable[[], tuple[LiveSource, Any]]
+    source_name: str
+
+
+@dataclass(frozen=True)
+class RobotInterface:
+    """A way ``repeat --live`` reaches a robot: ``chosen`` says whether the options ask for it, ``open(options,
+    stack, lost_timeout_s, info)`` makes its :class:`RobotLink` (``stack`` closes what it opens; ``info`` a message
+    for the user). The last registered interface the options choose is used (:func:`robot_interface`)."""
+
+    name: str
+    chosen: Callable[[RepeatOptions], bool]
+    open: Callable[[RepeatOptions, ExitStack, float, Callable[[str], None]], RobotLink]
+
+
+#: The robot interfaces ``repeat --live`` knows (:func:`register_robot_interface` adds one).
+ROBOT_INTERFACES: list[RobotInterface] = []
+
+
+def register_robot_interface(interface: RobotInterface) -> None:
+    """Make ``interface`` one ``repeat --live`` can use; chosen by the same options as an earlier one, it wins."""
+    ROBOT_INTERFACES.append(interface)
+
+
+def robot_interface(options: RepeatOptions) -> RobotInterface:
+    """The interface ``options`` ask for: the last registered that they choose."""
+    for interface in reversed(ROBOT_INTERFACES):
+        if interface.chosen(options):
+            return interface
+    raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
+
+
+def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple[Any, CommandSink | None]:
+    """A ROS 2 node (None when no ROS 2 topic is asked for) and the command publisher on --ros2-cmd, else on
+    /cmd_vel unless only --cmd-out was given."""
+    topic = options.ros2_cmd if options.ros2_cmd is not None else (
+        None if options.cmd_out is not None and options.ros2_image is None else ROS_CMD_VEL_TOPIC)
+    if options.ros2_image is None and topic is None:
+        return None, None
+    from ..io import ros2_dds as dds  # lazy: an optional extra
+    from ..io.dds_discovery import describe_dds
+    from ..io.ros2_live import CommandPublisher
+
+    info(f"repeat --live: {describe_dds()}")
+    node = dds.Ros2Node()
+    return node, (CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped") if topic is not None else None)
+
+
+def _open_camera(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
+    """``--camera``: frames from OpenCV (an index, /dev/videoN, RTSP, HTTP such as ``robot-sim --mjpeg``'s, a video file)."""
+    if options.calibration is None:
+        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
+    from ..io.sources.live_camera import LatestCameraFrame
+
+    _, commands = _ros2_commands(options, info)
+    return RobotLink(commands, lambda: (stack.enter_context(LatestCameraFrame(options.camera)),
+                                        load_calibration(options.calibration)), options.camera)
+
+
+def _open_ros2(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
+    """``--ros2-image``: frames and (unless --calibration) CameraInfo from ROS 2, awaited for the discovery time or
+    ``lost_timeout`` (s) if longer."""
+    from ..io import ros2_dds as dds
+    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
+
+    node, commands = _ros2_commands(options, info)
+    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
+
+    def open_camera() -> tuple[LiveSource, Any]:
+        source = LatestImage(node, options.ros2_image, timeout_s)
+        if options.calibration is not None:
+            return source, load_calibration(options.calibration)
+        return source, wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
+
+    return RobotLink(commands, open_camera, options.ros2_image)
+
+
+register_robot_interface(RobotInterface("camera", lambda options: options.camera is not None, _open_camera))
+register_robot_interface(RobotInterface("ros2", lambda options: options.ros2_image is not None, _open_ros2))
 
 
 def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
@@ -185,25 +283,6 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
         live, taught = float(getattr(camera, name)), float(getattr(fit_camera, name))
         if abs(live - taught) > CALIBRATION_TOLERANCE * max(abs(taught), 1.0):
             raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
-
-
-def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics; a ROS 2 camera is awaited for the discovery time, or ``lost_timeout`` (s) if longer."""
-    if options.camera is not None:
-        from ..io.sources.live_camera import LatestCameraFrame
-
-        camera = load_calibration(options.calibration)
-        return stack.enter_context(LatestCameraFrame(options.camera)), camera
-    from ..io import ros2_dds as dds
-    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
-
-    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
-    source = LatestImage(node, options.ros2_image, timeout_s)
-    if options.calibration is not None:
-        camera = load_calibration(options.calibration)
-    else:
-        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
-    return source, camera
 
 
 def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
@@ -255,7 +334,7 @@ class LiveLoop:
     non-zero command stands at most ``--stale-timeout`` after the last used frame's: a command never
     outlives its measurement, whatever the camera's clock does."""
 
-    source: Any
+    source: LiveSource
     detector: Any
     estimator: Any
     model: Any

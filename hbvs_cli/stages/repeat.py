@@ -474,10 +474,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     """``--live``: drive a robot, every frame through the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``."""
     live.check_live_options(options, settings.lost_timeout)
+    interface = live.robot_interface(options)
     model = fit.model
-    topic = live.command_topic(options)
-    if topic is None and options.cmd_out is None:
-        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     state_filter = make_state_filter(settings, model, estimator)
@@ -489,21 +487,10 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     run: RunWriter | None = None
     stop_reason: str | None = None
     with ExitStack() as stack:
-        node = None
-        if options.ros2_image is not None or topic is not None:
-            from ..io import ros2_dds as dds  # lazy: an optional extra
-            from ..io.dds_discovery import describe_dds
-
-            console.info(f"repeat --live: {describe_dds()}")
-            node = dds.Ros2Node()
-        publisher = None
-        if topic is not None:
-            from ..io.ros2_live import CommandPublisher
-
-            publisher = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+        link = interface.open(options, stack, settings.lost_timeout, console.info)
         # Kept, finished, whatever ends the run: the record of what a robot was sent is never lost.
         cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream", keep_on_error=True))
-        out = live.CommandOut(publisher, cmd_stream, options.dry_run, options.stale_timeout)
+        out = live.CommandOut(link.commands, cmd_stream, options.dry_run, options.stale_timeout)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
             # The run file first: whatever stops the run from here on is recorded in it.
@@ -511,13 +498,12 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
             writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
             info = _run_metadata("live", options, settings, fit, None) | {"live": {
-                "source": options.camera if options.camera is not None else options.ros2_image,
-                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
-                "stale_timeout_s": options.stale_timeout,
+                "source": link.source_name, "cmd_topic": link.commands.topic if link.commands is not None else None,
+                "cmd_type": options.cmd_type, "dry_run": options.dry_run, "stale_timeout_s": options.stale_timeout,
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, None)
-            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
+            source, camera = link.open_camera()
             live.check_camera(camera, model.camera, "the live camera's calibration")
             status = stack.enter_context(console.status_line())
             loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings,
