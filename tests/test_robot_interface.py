@@ -17,6 +17,7 @@ import pytest
 
 from hbvs_cli.core.frames import compose_planar_pose
 from hbvs_cli.core.unicycle import DynamicBase
+from hbvs_cli.errors import UsageError
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.sources.frame_source import LiveFrame
@@ -118,5 +119,6 @@ def test_the_shipped_robot_interfaces_are_chosen_by_their_options():
         return live.robot_interface(RepeatOptions(input="fit.mcap", live=True, **given)).name
 
     assert chosen(camera="0") == "camera" and chosen(ros2_image="/camera/image_raw") == "ros2"
-    with pytest.raises(Exception, match="--live needs one frame source"):
-        chosen()
+    for neither_or_both in ({}, {"camera": "0", "ros2_image": "/camera/image_raw"}):
+        with pytest.raises(UsageError, match="--live needs one frame source"):
+            live.check_live_options(RepeatOptions(input="fit.mcap", live=True, **neither_or_both), 3.0)

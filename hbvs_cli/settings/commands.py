@@ -132,8 +132,6 @@ class FitOptions(Options):
         "order the target's points are found or any order for dots): pins the plane normal n* and gives d*.")
 
 
-FIT_SETTINGS = settings_of(FitOptions)
-
 #: Default actuator limits of the simulated robot (m/s, rad/s): a small indoor platform.
 DEFAULT_MAX_V = 0.5
 DEFAULT_MAX_W = 0.6
@@ -151,6 +149,7 @@ MAX_STALE_TIMEOUT = 10.0
 MAX_LOST_TIMEOUT = 3600.0
 #: Gains without a fit's suggestion (core's defaults; samples/gains.toml lists the same).
 DEFAULT_GAINS = ControllerGains()
+
 
 @dataclass(frozen=True)
 class RepeatOptions(Options):
@@ -265,11 +264,11 @@ class RobotSimOptions(Options):
     stamp_fault: str | None = option("A camera clock fault from T s after the robot first moved: freeze@T, back:S@T, jump:S@T (one frame S s ahead), "
         "second-clock:S@T (every other frame from a clock S s ahead), max@T (one frame at 2^31-1 s), stall:S@T "
         "(no frame for S s).", panel="Faults")
-ROBOT_SIM_SETTINGS = settings_of(RobotSimOptions)
 
 
 #: Resolution of a raster figure when ``--dpi`` is not given (dots per inch).
 DEFAULT_DPI = 200.0
+
 
 @dataclass(frozen=True)
 class ReportOptions(Options):
@@ -294,8 +293,10 @@ class ReportOptions(Options):
         "--panels position,heading,v,w,top.", panel="Figure")
     panels: str | None = option("Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, "
         "V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", panel="Figure")
-REPORT_SETTINGS = settings_of(ReportOptions)
-REPORT = {setting.name: setting for setting in REPORT_SETTINGS}
+
+
+REPORT = {setting.name: setting for setting in settings_of(ReportOptions)}
+
 
 @dataclass(frozen=True)
 class SweepOptions(Options):
@@ -325,9 +326,11 @@ class SweepOptions(Options):
         default="failed", choices=KEEP_CHOICES)
     json_output: bool = option("Print the summary as JSON instead of tables.", default=False, flags=("--json",))
     plots: bool = option("Draw the summary figures into the results folder.", default=True, flags=("--plots/--no-plots",))
-SWEEP_SETTINGS = settings_of(SweepOptions)
+
+
 #: The settings by name.
-SWEEP = {setting.name: setting for setting in SWEEP_SETTINGS}
+SWEEP = {setting.name: setting for setting in settings_of(SweepOptions)}
+
 
 @dataclass(frozen=True)
 class ExportOptions(Options):
@@ -338,7 +341,7 @@ class ExportOptions(Options):
         "complete.", flags=("-o", "--output"), required=True)
     allow_truncated: bool = option("Replace an existing bag even when the input ended early (no end record: the writer "
         "upstream died).", default=False)
-EXPORT_SETTINGS = settings_of(ExportOptions)
+
 
 @dataclass(frozen=True)
 class InfoOptions(Options):
@@ -346,4 +349,3 @@ class InfoOptions(Options):
 
     input: str = option("An MCAP file (an hbvs teach, fit or run file, or any other), or - for stdin.", argument=True)
     json_output: bool = option("Print one JSON object instead of the text.", default=False, flags=("--json",))
-INFO_SETTINGS = settings_of(InfoOptions)

@@ -1,11 +1,10 @@
-"""One option, declared once as a field of a stage's options dataclass (:func:`option`): its name and
-type are the field's, its help, default, bounds, choices and config key the field's metadata. From the
-fields come the typer signature (:mod:`hbvs_cli.cli.signature`), the ``--config`` keys
-(:mod:`.config`) and the sweep's parameters (:mod:`hbvs_cli.sweep.parameters`). Values are checked
-once, as the options are made (:class:`Options`), and trusted below."""
+"""An option declared once, as a field of a stage's options dataclass (:func:`option`): name and type the
+field's, help, default, bounds, choices and config key its metadata; the typer signature, the ``--config``
+keys and the sweep's parameters come from it. Values are checked as the options are made (:class:`Options`)."""
 
 from __future__ import annotations
 
+import math
 import sys
 import types
 from dataclasses import dataclass, field, fields
@@ -14,8 +13,7 @@ from typing import Any, Callable, Mapping, Union, get_args, get_origin, get_type
 
 from ..errors import UsageError
 
-#: The key of a field's metadata that holds its :class:`Setting`'s details.
-_DETAILS = "hbvs_option"
+_DETAILS = "hbvs_option"  # the key of a field's metadata that holds its Setting's details
 
 
 @dataclass(frozen=True)
@@ -60,22 +58,17 @@ class Setting:
         return self.choices() if callable(self.choices) else self.choices
 
     def violation(self, value: Any, label: str | None = None) -> str | None:
-        """Why ``value`` is not one of :meth:`allowed` or is outside :attr:`bounds`, in the command line's words
-        (``label``: the option's name as the message gives it), or None. A list, a flag or None is not checked."""
+        """Why ``value`` is not :meth:`allowed` or is outside :attr:`bounds`, in the command line's words (``label``:
+        the option's name in them), or None. A list, a flag or None is not checked."""
         option = label or self.option_names[-1]
         if isinstance(value, str) and self.allowed() and value not in self.allowed():
             return f"{option} must be one of {', '.join(self.allowed())}, got {value!r}"
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             return None
-        low, high = self.bounds.get("min"), self.bounds.get("max")
-        where = f"Invalid value for '{option}'"
-        if value != value:  # NaN compares false with every bound
-            return f"{where}: Input should be a number, got nan"
-        if low is not None and not value >= low:
-            return f"{where}: Input should be greater than or equal to {shown(low)}"
-        if high is not None and not value <= high:
-            return f"{where}: Input should be less than or equal to {shown(high)}"
-        return None
+        low, high = self.bounds.get("min", -math.inf), self.bounds.get("max", math.inf)
+        problem = ("a number, got nan" if value != value else f"greater than or equal to {shown(low)}" if not value >= low
+                   else f"less than or equal to {shown(high)}" if not value <= high else None)  # NaN fails every bound
+        return f"Invalid value for '{option}': Input should be {problem}" if problem else None
 
     def resolve(self, given: Any, config: Mapping[str, Any], fallback: Any = None) -> Any:
         """The option if given, else the config's value, else ``fallback`` or this setting's own."""
@@ -88,9 +81,7 @@ class Setting:
 
 def shown(value: Any) -> str:
     """A default or bound as ``--help`` writes it."""
-    if isinstance(value, float):
-        return f"{value:g}"
-    return str(value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def option(help: str, default: Any = None, *, argument: bool = False, required: bool = False, repeatable: bool = False,
@@ -101,9 +92,7 @@ def option(help: str, default: Any = None, *, argument: bool = False, required: 
                                **details)}
     if repeatable:
         return field(default_factory=list, metadata=metadata)
-    if argument or required:
-        return field(metadata=metadata)
-    return field(default=default, metadata=metadata)
+    return field(metadata=metadata) if argument or required else field(default=default, metadata=metadata)
 
 
 def _value_type(annotation: Any) -> type:
@@ -121,8 +110,8 @@ def settings_of(cls: type) -> tuple[Setting, ...]:
 
 
 class Options:
-    """What every options dataclass shares: its values checked once, as it is made (command line, sweep, stages
-    calling stages), against each option's choices and bounds; :class:`~hbvs_cli.errors.UsageError` says which."""
+    """The base of the options dataclasses: values checked once against each option's choices and bounds, as the
+    options are made (command line, sweep, a stage calling another); :class:`~hbvs_cli.errors.UsageError` if not."""
 
     def __post_init__(self) -> None:
         for setting in settings_of(type(self)):

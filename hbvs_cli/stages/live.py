@@ -167,31 +167,27 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
 
 
 class LiveSource(Protocol):
-    """A robot's camera as ``repeat --live`` reads it: the newest frame not returned yet, waiting at most ``timeout_s``
-    (s) for one, else None. A source that can end (a video file) says so with an ``ended`` attribute."""
+    """A robot's camera: the newest frame not returned yet, waiting at most ``timeout_s`` (s), else None (a source
+    that can end, as a video file, says so with an ``ended`` attribute)."""
 
     def latest(self, timeout_s: float) -> LiveFrame | None: ...
 
 
 class CommandSink(Protocol):
-    """Where a robot takes its commands: ``publish(v, w)`` (m/s, rad/s; zeros stop it), ``topic`` (its name in
-    messages), and the other commanders it sees: ``other_publishers()`` (now) and ``foreign_commands()`` (commands
-    another one sent since the last call)."""
+    """A robot's command input: ``publish(v, w)`` (m/s, rad/s; zeros stop it), ``topic`` its name, and the other
+    commanders it sees: ``other_publishers()`` now, ``foreign_commands()`` commands they sent since the last call."""
 
     topic: str
 
     def publish(self, v: float, w: float) -> None: ...
-
     def other_publishers(self) -> int: ...
-
     def foreign_commands(self) -> int: ...
 
 
 @dataclass
 class RobotLink:
-    """A robot interface opened: its command sink (None: only ``--cmd-out``), what opens its camera (the frame
-    source and the camera's intrinsics; called once the run file is open, so a camera that cannot be used is
-    recorded), and the camera's name the run file records."""
+    """An opened robot interface: its command sink (None: ``--cmd-out`` only), what opens its camera (the source
+    and the intrinsics, once the run file is open: a camera that cannot be used is recorded), the camera's name."""
 
     commands: CommandSink | None
     open_camera: Callable[[], tuple[LiveSource, Any]]
@@ -200,35 +196,26 @@ class RobotLink:
 
 @dataclass(frozen=True)
 class RobotInterface:
-    """A way ``repeat --live`` reaches a robot: ``chosen`` says whether the options ask for it, ``open(options,
-    stack, lost_timeout_s, info)`` makes its :class:`RobotLink` (``stack`` closes what it opens; ``info`` a message
-    for the user). The last registered interface the options choose is used (:func:`robot_interface`)."""
+    """A way to a robot: ``chosen(options)`` whether the options ask for it; ``open(options, stack, lost_timeout_s,
+    info)`` its :class:`RobotLink` (``stack`` closes what it opens, ``info`` tells the user)."""
 
     name: str
     chosen: Callable[[RepeatOptions], bool]
     open: Callable[[RepeatOptions, ExitStack, float, Callable[[str], None]], RobotLink]
 
 
-#: The robot interfaces ``repeat --live`` knows (:func:`register_robot_interface` adds one).
+#: The robot interfaces ``repeat --live`` knows: the last registered one the options choose is used (one frame
+#: source is given: :func:`check_live_options`).
 ROBOT_INTERFACES: list[RobotInterface] = []
-
-
-def register_robot_interface(interface: RobotInterface) -> None:
-    """Make ``interface`` one ``repeat --live`` can use; chosen by the same options as an earlier one, it wins."""
-    ROBOT_INTERFACES.append(interface)
+register_robot_interface = ROBOT_INTERFACES.append
 
 
 def robot_interface(options: RepeatOptions) -> RobotInterface:
-    """The interface ``options`` ask for: the last registered that they choose."""
-    for interface in reversed(ROBOT_INTERFACES):
-        if interface.chosen(options):
-            return interface
-    raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
+    return next(interface for interface in reversed(ROBOT_INTERFACES) if interface.chosen(options))
 
 
 def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple[Any, CommandSink | None]:
-    """A ROS 2 node (None when no ROS 2 topic is asked for) and the command publisher on --ros2-cmd, else on
-    /cmd_vel unless only --cmd-out was given."""
+    """A ROS 2 node (None without a ROS 2 topic) and the publisher on --ros2-cmd, else /cmd_vel unless only --cmd-out."""
     topic = options.ros2_cmd if options.ros2_cmd is not None else (
         None if options.cmd_out is not None and options.ros2_image is None else ROS_CMD_VEL_TOPIC)
     if options.ros2_image is None and topic is None:
@@ -248,27 +235,20 @@ def _open_camera(options: RepeatOptions, stack: ExitStack, lost_timeout: float, 
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
     from ..io.sources.live_camera import LatestCameraFrame
 
-    _, commands = _ros2_commands(options, info)
-    return RobotLink(commands, lambda: (stack.enter_context(LatestCameraFrame(options.camera)),
-                                        load_calibration(options.calibration)), options.camera)
+    return RobotLink(_ros2_commands(options, info)[1], lambda: (
+        stack.enter_context(LatestCameraFrame(options.camera)), load_calibration(options.calibration)), options.camera)
 
 
 def _open_ros2(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
-    """``--ros2-image``: frames and (unless --calibration) CameraInfo from ROS 2, awaited for the discovery time or
-    ``lost_timeout`` (s) if longer."""
+    """``--ros2-image``: frames and (without --calibration) CameraInfo, awaited for the discovery time or ``lost_timeout`` (s)."""
     from ..io import ros2_dds as dds
     from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
 
     node, commands = _ros2_commands(options, info)
     timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
-
-    def open_camera() -> tuple[LiveSource, Any]:
-        source = LatestImage(node, options.ros2_image, timeout_s)
-        if options.calibration is not None:
-            return source, load_calibration(options.calibration)
-        return source, wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
-
-    return RobotLink(commands, open_camera, options.ros2_image)
+    return RobotLink(commands, lambda: (LatestImage(node, options.ros2_image, timeout_s), (
+        load_calibration(options.calibration) if options.calibration is not None
+        else wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s))), options.ros2_image)
 
 
 register_robot_interface(RobotInterface("camera", lambda options: options.camera is not None, _open_camera))

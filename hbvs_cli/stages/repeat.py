@@ -86,14 +86,10 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, option: str) -> float | None:
-    """A limit option: None or inf -> unlimited (None); 0 or less is refused."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+    """A limit option (a number, checked as it was read): None or inf -> unlimited (None); 0 or less is refused."""
+    if value is not None and value <= 0:
         raise UsageError(f"{option} must be positive (m/s, rad/s, m/s^2), or inf for no limit; got {value!r}")
-    if math.isinf(value):
-        return None
-    return float(value)
+    return None if value is None or math.isinf(value) else float(value)
 
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,

@@ -77,8 +77,6 @@ def run_teach(options: TeachOptions, console: Console) -> None:
     """Record the taught run described by ``options`` into ``options.output``."""
     if options.image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
-    if not 1 <= options.jpeg_quality <= 100:
-        raise UsageError(f"--quality must be 1 to 100, got {options.jpeg_quality}")
     for name, value in (("--fps", options.fps), ("--duration", options.duration), ("--noise", options.noise), ("--exposure", options.exposure)):
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
