@@ -50,14 +50,12 @@ class TeachFields(Options):
     video: Path | None = option("A video file (anything OpenCV reads).", panel="Sources")
     images: str | None = option("A folder of images or a glob; sorted naturally.", panel="Sources")
     camera: str | None = option("A live camera, as repeat --live --camera takes it: an index, /dev/videoN, an RTSP/HTTP URL "
-        "(robot-sim --mjpeg's, an IP camera's), or a video file read as --video; --duration or Ctrl-C ends it.",
-        panel="Sources")
+        "(robot-sim --mjpeg's, an IP camera's), or a video file read as --video; --duration or Ctrl-C ends it.", panel="Sources")
     bag: Path | None = option("A ROS 2 bag (folder with metadata.yaml: SQLite or MCAP storage, split, compressed; or one "
         ".mcap file), or an MCAP file of foxglove.CompressedImage (e.g. a teach file).", panel="Sources")
     topic: str | None = option("Image topic of the bag (automatic when there is one).", panel="Sources")
     ros2_image: str | None = option("A running ROS 2 camera: its sensor_msgs/msg/Image topic (.../compressed for CompressedImage), "
-        "CameraInfo from the sibling camera_info topic; --duration or Ctrl-C ends it (pip install 'hbvs\\[ros2]').",
-        panel="Sources")
+        "CameraInfo from the sibling camera_info topic; --duration or Ctrl-C ends it (pip install 'hbvs\\[ros2]').", panel="Sources")
     ros2_cmd: str | None = option("With --ros2-image: the operator's geometry_msgs/msg/Twist topic, recorded as the taught commands.",
         panel="Sources")
     cmd_topic: str | None = option("The bag's command topic (geometry_msgs Twist or TwistStamped, or nav_msgs Odometry), "
@@ -77,8 +75,7 @@ class TeachFields(Options):
     noise: float | None = option("Sensor noise, gray levels (1 sigma).", fallback=2.0, panel="Simulation", bounds={"min": 0.0})
     blur: float | None = option("Gaussian blur sigma (px).", fallback=0.0, panel="Simulation", bounds={"min": 0.0, "max": 100.0})
     noise_grain: float | None = option("Correlation length of the sensor noise (px, Gaussian sigma), as a camera's demosaicing, "
-        "denoising and compression leave it; 0 for white noise.", fallback=0.0, panel="Simulation",
-        bounds={"min": 0.0, "max": 20.0})
+        "denoising and compression leave it; 0 for white noise.", fallback=0.0, panel="Simulation", bounds={"min": 0.0, "max": 20.0})
     exposure: float | None = option("Exposure gain of the simulated camera.", fallback=1.0, panel="Simulation", bounds={"min": 0.05})
     video_out: Path | None = option("Also write the simulated frames as a video (.avi or .mkv: MJPG; .mp4 or .mov: mp4v): "
         "practice footage for docs/walkthrough.md, whose truth is known.", panel="Simulation")
@@ -125,8 +122,7 @@ class FitOptions(Options):
         "upstream died).", default=False)
     marker_dict: str | None = option("Marker dictionary, e.g. DICT_6X6_250 or DICT_APRILTAG_36h11 (default with --target auto: "
         "every one is scanned).")
-    marker_id: int | None = option("The marker to use (default: every marker seen consistently, all corners as points).",
-        bounds={"min": 0})
+    marker_id: int | None = option("The marker to use (default: every marker seen consistently, all corners as points).", bounds={"min": 0})
     board: str | None = option("A ChArUco board's squares across and down, e.g. 6x4 (default: inferred from its markers).")
     target_points: Path | None = option("CSV of the target points' positions on the wall in metres (x,y per line, in the "
         "order the target's points are found or any order for dots): pins the plane normal n* and gives d*.")
@@ -207,8 +203,7 @@ class RepeatOptions(Options):
     exposure_step: str | None = option("Sudden exposure change T:GAIN (s, gain factor).", panel="Faults")
     allow_truncated: bool = option("Replace an existing output even when an input ended early (no end record).", default=False)
     state_filter: str | None = option("State filter between the camera and the law: ekf or none (the raw measurement, the paper exactly).",
-        fallback=FILTER_EKF, config="filter", flags=("--filter",), panel="Controller",
-        choices=FILTERS)
+        fallback=FILTER_EKF, config="filter", flags=("--filter",), panel="Controller", choices=FILTERS)
     foxglove: int | None = option("Serve the run to the Foxglove app while it runs on ws://127.0.0.1:PORT (8765 when --foxglove comes "
         "without a port; pip install 'hbvs\\[live]'). The run file is unchanged.", panel="Live view")
     foxglove_speed: float = option("With --foxglove: pace the run at this multiple of real time (0: as fast as it goes).",
@@ -226,8 +221,7 @@ class RepeatOptions(Options):
     cmd_type: str = option("With --ros2-cmd: twist or twist-stamped.", default="twist", panel="Live robot", choices=CMD_TYPES)
     stale_timeout: float = option("With --live: send zero commands when no usable frame came for this long (s); at most "
         "--lost-timeout.", default=DEFAULT_STALE_TIMEOUT, panel="Live robot", bounds={"min": 0.01, "max": MAX_STALE_TIMEOUT})
-    dry_run: bool = option("With --live: measure and compute everything, but publish zero commands.", default=False,
-        panel="Live robot")
+    dry_run: bool = option("With --live: measure and compute everything, but publish zero commands.", default=False, panel="Live robot")
 
 REPEAT_SETTINGS = settings_of(RepeatOptions)
 #: The settings by name.
@@ -244,8 +238,7 @@ class RobotSimOptions(Options):
     mjpeg: int | None = option("Without ROS: serve the camera as MJPEG on http://127.0.0.1:PORT/ (repeat --live --camera URL).",
         bounds={"min": 1, "max": 65535})
     cmd_in: str | None = option("Without ROS: the commands as JSON lines {\"v\", \"w\"} (repeat --cmd-out) from FILE, FIFO or -.")
-    offset: str = option("Start pose offset DX,DY,DTHETA (m, m, deg) from the taught start, as repeat --sim.",
-        default=DEFAULT_OFFSET)
+    offset: str = option("Start pose offset DX,DY,DTHETA (m, m, deg) from the taught start, as repeat --sim.", default=DEFAULT_OFFSET)
     rate: float | None = option("Camera rate (Hz).", shown="the taught rate", bounds={"min": 0.1})
     depth: float | None = option("Assumed d* (m) to build a world when the teach came from real footage.", bounds={"min": 0.0})
     seed: int = option("Seed of the sensor noise.", default=0, bounds={"min": 0})
@@ -257,8 +250,7 @@ class RobotSimOptions(Options):
     cmd_topic: str = option("Command topic (geometry_msgs/msg/Twist or TwistStamped, as --cmd-type).", default=ROS_CMD_VEL_TOPIC)
     cmd_type: str = option("twist or twist-stamped.", default="twist", choices=CMD_TYPES)
     poses_out: str | None = option("Also write the true pose of every frame as JSON lines (stamp, x, y, phi) to FILE or -.")
-    occlude: list[str] = option("Hide the target from START to END seconds after the start (a blank frame), e.g. 3:5.",
-        repeatable=True)
+    occlude: list[str] = option("Hide the target from START to END seconds after the start (a blank frame), e.g. 3:5.", repeatable=True)
     base: str = option("The base's dynamics: kinematic (obeys at once), small (a small differential drive: 0.26 m/s, "
         "1.8 rad/s, 0.6 m/s^2, 3 rad/s^2, 0.12 s motor lag) or V,W,ACCEL,ALPHA,LAG.", default="kinematic")
     stamp_fault: str | None = option("A camera clock fault from T s after the robot first moved: freeze@T, back:S@T, jump:S@T (one frame S s ahead), "
@@ -287,8 +279,7 @@ class ReportOptions(Options):
         "unless every planned run converged (failed, stopped and missing runs count as not converged).", default=False)
     labels: list[str] = option("NAME of each run in tables and legends, once per run in order (default: its law).",
         flags=("--label",), repeatable=True)
-    dpi: float | None = option("Resolution of a raster figure.", fallback=DEFAULT_DPI, panel="Figure",
-        bounds={"min": 10.0, "max": 2400.0})
+    dpi: float | None = option("Resolution of a raster figure.", fallback=DEFAULT_DPI, panel="Figure", bounds={"min": 10.0, "max": 2400.0})
     size: str | None = option("Figure size WxH in inches (default: 7 wide, as tall as the panels need); one column: 3.5x8 with "
         "--panels position,heading,v,w,top.", panel="Figure")
     panels: str | None = option("Comma-separated panels, in order (default all): position, heading, e1, ebar2, e2, e3, v, w, dhat, "

@@ -66,22 +66,19 @@ def _checked(path: Path, table: str, key: str, value: Any) -> Any:
     if expected is None:
         known = ", ".join(SCHEMA[table])
         raise InputError(f"{path}: unknown key {short_repr(where)} (known here: {known})")
-    if expected is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{path}: {where} must be a number, got {short_repr(value)}")
-        try:
-            value = float(value)
-        except OverflowError:  # an integer literal beyond float range
-            raise InputError(f"{path}: {where} is out of range") from None
-        if math.isnan(value):
-            raise InputError(f"{path}: {where} is NaN")
+    if expected is str:
+        if not isinstance(value, str):
+            raise InputError(f"{path}: {where} must be a string, got {short_repr(value)}")
         return value
-    if expected is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{path}: {where} must be a whole number, got {short_repr(value)}")
-        if not -(2**63) <= value < 2**63:  # TOML integers are 64-bit; tomllib does not check
-            raise InputError(f"{path}: {where} is out of range")
-        return value
-    if not isinstance(value, str):
-        raise InputError(f"{path}: {where} must be a string, got {short_repr(value)}")
+    if isinstance(value, bool) or not isinstance(value, int if expected is int else (int, float)):
+        raise InputError(f"{path}: {where} must be {'a whole number' if expected is int else 'a number'}, got {short_repr(value)}")
+    try:
+        # TOML integers are 64-bit, which tomllib does not check; an integer literal may be beyond float range.
+        if expected is int and not -(2**63) <= value < 2**63:
+            raise OverflowError
+        value = expected(value)
+    except OverflowError:
+        raise InputError(f"{path}: {where} is out of range") from None
+    if math.isnan(value):
+        raise InputError(f"{path}: {where} is NaN")
     return value
