@@ -5,7 +5,6 @@ keys and the sweep's parameters come from it. Values are checked as the options 
 from __future__ import annotations
 
 import math
-import sys
 import types
 from dataclasses import dataclass, field, fields
 from functools import cache
@@ -105,7 +104,7 @@ def _value_type(annotation: Any) -> type:
 @cache
 def settings_of(cls: type) -> tuple[Setting, ...]:
     """The options of an options dataclass, in the order of its fields (the arguments first)."""
-    hints = get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    hints = get_type_hints(cls)
     return tuple(Setting(item.name, _value_type(hints[item.name]), **item.metadata[_DETAILS]) for item in fields(cls))
 
 
