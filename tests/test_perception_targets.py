@@ -244,9 +244,9 @@ def test_charuco_board_leaving_the_view_is_picked_and_fitted(tmp_path, request, 
             print(f"\n{name}: {model.frames['used']}/{model.frames['total']} frames, {errors}")
         picked = "--target auto picked charuco" if campaign else "charuco"
         assert model.target_kind == "charuco" and f"{picked}: ChArUco board of 6x4 squares" in stderr
-        assert model.detector["board"] == [6, 4] and model.detector["marker_dict"] == "DICT_4X4_50"
+        assert model.detector.board == (6, 4) and model.detector.marker_dict == "DICT_4X4_50"
         if name == "charuco_partial":
-            assert model.frames["used"] >= model.frames["total"] - 3
+            assert model.frames.used >= model.frames.total - 3
         for key, bound in CHARUCO_BOUNDS.items():
             assert errors[key] <= bound, (key, errors)
 
@@ -261,7 +261,7 @@ def test_aruco_board_partly_out_of_view_loses_no_frame(tmp_path, request, capsys
     errors = footage.errors_against_truth(model, made)
     with capsys.disabled():
         print(f"\naruco_board_partial: {model.frames['used']}/{model.frames['total']} frames, {errors}")
-    assert model.frames["used"] >= 58
+    assert model.frames.used >= 58
     assert errors["theta_deg"] <= 0.35 and errors["x_hd1"] <= 5e-3
 
 

@@ -8,7 +8,7 @@ trajectory"). What a user should hear is passed to ``warn``, never printed.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -129,21 +129,35 @@ class FrameStats:
     frame_interval_s: float | None
     trimmed_start: int
     trimmed_end: int
-
-    def as_dict(self) -> dict[str, Any]:
-        """The fields by name (the ``frames`` record of a fit file)."""
-        return asdict(self)
+    #: The recording ended before its end record (a crashed recorder); set by the stage.
+    truncated_input: bool = False
 
 
 @dataclass(frozen=True)
 class PixelResidual:
     """The known-normal residual of the used frames, in pixels (RMS over frames, and max)."""
 
-    rms: float
+    rms: float = float("nan")
+    max: float = float("nan")
+
+
+@dataclass(frozen=True)
+class Spread:
+    """A per-sample quantity's median and maximum."""
+
+    median: float
     max: float
 
-    def as_dict(self) -> dict[str, float]:
-        return {"rms": self.rms, "max": self.max}
+
+@dataclass(frozen=True)
+class UncertaintySummary:
+    """What a fit file keeps of :class:`FitUncertainty`: n*'s sigma (deg), the point noise (px),
+    and the spline sigmas' spread (theta_d in degrees; None over an empty span)."""
+
+    normal_sigma_deg: float
+    point_noise_px: float
+    theta_d_sigma_deg: Spread | None
+    x_hd1_sigma: Spread | None
 
 
 @dataclass(frozen=True)
@@ -163,16 +177,11 @@ class FitUncertainty:
     smooth_theta_sigma: NDArray[np.float64]
     smooth_x_h1_sigma: NDArray[np.float64]
 
-    def as_dict(self) -> dict[str, Any]:
-        """A summary (the ``uncertainty`` record of a fit file): n*'s sigma and the spline
-        sigmas' median and maximum (theta_d in degrees)."""
-        summary = lambda x: {"median": float(np.median(x)), "max": float(np.max(x))} if x.size else None  # noqa: E731
-        return {
-            "normal_sigma_deg": self.normal_sigma_deg,
-            "point_noise_px": self.point_noise_px,
-            "theta_d_sigma_deg": summary(np.degrees(self.smooth_theta_sigma)),
-            "x_hd1_sigma": summary(self.smooth_x_h1_sigma),
-        }
+    def summary(self) -> UncertaintySummary:
+        """What a fit file keeps: n*'s sigma and the spline sigmas' median and maximum."""
+        spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
+        return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
+                                  spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma))
 
 
 @dataclass(frozen=True)
@@ -211,11 +220,6 @@ class DesiredFit:
     residual_px: PixelResidual
     span: slice
     uncertainty: "FitUncertainty | None" = None
-
-    @property
-    def condition35(self) -> dict[str, Any]:
-        """Condition (35) as a record (the ``condition35`` of a fit file)."""
-        return asdict(self.condition)
 
 
 def fit_desired_trajectory(

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from ..core.estimation import PlanarPoseEstimator
-from ..core.fit_model import FitModel
+from ..core.fit_model import DetectorSpec, FitModel
 from ..errors import InputError, RecordingError
 from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
 from .autodetect import Candidates, TargetChoice
@@ -22,56 +22,6 @@ from .base import Detection, TargetDetector, as_gray, match_identity
 from .detector import make_detector
 from .dot_windows import Window, WindowedDotDetector
 from .dots import dark_image, find_dark_blobs
-
-
-@dataclass(frozen=True)
-class DetectorSpec:
-    """What to detect (``kind``) and how to give its points an identity; None fields take
-    the defaults of :func:`~.detector.make_detector` (``n_points`` None: count the dots in the
-    first image; ``marker_id`` None: the first marker seen). ``template_pixels`` (N, 2):
-    texture's points in the template image. ``contrast`` and ``board`` are recorded only
-    when set (a gray dots fit keeps its bytes)."""
-
-    kind: str
-    n_points: int | None = None
-    marker_id: int | None = None
-    template_pixels: np.ndarray | None = None
-    marker_dict: str | None = None
-    marker_ids: tuple[int, ...] | None = None
-    polarity: str | None = None
-    contrast: str | None = None
-    board: tuple[int, int] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
-        colour |= {"board": [int(n) for n in self.board]} if self.board is not None else {}
-        return {
-            "kind": self.kind,
-            "n_points": self.n_points,
-            "marker_id": self.marker_id,
-            "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
-            "marker_dict": self.marker_dict,
-            "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
-            "polarity": self.polarity,
-        } | colour
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "DetectorSpec":
-        try:
-            template = data.get("template_pixels")
-            return cls(
-                kind=str(data["kind"]),
-                n_points=None if data.get("n_points") is None else int(data["n_points"]),
-                marker_id=None if data.get("marker_id") is None else int(data["marker_id"]),
-                template_pixels=None if template is None else np.asarray(template, dtype=float).reshape(-1, 2),
-                marker_dict=None if data.get("marker_dict") is None else str(data["marker_dict"]),
-                marker_ids=None if data.get("marker_ids") is None else tuple(int(i) for i in data["marker_ids"]),
-                polarity=None if data.get("polarity") is None else str(data["polarity"]),
-                contrast=None if data.get("contrast") is None else str(data["contrast"]),
-                board=None if data.get("board") is None else (int(data["board"][0]), int(data["board"][1])),
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
 
 
 class TrackedDetector:
@@ -255,7 +205,7 @@ MIN_RESIDUAL_GATE_PX = 0.25
 def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """The per-frame estimator of repeat, its outlier gate from the taught residuals (clean
     frames: hundredths of a pixel; a wrong point: tenths)."""
-    taught = float(model.residual_px.get("max", float("nan")))
+    taught = model.residual_px.max
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
     return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
 
@@ -263,10 +213,8 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and ``template_image``,
     the fit's decoded template, texture only); ``windowed``: see :class:`TrackedDetector`."""
-    spec = DetectorSpec.from_dict(model.detector)
+    spec = model.detector
     if spec.kind == "texture" and template_image is None:
         raise RecordingError("the fit file lacks the texture template image (/detector/template)")
-    initial = model.detector.get("initial_pixels")
     template = template_image if spec.kind == "texture" else None
-    return TrackedDetector(spec, model.camera, seed=seed, template_image=template,
-                           initial_prediction=None if initial is None else np.asarray(initial, dtype=float), windowed=windowed)
+    return TrackedDetector(spec, model.camera, seed=seed, template_image=template, initial_prediction=spec.initial_pixels, windowed=windowed)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import threading
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from itertools import chain, islice
 from pathlib import Path
@@ -24,6 +24,8 @@ from .. import __version__
 from ..core.camera import CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
+from ..core.fit_model import DepthEstimates, FitModel, SensorSettings
+from ..core.gains import GainSuggestion
 from ..core.plane import UNIT_SQUARE, KnownShape
 from ..perception.chessboard import board_layout
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
@@ -173,7 +175,6 @@ def _reuse_freed_frames() -> None:
 
 
 def _run_fit(options: FitOptions, console: Console) -> FitSummary:
-    from ..core.fit_model import FitModel
     from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import sniff_format, write_compressed_image
     from ..io.mcap import open_output
@@ -272,7 +273,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
                       pull.pull_px if pull is not None else 0.0)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
+        depth, dhat0, dhat0_source = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -283,18 +284,18 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             normal=result.normal,
             normal_margin=result.normal_margin,
             trajectory=result.trajectory,
-            dhat0=depth["dhat0"],
-            dhat0_source=depth["source"],
-            depth=depth["estimates"],
-            frames=result.frames.as_dict() | {"truncated_input": reader.truncated},
-            condition35=result.condition35,
-            residual_px=result.residual_px.as_dict(),
-            detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
+            dhat0=dhat0,
+            dhat0_source=dhat0_source,
+            depth=depth,
+            frames=replace(result.frames, truncated_input=reader.truncated),
+            condition35=result.condition,
+            residual_px=result.residual_px,
+            detector=replace(detector.spec, initial_pixels=result.initial_pixels),
             world_description=reader.world_description,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
-            uncertainty=result.uncertainty.as_dict() if result.uncertainty is not None else None,
+            uncertainty=result.uncertainty.summary() if result.uncertainty is not None else None,
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
@@ -305,7 +306,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, sniff_format(payload) or "jpeg", CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
-    _print_summary(console, model, result, depth, options)
+    _print_summary(console, model, result, options)
     return FitSummary(output=options.output, model=model)
 
 
@@ -468,7 +469,7 @@ def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) 
     return str(exc)
 
 
-def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, Any]:
+def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> GainSuggestion:
     """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
     (core/gains.py, docs/method.md "Choosing the gains"), with the heading tolerance that
     the taught theta_d's uncertainty allows (the report's default where that is larger)."""
@@ -478,17 +479,17 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
     sigma_deg = float(np.degrees(np.max(result.uncertainty.smooth_theta_sigma))) if result.uncertainty is not None else float("nan")
     tolerance = heading_tolerance(DEFAULT_TOLERANCES["heading_deg"], sigma_deg)
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance).as_dict()
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance)
 
 
-def _render_settings(reader: Any) -> dict[str, Any] | None:
+def _render_settings(reader: Any) -> SensorSettings | None:
     """The simulated sensor of the teach (:data:`~hbvs_cli.io.teach_file.RENDER_SETTINGS`), for repeat to reuse."""
     from ..io.teach_file import RENDER_SETTINGS
 
     settings = reader.info.get("settings") if reader.info else None
     if reader.world_description is None or not isinstance(settings, dict):
         return None
-    return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
+    return SensorSettings(**{key: float(settings[key]) for key in RENDER_SETTINGS if key in settings})
 
 
 #: Frames ``--target auto`` looks at before it picks a kind.
@@ -626,19 +627,13 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
-def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
-    """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
-    candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
-    return {"dhat0": estimate.dhat0, "standard_error": estimate.standard_error, "source": estimate.source,
-            "samples": estimate.samples}
-
-
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
-           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> dict[str, Any]:
+           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> tuple[DepthEstimates, float, str]:
     """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
     ``board`` its inner corners per row and rows) or --target-points (``layout``, in the
-    target's order: its two points farthest apart); which one becomes dhat(0)."""
-    estimates: dict[str, Any] = {"commands": None, "target_size": None}
+    target's order: its two points farthest apart); dhat(0) and its source (the estimate of
+    d* is a candidate dhat(0); d* itself is the true depth, known only in simulation)."""
+    from_commands: DepthEstimate | None = None
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
     commands = arrays["command"][result.span]
@@ -647,7 +642,6 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
-            estimates["commands"] = _estimate_record(from_commands)
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
@@ -672,13 +666,13 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         size = float(gaps[pair])
     if pair is not None:
         chosen = depth_from_target_size(result.m_ref, result.normal, pair, size)
-        estimates["target_size"] = _estimate_record(chosen) | {"pair": list(pair)}
+    estimates = DepthEstimates(from_commands, chosen if pair is not None else None, pair)
     if chosen is None:
         console.warn(
             f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
-        return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
+        return estimates, FALLBACK_DHAT0, "guess"
     # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
     # (a value that is no depth at all is left to the model's own check: "repeat could not use").
     if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
@@ -686,10 +680,10 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
                        ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))
         raise InputError(f"d* from {given} is {chosen.dhat0:.3g} m, outside the {MIN_DEPTH:g} to {MAX_DEPTH:g} m repeat accepts "
                          f"as --dhat0: {hint}")
-    return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
+    return estimates, float(chosen.dhat0), chosen.source
 
 
-def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict[str, Any], options: FitOptions) -> None:
+def _print_summary(console: Console, model: FitModel, result: DesiredFit, options: FitOptions) -> None:
     from rich.table import Table
 
     frames = model.frames
@@ -697,32 +691,31 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     table = Table(title=f"hbvs fit: {options.input} -> {options.output}", show_header=True, header_style="bold")
     table.add_column("quantity")
     table.add_column("value", justify="right")
-    table.add_row("frames used / total", f"{frames['used']} / {frames['total']}")
-    table.add_row("frames lost (not found / outliers)", f"{frames['lost']} ({frames['lost'] - frames['outliers']} / {frames['outliers']})")
-    table.add_row("longest gap bridged", f"{frames['longest_gap_s']:.2f} s")
+    table.add_row("frames used / total", f"{frames.used} / {frames.total}")
+    table.add_row("frames lost (not found / outliers)", f"{frames.lost} ({frames.lost - frames.outliers} / {frames.outliers})")
+    table.add_row("longest gap bridged", f"{frames.longest_gap_s:.2f} s")
     table.add_row("target", f"{model.target_kind}, {model.m_ref.shape[0]} points")
     table.add_row("reference frame F*", f"{model.reference_index} (t = {model.reference_t:.2f} s)")
-    table.add_row("residual (RMS / max)", f"{model.residual_px['rms']:.3f} / {model.residual_px['max']:.3f} px")
+    table.add_row("residual (RMS / max)", f"{model.residual_px.rms:.3f} / {model.residual_px.max:.3f} px")
     table.add_row("plane normal n* (in F*)", "[" + ", ".join(f"{v:+.3f}" for v in model.normal) + f"]  margin {model.normal_margin:.3f}")
     if model.uncertainty is not None:
         u = model.uncertainty
-        table.add_row("n* uncertainty (1 sigma)", f"{u['normal_sigma_deg']:.2f} deg (point noise {u['point_noise_px']:.3f} px)")
-        if u.get("theta_d_sigma_deg"):
+        table.add_row("n* uncertainty (1 sigma)", f"{u.normal_sigma_deg:.2f} deg (point noise {u.point_noise_px:.3f} px)")
+        if u.theta_d_sigma_deg is not None and u.x_hd1_sigma is not None:
             table.add_row("theta_d / x_hd1 sigma (median, max)",
-                          f"{u['theta_d_sigma_deg']['median']:.3f}, {u['theta_d_sigma_deg']['max']:.3f} deg / "
-                          f"{u['x_hd1_sigma']['median']:.1e}, {u['x_hd1_sigma']['max']:.1e}")
+                          f"{u.theta_d_sigma_deg.median:.3f}, {u.theta_d_sigma_deg.max:.3f} deg / "
+                          f"{u.x_hd1_sigma.median:.1e}, {u.x_hd1_sigma.max:.1e}")
     lambdas = ", ".join(f"{name} {ch.smoothing:.3g}" for name, ch in model.trajectory.channels.items())
     table.add_row("spline smoothing lambda (s^3)", lambdas + (" (GCV)" if options.smoothing == "auto" else ""))
     table.add_row("x_hd2 from (25): residual RMS", f"{model.trajectory.x_hd2_residual_rms:.2e}")
     table.add_row("condition (35): min |x_hd1_dot|", f"{condition.min_abs_xhd1_dot:.4f} 1/s")
     table.add_row("|x_hd1_dot| p5 / median / p95", f"{condition.percentiles['p5']:.4f} / {condition.percentiles['p50']:.4f} / {condition.percentiles['p95']:.4f} 1/s")
-    estimates = depth["estimates"]
-    if estimates.get("commands"):
-        e = estimates["commands"]
-        table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
-    if estimates.get("target_size"):
+    if model.depth.commands is not None:
+        e = model.depth.commands
+        table.add_row("d* from taught commands (25)", f"{e.dhat0:.3f} +- {e.standard_error:.3f} m")
+    if model.depth.target_size is not None:
         given = "--target-size" if options.target_size is not None else "--target-points"
-        table.add_row(f"d* from {given}", f"{estimates['target_size']['dhat0']:.3f} m")
+        table.add_row(f"d* from {given}", f"{model.depth.target_size.dhat0:.3f} m")
     source = model.dhat0_source
     if source == "target-size" and options.target_size is None:
         source = "--target-points"   # d* from the layout's two points farthest apart
@@ -730,15 +723,16 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     from ..core.gains import dhat0_range_text
 
     g = model.gains
+    assert g is not None  # fit always suggests gains
     table.add_row(
         "suggested k_v, k_w, k_2, gamma",
-        f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px, {dhat0_range_text()})",
+        f"{g.gains.k_v:g}, {g.gains.k_w:g}, {g.gains.k_2:.0f}, {g.gains.gamma:.0f} (for {g.design_noise_px:.2f} px, {dhat0_range_text()})",
     )
     from ..report.build import DEFAULT_TOLERANCES
 
-    if g.get("heading_tolerance_deg", 0.0) > DEFAULT_TOLERANCES["heading_deg"]:
+    if g.heading_tolerance_deg > DEFAULT_TOLERANCES["heading_deg"]:
         table.add_row("suggested heading tolerance",
-                      f"{g['heading_tolerance_deg']:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g['heading_tolerance_deg']:.2f})")
+                      f"{g.heading_tolerance_deg:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g.heading_tolerance_deg:.2f})")
     console.print(table)
     if condition.path_stops:
         percent = 100 * condition.stopped_fraction

@@ -85,6 +85,6 @@ def fit_reference_image(fit: FitFile) -> np.ndarray | None:
 
 def fit_template_image(fit: FitFile) -> np.ndarray | None:
     """The fit's template image, decoded for a texture target (the others have none)."""
-    if fit.template_image is None or fit.model.detector.get("kind") != "texture":
+    if fit.template_image is None or fit.model.detector.kind != "texture":
         return None
     return decode_image(fit.template_image, "the fit's template image")
