@@ -393,7 +393,7 @@ def test_a_fit_given_the_layout_does_not_advise_giving_it():
 
     flat = np.full(50, 1e-3)
     line = uncertainty_warning(FitUncertainty(normal_sigma_deg=1.5, point_noise_px=0.02, theta_sigma=flat, x_h1_sigma=flat,
-                                              smooth_theta_sigma=flat, smooth_x_h1_sigma=flat), None)
+                                              smooth_theta_sigma=flat, smooth_x_h1_sigma=flat))
     assert "--target-points FILE" in line
     told: list[str] = []
     layout_given_warn(told.append)(line)

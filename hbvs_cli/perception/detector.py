@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import UsageError
-from .aruco import DEFAULT_DICTIONARY, ArucoMarkerDetector, marker_ids_in_view
-from .charuco import CharucoTargetDetector
-from .chessboard import ChessboardDetector
+from .aruco import marker_ids_in_view
 from .base import TargetDetector, as_gray
-from .dot_windows import WindowedDotDetector
-from .dots import DotDetector, find_dark_blobs
-from .texture import TextureDetector
+from .dots import find_dark_blobs
+from ..core.fit_model import DetectorSpec
+from .target_kinds import target_kind
 
 
 def make_detector(
@@ -23,48 +20,20 @@ def make_detector(
     n_points: int,
     reference_image: NDArray[np.uint8] | None = None,
     reference_pixels: ArrayLike | None = None,
-    marker_id: int | None = None,
     seed: int = 0,
-    marker_dict: str | None = None,
-    marker_ids: Sequence[int] | None = None,
-    polarity: str | None = None,
-    contrast: str | None = None,
     windowed: bool = False,
-    board: tuple[int, int] | None = None,
+    **options: Any,
 ) -> TargetDetector:
-    """A detector for ``kind`` (``"dots"``, ``"aruco"``, ``"chessboard"``, ``"charuco"`` or ``"texture"``).
+    """A detector of ``n_points`` points for a registered ``kind`` (:mod:`.target_kinds`).
 
-    ``texture`` needs ``reference_image`` and the target's ``reference_pixels`` (N, 2) in it
-    (``seed``: its robust sampling); ``aruco`` takes ``marker_id`` (None: the only marker in
-    view) or ``marker_ids`` (4 corners each) from ``marker_dict``; ``dots`` takes
-    ``polarity``, ``contrast`` and ``windowed`` (each dot in its own window); ``chessboard``
-    needs ``board`` (inner corners per row, rows), ``charuco`` the board's squares across and
-    down. UsageError for inconsistent arguments.
+    ``options``: the :class:`~hbvs_cli.core.fit_model.DetectorSpec` fields the kind takes
+    (``marker_id``, ``marker_dict``, ``marker_ids``, ``polarity``, ``contrast``, ``board``);
+    ``reference_image`` and the target's ``reference_pixels`` (N, 2) in it: a template kind's
+    (texture; ``seed``: its robust sampling); ``windowed``: dots each in its own window.
+    UsageError for an unknown kind or inconsistent arguments.
     """
-    if kind == "dots":
-        dots = WindowedDotDetector if windowed else DotDetector
-        return dots(n_points, polarity=polarity or "dark", contrast=contrast or "gray")
-    if kind == "aruco":
-        markers = ArucoMarkerDetector(marker_id, dictionary=marker_dict or DEFAULT_DICTIONARY, marker_ids=marker_ids)
-        if n_points != markers.n_points:
-            raise UsageError(f"a target of {len(markers.marker_ids) or 1} marker(s) has {markers.n_points} points (their corners), not {n_points}")
-        return markers
-    if kind == "texture":
-        if reference_image is None or reference_pixels is None:
-            raise UsageError("a texture detector needs a reference image and the target's pixels in it")
-        detector = TextureDetector(reference_image, reference_pixels, seed=seed)
-        if detector.n_points != n_points:
-            raise UsageError(f"{detector.n_points} reference pixels given for a {n_points}-point target")
-        return detector
-    if kind == "chessboard":
-        if board is None or board[0] * board[1] != n_points:
-            raise UsageError(f"a chessboard target needs its pattern of inner corners ({n_points} points), got {board!r}")
-        return ChessboardDetector(board)
-    if kind == "charuco":
-        if board is None or (board[0] - 1) * (board[1] - 1) != n_points:
-            raise UsageError(f"a ChArUco target needs its squares across and down ({n_points} inner corners), got {board!r}")
-        return CharucoTargetDetector(board, marker_dict or DEFAULT_DICTIONARY)
-    raise UsageError(f"unknown target kind {kind!r}: choose one of dots, aruco, chessboard, charuco, texture")
+    pixels = None if reference_pixels is None else np.asarray(reference_pixels, dtype=float)
+    return target_kind(kind).make(DetectorSpec(kind, n_points=n_points, template_pixels=pixels, **options), reference_image, seed, windowed)
 
 
 def guess_target_kind(image: NDArray[np.uint8]) -> str:
