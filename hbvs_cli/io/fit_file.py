@@ -24,7 +24,7 @@ from ..core.trajectory import SplineTrajectory
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
-from .mcap import McapStream, read_metadata, time_message
+from .mcap import McapStream, json_ready, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import PARSE_ERRORS, RENDER_SETTINGS, render_settings_problem, world_description
 
@@ -49,64 +49,44 @@ def _positive_number(value: Any, what: str, optional: bool = False) -> float | N
     return float(value)
 
 
-def _detector_from_record(detector: Any, kind: str, points: int) -> DetectorSpec:
-    """The recorded detector description, checked for what repeat reads from it (a kind's own
-    options, e.g. a board's size against the points, are checked by its detector)."""
-    if not isinstance(detector, dict):
-        raise ValueError("detector must be a mapping")
-    if detector.get("kind", kind) != kind:
-        raise ValueError(f"detector kind {detector.get('kind')!r} differs from the target kind {kind!r}")
-    small = lambda key: _small_whole(detector.get(key), f"detector {key}", 0, 1100)  # noqa: E731
-    ids = detector.get("marker_ids")
-    if ids is not None and (not isinstance(ids, list) or len(ids) > MAX_TARGET_POINTS // 4):
-        raise ValueError(f"detector marker_ids must be a list of small whole numbers, got {ids!r}")
-    for key in ("marker_dict", "polarity", "contrast"):
-        if detector.get(key) is not None and not isinstance(detector.get(key), str):
-            raise ValueError(f"detector {key} must be text")
-    board = detector.get("board")
-    if board is not None and (not isinstance(board, list) or len(board) != 2):
-        raise ValueError(f"detector board must be two whole numbers, got {board!r}")
-    arrays = {}
-    for key in ("template_pixels", "initial_pixels"):
-        value = detector.get(key)
-        array = None if value is None else np.asarray(value, dtype=float)
-        if array is not None and (array.ndim != 2 or array.shape[1] != 2 or array.shape[0] > MAX_TARGET_POINTS):
-            raise ValueError(f"detector {key} must be rows of (u, v) pixels")
-        if key == "initial_pixels" and array is not None and array.shape[0] != points:
-            raise ValueError(f"detector initial_pixels has {array.shape[0]} points, the reference {points}")
-        arrays[key] = array
-    return DetectorSpec(
-        kind=kind, n_points=small("n_points"), marker_id=small("marker_id"), marker_dict=detector.get("marker_dict"),
-        marker_ids=None if ids is None else tuple(_small_whole(i, "detector marker_ids", 0, 1100) for i in ids),
-        polarity=detector.get("polarity"), contrast=detector.get("contrast"),
-        board=None if board is None else tuple(_small_whole(n, "detector board", 3, 100) for n in board), **arrays,
-    )
-
-
-def _small_whole(value: Any, what: str, low: int, high: int) -> Any:
-    """``value`` when None or a whole number in [low, high]; ValueError otherwise."""
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high):
-        raise ValueError(f"{what} must be a small whole number, got {value!r}")
+def _small_whole(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1100:
+        raise ValueError(f"must be a small whole number, got {value!r}")
     return value
 
 
-def _detector_record(spec: DetectorSpec) -> dict[str, Any]:
-    """The ``detector`` object of a fit model (``contrast`` only when not gray and ``board``
-    only when set: a gray dots fit keeps its bytes)."""
-    listed = lambda value: None if value is None else np.asarray(value).tolist()  # noqa: E731
-    record = {"kind": spec.kind, "n_points": spec.n_points, "marker_id": spec.marker_id, "template_pixels": listed(spec.template_pixels),
-              "marker_dict": spec.marker_dict, "marker_ids": listed(spec.marker_ids), "polarity": spec.polarity}
-    record |= {"contrast": spec.contrast} if spec.contrast not in (None, "gray") else {}
-    record |= {"board": listed(spec.board)} if spec.board is not None else {}
-    return record | ({"initial_pixels": listed(spec.initial_pixels)} if spec.initial_pixels is not None else {})
+def _whole_numbers(value: Any, count: int | None = None) -> tuple[int, ...]:
+    if not isinstance(value, list) or len(value) > MAX_TARGET_POINTS // 4 or count not in (None, len(value)):
+        raise ValueError(f"must be a list of {count or 'some'} small whole numbers, got {value!r}")
+    return tuple(_small_whole(v) for v in value)
 
 
-#: How a record's value becomes a field of the annotated type (JSON's null is a float's NaN).
+def _pixel_rows(value: Any) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] > MAX_TARGET_POINTS:
+        raise ValueError("must be rows of (u, v) pixels")
+    return array
+
+
+def _text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise ValueError("must be text")
+    return value
+
+
+def _optional(convert: Any) -> Any:
+    return lambda value: None if value is None else convert(value)
+
+
+#: How a record's value becomes a field of the annotated type (JSON's null is a float's NaN),
+#: checked for what repeat reads from it (ValueError).
 _FIELD_TYPES: dict[str, Any] = {
-    "float": lambda v: float("nan") if v is None else float(v), "float | None": lambda v: None if v is None else float(v),
-    "int": int, "bool": bool, "str": str, "dict[str, float]": lambda v: {str(k): float(x) for k, x in v.items()},
+    "float": lambda v: float("nan") if v is None else float(v), "float | None": _optional(float), "int": int, "bool": bool,
+    "str": str, "dict[str, float]": lambda v: {str(k): float(x) for k, x in v.items()},
     "list[tuple[float, float]]": lambda v: [(float(a), float(b)) for a, b in v],
-    "Spread | None": lambda v: None if v is None else _typed(Spread, v, "spread"),
+    "Spread | None": _optional(lambda v: _typed(Spread, v, "spread")), "int | None": _optional(_small_whole),
+    "str | None": _optional(_text), "np.ndarray | None": _optional(_pixel_rows), "tuple[int, ...] | None": _optional(_whole_numbers),
+    "tuple[int, int] | None": _optional(lambda v: _whole_numbers(v, 2)),
 }
 
 
@@ -118,10 +98,31 @@ def _typed(cls: Any, record: Any, what: str) -> Any:
     values = {}
     for field in fields(cls):
         if field.name in record:
-            values[field.name] = _FIELD_TYPES[field.type](record[field.name])
+            try:
+                values[field.name] = _FIELD_TYPES[field.type](record[field.name])
+            except ValueError as exc:
+                raise ValueError(f"{what} {field.name} {exc}") from None
         elif field.default is MISSING:
             raise ValueError(f"{what} lacks {field.name}")
     return cls(**values)
+
+
+def _detector_from_record(record: Any, kind: str, points: int) -> DetectorSpec:
+    """The recorded detector, of the target's kind and points (a kind's own options, e.g. a
+    board's size against the points, are checked by its detector)."""
+    spec = _typed(DetectorSpec, {"kind": kind} | record if isinstance(record, dict) else record, "detector")
+    if spec.kind != kind:
+        raise ValueError(f"detector kind {spec.kind!r} differs from the target kind {kind!r}")
+    if spec.initial_pixels is not None and spec.initial_pixels.shape[0] != points:
+        raise ValueError(f"detector initial_pixels has {spec.initial_pixels.shape[0]} points, the reference {points}")
+    return spec
+
+
+def _detector_record(spec: DetectorSpec) -> dict[str, Any]:
+    """The ``detector`` object of a fit model; ``contrast`` (when not gray), ``board`` and
+    ``initial_pixels`` only when set: a gray dots fit keeps its bytes."""
+    record = {field.name: json_ready(getattr(spec, field.name)) for field in fields(DetectorSpec)}
+    return {k: v for k, v in record.items() if k not in ("contrast", "board", "initial_pixels") or v not in (None, "gray")}
 
 
 def _depth_record(depth: DepthEstimates) -> dict[str, Any]:

@@ -180,7 +180,7 @@ class ArucoMarkerDetector:
         self.last_id = None
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the marker's corners; see :class:`~.detector.TargetDetector`.
+        """Find the marker's corners; see :class:`~.base.TargetDetector`.
 
         With a prediction, a window around the predicted marker (plus half its size) is
         searched with one adaptive threshold, then all; the whole frame when that fails.

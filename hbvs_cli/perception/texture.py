@@ -119,7 +119,7 @@ class TextureDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
-        """Find the target points; see :class:`~.detector.TargetDetector`.
+        """Find the target points; see :class:`~.base.TargetDetector`.
 
         With a prediction (given, or from the track) the target is followed from it: by the
         alignment alone when it correlates well, else by Lucas-Kanade, else by the alignment

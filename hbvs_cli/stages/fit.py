@@ -31,7 +31,7 @@ from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError
 from ..io.settings import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.target_kinds import TARGET_KINDS, ImageShift, SpecRequest, target_kind
+from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
 from .auto_target import choose_on_the_drive, followed_frames
@@ -200,7 +200,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     topics = TOPICS["fit"]
     log: _FrameLog | None = None
     detector: TrackedDetector | None = None
-    pull: ImageShift | None = None
+    pull: Any = None  # the kind's image_shift accumulator
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
