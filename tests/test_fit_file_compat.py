@@ -65,3 +65,21 @@ def test_board_fit_models_written_before_read_and_write_the_same_bytes(kind):
     assert model.depth == DepthEstimates()  # footage without commands or a size: no estimate
     assert model.frames.frame_interval_s == pytest.approx(0.2)
     assert _written_again(stored) == encode_json(stored)
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("board", [2], "detector board must be two small whole numbers"),
+    ("marker_ids", ["a"], "detector marker_ids must be a list of small whole numbers"),
+    ("n_points", True, "detector n_points must be a small whole number"),
+    ("template_pixels", [[1, 2, 3]], "detector template_pixels must be rows of (u, v) pixels"),
+    ("initial_pixels", [[1, 2]], "initial_pixels has 1 points, the reference 35"),
+    ("kind", "dots", "detector kind 'dots' differs from the target kind 'chessboard'"),
+])
+def test_a_malformed_detector_record_is_one_clear_error(field, value, words):
+    from hbvs_cli.errors import RecordingError
+
+    message = json.loads((DATA / "fit_model_chessboard_7bf9143.json").read_text())
+    message["detector"][field] = value
+    with pytest.raises(RecordingError, match="the fit model is malformed") as caught:
+        model_from_message(message, "hostile.mcap")
+    assert words in str(caught.value)

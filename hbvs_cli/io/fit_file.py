@@ -49,44 +49,32 @@ def _positive_number(value: Any, what: str, optional: bool = False) -> float | N
     return float(value)
 
 
-def _small_whole(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1100:
-        raise ValueError(f"must be a small whole number, got {value!r}")
-    return value
+def _checked(convert: Any, ok: Any, what: str) -> Any:
+    """A record value's converter: None stays None, else ``convert(value)`` when ``ok(value)``, ValueError saying ``what`` otherwise."""
+    def checked(value: Any) -> Any:
+        if value is not None and not ok(value):
+            raise ValueError(f"must be {what}, got {str(value)[:40]!r}")
+        return None if value is None else convert(value)
+    return checked
 
 
-def _whole_numbers(value: Any, count: int | None = None) -> tuple[int, ...]:
-    if not isinstance(value, list) or len(value) > MAX_TARGET_POINTS // 4 or count not in (None, len(value)):
-        raise ValueError(f"must be a list of {count or 'some'} small whole numbers, got {value!r}")
-    return tuple(_small_whole(v) for v in value)
-
-
-def _pixel_rows(value: Any) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
-    if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] > MAX_TARGET_POINTS:
-        raise ValueError("must be rows of (u, v) pixels")
-    return array
-
-
-def _text(value: Any) -> str:
-    if not isinstance(value, str):
-        raise ValueError("must be text")
-    return value
-
-
-def _optional(convert: Any) -> Any:
-    return lambda value: None if value is None else convert(value)
+def _small_wholes(value: Any, most: int = MAX_TARGET_POINTS // 4) -> bool:
+    return isinstance(value, list) and len(value) <= most and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 1100 for v in value)
 
 
 #: How a record's value becomes a field of the annotated type (JSON's null is a float's NaN),
 #: checked for what repeat reads from it (ValueError).
 _FIELD_TYPES: dict[str, Any] = {
-    "float": lambda v: float("nan") if v is None else float(v), "float | None": _optional(float), "int": int, "bool": bool,
-    "str": str, "dict[str, float]": lambda v: {str(k): float(x) for k, x in v.items()},
+    "float": lambda v: float("nan") if v is None else float(v), "float | None": _checked(float, lambda v: True, "a number"),
+    "int": int, "bool": bool, "str": str, "dict[str, float]": lambda v: {str(k): float(x) for k, x in v.items()},
     "list[tuple[float, float]]": lambda v: [(float(a), float(b)) for a, b in v],
-    "Spread | None": _optional(lambda v: _typed(Spread, v, "spread")), "int | None": _optional(_small_whole),
-    "str | None": _optional(_text), "np.ndarray | None": _optional(_pixel_rows), "tuple[int, ...] | None": _optional(_whole_numbers),
-    "tuple[int, int] | None": _optional(lambda v: _whole_numbers(v, 2)),
+    "Spread | None": _checked(lambda v: _typed(Spread, v, "spread"), lambda v: True, "an object"),
+    "int | None": _checked(int, lambda v: _small_wholes([v], 1), "a small whole number"),
+    "str | None": _checked(str, lambda v: isinstance(v, str), "text"),
+    "tuple[int, ...] | None": _checked(tuple, _small_wholes, "a list of small whole numbers"),
+    "tuple[int, int] | None": _checked(tuple, lambda v: _small_wholes(v) and len(v) == 2, "two small whole numbers"),
+    "np.ndarray | None": _checked(lambda v: np.asarray(v, dtype=float).reshape(-1, 2), lambda v: isinstance(v, list) and len(v) <= MAX_TARGET_POINTS
+                                  and all(isinstance(row, list) and len(row) == 2 for row in v), "rows of (u, v) pixels"),
 }
 
 
