@@ -362,15 +362,6 @@ def _bilinear(gray: NDArray[np.uint8], points: NDArray[np.float64]) -> NDArray[n
     return top * (1 - fy) + bottom * fy
 
 
-def first_marker_id(image: NDArray[np.uint8], dictionary: str | None = None) -> int:
-    """Id of the first marker of ``dictionary`` (DICT_4X4_50 by default) in an image."""
-    name = dictionary or DEFAULT_DICTIONARY
-    ids = marker_ids_in_view(image, name)
-    if not ids:
-        raise InputError(f"no marker of {name} in the first image (choose the dictionary with --marker-dict)")
-    return int(ids[0])
-
-
 def _markers_spec(request: SpecRequest) -> DetectorSpec:
     """A simulated marker (the world's id), the marker ``--marker-id`` names, or the markers
     decoded in most of the first frames (said on stderr)."""
@@ -392,9 +383,12 @@ def _markers_spec(request: SpecRequest) -> DetectorSpec:
 
 
 def _with_marker(spec: DetectorSpec, image: NDArray[np.uint8]) -> DetectorSpec:
-    """The spec with its marker (the first in view when none is named) and 4 corners a marker."""
+    """The spec with its marker (the first of its dictionary in view when none is named) and 4 corners a marker."""
     if spec.marker_id is None and not spec.marker_ids:
-        spec = replace(spec, marker_id=first_marker_id(image, spec.marker_dict))
+        ids = marker_ids_in_view(image, spec.marker_dict or DEFAULT_DICTIONARY)
+        if not ids:
+            raise InputError(f"no marker of {spec.marker_dict or DEFAULT_DICTIONARY} in the first image (choose the dictionary with --marker-dict)")
+        spec = replace(spec, marker_id=int(ids[0]))
     return replace(spec, n_points=4 * len(spec.marker_ids or (spec.marker_id,)))
 
 

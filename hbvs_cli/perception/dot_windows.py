@@ -193,15 +193,6 @@ class WindowedDotDetector(DotDetector):
         return super().detect(image, predicted)
 
 
-def count_dots(image: np.ndarray, polarity: str = "dark", contrast: str = "gray") -> int:
-    """Number of round dots in an image (the size of a dots target seen for the first time)."""
-    blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
-    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
-    if count < 3:
-        raise InputError(f"found {count} {polarity} dots in the first image; a dots target needs at least 3 (or choose --target)")
-    return count
-
-
 def _dots_spec(request: SpecRequest) -> DetectorSpec:
     """As many dots as a simulated target has, else as the first frames show them (None:
     counted in the first image)."""
@@ -214,7 +205,14 @@ def _dots_spec(request: SpecRequest) -> DetectorSpec:
 
 
 def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
-    return spec if spec.n_points is not None else replace(spec, n_points=count_dots(image, spec.polarity or "dark", spec.contrast or "gray"))
+    """The spec with its number of round dots, counted in the first image when not known."""
+    if spec.n_points is not None:
+        return spec
+    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"), flatten=True)
+    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
+    if count < 3:
+        raise InputError(f"found {count} {spec.polarity or 'dark'} dots in the first image; a dots target needs at least 3 (or choose --target)")
+    return replace(spec, n_points=count)
 
 
 def _dots(spec: DetectorSpec, template: np.ndarray | None, seed: int, windowed: bool) -> DotDetector:
