@@ -150,7 +150,7 @@ def test_markers_auto_finds_dictionary_and_id(fitted, name, dictionary, marker_i
         print(f"\n{name}: {row['errors']}")
     detector = row["model"].detector
     assert row["model"].target_kind == "aruco"
-    assert detector["marker_dict"] == dictionary and detector["marker_ids"] == [marker_id]
+    assert detector.marker_dict == dictionary and detector.marker_ids == (marker_id,)
     assert f"--target auto picked aruco: markers: {dictionary} id {marker_id}" in row["stderr"]
     for key, bound in MARKER_BOUNDS[name].items():
         assert row["errors"][key] <= bound, (name, key, row["errors"][key])
@@ -268,7 +268,7 @@ def test_small_apriltag_far_reference_reports_an_honest_uncertainty(fitted, caps
     assert 0.5 <= figures["sigma_over_rms"] <= 2.0, figures
     assert figures["coverage"] >= 0.75, figures
     uncertainty = row["model"].uncertainty
-    assert row["errors"]["normal_deg"] <= 3.0 * uncertainty["normal_sigma_deg"], (row["errors"], uncertainty)
+    assert row["errors"]["normal_deg"] <= 3.0 * uncertainty.normal_sigma_deg, (row["errors"], uncertainty)
 
 
 @pytest.mark.campaign

@@ -25,7 +25,7 @@ from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
 from .chessboard import Board, board_corners_cross, find_board, find_board_near
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs, speck_floor
-from .target_kinds import target_kind
+from .target_kinds import TARGET_KINDS, target_kind
 from .texture import TextureDetector
 
 #: Dots targets have this many dots at most (and 3 at least).
@@ -317,7 +317,7 @@ def target_candidates(
     if not found:
         raise InputError(
             f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
-            "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
+            f"Choose one with --target {'|'.join(TARGET_KINDS)} (and --marker-dict NAME, --marker-id N for markers)"
         )
     found.sort(key=lambda choice: choice.predicted_deg)
     return Candidates(found, ruled_out, aside)
