@@ -13,6 +13,8 @@ from hbvs_cli.core.desired import DetectorErrors
 from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.plane import UNIT_SQUARE
 from hbvs_cli.io.fit_file import read_fit_file
+from hbvs_cli.io.run_file import read_run
+from hbvs_cli.report.build import build_report
 from hbvs_cli.perception import TARGET_KINDS, Detection, TargetKind, register_target_kind
 
 SQUARE_SIDE_M = 0.8
@@ -22,7 +24,7 @@ class BrightSquareDetector:
     """The four corners (TL, TR, BR, BL) of the largest bright quadrilateral in a frame: its
     outline's polygon, each corner refined to the sub-pixel (``cv2.cornerSubPix``)."""
 
-    n_points = 4
+    kind, n_points = "square", 4
 
     def detect(self, image: np.ndarray, prediction: np.ndarray | None = None) -> Detection:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -87,6 +89,14 @@ def test_a_target_kind_registered_from_outside_the_package_is_fitted_and_replaye
     assert model.dhat0_source == "target-size" and model.dhat0 == pytest.approx(made["d_star"], rel=0.01)
     result = call_hbvs("repeat", str(fit), "--replay", str(teach), "-o", str(run), "-q")
     assert result.returncode == 0, result.stderr.decode()
+    assert build_report(read_run(run)).target.lost_frames == 0  # the replay's detector is the registered one
+    # Its fit file, read where the kind is not registered: one line saying so, no run file.
+    square = TARGET_KINDS.pop("square")
+    result = call_hbvs("repeat", str(fit), "--replay", str(teach), "-o", str(tmp_path / "no-run.mcap"))
+    register_target_kind(square)
+    lines = result.stderr.decode().strip().splitlines()
+    assert result.returncode == 3 and len(lines) == 1 and "target kind 'square' is none this hbvs knows" in lines[0], lines
+    assert not (tmp_path / "no-run.mcap").exists()
     # A kind nobody registered: one line naming the registered ones.
     result = call_hbvs("fit", str(teach), "--target", "circle", "-o", str(tmp_path / "no.mcap"))
     assert result.returncode == 2 and "square" in result.stderr.decode() and not (tmp_path / "no.mcap").exists()

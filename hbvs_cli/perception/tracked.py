@@ -16,7 +16,7 @@ from .autodetect import choose_target as choose
 from .autodetect import target_candidates as candidates_in
 from .base import Detection, TargetDetector, match_identity
 from .dot_windows import Window, WindowedDotDetector
-from .target_kinds import target_kind
+from .target_kinds import TARGET_KINDS, target_kind
 from .texture import texture_points_for_template
 
 __all__ = ["DetectorSpec", "TrackedDetector", "texture_points_for_template"]  # DetectorSpec: core's, where the stages took it
@@ -152,6 +152,8 @@ def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed
     """The fit's detector, re-created for repeat (same kind, identity and ``template_image``,
     the fit's decoded template, texture only); ``windowed``: see :class:`TrackedDetector`."""
     spec = model.detector
+    if spec.kind not in TARGET_KINDS:
+        raise RecordingError(f"the fit's target kind {spec.kind!r} is none this hbvs knows ({', '.join(TARGET_KINDS)})")
     uses_template = target_kind(spec.kind).uses_template
     if uses_template and template_image is None:
         raise RecordingError(f"the fit file lacks the {spec.kind} template image (/detector/template)")
