@@ -40,13 +40,9 @@ from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL
 from ..io.foxglove_scene import SceneWriter
 from ..sim.world import World, world_from_description
 
-
-def _no_layout(kind: str) -> str:
-    """Why --target-points cannot be given for a ``kind`` whose points have no metric size
-    (refused before and after auto picks)."""
-    return f"--target-points needs dots, markers or a board: a {kind}'s points are not printed anywhere"
-
-
+#: Why --target-points and a kind whose points have no metric size do not go together
+#: (refused before and after auto picks), ``{}`` the kind.
+NO_LAYOUT = "--target-points needs dots, markers or a board: a {}'s points are not printed anywhere"
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
 
@@ -378,7 +374,7 @@ def _read_known_layout(options: FitOptions) -> np.ndarray | None:
     if options.target_points is None:
         return None
     if options.target != "auto" and target_kind(options.target).size_pair is None:
-        raise UsageError(_no_layout(options.target))
+        raise UsageError(NO_LAYOUT.format(options.target))
     from ..io.target_points import read_target_points
 
     return read_target_points(options.target_points)
@@ -392,7 +388,7 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
     from ..core.known_points import match_layout
 
     if target_kind(spec.kind).size_pair is None:
-        raise UsageError(_no_layout(spec.kind))
+        raise UsageError(NO_LAYOUT.format(spec.kind))
     if layout.shape[0] != reference_pixels.shape[0]:
         raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
     if not np.all(np.isfinite(reference_pixels)):
