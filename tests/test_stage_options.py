@@ -45,7 +45,7 @@ def test_teach_with_a_poster_image(tmp_path):
     make_fit(teach, tmp_path / "fit.mcap")
     model = read_fit_file(tmp_path / "fit.mcap").model
     assert model.target_kind == "texture" and model.world_description["target"]["texture"] == str(poster)
-    assert model.frames["used"] == model.frames["total"] == 120
+    assert model.frames.used == model.frames.total == 120
     with pytest.raises(InputError, match="not found"):
         make_teach(tmp_path / "x.mcap", target="texture", texture=tmp_path / "missing.png", duration=1.0)
     with pytest.raises(UsageError, match="--texture"):

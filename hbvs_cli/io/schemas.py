@@ -58,7 +58,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "format_version": {"type": "integer", "const": 1},
             "timestamp": _TIME,
-            "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "charuco", "texture"]},
+            "target_kind": {"type": "string", "minLength": 1},
             "camera": {"type": "object"},
             "reference": {"type": "object"},
             "normal": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},

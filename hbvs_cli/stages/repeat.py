@@ -34,7 +34,7 @@ from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
 from ..settings.config import load_config
-from ..io.fit_file import FitFile, read_fit_file
+from ..io.fit_file import FitFile, fit_summary_records, read_fit_file
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
 from ..io.images import bytes_to_store
 from ..io.limits import step_count
@@ -290,10 +290,9 @@ def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPose
 
 def detector_noise(model: FitModel) -> float:
     """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
-    residual_px = float((model.residual_px or {}).get("rms", float("nan")))
-    if not math.isfinite(residual_px):
+    if not math.isfinite(model.residual_px.rms):
         return 0.0
-    return noise_from_residual(residual_px, model.m_ref.shape[0]) / model.camera.mean_focal
+    return noise_from_residual(model.residual_px.rms, model.m_ref.shape[0]) / model.camera.mean_focal
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -375,9 +374,8 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Fi
             },
             "record_images": options.record_images,
         },
-        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind, "condition35": model.condition35,
-        "fit_frames": model.frames,
-    } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
+        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind,
+    } | fit_summary_records(model) | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 
 
 def _top_view(world: World) -> dict[str, Any]:
