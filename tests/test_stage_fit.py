@@ -248,7 +248,9 @@ def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp
 
     path, model = default_fit
     uncertainty = model.uncertainty
-    assert set(uncertainty) == {"normal_sigma_deg", "point_noise_px", "theta_d_sigma_deg", "x_hd1_sigma"}
+    assert set(uncertainty) == {"normal_sigma_deg", "point_noise_px", "theta_d_sigma_deg", "x_hd1_sigma", "calibration",
+                                "calibration_normal_sigma_deg"}
+    assert uncertainty["calibration"] == "exact" and uncertainty["calibration_normal_sigma_deg"] == 0.0  # a simulated teach
     assert 0.0 < uncertainty["normal_sigma_deg"] < 0.5 and 0.0 < uncertainty["point_noise_px"] < 0.5
     signals = read_fit_signals(path)
     assert {"theta_d_sigma", "x_hd1_sigma"} <= set(signals.smooth)
