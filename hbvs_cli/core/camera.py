@@ -165,11 +165,6 @@ def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -
 ASSUMED_INTRINSICS_SIGMA = 0.002
 
 
-def assumed_sigma(camera: CameraIntrinsics) -> tuple[float, ...]:
-    """The standard deviations of ``(fx, fy, cx, cy)`` assumed when a calibration states none (px)."""
-    return (ASSUMED_INTRINSICS_SIGMA * camera.mean_focal,) * 4
-
-
 def calibration_shifts(camera: CameraIntrinsics, sigma: Sequence[float], m: ArrayLike) -> NDArray[np.float64]:
     """How the points ``m`` (..., N, 3), normalised from measured pixels with ``camera``, move
     with an error of one standard deviation ``sigma`` in each of ``(fx, fy, cx, cy,
@@ -178,21 +173,14 @@ def calibration_shifts(camera: CameraIntrinsics, sigma: Sequence[float], m: Arra
     the pixels (distorted again) are normalised with the camera moved by +-sigma."""
     m = np.asarray(m, dtype=float)
     pixels = distort_pixels(camera, normalized_to_pixels(camera, m).reshape(-1, 2))
-    names = ("fx", "fy", "cx", "cy")
-    columns = []
-    for index, size in enumerate(sigma[:len(names) + len(camera.distortion)]):
-        if size <= 0.0:
-            continue
-        moved = []
-        for step in (size, -size):
-            if index < len(names):
-                shifted = replace(camera, **{names[index]: getattr(camera, names[index]) + step})
-            else:
-                coefficients = list(camera.distortion)
-                coefficients[index - len(names)] += step
-                shifted = replace(camera, distortion=tuple(coefficients))
-            moved.append(measured_pixels_to_normalized(shifted, pixels)[:, 1:])
-        columns.append(0.5 * (moved[0] - moved[1]).reshape(*m.shape[:-2], -1))
+    values = (camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion)
+
+    def moved(index: int, step: float) -> NDArray[np.float64]:
+        v = [value + step * (k == index) for k, value in enumerate(values)]
+        shifted = replace(camera, fx=v[0], fy=v[1], cx=v[2], cy=v[3], distortion=tuple(v[4:]))
+        return measured_pixels_to_normalized(shifted, pixels)[:, 1:].reshape(*m.shape[:-2], -1)
+
+    columns = [0.5 * (moved(k, size) - moved(k, -size)) for k, size in enumerate(sigma[:len(values)]) if size > 0.0]
     return np.stack(columns, axis=-1) if columns else np.zeros((*m.shape[:-2], 2 * m.shape[-2], 0))
 
 

@@ -10,7 +10,7 @@ from typing import Any, Iterator
 from .. import __version__
 from ..core.camera import CameraIntrinsics, camera_from_description
 from ..errors import HbvsError, RecordingError
-from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
+from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values, stated_sigma
 from .foxglove_scene import SceneWriter
 from .images import StoredImage, read_compressed_image, write_compressed_image
 from .mcap import McapStream, McapWriter, read_metadata, time_message
@@ -48,14 +48,11 @@ def world_description(data: Any, source: str) -> dict[str, Any]:
 
 
 def _stated_sigma(sigma: Any, source: str) -> tuple[float, ...]:
-    """A recorded calibration's standard deviations (:data:`CALIBRATION_METADATA`), () when none;
-    :class:`RecordingError` when malformed."""
-    if sigma is None:
-        return ()
-    if (not isinstance(sigma, list) or not 4 <= len(sigma) <= 18
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < math.inf for v in sigma)):
-        raise RecordingError(f"{source}: malformed {CALIBRATION_METADATA} metadata (sigma: 4 to 18 finite non-negative numbers)")
-    return tuple(float(v) for v in sigma)
+    """A recorded calibration's standard deviations (:data:`CALIBRATION_METADATA`), () when none."""
+    try:
+        return stated_sigma({"std_deviations_intrinsics": sigma}, f"{source}: {CALIBRATION_METADATA} metadata") if sigma is not None else ()
+    except HbvsError as exc:
+        raise RecordingError(str(exc)) from None
 
 
 def render_settings_problem(settings: Any) -> str | None:

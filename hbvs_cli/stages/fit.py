@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .. import __version__
-from ..core.camera import ASSUMED_INTRINSICS_SIGMA, CameraIntrinsics, assumed_sigma
+from ..core.camera import ASSUMED_INTRINSICS_SIGMA, CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
 from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.plane import UNIT_SQUARE, KnownShape
@@ -431,15 +431,16 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
 def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics, console: Console) -> tuple[str, tuple[float, ...]]:
     """How well the intrinsics are known, for the fit's uncertainty: ``("exact", ())`` for a
     simulated teach (rendered with this camera), ``("stated", sigma)`` from the calibration,
-    or ``("assumed", ...)`` (:func:`~hbvs_cli.core.camera.assumed_sigma`, said on stderr)."""
+    or ``("assumed", ...)`` (:data:`~hbvs_cli.core.camera.ASSUMED_INTRINSICS_SIGMA`, said on stderr)."""
     if reader.world_description is not None:
         return "exact", ()
     if camera.sigma:
         return "stated", camera.sigma
+    assumed = ASSUMED_INTRINSICS_SIGMA * camera.mean_focal
     console.warn(f"the calibration states no standard deviations of its intrinsics: the uncertainty assumes fx, fy, cx and cy "
-                 f"known to {100 * ASSUMED_INTRINSICS_SIGMA:g} % of the focal length ({assumed_sigma(camera)[0]:.2g} px, 1 sigma) "
+                 f"known to {100 * ASSUMED_INTRINSICS_SIGMA:g} % of the focal length ({assumed:.2g} px, 1 sigma) "
                  "and the distortion exact; a calibration with its std_deviations_intrinsics replaces this (docs/walkthrough.md)")
-    return "assumed", assumed_sigma(camera)
+    return "assumed", (assumed,) * 4
 
 
 #: The fit's advice to give the target's geometry, which --target-points has given already.

@@ -87,10 +87,10 @@ def _intrinsics_from_mapping(
     model: Any = found_model[1] if found_model is not None else None
     if model is not None and not isinstance(model, str):
         raise CalibrationError(f"{name}: distortion_model must be a string, got {_kind_of(model)}")
-    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes, _stated_sigma(mapping, name))
+    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes, stated_sigma(mapping, name))
 
 
-def _stated_sigma(mapping: Mapping[str, Any], name: str) -> tuple[float, ...]:
+def stated_sigma(mapping: Mapping[str, Any], name: str) -> tuple[float, ...]:
     """The standard deviations of (fx, fy, cx, cy, *distortion) the calibration states, () when none."""
     parts = [found for found in [_lookup(mapping, _SIGMA_KEYS)] if found is not None] or [
         found for found in (_lookup(mapping, keys) for keys in _SIGMA_PARTS) if found is not None]
