@@ -131,6 +131,14 @@ def test_every_command_of_the_walkthrough_runs(tmp_path, monkeypatch):
     fit = read_fit_file("fit.mcap").model.uncertainty
     assert fit["calibration"] == "stated" and fit["calibration_normal_sigma_deg"] == 0.0
     assert normal_error_deg("fit.mcap", "practice.mcap") <= 1.96 * fit["normal_sigma_deg"] < 0.5
+    # A ROS camera_info without them: fit says what it assumes (1 px on fx, fy, cx, cy here) and counts it.
+    (tmp_path / "ros.yaml").write_text((tmp_path / "camera.yaml").read_text().split("std_deviations_intrinsics")[0])
+    assert call_hbvs("teach", "--video", "drive.avi", "--calibration", "ros.yaml", "-o", "ros_teach.mcap", "-q").returncode == 0
+    said = call_hbvs("fit", "ros_teach.mcap", "-o", "ros_fit.mcap").stderr.decode()
+    assert "assumes fx, fy, cx and cy known to 0.2 % of the focal length (1 px, 1 sigma)" in said
+    assumed = read_fit_file("ros_fit.mcap").model.uncertainty
+    # Measured: n* 12.6 deg (1 sigma), nearly all of it the assumed calibration's.
+    assert assumed["calibration"] == "assumed" and assumed["calibration_normal_sigma_deg"] > 0.95 * assumed["normal_sigma_deg"] > 5.0
 
 
 @SUITE_OR_CAMPAIGN
