@@ -249,6 +249,7 @@ def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp
     path, model = default_fit
     uncertainty = model.uncertainty
     assert uncertainty.theta_d_sigma_deg is not None and uncertainty.x_hd1_sigma is not None
+    assert uncertainty.calibration == "exact" and uncertainty.calibration_normal_sigma_deg == 0.0  # a simulated teach
     assert 0.0 < uncertainty.normal_sigma_deg < 0.5 and 0.0 < uncertainty.point_noise_px < 0.5
     signals = read_fit_signals(path)
     assert {"theta_d_sigma", "x_hd1_sigma"} <= set(signals.smooth)

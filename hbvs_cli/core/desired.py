@@ -9,20 +9,21 @@ trajectory"). What a user should hear is passed to ``warn``, never printed.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from functools import partial
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InsufficientDataError
-from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
+from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points,
-                     rolling_shutter_shift)
+                     rolling_shutter_shift, uniform_shift)
 from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -74,8 +75,11 @@ class DetectorErrors:
 UNCERTAIN_NORMAL_WARNING = (
     "the drive leaves the plane normal n* uncertain by {normal:.1f} deg, theta_d by {theta:.2f} deg and x_hd1 by {x_h1:.1e} (1 sigma{usual}), "
     "a bias the whole trajectory inherits; what would pin it: the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), "
-    "a drive that curves more or comes closer, or another reference frame (--reference last: the close end of the drive)"
+    "a drive that curves more or comes closer, or another reference frame (--reference last: the close end of the drive){calibration}"
 )
+
+#: ... ended so when most of n*'s uncertainty is the intrinsics' (``{part}`` deg of it).
+CALIBRATION_ADVICE = "; and above all a finer calibration ({part:.1f} deg of n*'s sigma is its intrinsics' uncertainty)"
 
 #: Below this branch margin (and above AMBIGUOUS_NORMAL_MARGIN, where the facing prior
 #: decides) the joint estimate is also run from the other branch's normal.
@@ -169,6 +173,10 @@ class UncertaintySummary:
     point_noise_px: float
     theta_d_sigma_deg: Spread | None
     x_hd1_sigma: Spread | None
+    #: n*'s sigma from the intrinsics' own (deg), and whether they were "stated", "assumed" or
+    #: "exact" (None in a file written before either was kept).
+    calibration_normal_sigma_deg: float = 0.0
+    calibration: str | None = None
 
 
 @dataclass(frozen=True)
@@ -178,7 +186,8 @@ class FitUncertainty:
     ``point_noise_px``: the reprojection errors' noise (px per coordinate); ``theta_sigma``,
     ``x_h1_sigma`` (F,): 1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used),
     with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
-    the used span (which average a frame's own noise, not the inherited part).
+    the used span (which average a frame's own noise, not the inherited part);
+    ``calibration_normal_sigma_deg``: the part of n*'s sigma the intrinsics' errors make.
     """
 
     normal_sigma_deg: float
@@ -187,12 +196,16 @@ class FitUncertainty:
     x_h1_sigma: NDArray[np.float64]
     smooth_theta_sigma: NDArray[np.float64]
     smooth_x_h1_sigma: NDArray[np.float64]
+    calibration_normal_sigma_deg: float = 0.0
 
-    def summary(self) -> UncertaintySummary:
-        """What a fit file keeps: n*'s sigma and the spline sigmas' median and maximum."""
+    def summary(self, calibration: str | None = None) -> UncertaintySummary:
+        """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
+        whether the intrinsics' sigmas were stated, assumed or exact), and the spline sigmas'
+        median and maximum."""
         spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
         return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
-                                  spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma))
+                                  spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma),
+                                  self.calibration_normal_sigma_deg, calibration)
 
 
 @dataclass(frozen=True)
@@ -245,6 +258,7 @@ def fit_desired_trajectory(
     shapes: Sequence[KnownShape] = (),
     errors: DetectorErrors = DetectorErrors(),
     image_shift_px: float = 0.0,
+    calibration_sigma: Sequence[float] = (),
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -269,7 +283,12 @@ def fit_desired_trajectory(
     image_shift_px : float, optional
         A detector's error shared by every point of every frame (px, 1 sigma in each image
         direction; e.g. bloom pulling saturated dots' centroids, measured by the detector):
-        :func:`~.bundle.joint_covariance`'s ``image_shift``.
+        :func:`~.bundle.joint_covariance`'s ``common_shift``.
+    calibration_sigma : sequence of float, optional
+        The standard deviations of the intrinsics ``(fx, fy, cx, cy, *distortion)``
+        (:attr:`~.camera.CameraIntrinsics.sigma`): their errors are shared by every frame, a
+        bias of the whole drive (:func:`~.camera.calibration_shifts`, joined to
+        ``common_shift``). Empty: the intrinsics are exact.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -327,10 +346,14 @@ def fit_desired_trajectory(
     focal = camera.mean_focal
     uncertainty = None
     if others.size:
+        shared_shifts = [partial(calibration_shifts, camera, calibration_sigma)]  # last: its columns are n*'s calibration part
+        if image_shift_px > 0.0:
+            shared_shifts.insert(0, uniform_shift(image_shift_px / focal))
+        calibration_columns = calibration_shifts(camera, calibration_sigma, m_ref[None]).shape[-1]
         covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
                                        shapes, errors.correlated, errors.bias(noise * camera.mean_focal), readout != 0.0,
-                                       image_shift_px / camera.mean_focal)
-        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
+                                       lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1))
+        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns)
         if (line := uncertainty_warning(uncertainty, errors)) and warn is not None:
             warn(line)
     return DesiredFit(
@@ -358,11 +381,11 @@ def fit_desired_trajectory(
 def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
                       seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
                       m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], correlated: bool, bias_fraction: float,
-                      readout_estimated: bool, image_shift: float = 0.0) -> JointCovariance:
+                      readout_estimated: bool, common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> JointCovariance:
     """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
     for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and a
-    shift of the whole image of ``image_shift`` (normalised units, 1 sigma).
+    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and the
+    shifts every frame shares (``common_shift``: bloom's, the calibration's).
     Its frame-long inputs are freed when it returns, before the uncertainty is carried
     through the smoothing."""
     stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
@@ -375,7 +398,7 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
                             correlated=correlated, bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
                             shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
-                            image_shift=image_shift)
+                            common_shift=common_shift)
 
 
 def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:
@@ -431,7 +454,9 @@ def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = De
     expected = errors.expected_precision
     if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG or (expected is not None and (theta > expected[0] or x_h1 > expected[1])):
         usual = f"; {errors.name} targets usually give {expected[0]:g} deg and {expected[1]:g}" if expected is not None else ""
-        return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual)
+        part = uncertainty.calibration_normal_sigma_deg
+        calibration = CALIBRATION_ADVICE.format(part=part) if part > 0.5 * uncertainty.normal_sigma_deg else ""
+        return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual, calibration=calibration)
     return None
 
 
@@ -482,8 +507,9 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
 
 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
-                     trajectory: SplineTrajectory, focal: float) -> FitUncertainty:
-    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance.
+                     trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0) -> FitUncertainty:
+    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance
+    (whose last ``calibration_columns`` bias columns are the intrinsics' errors).
 
     A frame's error is its own plus what it inherits from the globals (common to all frames).
     The spline is linear: the inherited part goes through it exactly, the own part by
@@ -525,8 +551,10 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
                 inherited_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, :split] ** 2, axis=1)
                 probed_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, split:] ** 2, axis=1)
         smoothed.append(np.sqrt(inherited_variance + probed_variance / NOISE_PROBES))
+    calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
+        calibration_normal_sigma_deg=float(np.degrees(np.sqrt(np.sum(calibration ** 2)))),
         point_noise_px=float(covariance.noise * focal),
         theta_sigma=theta_sigma,
         x_h1_sigma=x_h1_sigma,

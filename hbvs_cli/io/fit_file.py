@@ -208,8 +208,17 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
         "render": asdict(model.render) if model.render is not None else None,
         "gains": _gains_record(model.gains) if model.gains is not None else None,
-        "uncertainty": asdict(model.uncertainty) if model.uncertainty is not None else None,
+        "uncertainty": _uncertainty_record(model.uncertainty) if model.uncertainty is not None else None,
     }
+
+
+def _uncertainty_record(summary: UncertaintySummary) -> dict[str, Any]:
+    """The ``uncertainty`` object; the calibration's part only when it was judged (a model read
+    from a file written before keeps its bytes)."""
+    record = asdict(summary)
+    if summary.calibration is None:
+        del record["calibration"], record["calibration_normal_sigma_deg"]
+    return record
 
 
 def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:

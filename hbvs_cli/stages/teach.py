@@ -176,7 +176,8 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
                 )
                 bar.advance()
     if options.calibration_out is not None:
-        save_calibration_ros(world.camera, options.calibration_out, camera_name="hbvs_simulated")
+        # The simulation renders with this very camera: its intrinsics are exact.
+        save_calibration_ros(replace(world.camera, sigma=(0.0,) * 4), options.calibration_out, camera_name="hbvs_simulated")
     extras = "".join(f", {what} {path}" for what, path in (("video", options.video_out), ("calibration", options.calibration_out))
                      if path is not None)
     console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}{extras}")
