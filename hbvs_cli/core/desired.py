@@ -17,13 +17,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
-from .estimation import within_residual_gate
+from .estimation import DEFAULT_RESIDUAL_GATE, within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
-from .bundle import (JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points,
-                     rolling_shutter_shift, uniform_shift)
+from .bundle import (OUTLIER_SPREADS, JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise,
+                     projected_points, rolling_shutter_shift, uniform_shift)
 from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -86,6 +86,9 @@ CALIBRATION_ADVICE = "; and above all a finer calibration ({part:.1f} deg of n*'
 BRANCH_CHECK_MARGIN = 0.05
 #: ... on this many frames at most (the branches' costs differ by far more than their noise).
 BRANCH_CHECK_FRAMES = 200
+
+#: Frames beyond the residual gate left out of the plane's estimates, one at a time, at most.
+OUTLIER_FRAMES = 3
 
 #: A rolling shutter's readout is estimated when its score statistic exceeds this: the
 #: chi-square of one degree of freedom does so with probability 1e-6 without a shutter.
@@ -310,10 +313,20 @@ def fit_desired_trajectory(
     sample = np.flatnonzero(found)
     sample = sample[np.linspace(0, sample.size - 1, min(sample.size, REFINEMENT_FRAMES)).astype(int)]
     homographies = estimate_euclidean_homography(m[sample], m_ref)
-    normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=homographies.valid, with_rival=True)
-    usable = np.zeros_like(found)
-    usable[sample[homographies.valid]] = True
-    normal, m_ref = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
+    valid = homographies.valid
+    # A frame beyond the residual gate (a dot taken for another, 90 px off: n* 14 deg off) is
+    # left out of the plane's estimates as of the trajectory; the worst first, and only beyond
+    # OUTLIER_SPREADS times the frames' median: it bends the plane, so the others' residuals too.
+    for _ in range(OUTLIER_FRAMES + 1):
+        normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=valid, with_rival=True)
+        usable = np.isin(np.arange(found.size), sample[valid])
+        normal, refined = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
+        frame_residual = np.where(valid, KnownNormalSolver(refined, normal).solve(m[sample]).residual, np.nan)
+        worst = int(np.nanargmax(frame_residual)) if np.any(np.isfinite(frame_residual)) else 0
+        if not frame_residual[worst] > max(DEFAULT_RESIDUAL_GATE, OUTLIER_SPREADS * float(np.nanmedian(frame_residual))):
+            break
+        valid = valid & (np.arange(valid.size) != worst)
+    m_ref = refined
     if margin < AMBIGUOUS_NORMAL_MARGIN and not shapes and warn is not None:
         # A known shape pins n* in the refinement whatever the vote: how well, the
         # uncertainty (and its warning) says.

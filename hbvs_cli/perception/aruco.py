@@ -248,10 +248,13 @@ def _markers_seen(corners: NDArray[np.float64]) -> int:
 
 
 #: Passes of :func:`refine_marker_corners` at most, and the move (px) under which it stops;
-#: the farthest (px) from a corner its edges are measured (:func:`_refine_corners_once`).
+#: the farthest (px) from a corner its edges are measured (:func:`_refine_corners_once`); the
+#: mean side (px) of a marker too small to refine (not the shortest: a second edge beside a
+#: marker pulls OpenCV's corners a pixel inward, squeezing one side, that the edges mend).
 REFINE_PASSES = 3
 REFINE_CONVERGED_PX = 0.05
 EDGE_STRETCH_PX = 30.0
+MIN_REFINED_SIDE_PX = 12.0
 
 
 def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 2.5,
@@ -287,7 +290,7 @@ def _refine_corners_once(gray: NDArray[np.uint8], corners: NDArray[np.float64], 
     # Norms and neighbours by hand: np.linalg.norm and np.roll cost more on 4 points.
     corners = np.asarray(corners, dtype=np.float64)
     sides = np.sqrt(np.add.reduce(np.square(corners[_NEXT] - corners), axis=1))
-    if sides.min() < 12.0:
+    if sides.mean() < MIN_REFINED_SIDE_PX:
         return corners.copy()
     # Each corner looks along two edges: toward the previous and toward the next corner.
     starts = np.repeat(corners, 2, axis=0)
