@@ -18,6 +18,7 @@ from hbvs_cli.core.bundle import estimate_plane_jointly, joint_covariance
 from hbvs_cli.core.camera import CameraIntrinsics, measured_pixels_to_normalized
 from hbvs_cli.core.desired import fit_desired_trajectory
 from hbvs_cli.core.known_normal import KnownNormalSolver
+from hbvs_cli.perception import target_kind
 from hbvs_cli.core.plane import UNIT_SQUARE
 
 import footage
@@ -314,6 +315,6 @@ def test_a_frame_with_a_dot_taken_for_another_does_not_bend_the_plane():
         swapped, without = pixels.copy(), pixels.copy()
         swapped[-1, 1] += [0.0, 90.0]
         without[-1] = np.nan
-        normals = [fit_desired_trajectory(times, p, 0, intrinsics, None, 0.3, 1.0, kind="dots").normal for p in (swapped, without)]
+        normals = [fit_desired_trajectory(times, p, 0, intrinsics, None, 0.3, 1.0, errors=target_kind("dots").errors).normal for p in (swapped, without)]
         apart = np.degrees(np.arccos(min(1.0, abs(normals[0] @ normals[1]))))
         assert apart < 0.01, (seed, apart)
