@@ -1,0 +1,184 @@
+"""A simulated route longer than one view: several planar targets placed along a taught drive.
+
+Each target keeps its own single-target :class:`~.world.World`, in its own frame W_i (its wall
+the plane x = 0, the robot looking along +x at it), placed in the route's frame R by a planar
+pose ``(x, y, yaw)``: a point p of W_i is ``Rz(yaw) p + (x, y, 0)`` in R. So everything a single
+target knows (its reference geometry (7), its ground truth (4), (14), its exact projection)
+serves each segment of a route unchanged, on the robot's pose expressed in W_i (issue 47).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics, camera_description
+from ..core.frames import rotation_z, wrap_angle
+from ..core.path import CommandProfile
+from ..errors import InvalidValueError, MalformedDataError
+from .poster import PosterRaster
+from .render import RenderSettings, SceneRenderer, load_texture
+from .world import DEFAULT_CAMERA_HEIGHT, Poster, Target, World, default_target
+
+#: The texture name of the second built-in photograph: the built-in pattern turned by 180 deg,
+#: so that two photographs of one route do not look alike.
+TURNED_BUILTIN_TEXTURE = "builtin-turned"
+
+
+@dataclass(frozen=True)
+class RouteWorld:
+    """A camera at ``camera_height`` (m) and targets along a route: ``worlds[i]`` is target i in
+    its own frame W_i, placed in the route frame R at ``placements[i] = (x, y, yaw)`` (m, m, rad);
+    ``profile`` and ``start_pose`` (in R) are the taught drive past them."""
+
+    name: str
+    camera: CameraIntrinsics
+    camera_height: float
+    placements: NDArray[np.float64]
+    worlds: tuple[World, ...]
+    profile: CommandProfile
+    start_pose: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        placements = np.asarray(self.placements, dtype=float)
+        if placements.shape != (len(self.worlds), 3) or not self.worlds or not np.all(np.isfinite(placements)):
+            raise MalformedDataError("a route needs one finite placement (x, y, yaw) per target, and at least one target")
+        object.__setattr__(self, "placements", placements)
+
+    def local_pose(self, index: int, pose: ArrayLike) -> NDArray[np.float64]:
+        """The robot pose(s) (..., 3) of R expressed in target ``index``'s frame W_i."""
+        pose = np.asarray(pose, dtype=float)
+        x, y, yaw = self.placements[index]
+        c, s = np.cos(yaw), np.sin(yaw)
+        dx, dy = pose[..., 0] - x, pose[..., 1] - y
+        return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(pose[..., 2] - yaw)], axis=-1)
+
+    def visible(self, pose: ArrayLike, margin_px: float = 10.0) -> NDArray[np.bool_]:
+        """For each target: True when all its points are in front of the camera and in the image."""
+        return np.array([world.in_view(self.local_pose(i, pose), margin_px) for i, world in enumerate(self.worlds)])
+
+    def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
+        """True when at least one target is wholly in view (what a teach warns about)."""
+        return bool(np.any(self.visible(pose, margin_px)))
+
+    @property
+    def route_targets(self) -> tuple[Target, ...]:
+        """The targets with their posters expressed in R (what the 3D scene draws)."""
+        placed = []
+        for (x, y, yaw), world in zip(self.placements, self.worlds):
+            rotation, shift = rotation_z(yaw), np.array([x, y, 0.0])
+            poster = world.target.poster
+            moved = Poster(center=rotation @ poster.center + shift, width=poster.width, height=poster.height,
+                           right=rotation @ poster.right, down=rotation @ poster.down)
+            placed.append(replace(world.target, poster=moved))
+        return tuple(placed)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready description (the ``world`` record of a teach file): the camera as a single
+        target's, and each target's own description with its placement (yaw in rad)."""
+        return {
+            "route": self.name,
+            "camera": camera_description(self.camera),
+            "camera_height_m": self.camera_height,
+            "targets": [{"placement": placement.tolist(), "target": world.to_dict()["target"]}
+                        for placement, world in zip(self.placements, self.worlds)],
+        }
+
+
+def route_targets_from_description(data: Any) -> tuple[NDArray[np.float64], tuple[World, ...]]:
+    """The placements (K, 3) and target worlds of a recorded route description (:meth:`RouteWorld.to_dict`);
+    MalformedDataError for a malformed one."""
+    try:
+        entries = list(data["targets"])
+        placements = np.array([[float(v) for v in entry["placement"]] for entry in entries])
+        worlds = tuple(World.from_dict({"camera": data["camera"], "camera_height_m": data["camera_height_m"],
+                                        "target": entry["target"]}) for entry in entries)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise MalformedDataError(f"malformed route description: {exc}") from None
+    if placements.shape != (len(worlds), 3) or not worlds:
+        raise MalformedDataError("malformed route description: each target needs a placement (x, y, yaw)")
+    return placements, worlds
+
+
+#: Speed of the corridor's taught drive (m/s).
+CORRIDOR_SPEED = 0.25
+#: Its legs (m) and the radius (m) of its left turn between them.
+CORRIDOR_LEGS = (11.0, 3.0)
+CORRIDOR_TURN_RADIUS = 4.0
+#: Its targets: kind, texture and placement (x, y, yaw in deg) in R, the start at the origin
+#: facing +x. Each faces the stretch from which it is seen; each next one comes into view while
+#: the one before is still in it (the overlap a transition is estimated from).
+CORRIDOR_TARGETS: tuple[tuple[str, str, tuple[float, float, float]], ...] = (
+    ("dots", "builtin", (8.5, -1.4, -20.0)),
+    ("aruco", "builtin", (13.5, -0.6, -10.0)),
+    ("texture", "builtin", (17.7, 3.2, 45.0)),
+    ("texture", TURNED_BUILTIN_TEXTURE, (17.3, 12.0, 75.0)),
+)
+
+
+def corridor_route(camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
+    """The corridor: 11 m straight, a 90 deg left turn of radius 4 m, 3 m straight (20.3 m at
+    0.25 m/s, 81 s), past a dot target, a marker board and two photographs. Seen at 4 Hz with a
+    10 px margin: dots 0-18 s, board 0-45.5 s, first photograph 0-57.5 s, second 56.5 s to the end;
+    none is nearer than 0.5 m to the path."""
+    turn_rate = CORRIDOR_SPEED / CORRIDOR_TURN_RADIUS
+    durations = np.array([CORRIDOR_LEGS[0] / CORRIDOR_SPEED, 0.5 * np.pi / turn_rate, CORRIDOR_LEGS[1] / CORRIDOR_SPEED])
+    starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+    profile = CommandProfile(t=starts, v=np.full(3, CORRIDOR_SPEED), w=np.array([0.0, turn_rate, 0.0]), t_end=float(durations.sum()))
+    worlds = tuple(World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT,
+                         target=replace(default_target(kind, dots=4, wall_x=0.0), texture=texture))
+                   for kind, texture, _ in CORRIDOR_TARGETS)
+    placements = np.array([[x, y, np.radians(yaw)] for _, _, (x, y, yaw) in CORRIDOR_TARGETS])
+    return RouteWorld("corridor", camera, DEFAULT_CAMERA_HEIGHT, placements, worlds, profile, np.zeros(3))
+
+
+#: The simulated routes of ``teach --sim --route NAME``.
+ROUTES: dict[str, Callable[[CameraIntrinsics], RouteWorld]] = {"corridor": corridor_route}
+
+
+def route_world(name: str, camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
+    """The route called ``name`` (:data:`ROUTES`) seen by ``camera``; InvalidValueError for an unknown name."""
+    if name not in ROUTES:
+        raise InvalidValueError(f"unknown route {name!r}: choose one of {', '.join(ROUTES)}")
+    return ROUTES[name](camera)
+
+
+class RouteRenderer(SceneRenderer):
+    """Frames of a route: every target's poster painted into one frame (the farther first), then
+    the one sensor of :class:`SceneRenderer` (exposure, noise). Whole frames only."""
+
+    def __init__(self, route: RouteWorld, settings: RenderSettings) -> None:
+        rasters = [PosterRaster.from_target(world.target, texture=_route_texture(world)) for world in route.worlds]
+        super().__init__(route.worlds[0], rasters[0], settings)
+        self.route = route
+        self.parts = [SceneRenderer(world, raster, settings) for world, raster in zip(route.worlds, rasters)]
+
+    def render_scene(self, pose: ArrayLike) -> NDArray[np.uint8]:
+        """The noiseless, unexposed scene: each poster as its own renderer draws it on the wall,
+        the nearer over the farther wherever it differs from the bare wall (a poster pixel of
+        exactly the wall's gray lets the farther poster's pixel show through)."""
+        frame = self._wall.copy()
+        pose = np.asarray(pose, dtype=float)
+        distances = np.linalg.norm(self.route.placements[:, :2] - pose[:2], axis=1)
+        for index in np.argsort(-distances, kind="stable"):
+            alone = self.parts[index].render_scene(self.route.local_pose(int(index), pose))
+            np.copyto(frame, alone, where=alone != self._background)
+        return frame
+
+    def render_windows(self, pose: ArrayLike, rng: np.random.Generator, windows: Any, exposure_gain: float | None = None) -> NDArray[np.uint8]:
+        raise InvalidValueError("a route's frames are rendered whole (windowed rendering follows one target)")
+
+
+def _route_texture(world: World) -> NDArray[np.uint8] | None:
+    """The picture of a route's target: the turned built-in photograph, else as a single target's."""
+    if world.target.kind == "texture" and world.target.texture == TURNED_BUILTIN_TEXTURE:
+        return np.ascontiguousarray(PosterRaster.from_target(replace(world.target, texture="builtin")).image[::-1, ::-1])
+    return load_texture(world)
+
+
+def make_route_renderer(route: RouteWorld, noise: float, blur: float, exposure: float, grain: float = 0.0) -> RouteRenderer:
+    """The renderer of a route with the sensor of :func:`~.render.make_renderer`."""
+    return RouteRenderer(route, RenderSettings(noise_std=noise, blur_sigma=blur, exposure_gain=exposure, noise_grain=grain))
