@@ -60,6 +60,17 @@ class RouteWorld:
         """For each target: True when all its points are in front of the camera and in the image."""
         return np.array([world.in_view(self.local_pose(i, pose), margin_px) for i, world in enumerate(self.worlds)])
 
+    def spans(self, pose: ArrayLike, margin_px: float = 10.0) -> NDArray[np.float64]:
+        """For each target: the largest distance (px) between two of its image points, 0 when
+        it is not wholly in view: how well it is seen."""
+        spans = np.zeros(len(self.worlds))
+        for index, world in enumerate(self.worlds):
+            local = self.local_pose(index, pose)
+            if world.in_view(local, margin_px):
+                pixels = world.pixels(local)
+                spans[index] = np.max(np.linalg.norm(pixels[:, None, :] - pixels[None, :, :], axis=-1))
+        return spans
+
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
         """True when at least one target is wholly in view (what a teach warns about)."""
         return bool(np.any(self.visible(pose, margin_px)))
@@ -103,29 +114,33 @@ def route_targets_from_description(data: Any) -> tuple[NDArray[np.float64], tupl
     return placements, worlds
 
 
+#: A target is seen well enough to be followed when two of its image points are this far apart (px).
+MIN_SPAN_PX = 45.0
 #: Speed of the corridor's taught drive (m/s).
 CORRIDOR_SPEED = 0.25
-#: Its legs (m) and the radius (m) of its left turn between them.
-CORRIDOR_LEGS = (11.0, 3.0)
+#: Its legs (m), and the radius (m) and angle (deg) of its left turn between them.
+CORRIDOR_LEGS = (11.0, 5.0)
 CORRIDOR_TURN_RADIUS = 4.0
+CORRIDOR_TURN_DEG = 60.0
 #: Its targets: kind, texture and placement (x, y, yaw in deg) in R, the start at the origin
 #: facing +x. Each faces the stretch from which it is seen; each next one comes into view while
 #: the one before is still in it (the overlap a transition is estimated from).
 CORRIDOR_TARGETS: tuple[tuple[str, str, tuple[float, float, float]], ...] = (
     ("dots", "builtin", (8.5, -1.4, -20.0)),
-    ("aruco", "builtin", (13.5, -0.6, -10.0)),
-    ("texture", "builtin", (17.7, 3.2, 45.0)),
-    ("texture", TURNED_BUILTIN_TEXTURE, (17.3, 12.0, 75.0)),
+    ("aruco", "builtin", (12.0, -1.0, -10.0)),
+    ("texture", "builtin", (18.5, 3.5, 40.0)),
+    ("texture", TURNED_BUILTIN_TEXTURE, (19.5, 10.0, 60.0)),
 )
 
 
 def corridor_route(camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
-    """The corridor: 11 m straight, a 90 deg left turn of radius 4 m, 3 m straight (20.3 m at
-    0.25 m/s, 81 s), past a dot target, a marker board and two photographs. Seen at 4 Hz with a
-    10 px margin: dots 0-18 s, board 0-45.5 s, first photograph 0-57.5 s, second 56.5 s to the end;
-    none is nearer than 0.5 m to the path."""
+    """The corridor: 11 m straight, a 60 deg left turn of radius 4 m, 5 m straight (20.2 m at
+    0.25 m/s, 81 s), past a dot target, a marker board and two photographs. Followed as
+    :func:`~hbvs_cli.core.route.split_route` does (each seen at least :data:`MIN_SPAN_PX`, the
+    largest next), they overlap 8, 29 and 6.5 s; none is nearer than 0.45 m to the path."""
     turn_rate = CORRIDOR_SPEED / CORRIDOR_TURN_RADIUS
-    durations = np.array([CORRIDOR_LEGS[0] / CORRIDOR_SPEED, 0.5 * np.pi / turn_rate, CORRIDOR_LEGS[1] / CORRIDOR_SPEED])
+    durations = np.array([CORRIDOR_LEGS[0] / CORRIDOR_SPEED, np.radians(CORRIDOR_TURN_DEG) / turn_rate,
+                          CORRIDOR_LEGS[1] / CORRIDOR_SPEED])
     starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
     profile = CommandProfile(t=starts, v=np.full(3, CORRIDOR_SPEED), w=np.array([0.0, turn_rate, 0.0]), t_end=float(durations.sum()))
     worlds = tuple(World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT,
