@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbvs_cli.core.route import Segment, estimate_transition, split_route
+from hbvs_cli.core.route import Segment, estimate_transition, fit_route, split_route
 from hbvs_cli.errors import MalformedDataError
 from hbvs_cli.sim.route import MIN_SPAN_PX, corridor_route
 
@@ -109,3 +109,39 @@ def test_a_transition_needs_motion_and_two_frames():
     still = np.zeros(5)
     with pytest.raises(MalformedDataError, match="did not move"):
         estimate_transition(still, np.tile([0.1, 0.02], (5, 1)), still, np.tile([0.3, 0.01], (5, 1)))
+
+
+def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pixel_noise():
+    """The corridor at 5 Hz, its targets' exact pixels (where each is seen well) plus 0.5 px of
+    noise. Over seeds 0-9 (measured when written): n* within 5.0 deg of the truth, x_hd1 within
+    0.035 (each segment's median), rho within 38 % on the first switch (2.5 s of a straight
+    drive, the board still small) and 5 % on the others; seed 0 is held to those bounds."""
+    route = corridor_route()
+    times = np.arange(0.0, route.profile.duration, 0.2)
+    poses = route.profile.poses_at(times, route.start_pose)
+    spans = np.array([route.spans(pose) for pose in poses])
+    visible = spans >= MIN_SPAN_PX
+    rng = np.random.default_rng(0)
+    pixels = []
+    for index, world in enumerate(route.worlds):
+        seen = np.array([world.pixels(route.local_pose(index, pose)) for pose in poses])
+        seen = seen + rng.normal(0.0, 0.5, seen.shape)
+        seen[~visible[:, index]] = np.nan
+        pixels.append(seen)
+    segments = split_route(visible, spans)
+    fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
+                       kinds=[world.target.kind for world in route.worlds], warn=lambda message: None)
+    assert [s.target for s in fitted.segments] == [0, 1, 2, 3]
+    true_depths = []
+    for segment, fit, reference in zip(fitted.segments, fitted.fits, fitted.references):
+        assert segment.first <= reference <= segment.last
+        world, reference_pose = route.worlds[segment.target], poses[reference]
+        _, normal, d_star = world.reference_geometry(route.local_pose(segment.target, reference_pose))
+        true_depths.append(d_star)
+        assert np.degrees(np.arccos(np.clip(np.dot(fit.normal, normal), -1, 1))) < 5.0
+        frames = slice(segment.first, segment.last + 1)
+        _, x_h = signals(route, segment.target, poses[frames], reference_pose)
+        assert np.median(np.abs(fit.trajectory.evaluate(times[frames]).x_hd1 - x_h[:, 0])) < 0.035
+    bounds = [0.38, 0.05, 0.05]
+    for transition, d_i, d_j, bound in zip(fitted.transitions, true_depths, true_depths[1:], bounds):
+        assert abs(transition.depth_ratio / (d_j / d_i) - 1.0) < bound

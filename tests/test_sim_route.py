@@ -39,7 +39,7 @@ def test_the_corridor_is_a_20_m_route_that_turns_always_seeing_a_target_each_ove
     v, _ = route.profile.commands_at(times)
     length = float(np.sum(np.diff(np.append(route.profile.t, route.profile.t_end)) * route.profile.v))
     assert length >= 20.0
-    assert np.degrees(poses[-1, 2] - poses[0, 2]) == pytest.approx(60.0, abs=1e-9)
+    assert np.degrees(poses[-1, 2] - poses[0, 2]) == pytest.approx(75.0, abs=1e-9)
     kinds = [world.target.kind for world in route.worlds]
     assert kinds == ["dots", "aruco", "texture", "texture"]
     visible = np.array([route.visible(pose) for pose in poses])

@@ -18,11 +18,14 @@ The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * d
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MalformedDataError
+from .camera import CameraIntrinsics
+from .desired import DesiredFit, fit_desired_trajectory
 from .frames import wrap_angle
 
 
@@ -142,3 +145,70 @@ def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayL
         origin_over_depth=solution[:2], covariance=covariance, frames=count,
         residual_rms=float(np.sqrt(np.mean(residual**2))),
     )
+
+
+@dataclass(frozen=True)
+class RouteFit:
+    """A route's fit: its ``segments``, each one's single-target fit (``fits[i]``, against
+    F*_i at frame ``references[i]`` of the drive) and the ``transitions`` from each to the next."""
+
+    segments: list[Segment]
+    fits: list[DesiredFit]
+    references: list[int]
+    transitions: list[Transition]
+
+    def depths(self, first_depth: float) -> NDArray[np.float64]:
+        """d*_i of every segment (m) from the first one's: d*_{i+1} = rho_i d*_i."""
+        ratios = [transition.depth_ratio for transition in self.transitions]
+        return float(first_depth) * np.cumprod([1.0, *ratios])
+
+
+def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segment], camera: CameraIntrinsics,
+              smoothing: float | None, max_lost: float, max_gap: float, warn: Callable[[str], None] | None = None,
+              kinds: Sequence[str | None] | None = None, first_reference: int | None = None) -> RouteFit:
+    """Each segment fitted as a single-target drive (:func:`~.desired.fit_desired_trajectory`,
+    Remark 1, n*_i and the uncertainty per segment) and each transition estimated from both
+    fits' desired signals over the overlap (:func:`estimate_transition`).
+
+    Parameters
+    ----------
+    t : array_like, shape (F,)
+        Frame times of the whole drive (s).
+    pixels : sequence of array_like, one (F, N_j, 2) per target
+        Each target's pixels in every frame of the drive (NaN where not found).
+    segments : sequence of Segment
+        From :func:`split_route`.
+    first_reference : int, optional
+        F* of the first segment (a frame of it, as ``fit --reference`` gives it). Otherwise,
+        and for every later segment, F*_i is the segment's frame where its target appears
+        largest (the span of its points): the nearer and larger, the better measured.
+    """
+    t = np.asarray(t, dtype=float)
+    fits: list[DesiredFit] = []
+    references: list[int] = []
+    for number, segment in enumerate(segments):
+        frames = slice(segment.first, segment.last + 1)
+        kind = None if kinds is None else kinds[segment.target]
+        target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
+        if number == 0 and first_reference is not None:
+            reference = first_reference
+        else:
+            reference = segment.first + int(np.argmax(_spans(target_pixels)))
+        fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
+                                           max_lost=max_lost, max_gap=max_gap, warn=warn, kind=kind))
+        references.append(reference)
+    transitions = []
+    for (previous, fit), (segment, fit_next) in zip(zip(segments, fits), list(zip(segments, fits))[1:]):
+        # The smoothed desired signals (Remark 1), not each frame's: rho multiplies x_h,i+1, and
+        # noise in a regressor pulls its coefficient toward zero (errors in variables).
+        shared = t[segment.first:segment.overlap_last + 1]
+        here, there = fit.trajectory.evaluate(shared), fit_next.trajectory.evaluate(shared)
+        transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
+                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2])))
+    return RouteFit(list(segments), fits, references, transitions)
+
+
+def _spans(pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The largest distance (px) between two of a target's points in each frame (F, N, 2); -1 where not found."""
+    spans = np.max(np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1), axis=(1, 2))
+    return np.where(np.isfinite(spans), spans, -1.0)

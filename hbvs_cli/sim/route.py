@@ -115,39 +115,53 @@ def route_targets_from_description(data: Any) -> tuple[NDArray[np.float64], tupl
 
 
 #: A target is seen well enough to be followed when two of its image points are this far apart (px).
-MIN_SPAN_PX = 45.0
+MIN_SPAN_PX = 70.0
 #: Speed of the corridor's taught drive (m/s).
 CORRIDOR_SPEED = 0.25
-#: Its legs (m), and the radius (m) and angle (deg) of its left turn between them.
-CORRIDOR_LEGS = (11.0, 5.0)
-CORRIDOR_TURN_RADIUS = 4.0
-CORRIDOR_TURN_DEG = 60.0
-#: Its targets: kind, texture and placement (x, y, yaw in deg) in R, the start at the origin
-#: facing +x. Each faces the stretch from which it is seen; each next one comes into view while
-#: the one before is still in it (the overlap a transition is estimated from).
-CORRIDOR_TARGETS: tuple[tuple[str, str, tuple[float, float, float]], ...] = (
-    ("dots", "builtin", (8.5, -1.4, -20.0)),
-    ("aruco", "builtin", (12.0, -1.0, -10.0)),
-    ("texture", "builtin", (18.5, 3.5, 40.0)),
-    ("texture", TURNED_BUILTIN_TEXTURE, (19.5, 10.0, 60.0)),
+#: Its legs (m), each but the last followed by a left turn of CORRIDOR_TURN_DEG on a radius of
+#: CORRIDOR_TURN_RADIUS (m): 23 m in all, turning 75 deg.
+CORRIDOR_LEGS = (4.0, 5.0, 5.0, 5.0)
+CORRIDOR_TURN_DEG = 25.0
+CORRIDOR_TURN_RADIUS = 3.0
+#: Its targets, one per leg: kind, texture, scale of the default target of that kind, height (m)
+#: of the poster's centre, and its place: metres beyond the end of its leg and to the left of
+#: its line (negative: to the right, outside the coming turn), facing back along the leg.
+CORRIDOR_TARGETS: tuple[tuple[str, str, float, float, float, float], ...] = (
+    ("dots", "builtin", 1.0, 0.75, 3.0, -1.2),
+    ("aruco", "builtin", 2.0, 1.00, 3.0, -1.2),
+    ("texture", "builtin", 1.3, 0.90, 3.0, -1.2),
+    ("texture", TURNED_BUILTIN_TEXTURE, 1.3, 0.90, 3.0, 0.0),
 )
 
 
 def corridor_route(camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
-    """The corridor: 11 m straight, a 60 deg left turn of radius 4 m, 5 m straight (20.2 m at
-    0.25 m/s, 81 s), past a dot target, a marker board and two photographs. Followed as
-    :func:`~hbvs_cli.core.route.split_route` does (each seen at least :data:`MIN_SPAN_PX`, the
-    largest next), they overlap 8, 29 and 6.5 s; none is nearer than 0.45 m to the path."""
+    """The corridor: four straight legs joined by three left turns (23 m at 0.25 m/s, 92 s), a
+    target at the end of each leg (a dot target, a marker board and two photographs), each
+    seen frontally from its leg. Followed as :func:`~hbvs_cli.core.route.split_route` does
+    (each seen at least :data:`MIN_SPAN_PX`, the largest next), consecutive targets are seen
+    together for 2.5, 24 and 21 s; none is nearer than 1 m to the path."""
     turn_rate = CORRIDOR_SPEED / CORRIDOR_TURN_RADIUS
-    durations = np.array([CORRIDOR_LEGS[0] / CORRIDOR_SPEED, np.radians(CORRIDOR_TURN_DEG) / turn_rate,
-                          CORRIDOR_LEGS[1] / CORRIDOR_SPEED])
+    turn_s = np.radians(CORRIDOR_TURN_DEG) / turn_rate
+    durations = np.ravel([[leg / CORRIDOR_SPEED, turn_s] for leg in CORRIDOR_LEGS])[:-1]
+    w = np.ravel([[0.0, turn_rate] for _ in CORRIDOR_LEGS])[:-1]
     starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
-    profile = CommandProfile(t=starts, v=np.full(3, CORRIDOR_SPEED), w=np.array([0.0, turn_rate, 0.0]), t_end=float(durations.sum()))
-    worlds = tuple(World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT,
-                         target=replace(default_target(kind, dots=4, wall_x=0.0), texture=texture))
-                   for kind, texture, _ in CORRIDOR_TARGETS)
-    placements = np.array([[x, y, np.radians(yaw)] for _, _, (x, y, yaw) in CORRIDOR_TARGETS])
-    return RouteWorld("corridor", camera, DEFAULT_CAMERA_HEIGHT, placements, worlds, profile, np.zeros(3))
+    profile = CommandProfile(t=starts, v=np.full(w.size, CORRIDOR_SPEED), w=w, t_end=float(durations.sum()))
+    leg_ends = profile.segment_start_poses(np.zeros(3))[1::2]
+    placements, worlds = [], []
+    for (kind, texture, scale, height, ahead, left), (x, y, heading) in zip(CORRIDOR_TARGETS, leg_ends):
+        c, s = np.cos(heading), np.sin(heading)
+        placements.append([x + ahead * c - left * s, y + ahead * s + left * c, heading])
+        target = _scaled(default_target(kind, dots=4, wall_x=0.0), scale, height)
+        worlds.append(World(camera=camera, camera_height=DEFAULT_CAMERA_HEIGHT, target=replace(target, texture=texture)))
+    return RouteWorld("corridor", camera, DEFAULT_CAMERA_HEIGHT, np.array(placements), tuple(worlds), profile, np.zeros(3))
+
+
+def _scaled(target: Target, scale: float, height: float) -> Target:
+    """``target`` (its poster centred at W_i's origin) scaled by ``scale``, its centre ``height`` m up."""
+    poster = target.poster
+    grown = Poster(center=np.array([0.0, 0.0, height]), width=poster.width * scale, height=poster.height * scale,
+                   right=poster.right, down=poster.down)
+    return replace(target, points_poster=target.points_poster * scale, dot_radius=target.dot_radius * scale, poster=grown)
 
 
 #: The simulated routes of ``teach --sim --route NAME``.
