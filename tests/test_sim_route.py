@@ -8,7 +8,7 @@ import pytest
 from hbvs_cli.core.frames import world_to_robot
 from hbvs_cli.io.teach_file import TeachReader
 from hbvs_cli.sim.render import RenderSettings, SceneRenderer
-from hbvs_cli.sim.route import RouteRenderer, corridor_route, route_targets_from_description
+from hbvs_cli.sim.route_world import RouteRenderer, corridor_route, route_targets_from_description
 
 from conftest import call_hbvs
 

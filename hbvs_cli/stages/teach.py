@@ -30,7 +30,7 @@ from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
-from ..sim.route import RouteWorld, make_route_renderer, route_world
+from ..sim.route_world import RouteWorld, make_route_renderer, simulated_route
 from .console import Console
 from .options import parse_offset, recorded_settings
 
@@ -146,7 +146,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
     world: World | RouteWorld
     if options.route is not None:
         camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
-        world = route_world(options.route, camera)
+        world = simulated_route(options.route, camera)
         profile, start_pose, path_name = world.profile, tuple(world.start_pose), f"route {options.route}"
         if options.duration is not None and options.duration < profile.t_end:
             profile = _cut_profile(profile, options.duration)

@@ -168,7 +168,7 @@ def _scaled(target: Target, scale: float, height: float) -> Target:
 ROUTES: dict[str, Callable[[CameraIntrinsics], RouteWorld]] = {"corridor": corridor_route}
 
 
-def route_world(name: str, camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
+def simulated_route(name: str, camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
     """The route called ``name`` (:data:`ROUTES`) seen by ``camera``; InvalidValueError for an unknown name."""
     if name not in ROUTES:
         raise InvalidValueError(f"unknown route {name!r}: choose one of {', '.join(ROUTES)}")
