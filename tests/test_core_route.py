@@ -122,17 +122,8 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
     campaign_extent(request, "campaign")
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, 0.2)
-    poses = route.profile.poses_at(times, route.start_pose)
-    spans = np.array([route.spans(pose) for pose in poses])
-    visible = spans >= MIN_SPAN_PX
-    rng = np.random.default_rng(0)
-    pixels = []
-    for index, world in enumerate(route.worlds):
-        seen = np.array([world.pixels(route.local_pose(index, pose)) for pose in poses])
-        seen = seen + rng.normal(0.0, 0.5, seen.shape)
-        seen[~visible[:, index]] = np.nan
-        pixels.append(seen)
-    segments = split_route(visible, spans)
+    poses, spans, pixels = route.taught_views(times, 0.5, np.random.default_rng(0))
+    segments = split_route(spans >= MIN_SPAN_PX, spans)
     fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
                        kinds=[world.target.kind for world in route.worlds], warn=lambda message: None)
     assert [s.target for s in fitted.segments] == [0, 1, 2, 3]

@@ -27,15 +27,8 @@ def exact_corridor():
     """The corridor, its taught drive and its route fit from its targets' exact pixels."""
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, TAUGHT_STEP)
-    poses = route.profile.poses_at(times, route.start_pose)
-    spans = np.array([route.spans(pose) for pose in poses])
-    visible = spans >= MIN_SPAN_PX
-    pixels = []
-    for index, world in enumerate(route.worlds):
-        seen = np.array([world.pixels(route.local_pose(index, pose)) for pose in poses])
-        seen[~visible[:, index]] = np.nan
-        pixels.append(seen)
-    fitted = fit_route(times, pixels, split_route(visible, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
+    poses, spans, pixels = route.taught_views(times)
+    fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
                        kinds=[world.target.kind for world in route.worlds], warn=lambda message: None)
     depths = [route.worlds[s.target].reference_geometry(route.local_pose(s.target, poses[r]))[2]
               for s, r in zip(fitted.segments, fitted.references)]
