@@ -51,7 +51,7 @@ def test_a_repeat_along_the_corridor_ends_on_the_taught_end_pose_switching_smoot
     """Exact measurements, the fit's gains per segment, a state filter per segment, the default
     start offset and dhat(0) 20 % off: the robot ends within 2 cm and 0.5 deg of the taught pose
     (measured 8.7 mm, 3e-5 deg), each switch carries dhat over by rho exactly, the commands
-    step by less than 0.05 m/s and 0.05 rad/s at a switch (measured 0.009 and 0.003), and
+    step by less than 0.05 m/s and 0.05 rad/s at a switch (measured 0.001 and 0.0005), and
     from the second segment on dhat ends within 1 % of the true d*_i."""
     route, times, fitted, depths = exact_corridor
     gains = [suggest_gains(fit.condition.percentiles["p50"], noise_from_residual(fit.residual_px.rms, fit.m_ref.shape[0]),
