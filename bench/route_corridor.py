@@ -48,7 +48,7 @@ def corridor_run(teach_noise: float, pixel_noise: float, seed: int) -> dict:
     controller = AdaptiveTrackingController(ControllerGains(), dhat0=DHAT0_FACTOR * depths[0])
     switches = switch_times(fitted, times)
     start = compose_planar_pose(route.start_pose, parse_offset(DEFAULT_OFFSET))
-    camera, steps = run_route(route, fitted, switches, controller, start, DT, route.profile.duration,
+    camera, steps = run_route(route, fitted, switches, controller, start, DT, float(times[-1]) + DT,
                               ActuatorLimits(max_v=DEFAULT_MAX_V, max_w=DEFAULT_MAX_W), pixel_noise, seed + 1000, gains,
                               [n / route.camera.mean_focal for n in noise])
     records = list(steps)
