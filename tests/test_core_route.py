@@ -117,7 +117,7 @@ def test_a_transition_needs_motion_and_two_frames():
 def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pixel_noise(request):
     """The corridor at 5 Hz, its targets' exact pixels (where each is seen well) plus 0.5 px of
     noise. Over seeds 0-9 (measured when written): n* within 5.0 deg of the truth, x_hd1 within
-    0.035 (each segment's median), rho within 38 % on the first switch (2.5 s of a straight
+    0.036 (each segment's median), rho within 38 % on the first switch (11 s of a straight
     drive, the board still small) and 5 % on the others; seed 0 is held to those bounds. 11 s."""
     campaign_extent(request, "campaign")
     route = corridor_route()
@@ -136,7 +136,7 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
         assert np.degrees(np.arccos(np.clip(np.dot(fit.normal, normal), -1, 1))) < 5.0
         frames = slice(segment.first, segment.last + 1)
         _, x_h = signals(route, segment.target, poses[frames], reference_pose)
-        assert np.median(np.abs(fit.trajectory.evaluate(times[frames]).x_hd1 - x_h[:, 0])) < 0.035
+        assert np.median(np.abs(fit.trajectory.evaluate(times[frames]).x_hd1 - x_h[:, 0])) < 0.036
     bounds = [0.38, 0.05, 0.05]
     for transition, d_i, d_j, bound in zip(fitted.transitions, true_depths, true_depths[1:], bounds):
         assert abs(transition.depth_ratio / (d_j / d_i) - 1.0) < bound

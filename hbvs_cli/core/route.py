@@ -157,11 +157,6 @@ class RouteFit:
     references: list[int]
     transitions: list[Transition]
 
-    def depths(self, first_depth: float) -> NDArray[np.float64]:
-        """d*_i of every segment (m) from the first one's: d*_{i+1} = rho_i d*_i."""
-        ratios = [transition.depth_ratio for transition in self.transitions]
-        return float(first_depth) * np.cumprod([1.0, *ratios])
-
 
 def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segment], camera: CameraIntrinsics,
               smoothing: float | None, max_lost: float, max_gap: float, warn: Callable[[str], None] | None = None,

@@ -104,8 +104,8 @@ TEACH_SETTINGS: tuple[Setting, ...] = (
             "recorded as the taught (v, w); automatic when there is one.", panel="Sources"),
     Setting("path", str, "Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
             fallback=DEFAULT_PRESET, panel="Simulation"),
-    Setting("route", str, "A simulated route longer than one view instead of one target: corridor (20 m past dots, a "
-            "marker board and two photographs, with a turn); it brings its own path and targets.", panel="Simulation"),
+    Setting("route", str, "A simulated route longer than one view instead of one target: corridor (23 m and three turns "
+            "past dots, a marker board and two photographs); it brings its own path and targets.", panel="Simulation"),
     Setting("offset", str, "Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.",
             panel="Simulation"),
     Setting("target", str, "Target on the wall: dots, aruco or texture.", fallback="dots", panel="Simulation"),

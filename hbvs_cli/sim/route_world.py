@@ -157,7 +157,7 @@ def corridor_route(camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
     target at the end of each leg (a dot target, a marker board and two photographs), each
     seen frontally from its leg. Followed as :func:`~hbvs_cli.core.route.split_route` does
     (each seen at least :data:`MIN_SPAN_PX`, the largest next), consecutive targets are seen
-    together for 2.5, 24 and 21 s; none is nearer than 1 m to the path."""
+    together for 11.5, 24 and 21 s; none is nearer than 1 m to the path."""
     turn_rate = CORRIDOR_SPEED / CORRIDOR_TURN_RADIUS
     turn_s = np.radians(CORRIDOR_TURN_DEG) / turn_rate
     durations = np.ravel([[leg / CORRIDOR_SPEED, turn_s] for leg in CORRIDOR_LEGS])[:-1]
