@@ -318,7 +318,9 @@ def bench_points_loop(work: Path, quick: bool) -> list[Figure]:
     # --speed stretches the 20 s path: more control steps at 30 Hz for a steadier figure.
     speed = 0.2 if quick else 0.05
     filtered, plain = [], []
-    for _ in range(1 if quick else 3):
+    # Three runs of each even when quick: 2c is a difference of two runs' CPU times, whose
+    # spread over single pairs (23-37 us a step) was as wide as its margin to its target.
+    for _ in range(3):
         filtered.append(_loop(fit, "points", speed, "ekf"))
         plain.append(_loop(fit, "points", speed, "none"))
     steps = filtered[0]["steps"]
@@ -471,53 +473,85 @@ def as_footage(teach: Path, footage: Path) -> None:
         writer.finish()
 
 
+#: Frames of figure 3's recordings in the full benchmark; --quick times 600 and the first
+#: QUICK_SHORT_FRAMES of them, and projects both processes' times to FIT_FRAMES (their fixed
+#: cost, start-up, the target's pick and the work after the frame loop, counts five times
+#: more in 600 frames: the 600-frame ratio of the chessboard was 0.59-0.62 where 3000 give 0.85).
+FIT_FRAMES = 3000
+QUICK_SHORT_FRAMES = 150
+
+
 def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figure:
-    """fit against decode-only on the same recording, for one target kind."""
-    frames = 600 if quick else 3000
+    """fit against decode-only on the same recording, for one target kind; --quick projects
+    the ratio of a 3000-frame recording from 600 and 150 frames (:data:`FIT_FRAMES`)."""
+    frames = 600 if quick else FIT_FRAMES
     pendant = work / "fit_pendant.csv"
     write_pendant(pendant, frames / 30.0)
-    teach = work / f"fit_teach_{target}.mcap"
     taught, fitted = ["--target", target], []
     if target in ("chessboard", "charuco"):
         board_poster(target, work / f"{target}.png")
         taught, fitted = ["--target", "texture", "--texture", f"{target}.png"], ["--target", target]
-    run_cli("teach", "--path", str(pendant), *taught, "--format", "png", "-o", str(teach), "-q", cwd=work)
-    if fitted:
-        as_footage(teach, teach.with_suffix(".footage.mcap"))
-        teach = teach.with_suffix(".footage.mcap")
+    teaches = {}
+    for count in (QUICK_SHORT_FRAMES, frames) if quick else (frames,):
+        teach = work / f"fit_teach_{target}_{count}.mcap"
+        run_cli("teach", "--path", str(pendant), "--duration", str(count / 30.0), *taught, "--format", "png", "-o", str(teach), "-q", cwd=work)
+        if fitted:
+            as_footage(teach, teach.with_suffix(".footage.mcap"))
+            teach = teach.with_suffix(".footage.mcap")
+        teaches[count] = teach
     # The recordings just written (0.4-0.8 GB) go to disk now, not by the kernel's writeback
     # while the first runs are timed.
     os.sync()
-    code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
-    decode_walls, fit_walls, decode_cpus, fit_cpus = [], [], [], []
-    for _ in range(1 if quick else 3):
-        # CPU seconds too (every thread of the child): on a busy machine the wall ratio of a
-        # two-thread process to a one-thread one tends to their CPU ratio, not to what a
-        # quiet machine shows; the CPU figures tell which it was.
-        cpu = _children_cpu()
-        _read_into_page_cache(teach)
-        start = time.perf_counter()
-        subprocess.run([sys.executable, "-c", code], check=True, cwd=work)
-        decode_walls.append(time.perf_counter() - start)
-        decode_cpus.append(_children_cpu() - cpu)
-        _read_into_page_cache(teach)
-        cpu = _children_cpu()
-        wall, _ = run_cli("fit", str(teach), *fitted, "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
-        fit_walls.append(wall)
-        fit_cpus.append(_children_cpu() - cpu)
+    walls = _timed_fits(work, teaches, fitted, 2 if quick else 3)
+    decode_walls, fit_walls, decode_cpus, fit_cpus = walls[frames]
     ratios = [d / f for d, f in zip(decode_walls, fit_walls)]
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
-    ratio = min(ratios)
+    ratio, measured = min(ratios), f"each run: {', '.join(f'{r:.3f}' for r in ratios)}"
+    if quick:
+        # Each process's wall time as a fixed cost plus a cost per frame, from the two lengths.
+        short_decode, short_fit = (statistics.median(w) for w in walls[QUICK_SHORT_FRAMES][:2])
+        per_frame = lambda short, long: (long - short) / (frames - QUICK_SHORT_FRAMES)  # noqa: E731
+        at_full = lambda short, long: long + per_frame(short, long) * (FIT_FRAMES - frames)  # noqa: E731
+        fixed = lambda short, long: short - per_frame(short, long) * QUICK_SHORT_FRAMES  # noqa: E731
+        measured = (f"projected to {FIT_FRAMES} frames from {QUICK_SHORT_FRAMES} and {frames}; fixed cost: decode only "
+                    f"{fixed(short_decode, decode_wall):.2f} s, fit {fixed(short_fit, fit_wall):.2f} s; at {frames} frames, the lowest run {ratio:.3f}")
+        ratio = at_full(short_decode, decode_wall) / at_full(short_fit, fit_wall)
     label = FIT_TARGETS[target]
+    runs = f"the lowest of {len(ratios)} run{'s' if len(ratios) > 1 else ''}" if not quick else f"projected from {frames} frames"
     return Figure(
-        f"{label}. hbvs fit throughput / decode-only throughput, {target} target ({frames} frames), the lowest of "
-        f"{len(ratios)} run{'s' if len(ratios) > 1 else ''}", ratio, ">= 0.75 in every run", ratio >= 0.75,
-        f"each run: {', '.join(f'{r:.3f}' for r in ratios)}; median decode only {frames / decode_wall:.0f} frames/s, fit "
+        f"{label}. hbvs fit throughput / decode-only throughput, {target} target ({FIT_FRAMES} frames), {runs}", ratio,
+        ">= 0.75 in every run", ratio >= 0.75,
+        f"{measured}; median decode only {frames / decode_wall:.0f} frames/s, fit "
         f"{frames / fit_wall:.0f} frames/s (PNG 640x480; both whole processes; fit decodes in a second thread); CPU "
         f"{statistics.median(decode_cpus):.2f} s vs {statistics.median(fit_cpus):.2f} s; load average "
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
         f"hbvs fit teach.mcap {' '.join(fitted + ['-o'])} fit.mcap vs. reading and decoding the same images (teach {' '.join(taught)})",
     )
+
+
+def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str], runs: int) -> dict[int, tuple[list[float], ...]]:
+    """Wall and CPU seconds of ``runs`` decode-only processes and fits of each recording
+    (by its frame count), interleaved: a slow spell of the machine hits every length alike."""
+    measured: dict[int, tuple[list[float], ...]] = {count: ([], [], [], []) for count in teaches}
+    for _ in range(runs):
+        for count, teach in teaches.items():
+            decode_walls, fit_walls, decode_cpus, fit_cpus = measured[count]
+            code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
+            # CPU seconds too (every thread of the child): on a busy machine the wall ratio of a
+            # two-thread process to a one-thread one tends to their CPU ratio, not to what a
+            # quiet machine shows; the CPU figures tell which it was.
+            cpu = _children_cpu()
+            _read_into_page_cache(teach)
+            start = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code], check=True, cwd=work)
+            decode_walls.append(time.perf_counter() - start)
+            decode_cpus.append(_children_cpu() - cpu)
+            _read_into_page_cache(teach)
+            cpu = _children_cpu()
+            wall, _ = run_cli("fit", str(teach), *fitted, "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
+            fit_walls.append(wall)
+            fit_cpus.append(_children_cpu() - cpu)
+    return measured
 
 
 def _read_into_page_cache(path: Path) -> None:

@@ -454,7 +454,7 @@ HEAVY_FILES = {
     "test_robustness_fuzz.py": 17, "test_stage_fit.py": 15, "test_live_loop.py": 13, "test_robustness_outputs.py": 13,
     "test_control_filter.py": 13, "test_report_stage.py": 11, "test_stage_options.py": 10, "test_perception_targets.py": 9,
     "test_control_image_noise.py": 8, "test_robustness_surfaces.py": 8, "test_core_closed_loop.py": 8,
-    "test_walkthrough.py": 7, "test_live_view.py": 7, "test_robustness_interrupts.py": 6, "test_cli_usage.py": 4,
+    "test_walkthrough.py": 17, "test_live_view.py": 7, "test_robustness_interrupts.py": 6, "test_cli_usage.py": 4,
     "test_perception_chessboard.py": 4, "test_robustness_truncated.py": 4, "test_perception_detectors.py": 4,
     "test_robustness_faults.py": 4, "test_layers.py": 3, "test_foxglove_files.py": 3, "test_control_depth.py": 3,
     "test_core_bundle.py": 3, "test_live_camera.py": 3,

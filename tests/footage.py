@@ -59,6 +59,8 @@ class Camera:
             f"distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: {fmt(self.written_distortion)}\n"
             f"rectification_matrix:\n  rows: 3\n  cols: 3\n  data: {fmt(np.eye(3).ravel())}\n"
             f"projection_matrix:\n  rows: 3\n  cols: 4\n  data: {fmt(p)}\n"
+            # Not ROS's: fx, fy, cx, cy are this camera's own, exact (hbvs's fit reads it).
+            f"std_deviations_intrinsics:\n  rows: 4\n  cols: 1\n  data: [0.0, 0.0, 0.0, 0.0]\n"
         )
         return path
 

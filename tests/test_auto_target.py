@@ -82,6 +82,6 @@ def test_auto_with_defaults_fits_the_issue_styles(request, tmp_path, name, kind,
     rms_deg = float(np.degrees(np.sqrt(np.mean(error**2))))
     with capsys.disabled():
         print(f"\n{name}, 30 frames, seed 3: theta_d {rms_deg:.3f} deg RMS, {100 * inside:.0f} % inside the 95 % band")
-    assert model.frames["used"] == 30
+    assert model.frames.used == 30
     # The issue's bound for dots and posters, or the truth inside the reported band.
     assert rms_deg <= 0.1 or inside >= 0.9, (rms_deg, inside)

@@ -118,7 +118,7 @@ def _row_figures(name: str, folder, fit_options=()) -> dict:
         sigmas.append(smooth["theta_d_sigma"])
         wall, camera, _, extra = footage.any_style(name)
         shutter = extra if isinstance(extra, footage.RollingShutter) else None
-        bounds.append(footage.cramer_rao_bound(wall, camera, made["poses"], model.uncertainty["point_noise_px"],
+        bounds.append(footage.cramer_rao_bound(wall, camera, made["poses"], model.uncertainty.point_noise_px,
                                                frames=np.flatnonzero(keep), shutter=shutter, drive=made["drive"])["theta_sigma"][1:])
         normal = np.asarray(model.normal, float)
         normals.append(np.degrees(np.arccos(np.clip(abs(normal @ made["normal"]) / np.linalg.norm(normal), -1.0, 1.0))))

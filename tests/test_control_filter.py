@@ -43,12 +43,13 @@ def closed_loop(fit_path, sensor=None, **options):
     """One ``repeat --sim`` closed loop in memory: final errors (cm, deg), smoothness, losses.
     ``sensor``: the render settings the images are made with, in place of the teach's that
     the fit recorded (the fit file's ``render``)."""
+    from hbvs_cli.core.fit_model import SensorSettings
     from hbvs_cli.io.fit_file import read_fit_file
     from hbvs_cli.stages.repeat import RepeatOptions, prepare_simulation, resolve_settings
 
     fit = read_fit_file(str(fit_path))
     if sensor is not None:
-        fit.model.render = dict(sensor)
+        fit.model.render = SensorSettings(**sensor)
     repeat_options = RepeatOptions(input=str(fit_path), sim=True, **options)
     settings = resolve_settings(repeat_options, fit.model.dhat0, 1.0 / fit.model.taught_frame_interval(), fit.model.suggested_gains())
     simulation = prepare_simulation(repeat_options, settings, fit)
@@ -175,12 +176,12 @@ def test_fit_suggests_gains_from_x_hd1_dot_and_the_noise_and_repeat_uses_them(de
     gains = model.gains
     # x_hd1_dot ~ 0.025 1/s: k_2 = 1 / (4 x^2) ~ 400. The taught images' residual (0.01 px)
     # is below the 0.5 px design floor, which gives sigma_e1 2.6e-3 and gamma 0.4 k_v / x^2 / 2.65.
-    assert gains["k_2"] == pytest.approx(1.0 / (4.0 * gains["x_hd1_dot"] ** 2))
-    assert gains["k_2"] == pytest.approx(400.0, rel=0.03)
-    assert gains["design_noise_px"] == 0.5 and gains["noise_px"] < 0.05
-    assert gains["sigma_e1"] == pytest.approx(2.6e-3, rel=0.05)
-    assert gains["gamma"] == pytest.approx(0.4 * 4.0 / gains["x_hd1_dot"] ** 2 / (1 + (gains["sigma_e1"] / 0.002) ** 2))
-    assert 900 < gains["gamma"] < 1050
+    assert gains.gains.k_2 == pytest.approx(1.0 / (4.0 * gains.x_hd1_dot ** 2))
+    assert gains.gains.k_2 == pytest.approx(400.0, rel=0.03)
+    assert gains.design_noise_px == 0.5 and gains.noise_px < 0.05
+    assert gains.sigma_e1 == pytest.approx(2.6e-3, rel=0.05)
+    assert gains.gains.gamma == pytest.approx(0.4 * 4.0 / gains.x_hd1_dot ** 2 / (1 + (gains.sigma_e1 / 0.002) ** 2))
+    assert 900 < gains.gains.gamma < 1050
     simulation = closed_loop(fit_path, perception="points")["simulation"]
     assert simulation.controller.gains == model.suggested_gains()
     assert closed_loop(fit_path, perception="points", gamma=2500.0)["simulation"].controller.gains.gamma == 2500.0

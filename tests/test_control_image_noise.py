@@ -118,8 +118,8 @@ def test_the_fit_measures_the_raised_noise(harsh_fit):
     from hbvs_cli.io.fit_file import read_fit_file
 
     model = read_fit_file(str(harsh_fit)).model
-    assert model.render["noise_grain"] == HARSH["noise_grain"]  # repeat renders the same sensor
-    assert 0.08 < model.residual_px["rms"] < 0.3, model.residual_px
+    assert model.render.noise_grain == HARSH["noise_grain"]  # repeat renders the same sensor
+    assert 0.08 < model.residual_px.rms < 0.3, model.residual_px
 
 
 def test_the_harsh_teachs_fit_sets_the_floor(harsh_fit, default_fit):

@@ -8,6 +8,7 @@ import pytest
 
 from hbvs_cli.core.route import Segment, estimate_transition, fit_route, split_route
 from hbvs_cli.errors import MalformedDataError
+from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 
 from conftest import campaign_extent
@@ -125,7 +126,7 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
     poses, spans, pixels = route.taught_views(times, 0.5, np.random.default_rng(0))
     segments = split_route(spans >= MIN_SPAN_PX, spans)
     fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
-                       kinds=[world.target.kind for world in route.worlds], warn=lambda message: None)
+                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
     assert [s.target for s in fitted.segments] == [0, 1, 2, 3]
     true_depths = []
     for segment, fit, reference in zip(fitted.segments, fitted.fits, fitted.references):

@@ -11,6 +11,7 @@ import pytest
 
 from hbvs_cli.core.bundle import correlation_inflation
 from hbvs_cli.core.gains import INTERVAL_SIGMAS, heading_tolerance
+from hbvs_cli.perception import target_kind
 
 
 def test_independent_errors_are_not_inflated():
@@ -55,7 +56,7 @@ def test_uncertain_fit_warning_is_one_line_naming_what_would_help():
     the target's geometry, a curving drive and another reference frame."""
     from hbvs_cli.core.desired import uncertainty_warning
 
-    line = uncertainty_warning(_uncertainty(1.234, 0.2, 1e-3), None)
+    line = uncertainty_warning(_uncertainty(1.234, 0.2, 1e-3))
     assert "\n" not in line and "plane normal n* uncertain by 1.2 deg" in line and "theta_d by 0.20 deg" in line
     assert "--target-size" in line and "--target-points FILE" in line and "curves" in line and "--reference last" in line
 
@@ -70,10 +71,11 @@ def test_uncertain_fit_warning_is_one_line_naming_what_would_help():
     (None, 0.9, 9e-3, False),  # no kind: n*'s sigma alone decides
 ])
 def test_uncertain_fit_warning_when_theta_d_or_x_hd1_exceeds_the_kinds_precision(kind, theta_deg, x_h1, warned):
-    """With n* at 0.3 deg (under 0.5), the splines' RMS sigma against the kind's precision."""
-    from hbvs_cli.core.desired import uncertainty_warning
+    """With n* at 0.3 deg (under 0.5), the splines' RMS sigma against the kind's precision
+    (its registered :class:`~hbvs_cli.core.desired.DetectorErrors`)."""
+    from hbvs_cli.core.desired import DetectorErrors, uncertainty_warning
 
-    line = uncertainty_warning(_uncertainty(0.3, theta_deg, x_h1), kind)
+    line = uncertainty_warning(_uncertainty(0.3, theta_deg, x_h1), target_kind(kind).errors if kind else DetectorErrors())
     assert (line is not None) == warned
     if warned:
         assert "plane normal n* uncertain" in line and f"{kind} targets usually give" in line
@@ -82,14 +84,15 @@ def test_uncertain_fit_warning_when_theta_d_or_x_hd1_exceeds_the_kinds_precision
 def test_detector_bias_is_a_fraction_of_the_point_noise_and_texture_has_a_floor():
     """Markers half a point noise, chessboards 1.25, whatever the noise; a texture's half a
     point noise, but not under 0.009 px; dots none."""
-    from hbvs_cli.core.desired import detector_bias_fraction
+    from hbvs_cli.core.desired import DetectorErrors
 
-    assert detector_bias_fraction("aruco", 0.028) == detector_bias_fraction("aruco", 0.001) == 0.5
-    assert detector_bias_fraction("chessboard", 0.01) == 1.25
-    assert detector_bias_fraction("texture", 0.1) == pytest.approx(0.5)
-    assert detector_bias_fraction("texture", 0.003) == pytest.approx(3.0)
-    assert detector_bias_fraction("dots", 0.02) == 0.0
-    assert detector_bias_fraction(None, 0.02) == 0.0
+    bias = lambda kind, noise_px: target_kind(kind).errors.bias(noise_px)  # noqa: E731
+    assert bias("aruco", 0.028) == bias("aruco", 0.001) == 0.5
+    assert bias("chessboard", 0.01) == 1.25
+    assert bias("texture", 0.1) == pytest.approx(0.5)
+    assert bias("texture", 0.003) == pytest.approx(3.0)
+    assert bias("dots", 0.02) == 0.0
+    assert DetectorErrors().bias(0.02) == 0.0
 
 
 def test_a_rolling_shutters_error_is_counted_once_not_as_noise():
@@ -116,7 +119,7 @@ def test_a_rolling_shutters_error_is_counted_once_not_as_noise():
     errors, sigmas = [], []
     for seed in range(12):
         pixels = shuttered + np.random.default_rng(seed).normal(0.0, 0.1, ideal.shape)
-        fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, kind="dots")
+        fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, errors=target_kind("dots").errors)
         errors.append(fit.trajectory.evaluate(times).theta_d - theta_true)
         sigmas.append(fit.uncertainty.smooth_theta_sigma)
     errors, sigmas = np.array(errors), np.array(sigmas)
@@ -225,7 +228,7 @@ def test_a_pull_every_point_shares_is_counted_as_a_shift_of_the_image():
         errors, sigmas = [], []
         for seed in range(6):
             pixels = pulled + np.random.default_rng(seed).normal(0.0, 0.02, pulled.shape)
-            fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, kind="dots", image_shift_px=shift_px)
+            fit = fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, errors=target_kind("dots").errors, image_shift_px=shift_px)
             errors.append(fit.trajectory.evaluate(times).theta_d - theta_true)
             sigmas.append(fit.uncertainty.smooth_theta_sigma)
         errors, sigmas = np.array(errors), np.array(sigmas)

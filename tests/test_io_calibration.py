@@ -283,6 +283,8 @@ BAD_FILES = {
                    "camera_matrix: [" + ", ".join(["*b"] * 300) + "]\nimage_width: 640\nimage_height: 480\n",
                    "camera_matrix"),
     "huge_integer": (_yaml_with(image_width=10**400), "out of range"),
+    "negative_deviation": (_yaml_with(std_deviations_intrinsics=[0.3, 0.3, -0.4, 0.4]), "finite non-negative standard deviations"),
+    "three_deviations": (_yaml_with(std_deviations_intrinsics=[0.3, 0.3, 0.4]), "4 to 18"),
     "deep_nesting": ("k: " + "[" * 20000 + "]" * 20000 + "\n", "malformed YAML"),
 }
 
@@ -297,6 +299,33 @@ def test_bad_calibration_files_name_the_file(tmp_path, case):
     assert f"{case}_calib.yaml" in message
     assert expected in message
     assert "\n" not in message
+
+
+def test_the_intrinsics_standard_deviations_are_read_and_recorded_in_a_teach_file(tmp_path):
+    """OpenCV's interactive calibration's two parts read as one sigma of (fx, fy, cx, cy,
+    *distortion); not part of the camera's identity; a teach file records it
+    (``hbvs.calibration``) and gives it back with the camera, which the ROS YAML keeps too."""
+    from hbvs_cli.io.mcap import McapWriter
+    from hbvs_cli.io.teach_file import TeachReader, TeachWriter
+
+    storage = cv2.FileStorage(str(tmp_path / "interactive.xml"), cv2.FILE_STORAGE_WRITE)
+    storage.write("cameraResolution", np.array([640, 480]))
+    storage.write("cameraMatrix", PLUMB_BOB.K)
+    storage.write("cameraMatrix_std_dev", np.array([[1.5], [1.25], [0.75], [0.5]]))
+    storage.write("dist_coeffs", np.array([PLUMB_BOB.distortion]))
+    storage.write("dist_coeffs_std_dev", np.array([[0.01], [0.02], [0.0], [0.0], [0.05]]))
+    storage.release()
+    camera = load_calibration(tmp_path / "interactive.xml", image_size=(640, 480))
+    assert camera == PLUMB_BOB and camera.sigma == (1.5, 1.25, 0.75, 0.5, 0.01, 0.02, 0.0, 0.0, 0.05)
+    assert load_calibration(save_calibration_ros(camera, tmp_path / "ros.yaml")).sigma == camera.sigma
+    with open(tmp_path / "teach.mcap", "wb") as stream:
+        writer = McapWriter(stream)
+        teach = TeachWriter(writer, "video", {})
+        teach.calibration(camera)
+        teach.frame(0, cv2.imencode(".png", np.zeros((480, 640), np.uint8))[1].tobytes(), "png")
+        writer.finish()
+    reader = TeachReader(str(tmp_path / "teach.mcap"))
+    assert len(list(reader.frames())) == 1 and reader.camera.sigma == camera.sigma
 
 
 def test_missing_file_and_directory(tmp_path):

@@ -1,7 +1,7 @@
 """The layers are a promise, read from the source with :mod:`ast` (docs/layout.md).
 
 - every package of ``hbvs_cli`` has a layer, and imports only from lower layers or from
-  itself: errors < core < io, perception, sim < report, sweep < stages < cli; packages of
+  itself: errors < core < io, perception, sim < settings < report, sweep < stages < cli; packages of
   one layer (io, perception and sim; report and sweep) do not import each other;
 - no stage imports another stage (the modules that run several stages aside);
 - no two modules import each other, directly or through others (no cycle);
@@ -28,10 +28,11 @@ LAYERS: dict[str, int] = {
     "": 0, "errors": 0, "thread_pool": 0, "stop_signals": 0,
     "core": 1,
     "io": 2, "perception": 2, "sim": 2,
-    "report": 3, "sweep": 3,
-    "stages": 4,
-    "cli": 5,
-    "__main__": 6,
+    "settings": 3,
+    "report": 4, "sweep": 4,
+    "stages": 5,
+    "cli": 6,
+    "__main__": 7,
 }
 #: Modules of ``stages`` that are shared helpers, not subcommands: any stage may use them
 #: (``live``: the loop of ``repeat --live``).

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.perception.chessboard import ChessboardDetector, board_layout, find_board, find_board_near
-from hbvs_cli.perception.detector import make_detector
+from hbvs_cli.perception import make_detector
 
 import footage
 

@@ -17,7 +17,6 @@ from hbvs_cli.perception import (
     TargetDetector,
     TextureDetection,
     TextureDetector,
-    guess_target_kind,
     make_detector,
     match_identity,
 )
@@ -226,12 +225,6 @@ def test_texture_detector_is_deterministic_and_rejects_other_images(rendered):
 
 
 # -- interface --------------------------------------------------------------------------
-def test_guess_target_kind(rendered):
-    for kind, (_, _, frames) in rendered.items():
-        for _, image in frames[::6]:
-            assert guess_target_kind(image) == kind
-
-
 def test_make_detector(rendered):
     world, _, frames = rendered["texture"]
     dots = make_detector("dots", n_points=3)

@@ -84,7 +84,7 @@ def test_dot_targets_fit_within_the_issue_bounds(fitted, name, capsys):
     assert "--target auto picked dots" in row["stderr"]
     # Only the dots that gray cannot see are measured in colour (and decoded in colour).
     seen_in_colour = name == "red_on_grey"
-    assert (row["model"].detector.get("contrast") == "colour") == seen_in_colour
+    assert (row["model"].detector.contrast == "colour") == seen_in_colour
     assert ("in colour, on their brightest channel" in row["stderr"]) == seen_in_colour
     for key, bound in (NOISY_DOT_BOUNDS if name == "noisy_dots" else DOT_BOUNDS).items():
         assert row["errors"][key] <= bound, (name, key, row["errors"][key])
@@ -150,7 +150,7 @@ def test_markers_auto_finds_dictionary_and_id(fitted, name, dictionary, marker_i
         print(f"\n{name}: {row['errors']}")
     detector = row["model"].detector
     assert row["model"].target_kind == "aruco"
-    assert detector["marker_dict"] == dictionary and detector["marker_ids"] == [marker_id]
+    assert detector.marker_dict == dictionary and detector.marker_ids == (marker_id,)
     assert f"--target auto picked aruco: markers: {dictionary} id {marker_id}" in row["stderr"]
     for key, bound in MARKER_BOUNDS[name].items():
         assert row["errors"][key] <= bound, (name, key, row["errors"][key])
@@ -162,7 +162,7 @@ def test_marker_options_pin_the_dictionary_and_id(fitted, tmp_path):
     result = call_hbvs("fit", str(row["teach"]), "-o", str(fit), "--marker-dict", "DICT_6X6_250", "--marker-id", "23", "-q")
     assert result.returncode == 0, result.stderr.decode()
     detector = read_fit_file(fit).model.detector
-    assert detector["marker_dict"] == "DICT_6X6_250" and detector["marker_id"] == 23
+    assert detector.marker_dict == "DICT_6X6_250" and detector.marker_id == 23
     # A dictionary that is not on the wall: one line, no file.
     result = call_hbvs("fit", str(row["teach"]), "-o", str(tmp_path / "no.mcap"), "--marker-dict", "DICT_4X4_50")
     lines = result.stderr.decode().strip().splitlines()
@@ -245,11 +245,11 @@ def _theta_against_truth_and_bound(row: dict, name: str) -> dict:
     error = smooth["theta_d"] - truth["theta_d"][keep]
     sigma = smooth["theta_d_sigma"]
     wall, camera, _ = footage.case(name)
-    bound = footage.cramer_rao_bound(wall, camera, truth["poses"], model.uncertainty["point_noise_px"], frames=np.flatnonzero(keep))
+    bound = footage.cramer_rao_bound(wall, camera, truth["poses"], model.uncertainty.point_noise_px, frames=np.flatnonzero(keep))
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     return {"theta_rms_deg": np.degrees(rms(error)), "bound_deg": np.degrees(rms(bound["theta_sigma"][1:])),
             "ratio_to_bound": rms(error) / rms(bound["theta_sigma"][1:]), "coverage": float(np.mean(np.abs(error) <= 1.96 * sigma)),
-            "sigma_over_rms": rms(sigma) / rms(error), "normal_sigma_deg": model.uncertainty["normal_sigma_deg"]}
+            "sigma_over_rms": rms(sigma) / rms(error), "normal_sigma_deg": model.uncertainty.normal_sigma_deg}
 
 
 def test_small_apriltag_far_reference_reports_an_honest_uncertainty(fitted, capsys):
@@ -268,7 +268,7 @@ def test_small_apriltag_far_reference_reports_an_honest_uncertainty(fitted, caps
     assert 0.5 <= figures["sigma_over_rms"] <= 2.0, figures
     assert figures["coverage"] >= 0.75, figures
     uncertainty = row["model"].uncertainty
-    assert row["errors"]["normal_deg"] <= 3.0 * uncertainty["normal_sigma_deg"], (row["errors"], uncertainty)
+    assert row["errors"]["normal_deg"] <= 3.0 * uncertainty.normal_sigma_deg, (row["errors"], uncertainty)
 
 
 @pytest.mark.campaign
@@ -294,7 +294,7 @@ def test_rendered_footage_calibration_campaign(request, tmp_path, name, capsys):
         errors.append(smooth["theta_d"] - made["theta_d"][keep])
         sigmas.append(smooth["theta_d_sigma"])
         wall, camera, _ = footage.case(name)
-        bounds.append(footage.cramer_rao_bound(wall, camera, made["poses"], model.uncertainty["point_noise_px"], frames=np.flatnonzero(keep))["theta_sigma"][1:])
+        bounds.append(footage.cramer_rao_bound(wall, camera, made["poses"], model.uncertainty.point_noise_px, frames=np.flatnonzero(keep))["theta_sigma"][1:])
     error, sigma, bound = (np.concatenate(x) for x in (errors, sigmas, bounds))
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     figures = {"theta_rms_deg": np.degrees(rms(error)), "ratio_to_bound": rms(error) / rms(bound),
@@ -367,9 +367,9 @@ def test_the_same_frames_as_video_images_and_bag_give_the_same_fit(fitted, tmp_p
     video = models["video"]
     for name in sources:
         model = models[name]
-        assert model.target_kind == "dots" and model.frames["used"] == video.frames["used"]
+        assert model.target_kind == "dots" and model.frames.used == video.frames.used
         apart = np.degrees(np.arccos(np.clip(model.normal @ video.normal, -1.0, 1.0)))
-        sigma = np.hypot(model.uncertainty["normal_sigma_deg"], video.uncertainty["normal_sigma_deg"])
+        sigma = np.hypot(model.uncertainty.normal_sigma_deg, video.uncertainty.normal_sigma_deg)
         theta_apart = np.degrees(np.max(np.abs(smooth[name]["theta_d"] - smooth["video"]["theta_d"])))
         with capsys.disabled():
             print(f"\n{name} vs video: n* {apart:.4f} deg apart (combined sigma {sigma:.3f}), theta_d {theta_apart:.4f} deg at most")

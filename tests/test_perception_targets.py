@@ -241,12 +241,12 @@ def test_charuco_board_leaving_the_view_is_picked_and_fitted(tmp_path, request, 
         model, stderr = _fit(teach, tmp_path / f"{name}-fit.mcap", *([] if campaign else ["--target", "charuco"]))
         errors = footage.errors_against_truth(model, made)
         with capsys.disabled():
-            print(f"\n{name}: {model.frames['used']}/{model.frames['total']} frames, {errors}")
+            print(f"\n{name}: {model.frames.used}/{model.frames.total} frames, {errors}")
         picked = "--target auto picked charuco" if campaign else "charuco"
         assert model.target_kind == "charuco" and f"{picked}: ChArUco board of 6x4 squares" in stderr
-        assert model.detector["board"] == [6, 4] and model.detector["marker_dict"] == "DICT_4X4_50"
+        assert model.detector.board == (6, 4) and model.detector.marker_dict == "DICT_4X4_50"
         if name == "charuco_partial":
-            assert model.frames["used"] >= model.frames["total"] - 3
+            assert model.frames.used >= model.frames.total - 3
         for key, bound in CHARUCO_BOUNDS.items():
             assert errors[key] <= bound, (key, errors)
 
@@ -260,8 +260,8 @@ def test_aruco_board_partly_out_of_view_loses_no_frame(tmp_path, request, capsys
     model, _ = _fit(teach, tmp_path / "fit.mcap", "-q")
     errors = footage.errors_against_truth(model, made)
     with capsys.disabled():
-        print(f"\naruco_board_partial: {model.frames['used']}/{model.frames['total']} frames, {errors}")
-    assert model.frames["used"] >= 58
+        print(f"\naruco_board_partial: {model.frames.used}/{model.frames.total} frames, {errors}")
+    assert model.frames.used >= 58
     assert errors["theta_deg"] <= 0.35 and errors["x_hd1"] <= 5e-3
 
 
@@ -315,7 +315,7 @@ def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):
     model, stderr = _fit(teach, tmp_path / "fit.mcap")
     errors = footage.errors_against_truth(model, made)
     with capsys.disabled():
-        print(f"\n{name}: {model.frames['used']}/{model.frames['total']} frames, {errors}")
+        print(f"\n{name}: {model.frames.used}/{model.frames.total} frames, {errors}")
     assert model.target_kind == kind and f"--target auto picked {kind}" in stderr
 
 
@@ -324,7 +324,7 @@ def test_target_options_refused_in_one_line(tmp_path):
     usage or input exit code, no output."""
     points = tmp_path / "points.csv"
     points.write_text("0,0\n1,0\n")
-    cases = ((("--board", "6by4"), 2, "--board must be COLUMNSxROWS"), (("--board", "6x4", "--target", "dots"), 2, "--board is for a ChArUco"),
+    cases = ((("--board", "6by4"), 2, "--board must be COLUMNSxROWS"), (("--board", "6x4", "--target", "dots"), 2, "--board is not for --target dots"),
              (("--target-points", str(tmp_path / "none.csv")), 3, "no such file"), (("--target-points", str(points)), 3, "3 to"),
              (("--target-points", str(points), "--target", "texture"), 2, "texture"))
     for args, code, words in cases:

@@ -105,7 +105,7 @@ def test_json_values_agree_with_the_run(runs):
     report = report_json(runs["run"])
     # The simulated start offset (repeat's default) is the initial pose error.
     from hbvs_cli.stages.options import parse_offset
-    from hbvs_cli.io.settings import DEFAULT_OFFSET
+    from hbvs_cli.settings.commands import DEFAULT_OFFSET
 
     dx, dy, dtheta = parse_offset(DEFAULT_OFFSET)
     # (to the report's 7 significant digits)

@@ -131,7 +131,7 @@ def test_the_fit_stage_table_fits_80_columns(short_teach, tmp_path, monkeypatch)
     from hbvs_cli.io.fit_file import read_fit_file
 
     model = read_fit_file(tmp_path / "fit.mcap").model
-    for number in (f"{model.dhat0:.3f}", f"{model.residual_px['rms']:.3f}", f"{model.normal[1]:+.3f},"):
+    for number in (f"{model.dhat0:.3f}", f"{model.residual_px.rms:.3f}", f"{model.normal[1]:+.3f},"):
         assert number in table.split(), number
 
 

@@ -84,7 +84,7 @@ def test_the_sample_fit_repeats_and_converges(tmp_path):
     from conftest import make_run
 
     model = read_fit_file(SAMPLES / "fit.mcap").model
-    assert model.camera.width == 320 and model.frames["used"] == 200
+    assert model.camera.width == 320 and model.frames.used == 200
     make_run(SAMPLES / "fit.mcap", tmp_path / "run.mcap", sim=True, perception="points", rate=30.0)
     run = read_run(tmp_path / "run.mcap")
     final = np.hypot(*(run.true_pose[-1, :2] - run.desired_pose[-1, :2]))

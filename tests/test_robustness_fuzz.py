@@ -258,7 +258,7 @@ def _pendant(path: Path) -> None:
 
 
 def _config(path: Path) -> None:
-    from hbvs_cli.io.config import load_config
+    from hbvs_cli.settings.config import load_config
 
     load_config(path)
 

@@ -365,7 +365,7 @@ def test_yaml_calibrations_are_loaded_safely(tmp_path, text):
     ("law = " + "[" * 5000 + "]" * 5000 + "\n", "malformed TOML"),
 ])
 def test_toml_configs_with_huge_or_deep_values_are_refused(tmp_path, text, error):
-    from hbvs_cli.io.config import load_config
+    from hbvs_cli.settings.config import load_config
 
     (tmp_path / "gains.toml").write_text(text)
     with pytest.raises(InputError, match=error):

@@ -78,7 +78,7 @@ def test_a_replay_applies_the_actuator_limits_and_its_report_says_so(tmp_path):
 
 # ----------------------------------------------------------------------------- the sweep's parameters
 def test_every_sweep_parameter_has_the_bounds_of_the_repeat_option_it_sets():
-    from hbvs_cli.io.settings import REPEAT
+    from hbvs_cli.settings.commands import REPEAT
     from hbvs_cli.sweep.spec import PARAMETERS
 
     own = {"offset_x", "offset_y", "offset_theta", "dhat0_factor", "occlusion_start", "occlusion_length"}
@@ -94,7 +94,7 @@ def test_every_sweep_parameter_has_the_bounds_of_the_repeat_option_it_sets():
                 assert parameter.bound_violation(value) is None
                 step = 10 ** -9 * max(1.0, abs(value)) if parameter.kind == "float" else 1
                 outside = value - step if value == REPEAT[name].bounds.get("min") else value + step
-                assert parameter.bound_violation(outside) == REPEAT[name].bound_violation(outside) is not None
+                assert parameter.bound_violation(outside) == REPEAT[name].violation(outside) is not None
 
 
 @pytest.mark.parametrize("vary, option, value", [

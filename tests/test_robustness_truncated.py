@@ -91,7 +91,7 @@ def test_a_teach_cut_anywhere_fits_from_its_complete_prefix(default_teach, tmp_p
         assert code == 0, (cut, stderr)
         recovered = re.search(r"recovered (\d+) complete frames", stderr)
         assert recovered and int(recovered.group(1)) == expected, (cut, expected, stderr)
-        assert model.frames["total"] == expected and model.frames["truncated_input"] is True, (cut, model.frames)
+        assert model.frames.total == expected and model.frames.truncated_input is True, (cut, model.frames)
     # The cuts spread over the file: from a fifth of the frames to nearly all of them.
-    totals = [model.frames["total"] for *_, model in results]
+    totals = [model.frames.total for *_, model in results]
     assert min(totals) < 250 and max(totals) > 500, totals

@@ -1,5 +1,6 @@
-"""The repeat options are declared once (io/settings.py): the command line, the
-options dataclass, the config merge and the help all come from that table."""
+"""The options are declared once, as the fields of each stage's options dataclass (hbvs_cli/settings):
+the command line, the config keys, the sweep's parameters and the help all come from them, and
+their values are checked once, where the options are made."""
 
 from __future__ import annotations
 
@@ -11,10 +12,10 @@ import typer
 
 from hbvs_cli.cli.app import app
 from hbvs_cli.core.controller import ControllerGains
-from hbvs_cli.io.config import SCHEMA, load_config
+from hbvs_cli.settings.config import SCHEMA, TABLES, load_config
 from hbvs_cli.stages import repeat as repeat_stage
 from hbvs_cli.stages.repeat import resolve_settings
-from hbvs_cli.io.settings import (
+from hbvs_cli.settings.commands import (
     DEFAULT_LOST_TIMEOUT, DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET, REPEAT, REPEAT_SETTINGS, SIMULATION_DEFAULTS,
     TEACH_SETTINGS, RepeatOptions,
 )
@@ -134,3 +135,45 @@ def test_teach_options_come_from_their_table_too():
                                    "video_out": None, "calibration_out": None}
     assert TeachOptions().for_simulation().noise == SIMULATION_DEFAULTS["noise"]
     assert helps["noise"].endswith("Default 2.") and helps["path"].endswith("Default s-curve.") and helps["dots"].endswith("Default 3.")
+
+
+def test_the_options_are_declared_fields_a_type_checker_sees():
+    import typing
+    from pathlib import Path
+
+    hints = typing.get_type_hints(RepeatOptions)
+    assert hints["input"] is str and hints["dhat0"] == float | None and hints["occlude"] == list[str]
+    assert hints["config"] == Path | None and hints["seed"] is int
+    assert [s.name for s in REPEAT_SETTINGS] == [f.name for f in dataclasses.fields(RepeatOptions)]
+
+
+@pytest.mark.parametrize("name, value", [("law", "pid"), ("perception", "pixels"), ("state_filter", "kalman")])
+def test_a_choice_is_checked_once_at_each_boundary(tmp_path, name, value):
+    """Made from the command line or by a stage, read from --config, or planned by a sweep: the same declaration refuses it."""
+    from hbvs_cli.errors import UsageError
+    from hbvs_cli.sweep.spec import build_spec
+
+    allowed = REPEAT[name].allowed()
+    message = f"{REPEAT[name].option_names[-1]} must be one of {', '.join(allowed)}, got {value!r}"
+    with pytest.raises(UsageError) as made:
+        RepeatOptions(input="fit.mcap", **{name: value})
+    assert str(made.value) == message
+    config = tmp_path / "bad.toml"
+    key = REPEAT[name].config
+    table = next(table for table, keys in TABLES.items() if key in keys)
+    config.write_text((f"[{table}]\n" if table else "") + f'{key} = "{value}"\n')
+    with pytest.raises(UsageError) as read:
+        load_config(config)
+    assert str(read.value) == f"{config}: {message}"
+    if name != "state_filter":  # not a sweep parameter
+        with pytest.raises(UsageError, match=f"{name} must be one of {', '.join(allowed)}"):
+            build_spec(None, [], [f"{name}={value}"])
+
+
+def test_the_sweep_parameters_take_their_kind_choices_and_bounds_from_the_options():
+    from hbvs_cli.sweep.parameters import PARAMETERS
+
+    assert (PARAMETERS["latency"].kind, PARAMETERS["rate"].kind, PARAMETERS["law"].kind) == ("int", "float", "choice")
+    assert PARAMETERS["law"].choices == REPEAT["law"].allowed() == ("lateral-gain", "paper", "non-adaptive", "kanayama")
+    assert PARAMETERS["perception"].choices == REPEAT["perception"].allowed() == ("points", "images")
+    assert PARAMETERS["dhat0"].bound_violation(0.0) == REPEAT["dhat0"].violation(0.0) is not None

@@ -37,7 +37,7 @@ def test_dots_fit_agrees_with_the_truth(default_fit, capsys):
     assert abs(model.dhat0 - errors["d_star"]) < 0.02 * errors["d_star"]
     # The plane normal of a vertical wall facing F*.
     assert np.degrees(np.arccos(min(1.0, abs(model.normal @ [1.0, 0.0, 0.0])))) < 0.5
-    assert model.frames["used"] == 600 and model.frames["lost"] == 0
+    assert model.frames.used == 600 and model.frames.lost == 0
 
 
 #: Measured (the default path): ArUco theta 0.120 deg (0.113 with one pass of the corners'
@@ -114,8 +114,8 @@ def test_a_stretch_without_the_target_is_bridged_and_reported(default_teach, tmp
                lambda t, data: None if 8.0 <= t < 8.6 else (_painted_out(data) if 12.0 <= t < 12.5 else data))
     model = make_fit(gappy, tmp_path / "fit.mcap").model
     # Missing frames are not counted, covered ones are counted as lost.
-    assert model.frames["total"] == 582 and model.frames["used"] == 567
-    assert model.frames["lost"] == 15 and model.frames["longest_gap_s"] == pytest.approx(16 / 30, abs=1e-6)
+    assert model.frames.total == 582 and model.frames.used == 567
+    assert model.frames.lost == 15 and model.frames.longest_gap_s == pytest.approx(16 / 30, abs=1e-6)
     errors = fit_errors(model)
     assert errors["theta_deg"] < 0.1 and errors["x_hd2"] < 2e-3
 
@@ -131,8 +131,8 @@ def test_a_path_that_stops_halfway_warns_about_condition_35(tmp_path):
     warning = [line for line in result.stderr.decode().splitlines() if "warning" in line]
     assert any("condition (35)" in line and "stops" in line for line in warning), result.stderr.decode()
     model = read_fit_file(tmp_path / "fit.mcap").model
-    assert model.condition35["stopped_fraction"] > 0.3
-    assert model.condition35["min_abs_xhd1_dot"] < 0.002
+    assert model.condition35.stopped_fraction > 0.3
+    assert model.condition35.min_abs_xhd1_dot < 0.002
 
 
 def test_fit_of_a_video_recording_agrees_with_the_truth(video_fit):
@@ -248,8 +248,9 @@ def test_fit_reports_its_uncertainty_and_older_files_still_read(default_fit, tmp
 
     path, model = default_fit
     uncertainty = model.uncertainty
-    assert set(uncertainty) == {"normal_sigma_deg", "point_noise_px", "theta_d_sigma_deg", "x_hd1_sigma"}
-    assert 0.0 < uncertainty["normal_sigma_deg"] < 0.5 and 0.0 < uncertainty["point_noise_px"] < 0.5
+    assert uncertainty.theta_d_sigma_deg is not None and uncertainty.x_hd1_sigma is not None
+    assert uncertainty.calibration == "exact" and uncertainty.calibration_normal_sigma_deg == 0.0  # a simulated teach
+    assert 0.0 < uncertainty.normal_sigma_deg < 0.5 and 0.0 < uncertainty.point_noise_px < 0.5
     signals = read_fit_signals(path)
     assert {"theta_d_sigma", "x_hd1_sigma"} <= set(signals.smooth)
     errors = fit_errors(model)
@@ -299,7 +300,7 @@ def test_frames_decoded_while_the_target_is_picked_give_the_same_fit(tmp_path, m
     decoded.clear()
     assert call_hbvs("fit", teach, "--target", "chessboard", "-o", str(tmp_path / "in_turn.mcap"), "-q").returncode == 0
     assert (tmp_path / "ahead.mcap").read_bytes() == (tmp_path / "in_turn.mcap").read_bytes()
-    assert read_fit_file(tmp_path / "ahead.mcap").model.frames["used"] == 60
+    assert read_fit_file(tmp_path / "ahead.mcap").model.frames.used == 60
 
 
 def test_the_solvers_are_loaded_while_reading_ahead_and_run_with_blas_on_one_thread(tmp_path, monkeypatch):
@@ -393,7 +394,7 @@ def test_a_fit_given_the_layout_does_not_advise_giving_it():
 
     flat = np.full(50, 1e-3)
     line = uncertainty_warning(FitUncertainty(normal_sigma_deg=1.5, point_noise_px=0.02, theta_sigma=flat, x_h1_sigma=flat,
-                                              smooth_theta_sigma=flat, smooth_x_h1_sigma=flat), None)
+                                              smooth_theta_sigma=flat, smooth_x_h1_sigma=flat))
     assert "--target-points FILE" in line
     told: list[str] = []
     layout_given_warn(told.append)(line)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -43,7 +45,7 @@ def test_teach_with_a_poster_image(tmp_path):
     make_fit(teach, tmp_path / "fit.mcap")
     model = read_fit_file(tmp_path / "fit.mcap").model
     assert model.target_kind == "texture" and model.world_description["target"]["texture"] == str(poster)
-    assert model.frames["used"] == model.frames["total"] == 120
+    assert model.frames.used == model.frames.total == 120
     with pytest.raises(InputError, match="not found"):
         make_teach(tmp_path / "x.mcap", target="texture", texture=tmp_path / "missing.png", duration=1.0)
     with pytest.raises(UsageError, match="--texture"):
@@ -119,3 +121,20 @@ def test_sim_after_real_footage_needs_and_uses_an_assumed_depth(video_fit, tmp_p
     assert run.info["d_true"] == 4.0
     position = np.hypot(*(run.true_pose[:, :2] - run.desired_pose[:, :2]).T)
     assert position[-30:].mean() < 0.01 and run.lost.sum() == 0
+
+
+def test_robot_sim_base_and_stamp_fault_are_parsed_in_sim():
+    """robot-sim's --base and --stamp-fault texts become sim's objects (sim/stand_in.py); the stage only wires them."""
+    from hbvs_cli.sim.stand_in import StampFault, parse_base
+
+    small = parse_base("small")
+    assert (small.max_v, small.max_w, small.max_accel, small.max_alpha, small.lag_s) == (0.26, 1.8, 0.6, 3.0, 0.12)
+    assert parse_base("1,2,3,4,0").max_alpha == 4.0 and math.isinf(parse_base("kinematic").max_v)
+    back = StampFault("back:0.5@2")
+    assert (back.stamp(10.0, 1.9, 0), back.stamp(10.0, 2.0, 1)) == (10.0, 9.5)
+    stall = StampFault("stall:1@2")
+    assert (stall.stamp(10.0, 2.5, 0), stall.stamp(10.0, 3.0, 1)) == (None, 10.0)
+    assert StampFault("max@0").stamp(1.0, 0.0, 0) == 2.0**31 - 1
+    for bad, text in ((parse_base, "1,2,3,-4,0"), (StampFault, "back@1"), (StampFault, "freeze@-1")):
+        with pytest.raises(UsageError):
+            bad(text)

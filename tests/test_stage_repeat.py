@@ -228,7 +228,7 @@ def test_config_file_speed_and_limits(default_fit, tmp_path):
     make_run(fit_path, tmp_path / "run.mcap", sim=True, perception="points", config=config, k_w=1.5, speed=2.0)
     run = read_run(tmp_path / "run.mcap")
     # gamma is not in the config: the fit's suggestion (core/gains.py).
-    assert run.info["law"] == "paper" and run.info["gains"] == {"k_v": 3.0, "k_w": 1.5, "gamma": pytest.approx(model.gains["gamma"]), "k_2": 1.0}
+    assert run.info["law"] == "paper" and run.info["gains"] == {"k_v": 3.0, "k_w": 1.5, "gamma": pytest.approx(model.gains.gains.gamma), "k_2": 1.0}
     assert run.state["t"][-1] == pytest.approx(9.95, abs=0.05)  # the 20 s path at twice the pace
     assert np.abs(run.state["v_c"]).max() <= 0.3 + 1e-12
     # The feed-forward is scaled with the pace: x_hd1_dot doubles.

@@ -27,10 +27,10 @@ from ..io.shipped import shipped_name, shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
-from ..io.settings import (
-    EXPORT_SETTINGS, FIT_SETTINGS, INFO_SETTINGS, REPEAT_SETTINGS, REPORT_SETTINGS, ROBOT_SIM_SETTINGS, SWEEP_SETTINGS,
-    TEACH_SETTINGS, options_from_command_line,
+from ..settings.commands import (
+    ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions, TeachFields,
 )
+from ..settings.option import options_from_command_line, settings_of
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
 from .signature import with_settings
 
@@ -116,30 +116,30 @@ def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
         raise typer.Exit(code)
 
 
-#: Each stage's command: name, help panel, settings, its stage module's options class, extra options, help.
+#: Each stage's command: name, help panel, its declared options, its stage module's options class, extra options, help.
 STAGE_COMMANDS = (
-    ("teach", "Pipeline", TEACH_SETTINGS, "TeachOptions", (QUIET_MESSAGES,),
+    ("teach", "Pipeline", TeachFields, "TeachOptions", (QUIET_MESSAGES,),
      "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
-    ("fit", "Pipeline", FIT_SETTINGS, "FitOptions", (QUIET,),
+    ("fit", "Pipeline", FitOptions, "FitOptions", (QUIET,),
      "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
-    ("repeat", "Pipeline", REPEAT_SETTINGS, "RepeatOptions", (QUIET,),
+    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (QUIET,),
      "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
-    ("robot-sim", "Robot", ROBOT_SIM_SETTINGS, "RobotSimOptions", (QUIET_MESSAGES,),
+    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (QUIET_MESSAGES,),
      "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
-    ("report", "Pipeline", REPORT_SETTINGS, "ReportOptions", (),
+    ("report", "Pipeline", ReportOptions, "ReportOptions", (),
      "How well did the repeat follow the taught path, and did it converge?"),
-    ("export", "Pipeline", EXPORT_SETTINGS, "ExportOptions",
+    ("export", "Pipeline", ExportOptions, "ExportOptions",
      (QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]),),
      "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
-    ("info", "Files", INFO_SETTINGS, "InfoOptions", (),
+    ("info", "Files", InfoOptions, "InfoOptions", (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
-    ("sweep", "Studies", SWEEP_SETTINGS, "SweepOptions", (QUIET_MESSAGES,),
+    ("sweep", "Studies", SweepOptions, "SweepOptions", (QUIET_MESSAGES,),
      "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
      f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
 
 
-def _add_stage_command(name: str, panel: str, settings: Any, options_class: str, extra: tuple[inspect.Parameter, ...],
+def _add_stage_command(name: str, panel: str, declared: type, options_class: str, extra: tuple[inspect.Parameter, ...],
                        help_text: str) -> None:
     stage = name.replace("-", "_")
 
@@ -147,7 +147,7 @@ def _add_stage_command(name: str, panel: str, settings: Any, options_class: str,
         _run_stage(stage, options_class, values)
 
     command.__name__, command.__doc__ = stage, help_text
-    app.command(name, rich_help_panel=panel)(with_settings(settings, *extra)(command))
+    app.command(name, rich_help_panel=panel)(with_settings(settings_of(declared), *extra)(command))
 
 
 for _command in STAGE_COMMANDS:

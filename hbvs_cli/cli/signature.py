@@ -1,4 +1,4 @@
-"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.io.settings`):
+"""A typer command's parameters made from a stage's settings table (:mod:`hbvs_cli.settings`):
 the ``__signature__`` of a ``**values`` function, which typer reads."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from typing import Annotated, Any, Callable, List, Optional
 
 import typer
 
-from ..io.settings import Setting
+from ..settings.option import Setting
 
 
 def typer_parameter(setting: Setting) -> inspect.Parameter:

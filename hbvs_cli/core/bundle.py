@@ -12,7 +12,7 @@ complement on the globals (docs/uncertainty.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -209,16 +209,17 @@ class JointCovariance:
         How the globals move with each of C biases: a detector's, of one standard deviation
         on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
         :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
-        column), then a shift of the whole image (two); their covariances add ``bias bias^T``, common to the frames (None: no bias).
+        column), then the D shifts every frame shares (:func:`joint_covariance`'s
+        ``common_shift``); their covariances add ``bias bias^T``, common to the frames (None: no bias).
     span_bias, frame_spans : ndarrays, shapes (K, 3, 2N) and (K,), or None
         A frame's own move with the biases of its span (its columns of the span's ``2N``),
         and its span; None: no detector's bias.
     readout_bias : ndarray, shape (K, 3), or None
         A frame's own move with the rolling shutter's bias (its column, before the image
         shift's).
-    image_shift_bias : ndarray, shape (K, 3, 2), or None
-        A frame's own move with a shift of every point of every frame (the last two
-        columns; :func:`joint_covariance`'s ``image_shift``).
+    image_shift_bias : ndarray, shape (K, 3, D), or None
+        A frame's own move with the shifts every frame shares (the last D columns;
+        :func:`joint_covariance`'s ``common_shift``).
     readout, readout_sigma : float
         With ``shutter``: the readout (s per normalised row) the residuals show, and its
         standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
@@ -300,7 +301,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      estimated_rows: ArrayLike | None = None, correlated: bool = True, bias_fraction: float = 0.0,
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
-                     readout_estimated: bool = False, image_shift: float = 0.0) -> JointCovariance:
+                     readout_estimated: bool = False,
+                     common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
@@ -346,12 +348,14 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     readout_estimated : bool
         The readout was one more unknown of the estimate, and is taken out of ``estimated``
         and ``frames``: the column is then the estimate's move by ``readout_sigma``.
-    image_shift : float
-        A shift of every point of every frame (F* too) by the same amount, as a standard
-        deviation (normalised units) in each image direction: a detector's error that all
-        points share all along the drive (bloom pulling bright dots' centroids down the
-        columns, issue 44). n* and the reference points absorb part of it and the residuals
-        cannot show it; its two columns (m_y, then m_z) join the bias after the shutter's.
+    common_shift : callable, optional
+        Errors every frame shares (F* too), independent of each other: ``common_shift(points)``
+        gives how points (K, N, 3) move with one standard deviation of each of D of them,
+        (K, 2N, D) (normalised units; each point's ``(m_y, m_z)`` in turn). A detector's error
+        that all points share all along the drive (bloom pulling bright dots' centroids down
+        the columns, issue 44: :func:`uniform_shift`), or the calibration's
+        (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of
+        them and the residuals cannot show them; their D columns join the bias after the shutter's.
 
     Returns
     -------
@@ -395,10 +399,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     own_rhs = np.zeros((pool_size, 3, points)) if bias_fraction > 0.0 else None
     residuals = np.empty((estimated.shape[0], points))  # the estimated frames' own, in their (time) order
     shutter_own, shutter_globals = np.zeros((pool_size, 3)), -reference[:points].T @ shifts[0]
-    # The image shift's two directions: every point's m_y, then every point's m_z, by 1.
-    directions = np.zeros((points, 2))
-    directions[0::2, 0], directions[1::2, 1] = 1.0, 1.0
-    shift_own, shift_globals = np.zeros((pool_size, 3, 2)), -reference[:points].T @ directions
+    # The shared shifts' columns: F*'s points' move, then each frame's as its block is reached.
+    reference_shift = np.zeros((points, 0)) if common_shift is None else _finite(common_shift(m_ref[None])[0])
+    shared_shifts = reference_shift.shape[1]
+    shift_own, shift_globals = np.zeros((pool_size, 3, shared_shifts)), -reference[:points].T @ reference_shift
     block_frames = _frames_per_block(reference.shape[0], geometry.size)
     for k in range(0, pool_size, block_frames):
         block = slice(k, min(k + block_frames, pool_size))
@@ -415,15 +419,16 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         mine = by_row[slice(*np.searchsorted(rows_in_order, [block.start, block.stop]))]
         residuals[mine] = at[where[mine] - k, :points]
         # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
-        biased = shutter is not None or bias_fraction > 0.0 or image_shift > 0.0
+        biased = shutter is not None or bias_fraction > 0.0 or shared_shifts > 0
         by_shapes = _shape_bias_rows(pool, normal, pool_motion, shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
         if shutter is not None:  # as the bias below, for the one column of the shutter's shift
             change = np.concatenate([-pool_shift, np.einsum("krb,kb->kr", by_shapes, pool_shift)], axis=1)
             shutter_own[block] = np.einsum("kra,kr->ka", own, change)
             shutter_globals += np.einsum("krg,kr->g", weighted, change) - np.einsum("kga,ka->g", reduced, shutter_own[block])
-        if image_shift > 0.0:  # as the shutter's column, for the same shift in every frame
-            change = np.concatenate([np.broadcast_to(-directions, (len(pool), points, 2)), by_shapes @ directions], axis=1)
+        if shared_shifts:  # as the shutter's column, for each shift every frame shares
+            moves = _finite(common_shift(pool))
+            change = np.concatenate([-moves, by_shapes @ moves], axis=1)
             shift_own[block] = np.swapaxes(own, 1, 2) @ change
             shift_globals += np.einsum("krg,krd->gd", weighted, change) - np.einsum("kga,kad->gd", reduced, shift_own[block])
         if own_rhs is not None:
@@ -471,10 +476,10 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
         readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
     image_shift_bias = None
-    if image_shift > 0.0:  # the estimate's move with the image shift: two more columns
-        columns_shared = image_shift * shared_inverse @ shift_globals
+    if shared_shifts:  # the estimate's move with the shared shifts: D more columns
+        columns_shared = shared_inverse @ shift_globals
         bias_shared = columns_shared if bias_shared is None else np.column_stack([bias_shared, columns_shared])
-        image_shift_bias = image_shift * (inverse_own @ shift_own[:frames.shape[0]])
+        image_shift_bias = inverse_own @ shift_own[:frames.shape[0]]
     for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
         block = slice(k, k + BLOCK_FRAMES)
         if span_bias is not None:
@@ -495,6 +500,17 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         readout=fitted_readout,
         readout_sigma=readout_sigma,
     )
+
+
+def uniform_shift(size: float) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """:func:`joint_covariance`'s ``common_shift`` for a shift of every point of every frame
+    by the same ``size`` (normalised units, 1 sigma) along each image direction: (K, 2N, 2),
+    every point's m_y, then every point's m_z."""
+    def shifts(points: NDArray[np.float64]) -> NDArray[np.float64]:
+        moves = np.zeros((points.shape[0], 2 * points.shape[1], 2))
+        moves[:, 0::2, 0], moves[:, 1::2, 1] = size, size
+        return moves
+    return shifts
 
 
 def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:

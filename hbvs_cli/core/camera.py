@@ -5,8 +5,8 @@ z forward): ``[x_n, y_n, 1] = K^-1 [u, v, 1]`` and ``m = [1, -x_n, -y_n]``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,7 +20,10 @@ SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant"
 @dataclass(frozen=True)
 class CameraIntrinsics:
     """Pinhole intrinsics in px (OpenCV: the top-left pixel's centre is (0, 0)) and the
-    ``distortion`` coefficients of ``distortion_model`` in OpenCV order."""
+    ``distortion`` coefficients of ``distortion_model`` in OpenCV order; ``sigma``: the
+    standard deviations the calibration states of ``(fx, fy, cx, cy, *distortion)`` (px, then
+    the coefficients' units; OpenCV's ``stdDeviationsIntrinsics`` order), () when it states
+    none. Not part of the camera's identity (equality)."""
 
     fx: float
     fy: float
@@ -30,6 +33,7 @@ class CameraIntrinsics:
     height: int
     distortion_model: str = "none"
     distortion: tuple[float, ...] = field(default_factory=tuple)
+    sigma: tuple[float, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         values = (self.fx, self.fy, self.cx, self.cy)
@@ -44,6 +48,8 @@ class CameraIntrinsics:
                                    "(supported: plumb_bob, rational_polynomial, equidistant, none)")
         if not all(np.isfinite(v) for v in self.distortion):
             raise CalibrationError("distortion coefficients contain NaN or infinity")
+        if not all(np.isfinite(v) and v >= 0.0 for v in self.sigma):
+            raise CalibrationError("the intrinsics' standard deviations must be finite and non-negative")
 
     @property
     def K(self) -> NDArray[np.float64]:
@@ -150,6 +156,32 @@ def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -
     found = np.all(np.isfinite(flat), axis=1)
     undistorted[found] = undistort_pixels(camera, flat[found])
     return pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
+
+
+#: What the fit assumes of a calibration that states no standard deviations (ROS camera_info,
+#: Kalibr, plain JSON): fx, fy, cx and cy each known to this fraction of the mean focal length
+#: (1 sigma; 1 px at 500 px), the distortion exact. docs/walkthrough.md's recipe gave 0.3-0.5 px
+#: at 0.04-0.06 px of reprojection error: this is such a calibration at about 0.1 px.
+ASSUMED_INTRINSICS_SIGMA = 0.002
+
+
+def calibration_shifts(camera: CameraIntrinsics, sigma: Sequence[float], m: ArrayLike) -> NDArray[np.float64]:
+    """How the points ``m`` (..., N, 3), normalised from measured pixels with ``camera``, move
+    with an error of one standard deviation ``sigma`` in each of ``(fx, fy, cx, cy,
+    *distortion)`` (those beyond the camera's coefficients are left out): (..., 2N, D), each
+    point's ``(m_y, m_z)`` in turn by the D errors of non-zero sigma. A central difference:
+    the pixels (distorted again) are normalised with the camera moved by +-sigma."""
+    m = np.asarray(m, dtype=float)
+    pixels = distort_pixels(camera, normalized_to_pixels(camera, m).reshape(-1, 2))
+    values = (camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion)
+
+    def moved(index: int, step: float) -> NDArray[np.float64]:
+        v = [value + step * (k == index) for k, value in enumerate(values)]
+        shifted = replace(camera, fx=v[0], fy=v[1], cx=v[2], cy=v[3], distortion=tuple(v[4:]))
+        return measured_pixels_to_normalized(shifted, pixels)[:, 1:].reshape(*m.shape[:-2], -1)
+
+    columns = [0.5 * (moved(k, size) - moved(k, -size)) for k, size in enumerate(sigma[:len(values)]) if size > 0.0]
+    return np.stack(columns, axis=-1) if columns else np.zeros((*m.shape[:-2], 2 * m.shape[-2], 0))
 
 
 def pixels_to_normalized_floats(camera: CameraIntrinsics, pixels: NDArray[np.float64]) -> tuple[list[float], list[float]]:

@@ -8,21 +8,22 @@ trajectory"). What a user should hear is passed to ``warn``, never printed.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InsufficientDataError
-from .camera import CameraIntrinsics, measured_pixels_to_normalized, normalized_to_pixels
+from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import within_residual_gate
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise, projected_points,
-                     rolling_shutter_shift)
+                     rolling_shutter_shift, uniform_shift)
 from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
 from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
@@ -42,29 +43,43 @@ AMBIGUOUS_NORMAL_WARNING = (
 #: n* uncertain by more than this (deg, one standard deviation) is said in one line.
 UNCERTAIN_NORMAL_DEG = 0.5
 
-#: A detector's point bias (in measured point noise) by target kind, that the reported
-#: uncertainty allows for: corners located from edges err alike over nearby frames (their
-#: error follows the edges' sub-pixel phase and the ink's clipping at the sensor's floor),
-#: and so do a tracked texture's corners, which the residuals cannot show
-#: (bench/CALIBRATION.md). Dots: none.
-DETECTOR_BIAS_FRACTION = {"aruco": 0.5, "chessboard": 1.25, "charuco": 0.75, "texture": 0.5}
-
-#: ... but a tracked texture's at least this (px): the warp's sub-pixel interpolation.
-TEXTURE_CORNER_BIAS_PX = 0.009
-
-#: The spans of the drive over which that bias is the same (independent between spans).
+#: The spans of the drive over which a detector's bias is the same (independent between spans).
 BIAS_SEGMENTS = 8
 
-#: The (theta_d deg, x_hd1) RMS error a kind usually gives (the perception bounds): more
-#: RMS sigma in the splines is said in the warning line.
-EXPECTED_PRECISION = {"dots": (0.1, 2e-3), "texture": (0.1, 2e-3)} | dict.fromkeys(("aruco", "chessboard", "charuco"), (0.35, 5e-3))
+
+@dataclass(frozen=True)
+class DetectorErrors:
+    """What the reported uncertainty allows for of a detector's errors (each target kind of
+    perception gives its own; bench/CALIBRATION.md measured them).
+
+    ``bias_fraction``: its point bias in measured point noise, alike over nearby frames and
+    invisible in the residuals (corners located from edges follow the edges' sub-pixel phase
+    and the ink's clipping), and at least ``min_bias_px`` (px); ``correlated``: its errors
+    correlated over frames (:func:`~.bundle.correlation_inflation`; not for one tracked
+    homography's corners, nor markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS
+    error it usually gives, more is said in the warning line (None: no check); ``name``: the
+    kind, as that line says it.
+    """
+
+    name: str = ""
+    bias_fraction: float = 0.0
+    min_bias_px: float = 0.0
+    correlated: bool = True
+    expected_precision: tuple[float, float] | None = None
+
+    def bias(self, noise_px: float) -> float:
+        """The bias per point in point noise ``noise_px`` (px)."""
+        return max(self.bias_fraction, self.min_bias_px / max(noise_px, 1e-9))
 
 #: What :func:`fit_desired_trajectory` says then (sigmas, and ``{usual}``: the kind's precision).
 UNCERTAIN_NORMAL_WARNING = (
     "the drive leaves the plane normal n* uncertain by {normal:.1f} deg, theta_d by {theta:.2f} deg and x_hd1 by {x_h1:.1e} (1 sigma{usual}), "
     "a bias the whole trajectory inherits; what would pin it: the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), "
-    "a drive that curves more or comes closer, or another reference frame (--reference last: the close end of the drive)"
+    "a drive that curves more or comes closer, or another reference frame (--reference last: the close end of the drive){calibration}"
 )
+
+#: ... ended so when most of n*'s uncertainty is the intrinsics' (``{part}`` deg of it).
+CALIBRATION_ADVICE = "; and above all a finer calibration ({part:.1f} deg of n*'s sigma is its intrinsics' uncertainty)"
 
 #: Below this branch margin (and above AMBIGUOUS_NORMAL_MARGIN, where the facing prior
 #: decides) the joint estimate is also run from the other branch's normal.
@@ -129,21 +144,39 @@ class FrameStats:
     frame_interval_s: float | None
     trimmed_start: int
     trimmed_end: int
-
-    def as_dict(self) -> dict[str, Any]:
-        """The fields by name (the ``frames`` record of a fit file)."""
-        return asdict(self)
+    #: The recording ended before its end record (a crashed recorder); set by the stage.
+    truncated_input: bool = False
 
 
 @dataclass(frozen=True)
 class PixelResidual:
     """The known-normal residual of the used frames, in pixels (RMS over frames, and max)."""
 
-    rms: float
+    rms: float = float("nan")
+    max: float = float("nan")
+
+
+@dataclass(frozen=True)
+class Spread:
+    """A per-sample quantity's median and maximum."""
+
+    median: float
     max: float
 
-    def as_dict(self) -> dict[str, float]:
-        return {"rms": self.rms, "max": self.max}
+
+@dataclass(frozen=True)
+class UncertaintySummary:
+    """What a fit file keeps of :class:`FitUncertainty`: n*'s sigma (deg), the point noise (px),
+    and the spline sigmas' spread (theta_d in degrees; None over an empty span)."""
+
+    normal_sigma_deg: float
+    point_noise_px: float
+    theta_d_sigma_deg: Spread | None
+    x_hd1_sigma: Spread | None
+    #: n*'s sigma from the intrinsics' own (deg), and whether they were "stated", "assumed" or
+    #: "exact" (None in a file written before either was kept).
+    calibration_normal_sigma_deg: float = 0.0
+    calibration: str | None = None
 
 
 @dataclass(frozen=True)
@@ -153,7 +186,8 @@ class FitUncertainty:
     ``point_noise_px``: the reprojection errors' noise (px per coordinate); ``theta_sigma``,
     ``x_h1_sigma`` (F,): 1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used),
     with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
-    the used span (which average a frame's own noise, not the inherited part).
+    the used span (which average a frame's own noise, not the inherited part);
+    ``calibration_normal_sigma_deg``: the part of n*'s sigma the intrinsics' errors make.
     """
 
     normal_sigma_deg: float
@@ -162,17 +196,16 @@ class FitUncertainty:
     x_h1_sigma: NDArray[np.float64]
     smooth_theta_sigma: NDArray[np.float64]
     smooth_x_h1_sigma: NDArray[np.float64]
+    calibration_normal_sigma_deg: float = 0.0
 
-    def as_dict(self) -> dict[str, Any]:
-        """A summary (the ``uncertainty`` record of a fit file): n*'s sigma and the spline
-        sigmas' median and maximum (theta_d in degrees)."""
-        summary = lambda x: {"median": float(np.median(x)), "max": float(np.max(x))} if x.size else None  # noqa: E731
-        return {
-            "normal_sigma_deg": self.normal_sigma_deg,
-            "point_noise_px": self.point_noise_px,
-            "theta_d_sigma_deg": summary(np.degrees(self.smooth_theta_sigma)),
-            "x_hd1_sigma": summary(self.smooth_x_h1_sigma),
-        }
+    def summary(self, calibration: str | None = None) -> UncertaintySummary:
+        """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
+        whether the intrinsics' sigmas were stated, assumed or exact), and the spline sigmas'
+        median and maximum."""
+        spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
+        return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
+                                  spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma),
+                                  self.calibration_normal_sigma_deg, calibration)
 
 
 @dataclass(frozen=True)
@@ -212,11 +245,6 @@ class DesiredFit:
     span: slice
     uncertainty: "FitUncertainty | None" = None
 
-    @property
-    def condition35(self) -> dict[str, Any]:
-        """Condition (35) as a record (the ``condition35`` of a fit file)."""
-        return asdict(self.condition)
-
 
 def fit_desired_trajectory(
     t: ArrayLike,
@@ -228,8 +256,9 @@ def fit_desired_trajectory(
     max_gap: float,
     warn: Callable[[str], None] | None = None,
     shapes: Sequence[KnownShape] = (),
-    kind: str | None = None,
+    errors: DetectorErrors = DetectorErrors(),
     image_shift_px: float = 0.0,
+    calibration_sigma: Sequence[float] = (),
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -247,16 +276,19 @@ def fit_desired_trajectory(
         Told what a user should know (ambiguous or uncertain n*), as it happens.
     shapes : sequence of KnownShape, optional
         Target parts of known shape (each marker's square); they pin n* where the motion does not.
-    kind : str, optional
-        ``dots``, ``aruco``, ``chessboard``, ``charuco`` or ``texture``: the detector's bias
-        over each of :data:`BIAS_SEGMENTS` spans (:func:`detector_bias_fraction`; n* absorbs
-        it, the residuals cannot show it), :data:`EXPECTED_PRECISION`, and the widening for
-        errors correlated over frames (:func:`~.bundle.correlation_inflation`; not for one
-        tracked homography's corners, nor markers). None: dots, no precision check.
+    errors : DetectorErrors, optional
+        The detector's bias over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the
+        residuals cannot show it), its usual precision and whether its errors are correlated
+        over frames. Default: no bias, correlated, no precision check.
     image_shift_px : float, optional
         A detector's error shared by every point of every frame (px, 1 sigma in each image
         direction; e.g. bloom pulling saturated dots' centroids, measured by the detector):
-        :func:`~.bundle.joint_covariance`'s ``image_shift``.
+        :func:`~.bundle.joint_covariance`'s ``common_shift``.
+    calibration_sigma : sequence of float, optional
+        The standard deviations of the intrinsics ``(fx, fy, cx, cy, *distortion)``
+        (:attr:`~.camera.CameraIntrinsics.sigma`): their errors are shared by every frame, a
+        bias of the whole drive (:func:`~.camera.calibration_shifts`, joined to
+        ``common_shift``). Empty: the intrinsics are exact.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -314,11 +346,15 @@ def fit_desired_trajectory(
     focal = camera.mean_focal
     uncertainty = None
     if others.size:
+        shared_shifts = [partial(calibration_shifts, camera, calibration_sigma)]  # last: its columns are n*'s calibration part
+        if image_shift_px > 0.0:
+            shared_shifts.insert(0, uniform_shift(image_shift_px / focal))
+        calibration_columns = calibration_shifts(camera, calibration_sigma, m_ref[None]).shape[-1]
         covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
-                                       shapes, kind, detector_bias_fraction(kind, noise * camera.mean_focal), readout != 0.0,
-                                       image_shift_px / camera.mean_focal)
-        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal)
-        if (line := uncertainty_warning(uncertainty, kind)) and warn is not None:
+                                       shapes, errors.correlated, errors.bias(noise * camera.mean_focal), readout != 0.0,
+                                       lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1))
+        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns)
+        if (line := uncertainty_warning(uncertainty, errors)) and warn is not None:
             warn(line)
     return DesiredFit(
         m_ref=m_ref,
@@ -344,12 +380,12 @@ def fit_desired_trajectory(
 
 def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
                       seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
-                      m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], kind: str | None, bias_fraction: float,
-                      readout_estimated: bool, image_shift: float = 0.0) -> JointCovariance:
+                      m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], correlated: bool, bias_fraction: float,
+                      readout_estimated: bool, common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> JointCovariance:
     """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
     for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and a
-    shift of the whole image of ``image_shift`` (normalised units, 1 sigma).
+    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and the
+    shifts every frame shares (``common_shift``: bloom's, the calibration's).
     Its frame-long inputs are freed when it returns, before the uncertainty is carried
     through the smoothing."""
     stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
@@ -359,10 +395,10 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
     shift = _shutter_shifts(normal, m_ref, t, seen_rows, stacked(seen_rows))
     return joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
                             frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
-                            correlated=kind not in ("texture", "aruco"), bias_fraction=bias_fraction,
+                            correlated=correlated, bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
                             shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
-                            image_shift=image_shift)
+                            common_shift=common_shift)
 
 
 def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:
@@ -410,23 +446,17 @@ def _shutter_shifts(normal: NDArray[np.float64], m_ref: NDArray[np.float64], t: 
     return shift
 
 
-def detector_bias_fraction(kind: str | None, noise_px: float) -> float:
-    """The detector's bias per point in point noise (``noise_px``): :data:`DETECTOR_BIAS_FRACTION`,
-    for texture at least :data:`TEXTURE_CORNER_BIAS_PX`."""
-    if kind == "texture":
-        return max(DETECTOR_BIAS_FRACTION[kind], TEXTURE_CORNER_BIAS_PX / max(noise_px, 1e-9))
-    return DETECTOR_BIAS_FRACTION.get(kind, 0.0)
-
-
-def uncertainty_warning(uncertainty: FitUncertainty, kind: str | None) -> str | None:
+def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = DetectorErrors()) -> str | None:
     """The warning line when n* is uncertain by more than :data:`UNCERTAIN_NORMAL_DEG`, or the
-    splines' RMS sigma of theta_d or x_hd1 exceeds the ``kind``'s :data:`EXPECTED_PRECISION`;
+    splines' RMS sigma of theta_d or x_hd1 exceeds the detector's ``expected_precision``;
     else None."""
     theta, x_h1 = np.degrees(rms(uncertainty.smooth_theta_sigma)), rms(uncertainty.smooth_x_h1_sigma)
-    expected = EXPECTED_PRECISION.get(kind)
+    expected = errors.expected_precision
     if uncertainty.normal_sigma_deg > UNCERTAIN_NORMAL_DEG or (expected is not None and (theta > expected[0] or x_h1 > expected[1])):
-        usual = f"; {kind} targets usually give {expected[0]:g} deg and {expected[1]:g}" if expected is not None else ""
-        return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual)
+        usual = f"; {errors.name} targets usually give {expected[0]:g} deg and {expected[1]:g}" if expected is not None else ""
+        part = uncertainty.calibration_normal_sigma_deg
+        calibration = CALIBRATION_ADVICE.format(part=part) if part > 0.5 * uncertainty.normal_sigma_deg else ""
+        return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual, calibration=calibration)
     return None
 
 
@@ -477,8 +507,9 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
 
 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
-                     trajectory: SplineTrajectory, focal: float) -> FitUncertainty:
-    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance.
+                     trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0) -> FitUncertainty:
+    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance
+    (whose last ``calibration_columns`` bias columns are the intrinsics' errors).
 
     A frame's error is its own plus what it inherits from the globals (common to all frames).
     The spline is linear: the inherited part goes through it exactly, the own part by
@@ -520,8 +551,10 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
                 inherited_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, :split] ** 2, axis=1)
                 probed_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, split:] ** 2, axis=1)
         smoothed.append(np.sqrt(inherited_variance + probed_variance / NOISE_PROBES))
+    calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
+        calibration_normal_sigma_deg=float(np.degrees(np.sqrt(np.sum(calibration ** 2)))),
         point_noise_px=float(covariance.noise * focal),
         theta_sigma=theta_sigma,
         x_h1_sigma=x_h1_sigma,

@@ -50,13 +50,6 @@ class GainSuggestion:
     sigma_e1: float
     heading_tolerance_deg: float = float("nan")
 
-    def as_dict(self) -> dict[str, float]:
-        extra = {"heading_tolerance_deg": self.heading_tolerance_deg} if math.isfinite(self.heading_tolerance_deg) else {}
-        return self.gains.as_dict() | {
-            "x_hd1_dot": self.x_hd1_dot, "noise_px": self.noise_px,
-            "design_noise_px": self.design_noise_px, "sigma_e1": self.sigma_e1,
-        } | extra
-
 
 def heading_tolerance(default_deg: float, theta_d_sigma_deg: float) -> float:
     """The final heading error (deg) a repeat can be held to: an error of the fitted n* biases

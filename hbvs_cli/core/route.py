@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MalformedDataError
 from .camera import CameraIntrinsics
-from .desired import DesiredFit, fit_desired_trajectory
+from .desired import DesiredFit, DetectorErrors, fit_desired_trajectory
 from .frames import wrap_angle
 
 
@@ -160,7 +160,7 @@ class RouteFit:
 
 def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segment], camera: CameraIntrinsics,
               smoothing: float | None, max_lost: float, max_gap: float, warn: Callable[[str], None] | None = None,
-              kinds: Sequence[str | None] | None = None, first_reference: int | None = None) -> RouteFit:
+              errors: Sequence[DetectorErrors] | None = None, first_reference: int | None = None) -> RouteFit:
     """Each segment fitted as a single-target drive (:func:`~.desired.fit_desired_trajectory`,
     Remark 1, n*_i and the uncertainty per segment) and each transition estimated from both
     fits' desired signals over the overlap (:func:`estimate_transition`).
@@ -173,6 +173,8 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         Each target's pixels in every frame of the drive (NaN where not found).
     segments : sequence of Segment
         From :func:`split_route`.
+    errors : sequence of DetectorErrors, optional
+        Each target's detector errors (its kind's, as perception registers them), for the uncertainty.
     first_reference : int, optional
         F* of the first segment (a frame of it, as ``fit --reference`` gives it). Otherwise,
         and for every later segment, F*_i is the segment's frame where its target appears
@@ -183,14 +185,14 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
     references: list[int] = []
     for number, segment in enumerate(segments):
         frames = slice(segment.first, segment.last + 1)
-        kind = None if kinds is None else kinds[segment.target]
+        detector_errors = DetectorErrors() if errors is None else errors[segment.target]
         target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
         if number == 0 and first_reference is not None:
             reference = first_reference
         else:
             reference = segment.first + int(np.argmax(_spans(target_pixels)))
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
-                                           max_lost=max_lost, max_gap=max_gap, warn=warn, kind=kind))
+                                           max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)
     transitions = []
     for (previous, fit), (segment, fit_next) in zip(zip(segments, fits), list(zip(segments, fits))[1:]):

@@ -7,7 +7,7 @@ import base64
 import binascii
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import MISSING, asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -15,15 +15,18 @@ import numpy as np
 from .. import __version__
 from ..core.camera import CameraIntrinsics, camera_description
 from ..core.control_settings import GAIN_NAMES, ControllerGains
-from ..core.desired import DesiredFit
-from ..core.fit_model import MAX_TARGET_POINTS, FitModel, TaughtPath
+from ..core.depth import DepthEstimate
+from ..core.desired import DesiredFit, FrameStats, PixelResidual, Spread, UncertaintySummary
+from ..core.fit_model import MAX_TARGET_POINTS, DepthEstimates, DetectorSpec, FitModel, SensorSettings, TaughtPath
+from ..core.gains import GainSuggestion
+from ..core.trajectory import FeedforwardCondition
 from ..core.trajectory import SplineTrajectory
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
-from .mcap import McapStream, read_metadata, time_message
+from .mcap import McapStream, json_ready, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
-from .teach_file import PARSE_ERRORS, render_settings_problem, world_description
+from .teach_file import PARSE_ERRORS, RENDER_SETTINGS, render_settings_problem, world_description
 
 FILE_KIND = "fit"
 FORMAT_VERSION = 1
@@ -46,40 +49,97 @@ def _positive_number(value: Any, what: str, optional: bool = False) -> float | N
     return float(value)
 
 
-def _check_detector(detector: Any, kind: str, points: int) -> dict[str, Any]:
-    """The recorded detector description, checked for what repeat reads from it."""
-    if not isinstance(detector, dict):
-        raise ValueError("detector must be a mapping")
-    if detector.get("kind", kind) != kind:
-        raise ValueError(f"detector kind {detector.get('kind')!r} differs from the target kind {kind!r}")
-    for key in ("n_points", "marker_id"):
-        value = detector.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1100):
-            raise ValueError(f"detector {key} must be a small whole number, got {value!r}")
-    ids = detector.get("marker_ids")
-    if ids is not None and (not isinstance(ids, list) or len(ids) > MAX_TARGET_POINTS // 4
-                            or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= 1100 for i in ids)):
-        raise ValueError(f"detector marker_ids must be a list of small whole numbers, got {ids!r}")
-    for key in ("marker_dict", "polarity", "contrast"):
-        if detector.get(key) is not None and not isinstance(detector.get(key), str):
-            raise ValueError(f"detector {key} must be text")
-    board = detector.get("board")
-    # A chessboard's board is its inner corners per row and rows; a ChArUco board's, its squares.
-    inner = 1 if kind == "charuco" else 0
-    if board is not None and (not isinstance(board, list) or len(board) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and 3 <= n <= 100 for n in board)
-                              or (board[0] - inner) * (board[1] - inner) != points):
-        what = "squares across and down" if inner else "corners per row, rows"
-        raise ValueError(f"detector board must be [{what}] of the {points} points, got {board!r}")
-    for key in ("template_pixels", "initial_pixels"):
-        value = detector.get(key)
-        if value is None:
-            continue
-        array = np.asarray(value, dtype=float)
-        if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] > MAX_TARGET_POINTS:
-            raise ValueError(f"detector {key} must be rows of (u, v) pixels")
-        if key == "initial_pixels" and array.shape[0] != points:
-            raise ValueError(f"detector initial_pixels has {array.shape[0]} points, the reference {points}")
-    return dict(detector)
+def _checked(convert: Any, ok: Any, what: str) -> Any:
+    """A record value's converter: None stays None, else ``convert(value)`` when ``ok(value)``, ValueError saying ``what`` otherwise."""
+    def checked(value: Any) -> Any:
+        if value is not None and not ok(value):
+            raise ValueError(f"must be {what}, got {str(value)[:40]!r}")
+        return None if value is None else convert(value)
+    return checked
+
+
+def _small_wholes(value: Any, most: int = MAX_TARGET_POINTS // 4) -> bool:
+    return isinstance(value, list) and len(value) <= most and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 1100 for v in value)
+
+
+#: How a record's value becomes a field of the annotated type (JSON's null is a float's NaN),
+#: checked for what repeat reads from it (ValueError).
+_FIELD_TYPES: dict[str, Any] = {
+    "float": lambda v: float("nan") if v is None else float(v), "float | None": _checked(float, lambda v: True, "a number"),
+    "int": int, "bool": bool, "str": str, "dict[str, float]": lambda v: {str(k): float(x) for k, x in v.items()},
+    "list[tuple[float, float]]": lambda v: [(float(a), float(b)) for a, b in v],
+    "Spread | None": _checked(lambda v: _typed(Spread, v, "spread"), lambda v: True, "an object"),
+    "int | None": _checked(int, lambda v: _small_wholes([v], 1), "a small whole number"),
+    "str | None": _checked(str, lambda v: isinstance(v, str), "text"),
+    "tuple[int, ...] | None": _checked(tuple, _small_wholes, "a list of small whole numbers"),
+    "tuple[int, int] | None": _checked(tuple, lambda v: _small_wholes(v) and len(v) == 2, "two small whole numbers"),
+    "np.ndarray | None": _checked(lambda v: np.asarray(v, dtype=float).reshape(-1, 2), lambda v: isinstance(v, list) and len(v) <= MAX_TARGET_POINTS
+                                  and all(isinstance(row, list) and len(row) == 2 for row in v), "rows of (u, v) pixels"),
+}
+
+
+def _typed(cls: Any, record: Any, what: str) -> Any:
+    """The frozen dataclass ``cls`` of a fit file's record (its fields by name; a field with a
+    default may be missing from an older file); ValueError when malformed."""
+    if not isinstance(record, dict):
+        raise ValueError(f"{what} must be an object")
+    values = {}
+    for field in fields(cls):
+        if field.name in record:
+            try:
+                values[field.name] = _FIELD_TYPES[field.type](record[field.name])
+            except ValueError as exc:
+                raise ValueError(f"{what} {field.name} {exc}") from None
+        elif field.default is MISSING:
+            raise ValueError(f"{what} lacks {field.name}")
+    return cls(**values)
+
+
+def _detector_from_record(record: Any, kind: str, points: int) -> DetectorSpec:
+    """The recorded detector, of the target's kind and points (a kind's own options, e.g. a
+    board's size against the points, are checked by its detector)."""
+    spec = _typed(DetectorSpec, {"kind": kind} | record if isinstance(record, dict) else record, "detector")
+    if spec.kind != kind:
+        raise ValueError(f"detector kind {spec.kind!r} differs from the target kind {kind!r}")
+    if spec.initial_pixels is not None and spec.initial_pixels.shape[0] != points:
+        raise ValueError(f"detector initial_pixels has {spec.initial_pixels.shape[0]} points, the reference {points}")
+    return spec
+
+
+def _detector_record(spec: DetectorSpec) -> dict[str, Any]:
+    """The ``detector`` object of a fit model; ``contrast`` (when not gray), ``board`` and
+    ``initial_pixels`` only when set: a gray dots fit keeps its bytes."""
+    record = {field.name: json_ready(getattr(spec, field.name)) for field in fields(DetectorSpec)}
+    return {k: v for k, v in record.items() if k not in ("contrast", "board", "initial_pixels") or v not in (None, "gray")}
+
+
+def _depth_record(depth: DepthEstimates) -> dict[str, Any]:
+    target_size = depth.target_size and asdict(depth.target_size) | {"pair": list(depth.target_size_pair or ())}
+    return {"commands": depth.commands and asdict(depth.commands), "target_size": target_size}
+
+
+def _depth_from_record(record: Any) -> DepthEstimates:
+    estimate = lambda key: _typed(DepthEstimate, record[key], f"depth.{key}") if record.get(key) else None  # noqa: E731
+    pair = (record.get("target_size") or {}).get("pair")
+    return DepthEstimates(estimate("commands"), estimate("target_size"), None if pair is None else (int(pair[0]), int(pair[1])))
+
+
+def _gains_record(suggestion: GainSuggestion) -> dict[str, Any]:
+    extra = {"heading_tolerance_deg": suggestion.heading_tolerance_deg} if math.isfinite(suggestion.heading_tolerance_deg) else {}
+    return suggestion.gains.as_dict() | {k: getattr(suggestion, k) for k in ("x_hd1_dot", "noise_px", "design_noise_px", "sigma_e1")} | extra
+
+
+def _gains_from_record(record: Any) -> GainSuggestion:
+    if not isinstance(record, dict):
+        raise ValueError("gains must be an object")
+    gains = ControllerGains(**{k: _positive_number(record.get(k), f"gains.{k}") for k in GAIN_NAMES})
+    number = lambda key: float("nan") if record.get(key) is None else float(record[key])  # noqa: E731
+    return GainSuggestion(gains, *(number(k) for k in ("x_hd1_dot", "noise_px", "design_noise_px", "sigma_e1", "heading_tolerance_deg")))
+
+
+def fit_summary_records(model: FitModel) -> dict[str, Any]:
+    """What a run file keeps of its fit: condition (35) and the frames used, as the fit file records them."""
+    return {"condition35": asdict(model.condition35), "fit_frames": asdict(model.frames)}
 
 
 def taught_path_to_dict(path: TaughtPath) -> dict[str, Any]:
@@ -139,17 +199,26 @@ def model_message(model: FitModel, log_time_ns: int) -> dict[str, Any]:
         "trajectory": model.trajectory.to_dict(),
         "dhat0": model.dhat0,
         "dhat0_source": model.dhat0_source,
-        "depth": model.depth,
-        "frames": model.frames,
-        "condition35": model.condition35,
-        "residual_px": model.residual_px,
-        "detector": model.detector,
+        "depth": _depth_record(model.depth),
+        "frames": asdict(model.frames),
+        "condition35": asdict(model.condition35),
+        "residual_px": asdict(model.residual_px),
+        "detector": _detector_record(model.detector),
         "world": model.world_description,
         "taught_path": taught_path_to_dict(model.taught_path) if model.taught_path is not None else None,
-        "render": model.render,
-        "gains": model.gains,
-        "uncertainty": model.uncertainty,
+        "render": asdict(model.render) if model.render is not None else None,
+        "gains": _gains_record(model.gains) if model.gains is not None else None,
+        "uncertainty": _uncertainty_record(model.uncertainty) if model.uncertainty is not None else None,
     }
+
+
+def _uncertainty_record(summary: UncertaintySummary) -> dict[str, Any]:
+    """The ``uncertainty`` object; the calibration's part only when it was judged (a model read
+    from a file written before keeps its bytes)."""
+    record = asdict(summary)
+    if summary.calibration is None:
+        del record["calibration"], record["calibration_normal_sigma_deg"]
+    return record
 
 
 def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
@@ -169,33 +238,30 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or not np.linalg.norm(normal) > 0:
             raise ValueError("normal must be 3 finite numbers, not all zero")
         dhat0 = _positive_number(message["dhat0"], "dhat0")
-        kind = str(message["target_kind"])
-        if kind not in ("dots", "aruco", "chessboard", "charuco", "texture"):
-            raise ValueError(f"unknown target kind {kind!r}")
+        kind = message["target_kind"]
+        if not isinstance(kind, str) or not kind:
+            raise ValueError(f"target_kind must be a name, got {kind!r}")
         world = world_description(message["world"], source) if message.get("world") else None
         taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None
-        frames = dict(message.get("frames") or {})
-        _positive_number(frames.get("frame_interval_s"), "frames.frame_interval_s", optional=True)
+        frames = _typed(FrameStats, message["frames"], "frames")
+        _positive_number(frames.frame_interval_s, "frames.frame_interval_s", optional=True)
         render = message.get("render")
         if render is not None and render_settings_problem(render) is not None:
             raise ValueError(f"render: {render_settings_problem(render)}")
         margin = message.get("normal_margin")
-        gains = message.get("gains")
-        if gains is not None:
-            if not isinstance(gains, dict):
-                raise ValueError("gains must be an object")
-            ControllerGains(**{k: _positive_number(gains.get(k), f"gains.{k}") for k in GAIN_NAMES})
+        uncertainty = message.get("uncertainty")
         return FitModel(
             target_kind=kind, camera=camera_from_dict(message["camera"]), reference_index=int(reference["index"]),
             reference_t=float(reference["t"]), reference_pixels=pixels, m_ref=m_ref, normal=normal,
             normal_margin=float(margin) if margin is not None else float("nan"),
             trajectory=SplineTrajectory.from_dict(message["trajectory"]), dhat0=dhat0,
-            dhat0_source=str(message.get("dhat0_source", "")), depth=dict(message.get("depth") or {}), frames=frames,
-            condition35=dict(message.get("condition35") or {}), residual_px=dict(message.get("residual_px") or {}),
-            detector=_check_detector(message.get("detector") or {}, kind, m_ref.shape[0]), world_description=world,
-            taught_path=taught, render=dict(render) if render is not None else None,
-            gains=dict(gains) if gains is not None else None,
-            uncertainty=dict(message["uncertainty"]) if isinstance(message.get("uncertainty"), dict) else None,
+            dhat0_source=str(message.get("dhat0_source", "")), depth=_depth_from_record(message.get("depth") or {}), frames=frames,
+            condition35=_typed(FeedforwardCondition, message["condition35"], "condition35"),
+            residual_px=_typed(PixelResidual, message.get("residual_px") or {}, "residual_px"),
+            detector=_detector_from_record(message.get("detector") or {}, kind, m_ref.shape[0]), world_description=world,
+            taught_path=taught, render=None if render is None else SensorSettings(**{k: float(v) for k, v in render.items() if k in RENDER_SETTINGS}),
+            gains=None if message.get("gains") is None else _gains_from_record(message["gains"]),
+            uncertainty=_typed(UncertaintySummary, uncertainty, "uncertainty") if isinstance(uncertainty, dict) else None,
         )
     except (HbvsError, *PARSE_ERRORS) as exc:
         raise RecordingError(f"{source}: the fit model is malformed: {exc}") from None

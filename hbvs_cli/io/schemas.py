@@ -58,7 +58,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "format_version": {"type": "integer", "const": 1},
             "timestamp": _TIME,
-            "target_kind": {"type": "string", "enum": ["dots", "aruco", "chessboard", "charuco", "texture"]},
+            "target_kind": {"type": "string", "minLength": 1},
             "camera": {"type": "object"},
             "reference": {"type": "object"},
             "normal": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
@@ -75,7 +75,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "residual_px": {"type": "object"},
             "render": {"type": ["object", "null"], "description": "sensor model of a simulated teach"},
             "gains": {"type": ["object", "null"], "description": "gains suggested from x_hd1_dot and the detector's noise (k_v, k_w, gamma, k_2 and the rule's inputs)"},
-            "uncertainty": {"type": ["object", "null"], "description": "the joint estimate's uncertainty: normal_sigma_deg (n*, 1 sigma), point_noise_px, theta_d_sigma_deg and x_hd1_sigma (median and max of the splines' sigma)"},
+            "uncertainty": {"type": ["object", "null"], "description": "the joint estimate's uncertainty: normal_sigma_deg (n*, 1 sigma), calibration_normal_sigma_deg (its part from the intrinsics) and calibration (stated, assumed or exact), point_noise_px, theta_d_sigma_deg and x_hd1_sigma (median and max of the splines' sigma)"},
         },
         "required": [
             "format_version", "timestamp", "target_kind", "camera", "reference", "normal",

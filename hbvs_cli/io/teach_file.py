@@ -4,18 +4,18 @@ A frame's command and true pose are written just before its image, with its log 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Iterator
 
 from .. import __version__
 from ..core.camera import CameraIntrinsics, camera_from_description
 from ..errors import HbvsError, RecordingError
-from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values
+from .calibration import calibration_from_foxglove, calibration_to_foxglove, intrinsics_from_values, stated_sigma
 from .foxglove_scene import SceneWriter
 from .images import StoredImage, read_compressed_image, write_compressed_image
 from .mcap import McapStream, McapWriter, read_metadata, time_message
 from .messages import CAMERA_FRAME, planar_pose_from_message, pose_message, velocity_from_message, velocity_message
-from .topics import CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
+from .topics import CALIBRATION_METADATA, CALIBRATION_TOPIC, IMAGE_TOPIC, TOPICS, WORLD_METADATA
 from .topics import TEACH_COMMAND_TOPIC as COMMAND_TOPIC
 from .topics import TRUE_POSE_TOPIC as POSE_TOPIC
 
@@ -45,6 +45,14 @@ def world_description(data: Any, source: str) -> dict[str, Any]:
     if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height):
         raise RecordingError(f"{source}: malformed world description (the camera height is not finite)")
     return data
+
+
+def _stated_sigma(sigma: Any, source: str) -> tuple[float, ...]:
+    """A recorded calibration's standard deviations (:data:`CALIBRATION_METADATA`), () when none."""
+    try:
+        return stated_sigma({"std_deviations_intrinsics": sigma}, f"{source}: {CALIBRATION_METADATA} metadata") if sigma is not None else ()
+    except HbvsError as exc:
+        raise RecordingError(str(exc)) from None
 
 
 def render_settings_problem(settings: Any) -> str | None:
@@ -79,6 +87,9 @@ class TeachWriter:
         self.scene = SceneWriter(writer)
 
     def calibration(self, camera: CameraIntrinsics, log_time_ns: int = 0) -> None:
+        """The camera's calibration, and before it the standard deviations it states (if any)."""
+        if camera.sigma:
+            self.writer.metadata(CALIBRATION_METADATA, {"sigma": list(camera.sigma)})
         self.writer.write(
             CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], log_time_ns,
             calibration_to_foxglove(camera, self.frame_id, log_time_ns),
@@ -163,7 +174,8 @@ class TeachReader:
             self._check_kind()
             if message.topic == CALIBRATION_TOPIC:
                 if self.camera is None:
-                    self.camera = calibration_from_foxglove(message.foxglove(self.name), self.name)
+                    camera = calibration_from_foxglove(message.foxglove(self.name), self.name)
+                    self.camera = replace(camera, sigma=_stated_sigma(read_metadata(self.stream, CALIBRATION_METADATA).get("sigma"), self.name))
             elif message.topic == POSE_TOPIC:
                 pending_pose = (message.log_time, planar_pose_from_message(message.foxglove(self.name), self.name))
             elif message.topic == COMMAND_TOPIC:

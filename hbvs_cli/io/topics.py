@@ -17,6 +17,9 @@ LOOP_TIMING_SCHEMA = "hbvs.LoopTiming"
 
 #: MCAP metadata record holding the simulated world of a teach file.
 WORLD_METADATA = "hbvs.world"
+#: MCAP metadata record of a teach file's calibration's stated uncertainty: ``sigma``, the standard
+#: deviations of (fx, fy, cx, cy, *distortion), written just before the calibration it belongs to.
+CALIBRATION_METADATA = "hbvs.calibration"
 #: MCAP metadata record of a live run that stopped before its end: ``t`` (s) and ``reason``.
 STOPPED_METADATA = "hbvs.stopped"
 

@@ -9,15 +9,19 @@ lines fitted to its two edges meet (:func:`refine_marker_corners`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import UsageError
+from ..core.desired import DetectorErrors
+from ..core.fit_model import DetectorSpec
+from ..core.plane import UNIT_SQUARE, KnownShape
+from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
+from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: The default dictionary (hbvs's simulated marker).
 DEFAULT_DICTIONARY = "DICT_4X4_50"
@@ -176,7 +180,7 @@ class ArucoMarkerDetector:
         self.last_id = None
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the marker's corners; see :class:`~.detector.TargetDetector`.
+        """Find the marker's corners; see :class:`~.base.TargetDetector`.
 
         With a prediction, a window around the predicted marker (plus half its size) is
         searched with one adaptive threshold, then all; the whole frame when that fails.
@@ -356,3 +360,55 @@ def _bilinear(gray: NDArray[np.uint8], points: NDArray[np.float64]) -> NDArray[n
     top = flat[at] * (1 - fx) + flat[at + 1] * fx
     bottom = flat[at + width] * (1 - fx) + flat[at + width + 1] * fx
     return top * (1 - fy) + bottom * fy
+
+
+def _markers_spec(request: SpecRequest) -> DetectorSpec:
+    """A simulated marker (the world's id), the marker ``--marker-id`` names, or the markers
+    decoded in most of the first frames (said on stderr)."""
+    if request.seen_pixels is not None:
+        return DetectorSpec(kind="aruco", n_points=4, marker_id=request.marker_id)
+    if request.marker_id is not None:
+        return DetectorSpec(kind="aruco", n_points=4, marker_id=request.marker_id, marker_dict=request.marker_dict or DEFAULT_DICTIONARY)
+    details = request.details
+    if "marker_ids" not in details:
+        found = request.find()
+        if found is None:
+            raise InputError(f"no marker of {request.marker_dict or 'any ArUco/AprilTag dictionary'} found consistently in the first "
+                             f"{len(request.images)} frames (choose --marker-dict NAME, or another --target)")
+        request.info(f"markers: {found.reason}")
+        details = found.details
+    ids = tuple(details["marker_ids"])
+    return DetectorSpec(kind="aruco", n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None,
+                        marker_dict=details["marker_dict"], marker_ids=ids)
+
+
+def _with_marker(spec: DetectorSpec, image: NDArray[np.uint8]) -> DetectorSpec:
+    """The spec with its marker (the first of its dictionary in view when none is named) and 4 corners a marker."""
+    if spec.marker_id is None and not spec.marker_ids:
+        ids = marker_ids_in_view(image, spec.marker_dict or DEFAULT_DICTIONARY)
+        if not ids:
+            raise InputError(f"no marker of {spec.marker_dict or DEFAULT_DICTIONARY} in the first image (choose the dictionary with --marker-dict)")
+        spec = replace(spec, marker_id=int(ids[0]))
+    return replace(spec, n_points=4 * len(spec.marker_ids or (spec.marker_id,)))
+
+
+def _markers(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, windowed: bool) -> ArucoMarkerDetector:
+    markers = ArucoMarkerDetector(spec.marker_id, dictionary=spec.marker_dict or DEFAULT_DICTIONARY, marker_ids=spec.marker_ids)
+    if spec.n_points != markers.n_points:
+        raise UsageError(f"a target of {len(markers.marker_ids) or 1} marker(s) has {markers.n_points} points (their corners), not {spec.n_points}")
+    return markers
+
+
+def _marker_squares(spec: DetectorSpec) -> list[KnownShape]:
+    """Each marker's four corners (OpenCV's order) are a square."""
+    return [(range(k, k + 4), UNIT_SQUARE) for k in range(0, int(spec.n_points or 0), 4)]
+
+
+# Corners located from edges: a bias of half the point noise, alike over nearby frames, not
+# correlated over frames otherwise; theta_d 0.35 deg and x_hd1 5e-3 (bench/CALIBRATION.md).
+# --target-size is a marker's side: corners 0 (TL) to 1 (TR).
+register_target_kind(TargetKind(
+    name="aruco", spec=_markers_spec, make=_markers, complete=_with_marker,
+    errors=DetectorErrors("aruco", bias_fraction=0.5, correlated=False, expected_precision=(0.35, 5e-3)), precision_scale=17.7,
+    shapes=_marker_squares, size_pair=lambda spec, m_ref, normal: ((0, 1), 1.0), options=frozenset({"marker_dict", "marker_id"}),
+))

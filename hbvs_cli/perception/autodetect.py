@@ -25,15 +25,13 @@ from .base import as_gray
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
 from .chessboard import Board, board_corners_cross, find_board, find_board_near
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs, speck_floor
+from .target_kinds import TARGET_KINDS, target_kind
 from .texture import TextureDetector
 
 #: Dots targets have this many dots at most (and 3 at least).
 MAX_DOTS = 10
 #: Markers smaller than this (px) in every frame are not trusted as a decoded code.
 MIN_MARKER_SIDE_PX = 8.0
-#: theta_d's RMS error (deg) times the points' RMS spread (px) times the square root of
-#: their number, by kind: how each kind's point noise reaches theta_d (docs/targets.md).
-PRECISION_SCALE = {"dots": 10.3, "aruco": 17.7, "chessboard": 10.4, "charuco": 7.4, "texture": 23.8}
 #: Dots, markers or a board whose outline covers at least this fraction of the matched
 #: texture's: the texture is their own print and is set aside (docs/targets.md).
 OWN_PRINT_FRACTION = 0.25
@@ -62,9 +60,9 @@ class TargetChoice:
 
     @property
     def predicted_deg(self) -> float:
-        """theta_d's predicted RMS error (deg): :data:`PRECISION_SCALE` over spread_px * sqrt(n_points)."""
+        """theta_d's predicted RMS error (deg): the kind's ``precision_scale`` over spread_px * sqrt(n_points)."""
         spread = self.spread_px * np.sqrt(self.n_points)
-        return PRECISION_SCALE[self.kind] / spread if spread > 0 else float("inf")
+        return target_kind(self.kind).precision_scale / spread if spread > 0 else float("inf")
 
     def measured_by(self, points: NDArray[np.float64] | None) -> TargetChoice:
         """This choice with ``n_points``, ``spread_px`` and ``area_px`` of ``points`` (N, 2) px (NaN rows unseen)."""
@@ -202,6 +200,15 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
     return None
 
 
+def find_target(kind: str, images: Sequence[NDArray[np.uint8]], dictionary: str | None = None,
+                squares: tuple[int, int] | None = None) -> TargetChoice | None:
+    """What the first ``images`` show of a target ``kind`` (None: not found, or a kind looked
+    for only by its own module: :attr:`~.target_kinds.SpecRequest.find`)."""
+    finders = {"dots": partial(find_dots, images), "aruco": partial(find_markers, images, dictionary),
+               "chessboard": partial(find_chessboard, images), "charuco": partial(find_charuco, images, dictionary, squares)}
+    return finders[kind]() if kind in finders else None
+
+
 def find_texture(images: Sequence[NDArray[np.uint8]], template_pixels: NDArray[np.float64], seed: int = 0) -> TargetChoice | None:
     """The first frame's natural features matched in most of the following frames, or None.
 
@@ -248,8 +255,7 @@ class Candidates:
 
     def described(self, choice: TargetChoice) -> str:
         """A candidate's predicted precision and its points, in words."""
-        points = {"dots": "dots", "texture": "features"}.get(choice.kind, "corners")
-        return f"{choice.predicted_deg:.2g} deg ({choice.n_points} {points} over {choice.spread_px:.0f} px)"
+        return f"{choice.predicted_deg:.2g} deg ({choice.n_points} {target_kind(choice.kind).points} over {choice.spread_px:.0f} px)"
 
     def none_found(self) -> str:
         """"; no markers (...) and no ..." for the kinds looked for and not found, or ""."""
@@ -311,7 +317,7 @@ def target_candidates(
     if not found:
         raise InputError(
             f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "
-            "Choose one with --target dots|aruco|chessboard|charuco|texture (and --marker-dict NAME, --marker-id N for markers)"
+            f"Choose one with --target {'|'.join(TARGET_KINDS)} (and --marker-dict NAME, --marker-id N for markers)"
         )
     found.sort(key=lambda choice: choice.predicted_deg)
     return Candidates(found, ruled_out, aside)

@@ -24,10 +24,14 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import UsageError
-from .aruco import MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
+from ..core.desired import DetectorErrors
+from ..core.fit_model import DetectorSpec
+from ..core.plane import KnownShape
+from ..errors import InputError, UsageError
+from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
-from .chessboard import GRID_FIT_PX, SETTLED_PX, refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, refine_twice, saddle_points
+from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -358,3 +362,41 @@ def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], ro
         return None
     H, _ = cv2.findHomography(grid[near], corners[near].astype(np.float32), 0)
     return None if H is None else cv2.perspectiveTransform(grid[row].reshape(1, 1, 2), H).reshape(2).astype(np.float64)
+
+
+def _charuco_spec(request: SpecRequest) -> DetectorSpec:
+    """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
+    inferred from the first frames' markers (said on stderr)."""
+    details = request.details
+    if "board" not in details or request.board is not None:
+        found = request.find()
+        if found is None:
+            given = f"{request.board[0]}x{request.board[1]} " if request.board is not None else ""
+            raise InputError(f"no ChArUco board {given}found consistently in the first {len(request.images)} frames "
+                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
+        request.info(f"charuco: {found.reason}")
+        details = found.details
+    columns, rows = (int(n) for n in details["board"])
+    return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
+
+
+def _charuco(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, windowed: bool) -> CharucoTargetDetector:
+    if spec.board is None or (spec.board[0] - 1) * (spec.board[1] - 1) != spec.n_points:
+        raise UsageError(f"a ChArUco target needs its squares across and down ({spec.n_points} inner corners), got {spec.board!r}")
+    return CharucoTargetDetector(spec.board, spec.marker_dict or DEFAULT_DICTIONARY)
+
+
+def _inner_grid(spec: DetectorSpec) -> tuple[int, int]:
+    """A board's inner corners per row and rows (its squares less one each way)."""
+    return (spec.board[0] - 1, spec.board[1] - 1)
+
+
+# Saddle corners named by their markers: a bias of 0.75 point noise (bench/CALIBRATION.md),
+# correlated over frames; theta_d 0.35 deg and x_hd1 5e-3.
+register_target_kind(TargetKind(
+    name="charuco", spec=_charuco_spec, make=_charuco,
+    errors=DetectorErrors("charuco", bias_fraction=0.75, expected_precision=(0.35, 5e-3)), precision_scale=7.4,
+    shapes=lambda spec: [(range(int(spec.n_points or 0)), board_layout(_inner_grid(spec)))] if spec.board is not None else [],
+    size_pair=lambda spec, m_ref, normal: board_diagonal(*(_inner_grid(spec) if spec.board is not None else (m_ref.shape[0], 1))),
+    options=frozenset({"marker_dict", "board"}),
+))

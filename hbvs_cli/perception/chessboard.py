@@ -17,7 +17,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.desired import DetectorErrors
+from ..core.fit_model import DetectorSpec
+from ..core.plane import KnownShape
+from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
+from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
 #: board's square as seen, and its bounds (px).
@@ -315,3 +320,38 @@ def _grid_step(grid: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
     step[1:-1] = (values[2:] - values[:-2]) / 2.0
     step[0], step[-1] = values[1] - values[0], values[-1] - values[-2]
     return step if axis == 0 else step.swapaxes(0, 1)
+
+
+def board_diagonal(columns: int, rows: int) -> tuple[tuple[int, int], float]:
+    """A grid's first and last corners, and their distance in squares (--target-size is a square's side)."""
+    return (0, columns * rows - 1), math.hypot(columns - 1, rows - 1)
+
+
+def _chessboard_spec(request: SpecRequest) -> DetectorSpec:
+    """The board ``--target auto`` found, else the one most of the first frames show."""
+    board = request.details.get("board")
+    if board is None:
+        found = request.find()
+        if found is None:
+            raise InputError(f"no chessboard found consistently in the first {len(request.images)} frames (or choose another --target)")
+        board = found.details["board"]
+    return DetectorSpec(kind="chessboard", n_points=int(board[0] * board[1]), board=(int(board[0]), int(board[1])))
+
+
+def _chessboard(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, windowed: bool) -> ChessboardDetector:
+    if spec.board is None or spec.board[0] * spec.board[1] != spec.n_points:
+        raise UsageError(f"a chessboard target needs its pattern of inner corners ({spec.n_points} points), got {spec.board!r}")
+    return ChessboardDetector(spec.board)
+
+
+def _chessboard_grid(spec: DetectorSpec) -> list[KnownShape]:
+    return [(range(int(spec.n_points or 0)), board_layout(spec.board))] if spec.board is not None else []
+
+
+# Saddle corners: a bias of 1.25 point noise (1 gave 92.8 % coverage; bench/CALIBRATION.md),
+# correlated over frames; theta_d 0.35 deg and x_hd1 5e-3.
+register_target_kind(TargetKind(
+    name="chessboard", spec=_chessboard_spec, make=_chessboard,
+    errors=DetectorErrors("chessboard", bias_fraction=1.25, expected_precision=(0.35, 5e-3)), precision_scale=10.4, shapes=_chessboard_grid,
+    size_pair=lambda spec, m_ref, normal: board_diagonal(*(spec.board or (m_ref.shape[0], 1))),
+))

@@ -10,14 +10,20 @@ renderer need render. A dot not in its window falls back to the whole frame.
 from __future__ import annotations
 
 import bisect
+from dataclasses import replace
 import math
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.desired import DetectorErrors
+from ..core.fit_model import DetectorSpec
+from ..errors import InputError
 from .base import Detection
-from .dots import NOISY_GROUND, Blobs, DotDetector, _blob_centre, dark_image, flatten_ground, ground_noise, segmentation_threshold
+from .dots import (NOISY_GROUND, Blobs, DotDetector, SharedPull, _blob_centre, dark_image, find_dark_blobs, flatten_ground, ground_noise,
+                   segmentation_threshold)
+from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
 Window = tuple[int, int, int, int]
@@ -185,3 +191,37 @@ class WindowedDotDetector(DotDetector):
                 if detection is not None:
                     return detection
         return super().detect(image, predicted)
+
+
+def _dots_spec(request: SpecRequest) -> DetectorSpec:
+    """As many dots as a simulated target has, else as the first frames show them (None:
+    counted in the first image)."""
+    details = request.details
+    if request.seen_pixels is None and not details:
+        found = request.find()
+        details = found.details if found is not None else {}
+    n_points = request.seen_pixels.shape[0] if request.seen_pixels is not None else details.get("n_points")
+    return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
+
+
+def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
+    """The spec with its number of round dots, counted in the first image when not known."""
+    if spec.n_points is not None:
+        return spec
+    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"), flatten=True)
+    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
+    if count < 3:
+        raise InputError(f"found {count} {spec.polarity or 'dark'} dots in the first image; a dots target needs at least 3 (or choose --target)")
+    return replace(spec, n_points=count)
+
+
+def _dots(spec: DetectorSpec, template: np.ndarray | None, seed: int, windowed: bool) -> DotDetector:
+    return (WindowedDotDetector if windowed else DotDetector)(int(spec.n_points), polarity=spec.polarity or "dark", contrast=spec.contrast or "gray")
+
+
+# Round dots: no edge bias; theta_d 0.1 deg and x_hd1 2e-3 (the perception bounds); the
+# saturated ones' shared pull (bloom) is measured over the drive.
+register_target_kind(TargetKind(
+    name="dots", spec=_dots_spec, make=_dots, complete=_counted, errors=DetectorErrors("dots", expected_precision=(0.1, 2e-3)),
+    precision_scale=10.3, points="dots", image_shift=lambda spec: SharedPull(spec.polarity or "dark", spec.contrast or "gray"),
+))

@@ -427,7 +427,7 @@ class DotDetector:
         return self._track.predict()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the dots; see :class:`~.detector.TargetDetector`.
+        """Find the dots; see :class:`~.base.TargetDetector`.
 
         With a prediction (given, or from the track) only a window around the predicted
         dots is searched; without one, the whole frame.

@@ -16,8 +16,12 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..core.camera import CameraIntrinsics
+from ..core.desired import DetectorErrors
+from ..core.fit_model import DetectorSpec
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
+from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: ORB features per searched frame (the reference gets three times as many), Lowe's
 #: ratio-test bound, fewest inliers of a found target, inlier threshold (px) of the robust fit.
@@ -115,7 +119,7 @@ class TextureDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
-        """Find the target points; see :class:`~.detector.TargetDetector`.
+        """Find the target points; see :class:`~.base.TargetDetector`.
 
         With a prediction (given, or from the track) the target is followed from it: by the
         alignment alone when it correlates well, else by Lucas-Kanade, else by the alignment
@@ -527,3 +531,53 @@ def align_homography(template: NDArray[np.float32], frame: NDArray[np.float32], 
 def transfer(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Points (N, 2) mapped by a homography."""
     return cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+
+
+#: A texture target's box leaves out this percentile of the features on each side.
+TEXTURE_BOX_PERCENTILE = 3.0
+
+
+def texture_points_for_template(image: NDArray[np.uint8], camera: CameraIntrinsics) -> NDArray[np.float64]:
+    """Four target points (TL, TR, BR, BL) for a natural-feature target seen in ``image``: the
+    box of the central 94 % of its features, its rows pushed away from the principal point's
+    row (m_z ~ 0, where (18) breaks down)."""
+    keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
+    if len(keypoints) < 20:
+        raise InputError("too few natural features in the first image for a texture target")
+    points = np.array([k.pt for k in keypoints])
+    low = np.percentile(points, TEXTURE_BOX_PERCENTILE, axis=0)
+    high = np.percentile(points, 100 - TEXTURE_BOX_PERCENTILE, axis=0)
+    margin = 0.05 * camera.height
+    rows = []
+    for row in (low[1], high[1]):
+        if abs(row - camera.cy) < margin:
+            row = camera.cy + (margin if row >= camera.cy else -margin)
+        rows.append(row)
+    top, bottom = min(rows), max(rows)
+    return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
+
+
+def _texture_spec(request: SpecRequest) -> DetectorSpec:
+    """A simulated poster's own four points as its first frame sees them, else the box of the
+    first image's features."""
+    pixels = request.seen_pixels if request.seen_pixels is not None else texture_points_for_template(request.images[0], request.camera)
+    return DetectorSpec(kind="texture", n_points=4, template_pixels=pixels)
+
+
+def _texture(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, windowed: bool) -> TextureDetector:
+    if template is None or spec.template_pixels is None:
+        raise UsageError("a texture detector needs a reference image and the target's pixels in it")
+    detector = TextureDetector(template, spec.template_pixels, seed=seed)
+    if detector.n_points != spec.n_points:
+        raise UsageError(f"{detector.n_points} reference pixels given for a {spec.n_points}-point target")
+    return detector
+
+
+# One tracked homography's corners: a bias of half the point noise and at least 0.009 px (the
+# warp's sub-pixel interpolation; bench/CALIBRATION.md), not correlated over frames; theta_d
+# 0.1 deg and x_hd1 2e-3. Its points are not printed anywhere: no metric size.
+register_target_kind(TargetKind(
+    name="texture", spec=_texture_spec, make=_texture,
+    errors=DetectorErrors("texture", bias_fraction=0.5, min_bias_px=0.009, correlated=False, expected_precision=(0.1, 2e-3)),
+    precision_scale=23.8, size_pair=None, points="features", uses_template=True,
+))

@@ -4,74 +4,22 @@ the way the taught images were."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any
-
 import cv2
 import numpy as np
 
 from ..core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from ..core.estimation import PlanarPoseEstimator
-from ..core.fit_model import FitModel
-from ..errors import InputError, RecordingError
-from .aruco import DEFAULT_DICTIONARY, marker_ids_in_view
+from ..core.fit_model import DetectorSpec, FitModel
+from ..errors import RecordingError
 from .autodetect import Candidates, TargetChoice
 from .autodetect import choose_target as choose
 from .autodetect import target_candidates as candidates_in
-from .base import Detection, TargetDetector, as_gray, match_identity
-from .detector import make_detector
+from .base import Detection, TargetDetector, match_identity
 from .dot_windows import Window, WindowedDotDetector
-from .dots import dark_image, find_dark_blobs
+from .target_kinds import TARGET_KINDS, target_kind
+from .texture import texture_points_for_template
 
-
-@dataclass(frozen=True)
-class DetectorSpec:
-    """What to detect (``kind``) and how to give its points an identity; None fields take
-    the defaults of :func:`~.detector.make_detector` (``n_points`` None: count the dots in the
-    first image; ``marker_id`` None: the first marker seen). ``template_pixels`` (N, 2):
-    texture's points in the template image. ``contrast`` and ``board`` are recorded only
-    when set (a gray dots fit keeps its bytes)."""
-
-    kind: str
-    n_points: int | None = None
-    marker_id: int | None = None
-    template_pixels: np.ndarray | None = None
-    marker_dict: str | None = None
-    marker_ids: tuple[int, ...] | None = None
-    polarity: str | None = None
-    contrast: str | None = None
-    board: tuple[int, int] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        colour = {"contrast": self.contrast} if self.contrast is not None and self.contrast != "gray" else {}
-        colour |= {"board": [int(n) for n in self.board]} if self.board is not None else {}
-        return {
-            "kind": self.kind,
-            "n_points": self.n_points,
-            "marker_id": self.marker_id,
-            "template_pixels": None if self.template_pixels is None else np.asarray(self.template_pixels).tolist(),
-            "marker_dict": self.marker_dict,
-            "marker_ids": None if self.marker_ids is None else [int(i) for i in self.marker_ids],
-            "polarity": self.polarity,
-        } | colour
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "DetectorSpec":
-        try:
-            template = data.get("template_pixels")
-            return cls(
-                kind=str(data["kind"]),
-                n_points=None if data.get("n_points") is None else int(data["n_points"]),
-                marker_id=None if data.get("marker_id") is None else int(data["marker_id"]),
-                template_pixels=None if template is None else np.asarray(template, dtype=float).reshape(-1, 2),
-                marker_dict=None if data.get("marker_dict") is None else str(data["marker_dict"]),
-                marker_ids=None if data.get("marker_ids") is None else tuple(int(i) for i in data["marker_ids"]),
-                polarity=None if data.get("polarity") is None else str(data["polarity"]),
-                contrast=None if data.get("contrast") is None else str(data["contrast"]),
-                board=None if data.get("board") is None else (int(data["board"][0]), int(data["board"][1])),
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise RecordingError(f"malformed detector description in the fit model ({exc})") from None
+__all__ = ["DetectorSpec", "TrackedDetector", "texture_points_for_template"]  # DetectorSpec: core's, where the stages took it
 
 
 class TrackedDetector:
@@ -93,6 +41,7 @@ class TrackedDetector:
         windowed: bool = False,
     ) -> None:
         self.spec = spec
+        self.kind = target_kind(spec.kind)
         self.windowed = windowed
         self.camera = camera
         self.seed = seed
@@ -101,34 +50,15 @@ class TrackedDetector:
         self._detector: TargetDetector | None = None
         # A lens's distortion bends texture's homographies: it is tracked on undistorted images
         # (same K), its points distorted back (its template box as found, in the undistorted image).
-        self._undistort_maps = _undistort_maps(camera) if spec.kind == "texture" and camera.has_distortion else None
+        self._undistort_maps = _undistort_maps(camera) if self.kind.uses_template and camera.has_distortion else None
 
     def _create(self, image: np.ndarray) -> None:
-        spec = self.spec
-        if spec.kind == "dots" and spec.n_points is None:
-            spec = replace(spec, n_points=count_dots(image, spec.polarity or "dark", spec.contrast or "gray"))
-        if spec.kind == "aruco" and spec.marker_id is None and not spec.marker_ids:
-            spec = replace(spec, n_points=4, marker_id=first_marker_id(image, spec.marker_dict))
-        if spec.kind == "aruco":
-            ids = spec.marker_ids or ((spec.marker_id,) if spec.marker_id is not None else ())
-            spec = replace(spec, n_points=4 * max(len(ids), 1))
-        if spec.kind == "texture" and self.template_image is None:
+        """The detector, its spec completed with what the first ``image`` tells (:attr:`TargetKind.complete`)."""
+        self.spec = self.kind.complete(self.spec, image)
+        if self.kind.uses_template and self.template_image is None:
             self.template_image = image
-        self.spec = spec
-        self._detector = make_detector(
-            spec.kind,
-            n_points=int(spec.n_points or 4),
-            reference_image=self._undistorted(self.template_image) if spec.kind == "texture" else None,
-            reference_pixels=spec.template_pixels if spec.kind == "texture" else None,
-            marker_id=spec.marker_id,
-            seed=self.seed,
-            marker_dict=spec.marker_dict,
-            marker_ids=spec.marker_ids,
-            polarity=spec.polarity,
-            contrast=spec.contrast,
-            windowed=self.windowed,
-            board=spec.board,
-        )
+        template = self._undistorted(self.template_image) if self.kind.uses_template else None
+        self._detector = self.kind.make(self.spec, template, self.seed, self.windowed)
 
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
@@ -204,48 +134,6 @@ def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, marker
     return candidates_in(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
 
 
-def count_dots(image: np.ndarray, polarity: str = "dark", contrast: str = "gray") -> int:
-    """Number of round dots in an image (the size of a dots target seen for the first time)."""
-    blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
-    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
-    if count < 3:
-        raise InputError(f"found {count} {polarity} dots in the first image; a dots target needs at least 3 (or choose --target)")
-    return count
-
-
-def first_marker_id(image: np.ndarray, dictionary: str | None = None) -> int:
-    """Id of the first marker of ``dictionary`` (DICT_4X4_50 by default) in an image."""
-    name = dictionary or DEFAULT_DICTIONARY
-    ids = marker_ids_in_view(image, name)
-    if not ids:
-        raise InputError(f"no marker of {name} in the first image (choose the dictionary with --marker-dict)")
-    return int(ids[0])
-
-
-#: A texture target's box leaves out this percentile of the features on each side.
-TEXTURE_BOX_PERCENTILE = 3.0
-
-
-def texture_points_for_template(image: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-    """Four target points (TL, TR, BR, BL) for a natural-feature target seen in ``image``: the
-    box of the central 94 % of its features, its rows pushed away from the principal point's
-    row (m_z ~ 0, where (18) breaks down)."""
-    keypoints = cv2.ORB_create(nfeatures=1000).detect(as_gray(image), None)
-    if len(keypoints) < 20:
-        raise InputError("too few natural features in the first image for a texture target")
-    points = np.array([k.pt for k in keypoints])
-    low = np.percentile(points, TEXTURE_BOX_PERCENTILE, axis=0)
-    high = np.percentile(points, 100 - TEXTURE_BOX_PERCENTILE, axis=0)
-    margin = 0.05 * camera.height
-    rows = []
-    for row in (low[1], high[1]):
-        if abs(row - camera.cy) < margin:
-            row = camera.cy + (margin if row >= camera.cy else -margin)
-        rows.append(row)
-    top, bottom = min(rows), max(rows)
-    return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
-
-
 #: The outlier gate is this many times the largest residual of the taught frames, and never
 #: tighter than MIN_RESIDUAL_GATE_PX (px): one frame's noise can exceed the taught fit's.
 RESIDUAL_GATE_FACTOR = 10.0
@@ -255,7 +143,7 @@ MIN_RESIDUAL_GATE_PX = 0.25
 def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
     """The per-frame estimator of repeat, its outlier gate from the taught residuals (clean
     frames: hundredths of a pixel; a wrong point: tenths)."""
-    taught = float(model.residual_px.get("max", float("nan")))
+    taught = model.residual_px.max
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
     return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
 
@@ -263,10 +151,11 @@ def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:
     """The fit's detector, re-created for repeat (same kind, identity and ``template_image``,
     the fit's decoded template, texture only); ``windowed``: see :class:`TrackedDetector`."""
-    spec = DetectorSpec.from_dict(model.detector)
-    if spec.kind == "texture" and template_image is None:
-        raise RecordingError("the fit file lacks the texture template image (/detector/template)")
-    initial = model.detector.get("initial_pixels")
-    template = template_image if spec.kind == "texture" else None
-    return TrackedDetector(spec, model.camera, seed=seed, template_image=template,
-                           initial_prediction=None if initial is None else np.asarray(initial, dtype=float), windowed=windowed)
+    spec = model.detector
+    if spec.kind not in TARGET_KINDS:
+        raise RecordingError(f"the fit's target kind {spec.kind!r} is none this hbvs knows ({', '.join(TARGET_KINDS)})")
+    uses_template = target_kind(spec.kind).uses_template
+    if uses_template and template_image is None:
+        raise RecordingError(f"the fit file lacks the {spec.kind} template image (/detector/template)")
+    template = template_image if uses_template else None
+    return TrackedDetector(spec, model.camera, seed=seed, template_image=template, initial_prediction=spec.initial_pixels, windowed=windowed)

@@ -10,7 +10,7 @@ from typing import Any, Sequence
 
 from ..core.control_settings import ALL_LAWS
 from ..errors import OutputError, UsageError
-from ..io.settings import DEFAULT_DPI, REPORT
+from ..settings.commands import DEFAULT_DPI
 
 #: Okabe-Ito colours, in the order runs get them (black is kept for the taught path).
 PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442")
@@ -65,10 +65,7 @@ def parse_panels(text: str, known: Sequence[str]) -> tuple[str, ...]:
 
 
 def figure_style(dpi: float | None, size: str | None, panels: str | None, known_panels: Sequence[str]) -> FigureStyle:
-    """The :class:`FigureStyle` of ``--dpi``, ``--size`` and ``--panels``; UsageError for a bad value."""
-    violation = REPORT["dpi"].bound_violation(dpi) if dpi is not None else None
-    if violation is not None:
-        raise UsageError(violation)
+    """The :class:`FigureStyle` of ``--dpi`` (checked with the options), ``--size`` and ``--panels``; UsageError for a bad value."""
     return FigureStyle(
         dpi=float(dpi) if dpi is not None else DEFAULT_DPI,
         size_in=parse_size(size) if size is not None else None,

@@ -17,7 +17,7 @@ from ..core.assignment import optimal_assignment
 from ..core.camera import pixels_to_normalized, undistort_pixels
 from ..core.frames import rotation_z
 from ..core.desired import taught_frame_interval
-from ..core.fit_model import FitModel
+from ..core.fit_model import FitModel, SensorSettings
 from ..core.path import CommandProfile
 from ..core.trajectory import SplineTrajectory
 from .world import Poster, Target, World, world_from_description
@@ -168,11 +168,10 @@ def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
 
 def renderer_for(scene: Scene, model: FitModel) -> SceneRenderer:
     """The camera of the scene, with the teach's sensor (noise, its grain, blur, exposure) as the fit recorded it."""
-    render = model.render or {}
-    noise = float(render.get("noise", 2.0))
-    grain = float(render.get("noise_grain", 0.0))
+    sensor = model.render or SensorSettings()
+    noise, grain = sensor.noise, sensor.noise_grain
     if scene.poster_image is None:
-        return make_renderer(scene.world, noise, float(render.get("blur", 0.0)), float(render.get("exposure", 1.0)), grain)
+        return make_renderer(scene.world, noise, sensor.blur, sensor.exposure, grain)
     poster = scene.world.target.poster
     raster = PosterRaster(kind=scene.world.target.kind, ppm=scene.poster_image.shape[1] / poster.width,
                           levels=build_pyramid(scene.poster_image), width=poster.width, height=poster.height)

@@ -24,6 +24,7 @@ from ..core.plane import KnownShape
 from ..errors import HbvsError, InputError, InsufficientDataError
 from ..io.teach_file import TeachReader
 from ..perception.autodetect import Candidates, TargetChoice
+from ..perception.target_kinds import target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
 from .frame_decoding import decode_frame
 
@@ -120,7 +121,7 @@ def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels:
     rows = np.unique(np.linspace(0, frames - 1, min(JUDGE_FRAMES, frames)).round().astype(int))
     try:
         fit = fit_desired_trajectory(times[rows], pixels[rows], 0, camera, None, max_lost=1.0, max_gap=float("inf"), shapes=shapes,
-                                     kind=spec.kind)
+                                     errors=target_kind(spec.kind).errors)
     except InsufficientDataError as exc:
         words = "not whole in the first frame" if exc.facts.get("reason") == "not_in_reference" else str(exc)
         return Judged(choice, spec, seen, frames, rejected=words)

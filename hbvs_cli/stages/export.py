@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..io.settings import ExportOptions
+from ..settings.commands import ExportOptions
 from .console import Console
 
 

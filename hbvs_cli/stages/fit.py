@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import threading
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from itertools import chain, islice
 from pathlib import Path
@@ -21,17 +21,18 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .. import __version__
-from ..core.camera import CameraIntrinsics
-from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size, farthest_pair
+from ..core.camera import ASSUMED_INTRINSICS_SIGMA, CameraIntrinsics
+from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size
 from ..core.desired import DesiredFit, fit_desired_trajectory
-from ..core.plane import UNIT_SQUARE, KnownShape
-from ..perception.chessboard import board_layout
+from ..core.fit_model import DepthEstimates, FitModel, SensorSettings
+from ..core.gains import GainSuggestion
+from ..core.plane import KnownShape
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
-from ..io.settings import MAX_DEPTH, MIN_DEPTH, FitOptions
+from ..settings.commands import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.dots import SharedPull
-from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates, texture_points_for_template
+from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
+from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
 from .auto_target import choose_on_the_drive, followed_frames
 from .frame_decoding import decoded_frames
@@ -39,8 +40,9 @@ from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL
 from ..io.foxglove_scene import SceneWriter
 from ..sim.world import World, world_from_description
 
-#: Why --target-points and a texture do not go together (refused before and after auto picks).
-NO_LAYOUT_FOR_TEXTURE = "--target-points needs dots, markers or a board: a texture's points are not printed anywhere"
+#: Why --target-points and a kind whose points have no metric size do not go together
+#: (refused before and after auto picks), ``{}`` the kind.
+NO_LAYOUT = "--target-points needs dots, markers or a board: a {}'s points are not printed anywhere"
 #: dhat(0) when nothing better is known (no commands, no --target-size): a guess, said so.
 FALLBACK_DHAT0 = 2.0
 
@@ -173,7 +175,6 @@ def _reuse_freed_frames() -> None:
 
 
 def _run_fit(options: FitOptions, console: Console) -> FitSummary:
-    from ..core.fit_model import FitModel
     from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import sniff_format, write_compressed_image
     from ..io.mcap import open_output
@@ -184,22 +185,18 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
-    if options.target not in ("auto", "dots", "aruco", "chessboard", "charuco", "texture"):
-        raise UsageError(f"--target must be auto, dots, aruco, chessboard, charuco or texture, got {options.target!r}")
+    if options.target != "auto" and options.target not in TARGET_KINDS:
+        raise UsageError(f"--target must be one of auto, {', '.join(TARGET_KINDS)}, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
         raise UsageError(f"--target-size must be a positive length in metres, got {options.target_size}")
-    _check_marker_options(options)
+    _check_kind_options(options)
     known_layout = _read_known_layout(options)
-    if options.board is not None:
-        if options.target not in ("auto", "charuco"):
-            raise UsageError(f"--board is for a ChArUco board, not --target {options.target}")
-        parse_board(options.board)
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
     log: _FrameLog | None = None
     detector: TrackedDetector | None = None
-    pull: SharedPull | None = None
+    pull: Any = None  # the kind's image_shift accumulator
     template: bytes | None = None
     reference_image: bytes | None = None
     wanted_reference = options.reference.strip().lower()
@@ -235,7 +232,8 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
                 # Saturated dots: the pull all of them share (bloom), for the uncertainty.
-                pull = SharedPull(spec.polarity or "dark", spec.contrast or "gray") if spec.kind == "dots" else None
+                shift = target_kind(spec.kind).image_shift
+                pull = shift(spec) if shift is not None else None
                 template = data
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             for frame, data, image in chain(first, rest):
@@ -269,10 +267,11 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
+        calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
-                      pull.pull_px if pull is not None else 0.0)
+                      pull.pull_px if pull is not None else 0.0, calibration_sigma)
         taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth = _depth(result, arrays, detector.spec.kind, options, console, board=detector.spec.board, layout=layout)
+        depth, dhat0, dhat0_source = _depth(result, arrays, detector.spec, options, console, layout=layout)
         model = FitModel(
             target_kind=detector.spec.kind,
             camera=camera,
@@ -283,18 +282,18 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             normal=result.normal,
             normal_margin=result.normal_margin,
             trajectory=result.trajectory,
-            dhat0=depth["dhat0"],
-            dhat0_source=depth["source"],
-            depth=depth["estimates"],
-            frames=result.frames.as_dict() | {"truncated_input": reader.truncated},
-            condition35=result.condition35,
-            residual_px=result.residual_px.as_dict(),
-            detector=detector.spec.to_dict() | {"initial_pixels": result.initial_pixels.tolist()},
+            dhat0=dhat0,
+            dhat0_source=dhat0_source,
+            depth=depth,
+            frames=replace(result.frames, truncated_input=reader.truncated),
+            condition35=result.condition,
+            residual_px=result.residual_px,
+            detector=replace(detector.spec, initial_pixels=result.initial_pixels),
             world_description=reader.world_description,
             taught_path=taught_path,
             render=_render_settings(reader),
             gains=_suggested_gains(result, camera),
-            uncertainty=result.uncertainty.as_dict() if result.uncertainty is not None else None,
+            uncertainty=result.uncertainty.summary(calibration) if result.uncertainty is not None else None,
         )
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
@@ -305,7 +304,7 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, sniff_format(payload) or "jpeg", CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
-    _print_summary(console, model, result, depth, options)
+    _print_summary(console, model, result, options)
     return FitSummary(output=options.output, model=model)
 
 
@@ -375,8 +374,8 @@ def _read_known_layout(options: FitOptions) -> np.ndarray | None:
     """--target-points: the target points' positions on the wall (m), or None."""
     if options.target_points is None:
         return None
-    if options.target == "texture":
-        raise UsageError(NO_LAYOUT_FOR_TEXTURE)
+    if options.target != "auto" and target_kind(options.target).size_pair is None:
+        raise UsageError(NO_LAYOUT.format(options.target))
     from ..io.target_points import read_target_points
 
     return read_target_points(options.target_points)
@@ -389,8 +388,8 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
     from ..core.camera import measured_pixels_to_normalized
     from ..core.known_points import match_layout
 
-    if spec.kind == "texture":
-        raise UsageError(NO_LAYOUT_FOR_TEXTURE)
+    if target_kind(spec.kind).size_pair is None:
+        raise UsageError(NO_LAYOUT.format(spec.kind))
     if layout.shape[0] != reference_pixels.shape[0]:
         raise UsageError(f"--target-points {options.target_points} has {layout.shape[0]} points, the {spec.kind} target {reference_pixels.shape[0]}")
     if not np.all(np.isfinite(reference_pixels)):
@@ -404,7 +403,7 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
          options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
-         image_shift_px: float = 0.0) -> DesiredFit:
+         image_shift_px: float = 0.0, calibration_sigma: tuple[float, ...] = ()) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -422,9 +421,25 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
             return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
                                           max_lost=options.max_lost, max_gap=options.max_gap,
                                           warn=console.warn if layout is None else layout_given_warn(console.warn),
-                                          shapes=shapes, kind=spec.kind, image_shift_px=image_shift_px)
+                                          shapes=shapes, errors=target_kind(spec.kind).errors, image_shift_px=image_shift_px,
+                                          calibration_sigma=calibration_sigma)
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
+
+
+def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics, console: Console) -> tuple[str, tuple[float, ...]]:
+    """How well the intrinsics are known, for the fit's uncertainty: ``("exact", ())`` for a
+    simulated teach (rendered with this camera), ``("stated", sigma)`` from the calibration,
+    or ``("assumed", ...)`` (:data:`~hbvs_cli.core.camera.ASSUMED_INTRINSICS_SIGMA`, said on stderr)."""
+    if reader.world_description is not None:
+        return "exact", ()
+    if camera.sigma:
+        return "stated", camera.sigma
+    assumed = ASSUMED_INTRINSICS_SIGMA * camera.mean_focal
+    console.warn(f"the calibration states no standard deviations of its intrinsics: the uncertainty assumes fx, fy, cx and cy "
+                 f"known to {100 * ASSUMED_INTRINSICS_SIGMA:g} % of the focal length ({assumed:.2g} px, 1 sigma) "
+                 "and the distortion exact; a calibration with its std_deviations_intrinsics replaces this (docs/walkthrough.md)")
+    return "assumed", (assumed,) * 4
 
 
 #: The fit's advice to give the target's geometry, which --target-points has given already.
@@ -440,18 +455,9 @@ def layout_given_warn(warn: Callable[[str], None]) -> Callable[[str], None]:
 
 
 def _known_shapes(spec: DetectorSpec, layout: np.ndarray | None = None) -> list[KnownShape]:
-    """The target's parts of known shape: each marker's square (its four corners in OpenCV's
-    order), a board's grid, or ``layout`` (--target-points: the whole target's, known)."""
-    if layout is not None:
-        return [(range(layout.shape[0]), layout)]
-    n_points = int(spec.n_points or 0)
-    if spec.kind == "aruco":
-        return [(range(k, k + 4), UNIT_SQUARE) for k in range(0, n_points, 4)]
-    if spec.kind == "chessboard" and spec.board is not None:
-        return [(range(n_points), board_layout(spec.board))]
-    if spec.kind == "charuco" and spec.board is not None:
-        return [(range(n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))]
-    return []
+    """The target's parts of known shape (its kind's: each marker's square, a board's grid), or
+    ``layout`` (--target-points: the whole target's, known)."""
+    return [(range(layout.shape[0]), layout)] if layout is not None else target_kind(spec.kind).shapes(spec)
 
 
 def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
@@ -468,7 +474,7 @@ def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) 
     return str(exc)
 
 
-def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, Any]:
+def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> GainSuggestion:
     """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
     (core/gains.py, docs/method.md "Choosing the gains"), with the heading tolerance that
     the taught theta_d's uncertainty allows (the report's default where that is larger)."""
@@ -478,29 +484,35 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> dict[str, 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
     sigma_deg = float(np.degrees(np.max(result.uncertainty.smooth_theta_sigma))) if result.uncertainty is not None else float("nan")
     tolerance = heading_tolerance(DEFAULT_TOLERANCES["heading_deg"], sigma_deg)
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance).as_dict()
+    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance)
 
 
-def _render_settings(reader: Any) -> dict[str, Any] | None:
+def _render_settings(reader: Any) -> SensorSettings | None:
     """The simulated sensor of the teach (:data:`~hbvs_cli.io.teach_file.RENDER_SETTINGS`), for repeat to reuse."""
     from ..io.teach_file import RENDER_SETTINGS
 
     settings = reader.info.get("settings") if reader.info else None
     if reader.world_description is None or not isinstance(settings, dict):
         return None
-    return {key: settings[key] for key in RENDER_SETTINGS if key in settings}
+    return SensorSettings(**{key: float(settings[key]) for key in RENDER_SETTINGS if key in settings})
 
 
 #: Frames ``--target auto`` looks at before it picks a kind.
 AUTO_FRAMES = 5
 
 
-def _check_marker_options(options: FitOptions) -> None:
-    """--marker-dict/--marker-id: a known dictionary, an id in it, and not with dots or texture."""
+def _check_kind_options(options: FitOptions) -> None:
+    """--marker-dict, --marker-id and --board: only for a kind that takes them (or auto); a
+    known dictionary, an id in it, a board of at least 3x3 squares."""
+    given = [name for name in ("marker_dict", "marker_id", "board") if getattr(options, name) is not None]
+    refused = [name for name in given if options.target != "auto" and name not in target_kind(options.target).options]
+    if refused:
+        names = " and ".join("--" + name.replace("_", "-") for name in refused)
+        raise UsageError(f"{names} {'is' if len(refused) == 1 else 'are'} not for --target {options.target}")
+    if options.board is not None:
+        parse_board(options.board)
     if options.marker_dict is None and options.marker_id is None:
         return
-    if options.target not in ("auto", "aruco", "charuco") or (options.target == "charuco" and options.marker_id is not None):
-        raise UsageError(f"--marker-dict and --marker-id are for markers (--marker-dict also for a ChArUco board), not --target {options.target}")
     from ..perception.aruco import DEFAULT_DICTIONARY, dictionary_name, dictionary_size
 
     name = dictionary_name(options.marker_dict or DEFAULT_DICTIONARY)
@@ -540,72 +552,16 @@ def _detector_spec(
 
 def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
                   camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
-    """The detector of a target ``kind``: from what ``--target auto`` found of it (``details``),
-    the options, the simulated ``world`` (None for real footage) or the first ``images``."""
-    image = images[0]
-    if kind == "dots" and world is None and not details:
-        from ..perception.autodetect import find_dots
-
-        found = find_dots(images)
-        details = found.details if found is not None else {}
-    if kind == "dots":
-        n_points = world.target.points_poster.shape[0] if world is not None else details.get("n_points")
-        return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))
-    if kind == "charuco":
-        return _charuco_spec(options, images, details, console)
-    if kind == "chessboard":
-        board = details.get("board")
-        if board is None:
-            from ..perception.autodetect import find_chessboard
-
-            found = find_chessboard(images)
-            if found is None:
-                raise InputError(f"no chessboard found consistently in the first {len(images)} frames (or choose another --target)")
-            board = found.details["board"]
-        return DetectorSpec(kind="chessboard", n_points=int(board[0] * board[1]), board=(int(board[0]), int(board[1])))
-    if kind == "aruco":
-        if world is not None:
-            return DetectorSpec(kind="aruco", n_points=4, marker_id=world.target.marker_id)
-        if options.marker_id is not None:
-            from ..perception.aruco import DEFAULT_DICTIONARY
-
-            return DetectorSpec(kind="aruco", n_points=4, marker_id=options.marker_id, marker_dict=options.marker_dict or DEFAULT_DICTIONARY)
-        if "marker_ids" not in details:
-            from ..perception.autodetect import find_markers
-
-            found = find_markers(images, options.marker_dict)
-            if found is None:
-                raise InputError(
-                    f"no marker of {options.marker_dict or 'any ArUco/AprilTag dictionary'} found consistently in the first "
-                    f"{len(images)} frames (choose --marker-dict NAME, or another --target)"
-                )
-            console.info(f"markers: {found.reason}")
-            details = found.details
-        ids = tuple(details["marker_ids"])
-        return DetectorSpec(kind="aruco", n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None,
-                            marker_dict=details["marker_dict"], marker_ids=ids)
-    if world is not None and pose is not None:
-        # A simulated poster: its own four points, as seen in this first frame.
-        return DetectorSpec(kind="texture", n_points=4, template_pixels=world.pixels(np.asarray(pose)))
-    return DetectorSpec(kind="texture", n_points=4, template_pixels=texture_points_for_template(image, camera))
-
-
-def _charuco_spec(options: FitOptions, images: list[np.ndarray], details: dict[str, Any], console: Console) -> DetectorSpec:
-    """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
-    inferred from the first frames' markers."""
-    from ..perception.autodetect import find_charuco
+    """The detector of a target ``kind`` (its :attr:`~hbvs_cli.perception.target_kinds.TargetKind.spec`):
+    from what ``--target auto`` found of it (``details``), the options, the simulated ``world``
+    (None for real footage) or the first ``images``."""
+    from ..perception.autodetect import find_target
 
     squares = parse_board(options.board) if options.board is not None else None
-    if "board" not in details or squares is not None:
-        found = find_charuco(images, options.marker_dict, squares)
-        if found is None:
-            given = f"{squares[0]}x{squares[1]} " if squares is not None else ""
-            raise InputError(f"no ChArUco board {given}found consistently in the first {len(images)} frames "
-                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
-        console.info(f"charuco: {found.reason}")
-        details = found.details
-    columns, rows = (int(n) for n in details["board"])
-    return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
+    seen = world.pixels(np.asarray(pose)) if world is not None and pose is not None else None
+    request = SpecRequest(images, camera, details, options.marker_dict, world.target.marker_id if world is not None else options.marker_id,
+                          squares, seen, find=partial(find_target, kind, images, options.marker_dict, squares), info=console.info)
+    return target_kind(kind).spec(request)
 
 
 def parse_board(text: str) -> tuple[int, int]:
@@ -626,19 +582,13 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
     return TaughtPath(t=arrays["t"], v=commands[:, 0], w=commands[:, 1], start_pose=poses[0], reference_pose=poses[reference_index])
 
 
-def _estimate_record(estimate: DepthEstimate) -> dict[str, Any]:
-    """A depth estimate as the fit file's ``depth`` records it: the estimate of d* is a
-    candidate ``dhat0`` (d* itself is the true depth, known only in simulation)."""
-    return {"dhat0": estimate.dhat0, "standard_error": estimate.standard_error, "source": estimate.source,
-            "samples": estimate.samples}
-
-
-def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options: FitOptions, console: Console,
-           board: tuple[int, int] | None = None, layout: np.ndarray | None = None) -> dict[str, Any]:
-    """d*: from the taught commands (25), or from --target-size (a chessboard's: its square,
-    ``board`` its inner corners per row and rows) or --target-points (``layout``, in the
-    target's order: its two points farthest apart); which one becomes dhat(0)."""
-    estimates: dict[str, Any] = {"commands": None, "target_size": None}
+def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec, options: FitOptions, console: Console,
+           layout: np.ndarray | None = None) -> tuple[DepthEstimates, float, str]:
+    """d*: from the taught commands (25), or from --target-size (between the two points the
+    kind's ``size_pair`` names) or --target-points (``layout``, in the target's order: its two
+    points farthest apart); dhat(0) and its source (the estimate of
+    d* is a candidate dhat(0); d* itself is the true depth, known only in simulation)."""
+    from_commands: DepthEstimate | None = None
     chosen: DepthEstimate | None = None
     t = arrays["t"][result.span]
     commands = arrays["command"][result.span]
@@ -647,38 +597,29 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
         desired = result.trajectory.evaluate(t)
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
-            estimates["commands"] = _estimate_record(from_commands)
             chosen = from_commands
         except GeometryError as exc:
             console.warn(f"no depth from the taught commands: {exc}")
     pair = None
     if options.target_size is not None:
-        if kind == "texture":
-            raise UsageError("--target-size needs a dots or aruco target; a texture's points have no metric size")
-        # ArUco corners come TL, TR, BR, BL: the side is corner 0 to 1. Dots: the farthest
-        # pair. A chessboard: its first and last inner corners, a diagonal of whole squares.
-        size = options.target_size
-        if kind in ("chessboard", "charuco"):
-            columns, rows = board or (result.m_ref.shape[0], 1)
-            if kind == "charuco" and board is not None:
-                columns, rows = board[0] - 1, board[1] - 1
-            pair = (0, columns * rows - 1)
-            size = options.target_size * math.hypot(columns - 1, rows - 1)
-        else:
-            pair = (0, 1) if kind == "aruco" else farthest_pair(result.m_ref, result.normal)
+        size_pair = target_kind(spec.kind).size_pair
+        if size_pair is None:
+            raise UsageError(f"--target-size needs dots, markers or a board; a {spec.kind} target's points have no metric size")
+        pair, scale = size_pair(spec, result.m_ref, result.normal)
+        size = options.target_size * scale
     elif layout is not None:
         gaps = np.linalg.norm(layout[:, None, :] - layout[None, :, :], axis=-1)
         pair = tuple(int(k) for k in np.unravel_index(int(np.argmax(gaps)), gaps.shape))
         size = float(gaps[pair])
     if pair is not None:
         chosen = depth_from_target_size(result.m_ref, result.normal, pair, size)
-        estimates["target_size"] = _estimate_record(chosen) | {"pair": list(pair)}
+    estimates = DepthEstimates(from_commands, chosen if pair is not None else None, pair)
     if chosen is None:
         console.warn(
             f"no taught commands, no --target-size and no --target-points: the initial depth estimate dhat(0) = {FALLBACK_DHAT0} m is a guess; "
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
-        return {"dhat0": FALLBACK_DHAT0, "source": "guess", "estimates": estimates}
+        return estimates, FALLBACK_DHAT0, "guess"
     # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
     # (a value that is no depth at all is left to the model's own check: "repeat could not use").
     if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
@@ -686,10 +627,10 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], kind: str, options
                        ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))
         raise InputError(f"d* from {given} is {chosen.dhat0:.3g} m, outside the {MIN_DEPTH:g} to {MAX_DEPTH:g} m repeat accepts "
                          f"as --dhat0: {hint}")
-    return {"dhat0": float(chosen.dhat0), "source": chosen.source, "estimates": estimates}
+    return estimates, float(chosen.dhat0), chosen.source
 
 
-def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict[str, Any], options: FitOptions) -> None:
+def _print_summary(console: Console, model: FitModel, result: DesiredFit, options: FitOptions) -> None:
     from rich.table import Table
 
     frames = model.frames
@@ -697,32 +638,33 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     table = Table(title=f"hbvs fit: {options.input} -> {options.output}", show_header=True, header_style="bold")
     table.add_column("quantity")
     table.add_column("value", justify="right")
-    table.add_row("frames used / total", f"{frames['used']} / {frames['total']}")
-    table.add_row("frames lost (not found / outliers)", f"{frames['lost']} ({frames['lost'] - frames['outliers']} / {frames['outliers']})")
-    table.add_row("longest gap bridged", f"{frames['longest_gap_s']:.2f} s")
+    table.add_row("frames used / total", f"{frames.used} / {frames.total}")
+    table.add_row("frames lost (not found / outliers)", f"{frames.lost} ({frames.lost - frames.outliers} / {frames.outliers})")
+    table.add_row("longest gap bridged", f"{frames.longest_gap_s:.2f} s")
     table.add_row("target", f"{model.target_kind}, {model.m_ref.shape[0]} points")
     table.add_row("reference frame F*", f"{model.reference_index} (t = {model.reference_t:.2f} s)")
-    table.add_row("residual (RMS / max)", f"{model.residual_px['rms']:.3f} / {model.residual_px['max']:.3f} px")
+    table.add_row("residual (RMS / max)", f"{model.residual_px.rms:.3f} / {model.residual_px.max:.3f} px")
     table.add_row("plane normal n* (in F*)", "[" + ", ".join(f"{v:+.3f}" for v in model.normal) + f"]  margin {model.normal_margin:.3f}")
     if model.uncertainty is not None:
         u = model.uncertainty
-        table.add_row("n* uncertainty (1 sigma)", f"{u['normal_sigma_deg']:.2f} deg (point noise {u['point_noise_px']:.3f} px)")
-        if u.get("theta_d_sigma_deg"):
+        table.add_row("n* uncertainty (1 sigma)", f"{u.normal_sigma_deg:.2f} deg (point noise {u.point_noise_px:.3f} px)")
+        if u.calibration is not None:
+            table.add_row("... of it from the calibration", f"{u.calibration_normal_sigma_deg:.2f} deg ({u.calibration})")
+        if u.theta_d_sigma_deg is not None and u.x_hd1_sigma is not None:
             table.add_row("theta_d / x_hd1 sigma (median, max)",
-                          f"{u['theta_d_sigma_deg']['median']:.3f}, {u['theta_d_sigma_deg']['max']:.3f} deg / "
-                          f"{u['x_hd1_sigma']['median']:.1e}, {u['x_hd1_sigma']['max']:.1e}")
+                          f"{u.theta_d_sigma_deg.median:.3f}, {u.theta_d_sigma_deg.max:.3f} deg / "
+                          f"{u.x_hd1_sigma.median:.1e}, {u.x_hd1_sigma.max:.1e}")
     lambdas = ", ".join(f"{name} {ch.smoothing:.3g}" for name, ch in model.trajectory.channels.items())
     table.add_row("spline smoothing lambda (s^3)", lambdas + (" (GCV)" if options.smoothing == "auto" else ""))
     table.add_row("x_hd2 from (25): residual RMS", f"{model.trajectory.x_hd2_residual_rms:.2e}")
     table.add_row("condition (35): min |x_hd1_dot|", f"{condition.min_abs_xhd1_dot:.4f} 1/s")
     table.add_row("|x_hd1_dot| p5 / median / p95", f"{condition.percentiles['p5']:.4f} / {condition.percentiles['p50']:.4f} / {condition.percentiles['p95']:.4f} 1/s")
-    estimates = depth["estimates"]
-    if estimates.get("commands"):
-        e = estimates["commands"]
-        table.add_row("d* from taught commands (25)", f"{e['dhat0']:.3f} +- {e['standard_error']:.3f} m")
-    if estimates.get("target_size"):
+    if model.depth.commands is not None:
+        e = model.depth.commands
+        table.add_row("d* from taught commands (25)", f"{e.dhat0:.3f} +- {e.standard_error:.3f} m")
+    if model.depth.target_size is not None:
         given = "--target-size" if options.target_size is not None else "--target-points"
-        table.add_row(f"d* from {given}", f"{estimates['target_size']['dhat0']:.3f} m")
+        table.add_row(f"d* from {given}", f"{model.depth.target_size.dhat0:.3f} m")
     source = model.dhat0_source
     if source == "target-size" and options.target_size is None:
         source = "--target-points"   # d* from the layout's two points farthest apart
@@ -730,15 +672,16 @@ def _print_summary(console: Console, model: Any, result: DesiredFit, depth: dict
     from ..core.gains import dhat0_range_text
 
     g = model.gains
+    assert g is not None  # fit always suggests gains
     table.add_row(
         "suggested k_v, k_w, k_2, gamma",
-        f"{g['k_v']:g}, {g['k_w']:g}, {g['k_2']:.0f}, {g['gamma']:.0f} (for {g['design_noise_px']:.2f} px, {dhat0_range_text()})",
+        f"{g.gains.k_v:g}, {g.gains.k_w:g}, {g.gains.k_2:.0f}, {g.gains.gamma:.0f} (for {g.design_noise_px:.2f} px, {dhat0_range_text()})",
     )
     from ..report.build import DEFAULT_TOLERANCES
 
-    if g.get("heading_tolerance_deg", 0.0) > DEFAULT_TOLERANCES["heading_deg"]:
+    if g.heading_tolerance_deg > DEFAULT_TOLERANCES["heading_deg"]:
         table.add_row("suggested heading tolerance",
-                      f"{g['heading_tolerance_deg']:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g['heading_tolerance_deg']:.2f})")
+                      f"{g.heading_tolerance_deg:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g.heading_tolerance_deg:.2f})")
     console.print(table)
     if condition.path_stops:
         percent = 100 * condition.stopped_fraction

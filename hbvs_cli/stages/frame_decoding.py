@@ -18,6 +18,7 @@ import numpy as np
 from ..io.fit_file import FitFile
 from ..io.images import decode_image
 from ..io.teach_file import TeachFrame
+from ..perception.target_kinds import TARGET_KINDS
 from ..sim.scene import knows_its_world
 from ..thread_pool import StopSafePool
 
@@ -84,7 +85,7 @@ def fit_reference_image(fit: FitFile) -> np.ndarray | None:
 
 
 def fit_template_image(fit: FitFile) -> np.ndarray | None:
-    """The fit's template image, decoded for a texture target (the others have none)."""
-    if fit.template_image is None or fit.model.detector.get("kind") != "texture":
+    """The fit's template image, decoded for a kind that uses one (texture; the others have none)."""
+    if fit.template_image is None or not getattr(TARGET_KINDS.get(fit.model.detector.kind), "uses_template", False):
         return None
     return decode_image(fit.template_image, "the fit's template image")

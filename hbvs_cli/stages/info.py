@@ -9,7 +9,7 @@ import textwrap
 from datetime import datetime, timezone
 from typing import Any, TextIO
 
-from ..io.settings import InfoOptions
+from ..settings.commands import InfoOptions
 from .console import Console, print_json
 
 

@@ -12,7 +12,7 @@ import time
 from collections import deque
 from contextlib import ExitStack
 from dataclasses import dataclass
-from typing import IO, Any, Callable, Iterator
+from typing import IO, Any, Callable, Iterator, Protocol
 
 import numpy as np
 
@@ -24,10 +24,10 @@ from ..io.calibration import load_calibration
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.ros2_names import check_topic_names
 from ..io.run_file import RunWriter
+from ..io.sources.frame_source import LiveFrame
 from ..io.topics import ROS_CMD_VEL_TOPIC
-from ..io.settings import RepeatOptions
+from ..settings.commands import RepeatOptions
 from ..stop_signals import Terminated, raise_if_stopped
-from .options import stamped_commands
 
 #: Consecutive frames with the target near its taught start view before the first non-zero command.
 START_FRAMES = 5
@@ -58,14 +58,13 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 class CommandOut:
     """Where commands go: a ROS 2 publisher and/or a JSON-lines stream; zero on :meth:`stop`.
 
-    ``publisher``: ``publish(v, w)``, ``other_publishers()`` (other writers on the topic now) and
-    ``foreign_commands()`` (commands another writer sent since the last call), or None.
+    ``publisher``: the robot interface's :class:`CommandSink`, or None.
     ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s)
     without a newer one by zero, whatever the loop is doing (a slow frame, a source that hangs);
     None for none. :meth:`close` ends it.
     """
 
-    def __init__(self, publisher: Any, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
+    def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
         self._publisher = publisher
         self._stream = stream
         self.dry_run = dry_run
@@ -157,9 +156,6 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
     """Refuse options a live run cannot honour (``lost_timeout``: the resolved --lost-timeout, s)."""
     if (options.camera is None) == (options.ros2_image is None):
         raise UsageError("--live needs one frame source: --camera DEV or --ros2-image TOPIC")
-    if options.camera is not None and options.calibration is None:
-        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
-    stamped_commands(options.cmd_type)
     check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if options.stale_timeout > lost_timeout:
         raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "
@@ -170,13 +166,93 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
             raise UsageError(f"--{name.replace('_', '-')} is for --sim; a live run's faults are real")
 
 
-def command_topic(options: RepeatOptions) -> str | None:
-    """The ROS 2 command topic: --ros2-cmd, else /cmd_vel unless only --cmd-out was given."""
-    if options.ros2_cmd is not None:
-        return options.ros2_cmd
-    if options.cmd_out is not None and options.ros2_image is None:
-        return None
-    return ROS_CMD_VEL_TOPIC
+class LiveSource(Protocol):
+    """A robot's camera: the newest frame not returned yet, waiting at most ``timeout_s`` (s), else None (a source
+    that can end, as a video file, says so with an ``ended`` attribute)."""
+
+    def latest(self, timeout_s: float) -> LiveFrame | None: ...
+
+
+class CommandSink(Protocol):
+    """A robot's command input: ``publish(v, w)`` (m/s, rad/s; zeros stop it), ``topic`` its name, and the other
+    commanders it sees: ``other_publishers()`` now, ``foreign_commands()`` commands they sent since the last call."""
+
+    topic: str
+
+    def publish(self, v: float, w: float) -> None: ...
+    def other_publishers(self) -> int: ...
+    def foreign_commands(self) -> int: ...
+
+
+@dataclass
+class RobotLink:
+    """An opened robot interface: its command sink (None: ``--cmd-out`` only), what opens its camera (the source
+    and the intrinsics, once the run file is open: a camera that cannot be used is recorded), the camera's name."""
+
+    commands: CommandSink | None
+    open_camera: Callable[[], tuple[LiveSource, Any]]
+    source_name: str
+
+
+@dataclass(frozen=True)
+class RobotInterface:
+    """A way to a robot: ``chosen(options)`` whether the options ask for it; ``open(options, stack, lost_timeout_s,
+    info)`` its :class:`RobotLink` (``stack`` closes what it opens, ``info`` tells the user)."""
+
+    name: str
+    chosen: Callable[[RepeatOptions], bool]
+    open: Callable[[RepeatOptions, ExitStack, float, Callable[[str], None]], RobotLink]
+
+
+#: The robot interfaces ``repeat --live`` knows: the last registered one the options choose is used (one frame
+#: source is given: :func:`check_live_options`).
+ROBOT_INTERFACES: list[RobotInterface] = []
+register_robot_interface = ROBOT_INTERFACES.append
+
+
+def robot_interface(options: RepeatOptions) -> RobotInterface:
+    return next(interface for interface in reversed(ROBOT_INTERFACES) if interface.chosen(options))
+
+
+def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple[Any, CommandSink | None]:
+    """A ROS 2 node (None without a ROS 2 topic) and the publisher on --ros2-cmd, else /cmd_vel unless only --cmd-out."""
+    topic = options.ros2_cmd if options.ros2_cmd is not None else (
+        None if options.cmd_out is not None and options.ros2_image is None else ROS_CMD_VEL_TOPIC)
+    if options.ros2_image is None and topic is None:
+        return None, None
+    from ..io import ros2_dds as dds  # lazy: an optional extra
+    from ..io.dds_discovery import describe_dds
+    from ..io.ros2_live import CommandPublisher
+
+    info(f"repeat --live: {describe_dds()}")
+    node = dds.Ros2Node()
+    return node, (CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped") if topic is not None else None)
+
+
+def _open_camera(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
+    """``--camera``: frames from OpenCV (an index, /dev/videoN, RTSP, HTTP such as ``robot-sim --mjpeg``'s, a video file)."""
+    if options.calibration is None:
+        raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
+    from ..io.sources.live_camera import LatestCameraFrame
+
+    return RobotLink(_ros2_commands(options, info)[1], lambda: (
+        stack.enter_context(LatestCameraFrame(options.camera)), load_calibration(options.calibration)), options.camera)
+
+
+def _open_ros2(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
+    """``--ros2-image``: frames and (without --calibration) CameraInfo, awaited for the discovery time or ``lost_timeout`` (s)."""
+    from ..io import ros2_dds as dds
+    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
+
+    node, commands = _ros2_commands(options, info)
+    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
+    return RobotLink(commands, lambda: (LatestImage(node, options.ros2_image, timeout_s), (
+        load_calibration(options.calibration) if options.calibration is not None
+        else wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s))), options.ros2_image)
+
+
+register_robot_interface(RobotInterface("camera", lambda options: options.camera is not None, _open_camera))
+register_robot_interface(RobotInterface("ros2", lambda options: options.ros2_image is not None, _open_ros2))
 
 
 def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
@@ -187,25 +263,6 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
         live, taught = float(getattr(camera, name)), float(getattr(fit_camera, name))
         if abs(live - taught) > CALIBRATION_TOLERANCE * max(abs(taught), 1.0):
             raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
-
-
-def open_live_source(options: RepeatOptions, node: Any, stack: ExitStack, lost_timeout: float) -> tuple[Any, Any]:
-    """The frame source and the camera's intrinsics; a ROS 2 camera is awaited for the discovery time, or ``lost_timeout`` (s) if longer."""
-    if options.camera is not None:
-        from ..io.sources.live_camera import LatestCameraFrame
-
-        camera = load_calibration(options.calibration)
-        return stack.enter_context(LatestCameraFrame(options.camera)), camera
-    from ..io import ros2_dds as dds
-    from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
-
-    timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
-    source = LatestImage(node, options.ros2_image, timeout_s)
-    if options.calibration is not None:
-        camera = load_calibration(options.calibration)
-    else:
-        camera = wait_camera_info(node, dds.camera_info_topic(options.ros2_image), timeout_s)
-    return source, camera
 
 
 def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
@@ -257,7 +314,7 @@ class LiveLoop:
     non-zero command stands at most ``--stale-timeout`` after the last used frame's: a command never
     outlives its measurement, whatever the camera's clock does."""
 
-    source: Any
+    source: LiveSource
     detector: Any
     estimator: Any
     model: Any

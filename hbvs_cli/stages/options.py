@@ -19,13 +19,6 @@ def recorded_settings(options: Any) -> dict[str, Any]:
     }
 
 
-def stamped_commands(cmd_type: str) -> bool:
-    """``--cmd-type``: True for twist-stamped (geometry_msgs TwistStamped), False for twist."""
-    if cmd_type not in ("twist", "twist-stamped"):
-        raise UsageError(f"--cmd-type must be twist or twist-stamped, got {cmd_type!r}")
-    return cmd_type == "twist-stamped"
-
-
 def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, float]:
     """``DX,DY,DTHETA`` (m, m, deg) -> (m, m, rad)."""
     parts = text.split(",")

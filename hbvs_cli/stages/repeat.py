@@ -24,17 +24,17 @@ from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
-from ..core.laws import gains_for_law, law_names, make_controller
+from ..core.laws import gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.control_settings import FILTER_EKF, FILTERS, GAIN_NAMES
+from ..core.control_settings import FILTER_EKF, GAIN_NAMES
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
-from ..io.config import load_config
-from ..io.fit_file import FitFile, read_fit_file
+from ..settings.config import load_config
+from ..io.fit_file import FitFile, fit_summary_records, read_fit_file
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
 from ..io.images import bytes_to_store
 from ..io.limits import step_count
@@ -43,14 +43,14 @@ from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
-from ..io.settings import DEFAULT_GAINS, REPEAT, RepeatOptions
+from ..settings.commands import DEFAULT_GAINS, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
-from .options import parse_interval, parse_offset, parse_time_and_factor, stamped_commands
+from .options import parse_interval, parse_offset, parse_time_and_factor
 
 @dataclass(frozen=True)
 class Settings:
@@ -86,33 +86,21 @@ class RepeatSummary:
 
 
 def _limit(value: float | None, option: str) -> float | None:
-    """A limit option: None or inf -> unlimited (None); 0 or less is refused."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+    """A limit option (a number, checked as it was read): None or inf -> unlimited (None); 0 or less is refused."""
+    if value is not None and value <= 0:
         raise UsageError(f"{option} must be positive (m/s, rad/s, m/s^2), or inf for no limit; got {value!r}")
-    if math.isinf(value):
-        return None
-    return float(value)
+    return None if value is None or math.isinf(value) else float(value)
 
 
 def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate: float,
                      suggested_gains: ControllerGains | None = None) -> Settings:
-    """Defaults < ``--config`` < command-line options (an option not given is None)."""
+    """Defaults < ``--config`` < command-line options (an option not given is None); both checked as they were read."""
     config: dict[str, Any] = load_config(options.config) if options.config is not None else {}
 
     def pick(name: str, fallback: Any = None) -> Any:
-        # Bounds checked again for values from a config file or hbvs sweep.
-        value = REPEAT[name].resolve(getattr(options, name), config, fallback)
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            violation = REPEAT[name].bound_violation(value)
-            if violation is not None:
-                raise UsageError(violation)
-        return value
+        return REPEAT[name].resolve(getattr(options, name), config, fallback)
 
     law = pick("law")
-    if law not in law_names():
-        raise UsageError(f"--law must be one of {', '.join(law_names())}, got {law!r}")
     # The fit's suggestion (from x_hd1_dot and the detector's noise) unless the user sets gains.
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)
@@ -122,13 +110,9 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     if not (math.isfinite(rate) and rate > 0):
         raise UsageError(f"--rate must be positive, got {rate}")
     perception = str(pick("perception"))
-    if perception not in ("images", "points"):
-        raise UsageError(f"--perception must be images or points, got {perception!r}")
     offset_text = str(pick("offset"))
     latency = int(pick("latency"))
     state_filter = str(pick("state_filter"))
-    if state_filter not in FILTERS:
-        raise UsageError(f"--filter must be one of {', '.join(FILTERS)}, got {state_filter!r}")
     limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
                             max_accel=_limit(pick("max_accel"), "--max-accel"), lag_s=float(pick("base_lag")))
     return Settings(
@@ -306,10 +290,9 @@ def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPose
 
 def detector_noise(model: FitModel) -> float:
     """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
-    residual_px = float((model.residual_px or {}).get("rms", float("nan")))
-    if not math.isfinite(residual_px):
+    if not math.isfinite(model.residual_px.rms):
         return 0.0
-    return noise_from_residual(residual_px, model.m_ref.shape[0]) / model.camera.mean_focal
+    return noise_from_residual(model.residual_px.rms, model.m_ref.shape[0]) / model.camera.mean_focal
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -391,9 +374,8 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Fi
             },
             "record_images": options.record_images,
         },
-        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind, "condition35": model.condition35,
-        "fit_frames": model.frames,
-    } | ({"top_view": _top_view(scene.world)} if scene is not None else {})
+        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind,
+    } | fit_summary_records(model) | ({"top_view": _top_view(scene.world)} if scene is not None else {})
 
 
 def _top_view(world: World) -> dict[str, Any]:
@@ -486,10 +468,8 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     """``--live``: drive a robot, every frame through the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``."""
     live.check_live_options(options, settings.lost_timeout)
+    interface = live.robot_interface(options)
     model = fit.model
-    topic = live.command_topic(options)
-    if topic is None and options.cmd_out is None:
-        raise UsageError("--live needs somewhere to send commands: --ros2-cmd TOPIC and/or --cmd-out")
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
     state_filter = make_state_filter(settings, model, estimator)
@@ -501,21 +481,10 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     run: RunWriter | None = None
     stop_reason: str | None = None
     with ExitStack() as stack:
-        node = None
-        if options.ros2_image is not None or topic is not None:
-            from ..io import ros2_dds as dds  # lazy: an optional extra
-            from ..io.dds_discovery import describe_dds
-
-            console.info(f"repeat --live: {describe_dds()}")
-            node = dds.Ros2Node()
-        publisher = None
-        if topic is not None:
-            from ..io.ros2_live import CommandPublisher
-
-            publisher = CommandPublisher(node, topic, stamped=stamped_commands(options.cmd_type))
+        link = interface.open(options, stack, settings.lost_timeout, console.info)
         # Kept, finished, whatever ends the run: the record of what a robot was sent is never lost.
         cmd_stream = stack.enter_context(open_text_output(options.cmd_out, "command stream", keep_on_error=True))
-        out = live.CommandOut(publisher, cmd_stream, options.dry_run, options.stale_timeout)
+        out = live.CommandOut(link.commands, cmd_stream, options.dry_run, options.stale_timeout)
         try:
             out.stop(0.0)  # whatever the robot did before, it starts from rest
             # The run file first: whatever stops the run from here on is recorded in it.
@@ -523,13 +492,12 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
             writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
             info = _run_metadata("live", options, settings, fit, None) | {"live": {
-                "source": options.camera if options.camera is not None else options.ros2_image,
-                "cmd_topic": topic, "cmd_type": options.cmd_type, "dry_run": options.dry_run,
-                "stale_timeout_s": options.stale_timeout,
+                "source": link.source_name, "cmd_topic": link.commands.topic if link.commands is not None else None,
+                "cmd_type": options.cmd_type, "dry_run": options.dry_run, "stale_timeout_s": options.stale_timeout,
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
             log = _StepLog(run, settings, model, None, None)
-            source, camera = live.open_live_source(options, node, stack, settings.lost_timeout)
+            source, camera = link.open_camera()
             live.check_camera(camera, model.camera, "the live camera's calibration")
             status = stack.enter_context(console.status_line())
             loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings,

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
-from ..io.settings import ReportOptions
+from ..settings.commands import ReportOptions
 from .console import Console, print_json
 from .options import parse_assignment
 

@@ -16,7 +16,6 @@ from typing import IO, Any
 import numpy as np
 
 from ..core.frames import compose_planar_pose
-from ..core.unicycle import DynamicBase
 from ..errors import InputError, UsageError
 from ..io.fit_file import read_fit_file
 from ..io.images import encode_image
@@ -24,10 +23,11 @@ from ..io.output_target import open_text_output
 from ..io.ros2_names import check_topic_names
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.scene import renderer_for, simulation_world
+from ..sim.stand_in import MAX_PLAUSIBLE_V, MAX_PLAUSIBLE_W, StampFault, parse_base
 from .console import Console
 from .frame_decoding import fit_reference_image
-from .options import parse_interval, parse_offset, stamped_commands
-from ..io.settings import RobotSimOptions
+from .options import parse_interval, parse_offset
+from ..settings.commands import RobotSimOptions
 from ..stop_signals import raise_if_stopped
 
 
@@ -51,7 +51,7 @@ class _Ros2Robot:
         self.image_writer = node.publisher(image_topic, dds.CompressedImage if self.jpeg else dds.Image, dds.camera_qos())
         self.info_writer = node.publisher(dds.camera_info_topic(image_topic), dds.CameraInfo, dds.camera_qos())
         self.pose_writer = node.publisher(ROS_TRUE_POSE_TOPIC, dds.PoseStamped, dds.command_qos())
-        self.stamped = stamped_commands(options.cmd_type)
+        self.stamped = options.cmd_type == "twist-stamped"
         self.commands = node.subscriber(options.cmd_topic, dds.TwistStamped if self.stamped else dds.Twist, dds.command_qos())
         self.description = f"{image_topic}, commands from {options.cmd_topic} (ROS_DOMAIN_ID {dds.domain_id()}); {node.description}"
 
@@ -138,75 +138,6 @@ class _PlainRobot:
         self._server.close()
 
 
-#: ``--base`` presets: (max_v m/s, max_w rad/s, max_accel m/s^2, max_alpha rad/s^2, motor lag s).
-BASES: dict[str, tuple[float, float, float, float, float]] = {
-    "kinematic": (math.inf, math.inf, math.inf, math.inf, 0.0),
-    # A small differential-drive base (a TurtleBot-class robot) with a firmware ramp and motor lag.
-    "small": (0.26, 1.8, 0.6, 3.0, 0.12),
-}
-#: A command beyond these (m/s, rad/s) is no command a wheeled base could follow: ignored.
-MAX_PLAUSIBLE_V = 100.0
-MAX_PLAUSIBLE_W = 100.0
-
-
-def parse_base(text: str) -> DynamicBase:
-    """``--base``: a preset of :data:`BASES` or ``V,W,ACCEL,ALPHA,LAG`` (``inf`` for no limit)."""
-    if text in BASES:
-        return DynamicBase(*BASES[text])
-    try:
-        values = [float(part) for part in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 5 or not all(v > 0 for v in values[:4]) or not (math.isfinite(values[4]) and values[4] >= 0):
-        raise UsageError(f"--base must be {', '.join(BASES)} or V,W,ACCEL,ALPHA,LAG (positive limits, inf for none; "
-                         f"a lag >= 0 s), got {text!r}")
-    return DynamicBase(*values)
-
-
-class StampFault:
-    """``--stamp-fault KIND[:S]@T``: what a faulty camera driver does to its header stamps from T s after the
-    robot first moved on."""
-
-    KINDS = ("freeze", "back", "jump", "second-clock", "max", "stall")
-    #: The largest stamp a ROS 2 time's int32 seconds can hold.
-    MAX_STAMP_S = 2.0 ** 31 - 1
-
-    def __init__(self, text: str) -> None:
-        kind, _, at = text.partition("@")
-        kind, _, size = kind.partition(":")
-        try:
-            self.at = float(at)
-            self.size = float(size) if size else 0.0
-        except ValueError:
-            self.at = self.size = math.nan
-        needs_size = kind in ("back", "jump", "second-clock", "stall")
-        if kind not in self.KINDS or not (math.isfinite(self.at) and self.at >= 0) or needs_size != bool(size) or not (
-                math.isfinite(self.size) and self.size >= 0):
-            raise UsageError(f"--stamp-fault must be KIND@T or KIND:S@T with KIND one of {', '.join(self.KINDS)} (S needed "
-                             f"by back, jump, second-clock and stall), T and S seconds; got {text!r}")
-        self.kind = kind
-        self._frozen: float | None = None
-        self._once_done = False
-
-    def stamp(self, stamp: float, t: float, frame: int) -> float | None:
-        """The stamp the driver puts on frame number ``frame`` taken at ``stamp`` (s), ``t`` s into the drive; None: no frame."""
-        if t < self.at:
-            return stamp
-        if self.kind == "freeze":
-            self._frozen = stamp if self._frozen is None else self._frozen
-            return self._frozen
-        if self.kind == "back":
-            return stamp - self.size
-        if self.kind == "second-clock":
-            return stamp + self.size if frame % 2 else stamp
-        if self.kind == "stall":
-            return None if t < self.at + self.size else stamp
-        if self._once_done:
-            return stamp
-        self._once_done = True
-        return stamp + self.size if self.kind == "jump" else self.MAX_STAMP_S
-
-
 def _transport(options: RobotSimOptions, camera: Any) -> Any:
     plain = options.mjpeg is not None or options.cmd_in is not None
     if options.ros2 == plain:
@@ -218,9 +149,6 @@ def _transport(options: RobotSimOptions, camera: Any) -> Any:
 
 def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     """Run the stand-in robot until ``--duration`` or a stop signal."""
-    if options.image_format not in ("raw", "jpeg"):
-        raise UsageError(f"--image-format must be raw or jpeg, got {options.image_format!r}")
-    stamped_commands(options.cmd_type)
     if options.ros2:
         check_topic_names((options.image_topic, "--image-topic"), (options.cmd_topic, "--cmd-topic"))
     fit = read_fit_file(options.input)

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import HbvsError, InputError, UsageError
 from ..io.fit_file import FitFile, read_fit_file
-from ..io.settings import SweepOptions
+from ..settings.commands import SweepOptions
 from ..io.sweep_table import ResultsTable, failed_row, row_schema
 from ..sim.scene import simulation_world
 from ..sweep.engine import check_scheduler_address, dashboard_address, dask_client, default_workers, require_engine, run_tasks
@@ -19,7 +19,7 @@ from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_dige
 from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, summarize
 from .console import Console, print_json
-from .sweep_run import KEEP_CHOICES, RunTask, check_arguments, execute_run
+from .sweep_run import RunTask, check_arguments, execute_run
 
 
 def _true_depth(fit: FitFile) -> float | None:
@@ -57,8 +57,6 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     dashboard_address(options.dashboard)
     if options.dashboard is not None and (options.scheduler is not None or options.cluster is not None):
         raise UsageError("--dashboard is for the local cluster; a running scheduler or --cluster has its own")
-    if options.keep_runs not in KEEP_CHOICES:
-        raise UsageError(f"--keep-runs must be one of {', '.join(KEEP_CHOICES)}, got {options.keep_runs!r}")
     if options.fit == "-":
         raise UsageError("hbvs sweep needs the fit as a file (every worker reads it), not - (stdin)")
     fit_path = Path(options.fit)

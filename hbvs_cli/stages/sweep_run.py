@@ -18,8 +18,6 @@ from ..sweep.spec import RunSettings
 if TYPE_CHECKING:
     from ..report.result import RunReport
 
-KEEP_CHOICES = ("failed", "all", "none")
-
 
 @dataclass(frozen=True)
 class RunTask(RunSettings):

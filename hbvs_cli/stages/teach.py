@@ -26,7 +26,7 @@ from ..io.dds_discovery import describe_dds
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.ros2_names import check_topic_names
-from ..io.settings import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
+from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
@@ -41,7 +41,7 @@ SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quali
 
 
 class TeachOptions(TeachFields):
-    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.io.settings.TEACH_SETTINGS`)."""
+    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.settings.commands.TEACH_SETTINGS`)."""
 
     def source_kind(self) -> str:
         """The one source asked for (``sim`` when none is)."""
@@ -81,8 +81,6 @@ def run_teach(options: TeachOptions, console: Console) -> None:
     """Record the taught run described by ``options`` into ``options.output``."""
     if options.image_format not in STORE_FORMATS:
         raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {options.image_format!r}")
-    if not 1 <= options.jpeg_quality <= 100:
-        raise UsageError(f"--quality must be 1 to 100, got {options.jpeg_quality}")
     for name, value in (("--fps", options.fps), ("--duration", options.duration), ("--noise", options.noise), ("--exposure", options.exposure)):
         if value is not None and not math.isfinite(value):
             raise UsageError(f"{name} must be a finite number, got {value}")
@@ -195,7 +193,8 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
                 )
                 bar.advance()
     if options.calibration_out is not None:
-        save_calibration_ros(world.camera, options.calibration_out, camera_name="hbvs_simulated")
+        # The simulation renders with this very camera: its intrinsics are exact.
+        save_calibration_ros(replace(world.camera, sigma=(0.0,) * 4), options.calibration_out, camera_name="hbvs_simulated")
     extras = "".join(f", {what} {path}" for what, path in (("video", options.video_out), ("calibration", options.calibration_out))
                      if path is not None)
     seen = f"{len(world.worlds)} targets" if isinstance(world, RouteWorld) else f"{options.target} target"

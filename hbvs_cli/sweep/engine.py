@@ -18,7 +18,6 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 from ..errors import OutputError, UsageError
 
 INSTALL_HINT = "pip install 'hbvs[sweep]'"
-CLUSTER_KINDS = ("slurm", "pbs")
 #: Times a run may be rescheduled after its worker died before it is recorded as failed.
 ALLOWED_WORKER_DEATHS = 3
 
@@ -148,8 +147,6 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
 
 
 def _jobqueue_cluster(kind: str, jobs: int) -> Any:
-    if kind not in CLUSTER_KINDS:
-        raise UsageError(f"--cluster must be one of {', '.join(CLUSTER_KINDS)}, got {kind!r}")
     try:
         import dask_jobqueue
     except ImportError:

@@ -16,15 +16,10 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..core.laws import law_names
 from ..errors import InputError, UsageError
 from ..io.limits import check as check_limit
-from ..io.settings import REPEAT, SWEEP
+from ..settings.commands import REPEAT, SAMPLING_METHODS, SWEEP
 from .parameters import PARAMETERS
-
-#: Sampling methods: a full grid, or samples of the ranges from scipy.stats.qmc / numpy.
-SAMPLING_METHODS = ("grid", "sobol", "halton", "lhs", "random")
-
 
 #: The start offset ``hbvs repeat`` uses when none is given (m, m, deg).
 DEFAULT_OFFSET = tuple(float(v) for v in REPEAT["offset"].fallback.split(","))
@@ -69,8 +64,7 @@ def _check_value(name: str, value: Any, where: str) -> Any:
     """A parameter value of the right type and range."""
     parameter = PARAMETERS[name]
     if parameter.kind == "choice":
-        # The laws are those registered (core/laws.py), the shipped ones and any added since.
-        choices = law_names() if name == "law" else parameter.choices
+        choices = parameter.choices  # the laws: those registered (core/laws.py), any added since too
         if not isinstance(value, str) or value not in choices:
             raise UsageError(f"{where}: {name} must be one of {', '.join(choices)}, got {value!r}")
         return value
@@ -166,7 +160,7 @@ def _axis_from_toml(name: str, value: Any) -> Axis:
 
 def load_spec_file(path: Path) -> dict[str, Any]:
     """The TOML spec as a dictionary (:func:`build_spec`)."""
-    from ..io.config import MAX_CONFIG_BYTES, tomllib
+    from ..settings.config import MAX_CONFIG_BYTES, tomllib
     from ..io.text_files import read_small_text
 
     try:

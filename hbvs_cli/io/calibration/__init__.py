@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from .load import MAX_CALIBRATION_BYTES, load_calibration, parse_calibration
 from .ros import calibration_from_foxglove, calibration_to_foxglove, save_calibration_ros
+from .mapping import stated_sigma
 from .validate import intrinsics_from_values
 
 __all__ = [
     "MAX_CALIBRATION_BYTES", "load_calibration", "parse_calibration", "save_calibration_ros", "calibration_to_foxglove",
-    "calibration_from_foxglove", "intrinsics_from_values",
+    "calibration_from_foxglove", "intrinsics_from_values", "stated_sigma",
 ]

@@ -5,6 +5,7 @@ Kalibr ``camchain.yaml``: ``cam0``, a ``pinhole`` camera with ``radtan`` (read a
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -19,7 +20,11 @@ _WIDTH_KEYS = ("imagewidth", "width")
 _HEIGHT_KEYS = ("imageheight", "height")
 _SIZE_KEYS = ("imagesize",)
 _MODEL_KEYS = ("distortionmodel",)
-_ALL_KEYS = frozenset(_K_KEYS + _D_KEYS + _WIDTH_KEYS + _HEIGHT_KEYS + _SIZE_KEYS + _MODEL_KEYS)
+# The intrinsics' standard deviations: calibrateCameraExtended's (fx fy cx cy k1 k2 p1 p2 k3 ...), as
+# docs/walkthrough.md writes them; OpenCV's interactive calibration writes them in two parts.
+_SIGMA_KEYS = ("stddeviationsintrinsics",)
+_SIGMA_PARTS = (("cameramatrixstddev",), ("distcoeffsstddev",))
+_ALL_KEYS = frozenset(_K_KEYS + _D_KEYS + _WIDTH_KEYS + _HEIGHT_KEYS + _SIZE_KEYS + _MODEL_KEYS + _SIGMA_KEYS + sum(_SIGMA_PARTS, ()))
 
 
 def _require_mapping(document: Any, name: str) -> Mapping[str, Any]:
@@ -82,7 +87,17 @@ def _intrinsics_from_mapping(
     model: Any = found_model[1] if found_model is not None else None
     if model is not None and not isinstance(model, str):
         raise CalibrationError(f"{name}: distortion_model must be a string, got {_kind_of(model)}")
-    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes)
+    return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes, stated_sigma(mapping, name))
+
+
+def stated_sigma(mapping: Mapping[str, Any], name: str) -> tuple[float, ...]:
+    """The standard deviations of (fx, fy, cx, cy, *distortion) the calibration states, () when none."""
+    parts = [found for found in [_lookup(mapping, _SIGMA_KEYS)] if found is not None] or [
+        found for found in (_lookup(mapping, keys) for keys in _SIGMA_PARTS) if found is not None]
+    sigma = tuple(value for key, part in parts for value in _numbers(part, f"{name}: {key}"))
+    if sigma and (not 4 <= len(sigma) <= 18 or not all(math.isfinite(v) and v >= 0.0 for v in sigma)):
+        raise CalibrationError(f"{name}: {parts[0][0]} must hold 4 to 18 finite non-negative standard deviations (fx fy cx cy, then the distortion's)")
+    return sigma
 
 #: Kalibr's distortion model names to hbvs's (ROS's).
 _KALIBR_MODELS = {"radtan": "plumb_bob", "equidistant": "equidistant", "none": "none"}

@@ -50,7 +50,7 @@ _IDENTITY = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
 
 def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str], camera_name: str = "hbvs") -> Path:
     """Write ``camera`` as the ROS camera calibrator's ``camera_info`` YAML (identity rectification,
-    projection ``[K | 0]``, floats exact) and return ``path``; :class:`InputError` if it cannot."""
+    projection ``[K | 0]``, floats exact; its ``sigma`` as ``std_deviations_intrinsics``) and return ``path``; :class:`InputError` if it cannot."""
     model, coefficients = _ros_distortion(camera)
     document = {
         "image_width": int(camera.width), "image_height": int(camera.height), "camera_name": str(camera_name),
@@ -60,6 +60,8 @@ def save_calibration_ros(camera: CameraIntrinsics, path: str | os.PathLike[str],
         "rectification_matrix": {"rows": 3, "cols": 3, "data": list(_IDENTITY)},
         "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in _projection(camera)]},
     }
+    if camera.sigma:  # not ROS's: the standard deviations hbvs's fit counts (docs/uncertainty.md); ROS tools skip it
+        document["std_deviations_intrinsics"] = {"rows": len(camera.sigma), "cols": 1, "data": [float(v) for v in camera.sigma]}
     # PyYAML writes floats exactly (repr); flow style keeps each matrix on one line like the ROS tools.
     text = yaml.safe_dump(document, default_flow_style=None, sort_keys=False, width=4096)
     target = Path(path)

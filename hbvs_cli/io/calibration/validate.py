@@ -57,8 +57,10 @@ def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: st
 def _build_intrinsics(
     K: Sequence[float], width: int, height: int, model: str | None, coefficients: Sequence[float], name: str,
     k_key: str = "camera_matrix", d_key: str = "distortion_coefficients", notes: list[str] | None = None,
+    sigma: tuple[float, ...] = (),
 ) -> CameraIntrinsics:
-    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics."""
+    """Validate a flat row-major K, a size and a distortion into CameraIntrinsics (with the
+    ``sigma`` the calibration states)."""
     if not all(math.isfinite(v) for v in K):
         raise CalibrationError(f"{name}: {k_key} contains NaN or infinity")
     if not all(math.isfinite(v) for v in coefficients):
@@ -78,7 +80,7 @@ def _build_intrinsics(
     try:
         return CameraIntrinsics(
             fx=float(fx), fy=float(fy), cx=float(cx), cy=float(cy), width=width, height=height,
-            distortion_model=resolved_model, distortion=distortion,
+            distortion_model=resolved_model, distortion=distortion, sigma=sigma,
         )
     except CalibrationError as exc:
         raise CalibrationError(f"{name}: {exc}") from None

@@ -1,5 +1,5 @@
 """``--config FILE.toml``: controller gains, actuator limits and run settings (tables and keys:
-:data:`SCHEMA`). The defaults are declared in :mod:`hbvs_cli.io.settings`; ``samples/gains.toml``
+:data:`SCHEMA`). The defaults are declared in :mod:`hbvs_cli.settings.commands`; ``samples/gains.toml``
 lists them. Options given on the command line override the file."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
+from ..errors import InputError, UsageError
 from ..core.control_settings import GAIN_NAMES
-from .settings import REPEAT_SETTINGS
-from .text_files import read_small_text, short_repr
+from ..io.text_files import read_small_text, short_repr
+from .commands import REPEAT_SETTINGS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -26,13 +26,14 @@ TABLES: dict[str, tuple[str, ...]] = {
     "": ("law", "dhat0", "speed", "filter"), "gains": GAIN_NAMES, "limits": ("max_v", "max_w", "max_accel", "base_lag", "latency"),
     "run": ("lost_timeout", "rate", "perception", "pixel_noise", "offset"),
 }
-_TYPES = {setting.config: setting.type for setting in REPEAT_SETTINGS if setting.config is not None}
+#: The repeat option each key sets.
+_SETTINGS = {setting.config: setting for setting in REPEAT_SETTINGS if setting.config is not None}
 #: Allowed keys per table and their types (each the type of the repeat option it sets).
-SCHEMA: dict[str, dict[str, type]] = {table: {key: _TYPES[key] for key in keys} for table, keys in TABLES.items()}
+SCHEMA: dict[str, dict[str, type]] = {table: {key: _SETTINGS[key].type for key in keys} for table, keys in TABLES.items()}
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
-    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``), every key and type checked."""
+    """A TOML config as flat ``{key: value}`` (e.g. ``k_v``, ``max_v``), every key, type, choice and bound checked."""
     path = Path(path)
     text = read_small_text(path, MAX_CONFIG_BYTES, "a TOML file")
     try:
@@ -52,6 +53,10 @@ def load_config(path: str | Path) -> dict[str, Any]:
                 flat[inner] = _checked(path, key, inner, inner_value)
         else:
             flat[key] = _checked(path, "", key, value)
+    for key, value in flat.items():
+        problem = _SETTINGS[key].violation(value)
+        if problem is not None:
+            raise UsageError(f"{path}: {problem}")
     return flat
 
 
@@ -61,22 +66,19 @@ def _checked(path: Path, table: str, key: str, value: Any) -> Any:
     if expected is None:
         known = ", ".join(SCHEMA[table])
         raise InputError(f"{path}: unknown key {short_repr(where)} (known here: {known})")
-    if expected is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{path}: {where} must be a number, got {short_repr(value)}")
-        try:
-            value = float(value)
-        except OverflowError:  # an integer literal beyond float range
-            raise InputError(f"{path}: {where} is out of range") from None
-        if math.isnan(value):
-            raise InputError(f"{path}: {where} is NaN")
+    if expected is str:
+        if not isinstance(value, str):
+            raise InputError(f"{path}: {where} must be a string, got {short_repr(value)}")
         return value
-    if expected is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{path}: {where} must be a whole number, got {short_repr(value)}")
-        if not -(2**63) <= value < 2**63:  # TOML integers are 64-bit; tomllib does not check
-            raise InputError(f"{path}: {where} is out of range")
-        return value
-    if not isinstance(value, str):
-        raise InputError(f"{path}: {where} must be a string, got {short_repr(value)}")
+    if isinstance(value, bool) or not isinstance(value, int if expected is int else (int, float)):
+        raise InputError(f"{path}: {where} must be {'a whole number' if expected is int else 'a number'}, got {short_repr(value)}")
+    try:
+        # TOML integers are 64-bit, which tomllib does not check; an integer literal may be beyond float range.
+        if expected is int and not -(2**63) <= value < 2**63:
+            raise OverflowError
+        value = expected(value)
+    except OverflowError:
+        raise InputError(f"{path}: {where} is out of range") from None
+    if math.isnan(value):
+        raise InputError(f"{path}: {where} is NaN")
     return value
