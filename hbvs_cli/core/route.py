@@ -18,7 +18,7 @@ The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -187,25 +187,37 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         frames = slice(segment.first, segment.last + 1)
         detector_errors = DetectorErrors() if errors is None else errors[segment.target]
         target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
-        if number == 0 and first_reference is not None:
-            reference = first_reference
-        else:
-            reference = segment.first + int(np.argmax(_spans(target_pixels)))
+        reference = first_reference if number == 0 and first_reference is not None else segment.first + largest_view(target_pixels)
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
                                            max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)
-    transitions = []
-    for (previous, fit), (segment, fit_next) in zip(zip(segments, fits), list(zip(segments, fits))[1:]):
-        # The smoothed desired signals (Remark 1), not each frame's: rho multiplies x_h,i+1, and
-        # noise in a regressor pulls its coefficient toward zero (errors in variables).
-        shared = t[segment.first:segment.overlap_last + 1]
-        here, there = fit.trajectory.evaluate(shared), fit_next.trajectory.evaluate(shared)
-        transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
-                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2])))
+    transitions = estimate_transitions(t, segments, [fit.trajectory for fit in fits])
     return RouteFit(list(segments), fits, references, transitions)
 
 
-def _spans(pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], trajectories: Sequence[Any]) -> list[Transition]:
+    """Each transition of a route from its segments' fitted desired trajectories (``evaluate(t)``
+    of Remark 1's splines) over each overlap of the drive's frame times ``t`` (s): the smoothed
+    signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor pulls its
+    coefficient toward zero (errors in variables)."""
+    t = np.asarray(t, dtype=float)
+    transitions = []
+    for here_trajectory, segment, there_trajectory in zip(trajectories, segments[1:], trajectories[1:]):
+        shared = t[segment.first:segment.overlap_last + 1]
+        here, there = here_trajectory.evaluate(shared), there_trajectory.evaluate(shared)
+        transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
+                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2])))
+    return transitions
+
+
+def largest_view(pixels: ArrayLike) -> int:
+    """The frame (index into ``pixels`` (F, N, 2)) where a target appears largest: a segment's
+    F*_i, the nearer and larger, the better measured."""
+    return int(np.argmax(view_spans(pixels)))
+
+
+def view_spans(pixels: ArrayLike) -> NDArray[np.float64]:
     """The largest distance (px) between two of a target's points in each frame (F, N, 2); -1 where not found."""
+    pixels = np.asarray(pixels, dtype=float)
     spans = np.max(np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1), axis=(1, 2))
     return np.where(np.isfinite(spans), spans, -1.0)

@@ -32,14 +32,15 @@ TURNED_BUILTIN_TEXTURE = "builtin-turned"
 class RouteWorld:
     """A camera at ``camera_height`` (m) and targets along a route: ``worlds[i]`` is target i in
     its own frame W_i, placed in the route frame R at ``placements[i] = (x, y, yaw)`` (m, m, rad);
-    ``profile`` and ``start_pose`` (in R) are the taught drive past them."""
+    ``profile`` and ``start_pose`` (in R) are the taught drive past them (None and zeros for
+    a recorded route, :func:`recorded_route`: its drive is the recording's)."""
 
     name: str
     camera: CameraIntrinsics
     camera_height: float
     placements: NDArray[np.float64]
     worlds: tuple[World, ...]
-    profile: CommandProfile
+    profile: CommandProfile | None
     start_pose: NDArray[np.float64]
 
     def __post_init__(self) -> None:
@@ -130,6 +131,12 @@ def route_targets_from_description(data: Any) -> tuple[NDArray[np.float64], tupl
     if placements.shape != (len(worlds), 3) or not worlds:
         raise MalformedDataError("malformed route description: each target needs a placement (x, y, yaw)")
     return placements, worlds
+
+
+def recorded_route(data: Any, camera: CameraIntrinsics) -> RouteWorld:
+    """The route of a teach file's ``world`` record (:meth:`RouteWorld.to_dict`), seen by ``camera``."""
+    placements, worlds = route_targets_from_description(data)
+    return RouteWorld(str(data.get("route", "")), camera, worlds[0].camera_height, placements, worlds, None, np.zeros(3))
 
 
 #: A target is seen well enough to be followed when two of its image points are this far apart (px).
