@@ -16,8 +16,8 @@ import numpy as np
 from ..core.fit_model import FitModel
 from ..core.route import Segment, Transition
 from ..errors import RecordingError
-from .fit_file import FILE_KIND, checked_model_message, model_from_message
-from .mcap import McapStream, read_metadata, time_message
+from .fit_file import FILE_KIND, FitFile, checked_model_message, read_fit_file
+from .mcap import time_message
 from .teach_file import PARSE_ERRORS
 from .topics import MODEL_TOPIC, ROUTE_TOPIC, TOPICS
 
@@ -32,6 +32,9 @@ class RouteFile:
     references: list[int]
     transitions: list[Transition]
     info: dict[str, Any]
+    #: The simulated route (the teach file's description) and its taught poses (K, 4): t (s), x, y, phi in its frame R.
+    world: dict[str, Any] | None = None
+    taught_poses: np.ndarray | None = None
 
 
 def transition_record(transition: Transition) -> dict[str, Any]:
@@ -58,9 +61,11 @@ def _transition_from_record(record: dict[str, Any]) -> Transition:
 
 
 def route_message(segments: Sequence[Segment], references: Sequence[int], transitions: Sequence[Transition],
-                  log_time_ns: int) -> dict[str, Any]:
-    """The ``hbvs.Route`` message: the segments (frames of the drive) and the transitions."""
+                  log_time_ns: int, world: dict[str, Any] | None = None, taught_poses: np.ndarray | None = None) -> dict[str, Any]:
+    """The ``hbvs.Route`` message: the segments (frames of the drive), the transitions and, for a
+    simulated route, its description and taught poses (what ``repeat --sim`` drives in and is judged against)."""
     return {
+        "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
         "timestamp": time_message(log_time_ns),
         "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r)}
                      for s, r in zip(segments, references)],
@@ -69,42 +74,37 @@ def route_message(segments: Sequence[Segment], references: Sequence[int], transi
 
 
 def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segment], references: Sequence[int],
-                transitions: Sequence[Transition], log_times: Sequence[int], source: str) -> None:
+                transitions: Sequence[Transition], log_times: Sequence[int], source: str, world: dict[str, Any] | None = None,
+                taught_poses: np.ndarray | None = None) -> None:
     """Each segment's model (stamped ``log_times[i]``, ns, its last frame's) checked as
     :func:`~.fit_file.checked_model_message` does, then the route (one segment: none)."""
     schemas = TOPICS[FILE_KIND]
     for model, stamp in zip(models, log_times):
         writer.write(MODEL_TOPIC, schemas[MODEL_TOPIC], int(stamp), checked_model_message(model, int(stamp), source))
     if len(segments) > 1:
-        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), route_message(segments, references, transitions, int(log_times[-1])))
+        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses))
 
 
 def read_route_file(source: Any, name: str = "") -> RouteFile:
-    """The models, segments and transitions of a fit file (a single-target fit file: a route of
-    one segment); :class:`RecordingError` when malformed or inconsistent."""
-    stream = McapStream(source, topics={MODEL_TOPIC, ROUTE_TOPIC}, schemas=TOPICS[FILE_KIND], name=name)
-    models: list[FitModel] = []
-    route: dict[str, Any] | None = None
-    for message in stream:
-        if message.topic == MODEL_TOPIC:
-            models.append(model_from_message(message.json(stream.name), stream.name))
-        else:
-            route = message.json(stream.name)
-    info = read_metadata(stream, "hbvs")
-    if info.get("file_kind") not in (None, FILE_KIND) or not models:
-        raise RecordingError(f"{stream.name}: no fit model in it (is it the output of hbvs fit, and complete?)")
+    """The route of a fit file or stream (:func:`route_of`)."""
+    return route_of(read_fit_file(source, name), name or str(source))
+
+
+def route_of(fit: FitFile, name: str) -> RouteFile:
+    """The models, segments and transitions of a fit file read (a single-target fit file: a
+    route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
+    models, route = fit.segment_models or [fit.model], fit.route_record
     if route is None:
-        if len(models) > 1:
-            raise RecordingError(f"{stream.name}: {len(models)} fit models but no route record (a route fit cut short?)")
-        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], info)
+        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], fit.info)
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
                             None if s["overlap_last"] is None else int(s["overlap_last"])) for s in route["segments"]]
         references = [int(s["reference"]) for s in route["segments"]]
         transitions = [_transition_from_record(record) for record in route["transitions"]]
+        taught = None if route.get("taught_poses") is None else np.asarray(route["taught_poses"], dtype=float).reshape(-1, 4)
     except PARSE_ERRORS as exc:
-        raise RecordingError(f"{stream.name}: the route record is malformed: {exc}") from None
+        raise RecordingError(f"{name}: the route record is malformed: {exc}") from None
     if not len(segments) == len(models) == len(transitions) + 1:
-        raise RecordingError(f"{stream.name}: {len(models)} fit models for a route of {len(segments)} segments "
+        raise RecordingError(f"{name}: {len(models)} fit models for a route of {len(segments)} segments "
                              f"and {len(transitions)} transitions")
-    return RouteFile(models, segments, references, transitions, info)
+    return RouteFile(models, segments, references, transitions, fit.info, route.get("world"), taught)

@@ -84,7 +84,8 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
                                     f"{reader.name} (segment {len(models) + 1})"))
         references.append(segment.first + reference)
     transitions = estimate_transitions(t, segments, [model.trajectory for model in models])
-    write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name)
+    write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
+                reader.world_description, np.column_stack([t, poses]))
     _print_route_summary(console, route, segments, models, transitions, t, options)
     return models
 
