@@ -76,12 +76,15 @@ class RouteCamera:
     plus Gaussian noise (``pixel_noise`` px), measured through that segment's estimator; at
     each switch the controller's dhat (and the floor its projection keeps, from dhat0) is
     carried over by the transition's rho, and its gains become the segment's (``gains``, one
-    per segment, if given). ``switches`` logs ``(t, segment, dhat before, after)``."""
+    per segment, if given). ``orders``: each segment's permutation of its target's points into
+    its fit's order (a detector's, :func:`~.scene.point_identity`; none: the world's order).
+    ``switches`` logs ``(t, segment, dhat before, after)``."""
 
     def __init__(self, route: RouteWorld, fitted: RouteFit, trajectory: RouteTrajectory,
                  controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
-                 gains: Sequence[ControllerGains] | None = None) -> None:
+                 gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
         self.route, self.fitted, self.trajectory, self.controller = route, fitted, trajectory, controller
+        self.orders = orders
         self.gains = gains
         self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal) for fit in fitted.fits]
         self.pixel_noise = pixel_noise
@@ -109,7 +112,7 @@ class RouteCamera:
         local = self.route.local_pose(target, pose)
         if not world.in_view(local, margin_px=0.0):
             return Observation(None, status=ObservationStatus.OCCLUDED)
-        pixels = world.pixels(local)
+        pixels = world.pixels(local) if self.orders is None else world.pixels(local)[self.orders[self.active]]
         if self.pixel_noise > 0:
             pixels = pixels + self.rng.normal(0.0, self.pixel_noise, pixels.shape)
         return self.estimators[self.active].from_pixels(pixels)
@@ -118,14 +121,16 @@ class RouteCamera:
 def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controller: AdaptiveTrackingController,
               start_pose: ArrayLike, dt: float, duration: float, limits: ActuatorLimits | None = None,
               pixel_noise: float = 0.0, seed: int = 0, gains: Sequence[ControllerGains] | None = None,
-              filter_noise: Sequence[float] | None = None) -> tuple[RouteCamera, Iterator[StepRecord]]:
+              filter_noise: Sequence[float] | None = None, orders: Sequence[NDArray[np.intp]] | None = None
+              ) -> tuple[RouteCamera, Iterator[StepRecord]]:
     """The closed loop along ``route`` from ``start_pose`` (x, y, phi in its frame R), one
     :class:`~hbvs_cli.core.simulator.StepRecord` per period ``dt`` (s) for ``duration`` (s);
     the camera keeps the log of the switches. ``filter_noise`` (normalised units, one per
     segment): a state filter per segment, each new one started at the carried dhat, whose soft
-    start fades its feedback in from the taught commands: what smooths a switch."""
+    start fades its feedback in from the taught commands: what smooths a switch. ``orders``: as
+    :class:`RouteCamera` takes them."""
     trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
-    camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains)
+    camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
     if gains is not None:
         controller.gains = gains[0]
     if filter_noise is not None:
