@@ -3,16 +3,21 @@ checked against the simulated corridor's exact geometry."""
 
 from __future__ import annotations
 
+import io
+import json
+
 import numpy as np
 import pytest
 
+from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.file_info import read_file_info
 from hbvs_cli.io.route_file import read_route_file
+from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.topics import ROUTE_TOPIC
 from hbvs_cli.sim.route_world import corridor_route
 
-from conftest import call_hbvs
+from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
 
 #: The taught drive's frame rate (Hz): at 10 Hz the last photograph's tracker loses it as the third turn begins.
 RATE = 15.0
@@ -68,3 +73,27 @@ def test_a_route_fit_without_a_followable_target_says_where_the_route_has_a_gap(
     result = call_hbvs("fit", str(teach), "-o", str(tmp_path / "fit.mcap"))
     assert result.returncode != 0 and b"the route has a gap" in result.stderr
     assert not (tmp_path / "fit.mcap").exists()
+
+
+@SUITE_OR_CAMPAIGN
+def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_learning_each_segments_depth(extent, request):
+    """``teach --sim --route corridor | fit | repeat --sim | report`` through pipes, teach and repeat
+    seed 0, the repeat's default start offset and noise-free points. Suite: its first 16 s (dots,
+    then the board), measured 0.30 cm and 0.10 deg at the last step, dhat within 0.16 % and
+    0.06 % of each segment's d* at its end. Campaign: the whole corridor at 30 Hz (four
+    segments), measured 0.44 cm, 0.010 deg; dhat within 0.76, 0.03, 0.11 and 0.03 %."""
+    whole = campaign_extent(request, extent)
+    span = () if whole else ("--duration", "16", "--fps", str(RATE))
+    teach = call_hbvs("teach", "--sim", "--route", "corridor", *span, "-o", "-")
+    fit = call_hbvs("fit", "-", "-o", "-", input=teach.stdout)
+    repeat = call_hbvs("repeat", "--sim", "-", "-o", "-", input=fit.stdout)
+    assert teach.returncode == fit.returncode == repeat.returncode == 0
+    run = read_run(io.BytesIO(repeat.stdout))
+    assert np.linalg.norm(run.true_pose[-1, :2] - run.desired_pose[-1, :2]) < 0.02
+    assert abs(np.degrees(wrap_angle(run.true_pose[-1, 2] - run.desired_pose[-1, 2]))) < 0.5
+    report = call_hbvs("report", "-", "--json", input=repeat.stdout)
+    segments = json.loads(report.stdout)["route"]
+    assert [segment["target_kind"] for segment in segments] == (["dots", "aruco", "texture", "texture"] if whole else ["dots", "aruco"])
+    assert all(segment["relative_error"] < 0.01 for segment in segments)
+    assert all(segment["V_end"] < segment["V_start"] for segment in segments)
+    assert [round(segment["t_start"], 6) for segment in segments[1:]] == pytest.approx(run.info["route"]["switch_times"], abs=1 / RATE)
