@@ -112,9 +112,9 @@ def test_teach_route_refuses_what_it_brings_itself(tmp_path, extra, message):
     assert not output.exists()
 
 
-def test_fit_says_plainly_that_it_does_not_split_routes_yet(tmp_path):
+def test_fit_on_a_route_too_short_for_its_segment_says_which_and_writes_nothing(tmp_path):
     teach, fit = tmp_path / "route.mcap", tmp_path / "fit.mcap"
     assert call_hbvs("teach", "--sim", "--route", "corridor", "--fps", "1", "--duration", "3", "-o", str(teach)).returncode == 0
     result = call_hbvs("fit", str(teach), "-o", str(fit))
-    assert result.returncode != 0 and "routes are not split into segments yet" in result.stderr.decode()
+    assert result.returncode != 0 and "(segment 1): the target was found in only 3 of 3 frames" in result.stderr.decode()
     assert not fit.exists()
