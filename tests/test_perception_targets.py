@@ -9,8 +9,6 @@ leaves the view); the whole drives, with and without the known layout, run with
 
 from __future__ import annotations
 
-import re
-
 import cv2
 import numpy as np
 import pytest
@@ -24,7 +22,7 @@ from hbvs_cli.io.target_points import read_target_points
 from hbvs_cli.perception.aruco import ArucoMarkerDetector
 from hbvs_cli.perception.autodetect import find_dots
 from hbvs_cli.perception.charuco import CharucoTargetDetector, infer_board
-from hbvs_cli.perception.tracked import choose_target
+from hbvs_cli.perception.tracked import target_candidates
 
 import footage
 from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
@@ -166,34 +164,34 @@ def test_target_points_file_is_read_or_refused_in_one_line(tmp_path):
 
 
 # --------------------------------------------------------------------------- what auto picks
-def _predicted(reason: str, kind_words: str) -> float:
-    """The predicted theta_d precision (deg) the one line gives after ``kind_words``."""
-    return float(re.search(re.escape(kind_words) + r" ([0-9.e-]+) deg", reason).group(1))
+def _candidates(images, camera):
+    """What ``--target auto`` finds in the first frames, the best predicted first, by kind."""
+    found = target_candidates(images, _intrinsics(camera))
+    return found, {choice.kind: choice for choice in found.found}
 
 
 def test_auto_picks_the_picture_over_a_small_marker_printed_in_it():
-    """A photograph with a small ArUco marker printed in its corner: the whole picture, and
-    the one line gives both predictions (before: the tiny marker, n* off by 14 deg in the
-    issue). Measured by --target KIND on the whole drive (seeds 7, 8): texture 0.031 and
-    0.044 deg; the marker 4.3 deg (seed 7; lost on seed 8)."""
+    """A photograph with a small ArUco marker printed in its corner: the whole picture is
+    predicted the better (before: the tiny marker, n* off by 14 deg in the issue). Measured by
+    --target KIND on the whole drive (seeds 7, 8): texture 0.031 and 0.044 deg; the marker 4.3
+    deg (seed 7; lost on seed 8)."""
     images, _, camera = _frames("photo_with_tags", range(5))
-    choice = choose_target(images, _intrinsics(camera))
-    assert choice.kind == "texture", choice
-    texture, marker = _predicted(choice.reason, "precision"), _predicted(choice.reason, "vs aruco")
-    assert "(4 corners over" in choice.reason and 10 * texture < marker, choice.reason
+    candidates, by_kind = _candidates(images, camera)
+    assert candidates.found[0].kind == "texture", candidates.found
+    assert "(4 corners over" in candidates.described(by_kind["aruco"])
+    assert 10 * by_kind["texture"].predicted_deg < by_kind["aruco"].predicted_deg
 
 
 def test_auto_picks_the_texture_of_a_small_chessboard_over_its_corners():
     """The chessboard of 6 cm squares (its 35 inner corners 13 px RMS about their centre in
     F*): the alignment of the whole board predicts a better theta_d than its corners, as
     measured by --target KIND on the whole drive (seeds 7, 8): texture 0.083 and 0.070 deg,
-    chessboard 0.144 and 0.131 deg. The one line says so with both numbers."""
+    chessboard 0.144 and 0.131 deg."""
     images, _, camera = _frames("chessboard", range(5), jpeg=90)
-    choice = choose_target(images, _intrinsics(camera))
-    assert choice.kind == "texture", choice
-    assert "predicted theta_d precision" in choice.reason and "vs chessboard" in choice.reason and "(35 corners over" in choice.reason
-    texture, board = _predicted(choice.reason, "precision"), _predicted(choice.reason, "vs chessboard")
-    assert 0.05 <= texture < board <= 0.3, choice.reason
+    candidates, by_kind = _candidates(images, camera)
+    assert candidates.found[0].kind == "texture", candidates.found
+    assert "(35 corners over" in candidates.described(by_kind["chessboard"])
+    assert 0.05 <= by_kind["texture"].predicted_deg < by_kind["chessboard"].predicted_deg <= 0.3
 
 
 # --------------------------------------------------------------------------- whole drives

@@ -84,11 +84,10 @@ def test_every_sweep_parameter_has_the_bounds_of_the_repeat_option_it_sets():
     own = {"offset_x", "offset_y", "offset_theta", "dhat0_factor", "occlusion_start", "occlusion_length"}
     for name, parameter in PARAMETERS.items():
         if name in own:
-            assert parameter.setting is None
+            assert parameter.own
             continue
-        assert parameter.setting == name and name in REPEAT
-        # The very mapping of the one declaration, not a copy of it.
-        assert parameter.bounds is REPEAT[name].bounds
+        # The very declaration of the option, not a copy of it.
+        assert not parameter.own and parameter.setting is REPEAT[name]
         for value in (REPEAT[name].bounds.get("min"), REPEAT[name].bounds.get("max")):
             if value is not None:
                 assert parameter.bound_violation(value) is None

@@ -6,14 +6,13 @@ defaults without loading the numerical stack.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
 
 from ..errors import InvalidValueError
 
-#: Names of the two laws hbvs implements.
+#: The two variants of the law (29)-(31) hbvs implements.
 LAW_PAPER = "paper"
 LAW_LATERAL_GAIN = "lateral-gain"
-LAWS = (LAW_PAPER, LAW_LATERAL_GAIN)
 #: The baselines ``--law`` also offers (docs/method.md, "Baselines"; :mod:`.laws`).
 LAW_NON_ADAPTIVE = "non-adaptive"
 LAW_KANAYAMA = "kanayama"
@@ -51,14 +50,6 @@ class ControllerGains:
     def as_dict(self) -> dict[str, float]:
         """The gains as a plain dictionary (for files and reports)."""
         return {k: float(v) for k, v in asdict(self).items()}
-
-    def with_law(self, law: str) -> "ControllerGains":
-        """These gains under a named law: ``"paper"`` forces k_2 = 1."""
-        if law == LAW_PAPER:
-            return replace(self, k_2=1.0)
-        if law == LAW_LATERAL_GAIN:
-            return self
-        raise InvalidValueError(f"unknown law {law!r}: choose one of {', '.join(LAWS)}")
 
 
 #: The gains' names, as files, reports and ``--config`` spell them.

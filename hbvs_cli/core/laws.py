@@ -139,7 +139,7 @@ class KanayamaController:
         return 0.0, 0.0
 
 
-register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains.with_law(LAW_LATERAL_GAIN), AdaptiveTrackingController))
-register_law(LawSpec(LAW_PAPER, lambda gains: gains.with_law(LAW_PAPER), AdaptiveTrackingController))
+register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains, AdaptiveTrackingController))
+register_law(LawSpec(LAW_PAPER, lambda gains: replace(gains, k_2=1.0), AdaptiveTrackingController))  # (29): no lateral gain
 register_law(LawSpec(LAW_NON_ADAPTIVE, _without_adaptation, AdaptiveTrackingController))
 register_law(LawSpec(LAW_KANAYAMA, _without_adaptation, lambda gains, dhat0: KanayamaController(dhat0)))

@@ -287,8 +287,13 @@ def target_candidates(
     seed: int = 0,
 ) -> Candidates:
     """Every target kind found consistently in the first frames (gray or BGR uint8) of a
-    recording, as :func:`choose_target` describes; InputError naming every kind tried when
-    none is found."""
+    recording, the lowest :attr:`TargetChoice.predicted_deg` first; InputError naming every
+    kind tried when none is found.
+
+    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
+    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
+    (or their ChArUco board).
+    """
     grays = [as_gray(image) for image in images]
     found, ruled_out, aside = [], [], ""
     markers = find_markers(grays, marker_dict)
@@ -321,24 +326,3 @@ def target_candidates(
         )
     found.sort(key=lambda choice: choice.predicted_deg)
     return Candidates(found, ruled_out, aside)
-
-
-def choose_target(
-    images: Sequence[NDArray[np.uint8]],
-    template_pixels_of: Any,
-    *,
-    marker_dict: str | None = None,
-    seed: int = 0,
-) -> TargetChoice:
-    """Pick the target kind from the first frames (gray or BGR uint8) of a recording: of the
-    kinds found consistently, the one of the lowest :attr:`TargetChoice.predicted_deg`.
-
-    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
-    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
-    (or their ChArUco board). InputError naming every kind tried when none is found.
-    """
-    candidates = target_candidates(images, template_pixels_of, marker_dict=marker_dict, seed=seed)
-    best, *others = candidates.found
-    versus = "".join(f" vs {c.kind} {candidates.described(c)}" for c in others)
-    return replace(best, reason=f"{best.reason}; predicted theta_d precision {candidates.described(best)}{versus}{candidates.aside}"
-                                f"{candidates.none_found()}")

@@ -11,8 +11,7 @@ from ..core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import DetectorSpec, FitModel
 from ..errors import RecordingError
-from .autodetect import Candidates, TargetChoice
-from .autodetect import choose_target as choose
+from .autodetect import Candidates
 from .autodetect import target_candidates as candidates_in
 from .base import Detection, TargetDetector, match_identity
 from .dot_windows import Window, WindowedDotDetector
@@ -121,12 +120,6 @@ def _undistort_maps(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     if camera.distortion_model == "equidistant":
         return cv2.fisheye.initUndistortRectifyMap(camera.K, distortion, np.eye(3), camera.K, size, cv2.CV_32FC1)
     return cv2.initUndistortRectifyMap(camera.K, distortion, None, camera.K, size, cv2.CV_32FC1)
-
-
-def choose_target(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> TargetChoice:
-    """``--target auto`` on real footage: what the first images show (a
-    :class:`~hbvs_cli.perception.autodetect.TargetChoice`, which says why)."""
-    return choose(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
 
 
 def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> Candidates:

@@ -288,9 +288,6 @@ class ReportOptions(Options):
         "V, top; for a fit file: theta_d, x_hd1, x_hd2 (each also NAME_residual), x_hd1_dot.", panel="Figure")
 
 
-REPORT = {setting.name: setting for setting in settings_of(ReportOptions)}
-
-
 @dataclass(frozen=True)
 class SweepOptions(Options):
     """Everything ``hbvs sweep`` was asked to do (see ``hbvs sweep --help``)."""

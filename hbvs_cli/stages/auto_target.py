@@ -24,7 +24,7 @@ from ..core.plane import KnownShape
 from ..errors import HbvsError, InputError, InsufficientDataError
 from ..io.teach_file import TeachReader
 from ..perception.autodetect import Candidates, TargetChoice
-from ..perception.target_kinds import target_kind
+from ..perception.target_kinds import TARGET_KINDS, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
 from .frame_decoding import decode_frame
 
@@ -100,7 +100,7 @@ def _markers_whole_in_the_first_frame(spec: DetectorSpec, pixels: np.ndarray) ->
     the whole target): those that are, and their pixels (F, 4M, 2); else as given. Markers
     decoded in most of the first frames may miss the very first (a 3x2 board under a barrel
     lens, 3 seeds of 10: the fit failed)."""
-    if spec.kind != "aruco" or not spec.marker_ids or len(spec.marker_ids) < 2:
+    if not spec.marker_ids or len(spec.marker_ids) < 2:  # one marker, or a kind without markers
         return spec, pixels
     whole = np.all(np.isfinite(pixels[0].reshape(-1, 4, 2)), axis=(1, 2))
     if whole.all() or not whole.any():
@@ -145,7 +145,7 @@ def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) ->
 
     if not usable:
         raise InputError(f"--target auto: no target kind is found over the whole drive ({frames} frames followed): "
-                         f"{'; '.join(figures(j) for j in judged)}. Choose one with --target dots|aruco|chessboard|charuco|texture")
+                         f"{'; '.join(figures(j) for j in judged)}. Choose one with --target {'|'.join(TARGET_KINDS)}")
     best = usable[0]
     others = "".join(f" vs {figures(j)}" for j in judged if j is not best)
     reason = (f"{best.choice.reason}; followed over {frames} frames of the whole drive, a short joint estimate on up to {JUDGE_FRAMES} "

@@ -68,14 +68,11 @@ class CommandOut:
         self._publisher = publisher
         self._stream = stream
         self.dry_run = dry_run
-        self.sent = 0
         #: ``time.monotonic()`` of the last command sent.
         self.sent_at = time.monotonic()
         #: The last command sent (m/s, rad/s), and its run time (s).
         self.last = (0.0, 0.0)
         self._t = 0.0
-        #: Zeros the deadman sent.
-        self.deadman_stops = 0
         self._lock = threading.Lock()
         self._closed = threading.Event()
         self._deadman: threading.Thread | None = None
@@ -90,7 +87,6 @@ class CommandOut:
             if self._publisher is not None:
                 self._publisher.publish(v, w)
             write_command(self._stream, t, v, w)
-            self.sent += 1
             self.sent_at, self.last, self._t = time.monotonic(), (v, w), t
 
     def stop(self, t: float) -> None:
@@ -118,7 +114,6 @@ class CommandOut:
                 due = self.sent_at + stale_timeout_s if self.last != (0.0, 0.0) else None
                 if due is not None and now >= due:
                     self._zero(self._t + (now - self.sent_at))
-                    self.deadman_stops += 1
                     continue
             self._closed.wait(min(due - now, DEADMAN_POLL_S) if due is not None else DEADMAN_POLL_S)
 

@@ -4,71 +4,67 @@ lists them without loading the numerical stack."""
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-from typing import Mapping
+from dataclasses import dataclass
 
 from ..core.control_settings import GAIN_NAMES, GAIN_UNITS
 from ..settings.commands import REPEAT
+from ..settings.option import Setting
 
 
 @dataclass(frozen=True)
 class Parameter:
-    """A parameter a sweep can vary or fix: ``kind`` float, int or choice; ``setting`` the
-    ``hbvs repeat`` option whose choices and bounds it shares, else ``own_bounds`` (min, max)."""
+    """A parameter a sweep can vary or fix, in ``unit``: the ``hbvs repeat`` option it sets (``setting``, whose
+    type, choices and bounds it shares), or one of its own (``own``) that sets repeat's options its way."""
 
-    name: str
-    kind: str
+    setting: Setting
     unit: str
-    setting: str | None = None
-    own_bounds: Mapping[str, float] = field(default_factory=dict)
+    own: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.setting.name
+
+    @property
+    def kind(self) -> str:
+        """float, int or choice."""
+        return "choice" if self.setting.choices else self.setting.type.__name__
 
     @property
     def choices(self) -> tuple[str, ...]:
-        return REPEAT[self.setting].allowed() if self.setting is not None else ()
-
-    @property
-    def bounds(self) -> Mapping[str, float]:
-        return REPEAT[self.setting].bounds if self.setting is not None else self.own_bounds
+        return self.setting.allowed()
 
     def bound_violation(self, value: float) -> str | None:
         """Why ``value`` is out of bounds (``repeat``'s words for its options), or None."""
-        if self.setting is not None:
-            return REPEAT[self.setting].violation(value)
-        low, high = self.own_bounds.get("min", -math.inf), self.own_bounds.get("max", math.inf)
-        if not low <= value <= high:
-            return f"{self.name} must be within [{low:g}, {high:g}], got {value!r}"
-        return None
+        return self.setting.violation(value, self.name if self.own else None)
 
 
-def _repeat_parameter(name: str, unit: str) -> Parameter:
-    """The parameter that sets ``repeat``'s option ``name``: a choice if the option has choices, else a number of its type."""
-    setting = REPEAT[name]
-    return Parameter(name, "choice" if setting.choices else setting.type.__name__, unit, setting=name)
+def _own_parameter(name: str, unit: str, **bounds: float) -> Parameter:
+    """A parameter of the sweep's own, a float (m, deg, s or a factor) within ``bounds`` (min, max)."""
+    return Parameter(Setting(name, float, "", bounds=bounds), unit, own=True)
 
 
 #: Every parameter a sweep knows, with the ``hbvs repeat`` option it sets.
 PARAMETERS: dict[str, Parameter] = {
     p.name: p
     for p in (
-        Parameter("offset_x", "float", "m"),  # --offset DX, along the taught start heading
-        Parameter("offset_y", "float", "m"),  # --offset DY, to the left
-        Parameter("offset_theta", "float", "deg"),  # --offset DTHETA
-        _repeat_parameter("dhat0", "m"),
-        Parameter("dhat0_factor", "float", "x d*", own_bounds={"min": 0.0}),  # --dhat0 as a multiple of the true d*
-        _repeat_parameter("pixel_noise", "px"),
+        _own_parameter("offset_x", "m"),  # --offset DX, along the taught start heading
+        _own_parameter("offset_y", "m"),  # --offset DY, to the left
+        _own_parameter("offset_theta", "deg"),  # --offset DTHETA
+        Parameter(REPEAT["dhat0"], "m"),
+        _own_parameter("dhat0_factor", "x d*", min=0.0),  # --dhat0 as a multiple of the true d*
+        Parameter(REPEAT["pixel_noise"], "px"),
         # The gains (29)-(31); a dimensionless one has no unit.
-        *(_repeat_parameter(name, GAIN_UNITS[name].replace("-", "")) for name in GAIN_NAMES),
-        _repeat_parameter("law", ""),
-        _repeat_parameter("drop_rate", ""),
-        _repeat_parameter("outlier_rate", ""),
-        Parameter("occlusion_start", "float", "s", own_bounds={"min": 0.0}),  # --occlude START:END
-        Parameter("occlusion_length", "float", "s", own_bounds={"min": 0.0}),  # 0: no occlusion
-        _repeat_parameter("latency", "frames"),
-        _repeat_parameter("perception", ""),
-        _repeat_parameter("rate", "Hz"),
-        _repeat_parameter("speed", ""),
-        _repeat_parameter("lost_timeout", "s"),
+        *(Parameter(REPEAT[name], GAIN_UNITS[name].replace("-", "")) for name in GAIN_NAMES),
+        Parameter(REPEAT["law"], ""),
+        Parameter(REPEAT["drop_rate"], ""),
+        Parameter(REPEAT["outlier_rate"], ""),
+        _own_parameter("occlusion_start", "s", min=0.0),  # --occlude START:END
+        _own_parameter("occlusion_length", "s", min=0.0),  # 0: no occlusion
+        Parameter(REPEAT["latency"], "frames"),
+        Parameter(REPEAT["perception"], ""),
+        Parameter(REPEAT["rate"], "Hz"),
+        Parameter(REPEAT["speed"], ""),
+        Parameter(REPEAT["lost_timeout"], "s"),
     )
 }
 

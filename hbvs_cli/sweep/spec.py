@@ -347,7 +347,7 @@ def repeat_arguments(values: Mapping[str, Any], seed: int, d_true: float | None)
         start = float(values.get("occlusion_start", DEFAULT_OCCLUSION_START))
         options["occlude"] = [f"{start!r}:{start + float(values['occlusion_length'])!r}"]
     for name, parameter in PARAMETERS.items():
-        if parameter.setting is not None and name != "dhat0" and name in values:
+        if not parameter.own and name != "dhat0" and name in values:
             options[name] = values[name]
     return options
 
