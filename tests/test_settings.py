@@ -130,7 +130,7 @@ def test_teach_options_come_from_their_table_too():
     helps = {param.name: param.help for param in command.params}
     assert set(helps) - {"quiet"} == {f.name for f in dataclasses.fields(TeachOptions)} == {s.name for s in TEACH_SETTINGS}
     # The simulation's defaults are the table's, and --help shows them.
-    assert SIMULATION_DEFAULTS == {"path": "s-curve", "offset": None, "target": "dots", "dots": 3, "texture": None,
+    assert SIMULATION_DEFAULTS == {"path": "s-curve", "route": None, "offset": None, "target": "dots", "dots": 3, "texture": None,
                                    "seed": 0, "noise": 2.0, "blur": 0.0, "noise_grain": 0.0, "exposure": 1.0,
                                    "video_out": None, "calibration_out": None}
     assert TeachOptions().for_simulation().noise == SIMULATION_DEFAULTS["noise"]

@@ -92,8 +92,9 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         info.messages += 1
         info.first_ns = min(info.first_ns, message.log_time)
         info.last_ns = max(info.last_ns, message.log_time)
-        if message.topic == MODEL_TOPIC and target is None and message.message_encoding == "json":
-            target = message.json(stream.name).get("target_kind")
+        if message.topic == MODEL_TOPIC and message.message_encoding == "json":  # a route's: one per segment
+            kind_of_segment = message.json(stream.name).get("target_kind")
+            target = kind_of_segment if target is None else f"{target} -> {kind_of_segment}"
     metadata = read_metadata(stream, "hbvs")
     kind = metadata.get("file_kind")
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}

@@ -7,7 +7,7 @@ import base64
 import binascii
 import json
 import math
-from dataclasses import MISSING, asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -25,7 +25,7 @@ from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
 from .mcap import McapStream, json_ready, read_metadata, time_message
-from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
+from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import PARSE_ERRORS, RENDER_SETTINGS, render_settings_problem, world_description
 
 FILE_KIND = "fit"
@@ -290,28 +290,38 @@ class FitFile:
     template_image: bytes | None
     info: dict[str, Any]
     truncated: bool = False
+    #: A route's fit (:mod:`.route_file`): every segment's model (``model`` is the first's) and its route record.
+    segment_models: list[FitModel] = field(default_factory=list)
+    route_record: dict[str, Any] | None = None
 
 
 def read_fit_file(source: Any, name: str = "") -> FitFile:
     """Read the model and images of a fit file or stream; :class:`RecordingError` if it has none."""
-    topics = {MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC}
+    topics = {MODEL_TOPIC, ROUTE_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC}
     stream = McapStream(source, topics=topics, schemas=TOPICS[FILE_KIND], name=name)
-    model_message: dict[str, Any] | None = None
+    model_messages: list[dict[str, Any]] = []
+    route_record: dict[str, Any] | None = None
     images: dict[str, bytes] = {}
     for message in stream:
         if message.topic == MODEL_TOPIC:
-            model_message = message.json(stream.name)
+            model_messages.append(message.json(stream.name))
+        elif message.topic == ROUTE_TOPIC:
+            route_record = message.json(stream.name)
         else:
             images[message.topic] = read_compressed_image(message.data, stream.name).data
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):
         raise RecordingError(f"{stream.name}: this is a {kind!r} file; hbvs repeat reads the output of hbvs fit")
-    if model_message is None:
+    if not model_messages:
         raise RecordingError(f"{stream.name}: no fit model in it (is it the output of hbvs fit, and complete?)")
+    if len(model_messages) > 1 and route_record is None:
+        raise RecordingError(f"{stream.name}: {len(model_messages)} fit models but no route record (a route fit cut short?)")
+    models = [model_from_message(message, stream.name) for message in model_messages]
     return FitFile(
-        model=model_from_message(model_message, stream.name), reference_image=images.get(REFERENCE_IMAGE_TOPIC),
+        model=models[0], reference_image=images.get(REFERENCE_IMAGE_TOPIC),
         template_image=images.get(TEMPLATE_IMAGE_TOPIC), info=info, truncated=stream.truncated,
+        segment_models=models, route_record=route_record,
     )
 
 

@@ -52,13 +52,12 @@ def _entity(ns: int, entity_id: str, **primitives: list[Any]) -> Any:
     return SceneEntity(timestamp=stamp(ns), frame_id=WORLD_FRAME, id=entity_id, lifetime=Duration(), frame_locked=False, **primitives)
 
 
-def target_entity(ns: int, world: Any) -> Any:
-    """The target of a simulated world: its points as spheres, its poster as a thin box."""
+def target_entity(ns: int, target: Any, entity_id: str = "target") -> Any:
+    """A target of a simulated world: its points as spheres, its poster as a thin box."""
     from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
     from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
     from scipy.spatial.transform import Rotation
 
-    target = world.target
     poster = target.poster
     diameter = max(2.0 * float(target.dot_radius), 0.03)
     spheres = [
@@ -71,7 +70,7 @@ def target_entity(ns: int, world: Any) -> Any:
     rotation = Rotation.from_matrix(np.column_stack([np.cross(right, up), right, up])).as_quat()
     size = vector3((0.01, float(poster.width), float(poster.height)))
     cube = CubePrimitive(pose=_pose(poster.center, rotation), size=size, color=color(0.9, 0.9, 0.9, 0.6))
-    return _entity(ns, "target", spheres=spheres, cubes=[cube])
+    return _entity(ns, entity_id, spheres=spheres, cubes=[cube])
 
 
 def path_entity(ns: int, poses: np.ndarray, height: float = 0.0) -> Any:
@@ -93,7 +92,9 @@ def scene_update(ns: int, world: Any = None, taught_poses: np.ndarray | None = N
 
     entities = []
     if world is not None:
-        entities.append(target_entity(ns, world))
+        # A route (sim/route.py) has several targets, placed in its frame; a world has one.
+        targets = getattr(world, "route_targets", None) or (world.target,)
+        entities.extend(target_entity(ns, target, "target" if i == 0 else f"target_{i}") for i, target in enumerate(targets))
     if taught_poses is not None and len(taught_poses) > 1:
         entities.append(path_entity(ns, taught_poses))
     return SceneUpdate(entities=entities)

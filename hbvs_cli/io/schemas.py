@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .topics import CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA, LOOP_TIMING_SCHEMA, VELOCITY_COMMAND_SCHEMA
+from .topics import CONTROLLER_STATE_SCHEMA, DESIRED_SIGNAL_SCHEMA, FIT_MODEL_SCHEMA, LOOP_TIMING_SCHEMA, ROUTE_SCHEMA, VELOCITY_COMMAND_SCHEMA
 
 _TIME = {
     "type": "object",
@@ -128,5 +128,16 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "dry_run": {"type": "boolean", "description": "zero was published instead of the command (--dry-run)"},
         },
         "required": ["timestamp", "t", "frame_stamp", "latency_s", "dropped"],
+    },
+    ROUTE_SCHEMA: {
+        "title": ROUTE_SCHEMA,
+        "description": "A route's segments (one hbvs.FitModel each on /fit/model, in order) and the transition from each to the next (issue 47)",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "segments": {"type": "array", "items": {"type": "object", "description": "target (index in the route), first and last frame of the drive, overlap_last (the previous segment's last frame; null for the first), reference (F*_i's frame)"}},
+            "transitions": {"type": "array", "items": {"type": "object", "description": "F*_{i+1} in F*_i: depth_ratio rho = d*_{i+1}/d*_i, heading (rad), origin_over_depth (-), their standard deviations and covariance of (u_1, u_2, rho)"}},
+        },
+        "required": ["timestamp", "segments", "transitions"],
     },
 }

@@ -12,6 +12,7 @@ LOG_SCHEMA = "foxglove.Log"
 VELOCITY_COMMAND_SCHEMA = "hbvs.VelocityCommand"
 DESIRED_SIGNAL_SCHEMA = "hbvs.DesiredSignal"
 FIT_MODEL_SCHEMA = "hbvs.FitModel"
+ROUTE_SCHEMA = "hbvs.Route"
 CONTROLLER_STATE_SCHEMA = "hbvs.ControllerState"
 LOOP_TIMING_SCHEMA = "hbvs.LoopTiming"
 
@@ -36,6 +37,8 @@ TEACH_COMMAND_TOPIC = "/teach/cmd_vel"
 TRUE_POSE_TOPIC = "/ground_truth/pose"
 #: The fitted model (calibration, d*, n*, splines' knots), once per fit file.
 MODEL_TOPIC = "/fit/model"
+#: A route fit's segments and the transitions between them (after one model per segment).
+ROUTE_TOPIC = "/fit/route"
 #: The desired trajectory before and after smoothing.
 RAW_DESIRED_TOPIC = "/desired/raw"
 SMOOTH_DESIRED_TOPIC = "/desired/smooth"
@@ -73,6 +76,7 @@ TOPICS: dict[str, dict[str, str]] = {
     },
     "fit": {
         MODEL_TOPIC: FIT_MODEL_SCHEMA,
+        ROUTE_TOPIC: ROUTE_SCHEMA,
         RAW_DESIRED_TOPIC: DESIRED_SIGNAL_SCHEMA,
         SMOOTH_DESIRED_TOPIC: DESIRED_SIGNAL_SCHEMA,
         IMAGE_TOPIC: COMPRESSED_IMAGE_SCHEMA,

@@ -27,7 +27,7 @@ from ..errors import UsageError
 from ..io.messages import LOG_ERROR
 from ..io.run_file import RunData
 from .result import (
-    Commands, Condition35, Depth, ErrorSummary, Limits, Lyapunov, RunReport, RunSummary, Source, TaughtSmoothness,
+    Commands, Condition35, Depth, ErrorSummary, Limits, Lyapunov, RouteSegment, RunReport, RunSummary, Source, TaughtSmoothness,
     Target, Timing, Verdict,
 )
 
@@ -44,8 +44,8 @@ SMOOTHNESS_FLOOR_W = 1.0
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
 POSE_ERRORS = ("position_m", "heading_deg")
-#: Top-level keys of a report's JSON, in order, but a live run's ``timing``.
-REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name != "timing")
+#: Top-level keys of a report's JSON, in order, but a live run's ``timing`` and a route's ``route``.
+REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name not in ("timing", "route"))
 
 #: Each final error's check name, label, scale to the shown unit, and unit.
 _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {
@@ -337,5 +337,28 @@ def build_report(run: RunData, tolerances: Mapping[str, float] | None = None, la
     return RunReport(
         run=_run_summary(run, label), errors=errors, pose_error=pose_error, lyapunov=lyapunov, depth=_depth(run),
         commands=commands, target=_target(run), condition35=_condition35(run), timing=_timing(run),
-        verdict=verdict(run, errors, pose_error, lyapunov, commands, tolerances),
+        verdict=verdict(run, errors, pose_error, lyapunov, commands, tolerances), route=_route(run),
     )
+
+
+def _route(run: RunData) -> list[RouteSegment] | None:
+    """A route's segments (the run's ``route`` metadata, :mod:`~hbvs_cli.stages.repeat_route`):
+    each from its switch (the first step at or after it) to the next, V (36) and dhat there."""
+    route = run.info.get("route")
+    if not isinstance(route, dict):
+        return None
+    t, V, dhat = run.state["t"], run.state["V"], run.state["dhat"]
+    starts = np.searchsorted(t, [t[0], *route["switch_times"]])
+    ends = [*(starts[1:] - 1), t.size - 1]
+    segments = []
+    for number, (first, last) in enumerate(zip(starts, ends)):
+        d_true = float(route["d_true"][number])
+        last = max(min(int(last), t.size - 1), int(first))
+        finite = V[first:last + 1][np.isfinite(V[first:last + 1])] if first < t.size else np.array([])
+        dhat_end = float(dhat[last]) if first < t.size and np.isfinite(dhat[last]) else None
+        segments.append(RouteSegment(
+            target=int(route["targets"][number]) + 1, target_kind=str(route["target_kinds"][number]),
+            t_start=float(t[min(first, t.size - 1)]), V_start=float(finite[0]) if finite.size else None,
+            V_end=float(finite[-1]) if finite.size else None, d_true=d_true, dhat_end=dhat_end,
+            relative_error=None if dhat_end is None else abs(dhat_end - d_true) / d_true))
+    return segments

@@ -89,8 +89,11 @@ def lost_intervals(t: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]
 
 
 def _shade_losses(ax: Any, context: PanelContext) -> None:
-    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter ones only break the line)."""
+    """Shade each loss of at least :data:`MIN_SHADED_LOSS_S` in its run's colour (shorter ones only
+    break the line); a route's switches from one segment to the next as dotted lines."""
     for run, color in zip(context.runs, context.colors):
+        for switch in (run.info.get("route") or {}).get("switch_times", []):
+            ax.axvline(switch, color=color, ls=":", lw=0.8, zorder=0)
         for start, end in lost_intervals(run.state["t"], run.lost):
             if end - start >= MIN_SHADED_LOSS_S:
                 ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)

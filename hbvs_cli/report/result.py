@@ -190,8 +190,23 @@ class Verdict:
         return [text.removeprefix("fail: ") for text in self.reasons if text.startswith("fail")]
 
 
-#: Sections a run may lack: ``pose_error`` without ground truth, ``timing`` unless live.
-OPTIONAL_SECTIONS = ("pose_error", "timing")
+#: Sections a run may lack: ``pose_error`` without ground truth, ``timing`` unless live, ``route`` unless a route's.
+OPTIONAL_SECTIONS = ("pose_error", "timing", "route")
+
+
+@dataclass(frozen=True)
+class RouteSegment(Section):
+    """One segment of a route's run (issue 47): its target, from when (s), V (36) against its
+    own d*_i at its start and end (a switch restarts V), and its true d*_i with dhat at its end (m)."""
+
+    target: int
+    target_kind: str
+    t_start: float
+    V_start: float | None
+    V_end: float | None
+    d_true: float | None
+    dhat_end: float | None
+    relative_error: float | None
 
 
 @dataclass(frozen=True)
@@ -208,12 +223,14 @@ class RunReport:
     condition35: Condition35
     timing: Timing | None
     verdict: Verdict
+    #: A route's segments, in order (None for one target's run).
+    route: list[RouteSegment] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON of ``hbvs report --json`` (an absent optional section left out)."""
         return {
             field.name: asdict(value) if hasattr(value, "__dataclass_fields__") else
-            {name: asdict(item) for name, item in value.items()}
+            [asdict(item) for item in value] if isinstance(value, list) else {name: asdict(item) for name, item in value.items()}
             for field in fields(self)
             if (value := getattr(self, field.name)) is not None or field.name not in OPTIONAL_SECTIONS
         }

@@ -292,8 +292,19 @@ def report_tables(reports: Sequence[RunReport], console: Any) -> list[tuple[str,
         ("Lyapunov function (36), depth, commands, target, condition (35)", _rows_table(METRIC_ROWS, reports, plain)),
         *([("live loop: frame-to-command latency, frames dropped or late", _rows_table(TIMING_ROWS, reports, plain))]
           if any(report.timing is not None for report in reports) else []),
+        *[(f"route of {label}: each segment from its switch, V (36) against its d*_i", _route_table(report.route, plain))
+          for label, report in zip(run_labels(reports), reports) if report.route is not None],
         ("verdict (convergence rule: docs/report.md)", _verdict_table(reports, plain)),
     ]
+
+
+def _route_table(segments: Sequence[Any], plain: bool) -> Any:
+    """One row per segment of a route's run: target, switch time, V at its start and end, d*_i and dhat at its end (relative error)."""
+    table = new_table(("segment", "target", "from (s)", "V start", "V end", "d* (m)", "dhat (m)", "rel. error"), plain)
+    for number, segment in enumerate(segments):
+        table.add_row(str(number + 1), f"{segment.target} {segment.target_kind}", *(format_value(value) for value in (
+            segment.t_start, segment.V_start, segment.V_end, segment.d_true, segment.dhat_end, segment.relative_error)))
+    return table
 
 
 def report_console(stream: TextIO) -> Any:

@@ -62,6 +62,8 @@ class TeachFields(Options):
         "recorded as the taught (v, w); automatic when there is one.", panel="Sources")
     path: str | None = option("Taught path: a preset (straight, s-curve, arc) or a CSV with columns t,v,w (s, m/s, rad/s).",
         fallback=DEFAULT_PRESET, panel="Simulation")
+    route: str | None = option("A simulated route longer than one view instead of one target: corridor (23 m and three turns "
+        "past dots, a marker board and two photographs); it brings its own path and targets.", panel="Simulation")
     offset: str | None = option("Start the taught path displaced by DX,DY,DTHETA (m, m, deg), e.g. for a second drive to replay.",
         panel="Simulation")
     target: str | None = option("Target on the wall: dots, aruco or texture.", fallback="dots", panel="Simulation")

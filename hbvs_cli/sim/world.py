@@ -221,6 +221,9 @@ def world_from_description(data: Any, source: str) -> World:
     """The :class:`World` of a recorded description, checked so that rendering it is safe
     (poster at most :data:`MAX_POSTER_SIDE_M` a side, unit orthogonal axes, finite dot radius,
     at most :data:`MAX_TARGET_POINTS` points); RecordingError otherwise."""
+    if isinstance(data, dict) and "targets" in data:
+        raise RecordingError(f"{source}: a simulated route of several targets (teach --route) where one target's "
+                             "world is expected: hbvs fit splits a route into segments (issue 47)")
     try:
         world = World.from_dict(data)
     except HbvsError as exc:  # World says "malformed world description: ..." itself

@@ -35,6 +35,7 @@ from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
 from .auto_target import choose_on_the_drive, followed_frames
+from .fit_route import fit_route_teach, is_route
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
@@ -221,6 +222,10 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
+                if is_route(reader.world_description):  # several targets: segment by segment
+                    models = fit_route_teach(reader, writer, chain(first, frames), bar, console, partial(_checked_frame, reader),
+                                             partial(_segment_model, reader, smoothing, options, console), options)
+                    return FitSummary(output=options.output, model=models[0])
                 # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
@@ -270,31 +275,9 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
                       pull.pull_px if pull is not None else 0.0, calibration_sigma)
-        taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
-        depth, dhat0, dhat0_source = _depth(result, arrays, detector.spec, options, console, layout=layout)
-        model = FitModel(
-            target_kind=detector.spec.kind,
-            camera=camera,
-            reference_index=reference_index,
-            reference_t=float(arrays["t"][reference_index]),
-            reference_pixels=result.reference_pixels,
-            m_ref=result.m_ref,
-            normal=result.normal,
-            normal_margin=result.normal_margin,
-            trajectory=result.trajectory,
-            dhat0=dhat0,
-            dhat0_source=dhat0_source,
-            depth=depth,
-            frames=replace(result.frames, truncated_input=reader.truncated),
-            condition35=result.condition,
-            residual_px=result.residual_px,
-            detector=replace(detector.spec, initial_pixels=result.initial_pixels),
-            world_description=reader.world_description,
-            taught_path=taught_path,
-            render=_render_settings(reader),
-            gains=_suggested_gains(result, camera),
-            uncertainty=result.uncertainty.summary(calibration) if result.uncertainty is not None else None,
-        )
+        model = fitted_model(result, arrays, reference_index, replace(detector.spec, initial_pixels=result.initial_pixels), camera,
+                             reader, reader.world_description, options, console, calibration, layout)
+        taught_path = model.taught_path
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
             height = world.camera_height if world is not None else 0.0
@@ -306,6 +289,47 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, options)
     return FitSummary(output=options.output, model=model)
+
+
+def _segment_model(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
+                   reference_index: int, spec: DetectorSpec, world_description: dict[str, Any], name: str) -> FitModel:
+    """The fit model of one segment of a route (:mod:`.fit_route`), fitted as a single target's drive."""
+    calibration, calibration_sigma = _calibration_uncertainty(reader, reader.camera, console)
+    result = _fit(arrays, reference_index, reader.camera, smoothing, options, console, name, spec, calibration_sigma=calibration_sigma)
+    return fitted_model(result, arrays, reference_index, replace(spec, initial_pixels=result.initial_pixels), reader.camera,
+                        reader, world_description, options, console, calibration)
+
+def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_index: int, spec: DetectorSpec,
+                 camera: CameraIntrinsics, reader: Any, world_description: dict[str, Any] | None, options: FitOptions,
+                 console: Console, calibration: str, layout: np.ndarray | None = None) -> FitModel:
+    """The fit model of one target's drive (``arrays``: its frames, ``pose`` in its own world):
+    d* (25), the taught path, the suggested gains and the uncertainty beside ``result``'s splines.
+    A route's segments (:mod:`.fit_route`) are each one such model."""
+    taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
+    depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
+    return FitModel(
+        target_kind=spec.kind,
+        camera=camera,
+        reference_index=reference_index,
+        reference_t=float(arrays["t"][reference_index]),
+        reference_pixels=result.reference_pixels,
+        m_ref=result.m_ref,
+        normal=result.normal,
+        normal_margin=result.normal_margin,
+        trajectory=result.trajectory,
+        dhat0=dhat0,
+        dhat0_source=dhat0_source,
+        depth=depth,
+        frames=replace(result.frames, truncated_input=reader.truncated),
+        condition35=result.condition,
+        residual_px=result.residual_px,
+        detector=spec,
+        world_description=world_description,
+        taught_path=taught_path,
+        render=_render_settings(reader),
+        gains=_suggested_gains(result, camera),
+        uncertainty=result.uncertainty.summary(calibration) if result.uncertainty is not None else None,
+    )
 
 
 def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsics:

@@ -11,6 +11,7 @@ import math
 import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
+from types import SimpleNamespace
 from typing import IO, Any
 
 import numpy as np
@@ -51,6 +52,7 @@ from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
+from .repeat_route import run_route_repeat
 
 @dataclass(frozen=True)
 class Settings:
@@ -136,6 +138,8 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     if fit is None:
         fit = read_fit_file(options.input)
     settings = settings_for(options, fit.model)
+    if fit.route_record is not None:  # a route: segment by segment
+        return run_route_repeat(options, settings, fit, console, ROUTE_TOOLS)
     if options.live:
         return _run_live(options, settings, fit, console)
     if options.sim:
@@ -520,3 +524,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
                 if reason is not None:
                     run.stopped(t, reason)
     return _finish(console, tally, controller, options.output, settings, None, loop.stopped)
+
+
+#: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
+ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish)

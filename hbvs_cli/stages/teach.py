@@ -30,6 +30,7 @@ from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
+from ..sim.route_world import RouteWorld, make_route_renderer, simulated_route
 from .console import Console
 from .options import parse_offset, recorded_settings
 
@@ -65,7 +66,10 @@ class TeachOptions(TeachFields):
             # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
             # The extra outputs are left out, as the output is: the same drive, the same bytes.
             simulated = {key: value for key, value in recorded.items()
-                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")}
+                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")
+                         and not (key == "route" and value is None)}  # a single target's bytes as before routes
+            if self.route is not None:  # the route brings its own path and targets
+                simulated = {key: value for key, value in simulated.items() if key not in ("path", "target", "dots", "texture")}
             return {**simulated, "sim": True}
         names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
@@ -92,6 +96,10 @@ def run_teach(options: TeachOptions, console: Console) -> None:
     if kind == "ros2":
         check_topic_names((options.ros2_image, "--ros2-image"), (options.ros2_cmd, "--ros2-cmd"))
     if kind == "sim":
+        if options.route is not None:
+            given = [f"--{name}" for name in ("path", "target", "dots", "texture") if getattr(options, name) is not None]
+            if given:
+                raise UsageError(f"--route brings its own path and targets: leave out {', '.join(given)}")
         _teach_simulated(options.for_simulation(), console)
     else:
         _teach_from_source(kind, options, console)
@@ -133,11 +141,21 @@ def simulated_world(options: TeachOptions) -> World:
 def _teach_simulated(options: TeachOptions, console: Console) -> None:
     if options.calibration is None and options.fps <= 0:
         raise UsageError("--fps must be positive")
-    world = simulated_world(options)
-    if options.path in PRESETS:  # a preset is sampled at --fps: bound it before sampling
-        planned = options.duration if options.duration is not None else PRESETS[options.path].duration
-        step_count(planned, options.fps, "the simulated teach (its duration times --fps)")
-    profile, start_pose, path_name = resolve_path(options.path, options.fps, options.duration)
+    world: World | RouteWorld
+    if options.route is not None:
+        camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
+        world = simulated_route(options.route, camera)
+        profile, start_pose, path_name = world.profile, tuple(world.start_pose), f"route {options.route}"
+        if options.duration is not None and options.duration < profile.t_end:
+            profile = _cut_profile(profile, options.duration)
+        renderer = make_route_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
+    else:
+        world = simulated_world(options)
+        if options.path in PRESETS:  # a preset is sampled at --fps: bound it before sampling
+            planned = options.duration if options.duration is not None else PRESETS[options.path].duration
+            step_count(planned, options.fps, "the simulated teach (its duration times --fps)")
+        profile, start_pose, path_name = resolve_path(options.path, options.fps, options.duration)
+        renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     if options.offset is not None:
         # A second drive by hand never starts exactly where the first did.
         start_pose = tuple(compose_planar_pose(start_pose, parse_offset(options.offset)))
@@ -153,7 +171,6 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
             f"the target leaves the camera's view for {len(out_of_view)} of {frame_count} frames "
             f"(first at t = {out_of_view[0]:.2f} s); fit will leave those frames out"
         )
-    renderer = make_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     rng = np.random.default_rng(options.seed)
     settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
     if options.video_out is not None:
@@ -180,7 +197,8 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
         save_calibration_ros(replace(world.camera, sigma=(0.0,) * 4), options.calibration_out, camera_name="hbvs_simulated")
     extras = "".join(f", {what} {path}" for what, path in (("video", options.video_out), ("calibration", options.calibration_out))
                      if path is not None)
-    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {options.target} target, path {path_name}) -> {options.output}{extras}")
+    seen = f"{len(world.worlds)} targets" if isinstance(world, RouteWorld) else f"{options.target} target"
+    console.info(f"teach: {frame_count} frames ({duration:.1f} s, {seen}, path {path_name}) -> {options.output}{extras}")
 
 
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:

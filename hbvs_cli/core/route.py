@@ -1,0 +1,223 @@
+"""A route longer than one view: its segments, and the transition from one to the next (issue 47).
+
+Segment i is driven by the paper's controller against its own reference F*_i and planar target
+(n*_i, d*_i). A target that leaves the view ends its segment; the next segment's target was
+already in view then, so there is an overlap of frames in which both homographies are measured.
+In such a frame the camera F sees F*_i and F*_{i+1} through (3), (14):
+``x_f,i = d*_i x_h,i`` and ``x_f,i+1 = d*_{i+1} x_h,i+1`` (the origins of F*_i and F*_{i+1} in F),
+``R_i = Rz(theta_i)``, ``R_{i+1} = Rz(theta_{i+1})``. Then F*_{i+1} seen from F*_i is
+
+* its heading ``theta_{i+1} - theta_i`` (R_i^T R_{i+1}), the same in every overlap frame;
+* its origin ``t = R_i^T (x_f,i+1 - x_f,i)``, so with ``u = t / d*_i`` and
+  ``rho = d*_{i+1} / d*_i``: ``R_i u - rho x_h,i+1 = -x_h,i``, two equations per frame, linear
+  in ``(u_1, u_2, rho)``: least squares over the overlap, which needs the camera to move during it.
+
+The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * dhat``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import MalformedDataError
+from .camera import CameraIntrinsics
+from .desired import DesiredFit, DetectorErrors, fit_desired_trajectory
+from .frames import wrap_angle
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One segment of a route: ``target`` (its index in the route), its frames
+    ``first``..``last`` (inclusive indices of the drive) and, from the second segment on,
+    ``overlap_last``, the previous segment's last frame: frames ``first``..``overlap_last`` see
+    both its target and the previous one."""
+
+    target: int
+    first: int
+    last: int
+    overlap_last: int | None = None
+
+    @property
+    def overlap(self) -> slice | None:
+        """The frames shared with the previous segment (None for the first)."""
+        return None if self.overlap_last is None else slice(self.first, self.overlap_last + 1)
+
+
+def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segment]:
+    """The segments of a drive from what each frame sees: ``visible`` (K frames, T targets)
+    bool, each target seen well enough; ``sizes`` (K, T), how large each appears (e.g. the
+    span of its points, px). The first segment follows a target seen in frame 0; each segment
+    ends when its target leaves the view; the next follows, of the targets seen in that last
+    frame and not yet followed, the largest there (without ``sizes``: the one that stays longest
+    in view), from where its present stretch of visibility began. MalformedDataError when the
+    first frame sees no target or one leaves with no other in view (the route has a gap)."""
+    visible = np.asarray(visible, dtype=bool)
+    if visible.ndim != 2 or visible.shape[0] == 0:
+        raise MalformedDataError("the visibility of a route is a (frames, targets) table")
+    frames = visible.shape[0]
+    segments: list[Segment] = []
+    frame, followed = 0, set()
+    while True:
+        candidates = [int(t) for t in np.flatnonzero(visible[frame]) if t not in followed]
+        if not candidates:
+            where = "the first frame" if not segments else f"frame {frame}"
+            raise MalformedDataError(f"{where} sees no target to follow: the route has a gap")
+        ends = {t: _run_end(visible[:, t], frame) for t in candidates}
+        rank = ends if sizes is None else {t: float(np.asarray(sizes)[frame, t]) for t in candidates}
+        target = max(candidates, key=lambda t: (rank[t], -t))
+        if segments:
+            start = max(_run_start(visible[:, target], frame), segments[-1].first + 1)
+            segments.append(Segment(target, start, ends[target], overlap_last=frame))
+        else:
+            segments.append(Segment(target, 0, ends[target]))
+        followed.add(target)
+        if ends[target] == frames - 1:
+            return segments
+        frame = ends[target]
+
+
+def _run_end(column: NDArray[np.bool_], frame: int) -> int:
+    """The last frame of the stretch of True in ``column`` that holds ``frame``."""
+    after = np.flatnonzero(~column[frame:])
+    return frame + int(after[0]) - 1 if after.size else column.size - 1
+
+
+def _run_start(column: NDArray[np.bool_], frame: int) -> int:
+    """The first frame of the stretch of True in ``column`` that holds ``frame``."""
+    before = np.flatnonzero(~column[: frame + 1])
+    return int(before[-1]) + 1 if before.size else 0
+
+
+@dataclass(frozen=True)
+class Transition:
+    """F*_{i+1} relative to F*_i, estimated over an overlap: ``depth_ratio`` rho = d*_{i+1}/d*_i,
+    ``heading`` (rad) of F*_{i+1} in F*_i, ``origin_over_depth`` (2,) its origin in F*_i divided
+    by d*_i (paper axes: x forward, y left), each with its standard deviation (``covariance``
+    (3, 3) of (u_1, u_2, rho)); ``frames`` used; ``residual_rms`` of the fit's equations."""
+
+    depth_ratio: float
+    depth_ratio_std: float
+    heading: float
+    heading_std: float
+    origin_over_depth: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    frames: int
+    residual_rms: float
+
+    def carried_depth(self, dhat: float) -> float:
+        """The adaptive estimate (31) of d*_i carried over to segment i+1 (m): rho dhat."""
+        return self.depth_ratio * float(dhat)
+
+
+def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayLike, x_h_next: ArrayLike) -> Transition:
+    """The transition from segment i to i+1 from the same overlap frames seen through both
+    homographies: ``theta_*`` (K,) rad and ``x_h_*`` (K, 2), (14), of F relative to F*_i and to
+    F*_{i+1}. Least squares on ``R_i u - rho x_h,i+1 = -x_h,i``; the covariance is the residuals'
+    variance times (A^T A)^-1. MalformedDataError for fewer than 2 frames or an overlap without
+    the motion that separates rho from u."""
+    theta_i, theta_next = np.asarray(theta_i, dtype=float).ravel(), np.asarray(theta_next, dtype=float).ravel()
+    x_h_i, x_h_next = np.asarray(x_h_i, dtype=float).reshape(-1, 2), np.asarray(x_h_next, dtype=float).reshape(-1, 2)
+    count = theta_i.size
+    if count < 2 or not (theta_next.size == count == x_h_i.shape[0] == x_h_next.shape[0]):
+        raise MalformedDataError("a transition needs at least 2 overlap frames, each seen through both homographies")
+    c, s = np.cos(theta_i), np.sin(theta_i)
+    design = np.zeros((2 * count, 3))
+    design[0::2, 0], design[0::2, 1], design[0::2, 2] = c, -s, -x_h_next[:, 0]
+    design[1::2, 0], design[1::2, 1], design[1::2, 2] = s, c, -x_h_next[:, 1]
+    rhs = -x_h_i.ravel()
+    normal = design.T @ design
+    if np.linalg.cond(normal) > 1e12:
+        raise MalformedDataError("the camera did not move during the overlap: the depth ratio cannot be told from it")
+    solution = np.linalg.solve(normal, design.T @ rhs)
+    residual = design @ solution - rhs
+    dof = max(2 * count - 3, 1)
+    covariance = float(residual @ residual) / dof * np.linalg.inv(normal)
+    headings = wrap_angle(theta_next - theta_i)
+    heading = float(np.arctan2(np.mean(np.sin(headings)), np.mean(np.cos(headings))))
+    spread = np.asarray(wrap_angle(headings - heading), dtype=float)
+    return Transition(
+        depth_ratio=float(solution[2]), depth_ratio_std=float(np.sqrt(covariance[2, 2])),
+        heading=heading, heading_std=float(np.std(spread, ddof=1) / np.sqrt(count)),
+        origin_over_depth=solution[:2], covariance=covariance, frames=count,
+        residual_rms=float(np.sqrt(np.mean(residual**2))),
+    )
+
+
+@dataclass(frozen=True)
+class RouteFit:
+    """A route's fit: its ``segments``, each one's single-target fit (``fits[i]``, against
+    F*_i at frame ``references[i]`` of the drive) and the ``transitions`` from each to the next."""
+
+    segments: list[Segment]
+    fits: list[DesiredFit]
+    references: list[int]
+    transitions: list[Transition]
+
+
+def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segment], camera: CameraIntrinsics,
+              smoothing: float | None, max_lost: float, max_gap: float, warn: Callable[[str], None] | None = None,
+              errors: Sequence[DetectorErrors] | None = None, first_reference: int | None = None) -> RouteFit:
+    """Each segment fitted as a single-target drive (:func:`~.desired.fit_desired_trajectory`,
+    Remark 1, n*_i and the uncertainty per segment) and each transition estimated from both
+    fits' desired signals over the overlap (:func:`estimate_transition`).
+
+    Parameters
+    ----------
+    t : array_like, shape (F,)
+        Frame times of the whole drive (s).
+    pixels : sequence of array_like, one (F, N_j, 2) per target
+        Each target's pixels in every frame of the drive (NaN where not found).
+    segments : sequence of Segment
+        From :func:`split_route`.
+    errors : sequence of DetectorErrors, optional
+        Each target's detector errors (its kind's, as perception registers them), for the uncertainty.
+    first_reference : int, optional
+        F* of the first segment (a frame of it, as ``fit --reference`` gives it). Otherwise,
+        and for every later segment, F*_i is the segment's frame where its target appears
+        largest (the span of its points): the nearer and larger, the better measured.
+    """
+    t = np.asarray(t, dtype=float)
+    fits: list[DesiredFit] = []
+    references: list[int] = []
+    for number, segment in enumerate(segments):
+        frames = slice(segment.first, segment.last + 1)
+        detector_errors = DetectorErrors() if errors is None else errors[segment.target]
+        target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
+        reference = first_reference if number == 0 and first_reference is not None else segment.first + largest_view(target_pixels)
+        fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
+                                           max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
+        references.append(reference)
+    transitions = estimate_transitions(t, segments, [fit.trajectory for fit in fits])
+    return RouteFit(list(segments), fits, references, transitions)
+
+
+def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], trajectories: Sequence[Any]) -> list[Transition]:
+    """Each transition of a route from its segments' fitted desired trajectories (``evaluate(t)``
+    of Remark 1's splines) over each overlap of the drive's frame times ``t`` (s): the smoothed
+    signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor pulls its
+    coefficient toward zero (errors in variables)."""
+    t = np.asarray(t, dtype=float)
+    transitions = []
+    for here_trajectory, segment, there_trajectory in zip(trajectories, segments[1:], trajectories[1:]):
+        shared = t[segment.first:segment.overlap_last + 1]
+        here, there = here_trajectory.evaluate(shared), there_trajectory.evaluate(shared)
+        transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
+                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2])))
+    return transitions
+
+
+def largest_view(pixels: ArrayLike) -> int:
+    """The frame (index into ``pixels`` (F, N, 2)) where a target appears largest: a segment's
+    F*_i, the nearer and larger, the better measured."""
+    return int(np.argmax(view_spans(pixels)))
+
+
+def view_spans(pixels: ArrayLike) -> NDArray[np.float64]:
+    """The largest distance (px) between two of a target's points in each frame (F, N, 2); -1 where not found."""
+    pixels = np.asarray(pixels, dtype=float)
+    spans = np.max(np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1), axis=(1, 2))
+    return np.where(np.isfinite(spans), spans, -1.0)

@@ -1,0 +1,110 @@
+"""The route file: what ``hbvs fit`` writes for a route teach (issue 47) and ``hbvs repeat`` reads.
+
+It is a fit file whose ``/fit/model`` holds one ``hbvs.FitModel`` per segment, in the route's
+order (each encoded by :mod:`.fit_file`, each a single-target fit in its target's own world),
+and whose ``/fit/route`` holds the segments and the transitions between them with their
+uncertainty. A route of one segment writes no ``/fit/route``: it is exactly a fit file."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..core.fit_model import FitModel
+from ..core.route import Segment, Transition
+from ..errors import RecordingError
+from .fit_file import FILE_KIND, FitFile, checked_model_message, read_fit_file
+from .mcap import time_message
+from .teach_file import PARSE_ERRORS
+from .topics import MODEL_TOPIC, ROUTE_TOPIC, TOPICS
+
+
+@dataclass(frozen=True)
+class RouteFile:
+    """A route file read: each segment's ``models[i]`` (its reference frame ``references[i]``
+    of the taught drive), its ``segments`` and the ``transitions`` from each to the next."""
+
+    models: list[FitModel]
+    segments: list[Segment]
+    references: list[int]
+    transitions: list[Transition]
+    info: dict[str, Any]
+    #: The simulated route (the teach file's description) and its taught poses (K, 4): t (s), x, y, phi in its frame R.
+    world: dict[str, Any] | None = None
+    taught_poses: np.ndarray | None = None
+
+
+def transition_record(transition: Transition) -> dict[str, Any]:
+    """A transition as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho))."""
+    return {
+        "depth_ratio": transition.depth_ratio, "depth_ratio_std": transition.depth_ratio_std,
+        "heading": transition.heading, "heading_std": transition.heading_std,
+        "origin_over_depth": transition.origin_over_depth.tolist(), "covariance": transition.covariance.tolist(),
+        "frames": transition.frames, "residual_rms": transition.residual_rms,
+    }
+
+
+def _transition_from_record(record: dict[str, Any]) -> Transition:
+    origin = np.asarray(record["origin_over_depth"], dtype=float)
+    covariance = np.asarray(record["covariance"], dtype=float)
+    ratio = float(record["depth_ratio"])
+    if origin.shape != (2,) or covariance.shape != (3, 3) or not (math.isfinite(ratio) and ratio > 0):
+        raise ValueError("a transition needs a positive depth_ratio, a 2-vector origin_over_depth and a 3x3 covariance")
+    return Transition(
+        depth_ratio=ratio, depth_ratio_std=float(record["depth_ratio_std"]), heading=float(record["heading"]),
+        heading_std=float(record["heading_std"]), origin_over_depth=origin, covariance=covariance,
+        frames=int(record["frames"]), residual_rms=float(record["residual_rms"]),
+    )
+
+
+def route_message(segments: Sequence[Segment], references: Sequence[int], transitions: Sequence[Transition],
+                  log_time_ns: int, world: dict[str, Any] | None = None, taught_poses: np.ndarray | None = None) -> dict[str, Any]:
+    """The ``hbvs.Route`` message: the segments (frames of the drive), the transitions and, for a
+    simulated route, its description and taught poses (what ``repeat --sim`` drives in and is judged against)."""
+    return {
+        "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
+        "timestamp": time_message(log_time_ns),
+        "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r)}
+                     for s, r in zip(segments, references)],
+        "transitions": [transition_record(transition) for transition in transitions],
+    }
+
+
+def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segment], references: Sequence[int],
+                transitions: Sequence[Transition], log_times: Sequence[int], source: str, world: dict[str, Any] | None = None,
+                taught_poses: np.ndarray | None = None) -> None:
+    """Each segment's model (stamped ``log_times[i]``, ns, its last frame's) checked as
+    :func:`~.fit_file.checked_model_message` does, then the route (one segment: none)."""
+    schemas = TOPICS[FILE_KIND]
+    for model, stamp in zip(models, log_times):
+        writer.write(MODEL_TOPIC, schemas[MODEL_TOPIC], int(stamp), checked_model_message(model, int(stamp), source))
+    if len(segments) > 1:
+        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses))
+
+
+def read_route_file(source: Any, name: str = "") -> RouteFile:
+    """The route of a fit file or stream (:func:`route_of`)."""
+    return route_of(read_fit_file(source, name), name or str(source))
+
+
+def route_of(fit: FitFile, name: str) -> RouteFile:
+    """The models, segments and transitions of a fit file read (a single-target fit file: a
+    route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
+    models, route = fit.segment_models or [fit.model], fit.route_record
+    if route is None:
+        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], fit.info)
+    try:
+        segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
+                            None if s["overlap_last"] is None else int(s["overlap_last"])) for s in route["segments"]]
+        references = [int(s["reference"]) for s in route["segments"]]
+        transitions = [_transition_from_record(record) for record in route["transitions"]]
+        taught = None if route.get("taught_poses") is None else np.asarray(route["taught_poses"], dtype=float).reshape(-1, 4)
+    except PARSE_ERRORS as exc:
+        raise RecordingError(f"{name}: the route record is malformed: {exc}") from None
+    if not len(segments) == len(models) == len(transitions) + 1:
+        raise RecordingError(f"{name}: {len(models)} fit models for a route of {len(segments)} segments "
+                             f"and {len(transitions)} transitions")
+    return RouteFile(models, segments, references, transitions, fit.info, route.get("world"), taught)

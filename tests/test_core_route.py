@@ -1,0 +1,143 @@
+"""Issue 47, layer 2's method: a route's segments and the transition between two (core/route.py),
+against the exact geometry of the simulated corridor (sim/route.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hbvs_cli.core.route import Segment, estimate_transition, fit_route, split_route
+from hbvs_cli.errors import MalformedDataError
+from hbvs_cli.perception.target_kinds import target_kind
+from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
+
+from conftest import campaign_extent
+
+#: Frame rate (Hz) at which the corridor is sampled here.
+RATE = 10.0
+
+
+def corridor_drive():
+    route = corridor_route()
+    times = np.arange(0.0, route.profile.duration, 1.0 / RATE)
+    poses = route.profile.poses_at(times, route.start_pose)
+    spans = np.array([route.spans(pose) for pose in poses])
+    return route, poses, spans >= MIN_SPAN_PX, spans
+
+
+def signals(route, index: int, poses, reference_pose):
+    """The true theta (K,) and x_h (K, 2) of ``poses`` against F* at ``reference_pose`` for target ``index``, (4), (14)."""
+    world = route.worlds[index]
+    return world.ground_truth(route.local_pose(index, poses), route.local_pose(index, reference_pose))
+
+
+def depth(route, index: int, reference_pose) -> float:
+    return route.worlds[index].reference_geometry(route.local_pose(index, reference_pose))[2]
+
+
+def test_split_route_follows_each_target_until_it_leaves_overlapping_the_next():
+    visible = np.array([
+        [1, 1, 0], [1, 1, 0], [1, 1, 1], [0, 1, 1], [0, 0, 1], [0, 0, 1],
+    ], dtype=bool)
+    assert split_route(visible) == [Segment(1, 0, 3), Segment(2, 2, 5, overlap_last=3)]
+    # Seen largest at the switch rather than longest in view: target 0 first.
+    sizes = np.array([[90, 50, 0], [95, 52, 0], [99, 60, 40], [0, 70, 45], [0, 0, 50], [0, 0, 60]], dtype=float)
+    assert split_route(visible, sizes) == [Segment(0, 0, 2), Segment(1, 1, 3, overlap_last=2), Segment(2, 2, 5, overlap_last=3)]
+    with pytest.raises(MalformedDataError, match="gap"):
+        split_route(np.array([[1, 0], [0, 0], [0, 1]], dtype=bool))
+    with pytest.raises(MalformedDataError, match="first frame"):
+        split_route(np.array([[0, 0], [1, 0]], dtype=bool))
+
+
+def test_the_corridor_splits_into_its_four_targets_in_order():
+    route, _, visible, spans = corridor_drive()
+    segments = split_route(visible, spans)
+    assert [s.target for s in segments] == [0, 1, 2, 3]
+    assert segments[0].first == 0 and segments[-1].last == len(visible) - 1
+    for previous, segment in zip(segments, segments[1:]):
+        assert segment.first <= previous.last == segment.overlap_last
+        both = visible[segment.overlap, previous.target] & visible[segment.overlap, segment.target]
+        assert both.all() and both.size >= RATE  # at least a second seen together
+
+
+def test_the_transition_is_exact_from_exact_signals_on_every_corridor_overlap():
+    """From exact signals, rho = d*_{i+1}/d*_i, F*_{i+1}'s heading and origin / d*_i come out exact."""
+    route, poses, visible, spans = corridor_drive()
+    segments = split_route(visible, spans)
+    for previous, segment in zip(segments, segments[1:]):
+        reference, reference_next = poses[previous.first], poses[segment.first]
+        overlap = poses[segment.overlap]
+        theta_i, x_h_i = signals(route, previous.target, overlap, reference)
+        theta_j, x_h_j = signals(route, segment.target, overlap, reference_next)
+        transition = estimate_transition(theta_i, x_h_i, theta_j, x_h_j)
+        d_i, d_j = depth(route, previous.target, reference), depth(route, segment.target, reference_next)
+        true_heading = float(reference_next[2] - reference[2])
+        c, s = np.cos(reference[2]), np.sin(reference[2])
+        offset = reference_next[:2] - reference[:2]
+        true_origin = np.array([c * offset[0] + s * offset[1], -s * offset[0] + c * offset[1]]) / d_i
+        assert transition.depth_ratio == pytest.approx(d_j / d_i, rel=1e-9)
+        assert transition.heading == pytest.approx(true_heading, abs=1e-9)
+        np.testing.assert_allclose(transition.origin_over_depth, true_origin, atol=1e-9)
+        assert transition.residual_rms < 1e-12
+        assert transition.carried_depth(d_i) == pytest.approx(d_j, rel=1e-9)
+
+
+def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():
+    """Signals with the noise of a fit (1 mrad on theta, 1e-3 on x_h) over each corridor
+    overlap, 20 seeds: rho's error within 3 of its reported sigmas in >= 90 % of the cases, and
+    within 5 % of rho always."""
+    route, poses, visible, spans = corridor_drive()
+    segments = split_route(visible, spans)
+    within, cases, worst = 0, 0, 0.0
+    for previous, segment in zip(segments, segments[1:]):
+        reference, reference_next = poses[previous.first], poses[segment.first]
+        overlap = poses[segment.overlap]
+        exact = (*signals(route, previous.target, overlap, reference), *signals(route, segment.target, overlap, reference_next))
+        true_ratio = depth(route, segment.target, reference_next) / depth(route, previous.target, reference)
+        for seed in range(20):
+            rng = np.random.default_rng(seed)
+            theta_i, x_h_i, theta_j, x_h_j = (value + rng.normal(0.0, 1e-3, np.shape(value)) for value in exact)
+            transition = estimate_transition(theta_i, x_h_i, theta_j, x_h_j)
+            error = transition.depth_ratio - true_ratio
+            within += abs(error) <= 3.0 * transition.depth_ratio_std
+            worst = max(worst, abs(error) / true_ratio)
+            cases += 1
+    assert within >= 0.9 * cases
+    assert worst < 0.05
+
+
+def test_a_transition_needs_motion_and_two_frames():
+    with pytest.raises(MalformedDataError, match="at least 2"):
+        estimate_transition([0.0], [[0.1, 0.0]], [0.0], [[0.2, 0.0]])
+    still = np.zeros(5)
+    with pytest.raises(MalformedDataError, match="did not move"):
+        estimate_transition(still, np.tile([0.1, 0.02], (5, 1)), still, np.tile([0.3, 0.01], (5, 1)))
+
+
+@pytest.mark.campaign
+def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pixel_noise(request):
+    """The corridor at 5 Hz, its targets' exact pixels (where each is seen well) plus 0.5 px of
+    noise. Over seeds 0-9 (measured when written): n* within 5.0 deg of the truth, x_hd1 within
+    0.036 (each segment's median), rho within 38 % on the first switch (11 s of a straight
+    drive, the board still small) and 5 % on the others; seed 0 is held to those bounds. 11 s."""
+    campaign_extent(request, "campaign")
+    route = corridor_route()
+    times = np.arange(0.0, route.profile.duration, 0.2)
+    poses, spans, pixels = route.taught_views(times, 0.5, np.random.default_rng(0))
+    segments = split_route(spans >= MIN_SPAN_PX, spans)
+    fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
+                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
+    assert [s.target for s in fitted.segments] == [0, 1, 2, 3]
+    true_depths = []
+    for segment, fit, reference in zip(fitted.segments, fitted.fits, fitted.references):
+        assert segment.first <= reference <= segment.last
+        world, reference_pose = route.worlds[segment.target], poses[reference]
+        _, normal, d_star = world.reference_geometry(route.local_pose(segment.target, reference_pose))
+        true_depths.append(d_star)
+        assert np.degrees(np.arccos(np.clip(np.dot(fit.normal, normal), -1, 1))) < 5.0
+        frames = slice(segment.first, segment.last + 1)
+        _, x_h = signals(route, segment.target, poses[frames], reference_pose)
+        assert np.median(np.abs(fit.trajectory.evaluate(times[frames]).x_hd1 - x_h[:, 0])) < 0.036
+    bounds = [0.38, 0.05, 0.05]
+    for transition, d_i, d_j, bound in zip(fitted.transitions, true_depths, true_depths[1:], bounds):
+        assert abs(transition.depth_ratio / (d_j / d_i) - 1.0) < bound
