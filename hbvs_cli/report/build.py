@@ -90,10 +90,7 @@ def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
 
 def stop_event(run: RunData) -> tuple[float, str] | None:
     """The error event (time in s, text) with which ``hbvs repeat`` stopped the run, if any."""
-    for t, level, text in run.events:
-        if level >= LOG_ERROR:
-            return t, text
-    return None
+    return next(((t, text) for t, level, text in run.events if level >= LOG_ERROR), None)
 
 
 def _duration_s(run: RunData) -> float:
