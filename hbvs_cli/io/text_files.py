@@ -36,7 +36,7 @@ def read_small_text(path: str | Path, max_bytes: int, what: str) -> str:
         raise InputError(f"{path}: not a text (UTF-8) file; expected {what}") from None
 
 
-def short_repr(value: object) -> str:
-    """A value for a one-line message, cut to a readable length."""
+def short_repr(value: object, length: int = 60) -> str:
+    """A value for a one-line message, cut to ``length`` characters."""
     text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return text if len(text) <= length else text[:length - 3] + "..."
