@@ -89,11 +89,13 @@ def _image_bytes(path: Path) -> tuple[int, int]:
 def _fit_theta_error(teach: Path, folder: Path) -> tuple[float, float]:
     """(theta_d RMS error in deg, x_hd2 RMS error) of the fit of a simulated teach."""
     from hbvs_cli.core.path import CommandProfile
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.io.fit_file import read_fit_file
     from hbvs_cli.sim.world import World
     from hbvs_cli.stages.console import Console
     from hbvs_cli.stages.fit import FitOptions, run_fit
+
+    sys.path.insert(0, str(HERE.parent / "tests"))  # the ground truth is a test oracle
+    from oracles import TaughtPathTrajectory
 
     fit = folder / (teach.stem + "-fit.mcap")
     run_fit(FitOptions(input=str(teach), output=str(fit)), Console(quiet=True))

@@ -167,7 +167,7 @@ def rendered_s_curve(seed: int, frames: int = 600):
 def errors_against_drive(model, world, profile, start, times):
     """RMS errors of a fit against the exact desired trajectory of a rendered drive:
     theta_d (deg), x_hd1, x_hd2 (units of d*), and d* itself."""
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
+    from oracles import TaughtPathTrajectory
 
     _, _, d_star = world.reference_geometry(np.asarray(start))
     truth = TaughtPathTrajectory(profile, start, start, d_star).evaluate(times)
@@ -245,8 +245,8 @@ def make_run(fit_path, run_path, **options):
 def ground_truth_trajectory(model):
     """The exact desired trajectory of a simulated teach (for comparisons with the fit)."""
     from hbvs_cli.core.path import CommandProfile
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.sim.world import World
+    from oracles import TaughtPathTrajectory
 
     path = model.taught_path
     interval = float(np.median(np.diff(path.t)))

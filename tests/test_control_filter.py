@@ -29,9 +29,10 @@ import pytest
 
 from hbvs_cli.core.controller import Measurement
 from hbvs_cli.core.metrics import command_smoothness
-from hbvs_cli.core.state_filter import FilterOutcome, ServoStateFilter, predict_state
+from hbvs_cli.core.state_filter import FilterOutcome, ServoStateFilter
 from hbvs_cli.core.unicycle import integrate_unicycle
 from hbvs_cli.sim.world import default_world
+from oracles import predict_state
 
 FUSED, GATED, STARTED = FilterOutcome.FUSED, FilterOutcome.GATED, FilterOutcome.STARTED
 

@@ -11,7 +11,6 @@ from hbvs_cli.core.controller import (
     ControllerGains,
     Measurement,
     TrackingErrors,
-    closed_loop_error_rates,
     control_law,
     lyapunov,
 )
@@ -20,9 +19,9 @@ from hbvs_cli.core.frames import compose_planar_pose, wrap_angle
 from hbvs_cli.core.laws import gains_for_law
 from hbvs_cli.core.path import sampled_profile
 from hbvs_cli.core.simulator import ActuatorLimits
-from hbvs_cli.core.trajectory import TaughtPathTrajectory
 from hbvs_cli.sim.world import default_world
 from hbvs_cli.sim.closed_loop import run_closed_loop
+from oracles import TaughtPathTrajectory, closed_loop_error_rates, observe_normalized
 
 RATE_HZ = 1000.0
 DURATION_S = 20.0
@@ -45,7 +44,7 @@ def closed_loop_run(gains: ControllerGains, dhat0_factor: float = 0.5, duration:
     controller = AdaptiveTrackingController(gains, dhat0_factor * d_star)
 
     def sense(pose, t):
-        return estimator.from_normalized(world.normalized_points(pose))
+        return observe_normalized(estimator, world.normalized_points(pose))
 
     records = list(
         run_closed_loop(sense, trajectory, controller, compose_planar_pose(start, START_OFFSET), 1.0 / rate_hz, duration)

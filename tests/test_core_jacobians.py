@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbvs_cli.core import bundle
 from hbvs_cli.core.camera import CameraIntrinsics, measured_pixels_to_normalized
 from hbvs_cli.core import plane
 from hbvs_cli.core.decomposition import PlanarMotion
@@ -16,6 +15,7 @@ from hbvs_cli.core.known_normal import KnownNormalSolver
 from hbvs_cli.core.plane import UNIT_SQUARE, PlaneGeometry, point_derivatives, projected_residuals, refine_plane_and_reference, shape_residuals
 
 import footage
+from oracles import bias_rows
 
 STEP = 1e-6
 
@@ -87,7 +87,7 @@ def test_joint_estimate_jacobian(name):
         points[..., 1:] = yz.reshape(frames.shape[0], -1, 2)
         return plane.frame_rows(geometry, p, motion, points, shapes)
     numeric_bias = _differences(shifted, frames[..., 1:].ravel()).reshape(residuals.shape + (frames.shape[0], -1))
-    assert _relative(bundle._bias_rows(frames, geometry.unpack(p)[0], motion, shapes), np.einsum("krkb->krb", numeric_bias)) < 1e-6
+    assert _relative(bias_rows(frames, geometry.unpack(p)[0], motion, shapes), np.einsum("krkb->krb", numeric_bias)) < 1e-6
 
 
 class _ConvergedSolver(KnownNormalSolver):

@@ -538,8 +538,8 @@ def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
     from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
     from hbvs_cli.core.path import sampled_profile
     from hbvs_cli.sim.closed_loop import run_closed_loop
-    from hbvs_cli.core.trajectory import TaughtPathTrajectory
     from hbvs_cli.sim.world import default_world
+    from oracles import TaughtPathTrajectory, observe_normalized
 
     world = default_world("dots")
     profile = sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), 2.0, 30.0)
@@ -550,7 +550,7 @@ def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
 
     def sense(pose, t):
         status = script[int(round(t * 30.0))]
-        return estimator.from_normalized(world.normalized_points(pose)) if status == "ok" else Observation(None, status=status)
+        return observe_normalized(estimator, world.normalized_points(pose)) if status == "ok" else Observation(None, status=status)
 
     records = list(run_closed_loop(sense, TaughtPathTrajectory(profile, start, start, d_star),
                                    AdaptiveTrackingController(ControllerGains(), d_star), start, 1.0 / 30.0, len(script) / 30.0))

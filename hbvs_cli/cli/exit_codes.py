@@ -15,7 +15,4 @@ DOMAIN_EXIT_CODES: dict[type[HbvsError], int] = {
 
 def exit_code_of(error: HbvsError) -> int:
     """The exit code for ``error``: its domain kind's, else the one it carries."""
-    for kind in type(error).__mro__:
-        if kind in DOMAIN_EXIT_CODES:
-            return DOMAIN_EXIT_CODES[kind]
-    return error.exit_code
+    return next((DOMAIN_EXIT_CODES[kind] for kind in type(error).__mro__ if kind in DOMAIN_EXIT_CODES), error.exit_code)

@@ -418,7 +418,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                         - np.swapaxes(reduced, 0, 1).reshape(geometry.size, -1) @ coupling[block].reshape(-1, geometry.size))
         mine = by_row[slice(*np.searchsorted(rows_in_order, [block.start, block.stop]))]
         residuals[mine] = at[where[mine] - k, :points]
-        # How the rows move with each point's shift, [-I; by_shapes] (_bias_rows), and X^T of it.
+        # How the rows move with each point's shift, [-I; by_shapes], and X^T of it.
         biased = shutter is not None or bias_fraction > 0.0 or shared_shifts > 0
         by_shapes = _shape_bias_rows(pool, normal, pool_motion, shapes) if biased else None
         through = lambda x: np.swapaxes(x[:, points:], 1, 2) @ by_shapes - np.swapaxes(x[:, :points], 1, 2)  # noqa: E731
@@ -447,7 +447,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         visible = np.empty_like(residuals)
         for k in range(0, estimated.shape[0], block_frames):
             block = slice(k, k + block_frames)
-            # The points' rows only (the shapes' do not move them): a shift moves them by -1 (_bias_rows).
+            # The points' rows only (the shapes' do not move them): a shift moves them by -1.
             _, own, shared = frame_rows(geometry, np.zeros(geometry.size), motion[block], estimated[block], (), derivatives=True)
             visible[block] = -shifts[1][block] - np.einsum("kra,ka->kr", _finite(own), moved[block]) - _finite(shared) @ moved_globals
         finite = np.all(np.isfinite(residuals), axis=1)
@@ -523,16 +523,9 @@ def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64
     return (np.gradient(points, np.asarray(t, dtype=float), axis=0) * points[..., 1:]).reshape(points.shape[0], -1)
 
 
-def _bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
-    (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
-    points = 2 * m.shape[1]
-    own = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
-    return np.concatenate([own, _shape_bias_rows(m, normal, motion, shapes)], axis=1)
-
-
 def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
-    """The shapes' rows of :func:`_bias_rows`, (K, R - 2N, 2N)."""
+    """How every frame's shape residuals move with a shift of each point's (m_y, m_z), (K, R - 2N, 2N)
+    (a point's own reprojection errors move by -1)."""
     if not shapes:
         return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])

@@ -94,15 +94,6 @@ def lyapunov(errors: TrackingErrors, dhat: ArrayLike, d_star: float, gains: Cont
     return float(value) if np.ndim(value) == 0 else value
 
 
-def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,
-                            d_star: float, gains: ControllerGains) -> tuple[float, float, float]:
-    """``(e1_dot, ebar2_dot, e3_dot)`` of the closed-loop error system (32) with k_2."""
-    e1_dot = (-gains.k_v * errors.e1 + gains.k_2 * errors.ebar2 * w_c + d_tilde * (x_h2 * w_c - x_hd1_dot)) / d_star
-    ebar2_dot = -(errors.e1 * w_c + x_hd1_dot * errors.e3)
-    e3_dot = -gains.k_w * errors.e3 + gains.k_2 * x_hd1_dot * errors.ebar2
-    return float(e1_dot), float(ebar2_dot), float(e3_dot)
-
-
 class AdaptiveTrackingController:
     """The law with its one piece of state, the depth estimate dhat (m), from ``dhat0``."""
 

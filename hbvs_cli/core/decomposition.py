@@ -123,18 +123,3 @@ def take_branch(array: NDArray[np.float64], index: NDArray[np.intp]) -> NDArray[
     """array[..., index[...], ...] along the candidate axis (axis = index.ndim)."""
     expanded = index.reshape(index.shape + (1,) * (array.ndim - index.ndim))
     return np.take_along_axis(array, expanded, axis=index.ndim).squeeze(axis=index.ndim)
-
-
-def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR) -> PlanarMotion:
-    """(theta, x_h, n*) of each homography, the branch chosen by :func:`select_branch`."""
-    m_ref = np.asarray(m_ref, dtype=float)
-    candidates = homography_candidates(H)
-    index, valid = select_branch(candidates, m_ref, reference_normal)
-    R = take_branch(candidates.rotations, index)
-    t = take_branch(candidates.translations, index)
-    n = take_branch(candidates.normals, index)
-    pure_rotation = candidates.strength < PURE_ROTATION_TOLERANCE
-    n = np.where(pure_rotation[..., None], np.broadcast_to(reference_normal, n.shape), n)
-    theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
-    return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)

@@ -82,11 +82,6 @@ class PlanarPoseEstimator:
             pixels = undistort_pixels(self.camera, pixels)
         return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
 
-    def from_normalized(self, m: ArrayLike) -> Observation:
-        """Estimate from normalised points of shape (N, 3)."""
-        m = np.asarray(m, dtype=float)
-        return self._observe(self.solver.solve_one((m[:, 1] / m[:, 0]).tolist(), (m[:, 2] / m[:, 0]).tolist()), None)
-
     def _observe(self, solution: tuple[float, float, float, float] | None, pixels: NDArray[np.float64] | None) -> Observation:
         if solution is None:
             return Observation(None, status=ObservationStatus.INVALID, pixels=pixels)

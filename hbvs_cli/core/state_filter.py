@@ -137,15 +137,6 @@ def _arc(v: float, w: float, dt: float) -> tuple[float, float, float, float]:
     return v * s / w, v * (1.0 - c) / w, c, s
 
 
-def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float) -> tuple[float, float, float]:
-    """The state (theta, x_h1, x_h2) after holding (v, w) (m/s, rad/s) for dt (s) at the
-    depth d* (m): (5), (23) integrated exactly."""
-    theta, x1, x2 = (float(s) for s in state)
-    dx, dy, c, s = _arc(v, w, dt)
-    a, b = x1 - dx / depth, x2 - dy / depth
-    return theta - w * dt, c * a + s * b, -s * a + c * b
-
-
 def measurement_information(m_ref: NDArray[np.float64], normal: NDArray[np.float64], state: ArrayLike) -> NDArray[np.float64]:
     """``J^T J`` (3, 3) of the N normalised image points (:func:`~.known_normal.point_jacobian`)
     with respect to (theta, x_h1, x_h2): over the noise variance, a frame's information."""

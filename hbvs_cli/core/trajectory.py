@@ -16,8 +16,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InsufficientDataError, InvalidValueError, MalformedDataError
 from .controller import DesiredState
-from .path import CommandProfile
-from .frames import relative_planar_pose
 
 #: Names of the fitted spline channels; x_hd2 follows from them by (25).
 CHANNELS = ("theta_d", "x_hd1")
@@ -166,38 +164,6 @@ class TimeScaledTrajectory:
         state = self.base.evaluate(self.start + self.speed * np.asarray(t, dtype=float))
         return replace(state, theta_d_dot=np.multiply(state.theta_d_dot, self.speed),
                        x_hd1_dot=np.multiply(state.x_hd1_dot, self.speed), x_hd2_dot=np.multiply(state.x_hd2_dot, self.speed))
-
-
-class TaughtPathTrajectory:
-    """The exact desired signals of a simulated taught run (the ground truth).
-
-    ``theta_d = phi* - phi_d``, ``x_hd = Rz(phi_d)^T (p* - p_d) / d*`` (3), (14) from the
-    profile's poses (start at t = 0, F* at ``reference_pose``, d* in m); derivatives by (25).
-    """
-
-    def __init__(self, profile: CommandProfile, start_pose: ArrayLike, reference_pose: ArrayLike, d_star: float) -> None:
-        self.profile = profile
-        self.start_pose = np.asarray(start_pose, dtype=float)
-        self.reference_pose = np.asarray(reference_pose, dtype=float)
-        self.d_star = float(d_star)
-        self.t_start = 0.0
-        self.t_end = profile.t_end
-        self._segment_starts = profile.segment_start_poses(self.start_pose)
-
-    def pose(self, t: ArrayLike) -> NDArray[np.float64]:
-        """Taught robot pose at times ``t`` (held after the end)."""
-        return self.profile.poses_at(t, self.start_pose, self._segment_starts)
-
-    def evaluate(self, t: ArrayLike) -> DesiredState:
-        t = np.asarray(t, dtype=float)
-        poses = self.pose(t)
-        _, x_f = relative_planar_pose(poses, self.reference_pose)
-        # Unwrap relative to the reference so that theta_d is continuous along the path.
-        theta_d = self.reference_pose[2] - poses[..., 2]
-        x_hd1 = x_f[..., 0] / self.d_star
-        x_hd2 = x_f[..., 1] / self.d_star
-        v, w = self.profile.commands_at(t)
-        return _desired_state(theta_d, x_hd1, x_hd2, -w, -v / self.d_star + x_hd2 * w, -x_hd1 * w)
 
 
 def _desired_state(*values: ArrayLike) -> DesiredState:

@@ -194,8 +194,6 @@ def bytes_to_store(
     """The bytes and format a recording stores for ``image`` (gray (H, W) or BGR (H, W, 3) uint8),
     ``encoded`` the source's own bytes: ``auto`` keeps a JPEG and an 8-bit PNG of the image's channels,
     re-encodes other PNGs and compresses the rest as JPEG; ``gray`` stores the luminance only."""
-    if image_format not in STORE_FORMATS:
-        raise UsageError(f"--format must be {', '.join(STORE_FORMATS)}, got {image_format!r}")
     colour = image.ndim == 3
     if gray and colour:
         image, colour = as_gray(image), False

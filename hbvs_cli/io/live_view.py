@@ -5,7 +5,7 @@ also served by the Foxglove SDK's WebSocket server on localhost, a simulated run
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any, Iterator
 
 from ..errors import UsageError
@@ -105,10 +105,8 @@ def stop_within(stop: Any, seconds: float) -> bool:
 
 
 def _quietly(function: Any) -> None:
-    try:
+    with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
         function()
-    except Exception:  # noqa: BLE001 - a server that fails to stop cleanly is stopped enough
-        pass
 
 
 @contextmanager

@@ -10,7 +10,7 @@ import re
 import secrets
 import stat
 import sys
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Iterator, Sequence
@@ -447,10 +447,8 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
 
 
 def _remove_quietly(path: Path) -> None:
-    try:
+    with suppress(OSError):
         path.unlink()
-    except OSError:
-        pass
 
 
 @contextmanager

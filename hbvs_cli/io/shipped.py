@@ -11,10 +11,7 @@ _PACKAGE = Path(__file__).resolve().parent.parent
 def shipped_path(relative: str) -> Path:
     """The installed file for a name such as ``docs/method.md``: the wheel's copy, else the checkout's,
     else the name under the package (so a message still says where it would be)."""
-    for candidate in (_PACKAGE / relative, _PACKAGE.parent / relative):
-        if candidate.is_file():
-            return candidate
-    return _PACKAGE / relative
+    return next((path for path in (_PACKAGE / relative, _PACKAGE.parent / relative) if path.is_file()), _PACKAGE / relative)
 
 
 def shipped_root() -> Path:

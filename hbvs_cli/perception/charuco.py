@@ -26,7 +26,6 @@ from numpy.typing import NDArray
 
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
-from ..core.plane import KnownShape
 from ..errors import InputError, UsageError
 from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths

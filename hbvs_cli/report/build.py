@@ -21,7 +21,7 @@ import numpy as np
 from ..core.frames import wrap_angle
 from ..core.metrics import (
     command_smoothness, error_summary, longest_true_run_s, lyapunov_summary, min_abs, peak_abs, rms, sample_rate_hz,
-    taught_commands,
+    settling_time, taught_commands,
 )
 from ..errors import UsageError
 from ..io.messages import LOG_ERROR
@@ -90,10 +90,7 @@ def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
 
 def stop_event(run: RunData) -> tuple[float, str] | None:
     """The error event (time in s, text) with which ``hbvs repeat`` stopped the run, if any."""
-    for t, level, text in run.events:
-        if level >= LOG_ERROR:
-            return t, text
-    return None
+    return next(((t, text) for t, level, text in run.events if level >= LOG_ERROR), None)
 
 
 def _duration_s(run: RunData) -> float:
@@ -145,13 +142,7 @@ def depth_learning(t: np.ndarray, dhat: np.ndarray, reference: float) -> tuple[f
     t, dhat = t[keep], dhat[keep]
     if t.size == 0 or not (math.isfinite(reference) and reference > 0.0):
         return None, None
-    outside = np.flatnonzero(np.abs(dhat - reference) > DEPTH_LEARNT_BAND * reference)
-    if outside.size == 0:
-        learning = 0.0
-    elif outside[-1] + 1 < t.size:
-        learning = float(t[outside[-1] + 1] - t[0])
-    else:
-        learning = None
+    learning = settling_time(t, dhat - reference, DEPTH_LEARNT_BAND * reference)
     end = t >= t[-1] - DEPTH_END_WINDOW * (t[-1] - t[0])
     rate = None
     if np.count_nonzero(end) >= 3 and np.ptp(t[end]) > 0.0:

@@ -5,14 +5,19 @@ from __future__ import annotations
 import json
 import sys
 from contextlib import contextmanager
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, TextIO
 
 from ..stop_signals import raise_if_stopped
 
 
-def print_json(document: Any) -> None:
-    """A JSON document on stdout, the data channel (two-space indents, no NaN)."""
-    sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+def print_document(document: Any, json_output: bool, as_text: Callable[[Any, TextIO], None]) -> None:
+    """``document`` on stdout, the data channel: JSON (two-space indents, no NaN) for ``--json``, else
+    as ``as_text(document, stdout)`` writes it; flushed."""
+    if json_output:
+        sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
+    else:
+        as_text(document, sys.stdout)
+    sys.stdout.flush()
 
 
 class Console:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 import textwrap
 from datetime import datetime, timezone
 from typing import Any, TextIO
 
 from ..settings.commands import InfoOptions
-from .console import Console, print_json
+from .console import Console, print_document
 
 
 def info_document(info: Any) -> dict[str, Any]:
@@ -111,8 +110,4 @@ def run_info(options: InfoOptions, console: Console) -> None:
     if not info.complete:
         console.warn(f"{info.name}: read up to {info.stop_reason.split(' (')[0]}; the rest is lost")
     document = info_document(info)
-    if options.json_output:
-        print_json(document)
-    else:
-        print_info(document, sys.stdout, width=shutil.get_terminal_size((100, 24)).columns)
-    sys.stdout.flush()
+    print_document(document, options.json_output, lambda _, out: print_info(document, out, width=shutil.get_terminal_size((100, 24)).columns))

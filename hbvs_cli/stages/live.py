@@ -10,7 +10,7 @@ import math
 import threading
 import time
 from collections import deque
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from dataclasses import dataclass
 from typing import IO, Any, Callable, Iterator, Protocol
 
@@ -97,14 +97,10 @@ class CommandOut:
     def _zero(self, t: float) -> None:
         for _ in range(ZERO_REPEATS):
             if self._publisher is not None:
-                try:
+                with suppress(Exception):  # stopping must reach every output it can
                     self._publisher.publish(0.0, 0.0)
-                except Exception:  # noqa: BLE001 - stopping must reach every output it can
-                    pass
-        try:
+        with suppress(OSError, ValueError):
             write_command(self._stream, t, 0.0, 0.0)
-        except (OSError, ValueError):
-            pass
         self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
 
     def _watch(self, stale_timeout_s: float) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..errors import UsageError
 from ..settings.commands import ReportOptions
-from .console import Console, print_json
+from .console import Console, print_document
 from .options import parse_assignment
 
 if TYPE_CHECKING:
@@ -109,11 +109,7 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
             raise UsageError(f"{flag} applies to run files; {fit.name} is a fit file")
     style = figure_style(options.dpi, options.size, options.panels, FIT_PANELS) if options.plot is not None else None
     summary = fit_summary(fit)
-    if options.json_output:
-        print_json(summary)
-    else:
-        print_fit_table(summary, sys.stdout)
-    sys.stdout.flush()
+    print_document(summary, options.json_output, print_fit_table)
     if options.plot is not None:
         save_figure(plot_fit(fit, style), options.plot, style.dpi)
         console.info(f"report: fit figure written to {options.plot}")
@@ -122,15 +118,11 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
 
 def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
     """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
-    if json_output:
-        documents = [report.to_dict() for report in reports]
-        document = documents[0] if len(documents) == 1 else {"runs": documents}
-        print_json(document)
-    else:
-        from ..report.table import print_report_tables
+    from ..report.table import print_report_tables
 
-        print_report_tables(reports, sys.stdout)
-    sys.stdout.flush()
+    documents = [report.to_dict() for report in reports] if json_output else []
+    print_document(documents[0] if len(documents) == 1 else {"runs": documents}, json_output,
+                   lambda _, out: print_report_tables(reports, out))
 
 
 def run_report(options: ReportOptions, console: Console) -> int:
@@ -211,11 +203,7 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
     summary = summarize(Path(options.runs[0]))
     if options.labels:
         summary = summary | {"label": options.labels[0]}
-    if options.json_output:
-        print_json(summary)
-    else:
-        print_summary(summary | {"folder": summary.get("label", summary["folder"])}, sys.stdout)
-    sys.stdout.flush()
+    print_document(summary, options.json_output, lambda _, out: print_summary(summary | {"folder": summary.get("label", summary["folder"])}, out))
     if options.require_converged:
         runs = summary["runs"]
         converged = summary["overall"]["converged"]

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.frames import compose_planar_pose
 from ..errors import InputError, UsageError
+from ..io.calibration import calibration_to_foxglove
 from ..io.fit_file import read_fit_file
 from ..io.images import encode_image
 from ..io.output_target import open_text_output
@@ -39,12 +40,10 @@ class _Ros2Robot:
 
         self.dds = dds
         self.jpeg = options.image_format == "jpeg"
+        calibration = calibration_to_foxglove(camera, "camera_optical", 0)  # K, identity R, [K | 0], no distortion
         self.info = dds.CameraInfo(
-            header=dds.Header(frame_id="camera_optical"), height=camera.height, width=camera.width,
-            distortion_model="plumb_bob", d=[0.0] * 5,
-            k=[camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0],
-            r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-            p=[camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+            header=dds.Header(frame_id="camera_optical"), height=camera.height, width=camera.width, distortion_model=calibration.distortion_model,
+            d=list(calibration.D), k=list(calibration.K), r=list(calibration.R), p=list(calibration.P),
         )
         node = dds.Ros2Node()
         image_topic = options.image_topic + ("/compressed" if self.jpeg else "")

@@ -4,7 +4,6 @@ runs finish (:mod:`.sweep_run`), so the same command resumes an interrupted swee
 from __future__ import annotations
 
 import hashlib
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from ..sweep.engine import check_scheduler_address, dashboard_address, dask_clie
 from ..sweep.spec import PARAMETERS, SweepPlan, SweepSpec, build_spec, file_digest, load_spec_file, repeat_arguments, repeat_command
 from ..report.sweep_plots import save_sweep_plots
 from ..report.sweep_summary import print_summary, summarize
-from .console import Console, print_json
+from .console import Console, print_document
 from .sweep_run import RunTask, check_arguments, execute_run
 
 
@@ -151,11 +150,7 @@ def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None
     """Merge the table, print the summary (stdout), draw the figures."""
     rows = table.finish()
     summary = summarize(Path(options.output))
-    if options.json_output:
-        print_json(summary)
-    else:
-        print_summary(summary, sys.stdout)
-    sys.stdout.flush()
+    print_document(summary, options.json_output, print_summary)
     if options.plots and rows:
         units = {name: parameter.unit for name, parameter in PARAMETERS.items()}
         for path in save_sweep_plots(Path(options.output), units):

@@ -105,8 +105,6 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
 
     if scheduler is not None and cluster is not None:
         raise UsageError("--scheduler and --cluster exclude each other: connect to a running cluster, or start one")
-    if workers is not None and workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {workers}")
     # worker-saturation 1: a run that kills its worker takes no queued batch with it. No
     # profiler, slow ticks (each takes the GIL from the run), glibc's malloc trimming.
     spawn_environ = {name: value for name, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()

@@ -6,11 +6,11 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
+from ..text_files import read_small_file
 from .mapping import _intrinsics_from_mapping, _require_mapping, intrinsics_from_kalibr, is_kalibr
 from .opencv import _read_opencv_storage
 from .ros import _read_yaml
@@ -26,7 +26,7 @@ def load_calibration(
     """Camera intrinsics from a ROS, OpenCV, Kalibr or JSON calibration file (detected by content);
     ``image_size`` (width, height) when the file gives none; ``notes`` receives what was assumed."""
     name = str(path)
-    data = _read_capped(Path(path), name)
+    data = read_small_file(path, MAX_CALIBRATION_BYTES, "a calibration file", CalibrationError)
     return parse_calibration(data, name, image_size, notes)
 
 
@@ -62,29 +62,6 @@ def parse_calibration(
     if is_kalibr(mapping):
         return intrinsics_from_kalibr(mapping, name, image_size)
     return _intrinsics_from_mapping(mapping, name, image_size, notes)
-
-
-def _read_capped(path: Path, name: str) -> bytes:
-    """The bytes of ``path``, refusing missing files, directories and oversized files."""
-    try:
-        if path.is_dir():
-            raise CalibrationError(f"{name}: is a directory, expected a calibration file")
-        size = path.stat().st_size
-    except FileNotFoundError:
-        raise CalibrationError(f"{name}: no such file") from None
-    except OSError as exc:
-        raise CalibrationError(f"{name}: cannot access the file ({exc.strerror or exc})") from None
-    if size > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(f"{name}: {size} bytes is too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
-    try:
-        with path.open("rb") as stream:
-            # One byte past the cap: stat() means nothing for pipes, and a file may grow.
-            data = stream.read(MAX_CALIBRATION_BYTES + 1)
-    except OSError as exc:
-        raise CalibrationError(f"{name}: cannot read the file ({exc.strerror or exc})") from None
-    if len(data) > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(f"{name}: too large for a calibration file (limit {MAX_CALIBRATION_BYTES} bytes)")
-    return data
 
 
 def _read_json(text: str, name: str) -> Mapping[str, Any]:

@@ -41,10 +41,7 @@ def _lookup(mapping: Mapping[str, Any], aliases: Sequence[str]) -> tuple[str, An
     normalised: dict[str, tuple[str, Any]] = {}
     for key, value in mapping.items():
         normalised.setdefault(_normalise_key(key), (str(key), value))
-    for alias in aliases:
-        if alias in normalised:
-            return normalised[alias]
-    return None
+    return next((normalised[alias] for alias in aliases if alias in normalised), None)
 
 
 def _intrinsics_from_mapping(

@@ -11,6 +11,7 @@ import numpy as np
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
 from ..images import MAX_IMAGE_PIXELS
+from ..text_files import short_repr
 
 #: Image sides beyond this are surely a typo (and would make undistortion maps huge).
 _MAX_IMAGE_SIDE = 1 << 15
@@ -143,12 +144,7 @@ def _number(value: Any, what: str) -> float:
             return float(value)
         except ValueError:
             pass
-    raise CalibrationError(f"{what} must hold numbers, found {_short_repr(value)}")
-
-
-def _short_repr(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
+    raise CalibrationError(f"{what} must hold numbers, found {short_repr(value, 40)}")
 
 
 def _numbers(value: Any, what: str) -> list[float]:
@@ -182,7 +178,7 @@ def _numbers(value: Any, what: str) -> list[float]:
 def _image_side(value: Any, what: str) -> int:
     number = _number(value, what)
     if not math.isfinite(number) or number != int(number):
-        raise CalibrationError(f"{what} must be a whole number of pixels, got {_short_repr(value)}")
+        raise CalibrationError(f"{what} must be a whole number of pixels, got {short_repr(value, 40)}")
     if number <= 0:
         raise CalibrationError(f"{what} must be positive, got {int(number)}")
     if number > _MAX_IMAGE_SIDE:

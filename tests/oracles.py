@@ -1,0 +1,98 @@
+"""Ground truths and closed forms the tests compare hbvs against; nothing in hbvs_cli needs them."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hbvs_cli.core.bundle import _shape_bias_rows
+from hbvs_cli.core.control_settings import ControllerGains
+from hbvs_cli.core.controller import DesiredState, TrackingErrors
+from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
+                                         select_branch, take_branch)
+from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
+from hbvs_cli.core.frames import relative_planar_pose
+from hbvs_cli.core.path import CommandProfile
+from hbvs_cli.core.state_filter import _arc
+from hbvs_cli.core.trajectory import _desired_state
+
+
+def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,
+                            d_star: float, gains: ControllerGains) -> tuple[float, float, float]:
+    """``(e1_dot, ebar2_dot, e3_dot)`` of the closed-loop error system (32) with k_2."""
+    e1_dot = (-gains.k_v * errors.e1 + gains.k_2 * errors.ebar2 * w_c + d_tilde * (x_h2 * w_c - x_hd1_dot)) / d_star
+    ebar2_dot = -(errors.e1 * w_c + x_hd1_dot * errors.e3)
+    e3_dot = -gains.k_w * errors.e3 + gains.k_2 * x_hd1_dot * errors.ebar2
+    return float(e1_dot), float(ebar2_dot), float(e3_dot)
+
+
+def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float) -> tuple[float, float, float]:
+    """The state (theta, x_h1, x_h2) after holding (v, w) (m/s, rad/s) for dt (s) at the
+    depth d* (m): (5), (23) integrated exactly."""
+    theta, x1, x2 = (float(s) for s in state)
+    dx, dy, c, s = _arc(v, w, dt)
+    a, b = x1 - dx / depth, x2 - dy / depth
+    return theta - w * dt, c * a + s * b, -s * a + c * b
+
+
+def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR) -> PlanarMotion:
+    """(theta, x_h, n*) of each homography, the branch chosen by :func:`select_branch`."""
+    m_ref = np.asarray(m_ref, dtype=float)
+    candidates = homography_candidates(H)
+    index, valid = select_branch(candidates, m_ref, reference_normal)
+    R = take_branch(candidates.rotations, index)
+    t = take_branch(candidates.translations, index)
+    n = take_branch(candidates.normals, index)
+    pure_rotation = candidates.strength < PURE_ROTATION_TOLERANCE
+    n = np.where(pure_rotation[..., None], np.broadcast_to(reference_normal, n.shape), n)
+    theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
+    return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
+
+
+def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observation:
+    """The estimator's observation of normalised points of shape (N, 3) (no pixels, no lens)."""
+    m = np.asarray(m, dtype=float)
+    return estimator._observe(estimator.solver.solve_one((m[:, 1] / m[:, 0]).tolist(), (m[:, 2] / m[:, 0]).tolist()), None)
+
+
+def bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence) -> NDArray[np.float64]:
+    """How every frame's residuals (K, R) move with a shift of each point's (m_y, m_z), shape
+    (K, R, 2N): -1 on a point's own reprojection errors, and its shapes' residuals' derivative."""
+    points = 2 * m.shape[1]
+    own = np.broadcast_to(-np.eye(points), (m.shape[0], points, points))
+    return np.concatenate([own, _shape_bias_rows(m, normal, motion, shapes)], axis=1)
+
+
+class TaughtPathTrajectory:
+    """The exact desired signals of a simulated taught run (the ground truth).
+
+    ``theta_d = phi* - phi_d``, ``x_hd = Rz(phi_d)^T (p* - p_d) / d*`` (3), (14) from the
+    profile's poses (start at t = 0, F* at ``reference_pose``, d* in m); derivatives by (25).
+    """
+
+    def __init__(self, profile: CommandProfile, start_pose: ArrayLike, reference_pose: ArrayLike, d_star: float) -> None:
+        self.profile = profile
+        self.start_pose = np.asarray(start_pose, dtype=float)
+        self.reference_pose = np.asarray(reference_pose, dtype=float)
+        self.d_star = float(d_star)
+        self.t_start = 0.0
+        self.t_end = profile.t_end
+        self._segment_starts = profile.segment_start_poses(self.start_pose)
+
+    def pose(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Taught robot pose at times ``t`` (held after the end)."""
+        return self.profile.poses_at(t, self.start_pose, self._segment_starts)
+
+    def evaluate(self, t: ArrayLike) -> DesiredState:
+        t = np.asarray(t, dtype=float)
+        poses = self.pose(t)
+        _, x_f = relative_planar_pose(poses, self.reference_pose)
+        # Unwrap relative to the reference so that theta_d is continuous along the path.
+        theta_d = self.reference_pose[2] - poses[..., 2]
+        x_hd1 = x_f[..., 0] / self.d_star
+        x_hd2 = x_f[..., 1] / self.d_star
+        v, w = self.profile.commands_at(t)
+        return _desired_state(theta_d, x_hd1, x_hd2, -w, -v / self.d_star + x_hd2 * w, -x_hd1 * w)
