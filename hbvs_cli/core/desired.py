@@ -55,14 +55,12 @@ class DetectorErrors:
 
     ``bias_fraction``: its point bias in measured point noise, alike over nearby frames and
     invisible in the residuals (corners located from edges follow the edges' sub-pixel phase
-    and the ink's clipping); ``beyond_view``: its points are the corners of one homography
-    fitted to the part of the target in view, so a frame that sees part of it extrapolates
-    them, its bias grown by the target's area over its area in view (:func:`area_beyond_view`);
-    ``correlated``: its errors
-    correlated over frames (:func:`~.bundle.correlation_inflation`; not for one tracked
-    homography's corners, nor markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS
-    error it usually gives, more is said in the warning line (None: no check); ``name``: the
-    kind, as that line says it.
+    and the ink's clipping); ``beyond_view``: its points are one homography's corners fitted to
+    the part of the target in view, extrapolated in a frame that sees part of it, their bias
+    grown by :func:`area_beyond_view`; ``correlated``: its errors correlated over frames
+    (:func:`~.bundle.correlation_inflation`; not for one tracked homography's corners, nor
+    markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more
+    is said in the warning line (None: no check); ``name``: the kind, as that line says it.
     """
 
     name: str = ""
@@ -75,12 +73,9 @@ class DetectorErrors:
 def area_beyond_view(pixels: NDArray[np.float64], camera: CameraIntrinsics) -> NDArray[np.float64]:
     """Every frame's target quadrilateral (F, 4, 2 px, corners in turn) over its part inside the
     image, by area (1 where it is all in view or not found)."""
-    image = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]], np.float32)
-    scale = np.ones(pixels.shape[0])
-    for k in np.flatnonzero(np.all(np.isfinite(pixels), axis=(1, 2))):
-        inside, _ = cv2.intersectConvexConvex(pixels[k].astype(np.float32), image)
-        scale[k] = abs(cv2.contourArea(pixels[k].astype(np.float32))) / max(inside, 1e-9)
-    return np.maximum(scale, 1.0)
+    image = np.float32([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]])
+    quads = np.nan_to_num(pixels).astype(np.float32)  # a frame where it was not found: no area
+    return np.array([max(abs(cv2.contourArea(q)) / max(cv2.intersectConvexConvex(q, image)[0], 1e-9), 1.0) for q in quads])
 
 #: What :func:`fit_desired_trajectory` says then (sigmas, and ``{usual}``: the kind's precision).
 UNCERTAIN_NORMAL_WARNING = (
@@ -410,8 +405,8 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
                       bias_scale: NDArray[np.float64]) -> JointCovariance:
     """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
     for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span`` (``bias_scale`` times its size, frame by frame), the rolling shutter's shift from the poses of the frames ``seen``, and the
-    shifts every frame shares (``common_shift``: bloom's, the calibration's).
+    used ``span`` (times ``bias_scale``, frame by frame), the rolling shutter's shift from the
+    poses of the frames ``seen``, and the shifts every frame shares (``common_shift``: bloom's, the calibration's).
     Its frame-long inputs are freed when it returns, before the uncertainty is carried
     through the smoothing."""
     stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731

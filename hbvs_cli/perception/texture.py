@@ -573,8 +573,9 @@ def _texture(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, 
     return detector
 
 
-# One tracked homography's corners: a bias of half the point noise, grown where the frame sees
-# part of the target (bench/CALIBRATION.md), not correlated over frames; theta_d 0.1 deg and x_hd1 2e-3. Its points are not printed anywhere: no metric size.
+# One tracked homography's corners: a bias of half the point noise, grown where a frame sees part
+# of the target (bench/CALIBRATION.md), not correlated over frames; theta_d 0.1 deg and x_hd1
+# 2e-3. Its points are not printed anywhere: no metric size.
 register_target_kind(TargetKind(
     name="texture", spec=_texture_spec, make=_texture,
     errors=DetectorErrors("texture", bias_fraction=0.5, beyond_view=True, correlated=False, expected_precision=(0.1, 2e-3)),
