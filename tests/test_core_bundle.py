@@ -207,6 +207,25 @@ def test_a_frames_bias_is_kept_as_its_own_part_and_what_it_inherits():
     assert np.array_equal(bias[:, :, :-1].transpose(0, 2, 1)[other_span], inherited[:, :, :-1].transpose(0, 2, 1)[other_span])
 
 
+def test_a_bias_scaled_frame_by_frame_moves_the_estimate_by_that_much_more():
+    """A detector's bias twice as large in every frame (F* too) is the same as twice the
+    fraction (its effect is linear in the bias); twice as large in the last span's frames
+    only moves those frames' own parts twice as far, the first span's own parts not at all,
+    and the globals by less than twice."""
+    normal, m_ref, motion, m, sample, spans, shift = _sampled_drive(200, 6)
+    common = dict(noise=1e-4, frames=m, frames_motion=motion, estimated_rows=sample, bias_segments=(0, spans[sample], spans))
+    covariance = lambda fraction, scale: joint_covariance(  # noqa: E731
+        m[sample], m_ref, normal, motion[sample], bias_fraction=fraction, bias_scale=(scale[0], scale[sample], scale), **common)
+    plain, doubled, twice = covariance(0.5, np.ones(200)), covariance(0.5, np.full(200, 2.0)), covariance(1.0, np.ones(200))
+    assert np.allclose(doubled.bias_shared, twice.bias_shared, rtol=1e-12, atol=0.0)
+    assert np.allclose(doubled.span_bias, twice.span_bias, rtol=1e-12, atol=0.0)
+    last = covariance(0.5, np.where(spans == 3, 2.0, 1.0))
+    assert np.allclose(last.span_bias[spans == 3], 2.0 * plain.span_bias[spans == 3], rtol=1e-12, atol=0.0)
+    assert np.array_equal(last.span_bias[spans == 0], plain.span_bias[spans == 0])
+    grown = np.linalg.norm(last.bias_shared) / np.linalg.norm(plain.bias_shared)
+    assert 1.0 < grown < 2.0
+
+
 def test_the_covariance_of_a_long_recording_takes_memory_by_the_block_not_by_the_frame():
     """Beyond the per-frame parts it returns (own, sensitivity, own bias), the covariance of
     every frame of a recording holds blocks, not copies of the frames: tracemalloc's peak

@@ -81,18 +81,32 @@ def test_uncertain_fit_warning_when_theta_d_or_x_hd1_exceeds_the_kinds_precision
         assert "plane normal n* uncertain" in line and f"{kind} targets usually give" in line
 
 
-def test_detector_bias_is_a_fraction_of_the_point_noise_and_texture_has_a_floor():
-    """Markers half a point noise, chessboards 1.25, whatever the noise; a texture's half a
-    point noise, but not under 0.009 px; dots none."""
+def test_detector_bias_is_a_fraction_of_the_point_noise_grown_for_texture_beyond_the_view():
+    """Markers half a point noise, chessboards 1.25, a texture half, dots none; only the
+    texture's grows where a frame sees part of the target (no floor in pixels)."""
     from hbvs_cli.core.desired import DetectorErrors
 
-    bias = lambda kind, noise_px: target_kind(kind).errors.bias(noise_px)  # noqa: E731
-    assert bias("aruco", 0.028) == bias("aruco", 0.001) == 0.5
-    assert bias("chessboard", 0.01) == 1.25
-    assert bias("texture", 0.1) == pytest.approx(0.5)
-    assert bias("texture", 0.003) == pytest.approx(3.0)
-    assert bias("dots", 0.02) == 0.0
-    assert DetectorErrors().bias(0.02) == 0.0
+    assert target_kind("aruco").errors.bias_fraction == 0.5 and not target_kind("aruco").errors.beyond_view
+    assert target_kind("chessboard").errors.bias_fraction == 1.25
+    assert target_kind("texture").errors.bias_fraction == 0.5 and target_kind("texture").errors.beyond_view
+    assert target_kind("dots").errors.bias_fraction == 0.0
+    assert DetectorErrors().bias_fraction == 0.0 and not DetectorErrors().beyond_view
+
+
+def test_a_target_partly_out_of_view_counts_its_area_over_its_area_in_view():
+    """A 100 px square wholly in a 640x480 image: 1; its left 40 px left of the image: 1/0.6;
+    a trapezium (as perspective draws a poster) whose lower third hangs below the image: its
+    whole area over the part above the bottom row; a frame where it was not found: 1."""
+    from hbvs_cli.core.camera import DEFAULT_CAMERA
+    from hbvs_cli.core.desired import area_beyond_view
+
+    square = np.array([[100, 100], [200, 100], [200, 200], [100, 200]], float)
+    trapezium = np.array([[300, 400], [400, 400], [380, 480 + 40], [320, 480 + 40]], float)
+    frames = np.stack([square, square - [140, 0], trapezium, np.full((4, 2), np.nan)])
+    scale = area_beyond_view(frames, DEFAULT_CAMERA)
+    # The trapezium, 100 px wide at the top, 60 at the bottom, 120 high: (100 + 60) / 2 * 120 =
+    # 9600 px^2; its top 80 px (100 -> 100 - 40 * 80 / 120 px wide): (100 + 73.33) / 2 * 80.
+    assert scale == pytest.approx([1.0, 1.0 / 0.6, 9600.0 / 6933.333, 1.0], rel=1e-4)
 
 
 def test_a_rolling_shutters_error_is_counted_once_not_as_noise():

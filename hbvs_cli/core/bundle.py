@@ -302,7 +302,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
                      bias_segments: tuple[int, ArrayLike, ArrayLike] | None = None,
                      shutter: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
                      readout_estimated: bool = False,
-                     common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None) -> JointCovariance:
+                     common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+                     bias_scale: tuple[float, ArrayLike, ArrayLike] | None = None) -> JointCovariance:
     """``inflation noise^2 (J^T J)^-1`` of the joint estimate, by the Schur complement on the globals.
 
     ``J^T J`` is block-arrow (a 3x3 ``D_k`` per frame, the globals' ``A``, their coupling
@@ -339,6 +340,9 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     bias_segments : (int, array_like (K,), array_like (F,)), optional
         The span (0, 1, ...) of F*, of every estimated frame and of every frame of
         ``frames``; without it, no bias.
+    bias_scale : (float, array_like (K,), array_like (F,)), optional
+        That bias's size in F*, in every estimated frame and in every frame of ``frames``,
+        in multiples of ``bias_fraction`` (default: 1 everywhere).
     shutter : (array_like (2N,), (K, 2N), (F, 2N)), optional
         F*'s, the estimated frames' and ``frames``' points' move per unit of a rolling
         shutter's readout (:func:`rolling_shutter_shift`). The readout is fitted to the
@@ -389,6 +393,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     pooled = lambda block: [_rows_then(whole, more, block) for whole, more in zip((frames, frames_motion, shifts[2]), extra)]  # noqa: E731
     pool_segments = np.concatenate([frame_segments, estimated_segments[missing]])
     weight = np.bincount(where, minlength=pool_size).astype(float)
+    reference_scale, estimated_scale, frame_scale = bias_scale or (1.0, np.ones(estimated.shape[0]), np.ones(frames.shape[0]))
+    pool_scale = np.concatenate([frame_scale, np.asarray(estimated_scale)[missing]])[:, None, None]
     by_row = np.argsort(where, kind="stable")  # the estimated frames in the pool's order
     rows_in_order = where[by_row]
     geometry = PlaneGeometry.around(normal, m_ref)
@@ -433,8 +439,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
             shift_globals += np.einsum("krg,krd->gd", weighted, change) - np.einsum("kga,kad->gd", reduced, shift_own[block])
         if own_rhs is not None:
             # Each estimated frame's J_kg^T W_k - B_k^T D_k^-1 J_k^T W_k, summed over its span's frames.
-            own_rhs[block] = through(own)
-            per_frame = through(weighted) - reduced @ own_rhs[block]
+            own_rhs[block] = through(own) * pool_scale[block]
+            per_frame = through(weighted) * pool_scale[block] - reduced @ own_rhs[block]
             for span in np.unique(pool_segments[block]):
                 spans[span] += per_frame[pool_segments[block] == span].sum(axis=0)
     shared_inverse = np.linalg.pinv(shared_info, rcond=1e-12, hermitian=True)
@@ -468,7 +474,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     # what it inherits through the globals, -D_k^-1 B_k bias_shared (JointCovariance.bias_rows).
     bias_shared = span_bias = readout_bias = None
     if detector_bias > 0.0 and own_rhs is not None:
-        spans[reference_segment] -= reference[:points].T  # F*'s own points carry its span's bias
+        spans[reference_segment] -= reference_scale * reference[:points].T  # F*'s own points carry its span's bias
         bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
         span_bias = own_rhs[:frames.shape[0]]  # formed in J_k^T W_k's place below
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias

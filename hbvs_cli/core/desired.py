@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Callable, Sequence
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -54,22 +55,27 @@ class DetectorErrors:
 
     ``bias_fraction``: its point bias in measured point noise, alike over nearby frames and
     invisible in the residuals (corners located from edges follow the edges' sub-pixel phase
-    and the ink's clipping), and at least ``min_bias_px`` (px); ``correlated``: its errors
-    correlated over frames (:func:`~.bundle.correlation_inflation`; not for one tracked
-    homography's corners, nor markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS
-    error it usually gives, more is said in the warning line (None: no check); ``name``: the
-    kind, as that line says it.
+    and the ink's clipping); ``beyond_view``: its points are one homography's corners fitted to
+    the part of the target in view, extrapolated in a frame that sees part of it, their bias
+    grown by :func:`area_beyond_view`; ``correlated``: its errors correlated over frames
+    (:func:`~.bundle.correlation_inflation`; not for one tracked homography's corners, nor
+    markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more
+    is said in the warning line (None: no check); ``name``: the kind, as that line says it.
     """
 
     name: str = ""
     bias_fraction: float = 0.0
-    min_bias_px: float = 0.0
+    beyond_view: bool = False
     correlated: bool = True
     expected_precision: tuple[float, float] | None = None
 
-    def bias(self, noise_px: float) -> float:
-        """The bias per point in point noise ``noise_px`` (px)."""
-        return max(self.bias_fraction, self.min_bias_px / max(noise_px, 1e-9))
+
+def area_beyond_view(pixels: NDArray[np.float64], camera: CameraIntrinsics) -> NDArray[np.float64]:
+    """Every frame's target quadrilateral (F, 4, 2 px, corners in turn) over its part inside the
+    image, by area (1 where it is all in view or not found)."""
+    image = np.float32([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]])
+    quads = np.nan_to_num(pixels).astype(np.float32)  # a frame where it was not found: no area
+    return np.array([max(abs(cv2.contourArea(q)) / max(cv2.intersectConvexConvex(q, image)[0], 1e-9), 1.0) for q in quads])
 
 #: What :func:`fit_desired_trajectory` says then (sigmas, and ``{usual}``: the kind's precision).
 UNCERTAIN_NORMAL_WARNING = (
@@ -364,8 +370,9 @@ def fit_desired_trajectory(
             shared_shifts.insert(0, uniform_shift(image_shift_px / focal))
         calibration_columns = calibration_shifts(camera, calibration_sigma, m_ref[None]).shape[-1]
         covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
-                                       shapes, errors.correlated, errors.bias(noise * camera.mean_focal), readout != 0.0,
-                                       lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1))
+                                       shapes, errors.correlated, errors.bias_fraction, readout != 0.0,
+                                       lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1),
+                                       area_beyond_view(pixels, camera) if errors.beyond_view else np.ones(t.size))
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns)
         if (line := uncertainty_warning(uncertainty, errors)) and warn is not None:
             warn(line)
@@ -394,11 +401,12 @@ def fit_desired_trajectory(
 def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
                       seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
                       m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], correlated: bool, bias_fraction: float,
-                      readout_estimated: bool, common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> JointCovariance:
+                      readout_estimated: bool, common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                      bias_scale: NDArray[np.float64]) -> JointCovariance:
     """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
     for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span``, the rolling shutter's shift from the poses of the frames ``seen``, and the
-    shifts every frame shares (``common_shift``: bloom's, the calibration's).
+    used ``span`` (times ``bias_scale``, frame by frame), the rolling shutter's shift from the
+    poses of the frames ``seen``, and the shifts every frame shares (``common_shift``: bloom's, the calibration's).
     Its frame-long inputs are freed when it returns, before the uncertainty is carried
     through the smoothing."""
     stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
@@ -410,6 +418,7 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
                             frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
                             correlated=correlated, bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
+                            bias_scale=(float(bias_scale[reference_index]), bias_scale[others], bias_scale[used]),
                             shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
                             common_shift=common_shift)
 
