@@ -224,7 +224,9 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
                 camera = _checked_frame(reader, frame, image)
                 if is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console, partial(_checked_frame, reader),
-                                             partial(_segment_model, reader, smoothing, options, console), options)
+                                             partial(_segment_model, reader, smoothing, options, console),
+                                             lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
+                                                                                  None, console), options)
                     return FitSummary(output=options.output, model=models[0])
                 # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
