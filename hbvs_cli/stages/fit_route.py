@@ -51,11 +51,10 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     from ..io.calibration import calibration_to_foxglove
     from ..io.route_file import write_route
 
-    camera = reader.camera
     follower: SimulatedFollower | ImageFollower | None = None
     rows: list[tuple[float, int, Any, Any]] = []
     for frame, _, image in frames:
-        checked_frame(frame, image)
+        camera = checked_frame(frame, image)
         if follower is None:
             writer.write(CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], frame.log_time_ns,
                          calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
@@ -93,7 +92,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         references.append(segment.first + reference)
     transitions = estimate_transitions(t, segments, [model.trajectory for model in models])
     write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
-                reader.world_description, np.column_stack([t, poses]))
+                reader.world_description, None if route is None else np.column_stack([t, poses]))
     _print_route_summary(console, "images" if route is None else route.name, segments, models, transitions, t, options)
     return models
 
@@ -165,27 +164,35 @@ class ImageFollower:
 
     def _search(self) -> None:
         """Follow the new targets the recent frames show in most of them, from the first of them on:
-        each part of the first of them that stands out from its background (:func:`standing_out`) and
-        holds no target followed so far (those painted out), searched alone, as markers hide dots and a
-        photograph dots (:func:`~hbvs_cli.perception.autodetect.target_candidates`); photographs last (a poster's own print)."""
+        each part of them that stands out from its background (:func:`standing_out`, :func:`parts`)
+        and holds no target followed so far (those painted out), searched alone, as markers hide dots and a
+        photograph dots (:func:`~hbvs_cli.perception.autodetect.target_candidates`); a photograph only where no other
+        kind is seen (a poster's own print), each once it is half :data:`MIN_SPAN_PX` across (smaller, a
+        board's markers are not all decoded)."""
         painted = [self._painted_out(index, image) for index, image in self.recent]
-        first = self.recent[0][0]
-        centres = [np.nanmean(found[first], axis=0) for found in self.found if np.isfinite(found[first]).any()]
-        for region in standing_out(self.recent[0][1]):
+        centres = [np.nanmean(found[index], axis=0) for found in self.found for index, _ in self.recent
+                   if index in found and np.isfinite(found[index]).any()]
+        masks = [standing_out(image) for _, image in self.recent]  # a followed target's panel stays whole
+        for region in parts(masks):
             if any(region[int(y), int(x)] for x, y in centres if 0 <= y < region.shape[0] and 0 <= x < region.shape[1]):
                 continue  # a target followed already
-            alone = [np.where(region if image.ndim == 2 else region[..., None], image, _background(image)) for image in painted]
+            alone = [_alone(image, region & mask) for image, mask in zip(painted, masks)]
             try:
                 found = target_candidates(alone[::2], self.camera, seed=self.seed).found
             except InputError:  # none there
                 continue
-            any(self._followed(choice, alone) for choice in sorted(found, key=lambda choice: choice.kind == "texture"))
+            # photographs last, and none where another kind is seen (its own print, until that is large enough)
+            printed = [choice for choice in found if choice.kind != "texture"] or found
+            any(self._followed(choice, alone) for choice in printed
+                if choice.points is not None and view_spans(choice.points[None])[0] >= MIN_SPAN_PX / 2)
 
-    def _followed(self, choice: Any, painted: list[np.ndarray]) -> bool:
-        """Whether ``choice``'s detector finds it in most of the ``painted`` recent frames (then it is followed)."""
+    def _followed(self, choice: Any, alone: list[np.ndarray]) -> bool:
+        """Whether ``choice``'s detector, started on the first of the recent frames ``alone`` (the
+        part of each that it was found in), finds it in most of them (then it is followed)."""
         try:
-            detector = TrackedDetector(self.spec_of(choice, painted), self.camera, seed=self.seed, template_image=painted[0])
-            found = {index: detector.detect(image) for (index, _), image in zip(self.recent, painted)}
+            detector = TrackedDetector(self.spec_of(choice, alone), self.camera, seed=self.seed, template_image=alone[0])
+            detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
+            found = {index: detector.detect(image) for index, image in self.recent}
         except HbvsError:  # e.g. too few dots for a dot target
             return False
         seen = [np.count_nonzero(np.all(np.isfinite(points), axis=1)) >= MIN_PARTIAL_POINTS for points in found.values()]
@@ -196,13 +203,16 @@ class ImageFollower:
         return True
 
     def _painted_out(self, index: int, image: np.ndarray) -> np.ndarray:
-        """``image`` with every followed target's convex hull, grown by :data:`PAINT_MARGIN`, painted its median gray."""
+        """``image`` (recent frame ``index``) with every followed target's convex hull (where it was
+        found in the nearest recent frame), grown by :data:`PAINT_MARGIN`, painted its median level."""
         painted = image.copy()
         for found in self.found:
-            points = found.get(index)
-            points = None if points is None else points[np.all(np.isfinite(points), axis=1)]
-            if points is None or len(points) < 3:
+            # where it was found in this frame, else in the nearest recent frame
+            nearest = sorted((abs(k - index), k) for k, _ in self.recent if k in found and np.isfinite(found[k]).all(axis=1).sum() >= 3)
+            if not nearest:
                 continue
+            points = found[nearest[0][1]]
+            points = points[np.all(np.isfinite(points), axis=1)]
             centre = points.mean(axis=0)
             grown = centre + (points - centre) * (1 + PAINT_MARGIN[0]) + PAINT_MARGIN[1] * np.sign(points - centre)
             cv2.fillConvexPoly(painted, cv2.convexHull(grown.astype(np.int32)), np.atleast_1d(_background(image)).tolist())
@@ -216,8 +226,8 @@ class ImageFollower:
 
 #: A part of an image stands out from its background when it differs from the image's median by this much (gray levels)...
 STAND_OUT_LEVELS = 24
-#: ... closing gaps of up to this many px, and it is searched this many px beyond its outline (the frames searched together move).
-STAND_OUT_GAP_PX, STAND_OUT_MARGIN_PX = 15, 24
+#: ... closing gaps of up to this many px, less this many px of its edge.
+STAND_OUT_GAP_PX, STAND_OUT_EDGE_PX = 15, 3
 
 
 def _background(image: np.ndarray) -> np.ndarray:
@@ -225,16 +235,27 @@ def _background(image: np.ndarray) -> np.ndarray:
     return np.median(image.reshape(-1, image.shape[2]) if image.ndim == 3 else image.reshape(-1), axis=0).astype(image.dtype)
 
 
-def standing_out(image: np.ndarray) -> list[np.ndarray]:
-    """Masks (bool, the image's shape) of the parts of ``image`` that stand out from its background
-    by :data:`STAND_OUT_LEVELS`, each at least :data:`MIN_SPAN_PX` across (a target in them can be
-    seen that large), grown by :data:`STAND_OUT_MARGIN_PX`."""
+def _alone(image: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """``image`` painted outside ``part`` (bool mask) in its median level inside: no edge where ``part`` ends."""
+    level = np.median(image[part] if part.any() else image.reshape(-1, *image.shape[2:]), axis=0).astype(image.dtype)
+    return np.where(part if image.ndim == 2 else part[..., None], image, level)
+
+
+def standing_out(image: np.ndarray) -> np.ndarray:
+    """Where ``image`` stands out from its background by :data:`STAND_OUT_LEVELS`, gaps of up to
+    :data:`STAND_OUT_GAP_PX` closed, less its blurred edge of :data:`STAND_OUT_EDGE_PX` (a dark
+    line around a light poster that a dot detector would count) (bool, the image's shape)."""
     differs = np.abs(image.astype(np.int16) - _background(image).astype(np.int16)) > STAND_OUT_LEVELS
     differs = (differs.any(axis=2) if differs.ndim == 3 else differs).astype(np.uint8)
     closed = cv2.morphologyEx(differs, cv2.MORPH_CLOSE, np.ones((STAND_OUT_GAP_PX, STAND_OUT_GAP_PX), np.uint8))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(closed)
-    grow = np.ones((2 * STAND_OUT_MARGIN_PX + 1,) * 2, np.uint8)
-    return [cv2.dilate((labels == label).astype(np.uint8), grow).astype(bool) for label in range(1, count)
+    return cv2.erode(closed, np.ones((2 * STAND_OUT_EDGE_PX + 1,) * 2, np.uint8)).astype(bool)
+
+
+def parts(masks: list[np.ndarray]) -> list[np.ndarray]:
+    """The connected parts (bool masks) of the union of ``masks``, each at least :data:`MIN_SPAN_PX`
+    across (a target in them can be seen that large)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(np.logical_or.reduce(masks).astype(np.uint8))
+    return [labels == label for label in range(1, count)
             if max(stats[label, cv2.CC_STAT_WIDTH], stats[label, cv2.CC_STAT_HEIGHT]) >= MIN_SPAN_PX]
 
 
