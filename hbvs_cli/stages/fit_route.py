@@ -6,10 +6,9 @@ transition estimated from both segments' splines over their overlap; written as 
 
 A simulated teach (its frames carry their true poses) starts a target's detector on the first
 frame whose pose sees it wholly and large (its points there are the simulated ``seen_pixels``
-a single-target fit also starts from). Without poses (:class:`ImageFollower`) the targets are
-found in the images alone: every :data:`SEARCH_FRAMES` frames the kinds of target those frames
-show, the targets already followed painted out, and the one found in most of them is followed
-from the first of them on; a segment ends where its detector loses its target."""
+a single-target fit also starts from). Without poses (:class:`ImageFollower`; footage that no
+one target covers, :func:`.fit.run_fit`) the targets are found in the images alone; a segment
+ends where its detector loses its target."""
 
 from __future__ import annotations
 
@@ -140,11 +139,11 @@ PAINT_MARGIN = (0.3, 12.0)
 
 class ImageFollower:
     """The targets of a drive found and followed from its images alone (no true pose): every
-    :data:`SEARCH_FRAMES` frames, the targets followed so far painted out of the last of them,
-    the kinds of target they show (:func:`~hbvs_cli.perception.tracked.target_candidates`, the
-    most precise first); the first whose detector finds at least :data:`MIN_PARTIAL_POINTS` of
-    its points in most of them is followed from the first of them on. Every detector then runs
-    on every frame, so that a target lost and seen again keeps its name."""
+    :data:`SEARCH_FRAMES` frames, each part of the last of them that stands out from the
+    background and holds no followed target is searched alone (:meth:`_search`); a target whose
+    detector finds at least :data:`MIN_PARTIAL_POINTS` of its points in most of them is followed
+    from the first of them on. Every detector then runs on every frame, so that a target lost
+    and seen again keeps its name."""
 
     def __init__(self, camera: Any, spec_of: Callable[[Any, list[np.ndarray]], Any], seed: int) -> None:
         self.camera, self.spec_of, self.seed = camera, spec_of, seed
