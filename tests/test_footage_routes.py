@@ -17,10 +17,11 @@ MIN_SPAN_PX = 70.0
 
 
 def followable_frames(made: dict, target: int) -> np.ndarray:
-    """The frames in which wall ``target``'s points are all 10 px inside the view and span MIN_SPAN_PX (the truth)."""
-    camera = Camera()
-    pixels = ideal_pixels(made["walls"][target], camera, made["poses"])
-    inside = np.all((pixels > 10) & (pixels < np.array([camera.width, camera.height]) - 10), axis=(1, 2))
+    """The frames in which wall ``target`` is ahead, its points all 10 px inside the view and spanning MIN_SPAN_PX (the truth)."""
+    camera, wall, poses = Camera(), made["walls"][target], made["poses"]
+    pixels = ideal_pixels(wall, camera, poses)
+    ahead = np.sum((np.asarray(wall.centre[:2]) - poses[:, :2]) * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])]), axis=1) > 0
+    inside = ahead & np.all((pixels > 10) & (pixels < np.array([camera.width, camera.height]) - 10), axis=(1, 2))
     spans = np.max(np.linalg.norm(pixels[:, :, None] - pixels[:, None], axis=-1), axis=(1, 2))
     return np.flatnonzero(inside & (spans >= MIN_SPAN_PX))
 
