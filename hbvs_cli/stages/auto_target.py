@@ -36,6 +36,11 @@ FOLLOWED_FRAMES = 120
 JUDGE_FRAMES = 24
 
 
+class NoTargetThroughout(InputError):
+    """No target the first frames show is usable over the whole drive: it may be a route, a
+    target followed after another (:mod:`.fit_route`)."""
+
+
 @dataclass(frozen=True)
 class Judged:
     """One candidate followed over the drive: its ``spec``, the frames it was ``seen`` in of
@@ -144,7 +149,7 @@ def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) ->
         return f"{j.choice.kind} {j.theta_sigma_deg:.2g} deg (found in {j.seen} of {j.frames} frames)"
 
     if not usable:
-        raise InputError(f"--target auto: no target kind is found over the whole drive ({frames} frames followed): "
+        raise NoTargetThroughout(f"--target auto: no target kind is found over the whole drive ({frames} frames followed): "
                          f"{'; '.join(figures(j) for j in judged)}. Choose one with --target {'|'.join(TARGET_KINDS)}")
     best = usable[0]
     others = "".join(f" vs {figures(j)}" for j in judged if j is not best)

@@ -34,7 +34,7 @@ from .options import recorded_settings
 from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
-from .auto_target import choose_on_the_drive, followed_frames
+from .auto_target import NoTargetThroughout, choose_on_the_drive, followed_frames
 from .fit_route import fit_route_teach, is_route
 from .frame_decoding import decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
@@ -138,9 +138,20 @@ def recorded_frame_count(source: str) -> int | None:
 
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
-    """Fit the desired trajectory of a teach recording; write the fit file."""
+    """Fit the desired trajectory of a teach recording; write the fit file. Footage on which
+    ``--target auto`` finds no one target over the whole drive is fitted again as a route
+    (:mod:`.fit_route`), its targets found in the images; if that fails too, the first failure is the error."""
     with _one_thread_each():
-        return _run_fit(options, console)
+        try:
+            return _run_fit(options, console)
+        except InputError as lost:  # the fit's InsufficientDataError, said in its words (:func:`_fit`), is its context
+            lost_on_the_way = getattr(lost.__context__, "facts", {}).get("reason") in ("lost", "gap")
+            if options.target != "auto" or options.input == "-" or not (isinstance(lost, NoTargetThroughout) or lost_on_the_way):
+                raise
+            try:
+                return _run_fit(options, console, as_route=True)
+            except HbvsError:
+                raise lost from None
 
 
 @contextmanager
@@ -175,7 +186,7 @@ def _reuse_freed_frames() -> None:
         mallopt(-1, 32 << 20)  # M_TRIM_THRESHOLD: up to 32 MB of freed heap kept
 
 
-def _run_fit(options: FitOptions, console: Console) -> FitSummary:
+def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> FitSummary:
     from ..io.fit_file import checked_model_message, write_desired_signals
     from ..io.images import sniff_format, write_compressed_image
     from ..io.mcap import open_output
@@ -222,10 +233,15 @@ def _run_fit(options: FitOptions, console: Console) -> FitSummary:
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
-                if is_route(reader.world_description):  # several targets: segment by segment
-                    models = fit_route_teach(reader, writer, chain(first, frames), bar, console, partial(_checked_frame, reader),
-                                             partial(_segment_model, reader, smoothing, options, console), options)
+                def route_fit(reader: Any, frames: Iterator[Any]) -> FitSummary:  # several targets: segment by segment
+                    models = fit_route_teach(reader, writer, frames, bar, console, partial(_checked_frame, reader),
+                                             partial(_segment_model, reader, smoothing, options, console),
+                                             lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
+                                                                                  None, console), options)
                     return FitSummary(output=options.output, model=models[0])
+
+                if as_route or is_route(reader.world_description):
+                    return route_fit(reader, chain(first, frames))
                 # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,

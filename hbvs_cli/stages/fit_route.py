@@ -4,25 +4,30 @@ fit in its target's own world (handed in by :mod:`.fit`) and each
 transition estimated from both segments' splines over their overlap; written as a route file
 (:mod:`hbvs_cli.io.route_file`).
 
-Routes are simulated so far: a target's detector starts on the first frame whose recorded
-pose sees it wholly and large (its points there are the simulated ``seen_pixels`` a
-single-target fit also starts from) and looks for it while the pose has it in view."""
+A simulated teach (its frames carry their true poses) starts a target's detector on the first
+frame whose pose sees it wholly and large (its points there are the simulated ``seen_pixels``
+a single-target fit also starts from). Without poses (:class:`ImageFollower`; footage that no
+one target covers, :func:`.fit.run_fit`) the targets are found in the images alone; a segment
+ends where its detector loses its target."""
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any, Callable, Iterator
 
+import cv2
 import numpy as np
 from rich.table import Table
 
 from ..core.fit_model import FitModel
 from ..core.route import estimate_transitions, largest_view, split_route, view_spans
-from ..errors import MalformedDataError, RecordingError
+from ..core.desired import MIN_PARTIAL_POINTS
+from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
 from ..io.fit_file import FILE_KIND
 from ..io.messages import CAMERA_FRAME
 from ..io.topics import CALIBRATION_TOPIC, TOPICS
 from ..perception.target_kinds import SpecRequest, target_kind
-from ..perception.tracked import TrackedDetector
+from ..perception.tracked import TrackedDetector, target_candidates
 from ..settings.commands import FitOptions
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from .console import Console
@@ -35,81 +40,228 @@ def is_route(world_description: Any) -> bool:
 
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
                     checked_frame: Callable[[Any, np.ndarray], Any], segment_model: Callable[..., FitModel],
-                    options: FitOptions) -> list[FitModel]:
+                    spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
     """Fit the route of ``reader`` (its decoded ``frames``, each passed to ``checked_frame``)
     and write its route file into ``writer`` (metadata written already); the fit's summary on
     stderr. ``segment_model(arrays, reference_index, spec, world_description, name)``: the
-    single-target fit of one segment's frames (:func:`.fit._segment_model`). The models, in order."""
+    single-target fit of one segment's frames (:func:`.fit._segment_model`);
+    ``spec_of(choice, images)``: the detector of a kind ``--target auto`` found in ``images``.
+    The models, in order."""
     from ..io.calibration import calibration_to_foxglove
     from ..io.route_file import write_route
 
-    camera = reader.camera
-    try:
-        route = recorded_route(reader.world_description, camera)
-    except MalformedDataError as exc:
-        raise RecordingError(f"{reader.name}: {exc}") from None
-    detectors: list[TrackedDetector | None] = [None] * len(route.worlds)
+    follower: SimulatedFollower | ImageFollower | None = None
     rows: list[tuple[float, int, Any, Any]] = []
-    seen: list[list[np.ndarray]] = [[] for _ in route.worlds]
     for frame, _, image in frames:
-        checked_frame(frame, image)
-        if frame.pose is None:
-            raise RecordingError(f"{reader.name}: frame {frame.index} has no pose: a route is fitted from a simulated teach")
-        if not rows:
+        camera = checked_frame(frame, image)
+        if follower is None:
             writer.write(CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], frame.log_time_ns,
                          calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+            follower = (ImageFollower(camera, spec_of, options.seed) if frame.pose is None
+                        else SimulatedFollower(_route(reader, camera), options.seed, console))
+        if (frame.pose is None) != isinstance(follower, ImageFollower):
+            raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
+                                 "its first frame " + ("had" if frame.pose is None else "lacked"))
         rows.append((frame.t, frame.log_time_ns, frame.pose, frame.command))
-        for index, pixels in enumerate(_detected(route, detectors, image, np.asarray(frame.pose), options.seed, console)):
-            seen[index].append(pixels)
+        follower.add(image, frame.pose)
         bar.advance()
-    if not rows:
+    if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
     t = np.array([row[0] for row in rows])
     log_time = np.array([row[1] for row in rows], dtype=np.int64)
-    poses = np.array([row[2] for row in rows], dtype=float)
+    poses = np.array([row[2] if row[2] is not None else (np.nan,) * 3 for row in rows], dtype=float)
     commands = np.array([row[3] if row[3] is not None else (np.nan, np.nan) for row in rows], dtype=float)
-    pixels = [np.array(points) for points in seen]
+    pixels = follower.pixels(len(rows))
     spans = np.column_stack([view_spans(points) for points in pixels])
     try:
         segments = split_route(spans >= MIN_SPAN_PX, spans)
     except MalformedDataError as exc:
         raise RecordingError(f"{reader.name}: {exc}") from None
+    route = follower.route if isinstance(follower, SimulatedFollower) else None
     models, references = [], []
     for segment in segments:
         frames_of = slice(segment.first, segment.last + 1)
         arrays = {"t": t[frames_of], "log_time": log_time[frames_of], "pixels": pixels[segment.target][frames_of],
-                  "pose": route.local_pose(segment.target, poses[frames_of]), "command": commands[frames_of]}
+                  "pose": poses[frames_of] if route is None else route.local_pose(segment.target, poses[frames_of]),
+                  "command": commands[frames_of]}
         reference = largest_view(arrays["pixels"])
-        models.append(segment_model(arrays, reference, detectors[segment.target].spec, route.worlds[segment.target].to_dict(),
+        models.append(segment_model(arrays, reference, follower.detectors[segment.target].spec,
+                                    None if route is None else route.worlds[segment.target].to_dict(),
                                     f"{reader.name} (segment {len(models) + 1})"))
         references.append(segment.first + reference)
     transitions = estimate_transitions(t, segments, [model.trajectory for model in models])
     write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
-                reader.world_description, np.column_stack([t, poses]))
-    _print_route_summary(console, route, segments, models, transitions, t, options)
+                reader.world_description, None if route is None else np.column_stack([t, poses]))
+    _print_route_summary(console, "images" if route is None else route.name, segments, models, transitions, t, options)
     return models
 
 
-def _detected(route: RouteWorld, detectors: list[TrackedDetector | None], image: np.ndarray, pose: np.ndarray, seed: int,
-              console: Console) -> Iterator[np.ndarray]:
-    """Each target's pixels in ``image`` (NaN where it is not in view or not found); a target's
-    detector is made on the first frame that sees it wholly and at least :data:`MIN_SPAN_PX` across."""
-    spans = route.spans(pose)
-    for index, world in enumerate(route.worlds):
-        points = int(world.target.points_world.shape[0])
-        if detectors[index] is None and spans[index] >= MIN_SPAN_PX:
-            local = route.local_pose(index, pose)
-            request = SpecRequest([image], route.camera, marker_id=world.target.marker_id, seen_pixels=world.pixels(local),
-                                  info=console.info)
-            detectors[index] = TrackedDetector(target_kind(world.target.kind).spec(request), route.camera, seed=seed)
-        detector = detectors[index]
-        yield detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan)
+def _route(reader: Any, camera: Any) -> RouteWorld:
+    """The simulated route the teach ``reader`` recorded; RecordingError when its record is not one."""
+    try:
+        return recorded_route(reader.world_description, camera)
+    except MalformedDataError as exc:
+        raise RecordingError(f"{reader.name}: {exc}") from None
 
 
-def _print_route_summary(console: Console, route: RouteWorld, segments: list[Any], models: list[Any], transitions: list[Any],
+class SimulatedFollower:
+    """Each target of a simulated ``route`` followed by its detector: made on the first frame
+    whose true pose sees it wholly and at least :data:`MIN_SPAN_PX` across, run while the pose has it in view."""
+
+    def __init__(self, route: RouteWorld, seed: int, console: Console) -> None:
+        self.route, self.seed, self.console = route, seed, console
+        self.detectors: list[TrackedDetector | None] = [None] * len(route.worlds)
+        self.seen: list[list[np.ndarray]] = [[] for _ in route.worlds]
+
+    def add(self, image: np.ndarray, pose: Any) -> None:
+        """Each target's pixels in ``image`` (NaN where it is not in view or not found)."""
+        pose = np.asarray(pose)
+        spans = self.route.spans(pose)
+        for index, world in enumerate(self.route.worlds):
+            points = int(world.target.points_world.shape[0])
+            if self.detectors[index] is None and spans[index] >= MIN_SPAN_PX:
+                request = SpecRequest([image], self.route.camera, marker_id=world.target.marker_id,
+                                      seen_pixels=world.pixels(self.route.local_pose(index, pose)), info=self.console.info)
+                self.detectors[index] = TrackedDetector(target_kind(world.target.kind).spec(request), self.route.camera, seed=self.seed)
+            detector = self.detectors[index]
+            self.seen[index].append(detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan))
+
+    def pixels(self, frames: int) -> list[np.ndarray]:
+        """Each target's pixels (``frames``, N, 2)."""
+        return [np.array(points) for points in self.seen]
+
+
+#: Frames an image-only route fit looks for new targets in at a time (and how often).
+SEARCH_FRAMES = 8
+#: A followed target is painted out of the searched frames this much beyond its points (fraction of their distance from their centre, and px).
+PAINT_MARGIN = (0.3, 12.0)
+
+
+class ImageFollower:
+    """The targets of a drive found and followed from its images alone (no true pose): every
+    :data:`SEARCH_FRAMES` frames, each part of the last of them that stands out from the
+    background and holds no followed target is searched alone (:meth:`_search`); a target whose
+    detector finds at least :data:`MIN_PARTIAL_POINTS` of its points in most of them is followed
+    from the first of them on. Every detector then runs on every frame, so that a target lost
+    and seen again keeps its name."""
+
+    def __init__(self, camera: Any, spec_of: Callable[[Any, list[np.ndarray]], Any], seed: int) -> None:
+        self.camera, self.spec_of, self.seed = camera, spec_of, seed
+        self.detectors: list[TrackedDetector] = []
+        self.found: list[dict[int, np.ndarray]] = []
+        self.recent: deque[tuple[int, np.ndarray]] = deque(maxlen=SEARCH_FRAMES)
+        self.count = 0
+
+    def add(self, image: np.ndarray, pose: Any = None) -> None:
+        """Follow every target into ``image``; look for a new one every :data:`SEARCH_FRAMES` frames."""
+        index, self.count = self.count, self.count + 1
+        self.recent.append((index, image))
+        for detector, found in zip(self.detectors, self.found):
+            found[index] = detector.detect(image)
+        if index % SEARCH_FRAMES == SEARCH_FRAMES - 1:
+            self._search()
+
+    def _search(self) -> None:
+        """Follow the new targets the recent frames show in most of them, from the first of them on:
+        each part of them that stands out from its background (:func:`standing_out`, :func:`parts`)
+        and holds no target followed so far (those painted out), searched alone, as markers hide dots and a
+        photograph dots (:func:`~hbvs_cli.perception.autodetect.target_candidates`); a photograph only where no other
+        kind is seen (a poster's own print), each once it is half :data:`MIN_SPAN_PX` across (smaller, a
+        board's markers are not all decoded)."""
+        painted = [self._painted_out(index, image) for index, image in self.recent]
+        centres = [np.nanmean(found[index], axis=0) for found in self.found for index, _ in self.recent
+                   if index in found and np.isfinite(found[index]).any()]
+        masks = [standing_out(image) for _, image in self.recent]  # a followed target's panel stays whole
+        for region in parts(masks):
+            if any(region[int(y), int(x)] for x, y in centres if 0 <= y < region.shape[0] and 0 <= x < region.shape[1]):
+                continue  # a target followed already
+            alone = [_alone(image, region & mask) for image, mask in zip(painted, masks)]
+            try:
+                found = target_candidates(alone[::2], self.camera, seed=self.seed).found
+            except InputError:  # none there
+                continue
+            # photographs last, and none where another kind is seen (its own print, until that is large enough)
+            printed = [choice for choice in found if choice.kind != "texture"] or found
+            any(self._followed(choice, alone) for choice in printed
+                if choice.points is not None and view_spans(choice.points[None])[0] >= MIN_SPAN_PX / 2)
+
+    def _followed(self, choice: Any, alone: list[np.ndarray]) -> bool:
+        """Whether ``choice``'s detector, started on the first of the recent frames ``alone`` (the
+        part of each that it was found in), finds it in most of them (then it is followed)."""
+        try:
+            detector = TrackedDetector(self.spec_of(choice, alone), self.camera, seed=self.seed, template_image=alone[0])
+            detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
+            found = {index: detector.detect(image) for index, image in self.recent}
+        except HbvsError:  # e.g. too few dots for a dot target
+            return False
+        seen = [np.count_nonzero(np.all(np.isfinite(points), axis=1)) >= MIN_PARTIAL_POINTS for points in found.values()]
+        if 2 * sum(seen) <= len(seen):
+            return False
+        self.detectors.append(detector)
+        self.found.append(found)
+        return True
+
+    def _painted_out(self, index: int, image: np.ndarray) -> np.ndarray:
+        """``image`` (recent frame ``index``) with every followed target's convex hull (where it was
+        found in the nearest recent frame), grown by :data:`PAINT_MARGIN`, painted its median level."""
+        painted = image.copy()
+        for found in self.found:
+            # where it was found in this frame, else in the nearest recent frame
+            nearest = sorted((abs(k - index), k) for k, _ in self.recent if k in found and np.isfinite(found[k]).all(axis=1).sum() >= 3)
+            if not nearest:
+                continue
+            points = found[nearest[0][1]]
+            points = points[np.all(np.isfinite(points), axis=1)]
+            centre = points.mean(axis=0)
+            grown = centre + (points - centre) * (1 + PAINT_MARGIN[0]) + PAINT_MARGIN[1] * np.sign(points - centre)
+            cv2.fillConvexPoly(painted, cv2.convexHull(grown.astype(np.int32)), np.atleast_1d(_background(image)).tolist())
+        return painted
+
+    def pixels(self, frames: int) -> list[np.ndarray]:
+        """Each target's pixels (``frames``, N, 2), NaN before it was found."""
+        return [np.array([found.get(k, np.full((detector.spec.n_points, 2), np.nan)) for k in range(frames)])
+                for detector, found in zip(self.detectors, self.found)]
+
+
+#: A part of an image stands out from its background when it differs from the image's median by this much (gray levels)...
+STAND_OUT_LEVELS = 24
+#: ... closing gaps of up to this many px, less this many px of its edge.
+STAND_OUT_GAP_PX, STAND_OUT_EDGE_PX = 15, 3
+
+
+def _background(image: np.ndarray) -> np.ndarray:
+    """The median level (gray) or colour of ``image``."""
+    return np.median(image.reshape(-1, image.shape[2]) if image.ndim == 3 else image.reshape(-1), axis=0).astype(image.dtype)
+
+
+def _alone(image: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """``image`` painted outside ``part`` (bool mask) in its median level inside: no edge where ``part`` ends."""
+    level = np.median(image[part] if part.any() else image.reshape(-1, *image.shape[2:]), axis=0).astype(image.dtype)
+    return np.where(part if image.ndim == 2 else part[..., None], image, level)
+
+
+def standing_out(image: np.ndarray) -> np.ndarray:
+    """Where ``image`` stands out from its background by :data:`STAND_OUT_LEVELS`, gaps of up to
+    :data:`STAND_OUT_GAP_PX` closed, less its blurred edge of :data:`STAND_OUT_EDGE_PX` (a dark
+    line around a light poster that a dot detector would count) (bool, the image's shape)."""
+    differs = np.abs(image.astype(np.int16) - _background(image).astype(np.int16)) > STAND_OUT_LEVELS
+    differs = (differs.any(axis=2) if differs.ndim == 3 else differs).astype(np.uint8)
+    closed = cv2.morphologyEx(differs, cv2.MORPH_CLOSE, np.ones((STAND_OUT_GAP_PX, STAND_OUT_GAP_PX), np.uint8))
+    return cv2.erode(closed, np.ones((2 * STAND_OUT_EDGE_PX + 1,) * 2, np.uint8)).astype(bool)
+
+
+def parts(masks: list[np.ndarray]) -> list[np.ndarray]:
+    """The connected parts (bool masks) of the union of ``masks``, each at least :data:`MIN_SPAN_PX`
+    across (a target in them can be seen that large)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(np.logical_or.reduce(masks).astype(np.uint8))
+    return [labels == label for label in range(1, count)
+            if max(stats[label, cv2.CC_STAT_WIDTH], stats[label, cv2.CC_STAT_HEIGHT]) >= MIN_SPAN_PX]
+
+
+def _print_route_summary(console: Console, route_name: str, segments: list[Any], models: list[Any], transitions: list[Any],
                          t: np.ndarray, options: FitOptions) -> None:
     """One row per segment: its target, span of the drive, F*_i, dhat(0) (d* as fit estimated it) and the transition into it."""
-    table = Table(title=f"hbvs fit (route {route.name}): {options.input} -> {options.output}", header_style="bold")
+    table = Table(title=f"hbvs fit (route {route_name}): {options.input} -> {options.output}", header_style="bold")
     for column in ("segment", "target", "t (s)", "F* at (s)", "dhat(0) (m)", "rho = d*_i/d*_i-1", "heading (deg)"):
         table.add_column(column)
     for number, (segment, model) in enumerate(zip(segments, models)):
