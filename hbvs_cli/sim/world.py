@@ -223,7 +223,7 @@ def world_from_description(data: Any, source: str) -> World:
     at most :data:`MAX_TARGET_POINTS` points); RecordingError otherwise."""
     if isinstance(data, dict) and "targets" in data:
         raise RecordingError(f"{source}: a simulated route of several targets (teach --route) where one target's "
-                             "world is expected: hbvs fit splits a route into segments (issue 47)")
+                             "world is expected: hbvs fit splits a route into segments")
     try:
         world = World.from_dict(data)
     except HbvsError as exc:  # World says "malformed world description: ..." itself

@@ -55,7 +55,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     (:mod:`.repeat` hands them in). The run's summary."""
     plan = route_of(fit, str(options.input))
     if not options.sim:
-        raise UsageError("a route file repeats with --sim only so far (issue 47): --replay and --live take one target's fit")
+        raise UsageError("a route file repeats with --sim only; --replay and --live take the fit of one target")
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
     models = plan.models
