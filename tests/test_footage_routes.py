@@ -8,7 +8,9 @@ import numpy as np
 
 from hbvs_cli.io.route_file import read_route_file
 
-from conftest import call_hbvs
+import pytest
+
+from conftest import call_hbvs, campaign_extent
 from footage import Camera, ideal_pixels
 from footage_routes import SHORT_ROUTE, make_route_footage, segment_truth, transition_truth
 
@@ -26,10 +28,14 @@ def followable_frames(made: dict, target: int) -> np.ndarray:
     return np.flatnonzero(inside & (spans >= MIN_SPAN_PX))
 
 
-def test_route_footage_of_dots_then_a_marker_board_fitted_with_defaults_gives_each_segment_and_the_transition(tmp_path):
+@pytest.mark.campaign
+def test_route_footage_of_dots_then_a_marker_board_fitted_with_defaults_gives_each_segment_and_the_transition(request, tmp_path):
     """Two legs and a 40 deg turn at 5 fps: the dots, then the board that comes into view in
     the turn. Measured: the segments' bounds 0 and 1 frame off the truth's, n* 0.017 and 0.015 deg
-    off, rho 0.14 % off, the heading between the two F* 0.023 deg off."""
+    off, rho 0.14 % off, the heading between the two F* 0.023 deg off. A campaign (about 20 s):
+    the default suite follows a route's targets in the images on the simulated corridor
+    (tests/test_fit_route.py)."""
+    campaign_extent(request, "campaign")
     made = make_route_footage(tmp_path, **SHORT_ROUTE)
     teach, fit = tmp_path / "teach.mcap", tmp_path / "fit.mcap"
     assert call_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q").returncode == 0
