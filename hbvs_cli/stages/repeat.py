@@ -303,7 +303,6 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
-    stopped_at: float | None = None
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
@@ -312,7 +311,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
-            lost_for = 0.0
+            lost = _LostWatch(settings.lost_timeout, dt, log)
             height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
             scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
@@ -327,14 +326,27 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                                   desired_pixels(model, record.desired), label)
                     tally.add(record, taught_poses[k])
                     bar.advance()
-                    lost_for = lost_for + dt if record.lost else 0.0
-                    if lost_for > settings.lost_timeout:
-                        stopped_at = record.t
-                        log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
+                    if lost.stops(record):
                         break
-    stopped = None if stopped_at is None else (
-        f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s (at t = {stopped_at:.2f} s)")
-    return _finish(console, tally, controller, options.output, settings, scene.d_true, stopped)
+    return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
+
+
+class _LostWatch:
+    """--lost-timeout in a simulation's time: :meth:`stops` once the target was lost longer,
+    logging it; :attr:`stopped` then says why the run stopped (else None)."""
+
+    def __init__(self, lost_timeout: float, dt: float, log: "_StepLog") -> None:
+        self.lost_timeout, self.dt, self.log = lost_timeout, dt, log
+        self.lost_for = 0.0
+        self.stopped: str | None = None
+
+    def stops(self, record: Any) -> bool:
+        self.lost_for = self.lost_for + self.dt if record.lost else 0.0
+        if self.lost_for <= self.lost_timeout:
+            return False
+        self.log.event(record.t, LOG_ERROR, f"target lost for more than {self.lost_timeout:g} s: run stopped")
+        self.stopped = f"the target was lost for more than --lost-timeout {self.lost_timeout:g} s (at t = {record.t:.2f} s)"
+        return True
 
 
 class _Tally:
@@ -527,4 +539,5 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
 
 
 #: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
-ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish)
+ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
+                              lost_watch=_LostWatch)

@@ -19,7 +19,7 @@ from ..errors import UsageError
 from ..io.fit_file import FitFile
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.mcap import open_output
-from ..io.messages import LOG_ERROR, LOG_INFO
+from ..io.messages import LOG_INFO
 from ..io.output_target import open_text_output
 from ..io.route_file import RouteFile, route_of
 from ..io.run_file import RunWriter
@@ -62,8 +62,8 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     route = recorded_route(plan.world, models[0].camera)
     depths, orders = segment_truths(route, plan)
     interval = models[0].taught_frame_interval()
-    switches = switch_times(RouteFit(plan.segments, models, plan.references, plan.transitions),
-                            np.arange(plan.taught_poses.shape[0]) * interval)
+    route_fit = RouteFit(plan.segments, models, plan.references, plan.transitions)
+    switches = switch_times(route_fit, np.arange(plan.taught_poses.shape[0]) * interval)
     # Each segment its fit's suggested gains, unless the options or the config set the first's otherwise.
     suggested = [gains_for_law(model.suggested_gains(), settings.law) if model.suggested_gains() is not None else settings.gains
                  for model in models]
@@ -73,7 +73,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
     dt = 1.0 / settings.rate
     duration = float(plan.taught_poses[-1, 0]) + dt
-    camera, steps = run_route(route, RouteFit(plan.segments, models, plan.references, plan.transitions), switches, controller,
+    camera, steps = run_route(route, route_fit, switches, controller,
                               start, dt, duration, settings.limits, settings.pixel_noise, options.seed, gains, noise, orders)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
         "d_true": depths[-1],
@@ -87,8 +87,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
         log = tools.step_log(run, settings, models[0], depths[0], cmd_stream)
         switched = 0
-        lost_for = 0.0
-        stopped = None
+        lost = tools.lost_watch(settings.lost_timeout, dt, log)
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
                 while switched < len(camera.switches):  # a switch: V (36) against the new segment's d* and gains
@@ -102,10 +101,6 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
                 run.poses(record.t, record.pose, taught, height)
                 tally.add(record, taught)
                 bar.advance()
-                lost_for = lost_for + dt if record.lost else 0.0
-                if lost_for > settings.lost_timeout:
-                    stopped = (f"the target was lost for more than --lost-timeout {settings.lost_timeout:g} s "
-                               f"(at t = {record.t:.2f} s)")
-                    log.event(record.t, LOG_ERROR, f"target lost for more than {settings.lost_timeout:g} s: run stopped")
+                if lost.stops(record):
                     break
-    return tools.finish(console, tally, controller, options.output, settings, depths[-1], stopped)
+    return tools.finish(console, tally, controller, options.output, settings, depths[-1], lost.stopped)
