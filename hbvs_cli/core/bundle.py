@@ -11,7 +11,7 @@ complement on the globals (docs/uncertainty.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -264,14 +264,6 @@ class JointCovariance:
         if self.image_shift_bias is not None:
             moved[:, :, moved.shape[2] - shift_columns:] += self.image_shift_bias[rows][:, components]
         return moved if component is None else moved[:, 0]
-
-    def without_last_shifts(self, count: int) -> JointCovariance:
-        """The covariance without the last ``count`` shifts every frame shares (a what-if's:
-        their effect is reported beside the uncertainty, not counted in it)."""
-        if count == 0 or self.bias_shared is None or self.image_shift_bias is None:
-            return self
-        return replace(self, bias_shared=self.bias_shared[:, :self.bias_shared.shape[1] - count],
-                       image_shift_bias=self.image_shift_bias[..., :self.image_shift_bias.shape[2] - count])
 
     @property
     def bias(self) -> NDArray[np.float64] | None:

@@ -548,8 +548,9 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     from scipy.interpolate import make_smoothing_spline
 
     calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
-    if not calibration_counted:
-        covariance = covariance.without_last_shifts(calibration_columns)
+    if not calibration_counted and calibration_columns:  # a what-if: its columns (the shared shifts' last) leave the band
+        covariance = replace(covariance, bias_shared=covariance.bias_shared[:, :-calibration_columns],
+                             image_shift_bias=covariance.image_shift_bias[..., :-calibration_columns])
     sigma = covariance.frame_sigma()
     theta_sigma = np.full(t.shape, np.nan)
     x_h1_sigma = np.full(t.shape, np.nan)

@@ -72,8 +72,8 @@ class FileInfo:
         topic = FRAME_TOPICS.get(self.kind or "")
         if topic is None:
             return None
-        if self.segments:
-            return max(last for _, last in self.segments) - min(first for first, _ in self.segments) + 1
+        if self.segments:  # in the drive's order
+            return self.segments[-1][1] - self.segments[0][0] + 1
         return next((t.messages for t in self.topics if t.topic == topic), 0)
 
 
@@ -117,8 +117,7 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
 
 
 def _segment_frames(route: Any) -> list[tuple[int, int]]:
-    """A ``hbvs.Route`` record's segments as (first, last) frames; none when it is malformed
-    (info describes a file; fit and repeat check it)."""
+    """A ``hbvs.Route`` record's segments as (first, last) frames; none if malformed (fit and repeat check it)."""
     try:
         return [(int(segment["first"]), int(segment["last"])) for segment in route["segments"]]
     except (KeyError, TypeError, ValueError):

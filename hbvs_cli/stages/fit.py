@@ -484,7 +484,6 @@ def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics) -> tuple[str
     return "unstated", (UNSTATED_CALIBRATION_PROBE_PX,) * 4
 
 
-
 #: The fit's advice to give the target's geometry, which --target-points has given already.
 KNOWN_GEOMETRY_ADVICE = "the target's known geometry (--target-size, or --target-points FILE for dots, markers or boards), "
 
