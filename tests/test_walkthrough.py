@@ -152,6 +152,7 @@ def test_every_command_of_the_walkthrough_runs(tmp_path, monkeypatch):
     assert f"not counted; 1 px would add {what_if:.2f} deg" in row and len(row) <= 80
     assert error > 1.96 * unstated.normal_sigma_deg and what_if / 3 < error < 3 * what_if
 
+
 @SUITE_OR_CAMPAIGN
 def test_the_pages_calibration_recipe_leaves_n_star_inside_the_fits_band(tmp_path, monkeypatch, request, extent):
     """Step 1's recipe on photographs of its checkerboard (0.08 px of reprojection error, as
