@@ -85,14 +85,12 @@ ROWS = [row if hasattr(row, "marks") else pytest.param(*row, id=row[0]) for row 
 
 def _teach_source(made: dict, name: str, folder, fit_options) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """``hbvs teach``'s source options for a draw (its video, or with ``--bag`` among the
-    row's options a ROS 2 .db3 bag of it and the calibration file), and the fit options left."""
+    row's options a ROS 2 .db3 bag of it, its CameraInfo the calibration, as a user with only
+    the bag has), and the fit options left."""
     if "--bag" not in fit_options:
         return ("--video", str(made["video"]), "--calibration", str(made["calibration"])), tuple(fit_options)
     bag = footage.write_ros2_bag(folder / "bag", made, footage.any_style(name)[1])
-    # A CameraInfo has no field for the intrinsics' deviations, so fit would assume them
-    # (sigma 20x the error on these exact intrinsics): the calibration file states them, as
-    # docs/walkthrough.md tells a user with a bag to do.
-    return ("--bag", str(bag), "--calibration", str(made["calibration"])), tuple(option for option in fit_options if option != "--bag")
+    return ("--bag", str(bag)), tuple(option for option in fit_options if option != "--bag")
 
 
 def _row_figures(name: str, folder, fit_options=()) -> dict:

@@ -249,3 +249,34 @@ def test_a_pull_every_point_shares_is_counted_as_a_shift_of_the_image():
         figures[shift_px] = (float(np.mean(np.abs(errors) <= 1.96 * sigmas)), rms(sigmas) / rms(errors))
     assert figures[0.0][0] < 0.9 and figures[0.0][1] < 0.7, figures  # optimistic without it
     assert figures[0.12][0] >= 0.95 and 0.8 <= figures[0.12][1] <= 2.0, figures
+
+
+def test_a_calibration_not_counted_leaves_the_band_to_the_pixels_and_reports_its_part():
+    """The bloom drive's three LEDs with 0.02 px of noise and bloom's 0.12 px pull counted:
+    with 1 px on each of fx, fy, cx and cy not counted (a calibration that states none) every
+    sigma is the one the exact intrinsics give, to rounding, while n*'s part from the
+    intrinsics is the one they add when counted, in quadrature (issue 46: the image shift's
+    columns stay, the calibration's go)."""
+    import footage
+
+    from hbvs_cli.core.camera import CameraIntrinsics
+    from hbvs_cli.core.desired import fit_desired_trajectory
+
+    drive = footage.STYLE_DRIVES["leds_bloom"]
+    wall, camera, _, _ = footage.style_case("leds_bloom")
+    intrinsics = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width, height=camera.height)
+    times = drive.times()
+    ideal = footage.ideal_pixels(wall, camera, drive.poses(times))
+    pixels = ideal + np.random.default_rng(0).normal(0.0, 0.02, ideal.shape)
+
+    def uncertainty(sigma=(), counted=True):
+        return fit_desired_trajectory(times, pixels, 0, intrinsics, None, 0.3, 1.0, errors=target_kind("dots").errors,
+                                      image_shift_px=0.12, calibration_sigma=sigma, calibration_counted=counted).uncertainty
+
+    exact, counted, uncounted = uncertainty(), uncertainty((1.0,) * 4), uncertainty((1.0,) * 4, counted=False)
+    assert uncounted.normal_sigma_deg == pytest.approx(exact.normal_sigma_deg, rel=1e-9)
+    np.testing.assert_allclose(uncounted.smooth_theta_sigma, exact.smooth_theta_sigma, rtol=1e-9)
+    np.testing.assert_allclose(uncounted.x_h1_sigma, exact.x_h1_sigma, rtol=1e-9, equal_nan=True)
+    assert uncounted.calibration_normal_sigma_deg == counted.calibration_normal_sigma_deg > 2 * exact.normal_sigma_deg
+    assert counted.normal_sigma_deg ** 2 == pytest.approx(exact.normal_sigma_deg ** 2 + counted.calibration_normal_sigma_deg ** 2, rel=1e-9)
+    assert np.all(counted.smooth_theta_sigma > exact.smooth_theta_sigma)

@@ -67,6 +67,17 @@ def test_board_fit_models_written_before_read_and_write_the_same_bytes(kind):
     assert _written_again(stored) == encode_json(stored)
 
 
+def test_a_fit_file_whose_calibration_was_assumed_still_reads_and_writes_the_same_bytes():
+    """Fit files of issue 46's first version recorded a calibration without deviations as
+    "assumed" (0.2 % of f counted in the band); today's fit says "unstated" (not counted), and
+    the old word reads as it was written."""
+    stored = _stored_model_message(DATA / "fit_7bf9143.mcap")
+    stored["uncertainty"] |= {"calibration_normal_sigma_deg": 12.6, "calibration": "assumed"}
+    model = model_from_message(stored, "old")
+    assert (model.uncertainty.calibration, model.uncertainty.calibration_normal_sigma_deg) == ("assumed", 12.6)
+    assert _written_again(stored) == encode_json(stored)
+
+
 @pytest.mark.parametrize("field, value, words", [
     ("board", [2], "detector board must be two small whole numbers"),
     ("marker_ids", ["a"], "detector marker_ids must be a list of small whole numbers"),

@@ -60,7 +60,13 @@ def test_fit_on_a_route_writes_each_segment_as_a_fit_model_and_the_transition_wi
     assert abs(transition.depth_ratio / (depths[1] / depths[0]) - 1) < 0.002
     assert 0 < transition.depth_ratio_std < 0.01
     assert abs(np.degrees(transition.heading - (poses[1][2] - poses[0][2]))) < 0.2
-    assert read_file_info(str(fit)).target == "dots -> aruco"
+    info = read_file_info(str(fit))
+    assert info.target == "dots -> aruco"
+    # info: the taught drive's frames (not the route file's few messages) and each segment's.
+    bounds = [(segment.first, segment.last) for segment in route_file.segments]
+    assert info.segments == bounds and bounds[0][0] == 0 and info.frames == bounds[-1][1] + 1 == int(16.0 * RATE)
+    text = call_hbvs("info", str(fit)).stdout.decode()
+    assert f"frames    {info.frames}\n" in text and f"segments  2: frames 0-{bounds[0][1]}, {bounds[1][0]}-{bounds[1][1]}\n" in text
 
 
 def without_truth(source, target):

@@ -131,14 +131,26 @@ def test_every_command_of_the_walkthrough_runs(tmp_path, monkeypatch):
     fit = read_fit_file("fit.mcap").model.uncertainty
     assert fit.calibration == "stated" and fit.calibration_normal_sigma_deg == 0.0
     assert normal_error_deg("fit.mcap", "practice.mcap") <= 1.96 * fit.normal_sigma_deg < 0.5
-    # A ROS camera_info without them: fit says what it assumes (1 px on fx, fy, cx, cy here) and counts it.
-    (tmp_path / "ros.yaml").write_text((tmp_path / "camera.yaml").read_text().split("std_deviations_intrinsics")[0])
+    # A ROS camera_info without them, its principal point 1 px off (cy: the part that tilts n*):
+    # the band is the dots' alone, and fit says on stderr what 1 px would add, which is the size
+    # of the error the file's 1 px makes. Measured: n* 8.3 deg off, 0.37 deg (1 sigma) from the
+    # dots, 5.3 deg what-if (12.6 at the exact cy: the slope changes along a straight drive).
+    from dataclasses import replace
+
+    from hbvs_cli.io.calibration import save_calibration_ros
+
+    save_calibration_ros(replace(DEFAULT_CAMERA, cy=DEFAULT_CAMERA.cy + 1.0, sigma=()), tmp_path / "ros.yaml")
+    assert "std_deviations" not in (tmp_path / "ros.yaml").read_text()
     assert call_hbvs("teach", "--video", "drive.avi", "--calibration", "ros.yaml", "-o", "ros_teach.mcap", "-q").returncode == 0
+    monkeypatch.setenv("COLUMNS", "80")
     said = call_hbvs("fit", "ros_teach.mcap", "-o", "ros_fit.mcap").stderr.decode()
-    assert "assumes fx, fy, cx and cy known to 0.2 % of the focal length (1 px, 1 sigma)" in said
-    assumed = read_fit_file("ros_fit.mcap").model.uncertainty
-    # Measured: n* 12.6 deg (1 sigma), nearly all of it the assumed calibration's.
-    assert assumed.calibration == "assumed" and assumed.calibration_normal_sigma_deg > 0.95 * assumed.normal_sigma_deg > 5.0
+    unstated = read_fit_file("ros_fit.mcap").model.uncertainty
+    what_if, error = unstated.calibration_normal_sigma_deg, normal_error_deg("ros_fit.mcap", "practice.mcap")
+    assert unstated.calibration == "unstated" and unstated.normal_sigma_deg < 0.1 * what_if
+    assert f"so n*'s band counts the image noise only: 1 px of error on the principal point (and on fx, fy) would add {what_if:.1f} deg" in said
+    row, = [line for line in said.splitlines() if "calibration (not stated)" in line]
+    assert f"not counted; 1 px would add {what_if:.2f} deg" in row and len(row) <= 80
+    assert error > 1.96 * unstated.normal_sigma_deg and what_if / 3 < error < 3 * what_if
 
 
 @SUITE_OR_CAMPAIGN

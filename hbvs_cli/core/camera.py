@@ -158,11 +158,10 @@ def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -
     return pixels_to_normalized(camera, undistorted.reshape(pixels.shape))
 
 
-#: What the fit assumes of a calibration that states no standard deviations (ROS camera_info,
-#: Kalibr, plain JSON): fx, fy, cx and cy each known to this fraction of the mean focal length
-#: (1 sigma; 1 px at 500 px), the distortion exact. docs/walkthrough.md's recipe gave 0.3-0.5 px
-#: at 0.04-0.06 px of reprojection error: this is such a calibration at about 0.1 px.
-ASSUMED_INTRINSICS_SIGMA = 0.002
+#: A calibration that states no standard deviations (ROS camera_info, Kalibr, plain JSON) is
+#: not counted in the fit's uncertainty: fit reports what an error of this size (px, 1 sigma,
+#: on each of fx, fy, cx and cy) would add to n*'s, a what-if, not a guess of the error.
+UNSTATED_CALIBRATION_PROBE_PX = 1.0
 
 
 def calibration_shifts(camera: CameraIntrinsics, sigma: Sequence[float], m: ArrayLike) -> NDArray[np.float64]:

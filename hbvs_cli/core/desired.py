@@ -8,7 +8,7 @@ trajectory"). What a user should hear is passed to ``warn``, never printed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Callable, Sequence
 
@@ -182,8 +182,9 @@ class UncertaintySummary:
     point_noise_px: float
     theta_d_sigma_deg: Spread | None
     x_hd1_sigma: Spread | None
-    #: n*'s sigma from the intrinsics' own (deg), and whether they were "stated", "assumed" or
-    #: "exact" (None in a file written before either was kept).
+    #: n*'s sigma from the intrinsics' own (deg), and whether they were "stated", "exact" or
+    #: "unstated" (then the sigma a 1 px error would add, not counted in normal_sigma_deg;
+    #: "assumed" in files of before; None in a file written before either was kept).
     calibration_normal_sigma_deg: float = 0.0
     calibration: str | None = None
 
@@ -209,7 +210,7 @@ class FitUncertainty:
 
     def summary(self, calibration: str | None = None) -> UncertaintySummary:
         """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
-        whether the intrinsics' sigmas were stated, assumed or exact), and the spline sigmas'
+        whether the intrinsics' sigmas were stated, unstated or exact), and the spline sigmas'
         median and maximum."""
         spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
         return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
@@ -268,6 +269,7 @@ def fit_desired_trajectory(
     errors: DetectorErrors = DetectorErrors(),
     image_shift_px: float = 0.0,
     calibration_sigma: Sequence[float] = (),
+    calibration_counted: bool = True,
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
@@ -298,6 +300,9 @@ def fit_desired_trajectory(
         (:attr:`~.camera.CameraIntrinsics.sigma`): their errors are shared by every frame, a
         bias of the whole drive (:func:`~.camera.calibration_shifts`, joined to
         ``common_shift``). Empty: the intrinsics are exact.
+    calibration_counted : bool, optional
+        False: ``calibration_sigma`` is a what-if (a calibration that states none), its part
+        of n*'s sigma is reported (``calibration_normal_sigma_deg``) but left out of the band.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -373,8 +378,9 @@ def fit_desired_trajectory(
                                        shapes, errors.correlated, errors.bias_fraction, readout != 0.0,
                                        lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1),
                                        area_beyond_view(pixels, camera) if errors.beyond_view else np.ones(t.size))
-        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns)
-        if (line := uncertainty_warning(uncertainty, errors)) and warn is not None:
+        uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns, calibration_counted)
+        counted = uncertainty if calibration_counted else replace(uncertainty, calibration_normal_sigma_deg=0.0)
+        if (line := uncertainty_warning(counted, errors)) and warn is not None:
             warn(line)
     return DesiredFit(
         m_ref=m_ref,
@@ -529,9 +535,11 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
 
 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
-                     trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0) -> FitUncertainty:
+                     trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0,
+                     calibration_counted: bool = True) -> FitUncertainty:
     """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance
-    (whose last ``calibration_columns`` bias columns are the intrinsics' errors).
+    (whose last ``calibration_columns`` bias columns are the intrinsics' errors, left out of
+    the sigmas unless ``calibration_counted``: n*'s part is reported all the same).
 
     A frame's error is its own plus what it inherits from the globals (common to all frames).
     The spline is linear: the inherited part goes through it exactly, the own part by
@@ -539,6 +547,10 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     """
     from scipy.interpolate import make_smoothing_spline
 
+    calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
+    if not calibration_counted and calibration_columns:  # a what-if: its columns (the shared shifts' last) leave the band
+        covariance = replace(covariance, bias_shared=covariance.bias_shared[:, :-calibration_columns],
+                             image_shift_bias=covariance.image_shift_bias[..., :-calibration_columns])
     sigma = covariance.frame_sigma()
     theta_sigma = np.full(t.shape, np.nan)
     x_h1_sigma = np.full(t.shape, np.nan)
@@ -573,7 +585,6 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
                 inherited_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, :split] ** 2, axis=1)
                 probed_variance[block:block + UNCERTAINTY_BLOCK] += np.sum(at[:, split:] ** 2, axis=1)
         smoothed.append(np.sqrt(inherited_variance + probed_variance / NOISE_PROBES))
-    calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
     return FitUncertainty(
         normal_sigma_deg=float(np.degrees(covariance.normal_sigma)),
         calibration_normal_sigma_deg=float(np.degrees(np.sqrt(np.sum(calibration ** 2)))),

@@ -10,7 +10,7 @@ from typing import Any
 
 from ..errors import InputError
 from .mcap.reader import McapStream, read_metadata
-from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, STATE_TOPIC, STOPPED_METADATA
+from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_TOPIC, STATE_TOPIC, STOPPED_METADATA
 
 #: The topic with one message per frame (teach, fit) or per control step (run).
 FRAME_TOPICS = {"teach": IMAGE_TOPIC, "fit": RAW_DESIRED_TOPIC, "run": STATE_TOPIC}
@@ -44,6 +44,8 @@ class FileInfo:
     target: str | None = None
     #: Why a live run stopped before its end (its ``hbvs.stopped`` record), else "".
     stopped: str = ""
+    #: A route fit's segments: each one's first and last frame of the taught drive.
+    segments: list[tuple[int, int]] = field(default_factory=list)
 
     @property
     def messages(self) -> int:
@@ -65,10 +67,13 @@ class FileInfo:
 
     @property
     def frames(self) -> int | None:
-        """Frames (teach, fit) or control steps (run); None for a file hbvs did not write."""
+        """Frames (teach, fit; a route's: of the taught drive its segments cover) or control
+        steps (run); None for a file hbvs did not write."""
         topic = FRAME_TOPICS.get(self.kind or "")
         if topic is None:
             return None
+        if self.segments:  # in the drive's order
+            return self.segments[-1][1] - self.segments[0][0] + 1
         return next((t.messages for t in self.topics if t.topic == topic), 0)
 
 
@@ -81,7 +86,7 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         raise InputError(f"{source}: is a folder, expected an MCAP file{hint}")
     stream = McapStream(source, name=name)
     topics: dict[str, TopicInfo] = {}
-    target = None
+    target, segments = None, []
     for message in stream:
         info = topics.get(message.topic)
         if info is None:
@@ -95,6 +100,8 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         if message.topic == MODEL_TOPIC and message.message_encoding == "json":  # a route's: one per segment
             kind_of_segment = message.json(stream.name).get("target_kind")
             target = kind_of_segment if target is None else f"{target} -> {kind_of_segment}"
+        if message.topic == ROUTE_TOPIC and message.message_encoding == "json":
+            segments = _segment_frames(message.json(stream.name))
     metadata = read_metadata(stream, "hbvs")
     kind = metadata.get("file_kind")
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
@@ -105,5 +112,13 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         metadata=metadata, metadata_names=sorted(stream.metadata), topics=list(topics.values()),
         complete=not stream.truncated, stop_reason=stream.stop_reason,
         stopped=str(read_metadata(stream, STOPPED_METADATA).get("reason", "")),
-        target=target if isinstance(target, str) else None,
+        target=target if isinstance(target, str) else None, segments=segments,
     )
+
+
+def _segment_frames(route: Any) -> list[tuple[int, int]]:
+    """A ``hbvs.Route`` record's segments as (first, last) frames; none if malformed (fit and repeat check it)."""
+    try:
+        return [(int(segment["first"]), int(segment["last"])) for segment in route["segments"]]
+    except (KeyError, TypeError, ValueError):
+        return []

@@ -75,7 +75,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
             "residual_px": {"type": "object"},
             "render": {"type": ["object", "null"], "description": "sensor model of a simulated teach"},
             "gains": {"type": ["object", "null"], "description": "gains suggested from x_hd1_dot and the detector's noise (k_v, k_w, gamma, k_2 and the rule's inputs)"},
-            "uncertainty": {"type": ["object", "null"], "description": "the joint estimate's uncertainty: normal_sigma_deg (n*, 1 sigma), calibration_normal_sigma_deg (its part from the intrinsics) and calibration (stated, assumed or exact), point_noise_px, theta_d_sigma_deg and x_hd1_sigma (median and max of the splines' sigma)"},
+            "uncertainty": {"type": ["object", "null"], "description": "the joint estimate's uncertainty: normal_sigma_deg (n*, 1 sigma), calibration_normal_sigma_deg (its part from the intrinsics; for an unstated calibration what 1 px would add, not counted) and calibration (stated, unstated or exact; assumed in older files), point_noise_px, theta_d_sigma_deg and x_hd1_sigma (median and max of the splines' sigma)"},
         },
         "required": [
             "format_version", "timestamp", "target_kind", "camera", "reference", "normal",

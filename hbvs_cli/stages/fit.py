@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .. import __version__
-from ..core.camera import ASSUMED_INTRINSICS_SIGMA, CameraIntrinsics
+from ..core.camera import UNSTATED_CALIBRATION_PROBE_PX, CameraIntrinsics
 from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_target_size
 from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.fit_model import DepthEstimates, FitModel, SensorSettings
@@ -288,11 +288,11 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         arrays = log.arrays()
         reference_index = resolve_reference(options.reference, log.count)
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
+        calibration = _calibration_uncertainty(reader, camera)
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
-                      pull.pull_px if pull is not None else 0.0, calibration_sigma)
+                      pull.pull_px if pull is not None else 0.0, calibration)
         model = fitted_model(result, arrays, reference_index, replace(detector.spec, initial_pixels=result.initial_pixels), camera,
-                             reader, reader.world_description, options, console, calibration, layout)
+                             reader, reader.world_description, options, console, calibration[0], layout)
         taught_path = model.taught_path
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if taught_path is not None:  # the 3D scene: the target and the taught path
@@ -310,10 +310,10 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
 def _segment_model(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
                    reference_index: int, spec: DetectorSpec, world_description: dict[str, Any], name: str) -> FitModel:
     """The fit model of one segment of a route (:mod:`.fit_route`), fitted as a single target's drive."""
-    calibration, calibration_sigma = _calibration_uncertainty(reader, reader.camera, console)
-    result = _fit(arrays, reference_index, reader.camera, smoothing, options, console, name, spec, calibration_sigma=calibration_sigma)
+    calibration = _calibration_uncertainty(reader, reader.camera)
+    result = _fit(arrays, reference_index, reader.camera, smoothing, options, console, name, spec, calibration=calibration)
     return fitted_model(result, arrays, reference_index, replace(spec, initial_pixels=result.initial_pixels), reader.camera,
-                        reader, world_description, options, console, calibration)
+                        reader, world_description, options, console, calibration[0])
 
 def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_index: int, spec: DetectorSpec,
                  camera: CameraIntrinsics, reader: Any, world_description: dict[str, Any] | None, options: FitOptions,
@@ -323,6 +323,11 @@ def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_in
     A route's segments (:mod:`.fit_route`) are each one such model."""
     taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
+    if calibration == "unstated" and result.uncertainty is not None:
+        console.warn(f"the calibration states no standard deviations of its intrinsics, so n*'s band counts the image noise only: "
+                     f"{UNSTATED_CALIBRATION_PROBE_PX:g} px of error on the principal point (and on fx, fy) would add "
+                     f"{result.uncertainty.calibration_normal_sigma_deg:.1f} deg to n* (1 sigma); give teach ... --calibration FILE "
+                     "with its std_deviations_intrinsics (docs/walkthrough.md)")
     return FitModel(
         target_kind=spec.kind,
         camera=camera,
@@ -443,7 +448,7 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
 
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
          options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
-         image_shift_px: float = 0.0, calibration_sigma: tuple[float, ...] = ()) -> DesiredFit:
+         image_shift_px: float = 0.0, calibration: tuple[str, tuple[float, ...]] = ("exact", ())) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
     stderr, and too little data said in the options' words. Markers are squares: each
     marker's four corners (in OpenCV's order) are a known shape.
@@ -462,24 +467,21 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
                                           max_lost=options.max_lost, max_gap=options.max_gap,
                                           warn=console.warn if layout is None else layout_given_warn(console.warn),
                                           shapes=shapes, errors=target_kind(spec.kind).errors, image_shift_px=image_shift_px,
-                                          calibration_sigma=calibration_sigma)
+                                          calibration_sigma=calibration[1], calibration_counted=calibration[0] != "unstated")
     except InsufficientDataError as exc:
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
 
-def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics, console: Console) -> tuple[str, tuple[float, ...]]:
+def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics) -> tuple[str, tuple[float, ...]]:
     """How well the intrinsics are known, for the fit's uncertainty: ``("exact", ())`` for a
     simulated teach (rendered with this camera), ``("stated", sigma)`` from the calibration,
-    or ``("assumed", ...)`` (:data:`~hbvs_cli.core.camera.ASSUMED_INTRINSICS_SIGMA`, said on stderr)."""
+    or ``("unstated", probe)``: :data:`~hbvs_cli.core.camera.UNSTATED_CALIBRATION_PROBE_PX` on
+    each of fx, fy, cx and cy, a what-if reported beside the band, not counted in it."""
     if reader.world_description is not None:
         return "exact", ()
     if camera.sigma:
         return "stated", camera.sigma
-    assumed = ASSUMED_INTRINSICS_SIGMA * camera.mean_focal
-    console.warn(f"the calibration states no standard deviations of its intrinsics: the uncertainty assumes fx, fy, cx and cy "
-                 f"known to {100 * ASSUMED_INTRINSICS_SIGMA:g} % of the focal length ({assumed:.2g} px, 1 sigma) "
-                 "and the distortion exact; a calibration with its std_deviations_intrinsics replaces this (docs/walkthrough.md)")
-    return "assumed", (assumed,) * 4
+    return "unstated", (UNSTATED_CALIBRATION_PROBE_PX,) * 4
 
 
 #: The fit's advice to give the target's geometry, which --target-points has given already.
@@ -688,7 +690,9 @@ def _print_summary(console: Console, model: FitModel, result: DesiredFit, option
     if model.uncertainty is not None:
         u = model.uncertainty
         table.add_row("n* uncertainty (1 sigma)", f"{u.normal_sigma_deg:.2f} deg (point noise {u.point_noise_px:.3f} px)")
-        if u.calibration is not None:
+        if u.calibration == "unstated":
+            table.add_row("calibration (not stated)", f"not counted; {UNSTATED_CALIBRATION_PROBE_PX:g} px would add {u.calibration_normal_sigma_deg:.2f} deg")
+        elif u.calibration is not None:
             table.add_row("... of it from the calibration", f"{u.calibration_normal_sigma_deg:.2f} deg ({u.calibration})")
         if u.theta_d_sigma_deg is not None and u.x_hd1_sigma is not None:
             table.add_row("theta_d / x_hd1 sigma (median, max)",

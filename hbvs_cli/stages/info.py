@@ -19,6 +19,7 @@ def info_document(info: Any) -> dict[str, Any]:
         "complete": info.complete, "stop_reason": info.stop_reason or None, "stopped": info.stopped or None,
         "start_ns": info.start_ns, "end_ns": info.end_ns, "duration_s": round(info.duration_s, 9),
         "frames": info.frames, "messages": info.messages, "target": info.target,
+        **({"segments": [list(frames) for frames in info.segments]} if info.segments else {}),
         "settings": info.metadata.get("settings"),
         "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
         "metadata_records": info.metadata_names,
@@ -73,6 +74,8 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
     ]
     if document["frames"] is not None:
         rows.append(("steps" if document["kind"] == "run" else "frames", str(document["frames"])))
+    if document.get("segments"):
+        rows.append(("segments", f"{len(document['segments'])}: frames " + ", ".join(f"{first}-{last}" for first, last in document["segments"])))
     if document["target"]:
         rows.append(("target", document["target"]))
     for key in ("source", "mode", "law", "input"):
