@@ -3,22 +3,26 @@ and ``--replay`` follow a route segment by segment, each segment's detector agai
 
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from hbvs_cli.io.route_file import read_route_file
+from hbvs_cli.io.run_file import read_run
 from hbvs_cli.sim.render import RenderSettings
 from hbvs_cli.sim.route_world import RouteRenderer, recorded_route
 
 from conftest import call_hbvs
 
 HBVS = [sys.executable, "-m", "hbvs_cli"]
+DATA = Path(__file__).parent / "data"
 #: The corridor's first 16 s (the dot target, then the marker board) at this frame rate (Hz).
 RATE = 15.0
 
@@ -82,3 +86,65 @@ def test_robot_sim_renders_every_target_of_a_route_fit(corridor_fit, tmp_path):
           f"wall there {np.abs(expected[later] - wall).mean():.1f}")
     assert difference.mean() < 3.0 and difference[later].mean() < 4.0
     assert np.abs(expected[later] - wall).mean() > 20.0
+
+
+def test_a_route_file_keeps_each_segments_detector_template(corridor_fit, tmp_path):
+    """Each segment's template (a photograph's detector needs its own) is written losslessly with
+    its model and read back as that segment's, a segment without one reading None."""
+    from hbvs_cli.io.images import decode_image
+    from hbvs_cli.io.mcap import open_output
+    from hbvs_cli.io.route_file import write_route
+
+    plan = read_route_file(str(corridor_fit))
+    template = np.random.default_rng(47).integers(0, 256, (48, 64), dtype=np.uint8)
+    path = tmp_path / "route.mcap"
+    with open_output(str(path)) as writer:
+        write_route(writer, plan.models, plan.segments, plan.references, plan.transitions, [1, 2], "test", plan.world,
+                    plan.taught_poses, [None, template])
+    again = read_route_file(str(path))
+    assert again.templates[0] is None
+    assert np.array_equal(decode_image(again.templates[1], "template"), template)
+
+
+@pytest.fixture(scope="module")
+def second_drive(tmp_path_factory):
+    """Another drive of the corridor's first 16 s: put down 5 cm back, 8 cm left and turned 2 deg, another seed."""
+    teach = tmp_path_factory.mktemp("second") / "teach.mcap"
+    assert call_hbvs("teach", "--sim", "--route", "corridor", "--duration", "16", "--fps", str(RATE), "--offset", "-0.05,0.08,2",
+                     "--seed", "3", "-o", str(teach)).returncode == 0
+    return teach
+
+
+def test_a_route_file_written_before_its_templates_were_kept_still_reads_and_replays(second_drive, tmp_path):
+    """A route fit by 2e34fdb's code (tests/data: the corridor's dots, then its board; no template
+    record) reads with no templates, and its segments' detectors need none: it replays."""
+    old = read_route_file(str(DATA / "route_fit_2e34fdb.mcap"))
+    assert old.templates == (None, None) and [model.target_kind for model in old.models] == ["dots", "aruco"]
+    replay = call_hbvs("repeat", "--replay", str(second_drive), str(DATA / "route_fit_2e34fdb.mcap"), "-o", str(tmp_path / "run.mcap"))
+    assert replay.returncode == 0, replay.stderr
+
+
+def test_a_replayed_second_drive_switches_segments_carrying_a_positive_depth(corridor_fit, second_drive, tmp_path):
+    """``repeat --replay`` of a second drive against a route fit: the board's detector takes over
+    at the planned switch (90 % through the overlap, 13.39 s) in the first frame it sees the board
+    well, dhat is carried over by the fit's rho and stays positive, and the report's route
+    section starts the second segment there. Measured: switch at 13.40 s, dhat 3.79 -> 10.45 m."""
+    run_path = tmp_path / "run.mcap"
+    replay = call_hbvs("repeat", "--replay", str(second_drive), str(corridor_fit), "-o", str(run_path))
+    assert replay.returncode == 0, replay.stderr
+    run = read_run(str(run_path))
+    plan = read_route_file(str(corridor_fit))
+    planned = run.info["route"]["switch_times"]
+    switches = [(t, text) for t, _, text in run.events if text.startswith("segment ")]
+    assert len(switches) == 1 and switches[0][1].startswith("segment 2 (target 2, aruco)")
+    when = switches[0][0]
+    assert planned[0] <= when < planned[0] + 2.0 / RATE
+    before, after = (float(word) for word in switches[0][1].split("dhat ")[1].split(" m")[0].split(" -> "))
+    assert after / before == pytest.approx(plan.transitions[0].depth_ratio, rel=1e-3)
+    assert np.all(run.state["dhat"] > 0)
+    report = call_hbvs("report", str(run_path), "--json")
+    segments = json.loads(report.stdout)["route"]
+    assert [segment["target_kind"] for segment in segments] == ["dots", "aruco"]
+    assert segments[1]["t_start"] == pytest.approx(when, abs=1.0 / RATE)
+    print(f"switch at {when:.2f} s (planned {planned[0]:.2f}), dhat {before:.3f} -> {after:.3f} m; "
+          f"dhat at the end {run.state['dhat'][-1]:.3f} m")
