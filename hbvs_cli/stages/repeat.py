@@ -17,14 +17,12 @@ from typing import IO, Any
 import numpy as np
 
 from .. import __version__
-from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
+from ..core.controller import AdaptiveTrackingController, ControllerGains, lyapunov
 from ..core.depth import check_depth
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
-from ..core.frames import compose_planar_pose, rotation_z
+from ..core.frames import compose_planar_pose
 from ..core.gains import noise_from_residual
-from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
@@ -52,7 +50,7 @@ from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
-from .repeat_route import Tracking, route_tracking, run_route_repeat
+from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
 
 @dataclass(frozen=True)
 class Settings:
@@ -236,12 +234,6 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
     for name in names:
         writer.input_ended_early(name, options.allow_truncated)
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
-
-
-def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
-    """Where the target points should be in the image now: m_d = H_d m* (13)."""
-    H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
-    return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:

@@ -16,9 +16,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.camera import normalized_to_pixels
 from ..core.control_settings import FILTER_EKF, ControllerGains
 from ..core.estimation import Observation, ObservationStatus
-from ..core.frames import compose_planar_pose
+from ..core.fit_model import FitModel
+from ..core.frames import compose_planar_pose, rotation_z
+from ..core.homography import transfer_points
 from ..core.grayscale import as_gray
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import RouteFit, view_spans
@@ -104,6 +107,12 @@ class SwitchLog:
         return getattr(self.__dict__["log"], name)
 
 
+def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
+    """Where the target points should be in the image now: m_d = H_d m* (13)."""
+    H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
+    return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
+
+
 class RouteSight(SegmentSwitch):
     """What ``--live`` and ``--replay`` see along a route (the methods of
     :class:`~.live.TargetSight`): the segment in force measured by its own detector and
@@ -112,19 +121,25 @@ class RouteSight(SegmentSwitch):
     (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame where it sees its whole
     target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX` across, as ``fit`` followed it."""
 
-    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
+    def __init__(self, make_detector: Callable[[int], Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
         super().__init__(plan.transitions, controller, gains)
-        self.detectors, self.estimators, self.route_trajectory = detectors, estimators, trajectory
+        self.make_detector, self.estimators, self.route_trajectory, self.models = make_detector, estimators, trajectory, plan.models
+        #: Each segment's detector, made at its first look (:meth:`_measure`).
+        self.detectors: list[Any] = [make_detector(0)] + [None] * (len(plan.models) - 1)
         #: The segment in force's desired signals at the run's pace (switches not made yet lie at infinity).
         self.trajectory = TimeScaledTrajectory(trajectory, speed)
         self.planned = (planned - self.trajectory.start) / speed
         self.t_start, self.t_end = self.trajectory.t_start, self.trajectory.t_end
-        self.colour = any(detector.spec.contrast == "colour" for detector in detectors)
+        self.colour = any(model.detector.contrast == "colour" for model in plan.models)
 
     def observe(self, image: np.ndarray, t: float) -> Observation:
         ahead = self.active + 1
         if ahead < len(self.detectors) and t >= self.planned[self.active]:
+            if self.detectors[ahead] is None:  # first looked for where the robot on its track would see it
+                self.detectors[ahead] = self.make_detector(ahead)
+                desired = self.models[ahead].trajectory.evaluate(self.trajectory.start + self.trajectory.speed * t)
+                self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
             observation = self._measure(ahead, image)
             if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
                 self.route_trajectory.switches[self.active] = self.trajectory.start + self.trajectory.speed * t
@@ -162,10 +177,10 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     gains = segment_gains(settings, plan)
     controller = make_controller(settings.law, gains[0], settings.dhat0)
     estimators = [estimator_from_model(model) for model in models]
-    detectors = [detector_from_model(model, _template(plan, number), seed=options.seed) for number, model in enumerate(models)]
     trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf))
     planned = planned_switches(plan)
-    sight = RouteSight(detectors, estimators, trajectory, settings.speed, planned, plan, controller, gains)
+    sight = RouteSight(lambda number: detector_from_model(models[number], _template(plan, number), seed=options.seed),
+                       estimators, trajectory, settings.speed, planned, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
     depths = segment_truths(recorded_route(plan.world, models[0].camera), plan)[0] if plan.world is not None else [None] * len(models)
@@ -173,12 +188,27 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
                     lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
 
 
+#: What a segment's template keeps around its target's points (px): the alignment's smoothing reaches 4 sigma beyond them.
+TEMPLATE_MARGIN_PX = 16
+
+
 def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
-    """Segment ``segment``'s detector template, decoded for a kind that uses one."""
+    """Segment ``segment``'s detector template, decoded for a kind that uses one, painted its
+    median level beyond :data:`TEMPLATE_MARGIN_PX` around its target's points: a template frame
+    also shows the route's other targets (a photograph turned, or printed twice), whose features
+    would otherwise be matched when the detector first looks for its own."""
     data = plan.templates[segment] if segment < len(plan.templates) else None
-    if data is None or not target_kind(plan.models[segment].detector.kind).uses_template:
+    spec = plan.models[segment].detector
+    if data is None or not target_kind(spec.kind).uses_template:
         return None
-    return decode_image(data, f"segment {segment + 1}'s template image")
+    image = decode_image(data, f"segment {segment + 1}'s template image")
+    if spec.template_pixels is None:
+        return image
+    low = np.maximum(np.floor(spec.template_pixels.min(axis=0)).astype(int) - TEMPLATE_MARGIN_PX, 0)
+    high = np.ceil(spec.template_pixels.max(axis=0)).astype(int) + TEMPLATE_MARGIN_PX + 1
+    kept = np.full(image.shape, np.median(image), dtype=image.dtype)
+    kept[low[1]:high[1], low[0]:high[0]] = image[low[1]:high[1], low[0]:high[0]]
+    return kept
 
 
 def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
