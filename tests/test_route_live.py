@@ -194,3 +194,20 @@ def test_repeat_live_against_robot_sim_ends_on_the_taught_end_pose_of_a_route(wh
     assert len(switches) == len(plan.models) - 1
     assert position < 0.02 and heading < 0.5
     assert all(segment["relative_error"] < 0.01 for segment in segments)
+
+
+def test_a_route_fit_without_its_simulated_route_replays_and_reports_no_true_depth(corridor_fit, second_drive, tmp_path):
+    """A route fit as footage gives it (no simulated route, no taught poses) replays: the report's
+    route section has each segment's dhat and no true d*_i, V (36) or error (none is known)."""
+    from hbvs_cli.io.mcap import open_output
+    from hbvs_cli.io.route_file import write_route
+
+    plan = read_route_file(str(corridor_fit))
+    fit, run_path = tmp_path / "footage_fit.mcap", tmp_path / "run.mcap"
+    with open_output(str(fit)) as writer:
+        write_route(writer, plan.models, plan.segments, plan.references, plan.transitions, [1, 2], "test")
+    replay = call_hbvs("repeat", "--replay", str(second_drive), str(fit), "-o", str(run_path))
+    assert replay.returncode == 0, replay.stderr
+    segments = json.loads(call_hbvs("report", str(run_path), "--json").stdout)["route"]
+    assert [segment["d_true"] for segment in segments] == [None, None]
+    assert all(segment["relative_error"] is None and segment["V_end"] is None and segment["dhat_end"] > 0 for segment in segments)

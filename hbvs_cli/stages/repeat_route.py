@@ -183,7 +183,8 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
                        estimators, trajectory, settings.speed, planned, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
-    depths = segment_truths(recorded_route(plan.world, models[0].camera), plan)[0] if plan.world is not None else [None] * len(models)
+    simulated = plan.world is not None and plan.taught_poses is not None
+    depths = segment_truths(recorded_route(plan.world, models[0].camera), plan)[0] if simulated else [None] * len(models)
     return Tracking(sight, controller, sight.filters, {"route": route_metadata(plan, sight.planned, depths)},
                     lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
 
