@@ -22,7 +22,6 @@ from ..core.estimation import Observation, ObservationStatus
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
-from ..core.grayscale import as_gray
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import RouteFit, view_spans
 from ..core.trajectory import TimeScaledTrajectory
@@ -148,9 +147,7 @@ class RouteSight(SegmentSwitch):
         return self._measure(self.active, image)
 
     def _measure(self, segment: int, image: np.ndarray) -> Observation:
-        detector = self.detectors[segment]
-        seen = image if image.ndim == 2 or detector.spec.contrast == "colour" else as_gray(image)
-        return self.estimators[segment].from_pixels(detector.detect(seen))
+        return self.estimators[segment].from_pixels(self.detectors[segment].detect(image))
 
     def evaluate(self, t: float) -> Any:
         return self.trajectory.evaluate(t)
@@ -183,8 +180,8 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
                        estimators, trajectory, settings.speed, planned, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
-    simulated = plan.world is not None and plan.taught_poses is not None
-    depths = segment_truths(recorded_route(plan.world, models[0].camera), plan)[0] if simulated else [None] * len(models)
+    depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
+              else segment_truths(recorded_route(plan.world, models[0].camera), plan)[0])
     return Tracking(sight, controller, sight.filters, {"route": route_metadata(plan, sight.planned, depths)},
                     lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
 
