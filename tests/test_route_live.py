@@ -211,3 +211,23 @@ def test_a_route_fit_without_its_simulated_route_replays_and_reports_no_true_dep
     segments = json.loads(call_hbvs("report", str(run_path), "--json").stdout)["route"]
     assert [segment["d_true"] for segment in segments] == [None, None]
     assert all(segment["relative_error"] is None and segment["V_end"] is None and segment["dhat_end"] > 0 for segment in segments)
+
+
+def test_a_route_without_a_photographs_template_is_refused_in_one_line_before_anything_is_written(corridor_fit, second_drive, tmp_path):
+    """A photograph's segment whose template the file lacks (a route fitted before they were kept)
+    is named in one line, exit 3, before the run starts: not at its switch, half way down the route."""
+    from dataclasses import replace
+
+    from hbvs_cli.io.mcap import open_output
+    from hbvs_cli.io.route_file import write_route
+
+    plan = read_route_file(str(corridor_fit))
+    board = plan.models[1]
+    photograph = replace(board, target_kind="texture", detector=replace(board.detector, kind="texture", template_pixels=board.reference_pixels))
+    fit, run_path = tmp_path / "old_fit.mcap", tmp_path / "run.mcap"
+    with open_output(str(fit)) as writer:
+        write_route(writer, [plan.models[0], photograph], plan.segments, plan.references, plan.transitions, [1, 2], "test",
+                    plan.world, plan.taught_poses)
+    replay = call_hbvs("repeat", "--replay", str(second_drive), str(fit), "-o", str(run_path))
+    assert replay.returncode == 3 and not run_path.exists()
+    assert replay.stderr.decode().strip().count("\n") == 0 and "segment 2: the fit file lacks the texture template" in replay.stderr.decode()

@@ -25,7 +25,7 @@ from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import RouteFit, view_spans
 from ..core.trajectory import TimeScaledTrajectory
-from ..errors import UsageError
+from ..errors import RecordingError, UsageError
 from ..io.fit_file import FitFile
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import decode_image
@@ -120,12 +120,12 @@ class RouteSight(SegmentSwitch):
     (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame where it sees its whole
     target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX` across, as ``fit`` followed it."""
 
-    def __init__(self, make_detector: Callable[[int], Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
+    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
         super().__init__(plan.transitions, controller, gains)
-        self.make_detector, self.estimators, self.route_trajectory, self.models = make_detector, estimators, trajectory, plan.models
-        #: Each segment's detector, made at its first look (:meth:`_measure`).
-        self.detectors: list[Any] = [make_detector(0)] + [None] * (len(plan.models) - 1)
+        self.detectors, self.estimators, self.route_trajectory, self.models = detectors, estimators, trajectory, plan.models
+        #: The segments whose detector has looked already (the first from the fit's first view).
+        self.looked = 1
         #: The segment in force's desired signals at the run's pace (switches not made yet lie at infinity).
         self.trajectory = TimeScaledTrajectory(trajectory, speed)
         self.planned = (planned - self.trajectory.start) / speed
@@ -135,10 +135,10 @@ class RouteSight(SegmentSwitch):
     def observe(self, image: np.ndarray, t: float) -> Observation:
         ahead = self.active + 1
         if ahead < len(self.detectors) and t >= self.planned[self.active]:
-            if self.detectors[ahead] is None:  # first looked for where the robot on its track would see it
-                self.detectors[ahead] = self.make_detector(ahead)
+            if self.looked == ahead:  # first looked for where the robot on its track would see it
                 desired = self.models[ahead].trajectory.evaluate(self.trajectory.start + self.trajectory.speed * t)
                 self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
+                self.looked += 1
             observation = self._measure(ahead, image)
             if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
                 self.route_trajectory.switches[self.active] = self.trajectory.start + self.trajectory.speed * t
@@ -176,8 +176,13 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     estimators = [estimator_from_model(model) for model in models]
     trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf))
     planned = planned_switches(plan)
-    sight = RouteSight(lambda number: detector_from_model(models[number], _template(plan, number), seed=options.seed),
-                       estimators, trajectory, settings.speed, planned, plan, controller, gains)
+    detectors = []
+    for number, model in enumerate(models):
+        try:
+            detectors.append(detector_from_model(model, _template(plan, number), seed=options.seed))
+        except RecordingError as exc:
+            raise RecordingError(f"{options.input}: segment {number + 1}: {exc} (fitted before routes kept them: fit it again)") from None
+    sight = RouteSight(detectors, estimators, trajectory, settings.speed, planned, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
     depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
