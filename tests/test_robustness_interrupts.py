@@ -285,7 +285,7 @@ def test_the_live_loop_checks_for_a_stop_signal_before_each_frame(monkeypatch, s
 
     monkeypatch.setattr(stop_signals, "received", signal.SIGTERM)
     trajectory = SimpleNamespace(t_start=0.0, t_end=10.0, evaluate=lambda t: None)
-    loop = LiveLoop(Source(), None, None, None, trajectory, None, None, None, None, None,
+    loop = LiveLoop(Source(), trajectory, None, None, None, None, None, None,
                     SimpleNamespace(stale_timeout=0.5), SimpleNamespace(rate=30.0, lost_timeout=1.0))
     with pytest.raises(stop_signals.Terminated):
         getattr(loop, step)()

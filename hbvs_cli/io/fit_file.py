@@ -293,6 +293,8 @@ class FitFile:
     #: A route's fit (:mod:`.route_file`): every segment's model (``model`` is the first's) and its route record.
     segment_models: list[FitModel] = field(default_factory=list)
     route_record: dict[str, Any] | None = None
+    #: Every ``/detector/template`` image in the file's order (a route's: one per segment that uses one).
+    templates: list[bytes] = field(default_factory=list)
 
 
 def read_fit_file(source: Any, name: str = "") -> FitFile:
@@ -302,6 +304,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
     model_messages: list[dict[str, Any]] = []
     route_record: dict[str, Any] | None = None
     images: dict[str, bytes] = {}
+    templates: list[bytes] = []
     for message in stream:
         if message.topic == MODEL_TOPIC:
             model_messages.append(message.json(stream.name))
@@ -309,6 +312,8 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
             route_record = message.json(stream.name)
         else:
             images[message.topic] = read_compressed_image(message.data, stream.name).data
+            if message.topic == TEMPLATE_IMAGE_TOPIC:
+                templates.append(images[message.topic])
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):
@@ -321,7 +326,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
     return FitFile(
         model=models[0], reference_image=images.get(REFERENCE_IMAGE_TOPIC),
         template_image=images.get(TEMPLATE_IMAGE_TOPIC), info=info, truncated=stream.truncated,
-        segment_models=models, route_record=route_record,
+        segment_models=models, route_record=route_record, templates=templates,
     )
 
 

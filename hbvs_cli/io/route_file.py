@@ -17,9 +17,11 @@ from ..core.fit_model import FitModel
 from ..core.route import Segment, Transition
 from ..errors import RecordingError
 from .fit_file import FILE_KIND, FitFile, checked_model_message, read_fit_file
+from .images import encode_image, write_compressed_image
+from .messages import CAMERA_FRAME
 from .mcap import time_message
 from .teach_file import PARSE_ERRORS
-from .topics import MODEL_TOPIC, ROUTE_TOPIC, TOPICS
+from .topics import MODEL_TOPIC, ROUTE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,8 @@ class RouteFile:
     #: The simulated route (the teach file's description) and its taught poses (K, 4): t (s), x, y, phi in its frame R.
     world: dict[str, Any] | None = None
     taught_poses: np.ndarray | None = None
+    #: Each segment's detector template (compressed image bytes; None: its kind uses none, or a file from before they were kept).
+    templates: tuple[bytes | None, ...] = ()
 
 
 def transition_record(transition: Transition) -> dict[str, Any]:
@@ -61,28 +65,38 @@ def _transition_from_record(record: dict[str, Any]) -> Transition:
 
 
 def route_message(segments: Sequence[Segment], references: Sequence[int], transitions: Sequence[Transition],
-                  log_time_ns: int, world: dict[str, Any] | None = None, taught_poses: np.ndarray | None = None) -> dict[str, Any]:
-    """The ``hbvs.Route`` message: the segments (frames of the drive), the transitions and, for a
+                  log_time_ns: int, world: dict[str, Any] | None = None, taught_poses: np.ndarray | None = None,
+                  templates: Sequence[int | None] | None = None) -> dict[str, Any]:
+    """The ``hbvs.Route`` message: the segments (frames of the drive; ``templates``: the index of
+    each one's detector template among the file's template images, or None), the transitions and, for a
     simulated route, its description and taught poses (what ``repeat --sim`` drives in and is judged against)."""
+    templates = [None] * len(segments) if templates is None else templates
     return {
         "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
         "timestamp": time_message(log_time_ns),
-        "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r)}
-                     for s, r in zip(segments, references)],
+        "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r),
+                      "template": template} for s, r, template in zip(segments, references, templates)],
         "transitions": [transition_record(transition) for transition in transitions],
     }
 
 
 def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segment], references: Sequence[int],
                 transitions: Sequence[Transition], log_times: Sequence[int], source: str, world: dict[str, Any] | None = None,
-                taught_poses: np.ndarray | None = None) -> None:
+                taught_poses: np.ndarray | None = None, templates: Sequence[np.ndarray | None] | None = None) -> None:
     """Each segment's model (stamped ``log_times[i]``, ns, its last frame's) checked as
-    :func:`~.fit_file.checked_model_message` does, then the route (one segment: none)."""
+    :func:`~.fit_file.checked_model_message` does, and its detector's template image
+    (``templates[i]``, None for a kind without one; lossless), then the route (one segment: none)."""
     schemas = TOPICS[FILE_KIND]
-    for model, stamp in zip(models, log_times):
+    indices: list[int | None] = []
+    for number, (model, stamp) in enumerate(zip(models, log_times)):
         writer.write(MODEL_TOPIC, schemas[MODEL_TOPIC], int(stamp), checked_model_message(model, int(stamp), source))
+        template = None if templates is None else templates[number]
+        if template is not None:
+            write_compressed_image(writer, TEMPLATE_IMAGE_TOPIC, int(stamp), encode_image(template, "png"), "png", CAMERA_FRAME)
+        indices.append(None if template is None else sum(index is not None for index in indices))
     if len(segments) > 1:
-        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses))
+        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]),
+                     route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses, indices))
 
 
 def read_route_file(source: Any, name: str = "") -> RouteFile:
@@ -95,16 +109,18 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
     models, route = fit.segment_models or [fit.model], fit.route_record
     if route is None:
-        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], fit.info)
+        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], fit.info,
+                         templates=(fit.template_image,))
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
                             None if s["overlap_last"] is None else int(s["overlap_last"])) for s in route["segments"]]
         references = [int(s["reference"]) for s in route["segments"]]
         transitions = [_transition_from_record(record) for record in route["transitions"]]
         taught = None if route.get("taught_poses") is None else np.asarray(route["taught_poses"], dtype=float).reshape(-1, 4)
+        templates = tuple(None if s.get("template") is None else fit.templates[int(s["template"])] for s in route["segments"])
     except PARSE_ERRORS as exc:
         raise RecordingError(f"{name}: the route record is malformed: {exc}") from None
     if not len(segments) == len(models) == len(transitions) + 1:
         raise RecordingError(f"{name}: {len(models)} fit models for a route of {len(segments)} segments "
                              f"and {len(transitions)} transitions")
-    return RouteFile(models, segments, references, transitions, fit.info, route.get("world"), taught)
+    return RouteFile(models, segments, references, transitions, fit.info, route.get("world"), taught, templates)

@@ -135,7 +135,7 @@ HBVS_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "properties": {
             "timestamp": _TIME,
-            "segments": {"type": "array", "items": {"type": "object", "description": "target (index in the route), first and last frame of the drive, overlap_last (the previous segment's last frame; null for the first), reference (F*_i's frame)"}},
+            "segments": {"type": "array", "items": {"type": "object", "description": "target (index in the route), first and last frame of the drive, overlap_last (the previous segment's last frame; null for the first), reference (F*_i's frame), template (the index of its detector's template among the file's /detector/template images; null: none)"}},
             "transitions": {"type": "array", "items": {"type": "object", "description": "F*_{i+1} in F*_i: depth_ratio rho = d*_{i+1}/d*_i, heading (rad), origin_over_depth (-), their standard deviations and covariance of (u_1, u_2, rho)"}},
         },
         "required": ["timestamp", "segments", "transitions"],

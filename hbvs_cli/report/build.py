@@ -343,7 +343,7 @@ def _route(run: RunData) -> list[RouteSegment] | None:
     ends = [*(starts[1:] - 1), t.size - 1]
     segments = []
     for number, (first, last) in enumerate(zip(starts, ends)):
-        d_true = float(route["d_true"][number])
+        d_true = None if route["d_true"][number] is None else float(route["d_true"][number])  # None: no simulated route
         last = max(min(int(last), t.size - 1), int(first))
         finite = V[first:last + 1][np.isfinite(V[first:last + 1])] if first < t.size else np.array([])
         dhat_end = float(dhat[last]) if first < t.size and np.isfinite(dhat[last]) else None
@@ -351,5 +351,5 @@ def _route(run: RunData) -> list[RouteSegment] | None:
             target=int(route["targets"][number]) + 1, target_kind=str(route["target_kinds"][number]),
             t_start=float(t[min(first, t.size - 1)]), V_start=float(finite[0]) if finite.size else None,
             V_end=float(finite[-1]) if finite.size else None, d_true=d_true, dhat_end=dhat_end,
-            relative_error=None if dhat_end is None else abs(dhat_end - d_true) / d_true))
+            relative_error=None if dhat_end is None or d_true is None else abs(dhat_end - d_true) / d_true))
     return segments

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..core.control_settings import ControllerGains
 from ..core.controller import AdaptiveTrackingController, DesiredState
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
-from ..core.route import RouteFit
+from ..core.route import RouteFit, Transition
 from ..core.simulator import ActuatorLimits, StepRecord
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
@@ -71,42 +71,55 @@ class RouteTrajectory:
         return DesiredState(*(float(value) if value.ndim == 0 else value for value in values))
 
 
-class RouteCamera:
-    """What the robot sees along a route: the target of the segment in force, its exact pixels
-    plus Gaussian noise (``pixel_noise`` px), measured through that segment's estimator; at
-    each switch the controller's dhat (and the floor its projection keeps, from dhat0) is
-    carried over by the transition's rho, and its gains become the segment's (``gains``, one
-    per segment, if given). ``orders``: each segment's permutation of its target's points into
-    its fit's order (a detector's, :func:`~.scene.point_identity`; none: the world's order).
-    ``switches`` logs ``(t, segment, dhat before, after)``."""
+class SegmentSwitch:
+    """The switches of a route's repeat (every mode's): at each, the controller's dhat (and the
+    floor its projection keeps, from dhat0) is carried over by the transition's rho, its gains
+    become the segment's (``gains``, one per segment, if given) and so does the state filter
+    (:attr:`filters`, if set). ``switches`` logs ``(t, segment, dhat before, after)``."""
 
-    def __init__(self, route: RouteWorld, fitted: RouteFit, trajectory: RouteTrajectory,
-                 controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
-                 gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
-        self.route, self.fitted, self.trajectory, self.controller = route, fitted, trajectory, controller
-        self.orders = orders
-        self.gains = gains
-        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal) for fit in fitted.fits]
-        self.pixel_noise = pixel_noise
-        self.rng = np.random.default_rng(seed)
+    def __init__(self, transitions: Sequence[Transition], controller: AdaptiveTrackingController,
+                 gains: Sequence[ControllerGains] | None = None) -> None:
+        self.transitions, self.controller, self.gains = list(transitions), controller, gains
         self.active = 0
         self.switches: list[tuple[float, int, float, float]] = []
         #: One state filter per segment, when run with filters (:func:`run_route`).
         self.filters: SegmentFilters | None = None
 
+    def advance(self, t: float) -> None:
+        """Switch to the next segment at time ``t`` (s)."""
+        transition = self.transitions[self.active]
+        before = self.controller.dhat
+        self.controller.dhat = transition.carried_depth(before)
+        self.controller.dhat0 = transition.carried_depth(self.controller.dhat0)
+        self.active += 1
+        if self.gains is not None:
+            self.controller.gains = self.gains[self.active]
+        if self.filters is not None:
+            self.filters.switch(self.active, self.controller.dhat)
+        self.switches.append((t, self.active, before, self.controller.dhat))
+
+
+class RouteCamera(SegmentSwitch):
+    """What the robot sees along a route: the target of the segment in force, its exact pixels
+    plus Gaussian noise (``pixel_noise`` px), measured through that segment's estimator, each
+    switch made (:class:`SegmentSwitch`) at the trajectory's. ``orders``: each segment's
+    permutation of its target's points into its fit's order (a detector's,
+    :func:`~.scene.point_identity`; none: the world's order)."""
+
+    def __init__(self, route: RouteWorld, fitted: RouteFit, trajectory: RouteTrajectory,
+                 controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
+                 gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
+        super().__init__(fitted.transitions, controller, gains)
+        self.route, self.fitted, self.trajectory = route, fitted, trajectory
+        self.orders = orders
+        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal) for fit in fitted.fits]
+        self.pixel_noise = pixel_noise
+        self.rng = np.random.default_rng(seed)
+
     def observe(self, pose: NDArray[np.float64], t: float) -> Observation:
         segment = int(self.trajectory.segment_at(t))
         while self.active < segment:
-            transition = self.fitted.transitions[self.active]
-            before = self.controller.dhat
-            self.controller.dhat = transition.carried_depth(before)
-            self.controller.dhat0 = transition.carried_depth(self.controller.dhat0)
-            self.active += 1
-            if self.gains is not None:
-                self.controller.gains = self.gains[self.active]
-            if self.filters is not None:
-                self.filters.switch(self.active, self.controller.dhat)
-            self.switches.append((t, self.active, before, self.controller.dhat))
+            self.advance(t)
         target = self.fitted.segments[self.active].target
         world = self.route.worlds[target]
         local = self.route.local_pose(target, pose)

@@ -91,7 +91,8 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         references.append(segment.first + reference)
     transitions = estimate_transitions(t, segments, [model.trajectory for model in models])
     write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
-                reader.world_description, None if route is None else np.column_stack([t, poses]))
+                reader.world_description, None if route is None else np.column_stack([t, poses]),
+                [follower.detectors[s.target].template_image for s in segments])
     _print_route_summary(console, "images" if route is None else route.name, segments, models, transitions, t, options)
     return models
 

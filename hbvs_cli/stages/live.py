@@ -256,13 +256,35 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
             raise InputError(f"{what}: {name} {live:g} disagrees with the fit's camera ({taught:g})")
 
 
-def measure(frame: Any, detector: Any, estimator: Any, model: Any) -> Any:
-    """The observation of one live frame (the fit's detector and estimator)."""
+@dataclass
+class TargetSight:
+    """What a repeat sees of one target through its fit: a frame's observation (14) by the fit's
+    ``detector`` and ``estimator``, and the desired signals (Remark 1) of ``trajectory`` at run
+    time t (s). A route's (:class:`~.repeat_route.RouteSight`) has the same methods."""
+
+    detector: Any
+    estimator: Any
+    trajectory: Any
+
+    def __post_init__(self) -> None:
+        self.t_start, self.t_end = self.trajectory.t_start, self.trajectory.t_end
+        #: Whether frames are decoded in colour (only dots seen in colour use it).
+        self.colour = self.detector.spec.contrast == "colour"
+
+    def observe(self, image: np.ndarray, t: float) -> Any:
+        return self.estimator.from_pixels(self.detector.detect(image))
+
+    def evaluate(self, t: float) -> Any:
+        return self.trajectory.evaluate(t)
+
+
+def measure(frame: Any, sight: Any, model: Any, t: float) -> Any:
+    """The observation of one live frame at run time ``t`` (s) (``sight``: a :class:`TargetSight`'s methods)."""
     image = frame.image
     height, width = image.shape[:2]
     if (width, height) != (model.camera.width, model.camera.height):
         raise InputError(f"a live frame is {width}x{height}, the fit's camera {model.camera.width}x{model.camera.height}")
-    return estimator.from_pixels(detector.detect(image))
+    return sight.observe(image, t)
 
 
 class LiveStats:
@@ -306,10 +328,9 @@ class LiveLoop:
     outlives its measurement, whatever the camera's clock does."""
 
     source: LiveSource
-    detector: Any
-    estimator: Any
+    #: What is seen and should be seen (:class:`TargetSight`, or a route's).
+    sight: Any
     model: Any
-    trajectory: Any
     servo: ServoStep
     out: CommandOut
     run: RunWriter
@@ -329,7 +350,7 @@ class LiveLoop:
     def __post_init__(self) -> None:
         #: The control period and the taught trajectory's duration (s).
         self.period = 1.0 / self.settings.rate
-        self.duration = self.trajectory.t_end - self.trajectory.t_start
+        self.duration = self.sight.t_end - self.sight.t_start
         self.clock = CameraClock(self.period)
         self.stats = LiveStats()
         #: ``time.monotonic()`` when the command of the last used frame went out.
@@ -357,7 +378,7 @@ class LiveLoop:
 
     def wait_for_start(self) -> None:
         """Send zeros until the target is seen near its taught start view in :data:`START_FRAMES` frames in a row."""
-        desired = self.trajectory.evaluate(0.0)
+        desired = self.sight.evaluate(0.0)
         lost_timeout = self.settings.lost_timeout
         near = far = 0
         waited_since = seen_at = time.monotonic()
@@ -370,7 +391,7 @@ class LiveLoop:
                     raise TargetLostError(self._no_frame_reason(time.monotonic() - waited_since) + " before the start (--lost-timeout)")
                 continue
             waited_since = time.monotonic()
-            observation = measure(frame, self.detector, self.estimator, self.model)
+            observation = measure(frame, self.sight, self.model, 0.0)
             self.out.send(0.0, 0.0, 0.0)
             if observation.status != "ok" or observation.measurement is None:
                 near = far = 0
@@ -426,9 +447,9 @@ class LiveLoop:
             self.frame, self.interval = frame, (frame.stamp - previous_stamp if previous_stamp is not None else None)
             # The command is held until the next frame: about one frame interval.
             self.dt = min(max(self.interval if self.interval is not None else period, 0.2 * period), 5.0 * period)
-            observation = measure(frame, self.detector, self.estimator, self.model)
+            observation = measure(frame, self.sight, self.model, t)
             previous_stamp, self.t = frame.stamp, t
-            yield ServoInput(t, self.dt, observation, self.trajectory.evaluate(t), _NO_POSE)
+            yield ServoInput(t, self.dt, observation, self.sight.evaluate(t), _NO_POSE)
 
     def act(self, record: Any) -> None:
         """Send the command (a lost target's is zero: :attr:`ServoStep.stop_when_lost`)."""

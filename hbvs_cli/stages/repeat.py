@@ -17,14 +17,12 @@ from typing import IO, Any
 import numpy as np
 
 from .. import __version__
-from ..core.camera import normalized_to_pixels
-from ..core.controller import AdaptiveTrackingController, ControllerGains, DesiredState, lyapunov
+from ..core.controller import AdaptiveTrackingController, ControllerGains, lyapunov
 from ..core.depth import check_depth
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
-from ..core.frames import compose_planar_pose, rotation_z
+from ..core.frames import compose_planar_pose
 from ..core.gains import noise_from_residual
-from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
@@ -52,7 +50,7 @@ from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
-from .repeat_route import run_route_repeat
+from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
 
 @dataclass(frozen=True)
 class Settings:
@@ -138,7 +136,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
     if fit is None:
         fit = read_fit_file(options.input)
     settings = settings_for(options, fit.model)
-    if fit.route_record is not None:  # a route: segment by segment
+    if fit.route_record is not None and options.sim:  # a route: segment by segment
         return run_route_repeat(options, settings, fit, console, ROUTE_TOOLS)
     if options.live:
         return _run_live(options, settings, fit, console)
@@ -236,12 +234,6 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
     for name in names:
         writer.input_ended_early(name, options.allow_truncated)
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
-
-
-def desired_pixels(model: FitModel, desired: DesiredState) -> np.ndarray:
-    """Where the target points should be in the image now: m_d = H_d m* (13)."""
-    H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
-    return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
 
 
 def check_simulation_settings(settings: Settings, model: FitModel) -> None:
@@ -426,30 +418,42 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
+def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered: bool) -> Tracking:
+    """What ``--live`` (``filtered``: with the state filter ``--filter`` asks for) and ``--replay`` servo with: one
+    target's detector, estimator and desired signals at ``--speed``, or a route's segment by segment."""
+    if fit.route_record is not None:
+        return route_tracking(options, settings, fit, filtered, make_state_filter)
+    model = fit.model
+    estimator = estimator_from_model(model)
+    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
+    state_filter = make_state_filter(settings, model, estimator) if filtered else None
+    sight = live.TargetSight(detector, estimator, TimeScaledTrajectory(model.trajectory, settings.speed))
+    return Tracking(sight, make_controller(settings.law, settings.gains, settings.dhat0), state_filter)
+
+
 class RecordedDrive:
     """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames,
-    measured by the fit's detector, at their own stamps. Open loop: the commands are kept, nothing moves."""
+    measured through the fit's ``sight`` (:class:`~.live.TargetSight`'s methods), at their own stamps.
+    Open loop: the commands are kept, nothing moves."""
 
-    def __init__(self, reader: TeachReader, detector: Any, estimator: PlanarPoseEstimator, model: FitModel,
-                 trajectory: TimeScaledTrajectory, run: RunWriter) -> None:
-        self.reader, self.detector, self.estimator, self.model, self.trajectory, self.run = reader, detector, estimator, model, trajectory, run
+    def __init__(self, reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> None:
+        self.reader, self.sight, self.model, self.run = reader, sight, model, run
 
     def __iter__(self) -> Any:
         model, reader = self.model, self.reader
         previous_t: float | None = None
-        keep_colour = self.detector.spec.contrast == "colour"  # only dots seen in colour use it
-        for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: keep_colour):
+        for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: self.sight.colour):
             camera = reader.camera
             if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
                 raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
-            observation = self.estimator.from_pixels(self.detector.detect(image))
             t = frame.t
+            observation = self.sight.observe(image, t)
             if previous_t is None:
                 # The replay keeps the recording's stamps: t = 0 is known with the first frame.
                 self.run.start(frame.log_time_ns - seconds_to_ns(t))
             dt = t - previous_t if previous_t is not None else 0.0
             previous_t = t
-            yield ServoInput(t, dt, observation, self.trajectory.evaluate(t), np.full(3, np.nan))
+            yield ServoInput(t, dt, observation, self.sight.evaluate(t), np.full(3, np.nan))
 
     def act(self, record: StepRecord) -> None:
         """Open loop: the command a robot would be sent is recorded, and nothing moves."""
@@ -458,20 +462,18 @@ class RecordedDrive:
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     reader = TeachReader(options.replay)
-    estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
-    controller = make_controller(settings.law, settings.gains, settings.dhat0)
     # The recording's motion is not the commands': no state filter (its prediction assumes they moved the robot).
+    tracking = _tracking(options, settings, fit, filtered=False)
+    controller = tracking.controller
     servo = ServoStep(controller, settings.limits, 0, None, stop_when_lost=True)
     tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)
-            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None), model.camera, base_ns=None)
-            log = _StepLog(run, settings, model, None, cmd_stream)
+            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
+            log = tracking.step_log(_StepLog(run, settings, model, None, cmd_stream))
             with console.progress("repeat (replay)", None) as bar:
-                for record in run_servo(RecordedDrive(reader, detector, estimator, model, trajectory, run), servo):
+                for record in run_servo(RecordedDrive(reader, tracking.sight, model, run), servo):
                     log.step(record)
                     tally.add(record)
                     bar.advance()
@@ -486,12 +488,9 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     live.check_live_options(options, settings.lost_timeout)
     interface = live.robot_interface(options)
     model = fit.model
-    estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    state_filter = make_state_filter(settings, model, estimator)
-    controller = make_controller(settings.law, settings.gains, settings.dhat0)
-    servo = ServoStep(controller, settings.limits, 0, state_filter, stop_when_lost=True)
-    trajectory = TimeScaledTrajectory(model.trajectory, settings.speed)
+    tracking = _tracking(options, settings, fit, filtered=True)
+    controller = tracking.controller
+    servo = ServoStep(controller, settings.limits, 0, tracking.state_filter, stop_when_lost=True)
     tally = _Tally()
     loop: live.LiveLoop | None = None
     run: RunWriter | None = None
@@ -507,16 +506,16 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             # --foxglove: the run served as it is written (already real time: no pacing).
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
             writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
-            info = _run_metadata("live", options, settings, fit, None) | {"live": {
+            info = _run_metadata("live", options, settings, fit, None) | tracking.metadata | {"live": {
                 "source": link.source_name, "cmd_topic": link.commands.topic if link.commands is not None else None,
                 "cmd_type": options.cmd_type, "dry_run": options.dry_run, "stale_timeout_s": options.stale_timeout,
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
-            log = _StepLog(run, settings, model, None, None)
+            log = tracking.step_log(_StepLog(run, settings, model, None, None))
             source, camera = link.open_camera()
             live.check_camera(camera, model.camera, "the live camera's calibration")
             status = stack.enter_context(console.status_line())
-            loop = live.LiveLoop(source, detector, estimator, model, trajectory, servo, out, run, log, tally, options, settings,
+            loop = live.LiveLoop(source, tracking.sight, model, servo, out, run, log, tally, options, settings,
                                  status=status, warn=console.warn)
             console.info(f"repeat --live: waiting for the target near its taught start ({live.START_FRAMES} frames in a row)")
             loop.wait_for_start()

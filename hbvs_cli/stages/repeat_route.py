@@ -1,31 +1,44 @@
-"""``hbvs repeat --sim`` on a route file (issue 47): :func:`~hbvs_cli.sim.route_loop.run_route`
+"""``hbvs repeat`` on a route file (issue 47). ``--sim``: :func:`~hbvs_cli.sim.route_loop.run_route`
 segment by segment (each its own F*_i, n*_i, gains and state filter; dhat (31) carried over by
-the transition's rho at each switch), written as a run file that ``hbvs report`` reads. The
-Lyapunov function (36) is logged per segment, against that segment's true d*_i; the run's
-metadata say where the switches were planned and each segment's true depth."""
+the transition's rho at each switch), written as a run file that ``hbvs report`` reads.
+``--live`` and ``--replay`` (:func:`route_tracking`): each segment's own detector measures (14)
+against its F*_i, and the next segment's takes over once the taught time is
+:data:`~hbvs_cli.sim.route_loop.SWITCH_FRACTION` through the overlap and it sees its target well
+(:class:`RouteSight`), with the same switch as ``--sim`` (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`).
+The Lyapunov function (36) is logged per segment, against that segment's true d*_i where the
+route was simulated; the run's metadata say where the switches were planned and each segment's
+true depth (None without a simulated route)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 
-from ..core.control_settings import FILTER_EKF
-from ..core.frames import compose_planar_pose
+from ..core.camera import normalized_to_pixels
+from ..core.control_settings import FILTER_EKF, ControllerGains
+from ..core.estimation import Observation, ObservationStatus
+from ..core.fit_model import FitModel
+from ..core.frames import compose_planar_pose, rotation_z
+from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
-from ..core.route import RouteFit
-from ..errors import UsageError
+from ..core.route import RouteFit, view_spans
+from ..core.trajectory import TimeScaledTrajectory
+from ..errors import RecordingError, UsageError
 from ..io.fit_file import FitFile
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
+from ..io.images import decode_image
 from ..io.mcap import open_output
 from ..io.messages import LOG_INFO
 from ..io.output_target import open_text_output
 from ..io.route_file import RouteFile, route_of
 from ..io.run_file import RunWriter
+from ..perception.target_kinds import target_kind
+from ..perception.tracked import detector_from_model, estimator_from_model
 from ..settings.commands import RepeatOptions
-from ..sim.route_loop import run_route, switch_times
-from ..sim.route_world import RouteWorld, recorded_route
+from ..sim.route_loop import RouteTrajectory, SegmentFilters, SegmentSwitch, run_route, switch_times
+from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from ..sim.scene import point_identity
 from .console import Console
 
@@ -49,25 +62,171 @@ def segment_truths(route: RouteWorld, plan: RouteFile) -> tuple[list[float], lis
     return depths, orders
 
 
+def segment_gains(settings: Any, plan: RouteFile) -> list[ControllerGains]:
+    """Each segment's gains: its fit's suggestion, unless the options or the config set the first's otherwise."""
+    suggested = [gains_for_law(model.suggested_gains(), settings.law) if model.suggested_gains() is not None else settings.gains
+                 for model in plan.models]
+    return suggested if settings.gains == suggested[0] else [settings.gains] * len(plan.models)
+
+
+def planned_switches(plan: RouteFile) -> np.ndarray:
+    """The taught instant of each switch (s, the drive's time): :func:`~hbvs_cli.sim.route_loop.switch_times`."""
+    frames = np.arange(plan.segments[-1].last + 1) * plan.models[0].taught_frame_interval()
+    return switch_times(RouteFit(plan.segments, plan.models, plan.references, plan.transitions), frames)
+
+
+def route_metadata(plan: RouteFile, switches: np.ndarray, depths: list[float | None]) -> dict[str, Any]:
+    """The run's ``route`` record: the planned switches (s), each segment's target, kind and true d*_i (m), and rho."""
+    return {"switch_times": switches.tolist(), "targets": [s.target for s in plan.segments],
+            "target_kinds": [m.target_kind for m in plan.models], "d_true": depths,
+            "depth_ratios": [tr.depth_ratio for tr in plan.transitions]}
+
+
+class SwitchLog:
+    """A repeat's step log (``log``) that records each switch of ``switch`` before the step
+    after it: an event, and V (36) from then on against the new segment's d*_i (``depths``)
+    and gains."""
+
+    def __init__(self, log: Any, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None],
+                 gains: list[ControllerGains], settings: Any) -> None:
+        self.log, self.switch, self.plan, self.depths, self.gains, self.settings = log, switch, plan, depths, gains, settings
+        self.logged = 0
+        log.d_true = depths[0]
+
+    def step(self, record: Any, *args: Any) -> None:
+        while self.logged < len(self.switch.switches):
+            when, segment, before, after = self.switch.switches[self.logged]
+            self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
+            self.log.event(when, LOG_INFO, f"segment {segment + 1} (target {self.plan.segments[segment].target + 1}, "
+                           f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
+            self.logged += 1
+        self.log.step(record, *args)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["log"], name)
+
+
+def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
+    """Where the target points should be in the image now: m_d = H_d m* (13)."""
+    H_d = rotation_z(float(desired.theta_d)) + np.outer([float(desired.x_hd1), float(desired.x_hd2), 0.0], model.normal)
+    return normalized_to_pixels(model.camera, transfer_points(H_d, model.m_ref))
+
+
+class RouteSight(SegmentSwitch):
+    """What ``--live`` and ``--replay`` see along a route (the methods of
+    :class:`~.live.TargetSight`): the segment in force measured by its own detector and
+    estimator against its F*_i, and its desired signals. Once the run time passes a switch's
+    ``planned`` time (s), the next segment's detector looks too, and the switch is made
+    (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame where it sees its whole
+    target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX` across, as ``fit`` followed it."""
+
+    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
+                 planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
+        super().__init__(plan.transitions, controller, gains)
+        self.detectors, self.estimators, self.route_trajectory, self.models = detectors, estimators, trajectory, plan.models
+        #: The segments whose detector has looked already (the first from the fit's first view).
+        self.looked = 1
+        #: The segment in force's desired signals at the run's pace (switches not made yet lie at infinity).
+        self.trajectory = TimeScaledTrajectory(trajectory, speed)
+        self.planned = (planned - self.trajectory.start) / speed
+        self.t_start, self.t_end = self.trajectory.t_start, self.trajectory.t_end
+        self.colour = any(model.detector.contrast == "colour" for model in plan.models)
+
+    def observe(self, image: np.ndarray, t: float) -> Observation:
+        ahead = self.active + 1
+        if ahead < len(self.detectors) and t >= self.planned[self.active]:
+            if self.looked == ahead:  # first looked for where the robot on its track would see it
+                desired = self.models[ahead].trajectory.evaluate(self.trajectory.start + self.trajectory.speed * t)
+                self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
+                self.looked += 1
+            observation = self._measure(ahead, image)
+            if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
+                self.route_trajectory.switches[self.active] = self.trajectory.start + self.trajectory.speed * t
+                self.advance(t)
+                return observation
+        return self._measure(self.active, image)
+
+    def _measure(self, segment: int, image: np.ndarray) -> Observation:
+        return self.estimators[segment].from_pixels(self.detectors[segment].detect(image))
+
+    def evaluate(self, t: float) -> Any:
+        return self.trajectory.evaluate(t)
+
+
+@dataclass
+class Tracking:
+    """What ``--live`` and ``--replay`` servo with: the ``sight`` (:class:`~.live.TargetSight`'s
+    methods), the ``controller`` and ``state_filter``, the run's extra ``metadata``, and
+    ``step_log(log)``: the log each step goes to (a route's records its switches)."""
+
+    sight: Any
+    controller: Any
+    state_filter: Any
+    metadata: dict[str, Any] = field(default_factory=dict)
+    step_log: Callable[[Any], Any] = lambda log: log
+
+
+def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool, make_state_filter: Callable[..., Any]) -> Tracking:
+    """The :class:`Tracking` of a route file for ``--live`` (``filtered``: a state filter per
+    segment, ``make_state_filter(settings, model, estimator)``) or ``--replay`` (none)."""
+    plan = route_of(fit, str(options.input))
+    models = plan.models
+    gains = segment_gains(settings, plan)
+    controller = make_controller(settings.law, gains[0], settings.dhat0)
+    estimators = [estimator_from_model(model) for model in models]
+    trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf))
+    planned = planned_switches(plan)
+    detectors = []
+    for number, model in enumerate(models):
+        try:
+            detectors.append(detector_from_model(model, _template(plan, number), seed=options.seed))
+        except RecordingError as exc:
+            raise RecordingError(f"{options.input}: segment {number + 1}: {exc} (fitted before routes kept them: fit it again)") from None
+    sight = RouteSight(detectors, estimators, trajectory, settings.speed, planned, plan, controller, gains)
+    if filtered and settings.state_filter == FILTER_EKF:
+        sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
+    depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
+              else segment_truths(recorded_route(plan.world, models[0].camera), plan)[0])
+    return Tracking(sight, controller, sight.filters, {"route": route_metadata(plan, sight.planned, depths)},
+                    lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
+
+
+#: What a segment's template keeps around its target's points (px): the alignment's smoothing reaches 4 sigma beyond them.
+TEMPLATE_MARGIN_PX = 16
+
+
+def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
+    """Segment ``segment``'s detector template, decoded for a kind that uses one, painted its
+    median level beyond :data:`TEMPLATE_MARGIN_PX` around its target's points: a template frame
+    also shows the route's other targets (a photograph turned, or printed twice), whose features
+    would otherwise be matched when the detector first looks for its own."""
+    data = plan.templates[segment] if segment < len(plan.templates) else None
+    spec = plan.models[segment].detector
+    if data is None or not target_kind(spec.kind).uses_template:
+        return None
+    image = decode_image(data, f"segment {segment + 1}'s template image")
+    if spec.template_pixels is None:
+        return image
+    low = np.maximum(np.floor(spec.template_pixels.min(axis=0)).astype(int) - TEMPLATE_MARGIN_PX, 0)
+    high = np.ceil(spec.template_pixels.max(axis=0)).astype(int) + TEMPLATE_MARGIN_PX + 1
+    kept = np.full(image.shape, np.median(image), dtype=image.dtype)
+    kept[low[1]:high[1], low[0]:high[0]] = image[low[1]:high[1], low[0]:high[0]]
+    return kept
+
+
 def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
     """Repeat the route of ``fit`` in simulation as ``settings`` (the first segment's, resolved
     by :func:`.repeat.settings_for`) say; ``tools``: repeat's step log, tally and summary
     (:mod:`.repeat` hands them in). The run's summary."""
     plan = route_of(fit, str(options.input))
-    if not options.sim:
-        raise UsageError("a route file repeats with --sim only; --replay and --live take the fit of one target")
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
     models = plan.models
     route = recorded_route(plan.world, models[0].camera)
     depths, orders = segment_truths(route, plan)
-    interval = models[0].taught_frame_interval()
     route_fit = RouteFit(plan.segments, models, plan.references, plan.transitions)
-    switches = switch_times(route_fit, np.arange(plan.taught_poses.shape[0]) * interval)
-    # Each segment its fit's suggested gains, unless the options or the config set the first's otherwise.
-    suggested = [gains_for_law(model.suggested_gains(), settings.law) if model.suggested_gains() is not None else settings.gains
-                 for model in models]
-    gains = suggested if settings.gains == suggested[0] else [settings.gains] * len(models)
+    switches = planned_switches(plan)
+    gains = segment_gains(settings, plan)
     noise = [tools.detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
@@ -76,26 +235,15 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     camera, steps = run_route(route, route_fit, switches, controller,
                               start, dt, duration, settings.limits, settings.pixel_noise, options.seed, gains, noise, orders)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
-        "d_true": depths[-1],
-        "route": {"switch_times": switches.tolist(), "targets": [s.target for s in plan.segments],
-                  "target_kinds": [m.target_kind for m in models], "d_true": depths,
-                  "depth_ratios": [tr.depth_ratio for tr in plan.transitions]},
-    }
+        "d_true": depths[-1], "route": route_metadata(plan, switches, depths)}
     tally = tools.tally()
     height = route.camera_height
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
-        log = tools.step_log(run, settings, models[0], depths[0], cmd_stream)
-        switched = 0
+        log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
         lost = tools.lost_watch(settings.lost_timeout, dt, log)
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
-                while switched < len(camera.switches):  # a switch: V (36) against the new segment's d* and gains
-                    when, segment, before, after = camera.switches[switched]
-                    log.d_true, log.settings = depths[segment], replace(settings, gains=gains[segment])
-                    log.event(when, LOG_INFO, f"segment {segment + 1} (target {plan.segments[segment].target + 1}, "
-                              f"{models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
-                    switched += 1
                 log.step(record)
                 taught = taught_pose_at(plan.taught_poses, np.array([record.t]))[0]
                 run.poses(record.t, record.pose, taught, height)

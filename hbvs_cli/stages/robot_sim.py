@@ -1,6 +1,6 @@
 """``hbvs robot-sim FIT``: what ``repeat --sim`` simulates, as a robot in its own process for
 ``repeat --live`` to be tried against: the unicycle in real time under the latest command,
-rendered at ``--rate``. ``--ros2``: ``/cmd_vel`` in, camera, CameraInfo and the true pose
+rendered at ``--rate`` (a route fit's whole route, every target). ``--ros2``: ``/cmd_vel`` in, camera, CameraInfo and the true pose
 out; ``--mjpeg PORT --cmd-in FILE``: MJPEG on 127.0.0.1, ``repeat --cmd-out``'s JSON lines in.
 """
 
@@ -18,11 +18,14 @@ import numpy as np
 from ..core.frames import compose_planar_pose
 from ..errors import InputError, UsageError
 from ..io.calibration import calibration_to_foxglove
-from ..io.fit_file import read_fit_file
+from ..core.fit_model import SensorSettings
+from ..io.fit_file import FitFile, read_fit_file
 from ..io.images import encode_image
 from ..io.output_target import open_text_output
 from ..io.ros2_names import check_topic_names
+from ..io.route_file import route_of
 from ..io.topics import ROS_TRUE_POSE_TOPIC
+from ..sim.route_world import make_route_renderer, recorded_route
 from ..sim.scene import renderer_for, simulation_world
 from ..sim.stand_in import MAX_PLAUSIBLE_V, MAX_PLAUSIBLE_W, StampFault, parse_base
 from .console import Console
@@ -146,6 +149,21 @@ def _transport(options: RobotSimOptions, camera: Any) -> Any:
     return _Ros2Robot(options, camera) if options.ros2 else _PlainRobot(options)
 
 
+def _taught_world(fit: FitFile, options: RobotSimOptions) -> tuple[Any, np.ndarray]:
+    """The renderer of the fit's taught world (a route's: all its targets, issue 47) and the taught start pose."""
+    if fit.route_record is None:
+        scene = simulation_world(fit.model, fit_reference_image(fit), options.depth, source=options.input)
+        return renderer_for(scene, fit.model), scene.taught_pose_at_run_time(0.0)
+    plan = route_of(fit, options.input)
+    if plan.world is None or plan.taught_poses is None or options.depth is not None:
+        raise UsageError(f"{options.input}: robot-sim renders a route from its simulated teach (and takes no --depth); "
+                         "this route fit has none")
+    sensor = fit.model.render or SensorSettings()
+    renderer = make_route_renderer(recorded_route(plan.world, fit.model.camera), sensor.noise, sensor.blur, sensor.exposure,
+                                   sensor.noise_grain)
+    return renderer, plan.taught_poses[0, 1:]
+
+
 def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     """Run the stand-in robot until ``--duration`` or a stop signal."""
     if options.ros2:
@@ -153,10 +171,9 @@ def run_robot_sim(options: RobotSimOptions, console: Console) -> None:
     fit = read_fit_file(options.input)
     model = fit.model
     rate = float(options.rate) if options.rate is not None else 1.0 / model.taught_frame_interval()
-    scene = simulation_world(model, fit_reference_image(fit), options.depth, source=options.input)
-    renderer = renderer_for(scene, model)
+    renderer, taught_start = _taught_world(fit, options)
     rng = np.random.default_rng(options.seed)
-    pose = tuple(float(v) for v in compose_planar_pose(scene.taught_pose_at_run_time(0.0), parse_offset(options.offset)))
+    pose = tuple(float(v) for v in compose_planar_pose(taught_start, parse_offset(options.offset)))
     camera = model.camera
     if camera.distortion_model != "none" and any(camera.distortion):
         raise UsageError("robot-sim renders an undistorted camera; this fit's camera has lens distortion")
