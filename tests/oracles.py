@@ -17,6 +17,7 @@ from hbvs_cli.core.frames import relative_planar_pose
 from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.sim.world import World
 
 
 def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,
@@ -50,6 +51,13 @@ def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: Array
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
+
+
+def ground_truth(world: World, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """True theta (rad) and x_h = x_f / d* (..., 2) of F relative to F* in a simulated ``world``, (4), (14)."""
+    theta, x_f = relative_planar_pose(pose, reference_pose)
+    d_star = float(world.wall_x - np.asarray(reference_pose, dtype=float)[0])
+    return theta, x_f[..., :2] / d_star
 
 
 def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observation:
