@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError, UsageError
-from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
+from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, unrefined_markers
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
 from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, refine_twice, saddle_points
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
@@ -101,14 +101,6 @@ def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, NDArray[np.float
     return {int(i): np.asarray(points, float).reshape(4, 3)[:, :2].mean(axis=0) for i, points in zip(np.ravel(board.getIds()), board.getObjPoints())}
 
 
-def _detect_markers(gray: NDArray[np.uint8], dictionary: str) -> tuple[list[NDArray[np.float64]], list[int]]:
-    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
-    corners, ids, _ = detector.detectMarkers(gray)
-    if ids is None:
-        return [], []
-    return [np.asarray(c, float).reshape(4, 2) for c in corners], [int(i) for i in np.ravel(ids)]
-
-
 def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = None,
                 squares: tuple[int, int] | None = None) -> CharucoGeometry | None:
     """The ChArUco board in ``image``, its layout inferred from its markers, or None.
@@ -130,7 +122,7 @@ def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = N
     gray = as_gray(image)
     names = list(dictionaries) if dictionaries else [MARKER_FAMILIES[f][-1] for f in ("4x4", "5x5", "6x6", "7x7", "original")]
     for name in names:
-        corners, ids = _detect_markers(gray, name)
+        corners, ids = unrefined_markers(gray, name)
         if len(set(ids)) < MIN_INFER_MARKERS or len(set(ids)) != len(ids):
             continue
         geometry = _fit_layout(corners, ids, name, squares)
