@@ -13,7 +13,7 @@ from hbvs_cli.core.controller import DesiredState, TrackingErrors
 from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
                                          select_branch, take_branch)
 from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
-from hbvs_cli.core.frames import relative_planar_pose
+from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
@@ -51,6 +51,19 @@ def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: Array
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
+
+
+def relative_planar_pose(pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """``theta = phi* - phi`` wrapped to [-pi, pi) and ``x_f`` (..., 3) (m), (3)-(5), of F* at
+    ``reference_pose`` ((3,) or (..., 3)) seen from ``pose`` (..., 3)."""
+    pose = np.asarray(pose, dtype=float)
+    reference_pose = np.asarray(reference_pose, dtype=float)
+    dx = reference_pose[..., 0] - pose[..., 0]
+    dy = reference_pose[..., 1] - pose[..., 1]
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    x_f = np.stack([c * dx + s * dy, -s * dx + c * dy, np.zeros_like(dx)], axis=-1)
+    theta = wrap_angle(reference_pose[..., 2] - pose[..., 2])
+    return theta, x_f
 
 
 def ground_truth(world: World, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
