@@ -253,10 +253,6 @@ class Candidates:
     ruled_out: list[str]
     aside: str = ""
 
-    def described(self, choice: TargetChoice) -> str:
-        """A candidate's predicted precision and its points, in words."""
-        return f"{choice.predicted_deg:.2g} deg ({choice.n_points} {target_kind(choice.kind).points} over {choice.spread_px:.0f} px)"
-
     def none_found(self) -> str:
         """"; no markers (...) and no ..." for the kinds looked for and not found, or ""."""
         return f"; no {' and no '.join(self.ruled_out)}" if self.ruled_out else ""

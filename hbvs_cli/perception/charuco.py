@@ -75,11 +75,6 @@ class CharucoGeometry:
         """Markers on the board (one on every white square)."""
         return self.squares[0] * self.squares[1] // 2
 
-    @property
-    def inner(self) -> tuple[int, int]:
-        """Inner corners per row and rows of them."""
-        return self.squares[0] - 1, self.squares[1] - 1
-
     def board(self) -> cv2.aruco.CharucoBoard:
         """OpenCV's board, its dictionary cut to its own markers (each candidate is compared with
         every marker; a dictionary's markers differ by more than twice the bits it corrects)."""
