@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Sequence
 
 import numpy as np
@@ -17,7 +18,12 @@ from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.report.result import RunReport
 from hbvs_cli.sim.world import World
+
+
+#: Top-level keys of a report's JSON, in order, but a live run's ``timing`` and a route's ``route``.
+REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name not in ("timing", "route"))
 
 
 def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,

@@ -145,7 +145,7 @@ class ArucoMarkerDetector:
     ``marker_id``: the marker to report (None: whichever single marker is in view; ignored
     when ``marker_ids`` is given); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``;
     ``marker_ids``: several markers, 4 corners each in this order, found when any is seen
-    (NaN rows for the others). ``last_id``: the id reported by the last call.
+    (NaN rows for the others).
     """
 
     kind = "aruco"
@@ -170,12 +170,10 @@ class ArucoMarkerDetector:
         self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
         self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement, tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
-        self.last_id: int | None = None
 
     def reset(self) -> None:
         """Forget the track."""
         self._track.reset()
-        self.last_id = None
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the marker's corners; see :class:`~.base.TargetDetector`.
@@ -232,7 +230,6 @@ class ArucoMarkerDetector:
             picks = [_largest_copy(corners, ids, ident) for ident in self.marker_ids]
             if all(pick is None for pick in picks):
                 return None, considered
-        self.last_id = int(ids[next(pick for pick in picks if pick is not None)])
         cells = self._detector.getDictionary().markerSize + 2
         missing = np.full((4, 2), np.nan)
         refined = [missing if pick is None else refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells)
