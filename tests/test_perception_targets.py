@@ -319,10 +319,11 @@ def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):
 
 def test_target_options_refused_in_one_line(tmp_path):
     """--board and --target-points are checked before any frame is read: one line, the
-    usage or input exit code, no output."""
+    usage or input exit code, no output; --target auto refuses kind options no one kind takes."""
     points = tmp_path / "points.csv"
     points.write_text("0,0\n1,0\n")
     cases = ((("--board", "6by4"), 2, "--board must be COLUMNSxROWS"), (("--board", "6x4", "--target", "dots"), 2, "--board is not for --target dots"),
+             (("--board", "6x4", "--marker-id", "3"), 2, "--marker-id and --board are not for --target auto (no one kind"),
              (("--target-points", str(tmp_path / "none.csv")), 3, "no such file"), (("--target-points", str(points)), 3, "3 to"),
              (("--target-points", str(points), "--target", "texture"), 2, "texture"))
     for args, code, words in cases:

@@ -541,14 +541,21 @@ def _render_settings(reader: Any) -> SensorSettings | None:
 AUTO_FRAMES = 5
 
 
+def _kind_options(options: FitOptions) -> list[str]:
+    """The kind options given: --marker-dict, --marker-id, --board."""
+    return [name for name in ("marker_dict", "marker_id", "board") if getattr(options, name) is not None]
+
+
 def _check_kind_options(options: FitOptions) -> None:
-    """--marker-dict, --marker-id and --board: only for a kind that takes them (or auto); a
-    known dictionary, an id in it, a board of at least 3x3 squares."""
-    given = [name for name in ("marker_dict", "marker_id", "board") if getattr(options, name) is not None]
-    refused = [name for name in given if options.target != "auto" and name not in target_kind(options.target).options]
-    if refused:
+    """The kind options: only for a kind that takes them (auto: for one kind that takes them all,
+    :func:`_detector_spec`); a known dictionary, an id in it, a board of at least 3x3 squares."""
+    given = _kind_options(options)
+    kinds = TARGET_KINDS.values() if options.target == "auto" else [target_kind(options.target)]
+    if not any(set(given) <= kind.options for kind in kinds):
+        refused = [name for name in given if options.target == "auto" or name not in target_kind(options.target).options]
         names = " and ".join("--" + name.replace("_", "-") for name in refused)
-        raise UsageError(f"{names} {'is' if len(refused) == 1 else 'are'} not for --target {options.target}")
+        raise UsageError(f"{names} {'is' if len(refused) == 1 else 'are'} not for --target {options.target}"
+                         + (" (no one kind takes them all: choose --target)" if options.target == "auto" else ""))
     if options.board is not None:
         parse_board(options.board)
     if options.marker_dict is None and options.marker_id is None:
@@ -569,12 +576,10 @@ def _detector_spec(
     ``sample()`` spreads over the whole drive, :mod:`.auto_target`, and says on stderr what
     it picked and why)."""
     kind = options.target
-    pinned_marker = options.marker_dict is not None or options.marker_id is not None
+    given = set(_kind_options(options))
     if kind == "auto" and world is None:
-        if options.board is not None:
-            kind = "charuco"
-        elif pinned_marker:
-            kind = "aruco"
+        if given:  # the first kind registered that takes them all (checked before): markers for --marker-dict alone
+            kind = next(name for name, taker in TARGET_KINDS.items() if given <= taker.options)
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
             spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
