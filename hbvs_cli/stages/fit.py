@@ -71,20 +71,16 @@ def parse_smoothing(text: str) -> float | None:
     return value
 
 
-def resolve_reference(spec: str, frame_count: int) -> int:
-    """Frame index of ``--reference first|last|INDEX`` in a recording of ``frame_count`` frames."""
+def parse_reference(spec: str) -> int | None:
+    """Frame index of ``--reference first|last|INDEX`` ("05" is frame 5), None for the last; its range is
+    checked once the frames are counted."""
     key = spec.strip().lower()
-    if key == "first":
-        return 0
     if key == "last":
-        return frame_count - 1
+        return None
     try:
-        index = int(key)
+        return 0 if key == "first" else int(key)
     except ValueError:
         raise UsageError(f"--reference must be first, last or a frame index, got {spec!r}") from None
-    if not 0 <= index < frame_count:
-        raise UsageError(f"--reference {spec} is out of range: the recording has {frame_count} frames (0 to {frame_count - 1})")
-    return index
 
 
 class _FrameLog:
@@ -211,11 +207,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     pull: Any = None  # the kind's image_shift accumulator
     template: bytes | None = None
     reference_image: bytes | None = None
-    wanted_reference = options.reference.strip().lower()
-    try:  # the frame whose image is kept as F*'s ("05" is frame 5; the range is checked once the frames are counted)
-        wanted_index = 0 if wanted_reference == "first" else int(wanted_reference)
-    except ValueError:  # "last": each frame's in turn
-        wanted_index = None
+    wanted_index = parse_reference(options.reference)  # the frame whose image is kept as F*'s (last: each frame's in turn)
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
@@ -266,7 +258,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
-                if wanted_reference == "last" or frame.index == wanted_index:
+                if wanted_index is None or frame.index == wanted_index:
                     reference_image = data
                 if options.copy_images:
                     write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
@@ -286,7 +278,10 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()
-        reference_index = resolve_reference(options.reference, log.count)
+        reference_index = log.count - 1 if wanted_index is None else wanted_index
+        if not 0 <= reference_index < log.count:
+            raise UsageError(f"--reference {options.reference} is out of range: the recording has {log.count} frames "
+                             f"(0 to {log.count - 1})")
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
         calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
         result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
