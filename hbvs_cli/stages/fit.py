@@ -283,14 +283,10 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
             raise UsageError(f"--reference {options.reference} is out of range: the recording has {log.count} frames "
                              f"(0 to {log.count - 1})")
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
-                      pull.pull_px if pull is not None else 0.0, calibration_sigma)
-        model = fitted_model(result, arrays, reference_index, replace(detector.spec, initial_pixels=result.initial_pixels), camera,
-                             reader, reader.world_description, options, console, calibration, layout)
-        taught_path = model.taught_path
+        result, model = _drive_fit(reader, smoothing, options, console, arrays, reference_index, detector.spec,
+                                   reader.world_description, reader.name, layout, pull.pull_px if pull is not None else 0.0)
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
-        if taught_path is not None:  # the 3D scene: the target and the taught path
+        if model.taught_path is not None:  # the 3D scene: the target and the taught path
             height = world.camera_height if world is not None else 0.0
             SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
@@ -302,23 +298,23 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     return FitSummary(output=options.output, model=model)
 
 
-def _segment_model(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
-                   reference_index: int, spec: DetectorSpec, world_description: dict[str, Any], name: str) -> FitModel:
+def _segment_model(*segment: Any) -> FitModel:
     """The fit model of one segment of a route (:mod:`.fit_route`), fitted as a single target's drive."""
-    calibration, calibration_sigma = _calibration_uncertainty(reader, reader.camera, console)
-    result = _fit(arrays, reference_index, reader.camera, smoothing, options, console, name, spec, calibration_sigma=calibration_sigma)
-    return fitted_model(result, arrays, reference_index, replace(spec, initial_pixels=result.initial_pixels), reader.camera,
-                        reader, world_description, options, console, calibration)
+    return _drive_fit(*segment)[1]
 
-def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_index: int, spec: DetectorSpec,
-                 camera: CameraIntrinsics, reader: Any, world_description: dict[str, Any] | None, options: FitOptions,
-                 console: Console, calibration: str, layout: np.ndarray | None = None) -> FitModel:
-    """The fit model of one target's drive (``arrays``: its frames, ``pose`` in its own world):
-    d* (25), the taught path, the suggested gains and the uncertainty beside ``result``'s splines.
-    A route's segments (:mod:`.fit_route`) are each one such model."""
+
+def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
+               reference_index: int, spec: DetectorSpec, world_description: dict[str, Any] | None, name: str,
+               layout: np.ndarray | None = None, image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
+    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model:
+    d* (25), the taught path, the suggested gains and the uncertainty beside the fit's splines."""
+    camera = reader.camera
+    calibration, calibration_sigma = _calibration_uncertainty(reader, camera, console)
+    result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration_sigma)
+    spec = replace(spec, initial_pixels=result.initial_pixels)
     taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
-    return FitModel(
+    return result, FitModel(
         target_kind=spec.kind,
         camera=camera,
         reference_index=reference_index,
