@@ -77,6 +77,7 @@ def interleaved(a: Callable[[], object], b: Callable[[], object], repeats: int) 
 # --------------------------------------------------------------------------- 1. estimation
 def estimation_inputs(frames: int, seed: int = 0):
     """Noisy 4-point correspondences of the ArUco target from random poses (0.1 px noise)."""
+    from hbvs_cli.core.frames import wrap_angle
     from hbvs_cli.sim.world import default_world
 
     world = default_world("aruco")
@@ -85,7 +86,7 @@ def estimation_inputs(frames: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     poses = np.column_stack([rng.uniform(0.0, 1.5, frames), rng.uniform(-0.2, 0.2, frames), rng.uniform(-0.1, 0.1, frames)])
     pixels = np.array([world.pixels(p) for p in poses]) + rng.normal(0.0, 0.1, (frames, 4, 2))
-    truth = np.array([world.ground_truth(p, reference)[0] for p in poses])
+    truth = wrap_angle(reference[2] - poses[:, 2])  # the true theta = phi* - phi (4)
     return world, world.pixels(reference), m_ref, normal, pixels, truth
 
 

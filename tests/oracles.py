@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Sequence
 
 import numpy as np
@@ -13,10 +14,16 @@ from hbvs_cli.core.controller import DesiredState, TrackingErrors
 from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
                                          select_branch, take_branch)
 from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
-from hbvs_cli.core.frames import relative_planar_pose
+from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.report.result import RunReport
+from hbvs_cli.sim.world import World
+
+
+#: Top-level keys of a report's JSON, in order, but a live run's ``timing`` and a route's ``route``.
+REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name not in ("timing", "route"))
 
 
 def closed_loop_error_rates(errors: TrackingErrors, d_tilde: float, x_h2: float, w_c: float, x_hd1_dot: float,
@@ -50,6 +57,26 @@ def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: Array
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
+
+
+def relative_planar_pose(pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """``theta = phi* - phi`` wrapped to [-pi, pi) and ``x_f`` (..., 3) (m), (3)-(5), of F* at
+    ``reference_pose`` ((3,) or (..., 3)) seen from ``pose`` (..., 3)."""
+    pose = np.asarray(pose, dtype=float)
+    reference_pose = np.asarray(reference_pose, dtype=float)
+    dx = reference_pose[..., 0] - pose[..., 0]
+    dy = reference_pose[..., 1] - pose[..., 1]
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    x_f = np.stack([c * dx + s * dy, -s * dx + c * dy, np.zeros_like(dx)], axis=-1)
+    theta = wrap_angle(reference_pose[..., 2] - pose[..., 2])
+    return theta, x_f
+
+
+def ground_truth(world: World, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
+    """True theta (rad) and x_h = x_f / d* (..., 2) of F relative to F* in a simulated ``world``, (4), (14)."""
+    theta, x_f = relative_planar_pose(pose, reference_pose)
+    d_star = float(world.wall_x - np.asarray(reference_pose, dtype=float)[0])
+    return theta, x_f[..., :2] / d_star
 
 
 def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observation:

@@ -32,7 +32,7 @@ from hbvs_cli.core.metrics import command_smoothness
 from hbvs_cli.core.state_filter import FilterOutcome, ServoStateFilter
 from hbvs_cli.core.unicycle import integrate_unicycle
 from hbvs_cli.sim.world import default_world
-from oracles import predict_state
+from oracles import ground_truth, predict_state
 
 FUSED, GATED, STARTED = FilterOutcome.FUSED, FilterOutcome.GATED, FilterOutcome.STARTED
 
@@ -115,9 +115,9 @@ def test_prediction_is_the_exact_kinematics():
     for _ in range(200):
         pose = np.array([rng.uniform(0.0, 2.0), rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)])
         v, w, dt = rng.uniform(-0.5, 0.5), rng.uniform(-0.6, 0.6), rng.uniform(0.001, 0.2)
-        theta, x_h = world.ground_truth(pose, reference)
+        theta, x_h = ground_truth(world, pose, reference)
         moved = integrate_unicycle(tuple(pose), v, w, dt)
-        theta_next, x_h_next = world.ground_truth(np.array(moved), reference)
+        theta_next, x_h_next = ground_truth(world, np.array(moved), reference)
         predicted = predict_state((theta, x_h[0], x_h[1]), v, w, dt, d_star)
         assert np.allclose(predicted, (theta_next, x_h_next[0], x_h_next[1]), atol=1e-12)
 
@@ -127,7 +127,7 @@ def static_frames(fit_path):
     """900 frames of one pose with 0.5 px of noise, through the repeat's estimator."""
     simulation = closed_loop(fit_path, perception="points", pixel_noise=0.5, seed=3)["simulation"]
     camera, pose = simulation.camera, simulation.start_pose
-    truth = simulation.scene.world.ground_truth(pose, simulation.scene.reference_pose)
+    truth = ground_truth(simulation.scene.world, pose, simulation.scene.reference_pose)
     observations = [camera.observe(pose, 0.0) for _ in range(900)]
     return simulation, observations, np.array([truth[0], *truth[1]])
 

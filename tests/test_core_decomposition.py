@@ -14,7 +14,7 @@ from hbvs_cli.core.homography import estimate_euclidean_homography
 from hbvs_cli.errors import GeometryError, NoValidBranchError
 
 from conftest import random_planar_scene
-from oracles import decompose_homography
+from oracles import decompose_homography, ground_truth
 
 
 def test_zero_wrong_branches_over_1000_poses(rng):
@@ -112,7 +112,7 @@ def test_theta_error_with_half_pixel_noise(rng, capsys):
         m_ref, normal, _ = world.reference_geometry(reference_pose)
         noisy_px = world.pixels(pose) + rng.normal(0.0, 0.5, (6, 2))
         motion = KnownNormalSolver(m_ref, normal).solve(pixels_to_normalized(DEFAULT_CAMERA, noisy_px))
-        theta_true, x_h_true = world.ground_truth(pose, reference_pose)
+        theta_true, x_h_true = ground_truth(world, pose, reference_pose)
         errors_theta.append(float(motion.theta - theta_true))
         errors_xh.append(np.asarray(motion.x_h) - x_h_true)
     rms_theta = float(np.degrees(np.sqrt(np.mean(np.square(errors_theta)))))

@@ -12,6 +12,7 @@ from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 
 from conftest import campaign_extent
+from oracles import ground_truth
 
 #: Frame rate (Hz) at which the corridor is sampled here.
 RATE = 10.0
@@ -28,7 +29,7 @@ def corridor_drive():
 def signals(route, index: int, poses, reference_pose):
     """The true theta (K,) and x_h (K, 2) of ``poses`` against F* at ``reference_pose`` for target ``index``, (4), (14)."""
     world = route.worlds[index]
-    return world.ground_truth(route.local_pose(index, poses), route.local_pose(index, reference_pose))
+    return ground_truth(world, route.local_pose(index, poses), route.local_pose(index, reference_pose))
 
 
 def depth(route, index: int, reference_pose) -> float:

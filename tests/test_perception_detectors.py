@@ -200,8 +200,8 @@ def test_aruco_missing_marker(rendered):
     detection = ArucoMarkerDetector(world.target.marker_id).detect(dot_frames[0][1])
     assert not detection.found and np.all(np.isnan(detection.pixels))
     assert not ArucoMarkerDetector(world.target.marker_id + 1).detect(frames[0][1]).found
-    anyone = ArucoMarkerDetector(None)
-    assert anyone.detect(frames[0][1]).found and anyone.last_id == world.target.marker_id
+    anyone = ArucoMarkerDetector(None).detect(frames[0][1])  # the one marker in view: the target's
+    assert anyone.found and np.abs(anyone.pixels - world.pixels(frames[0][0])).max() < 0.3  # 0.08 px measured
 
 
 def test_texture_detector_is_deterministic_and_rejects_other_images(rendered):

@@ -178,7 +178,7 @@ def test_auto_picks_the_picture_over_a_small_marker_printed_in_it():
     images, _, camera = _frames("photo_with_tags", range(5))
     candidates, by_kind = _candidates(images, camera)
     assert candidates.found[0].kind == "texture", candidates.found
-    assert "(4 corners over" in candidates.described(by_kind["aruco"])
+    assert by_kind["aruco"].n_points == 4  # one marker's corners
     assert 10 * by_kind["texture"].predicted_deg < by_kind["aruco"].predicted_deg
 
 
@@ -190,7 +190,7 @@ def test_auto_picks_the_texture_of_a_small_chessboard_over_its_corners():
     images, _, camera = _frames("chessboard", range(5), jpeg=90)
     candidates, by_kind = _candidates(images, camera)
     assert candidates.found[0].kind == "texture", candidates.found
-    assert "(35 corners over" in candidates.described(by_kind["chessboard"])
+    assert by_kind["chessboard"].n_points == 35
     assert 0.05 <= by_kind["texture"].predicted_deg < by_kind["chessboard"].predicted_deg <= 0.3
 
 
@@ -319,10 +319,11 @@ def test_auto_picks_on_whole_drives(tmp_path, request, name, kind, capsys):
 
 def test_target_options_refused_in_one_line(tmp_path):
     """--board and --target-points are checked before any frame is read: one line, the
-    usage or input exit code, no output."""
+    usage or input exit code, no output; --target auto refuses kind options no one kind takes."""
     points = tmp_path / "points.csv"
     points.write_text("0,0\n1,0\n")
     cases = ((("--board", "6by4"), 2, "--board must be COLUMNSxROWS"), (("--board", "6x4", "--target", "dots"), 2, "--board is not for --target dots"),
+             (("--board", "6x4", "--marker-id", "3"), 2, "--marker-id and --board are not for --target auto (no one kind"),
              (("--target-points", str(tmp_path / "none.csv")), 3, "no such file"), (("--target-points", str(points)), 3, "3 to"),
              (("--target-points", str(points), "--target", "texture"), 2, "texture"))
     for args, code, words in cases:

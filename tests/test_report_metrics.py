@@ -22,7 +22,9 @@ from hbvs_cli.core.metrics import (
 )
 from hbvs_cli.errors import UsageError
 from hbvs_cli.io.run_file import STATE_FIELDS, RunData
-from hbvs_cli.report.build import DEFAULT_TOLERANCES, REPORT_KEYS, build_report, resolve_tolerances
+from hbvs_cli.report.build import DEFAULT_TOLERANCES, build_report, resolve_tolerances
+
+from oracles import REPORT_KEYS
 
 RATE_HZ = 100.0
 DT = 1.0 / RATE_HZ

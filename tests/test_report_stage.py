@@ -17,9 +17,10 @@ from hbvs_cli.core.metrics import STATISTICS
 from hbvs_cli.errors import TargetLostError, UsageError
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.stages.console import Console
-from hbvs_cli.report.build import REPORT_KEYS, build_report
+from hbvs_cli.report.build import build_report
 
 from conftest import call_hbvs
+from oracles import REPORT_KEYS
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

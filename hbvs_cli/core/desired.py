@@ -373,7 +373,7 @@ def fit_desired_trajectory(
         shared_shifts = [partial(calibration_shifts, camera, calibration_sigma)]  # last: its columns are n*'s calibration part
         if image_shift_px > 0.0:
             shared_shifts.insert(0, uniform_shift(image_shift_px / focal))
-        calibration_columns = calibration_shifts(camera, calibration_sigma, m_ref[None]).shape[-1]
+        calibration_columns = sum(size > 0.0 for size in calibration_sigma[:4 + len(camera.distortion)])
         covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
                                        shapes, errors.correlated, errors.bias_fraction, readout != 0.0,
                                        lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1),

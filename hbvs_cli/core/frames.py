@@ -38,19 +38,6 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     return float(wrapped) if wrapped.ndim == 0 else wrapped
 
 
-def relative_planar_pose(pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
-    """``theta = phi* - phi`` wrapped to [-pi, pi) and ``x_f`` (..., 3) (m), (3)-(5), of F* at
-    ``reference_pose`` ((3,) or (..., 3)) seen from ``pose`` (..., 3)."""
-    pose = np.asarray(pose, dtype=float)
-    reference_pose = np.asarray(reference_pose, dtype=float)
-    dx = reference_pose[..., 0] - pose[..., 0]
-    dy = reference_pose[..., 1] - pose[..., 1]
-    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    x_f = np.stack([c * dx + s * dy, -s * dx + c * dy, np.zeros_like(dx)], axis=-1)
-    theta = wrap_angle(reference_pose[..., 2] - pose[..., 2])
-    return theta, x_f
-
-
 def world_to_robot(points_world: ArrayLike, pose: ArrayLike, camera_height: float) -> NDArray[np.float64]:
     """World points (N, 3) in F: ``Rz(phi)^T (P - p)``, ``p = (x, y, camera_height)`` (m)."""
     points_world = np.asarray(points_world, dtype=float)

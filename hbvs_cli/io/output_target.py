@@ -13,7 +13,7 @@ import sys
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, Iterator, Sequence
+from typing import IO, Any, Callable, Iterator, Sequence
 
 from ..errors import HbvsError, InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
@@ -65,6 +65,17 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
 def partial_name_of(final: Path) -> Path:
     """A fresh partial name beside ``final``, unique to this process and call."""
     return final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+
+
+def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
+    """Write ``path`` whole or not at all: ``write(partial)`` on a partial file of this process, then a rename."""
+    partial = partial_name_of(path)
+    try:
+        write(partial)
+        os.replace(partial, path)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
 
 
 def final_name_of_partial(path: Path) -> Path | None:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 from ..errors import InputError, OutputError, UsageError
-from ..io.output_target import FolderLock, partial_name_of, remove_stale_partials
+from ..io.output_target import FolderLock, partial_name_of, remove_stale_partials, replace_through_partial
 
 SPEC_FILE = "sweep.json"
 PARTS = "parts"
@@ -76,17 +76,6 @@ def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
         fields.append(pa.field(column, kind))
     fields += [pa.field("run_time_s", pa.float64()), pa.field("run_file", pa.string()), pa.field("command", pa.string())]
     return pa.schema(fields)
-
-
-def _replace(path: Path, write: Any) -> None:
-    """Write ``path`` through a partial file of this process and a rename."""
-    partial = partial_name_of(path)
-    try:
-        write(partial)
-        os.replace(partial, path)
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
 
 
 def read_description(folder: Path, need_spec: bool = True) -> dict[str, Any]:
@@ -277,11 +266,11 @@ class ResultsTable:
         (self.folder / PARTS).mkdir(exist_ok=True)
         if not spec_path.is_file():
             document = {"fingerprint": fingerprint, **description, "schema": {f.name: str(f.type) for f in self.schema}}
-            _replace(spec_path, lambda p: p.write_text(json.dumps(document, indent=2) + "\n"))
+            replace_through_partial(spec_path, lambda p: p.write_text(json.dumps(document, indent=2) + "\n"))
         # Partial files of a sweep that was killed (its process is gone); nobody else's.
         remove_stale_partials(self.folder.rglob("*.partial"))
         # Rewrite the CSV from the Parquet rows: drops a line torn by a kill.
-        _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
+        replace_through_partial(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
         #: Run indices with a row when the table was opened.
         self.done: set[int] = {int(i) for path in _result_files(self.folder) for i in _indices(path)}
 
@@ -332,7 +321,7 @@ class ResultsTable:
     def close(self) -> None:
         """After an interruption: write the waiting rows; the CSV rewritten from the Parquet rows."""
         self.flush()
-        _replace(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
+        replace_through_partial(self.folder / CSV, lambda p: write_merged(self.folder, self.schema, None, p))
 
     def finish(self) -> int:
         """Merge everything into ``runs.parquet`` and ``runs.csv``; returns the number of rows."""

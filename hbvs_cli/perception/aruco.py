@@ -82,23 +82,23 @@ def _parameters(refinement: int, tracked: bool = False) -> cv2.aruco.DetectorPar
     return parameters
 
 
-def marker_ids_in_view(gray: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIONARY) -> list[int]:
-    """Ids of the markers of ``dictionary`` detected in a gray frame (no corner refinement)."""
+def unrefined_markers(image: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIONARY) -> tuple[list[NDArray[np.float64]], list[int]]:
+    """The markers of ``dictionary`` detected in a frame without corner refinement: each one's
+    corners (4, 2) px, and their ids."""
     detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
-    _, ids, _ = detector.detectMarkers(as_gray(gray))
-    return [] if ids is None else [int(i) for i in np.ravel(ids)]
+    corners, ids, _ = detector.detectMarkers(as_gray(image))
+    if ids is None:
+        return [], []
+    return [np.asarray(c, float).reshape(4, 2) for c in corners], [int(i) for i in np.ravel(ids)]
 
 
 def marker_corners_in_view(image: NDArray[np.uint8], dictionary: str, ids: Sequence[int]) -> NDArray[np.float64] | None:
     """The corners (4M, 2) of the markers ``ids`` of ``dictionary`` seen in a frame (no
     corner refinement; the largest copy of an id), or None when none is seen."""
-    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
-    corners, seen, _ = detector.detectMarkers(as_gray(image))
-    if seen is None:
-        return None
-    picks = [_largest_copy(corners, np.ravel(seen), int(ident)) for ident in ids]
-    picked = [corners[pick].reshape(4, 2) for pick in picks if pick is not None]
-    return np.concatenate(picked).astype(np.float64) if picked else None
+    corners, seen = unrefined_markers(image, dictionary)
+    picks = [_largest_copy(corners, np.array(seen), int(ident)) for ident in ids]
+    picked = [corners[pick] for pick in picks if pick is not None]
+    return np.concatenate(picked) if picked else None
 
 
 def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32], ident: int) -> int | None:
@@ -107,7 +107,7 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
     matches = np.flatnonzero(ids == ident)
     if matches.size == 0:
         return None
-    return int(matches[int(np.argmax([abs(cv2.contourArea(corners[i].reshape(4, 2))) for i in matches]))])
+    return int(matches[int(np.argmax([abs(cv2.contourArea(np.float32(corners[i]).reshape(4, 2))) for i in matches]))])
 
 
 @dataclass(frozen=True)
@@ -125,17 +125,15 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
     """Every family of markers seen in a frame, the family with the most markers first; each
     searched once with its largest dictionary (the smaller ones are its prefixes)."""
     gray = as_gray(image)
-    parameters = _parameters(cv2.aruco.CORNER_REFINE_NONE)
     sightings = []
     for family in families or MARKER_FAMILIES:
         names = MARKER_FAMILIES[family]
-        detector = cv2.aruco.ArucoDetector(_dictionary(names[-1]), parameters)
-        corners, ids, _ = detector.detectMarkers(gray)
-        if ids is None or len(ids) == 0:
+        corners, ids = unrefined_markers(gray, names[-1])
+        if not ids:
             continue
-        seen = sorted({int(i) for i in np.ravel(ids)})
+        seen = sorted(set(ids))
         name = next(n for n in names if dictionary_size(n) > seen[-1])
-        sides = [float(np.min(np.linalg.norm(np.roll(c.reshape(4, 2), -1, axis=0) - c.reshape(4, 2), axis=1))) for c in corners]
+        sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
         sightings.append(MarkerSighting(name, tuple(seen), min(sides)))
     sightings.sort(key=lambda s: -len(s.ids))
     return sightings
@@ -147,7 +145,7 @@ class ArucoMarkerDetector:
     ``marker_id``: the marker to report (None: whichever single marker is in view; ignored
     when ``marker_ids`` is given); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``;
     ``marker_ids``: several markers, 4 corners each in this order, found when any is seen
-    (NaN rows for the others). ``last_id``: the id reported by the last call.
+    (NaN rows for the others).
     """
 
     kind = "aruco"
@@ -172,12 +170,10 @@ class ArucoMarkerDetector:
         self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
         self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement, tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
-        self.last_id: int | None = None
 
     def reset(self) -> None:
         """Forget the track."""
         self._track.reset()
-        self.last_id = None
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the marker's corners; see :class:`~.base.TargetDetector`.
@@ -234,7 +230,6 @@ class ArucoMarkerDetector:
             picks = [_largest_copy(corners, ids, ident) for ident in self.marker_ids]
             if all(pick is None for pick in picks):
                 return None, considered
-        self.last_id = int(ids[next(pick for pick in picks if pick is not None)])
         cells = self._detector.getDictionary().markerSize + 2
         missing = np.full((4, 2), np.nan)
         refined = [missing if pick is None else refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells)
@@ -388,7 +383,7 @@ def _markers_spec(request: SpecRequest) -> DetectorSpec:
 def _with_marker(spec: DetectorSpec, image: NDArray[np.uint8]) -> DetectorSpec:
     """The spec with its marker (the first of its dictionary in view when none is named) and 4 corners a marker."""
     if spec.marker_id is None and not spec.marker_ids:
-        ids = marker_ids_in_view(image, spec.marker_dict or DEFAULT_DICTIONARY)
+        ids = unrefined_markers(image, spec.marker_dict or DEFAULT_DICTIONARY)[1]
         if not ids:
             raise InputError(f"no marker of {spec.marker_dict or DEFAULT_DICTIONARY} in the first image (choose the dictionary with --marker-dict)")
         spec = replace(spec, marker_id=int(ids[0]))

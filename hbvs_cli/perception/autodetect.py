@@ -253,10 +253,6 @@ class Candidates:
     ruled_out: list[str]
     aside: str = ""
 
-    def described(self, choice: TargetChoice) -> str:
-        """A candidate's predicted precision and its points, in words."""
-        return f"{choice.predicted_deg:.2g} deg ({choice.n_points} {target_kind(choice.kind).points} over {choice.spread_px:.0f} px)"
-
     def none_found(self) -> str:
         """"; no markers (...) and no ..." for the kinds looked for and not found, or ""."""
         return f"; no {' and no '.join(self.ruled_out)}" if self.ruled_out else ""
@@ -279,46 +275,38 @@ def is_own_print(candidate: TargetChoice, texture: TargetChoice) -> bool:
     return float(np.mean(on_markers)) >= 0.5
 
 
-def target_candidates(
-    images: Sequence[NDArray[np.uint8]],
-    template_pixels_of: Any,
-    *,
-    marker_dict: str | None = None,
-    seed: int = 0,
-) -> Candidates:
+def target_candidates(images: Sequence[NDArray[np.uint8]], template_pixels_of: Any, *, seed: int = 0) -> Candidates:
     """Every target kind found consistently in the first frames (gray or BGR uint8) of a
     recording, the lowest :attr:`TargetChoice.predicted_deg` first; InputError naming every
     kind tried when none is found.
 
     ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
-    be (InputError for too few features); ``marker_dict``: only markers of this dictionary
-    (or their ChArUco board).
+    be (InputError for too few features).
     """
     grays = [as_gray(image) for image in images]
     found, ruled_out, aside = [], [], ""
-    markers = find_markers(grays, marker_dict)
+    markers = find_markers(grays)
     if markers is not None and len(markers.details["marker_ids"]) >= MIN_INFER_MARKERS:
         # Enough markers of one dictionary for a ChArUco board: if it is one, its corners stand for its markers.
         markers = find_charuco(grays, markers.details["marker_dict"]) or markers
     if markers is not None:
         found.append(markers)
     else:
-        ruled_out.append(f"markers ({marker_dict or 'every ArUco/AprilTag dictionary'})")
-    if marker_dict is None:
-        tried = [("chessboard", find_chessboard(grays))]
-        if markers is None:  # decoded markers are blobs a dots test would see; in colour: dots may differ in hue alone
-            tried.append(("dots (3-10 round dark or light blobs)", find_dots(images)))
-        try:
-            texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
-        except InputError:
-            texture = None
-        printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
-        if texture is not None and any(is_own_print(c, texture) for c in printed):
-            aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
-        else:
-            tried.append(("texture (natural features matched from frame to frame)", texture))
-        found += [choice for _, choice in tried if choice is not None]
-        ruled_out += [name for name, choice in tried if choice is None]
+        ruled_out.append("markers (every ArUco/AprilTag dictionary)")
+    tried = [("chessboard", find_chessboard(grays))]
+    if markers is None:  # decoded markers are blobs a dots test would see; in colour: dots may differ in hue alone
+        tried.append(("dots (3-10 round dark or light blobs)", find_dots(images)))
+    try:
+        texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
+    except InputError:
+        texture = None
+    printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
+    if texture is not None and any(is_own_print(c, texture) for c in printed):
+        aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
+    else:
+        tried.append(("texture (natural features matched from frame to frame)", texture))
+    found += [choice for _, choice in tried if choice is not None]
+    ruled_out += [name for name, choice in tried if choice is None]
     if not found:
         raise InputError(
             f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError, UsageError
-from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name
+from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, unrefined_markers
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
 from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, refine_twice, saddle_points
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
@@ -75,11 +75,6 @@ class CharucoGeometry:
         """Markers on the board (one on every white square)."""
         return self.squares[0] * self.squares[1] // 2
 
-    @property
-    def inner(self) -> tuple[int, int]:
-        """Inner corners per row and rows of them."""
-        return self.squares[0] - 1, self.squares[1] - 1
-
     def board(self) -> cv2.aruco.CharucoBoard:
         """OpenCV's board, its dictionary cut to its own markers (each candidate is compared with
         every marker; a dictionary's markers differ by more than twice the bits it corrects)."""
@@ -99,14 +94,6 @@ def _layout(squares: tuple[int, int], legacy: bool) -> dict[int, NDArray[np.floa
 def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, NDArray[np.float64]]:
     """Each marker's centre on the board (squares), by id."""
     return {int(i): np.asarray(points, float).reshape(4, 3)[:, :2].mean(axis=0) for i, points in zip(np.ravel(board.getIds()), board.getObjPoints())}
-
-
-def _detect_markers(gray: NDArray[np.uint8], dictionary: str) -> tuple[list[NDArray[np.float64]], list[int]]:
-    detector = cv2.aruco.ArucoDetector(_dictionary(dictionary), _parameters(cv2.aruco.CORNER_REFINE_NONE))
-    corners, ids, _ = detector.detectMarkers(gray)
-    if ids is None:
-        return [], []
-    return [np.asarray(c, float).reshape(4, 2) for c in corners], [int(i) for i in np.ravel(ids)]
 
 
 def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = None,
@@ -130,7 +117,7 @@ def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = N
     gray = as_gray(image)
     names = list(dictionaries) if dictionaries else [MARKER_FAMILIES[f][-1] for f in ("4x4", "5x5", "6x6", "7x7", "original")]
     for name in names:
-        corners, ids = _detect_markers(gray, name)
+        corners, ids = unrefined_markers(gray, name)
         if len(set(ids)) < MIN_INFER_MARKERS or len(set(ids)) != len(ids):
             continue
         geometry = _fit_layout(corners, ids, name, squares)

@@ -223,5 +223,5 @@ def _dots(spec: DetectorSpec, template: np.ndarray | None, seed: int, windowed: 
 # saturated ones' shared pull (bloom) is measured over the drive.
 register_target_kind(TargetKind(
     name="dots", spec=_dots_spec, make=_dots, complete=_counted, errors=DetectorErrors("dots", expected_precision=(0.1, 2e-3)),
-    precision_scale=10.3, points="dots", image_shift=lambda spec: SharedPull(spec.polarity or "dark", spec.contrast or "gray"),
+    precision_scale=10.3, image_shift=lambda spec: SharedPull(spec.polarity or "dark", spec.contrast or "gray"),
 ))

@@ -47,9 +47,9 @@ class TargetKind:
     times its points' RMS spread (px) times the root of their number (``--target auto``,
     docs/targets.md); ``shapes``: its parts of known shape; ``size_pair(spec, m_ref, normal)``:
     the points ``--target-size`` separates, in units of it (None: no metric size);
-    ``options``: the fit options it takes; ``points``: their name; ``uses_template``: matched
-    to a template image (tracked undistorted); ``image_shift(spec)``: an accumulator (``add(image,
-    pixels)``, ``pull_px``) of an error all its points share, or None."""
+    ``options``: the fit options it takes; ``uses_template``: matched to a template image
+    (tracked undistorted); ``image_shift(spec)``: an accumulator (``add(image, pixels)``,
+    ``pull_px``) of an error all its points share, or None."""
 
     name: str
     spec: Callable[[SpecRequest], DetectorSpec]
@@ -61,7 +61,6 @@ class TargetKind:
     size_pair: Callable[[DetectorSpec, np.ndarray, np.ndarray], tuple[tuple[int, int], float]] | None = (
         lambda spec, m_ref, normal: (farthest_pair(m_ref, normal), 1.0))
     options: frozenset[str] = frozenset()
-    points: str = "corners"
     uses_template: bool = False
     image_shift: Callable[[DetectorSpec], Any] | None = None
 

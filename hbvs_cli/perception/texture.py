@@ -579,5 +579,5 @@ def _texture(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, 
 register_target_kind(TargetKind(
     name="texture", spec=_texture_spec, make=_texture,
     errors=DetectorErrors("texture", bias_fraction=0.5, beyond_view=True, correlated=False, expected_precision=(0.1, 2e-3)),
-    precision_scale=23.8, size_pair=None, points="features", uses_template=True,
+    precision_scale=23.8, size_pair=None, uses_template=True,
 ))

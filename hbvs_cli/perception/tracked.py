@@ -122,9 +122,9 @@ def _undistort_maps(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     return cv2.initUndistortRectifyMap(camera.K, distortion, None, camera.K, size, cv2.CV_32FC1)
 
 
-def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, marker_dict: str | None = None, seed: int = 0) -> Candidates:
+def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, seed: int = 0) -> Candidates:
     """Every kind of target the first images show (:func:`~hbvs_cli.perception.autodetect.target_candidates`)."""
-    return candidates_in(images, lambda image: texture_points_for_template(image, camera), marker_dict=marker_dict, seed=seed)
+    return candidates_in(images, lambda image: texture_points_for_template(image, camera), seed=seed)
 
 
 #: The outlier gate is this many times the largest residual of the taught frames, and never

@@ -13,7 +13,6 @@ has not converged). The tolerances (:data:`DEFAULT_TOLERANCES`) also band the se
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 from typing import Mapping
 
 import numpy as np
@@ -44,8 +43,6 @@ SMOOTHNESS_FLOOR_W = 1.0
 IMAGE_ERRORS = ("e1", "e2", "ebar2", "e3")
 #: The pose errors (ground truth only), in report order.
 POSE_ERRORS = ("position_m", "heading_deg")
-#: Top-level keys of a report's JSON, in order, but a live run's ``timing`` and a route's ``route``.
-REPORT_KEYS = tuple(field.name for field in fields(RunReport) if field.name not in ("timing", "route"))
 
 #: Each final error's check name, label, scale to the shown unit, and unit.
 _FINAL_CHECKS: dict[str, tuple[str, str, float, str]] = {

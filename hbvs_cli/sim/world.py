@@ -21,7 +21,7 @@ from ..core.camera import (
     normalized_to_pixels,
 )
 from ..core.fit_model import MAX_TARGET_POINTS
-from ..core.frames import PAPER_TO_OPENCV, relative_planar_pose, world_to_robot
+from ..core.frames import PAPER_TO_OPENCV, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
 
@@ -139,12 +139,6 @@ class World:
         normal = np.array([c * n_w[0] + s * n_w[1], -s * n_w[0] + c * n_w[1], n_w[2]])
         d_star = float(self.wall_x - reference_pose[0])
         return m_ref, normal, d_star
-
-    def ground_truth(self, pose: ArrayLike, reference_pose: ArrayLike) -> tuple[NDArray[np.float64] | float, NDArray[np.float64]]:
-        """True theta (rad) and x_h = x_f / d* (..., 2) of F relative to F*, (4), (14)."""
-        theta, x_f = relative_planar_pose(pose, reference_pose)
-        d_star = float(self.wall_x - np.asarray(reference_pose, dtype=float)[0])
-        return theta, x_f[..., :2] / d_star
 
     def poster_to_image_homography(self, pose: ArrayLike) -> NDArray[np.float64]:
         """``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: poster metres to ideal pixels."""

@@ -71,20 +71,16 @@ def parse_smoothing(text: str) -> float | None:
     return value
 
 
-def resolve_reference(spec: str, frame_count: int) -> int:
-    """Frame index of ``--reference first|last|INDEX`` in a recording of ``frame_count`` frames."""
+def parse_reference(spec: str) -> int | None:
+    """Frame index of ``--reference first|last|INDEX`` ("05" is frame 5), None for the last; its range is
+    checked once the frames are counted."""
     key = spec.strip().lower()
-    if key == "first":
-        return 0
     if key == "last":
-        return frame_count - 1
+        return None
     try:
-        index = int(key)
+        return 0 if key == "first" else int(key)
     except ValueError:
         raise UsageError(f"--reference must be first, last or a frame index, got {spec!r}") from None
-    if not 0 <= index < frame_count:
-        raise UsageError(f"--reference {spec} is out of range: the recording has {frame_count} frames (0 to {frame_count - 1})")
-    return index
 
 
 class _FrameLog:
@@ -211,11 +207,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     pull: Any = None  # the kind's image_shift accumulator
     template: bytes | None = None
     reference_image: bytes | None = None
-    wanted_reference = options.reference.strip().lower()
-    try:  # the frame whose image is kept as F*'s ("05" is frame 5; the range is checked once the frames are counted)
-        wanted_index = 0 if wanted_reference == "first" else int(wanted_reference)
-    except ValueError:  # "last": each frame's in turn
-        wanted_index = None
+    wanted_index = parse_reference(options.reference)  # the frame whose image is kept as F*'s (last: each frame's in turn)
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
@@ -266,7 +258,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 if log is None:
                     log = _FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
-                if wanted_reference == "last" or frame.index == wanted_index:
+                if wanted_index is None or frame.index == wanted_index:
                     reference_image = data
                 if options.copy_images:
                     write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
@@ -286,16 +278,15 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         assert detector is not None and reader.camera is not None
         camera = reader.camera
         arrays = log.arrays()
-        reference_index = resolve_reference(options.reference, log.count)
+        reference_index = log.count - 1 if wanted_index is None else wanted_index
+        if not 0 <= reference_index < log.count:
+            raise UsageError(f"--reference {options.reference} is out of range: the recording has {log.count} frames "
+                             f"(0 to {log.count - 1})")
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        calibration = _calibration_uncertainty(reader, camera)
-        result = _fit(arrays, reference_index, camera, smoothing, options, console, reader.name, detector.spec, layout,
-                      pull.pull_px if pull is not None else 0.0, calibration)
-        model = fitted_model(result, arrays, reference_index, replace(detector.spec, initial_pixels=result.initial_pixels), camera,
-                             reader, reader.world_description, options, console, calibration[0], layout)
-        taught_path = model.taught_path
+        result, model = _drive_fit(reader, smoothing, options, console, arrays, reference_index, detector.spec,
+                                   reader.world_description, reader.name, layout, pull.pull_px if pull is not None else 0.0)
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
-        if taught_path is not None:  # the 3D scene: the target and the taught path
+        if model.taught_path is not None:  # the 3D scene: the target and the taught path
             height = world.camera_height if world is not None else 0.0
             SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
@@ -307,28 +298,28 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     return FitSummary(output=options.output, model=model)
 
 
-def _segment_model(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
-                   reference_index: int, spec: DetectorSpec, world_description: dict[str, Any], name: str) -> FitModel:
+def _segment_model(*segment: Any) -> FitModel:
     """The fit model of one segment of a route (:mod:`.fit_route`), fitted as a single target's drive."""
-    calibration = _calibration_uncertainty(reader, reader.camera)
-    result = _fit(arrays, reference_index, reader.camera, smoothing, options, console, name, spec, calibration=calibration)
-    return fitted_model(result, arrays, reference_index, replace(spec, initial_pixels=result.initial_pixels), reader.camera,
-                        reader, world_description, options, console, calibration[0])
+    return _drive_fit(*segment)[1]
 
-def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_index: int, spec: DetectorSpec,
-                 camera: CameraIntrinsics, reader: Any, world_description: dict[str, Any] | None, options: FitOptions,
-                 console: Console, calibration: str, layout: np.ndarray | None = None) -> FitModel:
-    """The fit model of one target's drive (``arrays``: its frames, ``pose`` in its own world):
-    d* (25), the taught path, the suggested gains and the uncertainty beside ``result``'s splines.
-    A route's segments (:mod:`.fit_route`) are each one such model."""
+
+def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
+               reference_index: int, spec: DetectorSpec, world_description: dict[str, Any] | None, name: str,
+               layout: np.ndarray | None = None, image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
+    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model:
+    d* (25), the taught path, the suggested gains and the uncertainty beside the fit's splines."""
+    camera = reader.camera
+    calibration = _calibration_uncertainty(reader, camera)
+    result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration)
+    spec = replace(spec, initial_pixels=result.initial_pixels)
     taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
-    if calibration == "unstated" and result.uncertainty is not None:
+    if calibration[0] == "unstated" and result.uncertainty is not None:
         console.warn(f"the calibration states no standard deviations of its intrinsics, so n*'s band counts the image noise only: "
                      f"{UNSTATED_CALIBRATION_PROBE_PX:g} px of error on the principal point (and on fx, fy) would add "
                      f"{result.uncertainty.calibration_normal_sigma_deg:.1f} deg to n* (1 sigma); give teach ... --calibration FILE "
                      "with its std_deviations_intrinsics (docs/walkthrough.md)")
-    return FitModel(
+    return result, FitModel(
         target_kind=spec.kind,
         camera=camera,
         reference_index=reference_index,
@@ -349,7 +340,7 @@ def fitted_model(result: DesiredFit, arrays: dict[str, np.ndarray], reference_in
         taught_path=taught_path,
         render=_render_settings(reader),
         gains=_suggested_gains(result, camera),
-        uncertainty=result.uncertainty.summary(calibration) if result.uncertainty is not None else None,
+        uncertainty=result.uncertainty.summary(calibration[0]) if result.uncertainty is not None else None,
     )
 
 
@@ -543,14 +534,21 @@ def _render_settings(reader: Any) -> SensorSettings | None:
 AUTO_FRAMES = 5
 
 
+def _kind_options(options: FitOptions) -> list[str]:
+    """The kind options given: --marker-dict, --marker-id, --board."""
+    return [name for name in ("marker_dict", "marker_id", "board") if getattr(options, name) is not None]
+
+
 def _check_kind_options(options: FitOptions) -> None:
-    """--marker-dict, --marker-id and --board: only for a kind that takes them (or auto); a
-    known dictionary, an id in it, a board of at least 3x3 squares."""
-    given = [name for name in ("marker_dict", "marker_id", "board") if getattr(options, name) is not None]
-    refused = [name for name in given if options.target != "auto" and name not in target_kind(options.target).options]
-    if refused:
+    """The kind options: only for a kind that takes them (auto: for one kind that takes them all,
+    :func:`_detector_spec`); a known dictionary, an id in it, a board of at least 3x3 squares."""
+    given = _kind_options(options)
+    kinds = TARGET_KINDS.values() if options.target == "auto" else [target_kind(options.target)]
+    if not any(set(given) <= kind.options for kind in kinds):
+        refused = [name for name in given if options.target == "auto" or name not in target_kind(options.target).options]
         names = " and ".join("--" + name.replace("_", "-") for name in refused)
-        raise UsageError(f"{names} {'is' if len(refused) == 1 else 'are'} not for --target {options.target}")
+        raise UsageError(f"{names} {'is' if len(refused) == 1 else 'are'} not for --target {options.target}"
+                         + (" (no one kind takes them all: choose --target)" if options.target == "auto" else ""))
     if options.board is not None:
         parse_board(options.board)
     if options.marker_dict is None and options.marker_id is None:
@@ -571,12 +569,10 @@ def _detector_spec(
     ``sample()`` spreads over the whole drive, :mod:`.auto_target`, and says on stderr what
     it picked and why)."""
     kind = options.target
-    pinned_marker = options.marker_dict is not None or options.marker_id is not None
+    given = set(_kind_options(options))
     if kind == "auto" and world is None:
-        if options.board is not None:
-            kind = "charuco"
-        elif pinned_marker:
-            kind = "aruco"
+        if given:  # the first kind registered that takes them all (checked before): markers for --marker-dict alone
+            kind = next(name for name, taker in TARGET_KINDS.items() if given <= taker.options)
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
             spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731

@@ -287,6 +287,24 @@ def measure(frame: Any, sight: Any, model: Any, t: float) -> Any:
     return sight.observe(image, t)
 
 
+class LostWatch:
+    """--lost-timeout in a run's time (steps of ``dt`` s, or each its own): :meth:`stops` once the target
+    was lost longer, logging it on ``log``; :attr:`stopped` then says why the run stopped (else None)."""
+
+    def __init__(self, lost_timeout: float, dt: float, log: Any) -> None:
+        self.lost_timeout, self.dt, self.log = lost_timeout, dt, log
+        self.lost_for = 0.0
+        self.stopped: str | None = None
+
+    def stops(self, record: Any, dt: float | None = None) -> bool:
+        self.lost_for = self.lost_for + (self.dt if dt is None else dt) if record.lost else 0.0
+        if self.lost_for <= self.lost_timeout:
+            return False
+        self.log.event(record.t, LOG_ERROR, f"target lost for more than {self.lost_timeout:g} s: run stopped")
+        self.stopped = f"the target was lost for more than --lost-timeout {self.lost_timeout:g} s (at t = {record.t:.2f} s)"
+        return True
+
+
 class LiveStats:
     """What the status line shows of the last :data:`STATUS_WINDOW` steps: frame rate, latency, drops."""
 
@@ -460,7 +478,7 @@ class LiveLoop:
     def drive(self) -> None:
         """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
         period, duration = self.period, self.duration
-        lost_for = 0.0
+        lost = LostWatch(self.settings.lost_timeout, period, self.log)
         for record in run_servo(self, self.servo):
             frame, t = self.frame, record.t
             self.log.step(record)
@@ -470,10 +488,8 @@ class LiveLoop:
             self.stats.add(frame.arrival, self.latency, frame.skipped)
             if self.status is not None:
                 self.status(status_text(t, duration, record, self.stats))
-            lost_for = lost_for + self.dt if record.lost else 0.0
-            if lost_for > self.settings.lost_timeout:
-                self.stopped = f"the target was lost for more than --lost-timeout {self.settings.lost_timeout:g} s (at t = {t:.2f} s)"
-                self.run.event(t, LOG_ERROR, f"target lost for more than {self.settings.lost_timeout:g} s: run stopped")
+            if lost.stops(record, self.dt):
+                self.stopped = lost.stopped
                 return
 
     def _next_frame(self) -> Any:

@@ -39,7 +39,7 @@ from ..io.images import bytes_to_store
 from ..io.limits import step_count
 from ..io.live_view import live_writer
 from ..io.mcap import McapWriter, open_output, seconds_to_ns
-from ..io.messages import LOG_ERROR, LOG_INFO, LOG_WARNING
+from ..io.messages import LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
 from ..settings.commands import DEFAULT_GAINS, REPEAT, RepeatOptions
@@ -47,6 +47,7 @@ from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
+from .live import LostWatch
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_time_and_factor
@@ -303,7 +304,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
-            lost = _LostWatch(settings.lost_timeout, dt, log)
+            lost = LostWatch(settings.lost_timeout, dt, log)
             height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
             scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
@@ -321,24 +322,6 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                     if lost.stops(record):
                         break
     return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
-
-
-class _LostWatch:
-    """--lost-timeout in a simulation's time: :meth:`stops` once the target was lost longer,
-    logging it; :attr:`stopped` then says why the run stopped (else None)."""
-
-    def __init__(self, lost_timeout: float, dt: float, log: "_StepLog") -> None:
-        self.lost_timeout, self.dt, self.log = lost_timeout, dt, log
-        self.lost_for = 0.0
-        self.stopped: str | None = None
-
-    def stops(self, record: Any) -> bool:
-        self.lost_for = self.lost_for + self.dt if record.lost else 0.0
-        if self.lost_for <= self.lost_timeout:
-            return False
-        self.log.event(record.t, LOG_ERROR, f"target lost for more than {self.lost_timeout:g} s: run stopped")
-        self.stopped = f"the target was lost for more than --lost-timeout {self.lost_timeout:g} s (at t = {record.t:.2f} s)"
-        return True
 
 
 class _Tally:
@@ -539,4 +522,4 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
 
 #: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
 ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
-                              lost_watch=_LostWatch)
+                              lost_watch=LostWatch)

@@ -70,20 +70,16 @@ def report_row(report: RunReport) -> dict[str, Any]:
 
 def keep_file(source: str, destination: str) -> None:
     """Put ``source`` at ``destination`` whole or not at all, also across file systems."""
-    from ..io.output_target import partial_name_of
+    from ..io.output_target import replace_through_partial
 
-    final = Path(destination)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    partial = partial_name_of(final)
-    try:
+    def copy(partial: Path) -> None:
         with open(source, "rb") as reader, open(partial, "xb") as writer:
             shutil.copyfileobj(reader, writer, 1 << 20)
             writer.flush()
             os.fsync(writer.fileno())
-        os.replace(partial, final)
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
+
+    Path(destination).parent.mkdir(parents=True, exist_ok=True)
+    replace_through_partial(Path(destination), copy)
 
 
 def execute_run(task: RunTask) -> dict[str, Any]:
