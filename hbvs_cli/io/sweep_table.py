@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -220,7 +221,8 @@ def read_rows(folder: Path, columns: Sequence[str] | None = None) -> Any:
 
 class ResultsTable:
     """Appends rows as runs finish; a folder of another ``fingerprint`` is refused; a part is
-    written when ``flush_rows`` wait or ``flush_seconds`` after the last one."""
+    written with the first row, then when ``flush_rows`` wait or ``flush_seconds`` after the
+    last one."""
 
     def __init__(self, folder: Path, schema: Any, fingerprint: Mapping[str, Any], description: Mapping[str, Any] | None = None,
                  flush_rows: int = 256, flush_seconds: float = 2.0) -> None:
@@ -229,7 +231,9 @@ class ResultsTable:
         self.flush_rows = flush_rows
         self.flush_seconds = flush_seconds
         self._buffer: list[dict[str, Any]] = []
-        self._last_flush = time.monotonic()
+        # The first row is written at once: however fast the runs, a kill soon after the
+        # start keeps it, and a user sees the sweep's first result on disk.
+        self._last_flush = -math.inf
         self._lock: FolderLock | None = None
         try:
             self._open(dict(fingerprint), dict(description or {}))
