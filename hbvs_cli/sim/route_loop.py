@@ -12,7 +12,9 @@ the new segment. The Lyapunov function (36) holds per segment.
 
 from __future__ import annotations
 
-from dataclasses import fields
+import copy
+
+from dataclasses import fields, replace
 from typing import Any, Iterator, Sequence
 
 import numpy as np
@@ -21,11 +23,12 @@ from numpy.typing import ArrayLike, NDArray
 from ..core.control_settings import ControllerGains
 from ..core.controller import AdaptiveTrackingController, DesiredState
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
-from ..core.route import RouteFit
-from ..core.simulator import ActuatorLimits, StepRecord
+from ..core.route import RouteFit, Transition
+from ..core.servo_loop import ServoInput, run_servo
+from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
-from .closed_loop import run_closed_loop
+from .closed_loop import SimulatedRobot
 from .route_world import RouteWorld
 
 
@@ -43,14 +46,24 @@ def switch_times(fitted: RouteFit, t: ArrayLike, fraction: float = SWITCH_FRACTI
     return np.array([(1.0 - fraction) * t[segment.first] + fraction * t[segment.overlap_last] for segment in fitted.segments[1:]])
 
 
-class RouteTrajectory:
-    """The desired signals of a route: segment k's (against its F*_k) from switch k - 1 to switch k."""
+#: Seconds over which a switch's discrepancy between the segments' desired signals fades out.
+SWITCH_FADE_S = 3.0
 
-    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike) -> None:
+
+class RouteTrajectory:
+    """The desired signals of a route: segment k's (against its F*_k) from switch k - 1 to
+    switch k (:meth:`evaluate`); :meth:`hand_over` and :meth:`blended` make the law's error
+    continuous across a switch."""
+
+    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike, fade: float = SWITCH_FADE_S) -> None:
         self.trajectories = list(trajectories)
         self.switches = np.asarray(switches, dtype=float)
         self.t_start = float(self.trajectories[0].t_start)
         self.t_end = float(self.trajectories[-1].t_end)
+        self.fade = fade
+        #: Per switch made: its time (s), its fade's length (s) and the discrepancy faded out
+        #: (DesiredState's fields: theta_d, x_hd, their rates).
+        self.fades: list[tuple[float, float, NDArray[np.float64]]] = []
 
     def segment_at(self, t: ArrayLike) -> NDArray[np.intp]:
         """The segment in force at times ``t`` (s)."""
@@ -70,6 +83,53 @@ class RouteTrajectory:
         values = [column.reshape(t.shape) for column in columns.values()]
         return DesiredState(*(float(value) if value.ndim == 0 else value for value in values))
 
+    def hand_over(self, segment: int, t: float, transition: Transition, before: ArrayLike | None = None,
+                  after: ArrayLike | None = None) -> None:
+        """The switch to ``segment`` at ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
+        against F*_{k-1}, ``before`` (none: the desired state), and the one it will see against
+        F*_k, ``after`` (none: ``before`` carried by ``transition``,
+        :meth:`~hbvs_cli.core.route.Transition.in_next`). The discrepancy it stores, faded out by
+        :meth:`blended`, keeps e1, e3 (19) and ebar2 (27), V's (36) terms, what they were: it
+        holds the two fits' and the transition's disagreement, the error's new scale (d*_k) and
+        lever (F*_k's origin) and what the first frame of the new target corrected."""
+        old, new = self.trajectories[segment - 1].evaluate(t), self.trajectories[segment].evaluate(t)
+        desired = np.array((old.theta_d, old.x_hd1, old.x_hd2), dtype=float)
+        before = desired if before is None else np.asarray(before, dtype=float)
+        if after is None:
+            theta, x_h, _ = transition.in_next(before[0], before[1:])
+            after = np.array((theta, *x_h))
+        e3, e1, e2 = before - desired  # (theta, x_h1, x_h2) order
+        theta_d, x_hd1 = after[0] - e3, after[1] - e1
+        x_hd2 = after[2] - (e2 - desired[1] * e3) - x_hd1 * e3
+        # The old desired rates in F*_k: the time derivative of in_next's x_h.
+        lever = transition.in_next(desired[0], desired[1:])[2]
+        rates = np.array((old.x_hd1_dot, old.x_hd2_dot)) / transition.depth_ratio + lever * old.theta_d_dot
+        carried = np.array((theta_d, x_hd1, x_hd2, old.theta_d_dot, *rates), dtype=float)
+        discrepancy = carried - [float(getattr(new, field.name)) for field in fields(DesiredState)]
+        ends = self.switches[segment:]
+        self.fades.append((t, min(self.fade, (ends[0] if ends.size else np.inf) - t), discrepancy))
+
+    def blended(self, desired: DesiredState, t: float) -> DesiredState:
+        """``desired`` (this route's at ``t``, s) plus what is left of each switch's discrepancy:
+        ``1 - 3 tau^2 + 2 tau^3`` of it (tau the fade's fraction gone), from 1 to 0 with zero
+        slope at both ends, and its rate added to the desired rates."""
+        values = np.array([getattr(desired, field.name) for field in fields(DesiredState)], dtype=float)
+        for start, length, discrepancy in self.fades:
+            tau = (t - start) / length
+            if 0.0 <= tau < 1.0:
+                values += (1.0 - 3.0 * tau**2 + 2.0 * tau**3) * discrepancy
+                values[3:] += 6.0 * (tau**2 - tau) / length * discrepancy[:3]
+        return DesiredState(*values.tolist())
+
+
+class RouteRobot(SimulatedRobot):
+    """The simulated robot along a route: its frames' desired states :meth:`RouteTrajectory.blended`
+    (each sensed, so each switch made, before its desired state is handed to the law)."""
+
+    def __iter__(self) -> Iterator[ServoInput]:
+        for step in super().__iter__():
+            yield replace(step, desired=self.trajectory.blended(step.desired, step.t))
+
 
 class RouteCamera:
     """What the robot sees along a route: the target of the segment in force, its exact pixels
@@ -86,11 +146,13 @@ class RouteCamera:
         self.route, self.fitted, self.trajectory, self.controller = route, fitted, trajectory, controller
         self.orders = orders
         self.gains = gains
-        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal) for fit in fitted.fits]
+        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal, converge=True) for fit in fitted.fits]
         self.pixel_noise = pixel_noise
         self.rng = np.random.default_rng(seed)
         self.active = 0
         self.switches: list[tuple[float, int, float, float]] = []
+        #: The control period (s), at which the loop's filter fuses frames.
+        self.dt = 0.0
         #: One state filter per segment, when run with filters (:func:`run_route`).
         self.filters: SegmentFilters | None = None
 
@@ -104,9 +166,17 @@ class RouteCamera:
             self.active += 1
             if self.gains is not None:
                 self.controller.gains = self.gains[self.active]
-            if self.filters is not None:
-                self.filters.switch(self.active, self.controller.dhat)
+            estimate = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
             self.switches.append((t, self.active, before, self.controller.dhat))
+        observation = self._measure(pose)
+        if self.switches and self.switches[-1][0] == t:
+            # The law's first estimate against the new F*: the carried one, corrected by this frame.
+            after = None if self.filters is None else self.filters.preview(observation, self.dt)
+            self.trajectory.hand_over(self.active, t, transition, estimate, after)
+        return observation
+
+    def _measure(self, pose: NDArray[np.float64]) -> Observation:
+        """The active segment's target seen from ``pose``, through its estimator."""
         target = self.fitted.segments[self.active].target
         world = self.route.worlds[target]
         local = self.route.local_pose(target, pose)
@@ -131,11 +201,13 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
     :class:`RouteCamera` takes them."""
     trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
     camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
+    camera.dt = dt
     if gains is not None:
         controller.gains = gains[0]
     if filter_noise is not None:
         camera.filters = SegmentFilters([ServoStateFilter(fit.m_ref, fit.normal, noise) for fit, noise in zip(fitted.fits, filter_noise)])
-    return camera, run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, limits, state_filter=camera.filters)
+    robot = RouteRobot(camera.observe, trajectory, start_pose, dt, duration)
+    return camera, run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), state_filter=camera.filters))
 
 
 class SegmentFilters:
@@ -146,10 +218,29 @@ class SegmentFilters:
         self.filters = list(filters)
         self.active = 0
 
-    def switch(self, segment: int, dhat: float) -> None:
-        """Hand the loop segment ``segment``'s filter, its depth started at ``dhat`` (m)."""
-        self.active = segment
-        self.filters[segment].expect_depth(dhat)
+    def switch(self, segment: int, dhat: float, transition: Transition) -> NDArray[np.float64] | None:
+        """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
+        carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
+        or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target
+        is still small and far, and a restart from its first frames would jump. The last
+        one's (theta, x_h1, x_h2), or None."""
+        before, self.active = self.filters[self.active], segment
+        if before.full_state is None:
+            self.filters[segment].expect_depth(dhat)
+            return None
+        state, covariance = before.full_state
+        carried, spread = transition.carried_state(state, covariance)
+        reference = transition.carried_state(state, np.zeros((4, 4)))[1]
+        self.filters[segment].take_over(carried, spread, before, np.sqrt(np.maximum(np.diag(spread - reference)[:3], 0.0)))
+        return state[:3]
+
+    def preview(self, observation: Observation, dt: float) -> NDArray[np.float64] | None:
+        """The active filter's (theta, x_h1, x_h2) once ``observation`` is fused, ``dt`` (s)
+        after its last frame (as the loop will fuse it), the filter itself left as it is."""
+        trial = copy.deepcopy(self.filters[self.active])
+        if observation.status == ObservationStatus.OK:
+            trial.correct(observation.measurement, observation.residual, dt)
+        return trial.state
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.filters[self.__dict__["active"]], name)
