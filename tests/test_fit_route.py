@@ -142,3 +142,24 @@ def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_lear
     assert all(segment["relative_error"] < 0.01 for segment in segments)
     assert all(segment["V_end"] < segment["V_start"] for segment in segments)
     assert [round(segment["t_start"], 6) for segment in segments[1:]] == pytest.approx(run.info["route"]["switch_times"], abs=1 / RATE)
+    assert_route_report_fits_80_columns(run)
+
+
+def assert_route_report_fits_80_columns(run) -> None:
+    """The report at 80 columns in a terminal: whole, its d* line every segment's true d*_i (not
+    only the last's) and its relative-error line every segment's, as the route table has them."""
+    from hbvs_cli.report.build import build_report
+    from hbvs_cli.report.table import format_value, print_report_tables
+
+    from test_report_width import WIDTH, assert_whole, console_at
+
+    report = build_report(run)
+    console, buffer = console_at(WIDTH, True)
+    print_report_tables([report], buffer, console=console)
+    depths = [format_value(float(depth)) for depth in run.info["route"]["d_true"]]
+    errors = [format_value(segment.relative_error) for segment in report.route]
+    assert len(depths) == len(report.route) >= 2
+    assert assert_whole(buffer.getvalue(), depths + errors) == 2 * len(depths)
+    lines = buffer.getvalue().splitlines()
+    assert any(line.count(",") == len(depths) - 1 and all(depth in line for depth in depths) for line in lines if "d* true" in line)
+    assert any(all(error in line for error in errors) for line in lines if "dhat relative error" in line)
