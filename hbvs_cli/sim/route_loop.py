@@ -1,19 +1,21 @@
 """``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
-one loop (:func:`~hbvs_cli.sim.closed_loop.run_closed_loop`, so
-:func:`~hbvs_cli.core.servo_loop.run_servo`).
+one loop (:func:`~hbvs_cli.core.servo_loop.run_servo`, the simulated robot of
+:mod:`.closed_loop`).
 
 Segment k runs against its own F*_k: its desired signals (Remark 1) and its target's
 measurement (14) through its own n*_k. At the switch to k + 1 (a taught instant late in the
 overlap, where both targets were seen) the desired signals and the measurement change
 reference together, and the adaptive estimate (31) carries over as ``rho_k dhat``
 (:meth:`~hbvs_cli.core.route.Transition.carried_depth`), so the law goes on with the depth of
-the new segment. The Lyapunov function (36) holds per segment.
+the new segment. Nothing the law sees jumps: the state filter goes on from the last
+segment's estimate carried by the transition, and the discrepancy between what e1, e3 (19)
+and ebar2 (27) were and would be against F*_{k+1} fades out over :data:`SWITCH_FADE_S`
+(:meth:`RouteTrajectory.hand_over`). The Lyapunov function (36) holds per segment.
 """
 
 from __future__ import annotations
 
 import copy
-
 from dataclasses import fields, replace
 from typing import Any, Iterator, Sequence
 
@@ -33,8 +35,8 @@ from .route_world import RouteWorld
 
 
 #: Where in an overlap a repeat switches (0: as soon as the next target is seen well, 1: as the
-#: last one leaves): late, the next target large (bench/route_corridor.py: 8 of 10 seeds within
-#: 2 cm at 0.9, 5 at 0.5).
+#: last one leaves): late, the next target large (bench/route_corridor.py, before the
+#: hand-over of the filter: 8 of 10 seeds within 2 cm at 0.9, 5 at 0.5).
 SWITCH_FRACTION = 0.9
 
 
@@ -196,9 +198,8 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
     """The closed loop along ``route`` from ``start_pose`` (x, y, phi in its frame R), one
     :class:`~hbvs_cli.core.simulator.StepRecord` per period ``dt`` (s) for ``duration`` (s);
     the camera keeps the log of the switches. ``filter_noise`` (normalised units, one per
-    segment): a state filter per segment, each new one started at the carried dhat, whose soft
-    start fades its feedback in from the taught commands: what smooths a switch. ``orders``: as
-    :class:`RouteCamera` takes them."""
+    segment): a state filter per segment, each going on from the last one's estimate
+    (:meth:`SegmentFilters.switch`). ``orders``: as :class:`RouteCamera` takes them."""
     trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
     camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
     camera.dt = dt
