@@ -15,7 +15,6 @@ and ebar2 (27) were and would be against F*_{k+1} fades out over :data:`SWITCH_F
 
 from __future__ import annotations
 
-import copy
 from dataclasses import fields, replace
 from typing import Any, Iterator, Sequence
 
@@ -23,12 +22,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.control_settings import ControllerGains
-from ..core.controller import AdaptiveTrackingController, DesiredState
+from ..core.controller import AdaptiveTrackingController, DesiredState, Measurement
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
 from ..core.route import RouteFit, Transition
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.state_filter import ServoStateFilter
+from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
 from .closed_loop import SimulatedRobot
 from .route_world import RouteWorld
@@ -90,10 +89,10 @@ class RouteTrajectory:
         """The switch to ``segment`` at ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
         against F*_{k-1}, ``before`` (none: the desired state), and the one it will see against
         F*_k, ``after`` (none: ``before`` carried by ``transition``,
-        :meth:`~hbvs_cli.core.route.Transition.in_next`). The discrepancy it stores, faded out by
-        :meth:`blended`, keeps e1, e3 (19) and ebar2 (27), V's (36) terms, what they were: it
-        holds the two fits' and the transition's disagreement, the error's new scale (d*_k) and
-        lever (F*_k's origin) and what the first frame of the new target corrected."""
+        :meth:`~hbvs_cli.core.route.Transition.in_next`; :meth:`SegmentFilters.switch`'s). The
+        discrepancy it stores, faded out by :meth:`blended`, keeps e1, e3 (19) and ebar2 (27),
+        V's (36) terms, what they were: it holds the two fits' and the transition's
+        disagreement, and the error's new scale (d*_k) and lever (F*_k's origin)."""
         old, new = self.trajectories[segment - 1].evaluate(t), self.trajectories[segment].evaluate(t)
         desired = np.array((old.theta_d, old.x_hd1, old.x_hd2), dtype=float)
         before = desired if before is None else np.asarray(before, dtype=float)
@@ -153,8 +152,6 @@ class RouteCamera:
         self.rng = np.random.default_rng(seed)
         self.active = 0
         self.switches: list[tuple[float, int, float, float]] = []
-        #: The control period (s), at which the loop's filter fuses frames.
-        self.dt = 0.0
         #: One state filter per segment, when run with filters (:func:`run_route`).
         self.filters: SegmentFilters | None = None
 
@@ -168,14 +165,10 @@ class RouteCamera:
             self.active += 1
             if self.gains is not None:
                 self.controller.gains = self.gains[self.active]
-            estimate = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
+            estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
+            self.trajectory.hand_over(self.active, t, transition, *(estimates or ()))
             self.switches.append((t, self.active, before, self.controller.dhat))
-        observation = self._measure(pose)
-        if self.switches and self.switches[-1][0] == t:
-            # The law's first estimate against the new F*: the carried one, corrected by this frame.
-            after = None if self.filters is None else self.filters.preview(observation, self.dt)
-            self.trajectory.hand_over(self.active, t, transition, estimate, after)
-        return observation
+        return self._measure(pose)
 
     def _measure(self, pose: NDArray[np.float64]) -> Observation:
         """The active segment's target seen from ``pose``, through its estimator."""
@@ -202,7 +195,6 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
     (:meth:`SegmentFilters.switch`). ``orders``: as :class:`RouteCamera` takes them."""
     trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
     camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
-    camera.dt = dt
     if gains is not None:
         controller.gains = gains[0]
     if filter_noise is not None:
@@ -213,18 +205,25 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
 
 class SegmentFilters:
     """The state filter of the segment in force: one :class:`~hbvs_cli.core.state_filter.ServoStateFilter`
-    per segment (each estimates against its own F*), the loop seeing the active one."""
+    per segment (each estimates against its own F*), the loop seeing the active one. For
+    ``fade`` s after a switch the law's estimate leaves out ``1 - 3 tau^2 + 2 tau^3`` of what the
+    new target's frames corrected of the carried one (tau the fade's fraction gone): what the
+    transition got wrong comes in as smoothly as :meth:`RouteTrajectory.blended` fades the
+    desired signals' discrepancy, not in the first few frames."""
 
-    def __init__(self, filters: Sequence[ServoStateFilter]) -> None:
+    def __init__(self, filters: Sequence[ServoStateFilter], fade: float = SWITCH_FADE_S) -> None:
         self.filters = list(filters)
         self.active = 0
+        self.fade = fade
+        #: Seconds since the last switch, and the corrections (theta, x_h1, x_h2) fused since.
+        self.since, self.corrections = np.inf, np.zeros(3)
 
-    def switch(self, segment: int, dhat: float, transition: Transition) -> NDArray[np.float64] | None:
+    def switch(self, segment: int, dhat: float, transition: Transition) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
         carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
         or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target
         is still small and far, and a restart from its first frames would jump. The last
-        one's (theta, x_h1, x_h2), or None."""
+        one's (theta, x_h1, x_h2) and the carried ones, or None."""
         before, self.active = self.filters[self.active], segment
         if before.full_state is None:
             self.filters[segment].expect_depth(dhat)
@@ -233,15 +232,34 @@ class SegmentFilters:
         carried, spread = transition.carried_state(state, covariance)
         reference = transition.carried_state(state, np.zeros((4, 4)))[1]
         self.filters[segment].take_over(carried, spread, before, np.sqrt(np.maximum(np.diag(spread - reference)[:3], 0.0)))
-        return state[:3]
+        self.since, self.corrections = 0.0, np.zeros(3)
+        return state[:3], carried[:3]
 
-    def preview(self, observation: Observation, dt: float) -> NDArray[np.float64] | None:
-        """The active filter's (theta, x_h1, x_h2) once ``observation`` is fused, ``dt`` (s)
-        after its last frame (as the loop will fuse it), the filter itself left as it is."""
-        trial = copy.deepcopy(self.filters[self.active])
-        if observation.status == ObservationStatus.OK:
-            trial.correct(observation.measurement, observation.residual, dt)
-        return trial.state
+    def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
+        """The active filter's :meth:`~hbvs_cli.core.state_filter.ServoStateFilter.correct`, what it moved kept while fading."""
+        active = self.filters[self.active]
+        before = active.state
+        outcome = active.correct(measured, residual, dt)
+        if before is not None and self.since < self.fade:
+            self.corrections += active.state - before
+        return outcome
+
+    def predict(self, v: float, w: float, dt: float) -> None:
+        """The active filter's prediction; the kept corrections turn with the camera, as x_h does (5), (23)."""
+        self.filters[self.active].predict(v, w, dt)
+        c, s = np.cos(w * dt), np.sin(w * dt)
+        self.corrections[1:] = c * self.corrections[1] + s * self.corrections[2], -s * self.corrections[1] + c * self.corrections[2]
+        self.since += dt
+
+    def estimate(self, commands: Any, dt: float, depth: float | None, command: tuple[float, float]) -> FilterEstimate | None:
+        """The active filter's estimate for the law, less what is left of the corrections since the switch."""
+        estimate = self.filters[self.active].estimate(commands, dt, depth, command)
+        if estimate is None or self.since >= self.fade:
+            return estimate
+        tau = self.since / self.fade
+        theta, x_h1, x_h2 = (estimate.measurement.theta, estimate.measurement.x_h1, estimate.measurement.x_h2) - (
+            1.0 - 3.0 * tau**2 + 2.0 * tau**3) * self.corrections
+        return replace(estimate, measurement=Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.filters[self.__dict__["active"]], name)
