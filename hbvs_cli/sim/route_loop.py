@@ -51,6 +51,12 @@ def switch_times(fitted: RouteFit, t: ArrayLike, fraction: float = SWITCH_FRACTI
 SWITCH_FADE_S = 3.0
 
 
+def fading(tau: float) -> float:
+    """The share left of what a switch fades out, the fraction ``tau`` (0-1) into its fade:
+    ``1 - 3 tau^2 + 2 tau^3``, from 1 to 0 with zero slope at both ends (C1)."""
+    return 1.0 - 3.0 * tau**2 + 2.0 * tau**3
+
+
 class RouteTrajectory:
     """The desired signals of a route: segment k's (against its F*_k) from switch k - 1 to
     switch k (:meth:`evaluate`); :meth:`hand_over` and :meth:`blended` make the law's error
@@ -111,14 +117,13 @@ class RouteTrajectory:
         self.fades.append((t, min(self.fade, (ends[0] if ends.size else np.inf) - t), discrepancy))
 
     def blended(self, desired: DesiredState, t: float) -> DesiredState:
-        """``desired`` (this route's at ``t``, s) plus what is left of each switch's discrepancy:
-        ``1 - 3 tau^2 + 2 tau^3`` of it (tau the fade's fraction gone), from 1 to 0 with zero
-        slope at both ends, and its rate added to the desired rates."""
+        """``desired`` (this route's at ``t``, s) plus what is left of each switch's discrepancy
+        (:func:`fading`), its rate added to the desired rates."""
         values = np.array([getattr(desired, field.name) for field in fields(DesiredState)], dtype=float)
         for start, length, discrepancy in self.fades:
             tau = (t - start) / length
             if 0.0 <= tau < 1.0:
-                values += (1.0 - 3.0 * tau**2 + 2.0 * tau**3) * discrepancy
+                values += fading(tau) * discrepancy
                 values[3:] += 6.0 * (tau**2 - tau) / length * discrepancy[:3]
         return DesiredState(*values.tolist())
 
@@ -206,10 +211,10 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
 class SegmentFilters:
     """The state filter of the segment in force: one :class:`~hbvs_cli.core.state_filter.ServoStateFilter`
     per segment (each estimates against its own F*), the loop seeing the active one. For
-    ``fade`` s after a switch the law's estimate leaves out ``1 - 3 tau^2 + 2 tau^3`` of what the
-    new target's frames corrected of the carried one (tau the fade's fraction gone): what the
-    transition got wrong comes in as smoothly as :meth:`RouteTrajectory.blended` fades the
-    desired signals' discrepancy, not in the first few frames."""
+    ``fade`` s after a switch the law's estimate leaves out the :func:`fading` share of what the
+    new target's frames corrected of the carried one: what the transition got wrong comes in
+    as smoothly as :meth:`RouteTrajectory.blended` fades the desired signals' discrepancy,
+    not in the first few frames."""
 
     def __init__(self, filters: Sequence[ServoStateFilter], fade: float = SWITCH_FADE_S) -> None:
         self.filters = list(filters)
@@ -256,9 +261,8 @@ class SegmentFilters:
         estimate = self.filters[self.active].estimate(commands, dt, depth, command)
         if estimate is None or self.since >= self.fade:
             return estimate
-        tau = self.since / self.fade
-        theta, x_h1, x_h2 = (estimate.measurement.theta, estimate.measurement.x_h1, estimate.measurement.x_h2) - (
-            1.0 - 3.0 * tau**2 + 2.0 * tau**3) * self.corrections
+        measured = estimate.measurement
+        theta, x_h1, x_h2 = (measured.theta, measured.x_h1, measured.x_h2) - fading(self.since / self.fade) * self.corrections
         return replace(estimate, measurement=Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2))
 
     def __getattr__(self, name: str) -> Any:
