@@ -1,5 +1,6 @@
 """The corridor route in closed loop (issue 47): position error along the route, its maximum
-around each switch, the depth estimate's relative error per segment, the end pose; exact
+around each switch, how much the law's errors and commands step at a switch, the depth
+estimate's relative error per segment, the end pose; exact
 measurements, then seeds 0-9 with 0.1 px of noise on the taught pixels (a detector's on
 rendered frames, as bench/CALIBRATION.md takes it) and 0.5 px on the repeat's.
 
@@ -27,8 +28,9 @@ from hbvs_cli.sim.route_loop import run_route, switch_times
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 from hbvs_cli.stages.options import parse_offset
 
-#: Taught frame period (s), control period (s), seconds either side of a switch, dhat(0) / d*_0.
-TAUGHT_STEP, DT, AROUND_SWITCH_S, DHAT0_FACTOR = 0.2, 1.0 / 30.0, 1.0, 1.2
+#: Taught frame period (s), control period (s), seconds either side of a switch, dhat(0) / d*_0,
+#: seconds after which the start offset's transient is over.
+TAUGHT_STEP, DT, AROUND_SWITCH_S, DHAT0_FACTOR, SETTLED_S = 0.2, 1.0 / 30.0, 1.0, 1.2, 5.0
 #: Pixel noise (px, 1 sigma) of the taught frames' detections and of the repeat's.
 TEACH_NOISE_PX, REPEAT_NOISE_PX = 0.1, 0.5
 
@@ -60,9 +62,14 @@ def corridor_run(teach_noise: float, pixel_noise: float, seed: int) -> dict:
     in_force = np.searchsorted(switches, t, side="right")
     dhat = np.array([r.dhat for r in records])
     ends = [np.flatnonzero(in_force == k)[-1] for k in range(len(depths))]
+    # Each switch's step from the frame before: the law's e1, e3, ebar2 (V's (36) terms), then v_c, w_c.
+    steps = [[abs(getattr(b.output.errors, n) - getattr(a.output.errors, n)) for n in ("e1", "e3", "ebar2")]
+             + [abs(b.v_c - a.v_c), abs(b.w_c - a.w_c)] if a.output is not None and b.output is not None else [np.nan] * 5
+             for a, b in (records[k - 1:k + 1] for k in np.searchsorted(t, switches - 1e-9))]
     return {
         "t": t, "error": error, "switches": switches, "dhat_over_d": dhat / depths[in_force],
         "end_cm": 100.0 * error[-1], "end_deg": abs(float(np.degrees(wrap_angle(pose[-1, 2] - taught[-1, 2])))),
+        "along_cm": 100.0 * error[t >= SETTLED_S].max(), "switch_steps": np.array(steps),
         "at_switch_cm": [100.0 * error[np.abs(t - s) <= AROUND_SWITCH_S].max() for s in switches],
         "depth_error": [dhat[k] / depths[i] - 1.0 for i, k in enumerate(ends)],
         "rho_error": [tr.depth_ratio / (b / a) - 1.0 for tr, a, b in zip(fitted.transitions, depths, depths[1:])],
@@ -76,13 +83,19 @@ def main() -> None:
     args = parser.parse_args()
     exact = corridor_run(0.0, 0.0, 0)
     noisy = [corridor_run(TEACH_NOISE_PX, REPEAT_NOISE_PX, seed) for seed in range(args.seeds)]
-    print("| case | end (cm / deg) | max error within 1 s of switch 1, 2, 3 (cm) | dhat / d*_i - 1 at the end of segments 0-3 (%) | rho error 1-3 (%) |")
-    print("|---|---|---|---|---|")
+    print(f"| case | end (cm / deg) | max error after {SETTLED_S:g} s (cm) | max error within 1 s of switch 1, 2, 3 (cm) "
+          "| dhat / d*_i - 1 at the end of segments 0-3 (%) | rho error 1-3 (%) |")
+    print("|---|---|---|---|---|---|")
     for name, run in [("exact", exact)] + [(f"noisy, seed {seed}", run) for seed, run in enumerate(noisy)]:
-        print(f"| {name} | {run['end_cm']:.2f} / {run['end_deg']:.3f} | {', '.join(f'{v:.1f}' for v in run['at_switch_cm'])} | "
+        print(f"| {name} | {run['end_cm']:.2f} / {run['end_deg']:.3f} | {run['along_cm']:.1f} | {', '.join(f'{v:.1f}' for v in run['at_switch_cm'])} | "
               f"{', '.join(f'{100 * v:+.1f}' for v in run['depth_error'])} | {', '.join(f'{100 * v:+.1f}' for v in run['rho_error'])} |")
     converged = sum(run["end_cm"] < 2.0 and run["end_deg"] < 0.5 for run in noisy)
     print(f"\n{TEACH_NOISE_PX} px taught, {REPEAT_NOISE_PX} px repeat: {converged} of {len(noisy)} end within 2 cm and 0.5 deg")
+    for name, runs in (("exact", [exact]), ("noisy", noisy)):
+        worst = np.nanmax([run["switch_steps"] for run in runs], axis=(0, 1))
+        print(f"{name}: largest step at a switch of e1 {worst[0]:.1e}, e3 {worst[1]:.1e} rad, ebar2 {worst[2]:.1e}, "
+              f"v_c {worst[3]:.4f} m/s, w_c {worst[4]:.4f} rad/s; frames without the law's output there: "
+              f"{sum(int(np.isnan(run['switch_steps'][:, 0]).sum()) for run in runs)}")
     if args.plot:
         import matplotlib
 

@@ -81,6 +81,25 @@ def test_the_transition_is_exact_from_exact_signals_on_every_corridor_overlap():
         np.testing.assert_allclose(transition.origin_over_depth, true_origin, atol=1e-9)
         assert transition.residual_rms < 1e-12
         assert transition.carried_depth(d_i) == pytest.approx(d_j, rel=1e-9)
+        # A state filter's (theta, x_h, 1/d*) against F*_i, carried: the same pose against F*_{i+1}.
+        for k in (0, overlap.shape[0] // 2, overlap.shape[0] - 1):
+            carried, covariance = transition.carried_state((theta_i[k], *x_h_i[k], 1.0 / d_i), np.eye(4) * 1e-6)
+            np.testing.assert_allclose(carried, (theta_j[k], *x_h_j[k], 1.0 / d_j), atol=1e-9)
+            assert np.all(np.linalg.eigvalsh(covariance) > 0.0)
+
+
+def test_correlation_inflation_is_one_for_white_residuals_and_the_ar1_factor_for_smooth_ones():
+    """White residuals: 1 (measured 1.00); an AR(1) series with r = 0.9, (1 + r) / (1 - r) = 19
+    within 10 % (the variance of its mean over 20 000 frames is 19x that of white noise)."""
+    from hbvs_cli.core.route import correlation_inflation
+
+    rng = np.random.default_rng(3)
+    assert correlation_inflation(rng.normal(size=(20000, 2))) == pytest.approx(1.0, abs=0.05)
+    smooth = np.zeros((20000, 2))
+    for k in range(1, smooth.shape[0]):
+        smooth[k] = 0.9 * smooth[k - 1] + rng.normal(size=2)
+    assert correlation_inflation(smooth) == pytest.approx(19.0, rel=0.1)
+    assert correlation_inflation(np.ones((10, 2))) == 1.0 and correlation_inflation(smooth[:2]) == 1.0
 
 
 def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():

@@ -130,9 +130,9 @@ def test_a_route_fit_without_a_followable_target_says_where_the_route_has_a_gap(
 def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_learning_each_segments_depth(extent, request):
     """``teach --sim --route corridor | fit | repeat --sim | report`` through pipes, teach and repeat
     seed 0, the repeat's default start offset and noise-free points. Suite: its first 16 s (dots,
-    then the board), measured 0.30 cm and 0.10 deg at the last step, dhat within 0.16 % and
-    0.06 % of each segment's d* at its end. Campaign: the whole corridor at 30 Hz (four
-    segments), measured 0.44 cm, 0.010 deg; dhat within 0.76, 0.03, 0.11 and 0.03 %."""
+    then the board), measured 0.57 cm and 0.076 deg at the last step, dhat within 0.14 % and
+    0.16 % of each segment's d* at its end. Campaign: the whole corridor at 30 Hz (four
+    segments), measured 0.44 cm, 0.010 deg; dhat within 0.76, 0.02, 0.10 and 0.03 %."""
     whole = campaign_extent(request, extent)
     span = () if whole else ("--duration", "16", "--fps", str(RATE))
     teach = call_hbvs("teach", "--sim", "--route", "corridor", *span, "-o", "-")
@@ -146,5 +146,31 @@ def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_lear
     segments = json.loads(report.stdout)["route"]
     assert [segment["target_kind"] for segment in segments] == (["dots", "aruco", "texture", "texture"] if whole else ["dots", "aruco"])
     assert all(segment["relative_error"] < 0.01 for segment in segments)
-    assert all(segment["V_end"] < segment["V_start"] for segment in segments)
+    # V (36) is continuous across a switch (the hand-over), so it falls from its peak within each
+    # segment, not from its start: measured 54, 2300, 84 and 450 times on the whole corridor, 620
+    # and 18 on its first 16 s.
+    bounds = [0, *np.searchsorted(run.state["t"], run.info["route"]["switch_times"]), run.state["t"].size]
+    for segment, first, end in zip(segments, bounds, bounds[1:]):
+        assert segment["V_end"] < 0.1 * np.nanmax(run.state["V"][first:end])
     assert [round(segment["t_start"], 6) for segment in segments[1:]] == pytest.approx(run.info["route"]["switch_times"], abs=1 / RATE)
+    assert_route_report_fits_80_columns(run)
+
+
+def assert_route_report_fits_80_columns(run) -> None:
+    """The report at 80 columns in a terminal: whole, its d* line every segment's true d*_i (not
+    only the last's) and its relative-error line every segment's, as the route table has them."""
+    from hbvs_cli.report.build import build_report
+    from hbvs_cli.report.table import format_value, print_report_tables
+
+    from test_report_width import WIDTH, assert_whole, console_at
+
+    report = build_report(run)
+    console, buffer = console_at(WIDTH, True)
+    print_report_tables([report], buffer, console=console)
+    depths = [format_value(float(depth)) for depth in run.info["route"]["d_true"]]
+    errors = [format_value(segment.relative_error) for segment in report.route]
+    assert len(depths) == len(report.route) >= 2
+    assert assert_whole(buffer.getvalue(), depths + errors) == 2 * len(depths)
+    lines = buffer.getvalue().splitlines()
+    assert any(line.count(",") == len(depths) - 1 and all(depth in line for depth in depths) for line in lines if "d* true" in line)
+    assert any(all(error in line for error in errors) for line in lines if "dhat relative error" in line)

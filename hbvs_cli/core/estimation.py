@@ -64,9 +64,10 @@ def dropped() -> Observation:
 class PlanarPoseEstimator:
     """(theta, x_h) from one frame's target pixels, for m*_i ``m_ref`` (N, 3) and n* ``normal``."""
 
-    def __init__(self, camera: CameraIntrinsics, m_ref: ArrayLike, normal: ArrayLike, residual_gate: float = DEFAULT_RESIDUAL_GATE) -> None:
+    def __init__(self, camera: CameraIntrinsics, m_ref: ArrayLike, normal: ArrayLike, residual_gate: float = DEFAULT_RESIDUAL_GATE,
+                 converge: bool = False) -> None:
         self.camera = camera
-        self.solver = KnownNormalSolver(m_ref, normal)
+        self.solver = KnownNormalSolver(m_ref, normal, converge=converge)
         self.m_ref = self.solver.m_ref
         self.normal = self.solver.normal
         self.residual_gate = float(residual_gate)

@@ -112,6 +112,34 @@ class Transition:
         """The adaptive estimate (31) of d*_i carried over to segment i+1 (m): rho dhat."""
         return self.depth_ratio * float(dhat)
 
+    def in_next(self, theta: float, x_h: ArrayLike) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+        """``theta`` (rad) and ``x_h`` (2,) of F against F*_i, (4), (14), expressed against
+        F*_{i+1}: ``theta + heading`` and ``(x_h + Rz(theta) u) / rho`` (module docstring),
+        with ``d x_h' / d theta = Rz'(theta) u / rho``, the lever of F*_{i+1}'s origin."""
+        c, s = np.cos(theta), np.sin(theta)
+        u1, u2 = self.origin_over_depth
+        rho = self.depth_ratio
+        x_next = (np.asarray(x_h, dtype=float) + (c * u1 - s * u2, s * u1 + c * u2)) / rho
+        return float(theta + self.heading), x_next, np.array((-s * u1 - c * u2, c * u1 - s * u2)) / rho
+
+    def carried_state(self, state: ArrayLike, covariance: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """A state filter's ``state`` (theta, x_h1, x_h2, 1/d*_i) and its ``covariance`` (4, 4)
+        against F*_i, carried to F*_{i+1} (:meth:`in_next`, 1/d*_{i+1} = 1/(rho d*_i)): the
+        covariance through the Jacobian, plus the transition's own (rho, u and heading)."""
+        state = np.asarray(state, dtype=float)
+        theta, x_next, lever = self.in_next(state[0], state[1:3])
+        rho = self.depth_ratio
+        carried = np.array((theta, *x_next, state[3] / rho))
+        jacobian = np.diag((1.0, 1.0 / rho, 1.0 / rho, 1.0 / rho))
+        jacobian[1:3, 0] = lever
+        c, s = np.cos(state[0]), np.sin(state[0])
+        by_transition = np.zeros((4, 3))  # d carried / d (u_1, u_2, rho)
+        by_transition[1:3, :2] = np.array(((c, -s), (s, c))) / rho
+        by_transition[1:, 2] = -carried[1:] / rho
+        spread = jacobian @ np.asarray(covariance, dtype=float) @ jacobian.T + by_transition @ self.covariance @ by_transition.T
+        spread[0, 0] += self.heading_std**2
+        return carried, spread
+
 
 def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayLike, x_h_next: ArrayLike) -> Transition:
     """The transition from segment i to i+1 from the same overlap frames seen through both
@@ -135,16 +163,31 @@ def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayL
     solution = np.linalg.solve(normal, design.T @ rhs)
     residual = design @ solution - rhs
     dof = max(2 * count - 3, 1)
-    covariance = float(residual @ residual) / dof * np.linalg.inv(normal)
+    covariance = float(residual @ residual) / dof * np.linalg.inv(normal) * correlation_inflation(residual.reshape(-1, 2))
     headings = wrap_angle(theta_next - theta_i)
     heading = float(np.arctan2(np.mean(np.sin(headings)), np.mean(np.cos(headings))))
     spread = np.asarray(wrap_angle(headings - heading), dtype=float)
+    heading_variance = np.var(spread, ddof=1) / count * correlation_inflation(spread[:, None])
     return Transition(
         depth_ratio=float(solution[2]), depth_ratio_std=float(np.sqrt(covariance[2, 2])),
-        heading=heading, heading_std=float(np.std(spread, ddof=1) / np.sqrt(count)),
+        heading=heading, heading_std=float(np.sqrt(heading_variance)),
         origin_over_depth=solution[:2], covariance=covariance, frames=count,
         residual_rms=float(np.sqrt(np.mean(residual**2))),
     )
+
+
+def correlation_inflation(residuals: ArrayLike) -> float:
+    """How much more a mean's variance is than ``1/n`` of the residuals' (K frames, C series)
+    when they are correlated from frame to frame, as a smoothed signal's are: ``(1 + r) / (1 - r)``
+    for their lag-1 autocorrelation r (an AR(1) process's ``K / K_effective``), at least 1 and
+    at most K / 2 (two independent frames)."""
+    residuals = np.asarray(residuals, dtype=float)
+    centred = residuals - residuals.mean(axis=0)
+    power = float(np.sum(centred * centred))
+    if residuals.shape[0] < 3 or power <= 0.0:
+        return 1.0
+    lag = float(np.sum(centred[1:] * centred[:-1])) / power
+    return float(np.clip((1.0 + lag) / max(1.0 - lag, 1e-12), 1.0, residuals.shape[0] / 2.0))
 
 
 @dataclass(frozen=True)

@@ -226,6 +226,8 @@ class ServoStateFilter:
         self.rejected_in_a_row = 0
         self.last_outcome = FilterOutcome.PREDICTED
         self.fused_time = 0.0
+        #: Set by :meth:`take_over` until the next frame is fused.
+        self.carried_std: NDArray[np.float64] | None = None
 
     def expect_depth(self, depth: float) -> None:
         """Start the inverse depth at ``1 / depth`` (m); only before the first frame."""
@@ -240,6 +242,31 @@ class ServoStateFilter:
         return None if self._state is None else np.array(self._state[:3])
 
     @property
+    def full_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """(theta, x_h1, x_h2, 1/d*) and its covariance (4, 4), or None before the first frame."""
+        if self._state is None:
+            return None
+        covariance = np.zeros((4, 4))
+        covariance[np.triu_indices(4)] = self._covariance
+        return np.array(self._state), covariance + np.triu(covariance, 1).T
+
+    def take_over(self, state: ArrayLike, covariance: ArrayLike, before: ServoStateFilter, motion_std: ArrayLike) -> None:
+        """Go on from filter ``before``'s :attr:`full_state`, ``state`` and ``covariance`` once
+        expressed against this one's F* (a route's switch, :meth:`~.route.Transition.carried_state`),
+        with its fused time and, if larger, the noise it learnt (the same camera's): no
+        restart from a frame, so the estimate and the law's feedback stay continuous. Until
+        a frame is fused, :meth:`trusted` judges the prediction by ``motion_std`` (3,), the
+        stds without the transition's own uncertainty: the law's error is made continuous
+        across the switch, so the new reference's offset does not make it less safe to act on."""
+        self.carried_std = np.asarray(motion_std, dtype=float)
+        self._state = None
+        self.expect_depth(1.0 / float(state[3]))
+        self._state = tuple(float(value) for value in state)
+        self._covariance = tuple(float(value) for value in np.asarray(covariance, dtype=float)[np.triu_indices(4)])
+        self.fused_time = before.fused_time
+        self.noise_variance = max(self.noise_variance, before.noise_variance)
+
+    @property
     def covariance(self) -> NDArray[np.float64] | None:
         """Its covariance, shape (3, 3)."""
         if self._covariance is None:
@@ -251,7 +278,7 @@ class ServoStateFilter:
         """Whether a prediction is good enough to act on without a frame."""
         if estimate is None or not self.settled:
             return False
-        std = estimate.std
+        std = estimate.std if self.carried_std is None else self.carried_std
         return bool(std[0] <= self.settings.coast_theta_std and max(std[1], std[2]) <= self.settings.coast_x_h_std)
 
     @property
@@ -369,6 +396,7 @@ class ServoStateFilter:
             p23 - (p02 * d0 + p12 * d1 + p22 * d2), p33 - (p03 * d0 + p13 * d1 + p23 * d2),
         )
         self.fused_time += dt
+        self.carried_std = None
         self.last_outcome = FilterOutcome.FUSED
         return FilterOutcome.FUSED
 
@@ -424,6 +452,7 @@ class ServoStateFilter:
         self.rejected_in_a_row = 0
         self.fused_time = self.fused_time + dt if restarted else dt
         self.last_outcome = FilterOutcome.STARTED
+        self.carried_std = None
         return FilterOutcome.STARTED
 
     def _learn_noise(self, residual: float, dt: float) -> None:

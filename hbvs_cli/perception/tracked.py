@@ -133,12 +133,14 @@ RESIDUAL_GATE_FACTOR = 10.0
 MIN_RESIDUAL_GATE_PX = 0.25
 
 
-def estimator_from_model(model: FitModel) -> PlanarPoseEstimator:
+def estimator_from_model(model: FitModel, converge: bool = False) -> PlanarPoseEstimator:
     """The per-frame estimator of repeat, its outlier gate from the taught residuals (clean
-    frames: hundredths of a pixel; a wrong point: tenths)."""
+    frames: hundredths of a pixel; a wrong point: tenths); ``converge``: the known-normal
+    solve iterated to its minimum (a route's targets are seen small near a switch)."""
     taught = model.residual_px.max
     gate_px = max(RESIDUAL_GATE_FACTOR * taught, MIN_RESIDUAL_GATE_PX) if np.isfinite(taught) else 2.0
-    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal)
+    return PlanarPoseEstimator(model.camera, model.m_ref, model.normal, residual_gate=gate_px / model.camera.mean_focal,
+                              converge=converge)
 
 
 def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed: int = 0, windowed: bool = False) -> TrackedDetector:

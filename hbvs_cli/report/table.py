@@ -34,7 +34,8 @@ METRIC_ROWS: tuple[Row, ...] = (
     ("V initial", lambda r: r.lyapunov.initial), ("V final", lambda r: r.lyapunov.final),
     ("V final / V(0)", lambda r: r.lyapunov.ratio), ("V increase (fraction of steps)", lambda r: r.lyapunov.increase_fraction),
     ("dhat0 (m)", lambda r: r.depth.dhat0), ("dhat final (m)", lambda r: r.depth.dhat_final),
-    ("d* true (m)", lambda r: r.depth.d_true), ("dhat relative error (-)", lambda r: r.depth.relative_error),
+    ("d* true (m)", lambda r: _per_segment(r, r.depth.d_true, "d_true")),
+    ("dhat relative error (-)", lambda r: _per_segment(r, r.depth.relative_error, "relative_error")),
     ("dhat within 10 % after (s)", lambda r: r.depth.learning_time_s),
     ("dhat drift at the end (1/s)", lambda r: r.depth.end_rate_per_s),
     ("dhat still moving at the end", lambda r: r.depth.still_moving),
@@ -86,6 +87,11 @@ def format_value(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
+
+
+def _per_segment(report: RunReport, whole: Any, name: str) -> Any:
+    """``whole``, the run's value, or a route's ``name`` of each segment (its own d*_i), in order."""
+    return whole if report.route is None else ", ".join(format_value(getattr(segment, name)) for segment in report.route)
 
 
 def run_labels(reports: Sequence[RunReport]) -> list[str]:

@@ -67,14 +67,16 @@ def run_closed_loop(
     limits: ActuatorLimits | None = None,
     latency_steps: int = 0,
     state_filter: ServoStateFilter | None = None,
+    robot_type: type[SimulatedRobot] = SimulatedRobot,
 ) -> Iterator[StepRecord]:
     """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
 
     ``sense(pose, t) -> Observation``; the controller's dhat is updated in place; ``dt`` and
     ``duration`` in s. The law acts on the observation ``latency_steps`` periods old (holding
     still before), or on the ``state_filter``'s estimate (docs/method.md, "State filter").
+    ``robot_type``: the simulated robot (a route's, :class:`~.route_loop.RouteRobot`).
     """
-    robot = SimulatedRobot(sense, trajectory, start_pose, dt, duration, latency_steps)
+    robot = robot_type(sense, trajectory, start_pose, dt, duration, latency_steps)
     return run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), latency_steps, state_filter))
 
 

@@ -7,31 +7,35 @@ measurement (14) through its own n*_k. At the switch to k + 1 (a taught instant 
 overlap, where both targets were seen) the desired signals and the measurement change
 reference together, and the adaptive estimate (31) carries over as ``rho_k dhat``
 (:meth:`~hbvs_cli.core.route.Transition.carried_depth`), so the law goes on with the depth of
-the new segment. The Lyapunov function (36) holds per segment.
+the new segment. Nothing the law sees jumps: the state filter goes on from the last
+segment's estimate carried by the transition, and the discrepancy between what e1, e3 (19)
+and ebar2 (27) were and would be against F*_{k+1} fades out over :data:`SWITCH_FADE_S`
+(:meth:`RouteTrajectory.hand_over`). The Lyapunov function (36) holds per segment.
 """
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.control_settings import ControllerGains
-from ..core.controller import AdaptiveTrackingController, DesiredState
+from ..core.controller import AdaptiveTrackingController, DesiredState, Measurement
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
 from ..core.route import RouteFit, Transition
+from ..core.servo_loop import ServoInput
 from ..core.simulator import ActuatorLimits, StepRecord
-from ..core.state_filter import ServoStateFilter
+from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
-from .closed_loop import run_closed_loop
+from .closed_loop import SimulatedRobot, run_closed_loop
 from .route_world import RouteWorld
 
 
 #: Where in an overlap a repeat switches (0: as soon as the next target is seen well, 1: as the
-#: last one leaves): late, the next target large (bench/route_corridor.py: 8 of 10 seeds within
-#: 2 cm at 0.9, 5 at 0.5).
+#: last one leaves): late, the next target large (bench/route_corridor.py, before the
+#: hand-over of the filter: 8 of 10 seeds within 2 cm at 0.9, 5 at 0.5).
 SWITCH_FRACTION = 0.9
 
 
@@ -43,14 +47,30 @@ def switch_times(fitted: RouteFit, t: ArrayLike, fraction: float = SWITCH_FRACTI
     return np.array([(1.0 - fraction) * t[segment.first] + fraction * t[segment.overlap_last] for segment in fitted.segments[1:]])
 
 
-class RouteTrajectory:
-    """The desired signals of a route: segment k's (against its F*_k) from switch k - 1 to switch k."""
+#: Seconds over which a switch's discrepancy between the segments' desired signals fades out.
+SWITCH_FADE_S = 3.0
 
-    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike) -> None:
+
+def fading(tau: float) -> float:
+    """The share left of what a switch fades out, the fraction ``tau`` (0-1) into its fade:
+    ``1 - 3 tau^2 + 2 tau^3``, from 1 to 0 with zero slope at both ends (C1)."""
+    return 1.0 - 3.0 * tau**2 + 2.0 * tau**3
+
+
+class RouteTrajectory:
+    """The desired signals of a route: segment k's (against its F*_k) from switch k - 1 to
+    switch k (:meth:`evaluate`); :meth:`hand_over` and :meth:`blended` make the law's error
+    continuous across a switch."""
+
+    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike, fade: float = SWITCH_FADE_S) -> None:
         self.trajectories = list(trajectories)
         self.switches = np.asarray(switches, dtype=float)
         self.t_start = float(self.trajectories[0].t_start)
         self.t_end = float(self.trajectories[-1].t_end)
+        self.fade = fade
+        #: Per switch made: its time (s), its fade's length (s) and the discrepancy faded out
+        #: (DesiredState's fields: theta_d, x_hd, their rates).
+        self.fades: list[tuple[float, float, NDArray[np.float64]]] = []
 
     def segment_at(self, t: ArrayLike) -> NDArray[np.intp]:
         """The segment in force at times ``t`` (s)."""
@@ -70,6 +90,53 @@ class RouteTrajectory:
         values = [column.reshape(t.shape) for column in columns.values()]
         return DesiredState(*(float(value) if value.ndim == 0 else value for value in values))
 
+    def hand_over(self, segment: int, t: float, transition: Transition, before: ArrayLike | None = None,
+                  after: ArrayLike | None = None) -> None:
+        """The switch to ``segment`` at ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
+        against F*_{k-1}, ``before`` (none: the desired state), and the one it will see against
+        F*_k, ``after`` (none: ``before`` carried by ``transition``,
+        :meth:`~hbvs_cli.core.route.Transition.in_next`; :meth:`SegmentFilters.switch`'s). The
+        discrepancy it stores, faded out by :meth:`blended`, keeps e1, e3 (19) and ebar2 (27),
+        V's (36) terms, what they were: it holds the two fits' and the transition's
+        disagreement, and the error's new scale (d*_k) and lever (F*_k's origin)."""
+        old, new = self.trajectories[segment - 1].evaluate(t), self.trajectories[segment].evaluate(t)
+        desired = np.array((old.theta_d, old.x_hd1, old.x_hd2), dtype=float)
+        before = desired if before is None else np.asarray(before, dtype=float)
+        if after is None:
+            theta, x_h, _ = transition.in_next(before[0], before[1:])
+            after = np.array((theta, *x_h))
+        e3, e1, e2 = before - desired  # (theta, x_h1, x_h2) order
+        theta_d, x_hd1 = after[0] - e3, after[1] - e1
+        x_hd2 = after[2] - (e2 - desired[1] * e3) - x_hd1 * e3
+        # The old desired rates in F*_k: the time derivative of in_next's x_h.
+        lever = transition.in_next(desired[0], desired[1:])[2]
+        rates = np.array((old.x_hd1_dot, old.x_hd2_dot)) / transition.depth_ratio + lever * old.theta_d_dot
+        carried = np.array((theta_d, x_hd1, x_hd2, old.theta_d_dot, *rates), dtype=float)
+        discrepancy = carried - [float(getattr(new, field.name)) for field in fields(DesiredState)]
+        ends = self.switches[segment:]
+        self.fades.append((t, min(self.fade, (ends[0] if ends.size else np.inf) - t), discrepancy))
+
+    def blended(self, desired: DesiredState, t: float, pace: float = 1.0) -> DesiredState:
+        """``desired`` (this route's at ``t``, s) plus what is left of each switch's discrepancy
+        (:func:`fading`), its rate added to the desired rates; ``pace``: route seconds per
+        second of the run (``--speed``), as ``desired``'s rates are scaled."""
+        values = np.array([getattr(desired, field.name) for field in fields(DesiredState)], dtype=float)
+        for start, length, discrepancy in self.fades:
+            tau = (t - start) / length
+            if 0.0 <= tau < 1.0:
+                values[:3] += fading(tau) * discrepancy[:3]
+                values[3:] += pace * (fading(tau) * discrepancy[3:] + 6.0 * (tau**2 - tau) / length * discrepancy[:3])
+        return DesiredState(*values.tolist())
+
+
+class RouteRobot(SimulatedRobot):
+    """The simulated robot along a route: its frames' desired states :meth:`RouteTrajectory.blended`
+    (each sensed, so each switch made, before its desired state is handed to the law)."""
+
+    def __iter__(self) -> Iterator[ServoInput]:
+        for step in super().__iter__():
+            yield replace(step, desired=self.trajectory.blended(step.desired, step.t))
+
 
 class SegmentSwitch:
     """The switches of a route's repeat (every mode's): at each, the controller's dhat (and the
@@ -78,15 +145,19 @@ class SegmentSwitch:
     (:attr:`filters`, if set). ``switches`` logs ``(t, segment, dhat before, after)``."""
 
     def __init__(self, transitions: Sequence[Transition], controller: AdaptiveTrackingController,
-                 gains: Sequence[ControllerGains] | None = None) -> None:
+                 gains: Sequence[ControllerGains] | None = None, route_trajectory: RouteTrajectory | None = None) -> None:
         self.transitions, self.controller, self.gains = list(transitions), controller, gains
+        #: The desired signals each switch is handed over in (:meth:`RouteTrajectory.hand_over`).
+        self.route_trajectory = route_trajectory
         self.active = 0
         self.switches: list[tuple[float, int, float, float]] = []
         #: One state filter per segment, when run with filters (:func:`run_route`).
         self.filters: SegmentFilters | None = None
 
-    def advance(self, t: float) -> None:
-        """Switch to the next segment at time ``t`` (s)."""
+    def advance(self, t: float, route_t: float | None = None) -> None:
+        """Switch to the next segment at time ``t`` (s; ``route_t``, the route's taught time
+        then, if it runs at another pace): the state filter goes on from the last one's
+        estimate, and the desired signals are handed over from it."""
         transition = self.transitions[self.active]
         before = self.controller.dhat
         self.controller.dhat = transition.carried_depth(before)
@@ -94,8 +165,9 @@ class SegmentSwitch:
         self.active += 1
         if self.gains is not None:
             self.controller.gains = self.gains[self.active]
-        if self.filters is not None:
-            self.filters.switch(self.active, self.controller.dhat)
+        estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
+        if self.route_trajectory is not None:
+            self.route_trajectory.hand_over(self.active, t if route_t is None else route_t, transition, *(estimates or ()))
         self.switches.append((t, self.active, before, self.controller.dhat))
 
 
@@ -109,10 +181,10 @@ class RouteCamera(SegmentSwitch):
     def __init__(self, route: RouteWorld, fitted: RouteFit, trajectory: RouteTrajectory,
                  controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
                  gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
-        super().__init__(fitted.transitions, controller, gains)
+        super().__init__(fitted.transitions, controller, gains, trajectory)
         self.route, self.fitted, self.trajectory = route, fitted, trajectory
         self.orders = orders
-        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal) for fit in fitted.fits]
+        self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal, converge=True) for fit in fitted.fits]
         self.pixel_noise = pixel_noise
         self.rng = np.random.default_rng(seed)
 
@@ -120,6 +192,10 @@ class RouteCamera(SegmentSwitch):
         segment = int(self.trajectory.segment_at(t))
         while self.active < segment:
             self.advance(t)
+        return self._measure(pose)
+
+    def _measure(self, pose: NDArray[np.float64]) -> Observation:
+        """The active segment's target seen from ``pose``, through its estimator."""
         target = self.fitted.segments[self.active].target
         world = self.route.worlds[target]
         local = self.route.local_pose(target, pose)
@@ -139,30 +215,74 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
     """The closed loop along ``route`` from ``start_pose`` (x, y, phi in its frame R), one
     :class:`~hbvs_cli.core.simulator.StepRecord` per period ``dt`` (s) for ``duration`` (s);
     the camera keeps the log of the switches. ``filter_noise`` (normalised units, one per
-    segment): a state filter per segment, each new one started at the carried dhat, whose soft
-    start fades its feedback in from the taught commands: what smooths a switch. ``orders``: as
-    :class:`RouteCamera` takes them."""
+    segment): a state filter per segment, each going on from the last one's estimate
+    (:meth:`SegmentFilters.switch`). ``orders``: as :class:`RouteCamera` takes them."""
     trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
     camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
     if gains is not None:
         controller.gains = gains[0]
     if filter_noise is not None:
         camera.filters = SegmentFilters([ServoStateFilter(fit.m_ref, fit.normal, noise) for fit, noise in zip(fitted.fits, filter_noise)])
-    return camera, run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, limits, state_filter=camera.filters)
+    return camera, run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, limits,
+                                   state_filter=camera.filters, robot_type=RouteRobot)
 
 
 class SegmentFilters:
     """The state filter of the segment in force: one :class:`~hbvs_cli.core.state_filter.ServoStateFilter`
-    per segment (each estimates against its own F*), the loop seeing the active one."""
+    per segment (each estimates against its own F*), the loop seeing the active one. For
+    ``fade`` s after a switch the law's estimate leaves out the :func:`fading` share of what the
+    new target's frames corrected of the carried one: what the transition got wrong comes in
+    as smoothly as :meth:`RouteTrajectory.blended` fades the desired signals' discrepancy,
+    not in the first few frames."""
 
-    def __init__(self, filters: Sequence[ServoStateFilter]) -> None:
+    def __init__(self, filters: Sequence[ServoStateFilter], fade: float = SWITCH_FADE_S) -> None:
         self.filters = list(filters)
         self.active = 0
+        self.fade = fade
+        #: Seconds since the last switch, and the corrections (theta, x_h1, x_h2) fused since.
+        self.since, self.corrections = np.inf, np.zeros(3)
 
-    def switch(self, segment: int, dhat: float) -> None:
-        """Hand the loop segment ``segment``'s filter, its depth started at ``dhat`` (m)."""
-        self.active = segment
-        self.filters[segment].expect_depth(dhat)
+    def switch(self, segment: int, dhat: float, transition: Transition) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
+        carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
+        or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target
+        is still small and far, and a restart from its first frames would jump. The last
+        one's (theta, x_h1, x_h2) and the carried ones, or None."""
+        before, self.active = self.filters[self.active], segment
+        if before.full_state is None:
+            self.filters[segment].expect_depth(dhat)
+            return None
+        state, covariance = before.full_state
+        carried, spread = transition.carried_state(state, covariance)
+        reference = transition.carried_state(state, np.zeros((4, 4)))[1]
+        self.filters[segment].take_over(carried, spread, before, np.sqrt(np.maximum(np.diag(spread - reference)[:3], 0.0)))
+        self.since, self.corrections = 0.0, np.zeros(3)
+        return state[:3], carried[:3]
+
+    def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
+        """The active filter's :meth:`~hbvs_cli.core.state_filter.ServoStateFilter.correct`, what it moved kept while fading."""
+        active = self.filters[self.active]
+        before = active.state
+        outcome = active.correct(measured, residual, dt)
+        if before is not None and self.since < self.fade:
+            self.corrections += active.state - before
+        return outcome
+
+    def predict(self, v: float, w: float, dt: float) -> None:
+        """The active filter's prediction; the kept corrections turn with the camera, as x_h does (5), (23)."""
+        self.filters[self.active].predict(v, w, dt)
+        c, s = np.cos(w * dt), np.sin(w * dt)
+        self.corrections[1:] = c * self.corrections[1] + s * self.corrections[2], -s * self.corrections[1] + c * self.corrections[2]
+        self.since += dt
+
+    def estimate(self, commands: Any, dt: float, depth: float | None, command: tuple[float, float]) -> FilterEstimate | None:
+        """The active filter's estimate for the law, less what is left of the corrections since the switch."""
+        estimate = self.filters[self.active].estimate(commands, dt, depth, command)
+        if estimate is None or self.since >= self.fade:
+            return estimate
+        measured = estimate.measurement
+        theta, x_h1, x_h2 = (measured.theta, measured.x_h1, measured.x_h2) - fading(self.since / self.fade) * self.corrections
+        return replace(estimate, measurement=Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.filters[self.__dict__["active"]], name)

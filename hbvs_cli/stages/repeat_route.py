@@ -122,8 +122,8 @@ class RouteSight(SegmentSwitch):
 
     def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
-        super().__init__(plan.transitions, controller, gains)
-        self.detectors, self.estimators, self.route_trajectory, self.models = detectors, estimators, trajectory, plan.models
+        super().__init__(plan.transitions, controller, gains, trajectory)
+        self.detectors, self.estimators, self.models = detectors, estimators, plan.models
         #: The segments whose detector has looked already (the first from the fit's first view).
         self.looked = 1
         #: The segment in force's desired signals at the run's pace (switches not made yet lie at infinity).
@@ -141,8 +141,9 @@ class RouteSight(SegmentSwitch):
                 self.looked += 1
             observation = self._measure(ahead, image)
             if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
-                self.route_trajectory.switches[self.active] = self.trajectory.start + self.trajectory.speed * t
-                self.advance(t)
+                route_t = self.trajectory.start + self.trajectory.speed * t
+                self.route_trajectory.switches[self.active] = route_t
+                self.advance(t, route_t)
                 return observation
         return self._measure(self.active, image)
 
@@ -150,7 +151,10 @@ class RouteSight(SegmentSwitch):
         return self.estimators[segment].from_pixels(self.detectors[segment].detect(image))
 
     def evaluate(self, t: float) -> Any:
-        return self.trajectory.evaluate(t)
+        """The segment in force's desired signals, each switch's discrepancy fading out
+        (:meth:`~hbvs_cli.sim.route_loop.RouteTrajectory.blended`), as ``--sim``'s."""
+        speed = self.trajectory.speed
+        return self.route_trajectory.blended(self.trajectory.evaluate(t), self.trajectory.start + speed * t, speed)
 
 
 @dataclass
@@ -173,7 +177,7 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     models = plan.models
     gains = segment_gains(settings, plan)
     controller = make_controller(settings.law, gains[0], settings.dhat0)
-    estimators = [estimator_from_model(model) for model in models]
+    estimators = [estimator_from_model(model, converge=True) for model in models]
     trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf))
     planned = planned_switches(plan)
     detectors = []
