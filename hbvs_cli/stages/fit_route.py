@@ -13,6 +13,7 @@ ends where its detector loses its target."""
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 from typing import Any, Callable, Iterator
 
 import cv2
@@ -131,6 +132,23 @@ class SimulatedFollower:
         return [np.array(points) for points in self.seen]
 
 
+#: A target whose points come this near the image's edge (px) is lost, as a followed one is (tests/test_footage_routes.py).
+EDGE_MARGIN_PX = 10.0
+#: A target found again after a loss is its own only if an affine map of its last layout fits the new points this
+#: well (largest residual over the points' span).
+REFOUND_LAYOUT_TOLERANCE = 0.05
+
+
+def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
+    """The largest residual of the least-squares affine map from ``layout`` (N, 2) to
+    ``points`` (N, 2), over the span of ``points`` (0 for 3 points: any three fit)."""
+    design = np.column_stack([layout, np.ones(len(layout))])
+    mapping, *_ = np.linalg.lstsq(design, points, rcond=None)
+    return float(np.max(np.linalg.norm(design @ mapping - points, axis=1)) / max(view_spans(points[None])[0], 1e-9))
+
+
+#: A photograph's detector takes a new template when its target appears this many times as large as in its template.
+RETEMPLATE_GROWTH = 1.5
 #: Frames an image-only route fit looks for new targets in at a time (and how often).
 SEARCH_FRAMES = 8
 #: A followed target is painted out of the searched frames this much beyond its points (fraction of their distance from their centre, and px).
@@ -156,10 +174,41 @@ class ImageFollower:
         """Follow every target into ``image``; look for a new one every :data:`SEARCH_FRAMES` frames."""
         index, self.count = self.count, self.count + 1
         self.recent.append((index, image))
-        for detector, found in zip(self.detectors, self.found):
-            found[index] = detector.detect(image)
+        for number, (detector, found) in enumerate(zip(self.detectors, self.found)):
+            found[index] = self._trusted(detector, detector.detect(image), found.get(index - 1), found)
+            self.detectors[number] = self._retemplated(detector, image, found[index])
         if index % SEARCH_FRAMES == SEARCH_FRAMES - 1:
             self._search()
+
+    def _retemplated(self, detector: TrackedDetector, image: np.ndarray, points: np.ndarray) -> TrackedDetector:
+        """``detector``, or for a photograph seen :data:`RETEMPLATE_GROWTH` times as large as in its
+        template, one whose template is ``image`` and whose points are ``points`` (the same
+        points of the plane, as well as they were found): a template far smaller than the view
+        aligns poorly, and a target is nearer and larger as its segment goes on."""
+        template = detector.spec.template_pixels
+        if (not detector.kind.uses_template or template is None or not np.all(np.isfinite(points))
+                or view_spans(points[None])[0] < RETEMPLATE_GROWTH * view_spans(np.asarray(template)[None])[0]):
+            return detector
+        spec = replace(detector.spec, template_pixels=points)
+        return TrackedDetector(spec, self.camera, seed=self.seed, template_image=image)
+
+    def _trusted(self, detector: TrackedDetector, points: np.ndarray, before: np.ndarray | None, found: dict[int, np.ndarray]) -> np.ndarray:
+        """``points`` as found, or NaN when they cannot be the target's: a point within
+        :data:`EDGE_MARGIN_PX` of the image's edge (a target leaving the view is lost there,
+        its detector made to find it afresh: a track followed out of the view drifts), or,
+        found again after a loss, points whose layout no affine map of their last one
+        explains within :data:`REFOUND_LAYOUT_TOLERANCE` (blobs of another target, not its dots)."""
+        lost = np.full_like(points, np.nan)
+        if not np.all(np.isfinite(points)):
+            return lost
+        size = np.array([self.camera.width, self.camera.height], dtype=float)
+        if np.any(points < EDGE_MARGIN_PX) or np.any(points > size - 1 - EDGE_MARGIN_PX):
+            detector.lose_track()
+            return lost
+        if before is not None and np.all(np.isfinite(before)):
+            return points
+        last = next((found[k] for k in sorted(found, reverse=True) if np.all(np.isfinite(found[k]))), None)
+        return points if last is None or affine_misfit(last, points) <= REFOUND_LAYOUT_TOLERANCE else lost
 
     def _search(self) -> None:
         """Follow the new targets the recent frames show in most of them, from the first of them on:
