@@ -12,7 +12,7 @@ import pytest
 
 from conftest import call_hbvs, campaign_extent
 from footage import Camera, ideal_pixels
-from footage_routes import SHORT_ROUTE, make_route_footage, segment_truth, transition_truth
+from footage_routes import LONG_ROUTE, SHORT_ROUTE, make_route_footage, segment_truth, transition_truth
 
 #: A target is followed while it is wholly in view and its points span this much (px), as fit requires.
 MIN_SPAN_PX = 70.0
@@ -54,3 +54,70 @@ def test_route_footage_of_dots_then_a_marker_board_fitted_with_defaults_gives_ea
     transition = route_file.transitions[0]
     assert abs(transition.depth_ratio / rho - 1) < 0.01
     assert abs(np.degrees(transition.heading - heading)) < 0.2
+
+
+@pytest.fixture(scope="module")
+def long_route(tmp_path_factory):
+    """:data:`LONG_ROUTE` rendered, taught with ``teach --video`` and fitted with defaults: (made, route file)."""
+    folder = tmp_path_factory.mktemp("long_route")
+    made = make_route_footage(folder, **LONG_ROUTE)
+    teach, fit = folder / "teach.mcap", folder / "fit.mcap"
+    assert call_hbvs("teach", "--video", str(made["video"]), "--calibration", str(made["calibration"]), "-o", str(teach), "-q").returncode == 0
+    assert call_hbvs("fit", str(teach), "-o", str(fit)).returncode == 0
+    return made, read_route_file(str(fit)), fit
+
+
+def normal_error_deg(model, truth: dict) -> float:
+    """The angle (deg) between a segment's fitted n* and the truth's."""
+    normal = np.asarray(model.normal) / np.linalg.norm(model.normal)
+    return float(np.degrees(np.arccos(np.clip(normal @ truth["normal"], -1, 1))))
+
+
+@pytest.mark.campaign
+def test_long_footage_route_past_four_targets_is_split_where_each_target_leaves_the_view(request, long_route):
+    """20.7 m past dots, a marker board and two photographs (about 80 s). Measured: the
+    segments' bounds 0-4 frames off the truth's; dots and board: n* 0.15 and 0.04 deg off, rho
+    between them 0.23 % off and the heading 0.04 deg."""
+    campaign_extent(request, "campaign")
+    made, route_file, _ = long_route
+    assert [model.target_kind for model in route_file.models] == ["dots", "aruco", "texture", "texture"]
+    followable = [followable_frames(made, target) for target in range(4)]
+    for number, segment in enumerate(route_file.segments):
+        assert abs(segment.last - followable[number][-1]) <= 4
+        if number:
+            assert segment.overlap_last == route_file.segments[number - 1].last
+            # where the stretch of view that holds the switch began (the board and the photographs were seen before it)
+            frames = followable[number][followable[number] <= segment.overlap_last]
+            gaps = np.flatnonzero(np.diff(frames) > 1)
+            assert abs(segment.first - frames[gaps[-1] + 1 if gaps.size else 0]) <= 4
+    for target in (0, 1):
+        assert normal_error_deg(route_file.models[target], segment_truth(made, target, route_file.references[target])) < 0.3
+    rho, heading = transition_truth(made, (0, 1), tuple(route_file.references[:2]))
+    assert abs(route_file.transitions[0].depth_ratio / rho - 1) < 0.01
+    assert abs(np.degrees(route_file.transitions[0].heading - heading)) < 0.2
+
+
+@pytest.mark.campaign
+@pytest.mark.xfail(strict=True, reason="a photograph re-found after it left the view is aligned tens of px off for about "
+                   "20 frames (n* 2.7-3.6 deg off, rho 31-38 % off): not solved yet")
+def test_long_footage_route_photographs_segments_match_the_truth(request, long_route):
+    """The photographs' segments: n* within 0.5 deg, rho within 2 %."""
+    campaign_extent(request, "campaign")
+    made, route_file, _ = long_route
+    for target in (2, 3):
+        assert normal_error_deg(route_file.models[target], segment_truth(made, target, route_file.references[target])) < 0.5
+    for number in (1, 2):
+        rho, _ = transition_truth(made, (number, number + 1), tuple(route_file.references[number:number + 2]))
+        assert abs(route_file.transitions[number].depth_ratio / rho - 1) < 0.02
+
+
+@pytest.mark.campaign
+def test_repeat_sim_on_a_footage_route_fit_is_refused_in_one_line(request, long_route, tmp_path):
+    """A route fitted from footage has no simulated world of its targets to close the loop in:
+    exit 2, one line, no run file."""
+    campaign_extent(request, "campaign")
+    run = tmp_path / "run.mcap"
+    result = call_hbvs("repeat", "--sim", str(long_route[2]), "-o", str(run))
+    lines = result.stderr.decode().strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "without its simulated route" in lines[0]
+    assert not run.exists()
