@@ -107,10 +107,10 @@ def dot_poster() -> Wall:
 #: 0.6 m to its left: the board comes into view during the turn, while the dots are still seen.
 SHORT_ROUTE = {"legs": (3.0, 3.0), "turn_deg": 40.0, "places": ((5.0, -1.2), (3.0, -0.6))}
 #: The long route (20.7 m, 414 frames at 5 fps): four legs of 4 m joined by left turns of 30 deg;
-#: the dot poster 5 m beyond the first leg's end, the board and the two photographs 3.5 m beyond
-#: theirs and 0.3 m to the left. Each target is seen from afar during the leg before its own, and
-#: the photographs leave the view by its left edge before the turn brings them back.
-LONG_ROUTE = {"legs": (4.0, 4.0, 4.0, 4.0), "turn_deg": 30.0, "places": ((5.0, 0.0), (3.5, -0.3), (3.5, -0.3), (3.5, -0.3))}
+#: the dot poster 5 m beyond the first leg's end, the board and the two photographs 3 m beyond
+#: theirs and 0.4 m to the right. Each target is seen from afar during the leg before its own
+#: (the photographs first about 9 m off), none hidden behind another's panel while it is followed.
+LONG_ROUTE = {"legs": (4.0, 4.0, 4.0, 4.0), "turn_deg": 30.0, "places": ((5.0, 0.0), (3.0, 0.4), (3.0, 0.4), (3.0, 0.4))}
 
 
 def route_walls(drive: RouteDrive, places: tuple[tuple[float, float], ...]) -> list[Wall]:

@@ -74,41 +74,27 @@ def normal_error_deg(model, truth: dict) -> float:
 
 
 @pytest.mark.campaign
-def test_long_footage_route_past_four_targets_is_split_where_each_target_leaves_the_view(request, long_route):
-    """20.7 m past dots, a marker board and two photographs (about 80 s). Measured: the
-    segments' bounds 0-4 frames off the truth's; dots and board: n* 0.15 and 0.04 deg off, rho
-    between them 0.23 % off and the heading 0.04 deg."""
+def test_long_footage_route_past_four_targets_fitted_with_defaults_gives_each_segment_and_transition(request, long_route):
+    """20.7 m past dots, a marker board and two photographs (about 80 s with the fixture).
+    Measured: each segment ends 0-4 frames from where the truth's target stops being followable;
+    each starts where its detector's stretch of sightings holding the switch began, 0-41
+    frames after the truth (the board's markers are not all decoded at first); n* 0.15, 0.03,
+    0.40 and 0.31 deg off; rho 0.61, 0.35 and 0.79 % off; the headings 0.17, 0.41 and 0.04 deg off.
+    Before the follower lost targets at the image's edge and re-templated photographs, the coffee
+    photograph was lost 20 frames early, the astronaut's n* was 1.5 deg off and the last rho 23 %."""
     campaign_extent(request, "campaign")
     made, route_file, _ = long_route
     assert [model.target_kind for model in route_file.models] == ["dots", "aruco", "texture", "texture"]
-    followable = [followable_frames(made, target) for target in range(4)]
-    for number, segment in enumerate(route_file.segments):
-        assert abs(segment.last - followable[number][-1]) <= 4
+    for number, (segment, model, reference) in enumerate(zip(route_file.segments, route_file.models, route_file.references)):
+        followable = followable_frames(made, number)
+        assert abs(segment.last - followable[-1]) <= 4
+        assert segment.first >= followable[0] and normal_error_deg(model, segment_truth(made, number, reference)) < 0.5
         if number:
-            assert segment.overlap_last == route_file.segments[number - 1].last
-            # where the stretch of view that holds the switch began (the board and the photographs were seen before it)
-            frames = followable[number][followable[number] <= segment.overlap_last]
-            gaps = np.flatnonzero(np.diff(frames) > 1)
-            assert abs(segment.first - frames[gaps[-1] + 1 if gaps.size else 0]) <= 4
-    for target in (0, 1):
-        assert normal_error_deg(route_file.models[target], segment_truth(made, target, route_file.references[target])) < 0.3
-    rho, heading = transition_truth(made, (0, 1), tuple(route_file.references[:2]))
-    assert abs(route_file.transitions[0].depth_ratio / rho - 1) < 0.01
-    assert abs(np.degrees(route_file.transitions[0].heading - heading)) < 0.2
-
-
-@pytest.mark.campaign
-@pytest.mark.xfail(strict=True, reason="a photograph re-found after it left the view is aligned tens of px off for about "
-                   "20 frames (n* 2.7-3.6 deg off, rho 31-38 % off): not solved yet")
-def test_long_footage_route_photographs_segments_match_the_truth(request, long_route):
-    """The photographs' segments: n* within 0.5 deg, rho within 2 %."""
-    campaign_extent(request, "campaign")
-    made, route_file, _ = long_route
-    for target in (2, 3):
-        assert normal_error_deg(route_file.models[target], segment_truth(made, target, route_file.references[target])) < 0.5
-    for number in (1, 2):
-        rho, _ = transition_truth(made, (number, number + 1), tuple(route_file.references[number:number + 2]))
-        assert abs(route_file.transitions[number].depth_ratio / rho - 1) < 0.02
+            assert segment.overlap_last == route_file.segments[number - 1].last and segment.overlap_last - segment.first >= 5
+    for number, transition in enumerate(route_file.transitions):
+        rho, heading = transition_truth(made, (number, number + 1), tuple(route_file.references[number:number + 2]))
+        assert abs(transition.depth_ratio / rho - 1) < 0.01
+        assert abs(np.degrees(transition.heading - heading)) < 0.5
 
 
 @pytest.mark.campaign
