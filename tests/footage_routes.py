@@ -94,12 +94,14 @@ class RouteMaker(FootageMaker):
         return canvas
 
 
-def dot_poster() -> Wall:
-    """Four black dots of 7 cm radius, not in a rectangle, on a light 2.0 x 1.2 m poster (a panel of its own)."""
-    width, height = 2.0, 1.2
+def dot_poster(scale: float = 1.0, centre_height: float = 1.0) -> Wall:
+    """Four black dots of 7 cm radius, not in a rectangle, on a light 2.0 x 1.2 m poster (a panel
+    of its own), all of it ``scale`` times as large, its centre ``centre_height`` m above the floor."""
+    width, height = 2.0 * scale, 1.2 * scale
     image = _canvas(width, height, (200, 205, 210))
-    points = [_disc(image, centre, 0.07, (30, 30, 30), height) for centre in ((0.3, 0.9), (1.6, 0.95), (1.7, 0.3), (0.45, 0.25))]
-    return Wall(_lighting(image, 0.9, 1.05), WALL_MPP, (0.0, 0.0, 1.0), yaw=0.0, points=np.array(points))
+    points = [_disc(image, (scale * u, scale * v), 0.07 * scale, (30, 30, 30), height)
+              for u, v in ((0.3, 0.9), (1.6, 0.95), (1.7, 0.3), (0.45, 0.25))]
+    return Wall(_lighting(image, 0.9, 1.05), WALL_MPP, (0.0, 0.0, centre_height), yaw=0.0, points=np.array(points))
 
 
 #: The short route: two legs of 3 m with a left turn of 40 deg between them; the dot poster 5 m
@@ -126,6 +128,19 @@ def make_route_footage(folder: Path, legs: tuple[float, ...], turn_deg: float, p
     leg placed at ``places``, into ``folder``; its files and truth, and ``walls`` (in order)."""
     drive = route_drive(legs, fps, turn_deg)
     walls = route_walls(drive, places)
+    maker = RouteMaker(walls, Camera(), Effects(), seed=seed)
+    return {**maker.write(Path(folder), drive), "walls": walls}
+
+
+def make_depth_route_footage(folder: Path, fps: float = 5.0, seed: int = 7) -> dict:
+    """Two consecutive targets at very different depths: 2.5 m straight past a marker board far
+    ahead on the right, then a left turn of 25 deg that takes it out of the view about 6 m from
+    its plane, and 1 m toward a small dot poster (0.8 m wide, 0.4 m up) that the drive ends 1.5 m
+    from (its dots too small to follow until about 4 m off). Written as :func:`make_route_footage`."""
+    drive = replace(RouteDrive(legs=(2.5, 1.0), fps=fps, turn_deg=25.0), duration=0.0)
+    drive = replace(drive, duration=float(sum(d for d, _ in drive.pieces)))
+    first, last = drive.leg_ends()
+    walls = [placed(marker_board_wall(side_m=0.36, gap_m=0.07), first, 6.0, 3.0), placed(dot_poster(0.4, 0.4), last, 1.5, 0.0)]
     maker = RouteMaker(walls, Camera(), Effects(), seed=seed)
     return {**maker.write(Path(folder), drive), "walls": walls}
 

@@ -73,7 +73,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     poses = np.array([row[2] if row[2] is not None else (np.nan,) * 3 for row in rows], dtype=float)
     commands = np.array([row[3] if row[3] is not None else (np.nan, np.nan) for row in rows], dtype=float)
     pixels = follower.pixels(len(rows))
-    spans = np.column_stack([view_spans(points) for points in pixels])
+    spans = np.column_stack([seen_spans(points) for points in pixels])
     try:
         segments = split_route(spans >= MIN_SPAN_PX, spans)
     except MalformedDataError as exc:
@@ -139,6 +139,14 @@ EDGE_MARGIN_PX = 10.0
 REFOUND_LAYOUT_TOLERANCE = 0.05
 
 
+def seen_spans(pixels: np.ndarray) -> np.ndarray:
+    """The largest distance (px) between two of a target's points found in each frame (F, N, 2),
+    when at least :data:`MIN_PARTIAL_POINTS` were (a board's markers are not all decoded afar); -1 otherwise."""
+    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
+    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
+    return np.where(np.all(np.isfinite(pixels), axis=2).sum(axis=1) >= MIN_PARTIAL_POINTS, spans, -1.0)
+
+
 def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
     """The largest residual of the least-squares affine map from ``layout`` (N, 2) to
     ``points`` (N, 2), over the span of ``points`` (0 for 3 points: any three fit)."""
@@ -199,16 +207,18 @@ class ImageFollower:
         found again after a loss, points whose layout no affine map of their last one
         explains within :data:`REFOUND_LAYOUT_TOLERANCE` (blobs of another target, not its dots)."""
         lost = np.full_like(points, np.nan)
-        if not np.all(np.isfinite(points)):
+        seen = np.all(np.isfinite(points), axis=1)
+        if np.count_nonzero(seen) < MIN_PARTIAL_POINTS:
             return lost
         size = np.array([self.camera.width, self.camera.height], dtype=float)
-        if np.any(points < EDGE_MARGIN_PX) or np.any(points > size - 1 - EDGE_MARGIN_PX):
+        if np.any(points[seen] < EDGE_MARGIN_PX) or np.any(points[seen] > size - 1 - EDGE_MARGIN_PX):
             detector.lose_track()
             return lost
-        if before is not None and np.all(np.isfinite(before)):
+        if before is not None and np.isfinite(before).any():
             return points
-        last = next((found[k] for k in sorted(found, reverse=True) if np.all(np.isfinite(found[k]))), None)
-        return points if last is None or affine_misfit(last, points) <= REFOUND_LAYOUT_TOLERANCE else lost
+        last = next((found[k] for k in sorted(found, reverse=True) if np.isfinite(found[k]).any()), None)
+        both = seen if last is None else seen & np.all(np.isfinite(last), axis=1)
+        return points if last is None or affine_misfit(last[both], points[both]) <= REFOUND_LAYOUT_TOLERANCE else lost
 
     def _search(self) -> None:
         """Follow the new targets the recent frames show in most of them, from the first of them on:
