@@ -70,11 +70,18 @@ def placed(wall: Wall, end: np.ndarray, ahead: float, right: float) -> Wall:
 
 class RouteMaker(FootageMaker):
     """Frames of several walls: each warped into the frame where it lies wholly in front of
-    the camera, over :data:`BACKGROUND`, the farther first."""
+    the camera, over :data:`BACKGROUND`, the farther first; ``hidden`` = (wall, t0, t1): that
+    wall is not drawn in the frames from t0 to t1 (s)."""
 
-    def __init__(self, walls: list[Wall], camera: Camera, effects: Effects = Effects(), seed: int = 0) -> None:
+    def __init__(self, walls: list[Wall], camera: Camera, effects: Effects = Effects(), seed: int = 0,
+                 hidden: tuple[int, float, float] | None = None) -> None:
         super().__init__(walls[0], camera, effects, seed)
         self.walls = [FootageMaker(wall, camera, effects).wall for wall in walls]  # each band-limited as one wall is
+        self.hidden, self._now = hidden, 0.0
+
+    def _exposure(self, pose_of_time, t: float) -> np.ndarray:
+        self._now = t
+        return super()._exposure(pose_of_time, t)
 
     def _warp(self, pose: np.ndarray) -> np.ndarray:
         canvas = np.empty((self.canvas[1], self.canvas[0], 3), np.uint8)
@@ -82,6 +89,8 @@ class RouteMaker(FootageMaker):
         eye = np.array([pose[0], pose[1]])
         forward = np.array([np.cos(pose[2]), np.sin(pose[2])])
         order = sorted(self.walls, key=lambda wall: -np.linalg.norm(np.asarray(wall.centre[:2]) - eye))
+        if self.hidden is not None and self.hidden[1] <= self._now < self.hidden[2]:  # as if someone stood in front of it
+            order = [wall for wall in order if wall is not self.walls[self.hidden[0]]]
         for wall in order:
             h, w = wall.image.shape[:2]
             corners = (wall.wall_to_world() @ np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float).T).T
@@ -123,12 +132,13 @@ def route_walls(drive: RouteDrive, places: tuple[tuple[float, float], ...]) -> l
 
 
 def make_route_footage(folder: Path, legs: tuple[float, ...], turn_deg: float, places: tuple[tuple[float, float], ...],
-                       fps: float = 5.0, seed: int = 7) -> dict:
+                       fps: float = 5.0, seed: int = 7, hidden: tuple[int, float, float] | None = None) -> dict:
     """Render the :func:`route_drive` of ``legs`` and ``turn_deg`` at ``fps``, past one wall per
-    leg placed at ``places``, into ``folder``; its files and truth, and ``walls`` (in order)."""
+    leg placed at ``places`` (``hidden``: see :class:`RouteMaker`), into ``folder``; its files
+    and truth, and ``walls`` (in order)."""
     drive = route_drive(legs, fps, turn_deg)
     walls = route_walls(drive, places)
-    maker = RouteMaker(walls, Camera(), Effects(), seed=seed)
+    maker = RouteMaker(walls, Camera(), Effects(), seed=seed, hidden=hidden)
     return {**maker.write(Path(folder), drive), "walls": walls}
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from rich.table import Table
 
 from ..core.fit_model import FitModel
-from ..core.route import estimate_transitions, largest_view, split_route, view_spans
+from ..core.route import bridge_brief_gaps, estimate_transitions, largest_view, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
 from ..io.fit_file import FILE_KIND
@@ -75,7 +75,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     pixels = follower.pixels(len(rows))
     spans = np.column_stack([seen_spans(points) for points in pixels])
     try:
-        segments = split_route(spans >= MIN_SPAN_PX, spans)
+        segments = split_route(bridge_brief_gaps(spans >= MIN_SPAN_PX, t, options.max_gap), spans)
     except MalformedDataError as exc:
         raise RecordingError(f"{reader.name}: {exc}") from None
     route = follower.route if isinstance(follower, SimulatedFollower) else None
