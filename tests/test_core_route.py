@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbvs_cli.core.route import Segment, estimate_transition, fit_route, split_route
+from hbvs_cli.core.route import Segment, bridge_brief_gaps, estimate_transition, fit_route, split_route
 from hbvs_cli.errors import MalformedDataError
 from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
@@ -132,6 +132,25 @@ def test_a_transition_needs_motion_and_two_frames():
     still = np.zeros(5)
     with pytest.raises(MalformedDataError, match="did not move"):
         estimate_transition(still, np.tile([0.1, 0.02], (5, 1)), still, np.tile([0.3, 0.01], (5, 1)))
+
+
+def test_a_target_hidden_a_moment_is_bridged_and_one_flickering_out_of_view_is_not():
+    """5 Hz, --max-gap 1 s: target 0 hidden 0.4 s (frames 10-11) and seen 2 s more is one
+    stretch; target 1 seen again for one frame after a 0.6 s gap (it flickers as it leaves)
+    keeps its gap; target 2's 1.2 s gap is longer than the spline bridges."""
+    t = np.arange(30) * 0.2
+    visible = np.zeros((30, 3), bool)
+    visible[:, 0] = True
+    visible[10:12, 0] = False
+    visible[:15, 1] = True
+    visible[18, 1] = True
+    visible[:10, 2] = visible[16:, 2] = True
+    filled = bridge_brief_gaps(visible, t, 1.0)
+    assert filled[:, 0].all()
+    assert np.array_equal(filled[:, 1:], visible[:, 1:])
+    assert visible[10:12, 0].sum() == 0  # the input is left as it was
+    segments = split_route(filled, None)
+    assert [(s.target, s.first, s.last) for s in segments] == [(0, 0, 29)]
 
 
 @pytest.mark.campaign

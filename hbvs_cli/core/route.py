@@ -92,6 +92,30 @@ def _run_start(column: NDArray[np.bool_], frame: int) -> int:
     return int(before[-1]) + 1 if before.size else 0
 
 
+def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_gap: float) -> NDArray[np.bool_]:
+    """``visible`` (frames, targets) with each target's gaps between two sightings at most
+    ``max_gap`` s apart (``--max-gap``, the gaps a segment's spline bridges) filled when it is
+    then seen again for at least half that long: a target hidden a moment (someone walking past)
+    does not end its segment there, one flickering as it leaves the view does not stay.
+
+    Parameters
+    ----------
+    visible : (F, N) bool
+        Whether each of N targets is followable in each of F frames.
+    t : (F,) float
+        The frames' times (s).
+    max_gap : float
+        The longest gap (s) to fill.
+    """
+    filled = np.array(visible, bool)
+    for column in filled.T:  # views: filling a column fills ``filled``
+        seen = np.flatnonzero(column)
+        for before, after in zip(seen[:-1], seen[1:]):
+            if after > before + 1 and t[after] - t[before] <= max_gap and t[_run_end(column, after)] - t[after] >= max_gap / 2:
+                column[before:after] = True
+    return filled
+
+
 @dataclass(frozen=True)
 class Transition:
     """F*_{i+1} relative to F*_i, estimated over an overlap: ``depth_ratio`` rho = d*_{i+1}/d*_i,

@@ -418,9 +418,13 @@ class DotDetector:
 
     def reset(self) -> None:
         """Forget the track, the dots' areas and their last known layout."""
+        self.forget_position()
+        self._layout = None
+
+    def forget_position(self) -> None:
+        """Forget the track and the dots' areas, keeping their last layout: found again, they keep their names."""
         self._track.reset()
         self._areas[:] = np.nan
-        self._layout = None
 
     def predict(self) -> NDArray[np.float64] | None:
         """The track's prediction for the next frame, shape (N, 2), or None."""

@@ -77,6 +77,12 @@ class TrackedDetector:
         pixels = np.asarray(detection.pixels, dtype=float)
         return pixels if self._undistort_maps is None else distort_pixels(self.camera, pixels)
 
+    def lose_track(self) -> None:
+        """Forget where the target was (it left the view), keeping what names its points: the
+        next detection searches the whole image."""
+        if self._detector is not None:
+            getattr(self._detector, "forget_position", self._detector.reset)()
+
     def _undistorted(self, image: np.ndarray | None) -> np.ndarray | None:
         """``image`` as the pinhole camera of the same K would see it (texture with distortion)."""
         if image is None or self._undistort_maps is None:

@@ -13,6 +13,7 @@ ends where its detector loses its target."""
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 from typing import Any, Callable, Iterator
 
 import cv2
@@ -20,7 +21,7 @@ import numpy as np
 from rich.table import Table
 
 from ..core.fit_model import FitModel
-from ..core.route import estimate_transitions, largest_view, split_route, view_spans
+from ..core.route import bridge_brief_gaps, estimate_transitions, largest_view, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
 from ..io.fit_file import FILE_KIND
@@ -72,9 +73,9 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     poses = np.array([row[2] if row[2] is not None else (np.nan,) * 3 for row in rows], dtype=float)
     commands = np.array([row[3] if row[3] is not None else (np.nan, np.nan) for row in rows], dtype=float)
     pixels = follower.pixels(len(rows))
-    spans = np.column_stack([view_spans(points) for points in pixels])
+    spans = np.column_stack([seen_spans(points) for points in pixels])
     try:
-        segments = split_route(spans >= MIN_SPAN_PX, spans)
+        segments = split_route(bridge_brief_gaps(spans >= MIN_SPAN_PX, t, options.max_gap), spans)
     except MalformedDataError as exc:
         raise RecordingError(f"{reader.name}: {exc}") from None
     route = follower.route if isinstance(follower, SimulatedFollower) else None
@@ -132,6 +133,31 @@ class SimulatedFollower:
         return [np.array(points) for points in self.seen]
 
 
+#: A target whose points come this near the image's edge (px) is lost, as a followed one is (tests/test_footage_routes.py).
+EDGE_MARGIN_PX = 10.0
+#: A target found again after a loss is its own only if an affine map of its last layout fits the new points this
+#: well (largest residual over the points' span).
+REFOUND_LAYOUT_TOLERANCE = 0.05
+
+
+def seen_spans(pixels: np.ndarray) -> np.ndarray:
+    """The largest distance (px) between two of a target's points found in each frame (F, N, 2),
+    when at least :data:`MIN_PARTIAL_POINTS` were (a board's markers are not all decoded afar); -1 otherwise."""
+    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
+    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
+    return np.where(np.all(np.isfinite(pixels), axis=2).sum(axis=1) >= MIN_PARTIAL_POINTS, spans, -1.0)
+
+
+def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
+    """The largest residual of the least-squares affine map from ``layout`` (N, 2) to
+    ``points`` (N, 2), over the span of ``points`` (0 for 3 points: any three fit)."""
+    design = np.column_stack([layout, np.ones(len(layout))])
+    mapping, *_ = np.linalg.lstsq(design, points, rcond=None)
+    return float(np.max(np.linalg.norm(design @ mapping - points, axis=1)) / max(view_spans(points[None])[0], 1e-9))
+
+
+#: A photograph's detector takes a new template when its target appears this many times as large as in its template.
+RETEMPLATE_GROWTH = 1.5
 #: Frames an image-only route fit looks for new targets in at a time (and how often).
 SEARCH_FRAMES = 8
 #: A followed target is painted out of the searched frames this much beyond its points (fraction of their distance from their centre, and px).
@@ -157,10 +183,43 @@ class ImageFollower:
         """Follow every target into ``image``; look for a new one every :data:`SEARCH_FRAMES` frames."""
         index, self.count = self.count, self.count + 1
         self.recent.append((index, image))
-        for detector, found in zip(self.detectors, self.found):
-            found[index] = detector.detect(image)
+        for number, (detector, found) in enumerate(zip(self.detectors, self.found)):
+            found[index] = self._trusted(detector, detector.detect(image), found.get(index - 1), found)
+            self.detectors[number] = self._retemplated(detector, image, found[index])
         if index % SEARCH_FRAMES == SEARCH_FRAMES - 1:
             self._search()
+
+    def _retemplated(self, detector: TrackedDetector, image: np.ndarray, points: np.ndarray) -> TrackedDetector:
+        """``detector``, or for a photograph seen :data:`RETEMPLATE_GROWTH` times as large as in its
+        template, one whose template is ``image`` and whose points are ``points`` (the same
+        points of the plane, as well as they were found): a template far smaller than the view
+        aligns poorly, and a target is nearer and larger as its segment goes on."""
+        template = detector.spec.template_pixels
+        if (not detector.kind.uses_template or template is None or not np.all(np.isfinite(points))
+                or view_spans(points[None])[0] < RETEMPLATE_GROWTH * view_spans(np.asarray(template)[None])[0]):
+            return detector
+        spec = replace(detector.spec, template_pixels=points)
+        return TrackedDetector(spec, self.camera, seed=self.seed, template_image=image)
+
+    def _trusted(self, detector: TrackedDetector, points: np.ndarray, before: np.ndarray | None, found: dict[int, np.ndarray]) -> np.ndarray:
+        """``points`` as found, or NaN when they cannot be the target's: a point within
+        :data:`EDGE_MARGIN_PX` of the image's edge (a target leaving the view is lost there,
+        its detector made to find it afresh: a track followed out of the view drifts), or,
+        found again after a loss, points whose layout no affine map of their last one
+        explains within :data:`REFOUND_LAYOUT_TOLERANCE` (blobs of another target, not its dots)."""
+        lost = np.full_like(points, np.nan)
+        seen = np.all(np.isfinite(points), axis=1)
+        if np.count_nonzero(seen) < MIN_PARTIAL_POINTS:
+            return lost
+        size = np.array([self.camera.width, self.camera.height], dtype=float)
+        if np.any(points[seen] < EDGE_MARGIN_PX) or np.any(points[seen] > size - 1 - EDGE_MARGIN_PX):
+            detector.lose_track()
+            return lost
+        if before is not None and np.isfinite(before).any():
+            return points
+        last = next((found[k] for k in sorted(found, reverse=True) if np.isfinite(found[k]).any()), None)
+        both = seen if last is None else seen & np.all(np.isfinite(last), axis=1)
+        return points if last is None or affine_misfit(last[both], points[both]) <= REFOUND_LAYOUT_TOLERANCE else lost
 
     def _search(self) -> None:
         """Follow the new targets the recent frames show in most of them, from the first of them on:
