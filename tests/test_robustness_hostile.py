@@ -278,6 +278,12 @@ def test_run_files_with_mistyped_events_or_metadata_are_refused():
         read_run(mcap(metadata("hbvs", {"file_kind": '"run"', "settings": "[1]"}), topics, message(1, json.dumps(state).encode())))
     with pytest.raises(RecordingError, match="step times"):
         read_run(mcap(good, topics, message(1, json.dumps(state | {"t": None}).encode())))
+    route = metadata("hbvs", {"file_kind": '"run"', "route": '{"switch_times": [1.0]}'})
+    for made in ('"soon"', '[true]', '["1"]'):
+        with pytest.raises(RecordingError, match="hbvs.route_switches"):
+            read_run(mcap(route, metadata("hbvs.route_switches", {"switch_times": made}), topics, message(1, json.dumps(state).encode())))
+    kept = read_run(mcap(route, metadata("hbvs.route_switches", {"switch_times": "[1.25]"}), topics, message(1, json.dumps(state).encode())))
+    assert kept.info["route"] == {"switch_times": [1.25], "planned_switch_times": [1.0]}
 
 
 # ----------------------------------------------------------------------------- images

@@ -18,7 +18,7 @@ from .mcap import McapStream, McapWriter, read_metadata, seconds_to_ns, time_mes
 from .messages import CAMERA_FRAME, LOG_ERROR, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
 from .topics import (
     ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, EVENTS_TOPIC, IMAGE_TOPIC, STATE_TOPIC,
-    STOPPED_METADATA, TIMING_TOPIC, TOPICS, TRUE_POSE_TOPIC,
+    ROUTE_SWITCHES_METADATA, STOPPED_METADATA, TIMING_TOPIC, TOPICS, TRUE_POSE_TOPIC,
 )
 
 FILE_KIND = "run"
@@ -145,6 +145,11 @@ def read_run(source: Any, name: str = "") -> RunData:
         kind = info.get("file_kind")
         what = f"a {kind!r} file" if kind else "not an hbvs run file"
         raise NotARunFile(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat", kind if isinstance(kind, str) else None)
+    made = read_metadata(stream, ROUTE_SWITCHES_METADATA).get("switch_times")
+    if made is not None and (not isinstance(made, list) or not all(isinstance(t, (int, float)) and not isinstance(t, bool) for t in made)):
+        raise RecordingError(f"{stream.name}: malformed hbvs metadata: {ROUTE_SWITCHES_METADATA} = {str(made)[:60]!r}")
+    if made is not None and isinstance(info.get("route"), dict):
+        info["route"] = {**info["route"], "planned_switch_times": info["route"].get("switch_times"), "switch_times": made}
     _check_info(info, stream.name)
     if not step_times:
         stopped = read_metadata(stream, STOPPED_METADATA).get("reason")
@@ -225,6 +230,11 @@ class RunWriter:
         record with ``reason`` (``hbvs report`` and ``hbvs info`` show them)."""
         self.event(t, LOG_ERROR, f"{reason}: zero sent, run stopped")
         self.writer.metadata(STOPPED_METADATA, {"t": t, "reason": reason})
+
+    def route_switches(self, times: Sequence[float]) -> None:
+        """The switches a route's repeat made so far, at run times ``times`` (s): written again at
+        each, so a run stopped half way keeps those it made."""
+        self.writer.metadata(ROUTE_SWITCHES_METADATA, {"switch_times": [float(t) for t in times]})
 
     def poses(self, t: float, true_pose: Sequence[float], desired_pose: Sequence[float], height: float) -> None:
         """The true and taught poses ``(x, y, phi)`` (m, m, rad) at ``t``; camera ``height`` (m)."""

@@ -23,6 +23,10 @@ WORLD_METADATA = "hbvs.world"
 CALIBRATION_METADATA = "hbvs.calibration"
 #: MCAP metadata record of a live run that stopped before its end: ``t`` (s) and ``reason``.
 STOPPED_METADATA = "hbvs.stopped"
+#: MCAP metadata record of a route's repeat, written again at each switch made: ``switch_times``
+#: (s), every switch made so far (a live run's and a replay's come when the next target is seen,
+#: not at the planned times of the ``route`` metadata).
+ROUTE_SWITCHES_METADATA = "hbvs.route_switches"
 
 # ----------------------------------------------------------------------------- topics
 #: The camera's images (every file kind that carries images).

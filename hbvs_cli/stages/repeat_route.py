@@ -100,6 +100,7 @@ class SwitchLog:
             self.log.event(when, LOG_INFO, f"segment {segment + 1} (target {self.plan.segments[segment].target + 1}, "
                            f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
             self.logged += 1
+            self.log.run.route_switches([made[0] for made in self.switch.switches[:self.logged]])
         self.log.step(record, *args)
 
     def __getattr__(self, name: str) -> Any:
