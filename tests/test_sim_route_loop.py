@@ -36,10 +36,11 @@ def exact_corridor():
     return route, times, fitted, np.array(depths)
 
 
-def corridor_repeat(exact_corridor, pixel_noise: float, seed: int = 0):
+def corridor_repeat(exact_corridor, pixel_noise: float, seed: int = 0, speed: float = 1.0):
     """The corridor repeated with the fit's gains and a state filter per segment, from the
-    default offset and dhat(0) 20 % off, ``pixel_noise`` px on the repeat's points: the
-    records, the switch times (s) and the camera (its log of the switches)."""
+    default offset and dhat(0) 20 % off, ``pixel_noise`` px on the repeat's points, at
+    ``speed`` times the taught pace: the records, the switch times (s, the route's) and the
+    camera (its log of the switches)."""
     route, times, fitted, depths = exact_corridor
     noise = [noise_from_residual(fit.residual_px.rms, fit.m_ref.shape[0]) for fit in fitted.fits]
     gains = [suggest_gains(fit.condition.percentiles["p50"], n, fit.m_ref, fit.normal, route.camera.mean_focal).gains
@@ -47,9 +48,9 @@ def corridor_repeat(exact_corridor, pixel_noise: float, seed: int = 0):
     controller = AdaptiveTrackingController(ControllerGains(), dhat0=1.2 * depths[0])
     start = compose_planar_pose(route.start_pose, parse_offset(DEFAULT_OFFSET))
     switches = switch_times(fitted, times)
-    camera, steps = run_route(route, fitted, switches, controller, start, DT, float(times[-1]) + DT,
+    camera, steps = run_route(route, fitted, switches, controller, start, DT, float(times[-1]) / speed + DT,
                               ActuatorLimits(max_v=DEFAULT_MAX_V, max_w=DEFAULT_MAX_W), pixel_noise, seed, gains,
-                              [n / route.camera.mean_focal for n in noise])
+                              [n / route.camera.mean_focal for n in noise], speed=speed)
     return list(steps), switches, camera
 
 
@@ -63,6 +64,35 @@ def test_the_route_trajectory_gives_each_segment_its_own_desired_signals(exact_c
         alone = fitted.fits[k].trajectory.evaluate(t)
         assert together.theta_d[k] == alone.theta_d and together.x_hd1[k] == alone.x_hd1 and together.x_hd2[k] == alone.x_hd2
     assert float(trajectory.evaluate(1.0).x_hd1) == fitted.fits[0].trajectory.evaluate(1.0).x_hd1
+
+
+def test_the_route_trajectory_at_another_pace_is_the_taught_one_at_the_route_time(exact_corridor):
+    """At --speed 2 the run's time t is the route's 2 t (a switch at route time s is made at
+    run time s / 2), the desired signals are the route's there and their rates twice theirs."""
+    _, times, fitted, _ = exact_corridor
+    switches = switch_times(fitted, times)
+    taught = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
+    fast = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches, speed=2.0)
+    probe = np.array([0.5, switches[0] / 2 - 0.01, switches[0] / 2 + 0.01, switches[2] / 2 + 0.3])
+    assert np.array_equal(fast.segment_at(probe), [0, 0, 1, 3])
+    assert np.allclose(fast.run_time(switches), switches / 2) and fast.t_end == pytest.approx(taught.t_end / 2)
+    at_pace, at_route = fast.evaluate(probe), taught.evaluate(2 * probe)
+    assert np.array_equal(at_pace.x_hd2, at_route.x_hd2) and np.array_equal(at_pace.theta_d, at_route.theta_d)
+    assert np.allclose(at_pace.x_hd1_dot, 2 * at_route.x_hd1_dot) and np.allclose(at_pace.theta_d_dot, 2 * at_route.theta_d_dot)
+
+
+def test_a_repeat_along_the_corridor_at_1_5_times_the_taught_pace_ends_on_the_taught_end_pose(exact_corridor):
+    """--speed 1.5 along the corridor (exact measurements): each switch at its planned route time,
+    the robot within 2 cm and 0.5 deg of the taught end pose at the run's end (measured
+    0.009 cm, 0.0009 deg)."""
+    route, times, fitted, _ = exact_corridor
+    records, switches, camera = corridor_repeat(exact_corridor, 0.0, speed=1.5)
+    assert not any(record.lost for record in records)
+    assert np.allclose([made[0] for made in camera.switches], switches / 1.5, atol=DT)
+    taught = route.profile.poses_at(np.array([1.5 * records[-1].t]), route.start_pose)[0]
+    position = np.linalg.norm(records[-1].pose[:2] - taught[:2])
+    heading = abs(np.degrees(wrap_angle(records[-1].pose[2] - taught[2])))
+    assert position < 0.02 and heading < 0.5
 
 
 def test_a_repeat_along_the_corridor_ends_on_the_taught_end_pose_switching_smoothly(exact_corridor):

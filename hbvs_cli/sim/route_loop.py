@@ -29,6 +29,7 @@ from ..core.servo_loop import ServoInput
 from ..core.simulator import ActuatorLimits, StepRecord
 from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
+from ..errors import InvalidValueError
 from .closed_loop import SimulatedRobot, run_closed_loop
 from .route_world import RouteWorld
 
@@ -62,21 +63,36 @@ class RouteTrajectory:
     switch k (:meth:`evaluate`); :meth:`hand_over` and :meth:`blended` make the law's error
     continuous across a switch."""
 
-    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike, fade: float = SWITCH_FADE_S) -> None:
+    def __init__(self, trajectories: Sequence[DesiredTrajectory], switches: ArrayLike, fade: float = SWITCH_FADE_S,
+                 speed: float = 1.0) -> None:
+        if not np.isfinite(speed) or speed <= 0.0:
+            raise InvalidValueError(f"--speed must be a positive number, got {speed}")
         self.trajectories = list(trajectories)
+        #: The switches in the route's (taught) time, s.
         self.switches = np.asarray(switches, dtype=float)
-        self.t_start = float(self.trajectories[0].t_start)
-        self.t_end = float(self.trajectories[-1].t_end)
+        #: ``speed`` times the taught pace: run time t is the route's ``start + speed t``.
+        self.speed, self.start = float(speed), float(self.trajectories[0].t_start)
+        self.t_start = 0.0
+        self.t_end = (float(self.trajectories[-1].t_end) - self.start) / self.speed
         self.fade = fade
         #: Per switch made: its time (s), its fade's length (s) and the discrepancy faded out
         #: (DesiredState's fields: theta_d, x_hd, their rates).
         self.fades: list[tuple[float, float, NDArray[np.float64]]] = []
 
+    def route_time(self, t: ArrayLike) -> NDArray[np.float64]:
+        """The route's (taught) time (s) at run time ``t`` (s)."""
+        return self.start + self.speed * np.asarray(t, dtype=float)
+
+    def run_time(self, route_t: ArrayLike) -> NDArray[np.float64]:
+        """The run time (s) at the route's time ``route_t`` (s)."""
+        return (np.asarray(route_t, dtype=float) - self.start) / self.speed
+
     def segment_at(self, t: ArrayLike) -> NDArray[np.intp]:
-        """The segment in force at times ``t`` (s)."""
-        return np.searchsorted(self.switches, np.asarray(t, dtype=float), side="right")
+        """The segment in force at run times ``t`` (s)."""
+        return np.searchsorted(self.switches, self.route_time(t), side="right")
 
     def evaluate(self, t: ArrayLike) -> DesiredState:
+        """The desired signals at run times ``t`` (s), their rates per second of the run."""
         t = np.asarray(t, dtype=float)
         flat = np.atleast_1d(t)
         segment = self.segment_at(flat)
@@ -84,21 +100,22 @@ class RouteTrajectory:
         for index, trajectory in enumerate(self.trajectories):
             chosen = segment == index
             if np.any(chosen):
-                state = trajectory.evaluate(flat[chosen])
+                state = trajectory.evaluate(self.route_time(flat[chosen]))
                 for name, column in columns.items():
-                    column[chosen] = getattr(state, name)
+                    column[chosen] = getattr(state, name) * (self.speed if name.endswith("_dot") else 1.0)
         values = [column.reshape(t.shape) for column in columns.values()]
         return DesiredState(*(float(value) if value.ndim == 0 else value for value in values))
 
     def hand_over(self, segment: int, t: float, transition: Transition, before: ArrayLike | None = None,
                   after: ArrayLike | None = None) -> None:
-        """The switch to ``segment`` at ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
+        """The switch to ``segment`` at run time ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
         against F*_{k-1}, ``before`` (none: the desired state), and the one it will see against
         F*_k, ``after`` (none: ``before`` carried by ``transition``,
         :meth:`~hbvs_cli.core.route.Transition.in_next`; :meth:`SegmentFilters.switch`'s). The
         discrepancy it stores, faded out by :meth:`blended`, keeps e1, e3 (19) and ebar2 (27),
         V's (36) terms, what they were: it holds the two fits' and the transition's
         disagreement, and the error's new scale (d*_k) and lever (F*_k's origin)."""
+        t = float(self.route_time(t))  # the discrepancy and its fade kept in the route's time
         old, new = self.trajectories[segment - 1].evaluate(t), self.trajectories[segment].evaluate(t)
         desired = np.array((old.theta_d, old.x_hd1, old.x_hd2), dtype=float)
         before = desired if before is None else np.asarray(before, dtype=float)
@@ -116,16 +133,16 @@ class RouteTrajectory:
         ends = self.switches[segment:]
         self.fades.append((t, min(self.fade, (ends[0] if ends.size else np.inf) - t), discrepancy))
 
-    def blended(self, desired: DesiredState, t: float, pace: float = 1.0) -> DesiredState:
-        """``desired`` (this route's at ``t``, s) plus what is left of each switch's discrepancy
-        (:func:`fading`), its rate added to the desired rates; ``pace``: route seconds per
-        second of the run (``--speed``), as ``desired``'s rates are scaled."""
+    def blended(self, desired: DesiredState, t: float) -> DesiredState:
+        """``desired`` (this route's at run time ``t``, s) plus what is left of each switch's
+        discrepancy (:func:`fading`), its rate (per second of the run) added to the desired rates."""
         values = np.array([getattr(desired, field.name) for field in fields(DesiredState)], dtype=float)
+        route_t = float(self.route_time(t))
         for start, length, discrepancy in self.fades:
-            tau = (t - start) / length
+            tau = (route_t - start) / length
             if 0.0 <= tau < 1.0:
                 values[:3] += fading(tau) * discrepancy[:3]
-                values[3:] += pace * (fading(tau) * discrepancy[3:] + 6.0 * (tau**2 - tau) / length * discrepancy[:3])
+                values[3:] += self.speed * (fading(tau) * discrepancy[3:] + 6.0 * (tau**2 - tau) / length * discrepancy[:3])
         return DesiredState(*values.tolist())
 
 
@@ -154,10 +171,9 @@ class SegmentSwitch:
         #: One state filter per segment, when run with filters (:func:`run_route`).
         self.filters: SegmentFilters | None = None
 
-    def advance(self, t: float, route_t: float | None = None) -> None:
-        """Switch to the next segment at time ``t`` (s; ``route_t``, the route's taught time
-        then, if it runs at another pace): the state filter goes on from the last one's
-        estimate, and the desired signals are handed over from it."""
+    def advance(self, t: float) -> None:
+        """Switch to the next segment at run time ``t`` (s): the state filter goes on from the
+        last one's estimate, and the desired signals are handed over from it."""
         transition = self.transitions[self.active]
         before = self.controller.dhat
         self.controller.dhat = transition.carried_depth(before)
@@ -167,7 +183,7 @@ class SegmentSwitch:
             self.controller.gains = self.gains[self.active]
         estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
         if self.route_trajectory is not None:
-            self.route_trajectory.hand_over(self.active, t if route_t is None else route_t, transition, *(estimates or ()))
+            self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
         self.switches.append((t, self.active, before, self.controller.dhat))
 
 
@@ -210,14 +226,15 @@ class RouteCamera(SegmentSwitch):
 def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controller: AdaptiveTrackingController,
               start_pose: ArrayLike, dt: float, duration: float, limits: ActuatorLimits | None = None,
               pixel_noise: float = 0.0, seed: int = 0, gains: Sequence[ControllerGains] | None = None,
-              filter_noise: Sequence[float] | None = None, orders: Sequence[NDArray[np.intp]] | None = None
-              ) -> tuple[RouteCamera, Iterator[StepRecord]]:
+              filter_noise: Sequence[float] | None = None, orders: Sequence[NDArray[np.intp]] | None = None,
+              speed: float = 1.0) -> tuple[RouteCamera, Iterator[StepRecord]]:
     """The closed loop along ``route`` from ``start_pose`` (x, y, phi in its frame R), one
     :class:`~hbvs_cli.core.simulator.StepRecord` per period ``dt`` (s) for ``duration`` (s);
     the camera keeps the log of the switches. ``filter_noise`` (normalised units, one per
     segment): a state filter per segment, each going on from the last one's estimate
-    (:meth:`SegmentFilters.switch`). ``orders``: as :class:`RouteCamera` takes them."""
-    trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches)
+    (:meth:`SegmentFilters.switch`). ``orders``: as :class:`RouteCamera` takes them.
+    ``speed``: times the taught pace (``switches`` stay in the route's time, ``duration`` is the run's)."""
+    trajectory = RouteTrajectory([fit.trajectory for fit in fitted.fits], switches, speed=speed)
     camera = RouteCamera(route, fitted, trajectory, controller, pixel_noise, seed, gains, orders)
     if gains is not None:
         controller.gains = gains[0]

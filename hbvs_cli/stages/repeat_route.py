@@ -24,7 +24,6 @@ from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import RouteFit, view_spans
-from ..core.trajectory import TimeScaledTrajectory
 from ..errors import RecordingError, UsageError
 from ..io.fit_file import FitFile
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
@@ -121,30 +120,28 @@ class RouteSight(SegmentSwitch):
     (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame where it sees its whole
     target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX` across, as ``fit`` followed it."""
 
-    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, speed: float,
+    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
         super().__init__(plan.transitions, controller, gains, trajectory)
         self.detectors, self.estimators, self.models = detectors, estimators, plan.models
         #: The segments whose detector has looked already (the first from the fit's first view).
         self.looked = 1
-        #: The segment in force's desired signals at the run's pace (switches not made yet lie at infinity).
-        self.trajectory = TimeScaledTrajectory(trajectory, speed)
-        self.planned = (planned - self.trajectory.start) / speed
-        self.t_start, self.t_end = self.trajectory.t_start, self.trajectory.t_end
+        #: The planned switches in run time (s); the trajectory's switches not made yet lie at infinity.
+        self.planned = trajectory.run_time(planned)
+        self.t_start, self.t_end = trajectory.t_start, trajectory.t_end
         self.colour = any(model.detector.contrast == "colour" for model in plan.models)
 
     def observe(self, image: np.ndarray, t: float) -> Observation:
         ahead = self.active + 1
         if ahead < len(self.detectors) and t >= self.planned[self.active]:
             if self.looked == ahead:  # first looked for where the robot on its track would see it
-                desired = self.models[ahead].trajectory.evaluate(self.trajectory.start + self.trajectory.speed * t)
+                desired = self.models[ahead].trajectory.evaluate(float(self.route_trajectory.route_time(t)))
                 self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
                 self.looked += 1
             observation = self._measure(ahead, image)
             if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
-                route_t = self.trajectory.start + self.trajectory.speed * t
-                self.route_trajectory.switches[self.active] = route_t
-                self.advance(t, route_t)
+                self.route_trajectory.switches[self.active] = self.route_trajectory.route_time(t)
+                self.advance(t)
                 return observation
         return self._measure(self.active, image)
 
@@ -154,8 +151,7 @@ class RouteSight(SegmentSwitch):
     def evaluate(self, t: float) -> Any:
         """The segment in force's desired signals, each switch's discrepancy fading out
         (:meth:`~hbvs_cli.sim.route_loop.RouteTrajectory.blended`), as ``--sim``'s."""
-        speed = self.trajectory.speed
-        return self.route_trajectory.blended(self.trajectory.evaluate(t), self.trajectory.start + speed * t, speed)
+        return self.route_trajectory.blended(self.route_trajectory.evaluate(t), t)
 
 
 @dataclass
@@ -179,7 +175,7 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     gains = segment_gains(settings, plan)
     controller = make_controller(settings.law, gains[0], settings.dhat0)
     estimators = [estimator_from_model(model, converge=True) for model in models]
-    trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf))
+    trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf), speed=settings.speed)
     planned = planned_switches(plan)
     detectors = []
     for number, model in enumerate(models):
@@ -187,7 +183,7 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
             detectors.append(detector_from_model(model, _template(plan, number), seed=options.seed))
         except RecordingError as exc:
             raise RecordingError(f"{options.input}: segment {number + 1}: {exc} (fitted before routes kept them: fit it again)") from None
-    sight = RouteSight(detectors, estimators, trajectory, settings.speed, planned, plan, controller, gains)
+    sight = RouteSight(detectors, estimators, trajectory, planned, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
     depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
@@ -236,11 +232,11 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
     dt = 1.0 / settings.rate
-    duration = float(plan.taught_poses[-1, 0]) + dt
-    camera, steps = run_route(route, route_fit, switches, controller,
-                              start, dt, duration, settings.limits, settings.pixel_noise, options.seed, gains, noise, orders)
+    duration = (float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start) / settings.speed + dt
+    camera, steps = run_route(route, route_fit, switches, controller, start, dt, duration, settings.limits,
+                              settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
-        "d_true": depths[-1], "route": route_metadata(plan, switches, depths)}
+        "d_true": depths[-1], "route": route_metadata(plan, camera.trajectory.run_time(switches), depths)}
     tally = tools.tally()
     height = route.camera_height
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
@@ -250,7 +246,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
                 log.step(record)
-                taught = taught_pose_at(plan.taught_poses, np.array([record.t]))[0]
+                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.trajectory.route_time(record.t)))[0]
                 run.poses(record.t, record.pose, taught, height)
                 tally.add(record, taught)
                 bar.advance()
