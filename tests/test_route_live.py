@@ -18,7 +18,7 @@ from hbvs_cli.io.route_file import read_route_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.sim.render import RenderSettings
 from hbvs_cli.sim.route_world import RouteRenderer, recorded_route
-from hbvs_cli.stages.repeat_route import taught_pose_at
+from hbvs_cli.stages.repeat_route import planned_switches, taught_pose_at
 
 from conftest import call_hbvs
 
@@ -126,11 +126,13 @@ def test_a_route_file_written_before_its_templates_were_kept_still_reads_and_rep
 
 
 def test_a_replayed_second_drive_switches_segments_carrying_a_positive_depth(corridor_fit, second_drive, tmp_path):
-    """``repeat --replay`` of a second drive against a route fit: the board's detector takes over
-    at the planned switch (90 % through the overlap, 13.39 s) in the first frame it sees the board
-    well, dhat is carried over by the fit's rho and stays positive; the run file records the
-    switch made (``hbvs.route_switches``), and the report's route section and figure start the
-    second segment there, not at the planned time. Measured: switch at 13.40 s, dhat 3.79 -> 10.45 m."""
+    """``repeat --replay`` of a second drive against a route fit: this drive, 8 cm to the left,
+    loses the dots at 12.53 s, after the overlap began (3.13 s) and before the planned switch
+    (90 % through it, 13.39 s): the board's detector takes over in that frame, so no frame is
+    lost (before: 13 frames, 0.87 s, lost until the planned switch); dhat is carried over by the
+    fit's rho and stays positive; the run file records the switch made (``hbvs.route_switches``),
+    and the report's route section and figure start the second segment there, not at the
+    planned time. Measured: switch at 12.53 s, dhat 3.79 -> 10.45 m."""
     run_path = tmp_path / "run.mcap"
     replay = call_hbvs("repeat", "--replay", str(second_drive), str(corridor_fit), "-o", str(run_path))
     assert replay.returncode == 0, replay.stderr
@@ -140,7 +142,8 @@ def test_a_replayed_second_drive_switches_segments_carrying_a_positive_depth(cor
     switches = [(t, text) for t, _, text in run.events if text.startswith("segment ")]
     assert len(switches) == 1 and switches[0][1].startswith("segment 2 (target 2, aruco)")
     when = switches[0][0]
-    assert planned[0] <= when < planned[0] + 2.0 / RATE
+    overlap_start = planned_switches(plan, 0.0)[0]
+    assert overlap_start <= when < planned[0] and not np.any(run.lost)
     before, after = (float(word) for word in switches[0][1].split("dhat ")[1].split(" m")[0].split(" -> "))
     assert after / before == pytest.approx(plan.transitions[0].depth_ratio, rel=1e-3)
     assert np.all(run.state["dhat"] > 0)
@@ -148,7 +151,7 @@ def test_a_replayed_second_drive_switches_segments_carrying_a_positive_depth(cor
     segments = json.loads(report.stdout)["route"]
     assert [segment["target_kind"] for segment in segments] == ["dots", "aruco"]
     assert run.info["route"]["switch_times"] == [pytest.approx(when, abs=1e-6)]
-    assert segments[1]["t_start"] == pytest.approx(when, abs=1e-6)
+    assert segments[1]["t_start"] == pytest.approx(when, abs=1e-4)  # the report rounds to 7 digits
     print(f"switch at {when:.2f} s (planned {planned[0]:.2f}), dhat {before:.3f} -> {after:.3f} m; "
           f"dhat at the end {run.state['dhat'][-1]:.3f} m")
 

@@ -36,7 +36,7 @@ from ..io.run_file import RunWriter
 from ..perception.target_kinds import target_kind
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..settings.commands import RepeatOptions
-from ..sim.route_loop import RouteTrajectory, SegmentFilters, SegmentSwitch, run_route, switch_times
+from ..sim.route_loop import SWITCH_FRACTION, RouteTrajectory, SegmentFilters, SegmentSwitch, run_route, switch_times
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from ..sim.scene import point_identity
 from .console import Console
@@ -68,10 +68,11 @@ def segment_gains(settings: Any, plan: RouteFile) -> list[ControllerGains]:
     return suggested if settings.gains == suggested[0] else [settings.gains] * len(plan.models)
 
 
-def planned_switches(plan: RouteFile) -> np.ndarray:
-    """The taught instant of each switch (s, the drive's time): :func:`~hbvs_cli.sim.route_loop.switch_times`."""
+def planned_switches(plan: RouteFile, fraction: float = SWITCH_FRACTION) -> np.ndarray:
+    """The taught instant of each switch (s, the drive's time), ``fraction`` of the way
+    through each overlap: :func:`~hbvs_cli.sim.route_loop.switch_times`."""
     frames = np.arange(plan.segments[-1].last + 1) * plan.models[0].taught_frame_interval()
-    return switch_times(RouteFit(plan.segments, plan.models, plan.references, plan.transitions), frames)
+    return switch_times(RouteFit(plan.segments, plan.models, plan.references, plan.transitions), frames, fraction)
 
 
 def route_metadata(plan: RouteFile, switches: np.ndarray, depths: list[float | None]) -> dict[str, Any]:
@@ -116,9 +117,11 @@ class RouteSight(SegmentSwitch):
     """What ``--live`` and ``--replay`` see along a route (the methods of
     :class:`~.live.TargetSight`): the segment in force measured by its own detector and
     estimator against its F*_i, and its desired signals. Once the run time passes a switch's
-    ``planned`` time (s), the next segment's detector looks too, and the switch is made
-    (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame where it sees its whole
-    target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX` across, as ``fit`` followed it."""
+    ``planned`` time (s), or the segment's target is lost after its overlap with the next began
+    (a robot off its taught path sees it leave sooner), the next segment's detector looks too,
+    and the switch is made (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame
+    where it sees its whole target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX`
+    across, as ``fit`` followed it."""
 
     def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
@@ -128,22 +131,35 @@ class RouteSight(SegmentSwitch):
         self.looked = 1
         #: The planned switches in run time (s); the trajectory's switches not made yet lie at infinity.
         self.planned = trajectory.run_time(planned)
+        #: Where each overlap begins, in run time (s): from there a lost target hands over at once.
+        self.overlaps = trajectory.run_time(planned_switches(plan, 0.0))
         self.t_start, self.t_end = trajectory.t_start, trajectory.t_end
         self.colour = any(model.detector.contrast == "colour" for model in plan.models)
 
     def observe(self, image: np.ndarray, t: float) -> Observation:
         ahead = self.active + 1
-        if ahead < len(self.detectors) and t >= self.planned[self.active]:
-            if self.looked == ahead:  # first looked for where the robot on its track would see it
-                desired = self.models[ahead].trajectory.evaluate(float(self.route_trajectory.route_time(t)))
-                self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
-                self.looked += 1
-            observation = self._measure(ahead, image)
-            if observation.status == ObservationStatus.OK and view_spans(observation.pixels[None])[0] >= MIN_SPAN_PX:
-                self.route_trajectory.switches[self.active] = self.route_trajectory.route_time(t)
-                self.advance(t)
-                return observation
-        return self._measure(self.active, image)
+        last = ahead == len(self.detectors)
+        if not last and t >= self.planned[self.active] and (switched := self._look_ahead(image, t)) is not None:
+            return switched
+        observation = self._measure(self.active, image)
+        if (not last and self.planned[self.active] > t >= self.overlaps[self.active]
+                and observation.status != ObservationStatus.OK and (switched := self._look_ahead(image, t)) is not None):
+            return switched
+        return observation
+
+    def _look_ahead(self, image: np.ndarray, t: float) -> Observation | None:
+        """The next segment's target measured, and the switch made, if it is seen well; else None."""
+        ahead = self.active + 1
+        if self.looked == ahead:  # first looked for where the robot on its track would see it
+            desired = self.models[ahead].trajectory.evaluate(float(self.route_trajectory.route_time(t)))
+            self.detectors[ahead].initial_prediction = desired_pixels(self.models[ahead], desired)
+            self.looked += 1
+        observation = self._measure(ahead, image)
+        if observation.status != ObservationStatus.OK or view_spans(observation.pixels[None])[0] < MIN_SPAN_PX:
+            return None
+        self.route_trajectory.switches[self.active] = self.route_trajectory.route_time(t)
+        self.advance(t)
+        return observation
 
     def _measure(self, segment: int, image: np.ndarray) -> Observation:
         return self.estimators[segment].from_pixels(self.detectors[segment].detect(image))
