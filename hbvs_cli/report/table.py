@@ -121,11 +121,11 @@ def _plain_text(cell: Any) -> str:
     return cell.plain if hasattr(cell, "plain") else str(cell)
 
 
-def _table_like(table: Any, columns: Sequence[Any]) -> Any:
-    """A table styled like ``table`` holding ``columns`` (their headers, cells and widths)."""
+def _table_like(table: Any, columns: Sequence[Any], title: Any = None) -> Any:
+    """A table styled like ``table`` holding ``columns`` (their headers, cells and widths), under ``title``."""
     from rich.table import Table
 
-    part = Table(box=table.box, pad_edge=table.pad_edge, show_edge=table.show_edge, header_style=table.header_style)
+    part = Table(title=title, box=table.box, pad_edge=table.pad_edge, show_edge=table.show_edge, header_style=table.header_style)
     for column in columns:
         part.add_column(column.header, justify=column.justify, min_width=column.min_width, width=column.width,
                         no_wrap=column.no_wrap, overflow=column.overflow)
@@ -196,7 +196,7 @@ def fit_to_width(table: Any, console: Any, keys: int = 1) -> list[Any]:
             parts[-1].append(column)
         else:
             parts.append([column])
-    return [_table_like(table, [*labels, *part]) for part in parts]
+    return [_table_like(table, [*labels, *part], table.title if not number else None) for number, part in enumerate(parts)]
 
 
 def print_table(console: Any, table: Any, keys: int = 1) -> None:

@@ -31,6 +31,11 @@ class Console:
         self.rich = RichConsole(file=self.stream, stderr=stream is None, highlight=False, soft_wrap=True)
 
     @property
+    def width(self) -> int:
+        """The width (characters) tables are fitted to."""
+        return self.rich.width
+
+    @property
     def interactive(self) -> bool:
         return not self.quiet and self.rich.is_terminal
 
@@ -41,7 +46,7 @@ class Console:
     def warn(self, message: str) -> None:
         self.rich.print(f"hbvs: warning: {message}", markup=False, style="yellow")
 
-    def print(self, renderable: Any) -> None:
+    def print(self, renderable: Any = "") -> None:
         """A rich renderable (a table, a panel) on stderr, unless quiet: wrapped to the width,
         title included (messages are soft-wrapped, one line each, by the terminal)."""
         if not self.quiet:

@@ -29,6 +29,7 @@ from ..io.messages import CAMERA_FRAME
 from ..io.topics import CALIBRATION_TOPIC, TOPICS
 from ..perception.target_kinds import SpecRequest, target_kind
 from ..perception.tracked import TrackedDetector, target_candidates
+from ..report.table import print_table
 from ..settings.commands import FitOptions
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from .console import Console
@@ -330,4 +331,4 @@ def _print_route_summary(console: Console, route_name: str, segments: list[Any],
                       f"{model.reference_t:.1f}", f"{model.dhat0:.3f}",
                       "" if into is None else f"{into.depth_ratio:.3f} +- {into.depth_ratio_std:.3f}",
                       "" if into is None else f"{np.degrees(into.heading):.2f} +- {np.degrees(into.heading_std):.2f}")
-    console.print(table)
+    print_table(console, table, keys=2)
