@@ -187,3 +187,15 @@ def assert_route_report_fits_80_columns(run) -> None:
     lines = buffer.getvalue().splitlines()
     assert any(line.count(",") == len(depths) - 1 and all(depth in line for depth in depths) for line in lines if "d* true" in line)
     assert any(all(error in line for error in errors) for line in lines if "dhat relative error" in line)
+
+
+def test_repeat_on_a_route_refuses_a_speed_its_run_cannot_have_in_one_line(tmp_path):
+    """--speed 0 (a division by zero before) and 1e-9 (an out-of-memory before: 2e11 steps) on a
+    route fit: exit 2 and 7, one line each, no run file."""
+    fit = taught_and_fitted(tmp_path, 16.0)
+    run = tmp_path / "run.mcap"
+    for speed, code, words in (("0", 2, "--speed must be a finite positive"), ("1e-9", 7, "exceeds the steps limit")):
+        result = call_hbvs("repeat", str(fit), "--sim", f"--speed={speed}", "-o", str(run))
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == code and len(lines) == 1 and words in lines[0], lines
+        assert not run.exists()

@@ -237,12 +237,13 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
 
 
-def check_simulation_settings(settings: Settings, model: FitModel) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them first)."""
+def check_simulation_settings(settings: Settings, model: FitModel, taught_s: float | None = None) -> None:
+    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
+    first); ``taught_s``: the taught duration (s) when it is not ``model``'s (a route's)."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
-        (model.trajectory.t_end - model.trajectory.t_start) / settings.speed, settings.rate,
+        (model.trajectory.t_end - model.trajectory.t_start if taught_s is None else taught_s) / settings.speed, settings.rate,
         "the run (the taught duration over --speed, times --rate)",
     )
 
@@ -522,4 +523,4 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
 
 #: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
 ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
-                              lost_watch=LostWatch)
+                              lost_watch=LostWatch, check_settings=check_simulation_settings)

@@ -247,8 +247,10 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     noise = [tools.detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
+    taught_s = float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start
+    tools.check_settings(settings, models[0], taught_s)
     dt = 1.0 / settings.rate
-    duration = (float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start) / settings.speed + dt
+    duration = taught_s / settings.speed + dt
     camera, steps = run_route(route, route_fit, switches, controller, start, dt, duration, settings.limits,
                               settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
