@@ -199,3 +199,24 @@ def test_repeat_on_a_route_refuses_a_speed_its_run_cannot_have_in_one_line(tmp_p
         lines = result.stderr.decode().strip().splitlines()
         assert result.returncode == code and len(lines) == 1 and words in lines[0], lines
         assert not run.exists()
+
+
+def test_repeat_on_a_route_refuses_the_faults_of_one_targets_run_and_says_it_projects_points(tmp_path):
+    """--occlude, --latency, --drop-rate, --outlier-rate, --exposure-step, --record-images and
+    --depth were ignored by a route's --sim (the run the same as without them): now exit 2 in one
+    line naming them; --perception images runs on the projected points, says so, and the run
+    file's settings say points."""
+    from hbvs_cli.io.run_file import read_run
+
+    fit = taught_and_fitted(tmp_path, 16.0)
+    run = tmp_path / "run.mcap"
+    for options, names in ((["--occlude", "5:7"], "--occlude applies"), (["--latency", "2", "--drop-rate", "0.2"], "--latency, --drop-rate apply"),
+                           (["--outlier-rate", "0.1", "--exposure-step", "3:2", "--record-images", "--depth", "3"],
+                            "--outlier-rate, --exposure-step, --record-images, --depth apply")):
+        result = call_hbvs("repeat", str(fit), "--sim", *options, "-o", str(run))
+        lines = result.stderr.decode().strip().splitlines()
+        assert result.returncode == 2 and len(lines) == 1 and names in lines[0], lines
+        assert not run.exists()
+    result = call_hbvs("repeat", str(fit), "--sim", "--perception", "images", "-o", str(run))
+    assert result.returncode == 0 and b"projects its targets' points" in result.stderr
+    assert read_run(str(run)).info["settings"]["perception"] == "points"

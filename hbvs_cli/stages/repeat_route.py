@@ -238,6 +238,17 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     plan = route_of(fit, str(options.input))
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
+    unsupported = [name for name, asked in (
+        ("--latency", settings.latency > 0), ("--occlude", bool(options.occlude)), ("--drop-rate", options.drop_rate > 0),
+        ("--outlier-rate", options.outlier_rate > 0), ("--exposure-step", options.exposure_step is not None),
+        ("--record-images", options.record_images), ("--depth", options.depth is not None)) if asked]
+    if unsupported:
+        raise UsageError(f"{options.input}: repeat --sim on a route measures its targets' exact points; "
+                         f"{', '.join(unsupported)} {'applies' if len(unsupported) == 1 else 'apply'} to one target's run only")
+    if options.perception == "images":
+        console.info("repeat --sim on a route projects its targets' points (--perception points); "
+                     "robot-sim renders the route for --live")
+    settings = replace(settings, perception="points")  # what the run file's settings then say
     models = plan.models
     route = recorded_route(plan.world, models[0].camera)
     depths, orders = segment_truths(route, plan)
