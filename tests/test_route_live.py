@@ -152,6 +152,10 @@ def test_a_replayed_second_drive_switches_segments_carrying_a_positive_depth(cor
     assert [segment["target_kind"] for segment in segments] == ["dots", "aruco"]
     assert run.info["route"]["switch_times"] == [pytest.approx(when, abs=1e-6)]
     assert segments[1]["t_start"] == pytest.approx(when, abs=1e-4)  # the report rounds to 7 digits
+    info = json.loads(call_hbvs("info", str(run_path), "--json").stdout)
+    assert info["target"] == "dots -> aruco" and info["switch_times"] == [pytest.approx(when, abs=1e-6)]
+    assert info["planned_switch_times"] == pytest.approx(planned)
+    assert f"at {when:.2f} s (planned {planned[0]:.2f} s)" in call_hbvs("info", str(run_path)).stdout.decode()
     print(f"switch at {when:.2f} s (planned {planned[0]:.2f}), dhat {before:.3f} -> {after:.3f} m; "
           f"dhat at the end {run.state['dhat'][-1]:.3f} m")
 

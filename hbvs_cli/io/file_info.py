@@ -10,7 +10,7 @@ from typing import Any
 
 from ..errors import InputError
 from .mcap.reader import McapStream, read_metadata
-from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_TOPIC, STATE_TOPIC, STOPPED_METADATA
+from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_SWITCHES_METADATA, ROUTE_TOPIC, STATE_TOPIC, STOPPED_METADATA
 
 #: The topic with one message per frame (teach, fit) or per control step (run).
 FRAME_TOPICS = {"teach": IMAGE_TOPIC, "fit": RAW_DESIRED_TOPIC, "run": STATE_TOPIC}
@@ -46,6 +46,9 @@ class FileInfo:
     stopped: str = ""
     #: A route fit's segments: each one's first and last frame of the taught drive.
     segments: list[tuple[int, int]] = field(default_factory=list)
+    #: A route run's switches: made and planned (run time, s).
+    switches: list[float] = field(default_factory=list)
+    planned_switches: list[float] = field(default_factory=list)
 
     @property
     def messages(self) -> int:
@@ -105,6 +108,9 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
     metadata = read_metadata(stream, "hbvs")
     kind = metadata.get("file_kind")
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
+    route = metadata.get("route") if isinstance(metadata.get("route"), dict) else {}
+    if target is None and _numbers(route.get("target_kinds"), str):  # a route run's, in order
+        target = " -> ".join(route["target_kinds"])
     if target is None:
         target = metadata.get("target_kind") or (settings.get("target") if kind == "teach" and metadata.get("source") == "sim" else None)
     return FileInfo(
@@ -113,7 +119,16 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         complete=not stream.truncated, stop_reason=stream.stop_reason,
         stopped=str(read_metadata(stream, STOPPED_METADATA).get("reason", "")),
         target=target if isinstance(target, str) else None, segments=segments,
+        switches=_numbers(read_metadata(stream, ROUTE_SWITCHES_METADATA).get("switch_times")),
+        planned_switches=_numbers(route.get("switch_times")),
     )
+
+
+def _numbers(values: Any, kind: type | tuple[type, ...] = (int, float)) -> list[Any]:
+    """``values`` if a list of ``kind`` (no bool), else none: info shows what it can of a malformed record."""
+    if isinstance(values, list) and all(isinstance(v, kind) and not isinstance(v, bool) for v in values):
+        return values
+    return []
 
 
 def _segment_frames(route: Any) -> list[tuple[int, int]]:

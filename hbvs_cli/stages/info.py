@@ -20,6 +20,7 @@ def info_document(info: Any) -> dict[str, Any]:
         "start_ns": info.start_ns, "end_ns": info.end_ns, "duration_s": round(info.duration_s, 9),
         "frames": info.frames, "messages": info.messages, "target": info.target,
         **({"segments": [list(frames) for frames in info.segments]} if info.segments else {}),
+        **({"switch_times": info.switches, "planned_switch_times": info.planned_switches} if info.planned_switches else {}),
         "settings": info.metadata.get("settings"),
         "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
         "metadata_records": info.metadata_names,
@@ -78,6 +79,9 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
         rows.append(("segments", f"{len(document['segments'])}: frames " + ", ".join(f"{first}-{last}" for first, last in document["segments"])))
     if document["target"]:
         rows.append(("target", document["target"]))
+    if document.get("planned_switch_times"):
+        made = ", ".join(f"{t:.2f}" for t in document["switch_times"]) or "none"
+        rows.append(("switches", f"at {made} s (planned {', '.join(f'{t:.2f}' for t in document['planned_switch_times'])} s)"))
     for key in ("source", "mode", "law", "input"):
         if key in document["metadata"]:
             rows.append((key, _value(document["metadata"][key])))
