@@ -13,6 +13,8 @@ measures the route's method (segments, transitions, switches), not the detectors
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -28,6 +30,9 @@ from hbvs_cli.sim.route_loop import run_route, switch_times
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 from hbvs_cli.stages.options import parse_offset
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the taught views are a test oracle
+from oracles import taught_views  # noqa: E402
+
 #: Taught frame period (s), control period (s), seconds either side of a switch, dhat(0) / d*_0,
 #: seconds after which the start offset's transient is over.
 TAUGHT_STEP, DT, AROUND_SWITCH_S, DHAT0_FACTOR, SETTLED_S = 0.2, 1.0 / 30.0, 1.0, 1.2, 5.0
@@ -40,7 +45,7 @@ def corridor_run(teach_noise: float, pixel_noise: float, seed: int) -> dict:
     route = corridor_route()
     rng = np.random.default_rng(seed)
     times = np.arange(0.0, route.profile.duration, TAUGHT_STEP)
-    poses, spans, pixels = route.taught_views(times, teach_noise, rng)
+    poses, spans, pixels = taught_views(route, times, teach_noise, rng)
     fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5,
                        max_gap=5.0, errors=[target_kind(w.target.kind).errors for w in route.worlds], warn=lambda message: None)
     depths = np.array([route.worlds[s.target].reference_geometry(route.local_pose(s.target, poses[r]))[2]

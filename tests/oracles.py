@@ -19,6 +19,7 @@ from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
 from hbvs_cli.report.result import RunReport
+from hbvs_cli.sim.route_world import MIN_SPAN_PX, RouteWorld
 from hbvs_cli.sim.world import World
 
 
@@ -123,3 +124,21 @@ class TaughtPathTrajectory:
         x_hd2 = x_f[..., 1] / self.d_star
         v, w = self.profile.commands_at(t)
         return _desired_state(theta_d, x_hd1, x_hd2, -w, -v / self.d_star + x_hd2 * w, -x_hd1 * w)
+
+
+def taught_views(route: RouteWorld, times: ArrayLike, pixel_noise: float = 0.0, rng: np.random.Generator | None = None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
+    """What ``route``'s taught drive sees at ``times`` (s): the poses (K, 3), each target's span
+    (K, T) (:meth:`~hbvs_cli.sim.route_world.RouteWorld.spans`) and each one's exact pixels (K, N_j, 2)
+    plus Gaussian noise of ``pixel_noise`` px from ``rng``, NaN where it is not seen well (span below
+    :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX`)."""
+    poses = route.profile.poses_at(np.asarray(times, dtype=float), route.start_pose)
+    spans = np.array([route.spans(pose) for pose in poses])
+    pixels = []
+    for index, world in enumerate(route.worlds):
+        seen = np.array([world.pixels(route.local_pose(index, pose)) for pose in poses])
+        if pixel_noise > 0:
+            seen = seen + rng.normal(0.0, pixel_noise, seen.shape)
+        seen[spans[:, index] < MIN_SPAN_PX] = np.nan
+        pixels.append(seen)
+    return poses, spans, pixels

@@ -12,7 +12,7 @@ from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 
 from conftest import campaign_extent
-from oracles import ground_truth
+from oracles import ground_truth, taught_views
 
 #: Frame rate (Hz) at which the corridor is sampled here.
 RATE = 10.0
@@ -162,7 +162,7 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
     campaign_extent(request, "campaign")
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, 0.2)
-    poses, spans, pixels = route.taught_views(times, 0.5, np.random.default_rng(0))
+    poses, spans, pixels = taught_views(route, times, 0.5, np.random.default_rng(0))
     segments = split_route(spans >= MIN_SPAN_PX, spans)
     fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
                        errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)

@@ -1,9 +1,9 @@
 """A robot interface added from outside the package (issue 45): ``repeat --live`` drives a toy robot
 that lives in this process, through the same loop, checks and run file as a ROS 2 or an MJPEG one.
 
-The toy is hbvs's simulated world rendered at the pose its received commands drove a kinematic
-unicycle to, on a virtual clock: each frame asked for is one taught frame period later, so the run
-takes as long as its computing, not the drive's 20 s. Registering it touches no file of hbvs_cli;
+The toy is hbvs's simulated world (robot-sim's: :func:`~hbvs_cli.sim.stand_in.stand_in_world`) rendered
+at the pose its received commands drove a kinematic unicycle to, on a virtual clock: each frame asked
+for is one taught frame period later, so the run takes as long as its computing, not the drive's 20 s. Registering it touches no file of hbvs_cli;
 a shipped one would touch two (its module, and its registration in stages/live.py).
 """
 
@@ -22,7 +22,7 @@ from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.sources.frame_source import LiveFrame
 from hbvs_cli.settings.commands import DEFAULT_OFFSET
-from hbvs_cli.sim.scene import renderer_for, simulation_world
+from hbvs_cli.sim.stand_in import stand_in_world
 from hbvs_cli.stages import live
 from hbvs_cli.stages.frame_decoding import fit_reference_image
 from hbvs_cli.stages.options import parse_offset
@@ -42,10 +42,9 @@ class ToyRobot:
     def __init__(self, fit_path: str, offset: tuple[float, float, float]) -> None:
         fit = read_fit_file(fit_path)
         self.camera = fit.model.camera
-        self.scene = simulation_world(fit.model, fit_reference_image(fit), None, source=fit_path)
-        self.renderer = renderer_for(self.scene, fit.model)
+        self.scene, self.renderer, taught_start = stand_in_world(fit.model, fit_reference_image(fit), None, fit_path)
         self.period = fit.model.taught_frame_interval()
-        self.pose = tuple(float(v) for v in compose_planar_pose(self.scene.taught_pose_at_run_time(0.0), offset))
+        self.pose = tuple(float(v) for v in compose_planar_pose(taught_start, offset))
         self.base = DynamicBase()  # kinematic: obeys at once
         self.rng = np.random.default_rng(7)
         self.command = (0.0, 0.0)

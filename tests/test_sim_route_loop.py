@@ -18,6 +18,8 @@ from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 from hbvs_cli.sim.route_loop import RouteTrajectory, run_route, switch_times
 from hbvs_cli.stages.options import parse_offset
 
+from oracles import taught_views
+
 #: The taught frames' period (s) and the control period (s).
 TAUGHT_STEP = 0.4
 DT = 1.0 / 30.0
@@ -28,7 +30,7 @@ def exact_corridor():
     """The corridor, its taught drive and its route fit from its targets' exact pixels."""
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, TAUGHT_STEP)
-    poses, spans, pixels = route.taught_views(times)
+    poses, spans, pixels = taught_views(route, times)
     fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
                        errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
     depths = [route.worlds[s.target].reference_geometry(route.local_pose(s.target, poses[r]))[2]

@@ -81,18 +81,6 @@ def sampled_profile(function: Callable[[NDArray[np.float64]], tuple[ArrayLike, A
     return CommandProfile(t=t, v=v, w=w, t_end=steps / rate)
 
 
-def _straight(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.1), np.zeros_like(t)
-
-
-def _s_curve(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.1), 0.045 * np.cos(2.0 * np.pi * t / 20.0)
-
-
-def _arc(t: NDArray[np.float64]) -> tuple[ArrayLike, ArrayLike]:
-    return np.full_like(t, 0.1), np.full_like(t, -0.012)
-
-
 @dataclass(frozen=True)
 class PathPreset:
     """A built-in taught path: commands, a start pose and a one-line description."""
@@ -108,11 +96,12 @@ PRESETS: dict[str, PathPreset] = {
     preset.name: preset
     for preset in (
         PathPreset("straight", "straight approach toward the target at 0.1 m/s for 20 s (4 m -> 2 m from it)",
-                   _straight, 20.0, (0.0, 0.0, 0.0)),
+                   lambda t: (np.full_like(t, 0.1), np.zeros_like(t)), 20.0, (0.0, 0.0, 0.0)),
         PathPreset("s-curve", "S-curve toward the target: 0.1 m/s, w = 0.045 cos(2 pi t / 20 s) rad/s (heading +-8 deg), 20 s",
-                   _s_curve, 20.0, (0.0, -0.05, 0.0)),
+                   lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2.0 * np.pi * t / 20.0)), 20.0,
+                   (0.0, -0.05, 0.0)),
         PathPreset("arc", "arc toward the target: 0.1 m/s, w = -0.012 rad/s, 20 s, starting 0.35 m left, heading 8 deg left",
-                   _arc, 20.0, (0.0, 0.35, np.radians(8.0))),
+                   lambda t: (np.full_like(t, 0.1), np.full_like(t, -0.012)), 20.0, (0.0, 0.35, np.radians(8.0))),
     )
 }
 

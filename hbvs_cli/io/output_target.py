@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator, Sequence
 
+from . import ClosedOnExit
 from ..errors import HbvsError, InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
 PARTIAL_SUFFIX = ".partial"
@@ -154,7 +155,7 @@ def directory_lock(folder: Path) -> Iterator[None]:
         os.close(fd)
 
 
-class FolderLock:
+class FolderLock(ClosedOnExit):
     """One writer at a time for an output folder: a ``flock`` on ``lock_path`` (never deleted, so
     that two processes never lock different files); :class:`OutputError` naming the holder's pid."""
 
@@ -185,16 +186,10 @@ class FolderLock:
         except OSError:
             return ""
 
-    def release(self) -> None:
+    def close(self) -> None:
         if self._fd is not None:
             os.close(self._fd)  # closing the descriptor drops the lock
             self._fd = None
-
-    def __enter__(self) -> "FolderLock":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.release()
 
 
 def _identity(path: str) -> tuple[int, int] | None:
@@ -265,7 +260,7 @@ def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
 STDOUT_HOLD_BYTES = 1 << 16
 
 
-class GuardedStream:
+class GuardedStream(ClosedOnExit):
     """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek).
     With ``hold`` > 0 the first bytes wait in memory until more than ``hold`` are written or
     :meth:`flush` is called; :meth:`discard` drops them (the stage failed)."""
@@ -320,12 +315,6 @@ class GuardedStream:
             raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:
             raise OutputError(f"{self._what}: the stream is closed") from None
-
-    def __enter__(self) -> "GuardedStream":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
     def close(self) -> None:
         if self.closed:

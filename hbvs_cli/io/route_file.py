@@ -42,13 +42,8 @@ class RouteFile:
 
 
 def transition_record(transition: Transition) -> dict[str, Any]:
-    """A transition as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho))."""
-    return {
-        "depth_ratio": transition.depth_ratio, "depth_ratio_std": transition.depth_ratio_std,
-        "heading": transition.heading, "heading_std": transition.heading_std,
-        "origin_over_depth": transition.origin_over_depth.tolist(), "covariance": transition.covariance.tolist(),
-        "frames": transition.frames, "residual_rms": transition.residual_rms,
-    }
+    """A transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho))."""
+    return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in vars(transition).items()}
 
 
 def _transition_from_record(record: dict[str, Any]) -> Transition:

@@ -281,7 +281,7 @@ class ResultsTable:
     def release(self) -> None:
         """Let another process write the folder (also done when this one ends)."""
         if self._lock is not None:
-            self._lock.release()
+            self._lock.close()
             self._lock = None
 
     def append(self, row: Mapping[str, Any]) -> None:

@@ -9,11 +9,9 @@ renderer need render. A dot not in its window falls back to the whole frame.
 
 from __future__ import annotations
 
-import bisect
 from dataclasses import replace
 import math
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -21,8 +19,8 @@ from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError
 from .base import Detection
-from .dots import (NOISY_GROUND, Blobs, DotDetector, SharedPull, _blob_centre, dark_image, find_dark_blobs, flatten_ground, ground_noise,
-                   segmentation_threshold)
+from .dots import (NOISY_GROUND, Blobs, DotDetector, SharedPull, dark_image, dot_like_blobs, find_dark_blobs,
+                   flatten_ground, ground_noise, segmentation_threshold)
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
@@ -118,28 +116,8 @@ def find_blobs_in_windows(
     levels, threshold = segmentation_threshold(np.clip(flat + 0.5, 0, 255).astype(np.uint8), noise, min_contrast)
     if threshold is None:
         return empty
-    _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)
-    _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(binary, 8, cv2.CV_32S, cv2.CCL_BBDT)
-    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
-    centres = np.full((keep.size, 2), np.nan)
-    areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
-    round_ = np.zeros(keep.size, dtype=bool)
-    touches = np.zeros(keep.size, dtype=bool)
-    for k, label in enumerate(keep.tolist()):
-        bx, by, bw, bh, area = stats[label].tolist()
-        index = bisect.bisect_right(columns, bx) - 1  # the window whose columns hold the blob
-        x0, y0, x1, y1 = windows[index]
-        column, window_w, window_h = columns[index], x1 - x0, y1 - y0
-        bx -= column
-        touches[k] = bx == 0 or by == 0 or bx + bw == window_w or by + bh == window_h
-        if touches[k] or area > window_w * window_h or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
-            continue
-        view = np.s_[:window_h, column : column + window_w]
-        centre, elongation = _blob_centre(flat[view], labels[view], label, (bx, by, bw, bh))
-        if elongation <= max_elongation and math.isfinite(centre[0]) and math.isfinite(centre[1]):
-            centres[k] = centre + (x0, y0)
-            round_[k] = True
-    return Blobs(centres, areas, round_, touches)
+    areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in windows]  # a dot fills less than its window
+    return dot_like_blobs(flat, levels, threshold, windows, columns, areas, min_area, max_elongation)
 
 
 class WindowedDotDetector(DotDetector):

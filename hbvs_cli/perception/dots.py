@@ -9,6 +9,7 @@ by row ``v`` then column ``u`` (or matches a lost target's last layout).
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -299,27 +300,40 @@ def find_dark_blobs(
         threshold = otsu_threshold(levels, min_contrast)
     if threshold is None:
         return empty
+    sub_h, sub_w = sub.shape
+    largest = 0.25 * sub.size if max_area is None else max_area
+    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [largest], min_area,
+                          max_elongation)
+
+
+def dot_like_blobs(flat: NDArray, levels: NDArray[np.uint8], threshold: float, windows: list[tuple[int, int, int, int]],
+                   columns: list[int], max_areas: list[float], min_area: int, max_elongation: float) -> Blobs:
+    """The components of ``levels`` below ``threshold`` at least ``min_area`` px large, and the
+    dot-like ones' centres weighed in ``flat`` (:func:`_blob_centre`). Both hold the frame's
+    ``windows`` (x0, y0, x1, y1) side by side, each from its column ``columns[i]`` (a frame, or
+    one window of it: column 0). Not dot-like: a component reaching its window's edge, larger
+    than ``max_areas[i]`` (px), elongated beyond ``max_elongation``."""
     _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)
     # BBDT: of OpenCV's labelling algorithms, the one that is fast on sparse foreground.
-    _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
-        binary, 8, cv2.CV_32S, cv2.CCL_BBDT
-    )
-    if max_area is None:
-        max_area = 0.25 * sub.size
-    sub_h, sub_w = sub.shape
+    _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(binary, 8, cv2.CV_32S, cv2.CCL_BBDT)
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
     centres = np.full((keep.size, 2), np.nan)
     areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
     round_ = np.zeros(keep.size, dtype=bool)
     touches = np.zeros(keep.size, dtype=bool)
-    for k, label in enumerate(keep):
-        bx, by, bw, bh, area = (int(s) for s in stats[label])
-        touches[k] = bx == 0 or by == 0 or bx + bw == sub_w or by + bh == sub_h
+    for k, label in enumerate(keep.tolist()):
+        bx, by, bw, bh, area = stats[label].tolist()
+        index = bisect.bisect_right(columns, bx) - 1  # the window whose columns hold the blob
+        x0, y0, x1, y1 = windows[index]
+        column, window_w, window_h = columns[index], x1 - x0, y1 - y0
+        bx -= column
+        touches[k] = bx == 0 or by == 0 or bx + bw == window_w or by + bh == window_h
         # Cheap box tests first: a disc fills ~pi/4 of its box.
-        if touches[k] or area > max_area or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
+        if touches[k] or area > max_areas[index] or area < 0.4 * bw * bh or max(bw, bh) > 3 * min(bw, bh):
             continue
-        centre, elongation = _blob_centre(sub, labels, label, (bx, by, bw, bh))
-        if elongation <= max_elongation and np.all(np.isfinite(centre)):
+        view = np.s_[:window_h, column : column + window_w]
+        centre, elongation = _blob_centre(flat[view], labels[view], label, (bx, by, bw, bh))
+        if elongation <= max_elongation and math.isfinite(centre[0]) and math.isfinite(centre[1]):
             centres[k] = centre + (x0, y0)
             round_[k] = True
     return Blobs(centres, areas, round_, touches)

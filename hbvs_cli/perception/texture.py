@@ -283,7 +283,7 @@ class TextureDetector:
         x0, y0 = (np.floor(start.min(axis=0)).astype(int) - margin).tolist()
         x1, y1 = (np.ceil(start.max(axis=0)).astype(int) + margin + 1).tolist()
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
-        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+        shift = _shift(-x0, -y0)
         warped = cv2.warpPerspective(self.reference, shift @ homography, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
         frame = np.ascontiguousarray(gray[y0:y1, x0:x1])
         local = start - np.array([x0, y0], dtype=np.float32)
@@ -328,7 +328,7 @@ class Vignetting:
         x0, y0, image = template
         self._cols = np.arange(image.shape[1], dtype=np.float32)[None, :]
         self._rows = np.arange(image.shape[0], dtype=np.float32)[:, None]
-        self._r2_reference = self._r2_frame(np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]]))
+        self._r2_reference = self._r2_frame(_shift(x0, y0))
         self._reference_shading: tuple[float, NDArray[np.float32]] = (0.0, np.ones_like(self._r2_reference))
         self._weighted_sum = 0.0
         self._weight = 0.0
@@ -351,7 +351,7 @@ class Vignetting:
     def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float32]:
         """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->
         whole-frame pixels), shape (h, w), float32: (x^2 + y^2) / (w^2 scale) about the centre."""
-        h = (np.array([[1.0, 0.0, -self.centre[0]], [0.0, 1.0, -self.centre[1]], [0.0, 0.0, 1.0]]) @ homography).astype(np.float32)
+        h = (_shift(-self.centre[0], -self.centre[1]) @ homography).astype(np.float32)
         cols, rows = self._cols, self._rows
         x = h[0, 0] * cols + (h[0, 1] * rows + h[0, 2])
         y = h[1, 0] * cols + (h[1, 1] * rows + h[1, 2])
@@ -390,7 +390,7 @@ class Vignetting:
         ok = np.isfinite(warped)
         if np.count_nonzero(ok) <= MIN_SHADING_PIXELS:
             return
-        to_whole = np.array([[1.0, 0.0, offset[0]], [0.0, 1.0, offset[1]], [0.0, 0.0, 1.0]]) @ homography
+        to_whole = _shift(*offset) @ homography
         brightness = template[ok].astype(np.float64)
         shading = (self._r2_reference - self._r2_frame(to_whole))[ok] * brightness
         design = np.stack([brightness, np.ones_like(brightness), shading])

@@ -222,10 +222,6 @@ def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
     return [("file", lambda r: r.run.name), ("label", lambda r: r.run.label), *RUN_ROWS, *gain_rows]
 
 
-def _statistic_unit(statistic: str, signal: str) -> str:
-    return "s" if statistic == "settling_time_s" else ERROR_SIGNALS[signal][1]
-
-
 def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], plain: bool) -> Any:
     """One run's errors: a row per signal, a column per statistic."""
     headers = [STATISTIC_NAMES[s] + (" (s)" if s == "settling_time_s" else "") for s in STATISTICS]
@@ -247,7 +243,8 @@ def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport],
 def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
     """Several runs' errors: a row per (signal, statistic)."""
     return [
-        (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({_statistic_unit(s, name)})", _statistic(section, name, s))
+        (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({'s' if s == 'settling_time_s' else ERROR_SIGNALS[name][1]})",
+         _statistic(section, name, s))
         for name in names for s in STATISTICS
     ]
 

@@ -208,10 +208,7 @@ class RouteCamera(SegmentSwitch):
         segment = int(self.trajectory.segment_at(t))
         while self.active < segment:
             self.advance(t)
-        return self._measure(pose)
-
-    def _measure(self, pose: NDArray[np.float64]) -> Observation:
-        """The active segment's target seen from ``pose``, through its estimator."""
+        # The active segment's target seen from ``pose``, through its estimator.
         target = self.fitted.segments[self.active].target
         world = self.route.worlds[target]
         local = self.route.local_pose(target, pose)

@@ -72,24 +72,6 @@ class RouteWorld:
                 spans[index] = np.max(np.linalg.norm(pixels[:, None, :] - pixels[None, :, :], axis=-1))
         return spans
 
-    def taught_views(self, times: ArrayLike, pixel_noise: float = 0.0, rng: np.random.Generator | None = None,
-                     min_span_px: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
-        """What the taught drive sees at ``times`` (s): the poses (K, 3), each target's span
-        (K, T) (:meth:`spans`) and each one's exact pixels (K, N_j, 2) plus Gaussian noise of
-        ``pixel_noise`` px from ``rng``, NaN where it is not seen well (span below
-        ``min_span_px``, :data:`MIN_SPAN_PX` by default)."""
-        poses = self.profile.poses_at(np.asarray(times, dtype=float), self.start_pose)
-        spans = np.array([self.spans(pose) for pose in poses])
-        seen_well = spans >= (MIN_SPAN_PX if min_span_px is None else min_span_px)
-        pixels = []
-        for index, world in enumerate(self.worlds):
-            seen = np.array([world.pixels(self.local_pose(index, pose)) for pose in poses])
-            if pixel_noise > 0:
-                seen = seen + rng.normal(0.0, pixel_noise, seen.shape)
-            seen[~seen_well[:, index]] = np.nan
-            pixels.append(seen)
-        return poses, spans, pixels
-
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
         """True when at least one target is wholly in view (what a teach warns about)."""
         return bool(np.any(self.visible(pose, margin_px)))

@@ -1,13 +1,19 @@
 """What ``hbvs robot-sim``'s stand-in robot adds to the simulated robot of ``repeat --sim``: the dynamics of
 its base (``--base``) and the faults of its camera driver's clock (``--stamp-fault``), parsed from their
-option's text."""
+option's text; the world it shows (a toy robot of the tests shows the same)."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+from numpy.typing import NDArray
+
+from ..core.fit_model import FitModel
 from ..core.unicycle import DynamicBase
 from ..errors import UsageError
+from .render import SceneRenderer
+from .scene import Scene, renderer_for, simulation_world
 
 
 #: ``--base`` presets: (max_v m/s, max_w rad/s, max_accel m/s^2, max_alpha rad/s^2, motor lag s).
@@ -33,6 +39,14 @@ def parse_base(text: str) -> DynamicBase:
         raise UsageError(f"--base must be {', '.join(BASES)} or V,W,ACCEL,ALPHA,LAG (positive limits, inf for none; "
                          f"a lag >= 0 s), got {text!r}")
     return DynamicBase(*values)
+
+
+def stand_in_world(model: FitModel, reference_image: NDArray | None, depth: float | None,
+                   source: str) -> tuple[Scene, SceneRenderer, np.ndarray]:
+    """A single-target fit's world as a stand-in robot shows it: ``repeat --sim``'s scene, rendered with
+    the teach's sensor, and the taught start pose (x m, y m, phi rad)."""
+    scene = simulation_world(model, reference_image, depth, source=source)
+    return scene, renderer_for(scene, model), scene.taught_pose_at_run_time(0.0)
 
 
 class StampFault:

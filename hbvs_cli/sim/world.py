@@ -121,13 +121,8 @@ class World:
         """True when every target point is in front of the camera and inside the image."""
         if np.any(self.points_in_camera(pose)[:, 0] <= 0.05):
             return False
-        px = self.pixels(pose)
-        return bool(
-            np.all(px[:, 0] >= margin_px)
-            and np.all(px[:, 0] <= self.camera.width - 1 - margin_px)
-            and np.all(px[:, 1] >= margin_px)
-            and np.all(px[:, 1] <= self.camera.height - 1 - margin_px)
-        )
+        px, size = self.pixels(pose), np.array([self.camera.width, self.camera.height])
+        return bool(np.all(px >= margin_px) and np.all(px <= size - 1 - margin_px))
 
     def reference_geometry(self, reference_pose: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """What F* sees: m*_i (N, 3), the unit normal n* in F* toward the plane and d* (m), (7)."""

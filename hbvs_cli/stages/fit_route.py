@@ -46,7 +46,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     """Fit the route of ``reader`` (its decoded ``frames``, each passed to ``checked_frame``)
     and write its route file into ``writer`` (metadata written already); the fit's summary on
     stderr. ``segment_model(arrays, reference_index, spec, world_description, name)``: the
-    single-target fit of one segment's frames (:func:`.fit._segment_model`);
+    single-target fit of one segment's frames (:func:`.fit._drive_fit`'s model);
     ``spec_of(choice, images)``: the detector of a kind ``--target auto`` found in ``images``.
     The models, in order."""
     from ..io.calibration import calibration_to_foxglove

@@ -346,11 +346,8 @@ class _Tally:
 
     def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
         t = self.series["t"]
-        errors: dict[str, float] = {}
-        for name, series in self.series.items():
-            final = final_value(t, series) if t and name != "t" else None
-            if final is not None:
-                errors[name] = final
+        finals = {name: final_value(t, series) for name, series in self.series.items() if t and name != "t"}
+        errors = {name: final for name, final in finals.items() if final is not None}
         return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
@@ -394,8 +391,7 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
         final.append(f"position {100 * e['position_m']:.3g} cm, |heading| {e['heading_deg']:.3g} deg")
     if final:
         parts.append("final (mean over the last 5 %, as in hbvs report): " + ", ".join(final))
-    depth = f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else "")
-    parts.append(depth)
+    parts.append(f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else ""))
     console.info("; ".join(parts) + f" -> {summary.output}")
     if stopped is not None:
         raise TargetLostError(f"{stopped}; the run up to then is in {output}")

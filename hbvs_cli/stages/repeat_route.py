@@ -45,9 +45,8 @@ from .console import Console
 def taught_pose_at(taught: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The taught pose (K, 3) in the route frame at times ``t`` (s), between the recorded
     frames ``taught`` (F, 4: t, x, y, phi) linearly (phi unwrapped)."""
-    phi = np.unwrap(taught[:, 3])
-    return np.column_stack([np.interp(t, taught[:, 0], taught[:, 1]), np.interp(t, taught[:, 0], taught[:, 2]),
-                            np.interp(t, taught[:, 0], phi)])
+    columns = (taught[:, 1], taught[:, 2], np.unwrap(taught[:, 3]))
+    return np.column_stack([np.interp(t, taught[:, 0], column) for column in columns])
 
 
 def segment_truths(route: RouteWorld, plan: RouteFile) -> tuple[list[float], list[np.ndarray]]:

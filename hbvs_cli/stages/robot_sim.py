@@ -26,8 +26,7 @@ from ..io.ros2_names import check_topic_names
 from ..io.route_file import route_of
 from ..io.topics import ROS_TRUE_POSE_TOPIC
 from ..sim.route_world import make_route_renderer, recorded_route
-from ..sim.scene import renderer_for, simulation_world
-from ..sim.stand_in import MAX_PLAUSIBLE_V, MAX_PLAUSIBLE_W, StampFault, parse_base
+from ..sim.stand_in import MAX_PLAUSIBLE_V, MAX_PLAUSIBLE_W, StampFault, parse_base, stand_in_world
 from .console import Console
 from .frame_decoding import fit_reference_image
 from .options import parse_interval, parse_offset
@@ -152,8 +151,7 @@ def _transport(options: RobotSimOptions, camera: Any) -> Any:
 def _taught_world(fit: FitFile, options: RobotSimOptions) -> tuple[Any, np.ndarray]:
     """The renderer of the fit's taught world (a route's: all its targets, issue 47) and the taught start pose."""
     if fit.route_record is None:
-        scene = simulation_world(fit.model, fit_reference_image(fit), options.depth, source=options.input)
-        return renderer_for(scene, fit.model), scene.taught_pose_at_run_time(0.0)
+        return stand_in_world(fit.model, fit_reference_image(fit), options.depth, options.input)[1:]
     plan = route_of(fit, options.input)
     if plan.world is None or plan.taught_poses is None or options.depth is not None:
         raise UsageError(f"{options.input}: robot-sim renders a route from its simulated teach (and takes no --depth); "

@@ -10,12 +10,13 @@ import cv2
 import numpy as np
 
 from ...errors import InputError
+from .. import ClosedOnExit
 from ..native_log import opencv_error_text
 from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
 from ..images import as_image8
 
 
-class CameraSource(FrameSource):
+class CameraSource(FrameSource, ClosedOnExit):
     """A live camera (``index``: a device number or an OpenCV path/URL), timestamped with ``clock`` (s)
     from the first frame, until ``duration`` s; opened here, so that a missing camera is reported
     before anything is recorded."""
@@ -55,12 +56,6 @@ class CameraSource(FrameSource):
         if self._capture is not None:
             self._capture.release()
             self._capture = None
-
-    def __enter__(self) -> CameraSource:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __iter__(self) -> Iterator[SourceFrame]:
         # Take over the capture opened by the constructor; a second iteration reopens.

@@ -6,12 +6,12 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from ...errors import InputError
+from .. import ClosedOnExit
 from .frame_source import LiveFrame
 from ..images import as_image8
 
@@ -20,7 +20,7 @@ def _is_file(device: str) -> bool:
     return not device.isdigit() and "://" not in device and not device.startswith("/dev/") and Path(device).is_file()
 
 
-class LatestCameraFrame:
+class LatestCameraFrame(ClosedOnExit):
     """Frames of ``cv2.VideoCapture(device)`` (an index, ``/dev/videoN``, a URL or a video file), newest only."""
 
     def __init__(self, device: str) -> None:
@@ -96,9 +96,3 @@ class LatestCameraFrame:
         self._stop.set()
         self._thread.join(timeout=1.0)
         self._capture.release()
-
-    def __enter__(self) -> "LatestCameraFrame":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
