@@ -227,7 +227,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 camera = _checked_frame(reader, frame, image)
                 def route_fit(reader: Any, frames: Iterator[Any]) -> FitSummary:  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, frames, bar, console, partial(_checked_frame, reader),
-                                             partial(_segment_model, reader, smoothing, options, console),
+                                             partial(_drive_fit, reader, smoothing, options, console),
                                              lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
                                                                                   None, console), options)
                     return FitSummary(output=options.output, model=models[0])
@@ -296,11 +296,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
     _print_summary(console, model, result, options)
     return FitSummary(output=options.output, model=model)
-
-
-def _segment_model(*segment: Any) -> FitModel:
-    """The fit model of one segment of a route (:mod:`.fit_route`), fitted as a single target's drive."""
-    return _drive_fit(*segment)[1]
 
 
 def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
