@@ -116,7 +116,7 @@ def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():
 def test_errors_common_to_a_fits_frames_are_carried_into_the_transitions_uncertainty():
     """Each fit's signals over the corridor's three overlaps moved by errors common to its frames
     (6 random modes, constant, linear and quadratic over the overlap, ~1e-3 rad and 1e-3 in each
-    channel, as :attr:`FitUncertainty.inherited_modes` states them), 200 seeds: the overlap's
+    channel, as :attr:`FitUncertainty.error_modes` states them), 200 seeds: the overlap's
     scatter shows little of it (a constant heading error leaves none), the modes carried through
     the least squares do. Measured: z-scores' RMS 0.93, 0.90, 0.94 for rho (max 2.8), 0.91,
     0.92, 0.81 for the heading (max 3.2; the scatter counts the quadratic part again); without

@@ -174,7 +174,9 @@ def test_the_transitions_stated_uncertainty_holds_both_ways_on_the_rendered_corr
     transitions between fits whose n* is within 1 deg of the truth. Seeds 2, 4, 6 and 7 fit the
     photograph of segment 3 with n* 3.9 deg off (its stated sigma 0.23 deg): a fit failure its
     two transitions inherit (heading 13 and 3 deg off), outside what a fit's sigma states, so
-    left out and counted. Measured: ... ~5 min on 2 cores."""
+    left out and counted (8 of 30). Measured: RMS 1.12 (rho) and 1.20 (heading), largest 1.5
+    and 2.0, over 22 transitions (before: rho's sigma 1.5-3 times too large, the headings' up
+    to 3 times too small). 3 min on 2 cores."""
     from test_core_route import assert_z_scores_honest, transition_z_scores
 
     campaign_extent(request, "campaign")
@@ -192,7 +194,7 @@ def test_the_transitions_stated_uncertainty_holds_both_ways_on_the_rendered_corr
         for k, z in enumerate(transition_z_scores(route, poses, route_file)):
             z_scores += [z] if sound[k] and sound[k + 1] else []
             failed += not (sound[k] and sound[k + 1])
-    assert failed <= 8
+    assert failed == 8
     assert_z_scores_honest(z_scores, 20)
 
 

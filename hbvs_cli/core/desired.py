@@ -198,9 +198,9 @@ class FitUncertainty:
     with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
     the used span (which average a frame's own noise, not the inherited part);
     ``calibration_normal_sigma_deg``: the part of n*'s sigma the intrinsics' errors make;
-    ``inherited_modes(times)`` (T, 3, C): how the splines' (theta_d, x_hd1, x_hd2) at ``times``
-    (s) move with each of C independent unit errors of the globals and biases (the inherited
-    part, common to the frames: a route's transition propagates it, :mod:`.route`).
+    ``error_modes(times)`` (T, 3, C): how the splines' (theta_d, x_hd1, x_hd2) at ``times`` (s)
+    move with each of C independent unit errors, inherited and own (a route's transition carries
+    them, :mod:`.route`).
     """
 
     normal_sigma_deg: float
@@ -210,7 +210,7 @@ class FitUncertainty:
     smooth_theta_sigma: NDArray[np.float64]
     smooth_x_h1_sigma: NDArray[np.float64]
     calibration_normal_sigma_deg: float = 0.0
-    inherited_modes: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(default=None, compare=False, repr=False)
+    error_modes: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(default=None, compare=False, repr=False)
 
     def summary(self, calibration: str | None = None) -> UncertaintySummary:
         """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
@@ -591,7 +591,7 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
         x_h1_sigma=x_h1_sigma,
         smooth_theta_sigma=smoothed[0],
         smooth_x_h1_sigma=smoothed[1],
-        inherited_modes=partial(_inherited_modes, covariance, directions, t[used], trajectory),
+        error_modes=partial(_error_modes, covariance, directions, t[used], trajectory),
     )
 
 
@@ -611,10 +611,10 @@ def _inherited_columns(covariance: JointCovariance, directions: NDArray[np.float
     return inherited
 
 
-def _inherited_modes(covariance: JointCovariance, directions: NDArray[np.float64], t_used: NDArray[np.float64],
-                     trajectory: SplineTrajectory, times: ArrayLike) -> NDArray[np.float64]:
-    """:attr:`FitUncertainty.inherited_modes`: each frame's error, in columns of independent
-    unit errors (the globals', the biases', then :data:`NOISE_PROBES` probes of the frames' own,
+def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t_used: NDArray[np.float64],
+                 trajectory: SplineTrajectory, times: ArrayLike) -> NDArray[np.float64]:
+    """:attr:`FitUncertainty.error_modes`: each frame's error, in columns of independent unit
+    errors (the globals', the biases', then :data:`NOISE_PROBES` probes of the frames' own,
     scaled so that the columns' sum of squares is the variance), through the fit's splines, at
     ``times`` (T,) s: shape (T, 3, C). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1
     theta_d_dot``, from its offset, the mean of the frames' x_h2 less that integral."""
@@ -624,12 +624,14 @@ def _inherited_modes(covariance: JointCovariance, directions: NDArray[np.float64
     values, vectors = np.linalg.eigh(covariance.own)
     own_roots = vectors * np.sqrt(np.maximum(values, 0.0))[:, None, :]  # (K, 3, 3): own = roots roots^T
     signs = np.random.default_rng(1).choice([-1.0, 1.0], size=(t_used.size, 3, NOISE_PROBES)) / np.sqrt(NOISE_PROBES)
-    channels = []
-    for index in range(3):
-        grid, binned = _binned_columns(t_used, partial(lambda rows, index: np.column_stack(
-            [*_inherited_columns(covariance, directions, rows, index), np.einsum("kb,kbp->kp", own_roots[rows, index], signs[rows])]), index=index))
-        channels.append(binned)
-    splines = [make_smoothing_spline(grid, binned, lam=trajectory.channels[name].smoothing) for binned, name in zip(channels, CHANNELS)]
+
+    def columns(rows: slice, index: int) -> NDArray[np.float64]:
+        own = np.einsum("kb,kbp->kp", own_roots[rows, index], signs[rows])
+        return np.column_stack([*_inherited_columns(covariance, directions, rows, index), own])
+
+    binned = [_binned_columns(t_used, partial(columns, index=index)) for index in range(3)]
+    grid, channels = binned[0][0], [moved for _, moved in binned]
+    splines = [make_smoothing_spline(grid, moved, lam=trajectory.channels[name].smoothing) for moved, name in zip(channels, CHANNELS)]
     taught = trajectory.evaluate(grid)
     moved_rate = splines[1](grid) * taught.theta_d_dot[:, None] + taught.x_hd1[:, None] * splines[0].derivative()(grid)
     integral = np.concatenate([np.zeros((1, moved_rate.shape[1])), np.cumsum((moved_rate[1:] + moved_rate[:-1]) / 2 * np.diff(grid)[:, None], axis=0)])

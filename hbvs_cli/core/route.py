@@ -173,7 +173,7 @@ def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayL
     F*_{i+1}. Least squares on ``R_i u - rho x_h,i+1 = -x_h,i``; the covariance is the residuals'
     long-run variance (:func:`~.bundle.correlation_inflation`: they are smoothed signals') times
     (A^T A)^-1, the heading's its scatter's; plus, with ``modes_*`` (K, 3, C), each fit's stated
-    errors (:attr:`.FitUncertainty.inherited_modes`: n*_i's and the biases', common to the
+    errors (:attr:`.FitUncertainty.error_modes`: n*_i's and the biases', common to the
     frames, which the scatter cannot show, and the frames' own), carried through the same least
     squares and the heading's mean (the linearised (13), (14)). MalformedDataError for
     fewer than 2 frames or an overlap without the motion that separates rho from u."""
@@ -271,7 +271,7 @@ def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], trajectories
     :class:`.FitUncertainty` (or None), whose inherited errors the transitions' covariance counts."""
     t = np.asarray(t, dtype=float)
     uncertainties = [None] * len(trajectories) if uncertainties is None else uncertainties
-    modes_at = [None if u is None or u.inherited_modes is None else u.inherited_modes for u in uncertainties]
+    modes_at = [None if u is None else u.error_modes for u in uncertainties]
     transitions = []
     for number, segment in enumerate(segments[1:]):
         shared = t[segment.first:segment.overlap_last + 1]
