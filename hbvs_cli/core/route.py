@@ -258,27 +258,24 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
                                            max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)
-    transitions = estimate_transitions(t, segments, [fit.trajectory for fit in fits], [fit.uncertainty for fit in fits])
-    return RouteFit(list(segments), fits, references, transitions)
+    return RouteFit(list(segments), fits, references, estimate_transitions(t, segments, fits))
 
 
-def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], trajectories: Sequence[Any],
-                         uncertainties: Sequence[Any] | None = None) -> list[Transition]:
-    """Each transition of a route from its segments' fitted desired trajectories (``evaluate(t)``
-    of Remark 1's splines) over each overlap of the drive's frame times ``t`` (s): the smoothed
-    signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor pulls its
-    coefficient toward zero (errors in variables). ``uncertainties``: each segment's
-    :class:`.FitUncertainty` (or None), whose inherited errors the transitions' covariance counts."""
+def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequence[DesiredFit]) -> list[Transition]:
+    """Each transition of a route from its segments' fits (their desired trajectories'
+    ``evaluate(t)``, Remark 1's splines) over each overlap of the drive's frame times ``t`` (s):
+    the smoothed signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor
+    pulls its coefficient toward zero (errors in variables); with each fit's stated errors
+    (:attr:`.FitUncertainty.error_modes`, where it has them) carried into the transitions' covariance."""
     t = np.asarray(t, dtype=float)
-    uncertainties = [None] * len(trajectories) if uncertainties is None else uncertainties
-    modes_at = [None if u is None else u.error_modes for u in uncertainties]
     transitions = []
-    for number, segment in enumerate(segments[1:]):
+    for here_fit, segment, there_fit in zip(fits, segments[1:], fits[1:]):
         shared = t[segment.first:segment.overlap_last + 1]
-        here, there = trajectories[number].evaluate(shared), trajectories[number + 1].evaluate(shared)
+        here, there = here_fit.trajectory.evaluate(shared), there_fit.trajectory.evaluate(shared)
+        modes = [None if fit.uncertainty is None or fit.uncertainty.error_modes is None else fit.uncertainty.error_modes(shared)
+                 for fit in (here_fit, there_fit)]
         transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
-                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2]),
-                                               *(None if modes is None else modes(shared) for modes in modes_at[number:number + 2])))
+                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2]), *modes))
     return transitions
 
 

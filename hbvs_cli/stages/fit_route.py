@@ -91,7 +91,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         fits.append(fit)
         models.append(model)
         references.append(segment.first + reference)
-    transitions = estimate_transitions(t, segments, [model.trajectory for model in models], [fit.uncertainty for fit in fits])
+    transitions = estimate_transitions(t, segments, fits)
     write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
                 reader.world_description, None if route is None else np.column_stack([t, poses]),
                 [follower.detectors[s.target].template_image for s in segments])
