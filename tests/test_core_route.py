@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.route import Segment, bridge_brief_gaps, estimate_transition, fit_route, split_route
 from hbvs_cli.errors import MalformedDataError
 from hbvs_cli.perception.target_kinds import target_kind
@@ -88,20 +89,6 @@ def test_the_transition_is_exact_from_exact_signals_on_every_corridor_overlap():
             assert np.all(np.linalg.eigvalsh(covariance) > 0.0)
 
 
-def test_correlation_inflation_is_one_for_white_residuals_and_the_ar1_factor_for_smooth_ones():
-    """White residuals: 1 (measured 1.00); an AR(1) series with r = 0.9, (1 + r) / (1 - r) = 19
-    within 10 % (the variance of its mean over 20 000 frames is 19x that of white noise)."""
-    from hbvs_cli.core.route import correlation_inflation
-
-    rng = np.random.default_rng(3)
-    assert correlation_inflation(rng.normal(size=(20000, 2))) == pytest.approx(1.0, abs=0.05)
-    smooth = np.zeros((20000, 2))
-    for k in range(1, smooth.shape[0]):
-        smooth[k] = 0.9 * smooth[k - 1] + rng.normal(size=2)
-    assert correlation_inflation(smooth) == pytest.approx(19.0, rel=0.1)
-    assert correlation_inflation(np.ones((10, 2))) == 1.0 and correlation_inflation(smooth[:2]) == 1.0
-
-
 def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():
     """Signals with the noise of a fit (1 mrad on theta, 1e-3 on x_h) over each corridor
     overlap, 20 seeds: rho's error within 3 of its reported sigmas in >= 90 % of the cases, and
@@ -124,6 +111,41 @@ def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():
             cases += 1
     assert within >= 0.9 * cases
     assert worst < 0.05
+
+
+def test_errors_common_to_a_fits_frames_are_carried_into_the_transitions_uncertainty():
+    """Each fit's signals over the corridor's three overlaps moved by errors common to its frames
+    (6 random modes, constant, linear and quadratic over the overlap, ~1e-3 rad and 1e-3 in each
+    channel, as :attr:`FitUncertainty.error_modes` states them), 200 seeds: the overlap's
+    scatter shows little of it (a constant heading error leaves none), the modes carried through
+    the least squares do. Measured: z-scores' RMS 0.93, 0.90, 0.94 for rho (max 2.8), 0.91,
+    0.92, 0.81 for the heading (max 3.2; the scatter counts the quadratic part again); without
+    the modes the heading's RMS z is 6.4, 4.9 and 3.2."""
+    route, poses, visible, spans = corridor_drive()
+    segments = split_route(visible, spans)
+    rng = np.random.default_rng(7)
+    for previous, segment in zip(segments, segments[1:]):
+        reference, reference_next = poses[previous.first], poses[segment.first]
+        overlap = poses[segment.overlap]
+        exact = (*signals(route, previous.target, overlap, reference), *signals(route, segment.target, overlap, reference_next))
+        true_ratio = depth(route, segment.target, reference_next) / depth(route, previous.target, reference)
+        true_heading = float(reference_next[2] - reference[2])
+        ramp = np.linspace(-1.0, 1.0, overlap.shape[0])[:, None, None]
+        modes = [1e-3 * rng.normal(size=(1, 3, 6)) * ramp ** np.arange(3)[None, None, :].repeat(2, axis=2) for _ in range(2)]
+        z_rho, z_heading, z_blind = [], [], []
+        for seed in range(200):
+            draw = np.random.default_rng(seed)
+            moved = [m @ draw.normal(size=m.shape[2]) for m in modes]  # (K, 3) each
+            theta_i, x_h_i = exact[0] + moved[0][:, 0], exact[1] + moved[0][:, 1:]
+            theta_j, x_h_j = exact[2] + moved[1][:, 0], exact[3] + moved[1][:, 1:]
+            transition = estimate_transition(theta_i, x_h_i, theta_j, x_h_j, *modes)
+            blind = estimate_transition(theta_i, x_h_i, theta_j, x_h_j)
+            z_rho.append((transition.depth_ratio - true_ratio) / transition.depth_ratio_std)
+            z_heading.append((transition.heading - true_heading) / transition.heading_std)
+            z_blind.append((blind.heading - true_heading) / blind.heading_std)
+        assert 0.8 < np.sqrt(np.mean(np.square(z_rho))) < 1.1 and np.abs(z_rho).max() < 4.0
+        assert 0.7 < np.sqrt(np.mean(np.square(z_heading))) < 1.1 and np.abs(z_heading).max() < 4.0
+        assert np.sqrt(np.mean(np.square(z_blind))) > 2.5
 
 
 def test_a_transition_needs_motion_and_two_frames():
@@ -160,12 +182,7 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
     0.036 (each segment's median), rho within 38 % on the first switch (11 s of a straight
     drive, the board still small) and 5 % on the others; seed 0 is held to those bounds. 11 s."""
     campaign_extent(request, "campaign")
-    route = corridor_route()
-    times = np.arange(0.0, route.profile.duration, 0.2)
-    poses, spans, pixels = taught_views(route, times, 0.5, np.random.default_rng(0))
-    segments = split_route(spans >= MIN_SPAN_PX, spans)
-    fitted = fit_route(times, pixels, segments, route.camera, None, max_lost=0.5, max_gap=5.0,
-                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
+    route, times, poses, fitted = fitted_corridor(0.5, 0)
     assert [s.target for s in fitted.segments] == [0, 1, 2, 3]
     true_depths = []
     for segment, fit, reference in zip(fitted.segments, fitted.fits, fitted.references):
@@ -180,3 +197,49 @@ def test_fit_route_fits_each_segment_and_estimates_each_transition_from_half_pix
     bounds = [0.38, 0.05, 0.05]
     for transition, d_i, d_j, bound in zip(fitted.transitions, true_depths, true_depths[1:], bounds):
         assert abs(transition.depth_ratio / (d_j / d_i) - 1.0) < bound
+
+
+def fitted_corridor(noise_px: float, seed: int):
+    """The corridor at 5 Hz, its targets' exact pixels where each is seen well plus ``noise_px``
+    of noise (seeded), split and fitted (:func:`fit_route`): the route, times, poses and fit."""
+    route = corridor_route()
+    times = np.arange(0.0, route.profile.duration, 0.2)
+    poses, spans, pixels = taught_views(route, times, noise_px, np.random.default_rng(seed))
+    fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
+                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
+    return route, times, poses, fitted
+
+
+def transition_z_scores(route, poses, fitted) -> list[tuple[float, float]]:
+    """Each transition's (rho's, the heading's) error over its stated standard deviation, against
+    the corridor's true d*_i and F*_i headings at the fit's reference frames ``poses[references]``."""
+    references = [poses[frame] for frame in fitted.references]
+    depths = [depth(route, segment.target, pose) for segment, pose in zip(fitted.segments, references)]
+    return [((transition.depth_ratio - d_j / d_i) / transition.depth_ratio_std,
+             float(wrap_angle(transition.heading - (after[2] - before[2]))) / transition.heading_std)
+            for transition, d_i, d_j, before, after in zip(fitted.transitions, depths, depths[1:], references, references[1:])]
+
+
+def assert_z_scores_honest(z_scores, count: int, rms_range=(0.6, 1.6), largest: float = 4.0) -> None:
+    """At least ``count`` transitions' (rho, heading) z-scores, each column's RMS within ``rms_range``, none beyond ``largest``."""
+    z = np.asarray(z_scores, dtype=float)
+    assert z.shape == (z.shape[0], 2) and z.shape[0] >= count
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((rms_range[0] < rms) & (rms < rms_range[1])), rms
+    assert np.abs(z).max() < largest
+
+
+@pytest.mark.campaign
+def test_the_transitions_stated_uncertainty_holds_both_ways_on_noisy_fits(request):
+    """bench/route_corridor.py's fits (the corridor at 5 Hz, 0.1 px on the exact pixels), seeds
+    0-9, 30 transitions: rho's and the heading's z-scores (error / stated sigma) with an RMS in
+    0.6-1.6 and none beyond 4. Measured: RMS 0.60 (rho) and 1.09 (heading), largest 2.1 and 3.3
+    (before: 0.39 and 1.39). The first transition (11 s of a straight drive, the board small)
+    is rho's largest: 3.6 % low on average over the seeds, the regressor's noise pulling rho
+    down (errors in variables). 20 s on 2 cores."""
+    campaign_extent(request, "campaign")
+    z_scores = []
+    for seed in range(10):
+        route, _, poses, fitted = fitted_corridor(0.1, seed)
+        z_scores += transition_z_scores(route, poses, fitted)
+    assert_z_scores_honest(z_scores, 30)

@@ -73,6 +73,14 @@ def test_fit_on_a_route_writes_each_segment_as_a_fit_model_and_the_transition_wi
     assert abs(transition.depth_ratio / (depths[1] / depths[0]) - 1) < 0.002
     assert 0 < transition.depth_ratio_std < 0.01
     assert abs(np.degrees(transition.heading - (poses[1][2] - poses[0][2]))) < 0.2
+    # Each error within 3 of its stated sigmas: measured z -0.78 for rho (0.11 % off, sigma
+    # 0.15 %) and -0.78 for the heading (0.13 deg off, sigma 0.17 deg; 0.03 before it counted
+    # the fits' errors common to their frames).
+    from test_core_route import transition_z_scores
+
+    route = corridor_route()
+    frame_poses = route.profile.poses_at(np.arange(max(route_file.references) + 1) / RATE, route.start_pose)
+    assert np.abs(transition_z_scores(route, frame_poses, route_file)).max() < 3.0
     info = read_file_info(str(fit))
     assert info.target == "dots -> aruco"
     # info: the taught drive's frames (not the route file's few messages) and each segment's.
@@ -160,13 +168,43 @@ def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_lear
     assert [segment["target_kind"] for segment in segments] == (["dots", "aruco", "texture", "texture"] if whole else ["dots", "aruco"])
     assert all(segment["relative_error"] < 0.01 for segment in segments)
     # V (36) is continuous across a switch (the hand-over), so it falls from its peak within each
-    # segment, not from its start: measured 54, 2300, 84 and 450 times on the whole corridor, 620
-    # and 18 on its first 16 s.
+    # segment, not from its start: measured 54, 2300, 84 and 450 times on the whole corridor, 384
+    # and 7.4 on its first 16 s (20 before the transition's covariance counted the fits' stated
+    # errors: the carried state, less sure, leans on the board's first frames; the end pose is
+    # 0.63 cm and 0.022 deg off, against 0.64 cm and 0.080 deg).
     bounds = [0, *np.searchsorted(run.state["t"], run.info["route"]["switch_times"]), run.state["t"].size]
     for segment, first, end in zip(segments, bounds, bounds[1:]):
-        assert segment["V_end"] < 0.1 * np.nanmax(run.state["V"][first:end])
+        assert segment["V_end"] < 0.2 * np.nanmax(run.state["V"][first:end])
     assert [round(segment["t_start"], 6) for segment in segments[1:]] == pytest.approx(run.info["route"]["switch_times"], abs=1 / RATE)
     assert_route_report_fits_80_columns(run)
+
+
+@pytest.mark.campaign
+def test_the_transitions_stated_uncertainty_holds_both_ways_on_the_rendered_corridor(tmp_path, request):
+    """``teach --sim --route corridor --fps 30 --seed S | fit``, seeds 0-9, the detectors on the
+    rendered frames: every segment's n* within 1 deg of the truth, and rho's and the heading's
+    z-scores (error / stated sigma, the fits' own errors carried through each transition) with
+    an RMS in 0.6-1.6 and none beyond 4. Measured over the 30 transitions: RMS 1.09 (rho) and
+    1.12 (heading), largest 1.5 and 2.0 (before: rho's sigma 1.5-3 times too large, the
+    headings' up to 3 times too small; and seeds 2, 4, 6 and 7 fitted the photograph of segment
+    3 on the other branch of n*, 3.9 deg off, its transitions' headings 13 and 3 deg off). 3 min
+    on 2 cores."""
+    from test_core_route import assert_z_scores_honest, transition_z_scores
+
+    campaign_extent(request, "campaign")
+    route, rate, z_scores = corridor_route(), 30.0, []
+    for seed in range(10):
+        teach, fit = tmp_path / f"teach{seed}.mcap", tmp_path / f"fit{seed}.mcap"
+        for args in (("teach", "--sim", "--route", "corridor", "--fps", str(rate), "--seed", str(seed), "-o", str(teach)),
+                     ("fit", str(teach), "-o", str(fit))):
+            assert call_hbvs(*args).returncode == 0
+        route_file = read_route_file(str(fit))
+        poses = route.profile.poses_at(np.arange(max(route_file.references) + 1) / rate, route.start_pose)
+        for segment, frame, model in zip(route_file.segments, route_file.references, route_file.models):
+            normal = route.worlds[segment.target].reference_geometry(route.local_pose(segment.target, poses[frame]))[1]
+            assert np.degrees(np.arccos(np.clip(model.normal @ normal, -1.0, 1.0))) < 1.0
+        z_scores += transition_z_scores(route, poses, route_file)
+    assert_z_scores_honest(z_scores, 30)
 
 
 def assert_route_report_fits_80_columns(run) -> None:

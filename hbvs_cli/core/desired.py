@@ -8,7 +8,7 @@ trajectory"). What a user should hear is passed to ``warn``, never printed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Callable, Sequence
 
@@ -26,7 +26,7 @@ from .metrics import rms
 from .bundle import (OUTLIER_SPREADS, JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise,
                      projected_points, rolling_shutter_shift, uniform_shift)
 from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
-from .trajectory import MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
+from .trajectory import CHANNELS, MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A frame that shows only part of the target (a board partly out of view) is used when at
 #: least this many of its points were found: its pose comes from them alone.
@@ -38,8 +38,13 @@ AMBIGUOUS_NORMAL_MARGIN = 1e-3
 #: What :func:`fit_desired_trajectory` says when the margin is below it.
 AMBIGUOUS_NORMAL_WARNING = (
     "the taught motion does not tell the two homography branches apart (e.g. a straight drive): "
-    "assumed the target faces the reference camera"
+    "{how}"
 )
+#: How the ambiguous normal was chosen: the branch whose joint estimate fits the frames better, else the prior.
+AMBIGUOUS_NORMAL_CHOICES = {
+    True: "n* is the branch whose joint estimate fits the frames better",
+    False: "assumed the target faces the reference camera",
+}
 
 #: n* uncertain by more than this (deg, one standard deviation) is said in one line.
 UNCERTAIN_NORMAL_DEG = 0.5
@@ -87,8 +92,9 @@ UNCERTAIN_NORMAL_WARNING = (
 #: ... ended so when most of n*'s uncertainty is the intrinsics' (``{part}`` deg of it).
 CALIBRATION_ADVICE = "; and above all a finer calibration ({part:.1f} deg of n*'s sigma is its intrinsics' uncertainty)"
 
-#: Below this branch margin (and above AMBIGUOUS_NORMAL_MARGIN, where the facing prior
-#: decides) the joint estimate is also run from the other branch's normal.
+#: Below this branch margin the joint estimate is also run from the other branch's normal,
+#: below AMBIGUOUS_NORMAL_MARGIN too: there the facing prior picked one of two normals both
+#: nearly facing (the corridor's photograph 3.9 deg off on 4 of 10 teach seeds).
 BRANCH_CHECK_MARGIN = 0.05
 #: ... on this many frames at most (the branches' costs differ by far more than their noise).
 BRANCH_CHECK_FRAMES = 200
@@ -197,7 +203,10 @@ class FitUncertainty:
     ``x_h1_sigma`` (F,): 1-sigma of each frame's theta_d (rad) and x_hd1 (NaN where not used),
     with what it inherits from n* and m*_i; ``smooth_*`` (S,): the same of the splines over
     the used span (which average a frame's own noise, not the inherited part);
-    ``calibration_normal_sigma_deg``: the part of n*'s sigma the intrinsics' errors make.
+    ``calibration_normal_sigma_deg``: the part of n*'s sigma the intrinsics' errors make;
+    ``error_modes(times)`` (T, 3, C): how the splines' (theta_d, x_hd1, x_hd2) at ``times`` (s)
+    move with each of C independent unit errors, inherited and own (a route's transition carries
+    them, :mod:`.route`).
     """
 
     normal_sigma_deg: float
@@ -207,6 +216,7 @@ class FitUncertainty:
     smooth_theta_sigma: NDArray[np.float64]
     smooth_x_h1_sigma: NDArray[np.float64]
     calibration_normal_sigma_deg: float = 0.0
+    error_modes: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(default=None, compare=False, repr=False)
 
     def summary(self, calibration: str | None = None) -> UncertaintySummary:
         """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
@@ -338,23 +348,23 @@ def fit_desired_trajectory(
             break
         valid = valid & (np.arange(valid.size) != worst)
     m_ref = refined
-    if margin < AMBIGUOUS_NORMAL_MARGIN and not shapes and warn is not None:
-        # A known shape pins n* in the refinement whatever the vote: how well, the
-        # uncertainty (and its warning) says.
-        warn(AMBIGUOUS_NORMAL_WARNING)
     # The joint estimate of n*, the reference points and every sampled frame's pose, from
     # the variable-projection estimate (robust: a frame with an outlier point counts less).
     others = sample[(sample != reference_index) & usable[sample]]
     start_solver = KnownNormalSolver(m_ref, normal)
     noise = measured_point_noise(start_solver.reprojection_residuals(start_solver.solve(m[others]), m[others])) if others.size else 0.0
-    if rival is not None and AMBIGUOUS_NORMAL_MARGIN <= margin < BRANCH_CHECK_MARGIN:
-        # A close vote between the branches: the joint estimate from each on a few frames
-        # decides (4 of 60 noisy curving drives had voted for a normal 27 deg off).
+    if rival is not None and margin < BRANCH_CHECK_MARGIN:
+        # A close vote between the branches, or none: the joint estimate from each on a few
+        # frames decides (4 of 60 noisy curving drives had voted for a normal 27 deg off).
         few = others[np.linspace(0, others.size - 1, min(others.size, BRANCH_CHECK_FRAMES)).astype(int)]
         ours = estimate_plane_jointly(m[few], m_ref, normal, m[reference_index], noise, shapes=shapes)
         theirs = estimate_plane_jointly(m[few], m[reference_index], rival, m[reference_index], noise, shapes=shapes)
         if np.isfinite(theirs.cost) and (not np.isfinite(ours.cost) or theirs.cost < ours.cost):
             normal, m_ref = theirs.normal, theirs.m_ref
+    if margin < AMBIGUOUS_NORMAL_MARGIN and not shapes and warn is not None:
+        # A known shape pins n* in the refinement whatever the vote: how well, the
+        # uncertainty (and its warning) says.
+        warn(AMBIGUOUS_NORMAL_WARNING.format(how=AMBIGUOUS_NORMAL_CHOICES[rival is not None]))
     joint = estimate_plane_jointly(m[others], m_ref, normal, m[reference_index], noise, shapes=shapes)
     m, normal, m_ref, readout = _without_rolling_shutter(m, t, found, others, reference_index, joint, noise, shapes)
     m, found = _completed_partial_frames(m, found, m_ref, normal)
@@ -555,9 +565,7 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     theta_sigma = np.full(t.shape, np.nan)
     x_h1_sigma = np.full(t.shape, np.nan)
     theta_sigma[used], x_h1_sigma[used] = sigma[:, 0], sigma[:, 1]
-    values, vectors = np.linalg.eigh(covariance.shared)
-    keep = values > 1e-6 * max(float(values.max()), 1e-300)
-    directions = vectors[:, keep] * np.sqrt(values[keep])  # (G, r): shared = directions directions^T
+    directions = _shared_directions(covariance)
     probes = _random_signs(np.random.default_rng(0), int(used.sum()), NOISE_PROBES)
     times = t[span]
     smoothed = []
@@ -565,12 +573,8 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
         own = np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))
 
         def columns(rows: slice, index: int = index, own: NDArray[np.float64] = own) -> NDArray[np.float64]:
-            # What the frames inherit from the globals (and a detector's bias: common to all
-            # frames as well), then the probes of their own error; a block of frames at a time.
-            inherited = [covariance.sensitivity[rows, index, :] @ directions]
-            if (bias := covariance.bias_rows(rows, index)) is not None:
-                inherited.append(bias)
-            return np.column_stack([*inherited, probes[rows] * own[rows, None]])
+            # What the frames inherit, then the probes of their own error; a block of frames at a time.
+            return np.column_stack([*_inherited_columns(covariance, directions, rows, index), probes[rows] * own[rows, None]])
 
         binned_t, binned = _binned_columns(t[used], columns)
         shared = binned.shape[1] - NOISE_PROBES
@@ -593,7 +597,53 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
         x_h1_sigma=x_h1_sigma,
         smooth_theta_sigma=smoothed[0],
         smooth_x_h1_sigma=smoothed[1],
+        error_modes=partial(_error_modes, covariance, directions, t[used], trajectory),
     )
+
+
+def _shared_directions(covariance: JointCovariance) -> NDArray[np.float64]:
+    """(G, r) with ``covariance.shared = directions directions^T``: the globals' independent errors."""
+    values, vectors = np.linalg.eigh(covariance.shared)
+    keep = values > 1e-6 * max(float(values.max()), 1e-300)
+    return vectors[:, keep] * np.sqrt(values[keep])
+
+
+def _inherited_columns(covariance: JointCovariance, directions: NDArray[np.float64], rows: slice, index: int) -> list[NDArray[np.float64]]:
+    """How the frames ``rows`` move in component ``index`` of (theta, x_h1, x_h2) with the
+    globals' independent errors, then with a detector's biases (common to the frames as well)."""
+    inherited = [covariance.sensitivity[rows, index, :] @ directions]
+    if (bias := covariance.bias_rows(rows, index)) is not None:
+        inherited.append(bias)
+    return inherited
+
+
+def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t_used: NDArray[np.float64],
+                 trajectory: SplineTrajectory, times: ArrayLike) -> NDArray[np.float64]:
+    """:attr:`FitUncertainty.error_modes`: each frame's error, in columns of independent unit
+    errors (the globals', the biases', then :data:`NOISE_PROBES` probes of the frames' own,
+    scaled so that the columns' sum of squares is the variance), through the fit's splines, at
+    ``times`` (T,) s: shape (T, 3, C). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1
+    theta_d_dot``, from its offset, the mean of the frames' x_h2 less that integral."""
+    from scipy.interpolate import make_smoothing_spline
+
+    times = np.asarray(times, dtype=float)
+    values, vectors = np.linalg.eigh(covariance.own)
+    own_roots = vectors * np.sqrt(np.maximum(values, 0.0))[:, None, :]  # (K, 3, 3): own = roots roots^T
+    signs = np.random.default_rng(1).choice([-1.0, 1.0], size=(t_used.size, 3, NOISE_PROBES)) / np.sqrt(NOISE_PROBES)
+
+    def columns(rows: slice, index: int) -> NDArray[np.float64]:
+        own = np.einsum("kb,kbp->kp", own_roots[rows, index], signs[rows])
+        return np.column_stack([*_inherited_columns(covariance, directions, rows, index), own])
+
+    binned = [_binned_columns(t_used, partial(columns, index=index)) for index in range(3)]
+    grid, channels = binned[0][0], [moved for _, moved in binned]
+    splines = [make_smoothing_spline(grid, moved, lam=trajectory.channels[name].smoothing) for moved, name in zip(channels, CHANNELS)]
+    taught = trajectory.evaluate(grid)
+    moved_rate = splines[1](grid) * taught.theta_d_dot[:, None] + taught.x_hd1[:, None] * splines[0].derivative()(grid)
+    integral = np.concatenate([np.zeros((1, moved_rate.shape[1])), np.cumsum((moved_rate[1:] + moved_rate[:-1]) / 2 * np.diff(grid)[:, None], axis=0)])
+    offset = np.mean(channels[2] - integral, axis=0)
+    x_hd2 = offset + np.column_stack([np.interp(times, grid, column) for column in integral.T])
+    return np.stack([splines[0](times), splines[1](times), x_hd2], axis=1)
 
 
 def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[np.float64]]

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MalformedDataError
+from .bundle import correlation_inflation
 from .camera import CameraIntrinsics
 from .desired import DesiredFit, DetectorErrors, fit_desired_trajectory
 from .frames import wrap_angle
@@ -165,12 +166,17 @@ class Transition:
         return carried, spread
 
 
-def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayLike, x_h_next: ArrayLike) -> Transition:
+def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayLike, x_h_next: ArrayLike,
+                        modes_i: ArrayLike | None = None, modes_next: ArrayLike | None = None) -> Transition:
     """The transition from segment i to i+1 from the same overlap frames seen through both
     homographies: ``theta_*`` (K,) rad and ``x_h_*`` (K, 2), (14), of F relative to F*_i and to
     F*_{i+1}. Least squares on ``R_i u - rho x_h,i+1 = -x_h,i``; the covariance is the residuals'
-    variance times (A^T A)^-1. MalformedDataError for fewer than 2 frames or an overlap without
-    the motion that separates rho from u."""
+    long-run variance (:func:`~.bundle.correlation_inflation`: they are smoothed signals') times
+    (A^T A)^-1, the heading's its scatter's; plus, with ``modes_*`` (K, 3, C), each fit's stated
+    errors (:attr:`.FitUncertainty.error_modes`: n*_i's and the biases', common to the
+    frames, which the scatter cannot show, and the frames' own), carried through the same least
+    squares and the heading's mean (the linearised (13), (14)). MalformedDataError for
+    fewer than 2 frames or an overlap without the motion that separates rho from u."""
     theta_i, theta_next = np.asarray(theta_i, dtype=float).ravel(), np.asarray(theta_next, dtype=float).ravel()
     x_h_i, x_h_next = np.asarray(x_h_i, dtype=float).reshape(-1, 2), np.asarray(x_h_next, dtype=float).reshape(-1, 2)
     count = theta_i.size
@@ -192,26 +198,20 @@ def estimate_transition(theta_i: ArrayLike, x_h_i: ArrayLike, theta_next: ArrayL
     heading = float(np.arctan2(np.mean(np.sin(headings)), np.mean(np.cos(headings))))
     spread = np.asarray(wrap_angle(headings - heading), dtype=float)
     heading_variance = np.var(spread, ddof=1) / count * correlation_inflation(spread[:, None])
+    lever = np.column_stack([-s * solution[0] - c * solution[1], c * solution[0] - s * solution[1]])  # d(R_i u)/d theta_i
+    for modes, here in ((modes_i, True), (modes_next, False)):
+        if modes is not None:  # each error moves the equations' sides by -dx_h,i - lever dtheta_i, or by rho dx_h,i+1
+            modes = np.asarray(modes, dtype=float)
+            moved = -(modes[:, 1:] + lever[:, :, None] * modes[:, :1]) if here else solution[2] * modes[:, 1:]
+            carried = np.linalg.solve(normal, design.T @ moved.reshape(2 * count, -1))  # (3, C)
+            covariance = covariance + carried @ carried.T
+            heading_variance = heading_variance + float(np.sum(np.mean(modes[:, 0], axis=0) ** 2))
     return Transition(
         depth_ratio=float(solution[2]), depth_ratio_std=float(np.sqrt(covariance[2, 2])),
         heading=heading, heading_std=float(np.sqrt(heading_variance)),
         origin_over_depth=solution[:2], covariance=covariance, frames=count,
         residual_rms=float(np.sqrt(np.mean(residual**2))),
     )
-
-
-def correlation_inflation(residuals: ArrayLike) -> float:
-    """How much more a mean's variance is than ``1/n`` of the residuals' (K frames, C series)
-    when they are correlated from frame to frame, as a smoothed signal's are: ``(1 + r) / (1 - r)``
-    for their lag-1 autocorrelation r (an AR(1) process's ``K / K_effective``), at least 1 and
-    at most K / 2 (two independent frames)."""
-    residuals = np.asarray(residuals, dtype=float)
-    centred = residuals - residuals.mean(axis=0)
-    power = float(np.sum(centred * centred))
-    if residuals.shape[0] < 3 or power <= 0.0:
-        return 1.0
-    lag = float(np.sum(centred[1:] * centred[:-1])) / power
-    return float(np.clip((1.0 + lag) / max(1.0 - lag, 1e-12), 1.0, residuals.shape[0] / 2.0))
 
 
 @dataclass(frozen=True)
@@ -258,22 +258,24 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
                                            max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)
-    transitions = estimate_transitions(t, segments, [fit.trajectory for fit in fits])
-    return RouteFit(list(segments), fits, references, transitions)
+    return RouteFit(list(segments), fits, references, estimate_transitions(t, segments, fits))
 
 
-def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], trajectories: Sequence[Any]) -> list[Transition]:
-    """Each transition of a route from its segments' fitted desired trajectories (``evaluate(t)``
-    of Remark 1's splines) over each overlap of the drive's frame times ``t`` (s): the smoothed
-    signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor pulls its
-    coefficient toward zero (errors in variables)."""
+def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequence[DesiredFit]) -> list[Transition]:
+    """Each transition of a route from its segments' fits (their desired trajectories'
+    ``evaluate(t)``, Remark 1's splines) over each overlap of the drive's frame times ``t`` (s):
+    the smoothed signals, not each frame's, since rho multiplies x_h,i+1 and noise in a regressor
+    pulls its coefficient toward zero (errors in variables); with each fit's stated errors
+    (:attr:`.FitUncertainty.error_modes`, where it has them) carried into the transitions' covariance."""
     t = np.asarray(t, dtype=float)
     transitions = []
-    for here_trajectory, segment, there_trajectory in zip(trajectories, segments[1:], trajectories[1:]):
+    for here_fit, segment, there_fit in zip(fits, segments[1:], fits[1:]):
         shared = t[segment.first:segment.overlap_last + 1]
-        here, there = here_trajectory.evaluate(shared), there_trajectory.evaluate(shared)
+        here, there = here_fit.trajectory.evaluate(shared), there_fit.trajectory.evaluate(shared)
+        modes = [None if fit.uncertainty is None or fit.uncertainty.error_modes is None else fit.uncertainty.error_modes(shared)
+                 for fit in (here_fit, there_fit)]
         transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
-                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2])))
+                                               there.theta_d, np.column_stack([there.x_hd1, there.x_hd2]), *modes))
     return transitions
 
 

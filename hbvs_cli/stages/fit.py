@@ -228,7 +228,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 if as_route or is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console,
                                              partial(_checked_frame, reader),
-                                             lambda *args: _drive_fit(reader, smoothing, options, console, *args)[1],
+                                             partial(_drive_fit, reader, smoothing, options, console),
                                              lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
                                                                                   None, console), options)
                     return FitSummary(output=options.output, model=models[0])

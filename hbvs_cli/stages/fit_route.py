@@ -41,12 +41,12 @@ def is_route(world_description: Any) -> bool:
 
 
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
-                    checked_frame: Callable[[Any, np.ndarray], Any], segment_model: Callable[..., FitModel],
+                    checked_frame: Callable[[Any, np.ndarray], Any], segment_fit: Callable[..., tuple[Any, FitModel]],
                     spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
     """Fit the route of ``reader`` (its decoded ``frames``, each passed to ``checked_frame``)
     and write its route file into ``writer`` (metadata written already); the fit's summary on
-    stderr. ``segment_model(arrays, reference_index, spec, world_description, name)``: the
-    single-target fit of one segment's frames (:func:`.fit._drive_fit`'s model);
+    stderr. ``segment_fit(arrays, reference_index, spec, world_description, name)``: the
+    single-target fit of one segment's frames and its model (:func:`.fit._drive_fit`);
     ``spec_of(choice, images)``: the detector of a kind ``--target auto`` found in ``images``.
     The models, in order."""
     from ..io.calibration import calibration_to_foxglove
@@ -80,18 +80,19 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     except MalformedDataError as exc:
         raise RecordingError(f"{reader.name}: {exc}") from None
     route = follower.route if isinstance(follower, SimulatedFollower) else None
-    models, references = [], []
+    fits, models, references = [], [], []
     for segment in segments:
         frames_of = slice(segment.first, segment.last + 1)
         arrays = {"t": t[frames_of], "log_time": log_time[frames_of], "pixels": pixels[segment.target][frames_of],
                   "pose": poses[frames_of] if route is None else route.local_pose(segment.target, poses[frames_of]),
                   "command": commands[frames_of]}
         reference = largest_view(arrays["pixels"])
-        models.append(segment_model(arrays, reference, follower.detectors[segment.target].spec,
-                                    None if route is None else route.worlds[segment.target].to_dict(),
-                                    f"{reader.name} (segment {len(models) + 1})"))
+        fit, model = segment_fit(arrays, reference, follower.detectors[segment.target].spec,
+                                 None if route is None else route.worlds[segment.target].to_dict(), f"{reader.name} (segment {len(models) + 1})")
+        fits.append(fit)
+        models.append(model)
         references.append(segment.first + reference)
-    transitions = estimate_transitions(t, segments, [model.trajectory for model in models])
+    transitions = estimate_transitions(t, segments, fits)
     write_route(writer, models, segments, references, transitions, [log_time[s.last] for s in segments], reader.name,
                 reader.world_description, None if route is None else np.column_stack([t, poses]),
                 [follower.detectors[s.target].template_image for s in segments])
