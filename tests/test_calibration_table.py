@@ -38,6 +38,10 @@ from conftest import call_hbvs, campaign_extent
 DRIVE = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
 #: The noise draws of every row (``HBVS_CALIBRATION_SEEDS``, comma-separated, overrides them).
 SEEDS = tuple(int(s) for s in os.environ.get("HBVS_CALIBRATION_SEEDS", "7,8").split(","))
+#: Rows whose error two draws do not measure, and their own draws (unless HBVS_CALIBRATION_SEEDS is
+#: set): the red distractor's theta_d error is mostly a per-draw bias, so its sigma/RMS is 2.02
+#: over seeds 7 and 8 and 0.96 over seeds 0-9 (2.4 s a draw).
+ROW_SEEDS = {"red_distractor": tuple(range(10))}
 
 #: The issue's bounds by kind of target: (theta_d deg, x_hd1).
 DOT_BOUND = (0.1, 2e-3)
@@ -99,7 +103,7 @@ def _row_figures(name: str, folder, fit_options=()) -> dict:
 
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     errors, x_errors, sigmas, bounds, normals, warned, kinds, failures, picks = [], [], [], [], [], [], [], [], []
-    for seed in SEEDS:
+    for seed in SEEDS if "HBVS_CALIBRATION_SEEDS" in os.environ else ROW_SEEDS.get(name, SEEDS):
         made = footage.make_style_footage(name, folder / f"s{seed}", None if name in footage.STYLES else DRIVE, seed=seed)
         teach, fit = folder / f"s{seed}" / "teach.mcap", folder / f"s{seed}" / "fit.mcap"
         source, options = _teach_source(made, name, folder / f"s{seed}", fit_options)
