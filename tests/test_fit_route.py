@@ -48,17 +48,27 @@ def true_references(route_file, targets=None):
     return poses, [route.worlds[target].reference_geometry(route.local_pose(target, pose))[2] for target, pose in zip(targets, poses)]
 
 
-def test_fit_on_a_route_writes_each_segment_as_a_fit_model_and_the_transition_with_its_uncertainty(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def corridor_16s(tmp_path_factory):
+    """The corridor's first 16 s taught and fitted, fit's table at 80 columns: the fit file and what fit printed."""
+    from test_report_width import WIDTH
+
+    said = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("COLUMNS", str(WIDTH))
+        fit = taught_and_fitted(tmp_path_factory.mktemp("corridor_16s"), 16.0, said)
+    return fit, said[0]
+
+
+def test_fit_on_a_route_writes_each_segment_as_a_fit_model_and_the_transition_with_its_uncertainty(corridor_16s):
     """16 s of the corridor: the dot target, then the marker board (overlapping 11.4 s). Measured:
     d* from the taught commands 0.005 % and 0.06 % off, rho 0.11 % off, the heading 0.13 deg.
     Its table at 80 columns is dealt out to two parts, every number whole."""
-    from test_report_width import WIDTH, assert_whole
+    from test_report_width import assert_whole
 
-    monkeypatch.setenv("COLUMNS", str(WIDTH))
-    said = []
-    fit = taught_and_fitted(tmp_path, 16.0, said)
+    fit, said = corridor_16s
     route_file = read_route_file(str(fit))
-    table = said[0][said[0].index("hbvs fit (route"):]
+    table = said[said.index("hbvs fit (route"):]
     transition = route_file.transitions[0]
     numbers = [f"{route_file.models[1].dhat0:.3f}", f"{transition.depth_ratio:.3f}", f"{np.degrees(transition.heading):.2f}", "3.1-15.9"]
     assert assert_whole(table, numbers) == len(numbers) and table.count("segment") == 2
@@ -107,14 +117,14 @@ def without_truth(source, target):
         writer.finish()
 
 
-def test_fit_on_a_route_without_true_poses_finds_and_follows_its_targets_in_the_images(tmp_path):
+def test_fit_on_a_route_without_true_poses_finds_and_follows_its_targets_in_the_images(tmp_path, corridor_16s):
     """The 16 s of the corridor above, its true poses left out: the dots, the first photograph
     (still small) and the marker board found by what the frames show; the segments split as with
     the truth (measured: the first ends 1 frame later), rho 0.07 % off the true ratio, the heading
     0.10 deg, d* from the taught commands 0.02 % and 0.06 % off."""
-    fit_with_truth = read_route_file(str(taught_and_fitted(tmp_path, 16.0)))
+    fit_with_truth = read_route_file(str(corridor_16s[0]))
     blind, fit = tmp_path / "blind.mcap", tmp_path / "blind_fit.mcap"
-    without_truth(tmp_path / "teach.mcap", blind)
+    without_truth(corridor_16s[0].parent / "teach.mcap", blind)
     assert call_hbvs("fit", str(blind), "-o", str(fit)).returncode == 0
     route_file = read_route_file(str(fit))
     assert [model.target_kind for model in route_file.models] == ["dots", "aruco"]
@@ -227,11 +237,10 @@ def assert_route_report_fits_80_columns(run) -> None:
     assert any(all(error in line for error in errors) for line in lines if "dhat relative error" in line)
 
 
-def test_repeat_on_a_route_refuses_a_speed_its_run_cannot_have_in_one_line(tmp_path):
+def test_repeat_on_a_route_refuses_a_speed_its_run_cannot_have_in_one_line(tmp_path, corridor_16s):
     """--speed 0 (a division by zero before) and 1e-9 (an out-of-memory before: 2e11 steps) on a
     route fit: exit 2 and 7, one line each, no run file."""
-    fit = taught_and_fitted(tmp_path, 16.0)
-    run = tmp_path / "run.mcap"
+    fit, run = corridor_16s[0], tmp_path / "run.mcap"
     for speed, code, words in (("0", 2, "--speed must be a finite positive"), ("1e-9", 7, "exceeds the steps limit")):
         result = call_hbvs("repeat", str(fit), "--sim", f"--speed={speed}", "-o", str(run))
         lines = result.stderr.decode().strip().splitlines()
@@ -239,15 +248,14 @@ def test_repeat_on_a_route_refuses_a_speed_its_run_cannot_have_in_one_line(tmp_p
         assert not run.exists()
 
 
-def test_repeat_on_a_route_refuses_the_faults_of_one_targets_run_and_says_it_projects_points(tmp_path):
+def test_repeat_on_a_route_refuses_the_faults_of_one_targets_run_and_says_it_projects_points(tmp_path, corridor_16s):
     """--occlude, --latency, --drop-rate, --outlier-rate, --exposure-step, --record-images and
     --depth were ignored by a route's --sim (the run the same as without them): now exit 2 in one
     line naming them; --perception images runs on the projected points, says so, and the run
     file's settings say points."""
     from hbvs_cli.io.run_file import read_run
 
-    fit = taught_and_fitted(tmp_path, 16.0)
-    run = tmp_path / "run.mcap"
+    fit, run = corridor_16s[0], tmp_path / "run.mcap"
     for options, names in ((["--occlude", "5:7"], "--occlude applies"), (["--latency", "2", "--drop-rate", "0.2"], "--latency, --drop-rate apply"),
                            (["--outlier-rate", "0.1", "--exposure-step", "3:2", "--record-images", "--depth", "3"],
                             "--outlier-rate, --exposure-step, --record-images, --depth apply")):
