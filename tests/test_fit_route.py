@@ -15,7 +15,8 @@ from hbvs_cli.io.file_info import read_file_info
 from hbvs_cli.io.route_file import read_route_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.topics import ROUTE_TOPIC
-from hbvs_cli.sim.route_world import corridor_route
+from hbvs_cli.report.build import taught_commands_along, true_depth_along
+from hbvs_cli.sim.route_world import CORRIDOR_SPEED, corridor_route
 
 from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
 
@@ -187,6 +188,12 @@ def test_teach_fit_repeat_report_along_the_corridor_ends_on_the_taught_pose_lear
         assert segment["V_end"] < 0.2 * np.nanmax(run.state["V"][first:end])
     assert [round(segment["t_start"], 6) for segment in segments[1:]] == pytest.approx(run.info["route"]["switch_times"], abs=1 / RATE)
     assert_route_report_fits_80_columns(run)
+    # The figure's true d* and taught speed (25), segment by segment: before, the last segment's
+    # d* for the whole run put the first segment's taught speed at 0.68 m/s.
+    depths, taught_v = true_depth_along(run), taught_commands_along(run)[0]
+    for number, (first, end) in enumerate(zip(bounds, bounds[1:])):
+        assert np.all(depths[first:end] == run.info["route"]["d_true"][number])
+        assert np.median(taught_v[first:end]) == pytest.approx(CORRIDOR_SPEED, rel=0.01)
 
 
 @pytest.mark.campaign

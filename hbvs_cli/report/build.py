@@ -153,14 +153,39 @@ def true_depth(run: RunData) -> float | None:
     return float(d_true) if isinstance(d_true, (int, float)) and d_true > 0 else None
 
 
-def taught_commands_along(run: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The taught commands (25) at each step (m/s, rad/s), at the true d*; else at the fit's dhat(0) for a
-    replay (open loop: its dhat adapted on errors no command corrected, no estimate of d*); else at the final dhat."""
+def _route_steps(run: RunData) -> tuple[dict[str, Any], np.ndarray] | None:
+    """A route run's ``route`` record and the segment in force at each step (as :func:`_route`
+    splits it: a step at a switch's time is the new segment's); None for one target's run."""
+    route = run.info.get("route")
+    if not isinstance(route, dict):
+        return None
+    return route, np.searchsorted(np.asarray(route["switch_times"], dtype=float), run.state["t"], side="right")
+
+
+def true_depth_along(run: RunData) -> np.ndarray | None:
+    """The true d* (m) at each step: a route's d*_i of the segment in force; None if not simulated."""
+    steps = _route_steps(run)
+    if steps is not None:
+        depths = steps[0]["d_true"]
+        return None if any(depth is None for depth in depths) else np.asarray(depths, dtype=float)[steps[1]]
     d_true = true_depth(run)
-    dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
-    depth = d_true if d_true is not None else (float(dhat[-1]) if dhat.size else float("nan"))
-    if d_true is None and run.info.get("mode") == "replay" and isinstance(run.info.get("dhat0"), (int, float)):
-        depth = float(run.info["dhat0"])
+    return None if d_true is None else np.full(run.state["t"].size, d_true)
+
+
+def taught_commands_along(run: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The taught commands (25) at each step (m/s, rad/s), at the true d* (a route's: its
+    segment's); else at the fit's dhat(0) for a replay (open loop: its dhat adapted on errors
+    no command corrected, no estimate of d*; a route's carried to each segment by its rho);
+    else at the final dhat."""
+    depth: Any = true_depth_along(run)
+    if depth is None:
+        dhat = run.state["dhat"][np.isfinite(run.state["dhat"])]
+        depth = float(dhat[-1]) if dhat.size else float("nan")
+        if run.info.get("mode") == "replay" and isinstance(run.info.get("dhat0"), (int, float)):
+            depth = float(run.info["dhat0"])
+            steps = _route_steps(run)
+            if steps is not None:
+                depth = depth * np.cumprod([1.0, *steps[0]["depth_ratios"]])[steps[1]]
     return taught_commands(run.state["x_hd2"], run.state["x_hd1_dot"], run.state["theta_d_dot"], depth)
 
 

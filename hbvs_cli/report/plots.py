@@ -13,7 +13,8 @@ import numpy as np
 from ..errors import UsageError
 from ..io.run_file import RunData
 from .figure_style import TAUGHT_COLOR, FigureStyle, column_count, law_colors, new_figure, paper_rc, save_figure
-from .build import DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth
+from .build import (DEFAULT_TOLERANCES, image_error_signal, pose_error_signals, run_limits, taught_commands_along, true_depth,
+                    true_depth_along)
 from .result import RunReport
 from .table import run_labels
 
@@ -197,8 +198,13 @@ def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
 def _depth_panel(ax: Any, context: PanelContext) -> None:
     for run, color in zip(context.runs, context.colors):
         _line(ax, context, run.state["t"], run.state["dhat"], color, None)
-    for d_true in _distinct([np.array(d) for d in map(true_depth, context.runs) if d is not None]):
+    routes = [run for run in context.runs if isinstance(run.info.get("route"), dict)]
+    for d_true in _distinct([np.array(d) for run in context.runs if run not in routes and (d := true_depth(run)) is not None]):
         ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
+    for run in routes:  # each segment's d*_i while it is in force
+        depths = true_depth_along(run)
+        if depths is not None:
+            ax.plot(run.state["t"], depths, color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3, drawstyle="steps-post")
     _shade_losses(ax, context)
     _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
 
