@@ -109,7 +109,7 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
     kind = metadata.get("file_kind")
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
     route = metadata.get("route") if isinstance(metadata.get("route"), dict) else {}
-    if target is None and _numbers(route.get("target_kinds"), str):  # a route run's, in order
+    if target is None and list_of(route.get("target_kinds"), str):  # a route run's, in order
         target = " -> ".join(route["target_kinds"])
     if target is None:
         target = metadata.get("target_kind") or (settings.get("target") if kind == "teach" and metadata.get("source") == "sim" else None)
@@ -119,16 +119,17 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         complete=not stream.truncated, stop_reason=stream.stop_reason,
         stopped=str(read_metadata(stream, STOPPED_METADATA).get("reason", "")),
         target=target if isinstance(target, str) else None, segments=segments,
-        switches=_numbers(read_metadata(stream, ROUTE_SWITCHES_METADATA).get("switch_times")),
-        planned_switches=_numbers(route.get("switch_times")),
+        # info shows what it can of a malformed record (report refuses it: run_file.read_run)
+        switches=list_of(read_metadata(stream, ROUTE_SWITCHES_METADATA).get("switch_times")) or [],
+        planned_switches=list_of(route.get("switch_times")) or [],
     )
 
 
-def _numbers(values: Any, kind: type | tuple[type, ...] = (int, float)) -> list[Any]:
-    """``values`` if a list of ``kind`` (no bool), else none: info shows what it can of a malformed record."""
+def list_of(values: Any, kind: type | tuple[type, ...] = (int, float)) -> list[Any] | None:
+    """``values`` if a list of ``kind`` (bool is no number), else None (a malformed record)."""
     if isinstance(values, list) and all(isinstance(v, kind) and not isinstance(v, bool) for v in values):
         return values
-    return []
+    return None
 
 
 def _segment_frames(route: Any) -> list[tuple[int, int]]:

@@ -13,6 +13,7 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..errors import RecordingError
 from .calibration import calibration_to_foxglove
+from .file_info import list_of
 from .images import write_compressed_image
 from .mcap import McapStream, McapWriter, read_metadata, seconds_to_ns, time_message
 from .messages import CAMERA_FRAME, LOG_ERROR, annotations_message, log_message, planar_pose_from_message, pose_message, velocity_message
@@ -146,7 +147,7 @@ def read_run(source: Any, name: str = "") -> RunData:
         what = f"a {kind!r} file" if kind else "not an hbvs run file"
         raise NotARunFile(f"{stream.name}: {what}; hbvs report reads the output of hbvs repeat", kind if isinstance(kind, str) else None)
     made = read_metadata(stream, ROUTE_SWITCHES_METADATA).get("switch_times")
-    if made is not None and (not isinstance(made, list) or not all(isinstance(t, (int, float)) and not isinstance(t, bool) for t in made)):
+    if made is not None and list_of(made) is None:
         raise RecordingError(f"{stream.name}: malformed hbvs metadata: {ROUTE_SWITCHES_METADATA} = {str(made)[:60]!r}")
     if made is not None and isinstance(info.get("route"), dict):
         info["route"] = {**info["route"], "planned_switch_times": info["route"].get("switch_times"), "switch_times": made}

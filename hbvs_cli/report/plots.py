@@ -198,10 +198,12 @@ def _distinct(values: Sequence[np.ndarray]) -> list[np.ndarray]:
 def _depth_panel(ax: Any, context: PanelContext) -> None:
     for run, color in zip(context.runs, context.colors):
         _line(ax, context, run.state["t"], run.state["dhat"], color, None)
-    routes = [run for run in context.runs if isinstance(run.info.get("route"), dict)]
-    for d_true in _distinct([np.array(d) for run in context.runs if run not in routes and (d := true_depth(run)) is not None]):
+    def on_a_route(run: RunData) -> bool:
+        return isinstance(run.info.get("route"), dict)
+
+    for d_true in _distinct([np.array(d) for run in context.runs if not on_a_route(run) and (d := true_depth(run)) is not None]):
         ax.axhline(float(d_true), color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3)
-    for run in routes:  # each segment's d*_i while it is in force
+    for run in filter(on_a_route, context.runs):  # each segment's d*_i while it is in force
         depths = true_depth_along(run)
         if depths is not None:
             ax.plot(run.state["t"], depths, color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3, drawstyle="steps-post")
