@@ -106,6 +106,13 @@ class RouteTrajectory:
         values = [column.reshape(t.shape) for column in columns.values()]
         return DesiredState(*(float(value) if value.ndim == 0 else value for value in values))
 
+    def fade_after(self, segment: int, t: float) -> float:
+        """How long (s of the run) a switch to ``segment`` at run time ``t`` (s) fades out its
+        discrepancy: :attr:`fade` s of the route, cut short by the next switch; the state
+        filter's fade (:meth:`SegmentFilters.switch`) runs on this same clock."""
+        ends = self.switches[segment:]
+        return min(self.fade, (ends[0] if ends.size else np.inf) - float(self.route_time(t))) / self.speed
+
     def hand_over(self, segment: int, t: float, transition: Transition, before: ArrayLike | None = None,
                   after: ArrayLike | None = None) -> None:
         """The switch to ``segment`` at run time ``t`` (s): F's estimate (theta, x_h1, x_h2) the law saw
@@ -115,6 +122,7 @@ class RouteTrajectory:
         discrepancy it stores, faded out by :meth:`blended`, keeps e1, e3 (19) and ebar2 (27),
         V's (36) terms, what they were: it holds the two fits' and the transition's
         disagreement, and the error's new scale (d*_k) and lever (F*_k's origin)."""
+        length = self.fade_after(segment, t) * self.speed
         t = float(self.route_time(t))  # the discrepancy and its fade kept in the route's time
         old, new = self.trajectories[segment - 1].evaluate(t), self.trajectories[segment].evaluate(t)
         desired = np.array((old.theta_d, old.x_hd1, old.x_hd2), dtype=float)
@@ -130,8 +138,7 @@ class RouteTrajectory:
         rates = np.array((old.x_hd1_dot, old.x_hd2_dot)) / transition.depth_ratio + lever * old.theta_d_dot
         carried = np.array((theta_d, x_hd1, x_hd2, old.theta_d_dot, *rates), dtype=float)
         discrepancy = carried - [float(getattr(new, field.name)) for field in fields(DesiredState)]
-        ends = self.switches[segment:]
-        self.fades.append((t, min(self.fade, (ends[0] if ends.size else np.inf) - t), discrepancy))
+        self.fades.append((t, length, discrepancy))
 
     def blended(self, desired: DesiredState, t: float) -> DesiredState:
         """``desired`` (this route's at run time ``t``, s) plus what is left of each switch's
@@ -181,7 +188,8 @@ class SegmentSwitch:
         self.active += 1
         if self.gains is not None:
             self.controller.gains = self.gains[self.active]
-        estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition)
+        fade = SWITCH_FADE_S if self.route_trajectory is None else self.route_trajectory.fade_after(self.active, t)
+        estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition, fade)
         if self.route_trajectory is not None:
             self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
         self.switches.append((t, self.active, before, self.controller.dhat))
@@ -243,20 +251,22 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
 
 class SegmentFilters:
     """The state filter of the segment in force: one :class:`~hbvs_cli.core.state_filter.ServoStateFilter`
-    per segment (each estimates against its own F*), the loop seeing the active one. For
-    ``fade`` s after a switch the law's estimate leaves out the :func:`fading` share of what the
+    per segment (each estimates against its own F*), the loop seeing the active one. During
+    a switch's fade (``fade`` s of the run) the law's estimate leaves out the :func:`fading` share of what the
     new target's frames corrected of the carried one: what the transition got wrong comes in
     as smoothly as :meth:`RouteTrajectory.blended` fades the desired signals' discrepancy,
     not in the first few frames."""
 
-    def __init__(self, filters: Sequence[ServoStateFilter], fade: float = SWITCH_FADE_S) -> None:
+    def __init__(self, filters: Sequence[ServoStateFilter]) -> None:
         self.filters = list(filters)
         self.active = 0
-        self.fade = fade
+        #: The last switch's fade (s of the run).
+        self.fade = SWITCH_FADE_S
         #: Seconds since the last switch, and the corrections (theta, x_h1, x_h2) fused since.
         self.since, self.corrections = np.inf, np.zeros(3)
 
-    def switch(self, segment: int, dhat: float, transition: Transition) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    def switch(self, segment: int, dhat: float, transition: Transition,
+               fade: float = SWITCH_FADE_S) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
         carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
         or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target
@@ -270,7 +280,7 @@ class SegmentFilters:
         carried, spread = transition.carried_state(state, covariance)
         reference = transition.carried_state(state, np.zeros((4, 4)))[1]
         self.filters[segment].take_over(carried, spread, before, np.sqrt(np.maximum(np.diag(spread - reference)[:3], 0.0)))
-        self.since, self.corrections = 0.0, np.zeros(3)
+        self.since, self.corrections, self.fade = 0.0, np.zeros(3), fade
         return state[:3], carried[:3]
 
     def correct(self, measured: Measurement, residual: float, dt: float) -> FilterOutcome:
