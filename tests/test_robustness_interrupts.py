@@ -290,3 +290,45 @@ def test_the_live_loop_checks_for_a_stop_signal_before_each_frame(monkeypatch, s
     with pytest.raises(stop_signals.Terminated):
         getattr(loop, step)()
     assert Source.taken == 0
+
+
+
+#: A process that loaded Cyclone DDS (a stand-in module here) with the grace shortened to 1 s,
+#: whose teardown never ends (an exit handler that sleeps) and, with ``{hang_on_close}``, whose
+#: stand-in robot never finishes closing its transport after a stop signal; ``{argv}``: hbvs's arguments.
+HANGING_TEARDOWN = """
+import atexit, sys, time, types
+sys.modules.setdefault("cyclonedds", types.ModuleType("cyclonedds"))
+from hbvs_cli.cli import app
+from hbvs_cli.stages import robot_sim
+app.DDS_EXIT_GRACE_S = 1.0
+atexit.register(time.sleep, 120)
+if {hang_on_close}:
+    robot_sim._PlainRobot.close = lambda self: time.sleep(120)
+sys.argv = ["hbvs", *{argv}]
+app.main()
+"""
+
+
+@pytest.mark.parametrize("hang_on_close", [False, True], ids=["in-its-teardown", "in-its-cleanup-after-ctrl-c"])
+def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(hang_on_close, tmp_path):
+    """Cyclone DDS's teardown can wait without end (a stand-in robot outlived two Ctrl-C's by 40 s
+    in CI): a process that loaded it ends DDS_EXIT_GRACE_S after its command returned, or three
+    times that after a stop signal, exit 1 with its threads' tracebacks on stderr."""
+    from test_live_loop import FIT
+    from test_route_live import free_port
+
+    (tmp_path / "none.jsonl").write_text("")
+    argv = ["robot-sim", str(FIT), "--mjpeg", str(free_port()), "--cmd-in", str(tmp_path / "none.jsonl"), "--duration", "60", "-q"]
+    process = subprocess.Popen([sys.executable, "-c", HANGING_TEARDOWN.format(argv=argv, hang_on_close=hang_on_close)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)  # robot-sim is running
+    assert process.poll() is None
+    process.send_signal(signal.SIGINT)
+    began = time.monotonic()
+    _, stderr = process.communicate(timeout=30)
+    took = time.monotonic() - began
+    print(f"ended {took:.2f} s after Ctrl-C, exit {process.returncode}: {stderr.splitlines()[:2]}")
+    assert process.returncode == 1 and stderr.startswith("Timeout (0:00:0"), stderr
+    assert ("_PlainRobot" in stderr or "<lambda>" in stderr) == hang_on_close
+    assert (3.0 if hang_on_close else 1.0) <= took < (3.0 if hang_on_close else 1.0) + 2.0

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import errno
+import faulthandler
 import importlib
 import inspect
 import os
@@ -173,9 +174,28 @@ _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "ter
 _swallowed = False
 
 
+#: How long a process that spoke DDS may take to end (s): after a stop signal, and again once its
+#: command has returned. Cyclone DDS's teardown can wait without end for a receive thread
+#: (eclipse-cyclonedds/cyclonedds#1916), and later signals are ignored: a stand-in robot outlived
+#: two Ctrl-C's by 40 s in CI. Past it, every thread's traceback goes to stderr and the process exits 1.
+DDS_EXIT_GRACE_S = 10.0
+
+
+#: True when :func:`main` is the process's entry point (not called by a test with its arguments).
+_owns_process = False
+
+
+def _bound_dds_exit(grace_s: float) -> None:
+    """End this process ``grace_s`` from now, whatever it waits for, if it is hbvs's and loaded Cyclone DDS."""
+    if _owns_process and "cyclonedds" in sys.modules:
+        with suppress(OSError, ValueError, AttributeError, RuntimeError):  # stderr without a descriptor
+            faulthandler.dump_traceback_later(grace_s, exit=True, file=sys.stderr)
+
+
 def _on_signal(signum: int, frame: object) -> None:
     """Stop the command by raising, so that partial files are removed; later signals are ignored."""
     _set_stop_handlers(signal.SIG_IGN)
+    _bound_dds_exit(3 * DDS_EXIT_GRACE_S)  # the command's own cleanup first: zero commands, files closed
     stop_signals.stop(signum)
 
 
@@ -386,6 +406,8 @@ def _prepare_stdio(debug: bool) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point; always raises SystemExit. SIGINT and SIGTERM exit 130 and 143; after the command they are ignored."""
+    global _owns_process
+    _owns_process = argv is None
     # OpenBLAS on one thread unless the user set it (hbvs's matrices are small): before numpy is imported.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
@@ -415,4 +437,5 @@ def main(argv: list[str] | None = None) -> None:
             _silence_stdout()
     except (OSError, ValueError, AttributeError):
         pass
+    _bound_dds_exit(DDS_EXIT_GRACE_S)
     sys.exit(code)
