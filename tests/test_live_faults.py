@@ -54,18 +54,20 @@ def held_commands(commands: list[dict[str, float]]) -> tuple[float, bool]:
 
 
 def run_with_fault(tmp_path, listen, fault: str | None, *live_options: str, robot_options: tuple[str, ...] = (),
-                   during=None) -> tuple[subprocess.CompletedProcess, list[dict[str, float]]]:
+                   during=None, fit=FIT) -> tuple[subprocess.CompletedProcess, list[dict[str, float]]]:
+    """``repeat --live`` on ``fit`` against robot-sim with ``--stamp-fault fault``; ``during(env,
+    listener, robot)`` is called once both run. The result and the recorder's commands."""
     env = dds_env()
     listener = listen(env)
-    robot, _ = robot_sim(env, tmp_path, *(("--stamp-fault", fault) if fault else ()), *robot_options, duration=60.0)
+    robot, _ = robot_sim(env, tmp_path, *(("--stamp-fault", fault) if fault else ()), *robot_options, duration=60.0, fit=fit)
     live = subprocess.Popen(
-        [*HBVS, "repeat", str(FIT), "--live",
+        [*HBVS, "repeat", str(fit), "--live",
          "--ros2-image", "/camera/image_raw", "-o", str(tmp_path / "live.mcap"), "--cmd-out", str(tmp_path / "cmds.jsonl"),
          "--stale-timeout", str(STALE_TIMEOUT), "-q", *live_options],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         if during is not None:
-            during(env, listener)
+            during(env, listener, robot)
         _, err = live.communicate(timeout=90)
     finally:
         stop(live, robot)
@@ -120,7 +122,7 @@ def test_a_stalled_camera_that_resumes_is_driven_from_again(tmp_path, listen, re
 def test_a_second_commander_stops_the_run(tmp_path, listen):
     """Another node publishing on /cmd_vel while hbvs drives: zero, exit 11, the record kept."""
 
-    def teleop_once_moving(env, listener):
+    def teleop_once_moving(env, listener, robot):
         listener.wait_moving()
         teleop = subprocess.Popen([sys.executable, "-c", TELEOP], env=env)
         teleop_once_moving.process = teleop

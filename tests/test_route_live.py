@@ -241,3 +241,53 @@ def test_a_route_without_a_photographs_template_is_refused_in_one_line_before_an
     replay = call_hbvs("repeat", "--replay", str(second_drive), str(fit), "-o", str(run_path))
     assert replay.returncode == 3 and not run_path.exists()
     assert replay.stderr.decode().strip().count("\n") == 0 and "segment 2: the fit file lacks the texture template" in replay.stderr.decode()
+
+
+@pytest.fixture
+def listen():
+    """Recorders of /cmd_vel (:func:`test_live_loop.listeners`, which need Cyclone DDS)."""
+    pytest.importorskip("cyclonedds")
+    from test_live_loop import listeners
+
+    with listeners() as start:
+        yield start
+
+
+#: Faults that strike in the first 16 s route's second segment (the board's; the switch is made by
+#: 13.4 s): fault -> (exit code, words of the one error line, of the run file's stop reason).
+ROUTE_FAULTS = {
+    "freeze@14.5": (5, "froze or stepped back", "froze or stepped back"),
+    "jump:5@14.5": (10, "ahead of this host's clock", "ahead of this host's clock"),
+    "killed@14.5": (5, "no camera frame", "no camera frame"),
+}
+
+
+@pytest.mark.campaign
+@pytest.mark.parametrize("fault", ROUTE_FAULTS)
+def test_a_fault_after_a_routes_switch_never_leaves_a_command_standing(fault, corridor_fit, tmp_path, listen, request):
+    """A camera clock that freezes or jumps, or a robot killed (SIGKILL), 1 s or more after the
+    switch to the board's segment: the segment switch changes nothing of the live loop's safety.
+    From an independent recorder of /cmd_vel: no non-zero command stood longer than
+    ``--stale-timeout`` + 50 ms, the last is zero, the documented exit code and one error line,
+    and the run file kept whole with its switch and its stop reason."""
+    if "campaign" not in (request.config.option.markexpr or ""):
+        pytest.skip("runs with: pytest -m campaign tests/test_route_live.py")
+    pytest.importorskip("cyclonedds")
+    from test_live_faults import assert_safe_stop, run_with_fault
+
+    code, words, reason = ROUTE_FAULTS[fault]
+    kind, strikes = fault.split("@")
+
+    def kill_once_driven(env, listener, robot):
+        listener.wait_moving()
+        time.sleep(float(strikes))
+        robot.kill()
+
+    if kind == "killed":
+        result, commands = run_with_fault(tmp_path, listen, None, during=kill_once_driven, fit=corridor_fit)
+    else:
+        result, commands = run_with_fault(tmp_path, listen, fault, fit=corridor_fit)
+    assert_safe_stop(tmp_path, result, commands, code, words, reason)
+    run = read_run(str(tmp_path / "live.mcap"))
+    switched = [t for t, _, text in run.events if text.startswith("segment 2")]
+    assert len(switched) == 1 and switched[0] < run.state["t"][-1] - 1.0, (switched, run.state["t"][-1])
