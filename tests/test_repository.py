@@ -23,7 +23,8 @@ def test_ci_runs_exactly_the_readme_test_command():
     assert ci.count(tests) == 1
     # After it, only the real-ROS-2 run and the live campaign (their own markers, not part of the README's suite).
     assert ci[ci.index(tests) + 1:] == ["python -m pytest -q -n 0 -m ros2_real tests/test_ros2_real.py",
-                                        "python -m pytest -q -n 0 -m campaign tests/test_live_faults.py tests/test_live_base.py tests/test_live_loop.py"]
+                                        "python -m pytest -q -n 0 -m campaign tests/test_live_faults.py tests/test_live_base.py tests/test_live_loop.py "
+                                        "tests/test_route_live.py"]
 
 
 def test_every_sample_is_small_and_used_by_a_test():
