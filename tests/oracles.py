@@ -14,10 +14,12 @@ from hbvs_cli.core.controller import DesiredState, TrackingErrors
 from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
                                          select_branch, take_branch)
 from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
+from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.perception import TargetDetector, target_kind
 from hbvs_cli.report.result import RunReport
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, RouteWorld
 from hbvs_cli.sim.world import World
@@ -84,6 +86,15 @@ def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observat
     """The estimator's observation of normalised points of shape (N, 3) (no pixels, no lens)."""
     m = np.asarray(m, dtype=float)
     return estimator._observe(estimator.solver.solve_one((m[:, 1] / m[:, 0]).tolist(), (m[:, 2] / m[:, 0]).tolist()), None)
+
+
+def make_detector(kind: str, *, n_points: int, reference_image: np.ndarray | None = None, reference_pixels: ArrayLike | None = None,
+                  seed: int = 0, windowed: bool = False, **options) -> TargetDetector:
+    """A detector of ``n_points`` points for a registered ``kind``, as fit and repeat make it from a
+    :class:`DetectorSpec` of ``options``; ``reference_image`` and ``reference_pixels`` (N, 2) in it: a
+    template kind's (``seed``: its robust sampling); ``windowed``: dots each in its own window."""
+    pixels = None if reference_pixels is None else np.asarray(reference_pixels, dtype=float)
+    return target_kind(kind).make(DetectorSpec(kind, n_points=n_points, template_pixels=pixels, **options), reference_image, seed, windowed)
 
 
 def bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence) -> NDArray[np.float64]:

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from hbvs_cli.perception.chessboard import ChessboardDetector, board_layout, find_board, find_board_near
-from hbvs_cli.perception import make_detector
 
 import footage
+from oracles import make_detector
 
 DRIVE = footage.Drive(duration=12.0, fps=5.0, speed=0.24, period=9.0)
 

@@ -17,12 +17,13 @@ from hbvs_cli.perception import (
     TargetDetector,
     TextureDetection,
     TextureDetector,
-    make_detector,
     match_identity,
 )
 from hbvs_cli.perception.base import PointTrack
 from hbvs_cli.perception.texture import FOLLOW_CORRELATION
 from hbvs_cli.sim import RenderSettings, SceneRenderer
+
+from oracles import make_detector
 
 
 def path_poses(count: int, seed: int) -> np.ndarray:

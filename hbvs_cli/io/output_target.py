@@ -170,7 +170,9 @@ class FolderLock(ClosedOnExit):
         try:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            holder = self._holder()
+            holder = ""
+            with suppress(OSError):  # the holder's pid, as it wrote it below
+                holder = os.pread(self._fd, 32, 0).decode("ascii", "replace").strip()
             os.close(self._fd)
             self._fd = None
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
@@ -179,12 +181,6 @@ class FolderLock(ClosedOnExit):
             raise OutputError(f"{self.path}: cannot lock {what} ({exc.strerror})") from None
         os.ftruncate(self._fd, 0)
         os.write(self._fd, f"{os.getpid()}\n".encode())
-
-    def _holder(self) -> str:
-        try:
-            return os.pread(self._fd, 32, 0).decode("ascii", "replace").strip() if self._fd is not None else ""
-        except OSError:
-            return ""
 
     def close(self) -> None:
         if self._fd is not None:

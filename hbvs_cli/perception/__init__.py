@@ -6,11 +6,11 @@ from . import dot_windows, aruco, chessboard, charuco, texture  # noqa: F401, I0
 from .aruco import ArucoMarkerDetector
 from .base import Detection, TargetDetector, match_identity
 from .dots import DotDetector
-from .target_kinds import TARGET_KINDS, SpecRequest, TargetKind, make_detector, register_target_kind, target_kind
+from .target_kinds import TARGET_KINDS, SpecRequest, TargetKind, register_target_kind, target_kind
 from .texture import TextureDetection, TextureDetector
 
 __all__ = [
     "ArucoMarkerDetector", "Detection", "DotDetector", "TargetDetector", "TextureDetection", "TextureDetector",
-    "make_detector", "match_identity",
+    "match_identity",
     "TARGET_KINDS", "SpecRequest", "TargetKind", "register_target_kind", "target_kind",
 ]

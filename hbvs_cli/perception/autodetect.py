@@ -174,14 +174,14 @@ def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") 
     return centres[similar], int(similar.sum()) >= max(3, 0.75 * interior)
 
 
-def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) -> TargetChoice | None:
+def find_dots(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     """The same number of dots (3-10) in most of ``images``, dark ones first, in gray first
     (then in colour, when the frames have it), or None."""
     colour = any(np.ndim(image) == 3 for image in images)
     # In colour, light dots first: a dot that differs from a neutral wall in hue alone is
     # brighter than it in its own channel, and darker in the others only as far as it is saturated.
     order = [("gray", "dark"), ("gray", "light")] + ([("colour", "light"), ("colour", "dark")] if colour else [])
-    for contrast, kind in (pair for pair in order if polarity is None or pair[1] == polarity):
+    for contrast, kind in order:
         centres = []
         for image in images:
             found, dominant = round_dots(image, kind, contrast)
@@ -189,7 +189,7 @@ def find_dots(images: Sequence[NDArray[np.uint8]], polarity: str | None = None) 
         tally = Counter(len(c) for c in centres if len(c))
         n_dots, frames = tally.most_common(1)[0] if tally else (0, 0)
         if frames and _majority(frames, len(images)):
-            before = " (no dark dots)" if kind == "light" and polarity is None else ""
+            before = " (no dark dots)" if kind == "light" else ""
             details = {"polarity": kind, "n_points": n_dots}
             if contrast == "colour":
                 channel = "darkest" if kind == "dark" else "brightest"

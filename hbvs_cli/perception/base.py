@@ -146,12 +146,12 @@ def signed_polygon_area(points: ArrayLike) -> float:
     return 0.5 * float(np.dot(x, y_next) - np.dot(x_next, y))
 
 
-def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = True) -> NDArray[np.intp]:
+def match_identity(detected: ArrayLike, reference: ArrayLike) -> NDArray[np.intp]:
     """The permutation that puts detected points in the order of reference points.
 
-    The minimum total squared distance assignment; with ``normalize`` both sets (N, 2) are
-    first centred and scaled to unit RMS radius, so that a target seen nearer, farther or
-    shifted still matches. ``detected[permutation]`` is in reference order.
+    The minimum total squared distance assignment once both sets (N, 2) are centred and
+    scaled to unit RMS radius, so that a target seen nearer, farther or shifted still
+    matches. ``detected[permutation]`` is in reference order.
     """
     detected = np.asarray(detected, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)
@@ -159,8 +159,7 @@ def match_identity(detected: ArrayLike, reference: ArrayLike, normalize: bool = 
         raise UsageError(f"cannot match {detected.shape} points against {reference.shape} reference points")
     if not (np.all(np.isfinite(detected)) and np.all(np.isfinite(reference))):
         raise UsageError("points to match must be finite")
-    if normalize:
-        detected, reference = _normalized(detected), _normalized(reference)
+    detected, reference = _normalized(detected), _normalized(reference)
     cost = np.sum((reference[:, None, :] - detected[None, :, :]) ** 2, axis=-1)
     rows, cols = optimal_assignment(cost)
     permutation = np.empty(len(reference), dtype=np.intp)

@@ -440,10 +440,6 @@ class DotDetector:
         self._track.reset()
         self._areas[:] = np.nan
 
-    def predict(self) -> NDArray[np.float64] | None:
-        """The track's prediction for the next frame, shape (N, 2), or None."""
-        return self._track.predict()
-
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the dots; see :class:`~.base.TargetDetector`.
 

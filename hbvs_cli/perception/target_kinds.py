@@ -80,12 +80,3 @@ def target_kind(name: str) -> TargetKind:
         raise UsageError(f"unknown target kind {name!r}: choose one of {', '.join(TARGET_KINDS)}")
     return TARGET_KINDS[name]
 
-
-def make_detector(kind: str, *, n_points: int, reference_image: np.ndarray | None = None, reference_pixels: Any = None, seed: int = 0,
-                  windowed: bool = False, **options: Any) -> Any:
-    """A detector of ``n_points`` points for a registered ``kind``; ``options``: the other
-    :class:`DetectorSpec` fields it takes; ``reference_image`` and ``reference_pixels`` (N, 2)
-    in it: a template kind's (``seed``: its robust sampling); ``windowed``: dots each in its
-    own window. UsageError for an unknown kind or inconsistent arguments."""
-    pixels = None if reference_pixels is None else np.asarray(reference_pixels, dtype=float)
-    return target_kind(kind).make(DetectorSpec(kind, n_points=n_points, template_pixels=pixels, **options), reference_image, seed, windowed)

@@ -215,9 +215,7 @@ def _rows_table(rows: Iterable[Row], reports: Sequence[RunReport], plain: bool) 
 
 
 def _run_rows(reports: Sequence[RunReport]) -> list[Row]:
-    gains: dict[str, None] = {}
-    for report in reports:
-        gains.update(dict.fromkeys(report.run.gains))
+    gains = dict.fromkeys(name for report in reports for name in report.run.gains)
     gain_rows = [(f"gain {name} ({GAIN_UNITS.get(name, '-')})", lambda r, name=name: r.run.gains.get(name)) for name in gains]
     return [("file", lambda r: r.run.name), ("label", lambda r: r.run.label), *RUN_ROWS, *gain_rows]
 
@@ -232,19 +230,11 @@ def _error_matrix(section: Mapping[str, ErrorSummary], names: Sequence[str], pla
     return table
 
 
-def _statistic(section: str, name: str, statistic: str) -> Callable[[RunReport], Any]:
-    """A statistic of an error of a report; None when the report lacks the section."""
-    def value(report: RunReport) -> Any:
-        errors = getattr(report, section)
-        return None if errors is None else getattr(errors[name], statistic)
-    return value
-
-
 def _error_rows(section: str, names: Sequence[str]) -> list[Row]:
-    """Several runs' errors: a row per (signal, statistic)."""
+    """Several runs' errors: a row per (signal, statistic); None where a report lacks the section."""
     return [
         (f"{ERROR_SIGNALS[name][0]} {STATISTIC_NAMES[s]} ({'s' if s == 'settling_time_s' else ERROR_SIGNALS[name][1]})",
-         _statistic(section, name, s))
+         lambda r, name=name, s=s: None if getattr(r, section) is None else getattr(getattr(r, section)[name], s))
         for name in names for s in STATISTICS
     ]
 

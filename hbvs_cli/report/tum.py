@@ -26,20 +26,16 @@ def camera_height_m(source: Any, name: str = "") -> float | None:
     return None
 
 
-def require_ground_truth(run: RunData) -> None:
-    """Raise :class:`UsageError` when the run has no poses to export (a replay or a real run)."""
-    if run.true_pose is None or run.desired_pose is None:
-        raise UsageError(
-            f"{run.name}: --export-tum needs ground-truth poses, and this {run.info.get('mode', 'unknown')} run has none "
-            "(only hbvs repeat --sim records them)"
-        )
-
-
 def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
-    """UsageError before writing anything for a run without ground truth, or two runs with one file stem."""
+    """UsageError before writing anything for a run without ground truth (a replay or a real run), or
+    two runs with one file stem."""
     seen: dict[Path, str] = {}
     for run in runs:
-        require_ground_truth(run)
+        if run.true_pose is None or run.desired_pose is None:
+            raise UsageError(
+                f"{run.name}: --export-tum needs ground-truth poses, and this {run.info.get('mode', 'unknown')} run has none "
+                "(only hbvs repeat --sim records them)"
+            )
         taught = tum_paths(run, directory)[0]
         if taught in seen:
             raise UsageError(f"--export-tum: {seen[taught]} and {run.name} would both write {taught}; rename one of them")
@@ -62,10 +58,10 @@ def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
 
 
 def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Path]:
-    """Write a run's taught and repeated trajectories into ``directory`` (created if needed); both paths."""
+    """Write a run's taught and repeated trajectories into ``directory`` (created if needed; the run
+    passed :func:`check_exportable`); both paths."""
     from ..io.output_target import write_output_bytes
 
-    require_ground_truth(run)
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -27,24 +27,12 @@ def load_calibration(
     ``image_size`` (width, height) when the file gives none; ``notes`` receives what was assumed."""
     name = str(path)
     data = read_small_file(path, MAX_CALIBRATION_BYTES, "a calibration file", CalibrationError)
-    return parse_calibration(data, name, image_size, notes)
-
-
-def parse_calibration(
-    data: bytes | str, name: str = "calibration", image_size: tuple[int, int] | None = None, notes: list[str] | None = None,
-) -> CameraIntrinsics:
-    """Parse the content of a calibration file (see :func:`load_calibration`); ``name`` names it in errors."""
-    if isinstance(data, bytes):
-        if len(data) > MAX_CALIBRATION_BYTES:
-            raise CalibrationError(f"{name}: larger than {MAX_CALIBRATION_BYTES} bytes, not a calibration file")
-        try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise CalibrationError(
-                f"{name}: not UTF-8 text (invalid byte at offset {exc.start}); expected a YAML or JSON calibration file"
-            ) from None
-    else:
-        text = data
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(
+            f"{name}: not UTF-8 text (invalid byte at offset {exc.start}); expected a YAML or JSON calibration file"
+        ) from None
     text = text.removeprefix("\ufeff")  # editors on Windows add a byte-order mark
     if "\x00" in text:
         raise CalibrationError(f"{name}: contains NUL bytes; expected a YAML or JSON calibration file")

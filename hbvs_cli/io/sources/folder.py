@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from ...errors import InputError, UsageError
+from ...errors import InputError
 from ..images import as_image8, decode_image, image_size, sniff_format
 from .frame_source import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
 
@@ -24,10 +24,7 @@ class ImageFolderSource(FrameSource):
 
     def __init__(self, dir_or_glob: str | os.PathLike[str], fps: float) -> None:
         self.path = str(dir_or_glob)
-        rate = _check_rate(fps, "--fps")
-        if rate is None:
-            raise UsageError("an image folder needs a frame rate (--fps)")
-        self.fps = rate
+        self.fps = _check_rate(fps, "--fps")  # teach gives images its default rate without --fps
         self.camera = None
         self.files = self._find(self.path)
 
