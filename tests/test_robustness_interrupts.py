@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import random
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -293,6 +294,11 @@ def test_the_live_loop_checks_for_a_stop_signal_before_each_frame(monkeypatch, s
 
 
 
+def serving(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
+
+
 #: A process that loaded Cyclone DDS (a stand-in module here) with the grace shortened to 1 s,
 #: whose teardown never ends (an exit handler that sleeps) and, with ``{hang_on_close}``, whose
 #: stand-in robot never finishes closing its transport after a stop signal; ``{argv}``: hbvs's arguments.
@@ -319,11 +325,14 @@ def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(ha
     from test_route_live import free_port
 
     (tmp_path / "none.jsonl").write_text("")
-    argv = ["robot-sim", str(FIT), "--mjpeg", str(free_port()), "--cmd-in", str(tmp_path / "none.jsonl"), "--duration", "60", "-q"]
+    port = free_port()
+    argv = ["robot-sim", str(FIT), "--mjpeg", str(port), "--cmd-in", str(tmp_path / "none.jsonl"), "--duration", "60", "-q"]
     process = subprocess.Popen([sys.executable, "-c", HANGING_TEARDOWN.format(argv=argv, hang_on_close=hang_on_close)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # robot-sim is running
-    assert process.poll() is None
+    deadline = time.monotonic() + 30.0
+    while not serving(port):  # robot-sim is running once its camera serves
+        assert process.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
     process.send_signal(signal.SIGINT)
     began = time.monotonic()
     _, stderr = process.communicate(timeout=30)
