@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InvalidValueError
 from .controller import ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
 from .laws import ControlLaw
@@ -26,20 +25,13 @@ from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, sched
 class ActuatorLimits:
     """Limits of the robot's drive, None for unlimited: |v| (m/s), |w| (rad/s), and the
     change of v per second (m/s^2), which bounds w's (rad/s^2) as well; ``lag_s`` the drive's
-    time constant (s): its speeds follow a command as a first-order lag (0: at once)."""
+    time constant (s): its speeds follow a command as a first-order lag (0: at once). Checked
+    where they are read (``repeat``'s options and ``--config``), not again here."""
 
     max_v: float | None = None
     max_w: float | None = None
     max_accel: float | None = None
     lag_s: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("max_v", "max_w", "max_accel"):
-            value = getattr(self, name)
-            if value is not None and (not np.isfinite(value) or value <= 0.0):
-                raise InvalidValueError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
-        if not (math.isfinite(self.lag_s) and self.lag_s >= 0.0):
-            raise InvalidValueError(f"--base-lag must be a number of seconds >= 0, got {self.lag_s}")
 
     def executed(self, speeds: tuple[float, float], command: tuple[float, float], dt: float) -> tuple[tuple[float, float], tuple[float, float]]:
         """What the drive does with ``command`` (v, w) held for ``dt`` (s) from ``speeds``: its mean speeds over
