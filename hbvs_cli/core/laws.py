@@ -129,14 +129,9 @@ class KanayamaController:
     def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
         """Nothing to learn: the depth estimate stays fixed."""
 
-    def feedforward(self, desired: DesiredState) -> tuple[float, float]:
-        """The reference commands (25), as :meth:`~.controller.AdaptiveTrackingController.feedforward`."""
-        w_r = -float(desired.theta_d_dot)
-        return self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot)), w_r
-
-    def hold(self) -> tuple[float, float]:
-        """Commands while the target is lost: stop."""
-        return 0.0, 0.0
+    #: The reference commands (25) at its fixed dhat, and a stop while the target is lost: the adaptive law's own.
+    feedforward = AdaptiveTrackingController.feedforward
+    hold = AdaptiveTrackingController.hold
 
 
 register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains, AdaptiveTrackingController))
