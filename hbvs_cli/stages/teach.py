@@ -139,8 +139,6 @@ def simulated_world(options: TeachOptions) -> World:
 
 
 def _teach_simulated(options: TeachOptions, console: Console) -> None:
-    if options.calibration is None and options.fps <= 0:
-        raise UsageError("--fps must be positive")
     world: World | RouteWorld
     if options.route is not None:
         camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
