@@ -197,7 +197,7 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     theta_d, x_hd1, x_hd2 : array_like, shape (K,)
         rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
     smoothing : float, optional
-        lambda of both splines (s^3); None: per channel by generalised cross-validation.
+        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
@@ -206,8 +206,6 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
         raise InsufficientDataError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
     if np.any(np.diff(t) <= 0.0):
         raise MalformedDataError("frame times must increase strictly")
-    if smoothing is not None and (not np.isfinite(smoothing) or smoothing < 0.0):
-        raise InvalidValueError(f"--smoothing must be 'auto' or a non-negative number, got {smoothing}")
     channels = {}
     for name, y in samples.items():
         if y.shape != t.shape or not np.all(np.isfinite(y)):
