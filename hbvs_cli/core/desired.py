@@ -339,7 +339,7 @@ def fit_desired_trajectory(
     # left out of the plane's estimates as of the trajectory; the worst first, and only beyond
     # OUTLIER_SPREADS times the frames' median: it bends the plane, so the others' residuals too.
     for _ in range(OUTLIER_FRAMES + 1):
-        normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=valid, with_rival=True)
+        normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=valid)
         usable = np.isin(np.arange(found.size), sample[valid])
         normal, refined = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
         frame_residual = np.where(valid, KnownNormalSolver(refined, normal).solve(m[sample]).residual, np.nan)
