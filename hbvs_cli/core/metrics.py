@@ -126,12 +126,9 @@ def step_durations(t: ArrayLike) -> NDArray[np.float64]:
 def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
     """Duration (s) of the longest stretch of consecutive ``True`` steps (:func:`step_durations`)."""
     flags = np.asarray(flags, dtype=bool)
-    durations = step_durations(t)
-    longest = current = 0.0
-    for flagged, duration in zip(flags, durations):
-        current = current + duration if flagged else 0.0
-        longest = max(longest, current)
-    return float(longest)
+    # Each stretch of True steps shares its count of False steps before it: one bin per stretch, summed in order.
+    stretches = np.bincount(np.cumsum(~flags), weights=np.where(flags, step_durations(t), 0.0))
+    return float(np.max(stretches, initial=0.0))
 
 
 def rms(x: ArrayLike) -> float | None:
