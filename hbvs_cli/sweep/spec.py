@@ -311,10 +311,8 @@ class SweepPlan:
     def point_values(self, point: int) -> dict[str, Any]:
         """The swept values of a point: listed values vary slowest, samples fastest (so every law meets the same sampled points)."""
         combination, sample = divmod(point, self._sample_count)
-        values: dict[str, Any] = {}
-        if self.listed:
-            for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes)):
-                values[axis.name] = axis.values[int(position)]
+        values = {axis.name: axis.values[int(position)]
+                  for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes))}
         for axis, value in zip(self.ranged, self._samples[sample]):
             values[axis.name] = int(round(value)) if PARAMETERS[axis.name].kind == "int" else float(value)
         return {name: values[name] for name in self.swept}
