@@ -58,15 +58,13 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
                                  "its first frame " + ("had" if frame.pose is None else "lacked"))
-        rows.append((frame.t, frame.log_time_ns, frame.pose, frame.command))
+        rows.append((frame.t, frame.log_time_ns, (np.nan,) * 3 if frame.pose is None else frame.pose,
+                     (np.nan,) * 2 if frame.command is None else frame.command))
         follower.add(image, frame.pose)
         bar.advance()
     if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
-    t = np.array([row[0] for row in rows])
-    log_time = np.array([row[1] for row in rows], dtype=np.int64)
-    poses = np.array([row[2] if row[2] is not None else (np.nan,) * 3 for row in rows], dtype=float)
-    commands = np.array([row[3] if row[3] is not None else (np.nan, np.nan) for row in rows], dtype=float)
+    t, log_time, poses, commands = (np.array(column, dtype=kind) for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
     pixels = follower.pixels(len(rows))
     spans = np.column_stack([seen_spans(points) for points in pixels])
     try:
