@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from contextlib import ExitStack
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -71,10 +71,9 @@ class TeachOptions(TeachFields):
             if self.route is not None:  # the route brings its own path and targets
                 simulated = {key: value for key, value in simulated.items() if key not in ("path", "target", "dots", "texture")}
             return {**simulated, "sim": True}
-        names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
             {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
-        return {key: value for key, value in recorded.items() if key in keep and key in names}
+        return {key: value for key, value in recorded.items() if key in keep}
 
 
 def run_teach(options: TeachOptions, console: Console) -> None:
