@@ -235,12 +235,11 @@ def build_spec(
 
 def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -> None:
     """Refuse more runs than the ``sweep-runs`` limit before the design matrix is allocated."""
-    if method != "grid" and any(axis.is_range for axis in axes):
+    sampled = method != "grid" and any(axis.is_range for axis in axes)
+    if sampled:
         check_limit("sweep-runs", samples, "--samples")
     check_limit("sweep-runs", repeats, "--repeats")
-    runs = repeats * (samples if method != "grid" and any(axis.is_range for axis in axes) else 1)
-    for axis in axes:
-        runs *= max(1, len(axis.values))
+    runs = repeats * (samples if sampled else 1) * math.prod(max(1, len(axis.values)) for axis in axes)
     check_limit("sweep-runs", runs, "the sweep (points x samples x repeats)")
 
 
