@@ -125,9 +125,14 @@ def step_durations(t: ArrayLike) -> NDArray[np.float64]:
 
 def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
     """Duration (s) of the longest stretch of consecutive ``True`` steps (:func:`step_durations`)."""
+    return longest_stretch(step_durations(t), flags)
+
+
+def longest_stretch(durations: ArrayLike, flags: ArrayLike) -> float:
+    """The largest sum of ``durations`` (>= 0) over a stretch of consecutive ``True`` ``flags``."""
     flags = np.asarray(flags, dtype=bool)
     # Each stretch of True steps shares its count of False steps before it: one bin per stretch, summed in order.
-    stretches = np.bincount(np.cumsum(~flags), weights=np.where(flags, step_durations(t), 0.0))
+    stretches = np.bincount(np.cumsum(~flags), weights=np.where(flags, durations, 0.0))
     return float(np.max(stretches, initial=0.0))
 
 

@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InsufficientDataError, InvalidValueError, MalformedDataError
 from .controller import DesiredState
+from .metrics import longest_stretch
 
 #: Names of the fitted spline channels; x_hd2 follows from them by (25).
 CHANNELS = ("theta_d", "x_hd1")
@@ -250,12 +251,6 @@ def feedforward_condition(trajectory: DesiredTrajectory, t: ArrayLike, threshold
     t = np.asarray(t, dtype=float)
     rate = np.abs(np.atleast_1d(trajectory.evaluate(t).x_hd1_dot))
     stopped = rate < threshold
-    longest = 0.0
-    if np.any(stopped):
-        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
-        run = 0.0
-        for flag, step in zip(stopped, dt):
-            run = run + step if flag else 0.0
-            longest = max(longest, run)
+    longest = longest_stretch(np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0)), stopped)
     percentiles = {f"p{q}": float(np.percentile(rate, q)) for q in (5, 25, 50, 75, 95)}
     return FeedforwardCondition(float(rate.min()), percentiles, float(np.mean(stopped)), float(longest), threshold)
