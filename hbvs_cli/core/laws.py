@@ -18,8 +18,9 @@ from .depth import check_depth
 
 class ControlLaw(Protocol):
     """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),
-    commands for a measurement, the update (31) and its pull toward the filter's depth, the taught
-    commands (25), the commands while the target is lost, and ``lateral_gain`` (k_2, 1 without one)."""
+    commands for a measurement, the update (31) and its pull toward the filter's depth (the pull alone
+    without the law's output), the taught commands (25), the commands while the target is lost, and
+    ``lateral_gain`` (k_2, 1 without one)."""
 
     dhat: float
 
@@ -28,9 +29,8 @@ class ControlLaw(Protocol):
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput: ...
 
-    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None: ...
-
-    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None: ...
+    def adapt(self, output: ControlOutput | None, dt: float,
+              depth_reference: tuple[float, float] | None = None) -> None: ...
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]: ...
 
@@ -123,10 +123,8 @@ class KanayamaController:
         w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
         return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
 
-    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
-        """Nothing to learn: the depth estimate stays fixed."""
-
-    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
+    def adapt(self, output: ControlOutput | None, dt: float,
+              depth_reference: tuple[float, float] | None = None) -> None:
         """Nothing to learn: the depth estimate stays fixed."""
 
     #: The reference commands (25) at its fixed dhat, and a stop while the target is lost: the adaptive law's own.

@@ -154,7 +154,7 @@ class ServoStep:
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
             if fresh:
-                controller.follow_depth((estimate.depth, estimate.depth_pull), dt)
+                controller.adapt(None, dt, (estimate.depth, estimate.depth_pull))
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
