@@ -130,7 +130,3 @@ class AdaptiveTrackingController:
         """The taught commands (25) at the current dhat: ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``."""
         w_c = -float(desired.theta_d_dot)
         return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
-
-    def hold(self) -> tuple[float, float]:
-        """Commands while the target is lost: stop."""
-        return 0.0, 0.0

@@ -19,8 +19,8 @@ from .depth import check_depth
 class ControlLaw(Protocol):
     """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),
     commands for a measurement, the update (31) and its pull toward the filter's depth (the pull alone
-    without the law's output), the taught commands (25), the commands while the target is lost, and
-    ``lateral_gain`` (k_2, 1 without one)."""
+    without the law's output), the taught commands (25) and ``lateral_gain`` (k_2, 1 without one). A
+    lost target stops the robot whatever the law (:class:`~.simulator.ServoStep`)."""
 
     dhat: float
 
@@ -33,8 +33,6 @@ class ControlLaw(Protocol):
               depth_reference: tuple[float, float] | None = None) -> None: ...
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]: ...
-
-    def hold(self) -> tuple[float, float]: ...
 
 
 @dataclass(frozen=True)
@@ -127,9 +125,8 @@ class KanayamaController:
               depth_reference: tuple[float, float] | None = None) -> None:
         """Nothing to learn: the depth estimate stays fixed."""
 
-    #: The reference commands (25) at its fixed dhat, and a stop while the target is lost: the adaptive law's own.
+    #: The reference commands (25) at its fixed dhat: the adaptive law's own.
     feedforward = AdaptiveTrackingController.feedforward
-    hold = AdaptiveTrackingController.hold
 
 
 register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains, AdaptiveTrackingController))

@@ -164,7 +164,7 @@ class ServoStep:
         elif coasting:
             v_cmd, w_cmd = previous
         else:
-            v_cmd, w_cmd = controller.hold()
+            v_cmd, w_cmd = 0.0, 0.0  # the target is lost: stop
         v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.
