@@ -501,13 +501,8 @@ def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = De
 def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
     """The first used frame's measured pixels, its points out of view (a partial frame)
     where its pose puts them (undistorted: a prediction for repeat's first search only)."""
-    initial = pixels[first]
-    missing = ~np.all(np.isfinite(initial), axis=1)
-    if not np.any(missing):
-        return initial
-    initial = initial.copy()
-    initial[missing] = normalized_to_pixels(camera, m[first][missing])
-    return initial
+    missing = ~np.all(np.isfinite(pixels[first]), axis=1)
+    return np.where(missing[:, None], normalized_to_pixels(camera, m[first]), pixels[first])
 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
