@@ -89,11 +89,8 @@ def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
 
 def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:
     """Every statistic of :data:`STATISTICS` for one error signal (settling band ``tolerance``)."""
-    summary = signal_statistics(x)
-    summary["initial"] = initial_value(x)
-    summary["final"] = final_value(t, x)
-    summary["settling_time_s"] = settling_time(t, x, tolerance)
-    return summary
+    return signal_statistics(x) | {"initial": initial_value(x), "final": final_value(t, x),
+                                   "settling_time_s": settling_time(t, x, tolerance)}
 
 
 def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dict[str, float | None]:
