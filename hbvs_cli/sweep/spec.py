@@ -184,12 +184,10 @@ def build_spec(
 ) -> SweepSpec:
     """The spec file's contents overridden by ``--vary`` (an axis) and ``--set`` (a fixed value)."""
     data = dict(file_data or {})
-    axes: dict[str, Axis] = {}
     vary_table = data.get("vary", {})
     if not isinstance(vary_table, dict):
         raise UsageError("spec: [vary] must be a table")
-    for name, value in vary_table.items():
-        axes[name] = _axis_from_toml(name, value)
+    axes = {name: _axis_from_toml(name, value) for name, value in vary_table.items()}
     for text in vary:
         axis = parse_vary(text)
         axes[axis.name] = axis
