@@ -185,7 +185,8 @@ def test_the_splines_sigma_is_formed_a_block_at_a_time_with_the_same_numbers(fra
     group = int(np.ceil(count / desired.MAX_SPLINE_SAMPLES))
     usable = count // group * group
     for index, channel, got in ((0, "theta_d", blocked.smooth_theta_sigma), (1, "x_hd1", blocked.smooth_x_h1_sigma)):
-        inherited = np.column_stack([covariance.sensitivity[:, index, :] @ directions, covariance.bias_rows(slice(None))[:, index, :]])
+        inherited = np.column_stack([covariance.sensitivity[:, index, :] @ directions,
+                                     covariance.bias_rows(slice(None))[:, index, :]])
         columns = np.column_stack([inherited, probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]])
         binned_t, binned = t[used], columns
         if group > 1:

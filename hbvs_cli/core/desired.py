@@ -687,7 +687,8 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
         )
     lost_fraction = 1.0 - n_used / total
     indices = np.flatnonzero(used)
-    gaps = [(float(t[before]), float(t[after])) for before, after in zip(indices[:-1], indices[1:]) if after - before > 1]
+    gaps = [(float(t[before]), float(t[after]))
+            for before, after in zip(indices[:-1], indices[1:]) if after - before > 1]
     longest = max((b - a for a, b in gaps), default=0.0)
     if lost_fraction > max_lost:
         raise InsufficientDataError(

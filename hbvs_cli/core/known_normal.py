@@ -85,7 +85,8 @@ class KnownNormalSolver:
         g = self.m_ref @ self.normal
         # Rows [1, -m*_iy, g_i, 0] and [m*_iy, 1, 0, g_i] for the unknowns (c, s, x_h1, x_h2).
         one, zero, y = np.ones_like(g), np.zeros_like(g), self.m_ref[:, 1]
-        design = np.stack([np.column_stack([one, -y, g, zero]), np.column_stack([y, one, zero, g])], axis=1).reshape(-1, 4)
+        design = np.stack([np.column_stack([one, -y, g, zero]), np.column_stack([y, one, zero, g])], axis=1)
+        design = design.reshape(-1, 4)
         self._pinv = np.linalg.pinv(design)
         # Plain-float copies for solve_one.
         self._y = [float(v) for v in self.m_ref[:, 1]]

@@ -198,7 +198,8 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     theta_d, x_hd1, x_hd2 : array_like, shape (K,)
         rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
     smoothing : float, optional
-        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation.
+        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by
+        generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}

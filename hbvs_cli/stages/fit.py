@@ -225,7 +225,8 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
-                writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
+                writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns,
+                             calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 if as_route or is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console,
                                              partial(_checked_frame, reader),

@@ -64,7 +64,8 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         bar.advance()
     if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
-    t, log_time, poses, commands = (np.array(column, dtype=kind) for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
+    t, log_time, poses, commands = (np.array(column, dtype=kind)
+                                    for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
     pixels = follower.pixels(len(rows))
     spans = np.column_stack([seen_spans(points) for points in pixels])
     try:
