@@ -143,14 +143,14 @@ def test_filter_averages_the_noise_learns_its_level_and_knows_its_std(static_fra
             kalman.correct(observation.measurement, observation.residual, 1 / 30)
         kalman.predict(0.0, 0.0, 1 / 30)
         estimates.append(kalman.state.copy())
-        stds.append(np.sqrt(np.diag(kalman.covariance)))
+        stds.append(np.sqrt(np.diag(kalman.full_state[1][:3, :3])))
     raw, estimates, stds = np.array(raw), np.array(estimates)[300:], np.array(stds)[300:]
     raw_error = np.std(raw - truth, axis=0)
     error = np.sqrt(np.mean((estimates - truth) ** 2, axis=0))
     # Measured: theta 1.3 deg raw -> 0.03 deg filtered, x_h1 2.8e-3 -> 3.1e-4, x_h2 0.023 -> 5.2e-4.
     assert error[0] < raw_error[0] / 20 and error[2] < raw_error[2] / 20 and error[1] < raw_error[1] / 5, (raw_error, error)
     # The noise learnt from the residuals: 0.5 px (per coordinate, f = 500 px) within 10 %.
-    assert kalman.noise * 500.0 == pytest.approx(0.5, rel=0.10)
+    assert np.sqrt(kalman.noise_variance) * 500.0 == pytest.approx(0.5, rel=0.10)
     # The reported std is consistent with the actual error (within a factor 2.5 either way;
     # measured: std / error = 1.95, 1.03 and 2.07 for theta, x_h1, x_h2: it errs on the safe side).
     assert np.all(error < 2.5 * stds.mean(axis=0)) and np.all(error > stds.mean(axis=0) / 2.5), (error, stds.mean(axis=0))

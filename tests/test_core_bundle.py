@@ -145,7 +145,7 @@ def test_detector_bias_moves_the_estimate_as_the_covariance_says():
     joint = estimate_plane_jointly(biased, reference, normal, reference, noise)
     moved = PlaneGeometry.around(normal, m_ref).pack(joint.normal, joint.m_ref)[:2]
     predicted_normal = -covariance.bias_shared[:2] @ shift.ravel()
-    predicted_theta = -covariance.bias[:, 0, :] @ shift.ravel()
+    predicted_theta = -covariance.bias_rows(slice(None))[:, 0, :] @ shift.ravel()
     assert np.abs(moved - predicted_normal).max() < 0.1 * np.abs(predicted_normal).max()
     assert np.abs(joint.motion[:, 0] - motion[:, 0] - predicted_theta).max() < 0.1 * np.abs(predicted_theta).max()
 
@@ -181,10 +181,11 @@ def test_estimated_frames_named_by_their_rows_give_the_covariance_of_the_frames_
     apart = joint_covariance(m[sample], m_ref, normal, motion[sample], **every, **common)
     alone = joint_covariance(m[sample], m_ref, normal, motion[sample], bias_segments=(0, spans[sample], spans[sample]),
                              shutter=(shift[0], shift[sample], shift[sample]), **common)
-    assert by_rows.readout != 0.0 and by_rows.bias is not None
+    assert by_rows.readout != 0.0 and by_rows.bias_rows(slice(None)) is not None
     same = lambda a, b: np.allclose(a, b, rtol=0.0, atol=1e-9 * np.abs(b).max())  # noqa: E731  (the sums' order differs)
-    for name in ("shared", "own", "sensitivity", "bias_shared", "bias"):
+    for name in ("shared", "own", "sensitivity", "bias_shared"):
         assert same(getattr(by_rows, name), getattr(apart, name)), name
+    assert same(by_rows.bias_rows(slice(None)), apart.bias_rows(slice(None)))
     assert by_rows.readout == pytest.approx(apart.readout, rel=1e-9)
     assert same(by_rows.shared, alone.shared) and same(by_rows.own[sample], alone.own)
     assert by_rows.readout == pytest.approx(alone.readout, rel=1e-9)
@@ -198,7 +199,7 @@ def test_a_frames_bias_is_kept_as_its_own_part_and_what_it_inherits():
     covariance = joint_covariance(m[sample], m_ref, normal, motion[sample], noise=1e-4, bias_fraction=0.5,
                                   frames=m, frames_motion=motion, estimated_rows=sample,
                                   bias_segments=(0, spans[sample], spans), shutter=(shift[0], shift[sample], shift))
-    bias, width = covariance.bias, covariance.span_bias.shape[2]
+    bias, width = covariance.bias_rows(slice(None)), covariance.span_bias.shape[2]
     assert bias.shape == (200, 3, 4 * width + 1)
     for component in range(3):
         assert np.allclose(covariance.bias_rows(slice(40, 90), component), bias[40:90, component], rtol=0.0, atol=1e-12 * np.abs(bias).max())

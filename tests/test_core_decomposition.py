@@ -24,7 +24,7 @@ def test_zero_wrong_branches_over_1000_poses(rng):
     for index in range(125):
         scene = random_planar_scene(rng, n_points=3 + index % 3, n_frames=8, tilted=index % 2 == 1)
         H = estimate_euclidean_homography(scene["m"], scene["m_ref"]).H
-        normal, _ = estimate_common_normal(H, scene["m_ref"])
+        normal, _, _ = estimate_common_normal(H, scene["m_ref"])
         motion = decompose_homography(H, scene["m_ref"], normal)
         err_theta = np.abs(motion.theta - scene["theta"])
         err_xh = np.max(np.abs(motion.x_h - scene["x_h"]), axis=-1)

@@ -153,7 +153,7 @@ def _long_covariance(frames: int, seed: int = 7):
     used = rng.random(frames) > 0.02
     count, g = int(used.sum()), 6
     covariance = JointCovariance(shared=np.cov(rng.normal(size=(g, 50))) * 1e-6, own=np.abs(rng.normal(size=(count, 3, 3))) * 1e-6,
-                                 sensitivity=rng.normal(size=(count, 3, g)), noise=1e-3, inflation=1.0,
+                                 sensitivity=rng.normal(size=(count, 3, g)), noise=1e-3,
                                  bias_shared=rng.normal(size=(g, 5)) * 1e-4, span_bias=rng.normal(size=(count, 3, 2)) * 1e-4,
                                  frame_spans=(np.arange(count) * 2 // count).astype(np.intp), readout_bias=rng.normal(size=(count, 3)) * 1e-4)
     trajectory = fit_spline_trajectory(t[used], 0.1 * np.sin(t[used] / 5), 0.2 * np.cos(t[used] / 7), 0.01 * t[used], 1.0)
@@ -185,7 +185,8 @@ def test_the_splines_sigma_is_formed_a_block_at_a_time_with_the_same_numbers(fra
     group = int(np.ceil(count / desired.MAX_SPLINE_SAMPLES))
     usable = count // group * group
     for index, channel, got in ((0, "theta_d", blocked.smooth_theta_sigma), (1, "x_hd1", blocked.smooth_x_h1_sigma)):
-        inherited = np.column_stack([covariance.sensitivity[:, index, :] @ directions, covariance.bias[:, index, :]])
+        inherited = np.column_stack([covariance.sensitivity[:, index, :] @ directions,
+                                     covariance.bias_rows(slice(None))[:, index, :]])
         columns = np.column_stack([inherited, probes * np.sqrt(np.maximum(covariance.own[:, index, index], 0.0))[:, None]])
         binned_t, binned = t[used], columns
         if group > 1:

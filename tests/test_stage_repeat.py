@@ -298,15 +298,9 @@ def test_a_law_registered_from_outside_the_package_runs_in_every_mode(default_fi
         def adapt(self, output, dt, depth_reference=None):
             pass
 
-        def follow_depth(self, depth_reference, dt):
-            pass
-
         def feedforward(self, desired):
             w = -float(desired.theta_d_dot)
             return self.dhat * (float(desired.x_hd2) * w - float(desired.x_hd1_dot)), w
-
-        def hold(self):
-            return 0.0, 0.0
 
     fit_path, _ = default_fit
     register_law(LawSpec("toy", lambda gains: gains, ToyLaw))

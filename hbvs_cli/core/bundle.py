@@ -202,9 +202,6 @@ class JointCovariance:
         covariance is ``own + sensitivity shared sensitivity^T``.
     noise : float
         The point noise the residuals show (normalised units).
-    inflation : float
-        The factor (>= 1) on ``noise^2`` for point errors correlated from frame to frame
-        (:func:`correlation_inflation`); the covariance is ``inflation noise^2 (J^T J)^-1``.
     bias_shared : ndarray, shape (G, C), or None
         How the globals move with each of C biases: a detector's, of one standard deviation
         on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
@@ -231,7 +228,6 @@ class JointCovariance:
     own: NDArray[np.float64]
     sensitivity: NDArray[np.float64]
     noise: float
-    inflation: float = 1.0
     bias_shared: NDArray[np.float64] | None = None
     span_bias: NDArray[np.float64] | None = None
     frame_spans: NDArray[np.intp] | None = None
@@ -264,11 +260,6 @@ class JointCovariance:
         if self.image_shift_bias is not None:
             moved[:, :, moved.shape[2] - shift_columns:] += self.image_shift_bias[rows][:, components]
         return moved if component is None else moved[:, 0]
-
-    @property
-    def bias(self) -> NDArray[np.float64] | None:
-        """Every frame's :meth:`bias_rows`, shape (K, 3, C): a long recording's are large."""
-        return self.bias_rows(slice(None))
 
     def frame_sigma(self) -> NDArray[np.float64]:
         """Each frame's standard deviation of (theta, x_h1, x_h2), shape (K, 3), formed
@@ -497,7 +488,6 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         own=inverse_own,
         sensitivity=coupling,
         noise=float(noise),
-        inflation=float(inflation),
         bias_shared=bias_shared,
         span_bias=span_bias,
         frame_spans=None if span_bias is None else np.array(frame_segments),

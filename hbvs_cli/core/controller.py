@@ -113,28 +113,20 @@ class AdaptiveTrackingController:
             self.adapt(output, dt)
         return output
 
-    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
+    def adapt(self, output: ControlOutput | None, dt: float,
+              depth_reference: tuple[float, float] | None = None) -> None:
         """Integrate (31) over ``dt`` (s) by explicit Euler, projected (:func:`~.depth.project_depth`); ``depth_reference`` ``(d_f, kappa)``
         (m, 1/s) adds the pull ``kappa (d_f - dhat)`` (:func:`~.state_filter.scheduled_depth_pull`).
-        With gamma_1 = 0 (the non-adaptive baseline) dhat stays."""
-        rate = float(output.dhat_dot)
+        With gamma_1 = 0 (the non-adaptive baseline) dhat stays. ``output`` None: the pull alone (while
+        the state filter settles (31) is frozen, but the depth the motion measures already paces the
+        taught commands (25))."""
+        rate = 0.0 if output is None else float(output.dhat_dot)
         if depth_reference is not None and self.gains.gamma > 0.0:
             depth, pull = depth_reference
             rate += pull * (depth - self.dhat)
         self.dhat = project_depth(self.dhat + rate * dt, self.dhat0)
 
-    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
-        """Only the pull of :meth:`adapt` over ``dt``: while the state filter settles (31) is
-        frozen, but the depth the motion measures already paces the taught commands (25)."""
-        if self.gains.gamma > 0.0:
-            depth, pull = depth_reference
-            self.dhat = project_depth(self.dhat + pull * (depth - self.dhat) * dt, self.dhat0)
-
     def feedforward(self, desired: DesiredState) -> tuple[float, float]:
         """The taught commands (25) at the current dhat: ``w = -theta_d_dot``, ``v = dhat (x_hd2 w - x_hd1_dot)``."""
         w_c = -float(desired.theta_d_dot)
         return self.dhat * (float(desired.x_hd2) * w_c - float(desired.x_hd1_dot)), w_c
-
-    def hold(self) -> tuple[float, float]:
-        """Commands while the target is lost: stop."""
-        return 0.0, 0.0

@@ -339,7 +339,7 @@ def fit_desired_trajectory(
     # left out of the plane's estimates as of the trajectory; the worst first, and only beyond
     # OUTLIER_SPREADS times the frames' median: it bends the plane, so the others' residuals too.
     for _ in range(OUTLIER_FRAMES + 1):
-        normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=valid, with_rival=True)
+        normal, margin, rival = estimate_common_normal(homographies.H, m_ref, valid=valid)
         usable = np.isin(np.arange(found.size), sample[valid])
         normal, refined = refine_plane_and_reference(m, reference_index, normal, valid=usable, shapes=shapes)
         frame_residual = np.where(valid, KnownNormalSolver(refined, normal).solve(m[sample]).residual, np.nan)
@@ -501,13 +501,8 @@ def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = De
 def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
     """The first used frame's measured pixels, its points out of view (a partial frame)
     where its pose puts them (undistorted: a prediction for repeat's first search only)."""
-    initial = pixels[first]
-    missing = ~np.all(np.isfinite(initial), axis=1)
-    if not np.any(missing):
-        return initial
-    initial = initial.copy()
-    initial[missing] = normalized_to_pixels(camera, m[first][missing])
-    return initial
+    missing = ~np.all(np.isfinite(pixels[first]), axis=1)
+    return np.where(missing[:, None], normalized_to_pixels(camera, m[first]), pixels[first])
 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
@@ -691,11 +686,9 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
             reason="too_few", used=n_used, total=total,
         )
     lost_fraction = 1.0 - n_used / total
-    gaps = []
     indices = np.flatnonzero(used)
-    for before, after in zip(indices[:-1], indices[1:]):
-        if after - before > 1:
-            gaps.append((float(t[before]), float(t[after])))
+    gaps = [(float(t[before]), float(t[after]))
+            for before, after in zip(indices[:-1], indices[1:]) if after - before > 1]
     longest = max((b - a for a, b in gaps), default=0.0)
     if lost_fraction > max_lost:
         raise InsufficientDataError(

@@ -21,13 +21,8 @@ def rotation_z(theta: ArrayLike) -> NDArray[np.float64]:
     """Right-handed rotation (..., 3, 3) about z by ``theta`` (rad), the paper's R of (4)."""
     theta = np.asarray(theta, dtype=float)
     c, s = np.cos(theta), np.sin(theta)
-    R = np.zeros(theta.shape + (3, 3))
-    R[..., 0, 0] = c
-    R[..., 0, 1] = -s
-    R[..., 1, 0] = s
-    R[..., 1, 1] = c
-    R[..., 2, 2] = 1.0
-    return R
+    zero, one = np.zeros_like(c), np.ones_like(c)
+    return np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=-1).reshape(theta.shape + (3, 3))
 
 
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:

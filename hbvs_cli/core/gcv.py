@@ -68,22 +68,13 @@ def _banded_inverse_trace(factor: NDArray[np.float64], weights: tuple[list[float
     diagonal, first, second = factor[2].tolist(), factor[1].tolist(), factor[0].tolist()
     p0, p1, p2 = weights
     m = len(diagonal)
+    # Row i's entries right of the diagonal, U[i, i+1] and U[i, i+2] (and P's), zero past the last row: the
+    # products with those zeros leave the sum as it was.
+    right1, right2 = (first[1:] + [0.0])[:m], (second[2:] + [0.0, 0.0])[:m]
+    w_right1, w_right2 = (p1[1:] + [0.0])[:m], (p2[2:] + [0.0, 0.0])[:m]
     total = 0.0
     s11 = s12 = s22 = 0.0  # S[i+1,i+1], S[i+1,i+2], S[i+2,i+2]
-    for i in range(m - 1, max(m - 3, -1), -1):  # the last two rows: U's bands end there
-        u0 = diagonal[i]
-        u1 = first[i + 1] if i + 1 < m else 0.0
-        u2 = second[i + 2] if i + 2 < m else 0.0
-        s02 = -(u1 * s12 + u2 * s22) / u0
-        s01 = -(u1 * s11 + u2 * s12) / u0
-        s00 = (1.0 / u0 - u1 * s01 - u2 * s02) / u0
-        total += s00 * p0[i]
-        if i + 1 < m:
-            total += s01 * p1[i + 1]
-        s11, s12, s22 = s00, s01, s11
-    # The other rows, in the same order and operations, without indexing.
-    rows = slice(m - 3, None, -1) if m >= 3 else slice(0, 0)
-    for u0, u1, u2, w0, w1, w2 in zip(diagonal[rows], first[1:][rows], second[2:][rows], p0[rows], p1[1:][rows], p2[2:][rows]):
+    for u0, u1, u2, w0, w1, w2 in zip(*(reversed(band) for band in (diagonal, right1, right2, p0, w_right1, w_right2))):
         s02 = -(u1 * s12 + u2 * s22) / u0
         s01 = -(u1 * s11 + u2 * s12) / u0
         s00 = (1.0 / u0 - u1 * s01 - u2 * s02) / u0

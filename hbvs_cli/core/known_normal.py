@@ -84,13 +84,9 @@ class KnownNormalSolver:
             raise NoValidBranchError("the given plane normal puts the target behind the reference camera")
         g = self.m_ref @ self.normal
         # Rows [1, -m*_iy, g_i, 0] and [m*_iy, 1, 0, g_i] for the unknowns (c, s, x_h1, x_h2).
-        design = np.zeros((2 * self.m_ref.shape[0], 4))
-        design[0::2, 0] = 1.0
-        design[0::2, 1] = -self.m_ref[:, 1]
-        design[0::2, 2] = g
-        design[1::2, 0] = self.m_ref[:, 1]
-        design[1::2, 1] = 1.0
-        design[1::2, 3] = g
+        one, zero, y = np.ones_like(g), np.zeros_like(g), self.m_ref[:, 1]
+        design = np.stack([np.column_stack([one, -y, g, zero]), np.column_stack([y, one, zero, g])], axis=1)
+        design = design.reshape(-1, 4)
         self._pinv = np.linalg.pinv(design)
         # Plain-float copies for solve_one.
         self._y = [float(v) for v in self.m_ref[:, 1]]

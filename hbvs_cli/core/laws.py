@@ -18,8 +18,9 @@ from .depth import check_depth
 
 class ControlLaw(Protocol):
     """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),
-    commands for a measurement, the update (31) and its pull toward the filter's depth, the taught
-    commands (25), the commands while the target is lost, and ``lateral_gain`` (k_2, 1 without one)."""
+    commands for a measurement, the update (31) and its pull toward the filter's depth (the pull alone
+    without the law's output), the taught commands (25) and ``lateral_gain`` (k_2, 1 without one). A
+    lost target stops the robot whatever the law (:class:`~.simulator.ServoStep`)."""
 
     dhat: float
 
@@ -28,13 +29,10 @@ class ControlLaw(Protocol):
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput: ...
 
-    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None: ...
-
-    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None: ...
+    def adapt(self, output: ControlOutput | None, dt: float,
+              depth_reference: tuple[float, float] | None = None) -> None: ...
 
     def feedforward(self, desired: DesiredState) -> tuple[float, float]: ...
-
-    def hold(self) -> tuple[float, float]: ...
 
 
 @dataclass(frozen=True)
@@ -123,20 +121,12 @@ class KanayamaController:
         w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
         return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
 
-    def adapt(self, output: ControlOutput, dt: float, depth_reference: tuple[float, float] | None = None) -> None:
+    def adapt(self, output: ControlOutput | None, dt: float,
+              depth_reference: tuple[float, float] | None = None) -> None:
         """Nothing to learn: the depth estimate stays fixed."""
 
-    def follow_depth(self, depth_reference: tuple[float, float], dt: float) -> None:
-        """Nothing to learn: the depth estimate stays fixed."""
-
-    def feedforward(self, desired: DesiredState) -> tuple[float, float]:
-        """The reference commands (25), as :meth:`~.controller.AdaptiveTrackingController.feedforward`."""
-        w_r = -float(desired.theta_d_dot)
-        return self.dhat * (float(desired.x_hd2) * w_r - float(desired.x_hd1_dot)), w_r
-
-    def hold(self) -> tuple[float, float]:
-        """Commands while the target is lost: stop."""
-        return 0.0, 0.0
+    #: The reference commands (25) at its fixed dhat: the adaptive law's own.
+    feedforward = AdaptiveTrackingController.feedforward
 
 
 register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains, AdaptiveTrackingController))

@@ -89,11 +89,8 @@ def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
 
 def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:
     """Every statistic of :data:`STATISTICS` for one error signal (settling band ``tolerance``)."""
-    summary = signal_statistics(x)
-    summary["initial"] = initial_value(x)
-    summary["final"] = final_value(t, x)
-    summary["settling_time_s"] = settling_time(t, x, tolerance)
-    return summary
+    return signal_statistics(x) | {"initial": initial_value(x), "final": final_value(t, x),
+                                   "settling_time_s": settling_time(t, x, tolerance)}
 
 
 def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dict[str, float | None]:
@@ -125,13 +122,15 @@ def step_durations(t: ArrayLike) -> NDArray[np.float64]:
 
 def longest_true_run_s(t: ArrayLike, flags: ArrayLike) -> float:
     """Duration (s) of the longest stretch of consecutive ``True`` steps (:func:`step_durations`)."""
+    return longest_stretch(step_durations(t), flags)
+
+
+def longest_stretch(durations: ArrayLike, flags: ArrayLike) -> float:
+    """The largest sum of ``durations`` (>= 0) over a stretch of consecutive ``True`` ``flags``."""
     flags = np.asarray(flags, dtype=bool)
-    durations = step_durations(t)
-    longest = current = 0.0
-    for flagged, duration in zip(flags, durations):
-        current = current + duration if flagged else 0.0
-        longest = max(longest, current)
-    return float(longest)
+    # Each stretch of True steps shares its count of False steps before it: one bin per stretch, summed in order.
+    stretches = np.bincount(np.cumsum(~flags), weights=np.where(flags, durations, 0.0))
+    return float(np.max(stretches, initial=0.0))
 
 
 def rms(x: ArrayLike) -> float | None:

@@ -33,9 +33,7 @@ def estimate_common_normal(
     H: ArrayLike,
     m_ref: ArrayLike,
     valid: ArrayLike | None = None,
-    prior: ArrayLike = FACING_PRIOR,
-    with_rival: bool = False,
-) -> tuple[NDArray[np.float64], float] | tuple[NDArray[np.float64], float, NDArray[np.float64] | None]:
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64] | None]:
     """The plane normal n* shared by a sequence of homographies.
 
     The true normal is the same in every frame, the spurious candidate's moves with the
@@ -49,10 +47,6 @@ def estimate_common_normal(
     m_ref : array_like, shape (N, 3)
     valid : array_like of bool, shape (F,), optional
         Frames to use.
-    prior : array_like, shape (3,)
-        Used to break a tie, and returned when no frame has a usable translation.
-    with_rival : bool
-        Also return the best rival proposal (the other branch's normal, or None).
 
     Returns
     -------
@@ -60,11 +54,14 @@ def estimate_common_normal(
         Unit normal in F*.
     margin : float
         Score of the winner minus that of the best rival, in [0, 1]: near 0 the sequence
-        does not tell the two branches apart (e.g. a straight drive) and the prior decided.
+        does not tell the two branches apart (e.g. a straight drive) and the prior decided
+        (:data:`~.decomposition.FACING_PRIOR`, returned when no frame has a usable translation).
+    rival : ndarray, shape (3,), or None
+        The best rival proposal (the other branch's normal), or None.
     """
     m_ref = np.asarray(m_ref, dtype=float)
     H = np.asarray(H, dtype=float)
-    prior = np.asarray(prior, dtype=float) / np.linalg.norm(prior)
+    prior = np.array(FACING_PRIOR)  # a copy: the caller may change what it is given
     mask = np.all(np.isfinite(H), axis=(-1, -2))
     if valid is not None:
         mask &= np.asarray(valid, dtype=bool)
@@ -77,7 +74,7 @@ def estimate_common_normal(
     front = front_facing(candidates, m_ref)
     weight = np.where(np.any(front, axis=-1), candidates.strength, 0.0)
     if not np.any(weight > PURE_ROTATION_TOLERANCE):
-        return (prior, 0.0, None) if with_rival else (prior, 0.0)
+        return prior, 0.0, None
     normals = np.nan_to_num(candidates.normals)
     # Proposals: the front normals of the few best-conditioned frames, and the prior.
     best_frames = np.argsort(weight)[::-1][: min(5, weight.size)]
@@ -100,9 +97,7 @@ def estimate_common_normal(
         w = np.where(ok, weight, 0.0) ** 2
         refined = (chosen * w[:, None]).sum(axis=0)
         best = refined / np.linalg.norm(refined)
-    if with_rival:
-        return best, max(0.0, min(1.0, margin)), rival
-    return best, max(0.0, min(1.0, margin))
+    return best, max(0.0, min(1.0, margin)), rival
 
 
 #: A target shape known up to a similarity: the indices of some of its points, and their

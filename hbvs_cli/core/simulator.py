@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InvalidValueError
 from .controller import ControlOutput, DesiredState, Measurement
 from .estimation import Observation, ObservationStatus
 from .laws import ControlLaw
@@ -26,20 +25,13 @@ from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, sched
 class ActuatorLimits:
     """Limits of the robot's drive, None for unlimited: |v| (m/s), |w| (rad/s), and the
     change of v per second (m/s^2), which bounds w's (rad/s^2) as well; ``lag_s`` the drive's
-    time constant (s): its speeds follow a command as a first-order lag (0: at once)."""
+    time constant (s): its speeds follow a command as a first-order lag (0: at once). Checked
+    where they are read (``repeat``'s options and ``--config``), not again here."""
 
     max_v: float | None = None
     max_w: float | None = None
     max_accel: float | None = None
     lag_s: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("max_v", "max_w", "max_accel"):
-            value = getattr(self, name)
-            if value is not None and (not np.isfinite(value) or value <= 0.0):
-                raise InvalidValueError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
-        if not (math.isfinite(self.lag_s) and self.lag_s >= 0.0):
-            raise InvalidValueError(f"--base-lag must be a number of seconds >= 0, got {self.lag_s}")
 
     def executed(self, speeds: tuple[float, float], command: tuple[float, float], dt: float) -> tuple[tuple[float, float], tuple[float, float]]:
         """What the drive does with ``command`` (v, w) held for ``dt`` (s) from ``speeds``: its mean speeds over
@@ -162,7 +154,7 @@ class ServoStep:
             v_cmd = v_ff + share * (float(output.v_c) - v_ff)
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
             if fresh:
-                controller.follow_depth((estimate.depth, estimate.depth_pull), dt)
+                controller.adapt(None, dt, (estimate.depth, estimate.depth_pull))
         elif fresh or predicted:
             output = controller.step(estimate.measurement, desired, dt, adapt=False)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
@@ -172,7 +164,7 @@ class ServoStep:
         elif coasting:
             v_cmd, w_cmd = previous
         else:
-            v_cmd, w_cmd = controller.hold()
+            v_cmd, w_cmd = 0.0, 0.0  # the target is lost: stop
         v_c, w_c, saturated = self.limits.apply(v_cmd, w_cmd, previous, dt)
         if fresh and output is not None and state_filter.settled and not saturated:
             # (31) assumes the robot executed (29)-(30): a clipped command would wind dhat up.

@@ -266,14 +266,6 @@ class ServoStateFilter:
         self.fused_time = before.fused_time
         self.noise_variance = max(self.noise_variance, before.noise_variance)
 
-    @property
-    def covariance(self) -> NDArray[np.float64] | None:
-        """Its covariance, shape (3, 3)."""
-        if self._covariance is None:
-            return None
-        p00, p01, p02, _, p11, p12, _, p22, _, _ = self._covariance
-        return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
-
     def trusted(self, estimate: FilterEstimate | None) -> bool:
         """Whether a prediction is good enough to act on without a frame."""
         if estimate is None or not self.settled:
@@ -299,11 +291,6 @@ class ServoStateFilter:
         average the noise down."""
         scale = min(1.0, self.noise_variance / self.settings.settle_noise**2) if self.settings.settle_noise > 0 else 1.0
         return self.settings.settle_time * scale, self.settings.fade_time * scale
-
-    @property
-    def noise(self) -> float:
-        """Current per-coordinate measurement noise (normalised units)."""
-        return math.sqrt(self.noise_variance)
 
     def predict(self, v: float, w: float, dt: float) -> None:
         """Advance the estimate over a command (v, w) held for dt."""

@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InsufficientDataError, InvalidValueError, MalformedDataError
 from .controller import DesiredState
+from .metrics import longest_stretch
 
 #: Names of the fitted spline channels; x_hd2 follows from them by (25).
 CHANNELS = ("theta_d", "x_hd1")
@@ -197,7 +198,8 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     theta_d, x_hd1, x_hd2 : array_like, shape (K,)
         rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
     smoothing : float, optional
-        lambda of both splines (s^3); None: per channel by generalised cross-validation.
+        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by
+        generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
@@ -206,8 +208,6 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
         raise InsufficientDataError(f"need at least {MIN_SAMPLES} frames to fit the desired trajectory, got {t.size}")
     if np.any(np.diff(t) <= 0.0):
         raise MalformedDataError("frame times must increase strictly")
-    if smoothing is not None and (not np.isfinite(smoothing) or smoothing < 0.0):
-        raise InvalidValueError(f"--smoothing must be 'auto' or a non-negative number, got {smoothing}")
     channels = {}
     for name, y in samples.items():
         if y.shape != t.shape or not np.all(np.isfinite(y)):
@@ -252,12 +252,6 @@ def feedforward_condition(trajectory: DesiredTrajectory, t: ArrayLike, threshold
     t = np.asarray(t, dtype=float)
     rate = np.abs(np.atleast_1d(trajectory.evaluate(t).x_hd1_dot))
     stopped = rate < threshold
-    longest = 0.0
-    if np.any(stopped):
-        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
-        run = 0.0
-        for flag, step in zip(stopped, dt):
-            run = run + step if flag else 0.0
-            longest = max(longest, run)
+    longest = longest_stretch(np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0)), stopped)
     percentiles = {f"p{q}": float(np.percentile(rate, q)) for q in (5, 25, 50, 75, 95)}
     return FeedforwardCondition(float(rate.min()), percentiles, float(np.mean(stopped)), float(longest), threshold)

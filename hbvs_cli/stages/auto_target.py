@@ -127,11 +127,9 @@ def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels:
     try:
         fit = fit_desired_trajectory(times[rows], pixels[rows], 0, camera, None, max_lost=1.0, max_gap=float("inf"), shapes=shapes,
                                      errors=target_kind(spec.kind).errors)
-    except InsufficientDataError as exc:
-        words = "not whole in the first frame" if exc.facts.get("reason") == "not_in_reference" else str(exc)
-        return Judged(choice, spec, seen, frames, rejected=words)
     except HbvsError as exc:
-        return Judged(choice, spec, seen, frames, rejected=str(exc))
+        not_whole = isinstance(exc, InsufficientDataError) and exc.facts.get("reason") == "not_in_reference"
+        return Judged(choice, spec, seen, frames, rejected="not whole in the first frame" if not_whole else str(exc))
     if fit.uncertainty is None:
         return Judged(choice, spec, seen, frames, rejected="found in the first frame only")
     return Judged(choice, spec, seen, frames, theta_sigma_deg=float(np.degrees(rms(fit.uncertainty.theta_sigma[fit.used]))))

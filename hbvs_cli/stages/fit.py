@@ -225,6 +225,8 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
             if first:
                 frame, data, image = first[0]
                 camera = _checked_frame(reader, frame, image)
+                writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns,
+                             calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 if as_route or is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console,
                                              partial(_checked_frame, reader),
@@ -246,7 +248,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 shift = target_kind(spec.kind).image_shift
                 pull = shift(spec) if shift is not None else None
                 template = data
-                writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns, calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             for frame, data, image in chain(first, rest):
                 _checked_frame(reader, frame, image)
                 assert detector is not None

@@ -24,9 +24,6 @@ from ..core.fit_model import FitModel
 from ..core.route import bridge_brief_gaps, estimate_transitions, largest_view, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
-from ..io.fit_file import FILE_KIND
-from ..io.messages import CAMERA_FRAME
-from ..io.topics import CALIBRATION_TOPIC, TOPICS
 from ..perception.target_kinds import SpecRequest, target_kind
 from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
@@ -44,12 +41,11 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
                     checked_frame: Callable[[Any, np.ndarray], Any], segment_fit: Callable[..., tuple[Any, FitModel]],
                     spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
     """Fit the route of ``reader`` (its decoded ``frames``, each passed to ``checked_frame``)
-    and write its route file into ``writer`` (metadata written already); the fit's summary on
-    stderr. ``segment_fit(arrays, reference_index, spec, world_description, name)``: the
+    and write its route file into ``writer`` (metadata and calibration written already); the fit's
+    summary on stderr. ``segment_fit(arrays, reference_index, spec, world_description, name)``: the
     single-target fit of one segment's frames and its model (:func:`.fit._drive_fit`);
     ``spec_of(choice, images)``: the detector of a kind ``--target auto`` found in ``images``.
     The models, in order."""
-    from ..io.calibration import calibration_to_foxglove
     from ..io.route_file import write_route
 
     follower: SimulatedFollower | ImageFollower | None = None
@@ -57,22 +53,19 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     for frame, _, image in frames:
         camera = checked_frame(frame, image)
         if follower is None:
-            writer.write(CALIBRATION_TOPIC, TOPICS[FILE_KIND][CALIBRATION_TOPIC], frame.log_time_ns,
-                         calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
             follower = (ImageFollower(camera, spec_of, options.seed) if frame.pose is None
                         else SimulatedFollower(_route(reader, camera), options.seed, console))
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
                                  "its first frame " + ("had" if frame.pose is None else "lacked"))
-        rows.append((frame.t, frame.log_time_ns, frame.pose, frame.command))
+        rows.append((frame.t, frame.log_time_ns, (np.nan,) * 3 if frame.pose is None else frame.pose,
+                     (np.nan,) * 2 if frame.command is None else frame.command))
         follower.add(image, frame.pose)
         bar.advance()
     if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
-    t = np.array([row[0] for row in rows])
-    log_time = np.array([row[1] for row in rows], dtype=np.int64)
-    poses = np.array([row[2] if row[2] is not None else (np.nan,) * 3 for row in rows], dtype=float)
-    commands = np.array([row[3] if row[3] is not None else (np.nan, np.nan) for row in rows], dtype=float)
+    t, log_time, poses, commands = (np.array(column, dtype=kind)
+                                    for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
     pixels = follower.pixels(len(rows))
     spans = np.column_stack([seen_spans(points) for points in pixels])
     try:

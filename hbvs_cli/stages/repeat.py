@@ -71,10 +71,8 @@ class Settings:
     state_filter: str = FILTER_EKF
 
     def as_dict(self) -> dict[str, Any]:
-        data = asdict(self)
-        data["gains"] = self.gains.as_dict()
-        data["offset"] = {"dx_m": self.offset[0], "dy_m": self.offset[1], "dtheta_deg": math.degrees(self.offset[2])}
-        return data
+        offset = {"dx_m": self.offset[0], "dy_m": self.offset[1], "dtheta_deg": math.degrees(self.offset[2])}
+        return asdict(self) | {"gains": self.gains.as_dict(), "offset": offset}
 
 
 @dataclass

@@ -51,13 +51,9 @@ def metric_value(report: RunReport, key: str) -> float:
 
 def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
     """One message per (run, bound) whose metric exceeds the bound; call it before printing."""
-    messages = []
-    for report in reports:
-        for bound in bounds:
-            value = metric_value(report, bound.key)
-            if value > bound.value:
-                messages.append(f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}")
-    return messages
+    checked = [(report, bound, metric_value(report, bound.key)) for report in reports for bound in bounds]
+    return [f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}"
+            for report, bound, value in checked if value > bound.value]
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:

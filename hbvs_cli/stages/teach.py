@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from contextlib import ExitStack
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -71,10 +71,9 @@ class TeachOptions(TeachFields):
             if self.route is not None:  # the route brings its own path and targets
                 simulated = {key: value for key, value in simulated.items() if key not in ("path", "target", "dots", "texture")}
             return {**simulated, "sim": True}
-        names = {field.name for field in fields(self)}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
             {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
-        return {key: value for key, value in recorded.items() if key in keep and key in names}
+        return {key: value for key, value in recorded.items() if key in keep}
 
 
 def run_teach(options: TeachOptions, console: Console) -> None:
@@ -112,45 +111,35 @@ def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[Command
         return profile, start, spec
     candidate = Path(spec)
     if candidate.suffix.lower() == ".csv" or candidate.exists():
-        profile = load_command_profile(candidate)
-        if duration is not None and duration < profile.t_end:
-            profile = _cut_profile(profile, duration)
+        profile = _cut_profile(load_command_profile(candidate), duration)
         # A CSV path starts 6 m in front of the target, facing it.
         return profile, (0.0, 0.0, 0.0), str(candidate)
     raise UsageError(f"unknown --path {spec!r}: choose a preset ({', '.join(PRESETS)}) or give a CSV file with columns t,v,w")
 
 
-def _cut_profile(profile: CommandProfile, duration: float) -> CommandProfile:
+def _cut_profile(profile: CommandProfile, duration: float | None) -> CommandProfile:
+    """``profile`` cut at ``duration`` (s) when it is shorter (None: whole)."""
+    if duration is None or duration >= profile.t_end:
+        return profile
     keep = profile.t < duration
     if not np.any(keep):
         raise UsageError("--duration is shorter than the first command")
     return CommandProfile(t=profile.t[keep], v=profile.v[keep], w=profile.w[keep], t_end=duration)
 
 
-def simulated_world(options: TeachOptions) -> World:
-    """The world of a simulated teach: camera, target kind, texture."""
-    camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
-    texture = "builtin"
-    if options.target == "texture" and options.texture is not None:
-        texture = str(options.texture)
-    elif options.texture is not None:
-        raise UsageError("--texture goes with --target texture")
-    return default_world(options.target, camera=camera, dots=options.dots, texture=texture)
-
-
 def _teach_simulated(options: TeachOptions, console: Console) -> None:
-    if options.calibration is None and options.fps <= 0:
-        raise UsageError("--fps must be positive")
+    camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
     world: World | RouteWorld
     if options.route is not None:
-        camera = _load_camera(options.calibration) if options.calibration is not None else DEFAULT_CAMERA
         world = simulated_route(options.route, camera)
-        profile, start_pose, path_name = world.profile, tuple(world.start_pose), f"route {options.route}"
-        if options.duration is not None and options.duration < profile.t_end:
-            profile = _cut_profile(profile, options.duration)
+        profile = _cut_profile(world.profile, options.duration)
+        start_pose, path_name = tuple(world.start_pose), f"route {options.route}"
         renderer = make_route_renderer(world, options.noise, options.blur, options.exposure, options.noise_grain)
     else:
-        world = simulated_world(options)
+        if options.texture is not None and options.target != "texture":
+            raise UsageError("--texture goes with --target texture")
+        texture = "builtin" if options.texture is None else str(options.texture)
+        world = default_world(options.target, camera=camera, dots=options.dots, texture=texture)
         if options.path in PRESETS:  # a preset is sampled at --fps: bound it before sampling
             planned = options.duration if options.duration is not None else PRESETS[options.path].duration
             step_count(planned, options.fps, "the simulated teach (its duration times --fps)")

@@ -184,12 +184,10 @@ def build_spec(
 ) -> SweepSpec:
     """The spec file's contents overridden by ``--vary`` (an axis) and ``--set`` (a fixed value)."""
     data = dict(file_data or {})
-    axes: dict[str, Axis] = {}
     vary_table = data.get("vary", {})
     if not isinstance(vary_table, dict):
         raise UsageError("spec: [vary] must be a table")
-    for name, value in vary_table.items():
-        axes[name] = _axis_from_toml(name, value)
+    axes = {name: _axis_from_toml(name, value) for name, value in vary_table.items()}
     for text in vary:
         axis = parse_vary(text)
         axes[axis.name] = axis
@@ -235,12 +233,11 @@ def build_spec(
 
 def _check_size(axes: Sequence[Axis], method: str, samples: int, repeats: int) -> None:
     """Refuse more runs than the ``sweep-runs`` limit before the design matrix is allocated."""
-    if method != "grid" and any(axis.is_range for axis in axes):
+    sampled = method != "grid" and any(axis.is_range for axis in axes)
+    if sampled:
         check_limit("sweep-runs", samples, "--samples")
     check_limit("sweep-runs", repeats, "--repeats")
-    runs = repeats * (samples if method != "grid" and any(axis.is_range for axis in axes) else 1)
-    for axis in axes:
-        runs *= max(1, len(axis.values))
+    runs = repeats * (samples if sampled else 1) * math.prod(max(1, len(axis.values)) for axis in axes)
     check_limit("sweep-runs", runs, "the sweep (points x samples x repeats)")
 
 
@@ -311,10 +308,8 @@ class SweepPlan:
     def point_values(self, point: int) -> dict[str, Any]:
         """The swept values of a point: listed values vary slowest, samples fastest (so every law meets the same sampled points)."""
         combination, sample = divmod(point, self._sample_count)
-        values: dict[str, Any] = {}
-        if self.listed:
-            for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes)):
-                values[axis.name] = axis.values[int(position)]
+        values = {axis.name: axis.values[int(position)]
+                  for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes))}
         for axis, value in zip(self.ranged, self._samples[sample]):
             values[axis.name] = int(round(value)) if PARAMETERS[axis.name].kind == "int" else float(value)
         return {name: values[name] for name in self.swept}
