@@ -24,7 +24,7 @@ from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
-from ..io.shipped import shipped_name, shipped_root
+from ..io.shipped import shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
@@ -42,8 +42,7 @@ app = typer.Typer(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
         "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
-        f"Method and metrics: {shipped_name('docs/method.md')}, {shipped_name('docs/report.md')}. "
-        f"Default gains: {shipped_name('samples/gains.toml')}. "
+        "Method and metrics: docs/method.md, docs/report.md. Default gains: samples/gains.toml. "
         f"These docs/ and samples/ files are installed in {shipped_root()}."
     ),
     no_args_is_help=True,
@@ -71,7 +70,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help="Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see docs/robustness.md); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
