@@ -18,7 +18,7 @@ The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray

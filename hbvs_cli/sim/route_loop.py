@@ -1,6 +1,5 @@
 """``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
-one loop (:func:`~hbvs_cli.sim.closed_loop.run_closed_loop`, so
-:func:`~hbvs_cli.core.servo_loop.run_servo`).
+one loop (:func:`~hbvs_cli.core.servo_loop.run_servo`).
 
 Segment k runs against its own F*_k: its desired signals (Remark 1) and its target's
 measurement (14) through its own n*_k. At the switch to k + 1 (a taught instant late in the
@@ -25,12 +24,12 @@ from ..core.control_settings import ControllerGains
 from ..core.controller import AdaptiveTrackingController, DesiredState, Measurement
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
 from ..core.route import RouteFit, Transition
-from ..core.servo_loop import ServoInput
-from ..core.simulator import ActuatorLimits, StepRecord
+from ..core.servo_loop import ServoInput, run_servo
+from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
 from ..errors import InvalidValueError
-from .closed_loop import SimulatedRobot, run_closed_loop
+from .closed_loop import SimulatedRobot
 from .route_world import RouteWorld
 
 
@@ -245,8 +244,8 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
         controller.gains = gains[0]
     if filter_noise is not None:
         camera.filters = SegmentFilters([ServoStateFilter(fit.m_ref, fit.normal, noise) for fit, noise in zip(fitted.fits, filter_noise)])
-    return camera, run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, limits,
-                                   state_filter=camera.filters, robot_type=RouteRobot)
+    robot = RouteRobot(camera.observe, trajectory, start_pose, dt, duration)
+    return camera, run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), 0, camera.filters))
 
 
 class SegmentFilters:
