@@ -16,7 +16,7 @@ import numpy as np
 from ..core.fit_model import FitModel
 from ..core.route import Segment, Transition
 from ..errors import RecordingError
-from .fit_file import FILE_KIND, FitFile, checked_model_message, read_fit_file
+from .fit_file import FILE_KIND, FitFile, checked_model_message
 from .images import encode_image, write_compressed_image
 from .messages import CAMERA_FRAME
 from .mcap import time_message
@@ -92,11 +92,6 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
     if len(segments) > 1:
         writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]),
                      route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses, indices))
-
-
-def read_route_file(source: Any, name: str = "") -> RouteFile:
-    """The route of a fit file or stream (:func:`route_of`)."""
-    return route_of(read_fit_file(source, name), name or str(source))
 
 
 def route_of(fit: FitFile, name: str) -> RouteFile:
