@@ -20,12 +20,6 @@ from .sources.rosbag import BagSource
 DISCOVERY_TIMEOUT_S = 10.0
 
 
-def image_message_type(topic: str) -> type:
-    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image`` (Cyclone's
-    Python binding cannot read the type from discovery reliably)."""
-    return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
-
-
 def _ros_name(message_type: type) -> str:
     return next(name for name, kind in dds.MESSAGE_TYPES.items() if kind is message_type)
 
@@ -36,7 +30,8 @@ class LatestImage:
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
         full_topic_name(topic, "--ros2-image")
         self.topic = topic
-        self.message_type = image_message_type(topic)
+        # image_transport's naming (Cyclone's Python binding cannot read the type from discovery reliably).
+        self.message_type = dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
         self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
         self._waitset = _waitset(node, self.reader)
         self._wait_for_publisher(discovery_timeout_s)

@@ -16,7 +16,7 @@ from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimato
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
 from .render import SceneRenderer, Window
-from .scene import Scene, renderer_for, world_point_identity
+from .scene import Scene, point_identity, renderer_for
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,8 @@ class SimulatedCamera:
         self.pixel_noise = settings.pixel_noise
         self.perception = settings.perception
         self.estimator = estimator
-        self.identity = world_point_identity(scene, model)
+        # The world's target points in the fit's order (as its detector first saw them).
+        self.identity = point_identity(scene.world.pixels(scene.reference_pose), model.reference_pixels)
         self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
         self._identity = [int(i) for i in self.identity]
         self._camera_height = float(scene.world.camera_height)
