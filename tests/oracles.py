@@ -17,8 +17,7 @@ from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
 from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
-from hbvs_cli.core.servo_loop import run_servo
-from hbvs_cli.core.simulator import ActuatorLimits, ServoStep
+from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
 from hbvs_cli.perception import TargetDetector, target_kind
@@ -161,5 +160,4 @@ def taught_views(route: RouteWorld, times: ArrayLike, pixel_noise: float = 0.0, 
 def run_closed_loop(sense, trajectory, controller, start_pose: ArrayLike, dt: float, duration: float):
     """``repeat --sim``'s loop (:meth:`~hbvs_cli.sim.closed_loop.Simulation.run`) without its camera:
     ``sense(pose, t) -> Observation`` every ``dt`` (s) for ``duration`` (s), no latency, limits or filter."""
-    robot = SimulatedRobot(sense, trajectory, start_pose, dt, duration)
-    return run_servo(robot, ServoStep(controller, ActuatorLimits()))
+    return SimulatedRobot(sense, trajectory, start_pose, dt, duration).run(controller, ActuatorLimits())

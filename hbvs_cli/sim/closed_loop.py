@@ -56,6 +56,13 @@ class SimulatedRobot:
     def act(self, record: StepRecord) -> None:
         self.pose = integrate_unicycle(self.pose, record.v_c, record.w_c, self.dt)
 
+    def run(self, controller: AdaptiveTrackingController, limits: ActuatorLimits,
+            state_filter: ServoStateFilter | None = None) -> Iterator[StepRecord]:
+        """The closed loop's step records (a generator): sense, control, ``limits``, move; the law acts on the
+        observation ``latency_steps`` periods old (holding still before), or on the ``state_filter``'s
+        estimate (docs/method.md, "State filter"), and updates the controller's dhat in place."""
+        return run_servo(self, ServoStep(controller, limits, self.latency_steps, state_filter))
+
 
 @dataclass
 class Simulation:
@@ -78,8 +85,6 @@ class Simulation:
         return int(round(self.duration / self.dt))
 
     def run(self) -> Iterator[StepRecord]:
-        """The closed loop's step records (a generator): sense, control, limits, move; the law acts on the
-        observation ``latency`` periods old (holding still before), or on the ``state_filter``'s estimate
-        (docs/method.md, "State filter"), and updates the controller's dhat in place."""
+        """The closed loop's step records (a generator): :meth:`SimulatedRobot.run`."""
         robot = SimulatedRobot(self.camera.observe, self.trajectory, self.start_pose, self.dt, self.duration, self.latency)
-        return run_servo(robot, ServoStep(self.controller, self.limits, self.latency, self.state_filter))
+        return robot.run(self.controller, self.limits, self.state_filter)

@@ -1,5 +1,6 @@
 """``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
-one loop (:func:`~hbvs_cli.core.servo_loop.run_servo`).
+one loop (:meth:`~hbvs_cli.sim.closed_loop.SimulatedRobot.run`, so
+:func:`~hbvs_cli.core.servo_loop.run_servo`).
 
 Segment k runs against its own F*_k: its desired signals (Remark 1) and its target's
 measurement (14) through its own n*_k. At the switch to k + 1 (a taught instant late in the
@@ -24,8 +25,8 @@ from ..core.control_settings import ControllerGains
 from ..core.controller import AdaptiveTrackingController, DesiredState, Measurement
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
 from ..core.route import RouteFit, Transition
-from ..core.servo_loop import ServoInput, run_servo
-from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
+from ..core.servo_loop import ServoInput
+from ..core.simulator import ActuatorLimits, StepRecord
 from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
 from ..errors import InvalidValueError
@@ -245,7 +246,7 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
     if filter_noise is not None:
         camera.filters = SegmentFilters([ServoStateFilter(fit.m_ref, fit.normal, noise) for fit, noise in zip(fitted.fits, filter_noise)])
     robot = RouteRobot(camera.observe, trajectory, start_pose, dt, duration)
-    return camera, run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), 0, camera.filters))
+    return camera, robot.run(controller, limits or ActuatorLimits(), camera.filters)
 
 
 class SegmentFilters:
