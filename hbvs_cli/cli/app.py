@@ -83,11 +83,7 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 def _reads_stdin(values: dict[str, Any]) -> bool:
     """Whether a stage's options name ``-`` (stdin) as an input."""
-    for key in INPUT_OPTIONS:
-        value = values.get(key)
-        if value == "-" or (isinstance(value, (list, tuple)) and "-" in value):
-            return True
-    return False
+    return any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value) for value in map(values.get, INPUT_OPTIONS))
 
 
 def _stdin_is_an_empty_pipe() -> bool:
