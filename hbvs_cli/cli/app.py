@@ -83,7 +83,8 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 def _reads_stdin(values: dict[str, Any]) -> bool:
     """Whether a stage's options name ``-`` (stdin) as an input."""
-    return any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value) for value in map(values.get, INPUT_OPTIONS))
+    return any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value)
+               for value in map(values.get, INPUT_OPTIONS))
 
 
 def _stdin_is_an_empty_pipe() -> bool:
@@ -143,7 +144,7 @@ def _add_stage_command(name: str, panel: str, declared: type, options_class: str
         _run_stage(stage, options_class, values)
 
     command.__name__, command.__doc__ = stage, help_text
-    app.command(name, rich_help_panel=panel)(with_settings(settings_of(declared), *extra)(command))
+    app.command(name, rich_help_panel=panel)(with_settings(command, settings_of(declared), *extra))
 
 
 for _command in STAGE_COMMANDS:
