@@ -249,7 +249,8 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         frames = slice(segment.first, segment.last + 1)
         detector_errors = DetectorErrors() if errors is None else errors[segment.target]
         target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
-        reference = first_reference if number == 0 and first_reference is not None else segment.first + int(np.argmax(view_spans(target_pixels)))
+        largest_view = segment.first + int(np.argmax(view_spans(target_pixels)))
+        reference = first_reference if number == 0 and first_reference is not None else largest_view
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
                                            max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)

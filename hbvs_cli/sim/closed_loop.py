@@ -86,5 +86,6 @@ class Simulation:
 
     def run(self) -> Iterator[StepRecord]:
         """The closed loop's step records (a generator): :meth:`SimulatedRobot.run`."""
-        robot = SimulatedRobot(self.camera.observe, self.trajectory, self.start_pose, self.dt, self.duration, self.latency)
+        robot = SimulatedRobot(self.camera.observe, self.trajectory, self.start_pose, self.dt, self.duration,
+                               self.latency)
         return robot.run(self.controller, self.limits, self.state_filter)
