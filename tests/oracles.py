@@ -20,6 +20,8 @@ from hbvs_cli.core.path import CommandProfile
 from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.io.fit_file import read_fit_file
+from hbvs_cli.io.route_file import RouteFile, route_of
 from hbvs_cli.perception import TargetDetector, target_kind
 from hbvs_cli.report.result import RunReport
 from hbvs_cli.sim.closed_loop import SimulatedRobot
@@ -161,3 +163,8 @@ def run_closed_loop(sense, trajectory, controller, start_pose: ArrayLike, dt: fl
     """``repeat --sim``'s loop (:meth:`~hbvs_cli.sim.closed_loop.Simulation.run`) without its camera:
     ``sense(pose, t) -> Observation`` every ``dt`` (s) for ``duration`` (s), no latency, limits or filter."""
     return SimulatedRobot(sense, trajectory, start_pose, dt, duration).run(controller, ActuatorLimits())
+
+
+def read_route_file(path) -> RouteFile:
+    """The route of a fit file, as ``hbvs repeat`` reads it (:func:`~hbvs_cli.io.route_file.route_of`)."""
+    return route_of(read_fit_file(str(path)), str(path))
