@@ -206,14 +206,13 @@ class RouteCamera(SegmentSwitch):
                  controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
                  gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
         super().__init__(fitted.transitions, controller, gains, trajectory)
-        self.route, self.fitted, self.trajectory = route, fitted, trajectory
-        self.orders = orders
+        self.route, self.fitted, self.orders = route, fitted, orders
         self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal, converge=True) for fit in fitted.fits]
         self.pixel_noise = pixel_noise
         self.rng = np.random.default_rng(seed)
 
     def observe(self, pose: NDArray[np.float64], t: float) -> Observation:
-        segment = int(self.trajectory.segment_at(t))
+        segment = int(self.route_trajectory.segment_at(t))
         while self.active < segment:
             self.advance(t)
         # The active segment's target seen from ``pose``, through its estimator.
