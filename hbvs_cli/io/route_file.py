@@ -41,11 +41,6 @@ class RouteFile:
     templates: tuple[bytes | None, ...] = ()
 
 
-def transition_record(transition: Transition) -> dict[str, Any]:
-    """A transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho))."""
-    return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in vars(transition).items()}
-
-
 def _transition_from_record(record: dict[str, Any]) -> Transition:
     origin = np.asarray(record["origin_over_depth"], dtype=float)
     covariance = np.asarray(record["covariance"], dtype=float)
@@ -71,7 +66,9 @@ def route_message(segments: Sequence[Segment], references: Sequence[int], transi
         "timestamp": time_message(log_time_ns),
         "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r),
                       "template": template} for s, r, template in zip(segments, references, templates)],
-        "transitions": [transition_record(transition) for transition in transitions],
+        # Each transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho)).
+        "transitions": [{name: value.tolist() if isinstance(value, np.ndarray) else value
+                         for name, value in vars(transition).items()} for transition in transitions],
     }
 
 
