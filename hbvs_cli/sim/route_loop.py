@@ -169,7 +169,7 @@ class SegmentSwitch:
     (:attr:`filters`, if set). ``switches`` logs ``(t, segment, dhat before, after)``."""
 
     def __init__(self, transitions: Sequence[Transition], controller: AdaptiveTrackingController,
-                 gains: Sequence[ControllerGains] | None = None, route_trajectory: RouteTrajectory | None = None) -> None:
+                 gains: Sequence[ControllerGains] | None, route_trajectory: RouteTrajectory) -> None:
         self.transitions, self.controller, self.gains = list(transitions), controller, gains
         #: The desired signals each switch is handed over in (:meth:`RouteTrajectory.hand_over`).
         self.route_trajectory = route_trajectory
@@ -188,10 +188,9 @@ class SegmentSwitch:
         self.active += 1
         if self.gains is not None:
             self.controller.gains = self.gains[self.active]
-        fade = SWITCH_FADE_S if self.route_trajectory is None else self.route_trajectory.fade_after(self.active, t)
+        fade = self.route_trajectory.fade_after(self.active, t)
         estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition, fade)
-        if self.route_trajectory is not None:
-            self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
+        self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
         self.switches.append((t, self.active, before, self.controller.dhat))
 
 
@@ -265,7 +264,7 @@ class SegmentFilters:
         self.since, self.corrections = np.inf, np.zeros(3)
 
     def switch(self, segment: int, dhat: float, transition: Transition,
-               fade: float = SWITCH_FADE_S) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+               fade: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
         carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
         or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target
