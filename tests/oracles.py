@@ -17,10 +17,14 @@ from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
 from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
+from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
+from hbvs_cli.io.fit_file import read_fit_file
+from hbvs_cli.io.route_file import RouteFile, route_of
 from hbvs_cli.perception import TargetDetector, target_kind
 from hbvs_cli.report.result import RunReport
+from hbvs_cli.sim.closed_loop import SimulatedRobot
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, RouteWorld
 from hbvs_cli.sim.world import World
 
@@ -153,3 +157,14 @@ def taught_views(route: RouteWorld, times: ArrayLike, pixel_noise: float = 0.0, 
         seen[spans[:, index] < MIN_SPAN_PX] = np.nan
         pixels.append(seen)
     return poses, spans, pixels
+
+
+def run_closed_loop(sense, trajectory, controller, start_pose: ArrayLike, dt: float, duration: float):
+    """``repeat --sim``'s loop (:meth:`~hbvs_cli.sim.closed_loop.Simulation.run`) without its camera:
+    ``sense(pose, t) -> Observation`` every ``dt`` (s) for ``duration`` (s), no latency, limits or filter."""
+    return SimulatedRobot(sense, trajectory, start_pose, dt, duration).run(controller, ActuatorLimits())
+
+
+def read_route_file(path) -> RouteFile:
+    """The route of a fit file, as ``hbvs repeat`` reads it (:func:`~hbvs_cli.io.route_file.route_of`)."""
+    return route_of(read_fit_file(str(path)), str(path))

@@ -20,8 +20,7 @@ from hbvs_cli.core.laws import gains_for_law
 from hbvs_cli.core.path import sampled_profile
 from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.sim.world import default_world
-from hbvs_cli.sim.closed_loop import run_closed_loop
-from oracles import TaughtPathTrajectory, closed_loop_error_rates, observe_normalized
+from oracles import TaughtPathTrajectory, closed_loop_error_rates, observe_normalized, run_closed_loop
 
 RATE_HZ = 1000.0
 DURATION_S = 20.0

@@ -19,6 +19,11 @@ from oracles import ground_truth, taught_views
 RATE = 10.0
 
 
+def overlap_frames(segment: Segment) -> slice:
+    """The frames a (later) segment shares with the previous one."""
+    return slice(segment.first, segment.overlap_last + 1)
+
+
 def corridor_drive():
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, 1.0 / RATE)
@@ -58,7 +63,7 @@ def test_the_corridor_splits_into_its_four_targets_in_order():
     assert segments[0].first == 0 and segments[-1].last == len(visible) - 1
     for previous, segment in zip(segments, segments[1:]):
         assert segment.first <= previous.last == segment.overlap_last
-        both = visible[segment.overlap, previous.target] & visible[segment.overlap, segment.target]
+        both = visible[overlap_frames(segment), previous.target] & visible[overlap_frames(segment), segment.target]
         assert both.all() and both.size >= RATE  # at least a second seen together
 
 
@@ -68,7 +73,7 @@ def test_the_transition_is_exact_from_exact_signals_on_every_corridor_overlap():
     segments = split_route(visible, spans)
     for previous, segment in zip(segments, segments[1:]):
         reference, reference_next = poses[previous.first], poses[segment.first]
-        overlap = poses[segment.overlap]
+        overlap = poses[overlap_frames(segment)]
         theta_i, x_h_i = signals(route, previous.target, overlap, reference)
         theta_j, x_h_j = signals(route, segment.target, overlap, reference_next)
         transition = estimate_transition(theta_i, x_h_i, theta_j, x_h_j)
@@ -98,7 +103,7 @@ def test_the_transition_from_noisy_signals_is_within_its_reported_uncertainty():
     within, cases, worst = 0, 0, 0.0
     for previous, segment in zip(segments, segments[1:]):
         reference, reference_next = poses[previous.first], poses[segment.first]
-        overlap = poses[segment.overlap]
+        overlap = poses[overlap_frames(segment)]
         exact = (*signals(route, previous.target, overlap, reference), *signals(route, segment.target, overlap, reference_next))
         true_ratio = depth(route, segment.target, reference_next) / depth(route, previous.target, reference)
         for seed in range(20):
@@ -126,7 +131,7 @@ def test_errors_common_to_a_fits_frames_are_carried_into_the_transitions_uncerta
     rng = np.random.default_rng(7)
     for previous, segment in zip(segments, segments[1:]):
         reference, reference_next = poses[previous.first], poses[segment.first]
-        overlap = poses[segment.overlap]
+        overlap = poses[overlap_frames(segment)]
         exact = (*signals(route, previous.target, overlap, reference), *signals(route, segment.target, overlap, reference_next))
         true_ratio = depth(route, segment.target, reference_next) / depth(route, previous.target, reference)
         true_heading = float(reference_next[2] - reference[2])

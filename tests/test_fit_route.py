@@ -12,13 +12,13 @@ import pytest
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.io.fit_file import read_fit_file
 from hbvs_cli.io.file_info import read_file_info
-from hbvs_cli.io.route_file import read_route_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.io.topics import ROUTE_TOPIC
 from hbvs_cli.report.build import taught_commands_along, true_depth_along
 from hbvs_cli.sim.route_world import CORRIDOR_SPEED, corridor_route
 
 from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
+from oracles import read_route_file
 
 #: The taught drive's frame rate (Hz): at 10 Hz the last photograph's tracker loses it as the third turn begins.
 RATE = 15.0

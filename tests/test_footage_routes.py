@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from hbvs_cli.io.route_file import read_route_file
 
 import pytest
 
 from conftest import call_hbvs, campaign_extent
+from oracles import read_route_file
 from footage import Camera, ideal_pixels
 from footage_routes import LONG_ROUTE, SHORT_ROUTE, make_depth_route_footage, make_route_footage, segment_truth, transition_truth
 

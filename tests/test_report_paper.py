@@ -537,9 +537,8 @@ def test_the_loop_keeps_the_lost_state_and_the_rejected_count_through_drops():
     from hbvs_cli.core.controller import AdaptiveTrackingController, ControllerGains
     from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
     from hbvs_cli.core.path import sampled_profile
-    from hbvs_cli.sim.closed_loop import run_closed_loop
     from hbvs_cli.sim.world import default_world
-    from oracles import TaughtPathTrajectory, observe_normalized
+    from oracles import TaughtPathTrajectory, observe_normalized, run_closed_loop
 
     world = default_world("dots")
     profile = sampled_profile(lambda t: (np.full_like(t, 0.1), 0.045 * np.cos(2 * np.pi * t / 20.0)), 2.0, 30.0)

@@ -14,13 +14,13 @@ import cv2
 import numpy as np
 import pytest
 
-from hbvs_cli.io.route_file import read_route_file
 from hbvs_cli.io.run_file import read_run
 from hbvs_cli.sim.render import RenderSettings
 from hbvs_cli.sim.route_world import RouteRenderer, recorded_route
 from hbvs_cli.stages.repeat_route import planned_switches, taught_pose_at
 
 from conftest import call_hbvs
+from oracles import read_route_file
 
 HBVS = [sys.executable, "-m", "hbvs_cli"]
 DATA = Path(__file__).parent / "data"

@@ -42,7 +42,9 @@ def test_the_corridor_is_a_20_m_route_that_turns_always_seeing_a_target_each_ove
     assert np.degrees(poses[-1, 2] - poses[0, 2]) == pytest.approx(75.0, abs=1e-9)
     kinds = [world.target.kind for world in route.worlds]
     assert kinds == ["dots", "aruco", "texture", "texture"]
-    visible = np.array([route.visible(pose) for pose in poses])
+    # Each target wholly in view (all its points in front of the camera and in the image) from each pose.
+    visible = np.array([[world.in_view(route.local_pose(i, pose)) for i, world in enumerate(route.worlds)]
+                        for pose in poses])
     assert visible.any(axis=1).all(), "some taught instant sees no whole target"
     # Consecutive targets are seen together for a while (what a transition is estimated from),
     # and each next one is still in view when the one before leaves for good.

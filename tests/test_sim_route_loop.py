@@ -92,7 +92,7 @@ def test_a_repeat_along_the_corridor_at_1_5_times_the_taught_pace_ends_on_the_ta
     assert not any(record.lost for record in records)
     assert np.allclose([made[0] for made in camera.switches], switches / 1.5, atol=DT)
     # The state filter's fade and the desired signals' share one clock: 3 s of the route, 2 s of the run.
-    start, length, _ = camera.trajectory.fades[-1]
+    start, length, _ = camera.route_trajectory.fades[-1]
     assert length == pytest.approx(3.0) and camera.filters.fade == pytest.approx(2.0)
     assert camera.filters.since == pytest.approx(records[-1].t + DT - camera.switches[-1][0], abs=DT)
     taught = route.profile.poses_at(np.array([1.5 * records[-1].t]), route.start_pose)[0]

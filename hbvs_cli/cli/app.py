@@ -24,7 +24,7 @@ from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import guard_stdio, stdio_closed
-from ..io.shipped import shipped_name, shipped_root
+from ..io.shipped import shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
@@ -42,8 +42,7 @@ app = typer.Typer(
         "Teach-and-repeat for a wheeled robot with one camera: the homography-based adaptive "
         "visual servo tracking controller of Chen, Dixon, Dawson and McIntyre (IROS 2003).\n\n"
         "Pipeline: hbvs teach -o - | hbvs fit - -o - | hbvs repeat - --sim -o - | hbvs report -\n\n"
-        f"Method and metrics: {shipped_name('docs/method.md')}, {shipped_name('docs/report.md')}. "
-        f"Default gains: {shipped_name('samples/gains.toml')}. "
+        "Method and metrics: docs/method.md, docs/report.md. Default gains: samples/gains.toml. "
         f"These docs/ and samples/ files are installed in {shipped_root()}."
     ),
     no_args_is_help=True,
@@ -71,7 +70,7 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show the full traceback of an error (also after the command; the exit code stays the same).")] = False,
-    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help=f"Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see {shipped_name('docs/robustness.md')}); repeatable.")] = None,
+    limit: Annotated[Optional[List[str]], typer.Option("--limit", metavar="NAME=N", help="Raise a size limit: steps, messages, chunk-messages, input-bytes, decompressed-bytes, sweep-runs (see docs/robustness.md); repeatable.")] = None,
 ) -> None:
     """hbvs: teach, fit, repeat, report."""
     if limit:
@@ -84,11 +83,8 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 def _reads_stdin(values: dict[str, Any]) -> bool:
     """Whether a stage's options name ``-`` (stdin) as an input."""
-    for key in INPUT_OPTIONS:
-        value = values.get(key)
-        if value == "-" or (isinstance(value, (list, tuple)) and "-" in value):
-            return True
-    return False
+    return any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value)
+               for value in map(values.get, INPUT_OPTIONS))
 
 
 def _stdin_is_an_empty_pipe() -> bool:
@@ -148,7 +144,7 @@ def _add_stage_command(name: str, panel: str, declared: type, options_class: str
         _run_stage(stage, options_class, values)
 
     command.__name__, command.__doc__ = stage, help_text
-    app.command(name, rich_help_panel=panel)(with_settings(settings_of(declared), *extra)(command))
+    app.command(name, rich_help_panel=panel)(with_settings(command, settings_of(declared), *extra))
 
 
 for _command in STAGE_COMMANDS:

@@ -32,14 +32,11 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
                              default=inspect.Parameter.empty if setting.required else setting.default)
 
 
-def with_settings(settings: tuple[Setting, ...], *extra: inspect.Parameter) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Give a ``**values`` command function the parameters of ``settings`` (then ``extra``)."""
-
-    def decorate(function: Callable[..., Any]) -> Callable[..., Any]:
-        parameters = [typer_parameter(s) for s in settings if s.argument]
-        parameters += [typer_parameter(s) for s in settings if not s.argument]
-        parameters += [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in extra]
-        function.__signature__ = inspect.Signature(parameters, return_annotation=None)  # type: ignore[attr-defined]
-        return function
-
-    return decorate
+def with_settings(function: Callable[..., Any], settings: tuple[Setting, ...],
+                  *extra: inspect.Parameter) -> Callable[..., Any]:
+    """The ``**values`` command ``function``, given the parameters of ``settings`` (then ``extra``)."""
+    parameters = [typer_parameter(s) for s in settings if s.argument]
+    parameters += [typer_parameter(s) for s in settings if not s.argument]
+    parameters += [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in extra]
+    function.__signature__ = inspect.Signature(parameters, return_annotation=None)  # type: ignore[attr-defined]
+    return function

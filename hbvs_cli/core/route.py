@@ -18,7 +18,7 @@ The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -41,11 +41,6 @@ class Segment:
     first: int
     last: int
     overlap_last: int | None = None
-
-    @property
-    def overlap(self) -> slice | None:
-        """The frames shared with the previous segment (None for the first)."""
-        return None if self.overlap_last is None else slice(self.first, self.overlap_last + 1)
 
 
 def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segment]:
@@ -254,7 +249,8 @@ def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segm
         frames = slice(segment.first, segment.last + 1)
         detector_errors = DetectorErrors() if errors is None else errors[segment.target]
         target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
-        reference = first_reference if number == 0 and first_reference is not None else segment.first + largest_view(target_pixels)
+        largest_view = segment.first + int(np.argmax(view_spans(target_pixels)))
+        reference = first_reference if number == 0 and first_reference is not None else largest_view
         fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
                                            max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
         references.append(reference)
@@ -277,12 +273,6 @@ def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequen
         transitions.append(estimate_transition(here.theta_d, np.column_stack([here.x_hd1, here.x_hd2]),
                                                there.theta_d, np.column_stack([there.x_hd1, there.x_hd2]), *modes))
     return transitions
-
-
-def largest_view(pixels: ArrayLike) -> int:
-    """The frame (index into ``pixels`` (F, N, 2)) where a target appears largest: a segment's
-    F*_i, the nearer and larger, the better measured."""
-    return int(np.argmax(view_spans(pixels)))
 
 
 def view_spans(pixels: ArrayLike) -> NDArray[np.float64]:

@@ -171,24 +171,21 @@ def loopback_config() -> str:
 _DOMAINS: dict[int, Any] = {}
 
 
-def _join_domain(domain: int, config: str) -> None:
-    """Make domain ``domain`` with ``config`` once per process: a participant created afterwards joins
-    it (else Cyclone would make one from ``CYCLONEDDS_URI`` alone)."""
-    if domain not in _DOMAINS:
-        _DOMAINS[domain] = Domain(domain, config)
-
-
 class Ros2Node:
     """One DDS participant on ``ROS_DOMAIN_ID``, with its ROS 2 publishers and subscribers."""
 
     def __init__(self) -> None:
         settings = dds_settings()
         self.description = settings.description
+        domain = domain_id()
         try:
-            _join_domain(domain_id(), settings.config)
-            self.participant = DomainParticipant(domain_id())
+            # The domain is made once per process with the settings' config, and a participant joins it
+            # (else Cyclone would make one from ``CYCLONEDDS_URI`` alone).
+            if domain not in _DOMAINS:
+                _DOMAINS[domain] = Domain(domain, settings.config)
+            self.participant = DomainParticipant(domain)
         except Exception as exc:  # the binding raises DDSException with a return code
-            raise InputError(f"DDS: cannot join domain {domain_id()} ({exc}); check CYCLONEDDS_URI and ROS_STATIC_PEERS") from None
+            raise InputError(f"DDS: cannot join domain {domain} ({exc}); check CYCLONEDDS_URI and ROS_STATIC_PEERS") from None
         self._topics: dict[str, Any] = {}
 
     def _topic(self, ros_name: str, message_type: type) -> Any:

@@ -20,34 +20,23 @@ from .sources.rosbag import BagSource
 DISCOVERY_TIMEOUT_S = 10.0
 
 
-def image_message_type(topic: str) -> type:
-    """``CompressedImage`` for ``.../compressed`` (image_transport's naming), else ``Image`` (Cyclone's
-    Python binding cannot read the type from discovery reliably)."""
-    return dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
-
-
-def _ros_name(message_type: type) -> str:
-    return next(name for name, kind in dds.MESSAGE_TYPES.items() if kind is message_type)
-
-
 class LatestImage:
     """The newest frame of an image topic, with the sensor-data QoS."""
 
     def __init__(self, node: dds.Ros2Node, topic: str, discovery_timeout_s: float = DISCOVERY_TIMEOUT_S) -> None:
         full_topic_name(topic, "--ros2-image")
         self.topic = topic
-        self.message_type = image_message_type(topic)
+        # image_transport's naming (Cyclone's Python binding cannot read the type from discovery reliably).
+        self.message_type = dds.CompressedImage if topic.rstrip("/").endswith("/compressed") else dds.Image
         self.reader = node.subscriber(topic, self.message_type, dds.sensor_qos())
         self._waitset = _waitset(node, self.reader)
-        self._wait_for_publisher(discovery_timeout_s)
-
-    def _wait_for_publisher(self, timeout_s: float) -> None:
-        """Wait until a publisher of this type matches (a publisher of another type never does)."""
-        deadline = time.monotonic() + timeout_s
+        # Wait until a publisher of this type matches (a publisher of another type never does).
+        deadline = time.monotonic() + discovery_timeout_s
         while self.reader.get_subscription_matched_status().current_count == 0:
             if time.monotonic() > deadline:
+                ros_type = next(name for name, kind in dds.MESSAGE_TYPES.items() if kind is self.message_type)
                 raise InputError(
-                    f"{self.topic}: no {_ros_name(self.message_type)} publisher within {timeout_s:g} s (ROS_DOMAIN_ID "
+                    f"{topic}: no {ros_type} publisher within {discovery_timeout_s:g} s (ROS_DOMAIN_ID "
                     f"{dds.domain_id()}): the camera is not running, is on another network or domain, or publishes another "
                     "type (CompressedImage topics end in /compressed)"
                 )

@@ -16,7 +16,7 @@ import numpy as np
 from ..core.fit_model import FitModel
 from ..core.route import Segment, Transition
 from ..errors import RecordingError
-from .fit_file import FILE_KIND, FitFile, checked_model_message, read_fit_file
+from .fit_file import FILE_KIND, FitFile, checked_model_message
 from .images import encode_image, write_compressed_image
 from .messages import CAMERA_FRAME
 from .mcap import time_message
@@ -39,11 +39,6 @@ class RouteFile:
     taught_poses: np.ndarray | None = None
     #: Each segment's detector template (compressed image bytes; None: its kind uses none, or a file from before they were kept).
     templates: tuple[bytes | None, ...] = ()
-
-
-def transition_record(transition: Transition) -> dict[str, Any]:
-    """A transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho))."""
-    return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in vars(transition).items()}
 
 
 def _transition_from_record(record: dict[str, Any]) -> Transition:
@@ -71,7 +66,9 @@ def route_message(segments: Sequence[Segment], references: Sequence[int], transi
         "timestamp": time_message(log_time_ns),
         "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r),
                       "template": template} for s, r, template in zip(segments, references, templates)],
-        "transitions": [transition_record(transition) for transition in transitions],
+        # Each transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho)).
+        "transitions": [{name: value.tolist() if isinstance(value, np.ndarray) else value
+                         for name, value in vars(transition).items()} for transition in transitions],
     }
 
 
@@ -92,11 +89,6 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
     if len(segments) > 1:
         writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]),
                      route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses, indices))
-
-
-def read_route_file(source: Any, name: str = "") -> RouteFile:
-    """The route of a fit file or stream (:func:`route_of`)."""
-    return route_of(read_fit_file(source, name), name or str(source))
 
 
 def route_of(fit: FitFile, name: str) -> RouteFile:

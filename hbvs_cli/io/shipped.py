@@ -18,8 +18,3 @@ def shipped_root() -> Path:
     """The folder that holds the installed ``docs/`` and ``samples/`` (the wheel's package, or a checkout)."""
     return shipped_path("docs/method.md").parent.parent
 
-
-def shipped_name(relative: str) -> str:
-    """How help texts name a shipped file: ``docs/method.md``, short enough for 80 columns;
-    the root help says once where these names are (:func:`shipped_root`)."""
-    return relative

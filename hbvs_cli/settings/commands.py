@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 from ..core.control_settings import ALL_LAWS, DEFAULT_PRESET, FILTER_EKF, FILTERS, GAIN_UNITS, LAW_LATERAL_GAIN, ControllerGains
-from ..io.shipped import shipped_name
 from ..io.topics import ROS_CMD_VEL_TOPIC, ROS_LIVE_IMAGE_TOPIC
 from .option import Options, option, settings_of, shown
 
@@ -179,7 +178,7 @@ class RepeatOptions(Options):
         panel="Controller")
     gamma: float | None = option(f"gamma_1 ({GAIN_UNITS['gamma']}) of the update law (31) (from x_hd1_dot and the detector's noise).",
         shown=FROM_THE_FIT, config="gamma", panel="Controller")
-    k_2: float | None = option(f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see {shipped_name('docs/method.md')}).",
+    k_2: float | None = option(f"Lateral gain k_2, k_w^2 / (4 x_hd1_dot^2) (see docs/method.md).",
         shown=FROM_THE_FIT, config="k_2", flags=("--k2",), panel="Controller")
     dhat0: float | None = option("Initial depth estimate (m).", shown=FROM_THE_FIT, config="dhat0", panel="Controller",
         bounds={"min": MIN_DEPTH, "max": MAX_DEPTH})

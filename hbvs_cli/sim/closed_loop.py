@@ -56,28 +56,12 @@ class SimulatedRobot:
     def act(self, record: StepRecord) -> None:
         self.pose = integrate_unicycle(self.pose, record.v_c, record.w_c, self.dt)
 
-
-def run_closed_loop(
-    sense: SenseFunction,
-    trajectory: DesiredTrajectory,
-    controller: AdaptiveTrackingController,
-    start_pose: ArrayLike,
-    dt: float,
-    duration: float,
-    limits: ActuatorLimits | None = None,
-    latency_steps: int = 0,
-    state_filter: ServoStateFilter | None = None,
-    robot_type: type[SimulatedRobot] = SimulatedRobot,
-) -> Iterator[StepRecord]:
-    """Simulate the closed loop, yielding one :class:`StepRecord` per control period.
-
-    ``sense(pose, t) -> Observation``; the controller's dhat is updated in place; ``dt`` and
-    ``duration`` in s. The law acts on the observation ``latency_steps`` periods old (holding
-    still before), or on the ``state_filter``'s estimate (docs/method.md, "State filter").
-    ``robot_type``: the simulated robot (a route's, :class:`~.route_loop.RouteRobot`).
-    """
-    robot = robot_type(sense, trajectory, start_pose, dt, duration, latency_steps)
-    return run_servo(robot, ServoStep(controller, limits or ActuatorLimits(), latency_steps, state_filter))
+    def run(self, controller: AdaptiveTrackingController, limits: ActuatorLimits,
+            state_filter: ServoStateFilter | None = None) -> Iterator[StepRecord]:
+        """The closed loop's step records (a generator): sense, control, ``limits``, move; the law acts on the
+        observation ``latency_steps`` periods old (holding still before), or on the ``state_filter``'s
+        estimate (docs/method.md, "State filter"), and updates the controller's dhat in place."""
+        return run_servo(self, ServoStep(controller, limits, self.latency_steps, state_filter))
 
 
 @dataclass
@@ -101,8 +85,7 @@ class Simulation:
         return int(round(self.duration / self.dt))
 
     def run(self) -> Iterator[StepRecord]:
-        """The closed loop's step records (a generator): sense, control, limits, move."""
-        return run_closed_loop(
-            self.camera.observe, self.trajectory, self.controller, self.start_pose, self.dt, self.duration,
-            self.limits, self.latency, self.state_filter,
-        )
+        """The closed loop's step records (a generator): :meth:`SimulatedRobot.run`."""
+        robot = SimulatedRobot(self.camera.observe, self.trajectory, self.start_pose, self.dt, self.duration,
+                               self.latency)
+        return robot.run(self.controller, self.limits, self.state_filter)

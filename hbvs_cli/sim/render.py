@@ -239,12 +239,8 @@ class SceneRenderer:
     def _outline(self, level: int) -> NDArray[np.float64]:
         """Points along the edge of the level's picture, in poster metres, shape (4 K, 2),
         made once per level: several a side, as lens distortion bows straight edges."""
-        outline = self._outlines.get(level)
-        if outline is None:
-            outline = self._outlines[level] = self._make_outline(level)
-        return outline
-
-    def _make_outline(self, level: int) -> NDArray[np.float64]:
+        if level in self._outlines:
+            return self._outlines[level]
         height, width = self.raster.levels[level].shape
         to_poster = self.raster.level_to_poster(level)
         # The picture's outer edges are half a level pixel beyond the first and last centres.
@@ -255,7 +251,8 @@ class SceneRenderer:
         right = np.column_stack([np.full_like(t, a1), t * b1])
         bottom = np.column_stack([(1 - t) * a1, np.full_like(t, b1)])
         left = np.column_stack([np.zeros_like(t), (1 - t) * b1])
-        return np.concatenate([top, right, bottom, left])
+        outline = self._outlines[level] = np.concatenate([top, right, bottom, left])
+        return outline
 
     def _warp(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
         x0, y0, x1, y1 = window

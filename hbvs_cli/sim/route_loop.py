@@ -1,5 +1,5 @@
 """``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
-one loop (:func:`~hbvs_cli.sim.closed_loop.run_closed_loop`, so
+one loop (:meth:`~hbvs_cli.sim.closed_loop.SimulatedRobot.run`, so
 :func:`~hbvs_cli.core.servo_loop.run_servo`).
 
 Segment k runs against its own F*_k: its desired signals (Remark 1) and its target's
@@ -30,7 +30,7 @@ from ..core.simulator import ActuatorLimits, StepRecord
 from ..core.state_filter import FilterEstimate, FilterOutcome, ServoStateFilter
 from ..core.trajectory import DesiredTrajectory
 from ..errors import InvalidValueError
-from .closed_loop import SimulatedRobot, run_closed_loop
+from .closed_loop import SimulatedRobot
 from .route_world import RouteWorld
 
 
@@ -169,7 +169,7 @@ class SegmentSwitch:
     (:attr:`filters`, if set). ``switches`` logs ``(t, segment, dhat before, after)``."""
 
     def __init__(self, transitions: Sequence[Transition], controller: AdaptiveTrackingController,
-                 gains: Sequence[ControllerGains] | None = None, route_trajectory: RouteTrajectory | None = None) -> None:
+                 gains: Sequence[ControllerGains] | None, route_trajectory: RouteTrajectory) -> None:
         self.transitions, self.controller, self.gains = list(transitions), controller, gains
         #: The desired signals each switch is handed over in (:meth:`RouteTrajectory.hand_over`).
         self.route_trajectory = route_trajectory
@@ -188,10 +188,9 @@ class SegmentSwitch:
         self.active += 1
         if self.gains is not None:
             self.controller.gains = self.gains[self.active]
-        fade = SWITCH_FADE_S if self.route_trajectory is None else self.route_trajectory.fade_after(self.active, t)
+        fade = self.route_trajectory.fade_after(self.active, t)
         estimates = None if self.filters is None else self.filters.switch(self.active, self.controller.dhat, transition, fade)
-        if self.route_trajectory is not None:
-            self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
+        self.route_trajectory.hand_over(self.active, t, transition, *(estimates or ()))
         self.switches.append((t, self.active, before, self.controller.dhat))
 
 
@@ -206,14 +205,13 @@ class RouteCamera(SegmentSwitch):
                  controller: AdaptiveTrackingController, pixel_noise: float = 0.0, seed: int = 0,
                  gains: Sequence[ControllerGains] | None = None, orders: Sequence[NDArray[np.intp]] | None = None) -> None:
         super().__init__(fitted.transitions, controller, gains, trajectory)
-        self.route, self.fitted, self.trajectory = route, fitted, trajectory
-        self.orders = orders
+        self.route, self.fitted, self.orders = route, fitted, orders
         self.estimators = [PlanarPoseEstimator(route.camera, fit.m_ref, fit.normal, converge=True) for fit in fitted.fits]
         self.pixel_noise = pixel_noise
         self.rng = np.random.default_rng(seed)
 
     def observe(self, pose: NDArray[np.float64], t: float) -> Observation:
-        segment = int(self.trajectory.segment_at(t))
+        segment = int(self.route_trajectory.segment_at(t))
         while self.active < segment:
             self.advance(t)
         # The active segment's target seen from ``pose``, through its estimator.
@@ -245,8 +243,8 @@ def run_route(route: RouteWorld, fitted: RouteFit, switches: ArrayLike, controll
         controller.gains = gains[0]
     if filter_noise is not None:
         camera.filters = SegmentFilters([ServoStateFilter(fit.m_ref, fit.normal, noise) for fit, noise in zip(fitted.fits, filter_noise)])
-    return camera, run_closed_loop(camera.observe, trajectory, controller, start_pose, dt, duration, limits,
-                                   state_filter=camera.filters, robot_type=RouteRobot)
+    robot = RouteRobot(camera.observe, trajectory, start_pose, dt, duration)
+    return camera, robot.run(controller, limits or ActuatorLimits(), camera.filters)
 
 
 class SegmentFilters:
@@ -266,7 +264,7 @@ class SegmentFilters:
         self.since, self.corrections = np.inf, np.zeros(3)
 
     def switch(self, segment: int, dhat: float, transition: Transition,
-               fade: float = SWITCH_FADE_S) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+               fade: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """Hand the loop segment ``segment``'s filter, which goes on from the last one's estimate
         carried over by ``transition`` (:meth:`~hbvs_cli.core.route.Transition.carried_state`),
         or, if that one has none, starts its depth at ``dhat`` (m): at a switch the next target

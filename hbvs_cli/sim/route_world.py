@@ -57,10 +57,6 @@ class RouteWorld:
         dx, dy = pose[..., 0] - x, pose[..., 1] - y
         return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(pose[..., 2] - yaw)], axis=-1)
 
-    def visible(self, pose: ArrayLike, margin_px: float = 10.0) -> NDArray[np.bool_]:
-        """For each target: True when all its points are in front of the camera and in the image."""
-        return np.array([world.in_view(self.local_pose(i, pose), margin_px) for i, world in enumerate(self.worlds)])
-
     def spans(self, pose: ArrayLike, margin_px: float = 10.0) -> NDArray[np.float64]:
         """For each target: the largest distance (px) between two of its image points, 0 when
         it is not wholly in view: how well it is seen."""
@@ -73,8 +69,9 @@ class RouteWorld:
         return spans
 
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:
-        """True when at least one target is wholly in view (what a teach warns about)."""
-        return bool(np.any(self.visible(pose, margin_px)))
+        """True when at least one target is wholly in view (all its points in front of the camera and in the
+        image): what a teach warns about."""
+        return any(world.in_view(self.local_pose(i, pose), margin_px) for i, world in enumerate(self.worlds))
 
     @property
     def route_targets(self) -> tuple[Target, ...]:

@@ -155,12 +155,6 @@ def world_from_reference(model: FitModel, image: np.ndarray, depth: float) -> tu
     return world, painted, reference_pose
 
 
-def world_point_identity(scene: Scene, model: FitModel) -> NDArray[np.intp]:
-    """The permutation of the world's target points into the fit's order (as its detector
-    first saw them): where F* sees each world point matched to the fit's reference pixels."""
-    return point_identity(scene.world.pixels(scene.reference_pose), model.reference_pixels)
-
-
 def point_identity(seen: NDArray[np.float64], reference_pixels: NDArray[np.float64]) -> NDArray[np.intp]:
     """The permutation of the points ``seen`` (N, 2) px from F* into the order of a fit's
     ``reference_pixels`` (N, 2) px: each matched to the nearest, all at once."""

@@ -16,7 +16,7 @@ from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimato
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
 from .render import SceneRenderer, Window
-from .scene import Scene, renderer_for, world_point_identity
+from .scene import Scene, point_identity, renderer_for
 
 
 @dataclass(frozen=True)
@@ -63,35 +63,30 @@ class SimulatedCamera:
     ) -> None:
         self.scene = scene
         self.model = model
-        self.pixel_noise = settings.pixel_noise
-        self.perception = settings.perception
+        self.settings = settings
         self.estimator = estimator
-        self.identity = world_point_identity(scene, model)
+        # The world's target points in the fit's order (as its detector first saw them).
+        self.identity = point_identity(scene.world.pixels(scene.reference_pose), model.reference_pixels)
         self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
         self._identity = [int(i) for i in self.identity]
         self._camera_height = float(scene.world.camera_height)
         self.noise_rng = np.random.default_rng(settings.seed)
         self.fault_rng = np.random.default_rng([settings.seed, 1])
-        self.occlusions = list(settings.occlusions)
-        self.drop_rate = settings.drop_rate
-        self.outlier_rate = settings.outlier_rate
-        self.exposure_step = settings.exposure_step
-        self.record_images = settings.record_images
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
         self.renderer: SceneRenderer | None = None
-        self.detector = detector if self.perception == "images" else None
-        if self.perception == "images" or settings.record_images:
+        self.detector = detector if self.settings.perception == "images" else None
+        if self.settings.perception == "images" or settings.record_images:
             self.renderer = renderer_for(scene, model)
 
     def _occluded(self, t: float) -> bool:
-        return any(start <= t < end for start, end in self.occlusions)
+        return any(start <= t < end for start, end in self.settings.occlusions)
 
     def observe(self, pose: np.ndarray, t: float) -> Observation:
-        if self.drop_rate > 0 and self.fault_rng.random() < self.drop_rate:
+        if self.settings.drop_rate > 0 and self.fault_rng.random() < self.settings.drop_rate:
             return dropped()
-        outlier = self.outlier_rate > 0 and self.fault_rng.random() < self.outlier_rate
-        if self.perception == "points":
+        outlier = self.settings.outlier_rate > 0 and self.fault_rng.random() < self.settings.outlier_rate
+        if self.settings.perception == "points":
             return self._observe_points(pose, t, outlier)
         return self._observe_image(pose, t, outlier)
 
@@ -103,8 +98,8 @@ class SimulatedCamera:
         if pixels is None:
             return Observation(None, status=ObservationStatus.OCCLUDED)
         pixels = distort_pixels(world.camera, pixels)
-        if self.pixel_noise > 0:
-            pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
+        if self.settings.pixel_noise > 0:
+            pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
         if outlier:
             # A wrong detection: one point displaced by 5 to 20 px.
             index = int(self.fault_rng.integers(pixels.shape[0]))
@@ -124,15 +119,15 @@ class SimulatedCamera:
         if pixels is None:
             image = self._frame(self.renderer.render(pose, self.noise_rng, exposure_gain=gain), pose, t, blob)
             pixels = self.detector.detect(image)
-        elif self.record_images:
+        elif self.settings.record_images:
             # The windows measured, in a whole frame whose other pixels have a noise stream of their own.
             whole = self._frame(self.renderer.render(pose, self.image_rng, exposure_gain=gain), pose, t, blob)
             for x0, y0, x1, y1 in windows:
                 whole[y0:y1, x0:x1] = image[y0:y1, x0:x1]
             image = whole
         self.last_image = image
-        if self.pixel_noise > 0:
-            pixels = pixels + self.noise_rng.normal(0.0, self.pixel_noise, pixels.shape)
+        if self.settings.pixel_noise > 0:
+            pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
         return self.estimator.from_pixels(pixels)
 
     def _frame(self, image: np.ndarray, pose: np.ndarray, t: float, blob: tuple[tuple[int, int], int, int] | None) -> np.ndarray:
@@ -172,10 +167,8 @@ class SimulatedCamera:
         return pixels
 
     def settings_exposure(self, t: float) -> float | None:
-        if self.exposure_step is None:
-            return None
-        at, gain = self.exposure_step
-        return gain if t >= at else None
+        step = self.settings.exposure_step  # (t, gain): the gain from t (s) on
+        return step[1] if step is not None and t >= step[0] else None
 
     def _cover_target(self, image: np.ndarray, pose: np.ndarray) -> None:
         """An occluder (a person walking by) in front of the whole poster, and 4 px around it."""
@@ -206,6 +199,6 @@ class SimulatedCamera:
         """The camera image of this step (``--record-images``): the one just measured, or a
         noiseless-seeded render at ``pose`` when perception did not render one."""
         image = self.last_image
-        if image is None or self.perception != "images":
+        if image is None or self.settings.perception != "images":
             image = self.renderer.render(pose, np.random.default_rng(0))
         return image

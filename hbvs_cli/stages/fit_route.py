@@ -21,7 +21,7 @@ import numpy as np
 from rich.table import Table
 
 from ..core.fit_model import FitModel
-from ..core.route import bridge_brief_gaps, estimate_transitions, largest_view, split_route, view_spans
+from ..core.route import bridge_brief_gaps, estimate_transitions, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
 from ..perception.target_kinds import SpecRequest, target_kind
@@ -79,7 +79,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         arrays = {"t": t[frames_of], "log_time": log_time[frames_of], "pixels": pixels[segment.target][frames_of],
                   "pose": poses[frames_of] if route is None else route.local_pose(segment.target, poses[frames_of]),
                   "command": commands[frames_of]}
-        reference = largest_view(arrays["pixels"])
+        reference = int(np.argmax(view_spans(arrays["pixels"])))  # the nearer and larger, the better measured
         fit, model = segment_fit(arrays, reference, follower.detectors[segment.target].spec,
                                  None if route is None else route.worlds[segment.target].to_dict(), f"{reader.name} (segment {len(models) + 1})")
         fits.append(fit)

@@ -264,7 +264,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     camera, steps = run_route(route, route_fit, switches, controller, start, dt, duration, settings.limits,
                               settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
-        "d_true": depths[-1], "route": route_metadata(plan, camera.trajectory.run_time(switches), depths)}
+        "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
     tally = tools.tally()
     height = route.camera_height
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
@@ -274,7 +274,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
                 log.step(record)
-                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.trajectory.route_time(record.t)))[0]
+                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
                 run.poses(record.t, record.pose, taught, height)
                 tally.add(record, taught)
                 bar.advance()
