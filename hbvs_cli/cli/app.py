@@ -171,9 +171,10 @@ _swallowed = False
 
 
 #: How long a process that spoke DDS may take to end (s): after a stop signal, and again once its
-#: command has returned. Cyclone DDS's teardown can wait without end for a receive thread
-#: (eclipse-cyclonedds/cyclonedds#1916), and later signals are ignored: a stand-in robot outlived
-#: two Ctrl-C's by 40 s in CI. Past it, every thread's traceback goes to stderr and the process exits 1.
+#: command has returned. Cyclone DDS 11's teardown can wait without end (a stand-in robot's stack:
+#: the domain's deletion at the interpreter's exit, ddsi_stop waiting for its built-in delivery
+#: queue), and later signals are ignored: a stand-in robot outlived two Ctrl-C's by 40 s in CI.
+#: Past it, every thread's traceback goes to stderr and the process exits 1.
 DDS_EXIT_GRACE_S = 10.0
 
 
