@@ -319,8 +319,8 @@ app.main()
 @pytest.mark.parametrize("hang_on_close", [False, True], ids=["in-its-teardown", "in-its-cleanup-after-ctrl-c"])
 def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(hang_on_close, tmp_path):
     """Cyclone DDS's teardown can wait without end (a stand-in robot outlived two Ctrl-C's by 40 s
-    in CI): a process that loaded it ends DDS_EXIT_GRACE_S after its command returned, or three
-    times that after a stop signal, exit 1 with its threads' tracebacks on stderr."""
+    in CI): a process that loaded it is ended by SIGALRM DDS_EXIT_GRACE_S after its command
+    returned, or three times that after a stop signal."""
     from test_live_loop import FIT
     from test_route_live import free_port
 
@@ -338,6 +338,5 @@ def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(ha
     _, stderr = process.communicate(timeout=30)
     took = time.monotonic() - began
     print(f"ended {took:.2f} s after Ctrl-C, exit {process.returncode}: {stderr.splitlines()[:2]}")
-    assert process.returncode == 1 and stderr.startswith("Timeout (0:00:0"), stderr
-    assert ("_PlainRobot" in stderr or "<lambda>" in stderr) == hang_on_close
+    assert process.returncode == -signal.SIGALRM, stderr
     assert (3.0 if hang_on_close else 1.0) <= took < (3.0 if hang_on_close else 1.0) + 2.0
