@@ -319,8 +319,10 @@ app.main()
 @pytest.mark.parametrize("hang_on_close", [False, True], ids=["in-its-teardown", "in-its-cleanup-after-ctrl-c"])
 def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(hang_on_close, tmp_path):
     """Cyclone DDS's teardown can wait without end (a stand-in robot outlived two Ctrl-C's by 40 s
-    in CI): a process that loaded it is ended by SIGALRM DDS_EXIT_GRACE_S after its command
-    returned, or three times that after a stop signal."""
+    in CI): a process that loaded it skips the interpreter's teardown once its command returned
+    (an exit handler that never ends is never run: robot-sim's Ctrl-C exit 0 at once), and a
+    cleanup of its own that never ends is cut by SIGALRM three times DDS_EXIT_GRACE_S after a stop
+    signal."""
     from test_live_loop import FIT
     from test_route_live import free_port
 
@@ -338,5 +340,9 @@ def test_a_process_that_spoke_dds_ends_within_its_grace_whatever_it_waits_for(ha
     _, stderr = process.communicate(timeout=30)
     took = time.monotonic() - began
     print(f"ended {took:.2f} s after Ctrl-C, exit {process.returncode}: {stderr.splitlines()[:2]}")
-    assert process.returncode == -signal.SIGALRM, stderr
-    assert (3.0 if hang_on_close else 1.0) <= took < (3.0 if hang_on_close else 1.0) + 2.0
+    if hang_on_close:
+        assert process.returncode == -signal.SIGALRM, stderr
+        assert 3.0 <= took < 5.0
+    else:
+        assert process.returncode == 0, stderr
+        assert took < 1.0

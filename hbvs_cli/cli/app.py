@@ -170,12 +170,14 @@ _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "ter
 _swallowed = False
 
 
-#: How long a process that spoke DDS may take to end (s): after a stop signal, and again once its
-#: command has returned. Cyclone DDS 11's teardown can wait without end (a stand-in robot's stack:
-#: the domain's deletion at the interpreter's exit, ddsi_stop waiting for its built-in delivery
-#: queue), and later signals are ignored: a stand-in robot outlived two Ctrl-C's by 40 s in CI.
-#: Past it, SIGALRM ends the process (exit status 142 in a shell).
+#: How long a process that spoke DDS may take to end (s): after a stop signal (three times this, for
+#: the command's own cleanup), and again once its command has returned. Past it, SIGALRM ends the
+#: process (exit status 142 in a shell). It is a backstop: such a process skips the interpreter's
+#: teardown (:func:`_end_without_dds_teardown`).
 DDS_EXIT_GRACE_S = 10.0
+
+#: How long a process that spoke DDS waits, at most, for readers to acknowledge its last messages (s).
+DDS_DELIVERY_WAIT_S = 1.0
 
 
 #: True when :func:`main` is the process's entry point (not called by a test with its arguments).
@@ -188,6 +190,23 @@ def _bound_dds_exit(grace_s: float) -> None:
         # A kernel timer, not a watchdog thread: faulthandler's made that teardown hang in 7 runs of 8.
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
         signal.alarm(math.ceil(grace_s))
+
+
+def _end_without_dds_teardown(code: int) -> None:
+    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``, once its last messages are
+    delivered: the interpreter's teardown deletes the DDS domain, and Cyclone DDS 11 can wait in that
+    without end (gdb on a hung stand-in robot: ddsi_stop waiting for the built-in delivery queue; in CI
+    it outlived two Ctrl-C's, and later a test by ten seconds). The command has returned, so its files
+    are closed and its zero command sent; nothing of hbvs's is left for the teardown to do."""
+    if not (_owns_process and "cyclonedds" in sys.modules):
+        return
+    dds = sys.modules.get("hbvs_cli.io.ros2_dds")
+    if dds is not None:
+        dds.deliver_pending(DDS_DELIVERY_WAIT_S)
+    for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
+        with suppress(OSError, ValueError, AttributeError):
+            stream.flush()
+    os._exit(code)
 
 
 def _on_signal(signum: int, frame: object) -> None:
@@ -436,4 +455,5 @@ def main(argv: list[str] | None = None) -> None:
     except (OSError, ValueError, AttributeError):
         pass
     _bound_dds_exit(DDS_EXIT_GRACE_S)
+    _end_without_dds_teardown(code)
     sys.exit(code)
