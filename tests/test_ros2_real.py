@@ -314,9 +314,9 @@ def test_the_live_loop_converges_through_a_ros2_relay(release, tmp_path):
             live = subprocess.run([sys.executable, "-m", "hbvs_cli", "repeat", str(fit), "--live", "--ros2-image", "/robot/camera/image_raw",
                                    "--ros2-cmd", "/robot/cmd_vel", "--speed", "2", "-o", str(tmp_path / "live.mcap"), "-q"],
                                   capture_output=True, text=True, env=hbvs_env, timeout=180)
-            # The relay forwards hbvs's last (zero) command after hbvs has gone: the robot is
-            # stopped once that reaches it, not when hbvs exits.
-            stopped = last_command_is_zero(poses, timeout_s=5.0)
+            # hbvs ends once the relay acknowledged its last (zero) command; the relay forwards it
+            # within its 50 ms spin: the robot is stopped a moment later, not when hbvs exits.
+            time.sleep(1.0)
         finally:
             robot.send_signal(signal.SIGINT)
             robot.wait(timeout=30)
@@ -329,23 +329,7 @@ def test_the_live_loop_converges_through_a_ros2_relay(release, tmp_path):
            f"{counts['images']} images and {counts['twists']} commands relayed; final {100 * position:.2f} cm, {heading:.3f} deg")
     assert counts["images"] > 100 and counts["twists"] > 50
     assert position <= 0.02 and heading <= 0.5
-    assert stopped and (last["v"], last["w"]) == (0.0, 0.0)
-
-
-def last_command_is_zero(poses: Path, timeout_s: float) -> bool:
-    """Whether the last command a stand-in robot's pose stream shows is (0, 0) within ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        lines = poses.read_text().splitlines() if poses.exists() else []
-        try:
-            last = json.loads(lines[-1]) if lines else {}
-        except json.JSONDecodeError:  # a line still being written
-            last = {}
-        if (last.get("v"), last.get("w")) == (0.0, 0.0):
-            return True
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
+    assert (last["v"], last["w"]) == (0.0, 0.0)
 
 
 def test_a_ros2_teleop_on_the_command_topic_stops_hbvs(release, tmp_path):

@@ -176,9 +176,6 @@ _swallowed = False
 #: teardown (:func:`_end_without_dds_teardown`).
 DDS_EXIT_GRACE_S = 10.0
 
-#: How long a process that spoke DDS waits, at most, for readers to acknowledge its last messages (s).
-DDS_DELIVERY_WAIT_S = 1.0
-
 
 #: True when :func:`main` is the process's entry point (not called by a test with its arguments).
 _owns_process = False
@@ -193,16 +190,13 @@ def _bound_dds_exit(grace_s: float) -> None:
 
 
 def _end_without_dds_teardown(code: int) -> None:
-    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``, once its last messages are
-    delivered: the interpreter's teardown deletes the DDS domain, and Cyclone DDS 11 can wait in that
-    without end (gdb on a hung stand-in robot: ddsi_stop waiting for the built-in delivery queue; in CI
-    it outlived two Ctrl-C's, and later a test by ten seconds). The command has returned, so its files
-    are closed and its zero command sent; nothing of hbvs's is left for the teardown to do."""
+    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``: the interpreter's teardown
+    deletes the DDS domain, and Cyclone DDS 11 can wait in that without end (gdb on a hung stand-in
+    robot: ddsi_stop waiting for the built-in delivery queue; in CI it outlived two Ctrl-C's, and later
+    a test by ten seconds). The command has returned: its files are closed and its last zero command
+    acknowledged (``repeat --live`` waits for that); nothing of hbvs's is left for the teardown to do."""
     if not (_owns_process and "cyclonedds" in sys.modules):
         return
-    dds = sys.modules.get("hbvs_cli.io.ros2_dds")
-    if dds is not None:
-        dds.deliver_pending(DDS_DELIVERY_WAIT_S)
     for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
         with suppress(OSError, ValueError, AttributeError):
             stream.flush()

@@ -3,9 +3,7 @@ are DDS topics ``rt/<name>`` of types ``<pkg>::msg::dds_::<Type>_`` in plain CDR
 Cyclone DDS IDL structs of those names, made from ``rosbags``' message definitions."""
 
 import os
-import time
 import types
-import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -172,25 +170,6 @@ def loopback_config() -> str:
 #: The domains this process made, by id: alive as long as the process (a participant needs its domain).
 _DOMAINS: dict[int, Any] = {}
 
-#: Every writer this process made and still holds (see :func:`deliver_pending`).
-_WRITERS: "weakref.WeakSet[Any]" = weakref.WeakSet()
-
-
-def deliver_pending(timeout_s: float) -> None:
-    """Wait, at most ``timeout_s`` in all, until each reliable reader has acknowledged what this process
-    wrote: a process that ends without Cyclone DDS's teardown (:mod:`hbvs_cli.cli.app`) would otherwise
-    leave a last zero command that a reader lost unsent again."""
-    deadline = time.monotonic() + timeout_s
-    for writer in list(_WRITERS):
-        left = deadline - time.monotonic()
-        if left <= 0:
-            return
-        try:
-            writer.wait_for_acks(duration(seconds=left))
-        except Exception:  # a deleted writer, or no reader left to acknowledge: nothing more to deliver
-            pass
-
-
 class Ros2Node:
     """One DDS participant on ``ROS_DOMAIN_ID``, with its ROS 2 publishers and subscribers."""
 
@@ -220,9 +199,7 @@ class Ros2Node:
         return topic
 
     def publisher(self, ros_name: str, message_type: type, qos: Qos) -> DataWriter:
-        writer = DataWriter(self.participant, self._topic(ros_name, message_type), qos=qos)
-        _WRITERS.add(writer)
-        return writer
+        return DataWriter(self.participant, self._topic(ros_name, message_type), qos=qos)
 
     def subscriber(self, ros_name: str, message_type: type, qos: Qos) -> DataReader:
         return DataReader(self.participant, self._topic(ros_name, message_type), qos=qos)

@@ -4,6 +4,7 @@ dropped, never queued), velocity commands out. Messages, names and QoS: :mod:`.r
 from __future__ import annotations
 
 import time
+from contextlib import suppress
 from typing import Any
 
 import numpy as np
@@ -153,6 +154,12 @@ class CommandPublisher:
         """Commands another writer put on the topic since the last call."""
         # (Not a writer going away: those samples carry no data.)
         return sum(1 for sample in self._echo.take(N=256) if hasattr(sample, "linear") or hasattr(sample, "twist"))
+
+    def wait_delivered(self, timeout_s: float) -> None:
+        """Wait, at most ``timeout_s``, until every reliable reader acknowledged the commands sent (the last
+        zero above all): hbvs ends without Cyclone DDS's teardown, which would have resent a lost one."""
+        with suppress(Exception):  # no reader left: nothing more to deliver
+            self.writer.wait_for_acks(dds.duration(seconds=timeout_s))
 
     def publish(self, v: float, w: float, stamp: float | None = None) -> None:
         """Send ``(v, w)`` (m/s, rad/s), stamped ``stamp`` (s; now when None) if stamped."""

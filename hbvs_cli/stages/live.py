@@ -42,6 +42,8 @@ LATE_FACTOR = 1.5
 STALE_POLL_S = 0.01
 #: How often (s) the deadman looks at a zero command (a non-zero one it waits for to the moment).
 DEADMAN_POLL_S = 0.05
+#: How long (s) the command publisher waits, at the end, for its readers to acknowledge the last zero.
+COMMAND_DELIVERY_S = 1.0
 #: Steps the status line's frame rate and latency are taken over.
 STATUS_WINDOW = 60
 #: Largest relative difference between the given calibration and the fit's camera.
@@ -205,8 +207,9 @@ def robot_interface(options: RepeatOptions) -> RobotInterface:
     return next(interface for interface in reversed(ROBOT_INTERFACES) if interface.chosen(options))
 
 
-def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple[Any, CommandSink | None]:
-    """A ROS 2 node (None without a ROS 2 topic) and the publisher on --ros2-cmd, else /cmd_vel unless only --cmd-out."""
+def _ros2_commands(options: RepeatOptions, stack: ExitStack, info: Callable[[str], None]) -> tuple[Any, CommandSink | None]:
+    """A ROS 2 node (None without a ROS 2 topic) and the publisher on --ros2-cmd, else /cmd_vel unless only --cmd-out;
+    when ``stack`` closes (after the last zero), the publisher waits up to :data:`COMMAND_DELIVERY_S` for its readers."""
     topic = options.ros2_cmd if options.ros2_cmd is not None else (
         None if options.cmd_out is not None and options.ros2_image is None else ROS_CMD_VEL_TOPIC)
     if options.ros2_image is None and topic is None:
@@ -217,7 +220,11 @@ def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple
 
     info(f"repeat --live: {describe_dds()}")
     node = dds.Ros2Node()
-    return node, (CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped") if topic is not None else None)
+    if topic is None:
+        return node, None
+    commands = CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped")
+    stack.callback(commands.wait_delivered, COMMAND_DELIVERY_S)
+    return node, commands
 
 
 def _open_camera(options: RepeatOptions, stack: ExitStack, lost_timeout: float, info: Callable[[str], None]) -> RobotLink:
@@ -226,7 +233,7 @@ def _open_camera(options: RepeatOptions, stack: ExitStack, lost_timeout: float, 
         raise UsageError("--camera needs --calibration FILE (the camera's intrinsics)")
     from ..io.sources.live_camera import LatestCameraFrame
 
-    return RobotLink(_ros2_commands(options, info)[1], lambda: (
+    return RobotLink(_ros2_commands(options, stack, info)[1], lambda: (
         stack.enter_context(LatestCameraFrame(options.camera)), load_calibration(options.calibration)), options.camera)
 
 
@@ -235,7 +242,7 @@ def _open_ros2(options: RepeatOptions, stack: ExitStack, lost_timeout: float, in
     from ..io import ros2_dds as dds
     from ..io.ros2_live import DISCOVERY_TIMEOUT_S, LatestImage, wait_camera_info
 
-    node, commands = _ros2_commands(options, info)
+    node, commands = _ros2_commands(options, stack, info)
     timeout_s = max(lost_timeout, DISCOVERY_TIMEOUT_S)
     return RobotLink(commands, lambda: (LatestImage(node, options.ros2_image, timeout_s), (
         load_calibration(options.calibration) if options.calibration is not None
