@@ -436,7 +436,8 @@ TELEOP = textwrap.dedent("""
 
 @pytest.mark.campaign
 def test_teach_records_a_running_ros2_camera_and_the_operators_commands(tmp_path, request):
-    """teach --ros2-image --ros2-cmd: the stand-in driven by a teleop process, 3 s."""
+    """teach --ros2-image --ros2-cmd: the stand-in driven by a teleop process, 3 s, written to stdout
+    (a process that spoke DDS ends without the interpreter's teardown: every byte is flushed first)."""
     skip_unless_campaign(request)
     from hbvs_cli.io.teach_file import TeachReader
 
@@ -445,8 +446,9 @@ def test_teach_records_a_running_ros2_camera_and_the_operators_commands(tmp_path
     teleop = subprocess.Popen([sys.executable, "-c", TELEOP], env=env)
     teach = tmp_path / "teach.mcap"
     try:
-        result = subprocess.run([*HBVS, "teach", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "/cmd_vel", "--duration", "3",
-                                 "-o", str(teach), "-q"], capture_output=True, text=True, env=env, timeout=120)
+        with open(teach, "wb") as stdout:
+            result = subprocess.run([*HBVS, "teach", "--ros2-image", "/camera/image_raw", "--ros2-cmd", "/cmd_vel", "--duration", "3",
+                                     "-o", "-", "-q"], stdout=stdout, stderr=subprocess.PIPE, text=True, env=env, timeout=120)
     finally:
         stop(teleop, robot)
     assert result.returncode == 0, result.stderr
