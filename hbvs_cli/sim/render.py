@@ -203,7 +203,8 @@ class SceneRenderer:
         pad = int(np.ceil(3.0 * self.settings.blur_sigma))
         grown = _clipped((x0 - pad, y0 - pad, x1 + pad, y1 + pad), self._size)
         gx0, gy0, gx1, gy1 = grown
-        if poster_box is None or not _overlap(poster_box, grown):
+        # No pixel of the poster's box in the grown window (both end-exclusive): the wall alone.
+        if poster_box is None or not (poster_box[0] < gx1 and gx0 < poster_box[2] and poster_box[1] < gy1 and gy0 < poster_box[3]):
             return self._wall[y0:y1, x0:x1]
         return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
@@ -299,11 +300,6 @@ def _clipped(window: Window, size: tuple[int, int]) -> Window:
     height, width = size
     x0, y0, x1, y1 = window
     return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
-
-
-def _overlap(a: Window, b: Window) -> bool:
-    """True when two end-exclusive windows share a pixel."""
-    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:
