@@ -50,7 +50,7 @@ from . import live
 from .live import LostWatch
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
-from .options import parse_interval, parse_offset, parse_time_and_factor
+from .options import parse_interval, parse_offset, parse_pair
 from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
 
 @dataclass(frozen=True)
@@ -259,7 +259,8 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         perception=settings.perception, pixel_noise=settings.pixel_noise, seed=options.seed,
         occlusions=tuple(parse_interval(text, "--occlude") for text in options.occlude),
         drop_rate=options.drop_rate, outlier_rate=options.outlier_rate,
-        exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
+        exposure_step=None if options.exposure_step is None else parse_pair(
+            options.exposure_step, "--exposure-step", "T:FACTOR", "(s, factor)", "T >= 0 and FACTOR > 0", lambda at, gain: at >= 0 and gain > 0),
         record_images=options.record_images,
     )
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
