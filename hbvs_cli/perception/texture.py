@@ -207,7 +207,7 @@ class TextureDetector:
                                                     min_correlation, settle_px=SETTLE_PX)
             if refined is None:
                 return None, correlation
-            # Shading moved the alignment: how far (px, the largest) the two homographies put the points apart.
+            # How far (px, the largest) the shaded alignment moved the points from the start: far, it is aligned again.
             moved = np.max(np.linalg.norm(transfer(refined, points) - transfer(start, points), axis=1)) if shaded is not None else 0.0
             if moved > SHADING_PLACEMENT_PX:
                 refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)

@@ -318,7 +318,7 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
         camera=camera,
         reference_index=reference_index,
         reference_t=float(arrays["t"][reference_index]),
-        # The fit's own results, under the model's names for them.
+        # What the model keeps of the fit's results under the same names.
         **{name: getattr(result, name) for name in ("reference_pixels", "m_ref", "normal", "normal_margin", "trajectory", "residual_px")},
         dhat0=dhat0,
         dhat0_source=dhat0_source,
