@@ -312,15 +312,11 @@ def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float
 
 
 def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image."""
-    height, width = size
-    x0 = max(int(np.floor(points[:, 0].min())) - pad, 0)
-    y0 = max(int(np.floor(points[:, 1].min())) - pad, 0)
-    x1 = min(int(np.ceil(points[:, 0].max())) + pad + 1, width)
-    y1 = min(int(np.ceil(points[:, 1].max())) + pad + 1, height)
-    if x0 >= x1 or y0 >= y1:
-        return None
-    return x0, y0, x1, y1
+    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image
+    (:func:`_clipped`); None when nothing of it is in the image."""
+    low, high = np.floor(points.min(axis=0)) - pad, np.ceil(points.max(axis=0)) + pad + 1
+    x0, y0, x1, y1 = _clipped((low[0], low[1], high[0], high[1]), size)
+    return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
 
 
 def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:
