@@ -444,10 +444,12 @@ def video_fit(pipeline_dir):
         folder.mkdir(exist_ok=True)
         teach_from_rendered_video(folder, seed=1)[0].rename(path)
 
+    from oracles import target_size
+
     world, profile, start, times, _ = rendered_s_curve(1)
     teach_path = shared_recording(pipeline_dir, "video-teach.mcap", teach)
     fit_path = shared_recording(pipeline_dir, "video-fit.mcap",
-                                lambda path: make_fit(teach_path, path, target_size=world.target.size))
+                                lambda path: make_fit(teach_path, path, target_size=target_size(world)))
     return teach_path, fit_path, world, profile, start, times
 
 

@@ -86,6 +86,12 @@ def ground_truth(world: World, pose: ArrayLike, reference_pose: ArrayLike) -> tu
     return theta, x_f[..., :2] / d_star
 
 
+def target_size(world: World) -> float:
+    """Largest distance between two of the ``world``'s target points (m): the target's metric size."""
+    p = world.target.points_world
+    return float(np.max(np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)))
+
+
 def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observation:
     """The estimator's observation of normalised points of shape (N, 3) (no pixels, no lens)."""
     m = np.asarray(m, dtype=float)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hbvs_cli.io.fit_file import read_fit_file
+from oracles import target_size
 
 from conftest import (
     SAMPLES,
@@ -162,7 +163,7 @@ def test_fit_of_a_ros2_bag_agrees_with_the_truth(video_fit, tmp_path):
     assert len(stored) == 600 and {image.format for image in stored} == {"jpeg"}
     write_bag(tmp_path / "bag", [image.data for image in stored])
     teach = make_teach(tmp_path / "bag.mcap", bag=tmp_path / "bag")
-    make_fit(teach, tmp_path / "fit.mcap", target_size=world.target.size)
+    make_fit(teach, tmp_path / "fit.mcap", target_size=target_size(world))
     model = read_fit_file(tmp_path / "fit.mcap").model
     errors = errors_against_drive(model, world, profile, start, times)
     assert errors["theta_deg"] < 0.05

@@ -81,12 +81,6 @@ def _root(
 INPUT_OPTIONS = ("input", "runs", "fit")
 
 
-def _reads_stdin(values: dict[str, Any]) -> bool:
-    """Whether a stage's options name ``-`` (stdin) as an input."""
-    return any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value)
-               for value in map(values.get, INPUT_OPTIONS))
-
-
 def _stdin_is_an_empty_pipe() -> bool:
     """True when stdin is a pipe closed before its first byte (read without consuming it):
     what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
@@ -103,7 +97,8 @@ def _stdin_is_an_empty_pipe() -> bool:
 def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
     """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code.
     A stage whose stdin input is an empty pipe stops with :class:`UpstreamFailedError` (one error line per pipeline)."""
-    if _reads_stdin(values) and _stdin_is_an_empty_pipe():
+    reads_stdin = any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value) for value in map(values.get, INPUT_OPTIONS))
+    if reads_stdin and _stdin_is_an_empty_pipe():
         raise UpstreamFailedError("stdin: the pipe closed without data: the command before this one failed")
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)

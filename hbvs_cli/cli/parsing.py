@@ -69,8 +69,7 @@ class HbvsGroup(TyperGroup):
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
         command = super().get_command(ctx, cmd_name)
-        option = command.get_help_option(ctx) if command is not None else None
-        if option is not None:
+        if command is not None and (option := command.get_help_option(ctx)) is not None:
             label_parameters([option])
         return command
 

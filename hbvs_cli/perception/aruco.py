@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
-from ..core.plane import UNIT_SQUARE, KnownShape
+from ..core.plane import UNIT_SQUARE
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
@@ -397,16 +397,12 @@ def _markers(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, 
     return markers
 
 
-def _marker_squares(spec: DetectorSpec) -> list[KnownShape]:
-    """Each marker's four corners (OpenCV's order) are a square."""
-    return [(range(k, k + 4), UNIT_SQUARE) for k in range(0, int(spec.n_points or 0), 4)]
-
-
 # Corners located from edges: a bias of half the point noise, alike over nearby frames, not
 # correlated over frames otherwise; theta_d 0.35 deg and x_hd1 5e-3 (bench/CALIBRATION.md).
-# --target-size is a marker's side: corners 0 (TL) to 1 (TR).
+# --target-size is a marker's side: corners 0 (TL) to 1 (TR). Each marker's four corners (OpenCV's order) are a square.
 register_target_kind(TargetKind(
     name="aruco", spec=_markers_spec, make=_markers, complete=_with_marker,
     errors=DetectorErrors("aruco", bias_fraction=0.5, correlated=False, expected_precision=(0.35, 5e-3)), precision_scale=17.7,
-    shapes=_marker_squares, size_pair=lambda spec, m_ref, normal: ((0, 1), 1.0), options=frozenset({"marker_dict", "marker_id"}),
+    shapes=lambda spec: [(range(k, k + 4), UNIT_SQUARE) for k in range(0, int(spec.n_points or 0), 4)],
+    size_pair=lambda spec, m_ref, normal: ((0, 1), 1.0), options=frozenset({"marker_dict", "marker_id"}),
 ))

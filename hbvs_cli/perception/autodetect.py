@@ -253,10 +253,6 @@ class Candidates:
     ruled_out: list[str]
     aside: str = ""
 
-    def none_found(self) -> str:
-        """"; no markers (...) and no ..." for the kinds looked for and not found, or ""."""
-        return f"; no {' and no '.join(self.ruled_out)}" if self.ruled_out else ""
-
 
 def is_own_print(candidate: TargetChoice, texture: TargetChoice) -> bool:
     """Whether the matched ``texture`` is ``candidate``'s own print (then set aside): the

@@ -88,11 +88,7 @@ class CharucoGeometry:
 @lru_cache(maxsize=None)
 def _layout(squares: tuple[int, int], legacy: bool) -> dict[int, NDArray[np.float64]]:
     """Each marker's centre (squares) on a board of ``squares``, by id (any dictionary's)."""
-    return _marker_centres(CharucoGeometry(squares, "DICT_4X4_1000", 0.5, legacy).board())
-
-
-def _marker_centres(board: cv2.aruco.CharucoBoard) -> dict[int, NDArray[np.float64]]:
-    """Each marker's centre on the board (squares), by id."""
+    board = CharucoGeometry(squares, "DICT_4X4_1000", 0.5, legacy).board()
     return {int(i): np.asarray(points, float).reshape(4, 3)[:, :2].mean(axis=0) for i, points in zip(np.ravel(board.getIds()), board.getObjPoints())}
 
 

@@ -19,7 +19,6 @@ from numpy.typing import NDArray
 
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
-from ..core.plane import KnownShape
 from ..errors import InputError, UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
@@ -344,14 +343,11 @@ def _chessboard(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: in
     return ChessboardDetector(spec.board)
 
 
-def _chessboard_grid(spec: DetectorSpec) -> list[KnownShape]:
-    return [(range(int(spec.n_points or 0)), board_layout(spec.board))] if spec.board is not None else []
-
-
 # Saddle corners: a bias of 1.25 point noise (1 gave 92.8 % coverage; bench/CALIBRATION.md),
 # correlated over frames; theta_d 0.35 deg and x_hd1 5e-3.
 register_target_kind(TargetKind(
     name="chessboard", spec=_chessboard_spec, make=_chessboard,
-    errors=DetectorErrors("chessboard", bias_fraction=1.25, expected_precision=(0.35, 5e-3)), precision_scale=10.4, shapes=_chessboard_grid,
+    errors=DetectorErrors("chessboard", bias_fraction=1.25, expected_precision=(0.35, 5e-3)), precision_scale=10.4,
+    shapes=lambda spec: [(range(int(spec.n_points or 0)), board_layout(spec.board))] if spec.board is not None else [],
     size_pair=lambda spec, m_ref, normal: board_diagonal(*(spec.board or (m_ref.shape[0], 1))),
 ))

@@ -193,13 +193,12 @@ def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
     return replace(spec, n_points=count)
 
 
-def _dots(spec: DetectorSpec, template: np.ndarray | None, seed: int, windowed: bool) -> DotDetector:
-    return (WindowedDotDetector if windowed else DotDetector)(int(spec.n_points), polarity=spec.polarity or "dark", contrast=spec.contrast or "gray")
-
-
 # Round dots: no edge bias; theta_d 0.1 deg and x_hd1 2e-3 (the perception bounds); the
 # saturated ones' shared pull (bloom) is measured over the drive.
 register_target_kind(TargetKind(
-    name="dots", spec=_dots_spec, make=_dots, complete=_counted, errors=DetectorErrors("dots", expected_precision=(0.1, 2e-3)),
+    name="dots", spec=_dots_spec, complete=_counted,
+    make=lambda spec, template, seed, windowed: (WindowedDotDetector if windowed else DotDetector)(
+        int(spec.n_points), polarity=spec.polarity or "dark", contrast=spec.contrast or "gray"),
+    errors=DetectorErrors("dots", expected_precision=(0.1, 2e-3)),
     precision_scale=10.3, image_shift=lambda spec: SharedPull(spec.polarity or "dark", spec.contrast or "gray"),
 ))

@@ -89,10 +89,9 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
             pad = size
             extended = np.pad(small.astype(np.float32), pad, mode="reflect", reflect_type="odd")
             closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[pad:-pad, pad:-pad]
-            ground = cv2.resize(cv2.max(closed, 1.0), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
         else:
-            ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
-            ground = cv2.resize(cv2.max(ground, 1), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+            closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
+        ground = cv2.resize(cv2.max(closed, 1.0), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     return cv2.divide(gray.astype(np.float32), ground, scale=255.0)
 
 

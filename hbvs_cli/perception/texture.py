@@ -207,7 +207,9 @@ class TextureDetector:
                                                     min_correlation, settle_px=SETTLE_PX)
             if refined is None:
                 return None, correlation
-            if shaded is not None and _largest_move(start, refined, points) > SHADING_PLACEMENT_PX:
+            # How far (px, the largest) the shaded alignment moved the points from the start: far, it is aligned again.
+            moved = np.max(np.linalg.norm(transfer(refined, points) - transfer(start, points), axis=1)) if shaded is not None else 0.0
+            if moved > SHADING_PLACEMENT_PX:
                 refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
         aligned = _shift(fx0, fy0) @ refined @ _shift(-x0, -y0)
         return aligned / aligned[2, 2], correlation
@@ -449,11 +451,6 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
 def _shift(x: float, y: float) -> NDArray[np.float64]:
     """The homography that moves pixels by ``(x, y)``."""
     return np.array([[1.0, 0.0, x], [0.0, 1.0, y], [0.0, 0.0, 1.0]])
-
-
-def _largest_move(before: NDArray[np.float64], after: NDArray[np.float64], points: NDArray[np.float64]) -> float:
-    """How far (px, the largest) two homographies put ``points`` apart."""
-    return float(np.max(np.linalg.norm(transfer(after, points) - transfer(before, points), axis=1)))
 
 
 def _plausible(homography: NDArray[np.float64], reference_pixels: NDArray[np.float64], shape: tuple[int, int]) -> bool:

@@ -19,7 +19,6 @@ from ..core.simulator import NOT_YET, ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
 from ..core.unicycle import integrate_unicycle
-from ..errors import InvalidValueError
 from .simulated_camera import SimulatedCamera
 from .scene import Scene
 
@@ -33,10 +32,7 @@ class SimulatedRobot:
 
     def __init__(self, sense: SenseFunction, trajectory: DesiredTrajectory, start_pose: ArrayLike, dt: float, duration: float,
                  latency_steps: int = 0) -> None:
-        if dt <= 0.0 or not np.isfinite(dt):
-            raise InvalidValueError(f"the control period must be positive, got {dt}")
-        if latency_steps < 0:
-            raise InvalidValueError("--latency must be zero or a positive number of frames")
+        # dt is 1 / --rate and latency_steps --latency, both checked as they were read (repeat's resolve_settings).
         self.sense, self.trajectory, self.dt, self.latency_steps = sense, trajectory, dt, latency_steps
         self.pose = tuple(float(v) for v in np.asarray(start_pose, dtype=float))
         self.steps = int(round(duration / dt))

@@ -46,13 +46,11 @@ class PosterRaster:
     height: float
 
     @classmethod
-    def from_target(cls, target: Target, texture: NDArray | None = None, ppm: float = DEFAULT_PPM) -> "PosterRaster":
-        """Draw the poster of ``target``; ``texture`` (kind "texture" only): a loaded image
-        stretched over it (None: the built-in pattern). InputError for an unusable texture,
-        UsageError for a non-positive ``ppm`` (px/m) or a degenerate poster."""
-        if not np.isfinite(ppm) or ppm <= 0:
-            raise UsageError(f"the poster resolution must be positive, got {ppm!r} px/m")
-        poster = target.poster
+    def from_target(cls, target: Target, texture: NDArray | None = None) -> "PosterRaster":
+        """Draw the poster of ``target`` at :data:`DEFAULT_PPM`; ``texture`` (kind "texture" only): a
+        loaded image stretched over it (None: the built-in pattern). InputError for an unusable
+        texture, UsageError for a degenerate poster."""
+        poster, ppm = target.poster, DEFAULT_PPM
         size = (int(round(poster.height * ppm)), int(round(poster.width * ppm)))
         if min(size) < 2:
             raise UsageError(f"a {poster.width} m x {poster.height} m poster at {ppm} px/m is too small to draw")

@@ -203,7 +203,8 @@ class SceneRenderer:
         pad = int(np.ceil(3.0 * self.settings.blur_sigma))
         grown = _clipped((x0 - pad, y0 - pad, x1 + pad, y1 + pad), self._size)
         gx0, gy0, gx1, gy1 = grown
-        if poster_box is None or not _overlap(poster_box, grown):
+        # No pixel of the poster's box in the grown window (both end-exclusive): the wall alone.
+        if poster_box is None or not (poster_box[0] < gx1 and gx0 < poster_box[2] and poster_box[1] < gy1 and gy0 < poster_box[3]):
             return self._wall[y0:y1, x0:x1]
         return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
@@ -301,11 +302,6 @@ def _clipped(window: Window, size: tuple[int, int]) -> Window:
     return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
 
 
-def _overlap(a: Window, b: Window) -> bool:
-    """True when two end-exclusive windows share a pixel."""
-    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
-
-
 def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:
     """True when all ``points`` lie within the image grown by ``slack`` of its size on each side."""
     height, width = size
@@ -316,15 +312,11 @@ def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float
 
 
 def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image."""
-    height, width = size
-    x0 = max(int(np.floor(points[:, 0].min())) - pad, 0)
-    y0 = max(int(np.floor(points[:, 1].min())) - pad, 0)
-    x1 = min(int(np.ceil(points[:, 0].max())) + pad + 1, width)
-    y1 = min(int(np.ceil(points[:, 1].max())) + pad + 1, height)
-    if x0 >= x1 or y0 >= y1:
-        return None
-    return x0, y0, x1, y1
+    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image
+    (:func:`_clipped`); None when nothing of it is in the image."""
+    low, high = np.floor(points.min(axis=0)) - pad, np.ceil(points.max(axis=0)) + pad + 1
+    x0, y0, x1, y1 = _clipped((low[0], low[1], high[0], high[1]), size)
+    return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
 
 
 def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:

@@ -201,9 +201,6 @@ class RouteRenderer(SceneRenderer):
             np.copyto(frame, alone, where=alone != self._background)
         return frame
 
-    def render_windows(self, pose: ArrayLike, rng: np.random.Generator, windows: Any, exposure_gain: float | None = None) -> NDArray[np.uint8]:
-        raise InvalidValueError("a route's frames are rendered whole (windowed rendering follows one target)")
-
 
 def _route_texture(world: World) -> NDArray[np.uint8] | None:
     """The picture of a route's target: the turned built-in photograph, else as a single target's."""

@@ -66,9 +66,8 @@ class SimulatedCamera:
         self.settings = settings
         self.estimator = estimator
         # The world's target points in the fit's order (as its detector first saw them).
-        self.identity = point_identity(scene.world.pixels(scene.reference_pose), model.reference_pixels)
+        self._identity = [int(i) for i in point_identity(scene.world.pixels(scene.reference_pose), model.reference_pixels)]
         self._points_world = [tuple(float(v) for v in point) for point in scene.world.target.points_world]
-        self._identity = [int(i) for i in self.identity]
         self._camera_height = float(scene.world.camera_height)
         self.noise_rng = np.random.default_rng(settings.seed)
         self.fault_rng = np.random.default_rng([settings.seed, 1])
@@ -92,9 +91,7 @@ class SimulatedCamera:
 
     def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
         world = self.scene.world
-        if self._occluded(t):
-            return Observation(None, status=ObservationStatus.OCCLUDED)
-        pixels = self._project(pose)
+        pixels = None if self._occluded(t) else self._project(pose)
         if pixels is None:
             return Observation(None, status=ObservationStatus.OCCLUDED)
         pixels = distort_pixels(world.camera, pixels)
@@ -108,7 +105,8 @@ class SimulatedCamera:
         return self.estimator.from_pixels(pixels)
 
     def _observe_image(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
-        gain = self.settings_exposure(t)
+        step = self.settings.exposure_step  # (t, gain): the gain from t (s) on
+        gain = step[1] if step is not None and t >= step[0] else None
         blob = self._spurious_blob(pose) if outlier else None
         # Tracked dots are looked for in small windows, all that is rendered; failing that, the whole frame.
         windows = self.detector.search_windows()
@@ -155,7 +153,7 @@ class SimulatedCamera:
             if forward <= 0.05:
                 return None
             in_camera.append((forward, -s * dx + c * dy, pz - height))
-        pixels = np.empty((len(self.identity), 2))
+        pixels = np.empty((len(self._identity), 2))
         width, rows = camera.width - 1, camera.height - 1
         for row, index in enumerate(self._identity):
             forward, left, up = in_camera[index]
@@ -165,10 +163,6 @@ class SimulatedCamera:
                 return None
             pixels[row, 0], pixels[row, 1] = u, v
         return pixels
-
-    def settings_exposure(self, t: float) -> float | None:
-        step = self.settings.exposure_step  # (t, gain): the gain from t (s) on
-        return step[1] if step is not None and t >= step[0] else None
 
     def _cover_target(self, image: np.ndarray, pose: np.ndarray) -> None:
         """An occluder (a person walking by) in front of the whole poster, and 4 px around it."""

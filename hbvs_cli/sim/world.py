@@ -68,12 +68,6 @@ class Target:
         """Target points in W, shape (N, 3)."""
         return self.poster.to_world(self.points_poster)
 
-    @property
-    def size(self) -> float:
-        """Largest distance between two target points (m): the metric size of the target."""
-        p = self.points_world
-        return float(np.max(np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)))
-
 
 #: The ArUco dictionary of simulated markers (OpenCV's DICT_4X4_50).
 ARUCO_DICTIONARY = "DICT_4X4_50"

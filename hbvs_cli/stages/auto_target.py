@@ -151,8 +151,9 @@ def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) ->
                          f"{'; '.join(figures(j) for j in judged)}. Choose one with --target {'|'.join(TARGET_KINDS)}")
     best = usable[0]
     others = "".join(f" vs {figures(j)}" for j in judged if j is not best)
+    none_found = f"; no {' and no '.join(candidates.ruled_out)}" if candidates.ruled_out else ""  # the kinds looked for, not found
     reason = (f"{best.choice.reason}; followed over {frames} frames of the whole drive, a short joint estimate on up to {JUDGE_FRAMES} "
-              f"of them gives theta_d a sigma of {figures(best).split(' ', 1)[1]}{others}{candidates.aside}{candidates.none_found()}")
+              f"of them gives theta_d a sigma of {figures(best).split(' ', 1)[1]}{others}{candidates.aside}{none_found}")
     return best, reason
 
 

@@ -325,14 +325,6 @@ class LiveStats:
         self.latencies.append(latency)
         self.dropped += skipped
 
-    def frame_rate(self) -> float:
-        if len(self.arrivals) < 2 or self.arrivals[-1] <= self.arrivals[0]:
-            return math.nan
-        return (len(self.arrivals) - 1) / (self.arrivals[-1] - self.arrivals[0])
-
-    def latency_p95(self) -> float:
-        return float(np.percentile(self.latencies, 95)) if self.latencies else math.nan
-
 
 def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str:
     """One line of at most 80 columns for a person watching the robot: run time, errors e1, e2, e3 (19),
@@ -340,8 +332,11 @@ def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str
     errors = record.output.errors if record.output is not None else None
     shown = (f"e {float(errors.e1):+.3f} {float(errors.e2):+.3f} {math.degrees(float(errors.e3)):+.2f}°"
              if errors is not None else f"{'target lost':<22}")
-    return (f"t {t:.1f}/{duration:.0f}s  {shown}  dhat {record.dhat:.2f}m  {stats.frame_rate():.0f}Hz  "
-            f"p95 {1e3 * stats.latency_p95():.0f}ms  drop {stats.dropped}")
+    arrivals = stats.arrivals
+    rate = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0]) if len(arrivals) >= 2 and arrivals[-1] > arrivals[0] else math.nan
+    p95 = float(np.percentile(stats.latencies, 95)) if stats.latencies else math.nan
+    return (f"t {t:.1f}/{duration:.0f}s  {shown}  dhat {record.dhat:.2f}m  {rate:.0f}Hz  "
+            f"p95 {1e3 * p95:.0f}ms  drop {stats.dropped}")
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..errors import UsageError
 
@@ -31,26 +31,21 @@ def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, flo
     return values[0], values[1], math.radians(values[2])
 
 
+def parse_pair(text: str, option: str, form: str, units: str, rule: str, holds: Callable[[float, float], bool]) -> tuple[float, float]:
+    """``A:B``: two finite numbers for which ``holds(a, b)``; UsageError otherwise, naming the
+    ``form`` (``START:END``), its ``units`` and the ``rule`` it breaks."""
+    try:
+        first, second = (float(p) for p in text.split(":"))
+    except ValueError:
+        raise UsageError(f"{option} must be {form} {units}, got {text!r}") from None
+    if not (math.isfinite(first) and math.isfinite(second) and holds(first, second)):
+        raise UsageError(f"{option} must be {form} with {rule}, got {text!r}")
+    return first, second
+
+
 def parse_interval(text: str, option: str) -> tuple[float, float]:
     """``START:END`` (s) with 0 <= START < END."""
-    try:
-        start, end = (float(p) for p in text.split(":"))
-    except ValueError:
-        raise UsageError(f"{option} must be START:END in seconds, got {text!r}") from None
-    if not (math.isfinite(start) and math.isfinite(end) and end > start >= 0):
-        raise UsageError(f"{option} must be START:END with 0 <= START < END, got {text!r}")
-    return start, end
-
-
-def parse_time_and_factor(text: str, option: str) -> tuple[float, float]:
-    """``T:FACTOR`` (s, positive factor)."""
-    try:
-        at, factor = (float(p) for p in text.split(":"))
-    except ValueError:
-        raise UsageError(f"{option} must be T:FACTOR (s, factor), got {text!r}") from None
-    if not (math.isfinite(at) and at >= 0 and math.isfinite(factor) and factor > 0):
-        raise UsageError(f"{option} must be T:FACTOR with T >= 0 and FACTOR > 0, got {text!r}")
-    return at, factor
+    return parse_pair(text, option, "START:END", "in seconds", "0 <= START < END", lambda start, end: end > start >= 0)
 
 
 def parse_assignment(text: str, option: str) -> tuple[str, float]:

@@ -50,7 +50,7 @@ from . import live
 from .live import LostWatch
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
-from .options import parse_interval, parse_offset, parse_time_and_factor
+from .options import parse_interval, parse_offset, parse_pair
 from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
 
 @dataclass(frozen=True)
@@ -184,14 +184,11 @@ class _StepLog:
         if record.saturated and not self.was_saturated:
             self.event(t, LOG_INFO, "command saturated by the actuator limits")
         self.was_saturated = record.saturated
+        # The run file's state, in its order of fields (the bytes depend on it).
         values = {
-            "x_h1": measurement.x_h1 if measurement else None,
-            "x_h2": measurement.x_h2 if measurement else None,
-            "theta": measurement.theta if measurement else None,
-            "x_hd1": desired.x_hd1, "x_hd2": desired.x_hd2, "theta_d": desired.theta_d,
-            "x_hd1_dot": desired.x_hd1_dot, "x_hd2_dot": desired.x_hd2_dot, "theta_d_dot": desired.theta_d_dot,
-            "e1": errors.e1 if errors else None, "e2": errors.e2 if errors else None,
-            "ebar2": errors.ebar2 if errors else None, "e3": errors.e3 if errors else None,
+            **{name: getattr(measurement, name) if measurement else None for name in ("x_h1", "x_h2", "theta")},
+            **{name: getattr(desired, name) for name in ("x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot")},
+            **{name: getattr(errors, name) if errors else None for name in ("e1", "e2", "ebar2", "e3")},
             "v_c": record.v_c, "w_c": record.w_c,
             "v_law": float(output.v_c) if output is not None else v_law,
             "w_law": float(output.w_c) if output is not None else w_law,
@@ -259,7 +256,8 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
         perception=settings.perception, pixel_noise=settings.pixel_noise, seed=options.seed,
         occlusions=tuple(parse_interval(text, "--occlude") for text in options.occlude),
         drop_rate=options.drop_rate, outlier_rate=options.outlier_rate,
-        exposure_step=None if options.exposure_step is None else parse_time_and_factor(options.exposure_step, "--exposure-step"),
+        exposure_step=None if options.exposure_step is None else parse_pair(
+            options.exposure_step, "--exposure-step", "T:FACTOR", "(s, factor)", "T >= 0 and FACTOR > 0", lambda at, gain: at >= 0 and gain > 0),
         record_images=options.record_images,
     )
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None

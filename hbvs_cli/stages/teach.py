@@ -244,7 +244,10 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     # Frames at t = 0, 1/fps, ... strictly before the end: 5 s at 30 fps is 150.
                     if options.duration is not None and frame.t >= options.duration - 1e-9:
                         break
-                    _check_frame_size(frame.image, camera, source)
+                    height, width = frame.image.shape[:2]
+                    if (width, height) != (camera.width, camera.height):
+                        raise InputError(f"{source.describe().get('path', 'source')}: frames are {width}x{height} but the calibration "
+                                         f"is for {camera.width}x{camera.height}; use the calibration of this camera and resolution")
                     encoded = frame.encoded if frame.format in ("png", "jpeg") else None
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
@@ -270,12 +273,3 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
         console.warn(f"teach: {bad_stamps} frames left out: their stamps were not newer than the last, or ran ahead of this "
                      "host's clock (a camera clock fault)")
     console.info(f"teach: {frames} frames ({last_t:.1f} s from {kind}){note} -> {options.output}")
-
-
-def _check_frame_size(image: np.ndarray, camera: CameraIntrinsics, source: sources.FrameSource) -> None:
-    height, width = image.shape[:2]
-    if (width, height) != (camera.width, camera.height):
-        raise InputError(
-            f"{source.describe().get('path', 'source')}: frames are {width}x{height} but the calibration is for "
-            f"{camera.width}x{camera.height}; use the calibration of this camera and resolution"
-        )
