@@ -25,12 +25,10 @@ MIN_REFERENCE_CONDITION = 1e-4
 
 @dataclass(frozen=True)
 class HomographyEstimate:
-    """``H`` (..., 3, 3) in the paper's axes and ``depth_ratios`` alpha_i (..., N), NaN where
-    ``valid`` (...) is False (non-finite input or a depth ratio <= 0); ``residual`` (...):
-    RMS transfer error (normalised units)."""
+    """``H`` (..., 3, 3) in the paper's axes, NaN where ``valid`` (...) is False (non-finite
+    input or a depth ratio alpha_i <= 0); ``residual`` (...): RMS transfer error (normalised units)."""
 
     H: NDArray[np.float64]
-    depth_ratios: NDArray[np.float64]
     valid: NDArray[np.bool_]
     residual: NDArray[np.float64]
 
@@ -98,8 +96,7 @@ def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyE
     H[..., 2, 2] = 1.0
     residual = _transfer_residual(H, m, m_ref)
     H[~valid] = np.nan
-    alpha = np.where(valid[..., None], alpha, np.nan)
-    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=np.where(valid, residual, np.nan))
+    return HomographyEstimate(H=H, valid=valid, residual=np.where(valid, residual, np.nan))
 
 
 def _transfer_residual(H: NDArray[np.float64], m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> NDArray[np.float64]:
