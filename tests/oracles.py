@@ -14,9 +14,11 @@ from hbvs_cli.core.controller import DesiredState, TrackingErrors
 from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
                                          select_branch, take_branch)
 from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
+from hbvs_cli.core.desired import DesiredFit, fit_desired_trajectory
 from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
+from hbvs_cli.core.route import RouteFit, estimate_transitions, split_route, view_spans
 from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
@@ -168,3 +170,26 @@ def run_closed_loop(sense, trajectory, controller, start_pose: ArrayLike, dt: fl
 def read_route_file(path) -> RouteFile:
     """The route of a fit file, as ``hbvs repeat`` reads it (:func:`~hbvs_cli.io.route_file.route_of`)."""
     return route_of(read_fit_file(str(path)), str(path))
+
+
+def fit_route(route: RouteWorld, t: ArrayLike, pixels: Sequence[ArrayLike], spans: ArrayLike) -> RouteFit:
+    """``route`` fitted as the fit stage does (stages/fit_route.py) from its taught views at the frame
+    times ``t`` (F,) (s) (:func:`taught_views`: ``pixels`` one (F, N_j, 2) per target, NaN where not
+    found, and their ``spans``): split into segments (:func:`~hbvs_cli.core.route.split_route`),
+    each fitted as a single-target drive (:func:`~hbvs_cli.core.desired.fit_desired_trajectory`,
+    Remark 1, n*_i and the uncertainty per segment, with its kind's detector errors) against F*_i at
+    the frame where its target appears largest, and each transition estimated from both fits' desired
+    signals over the overlap (:func:`~hbvs_cli.core.route.estimate_transitions`)."""
+    t = np.asarray(t, dtype=float)
+    segments = split_route(np.asarray(spans) >= MIN_SPAN_PX, spans)
+    fits: list[DesiredFit] = []
+    references: list[int] = []
+    for segment in segments:
+        frames = slice(segment.first, segment.last + 1)
+        target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
+        reference = segment.first + int(np.argmax(view_spans(target_pixels)))
+        errors = target_kind(route.worlds[segment.target].target.kind).errors
+        fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, route.camera, None,
+                                           max_lost=0.5, max_gap=5.0, warn=lambda message: None, errors=errors))
+        references.append(reference)
+    return RouteFit(list(segments), fits, references, estimate_transitions(t, segments, fits))
