@@ -54,15 +54,23 @@ def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float)
 
 
 def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR) -> PlanarMotion:
-    """(theta, x_h, n*) of each homography, the branch chosen by :func:`select_branch`."""
+    """(theta, x_h, n*) of each homography, the normal chosen by :func:`select_branch`. With H at the
+    scale sigma_2 = 1, ``R a = H a`` for the plane's directions a, b (orthonormal, ``a x b = n``), ``R n
+    = H a x H b`` and ``t = (H - R) n`` (12); a pure rotation takes the reference normal (t = 0 whatever n)."""
     m_ref = np.asarray(m_ref, dtype=float)
+    H = np.asarray(H, dtype=float)
+    H = H / np.linalg.svd(H, compute_uv=False)[..., 1, None, None]
     candidates = homography_candidates(H)
     index, valid = select_branch(candidates, m_ref, reference_normal)
-    R = take_branch(candidates.rotations, index)
-    t = take_branch(candidates.translations, index)
     n = take_branch(candidates.normals, index)
     pure_rotation = candidates.strength < PURE_ROTATION_TOLERANCE
     n = np.where(pure_rotation[..., None], np.broadcast_to(reference_normal, n.shape), n)
+    a = np.cross(n, np.eye(3)[np.argmin(np.abs(n), axis=-1)])
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.cross(n, a)
+    Ha, Hb = np.einsum("...ij,...j->...i", H, a), np.einsum("...ij,...j->...i", H, b)
+    R = np.stack([Ha, Hb, np.cross(Ha, Hb)], axis=-1) @ np.swapaxes(np.stack([a, b, n], axis=-1), -1, -2)
+    t = np.einsum("...ij,...j->...i", H - R, n)
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
