@@ -44,7 +44,8 @@ def test_least_squares_with_noise_has_small_residual_and_error(rng):
     scene = random_planar_scene(rng, 8, 50, tilted=False)
     noisy = scene["m"] + np.concatenate([np.zeros((50, 8, 1)), rng.normal(0, 1e-4, (50, 8, 2))], axis=-1)
     estimate = estimate_euclidean_homography(noisy, scene["m_ref"])
-    transfer_rms = np.sqrt(np.mean((transfer_points(estimate.H, scene["m_ref"])[..., 1:] - noisy[..., 1:]) ** 2, axis=(-1, -2)))
+    transferred = transfer_points(estimate.H, scene["m_ref"])
+    transfer_rms = np.sqrt(np.mean((transferred[..., 1:] - noisy[..., 1:]) ** 2, axis=(-1, -2)))
     assert np.all(transfer_rms < 5e-4)
     assert np.max(np.abs(estimate.H - scene["H"])) < 0.05
 
