@@ -22,16 +22,14 @@ from hbvs_cli.core.control_settings import ControllerGains
 from hbvs_cli.core.controller import AdaptiveTrackingController
 from hbvs_cli.core.frames import compose_planar_pose, wrap_angle
 from hbvs_cli.core.gains import noise_from_residual, suggest_gains
-from hbvs_cli.core.route import fit_route, split_route
 from hbvs_cli.core.simulator import ActuatorLimits
-from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.settings.commands import DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET
 from hbvs_cli.sim.route_loop import run_route, switch_times
-from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
+from hbvs_cli.sim.route_world import corridor_route
 from hbvs_cli.stages.options import parse_offset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the taught views are a test oracle
-from oracles import taught_views  # noqa: E402
+from oracles import fit_route, taught_views  # noqa: E402
 
 #: Taught frame period (s), control period (s), seconds either side of a switch, dhat(0) / d*_0,
 #: seconds after which the start offset's transient is over.
@@ -46,8 +44,7 @@ def corridor_run(teach_noise: float, pixel_noise: float, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     times = np.arange(0.0, route.profile.duration, TAUGHT_STEP)
     poses, spans, pixels = taught_views(route, times, teach_noise, rng)
-    fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5,
-                       max_gap=5.0, errors=[target_kind(w.target.kind).errors for w in route.worlds], warn=lambda message: None)
+    fitted = fit_route(route, times, pixels, spans)
     depths = np.array([route.worlds[s.target].reference_geometry(route.local_pose(s.target, poses[r]))[2]
                        for s, r in zip(fitted.segments, fitted.references)])
     noise = [noise_from_residual(fit.residual_px.rms, fit.m_ref.shape[0]) for fit in fitted.fits]

@@ -14,9 +14,11 @@ from hbvs_cli.core.controller import DesiredState, TrackingErrors
 from hbvs_cli.core.decomposition import (FACING_PRIOR, PURE_ROTATION_TOLERANCE, PlanarMotion, homography_candidates,
                                          select_branch, take_branch)
 from hbvs_cli.core.estimation import Observation, PlanarPoseEstimator
+from hbvs_cli.core.desired import DesiredFit, fit_desired_trajectory
 from hbvs_cli.core.fit_model import DetectorSpec
 from hbvs_cli.core.frames import wrap_angle
 from hbvs_cli.core.path import CommandProfile
+from hbvs_cli.core.route import RouteFit, estimate_transitions, split_route, view_spans
 from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
@@ -52,15 +54,23 @@ def predict_state(state: ArrayLike, v: float, w: float, dt: float, depth: float)
 
 
 def decompose_homography(H: ArrayLike, m_ref: ArrayLike, reference_normal: ArrayLike = FACING_PRIOR) -> PlanarMotion:
-    """(theta, x_h, n*) of each homography, the branch chosen by :func:`select_branch`."""
+    """(theta, x_h, n*) of each homography, the normal chosen by :func:`select_branch`. With H at the
+    scale sigma_2 = 1, ``R a = H a`` for the plane's directions a, b (orthonormal, ``a x b = n``), ``R n
+    = H a x H b`` and ``t = (H - R) n`` (12); a pure rotation takes the reference normal (t = 0 whatever n)."""
     m_ref = np.asarray(m_ref, dtype=float)
+    H = np.asarray(H, dtype=float)
+    H = H / np.linalg.svd(H, compute_uv=False)[..., 1, None, None]
     candidates = homography_candidates(H)
     index, valid = select_branch(candidates, m_ref, reference_normal)
-    R = take_branch(candidates.rotations, index)
-    t = take_branch(candidates.translations, index)
     n = take_branch(candidates.normals, index)
     pure_rotation = candidates.strength < PURE_ROTATION_TOLERANCE
     n = np.where(pure_rotation[..., None], np.broadcast_to(reference_normal, n.shape), n)
+    a = np.cross(n, np.eye(3)[np.argmin(np.abs(n), axis=-1)])
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.cross(n, a)
+    Ha, Hb = np.einsum("...ij,...j->...i", H, a), np.einsum("...ij,...j->...i", H, b)
+    R = np.stack([Ha, Hb, np.cross(Ha, Hb)], axis=-1) @ np.swapaxes(np.stack([a, b, n], axis=-1), -1, -2)
+    t = np.einsum("...ij,...j->...i", H - R, n)
     theta = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     planarity = np.abs(t[..., 2]) + np.abs(1.0 - R[..., 2, 2])
     return PlanarMotion(theta=theta, x_h=t[..., :2], normal=n, valid=valid, residual=planarity)
@@ -174,3 +184,26 @@ def run_closed_loop(sense, trajectory, controller, start_pose: ArrayLike, dt: fl
 def read_route_file(path) -> RouteFile:
     """The route of a fit file, as ``hbvs repeat`` reads it (:func:`~hbvs_cli.io.route_file.route_of`)."""
     return route_of(read_fit_file(str(path)), str(path))
+
+
+def fit_route(route: RouteWorld, t: ArrayLike, pixels: Sequence[ArrayLike], spans: ArrayLike) -> RouteFit:
+    """``route`` fitted as the fit stage does (stages/fit_route.py) from its taught views at the frame
+    times ``t`` (F,) (s) (:func:`taught_views`: ``pixels`` one (F, N_j, 2) per target, NaN where not
+    found, and their ``spans``): split into segments (:func:`~hbvs_cli.core.route.split_route`),
+    each fitted as a single-target drive (:func:`~hbvs_cli.core.desired.fit_desired_trajectory`,
+    Remark 1, n*_i and the uncertainty per segment, with its kind's detector errors) against F*_i at
+    the frame where its target appears largest, and each transition estimated from both fits' desired
+    signals over the overlap (:func:`~hbvs_cli.core.route.estimate_transitions`)."""
+    t = np.asarray(t, dtype=float)
+    segments = split_route(np.asarray(spans) >= MIN_SPAN_PX, spans)
+    fits: list[DesiredFit] = []
+    references: list[int] = []
+    for segment in segments:
+        frames = slice(segment.first, segment.last + 1)
+        target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
+        reference = segment.first + int(np.argmax(view_spans(target_pixels)))
+        errors = target_kind(route.worlds[segment.target].target.kind).errors
+        fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, route.camera, None,
+                                           max_lost=0.5, max_gap=5.0, warn=lambda message: None, errors=errors))
+        references.append(reference)
+    return RouteFit(list(segments), fits, references, estimate_transitions(t, segments, fits))

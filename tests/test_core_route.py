@@ -7,13 +7,12 @@ import numpy as np
 import pytest
 
 from hbvs_cli.core.frames import wrap_angle
-from hbvs_cli.core.route import Segment, bridge_brief_gaps, estimate_transition, fit_route, split_route
+from hbvs_cli.core.route import Segment, bridge_brief_gaps, estimate_transition, split_route
 from hbvs_cli.errors import MalformedDataError
-from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
 
 from conftest import campaign_extent
-from oracles import ground_truth, taught_views
+from oracles import fit_route, ground_truth, taught_views
 
 #: Frame rate (Hz) at which the corridor is sampled here.
 RATE = 10.0
@@ -210,8 +209,7 @@ def fitted_corridor(noise_px: float, seed: int):
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, 0.2)
     poses, spans, pixels = taught_views(route, times, noise_px, np.random.default_rng(seed))
-    fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
-                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
+    fitted = fit_route(route, times, pixels, spans)
     return route, times, poses, fitted
 
 

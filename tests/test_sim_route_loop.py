@@ -10,15 +10,13 @@ from hbvs_cli.core.control_settings import ControllerGains
 from hbvs_cli.core.controller import AdaptiveTrackingController
 from hbvs_cli.core.frames import compose_planar_pose, wrap_angle
 from hbvs_cli.core.gains import noise_from_residual, suggest_gains
-from hbvs_cli.core.route import fit_route, split_route
 from hbvs_cli.core.simulator import ActuatorLimits
-from hbvs_cli.perception.target_kinds import target_kind
 from hbvs_cli.settings.commands import DEFAULT_MAX_V, DEFAULT_MAX_W, DEFAULT_OFFSET
-from hbvs_cli.sim.route_world import MIN_SPAN_PX, corridor_route
+from hbvs_cli.sim.route_world import corridor_route
 from hbvs_cli.sim.route_loop import RouteTrajectory, run_route, switch_times
 from hbvs_cli.stages.options import parse_offset
 
-from oracles import taught_views
+from oracles import fit_route, taught_views
 
 #: The taught frames' period (s) and the control period (s).
 TAUGHT_STEP = 0.4
@@ -31,8 +29,7 @@ def exact_corridor():
     route = corridor_route()
     times = np.arange(0.0, route.profile.duration, TAUGHT_STEP)
     poses, spans, pixels = taught_views(route, times)
-    fitted = fit_route(times, pixels, split_route(spans >= MIN_SPAN_PX, spans), route.camera, None, max_lost=0.5, max_gap=5.0,
-                       errors=[target_kind(world.target.kind).errors for world in route.worlds], warn=lambda message: None)
+    fitted = fit_route(route, times, pixels, spans)
     depths = [route.worlds[s.target].reference_geometry(route.local_pose(s.target, poses[r]))[2]
               for s, r in zip(fitted.segments, fitted.references)]
     return route, times, fitted, np.array(depths)

@@ -21,12 +21,11 @@ PURE_ROTATION_TOLERANCE = 1e-9
 
 @dataclass(frozen=True)
 class HomographyCandidates:
-    """The four decompositions ``H = R + t n^T`` of each homography: ``rotations`` (..., 4, 3, 3),
-    ``translations`` x_h (14) and unit ``normals`` in F* (..., 4, 3; NaN for a pure rotation);
-    ``strength`` (...): sigma_1 - sigma_3 of the scaled H, how well t and n are determined."""
+    """The unit ``normals`` n in F* (..., 4, 3; NaN for a pure rotation) of the four decompositions
+    ``H = R + t n^T`` of each homography; ``strength`` (...): sigma_1 - sigma_3 of the scaled H, how
+    well t and n are determined. The plane's normal is all the fit takes from them; the tests'
+    oracle (tests/oracles.py) rebuilds R and t from it."""
 
-    rotations: NDArray[np.float64]
-    translations: NDArray[np.float64]
     normals: NDArray[np.float64]
     strength: NDArray[np.float64]
 
@@ -45,7 +44,7 @@ class PlanarMotion:
 
 
 def homography_candidates(H: ArrayLike) -> HomographyCandidates:
-    """All four decompositions of homographies ``H`` (..., 3, 3) of any positive scale.
+    """The normals of all four decompositions of homographies ``H`` (..., 3, 3) of any positive scale.
 
     Ma, Soatto, Kosecka and Sastry, *An Invitation to 3-D Vision*, Sec. 5.3: with ``H^T H =
     V diag(s1^2, 1, s3^2) V^T``, ``u = (sqrt(1 - s3^2) v1 +- sqrt(s1^2 - 1) v3) / sqrt(s1^2 - s3^2)``
@@ -72,28 +71,9 @@ def homography_candidates(H: ArrayLike) -> HomographyCandidates:
     b = np.sqrt(np.clip(s1_sq - 1.0, 0.0, None))[..., None]
     u1 = (a * v1 + b * v3) / safe_spread
     u2 = (a * v1 - b * v3) / safe_spread
-
-    rotations, translations, normals = [], [], []
-    for u in (u1, u2):
-        U = np.stack([v2, u, np.cross(v2, u)], axis=-1)
-        Hv2 = np.einsum("...ij,...j->...i", H, v2)
-        Hu = np.einsum("...ij,...j->...i", H, u)
-        W = np.stack([Hv2, Hu, np.cross(Hv2, Hu)], axis=-1)
-        R = W @ np.swapaxes(U, -1, -2)
-        n = np.cross(v2, u)
-        t = np.einsum("...ij,...j->...i", H - R, n)
-        rotations += [R, R]
-        translations += [t, -t]
-        normals += [n, -n]
-    rotations_arr = np.stack(rotations, axis=-3)
-    translations_arr = np.stack(translations, axis=-2)
-    normals_arr = np.stack(normals, axis=-2)
-    if np.any(pure_rotation):
-        # No translation: R is H itself and the normal is undefined.
-        rotations_arr[pure_rotation] = H[pure_rotation][:, None, :, :]
-        translations_arr[pure_rotation] = 0.0
-        normals_arr[pure_rotation] = np.nan
-    return HomographyCandidates(rotations=rotations_arr, translations=translations_arr, normals=normals_arr, strength=strength)
+    normals = np.stack([sign * np.cross(v2, u) for u in (u1, u2) for sign in (1.0, -1.0)], axis=-2)
+    normals[pure_rotation] = np.nan  # no translation: the normal is undefined
+    return HomographyCandidates(normals=normals, strength=strength)
 
 
 def front_facing(candidates: HomographyCandidates, m_ref: NDArray[np.float64]) -> NDArray[np.bool_]:

@@ -25,14 +25,11 @@ MIN_REFERENCE_CONDITION = 1e-4
 
 @dataclass(frozen=True)
 class HomographyEstimate:
-    """``H`` (..., 3, 3) in the paper's axes and ``depth_ratios`` alpha_i (..., N), NaN where
-    ``valid`` (...) is False (non-finite input or a depth ratio <= 0); ``residual`` (...):
-    RMS transfer error (normalised units)."""
+    """``H`` (..., 3, 3) in the paper's axes, NaN where ``valid`` (...) is False (non-finite
+    input or a depth ratio alpha_i <= 0)."""
 
     H: NDArray[np.float64]
-    depth_ratios: NDArray[np.float64]
     valid: NDArray[np.bool_]
-    residual: NDArray[np.float64]
 
 
 def validate_reference_points(m_ref: ArrayLike) -> NDArray[np.float64]:
@@ -96,18 +93,8 @@ def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyE
     H = np.zeros(m.shape[:-2] + (3, 3))
     H[..., :2, :] = rows
     H[..., 2, 2] = 1.0
-    residual = _transfer_residual(H, m, m_ref)
     H[~valid] = np.nan
-    alpha = np.where(valid[..., None], alpha, np.nan)
-    return HomographyEstimate(H=H, depth_ratios=alpha, valid=valid, residual=np.where(valid, residual, np.nan))
-
-
-def _transfer_residual(H: NDArray[np.float64], m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> NDArray[np.float64]:
-    """RMS distance (normalised units) between measured points and the reference points
-    transferred through H."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        predicted = transfer_points(H, m_ref)
-        return np.sqrt(np.mean((predicted[..., 1:] - m[..., 1:]) ** 2, axis=(-1, -2)))
+    return HomographyEstimate(H=H, valid=valid)
 
 
 def transfer_points(H: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:

@@ -54,10 +54,6 @@ def register_law(spec: LawSpec) -> None:
     LAW_REGISTRY[spec.name] = spec
 
 
-def law_names() -> tuple[str, ...]:
-    return tuple(LAW_REGISTRY)
-
-
 def _law(name: str) -> LawSpec:
     if name not in LAW_REGISTRY:
         raise InvalidValueError(f"--law must be one of {', '.join(LAW_REGISTRY)}, got {name!r}")

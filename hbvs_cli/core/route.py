@@ -18,15 +18,14 @@ The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MalformedDataError
 from .bundle import correlation_inflation
-from .camera import CameraIntrinsics
-from .desired import DesiredFit, DetectorErrors, fit_desired_trajectory
+from .desired import DesiredFit
 from .frames import wrap_angle
 
 
@@ -218,43 +217,6 @@ class RouteFit:
     fits: list[DesiredFit]
     references: list[int]
     transitions: list[Transition]
-
-
-def fit_route(t: ArrayLike, pixels: Sequence[ArrayLike], segments: Sequence[Segment], camera: CameraIntrinsics,
-              smoothing: float | None, max_lost: float, max_gap: float, warn: Callable[[str], None] | None = None,
-              errors: Sequence[DetectorErrors] | None = None, first_reference: int | None = None) -> RouteFit:
-    """Each segment fitted as a single-target drive (:func:`~.desired.fit_desired_trajectory`,
-    Remark 1, n*_i and the uncertainty per segment) and each transition estimated from both
-    fits' desired signals over the overlap (:func:`estimate_transition`).
-
-    Parameters
-    ----------
-    t : array_like, shape (F,)
-        Frame times of the whole drive (s).
-    pixels : sequence of array_like, one (F, N_j, 2) per target
-        Each target's pixels in every frame of the drive (NaN where not found).
-    segments : sequence of Segment
-        From :func:`split_route`.
-    errors : sequence of DetectorErrors, optional
-        Each target's detector errors (its kind's, as perception registers them), for the uncertainty.
-    first_reference : int, optional
-        F* of the first segment (a frame of it, as ``fit --reference`` gives it). Otherwise,
-        and for every later segment, F*_i is the segment's frame where its target appears
-        largest (the span of its points): the nearer and larger, the better measured.
-    """
-    t = np.asarray(t, dtype=float)
-    fits: list[DesiredFit] = []
-    references: list[int] = []
-    for number, segment in enumerate(segments):
-        frames = slice(segment.first, segment.last + 1)
-        detector_errors = DetectorErrors() if errors is None else errors[segment.target]
-        target_pixels = np.asarray(pixels[segment.target], dtype=float)[frames]
-        largest_view = segment.first + int(np.argmax(view_spans(target_pixels)))
-        reference = first_reference if number == 0 and first_reference is not None else largest_view
-        fits.append(fit_desired_trajectory(t[frames], target_pixels, reference - segment.first, camera, smoothing,
-                                           max_lost=max_lost, max_gap=max_gap, warn=warn, errors=detector_errors))
-        references.append(reference)
-    return RouteFit(list(segments), fits, references, estimate_transitions(t, segments, fits))
 
 
 def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequence[DesiredFit]) -> list[Transition]:

@@ -97,13 +97,11 @@ class FilterSettings:
 @dataclass(frozen=True)
 class FilterEstimate:
     """The filter's estimate at one instant: ``measurement`` (theta, x_h1, x_h2) the law acts
-    on, their ``std`` (3,) and time derivative ``rate`` (3,) by (5), (23) under the command
-    being sent (rad/s, 1/s, 1/s), the detector's ``noise`` (normalised units), the last
-    frame's ``outcome``, the ``depth`` 1/rho (m) and ``depth_pull`` (1/s, :meth:`~ServoStateFilter.depth_pull`)."""
+    on, their ``std`` (3,), the detector's ``noise`` (normalised units), the last frame's
+    ``outcome``, the ``depth`` 1/rho (m) and ``depth_pull`` (1/s, :meth:`~ServoStateFilter.depth_pull`)."""
 
     measurement: Measurement
     std: NDArray[np.float64]
-    rate: NDArray[np.float64]
     noise: float
     outcome: FilterOutcome
     depth: float = math.nan
@@ -458,11 +456,10 @@ class ServoStateFilter:
         trust = self.settings.depth_trust
         return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
 
-    def estimate(self, commands: Collection[tuple[float, float]], dt: float, depth: float | None,
-                 command: tuple[float, float]) -> FilterEstimate | None:
+    def estimate(self, commands: Collection[tuple[float, float]], dt: float,
+                 depth: float | None) -> FilterEstimate | None:
         """The estimate carried over the ``commands`` sent since the last frame was taken
-        (latency), with its derivative under ``command``, the last one sent. ``depth`` (dhat,
-        m) only seeds the filter's depth before its first frame."""
+        (latency). ``depth`` (dhat, m) only seeds the filter's depth before its first frame."""
         if self._state is None:
             if depth is not None:
                 self.expect_depth(depth)
@@ -471,14 +468,11 @@ class ServoStateFilter:
         for v, w in commands:
             state, p = self._predicted(state, p, v, w, dt)
         theta, x1, x2, rho = state
-        depth = 1.0 / rho
-        v, w = command
         return FilterEstimate(
             measurement=Measurement(theta=theta, x_h1=x1, x_h2=x2),
             std=np.array((math.sqrt(max(p[0], 0.0)), math.sqrt(max(p[4], 0.0)), math.sqrt(max(p[7], 0.0)))),
-            rate=np.array((-w, x2 * w - v / depth, -x1 * w)),  # (5), (23)
             noise=math.sqrt(self.noise_variance),
             outcome=self.last_outcome,
-            depth=depth,
+            depth=1.0 / rho,
             depth_pull=self.depth_pull(),
         )

@@ -37,7 +37,7 @@ def registered_laws() -> tuple[str, ...]:
     """``--law``'s choices: the laws registered in :data:`~hbvs_cli.core.laws.LAW_REGISTRY`. Until that module is
     imported (numpy: not for ``--help``) nothing can have been added to the shipped ones."""
     laws = sys.modules.get("hbvs_cli.core.laws")
-    return laws.law_names() if laws is not None else ALL_LAWS
+    return tuple(laws.LAW_REGISTRY) if laws is not None else ALL_LAWS
 
 
 @dataclass(frozen=True)
