@@ -10,6 +10,7 @@ import io
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -277,17 +278,15 @@ class RosbagsBag:
                         f"{self.name}: a {connection.topic} message of {len(raw)} bytes, more than the "
                         f"{MAX_RECORD_BYTES // 2**20} MiB hbvs reads"
                     )
-                yield BagMessage(connection.topic, int(log_time), len(raw), self._decoder(raw, connection.msgtype))
+                decode = partial(self._decode, raw, connection.msgtype)
+                yield BagMessage(connection.topic, int(log_time), len(raw), decode)
 
-    def _decoder(self, raw: bytes, msgtype: str) -> Callable[[str], Any]:
-        def decode(what: str) -> Any:
-            try:
-                return self._reader.deserialize(raw, msgtype)
-            except Exception as exc:  # a damaged CDR payload
-                detail = " ".join(str(exc).split()) or type(exc).__name__
-                raise InputError(f"{what}: cannot decode the {msgtype} message ({detail[:200]})") from None
-
-        return decode
+    def _decode(self, raw: bytes, msgtype: str, what: str) -> Any:
+        try:
+            return self._reader.deserialize(raw, msgtype)
+        except Exception as exc:  # a damaged CDR payload
+            detail = " ".join(str(exc).split()) or type(exc).__name__
+            raise InputError(f"{what}: cannot decode the {msgtype} message ({detail[:200]})") from None
 
     def close(self) -> None:
         if self._open:
@@ -370,19 +369,17 @@ class McapFileBag:
             try:
                 with mcap_bag_errors(str(file)):
                     for message in messages:
-                        yield BagMessage(message.topic, message.log_time, len(message.data), self._decoder(message, str(file)), message)
+                        decode = partial(self._decode, message, str(file))
+                        yield BagMessage(message.topic, message.log_time, len(message.data), decode, message)
                     _require_complete(stream, str(file))
             finally:
                 messages.close()
 
-    def _decoder(self, message: McapMessage, file: str) -> Callable[[str], Any]:
-        def decode(what: str) -> Any:
-            with mcap_bag_errors(file):
-                return self._decode(message, what)
+    def _decode(self, message: McapMessage, file: str, what: str) -> Any:
+        with mcap_bag_errors(file):
+            return self._decoder(message, what)(message.data)
 
-        return decode
-
-    def _decode(self, message: McapMessage, what: str) -> Any:
+    def _decoder(self, message: McapMessage, what: str) -> Callable[[bytes], Any]:
         key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
         decoder = self._decoders.get(key)
         if decoder is None:
@@ -403,7 +400,7 @@ class McapFileBag:
                     "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
                 )
             self._decoders[key] = decoder
-        return decoder(message.data)
+        return decoder
 
     def close(self) -> None:
         """Nothing stays open between reads."""
