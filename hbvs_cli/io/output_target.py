@@ -353,18 +353,16 @@ class OutputSink:
 
 
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None,
-                       keep_on_error: bool = False) -> Iterator[OutputSink]:
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output", keep_on_error: bool = False) -> Iterator[OutputSink]:
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
-    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``. ``keep_on_error``: committed also when the
-    body fails (a record of what a robot was sent outlives the run's failure), then the failure raised."""
+    in messages. ``keep_on_error``: committed also when the body fails (a record of what a robot was sent
+    outlives the run's failure), then the failure raised."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        if stdout is None and (sys.stdout is None or stdio_closed(1)):
+        if sys.stdout is None or stdio_closed(1):
             raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False,
-                                        hold=STDOUT_HOLD_BYTES), target)
+        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), target)
         try:
             yield sink
         except HbvsError:

@@ -6,7 +6,7 @@ import json
 import os
 from contextlib import contextmanager
 from functools import lru_cache
-from typing import IO, Any, Iterator
+from typing import Any, Iterator
 
 from ..schemas import HBVS_SCHEMAS
 from .caps import PROFILE
@@ -99,13 +99,12 @@ class McapWriter:
 
 
 @contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None,
-                keep_on_error: bool = False) -> Iterator[McapWriter]:
+def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, keep_on_error: bool = False) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success;
     ``keep_on_error``: finished and committed on a failure too, then the failure raised)."""
     from ..output_target import open_output_stream
 
-    with open_output_stream(target, "output", stdout=stdout, keep_on_error=keep_on_error) as sink:
+    with open_output_stream(target, "output", keep_on_error=keep_on_error) as sink:
         writer = McapWriter(sink.stream, chunk_size=chunk_size)
         writer.input_ended_early = sink.input_ended_early
         try:
