@@ -240,6 +240,8 @@ def test_the_default_per_file_message_limit(work, request):
 VALUE_CASES = {
     "teach --duration inf": (["teach", "--sim", "--duration", "inf", "-o", "x.mcap"], 2),
     "teach --fps inf": (["teach", "--sim", "--fps", "inf", "-o", "x.mcap"], 2),
+    # The sources trust --fps: a video's or an image folder's rate of 0 is refused here.
+    "teach --images --fps 0": (["teach", "--images", ".", "--fps", "0", "-o", "x.mcap"], 2),
     "teach --blur 1e6": (["teach", "--sim", "--blur", "1e6", "-o", "x.mcap"], 2),
     "teach --seed -1": (["teach", "--sim", "--seed", "-1", "-o", "x.mcap"], 2),
     "repeat --seed -1": (["repeat", "f.mcap", "--sim", "--seed", "-1", "-o", "x.mcap"], 2),

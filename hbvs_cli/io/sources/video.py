@@ -12,7 +12,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..native_log import opencv_error_text
-from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
+from .frame_source import FrameSource, SourceFrame, capture_property
 from ..images import as_image8
 
 
@@ -24,7 +24,7 @@ class VideoSource(FrameSource):
 
     def __init__(self, path: str | os.PathLike[str], fps: float | None = None) -> None:
         self.path = str(path)
-        self.fps_override = _check_rate(fps, "--fps")
+        self.fps_override = fps  # --fps is checked as an option (finite, at least 0.1 Hz)
         self.camera = None
         passthrough = "://" in self.path or "%" in self.path
         if not passthrough:
