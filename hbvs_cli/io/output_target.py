@@ -271,13 +271,19 @@ class GuardedStream(ClosedOnExit):
         self._hold = hold
         self._held: bytearray | None = bytearray() if hold > 0 else None
 
-    def _write_raw(self, view: Any) -> None:
+    @contextmanager
+    def _reported(self) -> Iterator[None]:
+        """OS errors of the underlying stream as hbvs errors."""
         try:
-            self._raw.write(view)
+            yield
         except OSError as exc:
             raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
+
+    def _write_raw(self, view: Any) -> None:
+        with self._reported():
+            self._raw.write(view)
 
     def _release(self) -> None:
         held, self._held = self._held, None
@@ -305,12 +311,8 @@ class GuardedStream(ClosedOnExit):
 
     def flush(self) -> None:
         self._release()
-        try:
+        with self._reported():
             self._raw.flush()
-        except OSError as exc:
-            raise _write_error(exc, self._what, self._atomic) from None
-        except ValueError:
-            raise OutputError(f"{self._what}: the stream is closed") from None
 
     def close(self) -> None:
         if self.closed:
@@ -320,10 +322,8 @@ class GuardedStream(ClosedOnExit):
             self.flush()
         finally:
             if self._owned:
-                try:
+                with self._reported():
                     self._raw.close()
-                except OSError as exc:
-                    raise _write_error(exc, self._what, self._atomic) from None
 
 
 class OutputSink:
@@ -397,10 +397,8 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
     final = target.path
     mode = None
     if target.existed:
-        try:
+        with suppress(OSError):
             mode = stat.S_IMODE(os.stat(final).st_mode)
-        except OSError:
-            mode = None
     temporary = partial_name_of(final)
     try:
         fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
