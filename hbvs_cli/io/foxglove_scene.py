@@ -31,14 +31,6 @@ def frame_transform(ns: int, parent: str, child: str, translation: Sequence[floa
     )
 
 
-def robot_transform(ns: int, pose: Sequence[float]) -> Any:
-    """``world -> base_link`` of a planar pose (x, y, phi) (m, m, rad)."""
-    from ..core.frames import yaw_to_quaternion
-
-    x, y, phi = (float(v) for v in pose)
-    return frame_transform(ns, WORLD_FRAME, BASE_FRAME, (x, y, 0.0), yaw_to_quaternion(phi))
-
-
 def _pose(position: Sequence[float], rotation: Sequence[float] = _IDENTITY) -> Any:
     from foxglove_schemas_protobuf.Pose_pb2 import Pose
 
@@ -118,8 +110,12 @@ class SceneWriter:
         self.started = True
 
     def pose(self, ns: int, pose: Sequence[float]) -> None:
-        """``world -> base_link`` of the planar pose (x, y, phi) at ``ns``."""
-        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot_transform(ns, pose))
+        """``world -> base_link`` of the planar pose (x, y, phi) (m, m, rad) at ``ns``."""
+        from ..core.frames import yaw_to_quaternion
+
+        x, y, phi = (float(v) for v in pose)
+        robot = frame_transform(ns, WORLD_FRAME, BASE_FRAME, (x, y, 0.0), yaw_to_quaternion(phi))
+        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot)
 
 
 #: Where the clock of a simulated teach or run starts (ns since 1970, UTC): 2003-10-27, the
