@@ -33,7 +33,6 @@ class OutputTarget:
     spec: str
     kind: str
     path: Path | None
-    existed: bool
 
 
 def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> OutputTarget:
@@ -41,7 +40,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     :class:`OutputError` for a missing folder."""
     text = os.fspath(spec)
     if text == "-":
-        return OutputTarget(text, "stdout", None, True)
+        return OutputTarget(text, "stdout", None)
     given = Path(text)
     try:
         status = os.stat(given)  # follows every symbolic link, /dev/stdout's magic one too
@@ -50,7 +49,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
         path = Path(os.path.realpath(given))
         if not path.parent.is_dir():
             raise OutputError(f"{given}: the folder {path.parent} does not exist") from None
-        return OutputTarget(text, "file", path, False)
+        return OutputTarget(text, "file", path)
     except OSError as exc:
         raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None
     if stat.S_ISDIR(status.st_mode):
@@ -59,8 +58,8 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor: written in place, whatever they lead to.
     through_proc = path.parts[1:2] == ("proc",)
     if stat.S_ISREG(status.st_mode) and not through_proc:
-        return OutputTarget(text, "file", path, True)
-    return OutputTarget(text, "stream", given, True)
+        return OutputTarget(text, "file", path)
+    return OutputTarget(text, "stream", given)
 
 
 def partial_name_of(final: Path) -> Path:
@@ -395,10 +394,9 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", keep_
 def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: bool) -> Iterator[OutputSink]:
     assert target.path is not None
     final = target.path
-    mode = None
-    if target.existed:
-        with suppress(OSError):
-            mode = stat.S_IMODE(os.stat(final).st_mode)
+    mode = None  # an earlier file's, which the new one keeps
+    with suppress(OSError):
+        mode = stat.S_IMODE(os.stat(final).st_mode)
     temporary = partial_name_of(final)
     try:
         fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
