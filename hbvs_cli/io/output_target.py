@@ -271,8 +271,8 @@ class GuardedStream(ClosedOnExit):
         self._held: bytearray | None = bytearray() if hold > 0 else None
 
     @contextmanager
-    def _reported(self) -> Iterator[None]:
-        """OS errors of the underlying stream as hbvs errors."""
+    def reported(self) -> Iterator[None]:
+        """OS errors of the underlying stream (or its descriptor) as hbvs errors."""
         try:
             yield
         except OSError as exc:
@@ -281,7 +281,7 @@ class GuardedStream(ClosedOnExit):
             raise OutputError(f"{self._what}: the stream is closed") from None
 
     def _write_raw(self, view: Any) -> None:
-        with self._reported():
+        with self.reported():
             self._raw.write(view)
 
     def _release(self) -> None:
@@ -310,7 +310,7 @@ class GuardedStream(ClosedOnExit):
 
     def flush(self) -> None:
         self._release()
-        with self._reported():
+        with self.reported():
             self._raw.flush()
 
     def close(self) -> None:
@@ -321,7 +321,7 @@ class GuardedStream(ClosedOnExit):
             self.flush()
         finally:
             if self._owned:
-                with self._reported():
+                with self.reported():
                     self._raw.close()
 
 
@@ -419,12 +419,10 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
                     raise
                 failure = exc
             sink.stream.flush()
-            try:
+            with sink.stream.reported():
                 if mode is not None:
                     os.fchmod(handle.fileno(), mode)
                 os.fsync(handle.fileno())
-            except OSError as exc:
-                raise _write_error(exc, label, atomic=True) from None
         try:
             os.replace(temporary, final)
         except OSError as exc:
