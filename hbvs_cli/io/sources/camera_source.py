@@ -48,9 +48,8 @@ class CameraSource(FrameSource, ClosedOnExit):
             capture = self._factory(self.index)
         except (cv2.error, SystemError, OSError) as exc:
             raise InputError(f"camera {self.index}: cannot open the device ({opencv_error_text(exc)})") from None
-        if capture is None or not capture.isOpened():
-            if capture is not None:
-                capture.release()
+        if not capture.isOpened():
+            capture.release()
             raise InputError(f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)")
         return capture
 
