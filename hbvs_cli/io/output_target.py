@@ -78,19 +78,6 @@ def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
         raise
 
 
-def final_name_of_partial(path: Path) -> Path | None:
-    """The file a partial file belongs to (``a.mcap.<pid>-<hex>.partial`` -> ``a.mcap``), else None."""
-    match = _PARTIAL_NAME.match(path.name)
-    return path.with_name(match.group("final")) if match else None
-
-
-def _pid_max() -> int:
-    try:
-        return int(Path("/proc/sys/kernel/pid_max").read_text().strip())
-    except (OSError, ValueError):
-        return PID_MAX_FALLBACK
-
-
 def _made_by_hbvs(path: Path, final_name: str) -> bool:
     """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
     a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""
@@ -111,7 +98,12 @@ def stale_partial(path: Path) -> bool:
     /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
     user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None or int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= _pid_max():
+    if match is None:
+        return False
+    pid_max = PID_MAX_FALLBACK
+    with suppress(OSError, ValueError):
+        pid_max = int(Path("/proc/sys/kernel/pid_max").read_text().strip())
+    if int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= pid_max:
         return False
     if not _made_by_hbvs(path, match.group("final")):
         return False
@@ -211,9 +203,11 @@ def refuse_overwriting_inputs(
         identity = _identity(text)
         if identity is not None:
             known.setdefault(identity, f"the {label} {text}")
-        final = final_name_of_partial(Path(os.path.realpath(text)))
-        if final is not None:
-            recovering[final] = f"the {label} {text}"
+        # A partial file (a.mcap.<pid>-<hex>.partial) belongs to its final file (a.mcap).
+        real = Path(os.path.realpath(text))
+        match = _PARTIAL_NAME.match(real.name)
+        if match is not None:
+            recovering[real.with_name(match.group("final"))] = f"the {label} {text}"
     written: dict[Any, str] = {}
     for label, spec in outputs:
         if spec is None:
