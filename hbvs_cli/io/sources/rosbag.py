@@ -14,6 +14,7 @@ import numpy as np
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError, RecordingError, UsageError
 from ..calibration import intrinsics_from_values
+from ..images import read_compressed_image
 from ..mcap import McapMessage
 from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
@@ -196,9 +197,9 @@ class BagSource(FrameSource):
 
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
-        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
-            image, encoded, fmt, stamp_ns = _foxglove_frame(message.mcap, what)
-            return image, encoded, fmt, stamp_ns, None
+        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:  # a foxglove.CompressedImage
+            stored = read_compressed_image(message.mcap.data, what)
+            return (*compressed_to_image8(stored, what), stored.stamp_ns, None)
         decoded = message.decode(what)
         try:
             if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
@@ -270,14 +271,6 @@ class BagSource(FrameSource):
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
             "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
         }
-
-
-def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int]:
-    """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
-    from ..images import read_compressed_image
-
-    stored = read_compressed_image(message.data, what)
-    return (*compressed_to_image8(stored, what), stored.stamp_ns)
 
 
 def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
