@@ -144,7 +144,7 @@ from conftest import call_hbvs
 from hbvs_cli.io import limits
 results = {}
 for name, args in json.loads(sys.argv[2]).items():
-    limits.reset()  # a command's --limit is its own
+    limits.set_limits([f"{n}={limit.default}" for n, limit in limits.LIMITS.items()])  # a command's --limit is its own
     result = call_hbvs(*args)
     results[name] = [result.returncode, result.stderr.decode()]
 with open(sys.argv[1], "w") as handle:
@@ -192,6 +192,11 @@ def test_hostile_sizes_stop_at_a_named_limit_under_300_mb(files, tmp_path, reque
     assert after == before
 
 
+def reset_limits(limits) -> None:
+    """Every limit back to its default, as a new process has them."""
+    limits.set_limits([f"{name}={limit.default}" for name, limit in limits.LIMITS.items()])
+
+
 def test_a_raised_limit_lets_the_same_input_through(work, monkeypatch):
     """``--limit`` raises a limit: the steps of --rate 100 over 2 s pass once allowed (in
     this process: the limits go back to their defaults after)."""
@@ -201,11 +206,11 @@ def test_a_raised_limit_lets_the_same_input_through(work, monkeypatch):
     try:
         result = call_hbvs("--limit", "steps=100", "repeat", "f.mcap", "--sim", "--perception", "points", "--rate", "100", "-o", "x.mcap", "-q")
         assert result.returncode == 7 and "the steps limit of 100 steps" in result.stderr.decode()
-        limits.reset()
+        reset_limits(limits)
         result = call_hbvs("--limit", "steps=1000", "repeat", "f.mcap", "--sim", "--perception", "points", "--rate", "100", "-o", "x.mcap", "-q")
         assert result.returncode == 0, result.stderr
     finally:
-        limits.reset()
+        reset_limits(limits)
 
 
 def test_a_limit_must_be_a_whole_number():
@@ -221,7 +226,7 @@ def test_a_limit_must_be_a_whole_number():
         limits.set_limits(["messages=5e6", "steps=1000"])
         assert limits.current("messages") == 5_000_000 and limits.current("steps") == 1000
     finally:
-        limits.reset()
+        reset_limits(limits)
     result = call_hbvs("--limit", "steps=1.5", "info", "nothing.mcap")
     assert result.returncode == 2 and "whole number" in one_line(result)
 

@@ -57,11 +57,6 @@ def set_limits(items: list[str]) -> None:
         _values[name] = int(value)
 
 
-def reset() -> None:
-    """Back to the defaults (tests)."""
-    _values.update({name: limit.default for name, limit in LIMITS.items()})
-
-
 def exceeded(name: str, amount: float | None, what: str) -> LimitExceededError:
     """The error for ``what`` going beyond limit ``name`` (``amount``: how far, when known)."""
     limit = LIMITS[name]
