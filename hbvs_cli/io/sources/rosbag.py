@@ -13,9 +13,8 @@ import numpy as np
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError, RecordingError, UsageError
-from ..calibration import intrinsics_from_values
+from ..calibration import calibration_from_foxglove, intrinsics_from_values
 from ..images import read_compressed_image
-from ..mcap import McapMessage
 from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
@@ -160,8 +159,14 @@ class BagSource(FrameSource):
             return None, f"{source}: the topic has no messages"
         if first.size > _MAX_CAMERA_INFO_BYTES:
             return None, f"{source}: a CameraInfo message of {first.size} bytes is not one hbvs can use"
-        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:
-            return _camera_from_foxglove(first.mcap, source)
+        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:  # hbvs's own, protobuf
+            try:
+                calibration = first.mcap.foxglove(source)
+                if not any(calibration.K):
+                    return None, f"{source}: K is all zeros (an uncalibrated camera)"
+                return calibration_from_foxglove(calibration, source), None
+            except (RecordingError, CalibrationError) as exc:
+                return None, str(exc)
         try:
             info = first.decode(source)
             return self._camera_from_info(info, source)
@@ -271,19 +276,3 @@ class BagSource(FrameSource):
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
             "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
         }
-
-
-def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-    """Intrinsics of a protobuf ``foxglove.CameraCalibration``, or why there are none."""
-    from ..calibration import calibration_from_foxglove
-
-    try:
-        calibration = message.foxglove(source)
-    except RecordingError as exc:
-        return None, str(exc)
-    if not any(calibration.K):
-        return None, f"{source}: K is all zeros (an uncalibrated camera)"
-    try:
-        return calibration_from_foxglove(calibration, source), None
-    except CalibrationError as exc:
-        return None, str(exc)
