@@ -217,24 +217,18 @@ class _CappedReader(io.RawIOBase):
         super().close()
 
 
-def _cap_rosbags_decompression() -> None:
-    """Give rosbags' reader the capped ``zstd`` (once per process)."""
-    from rosbags.rosbag2 import reader
-
-    if not isinstance(reader.zstd, _CappedZstd):
-        reader.zstd = _CappedZstd(reader.zstd)
-
-
 class RosbagsBag:
     """A ROS 2 bag folder read with ``rosbags``' ``AnyReader``, open until :meth:`close`."""
 
     def __init__(self, folder: Path, name: str) -> None:
         from rosbags.highlevel import AnyReader
+        from rosbags.rosbag2 import reader
 
         self.name = name
         self.folder = folder
         information = bag_information(folder, name)
-        _cap_rosbags_decompression()
+        if not isinstance(reader.zstd, _CappedZstd):  # rosbags' reader gets the capped zstd once per process
+            reader.zstd = _CappedZstd(reader.zstd)
         with _rosbags_errors(name):
             self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
             self._reader.open()
