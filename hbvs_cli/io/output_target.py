@@ -346,7 +346,8 @@ class OutputSink:
 
 
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output", keep_on_error: bool = False) -> Iterator[OutputSink]:
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
+                       keep_on_error: bool = False) -> Iterator[OutputSink]:
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
     in messages. ``keep_on_error``: committed also when the body fails (a record of what a robot was sent
     outlives the run's failure), then the failure raised."""

@@ -87,7 +87,9 @@ def _intrinsics_from_mapping(
     return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes, stated_sigma(mapping, name))
 
 
-def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str) -> CameraIntrinsics:
+def intrinsics_from_values(
+    K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str,
+) -> CameraIntrinsics:
     """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major, or 3x3), the
     image size (px), the distortion model (None: inferred from the count) and its coefficients in OpenCV order."""
     if distortion_model is not None and not isinstance(distortion_model, str):  # said as these values' own error

@@ -99,7 +99,8 @@ class McapWriter:
 
 
 @contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, keep_on_error: bool = False) -> Iterator[McapWriter]:
+def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024,
+                keep_on_error: bool = False) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success;
     ``keep_on_error``: finished and committed on a failure too, then the failure raised)."""
     from ..output_target import open_output_stream

@@ -26,7 +26,8 @@ class LatestCameraFrame(ClosedOnExit):
             raise InputError(f"--camera {device}: cannot open it (no such device, or OpenCV cannot read it)")
         fps = float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
         # A video file (not a device index, URL or /dev node) is played at its own rate.
-        is_file = not device.isdigit() and "://" not in device and not device.startswith("/dev/") and Path(device).is_file()
+        is_file = (not device.isdigit() and "://" not in device and not device.startswith("/dev/")
+                   and Path(device).is_file())
         self._pace = 1.0 / fps if is_file and 0 < fps < 1000 else None
         self._lock = threading.Condition()
         self._latest: LiveFrame | None = None
