@@ -261,10 +261,8 @@ class RosbagsBag:
             self._open = True
         connections = [c for c in self._reader.connections if c.topic in topics]
         counted = limits.current("messages")
-        read = 0
         with _rosbags_errors(self.name):
-            for connection, log_time, raw in self._reader.messages(connections=connections):
-                read += 1
+            for read, (connection, log_time, raw) in enumerate(self._reader.messages(connections=connections), start=1):
                 if read > counted:
                     raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
                 if len(raw) > MAX_RECORD_BYTES:
@@ -338,10 +336,8 @@ class McapFileBag:
                 count = channel.message_count
                 if known is None:
                     topics[channel.topic] = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, count)
-                elif known.count is not None and count is not None:
-                    known.count += count
-                else:
-                    known.count = None
+                else:  # unknown in one file: unknown in all
+                    known.count = None if known.count is None or count is None else known.count + count
         return topics
 
     @staticmethod
