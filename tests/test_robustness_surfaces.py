@@ -456,8 +456,9 @@ def test_a_server_that_never_stops_does_not_hold_the_process(monkeypatch, tmp_pa
             never.wait()
 
     monkeypatch.setattr(foxglove, "start_server", lambda **kwargs: StuckServer())
-    with live_view.live_server(0, 0.0) as (server, wrap):
-        assert isinstance(server, StuckServer)
+    announced = []
+    with live_view.live_writer(0, 0.0, announced.append):
+        assert "ws://127.0.0.1:1 " in announced[0]  # the StuckServer's port
     # Out of the block: the stop was given up on; its thread is a daemon.
     stuck = [t for t in threading.enumerate() if t.name == "hbvs-live-stop"]
     assert stuck and all(t.daemon for t in stuck)
