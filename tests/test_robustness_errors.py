@@ -27,6 +27,7 @@ import pytest
 import zstandard
 
 from conftest import REPO, call_hbvs, run_with_peak_memory
+from oracles import copy_message
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
 from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
 
@@ -73,10 +74,10 @@ def rewrite(source: Path, target: Path, change) -> None:
         for m in messages:
             if m.message_encoding != "json":  # foxglove messages (protobuf): copied as they are, retimed
                 log_time, _ = change(m.topic, m.log_time, None)
-                writer.copy(m, log_time)
+                copy_message(writer, m, log_time)
                 continue
             log_time, payload = change(m.topic, m.log_time, json.loads(m.data))
-            writer.copy(m, log_time, json.dumps(payload).encode())
+            copy_message(writer, m, log_time, json.dumps(payload).encode())
         writer.finish()
 
 

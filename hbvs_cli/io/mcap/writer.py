@@ -66,12 +66,6 @@ class McapWriter:
         """Write one ``hbvs.*`` message whose JSON bytes are already encoded."""
         self._add(self._channel(topic, schema_name, None), log_time_ns, data)
 
-    def copy(self, message: Any, log_time_ns: int | None = None, data: bytes | None = None) -> None:
-        """Write a :class:`~.reader.McapMessage` read from another file, on a channel declared
-        as there, with its own bytes and log time unless others are given."""
-        channel_id = self._declare(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
-        self._add(channel_id, message.log_time if log_time_ns is None else log_time_ns, message.data if data is None else data)
-
     def _add(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
         self._writer.add_message(
             channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns), data=data, sequence=self._sequence,
