@@ -114,8 +114,3 @@ def dds_settings(environ: Mapping[str, str] | None = None) -> DdsSettings:
                            f"DDS: {where}, discovery localhost{peer_text}, no multicast ({reason})")
     return DdsSettings(_domain(discovery + _COMPATIBILITY),
                        f"DDS: the interface Cyclone DDS picks, discovery subnet (multicast){peer_text} ({reason})")
-
-
-def describe_dds(environ: Mapping[str, str] | None = None) -> str:
-    """The start-up line's DDS part: which interface and discovery hbvs uses (see :func:`dds_settings`)."""
-    return dds_settings(environ).description

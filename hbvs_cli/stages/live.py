@@ -212,10 +212,10 @@ def _ros2_commands(options: RepeatOptions, info: Callable[[str], None]) -> tuple
     if options.ros2_image is None and topic is None:
         return None, None
     from ..io import ros2_dds as dds  # lazy: an optional extra
-    from ..io.dds_discovery import describe_dds
+    from ..io.dds_discovery import dds_settings
     from ..io.ros2_live import CommandPublisher
 
-    info(f"repeat --live: {describe_dds()}")
+    info(f"repeat --live: {dds_settings().description}")
     node = dds.Ros2Node()
     return node, (CommandPublisher(node, topic, stamped=options.cmd_type == "twist-stamped") if topic is not None else None)
 
