@@ -153,18 +153,6 @@ def _shown(value: Any) -> str:
     return f"a {type(value).__name__}"
 
 
-def _typestore_for(information: dict[str, Any]) -> Any:
-    """The type store of metadata.yaml's distro (Humble by default), for bags without definitions."""
-    from rosbags.typesys import Stores, get_typestore
-
-    distro = str(information.get("ros_distro") or "humble").strip().lower()
-    try:
-        store = Stores(f"ros2_{distro}")
-    except ValueError:
-        store = Stores.LATEST
-    return get_typestore(store)
-
-
 class _CappedZstd:
     """The ``zstd`` module as rosbags' reader uses it, a message capped at ``MAX_RECORD_BYTES`` and a file
     at the ``decompressed-bytes`` limit (rosbags decompresses whatever size they expand to)."""
@@ -223,14 +211,18 @@ class RosbagsBag:
     def __init__(self, folder: Path, name: str) -> None:
         from rosbags.highlevel import AnyReader
         from rosbags.rosbag2 import reader
+        from rosbags.typesys import Stores, get_typestore
 
         self.name = name
         self.folder = folder
         information = bag_information(folder, name)
         if not isinstance(reader.zstd, _CappedZstd):  # rosbags' reader gets the capped zstd once per process
             reader.zstd = _CappedZstd(reader.zstd)
+        # Bags without message definitions: the types of metadata.yaml's distro (Humble by default).
+        distro = "ros2_" + str(information.get("ros_distro") or "humble").strip().lower()
+        store = Stores(distro) if distro in {store.value for store in Stores} else Stores.LATEST
         with _rosbags_errors(name):
-            self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
+            self._reader = AnyReader([folder], default_typestore=get_typestore(store))
             self._reader.open()
         self._open = True
         self.topics: dict[str, BagTopic] = {}
