@@ -239,7 +239,8 @@ class ResultsTable:
         except BaseException:
             self.release()
             raise
-        self._part = 1 + max((_part_number(p) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
+        numbers = (p.stem.removeprefix("part-") for p in (self.folder / PARTS).glob("part-*.parquet"))
+        self._part = 1 + max((int(number) for number in numbers if number.isdecimal()), default=0)
 
     def _open(self, fingerprint: dict[str, Any], description: dict[str, Any]) -> None:
         # An output that cannot be made is exit 6, as for every -o.
@@ -342,13 +343,6 @@ class ResultsTable:
         for part in (self.folder / PARTS).glob("part-*.parquet"):
             part.unlink()
         return rows
-
-
-def _part_number(path: Path) -> int:
-    try:
-        return int(path.stem.split("-")[1])
-    except (IndexError, ValueError):
-        return 0
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:
