@@ -37,12 +37,6 @@ def _is_image_topic(topic: BagTopic) -> bool:
     return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
 
 
-def _is_calibration_topic(topic: BagTopic) -> bool:
-    if topic.type == CAMERA_CALIBRATION_SCHEMA:
-        return topic.encoding == "protobuf"
-    return topic.type == ROS_CAMERA_INFO_SCHEMA
-
-
 def _stamp_ns(message: Any) -> int:
     """``header.stamp`` in ns, 0 when the message has no header (or the driver left it zero)."""
     header = getattr(message, "header", None)
@@ -132,7 +126,9 @@ class BagSource(FrameSource):
         return None, None
 
     def _camera_info_topic(self, topics: dict[str, BagTopic]) -> str | None:
-        infos = sorted(t.name for t in topics.values() if _is_calibration_topic(t) and t.count != 0)
+        # A CameraInfo, or hbvs's own foxglove.CameraCalibration (protobuf only).
+        infos = sorted(t.name for t in topics.values() if t.count != 0 and (t.type == ROS_CAMERA_INFO_SCHEMA or (
+            t.type == CAMERA_CALIBRATION_SCHEMA and t.encoding == "protobuf")))
         if len(infos) <= 1:
             return infos[0] if infos else None
 
