@@ -214,17 +214,16 @@ def refuse_overwriting_inputs(
             continue
         text = os.fspath(spec)
         identity = _identity(text)
-        key: Any = ("stdout",) if text == "-" else identity or Path(os.path.realpath(text))
+        real = Path(os.path.realpath(text))
+        key: Any = ("stdout",) if text == "-" else identity or real
         if identity is not None and identity in known:
             where = "stdout" if text == "-" else f"{label} {text}"
             raise UsageError(f"{where} is the same file as {known[identity]}: hbvs would overwrite its own input; write to another file")
-        if text != "-":
-            real = Path(os.path.realpath(text))
-            if real in recovering:
-                raise UsageError(
-                    f"{label} {text} is the file that {recovering[real]} (a partial file of an interrupted run) "
-                    "belongs to; write the result to another name"
-                )
+        if text != "-" and real in recovering:
+            raise UsageError(
+                f"{label} {text} is the file that {recovering[real]} (a partial file of an interrupted run) "
+                "belongs to; write the result to another name"
+            )
         if key in written:
             raise UsageError(f"{label} {text} and {written[key]} are the same file; give them different names")
         written[key] = f"{label} {text}"
