@@ -23,6 +23,7 @@ from hbvs_cli.core.simulator import ActuatorLimits
 from hbvs_cli.core.state_filter import _arc
 from hbvs_cli.core.trajectory import _desired_state
 from hbvs_cli.io.fit_file import read_fit_file
+from hbvs_cli.io.mcap import McapMessage, McapWriter
 from hbvs_cli.io.route_file import RouteFile, route_of
 from hbvs_cli.perception import TargetDetector, target_kind
 from hbvs_cli.report.result import RunReport
@@ -106,6 +107,15 @@ def observe_normalized(estimator: PlanarPoseEstimator, m: ArrayLike) -> Observat
     """The estimator's observation of normalised points of shape (N, 3) (no pixels, no lens)."""
     m = np.asarray(m, dtype=float)
     return estimator._observe(estimator.solver.solve_one((m[:, 1] / m[:, 0]).tolist(), (m[:, 2] / m[:, 0]).tolist()), None)
+
+
+def copy_message(writer: McapWriter, message: McapMessage, log_time_ns: int | None = None,
+                 data: bytes | None = None) -> None:
+    """Write a message read from another file on ``writer``, on a channel declared as there, with its own
+    bytes and log time unless others are given (tests that edit or retime a recording)."""
+    channel_id = writer._declare(message.topic, message.schema_name, message.schema_encoding, message.schema_data,
+                                 message.message_encoding)
+    writer._add(channel_id, message.log_time if log_time_ns is None else log_time_ns, message.data if data is None else data)
 
 
 def make_detector(kind: str, *, n_points: int, reference_image: np.ndarray | None = None, reference_pixels: ArrayLike | None = None,

@@ -18,7 +18,7 @@ from hbvs_cli.report.build import taught_commands_along, true_depth_along
 from hbvs_cli.sim.route_world import CORRIDOR_SPEED, corridor_route
 
 from conftest import SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent
-from oracles import read_route_file
+from oracles import copy_message, read_route_file
 
 #: The taught drive's frame rate (Hz): at 10 Hz the last photograph's tracker loses it as the third turn begins.
 RATE = 15.0
@@ -114,7 +114,7 @@ def without_truth(source, target):
                 for name in stream.metadata:
                     writer.metadata(name, read_metadata(stream, name))
             if message.topic not in (TRUE_POSE_TOPIC, "/tf", "/scene"):
-                writer.copy(message)
+                copy_message(writer, message)
         writer.finish()
 
 

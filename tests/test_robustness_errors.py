@@ -27,6 +27,7 @@ import pytest
 import zstandard
 
 from conftest import REPO, call_hbvs, run_with_peak_memory
+from oracles import copy_message
 from test_robustness_hostile import MAGIC, channel, footer, header, message, record, schema, string
 from test_robustness_outputs import PRECIOUS, hbvs, one_line, snapshot
 
@@ -73,10 +74,10 @@ def rewrite(source: Path, target: Path, change) -> None:
         for m in messages:
             if m.message_encoding != "json":  # foxglove messages (protobuf): copied as they are, retimed
                 log_time, _ = change(m.topic, m.log_time, None)
-                writer.copy(m, log_time)
+                copy_message(writer, m, log_time)
                 continue
             log_time, payload = change(m.topic, m.log_time, json.loads(m.data))
-            writer.copy(m, log_time, json.dumps(payload).encode())
+            copy_message(writer, m, log_time, json.dumps(payload).encode())
         writer.finish()
 
 
@@ -144,7 +145,7 @@ from conftest import call_hbvs
 from hbvs_cli.io import limits
 results = {}
 for name, args in json.loads(sys.argv[2]).items():
-    limits.reset()  # a command's --limit is its own
+    limits.set_limits([f"{n}={limit.default}" for n, limit in limits.LIMITS.items()])  # a command's --limit is its own
     result = call_hbvs(*args)
     results[name] = [result.returncode, result.stderr.decode()]
 with open(sys.argv[1], "w") as handle:
@@ -192,6 +193,11 @@ def test_hostile_sizes_stop_at_a_named_limit_under_300_mb(files, tmp_path, reque
     assert after == before
 
 
+def reset_limits(limits) -> None:
+    """Every limit back to its default, as a new process has them."""
+    limits.set_limits([f"{name}={limit.default}" for name, limit in limits.LIMITS.items()])
+
+
 def test_a_raised_limit_lets_the_same_input_through(work, monkeypatch):
     """``--limit`` raises a limit: the steps of --rate 100 over 2 s pass once allowed (in
     this process: the limits go back to their defaults after)."""
@@ -201,11 +207,11 @@ def test_a_raised_limit_lets_the_same_input_through(work, monkeypatch):
     try:
         result = call_hbvs("--limit", "steps=100", "repeat", "f.mcap", "--sim", "--perception", "points", "--rate", "100", "-o", "x.mcap", "-q")
         assert result.returncode == 7 and "the steps limit of 100 steps" in result.stderr.decode()
-        limits.reset()
+        reset_limits(limits)
         result = call_hbvs("--limit", "steps=1000", "repeat", "f.mcap", "--sim", "--perception", "points", "--rate", "100", "-o", "x.mcap", "-q")
         assert result.returncode == 0, result.stderr
     finally:
-        limits.reset()
+        reset_limits(limits)
 
 
 def test_a_limit_must_be_a_whole_number():
@@ -221,7 +227,7 @@ def test_a_limit_must_be_a_whole_number():
         limits.set_limits(["messages=5e6", "steps=1000"])
         assert limits.current("messages") == 5_000_000 and limits.current("steps") == 1000
     finally:
-        limits.reset()
+        reset_limits(limits)
     result = call_hbvs("--limit", "steps=1.5", "info", "nothing.mcap")
     assert result.returncode == 2 and "whole number" in one_line(result)
 
@@ -240,6 +246,8 @@ def test_the_default_per_file_message_limit(work, request):
 VALUE_CASES = {
     "teach --duration inf": (["teach", "--sim", "--duration", "inf", "-o", "x.mcap"], 2),
     "teach --fps inf": (["teach", "--sim", "--fps", "inf", "-o", "x.mcap"], 2),
+    # The sources trust --fps: a video's or an image folder's rate of 0 is refused here.
+    "teach --images --fps 0": (["teach", "--images", ".", "--fps", "0", "-o", "x.mcap"], 2),
     "teach --blur 1e6": (["teach", "--sim", "--blur", "1e6", "-o", "x.mcap"], 2),
     "teach --seed -1": (["teach", "--sim", "--seed", "-1", "-o", "x.mcap"], 2),
     "repeat --seed -1": (["repeat", "f.mcap", "--sim", "--seed", "-1", "-o", "x.mcap"], 2),

@@ -19,6 +19,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -290,7 +291,9 @@ def test_a_write_error_is_an_output_error_with_exit_6(tmp_path, monkeypatch):
                 writer.write("/teach/cmd_vel", "hbvs.VelocityCommand", k, {"timestamp": {"sec": 0, "nsec": k}, "v": 0.0, "w": 0.0})
 
     with pytest.raises(OutputError) as stdout_full:
-        write_some("-", stdout=FillsUp(open(os.devnull, "wb"), 0))
+        with monkeypatch.context() as patched:
+            patched.setattr(sys, "stdout", SimpleNamespace(buffer=FillsUp(open(os.devnull, "wb"), 0)))
+            write_some("-")
     assert stdout_full.value.exit_code == 6 and "stdout: cannot write (no space left on the device)" in str(stdout_full.value)
     target = tmp_path / "out.mcap"
     target.write_bytes(PRECIOUS)

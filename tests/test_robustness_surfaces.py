@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from conftest import SAMPLES, SUITE_OR_CAMPAIGN, call_hbvs, campaign_extent, run_hbvs, run_with_peak_memory
+from oracles import copy_message
 
 FIT = SAMPLES / "fit.mcap"
 TEACH = SAMPLES / "teach.mcap"
@@ -404,7 +405,7 @@ def test_a_truncated_input_does_not_replace_a_bag_unless_allowed(exported, tmp_p
             if k == 0:
                 for name, values in stream.metadata.items():
                     writer._writer.add_metadata(name, values)
-            writer.copy(message)
+            copy_message(writer, message)
         writer.finish()
     truncated = tmp_path / "teach-cut.mcap"
     truncated.write_bytes(rechunked.read_bytes()[: rechunked.stat().st_size // 2])
@@ -456,8 +457,9 @@ def test_a_server_that_never_stops_does_not_hold_the_process(monkeypatch, tmp_pa
             never.wait()
 
     monkeypatch.setattr(foxglove, "start_server", lambda **kwargs: StuckServer())
-    with live_view.live_server(0, 0.0) as (server, wrap):
-        assert isinstance(server, StuckServer)
+    announced = []
+    with live_view.live_writer(0, 0.0, announced.append):
+        assert "ws://127.0.0.1:1 " in announced[0]  # the StuckServer's port
     # Out of the block: the stop was given up on; its thread is a daemon.
     stuck = [t for t in threading.enumerate() if t.name == "hbvs-live-stop"]
     assert stuck and all(t.daemon for t in stuck)

@@ -18,6 +18,7 @@ from conftest import (
     make_teach,
     run_hbvs,
 )
+from oracles import copy_message
 
 #: Measured on the default scenario (3 dots, 4 m, 640x480, f = 500 px, frames stored as
 #: JPEG 90): theta_d 0.012 deg, x_hd1 2.4e-5, x_hd2 2.1e-4 RMS; x_hd1_dot within 0.15 %
@@ -82,7 +83,7 @@ def copy_teach(source, target, image=lambda t, message: message):
                 data = image((message.log_time - SIMULATION_EPOCH_NS) * 1e-9, data)  # s from the start
                 if data is None:
                     continue
-            writer.copy(message, data=data)
+            copy_message(writer, message, data=data)
         writer.finish()
 
 
@@ -186,7 +187,7 @@ def test_bad_input_one_line_nonzero_exit_no_output(short_teach, tmp_path):
         for k, message in enumerate(stream):
             if k == 0:
                 writer.metadata("hbvs", read_metadata(stream, "hbvs"))
-            writer.copy(message)
+            copy_message(writer, message)
             if k > 20:
                 break
         writer.finish()

@@ -192,7 +192,7 @@ def test_the_final_merge_streams_window_by_window_and_keeps_one_row_per_index(tm
     # The same rows once more, as after a kill between the merge and the parts' removal.
     repeated = folder / results.PARTS / "part-999999.parquet"
     pq.write_table(pa.Table.from_pylist([{"index": i, "value": i / 10, "status": "ok"} for i in order[140:180]], schema=schema), repeated)
-    windows = list(results.merged_windows(folder, schema, window=37))
+    windows = list(results.merged_windows(folder, schema))
     assert max(w.num_rows for w in windows) <= 37
     assert second.finish() == 300
     merged = pq.read_table(folder / results.PARQUET)

@@ -61,11 +61,6 @@ def _domain(body: str) -> str:
     return f'<CycloneDDS xmlns="https://cdds.io/config"><Domain Id="any">{body}</Domain></CycloneDDS>'
 
 
-def _static_peers(environ: Mapping[str, str]) -> list[str]:
-    """``ROS_STATIC_PEERS``: addresses separated by ``;`` (blanks ignored)."""
-    return [peer.strip() for peer in environ.get("ROS_STATIC_PEERS", "").split(";") if peer.strip()]
-
-
 def discovery_range(environ: Mapping[str, str]) -> tuple[str, str]:
     """The discovery range ROS 2 would use, and why (the variable that decided it).
 
@@ -98,7 +93,8 @@ def dds_settings(environ: Mapping[str, str] | None = None) -> DdsSettings:
         # Later fragments override earlier ones: the user's file has the last word.
         return DdsSettings(f"{compatibility},{user}", "DDS: the network of CYCLONEDDS_URI (ROS 2's discovery variables not used)")
     scope, reason = discovery_range(environ)
-    peers = _static_peers(environ)
+    # ROS_STATIC_PEERS: addresses separated by ";" (blanks ignored).
+    peers = [peer.strip() for peer in environ.get("ROS_STATIC_PEERS", "").split(";") if peer.strip()]
     peer_text = f", static peers {', '.join(peers)}" if peers else ""
     if scope == "OFF":
         raise UsageError("ROS_AUTOMATIC_DISCOVERY_RANGE=OFF: ROS 2 then discovers nothing outside its own process, so hbvs "
@@ -118,8 +114,3 @@ def dds_settings(environ: Mapping[str, str] | None = None) -> DdsSettings:
                            f"DDS: {where}, discovery localhost{peer_text}, no multicast ({reason})")
     return DdsSettings(_domain(discovery + _COMPATIBILITY),
                        f"DDS: the interface Cyclone DDS picks, discovery subnet (multicast){peer_text} ({reason})")
-
-
-def describe_dds(environ: Mapping[str, str] | None = None) -> str:
-    """The start-up line's DDS part: which interface and discovery hbvs uses (see :func:`dds_settings`)."""
-    return dds_settings(environ).description

@@ -104,7 +104,11 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
             kind_of_segment = message.json(stream.name).get("target_kind")
             target = kind_of_segment if target is None else f"{target} -> {kind_of_segment}"
         if message.topic == ROUTE_TOPIC and message.message_encoding == "json":
-            segments = _segment_frames(message.json(stream.name))
+            route_record = message.json(stream.name)
+            try:  # a route's segments as (first, last) frames; none if malformed (fit and repeat check it)
+                segments = [(int(segment["first"]), int(segment["last"])) for segment in route_record["segments"]]
+            except (KeyError, TypeError, ValueError):
+                segments = []
     metadata = read_metadata(stream, "hbvs")
     kind = metadata.get("file_kind")
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
@@ -130,11 +134,3 @@ def list_of(values: Any, kind: type | tuple[type, ...] = (int, float)) -> list[A
     if isinstance(values, list) and all(isinstance(v, kind) and not isinstance(v, bool) for v in values):
         return values
     return None
-
-
-def _segment_frames(route: Any) -> list[tuple[int, int]]:
-    """A ``hbvs.Route`` record's segments as (first, last) frames; none if malformed (fit and repeat check it)."""
-    try:
-        return [(int(segment["first"]), int(segment["last"])) for segment in route["segments"]]
-    except (KeyError, TypeError, ValueError):
-        return []

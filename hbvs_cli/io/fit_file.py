@@ -40,10 +40,8 @@ def camera_from_dict(data: dict[str, Any]) -> CameraIntrinsics:
     )
 
 
-def _positive_number(value: Any, what: str, optional: bool = False) -> float | None:
-    """``value`` as a finite positive float (None allowed when ``optional``); ValueError otherwise."""
-    if value is None and optional:
-        return None
+def _positive_number(value: Any, what: str) -> float:
+    """``value`` as a finite positive float; ValueError otherwise."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < math.inf:
         raise ValueError(f"{what} must be a positive number, got {value!r}")
     return float(value)
@@ -244,7 +242,8 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         world = world_description(message["world"], source) if message.get("world") else None
         taught = taught_path_from_dict(message["taught_path"]) if message.get("taught_path") else None
         frames = _typed(FrameStats, message["frames"], "frames")
-        _positive_number(frames.frame_interval_s, "frames.frame_interval_s", optional=True)
+        if frames.frame_interval_s is not None:  # None: not known
+            _positive_number(frames.frame_interval_s, "frames.frame_interval_s")
         render = message.get("render")
         if render is not None and render_settings_problem(render) is not None:
             raise ValueError(f"render: {render_settings_problem(render)}")

@@ -31,14 +31,6 @@ def frame_transform(ns: int, parent: str, child: str, translation: Sequence[floa
     )
 
 
-def robot_transform(ns: int, pose: Sequence[float]) -> Any:
-    """``world -> base_link`` of a planar pose (x, y, phi) (m, m, rad)."""
-    from ..core.frames import yaw_to_quaternion
-
-    x, y, phi = (float(v) for v in pose)
-    return frame_transform(ns, WORLD_FRAME, BASE_FRAME, (x, y, 0.0), yaw_to_quaternion(phi))
-
-
 def _pose(position: Sequence[float], rotation: Sequence[float] = _IDENTITY) -> Any:
     from foxglove_schemas_protobuf.Pose_pb2 import Pose
 
@@ -86,20 +78,6 @@ def path_entity(ns: int, poses: np.ndarray, height: float = 0.0) -> Any:
     return _entity(ns, "taught_path", lines=[line])
 
 
-def scene_update(ns: int, world: Any = None, taught_poses: np.ndarray | None = None) -> Any:
-    """A ``foxglove.SceneUpdate`` with the target (when ``world`` is given) and the taught path."""
-    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
-
-    entities = []
-    if world is not None:
-        # A route (sim/route.py) has several targets, placed in its frame; a world has one.
-        targets = getattr(world, "route_targets", None) or (world.target,)
-        entities.extend(target_entity(ns, target, "target" if i == 0 else f"target_{i}") for i, target in enumerate(targets))
-    if taught_poses is not None and len(taught_poses) > 1:
-        entities.append(path_entity(ns, taught_poses))
-    return SceneUpdate(entities=entities)
-
-
 class SceneWriter:
     """Writes the 3D topics of one hbvs file: :meth:`start` once, then :meth:`pose` at every true pose."""
 
@@ -109,17 +87,30 @@ class SceneWriter:
 
     def start(self, ns: int, camera_height: float, world: Any = None, taught_poses: np.ndarray | None = None) -> None:
         """``base_link -> camera_optical`` (the camera ``camera_height`` m above the wheel axis) and the
-        scene (target, taught path), at ``ns``."""
+        scene (a ``foxglove.SceneUpdate``: the target when ``world`` is given, the taught path), at ``ns``."""
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
         camera = frame_transform(ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION)
         self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, camera)
-        scene = scene_update(ns, world, taught_poses)
-        if scene.entities:
-            self.writer.write(SCENE_TOPIC, SCENE_UPDATE_SCHEMA, ns, scene)
+        entities = []
+        if world is not None:
+            # A route (sim/route.py) has several targets, placed in its frame; a world has one.
+            targets = getattr(world, "route_targets", None) or (world.target,)
+            entities.extend(target_entity(ns, target, "target" if i == 0 else f"target_{i}")
+                            for i, target in enumerate(targets))
+        if taught_poses is not None and len(taught_poses) > 1:
+            entities.append(path_entity(ns, taught_poses))
+        if entities:
+            self.writer.write(SCENE_TOPIC, SCENE_UPDATE_SCHEMA, ns, SceneUpdate(entities=entities))
         self.started = True
 
     def pose(self, ns: int, pose: Sequence[float]) -> None:
-        """``world -> base_link`` of the planar pose (x, y, phi) at ``ns``."""
-        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot_transform(ns, pose))
+        """``world -> base_link`` of the planar pose (x, y, phi) (m, m, rad) at ``ns``."""
+        from ..core.frames import yaw_to_quaternion
+
+        x, y, phi = (float(v) for v in pose)
+        robot = frame_transform(ns, WORLD_FRAME, BASE_FRAME, (x, y, 0.0), yaw_to_quaternion(phi))
+        self.writer.write(TRANSFORM_TOPIC, FRAME_TRANSFORM_SCHEMA, ns, robot)
 
 
 #: Where the clock of a simulated teach or run starts (ns since 1970, UTC): 2003-10-27, the

@@ -57,11 +57,6 @@ def set_limits(items: list[str]) -> None:
         _values[name] = int(value)
 
 
-def reset() -> None:
-    """Back to the defaults (tests)."""
-    _values.update({name: limit.default for name, limit in LIMITS.items()})
-
-
 def exceeded(name: str, amount: float | None, what: str) -> LimitExceededError:
     """The error for ``what`` going beyond limit ``name`` (``amount``: how far, when known)."""
     limit = LIMITS[name]
@@ -97,37 +92,30 @@ MAX_YAML_NODES = 200_000
 
 
 def _expanded_nodes(root: Any, budget: int) -> int:
-    """Nodes of a composed YAML node with every alias expanded, counted without expanding;
-    stops above ``budget`` (a node that contains itself is unbounded)."""
+    """Nodes of a composed YAML node with every alias expanded, counted without expanding (each
+    node once); stops above ``budget`` (a node that contains itself is unbounded). Recursion is
+    safe: PyYAML's composer took more stack per level to build the nodes."""
     import yaml
 
     sizes: dict[int, int] = {}
     active: set[int] = set()
-    stack: list[tuple[Any, bool]] = [(root, False)]
-    while stack:
-        node, done = stack.pop()
+
+    def size(node: Any) -> int:
         key = id(node)
-        if key in sizes:
-            continue
-        children: list[Any] = []
-        if isinstance(node, yaml.SequenceNode):
-            children = list(node.value)
-        elif isinstance(node, yaml.MappingNode):
-            children = [item for pair in node.value for item in pair]
-        if done:
-            active.discard(key)
-            sizes[key] = min(budget + 1, 1 + sum(sizes[id(child)] for child in children))
-            continue
         if key in active:
             return budget + 1  # an alias to itself: infinite once expanded
-        active.add(key)
-        stack.append((node, True))
-        for child in children:
-            if id(child) in active:
-                return budget + 1
-            if id(child) not in sizes:
-                stack.append((child, False))
-    return sizes[id(root)]
+        if key not in sizes:
+            active.add(key)
+            children = node.value if isinstance(node, yaml.SequenceNode) else (
+                [item for pair in node.value for item in pair] if isinstance(node, yaml.MappingNode) else [])
+            total = 1
+            for child in children:
+                total = min(budget + 1, total + size(child))
+            active.discard(key)
+            sizes[key] = total
+        return sizes[key]
+
+    return size(root)
 
 
 def load_yaml_documents(text: str, name: str, max_nodes: int = MAX_YAML_NODES, error: type[HbvsError] = InputError) -> list[Any]:

@@ -70,25 +70,6 @@ class LiveMirror:
             time.sleep(due - now)
 
 
-@contextmanager
-def live_server(port: int, speed: float = 1.0, host: str = "127.0.0.1") -> Iterator[Any]:
-    """Serve on ``host:port`` and yield (server, a function wrapping a writer in a :class:`LiveMirror`)."""
-    foxglove = _sdk()
-    if not 0 <= int(port) <= 65535:
-        raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
-    if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
-        raise UsageError(f"--foxglove-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
-    context = foxglove.Context()
-    try:
-        server = foxglove.start_server(name="hbvs repeat", host=host, port=int(port), context=context)
-    except Exception as exc:  # the SDK raises its own error types for a port in use
-        raise UsageError(f"--foxglove: cannot serve on {host}:{port} ({str(exc).splitlines()[0][:120]})") from None
-    try:
-        yield server, (lambda writer: LiveMirror(writer, context, speed))
-    finally:
-        stop_within(server.stop, STOP_SECONDS)
-
-
 #: Longest wait for the server to stop (s): a client that stopped reading can hold it forever.
 STOP_SECONDS = 1.0
 
@@ -112,11 +93,23 @@ def _quietly(function: Any) -> None:
 @contextmanager
 def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> Iterator[Any]:
     """A function that wraps the run file's writer: the identity when ``port`` is None, else in a
-    :class:`LiveMirror` of a server started here; ``announce`` gets where to connect."""
+    :class:`LiveMirror` of a server started here on 127.0.0.1:``port``; ``announce`` gets where to connect."""
     if port is None:
         yield lambda writer: writer
         return
-    with live_server(port, speed) as (server, wrap):
+    foxglove = _sdk()
+    if not 0 <= int(port) <= 65535:
+        raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
+    if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
+        raise UsageError(f"--foxglove-speed must be 0 (as fast as it goes) or from {MIN_SPEED:g} to {MAX_SPEED:g} times real time, got {speed}")
+    context = foxglove.Context()
+    try:
+        server = foxglove.start_server(name="hbvs repeat", host="127.0.0.1", port=int(port), context=context)
+    except Exception as exc:  # the SDK raises its own error types for a port in use
+        raise UsageError(f"--foxglove: cannot serve on 127.0.0.1:{port} ({str(exc).splitlines()[0][:120]})") from None
+    try:
         if announce is not None:
             announce(f"live view: connect Foxglove to ws://127.0.0.1:{server.port} (Open connection, Foxglove WebSocket)")
-        yield wrap
+        yield lambda writer: LiveMirror(writer, context, speed)
+    finally:
+        stop_within(server.stop, STOP_SECONDS)

@@ -33,7 +33,6 @@ class OutputTarget:
     spec: str
     kind: str
     path: Path | None
-    existed: bool
 
 
 def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> OutputTarget:
@@ -41,7 +40,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     :class:`OutputError` for a missing folder."""
     text = os.fspath(spec)
     if text == "-":
-        return OutputTarget(text, "stdout", None, True)
+        return OutputTarget(text, "stdout", None)
     given = Path(text)
     try:
         status = os.stat(given)  # follows every symbolic link, /dev/stdout's magic one too
@@ -50,7 +49,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
         path = Path(os.path.realpath(given))
         if not path.parent.is_dir():
             raise OutputError(f"{given}: the folder {path.parent} does not exist") from None
-        return OutputTarget(text, "file", path, False)
+        return OutputTarget(text, "file", path)
     except OSError as exc:
         raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None
     if stat.S_ISDIR(status.st_mode):
@@ -59,8 +58,8 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor: written in place, whatever they lead to.
     through_proc = path.parts[1:2] == ("proc",)
     if stat.S_ISREG(status.st_mode) and not through_proc:
-        return OutputTarget(text, "file", path, True)
-    return OutputTarget(text, "stream", given, True)
+        return OutputTarget(text, "file", path)
+    return OutputTarget(text, "stream", given)
 
 
 def partial_name_of(final: Path) -> Path:
@@ -77,19 +76,6 @@ def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
-
-
-def final_name_of_partial(path: Path) -> Path | None:
-    """The file a partial file belongs to (``a.mcap.<pid>-<hex>.partial`` -> ``a.mcap``), else None."""
-    match = _PARTIAL_NAME.match(path.name)
-    return path.with_name(match.group("final")) if match else None
-
-
-def _pid_max() -> int:
-    try:
-        return int(Path("/proc/sys/kernel/pid_max").read_text().strip())
-    except (OSError, ValueError):
-        return PID_MAX_FALLBACK
 
 
 def _made_by_hbvs(path: Path, final_name: str) -> bool:
@@ -112,7 +98,12 @@ def stale_partial(path: Path) -> bool:
     /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
     user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
-    if match is None or int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= _pid_max():
+    if match is None:
+        return False
+    pid_max = PID_MAX_FALLBACK
+    with suppress(OSError, ValueError):
+        pid_max = int(Path("/proc/sys/kernel/pid_max").read_text().strip())
+    if int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= pid_max:
         return False
     if not _made_by_hbvs(path, match.group("final")):
         return False
@@ -212,26 +203,27 @@ def refuse_overwriting_inputs(
         identity = _identity(text)
         if identity is not None:
             known.setdefault(identity, f"the {label} {text}")
-        final = final_name_of_partial(Path(os.path.realpath(text)))
-        if final is not None:
-            recovering[final] = f"the {label} {text}"
+        # A partial file (a.mcap.<pid>-<hex>.partial) belongs to its final file (a.mcap).
+        real = Path(os.path.realpath(text))
+        match = _PARTIAL_NAME.match(real.name)
+        if match is not None:
+            recovering[real.with_name(match.group("final"))] = f"the {label} {text}"
     written: dict[Any, str] = {}
     for label, spec in outputs:
         if spec is None:
             continue
         text = os.fspath(spec)
         identity = _identity(text)
-        key: Any = ("stdout",) if text == "-" else identity or Path(os.path.realpath(text))
+        real = Path(os.path.realpath(text))
+        key: Any = ("stdout",) if text == "-" else identity or real
         if identity is not None and identity in known:
             where = "stdout" if text == "-" else f"{label} {text}"
             raise UsageError(f"{where} is the same file as {known[identity]}: hbvs would overwrite its own input; write to another file")
-        if text != "-":
-            real = Path(os.path.realpath(text))
-            if real in recovering:
-                raise UsageError(
-                    f"{label} {text} is the file that {recovering[real]} (a partial file of an interrupted run) "
-                    "belongs to; write the result to another name"
-                )
+        if text != "-" and real in recovering:
+            raise UsageError(
+                f"{label} {text} is the file that {recovering[real]} (a partial file of an interrupted run) "
+                "belongs to; write the result to another name"
+            )
         if key in written:
             raise UsageError(f"{label} {text} and {written[key]} are the same file; give them different names")
         written[key] = f"{label} {text}"
@@ -271,13 +263,19 @@ class GuardedStream(ClosedOnExit):
         self._hold = hold
         self._held: bytearray | None = bytearray() if hold > 0 else None
 
-    def _write_raw(self, view: Any) -> None:
+    @contextmanager
+    def reported(self) -> Iterator[None]:
+        """OS errors of the underlying stream (or its descriptor) as hbvs errors."""
         try:
-            self._raw.write(view)
+            yield
         except OSError as exc:
             raise _write_error(exc, self._what, self._atomic) from None
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
+
+    def _write_raw(self, view: Any) -> None:
+        with self.reported():
+            self._raw.write(view)
 
     def _release(self) -> None:
         held, self._held = self._held, None
@@ -305,12 +303,8 @@ class GuardedStream(ClosedOnExit):
 
     def flush(self) -> None:
         self._release()
-        try:
+        with self.reported():
             self._raw.flush()
-        except OSError as exc:
-            raise _write_error(exc, self._what, self._atomic) from None
-        except ValueError:
-            raise OutputError(f"{self._what}: the stream is closed") from None
 
     def close(self) -> None:
         if self.closed:
@@ -320,10 +314,8 @@ class GuardedStream(ClosedOnExit):
             self.flush()
         finally:
             if self._owned:
-                try:
+                with self.reported():
                     self._raw.close()
-                except OSError as exc:
-                    raise _write_error(exc, self._what, self._atomic) from None
 
 
 class OutputSink:
@@ -353,18 +345,17 @@ class OutputSink:
 
 
 @contextmanager
-def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdout: IO[bytes] | None = None,
+def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
                        keep_on_error: bool = False) -> Iterator[OutputSink]:
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
-    in messages; ``stdout`` replaces ``sys.stdout`` for ``-``. ``keep_on_error``: committed also when the
-    body fails (a record of what a robot was sent outlives the run's failure), then the failure raised."""
+    in messages. ``keep_on_error``: committed also when the body fails (a record of what a robot was sent
+    outlives the run's failure), then the failure raised."""
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        if stdout is None and (sys.stdout is None or stdio_closed(1)):
+        if sys.stdout is None or stdio_closed(1):
             raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
-        sink = OutputSink(GuardedStream(sys.stdout.buffer if stdout is None else stdout, "stdout", owned=False,
-                                        hold=STDOUT_HOLD_BYTES), target)
+        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), target)
         try:
             yield sink
         except HbvsError:
@@ -397,12 +388,9 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output", stdou
 def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: bool) -> Iterator[OutputSink]:
     assert target.path is not None
     final = target.path
-    mode = None
-    if target.existed:
-        try:
-            mode = stat.S_IMODE(os.stat(final).st_mode)
-        except OSError:
-            mode = None
+    mode = None  # an earlier file's, which the new one keeps
+    with suppress(OSError):
+        mode = stat.S_IMODE(os.stat(final).st_mode)
     temporary = partial_name_of(final)
     try:
         fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
@@ -425,12 +413,10 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
                     raise
                 failure = exc
             sink.stream.flush()
-            try:
+            with sink.stream.reported():
                 if mode is not None:
                     os.fchmod(handle.fileno(), mode)
                 os.fsync(handle.fileno())
-            except OSError as exc:
-                raise _write_error(exc, label, atomic=True) from None
         try:
             os.replace(temporary, final)
         except OSError as exc:

@@ -189,10 +189,6 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
     with directory_lock(final.parent):
         # What an export killed by SIGKILL left (its process is dead); nobody else's.
         remove_stale_partials(final.parent.glob(f"{final.name}.*.partial"))
-    return _export(source, final, output, name, allow_truncated)
-
-
-def _export(source: Any, final: Path, output: str, name: str, allow_truncated: bool) -> ExportSummary:
     # Imported here, not at the top: rosbags takes a while to import, and only export needs it.
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore

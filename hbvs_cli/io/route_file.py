@@ -55,12 +55,11 @@ def _transition_from_record(record: dict[str, Any]) -> Transition:
 
 
 def route_message(segments: Sequence[Segment], references: Sequence[int], transitions: Sequence[Transition],
-                  log_time_ns: int, world: dict[str, Any] | None = None, taught_poses: np.ndarray | None = None,
-                  templates: Sequence[int | None] | None = None) -> dict[str, Any]:
+                  log_time_ns: int, world: dict[str, Any] | None, taught_poses: np.ndarray | None,
+                  templates: Sequence[int | None]) -> dict[str, Any]:
     """The ``hbvs.Route`` message: the segments (frames of the drive; ``templates``: the index of
     each one's detector template among the file's template images, or None), the transitions and, for a
     simulated route, its description and taught poses (what ``repeat --sim`` drives in and is judged against)."""
-    templates = [None] * len(segments) if templates is None else templates
     return {
         "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
         "timestamp": time_message(log_time_ns),

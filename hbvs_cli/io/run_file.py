@@ -89,15 +89,10 @@ def _check_info(info: dict[str, Any], name: str) -> None:
         value = info.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, types)):
             raise RecordingError(f"{name}: malformed hbvs metadata: {key} = {str(value)[:60]!r}")
-    pending = list(info.values())
-    while pending:
-        value = pending.pop()
-        if isinstance(value, dict):
-            pending.extend(value.values())
-        elif isinstance(value, list):
-            pending.extend(value)
-        elif isinstance(value, float) and not math.isfinite(value):
-            raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity")
+    try:
+        json.dumps(info, allow_nan=False)  # decoded JSON throughout: only NaN or infinity is refused
+    except ValueError:
+        raise RecordingError(f"{name}: malformed hbvs metadata: it holds NaN or infinity") from None
 
 
 def read_run(source: Any, name: str = "") -> RunData:
@@ -208,9 +203,7 @@ class RunWriter:
     def state(self, t: float, values: dict[str, Any]) -> None:
         """One ``hbvs.ControllerState``: ``t`` and ``values`` (NaN and infinity written as null)."""
         ns = self.log_time_ns(t)
-        message = {"timestamp": time_message(ns), "t": t}
-        message.update(values)
-        self._write_flat(STATE_TOPIC, ns, message)
+        self._write_flat(STATE_TOPIC, ns, {"timestamp": time_message(ns), "t": t, **values})
 
     def command(self, t: float, v: float, w: float, saturated: bool) -> None:
         """The command sent (m/s, rad/s), after the actuator limits."""

@@ -138,10 +138,9 @@ def _sorted_unique(table: Any) -> Any:
     return table
 
 
-def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iterator[Any]:
+def merged_windows(folder: Path, schema: Any) -> Iterator[Any]:
     """The rows of ``runs.parquet`` and the parts, sorted by run index, in tables of at most
-    ``window`` consecutive indices: one window's rows in memory at a time."""
-    window = window or MERGE_WINDOW
+    :data:`MERGE_WINDOW` consecutive indices: one window's rows in memory at a time."""
     spans = []
     for path in _result_files(folder):
         index = _indices(path)
@@ -151,8 +150,8 @@ def merged_windows(folder: Path, schema: Any, window: int | None = None) -> Iter
         return
     low = min(span[1] for span in spans)
     high = max(span[2] for span in spans)
-    for start in range(low, high + 1, window):
-        stop = start + window
+    for start in range(low, high + 1, MERGE_WINDOW):
+        stop = start + MERGE_WINDOW
         pieces = [
             _cast(path, _read_table(path, filters=[("index", ">=", start), ("index", "<", stop)]), schema)
             for path, first, last in spans if first < stop and last >= start
@@ -240,7 +239,8 @@ class ResultsTable:
         except BaseException:
             self.release()
             raise
-        self._part = 1 + max((_part_number(p) for p in (self.folder / PARTS).glob("part-*.parquet")), default=0)
+        numbers = (p.stem.removeprefix("part-") for p in (self.folder / PARTS).glob("part-*.parquet"))
+        self._part = 1 + max((int(number) for number in numbers if number.isdecimal()), default=0)
 
     def _open(self, fingerprint: dict[str, Any], description: dict[str, Any]) -> None:
         # An output that cannot be made is exit 6, as for every -o.
@@ -343,13 +343,6 @@ class ResultsTable:
         for part in (self.folder / PARTS).glob("part-*.parquet"):
             part.unlink()
         return rows
-
-
-def _part_number(path: Path) -> int:
-    try:
-        return int(path.stem.split("-")[1])
-    except (IndexError, ValueError):
-        return 0
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:

@@ -82,7 +82,6 @@ class TeachWriter:
         writer.metadata("hbvs", {"file_kind": FILE_KIND, "hbvs_version": __version__, "source": source, "settings": settings})
         if world is not None:
             writer.metadata(WORLD_METADATA, {"world": world.to_dict()})
-        self.frames = 0
         self.world = world
         self.scene = SceneWriter(writer)
 
@@ -109,7 +108,6 @@ class TeachWriter:
                 self.scene.start(log_time_ns, camera_height, self.world)
             self.scene.pose(log_time_ns, pose)
         write_compressed_image(self.writer, IMAGE_TOPIC, log_time_ns, image_bytes, image_format, self.frame_id)
-        self.frames += 1
 
 
 @dataclass(frozen=True)

@@ -215,10 +215,10 @@ def _ros2_commands(options: RepeatOptions, stack: ExitStack, info: Callable[[str
     if options.ros2_image is None and topic is None:
         return None, None
     from ..io import ros2_dds as dds  # lazy: an optional extra
-    from ..io.dds_discovery import describe_dds
+    from ..io.dds_discovery import dds_settings
     from ..io.ros2_live import CommandPublisher
 
-    info(f"repeat --live: {describe_dds()}")
+    info(f"repeat --live: {dds_settings().description}")
     node = dds.Ros2Node()
     if topic is None:
         return node, None

@@ -22,7 +22,7 @@ from ..io.images import STORE_FORMATS, bytes_to_store
 from ..io.limits import step_count
 from ..stop_signals import Terminated
 from ..io.mcap import open_output, seconds_to_ns
-from ..io.dds_discovery import describe_dds
+from ..io.dds_discovery import dds_settings
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.ros2_names import check_topic_names
@@ -224,7 +224,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
         clock = "the clock when each frame arrives" if kind == "camera" else "the bag's header stamps" if kind == "bag" else "their header stamps"
         raise UsageError(f"--fps does not go with --{kind}: its frames are timestamped by {clock}")
     if kind == "ros2":
-        console.info(f"teach: waiting for {options.ros2_image}; {describe_dds()}")
+        console.info(f"teach: waiting for {options.ros2_image}; {dds_settings().description}")
     source = _open_source(kind, options)
     camera = _load_camera(options.calibration, source, console) if options.calibration is not None else getattr(source, "camera", None)
     if camera is None:

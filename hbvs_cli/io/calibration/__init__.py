@@ -6,8 +6,7 @@ from __future__ import annotations
 
 from .load import MAX_CALIBRATION_BYTES, load_calibration
 from .ros import calibration_from_foxglove, calibration_to_foxglove, save_calibration_ros
-from .mapping import stated_sigma
-from .validate import intrinsics_from_values
+from .mapping import intrinsics_from_values, stated_sigma
 
 __all__ = [
     "MAX_CALIBRATION_BYTES", "load_calibration", "save_calibration_ros", "calibration_to_foxglove",

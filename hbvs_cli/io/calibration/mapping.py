@@ -87,6 +87,17 @@ def _intrinsics_from_mapping(
     return _build_intrinsics(K, w, h, model, coefficients, name, k_key, d_key, notes, stated_sigma(mapping, name))
 
 
+def intrinsics_from_values(
+    K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str,
+) -> CameraIntrinsics:
+    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major, or 3x3), the
+    image size (px), the distortion model (None: inferred from the count) and its coefficients in OpenCV order."""
+    if distortion_model is not None and not isinstance(distortion_model, str):  # said as these values' own error
+        raise CalibrationError(f"{source}: distortion_model must be a string, found {_kind_of(distortion_model)}")
+    values = {"K": K, "width": width, "height": height, "D": distortion, "distortion_model": distortion_model}
+    return _intrinsics_from_mapping(values, source)
+
+
 def stated_sigma(mapping: Mapping[str, Any], name: str) -> tuple[float, ...]:
     """The standard deviations of (fx, fy, cx, cy, *distortion) the calibration states, () when none."""
     parts = [found for found in [_lookup(mapping, _SIGMA_KEYS)] if found is not None] or [

@@ -13,8 +13,8 @@ import yaml
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError
 from ..limits import load_yaml_documents
-from .mapping import _require_mapping
-from .validate import _one_line, intrinsics_from_values
+from .mapping import _require_mapping, intrinsics_from_values
+from .validate import _one_line
 
 
 def _read_yaml(text: str, name: str) -> Mapping[str, Any]:

@@ -41,20 +41,6 @@ def _normalise_key(key: Any) -> str:
     return str(key).lower().replace("_", "").replace("-", "")
 
 
-def intrinsics_from_values(K: Any, width: Any, height: Any, distortion_model: str | None, distortion: Any, source: str) -> CameraIntrinsics:
-    """Validated intrinsics from raw values (e.g. a ROS ``CameraInfo``): ``K`` (9 numbers row-major, or 3x3), the
-    image size (px), the distortion model (None: inferred from the count) and its coefficients in OpenCV order."""
-    k_values = _numbers(K, f"{source}: K")
-    if len(k_values) != 9:
-        raise CalibrationError(f"{source}: K has {len(k_values)} numbers, expected 9")
-    w = _image_side(width, f"{source}: width")
-    h = _image_side(height, f"{source}: height")
-    coefficients = _numbers(distortion, f"{source}: D") if distortion is not None else []
-    if distortion_model is not None and not isinstance(distortion_model, str):
-        raise CalibrationError(f"{source}: distortion_model must be a string, found {_kind_of(distortion_model)}")
-    return _build_intrinsics(k_values, w, h, distortion_model, coefficients, source, "K", "D")
-
-
 def _build_intrinsics(
     K: Sequence[float], width: int, height: int, model: str | None, coefficients: Sequence[float], name: str,
     k_key: str = "camera_matrix", d_key: str = "distortion_coefficients", notes: list[str] | None = None,

@@ -12,6 +12,7 @@ import os
 import struct
 import sys
 import zlib
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator
@@ -128,9 +129,16 @@ class McapMessage:
 
     def foxglove(self, source: str = "") -> Any:
         """A ``foxglove.*`` message as its protobuf class; :class:`RecordingError` if it is not one."""
+        import importlib
+
         from google.protobuf.message import DecodeError
 
-        message_class = _foxglove_class(self.schema_name)
+        # foxglove.<Name> is the class <Name> of foxglove_schemas_protobuf.<Name>_pb2.
+        package, _, name = self.schema_name.partition(".")
+        message_class = None
+        if package == "foxglove" and name.isidentifier():
+            with suppress(ImportError, AttributeError):
+                message_class = getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
         if self.message_encoding != "protobuf" or message_class is None:
             raise RecordingError(
                 f"{source}: message on {self.topic} is {self.message_encoding[:40]!r} {self.schema_name[:60]!r}, "
@@ -140,19 +148,6 @@ class McapMessage:
             return message_class.FromString(self.data)
         except (DecodeError, ValueError, RuntimeError):
             raise RecordingError(f"{source}: malformed {self.schema_name} message on {self.topic}") from None
-
-
-def _foxglove_class(schema_name: str) -> Any:
-    """The protobuf class of a ``foxglove.<Name>`` schema, or None."""
-    import importlib
-
-    package, _, name = schema_name.partition(".")
-    if package != "foxglove" or not name.isidentifier():
-        return None
-    try:
-        return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
-    except (ImportError, AttributeError):
-        return None
 
 
 #: What the library raises on damaged data, beyond its own McapError (added in __iter__).

@@ -6,7 +6,7 @@ import json
 import os
 from contextlib import contextmanager
 from functools import lru_cache
-from typing import IO, Any, Iterator
+from typing import Any, Iterator
 
 from ..schemas import HBVS_SCHEMAS
 from .caps import PROFILE
@@ -66,12 +66,6 @@ class McapWriter:
         """Write one ``hbvs.*`` message whose JSON bytes are already encoded."""
         self._add(self._channel(topic, schema_name, None), log_time_ns, data)
 
-    def copy(self, message: Any, log_time_ns: int | None = None, data: bytes | None = None) -> None:
-        """Write a :class:`~.reader.McapMessage` read from another file, on a channel declared
-        as there, with its own bytes and log time unless others are given."""
-        channel_id = self._declare(message.topic, message.schema_name, message.schema_encoding, message.schema_data, message.message_encoding)
-        self._add(channel_id, message.log_time if log_time_ns is None else log_time_ns, message.data if data is None else data)
-
     def _add(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
         self._writer.add_message(
             channel_id=channel_id, log_time=int(log_time_ns), publish_time=int(log_time_ns), data=data, sequence=self._sequence,
@@ -99,13 +93,13 @@ class McapWriter:
 
 
 @contextmanager
-def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024, stdout: IO[bytes] | None = None,
+def open_output(target: str | os.PathLike[str], chunk_size: int = 1024 * 1024,
                 keep_on_error: bool = False) -> Iterator[McapWriter]:
     """An :class:`McapWriter` on :func:`~hbvs_cli.io.output_target.open_output_stream` (committed on success;
     ``keep_on_error``: finished and committed on a failure too, then the failure raised)."""
     from ..output_target import open_output_stream
 
-    with open_output_stream(target, "output", stdout=stdout, keep_on_error=keep_on_error) as sink:
+    with open_output_stream(target, "output", keep_on_error=keep_on_error) as sink:
         writer = McapWriter(sink.stream, chunk_size=chunk_size)
         writer.input_ended_early = sink.input_ended_early
         try:

@@ -10,6 +10,7 @@ import io
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -152,18 +153,6 @@ def _shown(value: Any) -> str:
     return f"a {type(value).__name__}"
 
 
-def _typestore_for(information: dict[str, Any]) -> Any:
-    """The type store of metadata.yaml's distro (Humble by default), for bags without definitions."""
-    from rosbags.typesys import Stores, get_typestore
-
-    distro = str(information.get("ros_distro") or "humble").strip().lower()
-    try:
-        store = Stores(f"ros2_{distro}")
-    except ValueError:
-        store = Stores.LATEST
-    return get_typestore(store)
-
-
 class _CappedZstd:
     """The ``zstd`` module as rosbags' reader uses it, a message capped at ``MAX_RECORD_BYTES`` and a file
     at the ``decompressed-bytes`` limit (rosbags decompresses whatever size they expand to)."""
@@ -216,26 +205,24 @@ class _CappedReader(io.RawIOBase):
         super().close()
 
 
-def _cap_rosbags_decompression() -> None:
-    """Give rosbags' reader the capped ``zstd`` (once per process)."""
-    from rosbags.rosbag2 import reader
-
-    if not isinstance(reader.zstd, _CappedZstd):
-        reader.zstd = _CappedZstd(reader.zstd)
-
-
 class RosbagsBag:
     """A ROS 2 bag folder read with ``rosbags``' ``AnyReader``, open until :meth:`close`."""
 
     def __init__(self, folder: Path, name: str) -> None:
         from rosbags.highlevel import AnyReader
+        from rosbags.rosbag2 import reader
+        from rosbags.typesys import Stores, get_typestore
 
         self.name = name
         self.folder = folder
         information = bag_information(folder, name)
-        _cap_rosbags_decompression()
+        if not isinstance(reader.zstd, _CappedZstd):  # rosbags' reader gets the capped zstd once per process
+            reader.zstd = _CappedZstd(reader.zstd)
+        # Bags without message definitions: the types of metadata.yaml's distro (Humble by default).
+        distro = "ros2_" + str(information.get("ros_distro") or "humble").strip().lower()
+        store = Stores(distro) if distro in {store.value for store in Stores} else Stores.LATEST
         with _rosbags_errors(name):
-            self._reader = AnyReader([folder], default_typestore=_typestore_for(information))
+            self._reader = AnyReader([folder], default_typestore=get_typestore(store))
             self._reader.open()
         self._open = True
         self.topics: dict[str, BagTopic] = {}
@@ -266,10 +253,8 @@ class RosbagsBag:
             self._open = True
         connections = [c for c in self._reader.connections if c.topic in topics]
         counted = limits.current("messages")
-        read = 0
         with _rosbags_errors(self.name):
-            for connection, log_time, raw in self._reader.messages(connections=connections):
-                read += 1
+            for read, (connection, log_time, raw) in enumerate(self._reader.messages(connections=connections), start=1):
                 if read > counted:
                     raise limits.exceeded("messages", None, f"{self.name}: the number of messages")
                 if len(raw) > MAX_RECORD_BYTES:
@@ -277,17 +262,15 @@ class RosbagsBag:
                         f"{self.name}: a {connection.topic} message of {len(raw)} bytes, more than the "
                         f"{MAX_RECORD_BYTES // 2**20} MiB hbvs reads"
                     )
-                yield BagMessage(connection.topic, int(log_time), len(raw), self._decoder(raw, connection.msgtype))
+                decode = partial(self._decode, raw, connection.msgtype)
+                yield BagMessage(connection.topic, int(log_time), len(raw), decode)
 
-    def _decoder(self, raw: bytes, msgtype: str) -> Callable[[str], Any]:
-        def decode(what: str) -> Any:
-            try:
-                return self._reader.deserialize(raw, msgtype)
-            except Exception as exc:  # a damaged CDR payload
-                detail = " ".join(str(exc).split()) or type(exc).__name__
-                raise InputError(f"{what}: cannot decode the {msgtype} message ({detail[:200]})") from None
-
-        return decode
+    def _decode(self, raw: bytes, msgtype: str, what: str) -> Any:
+        try:
+            return self._reader.deserialize(raw, msgtype)
+        except Exception as exc:  # a damaged CDR payload
+            detail = " ".join(str(exc).split()) or type(exc).__name__
+            raise InputError(f"{what}: cannot decode the {msgtype} message ({detail[:200]})") from None
 
     def close(self) -> None:
         if self._open:
@@ -345,10 +328,8 @@ class McapFileBag:
                 count = channel.message_count
                 if known is None:
                     topics[channel.topic] = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, count)
-                elif known.count is not None and count is not None:
-                    known.count += count
-                else:
-                    known.count = None
+                else:  # unknown in one file: unknown in all
+                    known.count = None if known.count is None or count is None else known.count + count
         return topics
 
     @staticmethod
@@ -370,19 +351,17 @@ class McapFileBag:
             try:
                 with mcap_bag_errors(str(file)):
                     for message in messages:
-                        yield BagMessage(message.topic, message.log_time, len(message.data), self._decoder(message, str(file)), message)
+                        decode = partial(self._decode, message, str(file))
+                        yield BagMessage(message.topic, message.log_time, len(message.data), decode, message)
                     _require_complete(stream, str(file))
             finally:
                 messages.close()
 
-    def _decoder(self, message: McapMessage, file: str) -> Callable[[str], Any]:
-        def decode(what: str) -> Any:
-            with mcap_bag_errors(file):
-                return self._decode(message, what)
+    def _decode(self, message: McapMessage, file: str, what: str) -> Any:
+        with mcap_bag_errors(file):
+            return self._decoder(message, what)(message.data)
 
-        return decode
-
-    def _decode(self, message: McapMessage, what: str) -> Any:
+    def _decoder(self, message: McapMessage, what: str) -> Callable[[bytes], Any]:
         key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
         decoder = self._decoders.get(key)
         if decoder is None:
@@ -403,7 +382,7 @@ class McapFileBag:
                     "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
                 )
             self._decoders[key] = decoder
-        return decoder(message.data)
+        return decoder
 
     def close(self) -> None:
         """Nothing stays open between reads."""

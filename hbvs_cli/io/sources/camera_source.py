@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -9,10 +10,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ...errors import InputError
+from ...errors import InputError, UsageError
 from .. import ClosedOnExit
 from ..native_log import opencv_error_text
-from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
+from .frame_source import FrameSource, SourceFrame, capture_property
 from ..images import as_image8
 
 
@@ -28,7 +29,9 @@ class CameraSource(FrameSource, ClosedOnExit):
         clock: Callable[[], float] = time.monotonic, max_failed_reads: int = 5,
     ) -> None:
         self.index = index
-        self.duration = _check_rate(duration, "--duration")
+        if duration is not None and not 0.0 < duration < math.inf:  # the option allows 0, a camera records something
+            raise UsageError(f"--duration must be a positive number, got {duration!r}")
+        self.duration = duration
         self.camera = None
         self._factory = capture_factory
         self._clock = clock
@@ -45,9 +48,8 @@ class CameraSource(FrameSource, ClosedOnExit):
             capture = self._factory(self.index)
         except (cv2.error, SystemError, OSError) as exc:
             raise InputError(f"camera {self.index}: cannot open the device ({opencv_error_text(exc)})") from None
-        if capture is None or not capture.isOpened():
-            if capture is not None:
-                capture.release()
+        if not capture.isOpened():
+            capture.release()
             raise InputError(f"camera {self.index}: cannot open the device (is it connected and not in use by another program?)")
         return capture
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from ...errors import InputError
 from ..images import as_image8, decode_image, image_size, sniff_format
-from .frame_source import FrameSource, SourceFrame, _check_rate, _natural_key, _same_size
+from .frame_source import FrameSource, SourceFrame, _natural_key, _same_size
 
 #: File extensions :class:`ImageFolderSource` picks up (compared case-insensitively).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -24,7 +24,7 @@ class ImageFolderSource(FrameSource):
 
     def __init__(self, dir_or_glob: str | os.PathLike[str], fps: float) -> None:
         self.path = str(dir_or_glob)
-        self.fps = _check_rate(fps, "--fps")  # teach gives images its default rate without --fps
+        self.fps = fps  # an option checked finite and >= 0.1 Hz; teach gives images its default rate without one
         self.camera = None
         self.files = self._find(self.path)
 

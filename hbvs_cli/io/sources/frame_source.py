@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ...core.camera import CameraIntrinsics
-from ...errors import InputError, UsageError
+from ...errors import InputError
 
 _NS = 1_000_000_000
 
@@ -77,18 +77,6 @@ def _natural_key(text: str) -> tuple[Any, ...]:
     # Text and numbers alternate, so two names' parts always compare; the name breaks ties.
     parts = re.split(r"(\d+)", text)
     return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)), text
-
-
-def _check_rate(value: float | None, what: str) -> float | None:
-    if value is None:
-        return None
-    try:
-        rate = float(value)
-    except (TypeError, ValueError):
-        raise UsageError(f"{what} must be a number, got {value!r}") from None
-    if not math.isfinite(rate) or rate <= 0:
-        raise UsageError(f"{what} must be a positive number, got {value!r}")
-    return rate
 
 
 def _same_size(size: tuple[int, int] | None, image: np.ndarray, what: str) -> tuple[int, int]:

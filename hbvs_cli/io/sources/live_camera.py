@@ -16,10 +16,6 @@ from .frame_source import LiveFrame
 from ..images import as_image8
 
 
-def _is_file(device: str) -> bool:
-    return not device.isdigit() and "://" not in device and not device.startswith("/dev/") and Path(device).is_file()
-
-
 class LatestCameraFrame(ClosedOnExit):
     """Frames of ``cv2.VideoCapture(device)`` (an index, ``/dev/videoN``, a URL or a video file), newest only."""
 
@@ -29,7 +25,10 @@ class LatestCameraFrame(ClosedOnExit):
         if not self._capture.isOpened():
             raise InputError(f"--camera {device}: cannot open it (no such device, or OpenCV cannot read it)")
         fps = float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
-        self._pace = 1.0 / fps if _is_file(device) and 0 < fps < 1000 else None
+        # A video file (not a device index, URL or /dev node) is played at its own rate.
+        is_file = (not device.isdigit() and "://" not in device and not device.startswith("/dev/")
+                   and Path(device).is_file())
+        self._pace = 1.0 / fps if is_file and 0 < fps < 1000 else None
         self._lock = threading.Condition()
         self._latest: LiveFrame | None = None
         self._unread = 0

@@ -13,8 +13,8 @@ import numpy as np
 
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError, RecordingError, UsageError
-from ..calibration import intrinsics_from_values
-from ..mcap import McapMessage
+from ..calibration import calibration_from_foxglove, intrinsics_from_values
+from ..images import read_compressed_image
 from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
@@ -35,12 +35,6 @@ def _is_image_topic(topic: BagTopic) -> bool:
     if topic.type == COMPRESSED_IMAGE_SCHEMA:
         return topic.encoding == "protobuf"
     return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
-
-
-def _is_calibration_topic(topic: BagTopic) -> bool:
-    if topic.type == CAMERA_CALIBRATION_SCHEMA:
-        return topic.encoding == "protobuf"
-    return topic.type == ROS_CAMERA_INFO_SCHEMA
 
 
 def _stamp_ns(message: Any) -> int:
@@ -132,7 +126,9 @@ class BagSource(FrameSource):
         return None, None
 
     def _camera_info_topic(self, topics: dict[str, BagTopic]) -> str | None:
-        infos = sorted(t.name for t in topics.values() if _is_calibration_topic(t) and t.count != 0)
+        # A CameraInfo, or hbvs's own foxglove.CameraCalibration (protobuf only).
+        infos = sorted(t.name for t in topics.values() if t.count != 0 and (t.type == ROS_CAMERA_INFO_SCHEMA or (
+            t.type == CAMERA_CALIBRATION_SCHEMA and t.encoding == "protobuf")))
         if len(infos) <= 1:
             return infos[0] if infos else None
 
@@ -159,8 +155,14 @@ class BagSource(FrameSource):
             return None, f"{source}: the topic has no messages"
         if first.size > _MAX_CAMERA_INFO_BYTES:
             return None, f"{source}: a CameraInfo message of {first.size} bytes is not one hbvs can use"
-        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:
-            return _camera_from_foxglove(first.mcap, source)
+        if first.mcap is not None and first.mcap.schema_name == CAMERA_CALIBRATION_SCHEMA:  # hbvs's own, protobuf
+            try:
+                calibration = first.mcap.foxglove(source)
+                if not any(calibration.K):
+                    return None, f"{source}: K is all zeros (an uncalibrated camera)"
+                return calibration_from_foxglove(calibration, source), None
+            except (RecordingError, CalibrationError) as exc:
+                return None, str(exc)
         try:
             info = first.decode(source)
             return self._camera_from_info(info, source)
@@ -196,9 +198,9 @@ class BagSource(FrameSource):
 
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
-        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:
-            image, encoded, fmt, stamp_ns = _foxglove_frame(message.mcap, what)
-            return image, encoded, fmt, stamp_ns, None
+        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:  # a foxglove.CompressedImage
+            stored = read_compressed_image(message.mcap.data, what)
+            return (*compressed_to_image8(stored, what), stored.stamp_ns, None)
         decoded = message.decode(what)
         try:
             if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
@@ -270,27 +272,3 @@ class BagSource(FrameSource):
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
             "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
         }
-
-
-def _foxglove_frame(message: McapMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int]:
-    """Image, its bytes, their format and the stamp (ns) of a ``foxglove.CompressedImage``."""
-    from ..images import read_compressed_image
-
-    stored = read_compressed_image(message.data, what)
-    return (*compressed_to_image8(stored, what), stored.stamp_ns)
-
-
-def _camera_from_foxglove(message: McapMessage, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-    """Intrinsics of a protobuf ``foxglove.CameraCalibration``, or why there are none."""
-    from ..calibration import calibration_from_foxglove
-
-    try:
-        calibration = message.foxglove(source)
-    except RecordingError as exc:
-        return None, str(exc)
-    if not any(calibration.K):
-        return None, f"{source}: K is all zeros (an uncalibrated camera)"
-    try:
-        return calibration_from_foxglove(calibration, source), None
-    except CalibrationError as exc:
-        return None, str(exc)

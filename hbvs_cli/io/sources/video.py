@@ -12,7 +12,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..native_log import opencv_error_text
-from .frame_source import FrameSource, SourceFrame, _check_rate, capture_property
+from .frame_source import FrameSource, SourceFrame, capture_property
 from ..images import as_image8
 
 
@@ -24,7 +24,7 @@ class VideoSource(FrameSource):
 
     def __init__(self, path: str | os.PathLike[str], fps: float | None = None) -> None:
         self.path = str(path)
-        self.fps_override = _check_rate(fps, "--fps")
+        self.fps_override = fps  # --fps is checked as an option (finite, at least 0.1 Hz)
         self.camera = None
         passthrough = "://" in self.path or "%" in self.path
         if not passthrough:
@@ -38,8 +38,8 @@ class VideoSource(FrameSource):
             self._container_fps = capture_property(capture, cv2.CAP_PROP_FPS)
             count = capture_property(capture, cv2.CAP_PROP_FRAME_COUNT)
             self.frame_count = int(count) if count is not None else None
-            ok, frame = self._read(capture)
-            if not ok:
+            frame = self._read(capture)
+            if frame is None:
                 raise InputError(f"no frames could be decoded from {self.path}")
             self.width, self.height = int(frame.shape[1]), int(frame.shape[0])
         finally:
@@ -65,14 +65,13 @@ class VideoSource(FrameSource):
             raise InputError(f"{self.path}: cannot open the video (not a video, or a codec this OpenCV build lacks)")
         return capture
 
-    def _read(self, capture: Any) -> tuple[bool, np.ndarray | None]:
+    def _read(self, capture: Any) -> np.ndarray | None:
+        """The next frame, None at the end."""
         try:
             ok, frame = capture.read()
         except (cv2.error, SystemError) as exc:
             raise InputError(f"{self.path}: error while decoding the video ({opencv_error_text(exc)})") from None
-        if not ok or frame is None or frame.size == 0:
-            return False, None
-        return True, frame
+        return frame if ok and frame is not None and frame.size else None
 
     def __iter__(self) -> Iterator[SourceFrame]:
         capture = self._open()
@@ -81,8 +80,8 @@ class VideoSource(FrameSource):
             first_msec: float | None = None
             index = 0
             while True:
-                ok, frame = self._read(capture)
-                if not ok:
+                frame = self._read(capture)
+                if frame is None:
                     break
                 if fps is not None:
                     t = index / fps
