@@ -97,7 +97,8 @@ def _stdin_is_an_empty_pipe() -> bool:
 def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
     """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code.
     A stage whose stdin input is an empty pipe stops with :class:`UpstreamFailedError` (one error line per pipeline)."""
-    reads_stdin = any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value) for value in map(values.get, INPUT_OPTIONS))
+    reads_stdin = any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value)
+                      for value in map(values.get, INPUT_OPTIONS))
     if reads_stdin and _stdin_is_an_empty_pipe():
         raise UpstreamFailedError("stdin: the pipe closed without data: the command before this one failed")
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
@@ -176,9 +177,14 @@ DDS_EXIT_GRACE_S = 10.0
 _owns_process = False
 
 
+def _spoke_dds() -> bool:
+    """Whether this process is hbvs's own (not a test calling :func:`main`) and loaded Cyclone DDS."""
+    return _owns_process and "cyclonedds" in sys.modules
+
+
 def _bound_dds_exit(grace_s: float) -> None:
-    """End this process ``grace_s`` from now, whatever it waits for, if it is hbvs's and loaded Cyclone DDS."""
-    if _owns_process and "cyclonedds" in sys.modules:
+    """End this process ``grace_s`` from now, whatever it waits for, if it spoke DDS."""
+    if _spoke_dds():
         # A kernel timer, not a watchdog thread: faulthandler's made that teardown hang in 7 runs of 8.
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
         signal.alarm(math.ceil(grace_s))
@@ -190,8 +196,9 @@ def _end_without_dds_teardown(code: int) -> None:
     robot: ddsi_stop waiting for the built-in delivery queue; in CI it outlived two Ctrl-C's, and later
     a test by ten seconds). The command has returned: its files are closed and its last zero command
     acknowledged (``repeat --live`` waits for that); nothing of hbvs's is left for the teardown to do."""
-    if not (_owns_process and "cyclonedds" in sys.modules):
+    if not _spoke_dds():
         return
+    _bound_dds_exit(DDS_EXIT_GRACE_S)  # a flush into a pipe nobody reads
     for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
         with suppress(OSError, ValueError, AttributeError):
             stream.flush()
@@ -443,6 +450,5 @@ def main(argv: list[str] | None = None) -> None:
             _silence_stdout()
     except (OSError, ValueError, AttributeError):
         pass
-    _bound_dds_exit(DDS_EXIT_GRACE_S)
     _end_without_dds_teardown(code)
     sys.exit(code)
