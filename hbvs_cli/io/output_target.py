@@ -7,7 +7,6 @@ from __future__ import annotations
 import errno
 import os
 import re
-import secrets
 import stat
 import sys
 from contextlib import contextmanager, suppress
@@ -64,7 +63,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
 
 def partial_name_of(final: Path) -> Path:
     """A fresh partial name beside ``final``, unique to this process and call."""
-    return final.with_name(f"{final.name}.{os.getpid()}-{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+    return final.with_name(f"{final.name}.{os.getpid()}-{os.urandom(4).hex()}{PARTIAL_SUFFIX}")
 
 
 def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
