@@ -230,7 +230,11 @@ def loop_child(fit_path: str, perception: str, speed: float, state_filter: str, 
     """Step one closed loop (in this process, pinned to one core) and print, as JSON, its
     steps, its wall and CPU seconds, the CPU seconds spent in each stage (images: rendering
     and detection, as the camera calls them) and the anchors' median CPU seconds, measured
-    between chunks of the loop so that load on the machine hits both alike."""
+    between chunks of the loop so that load on the machine hits both alike.
+
+    ``state_filter`` may name several filters, comma-separated ("ekf,none"): one loop each,
+    stepped a chunk at a time in turn, their figures under ``"runs"``, so that a difference
+    between them is not a difference between two processes' spells of the machine."""
     import itertools
 
     if hasattr(os, "sched_setaffinity"):
@@ -242,9 +246,13 @@ def loop_child(fit_path: str, perception: str, speed: float, state_filter: str, 
     from hbvs_cli.stages.repeat import RepeatOptions, prepare_simulation, resolve_settings
 
     fit = read_fit_file(fit_path)
-    options = RepeatOptions(input=fit_path, sim=True, perception=perception, speed=speed, state_filter=state_filter)
-    settings = resolve_settings(options, fit.model.dhat0, 30.0, fit.model.suggested_gains())
-    simulation = prepare_simulation(options, settings, fit)
+    filters = state_filter.split(",")
+    simulations = {}
+    for name in filters:
+        options = RepeatOptions(input=fit_path, sim=True, perception=perception, speed=speed, state_filter=name)
+        settings = resolve_settings(options, fit.model.dhat0, 30.0, fit.model.suggested_gains())
+        simulations[name] = prepare_simulation(options, settings, fit)
+    simulation = simulations[filters[0]]
     camera = simulation.camera
     stages: dict[str, float] = {"render": 0.0, "detect": 0.0}
 
@@ -269,23 +277,30 @@ def loop_child(fit_path: str, perception: str, speed: float, state_filter: str, 
         route = opencv_route(world, reference_pixels, normal)
         anchors = {"route": lambda: [route(p) for p in pixels]}
     samples: dict[str, list[float]] = {name: [] for name in anchors}
-    steps, loop, loop_cpu = 0, 0.0, 0.0
-    records = simulation.run()
+    runs = {name: {"steps": 0, "loop": 0.0, "loop_cpu": 0.0, "records": simulations[name].run(), "done": False}
+            for name in filters}
     per_chunk = max(simulation.steps // chunks, 1)
-    while True:
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        taken = sum(1 for _ in itertools.islice(records, per_chunk))
-        loop += time.perf_counter() - start
-        loop_cpu += time.thread_time() - start_cpu
-        steps += taken
+    for turn in itertools.count():
+        # Each chunk in turn, the order reversed every turn: neither loop always runs first.
+        for name in filters if turn % 2 == 0 else filters[::-1]:
+            run = runs[name]
+            if run["done"]:
+                continue
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            taken = sum(1 for _ in itertools.islice(run["records"], per_chunk))
+            run["loop"] += time.perf_counter() - start
+            run["loop_cpu"] += time.thread_time() - start_cpu
+            run["steps"] += taken
+            run["done"] = taken < per_chunk
         for name, function in anchors.items():
             samples[name].append(median_time(function, 5, time.thread_time))
-        if taken < per_chunk:
+        if all(run["done"] for run in runs.values()):
             break
     if perception != "images":
         samples = {"route": [t / 200 for t in samples["route"]]}
-    print(json.dumps({"steps": steps, "loop": loop, "loop_cpu": loop_cpu, "stages": stages,
-                      "anchors": {k: statistics.median(v) for k, v in samples.items()}}))
+    figures = {name: {key: run[key] for key in ("steps", "loop", "loop_cpu")} for name, run in runs.items()}
+    measured = figures[filters[0]] if len(filters) == 1 else {"runs": figures}
+    print(json.dumps({**measured, "stages": stages, "anchors": {k: statistics.median(v) for k, v in samples.items()}}))
 
 
 def _loop(fit: Path, perception: str, speed: float, state_filter: str) -> dict:
@@ -325,14 +340,20 @@ def bench_points_loop(work: Path, quick: bool) -> list[Figure]:
     # past its target (30.7 us) where the full run's 12 000 steps gave 28.2.
     speed = 0.05
     filtered, plain = [], []
-    # Three runs of each even when quick: 2c is a difference of two runs' CPU times, whose
-    # spread over single pairs (23-37 us a step) was as wide as its margin to its target.
+    # Three runs even when quick: 2c is a difference of two loops' CPU times, whose spread over
+    # single pairs (23-37 us a step) was as wide as its margin to its target. Each process
+    # steps both loops a chunk at a time in turn: measured in two processes each, the filter's
+    # share was 21-39 us over twelve quick runs within two hours (0.46-0.86 of the route), as
+    # the machine's speed drifted between them; stepped in turn, 0.69-0.82 over six.
+    routes = []
     for _ in range(3):
-        filtered.append(_loop(fit, "points", speed, "ekf"))
-        plain.append(_loop(fit, "points", speed, "none"))
+        paired = _loop(fit, "points", speed, "ekf,none")
+        filtered.append(paired["runs"]["ekf"])
+        plain.append(paired["runs"]["none"])
+        routes.append(paired["anchors"]["route"])
     steps = filtered[0]["steps"]
     loop = statistics.median(r["loop"] for r in filtered)
-    route = statistics.median(r["anchors"]["route"] for r in filtered + plain)
+    route = statistics.median(routes)
     step_us, route_us = loop / steps * 1e6, route * 1e6
     multiple = steps / 30.0 / loop
     step_cpu_us = statistics.median(r["loop_cpu"] for r in filtered) / steps * 1e6
@@ -344,9 +365,9 @@ def bench_points_loop(work: Path, quick: bool) -> list[Figure]:
     unfiltered_cpu_us = statistics.median(r["loop_cpu"] for r in plain) / steps * 1e6
     filter_us = step_cpu_us - unfiltered_cpu_us
     # Against the route measured between the same chunks, as 2a' and as issue 28 asks of the
-    # loops ("a faster or slower machine moves both"): this host's speed drifts (over nine
-    # quick runs within an hour the filter took 23-39 us a step, 0.54-0.83 of the route), and
-    # issue 28 set its 30 us where the route took 35 us.
+    # loops ("a faster or slower machine moves both"): this host's speed drifts (over twelve
+    # quick runs within two hours the filter took 21-39 us a step, 0.46-0.86 of the route),
+    # and issue 28 set its 30 us where the route took 35 us.
     filter_target = FILTER_US_AT_TARGET / ROUTE_US_AT_TARGET
     filter_share = filter_us / route_us
     command = f"hbvs repeat fit.mcap --sim --perception points --speed {speed} (pinned to one core)"
@@ -518,7 +539,9 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     # The recordings just written (0.4-0.8 GB) go to disk now, not by the kernel's writeback
     # while the first runs are timed.
     os.sync()
+    before = len(TWO_CORE_EFFICIENCY)
     walls = _timed_fits(work, teaches, fitted, QUICK_RUNS if quick else 3)
+    efficiency = ', '.join(f'{e:.2f}' for e in TWO_CORE_EFFICIENCY[before:])
     decode_walls, fit_walls, decode_cpus, fit_cpus = walls[frames]
     ratios = [d / f for d, f in zip(decode_walls, fit_walls)]
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
@@ -550,7 +573,8 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
         f"{measured}; median decode only {frames / decode_wall:.0f} frames/s, fit "
         f"{frames / fit_wall:.0f} frames/s (PNG 640x480; both whole processes; fit decodes in a second thread); CPU "
         f"{statistics.median(decode_cpus):.2f} s vs {statistics.median(fit_cpus):.2f} s; load average "
-        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores",
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; two-core efficiency before each run {efficiency} (1: two "
+        f"whole cores)",
         f"hbvs fit teach.mcap {' '.join(fitted + ['-o'])} fit.mcap vs. reading and decoding the same images (teach {' '.join(taught)})",
     )
 
@@ -559,7 +583,9 @@ def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str], runs: i
     """Wall and CPU seconds of ``runs`` decode-only processes and fits of each recording
     (by its frame count), interleaved: a slow spell of the machine hits every length alike."""
     measured: dict[int, tuple[list[float], ...]] = {count: ([], [], [], []) for count in teaches}
+    frame = _first_image(next(iter(teaches.values())))
     for _ in range(runs):
+        TWO_CORE_EFFICIENCY.append(two_core_efficiency(frame))
         for count, teach in teaches.items():
             decode_walls, fit_walls, decode_cpus, fit_cpus = measured[count]
             code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
@@ -578,6 +604,46 @@ def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str], runs: i
             fit_walls.append(wall)
             fit_cpus.append(_children_cpu() - cpu)
     return measured
+
+
+#: :func:`two_core_efficiency` before each run of figure 3's fits, in order.
+TWO_CORE_EFFICIENCY: list[float] = []
+
+
+def two_core_efficiency(encoded: bytes, repeats: int = 40) -> float:
+    """Wall time of one thread decoding ``encoded`` ``repeats`` times over that of two threads
+    each doing so at once (OpenCV lets go of the GIL): 1 where the machine gives two whole
+    cores, less where its two threads slow each other (a host's other guests, shared caches).
+    A fit decodes and detects in two threads, decode-only in one, so figure 3 moves with it."""
+    import threading
+
+    import cv2
+
+    data = np.frombuffer(encoded, np.uint8)
+
+    def work() -> None:
+        for _ in range(repeats):
+            cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+
+    def timed(threads: int) -> float:
+        workers = [threading.Thread(target=work) for _ in range(threads)]
+        start = time.perf_counter()
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+        return time.perf_counter() - start
+
+    one = statistics.median(timed(1) for _ in range(3))
+    return one / statistics.median(timed(2) for _ in range(3))
+
+
+def _first_image(teach: Path) -> bytes:
+    """The first frame's encoded bytes in a teach file."""
+    from hbvs_cli.io.teach_file import TeachReader
+
+    reader = TeachReader(teach)
+    return next(iter(reader.frames())).stored_image().data
 
 
 def _read_into_page_cache(path: Path) -> None:
@@ -642,8 +708,8 @@ def bench_startup(quick: bool) -> Figure:
 
     # Against the bare interpreter, as issue 8 asks of every figure ("a ratio of two things
     # measured side by side"): this host's speed drifts by up to 1.7x within minutes on a quiet
-    # machine: over nine quick runs within an hour the start-up took 0.135-0.264 s (0.25
-    # missed twice), 5.6-8.2 times the bare interpreter's (20-34 ms). The least of each, as
+    # machine: over fifteen quick runs within two hours the start-up took 0.135-0.264 s (0.25
+    # missed twice), 5.6-8.2 times the bare interpreter's (18-34 ms). The least of each, as
     # timeit advises: a start-up only grows with what else the machine does.
     t_bare, t_help = interleaved(bare, help_, repeats, min)
     extra = t_help - t_bare
