@@ -342,9 +342,8 @@ def bench_points_loop(work: Path, quick: bool) -> list[Figure]:
     filtered, plain = [], []
     # Three runs even when quick: 2c is a difference of two loops' CPU times, whose spread over
     # single pairs (23-37 us a step) was as wide as its margin to its target. Each process
-    # steps both loops a chunk at a time in turn: measured in two processes each, the filter's
-    # share was 21-39 us over twelve quick runs within two hours (0.46-0.86 of the route), as
-    # the machine's speed drifted between them; stepped in turn, 0.69-0.82 over six.
+    # steps both loops a chunk at a time in turn, so that the machine's drift (below) does not
+    # fall between them: in two processes each, 0.46-0.86 of the route; in turn, 0.69-0.82.
     routes = []
     for _ in range(3):
         paired = _loop(fit, "points", speed, "ekf,none")
@@ -539,9 +538,8 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     # The recordings just written (0.4-0.8 GB) go to disk now, not by the kernel's writeback
     # while the first runs are timed.
     os.sync()
-    before = len(TWO_CORE_EFFICIENCY)
-    walls = _timed_fits(work, teaches, fitted, QUICK_RUNS if quick else 3)
-    efficiency = ', '.join(f'{e:.2f}' for e in TWO_CORE_EFFICIENCY[before:])
+    walls, efficiencies = _timed_fits(work, teaches, fitted, QUICK_RUNS if quick else 3)
+    efficiency = ', '.join(f'{e:.2f}' for e in efficiencies)
     decode_walls, fit_walls, decode_cpus, fit_cpus = walls[frames]
     ratios = [d / f for d, f in zip(decode_walls, fit_walls)]
     decode_wall, fit_wall = statistics.median(decode_walls), statistics.median(fit_walls)
@@ -579,13 +577,16 @@ def bench_fit_throughput(work: Path, quick: bool, target: str = "dots") -> Figur
     )
 
 
-def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str], runs: int) -> dict[int, tuple[list[float], ...]]:
+def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str],
+                runs: int) -> tuple[dict[int, tuple[list[float], ...]], list[float]]:
     """Wall and CPU seconds of ``runs`` decode-only processes and fits of each recording
-    (by its frame count), interleaved: a slow spell of the machine hits every length alike."""
+    (by its frame count), interleaved: a slow spell of the machine hits every length alike;
+    and the :func:`two_core_efficiency` before each run."""
     measured: dict[int, tuple[list[float], ...]] = {count: ([], [], [], []) for count in teaches}
     frame = _first_image(next(iter(teaches.values())))
+    efficiencies = []
     for _ in range(runs):
-        TWO_CORE_EFFICIENCY.append(two_core_efficiency(frame))
+        efficiencies.append(two_core_efficiency(frame))
         for count, teach in teaches.items():
             decode_walls, fit_walls, decode_cpus, fit_cpus = measured[count]
             code = f"import sys; sys.path.insert(0, {str(HERE.parent)!r}); from bench.run import decode_only; decode_only({str(teach)!r})"
@@ -603,11 +604,7 @@ def _timed_fits(work: Path, teaches: dict[int, Path], fitted: list[str], runs: i
             wall, _ = run_cli("fit", str(teach), *fitted, "-o", str(work / "fit_out.mcap"), "-q", cwd=work)
             fit_walls.append(wall)
             fit_cpus.append(_children_cpu() - cpu)
-    return measured
-
-
-#: :func:`two_core_efficiency` before each run of figure 3's fits, in order.
-TWO_CORE_EFFICIENCY: list[float] = []
+    return measured, efficiencies
 
 
 def two_core_efficiency(encoded: bytes, repeats: int = 40) -> float:
