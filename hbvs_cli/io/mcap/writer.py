@@ -40,13 +40,16 @@ class McapWriter:
         self._finished = False
 
     def _channel(self, topic: str, schema_name: str, message: Any) -> int:
+        if topic in self.channels:
+            return self.channels[topic][0]
+        if isinstance(message, dict) or message is None:
+            schema = json.dumps(HBVS_SCHEMAS[schema_name], separators=(",", ":")).encode()
+            return self._declare(topic, schema_name, "jsonschema", schema, "json")
+        assert type(message).DESCRIPTOR.full_name == schema_name, (topic, schema_name)
+        return self._declare(topic, schema_name, "protobuf", protobuf_schema(type(message)), "protobuf")
+
+    def _declare(self, topic: str, schema_name: str, encoding: str, schema: bytes, message_encoding: str) -> int:
         if topic not in self.channels:
-            if isinstance(message, dict) or message is None:
-                schema = json.dumps(HBVS_SCHEMAS[schema_name], separators=(",", ":")).encode()
-                encoding, message_encoding = "jsonschema", "json"
-            else:
-                assert type(message).DESCRIPTOR.full_name == schema_name, (topic, schema_name)
-                schema, encoding, message_encoding = protobuf_schema(type(message)), "protobuf", "protobuf"
             if schema_name not in self._schemas:
                 self._schemas[schema_name] = self._writer.register_schema(name=schema_name, encoding=encoding, data=schema)
             channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_name])
