@@ -42,16 +42,9 @@ _MAX_PARTICIPANT_INDEX = 60
 
 @dataclass(frozen=True)
 class DdsSettings:
-    """The Cyclone DDS configuration to join the domain with, and what it means in one line.
-
-    Attributes
-    ----------
-    config : str
-        Cyclone DDS configuration (XML fragments joined by commas, as ``CYCLONEDDS_URI`` takes them).
-    description : str
-        One line for the start-up message, e.g. ``DDS: interface lo, discovery localhost
-        (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)``.
-    """
+    """``config``: the Cyclone DDS configuration (XML fragments joined by commas, as ``CYCLONEDDS_URI``
+    takes them); ``description``: one line for the start-up message, e.g. ``DDS: interface lo, discovery
+    localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)``."""
 
     config: str
     description: str
@@ -62,15 +55,8 @@ def _domain(body: str) -> str:
 
 
 def discovery_range(environ: Mapping[str, str]) -> tuple[str, str]:
-    """The discovery range ROS 2 would use, and why (the variable that decided it).
-
-    Returns
-    -------
-    range : str
-        One of :data:`RANGES`.
-    reason : str
-        ``ROS_AUTOMATIC_DISCOVERY_RANGE=...``, ``ROS_LOCALHOST_ONLY=1`` or ``nothing set``.
-    """
+    """The discovery range ROS 2 would use (one of :data:`RANGES`), and why: ``ROS_AUTOMATIC_DISCOVERY_RANGE=...``,
+    ``ROS_LOCALHOST_ONLY=1`` or ``nothing set``."""
     text = environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip()
     if text:
         if text.upper() in RANGES:
@@ -84,8 +70,7 @@ def discovery_range(environ: Mapping[str, str]) -> tuple[str, str]:
 
 def dds_settings(environ: Mapping[str, str] | None = None) -> DdsSettings:
     """The Cyclone DDS configuration for ROS 2's discovery variables in ``environ`` (``os.environ``
-    when None); :class:`UsageError` for ``OFF`` (no other process could ever be found).
-    """
+    when None); :class:`UsageError` for ``OFF`` (no other process could ever be found)."""
     environ = os.environ if environ is None else environ
     compatibility = _domain(_COMPATIBILITY)
     user = environ.get("CYCLONEDDS_URI", "").strip()

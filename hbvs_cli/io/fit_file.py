@@ -332,26 +332,17 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
 def write_desired_signals(writer: Any, t: np.ndarray, log_time: np.ndarray, fit: DesiredFit) -> None:
     """Write ``/desired/raw`` (every used frame's measurement) and ``/desired/smooth`` (the splines
     and derivatives over the used span); ``t`` (F,) in s, ``log_time`` (F,) in ns."""
-
-    schemas = TOPICS[FILE_KIND]
-    uncertainty = fit.uncertainty
-    for k in np.flatnonzero(fit.used):
-        raw = {
-            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
-            "theta_d": float(fit.theta[k]), "x_hd1": float(fit.x_h[k, 0]), "x_hd2": float(fit.x_h[k, 1]),
-            "residual": float(fit.residual[k]),
-        }
-        if uncertainty is not None:
-            raw |= {"theta_d_sigma": float(uncertainty.theta_sigma[k]), "x_hd1_sigma": float(uncertainty.x_h1_sigma[k])}
-        writer.write(RAW_DESIRED_TOPIC, schemas[RAW_DESIRED_TOPIC], int(log_time[k]), raw)
-    span = fit.span
+    uncertainty, span = fit.uncertainty, fit.span
     desired = fit.trajectory.evaluate(t[span])
-    for j, k in enumerate(range(span.start, span.stop)):
-        smooth = {
-            "timestamp": time_message(int(log_time[k])), "t": float(t[k]),
-            "theta_d": float(desired.theta_d[j]), "x_hd1": float(desired.x_hd1[j]), "x_hd2": float(desired.x_hd2[j]),
-            "theta_d_dot": float(desired.theta_d_dot[j]), "x_hd1_dot": float(desired.x_hd1_dot[j]), "x_hd2_dot": float(desired.x_hd2_dot[j]),
-        }
-        if uncertainty is not None:
-            smooth |= {"theta_d_sigma": float(uncertainty.smooth_theta_sigma[j]), "x_hd1_sigma": float(uncertainty.smooth_x_h1_sigma[j])}
-        writer.write(SMOOTH_DESIRED_TOPIC, schemas[SMOOTH_DESIRED_TOPIC], int(log_time[k]), smooth)
+    raw = {"theta_d": fit.theta, "x_hd1": fit.x_h[:, 0], "x_hd2": fit.x_h[:, 1], "residual": fit.residual}
+    smooth = {name: getattr(desired, name) for name in ("theta_d", "x_hd1", "x_hd2", "theta_d_dot", "x_hd1_dot", "x_hd2_dot")}
+    if uncertainty is not None:
+        raw |= {"theta_d_sigma": uncertainty.theta_sigma, "x_hd1_sigma": uncertainty.x_h1_sigma}
+        smooth |= {"theta_d_sigma": uncertainty.smooth_theta_sigma, "x_hd1_sigma": uncertainty.smooth_x_h1_sigma}
+    # Raw columns hold every frame, smooth ones the used span only (from its start).
+    for topic, columns, frames, first in ((RAW_DESIRED_TOPIC, raw, np.flatnonzero(fit.used), 0),
+                                          (SMOOTH_DESIRED_TOPIC, smooth, range(span.start, span.stop), span.start)):
+        for k in frames:
+            values = {name: float(column[k - first]) for name, column in columns.items()}
+            message = {"timestamp": time_message(int(log_time[k])), "t": float(t[k]), **values}
+            writer.write(topic, TOPICS[FILE_KIND][topic], int(log_time[k]), message)

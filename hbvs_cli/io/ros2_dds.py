@@ -29,13 +29,6 @@ except ImportError:
     raise UsageError(INSTALL_HINT) from None
 
 
-def dds_type_name(ros_type: str) -> str:
-    """The DDS type name of a ROS 2 message type, as the ROS 2 RMWs register it:
-    ``geometry_msgs/msg/Twist`` -> ``geometry_msgs::msg::dds_::Twist_``."""
-    package, kind, name = ros_type.split("/")
-    return f"{package}::{kind}::dds_::{name}_"
-
-
 def _idl_structs(ros_types: tuple[str, ...]) -> dict[str, type]:
     """IDL structs of ROS 2 message types (and the types they nest) from rosbags' Humble definitions,
     fields defaulting to zero, "" and their own default; ``uint8[]`` is ``bytes``."""
@@ -65,7 +58,9 @@ def _idl_structs(ros_types: tuple[str, ...]) -> dict[str, type]:
             members = {name: typed(node) for name, node in definitions[ros_type][1]}
             body = {"__module__": __name__, "__annotations__": {k: v[0] for k, v in members.items()}}
             body.update({k: v[1] for k, v in members.items()})
-            cls = types.new_class(ros_type.rsplit("/", 1)[1], (IdlStruct,), {"typename": dds_type_name(ros_type)},
+            # The type name the ROS 2 RMWs register: geometry_msgs/msg/Twist -> geometry_msgs::msg::dds_::Twist_.
+            package, kind, name = ros_type.split("/")
+            cls = types.new_class(name, (IdlStruct,), {"typename": f"{package}::{kind}::dds_::{name}_"},
                                   lambda namespace: namespace.update(body))
             made[ros_type] = dataclass(cls)
             for name, node in definitions[ros_type][1]:

@@ -45,10 +45,10 @@ class LatestImage:
 
     def latest(self, timeout_s: float) -> LiveFrame | None:
         """The newest frame, waiting up to ``timeout_s`` for one; None when none came."""
-        samples = self._valid(self.reader.take(N=64))
+        samples = _taken(self.reader, 64)
         if not samples:
             self._waitset.wait(int(max(timeout_s, 0.0) * 1e9))
-            samples = self._valid(self.reader.take(N=64))
+            samples = _taken(self.reader, 64)
         if not samples:
             return None
         message = samples[-1]
@@ -57,10 +57,10 @@ class LatestImage:
         stamp = dds.seconds_of(message.header.stamp) or time.time()  # a driver that leaves it zero
         return LiveFrame(image=image, stamp=stamp, arrival=arrival, skipped=len(samples) - 1)
 
-    @staticmethod
-    def _valid(samples: list[Any]) -> list[Any]:
-        # A publisher going away shows up as an "invalid sample" (no data): not a frame.
-        return [sample for sample in samples if hasattr(sample, "header")]
+
+def _taken(reader: Any, count: int) -> list[Any]:
+    """Samples taken from ``reader``, less the "invalid" ones (no data) a publisher going away leaves."""
+    return [sample for sample in reader.take(N=count) if hasattr(sample, "header")]
 
 
 def _waitset(node: dds.Ros2Node, reader: Any) -> Any:
@@ -109,7 +109,7 @@ def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVER
     waitset = _waitset(node, reader)
     deadline = time.monotonic() + timeout_s
     while True:
-        infos = [sample for sample in reader.take(N=8) if hasattr(sample, "header")]
+        infos = _taken(reader, 8)
         if infos:
             camera, problem = BagSource._camera_from_info(infos[-1], topic)
             if camera is None:

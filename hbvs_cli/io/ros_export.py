@@ -133,12 +133,11 @@ class _Messages:
     def path(self, poses: list[Any]) -> Any:
         return self.types[ROS_PATH_SCHEMA](header=self.header(_stamp_ns(poses[-1].header.stamp), WORLD_FRAME), poses=poses)
 
-    def transform(self, ns: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
+    def tf(self, ns: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
+        """A ``TFMessage`` of the one transform of ``child`` in ``parent``."""
         transform = self.types["geometry_msgs/msg/Transform"](translation=self.vector(*translation), rotation=self.quaternion(rotation))
-        return self.types["geometry_msgs/msg/TransformStamped"](header=self.header(ns, parent), child_frame_id=child, transform=transform)
-
-    def tf(self, transforms: list[Any]) -> Any:
-        return self.types[ROS_TF_SCHEMA](transforms=transforms)
+        stamped = self.types["geometry_msgs/msg/TransformStamped"](header=self.header(ns, parent), child_frame_id=child, transform=transform)
+        return self.types[ROS_TF_SCHEMA](transforms=[stamped])
 
     def compressed_image(self, ns: int, data: bytes, image_format: str) -> Any:
         return self.types[ROS_COMPRESSED_IMAGE_SCHEMA](
@@ -239,10 +238,10 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
                     if message.topic == TRUE_POSE_TOPIC:
                         if camera_height is None:
                             camera_height = position[2]
-                            bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
-                                ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION)]))
-                        bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf([build.transform(
-                            ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation)]))
+                            bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, build.tf(
+                                ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION))
+                        bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf(
+                            ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation))
                 elif message.topic == CALIBRATION_TOPIC:
                     camera_calibration = message.foxglove(stream.name)
                 elif message.topic in (IMAGE_TOPIC, REFERENCE_IMAGE_TOPIC):

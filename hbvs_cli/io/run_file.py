@@ -103,8 +103,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     lost: list[bool] = []
     reasons: list[str] = []
     dropped: list[bool] = []
-    true_pose: dict[int, tuple[float, float, float]] = {}
-    desired_pose: dict[int, tuple[float, float, float]] = {}
+    poses: dict[str, dict[int, tuple[float, float, float]]] = {TRUE_POSE_TOPIC: {}, DESIRED_POSE_TOPIC: {}}
     step_times: list[int] = []
     events: list[tuple[int, int, str]] = []
     timing: dict[str, list[float]] = {key: [] for key in TIMING_FIELDS}
@@ -121,10 +120,8 @@ def read_run(source: Any, name: str = "") -> RunData:
             except (KeyError, TypeError, ValueError) as exc:
                 raise RecordingError(f"{stream.name}: malformed controller state message ({exc})") from None
             step_times.append(message.log_time)
-        elif message.topic == TRUE_POSE_TOPIC:
-            true_pose[message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
-        elif message.topic == DESIRED_POSE_TOPIC:
-            desired_pose[message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
+        elif message.topic in poses:
+            poses[message.topic][message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
         elif message.topic == EVENTS_TOPIC:
             log = message.foxglove(stream.name)
             events.append((message.log_time, int(log.level), log.message))
@@ -157,13 +154,13 @@ def read_run(source: Any, name: str = "") -> RunData:
     base_ns = step_times[0] - int(round(state["t"][0] * 1e9))
     events = [((log_time - base_ns) * 1e-9, level, text) for log_time, level, text in events]
 
-    def aligned(poses: dict[int, tuple[float, float, float]]) -> np.ndarray | None:
-        rows = [poses.get(t) for t in step_times]
-        return np.array(rows, dtype=float) if poses and all(row is not None for row in rows) else None
+    def aligned(topic: str) -> np.ndarray | None:
+        rows = [poses[topic].get(t) for t in step_times]
+        return np.array(rows, dtype=float) if poses[topic] and all(row is not None for row in rows) else None
 
     return RunData(
         name=stream.name, info=info, state=state, saturated=np.array(saturated), lost=np.array(lost),
-        lost_reason=reasons, true_pose=aligned(true_pose), desired_pose=aligned(desired_pose),
+        lost_reason=reasons, true_pose=aligned(TRUE_POSE_TOPIC), desired_pose=aligned(DESIRED_POSE_TOPIC),
         events=events, truncated=stream.truncated, dropped=np.array(dropped, dtype=bool),
         timing={key: np.array(values, dtype=float) for key, values in timing.items()} if timing["t"] else None,
     )
