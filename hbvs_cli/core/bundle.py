@@ -56,26 +56,11 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
                            noise: float, shapes: Sequence[KnownShape] = ()) -> JointEstimate:
     """n*, the reference points and every frame's pose by maximum likelihood, jointly.
 
-    Parameters
-    ----------
-    m : array_like, shape (K, N, 3)
-        Normalised points of the frames besides F* (every point found).
-    m_ref : array_like, shape (N, 3)
-        Starting reference points.
-    normal : array_like, shape (3,)
-        Starting unit normal (its branch chosen).
-    measured_ref : array_like, shape (N, 3)
-        The reference points as measured in F*.
-    noise : float
-        The point noise (normalised units): the robust loss's scale is
-        :data:`ROBUST_SCALE` times it.
-    shapes : sequence of KnownShape, optional
-        Parts of the target known up to a similarity (:func:`~.plane.shape_residuals`).
-
-    Returns
-    -------
-    JointEstimate
-        The start when the solver fails or puts the target behind F*.
+    ``m`` (K, N, 3): the frames besides F* (every point found); ``m_ref`` (N, 3) and
+    ``normal`` (3,; its branch chosen): the start; ``measured_ref`` (N, 3): the reference points
+    as measured in F*; ``noise``: the point noise (normalised units), :data:`ROBUST_SCALE` times
+    it the robust loss's scale; ``shapes``: :func:`~.plane.shape_residuals`. Returns the start
+    when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
     from scipy.sparse import csr_matrix
@@ -151,9 +136,8 @@ def measured_point_noise(residuals: ArrayLike) -> float:
         return float("nan")
     spread = 1.4826 * float(np.median(np.abs(r)))
     inliers = r[np.abs(r) <= OUTLIER_SPREADS * spread]
-    if inliers.size == 0:
-        return spread * float(np.sqrt(rows / max(rows - 3, 1)))
-    return float(np.sqrt(np.mean(inliers**2))) * float(np.sqrt(rows / max(rows - 3, 1)))
+    rms = float(np.sqrt(np.mean(inliers**2))) if inliers.size else spread
+    return rms * float(np.sqrt(rows / max(rows - 3, 1)))
 
 
 #: The longest lag (as a fraction of the frames) over which :func:`correlation_inflation`
@@ -303,16 +287,13 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
 
     Parameters
     ----------
-    estimated : array_like, shape (K, N, 3)
-        The frames (besides F*) the globals were estimated from.
+    estimated, motion : array_like, shapes (K, N, 3) and (K, 3)
+        The frames (besides F*) the globals were estimated from, and their solved (theta, x_h1, x_h2).
     m_ref, normal : array_like
         The solution's reference points (N, 3) and normal (3,).
-    motion : array_like, shape (K, 3)
-        The solution's (theta, x_h1, x_h2) of ``estimated``.
     noise : float, optional
         Point noise (normalised units); by default :func:`measured_point_noise` of the
         estimated frames.
-    shapes : sequence of KnownShape, optional
     frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
         Frames to give the own covariance and sensitivity of (default: ``estimated``),
         e.g. every frame of a recording whose globals came from a sample of it.
@@ -351,10 +332,6 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
         the columns, issue 44: :func:`uniform_shift`), or the calibration's
         (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of
         them and the residuals cannot show them; their D columns join the bias after the shutter's.
-
-    Returns
-    -------
-    JointCovariance
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
@@ -463,20 +440,18 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     # A frame's move with the biases: its own, D_k^-1 (J_k^T W_k in its span's columns), plus
     # what it inherits through the globals, -D_k^-1 B_k bias_shared (JointCovariance.bias_rows).
-    bias_shared = span_bias = readout_bias = None
+    bias_columns, span_bias, readout_bias, image_shift_bias = [], None, None, None
     if detector_bias > 0.0 and own_rhs is not None:
         spans[reference_segment] -= reference_scale * reference[:points].T  # F*'s own points carry its span's bias
-        bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
+        bias_columns.append(detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1))
         span_bias = own_rhs[:frames.shape[0]]  # formed in J_k^T W_k's place below
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
-        column_shared = readout * moved_globals[:, None]
-        bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
+        bias_columns.append(readout * moved_globals[:, None])
         readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
-    image_shift_bias = None
     if shared_shifts:  # the estimate's move with the shared shifts: D more columns
-        columns_shared = shared_inverse @ shift_globals
-        bias_shared = columns_shared if bias_shared is None else np.column_stack([bias_shared, columns_shared])
+        bias_columns.append(shared_inverse @ shift_globals)
         image_shift_bias = inverse_own @ shift_own[:frames.shape[0]]
+    bias_shared = np.column_stack(bias_columns) if bias_columns else None
     for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
         block = slice(k, k + BLOCK_FRAMES)
         if span_bias is not None:
