@@ -4,6 +4,7 @@ is linear in (cos theta, sin theta, x_h1, x_h2), a unique answer with no branch 
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from typing import Any, Sequence
 
 import numpy as np
@@ -103,13 +104,7 @@ class KnownNormalSolver:
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
-            return PlanarMotion(
-                theta=np.concatenate([p.theta for p in parts]),
-                x_h=np.concatenate([p.x_h for p in parts]),
-                normal=np.broadcast_to(self.normal, (m.shape[0], 3)),
-                valid=np.concatenate([p.valid for p in parts]),
-                residual=np.concatenate([p.residual for p in parts]),
-            )
+            return PlanarMotion(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(PlanarMotion)))
         return self._solve_block(m)
 
     def _solve_block(self, m: NDArray[np.float64]) -> PlanarMotion:
@@ -120,9 +115,8 @@ class KnownNormalSolver:
             )
         alpha = depth_ratios(m, m_ref)
         finite = np.all(np.isfinite(m), axis=(-1, -2))
-        with np.errstate(invalid="ignore"):
-            valid = finite & np.all(alpha > 0.0, axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):
+            valid = finite & np.all(alpha > 0.0, axis=-1)
             inv_alpha = 1.0 / alpha
             rhs = np.empty(m.shape[:-2] + (2 * m_ref.shape[0],))
             rhs[..., 0::2] = inv_alpha
@@ -190,12 +184,7 @@ class KnownNormalSolver:
             new_theta, new_x1, new_x2 = theta - d1, x1 - d2, x2 - d3
             new_cost = self._cost(new_theta, new_x1, new_x2, m_y, m_z)
         better = np.isfinite(new_cost) & (new_cost < cost)
-        return (
-            np.where(better, new_theta, theta),
-            np.where(better, new_x1, x1),
-            np.where(better, new_x2, x2),
-            np.where(better, new_cost, cost),
-        )
+        return tuple(np.where(better, new, old) for new, old in zip((new_theta, new_x1, new_x2, new_cost), (theta, x1, x2, cost)))
 
     def solve_one(self, m_y: Sequence[float], m_z: Sequence[float]) -> tuple[float, float, float, float] | None:
         """:meth:`solve` of one frame's ``m_y``, ``m_z`` (N each) in plain floats, the closed
