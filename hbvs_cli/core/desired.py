@@ -230,24 +230,13 @@ class FitUncertainty:
 
 @dataclass(frozen=True)
 class DesiredFit:
-    """What the fit of a taught run gives.
-
-    Attributes
-    ----------
-    m_ref : ndarray, shape (N, 3)
-        m*_i of F*, refined with n*; ``reference_pixels`` (N, 2): the same as ideal pixels.
-    initial_pixels : ndarray, shape (N, 2)
-        The measured pixels of the first used frame.
-    normal_margin : float
-        How clearly the sequence chose n*'s branch, in [0, 1] (:func:`~.plane.estimate_common_normal`).
-    used : ndarray of bool, shape (F,)
-        Frames the splines were fitted to.
-    theta, residual, x_h : ndarray, shape (F,) and (F, 2)
-        theta_d (rad), known-normal residual (normalised units) and x_hd of every frame
-        (NaN where not solved).
-    span : slice
-        From the first used frame to the last; ``condition`` (35) is measured over it.
-    """
+    """What the fit of a taught run gives: ``m_ref`` (N, 3), m*_i of F* refined with n*, and
+    ``reference_pixels`` (N, 2), the same as ideal pixels; ``initial_pixels`` (N, 2), the first
+    used frame's measured pixels; ``normal_margin`` in [0, 1], how clearly the sequence chose n*'s
+    branch (:func:`~.plane.estimate_common_normal`); ``used`` (F,), the frames the splines were
+    fitted to; ``theta``, ``residual`` (F,) and ``x_h`` (F, 2): theta_d (rad), the known-normal
+    residual (normalised units) and x_hd of every frame (NaN where not solved); ``span``, from
+    the first used frame to the last, over which ``condition`` (35) is measured."""
 
     m_ref: NDArray[np.float64]
     reference_pixels: NDArray[np.float64]
@@ -283,36 +272,22 @@ def fit_desired_trajectory(
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
-    Parameters
-    ----------
-    t : array_like, shape (F,)
-        Frame times (s), increasing.
-    pixels : array_like, shape (F, N, 2)
-        Target pixels in a consistent order; NaN where not found.
-    smoothing : float or None
-        Spline lambda (s^3); None: generalised cross-validation.
-    max_lost, max_gap : float
-        Largest fraction of unused frames, and longest unused stretch (s) to bridge.
-    warn : callable, optional
-        Told what a user should know (ambiguous or uncertain n*), as it happens.
-    shapes : sequence of KnownShape, optional
-        Target parts of known shape (each marker's square); they pin n* where the motion does not.
-    errors : DetectorErrors, optional
-        The detector's bias over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the
-        residuals cannot show it), its usual precision and whether its errors are correlated
-        over frames. Default: no bias, correlated, no precision check.
-    image_shift_px : float, optional
-        A detector's error shared by every point of every frame (px, 1 sigma in each image
-        direction; e.g. bloom pulling saturated dots' centroids, measured by the detector):
-        :func:`~.bundle.joint_covariance`'s ``common_shift``.
-    calibration_sigma : sequence of float, optional
-        The standard deviations of the intrinsics ``(fx, fy, cx, cy, *distortion)``
-        (:attr:`~.camera.CameraIntrinsics.sigma`): their errors are shared by every frame, a
-        bias of the whole drive (:func:`~.camera.calibration_shifts`, joined to
-        ``common_shift``). Empty: the intrinsics are exact.
-    calibration_counted : bool, optional
-        False: ``calibration_sigma`` is a what-if (a calibration that states none), its part
-        of n*'s sigma is reported (``calibration_normal_sigma_deg``) but left out of the band.
+    ``t`` (F,): frame times (s), increasing; ``pixels`` (F, N, 2): the target's pixels in a
+    consistent order, NaN where not found; ``smoothing``: the splines' lambda (s^3), None for
+    generalised cross-validation; ``max_lost``, ``max_gap``: the largest fraction of unused
+    frames, and the longest unused stretch (s) to bridge; ``warn``: told what a user should know
+    (ambiguous or uncertain n*), as it happens; ``shapes``: target parts of known shape (each
+    marker's square), which pin n* where the motion does not; ``errors``: the detector's bias
+    over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the residuals cannot show it), its
+    usual precision and whether its errors are correlated over frames (default: no bias,
+    correlated, no precision check); ``image_shift_px``: a detector's error shared by every point
+    of every frame (px, 1 sigma in each image direction; e.g. bloom pulling saturated dots'
+    centroids), :func:`~.bundle.joint_covariance`'s ``common_shift``; ``calibration_sigma``: the
+    intrinsics' ``(fx, fy, cx, cy, *distortion)`` standard deviations
+    (:attr:`~.camera.CameraIntrinsics.sigma`), errors shared by every frame, a bias of the whole
+    drive (:func:`~.camera.calibration_shifts`, joined to ``common_shift``), empty when exact;
+    ``calibration_counted`` False: ``calibration_sigma`` is a what-if (a calibration that states
+    none), its part of n*'s sigma reported (``calibration_normal_sigma_deg``) but left out of the band.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
