@@ -137,15 +137,14 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
         return pixels
     import cv2
 
-    x_n = (pixels[:, 0] - camera.cx) / camera.fx
-    y_n = (pixels[:, 1] - camera.cy) / camera.fy
+    m = pixels_to_normalized(camera, pixels)  # [1, -x_n, -y_n]: OpenCV's (x_n, y_n) negated
+    distortion = np.asarray(camera.distortion, dtype=float)
     if camera.distortion_model == "equidistant":
-        normalized = np.stack([x_n, y_n], axis=-1).reshape(-1, 1, 2)
-        distorted = cv2.fisheye.distortPoints(normalized, camera.K, np.asarray(camera.distortion, dtype=float))
-        return distorted.reshape(pixels.shape)
-    object_points = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).reshape(-1, 1, 3)
-    projected, _ = cv2.projectPoints(object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float))
-    return projected.reshape(pixels.shape)
+        distorted = cv2.fisheye.distortPoints(-m[:, 1:].reshape(-1, 1, 2), camera.K, distortion)
+    else:
+        object_points = np.column_stack([-m[:, 1:], m[:, :1]]).reshape(-1, 1, 3)
+        distorted, _ = cv2.projectPoints(object_points, np.zeros(3), np.zeros(3), camera.K, distortion)
+    return distorted.reshape(pixels.shape)
 
 
 def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:

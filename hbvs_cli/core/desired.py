@@ -18,14 +18,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
-from .estimation import DEFAULT_RESIDUAL_GATE, within_residual_gate
+from .estimation import DEFAULT_RESIDUAL_GATE
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (OUTLIER_SPREADS, JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise,
-                     projected_points, rolling_shutter_shift, uniform_shift)
-from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
+                     rolling_shutter_shift, uniform_shift)
+from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, point_derivatives, refine_plane_and_reference
 from .trajectory import CHANNELS, MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A frame that shows only part of the target (a board partly out of view) is used when at
@@ -134,10 +134,8 @@ def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = N
     """The taught run's frame interval (s): from its frame times ``t`` when there are two or
     more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
     :data:`DEFAULT_FRAME_INTERVAL`."""
-    interval = frame_interval(t) if t is not None else None
-    if interval is not None:
-        return interval
-    return float(recorded or DEFAULT_FRAME_INTERVAL)
+    interval = frame_interval(t if t is not None else ())
+    return interval if interval is not None else float(recorded or DEFAULT_FRAME_INTERVAL)
 
 
 @dataclass(frozen=True)
@@ -346,7 +344,7 @@ def fit_desired_trajectory(
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
     residual = np.where(found, motion.residual, np.nan)
-    used = found & motion.valid & within_residual_gate(residual)
+    used = found & motion.valid & (residual <= DEFAULT_RESIDUAL_GATE)  # NaN never passes
     outliers = int(np.sum(found & ~used))
     frames = frame_stats(t, used, outliers, max_lost, max_gap)
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
@@ -455,7 +453,7 @@ def _shutter_shifts(normal: NDArray[np.float64], m_ref: NDArray[np.float64], t: 
     (:func:`~.bundle.rolling_shutter_shift`), from the ``poses`` (K, 3) of the frames ``rows``
     (K,); 0 in the others."""
     shift = np.zeros((t.size, 2 * m_ref.shape[0]))
-    shift[rows] = rolling_shutter_shift(projected_points(normal, m_ref, poses), t[rows])
+    shift[rows] = rolling_shutter_shift(point_derivatives(normal, m_ref, poses, order=0)[0], t[rows])
     return shift
 
 
@@ -506,7 +504,7 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
         if solved.size == 0:
             continue
         poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
-        predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
+        predicted = point_derivatives(normal, m_ref, poses, order=0)[0]  # (K, N, 2): (m_y, m_z)
         missing = ~pattern
         m[np.ix_(solved, np.flatnonzero(missing), [0])] = 1.0
         m[np.ix_(solved, np.flatnonzero(missing), [1, 2])] = predicted[:, missing, :]

@@ -79,12 +79,8 @@ def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
     if xv.size == 0:
         return None
     outside = np.flatnonzero(np.abs(xv) > tolerance)
-    if outside.size == 0:
-        return _optional(tv[0] - t[0])
-    last = outside[-1]
-    if last == xv.size - 1:
-        return None
-    return _optional(tv[last + 1] - t[0])
+    settled = outside[-1] + 1 if outside.size else 0
+    return _optional(tv[settled] - t[0]) if settled < xv.size else None
 
 
 def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:

@@ -92,15 +92,7 @@ def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_ga
     ``max_gap`` s apart (``--max-gap``, the gaps a segment's spline bridges) filled when it is
     then seen again for at least half that long: a target hidden a moment (someone walking past)
     does not end its segment there, one flickering as it leaves the view does not stay.
-
-    Parameters
-    ----------
-    visible : (F, N) bool
-        Whether each of N targets is followable in each of F frames.
-    t : (F,) float
-        The frames' times (s).
-    max_gap : float
-        The longest gap (s) to fill.
+    ``visible`` (F, N): whether each of N targets is followable in each of F frames; ``t`` (F,) (s).
     """
     filled = np.array(visible, bool)
     for column in filled.T:  # views: filling a column fills ``filled``

@@ -189,17 +189,10 @@ MIN_SAMPLES = 5
 
 def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_hd2: ArrayLike,
                           smoothing: float | None = None) -> SplineTrajectory:
-    """Fit the desired trajectory of Remark 1 to decomposed samples.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Sample times (s), strictly increasing; gaps are bridged.
-    theta_d, x_hd1, x_hd2 : array_like, shape (K,)
-        rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
-    smoothing : float, optional
-        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by
-        generalised cross-validation.
+    """Fit the desired trajectory of Remark 1 to decomposed samples at times ``t`` (K,) (s,
+    strictly increasing; gaps are bridged): ``theta_d`` (K,) rad (unwrapped here), ``x_hd1`` and
+    ``x_hd2`` (K,), which only sets the constant of (25). ``smoothing``: both splines' lambda
+    (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation.
     """
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
