@@ -1,9 +1,5 @@
-"""The plane normal n* common to a sequence of homographies, and its refinement.
-
-:func:`estimate_common_normal` picks the decomposition branch the whole sequence agrees on
-(docs/method.md, "Decomposition into (theta, x_h, n*)"); :func:`refine_plane_and_reference`
-refines n* and the reference points m*_i over every frame, the known-normal solver inside.
-"""
+"""The plane normal n* common to a sequence of homographies (docs/method.md, "Decomposition into
+(theta, x_h, n*)"), its refinement with the reference points m*_i, and their derivatives."""
 
 from __future__ import annotations
 
