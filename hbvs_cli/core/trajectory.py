@@ -111,7 +111,6 @@ class SplineTrajectory:
             if int(data.get("degree", 3)) != 3:
                 raise ValueError("only cubic splines are supported")
             channels = {}
-            knots_of = []
             for name in CHANNELS:
                 raw = data["channels"][name]
                 knots = np.asarray(raw["knots"], dtype=float)
@@ -122,10 +121,10 @@ class SplineTrajectory:
                     raise ValueError(f"channel {name}: knots must be finite and non-decreasing")
                 if np.any(np.abs(coefficients) > MAX_SPLINE_COEFFICIENT):
                     raise ValueError(f"channel {name}: coefficients beyond +-{MAX_SPLINE_COEFFICIENT:g} (radians, or units of d*)")
-                knots_of.append(knots)
                 channels[name] = SplineChannel(knots, coefficients, float(raw.get("smoothing", float("nan"))),
                                                float(raw.get("residual_rms", float("nan"))))
-            if knots_of[0].shape != knots_of[1].shape or not np.allclose(knots_of[0], knots_of[1]):
+            first, second = (channels[name].knots for name in CHANNELS)
+            if first.shape != second.shape or not np.allclose(first, second):
                 raise ValueError("theta_d and x_hd1 must share their knots")
             x_hd2 = data["x_hd2"]
             return cls(channels, float(x_hd2["value_at_t_start"]), float(data["t_start"]), float(data["t_end"]),
@@ -143,9 +142,8 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
     if first.x.shape != second.x.shape or not np.allclose(first.x, second.x):
         raise MalformedDataError("the trajectory's splines do not share their knots")
     product = np.zeros((first.c.shape[0] + second.c.shape[0] - 1, first.c.shape[1]))
-    for i in range(first.c.shape[0]):
-        for j in range(second.c.shape[0]):
-            product[i + j] += first.c[i] * second.c[j]
+    for i in range(first.c.shape[0]):  # the coefficients' convolution, interval by interval
+        product[i:i + second.c.shape[0]] += first.c[i] * second.c
     return PPoly(product, first.x).antiderivative()
 
 
