@@ -36,8 +36,7 @@ class CameraIntrinsics:
     sigma: tuple[float, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
-        values = (self.fx, self.fy, self.cx, self.cy)
-        if not all(np.isfinite(v) for v in values):
+        if not all(np.isfinite(v) for v in (self.fx, self.fy, self.cx, self.cy)):
             raise CalibrationError("camera intrinsics contain NaN or infinity")
         if self.fx <= 0 or self.fy <= 0:
             raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")

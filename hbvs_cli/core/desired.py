@@ -350,6 +350,10 @@ def fit_desired_trajectory(
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
     trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
     condition = feedforward_condition(trajectory, t[span])
+    # The first used frame's measured pixels, a partial frame's points out of view where its pose
+    # puts them (undistorted: a prediction for repeat's first search only).
+    missing = ~np.all(np.isfinite(pixels[span.start]), axis=1)
+    initial_pixels = np.where(missing[:, None], normalized_to_pixels(camera, m[span.start]), pixels[span.start])
     focal = camera.mean_focal
     uncertainty = None
     if others.size:
@@ -368,7 +372,7 @@ def fit_desired_trajectory(
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
-        initial_pixels=_initial_pixels(pixels, m, int(np.flatnonzero(used)[0]), camera),
+        initial_pixels=initial_pixels,
         normal=normal,
         normal_margin=margin,
         trajectory=trajectory,
@@ -429,8 +433,7 @@ def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], fou
     without it cannot hold: the skew biases n*. With the readout as one more unknown, the
     joint estimate takes one Gauss-Newton step from ``joint``: :func:`~.bundle.joint_covariance`'s
     readout and its shutter column (the globals' move per unit readout, through the Schur
-    complement). The step is taken when the readout's score statistic ``(readout /
-    readout_sigma)^2`` exceeds :data:`READOUT_CHI2`.
+    complement), when the readout's score statistic exceeds :data:`READOUT_CHI2`.
     """
     if others.size < 2 or noise <= 0.0:
         return m, joint.normal, joint.m_ref, 0.0
@@ -469,13 +472,6 @@ def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = De
         calibration = CALIBRATION_ADVICE.format(part=part) if part > 0.5 * uncertainty.normal_sigma_deg else ""
         return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual, calibration=calibration)
     return None
-
-
-def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
-    """The first used frame's measured pixels, its points out of view (a partial frame)
-    where its pose puts them (undistorted: a prediction for repeat's first search only)."""
-    missing = ~np.all(np.isfinite(pixels[first]), axis=1)
-    return np.where(missing[:, None], normalized_to_pixels(camera, m[first]), pixels[first])
 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],
