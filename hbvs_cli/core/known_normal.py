@@ -143,25 +143,21 @@ class KnownNormalSolver:
     def reprojection_residuals(self, motion: PlanarMotion, m: ArrayLike) -> NDArray[np.float64]:
         """Predicted minus measured ``(m_y, m_z)`` of every point, shape (..., 2N)."""
         m = np.asarray(m, dtype=float)
-        q0, q1 = self._projections(motion.theta, motion.x_h[..., 0], motion.x_h[..., 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.concatenate([q1 / q0 - m[..., 1], self.m_ref[:, 2] / q0 - m[..., 2]], axis=-1)
+        return np.concatenate(self._residuals(motion.theta, motion.x_h[..., 0], motion.x_h[..., 1], m[..., 1], m[..., 2]), axis=-1)
 
-    def _projections(self, theta: NDArray[np.float64], x1: NDArray[np.float64], x2: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        """``q = H m*_i`` for every point: its first two components."""
+    def _residuals(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Predicted ``(q1 / q0, m*_z / q0)`` of every point (``q = H m*_i``) minus the measured ``m_y``, ``m_z``."""
         y, g = self.m_ref[:, 1], self.m_ref @ self.normal
         c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
         q0 = c - s * y + x1[..., None] * g
         q1 = s + c * y + x2[..., None] * g
-        return q0, q1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q1 / q0 - m_y, self.m_ref[:, 2] / q0 - m_z
 
     def _cost(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> NDArray[np.float64]:
-        """Sum of squared reprojection errors per frame: predicted ``(q1/q0, m*_z/q0)`` vs measured."""
-        q0, q1 = self._projections(theta, x1, x2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r_y = q1 / q0 - m_y
-            r_z = self.m_ref[:, 2] / q0 - m_z
-            return np.nan_to_num(np.sum(r_y * r_y + r_z * r_z, axis=-1), nan=np.inf)
+        """Sum of squared reprojection errors per frame."""
+        r_y, r_z = self._residuals(theta, x1, x2, m_y, m_z)
+        return np.nan_to_num(np.sum(r_y * r_y + r_z * r_z, axis=-1), nan=np.inf)
 
     def _gauss_newton_step(self, theta: Any, x1: Any, x2: Any, cost: Any, m_y: Any, m_z: Any) -> tuple[Any, Any, Any, Any]:
         """One Gauss-Newton step per frame, kept where it lowers the cost (Cramer's rule, no batched linalg)."""

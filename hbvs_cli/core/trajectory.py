@@ -171,16 +171,6 @@ def _desired_state(*values: ArrayLike) -> DesiredState:
     return DesiredState(*(float(array) if array.ndim == 0 else array for array in arrays))
 
 
-def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
-    """scipy's cubic smoothing spline and its lambda (None: the GCV choice, :mod:`.gcv`)."""
-    from scipy.interpolate import make_smoothing_spline
-
-    from .gcv import gcv_smoothing
-
-    lam = float(smoothing) if smoothing is not None else gcv_smoothing(t, y)
-    return make_smoothing_spline(t, y, lam=lam), lam
-
-
 #: Fewest samples a spline can be fitted to (scipy's smoothing spline needs 5).
 MIN_SAMPLES = 5
 
@@ -190,8 +180,12 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     """Fit the desired trajectory of Remark 1 to decomposed samples at times ``t`` (K,) (s,
     strictly increasing; gaps are bridged): ``theta_d`` (K,) rad (unwrapped here), ``x_hd1`` and
     ``x_hd2`` (K,), which only sets the constant of (25). ``smoothing``: both splines' lambda
-    (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation.
+    (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation (:mod:`.gcv`).
     """
+    from scipy.interpolate import make_smoothing_spline
+
+    from .gcv import gcv_smoothing
+
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
     x_hd2 = np.asarray(x_hd2, dtype=float)
@@ -203,7 +197,8 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     for name, y in samples.items():
         if y.shape != t.shape or not np.all(np.isfinite(y)):
             raise MalformedDataError(f"the {name} samples must be finite and as many as the times")
-        spline, lam = _smoothing_spline(t, y, smoothing)
+        lam = float(smoothing) if smoothing is not None else gcv_smoothing(t, y)
+        spline = make_smoothing_spline(t, y, lam=lam)
         residual = float(np.sqrt(np.mean((spline(t) - y) ** 2)))
         channels[name] = SplineChannel(np.asarray(spline.t, dtype=float), np.asarray(spline.c, dtype=float), lam, residual)
     if x_hd2.shape != t.shape or not np.all(np.isfinite(x_hd2)):
