@@ -62,18 +62,16 @@ def estimate_common_normal(
     normals = np.nan_to_num(candidates.normals)
     # Proposals: the front normals of the few best-conditioned frames, and the prior.
     best_frames = np.argsort(weight)[::-1][: min(5, weight.size)]
-    proposals = [normals[f, c] for f in best_frames for c in range(4) if front[f, c]]
-    proposals.append(prior)
-    proposals_arr = np.array(proposals)
-    agreement = np.einsum("fck,pk->pfc", normals, proposals_arr)
+    proposals = np.array([normals[f, c] for f in best_frames for c in range(4) if front[f, c]] + [prior])
+    agreement = np.einsum("fck,pk->pfc", normals, proposals)
     agreement = np.where(front[None], agreement, -1.0)
     scores = (agreement.max(axis=-1) * weight[None]).sum(axis=-1) / weight.sum()
-    scores = scores + 1e-9 * (proposals_arr @ prior)  # prefer the prior on an exact tie
+    scores = scores + 1e-9 * (proposals @ prior)  # prefer the prior on an exact tie
     order = np.argsort(scores)[::-1]
-    best = proposals_arr[order[0]]
-    rival_indices = [i for i in order[1:] if float(proposals_arr[i] @ best) < np.cos(np.radians(5.0))]
+    best = proposals[order[0]]
+    rival_indices = [i for i in order[1:] if float(proposals[i] @ best) < np.cos(np.radians(5.0))]
     margin = float(scores[order[0]] - scores[rival_indices[0]]) if rival_indices else 1.0
-    rival = proposals_arr[rival_indices[0]] if rival_indices else None
+    rival = proposals[rival_indices[0]] if rival_indices else None
     for _ in range(3):
         index, ok = select_branch(candidates, m_ref, best)
         chosen = take_branch(normals, index)

@@ -11,8 +11,6 @@ In such a frame the camera F sees F*_i and F*_{i+1} through (3), (14):
 * its origin ``t = R_i^T (x_f,i+1 - x_f,i)``, so with ``u = t / d*_i`` and
   ``rho = d*_{i+1} / d*_i``: ``R_i u - rho x_h,i+1 = -x_h,i``, two equations per frame, linear
   in ``(u_1, u_2, rho)``: least squares over the overlap, which needs the camera to move during it.
-
-The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * dhat``.
 """
 
 from __future__ import annotations

@@ -331,9 +331,7 @@ class ServoStateFilter:
         if observed is None:
             return self._gated()
         z, inverse_information = observed
-        variance = self.noise_variance
-        i00, i01, i02, i11, i12, i22 = inverse_information
-        r00, r01, r02, r11, r12, r22 = variance * i00, variance * i01, variance * i02, variance * i11, variance * i12, variance * i22
+        r00, r01, r02, r11, r12, r22 = (self.noise_variance * value for value in inverse_information)
         if self._state is None:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state
