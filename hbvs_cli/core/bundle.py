@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
 from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, reference_rows, rotated_normals, shape_residuals
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, point_derivatives, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -27,6 +27,12 @@ COST_TOLERANCE = 1e-5
 
 #: Iterations of the joint estimate at most (it starts from the variable-projection estimate).
 MAX_EVALUATIONS = 60
+
+
+def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Predicted ``(m_y, m_z)`` (K, N, 2) of every reference point (N, 3) in every frame (12),
+    for a normal (3,) and (theta, x_h1, x_h2) per frame (K, 3)."""
+    return point_derivatives(normal, m_ref, motion, order=0)[0]
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (OUTLIER_SPREADS, JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise,
-                     rolling_shutter_shift, uniform_shift)
-from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, point_derivatives, refine_plane_and_reference
+                     projected_points, rolling_shutter_shift, uniform_shift)
+from .plane import REFINEMENT_FRAMES, KnownShape, PlaneGeometry, estimate_common_normal, refine_plane_and_reference
 from .trajectory import CHANNELS, MIN_SAMPLES, FeedforwardCondition, SplineTrajectory, feedforward_condition, fit_spline_trajectory
 
 #: A frame that shows only part of the target (a board partly out of view) is used when at
@@ -456,7 +456,7 @@ def _shutter_shifts(normal: NDArray[np.float64], m_ref: NDArray[np.float64], t: 
     (:func:`~.bundle.rolling_shutter_shift`), from the ``poses`` (K, 3) of the frames ``rows``
     (K,); 0 in the others."""
     shift = np.zeros((t.size, 2 * m_ref.shape[0]))
-    shift[rows] = rolling_shutter_shift(point_derivatives(normal, m_ref, poses, order=0)[0], t[rows])
+    shift[rows] = rolling_shutter_shift(projected_points(normal, m_ref, poses), t[rows])
     return shift
 
 
@@ -500,7 +500,7 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
         if solved.size == 0:
             continue
         poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
-        predicted = point_derivatives(normal, m_ref, poses, order=0)[0]  # (K, N, 2): (m_y, m_z)
+        predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
         missing = ~pattern
         m[np.ix_(solved, np.flatnonzero(missing), [0])] = 1.0
         m[np.ix_(solved, np.flatnonzero(missing), [1, 2])] = predicted[:, missing, :]
