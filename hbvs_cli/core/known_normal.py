@@ -143,7 +143,7 @@ class KnownNormalSolver:
     def reprojection_residuals(self, motion: PlanarMotion, m: ArrayLike) -> NDArray[np.float64]:
         """Predicted minus measured ``(m_y, m_z)`` of every point, shape (..., 2N)."""
         m = np.asarray(m, dtype=float)
-        return np.concatenate(self._residuals(motion.theta, motion.x_h[..., 0], motion.x_h[..., 1], m[..., 1], m[..., 2]), axis=-1)
+        return np.concatenate(self._residuals(motion.theta, *np.moveaxis(motion.x_h, -1, 0), m[..., 1], m[..., 2]), axis=-1)
 
     def _residuals(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Predicted ``(q1 / q0, m*_z / q0)`` of every point (``q = H m*_i``) minus the measured ``m_y``, ``m_z``."""
