@@ -1,12 +1,6 @@
-"""n*, the reference points and every frame's planar pose at once: the joint estimate.
-
-:func:`estimate_plane_jointly` estimates the global unknowns (n* as two angles, the reference
-points' ``(m*_iy, m*_iz)``) and every frame's ``(theta, x_h1, x_h2)`` by maximum likelihood
-on every point's reprojection error (12), ``m_i ~ H m*_i`` with ``H = Rz(theta) + x_h n*^T``
-(robust loss, block-arrow sparse Jacobian): the close frames pin the n* that F* alone does not.
-
-:func:`joint_covariance`: the estimate's covariance ``sigma^2 (J^T J)^-1`` by the Schur
-complement on the globals (docs/uncertainty.md).
+"""n* (two angles), the reference points' ``(m*_iy, m*_iz)`` and every frame's planar pose at
+once, by maximum likelihood on every point's reprojection error (12): the close frames pin the
+n* that F* alone does not; and the estimate's covariance (docs/uncertainty.md).
 """
 
 from __future__ import annotations
@@ -56,26 +50,11 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
                            noise: float, shapes: Sequence[KnownShape] = ()) -> JointEstimate:
     """n*, the reference points and every frame's pose by maximum likelihood, jointly.
 
-    Parameters
-    ----------
-    m : array_like, shape (K, N, 3)
-        Normalised points of the frames besides F* (every point found).
-    m_ref : array_like, shape (N, 3)
-        Starting reference points.
-    normal : array_like, shape (3,)
-        Starting unit normal (its branch chosen).
-    measured_ref : array_like, shape (N, 3)
-        The reference points as measured in F*.
-    noise : float
-        The point noise (normalised units): the robust loss's scale is
-        :data:`ROBUST_SCALE` times it.
-    shapes : sequence of KnownShape, optional
-        Parts of the target known up to a similarity (:func:`~.plane.shape_residuals`).
-
-    Returns
-    -------
-    JointEstimate
-        The start when the solver fails or puts the target behind F*.
+    ``m`` (K, N, 3): the frames besides F* (every point found); ``m_ref`` (N, 3) and
+    ``normal`` (3,; its branch chosen): the start; ``measured_ref`` (N, 3): the reference points
+    as measured in F*; ``noise``: the point noise (normalised units), :data:`ROBUST_SCALE` times
+    it the robust loss's scale; ``shapes``: :func:`~.plane.shape_residuals`. Returns the start
+    when the solver fails or puts the target behind F*.
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
     from scipy.sparse import csr_matrix
@@ -151,9 +130,8 @@ def measured_point_noise(residuals: ArrayLike) -> float:
         return float("nan")
     spread = 1.4826 * float(np.median(np.abs(r)))
     inliers = r[np.abs(r) <= OUTLIER_SPREADS * spread]
-    if inliers.size == 0:
-        return spread * float(np.sqrt(rows / max(rows - 3, 1)))
-    return float(np.sqrt(np.mean(inliers**2))) * float(np.sqrt(rows / max(rows - 3, 1)))
+    rms = float(np.sqrt(np.mean(inliers**2))) if inliers.size else spread
+    return rms * float(np.sqrt(rows / max(rows - 3, 1)))
 
 
 #: The longest lag (as a fraction of the frames) over which :func:`correlation_inflation`
@@ -190,38 +168,25 @@ class JointCovariance:
     spans' columns) plus what it inherits, ``sensitivity bias_shared``: kept in these parts,
     a board's frames take ``3 2N`` numbers each instead of ``3 S 2N``.
 
-    Attributes
-    ----------
-    shared : ndarray, shape (G, G)
-        Of the global unknowns (n*'s two angles about the solution, rad, then the
-        reference points' offsets).
-    own : ndarray, shape (K, 3, 3)
-        Of each frame's (theta, x_h1, x_h2) were the globals exact.
-    sensitivity : ndarray, shape (K, 3, G)
-        How each frame's estimate moves with an error of the globals: the frame's full
-        covariance is ``own + sensitivity shared sensitivity^T``.
-    noise : float
-        The point noise the residuals show (normalised units).
-    bias_shared : ndarray, shape (G, C), or None
-        How the globals move with each of C biases: a detector's, of one standard deviation
-        on each point's coordinate in each of S spans of the drive (``S 2N`` columns,
-        :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
-        column), then the D shifts every frame shares (:func:`joint_covariance`'s
-        ``common_shift``); their covariances add ``bias bias^T``, common to the frames (None: no bias).
-    span_bias, frame_spans : ndarrays, shapes (K, 3, 2N) and (K,), or None
-        A frame's own move with the biases of its span (its columns of the span's ``2N``),
-        and its span; None: no detector's bias.
-    readout_bias : ndarray, shape (K, 3), or None
-        A frame's own move with the rolling shutter's bias (its column, before the image
-        shift's).
-    image_shift_bias : ndarray, shape (K, 3, D), or None
-        A frame's own move with the shifts every frame shares (the last D columns;
-        :func:`joint_covariance`'s ``common_shift``).
-    readout, readout_sigma : float
-        With ``shutter``: the readout (s per normalised row) the residuals show, and its
-        standard deviation, ``sqrt(inflation) noise / |s_perp|``, ``s_perp`` the part of the
-        shift that the other unknowns cannot absorb (the Schur complement of ``J^T J`` on the
-        readout's column).
+    ``shared`` (G, G): of the global unknowns (n*'s two angles about the solution, rad, then
+    the reference points' offsets); ``own`` (K, 3, 3): of each frame's (theta, x_h1, x_h2) were
+    the globals exact; ``sensitivity`` (K, 3, G): how each frame's estimate moves with an error
+    of the globals (its full covariance is ``own + sensitivity shared sensitivity^T``);
+    ``noise``: the point noise the residuals show (normalised units).
+
+    ``bias_shared`` (G, C): how the globals move with each of C biases: a detector's, of one
+    standard deviation on each point's coordinate in each of S spans of the drive (``S 2N``
+    columns, :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
+    column), then the D shifts every frame shares (its ``common_shift``); their covariances add
+    ``bias bias^T``, common to the frames. A frame's own move with them: ``span_bias``
+    (K, 3, 2N), with the biases of its span ``frame_spans`` (K,) (its columns of the span's
+    ``2N``); ``readout_bias`` (K, 3), with the shutter's; ``image_shift_bias`` (K, 3, D), with
+    the shared shifts' (the last D columns). Each None where there is no such bias.
+
+    ``readout``, ``readout_sigma``: with ``shutter``, the readout (s per normalised row) the
+    residuals show, and its standard deviation ``sqrt(inflation) noise / |s_perp|``, ``s_perp``
+    the part of the shift the other unknowns cannot absorb (the Schur complement of ``J^T J``
+    on the readout's column).
     """
 
     shared: NDArray[np.float64]
@@ -301,60 +266,40 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     ``B_k``): the globals' covariance is ``noise^2 (A - sum B_k^T D_k^-1 B_k)^-1``, a frame's
     own ``noise^2 D_k^-1``, its sensitivity to the globals ``-D_k^-1 B_k``.
 
-    Parameters
-    ----------
-    estimated : array_like, shape (K, N, 3)
-        The frames (besides F*) the globals were estimated from.
-    m_ref, normal : array_like
-        The solution's reference points (N, 3) and normal (3,).
-    motion : array_like, shape (K, 3)
-        The solution's (theta, x_h1, x_h2) of ``estimated``.
-    noise : float, optional
-        Point noise (normalised units); by default :func:`measured_point_noise` of the
-        estimated frames.
-    shapes : sequence of KnownShape, optional
-    frames, frames_motion : array_like, shapes (F, N, 3) and (F, 3), optional
-        Frames to give the own covariance and sensitivity of (default: ``estimated``),
-        e.g. every frame of a recording whose globals came from a sample of it.
-    estimated_rows : array_like of int, shape (K,), optional
-        Which frame of ``frames`` each estimated frame is, -1 for one that is not among them
-        (by default none is; without ``frames``, each is itself).
-    correlated : bool
-        Grow the covariance by :func:`correlation_inflation` of the estimated frames'
-        residuals (in the order given: time order); False assumes independent frames.
-    bias_fraction : float
-        A detector's bias on each point's coordinates, the same over a span of the drive
-        and independent between spans, as a standard deviation in point noise (0: none).
-        n* and the reference points absorb it, and the residuals do not show it. Its effect
-        on the estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it,
-        by the same Schur complement.
-    bias_segments : (int, array_like (K,), array_like (F,)), optional
-        The span (0, 1, ...) of F*, of every estimated frame and of every frame of
-        ``frames``; without it, no bias.
-    bias_scale : (float, array_like (K,), array_like (F,)), optional
-        That bias's size in F*, in every estimated frame and in every frame of ``frames``,
-        in multiples of ``bias_fraction`` (default: 1 everywhere).
-    shutter : (array_like (2N,), (K, 2N), (F, 2N)), optional
-        F*'s, the estimated frames' and ``frames``' points' move per unit of a rolling
-        shutter's readout (:func:`rolling_shutter_shift`). The readout is fitted to the
-        residuals, the part of the shift the estimate cannot absorb is taken out of them
-        before the noise is measured, and the shift's effect on the estimate is one more
-        bias column (the shutter is not modelled: its error is counted, not removed).
-    readout_estimated : bool
-        The readout was one more unknown of the estimate, and is taken out of ``estimated``
-        and ``frames``: the column is then the estimate's move by ``readout_sigma``.
-    common_shift : callable, optional
-        Errors every frame shares (F* too), independent of each other: ``common_shift(points)``
-        gives how points (K, N, 3) move with one standard deviation of each of D of them,
-        (K, 2N, D) (normalised units; each point's ``(m_y, m_z)`` in turn). A detector's error
-        that all points share all along the drive (bloom pulling bright dots' centroids down
-        the columns, issue 44: :func:`uniform_shift`), or the calibration's
-        (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of
-        them and the residuals cannot show them; their D columns join the bias after the shutter's.
+    ``estimated`` (K, N, 3), ``motion`` (K, 3): the frames (besides F*) the globals were
+    estimated from, and their solved (theta, x_h1, x_h2); ``m_ref`` (N, 3), ``normal`` (3,): the
+    solution's; ``noise``: the point noise (normalised units), by default
+    :func:`measured_point_noise` of the estimated frames; ``frames`` (F, N, 3), ``frames_motion``
+    (F, 3): frames to give the own covariance and sensitivity of (default: ``estimated``), e.g.
+    every frame of a recording whose globals came from a sample of it; ``estimated_rows`` (K,):
+    which frame of ``frames`` each estimated frame is, -1 for one that is not among them (by
+    default none is; without ``frames``, each is itself); ``correlated``: grow the covariance by
+    :func:`correlation_inflation` of the estimated frames' residuals (in the order given: time
+    order), else the frames are independent.
 
-    Returns
-    -------
-    JointCovariance
+    ``bias_fraction``: a detector's bias on each point's coordinates, the same over a span of the
+    drive and independent between spans, as a standard deviation in point noise (0: none). n*
+    and the reference points absorb it, and the residuals do not show it. Its effect on the
+    estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it, by the same Schur
+    complement. ``bias_segments`` (int, (K,), (F,)): the span (0, 1, ...) of F*, of every
+    estimated frame and of every frame of ``frames`` (without it, no bias); ``bias_scale``
+    (float, (K,), (F,)): the bias's size in each, in multiples of ``bias_fraction`` (default 1).
+
+    ``shutter`` ((2N,), (K, 2N), (F, 2N)): F*'s, the estimated frames' and ``frames``' points'
+    move per unit of a rolling shutter's readout (:func:`rolling_shutter_shift`). The readout is
+    fitted to the residuals, the part of the shift the estimate cannot absorb is taken out of
+    them before the noise is measured, and the shift's effect on the estimate is one more bias
+    column (the shutter is not modelled: its error is counted, not removed).
+    ``readout_estimated``: the readout was one more unknown of the estimate, and is taken out of
+    ``estimated`` and ``frames``: the column is then the estimate's move by ``readout_sigma``.
+
+    ``common_shift``: errors every frame shares (F* too), independent of each other:
+    ``common_shift(points)`` gives how points (K, N, 3) move with one standard deviation of each
+    of D of them, (K, 2N, D) (normalised units; each point's ``(m_y, m_z)`` in turn). A detector's
+    error that all points share all along the drive (bloom pulling bright dots' centroids down
+    the columns, issue 44: :func:`uniform_shift`), or the calibration's
+    (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of them and
+    the residuals cannot show them; their D columns join the bias after the shutter's.
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
@@ -463,20 +408,18 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     inverse_own, coupling = inverse_own[:frames.shape[0]], coupling[:frames.shape[0]]
     # A frame's move with the biases: its own, D_k^-1 (J_k^T W_k in its span's columns), plus
     # what it inherits through the globals, -D_k^-1 B_k bias_shared (JointCovariance.bias_rows).
-    bias_shared = span_bias = readout_bias = None
+    bias_columns, span_bias, readout_bias, image_shift_bias = [], None, None, None
     if detector_bias > 0.0 and own_rhs is not None:
         spans[reference_segment] -= reference_scale * reference[:points].T  # F*'s own points carry its span's bias
-        bias_shared = detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1)
+        bias_columns.append(detector_bias * shared_inverse @ np.concatenate(list(spans), axis=1))
         span_bias = own_rhs[:frames.shape[0]]  # formed in J_k^T W_k's place below
     if readout != 0.0:  # the shutter's effect on the estimate: one more column of the bias
-        column_shared = readout * moved_globals[:, None]
-        bias_shared = column_shared if bias_shared is None else np.column_stack([bias_shared, column_shared])
+        bias_columns.append(readout * moved_globals[:, None])
         readout_bias = readout * np.einsum("kab,kb->ka", inverse_own, shutter_own[:frames.shape[0]])
-    image_shift_bias = None
     if shared_shifts:  # the estimate's move with the shared shifts: D more columns
-        columns_shared = shared_inverse @ shift_globals
-        bias_shared = columns_shared if bias_shared is None else np.column_stack([bias_shared, columns_shared])
+        bias_columns.append(shared_inverse @ shift_globals)
         image_shift_bias = inverse_own @ shift_own[:frames.shape[0]]
+    bias_shared = np.column_stack(bias_columns) if bias_columns else None
     for k in range(0, frames.shape[0], BLOCK_FRAMES):  # in place: no second frame-long array
         block = slice(k, k + BLOCK_FRAMES)
         if span_bias is not None:

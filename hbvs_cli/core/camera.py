@@ -36,8 +36,7 @@ class CameraIntrinsics:
     sigma: tuple[float, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
-        values = (self.fx, self.fy, self.cx, self.cy)
-        if not all(np.isfinite(v) for v in values):
+        if not all(np.isfinite(v) for v in (self.fx, self.fy, self.cx, self.cy)):
             raise CalibrationError("camera intrinsics contain NaN or infinity")
         if self.fx <= 0 or self.fy <= 0:
             raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
@@ -137,15 +136,14 @@ def distort_pixels(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
         return pixels
     import cv2
 
-    x_n = (pixels[:, 0] - camera.cx) / camera.fx
-    y_n = (pixels[:, 1] - camera.cy) / camera.fy
+    m = pixels_to_normalized(camera, pixels)  # [1, -x_n, -y_n]: OpenCV's (x_n, y_n) negated
+    distortion = np.asarray(camera.distortion, dtype=float)
     if camera.distortion_model == "equidistant":
-        normalized = np.stack([x_n, y_n], axis=-1).reshape(-1, 1, 2)
-        distorted = cv2.fisheye.distortPoints(normalized, camera.K, np.asarray(camera.distortion, dtype=float))
-        return distorted.reshape(pixels.shape)
-    object_points = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).reshape(-1, 1, 3)
-    projected, _ = cv2.projectPoints(object_points, np.zeros(3), np.zeros(3), camera.K, np.asarray(camera.distortion, dtype=float))
-    return projected.reshape(pixels.shape)
+        distorted = cv2.fisheye.distortPoints(-m[:, 1:].reshape(-1, 1, 2), camera.K, distortion)
+    else:
+        object_points = np.column_stack([-m[:, 1:], m[:, :1]]).reshape(-1, 1, 3)
+        distorted, _ = cv2.projectPoints(object_points, np.zeros(3), np.zeros(3), camera.K, distortion)
+    return distorted.reshape(pixels.shape)
 
 
 def measured_pixels_to_normalized(camera: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:

@@ -1,11 +1,9 @@
 """A live camera's time stamps checked against this host's monotonic clock.
 
 A live loop plays the taught trajectory at the pace of the camera's stamps (the time a frame
-was taken is the best measure of when the robot was where it saw itself). A stamp is someone
-else's clock, though: a driver can freeze it, step it back, jump it ahead, or two cameras can
-share one topic. :class:`CameraClock` lets through only frames that are newer than the last
-one used and no further ahead of this host's clock than a few frame periods, so the taught
-trajectory never runs faster than real time and every command rests on a fresh frame.
+was taken is the best measure of when the robot was where it saw itself); but a driver can
+freeze, step back or jump a stamp, or two cameras share one topic. So the trajectory never runs
+faster than real time and every command rests on a fresh frame.
 """
 
 from __future__ import annotations
@@ -22,16 +20,9 @@ CLOCK_JUMP_MIN_S = 0.25
 
 
 class CameraClock:
-    """The stamps of one camera, frame by frame.
+    """The stamps of one camera of frame period ``period_s`` (s), frame by frame: frames newer
+    than the last one let through and no further ahead of this host's clock than the tolerance.
 
-    Parameters
-    ----------
-    period_s : float
-        The camera's frame period (s); the tolerance of a jump is
-        ``max(CLOCK_JUMP_PERIODS * period_s, CLOCK_JUMP_MIN_S)``.
-
-    Notes
-    -----
     The offset ``arrival - stamp`` of a frame is the clocks' difference plus the frame's delay,
     and a delay is never negative: so the smallest offset seen is the clocks' difference plus the
     shortest delay, and a frame whose offset is smaller than that by more than the tolerance
@@ -48,20 +39,10 @@ class CameraClock:
 
     def admit(self, stamp: float, arrival: float) -> bool:
         """Whether a frame stamped ``stamp`` (s, the camera's clock) that arrived at ``arrival``
-        (s, ``time.monotonic()``) is newer than the last one let through.
-
-        Returns
-        -------
-        bool
-            True: use it. False: its stamp is not newer (a frozen or repeating clock, a reordered
-            frame) or not a time at all; wait for the next.
-
-        Raises
-        ------
-        CameraClockError
-            When the stamp is ahead of this host's clock, or behind the last frame's, by more
-            than :attr:`tolerance_s`.
-        """
+        (s, ``time.monotonic()``) is to be used; False: its stamp is not newer than the last one
+        let through (a frozen or repeating clock, a reordered frame) or not a time at all.
+        CameraClockError when the stamp is ahead of this host's clock, or behind the last
+        frame's, by more than :attr:`tolerance_s`."""
         if not (math.isfinite(stamp) and stamp > 0.0):
             self.refused += 1
             return False

@@ -57,11 +57,9 @@ def homography_candidates(H: ArrayLike) -> HomographyCandidates:
     H = H / sigma[..., 1, None, None]
     eigenvalues, V = np.linalg.eigh(np.swapaxes(H, -1, -2) @ H)
     # eigh sorts ascending: reorder so that v1 has the largest eigenvalue.
-    eigenvalues = eigenvalues[..., ::-1]
     V = V[..., :, ::-1]
     V = V * np.sign(np.linalg.det(V))[..., None, None]
-    s1_sq = eigenvalues[..., 0]
-    s3_sq = eigenvalues[..., 2]
+    s1_sq, s3_sq = eigenvalues[..., 2], eigenvalues[..., 0]
     v1, v2, v3 = V[..., :, 0], V[..., :, 1], V[..., :, 2]
     spread = np.sqrt(np.maximum(s1_sq - s3_sq, 0.0))
     strength = np.sqrt(np.maximum(s1_sq, 0.0)) - np.sqrt(np.maximum(s3_sq, 0.0))

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
-from .estimation import DEFAULT_RESIDUAL_GATE, within_residual_gate
+from .estimation import DEFAULT_RESIDUAL_GATE
 from .homography import estimate_euclidean_homography, validate_reference_points
 from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
@@ -134,10 +134,8 @@ def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = N
     """The taught run's frame interval (s): from its frame times ``t`` when there are two or
     more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
     :data:`DEFAULT_FRAME_INTERVAL`."""
-    interval = frame_interval(t) if t is not None else None
-    if interval is not None:
-        return interval
-    return float(recorded or DEFAULT_FRAME_INTERVAL)
+    interval = frame_interval(t if t is not None else ())
+    return interval if interval is not None else float(recorded or DEFAULT_FRAME_INTERVAL)
 
 
 @dataclass(frozen=True)
@@ -230,24 +228,13 @@ class FitUncertainty:
 
 @dataclass(frozen=True)
 class DesiredFit:
-    """What the fit of a taught run gives.
-
-    Attributes
-    ----------
-    m_ref : ndarray, shape (N, 3)
-        m*_i of F*, refined with n*; ``reference_pixels`` (N, 2): the same as ideal pixels.
-    initial_pixels : ndarray, shape (N, 2)
-        The measured pixels of the first used frame.
-    normal_margin : float
-        How clearly the sequence chose n*'s branch, in [0, 1] (:func:`~.plane.estimate_common_normal`).
-    used : ndarray of bool, shape (F,)
-        Frames the splines were fitted to.
-    theta, residual, x_h : ndarray, shape (F,) and (F, 2)
-        theta_d (rad), known-normal residual (normalised units) and x_hd of every frame
-        (NaN where not solved).
-    span : slice
-        From the first used frame to the last; ``condition`` (35) is measured over it.
-    """
+    """What the fit of a taught run gives: ``m_ref`` (N, 3), m*_i of F* refined with n*, and
+    ``reference_pixels`` (N, 2), the same as ideal pixels; ``initial_pixels`` (N, 2), the first
+    used frame's measured pixels; ``normal_margin`` in [0, 1], how clearly the sequence chose n*'s
+    branch (:func:`~.plane.estimate_common_normal`); ``used`` (F,), the frames the splines were
+    fitted to; ``theta``, ``residual`` (F,) and ``x_h`` (F, 2): theta_d (rad), the known-normal
+    residual (normalised units) and x_hd of every frame (NaN where not solved); ``span``, from
+    the first used frame to the last, over which ``condition`` (35) is measured."""
 
     m_ref: NDArray[np.float64]
     reference_pixels: NDArray[np.float64]
@@ -283,36 +270,22 @@ def fit_desired_trajectory(
 ) -> DesiredFit:
     """The desired trajectory of a taught run from its per-frame target pixels.
 
-    Parameters
-    ----------
-    t : array_like, shape (F,)
-        Frame times (s), increasing.
-    pixels : array_like, shape (F, N, 2)
-        Target pixels in a consistent order; NaN where not found.
-    smoothing : float or None
-        Spline lambda (s^3); None: generalised cross-validation.
-    max_lost, max_gap : float
-        Largest fraction of unused frames, and longest unused stretch (s) to bridge.
-    warn : callable, optional
-        Told what a user should know (ambiguous or uncertain n*), as it happens.
-    shapes : sequence of KnownShape, optional
-        Target parts of known shape (each marker's square); they pin n* where the motion does not.
-    errors : DetectorErrors, optional
-        The detector's bias over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the
-        residuals cannot show it), its usual precision and whether its errors are correlated
-        over frames. Default: no bias, correlated, no precision check.
-    image_shift_px : float, optional
-        A detector's error shared by every point of every frame (px, 1 sigma in each image
-        direction; e.g. bloom pulling saturated dots' centroids, measured by the detector):
-        :func:`~.bundle.joint_covariance`'s ``common_shift``.
-    calibration_sigma : sequence of float, optional
-        The standard deviations of the intrinsics ``(fx, fy, cx, cy, *distortion)``
-        (:attr:`~.camera.CameraIntrinsics.sigma`): their errors are shared by every frame, a
-        bias of the whole drive (:func:`~.camera.calibration_shifts`, joined to
-        ``common_shift``). Empty: the intrinsics are exact.
-    calibration_counted : bool, optional
-        False: ``calibration_sigma`` is a what-if (a calibration that states none), its part
-        of n*'s sigma is reported (``calibration_normal_sigma_deg``) but left out of the band.
+    ``t`` (F,): frame times (s), increasing; ``pixels`` (F, N, 2): the target's pixels in a
+    consistent order, NaN where not found; ``smoothing``: the splines' lambda (s^3), None for
+    generalised cross-validation; ``max_lost``, ``max_gap``: the largest fraction of unused
+    frames, and the longest unused stretch (s) to bridge; ``warn``: told what a user should know
+    (ambiguous or uncertain n*), as it happens; ``shapes``: target parts of known shape (each
+    marker's square), which pin n* where the motion does not; ``errors``: the detector's bias
+    over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the residuals cannot show it), its
+    usual precision and whether its errors are correlated over frames (default: no bias,
+    correlated, no precision check); ``image_shift_px``: a detector's error shared by every point
+    of every frame (px, 1 sigma in each image direction; e.g. bloom pulling saturated dots'
+    centroids), :func:`~.bundle.joint_covariance`'s ``common_shift``; ``calibration_sigma``: the
+    intrinsics' ``(fx, fy, cx, cy, *distortion)`` standard deviations
+    (:attr:`~.camera.CameraIntrinsics.sigma`), errors shared by every frame, a bias of the whole
+    drive (:func:`~.camera.calibration_shifts`, joined to ``common_shift``), empty when exact;
+    ``calibration_counted`` False: ``calibration_sigma`` is a what-if (a calibration that states
+    none), its part of n*'s sigma reported (``calibration_normal_sigma_deg``) but left out of the band.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -371,12 +344,16 @@ def fit_desired_trajectory(
     solver = KnownNormalSolver(m_ref, normal)
     motion = solver.solve(np.where(found[:, None, None], m, m_ref))
     residual = np.where(found, motion.residual, np.nan)
-    used = found & motion.valid & within_residual_gate(residual)
+    used = found & motion.valid & (residual <= DEFAULT_RESIDUAL_GATE)  # NaN never passes
     outliers = int(np.sum(found & ~used))
     frames = frame_stats(t, used, outliers, max_lost, max_gap)
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
     trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
     condition = feedforward_condition(trajectory, t[span])
+    # The first used frame's measured pixels, a partial frame's points out of view where its pose
+    # puts them (undistorted: a prediction for repeat's first search only).
+    missing = ~np.all(np.isfinite(pixels[span.start]), axis=1)
+    initial_pixels = np.where(missing[:, None], normalized_to_pixels(camera, m[span.start]), pixels[span.start])
     focal = camera.mean_focal
     uncertainty = None
     if others.size:
@@ -395,7 +372,7 @@ def fit_desired_trajectory(
     return DesiredFit(
         m_ref=m_ref,
         reference_pixels=normalized_to_pixels(camera, m_ref),
-        initial_pixels=_initial_pixels(pixels, m, int(np.flatnonzero(used)[0]), camera),
+        initial_pixels=initial_pixels,
         normal=normal,
         normal_margin=margin,
         trajectory=trajectory,
@@ -456,8 +433,7 @@ def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], fou
     without it cannot hold: the skew biases n*. With the readout as one more unknown, the
     joint estimate takes one Gauss-Newton step from ``joint``: :func:`~.bundle.joint_covariance`'s
     readout and its shutter column (the globals' move per unit readout, through the Schur
-    complement). The step is taken when the readout's score statistic ``(readout /
-    readout_sigma)^2`` exceeds :data:`READOUT_CHI2`.
+    complement), when the readout's score statistic exceeds :data:`READOUT_CHI2`.
     """
     if others.size < 2 or noise <= 0.0:
         return m, joint.normal, joint.m_ref, 0.0
@@ -496,13 +472,6 @@ def uncertainty_warning(uncertainty: FitUncertainty, errors: DetectorErrors = De
         calibration = CALIBRATION_ADVICE.format(part=part) if part > 0.5 * uncertainty.normal_sigma_deg else ""
         return UNCERTAIN_NORMAL_WARNING.format(normal=uncertainty.normal_sigma_deg, theta=theta, x_h1=x_h1, usual=usual, calibration=calibration)
     return None
-
-
-def _initial_pixels(pixels: NDArray[np.float64], m: NDArray[np.float64], first: int, camera: CameraIntrinsics) -> NDArray[np.float64]:
-    """The first used frame's measured pixels, its points out of view (a partial frame)
-    where its pose puts them (undistorted: a prediction for repeat's first search only)."""
-    missing = ~np.all(np.isfinite(pixels[first]), axis=1)
-    return np.where(missing[:, None], normalized_to_pixels(camera, m[first]), pixels[first])
 
 
 def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], m_ref: NDArray[np.float64],

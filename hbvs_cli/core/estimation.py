@@ -4,7 +4,6 @@ normalise (11), solve with the fitted n*, and reject a frame whose points do not
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,11 +16,6 @@ from .labels import Label
 #: Default gate on the known-normal residual (normalised units): 0.004 is 2 px at f = 500,
 #: far above what 0.5 px of noise gives, far below what one swapped or spurious point gives.
 DEFAULT_RESIDUAL_GATE = 0.004
-
-
-def within_residual_gate(residual: Any, gate: float = DEFAULT_RESIDUAL_GATE) -> Any:
-    """True where a known-normal residual (normalised units) passes the outlier gate; NaN never does."""
-    return residual <= gate
 
 
 class ObservationStatus(Label):
@@ -87,6 +81,6 @@ class PlanarPoseEstimator:
         if solution is None:
             return Observation(None, status=ObservationStatus.INVALID, pixels=pixels)
         theta, x_h1, x_h2, residual = solution
-        if not within_residual_gate(residual, self.residual_gate):
+        if not residual <= self.residual_gate:  # NaN never passes the gate
             return Observation(None, residual, ObservationStatus.OUTLIER, pixels)
         return Observation(Measurement(theta=theta, x_h1=x_h1, x_h2=x_h2), residual, ObservationStatus.OK, pixels)

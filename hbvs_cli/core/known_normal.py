@@ -4,6 +4,7 @@ is linear in (cos theta, sin theta, x_h1, x_h2), a unique answer with no branch 
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from typing import Any, Sequence
 
 import numpy as np
@@ -103,13 +104,7 @@ class KnownNormalSolver:
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
             parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
-            return PlanarMotion(
-                theta=np.concatenate([p.theta for p in parts]),
-                x_h=np.concatenate([p.x_h for p in parts]),
-                normal=np.broadcast_to(self.normal, (m.shape[0], 3)),
-                valid=np.concatenate([p.valid for p in parts]),
-                residual=np.concatenate([p.residual for p in parts]),
-            )
+            return PlanarMotion(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(PlanarMotion)))
         return self._solve_block(m)
 
     def _solve_block(self, m: NDArray[np.float64]) -> PlanarMotion:
@@ -120,9 +115,8 @@ class KnownNormalSolver:
             )
         alpha = depth_ratios(m, m_ref)
         finite = np.all(np.isfinite(m), axis=(-1, -2))
-        with np.errstate(invalid="ignore"):
-            valid = finite & np.all(alpha > 0.0, axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):
+            valid = finite & np.all(alpha > 0.0, axis=-1)
             inv_alpha = 1.0 / alpha
             rhs = np.empty(m.shape[:-2] + (2 * m_ref.shape[0],))
             rhs[..., 0::2] = inv_alpha
@@ -149,25 +143,21 @@ class KnownNormalSolver:
     def reprojection_residuals(self, motion: PlanarMotion, m: ArrayLike) -> NDArray[np.float64]:
         """Predicted minus measured ``(m_y, m_z)`` of every point, shape (..., 2N)."""
         m = np.asarray(m, dtype=float)
-        q0, q1 = self._projections(motion.theta, motion.x_h[..., 0], motion.x_h[..., 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.concatenate([q1 / q0 - m[..., 1], self.m_ref[:, 2] / q0 - m[..., 2]], axis=-1)
+        return np.concatenate(self._residuals(motion.theta, *np.moveaxis(motion.x_h, -1, 0), m[..., 1], m[..., 2]), axis=-1)
 
-    def _projections(self, theta: NDArray[np.float64], x1: NDArray[np.float64], x2: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        """``q = H m*_i`` for every point: its first two components."""
+    def _residuals(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Predicted ``(q1 / q0, m*_z / q0)`` of every point (``q = H m*_i``) minus the measured ``m_y``, ``m_z``."""
         y, g = self.m_ref[:, 1], self.m_ref @ self.normal
         c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
         q0 = c - s * y + x1[..., None] * g
         q1 = s + c * y + x2[..., None] * g
-        return q0, q1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q1 / q0 - m_y, self.m_ref[:, 2] / q0 - m_z
 
     def _cost(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> NDArray[np.float64]:
-        """Sum of squared reprojection errors per frame: predicted ``(q1/q0, m*_z/q0)`` vs measured."""
-        q0, q1 = self._projections(theta, x1, x2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r_y = q1 / q0 - m_y
-            r_z = self.m_ref[:, 2] / q0 - m_z
-            return np.nan_to_num(np.sum(r_y * r_y + r_z * r_z, axis=-1), nan=np.inf)
+        """Sum of squared reprojection errors per frame."""
+        r_y, r_z = self._residuals(theta, x1, x2, m_y, m_z)
+        return np.nan_to_num(np.sum(r_y * r_y + r_z * r_z, axis=-1), nan=np.inf)
 
     def _gauss_newton_step(self, theta: Any, x1: Any, x2: Any, cost: Any, m_y: Any, m_z: Any) -> tuple[Any, Any, Any, Any]:
         """One Gauss-Newton step per frame, kept where it lowers the cost (Cramer's rule, no batched linalg)."""
@@ -190,12 +180,7 @@ class KnownNormalSolver:
             new_theta, new_x1, new_x2 = theta - d1, x1 - d2, x2 - d3
             new_cost = self._cost(new_theta, new_x1, new_x2, m_y, m_z)
         better = np.isfinite(new_cost) & (new_cost < cost)
-        return (
-            np.where(better, new_theta, theta),
-            np.where(better, new_x1, x1),
-            np.where(better, new_x2, x2),
-            np.where(better, new_cost, cost),
-        )
+        return tuple(np.where(better, new, old) for new, old in zip((new_theta, new_x1, new_x2, new_cost), (theta, x1, x2, cost)))
 
     def solve_one(self, m_y: Sequence[float], m_z: Sequence[float]) -> tuple[float, float, float, float] | None:
         """:meth:`solve` of one frame's ``m_y``, ``m_z`` (N each) in plain floats, the closed

@@ -100,13 +100,9 @@ def match_layout(layout: ArrayLike, image: ArrayLike) -> NDArray[np.intp]:
     # Both point sets centred and scaled to unit spread: the direct linear transform is
     # then well conditioned, whatever the units.
     layout_n, image_n = _normalised(layout), _normalised(image)
-    if n >= 5:
-        transforms = _homographies(layout_n[candidates], image_n[chosen])
-    else:
-        transforms = _similarities(layout_n[candidates], image_n[chosen])
+    transforms = (_homographies if n >= 5 else _similarities)(layout_n[candidates], image_n[chosen])
     mapped = _apply(transforms, layout_n)  # (K, N, 2)
-    layout, image = layout_n, image_n
-    distance = np.sum((mapped[:, :, None, :] - image[None, None, :, :]) ** 2, axis=-1)  # (K, layout, image)
+    distance = np.sum((mapped[:, :, None, :] - image_n[None, None, :, :]) ** 2, axis=-1)  # (K, layout, image)
     distance = np.where(np.isfinite(distance), distance, np.inf)
     # Nearest image point of each mapped layout point: a quick score, then the assignment
     # on the best few.

@@ -41,15 +41,9 @@ def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
     x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]
     if x.size == 0:
-        return dict.fromkeys(("rmse", "mean", "median", "std", "min", "max"))
-    return {
-        "rmse": _optional(np.sqrt(np.mean(np.square(x)))),
-        "mean": _optional(np.mean(x)),
-        "median": _optional(np.median(x)),
-        "std": _optional(np.std(x)),
-        "min": _optional(np.min(x)),
-        "max": _optional(np.max(x)),
-    }
+        return dict.fromkeys(STATISTICS[:6])
+    values = (np.sqrt(np.mean(np.square(x))), np.mean(x), np.median(x), np.std(x), np.min(x), np.max(x))
+    return dict(zip(STATISTICS[:6], map(_optional, values)))
 
 
 def initial_value(x: ArrayLike) -> float | None:
@@ -79,12 +73,8 @@ def settling_time(t: ArrayLike, x: ArrayLike, tolerance: float) -> float | None:
     if xv.size == 0:
         return None
     outside = np.flatnonzero(np.abs(xv) > tolerance)
-    if outside.size == 0:
-        return _optional(tv[0] - t[0])
-    last = outside[-1]
-    if last == xv.size - 1:
-        return None
-    return _optional(tv[last + 1] - t[0])
+    settled = outside[-1] + 1 if outside.size else 0
+    return _optional(tv[settled] - t[0]) if settled < xv.size else None
 
 
 def error_summary(t: ArrayLike, x: ArrayLike, tolerance: float) -> dict[str, float | None]:
@@ -145,14 +135,12 @@ def _finite_abs(x: ArrayLike) -> NDArray[np.float64]:
 
 def peak_abs(x: ArrayLike) -> float | None:
     """Largest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
-    magnitudes = _finite_abs(x)
-    return _optional(np.max(magnitudes)) if magnitudes.size else None
+    return _optional(np.max(_finite_abs(x), initial=-np.inf))
 
 
 def min_abs(x: ArrayLike) -> float | None:
     """Smallest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
-    magnitudes = _finite_abs(x)
-    return _optional(np.min(magnitudes)) if magnitudes.size else None
+    return _optional(np.min(_finite_abs(x), initial=np.inf))
 
 
 def sample_rate_hz(t: ArrayLike) -> float | None:

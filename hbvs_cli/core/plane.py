@@ -1,9 +1,5 @@
-"""The plane normal n* common to a sequence of homographies, and its refinement.
-
-:func:`estimate_common_normal` picks the decomposition branch the whole sequence agrees on
-(docs/method.md, "Decomposition into (theta, x_h, n*)"); :func:`refine_plane_and_reference`
-refines n* and the reference points m*_i over every frame, the known-normal solver inside.
-"""
+"""The plane normal n* common to a sequence of homographies (docs/method.md, "Decomposition into
+(theta, x_h, n*)"), its refinement with the reference points m*_i, and their derivatives."""
 
 from __future__ import annotations
 
@@ -41,23 +37,11 @@ def estimate_common_normal(
     every frame agrees with it (weighted by each frame's ``sigma_1 - sigma_3``); the winner
     is refined as the weighted mean of the closest candidate of every frame.
 
-    Parameters
-    ----------
-    H : array_like, shape (F, 3, 3)
-    m_ref : array_like, shape (N, 3)
-    valid : array_like of bool, shape (F,), optional
-        Frames to use.
-
-    Returns
-    -------
-    normal : ndarray, shape (3,)
-        Unit normal in F*.
-    margin : float
-        Score of the winner minus that of the best rival, in [0, 1]: near 0 the sequence
-        does not tell the two branches apart (e.g. a straight drive) and the prior decided
-        (:data:`~.decomposition.FACING_PRIOR`, returned when no frame has a usable translation).
-    rival : ndarray, shape (3,), or None
-        The best rival proposal (the other branch's normal), or None.
+    ``H`` (F, 3, 3), ``m_ref`` (N, 3), ``valid`` (F,): frames to use. Returns the unit normal
+    in F* (3,); the ``margin``, the winner's score minus the best rival's in [0, 1] (near 0 the
+    sequence does not tell the branches apart, e.g. a straight drive, and the prior decided:
+    :data:`~.decomposition.FACING_PRIOR`, returned when no frame has a usable translation);
+    and the best rival proposal (the other branch's normal, (3,)), or None.
     """
     m_ref = np.asarray(m_ref, dtype=float)
     H = np.asarray(H, dtype=float)
@@ -78,19 +62,16 @@ def estimate_common_normal(
     normals = np.nan_to_num(candidates.normals)
     # Proposals: the front normals of the few best-conditioned frames, and the prior.
     best_frames = np.argsort(weight)[::-1][: min(5, weight.size)]
-    proposals = [normals[f, c] for f in best_frames for c in range(4) if front[f, c]]
-    proposals.append(prior)
-    proposals_arr = np.array(proposals)
-    agreement = np.einsum("fck,pk->pfc", normals, proposals_arr)
+    proposals = np.array([normals[f, c] for f in best_frames for c in range(4) if front[f, c]] + [prior])
+    agreement = np.einsum("fck,pk->pfc", normals, proposals)
     agreement = np.where(front[None], agreement, -1.0)
     scores = (agreement.max(axis=-1) * weight[None]).sum(axis=-1) / weight.sum()
-    scores = scores + 1e-9 * (proposals_arr @ prior)  # prefer the prior on an exact tie
+    scores = scores + 1e-9 * (proposals @ prior)  # prefer the prior on an exact tie
     order = np.argsort(scores)[::-1]
-    best = proposals_arr[order[0]]
-    rival_indices = [i for i in order[1:] if float(proposals_arr[i] @ best) < np.cos(np.radians(5.0))]
-    rivals = [scores[i] for i in rival_indices]
-    margin = float(scores[order[0]] - max(rivals)) if rivals else 1.0
-    rival = proposals_arr[rival_indices[0]] if rival_indices else None
+    best = proposals[order[0]]
+    rival_indices = [i for i in order[1:] if float(proposals[i] @ best) < np.cos(np.radians(5.0))]
+    margin = float(scores[order[0]] - scores[rival_indices[0]]) if rival_indices else 1.0
+    rival = proposals[rival_indices[0]] if rival_indices else None
     for _ in range(3):
         index, ok = select_branch(candidates, m_ref, best)
         chosen = take_branch(normals, index)
@@ -120,26 +101,15 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
     into the camera (9). The residual is their ``(m_y, m_z)`` minus the points': zero when
     the points and the normal agree with the shape (a wrong wall angle foreshortens it wrongly).
 
-    Parameters
-    ----------
-    normal : array_like, shape (..., 3)
-        Unit plane normal in the camera's frame (n* for F*), per frame.
-    m : array_like, shape (..., N, 3)
-        Normalised image points.
-    shapes : sequence of (indices, plane coordinates of shape (K, 2)), K >= 3
-    derivatives : {None, "normal", "points", "points only"}
-        Also return the residuals' derivatives by the normal's components, shape
-        (..., R, 3), and with "points" by every point's ``(m_y, m_z)``, shape (..., R, N, 2);
-        "points only" returns the latter alone.
-
-    Returns
-    -------
-    ndarray, shape (..., R = 2 * sum of K), or a tuple with the derivatives
+    ``normal`` (..., 3): the unit plane normal in the camera's frame (n* for F*), per frame;
+    ``m`` (..., N, 3): normalised image points; ``shapes``: (indices, plane coordinates (K, 2)),
+    K >= 3. Returns the residuals (..., R = 2 * sum of K); with ``derivatives`` "normal" also
+    by the normal's components (..., R, 3), with "points" by every point's ``(m_y, m_z)`` as
+    well (..., R, N, 2); "points only" returns the residuals and the latter.
     """
-    normal = np.asarray(normal, dtype=float)
     m = np.asarray(m, dtype=float)
     batch = m.shape[:-2]
-    normal = np.broadcast_to(normal, batch + (3,))
+    normal = np.broadcast_to(np.asarray(normal, dtype=float), batch + (3,))
     e1 = np.cross(normal, [0.0, 0.0, 1.0])
     length = np.linalg.norm(e1, axis=-1, keepdims=True)
     e1 = e1 / length
@@ -194,13 +164,9 @@ def shape_residuals(normal: ArrayLike, m: ArrayLike, shapes: Sequence[KnownShape
                 into = np.stack([np.einsum("...k,...nyk->...ny", e1, d_own), np.einsum("...k,...nyk->...ny", e2, d_own)], axis=-2)
                 chain = (_block_diagonal(out @ np.stack([e1, e2], axis=-1)[..., None, :, :]) @ match.swapaxes(-1, -2)
                          @ _block_diagonal(into)) - np.eye(2 * count)
-                chain = chain.reshape(batch + (2 * count, count, 2))
-                if indices == list(range(m.shape[-2])):
-                    by_points.append(chain)
-                else:
-                    full = np.zeros(batch + (2 * count, m.shape[-2], 2))
-                    full[..., indices, :] = chain
-                    by_points.append(full)
+                full = np.zeros(batch + (2 * count, m.shape[-2], 2))
+                full[..., indices, :] = chain.reshape(batch + (2 * count, count, 2))
+                by_points.append(full)
     joined = [parts[1] if len(parts) == 2 else np.concatenate(parts, axis=axis)
               for parts, axis in ((residuals, -1), (by_normal, -2), (by_points, -3))]
     if not derivatives:
@@ -241,21 +207,13 @@ def _similar(q: NDArray[np.float64], lc: NDArray[np.float64], proper: NDArray[np
 
 
 def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The orthogonal polar factor ``U V^T`` of 2x2 matrices and their singular values' sum.
+    """The orthogonal polar factor ``U V^T`` (..., 2, 2) of 2x2 matrices ``M`` (..., 2, 2) and
+    their singular values' sum (...).
 
     In closed form: with ``M = [[a, b], [c, d]]``, ``E = |(a + d, c - b)|`` and
     ``F = |(a - d, b + c)|``, the singular values are ``(E + F) / 2`` and ``|E - F| / 2``
     (so they sum to ``max(E, F)``), and ``E^2 - F^2 = 4 det M``: a rotation by
     ``atan2(c - b, a + d)`` when ``E >= F``, else a reflection.
-
-    Parameters
-    ----------
-    M : ndarray, shape (..., 2, 2)
-
-    Returns
-    -------
-    factor : ndarray, shape (..., 2, 2)
-    singular_sum : ndarray, shape (...)
     """
     a, b, c, d = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1]
     E, F = np.hypot(a + d, c - b), np.hypot(a - d, b + c)
@@ -271,26 +229,12 @@ def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
 
 def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
                       order: int = 1) -> tuple[NDArray[np.float64], ...]:
-    """Every reference point's predicted ``(m_y, m_z)`` in every frame (12) and its derivatives.
+    """Every reference point's (``m_ref`` (N, 3)) predicted ``(m_y, m_z)`` (K, N, 2) in every frame
+    (12) for n* ``normal`` (3,) and (theta, x_h1, x_h2) per frame ``motion`` (K, 3); from ``order``
+    1 its gradient by ``u`` (K, N, 2, 6), from 2 its Hessian (K, N, 2, 6, 6).
 
     With ``u = (theta, x_h1, x_h2, g, m*_y, m*_z)``, ``g = n*^T m*_i``, ``q0 = c - s m*_y +
     x_h1 g`` and ``q1 = s + c m*_y + x_h2 g``, the point is ``(q1 / q0, m*_z / q0)``.
-
-    Parameters
-    ----------
-    normal : ndarray, shape (3,)
-    m_ref : ndarray, shape (N, 3)
-    motion : ndarray, shape (K, 3)
-        (theta, x_h1, x_h2) per frame.
-    order : {0, 1, 2}
-        The highest derivatives returned.
-
-    Returns
-    -------
-    predicted : ndarray, shape (K, N, 2)
-    gradient : ndarray, shape (K, N, 2, 6), from order 1
-        By ``u``.
-    hessian : ndarray, shape (K, N, 2, 6, 6), from order 2
     """
     y, z, g = m_ref[:, 1], m_ref[:, 2], m_ref @ normal
     c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
@@ -446,21 +390,10 @@ def reference_rows(geometry: PlaneGeometry, p: NDArray[np.float64], shapes: Sequ
 
 def projected_residuals(geometry: PlaneGeometry, p: NDArray[np.float64], frames: NDArray[np.float64],
                         shapes: Sequence[KnownShape], derivatives: bool = False) -> NDArray[np.float64]:
-    """The cost of :func:`refine_plane_and_reference` at the globals ``p`` (its residuals,
-    or with ``derivatives`` their Jacobian by ``p``): every frame's reprojection errors at
-    its best pose (:class:`KnownNormalSolver`), F*'s rows (:func:`reference_rows`), every
-    frame's shapes' residuals.
-
-    Parameters
-    ----------
-    geometry : PlaneGeometry
-        n* and F*'s measured points the globals ``p`` (shape (G = 2 + 2N,)) are offsets from.
-    frames : ndarray, shape (K, N, 3)
-    shapes : sequence of KnownShape
-
-    Returns
-    -------
-    ndarray, shape (R,) or (R, G)
+    """The cost of :func:`refine_plane_and_reference` at the globals ``p`` (G = 2 + 2N,) about
+    ``geometry``: its residuals (R,), or with ``derivatives`` their Jacobian by ``p`` (R, G):
+    every frame's (``frames`` (K, N, 3)) reprojection errors at its best pose
+    (:class:`KnownNormalSolver`), F*'s rows (:func:`reference_rows`), every frame's shapes' residuals.
     """
     normal, m_ref = geometry.unpack(p)
     motion = KnownNormalSolver(m_ref, normal).solve(frames)
@@ -501,23 +434,10 @@ def refine_plane_and_reference(
     (theta, x_h); the trial values minimise the sum of every frame's squared reprojection
     error, plus F*'s own (its motion pinned at identity: the gauge).
 
-    Parameters
-    ----------
-    m : array_like, shape (F, N, 3)
-        Normalised points of the sequence (``m[reference_index]`` is the reference frame).
-    reference_index : int
-    normal : array_like, shape (3,)
-        Starting normal (its branch already chosen).
-    valid : array_like of bool, shape (F,), optional
-        Frames to use besides the reference frame.
-    shapes : sequence of KnownShape, optional
-        Parts of the target whose shape is known up to a similarity (a marker's square):
-        :func:`shape_residuals` joins the cost.
-
-    Returns
-    -------
-    normal : ndarray, shape (3,)
-    m_ref : ndarray, shape (N, 3)
+    ``m`` (F, N, 3): the sequence's normalised points; ``normal`` (3,): the start (its branch
+    chosen); ``valid`` (F,): frames to use besides F*; ``shapes``: target parts known up to a
+    similarity (a marker's square), :func:`shape_residuals` joins the cost. Returns n* (3,)
+    and m*_i (N, 3).
     """
     from scipy.optimize import least_squares  # lazy: scipy.optimize adds to every command's start-up
 

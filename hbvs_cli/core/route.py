@@ -11,8 +11,6 @@ In such a frame the camera F sees F*_i and F*_{i+1} through (3), (14):
 * its origin ``t = R_i^T (x_f,i+1 - x_f,i)``, so with ``u = t / d*_i`` and
   ``rho = d*_{i+1} / d*_i``: ``R_i u - rho x_h,i+1 = -x_h,i``, two equations per frame, linear
   in ``(u_1, u_2, rho)``: least squares over the overlap, which needs the camera to move during it.
-
-The adaptive estimate (31) of d*_i carries over to the next segment as ``rho * dhat``.
 """
 
 from __future__ import annotations
@@ -92,15 +90,7 @@ def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_ga
     ``max_gap`` s apart (``--max-gap``, the gaps a segment's spline bridges) filled when it is
     then seen again for at least half that long: a target hidden a moment (someone walking past)
     does not end its segment there, one flickering as it leaves the view does not stay.
-
-    Parameters
-    ----------
-    visible : (F, N) bool
-        Whether each of N targets is followable in each of F frames.
-    t : (F,) float
-        The frames' times (s).
-    max_gap : float
-        The longest gap (s) to fill.
+    ``visible`` (F, N): whether each of N targets is followable in each of F frames; ``t`` (F,) (s).
     """
     filled = np.array(visible, bool)
     for column in filled.T:  # views: filling a column fills ``filled``

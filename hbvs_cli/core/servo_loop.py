@@ -1,10 +1,6 @@
-"""The one loop of ``hbvs repeat`` (``--sim``, ``--live`` and ``--replay`` alike).
-
-A :class:`ServoSource` gives each camera frame's time, observation and desired state;
-:class:`~.simulator.ServoStep` (detector output in, filter, law (29)-(31), limits out) decides
-the command; the source acts on it: a simulated robot moves, a live robot is sent it, a replay
-only keeps it (open loop). The modes differ in their source and in what the stage does with
-each :class:`~.simulator.StepRecord` (the run file, the commands, the live view), nothing else.
+"""The one loop of ``hbvs repeat`` (``--sim``, ``--live`` and ``--replay`` alike): the modes
+differ in their :class:`ServoSource` (a simulated robot moves, a live robot is sent the command,
+a replay only keeps it) and in what the stage does with each :class:`~.simulator.StepRecord`.
 """
 
 from __future__ import annotations

@@ -41,9 +41,8 @@ class ActuatorLimits:
             return command, command
         decay = math.exp(-dt / self.lag_s)
         kept = self.lag_s / dt * (1.0 - decay) if dt > 0 else 1.0
-        mean = tuple(c + (s0 - c) * kept for s0, c in zip(speeds, command))
-        end = tuple(c + (s0 - c) * decay for s0, c in zip(speeds, command))
-        return (mean[0], mean[1]), (end[0], end[1])
+        (v0, w0), (v, w) = speeds, command
+        return (v + (v0 - v) * kept, w + (w0 - w) * kept), (v + (v0 - v) * decay, w + (w0 - w) * decay)
 
     def apply(self, v: float, w: float, previous: tuple[float, float], dt: float) -> tuple[float, float, bool]:
         """Clip a command; returns ``(v, w, saturated)``."""

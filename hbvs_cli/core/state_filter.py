@@ -45,34 +45,20 @@ class FilterOutcome(Label):
 class FilterSettings:
     """Tuning of :class:`ServoStateFilter`.
 
-    Attributes
-    ----------
-    speed_noise, turn_noise : float
-        Spectral density of executed minus commanded v (m/s/sqrt(Hz)) and w (rad/s/sqrt(Hz)).
-    depth_prior : float
-        Relative standard deviation of the starting 1/dhat(0).
-    depth_trust, depth_pull_rate : float
-        Relative std of the filter's depth at which dhat is pulled towards it at half
-        ``depth_pull_rate`` (1/s).
-    lateral_settled, depth_met : float
-        Lateral error (rad) halving the pull once dhat is within the relative gap
-        ``depth_met`` of the filter's depth (:func:`scheduled_depth_pull`).
-    gate, reset_after : float, int
-        Squared Mahalanobis distance beyond which a frame is rejected; rejections in a row
-        after which the filter restarts from the frame.
-    noise_time_constant : float
-        Time constant (s) of the running estimate of the detector's noise.
-    settle_time, fade_time, settle_noise : float
-        Seconds of fused frames before the law gets the estimate, then seconds over which
-        its feedback fades in from the taught commands (25); both shrink with the noise
-        variance below ``settle_noise`` (normalised units).
-    coast_theta_std, coast_x_h_std : float
-        Without a frame the law acts on the prediction while its stds stay within these
-        (rad, units of d*); beyond them the robot stops.
-    residual_quantile : float
-        Quantile of the residual's chi^2 distribution beyond which a frame is rejected.
-    min_noise : float
-        Floor of the measurement noise (normalised units).
+    ``speed_noise``, ``turn_noise``: the spectral density of executed minus commanded v
+    (m/s/sqrt(Hz)) and w (rad/s/sqrt(Hz)); ``depth_prior``: the relative std of the starting
+    1/dhat(0); ``depth_trust``: the relative std of the filter's depth at which dhat is pulled
+    towards it at half ``depth_pull_rate`` (1/s); ``lateral_settled``: the lateral error (rad)
+    halving the pull once dhat is within the relative gap ``depth_met`` of the filter's depth
+    (:func:`scheduled_depth_pull`); ``gate``: the squared Mahalanobis distance beyond which a
+    frame is rejected, ``reset_after`` rejections in a row restarting the filter from the frame;
+    ``noise_time_constant`` (s): of the running estimate of the detector's noise, ``min_noise``
+    its floor (normalised units); ``residual_quantile``: of the residual's chi^2 distribution,
+    beyond which a frame is rejected; ``coast_theta_std``, ``coast_x_h_std``: without a frame
+    the law acts on the prediction while its stds stay within these (rad, units of d*), beyond
+    them the robot stops; ``settle_time``: seconds of fused frames before the law gets the
+    estimate, then ``fade_time`` seconds over which its feedback fades in from the taught
+    commands (25), both shrinking with the noise variance below ``settle_noise`` (normalised units).
     """
 
     speed_noise: float = 0.0005
@@ -345,9 +331,7 @@ class ServoStateFilter:
         if observed is None:
             return self._gated()
         z, inverse_information = observed
-        variance = self.noise_variance
-        i00, i01, i02, i11, i12, i22 = inverse_information
-        r00, r01, r02, r11, r12, r22 = variance * i00, variance * i01, variance * i02, variance * i11, variance * i12, variance * i22
+        r00, r01, r02, r11, r12, r22 = (self.noise_variance * value for value in inverse_information)
         if self._state is None:
             return self._start(z, (r00, r01, r02, r11, r12, r22), residual, dt)
         theta, x1, x2, rho = self._state

@@ -111,7 +111,6 @@ class SplineTrajectory:
             if int(data.get("degree", 3)) != 3:
                 raise ValueError("only cubic splines are supported")
             channels = {}
-            knots_of = []
             for name in CHANNELS:
                 raw = data["channels"][name]
                 knots = np.asarray(raw["knots"], dtype=float)
@@ -122,10 +121,10 @@ class SplineTrajectory:
                     raise ValueError(f"channel {name}: knots must be finite and non-decreasing")
                 if np.any(np.abs(coefficients) > MAX_SPLINE_COEFFICIENT):
                     raise ValueError(f"channel {name}: coefficients beyond +-{MAX_SPLINE_COEFFICIENT:g} (radians, or units of d*)")
-                knots_of.append(knots)
                 channels[name] = SplineChannel(knots, coefficients, float(raw.get("smoothing", float("nan"))),
                                                float(raw.get("residual_rms", float("nan"))))
-            if knots_of[0].shape != knots_of[1].shape or not np.allclose(knots_of[0], knots_of[1]):
+            first, second = (channels[name].knots for name in CHANNELS)
+            if first.shape != second.shape or not np.allclose(first, second):
                 raise ValueError("theta_d and x_hd1 must share their knots")
             x_hd2 = data["x_hd2"]
             return cls(channels, float(x_hd2["value_at_t_start"]), float(data["t_start"]), float(data["t_end"]),
@@ -143,9 +142,8 @@ def _product_antiderivative(spline: Any, other: Any) -> Any:
     if first.x.shape != second.x.shape or not np.allclose(first.x, second.x):
         raise MalformedDataError("the trajectory's splines do not share their knots")
     product = np.zeros((first.c.shape[0] + second.c.shape[0] - 1, first.c.shape[1]))
-    for i in range(first.c.shape[0]):
-        for j in range(second.c.shape[0]):
-            product[i + j] += first.c[i] * second.c[j]
+    for i in range(first.c.shape[0]):  # the coefficients' convolution, interval by interval
+        product[i:i + second.c.shape[0]] += first.c[i] * second.c
     return PPoly(product, first.x).antiderivative()
 
 
@@ -173,34 +171,21 @@ def _desired_state(*values: ArrayLike) -> DesiredState:
     return DesiredState(*(float(array) if array.ndim == 0 else array for array in arrays))
 
 
-def _smoothing_spline(t: NDArray[np.float64], y: NDArray[np.float64], smoothing: float | None) -> tuple[Any, float]:
-    """scipy's cubic smoothing spline and its lambda (None: the GCV choice, :mod:`.gcv`)."""
-    from scipy.interpolate import make_smoothing_spline
-
-    from .gcv import gcv_smoothing
-
-    lam = float(smoothing) if smoothing is not None else gcv_smoothing(t, y)
-    return make_smoothing_spline(t, y, lam=lam), lam
-
-
 #: Fewest samples a spline can be fitted to (scipy's smoothing spline needs 5).
 MIN_SAMPLES = 5
 
 
 def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_hd2: ArrayLike,
                           smoothing: float | None = None) -> SplineTrajectory:
-    """Fit the desired trajectory of Remark 1 to decomposed samples.
-
-    Parameters
-    ----------
-    t : array_like, shape (K,)
-        Sample times (s), strictly increasing; gaps are bridged.
-    theta_d, x_hd1, x_hd2 : array_like, shape (K,)
-        rad (unwrapped here) and dimensionless; x_hd2 only sets the constant of (25).
-    smoothing : float, optional
-        lambda of both splines (s^3), as ``fit --smoothing`` checked it; None: per channel by
-        generalised cross-validation.
+    """Fit the desired trajectory of Remark 1 to decomposed samples at times ``t`` (K,) (s,
+    strictly increasing; gaps are bridged): ``theta_d`` (K,) rad (unwrapped here), ``x_hd1`` and
+    ``x_hd2`` (K,), which only sets the constant of (25). ``smoothing``: both splines' lambda
+    (s^3), as ``fit --smoothing`` checked it; None: per channel by generalised cross-validation (:mod:`.gcv`).
     """
+    from scipy.interpolate import make_smoothing_spline
+
+    from .gcv import gcv_smoothing
+
     t = np.asarray(t, dtype=float)
     samples = {"theta_d": np.unwrap(np.asarray(theta_d, dtype=float)), "x_hd1": np.asarray(x_hd1, dtype=float)}
     x_hd2 = np.asarray(x_hd2, dtype=float)
@@ -212,7 +197,8 @@ def fit_spline_trajectory(t: ArrayLike, theta_d: ArrayLike, x_hd1: ArrayLike, x_
     for name, y in samples.items():
         if y.shape != t.shape or not np.all(np.isfinite(y)):
             raise MalformedDataError(f"the {name} samples must be finite and as many as the times")
-        spline, lam = _smoothing_spline(t, y, smoothing)
+        lam = float(smoothing) if smoothing is not None else gcv_smoothing(t, y)
+        spline = make_smoothing_spline(t, y, lam=lam)
         residual = float(np.sqrt(np.mean((spline(t) - y) ** 2)))
         channels[name] = SplineChannel(np.asarray(spline.t, dtype=float), np.asarray(spline.c, dtype=float), lam, residual)
     if x_hd2.shape != t.shape or not np.all(np.isfinite(x_hd2)):

@@ -51,20 +51,9 @@ def integrate_commands(pose0: ArrayLike, v: ArrayLike, w: ArrayLike, dt: ArrayLi
 
 class DynamicBase:
     """A wheeled base that does not obey a command at once: its speeds follow the command through a
-    first-order motor lag, within acceleration and speed limits, and move it as :func:`integrate_unicycle`.
-
-    Parameters
-    ----------
-    max_v, max_w : float
-        Speed limits (m/s, rad/s); ``inf`` for none.
-    max_accel, max_alpha : float
-        Acceleration limits (m/s^2, rad/s^2); ``inf`` for none.
-    lag_s : float
-        The motors' time constant (s); 0 for none.
-
-    Notes
-    -----
-    With every limit infinite and no lag it is the kinematic unicycle (21) of the paper.
+    first-order motor lag of time constant ``lag_s`` (s), within the speed limits ``max_v``, ``max_w``
+    (m/s, rad/s) and acceleration limits ``max_accel``, ``max_alpha`` (m/s^2, rad/s^2), and move it
+    as :func:`integrate_unicycle`. With every limit ``inf`` and no lag it is the paper's unicycle (21).
     """
 
     #: The longest step (s) the speeds are integrated over at once.
