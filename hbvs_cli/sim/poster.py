@@ -139,11 +139,8 @@ def _draw_aruco(size: tuple[int, int], corners: NDArray[np.float64], marker_id: 
     # Supersampled raster: fine pixel X covers level-0 [X / f - 0.5, (X + 1) / f - 0.5], so its
     # centre is level-0 (X + 0.5) / f - 0.5, i.e. X = f (x + 0.5) - 0.5.
     fine = factor * (corners + 0.5) - 0.5
-    height, width = size
-    x0 = max(int(np.floor(corners[:, 0].min())) - 1, 0)
-    y0 = max(int(np.floor(corners[:, 1].min())) - 1, 0)
-    x1 = min(int(np.ceil(corners[:, 0].max())) + 2, width)
-    y1 = min(int(np.ceil(corners[:, 1].max())) + 2, height)
+    x0, y0 = map(int, np.maximum(np.floor(corners.min(axis=0)) - 1, 0))
+    x1, y1 = map(int, np.minimum(np.ceil(corners.max(axis=0)) + 2, size[::-1]))
     picture = np.full(size, PAPER_WHITE, dtype=np.uint8)
     if x0 >= x1 or y0 >= y1:
         return picture

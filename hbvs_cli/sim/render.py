@@ -52,12 +52,10 @@ class RenderSettings:
         values = (self.noise_std, self.blur_sigma, self.exposure_gain, self.exposure_offset, self.background, self.noise_grain)
         if not all(np.isfinite(v) for v in values):
             raise UsageError("render settings must be finite numbers")
-        if self.noise_std < 0:
-            raise UsageError(f"the noise standard deviation must be >= 0, got {self.noise_std}")
-        if self.blur_sigma < 0:
-            raise UsageError(f"the blur sigma must be >= 0, got {self.blur_sigma}")
-        if self.exposure_gain < 0:
-            raise UsageError(f"the exposure gain must be >= 0, got {self.exposure_gain}")
+        for value, name in ((self.noise_std, "noise standard deviation"), (self.blur_sigma, "blur sigma"),
+                            (self.exposure_gain, "exposure gain")):
+            if value < 0:
+                raise UsageError(f"the {name} must be >= 0, got {value}")
         if not 0 <= self.noise_grain <= MAX_NOISE_GRAIN_PX:
             raise UsageError(f"the noise grain must be within 0-{MAX_NOISE_GRAIN_PX:g} px, got {self.noise_grain}")
         if not 0 <= self.background <= 255:
@@ -147,7 +145,6 @@ class SceneRenderer:
         return frame
 
     def _gain(self, exposure_gain: float | None) -> float:
-        """The exposure gain of a frame: ``exposure_gain`` if given (checked), else the settings'."""
         gain = self.settings.exposure_gain if exposure_gain is None else float(exposure_gain)
         if not np.isfinite(gain) or gain < 0:
             raise UsageError(f"the exposure gain must be a finite number >= 0, got {exposure_gain}")
@@ -255,7 +252,7 @@ class SceneRenderer:
         outline = self._outlines[level] = np.concatenate([top, right, bottom, left])
         return outline
 
-    def _warp(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _warp(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         x0, y0, x1, y1 = window
         to_window = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ level_to_image
         return cv2.warpPerspective(
@@ -263,7 +260,7 @@ class SceneRenderer:
             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background,
         )
 
-    def _remap(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _remap(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         x0, y0, x1, y1 = window
         ideal = np.ascontiguousarray(self._ideal_map[y0:y1, x0:x1]).reshape(-1, 1, 2)
         source = cv2.perspectiveTransform(ideal, np.linalg.inv(level_to_image)).reshape(y1 - y0, x1 - x0, 2)
@@ -271,7 +268,7 @@ class SceneRenderer:
             picture, source, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background
         )
 
-    def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         """Sampling that blanks rays meeting the wall behind the camera (the third component of
         ``inv(H) [p, 1]``, ``1 / depth`` of the wall point, not positive)."""
         x0, y0, x1, y1 = window
@@ -285,8 +282,7 @@ class SceneRenderer:
         ahead = w > 0
         safe = np.where(ahead, w, 1.0)
         # Off-picture coordinates for rays behind the camera: the border value (the wall).
-        map_x = np.where(ahead, (inverse[0, 0] * u + inverse[0, 1] * v + inverse[0, 2]) / safe, -10.0).astype(np.float32)
-        map_y = np.where(ahead, (inverse[1, 0] * u + inverse[1, 1] * v + inverse[1, 2]) / safe, -10.0).astype(np.float32)
+        map_x, map_y = (np.where(ahead, (row[0] * u + row[1] * v + row[2]) / safe, -10.0).astype(np.float32) for row in inverse[:2])
         return cv2.remap(picture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background)
 
 
@@ -296,7 +292,7 @@ def _apply(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDAr
 
 
 def _clipped(window: Window, size: tuple[int, int]) -> Window:
-    """``window`` ``(x0, y0, x1, y1)`` clipped to an image of ``size`` (height, width)."""
+    """``window`` clipped to an image of ``size`` (height, width)."""
     height, width = size
     x0, y0, x1, y1 = window
     return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
@@ -304,16 +300,12 @@ def _clipped(window: Window, size: tuple[int, int]) -> Window:
 
 def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:
     """True when all ``points`` lie within the image grown by ``slack`` of its size on each side."""
-    height, width = size
-    return bool(
-        np.all(points[:, 0] >= -slack * width) and np.all(points[:, 0] <= (1 + slack) * width)
-        and np.all(points[:, 1] >= -slack * height) and np.all(points[:, 1] <= (1 + slack) * height)
-    )
+    width_height = np.array(size[::-1], dtype=float)
+    return bool(np.all((points >= -slack * width_height) & (points <= (1 + slack) * width_height)))
 
 
-def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image
-    (:func:`_clipped`); None when nothing of it is in the image."""
+def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> Window | None:
+    """The :data:`Window` around ``points``, clipped to the image; None when nothing of it is in the image."""
     low, high = np.floor(points.min(axis=0)) - pad, np.ceil(points.max(axis=0)) + pad + 1
     x0, y0, x1, y1 = _clipped((low[0], low[1], high[0], high[1]), size)
     return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None

@@ -73,10 +73,9 @@ class SimulatedCamera:
         self.fault_rng = np.random.default_rng([settings.seed, 1])
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
-        self.renderer: SceneRenderer | None = None
-        self.detector = detector if self.settings.perception == "images" else None
-        if self.settings.perception == "images" or settings.record_images:
-            self.renderer = renderer_for(scene, model)
+        images = settings.perception == "images"
+        self.detector = detector if images else None
+        self.renderer: SceneRenderer | None = renderer_for(scene, model) if images or settings.record_images else None
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.settings.occlusions)
