@@ -62,7 +62,6 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
         return t, x
     edges = np.linspace(t[0], t[-1], max_points + 1)
     index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max_points - 1)
-    counts = np.bincount(index, minlength=max_points)
     seen = ~breaks
     sums = np.bincount(index, weights=np.where(seen, x, 0.0), minlength=max_points)
     valid = np.bincount(index, weights=seen.astype(float), minlength=max_points)
@@ -71,7 +70,7 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
         means = sums / valid
     # A bin without a measurement breaks the line; one with some keeps their mean.
     means[valid == 0] = np.nan
-    filled = counts > 0
+    filled = np.bincount(index, minlength=max_points) > 0
     return centres[filled], means[filled]
 
 
@@ -420,11 +419,9 @@ def plot_runs(
         figure = new_figure(size, style.dpi)
         time_panels = [name for name in panels if name != "top"]
         ratios = _row_heights(panels, columns)
-        rows = len(ratios) - ("top" in panels)
         grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
         slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
-        if "top" in panels:
-            slots["top"] = grid[rows, :]
+        slots["top"] = grid[-1, :]  # the top view's row, the last, when it is drawn
         start = min(float(run.state["t"][0]) for run in runs)
         end = max(float(run.state["t"][-1]) for run in runs)
         for name in panels:

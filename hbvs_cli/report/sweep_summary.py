@@ -128,14 +128,10 @@ def summarize(folder: Path) -> dict[str, Any]:
     for name in data.swept:
         if name == "law":
             continue
-        rows = []
-        for law_label, law_mask in laws:
-            for label, value, mask in data.groups(name):
-                entry = {"value": label, "center": value}
-                if data.law is not None:
-                    entry["law"] = law_label
-                rows.append(entry | group_stats(data, mask & law_mask))
-        summary["by_parameter"][name] = rows
+        summary["by_parameter"][name] = [
+            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {}) | group_stats(data, mask & law_mask)
+            for law_label, law_mask in laws for label, value, mask in data.groups(name)
+        ]
     return summary
 
 

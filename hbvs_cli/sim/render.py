@@ -174,7 +174,8 @@ class SceneRenderer:
         ideal = _apply(poster_to_image, outline)
         if self._ideal_map is None:
             return _bounding_window(ideal, pad, self._size)
-        if _near_image(ideal, self._size):
+        width_height = np.array(self._size[::-1], dtype=float)
+        if np.all((ideal >= -0.25 * width_height) & (ideal <= 1.25 * width_height)):  # the image grown by a quarter
             return _bounding_window(distort_pixels(self.world.camera, ideal), pad, self._size)
         # Far outside the image the lens polynomial can fold back: sample every pixel.
         return (0, 0, self._size[1], self._size[0])
@@ -296,12 +297,6 @@ def _clipped(window: Window, size: tuple[int, int]) -> Window:
     height, width = size
     x0, y0, x1, y1 = window
     return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
-
-
-def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:
-    """True when all ``points`` lie within the image grown by ``slack`` of its size on each side."""
-    width_height = np.array(size[::-1], dtype=float)
-    return bool(np.all((points >= -slack * width_height) & (points <= (1 + slack) * width_height)))
 
 
 def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> Window | None:
