@@ -129,7 +129,8 @@ def summarize(folder: Path) -> dict[str, Any]:
         if name == "law":
             continue
         summary["by_parameter"][name] = [
-            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {}) | group_stats(data, mask & law_mask)
+            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
+            | group_stats(data, mask & law_mask)
             for law_label, law_mask in laws for label, value, mask in data.groups(name)
         ]
     return summary

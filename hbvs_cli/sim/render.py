@@ -75,7 +75,7 @@ def _gaussian_table() -> NDArray[np.float32]:
 
 class SceneRenderer:
     """Render camera frames of a :class:`World` from robot poses; ``raster`` is drawn from
-    ``world.target`` when omitted. It keeps scratch buffers between calls: one per thread."""
+    ``world.target`` when omitted."""
 
     def __init__(self, world: World, raster: PosterRaster | None = None, settings: RenderSettings | None = None) -> None:
         self.world = world
@@ -98,14 +98,11 @@ class SceneRenderer:
         the settings' for this frame (an auto-exposure step)."""
         gain = self._gain(exposure_gain)
         scene = self.render_scene(pose)
-        if self.settings.noise_std > 0:
-            uniform = np.frombuffer(rng.bytes(2 * scene.size), dtype=np.uint16).reshape(self._size)
-            np.take(_gaussian_table(), uniform, out=self._noise)
-            if self._grain_kernel is not None:
-                cv2.sepFilter2D(self._noise, -1, self._grain_kernel, self._grain_kernel, dst=self._noise, borderType=cv2.BORDER_REFLECT)
+        whole = (0, 0, self._size[1], self._size[0])
+        noise = self._noise_in(rng, [whole])[0] if self.settings.noise_std > 0 else self._noise
         # One pass: gain * scene + noise_std * noise + offset, rounded and saturated to uint8.
         return cv2.addWeighted(
-            self._noise, float(self.settings.noise_std), scene, gain, float(self.settings.exposure_offset), dtype=cv2.CV_8U
+            noise, float(self.settings.noise_std), scene, gain, float(self.settings.exposure_offset), dtype=cv2.CV_8U
         )
 
     def render_scene(self, pose: ArrayLike) -> NDArray[np.uint8]:
@@ -134,10 +131,8 @@ class SceneRenderer:
             return frame
         view = self._view(pose)
         poster_box = self._poster_box(view)
-        if settings.noise_std > 0:
-            noises = self._noise_in(rng, regions)
-        else:
-            noises = [np.zeros((y1 - y0, x1 - x0), dtype=np.float32) for x0, y0, x1, y1 in regions]
+        zeros = [self._noise[y0:y1, x0:x1] for x0, y0, x1, y1 in regions]
+        noises = self._noise_in(rng, regions) if settings.noise_std > 0 else zeros
         for (x0, y0, x1, y1), noise in zip(regions, noises):
             scene = self._scene_in(view, poster_box, (x0, y0, x1, y1))
             cv2.addWeighted(noise, float(settings.noise_std), scene, gain, float(settings.exposure_offset),
@@ -207,8 +202,8 @@ class SceneRenderer:
         return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
     def _noise_in(self, rng: np.random.Generator, windows: list[Window]) -> list[NDArray[np.float32]]:
-        """Unit-variance sensor noise (float32) for each window, correlated by the grain as in
-        :meth:`render`: drawn over the window grown by the kernel's reach, in one draw from ``rng``."""
+        """Unit-variance sensor noise (float32) for each window, correlated by the grain:
+        drawn over the window grown by the kernel's reach, in one draw from ``rng``."""
         reach = 0 if self._grain_kernel is None else len(self._grain_kernel) // 2
         grown = [_clipped((x0 - reach, y0 - reach, x1 + reach, y1 + reach), self._size) for x0, y0, x1, y1 in windows]
         sizes = [(gy1 - gy0) * (gx1 - gx0) for gx0, gy0, gx1, gy1 in grown]
@@ -283,7 +278,7 @@ class SceneRenderer:
         ahead = w > 0
         safe = np.where(ahead, w, 1.0)
         # Off-picture coordinates for rays behind the camera: the border value (the wall).
-        map_x, map_y = (np.where(ahead, (row[0] * u + row[1] * v + row[2]) / safe, -10.0).astype(np.float32) for row in inverse[:2])
+        map_x, map_y = (np.where(ahead, (a * u + b * v + c) / safe, -10.0).astype(np.float32) for a, b, c in inverse[:2])
         return cv2.remap(picture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background)
 
 

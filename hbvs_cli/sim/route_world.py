@@ -80,7 +80,8 @@ class RouteWorld:
         for (x, y, yaw), world in zip(self.placements, self.worlds):
             rotation, shift = rotation_z(yaw), np.array([x, y, 0.0])
             poster = world.target.poster
-            moved = replace(poster, center=rotation @ poster.center + shift, right=rotation @ poster.right, down=rotation @ poster.down)
+            moved = replace(poster, center=rotation @ poster.center + shift, right=rotation @ poster.right,
+                            down=rotation @ poster.down)
             placed.append(replace(world.target, poster=moved))
         return tuple(placed)
 
