@@ -1,9 +1,8 @@
 """The target's picture as a raster: the poster a renderer warps into the camera.
 
-Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down;
-pyramid level ``l`` is a raster of ``ppm / 2^l`` px/m whose pixel ``i`` is centred at
-``(i + 0.5) 2^l / ppm`` m. ``cv2.pyrDown`` would shift each level by a quarter pixel, so the
-pyramid uses the even kernel ``[1, 3, 3, 1] / 8`` centred between input pixels 2i, 2i+1.
+Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down.
+``cv2.pyrDown`` would shift each pyramid level by a quarter pixel (:meth:`PosterRaster.level_to_poster`
+says where a level's pixels are), so :func:`build_pyramid` uses an even kernel instead.
 """
 
 from __future__ import annotations
