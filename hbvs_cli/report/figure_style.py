@@ -100,13 +100,9 @@ def law_colors(laws: Sequence[str | None]) -> list[str]:
     spare = [color for color in PALETTE if color not in LAW_COLORS.values()] + [
         color for color in LAW_COLORS.values() if color not in taken]
     colors: list[str] = []
-    seen: set[str] = set()
-    for law in laws:
-        if law in LAW_COLORS and law not in seen:
-            colors.append(LAW_COLORS[law])
-            seen.add(law)
-        else:
-            colors.append(spare[sum(color in spare for color in colors) % len(spare)])
+    for law in laws:  # a law's own colour is never spare, so it is in colors once the law has come
+        first = law in LAW_COLORS and LAW_COLORS[law] not in colors
+        colors.append(LAW_COLORS[law] if first else spare[sum(color in spare for color in colors) % len(spare)])
     return colors
 
 

@@ -90,7 +90,6 @@ def raw_derivative(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def _raw_minus_smooth(signals: FitSignals, key: str, scale: float) -> np.ndarray:
-    """``scale`` times a signal's raw samples minus the spline at their times."""
     raw, smooth = signals.raw, signals.smooth
     return scale * (raw[key] - np.interp(raw["t"], smooth["t"], smooth[key]))
 

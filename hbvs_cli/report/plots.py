@@ -62,7 +62,6 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
         return t, x
     edges = np.linspace(t[0], t[-1], max_points + 1)
     index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max_points - 1)
-    counts = np.bincount(index, minlength=max_points)
     seen = ~breaks
     sums = np.bincount(index, weights=np.where(seen, x, 0.0), minlength=max_points)
     valid = np.bincount(index, weights=seen.astype(float), minlength=max_points)
@@ -71,7 +70,7 @@ def display_series(t: np.ndarray, x: np.ndarray, lost: np.ndarray | None, max_po
         means = sums / valid
     # A bin without a measurement breaks the line; one with some keeps their mean.
     means[valid == 0] = np.nan
-    filled = counts > 0
+    filled = np.bincount(index, minlength=max_points) > 0
     return centres[filled], means[filled]
 
 
@@ -116,8 +115,7 @@ def _band(ax: Any, tolerance: float, signed: bool) -> None:
 
 
 def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None) -> None:
-    shown_t, shown_x = display_series(t, x, lost)
-    ax.plot(shown_t, shown_x, color=color, alpha=0.9, **context.line_styles.get(color, {}))
+    ax.plot(*display_series(t, x, lost), color=color, alpha=0.9, **context.line_styles.get(color, {}))
 
 
 def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -174,8 +172,7 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], run.state[key], color, None)
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
-            shown_t, shown_x = display_series(run.state["t"], taught, None)
-            ax.plot(shown_t, shown_x, color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
+            ax.plot(*display_series(run.state["t"], taught, None), color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
         _shade_losses(ax, context)
         limits = {getattr(run_limits(run), limit_key) for run in context.runs}
         for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
@@ -285,10 +282,8 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
     boxes = ax.get_subplotspec().subgridspec(2, 1) if one_column else ax.get_subplotspec().subgridspec(1, 2, width_ratios=[1.0, 1.25])
-    scene_box, zoom_box = boxes[0], boxes[1]
-    figure = ax.figure
-    scene = figure.add_subplot(scene_box, label="top_scene")
-    zoom = figure.add_subplot(zoom_box, label="top_paths")
+    scene = ax.figure.add_subplot(boxes[0], label="top_scene")
+    zoom = ax.figure.add_subplot(boxes[1], label="top_paths")
     _scene_view(scene, with_poses)
     _draw_paths(zoom, with_poses)
     zoom.set(title="Paths, y stretched: taught (dashed), repeated", xlabel="x (m)", ylabel="y (m)")
@@ -334,12 +329,6 @@ PANELS: dict[str, Callable[[Any, PanelContext], None]] = {
     "top": _top_view_panel,
 }
 PANEL_NAMES = tuple(PANELS)
-
-
-def _status(report: RunReport) -> str:
-    if report.run.source.mode == "replay":
-        return "open-loop replay"
-    return "converged" if report.verdict.converged else "not converged"
 
 
 def _row_heights(panels: Sequence[str], columns: int) -> list[float]:
@@ -391,7 +380,9 @@ def _run_legend_label(label: str, report: RunReport, run: RunData, panels: Seque
     """A run's legend entry: its label and status; a run left out of the ground-truth panels
     that are drawn says so here rather than in every panel's title."""
     absent = not (_has_poses(run) or _has_V(run)) and any(name in panels for name in GROUND_TRUTH_PANELS)
-    return f"{label} ({_status(report)}{'; no ground truth' if absent else ''})"
+    status = "converged" if report.verdict.converged else "not converged"
+    status = "open-loop replay" if report.run.source.mode == "replay" else status
+    return f"{label} ({status}{'; no ground truth' if absent else ''})"
 
 
 def _legend_handles(runs: Sequence[RunData], reports: Sequence[RunReport], colors: Sequence[str], panels: Sequence[str]) -> list[Any]:
@@ -428,11 +419,9 @@ def plot_runs(
         figure = new_figure(size, style.dpi)
         time_panels = [name for name in panels if name != "top"]
         ratios = _row_heights(panels, columns)
-        rows = len(ratios) - ("top" in panels)
         grid = figure.add_gridspec(len(ratios), columns, height_ratios=ratios)
         slots = {name: grid[index // columns, index % columns] for index, name in enumerate(time_panels)}
-        if "top" in panels:
-            slots["top"] = grid[rows, :]
+        slots["top"] = grid[-1, :]  # the top view's row, the last, when it is drawn
         start = min(float(run.state["t"][0]) for run in runs)
         end = max(float(run.state["t"][-1]) for run in runs)
         for name in panels:

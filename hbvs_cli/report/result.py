@@ -25,13 +25,12 @@ class MissingKey(KeyError):
 def resolve_key(document: Mapping[str, Any], key: str) -> Any:
     """The value at a dotted key such as ``"pose_error.position_m.final"``; MissingKey if absent."""
     value: Any = document
-    walked: list[str] = []
-    for part in key.split("."):
+    parts = key.split(".")
+    for index, part in enumerate(parts):
         if not isinstance(value, Mapping) or part not in value:
             choices = list(value) if isinstance(value, Mapping) else []
-            raise MissingKey(".".join(walked) or "the report", part, choices)
+            raise MissingKey(".".join(parts[:index]) or "the report", part, choices)
         value = value[part]
-        walked.append(part)
     return value
 
 

@@ -47,16 +47,13 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarr
 
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for colour, (law, law_mask) in zip(law_colors([law for law, _ in laws]), laws):
-        centres, rates, low, high = [], [], [], []
+        points = []  # (centre, rate, Wilson low, high) of each value or bin with runs
         for _, centre, group in data.groups(name):
             cell = law_mask & group & reported
             if cell.any():
                 converged = int(data.columns["converged"][cell].sum())
-                lower, upper = wilson_interval(converged, int(cell.sum()))
-                centres.append(centre)
-                rates.append(converged / cell.sum())
-                low.append(lower)
-                high.append(upper)
+                points.append((centre, converged / cell.sum(), *wilson_interval(converged, int(cell.sum()))))
+        centres, rates, low, high = zip(*points) if points else ([], [], [], [])
         axis.plot(centres, rates, marker="o", ms=3, color=colour, label=law)
         axis.fill_between(centres, low, high, color=colour, alpha=0.12, lw=0)
     axis.set_ylim(-0.02, 1.02)

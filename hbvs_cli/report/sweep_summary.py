@@ -128,14 +128,11 @@ def summarize(folder: Path) -> dict[str, Any]:
     for name in data.swept:
         if name == "law":
             continue
-        rows = []
-        for law_label, law_mask in laws:
-            for label, value, mask in data.groups(name):
-                entry = {"value": label, "center": value}
-                if data.law is not None:
-                    entry["law"] = law_label
-                rows.append(entry | group_stats(data, mask & law_mask))
-        summary["by_parameter"][name] = rows
+        summary["by_parameter"][name] = [
+            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
+            | group_stats(data, mask & law_mask)
+            for law_label, law_mask in laws for label, value, mask in data.groups(name)
+        ]
     return summary
 
 
@@ -145,16 +142,10 @@ def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
     low, high = stats["rate_ci95"]
     rate = "n/a" if stats["rate"] is None else f"{100 * stats['rate']:.1f} %"
     interval = "n/a" if low is None else f"[{100 * low:.1f}, {100 * high:.1f}]"
-    position = stats["final_position_m"]
-    heading = stats["final_heading_deg"]
-    settle = stats["settling_time_s"]
-    return [
-        str(stats["runs"]), str(stats["failed"]), rate, interval,
-        format_value(None if position["median"] is None else 100 * position["median"]),
-        format_value(None if position["p95"] is None else 100 * position["p95"]),
-        format_value(heading["median"]), format_value(heading["p95"]),
-        format_value(settle["median"]), format_value(settle["p95"]),
-    ]
+    # The median and p95 of each, the position's in cm.
+    quantiles = [None if stats[key][q] is None else scale * stats[key][q] for key, scale in
+                 (("final_position_m", 100), ("final_heading_deg", 1), ("settling_time_s", 1)) for q in ("median", "p95")]
+    return [str(stats["runs"]), str(stats["failed"]), rate, interval, *map(format_value, quantiles)]
 
 
 STAT_HEADERS = ["runs", "failed", "converged", "95 % CI (Wilson)", "pos. median (cm)", "pos. p95 (cm)",

@@ -148,25 +148,11 @@ def _table_overhead(columns: int) -> int:
 def fit_to_width(table: Any, console: Any, keys: int = 1) -> list[Any]:
     """``table`` as tables no wider than ``console``: no value cell is ever cut or wrapped.
 
-    A table that fits is returned as it is. Otherwise each column after the first ``keys``
-    gets the width of its widest cell (a text wider than the room beside the labels, a long
-    path, is folded over lines), its header wraps between words, the first ``keys`` columns
-    (the row labels) wrap between words down to :data:`LABEL_MIN_WIDTH`, and the value
-    columns are dealt out to as many tables as the width needs, each repeating the labels.
-
-    Parameters
-    ----------
-    table : rich.table.Table
-        The table (its columns' widths are set when it does not fit).
-    console : rich.console.Console
-        Where it is printed: its width (characters) is the limit.
-    keys : int
-        How many leading columns label the rows (repeated in every part).
-
-    Returns
-    -------
-    list of rich.table.Table
-        ``[table]`` when it fits, else the parts in column order.
+    A table that fits is returned as it is (``[table]``). Otherwise each column after the first
+    ``keys`` gets the width of its widest cell (a text wider than the room beside the labels, a
+    long path, is folded over lines), its header wraps between words, the ``keys`` label columns
+    wrap between words down to :data:`LABEL_MIN_WIDTH`, and the value columns are dealt out to
+    as many tables as the width needs, in column order, each repeating the labels.
     """
     from rich.cells import cell_len
 

@@ -1,9 +1,8 @@
 """The target's picture as a raster: the poster a renderer warps into the camera.
 
-Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down;
-pyramid level ``l`` is a raster of ``ppm / 2^l`` px/m whose pixel ``i`` is centred at
-``(i + 0.5) 2^l / ppm`` m. ``cv2.pyrDown`` would shift each level by a quarter pixel, so the
-pyramid uses the even kernel ``[1, 3, 3, 1] / 8`` centred between input pixels 2i, 2i+1.
+Poster coordinates ``(a, b)`` are metres from the top-left corner, ``a`` right, ``b`` down.
+``cv2.pyrDown`` would shift each pyramid level by a quarter pixel (:meth:`PosterRaster.level_to_poster`
+says where a level's pixels are), so :func:`build_pyramid` uses an even kernel instead.
 """
 
 from __future__ import annotations
@@ -139,11 +138,8 @@ def _draw_aruco(size: tuple[int, int], corners: NDArray[np.float64], marker_id: 
     # Supersampled raster: fine pixel X covers level-0 [X / f - 0.5, (X + 1) / f - 0.5], so its
     # centre is level-0 (X + 0.5) / f - 0.5, i.e. X = f (x + 0.5) - 0.5.
     fine = factor * (corners + 0.5) - 0.5
-    height, width = size
-    x0 = max(int(np.floor(corners[:, 0].min())) - 1, 0)
-    y0 = max(int(np.floor(corners[:, 1].min())) - 1, 0)
-    x1 = min(int(np.ceil(corners[:, 0].max())) + 2, width)
-    y1 = min(int(np.ceil(corners[:, 1].max())) + 2, height)
+    x0, y0 = map(int, np.maximum(np.floor(corners.min(axis=0)) - 1, 0))
+    x1, y1 = map(int, np.minimum(np.ceil(corners.max(axis=0)) + 2, size[::-1]))
     picture = np.full(size, PAPER_WHITE, dtype=np.uint8)
     if x0 >= x1 or y0 >= y1:
         return picture

@@ -52,12 +52,10 @@ class RenderSettings:
         values = (self.noise_std, self.blur_sigma, self.exposure_gain, self.exposure_offset, self.background, self.noise_grain)
         if not all(np.isfinite(v) for v in values):
             raise UsageError("render settings must be finite numbers")
-        if self.noise_std < 0:
-            raise UsageError(f"the noise standard deviation must be >= 0, got {self.noise_std}")
-        if self.blur_sigma < 0:
-            raise UsageError(f"the blur sigma must be >= 0, got {self.blur_sigma}")
-        if self.exposure_gain < 0:
-            raise UsageError(f"the exposure gain must be >= 0, got {self.exposure_gain}")
+        for value, name in ((self.noise_std, "noise standard deviation"), (self.blur_sigma, "blur sigma"),
+                            (self.exposure_gain, "exposure gain")):
+            if value < 0:
+                raise UsageError(f"the {name} must be >= 0, got {value}")
         if not 0 <= self.noise_grain <= MAX_NOISE_GRAIN_PX:
             raise UsageError(f"the noise grain must be within 0-{MAX_NOISE_GRAIN_PX:g} px, got {self.noise_grain}")
         if not 0 <= self.background <= 255:
@@ -77,7 +75,7 @@ def _gaussian_table() -> NDArray[np.float32]:
 
 class SceneRenderer:
     """Render camera frames of a :class:`World` from robot poses; ``raster`` is drawn from
-    ``world.target`` when omitted. It keeps scratch buffers between calls: one per thread."""
+    ``world.target`` when omitted."""
 
     def __init__(self, world: World, raster: PosterRaster | None = None, settings: RenderSettings | None = None) -> None:
         self.world = world
@@ -100,14 +98,11 @@ class SceneRenderer:
         the settings' for this frame (an auto-exposure step)."""
         gain = self._gain(exposure_gain)
         scene = self.render_scene(pose)
-        if self.settings.noise_std > 0:
-            uniform = np.frombuffer(rng.bytes(2 * scene.size), dtype=np.uint16).reshape(self._size)
-            np.take(_gaussian_table(), uniform, out=self._noise)
-            if self._grain_kernel is not None:
-                cv2.sepFilter2D(self._noise, -1, self._grain_kernel, self._grain_kernel, dst=self._noise, borderType=cv2.BORDER_REFLECT)
+        whole = (0, 0, self._size[1], self._size[0])
+        noise = self._noise_in(rng, [whole])[0] if self.settings.noise_std > 0 else self._noise
         # One pass: gain * scene + noise_std * noise + offset, rounded and saturated to uint8.
         return cv2.addWeighted(
-            self._noise, float(self.settings.noise_std), scene, gain, float(self.settings.exposure_offset), dtype=cv2.CV_8U
+            noise, float(self.settings.noise_std), scene, gain, float(self.settings.exposure_offset), dtype=cv2.CV_8U
         )
 
     def render_scene(self, pose: ArrayLike) -> NDArray[np.uint8]:
@@ -136,10 +131,8 @@ class SceneRenderer:
             return frame
         view = self._view(pose)
         poster_box = self._poster_box(view)
-        if settings.noise_std > 0:
-            noises = self._noise_in(rng, regions)
-        else:
-            noises = [np.zeros((y1 - y0, x1 - x0), dtype=np.float32) for x0, y0, x1, y1 in regions]
+        zeros = [self._noise[y0:y1, x0:x1] for x0, y0, x1, y1 in regions]
+        noises = self._noise_in(rng, regions) if settings.noise_std > 0 else zeros
         for (x0, y0, x1, y1), noise in zip(regions, noises):
             scene = self._scene_in(view, poster_box, (x0, y0, x1, y1))
             cv2.addWeighted(noise, float(settings.noise_std), scene, gain, float(settings.exposure_offset),
@@ -147,7 +140,6 @@ class SceneRenderer:
         return frame
 
     def _gain(self, exposure_gain: float | None) -> float:
-        """The exposure gain of a frame: ``exposure_gain`` if given (checked), else the settings'."""
         gain = self.settings.exposure_gain if exposure_gain is None else float(exposure_gain)
         if not np.isfinite(gain) or gain < 0:
             raise UsageError(f"the exposure gain must be a finite number >= 0, got {exposure_gain}")
@@ -177,7 +169,8 @@ class SceneRenderer:
         ideal = _apply(poster_to_image, outline)
         if self._ideal_map is None:
             return _bounding_window(ideal, pad, self._size)
-        if _near_image(ideal, self._size):
+        width_height = np.array(self._size[::-1], dtype=float)
+        if np.all((ideal >= -0.25 * width_height) & (ideal <= 1.25 * width_height)):  # the image grown by a quarter
             return _bounding_window(distort_pixels(self.world.camera, ideal), pad, self._size)
         # Far outside the image the lens polynomial can fold back: sample every pixel.
         return (0, 0, self._size[1], self._size[0])
@@ -209,8 +202,8 @@ class SceneRenderer:
         return self._sampled(view, grown)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
     def _noise_in(self, rng: np.random.Generator, windows: list[Window]) -> list[NDArray[np.float32]]:
-        """Unit-variance sensor noise (float32) for each window, correlated by the grain as in
-        :meth:`render`: drawn over the window grown by the kernel's reach, in one draw from ``rng``."""
+        """Unit-variance sensor noise (float32) for each window, correlated by the grain:
+        drawn over the window grown by the kernel's reach, in one draw from ``rng``."""
         reach = 0 if self._grain_kernel is None else len(self._grain_kernel) // 2
         grown = [_clipped((x0 - reach, y0 - reach, x1 + reach, y1 + reach), self._size) for x0, y0, x1, y1 in windows]
         sizes = [(gy1 - gy0) * (gx1 - gx0) for gx0, gy0, gx1, gy1 in grown]
@@ -255,7 +248,7 @@ class SceneRenderer:
         outline = self._outlines[level] = np.concatenate([top, right, bottom, left])
         return outline
 
-    def _warp(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _warp(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         x0, y0, x1, y1 = window
         to_window = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ level_to_image
         return cv2.warpPerspective(
@@ -263,7 +256,7 @@ class SceneRenderer:
             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background,
         )
 
-    def _remap(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _remap(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         x0, y0, x1, y1 = window
         ideal = np.ascontiguousarray(self._ideal_map[y0:y1, x0:x1]).reshape(-1, 1, 2)
         source = cv2.perspectiveTransform(ideal, np.linalg.inv(level_to_image)).reshape(y1 - y0, x1 - x0, 2)
@@ -271,7 +264,7 @@ class SceneRenderer:
             picture, source, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background
         )
 
-    def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+    def _sample_masked(self, picture: NDArray[np.uint8], level_to_image: NDArray[np.float64], window: Window) -> NDArray[np.uint8]:
         """Sampling that blanks rays meeting the wall behind the camera (the third component of
         ``inv(H) [p, 1]``, ``1 / depth`` of the wall point, not positive)."""
         x0, y0, x1, y1 = window
@@ -285,8 +278,7 @@ class SceneRenderer:
         ahead = w > 0
         safe = np.where(ahead, w, 1.0)
         # Off-picture coordinates for rays behind the camera: the border value (the wall).
-        map_x = np.where(ahead, (inverse[0, 0] * u + inverse[0, 1] * v + inverse[0, 2]) / safe, -10.0).astype(np.float32)
-        map_y = np.where(ahead, (inverse[1, 0] * u + inverse[1, 1] * v + inverse[1, 2]) / safe, -10.0).astype(np.float32)
+        map_x, map_y = (np.where(ahead, (a * u + b * v + c) / safe, -10.0).astype(np.float32) for a, b, c in inverse[:2])
         return cv2.remap(picture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=self._background)
 
 
@@ -296,24 +288,14 @@ def _apply(homography: NDArray[np.float64], points: NDArray[np.float64]) -> NDAr
 
 
 def _clipped(window: Window, size: tuple[int, int]) -> Window:
-    """``window`` ``(x0, y0, x1, y1)`` clipped to an image of ``size`` (height, width)."""
+    """``window`` clipped to an image of ``size`` (height, width)."""
     height, width = size
     x0, y0, x1, y1 = window
     return max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
 
 
-def _near_image(points: NDArray[np.float64], size: tuple[int, int], slack: float = 0.25) -> bool:
-    """True when all ``points`` lie within the image grown by ``slack`` of its size on each side."""
-    height, width = size
-    return bool(
-        np.all(points[:, 0] >= -slack * width) and np.all(points[:, 0] <= (1 + slack) * width)
-        and np.all(points[:, 1] >= -slack * height) and np.all(points[:, 1] <= (1 + slack) * height)
-    )
-
-
-def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """Pixel window ``(x0, y0, x1, y1)`` (end-exclusive) around ``points``, clipped to the image
-    (:func:`_clipped`); None when nothing of it is in the image."""
+def _bounding_window(points: NDArray[np.float64], pad: int, size: tuple[int, int]) -> Window | None:
+    """The :data:`Window` around ``points``, clipped to the image; None when nothing of it is in the image."""
     low, high = np.floor(points.min(axis=0)) - pad, np.ceil(points.max(axis=0)) + pad + 1
     x0, y0, x1, y1 = _clipped((low[0], low[1], high[0], high[1]), size)
     return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None

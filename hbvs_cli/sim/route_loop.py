@@ -1,16 +1,10 @@
 """``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
 one loop (:meth:`~hbvs_cli.sim.closed_loop.SimulatedRobot.run`, so
-:func:`~hbvs_cli.core.servo_loop.run_servo`).
-
-Segment k runs against its own F*_k: its desired signals (Remark 1) and its target's
-measurement (14) through its own n*_k. At the switch to k + 1 (a taught instant late in the
-overlap, where both targets were seen) the desired signals and the measurement change
-reference together, and the adaptive estimate (31) carries over as ``rho_k dhat``
-(:meth:`~hbvs_cli.core.route.Transition.carried_depth`), so the law goes on with the depth of
-the new segment. Nothing the law sees jumps: the state filter goes on from the last
-segment's estimate carried by the transition, and the discrepancy between what e1, e3 (19)
-and ebar2 (27) were and would be against F*_{k+1} fades out over :data:`SWITCH_FADE_S`
-(:meth:`RouteTrajectory.hand_over`). The Lyapunov function (36) holds per segment.
+:func:`~hbvs_cli.core.servo_loop.run_servo`). Segment k runs against its own F*_k: its desired
+signals (Remark 1) and its target's measurement (14) through its own n*_k. At a switch (a
+taught instant late in the overlap) both change reference together, dhat (31) is carried over
+(:class:`SegmentSwitch`) and nothing the law sees jumps (:meth:`RouteTrajectory.hand_over`,
+:class:`SegmentFilters`). The Lyapunov function (36) holds per segment.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from ..core.path import CommandProfile
 from ..errors import InvalidValueError, MalformedDataError
 from .poster import PosterRaster
 from .render import RenderSettings, SceneRenderer, load_texture
-from .world import DEFAULT_CAMERA_HEIGHT, Poster, Target, World, default_target
+from .world import DEFAULT_CAMERA_HEIGHT, Target, World, default_target
 
 #: The texture name of the second built-in photograph: the built-in pattern turned by 180 deg,
 #: so that two photographs of one route do not look alike.
@@ -80,8 +80,8 @@ class RouteWorld:
         for (x, y, yaw), world in zip(self.placements, self.worlds):
             rotation, shift = rotation_z(yaw), np.array([x, y, 0.0])
             poster = world.target.poster
-            moved = Poster(center=rotation @ poster.center + shift, width=poster.width, height=poster.height,
-                           right=rotation @ poster.right, down=rotation @ poster.down)
+            moved = replace(poster, center=rotation @ poster.center + shift, right=rotation @ poster.right,
+                            down=rotation @ poster.down)
             placed.append(replace(world.target, poster=moved))
         return tuple(placed)
 
@@ -163,8 +163,7 @@ def corridor_route(camera: CameraIntrinsics = DEFAULT_CAMERA) -> RouteWorld:
 def _scaled(target: Target, scale: float, height: float) -> Target:
     """``target`` (its poster centred at W_i's origin) scaled by ``scale``, its centre ``height`` m up."""
     poster = target.poster
-    grown = Poster(center=np.array([0.0, 0.0, height]), width=poster.width * scale, height=poster.height * scale,
-                   right=poster.right, down=poster.down)
+    grown = replace(poster, center=np.array([0.0, 0.0, height]), width=poster.width * scale, height=poster.height * scale)
     return replace(target, points_poster=target.points_poster * scale, dot_radius=target.dot_radius * scale, poster=grown)
 
 

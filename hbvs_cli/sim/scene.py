@@ -118,8 +118,6 @@ def world_from_reference(model: FitModel, image: np.ndarray, depth: float) -> tu
     # Turn F* so that the wall's normal is the world's +x: F* sits at the origin with yaw
     # psi, so a direction v in F* is Rz(psi) v in the world.
     psi = -math.atan2(horizontal[1], horizontal[0])
-    n_world = rotation_z(psi) @ (horizontal / np.linalg.norm(horizontal))
-    assert abs(n_world[1]) < 1e-9
     camera = model.camera
 
     def to_wall(pixels: np.ndarray) -> np.ndarray:

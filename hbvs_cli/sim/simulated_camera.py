@@ -73,10 +73,9 @@ class SimulatedCamera:
         self.fault_rng = np.random.default_rng([settings.seed, 1])
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
-        self.renderer: SceneRenderer | None = None
-        self.detector = detector if self.settings.perception == "images" else None
-        if self.settings.perception == "images" or settings.record_images:
-            self.renderer = renderer_for(scene, model)
+        images = settings.perception == "images"
+        self.detector = detector if images else None
+        self.renderer: SceneRenderer | None = renderer_for(scene, model) if images or settings.record_images else None
 
     def _occluded(self, t: float) -> bool:
         return any(start <= t < end for start, end in self.settings.occlusions)
@@ -171,9 +170,8 @@ class SimulatedCamera:
         corners = poster.to_world(np.array([[0, 0], [poster.width, 0], [poster.width, poster.height], [0, poster.height]]))
         with np.errstate(divide="ignore", invalid="ignore"):
             px = normalized_to_pixels(world.camera, world_to_robot(corners, pose, world.camera_height))
-        u0, v0 = np.floor(px.min(axis=0) - 4.0).astype(int)
-        u1, v1 = np.ceil(px.max(axis=0) + 4.0).astype(int)
-        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, world.camera.width), min(v1, world.camera.height)
+        u0, v0 = np.maximum(np.floor(px.min(axis=0) - 4.0).astype(int), 0)
+        u1, v1 = np.minimum(np.ceil(px.max(axis=0) + 4.0).astype(int), (world.camera.width, world.camera.height))
         if u1 > u0 and v1 > v0:
             image[v0:v1, u0:u1] = 90
 

@@ -21,7 +21,7 @@ from ..core.camera import (
     normalized_to_pixels,
 )
 from ..core.fit_model import MAX_TARGET_POINTS
-from ..core.frames import PAPER_TO_OPENCV, world_to_robot
+from ..core.frames import PAPER_TO_OPENCV, rotation_z, world_to_robot
 
 TARGET_KINDS = ("dots", "aruco", "texture")
 
@@ -122,10 +122,8 @@ class World:
         """What F* sees: m*_i (N, 3), the unit normal n* in F* toward the plane and d* (m), (7)."""
         reference_pose = np.asarray(reference_pose, dtype=float)
         m_ref = self.normalized_points(reference_pose)
-        phi = reference_pose[2]
-        c, s = np.cos(phi), np.sin(phi)
-        n_w = np.array([1.0, 0.0, 0.0])  # the wall's unit normal in W, into the wall
-        normal = np.array([c * n_w[0] + s * n_w[1], -s * n_w[0] + c * n_w[1], n_w[2]])
+        # The wall's unit normal in W (into the wall), turned into F*.
+        normal = rotation_z(reference_pose[2]).T @ np.array([1.0, 0.0, 0.0])
         d_star = float(self.wall_x - reference_pose[0])
         return m_ref, normal, d_star
 
@@ -133,8 +131,7 @@ class World:
         """``G = K P Rz(phi)^T [right, down, top_left - p_cam]``: poster metres to ideal pixels."""
         pose = np.asarray(pose, dtype=float)
         poster = self.target.poster
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        to_robot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        to_robot = rotation_z(pose[2]).T
         origin = poster.to_world(np.zeros(2)) - np.array([pose[0], pose[1], self.camera_height])
         columns = np.column_stack([poster.right, poster.down, origin])
         return self.camera.K @ PAPER_TO_OPENCV @ to_robot @ columns
