@@ -52,12 +52,10 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-#: ``-q`` of repeat, and of teach.
-QUIET = inspect.Parameter(
-    "quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
-    annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")],
-)
-QUIET_MESSAGES = QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")])
+def _quiet(what: str) -> inspect.Parameter:
+    """A stage's ``-q``: no ``what`` on stderr."""
+    return inspect.Parameter("quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
+                             annotation=Annotated[bool, typer.Option("--quiet", "-q", help=f"No {what} on stderr.")])
 
 
 def _version(value: bool) -> None:
@@ -111,22 +109,21 @@ def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
 
 #: Each stage's command: name, help panel, its declared options, its stage module's options class, extra options, help.
 STAGE_COMMANDS = (
-    ("teach", "Pipeline", TeachFields, "TeachOptions", (QUIET_MESSAGES,),
+    ("teach", "Pipeline", TeachFields, "TeachOptions", (_quiet("progress or messages"),),
      "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
-    ("fit", "Pipeline", FitOptions, "FitOptions", (QUIET,),
+    ("fit", "Pipeline", FitOptions, "FitOptions", (_quiet("progress or summary"),),
      "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
-    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (QUIET,),
+    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (_quiet("progress or summary"),),
      "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
-    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (QUIET_MESSAGES,),
+    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (_quiet("progress or messages"),),
      "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
     ("report", "Pipeline", ReportOptions, "ReportOptions", (),
      "How well did the repeat follow the taught path, and did it converge?"),
-    ("export", "Pipeline", ExportOptions, "ExportOptions",
-     (QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]),),
+    ("export", "Pipeline", ExportOptions, "ExportOptions", (_quiet("summary"),),
      "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
     ("info", "Files", InfoOptions, "InfoOptions", (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
-    ("sweep", "Studies", SweepOptions, "SweepOptions", (QUIET_MESSAGES,),
+    ("sweep", "Studies", SweepOptions, "SweepOptions", (_quiet("progress or messages"),),
      "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
      f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
@@ -247,21 +244,18 @@ def _silence_stdout() -> None:
 _stdout_at_start: tuple[int, int] | None = None
 
 
-def _stdout_identity() -> tuple[int, int] | None:
+def _identity(file: int | str) -> tuple[int, int] | None:
+    """The device and inode of a descriptor or path (None if it cannot be looked at)."""
     try:
-        status = os.fstat(1)
+        status = os.stat(file)
     except OSError:
         return None
     return status.st_dev, status.st_ino
 
 
 def _stdout_became_devnull() -> bool:
-    try:
-        devnull = os.stat(os.devnull)
-    except OSError:
-        return False
-    now = _stdout_identity()
-    return now == (devnull.st_dev, devnull.st_ino) and now != _stdout_at_start
+    now = _identity(1)
+    return now is not None and now == _identity(os.devnull) and now != _stdout_at_start
 
 
 def _say(line: str) -> None:
@@ -404,7 +398,7 @@ def _prepare_stdio(debug: bool) -> None:
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
-    _stdout_at_start = _stdout_identity()
+    _stdout_at_start = _identity(1)
     if stdin_closed:
         sys.stdin = _ClosedStdin()  # type: ignore[assignment]
     if sys.stdout is None or stdio_closed(1):

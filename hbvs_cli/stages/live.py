@@ -58,13 +58,9 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 
 
 class CommandOut:
-    """Where commands go: a ROS 2 publisher and/or a JSON-lines stream; zero on :meth:`stop`.
-
-    ``publisher``: the robot interface's :class:`CommandSink`, or None.
-    ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s)
-    without a newer one by zero, whatever the loop is doing (a slow frame, a source that hangs);
-    None for none. :meth:`close` ends it.
-    """
+    """Where commands go: the robot's :class:`CommandSink` (or None) and/or a JSON-lines stream; zero on :meth:`stop`.
+    ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s) by zero, whatever the
+    loop is doing (a slow frame, a source that hangs); None for none. :meth:`close` ends it."""
 
     def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
         self._publisher = publisher
@@ -75,7 +71,7 @@ class CommandOut:
         #: The last command sent (m/s, rad/s), and its run time (s).
         self.last = (0.0, 0.0)
         self._t = 0.0
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # the deadman stops while holding it
         self._closed = threading.Event()
         self._deadman: threading.Thread | None = None
         if stale_timeout_s is not None:
@@ -94,16 +90,13 @@ class CommandOut:
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
         with self._lock:
-            self._zero(t)
-
-    def _zero(self, t: float) -> None:
-        for _ in range(ZERO_REPEATS):
-            if self._publisher is not None:
-                with suppress(Exception):  # stopping must reach every output it can
-                    self._publisher.publish(0.0, 0.0)
-        with suppress(OSError, ValueError):
-            write_command(self._stream, t, 0.0, 0.0)
-        self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
+            for _ in range(ZERO_REPEATS):
+                if self._publisher is not None:
+                    with suppress(Exception):  # stopping must reach every output it can
+                        self._publisher.publish(0.0, 0.0)
+            with suppress(OSError, ValueError):
+                write_command(self._stream, t, 0.0, 0.0)
+            self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
 
     def _watch(self, stale_timeout_s: float) -> None:
         while not self._closed.is_set():
@@ -111,7 +104,7 @@ class CommandOut:
                 now = time.monotonic()
                 due = self.sent_at + stale_timeout_s if self.last != (0.0, 0.0) else None
                 if due is not None and now >= due:
-                    self._zero(self._t + (now - self.sent_at))
+                    self.stop(self._t + (now - self.sent_at))
                     continue
             self._closed.wait(min(due - now, DEADMAN_POLL_S) if due is not None else DEADMAN_POLL_S)
 

@@ -104,20 +104,15 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
-    speed = float(pick("speed"))
     rate = float(pick("rate", taught_rate))
     if not (math.isfinite(rate) and rate > 0):
         raise UsageError(f"--rate must be positive, got {rate}")
-    perception = str(pick("perception"))
-    offset_text = str(pick("offset"))
-    latency = int(pick("latency"))
-    state_filter = str(pick("state_filter"))
     limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
                             max_accel=_limit(pick("max_accel"), "--max-accel"), lag_s=float(pick("base_lag")))
     return Settings(
-        gains=gains, law=law, dhat0=dhat0, speed=speed, limits=limits, latency=latency, rate=rate, perception=perception,
-        pixel_noise=float(pick("pixel_noise")), offset=parse_offset(offset_text), lost_timeout=float(pick("lost_timeout")),
-        state_filter=state_filter,
+        gains=gains, law=law, dhat0=dhat0, speed=float(pick("speed")), limits=limits, latency=int(pick("latency")), rate=rate,
+        perception=str(pick("perception")), pixel_noise=float(pick("pixel_noise")), offset=parse_offset(str(pick("offset"))),
+        lost_timeout=float(pick("lost_timeout")), state_filter=str(pick("state_filter")),
     )
 
 
@@ -233,8 +228,7 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
 
 
 def check_simulation_settings(settings: Settings, model: FitModel, taught_s: float | None = None) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
-    first); ``taught_s``: the taught duration (s) when it is not ``model``'s (a route's)."""
+    """The checks of a closed-loop run's settings that need the fit; ``taught_s``: the taught duration (s) of a route."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
@@ -395,8 +389,7 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
 
 
 def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered: bool) -> Tracking:
-    """What ``--live`` (``filtered``: with the state filter ``--filter`` asks for) and ``--replay`` servo with: one
-    target's detector, estimator and desired signals at ``--speed``, or a route's segment by segment."""
+    """What ``--live`` (``filtered``: with ``--filter``'s state filter) and ``--replay`` servo with, one target's or a route's."""
     if fit.route_record is not None:
         return route_tracking(options, settings, fit, filtered, make_state_filter)
     model = fit.model
@@ -408,9 +401,8 @@ def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered
 
 
 class RecordedDrive:
-    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames,
-    measured through the fit's ``sight`` (:class:`~.live.TargetSight`'s methods), at their own stamps.
-    Open loop: the commands are kept, nothing moves."""
+    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames at their own
+    stamps, measured through the fit's ``sight``. Open loop: the commands are kept, nothing moves."""
 
     def __init__(self, reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> None:
         self.reader, self.sight, self.model, self.run = reader, sight, model, run
