@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
@@ -16,14 +15,6 @@ from .options import parse_assignment
 
 if TYPE_CHECKING:
     from ..report.result import RunReport
-
-
-@dataclass(frozen=True)
-class Bound:
-    """One ``--fail-above KEY=VALUE``: fail when the metric at dotted ``key`` exceeds ``value``."""
-
-    key: str
-    value: float
 
 
 def metric_value(report: RunReport, key: str) -> float:
@@ -49,11 +40,11 @@ def metric_value(report: RunReport, key: str) -> float:
     return float(value)
 
 
-def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
-    """One message per (run, bound) whose metric exceeds the bound; call it before printing."""
-    checked = [(report, bound, metric_value(report, bound.key)) for report in reports for bound in bounds]
-    return [f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}"
-            for report, bound, value in checked if value > bound.value]
+def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[tuple[str, float]]) -> list[str]:
+    """One message per (run, ``--fail-above`` (key, bound)) whose metric exceeds the bound; call it before printing."""
+    checked = [(report, key, bound, metric_value(report, key)) for report in reports for key, bound in bounds]
+    return [f"{report.run.name}: {key} = {value:.6g} exceeds the bound {bound:g}"
+            for report, key, bound, value in checked if value > bound]
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
@@ -131,7 +122,7 @@ def run_report(options: ReportOptions, console: Console) -> int:
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
         return _report_sweep(options, console)
     tolerances = resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in options.tolerance))
-    bounds = [Bound(*parse_assignment(item, "--fail-above")) for item in options.fail_above]
+    bounds = [parse_assignment(item, "--fail-above") for item in options.fail_above]
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
     style = None

@@ -193,9 +193,8 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
     notes: list[str] = []
     camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
-    for note in notes:
-        if console is not None:
-            console.warn(note)
+    for note in notes if console is not None else ():
+        console.warn(note)
     return camera
 
 
