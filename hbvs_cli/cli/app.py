@@ -80,9 +80,8 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 
 def _stdin_is_an_empty_pipe() -> bool:
-    """True when stdin is a pipe closed before its first byte (read without consuming it):
-    what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
-    until the writer writes or closes."""
+    """True when stdin is a pipe closed before its first byte (peeked at, as reading would wait for it): what a stage
+    sees when the one before it in a pipeline failed."""
     try:
         # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
         if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
@@ -163,10 +162,8 @@ _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "ter
 _swallowed = False
 
 
-#: How long a process that spoke DDS may take to end (s): after a stop signal (three times this, for
-#: the command's own cleanup), and again once its command has returned. Past it, SIGALRM ends the
-#: process (exit status 142 in a shell). It is a backstop: such a process skips the interpreter's
-#: teardown (:func:`_end_without_dds_teardown`).
+#: How long a process that spoke DDS may take to end (s) once its command returned (three times this after a stop
+#: signal); past it, SIGALRM ends it (exit status 142). A backstop: :func:`_end_without_dds_teardown`.
 DDS_EXIT_GRACE_S = 10.0
 
 
@@ -188,11 +185,9 @@ def _bound_dds_exit(grace_s: float) -> None:
 
 
 def _end_without_dds_teardown(code: int) -> None:
-    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``: the interpreter's teardown
-    deletes the DDS domain, and Cyclone DDS 11 can wait in that without end (gdb on a hung stand-in
-    robot: ddsi_stop waiting for the built-in delivery queue; in CI it outlived two Ctrl-C's, and later
-    a test by ten seconds). The command has returned: its files are closed and its last zero command
-    acknowledged (``repeat --live`` waits for that); nothing of hbvs's is left for the teardown to do."""
+    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``: the interpreter's teardown deletes the DDS
+    domain, where Cyclone DDS 11 can wait without end (ddsi_stop waiting for its delivery queue). The command has
+    returned, its files closed and its last zero acknowledged: nothing is left for the teardown to do."""
     if not _spoke_dds():
         return
     _bound_dds_exit(DDS_EXIT_GRACE_S)  # a flush into a pipe nobody reads
@@ -266,9 +261,8 @@ def _say(line: str) -> None:
 
 
 def _pipe_closed() -> int:
-    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE
-    would, without a word (it is not an error of this command, and in a pipeline whose later
-    stage failed, that stage's line is the one that matters)."""
+    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE would, without a word
+    (in a pipeline whose later stage failed, that stage's line is the one that matters)."""
     _silence_stdout()
     return 141
 
@@ -304,12 +298,8 @@ def _run(args: list[str], debug: bool) -> int:
             traceback.print_exc()
         if exc.exit_code == 141:
             return _pipe_closed()
-        if isinstance(exc, UpstreamFailedError):
-            # The stage before said why; a second line would only repeat that it failed.
-            if debug:
-                _say(f"hbvs: error: {exc}")
-            return exc.exit_code
-        _say(f"hbvs: error: {exc}")
+        if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
+            _say(f"hbvs: error: {exc}")
         return exit_code_of(exc)
     except typer.Abort:
         _say("hbvs: interrupted")

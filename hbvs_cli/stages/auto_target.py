@@ -20,9 +20,8 @@ from ..perception.target_kinds import TARGET_KINDS, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
 from .frame_decoding import decode_frame
 
-#: Frames each candidate is followed on at most, evenly strided over the whole recording
-#: (every frame of a short one): each kind's own tracker from frame to frame, as the fit
-#: runs it, so that dots and chessboards keep their points' names.
+#: Frames each candidate is followed on at most, evenly strided over the whole recording, by its own tracker from
+#: frame to frame as the fit runs it (dots and chessboards keep their points' names).
 FOLLOWED_FRAMES = 120
 #: Of those, the frames the short joint estimate uses (evenly spread, the first as F*).
 JUDGE_FRAMES = 24

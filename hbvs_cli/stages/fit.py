@@ -79,37 +79,24 @@ def parse_reference(spec: str) -> int | None:
 
 
 class _FrameLog:
-    """Per-frame results kept in memory: a few numbers per frame, in growing numpy buffers
-    (Python objects per frame would cost kilobytes over a long recording), never images."""
+    """Per-frame results kept in memory: a few numbers per frame in a growing numpy buffer (Python objects per frame
+    would cost kilobytes over a long recording), never images."""
 
     def __init__(self, n_points: int) -> None:
-        self._width = 1 + 2 * n_points + 3 + 2  # t, pixels, pose, command
-        self._rows = np.empty((1024, self._width))
-        self._log_times = np.empty(1024, dtype=np.int64)  # exact integers, apart
+        self._rows = np.empty(1024, dtype=[("t", float), ("log_time", np.int64), ("pixels", float, (n_points, 2)),
+                                           ("pose", float, 3), ("command", float, 2)])  # log times: exact integers
         self.count = 0
-        self.n_points = n_points
 
     def add(self, t: float, log_time_ns: int, pixels: np.ndarray, pose: Any, command: Any) -> None:
-        if self.count == self._rows.shape[0]:
+        if self.count == len(self._rows):
             self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
-            self._log_times = np.concatenate([self._log_times, np.empty_like(self._log_times)])
-        row = self._rows[self.count]
-        row[0] = t
-        self._log_times[self.count] = log_time_ns
-        row[1 : 1 + 2 * self.n_points] = np.ravel(pixels)
-        row[-5:-2] = pose if pose is not None else np.nan
-        row[-2:] = command if command is not None else np.nan
+        self._rows[self.count] = (t, log_time_ns, pixels, np.nan if pose is None else pose,
+                                  np.nan if command is None else command)
         self.count += 1
 
     def arrays(self) -> dict[str, np.ndarray]:
-        rows = self._rows[: self.count]
-        return {
-            "t": rows[:, 0].copy(),
-            "log_time": self._log_times[: self.count].copy(),
-            "pixels": rows[:, 1 : 1 + 2 * self.n_points].reshape(self.count, self.n_points, 2).copy(),
-            "pose": rows[:, -5:-2].copy(),
-            "command": rows[:, -2:].copy(),
-        }
+        """Each column of the frames so far: ``t``, ``log_time``, ``pixels`` (F, N, 2), ``pose`` (F, 3), ``command`` (F, 2)."""
+        return {name: self._rows[name][: self.count].copy() for name in self._rows.dtype.names}
 
 
 def recorded_frame_count(source: str) -> int | None:
@@ -201,8 +188,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            # Colour until the target is known, then only for dots seen in colour (:mod:`.frame_decoding`
-            # says why); once the first frames came out gray, no detector will want colour.
+            # Colour until the target is known, then only for dots seen in colour; none once the first frames came out gray.
             gray_source = False
             frames = decoded_frames(
                 reader.frames(), reader.name,
@@ -224,7 +210,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                                              lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
                                                                                   None, console), options)
                     return FitSummary(output=options.output, model=models[0])
-                # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
                                  [(f.t, im) for f, _, im in first])
@@ -251,8 +236,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                     reference_image = data
                 if options.copy_images:
                     write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
-                # Same log time as the teach image: Foxglove overlays these on it when the
-                # teach and fit files are opened together.
+                # At the teach image's log time: Foxglove overlays these on it when both files are open.
                 writer.write(
                     ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], frame.log_time_ns,
                     annotations_message(frame.log_time_ns, pixels),
@@ -308,7 +292,6 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
         camera=camera,
         reference_index=reference_index,
         reference_t=float(arrays["t"][reference_index]),
-        # What the model keeps of the fit's results under the same names.
         **{name: getattr(result, name) for name in ("reference_pixels", "m_ref", "normal", "normal_margin", "trajectory", "residual_px")},
         dhat0=dhat0,
         dhat0_source=dhat0_source,
@@ -620,8 +603,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return estimates, FALLBACK_DHAT0, "guess"
-    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
-    # (a value that is no depth at all is left to the model's own check: "repeat could not use").
+    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source (no depth at all: the model's).
     if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
         given, hint = (("the taught commands (25)", "are they in m/s and rad/s?") if chosen.source == "commands" else
                        ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))

@@ -149,13 +149,11 @@ class _StepLog:
 
     def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
         self.run, self.settings, self.model, self.d_true, self.cmd_stream = run, settings, model, d_true, cmd_stream
+        self.event = run.event
         self.was_saturated = self.was_lost = self.was_dropped = False
         self.lost_reason = ""
 
-    def event(self, t: float, level: int, text: str) -> None:
-        self.run.event(t, level, text)
-
-    def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
+    def step(self, record: StepRecord) -> None:
         t = record.t
         desired = record.desired
         output = record.output
@@ -185,8 +183,8 @@ class _StepLog:
             **{name: getattr(desired, name) for name in ("x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot")},
             **{name: getattr(errors, name) if errors else None for name in ("e1", "e2", "ebar2", "e3")},
             "v_c": record.v_c, "w_c": record.w_c,
-            "v_law": float(output.v_c) if output is not None else v_law,
-            "w_law": float(output.w_c) if output is not None else w_law,
+            "v_law": float(output.v_c) if output is not None else None,
+            "w_law": float(output.w_c) if output is not None else None,
             "saturated": bool(record.saturated),
             "dhat": float(record.dhat),
             "target_lost": bool(record.lost),

@@ -82,7 +82,7 @@ class SwitchLog:
         self.logged = 0
         log.d_true = depths[0]
 
-    def step(self, record: Any, *args: Any) -> None:
+    def step(self, record: Any) -> None:
         while self.logged < len(self.switch.switches):
             when, segment, before, after = self.switch.switches[self.logged]
             self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
@@ -90,7 +90,7 @@ class SwitchLog:
                            f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
             self.logged += 1
             self.log.run.route_switches([made[0] for made in self.switch.switches[:self.logged]])
-        self.log.step(record, *args)
+        self.log.step(record)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.__dict__["log"], name)

@@ -63,14 +63,12 @@ class TeachOptions(TeachFields):
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
-            # The extra outputs are left out, as the output is: the same drive, the same bytes.
-            simulated = {key: value for key, value in recorded.items()
-                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")
-                         and not (key == "route" and value is None)}  # a single target's bytes as before routes
-            if self.route is not None:  # the route brings its own path and targets
-                simulated = {key: value for key, value in simulated.items() if key not in ("path", "target", "dots", "texture")}
-            return {**simulated, "sim": True}
+            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim. The extra outputs are
+            # left out, as the output is: the same drive, the same bytes. A route brings its own path and targets; without
+            # one, a single target's bytes are as before routes.
+            left_out = {"cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out"} | (
+                {"path", "target", "dots", "texture"} if self.route is not None else {"route"})
+            return {**{key: value for key, value in recorded.items() if key not in left_out}, "sim": True}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
             {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
         return {key: value for key, value in recorded.items() if key in keep}
@@ -251,9 +249,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
                     if frames == 0:
-                        # Logged at the first frame's time: frames keep their source's stamps (a bag's,
-                        # a ROS 2 topic's), which a live source knows only once the first arrives;
-                        # logged at 0 it made the recording start in 1970.
+                        # At the first frame's time: frames keep their source's stamps, which a live source knows
+                        # only once the first arrives (logged at 0, the recording started in 1970).
                         teach.calibration(camera, log_time_ns)
                     teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
