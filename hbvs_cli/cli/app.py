@@ -395,10 +395,9 @@ def _prepare_stdio(debug: bool) -> None:
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
     if sys.stderr is None or stdio_closed(2):
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
-    if debug:
-        return
-    warnings.simplefilter("ignore")
-    capture()
+    if not debug:
+        warnings.simplefilter("ignore")
+        capture()
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -28,8 +28,7 @@ JUDGE_FRAMES = 24
 
 
 class NoTargetThroughout(InputError):
-    """No target the first frames show is usable over the whole drive: it may be a route, a
-    target followed after another (:mod:`.fit_route`)."""
+    """No target the first frames show is usable over the whole drive: a route, maybe (:mod:`.fit_route`)."""
 
 
 @dataclass(frozen=True)

@@ -67,8 +67,7 @@ def parse_smoothing(text: str) -> float | None:
 
 
 def parse_reference(spec: str) -> int | None:
-    """Frame index of ``--reference first|last|INDEX`` ("05" is frame 5), None for the last; its range is
-    checked once the frames are counted."""
+    """Frame index of ``--reference first|last|INDEX`` ("05" is 5; None: the last), its range checked later."""
     key = spec.strip().lower()
     if key == "last":
         return None
@@ -538,8 +537,7 @@ def _detector_spec(
 
 def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
                   camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
-    """The detector of a target ``kind`` from what ``--target auto`` found of it (``details``), the options, the
-    simulated ``world`` (None for real footage) or the first ``images``."""
+    """The detector of a target ``kind`` from ``details`` (what ``--target auto`` found), the options, ``world`` or ``images``."""
     from ..perception.autodetect import find_target
 
     squares = parse_board(options.board) if options.board is not None else None

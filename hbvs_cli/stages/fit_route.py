@@ -133,8 +133,7 @@ def seen_spans(pixels: np.ndarray) -> np.ndarray:
 
 
 def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
-    """The largest residual of the least-squares affine map from ``layout`` (N, 2) to
-    ``points`` (N, 2), over the span of ``points`` (0 for 3 points: any three fit)."""
+    """The largest residual of the affine map from ``layout`` to ``points`` (N, 2 each) over their span (0 for 3 points)."""
     design = np.column_stack([layout, np.ones(len(layout))])
     mapping, *_ = np.linalg.lstsq(design, points, rcond=None)
     return float(np.max(np.linalg.norm(design @ mapping - points, axis=1)) / max(view_spans(points[None])[0], 1e-9))
@@ -199,12 +198,9 @@ class ImageFollower:
         return points if last is None or affine_misfit(last[both], points[both]) <= REFOUND_LAYOUT_TOLERANCE else lost
 
     def _search(self) -> None:
-        """Follow the new targets the recent frames show in most of them, from the first of them on:
-        each part of them that stands out from its background (:func:`standing_out`, :func:`parts`)
-        and holds no target followed so far (those painted out), searched alone, as markers hide dots and a
-        photograph dots (:func:`~hbvs_cli.perception.autodetect.target_candidates`); a photograph only where no other
-        kind is seen (a poster's own print), each once it is half :data:`MIN_SPAN_PX` across (smaller, a
-        board's markers are not all decoded)."""
+        """Follow the new targets the recent frames show in most of them: each part that stands out from its background
+        and holds no followed target is searched alone (markers hide dots); a photograph only where no other kind is
+        seen (a poster's own print), each once half :data:`MIN_SPAN_PX` across (smaller, a board's markers are not decoded)."""
         painted = [self._painted_out(index, image) for index, image in self.recent]
         centres = [np.nanmean(found[index], axis=0) for found in self.found for index, _ in self.recent
                    if index in found and np.isfinite(found[index]).any()]
@@ -238,8 +234,7 @@ class ImageFollower:
         return True
 
     def _painted_out(self, index: int, image: np.ndarray) -> np.ndarray:
-        """``image`` (recent frame ``index``) with every followed target's convex hull, grown by :data:`PAINT_MARGIN`,
-        painted its median level."""
+        """``image`` (recent frame ``index``) with every followed target's hull, grown by :data:`PAINT_MARGIN`, painted out."""
         painted = image.copy()
         for found in self.found:
             # where it was found in this frame, else in the nearest recent frame

@@ -1,7 +1,6 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame
-decided by the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out
-on every way out, and only zeros before the target is seen near its taught start view.
-"""
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame decided by the
+:class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out on every way out, and only zeros
+before the target is seen near its taught start view."""
 
 from __future__ import annotations
 
@@ -258,9 +257,8 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
 
 @dataclass
 class TargetSight:
-    """What a repeat sees of one target through its fit: a frame's observation (14) by the fit's
-    ``detector`` and ``estimator``, and the desired signals (Remark 1) of ``trajectory`` at run
-    time t (s). A route's (:class:`~.repeat_route.RouteSight`) has the same methods."""
+    """What a repeat sees of one target through its fit: a frame's observation (14), and the desired signals
+    (Remark 1) at run time t (s). A route's (:class:`~.repeat_route.RouteSight`) has the same methods."""
 
     detector: Any
     estimator: Any
@@ -320,8 +318,7 @@ class LiveStats:
 
 
 def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str:
-    """One line of at most 80 columns for a person watching the robot: run time, errors e1, e2, e3 (19),
-    dhat, frame rate, p95 latency, frames dropped."""
+    """One line of at most 80 columns: run time, e1, e2, e3 (19), dhat, frame rate, p95 latency, frames dropped."""
     errors = record.output.errors if record.output is not None else None
     shown = (f"e {float(errors.e1):+.3f} {float(errors.e2):+.3f} {math.degrees(float(errors.e3)):+.2f}°"
              if errors is not None else f"{'target lost':<22}")
@@ -334,11 +331,8 @@ def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str
 
 @dataclass
 class LiveLoop:
-    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written.
-
-    Only frames that :class:`~hbvs_cli.core.camera_clock.CameraClock` admits are used, and every
-    non-zero command stands at most ``--stale-timeout`` after the last used frame's: a command never
-    outlives its measurement, whatever the camera's clock does."""
+    """The loop of ``repeat --live``: frames in, commands out, the run file written. Only frames the camera clock
+    admits are used, and a command never outlives its measurement by more than ``--stale-timeout``."""
 
     source: LiveSource
     #: What is seen and should be seen (:class:`TargetSight`, or a route's).
@@ -437,8 +431,7 @@ class LiveLoop:
             self.warn(text)
 
     def __iter__(self) -> Iterator[ServoInput]:
-        """The loop's inputs (:class:`~hbvs_cli.core.servo_loop.ServoSource`): each newest usable frame, measured, until
-        the trajectory's end or a stop (:attr:`stopped` says why)."""
+        """The loop's inputs (a ServoSource): each newest usable frame, measured, until the end or a stop."""
         period, duration = self.period, self.duration
         first_stamp: float | None = None
         previous_stamp: float | None = None

@@ -32,8 +32,7 @@ def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, flo
 
 
 def parse_pair(text: str, option: str, form: str, units: str, rule: str, holds: Callable[[float, float], bool]) -> tuple[float, float]:
-    """``A:B``: two finite numbers for which ``holds(a, b)``; UsageError otherwise, naming the
-    ``form`` (``START:END``), its ``units`` and the ``rule`` it breaks."""
+    """``A:B``: two finite numbers for which ``holds(a, b)``; else a UsageError naming ``form``, ``units`` and ``rule``."""
     try:
         first, second = (float(p) for p in text.split(":"))
     except ValueError:

@@ -1,9 +1,6 @@
-"""``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31).
-
-``--sim``: closed loop, a simulated robot from the taught start plus ``--offset``.
-``--replay``: open loop on a recording's frames; commands are logged, nothing moves.
-``--live``: closed loop with a robot (:mod:`.live`).
-"""
+"""``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31). ``--sim``: closed loop, a
+simulated robot from the taught start plus ``--offset``; ``--replay``: open loop on a recording's frames, nothing
+moves; ``--live``: closed loop with a robot (:mod:`.live`)."""
 
 from __future__ import annotations
 

@@ -122,8 +122,7 @@ class RouteSight(SegmentSwitch):
         self.colour = any(model.detector.contrast == "colour" for model in plan.models)
 
     def observe(self, image: np.ndarray, t: float) -> Observation:
-        ahead = self.active + 1
-        last = ahead == len(self.detectors)
+        last = self.active + 1 == len(self.detectors)
         if not last and t >= self.planned[self.active] and (switched := self._look_ahead(image, t)) is not None:
             return switched
         observation = self._measure(self.active, image)
@@ -156,8 +155,7 @@ class RouteSight(SegmentSwitch):
 
 @dataclass
 class Tracking:
-    """What ``--live`` and ``--replay`` servo with; ``step_log(log)``: the log each step goes to (a route's records
-    its switches)."""
+    """What ``--live`` and ``--replay`` servo with; ``step_log(log)``: the log each step goes to."""
 
     sight: Any
     controller: Any
@@ -212,8 +210,7 @@ def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
 
 
 def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
-    """Repeat the route of ``fit`` in simulation (``settings``: the first segment's); ``tools``: repeat's step log,
-    tally and summary (:mod:`.repeat` hands them in)."""
+    """Repeat the route of ``fit`` in simulation; ``tools``: repeat's step log, tally and summary (``ROUTE_TOOLS``)."""
     plan = route_of(fit, str(options.input))
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
