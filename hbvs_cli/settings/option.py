@@ -1,6 +1,5 @@
-"""An option declared once, as a field of a stage's options dataclass (:func:`option`): name and type the
-field's, help, default, bounds, choices and config key its metadata; the typer signature, the ``--config``
-keys and the sweep's parameters come from it. Values are checked as the options are made (:class:`Options`)."""
+"""An option declared once, as a field of a stage's options dataclass (:func:`option`); the typer signature, the
+``--config`` keys and the sweep's parameters come from it. Values are checked as the options are made (:class:`Options`)."""
 
 from __future__ import annotations
 
@@ -17,10 +16,9 @@ _DETAILS = "hbvs_option"  # the key of a field's metadata that holds its Setting
 
 @dataclass(frozen=True)
 class Setting:
-    """One option of a stage: ``default`` what the options hold when it is not given (None: "not given");
-    ``fallback`` the value used when neither the option nor the ``config`` key of a ``--config`` file gives
-    one; ``shown`` the default in ``--help``'s words; ``bounds`` the ``min`` and ``max`` the command line checks;
-    ``choices`` the words a text option takes (a function for a registry that may grow)."""
+    """One option of a stage: ``default`` what the options hold when it is not given (None: "not given"); ``fallback``
+    the value when neither the option nor the ``config`` key of a ``--config`` file gives one; ``shown`` the default in
+    ``--help``'s words; ``bounds`` ``min`` and ``max``; ``choices`` the words a text option takes (or a function)."""
 
     name: str
     type: type

@@ -279,7 +279,6 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
     calibration = _calibration_uncertainty(reader, camera)
     result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration)
     spec = replace(spec, initial_pixels=result.initial_pixels)
-    taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
     if calibration[0] == "unstated" and result.uncertainty is not None:
         console.warn(f"the calibration states no standard deviations of its intrinsics, so n*'s band counts the image noise only: "
@@ -299,7 +298,7 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
         condition35=result.condition,
         detector=spec,
         world_description=world_description,
-        taught_path=taught_path,
+        taught_path=_taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None,
         render=_render_settings(reader),
         gains=_suggested_gains(result, camera),
         uncertainty=result.uncertainty.summary(calibration[0]) if result.uncertainty is not None else None,
@@ -571,11 +570,10 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec
     (``layout``: its two points farthest apart); dhat(0), the estimate of d*, and its source."""
     from_commands: DepthEstimate | None = None
     chosen: DepthEstimate | None = None
-    t = arrays["t"][result.span]
     commands = arrays["command"][result.span]
     if commands.size and np.all(np.isfinite(commands)):
         v, w = commands.T
-        desired = result.trajectory.evaluate(t)
+        desired = result.trajectory.evaluate(arrays["t"][result.span])
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
             chosen = from_commands

@@ -243,7 +243,6 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
         "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
     tally = tools.tally()
-    height = route.camera_height
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
         log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
@@ -252,7 +251,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
             for record in steps:
                 log.step(record)
                 taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
-                run.poses(record.t, record.pose, taught, height)
+                run.poses(record.t, record.pose, taught, route.camera_height)
                 tally.add(record, taught)
                 bar.advance()
                 if lost.stops(record):

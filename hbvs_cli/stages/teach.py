@@ -233,8 +233,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
-        total = source.describe().get("frames")
-        with console.progress(f"teach ({kind})", total) as bar:
+        with console.progress(f"teach ({kind})", source.describe().get("frames")) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
             try:
                 for frame in iterator:
