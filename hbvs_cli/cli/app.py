@@ -80,8 +80,7 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 
 def _stdin_is_an_empty_pipe() -> bool:
-    """True when stdin is a pipe closed before its first byte (peeked at, as reading would wait for it): what a stage
-    sees when the one before it in a pipeline failed."""
+    """True when stdin is a pipe closed before its first byte (peeked at): the stage before this one failed."""
     try:
         # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
         if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
@@ -261,8 +260,7 @@ def _say(line: str) -> None:
 
 
 def _pipe_closed() -> int:
-    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE would, without a word
-    (in a pipeline whose later stage failed, that stage's line is the one that matters)."""
+    """The reader of stdout went away (``| head``): exit 141 without a word, as a process killed by SIGPIPE would."""
     _silence_stdout()
     return 141
 
@@ -334,8 +332,7 @@ def _run(args: list[str], debug: bool) -> int:
         if exc.errno == errno.EPIPE:
             return _pipe_closed()
         if exc.errno in _WRITE_ERRNOS:
-            where = exc.filename or "the output"
-            _say(f"hbvs: error: {where}: cannot write ({exc.strerror})")
+            _say(f"hbvs: error: {exc.filename or 'the output'}: cannot write ({exc.strerror})")
             return 6
         _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
         return 70

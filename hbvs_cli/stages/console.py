@@ -52,8 +52,7 @@ class Console:
 
     @contextmanager
     def status_line(self) -> Iterator[Any]:
-        """A line rewritten in place on a terminal, for a loop without a known length (``repeat --live``):
-        yields a function taking the line's text, or None when not interactive (a pipe, ``-q``)."""
+        """A line rewritten in place on a terminal (``repeat --live``): a function of its text, or None when not interactive."""
         if not self.interactive:
             yield None
             return
@@ -80,8 +79,7 @@ class Console:
 
 
 class ProgressTask:
-    """Handle on one progress bar (or none). Each step of a long loop advances it, so :meth:`advance` also raises a
-    stop signal that native code swallowed."""
+    """Handle on one progress bar (or none); :meth:`advance` also raises a stop signal that native code swallowed."""
 
     def __init__(self, progress: Any, task: Any) -> None:
         self._progress = progress

@@ -273,8 +273,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
 def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
                reference_index: int, spec: DetectorSpec, world_description: dict[str, Any] | None, name: str,
                layout: np.ndarray | None = None, image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
-    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model:
-    d* (25), the taught path, the suggested gains and the uncertainty beside the fit's splines."""
+    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model."""
     camera = reader.camera
     calibration = _calibration_uncertainty(reader, camera)
     result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration)

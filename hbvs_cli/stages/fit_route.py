@@ -91,8 +91,7 @@ def _route(reader: Any, camera: Any) -> RouteWorld:
 
 
 class SimulatedFollower:
-    """Each target of a simulated ``route`` followed by its detector, made on the first frame whose true pose sees
-    it wholly and at least :data:`MIN_SPAN_PX` across."""
+    """Each target of a simulated ``route`` followed by its detector from the first frame that sees it wholly and large."""
 
     def __init__(self, route: RouteWorld, seed: int, console: Console) -> None:
         self.route, self.seed, self.console = route, seed, console

@@ -27,8 +27,7 @@ def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[by
 def decoded_frames(
     frames: Iterator[TeachFrame], name: str, depth: int = 4, colour: Callable[[], bool] = lambda: False
 ) -> Iterator[tuple[TeachFrame, bytes, np.ndarray]]:
-    """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead; ``colour()`` is asked
-    as each frame is queued: whether to keep its colour."""
+    """Yield ``(frame, image_bytes, image)`` in order, up to ``depth`` decoded ahead, in colour when ``colour()`` says so."""
     with StopSafePool(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
         pending: deque[_Queued] = deque()
         for frame in frames:

@@ -21,9 +21,8 @@ def recorded_settings(options: Any) -> dict[str, Any]:
 
 def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, float]:
     """``DX,DY,DTHETA`` (m, m, deg) -> (m, m, rad)."""
-    parts = text.split(",")
     try:
-        values = [float(p) for p in parts]
+        values = [float(p) for p in text.split(",")]
     except ValueError:
         values = []
     if len(values) != 3 or not all(math.isfinite(v) for v in values):

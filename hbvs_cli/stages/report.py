@@ -77,10 +77,8 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
             run = None
         if isinstance(source, io.BytesIO):
             source.seek(0)
-        if run is None:
-            loaded.append((read_fit_signals(source, name), None))
-        else:
-            loaded.append((run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
+        loaded.append((read_fit_signals(source, name), None) if run is None
+                      else (run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
     return loaded
 
 
@@ -125,14 +123,13 @@ def run_report(options: ReportOptions, console: Console) -> int:
     bounds = [parse_assignment(item, "--fail-above") for item in options.fail_above]
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
-    style = None
     if options.plot is not None:
         from ..report.figure_style import check_plot_path, figure_style
 
         check_plot_path(options.plot)
         refuse_overwriting_inputs([("--plot", options.plot)], inputs)
         # Checked against either figure's panels now, against the right one's below.
-        style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
+        figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
     elif options.dpi is not None or options.size is not None or options.panels is not None:
         raise UsageError("--dpi, --size and --panels shape the figure: give --plot FILE too")
     loaded = read_runs(options.runs, need_height=options.export_tum is not None)
