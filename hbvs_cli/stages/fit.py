@@ -214,7 +214,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                                  [(f.t, im) for f, _, im in first])
                 pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console, sample)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
-                    spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
+                    spec, rest = _picked_while_reading(pick, frames, READ_AHEAD_BYTES)
                 else:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
@@ -323,8 +323,8 @@ READ_AHEAD_BYTES = 128 << 20
 
 def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any], budget: int
                           ) -> tuple[DetectorSpec, Iterator[Any]]:
-    """``pick()`` here, where a stop signal interrupts it, while a second thread takes frames (up to ``budget`` bytes);
-    then the frames taken and the rest, in order. An error reading is raised at its turn."""
+    """The fit's solvers loaded and ``pick()`` here, where a stop signal interrupts them, while a second thread takes
+    frames (up to ``budget`` bytes); then the frames taken and the rest, in order. An error reading is raised at its turn."""
     taken: list[Any] = []
     over = threading.Event()
 
@@ -337,6 +337,7 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
     with StopSafePool(max_workers=1, thread_name_prefix="hbvs-read-ahead") as pool:
         reading = pool.submit(take)
         try:
+            _load_solvers()  # its 0.3 s while frames are read ahead, not when nothing else runs
             spec = pick()
         finally:
             over.set()
@@ -349,12 +350,6 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
         raise failure
 
     return spec, in_turn()
-
-
-def _with_solvers_loaded(pick: Callable[[], DetectorSpec]) -> DetectorSpec:
-    """``pick()`` after :func:`_load_solvers` (0.3 s): while a second thread reads ahead, not when nothing else runs."""
-    _load_solvers()
-    return pick()
 
 
 def _load_solvers() -> None:
