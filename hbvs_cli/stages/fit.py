@@ -504,7 +504,7 @@ def _check_kind_options(options: FitOptions) -> None:
 
 def _detector_spec(
     options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console,
-    sample: Callable[[], Iterator[tuple[float, np.ndarray]]] | None = None,
+    sample: Callable[[], Iterator[tuple[float, np.ndarray]]],
 ) -> DetectorSpec:
     """What to detect: the world of a simulated teach says it, else the images (``--target auto``: candidates from the
     first few, judged on the frames ``sample()`` spreads over the drive, :mod:`.auto_target`; the pick said on stderr)."""
@@ -516,9 +516,8 @@ def _detector_spec(
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
             spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
-            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes,
-                                                       sample() if sample is not None else enumerate(images),
-                                                       camera, options.max_lost, options.seed)
+            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes, sample(), camera,
+                                                       options.max_lost, options.seed)
             console.info(f"--target auto picked {choice.kind}: {reason}")
             return spec
     elif kind == "auto":
