@@ -105,8 +105,7 @@ def run_teach(options: TeachOptions, console: Console) -> None:
 def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[CommandProfile, tuple[float, float, float], str]:
     """The taught commands and start pose of ``--path`` (a preset name or a CSV file)."""
     if spec in PRESETS:
-        profile, start = preset_profile(spec, fps, duration)
-        return profile, start, spec
+        return (*preset_profile(spec, fps, duration), spec)
     candidate = Path(spec)
     if candidate.suffix.lower() == ".csv" or candidate.exists():
         profile = _cut_profile(load_command_profile(candidate), duration)
