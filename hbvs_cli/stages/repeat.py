@@ -314,11 +314,9 @@ class _Tally:
     """What the one-line summary needs, per step; its "final" errors are the report's (:func:`hbvs_cli.core.metrics.final_value`)."""
 
     def __init__(self) -> None:
-        self.steps = 0
         self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
     def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
-        self.steps += 1
         errors = record.output.errors if record.output is not None else None
         values = dict.fromkeys(self.series, math.nan) | {"t": record.t}
         if errors is not None:
@@ -333,7 +331,7 @@ class _Tally:
         t = self.series["t"]
         finals = {name: final_value(t, series) for name, series in self.series.items() if t and name != "t"}
         errors = {name: final for name, final in finals.items() if final is not None}
-        return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
+        return RepeatSummary(steps=len(t), output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
@@ -440,7 +438,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
                     log.step(record)
                     tally.add(record)
                     bar.advance()
-            if tally.steps == 0:
+            if not tally.series["t"]:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)
     return _finish(console, tally, controller, options.output, settings, None, None)
