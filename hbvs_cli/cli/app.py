@@ -52,12 +52,10 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-#: ``-q`` of repeat, and of teach.
-QUIET = inspect.Parameter(
-    "quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
-    annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or summary on stderr.")],
-)
-QUIET_MESSAGES = QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")])
+def _quiet(what: str) -> inspect.Parameter:
+    """A stage's ``-q``: no ``what`` on stderr."""
+    return inspect.Parameter("quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
+                             annotation=Annotated[bool, typer.Option("--quiet", "-q", help=f"No {what} on stderr.")])
 
 
 def _version(value: bool) -> None:
@@ -82,9 +80,7 @@ INPUT_OPTIONS = ("input", "runs", "fit")
 
 
 def _stdin_is_an_empty_pipe() -> bool:
-    """True when stdin is a pipe closed before its first byte (read without consuming it):
-    what a stage sees when the one before it in a pipeline failed. Waits, as reading would,
-    until the writer writes or closes."""
+    """True when stdin is a pipe closed before its first byte (peeked at): the stage before this one failed."""
     try:
         # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
         if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
@@ -111,22 +107,21 @@ def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
 
 #: Each stage's command: name, help panel, its declared options, its stage module's options class, extra options, help.
 STAGE_COMMANDS = (
-    ("teach", "Pipeline", TeachFields, "TeachOptions", (QUIET_MESSAGES,),
+    ("teach", "Pipeline", TeachFields, "TeachOptions", (_quiet("progress or messages"),),
      "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
-    ("fit", "Pipeline", FitOptions, "FitOptions", (QUIET,),
+    ("fit", "Pipeline", FitOptions, "FitOptions", (_quiet("progress or summary"),),
      "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
-    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (QUIET,),
+    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (_quiet("progress or summary"),),
      "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
-    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (QUIET_MESSAGES,),
+    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (_quiet("progress or messages"),),
      "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
     ("report", "Pipeline", ReportOptions, "ReportOptions", (),
      "How well did the repeat follow the taught path, and did it converge?"),
-    ("export", "Pipeline", ExportOptions, "ExportOptions",
-     (QUIET.replace(annotation=Annotated[bool, typer.Option("--quiet", "-q", help="No summary on stderr.")]),),
+    ("export", "Pipeline", ExportOptions, "ExportOptions", (_quiet("summary"),),
      "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
     ("info", "Files", InfoOptions, "InfoOptions", (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
-    ("sweep", "Studies", SweepOptions, "SweepOptions", (QUIET_MESSAGES,),
+    ("sweep", "Studies", SweepOptions, "SweepOptions", (_quiet("progress or messages"),),
      "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
      f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
@@ -166,10 +161,8 @@ _STOP_SIGNALS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "ter
 _swallowed = False
 
 
-#: How long a process that spoke DDS may take to end (s): after a stop signal (three times this, for
-#: the command's own cleanup), and again once its command has returned. Past it, SIGALRM ends the
-#: process (exit status 142 in a shell). It is a backstop: such a process skips the interpreter's
-#: teardown (:func:`_end_without_dds_teardown`).
+#: How long a process that spoke DDS may take to end (s) once its command returned (three times this after a stop
+#: signal); past it, SIGALRM ends it (exit status 142). A backstop: :func:`_end_without_dds_teardown`.
 DDS_EXIT_GRACE_S = 10.0
 
 
@@ -191,11 +184,9 @@ def _bound_dds_exit(grace_s: float) -> None:
 
 
 def _end_without_dds_teardown(code: int) -> None:
-    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``: the interpreter's teardown
-    deletes the DDS domain, and Cyclone DDS 11 can wait in that without end (gdb on a hung stand-in
-    robot: ddsi_stop waiting for the built-in delivery queue; in CI it outlived two Ctrl-C's, and later
-    a test by ten seconds). The command has returned: its files are closed and its last zero command
-    acknowledged (``repeat --live`` waits for that); nothing of hbvs's is left for the teardown to do."""
+    """End a process of hbvs's that loaded Cyclone DDS now, with ``code``: the interpreter's teardown deletes the DDS
+    domain, where Cyclone DDS 11 can wait without end (ddsi_stop waiting for its delivery queue). The command has
+    returned, its files closed and its last zero acknowledged: nothing is left for the teardown to do."""
     if not _spoke_dds():
         return
     _bound_dds_exit(DDS_EXIT_GRACE_S)  # a flush into a pipe nobody reads
@@ -247,21 +238,18 @@ def _silence_stdout() -> None:
 _stdout_at_start: tuple[int, int] | None = None
 
 
-def _stdout_identity() -> tuple[int, int] | None:
+def _identity(file: int | str) -> tuple[int, int] | None:
+    """The device and inode of a descriptor or path (None if it cannot be looked at)."""
     try:
-        status = os.fstat(1)
+        status = os.stat(file)
     except OSError:
         return None
     return status.st_dev, status.st_ino
 
 
 def _stdout_became_devnull() -> bool:
-    try:
-        devnull = os.stat(os.devnull)
-    except OSError:
-        return False
-    now = _stdout_identity()
-    return now == (devnull.st_dev, devnull.st_ino) and now != _stdout_at_start
+    now = _identity(1)
+    return now is not None and now == _identity(os.devnull) and now != _stdout_at_start
 
 
 def _say(line: str) -> None:
@@ -272,9 +260,7 @@ def _say(line: str) -> None:
 
 
 def _pipe_closed() -> int:
-    """The reader of stdout went away (``| head``): exit 141 as a process killed by SIGPIPE
-    would, without a word (it is not an error of this command, and in a pipeline whose later
-    stage failed, that stage's line is the one that matters)."""
+    """The reader of stdout went away (``| head``): exit 141 without a word, as a process killed by SIGPIPE would."""
     _silence_stdout()
     return 141
 
@@ -310,12 +296,8 @@ def _run(args: list[str], debug: bool) -> int:
             traceback.print_exc()
         if exc.exit_code == 141:
             return _pipe_closed()
-        if isinstance(exc, UpstreamFailedError):
-            # The stage before said why; a second line would only repeat that it failed.
-            if debug:
-                _say(f"hbvs: error: {exc}")
-            return exc.exit_code
-        _say(f"hbvs: error: {exc}")
+        if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
+            _say(f"hbvs: error: {exc}")
         return exit_code_of(exc)
     except typer.Abort:
         _say("hbvs: interrupted")
@@ -350,8 +332,7 @@ def _run(args: list[str], debug: bool) -> int:
         if exc.errno == errno.EPIPE:
             return _pipe_closed()
         if exc.errno in _WRITE_ERRNOS:
-            where = exc.filename or "the output"
-            _say(f"hbvs: error: {where}: cannot write ({exc.strerror})")
+            _say(f"hbvs: error: {exc.filename or 'the output'}: cannot write ({exc.strerror})")
             return 6
         _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
         return 70
@@ -404,17 +385,16 @@ def _prepare_stdio(debug: bool) -> None:
     global _stdout_at_start
     stdin_closed = sys.stdin is None or stdio_closed(0)
     guard_stdio()
-    _stdout_at_start = _stdout_identity()
+    _stdout_at_start = _identity(1)
     if stdin_closed:
         sys.stdin = _ClosedStdin()  # type: ignore[assignment]
     if sys.stdout is None or stdio_closed(1):
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
     if sys.stderr is None or stdio_closed(2):
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
-    if debug:
-        return
-    warnings.simplefilter("ignore")
-    capture()
+    if not debug:
+        warnings.simplefilter("ignore")
+        capture()
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,6 +1,5 @@
-"""The options of the commands, each declared once as a field of its stage's options dataclass (:mod:`.option`):
-name, type, default, help, bounds, choices, config key. Precedence: built-in default < ``--config`` file < command
-line. Kept light: ``hbvs --help`` imports it."""
+"""The options of the commands, each declared once as a field of its stage's options dataclass (:mod:`.option`).
+Precedence: built-in default < ``--config`` file < command line. Kept light: ``hbvs --help`` imports it."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""``--config FILE.toml``: controller gains, actuator limits and run settings (tables and keys:
-:data:`SCHEMA`). The defaults are declared in :mod:`hbvs_cli.settings.commands`; ``samples/gains.toml``
-lists them. Options given on the command line override the file."""
+"""``--config FILE.toml``: controller gains, actuator limits and run settings (tables and keys: :data:`SCHEMA`;
+defaults: :mod:`hbvs_cli.settings.commands`, listed in ``samples/gains.toml``). Command-line options win."""
 
 from __future__ import annotations
 

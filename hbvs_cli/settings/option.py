@@ -1,6 +1,5 @@
-"""An option declared once, as a field of a stage's options dataclass (:func:`option`): name and type the
-field's, help, default, bounds, choices and config key its metadata; the typer signature, the ``--config``
-keys and the sweep's parameters come from it. Values are checked as the options are made (:class:`Options`)."""
+"""An option declared once, as a field of a stage's options dataclass (:func:`option`); the typer signature, the
+``--config`` keys and the sweep's parameters come from it. Values are checked as the options are made (:class:`Options`)."""
 
 from __future__ import annotations
 
@@ -17,10 +16,9 @@ _DETAILS = "hbvs_option"  # the key of a field's metadata that holds its Setting
 
 @dataclass(frozen=True)
 class Setting:
-    """One option of a stage: ``default`` what the options hold when it is not given (None: "not given");
-    ``fallback`` the value used when neither the option nor the ``config`` key of a ``--config`` file gives
-    one; ``shown`` the default in ``--help``'s words; ``bounds`` the ``min`` and ``max`` the command line checks;
-    ``choices`` the words a text option takes (a function for a registry that may grow)."""
+    """One option of a stage: ``default`` what the options hold when it is not given (None: "not given"); ``fallback``
+    the value when neither the option nor the ``config`` key of a ``--config`` file gives one; ``shown`` the default in
+    ``--help``'s words; ``bounds`` ``min`` and ``max``; ``choices`` the words a text option takes (or a function)."""
 
     name: str
     type: type
@@ -57,8 +55,7 @@ class Setting:
         return self.choices() if callable(self.choices) else self.choices
 
     def violation(self, value: Any, label: str | None = None) -> str | None:
-        """Why ``value`` is not :meth:`allowed` or is outside :attr:`bounds`, in the command line's words (``label``:
-        the option's name in them), or None. A list, a flag or None is not checked."""
+        """Why ``value`` breaks :meth:`allowed` or :attr:`bounds`, in the command line's words (``label``: its name), or None."""
         option = label or self.option_names[-1]
         if isinstance(value, str) and self.allowed() and value not in self.allowed():
             return f"{option} must be one of {', '.join(self.allowed())}, got {value!r}"
@@ -85,8 +82,7 @@ def shown(value: Any) -> str:
 
 def option(help: str, default: Any = None, *, argument: bool = False, required: bool = False, repeatable: bool = False,
            **details: Any) -> Any:
-    """A field of an options dataclass declared as an option (the keywords of :class:`Setting`): an argument or a
-    required option has no default, a repeatable one an empty list."""
+    """A field of an options dataclass declared as an option (the keywords of :class:`Setting`)."""
     metadata = {_DETAILS: dict(help=help, default=default, argument=argument, required=required, repeatable=repeatable,
                                **details)}
     if repeatable:
@@ -109,8 +105,7 @@ def settings_of(cls: type) -> tuple[Setting, ...]:
 
 
 class Options:
-    """The base of the options dataclasses: values checked once against each option's choices and bounds, as the
-    options are made (command line, sweep, a stage calling another); :class:`~hbvs_cli.errors.UsageError` if not."""
+    """The base of the options dataclasses: values checked against choices and bounds as they are made (UsageError)."""
 
     def __post_init__(self) -> None:
         for setting in settings_of(type(self)):

@@ -1,14 +1,6 @@
-"""``--target auto`` judged on the whole drive (docs/targets.md).
-
-The first frames say which kinds of target a recording may show
-(:func:`~hbvs_cli.perception.autodetect.target_candidates`). Each candidate is then
-followed over at most :data:`FOLLOWED_FRAMES` frames strided evenly over the whole
-recording by the detector the fit would use, its own tracker from frame to frame: one
-missing from more than ``--max-lost`` of them is not chosen, and the others are compared by
-the precision a short joint estimate of n* on :data:`JUDGE_FRAMES` of them gives (the fit's
-own :func:`~hbvs_cli.core.desired.fit_desired_trajectory` and its uncertainty: the RMS
-sigma of theta_d over those frames), not by their number of points.
-"""
+"""``--target auto`` judged on the whole drive (docs/targets.md): each kind of target the first frames show is
+followed over frames strided over the recording; one missing from more than ``--max-lost`` of them is not chosen,
+the others are compared by the RMS sigma of theta_d of a short joint fit, not by their number of points."""
 
 from __future__ import annotations
 
@@ -28,25 +20,21 @@ from ..perception.target_kinds import TARGET_KINDS, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
 from .frame_decoding import decode_frame
 
-#: Frames each candidate is followed on at most, evenly strided over the whole recording
-#: (every frame of a short one): each kind's own tracker from frame to frame, as the fit
-#: runs it, so that dots and chessboards keep their points' names.
+#: Frames each candidate is followed on at most, evenly strided over the whole recording, by its own tracker from
+#: frame to frame as the fit runs it (dots and chessboards keep their points' names).
 FOLLOWED_FRAMES = 120
 #: Of those, the frames the short joint estimate uses (evenly spread, the first as F*).
 JUDGE_FRAMES = 24
 
 
 class NoTargetThroughout(InputError):
-    """No target the first frames show is usable over the whole drive: it may be a route, a
-    target followed after another (:mod:`.fit_route`)."""
+    """No target the first frames show is usable over the whole drive: a route, maybe (:mod:`.fit_route`)."""
 
 
 @dataclass(frozen=True)
 class Judged:
-    """One candidate followed over the drive: its ``spec``, the frames it was ``seen`` in of
-    ``frames``, and the RMS sigma of theta_d (deg) of the short joint estimate on
-    :data:`JUDGE_FRAMES` of them, or why it is not usable (``rejected``, words; then
-    ``theta_sigma_deg`` is NaN)."""
+    """One candidate followed over the drive: the frames it was ``seen`` in of ``frames``, and the RMS sigma of
+    theta_d (deg) of its short joint estimate, or why it is not usable (``rejected``; then the sigma is NaN)."""
 
     choice: TargetChoice
     spec: DetectorSpec
@@ -58,10 +46,8 @@ class Judged:
 
 def followed_frames(source: str, frame_count: int | None, colour: bool, first: Sequence[tuple[float, np.ndarray]]
                     ) -> Iterator[tuple[float, np.ndarray]]:
-    """``(t, image)`` of at most :data:`FOLLOWED_FRAMES` frames evenly strided over the
-    recording ``source`` (read a second time; decoded in colour when ``colour``), the first
-    included; ``first`` (its first frames) when the recording cannot be read twice (stdin)
-    or does not say how many frames it holds."""
+    """``(t, image)`` of at most :data:`FOLLOWED_FRAMES` frames evenly strided over the recording ``source`` (read
+    again), or its ``first`` frames when it cannot be read twice (stdin) or does not say how many frames it holds."""
     if source == "-" or frame_count is None or frame_count <= len(first):
         yield from first
         return
@@ -74,9 +60,7 @@ def followed_frames(source: str, frame_count: int | None, colour: bool, first: S
 
 def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec], shapes_of: Callable[[DetectorSpec], list[KnownShape]],
           frames: Iterable[tuple[float, np.ndarray]], camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> list[Judged]:
-    """Every candidate followed by its own tracker over ``frames`` (``(t, image)``, read once)
-    and, when it is found in all but ``max_lost`` of them, its short joint estimate on
-    :data:`JUDGE_FRAMES` of them with the first as F*: the candidates in the order given."""
+    """Every candidate followed by its own tracker over ``frames`` (``(t, image)``, read once) and judged, in order."""
     specs = [spec_of(choice) for choice in candidates.found]
     detectors: list[TrackedDetector | None] = [TrackedDetector(spec, camera, seed=seed) for spec in specs]
     failures = [""] * len(specs)
@@ -101,10 +85,8 @@ def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec
 
 
 def _markers_whole_in_the_first_frame(spec: DetectorSpec, pixels: np.ndarray) -> tuple[DetectorSpec, np.ndarray]:
-    """Several markers of which some are not whole in the first frame (F*, which must show
-    the whole target): those that are, and their pixels (F, 4M, 2); else as given. Markers
-    decoded in most of the first frames may miss the very first (a 3x2 board under a barrel
-    lens, 3 seeds of 10: the fit failed)."""
+    """Of several markers, those whole in the first frame (F*, which must show the whole target) and their pixels
+    (F, 4M, 2); else as given (a 3x2 board under a barrel lens missed the very first in 3 seeds of 10)."""
     if not spec.marker_ids or len(spec.marker_ids) < 2:  # one marker, or a kind without markers
         return spec, pixels
     whole = np.all(np.isfinite(pixels[0].reshape(-1, 4, 2)), axis=(1, 2))
@@ -136,8 +118,7 @@ def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels:
 
 
 def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) -> tuple[Judged, str]:
-    """The usable candidate of the lowest sigma, and the one line that says why (the measured
-    figures of every candidate); InputError when none is usable."""
+    """The usable candidate of the lowest sigma and the line that says why; InputError when none is usable."""
     usable = sorted((j for j in judged if not j.rejected), key=lambda j: j.theta_sigma_deg)
     frames = judged[0].frames if judged else 0
 

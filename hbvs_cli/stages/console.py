@@ -11,8 +11,7 @@ from ..stop_signals import raise_if_stopped
 
 
 def print_document(document: Any, json_output: bool, as_text: Callable[[Any, TextIO], None]) -> None:
-    """``document`` on stdout, the data channel: JSON (two-space indents, no NaN) for ``--json``, else
-    as ``as_text(document, stdout)`` writes it; flushed."""
+    """``document`` on stdout, flushed: JSON (two-space indents, no NaN) for ``--json``, else as ``as_text`` writes it."""
     if json_output:
         sys.stdout.write(json.dumps(document, indent=2, allow_nan=False) + "\n")
     else:
@@ -47,15 +46,13 @@ class Console:
         self.rich.print(f"hbvs: warning: {message}", markup=False, style="yellow")
 
     def print(self, renderable: Any = "") -> None:
-        """A rich renderable (a table, a panel) on stderr, unless quiet: wrapped to the width,
-        title included (messages are soft-wrapped, one line each, by the terminal)."""
+        """A rich renderable (a table) on stderr unless quiet, wrapped to the width (messages are soft-wrapped)."""
         if not self.quiet:
             self.rich.print(renderable, soft_wrap=False)
 
     @contextmanager
     def status_line(self) -> Iterator[Any]:
-        """A line rewritten in place on a terminal, for a loop without a known length (``repeat --live``):
-        yields a function taking the line's text, or None when not interactive (a pipe, ``-q``)."""
+        """A line rewritten in place on a terminal (``repeat --live``): a function of its text, or None when not interactive."""
         if not self.interactive:
             yield None
             return
@@ -82,9 +79,7 @@ class Console:
 
 
 class ProgressTask:
-    """Handle on one progress bar (nothing is drawn when there is none). Each step of a long
-    loop advances it, so :meth:`advance` also raises a stop signal that native code swallowed
-    (:func:`~hbvs_cli.stop_signals.raise_if_stopped`)."""
+    """Handle on one progress bar (or none); :meth:`advance` also raises a stop signal that native code swallowed."""
 
     def __init__(self, progress: Any, task: Any) -> None:
         self._progress = progress

@@ -1,11 +1,6 @@
-"""``hbvs fit``: from a teach recording to the desired trajectory of Remark 1.
-
-Per frame: detect the target points (with a consistent identity), then, once every frame is
-in: the reference points m*_i of F*, the Euclidean homographies H_d (16)-(18), the plane
-normal n* common to the sequence, (theta_d, x_hd) by the known-normal solver, cubic
-smoothing splines of them (Remark 1), d* from the taught commands (25) or the target's size,
-and condition (35) along the path. Reads and writes streams: constant memory.
-"""
+"""``hbvs fit``: from a teach recording to the desired trajectory of Remark 1: the target's points per frame,
+then H_d (16)-(18), one plane normal n*, (theta_d, x_hd) and their smoothing splines, d* (25) and condition (35).
+Reads and writes streams: constant memory."""
 
 from __future__ import annotations
 
@@ -72,8 +67,7 @@ def parse_smoothing(text: str) -> float | None:
 
 
 def parse_reference(spec: str) -> int | None:
-    """Frame index of ``--reference first|last|INDEX`` ("05" is frame 5), None for the last; its range is
-    checked once the frames are counted."""
+    """Frame index of ``--reference first|last|INDEX`` ("05" is 5; None: the last), its range checked later."""
     key = spec.strip().lower()
     if key == "last":
         return None
@@ -84,42 +78,28 @@ def parse_reference(spec: str) -> int | None:
 
 
 class _FrameLog:
-    """Per-frame results kept in memory: a few numbers per frame, in growing numpy buffers
-    (Python objects per frame would cost kilobytes over a long recording), never images."""
+    """Per-frame results kept in memory: a few numbers per frame in a growing numpy buffer (Python objects per frame
+    would cost kilobytes over a long recording), never images."""
 
     def __init__(self, n_points: int) -> None:
-        self._width = 1 + 2 * n_points + 3 + 2  # t, pixels, pose, command
-        self._rows = np.empty((1024, self._width))
-        self._log_times = np.empty(1024, dtype=np.int64)  # exact integers, apart
+        self._rows = np.empty(1024, dtype=[("t", float), ("log_time", np.int64), ("pixels", float, (n_points, 2)),
+                                           ("pose", float, 3), ("command", float, 2)])  # log times: exact integers
         self.count = 0
-        self.n_points = n_points
 
     def add(self, t: float, log_time_ns: int, pixels: np.ndarray, pose: Any, command: Any) -> None:
-        if self.count == self._rows.shape[0]:
+        if self.count == len(self._rows):
             self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
-            self._log_times = np.concatenate([self._log_times, np.empty_like(self._log_times)])
-        row = self._rows[self.count]
-        row[0] = t
-        self._log_times[self.count] = log_time_ns
-        row[1 : 1 + 2 * self.n_points] = np.ravel(pixels)
-        row[-5:-2] = pose if pose is not None else np.nan
-        row[-2:] = command if command is not None else np.nan
+        self._rows[self.count] = (t, log_time_ns, pixels, np.nan if pose is None else pose,
+                                  np.nan if command is None else command)
         self.count += 1
 
     def arrays(self) -> dict[str, np.ndarray]:
-        rows = self._rows[: self.count]
-        return {
-            "t": rows[:, 0].copy(),
-            "log_time": self._log_times[: self.count].copy(),
-            "pixels": rows[:, 1 : 1 + 2 * self.n_points].reshape(self.count, self.n_points, 2).copy(),
-            "pose": rows[:, -5:-2].copy(),
-            "command": rows[:, -2:].copy(),
-        }
+        """Each column of the frames so far: ``t``, ``log_time``, ``pixels`` (F, N, 2), ``pose`` (F, 3), ``command`` (F, 2)."""
+        return {name: self._rows[name][: self.count].copy() for name in self._rows.dtype.names}
 
 
 def recorded_frame_count(source: str) -> int | None:
-    """How many images a teach file holds, from its MCAP summary (the progress bar's total);
-    None for stdin or a file without a usable summary. Never fails the fit."""
+    """How many images a teach file's MCAP summary counts (None for stdin or no usable summary); never fails."""
     from ..io.mcap import read_summary
     from ..io.teach_file import IMAGE_TOPIC
 
@@ -134,9 +114,8 @@ def recorded_frame_count(source: str) -> int | None:
 
 
 def run_fit(options: FitOptions, console: Console) -> FitSummary:
-    """Fit the desired trajectory of a teach recording; write the fit file. Footage on which
-    ``--target auto`` finds no one target over the whole drive is fitted again as a route
-    (:mod:`.fit_route`), its targets found in the images; if that fails too, the first failure is the error."""
+    """Fit a teach recording into the fit file. Footage on which ``--target auto`` finds no one target
+    throughout is fitted again as a route (:mod:`.fit_route`); if that fails too, the first failure is the error."""
     with _one_thread_each():
         try:
             return _run_fit(options, console)
@@ -152,9 +131,8 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 
 @contextmanager
 def _one_thread_each() -> Iterator[None]:
-    """OpenCV's and BLAS's thread pools off while fitting, restored after: the frame loop and
-    the decoding thread (:func:`~.frame_decoding.decoded_frames`) already keep two cores busy.
-    scipy's BLAS, loaded later with the solvers, is limited where they run (:func:`_fit`)."""
+    """OpenCV's and BLAS's thread pools off while fitting, restored after: the frame loop and the decoding
+    thread already keep two cores busy. scipy's BLAS, loaded later, is limited in :func:`_fit`."""
     import cv2
     from threadpoolctl import threadpool_limits
 
@@ -169,9 +147,8 @@ def _one_thread_each() -> Iterator[None]:
 
 
 def _reuse_freed_frames() -> None:
-    """glibc's malloc keeps the frame loop's freed frame-sized arrays for reuse (mallopt(3)),
-    instead of handing them back and page-faulting them in anew each frame. Both limits are
-    needed; without glibc nothing is done."""
+    """glibc's malloc keeps freed frame-sized arrays for reuse (mallopt(3)) instead of page-faulting them in
+    anew each frame. Both limits are needed; without glibc nothing is done."""
     import ctypes
 
     try:
@@ -189,7 +166,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     from ..io.messages import CAMERA_FRAME, annotations_message
     from ..io.teach_file import TeachReader
     from ..io.calibration import calibration_to_foxglove
-
     from ..io.output_target import refuse_overwriting_inputs
 
     smoothing = parse_smoothing(options.smoothing)
@@ -211,8 +187,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     with open_output(options.output) as writer:
         writer.metadata("hbvs", {"file_kind": "fit", "hbvs_version": __version__, "settings": recorded_settings(options), "input": reader.name})
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
-            # Colour until the target is known, then only for dots seen in colour (:mod:`.frame_decoding`
-            # says why); once the first frames came out gray, no detector will want colour.
+            # Colour until the target is known, then only for dots seen in colour; none once the first frames came out gray.
             gray_source = False
             frames = decoded_frames(
                 reader.frames(), reader.name,
@@ -234,13 +209,12 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                                              lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
                                                                                   None, console), options)
                     return FitSummary(output=options.output, model=models[0])
-                # The simulated world of a teach recording, checked (None for real footage).
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
                                  [(f.t, im) for f, _, im in first])
                 pick = partial(_detector_spec, options, world, [im for _, _, im in first], camera, frame.pose, console, sample)
                 if gray_source:  # what is decoded meanwhile is decoded as the detector will want it
-                    spec, rest = _picked_while_reading(partial(_with_solvers_loaded, pick), frames, READ_AHEAD_BYTES)
+                    spec, rest = _picked_while_reading(pick, frames, READ_AHEAD_BYTES)
                 else:
                     spec = pick()
                 detector = TrackedDetector(spec, camera, seed=options.seed)
@@ -261,8 +235,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                     reference_image = data
                 if options.copy_images:
                     write_compressed_image(writer, IMAGE_TOPIC, frame.log_time_ns, data, sniff_format(data) or "jpeg", CAMERA_FRAME)
-                # Same log time as the teach image: Foxglove overlays these on it when the
-                # teach and fit files are opened together.
+                # At the teach image's log time: Foxglove overlays these on it when both files are open.
                 writer.write(
                     ANNOTATIONS_TOPIC, topics[ANNOTATIONS_TOPIC], frame.log_time_ns,
                     annotations_message(frame.log_time_ns, pixels),
@@ -300,13 +273,11 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
 def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
                reference_index: int, spec: DetectorSpec, world_description: dict[str, Any] | None, name: str,
                layout: np.ndarray | None = None, image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
-    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model:
-    d* (25), the taught path, the suggested gains and the uncertainty beside the fit's splines."""
+    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model."""
     camera = reader.camera
     calibration = _calibration_uncertainty(reader, camera)
     result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration)
     spec = replace(spec, initial_pixels=result.initial_pixels)
-    taught_path = _taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
     if calibration[0] == "unstated" and result.uncertainty is not None:
         console.warn(f"the calibration states no standard deviations of its intrinsics, so n*'s band counts the image noise only: "
@@ -318,7 +289,6 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
         camera=camera,
         reference_index=reference_index,
         reference_t=float(arrays["t"][reference_index]),
-        # What the model keeps of the fit's results under the same names.
         **{name: getattr(result, name) for name in ("reference_pixels", "m_ref", "normal", "normal_margin", "trajectory", "residual_px")},
         dhat0=dhat0,
         dhat0_source=dhat0_source,
@@ -327,7 +297,7 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
         condition35=result.condition,
         detector=spec,
         world_description=world_description,
-        taught_path=taught_path,
+        taught_path=_taught_path(arrays, reference_index) if np.all(np.isfinite(arrays["pose"])) else None,
         render=_render_settings(reader),
         gains=_suggested_gains(result, camera),
         uncertainty=result.uncertainty.summary(calibration[0]) if result.uncertainty is not None else None,
@@ -353,9 +323,8 @@ READ_AHEAD_BYTES = 128 << 20
 
 def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any], budget: int
                           ) -> tuple[DetectorSpec, Iterator[Any]]:
-    """``pick()`` here, where a stop signal interrupts it, while a second thread takes frames
-    (up to ``budget`` bytes of images); then the frames taken and the rest, in order. An
-    error reading is raised at its turn, after the frames before it (and after the pick's)."""
+    """The fit's solvers loaded and ``pick()`` here, where a stop signal interrupts them, while a second thread takes
+    frames (up to ``budget`` bytes); then the frames taken and the rest, in order. An error reading is raised at its turn."""
     taken: list[Any] = []
     over = threading.Event()
 
@@ -368,6 +337,7 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
     with StopSafePool(max_workers=1, thread_name_prefix="hbvs-read-ahead") as pool:
         reading = pool.submit(take)
         try:
+            _load_solvers()  # its 0.3 s while frames are read ahead, not when nothing else runs
             spec = pick()
         finally:
             over.set()
@@ -380,13 +350,6 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
         raise failure
 
     return spec, in_turn()
-
-
-def _with_solvers_loaded(pick: Callable[[], DetectorSpec]) -> DetectorSpec:
-    """``pick()`` after :func:`_load_solvers` (0.3 s): while a second thread reads ahead, not
-    before the frames are read or after the frame loop, when nothing else runs."""
-    _load_solvers()
-    return pick()
 
 
 def _load_solvers() -> None:
@@ -409,8 +372,7 @@ def _read_known_layout(options: FitOptions) -> np.ndarray | None:
 
 def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: CameraIntrinsics, spec: DetectorSpec,
                     options: FitOptions) -> np.ndarray:
-    """--target-points in the detector's order, matched to F*'s points by their layout
-    (:func:`~hbvs_cli.core.known_points.match_layout`)."""
+    """--target-points in the detector's order, matched to F*'s points by their layout."""
     from ..core.camera import measured_pixels_to_normalized
     from ..core.known_points import match_layout
 
@@ -430,13 +392,9 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
 def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
          options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
          image_shift_px: float = 0.0, calibration: tuple[str, tuple[float, ...]] = ("exact", ())) -> DesiredFit:
-    """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on
-    stderr, and too little data said in the options' words. Markers are squares: each
-    marker's four corners (in OpenCV's order) are a known shape.
-
-    scipy is imported by the main thread (here, or while reading ahead: :func:`_with_solvers_loaded`),
-    never by a second thread: a stop signal inside an import can leave its lock held and the
-    threads deadlocked."""
+    """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on stderr, too little data
+    said in the options' words. scipy is imported by the main thread, never by a second one: a stop signal inside
+    an import can leave its lock held and the threads deadlocked."""
     from threadpoolctl import threadpool_limits
 
     shapes = _known_shapes(spec, layout)
@@ -454,10 +412,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
 
 
 def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics) -> tuple[str, tuple[float, ...]]:
-    """How well the intrinsics are known, for the fit's uncertainty: ``("exact", ())`` for a
-    simulated teach (rendered with this camera), ``("stated", sigma)`` from the calibration,
-    or ``("unstated", probe)``: :data:`~hbvs_cli.core.camera.UNSTATED_CALIBRATION_PROBE_PX` on
-    each of fx, fy, cx and cy, a what-if reported beside the band, not counted in it."""
+    """How well the intrinsics are known: ``("exact", ())`` for a simulated teach, ``("stated", sigma)``, or
+    ``("unstated", probe)``: a what-if error on fx, fy, cx and cy reported beside the band, not counted in it."""
     if reader.world_description is not None:
         return "exact", ()
     if camera.sigma:
@@ -470,16 +426,14 @@ KNOWN_GEOMETRY_ADVICE = "the target's known geometry (--target-size, or --target
 
 
 def layout_given_warn(warn: Callable[[str], None]) -> Callable[[str], None]:
-    """``warn`` for a fit given --target-points: its warnings no longer advise giving the
-    target's geometry (the layout is given; what is left to advise is the drive)."""
+    """``warn`` for a fit given --target-points: its warnings no longer advise giving the target's geometry."""
     def told(message: str) -> None:
         warn(message.replace(KNOWN_GEOMETRY_ADVICE, "").replace("what would pin it:", "the layout is given (--target-points); what would pin it more:"))
     return told
 
 
 def _known_shapes(spec: DetectorSpec, layout: np.ndarray | None = None) -> list[KnownShape]:
-    """The target's parts of known shape (its kind's: each marker's square, a board's grid), or
-    ``layout`` (--target-points: the whole target's, known)."""
+    """The target's parts of known shape (each marker's square, a board's grid), or ``layout`` (--target-points)."""
     return [(range(layout.shape[0]), layout)] if layout is not None else target_kind(spec.kind).shapes(spec)
 
 
@@ -498,9 +452,8 @@ def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) 
 
 
 def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> GainSuggestion:
-    """Gains from the median |x_hd1_dot| and the detector's noise on the taught images
-    (core/gains.py, docs/method.md "Choosing the gains"), with the heading tolerance that
-    the taught theta_d's uncertainty allows (the report's default where that is larger)."""
+    """Gains from the median |x_hd1_dot| and the detector's noise (docs/method.md "Choosing the gains"), with the
+    heading tolerance that theta_d's uncertainty allows (the report's default where that is larger)."""
     from ..core.gains import heading_tolerance, noise_from_residual, suggest_gains
     from ..report.build import DEFAULT_TOLERANCES
 
@@ -530,8 +483,7 @@ def _kind_options(options: FitOptions) -> list[str]:
 
 
 def _check_kind_options(options: FitOptions) -> None:
-    """The kind options: only for a kind that takes them (auto: for one kind that takes them all,
-    :func:`_detector_spec`); a known dictionary, an id in it, a board of at least 3x3 squares."""
+    """The kind options: only for a kind that takes them all; a known dictionary, an id in it, a board of 3x3 or more."""
     given = _kind_options(options)
     kinds = TARGET_KINDS.values() if options.target == "auto" else [target_kind(options.target)]
     if not any(set(given) <= kind.options for kind in kinds):
@@ -552,12 +504,10 @@ def _check_kind_options(options: FitOptions) -> None:
 
 def _detector_spec(
     options: FitOptions, world: World | None, images: list[np.ndarray], camera: CameraIntrinsics, pose: Any, console: Console,
-    sample: Callable[[], Iterator[tuple[float, np.ndarray]]] | None = None,
+    sample: Callable[[], Iterator[tuple[float, np.ndarray]]],
 ) -> DetectorSpec:
-    """What to detect: the recording's world says it for a simulated teach, else the images
-    (``--target auto`` finds the candidates in the first few, judges them on the frames
-    ``sample()`` spreads over the whole drive, :mod:`.auto_target`, and says on stderr what
-    it picked and why)."""
+    """What to detect: the world of a simulated teach says it, else the images (``--target auto``: candidates from the
+    first few, judged on the frames ``sample()`` spreads over the drive, :mod:`.auto_target`; the pick said on stderr)."""
     kind = options.target
     given = set(_kind_options(options))
     if kind == "auto" and world is None:
@@ -566,9 +516,8 @@ def _detector_spec(
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
             spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
-            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes,
-                                                       sample() if sample is not None else enumerate(images),
-                                                       camera, options.max_lost, options.seed)
+            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes, sample(), camera,
+                                                       options.max_lost, options.seed)
             console.info(f"--target auto picked {choice.kind}: {reason}")
             return spec
     elif kind == "auto":
@@ -580,9 +529,7 @@ def _detector_spec(
 
 def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
                   camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
-    """The detector of a target ``kind`` (its :attr:`~hbvs_cli.perception.target_kinds.TargetKind.spec`):
-    from what ``--target auto`` found of it (``details``), the options, the simulated ``world``
-    (None for real footage) or the first ``images``."""
+    """The detector of a target ``kind`` from ``details`` (what ``--target auto`` found), the options, ``world`` or ``images``."""
     from ..perception.autodetect import find_target
 
     squares = parse_board(options.board) if options.board is not None else None
@@ -612,17 +559,14 @@ def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:
 
 def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec, options: FitOptions, console: Console,
            layout: np.ndarray | None = None) -> tuple[DepthEstimates, float, str]:
-    """d*: from the taught commands (25), or from --target-size (between the two points the
-    kind's ``size_pair`` names) or --target-points (``layout``, in the target's order: its two
-    points farthest apart); dhat(0) and its source (the estimate of
-    d* is a candidate dhat(0); d* itself is the true depth, known only in simulation)."""
+    """d* from the taught commands (25), --target-size (between the kind's ``size_pair``) or --target-points
+    (``layout``: its two points farthest apart); dhat(0), the estimate of d*, and its source."""
     from_commands: DepthEstimate | None = None
     chosen: DepthEstimate | None = None
-    t = arrays["t"][result.span]
     commands = arrays["command"][result.span]
     if commands.size and np.all(np.isfinite(commands)):
         v, w = commands.T
-        desired = result.trajectory.evaluate(t)
+        desired = result.trajectory.evaluate(arrays["t"][result.span])
         try:
             from_commands = depth_from_taught_commands(v, w, desired.x_hd2, desired.x_hd1_dot)
             chosen = from_commands
@@ -648,8 +592,7 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec
             "the adaptive law (31) will learn d*, but give --dhat0 to repeat if you know better"
         )
         return estimates, FALLBACK_DHAT0, "guess"
-    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source
-    # (a value that is no depth at all is left to the model's own check: "repeat could not use").
+    # A finite d* beyond repeat's --dhat0 bounds is refused here, in words about its source (no depth at all: the model's).
     if math.isfinite(chosen.dhat0) and chosen.dhat0 > 0 and not MIN_DEPTH <= chosen.dhat0 <= MAX_DEPTH:
         given, hint = (("the taught commands (25)", "are they in m/s and rad/s?") if chosen.source == "commands" else
                        ("--target-size" if options.target_size is not None else "--target-points", "is the size in metres?"))
@@ -660,6 +603,9 @@ def _depth(result: DesiredFit, arrays: dict[str, np.ndarray], spec: DetectorSpec
 
 def _print_summary(console: Console, model: FitModel, result: DesiredFit, options: FitOptions) -> None:
     from rich.table import Table
+
+    from ..core.gains import dhat0_range_text
+    from ..report.build import DEFAULT_TOLERANCES
 
     frames = model.frames
     condition = result.condition
@@ -699,16 +645,12 @@ def _print_summary(console: Console, model: FitModel, result: DesiredFit, option
     if source == "target-size" and options.target_size is None:
         source = "--target-points"   # d* from the layout's two points farthest apart
     table.add_row("suggested dhat(0)", f"{model.dhat0:.3f} m ({source})")
-    from ..core.gains import dhat0_range_text
-
     g = model.gains
     assert g is not None  # fit always suggests gains
     table.add_row(
         "suggested k_v, k_w, k_2, gamma",
         f"{g.gains.k_v:g}, {g.gains.k_w:g}, {g.gains.k_2:.0f}, {g.gains.gamma:.0f} (for {g.design_noise_px:.2f} px, {dhat0_range_text()})",
     )
-    from ..report.build import DEFAULT_TOLERANCES
-
     if g.heading_tolerance_deg > DEFAULT_TOLERANCES["heading_deg"]:
         table.add_row("suggested heading tolerance",
                       f"{g.heading_tolerance_deg:.2f} deg (95 % of theta_d's uncertainty: report --tolerance heading_deg={g.heading_tolerance_deg:.2f})")

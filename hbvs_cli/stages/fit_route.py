@@ -1,14 +1,6 @@
-"""``hbvs fit`` on a route teach (issue 47): one detector per target, the drive split into
-segments (:func:`~hbvs_cli.core.route.split_route`), each segment fitted by the single-target
-fit in its target's own world (handed in by :mod:`.fit`) and each
-transition estimated from both segments' splines over their overlap; written as a route file
-(:mod:`hbvs_cli.io.route_file`).
-
-A simulated teach (its frames carry their true poses) starts a target's detector on the first
-frame whose pose sees it wholly and large (its points there are the simulated ``seen_pixels``
-a single-target fit also starts from). Without poses (:class:`ImageFollower`; footage that no
-one target covers, :func:`.fit.run_fit`) the targets are found in the images alone; a segment
-ends where its detector loses its target."""
+"""``hbvs fit`` on a route teach (issue 47): one detector per target, the drive split into segments, each fitted
+by the single-target fit in its target's own world, each transition estimated from both segments' splines over
+their overlap. Without true poses (:class:`ImageFollower`) the targets are found in the images alone."""
 
 from __future__ import annotations
 
@@ -40,12 +32,9 @@ def is_route(world_description: Any) -> bool:
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
                     checked_frame: Callable[[Any, np.ndarray], Any], segment_fit: Callable[..., tuple[Any, FitModel]],
                     spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
-    """Fit the route of ``reader`` (its decoded ``frames``, each passed to ``checked_frame``)
-    and write its route file into ``writer`` (metadata and calibration written already); the fit's
-    summary on stderr. ``segment_fit(arrays, reference_index, spec, world_description, name)``: the
-    single-target fit of one segment's frames and its model (:func:`.fit._drive_fit`);
-    ``spec_of(choice, images)``: the detector of a kind ``--target auto`` found in ``images``.
-    The models, in order."""
+    """Fit the route of ``reader`` (its decoded ``frames``) into ``writer`` (metadata and calibration written already)
+    and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
+    segment's fit and model (:func:`.fit._drive_fit`); ``spec_of(choice, images)``: the detector of a found kind."""
     from ..io.route_file import write_route
 
     follower: SimulatedFollower | ImageFollower | None = None
@@ -102,8 +91,7 @@ def _route(reader: Any, camera: Any) -> RouteWorld:
 
 
 class SimulatedFollower:
-    """Each target of a simulated ``route`` followed by its detector: made on the first frame
-    whose true pose sees it wholly and at least :data:`MIN_SPAN_PX` across, run while the pose has it in view."""
+    """Each target of a simulated ``route`` followed by its detector from the first frame that sees it wholly and large."""
 
     def __init__(self, route: RouteWorld, seed: int, console: Console) -> None:
         self.route, self.seed, self.console = route, seed, console
@@ -144,8 +132,7 @@ def seen_spans(pixels: np.ndarray) -> np.ndarray:
 
 
 def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
-    """The largest residual of the least-squares affine map from ``layout`` (N, 2) to
-    ``points`` (N, 2), over the span of ``points`` (0 for 3 points: any three fit)."""
+    """The largest residual of the affine map from ``layout`` to ``points`` (N, 2 each) over their span (0 for 3 points)."""
     design = np.column_stack([layout, np.ones(len(layout))])
     mapping, *_ = np.linalg.lstsq(design, points, rcond=None)
     return float(np.max(np.linalg.norm(design @ mapping - points, axis=1)) / max(view_spans(points[None])[0], 1e-9))
@@ -160,11 +147,8 @@ PAINT_MARGIN = (0.3, 12.0)
 
 
 class ImageFollower:
-    """The targets of a drive found and followed from its images alone (no true pose): every
-    :data:`SEARCH_FRAMES` frames, each part of the last of them that stands out from the
-    background and holds no followed target is searched alone (:meth:`_search`); a target whose
-    detector finds at least :data:`MIN_PARTIAL_POINTS` of its points in most of them is followed
-    from the first of them on. Every detector then runs on every frame, so that a target lost
+    """The targets of a drive found and followed from its images alone (no true pose): every :data:`SEARCH_FRAMES`
+    frames new targets are looked for (:meth:`_search`). Every detector runs on every frame, so that a target lost
     and seen again keeps its name."""
 
     def __init__(self, camera: Any, spec_of: Callable[[Any, list[np.ndarray]], Any], seed: int) -> None:
@@ -185,10 +169,8 @@ class ImageFollower:
             self._search()
 
     def _retemplated(self, detector: TrackedDetector, image: np.ndarray, points: np.ndarray) -> TrackedDetector:
-        """``detector``, or for a photograph seen :data:`RETEMPLATE_GROWTH` times as large as in its
-        template, one whose template is ``image`` and whose points are ``points`` (the same
-        points of the plane, as well as they were found): a template far smaller than the view
-        aligns poorly, and a target is nearer and larger as its segment goes on."""
+        """``detector``, or for a photograph seen :data:`RETEMPLATE_GROWTH` times as large as in its template, one whose
+        template is ``image`` at ``points``: a template far smaller than the view aligns poorly."""
         template = detector.spec.template_pixels
         if (not detector.kind.uses_template or template is None or not np.all(np.isfinite(points))
                 or view_spans(points[None])[0] < RETEMPLATE_GROWTH * view_spans(np.asarray(template)[None])[0]):
@@ -197,11 +179,9 @@ class ImageFollower:
         return TrackedDetector(spec, self.camera, seed=self.seed, template_image=image)
 
     def _trusted(self, detector: TrackedDetector, points: np.ndarray, before: np.ndarray | None, found: dict[int, np.ndarray]) -> np.ndarray:
-        """``points`` as found, or NaN when they cannot be the target's: a point within
-        :data:`EDGE_MARGIN_PX` of the image's edge (a target leaving the view is lost there,
-        its detector made to find it afresh: a track followed out of the view drifts), or,
-        found again after a loss, points whose layout no affine map of their last one
-        explains within :data:`REFOUND_LAYOUT_TOLERANCE` (blobs of another target, not its dots)."""
+        """``points`` as found, or NaN when they cannot be the target's: a point within :data:`EDGE_MARGIN_PX` of the
+        edge (the track is lost there: one followed out of the view drifts), or, found again after a loss, points
+        whose layout no affine map of their last one explains (blobs of another target, not its dots)."""
         lost = np.full_like(points, np.nan)
         seen = np.all(np.isfinite(points), axis=1)
         if np.count_nonzero(seen) < MIN_PARTIAL_POINTS:
@@ -217,12 +197,9 @@ class ImageFollower:
         return points if last is None or affine_misfit(last[both], points[both]) <= REFOUND_LAYOUT_TOLERANCE else lost
 
     def _search(self) -> None:
-        """Follow the new targets the recent frames show in most of them, from the first of them on:
-        each part of them that stands out from its background (:func:`standing_out`, :func:`parts`)
-        and holds no target followed so far (those painted out), searched alone, as markers hide dots and a
-        photograph dots (:func:`~hbvs_cli.perception.autodetect.target_candidates`); a photograph only where no other
-        kind is seen (a poster's own print), each once it is half :data:`MIN_SPAN_PX` across (smaller, a
-        board's markers are not all decoded)."""
+        """Follow the new targets the recent frames show in most of them: each part that stands out from its background
+        and holds no followed target is searched alone (markers hide dots); a photograph only where no other kind is
+        seen (a poster's own print), each once half :data:`MIN_SPAN_PX` across (smaller, a board's markers are not decoded)."""
         painted = [self._painted_out(index, image) for index, image in self.recent]
         centres = [np.nanmean(found[index], axis=0) for found in self.found for index, _ in self.recent
                    if index in found and np.isfinite(found[index]).any()]
@@ -241,8 +218,7 @@ class ImageFollower:
                 if choice.points is not None and view_spans(choice.points[None])[0] >= MIN_SPAN_PX / 2)
 
     def _followed(self, choice: Any, alone: list[np.ndarray]) -> bool:
-        """Whether ``choice``'s detector, started on the first of the recent frames ``alone`` (the
-        part of each that it was found in), finds it in most of them (then it is followed)."""
+        """Whether ``choice``'s detector, started on the first recent frame ``alone``, finds it in most (then followed)."""
         try:
             detector = TrackedDetector(self.spec_of(choice, alone), self.camera, seed=self.seed, template_image=alone[0])
             detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
@@ -257,8 +233,7 @@ class ImageFollower:
         return True
 
     def _painted_out(self, index: int, image: np.ndarray) -> np.ndarray:
-        """``image`` (recent frame ``index``) with every followed target's convex hull (where it was
-        found in the nearest recent frame), grown by :data:`PAINT_MARGIN`, painted its median level."""
+        """``image`` (recent frame ``index``) with every followed target's hull, grown by :data:`PAINT_MARGIN`, painted out."""
         painted = image.copy()
         for found in self.found:
             # where it was found in this frame, else in the nearest recent frame
@@ -296,9 +271,8 @@ def _alone(image: np.ndarray, part: np.ndarray) -> np.ndarray:
 
 
 def standing_out(image: np.ndarray) -> np.ndarray:
-    """Where ``image`` stands out from its background by :data:`STAND_OUT_LEVELS`, gaps of up to
-    :data:`STAND_OUT_GAP_PX` closed, less its blurred edge of :data:`STAND_OUT_EDGE_PX` (a dark
-    line around a light poster that a dot detector would count) (bool, the image's shape)."""
+    """Where ``image`` stands out from its background (bool, the image's shape), less its blurred edge (a dark line
+    around a light poster that a dot detector would count)."""
     differs = np.abs(image.astype(np.int16) - _background(image).astype(np.int16)) > STAND_OUT_LEVELS
     differs = (differs.any(axis=2) if differs.ndim == 3 else differs).astype(np.uint8)
     closed = cv2.morphologyEx(differs, cv2.MORPH_CLOSE, np.ones((STAND_OUT_GAP_PX, STAND_OUT_GAP_PX), np.uint8))
@@ -306,8 +280,7 @@ def standing_out(image: np.ndarray) -> np.ndarray:
 
 
 def parts(masks: list[np.ndarray]) -> list[np.ndarray]:
-    """The connected parts (bool masks) of the union of ``masks``, each at least :data:`MIN_SPAN_PX`
-    across (a target in them can be seen that large)."""
+    """The connected parts (bool masks) of the union of ``masks`` at least :data:`MIN_SPAN_PX` across."""
     count, labels, stats, _ = cv2.connectedComponentsWithStats(np.logical_or.reduce(masks).astype(np.uint8))
     return [labels == label for label in range(1, count)
             if max(stats[label, cv2.CC_STAT_WIDTH], stats[label, cv2.CC_STAT_HEIGHT]) >= MIN_SPAN_PX]

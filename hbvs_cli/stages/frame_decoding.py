@@ -1,10 +1,5 @@
-"""Taught frames decoded ahead of use, in a worker thread, with bounded memory.
-
-Decoding is most of a recording's reading cost and OpenCV's decoder releases the GIL, so a
-second thread decodes ahead (at most ``depth`` frames) while the current one is detected.
-Colour is decoded only for the dot detector (a dot may differ from its wall in hue alone);
-the others use luminance, which a colour JPEG decodes faster.
-"""
+"""Taught frames decoded ahead of use in a worker thread (OpenCV's decoder releases the GIL), with bounded memory.
+Colour only for the dot detector (a dot may differ from its wall in hue alone): luminance decodes faster."""
 
 from __future__ import annotations
 
@@ -24,8 +19,7 @@ from ..thread_pool import StopSafePool
 
 
 def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[bytes, np.ndarray]:
-    """The compressed bytes and the image of a teach frame's image message: gray, or BGR
-    for a colour frame when ``colour`` is asked (:func:`~hbvs_cli.io.images.decode_image`)."""
+    """The compressed bytes and the image of a teach frame: gray, or BGR for a colour frame when ``colour``."""
     data = frame.stored_image(f"{name} frame {frame.index}").data
     return data, decode_image(data, name, colour=colour)
 
@@ -33,12 +27,7 @@ def decode_frame(frame: TeachFrame, name: str, colour: bool = False) -> tuple[by
 def decoded_frames(
     frames: Iterator[TeachFrame], name: str, depth: int = 4, colour: Callable[[], bool] = lambda: False
 ) -> Iterator[tuple[TeachFrame, bytes, np.ndarray]]:
-    """Yield ``(frame, image_bytes, image)`` in order, decoding up to ``depth`` frames ahead.
-
-    ``colour()`` is asked as each frame is queued: whether to keep its colour (fit keeps it
-    while it picks the target, then only for dots). A consumer that would wait for a frame
-    still being decoded decodes the next queued one itself (:func:`_next_decoded`).
-    """
+    """Yield ``(frame, image_bytes, image)`` in order, up to ``depth`` decoded ahead, in colour when ``colour()`` says so."""
     with StopSafePool(max_workers=1, thread_name_prefix="hbvs-decode") as pool:
         pending: deque[_Queued] = deque()
         for frame in frames:
@@ -60,10 +49,8 @@ class _Queued:
 
 
 def _next_decoded(pending: deque[_Queued], name: str) -> tuple[TeachFrame, bytes, np.ndarray]:
-    """The oldest queued frame, decoded. While the decoding thread is still on it, the
-    frame after it is decoded here, when the thread has not started that one: where the
-    consumer's work is quicker than decoding (a board's or a marker's detection), it would
-    otherwise wait with a core to spare."""
+    """The oldest queued frame, decoded. While the thread is still on it, the frame after it, if not started, is
+    decoded here: a consumer quicker than decoding (a board's or a marker's detection) would wait with a core to spare."""
     oldest = pending.popleft()
     if pending and not oldest.decoding.done():
         after = pending[0]

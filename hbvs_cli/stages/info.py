@@ -41,8 +41,7 @@ SHOWN_DIGITS = 6
 
 
 def _rounded(value: Any) -> Any:
-    """``value`` with each float rounded to :data:`SHOWN_DIGITS` significant digits, for display:
-    a rate stored as 30.000000299999996 Hz reads 30."""
+    """``value`` with each float rounded to :data:`SHOWN_DIGITS` significant digits (30.000000299999996 Hz reads 30)."""
     if isinstance(value, float):
         shown = float(f"{value:.{SHOWN_DIGITS}g}")
         return int(shown) if shown.is_integer() and abs(shown) < 1e15 else shown
@@ -104,8 +103,7 @@ def print_info(document: dict[str, Any], out: TextIO, width: int = 100) -> None:
         line = (f"  {topic['topic']:<{name_width}}  {topic['messages']:>{count_width}} msgs  "
                 f"{topic['schema'] or '(no schema)'} [{topic['schema_encoding'] or topic['message_encoding']}]")
         # Too wide: the schema goes under the topic, indented, rather than past the width.
-        lines = textwrap.wrap(line, max(20, width), initial_indent="", subsequent_indent=" " * 6,
-                              break_on_hyphens=False, break_long_words=False, drop_whitespace=True)
+        lines = textwrap.wrap(line, max(20, width), subsequent_indent=" " * 6, break_on_hyphens=False, break_long_words=False)
         out.write("\n".join([line] if len(line) <= width else ["  " + lines[0].lstrip(), *lines[1:]]) + "\n")
 
 

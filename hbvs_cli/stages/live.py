@@ -1,7 +1,6 @@
-"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame
-decided by the :class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out
-on every way out, and only zeros before the target is seen near its taught start view.
-"""
+"""``hbvs repeat FIT --live``: the closed loop with a robot (docs/robot.md), each newest frame decided by the
+:class:`~hbvs_cli.core.simulator.ServoStep` of ``--sim``. Zero commands go out on every way out, and only zeros
+before the target is seen near its taught start view."""
 
 from __future__ import annotations
 
@@ -58,13 +57,9 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 
 
 class CommandOut:
-    """Where commands go: a ROS 2 publisher and/or a JSON-lines stream; zero on :meth:`stop`.
-
-    ``publisher``: the robot interface's :class:`CommandSink`, or None.
-    ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s)
-    without a newer one by zero, whatever the loop is doing (a slow frame, a source that hangs);
-    None for none. :meth:`close` ends it.
-    """
+    """Where commands go: the robot's :class:`CommandSink` (or None) and/or a JSON-lines stream; zero on :meth:`stop`.
+    ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s) by zero, whatever the
+    loop is doing (a slow frame, a source that hangs); None for none. :meth:`close` ends it."""
 
     def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
         self._publisher = publisher
@@ -75,7 +70,7 @@ class CommandOut:
         #: The last command sent (m/s, rad/s), and its run time (s).
         self.last = (0.0, 0.0)
         self._t = 0.0
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # the deadman stops while holding it
         self._closed = threading.Event()
         self._deadman: threading.Thread | None = None
         if stale_timeout_s is not None:
@@ -94,16 +89,13 @@ class CommandOut:
     def stop(self, t: float) -> None:
         """Zero, :data:`ZERO_REPEATS` times; a failing output does not keep the others from it."""
         with self._lock:
-            self._zero(t)
-
-    def _zero(self, t: float) -> None:
-        for _ in range(ZERO_REPEATS):
-            if self._publisher is not None:
-                with suppress(Exception):  # stopping must reach every output it can
-                    self._publisher.publish(0.0, 0.0)
-        with suppress(OSError, ValueError):
-            write_command(self._stream, t, 0.0, 0.0)
-        self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
+            for _ in range(ZERO_REPEATS):
+                if self._publisher is not None:
+                    with suppress(Exception):  # stopping must reach every output it can
+                        self._publisher.publish(0.0, 0.0)
+            with suppress(OSError, ValueError):
+                write_command(self._stream, t, 0.0, 0.0)
+            self.sent_at, self.last, self._t = time.monotonic(), (0.0, 0.0), t
 
     def _watch(self, stale_timeout_s: float) -> None:
         while not self._closed.is_set():
@@ -111,7 +103,7 @@ class CommandOut:
                 now = time.monotonic()
                 due = self.sent_at + stale_timeout_s if self.last != (0.0, 0.0) else None
                 if due is not None and now >= due:
-                    self._zero(self._t + (now - self.sent_at))
+                    self.stop(self._t + (now - self.sent_at))
                     continue
             self._closed.wait(min(due - now, DEADMAN_POLL_S) if due is not None else DEADMAN_POLL_S)
 
@@ -265,9 +257,8 @@ def check_camera(camera: Any, fit_camera: Any, what: str) -> None:
 
 @dataclass
 class TargetSight:
-    """What a repeat sees of one target through its fit: a frame's observation (14) by the fit's
-    ``detector`` and ``estimator``, and the desired signals (Remark 1) of ``trajectory`` at run
-    time t (s). A route's (:class:`~.repeat_route.RouteSight`) has the same methods."""
+    """What a repeat sees of one target through its fit: a frame's observation (14), and the desired signals
+    (Remark 1) at run time t (s). A route's (:class:`~.repeat_route.RouteSight`) has the same methods."""
 
     detector: Any
     estimator: Any
@@ -327,8 +318,7 @@ class LiveStats:
 
 
 def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str:
-    """One line of at most 80 columns for a person watching the robot: run time, errors e1, e2, e3 (19),
-    dhat, frame rate, p95 latency, frames dropped."""
+    """One line of at most 80 columns: run time, e1, e2, e3 (19), dhat, frame rate, p95 latency, frames dropped."""
     errors = record.output.errors if record.output is not None else None
     shown = (f"e {float(errors.e1):+.3f} {float(errors.e2):+.3f} {math.degrees(float(errors.e3)):+.2f}°"
              if errors is not None else f"{'target lost':<22}")
@@ -341,11 +331,8 @@ def status_text(t: float, duration: float, record: Any, stats: LiveStats) -> str
 
 @dataclass
 class LiveLoop:
-    """The loop of ``repeat --live``: frames in (``source.latest(timeout_s)``: the newest or None), commands out, the run file written.
-
-    Only frames that :class:`~hbvs_cli.core.camera_clock.CameraClock` admits are used, and every
-    non-zero command stands at most ``--stale-timeout`` after the last used frame's: a command never
-    outlives its measurement, whatever the camera's clock does."""
+    """The loop of ``repeat --live``: frames in, commands out, the run file written. Only frames the camera clock
+    admits are used, and a command never outlives its measurement by more than ``--stale-timeout``."""
 
     source: LiveSource
     #: What is seen and should be seen (:class:`TargetSight`, or a route's).
@@ -444,8 +431,7 @@ class LiveLoop:
             self.warn(text)
 
     def __iter__(self) -> Iterator[ServoInput]:
-        """The loop's inputs (:class:`~hbvs_cli.core.servo_loop.ServoSource`): each newest usable frame, measured, until
-        the trajectory's end or a stop (:attr:`stopped` says why)."""
+        """The loop's inputs (a ServoSource): each newest usable frame, measured, until the end or a stop."""
         period, duration = self.period, self.duration
         first_stamp: float | None = None
         previous_stamp: float | None = None

@@ -21,9 +21,8 @@ def recorded_settings(options: Any) -> dict[str, Any]:
 
 def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, float]:
     """``DX,DY,DTHETA`` (m, m, deg) -> (m, m, rad)."""
-    parts = text.split(",")
     try:
-        values = [float(p) for p in parts]
+        values = [float(p) for p in text.split(",")]
     except ValueError:
         values = []
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
@@ -32,8 +31,7 @@ def parse_offset(text: str, option: str = "--offset") -> tuple[float, float, flo
 
 
 def parse_pair(text: str, option: str, form: str, units: str, rule: str, holds: Callable[[float, float], bool]) -> tuple[float, float]:
-    """``A:B``: two finite numbers for which ``holds(a, b)``; UsageError otherwise, naming the
-    ``form`` (``START:END``), its ``units`` and the ``rule`` it breaks."""
+    """``A:B``: two finite numbers for which ``holds(a, b)``; else a UsageError naming ``form``, ``units`` and ``rule``."""
     try:
         first, second = (float(p) for p in text.split(":"))
     except ValueError:

@@ -1,9 +1,6 @@
-"""``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31).
-
-``--sim``: closed loop, a simulated robot from the taught start plus ``--offset``.
-``--replay``: open loop on a recording's frames; commands are logged, nothing moves.
-``--live``: closed loop with a robot (:mod:`.live`).
-"""
+"""``hbvs repeat``: track the fitted trajectory with the adaptive controller (29)-(31). ``--sim``: closed loop, a
+simulated robot from the taught start plus ``--offset``; ``--replay``: open loop on a recording's frames, nothing
+moves; ``--live``: closed loop with a robot (:mod:`.live`)."""
 
 from __future__ import annotations
 
@@ -104,20 +101,15 @@ def resolve_settings(options: RepeatOptions, dhat0_suggested: float, taught_rate
     defaults = suggested_gains if suggested_gains is not None else DEFAULT_GAINS
     gains = gains_for_law(ControllerGains(**{name: pick(name, getattr(defaults, name)) for name in GAIN_NAMES}), law)
     dhat0 = check_depth(float(pick("dhat0", dhat0_suggested)), "--dhat0")
-    speed = float(pick("speed"))
     rate = float(pick("rate", taught_rate))
     if not (math.isfinite(rate) and rate > 0):
         raise UsageError(f"--rate must be positive, got {rate}")
-    perception = str(pick("perception"))
-    offset_text = str(pick("offset"))
-    latency = int(pick("latency"))
-    state_filter = str(pick("state_filter"))
     limits = ActuatorLimits(max_v=_limit(pick("max_v"), "--max-v"), max_w=_limit(pick("max_w"), "--max-w"),
                             max_accel=_limit(pick("max_accel"), "--max-accel"), lag_s=float(pick("base_lag")))
     return Settings(
-        gains=gains, law=law, dhat0=dhat0, speed=speed, limits=limits, latency=latency, rate=rate, perception=perception,
-        pixel_noise=float(pick("pixel_noise")), offset=parse_offset(offset_text), lost_timeout=float(pick("lost_timeout")),
-        state_filter=state_filter,
+        gains=gains, law=law, dhat0=dhat0, speed=float(pick("speed")), limits=limits, latency=int(pick("latency")), rate=rate,
+        perception=str(pick("perception")), pixel_noise=float(pick("pixel_noise")), offset=parse_offset(str(pick("offset"))),
+        lost_timeout=float(pick("lost_timeout")), state_filter=str(pick("state_filter")),
     )
 
 
@@ -154,13 +146,11 @@ class _StepLog:
 
     def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
         self.run, self.settings, self.model, self.d_true, self.cmd_stream = run, settings, model, d_true, cmd_stream
+        self.event = run.event
         self.was_saturated = self.was_lost = self.was_dropped = False
         self.lost_reason = ""
 
-    def event(self, t: float, level: int, text: str) -> None:
-        self.run.event(t, level, text)
-
-    def step(self, record: StepRecord, v_law: float | None = None, w_law: float | None = None) -> None:
+    def step(self, record: StepRecord) -> None:
         t = record.t
         desired = record.desired
         output = record.output
@@ -190,8 +180,8 @@ class _StepLog:
             **{name: getattr(desired, name) for name in ("x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot")},
             **{name: getattr(errors, name) if errors else None for name in ("e1", "e2", "ebar2", "e3")},
             "v_c": record.v_c, "w_c": record.w_c,
-            "v_law": float(output.v_c) if output is not None else v_law,
-            "w_law": float(output.w_c) if output is not None else w_law,
+            "v_law": float(output.v_c) if output is not None else None,
+            "w_law": float(output.w_c) if output is not None else None,
             "saturated": bool(record.saturated),
             "dhat": float(record.dhat),
             "target_lost": bool(record.lost),
@@ -233,8 +223,7 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
 
 
 def check_simulation_settings(settings: Settings, model: FitModel, taught_s: float | None = None) -> None:
-    """The checks of a closed-loop run's settings that need the fit (``hbvs sweep`` makes them
-    first); ``taught_s``: the taught duration (s) when it is not ``model``'s (a route's)."""
+    """The checks of a closed-loop run's settings that need the fit; ``taught_s``: the taught duration (s) of a route."""
     if not (math.isfinite(settings.speed) and settings.speed > 0):
         raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
     step_count(
@@ -325,11 +314,9 @@ class _Tally:
     """What the one-line summary needs, per step; its "final" errors are the report's (:func:`hbvs_cli.core.metrics.final_value`)."""
 
     def __init__(self) -> None:
-        self.steps = 0
         self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
 
     def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
-        self.steps += 1
         errors = record.output.errors if record.output is not None else None
         values = dict.fromkeys(self.series, math.nan) | {"t": record.t}
         if errors is not None:
@@ -344,7 +331,7 @@ class _Tally:
         t = self.series["t"]
         finals = {name: final_value(t, series) for name, series in self.series.items() if t and name != "t"}
         errors = {name: final for name, final in finals.items() if final is not None}
-        return RepeatSummary(steps=self.steps, output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
+        return RepeatSummary(steps=len(t), output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
@@ -395,8 +382,7 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
 
 
 def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered: bool) -> Tracking:
-    """What ``--live`` (``filtered``: with the state filter ``--filter`` asks for) and ``--replay`` servo with: one
-    target's detector, estimator and desired signals at ``--speed``, or a route's segment by segment."""
+    """What ``--live`` (``filtered``: with ``--filter``'s state filter) and ``--replay`` servo with, one target's or a route's."""
     if fit.route_record is not None:
         return route_tracking(options, settings, fit, filtered, make_state_filter)
     model = fit.model
@@ -408,9 +394,8 @@ def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered
 
 
 class RecordedDrive:
-    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames,
-    measured through the fit's ``sight`` (:class:`~.live.TargetSight`'s methods), at their own stamps.
-    Open loop: the commands are kept, nothing moves."""
+    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames at their own
+    stamps, measured through the fit's ``sight``. Open loop: the commands are kept, nothing moves."""
 
     def __init__(self, reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> None:
         self.reader, self.sight, self.model, self.run = reader, sight, model, run
@@ -453,7 +438,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
                     log.step(record)
                     tally.add(record)
                     bar.advance()
-            if tally.steps == 0:
+            if not tally.series["t"]:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)
     return _finish(console, tally, controller, options.output, settings, None, None)

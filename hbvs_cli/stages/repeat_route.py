@@ -1,13 +1,7 @@
-"""``hbvs repeat`` on a route file (issue 47). ``--sim``: :func:`~hbvs_cli.sim.route_loop.run_route`
-segment by segment (each its own F*_i, n*_i, gains and state filter; dhat (31) carried over by
-the transition's rho at each switch), written as a run file that ``hbvs report`` reads.
-``--live`` and ``--replay`` (:func:`route_tracking`): each segment's own detector measures (14)
-against its F*_i, and the next segment's takes over once the taught time is
-:data:`~hbvs_cli.sim.route_loop.SWITCH_FRACTION` through the overlap and it sees its target well
-(:class:`RouteSight`), with the same switch as ``--sim`` (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`).
-The Lyapunov function (36) is logged per segment, against that segment's true d*_i where the
-route was simulated; the run's metadata say where the switches were planned and each segment's
-true depth (None without a simulated route)."""
+"""``hbvs repeat`` on a route file (issue 47): segment by segment, each with its own F*_i, n*_i, gains and state
+filter, dhat (31) carried over by the transition's rho at each switch. ``--sim`` runs
+:func:`~hbvs_cli.sim.route_loop.run_route`; ``--live`` and ``--replay`` switch as it does (:class:`RouteSight`).
+V (36) is logged against each segment's true d*_i where the route was simulated."""
 
 from __future__ import annotations
 
@@ -43,15 +37,13 @@ from .console import Console
 
 
 def taught_pose_at(taught: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The taught pose (K, 3) in the route frame at times ``t`` (s), between the recorded
-    frames ``taught`` (F, 4: t, x, y, phi) linearly (phi unwrapped)."""
+    """The taught pose (K, 3) at times ``t`` (s), interpolated in ``taught`` (F, 4: t, x, y, phi; phi unwrapped)."""
     columns = (taught[:, 1], taught[:, 2], np.unwrap(taught[:, 3]))
     return np.column_stack([np.interp(t, taught[:, 0], column) for column in columns])
 
 
 def segment_truths(route: RouteWorld, plan: RouteFile) -> tuple[list[float], list[np.ndarray]]:
-    """Each segment's true d*_i (m), its target seen from the taught pose of its F*_i (7), and
-    the permutation of its target's points into its fit's order (its detector's)."""
+    """Each segment's true d*_i (m) from the taught pose of its F*_i (7), and its target points' order in its fit."""
     depths, orders = [], []
     for segment, reference, model in zip(plan.segments, plan.references, plan.models):
         world, local = route.worlds[segment.target], route.local_pose(segment.target, plan.taught_poses[reference, 1:])
@@ -68,8 +60,7 @@ def segment_gains(settings: Any, plan: RouteFile) -> list[ControllerGains]:
 
 
 def planned_switches(plan: RouteFile, fraction: float = SWITCH_FRACTION) -> np.ndarray:
-    """The taught instant of each switch (s, the drive's time), ``fraction`` of the way
-    through each overlap: :func:`~hbvs_cli.sim.route_loop.switch_times`."""
+    """The taught instant of each switch (s), ``fraction`` of the way through each overlap."""
     frames = np.arange(plan.segments[-1].last + 1) * plan.models[0].taught_frame_interval()
     return switch_times(RouteFit(plan.segments, plan.models, plan.references, plan.transitions), frames, fraction)
 
@@ -82,9 +73,8 @@ def route_metadata(plan: RouteFile, switches: np.ndarray, depths: list[float | N
 
 
 class SwitchLog:
-    """A repeat's step log (``log``) that records each switch of ``switch`` before the step
-    after it: an event, and V (36) from then on against the new segment's d*_i (``depths``)
-    and gains."""
+    """A repeat's step ``log`` that records each switch before the step after it: an event, and V (36) from then on
+    against the new segment's d*_i (``depths``) and gains."""
 
     def __init__(self, log: Any, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None],
                  gains: list[ControllerGains], settings: Any) -> None:
@@ -92,7 +82,7 @@ class SwitchLog:
         self.logged = 0
         log.d_true = depths[0]
 
-    def step(self, record: Any, *args: Any) -> None:
+    def step(self, record: Any) -> None:
         while self.logged < len(self.switch.switches):
             when, segment, before, after = self.switch.switches[self.logged]
             self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
@@ -100,7 +90,7 @@ class SwitchLog:
                            f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
             self.logged += 1
             self.log.run.route_switches([made[0] for made in self.switch.switches[:self.logged]])
-        self.log.step(record, *args)
+        self.log.step(record)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.__dict__["log"], name)
@@ -113,14 +103,10 @@ def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
 
 
 class RouteSight(SegmentSwitch):
-    """What ``--live`` and ``--replay`` see along a route (the methods of
-    :class:`~.live.TargetSight`): the segment in force measured by its own detector and
-    estimator against its F*_i, and its desired signals. Once the run time passes a switch's
-    ``planned`` time (s), or the segment's target is lost after its overlap with the next began
-    (a robot off its taught path sees it leave sooner), the next segment's detector looks too,
-    and the switch is made (:class:`~hbvs_cli.sim.route_loop.SegmentSwitch`) in the first frame
-    where it sees its whole target at least :data:`~hbvs_cli.sim.route_world.MIN_SPAN_PX`
-    across, as ``fit`` followed it."""
+    """What ``--live`` and ``--replay`` see along a route (:class:`~.live.TargetSight`'s methods): the segment in
+    force, measured against its F*_i. Once the run time passes a switch's ``planned`` time (s), or the target is
+    lost within the overlap with the next (a robot off its path sees it leave sooner), the next segment's detector
+    looks too, and the switch is made in the first frame where it sees its whole target large enough."""
 
     def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
@@ -136,8 +122,7 @@ class RouteSight(SegmentSwitch):
         self.colour = any(model.detector.contrast == "colour" for model in plan.models)
 
     def observe(self, image: np.ndarray, t: float) -> Observation:
-        ahead = self.active + 1
-        last = ahead == len(self.detectors)
+        last = self.active + 1 == len(self.detectors)
         if not last and t >= self.planned[self.active] and (switched := self._look_ahead(image, t)) is not None:
             return switched
         observation = self._measure(self.active, image)
@@ -164,16 +149,13 @@ class RouteSight(SegmentSwitch):
         return self.estimators[segment].from_pixels(self.detectors[segment].detect(image))
 
     def evaluate(self, t: float) -> Any:
-        """The segment in force's desired signals, each switch's discrepancy fading out
-        (:meth:`~hbvs_cli.sim.route_loop.RouteTrajectory.blended`), as ``--sim``'s."""
+        """The segment in force's desired signals, each switch's discrepancy fading out, as ``--sim``'s."""
         return self.route_trajectory.blended(self.route_trajectory.evaluate(t), t)
 
 
 @dataclass
 class Tracking:
-    """What ``--live`` and ``--replay`` servo with: the ``sight`` (:class:`~.live.TargetSight`'s
-    methods), the ``controller`` and ``state_filter``, the run's extra ``metadata``, and
-    ``step_log(log)``: the log each step goes to (a route's records its switches)."""
+    """What ``--live`` and ``--replay`` servo with; ``step_log(log)``: the log each step goes to."""
 
     sight: Any
     controller: Any
@@ -183,8 +165,7 @@ class Tracking:
 
 
 def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool, make_state_filter: Callable[..., Any]) -> Tracking:
-    """The :class:`Tracking` of a route file for ``--live`` (``filtered``: a state filter per
-    segment, ``make_state_filter(settings, model, estimator)``) or ``--replay`` (none)."""
+    """The :class:`Tracking` of a route file; ``filtered``: a state filter per segment (``--live``)."""
     plan = route_of(fit, str(options.input))
     models = plan.models
     gains = segment_gains(settings, plan)
@@ -212,10 +193,8 @@ TEMPLATE_MARGIN_PX = 16
 
 
 def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
-    """Segment ``segment``'s detector template, decoded for a kind that uses one, painted its
-    median level beyond :data:`TEMPLATE_MARGIN_PX` around its target's points: a template frame
-    also shows the route's other targets (a photograph turned, or printed twice), whose features
-    would otherwise be matched when the detector first looks for its own."""
+    """Segment ``segment``'s detector template, for a kind that uses one, painted its median level beyond
+    :data:`TEMPLATE_MARGIN_PX` around its target: else the route's other targets in it would be matched."""
     data = plan.templates[segment] if segment < len(plan.templates) else None
     spec = plan.models[segment].detector
     if data is None or not target_kind(spec.kind).uses_template:
@@ -231,9 +210,7 @@ def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
 
 
 def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
-    """Repeat the route of ``fit`` in simulation as ``settings`` (the first segment's, resolved
-    by :func:`.repeat.settings_for`) say; ``tools``: repeat's step log, tally and summary
-    (:mod:`.repeat` hands them in). The run's summary."""
+    """Repeat the route of ``fit`` in simulation; ``tools``: repeat's step log, tally and summary (``ROUTE_TOOLS``)."""
     plan = route_of(fit, str(options.input))
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
@@ -266,7 +243,6 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
         "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
     tally = tools.tally()
-    height = route.camera_height
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
         log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
@@ -275,7 +251,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
             for record in steps:
                 log.step(record)
                 taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
-                run.poses(record.t, record.pose, taught, height)
+                run.poses(record.t, record.pose, taught, route.camera_height)
                 tally.add(record, taught)
                 bar.advance()
                 if lost.stops(record):

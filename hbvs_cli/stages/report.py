@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
@@ -16,14 +15,6 @@ from .options import parse_assignment
 
 if TYPE_CHECKING:
     from ..report.result import RunReport
-
-
-@dataclass(frozen=True)
-class Bound:
-    """One ``--fail-above KEY=VALUE``: fail when the metric at dotted ``key`` exceeds ``value``."""
-
-    key: str
-    value: float
 
 
 def metric_value(report: RunReport, key: str) -> float:
@@ -49,11 +40,11 @@ def metric_value(report: RunReport, key: str) -> float:
     return float(value)
 
 
-def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[Bound]) -> list[str]:
-    """One message per (run, bound) whose metric exceeds the bound; call it before printing."""
-    checked = [(report, bound, metric_value(report, bound.key)) for report in reports for bound in bounds]
-    return [f"{report.run.name}: {bound.key} = {value:.6g} exceeds the bound {bound.value:g}"
-            for report, bound, value in checked if value > bound.value]
+def exceeded_bounds(reports: Sequence[RunReport], bounds: Sequence[tuple[str, float]]) -> list[str]:
+    """One message per (run, ``--fail-above`` (key, bound)) whose metric exceeds the bound; call it before printing."""
+    checked = [(report, key, bound, metric_value(report, key)) for report in reports for key, bound in bounds]
+    return [f"{report.run.name}: {key} = {value:.6g} exceeds the bound {bound:g}"
+            for report, key, bound, value in checked if value > bound]
 
 
 def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
@@ -86,10 +77,8 @@ def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, floa
             run = None
         if isinstance(source, io.BytesIO):
             source.seek(0)
-        if run is None:
-            loaded.append((read_fit_signals(source, name), None))
-        else:
-            loaded.append((run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
+        loaded.append((read_fit_signals(source, name), None) if run is None
+                      else (run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
     return loaded
 
 
@@ -131,17 +120,16 @@ def run_report(options: ReportOptions, console: Console) -> int:
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
         return _report_sweep(options, console)
     tolerances = resolve_tolerances(dict(parse_assignment(item, "--tolerance") for item in options.tolerance))
-    bounds = [Bound(*parse_assignment(item, "--fail-above")) for item in options.fail_above]
+    bounds = [parse_assignment(item, "--fail-above") for item in options.fail_above]
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
-    style = None
     if options.plot is not None:
         from ..report.figure_style import check_plot_path, figure_style
 
         check_plot_path(options.plot)
         refuse_overwriting_inputs([("--plot", options.plot)], inputs)
         # Checked against either figure's panels now, against the right one's below.
-        style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
+        figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
     elif options.dpi is not None or options.size is not None or options.panels is not None:
         raise UsageError("--dpi, --size and --panels shape the figure: give --plot FILE too")
     loaded = read_runs(options.runs, need_height=options.export_tum is not None)

@@ -1,8 +1,5 @@
-"""``hbvs robot-sim FIT``: what ``repeat --sim`` simulates, as a robot in its own process for
-``repeat --live`` to be tried against: the unicycle in real time under the latest command,
-rendered at ``--rate`` (a route fit's whole route, every target). ``--ros2``: ``/cmd_vel`` in, camera, CameraInfo and the true pose
-out; ``--mjpeg PORT --cmd-in FILE``: MJPEG on 127.0.0.1, ``repeat --cmd-out``'s JSON lines in.
-"""
+"""``hbvs robot-sim FIT``: what ``repeat --sim`` simulates, as a robot in its own process for ``repeat --live``:
+the unicycle in real time under the latest command, rendered at ``--rate``, over ROS 2 or MJPEG and JSON lines."""
 
 from __future__ import annotations
 

@@ -9,6 +9,7 @@ import tempfile
 import time
 import traceback
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
@@ -30,17 +31,12 @@ class RunTask(RunSettings):
     keep: str = "failed"
 
 
-#: Fit files read by this process (a worker reads each fit once for all its runs).
-_FITS: dict[str, Any] = {}
-
-
+@lru_cache(maxsize=1)
 def _fit(path: str) -> Any:
+    """The fit file at ``path``, read once by this process (a worker) for all its runs."""
     from ..io.fit_file import read_fit_file
 
-    if path not in _FITS:
-        _FITS.clear()
-        _FITS[path] = read_fit_file(path)
-    return _FITS[path]
+    return read_fit_file(path)
 
 
 def check_arguments(fit: Any, fit_path: str, arguments: Mapping[str, Any]) -> None:

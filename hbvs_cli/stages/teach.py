@@ -63,14 +63,12 @@ class TeachOptions(TeachFields):
         recorded = recorded_settings(self)
         kind = self.source_kind()
         if kind == "sim":
-            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim.
-            # The extra outputs are left out, as the output is: the same drive, the same bytes.
-            simulated = {key: value for key, value in recorded.items()
-                         if key not in ("cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out")
-                         and not (key == "route" and value is None)}  # a single target's bytes as before routes
-            if self.route is not None:  # the route brings its own path and targets
-                simulated = {key: value for key, value in simulated.items() if key not in ("path", "target", "dots", "texture")}
-            return {**simulated, "sim": True}
+            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim. The extra outputs are
+            # left out, as the output is: the same drive, the same bytes. A route brings its own path and targets; without
+            # one, a single target's bytes are as before routes.
+            left_out = {"cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out"} | (
+                {"path", "target", "dots", "texture"} if self.route is not None else {"route"})
+            return {**{key: value for key, value in recorded.items() if key not in left_out}, "sim": True}
         keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
             {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
         return {key: value for key, value in recorded.items() if key in keep}
@@ -107,8 +105,7 @@ def run_teach(options: TeachOptions, console: Console) -> None:
 def resolve_path(spec: str, fps: float, duration: float | None) -> tuple[CommandProfile, tuple[float, float, float], str]:
     """The taught commands and start pose of ``--path`` (a preset name or a CSV file)."""
     if spec in PRESETS:
-        profile, start = preset_profile(spec, fps, duration)
-        return profile, start, spec
+        return (*preset_profile(spec, fps, duration), spec)
     candidate = Path(spec)
     if candidate.suffix.lower() == ".csv" or candidate.exists():
         profile = _cut_profile(load_command_profile(candidate), duration)
@@ -193,9 +190,8 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
 def _load_camera(path: Path, source: sources.FrameSource | None = None, console: Console | None = None) -> CameraIntrinsics:
     notes: list[str] = []
     camera = load_calibration(path, image_size=getattr(source, "image_size", None), notes=notes)
-    for note in notes:
-        if console is not None:
-            console.warn(note)
+    for note in notes if console is not None else ():
+        console.warn(note)
     return camera
 
 
@@ -236,8 +232,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
         teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
-        total = source.describe().get("frames")
-        with console.progress(f"teach ({kind})", total) as bar:
+        with console.progress(f"teach ({kind})", source.describe().get("frames")) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
             try:
                 for frame in iterator:
@@ -252,9 +247,8 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
                     data, image_format = bytes_to_store(frame.image, encoded, frame.format, options.image_format, options.jpeg_quality, options.gray)
                     log_time_ns = frame.stamp_ns if frame.stamp_ns is not None else seconds_to_ns(frame.t)
                     if frames == 0:
-                        # Logged at the first frame's time: frames keep their source's stamps (a bag's,
-                        # a ROS 2 topic's), which a live source knows only once the first arrives;
-                        # logged at 0 it made the recording start in 1970.
+                        # At the first frame's time: frames keep their source's stamps, which a live source knows
+                        # only once the first arrives (logged at 0, the recording started in 1970).
                         teach.calibration(camera, log_time_ns)
                     teach.frame(log_time_ns, data, image_format, command=frame.command)
                     frames += 1
