@@ -9,8 +9,9 @@ renderer need render. A dot not in its window falls back to the whole frame.
 
 from __future__ import annotations
 
-from dataclasses import replace
+import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,20 +39,14 @@ WINDOW_GATE_PX = 8.0
 def merged_windows(windows: list[Window]) -> list[Window]:
     """Windows with every overlapping pair replaced by their bounding box, until none overlap."""
     merged = list(windows)
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(merged)):
-            for j in range(i + 1, len(merged)):
-                a, b = merged[i], merged[j]
-                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
-                    merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-                    del merged[j]
-                    changed = True
-                    break
-            if changed:
-                break
-    return merged
+    while True:
+        overlapping = ((i, j) for i, a in enumerate(merged) for j, b in enumerate(merged[i + 1:], i + 1)
+                       if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
+        i, j = next(overlapping, (None, None))
+        if i is None:
+            return merged
+        a, b = merged[i], merged.pop(j)
+        merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
 #: Ground level of the flattened image (:func:`~.dots.flatten_ground`), which also fills the
@@ -69,10 +64,7 @@ class WindowMosaic:
     def layout(self, windows: list[Window]) -> tuple[NDArray[np.float32], list[int]]:
         """The mosaic for ``windows`` (filled with the ground) and each window's first column."""
         height = max(y1 - y0 for _, y0, _, y1 in windows)
-        columns, width = [], 0
-        for x0, _, x1, _ in windows:
-            columns.append(width)
-            width += x1 - x0 + 1
+        *columns, width = itertools.accumulate((x1 - x0 + 1 for x0, _, x1, _ in windows), initial=0)
         width -= 1
         if self._buffer.shape[0] < height or self._buffer.shape[1] < width:
             self._buffer = np.empty((max(height, self._buffer.shape[0]), max(width, self._buffer.shape[1])), dtype=np.float32)

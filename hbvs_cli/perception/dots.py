@@ -97,19 +97,10 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
 
 @dataclass(frozen=True)
 class Blobs:
-    """Dark connected components of one frame (or window).
-
-    Attributes
-    ----------
-    centres : ndarray, shape (M, 2)
-        Sub-pixel centres ``(u, v)`` in frame pixels; NaN for components not dot-like.
-    areas : ndarray, shape (M,)
-        Thresholded areas (px).
-    round : ndarray, shape (M,), bool
-        Dot-like: compact, not elongated, not cut by the window's edge.
-    touches_edge : ndarray, shape (M,), bool
-        The component reaches the edge of the searched window.
-    """
+    """Dark connected components of one frame (or window): sub-pixel ``centres`` (M, 2) ``(u, v)``
+    in frame pixels (NaN rows where not dot-like), thresholded ``areas`` (M,) px, and (M,) bools:
+    ``round`` (dot-like: compact, not elongated, not cut by the window's edge) and
+    ``touches_edge`` (reaching the searched window's edge)."""
 
     centres: NDArray[np.float64]
     areas: NDArray[np.float64]
@@ -123,17 +114,13 @@ class Blobs:
 
 
 def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
-    """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined).
+    """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined): pixels
+    ``<= threshold`` are dark; None when the two classes' means differ by less than
+    ``min_contrast`` gray levels (nothing stands out).
 
     The brightest ``clip_fraction`` of pixels is folded into one bin, so a highlight cannot
     become the bright class. While the dark class holds most pixels (a dark wall around a
     small poster) it is split again: dots are a small, dark minority.
-
-    Returns
-    -------
-    threshold : int or None
-        Pixels ``<= threshold`` are dark; None when the two classes' means differ by less
-        than ``min_contrast`` gray levels (nothing stands out).
     """
     hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel().astype(np.float64)
     total = hist.sum()
@@ -257,29 +244,14 @@ def find_dark_blobs(
     min_contrast: float = 20.0,
     flatten: bool = False,
 ) -> Blobs:
-    """Dark, dot-like blobs and their sub-pixel centres.
+    """Dark, dot-like blobs of ``gray`` (H, W) uint8 and their sub-pixel centres.
 
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    window : (x0, y0, x1, y1), optional
-        Search only there (end-exclusive pixel bounds); the whole frame by default.
-    min_area : int
-        Components smaller than this (px) are noise and not even counted.
-    max_area : float, optional
-        Largest dot area (px); a quarter of the window by default.
-    max_elongation : float
-        Largest ratio of the blob's principal axes (1 for a disc; a disc seen 50 deg off
-        its normal gives ~1.55).
-    min_contrast : float
-        Gray-level contrast below which nothing is detected.
-    flatten : bool
-        Divide the window's ground out first (:func:`flatten_ground`), for uneven lighting;
-        thresholds and centres are then taken on the flattened window.
-
-    Returns
-    -------
-    Blobs
+    ``window`` (x0, y0, x1, y1, end-exclusive px): searched alone (default: the whole frame);
+    components under ``min_area`` px are noise, not even counted; ``max_area``: the largest
+    dot (px, default a quarter of the window); ``max_elongation``: of the blob's principal
+    axes (1 for a disc; one seen 50 deg off its normal gives ~1.55); below ``min_contrast``
+    gray levels nothing is detected; ``flatten``: the window's ground divided out first
+    (:func:`flatten_ground`, for uneven lighting), thresholds and centres then taken on it.
     """
     height, width = gray.shape
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
@@ -375,23 +347,13 @@ def _blob_centre(
 
 
 class DotDetector:
-    """Detect and track ``n_points`` dark dots, keeping their identity.
+    """Detect and track ``n_points`` (>= 3) dark dots, keeping their identity.
 
-    Parameters
-    ----------
-    n_points : int
-        Number of dots (>= 3).
-    gate_px : float
-        A candidate farther than this from a dot's predicted position (px) cannot be that dot.
-    area_ratio : (float, float)
-        A candidate whose area is outside these multiples of a tracked dot's averaged area
-        cannot be that dot (e.g. two merged dots).
-    max_coast : int
-        Frames a dot is predicted through while unseen before it is dropped.
-    min_area, max_elongation, min_contrast
-        See :func:`find_dark_blobs`.
-    polarity, contrast : str
-        One of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
+    A candidate farther than ``gate_px`` from a dot's predicted position, or whose area is
+    outside ``area_ratio`` times the dot's averaged area (two merged dots), cannot be that
+    dot; an unseen dot is predicted through ``max_coast`` frames, then dropped. ``min_area``,
+    ``max_elongation``, ``min_contrast``: :func:`find_dark_blobs`'s; ``polarity`` and
+    ``contrast``: one of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
     """
 
     kind = "dots"
@@ -553,10 +515,7 @@ class DotDetector:
             return pixels, areas
         centres = blobs.centres[candidates]
         layout = layout if layout is not None else self._layout
-        if layout is not None:
-            order = match_identity(centres, layout)
-        else:
-            order = np.lexsort((centres[:, 0], centres[:, 1]))
+        order = np.lexsort((centres[:, 0], centres[:, 1])) if layout is None else match_identity(centres, layout)
         return centres[order], blobs.areas[candidates][order]
 
 

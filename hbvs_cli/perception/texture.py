@@ -254,11 +254,7 @@ class TextureDetector:
             return TextureDetection(missing, False, candidates, candidates)
         frame_points = np.array([keypoints[m.queryIdx].pt for m in good], dtype=np.float32) + np.float32([x0, y0])
         reference_points = self._reference_points[[m.trainIdx for m in good]]
-        cv2.setRNGSeed(self.seed)
-        homography, inlier_mask = cv2.findHomography(
-            reference_points, frame_points, cv2.USAC_MAGSAC, REPROJECTION_PX, maxIters=2000, confidence=0.9999
-        )
-        inliers = 0 if inlier_mask is None else int(inlier_mask.sum())
+        homography, inliers = self._robust_homography(reference_points, frame_points, REPROJECTION_PX)
         if homography is None or inliers < MIN_INLIERS or not _plausible(homography, self.reference_pixels, gray.shape):
             return TextureDetection(missing, False, candidates, candidates - inliers, None, inliers)
         polished = self._follow(gray, homography, levels=1)
@@ -297,11 +293,7 @@ class TextureDetector:
         tracked = int(np.count_nonzero(ok))
         if tracked < MIN_INLIERS:
             return None
-        cv2.setRNGSeed(self.seed)
-        correction, agree = cv2.findHomography(
-            local[ok], moved.reshape(-1, 2)[ok], cv2.USAC_MAGSAC, 0.5, maxIters=2000, confidence=0.9999
-        )
-        inliers = 0 if agree is None else int(agree.sum())
+        correction, inliers = self._robust_homography(local[ok], moved.reshape(-1, 2)[ok], 0.5)
         # Most reference corners must agree: a wrong warp leaves LK points scattered.
         if correction is None or inliers < max(MIN_INLIERS, tracked // 2):
             return None
@@ -311,6 +303,12 @@ class TextureDetector:
             return None
         pixels = transfer(refined, self.reference_pixels)
         return TextureDetection(pixels, True, tracked, tracked - inliers, refined, inliers)
+
+    def _robust_homography(self, source: NDArray, target: NDArray, threshold_px: float) -> tuple[NDArray[np.float64] | None, int]:
+        """The seeded robust fit (MAGSAC) of a homography from ``source`` to ``target`` points, and its inliers."""
+        cv2.setRNGSeed(self.seed)
+        homography, mask = cv2.findHomography(source, target, cv2.USAC_MAGSAC, threshold_px, maxIters=2000, confidence=0.9999)
+        return homography, 0 if mask is None else int(mask.sum())
 
 
 class Vignetting:
