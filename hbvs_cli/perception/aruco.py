@@ -29,10 +29,7 @@ DEFAULT_DICTIONARY = "DICT_4X4_50"
 #: Every predefined dictionary, by family, smallest first; the families in the order
 #: :func:`scan_markers` tries them (AprilTag 16h5 last: its short code decodes noise most easily).
 MARKER_FAMILIES: dict[str, tuple[str, ...]] = {
-    "4x4": ("DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000"),
-    "5x5": ("DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000"),
-    "6x6": ("DICT_6X6_50", "DICT_6X6_100", "DICT_6X6_250", "DICT_6X6_1000"),
-    "7x7": ("DICT_7X7_50", "DICT_7X7_100", "DICT_7X7_250", "DICT_7X7_1000"),
+    **{f"{n}x{n}": tuple(f"DICT_{n}X{n}_{size}" for size in (50, 100, 250, 1000)) for n in range(4, 8)},
     "original": ("DICT_ARUCO_ORIGINAL",),
     "mip_36h12": ("DICT_ARUCO_MIP_36h12",),
     "apriltag_36h11": ("DICT_APRILTAG_36h11",),
@@ -211,25 +208,19 @@ class ArucoMarkerDetector:
     ) -> tuple[NDArray[np.float64] | None, int]:
         """Corners of the wanted marker in ``window`` (frame pixels), and markers considered
         (found by ``detector``, the full detector by default)."""
-        x0, y0 = 0, 0
-        view = gray
-        if window is not None:
-            x0, y0, x1, y1 = window
-            view = np.ascontiguousarray(gray[y0:y1, x0:x1])
+        x0, y0, x1, y1 = window or (0, 0, gray.shape[1], gray.shape[0])
+        view = gray if window is None else np.ascontiguousarray(gray[y0:y1, x0:x1])
         corners, ids, rejected = (self._detector if detector is None else detector).detectMarkers(view)
         considered = (0 if ids is None else len(ids)) + len(rejected)
         if ids is None:
             return None, considered
         ids = np.ravel(ids)
-        if not self.marker_ids:
-            if len(ids) != 1:
-                return None, considered
-            picks = [0]
-        else:
-            # A board partly out of view keeps the markers it shows (NaN rows for the others).
+        if self.marker_ids:  # a board partly out of view keeps the markers it shows (NaN rows for the others)
             picks = [_largest_copy(corners, ids, ident) for ident in self.marker_ids]
-            if all(pick is None for pick in picks):
-                return None, considered
+        else:
+            picks = [0] if len(ids) == 1 else []
+        if all(pick is None for pick in picks):
+            return None, considered
         cells = self._detector.getDictionary().markerSize + 2
         missing = np.full((4, 2), np.nan)
         refined = [missing if pick is None else refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells)
