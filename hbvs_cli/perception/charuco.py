@@ -23,7 +23,7 @@ from ..errors import InputError, UsageError
 from .aruco import (DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, dictionary_size,
                     unrefined_markers)
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
-from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, inside_image, refine_twice, saddle_points
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
@@ -232,7 +232,7 @@ class CharucoTargetDetector:
         prediction = self._track.predict()
         if prediction is None or not np.isfinite(prediction).all():
             return None
-        if not _inside(prediction, self._last_window + 2, gray.shape).all():
+        if not inside_image(prediction, self._last_window + 2, gray.shape).all():
             return None
         once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
         if row_lengths(once - prediction).max() > MAX_REFINE_MOVE_PX or row_lengths(again - once).max() > SETTLED_PX:
@@ -288,7 +288,7 @@ class CharucoTargetDetector:
         (:data:`FAR_REFINE_MOVE_PX` where its neighbours agree), or does not come back when
         refined again from a little off, keeps OpenCV's position."""
         window = self._last_window = self._window(corners, ids)[0]
-        inside = _inside(corners, window + 2, gray.shape)
+        inside = inside_image(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
             return refined
@@ -307,11 +307,6 @@ class CharucoTargetDetector:
             if expected is not None and np.linalg.norm(once - expected) < min(NEIGHBOUR_AGREEMENT_PX, np.linalg.norm(refined[row] - expected)):
                 refined[row] = once
         return saddle_points(gray, refined)
-
-
-def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
-    """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
-    return ((corners >= margin) & (corners <= (shape[1] - 1 - margin, shape[0] - 1 - margin))).all(axis=1)
 
 
 def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], row: int) -> NDArray[np.float64] | None:
