@@ -179,9 +179,7 @@ class ArucoMarkerDetector:
         searched with one adaptive threshold, then all; the whole frame when that fails.
         """
         gray = as_gray(image)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
         considered = 0
         searches = [(None, None)]

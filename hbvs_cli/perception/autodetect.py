@@ -161,7 +161,7 @@ def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") 
     """Centres (N, 2) px of the round blobs of similar size in one frame, and whether they
     make up most of what is compact and interior (a textured picture has many dark shapes
     that are not round; components cut by the frame's edge are not counted)."""
-    blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
+    blobs = find_dark_blobs(dark_image(image, polarity, contrast))
     round_areas, centres = blobs.areas[blobs.round], blobs.centres[blobs.round]
     if round_areas.size < 3:
         return centres, False

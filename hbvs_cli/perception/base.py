@@ -102,18 +102,18 @@ class PointTrack:
             self.reset()
 
 
-def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
-    """``predicted`` as an (N, 2) float array (NaN rows allowed), or None when it has no
-    finite row; UsageError for the wrong shape or infinities."""
+def check_prediction(predicted: ArrayLike | None, n_points: int, track: PointTrack | None = None) -> NDArray[np.float64] | None:
+    """``predicted`` as an (N, 2) float array (NaN rows allowed), or, when it has no finite row,
+    ``track``'s prediction (None without a track); UsageError for the wrong shape or infinities."""
     if predicted is None:
-        return None
+        return None if track is None else track.predict()
     array = np.asarray(predicted, dtype=np.float64)
     if array.shape != (n_points, 2):
         raise UsageError(f"a prediction needs shape ({n_points}, 2), got {array.shape}")
     if np.any(np.isinf(array)):
         raise UsageError("a prediction may contain NaN rows but no infinities")
     if not np.any(np.all(np.isfinite(array), axis=1)):
-        return None
+        return None if track is None else track.predict()
     return array
 
 

@@ -178,7 +178,7 @@ def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
     """The spec with its number of round dots, counted in the first image when not known."""
     if spec.n_points is not None:
         return spec
-    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"), flatten=True)
+    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"))
     count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
     if count < 3:
         raise InputError(f"found {count} {spec.polarity or 'dark'} dots in the first image; a dots target needs at least 3 (or choose --target)")

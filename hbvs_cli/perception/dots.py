@@ -175,26 +175,6 @@ def ground_noise(flat: NDArray[np.float32], floor: float = 0.0) -> float:
     return float(scale * plain_median(differences))
 
 
-def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float = 0.0, noisy: bool = False) -> int | None:
-    """Threshold of a flattened window (ground at 255): Otsu's, or half-way from the ground
-    to the darkest (3x3-averaged) level if that is higher.
-
-    Otsu misses a few 2-3 px dots; the half-way level (where a blurred disc's rim crosses
-    its true radius) finds them. A ``noisy`` window takes the half-way level, kept
-    :data:`GROUND_NOISE_MARGIN` times the remaining ``noise`` below the ground.
-    """
-    darkest = float(cv2.blur(levels, (3, 3)).min())
-    if 255.0 - darkest < min_contrast:
-        return None
-    halfway = int(0.5 * (255.0 + darkest))
-    if noisy:
-        # Otsu would split the ground's noise, and a threshold jumping between the two
-        # would change the dots' areas (the tracker gates on them) from frame to frame.
-        return min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
-    otsu = otsu_threshold(levels, min_contrast)
-    return halfway if otsu is None else max(otsu, halfway)
-
-
 def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
     """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
     levels = np.arange(hist.size, dtype=np.float64)
@@ -223,8 +203,14 @@ def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolat
 
 def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast: float
                            ) -> tuple[NDArray[np.uint8], int | None]:
-    """The 8-bit levels of a flattened image to threshold (smoothed when the sensor is noisy)
-    and the threshold, given the ground's noise (gray levels)."""
+    """The 8-bit levels of a flattened image (ground at 255) to threshold, smoothed when the
+    ground's ``noise`` (gray levels) is above :data:`NOISY_GROUND`, and the threshold: Otsu's, or
+    half-way from the ground to the darkest (3x3-averaged) level if that is higher.
+
+    Otsu misses a few 2-3 px dots; the half-way level (where a blurred disc's rim crosses
+    its true radius) finds them. A noisy image takes the half-way level, kept
+    :data:`GROUND_NOISE_MARGIN` times the noise smoothing leaves below the ground.
+    """
     noisy = noise > NOISY_GROUND
     if noisy:
         # Segment a smoothed copy, or every speck becomes a blob; the centres are still
@@ -232,48 +218,43 @@ def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast
         sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
         levels = cv2.GaussianBlur(levels, (0, 0), sigma)
         noise /= 2.0 * math.sqrt(math.pi) * sigma
-    return levels, _flat_threshold(levels, min_contrast, noise, noisy)
+    darkest = float(cv2.blur(levels, (3, 3)).min())
+    if 255.0 - darkest < min_contrast:
+        return levels, None
+    halfway = int(0.5 * (255.0 + darkest))
+    if noisy:
+        # Otsu would split the ground's noise, and a threshold jumping between the two
+        # would change the dots' areas (the tracker gates on them) from frame to frame.
+        return levels, min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
+    otsu = otsu_threshold(levels, min_contrast)
+    return levels, halfway if otsu is None else max(otsu, halfway)
 
 
-def find_dark_blobs(
-    gray: NDArray[np.uint8],
-    window: tuple[int, int, int, int] | None = None,
-    min_area: int = 6,
-    max_area: float | None = None,
-    max_elongation: float = 1.8,
-    min_contrast: float = 20.0,
-    flatten: bool = False,
-) -> Blobs:
-    """Dark, dot-like blobs of ``gray`` (H, W) uint8 and their sub-pixel centres.
+def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None = None, min_area: int = 6,
+                    max_elongation: float = 1.8, min_contrast: float = 20.0) -> Blobs:
+    """Dark, dot-like blobs of ``gray`` (H, W) uint8 and their sub-pixel centres, thresholded
+    and measured with the ground's brightness divided out (:func:`flatten_ground`: uneven lighting).
 
     ``window`` (x0, y0, x1, y1, end-exclusive px): searched alone (default: the whole frame);
-    components under ``min_area`` px are noise, not even counted; ``max_area``: the largest
-    dot (px, default a quarter of the window); ``max_elongation``: of the blob's principal
-    axes (1 for a disc; one seen 50 deg off its normal gives ~1.55); below ``min_contrast``
-    gray levels nothing is detected; ``flatten``: the window's ground divided out first
-    (:func:`flatten_ground`, for uneven lighting), thresholds and centres then taken on it.
+    components under ``min_area`` px are noise, not even counted; a dot is at most a quarter of
+    the window; ``max_elongation``: of the blob's principal axes (1 for a disc; one seen 50 deg
+    off its normal gives ~1.55); below ``min_contrast`` gray levels nothing is detected.
     """
     height, width = gray.shape
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
-    sub = gray[y0:y1, x0:x1]
+    raw = np.ascontiguousarray(gray[y0:y1, x0:x1])
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
-    if sub.size == 0:
+    if raw.size == 0:
         return empty
-    if flatten:
-        raw = np.ascontiguousarray(sub)
-        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
-        if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
-            # Faint dots: re-estimate the ground continued past the frame's edges (not in a
-            # tracked window, where a few noisy rows would extrapolate it worse).
-            sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
-    else:
-        levels = sub
-        threshold = otsu_threshold(levels, min_contrast)
+    sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
+    if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
+        # Faint dots: re-estimate the ground continued past the frame's edges (not in a
+        # tracked window, where a few noisy rows would extrapolate it worse).
+        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     if threshold is None:
         return empty
     sub_h, sub_w = sub.shape
-    largest = 0.25 * sub.size if max_area is None else max_area
-    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [largest], min_area,
+    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [0.25 * sub.size], min_area,
                           max_elongation)
 
 
@@ -408,9 +389,7 @@ class DotDetector:
         dots is searched; without one, the whole frame.
         """
         gray = dark_image(image, self.polarity, self.contrast)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         if prediction is not None:
             window = self._window(gray.shape, prediction)
             blobs, (pixels, areas) = self._search(gray, window, lambda found: self._assign(found, prediction))
@@ -442,7 +421,7 @@ class DotDetector:
     def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """Candidates in ``window`` (its ground divided out, :func:`flatten_ground`) and the
         dots ``pick`` makes of them."""
-        blobs = find_dark_blobs(gray, window, self.min_area, None, self.max_elongation, self.min_contrast, True)
+        blobs = find_dark_blobs(gray, window, self.min_area, self.max_elongation, self.min_contrast)
         return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:

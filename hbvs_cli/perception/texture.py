@@ -127,9 +127,7 @@ class TextureDetector:
         the prediction (its box grown by 60 %), then in the whole frame.
         """
         gray = as_gray(image)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
         aligned = False
         if prediction is not None:
@@ -486,10 +484,8 @@ def align_homography(template: NDArray[np.float32], frame: NDArray[np.float32], 
     height, width = frame.shape
     start = transfer(homography, check_points)
     # Work on the frame's region around the target: ECC warps the whole input each step.
-    low = np.floor(start.min(axis=0) - 8).astype(int)
-    high = np.ceil(start.max(axis=0) + 8).astype(int)
-    x0, y0 = max(int(low[0]), 0), max(int(low[1]), 0)
-    x1, y1 = min(int(high[0]), width), min(int(high[1]), height)
+    x0, y0 = np.maximum(np.floor(start.min(axis=0) - 8).astype(int), 0).tolist()
+    x1, y1 = np.minimum(np.ceil(start.max(axis=0) + 8).astype(int), (width, height)).tolist()
     if x1 - x0 < 8 or y1 - y0 < 8:
         return None, float("nan")
     warp = (_shift(-x0, -y0) @ homography).astype(np.float32)
