@@ -3,8 +3,6 @@
 The target's points are the outer corners of one or several markers, each marker's in
 OpenCV's order (top-left, top-right, bottom-right, bottom-left as printed), the markers in
 the order of their ids as given; the code gives identity, tracking only narrows the search.
-``cornerSubPix`` pulls an L-shaped outer corner inward, so each corner is re-measured where
-lines fitted to its two edges meet (:func:`refine_marker_corners`).
 """
 
 from __future__ import annotations
@@ -245,9 +243,10 @@ def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64],
                           cells: int = 6) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges, refined until they settle.
 
-    OpenCV's corners can be most of a pixel off on a small marker, where one pass's profiles
-    (:func:`_refine_corners_once`, whose parameters these are) cut one tail of the edge's
-    rise; each pass starts from the last one's corners. ``max_shift`` bounds the whole move.
+    ``cornerSubPix`` pulls an L-shaped outer corner inward: each corner is re-measured where lines
+    fitted to its two edges meet. OpenCV's corners can be most of a pixel off on a small marker,
+    where one pass's profiles (:func:`_refine_corners_once`, whose parameters these are) cut one
+    tail of the edge's rise; each pass starts from the last one's corners. ``max_shift`` bounds the whole move.
     """
     start = np.asarray(corners, dtype=np.float64)
     refined = start

@@ -1,10 +1,8 @@
 """Dots followed in one small window each: the tracked detection of the closed loop.
 
-:class:`~.dots.DotDetector` searches the box around all its dots, most of the frame for a
-spread target; a dot within :data:`WINDOW_GATE_PX` of its prediction lies whole in a small
-square around it, and those squares alone (merged where they overlap, searched side by side
-as one image) find the same dots reading a few percent of the pixels, which is all a
-renderer need render. A dot not in its window falls back to the whole frame.
+A dot within :data:`WINDOW_GATE_PX` of its prediction lies whole in a small square around it:
+those squares alone (merged where they overlap) find the same dots as the box around all of
+them, reading (and needing rendered) a few percent of the pixels.
 """
 
 from __future__ import annotations

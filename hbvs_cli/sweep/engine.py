@@ -186,12 +186,8 @@ class BatchSizer:
     def next_size(self) -> int:
         size = 1
         if self.runs:
-            fits = [MAX_BATCH]
-            if self.cpu > 0:
-                fits.append(BATCH_CPU_SECONDS * self.runs / self.cpu)
-            if self.wall > 0:
-                fits.append(BATCH_WALL_SECONDS * self.runs / self.wall)
-            size = max(1, int(min(fits)))
+            aims = ((BATCH_CPU_SECONDS, self.cpu), (BATCH_WALL_SECONDS, self.wall))
+            size = max(1, int(min([MAX_BATCH] + [aim * self.runs / spent for aim, spent in aims if spent > 0])))
         if self.left is not None:
             size = max(1, min(size, self.left // (2 * self.workers)))
         return size
