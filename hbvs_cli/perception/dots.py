@@ -430,11 +430,8 @@ class DotDetector:
         areas = self._areas[np.isfinite(self._areas)]
         radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
         margin = self.gate_px + radius + 6.0
-        height, width = shape
-        x0 = int(max(np.floor(known[:, 0].min() - margin), 0))
-        y0 = int(max(np.floor(known[:, 1].min() - margin), 0))
-        x1 = int(min(np.ceil(known[:, 0].max() + margin) + 1, width))
-        y1 = int(min(np.ceil(known[:, 1].max() + margin) + 1, height))
+        x0, y0 = np.maximum(np.floor(known.min(axis=0) - margin), 0).astype(int).tolist()
+        x1, y1 = np.minimum(np.ceil(known.max(axis=0) + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
         return x0, y0, max(x1, x0), max(y1, y0)
 
     def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

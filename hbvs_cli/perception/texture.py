@@ -10,7 +10,7 @@ tilt, so the alignment models all three.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -67,11 +67,8 @@ class TextureDetection(Detection):
 
 
 class TextureDetector:
-    """Find a textured target by matching features against a reference image.
-
-    ``reference_image``: a gray or BGR uint8 view of the target; ``reference_pixels`` (N, 2):
-    the target points in it (px); ``seed``: of OpenCV's RNG for the robust fits.
-    """
+    """Find a textured target by matching features against ``reference_image`` (a gray or BGR uint8
+    view of it, where its points are ``reference_pixels`` (N, 2) px); ``seed``: OpenCV's RNG's for the robust fits."""
 
     kind = "texture"
 
@@ -146,19 +143,13 @@ class TextureDetector:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and not aligned:
-            result = self._align(gray, result)
+        if result.found and result.homography is not None and not aligned:  # polished by aligning the whole target region
+            homography, correlation = self._aligned_homography(gray, result.homography)
+            if homography is not None:
+                result = replace(result, pixels=transfer(homography, self.reference_pixels), homography=homography,
+                                 correlation=correlation)
         self._track.update(result.pixels)
         return result
-
-    def _align(self, gray: NDArray[np.uint8], result: TextureDetection) -> TextureDetection:
-        """``result`` polished by aligning the whole target region (ECC); kept as it was when
-        the alignment fails."""
-        homography, correlation = self._aligned_homography(gray, result.homography)
-        if homography is None:
-            return result
-        return TextureDetection(transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
-                                result.inliers, correlation)
 
     def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64],
                       min_correlation: float | None = None) -> TextureDetection | None:
