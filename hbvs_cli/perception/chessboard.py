@@ -6,8 +6,8 @@ The grid (:func:`board_layout`) is a shape known up to a similarity: it pins n*.
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -49,15 +49,7 @@ def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None)
     ``pattern``: inner corners per row and rows (None: the largest board of at least 3x3, its
     pattern reported)."""
     gray = as_gray(image)
-    key = (gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
-    with _SEARCHES_LOCK:
-        found = _SEARCHES.get(key, _NOT_SEARCHED)
-    if found is _NOT_SEARCHED:
-        found = _search(gray, key[2])
-        with _SEARCHES_LOCK:  # the target's pick searches frames in two threads
-            _SEARCHES[key] = found
-            while len(_SEARCHES) > 8:
-                del _SEARCHES[next(iter(_SEARCHES))]
+    found = _cached_search(gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
     return None if found is None else Board(found.pattern, found.corners.copy())
 
 
@@ -80,10 +72,10 @@ def find_board_near(image: NDArray[np.uint8], pattern: tuple[int, int], corners:
 NEAR_MARGIN_PX = 32
 
 
-#: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
-_SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
-_SEARCHES_LOCK = threading.Lock()
-_NOT_SEARCHED = object()
+@lru_cache(maxsize=8)
+def _cached_search(shape: tuple[int, ...], pixels: bytes, pattern: tuple[int, int] | None) -> Board | None:
+    """The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it)."""
+    return _search(np.frombuffer(pixels, dtype=np.uint8).reshape(shape), pattern)
 
 
 def _search(gray: NDArray[np.uint8], pattern: tuple[int, int] | None) -> Board | None:
