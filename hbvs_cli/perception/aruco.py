@@ -107,11 +107,10 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
 
 @dataclass(frozen=True)
 class MarkerSighting:
-    """Markers of one family found in a frame: the smallest ``dictionary`` of the family that
-    holds every id seen, the distinct ``ids`` ascending, and the ``smallest_side_px`` of the
-    markers (tiny markers are the likeliest false decodes)."""
+    """Markers of one ``family`` (of :data:`MARKER_FAMILIES`) found in a frame: the distinct ``ids``
+    ascending, and the ``smallest_side_px`` of the markers (tiny markers are the likeliest false decodes)."""
 
-    dictionary: str
+    family: str
     ids: tuple[int, ...]
     smallest_side_px: float
 
@@ -122,14 +121,11 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
     gray = as_gray(image)
     sightings = []
     for family in families or MARKER_FAMILIES:
-        names = MARKER_FAMILIES[family]
-        corners, ids = unrefined_markers(gray, names[-1])
+        corners, ids = unrefined_markers(gray, MARKER_FAMILIES[family][-1])
         if not ids:
             continue
-        seen = sorted(set(ids))
-        name = next(n for n in names if dictionary_size(n) > seen[-1])
         sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
-        sightings.append(MarkerSighting(name, tuple(seen), min(sides)))
+        sightings.append(MarkerSighting(family, tuple(sorted(set(ids))), min(sides)))
     sightings.sort(key=lambda s: -len(s.ids))
     return sightings
 

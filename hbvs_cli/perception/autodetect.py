@@ -88,9 +88,8 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
         for sighting in scan_markers(image, families):
             if sighting.smallest_side_px < MIN_MARKER_SIDE_PX:
                 continue
-            family = next(name for name, members in MARKER_FAMILIES.items() if sighting.dictionary in members)
-            votes[family] += 1
-            ids_seen.setdefault(family, Counter()).update(sighting.ids)
+            votes[sighting.family] += 1
+            ids_seen.setdefault(sighting.family, Counter()).update(sighting.ids)
     family, count = votes.most_common(1)[0] if votes else ("", 0)
     ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if _majority(n, len(images)))
     if not _majority(count, len(images)) or not ids:

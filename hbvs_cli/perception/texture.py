@@ -267,9 +267,8 @@ class TextureDetector:
             return None
         start = projected[inside].astype(np.float32)
         margin = 8 * 2**levels
-        x0, y0 = (np.floor(start.min(axis=0)).astype(int) - margin).tolist()
-        x1, y1 = (np.ceil(start.max(axis=0)).astype(int) + margin + 1).tolist()
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        x0, y0 = np.maximum(np.floor(start.min(axis=0)).astype(int) - margin, 0).tolist()
+        x1, y1 = np.minimum(np.ceil(start.max(axis=0)).astype(int) + margin + 1, (width, height)).tolist()
         shift = _shift(-x0, -y0)
         warped = cv2.warpPerspective(self.reference, shift @ homography, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
         frame = np.ascontiguousarray(gray[y0:y1, x0:x1])
