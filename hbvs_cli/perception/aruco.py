@@ -131,13 +131,9 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
 
 
 class ArucoMarkerDetector:
-    """Detect one or several markers of a dictionary and report their corners.
-
-    ``marker_id``: the marker to report (None: whichever single marker is in view; ignored
-    when ``marker_ids`` is given); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``;
-    ``marker_ids``: several markers, 4 corners each in this order, found when any is seen
-    (NaN rows for the others).
-    """
+    """The corners of one marker of a ``dictionary`` (``marker_id``; None: whichever single marker
+    is in view) or of several (``marker_ids``, 4 corners each in this order, found when any is
+    seen, NaN rows for the others); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``."""
 
     kind = "aruco"
 
@@ -167,11 +163,9 @@ class ArucoMarkerDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the marker's corners; see :class:`~.base.TargetDetector`.
-
-        With a prediction, a window around the predicted marker (plus half its size) is
-        searched with one adaptive threshold, then all; the whole frame when that fails.
-        """
+        """Find the markers' corners (:class:`~.base.TargetDetector`): with a prediction, in a window
+        around it (plus half its size) with one adaptive threshold, then all; without one, or
+        when that fails, in the whole frame."""
         gray = as_gray(image)
         prediction = check_prediction(predicted, self.n_points, self._track)
         result = None

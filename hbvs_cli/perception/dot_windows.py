@@ -83,9 +83,7 @@ def find_blobs_in_windows(
     :func:`~.dots.find_dark_blobs` (whose options these are) finds them in a flattened window.
 
     Each window's ground is divided out on its own; then one noise estimate (the windows'
-    mean), one threshold and one labelling in ``mosaic`` serve them all. A candidate reaching
-    its window's edge is not dot-like.
-    """
+    mean), one threshold and one labelling in ``mosaic`` serve them all."""
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     windows = [w for w in windows if w[2] > w[0] and w[3] > w[1]]
     if not windows:

@@ -383,11 +383,8 @@ class DotDetector:
         self._areas[:] = np.nan
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the dots; see :class:`~.base.TargetDetector`.
-
-        With a prediction (given, or from the track) only a window around the predicted
-        dots is searched; without one, the whole frame.
-        """
+        """Find the dots (:class:`~.base.TargetDetector`): with a prediction (given, or the track's),
+        in a window around the predicted dots only; without one, in the whole frame."""
         gray = dark_image(image, self.polarity, self.contrast)
         prediction = check_prediction(predicted, self.n_points, self._track)
         if prediction is not None:
@@ -469,11 +466,8 @@ class DotDetector:
         return np.any(touching, axis=1)
 
     def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Dots without any prediction: exactly N dot-like blobs, in canonical order.
-
-        Blobs of an area far from the others' median are dropped first; if the count is
-        still not N, nothing is reported (a guessed identity would be worse than none).
-        """
+        """Dots without any prediction: exactly N dot-like blobs, in canonical order, those of an area
+        far from the others' median dropped first; none while not N (a guessed identity would be worse)."""
         pixels = np.full((self.n_points, 2), np.nan)
         areas = np.full(self.n_points, np.nan)
         candidates = np.flatnonzero(blobs.round)

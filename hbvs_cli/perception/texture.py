@@ -116,13 +116,10 @@ class TextureDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
-        """Find the target points; see :class:`~.base.TargetDetector`.
-
-        With a prediction (given, or from the track) the target is followed from it: by the
-        alignment alone when it correlates well, else by Lucas-Kanade, else by the alignment
-        without that bound (a picture with little texture); failing those, acquired around
-        the prediction (its box grown by 60 %), then in the whole frame.
-        """
+        """Find the target points (:class:`~.base.TargetDetector`), followed from a prediction (given,
+        or the track's) by the alignment alone when it correlates well, else by Lucas-Kanade, else
+        by the alignment without that bound (a picture with little texture); failing those,
+        acquired around the prediction (its box grown by 60 %), then in the whole frame."""
         gray = as_gray(image)
         prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
@@ -253,13 +250,10 @@ class TextureDetector:
         return TextureDetection(pixels, True, candidates, candidates - inliers, homography, inliers)
 
     def _follow(self, gray: NDArray[np.uint8], homography: NDArray[np.float64], levels: int = 2) -> TextureDetection | None:
-        """Refine an approximate ``homography`` by Lucas-Kanade on the warped reference.
-
-        Warped by the estimate, the reference nearly coincides with the frame, so small-window
-        LK gives sub-pixel displacements and a correction homography (seeded robust fit).
-        None when too few reference corners are in view or agree. Two pyramid levels reach
-        about 20 px from a tracked prediction.
-        """
+        """An approximate ``homography`` refined by Lucas-Kanade: warped by it, the reference nearly
+        coincides with the frame, so small-window LK gives sub-pixel displacements and a correction
+        homography (seeded robust fit); None when too few reference corners are in view or agree.
+        Two pyramid ``levels`` reach about 20 px from a tracked prediction."""
         height, width = gray.shape
         projected = transfer(homography, self._polish_points.astype(np.float64))
         inside = (projected[:, 0] > 8) & (projected[:, 1] > 8) & (projected[:, 0] < width - 9) & (projected[:, 1] < height - 9)
