@@ -1,7 +1,5 @@
 """Dark dots on a light poster: sub-pixel blob centres with identity kept by tracking.
 
-Candidates are the dot-like connected components of an Otsu threshold; each centre is the
-centroid of its blob weighted by darkness below the local paper level (sub-pixel).
 Identity comes from an optimal, distance- and area-gated assignment of candidates to the
 predicted positions, so it survives dots crossing; only a first detection sorts the dots
 by row ``v`` then column ``u`` (or matches a lost target's last layout).
@@ -85,10 +83,9 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
         ground = np.full(gray.shape, max(float(small.max()), 1.0), dtype=np.float32)
     else:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
-        if extrapolate_edges:
-            pad = size
-            extended = np.pad(small.astype(np.float32), pad, mode="reflect", reflect_type="odd")
-            closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[pad:-pad, pad:-pad]
+        if extrapolate_edges:  # padded by the kernel's size
+            extended = np.pad(small.astype(np.float32), size, mode="reflect", reflect_type="odd")
+            closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[size:-size, size:-size]
         else:
             closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
         ground = cv2.resize(cv2.max(closed, 1.0), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
@@ -449,10 +446,9 @@ class DotDetector:
         cost = np.where(allowed, distance2, _FORBIDDEN)
         chosen_rows, chosen_cols = optimal_assignment(cost)
         crowded = self._crowded(prediction[rows], expected)
-        for r, c in zip(chosen_rows, chosen_cols):
-            if allowed[r, c] and not crowded[r]:
-                pixels[rows[r]] = centres[c]
-                areas[rows[r]] = blobs.areas[candidates[c]]
+        keep = allowed[chosen_rows, chosen_cols] & ~crowded[chosen_rows]
+        pixels[rows[chosen_rows[keep]]] = centres[chosen_cols[keep]]
+        areas[rows[chosen_rows[keep]]] = blobs.areas[candidates[chosen_cols[keep]]]
         return pixels, areas
 
     @staticmethod
