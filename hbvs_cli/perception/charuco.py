@@ -161,12 +161,9 @@ class CharucoTargetDetector:
     """A ChArUco board's inner corners, by their ids: ``squares`` across and down, its markers'
     predefined ``dictionary``, and their side over its squares' (``marker_ratio``; when not
     given, measured in the first frame that shows the board, with its pattern, current or legacy).
-
-    OpenCV's ``CharucoDetector`` finds the corners; each is refined again (``cornerSubPix`` in
-    a window inside the gap to the markers) and measured as the image's saddle point
-    (:func:`~.chessboard.saddle_points`). A board seen whole in the last two frames is tracked
-    from its prediction instead (:meth:`_tracked`); a frame is found with :data:`MIN_CORNERS`.
-    """
+    Found by OpenCV's ``CharucoDetector`` and refined (:meth:`_refined`), or, while the board is
+    seen whole, tracked from the prediction (:meth:`_tracked`); each corner is measured as the
+    image's saddle point (:func:`~.chessboard.saddle_points`), a frame found with :data:`MIN_CORNERS`."""
 
     kind = "charuco"
 

@@ -130,11 +130,8 @@ class ChessboardDetector:
         searched = corners is None
         if searched:
             board = find_board(gray, self.pattern)
-            corners = None if board is None else board.corners
-            if corners is not None and usable:
-                corners = self._in_track_order(corners, prediction)
-            if corners is not None:  # the search's corners refined as a tracked frame's are
-                corners = self._refined(gray, corners)
+            if board is not None:  # the search's corners, in the track's order, refined as a tracked frame's are
+                corners = self._refined(gray, self._in_track_order(board.corners, prediction) if usable else board.corners)
         found = corners is not None
         pixels = corners if found else np.full((self.n_points, 2), np.nan)
         self._track.update(pixels)
