@@ -89,11 +89,9 @@ def find_blobs_in_windows(
     if not windows:
         return empty
     flat, columns = mosaic.layout(windows)
-    views = []
-    for (x0, y0, x1, y1), column in zip(windows, columns):
-        view = flat[: y1 - y0, column : column + x1 - x0]
+    views = [flat[: y1 - y0, column : column + x1 - x0] for (x0, y0, x1, y1), column in zip(windows, columns)]
+    for view, (x0, y0, x1, y1) in zip(views, windows):
         view[...] = flatten_ground(np.ascontiguousarray(gray[y0:y1, x0:x1]))
-        views.append(view)
     # The windows' mean noise decides whether to smooth (and by how much). ground_noise with
     # NOISY_GROUND as its floor skips the median of a window surely below it: when every
     # window is, so is the mean; else those windows' own values enter the mean too.
@@ -175,7 +173,7 @@ def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
     if spec.n_points is not None:
         return spec
     blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"))
-    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
+    count = int(np.count_nonzero(blobs.round))  # a round blob has a finite centre
     if count < 3:
         raise InputError(f"found {count} {spec.polarity or 'dark'} dots in the first image; a dots target needs at least 3 (or choose --target)")
     return replace(spec, n_points=count)

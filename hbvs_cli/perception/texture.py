@@ -520,14 +520,10 @@ def texture_points_for_template(image: NDArray[np.uint8], camera: CameraIntrinsi
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
     points = np.array([k.pt for k in keypoints])
-    low = np.percentile(points, TEXTURE_BOX_PERCENTILE, axis=0)
-    high = np.percentile(points, 100 - TEXTURE_BOX_PERCENTILE, axis=0)
+    low, high = np.percentile(points, (TEXTURE_BOX_PERCENTILE, 100 - TEXTURE_BOX_PERCENTILE), axis=0)
     margin = 0.05 * camera.height
-    rows = []
-    for row in (low[1], high[1]):
-        if abs(row - camera.cy) < margin:
-            row = camera.cy + (margin if row >= camera.cy else -margin)
-        rows.append(row)
+    rows = [camera.cy + (margin if row >= camera.cy else -margin) if abs(row - camera.cy) < margin else row
+            for row in (low[1], high[1])]
     top, bottom = min(rows), max(rows)
     return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
 
