@@ -122,12 +122,10 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
     sightings = []
     for family in families or MARKER_FAMILIES:
         corners, ids = unrefined_markers(gray, MARKER_FAMILIES[family][-1])
-        if not ids:
-            continue
-        sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
-        sightings.append(MarkerSighting(family, tuple(sorted(set(ids))), min(sides)))
-    sightings.sort(key=lambda s: -len(s.ids))
-    return sightings
+        if ids:
+            sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
+            sightings.append(MarkerSighting(family, tuple(sorted(set(ids))), min(sides)))
+    return sorted(sightings, key=lambda s: -len(s.ids))
 
 
 class ArucoMarkerDetector:

@@ -349,10 +349,9 @@ class DotDetector:
         polarity: str = "dark",
         contrast: str = "gray",
     ) -> None:
-        if polarity not in POLARITIES:
-            raise UsageError(f"dot polarity must be one of {', '.join(POLARITIES)}, got {polarity!r}")
-        if contrast not in CONTRASTS:
-            raise UsageError(f"dot contrast must be one of {', '.join(CONTRASTS)}, got {contrast!r}")
+        for what, value, choices in (("polarity", polarity, POLARITIES), ("contrast", contrast, CONTRASTS)):
+            if value not in choices:
+                raise UsageError(f"dot {what} must be one of {', '.join(choices)}, got {value!r}")
         self.polarity = polarity
         self.contrast = contrast
         if int(n_points) < 3:
