@@ -62,9 +62,9 @@ def test_the_pick_leaves_the_first_frames_searched_for_the_tracker(frames, monke
     images, _ = frames
     pattern = find_board(images[0]).pattern
     alone = make_detector("chessboard", n_points=35, board=pattern)
-    monkeypatch.setattr(chessboard, "_SEARCHES", {})  # nothing cached from other tests
+    chessboard._cached_search.cache_clear()  # nothing cached from other tests
     expected = [alone.detect(image).pixels for image in images[:2]]
-    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    chessboard._cached_search.cache_clear()
     choice = find_chessboard(images[:5])
     assert choice is not None and tuple(choice.details["board"]) == pattern
     searched = []
@@ -103,12 +103,12 @@ def test_the_pick_searches_later_frames_near_the_first_board_then_whole(frames, 
     shapes = []
     search = chessboard._search
     monkeypatch.setattr(chessboard, "_search", lambda gray, wanted: shapes.append(gray.shape) or search(gray, wanted))
-    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    chessboard._cached_search.cache_clear()
     slow = [images[0], images[1], images[1], images[1], images[1]]  # the board still near frame 0's
     assert find_chessboard(slow) is not None
     assert sorted(shape == images[0].shape[:2] for shape in shapes) == [False] * 3 + [True] * 3
     shapes.clear()
-    monkeypatch.setattr(chessboard, "_SEARCHES", {})
+    chessboard._cached_search.cache_clear()
     moving = images[:5]  # 10 to 63 px from frame 0's board: frames 3 and 4 left its window
     choice = find_chessboard(moving)
     assert choice is not None and "5 of the first 5" in choice.reason

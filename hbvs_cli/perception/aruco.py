@@ -3,8 +3,6 @@
 The target's points are the outer corners of one or several markers, each marker's in
 OpenCV's order (top-left, top-right, bottom-right, bottom-left as printed), the markers in
 the order of their ids as given; the code gives identity, tracking only narrows the search.
-``cornerSubPix`` pulls an L-shaped outer corner inward, so each corner is re-measured where
-lines fitted to its two edges meet (:func:`refine_marker_corners`).
 """
 
 from __future__ import annotations
@@ -29,10 +27,7 @@ DEFAULT_DICTIONARY = "DICT_4X4_50"
 #: Every predefined dictionary, by family, smallest first; the families in the order
 #: :func:`scan_markers` tries them (AprilTag 16h5 last: its short code decodes noise most easily).
 MARKER_FAMILIES: dict[str, tuple[str, ...]] = {
-    "4x4": ("DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000"),
-    "5x5": ("DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000"),
-    "6x6": ("DICT_6X6_50", "DICT_6X6_100", "DICT_6X6_250", "DICT_6X6_1000"),
-    "7x7": ("DICT_7X7_50", "DICT_7X7_100", "DICT_7X7_250", "DICT_7X7_1000"),
+    **{f"{n}x{n}": tuple(f"DICT_{n}X{n}_{size}" for size in (50, 100, 250, 1000)) for n in range(4, 8)},
     "original": ("DICT_ARUCO_ORIGINAL",),
     "mip_36h12": ("DICT_ARUCO_MIP_36h12",),
     "apriltag_36h11": ("DICT_APRILTAG_36h11",),
@@ -112,11 +107,10 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
 
 @dataclass(frozen=True)
 class MarkerSighting:
-    """Markers of one family found in a frame: the smallest ``dictionary`` of the family that
-    holds every id seen, the distinct ``ids`` ascending, and the ``smallest_side_px`` of the
-    markers (tiny markers are the likeliest false decodes)."""
+    """Markers of one ``family`` (of :data:`MARKER_FAMILIES`) found in a frame: the distinct ``ids``
+    ascending, and the ``smallest_side_px`` of the markers (tiny markers are the likeliest false decodes)."""
 
-    dictionary: str
+    family: str
     ids: tuple[int, ...]
     smallest_side_px: float
 
@@ -127,26 +121,17 @@ def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None
     gray = as_gray(image)
     sightings = []
     for family in families or MARKER_FAMILIES:
-        names = MARKER_FAMILIES[family]
-        corners, ids = unrefined_markers(gray, names[-1])
-        if not ids:
-            continue
-        seen = sorted(set(ids))
-        name = next(n for n in names if dictionary_size(n) > seen[-1])
-        sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
-        sightings.append(MarkerSighting(name, tuple(seen), min(sides)))
-    sightings.sort(key=lambda s: -len(s.ids))
-    return sightings
+        corners, ids = unrefined_markers(gray, MARKER_FAMILIES[family][-1])
+        if ids:
+            sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
+            sightings.append(MarkerSighting(family, tuple(sorted(set(ids))), min(sides)))
+    return sorted(sightings, key=lambda s: -len(s.ids))
 
 
 class ArucoMarkerDetector:
-    """Detect one or several markers of a dictionary and report their corners.
-
-    ``marker_id``: the marker to report (None: whichever single marker is in view; ignored
-    when ``marker_ids`` is given); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``;
-    ``marker_ids``: several markers, 4 corners each in this order, found when any is seen
-    (NaN rows for the others).
-    """
+    """The corners of one marker of a ``dictionary`` (``marker_id``; None: whichever single marker
+    is in view) or of several (``marker_ids``, 4 corners each in this order, found when any is
+    seen, NaN rows for the others); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``."""
 
     kind = "aruco"
 
@@ -176,15 +161,11 @@ class ArucoMarkerDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the marker's corners; see :class:`~.base.TargetDetector`.
-
-        With a prediction, a window around the predicted marker (plus half its size) is
-        searched with one adaptive threshold, then all; the whole frame when that fails.
-        """
+        """Find the markers' corners (:class:`~.base.TargetDetector`): with a prediction, in a window
+        around it (plus half its size) with one adaptive threshold, then all; without one, or
+        when that fails, in the whole frame."""
         gray = as_gray(image)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
         considered = 0
         searches = [(None, None)]
@@ -211,25 +192,19 @@ class ArucoMarkerDetector:
     ) -> tuple[NDArray[np.float64] | None, int]:
         """Corners of the wanted marker in ``window`` (frame pixels), and markers considered
         (found by ``detector``, the full detector by default)."""
-        x0, y0 = 0, 0
-        view = gray
-        if window is not None:
-            x0, y0, x1, y1 = window
-            view = np.ascontiguousarray(gray[y0:y1, x0:x1])
+        x0, y0, x1, y1 = window or (0, 0, gray.shape[1], gray.shape[0])
+        view = gray if window is None else np.ascontiguousarray(gray[y0:y1, x0:x1])
         corners, ids, rejected = (self._detector if detector is None else detector).detectMarkers(view)
         considered = (0 if ids is None else len(ids)) + len(rejected)
         if ids is None:
             return None, considered
         ids = np.ravel(ids)
-        if not self.marker_ids:
-            if len(ids) != 1:
-                return None, considered
-            picks = [0]
-        else:
-            # A board partly out of view keeps the markers it shows (NaN rows for the others).
+        if self.marker_ids:  # a board partly out of view keeps the markers it shows (NaN rows for the others)
             picks = [_largest_copy(corners, ids, ident) for ident in self.marker_ids]
-            if all(pick is None for pick in picks):
-                return None, considered
+        else:
+            picks = [0] if len(ids) == 1 else []
+        if all(pick is None for pick in picks):
+            return None, considered
         cells = self._detector.getDictionary().markerSize + 2
         missing = np.full((4, 2), np.nan)
         refined = [missing if pick is None else refine_marker_corners(view, corners[pick].reshape(4, 2).astype(np.float64), cells=cells)
@@ -256,9 +231,10 @@ def refine_marker_corners(gray: NDArray[np.uint8], corners: NDArray[np.float64],
                           cells: int = 6) -> NDArray[np.float64]:
     """Sub-pixel outer corners of a marker from its edges, refined until they settle.
 
-    OpenCV's corners can be most of a pixel off on a small marker, where one pass's profiles
-    (:func:`_refine_corners_once`, whose parameters these are) cut one tail of the edge's
-    rise; each pass starts from the last one's corners. ``max_shift`` bounds the whole move.
+    ``cornerSubPix`` pulls an L-shaped outer corner inward: each corner is re-measured where lines
+    fitted to its two edges meet. OpenCV's corners can be most of a pixel off on a small marker,
+    where one pass's profiles (:func:`_refine_corners_once`, whose parameters these are) cut one
+    tail of the edge's rise; each pass starts from the last one's corners. ``max_shift`` bounds the whole move.
     """
     start = np.asarray(corners, dtype=np.float64)
     refined = start

@@ -80,24 +80,21 @@ def _majority(count: int, frames: int) -> bool:
 
 def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None) -> TargetChoice | None:
     """Markers decoded consistently in ``images`` (one dictionary family), or None."""
-    families = None
-    if dictionary is not None:
-        wanted = dictionary_name(dictionary)
-        families = [name for name, members in MARKER_FAMILIES.items() if wanted in members]
+    wanted = None if dictionary is None else dictionary_name(dictionary)
+    families = None if wanted is None else [name for name, members in MARKER_FAMILIES.items() if wanted in members]
     votes: Counter[str] = Counter()
     ids_seen: dict[str, Counter[int]] = {}
     for image in images:
         for sighting in scan_markers(image, families):
             if sighting.smallest_side_px < MIN_MARKER_SIDE_PX:
                 continue
-            family = next(name for name, members in MARKER_FAMILIES.items() if sighting.dictionary in members)
-            votes[family] += 1
-            ids_seen.setdefault(family, Counter()).update(sighting.ids)
+            votes[sighting.family] += 1
+            ids_seen.setdefault(sighting.family, Counter()).update(sighting.ids)
     family, count = votes.most_common(1)[0] if votes else ("", 0)
     ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if _majority(n, len(images)))
     if not _majority(count, len(images)) or not ids:
         return None
-    name = dictionary_name(dictionary) if dictionary is not None else next(n for n in MARKER_FAMILIES[family] if dictionary_size(n) > ids[-1])
+    name = wanted or next(n for n in MARKER_FAMILIES[family] if dictionary_size(n) > ids[-1])
     others = [f for f in votes if f != family]
     also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
     which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
@@ -161,7 +158,7 @@ def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") 
     """Centres (N, 2) px of the round blobs of similar size in one frame, and whether they
     make up most of what is compact and interior (a textured picture has many dark shapes
     that are not round; components cut by the frame's edge are not counted)."""
-    blobs = find_dark_blobs(dark_image(image, polarity, contrast), flatten=True)
+    blobs = find_dark_blobs(dark_image(image, polarity, contrast))
     round_areas, centres = blobs.areas[blobs.round], blobs.centres[blobs.round]
     if round_areas.size < 3:
         return centres, False
@@ -182,10 +179,8 @@ def find_dots(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
     # brighter than it in its own channel, and darker in the others only as far as it is saturated.
     order = [("gray", "dark"), ("gray", "light")] + ([("colour", "light"), ("colour", "dark")] if colour else [])
     for contrast, kind in order:
-        centres = []
-        for image in images:
-            found, dominant = round_dots(image, kind, contrast)
-            centres.append(found if dominant and 3 <= len(found) <= MAX_DOTS else found[:0])
+        dots = [round_dots(image, kind, contrast) for image in images]
+        centres = [found if dominant and 3 <= len(found) <= MAX_DOTS else found[:0] for found, dominant in dots]
         tally = Counter(len(c) for c in centres if len(c))
         n_dots, frames = tally.most_common(1)[0] if tally else (0, 0)
         if frames and _majority(frames, len(images)):
@@ -280,29 +275,25 @@ def target_candidates(images: Sequence[NDArray[np.uint8]], template_pixels_of: A
     be (InputError for too few features).
     """
     grays = [as_gray(image) for image in images]
-    found, ruled_out, aside = [], [], ""
+    aside = ""
     markers = find_markers(grays)
     if markers is not None and len(markers.details["marker_ids"]) >= MIN_INFER_MARKERS:
         # Enough markers of one dictionary for a ChArUco board: if it is one, its corners stand for its markers.
         markers = find_charuco(grays, markers.details["marker_dict"]) or markers
-    if markers is not None:
-        found.append(markers)
-    else:
-        ruled_out.append("markers (every ArUco/AprilTag dictionary)")
-    tried = [("chessboard", find_chessboard(grays))]
+    tried = [("markers (every ArUco/AprilTag dictionary)", markers), ("chessboard", find_chessboard(grays))]
     if markers is None:  # decoded markers are blobs a dots test would see; in colour: dots may differ in hue alone
         tried.append(("dots (3-10 round dark or light blobs)", find_dots(images)))
     try:
         texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
     except InputError:
         texture = None
-    printed = [c for _, c in tried[1:] if c is not None] + [c for c in (markers,) if c is not None]
+    printed = [choice for name, choice in tried if choice is not None and name != "chessboard"]  # markers, dots
     if texture is not None and any(is_own_print(c, texture) for c in printed):
         aside = f"; the texture of their own print ({texture.predicted_deg:.2g} deg) set aside"
     else:
         tried.append(("texture (natural features matched from frame to frame)", texture))
-    found += [choice for _, choice in tried if choice is not None]
-    ruled_out += [name for name, choice in tried if choice is None]
+    found = [choice for _, choice in tried if choice is not None]
+    ruled_out = [name for name, choice in tried if choice is None]
     if not found:
         raise InputError(
             f"no known target found consistently in the first {len(grays)} frames; tried {', '.join(ruled_out)}. "

@@ -18,11 +18,9 @@ from ..core.grayscale import as_gray  # noqa: F401 - re-exported: the detectors 
 
 @dataclass(frozen=True)
 class Detection:
-    """The target points found in one frame.
-
-    ``pixels`` (N, 2): ``(u, v)`` in the target's order, NaN rows where not found; ``found``:
-    all N found and accepted; ``candidates`` considered and ``rejected`` as outliers.
-    """
+    """The target points found in one frame: ``pixels`` (N, 2) ``(u, v)`` in the target's order,
+    NaN rows where not found; ``found``: all N found and accepted; ``candidates`` considered
+    and ``rejected`` as outliers."""
 
     pixels: NDArray[np.float64]
     found: bool
@@ -47,11 +45,8 @@ class TargetDetector(Protocol):
 
 
 class PointTrack:
-    """Constant-velocity prediction of N image points from their past measurements.
-
-    A point unseen for more than ``max_coast`` frames is dropped; the track is inactive once
-    every point is. Velocities are in px per frame.
-    """
+    """Constant-velocity prediction (px per frame) of N image points from their past measurements:
+    a point unseen for more than ``max_coast`` frames is dropped, the track inactive once every point is."""
 
     def __init__(self, n_points: int, max_coast: int = 10) -> None:
         self.n_points = int(n_points)
@@ -102,18 +97,18 @@ class PointTrack:
             self.reset()
 
 
-def check_prediction(predicted: ArrayLike | None, n_points: int) -> NDArray[np.float64] | None:
-    """``predicted`` as an (N, 2) float array (NaN rows allowed), or None when it has no
-    finite row; UsageError for the wrong shape or infinities."""
+def check_prediction(predicted: ArrayLike | None, n_points: int, track: PointTrack | None = None) -> NDArray[np.float64] | None:
+    """``predicted`` as an (N, 2) float array (NaN rows allowed), or, when it has no finite row,
+    ``track``'s prediction (None without a track); UsageError for the wrong shape or infinities."""
     if predicted is None:
-        return None
+        return None if track is None else track.predict()
     array = np.asarray(predicted, dtype=np.float64)
     if array.shape != (n_points, 2):
         raise UsageError(f"a prediction needs shape ({n_points}, 2), got {array.shape}")
     if np.any(np.isinf(array)):
         raise UsageError("a prediction may contain NaN rows but no infinities")
     if not np.any(np.all(np.isfinite(array), axis=1)):
-        return None
+        return None if track is None else track.predict()
     return array
 
 
@@ -128,10 +123,8 @@ def search_window(shape: tuple[int, int], prediction: NDArray[np.float64], grow:
     low, high = known.min(axis=0), known.max(axis=0)
     extent = high - low
     margin = grow * (extent if per_axis else np.full(2, np.max(extent))) + 16.0
-    height, width = shape
-    x0, y0 = int(max(np.floor(low[0] - margin[0]), 0)), int(max(np.floor(low[1] - margin[1]), 0))
-    x1 = int(min(np.ceil(high[0] + margin[0]) + 1, width))
-    y1 = int(min(np.ceil(high[1] + margin[1]) + 1, height))
+    x0, y0 = np.maximum(np.floor(low - margin), 0).astype(int).tolist()
+    x1, y1 = np.minimum(np.ceil(high + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
     if x1 - x0 < min_size or y1 - y0 < min_size:
         return None
     return x0, y0, x1, y1
@@ -147,12 +140,9 @@ def signed_polygon_area(points: ArrayLike) -> float:
 
 
 def match_identity(detected: ArrayLike, reference: ArrayLike) -> NDArray[np.intp]:
-    """The permutation that puts detected points in the order of reference points.
-
-    The minimum total squared distance assignment once both sets (N, 2) are centred and
-    scaled to unit RMS radius, so that a target seen nearer, farther or shifted still
-    matches. ``detected[permutation]`` is in reference order.
-    """
+    """The permutation that puts detected points (N, 2) in reference order (``detected[permutation]``):
+    the minimum total squared distance assignment once both sets are centred and scaled to unit
+    RMS radius, so that a target seen nearer, farther or shifted still matches."""
     detected = np.asarray(detected, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)
     if detected.shape != reference.shape or detected.ndim != 2 or detected.shape[1] != 2:

@@ -1,22 +1,15 @@
 """A ChArUco board as the target: a chessboard whose white squares hold ArUco markers.
 
-The points are the inner corners in OpenCV's ChArUco ids (row by row), so the grid
-(:func:`~.chessboard.board_layout`) is a shape the fit knows. OpenCV's ``CharucoDetector``
-finds them; each is refined again (``cornerSubPix`` in a window inside the gap to the
-markers) and measured as the image's saddle point (:func:`~.chessboard.saddle_points`). A
-board seen whole in the last two frames is tracked from its prediction instead
-(:meth:`CharucoTargetDetector._tracked`). The markers name the corners, so a board partly in
-view gives the corners next to its markers (the others NaN; found with :data:`MIN_CORNERS`).
-
-The board's squares and dictionary come from ``--board`` and ``--marker-dict`` or a frame
-(:func:`infer_board`: the markers' centres are the white squares' centres, which with
-their ids tell the layout apart); the markers' side is measured there too.
+The points are the inner corners in OpenCV's ChArUco ids (row by row), a grid the fit knows
+(:func:`~.chessboard.board_layout`); the markers name them, so a board partly in view gives
+the corners next to its markers (the others NaN). The board's squares and dictionary come
+from ``--board`` and ``--marker-dict``, or are inferred from a frame (:func:`infer_board`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Sequence
 
@@ -27,9 +20,10 @@ from numpy.typing import NDArray
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError, UsageError
-from .aruco import DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, unrefined_markers
+from .aruco import (DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, dictionary_size,
+                    unrefined_markers)
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
-from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, refine_twice, saddle_points
+from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, inside_image, refine_twice, saddle_points
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
@@ -94,21 +88,14 @@ def _layout(squares: tuple[int, int], legacy: bool) -> dict[int, NDArray[np.floa
 
 def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = None,
                 squares: tuple[int, int] | None = None) -> CharucoGeometry | None:
-    """The ChArUco board in ``image``, its layout inferred from its markers, or None.
+    """The ChArUco board in a gray or BGR uint8 ``image``, its layout inferred from its markers, or None.
 
     Every candidate layout (squares across and down up to :data:`MAX_SQUARES`, the current
     and the legacy pattern) that holds every id seen is fitted to the markers' centres by a
     homography from the centres of its white squares; the smallest that fits to
     :data:`LAYOUT_FIT_SQUARES` wins. The markers' side is measured through that homography.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W) or (H, W, 3), uint8
-    dictionaries : sequence of str, optional
-        The dictionaries to try (default: the largest of every ArUco family; AprilTag
-        families are not made into ChArUco boards).
-    squares : (int, int), optional
-        The board's squares across and down, when known (``--board``).
+    ``dictionaries``: those tried (default: the largest of every ArUco family; AprilTag
+    families are not made into ChArUco boards); ``squares``: across and down, when known (``--board``).
     """
     gray = as_gray(image)
     names = list(dictionaries) if dictionaries else [MARKER_FAMILIES[f][-1] for f in ("4x4", "5x5", "6x6", "7x7", "original")]
@@ -117,12 +104,9 @@ def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = N
         if len(set(ids)) < MIN_INFER_MARKERS or len(set(ids)) != len(ids):
             continue
         geometry = _fit_layout(corners, ids, name, squares)
-        if geometry is not None:
-            # The smallest dictionary of the family that holds the board's markers.
+        if geometry is not None:  # in the smallest dictionary of the family that holds the board's markers
             family = next(members for members in MARKER_FAMILIES.values() if name in members)
-            count = geometry.squares[0] * geometry.squares[1] // 2
-            smallest = next(n for n in family if int(_dictionary(n).bytesList.shape[0]) >= count)
-            return CharucoGeometry(geometry.squares, smallest, geometry.marker_ratio, geometry.legacy)
+            return replace(geometry, dictionary=next(n for n in family if dictionary_size(n) >= geometry.n_markers))
     return None
 
 
@@ -174,18 +158,12 @@ def _fit_layout(corners: list[NDArray[np.float64]], ids: list[int], dictionary: 
 
 
 class CharucoTargetDetector:
-    """A ChArUco board's inner corners, by their ids.
-
-    Parameters
-    ----------
-    squares : (int, int)
-        The board's squares across and down.
-    dictionary : str
-        Its markers' predefined dictionary.
-    marker_ratio : float, optional
-        Its markers' side over its squares'; measured in the first frame that shows the
-        board when not given (with its pattern, current or legacy).
-    """
+    """A ChArUco board's inner corners, by their ids: ``squares`` across and down, its markers'
+    predefined ``dictionary``, and their side over its squares' (``marker_ratio``; when not
+    given, measured in the first frame that shows the board, with its pattern, current or legacy).
+    Found by OpenCV's ``CharucoDetector`` and refined (:meth:`_refined`), or, while the board is
+    seen whole, tracked from the prediction (:meth:`_tracked`); each corner is measured as the
+    image's saddle point (:func:`~.chessboard.saddle_points`), a frame found with :data:`MIN_CORNERS`."""
 
     kind = "charuco"
 
@@ -195,7 +173,7 @@ class CharucoTargetDetector:
             raise UsageError(f"a ChArUco board needs at least 3x3 squares, got {columns}x{rows}")
         self.squares = (columns, rows)
         self.dictionary = dictionary_name(dictionary)
-        if int(_dictionary(self.dictionary).bytesList.shape[0]) < columns * rows // 2:
+        if dictionary_size(self.dictionary) < columns * rows // 2:
             raise UsageError(f"a {columns}x{rows} ChArUco board has {columns * rows // 2} markers, more than {self.dictionary} holds")
         self.n_points = (columns - 1) * (rows - 1)
         self._geometry = None if marker_ratio is None else CharucoGeometry(self.squares, self.dictionary, float(marker_ratio))
@@ -251,7 +229,7 @@ class CharucoTargetDetector:
         prediction = self._track.predict()
         if prediction is None or not np.isfinite(prediction).all():
             return None
-        if not _inside(prediction, self._last_window + 2, gray.shape).all():
+        if not inside_image(prediction, self._last_window + 2, gray.shape).all():
             return None
         once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
         if row_lengths(once - prediction).max() > MAX_REFINE_MOVE_PX or row_lengths(again - once).max() > SETTLED_PX:
@@ -307,7 +285,7 @@ class CharucoTargetDetector:
         (:data:`FAR_REFINE_MOVE_PX` where its neighbours agree), or does not come back when
         refined again from a little off, keeps OpenCV's position."""
         window = self._last_window = self._window(corners, ids)[0]
-        inside = _inside(corners, window + 2, gray.shape)
+        inside = inside_image(corners, window + 2, gray.shape)
         refined = corners.copy()
         if not np.any(inside):
             return refined
@@ -326,11 +304,6 @@ class CharucoTargetDetector:
             if expected is not None and np.linalg.norm(once - expected) < min(NEIGHBOUR_AGREEMENT_PX, np.linalg.norm(refined[row] - expected)):
                 refined[row] = once
         return saddle_points(gray, refined)
-
-
-def _inside(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
-    """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
-    return ((corners >= margin) & (corners <= (shape[1] - 1 - margin, shape[0] - 1 - margin))).all(axis=1)
 
 
 def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], row: int) -> NDArray[np.float64] | None:

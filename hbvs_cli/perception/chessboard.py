@@ -1,17 +1,13 @@
 """A printed chessboard as the target: its inner corners, row by row in the first detection's order.
 
-A frame is searched by ``findChessboardCornersSB`` (:func:`find_board`) until the track
-is known; then every corner is refined from its prediction (``cornerSubPix``), must fit one
-homography of the grid, and is re-measured as the image's saddle point (:func:`saddle_points`).
-A later search is put back in the track's order (the board's half-turn symmetry can flip
-OpenCV's). The grid (:func:`board_layout`) is a shape known up to a similarity: it pins n*.
+The grid (:func:`board_layout`) is a shape known up to a similarity: it pins n*.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -49,25 +45,11 @@ class Board:
 
 
 def find_board(image: NDArray[np.uint8], pattern: tuple[int, int] | None = None) -> Board | None:
-    """The chessboard in ``image`` by ``findChessboardCornersSB``, or None.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W) or (H, W, 3), uint8
-    pattern : (int, int), optional
-        Inner corners per row and rows; without it the largest board of at least 3x3 is
-        found and its pattern reported.
-    """
+    """The chessboard in a gray or BGR uint8 ``image`` by ``findChessboardCornersSB``, or None;
+    ``pattern``: inner corners per row and rows (None: the largest board of at least 3x3, its
+    pattern reported)."""
     gray = as_gray(image)
-    key = (gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
-    with _SEARCHES_LOCK:
-        found = _SEARCHES.get(key, _NOT_SEARCHED)
-    if found is _NOT_SEARCHED:
-        found = _search(gray, key[2])
-        with _SEARCHES_LOCK:  # the target's pick searches frames in two threads
-            _SEARCHES[key] = found
-            while len(_SEARCHES) > 8:
-                del _SEARCHES[next(iter(_SEARCHES))]
+    found = _cached_search(gray.shape, gray.tobytes(), None if pattern is None else (int(pattern[0]), int(pattern[1])))
     return None if found is None else Board(found.pattern, found.corners.copy())
 
 
@@ -90,22 +72,20 @@ def find_board_near(image: NDArray[np.uint8], pattern: tuple[int, int], corners:
 NEAR_MARGIN_PX = 32
 
 
-#: The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it).
-_SEARCHES: dict[tuple[tuple[int, ...], bytes, tuple[int, int] | None], Board | None] = {}
-_SEARCHES_LOCK = threading.Lock()
-_NOT_SEARCHED = object()
+@lru_cache(maxsize=8)
+def _cached_search(shape: tuple[int, ...], pixels: bytes, pattern: tuple[int, int] | None) -> Board | None:
+    """The last few searches by image and pattern: fit searches its first frames twice (to pick the target, then to track it)."""
+    return _search(np.frombuffer(pixels, dtype=np.uint8).reshape(shape), pattern)
 
 
 def _search(gray: NDArray[np.uint8], pattern: tuple[int, int] | None) -> Board | None:
     flags = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     if pattern is None:
         found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (MIN_SIDE, MIN_SIDE), flags | cv2.CALIB_CB_LARGER)
-        if not found or corners is None or meta is None:
-            return None
-        rows, columns = meta.shape[:2]
-        return Board((int(columns), int(rows)), corners.reshape(-1, 2).astype(np.float64))
-    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
-    if not found or corners is None:
+        pattern = None if meta is None else (int(meta.shape[1]), int(meta.shape[0]))  # meta: rows by columns
+    else:
+        found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
+    if not found or corners is None or pattern is None:
         return None
     return Board(pattern, corners.reshape(-1, 2).astype(np.float64))
 
@@ -117,7 +97,13 @@ def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
 
 
 class ChessboardDetector:
-    """A chessboard's inner corners (``pattern``: per row, rows), tracked from frame to frame."""
+    """A chessboard's inner corners (``pattern``: per row, rows), tracked from frame to frame.
+
+    A frame is searched by ``findChessboardCornersSB`` (:func:`find_board`) until the track
+    is known; then every corner is refined from its prediction (``cornerSubPix``), must fit one
+    homography of the grid, and is re-measured as the image's saddle point (:func:`saddle_points`).
+    A later search is put back in the track's order (the board's half-turn symmetry can flip OpenCV's).
+    """
 
     kind = "chessboard"
 
@@ -144,18 +130,13 @@ class ChessboardDetector:
         searched = corners is None
         if searched:
             board = find_board(gray, self.pattern)
-            corners = None if board is None else board.corners
-            if corners is not None and usable:
-                corners = self._in_track_order(corners, prediction)
-            if corners is not None:  # the search's corners refined as a tracked frame's are
-                corners = self._refined(gray, corners)
-        if corners is None:
-            self._track.update(np.full((self.n_points, 2), np.nan))
-            self._streak = 0
-            return Detection(np.full((self.n_points, 2), np.nan), False, int(searched), 0)
-        self._track.update(corners)
-        self._streak += 1
-        return Detection(corners, True, self.n_points, 0)
+            if board is not None:  # the search's corners, in the track's order, refined as a tracked frame's are
+                corners = self._refined(gray, self._in_track_order(board.corners, prediction) if usable else board.corners)
+        found = corners is not None
+        pixels = corners if found else np.full((self.n_points, 2), np.nan)
+        self._track.update(pixels)
+        self._streak = self._streak + 1 if found else 0
+        return Detection(pixels, found, self.n_points if found else int(searched), 0)
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
         """A search's corners in the track's order: of the grid's four orderings (rows and
@@ -168,12 +149,10 @@ class ChessboardDetector:
 
     def _refined(self, gray: NDArray[np.uint8], prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Every corner refined from its prediction, or None when they do not fit the grid."""
-        height, width = gray.shape
         grid = prediction.reshape(self.pattern[1], self.pattern[0], 2)
         square = plain_median(row_lengths(np.diff(grid, axis=1).reshape(-1, 2)))
         window = int(np.clip(min(np.floor(REFINE_WINDOW_SQUARES * square), square - 2.0), *REFINE_WINDOW_PX))
-        margin = window + 2
-        if (prediction < margin).any() or (prediction > (width - 1 - margin, height - 1 - margin)).any():
+        if not inside_image(prediction, window + 2, gray.shape).all():
             return None
         corners, settled = refine_twice(gray, prediction, window, RESTART_OFFSET_PX)
         # A corner draws the refinement from all around: started again a little off, it must come back.
@@ -200,6 +179,11 @@ CHESSBOARD_SMOOTHING_PX = 1.2
 SADDLE_RADIUS_PX = 1.5
 SADDLE_PASSES = 2
 SADDLE_MAX_STEP_PX = 1.0
+
+
+def inside_image(corners: NDArray[np.float64], margin: int, shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    """Which corners (K, 2, px) are at least ``margin`` px inside an image of ``shape``."""
+    return ((corners >= margin) & (corners <= (shape[1] - 1 - margin, shape[0] - 1 - margin))).all(axis=1)
 
 
 def refine_twice(gray: NDArray[np.uint8], points: NDArray[np.float64], window: int,

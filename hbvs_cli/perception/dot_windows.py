@@ -1,16 +1,15 @@
 """Dots followed in one small window each: the tracked detection of the closed loop.
 
-:class:`~.dots.DotDetector` searches the box around all its dots, most of the frame for a
-spread target; a dot within :data:`WINDOW_GATE_PX` of its prediction lies whole in a small
-square around it, and those squares alone (merged where they overlap, searched side by side
-as one image) find the same dots reading a few percent of the pixels, which is all a
-renderer need render. A dot not in its window falls back to the whole frame.
+A dot within :data:`WINDOW_GATE_PX` of its prediction lies whole in a small square around it:
+those squares alone (merged where they overlap) find the same dots as the box around all of
+them, reading (and needing rendered) a few percent of the pixels.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,20 +37,14 @@ WINDOW_GATE_PX = 8.0
 def merged_windows(windows: list[Window]) -> list[Window]:
     """Windows with every overlapping pair replaced by their bounding box, until none overlap."""
     merged = list(windows)
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(merged)):
-            for j in range(i + 1, len(merged)):
-                a, b = merged[i], merged[j]
-                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
-                    merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-                    del merged[j]
-                    changed = True
-                    break
-            if changed:
-                break
-    return merged
+    while True:
+        overlapping = ((i, j) for i, a in enumerate(merged) for j, b in enumerate(merged[i + 1:], i + 1)
+                       if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
+        i, j = next(overlapping, (None, None))
+        if i is None:
+            return merged
+        a, b = merged[i], merged.pop(j)
+        merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
 #: Ground level of the flattened image (:func:`~.dots.flatten_ground`), which also fills the
@@ -69,10 +62,7 @@ class WindowMosaic:
     def layout(self, windows: list[Window]) -> tuple[NDArray[np.float32], list[int]]:
         """The mosaic for ``windows`` (filled with the ground) and each window's first column."""
         height = max(y1 - y0 for _, y0, _, y1 in windows)
-        columns, width = [], 0
-        for x0, _, x1, _ in windows:
-            columns.append(width)
-            width += x1 - x0 + 1
+        *columns, width = itertools.accumulate((x1 - x0 + 1 for x0, _, x1, _ in windows), initial=0)
         width -= 1
         if self._buffer.shape[0] < height or self._buffer.shape[1] < width:
             self._buffer = np.empty((max(height, self._buffer.shape[0]), max(width, self._buffer.shape[1])), dtype=np.float32)
@@ -93,19 +83,15 @@ def find_blobs_in_windows(
     :func:`~.dots.find_dark_blobs` (whose options these are) finds them in a flattened window.
 
     Each window's ground is divided out on its own; then one noise estimate (the windows'
-    mean), one threshold and one labelling in ``mosaic`` serve them all. A candidate reaching
-    its window's edge is not dot-like.
-    """
+    mean), one threshold and one labelling in ``mosaic`` serve them all."""
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     windows = [w for w in windows if w[2] > w[0] and w[3] > w[1]]
     if not windows:
         return empty
     flat, columns = mosaic.layout(windows)
-    views = []
-    for (x0, y0, x1, y1), column in zip(windows, columns):
-        view = flat[: y1 - y0, column : column + x1 - x0]
+    views = [flat[: y1 - y0, column : column + x1 - x0] for (x0, y0, x1, y1), column in zip(windows, columns)]
+    for view, (x0, y0, x1, y1) in zip(views, windows):
         view[...] = flatten_ground(np.ascontiguousarray(gray[y0:y1, x0:x1]))
-        views.append(view)
     # The windows' mean noise decides whether to smooth (and by how much). ground_noise with
     # NOISY_GROUND as its floor skips the median of a window surely below it: when every
     # window is, so is the mean; else those windows' own values enter the mean too.
@@ -186,8 +172,8 @@ def _counted(spec: DetectorSpec, image: np.ndarray) -> DetectorSpec:
     """The spec with its number of round dots, counted in the first image when not known."""
     if spec.n_points is not None:
         return spec
-    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"), flatten=True)
-    count = int(np.sum(blobs.round & np.all(np.isfinite(blobs.centres), axis=1)))
+    blobs = find_dark_blobs(dark_image(image, spec.polarity or "dark", spec.contrast or "gray"))
+    count = int(np.count_nonzero(blobs.round))  # a round blob has a finite centre
     if count < 3:
         raise InputError(f"found {count} {spec.polarity or 'dark'} dots in the first image; a dots target needs at least 3 (or choose --target)")
     return replace(spec, n_points=count)

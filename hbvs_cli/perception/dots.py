@@ -1,7 +1,5 @@
 """Dark dots on a light poster: sub-pixel blob centres with identity kept by tracking.
 
-Candidates are the dot-like connected components of an Otsu threshold; each centre is the
-centroid of its blob weighted by darkness below the local paper level (sub-pixel).
 Identity comes from an optimal, distance- and area-gated assignment of candidates to the
 predicted positions, so it survives dots crossing; only a first detection sorts the dots
 by row ``v`` then column ``u`` (or matches a lost target's last layout).
@@ -85,10 +83,9 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
         ground = np.full(gray.shape, max(float(small.max()), 1.0), dtype=np.float32)
     else:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))
-        if extrapolate_edges:
-            pad = size
-            extended = np.pad(small.astype(np.float32), pad, mode="reflect", reflect_type="odd")
-            closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[pad:-pad, pad:-pad]
+        if extrapolate_edges:  # padded by the kernel's size
+            extended = np.pad(small.astype(np.float32), size, mode="reflect", reflect_type="odd")
+            closed = cv2.morphologyEx(extended, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)[size:-size, size:-size]
         else:
             closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
         ground = cv2.resize(cv2.max(closed, 1.0), (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
@@ -97,19 +94,10 @@ def flatten_ground(gray: NDArray[np.uint8], max_radius: int = MAX_DOT_RADIUS_PX,
 
 @dataclass(frozen=True)
 class Blobs:
-    """Dark connected components of one frame (or window).
-
-    Attributes
-    ----------
-    centres : ndarray, shape (M, 2)
-        Sub-pixel centres ``(u, v)`` in frame pixels; NaN for components not dot-like.
-    areas : ndarray, shape (M,)
-        Thresholded areas (px).
-    round : ndarray, shape (M,), bool
-        Dot-like: compact, not elongated, not cut by the window's edge.
-    touches_edge : ndarray, shape (M,), bool
-        The component reaches the edge of the searched window.
-    """
+    """Dark connected components of one frame (or window): sub-pixel ``centres`` (M, 2) ``(u, v)``
+    in frame pixels (NaN rows where not dot-like), thresholded ``areas`` (M,) px, and (M,) bools:
+    ``round`` (dot-like: compact, not elongated, not cut by the window's edge) and
+    ``touches_edge`` (reaching the searched window's edge)."""
 
     centres: NDArray[np.float64]
     areas: NDArray[np.float64]
@@ -123,17 +111,13 @@ class Blobs:
 
 
 def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
-    """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined).
+    """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined): pixels
+    ``<= threshold`` are dark; None when the two classes' means differ by less than
+    ``min_contrast`` gray levels (nothing stands out).
 
     The brightest ``clip_fraction`` of pixels is folded into one bin, so a highlight cannot
     become the bright class. While the dark class holds most pixels (a dark wall around a
     small poster) it is split again: dots are a small, dark minority.
-
-    Returns
-    -------
-    threshold : int or None
-        Pixels ``<= threshold`` are dark; None when the two classes' means differ by less
-        than ``min_contrast`` gray levels (nothing stands out).
     """
     hist = cv2.calcHist([gray], [0], None, [256], [0, 256]).ravel().astype(np.float64)
     total = hist.sum()
@@ -188,26 +172,6 @@ def ground_noise(flat: NDArray[np.float32], floor: float = 0.0) -> float:
     return float(scale * plain_median(differences))
 
 
-def _flat_threshold(levels: NDArray[np.uint8], min_contrast: float, noise: float = 0.0, noisy: bool = False) -> int | None:
-    """Threshold of a flattened window (ground at 255): Otsu's, or half-way from the ground
-    to the darkest (3x3-averaged) level if that is higher.
-
-    Otsu misses a few 2-3 px dots; the half-way level (where a blurred disc's rim crosses
-    its true radius) finds them. A ``noisy`` window takes the half-way level, kept
-    :data:`GROUND_NOISE_MARGIN` times the remaining ``noise`` below the ground.
-    """
-    darkest = float(cv2.blur(levels, (3, 3)).min())
-    if 255.0 - darkest < min_contrast:
-        return None
-    halfway = int(0.5 * (255.0 + darkest))
-    if noisy:
-        # Otsu would split the ground's noise, and a threshold jumping between the two
-        # would change the dots' areas (the tracker gates on them) from frame to frame.
-        return min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
-    otsu = otsu_threshold(levels, min_contrast)
-    return halfway if otsu is None else max(otsu, halfway)
-
-
 def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
     """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
     levels = np.arange(hist.size, dtype=np.float64)
@@ -236,8 +200,14 @@ def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolat
 
 def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast: float
                            ) -> tuple[NDArray[np.uint8], int | None]:
-    """The 8-bit levels of a flattened image to threshold (smoothed when the sensor is noisy)
-    and the threshold, given the ground's noise (gray levels)."""
+    """The 8-bit levels of a flattened image (ground at 255) to threshold, smoothed when the
+    ground's ``noise`` (gray levels) is above :data:`NOISY_GROUND`, and the threshold: Otsu's, or
+    half-way from the ground to the darkest (3x3-averaged) level if that is higher.
+
+    Otsu misses a few 2-3 px dots; the half-way level (where a blurred disc's rim crosses
+    its true radius) finds them. A noisy image takes the half-way level, kept
+    :data:`GROUND_NOISE_MARGIN` times the noise smoothing leaves below the ground.
+    """
     noisy = noise > NOISY_GROUND
     if noisy:
         # Segment a smoothed copy, or every speck becomes a blob; the centres are still
@@ -245,63 +215,43 @@ def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast
         sigma = min(max(noise / (2.0 * math.sqrt(math.pi) * SMOOTHED_NOISE), 1.0), MAX_SMOOTHING_PX)
         levels = cv2.GaussianBlur(levels, (0, 0), sigma)
         noise /= 2.0 * math.sqrt(math.pi) * sigma
-    return levels, _flat_threshold(levels, min_contrast, noise, noisy)
+    darkest = float(cv2.blur(levels, (3, 3)).min())
+    if 255.0 - darkest < min_contrast:
+        return levels, None
+    halfway = int(0.5 * (255.0 + darkest))
+    if noisy:
+        # Otsu would split the ground's noise, and a threshold jumping between the two
+        # would change the dots' areas (the tracker gates on them) from frame to frame.
+        return levels, min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
+    otsu = otsu_threshold(levels, min_contrast)
+    return levels, halfway if otsu is None else max(otsu, halfway)
 
 
-def find_dark_blobs(
-    gray: NDArray[np.uint8],
-    window: tuple[int, int, int, int] | None = None,
-    min_area: int = 6,
-    max_area: float | None = None,
-    max_elongation: float = 1.8,
-    min_contrast: float = 20.0,
-    flatten: bool = False,
-) -> Blobs:
-    """Dark, dot-like blobs and their sub-pixel centres.
+def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None = None, min_area: int = 6,
+                    max_elongation: float = 1.8, min_contrast: float = 20.0) -> Blobs:
+    """Dark, dot-like blobs of ``gray`` (H, W) uint8 and their sub-pixel centres, thresholded
+    and measured with the ground's brightness divided out (:func:`flatten_ground`: uneven lighting).
 
-    Parameters
-    ----------
-    gray : ndarray, shape (H, W), uint8
-    window : (x0, y0, x1, y1), optional
-        Search only there (end-exclusive pixel bounds); the whole frame by default.
-    min_area : int
-        Components smaller than this (px) are noise and not even counted.
-    max_area : float, optional
-        Largest dot area (px); a quarter of the window by default.
-    max_elongation : float
-        Largest ratio of the blob's principal axes (1 for a disc; a disc seen 50 deg off
-        its normal gives ~1.55).
-    min_contrast : float
-        Gray-level contrast below which nothing is detected.
-    flatten : bool
-        Divide the window's ground out first (:func:`flatten_ground`), for uneven lighting;
-        thresholds and centres are then taken on the flattened window.
-
-    Returns
-    -------
-    Blobs
+    ``window`` (x0, y0, x1, y1, end-exclusive px): searched alone (default: the whole frame);
+    components under ``min_area`` px are noise, not even counted; a dot is at most a quarter of
+    the window; ``max_elongation``: of the blob's principal axes (1 for a disc; one seen 50 deg
+    off its normal gives ~1.55); below ``min_contrast`` gray levels nothing is detected.
     """
     height, width = gray.shape
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
-    sub = gray[y0:y1, x0:x1]
+    raw = np.ascontiguousarray(gray[y0:y1, x0:x1])
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
-    if sub.size == 0:
+    if raw.size == 0:
         return empty
-    if flatten:
-        raw = np.ascontiguousarray(sub)
-        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
-        if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
-            # Faint dots: re-estimate the ground continued past the frame's edges (not in a
-            # tracked window, where a few noisy rows would extrapolate it worse).
-            sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
-    else:
-        levels = sub
-        threshold = otsu_threshold(levels, min_contrast)
+    sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
+    if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
+        # Faint dots: re-estimate the ground continued past the frame's edges (not in a
+        # tracked window, where a few noisy rows would extrapolate it worse).
+        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     if threshold is None:
         return empty
     sub_h, sub_w = sub.shape
-    largest = 0.25 * sub.size if max_area is None else max_area
-    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [largest], min_area,
+    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [0.25 * sub.size], min_area,
                           max_elongation)
 
 
@@ -375,23 +325,13 @@ def _blob_centre(
 
 
 class DotDetector:
-    """Detect and track ``n_points`` dark dots, keeping their identity.
+    """Detect and track ``n_points`` (>= 3) dark dots, keeping their identity.
 
-    Parameters
-    ----------
-    n_points : int
-        Number of dots (>= 3).
-    gate_px : float
-        A candidate farther than this from a dot's predicted position (px) cannot be that dot.
-    area_ratio : (float, float)
-        A candidate whose area is outside these multiples of a tracked dot's averaged area
-        cannot be that dot (e.g. two merged dots).
-    max_coast : int
-        Frames a dot is predicted through while unseen before it is dropped.
-    min_area, max_elongation, min_contrast
-        See :func:`find_dark_blobs`.
-    polarity, contrast : str
-        One of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
+    A candidate farther than ``gate_px`` from a dot's predicted position, or whose area is
+    outside ``area_ratio`` times the dot's averaged area (two merged dots), cannot be that
+    dot; an unseen dot is predicted through ``max_coast`` frames, then dropped. ``min_area``,
+    ``max_elongation``, ``min_contrast``: :func:`find_dark_blobs`'s; ``polarity`` and
+    ``contrast``: one of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
     """
 
     kind = "dots"
@@ -409,10 +349,9 @@ class DotDetector:
         polarity: str = "dark",
         contrast: str = "gray",
     ) -> None:
-        if polarity not in POLARITIES:
-            raise UsageError(f"dot polarity must be one of {', '.join(POLARITIES)}, got {polarity!r}")
-        if contrast not in CONTRASTS:
-            raise UsageError(f"dot contrast must be one of {', '.join(CONTRASTS)}, got {contrast!r}")
+        for what, value, choices in (("polarity", polarity, POLARITIES), ("contrast", contrast, CONTRASTS)):
+            if value not in choices:
+                raise UsageError(f"dot {what} must be one of {', '.join(choices)}, got {value!r}")
         self.polarity = polarity
         self.contrast = contrast
         if int(n_points) < 3:
@@ -440,15 +379,10 @@ class DotDetector:
         self._areas[:] = np.nan
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
-        """Find the dots; see :class:`~.base.TargetDetector`.
-
-        With a prediction (given, or from the track) only a window around the predicted
-        dots is searched; without one, the whole frame.
-        """
+        """Find the dots (:class:`~.base.TargetDetector`): with a prediction (given, or the track's),
+        in a window around the predicted dots only; without one, in the whole frame."""
         gray = dark_image(image, self.polarity, self.contrast)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         if prediction is not None:
             window = self._window(gray.shape, prediction)
             blobs, (pixels, areas) = self._search(gray, window, lambda found: self._assign(found, prediction))
@@ -480,7 +414,7 @@ class DotDetector:
     def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """Candidates in ``window`` (its ground divided out, :func:`flatten_ground`) and the
         dots ``pick`` makes of them."""
-        blobs = find_dark_blobs(gray, window, self.min_area, None, self.max_elongation, self.min_contrast, True)
+        blobs = find_dark_blobs(gray, window, self.min_area, self.max_elongation, self.min_contrast)
         return blobs, pick(blobs)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
@@ -489,11 +423,8 @@ class DotDetector:
         areas = self._areas[np.isfinite(self._areas)]
         radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
         margin = self.gate_px + radius + 6.0
-        height, width = shape
-        x0 = int(max(np.floor(known[:, 0].min() - margin), 0))
-        y0 = int(max(np.floor(known[:, 1].min() - margin), 0))
-        x1 = int(min(np.ceil(known[:, 0].max() + margin) + 1, width))
-        y1 = int(min(np.ceil(known[:, 1].max() + margin) + 1, height))
+        x0, y0 = np.maximum(np.floor(known.min(axis=0) - margin), 0).astype(int).tolist()
+        x1, y1 = np.minimum(np.ceil(known.max(axis=0) + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
         return x0, y0, max(x1, x0), max(y1, y0)
 
     def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -514,10 +445,9 @@ class DotDetector:
         cost = np.where(allowed, distance2, _FORBIDDEN)
         chosen_rows, chosen_cols = optimal_assignment(cost)
         crowded = self._crowded(prediction[rows], expected)
-        for r, c in zip(chosen_rows, chosen_cols):
-            if allowed[r, c] and not crowded[r]:
-                pixels[rows[r]] = centres[c]
-                areas[rows[r]] = blobs.areas[candidates[c]]
+        keep = allowed[chosen_rows, chosen_cols] & ~crowded[chosen_rows]
+        pixels[rows[chosen_rows[keep]]] = centres[chosen_cols[keep]]
+        areas[rows[chosen_rows[keep]]] = blobs.areas[candidates[chosen_cols[keep]]]
         return pixels, areas
 
     @staticmethod
@@ -531,11 +461,8 @@ class DotDetector:
         return np.any(touching, axis=1)
 
     def _acquire(self, blobs: Blobs, layout: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Dots without any prediction: exactly N dot-like blobs, in canonical order.
-
-        Blobs of an area far from the others' median are dropped first; if the count is
-        still not N, nothing is reported (a guessed identity would be worse than none).
-        """
+        """Dots without any prediction: exactly N dot-like blobs, in canonical order, those of an area
+        far from the others' median dropped first; none while not N (a guessed identity would be worse)."""
         pixels = np.full((self.n_points, 2), np.nan)
         areas = np.full(self.n_points, np.nan)
         candidates = np.flatnonzero(blobs.round)
@@ -553,10 +480,7 @@ class DotDetector:
             return pixels, areas
         centres = blobs.centres[candidates]
         layout = layout if layout is not None else self._layout
-        if layout is not None:
-            order = match_identity(centres, layout)
-        else:
-            order = np.lexsort((centres[:, 0], centres[:, 1]))
+        order = np.lexsort((centres[:, 0], centres[:, 1])) if layout is None else match_identity(centres, layout)
         return centres[order], blobs.areas[candidates][order]
 
 

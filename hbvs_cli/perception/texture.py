@@ -10,7 +10,7 @@ tilt, so the alignment models all three.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -67,11 +67,8 @@ class TextureDetection(Detection):
 
 
 class TextureDetector:
-    """Find a textured target by matching features against a reference image.
-
-    ``reference_image``: a gray or BGR uint8 view of the target; ``reference_pixels`` (N, 2):
-    the target points in it (px); ``seed``: of OpenCV's RNG for the robust fits.
-    """
+    """Find a textured target by matching features against ``reference_image`` (a gray or BGR uint8
+    view of it, where its points are ``reference_pixels`` (N, 2) px); ``seed``: OpenCV's RNG's for the robust fits."""
 
     kind = "texture"
 
@@ -119,17 +116,12 @@ class TextureDetector:
         self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
-        """Find the target points; see :class:`~.base.TargetDetector`.
-
-        With a prediction (given, or from the track) the target is followed from it: by the
-        alignment alone when it correlates well, else by Lucas-Kanade, else by the alignment
-        without that bound (a picture with little texture); failing those, acquired around
-        the prediction (its box grown by 60 %), then in the whole frame.
-        """
+        """Find the target points (:class:`~.base.TargetDetector`), followed from a prediction (given,
+        or the track's) by the alignment alone when it correlates well, else by Lucas-Kanade, else
+        by the alignment without that bound (a picture with little texture); failing those,
+        acquired around the prediction (its box grown by 60 %), then in the whole frame."""
         gray = as_gray(image)
-        prediction = check_prediction(predicted, self.n_points)
-        if prediction is None:
-            prediction = self._track.predict()
+        prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
         aligned = False
         if prediction is not None:
@@ -148,19 +140,13 @@ class TextureDetector:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and not aligned:
-            result = self._align(gray, result)
+        if result.found and result.homography is not None and not aligned:  # polished by aligning the whole target region
+            homography, correlation = self._aligned_homography(gray, result.homography)
+            if homography is not None:
+                result = replace(result, pixels=transfer(homography, self.reference_pixels), homography=homography,
+                                 correlation=correlation)
         self._track.update(result.pixels)
         return result
-
-    def _align(self, gray: NDArray[np.uint8], result: TextureDetection) -> TextureDetection:
-        """``result`` polished by aligning the whole target region (ECC); kept as it was when
-        the alignment fails."""
-        homography, correlation = self._aligned_homography(gray, result.homography)
-        if homography is None:
-            return result
-        return TextureDetection(transfer(homography, self.reference_pixels), True, result.candidates, result.rejected, homography,
-                                result.inliers, correlation)
 
     def _aligned_from(self, gray: NDArray[np.uint8], guess: NDArray[np.float64],
                       min_correlation: float | None = None) -> TextureDetection | None:
@@ -254,11 +240,7 @@ class TextureDetector:
             return TextureDetection(missing, False, candidates, candidates)
         frame_points = np.array([keypoints[m.queryIdx].pt for m in good], dtype=np.float32) + np.float32([x0, y0])
         reference_points = self._reference_points[[m.trainIdx for m in good]]
-        cv2.setRNGSeed(self.seed)
-        homography, inlier_mask = cv2.findHomography(
-            reference_points, frame_points, cv2.USAC_MAGSAC, REPROJECTION_PX, maxIters=2000, confidence=0.9999
-        )
-        inliers = 0 if inlier_mask is None else int(inlier_mask.sum())
+        homography, inliers = self._robust_homography(reference_points, frame_points, REPROJECTION_PX)
         if homography is None or inliers < MIN_INLIERS or not _plausible(homography, self.reference_pixels, gray.shape):
             return TextureDetection(missing, False, candidates, candidates - inliers, None, inliers)
         polished = self._follow(gray, homography, levels=1)
@@ -268,13 +250,10 @@ class TextureDetector:
         return TextureDetection(pixels, True, candidates, candidates - inliers, homography, inliers)
 
     def _follow(self, gray: NDArray[np.uint8], homography: NDArray[np.float64], levels: int = 2) -> TextureDetection | None:
-        """Refine an approximate ``homography`` by Lucas-Kanade on the warped reference.
-
-        Warped by the estimate, the reference nearly coincides with the frame, so small-window
-        LK gives sub-pixel displacements and a correction homography (seeded robust fit).
-        None when too few reference corners are in view or agree. Two pyramid levels reach
-        about 20 px from a tracked prediction.
-        """
+        """An approximate ``homography`` refined by Lucas-Kanade: warped by it, the reference nearly
+        coincides with the frame, so small-window LK gives sub-pixel displacements and a correction
+        homography (seeded robust fit); None when too few reference corners are in view or agree.
+        Two pyramid ``levels`` reach about 20 px from a tracked prediction."""
         height, width = gray.shape
         projected = transfer(homography, self._polish_points.astype(np.float64))
         inside = (projected[:, 0] > 8) & (projected[:, 1] > 8) & (projected[:, 0] < width - 9) & (projected[:, 1] < height - 9)
@@ -282,9 +261,8 @@ class TextureDetector:
             return None
         start = projected[inside].astype(np.float32)
         margin = 8 * 2**levels
-        x0, y0 = (np.floor(start.min(axis=0)).astype(int) - margin).tolist()
-        x1, y1 = (np.ceil(start.max(axis=0)).astype(int) + margin + 1).tolist()
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        x0, y0 = np.maximum(np.floor(start.min(axis=0)).astype(int) - margin, 0).tolist()
+        x1, y1 = np.minimum(np.ceil(start.max(axis=0)).astype(int) + margin + 1, (width, height)).tolist()
         shift = _shift(-x0, -y0)
         warped = cv2.warpPerspective(self.reference, shift @ homography, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
         frame = np.ascontiguousarray(gray[y0:y1, x0:x1])
@@ -297,11 +275,7 @@ class TextureDetector:
         tracked = int(np.count_nonzero(ok))
         if tracked < MIN_INLIERS:
             return None
-        cv2.setRNGSeed(self.seed)
-        correction, agree = cv2.findHomography(
-            local[ok], moved.reshape(-1, 2)[ok], cv2.USAC_MAGSAC, 0.5, maxIters=2000, confidence=0.9999
-        )
-        inliers = 0 if agree is None else int(agree.sum())
+        correction, inliers = self._robust_homography(local[ok], moved.reshape(-1, 2)[ok], 0.5)
         # Most reference corners must agree: a wrong warp leaves LK points scattered.
         if correction is None or inliers < max(MIN_INLIERS, tracked // 2):
             return None
@@ -311,6 +285,12 @@ class TextureDetector:
             return None
         pixels = transfer(refined, self.reference_pixels)
         return TextureDetection(pixels, True, tracked, tracked - inliers, refined, inliers)
+
+    def _robust_homography(self, source: NDArray, target: NDArray, threshold_px: float) -> tuple[NDArray[np.float64] | None, int]:
+        """The seeded robust fit (MAGSAC) of a homography from ``source`` to ``target`` points, and its inliers."""
+        cv2.setRNGSeed(self.seed)
+        homography, mask = cv2.findHomography(source, target, cv2.USAC_MAGSAC, threshold_px, maxIters=2000, confidence=0.9999)
+        return homography, 0 if mask is None else int(mask.sum())
 
 
 class Vignetting:
@@ -488,10 +468,8 @@ def align_homography(template: NDArray[np.float32], frame: NDArray[np.float32], 
     height, width = frame.shape
     start = transfer(homography, check_points)
     # Work on the frame's region around the target: ECC warps the whole input each step.
-    low = np.floor(start.min(axis=0) - 8).astype(int)
-    high = np.ceil(start.max(axis=0) + 8).astype(int)
-    x0, y0 = max(int(low[0]), 0), max(int(low[1]), 0)
-    x1, y1 = min(int(high[0]), width), min(int(high[1]), height)
+    x0, y0 = np.maximum(np.floor(start.min(axis=0) - 8).astype(int), 0).tolist()
+    x1, y1 = np.minimum(np.ceil(start.max(axis=0) + 8).astype(int), (width, height)).tolist()
     if x1 - x0 < 8 or y1 - y0 < 8:
         return None, float("nan")
     warp = (_shift(-x0, -y0) @ homography).astype(np.float32)
@@ -542,14 +520,10 @@ def texture_points_for_template(image: NDArray[np.uint8], camera: CameraIntrinsi
     if len(keypoints) < 20:
         raise InputError("too few natural features in the first image for a texture target")
     points = np.array([k.pt for k in keypoints])
-    low = np.percentile(points, TEXTURE_BOX_PERCENTILE, axis=0)
-    high = np.percentile(points, 100 - TEXTURE_BOX_PERCENTILE, axis=0)
+    low, high = np.percentile(points, (TEXTURE_BOX_PERCENTILE, 100 - TEXTURE_BOX_PERCENTILE), axis=0)
     margin = 0.05 * camera.height
-    rows = []
-    for row in (low[1], high[1]):
-        if abs(row - camera.cy) < margin:
-            row = camera.cy + (margin if row >= camera.cy else -margin)
-        rows.append(row)
+    rows = [camera.cy + (margin if row >= camera.cy else -margin) if abs(row - camera.cy) < margin else row
+            for row in (low[1], high[1])]
     top, bottom = min(rows), max(rows)
     return np.array([[low[0], top], [high[0], top], [high[0], bottom], [low[0], bottom]])
 

@@ -51,19 +51,15 @@ class TrackedDetector:
         # (same K), its points distorted back (its template box as found, in the undistorted image).
         self._undistort_maps = _undistort_maps(camera) if self.kind.uses_template and camera.has_distortion else None
 
-    def _create(self, image: np.ndarray) -> None:
-        """The detector, its spec completed with what the first ``image`` tells (:attr:`TargetKind.complete`)."""
-        self.spec = self.kind.complete(self.spec, image)
-        if self.kind.uses_template and self.template_image is None:
-            self.template_image = image
-        template = self._undistorted(self.template_image) if self.kind.uses_template else None
-        self._detector = self.kind.make(self.spec, template, self.seed, self.windowed)
-
     def detect(self, image: np.ndarray) -> np.ndarray:
         """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
         first = self._detector is None
-        if first:
-            self._create(image)
+        if first:  # the detector, its spec completed with what the first image tells (TargetKind.complete)
+            self.spec = self.kind.complete(self.spec, image)
+            if self.kind.uses_template and self.template_image is None:
+                self.template_image = image
+            template = self._undistorted(self.template_image) if self.kind.uses_template else None
+            self._detector = self.kind.make(self.spec, template, self.seed, self.windowed)
         image = self._undistorted(image)
         if first and self.initial_prediction is not None:
             prediction = self.initial_prediction

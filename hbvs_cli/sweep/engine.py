@@ -12,7 +12,7 @@ import os
 import re
 import time
 from collections import deque
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from ..errors import OutputError, UsageError
@@ -116,8 +116,7 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                           "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "1s",
                           "distributed.worker.memory.monitor-interval": "1s", "distributed.comm.timeouts.connect": "120s",
                           **({} if dashboard else {"distributed.scheduler.http.routes": HEALTH_ONLY})}):
-        started = None
-        try:
+        with ExitStack() as stack:  # the client closed first, then the cluster started
             if scheduler is not None:
                 try:
                     client = Client(scheduler, timeout="20s")
@@ -125,23 +124,16 @@ def dask_client(scheduler: str | None, cluster: str | None, workers: int | None,
                     raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
                 except (ValueError, TypeError) as exc:  # not an address: "missing port number", an unknown protocol
                     raise UsageError(f"--scheduler {scheduler!r}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
-            elif cluster is not None:
-                started = _jobqueue_cluster(cluster, workers or 1)
-                client = Client(started)
             else:
-                started = LocalCluster(
+                started = _jobqueue_cluster(cluster, workers or 1) if cluster is not None else LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
                     protocol="tcp://", host="127.0.0.1", dashboard_address=dashboard or "127.0.0.1:0",
                     scheduler_kwargs={"dashboard": dashboard is not None}, silence_logs=logging.ERROR,
                 )
+                stack.callback(started.close)
                 client = Client(started)
-            try:
-                yield client
-            finally:
-                client.close()
-        finally:
-            if started is not None:
-                started.close()
+            stack.callback(client.close)
+            yield client
 
 
 def _jobqueue_cluster(kind: str, jobs: int) -> Any:
@@ -194,12 +186,8 @@ class BatchSizer:
     def next_size(self) -> int:
         size = 1
         if self.runs:
-            fits = [MAX_BATCH]
-            if self.cpu > 0:
-                fits.append(BATCH_CPU_SECONDS * self.runs / self.cpu)
-            if self.wall > 0:
-                fits.append(BATCH_WALL_SECONDS * self.runs / self.wall)
-            size = max(1, int(min(fits)))
+            aims = ((BATCH_CPU_SECONDS, self.cpu), (BATCH_WALL_SECONDS, self.wall))
+            size = max(1, int(min([MAX_BATCH] + [aim * self.runs / spent for aim, spent in aims if spent > 0])))
         if self.left is not None:
             size = max(1, min(size, self.left // (2 * self.workers)))
         return size

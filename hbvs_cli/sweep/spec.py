@@ -103,15 +103,13 @@ def parse_vary(text: str) -> Axis:
         if len(parts) not in (2, 3) or PARAMETERS[name].kind == "choice":
             raise UsageError(f"{where}: a range is LO:HI:N (a grid) or LO:HI (sampled), for a number")
         low, high = (_check_value(name, p, where) for p in parts[:2])
-        if len(parts) == 2:
-            return _range_axis(name, low, high, where)
         try:
-            count = int(parts[2])
+            count = None if len(parts) == 2 else int(parts[2])
         except ValueError:
             count = 0
-        if count < 1:
+        if count is not None and count < 1:
             raise UsageError(f"{where}: N must be a whole number >= 1, got {parts[2]!r}")
-        return _grid_axis(name, low, high, count, where)
+        return _span_axis(name, low, high, count, where)
     return _list_axis(name, [p.strip() for p in rest.split(",")], where)
 
 
@@ -124,19 +122,18 @@ def _list_axis(name: str, values: Sequence[Any], where: str) -> Axis:
     return Axis(name, values=checked)
 
 
-def _grid_axis(name: str, low: float, high: float, count: int, where: str) -> Axis:
+def _span_axis(name: str, low: float, high: float, count: int | None, where: str) -> Axis:
+    """LO to HI: sampled (``count`` None) or a grid of ``count`` values, ends included."""
+    if count is None:
+        if not high > low:
+            raise UsageError(f"{where}: a range needs LO < HI")
+        return Axis(name, low=float(low), high=float(high))
     check_limit("sweep-runs", count, f"{where}: the grid's values")
     values = np.linspace(low, high, count) if count > 1 else np.array([low])
     if PARAMETERS[name].kind == "int":
         return _list_axis(name, sorted({int(round(v)) for v in values}), where)
     # 12 significant digits: 0.05, not linspace's 0.05000000000000002, in tables and commands.
     return _list_axis(name, [float(f"{v:.12g}") for v in values], where)
-
-
-def _range_axis(name: str, low: float, high: float, where: str) -> Axis:
-    if not high > low:
-        raise UsageError(f"{where}: a range needs LO < HI")
-    return Axis(name, low=float(low), high=float(high))
 
 
 def _axis_from_toml(name: str, value: Any) -> Axis:
@@ -149,12 +146,10 @@ def _axis_from_toml(name: str, value: Any) -> Axis:
         if unknown or "from" not in value or "to" not in value:
             raise UsageError(f"{where}: write a list of values, or {{from = LO, to = HI}} (sampled) with steps = N for a grid")
         low, high = _check_value(name, value["from"], where), _check_value(name, value["to"], where)
-        if "steps" in value:
-            steps = value["steps"]
-            if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-                raise UsageError(f"{where}: steps must be a whole number >= 1")
-            return _grid_axis(name, low, high, steps, where)
-        return _range_axis(name, low, high, where)
+        steps = value.get("steps")
+        if "steps" in value and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+            raise UsageError(f"{where}: steps must be a whole number >= 1")
+        return _span_axis(name, low, high, steps, where)
     return _list_axis(name, [value], where)
 
 
