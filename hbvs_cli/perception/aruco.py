@@ -7,7 +7,7 @@ the order of their ids as given; the code gives identity, tracking only narrows 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Sequence
 
 import cv2
@@ -103,29 +103,6 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
     if matches.size == 0:
         return None
     return int(matches[int(np.argmax([abs(cv2.contourArea(np.float32(corners[i]).reshape(4, 2))) for i in matches]))])
-
-
-@dataclass(frozen=True)
-class MarkerSighting:
-    """Markers of one ``family`` (of :data:`MARKER_FAMILIES`) found in a frame: the distinct ``ids``
-    ascending, and the ``smallest_side_px`` of the markers (tiny markers are the likeliest false decodes)."""
-
-    family: str
-    ids: tuple[int, ...]
-    smallest_side_px: float
-
-
-def scan_markers(image: NDArray[np.uint8], families: Sequence[str] | None = None) -> list[MarkerSighting]:
-    """Every family of markers seen in a frame, the family with the most markers first; each
-    searched once with its largest dictionary (the smaller ones are its prefixes)."""
-    gray = as_gray(image)
-    sightings = []
-    for family in families or MARKER_FAMILIES:
-        corners, ids = unrefined_markers(gray, MARKER_FAMILIES[family][-1])
-        if ids:
-            sides = [float(np.min(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1))) for c in corners]
-            sightings.append(MarkerSighting(family, tuple(sorted(set(ids))), min(sides)))
-    return sorted(sightings, key=lambda s: -len(s.ids))
 
 
 class ArucoMarkerDetector:

@@ -18,15 +18,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core.camera import CameraIntrinsics
 from ..errors import InputError
 from ..thread_pool import StopSafePool
-from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, scan_markers
-from .base import as_gray
+from .aruco import MARKER_FAMILIES, dictionary_name, dictionary_size, marker_corners_in_view, unrefined_markers
+from .base import as_gray, row_lengths
 from .charuco import MIN_INFER_MARKERS, CharucoTargetDetector, infer_board
 from .chessboard import Board, board_corners_cross, find_board, find_board_near
 from .dots import ACQUIRE_AREA_RATIO, dark_image, find_dark_blobs, speck_floor
 from .target_kinds import TARGET_KINDS, target_kind
-from .texture import TextureDetector
+from .texture import TextureDetector, texture_points_for_template
 
 #: Dots targets have this many dots at most (and 3 at least).
 MAX_DOTS = 10
@@ -85,11 +86,14 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     votes: Counter[str] = Counter()
     ids_seen: dict[str, Counter[int]] = {}
     for image in images:
-        for sighting in scan_markers(image, families):
-            if sighting.smallest_side_px < MIN_MARKER_SIDE_PX:
-                continue
-            votes[sighting.family] += 1
-            ids_seen.setdefault(sighting.family, Counter()).update(sighting.ids)
+        # Each family searched once with its largest dictionary (the smaller ones are its prefixes), the one with
+        # the most markers first; tiny markers are the likeliest false decodes.
+        gray = as_gray(image)
+        seen = [(family, *unrefined_markers(gray, MARKER_FAMILIES[family][-1])) for family in families or MARKER_FAMILIES]
+        for family, corners, ids in sorted(seen, key=lambda sighting: -len(set(sighting[2]))):
+            if ids and min(float(np.min(row_lengths(np.roll(c, -1, axis=0) - c))) for c in corners) >= MIN_MARKER_SIDE_PX:
+                votes[family] += 1
+                ids_seen.setdefault(family, Counter()).update(set(ids))
     family, count = votes.most_common(1)[0] if votes else ("", 0)
     ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if _majority(n, len(images)))
     if not _majority(count, len(images)) or not ids:
@@ -266,14 +270,10 @@ def is_own_print(candidate: TargetChoice, texture: TargetChoice) -> bool:
     return float(np.mean(on_markers)) >= 0.5
 
 
-def target_candidates(images: Sequence[NDArray[np.uint8]], template_pixels_of: Any, *, seed: int = 0) -> Candidates:
+def target_candidates(images: Sequence[NDArray[np.uint8]], camera: CameraIntrinsics, seed: int = 0) -> Candidates:
     """Every target kind found consistently in the first frames (gray or BGR uint8) of a
     recording, the lowest :attr:`TargetChoice.predicted_deg` first; InputError naming every
-    kind tried when none is found.
-
-    ``template_pixels_of(first_image) -> (4, 2) px``: where a texture target's points would
-    be (InputError for too few features).
-    """
+    kind tried when none is found. A texture target's points: :func:`~.texture.texture_points_for_template`."""
     grays = [as_gray(image) for image in images]
     aside = ""
     markers = find_markers(grays)
@@ -284,7 +284,7 @@ def target_candidates(images: Sequence[NDArray[np.uint8]], template_pixels_of: A
     if markers is None:  # decoded markers are blobs a dots test would see; in colour: dots may differ in hue alone
         tried.append(("dots (3-10 round dark or light blobs)", find_dots(images)))
     try:
-        texture = find_texture(grays, np.asarray(template_pixels_of(grays[0]), dtype=float), seed)
+        texture = find_texture(grays, texture_points_for_template(grays[0], camera), seed)
     except InputError:
         texture = None
     printed = [choice for name, choice in tried if choice is not None and name != "chessboard"]  # markers, dots

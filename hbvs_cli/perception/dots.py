@@ -104,11 +104,6 @@ class Blobs:
     round: NDArray[np.bool_]
     touches_edge: NDArray[np.bool_]
 
-    @property
-    def considered(self) -> int:
-        """Components large enough to be looked at."""
-        return int(self.areas.size)
-
 
 def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
     """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined): pixels
@@ -383,18 +378,18 @@ class DotDetector:
         in a window around the predicted dots only; without one, in the whole frame."""
         gray = dark_image(image, self.polarity, self.contrast)
         prediction = check_prediction(predicted, self.n_points, self._track)
-        if prediction is not None:
-            window = self._window(gray.shape, prediction)
-            blobs, (pixels, areas) = self._search(gray, window, lambda found: self._assign(found, prediction))
-            if not np.all(np.isfinite(pixels)):
-                # Some dots were not where predicted: a whole-frame acquisition matched to
-                # the prediction's (or the last full) layout brings them back.
-                layout = prediction if np.all(np.isfinite(prediction)) else None
-                everywhere, (again, again_areas) = self._search(gray, None, lambda found: self._acquire(found, layout))
-                if np.all(np.isfinite(again)):
-                    blobs, pixels, areas = everywhere, again, again_areas
-        else:
-            blobs, (pixels, areas) = self._search(gray, None, self._acquire)
+        if prediction is None:
+            blobs = self._blobs(gray, None)
+            return self._record(blobs, *self._acquire(blobs))
+        blobs = self._blobs(gray, self._window(gray.shape, prediction))
+        pixels, areas = self._assign(blobs, prediction)
+        if not np.all(np.isfinite(pixels)):
+            # Some dots were not where predicted: a whole-frame acquisition matched to
+            # the prediction's (or the last full) layout brings them back.
+            everywhere = self._blobs(gray, None)
+            again, again_areas = self._acquire(everywhere, prediction if np.all(np.isfinite(prediction)) else None)
+            if np.all(np.isfinite(again)):
+                blobs, pixels, areas = everywhere, again, again_areas
         return self._record(blobs, pixels, areas)
 
     def _record(self, blobs: Blobs, pixels: NDArray[np.float64], areas: NDArray[np.float64]) -> Detection:
@@ -408,14 +403,12 @@ class DotDetector:
         found = bool(np.all(seen))
         if found:
             self._layout = pixels.copy()
-        n_seen = int(np.count_nonzero(seen))
-        return Detection(pixels=pixels, found=found, candidates=blobs.considered, rejected=blobs.considered - n_seen)
+        considered = int(blobs.areas.size)  # the components large enough to be looked at
+        return Detection(pixels=pixels, found=found, candidates=considered, rejected=considered - int(np.count_nonzero(seen)))
 
-    def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, pick) -> tuple[Blobs, tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        """Candidates in ``window`` (its ground divided out, :func:`flatten_ground`) and the
-        dots ``pick`` makes of them."""
-        blobs = find_dark_blobs(gray, window, self.min_area, self.max_elongation, self.min_contrast)
-        return blobs, pick(blobs)
+    def _blobs(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None) -> Blobs:
+        """Candidates in ``window`` (None: the whole frame), by :func:`find_dark_blobs` with this detector's options."""
+        return find_dark_blobs(gray, window, self.min_area, self.max_elongation, self.min_contrast)
 
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
         """Search window: the predicted dots' box grown by the gate and a dot's size."""

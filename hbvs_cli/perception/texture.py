@@ -123,24 +123,18 @@ class TextureDetector:
         gray = as_gray(image)
         prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
-        aligned = False
         if prediction is not None:
             guess = self._homography_from(prediction)
             if guess is not None:
-                result = self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION)
-                aligned = result is not None
-                if result is None:
-                    result = self._follow(gray, guess)
-                if result is None:
-                    result = self._aligned_from(gray, guess)
-                    aligned = result is not None
+                result = (self._aligned_from(gray, guess, min_correlation=FOLLOW_CORRELATION) or self._follow(gray, guess)
+                          or self._aligned_from(gray, guess))
             if result is None:
                 window = search_window(gray.shape, prediction, 0.6, 32, per_axis=True)
                 if window is not None:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and not aligned:  # polished by aligning the whole target region
+        if result.found and result.homography is not None and result.inliers > 0:  # not aligned yet: aligned on the whole target region
             homography, correlation = self._aligned_homography(gray, result.homography)
             if homography is not None:
                 result = replace(result, pixels=transfer(homography, self.reference_pixels), homography=homography,

@@ -11,14 +11,14 @@ from ..core.camera import CameraIntrinsics, distort_pixels, undistort_pixels
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import DetectorSpec, FitModel
 from ..errors import RecordingError
-from .autodetect import Candidates
-from .autodetect import target_candidates as candidates_in
+from .autodetect import target_candidates
 from .base import Detection, TargetDetector, match_identity
 from .dot_windows import Window, WindowedDotDetector
 from .target_kinds import TARGET_KINDS, target_kind
 from .texture import texture_points_for_template
 
-__all__ = ["DetectorSpec", "TrackedDetector", "texture_points_for_template"]  # DetectorSpec: core's, where the stages took it
+# DetectorSpec: core's, and target_candidates: autodetect's, where the stages take them.
+__all__ = ["DetectorSpec", "TrackedDetector", "target_candidates", "texture_points_for_template"]
 
 
 class TrackedDetector:
@@ -122,11 +122,6 @@ def _undistort_maps(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     if camera.distortion_model == "equidistant":
         return cv2.fisheye.initUndistortRectifyMap(camera.K, distortion, np.eye(3), camera.K, size, cv2.CV_32FC1)
     return cv2.initUndistortRectifyMap(camera.K, distortion, None, camera.K, size, cv2.CV_32FC1)
-
-
-def target_candidates(images: list[np.ndarray], camera: CameraIntrinsics, seed: int = 0) -> Candidates:
-    """Every kind of target the first images show (:func:`~hbvs_cli.perception.autodetect.target_candidates`)."""
-    return candidates_in(images, lambda image: texture_points_for_template(image, camera), seed=seed)
 
 
 #: The outlier gate is this many times the largest residual of the taught frames, and never
