@@ -162,7 +162,6 @@ class TextureDetector:
         the shaded template; the others once, against the template shaded by the pooled value.
         """
         x0, y0, template = self._align_template
-        to_crop = _shift(x0, y0)
         points = self.reference_pixels - (x0, y0)
         template_sigma, frame_sigma = _matched_blur(homography, self.reference_pixels)
         if template_sigma > ALIGN_BLUR_SIGMA:  # the frame sees the target smaller than the reference
@@ -171,36 +170,32 @@ class TextureDetector:
         if region is None:
             return None, float("nan")
         (fx0, fy0), frame = region
-        to_frame = _shift(-fx0, -fy0)
-        to_whole = homography @ to_crop
-        start = to_frame @ to_whole
-        if self._vignetting.wants():
-            refined, correlation = align_homography(template, frame, start, points, min_correlation)
-            if refined is None:
-                return None, correlation
-            self._vignetting.pool(template, frame, refined, (fx0, fy0))
-            refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
-        else:
+        to_whole = homography @ _shift(x0, y0)
+        start = _shift(-fx0, -fy0) @ to_whole
+        pooling = self._vignetting.wants()
+        if not pooling:
             self._vignetting.skip()
-            shaded = self._vignetting.shaded(template, to_whole)
-            refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points,
-                                                    min_correlation, settle_px=SETTLE_PX)
-            if refined is None:
-                return None, correlation
-            # How far (px, the largest) the shaded alignment moved the points from the start: far, it is aligned again.
-            moved = np.max(np.linalg.norm(transfer(refined, points) - transfer(start, points), axis=1)) if shaded is not None else 0.0
-            if moved > SHADING_PLACEMENT_PX:
-                refined, correlation = self._aligned_shaded(template, frame, refined, correlation, to_frame, points)
+        shaded = None if pooling else self._vignetting.shaded(template, to_whole)
+        refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, min_correlation,
+                                                settle_px=None if pooling else SETTLE_PX)
+        if refined is None:
+            return None, correlation
+        if pooling:
+            self._vignetting.pool(template, frame, refined, (fx0, fy0))
+        # Aligned again, shaded, after pooling, or when the shaded alignment moved a point far (px) from the start.
+        moved = np.max(np.linalg.norm(transfer(refined, points) - transfer(start, points), axis=1)) if shaded is not None else 0.0
+        if pooling or moved > SHADING_PLACEMENT_PX:
+            refined, correlation = self._aligned_shaded(template, frame, refined, correlation, (fx0, fy0), points)
         aligned = _shift(fx0, fy0) @ refined @ _shift(-x0, -y0)
         return aligned / aligned[2, 2], correlation
 
     def _aligned_shaded(self, template: NDArray[np.float32], frame: NDArray[np.float32], refined: NDArray[np.float64],
-                        correlation: float, to_frame: NDArray[np.float64], points: NDArray[np.float64]
+                        correlation: float, offset: tuple[int, int], points: NDArray[np.float64]
                         ) -> tuple[NDArray[np.float64], float]:
-        """``refined`` (template -> ``frame`` pixels) aligned again against the template shaded
-        by the pooled vignetting where ``refined`` places it, with its correlation; the given
-        pair when there is no fall-off yet or that alignment fails."""
-        shaded = self._vignetting.shaded(template, _shift(-to_frame[0, 2], -to_frame[1, 2]) @ refined)
+        """``refined`` (template -> ``frame`` pixels, ``frame`` cut out of the whole at ``offset``) aligned again
+        against the template shaded by the pooled vignetting where ``refined`` places it, with its correlation;
+        the given pair when there is no fall-off yet or that alignment fails."""
+        shaded = self._vignetting.shaded(template, _shift(*offset) @ refined)
         if shaded is None:
             return refined, correlation
         again, again_correlation = align_homography(shaded, frame, refined, points)
