@@ -145,11 +145,11 @@ class ArucoMarkerDetector:
         prediction = check_prediction(predicted, self.n_points, self._track)
         result = None
         considered = 0
-        searches = [(None, None)]
+        searches = [(None, self._detector)]
         if prediction is not None:
             window = search_window(gray.shape, prediction, 0.5, 16)
             if window is not None:
-                searches = [(window, self._window_detector), (window, None), (None, None)]
+                searches = [(window, self._window_detector), (window, self._detector), (None, self._detector)]
         # Narrowest search first; a wider one only while markers are missing (a board partly
         # out of view is searched whole once a frame, its missing markers may be back).
         for window, detector in searches:
@@ -164,14 +164,12 @@ class ArucoMarkerDetector:
         found = result is not None
         return Detection(pixels=pixels, found=found, candidates=considered, rejected=considered - int(found))
 
-    def _search(
-        self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None, detector: cv2.aruco.ArucoDetector | None = None
-    ) -> tuple[NDArray[np.float64] | None, int]:
-        """Corners of the wanted marker in ``window`` (frame pixels), and markers considered
-        (found by ``detector``, the full detector by default)."""
+    def _search(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None,
+                detector: cv2.aruco.ArucoDetector) -> tuple[NDArray[np.float64] | None, int]:
+        """Corners of the wanted marker in ``window`` (frame pixels), and markers considered (found by ``detector``)."""
         x0, y0, x1, y1 = window or (0, 0, gray.shape[1], gray.shape[0])
         view = gray if window is None else np.ascontiguousarray(gray[y0:y1, x0:x1])
-        corners, ids, rejected = (self._detector if detector is None else detector).detectMarkers(view)
+        corners, ids, rejected = detector.detectMarkers(view)
         considered = (0 if ids is None else len(ids)) + len(rejected)
         if ids is None:
             return None, considered

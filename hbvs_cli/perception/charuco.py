@@ -88,15 +88,10 @@ def _layout(squares: tuple[int, int], legacy: bool) -> dict[int, NDArray[np.floa
 
 def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = None,
                 squares: tuple[int, int] | None = None) -> CharucoGeometry | None:
-    """The ChArUco board in a gray or BGR uint8 ``image``, its layout inferred from its markers, or None.
-
-    Every candidate layout (squares across and down up to :data:`MAX_SQUARES`, the current
-    and the legacy pattern) that holds every id seen is fitted to the markers' centres by a
-    homography from the centres of its white squares; the smallest that fits to
-    :data:`LAYOUT_FIT_SQUARES` wins. The markers' side is measured through that homography.
-    ``dictionaries``: those tried (default: the largest of every ArUco family; AprilTag
-    families are not made into ChArUco boards); ``squares``: across and down, when known (``--board``).
-    """
+    """The ChArUco board in a gray or BGR uint8 ``image``, its layout inferred from its markers
+    (:func:`_fit_layout`, docs/targets.md "ChArUco boards"), or None. ``dictionaries``: those tried (default: the
+    largest of every ArUco family; AprilTag families are not made into ChArUco boards); ``squares``: across and
+    down, when known (``--board``)."""
     gray = as_gray(image)
     names = list(dictionaries) if dictionaries else [MARKER_FAMILIES[f][-1] for f in ("4x4", "5x5", "6x6", "7x7", "original")]
     for name in names:
@@ -112,8 +107,9 @@ def infer_board(image: NDArray[np.uint8], dictionaries: Sequence[str] | None = N
 
 def _fit_layout(corners: list[NDArray[np.float64]], ids: list[int], dictionary: str,
                 squares: tuple[int, int] | None) -> CharucoGeometry | None:
-    """The candidate layout whose white squares' centres fit the most markers' centres (a
-    falsely decoded marker fits none), the smallest among equals, or None."""
+    """The candidate layout (up to :data:`MAX_SQUARES` each way, current or legacy pattern) whose white squares'
+    centres fit the most markers' centres to :data:`LAYOUT_FIT_SQUARES` by one homography (a falsely decoded
+    marker fits none), the smallest among equals, its markers' side measured through it; or None."""
     centres = np.array([c.mean(axis=0) for c in corners])
     # Pixels per square near each marker, for a marker about 0.7 of its square.
     sides = np.array([np.mean(np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)) for c in corners])
@@ -341,17 +337,12 @@ def _charuco(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: int, 
     return CharucoTargetDetector(spec.board, spec.marker_dict or DEFAULT_DICTIONARY)
 
 
-def _inner_grid(spec: DetectorSpec) -> tuple[int, int]:
-    """A board's inner corners per row and rows (its squares less one each way)."""
-    return (spec.board[0] - 1, spec.board[1] - 1)
-
-
 # Saddle corners named by their markers: a bias of 0.75 point noise (bench/CALIBRATION.md),
 # correlated over frames; theta_d 0.35 deg and x_hd1 5e-3.
 register_target_kind(TargetKind(
     name="charuco", spec=_charuco_spec, make=_charuco,
     errors=DetectorErrors("charuco", bias_fraction=0.75, expected_precision=(0.35, 5e-3)), precision_scale=7.4,
-    shapes=lambda spec: [(range(int(spec.n_points or 0)), board_layout(_inner_grid(spec)))] if spec.board is not None else [],
-    size_pair=lambda spec, m_ref, normal: board_diagonal(*(_inner_grid(spec) if spec.board is not None else (m_ref.shape[0], 1))),
+    shapes=lambda spec: [(range(spec.n_points), board_layout((spec.board[0] - 1, spec.board[1] - 1)))],  # its inner corners
+    size_pair=lambda spec, m_ref, normal: board_diagonal(spec.board[0] - 1, spec.board[1] - 1),
     options=frozenset({"marker_dict", "board"}),
 ))

@@ -332,6 +332,6 @@ def _chessboard(spec: DetectorSpec, template: NDArray[np.uint8] | None, seed: in
 register_target_kind(TargetKind(
     name="chessboard", spec=_chessboard_spec, make=_chessboard,
     errors=DetectorErrors("chessboard", bias_fraction=1.25, expected_precision=(0.35, 5e-3)), precision_scale=10.4,
-    shapes=lambda spec: [(range(int(spec.n_points or 0)), board_layout(spec.board))] if spec.board is not None else [],
-    size_pair=lambda spec, m_ref, normal: board_diagonal(*(spec.board or (m_ref.shape[0], 1))),
+    shapes=lambda spec: [(range(spec.n_points), board_layout(spec.board))],
+    size_pair=lambda spec, m_ref, normal: board_diagonal(*spec.board),
 ))

@@ -93,10 +93,8 @@ class TrackedDetector:
         return self._detector.search_windows((int(self.camera.height), int(self.camera.width)))
 
     def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None:
-        """Pixels (N, 2) of the target points found in ``windows`` of ``image`` (its only pixels
-        read), or None, the track unchanged, unless every point was found there."""
-        if not isinstance(self._detector, WindowedDotDetector):
-            return None
+        """Pixels (N, 2) of the target points found in ``windows`` (of :meth:`search_windows`) of
+        ``image`` (its only pixels read), or None, the track unchanged, unless every point was found there."""
         detection = self._detector.detect_in_windows(image, windows)
         return None if detection is None else np.asarray(detection.pixels, dtype=float)
 
