@@ -1,11 +1,5 @@
-"""``--target auto``: which target a recording shows, judged on its first frames.
-
-Each kind found in most of the first frames is a candidate (a ChArUco board standing for
-its own markers, decoded markers of one family, a chessboard, 3-10 round dots, matched
-natural features that are not the print of another candidate); the one whose points
-predict the most precise theta_d wins (:attr:`TargetChoice.predicted_deg`), so a whole
-poster beats tiny markers printed in it.
-"""
+"""``--target auto``'s candidates: each kind of target found in most of a recording's first frames, ordered by
+the precision of theta_d its points predict (:attr:`TargetChoice.predicted_deg`); docs/targets.md says which."""
 
 from __future__ import annotations
 

@@ -148,13 +148,9 @@ class WindowedDotDetector(DotDetector):
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the dots; see :class:`~.base.TargetDetector`. Without a given prediction,
         the tracked dots' own windows first."""
-        if predicted is None:
-            windows = self.search_windows(image.shape[:2])
-            if windows is not None:
-                detection = self.detect_in_windows(image, windows)
-                if detection is not None:
-                    return detection
-        return super().detect(image, predicted)
+        windows = self.search_windows(image.shape[:2]) if predicted is None else None
+        detection = None if windows is None else self.detect_in_windows(image, windows)
+        return super().detect(image, predicted) if detection is None else detection
 
 
 def _dots_spec(request: SpecRequest) -> DetectorSpec:

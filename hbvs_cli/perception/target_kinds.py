@@ -40,15 +40,11 @@ class SpecRequest:
 
 @dataclass(frozen=True)
 class TargetKind:
-    """A kind of target: ``name`` (``--target NAME``, a fit file's ``target_kind``); ``spec``:
-    its detector's description; ``make(spec, template, seed, windowed)``: the detector;
-    ``complete(spec, first_image)``: what only the first image tells (how many dots);
-    ``errors``: its bias and usual precision; ``precision_scale``: theta_d's RMS error (deg)
-    times its points' RMS spread (px) times the root of their number (``--target auto``,
-    docs/targets.md); ``shapes``: its parts of known shape; ``size_pair(spec, m_ref, normal)``:
-    the points ``--target-size`` separates, in units of it (None: no metric size);
-    ``options``: the fit options it takes; ``uses_template``: matched to a template image
-    (tracked undistorted); ``image_shift(spec)``: an accumulator (``add(image, pixels)``,
+    """A kind of target (its fields: docs/layout.md, "A target kind"): ``name`` is a fit file's ``target_kind``;
+    ``make(spec, template, seed, windowed)`` the detector; ``precision_scale``: theta_d's RMS error (deg) times
+    its points' RMS spread (px) times the root of their number (``--target auto``, docs/targets.md);
+    ``size_pair(spec, m_ref, normal)``: the points ``--target-size`` separates, in units of it (None: no metric
+    size); ``uses_template``: tracked undistorted; ``image_shift(spec)``: an accumulator (``add(image, pixels)``,
     ``pull_px``) of an error all its points share, or None."""
 
     name: str

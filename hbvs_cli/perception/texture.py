@@ -173,8 +173,6 @@ class TextureDetector:
         to_whole = homography @ _shift(x0, y0)
         start = _shift(-fx0, -fy0) @ to_whole
         pooling = self._vignetting.wants()
-        if not pooling:
-            self._vignetting.skip()
         shaded = None if pooling else self._vignetting.shaded(template, to_whole)
         refined, correlation = align_homography(template if shaded is None else shaded, frame, start, points, min_correlation,
                                                 settle_px=None if pooling else SETTLE_PX)
@@ -311,13 +309,12 @@ class Vignetting:
         return self._weighted_sum / self._weight if self._weight > 0 else 0.0
 
     def wants(self) -> bool:
-        """Whether the next aligned frame should add its estimate to the pool: each of the
-        first :data:`POOL_FRAMES`, then one in :data:`POOL_INTERVAL`."""
-        return self._frames < POOL_FRAMES or (self._frames - POOL_FRAMES) % POOL_INTERVAL == 0
-
-    def skip(self) -> None:
-        """Count an aligned frame that did not add to the pool (see :meth:`wants`)."""
+        """Whether the frame being aligned should add its estimate to the pool (:meth:`pool` counts it): each of
+        the first :data:`POOL_FRAMES`, then one in :data:`POOL_INTERVAL`. One that should not is counted here."""
+        if self._frames < POOL_FRAMES or (self._frames - POOL_FRAMES) % POOL_INTERVAL == 0:
+            return True
         self._frames += 1
+        return False
 
     def _r2_frame(self, homography: NDArray[np.float64]) -> NDArray[np.float32]:
         """``r^2``, in the frame, of every template pixel (``homography``: template pixels ->

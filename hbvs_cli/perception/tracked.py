@@ -144,8 +144,7 @@ def detector_from_model(model: FitModel, template_image: np.ndarray | None, seed
     spec = model.detector
     if spec.kind not in TARGET_KINDS:
         raise RecordingError(f"the fit's target kind {spec.kind!r} is none this hbvs knows ({', '.join(TARGET_KINDS)})")
-    uses_template = target_kind(spec.kind).uses_template
-    if uses_template and template_image is None:
+    if target_kind(spec.kind).uses_template and template_image is None:
         raise RecordingError(f"the fit file lacks the {spec.kind} template image (/detector/template)")
-    template = template_image if uses_template else None
-    return TrackedDetector(spec, model.camera, seed=seed, template_image=template, initial_prediction=spec.initial_pixels, windowed=windowed)
+    return TrackedDetector(spec, model.camera, seed=seed, template_image=template_image, initial_prediction=spec.initial_pixels,
+                           windowed=windowed)
