@@ -46,7 +46,8 @@ class TargetDetector(Protocol):
 
 class PointTrack:
     """Constant-velocity prediction (px per frame) of N image points from their past measurements:
-    a point unseen for more than ``max_coast`` frames is dropped, the track inactive once every point is."""
+    a point unseen for more than ``max_coast`` frames is dropped, the track inactive once every point is.
+    ``streak``: the frames in a row with every point seen (the velocity of each is known from 2 on)."""
 
     def __init__(self, n_points: int, max_coast: int = 10) -> None:
         self.n_points = int(n_points)
@@ -58,6 +59,7 @@ class PointTrack:
         self._last = np.full((self.n_points, 2), np.nan)
         self._velocity = np.zeros((self.n_points, 2))
         self._since = np.zeros(self.n_points, dtype=np.int64)
+        self.streak = 0
 
     @property
     def active(self) -> bool:
@@ -88,11 +90,13 @@ class PointTrack:
             self._velocity = (measured - self._last) / self._since[:, None]
             self._last = np.array(measured, dtype=np.float64)
             self._since[:] = 0
+            self.streak += 1
             return
         self._velocity[known] = (measured[known] - self._last[known]) / self._since[known][:, None]
         self._velocity[seen & ~known] = 0.0
         self._last[seen] = measured[seen]
         self._since[seen] = 0
+        self.streak = self.streak + 1 if seen.all() else 0
         if not self.active:
             self.reset()
 

@@ -175,7 +175,6 @@ class CharucoTargetDetector:
         self._geometry = None if marker_ratio is None else CharucoGeometry(self.squares, self.dictionary, float(marker_ratio))
         self._detector = None if self._geometry is None else self._make(self._geometry)
         self._track = PointTrack(self.n_points, max_coast=2)
-        self._streak = 0  # frames in a row with every corner: the track's velocity is known from 2 on
         self._last_window = GAP_WINDOW_PX[0]  # the refinement's window in the last frame (px)
 
     @staticmethod
@@ -186,7 +185,6 @@ class CharucoTargetDetector:
 
     def reset(self) -> None:
         self._track.reset()
-        self._streak = 0
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         gray = as_gray(image)
@@ -196,10 +194,9 @@ class CharucoTargetDetector:
             if geometry is not None:
                 self._geometry, self._detector = geometry, self._make(geometry)
         corners, ids, considered = None, None, 0
-        tracked = self._tracked(gray) if self._detector is not None and self._streak >= 2 else None
+        tracked = self._tracked(gray) if self._detector is not None and self._track.streak >= 2 else None
         if tracked is not None:
             self._track.update(tracked)
-            self._streak += 1
             return Detection(tracked, True, self.n_points, 0)
         if self._detector is not None:
             box = self._search_box(gray.shape)
@@ -215,7 +212,6 @@ class CharucoTargetDetector:
         if not ok:
             pixels[:] = np.nan
         self._track.update(pixels)
-        self._streak = self._streak + 1 if np.all(seen) else 0
         return Detection(pixels, ok, considered, 0)
 
     def _tracked(self, gray: NDArray[np.uint8]) -> NDArray[np.float64] | None:

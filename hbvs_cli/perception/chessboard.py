@@ -112,11 +112,9 @@ class ChessboardDetector:
         self.n_points = self.pattern[0] * self.pattern[1]
         self._layout = board_layout(self.pattern).astype(np.float32)
         self._track = PointTrack(self.n_points, max_coast=2)
-        self._streak = 0  # frames found in a row: the track's velocity is known from 2 on
 
     def reset(self) -> None:
         self._track.reset()
-        self._streak = 0
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         gray = as_gray(image)
@@ -124,7 +122,7 @@ class ChessboardDetector:
         prediction = given if given is not None else self._track.predict()
         # Refined from the track's prediction only once its velocity is known (from a
         # prediction a board's motion off, it can settle on the grid but off the corners).
-        trusted = given is not None or self._streak >= 2
+        trusted = given is not None or self._track.streak >= 2
         usable = prediction is not None and np.all(np.isfinite(prediction))
         corners = self._refined(gray, prediction) if trusted and usable else None
         searched = corners is None
@@ -135,7 +133,6 @@ class ChessboardDetector:
         found = corners is not None
         pixels = corners if found else np.full((self.n_points, 2), np.nan)
         self._track.update(pixels)
-        self._streak = self._streak + 1 if found else 0
         return Detection(pixels, found, self.n_points if found else int(searched), 0)
 
     def _in_track_order(self, corners: NDArray[np.float64], prediction: NDArray[np.float64]) -> NDArray[np.float64]:
