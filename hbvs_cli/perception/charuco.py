@@ -194,12 +194,14 @@ class CharucoTargetDetector:
             if geometry is not None:
                 self._geometry, self._detector = geometry, self._make(geometry)
         corners, ids, considered = None, None, 0
-        tracked = self._tracked(gray) if self._detector is not None and self._track.streak >= 2 else None
+        prediction = self._track.predict()
+        whole = prediction is not None and np.isfinite(prediction).all()  # every corner predicted: tracked, or searched near
+        tracked = self._tracked(gray, prediction) if whole and self._detector is not None and self._track.streak >= 2 else None
         if tracked is not None:
             self._track.update(tracked)
             return Detection(tracked, True, self.n_points, 0)
         if self._detector is not None:
-            box = self._search_box(gray.shape)
+            box = self._search_box(gray.shape, prediction) if whole else None
             corners, ids, considered = self._detect_board(gray, box)
             if box is not None and (ids is None or len(ids) < self.n_points):
                 corners, ids, considered = self._detect_board(gray, None)
@@ -214,13 +216,10 @@ class CharucoTargetDetector:
         self._track.update(pixels)
         return Detection(pixels, ok, considered, 0)
 
-    def _tracked(self, gray: NDArray[np.uint8]) -> NDArray[np.float64] | None:
-        """Every corner refined from the track's prediction (in the last frame's window), or None
-        (the frame is searched) unless every corner is predicted, moves at most :data:`MAX_REFINE_MOVE_PX`,
+    def _tracked(self, gray: NDArray[np.uint8], prediction: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Every corner refined from the track's ``prediction`` (in the last frame's window), or None
+        (the frame is searched) unless every corner moves at most :data:`MAX_REFINE_MOVE_PX`,
         comes back when refined again from a little off, and all fit one homography of the grid."""
-        prediction = self._track.predict()
-        if prediction is None or not np.isfinite(prediction).all():
-            return None
         if not inside_image(prediction, self._last_window + 2, gray.shape).all():
             return None
         once, again = refine_twice(gray, prediction, self._last_window, (0.5, -0.5))
@@ -249,12 +248,8 @@ class CharucoTargetDetector:
         columns = self.squares[0] - 1
         return np.column_stack([ids % columns, ids // columns]).astype(np.float32)
 
-    def _search_box(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
-        """The box (x0, y0, x1, y1, px) of the predicted corners, widened (:data:`SEARCH_MARGIN_SQUARES`),
-        or None (the whole frame) unless every corner is predicted."""
-        prediction = self._track.predict()
-        if prediction is None or not np.all(np.isfinite(prediction)):
-            return None
+    def _search_box(self, shape: tuple[int, ...], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
+        """The box (x0, y0, x1, y1, px) of the predicted corners (every one), widened (:data:`SEARCH_MARGIN_SQUARES`)."""
         grid = prediction.reshape(self.squares[1] - 1, self.squares[0] - 1, 2)
         square = max(float(np.median(np.linalg.norm(np.diff(grid, axis=axis), axis=-1))) for axis in (0, 1))
         margin = int(np.ceil(SEARCH_MARGIN_SQUARES * square)) + SEARCH_MARGIN_PX

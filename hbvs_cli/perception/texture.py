@@ -134,7 +134,7 @@ class TextureDetector:
                     result = self._acquire(gray, window)
         if result is None or not result.found:
             result = self._acquire(gray, None)
-        if result.found and result.homography is not None and result.inliers > 0:  # not aligned yet: aligned on the whole target region
+        if result.found and result.homography is not None and result.inliers > 0:  # not aligned yet: on the whole target region
             homography, correlation = self._aligned_homography(gray, result.homography)
             if homography is not None:
                 result = replace(result, pixels=transfer(homography, self.reference_pixels), homography=homography,
