@@ -42,8 +42,7 @@ MARKER_DICTIONARIES: tuple[str, ...] = tuple(name for family in MARKER_FAMILIES.
 def dictionary_name(name: str) -> str:
     """The canonical name of a predefined dictionary from a user's spelling (``6x6_250``,
     ``DICT_APRILTAG_36H11``: case and the ``DICT_`` prefix do not matter); UsageError if none."""
-    key = str(name).strip().upper()
-    key = key if key.startswith("DICT_") else "DICT_" + key
+    key = "DICT_" + str(name).strip().upper().removeprefix("DICT_")
     for candidate in MARKER_DICTIONARIES:
         if candidate.upper() == key:
             return candidate

@@ -1,10 +1,5 @@
-"""A ChArUco board as the target: a chessboard whose white squares hold ArUco markers.
-
-The points are the inner corners in OpenCV's ChArUco ids (row by row), a grid the fit knows
-(:func:`~.chessboard.board_layout`); the markers name them, so a board partly in view gives
-the corners next to its markers (the others NaN). The board's squares and dictionary come
-from ``--board`` and ``--marker-dict``, or are inferred from a frame (:func:`infer_board`).
-"""
+"""A ChArUco board as the target (docs/targets.md): its inner corners in OpenCV's ChArUco ids (row by row, a grid
+the fit knows: :func:`~.chessboard.board_layout`), named by its markers (NaN where not in view)."""
 
 from __future__ import annotations
 

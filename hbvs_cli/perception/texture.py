@@ -405,8 +405,6 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
     """The frame around ``points`` (their box and ``margin`` px, wider than the filter, so that
     ECC sees no cut edge), smoothed; None when empty."""
     height, width = gray.shape
-    if not np.all(np.isfinite(points)):
-        return None
     x0, y0 = np.maximum(np.floor(points.min(axis=0)).astype(int) - margin, 0)
     x1, y1 = np.minimum(np.ceil(points.max(axis=0)).astype(int) + margin + 1, (width, height))
     if x1 - x0 < 2 * margin or y1 - y0 < 2 * margin:
