@@ -319,12 +319,8 @@ def _markers_spec(request: SpecRequest) -> DetectorSpec:
         return DetectorSpec(kind="aruco", n_points=4, marker_id=request.marker_id, marker_dict=request.marker_dict or DEFAULT_DICTIONARY)
     details = request.details
     if "marker_ids" not in details:
-        found = request.find()
-        if found is None:
-            raise InputError(f"no marker of {request.marker_dict or 'any ArUco/AprilTag dictionary'} found consistently in the first "
-                             f"{len(request.images)} frames (choose --marker-dict NAME, or another --target)")
-        request.info(f"markers: {found.reason}")
-        details = found.details
+        details = request.found(f"marker of {request.marker_dict or 'any ArUco/AprilTag dictionary'}",
+                                "choose --marker-dict NAME, or another --target", "markers")
     ids = tuple(details["marker_ids"])
     return DetectorSpec(kind="aruco", n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None,
                         marker_dict=details["marker_dict"], marker_ids=ids)

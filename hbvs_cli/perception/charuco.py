@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
-from ..errors import InputError, UsageError
+from ..errors import UsageError
 from .aruco import (DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, dictionary_size,
                     unrefined_markers)
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
@@ -306,13 +306,9 @@ def _charuco_spec(request: SpecRequest) -> DetectorSpec:
     inferred from the first frames' markers (said on stderr)."""
     details = request.details
     if "board" not in details or request.board is not None:
-        found = request.find()
-        if found is None:
-            given = f"{request.board[0]}x{request.board[1]} " if request.board is not None else ""
-            raise InputError(f"no ChArUco board {given}found consistently in the first {len(request.images)} frames "
-                             "(give --board COLUMNSxROWS and --marker-dict NAME, or another --target)")
-        request.info(f"charuco: {found.reason}")
-        details = found.details
+        given = f" {request.board[0]}x{request.board[1]}" if request.board is not None else ""
+        details = request.found(f"ChArUco board{given}", "give --board COLUMNSxROWS and --marker-dict NAME, or another --target",
+                                "charuco")
     columns, rows = (int(n) for n in details["board"])
     return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
 

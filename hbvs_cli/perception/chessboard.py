@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
-from ..errors import InputError, UsageError
+from ..errors import UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
@@ -311,10 +311,7 @@ def _chessboard_spec(request: SpecRequest) -> DetectorSpec:
     """The board ``--target auto`` found, else the one most of the first frames show."""
     board = request.details.get("board")
     if board is None:
-        found = request.find()
-        if found is None:
-            raise InputError(f"no chessboard found consistently in the first {len(request.images)} frames (or choose another --target)")
-        board = found.details["board"]
+        board = request.found("chessboard", "or choose another --target")["board"]
     return DetectorSpec(kind="chessboard", n_points=int(board[0] * board[1]), board=(int(board[0]), int(board[1])))
 
 

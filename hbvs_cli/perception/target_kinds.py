@@ -16,7 +16,7 @@ from ..core.depth import farthest_pair
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..core.plane import KnownShape
-from ..errors import UsageError
+from ..errors import InputError, UsageError
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,16 @@ class SpecRequest:
     seen_pixels: np.ndarray | None = None
     find: Callable[[], Any] = lambda: None
     info: Callable[[str], None] = lambda text: None
+
+    def found(self, what: str, advice: str, told: str = "") -> dict[str, Any]:
+        """The ``details`` of what :attr:`find` finds, its reason told after ``told`` when given; InputError
+        (no ``what`` found consistently in the first frames, and ``advice``) when it finds nothing."""
+        found = self.find()
+        if found is None:
+            raise InputError(f"no {what} found consistently in the first {len(self.images)} frames ({advice})")
+        if told:
+            self.info(f"{told}: {found.reason}")
+        return found.details
 
 
 @dataclass(frozen=True)
