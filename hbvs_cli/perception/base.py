@@ -104,16 +104,15 @@ class PointTrack:
 def check_prediction(predicted: ArrayLike | None, n_points: int, track: PointTrack | None = None) -> NDArray[np.float64] | None:
     """``predicted`` as an (N, 2) float array (NaN rows allowed), or, when it has no finite row,
     ``track``'s prediction (None without a track); UsageError for the wrong shape or infinities."""
-    if predicted is None:
-        return None if track is None else track.predict()
-    array = np.asarray(predicted, dtype=np.float64)
-    if array.shape != (n_points, 2):
-        raise UsageError(f"a prediction needs shape ({n_points}, 2), got {array.shape}")
-    if np.any(np.isinf(array)):
-        raise UsageError("a prediction may contain NaN rows but no infinities")
-    if not np.any(np.all(np.isfinite(array), axis=1)):
-        return None if track is None else track.predict()
-    return array
+    if predicted is not None:
+        array = np.asarray(predicted, dtype=np.float64)
+        if array.shape != (n_points, 2):
+            raise UsageError(f"a prediction needs shape ({n_points}, 2), got {array.shape}")
+        if np.any(np.isinf(array)):
+            raise UsageError("a prediction may contain NaN rows but no infinities")
+        if np.any(np.all(np.isfinite(array), axis=1)):
+            return array
+    return None if track is None else track.predict()
 
 
 def search_window(shape: tuple[int, int], prediction: NDArray[np.float64], grow: float, min_size: int,

@@ -167,6 +167,7 @@ class CharucoTargetDetector:
         if dictionary_size(self.dictionary) < columns * rows // 2:
             raise UsageError(f"a {columns}x{rows} ChArUco board has {columns * rows // 2} markers, more than {self.dictionary} holds")
         self.n_points = (columns - 1) * (rows - 1)
+        self._grid = board_layout((columns - 1, rows - 1)).astype(np.float32)  # each corner id's (column, row)
         self._geometry = None if marker_ratio is None else CharucoGeometry(self.squares, self.dictionary, float(marker_ratio))
         self._detector = None if self._geometry is None else self._make(self._geometry)
         self._track = PointTrack(self.n_points, max_coast=2)
@@ -204,8 +205,7 @@ class CharucoTargetDetector:
             ids = np.ravel(ids).astype(int)
             found = corners.reshape(-1, 2).astype(np.float64)
             pixels[ids] = self._refined(gray, found, ids)
-        seen = np.all(np.isfinite(pixels), axis=1)
-        ok = int(seen.sum()) >= MIN_CORNERS
+        ok = np.count_nonzero(np.all(np.isfinite(pixels), axis=1)) >= MIN_CORNERS
         if not ok:
             pixels[:] = np.nan
         self._track.update(pixels)
@@ -228,7 +228,7 @@ class CharucoTargetDetector:
         and the RMS (px) of ``corners`` (K, 2) from one homography of their ids' grid (inf
         for fewer than 4)."""
         assert self._geometry is not None
-        grid = self._grid(ids)
+        grid = self._grid[ids]
         square, fit_px = 8.0, float("inf")
         if len(ids) >= 4:
             H, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
@@ -237,11 +237,6 @@ class CharucoTargetDetector:
                 square = plain_median(row_lengths(mapped[1] - corners))
                 fit_px = math.sqrt(((mapped[0] - corners) ** 2).sum(axis=1).mean())
         return int(np.clip(np.floor(GAP_WINDOW_FRACTION * (1.0 - self._geometry.marker_ratio) * square), *GAP_WINDOW_PX)), fit_px
-
-    def _grid(self, ids: NDArray[np.int_]) -> NDArray[np.float32]:
-        """The (column, row) of each corner id on the board's grid of inner corners, (K, 2)."""
-        columns = self.squares[0] - 1
-        return np.column_stack([ids % columns, ids // columns]).astype(np.float32)
 
     def _search_box(self, shape: tuple[int, ...], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
         """The box (x0, y0, x1, y1, px) of the predicted corners (every one), widened (:data:`SEARCH_MARGIN_SQUARES`)."""
@@ -280,7 +275,7 @@ class CharucoTargetDetector:
         # OpenCV's corner can be off by more than the refinement may move it: a settled
         # refinement a little farther is taken where the corner's neighbours agree with it.
         far = settled & ~good & (moved <= FAR_REFINE_MOVE_PX)
-        grid = self._grid(ids)
+        grid = self._grid[ids]
         for row, once in zip(np.flatnonzero(inside)[far], once_px[far]):
             expected = _from_neighbours(grid, refined, row)
             if expected is not None and np.linalg.norm(once - expected) < min(NEIGHBOUR_AGREEMENT_PX, np.linalg.norm(refined[row] - expected)):

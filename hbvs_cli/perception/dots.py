@@ -245,9 +245,8 @@ def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] |
         sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
     if threshold is None:
         return empty
-    sub_h, sub_w = sub.shape
-    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub_w, y0 + sub_h)], [0], [0.25 * sub.size], min_area,
-                          max_elongation)
+    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub.shape[1], y0 + sub.shape[0])], [0], [0.25 * sub.size],
+                          min_area, max_elongation)
 
 
 def dot_like_blobs(flat: NDArray, levels: NDArray[np.uint8], threshold: float, windows: list[tuple[int, int, int, int]],
