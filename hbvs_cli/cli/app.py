@@ -23,7 +23,6 @@ from .. import __version__, stop_signals
 from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
-from ..io.output_target import guard_stdio, stdio_closed
 from ..io.shipped import shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
@@ -380,17 +379,35 @@ class _ClosedStdin(_ClosedStream):
     read = readline = fileno = _ClosedStream._closed
 
 
+def _occupy_closed_stdio() -> set[int]:
+    """Occupy closed standard descriptors with ``/dev/null`` (else the next file opened would
+    become "stdout"); returns them."""
+    closed = set()
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            try:
+                opened = os.open(os.devnull, os.O_RDWR)
+            except OSError:
+                continue
+            if opened != fd:
+                os.dup2(opened, fd)
+                os.close(opened)
+            closed.add(fd)
+    return closed
+
+
 def _prepare_stdio(debug: bool) -> None:
     """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured and warnings hidden."""
     global _stdout_at_start
-    stdin_closed = sys.stdin is None or stdio_closed(0)
-    guard_stdio()
+    closed = _occupy_closed_stdio()
     _stdout_at_start = _identity(1)
-    if stdin_closed:
+    if sys.stdin is None or 0 in closed:
         sys.stdin = _ClosedStdin()  # type: ignore[assignment]
-    if sys.stdout is None or stdio_closed(1):
+    if sys.stdout is None or 1 in closed:
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
-    if sys.stderr is None or stdio_closed(2):
+    if sys.stderr is None or 2 in closed:
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
     if not debug:
         warnings.simplefilter("ignore")

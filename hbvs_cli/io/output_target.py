@@ -350,8 +350,7 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        if sys.stdout is None or stdio_closed(1):
-            raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+        # A closed stdout is the command line's stand-in (cli.app), which says so.
         sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), target)
         try:
             yield sink
@@ -446,28 +445,3 @@ def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> 
     """Write ``data`` whole to ``spec`` with :func:`open_output_stream`."""
     with open_output_stream(spec, what) as sink:
         sink.stream.write(data)
-
-
-_closed_stdio: set[int] = set()
-
-
-def guard_stdio() -> None:
-    """Occupy closed standard descriptors with ``/dev/null`` (else the next file opened would
-    become "stdout") and remember them."""
-    for fd in (0, 1, 2):
-        try:
-            os.fstat(fd)
-        except OSError:
-            try:
-                opened = os.open(os.devnull, os.O_RDWR)
-            except OSError:
-                continue
-            if opened != fd:
-                os.dup2(opened, fd)
-                os.close(opened)
-            _closed_stdio.add(fd)
-
-
-def stdio_closed(fd: int) -> bool:
-    return fd in _closed_stdio
-
