@@ -374,9 +374,8 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
         except OSError as exc:
             raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
         sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)
-        with sink.stream:
+        with sink.stream:  # closing flushes
             yield sink
-            sink.stream.flush()
         return
     yield from _atomic_file(target, label, what, keep_on_error)
 
