@@ -23,6 +23,7 @@ from .. import __version__, stop_signals
 from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
+from ..io.output_target import file_identity
 from ..io.shipped import shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
@@ -237,18 +238,9 @@ def _silence_stdout() -> None:
 _stdout_at_start: tuple[int, int] | None = None
 
 
-def _identity(file: int | str) -> tuple[int, int] | None:
-    """The device and inode of a descriptor or path (None if it cannot be looked at)."""
-    try:
-        status = os.stat(file)
-    except OSError:
-        return None
-    return status.st_dev, status.st_ino
-
-
 def _stdout_became_devnull() -> bool:
-    now = _identity(1)
-    return now is not None and now == _identity(os.devnull) and now != _stdout_at_start
+    now = file_identity(1)
+    return now is not None and now == file_identity(os.devnull) and now != _stdout_at_start
 
 
 def _say(line: str) -> None:
@@ -402,7 +394,7 @@ def _prepare_stdio(debug: bool) -> None:
     """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured and warnings hidden."""
     global _stdout_at_start
     closed = _occupy_closed_stdio()
-    _stdout_at_start = _identity(1)
+    _stdout_at_start = file_identity(1)
     if sys.stdin is None or 0 in closed:
         sys.stdin = _ClosedStdin()  # type: ignore[assignment]
     if sys.stdout is None or 1 in closed:

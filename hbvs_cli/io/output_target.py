@@ -178,13 +178,13 @@ class FolderLock(ClosedOnExit):
             self._fd = None
 
 
-def _identity(path: str) -> tuple[int, int] | None:
-    """(device, inode) of ``path``, or of stdout for ``-`` when it is a regular file."""
+def file_identity(file: int | str, regular: bool = False) -> tuple[int, int] | None:
+    """(device, inode) of a path or descriptor (``regular``: only when it is a regular file); None if it cannot be looked at."""
     try:
-        status = os.fstat(1) if path == "-" else os.stat(path)
+        status = os.stat(file)
     except OSError:
         return None
-    return (status.st_dev, status.st_ino) if path != "-" or stat.S_ISREG(status.st_mode) else None
+    return (status.st_dev, status.st_ino) if not regular or stat.S_ISREG(status.st_mode) else None
 
 
 def refuse_overwriting_inputs(
@@ -199,7 +199,7 @@ def refuse_overwriting_inputs(
         if spec is None or os.fspath(spec) == "-":
             continue
         text = os.fspath(spec)
-        identity = _identity(text)
+        identity = file_identity(text)
         if identity is not None:
             known.setdefault(identity, f"the {label} {text}")
         # A partial file (a.mcap.<pid>-<hex>.partial) belongs to its final file (a.mcap).
@@ -212,7 +212,7 @@ def refuse_overwriting_inputs(
         if spec is None:
             continue
         text = os.fspath(spec)
-        identity = _identity(text)
+        identity = file_identity(1, regular=True) if text == "-" else file_identity(text)  # stdout redirected to a file
         real = Path(os.path.realpath(text))
         key: Any = ("stdout",) if text == "-" else identity or real
         if identity is not None and identity in known:
