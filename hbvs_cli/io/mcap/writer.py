@@ -50,7 +50,8 @@ class McapWriter:
             schema, encoding, message_encoding = protobuf_schema(type(message)), "protobuf", "protobuf"
         if schema_name not in self._schemas:
             self._schemas[schema_name] = self._writer.register_schema(name=schema_name, encoding=encoding, data=schema)
-        channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_name])
+        schema_id = self._schemas[schema_name]
+        channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
         self.channels[topic] = (channel_id, schema_name, encoding, schema, message_encoding)
         return channel_id
 
