@@ -99,7 +99,8 @@ def _shade_losses(ax: Any, context: PanelContext) -> None:
                 ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
 
 
-def _say_absent(ax: Any, message: str) -> None:
+def _say_absent(ax: Any, title: str, message: str) -> None:
+    ax.set_title(title)
     ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
     ax.set(xticks=[], yticks=[])
     ax.grid(False)
@@ -139,9 +140,8 @@ NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
-        ax.set_title(title)
         if not with_poses:
-            _say_absent(ax, NO_POSES)
+            _say_absent(ax, title, NO_POSES)
             return
         for run, color in with_poses:
             magnitude = np.abs(scale * pose_error_signals(run)[key])
@@ -227,8 +227,7 @@ def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
     title = "Lyapunov function V (36), relative to V(0)"
     with_V = [(run, color) for run, color in zip(context.runs, context.colors) if _has_V(run)]
     if not with_V:
-        ax.set_title(title)
-        _say_absent(ax, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
+        _say_absent(ax, title, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
         return
     for run, color in with_V:
         _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
@@ -276,8 +275,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     """The scene to scale, and the paths with y stretched (centimetres vanish at the wall's scale)."""
     with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
-        ax.set_title("Top view")
-        _say_absent(ax, NO_POSES)
+        _say_absent(ax, "Top view", NO_POSES)
         return
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
