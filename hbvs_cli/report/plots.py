@@ -148,7 +148,6 @@ def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[An
             # A log axis cannot show an exact zero: the first step of a run started on the path.
             magnitude[magnitude <= 0] = np.nan
             _line(ax, context, run.state["t"], magnitude, color, None)
-        _shade_losses(ax, context)
         _band(ax, scale * context.tolerances[key], signed=False)
         ax.set_yscale("log")
         _time_axes(ax, title, ylabel)
@@ -160,7 +159,6 @@ def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, Pan
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], image_error_signal(run, name), color, run.lost)
-        _shade_losses(ax, context)
         _band(ax, context.tolerances[name], signed=True)
         _time_axes(ax, title, ylabel)
 
@@ -173,7 +171,6 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
             _line(ax, context, run.state["t"], run.state[key], color, None)
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             ax.plot(*display_series(run.state["t"], taught, None), color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
-        _shade_losses(ax, context)
         limits = {getattr(run_limits(run), limit_key) for run in context.runs}
         for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
             for level in (-limit, limit):
@@ -204,7 +201,6 @@ def _depth_panel(ax: Any, context: PanelContext) -> None:
         depths = true_depth_along(run)
         if depths is not None:
             ax.plot(run.state["t"], depths, color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3, drawstyle="steps-post")
-    _shade_losses(ax, context)
     _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
 
 
@@ -231,7 +227,6 @@ def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
         return
     for run, color in with_V:
         _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
-    _shade_losses(ax, context)
     ax.set_yscale("log")
     _time_axes(ax, title, "V / V(0) (-)")
 
@@ -426,8 +421,10 @@ def plot_runs(
             ax = figure.add_subplot(slots[name])
             ax.set_label(name)
             PANELS[name](ax, context)
-            if name != "top" and ax.get_lines() and end > start:
-                ax.set_xlim(start, end)
+            if name != "top" and ax.get_lines():  # a time panel with data
+                _shade_losses(ax, context)
+                if end > start:
+                    ax.set_xlim(start, end)
             if columns == 1 and name != "top" and name != time_panels[-1] and ax.get_lines():
                 # Stacked in one column: the shared time axis is labelled once, under the last.
                 ax.tick_params(labelbottom=False)
