@@ -23,7 +23,7 @@ from .. import __version__, stop_signals
 from ..errors import HbvsError, InputError, OutputError, UpstreamFailedError
 from ..io.limits import set_limits
 from ..io.native_log import capture
-from ..io.output_target import guard_stdio, stdio_closed
+from ..io.output_target import file_identity
 from ..io.shipped import shipped_root
 from .exit_codes import exit_code_of
 from ..stages.console import Console
@@ -238,18 +238,9 @@ def _silence_stdout() -> None:
 _stdout_at_start: tuple[int, int] | None = None
 
 
-def _identity(file: int | str) -> tuple[int, int] | None:
-    """The device and inode of a descriptor or path (None if it cannot be looked at)."""
-    try:
-        status = os.stat(file)
-    except OSError:
-        return None
-    return status.st_dev, status.st_ino
-
-
 def _stdout_became_devnull() -> bool:
-    now = _identity(1)
-    return now is not None and now == _identity(os.devnull) and now != _stdout_at_start
+    now = file_identity(1)
+    return now is not None and now == file_identity(os.devnull) and now != _stdout_at_start
 
 
 def _say(line: str) -> None:
@@ -380,17 +371,35 @@ class _ClosedStdin(_ClosedStream):
     read = readline = fileno = _ClosedStream._closed
 
 
+def _occupy_closed_stdio() -> set[int]:
+    """Occupy closed standard descriptors with ``/dev/null`` (else the next file opened would
+    become "stdout"); returns them."""
+    closed = set()
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            try:
+                opened = os.open(os.devnull, os.O_RDWR)
+            except OSError:
+                continue
+            if opened != fd:
+                os.dup2(opened, fd)
+                os.close(opened)
+            closed.add(fd)
+    return closed
+
+
 def _prepare_stdio(debug: bool) -> None:
     """Before any command: closed stdio made safe; unless ``--debug``, native stderr captured and warnings hidden."""
     global _stdout_at_start
-    stdin_closed = sys.stdin is None or stdio_closed(0)
-    guard_stdio()
-    _stdout_at_start = _identity(1)
-    if stdin_closed:
+    closed = _occupy_closed_stdio()
+    _stdout_at_start = file_identity(1)
+    if sys.stdin is None or 0 in closed:
         sys.stdin = _ClosedStdin()  # type: ignore[assignment]
-    if sys.stdout is None or stdio_closed(1):
+    if sys.stdout is None or 1 in closed:
         sys.stdout = _ClosedStdout()  # type: ignore[assignment]
-    if sys.stderr is None or stdio_closed(2):
+    if sys.stderr is None or 2 in closed:
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
     if not debug:
         warnings.simplefilter("ignore")

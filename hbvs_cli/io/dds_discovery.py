@@ -1,26 +1,11 @@
-"""Where hbvs's DDS looks for the robot: ROS 2's own discovery settings (Jazzy and later) turned
-into the Eclipse Cyclone DDS configuration hbvs joins the domain with, and the one line the live
-stages print about it. Pure text: no DDS binding is needed to compute or test it.
+"""Where hbvs's DDS looks for the robot: ROS 2's own discovery settings (Jazzy and later:
+``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS``, the deprecated ``ROS_LOCALHOST_ONLY``;
+``CYCLONEDDS_URI`` wins over them) turned into the Eclipse Cyclone DDS configuration hbvs joins the
+domain with, and the one line the live stages print about it. What each setting does, and why Fast
+DDS's type information is ignored: docs/robot.md. Pure text: no DDS binding is needed to compute or test it.
 
-ROS 2 reads three variables (rcl's discovery options, since Iron):
-
-* ``ROS_AUTOMATIC_DISCOVERY_RANGE``: ``OFF`` (no discovery outside the process), ``LOCALHOST``
-  (this machine only), ``SUBNET`` (multicast on the local network, the default),
-  ``SYSTEM_DEFAULT`` (the middleware's own settings untouched). Another value: ROS 2 warns and
-  keeps to this machine.
-* ``ROS_STATIC_PEERS``: addresses (``;``-separated) contacted by unicast whatever the range,
-  except ``OFF``.
-* ``ROS_LOCALHOST_ONLY=1`` (deprecated since Jazzy): ``LOCALHOST`` when the range is unset.
-
-``CYCLONEDDS_URI``, when set, is the whole network configuration (it wins over the three).
-Whatever the source, hbvs adds one compatibility setting: type information from eProsima's Fast
-DDS (RTPS vendor 1.15) is ignored, so endpoints match by type name as with every other ROS 2
-middleware. Fast DDS 3 (ROS 2 Kilted) announces XTypes type information, and Cyclone finds the
-TypeObjects it then receives for the ``uint8[]`` sequences invalid ("ddsi_xt_type_init_impl with
-invalid type object" for a PLAIN_SEQUENCE_SMALL, in Cyclone's discovery trace); an endpoint whose
-type cannot be resolved never matches, so no ``Image``, ``CompressedImage`` or ``CameraInfo``
-crossed either way (``Twist``, without sequences, did). Cyclone's ``AllowInvalidTryConstruct``
-alone did not make them match; ignoring the type information did (``tests/test_ros2_real.py``).
+Cyclone's ``AllowInvalidTryConstruct`` alone did not make Fast DDS 3's endpoints match; ignoring
+their type information did (``tests/test_ros2_real.py``).
 """
 
 from __future__ import annotations

@@ -178,13 +178,13 @@ class FolderLock(ClosedOnExit):
             self._fd = None
 
 
-def _identity(path: str) -> tuple[int, int] | None:
-    """(device, inode) of ``path``, or of stdout for ``-`` when it is a regular file."""
+def file_identity(file: int | str, regular: bool = False) -> tuple[int, int] | None:
+    """(device, inode) of a path or descriptor (``regular``: only when it is a regular file); None if it cannot be looked at."""
     try:
-        status = os.fstat(1) if path == "-" else os.stat(path)
+        status = os.stat(file)
     except OSError:
         return None
-    return (status.st_dev, status.st_ino) if path != "-" or stat.S_ISREG(status.st_mode) else None
+    return (status.st_dev, status.st_ino) if not regular or stat.S_ISREG(status.st_mode) else None
 
 
 def refuse_overwriting_inputs(
@@ -199,7 +199,7 @@ def refuse_overwriting_inputs(
         if spec is None or os.fspath(spec) == "-":
             continue
         text = os.fspath(spec)
-        identity = _identity(text)
+        identity = file_identity(text)
         if identity is not None:
             known.setdefault(identity, f"the {label} {text}")
         # A partial file (a.mcap.<pid>-<hex>.partial) belongs to its final file (a.mcap).
@@ -212,7 +212,7 @@ def refuse_overwriting_inputs(
         if spec is None:
             continue
         text = os.fspath(spec)
-        identity = _identity(text)
+        identity = file_identity(1, regular=True) if text == "-" else file_identity(text)  # stdout redirected to a file
         real = Path(os.path.realpath(text))
         key: Any = ("stdout",) if text == "-" else identity or real
         if identity is not None and identity in known:
@@ -350,8 +350,7 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
     target = resolve_output(spec, what)
     label = "stdout" if target.kind == "stdout" else os.fspath(spec)
     if target.kind == "stdout":
-        if sys.stdout is None or stdio_closed(1):
-            raise OutputError("stdout: it is closed; give a file with -o, or redirect stdout")
+        # A closed stdout is the command line's stand-in (cli.app), which says so.
         sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), target)
         try:
             yield sink
@@ -375,9 +374,8 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
         except OSError as exc:
             raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
         sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)
-        with sink.stream:
+        with sink.stream:  # closing flushes
             yield sink
-            sink.stream.flush()
         return
     yield from _atomic_file(target, label, what, keep_on_error)
 
@@ -446,28 +444,3 @@ def write_output_bytes(spec: str | os.PathLike[str], data: bytes, what: str) -> 
     """Write ``data`` whole to ``spec`` with :func:`open_output_stream`."""
     with open_output_stream(spec, what) as sink:
         sink.stream.write(data)
-
-
-_closed_stdio: set[int] = set()
-
-
-def guard_stdio() -> None:
-    """Occupy closed standard descriptors with ``/dev/null`` (else the next file opened would
-    become "stdout") and remember them."""
-    for fd in (0, 1, 2):
-        try:
-            os.fstat(fd)
-        except OSError:
-            try:
-                opened = os.open(os.devnull, os.O_RDWR)
-            except OSError:
-                continue
-            if opened != fd:
-                os.dup2(opened, fd)
-                os.close(opened)
-            _closed_stdio.add(fd)
-
-
-def stdio_closed(fd: int) -> bool:
-    return fd in _closed_stdio
-

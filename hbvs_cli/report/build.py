@@ -85,27 +85,17 @@ def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
     }
 
 
-def stop_event(run: RunData) -> tuple[float, str] | None:
-    """The error event (time in s, text) with which ``hbvs repeat`` stopped the run, if any."""
-    return next(((t, text) for t, level, text in run.events if level >= LOG_ERROR), None)
-
-
 def _duration_s(run: RunData) -> float:
     t = run.state["t"]
     return float(t[-1] - t[0])
 
 
-def default_label(run: RunData) -> str:
-    """How a run is named without ``--label``: its law (``replay`` for an open-loop replay)."""
-    if run.info.get("mode") == "replay":
-        return "replay"
-    return str(run.info.get("law") or run.info.get("mode") or "run")
-
-
 def _run_summary(run: RunData, label: str | None) -> RunSummary:
     settings = run.info.get("settings") or {}
+    if label is None:  # no --label: the run's law ("replay" for an open-loop replay)
+        label = "replay" if run.info.get("mode") == "replay" else str(run.info.get("law") or run.info.get("mode") or "run")
     return RunSummary(
-        name=run.name, label=label if label is not None else default_label(run), duration_s=_duration_s(run),
+        name=run.name, label=label, duration_s=_duration_s(run),
         steps=run.steps, rate_hz=sample_rate_hz(run.state["t"]), law=run.info.get("law"),
         gains=dict(run.info.get("gains") or {}), source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
         truncated=bool(run.truncated),
@@ -283,7 +273,8 @@ def _final_error_check(name: str, final: float | None, tolerance: float) -> tupl
 
 
 def _finished_check(run: RunData) -> tuple[bool | None, str]:
-    stop = stop_event(run)
+    # The error event (time in s, text) with which hbvs repeat stopped the run, if any.
+    stop = next(((t, text) for t, level, text in run.events if level >= LOG_ERROR), None)
     if stop is not None:
         return _check(False, f"run stopped at t = {stop[0]:.2f} s ({stop[1]})")
     if run.truncated:

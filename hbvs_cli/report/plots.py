@@ -99,7 +99,8 @@ def _shade_losses(ax: Any, context: PanelContext) -> None:
                 ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
 
 
-def _say_absent(ax: Any, message: str) -> None:
+def _say_absent(ax: Any, title: str, message: str) -> None:
+    ax.set_title(title)
     ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
     ax.set(xticks=[], yticks=[])
     ax.grid(False)
@@ -139,16 +140,14 @@ NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
         with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
-        ax.set_title(title)
         if not with_poses:
-            _say_absent(ax, NO_POSES)
+            _say_absent(ax, title, NO_POSES)
             return
         for run, color in with_poses:
             magnitude = np.abs(scale * pose_error_signals(run)[key])
             # A log axis cannot show an exact zero: the first step of a run started on the path.
             magnitude[magnitude <= 0] = np.nan
             _line(ax, context, run.state["t"], magnitude, color, None)
-        _shade_losses(ax, context)
         _band(ax, scale * context.tolerances[key], signed=False)
         ax.set_yscale("log")
         _time_axes(ax, title, ylabel)
@@ -160,7 +159,6 @@ def _image_error_panel(name: str, title: str, ylabel: str) -> Callable[[Any, Pan
     def paint(ax: Any, context: PanelContext) -> None:
         for run, color in zip(context.runs, context.colors):
             _line(ax, context, run.state["t"], image_error_signal(run, name), color, run.lost)
-        _shade_losses(ax, context)
         _band(ax, context.tolerances[name], signed=True)
         _time_axes(ax, title, ylabel)
 
@@ -173,7 +171,6 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
             _line(ax, context, run.state["t"], run.state[key], color, None)
             taught = taught_commands_along(run)[0 if key == "v_c" else 1]
             ax.plot(*display_series(run.state["t"], taught, None), color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
-        _shade_losses(ax, context)
         limits = {getattr(run_limits(run), limit_key) for run in context.runs}
         for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
             for level in (-limit, limit):
@@ -204,7 +201,6 @@ def _depth_panel(ax: Any, context: PanelContext) -> None:
         depths = true_depth_along(run)
         if depths is not None:
             ax.plot(run.state["t"], depths, color=TAUGHT_COLOR, ls="--", lw=1.0, zorder=3, drawstyle="steps-post")
-    _shade_losses(ax, context)
     _time_axes(ax, r"Depth estimate $\hat{d}$ (31), true $d^*$ dashed", "depth (m)")
 
 
@@ -227,12 +223,10 @@ def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
     title = "Lyapunov function V (36), relative to V(0)"
     with_V = [(run, color) for run, color in zip(context.runs, context.colors) if _has_V(run)]
     if not with_V:
-        ax.set_title(title)
-        _say_absent(ax, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
+        _say_absent(ax, title, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
         return
     for run, color in with_V:
         _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
-    _shade_losses(ax, context)
     ax.set_yscale("log")
     _time_axes(ax, title, "V / V(0) (-)")
 
@@ -276,8 +270,7 @@ def _top_view_panel(ax: Any, context: PanelContext) -> None:
     """The scene to scale, and the paths with y stretched (centimetres vanish at the wall's scale)."""
     with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
     if not with_poses:
-        ax.set_title("Top view")
-        _say_absent(ax, NO_POSES)
+        _say_absent(ax, "Top view", NO_POSES)
         return
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
@@ -428,8 +421,10 @@ def plot_runs(
             ax = figure.add_subplot(slots[name])
             ax.set_label(name)
             PANELS[name](ax, context)
-            if name != "top" and ax.get_lines() and end > start:
-                ax.set_xlim(start, end)
+            if name != "top" and ax.get_lines():  # a time panel with data
+                _shade_losses(ax, context)
+                if end > start:
+                    ax.set_xlim(start, end)
             if columns == 1 and name != "top" and name != time_panels[-1] and ax.get_lines():
                 # Stacked in one column: the shared time axis is labelled once, under the last.
                 ax.tick_params(labelbottom=False)

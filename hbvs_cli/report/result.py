@@ -5,10 +5,10 @@ significant digits when a section is made, so the JSON, the tables and ``--fail-
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, make_dataclass
 from typing import Any, Mapping
 
-from ..core.metrics import round_significant
+from ..core.metrics import STATISTICS, round_significant
 
 #: Significant digits of every number in a report (float noise is not a measurement).
 REPORT_DIGITS = 7
@@ -66,19 +66,11 @@ class RunSummary(Section):
     truncated: bool
 
 
-@dataclass(frozen=True)
-class ErrorSummary(Section):
-    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`) in its unit; None when unknown."""
-
-    rmse: float | None
-    mean: float | None
-    median: float | None
-    std: float | None
-    min: float | None
-    max: float | None
-    initial: float | None
-    final: float | None
-    settling_time_s: float | None
+#: A field per statistic of :data:`hbvs_cli.core.metrics.STATISTICS`, in its order.
+ErrorSummary = make_dataclass(
+    "ErrorSummary", [(name, float | None) for name in STATISTICS], bases=(Section,), frozen=True,
+    namespace={"__module__": __name__, "__doc__": "The statistics of one error signal in its unit; None when unknown."},
+)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .figure_style import law_colors
-from .sweep_summary import SweepData, wilson_interval
+from .sweep_summary import SweepData, group_stats
 
 FILES = ("convergence_map.png", "final_error_cdf.png", "final_error_vs_parameters.png")
 #: The convergence map shows every pair of the first this many numeric swept parameters.
@@ -41,18 +41,17 @@ def label_log_axis(axis: Any, which: str = "x") -> None:
     target.set_minor_formatter(NullFormatter())
 
 
-def _convergence_curve(plt, data: SweepData, name: str, laws, reported: np.ndarray, units: Mapping[str, str]) -> Any:
+def _convergence_curve(plt, data: SweepData, name: str, laws, units: Mapping[str, str]) -> Any:
     """The map of a single numeric parameter: rate per value or bin, one line per law, Wilson 95 %."""
     from matplotlib.ticker import MaxNLocator
 
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for colour, (law, law_mask) in zip(law_colors([law for law, _ in laws]), laws):
-        points = []  # (centre, rate, Wilson low, high) of each value or bin with runs
+        points = []  # (centre, rate, Wilson low, high) of each value or bin with reported runs
         for _, centre, group in data.groups(name):
-            cell = law_mask & group & reported
-            if cell.any():
-                converged = int(data.columns["converged"][cell].sum())
-                points.append((centre, converged / cell.sum(), *wilson_interval(converged, int(cell.sum()))))
+            stats = group_stats(data, law_mask & group)
+            if stats["rate"] is not None:
+                points.append((centre, stats["rate"], *stats["rate_ci95"]))
         centres, rates, low, high = zip(*points) if points else ([], [], [], [])
         axis.plot(centres, rates, marker="o", ms=3, color=colour, label=law)
         axis.fill_between(centres, low, high, color=colour, alpha=0.12, lw=0)
@@ -114,7 +113,7 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
         figure.colorbar(image, ax=axes.ravel().tolist(), label=RATE_LABEL)
         figures[FILES[0]] = (figure, 110)
     elif numeric:
-        figures[FILES[0]] = (_convergence_curve(plt, data, numeric[0], laws, reported, units), 110)
+        figures[FILES[0]] = (_convergence_curve(plt, data, numeric[0], laws, units), 110)
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
     for colour, (law, law_mask) in zip(colours, laws):
         for axis, column, scale in ((axes[0], "final_position_m", 100.0), (axes[1], "final_heading_deg", 1.0)):

@@ -290,10 +290,9 @@ def report_console(stream: TextIO) -> Any:
     """A rich console on ``stream``: colour on a terminal, else plain and never wrapped."""
     from rich.console import Console
 
-    console = Console(file=stream, highlight=False, markup=False, emoji=False)
-    if console.is_terminal:
-        return console
-    return Console(file=stream, highlight=False, markup=False, emoji=False, color_system=None, width=PLAIN_WIDTH)
+    settings: dict[str, Any] = {"file": stream, "highlight": False, "markup": False, "emoji": False}
+    console = Console(**settings)
+    return console if console.is_terminal else Console(**settings, color_system=None, width=PLAIN_WIDTH)
 
 
 def print_title(console: Any, text: str) -> None:

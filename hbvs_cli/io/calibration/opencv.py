@@ -21,24 +21,22 @@ def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:
     try:
         # FILE_STORAGE_MEMORY: the text already read (and size-checked), not the path a second time.
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        try:
+            if not storage.isOpened():
+                raise CalibrationError(f"{name}: OpenCV could not parse this FileStorage file")
+            root = storage.root()
+            if not root.isMap():
+                raise CalibrationError(f"{name}: expected a mapping of calibration keys at the top level")
+            result: dict[str, Any] = {}
+            for key in root.keys():
+                if _normalise_key(key) in _ALL_KEYS:
+                    result[key] = _opencv_node_value(storage.getNode(key), f"{name}: {key}")
+            return result
+        finally:
+            storage.release()
     except (cv2.error, SystemError) as exc:
         # OpenCV's parser errors surface as SystemError chained to the cv2.error.
         raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {opencv_error_text(exc)}") from None
-    try:
-        if not storage.isOpened():
-            raise CalibrationError(f"{name}: OpenCV could not parse this FileStorage file")
-        root = storage.root()
-        if not root.isMap():
-            raise CalibrationError(f"{name}: expected a mapping of calibration keys at the top level")
-        result: dict[str, Any] = {}
-        for key in root.keys():
-            if _normalise_key(key) in _ALL_KEYS:
-                result[key] = _opencv_node_value(storage.getNode(key), f"{name}: {key}")
-        return result
-    except (cv2.error, SystemError) as exc:
-        raise CalibrationError(f"{name}: malformed OpenCV FileStorage file: {opencv_error_text(exc)}") from None
-    finally:
-        storage.release()
 
 
 def _opencv_node_value(node: Any, what: str, depth: int = 0) -> Any:
