@@ -227,8 +227,11 @@ def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequen
     return transitions
 
 
-def view_spans(pixels: ArrayLike) -> NDArray[np.float64]:
-    """The largest distance (px) between two of a target's points in each frame (F, N, 2); -1 where not found."""
+def view_spans(pixels: ArrayLike, least: int | None = None) -> NDArray[np.float64]:
+    """The largest distance (px) between two of a target's points found in each frame (F, N, 2) where at least
+    ``least`` (None: all N) were found; -1 elsewhere."""
     pixels = np.asarray(pixels, dtype=float)
-    spans = np.max(np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1), axis=(1, 2))
-    return np.where(np.isfinite(spans), spans, -1.0)
+    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
+    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
+    found = np.all(np.isfinite(pixels), axis=2).sum(axis=1)
+    return np.where(found >= (pixels.shape[1] if least is None else least), spans, -1.0)

@@ -137,10 +137,3 @@ def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) ->
               f"of them gives theta_d a sigma of {figures(best).split(' ', 1)[1]}{others}{candidates.aside}{none_found}")
     return best, reason
 
-
-def choose_on_the_drive(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec],
-                        shapes_of: Callable[[DetectorSpec], list[KnownShape]], frames: Iterable[tuple[float, np.ndarray]],
-                        camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> tuple[DetectorSpec, str, TargetChoice]:
-    """:func:`judge` over ``frames``, then :func:`picked`: the spec, its one line and the choice."""
-    best, reason = picked(judge(candidates, spec_of, shapes_of, frames, camera, max_lost, seed), candidates, max_lost)
-    return best.spec, reason, best.choice

@@ -20,8 +20,9 @@ from ..perception.target_kinds import SpecRequest, target_kind
 from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
 from ..settings.commands import FitOptions
-from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
+from ..sim.route_world import MIN_SPAN_PX, recorded_route
 from .console import Console
+from .frame_decoding import FrameLog
 
 
 def is_route(world_description: Any) -> bool:
@@ -30,33 +31,31 @@ def is_route(world_description: Any) -> bool:
 
 
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
-                    checked_frame: Callable[[Any, np.ndarray], Any], segment_fit: Callable[..., tuple[Any, FitModel]],
-                    spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
-    """Fit the route of ``reader`` (its decoded ``frames``) into ``writer`` (metadata and calibration written already)
-    and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
+                    segment_fit: Callable[..., tuple[Any, FitModel]], spec_of: Callable[[Any, list[np.ndarray]], Any],
+                    options: FitOptions) -> list[FitModel]:
+    """Fit the route of ``reader`` (its decoded, checked ``frames``) into ``writer`` (metadata and calibration written
+    already) and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
     segment's fit and model (:func:`.fit._drive_fit`); ``spec_of(choice, images)``: the detector of a found kind."""
     from ..io.route_file import write_route
 
     follower: SimulatedFollower | ImageFollower | None = None
-    rows: list[tuple[float, int, Any, Any]] = []
+    log = FrameLog(0)
     for frame, _, image in frames:
-        camera = checked_frame(frame, image)
         if follower is None:
-            follower = (ImageFollower(camera, spec_of, options.seed) if frame.pose is None
-                        else SimulatedFollower(_route(reader, camera), options.seed, console))
+            follower = (ImageFollower(reader.camera, spec_of, options.seed) if frame.pose is None
+                        else SimulatedFollower(reader, options.seed, console))
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
                                  "its first frame " + ("had" if frame.pose is None else "lacked"))
-        rows.append((frame.t, frame.log_time_ns, (np.nan,) * 3 if frame.pose is None else frame.pose,
-                     (np.nan,) * 2 if frame.command is None else frame.command))
+        log.add(frame.t, frame.log_time_ns, np.empty((0, 2)), frame.pose, frame.command)
         follower.add(image, frame.pose)
         bar.advance()
     if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
-    t, log_time, poses, commands = (np.array(column, dtype=kind)
-                                    for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
-    pixels = follower.pixels(len(rows))
-    spans = np.column_stack([seen_spans(points) for points in pixels])
+    drive = log.arrays()
+    t, log_time, poses = drive["t"], drive["log_time"], drive["pose"]
+    pixels = follower.pixels(log.count)
+    spans = np.column_stack([view_spans(points, MIN_PARTIAL_POINTS) for points in pixels])
     try:
         segments = split_route(bridge_brief_gaps(spans >= MIN_SPAN_PX, t, options.max_gap), spans)
     except MalformedDataError as exc:
@@ -65,9 +64,9 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     fits, models, references = [], [], []
     for segment in segments:
         frames_of = slice(segment.first, segment.last + 1)
-        arrays = {"t": t[frames_of], "log_time": log_time[frames_of], "pixels": pixels[segment.target][frames_of],
-                  "pose": poses[frames_of] if route is None else route.local_pose(segment.target, poses[frames_of]),
-                  "command": commands[frames_of]}
+        arrays = {name: column[frames_of] for name, column in drive.items()} | {"pixels": pixels[segment.target][frames_of]}
+        if route is not None:
+            arrays["pose"] = route.local_pose(segment.target, arrays["pose"])
         reference = int(np.argmax(view_spans(arrays["pixels"])))  # the nearer and larger, the better measured
         fit, model = segment_fit(arrays, reference, follower.detectors[segment.target].spec,
                                  None if route is None else route.worlds[segment.target].to_dict(), f"{reader.name} (segment {len(models) + 1})")
@@ -82,21 +81,18 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     return models
 
 
-def _route(reader: Any, camera: Any) -> RouteWorld:
-    """The simulated route the teach ``reader`` recorded; RecordingError when its record is not one."""
-    try:
-        return recorded_route(reader.world_description, camera)
-    except MalformedDataError as exc:
-        raise RecordingError(f"{reader.name}: {exc}") from None
-
-
 class SimulatedFollower:
-    """Each target of a simulated ``route`` followed by its detector from the first frame that sees it wholly and large."""
+    """Each target of the simulated route the teach ``reader`` recorded followed by its detector from the first frame that
+    sees it wholly and large."""
 
-    def __init__(self, route: RouteWorld, seed: int, console: Console) -> None:
-        self.route, self.seed, self.console = route, seed, console
-        self.detectors: list[TrackedDetector | None] = [None] * len(route.worlds)
-        self.seen: list[list[np.ndarray]] = [[] for _ in route.worlds]
+    def __init__(self, reader: Any, seed: int, console: Console) -> None:
+        try:
+            self.route = recorded_route(reader.world_description, reader.camera)
+        except MalformedDataError as exc:
+            raise RecordingError(f"{reader.name}: {exc}") from None
+        self.seed, self.console = seed, console
+        self.detectors: list[TrackedDetector | None] = [None] * len(self.route.worlds)
+        self.seen: list[list[np.ndarray]] = [[] for _ in self.route.worlds]
 
     def add(self, image: np.ndarray, pose: Any) -> None:
         """Each target's pixels in ``image`` (NaN where it is not in view or not found)."""
@@ -121,14 +117,6 @@ EDGE_MARGIN_PX = 10.0
 #: A target found again after a loss is its own only if an affine map of its last layout fits the new points this
 #: well (largest residual over the points' span).
 REFOUND_LAYOUT_TOLERANCE = 0.05
-
-
-def seen_spans(pixels: np.ndarray) -> np.ndarray:
-    """The largest distance (px) between two of a target's points found in each frame (F, N, 2),
-    when at least :data:`MIN_PARTIAL_POINTS` were (a board's markers are not all decoded afar); -1 otherwise."""
-    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
-    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
-    return np.where(np.all(np.isfinite(pixels), axis=2).sum(axis=1) >= MIN_PARTIAL_POINTS, spans, -1.0)
 
 
 def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
