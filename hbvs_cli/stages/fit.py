@@ -26,10 +26,10 @@ from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError
 from ..settings.commands import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
+from ..perception.target_kinds import TARGET_KINDS, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
-from .auto_target import NoTargetThroughout, followed_frames, judge, picked
+from .auto_target import NoTargetThroughout, followed_frames, judge, parse_board, picked, spec_of_kind
 from .fit_route import fit_route_teach, is_route
 from .frame_decoding import FrameLog, decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
@@ -183,9 +183,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                              calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 if as_route or is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console,
-                                             partial(_drive_fit, reader, options, console),
-                                             lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
-                                                                                  None, console), options)
+                                             partial(_drive_fit, reader, options, console), options)
                     return FitSummary(output=options.output, model=models[0])
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
@@ -488,7 +486,7 @@ def _detector_spec(
             kind = next(name for name, taker in TARGET_KINDS.items() if given <= taker.options)
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
-            spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
+            spec_of = lambda choice: spec_of_kind(choice.kind, choice.details, options, images, camera, console)  # noqa: E731
             best, reason = picked(judge(candidates, spec_of, _known_shapes, sample(), camera, options.max_lost, options.seed),
                                   candidates, options.max_lost)
             console.info(f"--target auto picked {best.choice.kind}: {reason}")
@@ -497,27 +495,7 @@ def _detector_spec(
         kind = world.target.kind
     if world is not None and world.target.kind != kind:
         raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
-    return _spec_of_kind(kind, {}, options, world, images, camera, pose, console)
-
-
-def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
-                  camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
-    """The detector of a target ``kind`` from ``details`` (what ``--target auto`` found), the options, ``world`` or ``images``."""
-    from ..perception.autodetect import find_target
-
-    squares = parse_board(options.board) if options.board is not None else None
-    seen = world.pixels(np.asarray(pose)) if world is not None and pose is not None else None
-    request = SpecRequest(images, camera, details, options.marker_dict, world.target.marker_id if world is not None else options.marker_id,
-                          squares, seen, find=partial(find_target, kind, images, options.marker_dict, squares), info=console.info)
-    return target_kind(kind).spec(request)
-
-
-def parse_board(text: str) -> tuple[int, int]:
-    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each); UsageError otherwise."""
-    parts = str(text).lower().replace(" ", "").split("x")
-    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
-        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
-    return int(parts[0]), int(parts[1])
+    return spec_of_kind(kind, {}, options, images, camera, console, world, pose)
 
 
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:

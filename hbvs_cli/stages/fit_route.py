@@ -21,6 +21,7 @@ from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
 from ..settings.commands import FitOptions
 from ..sim.route_world import MIN_SPAN_PX, recorded_route
+from .auto_target import spec_of_kind
 from .console import Console
 from .frame_decoding import FrameLog
 
@@ -31,18 +32,17 @@ def is_route(world_description: Any) -> bool:
 
 
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
-                    segment_fit: Callable[..., tuple[Any, FitModel]], spec_of: Callable[[Any, list[np.ndarray]], Any],
-                    options: FitOptions) -> list[FitModel]:
+                    segment_fit: Callable[..., tuple[Any, FitModel]], options: FitOptions) -> list[FitModel]:
     """Fit the route of ``reader`` (its decoded, checked ``frames``) into ``writer`` (metadata and calibration written
     already) and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
-    segment's fit and model (:func:`.fit._drive_fit`); ``spec_of(choice, images)``: the detector of a found kind."""
+    segment's fit and model (:func:`.fit._drive_fit`)."""
     from ..io.route_file import write_route
 
     follower: SimulatedFollower | ImageFollower | None = None
     log = FrameLog(0)
     for frame, _, image in frames:
         if follower is None:
-            follower = (ImageFollower(reader.camera, spec_of, options.seed) if frame.pose is None
+            follower = (ImageFollower(reader.camera, options, console) if frame.pose is None
                         else SimulatedFollower(reader, options.seed, console))
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
@@ -139,8 +139,8 @@ class ImageFollower:
     frames new targets are looked for (:meth:`_search`). Every detector runs on every frame, so that a target lost
     and seen again keeps its name."""
 
-    def __init__(self, camera: Any, spec_of: Callable[[Any, list[np.ndarray]], Any], seed: int) -> None:
-        self.camera, self.spec_of, self.seed = camera, spec_of, seed
+    def __init__(self, camera: Any, options: FitOptions, console: Console) -> None:
+        self.camera, self.options, self.console, self.seed = camera, options, console, options.seed
         self.detectors: list[TrackedDetector] = []
         self.found: list[dict[int, np.ndarray]] = []
         self.recent: deque[tuple[int, np.ndarray]] = deque(maxlen=SEARCH_FRAMES)
@@ -208,7 +208,8 @@ class ImageFollower:
     def _followed(self, choice: Any, alone: list[np.ndarray]) -> bool:
         """Whether ``choice``'s detector, started on the first recent frame ``alone``, finds it in most (then followed)."""
         try:
-            detector = TrackedDetector(self.spec_of(choice, alone), self.camera, seed=self.seed, template_image=alone[0])
+            spec = spec_of_kind(choice.kind, choice.details, self.options, alone, self.camera, self.console)
+            detector = TrackedDetector(spec, self.camera, seed=self.seed, template_image=alone[0])
             detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
             found = {index: detector.detect(image) for index, image in self.recent}
         except HbvsError:  # e.g. too few dots for a dot target
