@@ -160,7 +160,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     log: FrameLog | None = None
     detector: TrackedDetector | None = None
     pull: Any = None  # the kind's image_shift accumulator
-    template: bytes | None = None
     reference_image: bytes | None = None
     wanted_index = parse_reference(options.reference)  # the frame whose image is kept as F*'s (last: each frame's in turn)
     with open_output(options.output) as writer:
@@ -177,7 +176,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
             gray_source = all(image.ndim == 2 for _, _, image in first)
             rest: Iterator[tuple[Any, bytes, np.ndarray]] = frames
             if first:
-                frame, data, image = first[0]
+                frame = first[0][0]
                 camera = reader.camera
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns,
                              calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
@@ -197,7 +196,6 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 # Saturated dots: the pull all of them share (bloom), for the uncertainty.
                 shift = target_kind(spec.kind).image_shift
                 pull = shift(spec) if shift is not None else None
-                template = data
             for frame, data, image in chain(first, rest):
                 assert detector is not None
                 pixels = detector.detect(image)
@@ -222,8 +220,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         if reader.truncated:
             writer.input_ended_early(reader.name, options.allow_truncated)
             console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
-        assert detector is not None and reader.camera is not None
-        camera = reader.camera
+        assert detector is not None
         arrays = log.arrays()
         reference_index = log.count - 1 if wanted_index is None else wanted_index
         if not 0 <= reference_index < log.count:
@@ -237,7 +234,8 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
             height = world.camera_height if world is not None else 0.0
             SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
-        for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
+        for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index),
+                                  (TEMPLATE_IMAGE_TOPIC, first[0][1], 0)):  # the detector's template: the first frame
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, sniff_format(payload) or "jpeg", CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))

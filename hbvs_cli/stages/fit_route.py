@@ -248,15 +248,15 @@ STAND_OUT_LEVELS = 24
 STAND_OUT_GAP_PX, STAND_OUT_EDGE_PX = 15, 3
 
 
-def _background(image: np.ndarray) -> np.ndarray:
-    """The median level (gray) or colour of ``image``."""
-    return np.median(image.reshape(-1, image.shape[2]) if image.ndim == 3 else image.reshape(-1), axis=0).astype(image.dtype)
+def _background(image: np.ndarray, part: np.ndarray | None = None) -> np.ndarray:
+    """The median level (gray) or colour of ``image`` (inside ``part``, a bool mask, when it holds any pixel)."""
+    pixels = image[part] if part is not None and part.any() else image.reshape(-1, *image.shape[2:])
+    return np.median(pixels, axis=0).astype(image.dtype)
 
 
 def _alone(image: np.ndarray, part: np.ndarray) -> np.ndarray:
     """``image`` painted outside ``part`` (bool mask) in its median level inside: no edge where ``part`` ends."""
-    level = np.median(image[part] if part.any() else image.reshape(-1, *image.shape[2:]), axis=0).astype(image.dtype)
-    return np.where(part if image.ndim == 2 else part[..., None], image, level)
+    return np.where(part if image.ndim == 2 else part[..., None], image, _background(image, part))
 
 
 def standing_out(image: np.ndarray) -> np.ndarray:
