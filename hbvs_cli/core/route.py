@@ -62,11 +62,8 @@ def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segm
         ends = {t: _run_end(visible[:, t], frame) for t in candidates}
         rank = ends if sizes is None else {t: float(np.asarray(sizes)[frame, t]) for t in candidates}
         target = max(candidates, key=lambda t: (rank[t], -t))
-        if segments:
-            start = max(_run_start(visible[:, target], frame), segments[-1].first + 1)
-            segments.append(Segment(target, start, ends[target], overlap_last=frame))
-        else:
-            segments.append(Segment(target, 0, ends[target]))
+        start = max(_run_start(visible[:, target], frame), segments[-1].first + 1) if segments else 0
+        segments.append(Segment(target, start, ends[target], overlap_last=frame if segments else None))
         followed.add(target)
         if ends[target] == frames - 1:
             return segments

@@ -1,6 +1,5 @@
-"""``--target auto`` judged on the whole drive (docs/targets.md): each kind of target the first frames show is
-followed over frames strided over the recording; one missing from more than ``--max-lost`` of them is not chosen,
-the others are compared by the RMS sigma of theta_d of a short joint fit, not by their number of points."""
+"""``--target auto`` judged on the whole drive (docs/targets.md, "Judged on the whole drive"), and the detector of a
+target kind from what auto found or the options (fit's and a route's)."""
 
 from __future__ import annotations
 

@@ -80,7 +80,6 @@ def parse_reference(spec: str) -> int | None:
 def recorded_frame_count(source: str) -> int | None:
     """How many images a teach file's MCAP summary counts (None for stdin or no usable summary); never fails."""
     from ..io.mcap import read_summary
-    from ..io.teach_file import IMAGE_TOPIC
 
     if source == "-" or not Path(source).is_file():
         return None
