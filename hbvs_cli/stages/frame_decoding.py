@@ -1,5 +1,6 @@
-"""Taught frames decoded ahead of use in a worker thread (OpenCV's decoder releases the GIL), with bounded memory.
-Colour only for the dot detector (a dot may differ from its wall in hue alone): luminance decodes faster."""
+"""Taught frames decoded ahead of use in a worker thread (OpenCV's decoder releases the GIL), with bounded memory,
+and what fit keeps of each (:class:`FrameLog`). Colour only for the dot detector (a dot may differ from its wall in
+hue alone): luminance decodes faster."""
 
 from __future__ import annotations
 
