@@ -16,7 +16,6 @@ from ..core.fit_model import FitModel
 from ..core.route import bridge_brief_gaps, estimate_transitions, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
-from ..perception.target_kinds import SpecRequest, target_kind
 from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
 from ..settings.commands import FitOptions
@@ -43,7 +42,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     for frame, _, image in frames:
         if follower is None:
             follower = (ImageFollower(reader.camera, options, console) if frame.pose is None
-                        else SimulatedFollower(reader, options.seed, console))
+                        else SimulatedFollower(reader, options, console))
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
                                  "its first frame " + ("had" if frame.pose is None else "lacked"))
@@ -85,12 +84,12 @@ class SimulatedFollower:
     """Each target of the simulated route the teach ``reader`` recorded followed by its detector from the first frame that
     sees it wholly and large."""
 
-    def __init__(self, reader: Any, seed: int, console: Console) -> None:
+    def __init__(self, reader: Any, options: FitOptions, console: Console) -> None:
         try:
             self.route = recorded_route(reader.world_description, reader.camera)
         except MalformedDataError as exc:
             raise RecordingError(f"{reader.name}: {exc}") from None
-        self.seed, self.console = seed, console
+        self.options, self.console, self.seed = options, console, options.seed
         self.detectors: list[TrackedDetector | None] = [None] * len(self.route.worlds)
         self.seen: list[list[np.ndarray]] = [[] for _ in self.route.worlds]
 
@@ -101,9 +100,9 @@ class SimulatedFollower:
         for index, world in enumerate(self.route.worlds):
             points = int(world.target.points_world.shape[0])
             if self.detectors[index] is None and spans[index] >= MIN_SPAN_PX:
-                request = SpecRequest([image], self.route.camera, marker_id=world.target.marker_id,
-                                      seen_pixels=world.pixels(self.route.local_pose(index, pose)), info=self.console.info)
-                self.detectors[index] = TrackedDetector(target_kind(world.target.kind).spec(request), self.route.camera, seed=self.seed)
+                spec = spec_of_kind(world.target.kind, {}, self.options, [image], self.route.camera, self.console, world,
+                                    self.route.local_pose(index, pose))  # as a single target's simulated fit picks it
+                self.detectors[index] = TrackedDetector(spec, self.route.camera, seed=self.seed)
             detector = self.detectors[index]
             self.seen[index].append(detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan))
 
