@@ -146,7 +146,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     from ..io.calibration import calibration_to_foxglove
     from ..io.output_target import refuse_overwriting_inputs
 
-    parse_smoothing(options.smoothing)
+    parse_smoothing(options.smoothing)  # refused before the recording is read; each fit parses it again
     if options.target != "auto" and options.target not in TARGET_KINDS:
         raise UsageError(f"--target must be one of auto, {', '.join(TARGET_KINDS)}, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):

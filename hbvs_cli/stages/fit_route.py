@@ -53,7 +53,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         raise RecordingError(f"{reader.name}: no complete image in the recording")
     drive = log.arrays()
     t, log_time, poses = drive["t"], drive["log_time"], drive["pose"]
-    pixels = follower.pixels(log.count)
+    pixels = follower.pixels()
     spans = np.column_stack([view_spans(points, MIN_PARTIAL_POINTS) for points in pixels])
     try:
         segments = split_route(bridge_brief_gaps(spans >= MIN_SPAN_PX, t, options.max_gap), spans)
@@ -106,8 +106,8 @@ class SimulatedFollower:
             detector = self.detectors[index]
             self.seen[index].append(detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan))
 
-    def pixels(self, frames: int) -> list[np.ndarray]:
-        """Each target's pixels (``frames``, N, 2)."""
+    def pixels(self) -> list[np.ndarray]:
+        """Each target's pixels (frames, N, 2)."""
         return [np.array(points) for points in self.seen]
 
 
@@ -235,9 +235,9 @@ class ImageFollower:
             cv2.fillConvexPoly(painted, cv2.convexHull(grown.astype(np.int32)), np.atleast_1d(_background(image)).tolist())
         return painted
 
-    def pixels(self, frames: int) -> list[np.ndarray]:
-        """Each target's pixels (``frames``, N, 2), NaN before it was found."""
-        return [np.array([found.get(k, np.full((detector.spec.n_points, 2), np.nan)) for k in range(frames)])
+    def pixels(self) -> list[np.ndarray]:
+        """Each target's pixels (frames, N, 2), NaN before it was found."""
+        return [np.array([found.get(k, np.full((detector.spec.n_points, 2), np.nan)) for k in range(self.count)])
                 for detector, found in zip(self.detectors, self.found)]
 
 
