@@ -69,8 +69,8 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
         writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), {
             "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
             "timestamp": time_message(int(log_times[-1])),
-            "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r),
-                          "template": template} for s, r, template in zip(segments, references, indices)],
+            "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last,
+                          "reference": int(r), "template": template} for s, r, template in zip(segments, references, indices)],
             # Each transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho)).
             "transitions": [{name: value.tolist() if isinstance(value, np.ndarray) else value
                              for name, value in vars(transition).items()} for transition in transitions],
