@@ -247,12 +247,11 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         render = message.get("render")
         if render is not None and render_settings_problem(render) is not None:
             raise ValueError(f"render: {render_settings_problem(render)}")
-        margin = message.get("normal_margin")
         uncertainty = message.get("uncertainty")
         return FitModel(
             target_kind=kind, camera=camera_from_dict(message["camera"]), reference_index=int(reference["index"]),
             reference_t=float(reference["t"]), reference_pixels=pixels, m_ref=m_ref, normal=normal,
-            normal_margin=float(margin) if margin is not None else float("nan"),
+            normal_margin=_FIELD_TYPES["float"](message.get("normal_margin")),  # JSON null: NaN
             trajectory=SplineTrajectory.from_dict(message["trajectory"]), dhat0=dhat0,
             dhat0_source=str(message.get("dhat0_source", "")), depth=_depth_from_record(message.get("depth") or {}), frames=frames,
             condition35=_typed(FeedforwardCondition, message["condition35"], "condition35"),
