@@ -97,7 +97,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
     with _one_thread_each():
         try:
             return _run_fit(options, console)
-        except InputError as lost:  # the fit's InsufficientDataError, said in its words (:func:`_drive_fit`), is its context
+        except InputError as lost:  # the fit's InsufficientDataError, said in its words (:func:`_fit`), is its context
             lost_on_the_way = getattr(lost.__context__, "facts", {}).get("reason") in ("lost", "gap")
             if options.target != "auto" or options.input == "-" or not (isinstance(lost, NoTargetThroughout) or lost_on_the_way):
                 raise
@@ -110,7 +110,7 @@ def run_fit(options: FitOptions, console: Console) -> FitSummary:
 @contextmanager
 def _one_thread_each() -> Iterator[None]:
     """OpenCV's and BLAS's thread pools off while fitting, restored after: the frame loop and the decoding
-    thread already keep two cores busy. scipy's BLAS, loaded later, is limited in :func:`_drive_fit`."""
+    thread already keep two cores busy. scipy's BLAS, loaded later, is limited in :func:`_fit`."""
     import cv2
     from threadpoolctl import threadpool_limits
 
@@ -245,27 +245,10 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
 def _drive_fit(reader: Any, options: FitOptions, console: Console, arrays: dict[str, np.ndarray], reference_index: int,
                spec: DetectorSpec, world_description: dict[str, Any] | None, name: str, layout: np.ndarray | None = None,
                image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
-    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model:
-    :func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on stderr, too little data
-    said in the options' words. scipy is imported by the main thread, never by a second one: a stop signal inside
-    an import can leave its lock held and the threads deadlocked."""
-    from threadpoolctl import threadpool_limits
-
+    """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model."""
     camera = reader.camera
     calibration = _calibration_uncertainty(reader, camera)
-    shapes = _known_shapes(spec, layout)
-    smoothing = parse_smoothing(options.smoothing)
-    _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
-    try:
-        # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
-        with threadpool_limits(limits=1, user_api="blas"):
-            result = fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
-                                            max_lost=options.max_lost, max_gap=options.max_gap,
-                                            warn=console.warn if layout is None else layout_given_warn(console.warn),
-                                            shapes=shapes, errors=target_kind(spec.kind).errors, image_shift_px=image_shift_px,
-                                            calibration_sigma=calibration[1], calibration_counted=calibration[0] != "unstated")
-    except InsufficientDataError as exc:
-        raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
+    result = _fit(arrays, reference_index, camera, options, console, name, spec, layout, image_shift_px, calibration)
     spec = replace(spec, initial_pixels=result.initial_pixels)
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
     if calibration[0] == "unstated" and result.uncertainty is not None:
@@ -377,6 +360,29 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
         return layout[match_layout(layout, seen)]
     except GeometryError as exc:
         raise InputError(f"--target-points {options.target_points}: {exc}") from None
+
+
+def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, options: FitOptions, console: Console,
+         name: str, spec: DetectorSpec, layout: np.ndarray | None = None, image_shift_px: float = 0.0,
+         calibration: tuple[str, tuple[float, ...]] = ("exact", ())) -> DesiredFit:
+    """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on stderr, too little data
+    said in the options' words (bench/demo_rounding.py wraps it). scipy is imported by the main thread, never by a
+    second one: a stop signal inside an import can leave its lock held and the threads deadlocked."""
+    from threadpoolctl import threadpool_limits
+
+    shapes = _known_shapes(spec, layout)
+    smoothing = parse_smoothing(options.smoothing)
+    _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
+    try:
+        # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fit_desired_trajectory(arrays["t"], arrays["pixels"], reference_index, camera, smoothing,
+                                          max_lost=options.max_lost, max_gap=options.max_gap,
+                                          warn=console.warn if layout is None else layout_given_warn(console.warn),
+                                          shapes=shapes, errors=target_kind(spec.kind).errors, image_shift_px=image_shift_px,
+                                          calibration_sigma=calibration[1], calibration_counted=calibration[0] != "unstated")
+    except InsufficientDataError as exc:
+        raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
 
 def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics) -> tuple[str, tuple[float, ...]]:
