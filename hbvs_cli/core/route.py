@@ -62,11 +62,8 @@ def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segm
         ends = {t: _run_end(visible[:, t], frame) for t in candidates}
         rank = ends if sizes is None else {t: float(np.asarray(sizes)[frame, t]) for t in candidates}
         target = max(candidates, key=lambda t: (rank[t], -t))
-        if segments:
-            start = max(_run_start(visible[:, target], frame), segments[-1].first + 1)
-            segments.append(Segment(target, start, ends[target], overlap_last=frame))
-        else:
-            segments.append(Segment(target, 0, ends[target]))
+        start = max(_run_start(visible[:, target], frame), segments[-1].first + 1) if segments else 0
+        segments.append(Segment(target, start, ends[target], overlap_last=frame if segments else None))
         followed.add(target)
         if ends[target] == frames - 1:
             return segments
@@ -227,8 +224,11 @@ def estimate_transitions(t: ArrayLike, segments: Sequence[Segment], fits: Sequen
     return transitions
 
 
-def view_spans(pixels: ArrayLike) -> NDArray[np.float64]:
-    """The largest distance (px) between two of a target's points in each frame (F, N, 2); -1 where not found."""
+def view_spans(pixels: ArrayLike, least: int | None = None) -> NDArray[np.float64]:
+    """The largest distance (px) between two of a target's points found in each frame (F, N, 2) where at least
+    ``least`` (None: all N) were found; -1 elsewhere."""
     pixels = np.asarray(pixels, dtype=float)
-    spans = np.max(np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1), axis=(1, 2))
-    return np.where(np.isfinite(spans), spans, -1.0)
+    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
+    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
+    found = np.all(np.isfinite(pixels), axis=2).sum(axis=1)
+    return np.where(found >= (pixels.shape[1] if least is None else least), spans, -1.0)

@@ -247,12 +247,11 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
         render = message.get("render")
         if render is not None and render_settings_problem(render) is not None:
             raise ValueError(f"render: {render_settings_problem(render)}")
-        margin = message.get("normal_margin")
         uncertainty = message.get("uncertainty")
         return FitModel(
             target_kind=kind, camera=camera_from_dict(message["camera"]), reference_index=int(reference["index"]),
             reference_t=float(reference["t"]), reference_pixels=pixels, m_ref=m_ref, normal=normal,
-            normal_margin=float(margin) if margin is not None else float("nan"),
+            normal_margin=_FIELD_TYPES["float"](message.get("normal_margin")),  # JSON null: NaN
             trajectory=SplineTrajectory.from_dict(message["trajectory"]), dhat0=dhat0,
             dhat0_source=str(message.get("dhat0_source", "")), depth=_depth_from_record(message.get("depth") or {}), frames=frames,
             condition35=_typed(FeedforwardCondition, message["condition35"], "condition35"),
@@ -302,17 +301,17 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
     stream = McapStream(source, topics=topics, schemas=TOPICS[FILE_KIND], name=name)
     model_messages: list[dict[str, Any]] = []
     route_record: dict[str, Any] | None = None
-    images: dict[str, bytes] = {}
+    reference_image: bytes | None = None
     templates: list[bytes] = []
     for message in stream:
         if message.topic == MODEL_TOPIC:
             model_messages.append(message.json(stream.name))
         elif message.topic == ROUTE_TOPIC:
             route_record = message.json(stream.name)
+        elif message.topic == REFERENCE_IMAGE_TOPIC:
+            reference_image = read_compressed_image(message.data, stream.name).data
         else:
-            images[message.topic] = read_compressed_image(message.data, stream.name).data
-            if message.topic == TEMPLATE_IMAGE_TOPIC:
-                templates.append(images[message.topic])
+            templates.append(read_compressed_image(message.data, stream.name).data)
     info = read_metadata(stream, "hbvs")
     kind = info.get("file_kind")
     if kind not in (None, FILE_KIND):
@@ -323,8 +322,8 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         raise RecordingError(f"{stream.name}: {len(model_messages)} fit models but no route record (a route fit cut short?)")
     models = [model_from_message(message, stream.name) for message in model_messages]
     return FitFile(
-        model=models[0], reference_image=images.get(REFERENCE_IMAGE_TOPIC),
-        template_image=images.get(TEMPLATE_IMAGE_TOPIC), info=info, truncated=stream.truncated,
+        model=models[0], reference_image=reference_image, template_image=templates[-1] if templates else None, info=info,
+        truncated=stream.truncated,
         segment_models=models, route_record=route_record, templates=templates,
     )
 

@@ -1,9 +1,6 @@
-"""The route file: what ``hbvs fit`` writes for a route teach (issue 47) and ``hbvs repeat`` reads.
-
-It is a fit file whose ``/fit/model`` holds one ``hbvs.FitModel`` per segment, in the route's
-order (each encoded by :mod:`.fit_file`, each a single-target fit in its target's own world),
-and whose ``/fit/route`` holds the segments and the transitions between them with their
-uncertainty. A route of one segment writes no ``/fit/route``: it is exactly a fit file."""
+"""The route file (issue 47), what ``hbvs fit`` writes for a route teach and ``hbvs repeat`` reads: a fit file with
+one ``hbvs.FitModel`` per segment (each a single-target fit in its target's own world, :mod:`.fit_file`) and the
+``/fit/route`` record (docs/files.md); a route of one segment writes none, so it is exactly a fit file."""
 
 from __future__ import annotations
 
@@ -47,28 +44,8 @@ def _transition_from_record(record: dict[str, Any]) -> Transition:
     ratio = float(record["depth_ratio"])
     if origin.shape != (2,) or covariance.shape != (3, 3) or not (math.isfinite(ratio) and ratio > 0):
         raise ValueError("a transition needs a positive depth_ratio, a 2-vector origin_over_depth and a 3x3 covariance")
-    return Transition(
-        depth_ratio=ratio, depth_ratio_std=float(record["depth_ratio_std"]), heading=float(record["heading"]),
-        heading_std=float(record["heading_std"]), origin_over_depth=origin, covariance=covariance,
-        frames=int(record["frames"]), residual_rms=float(record["residual_rms"]),
-    )
-
-
-def route_message(segments: Sequence[Segment], references: Sequence[int], transitions: Sequence[Transition],
-                  log_time_ns: int, world: dict[str, Any] | None, taught_poses: np.ndarray | None,
-                  templates: Sequence[int | None]) -> dict[str, Any]:
-    """The ``hbvs.Route`` message: the segments (frames of the drive; ``templates``: the index of
-    each one's detector template among the file's template images, or None), the transitions and, for a
-    simulated route, its description and taught poses (what ``repeat --sim`` drives in and is judged against)."""
-    return {
-        "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
-        "timestamp": time_message(log_time_ns),
-        "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last, "reference": int(r),
-                      "template": template} for s, r, template in zip(segments, references, templates)],
-        # Each transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho)).
-        "transitions": [{name: value.tolist() if isinstance(value, np.ndarray) else value
-                         for name, value in vars(transition).items()} for transition in transitions],
-    }
+    return Transition(ratio, *(float(record[name]) for name in ("depth_ratio_std", "heading", "heading_std")), origin, covariance,
+                      int(record["frames"]), float(record["residual_rms"]))
 
 
 def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segment], references: Sequence[int],
@@ -76,7 +53,10 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
                 taught_poses: np.ndarray | None = None, templates: Sequence[np.ndarray | None] | None = None) -> None:
     """Each segment's model (stamped ``log_times[i]``, ns, its last frame's) checked as
     :func:`~.fit_file.checked_model_message` does, and its detector's template image
-    (``templates[i]``, None for a kind without one; lossless), then the route (one segment: none)."""
+    (``templates[i]``, None for a kind without one; lossless), then the ``hbvs.Route`` message (one segment: none):
+    the segments (frames of the drive; ``template``: the index of each one's template among the file's template
+    images, or None), the transitions and, for a simulated route, its description and taught poses (what
+    ``repeat --sim`` drives in and is judged against)."""
     schemas = TOPICS[FILE_KIND]
     indices: list[int | None] = []
     for number, (model, stamp) in enumerate(zip(models, log_times)):
@@ -86,8 +66,15 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
             write_compressed_image(writer, TEMPLATE_IMAGE_TOPIC, int(stamp), encode_image(template, "png"), "png", CAMERA_FRAME)
         indices.append(None if template is None else sum(index is not None for index in indices))
     if len(segments) > 1:
-        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]),
-                     route_message(segments, references, transitions, int(log_times[-1]), world, taught_poses, indices))
+        writer.write(ROUTE_TOPIC, schemas[ROUTE_TOPIC], int(log_times[-1]), {
+            "world": world, "taught_poses": None if taught_poses is None else np.asarray(taught_poses).tolist(),
+            "timestamp": time_message(int(log_times[-1])),
+            "segments": [{"target": s.target, "first": s.first, "last": s.last, "overlap_last": s.overlap_last,
+                          "reference": int(r), "template": template} for s, r, template in zip(segments, references, indices)],
+            # Each transition's fields as JSON numbers (heading in rad, origin over d*_i, the covariance of (u_1, u_2, rho)).
+            "transitions": [{name: value.tolist() if isinstance(value, np.ndarray) else value
+                             for name, value in vars(transition).items()} for transition in transitions],
+        })
 
 
 def route_of(fit: FitFile, name: str) -> RouteFile:

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..core.camera import DEFAULT_CAMERA, CameraIntrinsics, camera_description
 from ..core.frames import rotation_z, wrap_angle
 from ..core.path import CommandProfile
+from ..core.route import view_spans
 from ..errors import InvalidValueError, MalformedDataError
 from .poster import PosterRaster
 from .render import RenderSettings, SceneRenderer, load_texture
@@ -64,8 +65,7 @@ class RouteWorld:
         for index, world in enumerate(self.worlds):
             local = self.local_pose(index, pose)
             if world.in_view(local, margin_px):
-                pixels = world.pixels(local)
-                spans[index] = np.max(np.linalg.norm(pixels[:, None, :] - pixels[None, :, :], axis=-1))
+                spans[index] = view_spans(world.pixels(local)[None])[0]
         return spans
 
     def in_view(self, pose: ArrayLike, margin_px: float = 10.0) -> bool:

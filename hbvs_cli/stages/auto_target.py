@@ -1,11 +1,11 @@
-"""``--target auto`` judged on the whole drive (docs/targets.md): each kind of target the first frames show is
-followed over frames strided over the recording; one missing from more than ``--max-lost`` of them is not chosen,
-the others are compared by the RMS sigma of theta_d of a short joint fit, not by their number of points."""
+"""``--target auto`` judged on the whole drive (docs/targets.md, "Judged on the whole drive"), and the detector of a
+target kind from what auto found or the options (fit's and a route's)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable, Iterable, Iterator, Sequence
+from functools import partial
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -13,11 +13,13 @@ from ..core.camera import CameraIntrinsics
 from ..core.desired import MIN_PARTIAL_POINTS, fit_desired_trajectory
 from ..core.metrics import rms
 from ..core.plane import KnownShape
-from ..errors import HbvsError, InputError, InsufficientDataError
+from ..errors import HbvsError, InputError, InsufficientDataError, UsageError
 from ..io.teach_file import TeachReader
-from ..perception.autodetect import Candidates, TargetChoice
-from ..perception.target_kinds import TARGET_KINDS, target_kind
+from ..perception.autodetect import Candidates, TargetChoice, find_target
+from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
+from ..settings.commands import FitOptions
+from .console import Console
 from .frame_decoding import decode_frame
 
 #: Frames each candidate is followed on at most, evenly strided over the whole recording, by its own tracker from
@@ -138,9 +140,19 @@ def picked(judged: Sequence[Judged], candidates: Candidates, max_lost: float) ->
     return best, reason
 
 
-def choose_on_the_drive(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec],
-                        shapes_of: Callable[[DetectorSpec], list[KnownShape]], frames: Iterable[tuple[float, np.ndarray]],
-                        camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> tuple[DetectorSpec, str, TargetChoice]:
-    """:func:`judge` over ``frames``, then :func:`picked`: the spec, its one line and the choice."""
-    best, reason = picked(judge(candidates, spec_of, shapes_of, frames, camera, max_lost, seed), candidates, max_lost)
-    return best.spec, reason, best.choice
+def spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, images: list[np.ndarray], camera: CameraIntrinsics,
+                 console: Console, world: Any = None, pose: Any = None) -> DetectorSpec:
+    """The detector of a target ``kind`` from ``details`` (what ``--target auto`` found), the options, ``world`` or ``images``."""
+    squares = parse_board(options.board) if options.board is not None else None
+    seen = world.pixels(np.asarray(pose)) if world is not None and pose is not None else None
+    request = SpecRequest(images, camera, details, options.marker_dict, world.target.marker_id if world is not None else options.marker_id,
+                          squares, seen, find=partial(find_target, kind, images, options.marker_dict, squares), info=console.info)
+    return target_kind(kind).spec(request)
+
+
+def parse_board(text: str) -> tuple[int, int]:
+    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each); UsageError otherwise."""
+    parts = str(text).lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
+        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
+    return int(parts[0]), int(parts[1])

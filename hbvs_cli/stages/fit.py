@@ -26,12 +26,12 @@ from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError
 from ..settings.commands import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
 from .options import recorded_settings
-from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
+from ..perception.target_kinds import TARGET_KINDS, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector, target_candidates
 from ..thread_pool import StopSafePool
-from .auto_target import NoTargetThroughout, choose_on_the_drive, followed_frames
+from .auto_target import NoTargetThroughout, followed_frames, judge, parse_board, picked, spec_of_kind
 from .fit_route import fit_route_teach, is_route
-from .frame_decoding import decoded_frames
+from .frame_decoding import FrameLog, decoded_frames
 from ..io.topics import ANNOTATIONS_TOPIC, CALIBRATION_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from ..io.foxglove_scene import SceneWriter
 from ..sim.world import World, world_from_description
@@ -77,31 +77,9 @@ def parse_reference(spec: str) -> int | None:
         raise UsageError(f"--reference must be first, last or a frame index, got {spec!r}") from None
 
 
-class _FrameLog:
-    """Per-frame results kept in memory: a few numbers per frame in a growing numpy buffer (Python objects per frame
-    would cost kilobytes over a long recording), never images."""
-
-    def __init__(self, n_points: int) -> None:
-        self._rows = np.empty(1024, dtype=[("t", float), ("log_time", np.int64), ("pixels", float, (n_points, 2)),
-                                           ("pose", float, 3), ("command", float, 2)])  # log times: exact integers
-        self.count = 0
-
-    def add(self, t: float, log_time_ns: int, pixels: np.ndarray, pose: Any, command: Any) -> None:
-        if self.count == len(self._rows):
-            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
-        self._rows[self.count] = (t, log_time_ns, pixels, np.nan if pose is None else pose,
-                                  np.nan if command is None else command)
-        self.count += 1
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Each column of the frames so far: ``t``, ``log_time``, ``pixels`` (F, N, 2), ``pose`` (F, 3), ``command`` (F, 2)."""
-        return {name: self._rows[name][: self.count].copy() for name in self._rows.dtype.names}
-
-
 def recorded_frame_count(source: str) -> int | None:
     """How many images a teach file's MCAP summary counts (None for stdin or no usable summary); never fails."""
     from ..io.mcap import read_summary
-    from ..io.teach_file import IMAGE_TOPIC
 
     if source == "-" or not Path(source).is_file():
         return None
@@ -168,7 +146,7 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     from ..io.calibration import calibration_to_foxglove
     from ..io.output_target import refuse_overwriting_inputs
 
-    smoothing = parse_smoothing(options.smoothing)
+    parse_smoothing(options.smoothing)  # refused before the recording is read; each fit parses it again
     if options.target != "auto" and options.target not in TARGET_KINDS:
         raise UsageError(f"--target must be one of auto, {', '.join(TARGET_KINDS)}, got {options.target!r}")
     if options.target_size is not None and not (math.isfinite(options.target_size) and options.target_size > 0):
@@ -178,10 +156,9 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
     reader = TeachReader(options.input)
     topics = TOPICS["fit"]
-    log: _FrameLog | None = None
+    log: FrameLog | None = None
     detector: TrackedDetector | None = None
     pull: Any = None  # the kind's image_shift accumulator
-    template: bytes | None = None
     reference_image: bytes | None = None
     wanted_index = parse_reference(options.reference)  # the frame whose image is kept as F*'s (last: each frame's in turn)
     with open_output(options.output) as writer:
@@ -189,25 +166,22 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         with console.progress("fit", recorded_frame_count(options.input)) as bar:
             # Colour until the target is known, then only for dots seen in colour; none once the first frames came out gray.
             gray_source = False
-            frames = decoded_frames(
+            frames = _checked_frames(reader, decoded_frames(
                 reader.frames(), reader.name,
                 colour=lambda: detector.spec.contrast == "colour" if detector is not None else not gray_source,
-            )
+            ))
             # --target auto judges the first few frames together: peek at them, then go on.
             first = list(islice(frames, AUTO_FRAMES))
             gray_source = all(image.ndim == 2 for _, _, image in first)
             rest: Iterator[tuple[Any, bytes, np.ndarray]] = frames
             if first:
-                frame, data, image = first[0]
-                camera = _checked_frame(reader, frame, image)
+                frame = first[0][0]
+                camera = reader.camera
                 writer.write(CALIBRATION_TOPIC, topics[CALIBRATION_TOPIC], frame.log_time_ns,
                              calibration_to_foxglove(camera, CAMERA_FRAME, frame.log_time_ns))
                 if as_route or is_route(reader.world_description):  # several targets: segment by segment
                     models = fit_route_teach(reader, writer, chain(first, frames), bar, console,
-                                             partial(_checked_frame, reader),
-                                             partial(_drive_fit, reader, smoothing, options, console),
-                                             lambda choice, images: _spec_of_kind(choice.kind, choice.details, options, None, images, camera,
-                                                                                  None, console), options)
+                                             partial(_drive_fit, reader, options, console), options)
                     return FitSummary(output=options.output, model=models[0])
                 world = None if reader.world_description is None else world_from_description(reader.world_description, reader.name)
                 sample = partial(followed_frames, options.input, recorded_frame_count(options.input), not gray_source,
@@ -221,15 +195,13 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
                 # Saturated dots: the pull all of them share (bloom), for the uncertainty.
                 shift = target_kind(spec.kind).image_shift
                 pull = shift(spec) if shift is not None else None
-                template = data
             for frame, data, image in chain(first, rest):
-                _checked_frame(reader, frame, image)
                 assert detector is not None
                 pixels = detector.detect(image)
                 if pull is not None:
                     pull.add(image, pixels)
                 if log is None:
-                    log = _FrameLog(pixels.shape[0])
+                    log = FrameLog(pixels.shape[0])
                 log.add(frame.t, frame.log_time_ns, pixels, frame.pose, frame.command)
                 if wanted_index is None or frame.index == wanted_index:
                     reference_image = data
@@ -247,22 +219,22 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
         if reader.truncated:
             writer.input_ended_early(reader.name, options.allow_truncated)
             console.warn(f"{reader.name} ends before its end record (a crashed recorder?): recovered {log.count} complete frames")
-        assert detector is not None and reader.camera is not None
-        camera = reader.camera
+        assert detector is not None
         arrays = log.arrays()
         reference_index = log.count - 1 if wanted_index is None else wanted_index
         if not 0 <= reference_index < log.count:
             raise UsageError(f"--reference {options.reference} is out of range: the recording has {log.count} frames "
                              f"(0 to {log.count - 1})")
         layout = None if known_layout is None else _ordered_layout(known_layout, arrays["pixels"][reference_index], camera, detector.spec, options)
-        result, model = _drive_fit(reader, smoothing, options, console, arrays, reference_index, detector.spec,
-                                   reader.world_description, reader.name, layout, pull.pull_px if pull is not None else 0.0)
+        result, model = _drive_fit(reader, options, console, arrays, reference_index, detector.spec, reader.world_description,
+                                   reader.name, layout, pull.pull_px if pull is not None else 0.0)
         write_desired_signals(writer, arrays["t"], arrays["log_time"], result)
         if model.taught_path is not None:  # the 3D scene: the target and the taught path
             height = world.camera_height if world is not None else 0.0
             SceneWriter(writer).start(int(arrays["log_time"][0]), height, world, arrays["pose"])
         end_ns = int(arrays["log_time"][-1])
-        for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index), (TEMPLATE_IMAGE_TOPIC, template, 0)):
+        for topic, payload, k in ((REFERENCE_IMAGE_TOPIC, reference_image, reference_index),
+                                  (TEMPLATE_IMAGE_TOPIC, first[0][1], 0)):  # the detector's template: the first frame
             stamp = int(arrays["log_time"][k])
             write_compressed_image(writer, topic, stamp, payload, sniff_format(payload) or "jpeg", CAMERA_FRAME)
         writer.write(MODEL_TOPIC, topics[MODEL_TOPIC], end_ns, checked_model_message(model, end_ns, reader.name))
@@ -270,13 +242,13 @@ def _run_fit(options: FitOptions, console: Console, as_route: bool = False) -> F
     return FitSummary(output=options.output, model=model)
 
 
-def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, console: Console, arrays: dict[str, np.ndarray],
-               reference_index: int, spec: DetectorSpec, world_description: dict[str, Any] | None, name: str,
-               layout: np.ndarray | None = None, image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
+def _drive_fit(reader: Any, options: FitOptions, console: Console, arrays: dict[str, np.ndarray], reference_index: int,
+               spec: DetectorSpec, world_description: dict[str, Any] | None, name: str, layout: np.ndarray | None = None,
+               image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
     """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model."""
     camera = reader.camera
     calibration = _calibration_uncertainty(reader, camera)
-    result = _fit(arrays, reference_index, camera, smoothing, options, console, name, spec, layout, image_shift_px, calibration)
+    result = _fit(arrays, reference_index, camera, options, console, name, spec, layout, image_shift_px, calibration)
     spec = replace(spec, initial_pixels=result.initial_pixels)
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
     if calibration[0] == "unstated" and result.uncertainty is not None:
@@ -304,16 +276,17 @@ def _drive_fit(reader: Any, smoothing: float | None, options: FitOptions, consol
     )
 
 
-def _checked_frame(reader: Any, frame: Any, image: np.ndarray) -> CameraIntrinsics:
-    """The recording's camera, which a frame must come after and match in size."""
-    camera = reader.camera
-    if camera is None:
-        raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
-    if image.shape[:2] != (camera.height, camera.width):
-        raise RecordingError(
-            f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
-        )
-    return camera
+def _checked_frames(reader: Any, frames: Iterator[Any]) -> Iterator[Any]:
+    """``frames`` of the recording, each after its camera and of its size."""
+    for frame, data, image in frames:
+        camera = reader.camera
+        if camera is None:
+            raise RecordingError(f"{reader.name}: the recording has no camera calibration before its first image")
+        if image.shape[:2] != (camera.height, camera.width):
+            raise RecordingError(
+                f"{reader.name}: frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the calibration says {camera.width}x{camera.height}"
+            )
+        yield frame, data, image
 
 
 #: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
@@ -389,15 +362,16 @@ def _ordered_layout(layout: np.ndarray, reference_pixels: np.ndarray, camera: Ca
         raise InputError(f"--target-points {options.target_points}: {exc}") from None
 
 
-def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, smoothing: float | None,
-         options: FitOptions, console: Console, name: str, spec: DetectorSpec, layout: np.ndarray | None = None,
-         image_shift_px: float = 0.0, calibration: tuple[str, tuple[float, ...]] = ("exact", ())) -> DesiredFit:
+def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntrinsics, options: FitOptions, console: Console,
+         name: str, spec: DetectorSpec, layout: np.ndarray | None = None, image_shift_px: float = 0.0,
+         calibration: tuple[str, tuple[float, ...]] = ("exact", ())) -> DesiredFit:
     """:func:`~hbvs_cli.core.desired.fit_desired_trajectory` of the frames, its warnings on stderr, too little data
-    said in the options' words. scipy is imported by the main thread, never by a second one: a stop signal inside
-    an import can leave its lock held and the threads deadlocked."""
+    said in the options' words (bench/demo_rounding.py wraps it). scipy is imported by the main thread, never by a
+    second one: a stop signal inside an import can leave its lock held and the threads deadlocked."""
     from threadpoolctl import threadpool_limits
 
     shapes = _known_shapes(spec, layout)
+    smoothing = parse_smoothing(options.smoothing)
     _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
         # scipy's BLAS on one thread too: its threads made the decompositions of tall Jacobians slower, not faster.
@@ -515,36 +489,16 @@ def _detector_spec(
             kind = next(name for name, taker in TARGET_KINDS.items() if given <= taker.options)
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
-            spec_of = lambda choice: _spec_of_kind(choice.kind, choice.details, options, None, images, camera, None, console)  # noqa: E731
-            spec, reason, choice = choose_on_the_drive(candidates, spec_of, _known_shapes, sample(), camera,
-                                                       options.max_lost, options.seed)
-            console.info(f"--target auto picked {choice.kind}: {reason}")
-            return spec
+            spec_of = lambda choice: spec_of_kind(choice.kind, choice.details, options, images, camera, console)  # noqa: E731
+            best, reason = picked(judge(candidates, spec_of, _known_shapes, sample(), camera, options.max_lost, options.seed),
+                                  candidates, options.max_lost)
+            console.info(f"--target auto picked {best.choice.kind}: {reason}")
+            return best.spec
     elif kind == "auto":
         kind = world.target.kind
     if world is not None and world.target.kind != kind:
         raise UsageError(f"--target {kind} contradicts the recording, whose target is {world.target.kind}")
-    return _spec_of_kind(kind, {}, options, world, images, camera, pose, console)
-
-
-def _spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, world: World | None, images: list[np.ndarray],
-                  camera: CameraIntrinsics, pose: Any, console: Console) -> DetectorSpec:
-    """The detector of a target ``kind`` from ``details`` (what ``--target auto`` found), the options, ``world`` or ``images``."""
-    from ..perception.autodetect import find_target
-
-    squares = parse_board(options.board) if options.board is not None else None
-    seen = world.pixels(np.asarray(pose)) if world is not None and pose is not None else None
-    request = SpecRequest(images, camera, details, options.marker_dict, world.target.marker_id if world is not None else options.marker_id,
-                          squares, seen, find=partial(find_target, kind, images, options.marker_dict, squares), info=console.info)
-    return target_kind(kind).spec(request)
-
-
-def parse_board(text: str) -> tuple[int, int]:
-    """``--board COLUMNSxROWS`` (squares across and down, at least 3 each); UsageError otherwise."""
-    parts = str(text).lower().replace(" ", "").split("x")
-    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 3:
-        raise UsageError(f"--board must be COLUMNSxROWS squares, at least 3 each (e.g. 6x4), got {text!r}")
-    return int(parts[0]), int(parts[1])
+    return spec_of_kind(kind, {}, options, images, camera, console, world, pose)
 
 
 def _taught_path(arrays: dict[str, np.ndarray], reference_index: int) -> Any:

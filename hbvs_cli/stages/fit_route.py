@@ -16,12 +16,13 @@ from ..core.fit_model import FitModel
 from ..core.route import bridge_brief_gaps, estimate_transitions, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
-from ..perception.target_kinds import SpecRequest, target_kind
 from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
 from ..settings.commands import FitOptions
-from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
+from ..sim.route_world import MIN_SPAN_PX, recorded_route
+from .auto_target import spec_of_kind
 from .console import Console
+from .frame_decoding import FrameLog
 
 
 def is_route(world_description: Any) -> bool:
@@ -30,33 +31,30 @@ def is_route(world_description: Any) -> bool:
 
 
 def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, console: Console,
-                    checked_frame: Callable[[Any, np.ndarray], Any], segment_fit: Callable[..., tuple[Any, FitModel]],
-                    spec_of: Callable[[Any, list[np.ndarray]], Any], options: FitOptions) -> list[FitModel]:
-    """Fit the route of ``reader`` (its decoded ``frames``) into ``writer`` (metadata and calibration written already)
-    and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
-    segment's fit and model (:func:`.fit._drive_fit`); ``spec_of(choice, images)``: the detector of a found kind."""
+                    segment_fit: Callable[..., tuple[Any, FitModel]], options: FitOptions) -> list[FitModel]:
+    """Fit the route of ``reader`` (its decoded, checked ``frames``) into ``writer`` (metadata and calibration written
+    already) and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
+    segment's fit and model (:func:`.fit._drive_fit`)."""
     from ..io.route_file import write_route
 
     follower: SimulatedFollower | ImageFollower | None = None
-    rows: list[tuple[float, int, Any, Any]] = []
+    log = FrameLog(0)
     for frame, _, image in frames:
-        camera = checked_frame(frame, image)
         if follower is None:
-            follower = (ImageFollower(camera, spec_of, options.seed) if frame.pose is None
-                        else SimulatedFollower(_route(reader, camera), options.seed, console))
+            follower = (ImageFollower(reader.camera, options, console) if frame.pose is None
+                        else SimulatedFollower(reader, options, console))
         if (frame.pose is None) != isinstance(follower, ImageFollower):
             raise RecordingError(f"{reader.name}: frame {frame.index} {'lacks' if frame.pose is None else 'has'} the true pose "
                                  "its first frame " + ("had" if frame.pose is None else "lacked"))
-        rows.append((frame.t, frame.log_time_ns, (np.nan,) * 3 if frame.pose is None else frame.pose,
-                     (np.nan,) * 2 if frame.command is None else frame.command))
+        log.add(frame.t, frame.log_time_ns, np.empty((0, 2)), frame.pose, frame.command)
         follower.add(image, frame.pose)
         bar.advance()
     if follower is None:
         raise RecordingError(f"{reader.name}: no complete image in the recording")
-    t, log_time, poses, commands = (np.array(column, dtype=kind)
-                                    for column, kind in zip(zip(*rows), (float, np.int64, float, float)))
-    pixels = follower.pixels(len(rows))
-    spans = np.column_stack([seen_spans(points) for points in pixels])
+    drive = log.arrays()
+    t, log_time, poses = drive["t"], drive["log_time"], drive["pose"]
+    pixels = follower.pixels()
+    spans = np.column_stack([view_spans(points, MIN_PARTIAL_POINTS) for points in pixels])
     try:
         segments = split_route(bridge_brief_gaps(spans >= MIN_SPAN_PX, t, options.max_gap), spans)
     except MalformedDataError as exc:
@@ -65,9 +63,9 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     fits, models, references = [], [], []
     for segment in segments:
         frames_of = slice(segment.first, segment.last + 1)
-        arrays = {"t": t[frames_of], "log_time": log_time[frames_of], "pixels": pixels[segment.target][frames_of],
-                  "pose": poses[frames_of] if route is None else route.local_pose(segment.target, poses[frames_of]),
-                  "command": commands[frames_of]}
+        arrays = {name: column[frames_of] for name, column in drive.items()} | {"pixels": pixels[segment.target][frames_of]}
+        if route is not None:
+            arrays["pose"] = route.local_pose(segment.target, arrays["pose"])
         reference = int(np.argmax(view_spans(arrays["pixels"])))  # the nearer and larger, the better measured
         fit, model = segment_fit(arrays, reference, follower.detectors[segment.target].spec,
                                  None if route is None else route.worlds[segment.target].to_dict(), f"{reader.name} (segment {len(models) + 1})")
@@ -82,21 +80,18 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     return models
 
 
-def _route(reader: Any, camera: Any) -> RouteWorld:
-    """The simulated route the teach ``reader`` recorded; RecordingError when its record is not one."""
-    try:
-        return recorded_route(reader.world_description, camera)
-    except MalformedDataError as exc:
-        raise RecordingError(f"{reader.name}: {exc}") from None
-
-
 class SimulatedFollower:
-    """Each target of a simulated ``route`` followed by its detector from the first frame that sees it wholly and large."""
+    """Each target of the simulated route the teach ``reader`` recorded followed by its detector from the first frame that
+    sees it wholly and large."""
 
-    def __init__(self, route: RouteWorld, seed: int, console: Console) -> None:
-        self.route, self.seed, self.console = route, seed, console
-        self.detectors: list[TrackedDetector | None] = [None] * len(route.worlds)
-        self.seen: list[list[np.ndarray]] = [[] for _ in route.worlds]
+    def __init__(self, reader: Any, options: FitOptions, console: Console) -> None:
+        try:
+            self.route = recorded_route(reader.world_description, reader.camera)
+        except MalformedDataError as exc:
+            raise RecordingError(f"{reader.name}: {exc}") from None
+        self.options, self.console, self.seed = options, console, options.seed
+        self.detectors: list[TrackedDetector | None] = [None] * len(self.route.worlds)
+        self.seen: list[list[np.ndarray]] = [[] for _ in self.route.worlds]
 
     def add(self, image: np.ndarray, pose: Any) -> None:
         """Each target's pixels in ``image`` (NaN where it is not in view or not found)."""
@@ -105,14 +100,14 @@ class SimulatedFollower:
         for index, world in enumerate(self.route.worlds):
             points = int(world.target.points_world.shape[0])
             if self.detectors[index] is None and spans[index] >= MIN_SPAN_PX:
-                request = SpecRequest([image], self.route.camera, marker_id=world.target.marker_id,
-                                      seen_pixels=world.pixels(self.route.local_pose(index, pose)), info=self.console.info)
-                self.detectors[index] = TrackedDetector(target_kind(world.target.kind).spec(request), self.route.camera, seed=self.seed)
+                spec = spec_of_kind(world.target.kind, {}, self.options, [image], self.route.camera, self.console, world,
+                                    self.route.local_pose(index, pose))  # as a single target's simulated fit picks it
+                self.detectors[index] = TrackedDetector(spec, self.route.camera, seed=self.seed)
             detector = self.detectors[index]
             self.seen[index].append(detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan))
 
-    def pixels(self, frames: int) -> list[np.ndarray]:
-        """Each target's pixels (``frames``, N, 2)."""
+    def pixels(self) -> list[np.ndarray]:
+        """Each target's pixels (frames, N, 2)."""
         return [np.array(points) for points in self.seen]
 
 
@@ -121,14 +116,6 @@ EDGE_MARGIN_PX = 10.0
 #: A target found again after a loss is its own only if an affine map of its last layout fits the new points this
 #: well (largest residual over the points' span).
 REFOUND_LAYOUT_TOLERANCE = 0.05
-
-
-def seen_spans(pixels: np.ndarray) -> np.ndarray:
-    """The largest distance (px) between two of a target's points found in each frame (F, N, 2),
-    when at least :data:`MIN_PARTIAL_POINTS` were (a board's markers are not all decoded afar); -1 otherwise."""
-    distances = np.linalg.norm(pixels[:, :, None, :] - pixels[:, None, :, :], axis=-1)
-    spans = np.where(np.isfinite(distances), distances, -1.0).max(axis=(1, 2))
-    return np.where(np.all(np.isfinite(pixels), axis=2).sum(axis=1) >= MIN_PARTIAL_POINTS, spans, -1.0)
 
 
 def affine_misfit(layout: np.ndarray, points: np.ndarray) -> float:
@@ -151,8 +138,8 @@ class ImageFollower:
     frames new targets are looked for (:meth:`_search`). Every detector runs on every frame, so that a target lost
     and seen again keeps its name."""
 
-    def __init__(self, camera: Any, spec_of: Callable[[Any, list[np.ndarray]], Any], seed: int) -> None:
-        self.camera, self.spec_of, self.seed = camera, spec_of, seed
+    def __init__(self, camera: Any, options: FitOptions, console: Console) -> None:
+        self.camera, self.options, self.console, self.seed = camera, options, console, options.seed
         self.detectors: list[TrackedDetector] = []
         self.found: list[dict[int, np.ndarray]] = []
         self.recent: deque[tuple[int, np.ndarray]] = deque(maxlen=SEARCH_FRAMES)
@@ -220,7 +207,8 @@ class ImageFollower:
     def _followed(self, choice: Any, alone: list[np.ndarray]) -> bool:
         """Whether ``choice``'s detector, started on the first recent frame ``alone``, finds it in most (then followed)."""
         try:
-            detector = TrackedDetector(self.spec_of(choice, alone), self.camera, seed=self.seed, template_image=alone[0])
+            spec = spec_of_kind(choice.kind, choice.details, self.options, alone, self.camera, self.console)
+            detector = TrackedDetector(spec, self.camera, seed=self.seed, template_image=alone[0])
             detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
             found = {index: detector.detect(image) for index, image in self.recent}
         except HbvsError:  # e.g. too few dots for a dot target
@@ -247,9 +235,9 @@ class ImageFollower:
             cv2.fillConvexPoly(painted, cv2.convexHull(grown.astype(np.int32)), np.atleast_1d(_background(image)).tolist())
         return painted
 
-    def pixels(self, frames: int) -> list[np.ndarray]:
-        """Each target's pixels (``frames``, N, 2), NaN before it was found."""
-        return [np.array([found.get(k, np.full((detector.spec.n_points, 2), np.nan)) for k in range(frames)])
+    def pixels(self) -> list[np.ndarray]:
+        """Each target's pixels (frames, N, 2), NaN before it was found."""
+        return [np.array([found.get(k, np.full((detector.spec.n_points, 2), np.nan)) for k in range(self.count)])
                 for detector, found in zip(self.detectors, self.found)]
 
 
@@ -259,15 +247,15 @@ STAND_OUT_LEVELS = 24
 STAND_OUT_GAP_PX, STAND_OUT_EDGE_PX = 15, 3
 
 
-def _background(image: np.ndarray) -> np.ndarray:
-    """The median level (gray) or colour of ``image``."""
-    return np.median(image.reshape(-1, image.shape[2]) if image.ndim == 3 else image.reshape(-1), axis=0).astype(image.dtype)
+def _background(image: np.ndarray, part: np.ndarray | None = None) -> np.ndarray:
+    """The median level (gray) or colour of ``image`` (inside ``part``, a bool mask, when it holds any pixel)."""
+    pixels = image[part] if part is not None and part.any() else image.reshape(-1, *image.shape[2:])
+    return np.median(pixels, axis=0).astype(image.dtype)
 
 
 def _alone(image: np.ndarray, part: np.ndarray) -> np.ndarray:
     """``image`` painted outside ``part`` (bool mask) in its median level inside: no edge where ``part`` ends."""
-    level = np.median(image[part] if part.any() else image.reshape(-1, *image.shape[2:]), axis=0).astype(image.dtype)
-    return np.where(part if image.ndim == 2 else part[..., None], image, level)
+    return np.where(part if image.ndim == 2 else part[..., None], image, _background(image, part))
 
 
 def standing_out(image: np.ndarray) -> np.ndarray:

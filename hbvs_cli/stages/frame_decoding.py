@@ -1,12 +1,13 @@
-"""Taught frames decoded ahead of use in a worker thread (OpenCV's decoder releases the GIL), with bounded memory.
-Colour only for the dot detector (a dot may differ from its wall in hue alone): luminance decodes faster."""
+"""Taught frames decoded ahead of use in a worker thread (OpenCV's decoder releases the GIL), with bounded memory,
+and what fit keeps of each (:class:`FrameLog`). Colour only for the dot detector (a dot may differ from its wall in
+hue alone): luminance decodes faster."""
 
 from __future__ import annotations
 
 from collections import deque
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -62,6 +63,27 @@ def _next_decoded(pending: deque[_Queued], name: str) -> tuple[TeachFrame, bytes
                 decoded.set_exception(exc)
             after.decoding = decoded
     return (oldest.frame, *oldest.decoding.result())
+
+
+class FrameLog:
+    """Per-frame results of fit kept in memory: a few numbers per frame in a growing numpy buffer (Python objects per frame
+    would cost kilobytes over a long recording), never images."""
+
+    def __init__(self, n_points: int) -> None:
+        self._rows = np.empty(1024, dtype=[("t", float), ("log_time", np.int64), ("pixels", float, (n_points, 2)),
+                                           ("pose", float, 3), ("command", float, 2)])  # log times: exact integers
+        self.count = 0
+
+    def add(self, t: float, log_time_ns: int, pixels: np.ndarray, pose: Any, command: Any) -> None:
+        if self.count == len(self._rows):
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+        self._rows[self.count] = (t, log_time_ns, pixels, np.nan if pose is None else pose,
+                                  np.nan if command is None else command)
+        self.count += 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Each column of the frames so far: ``t``, ``log_time``, ``pixels`` (F, N, 2), ``pose`` (F, 3), ``command`` (F, 2)."""
+        return {name: self._rows[name][: self.count].copy() for name in self._rows.dtype.names}
 
 
 def fit_reference_image(fit: FitFile) -> np.ndarray | None:
