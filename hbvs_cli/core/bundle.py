@@ -278,28 +278,21 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     order), else the frames are independent.
 
     ``bias_fraction``: a detector's bias on each point's coordinates, the same over a span of the
-    drive and independent between spans, as a standard deviation in point noise (0: none). n*
-    and the reference points absorb it, and the residuals do not show it. Its effect on the
-    estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it, by the same Schur
-    complement. ``bias_segments`` (int, (K,), (F,)): the span (0, 1, ...) of F*, of every
-    estimated frame and of every frame of ``frames`` (without it, no bias); ``bias_scale``
-    (float, (K,), (F,)): the bias's size in each, in multiples of ``bias_fraction`` (default 1).
-
-    ``shutter`` ((2N,), (K, 2N), (F, 2N)): F*'s, the estimated frames' and ``frames``' points'
-    move per unit of a rolling shutter's readout (:func:`rolling_shutter_shift`). The readout is
-    fitted to the residuals, the part of the shift the estimate cannot absorb is taken out of
-    them before the noise is measured, and the shift's effect on the estimate is one more bias
-    column (the shutter is not modelled: its error is counted, not removed).
-    ``readout_estimated``: the readout was one more unknown of the estimate, and is taken out of
-    ``estimated`` and ``frames``: the column is then the estimate's move by ``readout_sigma``.
-
-    ``common_shift``: errors every frame shares (F* too), independent of each other:
-    ``common_shift(points)`` gives how points (K, N, 3) move with one standard deviation of each
-    of D of them, (K, 2N, D) (normalised units; each point's ``(m_y, m_z)`` in turn). A detector's
-    error that all points share all along the drive (bloom pulling bright dots' centroids down
-    the columns, issue 44: :func:`uniform_shift`), or the calibration's
-    (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of them and
-    the residuals cannot show them; their D columns join the bias after the shutter's.
+    drive and independent between spans, as a standard deviation in point noise (0: none);
+    ``bias_segments`` (int, (K,), (F,)): the span (0, 1, ...) of F*, of every estimated frame and
+    of every frame of ``frames`` (without it, no bias); ``bias_scale`` (float, (K,), (F,)): the
+    bias's size in each, in multiples of ``bias_fraction`` (default 1). ``shutter`` ((2N,), (K,
+    2N), (F, 2N)): the same frames' points' move per unit of a rolling shutter's readout
+    (:func:`rolling_shutter_shift`), fitted to the residuals and taken out of them before the
+    noise is measured (counted, not modelled); ``readout_estimated``: the readout was one more
+    unknown of the estimate (taken out of ``estimated`` and ``frames``), its column then the
+    move by ``readout_sigma``. ``common_shift(points)``: how points (K, N, 3) move with one
+    standard deviation of each of D errors every frame shares, F* too (K, 2N, D; normalised
+    units, each point's ``(m_y, m_z)`` in turn): bloom's (:func:`uniform_shift`), the
+    calibration's (:func:`~.camera.calibration_shifts`). n* and the reference points absorb
+    each of these and the residuals cannot show them: their effect on the estimate, ``(J^T J)^-1
+    J^T W`` by the same Schur complement, ``W`` how the residuals move with them, is the bias
+    (:class:`JointCovariance`; docs/uncertainty.md, "The uncertainty").
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)

@@ -56,16 +56,13 @@ BIAS_SEGMENTS = 8
 @dataclass(frozen=True)
 class DetectorErrors:
     """What the reported uncertainty allows for of a detector's errors (each target kind of
-    perception gives its own; bench/CALIBRATION.md measured them).
+    perception gives its own; bench/CALIBRATION.md measured them; why: docs/uncertainty.md).
 
-    ``bias_fraction``: its point bias in measured point noise, alike over nearby frames and
-    invisible in the residuals (corners located from edges follow the edges' sub-pixel phase
-    and the ink's clipping); ``beyond_view``: its points are one homography's corners fitted to
-    the part of the target in view, extrapolated in a frame that sees part of it, their bias
-    grown by :func:`area_beyond_view`; ``correlated``: its errors correlated over frames
-    (:func:`~.bundle.correlation_inflation`; not for one tracked homography's corners, nor
-    markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more
-    is said in the warning line (None: no check); ``name``: the kind, as that line says it.
+    ``bias_fraction``: its point bias in measured point noise, alike over nearby frames;
+    ``beyond_view``: its bias grown by :func:`area_beyond_view` (one homography's corners);
+    ``correlated``: its errors correlated over frames (:func:`~.bundle.correlation_inflation`);
+    ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more is said in
+    the warning line (None: no check); ``name``: the kind, as that line says it.
     """
 
     name: str = ""
@@ -124,18 +121,12 @@ SPLINE_COLUMNS = 128
 DEFAULT_FRAME_INTERVAL = 1.0 / 30.0
 
 
-def frame_interval(t: ArrayLike) -> float | None:
-    """The median interval between frame times (s), or None for fewer than two frames."""
-    t = np.asarray(t, dtype=float)
-    return float(np.median(np.diff(t))) if t.size > 1 else None
-
-
 def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = None) -> float:
-    """The taught run's frame interval (s): from its frame times ``t`` when there are two or
-    more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
-    :data:`DEFAULT_FRAME_INTERVAL`."""
-    interval = frame_interval(t if t is not None else ())
-    return interval if interval is not None else float(recorded or DEFAULT_FRAME_INTERVAL)
+    """The taught run's frame interval (s): the median interval of its frame times ``t`` when
+    there are two or more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``),
+    else :data:`DEFAULT_FRAME_INTERVAL`."""
+    t = np.asarray(() if t is None else t, dtype=float)
+    return float(np.median(np.diff(t))) if t.size > 1 else float(recorded or DEFAULT_FRAME_INTERVAL)
 
 
 @dataclass(frozen=True)
@@ -426,14 +417,10 @@ def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], fou
                              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
     """The points (F, N, 3), n* (3,), the reference points (N, 3) and a rolling shutter's
     readout (s per normalised row), the shutter's shift taken out when the drive shows one;
-    else the points and the joint estimate as given, and 0.
-
-    A rolling shutter moves every point by the readout times its
-    :func:`~.bundle.rolling_shutter_shift` (from the joint estimate's poses), which (12)
-    without it cannot hold: the skew biases n*. With the readout as one more unknown, the
-    joint estimate takes one Gauss-Newton step from ``joint``: :func:`~.bundle.joint_covariance`'s
-    readout and its shutter column (the globals' move per unit readout, through the Schur
-    complement), when the readout's score statistic exceeds :data:`READOUT_CHI2`.
+    else the points and the joint estimate as given, and 0. The skew biases n*: when the
+    readout's score statistic exceeds :data:`READOUT_CHI2`, the joint estimate takes one
+    Gauss-Newton step from ``joint`` with the readout free, :func:`~.bundle.joint_covariance`'s
+    shutter column (docs/uncertainty.md).
     """
     if others.size < 2 or noise <= 0.0:
         return m, joint.normal, joint.m_ref, 0.0
@@ -678,7 +665,7 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
         lost_fraction=lost_fraction,
         gaps=gaps,
         longest_gap_s=longest,
-        frame_interval_s=frame_interval(t),
+        frame_interval_s=taught_frame_interval(t),  # t holds at least MIN_SAMPLES frames here
         trimmed_start=int(indices[0]),
         trimmed_end=int(total - 1 - indices[-1]),
     )

@@ -1,12 +1,7 @@
 """A Kalman filter on (theta, x_h1, x_h2) and the inverse depth rho = 1/d*, between the
-camera and the law (docs/method.md, "State filter"): the lateral gain k_2 would multiply a
-real detector's noise into the commands.
-
-It predicts with (5), (23) integrated over a held command (an arc),
-``x_h' = Rz(-w dt) (x_h - [dx, dy] rho)``, linear in rho, so the motion measures the depth;
-corrects with the known-normal solver's state of covariance ``sigma^2 (J^T J)^-1``; learns
-sigma from the solver's RMS residual r, ``E[r^2] = sigma^2 (2N - 3) / (2N)``; and gates
-outliers by the innovation's Mahalanobis distance, restarting after ``reset_after`` in a row.
+camera and the law: the lateral gain k_2 would multiply a real detector's noise into the
+commands. Its prediction (an arc), correction, learnt noise and gates: docs/method.md,
+"State filter".
 """
 
 from __future__ import annotations
@@ -43,22 +38,14 @@ class FilterOutcome(Label):
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """Tuning of :class:`ServoStateFilter`.
-
-    ``speed_noise``, ``turn_noise``: the spectral density of executed minus commanded v
-    (m/s/sqrt(Hz)) and w (rad/s/sqrt(Hz)); ``depth_prior``: the relative std of the starting
-    1/dhat(0); ``depth_trust``: the relative std of the filter's depth at which dhat is pulled
-    towards it at half ``depth_pull_rate`` (1/s); ``lateral_settled``: the lateral error (rad)
-    halving the pull once dhat is within the relative gap ``depth_met`` of the filter's depth
-    (:func:`scheduled_depth_pull`); ``gate``: the squared Mahalanobis distance beyond which a
-    frame is rejected, ``reset_after`` rejections in a row restarting the filter from the frame;
-    ``noise_time_constant`` (s): of the running estimate of the detector's noise, ``min_noise``
-    its floor (normalised units); ``residual_quantile``: of the residual's chi^2 distribution,
-    beyond which a frame is rejected; ``coast_theta_std``, ``coast_x_h_std``: without a frame
-    the law acts on the prediction while its stds stay within these (rad, units of d*), beyond
-    them the robot stops; ``settle_time``: seconds of fused frames before the law gets the
-    estimate, then ``fade_time`` seconds over which its feedback fades in from the taught
-    commands (25), both shrinking with the noise variance below ``settle_noise`` (normalised units).
+    """Tuning of :class:`ServoStateFilter` (docs/method.md, "State filter" and "The depth in the
+    filter"): the velocity errors' spectral densities (m/s/sqrt(Hz), rad/s/sqrt(Hz)); the
+    depth's prior and trust (relative stds), pull rate (1/s), settled lateral error (rad) and
+    met gap (relative) of :func:`scheduled_depth_pull`; the innovation gate (squared Mahalanobis
+    distance), rejections in a row before a restart and the residual's quantile; the noise's
+    time constant (s) and floor (normalised units); the stds (rad, units of d*) within which the
+    law acts on a prediction; the settle and fade times (s) before and while the law's feedback
+    fades in from the taught commands (25), shrinking with the noise below ``settle_noise``.
     """
 
     speed_noise: float = 0.0005
