@@ -266,17 +266,14 @@ def fit_desired_trajectory(
     generalised cross-validation; ``max_lost``, ``max_gap``: the largest fraction of unused
     frames, and the longest unused stretch (s) to bridge; ``warn``: told what a user should know
     (ambiguous or uncertain n*), as it happens; ``shapes``: target parts of known shape (each
-    marker's square), which pin n* where the motion does not; ``errors``: the detector's bias
-    over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the residuals cannot show it), its
-    usual precision and whether its errors are correlated over frames (default: no bias,
-    correlated, no precision check); ``image_shift_px``: a detector's error shared by every point
-    of every frame (px, 1 sigma in each image direction; e.g. bloom pulling saturated dots'
-    centroids), :func:`~.bundle.joint_covariance`'s ``common_shift``; ``calibration_sigma``: the
-    intrinsics' ``(fx, fy, cx, cy, *distortion)`` standard deviations
-    (:attr:`~.camera.CameraIntrinsics.sigma`), errors shared by every frame, a bias of the whole
-    drive (:func:`~.camera.calibration_shifts`, joined to ``common_shift``), empty when exact;
-    ``calibration_counted`` False: ``calibration_sigma`` is a what-if (a calibration that states
-    none), its part of n*'s sigma reported (``calibration_normal_sigma_deg``) but left out of the band.
+    marker's square), which pin n* where the motion does not; ``errors``: :class:`DetectorErrors`
+    (its bias over each of :data:`BIAS_SEGMENTS` spans); ``image_shift_px``: a detector's error
+    shared by every point of every frame (px, 1 sigma in each image direction; e.g. bloom);
+    ``calibration_sigma``: the intrinsics' standard deviations
+    (:attr:`~.camera.CameraIntrinsics.sigma`), empty when exact; both join
+    :func:`~.bundle.joint_covariance`'s ``common_shift``. ``calibration_counted`` False:
+    ``calibration_sigma`` is a what-if (a calibration that states none), its part of n*'s sigma
+    reported (``calibration_normal_sigma_deg``) but left out of the band.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
