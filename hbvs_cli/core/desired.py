@@ -396,17 +396,13 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
     seen_rows = np.flatnonzero(seen)
     shift = _shutter_shifts(normal, m_ref, t, seen_rows, stacked(seen_rows))
     return joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                            frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
+                            frames=m[used], frames_motion=stacked(used),
+                            estimated_rows=np.where(used[others], np.searchsorted(np.flatnonzero(used), others), -1),
                             correlated=correlated, bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
                             bias_scale=(float(bias_scale[reference_index]), bias_scale[others], bias_scale[used]),
                             shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
                             common_shift=common_shift)
-
-
-def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:
-    """Where each of ``frames`` (indices) is among the ``chosen`` frames, -1 where it is not."""
-    return np.where(chosen[frames], np.searchsorted(np.flatnonzero(chosen), frames), -1)
 
 
 def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
