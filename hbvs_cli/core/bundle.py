@@ -162,11 +162,7 @@ def correlation_inflation(residuals: ArrayLike) -> float:
 
 @dataclass(frozen=True)
 class JointCovariance:
-    """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
-
-    A frame's move with all C biases, :meth:`bias_rows`, is its own (zero in the other
-    spans' columns) plus what it inherits, ``sensitivity bias_shared``: kept in these parts,
-    a board's frames take ``3 2N`` numbers each instead of ``3 S 2N``.
+    """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts (docs/uncertainty.md).
 
     ``shared`` (G, G): of the global unknowns (n*'s two angles about the solution, rad, then
     the reference points' offsets); ``own`` (K, 3, 3): of each frame's (theta, x_h1, x_h2) were
@@ -178,10 +174,11 @@ class JointCovariance:
     standard deviation on each point's coordinate in each of S spans of the drive (``S 2N``
     columns, :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
     column), then the D shifts every frame shares (its ``common_shift``); their covariances add
-    ``bias bias^T``, common to the frames. A frame's own move with them: ``span_bias``
-    (K, 3, 2N), with the biases of its span ``frame_spans`` (K,) (its columns of the span's
-    ``2N``); ``readout_bias`` (K, 3), with the shutter's; ``image_shift_bias`` (K, 3, D), with
-    the shared shifts' (the last D columns). Each None where there is no such bias.
+    ``bias bias^T``, common to the frames. A frame's move with them (:meth:`bias_rows`) is that
+    inherited, ``sensitivity bias_shared``, plus its own, kept apart (a board's frame takes ``3
+    2N`` numbers, not ``3 S 2N``): ``span_bias`` (K, 3, 2N), with the biases of its span
+    ``frame_spans`` (K,); ``readout_bias`` (K, 3), with the shutter's; ``image_shift_bias`` (K,
+    3, D), with the shared shifts' (the last D columns). Each None where there is no such bias.
 
     ``readout``, ``readout_sigma``: with ``shutter``, the readout (s per normalised row) the
     residuals show, and its standard deviation ``sqrt(inflation) noise / |s_perp|``, ``s_perp``

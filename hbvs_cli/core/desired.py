@@ -208,9 +208,7 @@ class FitUncertainty:
     error_modes: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(default=None, compare=False, repr=False)
 
     def summary(self, calibration: str | None = None) -> UncertaintySummary:
-        """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
-        whether the intrinsics' sigmas were stated, unstated or exact), and the spline sigmas'
-        median and maximum."""
+        """The :class:`UncertaintySummary` a fit file keeps, ``calibration`` its own."""
         spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
         return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
                                   spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma),
