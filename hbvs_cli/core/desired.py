@@ -474,9 +474,7 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
             motion = KnownNormalSolver(m_ref[pattern], normal).solve(m[rows][:, pattern])
         except GeometryError:  # the found points are degenerate (collinear): the frames stay unused
             continue
-        solved = rows[motion.valid]
-        if solved.size == 0:
-            continue
+        solved = rows[motion.valid]  # none: the assignments below are empty
         poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
         predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
         missing = ~pattern
