@@ -243,11 +243,6 @@ BLOCK_FRAMES = 256
 BLOCK_BYTES = 4 << 20
 
 
-def _frames_per_block(rows: int, columns: int) -> int:
-    """Frames in a block of :func:`joint_covariance`, of ``rows`` residuals each by ``columns`` globals."""
-    return int(np.clip(BLOCK_BYTES // max(8 * rows * columns, 1), 16, BLOCK_FRAMES))
-
-
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
@@ -335,7 +330,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     reference_shift = np.zeros((points, 0)) if common_shift is None else _finite(common_shift(m_ref[None])[0])
     shared_shifts = reference_shift.shape[1]
     shift_own, shift_globals = np.zeros((pool_size, 3, shared_shifts)), -reference[:points].T @ reference_shift
-    block_frames = _frames_per_block(reference.shape[0], geometry.size)
+    block_frames = int(np.clip(BLOCK_BYTES // max(8 * reference.shape[0] * geometry.size, 1), 16, BLOCK_FRAMES))
     for k in range(0, pool_size, block_frames):
         block = slice(k, min(k + block_frames, pool_size))
         pool, pool_motion, pool_shift = pooled(block)
