@@ -309,11 +309,13 @@ class ServoStateFilter:
         ``dt`` (s) after the previous frame; returns FUSED, GATED or STARTED."""
         if math.isfinite(residual) and self._state is not None:
             # The residual alone tells a wrong point: r^2 2N / sigma^2 ~ chi^2(2N - 3).
-            ratio = residual * residual * self._residual_to_variance / self.noise_variance
-            if ratio > self._residual_gate:
+            sample = residual * residual * self._residual_to_variance
+            if sample / self.noise_variance > self._residual_gate:
                 return self._reject(measured, residual, dt)
             # Learnt before the innovation gate: a noisier camera must not look like outliers.
-            self._learn_noise(residual, dt)
+            weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
+            self.noise_variance += weight * (sample - self.noise_variance)
+            self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
         observed = self._observed(measured)
         if observed is None:
             return self._gated()
@@ -410,12 +412,6 @@ class ServoStateFilter:
         self.last_outcome = FilterOutcome.STARTED
         self.carried_std = None
         return FilterOutcome.STARTED
-
-    def _learn_noise(self, residual: float, dt: float) -> None:
-        weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
-        sample = residual * residual * self._residual_to_variance
-        self.noise_variance += weight * (sample - self.noise_variance)
-        self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
 
     def depth_pull(self) -> float:
         """The rate (1/s) at which the update law may pull dhat towards the filter's depth:
