@@ -588,10 +588,10 @@ def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t
 
 def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[np.float64]]
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``t`` (K,) and the columns (K, C) averaged in groups as :func:`_binned` averages the
-    splines' samples; ``columns(rows)`` forms the columns of a slice of the K rows, which are
-    asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a time, so that a
-    long recording's columns are never held whole."""
+    """``t`` (K,) and the columns (K, C) averaged in groups of consecutive rows, at most
+    :data:`MAX_SPLINE_SAMPLES` groups; ``columns(rows)`` forms the columns of a slice of the K
+    rows, which are asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a
+    time, so that a long recording's columns are never held whole."""
     group = max(int(np.ceil(t.size / MAX_SPLINE_SAMPLES)), 1)
     usable = t.size // group * group
     step = max(UNCERTAINTY_BLOCK // group, 1) * group
@@ -611,14 +611,11 @@ def _random_signs(rng: np.random.Generator, rows: int, columns: int) -> NDArray[
 
 
 def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-    """``(t, *signals)`` averaged in groups of consecutive samples, at most MAX_SPLINE_SAMPLES."""
-    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
-    if group <= 1:
-        return (t, *signals)
-    usable = t.size // group * group
-    mean = lambda x: x[:usable].reshape(-1, group).mean(axis=1)  # noqa: E731
-    # theta_d is averaged unwrapped, so that a crossing of +-pi does not average to 0.
-    return (mean(t), *(mean(np.unwrap(x) if k == 0 else x) for k, x in enumerate(signals)))
+    """``(t, *signals)`` averaged as :func:`_binned_columns` averages, a signal at a time (one
+    column: the same sums as alone); theta_d, the first, unwrapped, so that a crossing of +-pi
+    does not average to 0."""
+    binned = [_binned_columns(t, lambda rows, x=x: x[rows, None]) for x in (np.unwrap(signals[0]), *signals[1:])]
+    return (binned[0][0], *(columns[:, 0] for _, columns in binned))
 
 
 def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, max_lost: float, max_gap: float) -> FrameStats:
