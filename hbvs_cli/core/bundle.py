@@ -450,8 +450,6 @@ def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64
 def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
     """How every frame's shape residuals move with a shift of each point's (m_y, m_z), (K, R - 2N, 2N)
     (a point's own reprojection errors move by -1)."""
-    if not shapes:
-        return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
     return _finite(shape_residuals(normals, m, shapes, "points only")[1].reshape(m.shape[0], -1, 2 * m.shape[1]))
 
