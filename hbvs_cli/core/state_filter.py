@@ -39,14 +39,14 @@ class FilterOutcome(Label):
 @dataclass(frozen=True)
 class FilterSettings:
     """Tuning of :class:`ServoStateFilter` (docs/method.md, "State filter" and "The depth in the
-    filter"): the velocity errors' spectral densities (m/s/sqrt(Hz), rad/s/sqrt(Hz)); the
-    depth's prior and trust (relative stds), pull rate (1/s), settled lateral error (rad) and
-    met gap (relative) of :func:`scheduled_depth_pull`; the innovation gate (squared Mahalanobis
-    distance), rejections in a row before a restart and the residual's quantile; the noise's
-    time constant (s) and floor (normalised units); the stds (rad, units of d*) within which the
-    law acts on a prediction; the settle and fade times (s) before and while the law's feedback
-    fades in from the taught commands (25), shrinking with the noise below ``settle_noise``.
-    """
+    filter"), field by field: the velocity errors' spectral densities (m/s/sqrt(Hz),
+    rad/s/sqrt(Hz)); the depth's prior and trust (relative stds), pull rate (1/s), settled
+    lateral error (rad) and met gap (relative) of :func:`scheduled_depth_pull`; the innovation
+    gate (squared Mahalanobis distance) and rejections in a row before a restart; the noise's
+    time constant (s) and floor (normalised units); the residual's chi^2 quantile gate; the
+    stds (rad, units of d*) within which the law acts on a prediction; the settle and fade
+    times (s) before and while the law's feedback fades in from the taught commands (25),
+    shrinking with the noise below ``settle_noise``."""
 
     speed_noise: float = 0.0005
     turn_noise: float = 0.00015
