@@ -71,8 +71,7 @@ class PlanarPoseEstimator:
         pixels = np.asarray(pixels, dtype=float)
         if pixels.shape != (self.solver.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
             return Observation(None, status=ObservationStatus.MISSING, pixels=pixels if pixels.ndim == 2 else None)
-        if self.camera.has_distortion:
-            pixels = undistort_pixels(self.camera, pixels)
+        pixels = undistort_pixels(self.camera, pixels)  # the same pixels without distortion
         return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
 
     def _observe(self, solution: tuple[float, float, float, float] | None, pixels: NDArray[np.float64] | None) -> Observation:
