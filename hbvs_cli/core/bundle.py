@@ -162,11 +162,7 @@ def correlation_inflation(residuals: ArrayLike) -> float:
 
 @dataclass(frozen=True)
 class JointCovariance:
-    """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts.
-
-    A frame's move with all C biases, :meth:`bias_rows`, is its own (zero in the other
-    spans' columns) plus what it inherits, ``sensitivity bias_shared``: kept in these parts,
-    a board's frames take ``3 2N`` numbers each instead of ``3 S 2N``.
+    """The joint estimate's covariance, ``noise^2 (J^T J)^-1``, in parts (docs/uncertainty.md).
 
     ``shared`` (G, G): of the global unknowns (n*'s two angles about the solution, rad, then
     the reference points' offsets); ``own`` (K, 3, 3): of each frame's (theta, x_h1, x_h2) were
@@ -178,10 +174,11 @@ class JointCovariance:
     standard deviation on each point's coordinate in each of S spans of the drive (``S 2N``
     columns, :func:`joint_covariance`'s ``bias_fraction``), then a rolling shutter's (one
     column), then the D shifts every frame shares (its ``common_shift``); their covariances add
-    ``bias bias^T``, common to the frames. A frame's own move with them: ``span_bias``
-    (K, 3, 2N), with the biases of its span ``frame_spans`` (K,) (its columns of the span's
-    ``2N``); ``readout_bias`` (K, 3), with the shutter's; ``image_shift_bias`` (K, 3, D), with
-    the shared shifts' (the last D columns). Each None where there is no such bias.
+    ``bias bias^T``, common to the frames. A frame's move with them (:meth:`bias_rows`) is that
+    inherited, ``sensitivity bias_shared``, plus its own, kept apart (a board's frame takes ``3
+    2N`` numbers, not ``3 S 2N``): ``span_bias`` (K, 3, 2N), with the biases of its span
+    ``frame_spans`` (K,); ``readout_bias`` (K, 3), with the shutter's; ``image_shift_bias`` (K,
+    3, D), with the shared shifts' (the last D columns). Each None where there is no such bias.
 
     ``readout``, ``readout_sigma``: with ``shutter``, the readout (s per normalised row) the
     residuals show, and its standard deviation ``sqrt(inflation) noise / |s_perp|``, ``s_perp``
@@ -246,11 +243,6 @@ BLOCK_FRAMES = 256
 BLOCK_BYTES = 4 << 20
 
 
-def _frames_per_block(rows: int, columns: int) -> int:
-    """Frames in a block of :func:`joint_covariance`, of ``rows`` residuals each by ``columns`` globals."""
-    return int(np.clip(BLOCK_BYTES // max(8 * rows * columns, 1), 16, BLOCK_FRAMES))
-
-
 def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, motion: ArrayLike,
                      noise: float | None = None, shapes: Sequence[KnownShape] = (),
                      frames: ArrayLike | None = None, frames_motion: ArrayLike | None = None,
@@ -278,28 +270,21 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     order), else the frames are independent.
 
     ``bias_fraction``: a detector's bias on each point's coordinates, the same over a span of the
-    drive and independent between spans, as a standard deviation in point noise (0: none). n*
-    and the reference points absorb it, and the residuals do not show it. Its effect on the
-    estimate is ``(J^T J)^-1 J^T W`` with ``W`` how the residuals move with it, by the same Schur
-    complement. ``bias_segments`` (int, (K,), (F,)): the span (0, 1, ...) of F*, of every
-    estimated frame and of every frame of ``frames`` (without it, no bias); ``bias_scale``
-    (float, (K,), (F,)): the bias's size in each, in multiples of ``bias_fraction`` (default 1).
-
-    ``shutter`` ((2N,), (K, 2N), (F, 2N)): F*'s, the estimated frames' and ``frames``' points'
-    move per unit of a rolling shutter's readout (:func:`rolling_shutter_shift`). The readout is
-    fitted to the residuals, the part of the shift the estimate cannot absorb is taken out of
-    them before the noise is measured, and the shift's effect on the estimate is one more bias
-    column (the shutter is not modelled: its error is counted, not removed).
-    ``readout_estimated``: the readout was one more unknown of the estimate, and is taken out of
-    ``estimated`` and ``frames``: the column is then the estimate's move by ``readout_sigma``.
-
-    ``common_shift``: errors every frame shares (F* too), independent of each other:
-    ``common_shift(points)`` gives how points (K, N, 3) move with one standard deviation of each
-    of D of them, (K, 2N, D) (normalised units; each point's ``(m_y, m_z)`` in turn). A detector's
-    error that all points share all along the drive (bloom pulling bright dots' centroids down
-    the columns, issue 44: :func:`uniform_shift`), or the calibration's
-    (:func:`~.camera.calibration_shifts`). n* and the reference points absorb part of them and
-    the residuals cannot show them; their D columns join the bias after the shutter's.
+    drive and independent between spans, as a standard deviation in point noise (0: none);
+    ``bias_segments`` (int, (K,), (F,)): the span (0, 1, ...) of F*, of every estimated frame and
+    of every frame of ``frames`` (without it, no bias); ``bias_scale`` (float, (K,), (F,)): the
+    bias's size in each, in multiples of ``bias_fraction`` (default 1). ``shutter`` ((2N,), (K,
+    2N), (F, 2N)): the same frames' points' move per unit of a rolling shutter's readout
+    (:func:`rolling_shutter_shift`), fitted to the residuals and taken out of them before the
+    noise is measured (counted, not modelled); ``readout_estimated``: the readout was one more
+    unknown of the estimate (taken out of ``estimated`` and ``frames``), its column then the
+    move by ``readout_sigma``. ``common_shift(points)``: how points (K, N, 3) move with one
+    standard deviation of each of D errors every frame shares, F* too (K, 2N, D; normalised
+    units, each point's ``(m_y, m_z)`` in turn): bloom's (:func:`uniform_shift`), the
+    calibration's (:func:`~.camera.calibration_shifts`). n* and the reference points absorb
+    each of these and the residuals cannot show them: their effect on the estimate, ``(J^T J)^-1
+    J^T W`` by the same Schur complement, ``W`` how the residuals move with them, is the bias
+    (:class:`JointCovariance`; docs/uncertainty.md, "The uncertainty").
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
@@ -345,7 +330,7 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     reference_shift = np.zeros((points, 0)) if common_shift is None else _finite(common_shift(m_ref[None])[0])
     shared_shifts = reference_shift.shape[1]
     shift_own, shift_globals = np.zeros((pool_size, 3, shared_shifts)), -reference[:points].T @ reference_shift
-    block_frames = _frames_per_block(reference.shape[0], geometry.size)
+    block_frames = int(np.clip(BLOCK_BYTES // max(8 * reference.shape[0] * geometry.size, 1), 16, BLOCK_FRAMES))
     for k in range(0, pool_size, block_frames):
         block = slice(k, min(k + block_frames, pool_size))
         pool, pool_motion, pool_shift = pooled(block)
@@ -465,8 +450,6 @@ def rolling_shutter_shift(points: ArrayLike, t: ArrayLike) -> NDArray[np.float64
 def _shape_bias_rows(m: NDArray[np.float64], normal: ArrayLike, motion: ArrayLike, shapes: Sequence[KnownShape]) -> NDArray[np.float64]:
     """How every frame's shape residuals move with a shift of each point's (m_y, m_z), (K, R - 2N, 2N)
     (a point's own reprojection errors move by -1)."""
-    if not shapes:
-        return np.zeros((m.shape[0], 0, 2 * m.shape[1]))
     normals, _ = rotated_normals(np.asarray(normal, dtype=float) / np.linalg.norm(normal), np.asarray(motion, dtype=float)[:, 0])
     return _finite(shape_residuals(normals, m, shapes, "points only")[1].reshape(m.shape[0], -1, 2 * m.shape[1]))
 

@@ -56,16 +56,13 @@ BIAS_SEGMENTS = 8
 @dataclass(frozen=True)
 class DetectorErrors:
     """What the reported uncertainty allows for of a detector's errors (each target kind of
-    perception gives its own; bench/CALIBRATION.md measured them).
+    perception gives its own; bench/CALIBRATION.md measured them; why: docs/uncertainty.md).
 
-    ``bias_fraction``: its point bias in measured point noise, alike over nearby frames and
-    invisible in the residuals (corners located from edges follow the edges' sub-pixel phase
-    and the ink's clipping); ``beyond_view``: its points are one homography's corners fitted to
-    the part of the target in view, extrapolated in a frame that sees part of it, their bias
-    grown by :func:`area_beyond_view`; ``correlated``: its errors correlated over frames
-    (:func:`~.bundle.correlation_inflation`; not for one tracked homography's corners, nor
-    markers); ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more
-    is said in the warning line (None: no check); ``name``: the kind, as that line says it.
+    ``bias_fraction``: its point bias in measured point noise, alike over nearby frames;
+    ``beyond_view``: its bias grown by :func:`area_beyond_view` (one homography's corners);
+    ``correlated``: its errors correlated over frames (:func:`~.bundle.correlation_inflation`);
+    ``expected_precision``: the (theta_d deg, x_hd1) RMS error it usually gives, more is said in
+    the warning line (None: no check); ``name``: the kind, as that line says it.
     """
 
     name: str = ""
@@ -124,18 +121,12 @@ SPLINE_COLUMNS = 128
 DEFAULT_FRAME_INTERVAL = 1.0 / 30.0
 
 
-def frame_interval(t: ArrayLike) -> float | None:
-    """The median interval between frame times (s), or None for fewer than two frames."""
-    t = np.asarray(t, dtype=float)
-    return float(np.median(np.diff(t))) if t.size > 1 else None
-
-
 def taught_frame_interval(t: ArrayLike | None = None, recorded: float | None = None) -> float:
-    """The taught run's frame interval (s): from its frame times ``t`` when there are two or
-    more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``), else
-    :data:`DEFAULT_FRAME_INTERVAL`."""
-    interval = frame_interval(t if t is not None else ())
-    return interval if interval is not None else float(recorded or DEFAULT_FRAME_INTERVAL)
+    """The taught run's frame interval (s): the median interval of its frame times ``t`` when
+    there are two or more, else the ``recorded`` one (a fit file's ``frames.frame_interval_s``),
+    else :data:`DEFAULT_FRAME_INTERVAL`."""
+    t = np.asarray(() if t is None else t, dtype=float)
+    return float(np.median(np.diff(t))) if t.size > 1 else float(recorded or DEFAULT_FRAME_INTERVAL)
 
 
 @dataclass(frozen=True)
@@ -217,9 +208,7 @@ class FitUncertainty:
     error_modes: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(default=None, compare=False, repr=False)
 
     def summary(self, calibration: str | None = None) -> UncertaintySummary:
-        """What a fit file keeps: n*'s sigma (and its calibration part, ``calibration`` saying
-        whether the intrinsics' sigmas were stated, unstated or exact), and the spline sigmas'
-        median and maximum."""
+        """The :class:`UncertaintySummary` a fit file keeps, ``calibration`` its own."""
         spread = lambda x: Spread(float(np.median(x)), float(np.max(x))) if x.size else None  # noqa: E731
         return UncertaintySummary(self.normal_sigma_deg, self.point_noise_px,
                                   spread(np.degrees(self.smooth_theta_sigma)), spread(self.smooth_x_h1_sigma),
@@ -275,17 +264,14 @@ def fit_desired_trajectory(
     generalised cross-validation; ``max_lost``, ``max_gap``: the largest fraction of unused
     frames, and the longest unused stretch (s) to bridge; ``warn``: told what a user should know
     (ambiguous or uncertain n*), as it happens; ``shapes``: target parts of known shape (each
-    marker's square), which pin n* where the motion does not; ``errors``: the detector's bias
-    over each of :data:`BIAS_SEGMENTS` spans (n* absorbs it, the residuals cannot show it), its
-    usual precision and whether its errors are correlated over frames (default: no bias,
-    correlated, no precision check); ``image_shift_px``: a detector's error shared by every point
-    of every frame (px, 1 sigma in each image direction; e.g. bloom pulling saturated dots'
-    centroids), :func:`~.bundle.joint_covariance`'s ``common_shift``; ``calibration_sigma``: the
-    intrinsics' ``(fx, fy, cx, cy, *distortion)`` standard deviations
-    (:attr:`~.camera.CameraIntrinsics.sigma`), errors shared by every frame, a bias of the whole
-    drive (:func:`~.camera.calibration_shifts`, joined to ``common_shift``), empty when exact;
-    ``calibration_counted`` False: ``calibration_sigma`` is a what-if (a calibration that states
-    none), its part of n*'s sigma reported (``calibration_normal_sigma_deg``) but left out of the band.
+    marker's square), which pin n* where the motion does not; ``errors``: :class:`DetectorErrors`
+    (its bias over each of :data:`BIAS_SEGMENTS` spans); ``image_shift_px``: a detector's error
+    shared by every point of every frame (px, 1 sigma in each image direction; e.g. bloom);
+    ``calibration_sigma``: the intrinsics' standard deviations
+    (:attr:`~.camera.CameraIntrinsics.sigma`), empty when exact; both join
+    :func:`~.bundle.joint_covariance`'s ``common_shift``. ``calibration_counted`` False:
+    ``calibration_sigma`` is a what-if (a calibration that states none), its part of n*'s sigma
+    reported (``calibration_normal_sigma_deg``) but left out of the band.
 
     Raises InsufficientDataError: too few frames with the target, none in F*, or too many lost;
     ``facts`` holds the numbers.
@@ -408,7 +394,8 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
     seen_rows = np.flatnonzero(seen)
     shift = _shutter_shifts(normal, m_ref, t, seen_rows, stacked(seen_rows))
     return joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                            frames=m[used], frames_motion=stacked(used), estimated_rows=_rows_among(others, used),
+                            frames=m[used], frames_motion=stacked(used),
+                            estimated_rows=np.where(used[others], np.searchsorted(np.flatnonzero(used), others), -1),
                             correlated=correlated, bias_fraction=bias_fraction,
                             bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
                             bias_scale=(float(bias_scale[reference_index]), bias_scale[others], bias_scale[used]),
@@ -416,24 +403,15 @@ def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: ND
                             common_shift=common_shift)
 
 
-def _rows_among(frames: NDArray[np.intp], chosen: NDArray[np.bool_]) -> NDArray[np.intp]:
-    """Where each of ``frames`` (indices) is among the ``chosen`` frames, -1 where it is not."""
-    return np.where(chosen[frames], np.searchsorted(np.flatnonzero(chosen), frames), -1)
-
-
 def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
                              reference_index: int, joint: JointEstimate, noise: float, shapes: Sequence[KnownShape]
                              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
     """The points (F, N, 3), n* (3,), the reference points (N, 3) and a rolling shutter's
     readout (s per normalised row), the shutter's shift taken out when the drive shows one;
-    else the points and the joint estimate as given, and 0.
-
-    A rolling shutter moves every point by the readout times its
-    :func:`~.bundle.rolling_shutter_shift` (from the joint estimate's poses), which (12)
-    without it cannot hold: the skew biases n*. With the readout as one more unknown, the
-    joint estimate takes one Gauss-Newton step from ``joint``: :func:`~.bundle.joint_covariance`'s
-    readout and its shutter column (the globals' move per unit readout, through the Schur
-    complement), when the readout's score statistic exceeds :data:`READOUT_CHI2`.
+    else the points and the joint estimate as given, and 0. The skew biases n*: when the
+    readout's score statistic exceeds :data:`READOUT_CHI2`, the joint estimate takes one
+    Gauss-Newton step from ``joint`` with the readout free, :func:`~.bundle.joint_covariance`'s
+    shutter column (docs/uncertainty.md).
     """
     if others.size < 2 or noise <= 0.0:
         return m, joint.normal, joint.m_ref, 0.0
@@ -496,9 +474,7 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
             motion = KnownNormalSolver(m_ref[pattern], normal).solve(m[rows][:, pattern])
         except GeometryError:  # the found points are degenerate (collinear): the frames stay unused
             continue
-        solved = rows[motion.valid]
-        if solved.size == 0:
-            continue
+        solved = rows[motion.valid]  # none: the assignments below are empty
         poses = np.column_stack([motion.theta[motion.valid], motion.x_h[motion.valid]])
         predicted = projected_points(normal, m_ref, poses)  # (K, N, 2): (m_y, m_z)
         missing = ~pattern
@@ -612,10 +588,10 @@ def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t
 
 def _binned_columns(t: NDArray[np.float64], columns: Callable[[slice], NDArray[np.float64]]
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``t`` (K,) and the columns (K, C) averaged in groups as :func:`_binned` averages the
-    splines' samples; ``columns(rows)`` forms the columns of a slice of the K rows, which are
-    asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a time, so that a
-    long recording's columns are never held whole."""
+    """``t`` (K,) and the columns (K, C) averaged in groups of consecutive rows, at most
+    :data:`MAX_SPLINE_SAMPLES` groups; ``columns(rows)`` forms the columns of a slice of the K
+    rows, which are asked for (and averaged) :data:`UNCERTAINTY_BLOCK` rows or one group at a
+    time, so that a long recording's columns are never held whole."""
     group = max(int(np.ceil(t.size / MAX_SPLINE_SAMPLES)), 1)
     usable = t.size // group * group
     step = max(UNCERTAINTY_BLOCK // group, 1) * group
@@ -635,14 +611,11 @@ def _random_signs(rng: np.random.Generator, rows: int, columns: int) -> NDArray[
 
 
 def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-    """``(t, *signals)`` averaged in groups of consecutive samples, at most MAX_SPLINE_SAMPLES."""
-    group = int(np.ceil(t.size / MAX_SPLINE_SAMPLES))
-    if group <= 1:
-        return (t, *signals)
-    usable = t.size // group * group
-    mean = lambda x: x[:usable].reshape(-1, group).mean(axis=1)  # noqa: E731
-    # theta_d is averaged unwrapped, so that a crossing of +-pi does not average to 0.
-    return (mean(t), *(mean(np.unwrap(x) if k == 0 else x) for k, x in enumerate(signals)))
+    """``(t, *signals)`` averaged as :func:`_binned_columns` averages, a signal at a time (one
+    column: the same sums as alone); theta_d, the first, unwrapped, so that a crossing of +-pi
+    does not average to 0."""
+    binned = [_binned_columns(t, lambda rows, x=x: x[rows, None]) for x in (np.unwrap(signals[0]), *signals[1:])]
+    return (binned[0][0], *(columns[:, 0] for _, columns in binned))
 
 
 def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, max_lost: float, max_gap: float) -> FrameStats:
@@ -678,7 +651,7 @@ def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, 
         lost_fraction=lost_fraction,
         gaps=gaps,
         longest_gap_s=longest,
-        frame_interval_s=frame_interval(t),
+        frame_interval_s=taught_frame_interval(t),  # t holds at least MIN_SAMPLES frames here
         trimmed_start=int(indices[0]),
         trimmed_end=int(total - 1 - indices[-1]),
     )

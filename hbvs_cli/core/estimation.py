@@ -62,8 +62,6 @@ class PlanarPoseEstimator:
                  converge: bool = False) -> None:
         self.camera = camera
         self.solver = KnownNormalSolver(m_ref, normal, converge=converge)
-        self.m_ref = self.solver.m_ref
-        self.normal = self.solver.normal
         self.residual_gate = float(residual_gate)
 
     def from_pixels(self, pixels: ArrayLike | None) -> Observation:
@@ -71,10 +69,9 @@ class PlanarPoseEstimator:
         if pixels is None:
             return Observation(None, status=ObservationStatus.MISSING)
         pixels = np.asarray(pixels, dtype=float)
-        if pixels.shape != (self.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
+        if pixels.shape != (self.solver.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
             return Observation(None, status=ObservationStatus.MISSING, pixels=pixels if pixels.ndim == 2 else None)
-        if self.camera.has_distortion:
-            pixels = undistort_pixels(self.camera, pixels)
+        pixels = undistort_pixels(self.camera, pixels)  # the same pixels without distortion
         return self._observe(self.solver.solve_one(*pixels_to_normalized_floats(self.camera, pixels)), pixels)
 
     def _observe(self, solution: tuple[float, float, float, float] | None, pixels: NDArray[np.float64] | None) -> Observation:

@@ -64,13 +64,10 @@ CONVERGED_STEPS, STEP_HALVINGS = 30, 12
 
 
 class KnownNormalSolver:
-    """The known-normal solver for reference points ``m_ref`` (N, 3) and n* ``normal`` (3,).
-
-    With ``alpha_i = m_iz / m*_iz`` (18) and ``g_i = n*^T m*_i``, each point of (12) gives
-    ``1 / alpha_i = c - s m*_iy + x_h1 g_i`` and ``m_iy / alpha_i = s + c m*_iy + x_h2 g_i``,
-    solved by one pseudo-inverse of the reference's design. That ignores ``c^2 + s^2 = 1``:
-    ``refine_steps`` safeguarded Gauss-Newton steps on the reprojection error follow.
-    """
+    """The known-normal solver for reference points ``m_ref`` (N, 3) and n* ``normal`` (3,): each
+    point's two equations of (12), (18) (docs/method.md) solved by one pseudo-inverse of the
+    reference's design, which ignores ``c^2 + s^2 = 1``; ``refine_steps`` safeguarded
+    Gauss-Newton steps on the reprojection error follow."""
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, refine_steps: int = 2, converge: bool = False) -> None:
         self.m_ref = validate_reference_points(m_ref)
@@ -81,9 +78,9 @@ class KnownNormalSolver:
         if normal.shape != (3,) or not np.all(np.isfinite(normal)) or np.linalg.norm(normal) < 1e-9:
             raise GeometryError("the plane normal must be a finite, non-zero 3-vector")
         self.normal = normal / np.linalg.norm(normal)
-        if np.any(self.m_ref @ self.normal <= 0.0):
-            raise NoValidBranchError("the given plane normal puts the target behind the reference camera")
         g = self.m_ref @ self.normal
+        if np.any(g <= 0.0):
+            raise NoValidBranchError("the given plane normal puts the target behind the reference camera")
         # Rows [1, -m*_iy, g_i, 0] and [m*_iy, 1, 0, g_i] for the unknowns (c, s, x_h1, x_h2).
         one, zero, y = np.ones_like(g), np.zeros_like(g), self.m_ref[:, 1]
         design = np.stack([np.column_stack([one, -y, g, zero]), np.column_stack([y, one, zero, g])], axis=1)
@@ -92,7 +89,7 @@ class KnownNormalSolver:
         # Plain-float copies for solve_one.
         self._y = [float(v) for v in self.m_ref[:, 1]]
         self._z = [float(v) for v in self.m_ref[:, 2]]
-        self._g = [float(v) for v in self.m_ref @ self.normal]
+        self._g = g.tolist()
         self._pinv_rows = [[float(v) for v in row] for row in self._pinv]
 
     #: Frames solved at once: bounds the temporaries of a long recording.

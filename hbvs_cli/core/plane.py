@@ -51,10 +51,7 @@ def estimate_common_normal(
         mask &= np.asarray(valid, dtype=bool)
     if not np.any(mask):
         raise NoValidBranchError("no frame has a usable homography to estimate the plane normal from")
-    usable = H[mask]
-    if usable.shape[0] > REFINEMENT_FRAMES:  # the normal needs no more frames; memory stays flat
-        usable = usable[np.linspace(0, usable.shape[0] - 1, REFINEMENT_FRAMES).astype(int)]
-    candidates = homography_candidates(usable)
+    candidates = homography_candidates(H[mask])  # at most REFINEMENT_FRAMES: the fit's sample
     front = front_facing(candidates, m_ref)
     weight = np.where(np.any(front, axis=-1), candidates.strength, 0.0)
     if not np.any(weight > PURE_ROTATION_TOLERANCE):

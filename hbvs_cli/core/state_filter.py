@@ -1,12 +1,7 @@
 """A Kalman filter on (theta, x_h1, x_h2) and the inverse depth rho = 1/d*, between the
-camera and the law (docs/method.md, "State filter"): the lateral gain k_2 would multiply a
-real detector's noise into the commands.
-
-It predicts with (5), (23) integrated over a held command (an arc),
-``x_h' = Rz(-w dt) (x_h - [dx, dy] rho)``, linear in rho, so the motion measures the depth;
-corrects with the known-normal solver's state of covariance ``sigma^2 (J^T J)^-1``; learns
-sigma from the solver's RMS residual r, ``E[r^2] = sigma^2 (2N - 3) / (2N)``; and gates
-outliers by the innovation's Mahalanobis distance, restarting after ``reset_after`` in a row.
+camera and the law: the lateral gain k_2 would multiply a real detector's noise into the
+commands. Its prediction (an arc), correction, learnt noise and gates: docs/method.md,
+"State filter".
 """
 
 from __future__ import annotations
@@ -43,23 +38,15 @@ class FilterOutcome(Label):
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """Tuning of :class:`ServoStateFilter`.
-
-    ``speed_noise``, ``turn_noise``: the spectral density of executed minus commanded v
-    (m/s/sqrt(Hz)) and w (rad/s/sqrt(Hz)); ``depth_prior``: the relative std of the starting
-    1/dhat(0); ``depth_trust``: the relative std of the filter's depth at which dhat is pulled
-    towards it at half ``depth_pull_rate`` (1/s); ``lateral_settled``: the lateral error (rad)
-    halving the pull once dhat is within the relative gap ``depth_met`` of the filter's depth
-    (:func:`scheduled_depth_pull`); ``gate``: the squared Mahalanobis distance beyond which a
-    frame is rejected, ``reset_after`` rejections in a row restarting the filter from the frame;
-    ``noise_time_constant`` (s): of the running estimate of the detector's noise, ``min_noise``
-    its floor (normalised units); ``residual_quantile``: of the residual's chi^2 distribution,
-    beyond which a frame is rejected; ``coast_theta_std``, ``coast_x_h_std``: without a frame
-    the law acts on the prediction while its stds stay within these (rad, units of d*), beyond
-    them the robot stops; ``settle_time``: seconds of fused frames before the law gets the
-    estimate, then ``fade_time`` seconds over which its feedback fades in from the taught
-    commands (25), both shrinking with the noise variance below ``settle_noise`` (normalised units).
-    """
+    """Tuning of :class:`ServoStateFilter` (docs/method.md, "State filter" and "The depth in the
+    filter"), field by field: the velocity errors' spectral densities (m/s/sqrt(Hz),
+    rad/s/sqrt(Hz)); the depth's prior and trust (relative stds), pull rate (1/s), settled
+    lateral error (rad) and met gap (relative) of :func:`scheduled_depth_pull`; the innovation
+    gate (squared Mahalanobis distance) and rejections in a row before a restart; the noise's
+    time constant (s) and floor (normalised units); the residual's chi^2 quantile gate; the
+    stds (rad, units of d*) within which the law acts on a prediction; the settle and fade
+    times (s) before and while the law's feedback fades in from the taught commands (25),
+    shrinking with the noise below ``settle_noise``."""
 
     speed_noise: float = 0.0005
     turn_noise: float = 0.00015
@@ -322,11 +309,13 @@ class ServoStateFilter:
         ``dt`` (s) after the previous frame; returns FUSED, GATED or STARTED."""
         if math.isfinite(residual) and self._state is not None:
             # The residual alone tells a wrong point: r^2 2N / sigma^2 ~ chi^2(2N - 3).
-            ratio = residual * residual * self._residual_to_variance / self.noise_variance
-            if ratio > self._residual_gate:
+            sample = residual * residual * self._residual_to_variance
+            if sample / self.noise_variance > self._residual_gate:
                 return self._reject(measured, residual, dt)
             # Learnt before the innovation gate: a noisier camera must not look like outliers.
-            self._learn_noise(residual, dt)
+            weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
+            self.noise_variance += weight * (sample - self.noise_variance)
+            self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
         observed = self._observed(measured)
         if observed is None:
             return self._gated()
@@ -423,12 +412,6 @@ class ServoStateFilter:
         self.last_outcome = FilterOutcome.STARTED
         self.carried_std = None
         return FilterOutcome.STARTED
-
-    def _learn_noise(self, residual: float, dt: float) -> None:
-        weight = min(1.0, dt / self.settings.noise_time_constant) if self.settings.noise_time_constant > 0 else 1.0
-        sample = residual * residual * self._residual_to_variance
-        self.noise_variance += weight * (sample - self.noise_variance)
-        self.noise_variance = max(self.noise_variance, self.settings.min_noise**2)
 
     def depth_pull(self) -> float:
         """The rate (1/s) at which the update law may pull dhat towards the filter's depth:

@@ -67,9 +67,6 @@ class SplineTrajectory:
 
     def __init__(self, channels: dict[str, SplineChannel], x_hd2_offset: float, t_start: float, t_end: float,
                  x_hd2_residual_rms: float = float("nan")) -> None:
-        missing = [c for c in CHANNELS if c not in channels]
-        if missing:
-            raise MalformedDataError(f"the trajectory model lacks the channel(s) {', '.join(missing)}")
         if not (np.isfinite(t_start) and np.isfinite(t_end) and t_end > t_start):
             raise MalformedDataError("the trajectory model's time span is empty or not finite")
         if not np.isfinite(x_hd2_offset):
@@ -134,13 +131,12 @@ class SplineTrajectory:
 
 
 def _product_antiderivative(spline: Any, other: Any) -> Any:
-    """Exact antiderivative (PPoly) of ``spline * other'`` on shared knots: x_hd2 of (25)."""
+    """Exact antiderivative (PPoly) of ``spline * other'`` on shared knots (both callers of
+    :class:`SplineTrajectory` make them so): x_hd2 of (25)."""
     from scipy.interpolate import PPoly
 
     first = PPoly.from_spline(spline)
     second = PPoly.from_spline(other).derivative()
-    if first.x.shape != second.x.shape or not np.allclose(first.x, second.x):
-        raise MalformedDataError("the trajectory's splines do not share their knots")
     product = np.zeros((first.c.shape[0] + second.c.shape[0] - 1, first.c.shape[1]))
     for i in range(first.c.shape[0]):  # the coefficients' convolution, interval by interval
         product[i:i + second.c.shape[0]] += first.c[i] * second.c
