@@ -228,7 +228,7 @@ def drive_simulation(console: Console, label: str, total: int, records: Iterable
     per step; camera ``height``, m) recorded, then ``each(k, record)``, until the end or --lost-timeout. The tally and
     why the run stopped (None: it did not)."""
     tally = Tally()
-    lost = live.LostWatch(log.settings.lost_timeout, dt, log)
+    lost = live.LostWatch(log.settings.lost_timeout, log)
     with console.progress(label, total) as bar:
         for k, record in enumerate(records):
             log.step(record)
@@ -236,6 +236,6 @@ def drive_simulation(console: Console, label: str, total: int, records: Iterable
             each(k, record)
             tally.add(record, taught[k])
             bar.advance()
-            if lost.stops(record):
+            if lost.stops(record, dt):
                 break
     return tally, lost.stopped
