@@ -89,11 +89,10 @@ class SimulatedCamera:
         return self._observe_image(pose, t, outlier)
 
     def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
-        world = self.scene.world
         pixels = None if self._occluded(t) else self._project(pose)
         if pixels is None:
             return Observation(None, status=ObservationStatus.OCCLUDED)
-        pixels = distort_pixels(world.camera, pixels)
+        pixels = distort_pixels(self.scene.world.camera, pixels)
         if self.settings.pixel_noise > 0:
             pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
         if outlier:

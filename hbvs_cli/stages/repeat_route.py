@@ -103,9 +103,8 @@ def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
 
 class RouteSight(SegmentSwitch):
     """What ``--live`` and ``--replay`` see along a route (:class:`~.live.TargetSight`'s methods): the segment in
-    force, measured against its F*_i. Once the run time passes a switch's ``planned`` time (s), or the target is
-    lost within the overlap with the next (a robot off its path sees it leave sooner), the next segment's detector
-    looks too, and the switch is made in the first frame where it sees its whole target large enough."""
+    force, measured against its F*_i; when the next one's detector looks, and when it takes over: docs/routes.md,
+    "Repeat" (``planned``: the switches' taught times, s; a robot off its path sees a target leave sooner)."""
 
     def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:

@@ -221,12 +221,10 @@ def finish(console: Console, tally: Tally, dhat: float, output: str, settings: S
     return summary
 
 
-def drive_simulation(console: Console, label: str, total: int, records: Iterable[StepRecord], log: StepLog, dt: float,
-                     taught: list[list[float]], height: float, each: Callable[[int, StepRecord], None] = lambda k, record: None,
-                     ) -> tuple[Tally, str | None]:
-    """``--sim``'s writer loop, one target's or a route's: each record logged, its true and ``taught`` pose (x, y, phi
-    per step; camera ``height``, m) recorded, then ``each(k, record)``, until the end or --lost-timeout. The tally and
-    why the run stopped (None: it did not)."""
+def drive_simulation(console: Console, label: str, total: int, records: Iterable[StepRecord], log: StepLog, dt: float, taught: list,
+                     height: float, each: Callable[[int, StepRecord], None] = lambda k, record: None) -> tuple[Tally, str | None]:
+    """``--sim``'s writer loop (one target's or a route's): per step, its record, true and ``taught`` pose (x, y, phi;
+    camera ``height``, m), then ``each(k, record)``. The tally, and why --lost-timeout stopped the run (None: it did not)."""
     tally = Tally()
     lost = live.LostWatch(log.settings.lost_timeout, log)
     with console.progress(label, total) as bar:
