@@ -41,7 +41,7 @@ class Scene:
     poster_image: np.ndarray | None = None
     run_start: float = 0.0
     run_speed: float = 1.0
-    #: The pose where each of ``taught_profile``'s segments starts (:meth:`~hbvs_cli.core.path.CommandProfile.segment_start_poses`).
+    #: Where each of ``taught_profile``'s segments starts (:meth:`~hbvs_cli.core.path.CommandProfile.segment_start_poses`).
     taught_segment_starts: np.ndarray | None = None
 
     def taught_pose(self, t: ArrayLike) -> np.ndarray:

@@ -7,39 +7,79 @@ from __future__ import annotations
 import math
 import time
 from contextlib import ExitStack
-from typing import Any
+from dataclasses import asdict, dataclass
+from types import SimpleNamespace
+from typing import IO, Any
 
 import numpy as np
 
-from ..core.controller import ControllerGains
+from .. import __version__
+from ..core.controller import ControllerGains, lyapunov
 from ..core.depth import check_depth
+from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose
+from ..core.gains import noise_from_residual
 from ..core.laws import gains_for_law, make_controller
+from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
-from ..core.control_settings import GAIN_NAMES
+from ..core.control_settings import FILTER_EKF, GAIN_NAMES
+from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
-from ..errors import InputError, UsageError
+from ..sim.world import World
+from ..errors import InputError, TargetLostError, UsageError
 from ..settings.config import load_config
-from ..io.fit_file import FitFile, read_fit_file
+from ..io.fit_file import FitFile, fit_summary_records, read_fit_file
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS, SceneWriter
 from ..io.images import bytes_to_store
+from ..io.limits import step_count
 from ..io.live_view import live_writer
 from ..io.mcap import McapWriter, open_output, seconds_to_ns
+from ..io.messages import LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
 from ..settings.commands import DEFAULT_GAINS, REPEAT, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
-from ..sim import CameraSettings, SimulatedCamera, Simulation, simulation_world
+from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
+from .live import LostWatch
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_pair
 from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
-from .repeat_run import (RepeatSummary, Settings, StepLog, Tally, check_simulation_settings, drive_simulation, finish, make_state_filter,
-                         run_metadata)
+
+@dataclass(frozen=True)
+class Settings:
+    """The resolved settings of a run: defaults, then the TOML config, then the options."""
+
+    gains: ControllerGains
+    law: str
+    dhat0: float
+    speed: float
+    limits: ActuatorLimits
+    latency: int
+    rate: float
+    perception: str
+    pixel_noise: float
+    offset: tuple[float, float, float]
+    lost_timeout: float
+    state_filter: str = FILTER_EKF
+
+    def as_dict(self) -> dict[str, Any]:
+        offset = {"dx_m": self.offset[0], "dy_m": self.offset[1], "dtheta_deg": math.degrees(self.offset[2])}
+        return asdict(self) | {"gains": self.gains.as_dict(), "offset": offset}
+
+
+@dataclass
+class RepeatSummary:
+    steps: int
+    output: str
+    final_errors: dict[str, float]
+    dhat: float
+    stopped: bool
+
 
 def _limit(value: float | None, option: str) -> float | None:
     """A limit option (a number, checked as it was read): None or inf -> unlimited (None); 0 or less is refused."""
@@ -88,7 +128,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
         fit = read_fit_file(options.input)
     settings = settings_for(options, fit.model)
     if fit.route_record is not None and options.sim:  # a route: segment by segment
-        return run_route_repeat(options, settings, fit, console)
+        return run_route_repeat(options, settings, fit, console, ROUTE_TOOLS)
     if options.live:
         return _run_live(options, settings, fit, console)
     if options.sim:
@@ -101,6 +141,73 @@ def settings_for(options: RepeatOptions, model: FitModel) -> Settings:
     return resolve_settings(options, model.dhat0, 1.0 / model.taught_frame_interval(), model.suggested_gains())
 
 
+class _StepLog:
+    """Each step record as run file messages and a command; events when the target is lost or back, etc."""
+
+    def __init__(self, run: RunWriter, settings: Settings, model: FitModel, d_true: float | None, cmd_stream: IO[str] | None) -> None:
+        self.run, self.settings, self.model, self.d_true, self.cmd_stream = run, settings, model, d_true, cmd_stream
+        self.event = run.event
+        self.was_saturated = self.was_lost = self.was_dropped = False
+        self.lost_reason = ""
+
+    def step(self, record: StepRecord) -> None:
+        t = record.t
+        desired = record.desired
+        output = record.output
+        measurement = record.measurement
+        errors = output.errors if output is not None else None
+        V = None
+        if errors is not None and self.d_true is not None:
+            V = lyapunov(errors, record.dhat, self.d_true, self.settings.gains)
+        # A dropped frame keeps the lost state and reason of the last frame that arrived.
+        if not record.dropped:
+            self.lost_reason = record.observation.status if record.lost else ""
+        if record.lost and not self.was_lost:
+            action = "driving on the state filter's prediction" if output is not None else "stopping"
+            self.event(t, LOG_WARNING, f"target lost ({self.lost_reason}): {action}, adaptation frozen")
+        elif not record.lost and self.was_lost:
+            self.event(t, LOG_INFO, "target back: tracking resumed")
+        self.was_lost = record.lost
+        if record.dropped and not self.was_dropped:
+            self.event(t, LOG_INFO, "camera frame dropped: " + ("target still lost" if record.lost else "holding the last command"))
+        self.was_dropped = record.dropped
+        if record.saturated and not self.was_saturated:
+            self.event(t, LOG_INFO, "command saturated by the actuator limits")
+        self.was_saturated = record.saturated
+        # The run file's state, in its order of fields (the bytes depend on it).
+        values = {
+            **{name: getattr(measurement, name) if measurement else None for name in ("x_h1", "x_h2", "theta")},
+            **{name: getattr(desired, name) for name in ("x_hd1", "x_hd2", "theta_d", "x_hd1_dot", "x_hd2_dot", "theta_d_dot")},
+            **{name: getattr(errors, name) if errors else None for name in ("e1", "e2", "ebar2", "e3")},
+            "v_c": record.v_c, "w_c": record.w_c,
+            "v_law": float(output.v_c) if output is not None else None,
+            "w_law": float(output.w_c) if output is not None else None,
+            "saturated": bool(record.saturated),
+            "dhat": float(record.dhat),
+            "target_lost": bool(record.lost),
+            "lost_reason": self.lost_reason if record.lost else "",
+            "frame_dropped": bool(record.dropped),
+            "residual": float(record.observation.residual),
+            "V": V,
+        }
+        estimate = record.estimate
+        if estimate is None:
+            values |= {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
+                       "theta_std": None, "x_h1_std": None, "x_h2_std": None, "noise_px": None}
+        else:
+            state = estimate.measurement
+            std = estimate.std.tolist()
+            values |= {
+                "filter": estimate.outcome,
+                "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
+                "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
+                "noise_px": estimate.noise * self.model.camera.mean_focal,
+            }
+        self.run.state(t, values)
+        self.run.command(t, record.v_c, record.w_c, record.saturated)
+        live.write_command(self.cmd_stream, t, record.v_c, record.w_c)
+
+
 def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
     """Keep an existing output when an input ended early (unless --allow-truncated); warn."""
     names = []
@@ -111,6 +218,16 @@ def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, co
     for name in names:
         writer.input_ended_early(name, options.allow_truncated)
         console.warn(f"{name} ends before its end record (the writer upstream stopped?): used what it holds")
+
+
+def check_simulation_settings(settings: Settings, model: FitModel, taught_s: float | None = None) -> None:
+    """The checks of a closed-loop run's settings that need the fit; ``taught_s``: the taught duration (s) of a route."""
+    if not (math.isfinite(settings.speed) and settings.speed > 0):
+        raise UsageError(f"--speed must be a finite positive multiple of the taught pace, got {settings.speed}")
+    step_count(
+        (model.trajectory.t_end - model.trajectory.t_start if taught_s is None else taught_s) / settings.speed, settings.rate,
+        "the run (the taught duration over --speed, times --rate)",
+    )
 
 
 def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile) -> Simulation:
@@ -140,36 +257,128 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     )
 
 
+#: With the state filter on, the fixed residual gate only catches gross errors (px).
+COARSE_RESIDUAL_GATE_PX = 3.0
+
+
+def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
+    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's residual (docs/method.md, "State filter")."""
+    if settings.state_filter != FILTER_EKF:
+        return None
+    estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
+
+
+def detector_noise(model: FitModel) -> float:
+    """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
+    if not math.isfinite(model.residual_px.rms):
+        return 0.0
+    return noise_from_residual(model.residual_px.rms, model.m_ref.shape[0]) / model.camera.mean_focal
+
+
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
-    scene, camera, steps = simulation.scene, simulation.camera, simulation.steps
-    taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * simulation.dt).tolist()
-    height = scene.world.camera_height
+    scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
+    taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
+    tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)
             _note_truncated(writer, options, fit, console)
-            run = RunWriter(writer, run_metadata("sim", options, settings, fit, scene.d_true, scene.world), model.camera, SIMULATION_EPOCH_NS)
+            run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
+            log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
+            lost = LostWatch(settings.lost_timeout, log)
+            height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
             scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
+            with console.progress(f"repeat (sim, {settings.law})", steps) as bar:
+                for k, record in enumerate(simulation.run()):
+                    log.step(record)
+                    run.poses(record.t, record.pose, taught_poses[k], height)
+                    scene_3d.pose(run.log_time_ns(record.t), record.pose)
+                    if options.record_images:
+                        label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
+                        run.image(record.t, *bytes_to_store(camera.image_of(record.pose)), record.observation.pixels,
+                                  desired_pixels(model, record.desired), label)
+                    tally.add(record, taught_poses[k])
+                    bar.advance()
+                    if lost.stops(record, dt):
+                        break
+    return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
 
-            def each(k: int, record: StepRecord) -> None:
-                scene_3d.pose(run.log_time_ns(record.t), record.pose)
-                if options.record_images:
-                    label = f"t = {record.t:.2f} s" + ("  target lost" if record.lost else "")
-                    run.image(record.t, *bytes_to_store(camera.image_of(record.pose)), record.observation.pixels,
-                              desired_pixels(model, record.desired), label)
 
-            tally, stopped = drive_simulation(console, f"repeat (sim, {settings.law})", steps, simulation.run(),
-                                              StepLog(run, settings, model, scene.d_true, cmd_stream), simulation.dt, taught_poses, height, each)
-    return finish(console, tally, simulation.controller.dhat, options.output, settings, scene.d_true, stopped)
+class _Tally:
+    """What the one-line summary needs, per step; its "final" errors are the report's (:func:`hbvs_cli.core.metrics.final_value`)."""
+
+    def __init__(self) -> None:
+        self.series: dict[str, list[float]] = {name: [] for name in ("t", "e1", "e2", "e3_deg", "position_m", "heading_deg")}
+
+    def add(self, record: StepRecord, taught: list[float] | None = None) -> None:
+        errors = record.output.errors if record.output is not None else None
+        values = dict.fromkeys(self.series, math.nan) | {"t": record.t}
+        if errors is not None:
+            values.update(e1=float(errors.e1), e2=float(errors.e2), e3_deg=math.degrees(float(errors.e3)))
+        if taught is not None:
+            values["position_m"] = math.hypot(record.pose[0] - taught[0], record.pose[1] - taught[1])
+            values["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (record.pose[2] - taught[2])))))
+        for name, value in values.items():
+            self.series[name].append(float(value))
+
+
+def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
+    model = fit.model
+    return {
+        "file_kind": "run", "hbvs_version": __version__, "mode": mode, "law": settings.law, "gains": settings.gains.as_dict(),
+        "settings": settings.as_dict() | {
+            "seed": options.seed, "input": str(options.input), "replay": str(options.replay) if options.replay else None,
+            "faults": {
+                "occlude": options.occlude, "drop_rate": options.drop_rate,
+                "outlier_rate": options.outlier_rate, "exposure_step": options.exposure_step,
+            },
+            "record_images": options.record_images,
+        },
+        "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind,
+    } | fit_summary_records(model) | ({"top_view": _top_view(scene.world)} if scene is not None else {})
+
+
+def _top_view(world: World) -> dict[str, Any]:
+    """The wall and the target from above (m, world frame), for the report's top view."""
+    poster = world.target.poster
+    ends = [poster.center + side * 0.5 * poster.width * poster.right for side in (-1.0, 1.0)]
+    return {
+        "wall_x": float(world.wall_x),
+        "poster_y": [float(end[1]) for end in ends],
+        "target_xy": [[float(x), float(y)] for x, y in world.target.points_world[:, :2]],
+    }
+
+
+def _finish(console: Console, tally: _Tally, controller: Any, output: str, settings: Settings, d_true: float | None,
+            stopped: str | None) -> RepeatSummary:
+    """The run's summary, printed; TargetLostError when the run was ``stopped`` (why)."""
+    t = tally.series["t"]
+    finals = {name: final_value(t, series) for name, series in tally.series.items() if t and name != "t"}
+    e = {name: final for name, final in finals.items() if final is not None}
+    summary = RepeatSummary(steps=len(t), output=output, final_errors=e, dhat=controller.dhat, stopped=stopped is not None)
+    parts = [f"repeat: {summary.steps} steps ({settings.law})"]
+    final = []
+    if "e1" in e:
+        final.append(f"|e1| {e['e1']:.3g}, |e2| {e['e2']:.3g}, |e3| {e['e3_deg']:.3g} deg")
+    if "position_m" in e:
+        final.append(f"position {100 * e['position_m']:.3g} cm, |heading| {e['heading_deg']:.3g} deg")
+    if final:
+        parts.append("final (mean over the last 5 %, as in hbvs report): " + ", ".join(final))
+    parts.append(f"dhat {summary.dhat:.3f} m" + (f" (d* {d_true:.3f} m)" if d_true is not None else ""))
+    console.info("; ".join(parts) + f" -> {summary.output}")
+    if stopped is not None:
+        raise TargetLostError(f"{stopped}; the run up to then is in {output}")
+    return summary
 
 
 def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered: bool) -> Tracking:
     """What ``--live`` (``filtered``: with ``--filter``'s state filter) and ``--replay`` servo with, one target's or a route's."""
     if fit.route_record is not None:
-        return route_tracking(options, settings, fit, filtered)
+        return route_tracking(options, settings, fit, filtered, make_state_filter)
     model = fit.model
     estimator = estimator_from_model(model)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
@@ -210,13 +419,14 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     reader = TeachReader(options.replay)
     # The recording's motion is not the commands': no state filter (its prediction assumes they moved the robot).
     tracking = _tracking(options, settings, fit, filtered=False)
-    servo = ServoStep(tracking.controller, settings.limits, 0, None, stop_when_lost=True)
-    tally = Tally()
+    controller = tracking.controller
+    servo = ServoStep(controller, settings.limits, 0, None, stop_when_lost=True)
+    tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
         with open_output(options.output) as file_writer:
             writer = live(file_writer)
-            run = RunWriter(writer, run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
-            log = tracking.step_log(run, settings, model, cmd_stream)
+            run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
+            log = tracking.step_log(_StepLog(run, settings, model, None, cmd_stream))
             with console.progress("repeat (replay)", None) as bar:
                 for record in run_servo(RecordedDrive(reader, tracking.sight, model, run), servo):
                     log.step(record)
@@ -225,7 +435,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             if not tally.series["t"]:
                 raise InputError(f"{reader.name}: no frames to replay")
             _note_truncated(writer, options, fit, console, reader)
-    return finish(console, tally, tracking.controller.dhat, options.output, settings, None, None)
+    return _finish(console, tally, controller, options.output, settings, None, None)
 
 
 def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -234,8 +444,9 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     interface = live.robot_interface(options)
     model = fit.model
     tracking = _tracking(options, settings, fit, filtered=True)
-    servo = ServoStep(tracking.controller, settings.limits, 0, tracking.state_filter, stop_when_lost=True)
-    tally = Tally()
+    controller = tracking.controller
+    servo = ServoStep(controller, settings.limits, 0, tracking.state_filter, stop_when_lost=True)
+    tally = _Tally()
     loop: live.LiveLoop | None = None
     run: RunWriter | None = None
     stop_reason: str | None = None
@@ -250,12 +461,12 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
             # --foxglove: the run served as it is written (already real time: no pacing).
             view = stack.enter_context(live_writer(options.foxglove, 0.0, console.info))
             writer = view(stack.enter_context(open_output(options.output, keep_on_error=True)))
-            info = run_metadata("live", options, settings, fit, None) | tracking.metadata | {"live": {
+            info = _run_metadata("live", options, settings, fit, None) | tracking.metadata | {"live": {
                 "source": link.source_name, "cmd_topic": link.commands.topic if link.commands is not None else None,
                 "cmd_type": options.cmd_type, "dry_run": options.dry_run, "stale_timeout_s": options.stale_timeout,
             }}
             run = RunWriter(writer, info, model.camera, base_ns=None)
-            log = tracking.step_log(run, settings, model, None)
+            log = tracking.step_log(_StepLog(run, settings, model, None, None))
             source, camera = link.open_camera()
             live.check_camera(camera, model.camera, "the live camera's calibration")
             status = stack.enter_context(console.status_line())
@@ -278,5 +489,9 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
                 reason = stop_reason or (loop.stopped if loop is not None else None)
                 if reason is not None:
                     run.stopped(t, reason)
-    return finish(console, tally, tracking.controller.dhat, options.output, settings, None, loop.stopped)
+    return _finish(console, tally, controller, options.output, settings, None, loop.stopped)
 
+
+#: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
+ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
+                              lost_watch=LostWatch, check_settings=check_simulation_settings)

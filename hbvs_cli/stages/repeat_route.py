@@ -6,8 +6,7 @@ V (36) is logged against each segment's true d*_i where the route was simulated.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import partial
-from typing import IO, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -35,8 +34,6 @@ from ..sim.route_loop import SWITCH_FRACTION, RouteTrajectory, SegmentFilters, S
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from ..sim.scene import point_identity
 from .console import Console
-from .repeat_run import (RepeatSummary, Settings, StepLog, check_simulation_settings, detector_noise, drive_simulation, finish,
-                         make_state_filter, run_metadata)
 
 
 def taught_pose_at(taught: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -75,24 +72,28 @@ def route_metadata(plan: RouteFile, switches: np.ndarray, depths: list[float | N
             "depth_ratios": [tr.depth_ratio for tr in plan.transitions]}
 
 
-class SwitchLog(StepLog):
-    """A repeat's step log that records each switch of ``switch`` before the step after it: an event, and V (36) from
-    then on against the new segment's d*_i (``depths``) and gains."""
+class SwitchLog:
+    """A repeat's step ``log`` that records each switch before the step after it: an event, and V (36) from then on
+    against the new segment's d*_i (``depths``) and gains."""
 
-    def __init__(self, run: RunWriter, settings: Any, model: FitModel, cmd_stream: IO[str] | None, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None], gains: list[ControllerGains]) -> None:
-        super().__init__(run, settings, model, depths[0], cmd_stream)
-        self.switch, self.plan, self.depths, self.gains = switch, plan, depths, gains
+    def __init__(self, log: Any, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None],
+                 gains: list[ControllerGains], settings: Any) -> None:
+        self.log, self.switch, self.plan, self.depths, self.gains, self.settings = log, switch, plan, depths, gains, settings
         self.logged = 0
+        log.d_true = depths[0]
 
     def step(self, record: Any) -> None:
         while self.logged < len(self.switch.switches):
             when, segment, before, after = self.switch.switches[self.logged]
-            self.d_true, self.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
-            self.event(when, LOG_INFO, f"segment {segment + 1} (target {self.plan.segments[segment].target + 1}, "
-                       f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
+            self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
+            self.log.event(when, LOG_INFO, f"segment {segment + 1} (target {self.plan.segments[segment].target + 1}, "
+                           f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
             self.logged += 1
-            self.run.route_switches([made[0] for made in self.switch.switches[:self.logged]])
-        super().step(record)
+            self.log.run.route_switches([made[0] for made in self.switch.switches[:self.logged]])
+        self.log.step(record)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.__dict__["log"], name)
 
 
 def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
@@ -153,16 +154,16 @@ class RouteSight(SegmentSwitch):
 
 @dataclass
 class Tracking:
-    """What ``--live`` and ``--replay`` servo with; ``step_log(run, settings, model, cmd_stream)``: the log each step goes to."""
+    """What ``--live`` and ``--replay`` servo with; ``step_log(log)``: the log each step goes to."""
 
     sight: Any
     controller: Any
     state_filter: Any
     metadata: dict[str, Any] = field(default_factory=dict)
-    step_log: Callable[..., StepLog] = lambda run, settings, model, cmd_stream: StepLog(run, settings, model, None, cmd_stream)
+    step_log: Callable[[Any], Any] = lambda log: log
 
 
-def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool) -> Tracking:
+def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool, make_state_filter: Callable[..., Any]) -> Tracking:
     """The :class:`Tracking` of a route file; ``filtered``: a state filter per segment (``--live``)."""
     plan = route_of(fit, str(options.input))
     models = plan.models
@@ -183,7 +184,7 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
               else segment_truths(recorded_route(plan.world, models[0].camera), plan)[0])
     return Tracking(sight, controller, sight.filters, {"route": route_metadata(plan, sight.planned, depths)},
-                    partial(SwitchLog, switch=sight, plan=plan, depths=depths, gains=gains))
+                    lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
 
 
 #: What a segment's template keeps around its target's points (px): the alignment's smoothing reaches 4 sigma beyond them.
@@ -207,8 +208,8 @@ def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
     return kept
 
 
-def run_route_repeat(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
-    """Repeat the route of ``fit`` in simulation."""
+def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
+    """Repeat the route of ``fit`` in simulation; ``tools``: repeat's step log, tally and summary (``ROUTE_TOOLS``)."""
     plan = route_of(fit, str(options.input))
     if plan.world is None or plan.taught_poses is None:
         raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
@@ -229,21 +230,29 @@ def run_route_repeat(options: RepeatOptions, settings: Settings, fit: FitFile, c
     route_fit = RouteFit(plan.segments, models, plan.references, plan.transitions)
     switches = planned_switches(plan)
     gains = segment_gains(settings, plan)
-    noise = [detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
+    noise = [tools.detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
     controller = make_controller(settings.law, settings.gains, settings.dhat0)
     start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
     taught_s = float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start
-    check_simulation_settings(settings, models[0], taught_s)
+    tools.check_settings(settings, models[0], taught_s)
     dt = 1.0 / settings.rate
     duration = taught_s / settings.speed + dt
     camera, steps = run_route(route, route_fit, switches, controller, start, dt, duration, settings.limits,
                               settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
-    metadata = run_metadata("sim", options, settings, fit, depths[0]) | {
+    metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
         "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
-    taught = taught_pose_at(plan.taught_poses, camera.route_trajectory.route_time(np.arange(round(duration / dt)) * dt)).tolist()
+    tally = tools.tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
-        log = SwitchLog(RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS), settings, models[0], cmd_stream,
-                        camera, plan, depths, gains)
-        tally, stopped = drive_simulation(console, f"repeat (sim, route of {len(models)} segments)", int(duration / dt), steps, log, dt,
-                                          taught, route.camera_height)
-    return finish(console, tally, controller.dhat, options.output, settings, depths[-1], stopped)
+        run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
+        log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
+        lost = tools.lost_watch(settings.lost_timeout, log)
+        with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
+            for record in steps:
+                log.step(record)
+                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
+                run.poses(record.t, record.pose, taught, route.camera_height)
+                tally.add(record, taught)
+                bar.advance()
+                if lost.stops(record, dt):
+                    break
+    return tools.finish(console, tally, controller, options.output, settings, depths[-1], lost.stopped)
