@@ -1,7 +1,4 @@
-"""The one loop of ``hbvs repeat`` (``--sim``, ``--live`` and ``--replay`` alike): the modes
-differ in their :class:`ServoSource` (a simulated robot moves, a live robot is sent the command,
-a replay only keeps it) and in what the stage does with each :class:`~.simulator.StepRecord`.
-"""
+"""The one loop of ``hbvs repeat``, ``--sim``, ``--live`` and ``--replay`` alike (docs/layout.md, "The loop")."""
 
 from __future__ import annotations
 

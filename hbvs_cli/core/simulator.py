@@ -154,11 +154,10 @@ class ServoStep:
             w_cmd = w_ff + share * (float(output.w_c) - w_ff)
             if fresh:
                 controller.adapt(None, dt, (estimate.depth, estimate.depth_pull))
-        elif fresh or predicted:
-            output = controller.step(estimate.measurement, desired, dt, adapt=False)
-            v_cmd, w_cmd = float(output.v_c), float(output.w_c)
-        elif state_filter is None and observation.status == ObservationStatus.OK:
-            output = controller.step(observation.measurement, desired, dt)
+        elif fresh or predicted or (state_filter is None and observation.status == ObservationStatus.OK):
+            # Without a filter the law adapts dhat (31) itself; with one, below.
+            measured = observation.measurement if state_filter is None else estimate.measurement
+            output = controller.step(measured, desired, dt, adapt=state_filter is None)
             v_cmd, w_cmd = float(output.v_c), float(output.w_c)
         elif coasting:
             v_cmd, w_cmd = previous

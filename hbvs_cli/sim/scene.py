@@ -41,15 +41,14 @@ class Scene:
     poster_image: np.ndarray | None = None
     run_start: float = 0.0
     run_speed: float = 1.0
-    _segment_starts: np.ndarray | None = None
+    #: Where each of ``taught_profile``'s segments starts (:meth:`~hbvs_cli.core.path.CommandProfile.segment_start_poses`).
+    taught_segment_starts: np.ndarray | None = None
 
     def taught_pose(self, t: ArrayLike) -> np.ndarray:
         """The taught robot pose at taught times ``t`` (s), in W, shape (..., 3)."""
         t = np.asarray(t, dtype=float)
         if self.taught_profile is not None:
-            if self._segment_starts is None:
-                self._segment_starts = self.taught_profile.segment_start_poses(self.taught_start)
-            return self.taught_profile.poses_at(t - self.taught_t0, self.taught_start, self._segment_starts)
+            return self.taught_profile.poses_at(t - self.taught_t0, self.taught_start, self.taught_segment_starts)
         # Real footage: the fit's trajectory at the assumed depth, (3) and (14) inverted.
         desired = self.spline.evaluate(t)
         phi = self.reference_pose[2] - np.asarray(desired.theta_d)
@@ -85,7 +84,7 @@ def simulation_world(model: FitModel, reference_image: NDArray | None, depth: fl
         return Scene(
             world=world, d_true=d_true, reference_pose=path.reference_pose,
             taught_profile=profile, taught_start=path.start_pose, taught_t0=float(path.t[0]),
-            run_start=start, run_speed=speed,
+            run_start=start, run_speed=speed, taught_segment_starts=profile.segment_start_poses(path.start_pose),
         )
     if depth is None:
         raise UsageError(

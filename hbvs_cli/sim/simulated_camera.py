@@ -73,8 +73,8 @@ class SimulatedCamera:
         self.fault_rng = np.random.default_rng([settings.seed, 1])
         self.image_rng = np.random.default_rng([settings.seed, 2])
         self.last_image: np.ndarray | None = None
+        self.detector = detector  # None with points perception
         images = settings.perception == "images"
-        self.detector = detector if images else None
         self.renderer: SceneRenderer | None = renderer_for(scene, model) if images or settings.record_images else None
 
     def _occluded(self, t: float) -> bool:
@@ -89,11 +89,10 @@ class SimulatedCamera:
         return self._observe_image(pose, t, outlier)
 
     def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
-        world = self.scene.world
         pixels = None if self._occluded(t) else self._project(pose)
         if pixels is None:
             return Observation(None, status=ObservationStatus.OCCLUDED)
-        pixels = distort_pixels(world.camera, pixels)
+        pixels = distort_pixels(self.scene.world.camera, pixels)
         if self.settings.pixel_noise > 0:
             pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
         if outlier:
@@ -190,7 +189,6 @@ class SimulatedCamera:
     def image_of(self, pose: np.ndarray) -> np.ndarray:
         """The camera image of this step (``--record-images``): the one just measured, or a
         noiseless-seeded render at ``pose`` when perception did not render one."""
-        image = self.last_image
-        if image is None or self.settings.perception != "images":
-            image = self.renderer.render(pose, np.random.default_rng(0))
-        return image
+        if self.last_image is None:  # (only perception on images keeps one)
+            return self.renderer.render(pose, np.random.default_rng(0))
+        return self.last_image

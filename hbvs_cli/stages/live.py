@@ -59,9 +59,9 @@ def write_command(stream: IO[str] | None, t: float, v: float, w: float) -> None:
 class CommandOut:
     """Where commands go: the robot's :class:`CommandSink` (or None) and/or a JSON-lines stream; zero on :meth:`stop`.
     ``stale_timeout_s``: a deadman thread replaces a non-zero command that stood this long (s) by zero, whatever the
-    loop is doing (a slow frame, a source that hangs); None for none. :meth:`close` ends it."""
+    loop is doing (a slow frame, a source that hangs). :meth:`close` ends it."""
 
-    def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float | None = None) -> None:
+    def __init__(self, publisher: CommandSink | None, stream: IO[str] | None, dry_run: bool, stale_timeout_s: float) -> None:
         self._publisher = publisher
         self._stream = stream
         self.dry_run = dry_run
@@ -72,10 +72,8 @@ class CommandOut:
         self._t = 0.0
         self._lock = threading.RLock()  # the deadman stops while holding it
         self._closed = threading.Event()
-        self._deadman: threading.Thread | None = None
-        if stale_timeout_s is not None:
-            self._deadman = threading.Thread(target=self._watch, args=(stale_timeout_s,), name="hbvs-deadman", daemon=True)
-            self._deadman.start()
+        self._deadman = threading.Thread(target=self._watch, args=(stale_timeout_s,), name="hbvs-deadman", daemon=True)
+        self._deadman.start()
 
     def send(self, t: float, v: float, w: float) -> None:
         if self.dry_run:
@@ -110,8 +108,7 @@ class CommandOut:
     def close(self) -> None:
         """End the deadman thread (after the last :meth:`stop`)."""
         self._closed.set()
-        if self._deadman is not None:
-            self._deadman.join()
+        self._deadman.join()
 
     def other_commanders(self) -> int:
         """Other writers on the command topic now (0 without a ROS 2 topic)."""
@@ -286,16 +283,16 @@ def measure(frame: Any, sight: Any, model: Any, t: float) -> Any:
 
 
 class LostWatch:
-    """--lost-timeout in a run's time (steps of ``dt`` s, or each its own): :meth:`stops` once the target
-    was lost longer, logging it on ``log``; :attr:`stopped` then says why the run stopped (else None)."""
+    """--lost-timeout in a run's time: :meth:`stops` once the target was lost longer (each step held ``dt`` s),
+    logging it on ``log``; :attr:`stopped` then says why the run stopped (else None)."""
 
-    def __init__(self, lost_timeout: float, dt: float, log: Any) -> None:
-        self.lost_timeout, self.dt, self.log = lost_timeout, dt, log
+    def __init__(self, lost_timeout: float, log: Any) -> None:
+        self.lost_timeout, self.log = lost_timeout, log
         self.lost_for = 0.0
         self.stopped: str | None = None
 
-    def stops(self, record: Any, dt: float | None = None) -> bool:
-        self.lost_for = self.lost_for + (self.dt if dt is None else dt) if record.lost else 0.0
+    def stops(self, record: Any, dt: float) -> bool:
+        self.lost_for = self.lost_for + dt if record.lost else 0.0
         if self.lost_for <= self.lost_timeout:
             return False
         self.log.event(record.t, LOG_ERROR, f"target lost for more than {self.lost_timeout:g} s: run stopped")
@@ -466,7 +463,7 @@ class LiveLoop:
     def drive(self) -> None:
         """Measure, decide and send each newest usable frame until the end or a stop (:attr:`stopped` says why)."""
         period, duration = self.period, self.duration
-        lost = LostWatch(self.settings.lost_timeout, period, self.log)
+        lost = LostWatch(self.settings.lost_timeout, self.log)
         for record in run_servo(self, self.servo):
             frame, t = self.frame, record.t
             self.log.step(record)

@@ -14,7 +14,7 @@ from typing import IO, Any
 import numpy as np
 
 from .. import __version__
-from ..core.controller import AdaptiveTrackingController, ControllerGains, lyapunov
+from ..core.controller import ControllerGains, lyapunov
 from ..core.depth import check_depth
 from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
@@ -190,24 +190,22 @@ class _StepLog:
             "residual": float(record.observation.residual),
             "V": V,
         }
-        values.update(self._filter_fields(record))
+        estimate = record.estimate
+        if estimate is None:
+            values |= {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
+                       "theta_std": None, "x_h1_std": None, "x_h2_std": None, "noise_px": None}
+        else:
+            state = estimate.measurement
+            std = estimate.std.tolist()
+            values |= {
+                "filter": estimate.outcome,
+                "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
+                "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
+                "noise_px": estimate.noise * self.model.camera.mean_focal,
+            }
         self.run.state(t, values)
         self.run.command(t, record.v_c, record.w_c, record.saturated)
         live.write_command(self.cmd_stream, t, record.v_c, record.w_c)
-
-    def _filter_fields(self, record: StepRecord) -> dict[str, Any]:
-        estimate = record.estimate
-        if estimate is None:
-            return {"filter": "", "theta_est": None, "x_h1_est": None, "x_h2_est": None,
-                    "theta_std": None, "x_h1_std": None, "x_h2_std": None, "noise_px": None}
-        state = estimate.measurement
-        std = estimate.std.tolist()
-        return {
-            "filter": estimate.outcome,
-            "theta_est": float(state.theta), "x_h1_est": float(state.x_h1), "x_h2_est": float(state.x_h2),
-            "theta_std": std[0], "x_h1_std": std[1], "x_h2_std": std[2],
-            "noise_px": estimate.noise * self.model.camera.mean_focal,
-        }
 
 
 def _note_truncated(writer: McapWriter, options: RepeatOptions, fit: FitFile, console: Console, replay: TeachReader | None = None) -> None:
@@ -290,7 +288,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
-            lost = LostWatch(settings.lost_timeout, dt, log)
+            lost = LostWatch(settings.lost_timeout, log)
             height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
             scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
@@ -305,7 +303,7 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                                   desired_pixels(model, record.desired), label)
                     tally.add(record, taught_poses[k])
                     bar.advance()
-                    if lost.stops(record):
+                    if lost.stops(record, dt):
                         break
     return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
 
@@ -326,12 +324,6 @@ class _Tally:
             values["heading_deg"] = math.degrees(float(np.angle(np.exp(1j * (record.pose[2] - taught[2])))))
         for name, value in values.items():
             self.series[name].append(float(value))
-
-    def summary(self, controller: AdaptiveTrackingController, output: str, stopped: bool) -> RepeatSummary:
-        t = self.series["t"]
-        finals = {name: final_value(t, series) for name, series in self.series.items() if t and name != "t"}
-        errors = {name: final for name, final in finals.items() if final is not None}
-        return RepeatSummary(steps=len(t), output=output, final_errors=errors, dhat=controller.dhat, stopped=stopped)
 
 
 def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: FitFile, d_true: float | None, scene: Scene | None = None) -> dict[str, Any]:
@@ -364,9 +356,11 @@ def _top_view(world: World) -> dict[str, Any]:
 def _finish(console: Console, tally: _Tally, controller: Any, output: str, settings: Settings, d_true: float | None,
             stopped: str | None) -> RepeatSummary:
     """The run's summary, printed; TargetLostError when the run was ``stopped`` (why)."""
-    summary = tally.summary(controller, output, stopped is not None)
+    t = tally.series["t"]
+    finals = {name: final_value(t, series) for name, series in tally.series.items() if t and name != "t"}
+    e = {name: final for name, final in finals.items() if final is not None}
+    summary = RepeatSummary(steps=len(t), output=output, final_errors=e, dhat=controller.dhat, stopped=stopped is not None)
     parts = [f"repeat: {summary.steps} steps ({settings.law})"]
-    e = summary.final_errors
     final = []
     if "e1" in e:
         final.append(f"|e1| {e['e1']:.3g}, |e2| {e['e2']:.3g}, |e3| {e['e3_deg']:.3g} deg")

@@ -104,9 +104,8 @@ def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
 
 class RouteSight(SegmentSwitch):
     """What ``--live`` and ``--replay`` see along a route (:class:`~.live.TargetSight`'s methods): the segment in
-    force, measured against its F*_i. Once the run time passes a switch's ``planned`` time (s), or the target is
-    lost within the overlap with the next (a robot off its path sees it leave sooner), the next segment's detector
-    looks too, and the switch is made in the first frame where it sees its whole target large enough."""
+    force, measured against its F*_i; when the next one's detector looks, and when it takes over: docs/routes.md,
+    "Repeat" (``planned``: the switches' taught times, s; a robot off its path sees a target leave sooner)."""
 
     def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
                  planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
@@ -246,7 +245,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
         log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
-        lost = tools.lost_watch(settings.lost_timeout, dt, log)
+        lost = tools.lost_watch(settings.lost_timeout, log)
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
                 log.step(record)
@@ -254,6 +253,6 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
                 run.poses(record.t, record.pose, taught, route.camera_height)
                 tally.add(record, taught)
                 bar.advance()
-                if lost.stops(record):
+                if lost.stops(record, dt):
                     break
     return tools.finish(console, tally, controller, options.output, settings, depths[-1], lost.stopped)
