@@ -44,16 +44,17 @@ class McapWriter:
             return self.channels[topic][0]
         if isinstance(message, dict) or message is None:
             schema = json.dumps(HBVS_SCHEMAS[schema_name], separators=(",", ":")).encode()
-            encoding, message_encoding = "jsonschema", "json"
-        else:
-            assert type(message).DESCRIPTOR.full_name == schema_name, (topic, schema_name)
-            schema, encoding, message_encoding = protobuf_schema(type(message)), "protobuf", "protobuf"
-        if schema_name not in self._schemas:
-            self._schemas[schema_name] = self._writer.register_schema(name=schema_name, encoding=encoding, data=schema)
-        schema_id = self._schemas[schema_name]
-        channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
-        self.channels[topic] = (channel_id, schema_name, encoding, schema, message_encoding)
-        return channel_id
+            return self._declare(topic, schema_name, "jsonschema", schema, "json")
+        assert type(message).DESCRIPTOR.full_name == schema_name, (topic, schema_name)
+        return self._declare(topic, schema_name, "protobuf", protobuf_schema(type(message)), "protobuf")
+
+    def _declare(self, topic: str, schema_name: str, encoding: str, schema: bytes, message_encoding: str) -> int:
+        if topic not in self.channels:
+            if schema_name not in self._schemas:
+                self._schemas[schema_name] = self._writer.register_schema(name=schema_name, encoding=encoding, data=schema)
+            channel_id = self._writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_name])
+            self.channels[topic] = (channel_id, schema_name, encoding, schema, message_encoding)
+        return self.channels[topic][0]
 
     def write(self, topic: str, schema_name: str, log_time_ns: int, message: Any) -> bytes:
         """Write one message (a protobuf message, or a dict encoded as JSON); returns its bytes."""
