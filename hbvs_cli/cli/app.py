@@ -25,7 +25,6 @@ from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import file_identity
 from ..io.shipped import shipped_root
-from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
 from ..settings.commands import (
@@ -289,7 +288,7 @@ def _run(args: list[str], debug: bool) -> int:
             return _pipe_closed()
         if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
             _say(f"hbvs: error: {exc}")
-        return exit_code_of(exc)
+        return exc.exit_code
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130
