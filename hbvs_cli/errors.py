@@ -1,8 +1,8 @@
 """The exceptions hbvs raises on purpose, each with its exit code (README.md, "Exit codes").
 
 Every error a user can cause is an :class:`HbvsError`: the CLI prints its message as one
-line on stderr and exits with its code (the core's :class:`DomainError` kinds are mapped in
-``hbvs_cli/cli/exit_codes.py``); anything else that escapes is a bug.
+line on stderr and exits with its code (a domain error's bad value is a bad option, 2; bad or
+too little data a bad input, 3); anything else that escapes is a bug.
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ class DomainError(HbvsError):
 
 class InvalidValueError(DomainError):
     """A value outside its domain: a gain or a depth that is not positive, an unknown name."""
+
+    exit_code = 2
 
 
 class MalformedDataError(DomainError):

@@ -11,7 +11,6 @@ import pytest
 
 from conftest import REPO
 from hbvs_cli import errors
-from hbvs_cli.cli.exit_codes import exit_code_of
 from hbvs_cli.core.camera import DEFAULT_CAMERA
 from hbvs_cli.core.controller import AdaptiveTrackingController, ControllerGains
 from hbvs_cli.core.desired import fit_desired_trajectory
@@ -44,7 +43,7 @@ def test_core_raises_only_domain_errors():
 ])
 def test_the_cli_maps_each_kind_to_its_exit_code(error, code):
     assert isinstance(error, errors.HbvsError)
-    assert exit_code_of(error) == code
+    assert error.exit_code == code
 
 
 def test_domain_errors_from_the_core():

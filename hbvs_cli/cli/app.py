@@ -25,11 +25,10 @@ from ..io.limits import set_limits
 from ..io.native_log import capture
 from ..io.output_target import file_identity
 from ..io.shipped import shipped_root
-from .exit_codes import exit_code_of
 from ..stages.console import Console
 from ..sweep.parameters import parameter_names_text
 from ..settings.commands import (
-    ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions, TeachFields,
+    ExportOptions, FitOptions, InfoOptions, RepeatOptions, ReportOptions, RobotSimOptions, SweepOptions, TeachOptions,
 )
 from ..settings.option import options_from_command_line, settings_of
 from .parsing import HbvsGroup, one_line_usage_error, split_debug, unquoted_glob_hint
@@ -90,7 +89,7 @@ def _stdin_is_an_empty_pipe() -> bool:
         return False
 
 
-def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
+def _run_stage(stage: str, options_class: type, values: dict[str, Any]) -> None:
     """``run_<stage>`` of ``hbvs_cli.stages.<stage>``, imported only now; a non-zero int return is the exit code.
     A stage whose stdin input is an empty pipe stops with :class:`UpstreamFailedError` (one error line per pipeline)."""
     reads_stdin = any(value == "-" or (isinstance(value, (list, tuple)) and "-" in value)
@@ -99,43 +98,42 @@ def _run_stage(stage: str, options_class: str, values: dict[str, Any]) -> None:
         raise UpstreamFailedError("stdin: the pipe closed without data: the command before this one failed")
     module = importlib.import_module(f"hbvs_cli.stages.{stage}")
     quiet = values.pop("quiet", False)
-    options = options_from_command_line(getattr(module, options_class), values)
+    options = options_from_command_line(options_class, values)
     code = getattr(module, f"run_{stage}")(options, Console(quiet))
     if isinstance(code, int) and code:
         raise typer.Exit(code)
 
 
-#: Each stage's command: name, help panel, its declared options, its stage module's options class, extra options, help.
+#: Each stage's command: name, help panel, its options class, extra options, help.
 STAGE_COMMANDS = (
-    ("teach", "Pipeline", TeachFields, "TeachOptions", (_quiet("progress or messages"),),
+    ("teach", "Pipeline", TeachOptions, (_quiet("progress or messages"),),
      "Record a taught run into MCAP: images, calibration, commands, ground truth (sim)."),
-    ("fit", "Pipeline", FitOptions, "FitOptions", (_quiet("progress or summary"),),
+    ("fit", "Pipeline", FitOptions, (_quiet("progress or summary"),),
      "Fit the desired trajectory (Remark 1): H_d per frame, (theta_d, x_hd), splines, n*, d*."),
-    ("repeat", "Pipeline", RepeatOptions, "RepeatOptions", (_quiet("progress or summary"),),
+    ("repeat", "Pipeline", RepeatOptions, (_quiet("progress or summary"),),
      "Track the fitted trajectory: closed loop with a robot (--live) or in simulation (--sim), or open loop on a recording (--replay)."),
-    ("robot-sim", "Robot", RobotSimOptions, "RobotSimOptions", (_quiet("progress or messages"),),
+    ("robot-sim", "Robot", RobotSimOptions, (_quiet("progress or messages"),),
      "A stand-in robot in its own process: ROS 2 camera and /cmd_vel, for trying repeat --live."),
-    ("report", "Pipeline", ReportOptions, "ReportOptions", (),
+    ("report", "Pipeline", ReportOptions, (),
      "How well did the repeat follow the taught path, and did it converge?"),
-    ("export", "Pipeline", ExportOptions, "ExportOptions", (_quiet("summary"),),
+    ("export", "Pipeline", ExportOptions, (_quiet("summary"),),
      "Write an hbvs file as a ROS 2 bag: /cmd_vel, poses, the taught path, /tf, images and CameraInfo."),
-    ("info", "Files", InfoOptions, "InfoOptions", (),
+    ("info", "Files", InfoOptions, (),
      "What a file holds: kind, duration, frames, target, settings, and every topic with its message count and schema."),
-    ("sweep", "Studies", SweepOptions, "SweepOptions", (_quiet("progress or messages"),),
+    ("sweep", "Studies", SweepOptions, (_quiet("progress or messages"),),
      "Run many closed-loop repeats over a grid or samples of parameters, on Dask; summarize convergence.\n\n"
      f"Parameters of --vary and --set (unit or values): {parameter_names_text()}."),
 )
 
 
-def _add_stage_command(name: str, panel: str, declared: type, options_class: str, extra: tuple[inspect.Parameter, ...],
-                       help_text: str) -> None:
+def _add_stage_command(name: str, panel: str, options_class: type, extra: tuple[inspect.Parameter, ...], help_text: str) -> None:
     stage = name.replace("-", "_")
 
     def command(**values: Any) -> None:
         _run_stage(stage, options_class, values)
 
     command.__name__, command.__doc__ = stage, help_text
-    app.command(name, rich_help_panel=panel)(with_settings(command, settings_of(declared), *extra))
+    app.command(name, rich_help_panel=panel)(with_settings(command, settings_of(options_class), *extra))
 
 
 for _command in STAGE_COMMANDS:
@@ -289,7 +287,7 @@ def _run(args: list[str], debug: bool) -> int:
             return _pipe_closed()
         if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
             _say(f"hbvs: error: {exc}")
-        return exit_code_of(exc)
+        return exc.exit_code
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130

@@ -35,8 +35,7 @@ def typer_parameter(setting: Setting) -> inspect.Parameter:
 def with_settings(function: Callable[..., Any], settings: tuple[Setting, ...],
                   *extra: inspect.Parameter) -> Callable[..., Any]:
     """The ``**values`` command ``function``, given the parameters of ``settings`` (then ``extra``)."""
-    parameters = [typer_parameter(s) for s in settings if s.argument]
-    parameters += [typer_parameter(s) for s in settings if not s.argument]
+    parameters = [typer_parameter(s) for s in sorted(settings, key=lambda s: not s.argument)]
     parameters += [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in extra]
     function.__signature__ = inspect.Signature(parameters, return_annotation=None)  # type: ignore[attr-defined]
     return function

@@ -4,10 +4,11 @@ Precedence: built-in default < ``--config`` file < command line. Kept light: ``h
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from ..errors import UsageError
 from ..core.control_settings import ALL_LAWS, DEFAULT_PRESET, FILTER_EKF, FILTERS, GAIN_UNITS, LAW_LATERAL_GAIN, ControllerGains
 from ..io.topics import ROS_CMD_VEL_TOPIC, ROS_LIVE_IMAGE_TOPIC
 from .option import Options, option, settings_of, shown
@@ -40,7 +41,7 @@ def registered_laws() -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class TeachFields(Options):
+class TeachOptions(Options):
     """Everything ``hbvs teach`` was asked to do (see ``hbvs teach --help``)."""
 
     output: str = option(OUTPUT_HELP, default="teach.mcap", flags=("-o", "--output"))
@@ -90,9 +91,24 @@ class TeachFields(Options):
     jpeg_quality: int = option("JPEG quality of the frames hbvs compresses.", default=90, flags=("--quality",),
         bounds={"min": 1, "max": 100})
 
+    def source_kind(self) -> str:
+        """The one source asked for (``sim`` when none is)."""
+        given = [name for name, value in (("video", self.video), ("images", self.images), ("camera", self.camera), ("bag", self.bag),
+                                          ("ros2", self.ros2_image)) if value is not None]
+        if self.sim:
+            given.insert(0, "sim")
+        if len(given) > 1:
+            raise UsageError(f"give exactly one source, got {', '.join('--' + g for g in given)}")
+        return given[0] if given else "sim"
 
-#: The fields of ``hbvs teach``'s options (the stage's ``TeachOptions`` adds its methods).
-TEACH_SETTINGS = settings_of(TeachFields)
+    def for_simulation(self) -> TeachOptions:
+        """These options with the simulation's defaults filled in where none was given."""
+        missing = {name: value for name, value in SIMULATION_DEFAULTS.items() if getattr(self, name) is None}
+        return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
+
+
+#: The fields of ``hbvs teach``'s options.
+TEACH_SETTINGS = settings_of(TeachOptions)
 #: The simulated robot's and camera's options and their defaults (a recorded source refuses them).
 SIMULATION_DEFAULTS: dict[str, Any] = {s.name: s.fallback for s in TEACH_SETTINGS if s.panel == "Simulation"}
 

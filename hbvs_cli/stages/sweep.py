@@ -104,46 +104,44 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
     """Run (or resume) a sweep, then print its summary."""
     plan, spec, table, tasks = prepare(options)
     try:
-        return _run_prepared(options, plan, spec, table, tasks, console)
+        remaining = tasks.remaining()
+        console.info(
+            f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
+            f"{', '.join(plan.swept)}; {plan.runs - remaining} already done -> {options.output}/"
+        )
+        if remaining:
+            key = hashlib.sha256(tasks.fit_path.encode() + repr(spec.as_dict()).encode()).hexdigest()[:12]
+            failures = 0
+            started = time.monotonic()
+            dashboard = dashboard_address(options.dashboard)
+            with dask_client(options.scheduler, options.cluster, options.workers, dashboard=dashboard) as client, \
+                    console.progress("sweep", remaining, "runs, {task.fields[failed]} failed", failed=0) as progress:
+                if dashboard is not None:
+                    console.info(f"sweep: Dask dashboard at {client.dashboard_link} "
+                                 "(no authentication: anyone who reaches it sees the workers)")
+                workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
+                in_flight = max(4 * workers, 8)
+
+                def on_row(row: dict[str, Any]) -> None:
+                    nonlocal failures
+                    table.append(row)
+                    failures += row["status"] == "failed"
+                    progress.advance(failed=failures)
+
+                try:
+                    done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}",
+                                     total=remaining)
+                except BaseException:
+                    # Keep every finished row: the same command resumes.
+                    table.close()
+                    raise
+            elapsed = time.monotonic() - started
+            console.info(f"sweep: {done} runs in {elapsed:.1f} s ({done / max(elapsed, 1e-9):.2f} runs/s on {workers} workers), "
+                         f"{failures} failed")
+        finish(options, table, console)
+        return 0
     finally:
         table.release()
-
-
-def _run_prepared(options: SweepOptions, plan: SweepPlan, spec: SweepSpec, table: ResultsTable, tasks: SweepTasks,
-                  console: Console) -> int:
-    remaining = tasks.remaining()
-    console.info(
-        f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
-        f"{', '.join(plan.swept)}; {plan.runs - remaining} already done -> {options.output}/"
-    )
-    if remaining:
-        key = hashlib.sha256(tasks.fit_path.encode() + repr(spec.as_dict()).encode()).hexdigest()[:12]
-        failures = 0
-        started = time.monotonic()
-        dashboard = dashboard_address(options.dashboard)
-        with dask_client(options.scheduler, options.cluster, options.workers, dashboard=dashboard) as client, \
-                console.progress("sweep", remaining, "runs, {task.fields[failed]} failed", failed=0) as progress:
-            if dashboard is not None:
-                console.info(f"sweep: Dask dashboard at {client.dashboard_link} (no authentication: anyone who reaches it sees the workers)")
-            workers = len(client.scheduler_info().get("workers", {})) or options.workers or default_workers()
-            in_flight = max(4 * workers, 8)
-
-            def on_row(row: dict[str, Any]) -> None:
-                nonlocal failures
-                table.append(row)
-                failures += row["status"] == "failed"
-                progress.advance(failed=failures)
-
-            try:
-                done = run_tasks(client, tasks, execute_run, on_row, failed_row, in_flight, f"hbvs-sweep-{key}", total=remaining)
-            except BaseException:
-                # Keep every finished row: the same command resumes.
-                table.close()
-                raise
-        elapsed = time.monotonic() - started
-        console.info(f"sweep: {done} runs in {elapsed:.1f} s ({done / max(elapsed, 1e-9):.2f} runs/s on {workers} workers), {failures} failed")
-    finish(options, table, console)
-    return 0
 
 
 def finish(options: SweepOptions, table: ResultsTable, console: Console) -> None:

@@ -26,7 +26,7 @@ from ..io.dds_discovery import dds_settings
 from ..io.output_target import refuse_overwriting_inputs
 from ..io.path_csv import load_command_profile
 from ..io.ros2_names import check_topic_names
-from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachFields
+from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachOptions
 from ..io.teach_file import TeachWriter
 from ..io.video_out import check_video_path, video_output
 from ..sim.render import make_renderer
@@ -40,38 +40,20 @@ TEACH_CHUNK_BYTES = 512 * 1024
 SOURCE_SETTINGS = ("calibration", "fps", "duration", "image_format", "jpeg_quality", "gray")
 
 
-class TeachOptions(TeachFields):
-    """Everything ``hbvs teach`` was asked to do (:data:`~hbvs_cli.settings.commands.TEACH_SETTINGS`)."""
-
-    def source_kind(self) -> str:
-        """The one source asked for (``sim`` when none is)."""
-        given = [name for name, value in (("video", self.video), ("images", self.images), ("camera", self.camera), ("bag", self.bag),
-                                          ("ros2", self.ros2_image)) if value is not None]
-        if self.sim:
-            given.insert(0, "sim")
-        if len(given) > 1:
-            raise UsageError(f"give exactly one source, got {', '.join('--' + g for g in given)}")
-        return given[0] if given else "sim"
-
-    def for_simulation(self) -> TeachOptions:
-        """These options with the simulation's defaults filled in where none was given."""
-        missing = {name: value for name, value in SIMULATION_DEFAULTS.items() if getattr(self, name) is None}
-        return replace(self, **missing, fps=DEFAULT_FPS if self.fps is None else self.fps)
-
-    def settings(self) -> dict[str, Any]:
-        """The options recorded in the teach file's metadata: a simulated teach's all, a recorded source's only those that apply to it."""
-        recorded = recorded_settings(self)
-        kind = self.source_kind()
-        if kind == "sim":
-            # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim. The extra outputs are
-            # left out, as the output is: the same drive, the same bytes. A route brings its own path and targets; without
-            # one, a single target's bytes are as before routes.
-            left_out = {"cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out"} | (
-                {"path", "target", "dots", "texture"} if self.route is not None else {"route"})
-            return {**{key: value for key, value in recorded.items() if key not in left_out}, "sim": True}
-        keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
-            {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
-        return {key: value for key, value in recorded.items() if key in keep}
+def _recorded(options: TeachOptions) -> dict[str, Any]:
+    """The options recorded in the teach file's metadata: a simulated teach's all, a recorded source's only those that apply to it."""
+    recorded = recorded_settings(options)
+    kind = options.source_kind()
+    if kind == "sim":
+        # Simulated frames are gray whatever --gray says; "sim" is true with or without --sim. The extra outputs are
+        # left out, as the output is: the same drive, the same bytes. A route brings its own path and targets; without
+        # one, a single target's bytes are as before routes.
+        left_out = {"cmd_topic", "gray", "ros2_image", "ros2_cmd", "video_out", "calibration_out"} | (
+            {"path", "target", "dots", "texture"} if options.route is not None else {"route"})
+        return {**{key: value for key, value in recorded.items() if key not in left_out}, "sim": True}
+    keep = {kind, *SOURCE_SETTINGS} | ({"topic", "cmd_topic"} if kind == "bag" else set()) | (
+        {"ros2_image", "ros2_cmd"} if kind == "ros2" else set())
+    return {key: value for key, value in recorded.items() if key in keep}
 
 
 def run_teach(options: TeachOptions, console: Console) -> None:
@@ -158,7 +140,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
             f"(first at t = {out_of_view[0]:.2f} s); fit will leave those frames out"
         )
     rng = np.random.default_rng(options.seed)
-    settings = options.settings() | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
+    settings = _recorded(options) | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
     if options.video_out is not None:
         check_video_path(options.video_out)
     with ExitStack() as outputs:
@@ -231,7 +213,7 @@ def _teach_from_source(kind: str, options: TeachOptions, console: Console) -> No
     last_t = 0.0
     interrupted = False
     with open_output(options.output, chunk_size=TEACH_CHUNK_BYTES) as writer:
-        teach = TeachWriter(writer, kind, options.settings() | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
+        teach = TeachWriter(writer, kind, _recorded(options) | {"source": source.describe()}, frame_id=getattr(source, "frame_id", None))
         with console.progress(f"teach ({kind})", source.describe().get("frames")) as bar:
             iterator: Iterator[sources.SourceFrame] = iter(source)
             try:
