@@ -5,25 +5,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from ..core.frames import yaw_to_quaternion
 from ..errors import InputError, UsageError
-from ..io.mcap import McapStream
-from ..io.run_file import TRUE_POSE_TOPIC, RunData
+from ..io.run_file import RunData
 
 #: Suffixes of the two files written per run.
 TAUGHT_SUFFIX = ".taught.tum"
 REPEATED_SUFFIX = ".repeated.tum"
-
-
-def camera_height_m(source: Any, name: str = "") -> float | None:
-    """The camera's height (m): the z of a run file's first ground-truth pose (None without one)."""
-    for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
-        return float(message.foxglove(name).pose.position.z)
-    return None
 
 
 def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
@@ -57,9 +49,9 @@ def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
     return directory / f"{stem}{TAUGHT_SUFFIX}", directory / f"{stem}{REPEATED_SUFFIX}"
 
 
-def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Path]:
-    """Write a run's taught and repeated trajectories into ``directory`` (created if needed; the run
-    passed :func:`check_exportable`); both paths."""
+def write_tum(run: RunData, directory: Path) -> tuple[Path, Path]:
+    """Write a run's taught and repeated trajectories, at its camera height, into ``directory``
+    (created if needed; the run passed :func:`check_exportable`); both paths."""
     from ..io.output_target import write_output_bytes
 
     try:
@@ -69,6 +61,6 @@ def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Pat
     paths = tum_paths(run, directory)
     t = run.state["t"]
     for path, poses in zip(paths, (run.desired_pose, run.true_pose)):
-        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *tum_lines(t, poses, height_m)]) + "\n"
+        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *tum_lines(t, poses, run.camera_height)]) + "\n"
         write_output_bytes(path, text.encode("utf-8"), "TUM trajectory")
     return paths
