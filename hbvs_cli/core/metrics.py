@@ -169,13 +169,8 @@ def round_significant(value: Any, digits: int) -> Any:
 
 def command_smoothness(t: ArrayLike, v: ArrayLike, w: ArrayLike, max_v: float | None = None, max_w: float | None = None,
                        max_accel: float | None = None) -> dict[str, float | None]:
-    """How smooth a command stream is (docs/report.md, ``commands``).
-
-    ``v``, ``w`` in m/s, rad/s and the actuator limits (None: unlimited). Returns the total
-    variation per second (``*_tv_per_s``), the RMS rate of change (``dv_dt_rms_mps2``,
-    ``dw_dt_rms_radps2``) and the share of steps at a bound within 0.1 %
-    (``at_limit_fraction``); None with fewer than two samples.
-    """
+    """How smooth a command stream ``v``, ``w`` (m/s, rad/s) is under the actuator limits (None:
+    unlimited): the :data:`SMOOTHNESS` values (docs/report.md, ``commands``), None with fewer than two samples."""
     t = np.asarray(t, dtype=float)
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)

@@ -97,15 +97,9 @@ class Depth(Section):
     warning: str | None
 
 
-@dataclass(frozen=True)
-class Limits(Section):
-    """The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited."""
-
-    max_v: float | None
-    max_w: float | None
-    max_accel: float | None
-
-
+Limits = _section(
+    "Limits", "The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited.", "max_v", "max_w", "max_accel",
+)
 TaughtSmoothness = _section(
     "TaughtSmoothness", "How smooth the taught commands (25) are: total variations and RMS rates of change.", *SMOOTHNESS[:4],
 )
