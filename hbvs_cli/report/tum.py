@@ -7,8 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
-
 from ..core.frames import yaw_to_quaternion
 from ..errors import InputError, UsageError
 from ..io.run_file import RunData
@@ -34,15 +32,6 @@ def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
         seen[taught] = run.name
 
 
-def tum_lines(t: np.ndarray, poses: np.ndarray, height_m: float) -> list[str]:
-    """TUM lines of planar poses (K, 3) at times ``t`` (s), at the constant z ``height_m``."""
-    quaternions = yaw_to_quaternion(poses[:, 2])
-    return [
-        f"{stamp:.9f} {x:.9f} {y:.9f} {height_m:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
-        for stamp, x, y, q in zip(t, poses[:, 0], poses[:, 1], quaternions)
-    ]
-
-
 def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
     """Where a run's taught and repeated trajectories go: ``<run-stem>.taught.tum`` and ``.repeated.tum``."""
     stem = Path(run.name).stem or "run"
@@ -59,8 +48,10 @@ def write_tum(run: RunData, directory: Path) -> tuple[Path, Path]:
     except OSError as exc:
         raise InputError(f"{directory}: cannot create the folder for --export-tum ({exc.strerror})") from None
     paths = tum_paths(run, directory)
-    t = run.state["t"]
-    for path, poses in zip(paths, (run.desired_pose, run.true_pose)):
-        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *tum_lines(t, poses, run.camera_height)]) + "\n"
+    z = run.camera_height
+    for path, poses in zip(paths, (run.desired_pose, run.true_pose)):  # planar poses (K, 3), one line each
+        lines = [f"{stamp:.9f} {x:.9f} {y:.9f} {z:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+                 for stamp, x, y, q in zip(run.state["t"], poses[:, 0], poses[:, 1], yaw_to_quaternion(poses[:, 2]))]
+        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *lines]) + "\n"
         write_output_bytes(path, text.encode("utf-8"), "TUM trajectory")
     return paths
