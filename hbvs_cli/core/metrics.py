@@ -18,6 +18,10 @@ V_INCREASE_RELATIVE = 1e-9
 
 #: Names of the statistics :func:`error_summary` returns, in order.
 STATISTICS = ("rmse", "mean", "median", "std", "min", "max", "initial", "final", "settling_time_s")
+#: Names of what :func:`lyapunov_summary` returns, in order.
+LYAPUNOV = ("initial", "final", "ratio", "increase_fraction")
+#: Names of what :func:`command_smoothness` returns, in order.
+SMOOTHNESS = ("v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2", "at_limit_fraction")
 
 
 def _optional(value: float | np.floating | None) -> float | None:
@@ -89,7 +93,7 @@ def lyapunov_summary(V: ArrayLike, relative: float = V_INCREASE_RELATIVE) -> dic
     V = np.asarray(V, dtype=float)
     finite = V[np.isfinite(V)]
     if finite.size == 0:
-        return dict.fromkeys(("initial", "final", "ratio", "increase_fraction"))
+        return dict.fromkeys(LYAPUNOV)
     initial, final = float(finite[0]), float(finite[-1])
     # Pairs that straddle a lost stretch are skipped: across it the law did not run.
     both = np.isfinite(V[:-1]) & np.isfinite(V[1:])
@@ -165,21 +169,15 @@ def round_significant(value: Any, digits: int) -> Any:
 
 def command_smoothness(t: ArrayLike, v: ArrayLike, w: ArrayLike, max_v: float | None = None, max_w: float | None = None,
                        max_accel: float | None = None) -> dict[str, float | None]:
-    """How smooth a command stream is (docs/report.md, ``commands``).
-
-    ``v``, ``w`` in m/s, rad/s and the actuator limits (None: unlimited). Returns the total
-    variation per second (``*_tv_per_s``), the RMS rate of change (``dv_dt_rms_mps2``,
-    ``dw_dt_rms_radps2``) and the share of steps at a bound within 0.1 %
-    (``at_limit_fraction``); None with fewer than two samples.
-    """
+    """How smooth a command stream ``v``, ``w`` (m/s, rad/s) is under the actuator limits (None:
+    unlimited): the :data:`SMOOTHNESS` values (docs/report.md, ``commands``), None with fewer than two samples."""
     t = np.asarray(t, dtype=float)
     v = np.asarray(v, dtype=float)
     w = np.asarray(w, dtype=float)
     keep = np.isfinite(t) & np.isfinite(v) & np.isfinite(w)
     t, v, w = t[keep], v[keep], w[keep]
-    names = ("v_tv_per_s", "w_tv_per_s", "dv_dt_rms_mps2", "dw_dt_rms_radps2", "at_limit_fraction")
     if t.size < 2 or not t[-1] > t[0]:
-        return dict.fromkeys(names)
+        return dict.fromkeys(SMOOTHNESS)
     dt = np.diff(t)
     dv, dw = np.diff(v), np.diff(w)
     duration = float(t[-1] - t[0])

@@ -40,7 +40,8 @@ TIMING_FIELDS = ("t", "frame_stamp", "latency_s", "frame_interval_s", "dropped",
 class RunData:
     """A whole run as arrays over its K control steps: ``state`` maps :data:`STATE_FIELDS` to (K,)
     (NaN for null); ``saturated``, ``lost``, ``dropped`` (K,) bool; ``true_pose`` and ``desired_pose``
-    (K, 3) (x, y, phi) in m, m, rad for ``--sim`` runs; ``timing`` a live run's :data:`TIMING_FIELDS`."""
+    (K, 3) (x, y, phi) in m, m, rad for ``--sim`` runs, ``camera_height`` (m) the z of the first true pose;
+    ``timing`` a live run's :data:`TIMING_FIELDS`."""
 
     name: str
     info: dict[str, Any]
@@ -54,6 +55,7 @@ class RunData:
     truncated: bool = False
     dropped: np.ndarray | None = None
     timing: dict[str, np.ndarray] | None = None
+    camera_height: float | None = None
 
     @property
     def steps(self) -> int:
@@ -107,6 +109,7 @@ def read_run(source: Any, name: str = "") -> RunData:
     step_times: list[int] = []
     events: list[tuple[int, int, str]] = []
     timing: dict[str, list[float]] = {key: [] for key in TIMING_FIELDS}
+    height: float | None = None
     for message in stream:
         if message.topic == STATE_TOPIC:
             data = message.json(stream.name)
@@ -121,7 +124,10 @@ def read_run(source: Any, name: str = "") -> RunData:
                 raise RecordingError(f"{stream.name}: malformed controller state message ({exc})") from None
             step_times.append(message.log_time)
         elif message.topic in poses:
-            poses[message.topic][message.log_time] = planar_pose_from_message(message.foxglove(stream.name), stream.name)
+            pose = message.foxglove(stream.name)
+            poses[message.topic][message.log_time] = planar_pose_from_message(pose, stream.name)
+            if message.topic == TRUE_POSE_TOPIC and height is None:
+                height = float(pose.pose.position.z)
         elif message.topic == EVENTS_TOPIC:
             log = message.foxglove(stream.name)
             events.append((message.log_time, int(log.level), log.message))
@@ -163,6 +169,7 @@ def read_run(source: Any, name: str = "") -> RunData:
         lost_reason=reasons, true_pose=aligned(TRUE_POSE_TOPIC), desired_pose=aligned(DESIRED_POSE_TOPIC),
         events=events, truncated=stream.truncated, dropped=np.array(dropped, dtype=bool),
         timing={key: np.array(values, dtype=float) for key, values in timing.items()} if timing["t"] else None,
+        camera_height=height,
     )
 
 

@@ -1,13 +1,8 @@
 """The metrics of one run: :func:`build_report` computes the :class:`~.result.RunReport`
-that ``hbvs report`` prints (docs/report.md documents every field and unit).
-
-Convergence rule (:func:`verdict`). A run has converged when (1) it was closed-loop (a
-replay never converged: nothing moved); (2) it finished (complete file, not stopped for a
-lost target); (3) every final error (mean |error| over the last 5 %) is within its
-tolerance: ``position_m`` and ``heading_deg`` with ground truth, else ``e1``, ``e2``,
-``e3``; (4) ``V_final / V(0) <`` :data:`V_RATIO_BOUND` when V is known (it needs the true
-d*); (5) the RMS of dv/dt and dw/dt is at most :func:`smoothness_bound` (a chattering robot
-has not converged). The tolerances (:data:`DEFAULT_TOLERANCES`) also band the settling times.
+that ``hbvs report`` prints. docs/report.md documents every field and unit, and the
+convergence rule of :func:`verdict` ("Convergence rule"), whose bounds are
+:data:`DEFAULT_TOLERANCES` (which also band the settling times), :data:`V_RATIO_BOUND` and
+:func:`smoothness_bound`.
 """
 
 from __future__ import annotations
@@ -203,7 +198,7 @@ def run_limits(run: RunData) -> Limits:
     """The run's actuator limits (``settings.limits``); None where unlimited."""
     limits = ((run.info.get("settings") or {}).get("limits")) or {}
     return Limits(**{name: (float(limits[name]) if isinstance(limits.get(name), (int, float)) and limits[name] > 0 else None)
-                     for name in ("max_v", "max_w", "max_accel")})
+                     for name in Limits.__dataclass_fields__})
 
 
 def _commands(run: RunData) -> Commands:
@@ -311,7 +306,7 @@ def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
 
 def verdict(run: RunData, errors: Mapping[str, ErrorSummary], pose_error: Mapping[str, ErrorSummary] | None,
             lyapunov: Lyapunov, commands: Commands, tolerances: Mapping[str, float]) -> Verdict:
-    """Whether the run converged (this module's rule), with a ``pass``, ``fail`` or ``skip`` line per check."""
+    """Whether the run converged (docs/report.md's rule), with a ``pass``, ``fail`` or ``skip`` line per check."""
     checks: dict[str, tuple[bool | None, str]] = {}
     if run.info.get("mode") == "replay":
         checks["closed_loop"] = _check(False, "open-loop replay: the commands were computed on the recorded frames, not "

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, make_dataclass
 from typing import Any, Mapping
 
-from ..core.metrics import STATISTICS, round_significant
+from ..core.metrics import LYAPUNOV, SMOOTHNESS, STATISTICS, round_significant
 
 #: Significant digits of every number in a report (float noise is not a measurement).
 REPORT_DIGITS = 7
@@ -66,21 +66,20 @@ class RunSummary(Section):
     truncated: bool
 
 
+def _section(name: str, doc: str, *fields: str | tuple[str, Any]) -> Any:
+    """A :class:`Section` class with ``fields`` in order: a bare name is a ``float | None`` field."""
+    return make_dataclass(
+        name, [(field, float | None) if isinstance(field, str) else field for field in fields], bases=(Section,), frozen=True,
+        namespace={"__module__": __name__, "__doc__": doc},
+    )
+
+
 #: A field per statistic of :data:`hbvs_cli.core.metrics.STATISTICS`, in its order.
-ErrorSummary = make_dataclass(
-    "ErrorSummary", [(name, float | None) for name in STATISTICS], bases=(Section,), frozen=True,
-    namespace={"__module__": __name__, "__doc__": "The statistics of one error signal in its unit; None when unknown."},
+ErrorSummary = _section("ErrorSummary", "The statistics of one error signal in its unit; None when unknown.", *STATISTICS)
+Lyapunov = _section(
+    "Lyapunov", "The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; "
+    "None without the true d*.", *LYAPUNOV,
 )
-
-
-@dataclass(frozen=True)
-class Lyapunov(Section):
-    """The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; None without the true d*."""
-
-    initial: float | None
-    final: float | None
-    ratio: float | None
-    increase_fraction: float | None
 
 
 @dataclass(frozen=True)
@@ -98,41 +97,17 @@ class Depth(Section):
     warning: str | None
 
 
-@dataclass(frozen=True)
-class Limits(Section):
-    """The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited."""
-
-    max_v: float | None
-    max_w: float | None
-    max_accel: float | None
-
-
-@dataclass(frozen=True)
-class TaughtSmoothness(Section):
-    """How smooth the taught commands (25) are: total variations and RMS rates of change."""
-
-    v_tv_per_s: float | None
-    w_tv_per_s: float | None
-    dv_dt_rms_mps2: float | None
-    dw_dt_rms_radps2: float | None
-
-
-@dataclass(frozen=True)
-class Commands(Section):
-    """The commands (29), (30): peaks, RMS, saturation and smoothness against the taught ones."""
-
-    v_peak_mps: float | None
-    v_rms_mps: float | None
-    w_peak_radps: float | None
-    w_rms_radps: float | None
-    saturated_fraction: float
-    v_tv_per_s: float | None
-    w_tv_per_s: float | None
-    dv_dt_rms_mps2: float | None
-    dw_dt_rms_radps2: float | None
-    at_limit_fraction: float | None
-    limits: Limits
-    taught: TaughtSmoothness
+Limits = _section(
+    "Limits", "The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited.", "max_v", "max_w", "max_accel",
+)
+TaughtSmoothness = _section(
+    "TaughtSmoothness", "How smooth the taught commands (25) are: total variations and RMS rates of change.", *SMOOTHNESS[:4],
+)
+Commands = _section(
+    "Commands", "The commands (29), (30): peaks, RMS, saturation and smoothness against the taught ones.",
+    "v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", ("saturated_fraction", float), *SMOOTHNESS,
+    ("limits", Limits), ("taught", TaughtSmoothness),
+)
 
 
 @dataclass(frozen=True)

@@ -5,25 +5,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
-
-import numpy as np
+from typing import Sequence
 
 from ..core.frames import yaw_to_quaternion
 from ..errors import InputError, UsageError
-from ..io.mcap import McapStream
-from ..io.run_file import TRUE_POSE_TOPIC, RunData
+from ..io.run_file import RunData
 
 #: Suffixes of the two files written per run.
 TAUGHT_SUFFIX = ".taught.tum"
 REPEATED_SUFFIX = ".repeated.tum"
-
-
-def camera_height_m(source: Any, name: str = "") -> float | None:
-    """The camera's height (m): the z of a run file's first ground-truth pose (None without one)."""
-    for message in McapStream(source, topics={TRUE_POSE_TOPIC}, name=name):
-        return float(message.foxglove(name).pose.position.z)
-    return None
 
 
 def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
@@ -42,24 +32,15 @@ def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
         seen[taught] = run.name
 
 
-def tum_lines(t: np.ndarray, poses: np.ndarray, height_m: float) -> list[str]:
-    """TUM lines of planar poses (K, 3) at times ``t`` (s), at the constant z ``height_m``."""
-    quaternions = yaw_to_quaternion(poses[:, 2])
-    return [
-        f"{stamp:.9f} {x:.9f} {y:.9f} {height_m:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
-        for stamp, x, y, q in zip(t, poses[:, 0], poses[:, 1], quaternions)
-    ]
-
-
 def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
     """Where a run's taught and repeated trajectories go: ``<run-stem>.taught.tum`` and ``.repeated.tum``."""
     stem = Path(run.name).stem or "run"
     return directory / f"{stem}{TAUGHT_SUFFIX}", directory / f"{stem}{REPEATED_SUFFIX}"
 
 
-def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Path]:
-    """Write a run's taught and repeated trajectories into ``directory`` (created if needed; the run
-    passed :func:`check_exportable`); both paths."""
+def write_tum(run: RunData, directory: Path) -> tuple[Path, Path]:
+    """Write a run's taught and repeated trajectories, at its camera height, into ``directory``
+    (created if needed; the run passed :func:`check_exportable`); both paths."""
     from ..io.output_target import write_output_bytes
 
     try:
@@ -67,8 +48,10 @@ def write_tum(run: RunData, directory: Path, height_m: float) -> tuple[Path, Pat
     except OSError as exc:
         raise InputError(f"{directory}: cannot create the folder for --export-tum ({exc.strerror})") from None
     paths = tum_paths(run, directory)
-    t = run.state["t"]
-    for path, poses in zip(paths, (run.desired_pose, run.true_pose)):
-        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *tum_lines(t, poses, height_m)]) + "\n"
+    z = run.camera_height
+    for path, poses in zip(paths, (run.desired_pose, run.true_pose)):  # planar poses (K, 3), one line each
+        lines = [f"{stamp:.9f} {x:.9f} {y:.9f} {z:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+                 for stamp, x, y, q in zip(run.state["t"], poses[:, 0], poses[:, 1], yaw_to_quaternion(poses[:, 2]))]
+        text = "\n".join(["# timestamp tx ty tz qx qy qz qw", *lines]) + "\n"
         write_output_bytes(path, text.encode("utf-8"), "TUM trajectory")
     return paths

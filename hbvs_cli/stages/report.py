@@ -54,31 +54,28 @@ def check_labels(labels: Sequence[str], runs: Sequence[str]) -> None:
         raise UsageError("--label: a label cannot be empty")
 
 
-def read_runs(sources: Sequence[str], need_height: bool) -> list[tuple[Any, float | None]]:
-    """Every run, with its camera height (m) when ``need_height``; a fit file as its :class:`~hbvs_cli.report.fit_plot.FitSignals`."""
+def read_runs(sources: Sequence[str]) -> list[Any]:
+    """Every run (:class:`~hbvs_cli.io.run_file.RunData`); a fit file as its :class:`~hbvs_cli.report.fit_plot.FitSignals`."""
     from ..io.run_file import NotARunFile, read_run
     from ..report.fit_plot import read_fit_signals
-    from ..report.tum import camera_height_m
 
     if not sources:
         raise UsageError("give at least one run file (or - for stdin)")
     if list(sources).count("-") > 1:
         raise UsageError("- (stdin) can be given only once")
-    loaded: list[tuple[Any, float | None]] = []
+    loaded: list[Any] = []
     for text in sources:
         name = "stdin" if text == "-" else text
-        # stdin is kept in memory: it may have to be read twice (a fit file, TUM heights).
+        # stdin is kept in memory: a fit file is read twice.
         source = io.BytesIO(sys.stdin.buffer.read()) if text == "-" else text
         try:
-            run = read_run(source, name=name)
+            loaded.append(read_run(source, name=name))
         except NotARunFile as other:
             if other.kind != "fit":
                 raise
-            run = None
-        if isinstance(source, io.BytesIO):
-            source.seek(0)
-        loaded.append((read_fit_signals(source, name), None) if run is None
-                      else (run, camera_height_m(source, name) if need_height and run.true_pose is not None else None))
+            if isinstance(source, io.BytesIO):
+                source.seek(0)
+            loaded.append(read_fit_signals(source, name))
     return loaded
 
 
@@ -132,13 +129,12 @@ def run_report(options: ReportOptions, console: Console) -> int:
         figure_style(options.dpi, options.size, options.panels, PANEL_NAMES + FIT_PANELS)
     elif options.dpi is not None or options.size is not None or options.panels is not None:
         raise UsageError("--dpi, --size and --panels shape the figure: give --plot FILE too")
-    loaded = read_runs(options.runs, need_height=options.export_tum is not None)
-    fits = [item for item, _ in loaded if isinstance(item, FitSignals)]
+    runs = read_runs(options.runs)
+    fits = [item for item in runs if isinstance(item, FitSignals)]
     if fits:
-        if len(loaded) > 1:
+        if len(runs) > 1:
             raise UsageError("give run files, or one fit file (for the fit figure), not both or several fits")
         return run_fit_report(fits[0], options, console)
-    runs = [run for run, _ in loaded]
     if options.plot is not None:
         from ..report.plots import check_figure_size
 
@@ -161,8 +157,8 @@ def run_report(options: ReportOptions, console: Console) -> int:
     if options.export_tum is not None:
         from ..report.tum import write_tum
 
-        for run, height in loaded:
-            taught, repeated = write_tum(run, options.export_tum, height if height is not None else 0.0)
+        for run in runs:
+            taught, repeated = write_tum(run, options.export_tum)
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
     for message in excesses:
         console.warn(f"threshold exceeded: {message}")
