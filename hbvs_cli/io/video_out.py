@@ -4,9 +4,6 @@ temporary folder beside the file and renamed into place, as every hbvs output.""
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -14,6 +11,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import OutputError, UsageError
+from .output_target import atomic_folder
 
 #: The codec of each container hbvs writes (OpenCV picks the container from the suffix).
 VIDEO_CODECS = {".avi": "MJPG", ".mkv": "MJPG", ".mp4": "mp4v", ".mov": "mp4v"}
@@ -49,9 +47,7 @@ def video_output(path: Path, fps: float, size: tuple[int, int], color: bool = Fa
 
     final = Path(path).absolute()
     check_video_path(final)
-    work = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent))
-    try:
-        temporary = work / final.name
+    with atomic_folder(final, "video") as temporary:
         writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*VIDEO_CODECS[final.suffix.lower()]), float(fps),
                                  size, isColor=color)
         if not writer.isOpened():
@@ -60,9 +56,3 @@ def video_output(path: Path, fps: float, size: tuple[int, int], color: bool = Fa
             yield _Frames(writer, size, color, Path(path))
         finally:
             writer.release()
-        try:
-            os.replace(temporary, final)
-        except OSError as exc:
-            raise OutputError(f"--video-out {path}: cannot write ({exc.strerror})") from None
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
