@@ -77,6 +77,30 @@ def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
         raise
 
 
+@contextmanager
+def atomic_folder(final: Path, what: str, before_swap: Callable[[Path], None] = lambda work: None) -> Iterator[Path]:
+    """A fresh path named as ``final`` (its suffix kept) in a partial folder beside it; renamed over ``final``
+    when the body succeeds, under the parent folder's lock, after ``before_swap(partial folder)`` (which may
+    refuse, or move an old ``final`` aside into it). ``what`` names the output in the errors."""
+    import shutil
+
+    work = partial_name_of(final)
+    try:
+        work.mkdir()
+    except OSError as exc:
+        raise InputError(f"{final}: cannot write the {what} ({exc.strerror})") from None
+    try:
+        yield work / final.name
+        with directory_lock(final.parent):
+            before_swap(work)
+            try:
+                os.replace(work / final.name, final)
+            except OSError as exc:
+                raise OutputError(f"{final}: cannot write the {what} ({exc.strerror})") from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def _made_by_hbvs(path: Path, final_name: str) -> bool:
     """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
     a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""

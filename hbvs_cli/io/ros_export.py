@@ -5,15 +5,13 @@ keep the camera's height as z, so that ``evo_ape`` on the two pose topics gives 
 from __future__ import annotations
 
 import os
-import shutil
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, OutputError, RecordingError, TruncatedInputError, UsageError
+from ..errors import OutputError, RecordingError, TruncatedInputError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .mcap import McapStream, read_metadata
 from .topics import (
@@ -75,28 +73,6 @@ def written_by_hbvs(folder: Path) -> bool:
         return False
     listed = {BAG_METADATA, *(str(f) for f in files)}
     return all(entry.name in listed and entry.is_file() and not entry.is_symlink() for entry in folder.iterdir())
-
-
-@contextmanager
-def _atomic_folder(final: Path, before_swap: Any) -> Iterator[Path]:
-    """A fresh path to write the bag folder at; moved over ``final`` when the body succeeds, under
-    the parent folder's lock, after ``before_swap()`` (which may refuse) has checked it again."""
-    from .output_target import directory_lock, partial_name_of
-
-    work = partial_name_of(final)
-    try:
-        work.mkdir()
-    except OSError as exc:
-        raise InputError(f"{final}: cannot write the bag ({exc.strerror})") from None
-    try:
-        yield work / final.name
-        with directory_lock(final.parent):
-            before_swap()
-            if final.exists() or final.is_symlink():
-                os.replace(final, work / "replaced")
-            os.replace(work / final.name, final)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 class _Messages:
@@ -182,7 +158,7 @@ class _BagWriter:
 def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` (a path, a stream, ``-``) as the ROS 2 bag
     folder ``output``; a truncated ``source`` replaces a bag only with ``allow_truncated``."""
-    from .output_target import directory_lock, remove_stale_partials
+    from .output_target import atomic_folder, directory_lock, remove_stale_partials
 
     final = check_bag_target(output)
     with directory_lock(final.parent):
@@ -200,15 +176,17 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
     camera_height: float | None = None
-    def before_swap() -> None:
+    def before_swap(work: Path) -> None:
         check_bag_target(output)  # again: another export (or someone) may have put a folder there
         if stream.truncated and final.exists() and not allow_truncated:
             raise TruncatedInputError(
                 f"{stream.name} ended before its end record (the writer upstream stopped?), so its bag did not "
                 f"replace the existing {final}; pass --allow-truncated to replace it"
             )
+        if final.exists() or final.is_symlink():
+            os.replace(final, work / "replaced")
 
-    with _atomic_folder(final, before_swap) as bag_path:
+    with atomic_folder(final, "bag", before_swap) as bag_path:
         writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
         writer.set_custom_data(*HBVS_MARK)
         writer.open()

@@ -7,6 +7,7 @@ the order of their ids as given; the code gives identity, tracking only narrows 
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 from typing import Sequence
 
@@ -18,8 +19,8 @@ from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..core.plane import UNIT_SQUARE
 from ..errors import InputError, UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
-from .target_kinds import SpecRequest, TargetKind, register_target_kind
+from .base import Detection, PointTrack, as_gray, check_prediction, row_lengths, search_window, signed_polygon_area
+from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
 #: The default dictionary (hbvs's simulated marker).
 DEFAULT_DICTIONARY = "DICT_4X4_50"
@@ -310,6 +311,38 @@ def _bilinear(gray: NDArray[np.uint8], points: NDArray[np.float64]) -> NDArray[n
     return top * (1 - fy) + bottom * fy
 
 
+#: Markers smaller than this (px) in every frame are not trusted as a decoded code.
+MIN_MARKER_SIDE_PX = 8.0
+
+
+def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None) -> TargetChoice | None:
+    """Markers decoded consistently in ``images`` (one dictionary family), or None."""
+    wanted = None if dictionary is None else dictionary_name(dictionary)
+    families = None if wanted is None else [name for name, members in MARKER_FAMILIES.items() if wanted in members]
+    votes: Counter[str] = Counter()
+    ids_seen: dict[str, Counter[int]] = {}
+    for image in images:
+        # Each family searched once with its largest dictionary (the smaller ones are its prefixes), the one with
+        # the most markers first; tiny markers are the likeliest false decodes.
+        gray = as_gray(image)
+        seen = [(family, *unrefined_markers(gray, MARKER_FAMILIES[family][-1])) for family in families or MARKER_FAMILIES]
+        for family, corners, ids in sorted(seen, key=lambda sighting: -len(set(sighting[2]))):
+            if ids and min(float(np.min(row_lengths(np.roll(c, -1, axis=0) - c))) for c in corners) >= MIN_MARKER_SIDE_PX:
+                votes[family] += 1
+                ids_seen.setdefault(family, Counter()).update(set(ids))
+    family, count = votes.most_common(1)[0] if votes else ("", 0)
+    ids = sorted(i for i, n in ids_seen.get(family, Counter()).items() if in_most(n, len(images)))
+    if not in_most(count, len(images)) or not ids:
+        return None
+    name = wanted or next(n for n in MARKER_FAMILIES[family] if dictionary_size(n) > ids[-1])
+    others = [f for f in votes if f != family]
+    also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
+    which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
+    reason = f"markers: {name} {which} decoded in {count} of the first {len(images)} frames{also}"
+    corners = next((c for c in (marker_corners_in_view(image, name, ids) for image in images) if c is not None), None)
+    return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids}).measured_by(corners)
+
+
 def _markers_spec(request: SpecRequest) -> DetectorSpec:
     """A simulated marker (the world's id), the marker ``--marker-id`` names, or the markers
     decoded in most of the first frames (said on stderr)."""
@@ -319,7 +352,8 @@ def _markers_spec(request: SpecRequest) -> DetectorSpec:
         return DetectorSpec(kind="aruco", n_points=4, marker_id=request.marker_id, marker_dict=request.marker_dict or DEFAULT_DICTIONARY)
     details = request.details
     if "marker_ids" not in details:
-        details = request.found(f"marker of {request.marker_dict or 'any ArUco/AprilTag dictionary'}",
+        details = request.found(find_markers(request.images, request.marker_dict),
+                                f"marker of {request.marker_dict or 'any ArUco/AprilTag dictionary'}",
                                 "choose --marker-dict NAME, or another --target", "markers")
     ids = tuple(details["marker_ids"])
     return DetectorSpec(kind="aruco", n_points=4 * len(ids), marker_id=ids[0] if len(ids) == 1 else None,

@@ -19,7 +19,7 @@ from .aruco import (DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameter
                     unrefined_markers)
 from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
 from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, inside_image, refine_twice, saddle_points
-from .target_kinds import SpecRequest, TargetKind, register_target_kind
+from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
 #: A frame counts as found when at least this many corners are (a homography needs 4; a
 #: few more keep a frame whose corners are nearly collinear out).
@@ -296,14 +296,34 @@ def _from_neighbours(grid: NDArray[np.float32], corners: NDArray[np.float64], ro
     return None if H is None else cv2.perspectiveTransform(grid[row].reshape(1, 1, 2), H).reshape(2).astype(np.float64)
 
 
+def find_charuco(images: Sequence[NDArray[np.uint8]], dictionary: str | None = None,
+                 squares: tuple[int, int] | None = None) -> TargetChoice | None:
+    """A ChArUco board (its layout inferred from the first frame's markers) whose corners
+    are found in most of ``images``, or None."""
+    geometry = infer_board(images[0], None if dictionary is None else [dictionary_name(dictionary)], squares)
+    if geometry is None:
+        return None
+    detector = CharucoTargetDetector(geometry.squares, geometry.dictionary, geometry.marker_ratio)
+    pixels = [detector.detect(image).pixels for image in images]
+    seen = [int(np.count_nonzero(np.all(np.isfinite(p), axis=1))) for p in pixels]
+    found = sum(count > 0 for count in seen)
+    if not in_most(found, len(images)):
+        return None
+    columns, rows = geometry.squares
+    reason = (f"ChArUco board of {columns}x{rows} squares ({geometry.dictionary}, {geometry.n_markers} markers) with up to "
+              f"{max(seen)} of its {detector.n_points} corners found in {found} of the first {len(images)} frames "
+              "(a known grid of sub-pixel corners, each named by its markers)")
+    return TargetChoice("charuco", reason, {"board": [columns, rows], "marker_dict": geometry.dictionary}).measured_by(pixels[int(np.argmax(seen))])
+
+
 def _charuco_spec(request: SpecRequest) -> DetectorSpec:
     """A ChArUco board: its squares and dictionary from --board and --marker-dict, or
     inferred from the first frames' markers (said on stderr)."""
     details = request.details
     if "board" not in details or request.board is not None:
         given = f" {request.board[0]}x{request.board[1]}" if request.board is not None else ""
-        details = request.found(f"ChArUco board{given}", "give --board COLUMNSxROWS and --marker-dict NAME, or another --target",
-                                "charuco")
+        details = request.found(find_charuco(request.images, request.marker_dict, request.board), f"ChArUco board{given}",
+                                "give --board COLUMNSxROWS and --marker-dict NAME, or another --target", "charuco")
     columns, rows = (int(n) for n in details["board"])
     return DetectorSpec(kind="charuco", n_points=(columns - 1) * (rows - 1), board=(columns, rows), marker_dict=details["marker_dict"])
 

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -16,8 +17,9 @@ from numpy.typing import NDArray
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import UsageError
+from ..thread_pool import StopSafePool
 from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
-from .target_kinds import SpecRequest, TargetKind, register_target_kind
+from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
 #: board's square as seen, and its bounds (px).
@@ -307,11 +309,42 @@ def board_diagonal(columns: int, rows: int) -> tuple[tuple[int, int], float]:
     return (0, columns * rows - 1), math.hypot(columns - 1, rows - 1)
 
 
+def find_chessboard(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
+    """A chessboard in most of ``images`` (the first frame's largest, ``findChessboardCornersSB``;
+    that pattern in the others), or None."""
+    first = _checked_board(images[0])
+    if first is None:
+        return None
+    # The other frames' searches are independent and OpenCV releases the GIL: two at a time.
+    # The first frame is searched for the pattern too: the tracker starts from that search
+    # (which can settle on other corners than the largest board's), cached by find_board, as
+    # the second frame's. The later ones are searched near the first frame's board first.
+    with StopSafePool(max_workers=2, thread_name_prefix="hbvs-board") as pool:
+        pool.submit(find_board, images[0], first.pattern)
+        near = [None] + [first.corners] * (len(images) - 2)
+        found = 1 + sum(board is not None for board in pool.map(partial(_checked_board, pattern=first.pattern), images[1:], near))
+    if not in_most(found, len(images)):
+        return None
+    columns, rows = first.pattern
+    reason = f"chessboard of {columns}x{rows} inner corners found in {found} of the first {len(images)} frames"
+    return TargetChoice("chessboard", reason, {"board": [columns, rows]}).measured_by(first.corners)
+
+
+def _checked_board(image: NDArray[np.uint8], near: NDArray[np.float64] | None = None, pattern: tuple[int, int] | None = None
+                   ) -> Board | None:
+    """:func:`~.chessboard.find_board` (first :func:`~.chessboard.find_board_near` the corners
+    ``near``, when given), its corners checked to be crossings of two dark and two light
+    squares (``findChessboardCornersSB`` also "finds" small boards in a few dots)."""
+    board = find_board_near(image, pattern, near) if near is not None and pattern is not None else None
+    board = board or find_board(image, pattern)
+    return board if board is not None and board_corners_cross(as_gray(image), board.corners, board.pattern) else None
+
+
 def _chessboard_spec(request: SpecRequest) -> DetectorSpec:
     """The board ``--target auto`` found, else the one most of the first frames show."""
     board = request.details.get("board")
     if board is None:
-        board = request.found("chessboard", "or choose another --target")["board"]
+        board = request.found(find_chessboard(request.images), "chessboard", "or choose another --target")["board"]
     return DetectorSpec(kind="chessboard", n_points=int(board[0] * board[1]), board=(int(board[0]), int(board[1])))
 
 

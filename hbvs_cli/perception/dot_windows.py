@@ -19,7 +19,7 @@ from ..core.fit_model import DetectorSpec
 from ..errors import InputError
 from .base import Detection
 from .dots import (NOISY_GROUND, Blobs, DotDetector, SharedPull, dark_image, dot_like_blobs, find_dark_blobs,
-                   flatten_ground, ground_noise, segmentation_threshold)
+                   find_dots, flatten_ground, ground_noise, segmentation_threshold)
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: A pixel window ``(x0, y0, x1, y1)``, end-exclusive.
@@ -158,7 +158,7 @@ def _dots_spec(request: SpecRequest) -> DetectorSpec:
     counted in the first image)."""
     details = request.details
     if request.seen_pixels is None and not details:
-        found = request.find()
+        found = find_dots(request.images)
         details = found.details if found is not None else {}
     n_points = request.seen_pixels.shape[0] if request.seen_pixels is not None else details.get("n_points")
     return DetectorSpec(kind="dots", n_points=n_points, polarity=details.get("polarity"), contrast=details.get("contrast"))

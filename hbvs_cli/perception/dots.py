@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections import Counter
 from dataclasses import dataclass
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -17,6 +19,7 @@ from numpy.typing import NDArray
 
 from ..errors import UsageError
 from .base import Detection, PointTrack, as_gray, check_prediction, match_identity, optimal_assignment, plain_median
+from .target_kinds import TargetChoice, in_most
 
 #: Cost of a forbidden candidate-to-point pairing in the assignment.
 _FORBIDDEN = 1e12
@@ -530,3 +533,48 @@ class SharedPull:
         if self._cores == 0 or self._cores < SATURATED_FRACTION * self._detections:
             return 0.0
         return float(np.linalg.norm(self._sum / self._cores))
+
+
+#: Dots targets have this many dots at most (and 3 at least).
+MAX_DOTS = 10
+
+
+def round_dots(image: NDArray[np.uint8], polarity: str, contrast: str = "gray") -> tuple[NDArray[np.float64], bool]:
+    """Centres (N, 2) px of the round blobs of similar size in one frame, and whether they
+    make up most of what is compact and interior (a textured picture has many dark shapes
+    that are not round; components cut by the frame's edge are not counted)."""
+    blobs = find_dark_blobs(dark_image(image, polarity, contrast))
+    round_areas, centres = blobs.areas[blobs.round], blobs.centres[blobs.round]
+    if round_areas.size < 3:
+        return centres, False
+    # Specks of noise far smaller than the dots count neither as dots nor against them.
+    specks = speck_floor(round_areas)
+    round_areas, centres = round_areas[round_areas >= specks], centres[round_areas >= specks]
+    median = np.median(round_areas)
+    similar = (round_areas >= median / ACQUIRE_AREA_RATIO) & (round_areas <= median * ACQUIRE_AREA_RATIO)
+    interior = int(np.count_nonzero(~blobs.touches_edge & (blobs.areas >= max(0.1 * median, specks))))
+    return centres[similar], int(similar.sum()) >= max(3, 0.75 * interior)
+
+
+def find_dots(images: Sequence[NDArray[np.uint8]]) -> TargetChoice | None:
+    """The same number of dots (3-10) in most of ``images``, dark ones first, in gray first
+    (then in colour, when the frames have it), or None."""
+    colour = any(np.ndim(image) == 3 for image in images)
+    # In colour, light dots first: a dot that differs from a neutral wall in hue alone is
+    # brighter than it in its own channel, and darker in the others only as far as it is saturated.
+    order = [("gray", "dark"), ("gray", "light")] + ([("colour", "light"), ("colour", "dark")] if colour else [])
+    for contrast, kind in order:
+        dots = [round_dots(image, kind, contrast) for image in images]
+        centres = [found if dominant and 3 <= len(found) <= MAX_DOTS else found[:0] for found, dominant in dots]
+        tally = Counter(len(c) for c in centres if len(c))
+        n_dots, frames = tally.most_common(1)[0] if tally else (0, 0)
+        if frames and in_most(frames, len(images)):
+            before = " (no dark dots)" if kind == "light" else ""
+            details = {"polarity": kind, "n_points": n_dots}
+            if contrast == "colour":
+                channel = "darkest" if kind == "dark" else "brightest"
+                before = f" in colour, on their {channel} channel (no dots stand out in gray)"
+                details["contrast"] = contrast
+            reason = f"{n_dots} {kind} round dots of comparable size in {frames} of the first {len(images)} frames{before}"
+            return TargetChoice("dots", reason, details).measured_by(next(c for c in centres if len(c) == n_dots))
+    return None

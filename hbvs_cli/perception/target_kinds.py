@@ -6,10 +6,12 @@ shape come from here (docs/layout.md, "to add a target kind")."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
+import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from ..core.camera import CameraIntrinsics
 from ..core.depth import farthest_pair
@@ -20,12 +22,49 @@ from ..errors import InputError, UsageError
 
 
 @dataclass(frozen=True)
+class TargetChoice:
+    """What ``--target auto`` picked: the ``kind``, one sentence for stderr (``reason``), the
+    detector's ``details`` (``polarity``, ``n_points``, ``contrast``; ``marker_dict``,
+    ``marker_ids``; ``board``), and the points seen: how many (texture: median matched
+    features per frame), their RMS ``spread_px`` about their centroid and their convex hull's
+    ``area_px`` (px^2)."""
+
+    kind: str
+    reason: str
+    details: dict[str, Any] = field(default_factory=dict)
+    n_points: int = 0
+    spread_px: float = float("nan")
+    area_px: float = 0.0
+    #: The points seen (K, 2) px (texture: its matched features), for the own-print test.
+    points: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def predicted_deg(self) -> float:
+        """theta_d's predicted RMS error (deg): the kind's ``precision_scale`` over spread_px * sqrt(n_points)."""
+        spread = self.spread_px * np.sqrt(self.n_points)
+        return target_kind(self.kind).precision_scale / spread if spread > 0 else float("inf")
+
+    def measured_by(self, points: NDArray[np.float64] | None) -> TargetChoice:
+        """This choice with ``n_points``, ``spread_px`` and ``area_px`` of ``points`` (N, 2) px (NaN rows unseen)."""
+        if points is None:
+            return self
+        seen = points[np.all(np.isfinite(points), axis=1)]
+        spread = float(np.sqrt(np.mean(np.sum((seen - seen.mean(axis=0)) ** 2, axis=1))))
+        return replace(self, n_points=len(seen), spread_px=spread, area_px=float(cv2.contourArea(cv2.convexHull(seen.astype(np.float32)))),
+                       points=seen)
+
+
+def in_most(count: int, frames: int) -> bool:
+    """Whether ``count`` of ``frames`` is most of them (and two, of two or more): found consistently."""
+    return count >= max(1, (frames + 1) // 2) and count >= min(frames, 2)
+
+
+@dataclass(frozen=True)
 class SpecRequest:
     """What a kind's :class:`DetectorSpec` is chosen from: the first ``images``, what ``--target
     auto`` found of it (``details``), the options (``board``: a board's squares), a simulated
     target's points as its first frame sees them (``seen_pixels`` (N, 2) px, None for footage;
-    ``marker_id`` is then the world's), ``find()``: what the first images show of the kind
-    (:func:`~.autodetect.find_target`), and ``info``, told what a user should know."""
+    ``marker_id`` is then the world's), and ``info``, told what a user should know."""
 
     images: list[np.ndarray]
     camera: CameraIntrinsics
@@ -34,18 +73,16 @@ class SpecRequest:
     marker_id: int | None = None
     board: tuple[int, int] | None = None
     seen_pixels: np.ndarray | None = None
-    find: Callable[[], Any] = lambda: None
     info: Callable[[str], None] = lambda text: None
 
-    def found(self, what: str, advice: str, told: str = "") -> dict[str, Any]:
-        """The ``details`` of what :attr:`find` finds, its reason told after ``told`` when given; InputError
-        (no ``what`` found consistently in the first frames, and ``advice``) when it finds nothing."""
-        found = self.find()
-        if found is None:
+    def found(self, choice: TargetChoice | None, what: str, advice: str, told: str = "") -> dict[str, Any]:
+        """The ``details`` of what the kind's finder found in :attr:`images` (``choice``), its reason told after
+        ``told`` when given; InputError (no ``what`` found consistently in the first frames, and ``advice``) for None."""
+        if choice is None:
             raise InputError(f"no {what} found consistently in the first {len(self.images)} frames ({advice})")
         if told:
-            self.info(f"{told}: {found.reason}")
-        return found.details
+            self.info(f"{told}: {choice.reason}")
+        return choice.details
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,6 @@ target kind from what auto found or the options (fit's and a route's)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from functools import partial
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
@@ -15,8 +14,8 @@ from ..core.metrics import rms
 from ..core.plane import KnownShape
 from ..errors import HbvsError, InputError, InsufficientDataError, UsageError
 from ..io.teach_file import TeachReader
-from ..perception.autodetect import Candidates, TargetChoice, find_target
-from ..perception.target_kinds import TARGET_KINDS, SpecRequest, target_kind
+from ..perception.autodetect import Candidates
+from ..perception.target_kinds import TARGET_KINDS, SpecRequest, TargetChoice, target_kind
 from ..perception.tracked import DetectorSpec, TrackedDetector
 from ..settings.commands import FitOptions
 from .console import Console
@@ -146,7 +145,7 @@ def spec_of_kind(kind: str, details: dict[str, Any], options: FitOptions, images
     squares = parse_board(options.board) if options.board is not None else None
     seen = world.pixels(np.asarray(pose)) if world is not None and pose is not None else None
     request = SpecRequest(images, camera, details, options.marker_dict, world.target.marker_id if world is not None else options.marker_id,
-                          squares, seen, find=partial(find_target, kind, images, options.marker_dict, squares), info=console.info)
+                          squares, seen, info=console.info)
     return target_kind(kind).spec(request)
 
 
