@@ -11,7 +11,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.fit_model import FitModel
-from ..core.route import Segment, Transition
+from ..core.route import RouteFit, Segment, Transition
 from ..errors import RecordingError
 from .fit_file import FILE_KIND, FitFile, checked_model_message
 from .images import encode_image, write_compressed_image
@@ -22,20 +22,19 @@ from .topics import MODEL_TOPIC, ROUTE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 
 
 @dataclass(frozen=True)
-class RouteFile:
-    """A route file read: each segment's ``models[i]`` (its reference frame ``references[i]``
-    of the taught drive), its ``segments`` and the ``transitions`` from each to the next."""
+class RouteFile(RouteFit):
+    """A route file read: a :class:`~..core.route.RouteFit` whose ``fits`` are each segment's model (:attr:`models`)."""
 
-    models: list[FitModel]
-    segments: list[Segment]
-    references: list[int]
-    transitions: list[Transition]
     info: dict[str, Any]
     #: The simulated route (the teach file's description) and its taught poses (K, 4): t (s), x, y, phi in its frame R.
     world: dict[str, Any] | None = None
     taught_poses: np.ndarray | None = None
     #: Each segment's detector template (compressed image bytes; None: its kind uses none, or a file from before they were kept).
     templates: tuple[bytes | None, ...] = ()
+
+    @property
+    def models(self) -> list[FitModel]:
+        return self.fits
 
 
 def _transition_from_record(record: dict[str, Any]) -> Transition:
@@ -82,7 +81,7 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
     models, route = fit.segment_models or [fit.model], fit.route_record
     if route is None:
-        return RouteFile(models, [Segment(0, 0, models[0].frames.total - 1)], [models[0].reference_index], [], fit.info,
+        return RouteFile([Segment(0, 0, models[0].frames.total - 1)], models, [models[0].reference_index], [], fit.info,
                          templates=(fit.template_image,))
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
@@ -96,4 +95,4 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     if not len(segments) == len(models) == len(transitions) + 1:
         raise RecordingError(f"{name}: {len(models)} fit models for a route of {len(segments)} segments "
                              f"and {len(transitions)} transitions")
-    return RouteFile(models, segments, references, transitions, fit.info, route.get("world"), taught, templates)
+    return RouteFile(segments, models, references, transitions, fit.info, route.get("world"), taught, templates)

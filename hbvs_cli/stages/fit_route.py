@@ -16,6 +16,7 @@ from ..core.fit_model import FitModel
 from ..core.route import bridge_brief_gaps, estimate_transitions, split_route, view_spans
 from ..core.desired import MIN_PARTIAL_POINTS
 from ..errors import HbvsError, InputError, MalformedDataError, RecordingError
+from ..io.route_file import write_route
 from ..perception.tracked import TrackedDetector, target_candidates
 from ..report.table import print_table
 from ..settings.commands import FitOptions
@@ -35,8 +36,6 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
     """Fit the route of ``reader`` (its decoded, checked ``frames``) into ``writer`` (metadata and calibration written
     already) and return the models, in order. ``segment_fit(arrays, reference_index, spec, world_description, name)``: one
     segment's fit and model (:func:`.fit._drive_fit`)."""
-    from ..io.route_file import write_route
-
     follower: SimulatedFollower | ImageFollower | None = None
     log = FrameLog(0)
     for frame, _, image in frames:

@@ -17,7 +17,7 @@ from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose, rotation_z
 from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
-from ..core.route import RouteFit, view_spans
+from ..core.route import view_spans
 from ..errors import RecordingError, UsageError
 from ..io.fit_file import FitFile
 from ..io.foxglove_scene import SIMULATION_EPOCH_NS
@@ -62,7 +62,7 @@ def segment_gains(settings: Any, plan: RouteFile) -> list[ControllerGains]:
 def planned_switches(plan: RouteFile, fraction: float = SWITCH_FRACTION) -> np.ndarray:
     """The taught instant of each switch (s), ``fraction`` of the way through each overlap."""
     frames = np.arange(plan.segments[-1].last + 1) * plan.models[0].taught_frame_interval()
-    return switch_times(RouteFit(plan.segments, plan.models, plan.references, plan.transitions), frames, fraction)
+    return switch_times(plan, frames, fraction)
 
 
 def route_metadata(plan: RouteFile, switches: np.ndarray, depths: list[float | None]) -> dict[str, Any]:
@@ -227,7 +227,6 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     models = plan.models
     route = recorded_route(plan.world, models[0].camera)
     depths, orders = segment_truths(route, plan)
-    route_fit = RouteFit(plan.segments, models, plan.references, plan.transitions)
     switches = planned_switches(plan)
     gains = segment_gains(settings, plan)
     noise = [tools.detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
@@ -237,7 +236,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     tools.check_settings(settings, models[0], taught_s)
     dt = 1.0 / settings.rate
     duration = taught_s / settings.speed + dt
-    camera, steps = run_route(route, route_fit, switches, controller, start, dt, duration, settings.limits,
+    camera, steps = run_route(route, plan, switches, controller, start, dt, duration, settings.limits,
                               settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
     metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
         "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
