@@ -59,10 +59,10 @@ def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segm
         if not candidates:
             where = "the first frame" if not segments else f"frame {frame}"
             raise MalformedDataError(f"{where} sees no target to follow: the route has a gap")
-        ends = {t: _run_end(visible[:, t], frame) for t in candidates}
+        ends = {t: _run(visible[:, t], frame)[1] for t in candidates}
         rank = ends if sizes is None else {t: float(np.asarray(sizes)[frame, t]) for t in candidates}
         target = max(candidates, key=lambda t: (rank[t], -t))
-        start = max(_run_start(visible[:, target], frame), segments[-1].first + 1) if segments else 0
+        start = max(_run(visible[:, target], frame)[0], segments[-1].first + 1) if segments else 0
         segments.append(Segment(target, start, ends[target], overlap_last=frame if segments else None))
         followed.add(target)
         if ends[target] == frames - 1:
@@ -70,16 +70,11 @@ def split_route(visible: ArrayLike, sizes: ArrayLike | None = None) -> list[Segm
         frame = ends[target]
 
 
-def _run_end(column: NDArray[np.bool_], frame: int) -> int:
-    """The last frame of the stretch of True in ``column`` that holds ``frame``."""
-    after = np.flatnonzero(~column[frame:])
-    return frame + int(after[0]) - 1 if after.size else column.size - 1
-
-
-def _run_start(column: NDArray[np.bool_], frame: int) -> int:
-    """The first frame of the stretch of True in ``column`` that holds ``frame``."""
+def _run(column: NDArray[np.bool_], frame: int) -> tuple[int, int]:
+    """The first and last frames of the stretch of True in ``column`` that holds ``frame``."""
     before = np.flatnonzero(~column[: frame + 1])
-    return int(before[-1]) + 1 if before.size else 0
+    after = np.flatnonzero(~column[frame:])
+    return (int(before[-1]) + 1 if before.size else 0), (frame + int(after[0]) - 1 if after.size else column.size - 1)
 
 
 def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_gap: float) -> NDArray[np.bool_]:
@@ -93,7 +88,7 @@ def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_ga
     for column in filled.T:  # views: filling a column fills ``filled``
         seen = np.flatnonzero(column)
         for before, after in zip(seen[:-1], seen[1:]):
-            if after > before + 1 and t[after] - t[before] <= max_gap and t[_run_end(column, after)] - t[after] >= max_gap / 2:
+            if after > before + 1 and t[after] - t[before] <= max_gap and t[_run(column, after)[1]] - t[after] >= max_gap / 2:
                 column[before:after] = True
     return filled
 
