@@ -58,9 +58,8 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
     ``repeat --sim`` drives in and is judged against)."""
     schemas = TOPICS[FILE_KIND]
     indices: list[int | None] = []
-    for number, (model, stamp) in enumerate(zip(models, log_times)):
+    for model, stamp, template in zip(models, log_times, [None] * len(models) if templates is None else templates):
         writer.write(MODEL_TOPIC, schemas[MODEL_TOPIC], int(stamp), checked_model_message(model, int(stamp), source))
-        template = None if templates is None else templates[number]
         if template is not None:
             write_compressed_image(writer, TEMPLATE_IMAGE_TOPIC, int(stamp), encode_image(template, "png"), "png", CAMERA_FRAME)
         indices.append(None if template is None else sum(index is not None for index in indices))

@@ -76,16 +76,15 @@ class SwitchLog:
     """A repeat's step ``log`` that records each switch before the step after it: an event, and V (36) from then on
     against the new segment's d*_i (``depths``) and gains."""
 
-    def __init__(self, log: Any, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None],
-                 gains: list[ControllerGains], settings: Any) -> None:
-        self.log, self.switch, self.plan, self.depths, self.gains, self.settings = log, switch, plan, depths, gains, settings
+    def __init__(self, log: Any, switch: SegmentSwitch, plan: RouteFile, depths: list[float | None], settings: Any) -> None:
+        self.log, self.switch, self.plan, self.depths, self.settings = log, switch, plan, depths, settings
         self.logged = 0
         log.d_true = depths[0]
 
     def step(self, record: Any) -> None:
         while self.logged < len(self.switch.switches):
             when, segment, before, after = self.switch.switches[self.logged]
-            self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.gains[segment])
+            self.log.d_true, self.log.settings = self.depths[segment], replace(self.settings, gains=self.switch.gains[segment])
             self.log.event(when, LOG_INFO, f"segment {segment + 1} (target {self.plan.segments[segment].target + 1}, "
                            f"{self.plan.models[segment].target_kind}): dhat {before:.3f} -> {after:.3f} m by rho {after / before:.4f}")
             self.logged += 1
@@ -105,16 +104,16 @@ def desired_pixels(model: FitModel, desired: Any) -> np.ndarray:
 class RouteSight(SegmentSwitch):
     """What ``--live`` and ``--replay`` see along a route (:class:`~.live.TargetSight`'s methods): the segment in
     force, measured against its F*_i; when the next one's detector looks, and when it takes over: docs/routes.md,
-    "Repeat" (``planned``: the switches' taught times, s; a robot off its path sees a target leave sooner)."""
+    "Repeat" (a robot off its path sees a target leave sooner than planned)."""
 
-    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory,
-                 planned: np.ndarray, plan: RouteFile, controller: Any, gains: list[ControllerGains]) -> None:
+    def __init__(self, detectors: list[Any], estimators: list[Any], trajectory: RouteTrajectory, plan: RouteFile,
+                 controller: Any, gains: list[ControllerGains]) -> None:
         super().__init__(plan.transitions, controller, gains, trajectory)
         self.detectors, self.estimators, self.models = detectors, estimators, plan.models
         #: The segments whose detector has looked already (the first from the fit's first view).
         self.looked = 1
         #: The planned switches in run time (s); the trajectory's switches not made yet lie at infinity.
-        self.planned = trajectory.run_time(planned)
+        self.planned = trajectory.run_time(planned_switches(plan))
         #: Where each overlap begins, in run time (s): from there a lost target hands over at once.
         self.overlaps = trajectory.run_time(planned_switches(plan, 0.0))
         self.t_start, self.t_end = trajectory.t_start, trajectory.t_end
@@ -171,20 +170,19 @@ def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered
     controller = make_controller(settings.law, gains[0], settings.dhat0)
     estimators = [estimator_from_model(model, converge=True) for model in models]
     trajectory = RouteTrajectory([model.trajectory for model in models], np.full(len(models) - 1, np.inf), speed=settings.speed)
-    planned = planned_switches(plan)
     detectors = []
     for number, model in enumerate(models):
         try:
             detectors.append(detector_from_model(model, _template(plan, number), seed=options.seed))
         except RecordingError as exc:
             raise RecordingError(f"{options.input}: segment {number + 1}: {exc} (fitted before routes kept them: fit it again)") from None
-    sight = RouteSight(detectors, estimators, trajectory, planned, plan, controller, gains)
+    sight = RouteSight(detectors, estimators, trajectory, plan, controller, gains)
     if filtered and settings.state_filter == FILTER_EKF:
         sight.filters = SegmentFilters([make_state_filter(settings, model, estimator) for model, estimator in zip(models, estimators)])
     depths = ([None] * len(models) if plan.world is None or plan.taught_poses is None
               else segment_truths(recorded_route(plan.world, models[0].camera), plan)[0])
     return Tracking(sight, controller, sight.filters, {"route": route_metadata(plan, sight.planned, depths)},
-                    lambda log: SwitchLog(log, sight, plan, depths, gains, settings))
+                    lambda log: SwitchLog(log, sight, plan, depths, settings))
 
 
 #: What a segment's template keeps around its target's points (px): the alignment's smoothing reaches 4 sigma beyond them.
@@ -194,7 +192,7 @@ TEMPLATE_MARGIN_PX = 16
 def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
     """Segment ``segment``'s detector template, for a kind that uses one, painted its median level beyond
     :data:`TEMPLATE_MARGIN_PX` around its target: else the route's other targets in it would be matched."""
-    data = plan.templates[segment] if segment < len(plan.templates) else None
+    data = plan.templates[segment]
     spec = plan.models[segment].detector
     if data is None or not target_kind(spec.kind).uses_template:
         return None
@@ -243,7 +241,7 @@ def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, consol
     tally = tools.tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
         run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
-        log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, gains, settings)
+        log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, settings)
         lost = tools.lost_watch(settings.lost_timeout, log)
         with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
             for record in steps:
