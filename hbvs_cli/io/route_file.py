@@ -25,7 +25,6 @@ from .topics import MODEL_TOPIC, ROUTE_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 class RouteFile(RouteFit):
     """A route file read: a :class:`~..core.route.RouteFit` whose ``fits`` are each segment's model (:attr:`models`)."""
 
-    info: dict[str, Any]
     #: The simulated route (the teach file's description) and its taught poses (K, 4): t (s), x, y, phi in its frame R.
     world: dict[str, Any] | None = None
     taught_poses: np.ndarray | None = None
@@ -80,7 +79,7 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
     models, route = fit.segment_models or [fit.model], fit.route_record
     if route is None:
-        return RouteFile([Segment(0, 0, models[0].frames.total - 1)], models, [models[0].reference_index], [], fit.info,
+        return RouteFile([Segment(0, 0, models[0].frames.total - 1)], models, [models[0].reference_index], [],
                          templates=(fit.template_image,))
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
@@ -94,4 +93,4 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     if not len(segments) == len(models) == len(transitions) + 1:
         raise RecordingError(f"{name}: {len(models)} fit models for a route of {len(segments)} segments "
                              f"and {len(transitions)} transitions")
-    return RouteFile(segments, models, references, transitions, fit.info, route.get("world"), taught, templates)
+    return RouteFile(segments, models, references, transitions, route.get("world"), taught, templates)
