@@ -78,12 +78,10 @@ def _run(column: NDArray[np.bool_], frame: int) -> tuple[int, int]:
 
 
 def bridge_brief_gaps(visible: NDArray[np.bool_], t: NDArray[np.float64], max_gap: float) -> NDArray[np.bool_]:
-    """``visible`` (frames, targets) with each target's gaps between two sightings at most
-    ``max_gap`` s apart (``--max-gap``, the gaps a segment's spline bridges) filled when it is
-    then seen again for at least half that long: a target hidden a moment (someone walking past)
-    does not end its segment there, one flickering as it leaves the view does not stay.
-    ``visible`` (F, N): whether each of N targets is followable in each of F frames; ``t`` (F,) (s).
-    """
+    """``visible`` (F, N: whether each of N targets is followable in each of F frames, at times ``t`` (F,), s) with
+    each target's gaps between two sightings at most ``max_gap`` s apart (``--max-gap``, the gaps a segment's spline
+    bridges) filled when it is then seen again for at least half that long: a target hidden a moment (someone walking
+    past) does not end its segment there, one flickering as it leaves the view does not stay."""
     filled = np.array(visible, bool)
     for column in filled.T:  # views: filling a column fills ``filled``
         seen = np.flatnonzero(column)
