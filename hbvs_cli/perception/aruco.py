@@ -63,7 +63,7 @@ def _dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
 WINDOW_THRESHOLD_SIZE = 13
 
 
-def _parameters(refinement: int, tracked: bool = False) -> cv2.aruco.DetectorParameters:
+def _parameters(refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX, tracked: bool = False) -> cv2.aruco.DetectorParameters:
     """Detector parameters; ``tracked``: one adaptive threshold instead of OpenCV's three,
     for the search around a tracked marker (a quarter faster)."""
     parameters = cv2.aruco.DetectorParameters()
@@ -108,14 +108,13 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
 class ArucoMarkerDetector:
     """The corners of one marker of a ``dictionary`` (``marker_id``; None: whichever single marker
     is in view) or of several (``marker_ids``, 4 corners each in this order, found when any is
-    seen, NaN rows for the others); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``."""
+    seen, NaN rows for the others), refined by OpenCV to sub-pixel, then by their edges."""
 
     kind = "aruco"
 
     def __init__(
         self,
         marker_id: int | None = None,
-        refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX,
         dictionary: str = DEFAULT_DICTIONARY,
         marker_ids: Sequence[int] | None = None,
     ) -> None:
@@ -129,8 +128,8 @@ class ArucoMarkerDetector:
             raise UsageError(f"marker ids must differ, got {wanted}")
         self.marker_ids = tuple(wanted)
         self.n_points = 4 * max(len(wanted), 1)
-        self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
-        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement, tracked=True))
+        self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters())
+        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
 
     def reset(self) -> None:
