@@ -470,41 +470,34 @@ MIN_CLIPPED_CORE_PX = 4
 SATURATED_FRACTION = 0.5
 
 
-def clipped_core_offsets(image: NDArray[np.uint8], pixels: NDArray[np.float64], polarity: str = "dark", contrast: str = "gray"
-                         ) -> NDArray[np.float64]:
-    """Where each dot's clipped core (pixels at the sensor's limit: 255 for light dots, 0 for
-    dark ones) is centred, less the dot's measured centre (N, 2) px; NaN rows for a dot with
-    no clipped core or not found.
+class SharedPull:
+    """The pull (px) that every dot shares in every frame of a drive: the length of the mean
+    offset of the dots' clipped cores (pixels at the sensor's limit: 255 for light dots, 0 for
+    dark ones) from their measured centres over dots and frames, kept as running sums; 0
+    unless the dots are saturated (a clipped core in at least :data:`SATURATED_FRACTION` of
+    their detections).
 
     A saturated source whose excess charge spills asymmetrically (bloom down the columns)
     pulls the intensity-weighted centroid toward the spill, and does so alike in every frame;
     its clipped core, flat, is pulled less. The offset measures that pull (issue 44's LEDs,
     seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px, every dot alike)."""
-    offsets = np.full((len(pixels), 2), np.nan)
-    radius = CLIPPED_CORE_RADIUS_PX
-    for k, (u, v) in enumerate(np.asarray(pixels, dtype=float)):
-        if not (np.isfinite(u) and np.isfinite(v)):
-            continue
-        x0, y0 = max(int(round(u)) - radius, 0), max(int(round(v)) - radius, 0)
-        patch = dark_image(np.ascontiguousarray(image[y0:int(round(v)) + radius + 1, x0:int(round(u)) + radius + 1]), polarity, contrast)
-        rows, columns = np.nonzero(patch == 0)
-        if rows.size >= MIN_CLIPPED_CORE_PX:
-            offsets[k] = (columns.mean() + x0 - u, rows.mean() + y0 - v)
-    return offsets
-
-
-class SharedPull:
-    """The pull (px) that every dot shares in every frame of a drive: the length of the mean
-    of the clipped cores' offsets (:func:`clipped_core_offsets`) over dots and frames, kept
-    as running sums; 0 unless the dots are saturated (a clipped core in at least
-    :data:`SATURATED_FRACTION` of their detections)."""
 
     def __init__(self, polarity: str = "dark", contrast: str = "gray") -> None:
         self.polarity, self.contrast = polarity, contrast
         self._sum, self._cores, self._detections = np.zeros(2), 0, 0
 
     def add(self, image: NDArray[np.uint8], pixels: NDArray[np.float64]) -> None:
-        offsets = clipped_core_offsets(image, pixels, self.polarity, self.contrast)
+        offsets = np.full((len(pixels), 2), np.nan)  # NaN rows: no clipped core, or not found
+        radius = CLIPPED_CORE_RADIUS_PX
+        for k, (u, v) in enumerate(np.asarray(pixels, dtype=float)):
+            if not (np.isfinite(u) and np.isfinite(v)):
+                continue
+            x0, y0 = max(int(round(u)) - radius, 0), max(int(round(v)) - radius, 0)
+            patch = dark_image(np.ascontiguousarray(image[y0:int(round(v)) + radius + 1, x0:int(round(u)) + radius + 1]),
+                               self.polarity, self.contrast)
+            rows, columns = np.nonzero(patch == 0)
+            if rows.size >= MIN_CLIPPED_CORE_PX:
+                offsets[k] = (columns.mean() + x0 - u, rows.mean() + y0 - v)
         seen = offsets[np.all(np.isfinite(offsets), axis=1)]
         self._sum += seen.sum(axis=0)
         self._cores += len(seen)
