@@ -48,7 +48,7 @@ def test_a_candidate_missing_from_the_drive_is_passed_over_for_the_next():
     one line says both. Measured: the LEDs found in 30 of 30 frames, theta_d sigma 0.029 deg."""
     frames, camera = _rendered("bright_dots", SHORT)
     candidates = Candidates([_dots("dark"), _dots("light")], ["markers"])
-    judged = judge(candidates, _spec, lambda spec: [], frames, camera, max_lost=0.3)
+    judged = judge(candidates, _spec, frames, camera, max_lost=0.3)
     assert [j.seen for j in judged] == [0, 30]
     assert judged[0].rejected == "missing from 30 of 30 frames" and not judged[1].rejected
     best, reason = picked(judged, candidates, max_lost=0.3)

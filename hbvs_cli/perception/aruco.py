@@ -63,7 +63,7 @@ def _dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
 WINDOW_THRESHOLD_SIZE = 13
 
 
-def _parameters(refinement: int, tracked: bool = False) -> cv2.aruco.DetectorParameters:
+def _parameters(refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX, tracked: bool = False) -> cv2.aruco.DetectorParameters:
     """Detector parameters; ``tracked``: one adaptive threshold instead of OpenCV's three,
     for the search around a tracked marker (a quarter faster)."""
     parameters = cv2.aruco.DetectorParameters()
@@ -87,15 +87,6 @@ def unrefined_markers(image: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIO
     return [np.asarray(c, float).reshape(4, 2) for c in corners], [int(i) for i in np.ravel(ids)]
 
 
-def marker_corners_in_view(image: NDArray[np.uint8], dictionary: str, ids: Sequence[int]) -> NDArray[np.float64] | None:
-    """The corners (4M, 2) of the markers ``ids`` of ``dictionary`` seen in a frame (no
-    corner refinement; the largest copy of an id), or None when none is seen."""
-    corners, seen = unrefined_markers(image, dictionary)
-    picks = [_largest_copy(corners, np.array(seen), int(ident)) for ident in ids]
-    picked = [corners[pick] for pick in picks if pick is not None]
-    return np.concatenate(picked) if picked else None
-
-
 def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32], ident: int) -> int | None:
     """Index of the largest marker ``ident`` among the detected ``ids`` (several copies: the
     nearest, usually the target), or None when it is not there."""
@@ -108,14 +99,13 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
 class ArucoMarkerDetector:
     """The corners of one marker of a ``dictionary`` (``marker_id``; None: whichever single marker
     is in view) or of several (``marker_ids``, 4 corners each in this order, found when any is
-    seen, NaN rows for the others); ``refinement``: ``cv2.aruco.CORNER_REFINE_*``."""
+    seen, NaN rows for the others), refined by OpenCV to sub-pixel, then by their edges."""
 
     kind = "aruco"
 
     def __init__(
         self,
         marker_id: int | None = None,
-        refinement: int = cv2.aruco.CORNER_REFINE_SUBPIX,
         dictionary: str = DEFAULT_DICTIONARY,
         marker_ids: Sequence[int] | None = None,
     ) -> None:
@@ -129,8 +119,8 @@ class ArucoMarkerDetector:
             raise UsageError(f"marker ids must differ, got {wanted}")
         self.marker_ids = tuple(wanted)
         self.n_points = 4 * max(len(wanted), 1)
-        self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement))
-        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(refinement, tracked=True))
+        self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters())
+        self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
 
     def reset(self) -> None:
@@ -339,8 +329,13 @@ def find_markers(images: Sequence[NDArray[np.uint8]], dictionary: str | None = N
     also = f"; also decoded as {', '.join(others)} in fewer frames" if others else ""
     which = f"id {ids[0]}" if len(ids) == 1 else f"ids {', '.join(map(str, ids))} ({4 * len(ids)} corners)"
     reason = f"markers: {name} {which} decoded in {count} of the first {len(images)} frames{also}"
-    corners = next((c for c in (marker_corners_in_view(image, name, ids) for image in images) if c is not None), None)
-    return TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids}).measured_by(corners)
+    choice = TargetChoice("aruco", reason, {"marker_dict": name, "marker_ids": ids})
+    for image in images:  # measured by the corners (4M, 2) of the first frame that shows any: each id's largest copy, unrefined
+        corners, seen = unrefined_markers(image, name)
+        picked = [corners[pick] for pick in (_largest_copy(corners, np.array(seen), ident) for ident in ids) if pick is not None]
+        if picked:
+            return choice.measured_by(np.concatenate(picked))
+    return choice
 
 
 def _markers_spec(request: SpecRequest) -> DetectorSpec:

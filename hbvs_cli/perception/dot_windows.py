@@ -29,8 +29,8 @@ Window = tuple[int, int, int, int]
 UNKNOWN_RADIUS_PX = 30.0
 #: Pixels between a dot's rim and its window's edge: the 5 px its centroid reads, and one more.
 RIM_MARGIN_PX = 6.0
-#: A tracked dot's window reaches this far (px) beyond its prediction (the detector's gate
-#: when smaller); a dot that moved farther touches the edge and the whole frame is searched.
+#: A tracked dot's window reaches this far (px) beyond its prediction (less than the detector's
+#: gate); a dot that moved farther touches the edge and the whole frame is searched.
 WINDOW_GATE_PX = 8.0
 
 
@@ -71,16 +71,9 @@ class WindowMosaic:
         return mosaic, columns
 
 
-def find_blobs_in_windows(
-    gray: NDArray[np.uint8],
-    windows: list[Window],
-    mosaic: WindowMosaic,
-    min_area: int = 6,
-    max_elongation: float = 1.8,
-    min_contrast: float = 20.0,
-) -> Blobs:
+def find_blobs_in_windows(gray: NDArray[np.uint8], windows: list[Window], mosaic: WindowMosaic) -> Blobs:
     """Dark, dot-like blobs in the non-overlapping ``windows`` of ``gray`` (H, W) uint8, as
-    :func:`~.dots.find_dark_blobs` (whose options these are) finds them in a flattened window.
+    :func:`~.dots.find_dark_blobs` finds them in a flattened window.
 
     Each window's ground is divided out on its own; then one noise estimate (the windows'
     mean), one threshold and one labelling in ``mosaic`` serve them all."""
@@ -99,11 +92,11 @@ def find_blobs_in_windows(
     if any(noise > NOISY_GROUND for noise in noises):
         noises = [noise if noise > NOISY_GROUND else ground_noise(view) for noise, view in zip(noises, views)]
     noise = sum(noises) / len(noises)
-    levels, threshold = segmentation_threshold(np.clip(flat + 0.5, 0, 255).astype(np.uint8), noise, min_contrast)
+    levels, threshold = segmentation_threshold(np.clip(flat + 0.5, 0, 255).astype(np.uint8), noise)
     if threshold is None:
         return empty
     areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in windows]  # a dot fills less than its window
-    return dot_like_blobs(flat, levels, threshold, windows, columns, areas, min_area, max_elongation)
+    return dot_like_blobs(flat, levels, threshold, windows, columns, areas)
 
 
 class WindowedDotDetector(DotDetector):
@@ -124,7 +117,7 @@ class WindowedDotDetector(DotDetector):
         radii = np.sqrt(self._areas / math.pi)
         windows = []
         for (u, v), radius in zip(prediction.tolist(), radii.tolist()):
-            margin = min(self.gate_px, WINDOW_GATE_PX) + (radius if math.isfinite(radius) else UNKNOWN_RADIUS_PX) + RIM_MARGIN_PX
+            margin = WINDOW_GATE_PX + (radius if math.isfinite(radius) else UNKNOWN_RADIUS_PX) + RIM_MARGIN_PX
             x0, y0 = max(math.floor(u - margin), 0), max(math.floor(v - margin), 0)
             x1, y1 = min(math.ceil(u + margin) + 1, width), min(math.ceil(v + margin) + 1, height)
             if x0 >= x1 or y0 >= y1:
@@ -139,7 +132,7 @@ class WindowedDotDetector(DotDetector):
         if prediction is None or not np.all(np.isfinite(prediction)):
             return None
         gray = dark_image(image, self.polarity, self.contrast)
-        blobs = find_blobs_in_windows(gray, windows, self._mosaic, self.min_area, self.max_elongation, self.min_contrast)
+        blobs = find_blobs_in_windows(gray, windows, self._mosaic)
         pixels, areas = self._assign(blobs, prediction)
         if not np.all(np.isfinite(pixels)):
             return None

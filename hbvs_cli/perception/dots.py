@@ -51,6 +51,12 @@ def speck_floor(areas: NDArray[np.float64], keep: int = 3) -> float:
 
 #: Largest dot radius (px) the background estimate leaves out of the background.
 MAX_DOT_RADIUS_PX = 80
+#: Dark components under this many px are noise, not even counted.
+MIN_AREA_PX = 6
+#: Largest ratio of a dot's principal axes: 1 for a disc; one seen 50 deg off its normal gives ~1.55.
+MAX_ELONGATION = 1.8
+#: Below this contrast (gray levels) nothing is detected.
+MIN_CONTRAST = 20.0
 
 
 def dark_image(image: NDArray[np.uint8], polarity: str = "dark", contrast: str = "gray") -> NDArray[np.uint8]:
@@ -108,10 +114,10 @@ class Blobs:
     touches_edge: NDArray[np.bool_]
 
 
-def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fraction: float = 0.01) -> int | None:
+def otsu_threshold(gray: NDArray[np.uint8], clip_fraction: float = 0.01) -> int | None:
     """Threshold separating the darkest gray-level class of ``gray`` (Otsu, refined): pixels
     ``<= threshold`` are dark; None when the two classes' means differ by less than
-    ``min_contrast`` gray levels (nothing stands out).
+    :data:`MIN_CONTRAST` (nothing stands out).
 
     The brightest ``clip_fraction`` of pixels is folded into one bin, so a highlight cannot
     become the bright class. While the dark class holds most pixels (a dark wall around a
@@ -122,11 +128,11 @@ def otsu_threshold(gray: NDArray[np.uint8], min_contrast: float = 20.0, clip_fra
     top = int(np.searchsorted(np.cumsum(hist), (1.0 - clip_fraction) * total))
     hist[top] += hist[top + 1 :].sum()
     hist[top + 1 :] = 0.0
-    threshold = _otsu_split(hist, min_contrast)
+    threshold = _otsu_split(hist)
     for _ in range(2):
         if threshold is None or hist[: threshold + 1].sum() <= 0.5 * total:
             break
-        inner = _otsu_split(hist[: threshold + 1], min_contrast)
+        inner = _otsu_split(hist[: threshold + 1])
         if inner is None:
             break
         threshold = inner
@@ -170,7 +176,7 @@ def ground_noise(flat: NDArray[np.float32], floor: float = 0.0) -> float:
     return float(scale * plain_median(differences))
 
 
-def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
+def _otsu_split(hist: NDArray[np.float64]) -> int | None:
     """Otsu's threshold of a histogram (bins = gray levels from 0), or None without contrast."""
     levels = np.arange(hist.size, dtype=np.float64)
     weight0 = np.cumsum(hist)
@@ -182,22 +188,21 @@ def _otsu_split(hist: NDArray[np.float64], min_contrast: float) -> int | None:
         between = weight0 * weight1 * (mean0 - mean1) ** 2
     between[~np.isfinite(between)] = -1.0
     threshold = int(np.argmax(between))
-    if between[threshold] <= 0 or mean1[threshold] - mean0[threshold] < min_contrast:
+    if between[threshold] <= 0 or mean1[threshold] - mean0[threshold] < MIN_CONTRAST:
         return None
     return threshold
 
 
-def _flattened_threshold(raw: NDArray[np.uint8], min_contrast: float, extrapolate_edges: bool
+def _flattened_threshold(raw: NDArray[np.uint8], extrapolate_edges: bool
                          ) -> tuple[NDArray[np.float32], NDArray[np.uint8], int | None]:
     """A window flattened (:func:`flatten_ground`), the 8-bit levels it is thresholded on
     (smoothed when the sensor is noisy) and the threshold."""
     sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
-    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub, NOISY_GROUND), min_contrast)
+    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub, NOISY_GROUND))
     return sub, levels, threshold
 
 
-def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast: float
-                           ) -> tuple[NDArray[np.uint8], int | None]:
+def segmentation_threshold(levels: NDArray[np.uint8], noise: float) -> tuple[NDArray[np.uint8], int | None]:
     """The 8-bit levels of a flattened image (ground at 255) to threshold, smoothed when the
     ground's ``noise`` (gray levels) is above :data:`NOISY_GROUND`, and the threshold: Otsu's, or
     half-way from the ground to the darkest (3x3-averaged) level if that is higher.
@@ -214,26 +219,23 @@ def segmentation_threshold(levels: NDArray[np.uint8], noise: float, min_contrast
         levels = cv2.GaussianBlur(levels, (0, 0), sigma)
         noise /= 2.0 * math.sqrt(math.pi) * sigma
     darkest = float(cv2.blur(levels, (3, 3)).min())
-    if 255.0 - darkest < min_contrast:
+    if 255.0 - darkest < MIN_CONTRAST:
         return levels, None
     halfway = int(0.5 * (255.0 + darkest))
     if noisy:
         # Otsu would split the ground's noise, and a threshold jumping between the two
         # would change the dots' areas (the tracker gates on them) from frame to frame.
         return levels, min(halfway, int(255.0 - GROUND_NOISE_MARGIN * noise))
-    otsu = otsu_threshold(levels, min_contrast)
+    otsu = otsu_threshold(levels)
     return levels, halfway if otsu is None else max(otsu, halfway)
 
 
-def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None = None, min_area: int = 6,
-                    max_elongation: float = 1.8, min_contrast: float = 20.0) -> Blobs:
+def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None = None) -> Blobs:
     """Dark, dot-like blobs of ``gray`` (H, W) uint8 and their sub-pixel centres, thresholded
     and measured with the ground's brightness divided out (:func:`flatten_ground`: uneven lighting).
 
     ``window`` (x0, y0, x1, y1, end-exclusive px): searched alone (default: the whole frame);
-    components under ``min_area`` px are noise, not even counted; a dot is at most a quarter of
-    the window; ``max_elongation``: of the blob's principal axes (1 for a disc; one seen 50 deg
-    off its normal gives ~1.55); below ``min_contrast`` gray levels nothing is detected.
+    a dot is at most a quarter of the window.
     """
     height, width = gray.shape
     x0, y0, x1, y1 = window if window is not None else (0, 0, width, height)
@@ -241,28 +243,27 @@ def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] |
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     if raw.size == 0:
         return empty
-    sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=False)
+    sub, levels, threshold = _flattened_threshold(raw, extrapolate_edges=False)
     if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
         # Faint dots: re-estimate the ground continued past the frame's edges (not in a
         # tracked window, where a few noisy rows would extrapolate it worse).
-        sub, levels, threshold = _flattened_threshold(raw, min_contrast, extrapolate_edges=True)
+        sub, levels, threshold = _flattened_threshold(raw, extrapolate_edges=True)
     if threshold is None:
         return empty
-    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub.shape[1], y0 + sub.shape[0])], [0], [0.25 * sub.size],
-                          min_area, max_elongation)
+    return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub.shape[1], y0 + sub.shape[0])], [0], [0.25 * sub.size])
 
 
 def dot_like_blobs(flat: NDArray, levels: NDArray[np.uint8], threshold: float, windows: list[tuple[int, int, int, int]],
-                   columns: list[int], max_areas: list[float], min_area: int, max_elongation: float) -> Blobs:
-    """The components of ``levels`` below ``threshold`` at least ``min_area`` px large, and the
+                   columns: list[int], max_areas: list[float]) -> Blobs:
+    """The components of ``levels`` below ``threshold`` at least :data:`MIN_AREA_PX` large, and the
     dot-like ones' centres weighed in ``flat`` (:func:`_blob_centre`). Both hold the frame's
     ``windows`` (x0, y0, x1, y1) side by side, each from its column ``columns[i]`` (a frame, or
     one window of it: column 0). Not dot-like: a component reaching its window's edge, larger
-    than ``max_areas[i]`` (px), elongated beyond ``max_elongation``."""
+    than ``max_areas[i]`` (px), elongated beyond :data:`MAX_ELONGATION`."""
     _, binary = cv2.threshold(levels, threshold, 255, cv2.THRESH_BINARY_INV)
     # BBDT: of OpenCV's labelling algorithms, the one that is fast on sparse foreground.
     _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(binary, 8, cv2.CV_32S, cv2.CCL_BBDT)
-    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= MIN_AREA_PX) + 1
     centres = np.full((keep.size, 2), np.nan)
     areas = stats[keep, cv2.CC_STAT_AREA].astype(np.float64)
     round_ = np.zeros(keep.size, dtype=bool)
@@ -279,7 +280,7 @@ def dot_like_blobs(flat: NDArray, levels: NDArray[np.uint8], threshold: float, w
             continue
         view = np.s_[:window_h, column : column + window_w]
         centre, elongation = _blob_centre(flat[view], labels[view], label, (bx, by, bw, bh))
-        if elongation <= max_elongation and math.isfinite(centre[0]) and math.isfinite(centre[1]):
+        if elongation <= MAX_ELONGATION and math.isfinite(centre[0]) and math.isfinite(centre[1]):
             centres[k] = centre + (x0, y0)
             round_[k] = True
     return Blobs(centres, areas, round_, touches)
@@ -321,31 +322,23 @@ def _blob_centre(
     return np.array([u, v]), elongation
 
 
-class DotDetector:
-    """Detect and track ``n_points`` (>= 3) dark dots, keeping their identity.
+#: A candidate farther than this (px) from a dot's predicted position cannot be that dot.
+GATE_PX = 20.0
+#: Nor one whose area is outside these times the dot's averaged area (two merged dots).
+AREA_RATIO = (0.5, 2.0)
+#: An unseen dot is predicted through this many frames, then dropped.
+MAX_COAST = 10
 
-    A candidate farther than ``gate_px`` from a dot's predicted position, or whose area is
-    outside ``area_ratio`` times the dot's averaged area (two merged dots), cannot be that
-    dot; an unseen dot is predicted through ``max_coast`` frames, then dropped. ``min_area``,
-    ``max_elongation``, ``min_contrast``: :func:`find_dark_blobs`'s; ``polarity`` and
-    ``contrast``: one of :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
+
+class DotDetector:
+    """Detect and track ``n_points`` (>= 3) dark dots, keeping their identity (gated by
+    :data:`GATE_PX` and :data:`AREA_RATIO`). ``polarity`` and ``contrast``: one of
+    :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
     """
 
     kind = "dots"
 
-    def __init__(
-        self,
-        n_points: int,
-        *,
-        gate_px: float = 20.0,
-        area_ratio: tuple[float, float] = (0.5, 2.0),
-        max_coast: int = 10,
-        min_area: int = 6,
-        max_elongation: float = 1.8,
-        min_contrast: float = 20.0,
-        polarity: str = "dark",
-        contrast: str = "gray",
-    ) -> None:
+    def __init__(self, n_points: int, *, polarity: str = "dark", contrast: str = "gray") -> None:
         for what, value, choices in (("polarity", polarity, POLARITIES), ("contrast", contrast, CONTRASTS)):
             if value not in choices:
                 raise UsageError(f"dot {what} must be one of {', '.join(choices)}, got {value!r}")
@@ -353,15 +346,8 @@ class DotDetector:
         self.contrast = contrast
         if int(n_points) < 3:
             raise UsageError(f"a dot target needs at least 3 dots, got {n_points}")
-        if gate_px <= 0:
-            raise UsageError(f"the gate must be positive, got {gate_px} px")
         self.n_points = int(n_points)
-        self.gate_px = float(gate_px)
-        self.area_ratio = (float(area_ratio[0]), float(area_ratio[1]))
-        self.min_area = int(min_area)
-        self.max_elongation = float(max_elongation)
-        self.min_contrast = float(min_contrast)
-        self._track = PointTrack(self.n_points, max_coast)
+        self._track = PointTrack(self.n_points, MAX_COAST)
         self._areas = np.full(self.n_points, np.nan)
         self._layout: NDArray[np.float64] | None = None
 
@@ -381,14 +367,14 @@ class DotDetector:
         gray = dark_image(image, self.polarity, self.contrast)
         prediction = check_prediction(predicted, self.n_points, self._track)
         if prediction is None:
-            blobs = self._blobs(gray, None)
+            blobs = find_dark_blobs(gray)
             return self._record(blobs, *self._acquire(blobs))
-        blobs = self._blobs(gray, self._window(gray.shape, prediction))
+        blobs = find_dark_blobs(gray, self._window(gray.shape, prediction))
         pixels, areas = self._assign(blobs, prediction)
         if not np.all(np.isfinite(pixels)):
             # Some dots were not where predicted: a whole-frame acquisition matched to
             # the prediction's (or the last full) layout brings them back.
-            everywhere = self._blobs(gray, None)
+            everywhere = find_dark_blobs(gray)
             again, again_areas = self._acquire(everywhere, prediction if np.all(np.isfinite(prediction)) else None)
             if np.all(np.isfinite(again)):
                 blobs, pixels, areas = everywhere, again, again_areas
@@ -408,16 +394,12 @@ class DotDetector:
         considered = int(blobs.areas.size)  # the components large enough to be looked at
         return Detection(pixels=pixels, found=found, candidates=considered, rejected=considered - int(np.count_nonzero(seen)))
 
-    def _blobs(self, gray: NDArray[np.uint8], window: tuple[int, int, int, int] | None) -> Blobs:
-        """Candidates in ``window`` (None: the whole frame), by :func:`find_dark_blobs` with this detector's options."""
-        return find_dark_blobs(gray, window, self.min_area, self.max_elongation, self.min_contrast)
-
     def _window(self, shape: tuple[int, int], prediction: NDArray[np.float64]) -> tuple[int, int, int, int]:
         """Search window: the predicted dots' box grown by the gate and a dot's size."""
         known = prediction[np.all(np.isfinite(prediction), axis=1)]
         areas = self._areas[np.isfinite(self._areas)]
         radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
-        margin = self.gate_px + radius + 6.0
+        margin = GATE_PX + radius + 6.0
         x0, y0 = np.maximum(np.floor(known.min(axis=0) - margin), 0).astype(int).tolist()
         x1, y1 = np.minimum(np.ceil(known.max(axis=0) + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
         return x0, y0, max(x1, x0), max(y1, y0)
@@ -432,11 +414,11 @@ class DotDetector:
             return pixels, areas
         centres = blobs.centres[candidates]
         distance2 = np.sum((prediction[rows, None, :] - centres[None, :, :]) ** 2, axis=-1)
-        allowed = distance2 <= self.gate_px**2
+        allowed = distance2 <= GATE_PX**2
         expected = self._areas[rows]
         has_area = np.isfinite(expected)
         ratio = blobs.areas[candidates][None, :] / np.where(has_area, expected, 1.0)[:, None]
-        allowed &= ~has_area[:, None] | ((ratio >= self.area_ratio[0]) & (ratio <= self.area_ratio[1]))
+        allowed &= ~has_area[:, None] | ((ratio >= AREA_RATIO[0]) & (ratio <= AREA_RATIO[1]))
         cost = np.where(allowed, distance2, _FORBIDDEN)
         chosen_rows, chosen_cols = optimal_assignment(cost)
         crowded = self._crowded(prediction[rows], expected)
@@ -488,41 +470,34 @@ MIN_CLIPPED_CORE_PX = 4
 SATURATED_FRACTION = 0.5
 
 
-def clipped_core_offsets(image: NDArray[np.uint8], pixels: NDArray[np.float64], polarity: str = "dark", contrast: str = "gray"
-                         ) -> NDArray[np.float64]:
-    """Where each dot's clipped core (pixels at the sensor's limit: 255 for light dots, 0 for
-    dark ones) is centred, less the dot's measured centre (N, 2) px; NaN rows for a dot with
-    no clipped core or not found.
+class SharedPull:
+    """The pull (px) that every dot shares in every frame of a drive: the length of the mean
+    offset of the dots' clipped cores (pixels at the sensor's limit: 255 for light dots, 0 for
+    dark ones) from their measured centres over dots and frames, kept as running sums; 0
+    unless the dots are saturated (a clipped core in at least :data:`SATURATED_FRACTION` of
+    their detections).
 
     A saturated source whose excess charge spills asymmetrically (bloom down the columns)
     pulls the intensity-weighted centroid toward the spill, and does so alike in every frame;
     its clipped core, flat, is pulled less. The offset measures that pull (issue 44's LEDs,
     seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px, every dot alike)."""
-    offsets = np.full((len(pixels), 2), np.nan)
-    radius = CLIPPED_CORE_RADIUS_PX
-    for k, (u, v) in enumerate(np.asarray(pixels, dtype=float)):
-        if not (np.isfinite(u) and np.isfinite(v)):
-            continue
-        x0, y0 = max(int(round(u)) - radius, 0), max(int(round(v)) - radius, 0)
-        patch = dark_image(np.ascontiguousarray(image[y0:int(round(v)) + radius + 1, x0:int(round(u)) + radius + 1]), polarity, contrast)
-        rows, columns = np.nonzero(patch == 0)
-        if rows.size >= MIN_CLIPPED_CORE_PX:
-            offsets[k] = (columns.mean() + x0 - u, rows.mean() + y0 - v)
-    return offsets
-
-
-class SharedPull:
-    """The pull (px) that every dot shares in every frame of a drive: the length of the mean
-    of the clipped cores' offsets (:func:`clipped_core_offsets`) over dots and frames, kept
-    as running sums; 0 unless the dots are saturated (a clipped core in at least
-    :data:`SATURATED_FRACTION` of their detections)."""
 
     def __init__(self, polarity: str = "dark", contrast: str = "gray") -> None:
         self.polarity, self.contrast = polarity, contrast
         self._sum, self._cores, self._detections = np.zeros(2), 0, 0
 
     def add(self, image: NDArray[np.uint8], pixels: NDArray[np.float64]) -> None:
-        offsets = clipped_core_offsets(image, pixels, self.polarity, self.contrast)
+        offsets = np.full((len(pixels), 2), np.nan)  # NaN rows: no clipped core, or not found
+        radius = CLIPPED_CORE_RADIUS_PX
+        for k, (u, v) in enumerate(np.asarray(pixels, dtype=float)):
+            if not (np.isfinite(u) and np.isfinite(v)):
+                continue
+            x0, y0 = max(int(round(u)) - radius, 0), max(int(round(v)) - radius, 0)
+            patch = dark_image(np.ascontiguousarray(image[y0:int(round(v)) + radius + 1, x0:int(round(u)) + radius + 1]),
+                               self.polarity, self.contrast)
+            rows, columns = np.nonzero(patch == 0)
+            if rows.size >= MIN_CLIPPED_CORE_PX:
+                offsets[k] = (columns.mean() + x0 - u, rows.mean() + y0 - v)
         seen = offsets[np.all(np.isfinite(offsets), axis=1)]
         self._sum += seen.sum(axis=0)
         self._cores += len(seen)

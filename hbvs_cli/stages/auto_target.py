@@ -11,7 +11,6 @@ import numpy as np
 from ..core.camera import CameraIntrinsics
 from ..core.desired import MIN_PARTIAL_POINTS, fit_desired_trajectory
 from ..core.metrics import rms
-from ..core.plane import KnownShape
 from ..errors import HbvsError, InputError, InsufficientDataError, UsageError
 from ..io.teach_file import TeachReader
 from ..perception.autodetect import Candidates
@@ -59,7 +58,7 @@ def followed_frames(source: str, frame_count: int | None, colour: bool, first: S
             yield frame.t, decode_frame(frame, reader.name, colour=colour)[1]
 
 
-def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec], shapes_of: Callable[[DetectorSpec], list[KnownShape]],
+def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec],
           frames: Iterable[tuple[float, np.ndarray]], camera: CameraIntrinsics, max_lost: float, seed: int = 0) -> list[Judged]:
     """Every candidate followed by its own tracker over ``frames`` (``(t, image)``, read once) and judged, in order."""
     specs = [spec_of(choice) for choice in candidates.found]
@@ -81,7 +80,7 @@ def judge(candidates: Candidates, spec_of: Callable[[TargetChoice], DetectorSpec
             judged.append(Judged(choice, spec, 0, len(times), rejected=failure))
             continue
         spec, found = _markers_whole_in_the_first_frame(spec, np.stack(found))
-        judged.append(_judged(choice, spec, np.asarray(times), found, shapes_of(spec), camera, max_lost))
+        judged.append(_judged(choice, spec, np.asarray(times), found, camera, max_lost))
     return judged
 
 
@@ -98,7 +97,7 @@ def _markers_whole_in_the_first_frame(spec: DetectorSpec, pixels: np.ndarray) ->
             pixels[:, np.repeat(whole, 4)])
 
 
-def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels: np.ndarray, shapes: list[KnownShape],
+def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels: np.ndarray,
             camera: CameraIntrinsics, max_lost: float) -> Judged:
     """One candidate's verdict from its pixels (F, N, 2) over the followed frames at ``times``."""
     frames = len(times)
@@ -108,8 +107,8 @@ def _judged(choice: TargetChoice, spec: DetectorSpec, times: np.ndarray, pixels:
         return Judged(choice, spec, seen, frames, rejected=f"missing from {frames - seen} of {frames} frames")
     rows = np.unique(np.linspace(0, frames - 1, min(JUDGE_FRAMES, frames)).round().astype(int))
     try:
-        fit = fit_desired_trajectory(times[rows], pixels[rows], 0, camera, None, max_lost=1.0, max_gap=float("inf"), shapes=shapes,
-                                     errors=target_kind(spec.kind).errors)
+        fit = fit_desired_trajectory(times[rows], pixels[rows], 0, camera, None, max_lost=1.0, max_gap=float("inf"),
+                                     shapes=target_kind(spec.kind).shapes(spec), errors=target_kind(spec.kind).errors)
     except HbvsError as exc:
         not_whole = isinstance(exc, InsufficientDataError) and exc.facts.get("reason") == "not_in_reference"
         return Judged(choice, spec, seen, frames, rejected="not whole in the first frame" if not_whole else str(exc))

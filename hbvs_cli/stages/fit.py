@@ -21,7 +21,6 @@ from ..core.depth import DepthEstimate, depth_from_taught_commands, depth_from_t
 from ..core.desired import DesiredFit, fit_desired_trajectory
 from ..core.fit_model import DepthEstimates, FitModel, SensorSettings
 from ..core.gains import GainSuggestion
-from ..core.plane import KnownShape
 from ..errors import GeometryError, HbvsError, InputError, InsufficientDataError, RecordingError, UsageError
 from ..settings.commands import MAX_DEPTH, MIN_DEPTH, FitOptions
 from .console import Console
@@ -370,7 +369,8 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
     second one: a stop signal inside an import can leave its lock held and the threads deadlocked."""
     from threadpoolctl import threadpool_limits
 
-    shapes = _known_shapes(spec, layout)
+    # The target's parts of known shape (each marker's square, a board's grid), or the layout (--target-points).
+    shapes = [(range(layout.shape[0]), layout)] if layout is not None else target_kind(spec.kind).shapes(spec)
     smoothing = parse_smoothing(options.smoothing)
     _load_solvers()  # (done already if read ahead) before BLAS is limited: threadpoolctl limits the libraries loaded
     try:
@@ -404,11 +404,6 @@ def layout_given_warn(warn: Callable[[str], None]) -> Callable[[str], None]:
     def told(message: str) -> None:
         warn(message.replace(KNOWN_GEOMETRY_ADVICE, "").replace("what would pin it:", "the layout is given (--target-points); what would pin it more:"))
     return told
-
-
-def _known_shapes(spec: DetectorSpec, layout: np.ndarray | None = None) -> list[KnownShape]:
-    """The target's parts of known shape (each marker's square, a board's grid), or ``layout`` (--target-points)."""
-    return [(range(layout.shape[0]), layout)] if layout is not None else target_kind(spec.kind).shapes(spec)
 
 
 def _insufficient_data_message(exc: InsufficientDataError, options: FitOptions) -> str:
@@ -490,7 +485,7 @@ def _detector_spec(
         else:
             candidates = target_candidates(images, camera, seed=options.seed)
             spec_of = lambda choice: spec_of_kind(choice.kind, choice.details, options, images, camera, console)  # noqa: E731
-            best, reason = picked(judge(candidates, spec_of, _known_shapes, sample(), camera, options.max_lost, options.seed),
+            best, reason = picked(judge(candidates, spec_of, sample(), camera, options.max_lost, options.seed),
                                   candidates, options.max_lost)
             console.info(f"--target auto picked {best.choice.kind}: {reason}")
             return best.spec
