@@ -5,10 +5,10 @@ significant digits when a section is made, so the JSON, the tables and ``--fail-
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, make_dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
-from ..core.metrics import LYAPUNOV, SMOOTHNESS, STATISTICS, round_significant
+from ..core.metrics import round_significant
 
 #: Significant digits of every number in a report (float noise is not a measurement).
 REPORT_DIGITS = 7
@@ -66,20 +66,29 @@ class RunSummary(Section):
     truncated: bool
 
 
-def _section(name: str, doc: str, *fields: str | tuple[str, Any]) -> Any:
-    """A :class:`Section` class with ``fields`` in order: a bare name is a ``float | None`` field."""
-    return make_dataclass(
-        name, [(field, float | None) if isinstance(field, str) else field for field in fields], bases=(Section,), frozen=True,
-        namespace={"__module__": __name__, "__doc__": doc},
-    )
+@dataclass(frozen=True)
+class ErrorSummary(Section):
+    """The statistics of one error signal (:data:`hbvs_cli.core.metrics.STATISTICS`) in its unit; None when unknown."""
+
+    rmse: float | None
+    mean: float | None
+    median: float | None
+    std: float | None
+    min: float | None
+    max: float | None
+    initial: float | None
+    final: float | None
+    settling_time_s: float | None
 
 
-#: A field per statistic of :data:`hbvs_cli.core.metrics.STATISTICS`, in its order.
-ErrorSummary = _section("ErrorSummary", "The statistics of one error signal in its unit; None when unknown.", *STATISTICS)
-Lyapunov = _section(
-    "Lyapunov", "The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; "
-    "None without the true d*.", *LYAPUNOV,
-)
+@dataclass(frozen=True)
+class Lyapunov(Section):
+    """The Lyapunov function (36): first and last values, their ratio, the fraction of steps at which it rose; None without the true d*."""
+
+    initial: float | None
+    final: float | None
+    ratio: float | None
+    increase_fraction: float | None
 
 
 @dataclass(frozen=True)
@@ -97,17 +106,41 @@ class Depth(Section):
     warning: str | None
 
 
-Limits = _section(
-    "Limits", "The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited.", "max_v", "max_w", "max_accel",
-)
-TaughtSmoothness = _section(
-    "TaughtSmoothness", "How smooth the taught commands (25) are: total variations and RMS rates of change.", *SMOOTHNESS[:4],
-)
-Commands = _section(
-    "Commands", "The commands (29), (30): peaks, RMS, saturation and smoothness against the taught ones.",
-    "v_peak_mps", "v_rms_mps", "w_peak_radps", "w_rms_radps", ("saturated_fraction", float), *SMOOTHNESS,
-    ("limits", Limits), ("taught", TaughtSmoothness),
-)
+@dataclass(frozen=True)
+class Limits(Section):
+    """The actuator limits of the run (m/s, rad/s, m/s^2); None when unlimited."""
+
+    max_v: float | None
+    max_w: float | None
+    max_accel: float | None
+
+
+@dataclass(frozen=True)
+class TaughtSmoothness(Section):
+    """How smooth the taught commands (25) are: total variations and RMS rates of change."""
+
+    v_tv_per_s: float | None
+    w_tv_per_s: float | None
+    dv_dt_rms_mps2: float | None
+    dw_dt_rms_radps2: float | None
+
+
+@dataclass(frozen=True)
+class Commands(Section):
+    """The commands (29), (30): peaks, RMS, saturation and smoothness against the taught ones."""
+
+    v_peak_mps: float | None
+    v_rms_mps: float | None
+    w_peak_radps: float | None
+    w_rms_radps: float | None
+    saturated_fraction: float
+    v_tv_per_s: float | None
+    w_tv_per_s: float | None
+    dv_dt_rms_mps2: float | None
+    dw_dt_rms_radps2: float | None
+    at_limit_fraction: float | None
+    limits: Limits
+    taught: TaughtSmoothness
 
 
 @dataclass(frozen=True)
