@@ -44,7 +44,6 @@ from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
 from . import live
-from .live import LostWatch
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_pair
@@ -282,13 +281,13 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
-    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as view:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)
+            writer = view(file_writer)
             _note_truncated(writer, options, fit, console)
             run = RunWriter(writer, _run_metadata("sim", options, settings, fit, scene.d_true, scene), model.camera, SIMULATION_EPOCH_NS)
             log = _StepLog(run, settings, model, scene.d_true, cmd_stream)
-            lost = LostWatch(settings.lost_timeout, log)
+            lost = live.LostWatch(settings.lost_timeout, log)
             height = scene.world.camera_height
             scene_3d = SceneWriter(writer)
             scene_3d.start(SIMULATION_EPOCH_NS, height, scene.world, np.array(taught_poses))
@@ -422,9 +421,9 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     controller = tracking.controller
     servo = ServoStep(controller, settings.limits, 0, None, stop_when_lost=True)
     tally = _Tally()
-    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as live:
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as view:
         with open_output(options.output) as file_writer:
-            writer = live(file_writer)
+            writer = view(file_writer)
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
             log = tracking.step_log(_StepLog(run, settings, model, None, cmd_stream))
             with console.progress("repeat (replay)", None) as bar:
@@ -494,4 +493,4 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
 
 #: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
 ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
-                              lost_watch=LostWatch, check_settings=check_simulation_settings)
+                              lost_watch=live.LostWatch, check_settings=check_simulation_settings)
