@@ -2,7 +2,7 @@
 that ``hbvs report`` prints. docs/report.md documents every field and unit, and the
 convergence rule of :func:`verdict` ("Convergence rule"), whose bounds are
 :data:`DEFAULT_TOLERANCES` (which also band the settling times), :data:`V_RATIO_BOUND` and
-:func:`smoothness_bound`.
+:data:`SMOOTHNESS_FACTOR`.
 """
 
 from __future__ import annotations
@@ -284,11 +284,6 @@ def _lyapunov_check(lyapunov: Lyapunov) -> tuple[bool | None, str]:
     return _check(fell, f"V final / V(0) = {lyapunov.ratio:.3g} {'<' if fell else '>='} {V_RATIO_BOUND:g}")
 
 
-def smoothness_bound(taught_rms: float | None, floor: float) -> float:
-    """The largest RMS rate of change of a command that is not chatter (``floor``: for the start's correction)."""
-    return SMOOTHNESS_FACTOR * (taught_rms or 0.0) + floor
-
-
 def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
     parts, passed = [], True
     for name, value, taught, floor, unit in (
@@ -297,7 +292,7 @@ def _smoothness_check(commands: Commands) -> tuple[bool | None, str]:
     ):
         if value is None:
             return _check(None, "command smoothness unknown (fewer than two steps): not checked")
-        bound = smoothness_bound(taught, floor)
+        bound = SMOOTHNESS_FACTOR * (taught or 0.0) + floor  # the most that is not chatter (floor: the start's correction)
         within = value <= bound
         passed = passed and within
         parts.append(f"RMS d{name}/dt {value:.3g} {'<=' if within else '>'} {bound:.3g} {unit}")
