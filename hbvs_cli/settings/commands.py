@@ -242,6 +242,8 @@ class RepeatOptions(Options):
 REPEAT_SETTINGS = settings_of(RepeatOptions)
 #: The settings by name.
 REPEAT = {setting.name: setting for setting in REPEAT_SETTINGS}
+#: ``repeat --sim``'s faults (its Faults panel), in their order: a run's metadata records them, ``--live`` refuses them.
+SIM_FAULTS = tuple(setting.name for setting in REPEAT_SETTINGS if setting.panel == "Faults")
 
 
 #: ``hbvs robot-sim``: a stand-in robot in its own process, over ROS 2 (docs/robot.md).

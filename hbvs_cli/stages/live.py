@@ -25,7 +25,7 @@ from ..io.ros2_names import check_topic_names
 from ..io.run_file import RunWriter
 from ..io.sources.frame_source import LiveFrame
 from ..io.topics import ROS_CMD_VEL_TOPIC
-from ..settings.commands import RepeatOptions
+from ..settings.commands import SIM_FAULTS, RepeatOptions
 from ..stop_signals import Terminated, raise_if_stopped
 
 #: Consecutive frames with the target near its taught start view before the first non-zero command.
@@ -142,7 +142,7 @@ def check_live_options(options: RepeatOptions, lost_timeout: float) -> None:
     if options.stale_timeout > lost_timeout:
         raise UsageError(f"--stale-timeout {options.stale_timeout:g} s is longer than --lost-timeout {lost_timeout:g} s: the "
                          "robot would stop for a lost camera before it stopped for a stale one")
-    for name in ("occlude", "drop_rate", "outlier_rate", "exposure_step", "record_images", "depth"):
+    for name in (*SIM_FAULTS, "record_images", "depth"):
         value = getattr(options, name)
         if value not in (None, False, 0.0, []):
             raise UsageError(f"--{name.replace('_', '-')} is for --sim; a live run's faults are real")

@@ -39,7 +39,7 @@ from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
 from ..io.run_file import RunWriter
-from ..settings.commands import DEFAULT_GAINS, REPEAT, RepeatOptions
+from ..settings.commands import DEFAULT_GAINS, REPEAT, SIM_FAULTS, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
@@ -331,10 +331,7 @@ def _run_metadata(mode: str, options: RepeatOptions, settings: Settings, fit: Fi
         "file_kind": "run", "hbvs_version": __version__, "mode": mode, "law": settings.law, "gains": settings.gains.as_dict(),
         "settings": settings.as_dict() | {
             "seed": options.seed, "input": str(options.input), "replay": str(options.replay) if options.replay else None,
-            "faults": {
-                "occlude": options.occlude, "drop_rate": options.drop_rate,
-                "outlier_rate": options.outlier_rate, "exposure_step": options.exposure_step,
-            },
+            "faults": {name: getattr(options, name) for name in SIM_FAULTS},
             "record_images": options.record_images,
         },
         "d_true": d_true, "dhat0": settings.dhat0, "target_kind": model.target_kind,
