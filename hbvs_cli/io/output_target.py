@@ -296,11 +296,14 @@ class GuardedStream(ClosedOnExit):
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
 
+    def _write_raw(self, view: Any) -> None:
+        with self.reported():
+            self._raw.write(view)
+
     def _release(self) -> None:
         held, self._held = self._held, None
         if held:
-            with self.reported():
-                self._raw.write(memoryview(held))
+            self._write_raw(memoryview(held))
 
     def discard(self) -> None:
         """Drop the bytes still held back (nothing of a failed stage reaches the reader)."""
@@ -314,8 +317,7 @@ class GuardedStream(ClosedOnExit):
             if len(self._held) > self._hold:
                 self._release()
         else:
-            with self.reported():
-                self._raw.write(view)
+            self._write_raw(view)
         self._count += len(view)
         return len(view)
 
