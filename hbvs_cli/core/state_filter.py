@@ -150,10 +150,6 @@ def _sym_times(s: Sym3, a0: float, a1: float, a2: float) -> Vec3:
     return s00 * a0 + s01 * a1 + s02 * a2, s01 * a0 + s11 * a1 + s12 * a2, s02 * a0 + s12 * a1 + s22 * a2
 
 
-def _dot(a: Vec3, b: Vec3) -> float:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def residual_to_variance(points: int) -> float:
     """``sigma^2 / r^2`` for the RMS residual r of a known-normal solve of N ``points``: three
     parameters fitted to 2N coordinates."""
@@ -332,7 +328,7 @@ class ServoStateFilter:
             return self._reject(measured, residual, dt, observed)
         # S^-1 nu, and the squared Mahalanobis distance nu^T S^-1 nu.
         weights = _sym_times(inverse, *innovation)
-        if _dot(innovation, weights) > self.settings.gate:
+        if innovation[0] * weights[0] + innovation[1] * weights[1] + innovation[2] * weights[2] > self.settings.gate:
             return self._reject(measured, residual, dt, observed)
         self.rejected_in_a_row = 0
         # The measurement sees the first three states: K = P[:, :3] S^-1, x += K nu and
