@@ -505,7 +505,10 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
     theta_sigma = np.full(t.shape, np.nan)
     x_h1_sigma = np.full(t.shape, np.nan)
     theta_sigma[used], x_h1_sigma[used] = sigma[:, 0], sigma[:, 1]
-    directions = _shared_directions(covariance)
+    # The globals' independent errors, (G, r): covariance.shared = directions directions^T.
+    values, vectors = np.linalg.eigh(covariance.shared)
+    keep = values > 1e-6 * max(float(values.max()), 1e-300)
+    directions = vectors[:, keep] * np.sqrt(values[keep])
     probes = _random_signs(np.random.default_rng(0), int(used.sum()), NOISE_PROBES)
     times = t[span]
     smoothed = []
@@ -539,13 +542,6 @@ def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: 
         smooth_x_h1_sigma=smoothed[1],
         error_modes=partial(_error_modes, covariance, directions, t[used], trajectory),
     )
-
-
-def _shared_directions(covariance: JointCovariance) -> NDArray[np.float64]:
-    """(G, r) with ``covariance.shared = directions directions^T``: the globals' independent errors."""
-    values, vectors = np.linalg.eigh(covariance.shared)
-    keep = values > 1e-6 * max(float(values.max()), 1e-300)
-    return vectors[:, keep] * np.sqrt(values[keep])
 
 
 def _inherited_columns(covariance: JointCovariance, directions: NDArray[np.float64], rows: slice, index: int) -> list[NDArray[np.float64]]:
