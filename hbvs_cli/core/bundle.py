@@ -281,10 +281,8 @@ def joint_covariance(estimated: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, 
     move by ``readout_sigma``. ``common_shift(points)``: how points (K, N, 3) move with one
     standard deviation of each of D errors every frame shares, F* too (K, 2N, D; normalised
     units, each point's ``(m_y, m_z)`` in turn): bloom's (:func:`uniform_shift`), the
-    calibration's (:func:`~.camera.calibration_shifts`). n* and the reference points absorb
-    each of these and the residuals cannot show them: their effect on the estimate, ``(J^T J)^-1
-    J^T W`` by the same Schur complement, ``W`` how the residuals move with them, is the bias
-    (:class:`JointCovariance`; docs/uncertainty.md, "The uncertainty").
+    calibration's (:func:`~.camera.calibration_shifts`). The estimate's move with each of these
+    is the bias (:class:`JointCovariance`; why and how: docs/uncertainty.md, "The uncertainty").
     """
     estimated = np.asarray(estimated, dtype=float)
     motion = np.asarray(motion, dtype=float)
