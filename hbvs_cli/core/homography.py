@@ -68,6 +68,16 @@ def depth_ratios(m: ArrayLike, m_ref: ArrayLike) -> NDArray[np.float64]:
     return m[..., 2] / m_ref[:, 2]
 
 
+def ratio_rows(m: NDArray[np.float64], m_ref: NDArray[np.float64]) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """The right-hand sides ``(1 / alpha_i, m_iy / alpha_i)`` (..., N, 2) of rows 1 and 2 of (12)
+    (:func:`estimate_euclidean_homography`), and ``valid`` (...): finite points, every alpha_i > 0."""
+    alpha = depth_ratios(m, m_ref)
+    valid = np.all(np.isfinite(m), axis=(-1, -2)) & np.all(alpha > 0.0, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_alpha = 1.0 / alpha
+        return valid, np.stack([inv_alpha, m[..., 1] * inv_alpha], axis=-1)
+
+
 def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyEstimate:
     """Euclidean homography by the paper's three-point method, (16)-(18).
 
@@ -81,12 +91,7 @@ def estimate_euclidean_homography(m: ArrayLike, m_ref: ArrayLike) -> HomographyE
             f"current points have shape {m.shape[-2:]} but the reference has {m_ref.shape}: "
             "every reference point needs its current image"
         )
-    alpha = depth_ratios(m, m_ref)
-    finite = np.all(np.isfinite(m), axis=(-1, -2))
-    valid = finite & np.all(alpha > 0.0, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv_alpha = 1.0 / alpha
-        rhs = np.stack([inv_alpha, m[..., 1] * inv_alpha], axis=-1)  # (..., N, 2)
+    valid, rhs = ratio_rows(m, m_ref)  # (...), (..., N, 2)
     # One pseudo-inverse of the reference design serves every frame and both rows.
     design_pinv = np.linalg.pinv(m_ref)  # (3, N)
     rows = np.einsum("kn,...nr->...rk", design_pinv, rhs)  # (..., 2, 3)

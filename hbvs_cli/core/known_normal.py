@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, NoValidBranchError
 from .decomposition import PlanarMotion
-from .homography import depth_ratios, validate_reference_points
+from .homography import ratio_rows, validate_reference_points
 
 
 def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> tuple[Any, ...]:
@@ -110,15 +110,8 @@ class KnownNormalSolver:
             raise GeometryError(
                 f"current points have shape {m.shape[-2:]} but the reference has {m_ref.shape}"
             )
-        alpha = depth_ratios(m, m_ref)
-        finite = np.all(np.isfinite(m), axis=(-1, -2))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            valid = finite & np.all(alpha > 0.0, axis=-1)
-            inv_alpha = 1.0 / alpha
-            rhs = np.empty(m.shape[:-2] + (2 * m_ref.shape[0],))
-            rhs[..., 0::2] = inv_alpha
-            rhs[..., 1::2] = m[..., 1] * inv_alpha
-        rhs = np.where(valid[..., None], rhs, 0.0)
+        valid, rhs = ratio_rows(m, m_ref)  # the homography's (12), (18): each point's two rows in turn
+        rhs = np.where(valid[..., None], rhs.reshape(valid.shape + (-1,)), 0.0)
         solution = rhs @ self._pinv.T
         theta = np.arctan2(solution[..., 1], solution[..., 0])
         x1, x2 = solution[..., 2], solution[..., 3]
