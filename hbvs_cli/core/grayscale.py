@@ -26,10 +26,8 @@ def as_gray(image: Any, what: str = "the camera frame") -> NDArray[np.uint8]:
         raise NotAnImageError(f"{what}: unsupported pixel type {image.dtype} (8- or 16-bit images only)")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
-    elif image.ndim == 3 and image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    elif image.ndim == 3 and image.shape[2] in (3, 4):
+        image = cv2.cvtColor(image, {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}[image.shape[2]])
     elif image.ndim != 2:
         raise NotAnImageError(f"{what}: unsupported image shape {image.shape}")
     return np.ascontiguousarray(image)
