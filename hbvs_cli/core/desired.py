@@ -334,7 +334,11 @@ def fit_desired_trajectory(
     outliers = int(np.sum(found & ~used))
     frames = frame_stats(t, used, outliers, max_lost, max_gap)
     span = slice(int(np.flatnonzero(used)[0]), int(np.flatnonzero(used)[-1]) + 1)
-    trajectory = fit_spline_trajectory(*_binned(t[used], motion.theta[used], motion.x_h[used, 0], motion.x_h[used, 1]), smoothing)
+    # The samples averaged as _binned_columns averages, a signal at a time (one column: the same
+    # sums as alone); theta_d unwrapped first, so that a crossing of +-pi does not average to 0.
+    binned = [_binned_columns(t[used], lambda rows, x=x: x[rows, None])
+              for x in (np.unwrap(motion.theta[used]), motion.x_h[used, 0], motion.x_h[used, 1])]
+    trajectory = fit_spline_trajectory(binned[0][0], *(columns[:, 0] for _, columns in binned), smoothing)
     condition = feedforward_condition(trajectory, t[span])
     # The first used frame's measured pixels, a partial frame's points out of view where its pose
     # puts them (undistorted: a prediction for repeat's first search only).
@@ -604,14 +608,6 @@ def _random_signs(rng: np.random.Generator, rows: int, columns: int) -> NDArray[
     signs = np.array([-1, 1], dtype=np.int8)
     return np.concatenate([rng.choice(signs, size=(min(UNCERTAINTY_BLOCK, rows - k), columns))
                            for k in range(0, rows, UNCERTAINTY_BLOCK)] or [np.empty((0, columns), np.int8)])
-
-
-def _binned(t: NDArray[np.float64], *signals: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-    """``(t, *signals)`` averaged as :func:`_binned_columns` averages, a signal at a time (one
-    column: the same sums as alone); theta_d, the first, unwrapped, so that a crossing of +-pi
-    does not average to 0."""
-    binned = [_binned_columns(t, lambda rows, x=x: x[rows, None]) for x in (np.unwrap(signals[0]), *signals[1:])]
-    return (binned[0][0], *(columns[:, 0] for _, columns in binned))
 
 
 def frame_stats(t: NDArray[np.float64], used: NDArray[np.bool_], outliers: int, max_lost: float, max_gap: float) -> FrameStats:
