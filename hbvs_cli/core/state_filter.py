@@ -187,7 +187,6 @@ class ServoStateFilter:
         self._state: State | None = None
         self._covariance: Sym4 | None = None
         self._rho_prior = math.nan
-        self._rho_range = (0.0, math.inf)
         if depth is not None:
             self.expect_depth(depth)
         self.rejected_in_a_row = 0
@@ -201,7 +200,6 @@ class ServoStateFilter:
         if self._state is not None:
             return
         self._rho_prior = 1.0 / check_depth(depth, "the filter's depth guess")
-        self._rho_range = (self._rho_prior / INVERSE_DEPTH_RANGE, self._rho_prior * INVERSE_DEPTH_RANGE)
 
     @property
     def state(self) -> NDArray[np.float64] | None:
@@ -339,7 +337,7 @@ class ServoStateFilter:
         b0, b1, b2 = _sym_times(inverse, p01, p11, p12)
         c0, c1, c2 = _sym_times(inverse, p02, p12, p22)
         d0, d1, d2 = _sym_times(inverse, p03, p13, p23)
-        low, high = self._rho_range
+        low, high = self._rho_prior / INVERSE_DEPTH_RANGE, self._rho_prior * INVERSE_DEPTH_RANGE
         self._state = (theta + p00 * w0 + p01 * w1 + p02 * w2, x1 + p01 * w0 + p11 * w1 + p12 * w2,
                        x2 + p02 * w0 + p12 * w1 + p22 * w2, min(max(rho + p03 * w0 + p13 * w1 + p23 * w2, low), high))
         self._covariance = (
