@@ -169,15 +169,14 @@ class ServoStateFilter:
     """
 
     def __init__(self, m_ref: ArrayLike, normal: ArrayLike, noise: float, depth: float | None = None) -> None:
-        self.m_ref = np.asarray(m_ref, dtype=float)
-        self.normal = np.asarray(normal, dtype=float)
+        m_ref = np.asarray(m_ref, dtype=float)
         self.settings = FilterSettings()
         if not (math.isfinite(noise) and noise >= 0.0):
             raise InvalidValueError(f"the initial measurement noise must be a non-negative number, got {noise}")
-        points = self.m_ref.shape[0]
-        self._y_ref = self.m_ref[:, 1].tolist()
-        self._z_ref = self.m_ref[:, 2].tolist()
-        self._g = (self.m_ref @ self.normal).tolist()
+        points = m_ref.shape[0]
+        self._y_ref = m_ref[:, 1].tolist()
+        self._z_ref = m_ref[:, 2].tolist()
+        self._g = (m_ref @ np.asarray(normal, dtype=float)).tolist()
         self._residual_to_variance = residual_to_variance(points)
         from scipy.stats import chi2
 
