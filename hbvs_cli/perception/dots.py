@@ -193,15 +193,6 @@ def _otsu_split(hist: NDArray[np.float64]) -> int | None:
     return threshold
 
 
-def _flattened_threshold(raw: NDArray[np.uint8], extrapolate_edges: bool
-                         ) -> tuple[NDArray[np.float32], NDArray[np.uint8], int | None]:
-    """A window flattened (:func:`flatten_ground`), the 8-bit levels it is thresholded on
-    (smoothed when the sensor is noisy) and the threshold."""
-    sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
-    levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub, NOISY_GROUND))
-    return sub, levels, threshold
-
-
 def segmentation_threshold(levels: NDArray[np.uint8], noise: float) -> tuple[NDArray[np.uint8], int | None]:
     """The 8-bit levels of a flattened image (ground at 255) to threshold, smoothed when the
     ground's ``noise`` (gray levels) is above :data:`NOISY_GROUND`, and the threshold: Otsu's, or
@@ -243,11 +234,13 @@ def find_dark_blobs(gray: NDArray[np.uint8], window: tuple[int, int, int, int] |
     empty = Blobs(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=bool), np.empty(0, dtype=bool))
     if raw.size == 0:
         return empty
-    sub, levels, threshold = _flattened_threshold(raw, extrapolate_edges=False)
-    if window is None and threshold is not None and 255.0 - threshold < SHALLOW_THRESHOLD_DEPTH:
-        # Faint dots: re-estimate the ground continued past the frame's edges (not in a
+    for extrapolate_edges in (False, True):
+        sub = flatten_ground(raw, extrapolate_edges=extrapolate_edges)
+        levels, threshold = segmentation_threshold(np.clip(sub + 0.5, 0, 255).astype(np.uint8), ground_noise(sub, NOISY_GROUND))
+        # Faint dots: the ground re-estimated continued past the frame's edges (not in a
         # tracked window, where a few noisy rows would extrapolate it worse).
-        sub, levels, threshold = _flattened_threshold(raw, extrapolate_edges=True)
+        if window is not None or threshold is None or 255.0 - threshold >= SHALLOW_THRESHOLD_DEPTH:
+            break
     if threshold is None:
         return empty
     return dot_like_blobs(sub, levels, threshold, [(x0, y0, x0 + sub.shape[1], y0 + sub.shape[0])], [0], [0.25 * sub.size])

@@ -86,15 +86,13 @@ class TrackedDetector:
         return cv2.remap(image, *self._undistort_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def search_windows(self) -> list[Window] | None:
-        """The image windows the next detection needs (dots followed in windows), or None
-        when it needs the whole frame (the first frame, a lost track, another kind)."""
+        """:meth:`.WindowedDotDetector.search_windows` in this camera's frames; None for another kind (or none yet)."""
         if not isinstance(self._detector, WindowedDotDetector):
             return None
         return self._detector.search_windows((int(self.camera.height), int(self.camera.width)))
 
     def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None:
-        """Pixels (N, 2) of the target points found in ``windows`` (of :meth:`search_windows`) of
-        ``image`` (its only pixels read), or None, the track unchanged, unless every point was found there."""
+        """The pixels (N, 2) of :meth:`.WindowedDotDetector.detect_in_windows`'s detection, or None."""
         detection = self._detector.detect_in_windows(image, windows)
         return None if detection is None else np.asarray(detection.pixels, dtype=float)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any
 
 import cv2
 import numpy as np
@@ -15,7 +15,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from .render import SceneRenderer, Window
+from .render import SceneRenderer
 from .scene import Scene, point_identity, renderer_for
 
 
@@ -40,26 +40,13 @@ class CameraSettings:
     record_images: bool = False
 
 
-class PointDetector(Protocol):
-    """What the camera runs on a rendered frame: the fit's detector, made by the stage
-    (:func:`hbvs_cli.perception.tracked.detector_from_model` with ``windowed=True``)."""
-
-    def detect(self, image: np.ndarray) -> np.ndarray:
-        """Pixels (N, 2) of the target points in ``image``; NaN rows for points not found."""
-
-    def search_windows(self) -> list[Window] | None:
-        """The windows the next detection needs, or None for the whole frame."""
-
-    def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None:
-        """Pixels (N, 2) found in ``windows`` of ``image``, or None: then :meth:`detect`."""
-
-
 class SimulatedCamera:
     """The repeat's camera: ``perception="images"`` renders the scene and runs the fit's
-    detector on it, ``"points"`` projects the target points; faults as :class:`CameraSettings`."""
+    ``detector`` on it (the stage's :class:`hbvs_cli.perception.tracked.TrackedDetector` with
+    ``windowed=True``), ``"points"`` projects the target points; faults as :class:`CameraSettings`."""
 
     def __init__(
-        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: PointDetector | None,
+        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: Any,
     ) -> None:
         self.scene = scene
         self.model = model
@@ -84,25 +71,25 @@ class SimulatedCamera:
         if self.settings.drop_rate > 0 and self.fault_rng.random() < self.settings.drop_rate:
             return dropped()
         outlier = self.settings.outlier_rate > 0 and self.fault_rng.random() < self.settings.outlier_rate
-        if self.settings.perception == "points":
-            return self._observe_points(pose, t, outlier)
-        return self._observe_image(pose, t, outlier)
-
-    def _observe_points(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
-        pixels = None if self._occluded(t) else self._project(pose)
-        if pixels is None:
-            return Observation(None, status=ObservationStatus.OCCLUDED)
-        pixels = distort_pixels(self.scene.world.camera, pixels)
+        points = self.settings.perception == "points"
+        if points:
+            pixels = None if self._occluded(t) else self._project(pose)
+            if pixels is None:
+                return Observation(None, status=ObservationStatus.OCCLUDED)
+            pixels = distort_pixels(self.scene.world.camera, pixels)
+        else:
+            pixels = self._measured_pixels(pose, t, outlier)
         if self.settings.pixel_noise > 0:
             pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
-        if outlier:
-            # A wrong detection: one point displaced by 5 to 20 px.
+        if outlier and points:
+            # A wrong detection: one point displaced by 5 to 20 px (images: a spurious blob drawn in).
             index = int(self.fault_rng.integers(pixels.shape[0]))
             angle = self.fault_rng.uniform(0.0, 2.0 * math.pi)
             pixels[index] += self.fault_rng.uniform(5.0, 20.0) * np.array([math.cos(angle), math.sin(angle)])
         return self.estimator.from_pixels(pixels)
 
-    def _observe_image(self, pose: np.ndarray, t: float, outlier: bool) -> Observation:
+    def _measured_pixels(self, pose: np.ndarray, t: float, outlier: bool) -> np.ndarray:
+        """The fit's detector's pixels (N, 2) in this frame's render, kept as :attr:`last_image`."""
         step = self.settings.exposure_step  # (t, gain): the gain from t (s) on
         gain = step[1] if step is not None and t >= step[0] else None
         blob = self._spurious_blob(pose) if outlier else None
@@ -122,9 +109,7 @@ class SimulatedCamera:
                 whole[y0:y1, x0:x1] = image[y0:y1, x0:x1]
             image = whole
         self.last_image = image
-        if self.settings.pixel_noise > 0:
-            pixels = pixels + self.noise_rng.normal(0.0, self.settings.pixel_noise, pixels.shape)
-        return self.estimator.from_pixels(pixels)
+        return pixels
 
     def _frame(self, image: np.ndarray, pose: np.ndarray, t: float, blob: tuple[tuple[int, int], int, int] | None) -> np.ndarray:
         """``image`` with this frame's faults drawn in: the occluder, the spurious blob."""
