@@ -310,7 +310,6 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
     return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
 
 
-
 def _run_route_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     """Repeat the route of ``fit`` in simulation (:mod:`.repeat_route`)."""
     plan = route_of(fit, str(options.input))
