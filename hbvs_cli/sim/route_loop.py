@@ -1,11 +1,7 @@
-"""``repeat --sim`` along a route (issue 47): the paper's controller segment by segment, in the
-one loop (:meth:`~hbvs_cli.sim.closed_loop.SimulatedRobot.run`, so
-:func:`~hbvs_cli.core.servo_loop.run_servo`). Segment k runs against its own F*_k: its desired
-signals (Remark 1) and its target's measurement (14) through its own n*_k. At a switch (a
-taught instant late in the overlap) both change reference together, dhat (31) is carried over
-(:class:`SegmentSwitch`) and nothing the law sees jumps (:meth:`RouteTrajectory.hand_over`,
-:class:`SegmentFilters`). The Lyapunov function (36) holds per segment.
-"""
+"""``repeat --sim`` along a route (issue 47; docs/routes.md, "Repeat"): the paper's controller segment by segment
+in the one loop (:meth:`~hbvs_cli.sim.closed_loop.SimulatedRobot.run`), segment k against its own F*_k (Remark 1,
+(14)); at a switch dhat (31) is carried over (:class:`SegmentSwitch`) and nothing the law sees jumps
+(:meth:`RouteTrajectory.hand_over`, :class:`SegmentFilters`), (36) holding per segment."""
 
 from __future__ import annotations
 

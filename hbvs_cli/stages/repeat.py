@@ -7,8 +7,7 @@ from __future__ import annotations
 import math
 import time
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass
-from types import SimpleNamespace
+from dataclasses import asdict, dataclass, replace
 from typing import IO, Any
 
 import numpy as np
@@ -38,16 +37,20 @@ from ..io.live_view import live_writer
 from ..io.mcap import McapWriter, open_output, seconds_to_ns
 from ..io.messages import LOG_INFO, LOG_WARNING
 from ..io.output_target import open_text_output, refuse_overwriting_inputs
+from ..io.route_file import route_of
 from ..io.run_file import RunWriter
 from ..settings.commands import DEFAULT_GAINS, REPEAT, SIM_FAULTS, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from ..sim.route_loop import run_route
+from ..sim.route_world import recorded_route
 from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_pair
-from .repeat_route import Tracking, desired_pixels, route_tracking, run_route_repeat
+from .repeat_route import (SwitchLog, Tracking, desired_pixels, planned_switches, route_metadata, route_tracking, segment_gains,
+                           segment_truths, taught_pose_at)
 
 @dataclass(frozen=True)
 class Settings:
@@ -127,7 +130,7 @@ def run_repeat(options: RepeatOptions, console: Console, fit: FitFile | None = N
         fit = read_fit_file(options.input)
     settings = settings_for(options, fit.model)
     if fit.route_record is not None and options.sim:  # a route: segment by segment
-        return run_route_repeat(options, settings, fit, console, ROUTE_TOOLS)
+        return _run_route_simulation(options, settings, fit, console)
     if options.live:
         return _run_live(options, settings, fit, console)
     if options.sim:
@@ -305,6 +308,55 @@ def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, co
                     if lost.stops(record, dt):
                         break
     return _finish(console, tally, controller, options.output, settings, scene.d_true, lost.stopped)
+
+
+def _run_route_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
+    """Repeat the route of ``fit`` in simulation (:mod:`.repeat_route`)."""
+    plan = route_of(fit, str(options.input))
+    if plan.world is None or plan.taught_poses is None:
+        raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
+    unsupported = [name for name, asked in (
+        ("--latency", settings.latency > 0), ("--occlude", bool(options.occlude)), ("--drop-rate", options.drop_rate > 0),
+        ("--outlier-rate", options.outlier_rate > 0), ("--exposure-step", options.exposure_step is not None),
+        ("--record-images", options.record_images), ("--depth", options.depth is not None)) if asked]
+    if unsupported:
+        raise UsageError(f"{options.input}: repeat --sim on a route measures its targets' exact points; "
+                         f"{', '.join(unsupported)} {'applies' if len(unsupported) == 1 else 'apply'} to one target's run only")
+    if options.perception == "images":
+        console.info("repeat --sim on a route projects its targets' points (--perception points); "
+                     "robot-sim renders the route for --live")
+    settings = replace(settings, perception="points")  # what the run file's settings then say
+    models = plan.models
+    route = recorded_route(plan.world, models[0].camera)
+    depths, orders = segment_truths(route, plan)
+    switches = planned_switches(plan)
+    gains = segment_gains(settings, plan)
+    noise = [detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
+    controller = make_controller(settings.law, settings.gains, settings.dhat0)
+    start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
+    taught_s = float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start
+    check_simulation_settings(settings, models[0], taught_s)
+    dt = 1.0 / settings.rate
+    duration = taught_s / settings.speed + dt
+    camera, steps = run_route(route, plan, switches, controller, start, dt, duration, settings.limits,
+                              settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
+    metadata = _run_metadata("sim", options, settings, fit, depths[0]) | {
+        "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
+    tally = _Tally()
+    with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
+        run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
+        log = SwitchLog(_StepLog(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, settings)
+        lost = live.LostWatch(settings.lost_timeout, log)
+        with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
+            for record in steps:
+                log.step(record)
+                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
+                run.poses(record.t, record.pose, taught, route.camera_height)
+                tally.add(record, taught)
+                bar.advance()
+                if lost.stops(record, dt):
+                    break
+    return _finish(console, tally, controller, options.output, settings, depths[-1], lost.stopped)
 
 
 class _Tally:
@@ -487,7 +539,3 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
                     run.stopped(t, reason)
     return _finish(console, tally, controller, options.output, settings, None, loop.stopped)
 
-
-#: What a route's repeat (:mod:`.repeat_route`) shares with one target's: the run's metadata, step log, tally and summary.
-ROUTE_TOOLS = SimpleNamespace(detector_noise=detector_noise, run_metadata=_run_metadata, step_log=_StepLog, tally=_Tally, finish=_finish,
-                              lost_watch=live.LostWatch, check_settings=check_simulation_settings)

@@ -14,26 +14,21 @@ from ..core.camera import normalized_to_pixels
 from ..core.control_settings import FILTER_EKF, ControllerGains
 from ..core.estimation import Observation, ObservationStatus
 from ..core.fit_model import FitModel
-from ..core.frames import compose_planar_pose, rotation_z
+from ..core.frames import rotation_z
 from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import view_spans
-from ..errors import RecordingError, UsageError
+from ..errors import RecordingError
 from ..io.fit_file import FitFile
-from ..io.foxglove_scene import SIMULATION_EPOCH_NS
 from ..io.images import decode_image
-from ..io.mcap import open_output
 from ..io.messages import LOG_INFO
-from ..io.output_target import open_text_output
 from ..io.route_file import RouteFile, route_of
-from ..io.run_file import RunWriter
 from ..perception.target_kinds import target_kind
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..settings.commands import RepeatOptions
-from ..sim.route_loop import SWITCH_FRACTION, RouteTrajectory, SegmentFilters, SegmentSwitch, run_route, switch_times
+from ..sim.route_loop import SWITCH_FRACTION, RouteTrajectory, SegmentFilters, SegmentSwitch, switch_times
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from ..sim.scene import point_identity
-from .console import Console
 
 
 def taught_pose_at(taught: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -204,52 +199,3 @@ def _template(plan: RouteFile, segment: int) -> np.ndarray | None:
     kept = np.full(image.shape, np.median(image), dtype=image.dtype)
     kept[low[1]:high[1], low[0]:high[0]] = image[low[1]:high[1], low[0]:high[0]]
     return kept
-
-
-def run_route_repeat(options: RepeatOptions, settings: Any, fit: FitFile, console: Console, tools: Any) -> Any:
-    """Repeat the route of ``fit`` in simulation; ``tools``: repeat's step log, tally and summary (``ROUTE_TOOLS``)."""
-    plan = route_of(fit, str(options.input))
-    if plan.world is None or plan.taught_poses is None:
-        raise UsageError(f"{options.input}: a route fit without its simulated route: repeat --sim needs a simulated teach's")
-    unsupported = [name for name, asked in (
-        ("--latency", settings.latency > 0), ("--occlude", bool(options.occlude)), ("--drop-rate", options.drop_rate > 0),
-        ("--outlier-rate", options.outlier_rate > 0), ("--exposure-step", options.exposure_step is not None),
-        ("--record-images", options.record_images), ("--depth", options.depth is not None)) if asked]
-    if unsupported:
-        raise UsageError(f"{options.input}: repeat --sim on a route measures its targets' exact points; "
-                         f"{', '.join(unsupported)} {'applies' if len(unsupported) == 1 else 'apply'} to one target's run only")
-    if options.perception == "images":
-        console.info("repeat --sim on a route projects its targets' points (--perception points); "
-                     "robot-sim renders the route for --live")
-    settings = replace(settings, perception="points")  # what the run file's settings then say
-    models = plan.models
-    route = recorded_route(plan.world, models[0].camera)
-    depths, orders = segment_truths(route, plan)
-    switches = planned_switches(plan)
-    gains = segment_gains(settings, plan)
-    noise = [tools.detector_noise(model) for model in models] if settings.state_filter == FILTER_EKF else None
-    controller = make_controller(settings.law, settings.gains, settings.dhat0)
-    start = compose_planar_pose(plan.taught_poses[0, 1:], settings.offset)
-    taught_s = float(plan.taught_poses[-1, 0]) - models[0].trajectory.t_start
-    tools.check_settings(settings, models[0], taught_s)
-    dt = 1.0 / settings.rate
-    duration = taught_s / settings.speed + dt
-    camera, steps = run_route(route, plan, switches, controller, start, dt, duration, settings.limits,
-                              settings.pixel_noise, options.seed, gains, noise, orders, settings.speed)
-    metadata = tools.run_metadata("sim", options, settings, fit, depths[0]) | {
-        "d_true": depths[-1], "route": route_metadata(plan, camera.route_trajectory.run_time(switches), depths)}
-    tally = tools.tally()
-    with open_text_output(options.cmd_out, "command stream") as cmd_stream, open_output(options.output) as writer:
-        run = RunWriter(writer, metadata, models[0].camera, SIMULATION_EPOCH_NS)
-        log = SwitchLog(tools.step_log(run, settings, models[0], depths[0], cmd_stream), camera, plan, depths, settings)
-        lost = tools.lost_watch(settings.lost_timeout, log)
-        with console.progress(f"repeat (sim, route of {len(models)} segments)", int(duration / dt)) as bar:
-            for record in steps:
-                log.step(record)
-                taught = taught_pose_at(plan.taught_poses, np.atleast_1d(camera.route_trajectory.route_time(record.t)))[0]
-                run.poses(record.t, record.pose, taught, route.camera_height)
-                tally.add(record, taught)
-                bar.advance()
-                if lost.stops(record, dt):
-                    break
-    return tools.finish(console, tally, controller, options.output, settings, depths[-1], lost.stopped)
