@@ -48,8 +48,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         log.add(frame.t, frame.log_time_ns, np.empty((0, 2)), frame.pose, frame.command)
         follower.add(image, frame.pose)
         bar.advance()
-    if follower is None:
-        raise RecordingError(f"{reader.name}: no complete image in the recording")
+    assert follower is not None  # fit hands over a frame at least
     drive = log.arrays()
     t, log_time, poses = drive["t"], drive["log_time"], drive["pose"]
     pixels = follower.pixels()
