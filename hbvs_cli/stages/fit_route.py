@@ -132,9 +132,8 @@ PAINT_MARGIN = (0.3, 12.0)
 
 
 class ImageFollower:
-    """The targets of a drive found and followed from its images alone (no true pose): every :data:`SEARCH_FRAMES`
-    frames new targets are looked for (:meth:`_search`). Every detector runs on every frame, so that a target lost
-    and seen again keeps its name."""
+    """The targets of a drive found and followed from its images alone (no true pose; docs/results.md). Every detector
+    runs on every frame, so that a target lost and seen again keeps its name."""
 
     def __init__(self, camera: Any, options: FitOptions, console: Console) -> None:
         self.camera, self.options, self.console = camera, options, console
