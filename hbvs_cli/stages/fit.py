@@ -246,7 +246,7 @@ def _drive_fit(reader: Any, options: FitOptions, console: Console, arrays: dict[
                image_shift_px: float = 0.0) -> tuple[DesiredFit, FitModel]:
     """The fit of one target's drive (``arrays``: its frames, ``pose`` in its own world) and its model."""
     camera = reader.camera
-    calibration = _calibration_uncertainty(reader, camera)
+    calibration = _calibration_uncertainty(reader)
     result = _fit(arrays, reference_index, camera, options, console, name, spec, layout, image_shift_px, calibration)
     spec = replace(spec, initial_pixels=result.initial_pixels)
     depth, dhat0, dhat0_source = _depth(result, arrays, spec, options, console, layout=layout)
@@ -314,12 +314,12 @@ def _picked_while_reading(pick: Callable[[], DetectorSpec], frames: Iterator[Any
         finally:
             over.set()
     failure = reading.exception()
-    if failure is None:
-        return spec, chain(taken, frames)
 
     def in_turn() -> Iterator[Any]:
         yield from taken
-        raise failure
+        if failure is not None:
+            raise failure
+        yield from frames
 
     return spec, in_turn()
 
@@ -385,13 +385,13 @@ def _fit(arrays: dict[str, np.ndarray], reference_index: int, camera: CameraIntr
         raise InputError(f"{name}: {_insufficient_data_message(exc, options)}") from None
 
 
-def _calibration_uncertainty(reader: Any, camera: CameraIntrinsics) -> tuple[str, tuple[float, ...]]:
+def _calibration_uncertainty(reader: Any) -> tuple[str, tuple[float, ...]]:
     """How well the intrinsics are known: ``("exact", ())`` for a simulated teach, ``("stated", sigma)``, or
     ``("unstated", probe)``: a what-if error on fx, fy, cx and cy reported beside the band, not counted in it."""
     if reader.world_description is not None:
         return "exact", ()
-    if camera.sigma:
-        return "stated", camera.sigma
+    if reader.camera.sigma:
+        return "stated", reader.camera.sigma
     return "unstated", (UNSTATED_CALIBRATION_PROBE_PX,) * 4
 
 

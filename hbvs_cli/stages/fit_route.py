@@ -48,8 +48,7 @@ def fit_route_teach(reader: Any, writer: Any, frames: Iterator[Any], bar: Any, c
         log.add(frame.t, frame.log_time_ns, np.empty((0, 2)), frame.pose, frame.command)
         follower.add(image, frame.pose)
         bar.advance()
-    if follower is None:
-        raise RecordingError(f"{reader.name}: no complete image in the recording")
+    assert follower is not None  # fit hands over a frame at least
     drive = log.arrays()
     t, log_time, poses = drive["t"], drive["log_time"], drive["pose"]
     pixels = follower.pixels()
@@ -88,7 +87,7 @@ class SimulatedFollower:
             self.route = recorded_route(reader.world_description, reader.camera)
         except MalformedDataError as exc:
             raise RecordingError(f"{reader.name}: {exc}") from None
-        self.options, self.console, self.seed = options, console, options.seed
+        self.options, self.console = options, console
         self.detectors: list[TrackedDetector | None] = [None] * len(self.route.worlds)
         self.seen: list[list[np.ndarray]] = [[] for _ in self.route.worlds]
 
@@ -101,7 +100,7 @@ class SimulatedFollower:
             if self.detectors[index] is None and spans[index] >= MIN_SPAN_PX:
                 spec = spec_of_kind(world.target.kind, {}, self.options, [image], self.route.camera, self.console, world,
                                     self.route.local_pose(index, pose))  # as a single target's simulated fit picks it
-                self.detectors[index] = TrackedDetector(spec, self.route.camera, seed=self.seed)
+                self.detectors[index] = TrackedDetector(spec, self.route.camera, seed=self.options.seed)
             detector = self.detectors[index]
             self.seen[index].append(detector.detect(image) if detector is not None and spans[index] > 0 else np.full((points, 2), np.nan))
 
@@ -133,12 +132,11 @@ PAINT_MARGIN = (0.3, 12.0)
 
 
 class ImageFollower:
-    """The targets of a drive found and followed from its images alone (no true pose): every :data:`SEARCH_FRAMES`
-    frames new targets are looked for (:meth:`_search`). Every detector runs on every frame, so that a target lost
-    and seen again keeps its name."""
+    """The targets of a drive found and followed from its images alone (no true pose; docs/results.md). Every detector
+    runs on every frame, so that a target lost and seen again keeps its name."""
 
     def __init__(self, camera: Any, options: FitOptions, console: Console) -> None:
-        self.camera, self.options, self.console, self.seed = camera, options, console, options.seed
+        self.camera, self.options, self.console = camera, options, console
         self.detectors: list[TrackedDetector] = []
         self.found: list[dict[int, np.ndarray]] = []
         self.recent: deque[tuple[int, np.ndarray]] = deque(maxlen=SEARCH_FRAMES)
@@ -162,7 +160,7 @@ class ImageFollower:
                 or view_spans(points[None])[0] < RETEMPLATE_GROWTH * view_spans(np.asarray(template)[None])[0]):
             return detector
         spec = replace(detector.spec, template_pixels=points)
-        return TrackedDetector(spec, self.camera, seed=self.seed, template_image=image)
+        return TrackedDetector(spec, self.camera, seed=self.options.seed, template_image=image)
 
     def _trusted(self, detector: TrackedDetector, points: np.ndarray, before: np.ndarray | None, found: dict[int, np.ndarray]) -> np.ndarray:
         """``points`` as found, or NaN when they cannot be the target's: a point within :data:`EDGE_MARGIN_PX` of the
@@ -195,7 +193,7 @@ class ImageFollower:
                 continue  # a target followed already
             alone = [_alone(image, region & mask) for image, mask in zip(painted, masks)]
             try:
-                found = target_candidates(alone[::2], self.camera, seed=self.seed).found
+                found = target_candidates(alone[::2], self.camera, seed=self.options.seed).found
             except InputError:  # none there
                 continue
             # photographs last, and none where another kind is seen (its own print, until that is large enough)
@@ -207,7 +205,7 @@ class ImageFollower:
         """Whether ``choice``'s detector, started on the first recent frame ``alone``, finds it in most (then followed)."""
         try:
             spec = spec_of_kind(choice.kind, choice.details, self.options, alone, self.camera, self.console)
-            detector = TrackedDetector(spec, self.camera, seed=self.seed, template_image=alone[0])
+            detector = TrackedDetector(spec, self.camera, seed=self.options.seed, template_image=alone[0])
             detector.detect(alone[0])  # acquired alone, then followed in the frames as they are (the fill pulls points near it)
             found = {index: detector.detect(image) for index, image in self.recent}
         except HbvsError:  # e.g. too few dots for a dot target
