@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -214,7 +213,6 @@ class RosbagsBag:
         from rosbags.typesys import Stores, get_typestore
 
         self.name = name
-        self.folder = folder
         information = bag_information(folder, name)
         if not isinstance(reader.zstd, _CappedZstd):  # rosbags' reader gets the capped zstd once per process
             reader.zstd = _CappedZstd(reader.zstd)
@@ -225,6 +223,8 @@ class RosbagsBag:
             self._reader = AnyReader([folder], default_typestore=get_typestore(store))
             self._reader.open()
         self._open = True
+        #: The bag's files, for the recording's metadata.
+        self.files = sorted(p for p in folder.iterdir() if p.is_file())
         self.topics: dict[str, BagTopic] = {}
         for connection in self._reader.connections:
             if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
@@ -386,10 +386,3 @@ class McapFileBag:
 
     def close(self) -> None:
         """Nothing stays open between reads."""
-
-
-def bag_files_description(bag: RosbagsBag | McapFileBag) -> list[str]:
-    """The files of the bag, for the recording's metadata."""
-    if isinstance(bag, McapFileBag):
-        return [str(f) for f in bag.files]
-    return [os.fspath(p) for p in sorted(bag.folder.iterdir()) if p.is_file()]

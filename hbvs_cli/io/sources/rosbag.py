@@ -19,7 +19,7 @@ from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
-from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
+from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, open_bag
 from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
@@ -52,6 +52,23 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
     else:
         twist = message
     return float(twist.linear.x), float(twist.angular.z)
+
+
+def camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+    """The intrinsics of a ``sensor_msgs/msg/CameraInfo``, else (None, why they cannot be used)."""
+    k = [float(v) for v in info.k]
+    if not any(k):
+        return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
+    if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
+        return None, f"{source}: binning is not supported; give a calibration for the binned images"
+    roi = getattr(info, "roi", None)
+    if roi is not None and int(getattr(roi, "width", 0)) > 0:
+        return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
+    try:
+        camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
+    except CalibrationError as exc:
+        return None, str(exc)
+    return camera, None
 
 
 class BagSource(FrameSource):
@@ -165,25 +182,9 @@ class BagSource(FrameSource):
                 return None, str(exc)
         try:
             info = first.decode(source)
-            return self._camera_from_info(info, source)
+            return camera_from_info(info, source)
         except (AttributeError, TypeError, ValueError, OverflowError) as exc:
             return None, f"{source}: malformed CameraInfo ({exc})"
-
-    @staticmethod
-    def _camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-        k = [float(v) for v in info.k]
-        if not any(k):
-            return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
-        if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
-            return None, f"{source}: binning is not supported; give a calibration for the binned images"
-        roi = getattr(info, "roi", None)
-        if roi is not None and int(getattr(roi, "width", 0)) > 0:
-            return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
-        try:
-            camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
-        except CalibrationError as exc:
-            return None, str(exc)
-        return camera, None
 
     def _first_frame(self) -> tuple[int, str | None, str, np.ndarray | None]:
         """The first frame's stamp (ns), frame_id, which clock stamps the frames, and its
@@ -266,7 +267,7 @@ class BagSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """What the source is, for the recording's metadata."""
         return {
-            "kind": self.kind, "path": self.path, "files": bag_files_description(self._bag), "topic": self.topic,
+            "kind": self.kind, "path": self.path, "files": [str(f) for f in self._bag.files], "topic": self.topic,
             "message_type": self._topic.type, "frame_count": self._topic.count, "fps": None,
             "camera_info_topic": self.camera_info_topic, "camera_info_problem": self.camera_problem,
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
