@@ -92,12 +92,10 @@ class _Bag:
         self.writer.write(self.connections[topic], int(ns), bytes(self.typestore.serialize_cdr(message, msgtype)))
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
-    def stamp(self, ns: int) -> Any:
-        sec, nanosec = divmod(max(int(ns), 0), 1_000_000_000)
-        return self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
-
     def header(self, ns: int, frame_id: str) -> Any:
-        return self.types["std_msgs/msg/Header"](stamp=self.stamp(ns), frame_id=frame_id)
+        sec, nanosec = divmod(max(int(ns), 0), 1_000_000_000)
+        stamp = self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+        return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
     def vector(self, x: float, y: float, z: float) -> Any:
         return self.types["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
@@ -185,8 +183,7 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
         bag = _Bag(writer, get_typestore(Stores.ROS2_HUMBLE))
         try:
             for message in stream:
-                if kind is None:
-                    kind = _file_kind(stream)
+                kind = kind or _file_kind(stream)
                 expected = TOPICS[kind].get(message.topic)
                 if expected is None:
                     continue
@@ -224,8 +221,7 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
                         bag.write(ROS_CAMERA_INFO_TOPIC, ROS_CAMERA_INFO_SCHEMA, ns, bag.camera_info(ns, camera_calibration))
                 elif message.topic == MODEL_TOPIC:
                     path_poses = _fit_taught_path(message.json(stream.name), stream.name, bag)
-            if kind is None:
-                kind = _file_kind(stream)
+            kind = kind or _file_kind(stream)
             if path_poses:
                 path = bag.path(path_poses)
                 bag.write(ROS_TAUGHT_PATH_TOPIC, ROS_PATH_SCHEMA, _stamp_ns(path.header.stamp), path)
