@@ -343,19 +343,17 @@ class OutputSink:
         self.stream = stream
         self.target = target
         self._truncated_input: str | None = None
-        self._allow_truncated = False
 
     def input_ended_early(self, name: str, allow: bool) -> None:
         """Record that an input ended before its end record: its result then replaces an
         existing file only with ``allow`` (:class:`TruncatedInputError` at once otherwise)."""
-        self._truncated_input = name
-        self._allow_truncated = allow
+        self._truncated_input = None if allow else name
         self.check_commit()  # fail now, before the work, when the output is there already
 
     def check_commit(self) -> None:
         """Raise :class:`TruncatedInputError` when the output must not replace what is there."""
         target = self.target
-        if self._truncated_input and not self._allow_truncated and target.kind == "file" and target.path is not None and target.path.exists():
+        if self._truncated_input and target.kind == "file" and target.path is not None and target.path.exists():
             raise TruncatedInputError(
                 f"{self._truncated_input} ended before its end record (the writer upstream stopped?), so its "
                 f"result did not replace the existing {target.spec}; pass --allow-truncated to replace it"
