@@ -252,19 +252,6 @@ def refuse_overwriting_inputs(
         written[key] = f"{label} {text}"
 
 
-def _write_error(exc: OSError, what: str, atomic: bool = False) -> Exception:
-    """The hbvs error for an OSError while writing ``what`` (``atomic``: an earlier file is kept)."""
-    kept = "; an earlier file of that name is left as it was" if atomic else ""
-    if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
-        return PipeClosedError(f"{what}: the reader closed the pipe")
-    if exc.errno == errno.EBADF:
-        return OutputError(f"{what}: the stream is closed")
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        reason = "no space left on the device"
-    return OutputError(f"{what}: cannot write ({reason}){kept}")
-
-
 #: Bytes a stage's stdout holds back until it flushes or writes more: a stage that fails
 #: before (a missing input) writes nothing, so the next stage in a pipeline sees an empty
 #: pipe and stays silent (exit 9) instead of adding a second error line.
@@ -292,7 +279,15 @@ class GuardedStream(ClosedOnExit):
         try:
             yield
         except OSError as exc:
-            raise _write_error(exc, self._what, self._atomic) from None
+            if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
+                raise PipeClosedError(f"{self._what}: the reader closed the pipe") from None
+            if exc.errno == errno.EBADF:
+                raise OutputError(f"{self._what}: the stream is closed") from None
+            reason = exc.strerror or str(exc) or type(exc).__name__
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                reason = "no space left on the device"
+            kept = "; an earlier file of that name is left as it was" if self._atomic else ""
+            raise OutputError(f"{self._what}: cannot write ({reason}){kept}") from None
         except ValueError:  # the underlying stream was closed (stdout closed by a library)
             raise OutputError(f"{self._what}: the stream is closed") from None
 
@@ -348,19 +343,17 @@ class OutputSink:
         self.stream = stream
         self.target = target
         self._truncated_input: str | None = None
-        self._allow_truncated = False
 
     def input_ended_early(self, name: str, allow: bool) -> None:
         """Record that an input ended before its end record: its result then replaces an
         existing file only with ``allow`` (:class:`TruncatedInputError` at once otherwise)."""
-        self._truncated_input = name
-        self._allow_truncated = allow
+        self._truncated_input = None if allow else name
         self.check_commit()  # fail now, before the work, when the output is there already
 
     def check_commit(self) -> None:
         """Raise :class:`TruncatedInputError` when the output must not replace what is there."""
         target = self.target
-        if self._truncated_input and not self._allow_truncated and target.kind == "file" and target.path is not None and target.path.exists():
+        if self._truncated_input and target.kind == "file" and target.path is not None and target.path.exists():
             raise TruncatedInputError(
                 f"{self._truncated_input} ended before its end record (the writer upstream stopped?), so its "
                 f"result did not replace the existing {target.spec}; pass --allow-truncated to replace it"

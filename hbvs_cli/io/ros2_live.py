@@ -15,7 +15,7 @@ from . import ros2_dds as dds
 from .ros2_names import full_topic_name
 from .sources.frame_source import LiveFrame
 from .sources.ros_images import compressed_to_image8, raw_to_image8
-from .sources.rosbag import BagSource
+from .sources.rosbag import camera_from_info
 
 #: Seconds to wait for a camera topic's publisher and its CameraInfo (a node may still be starting).
 DISCOVERY_TIMEOUT_S = 10.0
@@ -111,7 +111,7 @@ def wait_camera_info(node: dds.Ros2Node, topic: str, timeout_s: float = DISCOVER
     while True:
         infos = _taken(reader, 8)
         if infos:
-            camera, problem = BagSource._camera_from_info(infos[-1], topic)
+            camera, problem = camera_from_info(infos[-1], topic)
             if camera is None:
                 raise InputError(problem or f"{topic}: unusable CameraInfo")
             return camera

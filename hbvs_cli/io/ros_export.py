@@ -75,19 +75,27 @@ def written_by_hbvs(folder: Path) -> bool:
     return all(entry.name in listed and entry.is_file() and not entry.is_symlink() for entry in folder.iterdir())
 
 
-class _Messages:
-    """Builds the ROS 2 messages with one type store."""
+class _Bag:
+    """A rosbags writer with one connection per topic, opened on first use, and counts; builds the
+    ROS 2 messages with the same type store."""
 
-    def __init__(self, typestore: Any) -> None:
+    def __init__(self, writer: Any, typestore: Any) -> None:
+        self.writer = writer
         self.typestore = typestore
         self.types = typestore.types
+        self.connections: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
 
-    def stamp(self, ns: int) -> Any:
-        sec, nanosec = divmod(max(int(ns), 0), 1_000_000_000)
-        return self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+    def write(self, topic: str, msgtype: str, ns: int, message: Any) -> None:
+        if topic not in self.connections:
+            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+        self.writer.write(self.connections[topic], int(ns), bytes(self.typestore.serialize_cdr(message, msgtype)))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def header(self, ns: int, frame_id: str) -> Any:
-        return self.types["std_msgs/msg/Header"](stamp=self.stamp(ns), frame_id=frame_id)
+        sec, nanosec = divmod(max(int(ns), 0), 1_000_000_000)
+        stamp = self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+        return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
     def vector(self, x: float, y: float, z: float) -> Any:
         return self.types["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
@@ -139,22 +147,6 @@ def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
     return position, orientation
 
 
-class _BagWriter:
-    """A rosbags writer with one connection per topic, opened on first use, and counts."""
-
-    def __init__(self, writer: Any, typestore: Any) -> None:
-        self.writer = writer
-        self.typestore = typestore
-        self.connections: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
-
-    def write(self, topic: str, msgtype: str, ns: int, message: Any) -> None:
-        if topic not in self.connections:
-            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
-        self.writer.write(self.connections[topic], int(ns), bytes(self.typestore.serialize_cdr(message, msgtype)))
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-
-
 def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` (a path, a stream, ``-``) as the ROS 2 bag
     folder ``output``; a truncated ``source`` replaces a bag only with ``allow_truncated``."""
@@ -168,8 +160,6 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    typestore = get_typestore(Stores.ROS2_HUMBLE)
-    build = _Messages(typestore)
     stream = McapStream(source, name=name)
     kind: str | None = None
     camera_calibration: Any = None
@@ -190,11 +180,10 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
         writer = Writer(bag_path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
         writer.set_custom_data(*HBVS_MARK)
         writer.open()
-        bag = _BagWriter(writer, typestore)
+        bag = _Bag(writer, get_typestore(Stores.ROS2_HUMBLE))
         try:
             for message in stream:
-                if kind is None:
-                    kind = _file_kind(stream)
+                kind = kind or _file_kind(stream)
                 expected = TOPICS[kind].get(message.topic)
                 if expected is None:
                     continue
@@ -205,10 +194,10 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
                     from .messages import velocity_from_message
 
                     v, w = velocity_from_message(message.json(stream.name), stream.name)
-                    bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, build.twist(v, w))
+                    bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, bag.twist(v, w))
                 elif message.topic in (TRUE_POSE_TOPIC, DESIRED_POSE_TOPIC):
                     position, orientation = _pose_fields(message.foxglove(stream.name), stream.name)
-                    pose = build.pose_stamped(ns, position, orientation)
+                    pose = bag.pose_stamped(ns, position, orientation)
                     topic = ROS_TRUE_POSE_TOPIC if message.topic == TRUE_POSE_TOPIC else ROS_DESIRED_POSE_TOPIC
                     bag.write(topic, ROS_POSE_STAMPED_SCHEMA, ns, pose)
                     if path_topic.get(kind) == message.topic:
@@ -216,9 +205,9 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
                     if message.topic == TRUE_POSE_TOPIC:
                         if camera_height is None:
                             camera_height = position[2]
-                            bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, build.tf(
+                            bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, bag.tf(
                                 ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION))
-                        bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, build.tf(
+                        bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, bag.tf(
                             ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation))
                 elif message.topic == CALIBRATION_TOPIC:
                     camera_calibration = message.foxglove(stream.name)
@@ -227,15 +216,14 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
 
                     image = read_compressed_image(message.data, stream.name)
                     topic = ROS_IMAGE_TOPIC if message.topic == IMAGE_TOPIC else ROS_REFERENCE_IMAGE_TOPIC
-                    bag.write(topic, ROS_COMPRESSED_IMAGE_SCHEMA, ns, build.compressed_image(ns, image.data, image.format))
+                    bag.write(topic, ROS_COMPRESSED_IMAGE_SCHEMA, ns, bag.compressed_image(ns, image.data, image.format))
                     if message.topic == IMAGE_TOPIC and camera_calibration is not None:
-                        bag.write(ROS_CAMERA_INFO_TOPIC, ROS_CAMERA_INFO_SCHEMA, ns, build.camera_info(ns, camera_calibration))
+                        bag.write(ROS_CAMERA_INFO_TOPIC, ROS_CAMERA_INFO_SCHEMA, ns, bag.camera_info(ns, camera_calibration))
                 elif message.topic == MODEL_TOPIC:
-                    path_poses = _fit_taught_path(message.json(stream.name), stream.name, build)
-            if kind is None:
-                kind = _file_kind(stream)
+                    path_poses = _fit_taught_path(message.json(stream.name), stream.name, bag)
+            kind = kind or _file_kind(stream)
             if path_poses:
-                path = build.path(path_poses)
+                path = bag.path(path_poses)
                 bag.write(ROS_TAUGHT_PATH_TOPIC, ROS_PATH_SCHEMA, _stamp_ns(path.header.stamp), path)
         finally:
             writer.close()
@@ -255,7 +243,7 @@ def _file_kind(stream: McapStream) -> str:
     return str(kind)
 
 
-def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Messages) -> list[Any]:
+def _fit_taught_path(model_message: dict[str, Any], source: str, bag: _Bag) -> list[Any]:
     """The taught path of a fit file: poses at the taught frames, integrated from the taught commands."""
 
     from ..core.frames import yaw_to_quaternion
@@ -272,4 +260,4 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, build: _Message
     poses = profile.poses_at(taught.t - taught.t[0], taught.start_pose)
     height = float(model.world_description["camera_height_m"]) if model.world_description is not None else 0.0
     quaternions = yaw_to_quaternion(poses[:, 2])
-    return [build.pose_stamped(seconds_to_ns(t), (x, y, height), q) for t, (x, y, _), q in zip(taught.t, poses, quaternions)]
+    return [bag.pose_stamped(seconds_to_ns(t), (x, y, height), q) for t, (x, y, _), q in zip(taught.t, poses, quaternions)]

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -136,10 +135,9 @@ def check_metadata(information: dict[str, Any], name: str) -> None:
     for key in ("topics_with_message_count", "files", "relative_file_paths"):
         if information.get(key) is not None and not isinstance(information.get(key), list):
             raise InputError(f"{name}: metadata.yaml: {key} must be a list, got {_shown(information.get(key))}")
-    for entry in information.get("topics_with_message_count") or []:
-        counts("topics_with_message_count[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
-    for entry in information.get("files") or []:
-        counts("files[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
+    for key in ("topics_with_message_count", "files"):
+        for entry in information.get(key) or []:
+            counts(f"{key}[].message_count", entry.get("message_count") if isinstance(entry, dict) else "?")
     distro = information.get("ros_distro")
     if distro is not None and not (isinstance(distro, str) and len(distro) <= 64):
         raise InputError(f"{name}: metadata.yaml: ros_distro must be a distribution's name, got {_shown(distro)}")
@@ -214,7 +212,6 @@ class RosbagsBag:
         from rosbags.typesys import Stores, get_typestore
 
         self.name = name
-        self.folder = folder
         information = bag_information(folder, name)
         if not isinstance(reader.zstd, _CappedZstd):  # rosbags' reader gets the capped zstd once per process
             reader.zstd = _CappedZstd(reader.zstd)
@@ -225,6 +222,8 @@ class RosbagsBag:
             self._reader = AnyReader([folder], default_typestore=get_typestore(store))
             self._reader.open()
         self._open = True
+        #: The bag's files, for the recording's metadata.
+        self.files = sorted(p for p in folder.iterdir() if p.is_file())
         self.topics: dict[str, BagTopic] = {}
         for connection in self._reader.connections:
             if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
@@ -358,38 +357,29 @@ class McapFileBag:
                 messages.close()
 
     def _decode(self, message: McapMessage, file: str, what: str) -> Any:
-        with mcap_bag_errors(file):
-            return self._decoder(message, what)(message.data)
-
-    def _decoder(self, message: McapMessage, what: str) -> Callable[[bytes], Any]:
         key = (message.message_encoding, message.schema_name, message.schema_encoding, message.schema_data)
-        decoder = self._decoders.get(key)
-        if decoder is None:
-            from mcap.records import Schema
-
-            if len(message.schema_data) > MAX_SCHEMA_BYTES:
-                raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
-            # The factory caches decoders by schema id: every distinct schema gets its own.
-            schema = Schema(
-                id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding, data=message.schema_data,
-            )
-            # The ROS parser prints on stderr what its exception says already.
-            with contextlib.redirect_stderr(io.StringIO()):
-                decoder = self._factory.decoder_for(message.message_encoding, schema)
+        with mcap_bag_errors(file):
+            decoder = self._decoders.get(key)
             if decoder is None:
-                raise InputError(
-                    f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
-                    "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                from mcap.records import Schema
+
+                if len(message.schema_data) > MAX_SCHEMA_BYTES:
+                    raise InputError(f"{what}: its message definition is {len(message.schema_data)} bytes, more than hbvs parses")
+                # The factory caches decoders by schema id: every distinct schema gets its own.
+                schema = Schema(
+                    id=len(self._decoders) + 1, name=message.schema_name, encoding=message.schema_encoding,
+                    data=message.schema_data,
                 )
-            self._decoders[key] = decoder
-        return decoder
+                # The ROS parser prints on stderr what its exception says already.
+                with contextlib.redirect_stderr(io.StringIO()):
+                    decoder = self._factory.decoder_for(message.message_encoding, schema)
+                if decoder is None:
+                    raise InputError(
+                        f"{what}: encoded as {message.message_encoding!r} with a {message.schema_encoding!r} schema; "
+                        "hbvs decodes ROS 2 messages (cdr with ros2msg schemas)"
+                    )
+                self._decoders[key] = decoder
+            return decoder(message.data)
 
     def close(self) -> None:
         """Nothing stays open between reads."""
-
-
-def bag_files_description(bag: RosbagsBag | McapFileBag) -> list[str]:
-    """The files of the bag, for the recording's metadata."""
-    if isinstance(bag, McapFileBag):
-        return [str(f) for f in bag.files]
-    return [os.fspath(p) for p in sorted(bag.folder.iterdir()) if p.is_file()]

@@ -19,7 +19,7 @@ from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
-from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, bag_files_description, open_bag
+from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, open_bag
 from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
@@ -54,6 +54,23 @@ def velocity_of(message: Any, message_type: str) -> tuple[float, float]:
     return float(twist.linear.x), float(twist.angular.z)
 
 
+def camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
+    """The intrinsics of a ``sensor_msgs/msg/CameraInfo``, else (None, why they cannot be used)."""
+    k = [float(v) for v in info.k]
+    if not any(k):
+        return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
+    if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
+        return None, f"{source}: binning is not supported; give a calibration for the binned images"
+    roi = getattr(info, "roi", None)
+    if roi is not None and int(getattr(roi, "width", 0)) > 0:
+        return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
+    try:
+        camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
+    except CalibrationError as exc:
+        return None, str(exc)
+    return camera, None
+
+
 class BagSource(FrameSource):
     """Images from a ROS 2 bag with its stamps, frame_id, intrinsics (``camera``, else why not in
     ``camera_problem``) and taught commands (the last at or before each frame's stamp); ``topic`` and
@@ -72,7 +89,7 @@ class BagSource(FrameSource):
         self.camera_info_topic = self._camera_info_topic(topics)
         if self.camera_info_topic is not None:
             self.camera, self.camera_problem = self._read_camera_info(self.camera_info_topic)
-        self.time_base_ns, self.frame_id, self.stamps, first = self._first_frame()
+        self.time_base_ns, self.frame_id, self.stamps, self._stamp_minus_log, first = self._first_frame()
         self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
 
     def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
@@ -165,36 +182,20 @@ class BagSource(FrameSource):
                 return None, str(exc)
         try:
             info = first.decode(source)
-            return self._camera_from_info(info, source)
+            return camera_from_info(info, source)
         except (AttributeError, TypeError, ValueError, OverflowError) as exc:
             return None, f"{source}: malformed CameraInfo ({exc})"
 
-    @staticmethod
-    def _camera_from_info(info: Any, source: str) -> tuple[CameraIntrinsics | None, str | None]:
-        k = [float(v) for v in info.k]
-        if not any(k):
-            return None, f"{source}: K is all zeros (the driver publishes an uncalibrated CameraInfo)"
-        if int(getattr(info, "binning_x", 0)) > 1 or int(getattr(info, "binning_y", 0)) > 1:
-            return None, f"{source}: binning is not supported; give a calibration for the binned images"
-        roi = getattr(info, "roi", None)
-        if roi is not None and int(getattr(roi, "width", 0)) > 0:
-            return None, (f"{source}: a region of interest is not supported; give a calibration for the cropped images")
-        try:
-            camera = intrinsics_from_values(k, info.width, info.height, info.distortion_model, list(info.d), source)
-        except CalibrationError as exc:
-            return None, str(exc)
-        return camera, None
-
-    def _first_frame(self) -> tuple[int, str | None, str, np.ndarray | None]:
-        """The first frame's stamp (ns), frame_id, which clock stamps the frames, and its
-        image (None for a topic without messages, which iteration reports)."""
+    def _first_frame(self) -> tuple[int, str | None, str, int, np.ndarray | None]:
+        """The first frame's stamp (ns), frame_id, which clock stamps the frames, its stamp less its log
+        time (ns), and its image (None for a topic without messages, which iteration reports)."""
         first = self._first_message(self.topic)
         if first is None:
-            return 0, None, "header", None
+            return 0, None, "header", 0, None
         image, _, _, stamp_ns, frame_id = self._frame(first, f"{self.path} {self.topic} message 0")
         if stamp_ns == 0:
-            return first.log_time, frame_id, "log time", image
-        return stamp_ns, frame_id, "header", image
+            return first.log_time, frame_id, "log time", 0, image
+        return stamp_ns, frame_id, "header", stamp_ns - first.log_time, image
 
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
@@ -215,9 +216,6 @@ class BagSource(FrameSource):
             raise InputError(f"{what}: malformed {self._topic.type} message ({exc})") from None
 
     def __iter__(self) -> Iterator[SourceFrame]:
-        first_ns: int | None = None
-        use_stamp = True
-        stamp_minus_log = 0
         size: tuple[int, int] | None = None
         index = 0
         # Commands on the images' clock, held: each frame takes the last one at or before its stamp.
@@ -240,19 +238,17 @@ class BagSource(FrameSource):
                 what = f"{self.path} {self.topic} message {index}"
                 image, encoded, fmt, stamp_ns, _ = self._frame(message, what)
                 size = _same_size(size, image, what)
-                if first_ns is None:
-                    use_stamp = stamp_ns != 0
-                    stamp_minus_log = stamp_ns - message.log_time if use_stamp else 0
-                    first_ns = stamp_ns if use_stamp else message.log_time
-                if use_stamp and stamp_ns != 0:
+                if self.stamps == "header" and stamp_ns != 0:
                     ns = stamp_ns
                 else:
-                    # Same clock as the first frame: shift the log time onto the stamps.
-                    ns = message.log_time + stamp_minus_log
+                    # Same clock as the first frame (read by _first_frame): shift the log time onto the stamps.
+                    ns = message.log_time + self._stamp_minus_log
                 # A Twist has no stamp: its log time, shifted onto the images' clock.
-                while pending and (pending[0][0] or pending[0][1] + stamp_minus_log) <= ns:
+                while pending and (pending[0][0] or pending[0][1] + self._stamp_minus_log) <= ns:
                     command = pending.popleft()[2]
-                yield SourceFrame(t=(ns - first_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command)
+                yield SourceFrame(
+                    t=(ns - self.time_base_ns) / _NS, image=image, encoded=encoded, format=fmt, stamp_ns=ns, command=command,
+                )
                 index += 1
         finally:
             self._bag.close()  # reopened by a later iteration
@@ -266,7 +262,7 @@ class BagSource(FrameSource):
     def describe(self) -> dict[str, Any]:
         """What the source is, for the recording's metadata."""
         return {
-            "kind": self.kind, "path": self.path, "files": bag_files_description(self._bag), "topic": self.topic,
+            "kind": self.kind, "path": self.path, "files": [str(f) for f in self._bag.files], "topic": self.topic,
             "message_type": self._topic.type, "frame_count": self._topic.count, "fps": None,
             "camera_info_topic": self.camera_info_topic, "camera_info_problem": self.camera_problem,
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
