@@ -62,6 +62,7 @@ class SweepSpec:
 
 def _check_value(name: str, value: Any, where: str) -> Any:
     """A parameter value of the right type and range."""
+    _known(name, where)
     parameter = PARAMETERS[name]
     if parameter.kind == "choice":
         choices = parameter.choices  # the laws: those registered (core/laws.py), any added since too
@@ -186,19 +187,15 @@ def build_spec(
     for text in vary:
         axis = parse_vary(text)
         axes[axis.name] = axis
-    fixed_values: dict[str, Any] = {}
     fixed_table = data.get("fixed", {})
     if not isinstance(fixed_table, dict):
         raise UsageError("spec: [fixed] must be a table")
-    for name, value in fixed_table.items():
-        _known(name, "spec [fixed]")
-        fixed_values[name] = _check_value(name, value, "spec [fixed]")
+    fixed_values = {name: _check_value(name, value, "spec [fixed]") for name, value in fixed_table.items()}
     for text in fixed:
         name, sep, value = text.partition("=")
         name = name.strip()
         if not sep:
             raise UsageError(f"--set must be NAME=VALUE, got {text!r}")
-        _known(name, f"--set {text}")
         fixed_values[name] = _check_value(name, value.strip(), f"--set {text}")
         axes.pop(name, None)
     for name in list(fixed_values):
