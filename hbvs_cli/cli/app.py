@@ -279,15 +279,6 @@ def _run(args: list[str], debug: bool) -> int:
     try:
         result = app(args=_live_port_given(args), prog_name="hbvs", standalone_mode=False)
         return result if isinstance(result, int) else 0
-    except HbvsError as exc:
-        stop_signals.raise_if_stopped()
-        if debug:
-            traceback.print_exc()
-        if exc.exit_code == 141:
-            return _pipe_closed()
-        if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
-            _say(f"hbvs: error: {exc}")
-        return exc.exit_code
     except typer.Abort:
         _say("hbvs: interrupted")
         return 130
@@ -314,25 +305,31 @@ def _run(args: list[str], debug: bool) -> int:
             traceback.print_exc()
         _say("hbvs: error: out of memory (a limit is set too high for this machine? see hbvs --limit)")
         return 7
-    except OSError as exc:
-        stop_signals.raise_if_stopped()
-        if debug:
-            traceback.print_exc()
-        if exc.errno == errno.EPIPE:
-            return _pipe_closed()
-        if exc.errno in _WRITE_ERRNOS:
-            _say(f"hbvs: error: {exc.filename or 'the output'}: cannot write ({exc.strerror})")
-            return 6
-        _say(f"hbvs: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback, and please report it)")
-        return 70
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
         stop_signals.raise_if_stopped()
         if debug:
             traceback.print_exc()
-            return 70
-        text = " ".join(str(exc).split())[:300]
-        _say(f"hbvs: internal error: {type(exc).__name__}: {text} (run with --debug for the traceback, and please report it)")
+        return _error_exit(exc, debug)
+
+
+def _error_exit(exc: Exception, debug: bool) -> int:
+    """The exit code of an error that reached :func:`_run` (an :class:`HbvsError`'s own), after its line on stderr."""
+    if isinstance(exc, HbvsError):
+        if exc.exit_code == 141:
+            return _pipe_closed()
+        if debug or not isinstance(exc, UpstreamFailedError):  # else the stage before said why: a line would repeat it
+            _say(f"hbvs: error: {exc}")
+        return exc.exit_code
+    if isinstance(exc, OSError) and exc.errno == errno.EPIPE:
+        return _pipe_closed()
+    if isinstance(exc, OSError) and exc.errno in _WRITE_ERRNOS:
+        _say(f"hbvs: error: {exc.filename or 'the output'}: cannot write ({exc.strerror})")
+        return 6
+    if debug and not isinstance(exc, OSError):
         return 70
+    text = str(exc) if isinstance(exc, OSError) else " ".join(str(exc).split())[:300]
+    _say(f"hbvs: internal error: {type(exc).__name__}: {text} (run with --debug for the traceback, and please report it)")
+    return 70
 
 
 class _ClosedStream:

@@ -113,7 +113,6 @@ def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
 def summarize(folder: Path) -> dict[str, Any]:
     """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
     data = SweepData(folder)
-    everything = np.ones(data.rows, dtype=bool)
     laws = data.laws()
     summary: dict[str, Any] = {
         "folder": str(folder),
@@ -121,7 +120,7 @@ def summarize(folder: Path) -> dict[str, Any]:
                  "failed": int((data.columns["status"] == "failed").sum()),
                  "stopped": int((data.columns["status"] == "stopped").sum())},
         "swept": data.swept, "fixed": data.fixed,
-        "overall": group_stats(data, everything),
+        "overall": group_stats(data, np.ones(data.rows, dtype=bool)),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
         "by_parameter": {},
     }

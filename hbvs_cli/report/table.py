@@ -146,14 +146,9 @@ def _table_overhead(columns: int) -> int:
 
 
 def fit_to_width(table: Any, console: Any, keys: int = 1) -> list[Any]:
-    """``table`` as tables no wider than ``console``: no value cell is ever cut or wrapped.
-
-    A table that fits is returned as it is (``[table]``). Otherwise each column after the first
-    ``keys`` gets the width of its widest cell (a text wider than the room beside the labels, a
-    long path, is folded over lines), its header wraps between words, the ``keys`` label columns
-    wrap between words down to :data:`LABEL_MIN_WIDTH`, and the value columns are dealt out to
-    as many tables as the width needs, in column order, each repeating the labels.
-    """
+    """``table`` as tables no wider than ``console`` (docs/report.md, "Output"): ``[table]`` if it fits,
+    else each value column as wide as its widest cell (a text wider than the room beside the labels folds),
+    the first ``keys`` label columns wrapped down to :data:`LABEL_MIN_WIDTH`, the value columns dealt out."""
     from rich.cells import cell_len
 
     width = console.width

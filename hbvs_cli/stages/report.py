@@ -98,20 +98,12 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
     return 0
 
 
-def print_reports(reports: Sequence[RunReport], json_output: bool) -> None:
-    """The table, or the JSON (one run: its report; several: ``{"runs": [...]}``), on stdout."""
-    from ..report.table import print_report_tables
-
-    documents = [report.to_dict() for report in reports] if json_output else []
-    print_document(documents[0] if len(documents) == 1 else {"runs": documents}, json_output,
-                   lambda _, out: print_report_tables(reports, out))
-
-
 def run_report(options: ReportOptions, console: Console) -> int:
     """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` or ``--require-converged`` check failed."""
     from ..report.fit_plot import FIT_PANELS, FitSignals
     from ..report.plots import PANEL_NAMES
     from ..report.build import build_report, resolve_tolerances
+    from ..report.table import print_report_tables
     from ..io.output_target import refuse_overwriting_inputs
 
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
@@ -148,7 +140,10 @@ def run_report(options: ReportOptions, console: Console) -> int:
         check_exportable(runs, options.export_tum)
         tum_files = [("--export-tum", path) for run in runs for path in tum_paths(run, options.export_tum)]
         refuse_overwriting_inputs([("--plot", options.plot), *tum_files], inputs)
-    print_reports(reports, options.json_output)
+    # The tables, or the JSON: one run's report, several runs' as {"runs": [...]}.
+    documents = [report.to_dict() for report in reports] if options.json_output else []
+    print_document(documents[0] if len(documents) == 1 else {"runs": documents}, options.json_output,
+                   lambda _, out: print_report_tables(reports, out))
     if options.plot is not None:
         from ..report.plots import save_plot
 

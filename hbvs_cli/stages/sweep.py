@@ -21,14 +21,6 @@ from .console import Console, print_document
 from .sweep_run import RunTask, check_arguments, execute_run
 
 
-def _true_depth(fit: FitFile) -> float | None:
-    """d* of the fit's simulated world (None for a fit of real footage)."""
-    try:
-        return float(simulation_world(fit.model, None, None).d_true)
-    except UsageError:
-        return None
-
-
 class SweepTasks:
     """The runs still to do, made lazily from their indices (flat memory)."""
 
@@ -68,7 +60,10 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     plan = SweepPlan(spec)
     fit_text = str(fit_path.resolve())
     fit = read_fit_file(fit_text)
-    d_true = _true_depth(fit)
+    try:
+        d_true: float | None = float(simulation_world(fit.model, None, None).d_true)
+    except UsageError:  # a fit of real footage: no simulated world, no d*
+        d_true = None
     _check_values(spec, fit, fit_text, d_true)
     parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
     schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})

@@ -52,11 +52,8 @@ _HOST_NAME = re.compile(r"(?=.*[A-Za-z])[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0
 
 
 def dashboard_address(text: str | None) -> str | None:
-    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given,
-    where HOST is a dotted IPv4 address or a host name. Every other spelling is a
-    :class:`UsageError` before anything is written: ``0`` and ``*`` (they would listen on
-    every interface, which only a named 0.0.0.0 may), and IPv6 (``[::1]``, ``::``), which
-    Dask's dashboard does not serve."""
+    """``--dashboard``'s address: ``PORT`` is ``127.0.0.1:PORT``, ``HOST:PORT`` as given (HOST an IPv4
+    address or a host name); any other spelling a :class:`UsageError` (docs/robustness.md, "dashboard")."""
     if text is None:
         return None
     import ipaddress

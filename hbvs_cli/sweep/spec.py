@@ -62,6 +62,7 @@ class SweepSpec:
 
 def _check_value(name: str, value: Any, where: str) -> Any:
     """A parameter value of the right type and range."""
+    _known(name, where)
     parameter = PARAMETERS[name]
     if parameter.kind == "choice":
         choices = parameter.choices  # the laws: those registered (core/laws.py), any added since too
@@ -186,19 +187,15 @@ def build_spec(
     for text in vary:
         axis = parse_vary(text)
         axes[axis.name] = axis
-    fixed_values: dict[str, Any] = {}
     fixed_table = data.get("fixed", {})
     if not isinstance(fixed_table, dict):
         raise UsageError("spec: [fixed] must be a table")
-    for name, value in fixed_table.items():
-        _known(name, "spec [fixed]")
-        fixed_values[name] = _check_value(name, value, "spec [fixed]")
+    fixed_values = {name: _check_value(name, value, "spec [fixed]") for name, value in fixed_table.items()}
     for text in fixed:
         name, sep, value = text.partition("=")
         name = name.strip()
         if not sep:
             raise UsageError(f"--set must be NAME=VALUE, got {text!r}")
-        _known(name, f"--set {text}")
         fixed_values[name] = _check_value(name, value.strip(), f"--set {text}")
         axes.pop(name, None)
     for name in list(fixed_values):
@@ -277,20 +274,16 @@ class SweepPlan:
         self.listed = [a for a in spec.axes if not a.is_range]
         self.ranged = [a for a in spec.axes if a.is_range]
         self._list_sizes = [len(a.values) for a in self.listed]
-        self._combinations = int(np.prod(self._list_sizes)) if self.listed else 1
+        self._samples = np.zeros((1, 0))  # one point of no ranged value, without ranges
         if self.ranged:
             unit = _qmc_unit_samples(spec.sampling, len(self.ranged), spec.samples, spec.seed)
             low = np.array([a.low for a in self.ranged])
             high = np.array([a.high for a in self.ranged])
             self._samples = low + unit * (high - low)
-            self._sample_count = spec.samples
-        else:
-            self._samples = np.zeros((1, 0))
-            self._sample_count = 1
 
     @property
     def points(self) -> int:
-        return self._combinations * self._sample_count
+        return int(np.prod(self._list_sizes)) * len(self._samples)
 
     @property
     def runs(self) -> int:
@@ -302,7 +295,7 @@ class SweepPlan:
 
     def point_values(self, point: int) -> dict[str, Any]:
         """The swept values of a point: listed values vary slowest, samples fastest (so every law meets the same sampled points)."""
-        combination, sample = divmod(point, self._sample_count)
+        combination, sample = divmod(point, len(self._samples))
         values = {axis.name: axis.values[int(position)]
                   for axis, position in zip(self.listed, np.unravel_index(combination, self._list_sizes))}
         for axis, value in zip(self.ranged, self._samples[sample]):
