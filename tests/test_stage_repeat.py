@@ -287,7 +287,7 @@ def test_a_law_registered_from_outside_the_package_runs_in_every_mode(default_fi
         lateral_gain = 1.0
 
         def __init__(self, gains, dhat0):
-            self.gains, self.dhat = gains, dhat0
+            self.gains, self.dhat, self.dhat0 = gains, dhat0, dhat0
 
         def step(self, measured, desired, dt, adapt=True):
             errors = tracking_errors(measured, desired)

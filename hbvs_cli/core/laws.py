@@ -17,12 +17,15 @@ from .controller import AdaptiveTrackingController, ControlOutput, DesiredState,
 from .depth import check_depth
 
 class ControlLaw(Protocol):
-    """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` (m),
+    """What the loop asks of a law (:class:`~.simulator.ServoStep`): its depth estimate ``dhat`` and dhat(0) (m),
     commands for a measurement, the update (31) and its pull toward the filter's depth (the pull alone
     without the law's output), the taught commands (25) and ``lateral_gain`` (k_2, 1 without one). A
-    lost target stops the robot whatever the law (:class:`~.simulator.ServoStep`)."""
+    lost target stops the robot whatever the law (:class:`~.simulator.ServoStep`). ``gains`` are the ones
+    it was made with (:func:`gains_for_law`); a route swaps them at each segment (sim/route_loop.py)."""
 
     dhat: float
+    dhat0: float
+    gains: ControllerGains
 
     @property
     def lateral_gain(self) -> float: ...
@@ -99,20 +102,21 @@ def reconstructed_tracking_error(measured: Measurement, desired: DesiredState, d
 
 class KanayamaController:
     """Kanayama et al. (1990) at the fixed depth ``dhat`` (m): ``v = v_r cos e_theta + K_x e_x``,
-    ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``, (v_r, w_r) from :meth:`feedforward`."""
+    ``w = w_r + v_r (K_y e_y + K_theta sin e_theta)``, (v_r, w_r) from :meth:`feedforward`. It steers
+    with its own :class:`KanayamaGains` whatever ``gains`` (recorded, and swapped by a route) say."""
 
     #: Kanayama's law has no k_2: the depth pull (scheduled_depth_pull) sees the paper's 1.
     lateral_gain = 1.0
 
-    def __init__(self, dhat: float) -> None:
-        self.dhat = check_depth(dhat, "the depth estimate dhat0")
-        self.gains = KanayamaGains()
+    def __init__(self, gains: ControllerGains, dhat: float) -> None:
+        self.dhat = self.dhat0 = check_depth(dhat, "the depth estimate dhat0")
+        self.gains, self.kanayama = gains, KanayamaGains()
 
     def step(self, measured: Measurement, desired: DesiredState, dt: float, adapt: bool = True) -> ControlOutput:
         """Commands for this instant (nothing adapts)."""
         e_x, e_y, e_theta = reconstructed_tracking_error(measured, desired, self.dhat)
         v_r, w_r = self.feedforward(desired)
-        g = self.gains
+        g = self.kanayama
         v = v_r * math.cos(e_theta) + g.k_x * e_x
         w = w_r + v_r * (g.k_y * e_y + g.k_theta * math.sin(e_theta))
         return ControlOutput(v_c=v, w_c=w, dhat_dot=0.0, errors=tracking_errors(measured, desired))
@@ -128,4 +132,4 @@ class KanayamaController:
 register_law(LawSpec(LAW_LATERAL_GAIN, lambda gains: gains, AdaptiveTrackingController))
 register_law(LawSpec(LAW_PAPER, lambda gains: replace(gains, k_2=1.0), AdaptiveTrackingController))  # (29): no lateral gain
 register_law(LawSpec(LAW_NON_ADAPTIVE, _without_adaptation, AdaptiveTrackingController))
-register_law(LawSpec(LAW_KANAYAMA, _without_adaptation, lambda gains, dhat0: KanayamaController(dhat0)))
+register_law(LawSpec(LAW_KANAYAMA, _without_adaptation, KanayamaController))
