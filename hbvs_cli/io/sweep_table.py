@@ -60,10 +60,6 @@ INTEGER_METRICS = ("steps",)
 STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
 
 
-def empty_metrics() -> dict[str, Any]:
-    return {column: None for column in METRICS}
-
-
 def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
     """The Arrow schema of a row: indices, the parameters, status, the report's metrics."""
     import pyarrow as pa
@@ -346,9 +342,10 @@ class ResultsTable:
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:
-    """The row of a run whose worker could not give one (it died too often)."""
+    """The row of a run whose worker could not give one (it died too often); a run that ends
+    gives this row with its status, metrics, run time and kept file over it."""
     return {
         "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed, **task.values,
-        "status": STATUS_FAILED, "error": error, **empty_metrics(), "run_time_s": None, "run_file": None,
+        "status": STATUS_FAILED, "error": error, **dict.fromkeys(METRICS), "run_time_s": None, "run_file": None,
         "command": task.command,
     }
