@@ -134,14 +134,11 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
             for colour, (law, law_mask) in zip(colours, laws):
                 mask = law_mask & reported
                 axis.scatter(data.columns[name][mask], 100 * data.columns["final_position_m"][mask], s=4, alpha=0.35, color=colour, label=law)
-                centres, medians = [], []
-                for _, centre, group in data.groups(name):
-                    values = data.columns["final_position_m"][group & mask]
-                    values = values[np.isfinite(values)]
-                    if values.size:
-                        centres.append(centre)
-                        medians.append(100 * np.median(values))
-                axis.plot(centres, medians, color=colour, linewidth=1.5)
+                # The median of each value or bin with a finite final error.
+                medians = {centre: group_stats(data, law_mask & group)["final_position_m"]["median"]
+                           for _, centre, group in data.groups(name)}
+                centres = [centre for centre, median in medians.items() if median is not None]
+                axis.plot(centres, [100 * medians[centre] for centre in centres], color=colour, linewidth=1.5)
             axis.set_yscale("log")
             label_log_axis(axis, "y")
             axis.set(xlabel=parameter_label(name, units), ylabel="final position error (cm)")

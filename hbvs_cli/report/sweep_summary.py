@@ -47,16 +47,12 @@ class SweepData:
         self.fixed: dict[str, Any] = spec["fixed"]
         self.total_runs: int = int(info.get("runs", 0))
         self.swept = list(self.vary)
-        wanted = ["status", "converged", "final_position_m", "final_heading_deg", "settling_time_position_s",
-                  "settling_time_heading_s", *self.swept]
-        if "law" in self.fixed and "law" not in wanted:
-            wanted.append("law")
-        table = read_rows(self.folder, wanted)
+        # A fixed parameter is a column too (a fixed law groups the runs as a swept one does).
+        table = read_rows(self.folder, ["status", "converged", "final_position_m", "final_heading_deg",
+                                        "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
         self.rows = table.num_rows
         self.columns: dict[str, np.ndarray] = {}
-        for name in wanted:
-            if name not in table.column_names:
-                continue
+        for name in table.column_names:
             column = table.column(name)
             if column.type == "string":
                 self.columns[name] = np.array(column.to_pylist(), dtype=object)
@@ -67,8 +63,6 @@ class SweepData:
         # NaN (never settled) when either error never settled.
         self.columns["settling_time_s"] = np.maximum(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
         self.law = self.columns.get("law")
-        if self.law is None and "law" in self.fixed:
-            self.law = np.full(self.rows, self.fixed["law"], dtype=object)
 
     def laws(self, everything: str = "all") -> list[tuple[str, np.ndarray]]:
         """``(law, mask)`` per law run, in the table's order; one group ``everything`` without a law."""
