@@ -37,9 +37,6 @@ class SweepTasks:
     def __iter__(self):
         return (self.task(i) for i in range(self.plan.runs) if i not in self.done)
 
-    def remaining(self) -> int:
-        return self.plan.runs - len(self.done)
-
 
 def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, SweepTasks]:
     """Check the options, plan the runs, open the results table (nothing runs yet)."""
@@ -99,7 +96,7 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
     """Run (or resume) a sweep, then print its summary."""
     plan, spec, table, tasks = prepare(options)
     try:
-        remaining = tasks.remaining()
+        remaining = plan.runs - len(table.done)
         console.info(
             f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
             f"{', '.join(plan.swept)}; {plan.runs - remaining} already done -> {options.output}/"
