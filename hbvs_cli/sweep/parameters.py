@@ -33,6 +33,10 @@ class Parameter:
     def choices(self) -> tuple[str, ...]:
         return self.setting.allowed()
 
+    def bound_violation(self, value: float) -> str | None:
+        """Why ``value`` is out of bounds (``repeat``'s words for its options), or None."""
+        return self.setting.violation(value, self.name if self.own else None)
+
 
 def _own_parameter(name: str, unit: str, **bounds: float) -> Parameter:
     """A parameter of the sweep's own, a float (m, deg, s or a factor) within ``bounds`` (min, max)."""

@@ -76,8 +76,7 @@ def _check_value(name: str, value: Any, where: str) -> Any:
             raise UsageError(f"{where}: {name} must be a number ({parameter.unit or 'dimensionless'}), got {value!r}") from None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise UsageError(f"{where}: {name} must be a finite number, got {value!r}")
-    # Out of bounds: in ``repeat``'s words for its options, naming a parameter of the sweep's own.
-    violation = parameter.setting.violation(value, name if parameter.own else None)
+    violation = parameter.bound_violation(value)
     if violation is not None:
         raise UsageError(f"{where}: {violation}")
     if parameter.kind == "int":
