@@ -122,16 +122,10 @@ def _indices(path: Path) -> Any:
 def _sorted_unique(table: Any) -> Any:
     """``table`` sorted by run index, one row per index (a kill during the final merge repeats some)."""
     import numpy as np
-    import pyarrow as pa
-    import pyarrow.compute as pc
 
-    table = table.take(pc.sort_indices(table, [("index", "ascending")]))
-    index = table.column("index").to_numpy()
-    if index.size > 1:
-        keep = np.concatenate([[True], index[1:] != index[:-1]])
-        if not keep.all():
-            table = table.filter(pa.array(keep))
-    return table
+    # The first row of each index, in the order of the indices.
+    _, first = np.unique(table.column("index").to_numpy(), return_index=True)
+    return table.take(first)
 
 
 def merged_windows(folder: Path, schema: Any) -> Iterator[Any]:
@@ -187,8 +181,7 @@ def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> 
                 rows += table.num_rows
                 if parquet_writer is not None:
                     parquet_writer.write_table(table, row_group_size=MERGE_WINDOW)
-                for batch in table.to_batches(max_chunksize=MERGE_WINDOW):
-                    csv_writer.write_batch(batch)
+                csv_writer.write_table(table)
     finally:
         if parquet_writer is not None:
             parquet_writer.close()
