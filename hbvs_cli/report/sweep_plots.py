@@ -76,10 +76,8 @@ def save_sweep_plots(folder: Path, units: Mapping[str, str] | None = None) -> li
 
 
 def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[str, tuple[Any, int]]:
-    """The figures of a results folder by file name (of :data:`FILES`), each with its dpi:
-    the map and the scatter need a numeric swept parameter. ``units``: each swept
-    parameter's unit for its axis label ("" dimensionless). Each law has its colour of
-    :data:`~.figure_style.LAW_COLORS`. The caller closes the figures (pyplot's)."""
+    """The figures of a results folder (docs/sweeps.md) by file name (of :data:`FILES`), each with its dpi;
+    ``units``: each swept parameter's unit for its axis label ("" dimensionless). The caller closes them (pyplot's)."""
     units = units or {}
     import matplotlib
 
@@ -115,13 +113,13 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
     elif numeric:
         figures[FILES[0]] = (_convergence_curve(plt, data, numeric[0], laws, units), 110)
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
-    for colour, (law, law_mask) in zip(colours, laws):
-        for axis, column, scale in ((axes[0], "final_position_m", 100.0), (axes[1], "final_heading_deg", 1.0)):
+    for axis, column, scale, label in ((axes[0], "final_position_m", 100.0, "final position error (cm)"),
+                                       (axes[1], "final_heading_deg", 1.0, "final heading error (deg)")):
+        for colour, (law, law_mask) in zip(colours, laws):
             values = np.sort(data.columns[column][law_mask & reported])
             values = values[np.isfinite(values)] * scale
             if values.size:
                 axis.step(values, np.arange(1, values.size + 1) / values.size, where="post", label=law, color=colour)
-    for axis, label in ((axes[0], "final position error (cm)"), (axes[1], "final heading error (deg)")):
         axis.set_xscale("log")
         label_log_axis(axis, "x")
         axis.set(xlabel=label, ylabel="fraction of runs at or below (0-1)")

@@ -74,10 +74,9 @@ class SweepData:
         """``(label, value, mask)`` per value or bin of a swept parameter."""
         values = self.columns[name]
         axis = self.vary[name]
-        if values.dtype == object:
-            listed = axis.get("values") or sorted(set(values))
-            return [(str(v), v, values == v) for v in listed]
         listed = axis.get("values")
+        if values.dtype == object:  # a choice: always listed
+            return [(str(v), v, values == v) for v in listed]
         if listed is not None and len(listed) <= MAX_GROUPS:
             return [(f"{v:g}", float(v), np.isclose(values, v, rtol=0, atol=1e-12)) for v in listed]
         low, high = (axis["range"] if listed is None else (min(listed), max(listed)))
@@ -108,7 +107,7 @@ def summarize(folder: Path) -> dict[str, Any]:
     """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
     data = SweepData(folder)
     laws = data.laws()
-    summary: dict[str, Any] = {
+    return {
         "folder": str(folder),
         "runs": {"planned": data.total_runs, "done": data.rows,
                  "failed": int((data.columns["status"] == "failed").sum()),
@@ -116,17 +115,13 @@ def summarize(folder: Path) -> dict[str, Any]:
         "swept": data.swept, "fixed": data.fixed,
         "overall": group_stats(data, np.ones(data.rows, dtype=bool)),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
-        "by_parameter": {},
+        "by_parameter": {
+            name: [{"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
+                   | group_stats(data, mask & law_mask)
+                   for law_label, law_mask in laws for label, value, mask in data.groups(name)]
+            for name in data.swept if name != "law"
+        },
     }
-    for name in data.swept:
-        if name == "law":
-            continue
-        summary["by_parameter"][name] = [
-            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
-            | group_stats(data, mask & law_mask)
-            for law_label, law_mask in laws for label, value, mask in data.groups(name)
-        ]
-    return summary
 
 
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
