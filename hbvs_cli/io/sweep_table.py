@@ -60,17 +60,16 @@ INTEGER_METRICS = ("steps",)
 STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
 
 
-def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
-    """The Arrow schema of a row: indices, the parameters, status, the report's metrics."""
+def row_schema(kinds: Mapping[str, str]) -> Any:
+    """The Arrow schema of a row: indices, the parameters (``kinds``: each one's, in order), status, the report's metrics."""
     import pyarrow as pa
 
     arrow = {"float": pa.float64(), "int": pa.int64(), "choice": pa.string()}
     fields = [pa.field(n, pa.int64()) for n in ("index", "point", "repeat", "seed")]
-    fields += [pa.field(name, arrow[kinds[name]]) for name in parameters]
+    fields += [pa.field(name, arrow[kind]) for name, kind in kinds.items()]
     fields += [pa.field("status", pa.string()), pa.field("error", pa.string())]
-    for column in METRICS:
-        kind = pa.bool_() if column in BOOLEAN_METRICS else pa.int64() if column in INTEGER_METRICS else pa.float64()
-        fields.append(pa.field(column, kind))
+    metric = dict.fromkeys(BOOLEAN_METRICS, pa.bool_()) | dict.fromkeys(INTEGER_METRICS, pa.int64())
+    fields += [pa.field(column, metric.get(column, pa.float64())) for column in METRICS]
     fields += [pa.field("run_time_s", pa.float64()), pa.field("run_file", pa.string()), pa.field("command", pa.string())]
     return pa.schema(fields)
 

@@ -62,8 +62,7 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     except UsageError:  # a fit of real footage: no simulated world, no d*
         d_true = None
     _check_values(spec, fit, fit_text, d_true)
-    parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
-    schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})
+    schema = row_schema({name: p.kind for name, p in PARAMETERS.items() if name in plan.swept or name in spec.fixed})
     fingerprint = {"spec": spec.as_dict(), "fit": fit_text, "fit_sha256": file_digest(fit_path)}
     description = {"runs": plan.runs, "points": plan.points, "d_true": d_true}
     table = ResultsTable(Path(options.output), schema, fingerprint, description)
