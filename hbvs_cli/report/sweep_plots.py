@@ -21,10 +21,8 @@ FEW_DECADES = 2.0
 
 
 def parameter_label(name: str, units: Mapping[str, str]) -> str:
-    """A swept parameter's axis label with its unit: ``offset_y (m)``; ``(-)`` when it has none."""
-    if name not in units:
-        return name
-    return f"{name} ({units[name] or '-'})"
+    """A swept parameter's axis label with its unit: ``offset_y (m)``; ``(-)`` when it has none, the name alone without units."""
+    return f"{name} ({units[name] or '-'})" if name in units else name
 
 
 def label_log_axis(axis: Any, which: str = "x") -> None:

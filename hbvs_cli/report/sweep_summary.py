@@ -40,16 +40,15 @@ class SweepData:
     def __init__(self, folder: Path) -> None:
         from ..io.sweep_table import read_description, read_rows
 
-        self.folder = Path(folder)
-        info = read_description(self.folder)
+        info = read_description(folder)
         spec = info["fingerprint"]["spec"]
         self.vary: dict[str, Any] = spec["vary"]
         self.fixed: dict[str, Any] = spec["fixed"]
         self.total_runs: int = int(info.get("runs", 0))
         self.swept = list(self.vary)
         # A fixed parameter is a column too (a fixed law groups the runs as a swept one does).
-        table = read_rows(self.folder, ["status", "converged", "final_position_m", "final_heading_deg",
-                                        "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
+        table = read_rows(folder, ["status", "converged", "final_position_m", "final_heading_deg",
+                                   "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
         self.rows = table.num_rows
         self.columns: dict[str, np.ndarray] = {}
         for name in table.column_names:
