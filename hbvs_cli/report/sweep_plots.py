@@ -45,11 +45,9 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, units: Mapping[str
 
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for colour, (law, law_mask) in zip(law_colors([law for law, _ in laws]), laws):
-        points = []  # (centre, rate, Wilson low, high) of each value or bin with reported runs
-        for _, centre, group in data.groups(name):
-            stats = group_stats(data, law_mask & group)
-            if stats["rate"] is not None:
-                points.append((centre, stats["rate"], *stats["rate_ci95"]))
+        stats = [(centre, group_stats(data, law_mask & group)) for _, centre, group in data.groups(name)]
+        # (centre, rate, Wilson low, high) of each value or bin with reported runs
+        points = [(centre, s["rate"], *s["rate_ci95"]) for centre, s in stats if s["rate"] is not None]
         centres, rates, low, high = zip(*points) if points else ([], [], [], [])
         axis.plot(centres, rates, marker="o", ms=3, color=colour, label=law)
         axis.fill_between(centres, low, high, color=colour, alpha=0.12, lw=0)

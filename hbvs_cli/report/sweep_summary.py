@@ -87,8 +87,7 @@ class SweepData:
 
 def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     """The statistics of one group of rows (see the module docstring)."""
-    status = data.columns["status"][mask]
-    reported = status != "failed"
+    reported = data.columns["status"][mask] != "failed"
     converged = data.columns["converged"][mask] & reported
     runs, n_converged = int(reported.sum()), int(converged.sum())
     low, high = wilson_interval(n_converged, runs)
