@@ -130,11 +130,7 @@ def _sorted_unique(table: Any) -> Any:
 def merged_windows(folder: Path, schema: Any) -> Iterator[Any]:
     """The rows of ``runs.parquet`` and the parts, sorted by run index, in tables of at most
     :data:`MERGE_WINDOW` consecutive indices: one window's rows in memory at a time."""
-    spans = []
-    for path in _result_files(folder):
-        index = _indices(path)
-        if index.size:
-            spans.append((path, int(index.min()), int(index.max())))
+    spans = [(path, int(index.min()), int(index.max())) for path in _result_files(folder) if (index := _indices(path)).size]
     if not spans:
         return
     low = min(span[1] for span in spans)

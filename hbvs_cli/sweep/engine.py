@@ -8,7 +8,7 @@ import logging
 import os
 import re
 import time
-from collections import deque
+from collections import Counter, deque
 from contextlib import ExitStack, contextmanager
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
@@ -244,13 +244,12 @@ def run_tasks(
     completed = as_completed(with_results=True, raise_errors=False)
     sizer = BatchSizer(total, len(client.scheduler_info().get("workers", {})))
 
-    attempts: dict[int, int] = {}  # isolated attempts per task index
+    attempts: Counter[int] = Counter()  # isolated attempts per task index
 
     def submit(batch: list[Any], key: str, isolated: bool = False) -> None:
         if isolated:
-            index = batch[0].index
-            attempts[index] = attempts.get(index, 0) + 1
-            key = f"{key}{attempts[index]}"
+            attempts[batch[0].index] += 1
+            key = f"{key}{attempts[batch[0].index]}"
         future = client.submit(run_batch, function, batch, key if isolated else None, key=key, pure=False, retries=0)
         waiting[future.key] = (batch, isolated)
         completed.add(future)
