@@ -60,21 +60,16 @@ INTEGER_METRICS = ("steps",)
 STATUS_OK, STATUS_STOPPED, STATUS_FAILED = "ok", "stopped", "failed"
 
 
-def empty_metrics() -> dict[str, Any]:
-    return {column: None for column in METRICS}
-
-
-def row_schema(parameters: Sequence[str], kinds: Mapping[str, str]) -> Any:
-    """The Arrow schema of a row: indices, the parameters, status, the report's metrics."""
+def row_schema(kinds: Mapping[str, str]) -> Any:
+    """The Arrow schema of a row: indices, the parameters (``kinds``: each one's, in order), status, the report's metrics."""
     import pyarrow as pa
 
     arrow = {"float": pa.float64(), "int": pa.int64(), "choice": pa.string()}
     fields = [pa.field(n, pa.int64()) for n in ("index", "point", "repeat", "seed")]
-    fields += [pa.field(name, arrow[kinds[name]]) for name in parameters]
+    fields += [pa.field(name, arrow[kind]) for name, kind in kinds.items()]
     fields += [pa.field("status", pa.string()), pa.field("error", pa.string())]
-    for column in METRICS:
-        kind = pa.bool_() if column in BOOLEAN_METRICS else pa.int64() if column in INTEGER_METRICS else pa.float64()
-        fields.append(pa.field(column, kind))
+    metric = dict.fromkeys(BOOLEAN_METRICS, pa.bool_()) | dict.fromkeys(INTEGER_METRICS, pa.int64())
+    fields += [pa.field(column, metric.get(column, pa.float64())) for column in METRICS]
     fields += [pa.field("run_time_s", pa.float64()), pa.field("run_file", pa.string()), pa.field("command", pa.string())]
     return pa.schema(fields)
 
@@ -126,26 +121,16 @@ def _indices(path: Path) -> Any:
 def _sorted_unique(table: Any) -> Any:
     """``table`` sorted by run index, one row per index (a kill during the final merge repeats some)."""
     import numpy as np
-    import pyarrow as pa
-    import pyarrow.compute as pc
 
-    table = table.take(pc.sort_indices(table, [("index", "ascending")]))
-    index = table.column("index").to_numpy()
-    if index.size > 1:
-        keep = np.concatenate([[True], index[1:] != index[:-1]])
-        if not keep.all():
-            table = table.filter(pa.array(keep))
-    return table
+    # The first row of each index, in the order of the indices.
+    _, first = np.unique(table.column("index").to_numpy(), return_index=True)
+    return table.take(first)
 
 
 def merged_windows(folder: Path, schema: Any) -> Iterator[Any]:
     """The rows of ``runs.parquet`` and the parts, sorted by run index, in tables of at most
     :data:`MERGE_WINDOW` consecutive indices: one window's rows in memory at a time."""
-    spans = []
-    for path in _result_files(folder):
-        index = _indices(path)
-        if index.size:
-            spans.append((path, int(index.min()), int(index.max())))
+    spans = [(path, int(index.min()), int(index.max())) for path in _result_files(folder) if (index := _indices(path)).size]
     if not spans:
         return
     low = min(span[1] for span in spans)
@@ -191,8 +176,7 @@ def write_merged(folder: Path, schema: Any, parquet: Path | None, csv: Path) -> 
                 rows += table.num_rows
                 if parquet_writer is not None:
                     parquet_writer.write_table(table, row_group_size=MERGE_WINDOW)
-                for batch in table.to_batches(max_chunksize=MERGE_WINDOW):
-                    csv_writer.write_batch(batch)
+                csv_writer.write_table(table)
     finally:
         if parquet_writer is not None:
             parquet_writer.close()
@@ -346,9 +330,10 @@ class ResultsTable:
 
 
 def failed_row(task: Any, error: str) -> dict[str, Any]:
-    """The row of a run whose worker could not give one (it died too often)."""
+    """The row of a run whose worker could not give one (it died too often); a run that ends
+    gives this row with its status, metrics, run time and kept file over it."""
     return {
         "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed, **task.values,
-        "status": STATUS_FAILED, "error": error, **empty_metrics(), "run_time_s": None, "run_file": None,
+        "status": STATUS_FAILED, "error": error, **dict.fromkeys(METRICS), "run_time_s": None, "run_file": None,
         "command": task.command,
     }

@@ -21,10 +21,8 @@ FEW_DECADES = 2.0
 
 
 def parameter_label(name: str, units: Mapping[str, str]) -> str:
-    """A swept parameter's axis label with its unit: ``offset_y (m)``; ``(-)`` when it has none."""
-    if name not in units:
-        return name
-    return f"{name} ({units[name] or '-'})"
+    """A swept parameter's axis label with its unit: ``offset_y (m)``; ``(-)`` when it has none, the name alone without units."""
+    return f"{name} ({units[name] or '-'})" if name in units else name
 
 
 def label_log_axis(axis: Any, which: str = "x") -> None:
@@ -47,11 +45,9 @@ def _convergence_curve(plt, data: SweepData, name: str, laws, units: Mapping[str
 
     figure, axis = plt.subplots(figsize=(5.2, 3.6), constrained_layout=True)
     for colour, (law, law_mask) in zip(law_colors([law for law, _ in laws]), laws):
-        points = []  # (centre, rate, Wilson low, high) of each value or bin with reported runs
-        for _, centre, group in data.groups(name):
-            stats = group_stats(data, law_mask & group)
-            if stats["rate"] is not None:
-                points.append((centre, stats["rate"], *stats["rate_ci95"]))
+        stats = [(centre, group_stats(data, law_mask & group)) for _, centre, group in data.groups(name)]
+        # (centre, rate, Wilson low, high) of each value or bin with reported runs
+        points = [(centre, s["rate"], *s["rate_ci95"]) for centre, s in stats if s["rate"] is not None]
         centres, rates, low, high = zip(*points) if points else ([], [], [], [])
         axis.plot(centres, rates, marker="o", ms=3, color=colour, label=law)
         axis.fill_between(centres, low, high, color=colour, alpha=0.12, lw=0)
@@ -76,10 +72,8 @@ def save_sweep_plots(folder: Path, units: Mapping[str, str] | None = None) -> li
 
 
 def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[str, tuple[Any, int]]:
-    """The figures of a results folder by file name (of :data:`FILES`), each with its dpi:
-    the map and the scatter need a numeric swept parameter. ``units``: each swept
-    parameter's unit for its axis label ("" dimensionless). Each law has its colour of
-    :data:`~.figure_style.LAW_COLORS`. The caller closes the figures (pyplot's)."""
+    """The figures of a results folder (docs/sweeps.md) by file name (of :data:`FILES`), each with its dpi;
+    ``units``: each swept parameter's unit for its axis label ("" dimensionless). The caller closes them (pyplot's)."""
     units = units or {}
     import matplotlib
 
@@ -115,13 +109,13 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
     elif numeric:
         figures[FILES[0]] = (_convergence_curve(plt, data, numeric[0], laws, units), 110)
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
-    for colour, (law, law_mask) in zip(colours, laws):
-        for axis, column, scale in ((axes[0], "final_position_m", 100.0), (axes[1], "final_heading_deg", 1.0)):
+    for axis, column, scale, label in ((axes[0], "final_position_m", 100.0, "final position error (cm)"),
+                                       (axes[1], "final_heading_deg", 1.0, "final heading error (deg)")):
+        for colour, (law, law_mask) in zip(colours, laws):
             values = np.sort(data.columns[column][law_mask & reported])
             values = values[np.isfinite(values)] * scale
             if values.size:
                 axis.step(values, np.arange(1, values.size + 1) / values.size, where="post", label=law, color=colour)
-    for axis, label in ((axes[0], "final position error (cm)"), (axes[1], "final heading error (deg)")):
         axis.set_xscale("log")
         label_log_axis(axis, "x")
         axis.set(xlabel=label, ylabel="fraction of runs at or below (0-1)")
@@ -134,14 +128,11 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
             for colour, (law, law_mask) in zip(colours, laws):
                 mask = law_mask & reported
                 axis.scatter(data.columns[name][mask], 100 * data.columns["final_position_m"][mask], s=4, alpha=0.35, color=colour, label=law)
-                centres, medians = [], []
-                for _, centre, group in data.groups(name):
-                    values = data.columns["final_position_m"][group & mask]
-                    values = values[np.isfinite(values)]
-                    if values.size:
-                        centres.append(centre)
-                        medians.append(100 * np.median(values))
-                axis.plot(centres, medians, color=colour, linewidth=1.5)
+                # The median of each value or bin with a finite final error.
+                medians = {centre: group_stats(data, law_mask & group)["final_position_m"]["median"]
+                           for _, centre, group in data.groups(name)}
+                centres = [centre for centre, median in medians.items() if median is not None]
+                axis.plot(centres, [100 * medians[centre] for centre in centres], color=colour, linewidth=1.5)
             axis.set_yscale("log")
             label_log_axis(axis, "y")
             axis.set(xlabel=parameter_label(name, units), ylabel="final position error (cm)")

@@ -40,23 +40,18 @@ class SweepData:
     def __init__(self, folder: Path) -> None:
         from ..io.sweep_table import read_description, read_rows
 
-        self.folder = Path(folder)
-        info = read_description(self.folder)
+        info = read_description(folder)
         spec = info["fingerprint"]["spec"]
         self.vary: dict[str, Any] = spec["vary"]
         self.fixed: dict[str, Any] = spec["fixed"]
         self.total_runs: int = int(info.get("runs", 0))
         self.swept = list(self.vary)
-        wanted = ["status", "converged", "final_position_m", "final_heading_deg", "settling_time_position_s",
-                  "settling_time_heading_s", *self.swept]
-        if "law" in self.fixed and "law" not in wanted:
-            wanted.append("law")
-        table = read_rows(self.folder, wanted)
+        # A fixed parameter is a column too (a fixed law groups the runs as a swept one does).
+        table = read_rows(folder, ["status", "converged", "final_position_m", "final_heading_deg",
+                                   "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
         self.rows = table.num_rows
         self.columns: dict[str, np.ndarray] = {}
-        for name in wanted:
-            if name not in table.column_names:
-                continue
+        for name in table.column_names:
             column = table.column(name)
             if column.type == "string":
                 self.columns[name] = np.array(column.to_pylist(), dtype=object)
@@ -67,8 +62,6 @@ class SweepData:
         # NaN (never settled) when either error never settled.
         self.columns["settling_time_s"] = np.maximum(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
         self.law = self.columns.get("law")
-        if self.law is None and "law" in self.fixed:
-            self.law = np.full(self.rows, self.fixed["law"], dtype=object)
 
     def laws(self, everything: str = "all") -> list[tuple[str, np.ndarray]]:
         """``(law, mask)`` per law run, in the table's order; one group ``everything`` without a law."""
@@ -80,10 +73,9 @@ class SweepData:
         """``(label, value, mask)`` per value or bin of a swept parameter."""
         values = self.columns[name]
         axis = self.vary[name]
-        if values.dtype == object:
-            listed = axis.get("values") or sorted(set(values))
-            return [(str(v), v, values == v) for v in listed]
         listed = axis.get("values")
+        if values.dtype == object:  # a choice: always listed
+            return [(str(v), v, values == v) for v in listed]
         if listed is not None and len(listed) <= MAX_GROUPS:
             return [(f"{v:g}", float(v), np.isclose(values, v, rtol=0, atol=1e-12)) for v in listed]
         low, high = (axis["range"] if listed is None else (min(listed), max(listed)))
@@ -95,8 +87,7 @@ class SweepData:
 
 def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     """The statistics of one group of rows (see the module docstring)."""
-    status = data.columns["status"][mask]
-    reported = status != "failed"
+    reported = data.columns["status"][mask] != "failed"
     converged = data.columns["converged"][mask] & reported
     runs, n_converged = int(reported.sum()), int(converged.sum())
     low, high = wilson_interval(n_converged, runs)
@@ -114,7 +105,7 @@ def summarize(folder: Path) -> dict[str, Any]:
     """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
     data = SweepData(folder)
     laws = data.laws()
-    summary: dict[str, Any] = {
+    return {
         "folder": str(folder),
         "runs": {"planned": data.total_runs, "done": data.rows,
                  "failed": int((data.columns["status"] == "failed").sum()),
@@ -122,17 +113,13 @@ def summarize(folder: Path) -> dict[str, Any]:
         "swept": data.swept, "fixed": data.fixed,
         "overall": group_stats(data, np.ones(data.rows, dtype=bool)),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
-        "by_parameter": {},
+        "by_parameter": {
+            name: [{"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
+                   | group_stats(data, mask & law_mask)
+                   for law_label, law_mask in laws for label, value, mask in data.groups(name)]
+            for name in data.swept if name != "law"
+        },
     }
-    for name in data.swept:
-        if name == "law":
-            continue
-        summary["by_parameter"][name] = [
-            {"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
-            | group_stats(data, mask & law_mask)
-            for law_label, law_mask in laws for label, value, mask in data.groups(name)
-        ]
-    return summary
 
 
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:

@@ -37,9 +37,6 @@ class SweepTasks:
     def __iter__(self):
         return (self.task(i) for i in range(self.plan.runs) if i not in self.done)
 
-    def remaining(self) -> int:
-        return self.plan.runs - len(self.done)
-
 
 def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, SweepTasks]:
     """Check the options, plan the runs, open the results table (nothing runs yet)."""
@@ -65,8 +62,7 @@ def prepare(options: SweepOptions) -> tuple[SweepPlan, SweepSpec, ResultsTable, 
     except UsageError:  # a fit of real footage: no simulated world, no d*
         d_true = None
     _check_values(spec, fit, fit_text, d_true)
-    parameters = sorted(set(plan.swept) | set(spec.fixed), key=list(PARAMETERS).index)
-    schema = row_schema(parameters, {name: PARAMETERS[name].kind for name in parameters})
+    schema = row_schema({name: p.kind for name, p in PARAMETERS.items() if name in plan.swept or name in spec.fixed})
     fingerprint = {"spec": spec.as_dict(), "fit": fit_text, "fit_sha256": file_digest(fit_path)}
     description = {"runs": plan.runs, "points": plan.points, "d_true": d_true}
     table = ResultsTable(Path(options.output), schema, fingerprint, description)
@@ -99,7 +95,7 @@ def run_sweep(options: SweepOptions, console: Console) -> int:
     """Run (or resume) a sweep, then print its summary."""
     plan, spec, table, tasks = prepare(options)
     try:
-        remaining = tasks.remaining()
+        remaining = plan.runs - len(table.done)
         console.info(
             f"sweep: {plan.runs} runs ({plan.points} points x {spec.repeats} repeats, {spec.sampling}) of "
             f"{', '.join(plan.swept)}; {plan.runs - remaining} already done -> {options.output}/"

@@ -13,7 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, empty_metrics
+from ..io.sweep_table import METRICS, STATUS_FAILED, STATUS_OK, STATUS_STOPPED, failed_row
 from ..sweep.spec import RunSettings
 
 if TYPE_CHECKING:
@@ -90,7 +90,7 @@ def execute_run(task: RunTask) -> dict[str, Any]:
     folder = tempfile.mkdtemp(prefix="hbvs-sweep-")
     try:
         run_path = os.path.join(folder, "run.mcap")
-        status, error, metrics = STATUS_OK, None, empty_metrics()
+        status, error, metrics = STATUS_OK, None, {}
         try:
             options = RepeatOptions(input=task.fit_path, output=run_path, **task.arguments)
             try:
@@ -112,8 +112,4 @@ def execute_run(task: RunTask) -> dict[str, Any]:
                 error = (error + "; " if error else "") + f"run file not kept ({exc.strerror or exc})"
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    return {
-        "index": task.index, "point": task.point, "repeat": task.repeat, "seed": task.seed,
-        **task.values, "status": status, "error": error, **metrics,
-        "run_time_s": time.perf_counter() - started, "run_file": kept, "command": task.command,
-    }
+    return failed_row(task, error) | {"status": status, **metrics, "run_time_s": time.perf_counter() - started, "run_file": kept}

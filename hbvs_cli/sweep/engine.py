@@ -1,8 +1,5 @@
-"""Where the runs execute: a Dask cluster (a local one of single-threaded processes,
-``--scheduler``'s, or ``--cluster slurm|pbs`` batch jobs), in batches (:class:`BatchSizer`),
-at most ``in_flight`` at once. A failed batch is split; a run that fails alone is retried
-with the cluster to itself, and only then recorded as failed.
-"""
+"""Where the runs execute (docs/sweeps.md, "Engine"): a Dask cluster, in batches (:class:`BatchSizer`),
+at most ``in_flight`` at once; what fails is retried as :func:`run_tasks` says."""
 
 from __future__ import annotations
 
@@ -11,7 +8,7 @@ import logging
 import os
 import re
 import time
-from collections import deque
+from collections import Counter, deque
 from contextlib import ExitStack, contextmanager
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
@@ -245,16 +242,14 @@ def run_tasks(
     suspects: deque[Any] = deque()  # tasks that failed alone, to be run once more in isolation
     waiting: dict[str, tuple[list[Any], bool]] = {}  # future key -> (its tasks, run in isolation)
     completed = as_completed(with_results=True, raise_errors=False)
-    workers = len(client.scheduler_info().get("workers", {}))
-    sizer = BatchSizer(total, workers or 1)
+    sizer = BatchSizer(total, len(client.scheduler_info().get("workers", {})))
 
-    attempts: dict[int, int] = {}  # isolated attempts per task index
+    attempts: Counter[int] = Counter()  # isolated attempts per task index
 
     def submit(batch: list[Any], key: str, isolated: bool = False) -> None:
         if isolated:
-            index = batch[0].index
-            attempts[index] = attempts.get(index, 0) + 1
-            key = f"{key}{attempts[index]}"
+            attempts[batch[0].index] += 1
+            key = f"{key}{attempts[batch[0].index]}"
         future = client.submit(run_batch, function, batch, key if isolated else None, key=key, pure=False, retries=0)
         waiting[future.key] = (batch, isolated)
         completed.add(future)

@@ -303,8 +303,6 @@ class SweepPlan:
         return {name: values[name] for name in self.swept}
 
     def run(self, index: int) -> RunSettings:
-        if not 0 <= index < self.runs:
-            raise IndexError(index)
         point, repeat = divmod(index, self.spec.repeats)
         values = dict(self.spec.fixed) | self.point_values(point)
         return RunSettings(index=index, point=point, repeat=repeat, seed=run_seed(self.spec.seed, index), values=values)
