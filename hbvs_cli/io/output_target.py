@@ -101,25 +101,12 @@ def atomic_folder(final: Path, what: str, before_swap: Callable[[Path], None] = 
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _made_by_hbvs(path: Path, final_name: str) -> bool:
-    """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
-    a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""
-    try:
-        status = os.lstat(path)
-        if status.st_uid != os.getuid():
-            return False
-        if stat.S_ISDIR(status.st_mode):
-            return all(entry.name in (final_name, "replaced") for entry in path.iterdir())
-        return stat.S_ISREG(status.st_mode)
-    except OSError:
-        return False
-
-
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs whose process is gone: its name is
     one :func:`partial_name_of` gives (8 hex digits), its pid one this system can give (at most
-    /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
-    user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
+    /proc/sys/kernel/pid_max) and not alive, this user owns it, and a folder (an export's) holds
+    nothing but the bag it was writing and the bag it replaced. A user's folder named alike
+    (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
     if match is None:
         return False
@@ -128,14 +115,20 @@ def stale_partial(path: Path) -> bool:
         pid_max = int(Path("/proc/sys/kernel/pid_max").read_text().strip())
     if int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= pid_max:
         return False
-    if not _made_by_hbvs(path, match.group("final")):
-        return False
     try:
+        status = os.lstat(path)
+        if status.st_uid != os.getuid():
+            return False
+        if stat.S_ISDIR(status.st_mode):
+            if not all(entry.name in (match.group("final"), "replaced") for entry in path.iterdir()):
+                return False
+        elif not stat.S_ISREG(status.st_mode):
+            return False
         os.kill(int(match.group("pid")), 0)
     except ProcessLookupError:
         return True
     except (OverflowError, OSError):
-        pass  # alive under another user, or not a pid this system has: keep it
+        pass  # unreadable, alive under another user, or not a pid this system has: keep it
     return False
 
 
@@ -385,40 +378,33 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
         sink.stream.flush()
         return
     assert target.path is not None
-    if target.kind == "stream":
+    final = target.path
+    atomic = target.kind == "file"
+    mode = None  # an earlier file's, which the new one keeps
+    if atomic:
+        with suppress(OSError):
+            mode = stat.S_IMODE(os.stat(final).st_mode)
+        temporary = partial_name_of(final)
+        try:
+            fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except OSError as exc:
+            raise InputError(f"{label}: cannot write ({exc.strerror})") from None
+        except BaseException:
+            # A signal can land after the file was created but before `fd` was bound.
+            _remove_quietly(temporary)
+            raise
+    else:
         try:
             # A regular file reached through /proc/self/fd is truncated, as a shell's > would.
-            regular = stat.S_ISREG(os.stat(target.path).st_mode)
-            fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
+            regular = stat.S_ISREG(os.stat(final).st_mode)
+            fd = os.open(final, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
         except OSError as exc:
             raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
-        sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)
-        with sink.stream:  # closing flushes
-            yield sink
-        return
-    yield from _atomic_file(target, label, what, keep_on_error)
-
-
-def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: bool) -> Iterator[OutputSink]:
-    assert target.path is not None
-    final = target.path
-    mode = None  # an earlier file's, which the new one keeps
-    with suppress(OSError):
-        mode = stat.S_IMODE(os.stat(final).st_mode)
-    temporary = partial_name_of(final)
-    try:
-        fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
-    except OSError as exc:
-        raise InputError(f"{label}: cannot write ({exc.strerror})") from None
-    except BaseException:
-        # A signal can land after the file was created but before `fd` was bound.
-        _remove_quietly(temporary)
-        raise
     try:
         handle = os.fdopen(fd, "wb")
-        sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=True), target)
+        sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=atomic), target)
         failure: BaseException | None = None
-        with sink.stream:
+        with sink.stream:  # closing flushes
             try:
                 yield sink
                 sink.check_commit()
@@ -430,15 +416,18 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
             with sink.stream.reported():
                 if mode is not None:
                     os.fchmod(handle.fileno(), mode)
-                os.fsync(handle.fileno())
-        try:
-            os.replace(temporary, final)
-        except OSError as exc:
-            raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
+                if atomic:
+                    os.fsync(handle.fileno())
+        if atomic:
+            try:
+                os.replace(temporary, final)
+            except OSError as exc:
+                raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
         if failure is not None:
             raise failure
     except BaseException:
-        _remove_quietly(temporary)
+        if atomic:
+            _remove_quietly(temporary)
         raise
 
 
