@@ -79,15 +79,14 @@ def stop_within(stop: Any, seconds: float) -> bool:
     signal interrupts); True when it returned in time."""
     import threading
 
-    thread = threading.Thread(target=_quietly, args=(stop,), name="hbvs-live-stop", daemon=True)
+    def quietly() -> None:
+        with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
+            stop()
+
+    thread = threading.Thread(target=quietly, name="hbvs-live-stop", daemon=True)
     thread.start()
     thread.join(seconds)
     return not thread.is_alive()
-
-
-def _quietly(function: Any) -> None:
-    with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
-        function()
 
 
 @contextmanager
