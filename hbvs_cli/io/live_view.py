@@ -4,6 +4,7 @@ also served by the Foxglove SDK's WebSocket server on localhost, a simulated run
 
 from __future__ import annotations
 
+import threading
 import time
 from contextlib import contextmanager, suppress
 from typing import Any, Iterator
@@ -77,8 +78,6 @@ STOP_SECONDS = 1.0
 def stop_within(stop: Any, seconds: float) -> bool:
     """Call ``stop()`` on a daemon thread and wait at most ``seconds`` (a timed join, which a stop
     signal interrupts); True when it returned in time."""
-    import threading
-
     def quietly() -> None:
         with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
             stop()
