@@ -18,14 +18,6 @@ INSTALL_HINT = "--foxglove needs the Foxglove SDK: pip install 'hbvs[live]'"
 MIN_SPEED, MAX_SPEED = 1e-3, 1e6
 
 
-def _sdk() -> Any:
-    try:
-        import foxglove
-    except ImportError:
-        raise UsageError(INSTALL_HINT) from None
-    return foxglove
-
-
 class LiveMirror:
     """An McapWriter look-alike that writes through to ``writer`` and logs on ``context``'s
     server, a message at log time ``t`` no earlier than ``t / speed`` s after the first (0: unpaced)."""
@@ -53,7 +45,7 @@ class LiveMirror:
         if channel is None:
             # The channel as the file declares it (McapWriter.channels).
             _, name, encoding, schema_data, message_encoding = self._writer.channels[topic]
-            foxglove = _sdk()
+            import foxglove  # there: live_writer made this mirror after importing it
             schema = foxglove.Schema(name=name, encoding=encoding, data=schema_data)
             channel = self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding=message_encoding, context=self._context)
         self._pace(int(log_time_ns))
@@ -95,7 +87,10 @@ def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> I
     if port is None:
         yield lambda writer: writer
         return
-    foxglove = _sdk()
+    try:
+        import foxglove
+    except ImportError:
+        raise UsageError(INSTALL_HINT) from None
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
     if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):
