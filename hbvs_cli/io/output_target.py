@@ -237,18 +237,17 @@ STDOUT_HOLD_BYTES = 1 << 16
 
 class GuardedStream(ClosedOnExit):
     """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek).
-    With ``hold`` > 0 the first bytes wait in memory until more than ``hold`` are written or
+    With ``hold`` the first bytes wait in memory until more than :data:`STDOUT_HOLD_BYTES` are written or
     :meth:`flush` is called; :meth:`discard` drops them (the stage failed)."""
 
-    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False, hold: int = 0) -> None:
+    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False, hold: bool = False) -> None:
         self.closed = False
         self._atomic = atomic
         self._raw = raw
         self._what = what
         self._owned = owned
         self._count = 0
-        self._hold = hold
-        self._held: bytearray | None = bytearray() if hold > 0 else None
+        self._held: bytearray | None = bytearray() if hold else None
 
     @contextmanager
     def reported(self) -> Iterator[None]:
@@ -286,7 +285,7 @@ class GuardedStream(ClosedOnExit):
         view = memoryview(data).cast("B")
         if self._held is not None:
             self._held += view
-            if len(self._held) > self._hold:
+            if len(self._held) > STDOUT_HOLD_BYTES:
                 self._release()
         else:
             self._write_raw(view)
@@ -347,7 +346,7 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
     label = "stdout" if kind == "stdout" else os.fspath(spec)
     if kind == "stdout":
         # A closed stdout is the command line's stand-in (cli.app), which says so.
-        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), "-", None)
+        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=True), "-", None)
         try:
             yield sink
         except HbvsError:
