@@ -30,9 +30,7 @@ class UsageError(HbvsError):
 
 
 class InputError(HbvsError):
-    """A file or stream that is missing, unreadable or not what it should be."""
-
-    exit_code = 3
+    """A file or stream that is missing, unreadable or not what it should be (exit 3, as :class:`HbvsError`)."""
 
 
 class CalibrationError(InputError):

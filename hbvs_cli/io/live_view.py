@@ -4,6 +4,7 @@ also served by the Foxglove SDK's WebSocket server on localhost, a simulated run
 
 from __future__ import annotations
 
+import threading
 import time
 from contextlib import contextmanager, suppress
 from typing import Any, Iterator
@@ -15,14 +16,6 @@ DEFAULT_PORT = 8765
 INSTALL_HINT = "--foxglove needs the Foxglove SDK: pip install 'hbvs[live]'"
 #: Paces a live view may have (times real time): beyond them the sleeps overflow or do nothing.
 MIN_SPEED, MAX_SPEED = 1e-3, 1e6
-
-
-def _sdk() -> Any:
-    try:
-        import foxglove
-    except ImportError:
-        raise UsageError(INSTALL_HINT) from None
-    return foxglove
 
 
 class LiveMirror:
@@ -52,7 +45,7 @@ class LiveMirror:
         if channel is None:
             # The channel as the file declares it (McapWriter.channels).
             _, name, encoding, schema_data, message_encoding = self._writer.channels[topic]
-            foxglove = _sdk()
+            import foxglove  # there: live_writer made this mirror after importing it
             schema = foxglove.Schema(name=name, encoding=encoding, data=schema_data)
             channel = self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding=message_encoding, context=self._context)
         self._pace(int(log_time_ns))
@@ -77,17 +70,14 @@ STOP_SECONDS = 1.0
 def stop_within(stop: Any, seconds: float) -> bool:
     """Call ``stop()`` on a daemon thread and wait at most ``seconds`` (a timed join, which a stop
     signal interrupts); True when it returned in time."""
-    import threading
+    def quietly() -> None:
+        with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
+            stop()
 
-    thread = threading.Thread(target=_quietly, args=(stop,), name="hbvs-live-stop", daemon=True)
+    thread = threading.Thread(target=quietly, name="hbvs-live-stop", daemon=True)
     thread.start()
     thread.join(seconds)
     return not thread.is_alive()
-
-
-def _quietly(function: Any) -> None:
-    with suppress(Exception):  # a server that fails to stop cleanly is stopped enough
-        function()
 
 
 @contextmanager
@@ -97,7 +87,10 @@ def live_writer(port: int | None, speed: float = 1.0, announce: Any = None) -> I
     if port is None:
         yield lambda writer: writer
         return
-    foxglove = _sdk()
+    try:
+        import foxglove
+    except ImportError:
+        raise UsageError(INSTALL_HINT) from None
     if not 0 <= int(port) <= 65535:
         raise UsageError(f"--foxglove: the port must be 0-65535, got {port}")
     if not (speed == 0 or MIN_SPEED <= speed <= MAX_SPEED):

@@ -54,8 +54,7 @@ class MjpegServer:
 
     def _next(self, seen: int) -> tuple[bytes | None, int]:
         with self._condition:
-            while self._count == seen and not self._closed:
-                self._condition.wait(1.0)
+            self._condition.wait_for(lambda: self._count != seen or self._closed)
             return (None if self._closed else self._frame), self._count
 
     def publish(self, jpeg: bytes) -> None:

@@ -4,42 +4,34 @@ is written as ``NAME.<pid>-<random>.partial``, fsynced and renamed over ``NAME``
 
 from __future__ import annotations
 
+import codecs
 import errno
+import fcntl
 import os
 import re
+import shutil
 import stat
 import sys
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator, Sequence
 
 from . import ClosedOnExit
 from ..errors import HbvsError, InputError, OutputError, PipeClosedError, TruncatedInputError, UsageError
 
-PARTIAL_SUFFIX = ".partial"
 #: hbvs's partial names: the final name, the writer's pid and 8 hex digits (:func:`partial_name_of`).
 _PARTIAL_NAME = re.compile(r"^(?P<final>.+)\.(?P<pid>\d+)-[0-9a-f]{8}\.partial$")
 #: Linux's largest pid when /proc/sys/kernel/pid_max cannot be read (2^22).
 PID_MAX_FALLBACK = 1 << 22
 
 
-@dataclass(frozen=True)
-class OutputTarget:
-    """An output as hbvs will write it: ``kind`` is ``"stdout"``, ``"file"`` (written atomically)
-    or ``"stream"`` (written in place); ``path`` the file finally written (None for stdout)."""
-
-    spec: str
-    kind: str
-    path: Path | None
-
-
-def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> OutputTarget:
-    """Decide how ``spec`` is written (nothing is opened); :class:`InputError` for a directory,
-    :class:`OutputError` for a missing folder."""
+def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> tuple[str, Path | None]:
+    """How ``spec`` is written (nothing is opened): ``("stdout", None)``, ``("file", the file finally written)``
+    (atomically) or ``("stream", path)`` (in place); :class:`InputError` for a directory, :class:`OutputError`
+    for a missing folder."""
     text = os.fspath(spec)
     if text == "-":
-        return OutputTarget(text, "stdout", None)
+        return "stdout", None
     given = Path(text)
     try:
         status = os.stat(given)  # follows every symbolic link, /dev/stdout's magic one too
@@ -48,7 +40,7 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
         path = Path(os.path.realpath(given))
         if not path.parent.is_dir():
             raise OutputError(f"{given}: the folder {path.parent} does not exist") from None
-        return OutputTarget(text, "file", path)
+        return "file", path
     except OSError as exc:
         raise InputError(f"{given}: cannot write the {what} ({exc.strerror})") from None
     if stat.S_ISDIR(status.st_mode):
@@ -57,13 +49,13 @@ def resolve_output(spec: str | os.PathLike[str], what: str = "output") -> Output
     # /dev/stdout, /dev/fd/N and /proc/self/fd/N name an open descriptor: written in place, whatever they lead to.
     through_proc = path.parts[1:2] == ("proc",)
     if stat.S_ISREG(status.st_mode) and not through_proc:
-        return OutputTarget(text, "file", path)
-    return OutputTarget(text, "stream", given)
+        return "file", path
+    return "stream", given
 
 
 def partial_name_of(final: Path) -> Path:
     """A fresh partial name beside ``final``, unique to this process and call."""
-    return final.with_name(f"{final.name}.{os.getpid()}-{os.urandom(4).hex()}{PARTIAL_SUFFIX}")
+    return final.with_name(f"{final.name}.{os.getpid()}-{os.urandom(4).hex()}.partial")
 
 
 def replace_through_partial(path: Path, write: Callable[[Path], Any]) -> None:
@@ -82,8 +74,6 @@ def atomic_folder(final: Path, what: str, before_swap: Callable[[Path], None] = 
     """A fresh path named as ``final`` (its suffix kept) in a partial folder beside it; renamed over ``final``
     when the body succeeds, under the parent folder's lock, after ``before_swap(partial folder)`` (which may
     refuse, or move an old ``final`` aside into it). ``what`` names the output in the errors."""
-    import shutil
-
     work = partial_name_of(final)
     try:
         work.mkdir()
@@ -101,25 +91,12 @@ def atomic_folder(final: Path, what: str, before_swap: Callable[[Path], None] = 
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _made_by_hbvs(path: Path, final_name: str) -> bool:
-    """The evidence beyond the name that ``path`` is a partial hbvs made: this user owns it, and
-    a folder (an export's) holds nothing but the bag it was writing and the bag it replaced."""
-    try:
-        status = os.lstat(path)
-        if status.st_uid != os.getuid():
-            return False
-        if stat.S_ISDIR(status.st_mode):
-            return all(entry.name in (final_name, "replaced") for entry in path.iterdir())
-        return stat.S_ISREG(status.st_mode)
-    except OSError:
-        return False
-
-
 def stale_partial(path: Path) -> bool:
     """True when ``path`` is a partial file or folder of hbvs whose process is gone: its name is
     one :func:`partial_name_of` gives (8 hex digits), its pid one this system can give (at most
-    /proc/sys/kernel/pid_max) and not alive, and :func:`_made_by_hbvs` (owner, contents). A
-    user's folder named alike (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
+    /proc/sys/kernel/pid_max) and not alive, this user owns it, and a folder (an export's) holds
+    nothing but the bag it was writing and the bag it replaced. A user's folder named alike
+    (``P.99999-cafe.partial``, ``P.4000000-ab.partial``) is kept."""
     match = _PARTIAL_NAME.match(path.name)
     if match is None:
         return False
@@ -128,21 +105,25 @@ def stale_partial(path: Path) -> bool:
         pid_max = int(Path("/proc/sys/kernel/pid_max").read_text().strip())
     if int(match.group("pid")) == os.getpid() or not 0 < int(match.group("pid")) <= pid_max:
         return False
-    if not _made_by_hbvs(path, match.group("final")):
-        return False
     try:
+        status = os.lstat(path)
+        if status.st_uid != os.getuid():
+            return False
+        if stat.S_ISDIR(status.st_mode):
+            if not all(entry.name in (match.group("final"), "replaced") for entry in path.iterdir()):
+                return False
+        elif not stat.S_ISREG(status.st_mode):
+            return False
         os.kill(int(match.group("pid")), 0)
     except ProcessLookupError:
         return True
     except (OverflowError, OSError):
-        pass  # alive under another user, or not a pid this system has: keep it
+        pass  # unreadable, alive under another user, or not a pid this system has: keep it
     return False
 
 
 def remove_stale_partials(paths: Any) -> list[Path]:
     """Remove the stale partial files and folders (:func:`stale_partial`) among ``paths``."""
-    import shutil
-
     removed = []
     for path in paths:
         path = Path(path)
@@ -159,8 +140,6 @@ def remove_stale_partials(paths: Any) -> list[Path]:
 @contextmanager
 def directory_lock(folder: Path) -> Iterator[None]:
     """Hold an advisory ``flock`` on ``folder`` itself for a short critical section."""
-    import fcntl
-
     fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
@@ -174,8 +153,6 @@ class FolderLock(ClosedOnExit):
     that two processes never lock different files); :class:`OutputError` naming the holder's pid."""
 
     def __init__(self, lock_path: Path, what: str) -> None:
-        import fcntl
-
         self.path = Path(lock_path)
         try:
             self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
@@ -260,18 +237,17 @@ STDOUT_HOLD_BYTES = 1 << 16
 
 class GuardedStream(ClosedOnExit):
     """A binary write stream reporting OS errors as hbvs errors; ``tell()`` counts bytes (a pipe cannot seek).
-    With ``hold`` > 0 the first bytes wait in memory until more than ``hold`` are written or
+    With ``hold`` the first bytes wait in memory until more than :data:`STDOUT_HOLD_BYTES` are written or
     :meth:`flush` is called; :meth:`discard` drops them (the stage failed)."""
 
-    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False, hold: int = 0) -> None:
+    def __init__(self, raw: IO[bytes], what: str, owned: bool, atomic: bool = False, hold: bool = False) -> None:
         self.closed = False
         self._atomic = atomic
         self._raw = raw
         self._what = what
         self._owned = owned
         self._count = 0
-        self._hold = hold
-        self._held: bytearray | None = bytearray() if hold > 0 else None
+        self._held: bytearray | None = bytearray() if hold else None
 
     @contextmanager
     def reported(self) -> Iterator[None]:
@@ -309,7 +285,7 @@ class GuardedStream(ClosedOnExit):
         view = memoryview(data).cast("B")
         if self._held is not None:
             self._held += view
-            if len(self._held) > self._hold:
+            if len(self._held) > STDOUT_HOLD_BYTES:
                 self._release()
         else:
             self._write_raw(view)
@@ -339,9 +315,10 @@ class GuardedStream(ClosedOnExit):
 class OutputSink:
     """What :func:`open_output_stream` yields: the stream, and whether it may be committed."""
 
-    def __init__(self, stream: GuardedStream, target: OutputTarget) -> None:
+    def __init__(self, stream: GuardedStream, spec: str, replaces: Path | None) -> None:
         self.stream = stream
-        self.target = target
+        self._spec = spec
+        self._replaces = replaces  # the file an atomic write replaces (None: stdout, a stream)
         self._truncated_input: str | None = None
 
     def input_ended_early(self, name: str, allow: bool) -> None:
@@ -352,11 +329,10 @@ class OutputSink:
 
     def check_commit(self) -> None:
         """Raise :class:`TruncatedInputError` when the output must not replace what is there."""
-        target = self.target
-        if self._truncated_input and target.kind == "file" and target.path is not None and target.path.exists():
+        if self._truncated_input and self._replaces is not None and self._replaces.exists():
             raise TruncatedInputError(
                 f"{self._truncated_input} ended before its end record (the writer upstream stopped?), so its "
-                f"result did not replace the existing {target.spec}; pass --allow-truncated to replace it"
+                f"result did not replace the existing {self._spec}; pass --allow-truncated to replace it"
             )
 
 
@@ -366,11 +342,11 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
     """Yield an :class:`OutputSink` on ``spec``, committed when the body succeeds; ``what`` names the output
     in messages. ``keep_on_error``: committed also when the body fails (a record of what a robot was sent
     outlives the run's failure), then the failure raised."""
-    target = resolve_output(spec, what)
-    label = "stdout" if target.kind == "stdout" else os.fspath(spec)
-    if target.kind == "stdout":
+    kind, final = resolve_output(spec, what)
+    label = "stdout" if kind == "stdout" else os.fspath(spec)
+    if kind == "stdout":
         # A closed stdout is the command line's stand-in (cli.app), which says so.
-        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=STDOUT_HOLD_BYTES), target)
+        sink = OutputSink(GuardedStream(sys.stdout.buffer, "stdout", owned=False, hold=True), "-", None)
         try:
             yield sink
         except HbvsError:
@@ -384,41 +360,33 @@ def open_output_stream(spec: str | os.PathLike[str], what: str = "output",
             raise
         sink.stream.flush()
         return
-    assert target.path is not None
-    if target.kind == "stream":
+    assert final is not None
+    atomic = kind == "file"
+    mode = None  # an earlier file's, which the new one keeps
+    if atomic:
+        with suppress(OSError):
+            mode = stat.S_IMODE(os.stat(final).st_mode)
+        temporary = partial_name_of(final)
+        try:
+            fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except OSError as exc:
+            raise InputError(f"{label}: cannot write ({exc.strerror})") from None
+        except BaseException:
+            # A signal can land after the file was created but before `fd` was bound.
+            _remove_quietly(temporary)
+            raise
+    else:
         try:
             # A regular file reached through /proc/self/fd is truncated, as a shell's > would.
-            regular = stat.S_ISREG(os.stat(target.path).st_mode)
-            fd = os.open(target.path, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
+            regular = stat.S_ISREG(os.stat(final).st_mode)
+            fd = os.open(final, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0) | (os.O_TRUNC if regular else 0))
         except OSError as exc:
             raise OutputError(f"{label}: cannot write the {what} ({exc.strerror})") from None
-        sink = OutputSink(GuardedStream(os.fdopen(fd, "wb"), label, owned=True), target)
-        with sink.stream:  # closing flushes
-            yield sink
-        return
-    yield from _atomic_file(target, label, what, keep_on_error)
-
-
-def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: bool) -> Iterator[OutputSink]:
-    assert target.path is not None
-    final = target.path
-    mode = None  # an earlier file's, which the new one keeps
-    with suppress(OSError):
-        mode = stat.S_IMODE(os.stat(final).st_mode)
-    temporary = partial_name_of(final)
-    try:
-        fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
-    except OSError as exc:
-        raise InputError(f"{label}: cannot write ({exc.strerror})") from None
-    except BaseException:
-        # A signal can land after the file was created but before `fd` was bound.
-        _remove_quietly(temporary)
-        raise
     try:
         handle = os.fdopen(fd, "wb")
-        sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=True), target)
+        sink = OutputSink(GuardedStream(handle, label, owned=True, atomic=atomic), label, final if atomic else None)
         failure: BaseException | None = None
-        with sink.stream:
+        with sink.stream:  # closing flushes
             try:
                 yield sink
                 sink.check_commit()
@@ -430,15 +398,18 @@ def _atomic_file(target: OutputTarget, label: str, what: str, keep_on_error: boo
             with sink.stream.reported():
                 if mode is not None:
                     os.fchmod(handle.fileno(), mode)
-                os.fsync(handle.fileno())
-        try:
-            os.replace(temporary, final)
-        except OSError as exc:
-            raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
+                if atomic:
+                    os.fsync(handle.fileno())
+        if atomic:
+            try:
+                os.replace(temporary, final)
+            except OSError as exc:
+                raise OutputError(f"{label}: cannot put the finished {what} in place ({exc.strerror})") from None
         if failure is not None:
             raise failure
     except BaseException:
-        _remove_quietly(temporary)
+        if atomic:
+            _remove_quietly(temporary)
         raise
 
 
@@ -453,8 +424,6 @@ def open_text_output(spec: str | os.PathLike[str] | None, what: str, keep_on_err
     if spec is None:
         yield None
         return
-    import codecs
-
     with open_output_stream(spec, what, keep_on_error=keep_on_error) as sink:
         yield codecs.getwriter("utf-8")(sink.stream)
 
