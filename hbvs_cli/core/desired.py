@@ -480,14 +480,10 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
                      trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0,
                      calibration_counted: bool = True) -> FitUncertainty:
-    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance
-    (whose last ``calibration_columns`` bias columns are the intrinsics' errors, left out of
-    the sigmas unless ``calibration_counted``: n*'s part is reported all the same).
-
-    A frame's error is its own plus what it inherits from the globals (common to all frames).
-    The spline is linear: the inherited part goes through it exactly, the own part by
-    :data:`NOISE_PROBES` seeded random probes of the same variance.
-    """
+    """Every used frame's sigma of (theta_d, x_hd1), and the splines' (how each part goes
+    through them: docs/uncertainty.md), from the covariance (whose last ``calibration_columns``
+    bias columns are the intrinsics' errors, left out of the sigmas unless
+    ``calibration_counted``: n*'s part is reported all the same)."""
     from scipy.interpolate import make_smoothing_spline
 
     calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
@@ -548,11 +544,10 @@ def _inherited_columns(covariance: JointCovariance, directions: NDArray[np.float
 
 def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t_used: NDArray[np.float64],
                  trajectory: SplineTrajectory, times: ArrayLike) -> NDArray[np.float64]:
-    """:attr:`FitUncertainty.error_modes`: each frame's error, in columns of independent unit
-    errors (the globals', the biases', then :data:`NOISE_PROBES` probes of the frames' own,
-    scaled so that the columns' sum of squares is the variance), through the fit's splines, at
-    ``times`` (T,) s: shape (T, 3, C). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1
-    theta_d_dot``, from its offset, the mean of the frames' x_h2 less that integral."""
+    """:attr:`FitUncertainty.error_modes` at ``times`` (T,) s, shape (T, 3, C), in the columns
+    docs/uncertainty.md lists (the probes scaled so that the columns' sum of squares is the
+    variance). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1 theta_d_dot``, from its
+    offset, the mean of the frames' x_h2 less that integral."""
     from scipy.interpolate import make_smoothing_spline
 
     times = np.asarray(times, dtype=float)
