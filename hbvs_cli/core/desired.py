@@ -20,7 +20,6 @@ from ..errors import GeometryError, InsufficientDataError
 from .camera import CameraIntrinsics, calibration_shifts, measured_pixels_to_normalized, normalized_to_pixels
 from .estimation import DEFAULT_RESIDUAL_GATE
 from .homography import estimate_euclidean_homography, validate_reference_points
-from .decomposition import PlanarMotion
 from .known_normal import KnownNormalSolver
 from .metrics import rms
 from .bundle import (OUTLIER_SPREADS, JointCovariance, JointEstimate, estimate_plane_jointly, joint_covariance, measured_point_noise,
@@ -351,10 +350,26 @@ def fit_desired_trajectory(
         if image_shift_px > 0.0:
             shared_shifts.insert(0, uniform_shift(image_shift_px / focal))
         calibration_columns = sum(size > 0.0 for size in calibration_sigma[:4 + len(camera.distortion)])
-        covariance = _drive_covariance(m, t, others, used, found & motion.valid, reference_index, span, motion, normal, m_ref,
-                                       shapes, errors.correlated, errors.bias_fraction, readout != 0.0,
-                                       lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1),
-                                       area_beyond_view(pixels, camera) if errors.beyond_view else np.ones(t.size))
+        # The globals' covariance (estimated from the frames ``others``) for every used frame: the detector's bias
+        # over BIAS_SEGMENTS spans of the used span (grown beyond the view, frame by frame), the rolling shutter's
+        # shift from the poses of the frames solved, and the shifts every frame shares (bloom's, the calibration's).
+        stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
+        duration = max(t[span][-1] - t[span][0], 1e-9)
+        segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int),  # noqa: E731
+                                       0, BIAS_SEGMENTS - 1)
+        solved = np.flatnonzero(found & motion.valid)
+        shift = _shutter_shifts(normal, m_ref, t, solved, stacked(solved))
+        scale = area_beyond_view(pixels, camera) if errors.beyond_view else np.ones(t.size)
+        covariance = joint_covariance(
+            m[others], m_ref, normal, stacked(others), shapes=shapes,
+            frames=m[used], frames_motion=stacked(used),
+            estimated_rows=np.where(used[others], np.searchsorted(np.flatnonzero(used), others), -1),
+            correlated=errors.correlated, bias_fraction=errors.bias_fraction,
+            bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
+            bias_scale=(float(scale[reference_index]), scale[others], scale[used]),
+            shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout != 0.0,
+            common_shift=lambda points: np.concatenate([shifts(points) for shifts in shared_shifts], axis=-1))
+        del solved, shift, scale  # frame-long: freed before the uncertainty is carried through the smoothing
         uncertainty = _fit_uncertainty(covariance, t, used, span, trajectory, focal, calibration_columns, calibration_counted)
         counted = uncertainty if calibration_counted else replace(uncertainty, calibration_normal_sigma_deg=0.0)
         if (line := uncertainty_warning(counted, errors)) and warn is not None:
@@ -379,32 +394,6 @@ def fit_desired_trajectory(
         span=span,
         uncertainty=uncertainty,
     )
-
-
-def _drive_covariance(m: NDArray[np.float64], t: NDArray[np.float64], others: NDArray[np.intp], used: NDArray[np.bool_],
-                      seen: NDArray[np.bool_], reference_index: int, span: slice, motion: PlanarMotion, normal: NDArray[np.float64],
-                      m_ref: NDArray[np.float64], shapes: Sequence[KnownShape], correlated: bool, bias_fraction: float,
-                      readout_estimated: bool, common_shift: Callable[[NDArray[np.float64]], NDArray[np.float64]],
-                      bias_scale: NDArray[np.float64]) -> JointCovariance:
-    """:func:`~.bundle.joint_covariance` of the globals estimated from the frames ``others``,
-    for every ``used`` frame: the detector's bias over :data:`BIAS_SEGMENTS` spans of the
-    used ``span`` (times ``bias_scale``, frame by frame), the rolling shutter's shift from the
-    poses of the frames ``seen``, and the shifts every frame shares (``common_shift``: bloom's, the calibration's).
-    Its frame-long inputs are freed when it returns, before the uncertainty is carried
-    through the smoothing."""
-    stacked = lambda rows: np.column_stack([motion.theta[rows], motion.x_h[rows]])  # noqa: E731
-    duration = max(t[span][-1] - t[span][0], 1e-9)
-    segment = lambda rows: np.clip(((t[rows] - t[span][0]) / duration * BIAS_SEGMENTS).astype(int), 0, BIAS_SEGMENTS - 1)  # noqa: E731
-    seen_rows = np.flatnonzero(seen)
-    shift = _shutter_shifts(normal, m_ref, t, seen_rows, stacked(seen_rows))
-    return joint_covariance(m[others], m_ref, normal, stacked(others), shapes=shapes,
-                            frames=m[used], frames_motion=stacked(used),
-                            estimated_rows=np.where(used[others], np.searchsorted(np.flatnonzero(used), others), -1),
-                            correlated=correlated, bias_fraction=bias_fraction,
-                            bias_segments=(segment(reference_index), segment(others), segment(np.flatnonzero(used))),
-                            bias_scale=(float(bias_scale[reference_index]), bias_scale[others], bias_scale[used]),
-                            shutter=(shift[reference_index], shift[others], shift[used]), readout_estimated=readout_estimated,
-                            common_shift=common_shift)
 
 
 def _without_rolling_shutter(m: NDArray[np.float64], t: NDArray[np.float64], found: NDArray[np.bool_], others: NDArray[np.intp],
@@ -491,14 +480,10 @@ def _completed_partial_frames(m: NDArray[np.float64], found: NDArray[np.bool_], 
 def _fit_uncertainty(covariance: JointCovariance, t: NDArray[np.float64], used: NDArray[np.bool_], span: slice,
                      trajectory: SplineTrajectory, focal: float, calibration_columns: int = 0,
                      calibration_counted: bool = True) -> FitUncertainty:
-    """Every used frame's sigma of (theta_d, x_hd1), and the splines', from the covariance
-    (whose last ``calibration_columns`` bias columns are the intrinsics' errors, left out of
-    the sigmas unless ``calibration_counted``: n*'s part is reported all the same).
-
-    A frame's error is its own plus what it inherits from the globals (common to all frames).
-    The spline is linear: the inherited part goes through it exactly, the own part by
-    :data:`NOISE_PROBES` seeded random probes of the same variance.
-    """
+    """Every used frame's sigma of (theta_d, x_hd1), and the splines' (how each part goes
+    through them: docs/uncertainty.md), from the covariance (whose last ``calibration_columns``
+    bias columns are the intrinsics' errors, left out of the sigmas unless
+    ``calibration_counted``: n*'s part is reported all the same)."""
     from scipy.interpolate import make_smoothing_spline
 
     calibration = np.zeros((2, 0)) if covariance.bias_shared is None else covariance.bias_shared[:2, covariance.bias_shared.shape[1] - calibration_columns:]
@@ -559,11 +544,10 @@ def _inherited_columns(covariance: JointCovariance, directions: NDArray[np.float
 
 def _error_modes(covariance: JointCovariance, directions: NDArray[np.float64], t_used: NDArray[np.float64],
                  trajectory: SplineTrajectory, times: ArrayLike) -> NDArray[np.float64]:
-    """:attr:`FitUncertainty.error_modes`: each frame's error, in columns of independent unit
-    errors (the globals', the biases', then :data:`NOISE_PROBES` probes of the frames' own,
-    scaled so that the columns' sum of squares is the variance), through the fit's splines, at
-    ``times`` (T,) s: shape (T, 3, C). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1
-    theta_d_dot``, from its offset, the mean of the frames' x_h2 less that integral."""
+    """:attr:`FitUncertainty.error_modes` at ``times`` (T,) s, shape (T, 3, C), in the columns
+    docs/uncertainty.md lists (the probes scaled so that the columns' sum of squares is the
+    variance). x_hd2 follows the splines by (25), ``x_hd2_dot = x_hd1 theta_d_dot``, from its
+    offset, the mean of the frames' x_h2 less that integral."""
     from scipy.interpolate import make_smoothing_spline
 
     times = np.asarray(times, dtype=float)

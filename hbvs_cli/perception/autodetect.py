@@ -75,11 +75,8 @@ class Candidates:
 
 
 def is_own_print(candidate: TargetChoice, texture: TargetChoice) -> bool:
-    """Whether the matched ``texture`` is ``candidate``'s own print (then set aside): the
-    candidate's outline covers at least :data:`OWN_PRINT_FRACTION` of the texture's, and, for
-    markers, most of the texture's features lie on the markers (their quads grown by
-    :data:`MARKER_PRINT_MARGIN` for the quiet zone). Small markers printed in a larger
-    picture are not its print: the two compete on their measured precision."""
+    """Whether the matched ``texture`` is ``candidate``'s own print (then set aside), by docs/targets.md's
+    rule: :data:`OWN_PRINT_FRACTION` of its outline covered, and for markers most of its features on them."""
     if candidate.area_px < OWN_PRINT_FRACTION * texture.area_px:
         return False
     if candidate.kind != "aruco" or candidate.points is None or texture.points is None or len(candidate.points) % 4:

@@ -288,8 +288,7 @@ def _checked_frames(reader: Any, frames: Iterator[Any]) -> Iterator[Any]:
         yield frame, data, image
 
 
-#: Decoded pixels fit may hold while the target is being picked (bytes): the frames decoded
-#: meanwhile, on the core the pick leaves idle (a board's search of the first frame is serial).
+#: Decoded pixels fit may hold while the target is being picked (bytes; why: docs/performance.md).
 READ_AHEAD_BYTES = 128 << 20
 
 
