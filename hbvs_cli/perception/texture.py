@@ -104,9 +104,8 @@ class TextureDetector(TargetDetector):
         then cut: its border is the picture's, not a reflection of the cut)."""
         x0, y0, x1, y1 = self._align_box
         margin = int(np.ceil(4 * sigma)) + 1
-        height, width = self.reference.shape
-        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
-        smoothed = _smoothed(self.reference[cy0:min(y1 + margin, height), cx0:min(x1 + margin, width)], sigma)
+        cx0, cy0, cx1, cy1 = padded_box(self.reference_pixels, margin, self.reference.shape)
+        smoothed = _smoothed(self.reference[cy0:cy1, cx0:cx1], sigma)
         return np.ascontiguousarray(smoothed[y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0])
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
