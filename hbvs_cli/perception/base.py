@@ -43,7 +43,6 @@ class TargetDetector(Protocol):
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the target points in a gray or BGR uint8 ``image``; ``predicted`` (N, 2, NaN
         rows unknown) is where they are expected, else the detector's own track says."""
-        ...
 
 
 class PointTrack:

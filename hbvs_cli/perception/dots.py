@@ -468,12 +468,8 @@ class SharedPull:
     offset of the dots' clipped cores (pixels at the sensor's limit: 255 for light dots, 0 for
     dark ones) from their measured centres over dots and frames, kept as running sums; 0
     unless the dots are saturated (a clipped core in at least :data:`SATURATED_FRACTION` of
-    their detections).
-
-    A saturated source whose excess charge spills asymmetrically (bloom down the columns)
-    pulls the intensity-weighted centroid toward the spill, and does so alike in every frame;
-    its clipped core, flat, is pulled less. The offset measures that pull (issue 44's LEDs,
-    seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px, every dot alike)."""
+    their detections). Why (bloom pulls every centroid alike, the flat clipped core less; issue
+    44's LEDs, seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px): docs/uncertainty.md."""
 
     def __init__(self, polarity: str = "dark", contrast: str = "gray") -> None:
         self.polarity, self.contrast = polarity, contrast
