@@ -19,7 +19,8 @@ from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..core.plane import UNIT_SQUARE
 from ..errors import InputError, UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, row_lengths, search_window, signed_polygon_area
+from .base import (Detection, PointTrack, TargetDetector, as_gray, check_prediction, row_lengths, search_window,
+                   signed_polygon_area)
 from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
 #: The default dictionary (hbvs's simulated marker).
@@ -96,7 +97,7 @@ def _largest_copy(corners: Sequence[NDArray[np.float32]], ids: NDArray[np.int32]
     return int(matches[int(np.argmax([abs(cv2.contourArea(np.float32(corners[i]).reshape(4, 2))) for i in matches]))])
 
 
-class ArucoMarkerDetector:
+class ArucoMarkerDetector(TargetDetector):
     """The corners of one marker of a ``dictionary`` (``marker_id``; None: whichever single marker
     is in view) or of several (``marker_ids``, 4 corners each in this order, found when any is
     seen, NaN rows for the others), refined by OpenCV to sub-pixel, then by their edges."""
@@ -122,10 +123,6 @@ class ArucoMarkerDetector:
         self._detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters())
         self._window_detector = cv2.aruco.ArucoDetector(_dictionary(self.dictionary), _parameters(tracked=True))
         self._track = PointTrack(self.n_points, max_coast=5)
-
-    def reset(self) -> None:
-        """Forget the track."""
-        self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the markers' corners (:class:`~.base.TargetDetector`): with a prediction, in a window

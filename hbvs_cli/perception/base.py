@@ -30,18 +30,19 @@ class Detection:
 
 @runtime_checkable
 class TargetDetector(Protocol):
-    """What the pipeline needs from a detector of any target kind."""
+    """What the pipeline needs from a detector of any target kind. The detectors subclass it for
+    :meth:`reset`, which forgets their ``_track`` (a :class:`PointTrack`)."""
 
     kind: str
     n_points: int
 
     def reset(self) -> None:
         """Forget the tracking state (the next frame is searched as if it were the first)."""
+        self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         """Find the target points in a gray or BGR uint8 ``image``; ``predicted`` (N, 2, NaN
         rows unknown) is where they are expected, else the detector's own track says."""
-        ...
 
 
 class PointTrack:
@@ -123,13 +124,19 @@ def search_window(shape: tuple[int, int], prediction: NDArray[np.float64], grow:
     known = prediction[np.all(np.isfinite(prediction), axis=1)]
     if len(known) < 2:
         return None
-    low, high = known.min(axis=0), known.max(axis=0)
-    extent = high - low
+    extent = np.ptp(known, axis=0)
     margin = grow * (extent if per_axis else np.full(2, np.max(extent))) + 16.0
-    x0, y0 = np.maximum(np.floor(low - margin), 0).astype(int).tolist()
-    x1, y1 = np.minimum(np.ceil(high + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
+    x0, y0, x1, y1 = padded_box(known, margin, shape)
     if x1 - x0 < min_size or y1 - y0 < min_size:
         return None
+    return x0, y0, x1, y1
+
+
+def padded_box(points: NDArray[np.float64], margin: ArrayLike, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    """The box (x0, y0, x1, y1, end-exclusive px) of ``points`` (N, 2) grown by ``margin`` px (one, or
+    one per axis), clipped to an image of ``shape`` (H, W): x1 <= x0 (or y1 <= y0) when they lie beyond it."""
+    x0, y0 = np.maximum(np.floor(points.min(axis=0) - margin), 0).astype(int).tolist()
+    x1, y1 = np.minimum(np.ceil(points.max(axis=0) + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
     return x0, y0, x1, y1
 
 

@@ -17,7 +17,7 @@ from ..core.fit_model import DetectorSpec
 from ..errors import UsageError
 from .aruco import (DEFAULT_DICTIONARY, MARKER_FAMILIES, _dictionary, _parameters, dictionary_name, dictionary_size,
                     unrefined_markers)
-from .base import Detection, PointTrack, as_gray, plain_median, row_lengths
+from .base import Detection, PointTrack, TargetDetector, as_gray, padded_box, plain_median, row_lengths
 from .chessboard import GRID_FIT_PX, SETTLED_PX, board_diagonal, board_layout, inside_image, refine_twice, saddle_points
 from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
@@ -148,7 +148,7 @@ def _fit_layout(corners: list[NDArray[np.float64]], ids: list[int], dictionary: 
     return None if best is None else best[2]
 
 
-class CharucoTargetDetector:
+class CharucoTargetDetector(TargetDetector):
     """A ChArUco board's inner corners, by their ids: ``squares`` across and down, its markers'
     predefined ``dictionary``, and their side over its squares' (``marker_ratio``; when not
     given, measured in the first frame that shows the board, with its pattern, current or legacy).
@@ -178,9 +178,6 @@ class CharucoTargetDetector:
         parameters = cv2.aruco.CharucoParameters()
         parameters.tryRefineMarkers = True
         return cv2.aruco.CharucoDetector(geometry.board(), parameters, _parameters(cv2.aruco.CORNER_REFINE_NONE))
-
-    def reset(self) -> None:
-        self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         gray = as_gray(image)
@@ -243,9 +240,7 @@ class CharucoTargetDetector:
         grid = prediction.reshape(self.squares[1] - 1, self.squares[0] - 1, 2)
         square = max(float(np.median(np.linalg.norm(np.diff(grid, axis=axis), axis=-1))) for axis in (0, 1))
         margin = int(np.ceil(SEARCH_MARGIN_SQUARES * square)) + SEARCH_MARGIN_PX
-        x0, y0 = np.maximum(np.floor(prediction.min(axis=0)).astype(int) - margin, 0)
-        x1, y1 = np.minimum(np.ceil(prediction.max(axis=0)).astype(int) + margin + 1, (shape[1], shape[0]))
-        return int(x0), int(y0), int(x1), int(y1)
+        return padded_box(prediction, margin, shape)
 
     def _detect_board(self, gray: NDArray[np.uint8], box: tuple[int, int, int, int] | None):
         """OpenCV's board in ``box`` of ``gray`` (None: all): corners (K, 1, 2, px) or None, ids (K, 1) or None, markers found."""

@@ -18,7 +18,7 @@ from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import UsageError
 from ..thread_pool import StopSafePool
-from .base import Detection, PointTrack, as_gray, check_prediction, plain_median, row_lengths
+from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, padded_box, plain_median, row_lengths
 from .target_kinds import SpecRequest, TargetChoice, TargetKind, in_most, register_target_kind
 
 #: Half-size of the window ``cornerSubPix`` refines a corner in, as a fraction of the
@@ -62,9 +62,8 @@ def find_board_near(image: NDArray[np.uint8], pattern: tuple[int, int], corners:
     wide is found about 8 times sooner. A window of the whole frame is :func:`find_board`'s."""
     gray = as_gray(image)
     grow = max(float(np.ptp(corners, axis=0).max()), NEAR_MARGIN_PX)
-    x0, y0 = np.maximum(np.floor(corners.min(axis=0) - grow), 0).astype(int)
-    x1, y1 = np.ceil(corners.max(axis=0) + grow).astype(int) + 1
-    if x0 == 0 and y0 == 0 and x1 >= gray.shape[1] and y1 >= gray.shape[0]:
+    x0, y0, x1, y1 = padded_box(corners, grow, gray.shape)
+    if x0 == 0 and y0 == 0 and x1 == gray.shape[1] and y1 == gray.shape[0]:
         return find_board(gray, pattern)
     found = _search(np.ascontiguousarray(gray[y0:y1, x0:x1]), pattern)
     return None if found is None else Board(found.pattern, found.corners + (x0, y0))
@@ -98,7 +97,7 @@ def board_layout(pattern: tuple[int, int]) -> NDArray[np.float64]:
     return np.array([[c, r] for r in range(rows) for c in range(columns)], dtype=np.float64)
 
 
-class ChessboardDetector:
+class ChessboardDetector(TargetDetector):
     """A chessboard's inner corners (``pattern``: per row, rows), tracked from frame to frame.
 
     A frame is searched by ``findChessboardCornersSB`` (:func:`find_board`) until the track
@@ -114,9 +113,6 @@ class ChessboardDetector:
         self.n_points = self.pattern[0] * self.pattern[1]
         self._layout = board_layout(self.pattern).astype(np.float32)
         self._track = PointTrack(self.n_points, max_coast=2)
-
-    def reset(self) -> None:
-        self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> Detection:
         gray = as_gray(image)
@@ -227,9 +223,7 @@ def saddle_points(gray: NDArray[np.uint8], corners: NDArray[np.float64], smoothi
     start = refined.copy()
     # Only the board's box (and what a step and the smoothing reach) is smoothed.
     border = reach + int(np.ceil(SADDLE_MAX_STEP_PX)) + int(np.ceil(4 * smoothing))
-    low, high = refined.min(axis=0), refined.max(axis=0)
-    x0, y0 = max(math.floor(low[0]) - border, 0), max(math.floor(low[1]) - border, 0)
-    x1, y1 = min(math.ceil(high[0]) + border + 1, gray.shape[1]), min(math.ceil(high[1]) + border + 1, gray.shape[0])
+    x0, y0, x1, y1 = padded_box(refined, border, gray.shape)
     if x1 <= x0 or y1 <= y0:
         return refined
     smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), smoothing)

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError
-from .base import Detection
+from .base import Detection, padded_box
 from .dots import (NOISY_GROUND, Blobs, DotDetector, SharedPull, dark_image, dot_like_blobs, find_dark_blobs,
                    find_dots, flatten_ground, ground_noise, segmentation_threshold)
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
@@ -113,13 +113,11 @@ class WindowedDotDetector(DotDetector):
         prediction = self._track.predict()
         if prediction is None or not np.all(np.isfinite(prediction)):
             return None
-        height, width = shape
         radii = np.sqrt(self._areas / math.pi)
         windows = []
-        for (u, v), radius in zip(prediction.tolist(), radii.tolist()):
+        for point, radius in zip(prediction[:, None], radii.tolist()):
             margin = WINDOW_GATE_PX + (radius if math.isfinite(radius) else UNKNOWN_RADIUS_PX) + RIM_MARGIN_PX
-            x0, y0 = max(math.floor(u - margin), 0), max(math.floor(v - margin), 0)
-            x1, y1 = min(math.ceil(u + margin) + 1, width), min(math.ceil(v + margin) + 1, height)
+            x0, y0, x1, y1 = padded_box(point, margin, shape)
             if x0 >= x1 or y0 >= y1:
                 return None
             windows.append((x0, y0, x1, y1))

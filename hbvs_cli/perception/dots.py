@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, match_identity, optimal_assignment, plain_median
+from .base import (Detection, PointTrack, TargetDetector, as_gray, check_prediction, match_identity, optimal_assignment,
+                   padded_box, plain_median)
 from .target_kinds import TargetChoice, in_most
 
 #: Cost of a forbidden candidate-to-point pairing in the assignment.
@@ -323,7 +324,7 @@ AREA_RATIO = (0.5, 2.0)
 MAX_COAST = 10
 
 
-class DotDetector:
+class DotDetector(TargetDetector):
     """Detect and track ``n_points`` (>= 3) dark dots, keeping their identity (gated by
     :data:`GATE_PX` and :data:`AREA_RATIO`). ``polarity`` and ``contrast``: one of
     :data:`POLARITIES` and of :data:`CONTRASTS` (:func:`dark_image`).
@@ -393,8 +394,7 @@ class DotDetector:
         areas = self._areas[np.isfinite(self._areas)]
         radius = float(np.sqrt(areas.max() / np.pi)) if areas.size else 30.0
         margin = GATE_PX + radius + 6.0
-        x0, y0 = np.maximum(np.floor(known.min(axis=0) - margin), 0).astype(int).tolist()
-        x1, y1 = np.minimum(np.ceil(known.max(axis=0) + margin) + 1, (shape[1], shape[0])).astype(int).tolist()
+        x0, y0, x1, y1 = padded_box(known, margin, shape)
         return x0, y0, max(x1, x0), max(y1, y0)
 
     def _assign(self, blobs: Blobs, prediction: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -468,12 +468,8 @@ class SharedPull:
     offset of the dots' clipped cores (pixels at the sensor's limit: 255 for light dots, 0 for
     dark ones) from their measured centres over dots and frames, kept as running sums; 0
     unless the dots are saturated (a clipped core in at least :data:`SATURATED_FRACTION` of
-    their detections).
-
-    A saturated source whose excess charge spills asymmetrically (bloom down the columns)
-    pulls the intensity-weighted centroid toward the spill, and does so alike in every frame;
-    its clipped core, flat, is pulled less. The offset measures that pull (issue 44's LEDs,
-    seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px, every dot alike)."""
+    their detections). Why (bloom pulls every centroid alike, the flat clipped core less; issue
+    44's LEDs, seed 7: 0.06-0.10 px against a bias of 0.11-0.13 px): docs/uncertainty.md."""
 
     def __init__(self, polarity: str = "dark", contrast: str = "gray") -> None:
         self.polarity, self.contrast = polarity, contrast

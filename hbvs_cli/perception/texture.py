@@ -20,7 +20,7 @@ from ..core.camera import CameraIntrinsics
 from ..core.desired import DetectorErrors
 from ..core.fit_model import DetectorSpec
 from ..errors import InputError, UsageError
-from .base import Detection, PointTrack, as_gray, check_prediction, search_window, signed_polygon_area
+from .base import Detection, PointTrack, TargetDetector, as_gray, check_prediction, padded_box, search_window, signed_polygon_area
 from .target_kinds import SpecRequest, TargetKind, register_target_kind
 
 #: ORB features per searched frame (the reference gets three times as many), Lowe's
@@ -66,7 +66,7 @@ class TextureDetection(Detection):
     correlation: float = float("nan")
 
 
-class TextureDetector:
+class TextureDetector(TargetDetector):
     """Find a textured target by matching features against ``reference_image`` (a gray or BGR uint8
     view of it, where its points are ``reference_pixels`` (N, 2) px); ``seed``: OpenCV's RNG's for the robust fits."""
 
@@ -95,10 +95,8 @@ class TextureDetector:
         self._polish_points = np.empty((0, 2), np.float32) if corners is None else corners.reshape(-1, 2)
         self._track = PointTrack(self.n_points, max_coast=5)
         # The reference's region of the target (its points' box) is what ECC aligns.
-        low = np.clip(np.floor(points.min(axis=0)).astype(int), 0, None)
-        high = np.minimum(np.ceil(points.max(axis=0)).astype(int) + 1, self.reference.shape[::-1])
-        self._align_box = (int(low[0]), int(low[1]), int(high[0]), int(high[1]))
-        self._align_template = (int(low[0]), int(low[1]), self._template(ALIGN_BLUR_SIGMA))
+        self._align_box = padded_box(points, 0, self.reference.shape)
+        self._align_template = (*self._align_box[:2], self._template(ALIGN_BLUR_SIGMA))
         self._vignetting = Vignetting(self.reference.shape, self._align_template)
 
     def _template(self, sigma: float) -> NDArray[np.float32]:
@@ -106,14 +104,9 @@ class TextureDetector:
         then cut: its border is the picture's, not a reflection of the cut)."""
         x0, y0, x1, y1 = self._align_box
         margin = int(np.ceil(4 * sigma)) + 1
-        height, width = self.reference.shape
-        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
-        smoothed = _smoothed(self.reference[cy0:min(y1 + margin, height), cx0:min(x1 + margin, width)], sigma)
+        cx0, cy0, cx1, cy1 = padded_box(self.reference_pixels, margin, self.reference.shape)
+        smoothed = _smoothed(self.reference[cy0:cy1, cx0:cx1], sigma)
         return np.ascontiguousarray(smoothed[y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0])
-
-    def reset(self) -> None:
-        """Forget the track."""
-        self._track.reset()
 
     def detect(self, image: NDArray[np.uint8], predicted: NDArray[np.float64] | None = None) -> TextureDetection:
         """Find the target points (:class:`~.base.TargetDetector`), followed from a prediction (given,
@@ -404,12 +397,10 @@ def _smoothed_region(gray: NDArray[np.uint8], points: NDArray[np.float64], sigma
                      margin: int = 16) -> tuple[tuple[int, int], NDArray[np.float32]] | None:
     """The frame around ``points`` (their box and ``margin`` px, wider than the filter, so that
     ECC sees no cut edge), smoothed; None when empty."""
-    height, width = gray.shape
-    x0, y0 = np.maximum(np.floor(points.min(axis=0)).astype(int) - margin, 0)
-    x1, y1 = np.minimum(np.ceil(points.max(axis=0)).astype(int) + margin + 1, (width, height))
+    x0, y0, x1, y1 = padded_box(points, margin, gray.shape)
     if x1 - x0 < 2 * margin or y1 - y0 < 2 * margin:
         return None
-    return (int(x0), int(y0)), _smoothed(gray[y0:y1, x0:x1], sigma)
+    return (x0, y0), _smoothed(gray[y0:y1, x0:x1], sigma)
 
 
 def _shift(x: float, y: float) -> NDArray[np.float64]:
