@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
-from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, point_derivatives, reference_rows, rotated_normals, shape_residuals
+from .known_normal import KnownNormalSolver, point_derivatives
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
