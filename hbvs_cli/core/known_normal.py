@@ -136,11 +136,8 @@ class KnownNormalSolver:
         ratio <= 0, ``residual`` is the RMS reprojection error."""
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
-            parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
+            parts = [self.solve(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
             return PlanarMotion(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(PlanarMotion)))
-        return self._solve_block(m)
-
-    def _solve_block(self, m: NDArray[np.float64]) -> PlanarMotion:
         m_ref = self.m_ref
         if m.shape[-2:] != m_ref.shape:
             raise GeometryError(
