@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .homography import validate_reference_points
-from .known_normal import KnownNormalSolver
-from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, point_derivatives, reference_rows, rotated_normals, shape_residuals
+from .known_normal import KnownNormalSolver, point_derivatives
+from .plane import KnownShape, PlaneGeometry, frame_rows, point_columns, reference_rows, rotated_normals, shape_residuals
 
 #: The robust loss's scale, in measured point noise: residuals beyond it count less.
 ROBUST_SCALE = 3.0
@@ -30,8 +30,7 @@ MAX_EVALUATIONS = 60
 
 
 def projected_points(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Predicted ``(m_y, m_z)`` (K, N, 2) of every reference point (N, 3) in every frame (12),
-    for a normal (3,) and (theta, x_h1, x_h2) per frame (K, 3)."""
+    """:func:`~.known_normal.point_derivatives`' predicted ``(m_y, m_z)`` (K, N, 2) alone."""
     return point_derivatives(normal, m_ref, motion, order=0)[0]
 
 

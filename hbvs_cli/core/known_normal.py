@@ -16,13 +16,10 @@ from .homography import ratio_rows, validate_reference_points
 
 
 def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> tuple[Any, ...]:
-    """A reference point's predicted image point and its Jacobian in (theta, x_h1, x_h2).
-
-    With ``c, s = cos, sin theta``, ``(y, z) = (m*_iy, m*_iz)``, ``g = n*^T m*_i``,
-    ``q0 = c - s y + x_h1 g`` and ``q1 = s + c y + x_h2 g``, the point is
-    ``m_i = [1, q1 / q0, z / q0]`` (12). Floats or broadcasting arrays; returns ``q0, q1,
-    1 / q0``, d(m_iy)/d(theta, x_h1, x_h2) and d(m_iz)/d(theta, x_h1) (d/d x_h2 is 0).
-    """
+    """A reference point's predicted image point (12) and its Jacobian in (theta, x_h1, x_h2):
+    ``c, s = cos, sin theta``, ``(y, z) = (m*_iy, m*_iz)``, ``g``, ``q0`` and ``q1`` as in
+    :func:`point_derivatives`. Floats or broadcasting arrays; returns ``q0, q1, 1 / q0``,
+    d(m_iy)/d(theta, x_h1, x_h2) and d(m_iz)/d(theta, x_h1) (d/d x_h2 is 0)."""
     q0 = c - s * y + x1 * g
     q1 = s + c * y + x2 * g
     dq0 = -s - c * y  # d q0 / d theta
@@ -30,6 +27,45 @@ def point_jacobian(c: Any, s: Any, y: Any, z: Any, g: Any, x1: Any, x2: Any) -> 
     inv = 1.0 / q0
     inv2 = inv * inv
     return q0, q1, inv, (dq1 * q0 - q1 * dq0) * inv2, -q1 * g * inv2, g * inv, -z * dq0 * inv2, -z * g * inv2
+
+
+def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
+                      order: int = 1) -> tuple[NDArray[np.float64], ...]:
+    """Every reference point's (``m_ref`` (N, 3)) predicted ``(m_y, m_z)`` (..., N, 2) in every frame
+    (12) for n* ``normal`` (3,) and (theta, x_h1, x_h2) per frame ``motion`` (..., 3); from ``order``
+    1 its gradient by ``u`` (..., N, 2, 6), from 2 its Hessian (..., N, 2, 6, 6).
+
+    With ``u = (theta, x_h1, x_h2, g, m*_y, m*_z)``, ``g = n*^T m*_i``, ``q0 = c - s m*_y +
+    x_h1 g`` and ``q1 = s + c m*_y + x_h2 g``, the point is ``(q1 / q0, m*_z / q0)``.
+    """
+    y, z, g = m_ref[:, 1], m_ref[:, 2], m_ref @ normal
+    c, s = np.cos(motion[..., :1]), np.sin(motion[..., :1])
+    x1, x2 = motion[..., 1:2], motion[..., 2:3]
+    q0 = c - s * y + x1 * g
+    q1 = s + c * y + x2 * g
+    with np.errstate(divide="ignore", invalid="ignore"):
+        predicted = np.stack([q1 / q0, np.broadcast_to(z, q0.shape) / q0], axis=-1)
+    if order == 0:
+        return (predicted,)
+    zero = np.zeros_like(q0)
+    d_q0 = np.stack(np.broadcast_arrays(-s - c * y, g, zero, x1, -s, zero), axis=-1)
+    d_q1 = np.stack(np.broadcast_arrays(c - s * y, zero, g, x2, c, zero), axis=-1)
+    d_numerator = np.stack([d_q1, np.broadcast_to(np.eye(6)[5], d_q1.shape)], axis=-2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gradient = (d_numerator - predicted[..., None] * d_q0[..., None, :]) / q0[..., None, None]
+    if order == 1:
+        return predicted, gradient
+    dd_q0, dd_q1 = np.zeros(q0.shape + (6, 6)), np.zeros(q0.shape + (6, 6))
+    dd_q0[..., 0, 0], dd_q1[..., 0, 0] = -c + s * y, -s - c * y
+    dd_q0[..., 0, 4] = dd_q0[..., 4, 0] = -c
+    dd_q1[..., 0, 4] = dd_q1[..., 4, 0] = -s
+    dd_q0[..., 1, 3] = dd_q0[..., 3, 1] = dd_q1[..., 2, 3] = dd_q1[..., 3, 2] = 1.0
+    # (N / q0)'' = (N'' - f q0'' - f' q0'^T - q0' f'^T) / q0 with f = N / q0 (the z numerator's N'' is 0).
+    cross = gradient[..., :, None] * d_q0[..., None, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hessian = (np.stack([dd_q1, np.zeros_like(dd_q1)], axis=-3) - predicted[..., None, None] * dd_q0[..., None, :, :]
+                   - cross - np.swapaxes(cross, -1, -2)) / q0[..., None, None, None]
+    return predicted, gradient, hessian
 
 
 def normal_equations(c: float, s: float, y_ref: Sequence[float], z_ref: Sequence[float], g: Sequence[float],
@@ -100,11 +136,8 @@ class KnownNormalSolver:
         ratio <= 0, ``residual`` is the RMS reprojection error."""
         m = np.asarray(m, dtype=float)
         if m.ndim == 3 and m.shape[0] > self.BLOCK:
-            parts = [self._solve_block(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
+            parts = [self.solve(m[k : k + self.BLOCK]) for k in range(0, m.shape[0], self.BLOCK)]
             return PlanarMotion(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(PlanarMotion)))
-        return self._solve_block(m)
-
-    def _solve_block(self, m: NDArray[np.float64]) -> PlanarMotion:
         m_ref = self.m_ref
         if m.shape[-2:] != m_ref.shape:
             raise GeometryError(
@@ -136,13 +169,9 @@ class KnownNormalSolver:
         return np.concatenate(self._residuals(motion.theta, *np.moveaxis(motion.x_h, -1, 0), m[..., 1], m[..., 2]), axis=-1)
 
     def _residuals(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Predicted ``(q1 / q0, m*_z / q0)`` of every point (``q = H m*_i``) minus the measured ``m_y``, ``m_z``."""
-        y, g = self.m_ref[:, 1], self.m_ref @ self.normal
-        c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
-        q0 = c - s * y + x1[..., None] * g
-        q1 = s + c * y + x2[..., None] * g
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return q1 / q0 - m_y, self.m_ref[:, 2] / q0 - m_z
+        """:func:`point_derivatives`' predicted points minus the measured ``m_y``, ``m_z``."""
+        predicted = point_derivatives(self.normal, self.m_ref, np.stack([theta, x1, x2], axis=-1), order=0)[0]
+        return predicted[..., 0] - m_y, predicted[..., 1] - m_z
 
     def _cost(self, theta: Any, x1: Any, x2: Any, m_y: Any, m_z: Any) -> NDArray[np.float64]:
         """Sum of squared reprojection errors per frame."""

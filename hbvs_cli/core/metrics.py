@@ -32,6 +32,11 @@ def _optional(value: float | np.floating | None) -> float | None:
     return value if np.isfinite(value) else None
 
 
+def _finite(x: ArrayLike) -> NDArray[np.float64]:
+    x = np.asarray(x, dtype=float)
+    return x[np.isfinite(x)]
+
+
 def valid_samples(t: ArrayLike, x: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The times (s) and values of the finite samples of ``x``."""
     t = np.asarray(t, dtype=float)
@@ -42,8 +47,7 @@ def valid_samples(t: ArrayLike, x: ArrayLike) -> tuple[NDArray[np.float64], NDAr
 
 def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
     """``rmse, mean, median, std, min, max`` of the finite samples (units of ``x``)."""
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
+    x = _finite(x)
     if x.size == 0:
         return dict.fromkeys(STATISTICS[:6])
     values = (np.sqrt(np.mean(np.square(x))), np.mean(x), np.median(x), np.std(x), np.min(x), np.max(x))
@@ -52,8 +56,7 @@ def signal_statistics(x: ArrayLike) -> dict[str, float | None]:
 
 def initial_value(x: ArrayLike) -> float | None:
     """The first finite sample of ``x`` (its units), or ``None``."""
-    x = np.asarray(x, dtype=float)
-    finite = x[np.isfinite(x)]
+    finite = _finite(x)
     return _optional(finite[0]) if finite.size else None
 
 
@@ -132,19 +135,14 @@ def rms(x: ArrayLike) -> float | None:
     return signal_statistics(x)["rmse"]
 
 
-def _finite_abs(x: ArrayLike) -> NDArray[np.float64]:
-    x = np.abs(np.asarray(x, dtype=float))
-    return x[np.isfinite(x)]
-
-
 def peak_abs(x: ArrayLike) -> float | None:
     """Largest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
-    return _optional(np.max(_finite_abs(x), initial=-np.inf))
+    return _optional(np.max(np.abs(_finite(x)), initial=-np.inf))
 
 
 def min_abs(x: ArrayLike) -> float | None:
     """Smallest ``|x|`` over the finite samples (units of ``x``), or ``None``."""
-    return _optional(np.min(_finite_abs(x), initial=np.inf))
+    return _optional(np.min(np.abs(_finite(x)), initial=np.inf))
 
 
 def sample_rate_hz(t: ArrayLike) -> float | None:

@@ -35,10 +35,8 @@ class CommandProfile:
             raise MalformedDataError(f"command times must increase strictly (row {bad + 1}: t={t[bad]:g} s)")
         if not np.isfinite(self.t_end) or self.t_end <= t[-1]:
             raise MalformedDataError("the command profile must end after its last command starts")
-        object.__setattr__(self, "t", t - t[0])
-        object.__setattr__(self, "v", v)
-        object.__setattr__(self, "w", w)
-        object.__setattr__(self, "t_end", float(self.t_end - t[0]))
+        for name, value in (("t", t - t[0]), ("v", v), ("w", w), ("t_end", float(self.t_end - t[0]))):
+            object.__setattr__(self, name, value)
 
     @property
     def duration(self) -> float:

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import GeometryError, NoValidBranchError
 from .decomposition import FACING_PRIOR, PURE_ROTATION_TOLERANCE, front_facing, homography_candidates, select_branch, take_branch
 from .homography import validate_reference_points
-from .known_normal import KnownNormalSolver
+from .known_normal import KnownNormalSolver, point_derivatives
 
 #: Frames the plane estimates use at most (evenly spaced): the normal and the reference
 #: points need no more, and long recordings stay fast and memory flat.
@@ -222,45 +222,6 @@ def procrustes_2d(M: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
     sign = np.where(proper, 1.0, -1.0)
     factor = np.stack([np.stack([cos, -sign * sin], axis=-1), np.stack([sin, sign * cos], axis=-1)], axis=-2)
     return factor, np.maximum(E, F)
-
-
-def point_derivatives(normal: NDArray[np.float64], m_ref: NDArray[np.float64], motion: NDArray[np.float64],
-                      order: int = 1) -> tuple[NDArray[np.float64], ...]:
-    """Every reference point's (``m_ref`` (N, 3)) predicted ``(m_y, m_z)`` (K, N, 2) in every frame
-    (12) for n* ``normal`` (3,) and (theta, x_h1, x_h2) per frame ``motion`` (K, 3); from ``order``
-    1 its gradient by ``u`` (K, N, 2, 6), from 2 its Hessian (K, N, 2, 6, 6).
-
-    With ``u = (theta, x_h1, x_h2, g, m*_y, m*_z)``, ``g = n*^T m*_i``, ``q0 = c - s m*_y +
-    x_h1 g`` and ``q1 = s + c m*_y + x_h2 g``, the point is ``(q1 / q0, m*_z / q0)``.
-    """
-    y, z, g = m_ref[:, 1], m_ref[:, 2], m_ref @ normal
-    c, s = np.cos(motion[:, :1]), np.sin(motion[:, :1])
-    x1, x2 = motion[:, 1:2], motion[:, 2:3]
-    q0 = c - s * y + x1 * g
-    q1 = s + c * y + x2 * g
-    with np.errstate(divide="ignore", invalid="ignore"):
-        predicted = np.stack([q1 / q0, np.broadcast_to(z, q0.shape) / q0], axis=-1)
-    if order == 0:
-        return (predicted,)
-    zero = np.zeros_like(q0)
-    d_q0 = np.stack(np.broadcast_arrays(-s - c * y, g, zero, x1, -s, zero), axis=-1)
-    d_q1 = np.stack(np.broadcast_arrays(c - s * y, zero, g, x2, c, zero), axis=-1)
-    d_numerator = np.stack([d_q1, np.broadcast_to(np.eye(6)[5], d_q1.shape)], axis=-2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gradient = (d_numerator - predicted[..., None] * d_q0[..., None, :]) / q0[..., None, None]
-    if order == 1:
-        return predicted, gradient
-    dd_q0, dd_q1 = np.zeros(q0.shape + (6, 6)), np.zeros(q0.shape + (6, 6))
-    dd_q0[..., 0, 0], dd_q1[..., 0, 0] = -c + s * y, -s - c * y
-    dd_q0[..., 0, 4] = dd_q0[..., 4, 0] = -c
-    dd_q1[..., 0, 4] = dd_q1[..., 4, 0] = -s
-    dd_q0[..., 1, 3] = dd_q0[..., 3, 1] = dd_q1[..., 2, 3] = dd_q1[..., 3, 2] = 1.0
-    # (N / q0)'' = (N'' - f q0'' - f' q0'^T - q0' f'^T) / q0 with f = N / q0 (the z numerator's N'' is 0).
-    cross = gradient[..., :, None] * d_q0[..., None, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        hessian = (np.stack([dd_q1, np.zeros_like(dd_q1)], axis=-3) - predicted[..., None, None] * dd_q0[..., None, :, :]
-                   - cross - np.swapaxes(cross, -1, -2)) / q0[..., None, None, None]
-    return predicted, gradient, hessian
 
 
 def globals_derivative(normal: NDArray[np.float64], m_ref: NDArray[np.float64], by_angles: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -63,8 +63,8 @@ class ActuatorLimits:
 class StepRecord:
     """One control period: the measurement's time ``t`` (s), the true ``pose`` (3,) (m, m, rad),
     the ``observation`` acted on, the law's ``output`` (None when lost or dropped), the command
-    sent ``v_c, w_c`` (m/s, rad/s), ``dhat`` (m) before its update, ``target_lost`` (None: the
-    observation's own) and the filter's ``estimate``."""
+    sent ``v_c, w_c`` (m/s, rad/s), ``dhat`` (m) before its update, whether the target is
+    ``lost`` and the filter's ``estimate``."""
 
     t: float
     pose: NDArray[np.float64]
@@ -75,16 +75,12 @@ class StepRecord:
     w_c: float
     saturated: bool
     dhat: float
-    target_lost: bool | None = None
+    lost: bool
     estimate: FilterEstimate | None = None
 
     @property
     def measurement(self) -> Measurement | None:
         return self.observation.measurement
-
-    @property
-    def lost(self) -> bool:
-        return self.observation.lost if self.target_lost is None else self.target_lost
 
     @property
     def dropped(self) -> bool:
@@ -176,7 +172,7 @@ class ServoStep:
         self.previous = (v_c, w_c)
         return StepRecord(
             t=t, pose=pose, observation=observation, desired=desired, output=output,
-            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, target_lost=self.target_lost, estimate=estimate,
+            v_c=v_c, w_c=w_c, saturated=saturated, dhat=dhat, lost=self.target_lost, estimate=estimate,
         )
 
     def sent(self, dt: float) -> None:

@@ -50,12 +50,6 @@ class SplineChannel:
     smoothing: float
     residual_rms: float
 
-    def spline(self) -> Any:
-        """The scipy BSpline (degree 3)."""
-        from scipy.interpolate import BSpline
-
-        return BSpline(self.knots, self.coefficients, 3, extrapolate=False)
-
 
 class SplineTrajectory:
     """Desired signals as smooth functions of time (Remark 1), consistent with (25).
@@ -76,7 +70,10 @@ class SplineTrajectory:
         self.t_end = float(t_end)
         self.x_hd2_offset = float(x_hd2_offset)
         self.x_hd2_residual_rms = float(x_hd2_residual_rms)
-        self._splines = {name: channels[name].spline() for name in CHANNELS}
+        from scipy.interpolate import BSpline
+
+        self._splines = {name: BSpline(channels[name].knots, channels[name].coefficients, 3, extrapolate=False)
+                         for name in CHANNELS}
         self._derivatives = {name: spline.derivative() for name, spline in self._splines.items()}
         self._x_hd2_integral = _product_antiderivative(self._splines["x_hd1"], self._splines["theta_d"])
         self._x_hd2_origin = float(self._x_hd2_integral(self.t_start))
