@@ -24,7 +24,7 @@ def info_document(info: Any) -> dict[str, Any]:
         "settings": info.metadata.get("settings"),
         "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
         "metadata_records": info.metadata_names,
-        "topics": [{"topic": topic.topic, "messages": topic.messages, "schema": topic.schema_name,
+        "topics": [{"topic": topic.topic, "messages": topic.message_count, "schema": topic.schema_name,
                     "schema_encoding": topic.schema_encoding, "message_encoding": topic.message_encoding} for topic in info.topics],
     }
 

@@ -335,12 +335,10 @@ class McapFileBag:
     def _stream_channels(file: Path) -> list[ChannelSummary]:
         """Channels and message counts from one pass over a file without a summary."""
         stream = McapStream(file, name=str(file))
-        counts: dict[tuple[str, str, str, str], int] = {}
-        for message in stream:
-            key = (message.topic, message.schema_name, message.schema_encoding, message.message_encoding)
-            counts[key] = counts.get(key, 0) + 1
+        for _ in stream:
+            pass
         _require_complete(stream, str(file))
-        return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
+        return list(stream.channels.values())
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:
         """The messages of ``topics``, file after file, in the order each file stores them."""
