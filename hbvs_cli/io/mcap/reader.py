@@ -181,7 +181,6 @@ class McapStream:
     schemas: dict[str, str] | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: bool = False
-    messages: int = 0
     complete: bool = False
     stop_reason: str = ""
     #: The topics read, each with the schema of its first message and the count of all.
@@ -244,7 +243,7 @@ class McapStream:
                         f"{self.name}: a record declares more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs accepts ({_short(exc)})"
                     ) from None
                 except (McapError, _Damaged, *_DAMAGE) as exc:
-                    empty = self.messages == 0 and not declarations.schemas and not declarations.channels
+                    empty = not self.channels and not declarations.schemas and not declarations.channels
                     if isinstance(exc, InvalidMagic):
                         reason, refusal = "the file's closing magic is damaged", "not an MCAP file"
                     elif isinstance(exc, (EndOfFile, EOFError)):
@@ -281,7 +280,6 @@ class McapStream:
                 f"{self.name}: a message on {channel.topic} is stamped {record.log_time} ns, later than hbvs handles "
                 f"({MAX_LOG_TIME_NS} ns, in the year 2262)"
             )
-        self.messages += 1
         message = McapMessage(
             topic=channel.topic, schema_name=schema_name, schema_encoding=schema.encoding if schema else "",
             schema_data=bytes(schema.data) if schema else b"", message_encoding=channel.message_encoding,
