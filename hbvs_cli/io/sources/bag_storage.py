@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -17,7 +18,7 @@ import yaml
 
 from ...errors import HbvsError, InputError, RecordingError
 from .. import limits
-from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
+from ..mcap import MAGIC, MAX_RECORD_BYTES, McapMessage, McapStream, read_summary
 from .frame_source import _natural_key
 
 #: Largest message definition and metadata.yaml read (real ones are ~10 KB).
@@ -45,6 +46,13 @@ class BagMessage:
     size: int
     decode: Callable[[str], Any]
     mcap: McapMessage | None = None
+
+
+def _add_topic(topics: dict[str, BagTopic], topic: BagTopic) -> None:
+    """Add ``topic``, or its count to the one of its name (unknown in one file: unknown in all)."""
+    known = topics.setdefault(topic.name, topic)
+    if known is not topic:
+        known.count = None if known.count is None or topic.count is None else known.count + topic.count
 
 
 def ros2_type(name: str) -> str:
@@ -228,11 +236,7 @@ class RosbagsBag:
         for connection in self._reader.connections:
             if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
                 raise InputError(f"{name}: the message definition of {connection.topic} is more than hbvs parses")
-            known = self.topics.get(connection.topic)
-            if known is None:
-                self.topics[connection.topic] = BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount)
-            else:
-                known.count = (known.count or 0) + connection.msgcount
+            _add_topic(self.topics, BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount))
         files = information.get("relative_file_paths")
         self.storage = {
             "reader": "rosbags",
@@ -320,25 +324,15 @@ class McapFileBag:
         for file in self.files:
             with mcap_bag_errors(str(file)):
                 listed = read_summary(file, str(file))
-                if listed is None:
-                    listed = self._stream_channels(file)
+                if listed is None:  # no summary: one pass over the file counts its messages
+                    stream = McapStream(file, name=str(file))
+                    deque(stream, maxlen=0)
+                    _require_complete(stream, str(file))
+                    listed = list(stream.channels.values())
             for channel in listed:
-                known = topics.get(channel.topic)
-                count = channel.message_count
-                if known is None:
-                    topics[channel.topic] = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, count)
-                else:  # unknown in one file: unknown in all
-                    known.count = None if known.count is None or count is None else known.count + count
+                topic = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
+                _add_topic(topics, topic)
         return topics
-
-    @staticmethod
-    def _stream_channels(file: Path) -> list[ChannelSummary]:
-        """Channels and message counts from one pass over a file without a summary."""
-        stream = McapStream(file, name=str(file))
-        for _ in stream:
-            pass
-        _require_complete(stream, str(file))
-        return list(stream.channels.values())
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:
         """The messages of ``topics``, file after file, in the order each file stores them."""
