@@ -181,7 +181,8 @@ class _CappedZstd:
 
 
 class _CappedReader(io.RawIOBase):
-    """A decompressing file that raises once more than ``decompressed-bytes`` came out."""
+    """A decompressing file that raises once more than ``decompressed-bytes`` came out (``read`` is
+    RawIOBase's, through :meth:`readinto`)."""
 
     def __init__(self, inner: Any) -> None:
         super().__init__()
@@ -200,11 +201,6 @@ class _CappedReader(io.RawIOBase):
         count = self._inner.readinto(buffer)
         self._count(count or 0)
         return count
-
-    def read(self, size: int = -1) -> bytes:
-        data = self._inner.read(size if size is not None and size >= 0 else 1 << 20)
-        self._count(len(data))
-        return data
 
     def close(self) -> None:
         self._inner.close()
