@@ -38,24 +38,6 @@ class FileInfo:
     planned_switches: list[float] = field(default_factory=list)
 
     @property
-    def messages(self) -> int:
-        return sum(topic.message_count or 0 for topic in self.topics)
-
-    @property
-    def start_ns(self) -> int | None:
-        return min((t.first_ns for t in self.topics if t.message_count), default=None)
-
-    @property
-    def end_ns(self) -> int | None:
-        return max((t.last_ns for t in self.topics if t.message_count), default=None)
-
-    @property
-    def duration_s(self) -> float:
-        if self.start_ns is None or self.end_ns is None:
-            return 0.0
-        return (self.end_ns - self.start_ns) * 1e-9
-
-    @property
     def frames(self) -> int | None:
         """Frames (teach, fit; a route's: of the taught drive its segments cover) or control
         steps (run); None for a file hbvs did not write."""
