@@ -311,12 +311,8 @@ class McapFileBag:
         self.files = list(files)
         self._factory = DecoderFactory()
         self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
-        self.topics = self._scan()
-        self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
-
-    def _scan(self) -> dict[str, BagTopic]:
-        """Topics of every file, from the summary section (or one streaming pass without)."""
-        topics: dict[str, BagTopic] = {}
+        #: Topics of every file, from the summary section (or one streaming pass without).
+        self.topics: dict[str, BagTopic] = {}
         for file in self.files:
             with mcap_bag_errors(str(file)):
                 listed = read_summary(file, str(file))
@@ -327,8 +323,8 @@ class McapFileBag:
                     listed = list(stream.channels.values())
             for channel in listed:
                 topic = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
-                _add_topic(topics, topic)
-        return topics
+                _add_topic(self.topics, topic)
+        self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:
         """The messages of ``topics``, file after file, in the order each file stores them."""
