@@ -9,24 +9,11 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from .mcap.reader import McapStream, read_metadata
+from .mcap.reader import ChannelSummary, McapStream, read_metadata
 from .topics import IMAGE_TOPIC, MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_SWITCHES_METADATA, ROUTE_TOPIC, STATE_TOPIC, STOPPED_METADATA
 
 #: The topic with one message per frame (teach, fit) or per control step (run).
 FRAME_TOPICS = {"teach": IMAGE_TOPIC, "fit": RAW_DESIRED_TOPIC, "run": STATE_TOPIC}
-
-
-@dataclass
-class TopicInfo:
-    """One topic: its schema, encodings, message count and first and last log times (ns)."""
-
-    topic: str
-    schema_name: str
-    schema_encoding: str
-    message_encoding: str
-    messages: int = 0
-    first_ns: int = 0
-    last_ns: int = 0
 
 
 @dataclass
@@ -38,7 +25,7 @@ class FileInfo:
     version: str | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     metadata_names: list[str] = field(default_factory=list)
-    topics: list[TopicInfo] = field(default_factory=list)
+    topics: list[ChannelSummary] = field(default_factory=list)
     complete: bool = True
     stop_reason: str = ""
     target: str | None = None
@@ -51,24 +38,6 @@ class FileInfo:
     planned_switches: list[float] = field(default_factory=list)
 
     @property
-    def messages(self) -> int:
-        return sum(topic.messages for topic in self.topics)
-
-    @property
-    def start_ns(self) -> int | None:
-        return min((t.first_ns for t in self.topics if t.messages), default=None)
-
-    @property
-    def end_ns(self) -> int | None:
-        return max((t.last_ns for t in self.topics if t.messages), default=None)
-
-    @property
-    def duration_s(self) -> float:
-        if self.start_ns is None or self.end_ns is None:
-            return 0.0
-        return (self.end_ns - self.start_ns) * 1e-9
-
-    @property
     def frames(self) -> int | None:
         """Frames (teach, fit; a route's: of the taught drive its segments cover) or control
         steps (run); None for a file hbvs did not write."""
@@ -77,7 +46,7 @@ class FileInfo:
             return None
         if self.segments:  # in the drive's order
             return self.segments[-1][1] - self.segments[0][0] + 1
-        return next((t.messages for t in self.topics if t.topic == topic), 0)
+        return next((t.message_count for t in self.topics if t.topic == topic), 0)
 
 
 def read_file_info(source: Any, name: str = "") -> FileInfo:
@@ -88,18 +57,8 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         hint = f": give its storage file, e.g. {storage[0]}" if storage else ""
         raise InputError(f"{source}: is a folder, expected an MCAP file{hint}")
     stream = McapStream(source, name=name)
-    topics: dict[str, TopicInfo] = {}
     target, segments = None, []
     for message in stream:
-        info = topics.get(message.topic)
-        if info is None:
-            info = topics[message.topic] = TopicInfo(
-                message.topic, message.schema_name, message.schema_encoding, message.message_encoding,
-                first_ns=message.log_time, last_ns=message.log_time,
-            )
-        info.messages += 1
-        info.first_ns = min(info.first_ns, message.log_time)
-        info.last_ns = max(info.last_ns, message.log_time)
         if message.topic == MODEL_TOPIC and message.message_encoding == "json":  # a route's: one per segment
             kind_of_segment = message.json(stream.name).get("target_kind")
             target = kind_of_segment if target is None else f"{target} -> {kind_of_segment}"
@@ -119,7 +78,7 @@ def read_file_info(source: Any, name: str = "") -> FileInfo:
         target = metadata.get("target_kind") or (settings.get("target") if kind == "teach" and metadata.get("source") == "sim" else None)
     return FileInfo(
         name=stream.name, kind=kind if kind in FRAME_TOPICS else None, version=metadata.get("hbvs_version"),
-        metadata=metadata, metadata_names=sorted(stream.metadata), topics=list(topics.values()),
+        metadata=metadata, metadata_names=sorted(stream.metadata), topics=list(stream.channels.values()),
         complete=not stream.truncated, stop_reason=stream.stop_reason,
         stopped=str(read_metadata(stream, STOPPED_METADATA).get("reason", "")),
         target=target if isinstance(target, str) else None, segments=segments,

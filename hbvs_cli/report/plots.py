@@ -110,9 +110,9 @@ def _time_axes(ax: Any, title: str, ylabel: str) -> None:
     ax.set(title=title, xlabel="time t (s)", ylabel=ylabel)
 
 
-def _band(ax: Any, tolerance: float, signed: bool) -> None:
+def _band(ax: Any, tolerance: float, signed: bool, ls: Any = TOLERANCE_STYLE, lw: float = 0.9) -> None:
     for level in ((-tolerance, tolerance) if signed else (tolerance,)):
-        ax.axhline(level, color=GUIDE_COLOR, ls=TOLERANCE_STYLE, lw=0.9, zorder=1)
+        ax.axhline(level, color=GUIDE_COLOR, ls=ls, lw=lw, zorder=1)
 
 
 def _line(ax: Any, context: PanelContext, t: np.ndarray, x: np.ndarray, color: str, lost: np.ndarray | None) -> None:
@@ -173,8 +173,7 @@ def _command_panel(key: str, limit_key: str, title: str, ylabel: str) -> Callabl
             ax.plot(*display_series(run.state["t"], taught, None), color=color, lw=0.7, ls=TAUGHT_COMMAND_STYLE, zorder=1.5)
         limits = {getattr(run_limits(run), limit_key) for run in context.runs}
         for limit in sorted(value for value in limits if value is not None and math.isfinite(value)):
-            for level in (-limit, limit):
-                ax.axhline(level, color=GUIDE_COLOR, ls="--", lw=0.8, zorder=1)
+            _band(ax, limit, signed=True, ls="--", lw=0.8)
         _time_axes(ax, title, ylabel)
 
     return paint
@@ -287,9 +286,8 @@ def _scene_view(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
     _draw_paths(ax, with_poses)
     paths = np.concatenate([np.concatenate([run.true_pose[:, :2], run.desired_pose[:, :2]]) for run, _ in with_poses])
     low, high = paths.min(axis=0), paths.max(axis=0)
-    geometries = [g for g in (_top_view_geometry(run) for run, _ in with_poses) if g is not None]
-    if geometries:
-        geometry = geometries[0]
+    geometry = next((g for g in (_top_view_geometry(run) for run, _ in with_poses) if g is not None), None)
+    if geometry is not None:
         y_low, y_high = sorted(geometry["poster_y"])
         ax.plot([geometry["wall_x"]] * 2, [y_low - 0.4, y_high + 0.4], color="0.6", lw=2.0, solid_capstyle="butt", zorder=1)
         ax.plot([geometry["wall_x"]] * 2, [y_low, y_high], color=TAUGHT_COLOR, lw=3.0, solid_capstyle="butt", zorder=2)

@@ -13,18 +13,21 @@ from .console import Console, print_document
 
 
 def info_document(info: Any) -> dict[str, Any]:
-    """The file's description as one JSON-ready object (the keys of ``hbvs info --json``)."""
+    """The file's description as one JSON-ready object (the keys of ``hbvs info --json``); its time
+    span (ns) is its messages' log times'."""
+    start = min((topic.first_ns for topic in info.topics), default=None)
+    end = max((topic.last_ns for topic in info.topics), default=None)
     return {
         "file": info.name, "kind": info.kind, "hbvs_version": info.version,
         "complete": info.complete, "stop_reason": info.stop_reason or None, "stopped": info.stopped or None,
-        "start_ns": info.start_ns, "end_ns": info.end_ns, "duration_s": round(info.duration_s, 9),
-        "frames": info.frames, "messages": info.messages, "target": info.target,
+        "start_ns": start, "end_ns": end, "duration_s": 0.0 if start is None else round((end - start) * 1e-9, 9),
+        "frames": info.frames, "messages": sum(topic.message_count for topic in info.topics), "target": info.target,
         **({"segments": [list(frames) for frames in info.segments]} if info.segments else {}),
         **({"switch_times": info.switches, "planned_switch_times": info.planned_switches} if info.planned_switches else {}),
         "settings": info.metadata.get("settings"),
         "metadata": {key: value for key, value in info.metadata.items() if key != "settings"},
         "metadata_records": info.metadata_names,
-        "topics": [{"topic": topic.topic, "messages": topic.messages, "schema": topic.schema_name,
+        "topics": [{"topic": topic.topic, "messages": topic.message_count, "schema": topic.schema_name,
                     "schema_encoding": topic.schema_encoding, "message_encoding": topic.message_encoding} for topic in info.topics],
     }
 

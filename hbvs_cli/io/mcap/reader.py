@@ -150,6 +150,20 @@ class McapMessage:
             raise RecordingError(f"{source}: malformed {self.schema_name} message on {self.topic}") from None
 
 
+@dataclass
+class ChannelSummary:
+    """A topic's channel as a file's summary section lists it (``message_count`` None without statistics)
+    or as :class:`McapStream` read it (then also its first and last log times, ns)."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    message_encoding: str
+    message_count: int | None
+    first_ns: int = 0
+    last_ns: int = 0
+
+
 #: What the library raises on damaged data, beyond its own McapError (added in __iter__).
 _DAMAGE = (_FieldTooLarge, ValueError, struct.error, UnicodeDecodeError, OverflowError, KeyError, EOFError)
 
@@ -167,9 +181,10 @@ class McapStream:
     schemas: dict[str, str] | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: bool = False
-    messages: int = 0
     complete: bool = False
     stop_reason: str = ""
+    #: The topics read, each with the schema of its first message and the count of all.
+    channels: dict[str, ChannelSummary] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=lambda: {"messages": 0, "input-bytes": 0}, repr=False)
 
     def __post_init__(self) -> None:
@@ -228,7 +243,7 @@ class McapStream:
                         f"{self.name}: a record declares more than the {MAX_RECORD_BYTES // 2**20} MiB hbvs accepts ({_short(exc)})"
                     ) from None
                 except (McapError, _Damaged, *_DAMAGE) as exc:
-                    empty = self.messages == 0 and not declarations.schemas and not declarations.channels
+                    empty = not self.channels and not declarations.schemas and not declarations.channels
                     if isinstance(exc, InvalidMagic):
                         reason, refusal = "the file's closing magic is damaged", "not an MCAP file"
                     elif isinstance(exc, (EndOfFile, EOFError)):
@@ -265,12 +280,21 @@ class McapStream:
                 f"{self.name}: a message on {channel.topic} is stamped {record.log_time} ns, later than hbvs handles "
                 f"({MAX_LOG_TIME_NS} ns, in the year 2262)"
             )
-        self.messages += 1
-        yield McapMessage(
+        message = McapMessage(
             topic=channel.topic, schema_name=schema_name, schema_encoding=schema.encoding if schema else "",
             schema_data=bytes(schema.data) if schema else b"", message_encoding=channel.message_encoding,
             log_time=int(record.log_time), data=bytes(record.data),
         )
+        seen = self.channels.get(message.topic)
+        if seen is None:
+            seen = self.channels[message.topic] = ChannelSummary(
+                message.topic, message.schema_name, message.schema_encoding, message.message_encoding, 0,
+                first_ns=message.log_time, last_ns=message.log_time,
+            )
+        seen.message_count = (seen.message_count or 0) + 1
+        seen.first_ns = min(seen.first_ns, message.log_time)
+        seen.last_ns = max(seen.last_ns, message.log_time)
+        yield message
 
     def _chunk_records(self, chunk: Any) -> Iterator[Any]:
         """The records of a chunk, decompressed under :data:`MAX_CHUNK_BYTES`, CRC-checked, and
@@ -347,17 +371,6 @@ def read_metadata(stream: McapStream, name: str) -> dict[str, Any]:
         except (ValueError, RecursionError):
             decoded[key] = value
     return decoded
-
-
-@dataclass(frozen=True)
-class ChannelSummary:
-    """One channel as a file's summary section lists it (``message_count`` None without statistics)."""
-
-    topic: str
-    schema_name: str
-    schema_encoding: str
-    message_encoding: str
-    message_count: int | None
 
 
 def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -17,7 +18,7 @@ import yaml
 
 from ...errors import HbvsError, InputError, RecordingError
 from .. import limits
-from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
+from ..mcap import MAGIC, MAX_RECORD_BYTES, McapMessage, McapStream, read_summary
 from .frame_source import _natural_key
 
 #: Largest message definition and metadata.yaml read (real ones are ~10 KB).
@@ -45,6 +46,13 @@ class BagMessage:
     size: int
     decode: Callable[[str], Any]
     mcap: McapMessage | None = None
+
+
+def _add_topic(topics: dict[str, BagTopic], topic: BagTopic) -> None:
+    """Add ``topic``, or its count to the one of its name (unknown in one file: unknown in all)."""
+    known = topics.setdefault(topic.name, topic)
+    if known is not topic:
+        known.count = None if known.count is None or topic.count is None else known.count + topic.count
 
 
 def ros2_type(name: str) -> str:
@@ -173,7 +181,8 @@ class _CappedZstd:
 
 
 class _CappedReader(io.RawIOBase):
-    """A decompressing file that raises once more than ``decompressed-bytes`` came out."""
+    """A decompressing file that raises once more than ``decompressed-bytes`` came out (``read`` is
+    RawIOBase's, through :meth:`readinto`)."""
 
     def __init__(self, inner: Any) -> None:
         super().__init__()
@@ -192,11 +201,6 @@ class _CappedReader(io.RawIOBase):
         count = self._inner.readinto(buffer)
         self._count(count or 0)
         return count
-
-    def read(self, size: int = -1) -> bytes:
-        data = self._inner.read(size if size is not None and size >= 0 else 1 << 20)
-        self._count(len(data))
-        return data
 
     def close(self) -> None:
         self._inner.close()
@@ -228,11 +232,7 @@ class RosbagsBag:
         for connection in self._reader.connections:
             if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
                 raise InputError(f"{name}: the message definition of {connection.topic} is more than hbvs parses")
-            known = self.topics.get(connection.topic)
-            if known is None:
-                self.topics[connection.topic] = BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount)
-            else:
-                known.count = (known.count or 0) + connection.msgcount
+            _add_topic(self.topics, BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount))
         files = information.get("relative_file_paths")
         self.storage = {
             "reader": "rosbags",
@@ -311,36 +311,20 @@ class McapFileBag:
         self.files = list(files)
         self._factory = DecoderFactory()
         self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
-        self.topics = self._scan()
-        self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
-
-    def _scan(self) -> dict[str, BagTopic]:
-        """Topics of every file, from the summary section (or one streaming pass without)."""
-        topics: dict[str, BagTopic] = {}
+        #: Topics of every file, from the summary section (or one streaming pass without).
+        self.topics: dict[str, BagTopic] = {}
         for file in self.files:
             with mcap_bag_errors(str(file)):
                 listed = read_summary(file, str(file))
-                if listed is None:
-                    listed = self._stream_channels(file)
+                if listed is None:  # no summary: one pass over the file counts its messages
+                    stream = McapStream(file, name=str(file))
+                    deque(stream, maxlen=0)
+                    _require_complete(stream, str(file))
+                    listed = list(stream.channels.values())
             for channel in listed:
-                known = topics.get(channel.topic)
-                count = channel.message_count
-                if known is None:
-                    topics[channel.topic] = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, count)
-                else:  # unknown in one file: unknown in all
-                    known.count = None if known.count is None or count is None else known.count + count
-        return topics
-
-    @staticmethod
-    def _stream_channels(file: Path) -> list[ChannelSummary]:
-        """Channels and message counts from one pass over a file without a summary."""
-        stream = McapStream(file, name=str(file))
-        counts: dict[tuple[str, str, str, str], int] = {}
-        for message in stream:
-            key = (message.topic, message.schema_name, message.schema_encoding, message.message_encoding)
-            counts[key] = counts.get(key, 0) + 1
-        _require_complete(stream, str(file))
-        return [ChannelSummary(*key, message_count=count) for key, count in counts.items()]
+                topic = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
+                _add_topic(self.topics, topic)
+        self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:
         """The messages of ``topics``, file after file, in the order each file stores them."""
