@@ -9,7 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .messages import CAMERA_FRAME as OPTICAL_FRAME
-from .messages import WORLD_FRAME, color, quaternion, stamp, vector3
+from .messages import WORLD_FRAME, color, pose_at, quaternion, stamp, vector3
 from .topics import FRAME_TRANSFORM_SCHEMA, SCENE_TOPIC, SCENE_UPDATE_SCHEMA, TRANSFORM_TOPIC
 
 BASE_FRAME = "base_link"
@@ -17,8 +17,6 @@ BASE_FRAME = "base_link"
 #: Rotation of ``camera_optical`` in ``base_link`` (x, y, z, w): the optical axes in the
 #: robot's frame are x_opt = -y, y_opt = -z, z_opt = +x.
 OPTICAL_FROM_BASE_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
-
-_IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
 def frame_transform(ns: int, parent: str, child: str, translation: Sequence[float], rotation: Sequence[float]) -> Any:
@@ -29,12 +27,6 @@ def frame_transform(ns: int, parent: str, child: str, translation: Sequence[floa
         timestamp=stamp(ns), parent_frame_id=parent, child_frame_id=child,
         translation=vector3(translation), rotation=quaternion(rotation),
     )
-
-
-def _pose(position: Sequence[float], rotation: Sequence[float] = _IDENTITY) -> Any:
-    from foxglove_schemas_protobuf.Pose_pb2 import Pose
-
-    return Pose(position=vector3(position), orientation=quaternion(rotation))
 
 
 def _entity(ns: int, entity_id: str, **primitives: list[Any]) -> Any:
@@ -53,7 +45,7 @@ def target_entity(ns: int, target: Any, entity_id: str = "target") -> Any:
     poster = target.poster
     diameter = max(2.0 * float(target.dot_radius), 0.03)
     spheres = [
-        SpherePrimitive(pose=_pose(point), size=vector3((diameter, diameter, diameter)), color=color(0.1, 0.9, 0.2, 1.0))
+        SpherePrimitive(pose=pose_at(point), size=vector3((diameter, diameter, diameter)), color=color(0.1, 0.9, 0.2, 1.0))
         for point in np.asarray(target.points_world, dtype=float)
     ]
     # The poster's box: its x along the wall normal, y along "right", z along "up".
@@ -61,7 +53,7 @@ def target_entity(ns: int, target: Any, entity_id: str = "target") -> Any:
     up = -np.asarray(poster.down, dtype=float)
     rotation = Rotation.from_matrix(np.column_stack([np.cross(right, up), right, up])).as_quat()
     size = vector3((0.01, float(poster.width), float(poster.height)))
-    cube = CubePrimitive(pose=_pose(poster.center, rotation), size=size, color=color(0.9, 0.9, 0.9, 0.6))
+    cube = CubePrimitive(pose=pose_at(poster.center, rotation), size=size, color=color(0.9, 0.9, 0.9, 0.6))
     return _entity(ns, entity_id, spheres=spheres, cubes=[cube])
 
 
@@ -72,7 +64,7 @@ def path_entity(ns: int, poses: np.ndarray, height: float = 0.0) -> Any:
 
     points = [Point3(x=float(x), y=float(y), z=float(height)) for x, y in np.asarray(poses, dtype=float)[:, :2]]
     line = LinePrimitive(
-        type=LinePrimitive.LINE_STRIP, pose=_pose((0.0, 0.0, 0.0)), thickness=0.02, scale_invariant=False,
+        type=LinePrimitive.LINE_STRIP, pose=pose_at((0.0, 0.0, 0.0)), thickness=0.02, scale_invariant=False,
         points=points, color=color(1.0, 0.3, 0.1, 1.0),
     )
     return _entity(ns, "taught_path", lines=[line])

@@ -49,16 +49,19 @@ def quaternion(values: Sequence[float]) -> Any:
     return Quaternion(x=x, y=y, z=z, w=w)
 
 
+def pose_at(position: Sequence[float], rotation: Sequence[float] = (0.0, 0.0, 0.0, 1.0)) -> Any:
+    """A ``foxglove.Pose``: ``position`` (m) and the unit quaternion ``rotation`` (x, y, z, w)."""
+    from foxglove_schemas_protobuf.Pose_pb2 import Pose
+
+    return Pose(position=vector3(position), orientation=quaternion(rotation))
+
+
 def pose_message(ns: int, pose: Sequence[float], height: float = 0.0, frame_id: str = WORLD_FRAME) -> Any:
     """A ``foxglove.PoseInFrame`` of a planar pose (x, y, phi) (m, m, rad) at ``height`` (m)."""
-    from foxglove_schemas_protobuf.Pose_pb2 import Pose
     from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
     x, y, phi = (float(v) for v in pose)
-    return PoseInFrame(
-        timestamp=stamp(ns), frame_id=frame_id,
-        pose=Pose(position=vector3((x, y, height)), orientation=quaternion(yaw_to_quaternion(phi))),
-    )
+    return PoseInFrame(timestamp=stamp(ns), frame_id=frame_id, pose=pose_at((x, y, height), yaw_to_quaternion(phi)))
 
 
 def planar_pose_from_message(message: Any, source: str = "") -> tuple[float, float, float]:

@@ -241,9 +241,8 @@ class SegmentFilters:
     """The state filter of the segment in force: one :class:`~hbvs_cli.core.state_filter.ServoStateFilter`
     per segment (each estimates against its own F*), the loop seeing the active one. During
     a switch's fade (``fade`` s of the run) the law's estimate leaves out the :func:`fading` share of what the
-    new target's frames corrected of the carried one: what the transition got wrong comes in
-    as smoothly as :meth:`RouteTrajectory.blended` fades the desired signals' discrepancy,
-    not in the first few frames."""
+    new target's frames corrected of the carried one, as :meth:`RouteTrajectory.blended` fades the
+    desired signals' discrepancy (docs/routes.md, "Repeat")."""
 
     def __init__(self, filters: Sequence[ServoStateFilter]) -> None:
         self.filters = list(filters)

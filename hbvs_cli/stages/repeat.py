@@ -15,16 +15,13 @@ import numpy as np
 from .. import __version__
 from ..core.controller import ControllerGains, lyapunov
 from ..core.depth import check_depth
-from ..core.estimation import PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..core.frames import compose_planar_pose
-from ..core.gains import noise_from_residual
 from ..core.laws import gains_for_law, make_controller
 from ..core.metrics import final_value
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import ActuatorLimits, ServoStep, StepRecord
 from ..core.control_settings import FILTER_EKF, GAIN_NAMES
-from ..core.state_filter import ServoStateFilter
 from ..core.trajectory import TimeScaledTrajectory
 from ..sim.world import World
 from ..errors import InputError, TargetLostError, UsageError
@@ -49,8 +46,8 @@ from . import live
 from .console import Console
 from .frame_decoding import decoded_frames, fit_reference_image, fit_template_image
 from .options import parse_interval, parse_offset, parse_pair
-from .repeat_route import (SwitchLog, Tracking, desired_pixels, planned_switches, route_metadata, route_tracking, segment_gains,
-                           segment_truths, taught_pose_at)
+from .repeat_route import (SwitchLog, desired_pixels, detector_noise, make_state_filter, make_tracking, planned_switches,
+                           route_metadata, segment_gains, segment_truths, taught_pose_at)
 
 @dataclass(frozen=True)
 class Settings:
@@ -259,25 +256,6 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     )
 
 
-#: With the state filter on, the fixed residual gate only catches gross errors (px).
-COARSE_RESIDUAL_GATE_PX = 3.0
-
-
-def make_state_filter(settings: Settings, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
-    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's residual (docs/method.md, "State filter")."""
-    if settings.state_filter != FILTER_EKF:
-        return None
-    estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
-    return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
-
-
-def detector_noise(model: FitModel) -> float:
-    """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
-    if not math.isfinite(model.residual_px.rms):
-        return 0.0
-    return noise_from_residual(model.residual_px.rms, model.m_ref.shape[0]) / model.camera.mean_focal
-
-
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
@@ -423,18 +401,6 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
-def _tracking(options: RepeatOptions, settings: Settings, fit: FitFile, filtered: bool) -> Tracking:
-    """What ``--live`` (``filtered``: with ``--filter``'s state filter) and ``--replay`` servo with, one target's or a route's."""
-    if fit.route_record is not None:
-        return route_tracking(options, settings, fit, filtered, make_state_filter)
-    model = fit.model
-    estimator = estimator_from_model(model)
-    detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
-    state_filter = make_state_filter(settings, model, estimator) if filtered else None
-    sight = live.TargetSight(detector, estimator, TimeScaledTrajectory(model.trajectory, settings.speed))
-    return Tracking(sight, make_controller(settings.law, settings.gains, settings.dhat0), state_filter)
-
-
 class RecordedDrive:
     """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames at their own
     stamps, measured through the fit's ``sight``. Open loop: the commands are kept, nothing moves."""
@@ -466,7 +432,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
     model = fit.model
     reader = TeachReader(options.replay)
     # The recording's motion is not the commands': no state filter (its prediction assumes they moved the robot).
-    tracking = _tracking(options, settings, fit, filtered=False)
+    tracking = make_tracking(options, settings, fit, filtered=False)
     controller = tracking.controller
     servo = ServoStep(controller, settings.limits, 0, None, stop_when_lost=True)
     tally = _Tally()
@@ -491,7 +457,7 @@ def _run_live(options: RepeatOptions, settings: Settings, fit: FitFile, console:
     live.check_live_options(options, settings.lost_timeout)
     interface = live.robot_interface(options)
     model = fit.model
-    tracking = _tracking(options, settings, fit, filtered=True)
+    tracking = make_tracking(options, settings, fit, filtered=True)
     controller = tracking.controller
     servo = ServoStep(controller, settings.limits, 0, tracking.state_filter, stop_when_lost=True)
     tally = _Tally()

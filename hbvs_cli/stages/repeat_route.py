@@ -5,6 +5,7 @@ V (36) is logged against each segment's true d*_i where the route was simulated.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -12,12 +13,15 @@ import numpy as np
 
 from ..core.camera import normalized_to_pixels
 from ..core.control_settings import FILTER_EKF, ControllerGains
-from ..core.estimation import Observation, ObservationStatus
+from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator
 from ..core.fit_model import FitModel
 from ..core.frames import rotation_z
+from ..core.gains import noise_from_residual
 from ..core.homography import transfer_points
 from ..core.laws import gains_for_law, make_controller
 from ..core.route import view_spans
+from ..core.state_filter import ServoStateFilter
+from ..core.trajectory import TimeScaledTrajectory
 from ..errors import RecordingError
 from ..io.fit_file import FitFile
 from ..io.images import decode_image
@@ -29,6 +33,8 @@ from ..settings.commands import RepeatOptions
 from ..sim.route_loop import SWITCH_FRACTION, RouteTrajectory, SegmentFilters, SegmentSwitch, switch_times
 from ..sim.route_world import MIN_SPAN_PX, RouteWorld, recorded_route
 from ..sim.scene import point_identity
+from .frame_decoding import fit_template_image
+from .live import TargetSight
 
 
 def taught_pose_at(taught: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -157,8 +163,35 @@ class Tracking:
     step_log: Callable[[Any], Any] = lambda log: log
 
 
-def route_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool, make_state_filter: Callable[..., Any]) -> Tracking:
-    """The :class:`Tracking` of a route file; ``filtered``: a state filter per segment (``--live``)."""
+#: With the state filter on, the fixed residual gate only catches gross errors (px).
+COARSE_RESIDUAL_GATE_PX = 3.0
+
+
+def make_state_filter(settings: Any, model: FitModel, estimator: PlanarPoseEstimator) -> ServoStateFilter | None:
+    """The state filter ``--filter`` asks for (None for ``none``), its noise from the fit's residual (docs/method.md, "State filter")."""
+    if settings.state_filter != FILTER_EKF:
+        return None
+    estimator.residual_gate = max(estimator.residual_gate, COARSE_RESIDUAL_GATE_PX / model.camera.mean_focal)
+    return ServoStateFilter(model.m_ref, model.normal, detector_noise(model))
+
+
+def detector_noise(model: FitModel) -> float:
+    """Per-coordinate noise of the fit's detector on the taught images (normalised units)."""
+    if not math.isfinite(model.residual_px.rms):
+        return 0.0
+    return noise_from_residual(model.residual_px.rms, model.m_ref.shape[0]) / model.camera.mean_focal
+
+
+def make_tracking(options: RepeatOptions, settings: Any, fit: FitFile, filtered: bool) -> Tracking:
+    """What ``--live`` (``filtered``: with ``--filter``'s state filter, one per segment of a route) and ``--replay``
+    servo with, one target's or a route's."""
+    if fit.route_record is None:
+        model = fit.model
+        estimator = estimator_from_model(model)
+        detector = detector_from_model(model, fit_template_image(fit), seed=options.seed)
+        state_filter = make_state_filter(settings, model, estimator) if filtered else None
+        sight = TargetSight(detector, estimator, TimeScaledTrajectory(model.trajectory, settings.speed))
+        return Tracking(sight, make_controller(settings.law, settings.gains, settings.dhat0), state_filter)
     plan = route_of(fit, str(options.input))
     models = plan.models
     gains = segment_gains(settings, plan)

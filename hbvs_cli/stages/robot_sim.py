@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import queue
 import sys
 import threading
 import time
@@ -93,9 +94,8 @@ class _PlainRobot:
         from ..io.mjpeg_server import MjpegServer
 
         self._source = options.cmd_in
-        self._lock = threading.Lock()
-        self._received: list[tuple[float, float]] = []
-        self._problem: str | None = None
+        #: The commands read, then the problem that stopped the reader (text), if one did.
+        self._received: queue.SimpleQueue[tuple[float, float] | str] = queue.SimpleQueue()
         self._server = MjpegServer(options.mjpeg)
         # Opened by the reader thread: a FIFO's open waits for its writer, who looks at the camera first.
         self._reader = threading.Thread(target=self._read, name="hbvs-cmd-in", daemon=True)
@@ -106,27 +106,25 @@ class _PlainRobot:
         try:
             stream: IO[str] = sys.stdin if self._source == "-" else open(self._source, encoding="utf-8")  # noqa: SIM115
         except OSError as exc:
-            with self._lock:
-                self._problem = f"--cmd-in {self._source}: {exc.strerror}"
+            self._received.put(f"--cmd-in {self._source}: {exc.strerror}")
             return
         for number, line in enumerate(stream, 1):
             if not line.strip():
                 continue
             try:
                 data = json.loads(line)
-                command = (float(data["v"]), float(data["w"]))
+                self._received.put((float(data["v"]), float(data["w"])))
             except (ValueError, KeyError, TypeError):
-                with self._lock:
-                    self._problem = f"--cmd-in line {number}: not a command (a JSON object with v and w): {line.strip()[:80]!r}"
+                self._received.put(f"--cmd-in line {number}: not a command (a JSON object with v and w): {line.strip()[:80]!r}")
                 return
-            with self._lock:
-                self._received.append(command)
 
     def take_commands(self) -> list[tuple[float, float]]:
-        with self._lock:
-            if self._problem is not None:
-                raise InputError(self._problem)
-            received, self._received = self._received, []
+        received = []
+        while not self._received.empty():
+            command = self._received.get()
+            if isinstance(command, str):
+                raise InputError(command)
+            received.append(command)
         return received
 
     def publish(self, image: np.ndarray, stamp_s: float, pose: tuple[float, float, float]) -> None:

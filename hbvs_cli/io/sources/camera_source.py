@@ -32,7 +32,6 @@ class CameraSource(FrameSource, ClosedOnExit):
         if duration is not None and not 0.0 < duration < math.inf:  # the option allows 0, a camera records something
             raise UsageError(f"--duration must be a positive number, got {duration!r}")
         self.duration = duration
-        self.camera = None
         self._factory = capture_factory
         self._clock = clock
         self.max_failed_reads = int(max_failed_reads)

@@ -25,7 +25,6 @@ class ImageFolderSource(FrameSource):
     def __init__(self, dir_or_glob: str | os.PathLike[str], fps: float) -> None:
         self.path = str(dir_or_glob)
         self.fps = fps  # an option checked finite and >= 0.1 Hz; teach gives images its default rate without one
-        self.camera = None
         self.files = self._find(self.path)
 
     @staticmethod

@@ -34,7 +34,6 @@ class Ros2TopicSource(FrameSource):
         self.bad_stamps = 0
         node = dds.Ros2Node()
         self._images = LatestImage(node, topic)
-        self.camera = None
         self.camera_problem: str | None = None
         try:
             self.camera = wait_camera_info(node, dds.camera_info_topic(topic))

@@ -84,7 +84,6 @@ class BagSource(FrameSource):
         topics = self._bag.topics
         self.topic, self._topic = self._choose(topics, topic)
         self.cmd_topic, self.cmd_type = self._choose_commands(topics, cmd_topic)
-        self.camera = None
         self.camera_problem: str | None = None
         self.camera_info_topic = self._camera_info_topic(topics)
         if self.camera_info_topic is not None:

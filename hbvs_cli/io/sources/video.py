@@ -25,7 +25,6 @@ class VideoSource(FrameSource):
     def __init__(self, path: str | os.PathLike[str], fps: float | None = None) -> None:
         self.path = str(path)
         self.fps_override = fps  # --fps is checked as an option (finite, at least 0.1 Hz)
-        self.camera = None
         passthrough = "://" in self.path or "%" in self.path
         if not passthrough:
             file = Path(path)
