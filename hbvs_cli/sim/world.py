@@ -71,6 +71,8 @@ class Target:
 
 #: The ArUco dictionary of simulated markers (OpenCV's DICT_4X4_50).
 ARUCO_DICTIONARY = "DICT_4X4_50"
+#: The key of each :class:`Poster` field in a world description (``_m``: in m).
+_POSTER_KEYS = {"center": "center_m", "width": "width_m", "height": "height_m", "right": "right", "down": "down"}
 
 
 @dataclass(frozen=True)
@@ -150,13 +152,7 @@ class World:
                 "marker_id": target.marker_id,
                 "aruco_dictionary": ARUCO_DICTIONARY,
                 "texture": target.texture,
-                "poster": {
-                    "center_m": target.poster.center.tolist(),
-                    "width_m": target.poster.width,
-                    "height_m": target.poster.height,
-                    "right": target.poster.right.tolist(),
-                    "down": target.poster.down.tolist(),
-                },
+                "poster": {key: np.asarray(getattr(target.poster, name)).tolist() for name, key in _POSTER_KEYS.items()},
             },
         }
 
@@ -167,13 +163,8 @@ class World:
             camera = camera_from_description(data["camera"])
             t = data["target"]
             p = t["poster"]
-            poster = Poster(
-                center=_vector(p["center_m"], 3),
-                width=float(p["width_m"]),
-                height=float(p["height_m"]),
-                right=_vector(p["right"], 3),
-                down=_vector(p["down"], 3),
-            )
+            poster = Poster(**{name: float(p[key]) if name in ("width", "height") else _vector(p[key], 3)
+                               for name, key in _POSTER_KEYS.items()})
             points = np.asarray(t["points_poster_m"], dtype=float)
             if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 3 or not np.all(np.isfinite(points)):
                 raise ValueError("points_poster_m must be a list of at least 3 finite (a, b) pairs")
