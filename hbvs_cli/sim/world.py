@@ -73,6 +73,8 @@ class Target:
 ARUCO_DICTIONARY = "DICT_4X4_50"
 #: The key of each :class:`Poster` field in a world description (``_m``: in m).
 _POSTER_KEYS = {"center": "center_m", "width": "width_m", "height": "height_m", "right": "right", "down": "down"}
+#: The key and type of each :class:`Target` field that a description may leave out (its default then).
+_TARGET_OPTIONAL_KEYS = {"dot_radius": ("dot_radius_m", float), "marker_id": ("marker_id", int), "texture": ("texture", str)}
 
 
 @dataclass(frozen=True)
@@ -171,14 +173,8 @@ class World:
             kind = str(t["kind"])
             if kind not in TARGET_KINDS:
                 raise ValueError(f"unknown target kind {kind!r}")
-            target = Target(
-                kind=kind,
-                points_poster=points,
-                poster=poster,
-                dot_radius=float(t.get("dot_radius_m", 0.0)),
-                marker_id=int(t.get("marker_id", 0)),
-                texture=str(t.get("texture", "builtin")),
-            )
+            optional = {name: convert(t[key]) for name, (key, convert) in _TARGET_OPTIONAL_KEYS.items() if key in t}
+            target = Target(kind=kind, points_poster=points, poster=poster, **optional)
             return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
         except (KeyError, TypeError, ValueError) as exc:
             raise MalformedDataError(f"malformed world description: {exc}") from None
