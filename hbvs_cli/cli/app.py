@@ -333,37 +333,28 @@ def _error_exit(exc: Exception, debug: bool) -> int:
 
 
 class _ClosedStream:
-    """What sys.stdin or sys.stdout is when hbvs was started with it closed: using it is an error."""
+    """What sys.stdin or sys.stdout (``fd`` 1: its descriptor, which holds /dev/null) is when hbvs was started with
+    it closed: reading or writing it raises ``error`` saying ``message``."""
 
     encoding = "utf-8"
-    error: type[HbvsError]
-    message: str
+
+    def __init__(self, error: type[HbvsError], message: str, fd: int | None = None) -> None:
+        self.error, self.message, self.fd = error, message, fd
 
     def _closed(self, *args: Any) -> Any:
         raise self.error(self.message)
 
-    @property
-    def buffer(self) -> Any:
-        return self._closed()
+    read = readline = write = _closed
+    buffer = property(_closed)
+
+    def fileno(self) -> int:
+        return self._closed() if self.fd is None else self.fd
 
     def isatty(self) -> bool:
         return False
 
-
-class _ClosedStdout(_ClosedStream):
-    error, message = OutputError, "stdout: it is closed; give a file with -o, or redirect stdout"
-    write = _ClosedStream._closed
-
     def flush(self) -> None:
         pass
-
-    def fileno(self) -> int:
-        return 1
-
-
-class _ClosedStdin(_ClosedStream):
-    error, message = InputError, "stdin: it is closed; give the input as a file instead of -"
-    read = readline = fileno = _ClosedStream._closed
 
 
 def _occupy_closed_stdio() -> set[int]:
@@ -391,9 +382,9 @@ def _prepare_stdio(debug: bool) -> None:
     closed = _occupy_closed_stdio()
     _stdout_at_start = file_identity(1)
     if sys.stdin is None or 0 in closed:
-        sys.stdin = _ClosedStdin()  # type: ignore[assignment]
+        sys.stdin = _ClosedStream(InputError, "stdin: it is closed; give the input as a file instead of -")
     if sys.stdout is None or 1 in closed:
-        sys.stdout = _ClosedStdout()  # type: ignore[assignment]
+        sys.stdout = _ClosedStream(OutputError, "stdout: it is closed; give a file with -o, or redirect stdout", 1)
     if sys.stderr is None or 2 in closed:
         sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115
     if not debug:

@@ -147,12 +147,12 @@ def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
     return position, orientation
 
 
-def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: bool = False) -> ExportSummary:
-    """Write the teach, fit or run file ``source`` (a path, a stream, ``-``) as the ROS 2 bag
-    folder ``output``; a truncated ``source`` replaces a bag only with ``allow_truncated``."""
+def export_ros2_bag(source: str, output: str, allow_truncated: bool = False) -> ExportSummary:
+    """Write the teach, fit or run file ``source`` (a path or ``-``) as the ROS 2 bag folder ``output``
+    (:func:`check_bag_target` first); a truncated ``source`` replaces a bag only with ``allow_truncated``."""
     from .output_target import atomic_folder, directory_lock, remove_stale_partials
 
-    final = check_bag_target(output)
+    final = check_bag_target(output, (source,))
     with directory_lock(final.parent):
         # What an export killed by SIGKILL left (its process is dead); nobody else's.
         remove_stale_partials(final.parent.glob(f"{final.name}.*.partial"))
@@ -160,7 +160,7 @@ def export_ros2_bag(source: Any, output: str, name: str = "", allow_truncated: b
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    stream = McapStream(source, name=name)
+    stream = McapStream(source)
     kind: str | None = None
     camera_calibration: Any = None
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}

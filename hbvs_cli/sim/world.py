@@ -71,6 +71,10 @@ class Target:
 
 #: The ArUco dictionary of simulated markers (OpenCV's DICT_4X4_50).
 ARUCO_DICTIONARY = "DICT_4X4_50"
+#: The key of each :class:`Poster` field in a world description (``_m``: in m).
+_POSTER_KEYS = {"center": "center_m", "width": "width_m", "height": "height_m", "right": "right", "down": "down"}
+#: The key and type of each :class:`Target` field that a description may leave out (its default then).
+_TARGET_OPTIONAL_KEYS = {"dot_radius": ("dot_radius_m", float), "marker_id": ("marker_id", int), "texture": ("texture", str)}
 
 
 @dataclass(frozen=True)
@@ -150,13 +154,7 @@ class World:
                 "marker_id": target.marker_id,
                 "aruco_dictionary": ARUCO_DICTIONARY,
                 "texture": target.texture,
-                "poster": {
-                    "center_m": target.poster.center.tolist(),
-                    "width_m": target.poster.width,
-                    "height_m": target.poster.height,
-                    "right": target.poster.right.tolist(),
-                    "down": target.poster.down.tolist(),
-                },
+                "poster": {key: np.asarray(getattr(target.poster, name)).tolist() for name, key in _POSTER_KEYS.items()},
             },
         }
 
@@ -167,27 +165,16 @@ class World:
             camera = camera_from_description(data["camera"])
             t = data["target"]
             p = t["poster"]
-            poster = Poster(
-                center=_vector(p["center_m"], 3),
-                width=float(p["width_m"]),
-                height=float(p["height_m"]),
-                right=_vector(p["right"], 3),
-                down=_vector(p["down"], 3),
-            )
+            poster = Poster(**{name: float(p[key]) if name in ("width", "height") else _vector(p[key], 3)
+                               for name, key in _POSTER_KEYS.items()})
             points = np.asarray(t["points_poster_m"], dtype=float)
             if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 3 or not np.all(np.isfinite(points)):
                 raise ValueError("points_poster_m must be a list of at least 3 finite (a, b) pairs")
             kind = str(t["kind"])
             if kind not in TARGET_KINDS:
                 raise ValueError(f"unknown target kind {kind!r}")
-            target = Target(
-                kind=kind,
-                points_poster=points,
-                poster=poster,
-                dot_radius=float(t.get("dot_radius_m", 0.0)),
-                marker_id=int(t.get("marker_id", 0)),
-                texture=str(t.get("texture", "builtin")),
-            )
+            optional = {name: convert(t[key]) for name, (key, convert) in _TARGET_OPTIONAL_KEYS.items() if key in t}
+            target = Target(kind=kind, points_poster=points, poster=poster, **optional)
             return cls(camera=camera, camera_height=float(data["camera_height_m"]), target=target)
         except (KeyError, TypeError, ValueError) as exc:
             raise MalformedDataError(f"malformed world description: {exc}") from None

@@ -9,10 +9,9 @@ from .console import Console
 def run_export(options: ExportOptions, console: Console) -> dict[str, int]:
     """Write the bag; say on stderr what went into it. Returns the messages per bag topic."""
     from ..io.output_target import refuse_overwriting_inputs
-    from ..io.ros_export import check_bag_target, export_ros2_bag
+    from ..io.ros_export import export_ros2_bag
 
     refuse_overwriting_inputs([("-o", options.output)], [("input", options.input)])
-    check_bag_target(options.output, (options.input,))
     summary = export_ros2_bag(options.input, options.output, allow_truncated=options.allow_truncated)
     topics = ", ".join(f"{topic} {count}" for topic, count in sorted(summary.counts.items()))
     if summary.truncated:

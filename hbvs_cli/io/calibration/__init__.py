@@ -1,6 +1,6 @@
 """Camera calibration files: ROS ``camera_info`` YAML (read and written), OpenCV ``FileStorage``,
 Kalibr ``camchain.yaml`` and plain JSON (``{"K": [[...], [...], [...]], "D": [...], "width": 640, "height": 480}``),
-recognised by content (:func:`load_calibration`); every format passes :mod:`.validate`, and a user's mistake raises
+recognised by content (:func:`load_calibration`); every format passes :mod:`.mapping`'s checks, and a user's mistake raises
 a one-line :class:`~hbvs_cli.errors.CalibrationError`."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError
 from ..text_files import read_small_file
 from .mapping import (
-    _intrinsics_from_mapping, _require_mapping, intrinsics_from_kalibr, intrinsics_from_values, is_kalibr, stated_sigma,
+    _intrinsics_from_mapping, _one_line, _require_mapping, intrinsics_from_kalibr, intrinsics_from_values, is_kalibr,
+    stated_sigma,
 )
 from .opencv import _read_opencv_storage
 from .ros import _read_yaml, calibration_from_foxglove, calibration_to_foxglove, save_calibration_ros
-from .validate import _one_line
 
 __all__ = [
     "MAX_CALIBRATION_BYTES", "load_calibration", "save_calibration_ros", "calibration_to_foxglove",

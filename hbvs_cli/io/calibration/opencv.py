@@ -10,8 +10,7 @@ import numpy as np
 
 from ...errors import CalibrationError
 from ..native_log import opencv_error_text
-from .mapping import _ALL_KEYS
-from .validate import _MAX_NUMBERS, _normalise_key
+from .mapping import _ALL_KEYS, _MAX_NUMBERS, _normalise_key
 
 
 def _read_opencv_storage(text: str, name: str) -> dict[str, Any]:

@@ -13,8 +13,7 @@ import yaml
 from ...core.camera import CameraIntrinsics
 from ...errors import CalibrationError, InputError
 from ..limits import load_yaml_documents
-from .mapping import _require_mapping, intrinsics_from_values
-from .validate import _one_line
+from .mapping import _one_line, _require_mapping, intrinsics_from_values
 
 
 def _read_yaml(text: str, name: str) -> Mapping[str, Any]:
