@@ -61,6 +61,9 @@ class RunData:
     def steps(self) -> int:
         return int(self.state["t"].size)
 
+    def has_poses(self) -> bool:
+        return self.true_pose is not None and self.desired_pose is not None
+
 
 #: Metadata entries ``hbvs report`` reads, and the types they must have when present.
 INFO_TYPES: dict[str, tuple[type, ...]] = {

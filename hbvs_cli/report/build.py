@@ -71,7 +71,7 @@ def image_error_signal(run: RunData, name: str) -> np.ndarray:
 
 def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
     """Per step, ``position_m`` and ``heading_deg`` (in [-180, 180)) from the taught pose; None without ground truth."""
-    if run.true_pose is None or run.desired_pose is None:
+    if not run.has_poses():
         return None
     difference = run.true_pose - run.desired_pose
     return {

@@ -99,11 +99,16 @@ def _shade_losses(ax: Any, context: PanelContext) -> None:
                 ax.axvspan(start, end, color=color, alpha=0.15, lw=0, zorder=0)
 
 
-def _say_absent(ax: Any, title: str, message: str) -> None:
-    ax.set_title(title)
-    ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
-    ax.set(xticks=[], yticks=[])
-    ax.grid(False)
+def _runs_with(ax: Any, context: PanelContext, has: Callable[[RunData], bool], title: str,
+               absent: str) -> list[tuple[RunData, str]]:
+    """The runs for which ``has`` holds, with their colours; with none, the panel says ``absent``."""
+    with_data = [(run, color) for run, color in zip(context.runs, context.colors) if has(run)]
+    if not with_data:
+        ax.set_title(title)
+        ax.text(0.5, 0.5, absent, transform=ax.transAxes, ha="center", va="center", color="0.35", wrap=True)
+        ax.set(xticks=[], yticks=[])
+        ax.grid(False)
+    return with_data
 
 
 def _time_axes(ax: Any, title: str, ylabel: str) -> None:
@@ -130,18 +135,13 @@ def _line_styles(runs: Sequence[RunData], colors: Sequence[str]) -> dict[str, di
     }
 
 
-def _has_poses(run: RunData) -> bool:
-    return run.true_pose is not None and run.desired_pose is not None
-
-
 NO_POSES = "no ground-truth poses\n(a replay or a real run)"
 
 
 def _pose_panel(key: str, title: str, ylabel: str, scale: float) -> Callable[[Any, PanelContext], None]:
     def paint(ax: Any, context: PanelContext) -> None:
-        with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
+        with_poses = _runs_with(ax, context, RunData.has_poses, title, NO_POSES)
         if not with_poses:
-            _say_absent(ax, title, NO_POSES)
             return
         for run, color in with_poses:
             magnitude = np.abs(scale * pose_error_signals(run)[key])
@@ -220,9 +220,8 @@ def _has_V(run: RunData) -> bool:
 
 def _lyapunov_panel(ax: Any, context: PanelContext) -> None:
     title = "Lyapunov function V (36), relative to V(0)"
-    with_V = [(run, color) for run, color in zip(context.runs, context.colors) if _has_V(run)]
+    with_V = _runs_with(ax, context, _has_V, title, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
     if not with_V:
-        _say_absent(ax, title, "V unknown: it needs the true depth d*\n(only hbvs repeat --sim records it)")
         return
     for run, color in with_V:
         _line(ax, context, run.state["t"], _normalised_V(run), color, run.lost)
@@ -267,9 +266,8 @@ def _draw_paths(ax: Any, with_poses: Sequence[tuple[RunData, str]]) -> None:
 
 def _top_view_panel(ax: Any, context: PanelContext) -> None:
     """The scene to scale, and the paths with y stretched (centimetres vanish at the wall's scale)."""
-    with_poses = [(run, color) for run, color in zip(context.runs, context.colors) if _has_poses(run)]
+    with_poses = _runs_with(ax, context, RunData.has_poses, "Top view", NO_POSES)
     if not with_poses:
-        _say_absent(ax, "Top view", NO_POSES)
         return
     ax.set_axis_off()
     one_column = ax.get_subplotspec().get_gridspec().ncols == 1
@@ -346,15 +344,17 @@ def _layout(panels: Sequence[str], style: FigureStyle) -> tuple[tuple[float, flo
     return style.size_in, columns
 
 
+#: Panels only a run with ground truth has data for, each with the test whether a run has it (poses, d*).
+GROUND_TRUTH_PANELS: dict[str, Callable[[RunData], bool]] = {
+    "position": RunData.has_poses, "heading": RunData.has_poses, "V": _has_V, "top": RunData.has_poses,
+}
+
+
 def figure_panels(runs: Sequence[RunData], style: FigureStyle) -> list[str]:
     """The panels drawn: ``--panels``, by default every panel for which a run has data."""
     if style.panels is not None:
         return list(style.panels)
-    absent = set()
-    if not any(_has_poses(run) for run in runs):
-        absent |= {"position", "heading", "top"}
-    if not any(_has_V(run) for run in runs):
-        absent.add("V")
+    absent = {name for name, has in GROUND_TRUTH_PANELS.items() if not any(has(run) for run in runs)}
     return [name for name in PANEL_NAMES if name not in absent]
 
 
@@ -363,14 +363,10 @@ def check_figure_size(runs: Sequence[RunData], style: FigureStyle) -> None:
     _layout(figure_panels(runs, style), style)
 
 
-#: Panels only a run with ground truth (poses, d*) has data for.
-GROUND_TRUTH_PANELS = ("position", "heading", "V", "top")
-
-
 def _run_legend_label(label: str, report: RunReport, run: RunData, panels: Sequence[str]) -> str:
     """A run's legend entry: its label and status; a run left out of the ground-truth panels
     that are drawn says so here rather than in every panel's title."""
-    absent = not (_has_poses(run) or _has_V(run)) and any(name in panels for name in GROUND_TRUTH_PANELS)
+    absent = not any(has(run) for has in GROUND_TRUTH_PANELS.values()) and any(name in panels for name in GROUND_TRUTH_PANELS)
     status = "converged" if report.verdict.converged else "not converged"
     status = "open-loop replay" if report.run.source.mode == "replay" else status
     return f"{label} ({status}{'; no ground truth' if absent else ''})"

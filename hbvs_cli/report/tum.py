@@ -21,7 +21,7 @@ def check_exportable(runs: Sequence[RunData], directory: Path) -> None:
     two runs with one file stem."""
     seen: dict[Path, str] = {}
     for run in runs:
-        if run.true_pose is None or run.desired_pose is None:
+        if not run.has_poses():
             raise UsageError(
                 f"{run.name}: --export-tum needs ground-truth poses, and this {run.info.get('mode', 'unknown')} run has none "
                 "(only hbvs repeat --sim records them)"
