@@ -13,7 +13,9 @@ import numpy as np
 
 from ..errors import OutputError, RecordingError, TruncatedInputError, UsageError
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
-from .mcap import McapStream, read_metadata
+from .images import read_compressed_image
+from .mcap import McapStream, read_metadata, seconds_to_ns
+from .messages import velocity_from_message
 from .topics import (
     CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC,
     ROS_CAMERA_INFO_SCHEMA, ROS_CAMERA_INFO_TOPIC, ROS_CMD_VEL_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_DESIRED_POSE_TOPIC,
@@ -165,7 +167,6 @@ def export_ros2_bag(source: str, output: str, allow_truncated: bool = False) -> 
     camera_calibration: Any = None
     path_topic = {"teach": TRUE_POSE_TOPIC, "run": DESIRED_POSE_TOPIC}
     path_poses: list[Any] = []
-    camera_height: float | None = None
     def before_swap(work: Path) -> None:
         check_bag_target(output)  # again: another export (or someone) may have put a folder there
         if stream.truncated and final.exists() and not allow_truncated:
@@ -191,8 +192,6 @@ def export_ros2_bag(source: str, output: str, allow_truncated: bool = False) -> 
                     raise RecordingError(f"{stream.name}: {message.topic} holds {message.schema_name[:60]!r}, expected {expected}")
                 ns = message.log_time
                 if message.topic in (COMMAND_TOPIC, TEACH_COMMAND_TOPIC):
-                    from .messages import velocity_from_message
-
                     v, w = velocity_from_message(message.json(stream.name), stream.name)
                     bag.write(ROS_CMD_VEL_TOPIC, ROS_TWIST_SCHEMA, ns, bag.twist(v, w))
                 elif message.topic in (TRUE_POSE_TOPIC, DESIRED_POSE_TOPIC):
@@ -203,17 +202,14 @@ def export_ros2_bag(source: str, output: str, allow_truncated: bool = False) -> 
                     if path_topic.get(kind) == message.topic:
                         path_poses.append(pose)
                     if message.topic == TRUE_POSE_TOPIC:
-                        if camera_height is None:
-                            camera_height = position[2]
+                        if ROS_TF_STATIC_TOPIC not in bag.counts:  # the camera's height: the first true pose's z
                             bag.write(ROS_TF_STATIC_TOPIC, ROS_TF_SCHEMA, ns, bag.tf(
-                                ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, camera_height), OPTICAL_FROM_BASE_QUATERNION))
+                                ns, BASE_FRAME, OPTICAL_FRAME, (0.0, 0.0, position[2]), OPTICAL_FROM_BASE_QUATERNION))
                         bag.write(ROS_TF_TOPIC, ROS_TF_SCHEMA, ns, bag.tf(
                             ns, WORLD_FRAME, BASE_FRAME, (position[0], position[1], 0.0), orientation))
                 elif message.topic == CALIBRATION_TOPIC:
                     camera_calibration = message.foxglove(stream.name)
                 elif message.topic in (IMAGE_TOPIC, REFERENCE_IMAGE_TOPIC):
-                    from .images import read_compressed_image
-
                     image = read_compressed_image(message.data, stream.name)
                     topic = ROS_IMAGE_TOPIC if message.topic == IMAGE_TOPIC else ROS_REFERENCE_IMAGE_TOPIC
                     bag.write(topic, ROS_COMPRESSED_IMAGE_SCHEMA, ns, bag.compressed_image(ns, image.data, image.format))
@@ -249,7 +245,6 @@ def _fit_taught_path(model_message: dict[str, Any], source: str, bag: _Bag) -> l
     from ..core.frames import yaw_to_quaternion
     from ..core.path import CommandProfile
     from .fit_file import model_from_message
-    from .mcap import seconds_to_ns
 
     model = model_from_message(model_message, source)
     taught = model.taught_path
