@@ -300,7 +300,6 @@ def print_title(console: Any, text: str) -> None:
 def print_report_tables(reports: Sequence[RunReport], stream: TextIO, console: Any = None) -> None:
     """Print the report on ``stream`` (stdout), or on ``console`` (a rich Console) when given."""
     console = console or report_console(stream)
-    plain = not console.is_terminal
     tables = report_tables(reports, console)
     for index, (title, table) in enumerate(tables):
         if index:
@@ -310,7 +309,7 @@ def print_report_tables(reports: Sequence[RunReport], stream: TextIO, console: A
             print_table(console, table)
         else:
             # The verdict's sentences wrap to the reader's terminal even through a pipe.
-            console.print(table, width=min(console.width, reading_width()) if plain else None)
+            console.print(table, width=None if console.is_terminal else min(console.width, reading_width()))
 
 
 def reading_width() -> int:
@@ -345,8 +344,7 @@ FIT_ROWS: tuple[tuple[str, str], ...] = (
 def print_fit_table(summary: Mapping[str, Any], stream: TextIO, console: Any = None) -> None:
     """The numbers of a fit file (``hbvs report fit.mcap``) as one table on ``stream`` (or ``console``)."""
     console = console or report_console(stream)
-    plain = not console.is_terminal
-    table = new_table(["quantity", Path(str(summary["file"])).name], plain)
+    table = new_table(["quantity", Path(str(summary["file"])).name], not console.is_terminal)
     for label, key in FIT_ROWS:
         table.add_row(label, format_value(resolve_key(summary, key)))
     print_title(console, "desired trajectory (Remark 1): raw homography decomposition against the splines")
