@@ -11,11 +11,15 @@ from typing import Any
 
 import numpy as np
 
+from ..core.frames import yaw_to_quaternion
+from ..core.path import CommandProfile
 from ..errors import OutputError, RecordingError, TruncatedInputError, UsageError
+from .fit_file import model_from_message
 from .foxglove_scene import BASE_FRAME, OPTICAL_FRAME, OPTICAL_FROM_BASE_QUATERNION, WORLD_FRAME
 from .images import read_compressed_image
 from .mcap import McapStream, read_metadata, seconds_to_ns
 from .messages import velocity_from_message
+from .output_target import atomic_folder, directory_lock, remove_stale_partials
 from .topics import (
     CALIBRATION_TOPIC, COMMAND_TOPIC, DESIRED_POSE_TOPIC, IMAGE_TOPIC, MODEL_TOPIC, REFERENCE_IMAGE_TOPIC,
     ROS_CAMERA_INFO_SCHEMA, ROS_CAMERA_INFO_TOPIC, ROS_CMD_VEL_TOPIC, ROS_COMPRESSED_IMAGE_SCHEMA, ROS_DESIRED_POSE_TOPIC,
@@ -152,8 +156,6 @@ def _pose_fields(message: Any, source: str) -> tuple[list[float], list[float]]:
 def export_ros2_bag(source: str, output: str, allow_truncated: bool = False) -> ExportSummary:
     """Write the teach, fit or run file ``source`` (a path or ``-``) as the ROS 2 bag folder ``output``
     (:func:`check_bag_target` first); a truncated ``source`` replaces a bag only with ``allow_truncated``."""
-    from .output_target import atomic_folder, directory_lock, remove_stale_partials
-
     final = check_bag_target(output, (source,))
     with directory_lock(final.parent):
         # What an export killed by SIGKILL left (its process is dead); nobody else's.
@@ -241,11 +243,6 @@ def _file_kind(stream: McapStream) -> str:
 
 def _fit_taught_path(model_message: dict[str, Any], source: str, bag: _Bag) -> list[Any]:
     """The taught path of a fit file: poses at the taught frames, integrated from the taught commands."""
-
-    from ..core.frames import yaw_to_quaternion
-    from ..core.path import CommandProfile
-    from .fit_file import model_from_message
-
     model = model_from_message(model_message, source)
     taught = model.taught_path
     if taught is None:

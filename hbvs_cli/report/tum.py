@@ -9,6 +9,7 @@ from typing import Sequence
 
 from ..core.frames import yaw_to_quaternion
 from ..errors import InputError, UsageError
+from ..io.output_target import write_output_bytes
 from ..io.run_file import RunData
 
 #: Suffixes of the two files written per run.
@@ -41,8 +42,6 @@ def tum_paths(run: RunData, directory: Path) -> tuple[Path, Path]:
 def write_tum(run: RunData, directory: Path) -> tuple[Path, Path]:
     """Write a run's taught and repeated trajectories, at its camera height, into ``directory``
     (created if needed; the run passed :func:`check_exportable`); both paths."""
-    from ..io.output_target import write_output_bytes
-
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
