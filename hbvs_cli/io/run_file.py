@@ -61,6 +61,10 @@ class RunData:
     def steps(self) -> int:
         return int(self.state["t"].size)
 
+    @property
+    def duration_s(self) -> float:
+        return float(self.state["t"][-1] - self.state["t"][0])
+
     def has_poses(self) -> bool:
         return self.true_pose is not None and self.desired_pose is not None
 

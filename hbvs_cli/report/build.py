@@ -80,17 +80,12 @@ def pose_error_signals(run: RunData) -> dict[str, np.ndarray] | None:
     }
 
 
-def _duration_s(run: RunData) -> float:
-    t = run.state["t"]
-    return float(t[-1] - t[0])
-
-
 def _run_summary(run: RunData, label: str | None) -> RunSummary:
     settings = run.info.get("settings") or {}
     if label is None:  # no --label: the run's law ("replay" for an open-loop replay)
         label = "replay" if run.info.get("mode") == "replay" else str(run.info.get("law") or run.info.get("mode") or "run")
     return RunSummary(
-        name=run.name, label=label, duration_s=_duration_s(run),
+        name=run.name, label=label, duration_s=run.duration_s,
         steps=run.steps, rate_hz=sample_rate_hz(run.state["t"]), law=run.info.get("law"),
         gains=dict(run.info.get("gains") or {}), source=Source(mode=run.info.get("mode"), fit_file=settings.get("input")),
         truncated=bool(run.truncated),
@@ -274,7 +269,7 @@ def _finished_check(run: RunData) -> tuple[bool | None, str]:
         return _check(False, f"run stopped at t = {stop[0]:.2f} s ({stop[1]})")
     if run.truncated:
         return _check(False, "the file is truncated: the run did not finish")
-    return _check(True, f"run finished ({_duration_s(run):.2f} s, {run.steps} steps)")
+    return _check(True, f"run finished ({run.duration_s:.2f} s, {run.steps} steps)")
 
 
 def _lyapunov_check(lyapunov: Lyapunov) -> tuple[bool | None, str]:
