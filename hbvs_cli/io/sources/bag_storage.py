@@ -68,9 +68,9 @@ def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
         return McapFileBag(sorted(found, key=lambda p: _natural_key(p.name)), name)
     if not path.exists():
         raise InputError(f"{name}: no such file or directory")
-    if path.suffix == ".db3" or (path.suffix in (".zstd", ".lz4") and (path.parent / "metadata.yaml").is_file()):
-        if (path.parent / "metadata.yaml").is_file():
-            return RosbagsBag(path.parent, name)
+    if path.suffix in (".db3", ".zstd", ".lz4") and (path.parent / "metadata.yaml").is_file():
+        return RosbagsBag(path.parent, name)
+    if path.suffix == ".db3":
         raise InputError(f"{name}: a SQLite bag file is read with its folder and metadata.yaml; give the bag folder")
     try:
         with path.open("rb") as stream:
@@ -97,8 +97,9 @@ def _rosbags_errors(name: str) -> Iterator[None]:
 
 
 def bag_information(folder: Path, name: str) -> dict[str, Any]:
-    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
-    when malformed (rosbags then says what is wrong with it when it opens the bag)."""
+    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap, :class:`InputError` unless
+    the counts and names rosbags and hbvs use have the right types; empty when malformed (rosbags then says
+    what is wrong with it when it opens the bag)."""
     metadata = folder / "metadata.yaml"
     try:
         size = metadata.stat().st_size
@@ -114,12 +115,7 @@ def bag_information(folder: Path, name: str) -> dict[str, Any]:
         return {}
     if not isinstance(information, dict):
         return {}
-    check_metadata(information, name)
-    return information
 
-
-def check_metadata(information: dict[str, Any], name: str) -> None:
-    """:class:`InputError` unless the counts and names rosbags and hbvs use have the right types."""
     def counts(where: str, value: Any) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
@@ -134,6 +130,7 @@ def check_metadata(information: dict[str, Any], name: str) -> None:
     distro = information.get("ros_distro")
     if distro is not None and not (isinstance(distro, str) and len(distro) <= 64):
         raise InputError(f"{name}: metadata.yaml: ros_distro must be a distribution's name, got {_shown(distro)}")
+    return information
 
 
 def _shown(value: Any) -> str:
