@@ -153,7 +153,7 @@ class McapMessage:
 @dataclass
 class ChannelSummary:
     """A topic's channel as a file's summary section lists it (``message_count`` None without statistics)
-    or as :class:`McapStream` read it (then also its first and last log times, ns)."""
+    or as :class:`McapStream` read it (then also its first and last log times, ns); also a ROS 2 bag's topic."""
 
     topic: str
     schema_name: str
