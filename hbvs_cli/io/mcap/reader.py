@@ -153,7 +153,7 @@ class McapMessage:
 @dataclass
 class ChannelSummary:
     """A topic's channel as a file's summary section lists it (``message_count`` None without statistics)
-    or as :class:`McapStream` read it (then also its first and last log times, ns)."""
+    or as :class:`McapStream` read it (then also its first and last log times, ns); also a ROS 2 bag's topic."""
 
     topic: str
     schema_name: str
@@ -373,22 +373,21 @@ def read_metadata(stream: McapStream, name: str) -> dict[str, Any]:
     return decoded
 
 
-def read_summary(path: str | os.PathLike[str], name: str = "") -> list[ChannelSummary] | None:
+def read_summary(path: str | os.PathLike[str]) -> list[ChannelSummary] | None:
     """The channels of an MCAP file's summary section, or None when it has no usable one."""
     from mcap.exceptions import McapError
     from mcap.reader import SeekingReader
 
-    name = name or str(path)
     try:
         with open(path, "rb") as stream:
             summary = SeekingReader(_CappedInput(stream), record_size_limit=MAX_RECORD_BYTES).get_summary()
     except OSError as exc:
-        raise InputError(f"{name}: cannot read ({exc.strerror or exc})") from None
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except (McapError, *_DAMAGE):
         return None
     if summary is None or not summary.channels:
         return None
-    declarations = _Declarations(name)
+    declarations = _Declarations(str(path))
     for record in (*summary.schemas.values(), *summary.channels.values()):
         declarations.add(record)
     counts = dict(summary.statistics.channel_message_counts) if summary.statistics is not None else None

@@ -18,22 +18,12 @@ import yaml
 
 from ...errors import HbvsError, InputError, RecordingError
 from .. import limits
-from ..mcap import MAGIC, MAX_RECORD_BYTES, McapMessage, McapStream, read_summary
+from ..mcap import MAGIC, MAX_RECORD_BYTES, ChannelSummary, McapMessage, McapStream, read_summary
 from .frame_source import _natural_key
 
 #: Largest message definition and metadata.yaml read (real ones are ~10 KB).
 MAX_SCHEMA_BYTES = 1 << 20
 MAX_METADATA_BYTES = 1 << 20
-
-
-@dataclass
-class BagTopic:
-    """A topic of a bag: its name, message type (``pkg/msg/Type``), encoding and count."""
-
-    name: str
-    type: str
-    encoding: str
-    count: int | None
 
 
 @dataclass
@@ -48,17 +38,12 @@ class BagMessage:
     mcap: McapMessage | None = None
 
 
-def _add_topic(topics: dict[str, BagTopic], topic: BagTopic) -> None:
+def _add_topic(topics: dict[str, ChannelSummary], topic: ChannelSummary) -> None:
     """Add ``topic``, or its count to the one of its name (unknown in one file: unknown in all)."""
-    known = topics.setdefault(topic.name, topic)
+    known = topics.setdefault(topic.topic, topic)
     if known is not topic:
-        known.count = None if known.count is None or topic.count is None else known.count + topic.count
-
-
-def ros2_type(name: str) -> str:
-    """``pkg/Type`` (ROS 1 style, as some converters write) to ``pkg/msg/Type``."""
-    parts = name.split("/")
-    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
+        count = topic.message_count
+        known.message_count = None if known.message_count is None or count is None else known.message_count + count
 
 
 def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
@@ -83,9 +68,9 @@ def open_bag(path: Path, name: str) -> RosbagsBag | McapFileBag:
         return McapFileBag(sorted(found, key=lambda p: _natural_key(p.name)), name)
     if not path.exists():
         raise InputError(f"{name}: no such file or directory")
-    if path.suffix == ".db3" or (path.suffix in (".zstd", ".lz4") and (path.parent / "metadata.yaml").is_file()):
-        if (path.parent / "metadata.yaml").is_file():
-            return RosbagsBag(path.parent, name)
+    if path.suffix in (".db3", ".zstd", ".lz4") and (path.parent / "metadata.yaml").is_file():
+        return RosbagsBag(path.parent, name)
+    if path.suffix == ".db3":
         raise InputError(f"{name}: a SQLite bag file is read with its folder and metadata.yaml; give the bag folder")
     try:
         with path.open("rb") as stream:
@@ -112,8 +97,9 @@ def _rosbags_errors(name: str) -> Iterator[None]:
 
 
 def bag_information(folder: Path, name: str) -> dict[str, Any]:
-    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap; empty
-    when malformed (rosbags then says what is wrong with it when it opens the bag)."""
+    """The ``rosbag2_bagfile_information`` of metadata.yaml, read under a size cap, :class:`InputError` unless
+    the counts and names rosbags and hbvs use have the right types; empty when malformed (rosbags then says
+    what is wrong with it when it opens the bag)."""
     metadata = folder / "metadata.yaml"
     try:
         size = metadata.stat().st_size
@@ -129,12 +115,7 @@ def bag_information(folder: Path, name: str) -> dict[str, Any]:
         return {}
     if not isinstance(information, dict):
         return {}
-    check_metadata(information, name)
-    return information
 
-
-def check_metadata(information: dict[str, Any], name: str) -> None:
-    """:class:`InputError` unless the counts and names rosbags and hbvs use have the right types."""
     def counts(where: str, value: Any) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise InputError(f"{name}: metadata.yaml: {where} must be a whole number >= 0, got {_shown(value)}")
@@ -149,6 +130,7 @@ def check_metadata(information: dict[str, Any], name: str) -> None:
     distro = information.get("ros_distro")
     if distro is not None and not (isinstance(distro, str) and len(distro) <= 64):
         raise InputError(f"{name}: metadata.yaml: ros_distro must be a distribution's name, got {_shown(distro)}")
+    return information
 
 
 def _shown(value: Any) -> str:
@@ -192,14 +174,11 @@ class _CappedReader(io.RawIOBase):
     def readable(self) -> bool:
         return True
 
-    def _count(self, size: int) -> None:
-        self._read += size
-        if self._read > limits.current("decompressed-bytes"):
-            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
-
     def readinto(self, buffer: Any) -> int:
         count = self._inner.readinto(buffer)
-        self._count(count or 0)
+        self._read += count or 0
+        if self._read > limits.current("decompressed-bytes"):
+            raise limits.exceeded("decompressed-bytes", None, "a file of the file-compressed bag, decompressed,")
         return count
 
     def close(self) -> None:
@@ -228,11 +207,11 @@ class RosbagsBag:
         self._open = True
         #: The bag's files, for the recording's metadata.
         self.files = sorted(p for p in folder.iterdir() if p.is_file())
-        self.topics: dict[str, BagTopic] = {}
+        self.topics: dict[str, ChannelSummary] = {}
         for connection in self._reader.connections:
             if len(connection.msgdef.data if connection.msgdef is not None else "") > MAX_SCHEMA_BYTES:
                 raise InputError(f"{name}: the message definition of {connection.topic} is more than hbvs parses")
-            _add_topic(self.topics, BagTopic(connection.topic, connection.msgtype, "cdr", connection.msgcount))
+            _add_topic(self.topics, ChannelSummary(connection.topic, connection.msgtype, "", "cdr", connection.msgcount))
         files = information.get("relative_file_paths")
         self.storage = {
             "reader": "rosbags",
@@ -312,18 +291,20 @@ class McapFileBag:
         self._factory = DecoderFactory()
         self._decoders: dict[tuple[str, str, str, bytes], Callable[[bytes], Any]] = {}
         #: Topics of every file, from the summary section (or one streaming pass without).
-        self.topics: dict[str, BagTopic] = {}
+        self.topics: dict[str, ChannelSummary] = {}
         for file in self.files:
             with mcap_bag_errors(str(file)):
-                listed = read_summary(file, str(file))
+                listed = read_summary(file)
                 if listed is None:  # no summary: one pass over the file counts its messages
                     stream = McapStream(file, name=str(file))
                     deque(stream, maxlen=0)
                     _require_complete(stream, str(file))
                     listed = list(stream.channels.values())
             for channel in listed:
-                topic = BagTopic(channel.topic, ros2_type(channel.schema_name), channel.message_encoding, channel.message_count)
-                _add_topic(self.topics, topic)
+                parts = channel.schema_name.split("/")
+                if len(parts) == 2:  # ``pkg/Type`` (ROS 1 style, as some converters write) to ``pkg/msg/Type``
+                    channel.schema_name = f"{parts[0]}/msg/{parts[1]}"
+                _add_topic(self.topics, channel)
         self.storage = {"reader": "hbvs mcap", "storage": "mcap", "files": len(self.files), "compression": "chunk"}
 
     def messages(self, topics: set[str]) -> Iterator[BagMessage]:

@@ -19,7 +19,8 @@ from ..topics import (
     CAMERA_CALIBRATION_SCHEMA, COMPRESSED_IMAGE_SCHEMA, ROS_CAMERA_INFO_SCHEMA, ROS_COMPRESSED_IMAGE_SCHEMA,
     ROS_IMAGE_SCHEMA, ROS_ODOMETRY_SCHEMA, ROS_TWIST_SCHEMA, ROS_TWIST_STAMPED_SCHEMA,
 )
-from .bag_storage import BagMessage, BagTopic, McapFileBag, RosbagsBag, open_bag
+from ..mcap import ChannelSummary
+from .bag_storage import BagMessage, McapFileBag, RosbagsBag, open_bag
 from .frame_source import _NS, FrameSource, SourceFrame, _same_size
 from .ros_images import compressed_to_image8, raw_to_image8
 
@@ -31,10 +32,10 @@ _MAX_CAMERA_INFO_BYTES = 1 << 16
 
 
 # Foxglove's image and calibration schemas (hbvs's own files) are read in protobuf only.
-def _is_image_topic(topic: BagTopic) -> bool:
-    if topic.type == COMPRESSED_IMAGE_SCHEMA:
-        return topic.encoding == "protobuf"
-    return topic.type in _IMAGE_TYPES and topic.encoding == "cdr"
+def _is_image_topic(topic: ChannelSummary) -> bool:
+    if topic.schema_name == COMPRESSED_IMAGE_SCHEMA:
+        return topic.message_encoding == "protobuf"
+    return topic.schema_name in _IMAGE_TYPES and topic.message_encoding == "cdr"
 
 
 def _stamp_ns(message: Any) -> int:
@@ -91,60 +92,60 @@ class BagSource(FrameSource):
         self.time_base_ns, self.frame_id, self.stamps, self._stamp_minus_log, first = self._first_frame()
         self.width, self.height = (int(first.shape[1]), int(first.shape[0])) if first is not None else (None, None)
 
-    def _choose(self, topics: dict[str, BagTopic], topic: str | None) -> tuple[str, BagTopic]:
-        images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.name)
+    def _choose(self, topics: dict[str, ChannelSummary], topic: str | None) -> tuple[str, ChannelSummary]:
+        images = sorted((t for t in topics.values() if _is_image_topic(t)), key=lambda t: t.topic)
         if topic is not None:
             chosen = topics.get(topic)
             if chosen is None:
-                listed = ", ".join(t.name for t in images) or "none"
+                listed = ", ".join(t.topic for t in images) or "none"
                 raise InputError(f"{self.path}: no topic {topic!r} in the bag (image topics: {listed})")
-            if chosen.type not in (*_IMAGE_TYPES, COMPRESSED_IMAGE_SCHEMA):
+            if chosen.schema_name not in (*_IMAGE_TYPES, COMPRESSED_IMAGE_SCHEMA):
                 raise InputError(
-                    f"{self.path}: topic {topic} carries {chosen.type or 'an unknown type'}, "
+                    f"{self.path}: topic {topic} carries {chosen.schema_name or 'an unknown type'}, "
                     f"not {ROS_IMAGE_SCHEMA}, {ROS_COMPRESSED_IMAGE_SCHEMA} or {COMPRESSED_IMAGE_SCHEMA}"
                 )
             if not _is_image_topic(chosen):
-                expected = "protobuf" if chosen.type == COMPRESSED_IMAGE_SCHEMA else "cdr"
-                raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.encoding!r}, expected {expected}")
+                expected = "protobuf" if chosen.schema_name == COMPRESSED_IMAGE_SCHEMA else "cdr"
+                raise InputError(f"{self.path}: topic {topic} is encoded as {chosen.message_encoding!r}, expected {expected}")
             return topic, chosen
         # Recorders create channels for subscribed topics that never published: skip them.
-        candidates = [t for t in images if t.count is None or t.count > 0] or images
+        candidates = [t for t in images if t.message_count is None or t.message_count > 0] or images
         if not candidates:
             raise InputError(f"no image topic in {self.path}")
         if len(candidates) > 1:
-            listed = ", ".join(f"{t.name} ({t.type.rsplit('/', 1)[-1]})" for t in candidates)
+            listed = ", ".join(f"{t.topic} ({t.schema_name.rsplit('/', 1)[-1]})" for t in candidates)
             raise UsageError(f"{self.path}: several image topics: {listed}; choose one with --topic")
-        return candidates[0].name, candidates[0]
+        return candidates[0].topic, candidates[0]
 
-    def _choose_commands(self, topics: dict[str, BagTopic], cmd_topic: str | None) -> tuple[str | None, str | None]:
+    def _choose_commands(self, topics: dict[str, ChannelSummary], cmd_topic: str | None) -> tuple[str | None, str | None]:
         accepted = (*_COMMAND_TYPES, ROS_ODOMETRY_SCHEMA)
         if cmd_topic is not None:
             chosen = topics.get(cmd_topic)
             if chosen is None:
-                listed = ", ".join(sorted(t.name for t in topics.values() if t.type in accepted)) or "none"
+                listed = ", ".join(sorted(t.topic for t in topics.values() if t.schema_name in accepted)) or "none"
                 raise InputError(f"{self.path}: no topic {cmd_topic!r} in the bag (command topics: {listed})")
-            if chosen.type not in accepted or chosen.encoding != "cdr":
+            if chosen.schema_name not in accepted or chosen.message_encoding != "cdr":
                 raise InputError(
-                    f"{self.path}: topic {cmd_topic} carries {chosen.type or 'an unknown type'}, "
+                    f"{self.path}: topic {cmd_topic} carries {chosen.schema_name or 'an unknown type'}, "
                     f"not {', '.join(accepted)}"
                 )
-            return cmd_topic, chosen.type
+            return cmd_topic, chosen.schema_name
         for types in (_COMMAND_TYPES, (ROS_ODOMETRY_SCHEMA,)):
             found = sorted(
-                (t for t in topics.values() if t.type in types and t.encoding == "cdr" and t.count != 0),
-                key=lambda t: t.name,
+                (t for t in topics.values() if t.schema_name in types and t.message_encoding == "cdr" and t.message_count != 0),
+                key=lambda t: t.topic,
             )
             if len(found) == 1:
-                return found[0].name, found[0].type
+                return found[0].topic, found[0].schema_name
             if len(found) > 1:
-                listed = ", ".join(t.name for t in found)
+                listed = ", ".join(t.topic for t in found)
                 raise UsageError(f"{self.path}: several command topics: {listed}; choose one with --cmd-topic")
         return None, None
 
-    def _camera_info_topic(self, topics: dict[str, BagTopic]) -> str | None:
+    def _camera_info_topic(self, topics: dict[str, ChannelSummary]) -> str | None:
         # A CameraInfo, or hbvs's own foxglove.CameraCalibration (protobuf only).
-        infos = sorted(t.name for t in topics.values() if t.count != 0 and (t.type == ROS_CAMERA_INFO_SCHEMA or (
-            t.type == CAMERA_CALIBRATION_SCHEMA and t.encoding == "protobuf")))
+        infos = sorted(t.topic for t in topics.values() if t.message_count != 0 and (t.schema_name == ROS_CAMERA_INFO_SCHEMA or (
+            t.schema_name == CAMERA_CALIBRATION_SCHEMA and t.message_encoding == "protobuf")))
         if len(infos) <= 1:
             return infos[0] if infos else None
 
@@ -198,12 +199,12 @@ class BagSource(FrameSource):
 
     def _frame(self, message: BagMessage, what: str) -> tuple[np.ndarray, bytes | None, str | None, int, str | None]:
         """Image, its bytes and format, its stamp (ns, 0 if none) and frame_id."""
-        if message.mcap is not None and self._topic.type == COMPRESSED_IMAGE_SCHEMA:  # a foxglove.CompressedImage
+        if message.mcap is not None and self._topic.schema_name == COMPRESSED_IMAGE_SCHEMA:  # a foxglove.CompressedImage
             stored = read_compressed_image(message.mcap.data, what)
             return (*compressed_to_image8(stored, what), stored.stamp_ns, None)
         decoded = message.decode(what)
         try:
-            if self._topic.type == ROS_COMPRESSED_IMAGE_SCHEMA:
+            if self._topic.schema_name == ROS_COMPRESSED_IMAGE_SCHEMA:
                 image, encoded, fmt = compressed_to_image8(decoded, what)
             else:
                 image, encoded, fmt = raw_to_image8(decoded, what), None, None
@@ -212,7 +213,7 @@ class BagSource(FrameSource):
             return image, encoded, fmt, _stamp_ns(decoded), frame_id
         except (AttributeError, TypeError, ValueError, OverflowError) as exc:
             # A message definition that does not match the type's name: the fields are not there.
-            raise InputError(f"{what}: malformed {self._topic.type} message ({exc})") from None
+            raise InputError(f"{what}: malformed {self._topic.schema_name} message ({exc})") from None
 
     def __iter__(self) -> Iterator[SourceFrame]:
         size: tuple[int, int] | None = None
@@ -262,7 +263,7 @@ class BagSource(FrameSource):
         """What the source is, for the recording's metadata."""
         return {
             "kind": self.kind, "path": self.path, "files": [str(f) for f in self._bag.files], "topic": self.topic,
-            "message_type": self._topic.type, "frame_count": self._topic.count, "fps": None,
+            "message_type": self._topic.schema_name, "frame_count": self._topic.message_count, "fps": None,
             "camera_info_topic": self.camera_info_topic, "camera_info_problem": self.camera_problem,
             "storage": self._bag.storage, "time_base_ns": self.time_base_ns, "timestamps": self.stamps,
             "frame_id": self.frame_id, "cmd_topic": self.cmd_topic, "cmd_type": self.cmd_type,
