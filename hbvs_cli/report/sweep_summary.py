@@ -101,8 +101,8 @@ def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     }
 
 
-def summarize(folder: Path) -> dict[str, Any]:
-    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
+def summarize(folder: Path, label: str | None = None) -> dict[str, Any]:
+    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``); ``label``: ``--label``'s."""
     data = SweepData(folder)
     laws = data.laws()
     return {
@@ -119,7 +119,7 @@ def summarize(folder: Path) -> dict[str, Any]:
                    for law_label, law_mask in laws for label, value, mask in data.groups(name)]
             for name in data.swept if name != "law"
         },
-    }
+    } | ({} if label is None else {"label": label})
 
 
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
@@ -147,8 +147,8 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO, console: Any = Non
     console = console or report_console(stream)
     plain = not console.is_terminal
     runs = summary["runs"]
-    print_title(console, f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
-                f"{runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}")
+    print_title(console, f"sweep {summary.get('label', summary['folder'])}: {runs['done']} of {runs['planned']} runs, "
+                f"{runs['failed']} failed, {runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}")
     groups = summary["by_law"] or [{"law": "all"} | summary["overall"]]
     table = new_table(["law", *STAT_HEADERS], plain)
     for entry in groups:

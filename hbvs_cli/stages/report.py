@@ -175,10 +175,8 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
     except ImportError:
         raise UsageError("reading a sweep's table needs pyarrow: pip install 'hbvs[sweep]'") from None
     check_labels(options.labels, options.runs)
-    summary = summarize(Path(options.runs[0]))
-    if options.labels:
-        summary = summary | {"label": options.labels[0]}
-    print_document(summary, options.json_output, lambda _, out: print_summary(summary | {"folder": summary.get("label", summary["folder"])}, out))
+    summary = summarize(Path(options.runs[0]), options.labels[0] if options.labels else None)
+    print_document(summary, options.json_output, print_summary)
     if options.require_converged:
         runs = summary["runs"]
         converged = summary["overall"]["converged"]
