@@ -45,10 +45,9 @@ class SweepData:
         self.vary: dict[str, Any] = spec["vary"]
         self.fixed: dict[str, Any] = spec["fixed"]
         self.total_runs: int = int(info.get("runs", 0))
-        self.swept = list(self.vary)
         # A fixed parameter is a column too (a fixed law groups the runs as a swept one does).
         table = read_rows(folder, ["status", "converged", "final_position_m", "final_heading_deg",
-                                   "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
+                                   "settling_time_position_s", "settling_time_heading_s", *self.vary, *self.fixed])
         self.rows = table.num_rows
         self.columns: dict[str, np.ndarray] = {}
         for name in table.column_names:
@@ -110,14 +109,14 @@ def summarize(folder: Path, label: str | None = None) -> dict[str, Any]:
         "runs": {"planned": data.total_runs, "done": data.rows,
                  "failed": int((data.columns["status"] == "failed").sum()),
                  "stopped": int((data.columns["status"] == "stopped").sum())},
-        "swept": data.swept, "fixed": data.fixed,
+        "swept": list(data.vary), "fixed": data.fixed,
         "overall": group_stats(data, np.ones(data.rows, dtype=bool)),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
         "by_parameter": {
             name: [{"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
                    | group_stats(data, mask & law_mask)
                    for law_label, law_mask in laws for label, value, mask in data.groups(name)]
-            for name in data.swept if name != "law"
+            for name in data.vary if name != "law"
         },
     } | ({} if label is None else {"label": label})
 
