@@ -84,7 +84,7 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
     data = SweepData(folder)
     figures: dict[str, tuple[Any, int]] = {}
     reported = data.columns["status"] != "failed"
-    laws = data.laws("all runs")
+    laws = data.laws()
     colours = law_colors([law for law, _ in laws])
     numeric = [name for name in data.vary if name != "law" and data.columns[name].dtype != object]
     pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]

@@ -62,10 +62,10 @@ class SweepData:
         self.columns["settling_time_s"] = np.maximum(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
         self.law = self.columns.get("law")
 
-    def laws(self, everything: str = "all") -> list[tuple[str, np.ndarray]]:
-        """``(law, mask)`` per law run, in the table's order; one group ``everything`` without a law."""
+    def laws(self) -> list[tuple[str, np.ndarray]]:
+        """``(law, mask)`` per law run, in the table's order; one group "all runs" without a law."""
         if self.law is None:
-            return [(everything, np.ones(self.rows, dtype=bool))]
+            return [("all runs", np.ones(self.rows, dtype=bool))]
         return [(str(v), self.law == v) for v in dict.fromkeys(self.law.tolist())]
 
     def groups(self, name: str) -> list[tuple[str, Any, np.ndarray]]:
