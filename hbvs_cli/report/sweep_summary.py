@@ -100,8 +100,8 @@ def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     }
 
 
-def summarize(folder: Path, label: str | None = None) -> dict[str, Any]:
-    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``); ``label``: ``--label``'s."""
+def summarize(folder: Path, sweep_label: str | None = None) -> dict[str, Any]:
+    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``); ``sweep_label``: ``--label``'s."""
     data = SweepData(folder)
     laws = data.laws()
     return {
@@ -118,7 +118,7 @@ def summarize(folder: Path, label: str | None = None) -> dict[str, Any]:
                    for law_label, law_mask in laws for label, value, mask in data.groups(name)]
             for name in data.vary if name != "law"
         },
-    } | ({} if label is None else {"label": label})
+    } | ({} if sweep_label is None else {"label": sweep_label})
 
 
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
