@@ -25,12 +25,13 @@ def parameter_label(name: str, units: Mapping[str, str]) -> str:
     return f"{name} ({units[name] or '-'})" if name in units else name
 
 
-def label_log_axis(axis: Any, which: str = "x") -> None:
-    """Plain numbers at a few ticks of a log axis: every power of ten, and 2 and 5 times it
-    when the axis spans few decades, with no minor labels (matplotlib's own labelled minor
-    ticks overlapped each other on an axis of less than a decade)."""
+def label_log_axis(axis: Any, which: str) -> None:
+    """Make the ``which`` ("x" or "y") axis a log axis, with plain numbers at a few ticks: every power of ten,
+    and 2 and 5 times it when the axis spans few decades, with no minor labels (matplotlib's own labelled
+    minor ticks overlapped each other on an axis of less than a decade)."""
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+    getattr(axis, f"set_{which}scale")("log")
     target = axis.xaxis if which == "x" else axis.yaxis
     low, high = axis.get_xlim() if which == "x" else axis.get_ylim()
     decades = np.log10(max(high, 1e-300) / max(low, 1e-300))
@@ -83,9 +84,9 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
     data = SweepData(folder)
     figures: dict[str, tuple[Any, int]] = {}
     reported = data.columns["status"] != "failed"
-    laws = data.laws("all runs")
+    laws = data.laws()
     colours = law_colors([law for law, _ in laws])
-    numeric = [name for name in data.swept if name != "law" and data.columns[name].dtype != object]
+    numeric = [name for name in data.vary if name != "law" and data.columns[name].dtype != object]
     pairs = [(a, b) for i, a in enumerate(numeric[:MAP_PARAMETERS]) for b in numeric[i + 1:MAP_PARAMETERS]]
     if pairs:
         figure, axes = plt.subplots(len(pairs), len(laws), figsize=(4.2 * len(laws) + 1, 3.6 * len(pairs)), squeeze=False,
@@ -116,7 +117,6 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
             values = values[np.isfinite(values)] * scale
             if values.size:
                 axis.step(values, np.arange(1, values.size + 1) / values.size, where="post", label=law, color=colour)
-        axis.set_xscale("log")
         label_log_axis(axis, "x")
         axis.set(xlabel=label, ylabel="fraction of runs at or below (0-1)")
         axis.grid(True, alpha=0.3)
@@ -133,7 +133,6 @@ def sweep_figures(folder: Path, units: Mapping[str, str] | None = None) -> dict[
                            for _, centre, group in data.groups(name)}
                 centres = [centre for centre, median in medians.items() if median is not None]
                 axis.plot(centres, [100 * medians[centre] for centre in centres], color=colour, linewidth=1.5)
-            axis.set_yscale("log")
             label_log_axis(axis, "y")
             axis.set(xlabel=parameter_label(name, units), ylabel="final position error (cm)")
             axis.grid(True, alpha=0.3)

@@ -45,10 +45,9 @@ class SweepData:
         self.vary: dict[str, Any] = spec["vary"]
         self.fixed: dict[str, Any] = spec["fixed"]
         self.total_runs: int = int(info.get("runs", 0))
-        self.swept = list(self.vary)
         # A fixed parameter is a column too (a fixed law groups the runs as a swept one does).
         table = read_rows(folder, ["status", "converged", "final_position_m", "final_heading_deg",
-                                   "settling_time_position_s", "settling_time_heading_s", *self.swept, *self.fixed])
+                                   "settling_time_position_s", "settling_time_heading_s", *self.vary, *self.fixed])
         self.rows = table.num_rows
         self.columns: dict[str, np.ndarray] = {}
         for name in table.column_names:
@@ -63,10 +62,10 @@ class SweepData:
         self.columns["settling_time_s"] = np.maximum(self.columns["settling_time_position_s"], self.columns["settling_time_heading_s"])
         self.law = self.columns.get("law")
 
-    def laws(self, everything: str = "all") -> list[tuple[str, np.ndarray]]:
-        """``(law, mask)`` per law run, in the table's order; one group ``everything`` without a law."""
+    def laws(self) -> list[tuple[str, np.ndarray]]:
+        """``(law, mask)`` per law run, in the table's order; one group "all runs" without a law."""
         if self.law is None:
-            return [(everything, np.ones(self.rows, dtype=bool))]
+            return [("all runs", np.ones(self.rows, dtype=bool))]
         return [(str(v), self.law == v) for v in dict.fromkeys(self.law.tolist())]
 
     def groups(self, name: str) -> list[tuple[str, Any, np.ndarray]]:
@@ -101,8 +100,8 @@ def group_stats(data: SweepData, mask: np.ndarray) -> dict[str, Any]:
     }
 
 
-def summarize(folder: Path) -> dict[str, Any]:
-    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``)."""
+def summarize(folder: Path, sweep_label: str | None = None) -> dict[str, Any]:
+    """The summary of a results folder as one JSON-ready dictionary (``hbvs sweep --json``); ``sweep_label``: ``--label``'s."""
     data = SweepData(folder)
     laws = data.laws()
     return {
@@ -110,16 +109,16 @@ def summarize(folder: Path) -> dict[str, Any]:
         "runs": {"planned": data.total_runs, "done": data.rows,
                  "failed": int((data.columns["status"] == "failed").sum()),
                  "stopped": int((data.columns["status"] == "stopped").sum())},
-        "swept": data.swept, "fixed": data.fixed,
+        "swept": list(data.vary), "fixed": data.fixed,
         "overall": group_stats(data, np.ones(data.rows, dtype=bool)),
         "by_law": [{"law": label} | group_stats(data, mask) for label, mask in laws] if data.law is not None else [],
         "by_parameter": {
             name: [{"value": label, "center": value} | ({"law": law_label} if data.law is not None else {})
                    | group_stats(data, mask & law_mask)
                    for law_label, law_mask in laws for label, value, mask in data.groups(name)]
-            for name in data.swept if name != "law"
+            for name in data.vary if name != "law"
         },
-    }
+    } | ({} if sweep_label is None else {"label": sweep_label})
 
 
 def _stat_cells(stats: Mapping[str, Any]) -> list[str]:
@@ -147,8 +146,8 @@ def print_summary(summary: Mapping[str, Any], stream: TextIO, console: Any = Non
     console = console or report_console(stream)
     plain = not console.is_terminal
     runs = summary["runs"]
-    print_title(console, f"sweep {summary['folder']}: {runs['done']} of {runs['planned']} runs, {runs['failed']} failed, "
-                f"{runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}")
+    print_title(console, f"sweep {summary.get('label', summary['folder'])}: {runs['done']} of {runs['planned']} runs, "
+                f"{runs['failed']} failed, {runs['stopped']} stopped (target lost); swept: {', '.join(summary['swept'])}")
     groups = summary["by_law"] or [{"law": "all"} | summary["overall"]]
     table = new_table(["law", *STAT_HEADERS], plain)
     for entry in groups:

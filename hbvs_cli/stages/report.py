@@ -100,10 +100,12 @@ def run_fit_report(fit: Any, options: ReportOptions, console: Console) -> int:
 
 def run_report(options: ReportOptions, console: Console) -> int:
     """Run ``hbvs report``: 0, or 1 when a ``--fail-above`` or ``--require-converged`` check failed."""
+    from ..report.figure_style import check_plot_path, figure_style
     from ..report.fit_plot import FIT_PANELS, FitSignals
-    from ..report.plots import PANEL_NAMES
+    from ..report.plots import PANEL_NAMES, check_figure_size, save_plot
     from ..report.build import build_report, resolve_tolerances
     from ..report.table import print_report_tables
+    from ..report.tum import check_exportable, tum_paths, write_tum
     from ..io.output_target import refuse_overwriting_inputs
 
     if len(options.runs) == 1 and Path(options.runs[0]).is_dir():
@@ -113,8 +115,6 @@ def run_report(options: ReportOptions, console: Console) -> int:
     inputs = [("run", text) for text in options.runs]
     check_labels(options.labels, options.runs)
     if options.plot is not None:
-        from ..report.figure_style import check_plot_path, figure_style
-
         check_plot_path(options.plot)
         refuse_overwriting_inputs([("--plot", options.plot)], inputs)
         # Checked against either figure's panels now, against the right one's below.
@@ -128,15 +128,11 @@ def run_report(options: ReportOptions, console: Console) -> int:
             raise UsageError("give run files, or one fit file (for the fit figure), not both or several fits")
         return run_fit_report(fits[0], options, console)
     if options.plot is not None:
-        from ..report.plots import check_figure_size
-
         style = figure_style(options.dpi, options.size, options.panels, PANEL_NAMES)
         check_figure_size(runs, style)
     reports = [build_report(run, tolerances, label) for run, label in zip(runs, options.labels or [None] * len(runs))]
     excesses = exceeded_bounds(reports, bounds)
     if options.export_tum is not None:
-        from ..report.tum import check_exportable, tum_paths
-
         check_exportable(runs, options.export_tum)
         tum_files = [("--export-tum", path) for run in runs for path in tum_paths(run, options.export_tum)]
         refuse_overwriting_inputs([("--plot", options.plot), *tum_files], inputs)
@@ -145,13 +141,9 @@ def run_report(options: ReportOptions, console: Console) -> int:
     print_document(documents[0] if len(documents) == 1 else {"runs": documents}, options.json_output,
                    lambda _, out: print_report_tables(reports, out))
     if options.plot is not None:
-        from ..report.plots import save_plot
-
         save_plot(runs, reports, options.plot, style, tolerances)
         console.info(f"report: figure written to {options.plot}")
     if options.export_tum is not None:
-        from ..report.tum import write_tum
-
         for run in runs:
             taught, repeated = write_tum(run, options.export_tum)
             console.info(f"report: TUM trajectories written to {taught} and {repeated}")
@@ -175,10 +167,8 @@ def _report_sweep(options: ReportOptions, console: Console) -> int:
     except ImportError:
         raise UsageError("reading a sweep's table needs pyarrow: pip install 'hbvs[sweep]'") from None
     check_labels(options.labels, options.runs)
-    summary = summarize(Path(options.runs[0]))
-    if options.labels:
-        summary = summary | {"label": options.labels[0]}
-    print_document(summary, options.json_output, lambda _, out: print_summary(summary | {"folder": summary.get("label", summary["folder"])}, out))
+    summary = summarize(Path(options.runs[0]), options.labels[0] if options.labels else None)
+    print_document(summary, options.json_output, print_summary)
     if options.require_converged:
         runs = summary["runs"]
         converged = summary["overall"]["converged"]
