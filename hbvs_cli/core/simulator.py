@@ -138,7 +138,7 @@ class ServoStep:
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(self.unseen_commands, dt, dhat)
+            estimate = state_filter.estimate(self.unseen_commands, dt)
             # Without a usable frame the law acts on a trusted prediction, adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
         if estimate is not None and not state_filter.settled:

@@ -416,13 +416,10 @@ class ServoStateFilter:
         trust = self.settings.depth_trust
         return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
 
-    def estimate(self, commands: Collection[tuple[float, float]], dt: float,
-                 depth: float | None) -> FilterEstimate | None:
+    def estimate(self, commands: Collection[tuple[float, float]], dt: float) -> FilterEstimate | None:
         """The estimate carried over the ``commands`` sent since the last frame was taken
-        (latency). ``depth`` (dhat, m) only seeds the filter's depth before its first frame."""
+        (latency); None before the first frame."""
         if self._state is None:
-            if depth is not None:
-                self.expect_depth(depth)
             return None
         state, p = self._state, self._covariance
         for v, w in commands:
