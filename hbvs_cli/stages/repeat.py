@@ -8,7 +8,7 @@ import math
 import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
-from typing import IO, Any
+from typing import IO, Any, Iterator
 
 import numpy as np
 
@@ -401,31 +401,22 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
-class RecordedDrive:
-    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames at their own
-    stamps, measured through the fit's ``sight``. Open loop: the commands are kept, nothing moves."""
-
-    def __init__(self, reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> None:
-        self.reader, self.sight, self.model, self.run = reader, sight, model, run
-
-    def __iter__(self) -> Any:
-        model, reader = self.model, self.reader
-        previous_t: float | None = None
-        for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: self.sight.colour):
-            camera = reader.camera
-            if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
-                raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
-            t = frame.t
-            observation = self.sight.observe(image, t)
-            if previous_t is None:
-                # The replay keeps the recording's stamps: t = 0 is known with the first frame.
-                self.run.start(frame.log_time_ns - seconds_to_ns(t))
-            dt = t - previous_t if previous_t is not None else 0.0
-            previous_t = t
-            yield ServoInput(t, dt, observation, self.sight.evaluate(t), np.full(3, np.nan))
-
-    def act(self, record: StepRecord) -> None:
-        """Open loop: the command a robot would be sent is recorded, and nothing moves."""
+def replay_frames(reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> Iterator[ServoInput]:
+    """The frames of ``--replay``: a recording's at their own stamps, measured through the fit's ``sight``; no ``act``
+    (:class:`~hbvs_cli.core.servo_loop.ServoSource`): open loop, the commands are kept, nothing moves."""
+    previous_t: float | None = None
+    for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: sight.colour):
+        camera = reader.camera
+        if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
+            raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
+        t = frame.t
+        observation = sight.observe(image, t)
+        if previous_t is None:
+            # The replay keeps the recording's stamps: t = 0 is known with the first frame.
+            run.start(frame.log_time_ns - seconds_to_ns(t))
+        dt = t - previous_t if previous_t is not None else 0.0
+        previous_t = t
+        yield ServoInput(t, dt, observation, sight.evaluate(t), np.full(3, np.nan))
 
 
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -442,7 +433,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
             log = tracking.step_log(_StepLog(run, settings, model, None, cmd_stream))
             with console.progress("repeat (replay)", None) as bar:
-                for record in run_servo(RecordedDrive(reader, tracking.sight, model, run), servo):
+                for record in run_servo(replay_frames(reader, tracking.sight, model, run), servo):
                     log.step(record)
                     tally.add(record)
                     bar.advance()
