@@ -195,9 +195,7 @@ class ServoStateFilter:
         self.carried_std: NDArray[np.float64] | None = None
 
     def expect_depth(self, depth: float) -> None:
-        """Start the inverse depth at ``1 / depth`` (m); only before the first frame."""
-        if self._state is not None:
-            return
+        """Start the inverse depth at ``1 / depth`` (m), before the first frame (or at :meth:`take_over`)."""
         self._rho_prior = 1.0 / check_depth(depth, "the filter's depth guess")
 
     @property
@@ -223,7 +221,6 @@ class ServoStateFilter:
         stds without the transition's own uncertainty: the law's error is made continuous
         across the switch, so the new reference's offset does not make it less safe to act on."""
         self.carried_std = np.asarray(motion_std, dtype=float)
-        self._state = None
         self.expect_depth(1.0 / float(state[3]))
         self._state = tuple(float(value) for value in state)
         self._covariance = tuple(float(value) for value in np.asarray(covariance, dtype=float)[np.triu_indices(4)])
