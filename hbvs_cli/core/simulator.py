@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .controller import ControlOutput, DesiredState, Measurement
-from .estimation import Observation, ObservationStatus
+from .estimation import Observation, ObservationStatus, dropped
 from .laws import ControlLaw
 from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, scheduled_depth_pull
 
@@ -92,7 +92,7 @@ class StepRecord:
 MAX_HELD_OUTLIERS = 3
 
 #: What the controller sees before the first (latency-delayed) frame arrives.
-NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
+NOT_YET = dropped()
 
 
 class ServoStep:
