@@ -68,10 +68,9 @@ def depth_from_target_size(m_ref: ArrayLike, normal: ArrayLike, pair: tuple[int,
     """d* from the known distance (m) between the target points ``pair`` of m*_i ``m_ref``
     (N, 3): they lie on ``n*^T m_bar*_i = d*`` (7), so distances scale with d*."""
     m_ref = np.asarray(m_ref, dtype=float)
-    normal = np.asarray(normal, dtype=float)
     if not np.isfinite(distance_m) or distance_m <= 0.0:
         raise GeometryError(f"the target size must be a positive length in metres, got {distance_m}")
-    g = m_ref @ normal
+    g = m_ref @ np.asarray(normal, dtype=float)
     if np.any(g <= 0.0):
         raise GeometryError("the plane normal puts a target point behind the reference camera")
     unit_depth_points = m_ref / g[:, None]  # m_bar*_i / d*

@@ -65,19 +65,17 @@ def noise_from_residual(residual_rms: float, points: int) -> float:
     return residual_rms * math.sqrt(residual_to_variance(points))
 
 
-def suggest_gains(x_hd1_dot: float, noise_px: float, m_ref: ArrayLike, normal: ArrayLike, focal_px: float,
-                  heading_tolerance_deg: float = float("nan")) -> GainSuggestion:
+def suggest_gains(x_hd1_dot: float, noise_px: float, m_ref: ArrayLike, normal: ArrayLike, focal_px: float) -> GainSuggestion:
     """The rules of the module docstring for a typical |x_hd1_dot| (1/s), the noise (px, NaN
     if unknown), m*_i ``m_ref`` (N, 3), n* ``normal`` (3,) and the focal length (px)."""
     speed = abs(float(x_hd1_dot))
     if not (math.isfinite(speed) and speed > 1e-6):
         # A path that does not move: no lateral convergence to design for (condition (35)).
-        return GainSuggestion(ControllerGains(), float(x_hd1_dot), float(noise_px), float("nan"), float("nan"), heading_tolerance_deg)
+        return GainSuggestion(ControllerGains(), float(x_hd1_dot), float(noise_px), float("nan"), float("nan"))
     design = max(noise_px, DESIGN_NOISE_FLOOR_PX) if math.isfinite(noise_px) else DESIGN_NOISE_FLOOR_PX
     information = measurement_information(np.asarray(m_ref, dtype=float), np.asarray(normal, dtype=float), (0.0, 0.0, 0.0))
     sigma_e1 = design / focal_px * math.sqrt(float(np.linalg.inv(information)[1, 1]))
     k_w, k_v = ControllerGains().k_w, ControllerGains().k_v
     k_2 = max(1.0, k_w * k_w / (4.0 * speed * speed))
     gamma = DEPTH_RATE * k_v / (speed * speed) / (1.0 + (sigma_e1 / SIGMA_E1_REFERENCE) ** 2)
-    return GainSuggestion(ControllerGains(k_v=k_v, k_w=k_w, gamma=gamma, k_2=k_2), speed, float(noise_px), design, sigma_e1,
-                          heading_tolerance_deg)
+    return GainSuggestion(ControllerGains(k_v=k_v, k_w=k_w, gamma=gamma, k_2=k_2), speed, float(noise_px), design, sigma_e1)

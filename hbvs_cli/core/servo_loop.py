@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -27,19 +27,21 @@ class ServoInput:
 
 
 class ServoSource(Protocol):
-    """Where frames come from and where commands go."""
+    """Where frames come from and where commands go; a source without ``act`` (a replay's) is an open loop."""
 
     def __iter__(self) -> Iterator[ServoInput]:
         """The frames, each after the command of the one before was acted on; ends with the run."""
 
     def act(self, record: StepRecord) -> None:
-        """Carry out the command ``record.v_c, record.w_c`` (move, send, or keep it)."""
+        """Carry out the command ``record.v_c, record.w_c`` (move or send it)."""
 
 
-def run_servo(source: ServoSource, servo: ServoStep) -> Iterator[StepRecord]:
-    """The closed (or, for a replay, open) loop: a :class:`~.simulator.StepRecord` per frame."""
+def run_servo(source: ServoSource | Iterable[ServoInput], servo: ServoStep) -> Iterator[StepRecord]:
+    """The closed (or, for a source without ``act``, open) loop: a :class:`~.simulator.StepRecord` per frame."""
+    act = getattr(source, "act", None)
     for step in source:
         record = servo.decide(step.t, step.pose, step.observation, step.desired, step.dt)
-        source.act(record)
+        if act is not None:
+            act(record)
         servo.sent(step.dt)
         yield record

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .controller import ControlOutput, DesiredState, Measurement
-from .estimation import Observation, ObservationStatus
+from .estimation import Observation, ObservationStatus, dropped
 from .laws import ControlLaw
 from .state_filter import FilterEstimate, FilterOutcome, ServoStateFilter, scheduled_depth_pull
 
@@ -92,7 +92,7 @@ class StepRecord:
 MAX_HELD_OUTLIERS = 3
 
 #: What the controller sees before the first (latency-delayed) frame arrives.
-NOT_YET = Observation(None, status=ObservationStatus.DROPPED)
+NOT_YET = dropped()
 
 
 class ServoStep:
@@ -138,7 +138,7 @@ class ServoStep:
         if state_filter is not None:
             if observation.status == ObservationStatus.OK:
                 fresh = state_filter.correct(observation.measurement, observation.residual, dt) != FilterOutcome.GATED
-            estimate = state_filter.estimate(self.unseen_commands, dt, dhat)
+            estimate = state_filter.estimate(self.unseen_commands, dt)
             # Without a usable frame the law acts on a trusted prediction, adaptation frozen.
             predicted = not fresh and state_filter.trusted(estimate)
         if estimate is not None and not state_filter.settled:

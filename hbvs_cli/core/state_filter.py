@@ -195,9 +195,7 @@ class ServoStateFilter:
         self.carried_std: NDArray[np.float64] | None = None
 
     def expect_depth(self, depth: float) -> None:
-        """Start the inverse depth at ``1 / depth`` (m); only before the first frame."""
-        if self._state is not None:
-            return
+        """Start the inverse depth at ``1 / depth`` (m), before the first frame (or at :meth:`take_over`)."""
         self._rho_prior = 1.0 / check_depth(depth, "the filter's depth guess")
 
     @property
@@ -223,7 +221,6 @@ class ServoStateFilter:
         stds without the transition's own uncertainty: the law's error is made continuous
         across the switch, so the new reference's offset does not make it less safe to act on."""
         self.carried_std = np.asarray(motion_std, dtype=float)
-        self._state = None
         self.expect_depth(1.0 / float(state[3]))
         self._state = tuple(float(value) for value in state)
         self._covariance = tuple(float(value) for value in np.asarray(covariance, dtype=float)[np.triu_indices(4)])
@@ -416,13 +413,10 @@ class ServoStateFilter:
         trust = self.settings.depth_trust
         return self.settings.depth_pull_rate / (1.0 + (relative / trust) ** 2) if trust > 0.0 else 0.0
 
-    def estimate(self, commands: Collection[tuple[float, float]], dt: float,
-                 depth: float | None) -> FilterEstimate | None:
+    def estimate(self, commands: Collection[tuple[float, float]], dt: float) -> FilterEstimate | None:
         """The estimate carried over the ``commands`` sent since the last frame was taken
-        (latency). ``depth`` (dhat, m) only seeds the filter's depth before its first frame."""
+        (latency); None before the first frame."""
         if self._state is None:
-            if depth is not None:
-                self.expect_depth(depth)
             return None
         state, p = self._state, self._covariance
         for v, w in commands:

@@ -286,9 +286,9 @@ class SegmentFilters:
         self.corrections[1:] = c * self.corrections[1] + s * self.corrections[2], -s * self.corrections[1] + c * self.corrections[2]
         self.since += dt
 
-    def estimate(self, commands: Any, dt: float, depth: float | None) -> FilterEstimate | None:
+    def estimate(self, commands: Any, dt: float) -> FilterEstimate | None:
         """The active filter's estimate for the law, less what is left of the corrections since the switch."""
-        estimate = self.filters[self.active].estimate(commands, dt, depth)
+        estimate = self.filters[self.active].estimate(commands, dt)
         if estimate is None or self.since >= self.fade:
             return estimate
         measured = estimate.measurement

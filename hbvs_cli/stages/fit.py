@@ -427,8 +427,8 @@ def _suggested_gains(result: DesiredFit, camera: CameraIntrinsics) -> GainSugges
 
     noise_px = noise_from_residual(result.residual_px.rms, result.m_ref.shape[0])
     sigma_deg = float(np.degrees(np.max(result.uncertainty.smooth_theta_sigma))) if result.uncertainty is not None else float("nan")
-    tolerance = heading_tolerance(DEFAULT_TOLERANCES["heading_deg"], sigma_deg)
-    return suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal, tolerance)
+    suggestion = suggest_gains(result.condition.percentiles["p50"], noise_px, result.m_ref, result.normal, camera.mean_focal)
+    return replace(suggestion, heading_tolerance_deg=heading_tolerance(DEFAULT_TOLERANCES["heading_deg"], sigma_deg))
 
 
 def _render_settings(reader: Any) -> SensorSettings | None:

@@ -8,7 +8,7 @@ import math
 import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
-from typing import IO, Any
+from typing import IO, Any, Iterator
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from ..settings.commands import DEFAULT_GAINS, REPEAT, SIM_FAULTS, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
+from ..sim.closed_loop import SimulatedRobot
 from ..sim.route_loop import run_route
 from ..sim.route_world import recorded_route
 from . import live
@@ -249,17 +250,17 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model, camera.estimator)
-    return Simulation(
-        scene=scene, camera=camera, trajectory=trajectory, controller=make_controller(settings.law, settings.gains, settings.dhat0),
-        start_pose=start_pose, dt=1.0 / settings.rate, duration=trajectory.t_end - trajectory.t_start, limits=settings.limits,
-        latency=settings.latency, state_filter=state_filter,
-    )
+    robot = SimulatedRobot(camera.observe, trajectory, start_pose, 1.0 / settings.rate, trajectory.t_end - trajectory.t_start,
+                           settings.latency)
+    return Simulation(scene=scene, camera=camera, robot=robot, limits=settings.limits, state_filter=state_filter,
+                      controller=make_controller(settings.law, settings.gains, settings.dhat0))
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
-    scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
+    scene, camera, controller, robot = simulation.scene, simulation.camera, simulation.controller, simulation.robot
+    dt, steps = robot.dt, robot.steps
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as view:
@@ -401,31 +402,22 @@ def _finish(console: Console, tally: _Tally, controller: Any, output: str, setti
     return summary
 
 
-class RecordedDrive:
-    """The source of ``--replay`` (:class:`~hbvs_cli.core.servo_loop.ServoSource`): a recording's frames at their own
-    stamps, measured through the fit's ``sight``. Open loop: the commands are kept, nothing moves."""
-
-    def __init__(self, reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> None:
-        self.reader, self.sight, self.model, self.run = reader, sight, model, run
-
-    def __iter__(self) -> Any:
-        model, reader = self.model, self.reader
-        previous_t: float | None = None
-        for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: self.sight.colour):
-            camera = reader.camera
-            if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
-                raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
-            t = frame.t
-            observation = self.sight.observe(image, t)
-            if previous_t is None:
-                # The replay keeps the recording's stamps: t = 0 is known with the first frame.
-                self.run.start(frame.log_time_ns - seconds_to_ns(t))
-            dt = t - previous_t if previous_t is not None else 0.0
-            previous_t = t
-            yield ServoInput(t, dt, observation, self.sight.evaluate(t), np.full(3, np.nan))
-
-    def act(self, record: StepRecord) -> None:
-        """Open loop: the command a robot would be sent is recorded, and nothing moves."""
+def replay_frames(reader: TeachReader, sight: Any, model: FitModel, run: RunWriter) -> Iterator[ServoInput]:
+    """The frames of ``--replay``: a recording's at their own stamps, measured through the fit's ``sight``; no ``act``
+    (:class:`~hbvs_cli.core.servo_loop.ServoSource`): open loop, the commands are kept, nothing moves."""
+    previous_t: float | None = None
+    for frame, _, image in decoded_frames(reader.frames(), reader.name, colour=lambda: sight.colour):
+        camera = reader.camera
+        if camera is not None and (camera.width, camera.height) != (model.camera.width, model.camera.height):
+            raise InputError(f"{reader.name}: its images are {camera.width}x{camera.height}, the fit's camera {model.camera.width}x{model.camera.height}")
+        t = frame.t
+        observation = sight.observe(image, t)
+        if previous_t is None:
+            # The replay keeps the recording's stamps: t = 0 is known with the first frame.
+            run.start(frame.log_time_ns - seconds_to_ns(t))
+        dt = t - previous_t if previous_t is not None else 0.0
+        previous_t = t
+        yield ServoInput(t, dt, observation, sight.evaluate(t), np.full(3, np.nan))
 
 
 def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
@@ -442,7 +434,7 @@ def _run_replay(options: RepeatOptions, settings: Settings, fit: FitFile, consol
             run = RunWriter(writer, _run_metadata("replay", options, settings, fit, None) | tracking.metadata, model.camera, base_ns=None)
             log = tracking.step_log(_StepLog(run, settings, model, None, cmd_stream))
             with console.progress("repeat (replay)", None) as bar:
-                for record in run_servo(RecordedDrive(reader, tracking.sight, model, run), servo):
+                for record in run_servo(replay_frames(reader, tracking.sight, model, run), servo):
                     log.step(record)
                     tally.add(record)
                     bar.advance()
