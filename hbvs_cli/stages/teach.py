@@ -153,7 +153,7 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
                 if video is not None:
-                    video.write(image)
+                    video(image)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
                     SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
