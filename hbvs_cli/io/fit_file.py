@@ -285,13 +285,12 @@ class FitFile:
 
     model: FitModel
     reference_image: bytes | None
-    template_image: bytes | None
     info: dict[str, Any]
     truncated: bool = False
     #: A route's fit (:mod:`.route_file`): every segment's model (``model`` is the first's) and its route record.
     segment_models: list[FitModel] = field(default_factory=list)
     route_record: dict[str, Any] | None = None
-    #: Every ``/detector/template`` image in the file's order (a route's: one per segment that uses one).
+    #: Every ``/detector/template`` image in the file's order (a route's: one per segment using one); a fit's is the last.
     templates: list[bytes] = field(default_factory=list)
 
 
@@ -322,8 +321,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         raise RecordingError(f"{stream.name}: {len(model_messages)} fit models but no route record (a route fit cut short?)")
     models = [model_from_message(message, stream.name) for message in model_messages]
     return FitFile(
-        model=models[0], reference_image=reference_image, template_image=templates[-1] if templates else None, info=info,
-        truncated=stream.truncated,
+        model=models[0], reference_image=reference_image, info=info, truncated=stream.truncated,
         segment_models=models, route_record=route_record, templates=templates,
     )
 

@@ -80,7 +80,7 @@ def route_of(fit: FitFile, name: str) -> RouteFile:
     models, route = fit.segment_models or [fit.model], fit.route_record
     if route is None:
         return RouteFile([Segment(0, 0, models[0].frames.total - 1)], models, [models[0].reference_index], [],
-                         templates=(fit.template_image,))
+                         templates=tuple(fit.templates[-1:]) or (None,))
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
                             None if s["overlap_last"] is None else int(s["overlap_last"])) for s in route["segments"]]
