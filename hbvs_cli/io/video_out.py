@@ -27,12 +27,13 @@ def check_video_path(path: Path) -> None:
 
 @contextmanager
 def video_output(path: Path, fps: float, size: tuple[int, int]) -> Iterator[Callable[[np.ndarray], None]]:
-    """A video file at ``path`` (suffix: :data:`VIDEO_CODECS`) of frames ``size`` (width,
+    """A video file at ``path`` (checked first: :func:`check_video_path`) of frames ``size`` (width,
     height, px) at ``fps`` (Hz), written by the yielded function, one uint8 gray (H, W)
     image a call; it appears only when the body succeeds."""
     import cv2
 
-    final = Path(path).absolute()  # its suffix and folder checked by check_video_path, before the drive
+    check_video_path(path)
+    final = Path(path).absolute()
     with atomic_folder(final, "video") as temporary:
         writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*VIDEO_CODECS[final.suffix.lower()]), float(fps),
                                  size, isColor=False)
