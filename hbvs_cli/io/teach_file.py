@@ -145,22 +145,20 @@ class TeachReader:
         self.name = self.stream.name
 
     def _check_kind(self) -> None:
-        if self.info:
+        if self.info or not (info := read_metadata(self.stream, "hbvs")):
             return
-        info = read_metadata(self.stream, "hbvs")
-        if info:
-            kind = info.get("file_kind")
-            if kind != FILE_KIND:
-                what = f"a {kind!r} file" if isinstance(kind, str) else "a file whose hbvs metadata names no file kind"
-                raise RecordingError(f"{self.name}: this is {what}; a teach recording (from hbvs teach) is expected")
-            settings = info.get("settings")
-            problem = None if settings is None else render_settings_problem(settings)
-            if problem is not None:
-                raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
-            self.info = info
-            world = read_metadata(self.stream, WORLD_METADATA).get("world")
-            if world is not None:
-                self.world_description = world_description(world, self.name)
+        kind = info.get("file_kind")
+        if kind != FILE_KIND:
+            what = f"a {kind!r} file" if isinstance(kind, str) else "a file whose hbvs metadata names no file kind"
+            raise RecordingError(f"{self.name}: this is {what}; a teach recording (from hbvs teach) is expected")
+        settings = info.get("settings")
+        problem = None if settings is None else render_settings_problem(settings)
+        if problem is not None:
+            raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
+        self.info = info
+        world = read_metadata(self.stream, WORLD_METADATA).get("world")
+        if world is not None:
+            self.world_description = world_description(world, self.name)
 
     def frames(self) -> Iterator[TeachFrame]:
         """Yield frames in recording order."""
