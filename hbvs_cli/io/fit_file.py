@@ -318,7 +318,8 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         raise RecordingError(f"{stream.name}: {len(model_messages)} fit models but no route record (a route fit cut short?)")
     models = [model_from_message(message, stream.name) for message in model_messages]
     return FitFile(
-        model=models[0], reference_image=reference_image, info=info, truncated=stream.truncated,
+        model=models[0], reference_image=reference_image, info=info,
+        truncated=stream.truncated,
         segment_models=models, route_record=route_record, templates=templates,
     )
 
