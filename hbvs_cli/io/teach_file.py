@@ -60,10 +60,8 @@ def render_settings_problem(settings: Any) -> str | None:
     if not isinstance(settings, dict):
         return "the settings are not a mapping"
     for key in RENDER_SETTINGS:
-        value = settings.get(key)
-        if value is None:
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+        value = settings.get(key)  # None: not recorded
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf):
             return f"the setting {key} = {str(value)[:40]!r} is not a finite non-negative number"
     if settings.get("exposure") == 0:
         return "the exposure setting is zero"
