@@ -19,12 +19,11 @@ from ..core.depth import DepthEstimate
 from ..core.desired import DesiredFit, FrameStats, PixelResidual, Spread, UncertaintySummary
 from ..core.fit_model import MAX_TARGET_POINTS, DepthEstimates, DetectorSpec, FitModel, SensorSettings, TaughtPath
 from ..core.gains import GainSuggestion
-from ..core.trajectory import FeedforwardCondition
-from ..core.trajectory import SplineTrajectory
+from ..core.trajectory import FeedforwardCondition, SplineTrajectory
 from ..errors import HbvsError, RecordingError
 from .calibration import intrinsics_from_values
 from .images import read_compressed_image
-from .mcap import McapStream, json_ready, read_metadata, time_message
+from .mcap import McapStream, encode_json, json_ready, read_metadata, time_message
 from .topics import MODEL_TOPIC, RAW_DESIRED_TOPIC, ROUTE_TOPIC, REFERENCE_IMAGE_TOPIC, SMOOTH_DESIRED_TOPIC, TEMPLATE_IMAGE_TOPIC, TOPICS
 from .teach_file import PARSE_ERRORS, RENDER_SETTINGS, render_settings_problem, world_description
 
@@ -268,8 +267,6 @@ def model_from_message(message: dict[str, Any], source: str = "") -> FitModel:
 def checked_model_message(model: FitModel, log_time_ns: int, source: str) -> dict[str, Any]:
     """The model's message, once :func:`model_from_message` accepts it as it will be stored
     (JSON: NaN and infinity become null); :class:`RecordingError` otherwise."""
-    from .mcap import encode_json
-
     message = model_message(model, log_time_ns)
     try:
         model_from_message(json.loads(encode_json(message)), source)
@@ -285,13 +282,12 @@ class FitFile:
 
     model: FitModel
     reference_image: bytes | None
-    template_image: bytes | None
     info: dict[str, Any]
     truncated: bool = False
     #: A route's fit (:mod:`.route_file`): every segment's model (``model`` is the first's) and its route record.
     segment_models: list[FitModel] = field(default_factory=list)
     route_record: dict[str, Any] | None = None
-    #: Every ``/detector/template`` image in the file's order (a route's: one per segment that uses one).
+    #: Every ``/detector/template`` image in the file's order (a route's: one per segment using one); a fit's is the last.
     templates: list[bytes] = field(default_factory=list)
 
 
@@ -322,7 +318,7 @@ def read_fit_file(source: Any, name: str = "") -> FitFile:
         raise RecordingError(f"{stream.name}: {len(model_messages)} fit models but no route record (a route fit cut short?)")
     models = [model_from_message(message, stream.name) for message in model_messages]
     return FitFile(
-        model=models[0], reference_image=reference_image, template_image=templates[-1] if templates else None, info=info,
+        model=models[0], reference_image=reference_image, info=info,
         truncated=stream.truncated,
         segment_models=models, route_record=route_record, templates=templates,
     )

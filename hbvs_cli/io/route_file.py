@@ -77,10 +77,10 @@ def write_route(writer: Any, models: Sequence[FitModel], segments: Sequence[Segm
 def route_of(fit: FitFile, name: str) -> RouteFile:
     """The models, segments and transitions of a fit file read (a single-target fit file: a
     route of one segment; ``name``: the file's, for messages); :class:`RecordingError` when its route record is malformed or inconsistent."""
-    models, route = fit.segment_models or [fit.model], fit.route_record
+    models, route = fit.segment_models, fit.route_record
     if route is None:
         return RouteFile([Segment(0, 0, models[0].frames.total - 1)], models, [models[0].reference_index], [],
-                         templates=(fit.template_image,))
+                         templates=tuple(fit.templates[-1:]) or (None,))
     try:
         segments = [Segment(int(s["target"]), int(s["first"]), int(s["last"]),
                             None if s["overlap_last"] is None else int(s["overlap_last"])) for s in route["segments"]]

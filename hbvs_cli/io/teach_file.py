@@ -60,10 +60,8 @@ def render_settings_problem(settings: Any) -> str | None:
     if not isinstance(settings, dict):
         return "the settings are not a mapping"
     for key in RENDER_SETTINGS:
-        value = settings.get(key)
-        if value is None:
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+        value = settings.get(key)  # None: not recorded
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf):
             return f"the setting {key} = {str(value)[:40]!r} is not a finite non-negative number"
     if settings.get("exposure") == 0:
         return "the exposure setting is zero"
@@ -145,22 +143,20 @@ class TeachReader:
         self.name = self.stream.name
 
     def _check_kind(self) -> None:
-        if self.info:
+        if self.info or not (info := read_metadata(self.stream, "hbvs")):
             return
-        info = read_metadata(self.stream, "hbvs")
-        if info:
-            kind = info.get("file_kind")
-            if kind != FILE_KIND:
-                what = f"a {kind!r} file" if isinstance(kind, str) else "a file whose hbvs metadata names no file kind"
-                raise RecordingError(f"{self.name}: this is {what}; a teach recording (from hbvs teach) is expected")
-            settings = info.get("settings")
-            problem = None if settings is None else render_settings_problem(settings)
-            if problem is not None:
-                raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
-            self.info = info
-            world = read_metadata(self.stream, WORLD_METADATA).get("world")
-            if world is not None:
-                self.world_description = world_description(world, self.name)
+        kind = info.get("file_kind")
+        if kind != FILE_KIND:
+            what = f"a {kind!r} file" if isinstance(kind, str) else "a file whose hbvs metadata names no file kind"
+            raise RecordingError(f"{self.name}: this is {what}; a teach recording (from hbvs teach) is expected")
+        settings = info.get("settings")
+        problem = None if settings is None else render_settings_problem(settings)
+        if problem is not None:
+            raise RecordingError(f"{self.name}: malformed hbvs metadata: {problem}")
+        self.info = info
+        world = read_metadata(self.stream, WORLD_METADATA).get("world")
+        if world is not None:
+            self.world_description = world_description(world, self.name)
 
     def frames(self) -> Iterator[TeachFrame]:
         """Yield frames in recording order."""

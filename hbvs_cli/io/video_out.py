@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -25,31 +25,27 @@ def check_video_path(path: Path) -> None:
         raise OutputError(f"--video-out {path}: the folder {Path(path).absolute().parent} does not exist")
 
 
-class _Frames:
-    """What :func:`video_output` yields: ``write(image)`` for each frame, uint8 gray (H, W)."""
-
-    def __init__(self, writer: Any, size: tuple[int, int], name: Path) -> None:
-        self._writer, self._size, self._name = writer, size, name
-
-    def write(self, image: np.ndarray) -> None:
-        if (image.shape[1], image.shape[0]) != self._size or image.ndim == 3:
-            raise OutputError(f"--video-out {self._name}: a frame of shape {image.shape} in a video of {self._size}")
-        self._writer.write(np.ascontiguousarray(image))
-
-
 @contextmanager
-def video_output(path: Path, fps: float, size: tuple[int, int]) -> Iterator[_Frames]:
-    """A video file at ``path`` (suffix: :data:`VIDEO_CODECS`) of frames ``size`` (width,
-    height, px) at ``fps`` (Hz); it appears only when the body succeeds."""
+def video_output(path: Path, fps: float, size: tuple[int, int]) -> Iterator[Callable[[np.ndarray], None]]:
+    """A video file at ``path`` (checked first: :func:`check_video_path`) of frames ``size`` (width,
+    height, px) at ``fps`` (Hz), written by the yielded function, one uint8 gray (H, W)
+    image a call; it appears only when the body succeeds."""
     import cv2
 
-    final = Path(path).absolute()  # its suffix and folder checked by check_video_path, before the drive
+    check_video_path(path)
+    final = Path(path).absolute()
     with atomic_folder(final, "video") as temporary:
         writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*VIDEO_CODECS[final.suffix.lower()]), float(fps),
                                  size, isColor=False)
         if not writer.isOpened():
             raise OutputError(f"--video-out {path}: OpenCV cannot write this video (codec {VIDEO_CODECS[final.suffix.lower()]})")
+
+        def write(image: np.ndarray) -> None:
+            if (image.shape[1], image.shape[0]) != size or image.ndim == 3:
+                raise OutputError(f"--video-out {Path(path)}: a frame of shape {image.shape} in a video of {size}")
+            writer.write(np.ascontiguousarray(image))
+
         try:
-            yield _Frames(writer, size, Path(path))
+            yield write
         finally:
             writer.release()

@@ -308,10 +308,8 @@ def _inverse_distortion_map(camera: CameraIntrinsics) -> NDArray[np.float32]:
     real = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
     coefficients = np.asarray(camera.distortion, dtype=np.float64)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    if camera.distortion_model == "equidistant":  # a fisheye lens (cv2.fisheye's model)
-        ideal = cv2.fisheye.undistortPoints(real, camera.K, coefficients, P=camera.K, criteria=criteria)
-    else:
-        ideal = cv2.undistortPoints(real, camera.K, coefficients, P=camera.K, criteria=criteria)
+    undistort = cv2.fisheye.undistortPoints if camera.distortion_model == "equidistant" else cv2.undistortPoints  # a fisheye lens
+    ideal = undistort(real, camera.K, coefficients, P=camera.K, criteria=criteria)
     return ideal.reshape(camera.height, camera.width, 2).astype(np.float32)
 
 

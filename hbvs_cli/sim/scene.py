@@ -165,10 +165,9 @@ def point_identity(seen: NDArray[np.float64], reference_pixels: NDArray[np.float
 def renderer_for(scene: Scene, model: FitModel) -> SceneRenderer:
     """The camera of the scene, with the teach's sensor (noise, its grain, blur, exposure) as the fit recorded it."""
     sensor = model.render or SensorSettings()
-    noise, grain = sensor.noise, sensor.noise_grain
     if scene.poster_image is None:
-        return make_renderer(scene.world, noise, sensor.blur, sensor.exposure, grain)
+        return make_renderer(scene.world, sensor.noise, sensor.blur, sensor.exposure, sensor.noise_grain)
     poster = scene.world.target.poster
     raster = PosterRaster(kind=scene.world.target.kind, ppm=scene.poster_image.shape[1] / poster.width,
                           levels=build_pyramid(scene.poster_image), width=poster.width, height=poster.height)
-    return SceneRenderer(scene.world, raster, RenderSettings(noise_std=noise, noise_grain=grain))
+    return SceneRenderer(scene.world, raster, RenderSettings(noise_std=sensor.noise, noise_grain=sensor.noise_grain))

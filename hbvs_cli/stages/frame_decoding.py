@@ -95,6 +95,6 @@ def fit_reference_image(fit: FitFile) -> np.ndarray | None:
 
 def fit_template_image(fit: FitFile) -> np.ndarray | None:
     """The fit's template image, decoded for a kind that uses one (texture; the others have none)."""
-    if fit.template_image is None or not getattr(TARGET_KINDS.get(fit.model.detector.kind), "uses_template", False):
+    if not fit.templates or not getattr(TARGET_KINDS.get(fit.model.detector.kind), "uses_template", False):
         return None
-    return decode_image(fit.template_image, "the fit's template image")
+    return decode_image(fit.templates[-1], "the fit's template image")

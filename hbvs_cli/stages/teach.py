@@ -28,7 +28,7 @@ from ..io.path_csv import load_command_profile
 from ..io.ros2_names import check_topic_names
 from ..settings.commands import DEFAULT_FPS, SIMULATION_DEFAULTS, TeachOptions
 from ..io.teach_file import TeachWriter
-from ..io.video_out import check_video_path, video_output
+from ..io.video_out import video_output
 from ..sim.render import make_renderer
 from ..sim.route_world import RouteWorld, make_route_renderer, simulated_route
 from .console import Console
@@ -141,19 +141,17 @@ def _teach_simulated(options: TeachOptions, console: Console) -> None:
         )
     rng = np.random.default_rng(options.seed)
     settings = _recorded(options) | {"path_name": path_name, "start_pose": list(start_pose), "duration_s": duration, "frames": frame_count}
-    if options.video_out is not None:
-        check_video_path(options.video_out)
     with ExitStack() as outputs:
-        writer = outputs.enter_context(open_output(options.output, chunk_size=TEACH_CHUNK_BYTES))
         video = None if options.video_out is None else outputs.enter_context(
             video_output(options.video_out, options.fps, (world.camera.width, world.camera.height)))
+        writer = outputs.enter_context(open_output(options.output, chunk_size=TEACH_CHUNK_BYTES))
         teach = TeachWriter(writer, "sim", settings, world)
         teach.calibration(world.camera, SIMULATION_EPOCH_NS)
         with console.progress("teach (sim)", frame_count) as bar:
             for t, pose, v, w in zip(times, poses, v_cmd, w_cmd):
                 image = renderer.render(pose, rng)
                 if video is not None:
-                    video.write(image)
+                    video(image)
                 data, image_format = bytes_to_store(image, image_format=options.image_format, jpeg_quality=options.jpeg_quality)
                 teach.frame(
                     SIMULATION_EPOCH_NS + seconds_to_ns(t), data, image_format,
