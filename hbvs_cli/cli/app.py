@@ -216,11 +216,6 @@ def _on_unraisable(unraisable: Any) -> None:
     sys.__unraisablehook__(unraisable)
 
 
-def _install_signal_handlers() -> None:
-    sys.unraisablehook = _on_unraisable
-    _set_stop_handlers(_on_signal)
-
-
 def _stopped(signum: int) -> int:
     code, what = _STOP_SIGNALS[signum]
     _say(f"hbvs: {what}")
@@ -401,7 +396,8 @@ def main(argv: list[str] | None = None) -> None:
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _prepare_stdio(debug)
-    _install_signal_handlers()
+    sys.unraisablehook = _on_unraisable
+    _set_stop_handlers(_on_signal)
     try:
         try:
             code = _run(args, debug)
