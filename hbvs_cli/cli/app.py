@@ -82,9 +82,7 @@ def _stdin_is_an_empty_pipe() -> bool:
     """True when stdin is a pipe closed before its first byte (peeked at): the stage before this one failed."""
     try:
         # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
-        if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
-            return False
-        return sys.stdin.buffer.peek(1) == b""
+        return stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode) and sys.stdin.buffer.peek(1) == b""
     except (OSError, ValueError, AttributeError, HbvsError):
         return False
 
