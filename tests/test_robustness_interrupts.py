@@ -219,7 +219,8 @@ def test_a_signal_wrapped_by_native_code_is_reported_as_the_stop(monkeypatch, ca
         raise ImportError("initialization failed")
 
     monkeypatch.setattr(cli_app, "app", wrapped_by_native_code)
-    monkeypatch.setattr(cli_app, "_install_signal_handlers", lambda: None)
+    monkeypatch.setattr(signal, "signal", lambda signum, handler: None)  # the test process keeps its handlers
+    monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)  # and its hook, which main replaces
     monkeypatch.setattr(cli_app, "_prepare_stdio", lambda debug: None)
     with pytest.raises(SystemExit) as stop:
         cli_app.main(["fit", "t.mcap"])

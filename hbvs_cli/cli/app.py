@@ -82,9 +82,7 @@ def _stdin_is_an_empty_pipe() -> bool:
     """True when stdin is a pipe closed before its first byte (peeked at): the stage before this one failed."""
     try:
         # sys.stdin's own descriptor: a stand-in stdin (a test's bytes) has none and is no pipe.
-        if not stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode):
-            return False
-        return sys.stdin.buffer.peek(1) == b""
+        return stat.S_ISFIFO(os.fstat(sys.stdin.fileno()).st_mode) and sys.stdin.buffer.peek(1) == b""
     except (OSError, ValueError, AttributeError, HbvsError):
         return False
 
@@ -214,11 +212,6 @@ def _on_unraisable(unraisable: Any) -> None:
         _swallowed = True
         return
     sys.__unraisablehook__(unraisable)
-
-
-def _install_signal_handlers() -> None:
-    sys.unraisablehook = _on_unraisable
-    _set_stop_handlers(_on_signal)
 
 
 def _stopped(signum: int) -> int:
@@ -401,7 +394,8 @@ def main(argv: list[str] | None = None) -> None:
     # --debug may stand anywhere (hbvs teach ... --debug): the parser never sees it.
     args, debug = split_debug(list(sys.argv[1:] if argv is None else argv))
     _prepare_stdio(debug)
-    _install_signal_handlers()
+    sys.unraisablehook = _on_unraisable
+    _set_stop_handlers(_on_signal)
     try:
         try:
             code = _run(args, debug)

@@ -98,9 +98,7 @@ def estimate_plane_jointly(m: ArrayLike, m_ref: ArrayLike, normal: ArrayLike, me
         by_points[~np.isfinite(at[:, :points])] = 0.0  # where the residuals are replaced (nan_to_num)
         by_shapes[~np.isfinite(at[:, points:])] = 0.0
         data = np.concatenate([by_points.reshape(frames, -1), by_shapes.reshape(frames, -1)], axis=1).ravel()
-        data = np.concatenate([data, reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()])
-        if not np.all(np.isfinite(data)):
-            np.nan_to_num(data, copy=False)
+        data = _finite(np.concatenate([data, reference_rows(geometry, p[:n_global], shapes, derivatives=True).ravel()]))
         return csr_matrix((data, columns, pointers), shape=(frames * per_frame + reference_count, n_global + 3 * frames))
 
     x0 = np.concatenate([p0, start_motion.ravel()])

@@ -65,9 +65,7 @@ class PlanarPoseEstimator:
         self.residual_gate = float(residual_gate)
 
     def from_pixels(self, pixels: ArrayLike | None) -> Observation:
-        """Estimate from pixels of shape (N, 2) in the reference order (NaN = not seen)."""
-        if pixels is None:
-            return Observation(None, status=ObservationStatus.MISSING)
+        """Estimate from pixels of shape (N, 2) in the reference order (NaN = not seen; None, a 0-d NaN: none)."""
         pixels = np.asarray(pixels, dtype=float)
         if pixels.shape != (self.solver.m_ref.shape[0], 2) or not np.all(np.isfinite(pixels)):
             return Observation(None, status=ObservationStatus.MISSING, pixels=pixels if pixels.ndim == 2 else None)
