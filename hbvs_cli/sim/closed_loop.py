@@ -17,7 +17,7 @@ from ..core.estimation import Observation
 from ..core.servo_loop import ServoInput, run_servo
 from ..core.simulator import NOT_YET, ActuatorLimits, ServoStep, StepRecord
 from ..core.state_filter import ServoStateFilter
-from ..core.trajectory import DesiredTrajectory
+from ..core.trajectory import DesiredTrajectory, TimeScaledTrajectory
 from ..core.unicycle import integrate_unicycle
 from .simulated_camera import SimulatedCamera
 from .scene import Scene
@@ -62,16 +62,26 @@ class SimulatedRobot:
 
 @dataclass
 class Simulation:
-    """Everything a closed-loop run needs: the ``robot`` (its start pose (x, y, phi) in W, period,
-    duration and latency) and the objects the loop runs on."""
+    """Everything a closed-loop run needs: ``start_pose`` (x, y, phi) in W, ``dt`` and
+    ``duration`` (s), ``latency`` (frames), and the objects the loop runs on."""
 
     scene: Scene
     camera: SimulatedCamera
-    robot: SimulatedRobot
+    trajectory: TimeScaledTrajectory
     controller: AdaptiveTrackingController
+    start_pose: np.ndarray
+    dt: float
+    duration: float
     limits: ActuatorLimits
+    latency: int = 0
     state_filter: ServoStateFilter | None = None
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.dt))
 
     def run(self) -> Iterator[StepRecord]:
         """The closed loop's step records (a generator): :meth:`SimulatedRobot.run`."""
-        return self.robot.run(self.controller, self.limits, self.state_filter)
+        robot = SimulatedRobot(self.camera.observe, self.trajectory, self.start_pose, self.dt, self.duration,
+                               self.latency)
+        return robot.run(self.controller, self.limits, self.state_filter)

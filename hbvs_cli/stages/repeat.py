@@ -40,7 +40,6 @@ from ..settings.commands import DEFAULT_GAINS, REPEAT, SIM_FAULTS, RepeatOptions
 from ..io.teach_file import TeachReader
 from ..perception.tracked import detector_from_model, estimator_from_model
 from ..sim import CameraSettings, Scene, SimulatedCamera, Simulation, simulation_world
-from ..sim.closed_loop import SimulatedRobot
 from ..sim.route_loop import run_route
 from ..sim.route_world import recorded_route
 from . import live
@@ -250,17 +249,17 @@ def prepare_simulation(options: RepeatOptions, settings: Settings, fit: FitFile)
     detector = detector_from_model(model, fit_template_image(fit), seed=options.seed, windowed=True) if settings.perception == "images" else None
     camera = SimulatedCamera(scene, model, sensor, estimator_from_model(model), detector)
     state_filter = make_state_filter(settings, model, camera.estimator)
-    robot = SimulatedRobot(camera.observe, trajectory, start_pose, 1.0 / settings.rate, trajectory.t_end - trajectory.t_start,
-                           settings.latency)
-    return Simulation(scene=scene, camera=camera, robot=robot, limits=settings.limits, state_filter=state_filter,
-                      controller=make_controller(settings.law, settings.gains, settings.dhat0))
+    return Simulation(
+        scene=scene, camera=camera, trajectory=trajectory, controller=make_controller(settings.law, settings.gains, settings.dhat0),
+        start_pose=start_pose, dt=1.0 / settings.rate, duration=trajectory.t_end - trajectory.t_start, limits=settings.limits,
+        latency=settings.latency, state_filter=state_filter,
+    )
 
 
 def _run_simulation(options: RepeatOptions, settings: Settings, fit: FitFile, console: Console) -> RepeatSummary:
     model = fit.model
     simulation = prepare_simulation(options, settings, fit)
-    scene, camera, controller, robot = simulation.scene, simulation.camera, simulation.controller, simulation.robot
-    dt, steps = robot.dt, robot.steps
+    scene, camera, controller, dt, steps = simulation.scene, simulation.camera, simulation.controller, simulation.dt, simulation.steps
     taught_poses = scene.taught_pose_at_run_time(np.arange(steps) * dt).tolist()
     tally = _Tally()
     with open_text_output(options.cmd_out, "command stream") as cmd_stream, live_writer(options.foxglove, options.foxglove_speed, console.info) as view:
