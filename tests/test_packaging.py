@@ -44,7 +44,7 @@ def test_every_subpackage_is_listed():
 def test_the_files_that_help_and_messages_name_are_shipped():
     named = set()
     for source in (REPO / "hbvs_cli").rglob("*.py"):
-        # shipped_path("docs/x.md") calls, and the names help texts and messages write out.
+        # The docs/ and samples/ names that help texts and messages write out.
         named |= set(re.findall(r"((?:docs|samples)/[\w.-]+\.(?:md|toml))", source.read_text()))
     named |= {"docs/report.md"}  # the report's verdict table names it
     assert {"docs/method.md", "docs/report.md", "samples/gains.toml"} <= named
