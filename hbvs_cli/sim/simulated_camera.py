@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -15,7 +15,7 @@ from ..core.camera import distort_pixels, normalized_to_pixels
 from ..core.estimation import Observation, ObservationStatus, PlanarPoseEstimator, dropped
 from ..core.fit_model import FitModel
 from ..core.frames import world_to_robot
-from .render import SceneRenderer
+from .render import SceneRenderer, Window
 from .scene import Scene, point_identity, renderer_for
 
 
@@ -40,13 +40,24 @@ class CameraSettings:
     record_images: bool = False
 
 
+class PointDetector(Protocol):
+    """What the camera runs on a rendered frame: the fit's detector, made by the stage
+    (:func:`hbvs_cli.perception.tracked.detector_from_model` with ``windowed=True``, whose
+    :class:`~hbvs_cli.perception.tracked.TrackedDetector` says what each method returns)."""
+
+    def detect(self, image: np.ndarray) -> np.ndarray: ...
+
+    def search_windows(self) -> list[Window] | None: ...
+
+    def detect_in_windows(self, image: np.ndarray, windows: list[Window]) -> np.ndarray | None: ...
+
+
 class SimulatedCamera:
     """The repeat's camera: ``perception="images"`` renders the scene and runs the fit's
-    ``detector`` on it (the stage's :class:`hbvs_cli.perception.tracked.TrackedDetector` with
-    ``windowed=True``), ``"points"`` projects the target points; faults as :class:`CameraSettings`."""
+    ``detector`` on it, ``"points"`` projects the target points; faults as :class:`CameraSettings`."""
 
     def __init__(
-        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: Any,
+        self, scene: Scene, model: FitModel, settings: CameraSettings, estimator: PlanarPoseEstimator, detector: PointDetector | None,
     ) -> None:
         self.scene = scene
         self.model = model
