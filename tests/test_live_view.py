@@ -14,6 +14,7 @@ import asyncio
 import base64
 import json
 import os
+import re
 import socket
 import struct
 import subprocess
@@ -31,6 +32,10 @@ websockets = pytest.importorskip("websockets")
 SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk's server speaks (the app offers it)
 FIT = REPO / "samples" / "fit.mcap"
 RUN_OPTIONS = ["--sim", "--perception", "points", "--pixel-noise", "0.3"]
+
+
+#: The server's status messages the watch received (a miss names them).
+STATUSES: list[dict] = []
 
 
 def free_port() -> int:
@@ -72,6 +77,16 @@ async def watch(port: int, seconds: float, running=lambda: False) -> tuple[dict[
                         channels[channel["id"]] = channel
                     subscriptions = [{"id": c["id"], "channelId": c["id"]} for c in op["channels"]]
                     await connection.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+                elif op["op"] == "status":
+                    STATUSES.append(op)
+                    # foxglove-sdk sends a channel's advertise before it adds the channel to the client's
+                    # map (connected_client.rs, advertise_channels): a subscribe that lands in between is
+                    # refused as unknown. A robust client subscribes again; the channel is known by then.
+                    unknown = re.fullmatch(r"Unknown channel ID: (\d+)", op.get("message", ""))
+                    if unknown and int(unknown.group(1)) in channels:
+                        await asyncio.sleep(0.05)
+                        channel = int(unknown.group(1))
+                        await connection.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": channel, "channelId": channel}]}))
             elif frame[0] == 0x01:  # message data: subscription id, log time, payload
                 subscription, log_time = struct.unpack_from("<IQ", frame, 1)
                 received.append((channels[subscription]["topic"], log_time, bytes(frame[13:])))
@@ -111,7 +126,7 @@ def test_live_view_serves_the_run_files_channels_and_messages(tmp_path):
     assert len(received) > 300
     counts = {topic: sum(1 for t, _, _ in received if t == topic) for topic in {t for t, _, _ in received}}
     assert set(counts) >= {"/repeat/state", "/repeat/cmd_vel", "/ground_truth/pose", "/desired/pose", "/tf"}, (
-        counts, sorted(c["topic"] for c in channels.values()))
+        counts, sorted(c["topic"] for c in channels.values()), STATUSES)
     assert all(file_messages[(topic, log_time)] == payload for topic, log_time, payload in received)
     # The run file is the one written without --live, byte for byte.
     plain = tmp_path / "plain.mcap"
